@@ -1,0 +1,43 @@
+"""The `simtest` command line: one command with subcommands.
+
+Each subcommand lives beside the code it drives (``simtest/<package>/cli.py``) and is registered
+here. Those modules must stay cheap to import: no Mitsuba or Dask import at module level, so that
+``simtest --help`` answers at once.
+"""
+
+from __future__ import annotations
+
+import typer
+
+app = typer.Typer(
+    name="simtest",
+    help="Testbed for normal reconstruction from specular isophotes in endoscopy.",
+    no_args_is_help=True,
+    add_completion=False,
+    pretty_exceptions_enable=False,
+)
+
+
+@app.command("version")
+def version_command() -> None:
+    """Print the simtest version."""
+    from simtest import __version__
+
+    typer.echo(__version__)
+
+
+# --- subcommands (one registration line per package) -------------------------------------------
+# reconstruct: simtest/reconstruct/cli.py
+# render, meshes: simtest/render/cli.py, simtest/scene/cli.py
+# validate, nightly: simtest/harness/cli.py
+# dataset: simtest/dataset/cli.py
+# bench: simtest/bench.py
+
+
+def main() -> None:
+    """Entry point of the ``simtest`` console script."""
+    app()
+
+
+if __name__ == "__main__":
+    main()
