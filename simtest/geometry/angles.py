@@ -1,0 +1,66 @@
+"""Angles between directions and orientation of normals toward the camera."""
+
+from __future__ import annotations
+
+import numpy as np
+
+
+def angle_between_deg(a, b) -> np.ndarray | float:
+    """Angle between direction vectors, in degrees, accurate for tiny and near-180 angles.
+
+    Computed as ``atan2(|a x b|, a . b)``: unlike ``arccos`` of a normalised dot product, this keeps
+    full relative precision for angles near 0 (arccos(1 - 1e-16) cannot resolve 1e-6 deg).
+
+    Parameters
+    ----------
+    a, b : array_like of shape (..., 3)
+        Direction vectors (need not be unit), broadcast against each other.
+
+    Returns
+    -------
+    float or ndarray of shape (...)
+        Angle in degrees, in [0, 180]. NaN where either vector is zero or non-finite.
+
+    Raises
+    ------
+    ValueError
+        If the last axis of ``a`` or ``b`` is not of length 3.
+
+    Examples
+    --------
+    >>> round(float(angle_between_deg([0, 0, 1], [0, 1, 1])), 12)
+    45.0
+    """
+    a = np.asarray(a, dtype=np.float64)
+    b = np.asarray(b, dtype=np.float64)
+    if a.shape[-1:] != (3,) or b.shape[-1:] != (3,):
+        raise ValueError(f"angle_between_deg needs (..., 3) vectors, got {a.shape} and {b.shape}")
+    cross = np.linalg.norm(np.cross(a, b), axis=-1)
+    dot = np.sum(a * b, axis=-1)
+    na = np.linalg.norm(a, axis=-1)
+    nb = np.linalg.norm(b, axis=-1)
+    ang = np.degrees(np.arctan2(cross, dot))
+    ang = np.where((na > 0) & (nb > 0) & np.isfinite(ang), ang, np.nan)
+    return float(ang) if ang.ndim == 0 else ang
+
+
+def face_camera(normal, ray) -> np.ndarray:
+    """Flip normals so that they face the camera: ``n . ray < 0``.
+
+    Parameters
+    ----------
+    normal : array_like of shape (..., 3)
+        Normals in the camera frame (OpenCV: x right, y down, z forward).
+    ray : array_like of shape (..., 3)
+        Viewing directions from the camera centre toward the surface point.
+
+    Returns
+    -------
+    ndarray of shape (..., 3)
+        Unit normals facing the camera.
+    """
+    n = np.asarray(normal, dtype=np.float64)
+    r = np.asarray(ray, dtype=np.float64)
+    n = n / np.linalg.norm(n, axis=-1, keepdims=True)
+    sign = np.where(np.sum(n * r, axis=-1, keepdims=True) > 0, -1.0, 1.0)
+    return n * sign

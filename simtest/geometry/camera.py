@@ -1,0 +1,374 @@
+"""Pinhole intrinsics K: validation, rays, projection, distortion and intrinsics files.
+
+Convention
+----------
+OpenCV camera frame (x right, y down, z forward) and pixel centres at integer coordinates:
+pixel (u, v) = (column, row) and ``x = K X / Z``. Worked number: with
+``K = [[100, 0, 50], [0, 100, 40], [0, 0, 1]]`` the direction (0.1, 0.2, 1) projects to
+pixel (60, 60), the centre of the pixel in row 60, column 60. A Mitsuba M x M film with focal f has
+``cx = cy = M / 2 - 0.5`` in this convention (Mitsuba puts pixel centres at i + 0.5).
+
+Intrinsics files
+----------------
+JSON (what ``simtest render`` writes and ``simtest reconstruct`` reads)::
+
+    {"K": [[fx, 0, cx], [0, fy, cy], [0, 0, 1]], "dist_coeffs": [k1, k2, p1, p2, k3],
+     "image_size": [W, H]}
+
+``dist_coeffs`` (OpenCV order) and ``image_size`` are optional. OpenCV YAML/XML files written by
+``cv2.FileStorage`` (e.g. by ``cv2.calibrateCamera`` scripts) are read from the keys
+``camera_matrix`` (or ``K``) and ``dist_coeffs`` (or ``distortion_coefficients``), and
+``image_width``/``image_height`` when present.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import tempfile
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+__all__ = [
+    "Intrinsics",
+    "IntrinsicsError",
+    "bp_ray_normal",
+    "load_intrinsics",
+    "look_at",
+    "pixel_to_ray",
+    "project_points",
+    "save_intrinsics",
+    "undistort_points",
+    "validate_intrinsics",
+]
+
+
+class IntrinsicsError(ValueError):
+    """An intrinsics matrix or file is unusable; the message names the file and key."""
+
+
+def validate_intrinsics(K, where: str = "K") -> np.ndarray:
+    """Check an intrinsics matrix and return it as float64.
+
+    Parameters
+    ----------
+    K : array_like of shape (3, 3)
+        ``[[fx, s, cx], [0, fy, cy], [0, 0, 1]]`` with fx, fy > 0, in pixels.
+    where : str
+        What to call K in error messages (e.g. a file name and key).
+
+    Returns
+    -------
+    ndarray of shape (3, 3), float64
+
+    Raises
+    ------
+    IntrinsicsError
+        Wrong shape, non-finite entries, a last row other than (0, 0, 1), a non-positive focal
+        length, or a singular matrix.
+    """
+    try:
+        K = np.asarray(K, dtype=np.float64)
+    except (TypeError, ValueError) as exc:
+        raise IntrinsicsError(f"{where}: not a numeric 3x3 matrix ({exc})") from None
+    if K.shape != (3, 3):
+        raise IntrinsicsError(f"{where}: must be 3x3, got shape {K.shape}")
+    if not np.all(np.isfinite(K)):
+        raise IntrinsicsError(f"{where}: has non-finite entries {K.tolist()}")
+    if not np.allclose(K[2], [0.0, 0.0, 1.0]) or K[1, 0] != 0:
+        raise IntrinsicsError(f"{where}: must be upper triangular with last row (0, 0, 1), got {K.tolist()}")
+    if K[0, 0] <= 0 or K[1, 1] <= 0:
+        raise IntrinsicsError(f"{where}: focal lengths must be > 0, got fx={K[0, 0]}, fy={K[1, 1]}")
+    if abs(np.linalg.det(K)) < 1e-12:
+        raise IntrinsicsError(f"{where}: is singular")
+    return K
+
+
+def pixel_to_ray(uv, K) -> np.ndarray:
+    """Unit viewing rays through pixels, in the camera frame.
+
+    Parameters
+    ----------
+    uv : array_like of shape (..., 2)
+        Pixel coordinates (u, v), pixel centres at integers.
+    K : array_like of shape (3, 3)
+        Intrinsics.
+
+    Returns
+    -------
+    ndarray of shape (..., 3)
+        Unit directions with z > 0.
+    """
+    K = validate_intrinsics(K)
+    uv = np.asarray(uv, dtype=np.float64)
+    if uv.shape[-1:] != (2,):
+        raise ValueError(f"uv must have shape (..., 2), got {uv.shape}")
+    x = np.concatenate([uv, np.ones(uv.shape[:-1] + (1,))], axis=-1)
+    d = x @ np.linalg.inv(K).T
+    return d / np.linalg.norm(d, axis=-1, keepdims=True)
+
+
+def project_points(X_cam, K) -> np.ndarray:
+    """Project camera-frame points to pixels.
+
+    Parameters
+    ----------
+    X_cam : array_like of shape (..., 3)
+        Points in the camera frame, z > 0 (mm or any unit).
+    K : array_like of shape (3, 3)
+        Intrinsics.
+
+    Returns
+    -------
+    ndarray of shape (..., 2)
+        Pixel coordinates (u, v).
+    """
+    K = validate_intrinsics(K)
+    X = np.asarray(X_cam, dtype=np.float64)
+    if X.shape[-1:] != (3,):
+        raise ValueError(f"X_cam must have shape (..., 3), got {X.shape}")
+    x = X @ K.T
+    return x[..., :2] / x[..., 2:3]
+
+
+def bp_ray_normal(bp_uv, K) -> np.ndarray:
+    """The ``bp_ray`` estimator: minus the unit viewing ray through the brightest point.
+
+    With an exactly co-located light the BP is where the surface normal is parallel to the viewing
+    ray, whatever the curvature (DESIGN.md 1.4), so this is the normal at the BP. It is biased when
+    the BP is saturated or the light is offset.
+
+    Parameters
+    ----------
+    bp_uv : array_like of shape (2,)
+        Brightest point (u, v) in pixels.
+    K : array_like of shape (3, 3)
+        Intrinsics.
+
+    Returns
+    -------
+    ndarray of shape (3,)
+        Unit normal facing the camera, camera frame.
+    """
+    return -pixel_to_ray(np.asarray(bp_uv, dtype=np.float64).reshape(2), K)
+
+
+def undistort_points(uv, K, dist_coeffs) -> np.ndarray:
+    """Remove lens distortion from pixel points, keeping the same K (OpenCV model).
+
+    Parameters
+    ----------
+    uv : array_like of shape (N, 2)
+        Distorted pixel coordinates.
+    K : array_like of shape (3, 3)
+        Intrinsics.
+    dist_coeffs : array_like of shape (4,), (5,), (8,), (12,) or (14,), or None
+        OpenCV distortion coefficients; None or all zeros returns ``uv`` unchanged.
+
+    Returns
+    -------
+    ndarray of shape (N, 2)
+        Undistorted pixel coordinates under the pinhole K.
+    """
+    uv = np.asarray(uv, dtype=np.float64)
+    if dist_coeffs is None or not np.any(np.asarray(dist_coeffs, dtype=np.float64)):
+        return uv.copy()
+    import cv2
+
+    K = validate_intrinsics(K)
+    d = np.asarray(dist_coeffs, dtype=np.float64).reshape(-1)
+    # The default 5 iterations leave ~1e-2 px at corner-of-view distortion; iterate to convergence.
+    criteria = (cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 200, 1e-12)
+    out = cv2.undistortPoints(uv.reshape(-1, 1, 2), K, d, R=None, P=K, criteria=criteria)
+    return out.reshape(-1, 2)
+
+
+@dataclass(frozen=True)
+class Intrinsics:
+    """Camera intrinsics as read from a file.
+
+    Attributes
+    ----------
+    K : ndarray of shape (3, 3)
+        Pinhole matrix, pixel centres at integer coordinates.
+    dist_coeffs : ndarray of shape (k,) or None
+        OpenCV distortion coefficients, None when the file gives none.
+    image_size : tuple of int (W, H) or None
+        Image size in pixels, when the file gives it.
+    """
+
+    K: np.ndarray
+    dist_coeffs: np.ndarray | None = None
+    image_size: tuple[int, int] | None = None
+
+    def to_json_dict(self) -> dict:
+        """The JSON form of the module docstring."""
+        d: dict = {"K": self.K.tolist()}
+        d["dist_coeffs"] = None if self.dist_coeffs is None else [float(x) for x in self.dist_coeffs]
+        d["image_size"] = None if self.image_size is None else [int(x) for x in self.image_size]
+        return d
+
+
+def _parse_dist(value, where: str) -> np.ndarray | None:
+    if value is None:
+        return None
+    try:
+        d = np.asarray(value, dtype=np.float64).reshape(-1)
+    except (TypeError, ValueError):
+        raise IntrinsicsError(f"{where}: must be a list of numbers, got {value!r}") from None
+    if d.size not in (0, 4, 5, 8, 12, 14):
+        raise IntrinsicsError(f"{where}: OpenCV needs 4, 5, 8, 12 or 14 coefficients, got {d.size}")
+    if not np.all(np.isfinite(d)):
+        raise IntrinsicsError(f"{where}: has non-finite entries")
+    return d if d.size else None
+
+
+def load_intrinsics(path) -> Intrinsics:
+    """Read intrinsics from a JSON file or an OpenCV YAML/XML file.
+
+    Parameters
+    ----------
+    path : str or Path
+        ``.json``, or ``.yml``/``.yaml``/``.xml`` written by ``cv2.FileStorage``.
+
+    Returns
+    -------
+    Intrinsics
+
+    Raises
+    ------
+    IntrinsicsError
+        Missing file, unreadable or malformed content, missing key, or an invalid K; the message
+        names the file and the key.
+    """
+    path = Path(path)
+    if not path.is_file():
+        raise IntrinsicsError(f"{path}: intrinsics file not found")
+    if path.suffix.lower() in (".yml", ".yaml", ".xml"):
+        return _load_opencv(path)
+    try:
+        data = json.loads(path.read_text())
+    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
+        raise IntrinsicsError(f"{path}: not valid JSON ({exc})") from None
+    if not isinstance(data, dict) or "K" not in data:
+        raise IntrinsicsError(f"{path}: missing key 'K' (expected {{\"K\": [[fx,0,cx],[0,fy,cy],[0,0,1]]}})")
+    K = validate_intrinsics(data["K"], where=f"{path}: key 'K'")
+    dist = _parse_dist(data.get("dist_coeffs"), f"{path}: key 'dist_coeffs'")
+    size = data.get("image_size")
+    if size is not None:
+        if not (isinstance(size, list) and len(size) == 2 and all(isinstance(s, int) and s > 0 for s in size)):
+            raise IntrinsicsError(f"{path}: key 'image_size' must be [W, H] positive integers, got {size!r}")
+        size = (int(size[0]), int(size[1]))
+    return Intrinsics(K=K, dist_coeffs=dist, image_size=size)
+
+
+def _load_opencv(path: Path) -> Intrinsics:
+    import cv2
+
+    try:
+        fs = cv2.FileStorage(str(path), cv2.FILE_STORAGE_READ)
+    except cv2.error as exc:
+        raise IntrinsicsError(f"{path}: not a readable OpenCV file ({exc})") from None
+    if not fs.isOpened():
+        raise IntrinsicsError(f"{path}: not a readable OpenCV file")
+    try:
+        key = next((k for k in ("camera_matrix", "K") if not fs.getNode(k).empty()), None)
+        if key is None:
+            raise IntrinsicsError(f"{path}: missing key 'camera_matrix'")
+        K = validate_intrinsics(fs.getNode(key).mat(), where=f"{path}: key '{key}'")
+        dkey = next((k for k in ("dist_coeffs", "distortion_coefficients") if not fs.getNode(k).empty()), None)
+        dist = _parse_dist(fs.getNode(dkey).mat(), f"{path}: key '{dkey}'") if dkey else None
+        w, h = fs.getNode("image_width"), fs.getNode("image_height")
+        size = (int(w.real()), int(h.real())) if not w.empty() and not h.empty() else None
+    finally:
+        fs.release()
+    return Intrinsics(K=K, dist_coeffs=dist, image_size=size)
+
+
+def save_intrinsics(path, K, dist_coeffs=None, image_size=None) -> Path:
+    """Write intrinsics as JSON (the format of the module docstring), atomically.
+
+    Parameters
+    ----------
+    path : str or Path
+        Destination ``.json`` file; written to a temporary file in the same folder, then renamed.
+    K : array_like of shape (3, 3)
+        Intrinsics, validated.
+    dist_coeffs : array_like or None
+        OpenCV distortion coefficients.
+    image_size : (W, H) or None
+        Image size in pixels.
+
+    Returns
+    -------
+    Path
+        The written path.
+    """
+    intr = Intrinsics(
+        K=validate_intrinsics(K),
+        dist_coeffs=_parse_dist(dist_coeffs, "dist_coeffs"),
+        image_size=None if image_size is None else (int(image_size[0]), int(image_size[1])),
+    )
+    return atomic_write_text(path, json.dumps(intr.to_json_dict(), indent=2) + "\n")
+
+
+def atomic_write_text(path, text: str) -> Path:
+    """Write text to ``path`` through a temporary file in the same folder and ``os.replace``.
+
+    A reader never sees a half-written file, and an existing file is kept intact if writing fails.
+    """
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
+    try:
+        with os.fdopen(fd, "w") as f:
+            f.write(text)
+        os.replace(tmp, path)
+    except BaseException:
+        if os.path.exists(tmp):
+            os.unlink(tmp)
+        raise
+    return path
+
+
+def look_at(eye, target, up=(0.0, -1.0, 0.0)) -> np.ndarray:
+    """Camera-to-world pose of an OpenCV camera at ``eye`` looking at ``target``.
+
+    Parameters
+    ----------
+    eye, target : array_like of shape (3,)
+        World positions, mm.
+    up : array_like of shape (3,)
+        World direction that should appear as image "up" (-y in the OpenCV frame). The default
+        (0, -1, 0) matches Mitsuba's ``look_at(origin, target, up=(0, -1, 0))`` used by simtest.
+
+    Returns
+    -------
+    ndarray of shape (4, 4)
+        ``T`` with ``X_world = T[:3, :3] @ X_cam + T[:3, 3]``; columns are the camera x (right),
+        y (down) and z (forward) axes in world coordinates.
+
+    Raises
+    ------
+    ValueError
+        If eye equals target or ``up`` is parallel to the viewing direction.
+    """
+    eye = np.asarray(eye, dtype=np.float64)
+    target = np.asarray(target, dtype=np.float64)
+    z = target - eye
+    nz = np.linalg.norm(z)
+    if nz == 0:
+        raise ValueError("look_at: eye equals target")
+    z /= nz
+    down = -np.asarray(up, dtype=np.float64)
+    x = np.cross(down, z)
+    nx = np.linalg.norm(x)
+    if nx < 1e-12:
+        raise ValueError("look_at: up is parallel to the viewing direction")
+    x /= nx
+    y = np.cross(z, x)
+    T = np.eye(4)
+    T[:3, 0], T[:3, 1], T[:3, 2], T[:3, 3] = x, y, z, eye
+    return T

@@ -1,0 +1,1 @@
+"""Analytic images: closed-form Phong renders of planes, and the paper's synthetic protocol."""

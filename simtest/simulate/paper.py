@@ -1,0 +1,363 @@
+"""The paper's synthetic protocol, ``paper`` (Makki and Bartoli, section 4.1 and figure 2).
+
+Stage 1 of the published pipeline, reproduced step by step:
+
+1. **Texture.** An ``T x T`` texture of the scene plane ``z = 0`` computed with eq. 1
+   (:func:`simtest.specular.phong_intensity`) for a viewer ``V = (0, 0, V_Z)`` straight above the
+   plane's origin and a light ``L = V + epsilon (cos a, sin a, b)``, ``a ~ U[0, 2 pi)``,
+   ``b ~ U[-0.5, 0.5]``. Plane lengths are in *texture pixels* (the paper gives ``V_Z = 1000`` and
+   ``epsilon`` "in number of pixels"). Texture pixel ``(u, v)`` is the plane point
+   ``(x0 + u - T/2, y0 - (v - T/2), 0)``: the window is centred on ``(x0, y0)``, the brightest
+   point (BP, the mirror point of the light seen from V) when ``window_at_bp`` (the paper does this
+   for its epsilon sweep; with ``epsilon = 0`` the BP is the plane origin anyway).
+2. **Homography.** A pinhole camera ``K = [[f, 0, M/2], [0, f, M/2], [0, 0, 1]]`` with ``f = M``
+   (paper) looks at the window centre from a distance ``D`` along a direction tilted by
+   ``theta`` from the plane normal (about the plane's x axis), so the BP stays at the image centre.
+   The image is ``cv2.warpPerspective(texture, H)`` with ``H = K [r1 r2 t] A`` (``A`` maps texture
+   pixels to plane points), bilinear, zero outside the texture. The paper leaves ``D`` open; we take
+   ``D = f`` so that ``H`` is the identity at ``theta = 0`` (the texture *is* the image of a
+   fronto-parallel view): the isophote ellipse is as large in pixels as the plane circle in
+   texture pixels (about 152 px radius at the defaults).
+3. **Noise.** White Gaussian noise of standard deviation ``sigma`` (a fraction of the intensity
+   range ``c = 1``), no clipping, no quantisation (the paper states neither).
+4. **Smoothing and normalisation.** Gaussian smoothing of standard deviation ``smoothing_px``
+   (``cv2.GaussianBlur``, kernel of +-4 sigma for float images, reflected border; the paper does not
+   state the width), then division by the smoothed intensity at the BP pixel so that the BP is 1.
+
+The camera of step 2 is **not** the viewer of step 1 when ``theta != 0`` (DESIGN.md section 1.3):
+this is the published protocol, kept for reproducing figure 3, not a co-located endoscope. The
+ground-truth normal is the plane normal in the frame of that slanted camera (OpenCV frame, facing
+the camera): ``(0, sin theta, -cos theta)``. One of the circle-pose normals N+- is exact for a
+noiseless isophote circle; the cone axis and the BP ray are not (the BP ray is off by ``theta``).
+
+Randomness: :meth:`PaperSimulator.sample` draws, in this order, ``a``, ``b`` (always, even for
+``epsilon = 0``, so streams are laid out the same in every case) then the noise image, from the
+numpy Generator it is given; nothing else is random.
+
+References
+----------
+.. [1] K. Makki, A. Bartoli, "Normal Reconstruction from Specularity in the Endoscopic Setting",
+       section 4.1 (synthetic data), figures 2 and 3.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from dataclasses import dataclass, field
+
+import numpy as np
+
+__all__ = ["PaperParams", "PaperSample", "PaperSimulator", "simulate_paper", "paper_homography"]
+
+
+@dataclass(frozen=True)
+class PaperParams:
+    """Parameters of the ``paper`` protocol; the defaults are the paper's (DESIGN.md section 6).
+
+    Attributes
+    ----------
+    image_px : int
+        M, the side of the square image (and of the texture unless ``texture_px``). Paper: 406.
+    viewer_height_px : float
+        V_Z, height of the viewer above the plane, in texture pixels. Paper: 1000.
+    n : float
+        Phong roughness exponent (eq. 1). Paper: 50 (100 in the epsilon sweep).
+    c : float
+        Phong scale (eq. 1); the intensity range. 1.
+    sigma : float
+        Noise standard deviation as a fraction of the intensity range. Paper: 0.05.
+    theta_deg : float
+        Angle between the plane normal and the camera axis, degrees in [0, 90). Paper: 58.
+    epsilon_px : float
+        Light offset scale, texture pixels, >= 0. Paper: 0.
+    smoothing_px : float
+        Standard deviation of the Gaussian smoothing, image pixels (0: none). Not stated in the
+        paper; 2 px is our choice (it takes the per-pixel noise of sigma = 5 % down about sevenfold
+        while moving a contour of radius 150 px by under 0.02 px).
+    focal_px : float or None
+        f; None: ``image_px`` (paper: f = M).
+    camera_distance_px : float or None
+        D, distance from the slanted camera to the window centre, texture pixels; None: ``f``
+        (identity homography at theta = 0). Not stated in the paper.
+    texture_px : int or None
+        T, side of the texture; None: ``image_px`` (paper: M x M).
+    window_at_bp : bool
+        Centre the texture window (and so the image) at the BP. True reproduces the paper's
+        epsilon sweep; with epsilon = 0 it changes nothing.
+    """
+
+    image_px: int = 406
+    viewer_height_px: float = 1000.0
+    n: float = 50.0
+    c: float = 1.0
+    sigma: float = 0.05
+    theta_deg: float = 58.0
+    epsilon_px: float = 0.0
+    smoothing_px: float = 2.0
+    focal_px: float | None = None
+    camera_distance_px: float | None = None
+    texture_px: int | None = None
+    window_at_bp: bool = True
+
+    def __post_init__(self) -> None:
+        checks = [
+            ("image_px", self.image_px, isinstance(self.image_px, int) and 8 <= self.image_px <= 8192,
+             "an integer in [8, 8192]"),
+            ("viewer_height_px", self.viewer_height_px, _pos(self.viewer_height_px), "> 0"),
+            ("n", self.n, _pos(self.n), "> 0"),
+            ("c", self.c, _pos(self.c), "> 0"),
+            ("sigma", self.sigma, _finite(self.sigma) and self.sigma >= 0, ">= 0"),
+            ("theta_deg", self.theta_deg, _finite(self.theta_deg) and 0 <= self.theta_deg < 90,
+             "in [0, 90)"),
+            ("epsilon_px", self.epsilon_px, _finite(self.epsilon_px) and self.epsilon_px >= 0, ">= 0"),
+            ("smoothing_px", self.smoothing_px,
+             _finite(self.smoothing_px) and self.smoothing_px >= 0, ">= 0"),
+            ("focal_px", self.focal_px, self.focal_px is None or _pos(self.focal_px), "> 0 or None"),
+            ("camera_distance_px", self.camera_distance_px,
+             self.camera_distance_px is None or _pos(self.camera_distance_px), "> 0 or None"),
+            ("texture_px", self.texture_px,
+             self.texture_px is None or (isinstance(self.texture_px, int) and self.texture_px >= 8),
+             "an integer >= 8 or None"),
+            ("window_at_bp", self.window_at_bp, isinstance(self.window_at_bp, bool), "a bool"),
+        ]
+        for name, value, ok, what in checks:
+            if not ok:
+                raise ValueError(f"PaperParams.{name}: must be {what}, got {value!r}")
+
+    @property
+    def focal(self) -> float:
+        """f in pixels (``focal_px`` or ``image_px``)."""
+        return float(self.image_px if self.focal_px is None else self.focal_px)
+
+    @property
+    def distance(self) -> float:
+        """D, camera to window-centre distance in texture pixels (``camera_distance_px`` or f)."""
+        return float(self.focal if self.camera_distance_px is None else self.camera_distance_px)
+
+    @property
+    def texture(self) -> int:
+        """T, the texture side in pixels."""
+        return int(self.image_px if self.texture_px is None else self.texture_px)
+
+    @classmethod
+    def field_names(cls) -> tuple[str, ...]:
+        """Names of the parameters (the keys a sweep may vary)."""
+        return tuple(f.name for f in dataclasses.fields(cls))
+
+
+def _finite(x) -> bool:
+    return isinstance(x, (int, float)) and not isinstance(x, bool) and math.isfinite(x)
+
+
+def _pos(x) -> bool:
+    return _finite(x) and x > 0
+
+
+@dataclass(frozen=True)
+class PaperSample:
+    """One realisation of the ``paper`` protocol.
+
+    Attributes
+    ----------
+    image : ndarray of shape (M, M), float32
+        Smoothed image normalised to 1 at the BP (the input of the reconstruction, step 5).
+    K : ndarray of shape (3, 3)
+        Intrinsics of the slanted camera (pixel centres at integer coordinates, c = M/2).
+    bp_px : ndarray of shape (2,)
+        The true BP in the image, (u, v).
+    normal : ndarray of shape (3,)
+        Ground-truth plane normal, camera frame, unit, facing the camera.
+    light_px : ndarray of shape (3,)
+        Light position in the plane frame (texture pixels).
+    bp_value : float
+        The smoothed intensity at the BP that the image was divided by.
+    """
+
+    image: np.ndarray
+    K: np.ndarray
+    bp_px: np.ndarray
+    normal: np.ndarray
+    light_px: np.ndarray
+    bp_value: float
+
+
+def _camera_pose(theta_rad: float, centre: np.ndarray, distance: float):
+    """Rotation (rows: camera axes in the plane frame) and centre of the slanted camera."""
+    s, c = math.sin(theta_rad), math.cos(theta_rad)
+    z_cam = np.array([0.0, -s, -c])  # optical axis, from the camera toward the window centre
+    x_cam = np.array([1.0, 0.0, 0.0])
+    y_cam = np.cross(z_cam, x_cam)  # = (0, -cos, sin): image down
+    R = np.stack([x_cam, y_cam, z_cam])
+    C = centre - distance * z_cam
+    return R, C
+
+
+def paper_homography(params: PaperParams, window_centre=(0.0, 0.0)):
+    """Homography from texture pixels to image pixels, with the camera that defines it.
+
+    Parameters
+    ----------
+    params : PaperParams
+    window_centre : (2,) float
+        Plane point (texture pixels) at the texture centre; the camera looks at it.
+
+    Returns
+    -------
+    H : ndarray of shape (3, 3)
+        Texture pixel (u, v, 1) -> image pixel, ``H[2, 2] = 1``.
+    K : ndarray of shape (3, 3)
+    R : ndarray of shape (3, 3)
+        Plane-frame to camera-frame rotation.
+    C : ndarray of shape (3,)
+        Camera centre in the plane frame.
+    """
+    M, f, T = params.image_px, params.focal, params.texture
+    x0, y0 = float(window_centre[0]), float(window_centre[1])
+    K = np.array([[f, 0.0, M / 2.0], [0.0, f, M / 2.0], [0.0, 0.0, 1.0]])
+    R, C = _camera_pose(math.radians(params.theta_deg), np.array([x0, y0, 0.0]), params.distance)
+    t = -R @ C
+    P_plane = K @ np.column_stack([R[:, 0], R[:, 1], t])  # plane (x, y, 1) -> image
+    A = np.array([[1.0, 0.0, x0 - T / 2.0], [0.0, -1.0, y0 + T / 2.0], [0.0, 0.0, 1.0]])
+    H = P_plane @ A
+    return H / H[2, 2], K, R, C
+
+
+def mirror_point(V, L) -> np.ndarray:
+    """The BP on the plane z = 0: where the mirror ray from the light reaches the viewer.
+
+    Returns
+    -------
+    ndarray of shape (2,)
+        ``(x, y)`` with ``I = c`` (beta = 0) there; ``V`` and ``L`` above the plane.
+    """
+    V = np.asarray(V, dtype=np.float64)
+    L = np.asarray(L, dtype=np.float64)
+    s = V[2] / (V[2] + L[2])  # fraction of the way from the mirror light R to V at z = 0
+    return L[:2] + s * (V[:2] - L[:2])
+
+
+@dataclass
+class PaperSimulator:
+    """Draws realisations of the ``paper`` protocol; the noiseless image is computed once when the
+    light is fixed (``epsilon = 0``), so only noise, smoothing and normalisation run per sample.
+
+    Parameters
+    ----------
+    params : PaperParams
+
+    Examples
+    --------
+    >>> sim = PaperSimulator(PaperParams(sigma=0.0, theta_deg=0.0))
+    >>> s = sim.sample(np.random.default_rng(0))
+    >>> s.image.shape, float(s.image[203, 203])
+    ((406, 406), 1.0)
+    """
+
+    params: PaperParams
+    _clean: np.ndarray | None = field(default=None, init=False, repr=False)
+
+    def __post_init__(self) -> None:
+        p = self.params
+        self.V = np.array([0.0, 0.0, p.viewer_height_px])
+        T = p.texture
+        g = np.arange(T, dtype=np.float64) - T / 2.0
+        self._gx, self._gy = np.meshgrid(g, -g)  # plane offsets from the window centre
+        if p.epsilon_px == 0.0:
+            self._clean, self._geom = self._render_clean(self.V)
+
+    def _render_clean(self, L: np.ndarray):
+        """Texture for light L (window placed per ``window_at_bp``), warped to the image."""
+        import cv2
+
+        from simtest.specular import phong_intensity
+
+        p = self.params
+        bp_plane = mirror_point(self.V, L)
+        centre = bp_plane if p.window_at_bp else np.zeros(2)
+        P = np.stack([self._gx + centre[0], self._gy + centre[1]], axis=-1)
+        texture = phong_intensity(P, self.V, L, p.n, p.c).astype(np.float32)
+        H, K, R, C = paper_homography(p, centre)
+        M = p.image_px
+        image = cv2.warpPerspective(texture, H, (M, M), flags=cv2.INTER_LINEAR,
+                                    borderMode=cv2.BORDER_CONSTANT, borderValue=0.0)
+        # BP in the image: project the plane BP with the camera (exactly M/2 when window_at_bp).
+        X = R @ (np.array([bp_plane[0], bp_plane[1], 0.0]) - C)
+        uvw = K @ X
+        bp_px = uvw[:2] / uvw[2]
+        normal = R @ np.array([0.0, 0.0, 1.0])  # camera above the plane: +z faces it
+        return image, (K, bp_px, normal)
+
+    def light(self, rng: np.random.Generator) -> np.ndarray:
+        """Draw ``L = V + epsilon (cos a, sin a, b)`` (paper section 4.1); always draws a and b."""
+        a = rng.uniform(0.0, 2.0 * math.pi)
+        b = rng.uniform(-0.5, 0.5)
+        return self.V + self.params.epsilon_px * np.array([math.cos(a), math.sin(a), b])
+
+    def sample(self, rng: np.random.Generator) -> PaperSample:
+        """One realisation: light draw, noise, smoothing, normalisation at the BP.
+
+        Parameters
+        ----------
+        rng : numpy.random.Generator
+            The realisation's own generator (derive it from a SeedSequence).
+
+        Returns
+        -------
+        PaperSample
+
+        Raises
+        ------
+        FloatingPointError
+            If the smoothed intensity at the BP is not positive (cannot normalise).
+        """
+        import cv2
+
+        p = self.params
+        L = self.light(rng)
+        if self._clean is not None:
+            clean, (K, bp_px, normal) = self._clean, self._geom
+        else:
+            clean, (K, bp_px, normal) = self._render_clean(L)
+        M = p.image_px
+        if p.sigma > 0:
+            image = clean + np.float32(p.sigma) * rng.standard_normal((M, M), dtype=np.float32)
+        else:
+            image = clean.copy()
+        if p.smoothing_px > 0:
+            image = cv2.GaussianBlur(image, (0, 0), sigmaX=p.smoothing_px, sigmaY=p.smoothing_px,
+                                     borderType=cv2.BORDER_REFLECT)
+        value = _bilinear(image, bp_px)
+        if not value > 0:
+            raise FloatingPointError(f"smoothed intensity at the BP {bp_px.tolist()} is {value}")
+        image = image / np.float32(value)
+        return PaperSample(image=image, K=K.copy(), bp_px=bp_px.copy(), normal=normal.copy(),
+                           light_px=L, bp_value=float(value))
+
+
+def _bilinear(image: np.ndarray, uv: np.ndarray) -> float:
+    u, v = float(uv[0]), float(uv[1])
+    h, w = image.shape
+    u = min(max(u, 0.0), w - 1.0)
+    v = min(max(v, 0.0), h - 1.0)
+    c0, r0 = int(math.floor(u)), int(math.floor(v))
+    c1, r1 = min(c0 + 1, w - 1), min(r0 + 1, h - 1)
+    fu, fv = u - c0, v - r0
+    top = (1 - fu) * image[r0, c0] + fu * image[r0, c1]
+    bot = (1 - fu) * image[r1, c0] + fu * image[r1, c1]
+    return float((1 - fv) * top + fv * bot)
+
+
+def simulate_paper(params: PaperParams, rng: np.random.Generator) -> PaperSample:
+    """One realisation of the ``paper`` protocol (convenience wrapper of :class:`PaperSimulator`).
+
+    Parameters
+    ----------
+    params : PaperParams
+    rng : numpy.random.Generator
+
+    Returns
+    -------
+    PaperSample
+    """
+    return PaperSimulator(params).sample(rng)

@@ -1,0 +1,97 @@
+"""The specular model: paper eqs. 1-3 and Propositions 1-2, checked numerically."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+from scipy.optimize import brentq
+
+from simtest.specular import (
+    endoscopic_isocurve,
+    general_isocurve,
+    isocurve_radii,
+    isophote_radius,
+    kappa_from_isovalue,
+    phong_intensity,
+    tau_from_isovalue,
+)
+
+
+@given(
+    kappa=st.floats(0.01, 0.99),
+    vz=st.floats(1.0, 2000.0),
+    vx=st.floats(-100, 100),
+    vy=st.floats(-100, 100),
+    seed=st.integers(0, 1000),
+)
+@settings(max_examples=80, deadline=None)
+def test_endoscopic_quartic_factorises_into_two_circles(kappa, vz, vx, vy, seed):
+    # Prop. 1: E = kappa q+ q- with q+- = s - r+-^2 (the paper's E = q+ q-, up to kappa).
+    rng = np.random.default_rng(seed)
+    V = np.array([vx, vy, vz])
+    p = rng.uniform(-3 * vz, 3 * vz, size=(20, 2)) + V[:2]
+    r_p, r_m = isocurve_radii(kappa, vz)
+    s = np.sum((p - V[:2]) ** 2, axis=1)
+    E = endoscopic_isocurve(p, V, kappa)
+    scale = kappa * (s + r_p**2) * (s + r_m**2)  # magnitude of the terms, for a relative check
+    np.testing.assert_allclose(E / scale, kappa * (s - r_p**2) * (s - r_m**2) / scale, atol=1e-12)
+    # and the endoscopic quartic is the general quartic with L = V (eq. 2 -> eq. 3)
+    tau = np.sqrt(1 - kappa)
+    G = general_isocurve(p, V, V, tau)
+    np.testing.assert_allclose(G / scale, E / scale, atol=1e-12)
+
+
+@given(kappa=st.floats(1e-4, 0.9999), vz=st.floats(0.1, 5000.0))
+@settings(max_examples=80, deadline=None)
+def test_radii_bracket_the_outer_ring(kappa, vz):
+    r_p, r_m = isocurve_radii(kappa, vz)
+    assert r_m < vz < r_p  # Prop. 2's proof: r- < |V_Z| < r+
+    np.testing.assert_allclose(r_p * r_m, vz**2, rtol=1e-12)
+
+
+@pytest.mark.parametrize("n", [5.0, 30.0, 50.0, 120.0])
+@pytest.mark.parametrize("t", [0.02, 0.1, 0.5, 0.8])
+def test_isophote_radius_matches_brute_force_search_of_intensity(n, t):
+    # Prop. 2: the isophote I = t is the circle of radius r-. Find it by root search of eq. 1 along
+    # a ray from the foot point (the intensity decreases monotonically inside the outer ring).
+    vz = 1000.0
+    V = np.array([0.0, 0.0, vz])
+    theta = 0.7  # any direction: the isophote is a circle
+    f = lambda r: phong_intensity([r * np.cos(theta), r * np.sin(theta)], V, V, n) - t  # noqa: E731
+    r_search = brentq(f, 0.0, vz, xtol=1e-12, rtol=1e-14)
+    np.testing.assert_allclose(isophote_radius(t, n, vz), r_search, rtol=1e-9)
+
+
+def test_phong_intensity_peaks_at_the_foot_and_is_radial():
+    V = np.array([5.0, -3.0, 100.0])
+    assert phong_intensity(V[:2], V, V, 50) == pytest.approx(1.0)
+    ang = np.linspace(0, 2 * np.pi, 12)
+    ring = V[:2] + 20 * np.c_[np.cos(ang), np.sin(ang)]
+    vals = phong_intensity(ring, V, V, 50, c=2.0)
+    np.testing.assert_allclose(vals, vals[0], rtol=1e-12)
+    assert 0 < vals[0] < 2.0
+
+
+def test_phong_intensity_general_light_peaks_at_mirror_point():
+    V = np.array([0.0, 0.0, 100.0])
+    L = np.array([60.0, 0.0, 100.0])
+    # mirror point between V and L at equal heights: the midpoint's foot (30, 0)
+    xs = np.linspace(0, 60, 6001)
+    vals = phong_intensity(np.c_[xs, np.zeros_like(xs)], V, L, 80)
+    assert xs[np.argmax(vals)] == pytest.approx(30.0, abs=0.02)
+
+
+@pytest.mark.parametrize(("t", "n", "c"), [(0.0, 50, 1), (1.5, 50, 1), (-0.1, 50, 1), (0.1, 0, 1), (0.1, 50, -1)])
+def test_bad_parameters_are_refused(t, n, c):
+    with pytest.raises(ValueError):
+        tau_from_isovalue(t, n, c)
+
+
+def test_kappa_limits():
+    assert kappa_from_isovalue(1.0, 50) == 0.0
+    with pytest.raises(ValueError, match="kappa"):
+        isophote_radius(1.0, 50, 100)  # t = c: the isophote is the BP itself, kappa = 0
+    with pytest.raises(ValueError):
+        phong_intensity([0, 0], [0, 0, 1], [0, 0, 1], n=-2)
