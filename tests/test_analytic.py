@@ -92,3 +92,34 @@ def test_supersampling_and_falloff():
     assert f[32, 32] <= a[32, 32] and np.all(f <= a + 1e-15)
     with pytest.raises(ValueError):
         phong_plane_image(K, (0, 4), [0, 0, -1], 30.0, 20)
+
+
+def test_sphere_and_cylinder_peak_at_their_bp():
+    from simtest.simulate.analytic import cylinder_bp, phong_cylinder_image, phong_sphere_image, sphere_bp
+
+    K = np.array([[150.0, 0, 150.5], [0, 150.0, 150.5], [0, 0, 1]])
+    S = np.array([10.0, 20.0, 80.0])
+    img = phong_sphere_image(K, (302, 302), S, 20.0, 50)
+    bp, nrm = sphere_bp(S, 20.0)
+    np.testing.assert_allclose(nrm, (bp - S) / 20.0)
+    peak = np.unravel_index(np.argmax(img), img.shape)[::-1]
+    # the peak pixel is the pixel nearest the projected BP (the intensity is 1 only there)
+    assert np.all(np.abs(np.array(peak) - project_points(bp, K)) <= 0.5)
+    P0, axis = np.array([5.0, 0.0, 60.0]), np.array([1.0, 1.0, 0.3])
+    img = phong_cylinder_image(K, (302, 302), P0, axis, 15.0, 50)
+    bp, nrm = cylinder_bp(P0, axis, 15.0)
+    assert abs(nrm @ axis) < 1e-12 and angle_between_deg(nrm, -bp) < 1e-9
+    peak = np.unravel_index(np.argmax(img), img.shape)[::-1]
+    assert np.all(np.abs(np.array(peak) - project_points(bp, K)) <= 0.5)
+
+
+def test_large_sphere_tends_to_its_tangent_plane():
+    from simtest.simulate.analytic import phong_sphere_image, sphere_bp
+
+    K = np.array([[100.0, 0, 31.5], [0, 100.0, 31.5], [0, 0, 1]])
+    S = np.array([0.0, 0.0, 50.0 + 1e6])
+    sph = phong_sphere_image(K, (64, 64), S, 1e6, 30)
+    bp, nrm = sphere_bp(S, 1e6)
+    pl = phong_plane_image(K, (64, 64), nrm, -(bp @ nrm), 30)
+    # curvature 1e-6 /mm over a ~30 mm footprint changes the image by O(1e-5)
+    assert np.abs(sph - pl).max() < 1e-4
