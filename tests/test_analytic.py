@@ -98,19 +98,29 @@ def test_sphere_and_cylinder_peak_at_their_bp():
     from simtest.simulate.analytic import cylinder_bp, phong_cylinder_image, phong_sphere_image, sphere_bp
 
     K = np.array([[150.0, 0, 150.5], [0, 150.0, 150.5], [0, 0, 1]])
+
+    def at(uv, render):
+        # evaluate the closed form exactly at sub-pixel uv: a 1x1 image whose pixel centre is uv
+        Kp = K.copy()
+        Kp[:2, 2] -= uv
+        return render(Kp, (1, 1))[0, 0]
+
     S = np.array([10.0, 20.0, 80.0])
-    img = phong_sphere_image(K, (302, 302), S, 20.0, 50)
     bp, nrm = sphere_bp(S, 20.0)
     np.testing.assert_allclose(nrm, (bp - S) / 20.0)
-    peak = np.unravel_index(np.argmax(img), img.shape)[::-1]
-    # the peak pixel is the pixel nearest the projected BP (the intensity is 1 only there)
-    assert np.all(np.abs(np.array(peak) - project_points(bp, K)) <= 0.5)
+    sph = lambda Kp, shape: phong_sphere_image(Kp, shape, S, 20.0, 50)  # noqa: E731
+    uv = project_points(bp, K)
+    assert at(uv, sph) == pytest.approx(1.0, abs=1e-12)
+    assert sph(K, (302, 302)).max() <= 1.0
     P0, axis = np.array([5.0, 0.0, 60.0]), np.array([1.0, 1.0, 0.3])
-    img = phong_cylinder_image(K, (302, 302), P0, axis, 15.0, 50)
     bp, nrm = cylinder_bp(P0, axis, 15.0)
     assert abs(nrm @ axis) < 1e-12 and angle_between_deg(nrm, -bp) < 1e-9
-    peak = np.unravel_index(np.argmax(img), img.shape)[::-1]
-    assert np.all(np.abs(np.array(peak) - project_points(bp, K)) <= 0.5)
+    cyl = lambda Kp, shape: phong_cylinder_image(Kp, shape, P0, axis, 15.0, 50)  # noqa: E731
+    uv = project_points(bp, K)
+    assert at(uv, cyl) == pytest.approx(1.0, abs=1e-12)
+    # a step of one pixel away from the BP in any direction darkens the image
+    for step in ([1, 0], [0, 1], [-1, 0], [0, -1]):
+        assert at(uv + step, cyl) < 1.0 and at(uv + step, sph) < 1.0
 
 
 def test_large_sphere_tends_to_its_tangent_plane():
