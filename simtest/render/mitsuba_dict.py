@@ -1,0 +1,249 @@
+"""Scene spec -> Mitsuba scene dict: a pure function, testable without rendering.
+
+The Mitsuba scene is built in the OpenCV *camera* frame (x right, y down, z forward, mm): the
+camera sits at the origin looking along +z with up = (0, -1, 0), so Mitsuba's world frame, its AOVs
+(positions, normals) and the ground truth are all camera-frame quantities. Geometry given in the
+world frame of the scene file is moved there with ``inv(cam_to_world)``.
+
+The dict returned by :func:`mitsuba_scene_dict` holds only plain Python / numpy values: 4 x 4
+transforms are ``numpy`` arrays under ``to_world`` keys, and meshes are
+``{"type": "simtest_arrays", "vertices", "faces", "normals", "bsdf"}`` placeholders; the renderer
+turns these into Mitsuba objects (:func:`simtest.render.render.materialize`).
+
+Mitsuba puts pixel centres at ``i + 0.5``; with the camera above, the intrinsics in the OpenCV
+convention (pixel centres at integers) are ``K = [[f, 0, W/2 - 0.5 + ox], [0, f, H/2 - 0.5 + oy],
+[0, 0, 1]]`` (:func:`intrinsics_matrix`).
+"""
+
+from __future__ import annotations
+
+import math
+from typing import Any
+
+import numpy as np
+
+from simtest.scene.spec import CameraSpec, GeometrySpec, LightSpec, SceneSpec
+
+__all__ = [
+    "AOVS",
+    "LIGHT_SEED_KEY",
+    "intrinsics_matrix",
+    "cam_to_world_matrix",
+    "light_position_cam",
+    "plane_normal_cam",
+    "rotation_from_z",
+    "mesh_to_world_matrix",
+    "mitsuba_scene_dict",
+]
+
+#: AOV channels requested from Mitsuba's ``aov`` integrator, after the RGBA image channels.
+AOVS = "nn:sh_normal,pp:position,dd:depth"
+
+#: Stable key of the light-offset draw in ``SeedSequence([seed, LIGHT_SEED_KEY])``.
+LIGHT_SEED_KEY = 0x11647
+
+#: Mitsuba sensor transform of the camera-frame camera: look_at((0,0,0), (0,0,1), up=(0,-1,0)).
+#: Mitsuba's camera-local x points left, so the columns are (left, up, forward, origin).
+_SENSOR_TO_WORLD = np.diag([-1.0, -1.0, 1.0, 1.0])
+
+
+def intrinsics_matrix(camera: CameraSpec) -> np.ndarray:
+    """Intrinsics K (3, 3) of the rendered image, OpenCV convention (pixel centres at integers).
+
+    ``K = [[f, 0, W/2 - 0.5 + ox], [0, f, H/2 - 0.5 + oy], [0, 0, 1]]`` with ``f`` from
+    ``camera.focal`` and ``(ox, oy) = camera.principal_offset_px``.
+    """
+    f = camera.focal
+    ox, oy = camera.principal_offset_px
+    return np.array(
+        [[f, 0.0, camera.width_px / 2.0 - 0.5 + ox],
+         [0.0, f, camera.height_px / 2.0 - 0.5 + oy],
+         [0.0, 0.0, 1.0]],
+        dtype=np.float64,
+    )
+
+
+def cam_to_world_matrix(camera: CameraSpec) -> np.ndarray:
+    """The (4, 4) pose of the OpenCV camera in the scene's world frame.
+
+    Columns: x (right), y (down), z (forward) axes and the centre. ``y`` is minus the component of
+    ``camera.up`` orthogonal to the viewing direction.
+    """
+    c = np.asarray(camera.position_mm, dtype=np.float64)
+    z = np.asarray(camera.look_at_mm, dtype=np.float64) - c
+    z /= np.linalg.norm(z)
+    up = np.asarray(camera.up, dtype=np.float64)
+    y = -(up - np.dot(up, z) * z)
+    y /= np.linalg.norm(y)
+    x = np.cross(y, z)
+    m = np.eye(4)
+    m[:3, 0], m[:3, 1], m[:3, 2], m[:3, 3] = x, y, z, c
+    return m
+
+
+def light_position_cam(light: LightSpec, seed: int) -> np.ndarray:
+    """Point-light position (3,) in the camera frame, mm: ``epsilon (cos a, sin a, b)``.
+
+    ``a`` (uniform in [0, 2 pi)) and ``b`` (uniform in [-0.5, 0.5]) are drawn from
+    ``SeedSequence([seed, LIGHT_SEED_KEY])`` when the spec leaves them None (paper, section 4).
+    """
+    if light.epsilon_mm == 0.0:
+        return np.zeros(3)
+    rng = np.random.default_rng(np.random.SeedSequence([int(seed), LIGHT_SEED_KEY]))
+    a_draw, b_draw = rng.uniform(0.0, 2.0 * math.pi), rng.uniform(-0.5, 0.5)
+    a = math.radians(light.alpha_deg) if light.alpha_deg is not None else a_draw
+    b = light.b if light.b is not None else b_draw
+    return light.epsilon_mm * np.array([math.cos(a), math.sin(a), b])
+
+
+def plane_normal_cam(geometry: GeometrySpec) -> np.ndarray:
+    """Camera-facing unit normal of a plane spec: ``(sin t cos a, sin t sin a, -cos t)``."""
+    t = math.radians(geometry.tilt_deg or 0.0)
+    a = math.radians(90.0 if geometry.azimuth_deg is None else geometry.azimuth_deg)
+    return np.array([math.sin(t) * math.cos(a), math.sin(t) * math.sin(a), -math.cos(t)])
+
+
+def rotation_from_z(n: np.ndarray) -> np.ndarray:
+    """A rotation matrix (3, 3) whose third column is the unit vector ``n``."""
+    n = np.asarray(n, dtype=np.float64) / np.linalg.norm(n)
+    helper = np.array([1.0, 0.0, 0.0]) if abs(n[0]) < 0.9 else np.array([0.0, 1.0, 0.0])
+    a = np.cross(helper, n)
+    a /= np.linalg.norm(a)
+    b = np.cross(n, a)
+    return np.column_stack([a, b, n])
+
+
+def mesh_to_world_matrix(geometry: GeometrySpec) -> np.ndarray:
+    """(4, 4) mesh-to-world transform ``x -> Rz Ry Rx (scale x) + t`` of a mesh spec."""
+    rx, ry, rz = (math.radians(v) for v in (geometry.rotate_deg or (0.0, 0.0, 0.0)))
+    cx, sx, cy, sy, cz, sz = math.cos(rx), math.sin(rx), math.cos(ry), math.sin(ry), math.cos(rz), math.sin(rz)
+    Rx = np.array([[1, 0, 0], [0, cx, -sx], [0, sx, cx]])
+    Ry = np.array([[cy, 0, sy], [0, 1, 0], [-sy, 0, cy]])
+    Rz = np.array([[cz, -sz, 0], [sz, cz, 0], [0, 0, 1]])
+    m = np.eye(4)
+    m[:3, :3] = Rz @ Ry @ Rx * (geometry.scale if geometry.scale is not None else 1.0)
+    m[:3, 3] = geometry.translate_mm or (0.0, 0.0, 0.0)
+    return m
+
+
+def _bsdf_dict(spec: SceneSpec, light_pos: np.ndarray) -> dict[str, Any]:
+    mat = spec.material
+    if mat.model == "phong":
+        return {
+            "type": "simtest_phong",
+            "c": float(mat.c),
+            "n": float(mat.n),
+            "albedo": float(mat.diffuse_albedo),
+            "cancel_falloff": spec.light.falloff == "cancel",
+            "light_pos": [float(x) for x in light_pos],
+        }
+    # Channels: R = image, G = specular only, B = diffuse only (see simtest.render.phong).
+    spec_rgb = {"type": "rgb", "value": [mat.c, mat.c, 0.0]}
+    common = {"distribution": mat.distribution, "alpha": mat.microfacet_alpha}
+    if mat.base == "conductor":
+        return {"type": "roughconductor", "material": "none", "specular_reflectance": spec_rgb,
+                **common}
+    a = mat.diffuse_albedo
+    return {"type": "roughplastic", "int_ior": mat.ior, "ext_ior": 1.0,
+            "specular_reflectance": spec_rgb,
+            "diffuse_reflectance": {"type": "rgb", "value": [a, 0.0, a]},
+            "nonlinear": False, **common}
+
+
+def mitsuba_scene_dict(
+    spec: SceneSpec,
+    *,
+    light_pos_cam: np.ndarray | None = None,
+    mesh_cam: dict[str, np.ndarray] | None = None,
+    seed: int | None = None,
+) -> dict[str, Any]:
+    """Translate a scene spec into a Mitsuba scene dict in the camera frame (pure function).
+
+    Parameters
+    ----------
+    spec : SceneSpec
+    light_pos_cam : ndarray of shape (3,), optional
+        Light position in the camera frame, mm; default :func:`light_position_cam` with ``seed``.
+    mesh_cam : dict, optional
+        For mesh and saddle geometry: ``vertices`` (V, 3) and ``normals`` (V, 3) in the camera frame,
+        ``faces`` (F, 3). Required for those types.
+    seed : int, optional
+        Seed of the light draw when ``light_pos_cam`` is None (default ``spec.render.seed``).
+
+    Returns
+    -------
+    dict
+        Keys ``type``, ``integrator``, ``sensor``, ``light``, ``surface``. Transforms are (4, 4)
+        numpy arrays; meshes are ``simtest_arrays`` placeholders.
+
+    Raises
+    ------
+    ValueError
+        If a mesh geometry comes without ``mesh_cam``.
+    """
+    cam, geo = spec.camera, spec.geometry
+    if light_pos_cam is None:
+        light_pos_cam = light_position_cam(spec.light, spec.render.seed if seed is None else seed)
+    light_pos_cam = np.asarray(light_pos_cam, dtype=np.float64)
+    w2c = np.linalg.inv(cam_to_world_matrix(cam))
+
+    sensor = {
+        "type": "perspective",
+        "fov": cam.fov_x_deg,
+        "fov_axis": "x",
+        # Mitsuba's offsets are fractions of the film size, along its image axes.
+        "principal_point_offset_x": cam.principal_offset_px[0] / cam.width_px,
+        "principal_point_offset_y": cam.principal_offset_px[1] / cam.height_px,
+        "near_clip": 1e-2,
+        "far_clip": 1e8,
+        "to_world": _SENSOR_TO_WORLD.copy(),
+        "film": {
+            "type": "hdrfilm",
+            "width": cam.width_px,
+            "height": cam.height_px,
+            "pixel_format": "rgba",
+            "rfilter": {"type": "box"},
+            "sample_border": False,
+        },
+        "sampler": {"type": spec.render.sampler, "sample_count": spec.render.spp},
+    }
+    integrator = {
+        "type": "aov",
+        "aovs": AOVS,
+        "image": {"type": "direct", "emitter_samples": 1, "bsdf_samples": 0},
+    }
+    light = {
+        "type": "point",
+        "position": [float(x) for x in light_pos_cam],
+        "intensity": {"type": "rgb", "value": [spec.light.intensity] * 3},
+    }
+    bsdf = _bsdf_dict(spec, light_pos_cam)
+
+    if geo.type == "plane":
+        n = plane_normal_cam(geo)
+        foot = -geo.distance_mm * n  # foot of the perpendicular from the camera centre
+        half = geo.extent_mm if geo.extent_mm is not None else 100.0 * geo.distance_mm
+        m = np.eye(4)
+        m[:3, :3] = rotation_from_z(n) * half  # rectangle normal +z -> n (faces the camera)
+        m[:3, 3] = foot
+        surface = {"type": "rectangle", "to_world": m, "bsdf": bsdf}
+    elif geo.type == "sphere":
+        c = (w2c @ np.append(geo.center_mm, 1.0))[:3]
+        surface = {"type": "sphere", "center": [float(x) for x in c], "radius": geo.radius_mm,
+                   "bsdf": bsdf}
+    elif geo.type == "cylinder":
+        c = (w2c @ np.append(geo.center_mm, 1.0))[:3]
+        axis = np.asarray(geo.axis if geo.axis is not None else (1.0, 0.0, 0.0), dtype=np.float64)
+        axis = w2c[:3, :3] @ (axis / np.linalg.norm(axis))
+        length = geo.length_mm if geo.length_mm is not None else 20.0 * geo.radius_mm
+        p0, p1 = c - 0.5 * length * axis, c + 0.5 * length * axis
+        surface = {"type": "cylinder", "p0": [float(x) for x in p0], "p1": [float(x) for x in p1],
+                   "radius": geo.radius_mm, "bsdf": bsdf}
+    else:  # mesh, saddle
+        if mesh_cam is None:
+            raise ValueError(f"{spec.source}: geometry.type {geo.type!r} needs mesh_cam arrays")
+        surface = {"type": "simtest_arrays", "vertices": mesh_cam["vertices"],
+                   "faces": mesh_cam["faces"], "normals": mesh_cam["normals"], "bsdf": bsdf}
+
+    return {"type": "scene", "integrator": integrator, "sensor": sensor, "light": light,
+            "surface": surface}

@@ -1,0 +1,103 @@
+"""The exact Phong BSDF of the paper (eq. 1) as a Mitsuba 3 Python plugin, ``simtest_phong``.
+
+Mitsuba 3 has no Phong BSDF. This one returns, for the direction to the camera ``wi`` and the
+direction to the light ``wo`` (both in the local shading frame, Mitsuba's convention)::
+
+    f = c * max(0, dot(reflect(wi), wo))^n  [* |p - L|^2 if the light falloff is cancelled]
+        + albedo / pi * cos(theta_o)
+
+so that with a point light of intensity I the radiance is ``I c cos(beta)^n / d^2`` (or
+``I c cos(beta)^n`` with the falloff cancelled): paper eq. 1 with no cosine foreshortening on the
+specular part, as the paper's model has none.
+
+Colour channels carry separate images in one render (the renderer uses RGB variants for this):
+R = specular + diffuse (the image), G = specular only, B = diffuse only.
+
+Importing this module imports Mitsuba; call :func:`register` after ``mi.set_variant``.
+"""
+
+from __future__ import annotations
+
+import drjit as dr
+import mitsuba as mi
+
+__all__ = ["register", "PLUGIN_NAME"]
+
+PLUGIN_NAME = "simtest_phong"
+
+_registered: set[str] = set()
+
+
+def _make_class():
+    class PhongBSDF(mi.BSDF):
+        """Exact Phong lobe plus an optional Lambertian part (see the module docstring).
+
+        Properties
+        ----------
+        c : float
+            Specular scale (paper's c).
+        n : float
+            Phong exponent (paper's n).
+        albedo : float
+            Lambertian albedo.
+        cancel_falloff : bool
+            Multiply by the squared distance from the shading point to ``light_pos`` (world frame).
+        light_pos : (3,) float
+            The point light position, world frame (mm).
+        """
+
+        def __init__(self, props):
+            mi.BSDF.__init__(self, props)
+            self.c = float(props.get("c", 1.0))
+            self.n = float(props.get("n", 50.0))
+            self.albedo = float(props.get("albedo", 0.0))
+            self.cancel_falloff = bool(props.get("cancel_falloff", False))
+            lp = props.get("light_pos", mi.ScalarPoint3f(0.0, 0.0, 0.0))
+            self.light_pos = mi.ScalarPoint3f(lp[0], lp[1], lp[2])
+            flags = mi.BSDFFlags.GlossyReflection | mi.BSDFFlags.FrontSide
+            if self.albedo > 0.0:
+                flags = flags | mi.BSDFFlags.DiffuseReflection
+            self.m_flags = flags
+            self.m_components = [flags]
+
+        def sample(self, ctx, si, sample1, sample2, active=True):
+            # Only direct lighting from a point light is rendered: BSDF sampling never reaches it.
+            # A zero sample keeps integrators that ask for one (e.g. `path`) consistent.
+            return dr.zeros(mi.BSDFSample3f), mi.Color3f(0.0)
+
+        def eval(self, ctx, si, wo, active=True):
+            wi = si.wi
+            cos_i = mi.Frame3f.cos_theta(wi)
+            cos_o = mi.Frame3f.cos_theta(wo)
+            r = mi.Vector3f(-wi.x, -wi.y, wi.z)  # mirror of wi about the shading normal
+            cos_beta = dr.maximum(dr.dot(r, wo), 0.0)
+            spec = self.c * dr.power(cos_beta, self.n)
+            if self.cancel_falloff:
+                d = si.p - self.light_pos
+                spec = spec * dr.squared_norm(d)
+            diff = (self.albedo / dr.pi) * dr.maximum(cos_o, 0.0)
+            ok = active & (cos_i > 0.0) & (cos_o > 0.0)
+            value = mi.Color3f(spec + diff, spec, diff)
+            return dr.select(ok, value, mi.Color3f(0.0))
+
+        def pdf(self, ctx, si, wo, active=True):
+            return mi.Float(0.0)
+
+        def eval_pdf(self, ctx, si, wo, active=True):
+            return self.eval(ctx, si, wo, active), mi.Float(0.0)
+
+        def to_string(self):
+            return f"PhongBSDF[c={self.c}, n={self.n}, albedo={self.albedo}]"
+
+
+    return PhongBSDF
+
+
+def register() -> None:
+    """Register ``simtest_phong`` for the current Mitsuba variant (once per variant)."""
+    variant = mi.variant()
+    if variant in _registered:
+        return
+    cls = _make_class()  # bound to the current variant's mi.BSDF
+    mi.register_bsdf(PLUGIN_NAME, lambda props: cls(props))
+    _registered.add(variant)

@@ -1,0 +1,523 @@
+"""Render a scene spec with Mitsuba 3: image, sensor image, per-pixel and per-highlight truth.
+
+One render gives everything: Mitsuba's ``aov`` integrator wraps a ``direct`` integrator and adds
+shading normals, positions and ray distances; the colour channels carry the full image (R), the
+specular-only image (G) and the diffuse-only image (B) (see :mod:`simtest.render.phong`); alpha is
+the pixel coverage. The scene is built in the OpenCV camera frame, so all outputs are camera-frame.
+
+This is the only module of simtest that imports Mitsuba, and it does so inside functions.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import tempfile
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from simtest.render.mitsuba_dict import (
+    cam_to_world_matrix,
+    intrinsics_matrix,
+    light_position_cam,
+    mesh_to_world_matrix,
+    mitsuba_scene_dict,
+    plane_normal_cam,
+)
+from simtest.render.sensor import apply_sensor
+from simtest.render.truth import (
+    HighlightTruth,
+    cylinder_highlight,
+    mesh_highlights,
+    pixel_rays,
+    plane_highlight,
+    sphere_highlight,
+)
+from simtest.scene.spec import SceneSpec
+
+__all__ = [
+    "RenderResult",
+    "RendererUnavailable",
+    "choose_variant",
+    "render_scene",
+    "write_render",
+    "saddle_mesh",
+]
+
+
+class RendererUnavailable(RuntimeError):
+    """Mitsuba cannot run the requested variant here (no LLVM / no GPU); the message names a fix."""
+
+
+@dataclass(frozen=True)
+class RenderResult:
+    """Everything one render produces. Images are (H, W[, 3]) arrays, camera frame, mm.
+
+    Attributes
+    ----------
+    linear : ndarray of shape (H, W), float32
+        Linear radiance (specular + diffuse).
+    sensor : ndarray of shape (H, W), uint8 or uint16
+        After exposure, noise, clipping, gamma and quantisation (:func:`apply_sensor`).
+    specular : ndarray of shape (H, W), float32
+        Specular-only linear radiance.
+    normals : ndarray of shape (H, W, 3), float32
+        Unit shading normals facing the camera; NaN outside ``mask``.
+    depth : ndarray of shape (H, W), float32
+        z-depth, mm; NaN outside ``mask``.
+    distance : ndarray of shape (H, W), float32
+        Ray length from the camera centre, mm; NaN outside ``mask``.
+    position : ndarray of shape (H, W, 3), float32
+        Surface point, camera frame, mm; NaN outside ``mask``.
+    mask : ndarray of shape (H, W), bool
+        Pixels entirely covered by the surface (every sample hit it).
+    coverage : ndarray of shape (H, W), float32
+        Fraction of each pixel covered by the surface.
+    K : ndarray of shape (3, 3)
+        Intrinsics, pixel centres at integer coordinates.
+    cam_to_world : ndarray of shape (4, 4)
+        Camera pose in the scene's world frame.
+    light_pos : ndarray of shape (3,)
+        Point-light position, camera frame, mm.
+    highlights : list of HighlightTruth
+    variant : str
+        Mitsuba variant used.
+    seed : int
+    spec : SceneSpec
+    """
+
+    linear: np.ndarray
+    sensor: np.ndarray
+    specular: np.ndarray
+    normals: np.ndarray
+    depth: np.ndarray
+    distance: np.ndarray
+    position: np.ndarray
+    mask: np.ndarray
+    coverage: np.ndarray
+    K: np.ndarray
+    cam_to_world: np.ndarray
+    light_pos: np.ndarray
+    highlights: list[HighlightTruth]
+    variant: str
+    seed: int
+    spec: SceneSpec = field(repr=False)
+
+    @property
+    def gray(self) -> np.ndarray:
+        """The linear image (already single-channel)."""
+        return self.linear
+
+
+# ------------------------------------------------------------------------------------------------
+# Mitsuba set-up
+
+
+def choose_variant(requested: str | None = None) -> str:
+    """Select and activate a Mitsuba variant; return its name.
+
+    Parameters
+    ----------
+    requested : str, optional
+        "auto"/None: ``cuda_ad_rgb`` when a CUDA device is usable, else ``llvm_ad_rgb``. Any other
+        value is used as given.
+
+    Raises
+    ------
+    RendererUnavailable
+        If the variant cannot run here: no usable LLVM (the message names
+        :data:`simtest._llvm.LLVM_FIX`) or no CUDA device.
+    """
+    from simtest import _llvm
+
+    libllvm = _llvm.configure_llvm_env()
+    if libllvm:
+        major = _llvm._major(libllvm)
+        if major is not None and major < _llvm.MIN_LLVM_MAJOR and (requested or "auto") != "cuda_ad_rgb":
+            raise RendererUnavailable(
+                f"Dr.Jit is pointed at LLVM {major} ({libllvm}), too old for the llvm variants "
+                f"(LLVM {_llvm.MIN_LLVM_MAJOR}+ needed): {_llvm.LLVM_FIX}")
+    import drjit as dr
+    import mitsuba as mi
+
+    variant = requested or "auto"
+    if variant == "auto":
+        has_cuda = False
+        if "cuda_ad_rgb" in mi.variants():
+            try:
+                has_cuda = bool(dr.has_backend(dr.JitBackend.CUDA))
+            except Exception:  # noqa: BLE001 - any failure means: no usable GPU
+                has_cuda = False
+        variant = "cuda_ad_rgb" if has_cuda else "llvm_ad_rgb"
+    if variant not in mi.variants():
+        raise RendererUnavailable(f"Mitsuba variant {variant!r} is not in this build "
+                                  f"(available: {', '.join(mi.variants())})")
+    if variant.startswith("llvm") and not dr.has_backend(dr.JitBackend.LLVM):
+        raise RendererUnavailable(
+            f"Mitsuba variant {variant!r} needs an LLVM shared library that Dr.Jit can load "
+            f"(DRJIT_LIBLLVM_PATH={os.environ.get('DRJIT_LIBLLVM_PATH')!r}): {_llvm.LLVM_FIX}")
+    if variant.startswith("cuda") and not dr.has_backend(dr.JitBackend.CUDA):
+        raise RendererUnavailable(f"Mitsuba variant {variant!r} needs a CUDA GPU; none is usable. "
+                                  "Use variant 'auto' or 'llvm_ad_rgb'.")
+    if mi.variant() != variant:
+        mi.set_variant(variant)
+    from simtest.render import phong
+
+    phong.register()
+    return variant
+
+
+def materialize(d: Any) -> Any:
+    """Turn the plain dict of :func:`mitsuba_scene_dict` into what ``mi.load_dict`` takes.
+
+    (4, 4) numpy arrays under ``to_world`` become ``mi.ScalarTransform4f``; ``simtest_arrays``
+    placeholders become ``mi.Mesh`` objects with vertex normals. Needs an active variant.
+    """
+    import mitsuba as mi
+
+    if isinstance(d, dict):
+        if d.get("type") == "simtest_arrays":
+            return _make_mesh(d["vertices"], d["faces"], d["normals"], materialize(d["bsdf"]))
+        out = {}
+        for k, v in d.items():
+            if k == "to_world" and isinstance(v, np.ndarray):
+                out[k] = mi.ScalarTransform4f(v.tolist())
+            else:
+                out[k] = materialize(v)
+        return out
+    return d
+
+
+def _make_mesh(vertices, faces, normals, bsdf_dict):
+    import mitsuba as mi
+
+    props = mi.Properties()
+    props["bsdf"] = mi.load_dict(bsdf_dict)
+    mesh = mi.Mesh("surface", len(vertices), len(faces), props=props, has_vertex_normals=True)
+    params = mi.traverse(mesh)
+    params["vertex_positions"] = mi.Float(np.ravel(np.asarray(vertices, dtype=np.float32)))
+    params["faces"] = mi.UInt32(np.ravel(np.asarray(faces, dtype=np.uint32)))
+    params["vertex_normals"] = mi.Float(np.ravel(np.asarray(normals, dtype=np.float32)))
+    params.update()
+    return mesh
+
+
+# ------------------------------------------------------------------------------------------------
+# Meshes
+
+
+def saddle_mesh(distance_mm: float, radius1_mm: float, radius2_mm: float, extent_mm: float,
+                resolution: int) -> dict[str, np.ndarray]:
+    """Grid mesh of ``z = d + x^2 / (2 r1) - y^2 / (2 r2)`` in the camera frame, |x|, |y| <= e.
+
+    Returns
+    -------
+    dict
+        ``vertices`` (V, 3), ``faces`` (F, 3), ``normals`` (V, 3) facing the camera (-z side),
+        ``k1``, ``k2`` (V,) analytic principal curvatures (1/mm, positive toward the normal; at the
+        apex k1 = 1/r2, k2 = -1/r1).
+    """
+    s = np.linspace(-extent_mm, extent_mm, resolution)
+    x, y = np.meshgrid(s, s, indexing="xy")
+    fx, fy = x / radius1_mm, -y / radius2_mm
+    fxx, fyy = 1.0 / radius1_mm, -1.0 / radius2_mm
+    z = distance_mm + 0.5 * x * x / radius1_mm - 0.5 * y * y / radius2_mm
+    w = np.sqrt(1.0 + fx * fx + fy * fy)
+    n = np.stack([fx, fy, -np.ones_like(x)], axis=-1) / w[..., None]
+    # Fundamental forms of a graph, second form w.r.t. the camera-facing normal (minus the up one).
+    E, F, G = 1.0 + fx * fx, fx * fy, 1.0 + fy * fy
+    L, M, N = -fxx / w, np.zeros_like(x), -fyy / w
+    det = E * G - F * F
+    Kg = (L * N - M * M) / det
+    Hm = (E * N - 2.0 * F * M + G * L) / (2.0 * det)
+    disc = np.sqrt(np.maximum(Hm * Hm - Kg, 0.0))
+    idx = np.arange(resolution * resolution).reshape(resolution, resolution)
+    a, b, c, d = idx[:-1, :-1], idx[:-1, 1:], idx[1:, :-1], idx[1:, 1:]
+    faces = np.concatenate([np.stack([a, b, d], -1).reshape(-1, 3),
+                            np.stack([a, d, c], -1).reshape(-1, 3)])
+    return {
+        "vertices": np.stack([x, y, z], -1).reshape(-1, 3),
+        "faces": faces.astype(np.int64),
+        "normals": n.reshape(-1, 3),
+        "k1": (Hm + disc).ravel(),
+        "k2": (Hm - disc).ravel(),
+    }
+
+
+_MESH_CACHE: dict[tuple, Any] = {}
+
+
+def _load_mesh_file(path: str):
+    key = (path, os.path.getmtime(path))
+    if key not in _MESH_CACHE:
+        from simtest.scene.meshes import load_mesh
+
+        _MESH_CACHE.clear()
+        _MESH_CACHE[key] = load_mesh(path)
+    return _MESH_CACHE[key]
+
+
+def _mesh_in_camera(spec: SceneSpec) -> dict[str, np.ndarray]:
+    geo = spec.geometry
+    if geo.type == "saddle":
+        return saddle_mesh(geo.distance_mm, geo.radius1_mm, geo.radius2_mm,
+                           geo.extent_mm if geo.extent_mm is not None else geo.distance_mm,
+                           geo.resolution if geo.resolution is not None else 129)
+    mesh = _load_mesh_file(geo.path)
+    attrs = mesh.vertex_attributes
+    for key in ("k1", "k2"):
+        if key not in attrs:
+            raise ValueError(f"{spec.source}: geometry.path: mesh {geo.path} has no vertex "
+                             f"attribute {key!r} (build it with `simtest meshes build`)")
+    m = np.linalg.inv(cam_to_world_matrix(spec.camera)) @ mesh_to_world_matrix(geo)
+    v = np.asarray(mesh.vertices, dtype=np.float64) @ m[:3, :3].T + m[:3, 3]
+    n = np.asarray(mesh.vertex_normals, dtype=np.float64) @ m[:3, :3].T
+    n /= np.linalg.norm(n, axis=1, keepdims=True)
+    k1, k2 = np.asarray(attrs["k1"], dtype=np.float64), np.asarray(attrs["k2"], dtype=np.float64)
+    s = geo.scale if geo.scale is not None else 1.0
+    k1, k2 = k1 / s, k2 / s
+    if geo.flip_normals:
+        n, k1, k2 = -n, -k2, -k1
+    return {"vertices": v, "faces": np.asarray(mesh.faces, dtype=np.int64), "normals": n,
+            "k1": k1, "k2": k2}
+
+
+# ------------------------------------------------------------------------------------------------
+# Rendering
+
+_SCENE_CACHE: dict[tuple, Any] = {}
+_SCENE_CACHE_SIZE = 4
+
+
+def _mitsuba_scene(spec: SceneSpec, light_pos: np.ndarray, variant: str):
+    """Load (or reuse) the Mitsuba scene; the seed and sensor do not change it."""
+    import mitsuba as mi
+
+    mesh_key = None
+    if spec.geometry.type == "mesh":
+        mesh_key = os.path.getmtime(spec.geometry.path)
+    key = (variant, spec.camera, spec.material, spec.geometry, spec.light.intensity,
+           spec.light.falloff, tuple(np.round(light_pos, 12)), spec.render.spp,
+           spec.render.sampler, mesh_key)
+    hit = _SCENE_CACHE.get(key)
+    if hit is not None:
+        return hit
+    mesh = _mesh_in_camera(spec) if spec.geometry.type in ("mesh", "saddle") else None
+    d = mitsuba_scene_dict(spec, light_pos_cam=light_pos, mesh_cam=mesh)
+    scene = mi.load_dict(materialize(d))
+    if len(_SCENE_CACHE) >= _SCENE_CACHE_SIZE:
+        _SCENE_CACHE.pop(next(iter(_SCENE_CACHE)))
+    _SCENE_CACHE[key] = (scene, mesh)
+    return scene, mesh
+
+
+def _make_caster(scene, K: np.ndarray):
+    import mitsuba as mi
+
+    def cast(uv: np.ndarray) -> dict:
+        d = pixel_rays(uv, K).astype(np.float32)
+        n_rays = len(d)
+        o = mi.Point3f(np.zeros(n_rays, np.float32), np.zeros(n_rays, np.float32),
+                       np.zeros(n_rays, np.float32))
+        ray = mi.Ray3f(o, mi.Vector3f(d[:, 0], d[:, 1], d[:, 2]))
+        si = scene.ray_intersect(ray)
+        hit = np.array(si.is_valid(), dtype=bool)
+        p = np.array(si.p, dtype=np.float64).T
+        n = np.array(si.sh_frame.n, dtype=np.float64).T
+        n /= np.maximum(np.linalg.norm(n, axis=1, keepdims=True), 1e-30)
+        n = np.where(np.sum(n * p, axis=1, keepdims=True) > 0, -n, n)
+        prim = np.array(si.prim_index, dtype=np.int64)
+        return {"hit": hit & np.all(np.isfinite(p), axis=1), "p": p, "n": n, "prim": prim}
+
+    return cast
+
+
+def _highlights(spec: SceneSpec, res: dict, light_pos, K, scene, mesh) -> list[HighlightTruth]:
+    geo = spec.geometry
+    size = (spec.camera.width_px, spec.camera.height_px)
+    w2c = np.linalg.inv(cam_to_world_matrix(spec.camera))
+    hl: HighlightTruth | None
+    if geo.type == "plane":
+        hl = plane_highlight(plane_normal_cam(geo), geo.distance_mm, light_pos, K, size)
+        if hl is not None:
+            half = geo.extent_mm if geo.extent_mm is not None else 100.0 * geo.distance_mm
+            foot = -geo.distance_mm * plane_normal_cam(geo)
+            if np.max(np.abs(hl.bp_mm - foot)) > half:
+                hl = None
+        return [hl] if hl is not None else []
+    if geo.type == "sphere":
+        c = (w2c @ np.append(geo.center_mm, 1.0))[:3]
+        return [sphere_highlight(c, geo.radius_mm, light_pos, K, size)]
+    if geo.type == "cylinder":
+        c = (w2c @ np.append(geo.center_mm, 1.0))[:3]
+        axis = np.asarray(geo.axis if geo.axis is not None else (1.0, 0.0, 0.0), dtype=np.float64)
+        length = geo.length_mm if geo.length_mm is not None else 20.0 * geo.radius_mm
+        hl = cylinder_highlight(c, w2c[:3, :3] @ axis, geo.radius_mm, length, light_pos, K, size)
+        return [hl] if hl is not None else []
+    return mesh_highlights(_make_caster(scene, K), res["normals_raw"], res["position_raw"],
+                           res["mask"], light_pos, K, mesh["vertices"], mesh["faces"],
+                           mesh["k1"], mesh["k2"])
+
+
+def render_scene(spec: SceneSpec, *, seed: int | None = None,
+                 variant: str | None = None) -> RenderResult:
+    """Render ``spec`` and return the images with their ground truth.
+
+    Parameters
+    ----------
+    spec : SceneSpec
+    seed : int, optional
+        Root seed of the sampler, the sensor noise and the light draw; None uses
+        ``spec.render.seed``. The same seed gives bit-identical outputs.
+    variant : str, optional
+        Mitsuba variant; None uses ``spec.render.variant`` ("auto": CUDA if usable, else LLVM).
+
+    Returns
+    -------
+    RenderResult
+
+    Raises
+    ------
+    RendererUnavailable
+        If Mitsuba cannot run the variant here.
+
+    Notes
+    -----
+    With ``light.falloff = "cancel"`` the Phong BSDF multiplies by the squared light distance per
+    sample (exact); the microfacet BSDFs are Mitsuba's own, so the image is multiplied per pixel by
+    the squared light distance of the pixel's mean surface point (exact on fully covered pixels of a
+    plane to second order in the pixel footprint).
+    """
+    import mitsuba as mi
+
+    seed = spec.render.seed if seed is None else int(seed)
+    if seed < 0:
+        raise ValueError(f"seed must be >= 0, got {seed}")
+    variant = choose_variant(variant or spec.render.variant)
+    light_pos = light_position_cam(spec.light, seed)
+    scene, mesh = _mitsuba_scene(spec, light_pos, variant)
+
+    out = np.array(mi.render(scene, spp=spec.render.spp, seed=seed), dtype=np.float32)
+    rgb, alpha = out[..., 0:3], out[..., 3]
+    nn, pp, dd = out[..., 4:7], out[..., 7:10], out[..., 10]
+    mask = alpha >= 1.0
+    nlen = np.linalg.norm(nn, axis=-1)
+    mask &= nlen > 0
+    cov = np.where(alpha > 0, alpha, 1.0)[..., None]
+    pos_mean = pp / cov  # partially covered pixels: mean over the samples that hit
+    linear, specular = rgb[..., 0].copy(), rgb[..., 1].copy()
+    if spec.light.falloff == "cancel" and spec.material.model != "phong":
+        d2 = np.sum((pos_mean - light_pos.astype(np.float32)) ** 2, axis=-1)
+        d2 = np.where(alpha > 0, d2, 0.0).astype(np.float32)
+        linear *= d2
+        specular *= d2
+
+    normals = np.full(nn.shape, np.nan, dtype=np.float32)
+    n_unit = nn[mask] / nlen[mask][:, None]
+    flip = np.sum(n_unit * pp[mask], axis=-1) > 0  # face the camera: n . ray < 0
+    n_unit[flip] *= -1.0
+    normals[mask] = n_unit
+    position = np.full(pp.shape, np.nan, dtype=np.float32)
+    position[mask] = pp[mask]
+    depth = np.full(mask.shape, np.nan, dtype=np.float32)
+    depth[mask] = pp[mask][:, 2]
+    distance = np.full(mask.shape, np.nan, dtype=np.float32)
+    distance[mask] = dd[mask]
+
+    K = intrinsics_matrix(spec.camera)
+    res = {"normals_raw": np.where(mask[..., None], normals, 0.0),
+           "position_raw": np.where(mask[..., None], position, 0.0), "mask": mask}
+    highlights = _highlights(spec, res, light_pos, K, scene, mesh)
+    sensor = apply_sensor(linear, spec.sensor, seed)
+    return RenderResult(
+        linear=linear, sensor=sensor, specular=specular, normals=normals, depth=depth,
+        distance=distance, position=position, mask=mask, coverage=alpha.astype(np.float32),
+        K=K, cam_to_world=cam_to_world_matrix(spec.camera), light_pos=light_pos,
+        highlights=highlights, variant=variant, seed=seed, spec=spec,
+    )
+
+
+# ------------------------------------------------------------------------------------------------
+# Output files
+
+
+def _atomic_write(path: Path, write) -> None:
+    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
+    os.close(fd)
+    try:
+        write(tmp)
+        os.replace(tmp, path)
+    except BaseException:
+        if os.path.exists(tmp):
+            os.unlink(tmp)
+        raise
+
+
+def _save_intrinsics(path: Path, K: np.ndarray, size: tuple[int, int]) -> None:
+    try:
+        from simtest.geometry.camera import save_intrinsics
+    except ImportError:  # the geometry package is not there yet: same fields, plain JSON
+        save_intrinsics = None
+    if save_intrinsics is not None:
+        save_intrinsics(path, K, dist_coeffs=None, image_size=size)
+        return
+    payload = {"K": K.tolist(), "dist_coeffs": None, "image_size": list(size)}
+    _atomic_write(path, lambda tmp: Path(tmp).write_text(json.dumps(payload, indent=2)))
+
+
+def write_render(result: RenderResult, out_dir: str | Path) -> dict[str, Path]:
+    """Write a render to ``out_dir`` (created if needed); each file atomically.
+
+    Files: ``image.png`` (the sensor image, 8 or 16 bit grey), ``intrinsics.json``
+    (:func:`simtest.geometry.camera.save_intrinsics`), ``ground_truth.npz`` (``normals`` (H, W, 3),
+    ``depth``, ``distance`` (H, W) mm, ``position`` (H, W, 3), ``mask``, ``linear``, ``specular``,
+    ``K``, ``cam_to_world``, ``light_pos``), ``highlights.json`` (``highlights``: list of
+    :meth:`HighlightTruth.to_dict`, with the scene, seed and variant).
+
+    Returns
+    -------
+    dict
+        File role -> path.
+    """
+    from PIL import Image
+
+    from simtest.scene.spec import scene_to_dict
+
+    out = Path(out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    paths = {k: out / v for k, v in (("image", "image.png"), ("intrinsics", "intrinsics.json"),
+                                      ("ground_truth", "ground_truth.npz"),
+                                      ("highlights", "highlights.json"))}
+    img = result.sensor
+    if img.dtype == np.uint8:
+        pil = Image.fromarray(img, mode="L")
+    else:
+        pil = Image.fromarray(img.astype(np.uint16))
+    _atomic_write(paths["image"], lambda tmp: pil.save(tmp, format="PNG"))
+    H, W = result.linear.shape[:2]
+    _save_intrinsics(paths["intrinsics"], result.K, (W, H))
+
+    def write_npz(tmp):
+        with open(tmp, "wb") as fh:
+            np.savez_compressed(
+                fh, normals=result.normals, depth=result.depth, distance=result.distance,
+                position=result.position, mask=result.mask, linear=result.linear,
+                specular=result.specular, coverage=result.coverage, K=result.K,
+                cam_to_world=result.cam_to_world, light_pos=result.light_pos)
+
+    _atomic_write(paths["ground_truth"], write_npz)
+    meta = {
+        "scene": result.spec.name,
+        "seed": result.seed,
+        "variant": result.variant,
+        "light_pos_mm": [float(x) for x in result.light_pos],
+        "image_size": [W, H],
+        "highlights": [h.to_dict() for h in result.highlights],
+        "spec": scene_to_dict(result.spec),
+    }
+    _atomic_write(paths["highlights"],
+                  lambda tmp: Path(tmp).write_text(json.dumps(meta, indent=2)))
+    return paths

@@ -1,0 +1,329 @@
+"""Ground truth per highlight: the brightest point (BP) of each specularity, numpy only.
+
+The BP is where the surface normal bisects the directions to the camera (at the origin) and to the
+light L (DESIGN.md section 1, facts 4 and 5): ``n(p) = h(p) = unit(unit(-p) + unit(L - p))``. With a
+co-located light it is where the normal is parallel to the viewing ray.
+
+- Plane: mirror the light in the plane; the BP is where the segment from the camera to the mirror
+  image crosses the plane (closed form).
+- Sphere, cylinder: closed form with a co-located light; otherwise the stationarity condition (the
+  tangential part of h vanishes) solved with :func:`scipy.optimize.root` on the analytic surface.
+- Meshes: candidate pixels where the rendered ground-truth normals nearly bisect, refined by ray
+  casting through sub-pixel grids (the normal is the barycentric interpolation of the vertex
+  normals, as Mitsuba shades it); k1 and k2 are the barycentric interpolation of the vertex values.
+
+Curvature sign convention (the same as :mod:`simtest.scene.meshes`): positive when the surface bends
+toward its (camera-facing) normal. A sphere seen from outside has k1 = k2 = -1/R.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from typing import Callable
+
+import numpy as np
+
+__all__ = [
+    "HighlightTruth",
+    "bisector",
+    "bisector_cos_image",
+    "plane_highlight",
+    "sphere_highlight",
+    "cylinder_highlight",
+    "mesh_highlights",
+    "highlight_complete",
+    "project",
+    "pixel_rays",
+]
+
+
+@dataclass(frozen=True)
+class HighlightTruth:
+    """Ground truth of one specular highlight.
+
+    Attributes
+    ----------
+    bp_px : ndarray of shape (2,)
+        BP pixel [u, v] (pixel centres at integers).
+    bp_mm : ndarray of shape (3,)
+        BP in the camera frame, mm.
+    normal : ndarray of shape (3,)
+        Unit surface normal at the BP, camera frame, facing the camera.
+    k1, k2 : float
+        Principal curvatures at the BP, 1/mm, ``k1 >= k2``; positive when the surface bends toward
+        its normal.
+    in_frame : bool
+        The BP pixel lies inside the image (``-0.5 <= u < W - 0.5``, same for v).
+    """
+
+    bp_px: np.ndarray
+    bp_mm: np.ndarray
+    normal: np.ndarray
+    k1: float
+    k2: float
+    in_frame: bool
+
+    def to_dict(self) -> dict:
+        """JSON-ready dict (lists and floats)."""
+        return {
+            "bp_px": [float(x) for x in self.bp_px],
+            "bp_mm": [float(x) for x in self.bp_mm],
+            "normal": [float(x) for x in self.normal],
+            "k1": float(self.k1),
+            "k2": float(self.k2),
+            "in_frame": bool(self.in_frame),
+        }
+
+
+def _unit(v: np.ndarray) -> np.ndarray:
+    v = np.asarray(v, dtype=np.float64)
+    return v / np.linalg.norm(v, axis=-1, keepdims=True)
+
+
+def bisector(p: np.ndarray, light: np.ndarray) -> np.ndarray:
+    """Unit bisector ``h`` (..., 3) of the directions from ``p`` (..., 3) to the camera and light."""
+    p = np.asarray(p, dtype=np.float64)
+    return _unit(_unit(-p) + _unit(np.asarray(light, dtype=np.float64) - p))
+
+
+def bisector_cos_image(normals: np.ndarray, position: np.ndarray, mask: np.ndarray,
+                       light: np.ndarray) -> np.ndarray:
+    """``n . h`` per pixel (H, W); -1 outside ``mask``."""
+    out = np.full(mask.shape, -1.0)
+    if mask.any():
+        out[mask] = np.sum(normals[mask] * bisector(position[mask], light), axis=-1)
+    return out
+
+
+def project(X: np.ndarray, K: np.ndarray) -> np.ndarray:
+    """Pixel coordinates (..., 2) of camera-frame points X (..., 3)."""
+    X = np.asarray(X, dtype=np.float64)
+    x = X @ K.T
+    return x[..., :2] / x[..., 2:3]
+
+
+def pixel_rays(uv: np.ndarray, K: np.ndarray) -> np.ndarray:
+    """Unit camera-frame ray directions (..., 3) through pixels uv (..., 2)."""
+    uv = np.asarray(uv, dtype=np.float64)
+    ones = np.ones(uv.shape[:-1] + (1,))
+    return _unit(np.concatenate([uv, ones], axis=-1) @ np.linalg.inv(K).T)
+
+
+def _in_frame(uv: np.ndarray, size: tuple[int, int]) -> bool:
+    w, h = size
+    return bool(np.all(np.isfinite(uv)) and -0.5 <= uv[0] < w - 0.5 and -0.5 <= uv[1] < h - 0.5)
+
+
+def _highlight(p, n, k1, k2, K, size) -> HighlightTruth:
+    uv = project(p, K)
+    return HighlightTruth(np.asarray(uv, float), np.asarray(p, float), _unit(n),
+                          float(max(k1, k2)), float(min(k1, k2)), _in_frame(uv, size))
+
+
+def plane_highlight(normal: np.ndarray, distance_mm: float, light: np.ndarray, K: np.ndarray,
+                    size: tuple[int, int]) -> HighlightTruth | None:
+    """BP of the plane ``{X : normal . X = -distance_mm}`` (``normal`` faces the camera).
+
+    The BP is where the segment from the camera centre to the mirror image ``L'`` of the light
+    crosses the plane; None if the light is behind the plane.
+    """
+    n = _unit(normal)
+    L = np.asarray(light, dtype=np.float64)
+    if np.dot(n, L) + distance_mm <= 0:
+        return None
+    Lm = L - 2.0 * (np.dot(n, L) + distance_mm) * n
+    p = (-distance_mm / np.dot(n, Lm)) * Lm
+    return _highlight(p, n, 0.0, 0.0, K, size)
+
+
+def _solve_stationary(surface: Callable[[np.ndarray], tuple[np.ndarray, np.ndarray]],
+                      x0: np.ndarray, light: np.ndarray) -> np.ndarray:
+    """Parameters x where the tangential part of the bisector vanishes on ``surface(x) -> (p, n)``."""
+    from scipy.optimize import root
+
+    f1, f2 = np.array([1.0, 0.0, 0.0]), np.array([0.0, 1.0, 0.0])
+    p0, n0 = surface(x0)
+    if abs(n0[0]) > 0.9:
+        f1 = np.array([0.0, 0.0, 1.0])
+    e1 = _unit(f1 - np.dot(f1, n0) * n0)
+    e2 = np.cross(n0, e1)
+
+    def residual(x):
+        p, n = surface(x)
+        h = bisector(p, light)
+        t = h - np.dot(h, n) * n
+        return np.array([np.dot(t, e1), np.dot(t, e2)])
+
+    sol = root(residual, x0, method="hybr", options={"xtol": 1e-14})
+    return sol.x
+
+
+def sphere_highlight(center: np.ndarray, radius: float, light: np.ndarray, K: np.ndarray,
+                     size: tuple[int, int]) -> HighlightTruth:
+    """BP of a sphere seen from outside (normals outward, k1 = k2 = -1/R)."""
+    c = np.asarray(center, dtype=np.float64)
+    L = np.asarray(light, dtype=np.float64)
+    n0 = -_unit(c)
+    k = -1.0 / radius
+    if np.allclose(L, 0.0):
+        return _highlight(c + radius * n0, n0, k, k, K, size)
+    e1 = _unit(np.cross(n0, [0.0, 1.0, 0.0] if abs(n0[1]) < 0.9 else [1.0, 0.0, 0.0]))
+    e2 = np.cross(n0, e1)
+
+    def surface(x):
+        n = _unit(n0 + x[0] * e1 + x[1] * e2)
+        return c + radius * n, n
+
+    x = _solve_stationary(surface, np.zeros(2), L)
+    p, n = surface(x)
+    return _highlight(p, n, k, k, K, size)
+
+
+def cylinder_highlight(center: np.ndarray, axis: np.ndarray, radius: float, length: float,
+                       light: np.ndarray, K: np.ndarray, size: tuple[int, int]) -> HighlightTruth | None:
+    """BP of a finite cylinder seen from outside (k1 = 0, k2 = -1/R); None if off its length."""
+    c = np.asarray(center, dtype=np.float64)
+    a = _unit(axis)
+    L = np.asarray(light, dtype=np.float64)
+    q = c - np.dot(c, a) * a  # foot of the perpendicular from the camera centre to the axis
+    n0 = _unit(-q)
+    s0 = np.dot(q - c, a)
+    if not np.allclose(L, 0.0):
+        e = np.cross(a, n0)
+
+        def surface(x):
+            n = math.cos(x[1]) * n0 + math.sin(x[1]) * e
+            return c + (s0 + x[0]) * a + radius * n, n
+
+        x = _solve_stationary(surface, np.zeros(2), L)
+        p, n = surface(x)
+        s = s0 + x[0]
+    else:
+        p, n, s = q + radius * n0, n0, s0
+    if abs(s) > 0.5 * length:
+        return None
+    return _highlight(p, n, 0.0, -1.0 / radius, K, size)
+
+
+#: Caster signature: uv (N, 2) pixel coordinates -> dict with ``hit`` (N,) bool, ``p`` (N, 3),
+#: ``n`` (N, 3) unit camera-facing shading normals, ``prim`` (N,) int triangle index.
+Caster = Callable[[np.ndarray], dict]
+
+
+def mesh_highlights(
+    cast: Caster,
+    normals: np.ndarray,
+    position: np.ndarray,
+    mask: np.ndarray,
+    light: np.ndarray,
+    K: np.ndarray,
+    vertices: np.ndarray,
+    faces: np.ndarray,
+    k1_v: np.ndarray,
+    k2_v: np.ndarray,
+    *,
+    candidate_deg: float = 3.0,
+    accept_deg: float = 0.01,
+    max_highlights: int = 64,
+) -> list[HighlightTruth]:
+    """BPs of a triangle mesh with interpolated vertex normals, from a render's ground truth.
+
+    Parameters
+    ----------
+    cast : callable
+        Ray caster (see ``Caster``); the renderer passes Mitsuba's ``scene.ray_intersect``.
+    normals, position : ndarray of shape (H, W, 3)
+        Per-pixel ground truth (camera frame); ``mask`` (H, W) bool.
+    light : ndarray of shape (3,)
+        Light position, camera frame.
+    K : ndarray of shape (3, 3)
+    vertices, faces : ndarray of shape (V, 3), (F, 3)
+        The mesh in the camera frame.
+    k1_v, k2_v : ndarray of shape (V,)
+        Vertex principal curvatures (1/mm, camera-facing sign convention).
+    candidate_deg : float
+        Pixels whose normal is within this angle of the bisector and locally best start a search.
+    accept_deg : float
+        A refined BP is kept if its normal is within this angle of the bisector.
+    max_highlights : int
+        At most this many candidates (the best first) are refined.
+
+    Returns
+    -------
+    list of HighlightTruth
+        Sorted by v then u; duplicates (within 0.5 px) merged.
+    """
+    from skimage.feature import peak_local_max
+
+    H, W = mask.shape
+    g = bisector_cos_image(normals, position, mask, light)
+    peaks = peak_local_max(g, min_distance=2, threshold_abs=math.cos(math.radians(candidate_deg)),
+                           exclude_border=False, num_peaks=max_highlights)
+    if len(peaks) == 0:
+        return []
+    uv = peaks[:, ::-1].astype(np.float64)  # (row, col) -> (u, v)
+    step = 1.0
+    offs = np.arange(-3, 4, dtype=np.float64)
+    grid = np.stack(np.meshgrid(offs, offs, indexing="xy"), axis=-1).reshape(-1, 2)  # (49, 2)
+    best_cos = np.full(len(uv), -np.inf)
+    for _ in range(16):
+        cand = uv[:, None, :] + step * grid[None, :, :]  # (N, 49, 2)
+        res = cast(cand.reshape(-1, 2))
+        cos = np.sum(res["n"] * bisector(res["p"], light), axis=-1)
+        cos = np.where(res["hit"], cos, -np.inf).reshape(len(uv), -1)
+        j = np.argmax(cos, axis=1)
+        uv = cand[np.arange(len(uv)), j]
+        best_cos = cos[np.arange(len(uv)), j]
+        step /= 3.0
+    res = cast(uv)
+    out: list[HighlightTruth] = []
+    vertices = np.asarray(vertices, dtype=np.float64)
+    for i in range(len(uv)):
+        if not res["hit"][i]:
+            continue
+        p, n = res["p"][i], _unit(res["n"][i])
+        angle = math.degrees(math.acos(min(1.0, float(np.dot(n, bisector(p, light))))))
+        if angle > accept_deg:
+            continue
+        f = faces[int(res["prim"][i])]
+        a, b, c = vertices[f]
+        # Barycentric coordinates of p in triangle (a, b, c) by least squares.
+        T = np.column_stack([b - a, c - a])
+        w12, *_ = np.linalg.lstsq(T, p - a, rcond=None)
+        w = np.array([1.0 - w12.sum(), w12[0], w12[1]])
+        k1 = float(np.dot(w, k1_v[f]))
+        k2 = float(np.dot(w, k2_v[f]))
+        hl = HighlightTruth(uv[i].copy(), p.copy(), n, max(k1, k2), min(k1, k2),
+                            _in_frame(uv[i], (W, H)))
+        if all(np.hypot(*(hl.bp_px - o.bp_px)) > 0.5 for o in out):
+            out.append(hl)
+    out.sort(key=lambda h: (h.bp_px[1], h.bp_px[0]))
+    return out
+
+
+def highlight_complete(specular: np.ndarray, bp_px: np.ndarray, t: float = 0.1) -> bool:
+    """Whether the highlight at ``bp_px`` and its isophote at level ``t`` lie inside the image.
+
+    The region is the connected component of ``specular >= t * specular[BP]`` holding the BP
+    pixel; the highlight is complete when that region does not touch the image border.
+
+    Parameters
+    ----------
+    specular : ndarray of shape (H, W)
+        Specular-only linear image.
+    bp_px : ndarray of shape (2,)
+        [u, v].
+    t : float
+        Isovalue as a fraction of the BP's intensity.
+    """
+    from scipy import ndimage
+
+    H, W = specular.shape
+    u, v = int(round(bp_px[0])), int(round(bp_px[1]))
+    if not (0 <= u < W and 0 <= v < H) or specular[v, u] <= 0:
+        return False
+    labels, _ = ndimage.label(specular >= t * specular[v, u])
+    region = labels == labels[v, u]
+    border = region[0, :].any() or region[-1, :].any() or region[:, 0].any() or region[:, -1].any()
+    return not border

@@ -1,0 +1,557 @@
+"""Scene specifications: TOML files loaded into validated, frozen dataclasses.
+
+A scene file has six sections, ``[camera]``, ``[light]``, ``[material]``, ``[geometry]``,
+``[sensor]`` and ``[render]``, plus the top-level keys ``name`` and ``description``. Every key has
+a default except the geometry's shape parameters; unknown keys, wrong types and out-of-range values
+raise :class:`SceneError` with the message ``"<file>: <section.key>: <reason>"``.
+
+Conventions
+-----------
+Lengths in millimetres, angles in degrees (suffixes ``_mm``, ``_deg``, ``_px``). Geometry is given in
+the *world* frame; the camera pose (``camera.position_mm``, ``look_at_mm``, ``up``) places an OpenCV
+camera (x right, y down, z forward) in it. With the default pose (at the origin, looking along +z,
+up = (0, -1, 0)) the world frame *is* the camera frame, which is how the bundled analytic scenes are
+written.
+
+Examples
+--------
+>>> spec = scene_from_dict({"geometry": {"type": "sphere", "center_mm": [0, 0, 100],
+...                                      "radius_mm": 20}})
+>>> spec.camera.width_px, spec.material.model
+(406, 'phong')
+>>> with_overrides(spec, {"material.n": 80}).material.n
+80.0
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+import tomllib
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, Mapping
+
+__all__ = [
+    "SceneError",
+    "CameraSpec",
+    "LightSpec",
+    "MaterialSpec",
+    "GeometrySpec",
+    "SensorSpec",
+    "RenderSpec",
+    "SceneSpec",
+    "load_scene",
+    "scene_from_dict",
+    "scene_to_dict",
+    "with_overrides",
+    "GEOMETRY_KEYS",
+    "RENDER_VARIANTS",
+]
+
+
+class SceneError(ValueError):
+    """A scene file or dict is invalid. The message reads ``"<file>: <key>: <reason>"``."""
+
+
+#: Mitsuba variants the renderer accepts ("auto" picks cuda_ad_rgb when a GPU is usable, else
+#: llvm_ad_rgb). Only RGB variants: the renderer uses the colour channels to separate the
+#: specular-only image from the full image in a single render.
+RENDER_VARIANTS = ("auto", "llvm_ad_rgb", "cuda_ad_rgb", "scalar_rgb")
+
+
+def _meta(kind: str, *, lo=None, hi=None, lo_open=False, hi_open=False, choices=None) -> dict:
+    return {"kind": kind, "lo": lo, "hi": hi, "lo_open": lo_open, "hi_open": hi_open,
+            "choices": choices}
+
+
+def _fld(default, kind, **kw):
+    return field(default=default, metadata=_meta(kind, **kw))
+
+
+@dataclass(frozen=True)
+class CameraSpec:
+    """Pinhole camera.
+
+    Attributes
+    ----------
+    width_px, height_px : int
+        Film size in pixels.
+    fov_deg : float or None
+        Horizontal field of view (full angle across the film width), degrees in (0, 180).
+    focal_px : float or None
+        Focal length in pixels. Give at most one of ``fov_deg`` and ``focal_px``; with neither,
+        ``focal_px = width_px`` (the paper's f = M).
+    principal_offset_px : (2,) float
+        Principal point minus the film centre ``(W/2 - 0.5, H/2 - 0.5)``, pixels.
+    position_mm, look_at_mm, up : (3,) float
+        Camera pose in the world frame; ``up`` is the world direction shown at the top of the image
+        (OpenCV y points down, so the default up is (0, -1, 0)).
+    """
+
+    width_px: int = _fld(406, "int", lo=1, hi=16384)
+    height_px: int = _fld(406, "int", lo=1, hi=16384)
+    fov_deg: float | None = _fld(None, "float?", lo=0.0, hi=180.0, lo_open=True, hi_open=True)
+    focal_px: float | None = _fld(None, "float?", lo=0.0, lo_open=True)
+    principal_offset_px: tuple[float, float] = _fld((0.0, 0.0), "vec2")
+    position_mm: tuple[float, float, float] = _fld((0.0, 0.0, 0.0), "vec3")
+    look_at_mm: tuple[float, float, float] = _fld((0.0, 0.0, 1.0), "vec3")
+    up: tuple[float, float, float] = _fld((0.0, -1.0, 0.0), "vec3")
+
+    @property
+    def focal(self) -> float:
+        """Focal length in pixels (from ``focal_px``, ``fov_deg`` or the default ``width_px``)."""
+        if self.focal_px is not None:
+            return float(self.focal_px)
+        if self.fov_deg is not None:
+            return 0.5 * self.width_px / math.tan(math.radians(self.fov_deg) / 2.0)
+        return float(self.width_px)
+
+    @property
+    def fov_x_deg(self) -> float:
+        """Horizontal field of view in degrees."""
+        return math.degrees(2.0 * math.atan(0.5 * self.width_px / self.focal))
+
+
+@dataclass(frozen=True)
+class LightSpec:
+    """Point light carried by the camera.
+
+    The light sits at ``L = V + epsilon (cos a, sin a, b)`` in the camera frame (the paper's
+    parametrisation, section 4); ``a`` and ``b`` are drawn from the render seed (a uniform in
+    [0, 360) deg, b uniform in [-0.5, 0.5]) unless given.
+
+    Attributes
+    ----------
+    epsilon_mm : float
+        Offset scale, >= 0 (0: co-located).
+    alpha_deg, b : float or None
+        Offset direction parameters; None draws them from the seed.
+    intensity : float
+        Radiant intensity (arbitrary units), > 0.
+    falloff : {"cancel", "keep"}
+        "keep": radiance falls as 1/d^2 with the light distance d (a real endoscope). "cancel":
+        the 1/d^2 is undone so that an exact-Phong surface shows ``intensity * c cos(beta)^n``
+        (paper eq. 1).
+    """
+
+    epsilon_mm: float = _fld(0.0, "float", lo=0.0)
+    alpha_deg: float | None = _fld(None, "float?")
+    b: float | None = _fld(None, "float?")
+    intensity: float = _fld(1.0, "float", lo=0.0, lo_open=True)
+    falloff: str = _fld("cancel", "str", choices=("cancel", "keep"))
+
+
+@dataclass(frozen=True)
+class MaterialSpec:
+    """Surface reflectance: a specular lobe plus an optional Lambertian part.
+
+    Attributes
+    ----------
+    model : {"phong", "microfacet"}
+        "phong": exact paper eq. 1, ``c max(0, cos beta)^n`` (Python BSDF). "microfacet": Mitsuba's
+        ``roughconductor`` (base "conductor") or ``roughplastic`` (base "plastic").
+    c : float
+        Specular scale (Phong c; microfacet specular reflectance), >= 0.
+    n : float
+        Phong exponent, > 0. Also sets the default microfacet alpha = sqrt(2 / (4 n + 2)).
+    distribution : {"beckmann", "ggx"}
+    alpha : float or None
+        Microfacet roughness in (0, 1]; None derives it from ``n``.
+    base : {"conductor", "plastic"}
+    ior : float
+        Interior index of refraction of the plastic base, > 1.
+    diffuse_albedo : float
+        Lambertian albedo in [0, 1] (tissue), added to the specular lobe. Not with the conductor
+        base (use "plastic").
+    """
+
+    model: str = _fld("phong", "str", choices=("phong", "microfacet"))
+    c: float = _fld(1.0, "float", lo=0.0)
+    n: float = _fld(50.0, "float", lo=0.0, lo_open=True)
+    distribution: str = _fld("beckmann", "str", choices=("beckmann", "ggx"))
+    alpha: float | None = _fld(None, "float?", lo=0.0, hi=1.0, lo_open=True)
+    base: str = _fld("conductor", "str", choices=("conductor", "plastic"))
+    ior: float = _fld(1.5, "float", lo=1.0, lo_open=True)
+    diffuse_albedo: float = _fld(0.0, "float", lo=0.0, hi=1.0)
+
+    @property
+    def microfacet_alpha(self) -> float:
+        """``alpha`` or, if None, the Beckmann alpha matching Phong ``n``: sqrt(2 / (4 n + 2))."""
+        if self.alpha is not None:
+            return float(self.alpha)
+        return math.sqrt(2.0 / (4.0 * self.n + 2.0))
+
+
+#: Keys each geometry type accepts (besides ``type``) and which of them are required.
+GEOMETRY_KEYS: dict[str, tuple[tuple[str, ...], tuple[str, ...]]] = {
+    # type: (required, optional)
+    "plane": (("tilt_deg", "distance_mm"), ("azimuth_deg", "extent_mm")),
+    "sphere": (("center_mm", "radius_mm"), ()),
+    "cylinder": (("center_mm", "radius_mm"), ("axis", "length_mm")),
+    "saddle": (("distance_mm", "radius1_mm", "radius2_mm"), ("extent_mm", "resolution")),
+    "mesh": (("path",), ("translate_mm", "rotate_deg", "scale", "flip_normals")),
+}
+
+
+@dataclass(frozen=True)
+class GeometrySpec:
+    """The one surface in the scene (world frame).
+
+    Attributes
+    ----------
+    type : {"plane", "sphere", "cylinder", "saddle", "mesh"}
+    tilt_deg : float
+        plane: angle between the plane normal and the optical axis, [0, 90).
+    azimuth_deg : float
+        plane: direction of the tilt in the image; the camera-facing normal is
+        ``(sin t cos a, sin t sin a, -cos t)``, so with the default 90 the BP lies above the image
+        centre.
+    distance_mm : float
+        plane: distance from the camera centre to the plane (the paper's V_Z); saddle: depth of
+        its apex on the optical axis.
+    extent_mm : float or None
+        plane/saddle: half side of the square patch (default: 100 x distance for a plane,
+        distance for a saddle).
+    center_mm : (3,) float
+        sphere centre; cylinder: a point on the axis (centre of the finite cylinder).
+    radius_mm : float
+        sphere/cylinder radius.
+    axis : (3,) float
+        cylinder axis direction (normalised on load); default (1, 0, 0).
+    length_mm : float or None
+        cylinder length (default 20 x radius).
+    radius1_mm, radius2_mm : float
+        saddle: z = d + x^2 / (2 r1) - y^2 / (2 r2) in the camera frame.
+    resolution : int
+        saddle: vertices per side of its grid mesh.
+    path : str
+        mesh: PLY file written by ``simtest.scene.meshes.save_mesh``; relative paths are taken from
+        the scene file's folder, then from the repository root.
+    translate_mm, rotate_deg, scale : mesh to world transform ``x -> R (scale x) + t``, with
+        ``R = Rz Ry Rx`` from ``rotate_deg`` (degrees about the world axes, x first).
+    flip_normals : bool
+        mesh: reverse the vertex normals and curvature signs.
+    """
+
+    type: str = _fld("plane", "str", choices=tuple(GEOMETRY_KEYS))
+    tilt_deg: float | None = _fld(None, "float?", lo=0.0, hi=90.0, hi_open=True)
+    azimuth_deg: float | None = _fld(None, "float?")
+    distance_mm: float | None = _fld(None, "float?", lo=0.0, lo_open=True)
+    extent_mm: float | None = _fld(None, "float?", lo=0.0, lo_open=True)
+    center_mm: tuple[float, float, float] | None = _fld(None, "vec3?")
+    radius_mm: float | None = _fld(None, "float?", lo=0.0, lo_open=True)
+    axis: tuple[float, float, float] | None = _fld(None, "vec3?")
+    length_mm: float | None = _fld(None, "float?", lo=0.0, lo_open=True)
+    radius1_mm: float | None = _fld(None, "float?", lo=0.0, lo_open=True)
+    radius2_mm: float | None = _fld(None, "float?", lo=0.0, lo_open=True)
+    resolution: int | None = _fld(None, "int?", lo=3, hi=4096)
+    path: str | None = _fld(None, "str?")
+    translate_mm: tuple[float, float, float] | None = _fld(None, "vec3?")
+    rotate_deg: tuple[float, float, float] | None = _fld(None, "vec3?")
+    scale: float | None = _fld(None, "float?", lo=0.0, lo_open=True)
+    flip_normals: bool | None = _fld(None, "bool?")
+
+
+@dataclass(frozen=True)
+class SensorSpec:
+    """Sensor model applied to the linear image (see :func:`simtest.render.sensor.apply_sensor`).
+
+    ``s = exposure * L``; Poisson noise with ``full_well_e`` electrons at full scale (0: none);
+    Gaussian read noise of standard deviation ``gaussian_sigma`` (fraction of full scale); clip to
+    [0, saturation]; ``y = s^(1 / gamma)``; quantise to ``2^bit_depth - 1`` levels.
+    """
+
+    exposure: float = _fld(1.0, "float", lo=0.0, lo_open=True)
+    saturation: float = _fld(1.0, "float", lo=0.0, hi=1.0, lo_open=True)
+    gamma: float = _fld(1.0, "float", lo=0.0, lo_open=True)
+    bit_depth: int = _fld(8, "int", lo=1, hi=16)
+    gaussian_sigma: float = _fld(0.0, "float", lo=0.0)
+    full_well_e: float = _fld(0.0, "float", lo=0.0)
+
+
+@dataclass(frozen=True)
+class RenderSpec:
+    """Rendering settings. ``seed`` drives the sampler, the sensor noise and the light draw."""
+
+    spp: int = _fld(16, "int", lo=1, hi=1 << 20)
+    sampler: str = _fld("multijitter", "str", choices=("multijitter", "independent", "stratified"))
+    seed: int = _fld(0, "int", lo=0, hi=2**31 - 1)
+    variant: str = _fld("auto", "str", choices=RENDER_VARIANTS)
+
+
+_SECTIONS: dict[str, type] = {
+    "camera": CameraSpec,
+    "light": LightSpec,
+    "material": MaterialSpec,
+    "geometry": GeometrySpec,
+    "sensor": SensorSpec,
+    "render": RenderSpec,
+}
+
+
+@dataclass(frozen=True)
+class SceneSpec:
+    """A whole scene. ``source`` (file path or "<dict>") is for messages and is not serialised."""
+
+    name: str = "scene"
+    description: str = ""
+    camera: CameraSpec = field(default_factory=CameraSpec)
+    light: LightSpec = field(default_factory=LightSpec)
+    material: MaterialSpec = field(default_factory=MaterialSpec)
+    geometry: GeometrySpec = field(default_factory=GeometrySpec)
+    sensor: SensorSpec = field(default_factory=SensorSpec)
+    render: RenderSpec = field(default_factory=RenderSpec)
+    source: str = field(default="<dict>", compare=False)
+
+
+# ------------------------------------------------------------------------------------------------
+# validation
+
+
+def _err(source: str, key: str, reason: str) -> SceneError:
+    return SceneError(f"{source}: {key}: {reason}")
+
+
+def _tname(v: Any) -> str:
+    return type(v).__name__
+
+
+def _coerce(value: Any, kind: str, source: str, key: str) -> Any:
+    base = kind.rstrip("?")
+    if base == "float":
+        if isinstance(value, bool) or not isinstance(value, (int, float)):
+            raise _err(source, key, f"expected a number, got {_tname(value)} {value!r}")
+        v = float(value)
+        if not math.isfinite(v):
+            raise _err(source, key, f"expected a finite number, got {value!r}")
+        return v
+    if base == "int":
+        if isinstance(value, float) and value.is_integer():
+            value = int(value)
+        if isinstance(value, bool) or not isinstance(value, int):
+            raise _err(source, key, f"expected an integer, got {_tname(value)} {value!r}")
+        return int(value)
+    if base == "bool":
+        if not isinstance(value, bool):
+            raise _err(source, key, f"expected true or false, got {_tname(value)} {value!r}")
+        return value
+    if base == "str":
+        if not isinstance(value, str):
+            raise _err(source, key, f"expected a string, got {_tname(value)} {value!r}")
+        return value
+    if base in ("vec2", "vec3"):
+        n = int(base[-1])
+        if not isinstance(value, (list, tuple)) or len(value) != n:
+            raise _err(source, key, f"expected a list of {n} numbers, got {value!r}")
+        return tuple(_coerce(x, "float", source, f"{key}[{i}]") for i, x in enumerate(value))
+    raise AssertionError(kind)  # pragma: no cover
+
+
+def _check_range(v: Any, meta: dict, source: str, key: str) -> None:
+    if meta["choices"] is not None and v not in meta["choices"]:
+        opts = ", ".join(repr(c) for c in meta["choices"])
+        raise _err(source, key, f"{v!r} is not one of {opts}")
+    lo, hi = meta["lo"], meta["hi"]
+    if lo is not None and (v < lo or (meta["lo_open"] and v == lo)):
+        op = ">" if meta["lo_open"] else ">="
+        raise _err(source, key, f"{v!r} is out of range: must be {op} {lo}")
+    if hi is not None and (v > hi or (meta["hi_open"] and v == hi)):
+        op = "<" if meta["hi_open"] else "<="
+        raise _err(source, key, f"{v!r} is out of range: must be {op} {hi}")
+
+
+def _build_section(cls: type, data: Any, source: str, section: str):
+    if not isinstance(data, Mapping):
+        raise _err(source, section, f"expected a table, got {_tname(data)} {data!r}")
+    fields = {f.name: f for f in dataclasses.fields(cls)}
+    kwargs = {}
+    for key, value in data.items():
+        dotted = f"{section}.{key}"
+        if key not in fields:
+            known = ", ".join(fields)
+            raise _err(source, dotted, f"unknown key (known keys: {known})")
+        meta = fields[key].metadata
+        if value is None and meta["kind"].endswith("?"):
+            kwargs[key] = None
+            continue
+        v = _coerce(value, meta["kind"], source, dotted)
+        if meta["kind"].rstrip("?") in ("float", "int", "str"):
+            _check_range(v, meta, source, dotted)
+        kwargs[key] = v
+    return cls(**kwargs)
+
+
+def _norm(v: tuple[float, float, float]) -> float:
+    return math.sqrt(sum(x * x for x in v))
+
+
+def _validate(spec: SceneSpec, source: str, base_dirs: tuple[Path, ...]) -> SceneSpec:
+    cam, geo, mat = spec.camera, spec.geometry, spec.material
+    if cam.fov_deg is not None and cam.focal_px is not None:
+        raise _err(source, "camera.focal_px", "give either camera.fov_deg or camera.focal_px, not both")
+    fwd = tuple(b - a for a, b in zip(cam.position_mm, cam.look_at_mm))
+    if _norm(fwd) == 0.0:
+        raise _err(source, "camera.look_at_mm", "equals camera.position_mm")
+    if _norm(cam.up) == 0.0:
+        raise _err(source, "camera.up", "is the zero vector")
+    cross = (fwd[1] * cam.up[2] - fwd[2] * cam.up[1], fwd[2] * cam.up[0] - fwd[0] * cam.up[2],
+             fwd[0] * cam.up[1] - fwd[1] * cam.up[0])
+    if _norm(cross) <= 1e-9 * _norm(fwd) * _norm(cam.up):
+        raise _err(source, "camera.up", "is parallel to the viewing direction")
+    if mat.model == "microfacet" and mat.base == "conductor" and mat.diffuse_albedo > 0:
+        raise _err(source, "material.diffuse_albedo",
+                   "a conductor has no diffuse part; use material.base = \"plastic\" for tissue")
+
+    required, optional = GEOMETRY_KEYS[geo.type]
+    for f in dataclasses.fields(GeometrySpec):
+        if f.name == "type":
+            continue
+        value = getattr(geo, f.name)
+        if f.name in required and value is None:
+            raise _err(source, f"geometry.{f.name}", f"missing (required for type {geo.type!r})")
+        if value is not None and f.name not in required + optional:
+            raise _err(source, f"geometry.{f.name}",
+                       f"not a key of geometry type {geo.type!r} (keys: {', '.join(required + optional)})")
+    if geo.type == "cylinder" and geo.axis is not None and _norm(geo.axis) == 0.0:
+        raise _err(source, "geometry.axis", "is the zero vector")
+    if geo.type == "mesh":
+        assert geo.path is not None
+        path = Path(geo.path).expanduser()
+        if not path.is_absolute():
+            candidates = [d / path for d in base_dirs]
+            found = next((p for p in candidates if p.is_file()), None)
+            if found is None:
+                tried = ", ".join(str(p) for p in candidates) or str(path)
+                raise _err(source, "geometry.path", f"mesh file not found: {geo.path!r} (tried {tried})")
+            path = found
+        elif not path.is_file():
+            raise _err(source, "geometry.path", f"mesh file not found: {str(path)!r}")
+        geo = dataclasses.replace(geo, path=str(path.resolve()))
+        spec = dataclasses.replace(spec, geometry=geo)
+    return spec
+
+
+def _repo_root() -> Path:
+    return Path(__file__).resolve().parents[2]
+
+
+def scene_from_dict(d: Mapping[str, Any], source: str = "<dict>",
+                    base_dir: str | Path | None = None) -> SceneSpec:
+    """Build and validate a :class:`SceneSpec` from a nested dict (the TOML layout).
+
+    Parameters
+    ----------
+    d : mapping
+        Top-level keys ``name``, ``description`` and the six sections.
+    source : str
+        Shown at the start of every error message (the file name).
+    base_dir : path, optional
+        Folder relative mesh paths are resolved from (before the repository root).
+
+    Raises
+    ------
+    SceneError
+        On an unknown key, a wrong type, an out-of-range value, a missing required geometry key or a
+        mesh file that does not exist.
+    """
+    if not isinstance(d, Mapping):
+        raise _err(source, "<root>", f"expected a table, got {_tname(d)}")
+    kwargs: dict[str, Any] = {}
+    for key, value in d.items():
+        if key in ("name", "description"):
+            kwargs[key] = _coerce(value, "str", source, key)
+        elif key in _SECTIONS:
+            kwargs[key] = _build_section(_SECTIONS[key], value, source, key)
+        else:
+            known = ", ".join(["name", "description", *_SECTIONS])
+            raise _err(source, key, f"unknown key (known keys: {known})")
+    if "geometry" not in kwargs:
+        raise _err(source, "geometry", "missing section [geometry] (it needs at least `type`)")
+    spec = SceneSpec(**kwargs, source=source)
+    dirs = [Path(base_dir)] if base_dir is not None else []
+    dirs.append(_repo_root())
+    return _validate(spec, source, tuple(dirs))
+
+
+def load_scene(path: str | Path) -> SceneSpec:
+    """Load and validate a TOML scene file.
+
+    Parameters
+    ----------
+    path : str or Path
+        A ``.toml`` file, or the name of a bundled scene (e.g. ``"plane_58deg"``).
+
+    Raises
+    ------
+    SceneError
+        If the file is missing, is not valid TOML, or fails validation (see
+        :func:`scene_from_dict`).
+    """
+    p = Path(path)
+    if not p.is_file() and p.suffix != ".toml" and "/" not in str(path):
+        from simtest.scene import bundled_scene_path
+
+        try:
+            p = bundled_scene_path(str(path))
+        except KeyError as exc:
+            raise SceneError(f"{path}: <file>: no such file and no bundled scene of that name "
+                             f"({exc.args[0]})") from None
+    if not p.is_file():
+        raise SceneError(f"{p}: <file>: no such file")
+    try:
+        with open(p, "rb") as fh:
+            data = tomllib.load(fh)
+    except tomllib.TOMLDecodeError as exc:
+        raise SceneError(f"{p}: <toml>: {exc}") from None
+    spec = scene_from_dict(data, source=str(p), base_dir=p.resolve().parent)
+    if "name" not in data:
+        spec = dataclasses.replace(spec, name=p.stem)
+    return spec
+
+
+def scene_to_dict(spec: SceneSpec) -> dict[str, Any]:
+    """Return the nested dict (TOML layout) of ``spec``; None values are left out.
+
+    ``scene_from_dict(scene_to_dict(s)) == s`` for a valid spec ``s``.
+    """
+    out: dict[str, Any] = {"name": spec.name, "description": spec.description}
+    for section in _SECTIONS:
+        sub = getattr(spec, section)
+        d = {}
+        for f in dataclasses.fields(sub):
+            v = getattr(sub, f.name)
+            if v is None:
+                continue
+            d[f.name] = list(v) if isinstance(v, tuple) else v
+        out[section] = d
+    return out
+
+
+def with_overrides(spec: SceneSpec, overrides: Mapping[str, Any]) -> SceneSpec:
+    """Return a copy of ``spec`` with dotted keys replaced, validated again.
+
+    Parameters
+    ----------
+    spec : SceneSpec
+    overrides : mapping
+        e.g. ``{"material.n": 80, "geometry.tilt_deg": 30, "render.seed": 3}``.
+
+    Raises
+    ------
+    SceneError
+        If a key is unknown or a value invalid (the message names the key).
+    """
+    d = scene_to_dict(spec)
+    for dotted, value in overrides.items():
+        parts = dotted.split(".")
+        if len(parts) == 1 and parts[0] in ("name", "description"):
+            d[parts[0]] = value
+            continue
+        if len(parts) != 2 or parts[0] not in _SECTIONS:
+            raise _err(spec.source, dotted, "unknown key (expected <section>.<key>, sections: "
+                       f"{', '.join(_SECTIONS)})")
+        d[parts[0]][parts[1]] = list(value) if isinstance(value, tuple) else value
+    base = Path(spec.source).resolve().parent if spec.source not in ("<dict>", "") else None
+    out = scene_from_dict(d, source=spec.source, base_dir=base)
+    return out
