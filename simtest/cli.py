@@ -33,6 +33,10 @@ def version_command() -> None:
 # dataset: simtest/dataset/cli.py
 # bench: simtest/bench.py
 
+from simtest.dataset.cli import dataset_app  # noqa: E402
+
+app.add_typer(dataset_app, name="dataset")
+
 
 def main() -> None:
     """Entry point of the ``simtest`` console script."""

@@ -1,0 +1,616 @@
+"""Dataset configuration: a TOML file naming scene families and the distributions to draw from.
+
+A dataset config is parsed and fully validated here, before any file is written. Every error is a
+:class:`DatasetConfigError` whose message names the file, the key and the offending value.
+
+Format
+------
+.. code-block:: toml
+
+    count = 1000            # number of samples (>= 0)
+    seed = 2026             # root seed (any integer >= 0; 0 is valid)
+    shard_size = 250        # samples per shard file
+    isovalues = [0.1, 0.3]  # isophote levels t in (0, 1) (relative to the Phong peak c)
+    variant = "auto"        # Mitsuba variant, or "auto" (pin it to make runs on mixed machines agree)
+    compress = false        # deflate the shard files (smaller, slower to write and read)
+
+    [families]              # weight of each scene family (relative; 0 disables)
+    planes = 1.0
+    colon = 2.0
+
+    [params]                # distributions shared by every family that uses the parameter
+    resolution_px = 256                                   # a bare value is a constant
+    spp = { dist = "choice", values = [16, 32] }
+    phong_n = { dist = "uniform", low = 30, high = 120 }
+    noise_sigma = { dist = "normal", mean = 0.01, std = 0.005, low = 0.0, high = 0.05 }
+
+    [params.colon]          # per-family distributions (override [params] for that family)
+    station = { dist = "uniform", low = 0.1, high = 0.9 }
+
+Distributions: ``constant`` (``value``), ``uniform`` (``low``, ``high``; integers inclusive for
+integer parameters), ``loguniform`` (``low > 0``, ``high``), ``normal`` (``mean``, ``std``, optional
+``low``/``high`` to which draws are clipped; required on a side where the parameter's domain is
+bounded) and ``choice`` (``values``, optional ``weights``). The parameters, their units, domains and
+defaults are in :data:`PARAMS`; ``simtest dataset params`` prints them.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import math
+import tomllib
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+__all__ = [
+    "FAMILIES",
+    "PARAMS",
+    "DatasetConfig",
+    "DatasetConfigError",
+    "Dist",
+    "ParamDef",
+    "config_from_dict",
+    "load_config",
+]
+
+#: Scene families, in the canonical order used for the seeded family draw.
+FAMILIES: tuple[str, ...] = ("planes", "spheres", "cylinders", "colon", "liver")
+
+_TOP_KEYS = ("count", "seed", "shard_size", "isovalues", "variant", "compress", "families", "params")
+_DIST_KEYS = {
+    "constant": ("value",),
+    "uniform": ("low", "high"),
+    "loguniform": ("low", "high"),
+    "normal": ("mean", "std", "low", "high"),
+    "choice": ("values", "weights"),
+}
+_MAX_SHARD = 100_000
+
+
+class DatasetConfigError(ValueError):
+    """A dataset config is invalid; the message reads ``<file>: <key>: <reason>``."""
+
+
+@dataclass(frozen=True)
+class Dist:
+    """One distribution of a scalar parameter.
+
+    Attributes
+    ----------
+    kind : str
+        ``"constant"``, ``"uniform"``, ``"loguniform"``, ``"normal"`` or ``"choice"``.
+    args : tuple
+        ``(value,)``, ``(low, high)``, ``(low, high)``, ``(mean, std, low, high)`` (low/high may
+        be None) or ``(values, weights)`` (weights may be None) respectively.
+    """
+
+    kind: str
+    args: tuple
+
+    def support(self) -> tuple[float, float] | None:
+        """Closed interval that holds every draw, or None for non-numeric choices."""
+        if self.kind == "constant":
+            v = self.args[0]
+            return (v, v) if _is_number(v) else None
+        if self.kind in ("uniform", "loguniform"):
+            return (self.args[0], self.args[1])
+        if self.kind == "normal":
+            mean, std, low, high = self.args
+            lo = low if low is not None else (-math.inf if std > 0 else mean)
+            hi = high if high is not None else (math.inf if std > 0 else mean)
+            return (lo, hi)
+        values = self.args[0]
+        if all(_is_number(v) for v in values):
+            return (min(values), max(values))
+        return None
+
+    def draw(self, rng: np.random.Generator, integer: bool = False):
+        """Draw one value with ``rng`` (constants draw nothing from the stream).
+
+        Parameters
+        ----------
+        rng : numpy.random.Generator
+            The sample's generator.
+        integer : bool
+            Draw an integer (uniform: inclusive bounds; normal: rounded after clipping).
+
+        Returns
+        -------
+        float, int, str or bool
+            A plain Python scalar (JSON-ready).
+        """
+        kind, a = self.kind, self.args
+        if kind == "constant":
+            v = a[0]
+        elif kind == "uniform":
+            v = int(rng.integers(int(a[0]), int(a[1]) + 1)) if integer else float(rng.uniform(a[0], a[1]))
+        elif kind == "loguniform":
+            v = float(np.exp(rng.uniform(np.log(a[0]), np.log(a[1]))))
+        elif kind == "normal":
+            mean, std, low, high = a
+            v = float(rng.normal(mean, std))
+            v = float(np.clip(v, -np.inf if low is None else low, np.inf if high is None else high))
+        else:
+            values, weights = a
+            p = None if weights is None else np.asarray(weights, float) / float(np.sum(weights))
+            v = values[int(rng.choice(len(values), p=p))]
+        if integer:
+            return int(round(v))
+        if isinstance(v, bool | str):
+            return v
+        return float(v)
+
+    def as_dict(self) -> dict:
+        """JSON/TOML-ready form (the inverse of the config syntax)."""
+        names = _DIST_KEYS[self.kind]
+        out: dict[str, Any] = {"dist": self.kind}
+        for name, value in zip(names, self.args, strict=True):
+            if value is not None:
+                out[name] = list(value) if isinstance(value, tuple) else value
+        return out
+
+
+def _const(v) -> Dist:
+    return Dist("constant", (v,))
+
+
+def _uni(lo, hi) -> Dist:
+    return Dist("uniform", (lo, hi))
+
+
+@dataclass(frozen=True)
+class ParamDef:
+    """A parameter a dataset config may draw.
+
+    Attributes
+    ----------
+    name : str
+        Config key (unit suffix in the name where a unit could be mistaken).
+    doc : str
+        Meaning, unit and frame.
+    families : tuple of str
+        Families that use it.
+    default : dict
+        Default distribution per family (key ``"*"`` for all families).
+    domain : (float, float)
+        Closed interval every draw must lie in (``-inf``/``inf`` for unbounded sides);
+        ``open_low``/``open_high`` make an end exclusive.
+    integer : bool
+        Integer-valued parameter.
+    choices : tuple of str, optional
+        Allowed values of a string parameter.
+    """
+
+    name: str
+    doc: str
+    families: tuple[str, ...]
+    default: dict
+    domain: tuple[float, float] = (-math.inf, math.inf)
+    open_low: bool = False
+    open_high: bool = False
+    integer: bool = False
+    choices: tuple[str, ...] | None = None
+
+    def default_for(self, family: str) -> Dist:
+        return self.default.get(family, self.default.get("*"))
+
+
+_ALL = FAMILIES
+_SURF = ("planes", "spheres", "cylinders")
+
+#: Every parameter a config may set, in the canonical draw order.
+PARAMS: tuple[ParamDef, ...] = (
+    # --- camera, render ---------------------------------------------------------------------
+    ParamDef("resolution_px", "square image size M (pixels); K = [[f,0,M/2-0.5],[0,f,M/2-0.5],[0,0,1]]",
+             _ALL, {"*": _const(256)}, (8, 4096), integer=True),
+    ParamDef("spp", "samples per pixel", _ALL, {"*": _const(16)}, (1, 65536), integer=True),
+    ParamDef("fov_deg", "full horizontal field of view (degrees); endoscopes have 140 to 170",
+             _ALL, {"*": _const(140.0)}, (0.0, 179.0), open_low=True),
+    # --- material ---------------------------------------------------------------------------
+    ParamDef("phong_n", "Phong exponent n (roughness; larger is shinier), paper eq. 1",
+             _ALL, {"*": _uni(30.0, 120.0)}, (0.0, math.inf), open_low=True),
+    ParamDef("phong_c", "Phong specular coefficient c", _ALL, {"*": _const(1.0)}, (0.0, math.inf),
+             open_low=True),
+    ParamDef("diffuse_albedo", "diffuse (Lambertian) albedo of the tissue, 0 for pure specular",
+             _ALL, {"*": _uni(0.0, 0.3)}, (0.0, 1.0)),
+    # --- light ------------------------------------------------------------------------------
+    ParamDef("light_offset_mm", "light offset epsilon (mm): L = V + epsilon (cos a, sin a, b)",
+             _ALL, {"*": _const(0.0)}, (0.0, math.inf)),
+    ParamDef("light_offset_a_deg", "direction a of the light offset (degrees)", _ALL,
+             {"*": _uni(0.0, 360.0)}, (-360.0, 720.0)),
+    ParamDef("light_offset_b", "axial component b of the light offset (dimensionless)", _ALL,
+             {"*": _const(0.0)}),
+    ParamDef("light_falloff", "\"cancel\" (image = Phong eq. 1 exactly) or \"keep\" (1/d^2, as an "
+             "endoscope)", _ALL, {"*": _const("cancel")}, choices=("cancel", "keep")),
+    # --- sensor -----------------------------------------------------------------------------
+    ParamDef("exposure", "exposure multiplier applied to the linear image before clipping", _ALL,
+             {"*": _const(1.0)}, (0.0, math.inf), open_low=True),
+    ParamDef("saturation", "clip level of the sensor, as a fraction of full scale", _ALL,
+             {"*": _const(1.0)}, (0.0, 1.0), open_low=True),
+    ParamDef("noise_sigma", "Gaussian read-noise standard deviation, fraction of full scale", _ALL,
+             {"*": _const(0.0)}, (0.0, 1.0)),
+    ParamDef("full_well_e", "electrons at full scale for Poisson shot noise (0: none)", _ALL,
+             {"*": _const(0.0)}, (0.0, math.inf)),
+    ParamDef("gamma", "sensor gamma: output = clipped^(1/gamma)", _ALL, {"*": _const(1.0)},
+             (0.0, math.inf), open_low=True),
+    # --- geometry: analytic surfaces --------------------------------------------------------
+    ParamDef("distance_mm", "distance (mm) from the camera centre to the plane (planes), to the "
+             "nearest point of the sphere or cylinder, or to the liver's bounding sphere (liver)",
+             ("planes", "spheres", "cylinders", "liver"),
+             {"*": _uni(20.0, 60.0), "liver": _uni(20.0, 100.0)}, (0.0, math.inf), open_low=True),
+    ParamDef("view_angle_deg", "angle between the optical axis and the surface normal (planes), the "
+             "cylinder axis' tilt off the image plane (cylinders), the sphere centre's angle off "
+             "axis (spheres), the optical axis' angle off the centre-line tangent (colon), or the "
+             "aim's angle off the liver centre (liver)", _ALL,
+             {"*": _uni(0.0, 58.0), "colon": _uni(20.0, 70.0), "liver": _uni(0.0, 10.0)},
+             (0.0, 90.0), open_high=True),
+    ParamDef("azimuth_deg", "azimuth of the tilt about the optical axis (degrees)", _ALL,
+             {"*": _uni(0.0, 360.0)}, (-360.0, 720.0)),
+    ParamDef("radius_mm", "sphere or cylinder radius (mm)", ("spheres", "cylinders"),
+             {"*": Dist("loguniform", (10.0, 200.0))}, (0.0, math.inf), open_low=True),
+    # --- geometry: colon --------------------------------------------------------------------
+    ParamDef("station", "camera position along the colon centre line, fraction of its arc length",
+             ("colon",), {"*": _uni(0.15, 0.85)}, (0.0, 1.0)),
+    ParamDef("radial_offset", "camera offset from the centre line, fraction of the local radius",
+             ("colon",), {"*": _uni(0.0, 0.5)}, (0.0, 1.0), open_high=True),
+    ParamDef("roll_deg", "roll of the image about the optical axis (degrees)", ("colon", "liver"),
+             {"*": _uni(0.0, 360.0)}, (-360.0, 720.0)),
+    # --- geometry: liver --------------------------------------------------------------------
+    ParamDef("elevation_deg", "camera elevation around the liver centre (degrees)", ("liver",),
+             {"*": _uni(-60.0, 60.0)}, (-90.0, 90.0)),
+)
+
+_PARAM_BY_NAME = {p.name: p for p in PARAMS}
+
+
+@dataclass(frozen=True)
+class DatasetConfig:
+    """A validated dataset config.
+
+    Attributes
+    ----------
+    count : int
+        Number of samples.
+    seed : int
+        Root seed; sample i draws from ``SeedSequence([seed, i])``.
+    shard_size : int
+        Samples per shard.
+    isovalues : tuple of float
+        Isophote levels t in (0, 1), relative to the Phong peak c.
+    variant : str
+        Mitsuba variant or ``"auto"``.
+    compress : bool
+        Deflate the arrays in the shard files.
+    families : tuple of (str, float)
+        Families with positive weight, in canonical order.
+    params : dict
+        ``{family: {param: Dist}}`` with every parameter the family uses (defaults filled in).
+    source : str
+        Where the config came from (file path or ``"<dict>"``), for messages.
+    raw : dict
+        The config as given (JSON-ready), kept in the dataset card.
+    """
+
+    count: int
+    seed: int
+    shard_size: int
+    isovalues: tuple[float, ...]
+    variant: str
+    compress: bool
+    families: tuple[tuple[str, float], ...]
+    params: dict = field(hash=False)
+    source: str = "<dict>"
+    raw: dict = field(default_factory=dict, hash=False, compare=False)
+
+    @property
+    def n_shards(self) -> int:
+        """Number of shards (the last one may be short)."""
+        return -(-self.count // self.shard_size)
+
+    def shard_range(self, shard: int) -> range:
+        """Sample indices held by ``shard``."""
+        start = shard * self.shard_size
+        return range(start, min(self.count, start + self.shard_size))
+
+    def to_dict(self) -> dict:
+        """Canonical, complete JSON-ready form (defaults filled in); ``config_from_dict`` reads it."""
+        used = {f for f, _ in self.families}
+        return {
+            "count": self.count,
+            "seed": self.seed,
+            "shard_size": self.shard_size,
+            "isovalues": list(self.isovalues),
+            "variant": self.variant,
+            "compress": self.compress,
+            "families": {f: w for f, w in self.families},
+            "params": {f: {k: d.as_dict() for k, d in self.params[f].items()} for f in FAMILIES if f in used},
+        }
+
+    def fingerprint(self) -> str:
+        """sha256 of the canonical form: two configs that draw the same samples share it."""
+        text = json.dumps(self.to_dict(), sort_keys=True, separators=(",", ":"))
+        return hashlib.sha256(text.encode()).hexdigest()
+
+
+def _is_number(v) -> bool:
+    return isinstance(v, int | float) and not isinstance(v, bool)
+
+
+def _fmt(v) -> str:
+    return json.dumps(v) if not isinstance(v, float) or math.isfinite(v) else str(v)
+
+
+def _err(source: str, key: str, reason: str, value=None, show_value: bool = True) -> DatasetConfigError:
+    tail = f" (got {_fmt(value)})" if show_value else ""
+    return DatasetConfigError(f"{source}: {key}: {reason}{tail}")
+
+
+def _int(d: dict, key: str, source: str, default=None, minimum: int = 0, maximum=None) -> int:
+    if key not in d:
+        if default is None:
+            raise _err(source, key, "required key is missing", show_value=False)
+        return default
+    v = d[key]
+    if not isinstance(v, int) or isinstance(v, bool):
+        raise _err(source, key, "must be an integer", v)
+    if v < minimum:
+        raise _err(source, key, f"must be >= {minimum}", v)
+    if maximum is not None and v > maximum:
+        raise _err(source, key, f"must be <= {maximum}", v)
+    return v
+
+
+def _parse_dist(value, key: str, source: str) -> Dist:
+    """Parse one distribution entry (bare scalar or inline table)."""
+    if not isinstance(value, dict):
+        if isinstance(value, list):
+            raise _err(source, key, "a list is not a distribution; write {dist = \"choice\", values = [...]}", value)
+        if isinstance(value, float) and not math.isfinite(value):
+            raise _err(source, key, "must be finite", value)
+        return _const(value)
+    if "dist" not in value:
+        raise _err(source, key, "distribution table needs `dist` (one of " + ", ".join(_DIST_KEYS) + ")", value)
+    kind = value["dist"]
+    if kind not in _DIST_KEYS:
+        raise _err(source, f"{key}.dist", "unknown distribution (known: " + ", ".join(_DIST_KEYS) + ")", kind)
+    allowed = _DIST_KEYS[kind]
+    for k in value:
+        if k != "dist" and k not in allowed:
+            raise _err(source, f"{key}.{k}", f"unknown key for a {kind} distribution (allowed: "
+                       + ", ".join(allowed) + ")", value[k])
+
+    def num(name: str, required: bool = True):
+        if name not in value:
+            if required:
+                raise _err(source, f"{key}.{name}", f"required by a {kind} distribution", show_value=False)
+            return None
+        v = value[name]
+        if not _is_number(v) or not math.isfinite(v):
+            raise _err(source, f"{key}.{name}", "must be a finite number", v)
+        return v
+
+    if kind == "constant":
+        if "value" not in value:
+            raise _err(source, f"{key}.value", "required by a constant distribution", show_value=False)
+        return _parse_dist(value["value"], key, source)
+    if kind in ("uniform", "loguniform"):
+        lo, hi = num("low"), num("high")
+        if lo > hi:
+            raise _err(source, key, f"impossible range: low > high ({_fmt(lo)} > {_fmt(hi)})", value)
+        if kind == "loguniform" and lo <= 0:
+            raise _err(source, f"{key}.low", "a loguniform distribution needs low > 0", lo)
+        return Dist(kind, (lo, hi))
+    if kind == "normal":
+        mean, std, lo, hi = num("mean"), num("std"), num("low", False), num("high", False)
+        if std < 0:
+            raise _err(source, f"{key}.std", "must be >= 0", std)
+        if lo is not None and hi is not None and lo > hi:
+            raise _err(source, key, f"impossible range: low > high ({_fmt(lo)} > {_fmt(hi)})", value)
+        return Dist(kind, (mean, std, lo, hi))
+    # choice
+    if "values" not in value:
+        raise _err(source, f"{key}.values", "required by a choice distribution", show_value=False)
+    values = value["values"]
+    if not isinstance(values, list) or not values:
+        raise _err(source, f"{key}.values", "must be a non-empty list", values)
+    for v in values:
+        if isinstance(v, dict | list) or (isinstance(v, float) and not math.isfinite(v)):
+            raise _err(source, f"{key}.values", "entries must be finite scalars", values)
+    weights = value.get("weights")
+    if weights is not None:
+        if (not isinstance(weights, list) or len(weights) != len(values)
+                or not all(_is_number(w) and math.isfinite(w) and w >= 0 for w in weights)
+                or sum(weights) <= 0):
+            raise _err(source, f"{key}.weights", f"must be {len(values)} non-negative numbers with a "
+                       "positive sum", weights)
+        weights = tuple(weights)
+    return Dist("choice", (tuple(values), weights))
+
+
+def _check_domain(p: ParamDef, dist: Dist, key: str, source: str) -> None:
+    """Refuse a distribution whose draws can leave the parameter's domain."""
+    if dist.kind == "constant":
+        values = [dist.args[0]]
+    elif dist.kind == "choice":
+        values = list(dist.args[0])
+    else:
+        values = None
+    if p.choices is not None:
+        if values is None or any(v not in p.choices for v in values):
+            show = dist.args[0] if dist.kind == "constant" else dist.as_dict()
+            raise _err(source, key, "must be one of " + ", ".join(json.dumps(c) for c in p.choices)
+                       + " (constant or choice)", show)
+        return
+    if values is not None and not all(_is_number(v) for v in values):
+        show = dist.args[0] if dist.kind == "constant" else dist.as_dict()
+        raise _err(source, key, "must be a number", show)
+    if p.integer:
+        if dist.kind == "loguniform":
+            raise _err(source, key, "an integer parameter takes constant, uniform, normal or choice",
+                       dist.as_dict())
+        check = values if values is not None else list(dist.args[:2]) if dist.kind == "uniform" else []
+        if any(float(v) != int(v) for v in check):
+            show = dist.args[0] if dist.kind == "constant" else dist.as_dict()
+            raise _err(source, key, "must be an integer", show)
+    lo, hi = p.domain
+    a, b = dist.support()
+    bad_low = a < lo or (p.open_low and a <= lo)
+    bad_high = b > hi or (p.open_high and b >= hi)
+    if bad_low or bad_high:
+        lb = "(" if p.open_low else "["
+        rb = ")" if p.open_high else "]"
+        reason = f"draws can leave the domain {lb}{_fmt(lo)}, {_fmt(hi)}{rb}"
+        if dist.kind == "normal":
+            reason += " (give low/high to clip a normal distribution)"
+        show = dist.args[0] if dist.kind == "constant" else dist.as_dict()
+        raise _err(source, key, reason, show)
+
+
+def config_from_dict(d: dict, source: str = "<dict>") -> DatasetConfig:
+    """Validate a config mapping (as read from TOML) into a :class:`DatasetConfig`.
+
+    Parameters
+    ----------
+    d : dict
+        The parsed TOML document.
+    source : str
+        Name used in error messages (the file path).
+
+    Returns
+    -------
+    DatasetConfig
+
+    Raises
+    ------
+    DatasetConfigError
+        Unknown key or family, negative count, impossible range, value outside a parameter's
+        domain, wrong type; the message names ``source``, the key and the value.
+    """
+    if not isinstance(d, dict):
+        raise _err(source, "<root>", "a config must be a table", d)
+    for k in d:
+        if k not in _TOP_KEYS:
+            raise _err(source, k, "unknown key (allowed: " + ", ".join(_TOP_KEYS) + ")", d[k])
+    count = _int(d, "count", source, minimum=0)
+    seed = _int(d, "seed", source, minimum=0)
+    shard_size = _int(d, "shard_size", source, default=256, minimum=1, maximum=_MAX_SHARD)
+
+    iso = d.get("isovalues", [0.1])
+    if not isinstance(iso, list) or not iso:
+        raise _err(source, "isovalues", "must be a non-empty list of numbers in (0, 1)", iso)
+    for t in iso:
+        if not _is_number(t) or not 0 < t < 1:
+            raise _err(source, "isovalues", "every isovalue must be a number in (0, 1)", t)
+    if len(set(iso)) != len(iso):
+        raise _err(source, "isovalues", "isovalues must be distinct", iso)
+
+    variant = d.get("variant", "auto")
+    if not isinstance(variant, str) or not variant:
+        raise _err(source, "variant", "must be a Mitsuba variant name or \"auto\"", variant)
+
+    compress = d.get("compress", False)
+    if not isinstance(compress, bool):
+        raise _err(source, "compress", "must be true or false", compress)
+
+    fam = d.get("families")
+    if not isinstance(fam, dict) or not fam:
+        raise _err(source, "families", "must be a table of family = weight (families: "
+                   + ", ".join(FAMILIES) + ")", fam)
+    weights: dict[str, float] = {}
+    for name, w in fam.items():
+        if name not in FAMILIES:
+            raise _err(source, f"families.{name}", "unknown family (known: " + ", ".join(FAMILIES) + ")", name)
+        if not _is_number(w) or not math.isfinite(w) or w < 0:
+            raise _err(source, f"families.{name}", "weight must be a finite number >= 0", w)
+        weights[name] = float(w)
+    if sum(weights.values()) <= 0:
+        raise _err(source, "families", "at least one family needs a positive weight", fam)
+    families = tuple((f, weights[f]) for f in FAMILIES if weights.get(f, 0) > 0)
+
+    params_in = d.get("params", {})
+    if not isinstance(params_in, dict):
+        raise _err(source, "params", "must be a table", params_in)
+    common: dict[str, Dist] = {}
+    per_family: dict[str, dict[str, Dist]] = {}
+    for key, value in params_in.items():
+        if key in FAMILIES:
+            if not isinstance(value, dict):
+                raise _err(source, f"params.{key}", "must be a table of parameter distributions", value)
+            per_family[key] = {}
+            for pk, pv in value.items():
+                where = f"params.{key}.{pk}"
+                p = _PARAM_BY_NAME.get(pk)
+                if p is None:
+                    raise _err(source, where, "unknown parameter (known: " + ", ".join(_PARAM_BY_NAME) + ")", pv)
+                if key not in p.families:
+                    raise _err(source, where, f"parameter not used by family {key} (used by: "
+                               + ", ".join(p.families) + ")", pv)
+                dist = _parse_dist(pv, where, source)
+                _check_domain(p, dist, where, source)
+                per_family[key][pk] = dist
+            continue
+        where = f"params.{key}"
+        p = _PARAM_BY_NAME.get(key)
+        if p is None:
+            raise _err(source, where, "unknown parameter or family (parameters: " + ", ".join(_PARAM_BY_NAME)
+                       + "; families: " + ", ".join(FAMILIES) + ")", value)
+        dist = _parse_dist(value, where, source)
+        _check_domain(p, dist, where, source)
+        common[key] = dist
+
+    resolved: dict[str, dict[str, Dist]] = {}
+    for f, _ in families:
+        resolved[f] = {}
+        for p in PARAMS:
+            if f not in p.families:
+                continue
+            resolved[f][p.name] = per_family.get(f, {}).get(p.name) or common.get(p.name) or p.default_for(f)
+    return DatasetConfig(
+        count=count,
+        seed=seed,
+        shard_size=shard_size,
+        isovalues=tuple(float(t) for t in iso),
+        variant=variant,
+        compress=compress,
+        families=families,
+        params=resolved,
+        source=source,
+        raw=_jsonable(d),
+    )
+
+
+def _jsonable(d):
+    return json.loads(json.dumps(d, default=str))
+
+
+def load_config(path) -> DatasetConfig:
+    """Read and validate a dataset config TOML file.
+
+    Parameters
+    ----------
+    path : str or Path
+        The TOML file.
+
+    Returns
+    -------
+    DatasetConfig
+
+    Raises
+    ------
+    DatasetConfigError
+        Missing file, TOML syntax error, or any validation failure (naming the file and key).
+    """
+    path = Path(path)
+    try:
+        text = path.read_text(encoding="utf-8")
+    except OSError as exc:
+        raise DatasetConfigError(f"{path}: cannot read the config: {exc.strerror or exc}") from exc
+    try:
+        d = tomllib.loads(text)
+    except tomllib.TOMLDecodeError as exc:
+        raise DatasetConfigError(f"{path}: TOML syntax error: {exc}") from exc
+    return config_from_dict(d, source=str(path))

@@ -1,0 +1,441 @@
+"""Generate a dataset: local processes by default, or an existing Dask cluster.
+
+Work is one task per sample, submitted in index order with a bounded window of tasks in flight;
+the calling process receives the samples and writes the shards (:class:`ShardWriter`), so the
+output folder only needs to exist where :func:`generate` runs. Each sample is a pure function of
+``(config.seed, index)`` (:func:`simtest.dataset.sample.render_sample`), which makes the dataset
+independent of the scheduler and the number of workers.
+"""
+
+from __future__ import annotations
+
+import concurrent.futures as cf
+import multiprocessing
+import os
+import resource
+import shutil
+import time
+from collections import deque
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Callable
+
+from simtest.dataset.config import DatasetConfig, load_config
+from simtest.dataset.shards import (
+    CARD_NAME,
+    FORMAT,
+    FORMAT_VERSION,
+    MANIFEST_NAME,
+    SHARDS_DIR,
+    TMP_SUFFIX,
+    DatasetError,
+    ShardWriter,
+    read_card,
+    read_shard_rows,
+    shard_json_path,
+    shard_npz_path,
+    write_json,
+    write_manifest,
+)
+
+__all__ = ["GenerateReport", "SampleError", "generate", "make_card"]
+
+#: Environment variable a worker reads for its Dr.Jit thread count (set by the local pool).
+THREADS_ENV = "SIMTEST_DATASET_THREADS"
+
+
+class SampleError(RuntimeError):
+    """A sample failed to render; the message names its index and the cause."""
+
+
+@dataclass
+class GenerateReport:
+    """What a :func:`generate` call did.
+
+    Attributes
+    ----------
+    out_dir : Path
+    count : int
+        Samples in the dataset.
+    written : int
+        Samples rendered and written by this call.
+    skipped : int
+        Samples in shards that were already complete.
+    seconds : float
+        Wall time of the rendering phase.
+    samples_per_s : float
+        ``written / seconds`` (0 when nothing was written).
+    worker_peak_rss_mb : dict
+        Peak resident memory (MiB) of each worker that ran a sample, keyed by ``host:pid``.
+    """
+
+    out_dir: Path
+    count: int
+    written: int = 0
+    skipped: int = 0
+    seconds: float = 0.0
+    samples_per_s: float = 0.0
+    worker_peak_rss_mb: dict = field(default_factory=dict)
+
+
+def _conventions() -> dict:
+    return {
+        "camera_frame": "OpenCV: x right, y down, z forward; origin at the camera centre",
+        "pixels": "(u, v) = (column, row); pixel centres at integer coordinates",
+        "K": "K = [[f, 0, M/2 - 0.5], [0, f, M/2 - 0.5], [0, 0, 1]] for an M x M image",
+        "cam_to_world": "4 x 4: columns are the camera x, y, z axes and centre in the scene's world frame",
+        "normals": "unit vectors in the camera frame facing the camera (n . ray < 0)",
+        "lengths": "millimetres",
+        "angles": "degrees in files (suffix _deg)",
+        "curvature": "k1 >= k2, 1/mm, at the BP, from the renderer's ground truth",
+        "isophotes": "tangent-plane model: circle of radius r_- (paper Prop. 2) about the foot of "
+                     "the perpendicular from the camera to the tangent plane at the BP, imaged "
+                     "exactly; t relative to the Phong peak; exact for planes with a co-located "
+                     "light and cancelled falloff",
+        "randomness": "sample i draws from numpy default_rng(SeedSequence([seed, i]))",
+    }
+
+
+READING = """\
+import io, json, numpy as np
+from PIL import Image
+rows = [json.loads(l) for l in open("DIR/manifest.jsonl")]      # labels, one row per sample
+row = rows[0]
+z = np.load("DIR/shards/" + "shard-%05d.npz" % row["shard"])     # lazy, one entry per array
+key = "%08d/" % row["index"]
+image = np.asarray(Image.open(io.BytesIO(z[key + "sensor_png"].tobytes())))   # (H, W) uint8
+normals = z[key + "normals"]                                      # (H, W, 3) float32
+# or: import simtest.dataset; ds = simtest.dataset.open("DIR"); ds[0]["normals"]"""
+
+
+def make_card(config: DatasetConfig, *, status: str, counts: dict | None = None,
+              variants: list | None = None) -> dict:
+    """The ``dataset.json`` card (deterministic: no times, hosts or worker counts)."""
+    from simtest import __version__
+    from simtest.dataset.sample import CHANNELS
+
+    return {
+        "format": FORMAT,
+        "format_version": FORMAT_VERSION,
+        "simtest_version": __version__,
+        "status": status,
+        "seed": config.seed,
+        "count": config.count,
+        "shard_size": config.shard_size,
+        "n_shards": config.n_shards,
+        "isovalues": list(config.isovalues),
+        "config_fingerprint": config.fingerprint(),
+        "config": config.to_dict(),
+        "config_as_given": config.raw,
+        "counts": counts or {},
+        "variants": variants or [],
+        "channels": CHANNELS,
+        "conventions": _conventions(),
+        "layout": {
+            "card": CARD_NAME,
+            "manifest": MANIFEST_NAME + " (one JSON row per sample, in index order)",
+            "shards": SHARDS_DIR + "/shard-XXXXX.npz, entries '<index:08d>/<array>' (.npy)",
+            "shard_rows": SHARDS_DIR + "/shard-XXXXX.json",
+            "hash": "sha256 of the array's C-order bytes",
+        },
+        "reading": READING,
+    }
+
+
+# ------------------------------------------------------------------------------------------------
+# output folder
+
+
+def _prepare(config: DatasetConfig, out: Path) -> set[int]:
+    """Check ``out``, write the card, clean partial shards; return the complete shards."""
+    card_path = out / CARD_NAME
+    if out.exists() and not out.is_dir():
+        raise DatasetError(f"{out}: exists and is not a folder")
+    if card_path.exists():
+        card = read_card(out)
+        if card.get("config_fingerprint") != config.fingerprint():
+            raise DatasetError(
+                f"{out}: holds a dataset made with a different config (fingerprint "
+                f"{str(card.get('config_fingerprint'))[:12]} != {config.fingerprint()[:12]}); "
+                "use another --out or delete the folder")
+    elif out.is_dir() and any(out.iterdir()):
+        raise DatasetError(f"{out}: is not empty and has no {CARD_NAME}: refusing to write into it")
+    out.mkdir(parents=True, exist_ok=True)
+    (out / SHARDS_DIR).mkdir(exist_ok=True)
+    if not card_path.exists():
+        write_json(card_path, make_card(config, status="incomplete"))
+
+    complete: set[int] = set()
+    fp = config.fingerprint()
+    for s in range(config.n_shards):
+        rows = read_shard_rows(out, s)
+        npz = shard_npz_path(out, s)
+        r = config.shard_range(s)
+        ok = (rows is not None and npz.is_file()
+              and rows.get("config_fingerprint") == fp
+              and rows.get("indices") == [r.start, r.stop]
+              and len(rows.get("samples", [])) == len(r)
+              and rows.get("npz_bytes") == npz.stat().st_size)
+        if ok:
+            complete.add(s)
+        else:  # partial or stale: redo it
+            npz.unlink(missing_ok=True)
+            shard_json_path(out, s).unlink(missing_ok=True)
+    # leftovers of killed runs, and shards beyond the count
+    for p in (out / SHARDS_DIR).iterdir():
+        stem = p.name.split(".")[0]
+        num = stem.removeprefix("shard-")
+        if p.name.endswith(TMP_SUFFIX) or not num.isdigit() or int(num) >= config.n_shards:
+            if p.is_dir():
+                shutil.rmtree(p)
+            else:
+                p.unlink()
+    for p in out.iterdir():
+        if p.name.endswith(TMP_SUFFIX):
+            p.unlink()
+    return complete
+
+
+def _finalise(config: DatasetConfig, out: Path) -> None:
+    """Write the manifest and the final card from the shard rows."""
+    rows: list[dict] = []
+    for s in range(config.n_shards):
+        doc = read_shard_rows(out, s)
+        if doc is None:
+            raise DatasetError(f"{shard_json_path(out, s)}: missing after generation")
+        npz = shard_npz_path(out, s).name
+        for row in doc["samples"]:
+            rows.append({"npz": f"{SHARDS_DIR}/{npz}", **row})
+    by_family: dict[str, int] = {}
+    n_hl = n_in = 0
+    variants: set[str] = set()
+    for r in rows:
+        by_family[r["family"]] = by_family.get(r["family"], 0) + 1
+        n_hl += len(r.get("highlights", []))
+        n_in += sum(1 for h in r.get("highlights", []) if h.get("in_frame"))
+        variants.add(str(r.get("variant")))
+    write_manifest(out, rows)
+    counts = {"samples": len(rows), "by_family": dict(sorted(by_family.items())),
+              "highlights": n_hl, "highlights_in_frame": n_in}
+    write_json(out / CARD_NAME, make_card(config, status="complete", counts=counts,
+                                          variants=sorted(variants)))
+
+
+# ------------------------------------------------------------------------------------------------
+# execution
+
+
+def _run_task(sample_fn: Callable, config: DatasetConfig, index: int):
+    """Worker side: one sample, plus the worker's identity and peak RSS (KiB)."""
+    import socket
+
+    try:
+        sample = sample_fn(config, index)
+    except Exception as exc:  # re-raised with the index, as a picklable error
+        raise SampleError(f"sample {index}: {type(exc).__name__}: {exc}") from None
+    rss_kib = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
+    return sample, f"{socket.gethostname()}:{os.getpid()}", rss_kib
+
+
+def _worker_init(threads: int) -> None:
+    os.environ[THREADS_ENV] = str(threads)
+
+
+class _Inline:
+    """Runs each task at submit time in this process (workers = 1)."""
+
+    def __init__(self, sample_fn, config):
+        self.sample_fn, self.config = sample_fn, config
+
+    def submit(self, index: int):
+        f: cf.Future = cf.Future()
+        try:
+            f.set_result(_run_task(self.sample_fn, self.config, index))
+        except BaseException as exc:  # noqa: BLE001 - handed to the caller through the future
+            f.set_exception(exc)
+        return f
+
+    def wait(self, futures):
+        return cf.wait(futures, return_when=cf.FIRST_COMPLETED).done
+
+    def close(self, cancel: bool = False):
+        pass
+
+
+class _Pool:
+    """A pool of local processes (spawned, so no Mitsuba state is forked)."""
+
+    def __init__(self, sample_fn, config, workers: int):
+        threads = max(1, (os.cpu_count() or 1) // workers)
+        self.ex = cf.ProcessPoolExecutor(max_workers=workers,
+                                         mp_context=multiprocessing.get_context("spawn"),
+                                         initializer=_worker_init, initargs=(threads,))
+        self.sample_fn, self.config = sample_fn, config
+
+    def submit(self, index: int):
+        return self.ex.submit(_run_task, self.sample_fn, self.config, index)
+
+    def wait(self, futures):
+        return cf.wait(futures, return_when=cf.FIRST_COMPLETED).done
+
+    def close(self, cancel: bool = False):
+        self.ex.shutdown(wait=True, cancel_futures=cancel)
+
+
+class _Dask:
+    """An existing Dask distributed cluster, reached through its scheduler address."""
+
+    def __init__(self, sample_fn, config, address: str):
+        try:
+            from distributed import Client
+        except ImportError as exc:  # pragma: no cover - dask[distributed] is a dependency
+            raise DatasetError("--scheduler needs dask[distributed] installed") from exc
+        try:
+            self.client = Client(address, timeout="20s", set_as_default=False)
+        except (OSError, TimeoutError) as exc:
+            raise DatasetError(f"--scheduler {address}: cannot connect: {exc}") from None
+        self.sample_fn, self.config = sample_fn, config
+        self.prefix = f"simtest-dataset-{config.fingerprint()[:12]}"
+
+    def submit(self, index: int):
+        return self.client.submit(_run_task, self.sample_fn, self.config, index,
+                                  key=f"{self.prefix}-{index}", pure=False, retries=0)
+
+    def wait(self, futures):
+        from distributed import wait
+
+        return wait(list(futures), return_when="FIRST_COMPLETED").done
+
+    def close(self, cancel: bool = False):
+        self.client.close()
+
+
+def _progress(enabled: bool, total: int, done: int):
+    from rich.progress import (
+        BarColumn,
+        MofNCompleteColumn,
+        Progress,
+        ProgressColumn,
+        TextColumn,
+        TimeElapsedColumn,
+        TimeRemainingColumn,
+    )
+    from rich.text import Text
+
+    class RateColumn(ProgressColumn):
+        def render(self, task):
+            speed = task.finished_speed or task.speed
+            return Text("   - samples/s" if speed is None else f"{speed:6.2f} samples/s")
+
+    prog = Progress(TextColumn("[bold]dataset"), BarColumn(), MofNCompleteColumn(), RateColumn(),
+                    TextColumn("left"), TimeRemainingColumn(), TimeElapsedColumn(),
+                    disable=not enabled, transient=False)
+    task = prog.add_task("samples", total=total, completed=done)
+    return prog, task
+
+
+def generate(
+    config: DatasetConfig | str | os.PathLike,
+    out_dir: str | os.PathLike,
+    *,
+    workers: int | None = None,
+    scheduler: str | None = None,
+    sample_fn: Callable | None = None,
+    progress: bool = True,
+    window: int | None = None,
+) -> GenerateReport:
+    """Render the samples of ``config`` that ``out_dir`` lacks and write them as shards.
+
+    Parameters
+    ----------
+    config : DatasetConfig or path
+        A validated config or a TOML file (validated before anything is written).
+    out_dir : path
+        Dataset folder: created, or resumed if it holds a dataset of the same config.
+    workers : int, optional
+        Local processes (default: the number of CPUs; 1 runs in this process). Ignored with
+        ``scheduler``.
+    scheduler : str, optional
+        Address of a Dask distributed scheduler (``tcp://host:8786``); its workers need simtest
+        (and the bundled meshes) installed. The result is identical to a local run.
+    sample_fn : callable, optional
+        ``sample_fn(config, index) -> Sample``; default :func:`simtest.dataset.sample.render_sample`.
+        Must be picklable (a module-level function) for process pools and Dask.
+    progress : bool
+        Show a rich progress bar (samples/s and time left) on stderr.
+    window : int, optional
+        Tasks in flight (default 2 x workers + 2); bounds memory.
+
+    Returns
+    -------
+    GenerateReport
+
+    Raises
+    ------
+    DatasetConfigError
+        Invalid config (nothing written).
+    DatasetError
+        ``out_dir`` holds something else (another config's dataset, unrelated files).
+    SampleError
+        A sample failed; complete shards are kept and a rerun resumes.
+    """
+    if not isinstance(config, DatasetConfig):
+        config = load_config(config)
+    if sample_fn is None:
+        from simtest.dataset.sample import render_sample
+
+        sample_fn = render_sample
+    if workers is not None and workers < 1:
+        raise ValueError(f"workers must be >= 1, got {workers}")
+    out = Path(out_dir)
+    complete = _prepare(config, out)
+    todo = [s for s in range(config.n_shards) if s not in complete]
+    indices = deque(i for s in todo for i in config.shard_range(s))
+    report = GenerateReport(out_dir=out, count=config.count,
+                            skipped=sum(len(config.shard_range(s)) for s in complete))
+
+    if indices:
+        n_workers = workers if workers is not None else (os.cpu_count() or 1)
+        if scheduler is not None:
+            ex = _Dask(sample_fn, config, scheduler)
+            n_workers = max(1, len(ex.client.nthreads()))
+        elif n_workers == 1:
+            ex = _Inline(sample_fn, config)
+        else:
+            ex = _Pool(sample_fn, config, n_workers)
+        window = window or (2 * n_workers + 2)
+        meta = {"config_fingerprint": config.fingerprint()}
+        writers = {s: ShardWriter(out, s, config.shard_range(s), meta=meta, compress=config.compress)
+                   for s in todo}
+        rss: dict[str, float] = {}
+        inflight: dict = {}
+        prog, task = _progress(progress, config.count, report.skipped)
+        t0 = time.perf_counter()
+        cancel = True
+        try:
+            with prog:
+                while indices or inflight:
+                    while indices and len(inflight) < window:
+                        i = indices.popleft()
+                        inflight[ex.submit(i)] = i
+                    for f in ex.wait(inflight):
+                        i = inflight.pop(f)
+                        sample, who, rss_kib = f.result()
+                        if sample.index != i:
+                            raise SampleError(f"sample {i}: sample_fn returned index {sample.index}")
+                        rss[who] = max(rss.get(who, 0.0), rss_kib / 1024.0)
+                        shard = i // config.shard_size
+                        if writers[shard].add(sample):
+                            del writers[shard]
+                        report.written += 1
+                        prog.advance(task)
+            cancel = False
+        finally:
+            for w in writers.values():
+                w.abort()
+            ex.close(cancel=cancel)
+        report.seconds = time.perf_counter() - t0
+        report.samples_per_s = report.written / report.seconds if report.seconds > 0 else 0.0
+        report.worker_peak_rss_mb = dict(sorted(rss.items()))
+    _finalise(config, out)
+    return report

@@ -1,0 +1,501 @@
+"""One dataset sample: a pure function of (root seed, index).
+
+Sample ``i`` of a dataset draws its parameters with
+``np.random.default_rng(np.random.SeedSequence([config.seed, i]))``, builds a scene spec
+(:func:`build_scene`), renders it with :func:`simtest.render.render_scene` and collects the arrays
+and the highlight records (:func:`render_sample`). Nothing depends on the worker that runs it or on
+the other samples, so any sample can be regenerated alone and every scheduler gives the same bits.
+
+Ground-truth isophote conics (tangent-plane model)
+--------------------------------------------------
+For every highlight and configured isovalue ``t`` the record holds the image conic of the
+isophote predicted by the tangent plane at the BP: with ``N`` the ground-truth normal at the BP
+(camera frame, facing the camera) and ``X_bp`` the BP, the tangent plane ``N . X = N . X_bp`` lies at
+distance ``V_Z = -N . X_bp`` from the camera centre; the isophote of level ``t`` (relative to the
+Phong peak, so ``c = 1``) is the circle of radius ``r_-`` (paper Prop. 2,
+:func:`simtest.specular.isophote_radius`) centred on the foot of the perpendicular from the camera
+centre, ``F = (N . X_bp) N``, and its image is :func:`simtest.geometry.conics.project_circle`.
+This is exact for a plane lit by a co-located light with the 1/d^2 falloff cancelled (DESIGN.md 1.2;
+then ``F = X_bp``). On curved surfaces it is the first-order (osculating-plane) model the method
+under test assumes; with a light offset or the falloff kept it is only an approximation.
+"""
+
+from __future__ import annotations
+
+import functools
+import io
+import math
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from simtest.dataset.config import PARAMS, DatasetConfig
+
+__all__ = [
+    "CHANNELS",
+    "Sample",
+    "build_scene",
+    "draw_parameters",
+    "isophote_record",
+    "render_sample",
+    "sample_rng",
+]
+
+#: Arrays stored per sample: name -> (dtype, shape as text, unit, description).
+CHANNELS: dict[str, dict[str, str]] = {
+    "sensor_png": {
+        "dtype": "uint8", "shape": "(nbytes,)", "unit": "PNG file bytes",
+        "description": "the sensor image as an endoscope outputs it (8-bit PNG, gray, (H, W) when "
+                       "decoded; exposure, clipping, noise and quantisation applied); decode with "
+                       "PIL.Image.open(io.BytesIO(a.tobytes()))",
+    },
+    "linear": {
+        "dtype": "float32", "shape": "(H, W)", "unit": "linear radiance (light intensity 1)",
+        "description": "linear image before the sensor model (specular + diffuse)",
+    },
+    "specular": {
+        "dtype": "float32", "shape": "(H, W)", "unit": "linear radiance (light intensity 1)",
+        "description": "specular-only linear image",
+    },
+    "normals": {
+        "dtype": "float32", "shape": "(H, W, 3)", "unit": "unit vector",
+        "description": "ground-truth surface normal, OpenCV camera frame (x right, y down, z "
+                       "forward), facing the camera; 0 outside `mask`",
+    },
+    "depth": {
+        "dtype": "float32", "shape": "(H, W)", "unit": "mm",
+        "description": "z-depth along the optical axis (camera frame); 0 outside `mask`",
+    },
+    "mask": {
+        "dtype": "bool", "shape": "(H, W)", "unit": "-",
+        "description": "pixel covered by the surface (silhouette pixels excluded)",
+    },
+    "highlight_mask": {
+        "dtype": "bool", "shape": "(H, W)", "unit": "-",
+        "description": "specular-only radiance >= min(isovalues) x the image's maximum specular "
+                       "radiance (the region inside the outermost labelled isophote)",
+    },
+}
+
+
+@dataclass(frozen=True)
+class Sample:
+    """One rendered sample.
+
+    Attributes
+    ----------
+    index : int
+        Sample index in the dataset.
+    arrays : dict of str to ndarray
+        The arrays of :data:`CHANNELS`, in that order.
+    record : dict
+        JSON-ready labels and provenance: ``index``, ``family``, ``params`` (every drawn value),
+        ``K`` (3, 3), ``cam_to_world`` (4, 4), ``highlights`` (list of dicts with ``bp_px``,
+        ``bp_mm``, ``normal``, ``k1``, ``k2``, ``in_frame``, ``isophotes``), ``scene`` (the scene
+        spec as a dict), ``variant``, ``render_seed``.
+    """
+
+    index: int
+    arrays: dict
+    record: dict
+
+
+def sample_rng(seed: int, index: int) -> np.random.Generator:
+    """The generator of sample ``index``: ``default_rng(SeedSequence([seed, index]))``."""
+    return np.random.default_rng(np.random.SeedSequence([int(seed), int(index)]))
+
+
+def draw_parameters(config: DatasetConfig, index: int) -> dict[str, Any]:
+    """Draw the parameters of sample ``index`` (pure function of ``(config, index)``).
+
+    The draw order is fixed: the family (weighted), then each parameter the family uses in the
+    order of :data:`simtest.dataset.config.PARAMS`, then the render seed.
+
+    Parameters
+    ----------
+    config : DatasetConfig
+    index : int
+        Sample index, 0 <= index < config.count.
+
+    Returns
+    -------
+    dict
+        ``{"family": str, <param>: value, ..., "render_seed": int}``, JSON-ready.
+    """
+    if not 0 <= index < max(config.count, 1):
+        raise IndexError(f"sample index {index} is outside 0..{config.count - 1}")
+    rng = sample_rng(config.seed, index)
+    names = [f for f, _ in config.families]
+    w = np.array([w for _, w in config.families], dtype=np.float64)
+    family = names[int(rng.choice(len(names), p=w / w.sum()))]
+    out: dict[str, Any] = {"family": family}
+    dists = config.params[family]
+    for p in PARAMS:
+        if p.name in dists:
+            out[p.name] = dists[p.name].draw(rng, integer=p.integer)
+    out["render_seed"] = int(rng.integers(0, 2**31 - 1))
+    return out
+
+
+# ------------------------------------------------------------------------------------------------
+# scene building
+
+
+def _unit(v) -> np.ndarray:
+    v = np.asarray(v, dtype=np.float64)
+    return v / np.linalg.norm(v)
+
+
+def _perp_basis(t: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Two unit vectors completing ``t`` (unit) to a right-handed orthonormal basis."""
+    helper = np.array([0.0, 0.0, 1.0]) if abs(t[2]) < 0.9 else np.array([1.0, 0.0, 0.0])
+    e1 = _unit(np.cross(t, helper))
+    e2 = np.cross(t, e1)
+    return e1, e2
+
+
+@functools.lru_cache(maxsize=4)
+def _mesh_info(name: str) -> dict:
+    """Centre line / bounds of a bundled mesh (cached per process)."""
+    from simtest.scene.meshes import load_mesh
+
+    path = _mesh_path(name)
+    mesh = load_mesh(path)
+    meta = dict(mesh.metadata or {})
+    info: dict[str, Any] = {"path": str(path)}
+    bounds = np.asarray(mesh.bounds, dtype=np.float64)
+    info["centre"] = bounds.mean(axis=0)
+    info["bounding_radius"] = float(np.max(np.linalg.norm(np.asarray(mesh.vertices) - info["centre"], axis=1)))
+    if name == "colon":
+        line = _find_centre_line(meta)
+        if line is None:
+            raise ValueError(f"{path}: metadata: no colon centre line (expected a (N, 3) array under "
+                             "'centre_line_mm' or similar)")
+        seg = np.linalg.norm(np.diff(line, axis=0), axis=1)
+        info["centre_line"] = line
+        info["arc"] = np.concatenate([[0.0], np.cumsum(seg)])
+        info["radius"] = _find_radius(meta)
+    return info
+
+
+def _find_centre_line(meta: dict) -> np.ndarray | None:
+    stack = [meta]
+    while stack:
+        d = stack.pop()
+        for k, v in d.items():
+            if isinstance(v, dict):
+                stack.append(v)
+            elif "centre" in k.lower() or "center" in k.lower():
+                a = np.asarray(v, dtype=np.float64) if isinstance(v, list | tuple | np.ndarray) else None
+                if a is not None and a.ndim == 2 and a.shape[1] == 3 and len(a) >= 2:
+                    return a
+    return None
+
+
+def _find_radius(meta: dict) -> float:
+    stack = [meta]
+    while stack:
+        d = stack.pop()
+        for k, v in d.items():
+            if isinstance(v, dict):
+                stack.append(v)
+            elif k in ("radius_mm", "radius") and isinstance(v, int | float):
+                return float(v)
+    return 25.0
+
+
+def _mesh_path(name: str) -> Path:
+    import simtest
+
+    return Path(simtest.__file__).resolve().parents[1] / "meshes" / f"{name}.ply"
+
+
+def _colon_pose(p: dict) -> dict:
+    """Camera inside the colon: on the centre line at ``station``, tilted off its tangent."""
+    info = _mesh_info("colon")
+    line, arc = info["centre_line"], info["arc"]
+    s = p["station"] * arc[-1]
+    k = int(np.clip(np.searchsorted(arc, s, side="right") - 1, 0, len(line) - 2))
+    frac = (s - arc[k]) / max(arc[k + 1] - arc[k], 1e-12)
+    centre = line[k] + frac * (line[k + 1] - line[k])
+    tangent = _unit(line[k + 1] - line[k])
+    e1, e2 = _perp_basis(tangent)
+    az = math.radians(p["azimuth_deg"])
+    radial = math.cos(az) * e1 + math.sin(az) * e2
+    view = math.radians(p["view_angle_deg"])
+    forward = math.cos(view) * tangent + math.sin(view) * radial
+    # The camera sits off the centre line on the side opposite to where it looks.
+    position = centre - p["radial_offset"] * info["radius"] * radial
+    up = _roll_up(forward, p["roll_deg"])
+    return {"path": info["path"], "position": position, "look_at": position + forward, "up": up}
+
+
+def _liver_pose(p: dict) -> dict:
+    """Camera around the liver: on a sphere about its centre, aimed near the centre."""
+    info = _mesh_info("liver")
+    c = info["centre"]
+    az, el = math.radians(p["azimuth_deg"]), math.radians(p["elevation_deg"])
+    direction = np.array([math.cos(el) * math.cos(az), math.cos(el) * math.sin(az), math.sin(el)])
+    position = c + (info["bounding_radius"] + p["distance_mm"]) * direction
+    to_centre = -direction
+    up = _roll_up(to_centre, p["roll_deg"])
+    side = _unit(np.cross(to_centre, up))
+    view = math.radians(p["view_angle_deg"])
+    forward = math.cos(view) * to_centre + math.sin(view) * side
+    return {"path": info["path"], "position": position, "look_at": position + forward, "up": up}
+
+
+def _roll_up(forward: np.ndarray, roll_deg: float) -> np.ndarray:
+    e1, e2 = _perp_basis(_unit(forward))
+    r = math.radians(roll_deg)
+    return math.cos(r) * e1 + math.sin(r) * e2
+
+
+def build_scene(config: DatasetConfig, params: dict):
+    """The scene spec of a sample from its drawn parameters (pure; no rendering).
+
+    Analytic families are written in the camera frame (camera at the origin looking along +z):
+
+    - planes: ``tilt_deg = view_angle_deg``, ``azimuth_deg``, ``distance_mm``.
+    - spheres: centre at ``(distance_mm + radius_mm)`` along the direction ``view_angle_deg`` off
+      the optical axis, at ``azimuth_deg`` about it.
+    - cylinders: axis through ``(0, 0, distance_mm + radius_mm)``, tilted ``view_angle_deg`` out
+      of the image plane, at ``azimuth_deg`` in it.
+    - colon: the bundled ``meshes/colon.ply``; camera on its centre line at fraction ``station`` of
+      the arc length, moved ``radial_offset`` x radius off it, looking ``view_angle_deg`` off the
+      tangent toward ``azimuth_deg`` (and moved to the opposite side), image rolled by ``roll_deg``.
+    - liver: the bundled ``meshes/liver.ply``; camera ``distance_mm`` outside its bounding sphere,
+      at ``azimuth_deg``/``elevation_deg`` about its centre, aimed ``view_angle_deg`` off the centre.
+
+    Parameters
+    ----------
+    config : DatasetConfig
+    params : dict
+        Output of :func:`draw_parameters`.
+
+    Returns
+    -------
+    simtest.scene.SceneSpec
+    """
+    from simtest.scene.spec import scene_from_dict
+
+    fam = params["family"]
+    m = params["resolution_px"]
+    camera: dict[str, Any] = {"width_px": m, "height_px": m, "fov_deg": params["fov_deg"]}
+    light = {"epsilon_mm": params["light_offset_mm"], "alpha_deg": params["light_offset_a_deg"],
+             "b": params["light_offset_b"], "falloff": params["light_falloff"]}
+    material = {"model": "phong", "c": params["phong_c"], "n": params["phong_n"],
+                "diffuse_albedo": params["diffuse_albedo"]}
+    sensor = {"exposure": params["exposure"], "saturation": params["saturation"],
+              "gaussian_sigma": params["noise_sigma"], "full_well_e": params["full_well_e"],
+              "gamma": params["gamma"], "bit_depth": 8}
+    render = {"spp": params["spp"], "seed": params["render_seed"], "variant": config.variant,
+              "sampler": "multijitter"}
+    view = math.radians(params.get("view_angle_deg", 0.0))
+    az = math.radians(params.get("azimuth_deg", 0.0))
+    if fam == "planes":
+        geometry = {"type": "plane", "tilt_deg": params["view_angle_deg"],
+                    "azimuth_deg": params["azimuth_deg"], "distance_mm": params["distance_mm"]}
+    elif fam == "spheres":
+        r = params["radius_mm"]
+        d = params["distance_mm"] + r
+        centre = [d * math.sin(view) * math.cos(az), d * math.sin(view) * math.sin(az), d * math.cos(view)]
+        geometry = {"type": "sphere", "center_mm": centre, "radius_mm": r}
+    elif fam == "cylinders":
+        r = params["radius_mm"]
+        axis = [math.cos(view) * math.cos(az), math.cos(view) * math.sin(az), math.sin(view)]
+        geometry = {"type": "cylinder", "center_mm": [0.0, 0.0, params["distance_mm"] + r],
+                    "radius_mm": r, "axis": axis}
+    elif fam in ("colon", "liver"):
+        pose = _colon_pose(params) if fam == "colon" else _liver_pose(params)
+        geometry = {"type": "mesh", "path": pose["path"]}
+        camera.update(position_mm=[float(x) for x in pose["position"]],
+                      look_at_mm=[float(x) for x in pose["look_at"]],
+                      up=[float(x) for x in pose["up"]])
+    else:  # pragma: no cover - the config refuses unknown families
+        raise ValueError(f"unknown family {fam!r}")
+    d = {"name": f"dataset-{fam}", "camera": camera, "light": light, "material": material,
+         "geometry": geometry, "sensor": sensor, "render": render}
+    return scene_from_dict(d, source=f"{config.source}: sample")
+
+
+# ------------------------------------------------------------------------------------------------
+# labels
+
+
+def isophote_record(bp_mm, normal, K, isovalues, phong_n: float) -> list[dict]:
+    """Tangent-plane isophote conics at a BP (see the module notes).
+
+    Parameters
+    ----------
+    bp_mm : array_like of shape (3,)
+        Brightest point, camera frame, mm.
+    normal : array_like of shape (3,)
+        Unit normal at the BP, camera frame, facing the camera.
+    K : ndarray of shape (3, 3)
+        Intrinsics.
+    isovalues : sequence of float
+        Levels t in (0, 1) relative to the Phong peak.
+    phong_n : float
+        Phong exponent n.
+
+    Returns
+    -------
+    list of dict
+        Per isovalue: ``t``, ``radius_mm``, ``centre_mm`` (foot of the perpendicular), ``conic``
+        (3 x 3 point conic, unit Frobenius norm, pixels with centres at integers), ``kind`` and
+        ``ellipse`` (``center_px``, ``semi_axes_px``, ``angle_deg``; None unless a real ellipse).
+    """
+    from simtest.geometry.conics import conic_kind, conic_to_ellipse, project_circle
+    from simtest.specular import isophote_radius
+
+    X = np.asarray(bp_mm, dtype=np.float64)
+    N = _unit(normal)
+    d = float(N @ X)  # < 0 when the normal faces the camera
+    foot = d * N
+    v_z = abs(d)
+    out = []
+    for t in isovalues:
+        r = float(isophote_radius(float(t), float(phong_n), v_z, 1.0))
+        rec: dict[str, Any] = {"t": float(t), "radius_mm": r, "centre_mm": foot.tolist(),
+                               "conic": None, "kind": "degenerate", "ellipse": None}
+        if r > 0 and np.isfinite(r) and v_z > 0:
+            try:
+                C = project_circle(foot, N, r, K)
+            except ValueError:
+                C = None
+            if C is not None:
+                rec["conic"] = C.tolist()
+                rec["kind"] = conic_kind(C)
+                e = conic_to_ellipse(C)
+                rec["ellipse"] = e.as_dict() if e is not None else None
+        out.append(rec)
+    return out
+
+
+def _encode_png(img: np.ndarray) -> np.ndarray:
+    from PIL import Image
+
+    buf = io.BytesIO()
+    Image.fromarray(img).save(buf, format="PNG", optimize=False, compress_level=6)
+    return np.frombuffer(buf.getvalue(), dtype=np.uint8).copy()
+
+
+def _gray(a: np.ndarray) -> np.ndarray:
+    a = np.asarray(a)
+    if a.ndim == 3:
+        # Rec. 709 luma of a (linear or 8-bit) RGB image; the renderer is monochrome in practice.
+        if a.dtype == np.uint8:
+            return np.round(a[..., :3].astype(np.float64) @ [0.2126, 0.7152, 0.0722]).astype(np.uint8)
+        return (a[..., :3].astype(np.float64) @ [0.2126, 0.7152, 0.0722]).astype(np.float32)
+    return a
+
+
+def _jsonable(x):
+    if isinstance(x, np.ndarray):
+        return x.tolist()
+    if isinstance(x, np.generic):
+        return x.item()
+    if isinstance(x, dict):
+        return {k: _jsonable(v) for k, v in x.items()}
+    if isinstance(x, list | tuple):
+        return [_jsonable(v) for v in x]
+    return x
+
+
+def sample_from_render(config: DatasetConfig, index: int, params: dict, result) -> Sample:
+    """Collect the arrays and records of a sample from a :class:`simtest.render.RenderResult`."""
+    from simtest.scene.spec import scene_to_dict
+
+    mask = np.asarray(result.mask, dtype=bool)
+    normals = np.where(mask[..., None], np.nan_to_num(np.asarray(result.normals, np.float32)), 0.0)
+    depth = np.where(mask, np.nan_to_num(np.asarray(result.depth, np.float32)), 0.0)
+    linear = _gray(getattr(result, "gray", None) if getattr(result, "gray", None) is not None else result.linear)
+    specular = _gray(result.specular).astype(np.float32)
+    sensor = _gray(result.sensor)
+    if sensor.dtype != np.uint8:
+        raise ValueError(f"sample {index}: sensor image is {sensor.dtype}, expected uint8 (bit_depth 8)")
+    peak = float(np.max(specular)) if specular.size else 0.0
+    t_min = min(config.isovalues)
+    hmask = (specular >= t_min * peak) if peak > 0 else np.zeros_like(mask)
+    arrays = {
+        "sensor_png": _encode_png(np.ascontiguousarray(sensor)),
+        "linear": np.ascontiguousarray(linear, dtype=np.float32),
+        "specular": np.ascontiguousarray(specular, dtype=np.float32),
+        "normals": np.ascontiguousarray(normals, dtype=np.float32),
+        "depth": np.ascontiguousarray(depth, dtype=np.float32),
+        "mask": np.ascontiguousarray(mask),
+        "highlight_mask": np.ascontiguousarray(hmask, dtype=bool),
+    }
+    K = np.asarray(result.K, dtype=np.float64)
+    highlights = []
+    for h in result.highlights:
+        rec = {
+            "bp_px": _jsonable(np.asarray(h.bp_px, np.float64)),
+            "bp_mm": _jsonable(np.asarray(h.bp_mm, np.float64)),
+            "normal": _jsonable(np.asarray(h.normal, np.float64)),
+            "k1": float(h.k1),
+            "k2": float(h.k2),
+            "in_frame": bool(h.in_frame),
+        }
+        rec["isophotes"] = isophote_record(h.bp_mm, h.normal, K, config.isovalues, params["phong_n"])
+        highlights.append(rec)
+    record = {
+        "index": int(index),
+        "family": params["family"],
+        "params": _jsonable(params),
+        "render_seed": int(params["render_seed"]),
+        "K": K.tolist(),
+        "cam_to_world": np.asarray(result.cam_to_world, np.float64).tolist(),
+        "image_size": [int(mask.shape[1]), int(mask.shape[0])],
+        "variant": str(result.variant),
+        "highlights": highlights,
+        "scene": _jsonable(scene_to_dict(result.spec)),
+    }
+    return Sample(index=int(index), arrays=arrays, record=record)
+
+
+_THREADS_SET = False
+
+
+def _configure_threads() -> None:
+    """Apply the Dr.Jit thread count a local worker pool asked for (once per process)."""
+    global _THREADS_SET
+    if _THREADS_SET:
+        return
+    _THREADS_SET = True
+    import os
+
+    n = os.environ.get("SIMTEST_DATASET_THREADS")
+    if not n:
+        return
+    from simtest._llvm import configure_llvm_env
+
+    configure_llvm_env()
+    import drjit as dr
+
+    dr.set_thread_count(int(n))
+
+
+def render_sample(config: DatasetConfig, index: int) -> Sample:
+    """Draw, build, render and label sample ``index`` of ``config``.
+
+    Parameters
+    ----------
+    config : DatasetConfig
+    index : int
+
+    Returns
+    -------
+    Sample
+        Identical (bit for bit) whenever called with the same config and index, in any process.
+    """
+    from simtest.render import render_scene
+
+    _configure_threads()
+    params = draw_parameters(config, index)
+    spec = build_scene(config, params)
+    result = render_scene(spec, seed=params["render_seed"])
+    return sample_from_render(config, index, params, result)

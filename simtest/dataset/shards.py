@@ -1,0 +1,299 @@
+"""On-disk format of a dataset: shards, manifest and card.
+
+Layout
+------
+::
+
+    DIR/dataset.json                 the card: config, seed, version, counts, channels and units
+    DIR/manifest.jsonl               one JSON row per sample (labels, shard, per-array sha256)
+    DIR/shards/shard-00000.npz       the arrays of samples 0 .. shard_size-1 (numpy .npz, lossless)
+    DIR/shards/shard-00000.json      the rows of those samples + the shard file's sha256
+
+A shard ``.npz`` holds one entry per (sample, array), named ``"<index:08d>/<array>"``; for
+example ``np.load("shards/shard-00000.npz")["00000003/normals"]``. The sensor image is stored as
+the bytes of its 8-bit PNG (``"<index>/sensor_png"``, uint8 of shape (nbytes,)); decode it with
+``PIL.Image.open(io.BytesIO(a.tobytes()))``. Entries are written with a fixed zip timestamp, so
+identical samples give byte-identical shard files.
+
+Safety
+------
+A shard is written to ``shard-XXXXX.npz.tmp`` and renamed (``os.replace``) when complete; its
+``.json`` row file, written the same way after the rename, marks it complete. A rerun keeps complete
+shards, deletes partial ones and leftovers, and redoes them, so no sample is ever duplicated. The
+manifest and the card's final counts are written last.
+
+Hashes
+------
+``sha256`` of an array is ``hashlib.sha256(np.ascontiguousarray(a).tobytes()).hexdigest()`` (C
+order; dtype and shape are recorded beside it).
+"""
+
+from __future__ import annotations
+
+import hashlib
+import io
+import json
+import os
+import zipfile
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, Iterable
+
+import numpy as np
+
+__all__ = [
+    "CARD_NAME",
+    "FORMAT",
+    "FORMAT_VERSION",
+    "MANIFEST_NAME",
+    "DatasetError",
+    "ShardWriter",
+    "array_sha256",
+    "atomic_write_text",
+    "file_sha256",
+    "read_card",
+    "read_manifest",
+    "read_shard_rows",
+    "shard_json_path",
+    "shard_npz_path",
+    "write_json",
+]
+
+FORMAT = "simtest-dataset"
+FORMAT_VERSION = 1
+CARD_NAME = "dataset.json"
+MANIFEST_NAME = "manifest.jsonl"
+SHARDS_DIR = "shards"
+TMP_SUFFIX = ".tmp"
+_ZIP_TIME = (1980, 1, 1, 0, 0, 0)
+
+
+class DatasetError(RuntimeError):
+    """A dataset folder cannot be written or read; the message names the path."""
+
+
+def array_sha256(a: np.ndarray) -> str:
+    """sha256 of the C-ordered bytes of ``a`` (hex)."""
+    return hashlib.sha256(np.ascontiguousarray(a).tobytes()).hexdigest()
+
+
+def file_sha256(path: Path, chunk: int = 1 << 22) -> str:
+    """sha256 of a file (hex), read in chunks."""
+    h = hashlib.sha256()
+    with open(path, "rb") as fh:
+        while block := fh.read(chunk):
+            h.update(block)
+    return h.hexdigest()
+
+
+def atomic_write_text(path: Path, text: str) -> Path:
+    """Write ``text`` to ``path`` through a temporary file and ``os.replace``."""
+    path = Path(path)
+    tmp = path.with_name(path.name + TMP_SUFFIX)
+    with open(tmp, "w", encoding="utf-8") as fh:
+        fh.write(text)
+        fh.flush()
+        os.fsync(fh.fileno())
+    os.replace(tmp, path)
+    return path
+
+
+def write_json(path: Path, obj: Any) -> Path:
+    """Atomically write ``obj`` as indented JSON."""
+    return atomic_write_text(path, json.dumps(obj, indent=1, sort_keys=False) + "\n")
+
+
+def shard_npz_path(root: Path, shard: int) -> Path:
+    """``root/shards/shard-XXXXX.npz``."""
+    return Path(root) / SHARDS_DIR / f"shard-{shard:05d}.npz"
+
+
+def shard_json_path(root: Path, shard: int) -> Path:
+    """``root/shards/shard-XXXXX.json``."""
+    return Path(root) / SHARDS_DIR / f"shard-{shard:05d}.json"
+
+
+def entry_name(index: int, array: str) -> str:
+    """Key of an array inside a shard ``.npz``: ``"<index:08d>/<array>"``."""
+    return f"{index:08d}/{array}"
+
+
+def array_info(a: np.ndarray) -> dict:
+    """``{"sha256", "dtype", "shape"}`` of an array, as recorded in the manifest."""
+    return {"sha256": array_sha256(a), "dtype": str(a.dtype), "shape": list(a.shape)}
+
+
+@dataclass
+class ShardWriter:
+    """Writes the samples of one shard in index order, then renames the shard into place.
+
+    Samples may be added in any order; each is written as soon as all lower indices of the shard
+    are (out-of-order ones wait in memory). :meth:`add` returns True when the shard is complete
+    and renamed.
+
+    Parameters
+    ----------
+    root : Path
+        Dataset folder.
+    shard : int
+        Shard number.
+    indices : range
+        Sample indices of the shard.
+    meta : dict
+        Extra keys written in the shard's JSON (e.g. the config fingerprint).
+    compress : bool
+        Deflate the entries.
+    """
+
+    root: Path
+    shard: int
+    indices: range
+    meta: dict = field(default_factory=dict)
+    compress: bool = False
+    _next: int = field(init=False, default=0)
+    _pending: dict = field(init=False, default_factory=dict)
+    _rows: list = field(init=False, default_factory=list)
+    _zip: zipfile.ZipFile | None = field(init=False, default=None)
+
+    @property
+    def npz_path(self) -> Path:
+        return shard_npz_path(self.root, self.shard)
+
+    @property
+    def tmp_path(self) -> Path:
+        p = self.npz_path
+        return p.with_name(p.name + TMP_SUFFIX)
+
+    def add(self, sample) -> bool:
+        """Queue ``sample`` (a :class:`simtest.dataset.sample.Sample`); True once the shard is done."""
+        if sample.index not in self.indices:
+            raise DatasetError(f"sample {sample.index} does not belong to shard {self.shard}")
+        if sample.index in self._pending or sample.index < self.indices[0] + self._next:
+            raise DatasetError(f"sample {sample.index} was given twice to shard {self.shard}")
+        self._pending[sample.index] = sample
+        while self._next < len(self.indices) and self.indices[self._next] in self._pending:
+            self._write(self._pending.pop(self.indices[self._next]))
+            self._next += 1
+        if self._next == len(self.indices):
+            self._finish()
+            return True
+        return False
+
+    def _write(self, sample) -> None:
+        if self._zip is None:
+            self.tmp_path.parent.mkdir(parents=True, exist_ok=True)
+            self._zip = zipfile.ZipFile(self.tmp_path, "w", allowZip64=True)
+        arrays = {}
+        for name, a in sample.arrays.items():
+            a = np.asarray(a)
+            info = zipfile.ZipInfo(entry_name(sample.index, name) + ".npy", date_time=_ZIP_TIME)
+            info.compress_type = zipfile.ZIP_DEFLATED if self.compress else zipfile.ZIP_STORED
+            info.external_attr = 0o644 << 16
+            with self._zip.open(info, "w", force_zip64=True) as fh:
+                np.lib.format.write_array(fh, np.ascontiguousarray(a), allow_pickle=False)
+            arrays[name] = array_info(a)
+        row = dict(sample.record)
+        row["index"] = int(sample.index)
+        row["shard"] = int(self.shard)
+        row["arrays"] = arrays
+        self._rows.append(row)
+
+    def _finish(self) -> None:
+        assert self._zip is not None
+        self._zip.close()
+        with open(self.tmp_path, "rb+") as fh:
+            os.fsync(fh.fileno())
+        os.replace(self.tmp_path, self.npz_path)
+        doc = {
+            "shard": self.shard,
+            "npz": self.npz_path.name,
+            "npz_sha256": file_sha256(self.npz_path),
+            "npz_bytes": self.npz_path.stat().st_size,
+            "indices": [self.indices.start, self.indices.stop],
+            **self.meta,
+            "samples": self._rows,
+        }
+        write_json(shard_json_path(self.root, self.shard), doc)
+
+    def abort(self) -> None:
+        """Close and delete the partial file (a rerun redoes the shard)."""
+        if self._zip is not None:
+            self._zip.close()
+            self._zip = None
+        self.tmp_path.unlink(missing_ok=True)
+
+
+def read_shard_rows(root: Path, shard: int) -> dict | None:
+    """The JSON of a shard, or None if it is missing or unreadable (an incomplete shard)."""
+    p = shard_json_path(root, shard)
+    try:
+        return json.loads(p.read_text(encoding="utf-8"))
+    except (OSError, ValueError):
+        return None
+
+
+def read_card(root: Path) -> dict:
+    """The dataset card ``root/dataset.json``.
+
+    Raises
+    ------
+    DatasetError
+        If it is missing, unreadable or not a simtest dataset card.
+    """
+    p = Path(root) / CARD_NAME
+    try:
+        card = json.loads(p.read_text(encoding="utf-8"))
+    except FileNotFoundError:
+        raise DatasetError(f"{p}: missing: not a simtest dataset folder") from None
+    except (OSError, ValueError) as exc:
+        raise DatasetError(f"{p}: unreadable: {exc}") from None
+    if not isinstance(card, dict) or card.get("format") != FORMAT:
+        raise DatasetError(f"{p}: format: not a {FORMAT} card")
+    if card.get("format_version") != FORMAT_VERSION:
+        raise DatasetError(f"{p}: format_version: {card.get('format_version')!r} is not supported "
+                           f"(this simtest reads {FORMAT_VERSION})")
+    return card
+
+
+def read_manifest(root: Path) -> list[dict]:
+    """Rows of ``root/manifest.jsonl``, in index order.
+
+    Raises
+    ------
+    DatasetError
+        If the manifest is missing (the dataset is incomplete) or a line is not JSON.
+    """
+    p = Path(root) / MANIFEST_NAME
+    try:
+        lines = p.read_text(encoding="utf-8").splitlines()
+    except FileNotFoundError:
+        raise DatasetError(f"{p}: missing: the dataset is incomplete (rerun `simtest dataset "
+                           "generate` with the same config and --out)") from None
+    rows = []
+    for k, line in enumerate(lines, 1):
+        if not line.strip():
+            continue
+        try:
+            rows.append(json.loads(line))
+        except ValueError as exc:
+            raise DatasetError(f"{p}: line {k}: not JSON: {exc}") from None
+    return rows
+
+
+def write_manifest(root: Path, rows: Iterable[dict]) -> Path:
+    """Atomically write ``root/manifest.jsonl`` (one compact JSON object per line)."""
+    text = "".join(json.dumps(r, separators=(",", ":")) + "\n" for r in rows)
+    return atomic_write_text(Path(root) / MANIFEST_NAME, text)
+
+
+def load_entry(npz: np.lib.npyio.NpzFile, index: int, name: str) -> np.ndarray:
+    """One array of a sample from an open shard."""
+    return npz[entry_name(index, name)]
+
+
+def decode_png(a: np.ndarray) -> np.ndarray:
+    """Decode the ``sensor_png`` bytes to the (H, W) (or (H, W, 3)) uint8 image."""
+    from PIL import Image
+
+    with Image.open(io.BytesIO(np.asarray(a, dtype=np.uint8).tobytes())) as im:
+        return np.asarray(im)

@@ -1,0 +1,226 @@
+"""``simtest dataset verify DIR``: check every shard and manifest entry of a dataset."""
+
+from __future__ import annotations
+
+import zipfile
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from simtest.dataset.shards import (
+    SHARDS_DIR,
+    TMP_SUFFIX,
+    DatasetError,
+    array_sha256,
+    decode_png,
+    entry_name,
+    file_sha256,
+    read_card,
+    read_manifest,
+    read_shard_rows,
+    shard_npz_path,
+)
+
+__all__ = ["UNIT_NORMAL_TOL", "VerifyReport", "verify"]
+
+#: |‖n‖ - 1| allowed for a stored normal: float32 renormalised vectors are unit to a few ulp
+#: (~1e-7); 1e-4 leaves room for any float32 rounding yet catches an unnormalised AOV average
+#: (silhouette pixels average to norms well below 0.999).
+UNIT_NORMAL_TOL = 1e-4
+
+_MAX_PROBLEMS = 50
+
+
+@dataclass
+class VerifyReport:
+    """Result of :func:`verify`.
+
+    Attributes
+    ----------
+    root : Path
+    samples : int
+        Samples checked.
+    shards : int
+        Shard files checked.
+    problems : list of str
+        One line per problem (``<path>: <what>``); empty when the dataset is sound.
+    """
+
+    root: Path
+    samples: int = 0
+    shards: int = 0
+    problems: list = field(default_factory=list)
+
+    @property
+    def ok(self) -> bool:
+        return not self.problems
+
+    def add(self, msg: str) -> None:
+        self.problems.append(msg)
+
+
+_EXPECT = {
+    "sensor_png": ("uint8", 1),
+    "linear": ("float32", 2),
+    "specular": ("float32", 2),
+    "normals": ("float32", 3),
+    "depth": ("float32", 2),
+    "mask": ("bool", 2),
+    "highlight_mask": ("bool", 2),
+}
+
+
+def _check_sample(rep: VerifyReport, where: str, row: dict, arrays: dict) -> None:
+    w, h = row.get("image_size", [None, None])
+    for name, (dtype, ndim) in _EXPECT.items():
+        if name not in arrays:
+            rep.add(f"{where}: array {name!r} missing")
+            continue
+        a = arrays[name]
+        if str(a.dtype) != dtype or a.ndim != ndim:
+            rep.add(f"{where}: {name}: dtype/rank {a.dtype}/{a.ndim}, expected {dtype}/{ndim}")
+            continue
+        if name != "sensor_png":
+            want = (h, w, 3) if name == "normals" else (h, w)
+            if tuple(a.shape) != want:
+                rep.add(f"{where}: {name}: shape {tuple(a.shape)}, expected {want} (image_size)")
+    if any(n not in arrays for n in _EXPECT):
+        return
+    mask = arrays["mask"]
+    try:
+        img = decode_png(arrays["sensor_png"])
+    except Exception as exc:  # noqa: BLE001 - any decoder failure is a problem to report
+        rep.add(f"{where}: sensor_png: not a PNG: {exc}")
+    else:
+        if img.dtype != np.uint8 or img.shape[:2] != mask.shape:
+            rep.add(f"{where}: sensor_png: decodes to {img.dtype} {img.shape}, expected uint8 {mask.shape}")
+    n = arrays["normals"]
+    if n.shape[:2] == mask.shape:
+        inside = n[mask]
+        if not np.all(np.isfinite(inside)):
+            rep.add(f"{where}: normals: non-finite values inside the mask")
+        else:
+            err = np.abs(np.linalg.norm(inside.astype(np.float64), axis=-1) - 1.0)
+            if err.size and err.max() > UNIT_NORMAL_TOL:
+                rep.add(f"{where}: normals: not unit inside the mask (max |norm - 1| = {err.max():.2e})")
+            if inside.size and np.any(inside[:, 2] >= 0):
+                rep.add(f"{where}: normals: {int(np.sum(inside[:, 2] >= 0))} normals do not face the "
+                        "camera (n_z >= 0)")
+        if np.any(n[~mask] != 0):
+            rep.add(f"{where}: normals: non-zero outside the mask")
+    d = arrays["depth"]
+    if d.shape == mask.shape and (not np.all(np.isfinite(d[mask])) or np.any(d[mask] <= 0)):
+        rep.add(f"{where}: depth: non-finite or non-positive inside the mask")
+    for hl in row.get("highlights", []):
+        nn = np.asarray(hl.get("normal", [np.nan] * 3), dtype=np.float64)
+        if not np.all(np.isfinite(nn)) or abs(np.linalg.norm(nn) - 1.0) > UNIT_NORMAL_TOL:
+            rep.add(f"{where}: highlight normal {hl.get('normal')} is not a unit vector")
+
+
+def verify(root, *, check_arrays: bool = True) -> VerifyReport:
+    """Check a dataset folder.
+
+    Checks the card, that the manifest lists exactly samples 0 .. count-1 once each, that every
+    shard file's sha256 matches its row file and every array's sha256, dtype and shape match the
+    manifest, that shapes agree with the image size, normals are unit and face the camera inside
+    the mask and zero outside, depth is positive inside the mask, the PNG decodes, and that no
+    temporary file is left.
+
+    Parameters
+    ----------
+    root : path
+        Dataset folder.
+    check_arrays : bool
+        Load and check every array (default). False checks only files, counts and hashes of shards.
+
+    Returns
+    -------
+    VerifyReport
+        ``report.ok`` is True when nothing is wrong.
+    """
+    root = Path(root)
+    rep = VerifyReport(root=root)
+    try:
+        card = read_card(root)
+        rows = read_manifest(root)
+    except DatasetError as exc:
+        rep.add(str(exc))
+        return rep
+    count, shard_size, n_shards = card.get("count"), card.get("shard_size"), card.get("n_shards")
+    if card.get("status") != "complete":
+        rep.add(f"{root / 'dataset.json'}: status is {card.get('status')!r}, not 'complete'")
+    indices = [r.get("index") for r in rows]
+    if indices != list(range(count)):
+        dup = len(indices) - len(set(indices))
+        rep.add(f"{root / 'manifest.jsonl'}: {len(rows)} rows ({dup} duplicated), expected indices "
+                f"0..{count - 1} in order")
+    counts = card.get("counts", {})
+    if counts.get("samples") != len(rows):
+        rep.add(f"{root / 'dataset.json'}: counts.samples = {counts.get('samples')}, manifest has {len(rows)}")
+    by_shard: dict[int, list] = {}
+    for r in rows:
+        by_shard.setdefault(r.get("shard"), []).append(r)
+    if sorted(by_shard) != list(range(n_shards)):
+        rep.add(f"{root / 'manifest.jsonl'}: shards {sorted(by_shard)[:10]}..., expected 0..{n_shards - 1}")
+
+    for s in range(n_shards):
+        npz = shard_npz_path(root, s)
+        doc = read_shard_rows(root, s)
+        rep.shards += 1
+        if doc is None or not npz.is_file():
+            rep.add(f"{npz}: missing shard file or its .json")
+            continue
+        if file_sha256(npz) != doc.get("npz_sha256"):
+            rep.add(f"{npz}: sha256 differs from {npz.with_suffix('.json').name}")
+        want = list(range(s * shard_size, min(count, (s + 1) * shard_size)))
+        if [r.get("index") for r in doc.get("samples", [])] != want:
+            rep.add(f"{npz.with_suffix('.json')}: samples are not {want[0]}..{want[-1]}")
+        manifest_rows = {r["index"]: r for r in by_shard.get(s, [])}
+        try:
+            z = np.load(npz, allow_pickle=False)
+        except (OSError, ValueError, zipfile.BadZipFile) as exc:
+            rep.add(f"{npz}: unreadable: {exc}")
+            continue
+        with z:
+            expected_keys = set()
+            for srow in doc.get("samples", []):
+                i = srow.get("index")
+                where = f"{npz}: sample {i}"
+                mrow = manifest_rows.get(i)
+                if mrow is None:
+                    rep.add(f"{where}: not in the manifest")
+                    continue
+                if {k: v for k, v in mrow.items() if k != "npz"} != srow:
+                    rep.add(f"{where}: manifest row differs from the shard's row")
+                arrays = {}
+                for name, info in mrow.get("arrays", {}).items():
+                    key = entry_name(i, name)
+                    expected_keys.add(key)
+                    if key not in z.files:
+                        rep.add(f"{where}: entry {key!r} missing")
+                        continue
+                    a = z[key]
+                    if array_sha256(a) != info.get("sha256"):
+                        rep.add(f"{where}: {name}: sha256 mismatch")
+                    if str(a.dtype) != info.get("dtype") or list(a.shape) != info.get("shape"):
+                        rep.add(f"{where}: {name}: {a.dtype} {list(a.shape)} but the manifest says "
+                                f"{info.get('dtype')} {info.get('shape')}")
+                    arrays[name] = a
+                if check_arrays:
+                    _check_sample(rep, where, mrow, arrays)
+                rep.samples += 1
+                if len(rep.problems) > _MAX_PROBLEMS:
+                    rep.add("... too many problems; stopped")
+                    return rep
+            extra = set(z.files) - expected_keys
+            if extra:
+                rep.add(f"{npz}: {len(extra)} entries not in the manifest, e.g. {sorted(extra)[0]!r}")
+    for p in list((root / SHARDS_DIR).glob("*")) + list(root.glob("*")):
+        if p.name.endswith(TMP_SUFFIX):
+            rep.add(f"{p}: temporary file left over")
+        elif p.parent.name == SHARDS_DIR and p.suffix in (".npz", ".json"):
+            num = p.stem.removeprefix("shard-")
+            if not num.isdigit() or int(num) >= n_shards:
+                rep.add(f"{p}: unexpected shard file")
+    return rep
