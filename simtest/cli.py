@@ -32,6 +32,9 @@ def version_command() -> None:
 # validate, nightly: simtest/harness/cli.py
 # dataset: simtest/dataset/cli.py
 # bench: simtest/bench.py
+from simtest.render.cli import render_command  # noqa: E402
+
+app.command("render")(render_command)
 
 from simtest.dataset.cli import dataset_app  # noqa: E402
 

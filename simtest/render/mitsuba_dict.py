@@ -236,9 +236,11 @@ def mitsuba_scene_dict(
         axis = np.asarray(geo.axis if geo.axis is not None else (1.0, 0.0, 0.0), dtype=np.float64)
         axis = w2c[:3, :3] @ (axis / np.linalg.norm(axis))
         length = geo.length_mm if geo.length_mm is not None else 20.0 * geo.radius_mm
-        p0, p1 = c - 0.5 * length * axis, c + 0.5 * length * axis
-        surface = {"type": "cylinder", "p0": [float(x) for x in p0], "p1": [float(x) for x in p1],
-                   "radius": geo.radius_mm, "bsdf": bsdf}
+        # Mitsuba's cylinder: radius 1 around the local z axis, z from 0 to 1.
+        m = np.eye(4)
+        m[:3, :3] = rotation_from_z(axis) @ np.diag([geo.radius_mm, geo.radius_mm, length])
+        m[:3, 3] = c - 0.5 * length * axis
+        surface = {"type": "cylinder", "to_world": m, "bsdf": bsdf}
     else:  # mesh, saddle
         if mesh_cam is None:
             raise ValueError(f"{spec.source}: geometry.type {geo.type!r} needs mesh_cam arrays")

@@ -12,8 +12,10 @@ co-located light it is where the normal is parallel to the viewing ray.
   casting through sub-pixel grids (the normal is the barycentric interpolation of the vertex
   normals, as Mitsuba shades it); k1 and k2 are the barycentric interpolation of the vertex values.
 
-Curvature sign convention (the same as :mod:`simtest.scene.meshes`): positive when the surface bends
-toward its (camera-facing) normal. A sphere seen from outside has k1 = k2 = -1/R.
+Curvature sign convention (the same as :mod:`simtest.scene.meshes`): the eigenvalues of the
+Weingarten map dN of the camera-facing normal, so positive where the surface bends away from its
+normal (convex toward the camera). A sphere seen from outside has k1 = k2 = +1/R; a cylinder seen
+from outside k1 = +1/R, k2 = 0; a tube seen from inside k1 = 0, k2 = -1/R.
 """
 
 from __future__ import annotations
@@ -51,8 +53,8 @@ class HighlightTruth:
     normal : ndarray of shape (3,)
         Unit surface normal at the BP, camera frame, facing the camera.
     k1, k2 : float
-        Principal curvatures at the BP, 1/mm, ``k1 >= k2``; positive when the surface bends toward
-        its normal.
+        Principal curvatures at the BP, 1/mm, ``k1 >= k2``; positive where the surface bends away
+        from its normal (convex toward the camera), as in :mod:`simtest.scene.meshes`.
     in_frame : bool
         The BP pixel lies inside the image (``-0.5 <= u < W - 0.5``, same for v).
     """
@@ -161,11 +163,11 @@ def _solve_stationary(surface: Callable[[np.ndarray], tuple[np.ndarray, np.ndarr
 
 def sphere_highlight(center: np.ndarray, radius: float, light: np.ndarray, K: np.ndarray,
                      size: tuple[int, int]) -> HighlightTruth:
-    """BP of a sphere seen from outside (normals outward, k1 = k2 = -1/R)."""
+    """BP of a sphere seen from outside (normals outward, k1 = k2 = +1/R)."""
     c = np.asarray(center, dtype=np.float64)
     L = np.asarray(light, dtype=np.float64)
     n0 = -_unit(c)
-    k = -1.0 / radius
+    k = 1.0 / radius
     if np.allclose(L, 0.0):
         return _highlight(c + radius * n0, n0, k, k, K, size)
     e1 = _unit(np.cross(n0, [0.0, 1.0, 0.0] if abs(n0[1]) < 0.9 else [1.0, 0.0, 0.0]))
@@ -182,7 +184,7 @@ def sphere_highlight(center: np.ndarray, radius: float, light: np.ndarray, K: np
 
 def cylinder_highlight(center: np.ndarray, axis: np.ndarray, radius: float, length: float,
                        light: np.ndarray, K: np.ndarray, size: tuple[int, int]) -> HighlightTruth | None:
-    """BP of a finite cylinder seen from outside (k1 = 0, k2 = -1/R); None if off its length."""
+    """BP of a finite cylinder seen from outside (k1 = +1/R, k2 = 0); None if off its length."""
     c = np.asarray(center, dtype=np.float64)
     a = _unit(axis)
     L = np.asarray(light, dtype=np.float64)
@@ -203,7 +205,7 @@ def cylinder_highlight(center: np.ndarray, axis: np.ndarray, radius: float, leng
         p, n, s = q + radius * n0, n0, s0
     if abs(s) > 0.5 * length:
         return None
-    return _highlight(p, n, 0.0, -1.0 / radius, K, size)
+    return _highlight(p, n, 1.0 / radius, 0.0, K, size)
 
 
 #: Caster signature: uv (N, 2) pixel coordinates -> dict with ``hit`` (N,) bool, ``p`` (N, 3),

@@ -7,8 +7,8 @@ raise :class:`SceneError` with the message ``"<file>: <section.key>: <reason>"``
 
 Conventions
 -----------
-Lengths in millimetres, angles in degrees (suffixes ``_mm``, ``_deg``, ``_px``). Geometry is given in
-the *world* frame; the camera pose (``camera.position_mm``, ``look_at_mm``, ``up``) places an OpenCV
+Lengths in millimetres, angles in degrees (suffixes ``_mm``, ``_deg``, ``_px``). Spheres, cylinders
+and meshes are given in the *world* frame, planes and saddles relative to the camera; the camera pose (``camera.position_mm``, ``look_at_mm``, ``up``) places an OpenCV
 camera (x right, y down, z forward) in it. With the default pose (at the origin, looking along +z,
 up = (0, -1, 0)) the world frame *is* the camera frame, which is how the bundled analytic scenes are
 written.
