@@ -28,10 +28,13 @@ def version_command() -> None:
 
 # --- subcommands (one registration line per package) -------------------------------------------
 # reconstruct: simtest/reconstruct/cli.py
+app.command("reconstruct")(__import__("simtest.reconstruct.cli", fromlist=["x"]).reconstruct_command)
 # render, meshes: simtest/render/cli.py, simtest/scene/cli.py
+app.add_typer(__import__("simtest.scene.meshes_cli", fromlist=["x"]).meshes_app, name="meshes")
 # validate, nightly: simtest/harness/cli.py
 # dataset: simtest/dataset/cli.py
 # bench: simtest/bench.py
+app.command("bench")(__import__("simtest.bench", fromlist=["x"]).bench_command)
 from simtest.render.cli import render_command  # noqa: E402
 
 app.command("render")(render_command)

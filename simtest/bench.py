@@ -1,0 +1,276 @@
+"""``simtest bench``: speed benchmarks, one section per part of the pipeline.
+
+Run ``simtest bench`` for every section or ``simtest bench --only reconstruct`` for one. Each
+section is a function ``f(repeat: int) -> list[BenchResult]`` registered in :data:`SECTIONS`
+(decorator :func:`section`). Timings are single-core: the bench sets ``OMP_NUM_THREADS``,
+``OPENBLAS_NUM_THREADS``, ``MKL_NUM_THREADS`` to 1 (effective for libraries not yet loaded) and
+``cv2.setNumThreads(1)``. Each figure is the median over ``repeat`` runs after one warm-up run;
+the min is shown too.
+
+Sections
+--------
+- ``reconstruct`` (here): ms per specularity (one highlight in a 100 x 100 px image, whole
+  :func:`~simtest.reconstruct.pipeline.reconstruct_roi`, plus its steps) and ms per full
+  1350 x 1080 RGB uint8 frame with 10 highlights (detection + all reconstructions). Targets:
+  <= 1 ms per specularity, <= 15 ms per frame.
+- Hooks for other packages: see :data:`EXTERNAL_SECTIONS` below. A package adds a section by
+  defining ``bench_<name>(repeat: int) -> list[BenchResult]`` in its own module and adding one
+  line to that table; it is imported only when the section runs.
+"""
+
+from __future__ import annotations
+
+import os
+import statistics
+import time
+from collections.abc import Callable
+from dataclasses import dataclass
+
+import typer
+
+
+@dataclass(frozen=True)
+class BenchResult:
+    """One measured figure.
+
+    Attributes
+    ----------
+    section, name : str
+        Where it comes from and what it measures.
+    value : float
+        Median over the repeats.
+    unit : str
+        E.g. ``"ms"``.
+    target : float or None
+        Upper bound to meet (same unit), or None.
+    best : float or None
+        Minimum over the repeats.
+    note : str
+        Free text (sizes, counts).
+    """
+
+    section: str
+    name: str
+    value: float
+    unit: str
+    target: float | None = None
+    best: float | None = None
+    note: str = ""
+
+    @property
+    def meets_target(self) -> bool | None:
+        """True/False against the target, None without one."""
+        return None if self.target is None else self.value <= self.target
+
+
+SectionFn = Callable[[int], list[BenchResult]]
+#: Sections defined in this module.
+SECTIONS: dict[str, SectionFn] = {}
+
+# ---- HOOKS: other packages' sections ------------------------------------------------------------
+#: name -> "module:function". Add one line per section; the module is imported only when it runs,
+#: and a section whose module does not exist yet is listed as unavailable instead of failing.
+EXTERNAL_SECTIONS: dict[str, str] = {
+    "render": "simtest.render.bench:bench_render",  # renderer (owner: render)
+    "harness": "simtest.harness.bench:bench_harness",  # harness sweeps (owner: harness)
+}
+# ---- end of hooks -------------------------------------------------------------------------------
+
+
+def section(name: str) -> Callable[[SectionFn], SectionFn]:
+    """Register a bench section under ``name``."""
+
+    def deco(fn: SectionFn) -> SectionFn:
+        SECTIONS[name] = fn
+        return fn
+
+    return deco
+
+
+def single_core() -> None:
+    """Ask numerical libraries and OpenCV for one thread."""
+    for var in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
+        os.environ[var] = "1"
+    import cv2
+
+    cv2.setNumThreads(1)
+
+
+def time_ms(fn: Callable[[], object], repeat: int) -> tuple[float, float]:
+    """(median, min) wall time of ``fn()`` in ms over ``repeat`` runs after one warm-up."""
+    fn()
+    times = []
+    for _ in range(max(1, repeat)):
+        t0 = time.perf_counter()
+        fn()
+        times.append((time.perf_counter() - t0) * 1e3)
+    return statistics.median(times), min(times)
+
+
+def resolve_section(name: str) -> SectionFn | None:
+    """The function of a section, built-in or external; None if unknown or not importable."""
+    if name in SECTIONS:
+        return SECTIONS[name]
+    spec = EXTERNAL_SECTIONS.get(name)
+    if spec is None:
+        return None
+    import importlib
+
+    mod_name, fn_name = spec.split(":")
+    try:
+        mod = importlib.import_module(mod_name)
+    except ImportError:
+        return None
+    return getattr(mod, fn_name, None)
+
+
+# ------------------------------------------------------------------------------------------------
+# reconstruct section
+
+
+def synthetic_roi_image(size: int = 100, n_phong: float = 400.0):
+    """One analytic Phong highlight (co-located light, tilted plane) in a ``size``-px square.
+
+    Returns ``(image float64 (size, size), K, bp_uv, normal)``; the t = 0.1 isophote is about
+    30 px across for the defaults.
+    """
+    import numpy as np
+
+    from simtest.geometry.camera import project_points
+    from simtest.simulate.analytic import phong_plane_image, plane_bp
+
+    f = 600.0
+    K = np.array([[f, 0, size / 2 - 0.5], [0, f, size / 2 - 0.5], [0, 0, 1.0]])
+    normal = np.array([0.0, 0.0, -1.0])
+    img = phong_plane_image(K, (size, size), normal, 50.0, n_phong)
+    bp = project_points(plane_bp(normal, 50.0), K)
+    return img, K, bp, normal
+
+
+def synthetic_frame(shape=(1080, 1350), n_highlights: int = 10, seed: int = 0, n_saturated: int = 2):
+    """An RGB uint8 frame with ``n_highlights`` analytic Phong highlights on a dark background.
+
+    Each highlight is the co-located Phong image of a plane facing the camera along the ray of
+    its BP (so its BP is where it is placed), exponent n in [300, 500] (t = 0.1 isophote about
+    60 to 80 px across at f = 600 px), peak 200 to 250; the first ``n_saturated`` are clipped
+    (peak 320 before clipping at 255). The background is 5 to 15 (a smooth gradient), below the
+    t = 0.1 level of every highlight. Randomness: ``SeedSequence([seed, k])`` per highlight.
+
+    Returns
+    -------
+    frame : ndarray of shape (H, W, 3), uint8
+    K : ndarray of shape (3, 3)
+        f = 600 px, principal point at the centre.
+    bps : ndarray of shape (n_highlights, 2)
+        Where the BPs were placed (u, v), px.
+    """
+    import numpy as np
+
+    from simtest.geometry.camera import pixel_to_ray
+    from simtest.simulate.analytic import phong_plane_image
+
+    h, w = shape
+    f = 600.0
+    K = np.array([[f, 0, w / 2 - 0.5], [0, f, h / 2 - 0.5], [0, 0, 1.0]])
+    vv, uu = np.mgrid[0:h, 0:w]
+    acc = 5.0 + 10.0 * (uu / w) * (vv / h)
+    cols = 5
+    rows = (n_highlights + cols - 1) // cols
+    bps = []
+    win = 160
+    for k in range(n_highlights):
+        rng = np.random.default_rng(np.random.SeedSequence([seed, k]))
+        gr, gc = divmod(k, cols)
+        u0 = (gc + 0.5) * w / cols + rng.uniform(-30, 30)
+        v0 = (gr + 0.5) * h / rows + rng.uniform(-30, 30)
+        normal = -pixel_to_ray(np.array([u0, v0]), K)
+        r0, c0 = int(v0) - win // 2, int(u0) - win // 2
+        Kw = K.copy()
+        Kw[0, 2] -= c0
+        Kw[1, 2] -= r0
+        n_phong = rng.uniform(300.0, 500.0)
+        patch = phong_plane_image(Kw, (win, win), normal, 50.0, n_phong)
+        peak = 320.0 if k < n_saturated else rng.uniform(200.0, 250.0)
+        acc[r0 : r0 + win, c0 : c0 + win] += peak * patch
+        bps.append((u0, v0))
+    gray = np.clip(np.rint(acc), 0, 255).astype(np.uint8)
+    return np.repeat(gray[:, :, None], 3, axis=2), K, np.array(bps)
+
+
+@section("reconstruct")
+def bench_reconstruct(repeat: int = 50) -> list[BenchResult]:
+    """Reconstruction speed: per specularity (100 x 100 px) and per 1350 x 1080 frame."""
+    import numpy as np
+
+    from simtest.geometry.conics import normalised_conic
+    from simtest.reconstruct.estimators import estimate_from_conic
+    from simtest.reconstruct.fit import fit_ellipse
+    from simtest.reconstruct.isophote import extract_isophote
+    from simtest.reconstruct.pipeline import reconstruct, reconstruct_roi
+
+    single_core()
+    out = []
+    img, K, bp, normal = synthetic_roi_image()
+    est = reconstruct_roi(img, K, 0.1, bp_uv=bp)
+    n_pts = len(est.points_uv) if est.points_uv is not None else 0
+    med, best = time_ms(lambda: reconstruct_roi(img, K, 0.1, bp_uv=bp), repeat)
+    out.append(BenchResult("reconstruct", "per specularity (reconstruct_roi, 100x100 px, t=0.1)",
+                           med, "ms", 1.0, best, f"status {est.status}, {n_pts} contour points"))
+    iso = extract_isophote(img, 0.1 * img.max(), bp)
+    fit = fit_ellipse(iso.points_uv)
+    cn = normalised_conic(fit.conic, K)
+    ray = -normal
+    for name, fn in (
+        ("  step: isophote (marching squares)", lambda: extract_isophote(img, 0.1 * img.max(), bp)),
+        ("  step: ellipse fit", lambda: fit_ellipse(iso.points_uv)),
+        ("  step: estimators (pose, axis)", lambda: estimate_from_conic(cn, -ray)),
+    ):
+        med, best = time_ms(fn, repeat)
+        out.append(BenchResult("reconstruct", name, med, "ms", None, best))
+    med, best = time_ms(lambda: reconstruct_roi(img, K, (0.1, 0.3, 0.5), bp_uv=bp), repeat)
+    out.append(BenchResult("reconstruct", "per specularity, 3 nested isovalues + joint axis",
+                           med, "ms", None, best))
+
+    frame, Kf, _ = synthetic_frame()
+    ests = reconstruct(frame, Kf, 0.1)
+    n_ok = sum(e.ok for e in ests)
+    med, best = time_ms(lambda: reconstruct(frame, Kf, 0.1), max(3, repeat // 5))
+    out.append(BenchResult("reconstruct", "per frame (reconstruct, 1350x1080 RGB uint8, t=0.1)",
+                           med, "ms", 15.0, best, f"{len(ests)} highlights, {n_ok} ok"))
+    gray = np.ascontiguousarray(frame[:, :, 0])
+    med, best = time_ms(lambda: reconstruct(gray, Kf, 0.1), max(3, repeat // 5))
+    out.append(BenchResult("reconstruct", "per frame, gray uint8", med, "ms", 15.0, best))
+    return out
+
+
+# ------------------------------------------------------------------------------------------------
+# command
+
+
+def bench_command(
+    only: list[str] = typer.Option(None, "--only", help="Run only these sections (repeatable)."),
+    repeat: int = typer.Option(50, "--repeat", min=1, help="Timed runs per figure (median reported)."),
+) -> None:
+    """Run the speed benchmarks and print a table (median and min per figure, single core)."""
+    from rich.console import Console
+    from rich.table import Table
+
+    names = list(SECTIONS) + [n for n in EXTERNAL_SECTIONS if n not in SECTIONS]
+    chosen = names if not only else list(only)
+    unknown = [n for n in chosen if n not in names]
+    if unknown:
+        typer.echo(f"error: unknown bench section(s) {unknown}; known: {names}", err=True)
+        raise typer.Exit(code=2)
+    table = Table(title="simtest bench (single core)")
+    for col in ("section", "figure", "median", "min", "unit", "target", "ok", "note"):
+        table.add_column(col)
+    for name in chosen:
+        fn = resolve_section(name)
+        if fn is None:
+            table.add_row(name, "(section not available yet)", "", "", "", "", "", "")
+            continue
+        for r in fn(repeat):
+            ok = {None: "", True: "yes", False: "NO"}[r.meets_target]
+            table.add_row(r.section, r.name, f"{r.value:.3f}", "" if r.best is None else f"{r.best:.3f}",
+                          r.unit, "" if r.target is None else f"<= {r.target:g}", ok, r.note)
+    Console().print(table)

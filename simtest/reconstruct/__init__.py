@@ -1,0 +1,74 @@
+"""Reconstruction of surface normals from specular isophotes (Makki and Bartoli).
+
+Pure numpy / scikit-image / OpenCV: this package never imports Mitsuba or the renderer, so it runs
+on real endoscopic images. Entry points:
+
+- :func:`reconstruct` (whole image: detect highlights, then one estimate per highlight),
+- :func:`reconstruct_roi` (one known highlight, e.g. a simulated image with known BP and ROI),
+- :func:`detect_specularities`, :func:`extract_isophote`, :func:`fit_ellipse` and the estimators
+  in :mod:`simtest.reconstruct.estimators`, for use step by step,
+- :func:`write_estimates` / :func:`read_estimates` for ``estimates.json``.
+
+The module itself is callable: ``simtest.reconstruct(image, K, ...)`` is
+:func:`simtest.reconstruct.pipeline.reconstruct` (``import simtest`` resolves the name lazily to
+the function, but once this subpackage is imported the attribute is the module; making the module
+callable keeps ``simtest.reconstruct(...)`` working either way).
+"""
+
+from __future__ import annotations
+
+import sys
+import types
+
+from simtest.reconstruct._pixels import Roi, rc_to_uv, uv_to_rc
+from simtest.reconstruct.detect import Candidate, Detection, detect_specularities
+from simtest.reconstruct.estimators import (
+    ConeEstimate,
+    estimate_from_conic,
+    joint_cone_axis,
+    select_paper_normal,
+)
+from simtest.reconstruct.failures import REASONS, Failure
+from simtest.reconstruct.fit import EllipseFit, fit_ellipse
+from simtest.reconstruct.io import SCHEMA_VERSION, read_estimates, write_estimates
+from simtest.reconstruct.isophote import Isophote, extract_isophote
+from simtest.reconstruct.pipeline import (
+    IsophoteEstimate,
+    SpecularityEstimate,
+    reconstruct,
+    reconstruct_roi,
+)
+
+__all__ = [
+    "REASONS",
+    "SCHEMA_VERSION",
+    "Candidate",
+    "ConeEstimate",
+    "Detection",
+    "EllipseFit",
+    "Failure",
+    "Isophote",
+    "IsophoteEstimate",
+    "Roi",
+    "SpecularityEstimate",
+    "detect_specularities",
+    "estimate_from_conic",
+    "extract_isophote",
+    "fit_ellipse",
+    "joint_cone_axis",
+    "rc_to_uv",
+    "read_estimates",
+    "reconstruct",
+    "reconstruct_roi",
+    "select_paper_normal",
+    "uv_to_rc",
+    "write_estimates",
+]
+
+
+class _CallableModule(types.ModuleType):
+    def __call__(self, *args, **kwargs):
+        return reconstruct(*args, **kwargs)
+
+
+sys.modules[__name__].__class__ = _CallableModule

@@ -1,0 +1,110 @@
+"""Pixel-coordinate conventions of the reconstruction package, in one place.
+
+Convention (DESIGN.md section 3): an array index ``(row, col)`` is the pixel ``(u, v) = (col, row)``,
+with pixel centres at integer coordinates, as :func:`skimage.measure.find_contours` and OpenCV use.
+Worked number: the pixel ``image[10, 20]`` is centred at ``(u, v) = (20, 10)``.
+
+:func:`rc_to_uv` is the only function in :mod:`simtest.reconstruct` that turns (row, col) into
+(u, v); :func:`uv_to_rc` is its inverse. Every other module calls them.
+"""
+
+from __future__ import annotations
+
+from typing import NamedTuple
+
+import numpy as np
+
+
+def rc_to_uv(rc, row0: float = 0.0, col0: float = 0.0) -> np.ndarray:
+    """Turn array coordinates (row, col) into pixel coordinates (u, v) = (col, row).
+
+    Parameters
+    ----------
+    rc : array_like of shape (..., 2)
+        Array coordinates (row, col), possibly sub-pixel, relative to a sub-array whose first
+        element is ``image[row0, col0]``.
+    row0, col0 : float, optional
+        Offset of the sub-array in the full image (the ROI origin).
+
+    Returns
+    -------
+    ndarray of shape (..., 2), float64
+        Pixel coordinates (u, v) in the full image.
+
+    Examples
+    --------
+    >>> rc_to_uv([10, 20]).tolist()
+    [20.0, 10.0]
+    """
+    rc = np.asarray(rc, dtype=np.float64)
+    return np.stack([rc[..., 1] + col0, rc[..., 0] + row0], axis=-1)
+
+
+def uv_to_rc(uv) -> np.ndarray:
+    """Inverse of :func:`rc_to_uv` (no offset): pixel (u, v) to array (row, col), float64."""
+    uv = np.asarray(uv, dtype=np.float64)
+    return np.stack([uv[..., 1], uv[..., 0]], axis=-1)
+
+
+class Roi(NamedTuple):
+    """A rectangular region of interest in array indices, half-open: ``image[row0:row1, col0:col1]``.
+
+    Examples
+    --------
+    >>> roi = Roi(2, 5, 10, 20)
+    >>> roi.shape
+    (3, 10)
+    """
+
+    row0: int
+    row1: int
+    col0: int
+    col1: int
+
+    @property
+    def slices(self) -> tuple[slice, slice]:
+        """``(slice(row0, row1), slice(col0, col1))``, to index an image."""
+        return slice(self.row0, self.row1), slice(self.col0, self.col1)
+
+    @property
+    def shape(self) -> tuple[int, int]:
+        """``(rows, cols)`` of the region."""
+        return self.row1 - self.row0, self.col1 - self.col0
+
+    def touches_image_border(self, image_shape: tuple[int, ...]) -> tuple[bool, bool, bool, bool]:
+        """Which sides (top, bottom, left, right) lie on the border of an image of that shape."""
+        h, w = image_shape[:2]
+        return self.row0 <= 0, self.row1 >= h, self.col0 <= 0, self.col1 >= w
+
+    @classmethod
+    def around(cls, centre_uv, half_size: float, image_shape: tuple[int, ...]) -> Roi:
+        """Square ROI of half-width ``half_size`` px around ``centre_uv``, clipped to the image."""
+        h, w = image_shape[:2]
+        r, c = uv_to_rc(centre_uv)
+        hs = float(half_size)
+        return cls(
+            max(0, int(np.floor(r - hs))),
+            min(h, int(np.ceil(r + hs)) + 1),
+            max(0, int(np.floor(c - hs))),
+            min(w, int(np.ceil(c + hs)) + 1),
+        )
+
+    @classmethod
+    def coerce(cls, roi, image_shape: tuple[int, ...], where: str = "roi") -> Roi:
+        """Validate ``(row0, row1, col0, col1)`` against an image shape; ValueError naming ``where``."""
+        try:
+            vals = [int(x) for x in roi]
+            if len(vals) != 4 or any(float(x) != int(x) for x in roi):
+                raise ValueError
+        except (TypeError, ValueError):
+            raise ValueError(
+                f"{where}: expected 4 integers (row0, row1, col0, col1), got {roi!r}"
+            ) from None
+        r0, r1, c0, c1 = vals
+        h, w = image_shape[:2]
+        if not (0 <= r0 < r1 <= h and 0 <= c0 < c1 <= w):
+            raise ValueError(
+                f"{where}: (row0, row1, col0, col1) = {tuple(vals)} is empty or outside the "
+                f"image of shape {(h, w)}"
+            )
+        return cls(r0, r1, c0, c1)

@@ -1,0 +1,70 @@
+"""Typed failures of the reconstruction pipeline: falsy values that name their cause.
+
+In the scikit-image style (``EllipseModel.from_estimate`` returns a falsy ``FailedEstimation``), a
+step that cannot produce a result returns a :class:`Failure` instead of raising, so that a sweep
+over thousands of images counts failures by cause and carries on. Exceptions (``ValueError``) are
+kept for *caller* errors: a wrong dtype or rank, a singular K, an isovalue outside (0, 1).
+
+Every status string the pipeline can write (in :class:`SpecularityEstimate.status` and in
+``estimates.json``) is listed in :data:`REASONS`, with its meaning.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+OK = "ok"
+
+#: Every failure cause, with what it means. The keys are the status strings of the pipeline.
+REASONS: dict[str, str] = {
+    # detection (whole image)
+    "too_small": "the candidate highlight has fewer pixels than min_area_px",
+    "touches_border": "the candidate highlight touches the image border",
+    "not_elliptical": "the candidate's shape is far from a filled ellipse (area vs. second moments)",
+    "merged": "the candidate holds several saturated plateaus, or its isophote encloses another BP",
+    # isophote extraction
+    "bp_below_isovalue": "the brightest point is not above the isovalue (nothing to contour)",
+    "no_contour": "marching squares found no contour around the brightest point",
+    "contour_cut": "the isophote is cut by the ROI or image border (fit refused: allow_open=False)",
+    "too_few_points": "fewer than 6 contour points (an ellipse needs 5, a check needs one more)",
+    # ellipse fit
+    "non_finite_points": "the contour points hold NaN or infinity",
+    "degenerate_points": "the points are (nearly) collinear or coincident: the scatter is singular",
+    "not_an_ellipse": "the best conic is not a real ellipse (hyperbola, parabola, line pair)",
+    # pose
+    "pose_failed": "the normalised conic is not a real cone: no circle pose",
+}
+
+
+@dataclass(frozen=True)
+class Failure:
+    """A failed step: falsy, with a cause from :data:`REASONS` and a human-readable detail.
+
+    Parameters
+    ----------
+    reason : str
+        One of the keys of :data:`REASONS`.
+    detail : str, optional
+        Free text with the numbers that caused the failure.
+
+    Examples
+    --------
+    >>> f = Failure("too_few_points", "4 points")
+    >>> bool(f)
+    False
+    >>> str(f)
+    'too_few_points: 4 points'
+    """
+
+    reason: str
+    detail: str = ""
+
+    def __post_init__(self) -> None:
+        if self.reason not in REASONS:
+            raise ValueError(f"unknown failure reason {self.reason!r}; known: {sorted(REASONS)}")
+
+    def __bool__(self) -> bool:
+        return False
+
+    def __str__(self) -> str:
+        return f"{self.reason}: {self.detail}" if self.detail else self.reason

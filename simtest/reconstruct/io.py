@@ -1,0 +1,244 @@
+"""``estimates.json``: the versioned file format of reconstruction results.
+
+Written by ``simtest reconstruct`` and :func:`write_estimates`; read back by
+:func:`read_estimates`. Other tools (harness, notebooks) read it; the schema below is a contract.
+A change that removes or re-interprets a field bumps ``schema``; adding a field does not.
+
+Schema 1
+--------
+Conventions for every field: camera frame OpenCV (x right, y down, z forward); normals are unit
+3-vectors in that frame facing the camera (n . ray < 0); pixels (u, v) = (column, row) with pixel
+centres at integer coordinates; angles in degrees; ``null`` where a value does not exist (a failed
+step), never NaN.
+
+.. code-block:: text
+
+    {
+      "schema": 1,                       # int, this format's version
+      "simtest_version": "0.1.0",        # str, package version that wrote the file
+      "image": "path/to/image.png",      # str or null, the image as given
+      "image_shape": [H, W],             # [int, int]
+      "K": [[fx, 0, cx], [0, fy, cy], [0, 0, 1]],
+      "dist_coeffs": [k1, k2, p1, p2, k3] or null,   # OpenCV order; points undistorted if given
+      "isovalues": [t1, t2, ...],        # each in (0, 1); t1 is the primary isovalue
+      "normalise": "bp",                 # "bp": t relative to the BP intensity; or "full_scale"
+      "conventions": {...},              # the conventions above, as text
+      "specularities": [                 # one per candidate highlight, brightest first
+        {
+          "bp_px": [u, v],               # brightest point as detected (distorted image), px
+          "bp_intensity": float,         # normalising intensity, image units
+          "saturated": bool,             # BP is the centroid of a clipped plateau
+          "roi": [row0, row1, col0, col1],   # array indices, half-open
+          "status": "ok" | reason,       # reason: a key of simtest.reconstruct.failures.REASONS
+          "detail": str,                 # numbers behind a failure ("" when ok)
+          "normals": {
+            "paper": [[x, y, z], [x, y, z]] or null,   # N+ and N- (circle pose), primary
+            "paper_selected": [x, y, z] or null,       # non-oracle choice: closer to bp_ray
+            "paper_selected_index": 0 | 1 | null,      # 0: N+, 1: N-
+            "cone_axis": [x, y, z] or null,            # primary cone axis
+            "joint_cone_axis": [x, y, z] or null,      # nested isophotes (>= 2 succeeded)
+            "bp_ray": [x, y, z]                        # minus the unit ray through the BP
+          },
+          "ellipse": {"center_px": [u, v], "semi_axes_px": [a, b], "angle_deg": float} or null,
+          "conic": [[...], [...], [...]] or null,      # point conic, undistorted px, |C|_F = 1
+          "fit_residual_px": float or null,            # RMS Sampson distance
+          "eigenvalue_gap": float or null,             # 0 for a right circular cone
+          "isophotes": [                 # one per isovalue, same order as "isovalues"
+            {"isovalue": t, "status": ..., "detail": ..., "closed": bool, "n_points": int,
+             "ellipse": ..., "conic": ..., "fit_residual_px": ..., "eigenvalue_gap": ...,
+             "normals": {"paper": ..., "paper_selected": ..., "cone_axis": ...},
+             "points_px": [[u, v], ...]}      # only when written with include_points=True
+          ]
+        }
+      ]
+    }
+
+The status and every normal of a specularity are those of its primary isophote (the first
+isovalue), except ``status == "merged"`` (the primary isophote encloses another highlight's BP) and
+detection rejections (``too_small``, ``touches_border``, ``not_elliptical``, ``merged``), which
+have an empty ``isophotes`` list and null normals except ``bp_ray``.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import tempfile
+from pathlib import Path
+
+import numpy as np
+
+SCHEMA_VERSION = 1
+
+CONVENTIONS = {
+    "frame": "OpenCV camera frame: x right, y down, z forward",
+    "normals": "unit vectors in the camera frame facing the camera (n . ray < 0)",
+    "pixels": "(u, v) = (column, row), pixel centres at integer coordinates",
+    "angles": "degrees",
+}
+
+_REQUIRED_TOP = ("schema", "simtest_version", "image", "K", "dist_coeffs", "isovalues", "specularities")
+_REQUIRED_SPEC = ("bp_px", "status", "normals", "ellipse", "conic", "fit_residual_px", "eigenvalue_gap")
+
+
+def _vec(x):
+    return None if x is None else [float(v) for v in np.asarray(x, dtype=np.float64).ravel()]
+
+
+def _mat(x):
+    return None if x is None else [[float(v) for v in row] for row in np.asarray(x, dtype=np.float64)]
+
+
+def _num(x):
+    return None if x is None else float(x)
+
+
+def _ellipse(e):
+    if e is None:
+        return None
+    return {
+        "center_px": _vec(e.center),
+        "semi_axes_px": _vec(e.semi_axes),
+        "angle_deg": float(np.degrees(e.angle_rad)),
+    }
+
+
+def _isophote_dict(iso, include_points: bool) -> dict:
+    d = {
+        "isovalue": float(iso.isovalue),
+        "status": iso.status,
+        "detail": iso.detail,
+        "closed": bool(iso.closed),
+        "n_points": 0 if iso.points_uv is None else int(len(iso.points_uv)),
+        "ellipse": _ellipse(iso.ellipse),
+        "conic": _mat(iso.conic),
+        "fit_residual_px": _num(iso.fit_residual_px),
+        "eigenvalue_gap": _num(iso.eigenvalue_gap),
+        "normals": {
+            "paper": _mat(iso.normals_paper),
+            "paper_selected": _vec(iso.paper_selected),
+            "paper_selected_index": iso.paper_selected_index,
+            "cone_axis": _vec(iso.cone_axis),
+        },
+    }
+    if include_points and iso.points_uv is not None:
+        d["points_px"] = _mat(iso.points_uv)
+    return d
+
+
+def estimate_to_dict(est, include_points: bool = False) -> dict:
+    """One :class:`~simtest.reconstruct.pipeline.SpecularityEstimate` as a schema-1 dict."""
+    p = est.primary
+    sel_idx = None if p is None else p.paper_selected_index
+    return {
+        "bp_px": _vec(est.bp_px),
+        "bp_intensity": float(est.bp_intensity),
+        "saturated": bool(est.saturated),
+        "roi": [int(v) for v in est.roi],
+        "status": est.status,
+        "detail": est.detail,
+        "normals": {
+            "paper": _mat(est.normals_paper),
+            "paper_selected": _vec(est.paper_selected),
+            "paper_selected_index": sel_idx,
+            "cone_axis": _vec(est.cone_axis),
+            "joint_cone_axis": _vec(est.joint_cone_axis),
+            "bp_ray": _vec(est.bp_ray),
+        },
+        "ellipse": _ellipse(est.ellipse),
+        "conic": _mat(est.conic),
+        "fit_residual_px": _num(est.fit_residual_px),
+        "eigenvalue_gap": _num(est.eigenvalue_gap),
+        "isophotes": [_isophote_dict(i, include_points) for i in est.isophotes],
+    }
+
+
+def estimates_document(estimates, *, K, image=None, image_shape=None, dist_coeffs=None,
+                       isovalues=(), normalise="bp", include_points=False) -> dict:
+    """The whole schema-1 document as a dict (see the module docstring)."""
+    from simtest import __version__
+
+    return {
+        "schema": SCHEMA_VERSION,
+        "simtest_version": __version__,
+        "image": None if image is None else str(image),
+        "image_shape": None if image_shape is None else [int(v) for v in image_shape[:2]],
+        "K": _mat(K),
+        "dist_coeffs": _vec(dist_coeffs),
+        "isovalues": [float(t) for t in isovalues],
+        "normalise": normalise,
+        "conventions": CONVENTIONS,
+        "specularities": [estimate_to_dict(e, include_points) for e in estimates],
+    }
+
+
+def write_estimates(path, estimates, *, K, image=None, image_shape=None, dist_coeffs=None,
+                    isovalues=(), normalise="bp", include_points=False) -> Path:
+    """Write ``estimates.json`` atomically (temporary file in the same folder, then os.replace).
+
+    Parameters
+    ----------
+    path : str or Path
+        Destination file.
+    estimates : list of SpecularityEstimate
+        From :func:`~simtest.reconstruct.pipeline.reconstruct`.
+    K : array_like of shape (3, 3)
+        Intrinsics used.
+    image, image_shape, dist_coeffs, isovalues, normalise : optional
+        Recorded as given.
+    include_points : bool
+        Also write each isophote's contour points (larger file).
+
+    Returns
+    -------
+    Path
+        The file written.
+    """
+    doc = estimates_document(estimates, K=K, image=image, image_shape=image_shape,
+                             dist_coeffs=dist_coeffs, isovalues=isovalues, normalise=normalise,
+                             include_points=include_points)
+    text = json.dumps(doc, indent=1, allow_nan=False)
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
+    try:
+        with os.fdopen(fd, "w", encoding="utf-8") as fh:
+            fh.write(text + "\n")
+        os.replace(tmp, path)
+    except BaseException:
+        Path(tmp).unlink(missing_ok=True)
+        raise
+    return path
+
+
+def read_estimates(path) -> dict:
+    """Read and check an ``estimates.json`` file.
+
+    Returns
+    -------
+    dict
+        The document (schema 1), with ``K`` as a (3, 3) ndarray.
+
+    Raises
+    ------
+    ValueError
+        Naming the file and the key: unreadable JSON, unknown schema, a missing key.
+    """
+    path = Path(path)
+    try:
+        doc = json.loads(path.read_text(encoding="utf-8"))
+    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
+        raise ValueError(f"{path}: cannot read estimates JSON ({exc})") from None
+    if not isinstance(doc, dict):
+        raise ValueError(f"{path}: top level is not a JSON object")
+    if doc.get("schema") != SCHEMA_VERSION:
+        raise ValueError(f"{path}: key 'schema' is {doc.get('schema')!r}, expected {SCHEMA_VERSION}")
+    for key in _REQUIRED_TOP:
+        if key not in doc:
+            raise ValueError(f"{path}: missing key {key!r}")
+    for i, spec in enumerate(doc["specularities"]):
+        for key in _REQUIRED_SPEC:
+            if key not in spec:
+                raise ValueError(f"{path}: specularities[{i}] is missing key {key!r}")
+    doc["K"] = np.asarray(doc["K"], dtype=np.float64)
+    return doc

@@ -1,0 +1,224 @@
+"""Isophote extraction: the sub-pixel iso-intensity contour around a brightest point.
+
+Step 1 of the method (Makki and Bartoli, section "Normal reconstruction"): the pixels of the
+isophote at isovalue t are found by marching squares (:func:`skimage.measure.find_contours`,
+linear interpolation between pixel centres, so sub-pixel). Of all contours at that level inside
+the region of interest, the one kept is the innermost *closed* contour that encloses the
+brightest point (BP). A contour cut by the ROI or image border is reported as such; it is returned
+(flagged) only when the caller allows open contours.
+
+Notes
+-----
+Coordinates follow :mod:`simtest.reconstruct._pixels`: points are returned as (u, v) = (col, row)
+with pixel centres at integer coordinates; the swap is made by :func:`~._pixels.rc_to_uv` alone.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from simtest.reconstruct._pixels import Roi, rc_to_uv, uv_to_rc
+from simtest.reconstruct.failures import Failure
+
+#: An ellipse has 5 degrees of freedom; one more point makes the fit over-determined (a residual).
+MIN_CONTOUR_POINTS = 6
+
+
+@dataclass(frozen=True)
+class Isophote:
+    """An isophote contour around a BP.
+
+    Attributes
+    ----------
+    points_uv : ndarray of shape (N, 2)
+        Sub-pixel contour points (u, v) in full-image pixel coordinates; a closed contour is given
+        without its repeated end point.
+    level : float
+        The contour level in the units of the image passed in.
+    closed : bool
+        True if marching squares closed the contour inside the ROI.
+    cut_by_roi : bool
+        True if the contour is open because it leaves the ROI at a side that is inside the image.
+    cut_by_image : bool
+        True if the contour is open because it reaches the image border.
+    """
+
+    points_uv: np.ndarray
+    level: float
+    closed: bool
+    cut_by_roi: bool
+    cut_by_image: bool
+
+    @property
+    def cut(self) -> bool:
+        """True if the contour is open (cut by the ROI or the image border)."""
+        return not self.closed
+
+
+def polygon_contains(polygon_uv: np.ndarray, points_uv) -> np.ndarray | bool:
+    """Even-odd test: which of ``points_uv`` lie inside the closed polygon ``polygon_uv`` (N, 2)?
+
+    Parameters
+    ----------
+    polygon_uv : ndarray of shape (N, 2)
+        Vertices, without a repeated end point.
+    points_uv : array_like of shape (2,) or (M, 2)
+        Query points.
+
+    Returns
+    -------
+    bool or ndarray of shape (M,)
+        One bool for a single point, else one per point.
+    """
+    pts = np.asarray(points_uv, dtype=np.float64)
+    single = pts.ndim == 1
+    pts = pts.reshape(-1, 2)
+    x = polygon_uv[:, 0][:, None]
+    y = polygon_uv[:, 1][:, None]
+    x2 = np.concatenate([polygon_uv[1:, 0], polygon_uv[:1, 0]])[:, None]
+    y2 = np.concatenate([polygon_uv[1:, 1], polygon_uv[:1, 1]])[:, None]
+    px, py = pts[:, 0][None, :], pts[:, 1][None, :]
+    straddle = (y > py) != (y2 > py)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        x_cross = x + (py - y) * (x2 - x) / (y2 - y)
+    inside = (np.count_nonzero(straddle & (px < x_cross), axis=0) % 2).astype(bool)
+    return bool(inside[0]) if single else inside
+
+
+def polygon_area(polygon_uv: np.ndarray) -> float:
+    """Unsigned shoelace area of a closed polygon (N, 2), px^2."""
+    x = polygon_uv[:, 0]
+    y = polygon_uv[:, 1]
+    return 0.5 * abs(float(np.dot(x[:-1], y[1:]) - np.dot(y[:-1], x[1:]) + x[-1] * y[0] - y[-1] * x[0]))
+
+
+def extract_isophote(
+    values: np.ndarray,
+    level: float,
+    bp_uv,
+    *,
+    origin_rc: tuple[int, int] = (0, 0),
+    image_shape: tuple[int, ...] | None = None,
+    allow_open: bool = False,
+) -> Isophote | Failure:
+    """Extract the isophote at ``level`` that encloses the brightest point.
+
+    Parameters
+    ----------
+    values : ndarray of shape (h, w), float
+        Single-channel intensities of the region searched (the ROI, or the whole image).
+    level : float
+        Contour level in the units of ``values`` (the pipeline passes ``t * I_BP``).
+    bp_uv : array_like of shape (2,)
+        Brightest point (u, v) in full-image pixel coordinates; must lie inside the region.
+    origin_rc : (int, int), optional
+        Position (row, col) of ``values[0, 0]`` in the full image (the ROI origin).
+    image_shape : tuple, optional
+        Shape of the full image, to tell a cut by the image border from a cut by the ROI
+        border; default ``values.shape`` (the region is the whole image; then ``origin_rc`` must
+        be (0, 0)).
+    allow_open : bool, optional
+        If False (default), a contour cut by the ROI or image border gives
+        ``Failure("contour_cut")``. If True it is returned with ``closed=False`` and the cut flags.
+
+    Returns
+    -------
+    Isophote or Failure
+        Failure reasons: ``bp_below_isovalue``, ``no_contour``, ``contour_cut``,
+        ``too_few_points``.
+
+    Raises
+    ------
+    ValueError
+        If ``values`` is not 2D or the BP lies outside the region.
+
+    Notes
+    -----
+    Marching squares joins the pixels above ``level`` 4-connectedly
+    (``fully_connected="low"``), so two highlights touching at a corner stay apart. Among
+    closed contours enclosing the BP the one with the smallest area is kept (a bright ring
+    around the highlight would give a second, outer one). If none is closed, the open contours
+    bordering the 4-connected component of pixels >= ``level`` that holds the BP are taken, in
+    marching-squares order.
+    """
+    from skimage.measure import find_contours
+
+    sub = np.asarray(values, dtype=np.float64)
+    if sub.ndim != 2:
+        raise ValueError(f"values must be a 2D array, got shape {sub.shape}")
+    roi = Roi(origin_rc[0], origin_rc[0] + sub.shape[0], origin_rc[1], origin_rc[1] + sub.shape[1])
+    if image_shape is None:
+        if tuple(origin_rc) != (0, 0):
+            raise ValueError("image_shape is required when origin_rc is not (0, 0)")
+        image_shape = sub.shape
+    bp_uv = np.asarray(bp_uv, dtype=np.float64)
+    r_bp, c_bp = uv_to_rc(bp_uv) - (roi.row0, roi.col0)
+    ri, ci = int(round(r_bp)), int(round(c_bp))
+    if not (0 <= ri < sub.shape[0] and 0 <= ci < sub.shape[1]):
+        raise ValueError(f"bp_uv = {bp_uv.tolist()} lies outside the ROI {tuple(roi)}")
+    window = sub[max(0, ri - 1) : ri + 2, max(0, ci - 1) : ci + 2]
+    if not float(window.max()) > level:
+        return Failure("bp_below_isovalue", f"max near BP {float(window.max()):.6g} <= level {level:.6g}")
+
+    contours = find_contours(sub, level)
+    closed_hits = []
+    open_contours = []
+    for rc in contours:
+        if len(rc) >= 3 and rc[0, 0] == rc[-1, 0] and rc[0, 1] == rc[-1, 1]:
+            uv = rc_to_uv(rc[:-1], roi.row0, roi.col0)
+            if polygon_contains(uv, bp_uv):
+                closed_hits.append(uv)
+        else:
+            open_contours.append(rc)
+
+    if closed_hits:
+        uv = min(closed_hits, key=polygon_area) if len(closed_hits) > 1 else closed_hits[0]
+        if len(uv) < MIN_CONTOUR_POINTS:
+            return Failure("too_few_points", f"{len(uv)} contour points < {MIN_CONTOUR_POINTS}")
+        return Isophote(uv, float(level), True, False, False)
+
+    pieces = _open_pieces_around_bp(sub, level, ri, ci, open_contours)
+    if not pieces:
+        return Failure("no_contour", f"no contour at level {level:.6g} around BP {bp_uv.tolist()}")
+    rc = np.concatenate(pieces, axis=0)
+    # Which borders the open pieces end on: a ROI side inside the image, or the image border.
+    h, w = sub.shape
+    ends = np.concatenate([np.stack([p[0], p[-1]]) for p in pieces])
+    top, bottom, left, right = roi.touches_image_border(image_shape)
+    at_side = [ends[:, 0] <= 0, ends[:, 0] >= h - 1, ends[:, 1] <= 0, ends[:, 1] >= w - 1]
+    on_image = [s.any() and b for s, b in zip(at_side, (top, bottom, left, right))]
+    on_roi = [s.any() and not b for s, b in zip(at_side, (top, bottom, left, right))]
+    iso = Isophote(rc_to_uv(rc, roi.row0, roi.col0), float(level), False, any(on_roi), any(on_image))
+    if not allow_open:
+        where = "image border" if iso.cut_by_image else "ROI border"
+        return Failure("contour_cut", f"isophote at level {level:.6g} is cut by the {where}")
+    if len(iso.points_uv) < MIN_CONTOUR_POINTS:
+        return Failure("too_few_points", f"{len(iso.points_uv)} contour points < {MIN_CONTOUR_POINTS}")
+    return iso
+
+
+def _open_pieces_around_bp(sub, level, ri, ci, open_contours):
+    """Open contours that bound the 4-connected component of ``sub >= level`` holding (ri, ci)."""
+    if not open_contours:
+        return []
+    import cv2
+
+    mask = (sub >= level).astype(np.uint8)
+    _, labels = cv2.connectedComponents(mask, connectivity=4)
+    target = labels[ri, ci]
+    if target == 0:
+        return []
+    h, w = sub.shape
+    pieces = []
+    for rc in open_contours:
+        r0 = np.clip(np.floor(rc[:, 0]).astype(int), 0, h - 1)
+        r1 = np.clip(np.ceil(rc[:, 0]).astype(int), 0, h - 1)
+        c0 = np.clip(np.floor(rc[:, 1]).astype(int), 0, w - 1)
+        c1 = np.clip(np.ceil(rc[:, 1]).astype(int), 0, w - 1)
+        # each marching-squares point lies on an edge between a pixel >= level and one below it
+        touches = (labels[r0, c0] == target) | (labels[r1, c1] == target)
+        if touches.mean() > 0.5:
+            pieces.append(rc)
+    return pieces

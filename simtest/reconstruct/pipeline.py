@@ -1,0 +1,545 @@
+"""The reconstruction pipeline: image -> specular highlights -> isophote ellipses -> normals.
+
+``reconstruct(image, K, isovalue)`` detects every highlight of a whole image and estimates one
+:class:`SpecularityEstimate` per candidate; ``reconstruct_roi(image, K, isovalue, bp_uv=..., roi=...)``
+does one known highlight (the harness uses it on simulated images whose BP and ROI are known).
+
+Per highlight (Makki and Bartoli, "Normal reconstruction"):
+
+1. the intensities are normalised so that the BP has intensity 1 (``normalise="bp"``, the paper's
+   step 4; optional Gaussian smoothing first, ``smooth_sigma_px``);
+2. the isophote at each isovalue t is extracted by marching squares
+   (:func:`~simtest.reconstruct.isophote.extract_isophote`); the ROI grows (x2, up to 4 times) while
+   the lowest isophote is cut by the ROI border; with lens distortion the contour points are
+   undistorted before the fit;
+3. the ellipse is fitted (:func:`~simtest.reconstruct.fit.fit_ellipse`), C' = K^T C K;
+4. the estimators of :mod:`~simtest.reconstruct.estimators` give the paper pair N+ and N- and the
+   non-oracle choice between them, the cone axis with its eigenvalue gap, the BP-ray normal and,
+   with several isovalues, the joint cone axis of the nested isophotes.
+
+The *primary* isophote is the one at the first isovalue given: the estimate's ``conic``,
+``ellipse``, ``normals_paper``, ``cone_axis``, ``eigenvalue_gap``, ``fit_residual_px`` and
+``status`` are those of the primary isophote; every isovalue's own result is in ``isophotes``.
+
+Errors: caller mistakes raise ValueError (bad image, K, isovalue, ROI, options); a highlight
+that cannot be reconstructed gets a status from
+:data:`simtest.reconstruct.failures.REASONS` and ``None`` in place of its normals, never NaN.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass
+
+import numpy as np
+
+from simtest.reconstruct._pixels import Roi, rc_to_uv, uv_to_rc
+from simtest.reconstruct.detect import (
+    default_full_scale,
+    detect_specularities,
+    luma,
+    refine_peak_uv,
+    validate_image,
+)
+from simtest.reconstruct.estimators import estimate_from_conic, joint_cone_axis
+from simtest.reconstruct.failures import OK, Failure
+from simtest.reconstruct.fit import fit_ellipse
+from simtest.reconstruct.isophote import extract_isophote, polygon_contains
+
+NORMALISE_MODES = ("bp", "full_scale")
+#: ROI growth when the lowest isophote is cut by a ROI side inside the image.
+ROI_GROWTH_FACTOR = 2.0
+ROI_MAX_GROWTHS = 4
+
+
+@dataclass(frozen=True)
+class IsophoteEstimate:
+    """The result at one isovalue.
+
+    Attributes
+    ----------
+    isovalue : float
+        t in (0, 1), relative to the normalisation (the BP intensity by default).
+    status : str
+        ``"ok"`` or a reason from :data:`~simtest.reconstruct.failures.REASONS`.
+    detail : str
+        Numbers behind a failure.
+    points_uv : ndarray of shape (N, 2) or None
+        Contour points as found in the image (distorted pixel coordinates), px.
+    closed : bool
+        False if the contour is cut (then fitted only with ``allow_open=True``).
+    conic : ndarray of shape (3, 3) or None
+        Fitted point conic in undistorted pixel coordinates (unit Frobenius norm).
+    ellipse : simtest.geometry.conics.Ellipse or None
+        Its centre (u, v) px, semi-axes (a >= b) px and angle (rad).
+    fit_residual_px : float or None
+        RMS Sampson distance of the (undistorted) points to the conic, px.
+    normals_paper : ndarray of shape (2, 3) or None
+        N+ and N-.
+    paper_selected : ndarray of shape (3,) or None
+        The non-oracle choice among N+ and N- (closer to the BP ray).
+    paper_selected_index : int or None
+        0 if that is N+, 1 if N-.
+    cone_axis : ndarray of shape (3,) or None
+        Cone-axis normal.
+    eigenvalue_gap : float or None
+        0 for a right circular cone.
+    normalised_conic : ndarray of shape (3, 3) or None
+        C' = K^T C K, unit Frobenius norm.
+    """
+
+    isovalue: float
+    status: str
+    detail: str = ""
+    points_uv: np.ndarray | None = None
+    closed: bool = False
+    conic: np.ndarray | None = None
+    ellipse: object | None = None
+    fit_residual_px: float | None = None
+    normals_paper: np.ndarray | None = None
+    paper_selected: np.ndarray | None = None
+    paper_selected_index: int | None = None
+    cone_axis: np.ndarray | None = None
+    eigenvalue_gap: float | None = None
+    normalised_conic: np.ndarray | None = None
+
+    @property
+    def ok(self) -> bool:
+        """True if the status is ``"ok"``."""
+        return self.status == OK
+
+
+@dataclass(frozen=True)
+class SpecularityEstimate:
+    """Everything estimated for one highlight.
+
+    Attributes
+    ----------
+    bp_px : ndarray of shape (2,)
+        Brightest point (u, v) as detected in the image, px.
+    bp_intensity : float
+        Intensity used for normalisation (image units).
+    saturated : bool
+        True if the BP is the centroid of a clipped plateau.
+    roi : Roi
+        Final region of interest (array indices, half-open).
+    status : str
+        ``"ok"`` or a reason: a detection rejection, the primary isophote's failure, or
+        ``merged`` (the primary isophote encloses another highlight's BP).
+    detail : str
+        Numbers behind the status.
+    bp_ray : ndarray of shape (3,)
+        BP-ray normal (minus the unit viewing ray of the undistorted BP).
+    isophotes : tuple of IsophoteEstimate
+        One per isovalue, in the order given.
+    joint_cone_axis : ndarray of shape (3,) or None
+        Common axis of the nested isophotes, when at least two succeeded.
+    """
+
+    bp_px: np.ndarray
+    bp_intensity: float
+    saturated: bool
+    roi: Roi
+    status: str
+    detail: str
+    bp_ray: np.ndarray
+    isophotes: tuple[IsophoteEstimate, ...]
+    joint_cone_axis: np.ndarray | None = None
+
+    @property
+    def ok(self) -> bool:
+        """True if the status is ``"ok"``."""
+        return self.status == OK
+
+    @property
+    def primary(self) -> IsophoteEstimate | None:
+        """The isophote at the first isovalue (None for a rejected detection)."""
+        return self.isophotes[0] if self.isophotes else None
+
+    def _p(self, name):
+        p = self.primary
+        return None if p is None else getattr(p, name)
+
+    @property
+    def points_uv(self):
+        """Primary isophote points (N, 2) px, or None."""
+        return self._p("points_uv")
+
+    @property
+    def conic(self):
+        """Primary fitted conic (3, 3), or None."""
+        return self._p("conic")
+
+    @property
+    def ellipse(self):
+        """Primary ellipse parameters, or None."""
+        return self._p("ellipse")
+
+    @property
+    def normals_paper(self):
+        """Primary N+ and N- (2, 3), or None."""
+        return self._p("normals_paper")
+
+    @property
+    def paper_selected(self):
+        """Primary non-oracle paper normal (3,), or None."""
+        return self._p("paper_selected")
+
+    @property
+    def cone_axis(self):
+        """Primary cone-axis normal (3,), or None."""
+        return self._p("cone_axis")
+
+    @property
+    def eigenvalue_gap(self):
+        """Primary eigenvalue gap, or None."""
+        return self._p("eigenvalue_gap")
+
+    @property
+    def fit_residual_px(self):
+        """Primary RMS Sampson residual, px, or None."""
+        return self._p("fit_residual_px")
+
+
+# ------------------------------------------------------------------------------------------------
+# argument checks
+
+
+def validate_isovalues(isovalue) -> tuple[float, ...]:
+    """One isovalue or a sequence of them, each finite and strictly inside (0, 1)."""
+    vals = [isovalue] if np.ndim(isovalue) == 0 else list(np.asarray(isovalue).ravel())
+    if not vals:
+        raise ValueError("isovalue: an empty sequence was given; need at least one t in (0, 1)")
+    out = []
+    for v in vals:
+        try:
+            t = float(v)
+        except (TypeError, ValueError):
+            raise ValueError(f"isovalue: {v!r} is not a number") from None
+        if not (np.isfinite(t) and 0.0 < t < 1.0):
+            raise ValueError(f"isovalue: {t!r} is outside the open interval (0, 1)")
+        out.append(t)
+    return tuple(out)
+
+
+def validate_dist_coeffs(dist_coeffs) -> np.ndarray | None:
+    """None, or 4, 5, 8, 12 or 14 finite OpenCV distortion coefficients (all zero -> None)."""
+    if dist_coeffs is None:
+        return None
+    d = np.asarray(dist_coeffs, dtype=np.float64).ravel()
+    if d.size not in (4, 5, 8, 12, 14) or not np.isfinite(d).all():
+        raise ValueError(
+            f"dist_coeffs: need 4, 5, 8, 12 or 14 finite values (OpenCV order), got {d.tolist()}"
+        )
+    return d if np.any(d) else None
+
+
+def _check_common(image, K, isovalue, normalise, dist_coeffs):
+    from simtest.geometry.camera import validate_intrinsics
+
+    img = validate_image(image)
+    K = validate_intrinsics(K, where="K")
+    isovalues = validate_isovalues(isovalue)
+    if normalise not in NORMALISE_MODES:
+        raise ValueError(f"normalise: {normalise!r} is not one of {NORMALISE_MODES}")
+    return img, K, isovalues, validate_dist_coeffs(dist_coeffs)
+
+
+# ------------------------------------------------------------------------------------------------
+# one highlight
+
+
+def _roi_values(img: np.ndarray, roi: Roi, smooth_sigma_px: float) -> np.ndarray:
+    vals = luma(img[roi.slices])
+    if smooth_sigma_px > 0:
+        import cv2
+
+        vals = cv2.GaussianBlur(vals, (0, 0), smooth_sigma_px, borderType=cv2.BORDER_REFLECT)
+    return vals
+
+
+def _bp_intensity(vals: np.ndarray, roi: Roi, bp_uv) -> float:
+    r, c = np.rint(uv_to_rc(bp_uv) - (roi.row0, roi.col0)).astype(int)
+    return float(vals[max(0, r - 1) : r + 2, max(0, c - 1) : c + 2].max())
+
+
+def _find_bp(img: np.ndarray, roi: Roi, saturation_level) -> tuple[np.ndarray, bool]:
+    """BP inside ROI: saturated plateau centroid when clipped, else the refined brightest pixel."""
+    vals = luma(img[roi.slices])
+    flat = int(np.argmax(vals))
+    r, c = divmod(flat, vals.shape[1])
+    if saturation_level is not None:
+        sub = img[roi.slices]
+        sat = sub >= saturation_level
+        if sat.ndim == 3:
+            sat = sat.any(axis=2)
+        if sat[r, c]:
+            import cv2
+
+            _, lab = cv2.connectedComponents(sat.view(np.uint8), connectivity=8)
+            rr, cc = np.nonzero(lab == lab[r, c])
+            return rc_to_uv([rr.mean(), cc.mean()], roi.row0, roi.col0), True
+    return refine_peak_uv(vals, r, c) + (roi.col0, roi.row0), False
+
+
+def _one_isophote(vals, roi, img_shape, level_scale, t, bp_uv, K, dist, bp_ray, allow_open):
+    from simtest.geometry.camera import undistort_points
+    from simtest.geometry.conics import normalised_conic
+
+    iso = extract_isophote(
+        vals, t * level_scale, bp_uv, origin_rc=(roi.row0, roi.col0), image_shape=img_shape,
+        allow_open=True,
+    )
+    if not iso:
+        return IsophoteEstimate(t, iso.reason, iso.detail), None
+    if iso.cut and not allow_open:
+        where = "image border" if iso.cut_by_image else "ROI border"
+        return IsophoteEstimate(t, "contour_cut", f"cut by the {where}", iso.points_uv, False), iso
+    pts = iso.points_uv if dist is None else undistort_points(iso.points_uv, K, dist)
+    fit = fit_ellipse(pts)
+    if not fit:
+        return IsophoteEstimate(t, fit.reason, fit.detail, iso.points_uv, iso.closed), iso
+    try:
+        cn = normalised_conic(fit.conic, K)
+    except ValueError as exc:
+        return IsophoteEstimate(t, "pose_failed", str(exc), iso.points_uv, iso.closed), iso
+    est = estimate_from_conic(cn, bp_ray)
+    base = dict(points_uv=iso.points_uv, closed=iso.closed, conic=fit.conic, ellipse=fit.ellipse,
+                fit_residual_px=fit.residual_px, normalised_conic=cn)
+    if not est:
+        return IsophoteEstimate(t, est.reason, est.detail, **base), iso
+    return IsophoteEstimate(
+        t, OK, "" if iso.closed else "open contour fitted (allow_open=True)",
+        normals_paper=est.paper, paper_selected=est.paper_selected,
+        paper_selected_index=est.paper_selected_index, cone_axis=est.cone_axis,
+        eigenvalue_gap=est.eigenvalue_gap, **base,
+    ), iso
+
+
+def _estimate_one(img, K, dist, isovalues, bp_uv, roi, *, saturated, normalise, full_scale,
+                  allow_open, smooth_sigma_px, grow, other_bps=()):
+    from simtest.geometry.camera import bp_ray_normal, undistort_points
+
+    bp_uv = np.asarray(bp_uv, dtype=np.float64)
+    bp_und = bp_uv if dist is None else undistort_points(bp_uv[None], K, dist)[0]
+    bp_ray = bp_ray_normal(bp_und, K)
+    # Lowest isovalue first: the widest contour decides the ROI size.
+    order = sorted(range(len(isovalues)), key=lambda i: isovalues[i])
+    results: list = [None] * len(isovalues)
+    growths = 0
+    while True:
+        vals = _roi_values(img, roi, smooth_sigma_px)
+        i_bp = _bp_intensity(vals, roi, bp_uv)
+        scale = i_bp if normalise == "bp" else full_scale
+        i0 = order[0]
+        res, iso = _one_isophote(vals, roi, img.shape, scale, isovalues[i0], bp_uv, K, dist, bp_ray, allow_open)
+        if grow and iso is not None and iso.cut_by_roi and growths < ROI_MAX_GROWTHS:
+            half = ROI_GROWTH_FACTOR * max(roi.shape) / 2.0
+            new = Roi.around(bp_uv, half, img.shape)
+            if new != roi:
+                roi, growths = new, growths + 1
+                continue
+        results[i0] = res
+        break
+    for i in order[1:]:
+        results[i], _ = _one_isophote(vals, roi, img.shape, scale, isovalues[i], bp_uv, K, dist, bp_ray, allow_open)
+
+    primary = results[0]
+    status, detail = primary.status, primary.detail
+    if status == OK and primary.closed and len(other_bps):
+        pts = primary.points_uv
+        lo, hi = pts.min(axis=0), pts.max(axis=0)
+        cand = np.asarray(other_bps, dtype=np.float64).reshape(-1, 2)
+        cand = cand[np.all((cand >= lo) & (cand <= hi), axis=1)]
+        n_in = int(np.count_nonzero(polygon_contains(pts, cand))) if len(cand) else 0
+        if n_in:
+            status, detail = "merged", f"the isophote at t = {isovalues[0]} encloses {n_in} other BP(s)"
+    joint = None
+    good = [r.normalised_conic for r in results if r.ok]
+    if len(good) >= 2:
+        j = joint_cone_axis(good, bp_ray)
+        joint = j if not isinstance(j, Failure) else None
+    return SpecularityEstimate(bp_uv, i_bp, saturated, roi, status, detail, bp_ray, tuple(results), joint)
+
+
+def _initial_roi(cand, bp_uv, threshold, t_min, normalise, full_scale, shape) -> Roi:
+    """ROI expected to hold the lowest isophote, from the size of the bright component.
+
+    Model: a Gaussian-like lobe I = P exp(-r^2 / (2 s^2)) has radius ``s sqrt(2 ln(P / L))`` at
+    level L, so the isophote at level ``t P`` is ``sqrt(ln(1/t) / ln(P / threshold))`` times the
+    component (clamped to [1, 8]; a clipped highlight makes this an over-estimate). Too small an
+    ROI is grown by the pipeline; this only saves the retries.
+    """
+    peak = max(cand.peak, threshold * (1 + 1e-6), np.finfo(float).tiny)
+    level = t_min * (peak if normalise == "bp" else full_scale)
+    num = np.log(peak / level) if level > 0 else 1.0
+    den = np.log(peak / threshold) if threshold > 0 else 1.0
+    ratio = float(np.clip(np.sqrt(max(num, 0.0) / max(den, 1e-6)), 1.0, 8.0))
+    radius = max(cand.bbox.shape) / 2.0
+    return Roi.around(bp_uv, 1.2 * ratio * radius + 4.0, shape)
+
+
+# ------------------------------------------------------------------------------------------------
+# public API
+
+
+def reconstruct_roi(
+    image,
+    K,
+    isovalue: float | Sequence[float] = 0.1,
+    *,
+    bp_uv=None,
+    roi=None,
+    dist_coeffs=None,
+    normalise: str = "bp",
+    allow_open: bool = False,
+    smooth_sigma_px: float = 0.0,
+    full_scale: float | None = None,
+    saturation_level: float | None = None,
+) -> SpecularityEstimate:
+    """Reconstruct the normal of one known highlight.
+
+    Parameters
+    ----------
+    image : ndarray of shape (H, W), (H, W, 3) or (H, W, 4)
+        uint8, uint16 or float image, RGB.
+    K : array_like of shape (3, 3)
+        Intrinsics (pixel centres at integer coordinates).
+    isovalue : float or sequence of float
+        Isovalue(s) t in (0, 1), relative to the BP intensity (``normalise="bp"``) or to
+        ``full_scale`` (``normalise="full_scale"``). The first is the primary.
+    bp_uv : array_like of shape (2,), optional
+        Brightest point (u, v) px; default the brightest pixel of the ROI (sub-pixel refined), or
+        the centroid of its saturated plateau.
+    roi : (row0, row1, col0, col1), optional
+        Half-open array-index region searched; default the whole image. Not grown.
+    dist_coeffs : array_like, optional
+        OpenCV distortion coefficients; contour points and BP are undistorted before use.
+    normalise : {"bp", "full_scale"}
+        Intensity normalisation (the paper's is "bp").
+    allow_open : bool
+        Fit an isophote cut by the ROI or image border (flagged ``closed=False``).
+    smooth_sigma_px : float
+        Gaussian smoothing of the ROI before contouring (0: none; the paper smooths noisy images).
+    full_scale, saturation_level : float, optional
+        As in :func:`~simtest.reconstruct.detect.detect_specularities`.
+
+    Returns
+    -------
+    SpecularityEstimate
+
+    Raises
+    ------
+    ValueError
+        Bad image, K, isovalue, ROI, BP, normalise or dist_coeffs.
+
+    Examples
+    --------
+    >>> from simtest.simulate.analytic import phong_plane_image  # doctest: +SKIP
+    """
+    img, K, isovalues, dist = _check_common(image, K, isovalue, normalise, dist_coeffs)
+    if not (np.isfinite(smooth_sigma_px) and smooth_sigma_px >= 0):
+        raise ValueError(f"smooth_sigma_px must be finite and >= 0, got {smooth_sigma_px!r}")
+    roi = Roi(0, img.shape[0], 0, img.shape[1]) if roi is None else Roi.coerce(roi, img.shape)
+    fs = default_full_scale(img) if full_scale is None else float(full_scale)
+    if saturation_level is None and img.dtype.kind == "u":
+        saturation_level = float(np.iinfo(img.dtype).max)
+    if bp_uv is None:
+        bp, saturated = _find_bp(img, roi, saturation_level)
+    else:
+        bp = np.asarray(bp_uv, dtype=np.float64).reshape(-1)
+        if bp.shape != (2,) or not np.isfinite(bp).all():
+            raise ValueError(f"bp_uv must be 2 finite numbers (u, v), got {bp_uv!r}")
+        r, c = np.rint(uv_to_rc(bp)).astype(int)
+        if not (roi.row0 <= r < roi.row1 and roi.col0 <= c < roi.col1):
+            raise ValueError(f"bp_uv = {bp.tolist()} lies outside the ROI {tuple(roi)}")
+        saturated = False
+    return _estimate_one(
+        img, K, dist, isovalues, bp, roi, saturated=saturated, normalise=normalise, full_scale=fs,
+        allow_open=allow_open, smooth_sigma_px=float(smooth_sigma_px), grow=False,
+    )
+
+
+def reconstruct(
+    image,
+    K,
+    isovalue: float | Sequence[float] = 0.1,
+    *,
+    dist_coeffs=None,
+    roi=None,
+    normalise: str = "bp",
+    allow_open: bool = False,
+    smooth_sigma_px: float = 0.0,
+    brightness_rel: float = 0.7,
+    full_scale: float | None = None,
+    saturation_level: float | None = None,
+    min_area_px: int = 4,
+) -> list[SpecularityEstimate]:
+    """Detect every specular highlight of an image and estimate its normal.
+
+    Parameters
+    ----------
+    image : ndarray of shape (H, W), (H, W, 3) or (H, W, 4)
+        uint8, uint16 or float image, RGB.
+    K : array_like of shape (3, 3)
+        Intrinsics (pixel centres at integer coordinates).
+    isovalue : float or sequence of float
+        Isovalue(s) t in (0, 1), relative to the BP intensity by default; the first is primary.
+    dist_coeffs : array_like, optional
+        OpenCV distortion coefficients (contour points undistorted before the fit).
+    roi : (row0, row1, col0, col1), optional
+        Restrict detection to this region (array indices, half-open).
+    normalise, allow_open, smooth_sigma_px : optional
+        As in :func:`reconstruct_roi`.
+    brightness_rel, full_scale, saturation_level, min_area_px : optional
+        Detection options, see :func:`~simtest.reconstruct.detect.detect_specularities`.
+
+    Returns
+    -------
+    list of SpecularityEstimate
+        One per candidate highlight, accepted or rejected (rejected ones carry the detection
+        reason as status and no isophotes), brightest first. Empty if there is no candidate.
+
+    Raises
+    ------
+    ValueError
+        Bad image, K, isovalue, ROI, normalise or options.
+    """
+    img, K, isovalues, dist = _check_common(image, K, isovalue, normalise, dist_coeffs)
+    if not (np.isfinite(smooth_sigma_px) and smooth_sigma_px >= 0):
+        raise ValueError(f"smooth_sigma_px must be finite and >= 0, got {smooth_sigma_px!r}")
+    fs = default_full_scale(img) if full_scale is None else float(full_scale)
+    if roi is not None:
+        r = Roi.coerce(roi, img.shape)
+        sub = img[r.slices]
+    else:
+        r, sub = Roi(0, img.shape[0], 0, img.shape[1]), img
+    det = detect_specularities(
+        sub, brightness_rel=brightness_rel, full_scale=fs, saturation_level=saturation_level,
+        min_area_px=min_area_px,
+    )
+    if saturation_level is None and img.dtype.kind == "u":
+        saturation_level = float(np.iinfo(img.dtype).max)
+    from simtest.geometry.camera import bp_ray_normal, undistort_points
+
+    shift = np.array([r.col0, r.row0], dtype=np.float64)
+    t_min = min(isovalues)
+    bps = [c.bp_uv + shift for c in det.candidates]
+    out = []
+    for k, cand in enumerate(det.candidates):
+        bp = bps[k]
+        if cand.status != OK:
+            roi_k = Roi(cand.roi.row0 + r.row0, cand.roi.row1 + r.row0,
+                        cand.roi.col0 + r.col0, cand.roi.col1 + r.col0)
+            bp_und = bp if dist is None else undistort_points(bp[None], K, dist)[0]
+            out.append(SpecularityEstimate(bp, cand.peak, cand.saturated, roi_k, cand.status,
+                                           cand.detail, bp_ray_normal(bp_und, K), ()))
+            continue
+        roi_k = _initial_roi(cand, bp, det.threshold, t_min, normalise, fs, img.shape)
+        others = [b for j, b in enumerate(bps) if j != k and det.candidates[j].status != "too_small"]
+        out.append(_estimate_one(
+            img, K, dist, isovalues, bp, roi_k, saturated=cand.saturated, normalise=normalise,
+            full_scale=fs, allow_open=allow_open, smooth_sigma_px=float(smooth_sigma_px), grow=True,
+            other_bps=others,
+        ))
+    return out
