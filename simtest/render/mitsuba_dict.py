@@ -37,7 +37,7 @@ __all__ = [
 ]
 
 #: AOV channels requested from Mitsuba's ``aov`` integrator, after the RGBA image channels.
-AOVS = "nn:sh_normal,pp:position,dd:depth"
+AOVS = "nn:sh_normal,pp:position"
 
 #: Stable key of the light-offset draw in ``SeedSequence([seed, LIGHT_SEED_KEY])``.
 LIGHT_SEED_KEY = 0x11647
@@ -191,9 +191,10 @@ def mitsuba_scene_dict(
         "type": "perspective",
         "fov": cam.fov_x_deg,
         "fov_axis": "x",
-        # Mitsuba's offsets are fractions of the film size, along its image axes.
-        "principal_point_offset_x": cam.principal_offset_px[0] / cam.width_px,
-        "principal_point_offset_y": cam.principal_offset_px[1] / cam.height_px,
+        # Mitsuba's offsets are fractions of the film size and move the principal point the other
+        # way (measured: tests/test_render.py projects sphere centres with an offset K).
+        "principal_point_offset_x": -cam.principal_offset_px[0] / cam.width_px,
+        "principal_point_offset_y": -cam.principal_offset_px[1] / cam.height_px,
         "near_clip": 1e-2,
         "far_clip": 1e8,
         "to_world": _SENSOR_TO_WORLD.copy(),

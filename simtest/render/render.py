@@ -1,7 +1,7 @@
 """Render a scene spec with Mitsuba 3: image, sensor image, per-pixel and per-highlight truth.
 
 One render gives everything: Mitsuba's ``aov`` integrator wraps a ``direct`` integrator and adds
-shading normals, positions and ray distances; the colour channels carry the full image (R), the
+shading normals and positions; the colour channels carry the full image (R), the
 specular-only image (G) and the diffuse-only image (B) (see :mod:`simtest.render.phong`); alpha is
 the pixel coverage. The scene is built in the OpenCV camera frame, so all outputs are camera-frame.
 
@@ -69,7 +69,8 @@ class RenderResult:
     depth : ndarray of shape (H, W), float32
         z-depth, mm; NaN outside ``mask``.
     distance : ndarray of shape (H, W), float32
-        Ray length from the camera centre, mm; NaN outside ``mask``.
+        Distance from the camera centre to the pixel's mean surface point, mm; NaN outside
+        ``mask``.
     position : ndarray of shape (H, W, 3), float32
         Surface point, camera frame, mm; NaN outside ``mask``.
     mask : ndarray of shape (H, W), bool
@@ -412,7 +413,7 @@ def render_scene(spec: SceneSpec, *, seed: int | None = None,
 
     out = np.array(mi.render(scene, spp=spec.render.spp, seed=seed), dtype=np.float32)
     rgb, alpha = out[..., 0:3], out[..., 3]
-    nn, pp, dd = out[..., 4:7], out[..., 7:10], out[..., 10]
+    nn, pp = out[..., 4:7], out[..., 7:10]
     mask = alpha >= 1.0
     nlen = np.linalg.norm(nn, axis=-1)
     mask &= nlen > 0
@@ -435,7 +436,7 @@ def render_scene(spec: SceneSpec, *, seed: int | None = None,
     depth = np.full(mask.shape, np.nan, dtype=np.float32)
     depth[mask] = pp[mask][:, 2]
     distance = np.full(mask.shape, np.nan, dtype=np.float32)
-    distance[mask] = dd[mask]
+    distance[mask] = np.linalg.norm(pp[mask], axis=-1)  # |mean position|, as depth is its z
 
     K = intrinsics_matrix(spec.camera)
     res = {"normals_raw": np.where(mask[..., None], normals, 0.0),
