@@ -294,17 +294,22 @@ class _Dask:
             self.client = Client(address, timeout="20s", set_as_default=False)
         except (OSError, TimeoutError) as exc:
             raise DatasetError(f"--scheduler {address}: cannot connect: {exc}") from None
+        from distributed import as_completed
+
         self.sample_fn, self.config = sample_fn, config
         self.prefix = f"simtest-dataset-{config.fingerprint()[:12]}"
+        self.done = as_completed(loop=self.client.loop)
 
     def submit(self, index: int):
-        return self.client.submit(_run_task, self.sample_fn, self.config, index,
-                                  key=f"{self.prefix}-{index}", pure=False, retries=0)
+        f = self.client.submit(_run_task, self.sample_fn, self.config, index,
+                               key=f"{self.prefix}-{index}", pure=False, retries=0)
+        self.done.add(f)
+        return f
 
     def wait(self, futures):
-        from distributed import wait
-
-        return wait(list(futures), return_when="FIRST_COMPLETED").done
+        done = {next(self.done)}
+        done.update(self.done.next_batch(block=False))
+        return done
 
     def close(self, cancel: bool = False):
         self.client.close()

@@ -25,6 +25,7 @@ from __future__ import annotations
 import functools
 import io
 import math
+import threading
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -53,11 +54,12 @@ CHANNELS: dict[str, dict[str, str]] = {
     },
     "linear": {
         "dtype": "float32", "shape": "(H, W)", "unit": "linear radiance (light intensity 1)",
-        "description": "linear image before the sensor model (specular + diffuse)",
+        "description": "linear image before the sensor model (specular + diffuse); values below "
+                       "1e-30 stored as 0",
     },
     "specular": {
         "dtype": "float32", "shape": "(H, W)", "unit": "linear radiance (light intensity 1)",
-        "description": "specular-only linear image",
+        "description": "specular-only linear image; values below 1e-30 stored as 0",
     },
     "normals": {
         "dtype": "float32", "shape": "(H, W, 3)", "unit": "unit vector",
@@ -158,52 +160,29 @@ def _perp_basis(t: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 
 @functools.lru_cache(maxsize=4)
 def _mesh_info(name: str) -> dict:
-    """Centre line / bounds of a bundled mesh (cached per process)."""
+    """What the camera placement needs from a bundled mesh (cached per process).
+
+    colon: the mesh (for :func:`simtest.scene.meshes.colon_centerline`), the centre line's arc
+    lengths and the smallest wall distance of each ring; liver: the bounding-box centre and the
+    radius of the bounding sphere about it.
+    """
     from simtest.scene.meshes import load_mesh
 
     path = _mesh_path(name)
+    if not path.is_file():
+        raise FileNotFoundError(f"{path}: bundled {name} mesh missing (build it with `simtest meshes build`)")
     mesh = load_mesh(path)
-    meta = dict(mesh.metadata or {})
-    info: dict[str, Any] = {"path": str(path)}
-    bounds = np.asarray(mesh.bounds, dtype=np.float64)
-    info["centre"] = bounds.mean(axis=0)
-    info["bounding_radius"] = float(np.max(np.linalg.norm(np.asarray(mesh.vertices) - info["centre"], axis=1)))
+    info: dict[str, Any] = {"path": str(path), "mesh": mesh}
+    centre = np.asarray(mesh.bounds, dtype=np.float64).mean(axis=0)
+    info["centre"] = centre
+    info["bounding_radius"] = float(np.max(np.linalg.norm(np.asarray(mesh.vertices) - centre, axis=1)))
     if name == "colon":
-        line = _find_centre_line(meta)
-        if line is None:
-            raise ValueError(f"{path}: metadata: no colon centre line (expected a (N, 3) array under "
-                             "'centre_line_mm' or similar)")
-        seg = np.linalg.norm(np.diff(line, axis=0), axis=1)
-        info["centre_line"] = line
-        info["arc"] = np.concatenate([[0.0], np.cumsum(seg)])
-        info["radius"] = _find_radius(meta)
+        line = mesh.metadata.get("centerline")
+        if not isinstance(line, dict) or "arclength_mm" not in line:
+            raise ValueError(f"{path}: metadata: no colon centre line ('centerline')")
+        info["arc"] = np.asarray(line["arclength_mm"], dtype=np.float64)
+        info["radius_min"] = np.asarray(line["radius_min_mm"], dtype=np.float64)
     return info
-
-
-def _find_centre_line(meta: dict) -> np.ndarray | None:
-    stack = [meta]
-    while stack:
-        d = stack.pop()
-        for k, v in d.items():
-            if isinstance(v, dict):
-                stack.append(v)
-            elif "centre" in k.lower() or "center" in k.lower():
-                a = np.asarray(v, dtype=np.float64) if isinstance(v, list | tuple | np.ndarray) else None
-                if a is not None and a.ndim == 2 and a.shape[1] == 3 and len(a) >= 2:
-                    return a
-    return None
-
-
-def _find_radius(meta: dict) -> float:
-    stack = [meta]
-    while stack:
-        d = stack.pop()
-        for k, v in d.items():
-            if isinstance(v, dict):
-                stack.append(v)
-            elif k in ("radius_mm", "radius") and isinstance(v, int | float):
-                return float(v)
-    return 25.0
 
 
 def _mesh_path(name: str) -> Path:
@@ -214,20 +193,23 @@ def _mesh_path(name: str) -> Path:
 
 def _colon_pose(p: dict) -> dict:
     """Camera inside the colon: on the centre line at ``station``, tilted off its tangent."""
+    from simtest.scene.meshes import colon_centerline
+
     info = _mesh_info("colon")
-    line, arc = info["centre_line"], info["arc"]
-    s = p["station"] * arc[-1]
-    k = int(np.clip(np.searchsorted(arc, s, side="right") - 1, 0, len(line) - 2))
-    frac = (s - arc[k]) / max(arc[k + 1] - arc[k], 1e-12)
-    centre = line[k] + frac * (line[k + 1] - line[k])
-    tangent = _unit(line[k + 1] - line[k])
+    arc = info["arc"]
+    s = float(arc[0] + p["station"] * (arc[-1] - arc[0]))
+    line = colon_centerline(info["mesh"], np.array([s]))
+    centre = np.asarray(line["points"][0], dtype=np.float64)
+    tangent = _unit(line["tangents"][0])
     e1, e2 = _perp_basis(tangent)
     az = math.radians(p["azimuth_deg"])
     radial = math.cos(az) * e1 + math.sin(az) * e2
     view = math.radians(p["view_angle_deg"])
     forward = math.cos(view) * tangent + math.sin(view) * radial
-    # The camera sits off the centre line on the side opposite to where it looks.
-    position = centre - p["radial_offset"] * info["radius"] * radial
+    # Off the centre line, on the side opposite to where it looks, by a fraction of the smallest
+    # wall distance of the nearest ring (so the camera stays inside the lumen).
+    r_min = float(np.interp(s, arc, info["radius_min"]))
+    position = centre - p["radial_offset"] * r_min * radial
     up = _roll_up(forward, p["roll_deg"])
     return {"path": info["path"], "position": position, "look_at": position + forward, "up": up}
 
@@ -405,6 +387,20 @@ def _jsonable(x):
     return x
 
 
+#: Radiance below this is stored as 0. Dr.Jit's worker threads flush float32 denormals to zero
+#: but a single-threaded render on the calling thread may not, so values of order 1e-38 (summed
+#: over the samples of a pixel: up to ~1e-35) depend on the thread count. 1e-30 is far below any
+#: radiance that can reach the 8-bit sensor (1/255) yet above every denormal sum, which makes the
+#: stored arrays independent of the scheduler and the number of workers.
+FLUSH_BELOW = 1e-30
+
+
+def _flush(a: np.ndarray) -> np.ndarray:
+    a = np.array(a, dtype=np.float32, copy=True)
+    a[np.abs(a) < FLUSH_BELOW] = 0.0
+    return a
+
+
 def sample_from_render(config: DatasetConfig, index: int, params: dict, result) -> Sample:
     """Collect the arrays and records of a sample from a :class:`simtest.render.RenderResult`."""
     from simtest.scene.spec import scene_to_dict
@@ -412,8 +408,8 @@ def sample_from_render(config: DatasetConfig, index: int, params: dict, result) 
     mask = np.asarray(result.mask, dtype=bool)
     normals = np.where(mask[..., None], np.nan_to_num(np.asarray(result.normals, np.float32)), 0.0)
     depth = np.where(mask, np.nan_to_num(np.asarray(result.depth, np.float32)), 0.0)
-    linear = _gray(getattr(result, "gray", None) if getattr(result, "gray", None) is not None else result.linear)
-    specular = _gray(result.specular).astype(np.float32)
+    linear = _flush(_gray(result.gray if hasattr(result, "gray") else result.linear))
+    specular = _flush(_gray(result.specular))
     sensor = _gray(result.sensor)
     if sensor.dtype != np.uint8:
         raise ValueError(f"sample {index}: sensor image is {sensor.dtype}, expected uint8 (bit_depth 8)")
@@ -458,6 +454,7 @@ def sample_from_render(config: DatasetConfig, index: int, params: dict, result) 
 
 
 _THREADS_SET = False
+_RENDER_LOCK = threading.Lock()
 
 
 def _configure_threads() -> None:
@@ -494,8 +491,11 @@ def render_sample(config: DatasetConfig, index: int) -> Sample:
     """
     from simtest.render import render_scene
 
-    _configure_threads()
     params = draw_parameters(config, index)
     spec = build_scene(config, params)
-    result = render_scene(spec, seed=params["render_seed"])
+    # One render at a time per process: Dask workers run tasks in threads, Mitsuba's variant
+    # set-up is not safe to race, and Dr.Jit already spreads one render over its own threads.
+    with _RENDER_LOCK:
+        _configure_threads()
+        result = render_scene(spec, seed=params["render_seed"])
     return sample_from_render(config, index, params, result)
