@@ -32,6 +32,8 @@ app.command("reconstruct")(__import__("simtest.reconstruct.cli", fromlist=["x"])
 # render, meshes: simtest/render/cli.py, simtest/scene/cli.py
 app.add_typer(__import__("simtest.scene.meshes_cli", fromlist=["x"]).meshes_app, name="meshes")
 # validate, nightly: simtest/harness/cli.py
+app.command("validate")(__import__("simtest.harness.cli", fromlist=["x"]).validate_command)
+app.command("nightly")(__import__("simtest.harness.cli", fromlist=["x"]).nightly_command)
 # dataset: simtest/dataset/cli.py
 # bench: simtest/bench.py
 app.command("bench")(__import__("simtest.bench", fromlist=["x"]).bench_command)

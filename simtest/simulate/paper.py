@@ -172,6 +172,9 @@ class PaperSample:
         Light position in the plane frame (texture pixels).
     bp_value : float
         The smoothed intensity at the BP that the image was divided by.
+    clean : ndarray of shape (M, M), float32
+        The noiseless warped image (before noise, smoothing and normalisation); shared between
+        realisations when the light is fixed: do not modify.
     """
 
     image: np.ndarray
@@ -180,6 +183,7 @@ class PaperSample:
     normal: np.ndarray
     light_px: np.ndarray
     bp_value: float
+    clean: np.ndarray
 
 
 def _camera_pose(theta_rad: float, centre: np.ndarray, distance: float):
@@ -332,7 +336,7 @@ class PaperSimulator:
             raise FloatingPointError(f"smoothed intensity at the BP {bp_px.tolist()} is {value}")
         image = image / np.float32(value)
         return PaperSample(image=image, K=K.copy(), bp_px=bp_px.copy(), normal=normal.copy(),
-                           light_px=L, bp_value=float(value))
+                           light_px=L, bp_value=float(value), clean=clean)
 
 
 def _bilinear(image: np.ndarray, uv: np.ndarray) -> float:

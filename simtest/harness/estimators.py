@@ -1,0 +1,120 @@
+"""The estimators the harness scores side by side, as a registry of small functions.
+
+Each entry maps a name to ``f(estimate, truth) -> normal (3,) or None``: it reads one normal out of
+a :class:`simtest.reconstruct` ``SpecularityEstimate`` (camera frame, unit, facing the camera).
+``truth`` is only used by the oracle. Scoring (:func:`score`) turns the normal into an angular
+error in degrees against the ground truth (``atan2(|a x b|, a . b)``), or a failure cause.
+
+Estimators (DESIGN.md section 2):
+
+- ``paper_oracle``: the one of the two circle-pose normals N+- closest to the truth (the paper's
+  reporting, an oracle choice).
+- ``paper_selected``: the N+- that the reconstruction's non-oracle rule selects.
+- ``cone_axis``: eigenvector of C' = K^T C K with the unique-sign eigenvalue (as in the public
+  MATLAB code dam410/LightModel, ``vanishing_line_paper_co``).
+- ``joint_cone_axis``: one cone axis fitted jointly to nested isophotes at several isovalues.
+- ``bp_ray``: minus the unit viewing ray through the detected brightest point (the baseline).
+
+The registry is a plain dict so that a test can plant a known bias in one estimator
+(``monkeypatch.setitem(ESTIMATORS, "cone_axis", biased)``) and check that the nightly comparison
+catches it.
+"""
+
+from __future__ import annotations
+
+from typing import Callable
+
+import numpy as np
+
+__all__ = ["ESTIMATORS", "score", "unit_or_none"]
+
+
+def unit_or_none(v) -> np.ndarray | None:
+    """``v`` as a unit float64 (3,) vector, or None if missing, non-finite or zero."""
+    if v is None or v is False:
+        return None
+    try:
+        a = np.asarray(v, dtype=np.float64).reshape(3)
+    except (TypeError, ValueError):
+        return None
+    n = float(np.linalg.norm(a))
+    if not np.isfinite(n) or n == 0.0:
+        return None
+    return a / n
+
+
+def _paper_oracle(est, truth: np.ndarray) -> np.ndarray | None:
+    normals = getattr(est, "normals_paper", None)
+    if normals is None or normals is False:
+        return None
+    normals = np.asarray(normals, dtype=np.float64).reshape(-1, 3)
+    cands = [u for u in (unit_or_none(n) for n in normals) if u is not None]
+    if not cands:
+        return None
+    return max(cands, key=lambda u: float(np.dot(u, truth)))  # closest = largest cosine
+
+
+def _attr(name: str) -> Callable:
+    def get(est, truth):
+        return unit_or_none(getattr(est, name, None))
+
+    get.__name__ = f"_{name}"
+    return get
+
+
+#: name -> f(estimate, truth) -> unit normal or None.
+ESTIMATORS: dict[str, Callable] = {
+    "paper_oracle": _paper_oracle,
+    "paper_selected": _attr("paper_selected"),
+    "cone_axis": _attr("cone_axis"),
+    "joint_cone_axis": _attr("joint_cone_axis"),
+    "bp_ray": _attr("bp_ray"),
+}
+
+
+def _cause(est, name: str) -> str:
+    status = getattr(est, "status", None)
+    if status is not None and status != "ok":
+        return str(status)
+    if name == "joint_cone_axis":
+        isos = getattr(est, "isophotes", ()) or ()
+        n_ok = sum(1 for i in isos if getattr(i, "status", None) == "ok")
+        return "joint_fewer_than_2_isophotes" if n_ok < 2 else "joint_failed"
+    return f"no_{name}"
+
+
+def score(est, truth, names) -> dict[str, tuple[float, str | None]]:
+    """Angular error of each estimator on one estimate.
+
+    Parameters
+    ----------
+    est : SpecularityEstimate or None
+        None when no specularity was found (every estimator fails with ``"not_detected"``).
+    truth : array_like of shape (3,)
+        Ground-truth normal, camera frame.
+    names : iterable of str
+        Estimators to score (keys of :data:`ESTIMATORS`).
+
+    Returns
+    -------
+    dict
+        name -> ``(error_deg, None)`` or ``(nan, cause)``.
+    """
+    from simtest.geometry.angles import angle_between_deg
+
+    truth = unit_or_none(truth)
+    out: dict[str, tuple[float, str | None]] = {}
+    for name in names:
+        if est is None:
+            out[name] = (float("nan"), "not_detected")
+            continue
+        if truth is None:
+            out[name] = (float("nan"), "no_ground_truth")
+            continue
+        n = ESTIMATORS[name](est, truth)
+        n = unit_or_none(n)
+        if n is None:
+            out[name] = (float("nan"), _cause(est, name))
+        else:
+            out[name] = (float(angle_between_deg(n, truth)), None)
+    return out

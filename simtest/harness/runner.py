@@ -1,0 +1,279 @@
+"""Run a suite: realisations in chunks over a process pool, with a rich progress bar.
+
+Results do not depend on the number of workers: realisation ``i`` of a case always draws from
+``SeedSequence([root_seed, stable_hash(case.key), i])`` and results are put back in realisation
+order before any statistic is taken. ``workers=1`` runs in this process (no pool), which is what
+tests that monkeypatch an estimator need.
+
+An exception inside a realisation is not fatal: every estimator of that realisation fails with
+the cause ``exception:<type>`` and the first messages are kept in the case result, so a sweep of
+thousands of images reports the problem instead of stopping (or hiding it).
+"""
+
+from __future__ import annotations
+
+import os
+import time
+import traceback
+from collections import OrderedDict
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from simtest.harness.suite import Case, Suite, realisation_seed
+
+__all__ = ["CaseResult", "SuiteRun", "run_suite", "run_case_chunk", "default_workers"]
+
+#: Realisations per task, by protocol: large enough to amortise the per-case set-up in a worker,
+#: small enough to balance two workers.
+CHUNK = {"paper": 100, "rendered": 4}
+
+#: Exception messages kept per case.
+MAX_EXCEPTIONS = 5
+
+_RUNNERS: OrderedDict = OrderedDict()
+_RUNNERS_MAX = 8
+
+#: Environment for worker processes: one thread each for BLAS/OpenMP (the pool is the parallelism).
+_WORKER_ENV = {"OMP_NUM_THREADS": "1", "OPENBLAS_NUM_THREADS": "1", "MKL_NUM_THREADS": "1"}
+
+
+def default_workers() -> int:
+    """Number of CPU cores available to this process (at least 1)."""
+    try:
+        return max(1, len(os.sched_getaffinity(0)))
+    except AttributeError:  # pragma: no cover - not Linux
+        return max(1, os.cpu_count() or 1)
+
+
+@dataclass
+class CaseResult:
+    """All scored rows of one case, in realisation order.
+
+    Attributes
+    ----------
+    case : Case
+    realisation : ndarray of shape (S,), int
+        Realisation index of each row (a rendered realisation may score several highlights).
+    errors : dict of str to ndarray of shape (S,)
+        Angular error in degrees per estimator, NaN where it failed.
+    causes : dict of str to list of (str or None)
+        Failure cause per estimator and row (None where it succeeded).
+    extras : dict of str to ndarray of shape (S,)
+        Diagnostics (eigenvalue gap, fit residual, BP error, curvatures at the BP).
+    exceptions : list of str
+        First messages of exceptions raised inside realisations.
+    cpu_s : float
+        Seconds spent in this case's realisations (summed over workers).
+    variant : str or None
+        Mitsuba variant used (rendered protocol).
+    """
+
+    case: Case
+    realisation: np.ndarray
+    errors: dict
+    causes: dict
+    extras: dict
+    exceptions: list = field(default_factory=list)
+    cpu_s: float = 0.0
+    variant: str | None = None
+
+
+@dataclass
+class SuiteRun:
+    """The outcome of :func:`run_suite`."""
+
+    suite: Suite
+    results: list
+    workers: int
+    wall_s: float
+    started_utc: str
+    cpu_s_by_protocol: dict
+    realisations_by_protocol: dict
+
+    @property
+    def variants(self) -> list[str]:
+        return sorted({r.variant for r in self.results if r.variant})
+
+
+def _get_runner(case: Case, estimators: tuple):
+    from simtest.harness.protocols import make_runner
+
+    key = (case.key, case.protocol, case.scene, estimators)
+    r = _RUNNERS.get(key)
+    if r is None:
+        r = make_runner(case, estimators)
+        _RUNNERS[key] = r
+        while len(_RUNNERS) > _RUNNERS_MAX:
+            _RUNNERS.popitem(last=False)
+    else:
+        _RUNNERS.move_to_end(key)
+    return r
+
+
+def _exception_rows(estimators, exc: BaseException) -> list[dict]:
+    cause = f"exception:{type(exc).__name__}"
+    return [{"errors": {k: float("nan") for k in estimators},
+             "causes": {k: cause for k in estimators}, "extras": {}}]
+
+
+def run_case_chunk(case: Case, estimators: tuple, root_seed: int, start: int, stop: int):
+    """Run realisations ``start`` to ``stop - 1`` of one case (in a worker or in process).
+
+    Returns
+    -------
+    tuple
+        ``((case.key, case.realisations), [(index, rows), ...], seconds, variant, messages)``.
+    """
+    t0 = time.perf_counter()
+    messages: list[str] = []
+    out = []
+    try:
+        runner = _get_runner(case, estimators)
+    except Exception as e:  # noqa: BLE001 - counted per realisation, never dropped
+        messages.append(f"set-up: {type(e).__name__}: {e}")
+        rows = _exception_rows(estimators, e)
+        return (case.key, case.realisations), [(i, rows) for i in range(start, stop)], \
+            time.perf_counter() - t0, None, messages
+    for i in range(start, stop):
+        try:
+            rows = runner.run(realisation_seed(root_seed, case.key, i))
+        except Exception as e:  # noqa: BLE001
+            if len(messages) < MAX_EXCEPTIONS:
+                tb = traceback.extract_tb(e.__traceback__)[-1]
+                messages.append(f"realisation {i}: {type(e).__name__}: {e} "
+                                f"({os.path.basename(tb.filename)}:{tb.lineno})")
+            rows = _exception_rows(estimators, e)
+        out.append((i, rows))
+    return (case.key, case.realisations), out, time.perf_counter() - t0, \
+        getattr(runner, "variant", None), messages
+
+
+def _worker_init() -> None:
+    try:
+        import cv2
+
+        cv2.setNumThreads(1)
+    except Exception:  # pragma: no cover
+        pass
+
+
+def _assemble(case: Case, estimators: tuple, chunks: list) -> CaseResult:
+    items = sorted(((i, rows) for ch in chunks for (i, rows) in ch["items"]), key=lambda t: t[0])
+    idx: list[int] = []
+    errs: dict[str, list] = {k: [] for k in estimators}
+    causes: dict[str, list] = {k: [] for k in estimators}
+    keys = sorted({k for _, rows in items for row in rows for k in row.get("extras", {})})
+    extras: dict[str, list] = {k: [] for k in keys}
+    for i, rows in items:
+        for row in rows:
+            idx.append(i)
+            for k in estimators:
+                errs[k].append(row["errors"][k])
+                causes[k].append(row["causes"][k])
+            for k in keys:  # NaN where a row lacks a diagnostic
+                extras[k].append(float(row.get("extras", {}).get(k, float("nan"))))
+    msgs = [m for ch in chunks for m in ch["messages"]][:MAX_EXCEPTIONS]
+    variant = next((ch["variant"] for ch in chunks if ch["variant"]), None)
+    return CaseResult(case=case, realisation=np.asarray(idx, dtype=np.int64),
+                      errors={k: np.asarray(v, dtype=np.float64) for k, v in errs.items()},
+                      causes=causes,
+                      extras={k: np.asarray(v, dtype=np.float64) for k, v in extras.items()},
+                      exceptions=msgs, cpu_s=sum(ch["seconds"] for ch in chunks), variant=variant)
+
+
+def run_suite(suite: Suite, *, workers: int | None = None, progress: bool = True,
+              console=None) -> SuiteRun:
+    """Run every case of ``suite``.
+
+    Parameters
+    ----------
+    suite : Suite
+    workers : int or None
+        Worker processes; None: the number of available cores; 1: in this process.
+    progress : bool
+        Show a rich progress bar (on ``console`` or stderr).
+    console : rich.console.Console or None
+
+    Returns
+    -------
+    SuiteRun
+    """
+    from datetime import datetime, timezone
+
+    from rich.console import Console
+    from rich.progress import (BarColumn, MofNCompleteColumn, Progress, TextColumn,
+                               TimeElapsedColumn, TimeRemainingColumn)
+
+    workers = default_workers() if workers is None else int(workers)
+    if workers < 1:
+        raise ValueError(f"workers must be >= 1, got {workers}")
+    console = console or Console(stderr=True)
+    estimators = tuple(suite.estimators)
+    cases = suite.cases
+    # Identical settings (same key, e.g. the default point of several sweeps) run once.
+    unique = list({(c.key, c.realisations): c for c in cases}.values())
+    tasks = []
+    for c in unique:
+        step = CHUNK.get(c.protocol, 50)
+        for s in range(0, c.realisations, step):
+            tasks.append((c, s, min(c.realisations, s + step)))
+    total = sum(c.realisations for c in unique)
+    by_key: dict[tuple, list] = {(c.key, c.realisations): [] for c in unique}
+    started = datetime.now(timezone.utc).strftime("%Y-%m-%dT%H:%M:%SZ")
+    t0 = time.perf_counter()
+
+    prog = Progress(TextColumn("[bold]{task.description}"), BarColumn(), MofNCompleteColumn(),
+                    TextColumn("{task.fields[rate]}"), TimeElapsedColumn(), TimeRemainingColumn(),
+                    console=console, disable=not progress, transient=False)
+
+    def record(result, bar):
+        key, items, seconds, variant, messages = result
+        by_key[key].append({"items": items, "seconds": seconds, "variant": variant,
+                            "messages": messages})
+        done = len(items)
+        el = time.perf_counter() - t0
+        prog.update(bar, advance=done)
+        n = prog.tasks[0].completed
+        prog.update(bar, rate=f"{n / el:6.1f} real./s" if el > 0 else "")
+
+    with prog:
+        bar = prog.add_task(f"{suite.name}: {len(unique)} cases, {workers} worker(s)", total=total,
+                            rate="")
+        if workers == 1:
+            for c, s, e in tasks:
+                record(run_case_chunk(c, estimators, suite.seed, s, e), bar)
+        else:
+            import multiprocessing as mp
+            from concurrent.futures import ProcessPoolExecutor, as_completed
+
+            saved = {k: os.environ.get(k) for k in _WORKER_ENV}
+            os.environ.update(_WORKER_ENV)
+            try:
+                ctx = mp.get_context("spawn")  # no inherited Mitsuba/LLVM threads
+                with ProcessPoolExecutor(max_workers=workers, mp_context=ctx,
+                                         initializer=_worker_init) as pool:
+                    futs = [pool.submit(run_case_chunk, c, estimators, suite.seed, s, e)
+                            for c, s, e in tasks]
+                    try:
+                        for f in as_completed(futs):
+                            record(f.result(), bar)
+                    except BaseException:
+                        for f in futs:
+                            f.cancel()
+                        raise
+            finally:
+                for k, v in saved.items():
+                    if v is None:
+                        os.environ.pop(k, None)
+                    else:
+                        os.environ[k] = v
+    wall = time.perf_counter() - t0
+    results = [_assemble(c, estimators, by_key[(c.key, c.realisations)]) for c in cases]
+    cpu, real = {}, {}
+    for c in unique:
+        ch = by_key[(c.key, c.realisations)]
+        cpu[c.protocol] = cpu.get(c.protocol, 0.0) + sum(x["seconds"] for x in ch)
+        real[c.protocol] = real.get(c.protocol, 0) + c.realisations
+    return SuiteRun(suite=suite, results=results, workers=workers, wall_s=wall,
+                    started_utc=started, cpu_s_by_protocol=cpu, realisations_by_protocol=real)

@@ -1,0 +1,559 @@
+"""Sweep files: a suite of parameter sweeps declared in TOML, expanded to cases.
+
+A suite file (``scenes/suites/<name>.toml``) reads::
+
+    [suite]
+    name = "paper-figure3"          # default: the file stem
+    description = "..."
+    protocol = "paper"              # default protocol of the sweeps: "paper" or "rendered"
+    scene = "plane_58deg"           # rendered: default base scene (bundled name or path)
+    realisations = 1000             # per case
+    seed = 0                        # root seed
+    estimators = ["paper_oracle", "cone_axis"]   # optional subset (default: all)
+
+    [base]                          # parameters shared by every sweep (see below)
+    sigma = 0.05
+
+    [[sweep]]
+    name = "noise"                  # unique within the suite
+    parameter = "sigma"             # the parameter varied ...
+    values = [0.0, 0.02, 0.05]      # ... over these values (one case each)
+    label = "noise sigma"           # axis label (default: the parameter)
+    display_scale = 100.0           # factor for plots and tables (e.g. fraction -> %)
+    set = { n = 100 }               # fixed parameters of this sweep only
+    # or, instead of parameter/values:  cases = [{ x = 1, set = { ... } }, ...]
+
+    [sweep.paper]                   # optional: the paper's stated figure for this sweep
+    claim = "mean error below 1.25 deg throughout"
+    check = "max_mean_below"        # see simtest.harness.report.PAPER_CHECKS
+    value = 1.25
+    note = "why ours differs"
+
+Parameters. ``paper`` protocol: the fields of :class:`simtest.simulate.paper.PaperParams`.
+``rendered`` protocol: dotted scene keys (``"material.n"``, ``"geometry.tilt_deg"``, ...) applied
+with :func:`simtest.scene.with_overrides`, and the derived key ``"radius_over_distance"`` (sphere or
+cylinder of radius ``r d`` whose nearest point is at ``distance_mm`` d on the optical axis). Both:
+the reconstruction settings ``isovalue`` (t in (0, 1)) and ``joint_isovalues`` (list, for the
+nested-isophote joint cone axis); rendered also ``image`` ("sensor" or "linear"),
+``match_px`` (max distance from a true BP to a detected one) and ``distance_mm``.
+
+Seeds: realisation ``i`` of a case draws from
+``SeedSequence([root_seed, stable_hash(case.key), i])`` (:func:`realisation_seed`), so results do
+not depend on how realisations are shared between workers.
+
+Errors: :class:`SuiteError` (a ValueError) with the message ``"<file>: <key>: <reason>"``.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import hashlib
+import json
+import math
+import tomllib
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, Mapping
+
+import numpy as np
+
+__all__ = [
+    "SuiteError",
+    "Case",
+    "Sweep",
+    "Suite",
+    "PROTOCOLS",
+    "ESTIMATOR_NAMES",
+    "RECON_KEYS",
+    "load_suite",
+    "suite_from_dict",
+    "suites_dir",
+    "bundled_suite_names",
+    "resolve_suite_path",
+    "stable_hash",
+    "realisation_seed",
+]
+
+PROTOCOLS = ("paper", "rendered")
+
+#: The estimators scored side by side (see :mod:`simtest.harness.estimators`).
+ESTIMATOR_NAMES = ("paper_oracle", "paper_selected", "cone_axis", "joint_cone_axis", "bp_ray")
+
+#: Reconstruction settings, valid in both protocols, with their defaults.
+RECON_KEYS: dict[str, Any] = {
+    "isovalue": 0.1,
+    "joint_isovalues": [0.1, 0.2, 0.3, 0.4, 0.5],
+}
+
+#: Extra keys of the rendered protocol, with their defaults.
+RENDERED_KEYS: dict[str, Any] = {
+    "image": "sensor",
+    "match_px": 15.0,
+    "radius_over_distance": None,
+    "distance_mm": None,
+}
+
+_SUITE_KEYS = {"name", "description", "protocol", "scene", "realisations", "seed", "estimators"}
+_SWEEP_KEYS = {"name", "parameter", "values", "label", "display_scale", "set", "cases", "paper",
+               "protocol", "scene", "realisations", "description"}
+_CASE_KEYS = {"x", "set", "label"}
+_PAPER_KEYS = {"claim", "check", "value", "note", "estimator", "range"}
+
+
+class SuiteError(ValueError):
+    """A suite file is invalid. The message reads ``"<file>: <key>: <reason>"``."""
+
+
+def _err(source: str, key: str, reason: str) -> SuiteError:
+    return SuiteError(f"{source}: {key}: {reason}")
+
+
+def suites_dir() -> Path:
+    """Folder of the bundled suites: ``<repo root>/scenes/suites``."""
+    import simtest
+
+    return Path(simtest.__file__).resolve().parents[1] / "scenes" / "suites"
+
+
+def bundled_suite_names() -> list[str]:
+    """Names (file stems) of the bundled suites, sorted."""
+    return sorted(p.stem for p in suites_dir().glob("*.toml"))
+
+
+def resolve_suite_path(name_or_path: str | Path) -> Path:
+    """A bundled suite name (``"quick"``) or a path to a TOML file -> the file path.
+
+    Raises
+    ------
+    SuiteError
+        If neither a file nor a bundled suite of that name exists (lists the bundled names).
+    """
+    p = Path(name_or_path)
+    if p.is_file():
+        return p
+    stem = p.name[:-5] if p.name.endswith(".toml") else p.name
+    q = suites_dir() / f"{stem}.toml"
+    if q.is_file() and (p.parent == Path(".") or not p.suffix):
+        return q
+    raise SuiteError(f"{name_or_path}: suite: no such file and no bundled suite of that name "
+                     f"(bundled: {', '.join(bundled_suite_names()) or 'none'})")
+
+
+def stable_hash(key: str) -> int:
+    """A 64-bit integer from a string, stable across processes and machines (SHA-256).
+
+    Python's ``hash()`` is salted per process, so it cannot seed anything reproducible.
+    """
+    return int.from_bytes(hashlib.sha256(key.encode("utf-8")).digest()[:8], "little")
+
+
+def realisation_seed(root_seed: int, case_key: str, index: int) -> np.random.SeedSequence:
+    """``SeedSequence([root_seed, stable_hash(case_key), index])`` for realisation ``index``."""
+    return np.random.SeedSequence([int(root_seed), stable_hash(case_key), int(index)])
+
+
+@dataclass(frozen=True)
+class Case:
+    """One parameter setting of a sweep, run ``realisations`` times.
+
+    Attributes
+    ----------
+    key : str
+        Stable identity of the setting (protocol, scene and resolved parameters as canonical JSON);
+        it seeds the realisations, so the same setting gets the same numbers in any suite.
+    suite, sweep : str
+        Names of the suite and sweep that hold it.
+    protocol : {"paper", "rendered"}
+    scene : str or None
+        Rendered: the base scene file (absolute path) it is built from.
+    scene_name : str or None
+        Rendered: the scene's name as written in the suite (bundled name or file name).
+    params : dict
+        Resolved parameters: for ``paper`` every PaperParams field plus the reconstruction keys;
+        for ``rendered`` the scene overrides (dotted keys) plus the rendered and reconstruction keys.
+    x : float
+        The swept value (for plots), before ``display_scale``.
+    realisations : int
+    """
+
+    key: str
+    suite: str
+    sweep: str
+    protocol: str
+    scene: str | None
+    scene_name: str | None
+    params: dict
+    x: float
+    realisations: int
+
+    def to_dict(self) -> dict:
+        """JSON-able dict of the case (without the absolute scene path)."""
+        return {"key": self.key, "sweep": self.sweep, "protocol": self.protocol,
+                "scene": self.scene_name, "params": self.params, "x": self.x,
+                "realisations": self.realisations}
+
+
+@dataclass(frozen=True)
+class Sweep:
+    """A named list of cases varying one parameter (or an explicit list of settings)."""
+
+    name: str
+    protocol: str
+    parameter: str
+    label: str
+    display_scale: float
+    cases: tuple[Case, ...]
+    paper: dict | None = None
+    description: str = ""
+
+
+@dataclass(frozen=True)
+class Suite:
+    """A loaded, validated suite: sweeps already expanded to cases."""
+
+    name: str
+    description: str
+    source: str
+    seed: int
+    realisations: int
+    estimators: tuple[str, ...]
+    sweeps: tuple[Sweep, ...]
+    sha256: str = ""
+    raw: dict = field(default_factory=dict, compare=False, repr=False)
+
+    @property
+    def cases(self) -> list[Case]:
+        """All cases, sweep by sweep, in file order."""
+        return [c for s in self.sweeps for c in s.cases]
+
+    @property
+    def total_realisations(self) -> int:
+        return sum(c.realisations for c in self.cases)
+
+    def with_overrides(self, *, seed: int | None = None,
+                       realisations: int | None = None) -> Suite:
+        """A copy with another root seed and/or number of realisations per case."""
+        d = dict(self.raw)
+        d["suite"] = dict(d.get("suite", {}))
+        if seed is not None:
+            d["suite"]["seed"] = seed
+        if realisations is not None:
+            d["suite"]["realisations"] = realisations
+            d["sweep"] = [{k: v for k, v in s.items() if k != "realisations"}
+                          for s in d.get("sweep", [])]
+        return suite_from_dict(d, source=self.source, sha256=self.sha256)
+
+
+def load_suite(name_or_path: str | Path) -> Suite:
+    """Load and validate a suite file (bundled name or path).
+
+    Raises
+    ------
+    SuiteError
+        Unknown key, wrong type, bad value, unknown parameter or scene: ``"<file>: <key>: <why>"``.
+    """
+    path = resolve_suite_path(name_or_path)
+    data = path.read_bytes()
+    try:
+        raw = tomllib.loads(data.decode("utf-8"))
+    except (tomllib.TOMLDecodeError, UnicodeDecodeError) as e:
+        raise _err(str(path), "<file>", f"not valid TOML: {e}") from None
+    return suite_from_dict(raw, source=str(path), sha256=hashlib.sha256(data).hexdigest())
+
+
+def _is_num(v) -> bool:
+    return isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v)
+
+
+def _check_keys(d: Mapping, allowed: set, source: str, where: str) -> None:
+    if not isinstance(d, Mapping):
+        raise _err(source, where, f"expected a table, got {type(d).__name__}")
+    for k in d:
+        if k not in allowed:
+            raise _err(source, f"{where}.{k}" if where else k,
+                       f"unknown key (allowed: {', '.join(sorted(allowed))})")
+
+
+def _jsonable(v):
+    if isinstance(v, tuple):
+        return [_jsonable(x) for x in v]
+    if isinstance(v, list):
+        return [_jsonable(x) for x in v]
+    if isinstance(v, float) and v.is_integer() and abs(v) < 2**53:
+        return v  # keep floats as floats (1.0 stays 1.0 in the key)
+    return v
+
+
+def _check_recon(key: str, value, source: str, where: str) -> Any:
+    if key == "isovalue":
+        if not _is_num(value) or not 0 < value < 1:
+            raise _err(source, where, f"isovalue must be a number in (0, 1), got {value!r}")
+        return float(value)
+    if key == "joint_isovalues":
+        if (not isinstance(value, (list, tuple)) or len(value) < 2
+                or not all(_is_num(v) and 0 < v < 1 for v in value)):
+            raise _err(source, where, "joint_isovalues must be a list of at least 2 numbers in "
+                                      f"(0, 1), got {value!r}")
+        return [float(v) for v in value]
+    if key == "image":
+        if value not in ("sensor", "linear"):
+            raise _err(source, where, f"image must be 'sensor' or 'linear', got {value!r}")
+        return value
+    if key in ("match_px", "radius_over_distance", "distance_mm"):
+        if value is not None and (not _is_num(value) or value <= 0):
+            raise _err(source, where, f"{key} must be a number > 0, got {value!r}")
+        return None if value is None else float(value)
+    raise AssertionError(key)
+
+
+def _resolve_paper(params: Mapping, source: str, where: str) -> dict:
+    from simtest.simulate.paper import PaperParams
+
+    names = set(PaperParams.field_names())
+    sim, out = {}, {}
+    for k, v in params.items():
+        if k in RECON_KEYS:
+            out[k] = _check_recon(k, v, source, f"{where}.{k}")
+        elif k in names:
+            sim[k] = v
+        else:
+            raise _err(source, f"{where}.{k}", "unknown parameter of the paper protocol (known: "
+                       f"{', '.join(sorted(names | set(RECON_KEYS)))})")
+    # Types as PaperParams wants them (TOML ints for float fields are fine; floats for ints are not).
+    fields = {f.name: f for f in dataclasses.fields(PaperParams)}
+    for k, v in list(sim.items()):
+        if fields[k].type in ("float", "float | None") and _is_num(v):
+            sim[k] = float(v)
+    try:
+        pp = PaperParams(**sim)
+    except (ValueError, TypeError) as e:
+        bad = next((k for k in sim if f"PaperParams.{k}:" in str(e)), "?")
+        raise _err(source, f"{where}.{bad}", str(e).split(": ", 1)[-1]) from None
+    resolved = dataclasses.asdict(pp)
+    for k, d in RECON_KEYS.items():
+        resolved[k] = out.get(k, d)
+    return resolved
+
+
+def _resolve_rendered(scene_path: Path, params: Mapping, source: str, where: str) -> dict:
+    from simtest.scene import SceneError, load_scene, with_overrides
+
+    overrides, out = {}, {}
+    for k, v in params.items():
+        if k in RECON_KEYS or k in RENDERED_KEYS:
+            out[k] = _check_recon(k, v, source, f"{where}.{k}")
+        elif "." in k:
+            overrides[k] = v
+        else:
+            raise _err(source, f"{where}.{k}", "unknown parameter of the rendered protocol "
+                       "(expected a dotted scene key such as 'material.n', or one of "
+                       f"{', '.join(sorted(set(RECON_KEYS) | set(RENDERED_KEYS)))})")
+    try:
+        spec = load_scene(scene_path)
+        spec = with_overrides(spec, overrides)
+    except SceneError as e:
+        raise _err(source, where, f"scene override rejected: {e}") from None
+    rod = out.get("radius_over_distance")
+    if rod is not None:
+        if spec.geometry.type not in ("sphere", "cylinder"):
+            raise _err(source, f"{where}.radius_over_distance",
+                       f"needs a sphere or cylinder scene, got geometry.type = "
+                       f"{spec.geometry.type!r}")
+        if out.get("distance_mm") is None:
+            raise _err(source, f"{where}.distance_mm", "radius_over_distance needs distance_mm")
+    resolved = {k: _jsonable(v) for k, v in sorted(overrides.items())}
+    for k, d in {**RECON_KEYS, **RENDERED_KEYS}.items():
+        resolved[k] = out.get(k, d)
+    return resolved
+
+
+def _resolve_scene(name, source: str, where: str) -> Path:
+    if not isinstance(name, str) or not name:
+        raise _err(source, where, f"expected a bundled scene name or a path, got {name!r}")
+    p = Path(name)
+    if not p.is_absolute() and source not in ("<dict>", ""):
+        q = Path(source).resolve().parent / p
+        if q.is_file():
+            return q
+    if p.is_file():
+        return p.resolve()
+    try:
+        from simtest.scene import bundled_scene_path
+
+        return bundled_scene_path(name)
+    except KeyError as e:
+        raise _err(source, where, str(e).strip("'\"")) from None
+
+
+def _case_key(protocol: str, scene_name: str | None, params: Mapping) -> str:
+    return f"{protocol}|{scene_name or '-'}|" + json.dumps(params, sort_keys=True,
+                                                           separators=(",", ":"))
+
+
+def suite_from_dict(raw: Mapping[str, Any], source: str = "<dict>", sha256: str = "") -> Suite:
+    """Validate a suite given as a dict (the TOML layout) and expand it to cases.
+
+    Parameters
+    ----------
+    raw : mapping
+        ``{"suite": {...}, "base": {...}, "sweep": [{...}, ...]}``.
+    source : str
+        File name for messages.
+    sha256 : str
+        Digest of the file, recorded in reports.
+
+    Returns
+    -------
+    Suite
+
+    Raises
+    ------
+    SuiteError
+    """
+    _check_keys(raw, {"suite", "base", "sweep", "tolerances"}, source, "")
+    head = raw.get("suite", {})
+    _check_keys(head, _SUITE_KEYS, source, "suite")
+    default_name = Path(source).stem if source not in ("<dict>", "") else "suite"
+    name = head.get("name", default_name)
+    if not isinstance(name, str) or not name or any(c in name for c in "/\\ "):
+        raise _err(source, "suite.name", f"expected a name without spaces or slashes, got {name!r}")
+    description = head.get("description", "")
+    if not isinstance(description, str):
+        raise _err(source, "suite.description", "expected a string")
+    protocol = head.get("protocol", "paper")
+    if protocol not in PROTOCOLS:
+        raise _err(source, "suite.protocol", f"expected one of {PROTOCOLS}, got {protocol!r}")
+    realisations = head.get("realisations", 100)
+    if isinstance(realisations, bool) or not isinstance(realisations, int) or realisations < 1:
+        raise _err(source, "suite.realisations", f"expected an integer >= 1, got {realisations!r}")
+    seed = head.get("seed", 0)
+    if isinstance(seed, bool) or not isinstance(seed, int) or seed < 0:
+        raise _err(source, "suite.seed", f"expected an integer >= 0, got {seed!r}")
+    estimators = head.get("estimators", list(ESTIMATOR_NAMES))
+    if (not isinstance(estimators, list) or not estimators
+            or any(e not in ESTIMATOR_NAMES for e in estimators)):
+        raise _err(source, "suite.estimators",
+                   f"expected a non-empty list from {ESTIMATOR_NAMES}, got {estimators!r}")
+    base = raw.get("base", {})
+    _check_keys(base, set(base) if isinstance(base, Mapping) else set(), source, "base")
+    if "scene" in head:
+        _resolve_scene(head["scene"], source, "suite.scene")
+    sweeps_raw = raw.get("sweep", [])
+    if not isinstance(sweeps_raw, list) or not sweeps_raw:
+        raise _err(source, "sweep", "expected at least one [[sweep]] table")
+
+    sweeps: list[Sweep] = []
+    seen: set[str] = set()
+    for i, sw in enumerate(sweeps_raw):
+        where = f"sweep[{i}]"
+        _check_keys(sw, _SWEEP_KEYS, source, where)
+        sname = sw.get("name")
+        if not isinstance(sname, str) or not sname:
+            raise _err(source, f"{where}.name", "every sweep needs a name")
+        where = f"sweep.{sname}"
+        if sname in seen:
+            raise _err(source, f"{where}.name", "duplicate sweep name")
+        seen.add(sname)
+        sproto = sw.get("protocol", protocol)
+        if sproto not in PROTOCOLS:
+            raise _err(source, f"{where}.protocol", f"expected one of {PROTOCOLS}, got {sproto!r}")
+        sreal = sw.get("realisations", realisations)
+        if isinstance(sreal, bool) or not isinstance(sreal, int) or sreal < 1:
+            raise _err(source, f"{where}.realisations", f"expected an integer >= 1, got {sreal!r}")
+        scene_path, scene_name = None, None
+        if sproto == "rendered":
+            scene_name = sw.get("scene", head.get("scene"))
+            if scene_name is None:
+                raise _err(source, f"{where}.scene", "a rendered sweep needs a scene "
+                                                     "(sweep.scene or suite.scene)")
+            scene_path = _resolve_scene(scene_name, source, f"{where}.scene")
+        elif "scene" in sw:
+            raise _err(source, f"{where}.scene", "only rendered sweeps take a scene")
+        fixed = sw.get("set", {})
+        _check_keys(fixed, set(fixed) if isinstance(fixed, Mapping) else set(), source,
+                    f"{where}.set")
+        scale = sw.get("display_scale", 1.0)
+        if not _is_num(scale) or scale == 0:
+            raise _err(source, f"{where}.display_scale", f"expected a non-zero number, got {scale!r}")
+        # settings: (x, overrides)
+        if "cases" in sw:
+            if "parameter" in sw or "values" in sw:
+                raise _err(source, where, "give either parameter/values or cases, not both")
+            parameter = "case"
+            settings = []
+            if not isinstance(sw["cases"], list) or not sw["cases"]:
+                raise _err(source, f"{where}.cases", "expected a non-empty list of tables")
+            for j, cs in enumerate(sw["cases"]):
+                _check_keys(cs, _CASE_KEYS, source, f"{where}.cases[{j}]")
+                x = cs.get("x", j)
+                if not _is_num(x):
+                    raise _err(source, f"{where}.cases[{j}].x", f"expected a number, got {x!r}")
+                cset = cs.get("set", {})
+                _check_keys(cset, set(cset) if isinstance(cset, Mapping) else set(), source,
+                            f"{where}.cases[{j}].set")
+                settings.append((float(x), dict(cset), f"{where}.cases[{j}].set"))
+        else:
+            parameter = sw.get("parameter")
+            if not isinstance(parameter, str) or not parameter:
+                raise _err(source, f"{where}.parameter", "expected a parameter name")
+            values = sw.get("values")
+            if not isinstance(values, list) or not values:
+                raise _err(source, f"{where}.values", "expected a non-empty list of values")
+            settings = []
+            for j, v in enumerate(values):
+                if not _is_num(v):
+                    raise _err(source, f"{where}.values[{j}]", f"expected a number, got {v!r}")
+                settings.append((float(v), {parameter: v}, f"{where}.values[{j}]"))
+        label = sw.get("label", parameter)
+        if not isinstance(label, str):
+            raise _err(source, f"{where}.label", "expected a string")
+        paper = sw.get("paper")
+        if paper is not None:
+            _check_keys(paper, _PAPER_KEYS, source, f"{where}.paper")
+            from simtest.harness.report import PAPER_CHECKS
+
+            chk = paper.get("check")
+            chks = [chk] if isinstance(chk, str) or chk is None else chk
+            vals = [paper.get("value")] if isinstance(chk, str) or chk is None else paper.get("value")
+            if not isinstance(chks, list) or not isinstance(vals, list) or len(chks) != len(vals):
+                raise _err(source, f"{where}.paper.value", "give one value per check (check and "
+                                                           "value both lists, or both single)")
+            for c_, v_ in zip(chks, vals):
+                if c_ is None:
+                    continue
+                if c_ not in PAPER_CHECKS:
+                    raise _err(source, f"{where}.paper.check",
+                               f"unknown check {c_!r} (known: {', '.join(PAPER_CHECKS)})")
+                two = c_ in ("slope_in_range", "argmin_in_range")
+                if two and not (isinstance(v_, list) and len(v_) == 2 and all(map(_is_num, v_))):
+                    raise _err(source, f"{where}.paper.value", f"check {c_} needs [low, high]")
+                if not two and not _is_num(v_):
+                    raise _err(source, f"{where}.paper.value", f"check {c_} needs a number")
+            est = paper.get("estimator", "paper_oracle")
+            if est not in ESTIMATOR_NAMES:
+                raise _err(source, f"{where}.paper.estimator", f"unknown estimator {est!r}")
+        cases = []
+        for x, over, cwhere in settings:
+            merged = {**base, **fixed, **over}
+            if sproto == "paper":
+                params = _resolve_paper(merged, source, cwhere)
+            else:
+                params = _resolve_rendered(scene_path, merged, source, cwhere)
+            key = _case_key(sproto, scene_name, params)
+            cases.append(Case(key=key, suite=name, sweep=sname, protocol=sproto,
+                              scene=None if scene_path is None else str(scene_path),
+                              scene_name=scene_name, params=params, x=x, realisations=sreal))
+        sweeps.append(Sweep(name=sname, protocol=sproto, parameter=parameter, label=label,
+                            display_scale=float(scale), cases=tuple(cases), paper=paper,
+                            description=sw.get("description", "")))
+    return Suite(name=name, description=description, source=source, seed=seed,
+                 realisations=realisations, estimators=tuple(estimators), sweeps=tuple(sweeps),
+                 sha256=sha256, raw=_deepcopy(raw))
+
+
+def _deepcopy(d):
+    if isinstance(d, Mapping):
+        return {k: _deepcopy(v) for k, v in d.items()}
+    if isinstance(d, list):
+        return [_deepcopy(v) for v in d]
+    return d
