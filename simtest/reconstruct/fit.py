@@ -105,7 +105,7 @@ def fit_ellipse(points_uv) -> EllipseFit | Failure:
     >>> np.round(fit.ellipse.center, 6).tolist(), np.round(fit.ellipse.semi_axes, 6).tolist()
     ([10.0, 20.0], [5.0, 3.0])
     """
-    from simtest.geometry.conics import conic_to_ellipse
+    from simtest.geometry.conics import conic_kind, conic_to_ellipse
 
     pts = np.asarray(points_uv, dtype=np.float64)
     if pts.ndim != 2 or pts.shape[1] != 2:
@@ -155,7 +155,26 @@ def fit_ellipse(points_uv) -> EllipseFit | Failure:
         r = float(np.linalg.norm(d1 @ a[:3] + d2 @ a[3:]))
         if best is None or r < best[0]:
             best = (r, a)
-    a, b, c, d, e, f = best[1]
+    a_vec = best[1]
+    a, b, c, d, e, f = a_vec
+
+    # Ellipse-specific fitting always returns an ellipse, even for points on a hyperbola or a line
+    # pair. Guard: the unconstrained algebraic fit (smallest eigenvector of S = D^T D [eqn. 17]
+    # from [1]) is the exact conic of noise-free data; if it is not an ellipse and explains the
+    # points clearly better (algebraic residual 4x smaller), the data are not an ellipse.
+    s_full = np.block([[s1, s2], [s2.T, s3]])
+    w_full, v_full = np.linalg.eigh(s_full)
+    g = v_full[:, 0]
+    r_general = max(float(w_full[0]), 0.0)
+    r_ellipse = float(a_vec @ s_full @ a_vec) / float(a_vec @ a_vec)
+    if r_ellipse > 4.0 * r_general + 1e-24:
+        g_conic = np.array([[g[0], g[1] / 2, g[3] / 2], [g[1] / 2, g[2], g[4] / 2], [g[3] / 2, g[4] / 2, g[5]]])
+        kind = conic_kind(g_conic)
+        if kind != "ellipse":
+            return Failure(
+                "not_an_ellipse",
+                f"the points fit a {kind} better (algebraic residual {r_general:.3g} vs {r_ellipse:.3g})",
+            )
 
     # Point conic in normalised coordinates, then back to pixels: C = T^T A T with x' = T x.
     a_norm = np.array([[a, b / 2, d / 2], [b / 2, c, e / 2], [d / 2, e / 2, f]])
@@ -167,8 +186,17 @@ def fit_ellipse(points_uv) -> EllipseFit | Failure:
         conic = -conic
     if not np.isfinite(conic).all():
         return Failure("degenerate_points", "non-finite conic")
-    ellipse = conic_to_ellipse(conic)
-    if ellipse is None:
+    # Ellipse parameters from the conic of the *normalised* points, then back to pixels: a unit-norm
+    # pixel conic of a few-px ellipse ~10^3 px from the origin has singular values down to ~1e-13,
+    # where a degeneracy test in pixel coordinates would misclassify it; the normalised conic is
+    # O(1)-conditioned for any ellipse.
+    e_norm = conic_to_ellipse(a_norm)
+    if e_norm is None:
         return Failure("not_an_ellipse", "the fitted conic is not a real ellipse")
+    ellipse = type(e_norm)(
+        center=mean + scale * np.asarray(e_norm.center),
+        semi_axes=scale * np.asarray(e_norm.semi_axes),
+        angle_rad=e_norm.angle_rad,
+    )
     residual = float(np.sqrt(np.mean(sampson_distance_px(conic, pts) ** 2)))
     return EllipseFit(conic, ellipse, residual, n)

@@ -102,6 +102,7 @@ def extract_isophote(
     origin_rc: tuple[int, int] = (0, 0),
     image_shape: tuple[int, ...] | None = None,
     allow_open: bool = False,
+    min_points: int = MIN_CONTOUR_POINTS,
 ) -> Isophote | Failure:
     """Extract the isophote at ``level`` that encloses the brightest point.
 
@@ -121,7 +122,11 @@ def extract_isophote(
         be (0, 0)).
     allow_open : bool, optional
         If False (default), a contour cut by the ROI or image border gives
-        ``Failure("contour_cut")``. If True it is returned with ``closed=False`` and the cut flags.
+        ``Failure("contour_cut")``. If True it is returned with ``closed=False`` and the cut flags
+        (with no points at all if the region above the level covers the whole ROI).
+    min_points : int, optional
+        Fewer contour points give ``Failure("too_few_points")`` (default 6: an ellipse has 5
+        degrees of freedom, one more gives a residual).
 
     Returns
     -------
@@ -175,41 +180,42 @@ def extract_isophote(
 
     if closed_hits:
         uv = min(closed_hits, key=polygon_area) if len(closed_hits) > 1 else closed_hits[0]
-        if len(uv) < MIN_CONTOUR_POINTS:
-            return Failure("too_few_points", f"{len(uv)} contour points < {MIN_CONTOUR_POINTS}")
+        if len(uv) < min_points:
+            return Failure("too_few_points", f"{len(uv)} contour points < {min_points}")
         return Isophote(uv, float(level), True, False, False)
 
-    pieces = _open_pieces_around_bp(sub, level, ri, ci, open_contours)
-    if not pieces:
+    pieces, sides = _open_pieces_around_bp(sub, level, ri, ci, open_contours)
+    if not pieces and not any(sides):
         return Failure("no_contour", f"no contour at level {level:.6g} around BP {bp_uv.tolist()}")
-    rc = np.concatenate(pieces, axis=0)
-    # Which borders the open pieces end on: a ROI side inside the image, or the image border.
-    h, w = sub.shape
-    ends = np.concatenate([np.stack([p[0], p[-1]]) for p in pieces])
-    top, bottom, left, right = roi.touches_image_border(image_shape)
-    at_side = [ends[:, 0] <= 0, ends[:, 0] >= h - 1, ends[:, 1] <= 0, ends[:, 1] >= w - 1]
-    on_image = [s.any() and b for s, b in zip(at_side, (top, bottom, left, right))]
-    on_roi = [s.any() and not b for s, b in zip(at_side, (top, bottom, left, right))]
+    rc = np.concatenate(pieces, axis=0) if pieces else np.empty((0, 2))
+    # Which borders the region above the level reaches: ROI sides inside the image, or the image.
+    on_image = [s and b for s, b in zip(sides, roi.touches_image_border(image_shape))]
+    on_roi = [s and not b for s, b in zip(sides, roi.touches_image_border(image_shape))]
     iso = Isophote(rc_to_uv(rc, roi.row0, roi.col0), float(level), False, any(on_roi), any(on_image))
     if not allow_open:
         where = "image border" if iso.cut_by_image else "ROI border"
         return Failure("contour_cut", f"isophote at level {level:.6g} is cut by the {where}")
-    if len(iso.points_uv) < MIN_CONTOUR_POINTS:
-        return Failure("too_few_points", f"{len(iso.points_uv)} contour points < {MIN_CONTOUR_POINTS}")
+    if len(iso.points_uv) < min_points:
+        return Failure("too_few_points", f"{len(iso.points_uv)} contour points < {min_points}")
     return iso
 
 
 def _open_pieces_around_bp(sub, level, ri, ci, open_contours):
-    """Open contours that bound the 4-connected component of ``sub >= level`` holding (ri, ci)."""
-    if not open_contours:
-        return []
+    """Open contours bounding the 4-connected component of ``sub >= level`` holding (ri, ci), and
+    which sides (top, bottom, left, right) of ``sub`` that component reaches."""
     import cv2
 
     mask = (sub >= level).astype(np.uint8)
     _, labels = cv2.connectedComponents(mask, connectivity=4)
     target = labels[ri, ci]
     if target == 0:
-        return []
+        return [], (False, False, False, False)
+    sides = (
+        bool((labels[0] == target).any()),
+        bool((labels[-1] == target).any()),
+        bool((labels[:, 0] == target).any()),
+        bool((labels[:, -1] == target).any()),
+    )
     h, w = sub.shape
     pieces = []
     for rc in open_contours:
@@ -221,4 +227,4 @@ def _open_pieces_around_bp(sub, level, ri, ci, open_contours):
         touches = (labels[r0, c0] == target) | (labels[r1, c1] == target)
         if touches.mean() > 0.5:
             pieces.append(rc)
-    return pieces
+    return pieces, sides

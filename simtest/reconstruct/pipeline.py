@@ -44,7 +44,7 @@ from simtest.reconstruct.detect import (
 from simtest.reconstruct.estimators import estimate_from_conic, joint_cone_axis
 from simtest.reconstruct.failures import OK, Failure
 from simtest.reconstruct.fit import fit_ellipse
-from simtest.reconstruct.isophote import extract_isophote, polygon_contains
+from simtest.reconstruct.isophote import MIN_CONTOUR_POINTS, extract_isophote, polygon_contains
 
 NORMALISE_MODES = ("bp", "full_scale")
 #: ROI growth when the lowest isophote is cut by a ROI side inside the image.
@@ -288,13 +288,16 @@ def _one_isophote(vals, roi, img_shape, level_scale, t, bp_uv, K, dist, bp_ray, 
 
     iso = extract_isophote(
         vals, t * level_scale, bp_uv, origin_rc=(roi.row0, roi.col0), image_shape=img_shape,
-        allow_open=True,
+        allow_open=True, min_points=0,
     )
     if not iso:
         return IsophoteEstimate(t, iso.reason, iso.detail), None
     if iso.cut and not allow_open:
         where = "image border" if iso.cut_by_image else "ROI border"
         return IsophoteEstimate(t, "contour_cut", f"cut by the {where}", iso.points_uv, False), iso
+    if len(iso.points_uv) < MIN_CONTOUR_POINTS:
+        return IsophoteEstimate(t, "too_few_points", f"{len(iso.points_uv)} contour points < "
+                                f"{MIN_CONTOUR_POINTS}", iso.points_uv, iso.closed), iso
     pts = iso.points_uv if dist is None else undistort_points(iso.points_uv, K, dist)
     fit = fit_ellipse(pts)
     if not fit:
