@@ -111,13 +111,15 @@ def test_implicit_curvature_ellipsoid(axes: tuple[float, float, float], seed: in
 def test_generator_curvature_converged_in_step(monkeypatch: pytest.MonkeyPatch) -> None:
     # Doubling the FD step multiplies the O(h^4) truncation error by 16: if the generators'
     # curvatures change by less than FD_TOL, they are converged to that level. Float32 rounding
-    # of the stored values adds < 4e-8 /mm (curvatures < 0.7 /mm, 2^-24 relative).
+    # of the stored values differs by at most one ulp: 6e-8 /mm for curvatures below 1 /mm.
     fine_c, fine_l = M.build_colon(0, n_along=60), M.build_liver(0, n_vertices=2000)
     monkeypatch.setattr(M, "FD_STEP_MM", 2 * M.FD_STEP_MM)
     coarse_c, coarse_l = M.build_colon(0, n_along=60), M.build_liver(0, n_vertices=2000)
     for fine, coarse in ((fine_c, coarse_c), (fine_l, coarse_l)):
         for key in ("k1", "k2"):
-            np.testing.assert_allclose(coarse.vertex_attributes[key], fine.vertex_attributes[key], atol=FD_TOL)
+            np.testing.assert_allclose(
+                coarse.vertex_attributes[key], fine.vertex_attributes[key], atol=FD_TOL
+            )
         np.testing.assert_array_equal(coarse.vertices, fine.vertices)  # positions need no FD
 
 
@@ -311,7 +313,9 @@ def test_generator_records_parameters(colon: trimesh.Trimesh, liver: trimesh.Tri
 # ------------------------------------------------------------------------------------------------
 
 
-@pytest.mark.parametrize(("builder", "small"), [(M.build_colon, {"n_along": 40}), (M.build_liver, {"n_vertices": 800})])
+@pytest.mark.parametrize(
+    ("builder", "small"), [(M.build_colon, {"n_along": 40}), (M.build_liver, {"n_vertices": 800})]
+)
 def test_seeded_determinism(builder, small) -> None:
     a, b, c = builder(5, **small), builder(5, **small), builder(6, **small)
     np.testing.assert_array_equal(a.vertices, b.vertices)
@@ -331,7 +335,9 @@ def test_save_load_round_trip(colon: trimesh.Trimesh, tmp_path: Path) -> None:
     for key in ("k1", "k2"):
         np.testing.assert_array_equal(back.vertex_attributes[key], colon.vertex_attributes[key])
     assert back.metadata["generator"] == json.loads(json.dumps(colon.metadata["generator"]))
-    np.testing.assert_array_equal(back.metadata["centerline"]["points"], colon.metadata["centerline"]["points"])
+    np.testing.assert_array_equal(
+        back.metadata["centerline"]["points"], colon.metadata["centerline"]["points"]
+    )
     assert sorted(p.name for p in path.parent.iterdir()) == ["colon.json", "colon.ply"]  # no temp left
 
 
@@ -347,7 +353,9 @@ def test_committed_meshes_match_generator(name: str) -> None:
     np.testing.assert_allclose(committed.vertices, fresh.vertices, rtol=1e-6, atol=1e-4)
     np.testing.assert_allclose(committed.vertex_normals, fresh.vertex_normals, atol=1e-6)
     for key in ("k1", "k2"):
-        np.testing.assert_allclose(committed.vertex_attributes[key], fresh.vertex_attributes[key], rtol=1e-6, atol=1e-9)
+        np.testing.assert_allclose(
+            committed.vertex_attributes[key], fresh.vertex_attributes[key], rtol=1e-6, atol=1e-9
+        )
     assert path.stat().st_size < 2_000_000  # committed small
 
 
@@ -356,7 +364,8 @@ def test_cli_build(tmp_path: Path) -> None:
 
     from simtest.scene.meshes_cli import meshes_app
 
-    args = ["build", "--out", str(tmp_path), "--seed", "3", "--only", "liver", "--set", "liver.n_vertices=600"]
+    args = ["build", "--out", str(tmp_path), "--seed", "3", "--only", "liver"]
+    args += ["--set", "liver.n_vertices=600"]
     result = CliRunner().invoke(meshes_app, args)
     assert result.exit_code == 0, result.output
     built = M.load_mesh(tmp_path / "liver.ply")

@@ -514,7 +514,9 @@ class _Colon:
         return (
             2.0 * math.pi * s / p.fold_spacing_mm
             + self.fold_phase
-            + p.fold_jitter * (lam2 / p.fold_spacing_mm) * np.sin(2.0 * math.pi * s / lam2 + self.jitter_phase)
+            + p.fold_jitter
+            * (lam2 / p.fold_spacing_mm)
+            * np.sin(2.0 * math.pi * s / lam2 + self.jitter_phase)
         )
 
     def radius(self, t: np.ndarray, phi: np.ndarray) -> np.ndarray:
