@@ -36,8 +36,8 @@ __all__ = [
     "mitsuba_scene_dict",
 ]
 
-#: AOV channels requested from Mitsuba's ``aov`` integrator, after the RGBA image channels.
-AOVS = "nn:sh_normal,pp:position"
+#: AOV channels written by the ``simtest_gt`` integrator after the RGBA image channels.
+AOVS = ("nn.X", "nn.Y", "nn.Z", "pp.X", "pp.Y", "pp.Z")
 
 #: Stable key of the light-offset draw in ``SeedSequence([seed, LIGHT_SEED_KEY])``.
 LIGHT_SEED_KEY = 0x11647
@@ -209,9 +209,10 @@ def mitsuba_scene_dict(
         "sampler": {"type": spec.render.sampler, "sample_count": spec.render.spp},
     }
     integrator = {
-        "type": "aov",
-        "aovs": AOVS,
-        "image": {"type": "direct", "emitter_samples": 1, "bsdf_samples": 0},
+        "type": "simtest_gt",
+        # A co-located light sees every point the camera sees; offset lights can cast shadows
+        # only on meshes (see simtest.render.integrator).
+        "shadows": bool(spec.light.epsilon_mm > 0 and geo.type in ("mesh", "saddle")),
     }
     light = {
         "type": "point",

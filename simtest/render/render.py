@@ -1,7 +1,7 @@
 """Render a scene spec with Mitsuba 3: image, sensor image, per-pixel and per-highlight truth.
 
-One render gives everything: Mitsuba's ``aov`` integrator wraps a ``direct`` integrator and adds
-shading normals and positions; the colour channels carry the full image (R), the
+One render gives everything: the ``simtest_gt`` integrator (:mod:`simtest.render.integrator`)
+traces each camera ray once, lights it from the point light and adds shading normals and positions; the colour channels carry the full image (R), the
 specular-only image (G) and the diffuse-only image (B) (see :mod:`simtest.render.phong`); alpha is
 the pixel coverage. The scene is built in the OpenCV camera frame, so all outputs are camera-frame.
 
@@ -165,9 +165,10 @@ def choose_variant(requested: str | None = None) -> str:
                                   "Use variant 'auto' or 'llvm_ad_rgb'.")
     if mi.variant() != variant:
         mi.set_variant(variant)
-    from simtest.render import phong
+    from simtest.render import integrator, phong
 
     phong.register()
+    integrator.register()
     return variant
 
 
