@@ -105,11 +105,17 @@ def estimate_from_conic(Cn: np.ndarray, bp_ray: np.ndarray) -> ConeEstimate | Fa
     Returns
     -------
     ConeEstimate or Failure
-        ``Failure("pose_failed")`` if C' is not a real elliptic cone.
+        ``Failure("pose_failed")`` if C' is not a real elliptic cone whose image is an ellipse.
     """
-    from simtest.geometry.conics import circle_pose, cone_axis
+    from simtest.geometry.conics import circle_pose, conic_kind, cone_axis
 
     try:
+        # C' is also the image conic in normalised coordinates (O(1)-conditioned): the cone of a
+        # visible circle must cut the image plane in an ellipse. A real cone whose image is a
+        # hyperbola (axis nearly parallel to the image plane) has no normal facing the camera.
+        kind = conic_kind(Cn)
+        if kind != "ellipse":
+            return Failure("pose_failed", f"the normalised conic is a {kind}, not an ellipse")
         pose = circle_pose(Cn)
         ax = cone_axis(Cn)
     except (ValueError, np.linalg.LinAlgError) as exc:
@@ -139,11 +145,16 @@ def joint_cone_axis(cns, bp_ray: np.ndarray) -> np.ndarray | Failure:
         Unit axis facing the camera; ``Failure("pose_failed")`` if a conic is not a real
         elliptic cone or none is given. Method: module docstring ("Joint cone axis").
     """
+    from simtest.geometry.conics import conic_kind
+
     acc = np.zeros((3, 3))
     n_used = 0
     for cn in cns:
         cn = np.asarray(cn, dtype=np.float64)
         cn = 0.5 * (cn + cn.T)
+        kind = conic_kind(cn)
+        if kind != "ellipse":
+            return Failure("pose_failed", f"a normalised conic is a {kind}, not an ellipse")
         w, v = np.linalg.eigh(cn)
         n_pos = int(np.sum(w > 0))
         if n_pos == 2:  # make the unique-sign eigenvalue positive

@@ -1,0 +1,140 @@
+"""Specularity detection: candidates, BP, ROI, rejection reasons, image types, bad input."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from simtest.reconstruct.detect import detect_specularities, ellipticity, validate_image
+
+
+def gaussian(shape, centre_uv, sigma, peak=1.0, aspect=1.0):
+    v, u = np.mgrid[0 : shape[0], 0 : shape[1]].astype(float)
+    return peak * np.exp(-(((u - centre_uv[0]) / sigma) ** 2 + ((v - centre_uv[1]) / (aspect * sigma)) ** 2) / 2)
+
+
+def three_blobs(shape=(120, 200)):
+    centres = [(40.3, 40.6), (100.0, 80.2), (160.7, 35.1)]
+    img = sum(gaussian(shape, c, 4.0, p) for c, p in zip(centres, (0.95, 0.9, 0.85)))
+    return img, centres
+
+
+def test_finds_every_blob_and_its_bp():
+    img, centres = three_blobs()
+    det = detect_specularities(img)
+    assert [c.status for c in det.candidates] == ["ok"] * 3
+    # sorted by peak, brightest first, same order as built
+    for cand, c in zip(det.candidates, centres):
+        # the 3-point parabola through a sampled Gaussian of sigma 4 px is biased by < 0.05 px
+        assert np.allclose(cand.bp_uv, c, atol=0.05)
+        assert not cand.saturated
+        r0, r1, c0, c1 = cand.roi
+        assert r0 <= c[1] < r1 and c0 <= c[0] < c1
+
+
+@given(dx=st.floats(-0.5, 0.5), dy=st.floats(-0.5, 0.5))
+@settings(max_examples=30, deadline=None)
+def test_saturated_plateau_centroid_is_the_bp(dx, dy):
+    centre = (50 + dx, 40 + dy)
+    img = np.clip(gaussian((80, 100), centre, 6.0, 400.0), 0, 255).astype(np.uint8)
+    (cand,) = detect_specularities(img).candidates
+    assert cand.saturated and cand.status == "ok"
+    # the clipped disc (radius R ~ 7 px, area A ~ 150 px) is symmetric about the centre up to the
+    # pixel quantisation of its rim: each rim pixel in or out moves the centroid by R / A ~ 0.05 px,
+    # and a sub-pixel shift flips a few of them on one side only: 0.25 px (5 flips) bounds it.
+    assert np.allclose(cand.bp_uv, centre, atol=0.25)
+
+
+def test_rejection_reasons():
+    img = np.zeros((100, 160))
+    img[10:12, 10] = 1.0  # 2 px speck
+    img += gaussian(img.shape, (2, 60), 3.0)  # at the left border
+    img[60:66, 20:50] = 1.0  # an L shape: ellipticity ~ 0.6
+    img[40:66, 44:50] = 1.0
+    v, u = np.mgrid[0:100, 0:160]
+    r = np.hypot(u - 120, v - 60)
+    img += 0.95 * ((r > 10) & (r < 14))  # a ring
+    det = detect_specularities(img)
+    reasons = sorted(c.status for c in det.candidates)
+    assert reasons == ["not_elliptical", "not_elliptical", "too_small", "touches_border"]
+    for c in det.rejected:
+        assert c.detail  # every rejection says why with numbers
+
+
+def test_two_saturated_plateaus_in_one_component_are_merged():
+    img = gaussian((80, 140), (50, 40), 6, 400) + gaussian((80, 140), (70, 40), 6, 400)
+    img = np.clip(img, 0, 255).astype(np.uint8)  # midpoint 199 >= 0.7 * 255 but < 255
+    (cand,) = detect_specularities(img).candidates
+    assert cand.status == "merged" and "2 saturated plateaus" in cand.detail
+
+
+def test_ellipticity_of_simple_shapes():
+    v, u = np.mgrid[0:200, 0:200]
+    disc = np.hypot(u - 100, v - 100) < 60
+    ell = ((u - 100) / 80.0) ** 2 + ((v - 100) / 30.0) ** 2 < 1
+    # pixelisation of a large filled ellipse: area and moments to ~1e-3
+    assert abs(ellipticity(disc) - 1) < 0.01 and abs(ellipticity(ell) - 1) < 0.01
+    square = np.zeros((50, 50), bool)
+    square[10:40, 10:40] = True
+    assert abs(ellipticity(square) - 3 / np.pi) < 0.01  # a square: A / (4 pi A / 12) = 3 / pi
+
+
+@pytest.mark.parametrize(
+    "convert",
+    [
+        lambda g: (g * 255).round().astype(np.uint8),
+        lambda g: (g * 65535).round().astype(np.uint16),
+        lambda g: g.astype(np.float32),
+        lambda g: g,
+        lambda g: np.repeat((g * 255).round().astype(np.uint8)[:, :, None], 3, axis=2),
+        lambda g: np.dstack([g, g, g, np.ones_like(g)]),
+        lambda g: g[:, :, None],
+    ],
+    ids=["uint8", "uint16", "float32", "float64", "rgb_uint8", "rgba_float", "hw1"],
+)
+def test_image_types_give_the_same_candidates(convert):
+    img, centres = three_blobs()
+    det = detect_specularities(convert(img))
+    assert [c.status for c in det.candidates] == ["ok"] * 3
+    for cand, c in zip(det.candidates, centres):
+        # 8-bit quantisation moves the parabola peak by up to ~0.1 px on a sigma-4 Gaussian
+        assert np.allclose(cand.bp_uv, c, atol=0.15)
+
+
+@pytest.mark.parametrize(
+    "bad, match",
+    [
+        (np.zeros((10, 10), np.int64), "dtype"),
+        (np.zeros((10, 10), bool), "dtype"),
+        (np.zeros((10, 10), complex), "dtype"),
+        (np.zeros(10), "shape"),
+        (np.zeros((4, 10, 10, 3)), "shape"),
+        (np.zeros((10, 10, 2)), "shape"),
+        (np.zeros((0, 10)), "empty"),
+        (np.full((10, 10), np.nan), "non-finite"),
+        ("image.png", "array"),
+        (None, "array"),
+    ],
+)
+def test_bad_images_raise_value_error_naming_the_problem(bad, match):
+    with pytest.raises(ValueError, match=match):
+        detect_specularities(bad)
+    with pytest.raises(ValueError, match=match):
+        validate_image(bad)
+
+
+def test_constant_and_empty_scenes():
+    assert detect_specularities(np.full((50, 50), 0.5)).candidates == []
+    assert detect_specularities(np.zeros((50, 50), np.uint8)).candidates == []
+    # a white frame is one highlight that touches every border
+    (c,) = detect_specularities(np.full((50, 50), 255, np.uint8)).candidates
+    assert c.status == "touches_border"
+
+
+def test_bad_options():
+    with pytest.raises(ValueError, match="brightness_rel"):
+        detect_specularities(np.zeros((10, 10)), brightness_rel=1.5)
+    with pytest.raises(ValueError, match="full_scale"):
+        detect_specularities(np.zeros((10, 10)), full_scale=-1)
