@@ -413,35 +413,34 @@ def render_scene(spec: SceneSpec, *, seed: int | None = None,
     scene, mesh = _mitsuba_scene(spec, light_pos, variant)
 
     out = np.array(mi.render(scene, spp=spec.render.spp, seed=seed), dtype=np.float32)
-    rgb, alpha = out[..., 0:3], out[..., 3]
+    alpha = out[..., 3]
     nn, pp = out[..., 4:7], out[..., 7:10]
-    mask = alpha >= 1.0
-    nlen = np.linalg.norm(nn, axis=-1)
-    mask &= nlen > 0
-    cov = np.where(alpha > 0, alpha, 1.0)[..., None]
-    pos_mean = pp / cov  # partially covered pixels: mean over the samples that hit
-    linear, specular = rgb[..., 0].copy(), rgb[..., 1].copy()
+    nlen = np.sqrt(np.einsum("ijk,ijk->ij", nn, nn))
+    mask = (alpha >= 1.0) & (nlen > 0)
+    linear, specular = out[..., 0].copy(), out[..., 1].copy()
     if spec.light.falloff == "cancel" and spec.material.model != "phong":
+        cov = np.where(alpha > 0, alpha, 1.0)[..., None]
+        pos_mean = pp / cov  # partially covered pixels: mean over the samples that hit
         d2 = np.sum((pos_mean - light_pos.astype(np.float32)) ** 2, axis=-1)
         d2 = np.where(alpha > 0, d2, 0.0).astype(np.float32)
         linear *= d2
         specular *= d2
 
-    normals = np.full(nn.shape, np.nan, dtype=np.float32)
-    n_unit = nn[mask] / nlen[mask][:, None]
-    flip = np.sum(n_unit * pp[mask], axis=-1) > 0  # face the camera: n . ray < 0
-    n_unit[flip] *= -1.0
-    normals[mask] = n_unit
-    position = np.full(pp.shape, np.nan, dtype=np.float32)
-    position[mask] = pp[mask]
-    depth = np.full(mask.shape, np.nan, dtype=np.float32)
-    depth[mask] = pp[mask][:, 2]
-    distance = np.full(mask.shape, np.nan, dtype=np.float32)
-    distance[mask] = np.linalg.norm(pp[mask], axis=-1)  # |mean position|, as depth is its z
+    # Unit normals facing the camera (n . ray < 0; the position lies along the ray from the
+    # origin); NaN outside the mask.
+    sign = np.where(np.einsum("ijk,ijk->ij", nn, pp) > 0, -1.0, 1.0).astype(np.float32)
+    scale = np.where(mask, sign / np.where(mask, nlen, 1.0), np.float32(np.nan))
+    normals = nn * scale[..., None]
+    position = np.where(mask[..., None], pp, np.float32(np.nan))
+    depth = position[..., 2].copy()
+    distance = np.sqrt(np.einsum("ijk,ijk->ij", position, position))  # |mean position|
 
     K = intrinsics_matrix(spec.camera)
-    res = {"normals_raw": np.where(mask[..., None], normals, 0.0),
-           "position_raw": np.where(mask[..., None], position, 0.0), "mask": mask}
+    if spec.geometry.type in ("mesh", "saddle"):
+        res = {"normals_raw": np.where(mask[..., None], normals, 0.0),
+               "position_raw": np.where(mask[..., None], position, 0.0), "mask": mask}
+    else:
+        res = {}
     highlights = _highlights(spec, res, light_pos, K, scene, mesh)
     sensor = apply_sensor(linear, spec.sensor, seed)
     return RenderResult(

@@ -1,0 +1,157 @@
+"""Renderer benchmark: renders per second with the image and all ground truth.
+
+:func:`bench_render` is what ``simtest bench`` calls. For each scene it measures, at the film size
+and sample count asked for (the issue's 406 x 406 at 16 spp by default):
+
+- ``warm``: repeated :func:`~simtest.render.render_scene` calls with new seeds once the kernels are
+  compiled and the Mitsuba scene is cached (a sweep over seeds or noise);
+- ``warm_rebuild``: the same with the Mitsuba scene rebuilt every time (a sweep over geometry or
+  material parameters: ``mi.load_dict`` and, for meshes, the upload of the mesh);
+- ``cold``: the first render in a fresh process with an empty Dr.Jit kernel cache
+  (``DRJIT_CACHE_DIR`` pointed at a new folder), after the imports, which are timed separately.
+
+Every render includes the ground truth (normals, positions, depth, highlights) and the sensor model.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import platform
+import statistics
+import subprocess
+import sys
+import tempfile
+import time
+from typing import Sequence
+
+__all__ = ["bench_render"]
+
+_COLD_SCRIPT = r"""
+import json, sys, time
+t0 = time.perf_counter()
+from simtest._llvm import configure_llvm_env
+configure_llvm_env()
+import drjit as dr
+import mitsuba as mi
+from simtest.render import render_scene
+from simtest.render.bench import _bench_spec
+t1 = time.perf_counter()
+args = json.loads(sys.argv[1])
+dr.set_thread_count(args["threads"])
+spec = _bench_spec(args["scene"], args["size_px"], args["spp"])
+t2 = time.perf_counter()
+render_scene(spec, seed=0, variant=args["variant"])
+t3 = time.perf_counter()
+render_scene(spec, seed=1, variant=args["variant"])
+t4 = time.perf_counter()
+print(json.dumps({"import_s": t1 - t0, "first_render_s": t3 - t2, "second_render_s": t4 - t3}))
+"""
+
+
+def _bench_spec(scene: str, size_px: int, spp: int):
+    """The bundled (or file) scene at ``size_px`` square (same field of view) and ``spp``."""
+    from simtest.scene import load_scene, with_overrides
+
+    spec = load_scene(scene)
+    over = {"camera.width_px": size_px, "camera.height_px": size_px, "render.spp": spp}
+    cam = spec.camera
+    if cam.fov_deg is None:  # keep the field of view: scale the focal length with the film
+        over["camera.focal_px"] = cam.focal * size_px / cam.width_px
+    return with_overrides(spec, over)
+
+
+def _cold(scene: str, size_px: int, spp: int, variant: str, threads: int) -> dict:
+    with tempfile.TemporaryDirectory(prefix="simtest-drjit-cold-") as cache:
+        env = dict(os.environ, DRJIT_CACHE_DIR=cache)
+        args = json.dumps({"scene": scene, "size_px": size_px, "spp": spp, "variant": variant,
+                           "threads": threads})
+        proc = subprocess.run([sys.executable, "-c", _COLD_SCRIPT, args], env=env,
+                              capture_output=True, text=True, timeout=600)
+    if proc.returncode != 0:
+        return {"error": proc.stderr.strip().splitlines()[-1] if proc.stderr.strip() else "failed"}
+    out = json.loads(proc.stdout.strip().splitlines()[-1])
+    out["renders_per_s"] = 1.0 / out["first_render_s"]
+    return out
+
+
+def bench_render(
+    scenes: Sequence[str] = ("plane_58deg", "colon"),
+    *,
+    size_px: int = 406,
+    spp: int = 16,
+    repeats: int = 10,
+    cold: bool = True,
+    threads: int = 2,
+    variant: str = "llvm_ad_rgb",
+) -> dict:
+    """Measure renders per second for each scene (image + all ground truth + sensor).
+
+    Parameters
+    ----------
+    scenes : sequence of str
+        Bundled scene names or TOML paths.
+    size_px : int
+        Square film side, pixels (the field of view of the scene is kept).
+    spp : int
+        Samples per pixel.
+    repeats : int
+        Timed renders per warm measurement (median reported).
+    cold : bool
+        Also time a first render in a fresh process with an empty kernel cache.
+    threads : int
+        Dr.Jit worker threads (``dr.set_thread_count``).
+    variant : str
+        Mitsuba variant.
+
+    Returns
+    -------
+    dict
+        ``{"config": {...}, "machine": {...}, "scenes": {name: {"warm": {"renders_per_s",
+        "median_s", "min_s"}, "warm_rebuild": {...}, "cold": {"first_render_s", "import_s",
+        "renders_per_s"}, "highlights": int}}}``; a scene that cannot be loaded gets
+        ``{"error": message}``.
+    """
+    import drjit as dr
+
+    from simtest.render import render as R
+    from simtest.render.render import choose_variant, render_scene
+
+    choose_variant(variant)
+    dr.set_thread_count(threads)
+    result: dict = {
+        "config": {"size_px": size_px, "spp": spp, "repeats": repeats, "threads": threads,
+                   "variant": variant},
+        "machine": {"cpu_count": os.cpu_count(), "platform": platform.platform(),
+                    "processor": platform.processor(),
+                    "load_avg_1min": os.getloadavg()[0] if hasattr(os, "getloadavg") else None},
+        "scenes": {},
+    }
+    for name in scenes:
+        try:
+            spec = _bench_spec(name, size_px, spp)
+        except Exception as exc:  # noqa: BLE001 - reported per scene, the others still run
+            result["scenes"][name] = {"error": f"{type(exc).__name__}: {exc}"}
+            continue
+        entry: dict = {}
+        if cold:
+            entry["cold"] = _cold(name, size_px, spp, variant, threads)
+        first = render_scene(spec, seed=0, variant=variant)  # compile / load the cache
+        entry["highlights"] = len(first.highlights)
+        for key, rebuild in (("warm", False), ("warm_rebuild", True)):
+            times = []
+            for i in range(repeats):
+                if rebuild:
+                    R._SCENE_CACHE.clear()
+                    R._MESH_CACHE.clear()
+                t = time.perf_counter()
+                render_scene(spec, seed=1 + i, variant=variant)
+                times.append(time.perf_counter() - t)
+            med = statistics.median(times)
+            entry[key] = {"renders_per_s": 1.0 / med, "median_s": med, "min_s": min(times)}
+        result["scenes"][name] = entry
+    return result
+
+
+if __name__ == "__main__":  # pragma: no cover - manual use: python -m simtest.render.bench
+    print(json.dumps(bench_render(sys.argv[1:] or ("plane_58deg", "colon")), indent=2))
