@@ -244,8 +244,9 @@ def test_colon_normals_face_centerline(colon: trimesh.Trimesh) -> None:
     n = colon.vertex_normals
     np.testing.assert_allclose(np.linalg.norm(n, axis=1), 1.0, atol=1e-6)  # float32 storage
     cos = np.sum(n * to_centre, axis=1) / np.linalg.norm(to_centre, axis=1)
-    # Fold flanks tilt the normal along the axis, but never beyond 90 deg from the centre line.
-    assert cos.min() > 0.2
+    # Fold flanks tilt the normal along the axis: by up to ~45 deg with the default folds
+    # (measured cos >= 0.7 over seeds 0 to 39); 60 deg would mean a broken normal or fold.
+    assert cos.min() > 0.5
     # Face winding agrees with the vertex normals (so trimesh's signs agree with the truth).
     mean_vn = n[colon.faces].mean(axis=1)
     assert np.all(np.sum(colon.face_normals * mean_vn, axis=1) > 0.9)

@@ -69,6 +69,7 @@ import itertools
 import json
 import math
 import os
+import re
 from collections.abc import Callable, Mapping
 from pathlib import Path
 from typing import Any
@@ -901,9 +902,17 @@ def save_mesh(mesh: trimesh.Trimesh, path: str | os.PathLike[str]) -> Path:
     }
     side["n_vertices"] = int(len(v))
     side["n_faces"] = int(len(faces))
-    text = json.dumps(_jsonable(side), indent=1, sort_keys=True) + "\n"
+    side["ply_vertex_properties"] = list(_PLY_FIELDS)
+    side["units"] = "positions mm; k1, k2 1/mm (k1 >= k2, positive where bending away from N)"
+    text = json.dumps(_jsonable(side), indent=1, sort_keys=True)
+    # One line per innermost list of numbers (a point, a tangent, a list of arc lengths).
+    text = _NUMBER_LIST.sub(lambda m: "[" + ", ".join(x.strip() for x in m[1].split(",")) + "]", text)
+    text += "\n"
     _atomic_write_bytes(path.with_suffix(".json"), text.encode("utf-8"))
     return path
+
+
+_NUMBER_LIST = re.compile(r"\[\s*([-+0-9.eE,\s]+?)\s*\]")
 
 
 def _jsonable(obj: Any) -> Any:
