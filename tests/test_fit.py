@@ -153,8 +153,11 @@ def test_opencv_near_circle_behaviour_is_recorded_and_ours_is_exact():
         (np.vstack([np.column_stack([np.linspace(-5, 5, 20)] * 2),
                     np.column_stack([np.linspace(-5, 5, 20), -np.linspace(-5, 5, 20)])]),
          "not_an_ellipse"),
+        # two parallel lines: exactly fitted by ever longer ellipses, refused as unbounded
+        (np.vstack([np.column_stack([np.arange(20.0), np.zeros(20)]),
+                    np.column_stack([np.arange(20.0), np.full(20, 5.0)])]), "not_an_ellipse"),
     ],
-    ids=["five_points", "collinear", "coincident", "nan", "hyperbola", "line_pair"],
+    ids=["five_points", "collinear", "coincident", "nan", "hyperbola", "line_pair", "parallel"],
 )
 def test_failures_are_falsy_and_named(points, reason):
     fit = fit_ellipse(points)

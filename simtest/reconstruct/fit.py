@@ -39,6 +39,11 @@ MIN_FIT_POINTS = 6
 #: called collinear: S3 of centred unit-RMS points has eigenvalues O(1) unless they are degenerate.
 _S3_RCOND = 1e-10
 
+#: A fitted semi-major axis longer than this many times the largest distance of a point from the
+#: points' mean is refused: the points (a line, parallel lines, a short flat arc) do not bound it.
+#: An arc of 60 degrees of a circle already gives a ratio under 4; 10 leaves room for short arcs.
+MAX_AXIS_TO_SPREAD = 10.0
+
 # Constraint matrix C1 of 4ac - b^2 = 1 [eqn. 18] from [1]
 _C1_INV = np.linalg.inv(np.array([[0.0, 0.0, 2.0], [0.0, -1.0, 0.0], [2.0, 0.0, 0.0]]))
 
@@ -193,6 +198,14 @@ def fit_ellipse(points_uv) -> EllipseFit | Failure:
     e_norm = conic_to_ellipse(a_norm)
     if e_norm is None:
         return Failure("not_an_ellipse", "the fitted conic is not a real ellipse")
+    # Points on a line or two parallel lines are fitted exactly by ever longer ellipses: an ellipse
+    # far larger than the points' spread is not determined by them.
+    if e_norm.semi_axes[0] > MAX_AXIS_TO_SPREAD * float(np.sqrt((x * x + y * y).max())):
+        return Failure(
+            "not_an_ellipse",
+            f"unbounded: semi-major axis {scale * e_norm.semi_axes[0]:.4g} px is more than "
+            f"{MAX_AXIS_TO_SPREAD:g} times the points' spread (a line or parallel lines)",
+        )
     ellipse = type(e_norm)(
         center=mean + scale * np.asarray(e_norm.center),
         semi_axes=scale * np.asarray(e_norm.semi_axes),
