@@ -467,18 +467,6 @@ def _atomic_write(path: Path, write) -> None:
         raise
 
 
-def _save_intrinsics(path: Path, K: np.ndarray, size: tuple[int, int]) -> None:
-    try:
-        from simtest.geometry.camera import save_intrinsics
-    except ImportError:  # the geometry package is not there yet: same fields, plain JSON
-        save_intrinsics = None
-    if save_intrinsics is not None:
-        save_intrinsics(path, K, dist_coeffs=None, image_size=size)
-        return
-    payload = {"K": K.tolist(), "dist_coeffs": None, "image_size": list(size)}
-    _atomic_write(path, lambda tmp: Path(tmp).write_text(json.dumps(payload, indent=2)))
-
-
 def write_render(result: RenderResult, out_dir: str | Path) -> dict[str, Path]:
     """Write a render to ``out_dir`` (created if needed); each file atomically.
 
@@ -495,6 +483,7 @@ def write_render(result: RenderResult, out_dir: str | Path) -> dict[str, Path]:
     """
     from PIL import Image
 
+    from simtest.geometry.camera import save_intrinsics
     from simtest.scene.spec import scene_to_dict
 
     out = Path(out_dir)
@@ -509,7 +498,7 @@ def write_render(result: RenderResult, out_dir: str | Path) -> dict[str, Path]:
         pil = Image.fromarray(img.astype(np.uint16))
     _atomic_write(paths["image"], lambda tmp: pil.save(tmp, format="PNG"))
     H, W = result.linear.shape[:2]
-    _save_intrinsics(paths["intrinsics"], result.K, (W, H))
+    save_intrinsics(paths["intrinsics"], result.K, dist_coeffs=None, image_size=(W, H))
 
     def write_npz(tmp):
         with open(tmp, "wb") as fh:

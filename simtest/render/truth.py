@@ -272,8 +272,10 @@ def mesh_highlights(
     for _ in range(16):
         cand = uv[:, None, :] + step * grid[None, :, :]  # (N, 49, 2)
         res = cast(cand.reshape(-1, 2))
-        cos = np.sum(res["n"] * bisector(res["p"], light), axis=-1)
-        cos = np.where(res["hit"], cos, -np.inf).reshape(len(uv), -1)
+        cos = np.full(len(res["hit"]), -np.inf)
+        hit = res["hit"]
+        cos[hit] = np.sum(res["n"][hit] * bisector(res["p"][hit], light), axis=-1)
+        cos = cos.reshape(len(uv), -1)
         j = np.argmax(cos, axis=1)
         uv = cand[np.arange(len(uv)), j]
         best_cos = cos[np.arange(len(uv)), j]
