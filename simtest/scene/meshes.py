@@ -37,7 +37,7 @@ derivatives are taken by fourth-order central finite differences of that closed 
 (steps 1e-2 mm, or 1e-2 mm / R in angle), from which the first and second fundamental forms
 (colon) or the gradient and Hessian (liver) follow. Truncation error is O(h^4) (below 1e-10 /mm
 here) and rounding error about eps |X| / h^2 (below 1e-9 /mm): the values are exact to about
-1e-8 /mm, which the tests check by halving the step and against a torus and an ellipsoid whose
+1e-8 /mm, which the tests check by doubling the step and against a torus and an ellipsoid whose
 curvatures are known in closed form. The vertices themselves lie exactly on the closed-form
 surface; only the triangles between them are a piecewise-flat approximation.
 
