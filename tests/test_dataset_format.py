@@ -36,8 +36,13 @@ def standin_sample(config, index):
     """Arrays with the real channel layout, drawn from SeedSequence([seed, index])."""
     rng = sample_rng(config.seed, index)
     h = w = 8 + index % 3  # sizes vary between samples, as a resolution distribution allows
-    n = rng.normal(size=(h, w, 3))
-    n[..., 2] = -np.abs(n[..., 2]) - 0.1
+    K = np.array([[10.0, 0.0, (w - 1) / 2], [0.0, 10.0, (h - 1) / 2], [0.0, 0.0, 1.0]])
+    v, u = np.mgrid[0:h, 0:w]
+    rays = np.stack([u, v, np.ones_like(u)], -1) @ np.linalg.inv(K).T
+    rays /= np.linalg.norm(rays, axis=-1, keepdims=True)
+    jitter = rng.normal(size=(h, w, 3))
+    jitter /= np.linalg.norm(jitter, axis=-1, keepdims=True)
+    n = -rays + 0.3 * jitter  # n . ray <= -0.7 before normalising: faces the camera
     n /= np.linalg.norm(n, axis=-1, keepdims=True)
     mask = rng.random((h, w)) > 0.2
     n = np.where(mask[..., None], n, 0.0).astype(np.float32)
@@ -53,7 +58,7 @@ def standin_sample(config, index):
         "highlight_mask": linear > 0.9,
     }
     record = {"index": index, "family": "planes", "params": {"family": "planes", "x": float(rng.random())},
-              "K": np.eye(3).tolist(), "cam_to_world": np.eye(4).tolist(), "image_size": [w, h],
+              "K": K.tolist(), "cam_to_world": np.eye(4).tolist(), "image_size": [w, h],
               "variant": "standin", "highlights": [{"bp_px": [1.0, 2.0], "normal": [0.0, 0.0, -1.0],
                                                     "k1": 0.0, "k2": 0.0, "in_frame": True}]}
     return Sample(index=index, arrays=arrays, record=record)
@@ -200,6 +205,13 @@ def test_verify_catches_corruption(tmp_path):
     _, out3, _ = _make(tmp_path, "ds3")
     (out3 / "shards" / "shard-00002.npz.tmp").write_bytes(b"x")
     assert any("temporary file" in p for p in verify(out3).problems)
+
+    _, out4, _ = _make(tmp_path, "ds4")
+    npz = shard_npz_path(out4, 0)
+    with np.load(npz) as z:
+        flipped = -z["00000001/normals"]
+    _rewrite_entry(npz, "00000001/normals", flipped)
+    assert any("sample 1: normals:" in p and "do not face the camera" in p for p in verify(out4).problems)
 
 
 def test_reader_is_lazy_and_matches_the_manifest(tmp_path):

@@ -239,16 +239,17 @@ PARAMS: tuple[ParamDef, ...] = (
              (0.0, math.inf), open_low=True),
     # --- geometry: analytic surfaces --------------------------------------------------------
     ParamDef("distance_mm", "distance (mm) from the camera centre to the plane (planes), to the "
-             "nearest point of the sphere or cylinder, or to the liver's bounding sphere (liver)",
+             "nearest point of the sphere or cylinder, or to the liver surface point it looks at",
              ("planes", "spheres", "cylinders", "liver"),
-             {"*": _uni(20.0, 60.0), "liver": _uni(20.0, 100.0)}, (0.0, math.inf), open_low=True),
+             {"*": _uni(20.0, 60.0), "liver": _uni(20.0, 80.0)}, (0.0, math.inf), open_low=True),
     ParamDef("view_angle_deg", "angle between the optical axis and the surface normal (planes), the "
              "cylinder axis' tilt off the image plane (cylinders), the sphere centre's angle off "
              "axis (spheres), the optical axis' angle off the centre-line tangent (colon), or the "
-             "aim's angle off the liver centre (liver)", _ALL,
-             {"*": _uni(0.0, 58.0), "colon": _uni(20.0, 70.0), "liver": _uni(0.0, 10.0)},
+             "viewing line's angle off the surface normal at the target point (liver)", _ALL,
+             {"*": _uni(0.0, 58.0), "colon": _uni(20.0, 70.0), "liver": _uni(0.0, 50.0)},
              (0.0, 90.0), open_high=True),
-    ParamDef("azimuth_deg", "azimuth of the tilt about the optical axis (degrees)", _ALL,
+    ParamDef("azimuth_deg", "azimuth of the tilt about the optical axis (planes, spheres, cylinders, "
+             "colon) or of the target point about the liver centre (liver), degrees", _ALL,
              {"*": _uni(0.0, 360.0)}, (-360.0, 720.0)),
     ParamDef("radius_mm", "sphere or cylinder radius (mm)", ("spheres", "cylinders"),
              {"*": Dist("loguniform", (10.0, 200.0))}, (0.0, math.inf), open_low=True),
@@ -260,7 +261,7 @@ PARAMS: tuple[ParamDef, ...] = (
     ParamDef("roll_deg", "roll of the image about the optical axis (degrees)", ("colon", "liver"),
              {"*": _uni(0.0, 360.0)}, (-360.0, 720.0)),
     # --- geometry: liver --------------------------------------------------------------------
-    ParamDef("elevation_deg", "camera elevation around the liver centre (degrees)", ("liver",),
+    ParamDef("elevation_deg", "elevation of the target point about the liver centre (degrees)", ("liver",),
              {"*": _uni(-60.0, 60.0)}, (-90.0, 90.0)),
 )
 

@@ -215,18 +215,31 @@ def _colon_pose(p: dict) -> dict:
 
 
 def _liver_pose(p: dict) -> dict:
-    """Camera around the liver: on a sphere about its centre, aimed near the centre."""
+    """Camera around the liver, looking at a surface point from ``distance_mm`` away.
+
+    The surface point is the vertex whose direction from the liver's bounding-box centre is
+    closest to (``azimuth_deg``, ``elevation_deg``); the camera sits ``distance_mm`` from it along a
+    direction tilted ``view_angle_deg`` from its outward normal (toward ``roll_deg`` about the
+    normal) and looks at it.
+    """
     info = _mesh_info("liver")
-    c = info["centre"]
+    mesh = info["mesh"]
     az, el = math.radians(p["azimuth_deg"]), math.radians(p["elevation_deg"])
     direction = np.array([math.cos(el) * math.cos(az), math.cos(el) * math.sin(az), math.sin(el)])
-    position = c + (info["bounding_radius"] + p["distance_mm"]) * direction
-    to_centre = -direction
-    up = _roll_up(to_centre, p["roll_deg"])
-    side = _unit(np.cross(to_centre, up))
+    v = np.asarray(mesh.vertices, dtype=np.float64) - info["centre"]
+    k = int(np.argmax((v @ direction) / np.linalg.norm(v, axis=1)))
+    target = np.asarray(mesh.vertices[k], dtype=np.float64)
+    normal = _unit(np.asarray(mesh.vertex_normals[k], dtype=np.float64))
+    if normal @ v[k] < 0:  # outward
+        normal = -normal
+    e1, e2 = _perp_basis(normal)
+    roll = math.radians(p["roll_deg"])
+    side = math.cos(roll) * e1 + math.sin(roll) * e2
     view = math.radians(p["view_angle_deg"])
-    forward = math.cos(view) * to_centre + math.sin(view) * side
-    return {"path": info["path"], "position": position, "look_at": position + forward, "up": up}
+    back = math.cos(view) * normal + math.sin(view) * side
+    position = target + p["distance_mm"] * back
+    up = _unit(np.cross(back, np.cross(side, back))) if view > 0 else side
+    return {"path": info["path"], "position": position, "look_at": target, "up": up}
 
 
 def _roll_up(forward: np.ndarray, roll_deg: float) -> np.ndarray:
@@ -248,8 +261,9 @@ def build_scene(config: DatasetConfig, params: dict):
     - colon: the bundled ``meshes/colon.ply``; camera on its centre line at fraction ``station`` of
       the arc length, moved ``radial_offset`` x radius off it, looking ``view_angle_deg`` off the
       tangent toward ``azimuth_deg`` (and moved to the opposite side), image rolled by ``roll_deg``.
-    - liver: the bundled ``meshes/liver.ply``; camera ``distance_mm`` outside its bounding sphere,
-      at ``azimuth_deg``/``elevation_deg`` about its centre, aimed ``view_angle_deg`` off the centre.
+    - liver: the bundled ``meshes/liver.ply``; camera ``distance_mm`` from the surface point in the
+      direction (``azimuth_deg``, ``elevation_deg``) from its centre, looking at it along a line
+      ``view_angle_deg`` off its normal (tilted toward ``roll_deg``).
 
     Parameters
     ----------
