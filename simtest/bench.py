@@ -214,7 +214,7 @@ def bench_reconstruct(repeat: int = 50) -> list[BenchResult]:
     est = reconstruct_roi(img, K, 0.1, bp_uv=bp)
     n_pts = len(est.points_uv) if est.points_uv is not None else 0
     med, best = time_ms(lambda: reconstruct_roi(img, K, 0.1, bp_uv=bp), repeat)
-    out.append(BenchResult("reconstruct", "per specularity (reconstruct_roi, 100x100 px, t=0.1)",
+    out.append(BenchResult("reconstruct", "per specularity: reconstruct_roi, 100x100 px, t=0.1",
                            med, "ms", 1.0, best, f"status {est.status}, {n_pts} contour points"))
     iso = extract_isophote(img, 0.1 * img.max(), bp)
     fit = fit_ellipse(iso.points_uv)
@@ -228,18 +228,18 @@ def bench_reconstruct(repeat: int = 50) -> list[BenchResult]:
         med, best = time_ms(fn, repeat)
         out.append(BenchResult("reconstruct", name, med, "ms", None, best))
     med, best = time_ms(lambda: reconstruct_roi(img, K, (0.1, 0.3, 0.5), bp_uv=bp), repeat)
-    out.append(BenchResult("reconstruct", "per specularity, 3 nested isovalues + joint axis",
+    out.append(BenchResult("reconstruct", "per specularity: 3 nested isovalues + joint axis",
                            med, "ms", None, best))
 
     frame, Kf, _ = synthetic_frame()
     ests = reconstruct(frame, Kf, 0.1)
     n_ok = sum(e.ok for e in ests)
     med, best = time_ms(lambda: reconstruct(frame, Kf, 0.1), max(3, repeat // 5))
-    out.append(BenchResult("reconstruct", "per frame (reconstruct, 1350x1080 RGB uint8, t=0.1)",
+    out.append(BenchResult("reconstruct", "per frame: reconstruct, 1350x1080 RGB uint8, t=0.1",
                            med, "ms", 15.0, best, f"{len(ests)} highlights, {n_ok} ok"))
     gray = np.ascontiguousarray(frame[:, :, 0])
     med, best = time_ms(lambda: reconstruct(gray, Kf, 0.1), max(3, repeat // 5))
-    out.append(BenchResult("reconstruct", "per frame, gray uint8", med, "ms", 15.0, best))
+    out.append(BenchResult("reconstruct", "per frame: gray uint8", med, "ms", 15.0, best))
     return out
 
 
@@ -273,4 +273,4 @@ def bench_command(
             ok = {None: "", True: "yes", False: "NO"}[r.meets_target]
             table.add_row(r.section, r.name, f"{r.value:.3f}", "" if r.best is None else f"{r.best:.3f}",
                           r.unit, "" if r.target is None else f"<= {r.target:g}", ok, r.note)
-    Console().print(table)
+    Console(width=max(160, Console().width)).print(table)

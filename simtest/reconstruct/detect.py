@@ -5,7 +5,8 @@ full_scale``; outer boundaries by OpenCV ``findContours``, each filled in its bo
 than ``connectedComponentsWithStats`` on a sparse frame; a component inside the hole of another is
 counted with it). For each candidate the detector finds the
 brightest point (BP): the centroid of the saturated plateau when the highlight is clipped, else
-the brightest pixel refined to sub-pixel by a separable parabola through its 3x3 neighbourhood.
+the brightest pixel refined to sub-pixel by a separable parabola through its 3x3 neighbourhood
+(or the centroid of its flat top when quantisation makes several pixels equal to the maximum).
 It gives a square region of interest around the BP, large enough to hold the low isophotes, and a
 status: ``"ok"`` or the reason the candidate is rejected:
 
@@ -184,6 +185,27 @@ def refine_peak_uv(values: np.ndarray, r: int, c: int) -> np.ndarray:
     return rc_to_uv([r + dr, c + dc])
 
 
+def peak_uv(values: np.ndarray, r: int, c: int, mask: np.ndarray | None = None) -> np.ndarray:
+    """Sub-pixel BP (u, v) at the maximum ``values[r, c]`` of an unclipped highlight.
+
+    A unique maximum is refined by :func:`refine_peak_uv`. A flat top (several 8-connected pixels
+    equal to the maximum, as 8-bit quantisation makes of a broad lobe) gives the centroid of that
+    plateau instead: a parabola through equal values would sit half a pixel off.
+    """
+    import cv2
+
+    top = values == values[r, c]
+    if mask is not None:
+        top &= mask
+    r0, r1, c0, c1 = max(0, r - 1), r + 2, max(0, c - 1), c + 2
+    if np.count_nonzero(top[r0:r1, c0:c1]) <= 1:
+        return refine_peak_uv(values, r, c)
+    _, lab = cv2.connectedComponents(top.view(np.uint8) if top.dtype == bool else top.astype(np.uint8),
+                                     connectivity=8)
+    rr, cc = np.nonzero(lab == lab[r, c])
+    return rc_to_uv([rr.mean(), cc.mean()])
+
+
 def ellipticity(mask: np.ndarray) -> float:
     """``area / (4 pi sqrt(det Sigma))`` of a binary mask: 1 for a filled ellipse; NaN if degenerate."""
     rr, cc = np.nonzero(mask)
@@ -303,7 +325,7 @@ def detect_specularities(
                 cx, cy = pcent[1 + big]
                 bp_uv = rc_to_uv([cy, cx], bbox.row0, bbox.col0)
         if bp_uv is None:
-            bp_uv = refine_peak_uv(vals, pr, pc) + (bbox.col0, bbox.row0)
+            bp_uv = peak_uv(vals, pr, pc, sub_lab) + (bbox.col0, bbox.row0)
         if area < min_area_px:
             status, detail = "too_small", f"{area} px < {min_area_px}"
         elif x == 0 or y == 0 or x + bw >= w or y + bh >= h:

@@ -5,7 +5,7 @@ the BP's viewing ray at unit depth and ``L = needle_length`` (same units): the n
 tilt of the normal away from the viewing ray (a normal facing straight back along the ray, like
 the ``bp_ray`` estimate, projects onto the BP itself and is not drawn). Colours: cone axis red,
 the paper's selected normal green (the other of the pair dashed green), joint cone axis magenta.
-Rejected highlights get a red cross and their reason.
+Rejected highlights get a red cross and their reason (``too_small`` ones only a red dot).
 
 Uses matplotlib with the Agg backend (no display); imported lazily.
 """
@@ -43,7 +43,7 @@ def _needle(ax, bp_und, n, K, length, **style):
     ax.plot([base[0], tip[0]], [base[1], tip[1]], **style)
 
 
-def draw_overlay(path, image, estimates, K, *, needle_length: float = 0.3, dpi: int = 100) -> Path:
+def draw_overlay(path, image, estimates, K, *, needle_length: float = 0.15, dpi: int = 100) -> Path:
     """Write the overlay PNG atomically.
 
     Parameters
@@ -85,8 +85,11 @@ def draw_overlay(path, image, estimates, K, *, needle_length: float = 0.3, dpi: 
     for est in estimates:
         u, v = est.bp_px
         if est.status != "ok" and not est.isophotes:
-            ax.plot(u, v, "x", color="red", ms=6, mew=1.5)
-            ax.text(u + 3, v - 3, est.status, color="red", fontsize=7)
+            if est.status == "too_small":  # many on real images: a dot, no label
+                ax.plot(u, v, ".", color="red", ms=2)
+            else:
+                ax.plot(u, v, "x", color="red", ms=6, mew=1.5)
+                ax.text(u + 3, v - 3, est.status, color="red", fontsize=7)
             continue
         ax.plot(u, v, "+", color="cyan", ms=8, mew=1.5)
         for iso in est.isophotes:

@@ -38,7 +38,7 @@ from simtest.reconstruct.detect import (
     default_full_scale,
     detect_specularities,
     luma,
-    refine_peak_uv,
+    peak_uv,
     validate_image,
 )
 from simtest.reconstruct.estimators import estimate_from_conic, joint_cone_axis
@@ -279,7 +279,7 @@ def _find_bp(img: np.ndarray, roi: Roi, saturation_level) -> tuple[np.ndarray, b
             _, lab = cv2.connectedComponents(sat.view(np.uint8), connectivity=8)
             rr, cc = np.nonzero(lab == lab[r, c])
             return rc_to_uv([rr.mean(), cc.mean()], roi.row0, roi.col0), True
-    return refine_peak_uv(vals, r, c) + (roi.col0, roi.row0), False
+    return peak_uv(vals, r, c) + (roi.col0, roi.row0), False
 
 
 def _one_isophote(vals, roi, img_shape, level_scale, t, bp_uv, K, dist, bp_ray, allow_open):
