@@ -92,10 +92,14 @@ def bisector(p: np.ndarray, light: np.ndarray) -> np.ndarray:
 def bisector_cos_image(normals: np.ndarray, position: np.ndarray, mask: np.ndarray,
                        light: np.ndarray) -> np.ndarray:
     """``n . h`` per pixel (H, W); -1 outside ``mask``."""
-    out = np.full(mask.shape, -1.0)
-    if mask.any():
-        out[mask] = np.sum(normals[mask] * bisector(position[mask], light), axis=-1)
-    return out
+    p = np.where(mask[..., None], position, 1.0).astype(np.float32)
+    to_cam = -p / np.sqrt(np.einsum("ijk,ijk->ij", p, p))[..., None]
+    to_light = np.asarray(light, dtype=np.float32) - p
+    to_light /= np.sqrt(np.einsum("ijk,ijk->ij", to_light, to_light))[..., None]
+    h = to_cam + to_light
+    h /= np.sqrt(np.einsum("ijk,ijk->ij", h, h))[..., None]
+    n = np.where(mask[..., None], normals, 0.0).astype(np.float32)
+    return np.where(mask, np.einsum("ijk,ijk->ij", n, h), -1.0)
 
 
 def project(X: np.ndarray, K: np.ndarray) -> np.ndarray:
