@@ -11,6 +11,8 @@ import math
 import numpy as np
 import pytest
 import trimesh
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 from simtest.render import RendererUnavailable, choose_variant, render_scene, write_render
 from simtest.render.mitsuba_dict import plane_normal_cam
@@ -290,3 +292,36 @@ def test_old_llvm_is_refused_with_the_fix(monkeypatch):
     with pytest.raises(RendererUnavailable) as info:
         choose_variant("llvm_ad_rgb")
     assert LLVM_FIX in str(info.value) and "LLVM 15" in str(info.value)
+
+
+@settings(max_examples=60, deadline=None)
+@given(
+    tilt=st.floats(0.0, 80.0),
+    az=st.floats(0.0, 360.0),
+    eps=st.floats(0.0, 20.0),
+    a=st.floats(0.0, 360.0),
+    b=st.floats(-0.5, 0.5),
+)
+def test_analytic_highlights_satisfy_the_bisector_condition(tilt, az, eps, a, b):
+    # Pure numpy: the closed forms and root solves of simtest.render.truth, for any light offset.
+    from simtest.render.truth import cylinder_highlight, plane_highlight, sphere_highlight
+    from simtest.scene import scene_from_dict as sfd
+
+    K = np.array([[100.0, 0, 63.5], [0, 100.0, 63.5], [0, 0, 1]])
+    L = eps * np.array([math.cos(math.radians(a)), math.sin(math.radians(a)), b])
+    geo = sfd({"geometry": {"type": "plane", "tilt_deg": tilt, "azimuth_deg": az,
+                            "distance_mm": 50.0}}).geometry
+    n = plane_normal_cam(geo)
+    hp = plane_highlight(n, 50.0, L, K, (128, 128))
+    assert math.isclose(np.dot(n, hp.bp_mm), -50.0, rel_tol=1e-9)  # on the plane
+    c = np.array([5.0, -3.0, 80.0])
+    hs = sphere_highlight(c, 20.0, L, K, (128, 128))
+    assert math.isclose(np.linalg.norm(hs.bp_mm - c), 20.0, rel_tol=1e-9)
+    axis = np.array([1.0, 0.3, 0.2]) / np.linalg.norm([1.0, 0.3, 0.2])
+    hc = cylinder_highlight(c, axis, 15.0, 1000.0, L, K, (128, 128))
+    q = hc.bp_mm - c
+    assert math.isclose(np.linalg.norm(q - np.dot(q, axis) * axis), 15.0, rel_tol=1e-9)
+    for h in (hp, hs, hc):
+        # The normal bisects the directions to camera and light (float64 solves: 1e-6 deg).
+        assert _angle_deg(h.normal, bisector(h.bp_mm, L)) < 1e-6
+        assert np.dot(h.normal, h.bp_mm) < 0  # faces the camera

@@ -57,7 +57,7 @@ class SceneError(ValueError):
 #: Mitsuba variants the renderer accepts ("auto" picks cuda_ad_rgb when a GPU is usable, else
 #: llvm_ad_rgb). Only RGB variants: the renderer uses the colour channels to separate the
 #: specular-only image from the full image in a single render.
-RENDER_VARIANTS = ("auto", "llvm_ad_rgb", "cuda_ad_rgb", "scalar_rgb")
+RENDER_VARIANTS = ("auto", "llvm_ad_rgb", "cuda_ad_rgb")
 
 
 def _meta(kind: str, *, lo=None, hi=None, lo_open=False, hi_open=False, choices=None) -> dict:
