@@ -15,7 +15,9 @@ Sections
   <= 1 ms per specularity, <= 15 ms per frame.
 - Hooks for other packages: see :data:`EXTERNAL_SECTIONS` below. A package adds a section by
   defining ``bench_<name>(repeat: int) -> list[BenchResult]`` in its own module and adding one
-  line to that table; it is imported only when the section runs.
+  line to that table; it is imported only when the section runs. A function without a ``repeat``
+  parameter is called with no argument, and a ``dict`` it returns is shown flattened, one row per
+  numeric leaf (``a/b/c``; the unit is read from a ``_s``, ``_ms``, ``_per_s``, ``_mib`` suffix).
 """
 
 from __future__ import annotations
@@ -73,6 +75,7 @@ SECTIONS: dict[str, SectionFn] = {}
 EXTERNAL_SECTIONS: dict[str, str] = {
     "render": "simtest.render.bench:bench_render",  # renderer (owner: render)
     "harness": "simtest.harness.bench:bench_harness",  # harness sweeps (owner: harness)
+    "dataset": "simtest.dataset.bench:bench_dataset",  # dataset generation (owner: dataset)
 }
 # ---- end of hooks -------------------------------------------------------------------------------
 
@@ -243,6 +246,37 @@ def bench_reconstruct(repeat: int = 50) -> list[BenchResult]:
     return out
 
 
+def _unit_of(key: str) -> str:
+    for suffix, unit in (("_per_s", "1/s"), ("_ms", "ms"), ("_s", "s"), ("_mib", "MiB"), ("_mb", "MB")):
+        if key.endswith(suffix):
+            return unit
+    return ""
+
+
+def _flatten(section_name: str, obj, prefix: str = "") -> list[BenchResult]:
+    rows = []
+    if isinstance(obj, dict):
+        for k, v in obj.items():
+            rows += _flatten(section_name, v, f"{prefix}/{k}" if prefix else str(k))
+    elif isinstance(obj, (int, float)) and not isinstance(obj, bool):
+        rows.append(BenchResult(section_name, prefix, float(obj), _unit_of(prefix.rsplit("/", 1)[-1])))
+    return rows
+
+
+def run_section(name: str, fn: SectionFn, repeat: int) -> list[BenchResult]:
+    """Call a section with ``repeat`` if it takes it, and turn a dict result into rows."""
+    import inspect
+
+    try:
+        takes_repeat = "repeat" in inspect.signature(fn).parameters
+    except (TypeError, ValueError):
+        takes_repeat = True
+    res = fn(repeat=repeat) if takes_repeat else fn()
+    if isinstance(res, dict):
+        return _flatten(name, res)
+    return list(res)
+
+
 # ------------------------------------------------------------------------------------------------
 # command
 
@@ -269,7 +303,7 @@ def bench_command(
         if fn is None:
             table.add_row(name, "(section not available yet)", "", "", "", "", "", "")
             continue
-        for r in fn(repeat):
+        for r in run_section(name, fn, repeat):
             ok = {None: "", True: "yes", False: "NO"}[r.meets_target]
             table.add_row(r.section, r.name, f"{r.value:.3f}", "" if r.best is None else f"{r.best:.3f}",
                           r.unit, "" if r.target is None else f"<= {r.target:g}", ok, r.note)

@@ -56,3 +56,14 @@ def test_time_ms_reports_median_and_min():
     med, best = bench.time_ms(lambda: calls.append(1), 5)
     assert len(calls) == 6  # one warm-up
     assert 0 <= best <= med
+
+
+def test_sections_without_repeat_and_dict_results_are_shown(monkeypatch):
+    def legacy():  # no repeat parameter, returns a nested dict
+        return {"scenes": {"plane": {"warm": {"median_s": 0.05, "renders_per_s": 20.0}}}, "note": "x"}
+
+    rows = bench.run_section("legacy", legacy, 3)
+    assert [(r.name, r.value, r.unit) for r in rows] == [
+        ("scenes/plane/warm/median_s", 0.05, "s"),
+        ("scenes/plane/warm/renders_per_s", 20.0, "1/s"),
+    ]

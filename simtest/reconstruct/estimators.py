@@ -80,15 +80,32 @@ def face_reference(n: np.ndarray, ray: np.ndarray) -> np.ndarray:
 
 
 def select_paper_normal(normals: np.ndarray, reference: np.ndarray) -> int:
-    """Index (0 or 1) of the normal in ``normals`` (2, 3) closer in angle to ``reference`` (3,).
+    """Index (0 or 1) of the unit normal in ``normals`` (2, 3) closer in angle to the unit ``reference``.
 
     The non-oracle rule of this module (see the module docstring): the reference is the BP-ray
     normal. Ties go to index 0.
     """
-    from simtest.geometry.angles import angle_between_deg
+    # for unit vectors the smaller angle is the larger dot product (monotone arccos)
+    d = np.asarray(normals, dtype=np.float64) @ np.asarray(reference, dtype=np.float64)
+    return int(d[1] > d[0])
 
-    a = angle_between_deg(normals, reference[None, :])
-    return int(a[1] < a[0])
+
+def _images_as_ellipse(cn) -> bool:
+    """True if the cone C' cuts the normalised image plane z = 1 in an ellipse-type conic.
+
+    C' is also the image conic in normalised coordinates (O(1)-conditioned for any visible
+    highlight); its type is the sign of det C'[:2, :2] (> 0: ellipse type). A real cone whose
+    image is a hyperbola (axis nearly parallel to the image plane) has no normal facing the
+    camera. Real versus imaginary is left to the signature test of ``circle_pose``.
+    """
+    cn = np.asarray(cn, dtype=np.float64)
+    if cn.shape != (3, 3) or not np.isfinite(cn).all():
+        return False
+    scale = float(np.abs(cn).max())
+    if scale == 0.0:
+        return False
+    a = cn[:2, :2] / scale
+    return bool(a[0, 0] * a[1, 1] - a[0, 1] * a[1, 0] > 1e-12)
 
 
 def estimate_from_conic(Cn: np.ndarray, bp_ray: np.ndarray) -> ConeEstimate | Failure:
@@ -107,15 +124,11 @@ def estimate_from_conic(Cn: np.ndarray, bp_ray: np.ndarray) -> ConeEstimate | Fa
     ConeEstimate or Failure
         ``Failure("pose_failed")`` if C' is not a real elliptic cone whose image is an ellipse.
     """
-    from simtest.geometry.conics import circle_pose, conic_kind, cone_axis
+    from simtest.geometry.conics import circle_pose, cone_axis
 
     try:
-        # C' is also the image conic in normalised coordinates (O(1)-conditioned): the cone of a
-        # visible circle must cut the image plane in an ellipse. A real cone whose image is a
-        # hyperbola (axis nearly parallel to the image plane) has no normal facing the camera.
-        kind = conic_kind(Cn)
-        if kind != "ellipse":
-            return Failure("pose_failed", f"the normalised conic is a {kind}, not an ellipse")
+        if not _images_as_ellipse(Cn):
+            return Failure("pose_failed", "the normalised conic is not an ellipse (hyperbola, parabola)")
         pose = circle_pose(Cn)
         ax = cone_axis(Cn)
     except (ValueError, np.linalg.LinAlgError) as exc:
@@ -145,16 +158,13 @@ def joint_cone_axis(cns, bp_ray: np.ndarray) -> np.ndarray | Failure:
         Unit axis facing the camera; ``Failure("pose_failed")`` if a conic is not a real
         elliptic cone or none is given. Method: module docstring ("Joint cone axis").
     """
-    from simtest.geometry.conics import conic_kind
-
     acc = np.zeros((3, 3))
     n_used = 0
     for cn in cns:
         cn = np.asarray(cn, dtype=np.float64)
+        if not _images_as_ellipse(cn):
+            return Failure("pose_failed", "a normalised conic is not an ellipse")
         cn = 0.5 * (cn + cn.T)
-        kind = conic_kind(cn)
-        if kind != "ellipse":
-            return Failure("pose_failed", f"a normalised conic is a {kind}, not an ellipse")
         w, v = np.linalg.eigh(cn)
         n_pos = int(np.sum(w > 0))
         if n_pos == 2:  # make the unique-sign eigenvalue positive

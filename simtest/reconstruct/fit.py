@@ -130,14 +130,21 @@ def fit_ellipse(points_uv) -> EllipseFit | Failure:
     x = centred[:, 0] / scale
     y = centred[:, 1] / scale
 
-    # Quadratic part of design matrix [eqn. 15] from [1]
-    d1 = np.column_stack([x * x, x * y, y * y])
-    # Linear part of design matrix [eqn. 16] from [1]
-    d2 = np.column_stack([x, y, np.ones_like(x)])
-    # Sub-matrices of the scatter matrix S = D^T D [eqn. 17] from [1]
-    s1 = d1.T @ d1
-    s2 = d1.T @ d2
-    s3 = d2.T @ d2
+    # Design matrix D = (D1 | D2): quadratic part D1 = (x^2, xy, y^2) [eqn. 15] from [1] and
+    # linear part D2 = (x, y, 1) [eqn. 16] from [1], built in one array
+    d = np.empty((n, 6))
+    d[:, 0] = x * x
+    d[:, 1] = x * y
+    d[:, 2] = y * y
+    d[:, 3] = x
+    d[:, 4] = y
+    d[:, 5] = 1.0
+    d1, d2 = d[:, :3], d[:, 3:]
+    # Scatter matrix S = D^T D and its blocks S1, S2, S3 [eqn. 17] from [1]
+    s_full = d.T @ d
+    s1 = s_full[:3, :3]
+    s2 = s_full[:3, 3:]
+    s3 = s_full[3:, 3:]
     ev3 = np.linalg.eigvalsh(s3)
     if not ev3[0] > _S3_RCOND * ev3[-1]:
         return Failure("degenerate_points", f"linear scatter is singular (eigenvalues {ev3.tolist()})")
@@ -167,12 +174,11 @@ def fit_ellipse(points_uv) -> EllipseFit | Failure:
     # pair. Guard: the unconstrained algebraic fit (smallest eigenvector of S = D^T D [eqn. 17]
     # from [1]) is the exact conic of noise-free data; if it is not an ellipse and explains the
     # points clearly better (algebraic residual 4x smaller), the data are not an ellipse.
-    s_full = np.block([[s1, s2], [s2.T, s3]])
-    w_full, v_full = np.linalg.eigh(s_full)
-    g = v_full[:, 0]
-    r_general = max(float(w_full[0]), 0.0)
     r_ellipse = float(a_vec @ s_full @ a_vec) / float(a_vec @ a_vec)
-    if r_ellipse > 4.0 * r_general + 1e-24:
+    w_full, v_full = np.linalg.eigh(s_full)
+    r_general = max(float(w_full[0]), 0.0)
+    if r_ellipse > 1e-24 and r_ellipse > 4.0 * r_general:
+        g = v_full[:, 0]
         g_conic = np.array([[g[0], g[1] / 2, g[3] / 2], [g[1] / 2, g[2], g[4] / 2], [g[3] / 2, g[4] / 2, g[5]]])
         kind = conic_kind(g_conic)
         if kind != "ellipse":
