@@ -193,3 +193,14 @@ def test_plane_isophote_labels_are_exact_on_the_rendered_image(tmp_path):
             # error; with semi-axes of 4 px and more both stay below 1 % (measured 0.1 to 0.9 %):
             # 3 % catches a wrong radius or centre (a 10 % larger radius shifts the level by ~30 %).
             assert abs(vals.mean() / iso["t"] - 1.0) < 0.03, (i, iso["t"], vals.mean())
+
+
+def test_bench_measures_throughput_and_worker_memory():
+    from simtest.dataset.bench import measure
+
+    m = measure("planes", count=6, workers=2, seed=5, resolution_px=24, spp=2)
+    for label in ("cold", "warm"):
+        r = m[label]
+        assert r["count"] == 6
+        assert r["steady_ms"] > 0 and r["end_to_end_ms"] > 0
+        assert 20 < r["peak_rss_mib"] < 4096  # a Python process with Mitsuba: tens to hundreds of MiB

@@ -67,6 +67,9 @@ class GenerateReport:
         ``written / seconds`` (0 when nothing was written).
     worker_peak_rss_mb : dict
         Peak resident memory (MiB) of each worker that ran a sample, keyed by ``host:pid``.
+    completed_at_s : list of float
+        Seconds from the start of the rendering phase at which each sample arrived (in arrival
+        order), for throughput measurements.
     """
 
     out_dir: Path
@@ -76,6 +79,7 @@ class GenerateReport:
     seconds: float = 0.0
     samples_per_s: float = 0.0
     worker_peak_rss_mb: dict = field(default_factory=dict)
+    completed_at_s: list = field(default_factory=list)
 
 
 def _conventions() -> dict:
@@ -433,6 +437,7 @@ def generate(
                         if writers[shard].add(sample):
                             del writers[shard]
                         report.written += 1
+                        report.completed_at_s.append(time.perf_counter() - t0)
                         prog.advance(task)
             cancel = False
         finally:
