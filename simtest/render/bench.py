@@ -11,6 +11,8 @@ and sample count asked for (the issue's 406 x 406 at 16 spp by default):
   (``DRJIT_CACHE_DIR`` pointed at a new folder), after the imports, which are timed separately.
 
 Every render includes the ground truth (normals, positions, depth, highlights) and the sensor model.
+``cpu_s`` is the process CPU time per render: on a machine shared with other work, wall-clock
+figures drop while ``threads / cpu_s`` still estimates the unloaded rate.
 """
 
 from __future__ import annotations
@@ -108,7 +110,7 @@ def bench_render(
     -------
     dict
         ``{"config": {...}, "machine": {...}, "scenes": {name: {"warm": {"renders_per_s",
-        "median_s", "min_s"}, "warm_rebuild": {...}, "cold": {"first_render_s", "import_s",
+        "median_s", "min_s", "cpu_s"}, "warm_rebuild": {...}, "cold": {"first_render_s", "import_s",
         "renders_per_s"}, "highlights": int}}}``; a scene that cannot be loaded gets
         ``{"error": message}``.
     """
@@ -139,16 +141,18 @@ def bench_render(
         first = render_scene(spec, seed=0, variant=variant)  # compile / load the cache
         entry["highlights"] = len(first.highlights)
         for key, rebuild in (("warm", False), ("warm_rebuild", True)):
-            times = []
+            times, cpu = [], []
             for i in range(repeats):
                 if rebuild:
                     R._SCENE_CACHE.clear()
                     R._MESH_CACHE.clear()
-                t = time.perf_counter()
+                t, c = time.perf_counter(), time.process_time()
                 render_scene(spec, seed=1 + i, variant=variant)
                 times.append(time.perf_counter() - t)
+                cpu.append(time.process_time() - c)
             med = statistics.median(times)
-            entry[key] = {"renders_per_s": 1.0 / med, "median_s": med, "min_s": min(times)}
+            entry[key] = {"renders_per_s": 1.0 / med, "median_s": med, "min_s": min(times),
+                          "cpu_s": statistics.median(cpu)}
         result["scenes"][name] = entry
     return result
 
