@@ -311,3 +311,25 @@ def test_estimates_json_round_trip(tmp_path):
     (tmp_path / "bad.json").write_text("{")
     with pytest.raises(ValueError, match="bad.json"):
         read_estimates(tmp_path / "bad.json")
+
+
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_noisy_phong_plane_with_smoothing(seed):
+    # The paper's default noise (sigma = 5 % of the peak) with its Gaussian smoothing step: one
+    # highlight, found whole, cone axis within 0.5 deg (the paper reports a mean under 1.25 deg for
+    # its protocol; this co-located case measured under 0.1 deg over 10 seeds: a 5x margin).
+    K = intrinsics(200, 406)
+    normal = tilted_normal(30, 0)
+    rng = np.random.default_rng(np.random.SeedSequence([3, seed]))
+    img = phong_plane_image(K, (406, 406), normal, 1000.0, 50) + rng.normal(0, 0.05, (406, 406))
+    (est,) = reconstruct(img, K, 0.1, smooth_sigma_px=2.0)
+    assert est.ok and angle_between_deg(est.cone_axis, normal) < 0.5
+
+
+def test_detection_restricted_to_a_roi():
+    K = intrinsics(300, 300)
+    v, u = np.mgrid[0:300, 0:300].astype(float)
+    img = np.exp(-((u - 80) ** 2 + (v - 150) ** 2) / 50) + np.exp(-((u - 220) ** 2 + (v - 150) ** 2) / 50)
+    assert len(reconstruct(img, K, 0.3)) == 2
+    (est,) = reconstruct(img, K, 0.3, roi=(100, 200, 150, 300))
+    assert est.ok and np.allclose(est.bp_px, (220, 150), atol=0.05)  # full-image coordinates

@@ -230,6 +230,7 @@ def detect_specularities(
     roi_scale: float = 3.0,
     roi_margin_px: int = 4,
     max_candidates: int = 1000,
+    smooth_sigma_px: float = 0.0,
 ) -> Detection:
     """Find candidate specular highlights in a whole image.
 
@@ -256,6 +257,9 @@ def detect_specularities(
         wider than its 0.7 level). The pipeline grows it when an isophote is cut.
     max_candidates : int, optional
         Only the largest ``max_candidates`` components are examined (a safety valve for noise).
+    smooth_sigma_px : float, optional
+        Gaussian smoothing of the luma before thresholding and BP search (0: none). On a noisy
+        image it keeps one highlight from breaking into several components.
 
     Returns
     -------
@@ -279,6 +283,9 @@ def detect_specularities(
         saturation_level = float(np.iinfo(img.dtype).max)
 
     gray = _gray_native(img)
+    if smooth_sigma_px > 0:
+        gray = cv2.GaussianBlur(gray.astype(np.float32), (0, 0), float(smooth_sigma_px),
+                                borderType=cv2.BORDER_REFLECT)
     thr = brightness_rel * fs
     mask = _threshold_mask(gray, thr)
     # Outer boundaries of the 8-connected bright components (a raster scan: much faster than

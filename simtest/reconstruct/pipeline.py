@@ -436,9 +436,6 @@ def reconstruct_roi(
     ValueError
         Bad image, K, isovalue, ROI, BP, normalise or dist_coeffs.
 
-    Examples
-    --------
-    >>> from simtest.simulate.analytic import phong_plane_image  # doctest: +SKIP
     """
     img, K, isovalues, dist = _check_common(image, K, isovalue, normalise, dist_coeffs)
     if not (np.isfinite(smooth_sigma_px) and smooth_sigma_px >= 0):
@@ -493,7 +490,7 @@ def reconstruct(
     roi : (row0, row1, col0, col1), optional
         Restrict detection to this region (array indices, half-open).
     normalise, allow_open, smooth_sigma_px : optional
-        As in :func:`reconstruct_roi`.
+        As in :func:`reconstruct_roi`; the smoothing applies to detection too.
     brightness_rel, full_scale, saturation_level, min_area_px : optional
         Detection options, see :func:`~simtest.reconstruct.detect.detect_specularities`.
 
@@ -519,7 +516,7 @@ def reconstruct(
         r, sub = Roi(0, img.shape[0], 0, img.shape[1]), img
     det = detect_specularities(
         sub, brightness_rel=brightness_rel, full_scale=fs, saturation_level=saturation_level,
-        min_area_px=min_area_px,
+        min_area_px=min_area_px, smooth_sigma_px=float(smooth_sigma_px),
     )
     if saturation_level is None and img.dtype.kind == "u":
         saturation_level = float(np.iinfo(img.dtype).max)
