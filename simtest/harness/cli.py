@@ -27,7 +27,7 @@ def _summary(results: dict, console) -> None:
     t.add_column("sweep")
     for e in ests:
         t.add_column(e, justify="right")
-    cases = {c["key"]: c for c in results["cases"]}
+    cases = {c["id"]: c for c in results["cases"]}
     for sw in results["sweeps"]:
         row = [sw["name"]]
         for e in ests:

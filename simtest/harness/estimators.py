@@ -90,6 +90,8 @@ def score(est, truth, names) -> dict[str, tuple[float, str | None]]:
     ----------
     est : SpecularityEstimate or None
         None when no specularity was found (every estimator fails with ``"not_detected"``).
+        An estimate whose status is not ``"ok"`` fails every estimator but ``bp_ray`` with
+        that status as the cause.
     truth : array_like of shape (3,)
         Ground-truth normal, camera frame.
     names : iterable of str
@@ -110,6 +112,12 @@ def score(est, truth, names) -> dict[str, tuple[float, str | None]]:
             continue
         if truth is None:
             out[name] = (float("nan"), "no_ground_truth")
+            continue
+        status = getattr(est, "status", "ok")
+        if name != "bp_ray" and status is not None and status != "ok":
+            # The reconstruction flagged this highlight (merged, cut contour, ...): its isophote
+            # normals are not used, as a user of the pipeline would not use them.
+            out[name] = (float("nan"), str(status))
             continue
         n = ESTIMATORS[name](est, truth)
         n = unit_or_none(n)

@@ -16,7 +16,7 @@ Baseline file::
 
     {"schema": "simtest.baseline", "schema_version": 1,
      "suites": {"quick": {"created_utc", "git_commit", "suite_sha256", "seed", "realisations",
-                          "tolerances", "cases": {case key: {"sweep", "x", "estimators":
+                          "tolerances", "cases": {case id: {"sweep", "x", "estimators":
                                                   {name: {"mean", "median", "p95",
                                                           "failure_rate"}}}}}}}
 """
@@ -93,7 +93,7 @@ def baseline_entry(results: dict, tolerances: dict) -> dict:
     cases = {}
     for c in results["cases"]:
         sw = sweeps[c["sweep"]]
-        cases[c["key"]] = {
+        cases[c["id"]] = {
             "sweep": c["sweep"],
             "x": c["x"] * sw["display_scale"],
             "estimators": {e: {m: v.get(m) for m in TRACKED}

@@ -54,11 +54,19 @@ def reconstruct_known_bp(image, K, bp_px, roi, isovalues):
 
 
 def reconstruct_image(image, K, isovalues):
-    """Detect and reconstruct every specularity of a whole image (``reconstruct``, defaults:
-    normalisation at each detected BP)."""
+    """Detect and reconstruct every specularity of a whole image (``reconstruct``).
+
+    Detection thresholds are relative to the brightest pixel of the image (``full_scale`` =
+    image maximum), not to the dtype's range: a rendered highlight need not reach saturation
+    (the sensor's exposure is a swept parameter). Isovalues are relative to each detected BP
+    (the reconstruction's default).
+    """
     from simtest.reconstruct import reconstruct
 
-    return list(reconstruct(image, K, isovalues))
+    peak = float(np.max(image))
+    if not peak > 0:
+        return []
+    return list(reconstruct(image, K, isovalues, full_scale=peak))
 
 
 def _extras(est) -> dict:
@@ -107,7 +115,7 @@ class PaperRunner:
         self.sim = PaperSimulator(self.params)
         self.estimators = tuple(estimators)
 
-    def roi(self, clean: np.ndarray) -> tuple[int, int, int, int]:
+    def roi(self, clean: np.ndarray, bp_px) -> tuple[int, int, int, int]:
         """The "given region of interest containing the specularity" (paper section 3.3): the
         bounding box of the noiseless image above half the lowest isovalue, plus
         :data:`ROI_MARGIN_PX`, clipped to the image. Cropping only saves time (marching squares
@@ -118,8 +126,9 @@ class PaperRunner:
         if rows.size == 0:
             return (0, h, 0, w)
         m = ROI_MARGIN_PX
-        return (max(0, rows[0] - m), min(h, rows[-1] + m + 1),
-                max(0, cols[0] - m), min(w, cols[-1] + m + 1))
+        u, v = int(round(float(bp_px[0]))), int(round(float(bp_px[1])))
+        return (max(0, min(rows[0], v) - m), min(h, max(rows[-1], v) + m + 1),
+                max(0, min(cols[0], u) - m), min(w, max(cols[-1], u) + m + 1))
 
     def run(self, seedseq: np.random.SeedSequence) -> list[dict]:
         rng = np.random.Generator(np.random.PCG64(seedseq))
@@ -128,7 +137,7 @@ class PaperRunner:
         except FloatingPointError:
             errs = {k: (float("nan"), "bp_nonpositive") for k in self.estimators}
             return [_row(errs, {k: float("nan") for k in EXTRA_KEYS})]
-        est = reconstruct_known_bp(s.image, s.K, s.bp_px, self.roi(s.clean), self.isovalues)
+        est = reconstruct_known_bp(s.image, s.K, s.bp_px, self.roi(s.clean, s.bp_px), self.isovalues)
         errs = score(est, s.normal, self.estimators)
         extras = _extras(est)
         bp = getattr(est, "bp_px", None)
@@ -155,12 +164,16 @@ class RenderedRunner:
         self.match_px = float(p.pop("match_px"))
         rod = p.pop("radius_over_distance")
         dist = p.pop("distance_mm")
+        mesh = {k: p.pop(k) for k in ("colon_station", "liver_azimuth_deg", "mesh_view_deg",
+                                      "mesh_distance_mm", "liver_elevation_deg")}
         spec = load_scene(case.scene)
         over = dict(p)
         if rod is not None:
             r = rod * dist
             over["geometry.radius_mm"] = r
             over["geometry.center_mm"] = [0.0, 0.0, dist + r]
+        if mesh["colon_station"] is not None or mesh["liver_azimuth_deg"] is not None:
+            over.update(mesh_pose_overrides(mesh))
         self.spec = with_overrides(spec, over)
         self.estimators = tuple(estimators)
         self.variant = None
@@ -205,6 +218,66 @@ class RenderedRunner:
             errs = {k: (float("nan"), "no_highlight_in_frame") for k in self.estimators}
             rows.append(_row(errs, {k: float("nan") for k in EXTRA_KEYS}))
         return rows
+
+
+def _unit(v):
+    v = np.asarray(v, dtype=np.float64)
+    return v / np.linalg.norm(v)
+
+
+def _perp(t):
+    helper = np.array([0.0, 0.0, 1.0]) if abs(t[2]) < 0.9 else np.array([1.0, 0.0, 0.0])
+    e1 = _unit(np.cross(t, helper))
+    return e1, np.cross(t, e1)
+
+
+def mesh_pose_overrides(p: dict) -> dict:
+    """Scene overrides placing the camera in or around a bundled mesh (``meshes/*.ply``).
+
+    colon (``colon_station`` s in [0, 1]): on the centre line at arc length s x length, moved off
+    it by 0.3 x the smallest wall distance of that ring, looking ``mesh_view_deg`` off the tangent
+    toward the wall on the other side. liver (``liver_azimuth_deg``): on a sphere
+    ``mesh_distance_mm`` outside its bounding sphere at that azimuth and ``liver_elevation_deg``,
+    aimed at the centre of its bounding box.
+    """
+    from pathlib import Path
+
+    import simtest
+    from simtest.scene.meshes import colon_centerline, load_mesh
+
+    root = Path(simtest.__file__).resolve().parents[1] / "meshes"
+    name = "colon" if p["colon_station"] is not None else "liver"
+    path = root / f"{name}.ply"
+    mesh = load_mesh(path)
+    if name == "colon":
+        line = mesh.metadata["centerline"]
+        arc = np.asarray(line["arclength_mm"], dtype=np.float64)
+        s = float(arc[0] + p["colon_station"] * (arc[-1] - arc[0]))
+        cl = colon_centerline(mesh, np.array([s]))
+        centre = np.asarray(cl["points"][0], dtype=np.float64)
+        tangent = _unit(cl["tangents"][0])
+        radial, _ = _perp(tangent)
+        v = math.radians(p["mesh_view_deg"])
+        forward = math.cos(v) * tangent + math.sin(v) * radial
+        r_min = float(np.interp(s, arc, np.asarray(line["radius_min_mm"], dtype=np.float64)))
+        position = centre - 0.3 * r_min * radial
+    else:
+        c = np.asarray(mesh.bounds, dtype=np.float64).mean(axis=0)
+        radius = float(np.max(np.linalg.norm(np.asarray(mesh.vertices) - c, axis=1)))
+        az, el = math.radians(p["liver_azimuth_deg"]), math.radians(p["liver_elevation_deg"])
+        direction = np.array([math.cos(el) * math.cos(az), math.cos(el) * math.sin(az),
+                              math.sin(el)])
+        position = c + (radius + p["mesh_distance_mm"]) * direction
+        forward = -direction
+    up, _ = _perp(forward)
+    over = {f"geometry.{k}": None for k in ("tilt_deg", "azimuth_deg", "distance_mm", "extent_mm",
+                                            "center_mm", "radius_mm", "axis", "length_mm",
+                                            "radius1_mm", "radius2_mm", "resolution")}
+    over.update({"geometry.type": "mesh", "geometry.path": str(path),
+                 "camera.position_mm": [float(x) for x in position],
+                 "camera.look_at_mm": [float(x) for x in position + forward],
+                 "camera.up": [float(x) for x in up]})
+    return over
 
 
 def make_runner(case, estimators):

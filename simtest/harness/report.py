@@ -13,7 +13,7 @@ temporary name and renamed into place.
      "open_parameters": {name: {"value", "why"}},
      "sweeps": [{"name", "protocol", "parameter", "label", "display_scale", "cases": [case keys],
                  "paper": {...} | null, "comparison": [...]}],
-     "cases": [{"key", "sweep", "protocol", "scene", "params", "x", "realisations",
+     "cases": [{"id" (<sweep>@<x>), "key" (seeds the case), "sweep", "protocol", "scene", "params", "x", "realisations",
                 "metrics": {"estimators": {name: {n, n_ok, failure_rate, failures, mean, std,
                                                    median, p95, min, max}},
                             "diagnostics": {...}},
@@ -237,10 +237,10 @@ def _open_parameters(suite) -> dict:
                    "kernel, reflected border); the paper does not give it"}
         out["camera_distance_px"] = {
             "value": vals("camera_distance_px"),
-            "why": "distance D of the slanted camera to the BP (null: D = f, so the homography is "
-                   "the identity at theta = 0 and the t = 0.1, n = 50 isophote is a circle of "
-                   "about 152 px radius at theta = 0); sets the ellipse size in pixels, which the "
-                   "paper does not give"}
+            "why": "distance D of the slanted camera to the BP (null: D = V_Z, the paper's "
+                   "'camera to scene plane distance': at theta = 0 the camera is the viewer, and "
+                   "the t = 0.1, n = 50 isophote is a circle of about 62 px radius); sets the "
+                   "ellipse size in pixels, which the paper does not give"}
         out["texture"] = {"value": p.get("texture_px") or p.get("image_px"),
                           "why": "texture is M x M (paper), bilinear warp, zero outside"}
         out["noise"] = {"value": "additive N(0, sigma^2), float, no clipping or quantisation",
@@ -279,7 +279,7 @@ def build_results(run, run_id: str) -> dict:
         entry = {"name": sw.name, "protocol": sw.protocol, "parameter": sw.parameter,
                  "label": sw.label, "display_scale": sw.display_scale,
                  "description": sw.description,
-                 "cases": [c["key"] for c in sc], "paper": sw.paper, "comparison": []}
+                 "cases": [c["id"] for c in sc], "paper": sw.paper, "comparison": []}
         if sw.paper:
             entry["comparison"] = evaluate_paper_claim(sw.paper, sc)
         sweeps.append(entry)
@@ -338,7 +338,7 @@ def _plots(results: dict) -> dict[str, bytes]:
     matplotlib.use("Agg", force=False)
     import matplotlib.pyplot as plt
 
-    cases = {c["key"]: c for c in results["cases"]}
+    cases = {c["id"]: c for c in results["cases"]}
     ests = results["suite"]["estimators"]
     out = {}
     for sw in results["sweeps"]:
@@ -403,7 +403,7 @@ def _fmt(v, nd=3):
 def _md(results: dict, figures: list[str]) -> str:
     s = results["suite"]
     p = results["provenance"]
-    cases = {c["key"]: c for c in results["cases"]}
+    cases = {c["id"]: c for c in results["cases"]}
     L = [f"# Validation report: {s['name']}", ""]
     if s["description"]:
         L += [s["description"], ""]

@@ -32,7 +32,11 @@ A suite file (``scenes/suites/<name>.toml``) reads::
 Parameters. ``paper`` protocol: the fields of :class:`simtest.simulate.paper.PaperParams`.
 ``rendered`` protocol: dotted scene keys (``"material.n"``, ``"geometry.tilt_deg"``, ...) applied
 with :func:`simtest.scene.with_overrides`, and the derived key ``"radius_over_distance"`` (sphere or
-cylinder of radius ``r d`` whose nearest point is at ``distance_mm`` d on the optical axis). Both:
+cylinder of radius ``r d`` whose nearest point is at ``distance_mm`` d on the optical axis), and
+the mesh poses ``colon_station`` (camera on the bundled colon's centre line at that fraction of its
+length, looking ``mesh_view_deg`` off the tangent) and ``liver_azimuth_deg`` (camera
+``mesh_distance_mm`` outside the bundled liver's bounding sphere at that azimuth and
+``liver_elevation_deg``, aimed at its centre), which replace the scene's geometry. Both:
 the reconstruction settings ``isovalue`` (t in (0, 1)) and ``joint_isovalues`` (list, for the
 nested-isophote joint cone axis); rendered also ``image`` ("sensor" or "linear"),
 ``match_px`` (max distance from a true BP to a detected one) and ``distance_mm``.
@@ -91,6 +95,11 @@ RENDERED_KEYS: dict[str, Any] = {
     "match_px": 15.0,
     "radius_over_distance": None,
     "distance_mm": None,
+    "colon_station": None,
+    "liver_azimuth_deg": None,
+    "mesh_view_deg": 30.0,
+    "mesh_distance_mm": 40.0,
+    "liver_elevation_deg": 20.0,
 }
 
 _SUITE_KEYS = {"name", "description", "protocol", "scene", "realisations", "seed", "estimators"}
@@ -161,6 +170,8 @@ class Case:
     key : str
         Stable identity of the setting (protocol, scene and resolved parameters as canonical JSON);
         it seeds the realisations, so the same setting gets the same numbers in any suite.
+    id : str
+        ``<sweep>@<x>``: unique in the suite (a setting shared by two sweeps has one key, two ids).
     suite, sweep : str
         Names of the suite and sweep that hold it.
     protocol : {"paper", "rendered"}
@@ -177,6 +188,7 @@ class Case:
     """
 
     key: str
+    id: str
     suite: str
     sweep: str
     protocol: str
@@ -188,7 +200,7 @@ class Case:
 
     def to_dict(self) -> dict:
         """JSON-able dict of the case (without the absolute scene path)."""
-        return {"key": self.key, "sweep": self.sweep, "protocol": self.protocol,
+        return {"id": self.id, "key": self.key, "sweep": self.sweep, "protocol": self.protocol,
                 "scene": self.scene_name, "params": self.params, "x": self.x,
                 "realisations": self.realisations}
 
@@ -299,9 +311,16 @@ def _check_recon(key: str, value, source: str, where: str) -> Any:
         if value not in ("sensor", "linear"):
             raise _err(source, where, f"image must be 'sensor' or 'linear', got {value!r}")
         return value
-    if key in ("match_px", "radius_over_distance", "distance_mm"):
+    if key in ("match_px", "radius_over_distance", "distance_mm", "mesh_distance_mm"):
         if value is not None and (not _is_num(value) or value <= 0):
             raise _err(source, where, f"{key} must be a number > 0, got {value!r}")
+        return None if value is None else float(value)
+    ranges = {"colon_station": (0.0, 1.0), "liver_azimuth_deg": (-360.0, 360.0),
+              "mesh_view_deg": (0.0, 89.0), "liver_elevation_deg": (-89.0, 89.0)}
+    if key in ranges:
+        lo, hi = ranges[key]
+        if value is not None and (not _is_num(value) or not lo <= value <= hi):
+            raise _err(source, where, f"{key} must be a number in [{lo:g}, {hi:g}], got {value!r}")
         return None if value is None else float(value)
     raise AssertionError(key)
 
@@ -533,6 +552,10 @@ def suite_from_dict(raw: Mapping[str, Any], source: str = "<dict>", sha256: str 
             if est not in ESTIMATOR_NAMES:
                 raise _err(source, f"{where}.paper.estimator", f"unknown estimator {est!r}")
         cases = []
+        xs = [x for x, _, _ in settings]
+        if len(set(xs)) != len(xs):
+            raise _err(source, f"{where}.values" if parameter != "case" else f"{where}.cases",
+                       "duplicate values (each setting of a sweep needs its own x)")
         for x, over, cwhere in settings:
             merged = {**base, **fixed, **over}
             if sproto == "paper":
@@ -540,7 +563,7 @@ def suite_from_dict(raw: Mapping[str, Any], source: str = "<dict>", sha256: str 
             else:
                 params = _resolve_rendered(scene_path, merged, source, cwhere)
             key = _case_key(sproto, scene_name, params)
-            cases.append(Case(key=key, suite=name, sweep=sname, protocol=sproto,
+            cases.append(Case(key=key, id=f"{sname}@{x:g}", suite=name, sweep=sname, protocol=sproto,
                               scene=None if scene_path is None else str(scene_path),
                               scene_name=scene_name, params=params, x=x, realisations=sreal))
         sweeps.append(Sweep(name=sname, protocol=sproto, parameter=parameter, label=label,

@@ -14,10 +14,13 @@ Stage 1 of the published pipeline, reproduced step by step:
    (paper) looks at the window centre from a distance ``D`` along a direction tilted by
    ``theta`` from the plane normal (about the plane's x axis), so the BP stays at the image centre.
    The image is ``cv2.warpPerspective(texture, H)`` with ``H = K [r1 r2 t] A`` (``A`` maps texture
-   pixels to plane points), bilinear, zero outside the texture. The paper leaves ``D`` open; we take
-   ``D = f`` so that ``H`` is the identity at ``theta = 0`` (the texture *is* the image of a
-   fronto-parallel view): the isophote ellipse is as large in pixels as the plane circle in
-   texture pixels (about 152 px radius at the defaults).
+   pixels to plane points), bilinear, zero outside the texture. The paper calls ``V_Z`` "the
+   camera to scene plane distance", so we take ``D = V_Z``: at ``theta = 0`` the camera *is* the
+   viewer (a co-located view) and the image scale at the BP is ``f / V_Z`` = 0.406 px per texture
+   pixel, so the t = 0.1, n = 50 isophote (radius 152 texture px) is a circle of about 62 px
+   radius. (``D = f`` would make ``H`` the identity at ``theta = 0``, but its ellipses at
+   ``theta = 58`` deg leave the 406 px image for n = 30 or t = 0.02, which the paper's figure
+   does not show.)
 3. **Noise.** White Gaussian noise of standard deviation ``sigma`` (a fraction of the intensity
    range ``c = 1``), no clipping, no quantisation (the paper states neither).
 4. **Smoothing and normalisation.** Gaussian smoothing of standard deviation ``smoothing_px``
@@ -78,8 +81,8 @@ class PaperParams:
     focal_px : float or None
         f; None: ``image_px`` (paper: f = M).
     camera_distance_px : float or None
-        D, distance from the slanted camera to the window centre, texture pixels; None: ``f``
-        (identity homography at theta = 0). Not stated in the paper.
+        D, distance from the slanted camera to the window centre, texture pixels; None:
+        ``viewer_height_px`` (the paper's "camera to scene plane distance" V_Z).
     texture_px : int or None
         T, side of the texture; None: ``image_px`` (paper: M x M).
     window_at_bp : bool
@@ -132,8 +135,9 @@ class PaperParams:
 
     @property
     def distance(self) -> float:
-        """D, camera to window-centre distance in texture pixels (``camera_distance_px`` or f)."""
-        return float(self.focal if self.camera_distance_px is None else self.camera_distance_px)
+        """D, camera to window-centre distance in texture pixels (``camera_distance_px`` or V_Z)."""
+        return float(self.viewer_height_px if self.camera_distance_px is None
+                     else self.camera_distance_px)
 
     @property
     def texture(self) -> int:
@@ -237,7 +241,9 @@ def mirror_point(V, L) -> np.ndarray:
     """
     V = np.asarray(V, dtype=np.float64)
     L = np.asarray(L, dtype=np.float64)
-    s = V[2] / (V[2] + L[2])  # fraction of the way from the mirror light R to V at z = 0
+    # The mirror ray runs from R = (L_x, L_y, -L_z) to V; it meets z = 0 at the fraction
+    # s = L_z / (L_z + V_z) of the way (beta = 0 there, eq. 1).
+    s = L[2] / (V[2] + L[2])
     return L[:2] + s * (V[:2] - L[:2])
 
 
@@ -266,7 +272,8 @@ class PaperSimulator:
         self.V = np.array([0.0, 0.0, p.viewer_height_px])
         T = p.texture
         g = np.arange(T, dtype=np.float64) - T / 2.0
-        self._gx, self._gy = np.meshgrid(g, -g)  # plane offsets from the window centre
+        gx, gy = np.meshgrid(g, -g)  # plane offsets from the window centre
+        self._offsets = np.stack([gx, gy, np.zeros_like(gx)], axis=-1)  # (T, T, 3), z = 0
         if p.epsilon_px == 0.0:
             self._clean, self._geom = self._render_clean(self.V)
 
@@ -279,7 +286,7 @@ class PaperSimulator:
         p = self.params
         bp_plane = mirror_point(self.V, L)
         centre = bp_plane if p.window_at_bp else np.zeros(2)
-        P = np.stack([self._gx + centre[0], self._gy + centre[1]], axis=-1)
+        P = self._offsets + np.array([centre[0], centre[1], 0.0])
         texture = phong_intensity(P, self.V, L, p.n, p.c).astype(np.float32)
         H, K, R, C = paper_homography(p, centre)
         M = p.image_px
