@@ -267,3 +267,26 @@ def test_reader_is_a_torch_dataset_exactly_when_torch_is_installed(tmp_path):
         assert reader_mod.SimtestDataset.__mro__[1] is object
         assert "torch" not in sys.modules
         assert len(ds) == 10
+
+
+def test_an_empty_dataset_is_valid(tmp_path):
+    cfg = _cfg(count=0)
+    out = tmp_path / "empty"
+    rep = generate(cfg, out, workers=1, sample_fn=standin_sample, progress=False)
+    assert (rep.written, rep.skipped) == (0, 0)
+    assert read_manifest(out) == []
+    assert verify(out).ok
+    assert len(simtest.dataset.open(out)) == 0
+
+
+def test_resume_refuses_when_the_bundled_meshes_changed(tmp_path):
+    cfg = config_from_dict({"count": 4, "seed": 1, "shard_size": 2, "families": {"colon": 1.0}})
+    out = tmp_path / "colon"
+    generate(cfg, out, workers=1, sample_fn=standin_sample, progress=False)
+    card = json.loads((out / "dataset.json").read_text())
+    assert list(card["meshes"]) == ["meshes/colon.ply"]
+    assert len(card["meshes"]["meshes/colon.ply"]) == 64  # sha256 of the file the samples used
+    card["meshes"]["meshes/colon.ply"] = "0" * 64  # as if the mesh had been rebuilt since
+    (out / "dataset.json").write_text(json.dumps(card))
+    with pytest.raises(DatasetError, match="mesh files changed"):
+        generate(cfg, out, workers=1, sample_fn=standin_sample, progress=False)

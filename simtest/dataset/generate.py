@@ -116,7 +116,7 @@ def make_card(config: DatasetConfig, *, status: str, counts: dict | None = None,
               variants: list | None = None) -> dict:
     """The ``dataset.json`` card (deterministic: no times, hosts or worker counts)."""
     from simtest import __version__
-    from simtest.dataset.sample import CHANNELS
+    from simtest.dataset.sample import CHANNELS, mesh_sha256
 
     return {
         "format": FORMAT,
@@ -133,6 +133,8 @@ def make_card(config: DatasetConfig, *, status: str, counts: dict | None = None,
         "config_as_given": config.raw,
         "counts": counts or {},
         "variants": variants or [],
+        "meshes": {f"meshes/{f}.ply": mesh_sha256(f) for f, _ in config.families
+                   if f in ("colon", "liver")},
         "channels": CHANNELS,
         "conventions": _conventions(),
         "layout": {
@@ -162,6 +164,11 @@ def _prepare(config: DatasetConfig, out: Path) -> set[int]:
                 f"{out}: holds a dataset made with a different config (fingerprint "
                 f"{str(card.get('config_fingerprint'))[:12]} != {config.fingerprint()[:12]}); "
                 "use another --out or delete the folder")
+        now = make_card(config, status="incomplete")["meshes"]
+        if card.get("meshes", {}) != now:
+            raise DatasetError(
+                f"{out}: the bundled mesh files changed since this dataset was started "
+                f"({card.get('meshes')} != {now}); finish it with the old meshes or use another --out")
     elif out.is_dir() and any(out.iterdir()):
         raise DatasetError(f"{out}: is not empty and has no {CARD_NAME}: refusing to write into it")
     out.mkdir(parents=True, exist_ok=True)

@@ -415,10 +415,38 @@ def _flush(a: np.ndarray) -> np.ndarray:
     return a
 
 
-def sample_from_render(config: DatasetConfig, index: int, params: dict, result) -> Sample:
-    """Collect the arrays and records of a sample from a :class:`simtest.render.RenderResult`."""
+def _portable_scene(spec) -> dict:
+    """The scene spec as a dict, with a bundled mesh path written relative to the repository.
+
+    The absolute path differs between machines (a Dask worker's install), which would make the
+    records of the same sample differ; ``meshes/<name>.ply`` resolves on any install.
+    """
     from simtest.scene.spec import scene_to_dict
 
+    d = _jsonable(scene_to_dict(spec))
+    geo = d.get("geometry", {})
+    if geo.get("type") == "mesh" and geo.get("path"):
+        path = Path(geo["path"])
+        root = _mesh_path("colon").parent
+        if path.parent == root:
+            geo["path"] = f"meshes/{path.name}"
+    return d
+
+
+def mesh_sha256(family: str) -> str | None:
+    """sha256 of the bundled mesh file a family renders (None for analytic families or if missing)."""
+    import hashlib
+
+    if family not in ("colon", "liver"):
+        return None
+    path = _mesh_path(family)
+    if not path.is_file():
+        return None
+    return hashlib.sha256(path.read_bytes()).hexdigest()
+
+
+def sample_from_render(config: DatasetConfig, index: int, params: dict, result) -> Sample:
+    """Collect the arrays and records of a sample from a :class:`simtest.render.RenderResult`."""
     mask = np.asarray(result.mask, dtype=bool)
     normals = np.where(mask[..., None], np.nan_to_num(np.asarray(result.normals, np.float32)), 0.0)
     depth = np.where(mask, np.nan_to_num(np.asarray(result.depth, np.float32)), 0.0)
@@ -462,7 +490,7 @@ def sample_from_render(config: DatasetConfig, index: int, params: dict, result) 
         "image_size": [int(mask.shape[1]), int(mask.shape[0])],
         "variant": str(result.variant),
         "highlights": highlights,
-        "scene": _jsonable(scene_to_dict(result.spec)),
+        "scene": _portable_scene(result.spec),
     }
     return Sample(index=int(index), arrays=arrays, record=record)
 

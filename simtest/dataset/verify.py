@@ -169,6 +169,10 @@ def verify(root, *, check_arrays: bool = True) -> VerifyReport:
     counts = card.get("counts", {})
     if counts.get("samples") != len(rows):
         rep.add(f"{root / 'dataset.json'}: counts.samples = {counts.get('samples')}, manifest has {len(rows)}")
+    variants = sorted({str(r.get("variant")) for r in rows})
+    if len(variants) > 1:
+        rep.add(f"{root / 'manifest.jsonl'}: samples rendered with several Mitsuba variants {variants}: "
+                "the dataset is not reproducible bit for bit (pin `variant` in the config)")
     by_shard: dict[int, list] = {}
     for r in rows:
         by_shard.setdefault(r.get("shard"), []).append(r)
