@@ -138,3 +138,16 @@ def test_bad_options():
         detect_specularities(np.zeros((10, 10)), brightness_rel=1.5)
     with pytest.raises(ValueError, match="full_scale"):
         detect_specularities(np.zeros((10, 10)), full_scale=-1)
+
+
+def test_a_single_clipped_channel_is_not_saturation():
+    # reddish tissue: the red channel clips over a broad area; the specular BP must come from the
+    # white (all channels clipped) plateau, not from the red plateau's centroid
+    g = gaussian((100, 160), (100.0, 50.0), 5.0, 400.0)
+    red = np.clip(gaussian((100, 160), (70.0, 50.0), 25.0, 300.0) + g, 0, 255)
+    rgb = np.dstack([red, np.clip(0.6 * g + 60, 0, 255), np.clip(0.6 * g + 60, 0, 255)])
+    rgb = np.clip(rgb, 0, 255).astype(np.uint8)
+    cands = [c for c in detect_specularities(rgb).candidates if c.saturated]
+    assert len(cands) == 1
+    # the white plateau (where 0.6 * g + 60 >= 255) is a disc about (100, 50)
+    assert np.allclose(cands[0].bp_uv, (100.0, 50.0), atol=0.25)

@@ -21,8 +21,10 @@ status: ``"ok"`` or the reason the candidate is rejected:
 Image types: (H, W) gray, (H, W, 1), (H, W, 3) RGB or (H, W, 4) RGBA (alpha ignored); dtype uint8,
 uint16 or floating. Full scale is the dtype maximum for integers and ``max(1, max(image))`` for
 floats unless given. The intensity used everywhere is the Rec. 601 luma
-``0.299 R + 0.587 G + 0.114 B``; a pixel is saturated when any channel is at ``saturation_level``
-(default: the integer dtype maximum; none for float images).
+``0.299 R + 0.587 G + 0.114 B``; a pixel is saturated (clipped white, as a specular highlight is)
+when every channel is at ``saturation_level`` (default: the integer dtype maximum; none for float
+images). A single clipped channel does not count: the red channel of tissue clips over broad
+diffuse areas in endoscopy.
 """
 
 from __future__ import annotations
@@ -243,7 +245,7 @@ def detect_specularities(
     full_scale : float, optional
         Intensity of a white pixel; default :func:`default_full_scale`.
     saturation_level : float, optional
-        A pixel is clipped when any channel is >= this; default the integer dtype maximum, and
+        A pixel is clipped when every channel is >= this; default the integer dtype maximum, and
         no clipping for float images.
     min_area_px : int, optional
         Smaller components are rejected as ``too_small``.
@@ -317,7 +319,7 @@ def detect_specularities(
             sub_img = img[bbox.slices]
             sat = sub_img >= saturation_level
             if sat.ndim == 3:
-                sat = sat.any(axis=2)
+                sat = sat.all(axis=2)
             sat &= sub_lab
             if sat.any():
                 saturated = True

@@ -7,7 +7,9 @@ the ``bp_ray`` estimate, projects onto the BP itself and is not drawn). Colours:
 the paper's selected normal green (the other of the pair dashed green), joint cone axis magenta.
 Rejected highlights get a red cross and their reason (``too_small`` ones only a red dot).
 
-Uses matplotlib with the Agg backend (no display); imported lazily.
+Uses matplotlib with the Agg backend (no display); imported lazily. With lens distortion the
+contour points are drawn where they were found (distorted image) but the fitted ellipses and the
+needles live in undistorted pixel coordinates, so they are offset where distortion is strong.
 """
 
 from __future__ import annotations

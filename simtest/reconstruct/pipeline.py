@@ -272,7 +272,7 @@ def _find_bp(img: np.ndarray, roi: Roi, saturation_level) -> tuple[np.ndarray, b
         sub = img[roi.slices]
         sat = sub >= saturation_level
         if sat.ndim == 3:
-            sat = sat.any(axis=2)
+            sat = sat.all(axis=2)
         if sat[r, c]:
             import cv2
 
