@@ -325,3 +325,26 @@ def test_analytic_highlights_satisfy_the_bisector_condition(tilt, az, eps, a, b)
         # The normal bisects the directions to camera and light (float64 solves: 1e-6 deg).
         assert _angle_deg(h.normal, bisector(h.bp_mm, L)) < 1e-6
         assert np.dot(h.normal, h.bp_mm) < 0  # faces the camera
+
+
+@pytest.mark.parametrize("distribution", ["beckmann", "ggx"])
+def test_microfacet_conductor_peaks_at_the_bp_and_cancels_falloff(distribution):
+    spec = scene_from_dict({
+        "camera": {"width_px": 96, "height_px": 96, "fov_deg": 90.0},
+        "material": {"model": "microfacet", "base": "conductor", "distribution": distribution,
+                     "alpha": 0.2},
+        "light": {"falloff": "cancel"},
+        "geometry": {"type": "plane", "tilt_deg": 25.0, "azimuth_deg": 200.0, "distance_mm": 40.0},
+        "render": {"spp": 16},
+    })
+    r = render_scene(spec)
+    (h,) = r.highlights
+    v, u = np.unravel_index(np.argmax(r.linear), r.linear.shape)
+    # Co-located light: the half vector is the view direction, so the lobe peaks where the view
+    # ray is along the normal, within the pixel holding the BP.
+    assert np.hypot(u - h.bp_px[0], v - h.bp_px[1]) <= 1.0
+    keep = render_scene(with_overrides(spec, {"light.falloff": "keep"}))
+    m = r.mask & (r.linear > 1e-3 * r.linear.max())
+    # "cancel" multiplies the pixel by its squared light distance (pixel-mean surface point):
+    # equal to float32 round-off.
+    assert np.allclose(r.linear[m], keep.linear[m] * r.distance[m] ** 2, rtol=1e-4)
