@@ -12,7 +12,8 @@ from simtest.reconstruct.detect import detect_specularities, ellipticity, valida
 
 def gaussian(shape, centre_uv, sigma, peak=1.0, aspect=1.0):
     v, u = np.mgrid[0 : shape[0], 0 : shape[1]].astype(float)
-    return peak * np.exp(-(((u - centre_uv[0]) / sigma) ** 2 + ((v - centre_uv[1]) / (aspect * sigma)) ** 2) / 2)
+    q = ((u - centre_uv[0]) / sigma) ** 2 + ((v - centre_uv[1]) / (aspect * sigma)) ** 2
+    return peak * np.exp(-q / 2)
 
 
 def three_blobs(shape=(120, 200)):

@@ -124,7 +124,8 @@ def test_distortion_undistorts_contour_points_before_the_fit():
 def test_nested_highlights_are_reported_merged():
     K = intrinsics(300, 300)
     v, u = np.mgrid[0:300, 0:300].astype(float)
-    img = np.exp(-((u - 130) ** 2 + (v - 150) ** 2) / 200) + 0.9 * np.exp(-((u - 170) ** 2 + (v - 150) ** 2) / 200)
+    img = np.exp(-((u - 130) ** 2 + (v - 150) ** 2) / 200)
+    img += 0.9 * np.exp(-((u - 170) ** 2 + (v - 150) ** 2) / 200)
     est = reconstruct(img, K, 0.05)
     assert len(est) == 2 and all(e.status == "merged" for e in est)
 

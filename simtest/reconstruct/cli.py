@@ -53,13 +53,17 @@ def load_image(path) -> "np.ndarray":  # noqa: F821
 def reconstruct_command(
     image: Path = typer.Argument(..., help="Image file (PNG, JPEG, TIFF, ... or .npy).", show_default=False),
     intrinsics: Path = typer.Option(..., "--intrinsics", "-k", help="Intrinsics JSON or OpenCV YAML/XML."),
-    out: Path = typer.Option(Path("."), "--out", "-o", help="Output folder for estimates.json and overlay.png."),
+    out: Path = typer.Option(
+        Path("."), "--out", "-o", help="Output folder for estimates.json and overlay.png."
+    ),
     isovalue: list[float] = typer.Option(
         [0.1], "--isovalue", "-t", help="Isovalue in (0, 1) relative to the BP; repeat for nested isophotes."
     ),
     normalise: str = typer.Option("bp", help="Intensity normalisation: bp or full_scale."),
     allow_open: bool = typer.Option(False, "--allow-open", help="Fit isophotes cut by a border (flagged)."),
-    smooth_sigma_px: float = typer.Option(0.0, "--smooth", help="Gaussian smoothing sigma in px before contouring."),
+    smooth_sigma_px: float = typer.Option(
+        0.0, "--smooth", help="Gaussian smoothing sigma in px before detection and contouring."
+    ),
     points: bool = typer.Option(False, "--points", help="Also write the contour points in estimates.json."),
     overlay: bool = typer.Option(True, "--overlay/--no-overlay", help="Write overlay.png."),
 ) -> None:

@@ -323,7 +323,7 @@ def detect_specularities(
             sat &= sub_lab
             if sat.any():
                 saturated = True
-                n_p, plab, pstats, pcent = cv2.connectedComponentsWithStats(
+                _, _, pstats, pcent = cv2.connectedComponentsWithStats(
                     sat.view(np.uint8), connectivity=8
                 )
                 areas = pstats[1:, cv2.CC_STAT_AREA]
@@ -342,7 +342,8 @@ def detect_specularities(
         elif status == "ok" and area >= 12:
             e = ellipticity(sub_lab)
             if not (ellipticity_min <= e <= 1.0 / ellipticity_min):
-                status, detail = "not_elliptical", f"ellipticity {e:.3f} outside [{ellipticity_min}, {1 / ellipticity_min:.3f}]"
+                status = "not_elliptical"
+                detail = f"ellipticity {e:.3f} outside [{ellipticity_min}, {1 / ellipticity_min:.3f}]"
         half = roi_scale * max(bw, bh) / 2.0 + roi_margin_px
         roi = Roi.around(bp_uv, half, img.shape)
         out.append(Candidate(bp_uv, peak, saturated, area, bbox, roi, status, detail))

@@ -153,7 +153,7 @@ def fit_ellipse(points_uv) -> EllipseFit | Failure:
     # Reduced scatter matrix M = C1^-1 (S1 + S2 T) [eqn. 29] from [1]
     m = _C1_INV @ (s1 + s2 @ t)
     # M a1 = lambda a1: eigenvectors of the reduced problem [eqn. 28] from [1]
-    eigval, eigvec = np.linalg.eig(m)
+    _, eigvec = np.linalg.eig(m)
     eigvec = np.real(eigvec)
     # The ellipse solution satisfies the constraint a1^T C1 a1 = 4ac - b^2 > 0 [eqn. 14/30] from [1]
     cond = 4.0 * eigvec[0] * eigvec[2] - eigvec[1] ** 2
@@ -179,7 +179,9 @@ def fit_ellipse(points_uv) -> EllipseFit | Failure:
     r_general = max(float(w_full[0]), 0.0)
     if r_ellipse > 1e-24 and r_ellipse > 4.0 * r_general:
         g = v_full[:, 0]
-        g_conic = np.array([[g[0], g[1] / 2, g[3] / 2], [g[1] / 2, g[2], g[4] / 2], [g[3] / 2, g[4] / 2, g[5]]])
+        g_conic = np.array(
+            [[g[0], g[1] / 2, g[3] / 2], [g[1] / 2, g[2], g[4] / 2], [g[3] / 2, g[4] / 2, g[5]]]
+        )
         kind = conic_kind(g_conic)
         if kind != "ellipse":
             return Failure(

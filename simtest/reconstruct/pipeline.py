@@ -335,7 +335,8 @@ def _estimate_one(img, K, dist, isovalues, bp_uv, roi, *, saturated, normalise, 
         i_bp = _bp_intensity(vals, roi, bp_uv)
         scale = i_bp if normalise == "bp" else full_scale
         i0 = order[0]
-        res, iso = _one_isophote(vals, roi, img.shape, scale, isovalues[i0], bp_uv, K, dist, bp_ray, allow_open)
+        res, iso = _one_isophote(vals, roi, img.shape, scale, isovalues[i0], bp_uv, K, dist, bp_ray,
+                                 allow_open)
         if grow and iso is not None and iso.cut_by_roi and growths < ROI_MAX_GROWTHS:
             half = ROI_GROWTH_FACTOR * max(roi.shape) / 2.0
             new = Roi.around(bp_uv, half, img.shape)
@@ -345,7 +346,8 @@ def _estimate_one(img, K, dist, isovalues, bp_uv, roi, *, saturated, normalise, 
         results[i0] = res
         break
     for i in order[1:]:
-        results[i], _ = _one_isophote(vals, roi, img.shape, scale, isovalues[i], bp_uv, K, dist, bp_ray, allow_open)
+        results[i], _ = _one_isophote(vals, roi, img.shape, scale, isovalues[i], bp_uv, K, dist,
+                                      bp_ray, allow_open)
 
     primary = results[0]
     status, detail = primary.status, primary.detail
