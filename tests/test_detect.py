@@ -152,3 +152,11 @@ def test_a_single_clipped_channel_is_not_saturation():
     assert len(cands) == 1
     # the white plateau (where 0.6 * g + 60 >= 255) is a disc about (100, 50)
     assert np.allclose(cands[0].bp_uv, (100.0, 50.0), atol=0.25)
+
+
+def test_candidate_cap_counts_what_it_leaves_out():
+    img = np.zeros((60, 60))
+    img[5:55:4, 5:55:4] = 1.0  # 13 x 13 isolated single-pixel specks
+    det = detect_specularities(img, max_candidates=100)
+    assert len(det.candidates) == 100 and det.n_unexamined == 169 - 100
+    assert all(c.status == "too_small" for c in det.candidates)

@@ -77,12 +77,14 @@ class Candidate:
 class Detection:
     """All candidates found in an image, accepted (``status == "ok"``) or not.
 
-    ``threshold`` is the brightness level of the candidate masks, image units.
+    ``threshold`` is the brightness level of the candidate masks, image units;
+    ``n_unexamined`` counts the smallest components left out beyond ``max_candidates``.
     """
 
     candidates: list[Candidate] = field(default_factory=list)
     full_scale: float = 1.0
     threshold: float = 0.0
+    n_unexamined: int = 0
 
     @property
     def accepted(self) -> list[Candidate]:
@@ -258,7 +260,8 @@ def detect_specularities(
         the BP, clipped to the image (the t = 0.1 isophote of a Phong lobe is about 2.8 times
         wider than its 0.7 level). The pipeline grows it when an isophote is cut.
     max_candidates : int, optional
-        Only the largest ``max_candidates`` components are examined (a safety valve for noise).
+        Only the largest ``max_candidates`` components are examined (a safety valve for noise);
+        how many were left out is ``Detection.n_unexamined``.
     smooth_sigma_px : float, optional
         Gaussian smoothing of the luma before thresholding and BP search (0: none). On a noisy
         image it keeps one highlight from breaking into several components.
@@ -348,4 +351,4 @@ def detect_specularities(
         roi = Roi.around(bp_uv, half, img.shape)
         out.append(Candidate(bp_uv, peak, saturated, area, bbox, roi, status, detail))
     out.sort(key=lambda c: -c.peak)
-    return Detection(out, fs, thr)
+    return Detection(out, fs, thr, max(0, len(comps) - max_candidates))
