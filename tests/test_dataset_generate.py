@@ -202,5 +202,5 @@ def test_bench_measures_throughput_and_worker_memory():
     for label in ("cold", "warm"):
         r = m[label]
         assert r["count"] == 6
-        assert r["steady_ms"] > 0 and r["end_to_end_ms"] > 0
+        assert r["steady_ms"] > 0 and r["end_to_end_ms"] > 0 and r["cpu_ms"] > 0
         assert 20 < r["peak_rss_mib"] < 4096  # a Python process with Mitsuba: tens to hundreds of MiB

@@ -9,6 +9,8 @@ and reports:
   excluded), with samples per second in the note. Target: colon at >= 5 samples/s, i.e. <= 200 ms.
 - end-to-end milliseconds per sample (worker start-up included).
 - peak resident memory of the largest worker (MiB).
+- in the notes, the workers' CPU time per sample (all their threads), and the rate two idle cores
+  would give (2 / CPU time): on a machine shared with other jobs the wall-clock figures are lower.
 
 Each run uses a fresh root seed, so every sample draws new parameter values as in a real dataset
 ("cold": Dr.Jit compiles each sample's kernel, since the scene parameters are baked into it); the
@@ -59,7 +61,8 @@ def measure(family: str, count: int = 24, workers: int = 2, seed: int | None = N
     -------
     dict
         ``{"cold": {...}, "warm": {...}}`` each with ``steady_ms``, ``end_to_end_ms``,
-        ``samples_per_s`` (steady), ``peak_rss_mib`` (largest worker), ``count``.
+        ``samples_per_s`` (steady), ``peak_rss_mib`` (largest worker), ``cpu_ms`` (worker CPU
+        time per sample), ``count``.
     """
     from simtest.dataset.generate import generate
 
@@ -81,6 +84,7 @@ def measure(family: str, count: int = 24, workers: int = 2, seed: int | None = N
                 "samples_per_s": 1e3 / steady if steady == steady else float("nan"),
                 "end_to_end_ms": 1e3 * rep.seconds / max(rep.written, 1),
                 "peak_rss_mib": max(rep.worker_peak_rss_mb.values(), default=float("nan")),
+                "cpu_ms": 1e3 * rep.worker_cpu_s / max(rep.written, 1),
             }
     return out
 
@@ -106,7 +110,8 @@ def bench_dataset(repeat: int = 50) -> list:
         for label in ("cold", "warm"):
             r = m[label]
             note = (f"{r['samples_per_s']:.2f} samples/s steady, {r['count']} samples, 2 workers, "
-                    f"256x256 16 spp, {label} kernel cache")
+                    f"256x256 16 spp, {label} kernel cache; {r['cpu_ms']:.0f} ms CPU per sample "
+                    f"(~{2e3 / r['cpu_ms']:.1f} samples/s on 2 idle cores)")
             results.append(BenchResult(
                 "dataset", f"{family}: ms per sample ({label})", r["steady_ms"], "ms",
                 TARGET_MS if family == "colon" else None, None, note))

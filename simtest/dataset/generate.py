@@ -70,6 +70,8 @@ class GenerateReport:
     completed_at_s : list of float
         Seconds from the start of the rendering phase at which each sample arrived (in arrival
         order), for throughput measurements.
+    worker_cpu_s : float
+        CPU seconds (all threads) the workers spent in the sample function, summed over samples.
     """
 
     out_dir: Path
@@ -80,6 +82,7 @@ class GenerateReport:
     samples_per_s: float = 0.0
     worker_peak_rss_mb: dict = field(default_factory=dict)
     completed_at_s: list = field(default_factory=list)
+    worker_cpu_s: float = 0.0
 
 
 def _conventions() -> dict:
@@ -237,15 +240,16 @@ def _finalise(config: DatasetConfig, out: Path) -> None:
 
 
 def _run_task(sample_fn: Callable, config: DatasetConfig, index: int):
-    """Worker side: one sample, plus the worker's identity and peak RSS (KiB)."""
+    """Worker side: one sample, the worker's identity, its peak RSS (KiB) and the CPU seconds."""
     import socket
 
+    cpu0 = time.process_time()
     try:
         sample = sample_fn(config, index)
     except Exception as exc:  # re-raised with the index, as a picklable error
         raise SampleError(f"sample {index}: {type(exc).__name__}: {exc}") from None
     rss_kib = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
-    return sample, f"{socket.gethostname()}:{os.getpid()}", rss_kib
+    return sample, f"{socket.gethostname()}:{os.getpid()}", rss_kib, time.process_time() - cpu0
 
 
 def _worker_init(threads: int) -> None:
@@ -436,7 +440,8 @@ def generate(
                         inflight[ex.submit(i)] = i
                     for f in ex.wait(inflight):
                         i = inflight.pop(f)
-                        sample, who, rss_kib = f.result()
+                        sample, who, rss_kib, cpu_s = f.result()
+                        report.worker_cpu_s += cpu_s
                         if sample.index != i:
                             raise SampleError(f"sample {i}: sample_fn returned index {sample.index}")
                         rss[who] = max(rss.get(who, 0.0), rss_kib / 1024.0)
