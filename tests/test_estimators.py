@@ -140,3 +140,17 @@ def test_ellipse_conic_in_pixels_through_K():
     C = ellipse_to_conic((202.5, 190.5), (30.0, 30.0 * 300 / 320), 0.0)
     est = estimate_from_conic(normalised_conic(C, K), np.array([0.0, 0.0, -1.0]))
     assert angle_between_deg(est.cone_axis, [0, 0, -1]) < TOL.exact_normal_deg
+
+
+@given(st.integers(0, 10_000))
+@settings(max_examples=30, deadline=None)
+def test_pipeline_hot_path_forms_agree_with_geometry(seed):
+    # simtest.reconstruct.pipeline computes C' and the BP ray inline (K validated once per call);
+    # they must equal simtest.geometry's functions to rounding.
+    from simtest.reconstruct.pipeline import _bp_ray, _normalised_conic
+
+    centre, normal, radius = random_circle(seed)
+    C = project_circle(centre, normal, radius, K)
+    assert np.allclose(_normalised_conic(C, K), normalised_conic(C, K), rtol=0, atol=1e-14)
+    uv = project_points(centre, K)
+    assert angle_between_deg(_bp_ray(uv, K), bp_ray_normal(uv, K)) < 1e-9

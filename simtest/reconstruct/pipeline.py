@@ -249,6 +249,27 @@ def _check_common(image, K, isovalue, normalise, dist_coeffs):
 # one highlight
 
 
+# Hot-path forms of simtest.geometry's normalised_conic and bp_ray_normal for a K validated once
+# per call (those re-validate K each time, ~30 us, 10 % of a highlight's budget); the tests check
+# that they agree with the geometry functions to rounding.
+
+
+def _normalised_conic(C: np.ndarray, K: np.ndarray) -> np.ndarray | None:
+    """C' = K^T C K (paper step 3), symmetrised, unit Frobenius norm; None if zero or non-finite."""
+    cn = K.T @ C @ K
+    cn = 0.5 * (cn + cn.T)
+    norm = float(np.linalg.norm(cn))
+    if not (np.isfinite(norm) and norm > 0):
+        return None
+    return cn / norm
+
+
+def _bp_ray(bp_uv: np.ndarray, K: np.ndarray) -> np.ndarray:
+    """BP-ray normal: minus the unit viewing ray through the pixel ``bp_uv`` (3,)."""
+    ray = np.linalg.solve(K, np.array([bp_uv[0], bp_uv[1], 1.0]))
+    return -ray / np.linalg.norm(ray)
+
+
 def _roi_values(img: np.ndarray, roi: Roi, smooth_sigma_px: float) -> np.ndarray:
     vals = luma(img[roi.slices])
     if smooth_sigma_px > 0:
@@ -284,8 +305,6 @@ def _find_bp(img: np.ndarray, roi: Roi, saturation_level) -> tuple[np.ndarray, b
 
 def _one_isophote(vals, roi, img_shape, level_scale, t, bp_uv, K, dist, bp_ray, allow_open):
     from simtest.geometry.camera import undistort_points
-    from simtest.geometry.conics import normalised_conic
-
     iso = extract_isophote(
         vals, t * level_scale, bp_uv, origin_rc=(roi.row0, roi.col0), image_shape=img_shape,
         allow_open=True, min_points=0,
@@ -302,10 +321,10 @@ def _one_isophote(vals, roi, img_shape, level_scale, t, bp_uv, K, dist, bp_ray, 
     fit = fit_ellipse(pts)
     if not fit:
         return IsophoteEstimate(t, fit.reason, fit.detail, iso.points_uv, iso.closed), iso
-    try:
-        cn = normalised_conic(fit.conic, K)
-    except ValueError as exc:
-        return IsophoteEstimate(t, "pose_failed", str(exc), iso.points_uv, iso.closed), iso
+    cn = _normalised_conic(fit.conic, K)
+    if cn is None:
+        return IsophoteEstimate(t, "pose_failed", "C' = K^T C K is zero or not finite",
+                                iso.points_uv, iso.closed), iso
     est = estimate_from_conic(cn, bp_ray)
     base = dict(points_uv=iso.points_uv, closed=iso.closed, conic=fit.conic, ellipse=fit.ellipse,
                 fit_residual_px=fit.residual_px, normalised_conic=cn)
@@ -321,11 +340,11 @@ def _one_isophote(vals, roi, img_shape, level_scale, t, bp_uv, K, dist, bp_ray, 
 
 def _estimate_one(img, K, dist, isovalues, bp_uv, roi, *, saturated, normalise, full_scale,
                   allow_open, smooth_sigma_px, grow, other_bps=()):
-    from simtest.geometry.camera import bp_ray_normal, undistort_points
+    from simtest.geometry.camera import undistort_points
 
     bp_uv = np.asarray(bp_uv, dtype=np.float64)
     bp_und = bp_uv if dist is None else undistort_points(bp_uv[None], K, dist)[0]
-    bp_ray = bp_ray_normal(bp_und, K)
+    bp_ray = _bp_ray(bp_und, K)
     # Lowest isovalue first: the widest contour decides the ROI size.
     order = sorted(range(len(isovalues)), key=lambda i: isovalues[i])
     results: list = [None] * len(isovalues)
@@ -522,7 +541,7 @@ def reconstruct(
     )
     if saturation_level is None and img.dtype.kind == "u":
         saturation_level = float(np.iinfo(img.dtype).max)
-    from simtest.geometry.camera import bp_ray_normal, undistort_points
+    from simtest.geometry.camera import undistort_points
 
     shift = np.array([r.col0, r.row0], dtype=np.float64)
     t_min = min(isovalues)
@@ -535,7 +554,7 @@ def reconstruct(
                         cand.roi.col0 + r.col0, cand.roi.col1 + r.col0)
             bp_und = bp if dist is None else undistort_points(bp[None], K, dist)[0]
             out.append(SpecularityEstimate(bp, cand.peak, cand.saturated, roi_k, cand.status,
-                                           cand.detail, bp_ray_normal(bp_und, K), ()))
+                                           cand.detail, _bp_ray(bp_und, K), ()))
             continue
         roi_k = _initial_roi(cand, bp, det.threshold, t_min, normalise, fs, img.shape)
         others = [b for j, b in enumerate(bps) if j != k and det.candidates[j].status != "too_small"]
