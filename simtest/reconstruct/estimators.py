@@ -142,6 +142,16 @@ def estimate_from_conic(Cn: np.ndarray, bp_ray: np.ndarray) -> ConeEstimate | Fa
     return ConeEstimate(paper, paper[idx], idx, axis, float(ax.eigenvalue_gap))
 
 
+def bp_ray(bp_uv, K) -> np.ndarray:
+    """The ``bp_ray`` estimator: minus the unit viewing ray through the BP (3,), camera frame.
+
+    Same as :func:`simtest.geometry.camera.bp_ray_normal`; pass the *undistorted* BP.
+    """
+    from simtest.geometry.camera import bp_ray_normal
+
+    return bp_ray_normal(bp_uv, K)
+
+
 def joint_cone_axis(cns, bp_ray: np.ndarray) -> np.ndarray | Failure:
     """Least-squares common axis of several normalised conics (nested isophotes).
 
