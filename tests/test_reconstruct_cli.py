@@ -82,7 +82,7 @@ def test_real_tile_runs(tmp_path):
 
 def _one_line_error(res, *words):
     assert res.exit_code == 2
-    err = res.stderr if hasattr(res, "stderr") else res.output
+    err = res.output  # stdout and stderr together (Click 8.1 and 8.2 alike): nothing but the error
     lines = [ln for ln in err.splitlines() if ln.strip()]
     assert len(lines) == 1, err
     assert lines[0].startswith("error: ") and "Traceback" not in err
