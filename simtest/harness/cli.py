@@ -111,7 +111,8 @@ def nightly_command(
     from rich.console import Console
 
     from simtest.harness.nightly import (changes_table, compare, default_baseline_path,
-                                         load_baseline, tolerances_for, update_baseline)
+                                         load_baseline, tolerances_for)
+    from simtest.harness.nightly import update_baseline as write_baseline
     from simtest.harness.report import write_report
     from simtest.harness.runner import run_suite
     from simtest.harness.suite import SuiteError, load_suite
@@ -138,7 +139,7 @@ def nightly_command(
     results = json.loads((folder / "results.json").read_text())
     console.print(f"report: {folder / 'report.html'}")
     if update_baseline:
-        update_baseline(path, results, tol)
+        write_baseline(path, results, tol)
         console.print(f"baseline for suite {s.name} written to {path}")
         return
     if base.get("suite_sha256") and base["suite_sha256"] != results["suite"]["sha256"]:

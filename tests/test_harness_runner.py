@@ -1,0 +1,132 @@
+"""Runner, metrics and reports: worker-count independence, failures kept, report files."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+
+from simtest.harness import protocols
+from simtest.harness.metrics import summarise
+from simtest.harness.report import build_results, evaluate_paper_claim, write_report
+from simtest.harness.runner import run_suite
+from simtest.harness.suite import suite_from_dict
+
+SMALL = {
+    "suite": {"name": "small", "realisations": 5, "seed": 11},
+    "base": {"joint_isovalues": [0.1, 0.3, 0.5]},
+    "sweep": [
+        {"name": "theta", "parameter": "theta_deg", "values": [20.0, 58.0]},
+        {"name": "eps", "parameter": "epsilon_px", "values": [300.0], "set": {"n": 100.0}},
+        {"name": "plane", "protocol": "rendered", "scene": "plane_58deg",
+         "parameter": "geometry.tilt_deg", "values": [58.0], "realisations": 2,
+         "set": {"isovalue": 0.3, "joint_isovalues": [0.2, 0.3, 0.5]}},
+    ],
+}
+
+
+def _numbers(results: dict) -> list:
+    """Everything in results.json that must not depend on the run (not provenance or times)."""
+    return [(c["id"], c["key"], c["samples"], c["metrics"]) for c in results["cases"]]
+
+
+def test_same_seed_any_worker_count_identical_numbers():
+    suite = suite_from_dict(SMALL)
+    r1 = build_results(run_suite(suite, workers=1, progress=False), "w1")
+    r2 = build_results(run_suite(suite, workers=2, progress=False), "w2")
+    assert _numbers(r1) == _numbers(r2)  # exact equality, floats included
+    # and the rendered case really ran (a render failure would hide behind equal NaNs)
+    plane = next(c for c in r1["cases"] if c["sweep"] == "plane")
+    assert plane["metrics"]["estimators"]["cone_axis"]["n_ok"] == 2
+    assert r1["provenance"]["mitsuba_variants"]
+
+
+def test_another_seed_changes_the_numbers():
+    suite = suite_from_dict({**SMALL, "sweep": SMALL["sweep"][:1]})
+    a = build_results(run_suite(suite, workers=1, progress=False), "a")
+    b = build_results(run_suite(suite.with_overrides(seed=12), workers=1, progress=False), "b")
+    assert _numbers(a) != _numbers(b)
+
+
+def test_exceptions_are_counted_not_dropped(monkeypatch):
+    real_run = protocols.PaperRunner.run
+    calls = {"n": 0}
+
+    def flaky(self, seedseq):
+        calls["n"] += 1
+        if calls["n"] == 2:
+            raise RuntimeError("planted failure")
+        return real_run(self, seedseq)
+
+    monkeypatch.setattr(protocols.PaperRunner, "run", flaky)
+    suite = suite_from_dict({**SMALL, "sweep": SMALL["sweep"][:1]})
+    res = build_results(run_suite(suite, workers=1, progress=False), "x")
+    m = res["cases"][0]["metrics"]["estimators"]["paper_oracle"]
+    assert m["n"] == 5 and m["n_ok"] == 4
+    assert m["failures"] == {"exception:RuntimeError": 1}
+    assert m["failure_rate"] == pytest.approx(0.2)
+    assert "planted failure" in res["cases"][0]["exceptions"][0]
+
+
+def test_summarise_matches_numpy_and_counts_causes():
+    rng = np.random.default_rng(0)
+    e = rng.gamma(2.0, 1.0, 50)
+    e[[3, 7, 9]] = np.nan
+    causes = [None] * 50
+    causes[3], causes[7], causes[9] = "contour_cut", "contour_cut", "not_detected"
+    s = summarise(e, causes)
+    ok = e[np.isfinite(e)]
+    assert (s["n"], s["n_ok"]) == (50, 47)
+    assert s["failures"] == {"contour_cut": 2, "not_detected": 1}
+    assert s["mean"] == np.mean(ok) and s["std"] == np.std(ok) and s["max"] == np.max(ok)
+    assert s["p95"] == np.percentile(ok, 95) and s["median"] == np.median(ok)
+    none = summarise([np.nan], ["x"])
+    assert none["mean"] is None and none["failure_rate"] == 1.0
+    with pytest.raises(ValueError, match="causes"):
+        summarise([1.0, 2.0], [None])
+
+
+def test_report_files_self_contained(tmp_path):
+    raw = {**SMALL, "sweep": [dict(SMALL["sweep"][0], paper={
+        "claim": "below 7 deg", "check": ["max_mean_below", "increasing"], "value": [7.0, 0.0],
+        "note": "why"})]}
+    run = run_suite(suite_from_dict(raw), workers=1, progress=False)
+    folder = write_report(run, tmp_path, run_id="r1")
+    assert folder == tmp_path / "small" / "r1"
+    res = json.loads((folder / "results.json").read_text())
+    assert res["schema"] == "simtest.validation" and res["schema_version"] == 1
+    prov = res["provenance"]
+    for k in ("git_commit", "packages", "machine", "wall_time_s", "realisations_per_s", "workers"):
+        assert k in prov
+    assert res["suite"]["seed"] == 11 and "SeedSequence" in res["seeding"]
+    assert res["open_parameters"]["smoothing_px"]["value"] == [2.0]
+    comp = res["sweeps"][0]["comparison"]
+    assert [c["check"] for c in comp] == ["max_mean_below", "increasing"]
+    html = (folder / "report.html").read_text()
+    assert html.count("data:image/png;base64,") == 2  # bars and curves of the one sweep
+    assert "src=\"http" not in html and "<link" not in html  # nothing external
+    md = (folder / "report.md").read_text()
+    assert "below 7 deg" in md and "why" in md
+    assert sorted(p.name for p in (folder / "figures").iterdir()) == ["theta_bars.png",
+                                                                       "theta_curves.png"]
+
+
+def _cases(xs, means):
+    return [{"x": x, "metrics": {"estimators": {"paper_oracle": {"mean": m, "max": m}}}}
+            for x, m in zip(xs, means)]
+
+
+def test_paper_checks_on_known_curves():
+    xs = np.linspace(30, 120, 10)
+    line = list(0.5 + 0.01 * xs)
+    (slope,) = evaluate_paper_claim({"check": "slope_in_range", "value": [0.009, 0.011]},
+                                    _cases(xs, line))
+    assert slope["holds"] is True
+    u = list((xs - 75.0) ** 2)
+    (arg,) = evaluate_paper_claim({"check": "argmin_in_range", "value": [70, 80]}, _cases(xs, u))
+    (arg2,) = evaluate_paper_claim({"check": "argmin_in_range", "value": [100, 120]},
+                                   _cases(xs, u))
+    assert arg["holds"] is True and arg2["holds"] is False
+    (inc,) = evaluate_paper_claim({"check": "increasing", "value": 0.9}, _cases(xs, u))
+    assert inc["holds"] is False

@@ -1,0 +1,120 @@
+"""The paper's synthetic protocol (simtest.simulate.paper): geometry, BP, randomness, exact cases."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from simtest.geometry.angles import angle_between_deg
+from simtest.simulate.paper import PaperParams, PaperSimulator, mirror_point, paper_homography
+from simtest.specular import phong_intensity
+
+
+@settings(max_examples=30, deadline=None)
+@given(theta=st.floats(0.0, 85.0), x0=st.floats(-300, 300), y0=st.floats(-300, 300),
+       px=st.floats(-150, 150), py=st.floats(-150, 150))
+def test_homography_is_the_slanted_camera(theta, x0, y0, px, py):
+    """H applied to a texture pixel equals the camera projection of its plane point."""
+    p = PaperParams(theta_deg=theta)
+    H, K, R, C = paper_homography(p, (x0, y0))
+    T = p.texture
+    u, v = px + T / 2.0, py + T / 2.0  # texture pixel
+    P = np.array([x0 + u - T / 2.0, y0 - (v - T / 2.0), 0.0])  # its plane point (module doc)
+    h = H @ [u, v, 1.0]
+    X = K @ (R @ (P - C))
+    # Both are ratios of O(1e3) numbers computed in float64: 1e-7 px is 1e5 ulps of headroom.
+    np.testing.assert_allclose(h[:2] / h[2], X[:2] / X[2], atol=1e-7)
+    # The window centre is the principal point (BP at the image centre).
+    c = H @ [T / 2.0, T / 2.0, 1.0]
+    np.testing.assert_allclose(c[:2] / c[2], [p.image_px / 2.0] * 2, atol=1e-9)
+
+
+@pytest.mark.parametrize("theta", [0.0, 30.0, 58.0, 85.0])
+def test_truth_normal_is_theta_off_the_bp_ray(theta):
+    sim = PaperSimulator(PaperParams(theta_deg=theta, sigma=0.0))
+    s = sim.sample(np.random.default_rng(0))
+    np.testing.assert_allclose(s.bp_px, [203.0, 203.0], atol=1e-9)  # pixel centres: cx = M/2
+    ray = np.linalg.solve(s.K, [s.bp_px[0], s.bp_px[1], 1.0])
+    assert np.dot(s.normal, ray) < 0  # faces the camera
+    # Exact geometry: the BP ray is the optical axis, the normal is theta from it. 1e-9 deg is
+    # float64 rounding of a 3-vector built from sin/cos.
+    assert abs(angle_between_deg(s.normal, -ray) - theta) < 1e-9
+
+
+@settings(max_examples=40, deadline=None)
+@given(eps=st.floats(1.0, 800.0), a=st.floats(0.0, 2 * math.pi), b=st.floats(-0.5, 0.5))
+def test_mirror_point_is_the_phong_maximum(eps, a, b):
+    V = np.array([0.0, 0.0, 1000.0])
+    L = V + eps * np.array([math.cos(a), math.sin(a), b])
+    P = mirror_point(V, L)
+    # beta = 0 there: I = c exactly up to rounding of a cosine (1e-12).
+    assert phong_intensity(P, V, L, 100.0) == pytest.approx(1.0, abs=1e-12)
+    # and every neighbour 1 px away is dimmer.
+    for d in ([1, 0], [-1, 0], [0, 1], [0, -1]):
+        assert phong_intensity(P + d, V, L, 100.0) < 1.0
+
+
+def test_image_normalised_at_bp_and_reproducible():
+    p = PaperParams(epsilon_px=300.0, n=100.0)
+    s1 = PaperSimulator(p).sample(np.random.default_rng(7))
+    s2 = PaperSimulator(p).sample(np.random.default_rng(7))
+    np.testing.assert_array_equal(s1.image, s2.image)
+    np.testing.assert_array_equal(s1.light_px, s2.light_px)
+    # Normalised so that the smoothed image is 1 at the BP (float32 division: 1 ulp).
+    r, c = int(round(s1.bp_px[1])), int(round(s1.bp_px[0]))
+    assert s1.image[r, c] == pytest.approx(1.0, abs=1e-6)
+    # The light offset has the paper's norm bounds: |L - V| in [eps, eps sqrt(1.25)].
+    d = np.linalg.norm(s1.light_px - np.array([0.0, 0.0, 1000.0]))
+    assert 300.0 - 1e-9 <= d <= 300.0 * math.sqrt(1.25) + 1e-9
+    s3 = PaperSimulator(p).sample(np.random.default_rng(8))
+    assert not np.array_equal(s1.image, s3.image)
+
+
+def test_noise_has_the_requested_sigma():
+    p = PaperParams(sigma=0.05, smoothing_px=0.0, theta_deg=0.0)
+    sim = PaperSimulator(p)
+    s = sim.sample(np.random.default_rng(1))
+    resid = s.image * s.bp_value - sim._clean  # undo normalisation, remove the clean image
+    # 165 k samples: the std estimate has relative error about 1/sqrt(2 * 165e3) = 0.2 %; 2 %
+    # is 10 standard errors.
+    assert np.std(resid) == pytest.approx(0.05, rel=0.02)
+
+
+def test_fronto_noiseless_gives_zero_error():
+    """theta = 0, sigma = 0: the camera is the viewer (co-located), the isophote is a circle
+    centred at the BP, and the image is symmetric under the pixel grid's quarter turns about
+    the BP pixel, so the fitted conic is a circle centred there."""
+    from simtest.harness.protocols import PaperRunner
+    from simtest.harness.suite import realisation_seed, suite_from_dict
+
+    suite = suite_from_dict({"sweep": [{"name": "z", "parameter": "theta_deg", "values": [0.0],
+                                        "set": {"sigma": 0.0}}]})
+    case = suite.cases[0]
+    runner = PaperRunner(case, suite.estimators)
+    row = runner.run(realisation_seed(0, case.key, 0))[0]
+    assert all(c is None for c in row["causes"].values()), row["causes"]
+    e = row["errors"]
+    # BP ray: the BP is the principal point and the normal is the optical axis: exact.
+    assert e["bp_ray"] < 1e-9
+    # Cone axis: a conic centre offset delta tilts the axis by about delta / f rad; OpenCV warps
+    # with 1/32 px fixed-point coordinates, so delta <= 1/64 px and the tilt <= 2.2e-3 deg.
+    assert e["cone_axis"] < 2.2e-3
+    assert e["joint_cone_axis"] < 2.2e-3
+    # Circle pose: N+- leave the cone axis by asin(sqrt(gap)) (square-root sensitivity). What is
+    # left of the gap is float32 rounding of the image (relative 6e-8) through the fit; gap < 1e-6
+    # allows a factor 16, and bounds the oracle error by asin(1e-3) = 0.057 deg.
+    gap = row["extras"]["eigenvalue_gap"]
+    assert gap < 1e-6
+    assert e["paper_oracle"] <= math.degrees(math.asin(math.sqrt(gap))) + e["cone_axis"] + 1e-6
+    assert e["paper_oracle"] < 0.058
+
+
+@pytest.mark.parametrize("field,value", [("sigma", -0.1), ("theta_deg", 90.0), ("n", 0.0),
+                                         ("image_px", 4), ("window_at_bp", 1)])
+def test_bad_params_name_the_field(field, value):
+    with pytest.raises(ValueError, match=f"PaperParams.{field}"):
+        PaperParams(**{field: value})
