@@ -271,3 +271,17 @@ def test_geometry_and_reconstruct_never_import_mitsuba():
         "assert not bad, bad\n"
     )
     subprocess.run([sys.executable, "-c", code], check=True)
+
+
+@pytest.mark.parametrize("centre", [(0.0, 0.0), (1300.0, 1000.0), (-5e4, 2e4)])
+def test_conic_kind_does_not_depend_on_position(centre):
+    # a small (2 x 0.5 px) ellipse is an ellipse wherever it lies in the image
+    C = ellipse_to_conic(centre, (2.0, 0.5), 0.3)
+    assert conic_kind(C) == "ellipse"
+    e = conic_to_ellipse(C)
+    np.testing.assert_allclose(e.semi_axes, (2.0, 0.5), rtol=1e-6)
+    # and a point / crossing lines centred there are degenerate
+    T = np.array([[1.0, 0, -centre[0]], [0, 1.0, -centre[1]], [0, 0, 1]])
+    assert conic_kind(T.T @ np.diag([1.0, 4.0, 0.0]) @ T) == "degenerate"
+    assert conic_kind(T.T @ np.diag([1.0, -4.0, 0.0]) @ T) == "degenerate"
+    assert conic_kind(T.T @ np.diag([1.0, -4.0, -1.0]) @ T) == "hyperbola"

@@ -196,20 +196,26 @@ def conic_kind(C) -> str:
     if norm == 0:
         return "degenerate"
     C = C / norm
-    # Scale-free degeneracy test: |det| relative to the product of singular values' scale.
-    sv = np.linalg.svd(C, compute_uv=False)
-    if sv[-1] <= TOL.conic_degenerate_rel * sv[0]:
-        return "degenerate"
     A2 = C[:2, :2]
-    d2 = np.linalg.det(A2)
-    if abs(d2) <= TOL.conic_degenerate_rel * np.linalg.norm(A2) ** 2:
-        return "parabola"
-    if d2 < 0:
-        return "hyperbola"
-    # Ellipse-type quadratic part: real iff the value at the centre has the opposite sign.
-    sign = 1.0 if np.trace(A2) > 0 else -1.0
+    lam = np.linalg.eigvalsh(A2)
+    lam_max = np.abs(lam).max()
+    eps = TOL.conic_degenerate_rel
+    if lam_max <= eps or abs(lam[0] * lam[1]) <= eps * lam_max**2:
+        # no centre: a parabola, or parallel lines / a line (det C ~ 0 relative to its scale)
+        sv = np.linalg.svd(C, compute_uv=False)
+        return "degenerate" if sv[-1] <= eps * sv[0] else "parabola"
+    # Classify in the frame centred on the conic's centre, where it reads diag-block (A2, f0): the
+    # test no longer depends on where the curve lies in the image (a 1 px ellipse at (1300, 1000)
+    # is as good as one at the origin).
     centre = -np.linalg.solve(A2, C[:2, 2])
     f0 = C[2, 2] + C[2, :2] @ centre
+    # f0 is a difference of terms of size |C22|; rounding leaves ~1e-16 of them, so compare with
+    # the larger of that and the quadratic part.
+    if abs(f0) <= eps * max(lam_max, abs(C[2, 2]) + abs(C[2, :2] @ centre)):
+        return "degenerate"  # a point (ellipse type) or two crossing lines (hyperbola type)
+    if lam[0] * lam[1] < 0:
+        return "hyperbola"
+    sign = 1.0 if lam[0] > 0 else -1.0
     return "ellipse" if sign * f0 < 0 else "imaginary"
 
 
