@@ -1,0 +1,78 @@
+"""``simtest bench --only harness``: realisations per second of the two protocols, 2 workers.
+
+Figures (from :func:`bench_harness`):
+
+- ``paper`` protocol at the defaults (sigma = 5 %, theta = 58 deg, fixed light: the noiseless
+  warp is shared, each realisation draws noise, smooths, reconstructs three isophotes) and with a
+  light offset (epsilon = 200: a new texture per realisation), in ms of one worker per realisation
+  and realisations/s with 2 workers; and the projected wall time of the whole figure-3 suite
+  (``scenes/suites/paper-figure3.toml``) with 2 workers, target 300 s.
+- ``rendered`` protocol: the co-located plane of ``plane_58deg`` (406 x 406, 16 spp), same units.
+
+Rates come from the workers' own clocks (realisations / summed worker seconds x workers), so the
+process start-up of the pool is left out; the wall time of each run is given in the note.
+"""
+
+from __future__ import annotations
+
+__all__ = ["bench_harness"]
+
+
+def _rate(suite_dict: dict, workers: int):
+    from simtest.harness.runner import run_suite
+    from simtest.harness.suite import suite_from_dict
+
+    run = run_suite(suite_from_dict(suite_dict), workers=workers, progress=False)
+    (proto,) = run.cpu_s_by_protocol
+    n = run.realisations_by_protocol[proto]
+    cpu = run.cpu_s_by_protocol[proto]
+    return 1e3 * cpu / n, n / cpu * workers, run.wall_s, n
+
+
+def bench_harness(repeat: int = 3) -> list:
+    """Measure the harness; ``repeat`` scales the number of realisations (at least 1).
+
+    Returns
+    -------
+    list of simtest.bench.BenchResult
+    """
+    from simtest.bench import BenchResult
+    from simtest.harness.suite import load_suite
+
+    workers = 2
+    k = min(5, max(1, int(repeat)))  # 50 repeats would take minutes: cap the scale
+    base = {"joint_isovalues": [0.1, 0.3, 0.5]}
+    out = []
+    ms_fixed, rate_fixed, wall, n = _rate(
+        {"suite": {"name": "bench", "realisations": 100 * k}, "base": base,
+         "sweep": [{"name": "default", "parameter": "theta_deg", "values": [58.0]}]}, workers)
+    out.append(BenchResult("harness", "paper: ms per realisation (one worker), fixed light",
+                           ms_fixed, "ms", None, None,
+                           f"{rate_fixed:.0f} realisations/s with {workers} workers "
+                           f"({n} in {wall:.1f} s wall)"))
+    ms_eps, rate_eps, wall, n = _rate(
+        {"suite": {"name": "bench", "realisations": 40 * k}, "base": base,
+         "sweep": [{"name": "eps", "parameter": "epsilon_px", "values": [200.0],
+                    "set": {"n": 100.0}}]}, workers)
+    out.append(BenchResult("harness", "paper: ms per realisation (one worker), light offset",
+                           ms_eps, "ms", None, None,
+                           f"{rate_eps:.0f} realisations/s with {workers} workers "
+                           f"({n} in {wall:.1f} s wall)"))
+    fig3 = load_suite("paper-figure3")
+    unique = {(c.key, c.realisations): c for c in fig3.cases}.values()
+    n_eps = sum(c.realisations for c in unique if c.params["epsilon_px"] > 0)
+    n_fixed = sum(c.realisations for c in unique) - n_eps
+    projected = (n_fixed * ms_fixed + n_eps * ms_eps) / 1e3 / workers
+    out.append(BenchResult("harness", "paper: figure-3 suite projected wall time, 2 workers",
+                           projected, "s", 300.0, None,
+                           f"{n_fixed} fixed-light + {n_eps} light-offset realisations"))
+    ms_r, rate_r, wall, n = _rate(
+        {"suite": {"name": "bench", "protocol": "rendered", "scene": "plane_58deg",
+                   "realisations": 8 * k},
+         "base": {"isovalue": 0.3, "joint_isovalues": [0.2, 0.3, 0.5, 0.7]},
+         "sweep": [{"name": "plane", "parameter": "render.spp", "values": [16]}]}, workers)
+    out.append(BenchResult("harness", "rendered: ms per realisation (one worker), plane 406 px "
+                           "16 spp", ms_r, "ms", None, None,
+                           f"{rate_r:.1f} realisations/s with {workers} workers "
+                           f"({n} in {wall:.1f} s wall, render + detection + reconstruction)"))
+    return out
