@@ -371,20 +371,25 @@ def _plots(results: dict) -> dict[str, bytes]:
         plt.close(fig)
         # (2) curves: mean and median vs the parameter, one line per estimator, log scale.
         fig, ax = plt.subplots(figsize=(5.2, 3.4))
+        floor = 1e-4  # log axis: errors below (exact zeros of bp_ray) are drawn at the floor
+        any_fail = False
         for est in ests:
             ms = [c["metrics"]["estimators"][est] for c in sc]
             mean = np.array([m["mean"] if m["mean"] is not None else np.nan for m in ms])
             med = np.array([m["median"] if m["median"] is not None else np.nan for m in ms])
             fr = np.array([m["failure_rate"] for m in ms])
+            mean, med = np.maximum(mean, floor), np.maximum(med, floor)
             ax.plot(xs, mean, "o-", color=COLOURS.get(est), label=est, ms=3)
             ax.plot(xs, med, ":", color=COLOURS.get(est), lw=1)
             bad = fr > 0
             if bad.any():
+                any_fail = True
                 ax.plot(xs[bad], mean[bad], "x", color="k", ms=6)
         ax.set_yscale("log")
         ax.set_xlabel(sw["label"])
         ax.set_ylabel("error (deg): mean -, median ..")
-        ax.set_title(f"{sw['name']} (x: some realisations failed)", fontsize=9)
+        ax.set_title(sw["name"] + (" (x: some realisations failed)" if any_fail else "")
+                     + f"; floor {floor:g} deg", fontsize=9)
         ax.grid(True, which="both", alpha=0.3)
         ax.legend(fontsize=7)
         out[f"{sw['name']}_curves.png"] = _fig_png(fig)
