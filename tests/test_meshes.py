@@ -176,14 +176,14 @@ def test_estimator_cylinder() -> None:
     np.testing.assert_allclose(k2[inside] * R_COLON, -1.0, atol=0.04)
 
 
-def test_mean_measure_kdtree_candidates_are_complete() -> None:
-    # The k-d tree only prunes edges: summing over every edge gives the same measure.
-    from trimesh.curvature import line_ball_intersection
+def test_mean_measure_candidates_are_complete() -> None:
+    # trimesh's R-tree only prunes edges: summing over every edge gives the same measure.
+    from trimesh.curvature import discrete_mean_curvature_measure, line_ball_intersection
 
     mesh = M.build_liver(3, n_vertices=500)
     pts = mesh.vertices[::17]
     ball = 15.0
-    fast = M._mean_curvature_measure(mesh, pts, ball)
+    fast = discrete_mean_curvature_measure(mesh, pts, ball)
     e = mesh.face_adjacency_edges
     a, b = mesh.vertices[e[:, 0]], mesh.vertices[e[:, 1]]
     sign = np.where(mesh.face_adjacency_convex, 1.0, -1.0)

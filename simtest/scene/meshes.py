@@ -1003,32 +1003,6 @@ def _ball_pairs(tree: Any, points: np.ndarray, radius: float) -> tuple[np.ndarra
     return np.repeat(np.arange(len(points)), counts), index
 
 
-def _mean_curvature_measure(mesh: trimesh.Trimesh, points: np.ndarray, radius: float) -> np.ndarray:
-    """trimesh.curvature.discrete_mean_curvature_measure, with candidate edges from a k-d tree.
-
-    Same formula (Cohen-Steiner and Morvan, "Restricted Delaunay triangulations and normal cycle",
-    SoCG 2003, doi:10.1145/777792.777839): half the sum over interior edges of the signed dihedral
-    angle times the edge length inside the ball. trimesh finds candidate edges with an R-tree
-    (the optional ``rtree`` package); this uses scipy's cKDTree on edge midpoints instead.
-    """
-    from scipy.spatial import cKDTree
-
-    from trimesh.curvature import line_ball_intersection
-
-    verts = np.asarray(mesh.vertices)
-    edges = np.asarray(mesh.face_adjacency_edges)
-    angles = np.asarray(mesh.face_adjacency_angles)
-    signs = np.where(np.asarray(mesh.face_adjacency_convex), 1.0, -1.0)
-    a, b = verts[edges[:, 0]], verts[edges[:, 1]]
-    half = 0.5 * float(np.linalg.norm(b - a, axis=1).max()) if len(edges) else 0.0
-    owner, cand = _ball_pairs(cKDTree(0.5 * (a + b)), points, radius + half)
-    if len(cand) == 0:
-        return np.zeros(len(points))
-    lengths = line_ball_intersection(a[cand], b[cand], center=points[owner], radius=radius)
-    w = lengths * angles[cand] * signs[cand]
-    return np.bincount(owner, weights=w, minlength=len(points)) / 2.0
-
-
 def principal_curvatures(
     mesh: trimesh.Trimesh, radius: float, vertex_indices: np.ndarray | None = None
 ) -> tuple[np.ndarray, np.ndarray]:
@@ -1050,7 +1024,7 @@ def principal_curvatures(
     -------
     k1, k2 : ndarray of shape (N,)
         ``H +- sqrt(max(H^2 - K, 0))`` (1/mm, k1 >= k2) where H is the mean curvature measure of
-        the ball (trimesh.curvature.discrete_mean_curvature_measure formula) divided by the ball
+        the ball (trimesh.curvature.discrete_mean_curvature_measure, R-tree via ``rtree``) divided by the ball
         area pi r^2, and K the sum of the vertex angle defects in the ball
         (trimesh.curvature.discrete_gaussian_curvature_measure) divided by the area those vertices
         stand for (a third of their incident triangle areas, which removes the jitter of counting
@@ -1073,7 +1047,9 @@ def principal_curvatures(
         raise MeshError(f"principal_curvatures: radius: must be a positive number, got {radius!r}")
     idx = np.arange(len(mesh.vertices)) if vertex_indices is None else np.asarray(vertex_indices)
     pts = np.asarray(mesh.vertices)[idx]
-    h = _mean_curvature_measure(mesh, pts, float(radius)) / (math.pi * radius * radius)
+    from trimesh.curvature import discrete_mean_curvature_measure
+
+    h = discrete_mean_curvature_measure(mesh, pts, float(radius)) / (math.pi * radius * radius)
 
     defects = np.asarray(mesh.vertex_defects, dtype=np.float64)
     vert_area = np.zeros(len(mesh.vertices))
