@@ -224,8 +224,12 @@ PARAMS: tuple[ParamDef, ...] = (
              {"*": _uni(0.0, 360.0)}, (-360.0, 720.0)),
     ParamDef("light_offset_b", "axial component b of the light offset (dimensionless)", _ALL,
              {"*": _const(0.0)}),
-    ParamDef("light_falloff", "\"cancel\" (image = Phong eq. 1 exactly) or \"keep\" (1/d^2, as an "
-             "endoscope)", _ALL, {"*": _const("cancel")}, choices=("cancel", "keep")),
+    ParamDef("light_falloff", "\"cancel\": the specular image is intensity x Phong eq. 1 exactly (the "
+             "diffuse part keeps its 1/d^2); \"keep\": both fall as 1/d^2 (d in mm), as in an endoscope",
+             _ALL, {"*": _const("cancel")}, choices=("cancel", "keep")),
+    ParamDef("light_intensity", "radiant intensity of the point light (arbitrary units); with the falloff "
+             "kept, radiance is intensity x BRDF / d^2 with d in mm, so intensity ~ d^2 gives a "
+             "specular peak near 1", _ALL, {"*": _const(1.0)}, (0.0, math.inf), open_low=True),
     # --- sensor -----------------------------------------------------------------------------
     ParamDef("exposure", "exposure multiplier applied to the linear image before clipping", _ALL,
              {"*": _const(1.0)}, (0.0, math.inf), open_low=True),

@@ -281,7 +281,8 @@ def build_scene(config: DatasetConfig, params: dict):
     m = params["resolution_px"]
     camera: dict[str, Any] = {"width_px": m, "height_px": m, "fov_deg": params["fov_deg"]}
     light = {"epsilon_mm": params["light_offset_mm"], "alpha_deg": params["light_offset_a_deg"],
-             "b": params["light_offset_b"], "falloff": params["light_falloff"]}
+             "b": params["light_offset_b"], "falloff": params["light_falloff"],
+             "intensity": params["light_intensity"]}
     material = {"model": "phong", "c": params["phong_c"], "n": params["phong_n"],
                 "diffuse_albedo": params["diffuse_albedo"]}
     sensor = {"exposure": params["exposure"], "saturation": params["saturation"],
