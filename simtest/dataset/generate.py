@@ -30,6 +30,7 @@ from simtest.dataset.shards import (
     TMP_SUFFIX,
     DatasetError,
     ShardWriter,
+    atomic_write_text,
     read_card,
     read_shard_rows,
     shard_json_path,
@@ -113,6 +114,37 @@ key = "%08d/" % row["index"]
 image = np.asarray(Image.open(io.BytesIO(z[key + "sensor_png"].tobytes())))   # (H, W) uint8
 normals = z[key + "normals"]                                      # (H, W, 3) float32
 # or: import simtest.dataset; ds = simtest.dataset.open("DIR"); ds[0]["normals"]"""
+
+
+def _readme(config: DatasetConfig, count: int) -> str:
+    """A short README for people who receive the folder without simtest (deterministic)."""
+    from simtest.dataset.sample import CHANNELS
+
+    lines = [
+        "# simtest dataset",
+        "",
+        f"{count} rendered samples (root seed {config.seed}) of specular highlights with exact labels,",
+        "made by `simtest dataset generate`; `dataset.json` holds the config, conventions and units.",
+        "",
+        "## Files",
+        "",
+        "- `manifest.jsonl`: one JSON row per sample, in index order: family, every sampled",
+        "  parameter, `K` (3 x 3), `cam_to_world` (4 x 4), `highlights` (BP pixel `bp_px` [u, v], BP",
+        "  `bp_mm`, GT `normal` at the BP, curvatures `k1` >= `k2` in 1/mm, `isophotes`: the",
+        "  tangent-plane isophote conic per isovalue), the shard file (`npz`) and each array's",
+        "  sha256, dtype and shape.",
+        "- `shards/shard-XXXXX.npz`: numpy archives with one entry `<index:08d>/<array>` per array.",
+        "",
+        "## Arrays",
+        "",
+    ]
+    for name, ch in CHANNELS.items():
+        lines.append(f"- `{name}` ({ch['dtype']} {ch['shape']}, {ch['unit']}): {ch['description']}")
+    lines += ["", "## Reading with numpy and PIL alone", "", "```python",
+              READING.replace("DIR/", ""), "```", "",
+              "Conventions: OpenCV camera frame (x right, y down, z forward), normals facing the camera,",
+              "pixel centres at integer (u, v) = (column, row), lengths in mm, angles in degrees.", ""]
+    return "\n".join(lines)
 
 
 def make_card(config: DatasetConfig, *, status: str, counts: dict | None = None,
@@ -229,6 +261,7 @@ def _finalise(config: DatasetConfig, out: Path) -> None:
         n_in += sum(1 for h in r.get("highlights", []) if h.get("in_frame"))
         variants.add(str(r.get("variant")))
     write_manifest(out, rows)
+    atomic_write_text(out / "README.md", _readme(config, len(rows)))
     counts = {"samples": len(rows), "by_family": dict(sorted(by_family.items())),
               "highlights": n_hl, "highlights_in_frame": n_in}
     write_json(out / CARD_NAME, make_card(config, status="complete", counts=counts,

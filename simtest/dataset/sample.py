@@ -53,12 +53,12 @@ CHANNELS: dict[str, dict[str, str]] = {
                        "PIL.Image.open(io.BytesIO(a.tobytes()))",
     },
     "linear": {
-        "dtype": "float32", "shape": "(H, W)", "unit": "linear radiance (light intensity 1)",
+        "dtype": "float32", "shape": "(H, W)", "unit": "linear radiance (light_intensity x BRDF, / d^2 in mm when the falloff is kept)",
         "description": "linear image before the sensor model (specular + diffuse); values below "
                        "1e-30 stored as 0",
     },
     "specular": {
-        "dtype": "float32", "shape": "(H, W)", "unit": "linear radiance (light intensity 1)",
+        "dtype": "float32", "shape": "(H, W)", "unit": "linear radiance (light_intensity x BRDF, / d^2 in mm when the falloff is kept)",
         "description": "specular-only linear image; values below 1e-30 stored as 0",
     },
     "normals": {
