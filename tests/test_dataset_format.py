@@ -14,6 +14,8 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 from PIL import Image
 
 import simtest.dataset
@@ -99,6 +101,8 @@ def test_layout_card_manifest_and_verify(tmp_path):
     assert card["conventions"]["lengths"] == "millimetres"
     rows = read_manifest(out)
     assert [r["index"] for r in rows] == list(range(10))
+    readme = (out / "README.md").read_text()
+    assert "np.load" in readme and "sensor_png" in readme
     rep = verify(out)
     assert rep.ok, rep.problems
     assert (rep.samples, rep.shards) == (10, 4)
@@ -290,3 +294,34 @@ def test_resume_refuses_when_the_bundled_meshes_changed(tmp_path):
     (out / "dataset.json").write_text(json.dumps(card))
     with pytest.raises(DatasetError, match="mesh files changed"):
         generate(cfg, out, workers=1, sample_fn=standin_sample, progress=False)
+
+
+@settings(max_examples=15, deadline=None)
+@given(order=st.permutations(list(range(5))))
+def test_shard_bytes_do_not_depend_on_arrival_order(tmp_path_factory, order):
+    from simtest.dataset.shards import ShardWriter
+
+    cfg = _cfg(count=5, shard_size=5)
+    samples = {i: standin_sample(cfg, i) for i in range(5)}
+    blobs = []
+    for k, seq in enumerate((range(5), order)):
+        root = tmp_path_factory.mktemp("order")
+        w = ShardWriter(root, 0, range(5))
+        done = [w.add(samples[i]) for i in seq]
+        assert done == [False] * 4 + [True]  # complete exactly when the last sample arrives
+        blobs.append((shard_npz_path(root, 0).read_bytes(), shard_json_path(root, 0).read_text()))
+    assert blobs[0] == blobs[1]
+
+
+def test_shard_writer_refuses_duplicates_and_strangers(tmp_path):
+    from simtest.dataset.shards import ShardWriter
+
+    cfg = _cfg(count=6, shard_size=3)
+    w = ShardWriter(tmp_path, 0, range(3))
+    w.add(standin_sample(cfg, 1))
+    with pytest.raises(DatasetError, match="given twice"):
+        w.add(standin_sample(cfg, 1))
+    with pytest.raises(DatasetError, match="does not belong"):
+        w.add(standin_sample(cfg, 4))
+    w.abort()
+    assert not list(tmp_path.rglob("*.tmp"))
