@@ -16,6 +16,7 @@ import resource
 import shutil
 import time
 from collections import deque
+from concurrent.futures.process import BrokenProcessPool
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Callable
@@ -419,6 +420,12 @@ def generate(
     window : int, optional
         Tasks in flight (default 2 x workers + 2); bounds memory.
 
+    Notes
+    -----
+    Local workers are started with the ``spawn`` method (no Mitsuba state is forked), so a script
+    calling this with ``workers > 1`` must guard its entry point with
+    ``if __name__ == "__main__":``.
+
     Returns
     -------
     GenerateReport
@@ -473,7 +480,14 @@ def generate(
                         inflight[ex.submit(i)] = i
                     for f in ex.wait(inflight):
                         i = inflight.pop(f)
-                        sample, who, rss_kib, cpu_s = f.result()
+                        try:
+                            sample, who, rss_kib, cpu_s = f.result()
+                        except BrokenProcessPool as exc:
+                            raise SampleError(
+                                f"sample {i}: a worker process died ({exc}); a script that calls "
+                                "generate() with workers > 1 needs the `if __name__ == "
+                                "\"__main__\":` guard (workers are spawned), and a worker killed "
+                                "for memory needs fewer workers") from None
                         report.worker_cpu_s += cpu_s
                         if sample.index != i:
                             raise SampleError(f"sample {i}: sample_fn returned index {sample.index}")
