@@ -325,3 +325,14 @@ def test_shard_writer_refuses_duplicates_and_strangers(tmp_path):
         w.add(standin_sample(cfg, 4))
     w.abort()
     assert not list(tmp_path.rglob("*.tmp"))
+
+
+def test_unreachable_scheduler_is_refused_before_writing(tmp_path, monkeypatch):
+    import simtest.dataset.generate as gen
+
+    monkeypatch.setattr(gen, "CONNECT_TIMEOUT", "1s")
+    out = tmp_path / "never"
+    with pytest.raises(DatasetError, match="cannot connect"):
+        # port 9 (discard) on localhost: nothing listens there
+        generate(_cfg(), out, scheduler="tcp://127.0.0.1:9", sample_fn=standin_sample, progress=False)
+    assert not out.exists()

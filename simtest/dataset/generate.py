@@ -42,6 +42,9 @@ from simtest.dataset.shards import (
 
 __all__ = ["GenerateReport", "SampleError", "generate", "make_card"]
 
+#: How long ``--scheduler`` waits for the Dask scheduler to answer.
+CONNECT_TIMEOUT = "20s"
+
 #: Environment variable a worker reads for its Dr.Jit thread count (set by the local pool).
 THREADS_ENV = "SIMTEST_DATASET_THREADS"
 
@@ -340,7 +343,7 @@ class _Dask:
         except ImportError as exc:  # pragma: no cover - dask[distributed] is a dependency
             raise DatasetError("--scheduler needs dask[distributed] installed") from exc
         try:
-            self.client = Client(address, timeout="20s", set_as_default=False)
+            self.client = Client(address, timeout=CONNECT_TIMEOUT, set_as_default=False)
         except (OSError, TimeoutError) as exc:
             raise DatasetError(f"--scheduler {address}: cannot connect: {exc}") from None
         from distributed import as_completed
@@ -348,19 +351,24 @@ class _Dask:
         self.sample_fn, self.config = sample_fn, config
         self.prefix = f"simtest-dataset-{config.fingerprint()[:12]}"
         self.done = as_completed(loop=self.client.loop)
+        self.pending: set = set()
 
     def submit(self, index: int):
         f = self.client.submit(_run_task, self.sample_fn, self.config, index,
                                key=f"{self.prefix}-{index}", pure=False, retries=0)
         self.done.add(f)
+        self.pending.add(f)
         return f
 
     def wait(self, futures):
         done = {next(self.done)}
         done.update(self.done.next_batch(block=False))
+        self.pending -= done
         return done
 
     def close(self, cancel: bool = False):
+        if self.pending:  # an error or an interrupt left tasks on the cluster
+            self.client.cancel(list(self.pending))
         self.client.close()
 
 
@@ -448,6 +456,16 @@ def generate(
     if workers is not None and workers < 1:
         raise ValueError(f"workers must be >= 1, got {workers}")
     out = Path(out_dir)
+    # Connect to a cluster before writing anything: a wrong address leaves no folder behind.
+    dask_ex = _Dask(sample_fn, config, scheduler) if scheduler is not None else None
+    try:
+        return _generate(config, out, dask_ex, workers, sample_fn, progress, window)
+    finally:
+        if dask_ex is not None:
+            dask_ex.close()
+
+
+def _generate(config, out, dask_ex, workers, sample_fn, progress, window) -> GenerateReport:
     complete = _prepare(config, out)
     todo = [s for s in range(config.n_shards) if s not in complete]
     indices = deque(i for s in todo for i in config.shard_range(s))
@@ -456,8 +474,8 @@ def generate(
 
     if indices:
         n_workers = workers if workers is not None else (os.cpu_count() or 1)
-        if scheduler is not None:
-            ex = _Dask(sample_fn, config, scheduler)
+        if dask_ex is not None:
+            ex = dask_ex
             n_workers = max(1, len(ex.client.nthreads()))
         elif n_workers == 1:
             ex = _Inline(sample_fn, config)
@@ -502,7 +520,8 @@ def generate(
         finally:
             for w in writers.values():
                 w.abort()
-            ex.close(cancel=cancel)
+            if ex is not dask_ex:
+                ex.close(cancel=cancel)
         report.seconds = time.perf_counter() - t0
         report.samples_per_s = report.written / report.seconds if report.seconds > 0 else 0.0
         report.worker_peak_rss_mb = dict(sorted(rss.items()))
