@@ -36,7 +36,10 @@ def generate_command(
     except (DatasetConfigError, DatasetError, SampleError) as exc:
         typer.echo(f"error: {exc}", err=True)
         raise typer.Exit(2) from None
-    rss = ", ".join(f"{v:.0f}" for v in rep.worker_peak_rss_mb.values()) or "-"
+    if rep.written == 0:
+        typer.echo(f"{rep.out_dir}: {rep.count} samples, all already there (nothing to render)")
+        return
+    rss = ", ".join(f"{v:.0f}" for v in rep.worker_peak_rss_mb.values())
     typer.echo(f"{rep.out_dir}: {rep.count} samples ({rep.written} written, {rep.skipped} already "
                f"there); {rep.samples_per_s:.2f} samples/s; worker peak RSS MiB: {rss}")
 

@@ -44,6 +44,8 @@ __all__ = [
     "sample_rng",
 ]
 
+_RADIANCE_UNIT = "linear radiance (light_intensity x BRDF, / d^2 in mm when the falloff is kept)"
+
 #: Arrays stored per sample: name -> (dtype, shape as text, unit, description).
 CHANNELS: dict[str, dict[str, str]] = {
     "sensor_png": {
@@ -53,12 +55,12 @@ CHANNELS: dict[str, dict[str, str]] = {
                        "PIL.Image.open(io.BytesIO(a.tobytes()))",
     },
     "linear": {
-        "dtype": "float32", "shape": "(H, W)", "unit": "linear radiance (light_intensity x BRDF, / d^2 in mm when the falloff is kept)",
+        "dtype": "float32", "shape": "(H, W)", "unit": _RADIANCE_UNIT,
         "description": "linear image before the sensor model (specular + diffuse); values below "
                        "1e-30 stored as 0",
     },
     "specular": {
-        "dtype": "float32", "shape": "(H, W)", "unit": "linear radiance (light_intensity x BRDF, / d^2 in mm when the falloff is kept)",
+        "dtype": "float32", "shape": "(H, W)", "unit": _RADIANCE_UNIT,
         "description": "specular-only linear image; values below 1e-30 stored as 0",
     },
     "normals": {
