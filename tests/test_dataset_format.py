@@ -336,3 +336,17 @@ def test_unreachable_scheduler_is_refused_before_writing(tmp_path, monkeypatch):
         # port 9 (discard) on localhost: nothing listens there
         generate(_cfg(), out, scheduler="tcp://127.0.0.1:9", sample_fn=standin_sample, progress=False)
     assert not out.exists()
+
+
+def test_verify_command_exit_codes(tmp_path):
+    from typer.testing import CliRunner
+
+    from simtest.cli import app
+
+    _, out, _ = _make(tmp_path)
+    res = CliRunner().invoke(app, ["dataset", "verify", str(out)])
+    assert res.exit_code == 0 and "OK (10 samples in 4 shards)" in res.output
+    shard_json_path(out, 2).unlink()
+    res = CliRunner().invoke(app, ["dataset", "verify", str(out)])
+    assert res.exit_code == 1
+    assert "shard-00002" in res.output and "FAILED" in res.output
