@@ -260,7 +260,8 @@ PARAMS: tuple[ParamDef, ...] = (
     # --- geometry: colon --------------------------------------------------------------------
     ParamDef("station", "camera position along the colon centre line, fraction of its arc length",
              ("colon",), {"*": _uni(0.15, 0.85)}, (0.0, 1.0)),
-    ParamDef("radial_offset", "camera offset from the centre line, fraction of the local radius",
+    ParamDef("radial_offset", "camera offset from the centre line, fraction of the smallest wall "
+             "distance of the local ring (so the camera stays in the lumen)",
              ("colon",), {"*": _uni(0.0, 0.5)}, (0.0, 1.0), open_high=True),
     ParamDef("roll_deg", "roll of the image about the optical axis (degrees)", ("colon", "liver"),
              {"*": _uni(0.0, 360.0)}, (-360.0, 720.0)),
