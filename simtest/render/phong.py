@@ -48,14 +48,21 @@ def _make_class():
 
         def __init__(self, props):
             mi.BSDF.__init__(self, props)
-            self.c = float(props.get("c", 1.0))
-            self.n = float(props.get("n", 50.0))
-            self.albedo = float(props.get("albedo", 0.0))
+            c = float(props.get("c", 1.0))
+            n = float(props.get("n", 50.0))
+            albedo = float(props.get("albedo", 0.0))
             self.cancel_falloff = bool(props.get("cancel_falloff", False))
             lp = props.get("light_pos", mi.ScalarPoint3f(0.0, 0.0, 0.0))
-            self.light_pos = mi.ScalarPoint3f(lp[0], lp[1], lp[2])
+            self._repr = f"PhongBSDF[c={c}, n={n}, albedo={albedo}]"
+            # Opaque JIT values, not Python floats: the compiled kernel then does not depend on
+            # the parameter values, so a sweep over n, c, albedo or the light reuses one kernel
+            # from the cache instead of compiling one per value.
+            self.c = dr.opaque(mi.Float, c)
+            self.n = dr.opaque(mi.Float, n)
+            self.albedo_over_pi = dr.opaque(mi.Float, albedo / dr.pi)
+            self.light_pos = mi.Point3f(*(dr.opaque(mi.Float, float(lp[i])) for i in range(3)))
             flags = mi.BSDFFlags.GlossyReflection | mi.BSDFFlags.FrontSide
-            if self.albedo > 0.0:
+            if albedo > 0.0:
                 flags = flags | mi.BSDFFlags.DiffuseReflection
             self.m_flags = flags
             self.m_components = [flags]
@@ -75,7 +82,7 @@ def _make_class():
             if self.cancel_falloff:
                 d = si.p - self.light_pos
                 spec = spec * dr.squared_norm(d)
-            diff = (self.albedo / dr.pi) * dr.maximum(cos_o, 0.0)
+            diff = self.albedo_over_pi * dr.maximum(cos_o, 0.0)
             ok = active & (cos_i > 0.0) & (cos_o > 0.0)
             value = mi.Color3f(spec + diff, spec, diff)
             return dr.select(ok, value, mi.Color3f(0.0))
@@ -87,7 +94,7 @@ def _make_class():
             return self.eval(ctx, si, wo, active), mi.Float(0.0)
 
         def to_string(self):
-            return f"PhongBSDF[c={self.c}, n={self.n}, albedo={self.albedo}]"
+            return self._repr
 
 
     return PhongBSDF
