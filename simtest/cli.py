@@ -26,24 +26,21 @@ def version_command() -> None:
     typer.echo(__version__)
 
 
-# --- subcommands (one registration line per package) -------------------------------------------
-# reconstruct: simtest/reconstruct/cli.py
-app.command("reconstruct")(__import__("simtest.reconstruct.cli", fromlist=["x"]).reconstruct_command)
-# render, meshes: simtest/render/cli.py, simtest/scene/cli.py
-app.add_typer(__import__("simtest.scene.meshes_cli", fromlist=["x"]).meshes_app, name="meshes")
-# validate, nightly: simtest/harness/cli.py
-app.command("validate")(__import__("simtest.harness.cli", fromlist=["x"]).validate_command)
-app.command("nightly")(__import__("simtest.harness.cli", fromlist=["x"]).nightly_command)
-# dataset: simtest/dataset/cli.py
-# bench: simtest/bench.py
-app.command("bench")(__import__("simtest.bench", fromlist=["x"]).bench_command)
-from simtest.render.cli import render_command  # noqa: E402
-
-app.command("render")(render_command)
-
+# --- subcommands: each lives beside the code it drives --------------------------------------------
+from simtest.bench import bench_command  # noqa: E402
 from simtest.dataset.cli import dataset_app  # noqa: E402
+from simtest.harness.cli import nightly_command, validate_command  # noqa: E402
+from simtest.reconstruct.cli import reconstruct_command  # noqa: E402
+from simtest.render.cli import render_command  # noqa: E402
+from simtest.scene.meshes_cli import meshes_app  # noqa: E402
 
+app.command("validate")(validate_command)
+app.command("nightly")(nightly_command)
+app.command("reconstruct")(reconstruct_command)
+app.command("render")(render_command)
+app.add_typer(meshes_app, name="meshes")
 app.add_typer(dataset_app, name="dataset")
+app.command("bench")(bench_command)
 
 
 def main() -> None:
