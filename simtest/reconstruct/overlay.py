@@ -1,9 +1,11 @@
 """Overlay PNG of a reconstruction: isophote points and ellipses, BP, and normals as needles.
 
-A normal n at the BP is drawn as a needle from the BP to the projection of ``X + L n``, where X is
-the BP's viewing ray at unit depth and ``L = needle_length`` (same units): the needle shows the
-tilt of the normal away from the viewing ray (a normal facing straight back along the ray, like
-the ``bp_ray`` estimate, projects onto the BP itself and is not drawn). Colours: cone axis red,
+A normal n at the BP is drawn as a gauge-figure needle (the convention of shape-from-shading
+figures): from the BP along ``(n_x, n_y)`` of the camera-frame normal, ``needle_length`` times the
+larger image side long for a normal perpendicular to the optical axis. The needle thus shows where
+the normal points and how far it tilts from the optical axis; a perspective projection of the 3D
+normal would not do, because at a co-located BP every normal lies along its viewing ray and would
+project onto the BP itself. Colours: cone axis red,
 the paper's selected normal green (the other of the pair dashed green), joint cone axis magenta.
 Rejected highlights get a red cross and their reason (``too_small`` ones only a red dot).
 
@@ -35,13 +37,9 @@ def _display_image(image: np.ndarray) -> tuple[np.ndarray, dict]:
     return disp, ({"cmap": "gray", "vmin": 0, "vmax": 1} if disp.ndim == 2 else {})
 
 
-def _needle(ax, bp_und, n, K, length, **style):
-    from simtest.geometry.camera import pixel_to_ray, project_points
-
-    ray = pixel_to_ray(np.asarray(bp_und, dtype=np.float64), K)
-    X = ray / ray[2]
-    tip = project_points(X + length * np.asarray(n), K)
-    base = project_points(X, K)
+def _needle(ax, bp_und, n, length_px, **style):
+    base = np.asarray(bp_und, dtype=np.float64)
+    tip = base + length_px * np.asarray(n, dtype=np.float64)[:2]
     ax.plot([base[0], tip[0]], [base[1], tip[1]], **style)
 
 
@@ -59,7 +57,8 @@ def draw_overlay(path, image, estimates, K, *, needle_length: float = 0.15, dpi:
     K : array_like of shape (3, 3)
         Intrinsics.
     needle_length : float
-        Needle length relative to the BP depth (see the module docstring).
+        Length of a needle perpendicular to the optical axis, as a fraction of the larger image
+        side (see the module docstring).
     dpi : int
         Output resolution; the figure has the image's pixel size at ``dpi``.
 
@@ -76,6 +75,7 @@ def draw_overlay(path, image, estimates, K, *, needle_length: float = 0.15, dpi:
 
     K = np.asarray(K, dtype=np.float64)
     disp, kw = _display_image(image)
+    length_px = needle_length * max(disp.shape[:2])
     h, w = disp.shape[:2]
     scale = max(1.0, 600.0 / max(h, w))  # small images are drawn larger so labels stay legible
     fig = plt.figure(figsize=(w * scale / dpi, h * scale / dpi), dpi=dpi)
@@ -111,12 +111,12 @@ def draw_overlay(path, image, estimates, K, *, needle_length: float = 0.15, dpi:
         p = est.primary
         if p is not None and p.normals_paper is not None:
             other = p.normals_paper[1 - (p.paper_selected_index or 0)]
-            _needle(ax, bp_und, other, K, needle_length, color="lime", lw=1.2, ls="--")
-            _needle(ax, bp_und, p.paper_selected, K, needle_length, color="lime", lw=1.5)
+            _needle(ax, bp_und, other, length_px, color="lime", lw=1.2, ls="--")
+            _needle(ax, bp_und, p.paper_selected, length_px, color="lime", lw=1.5)
         if p is not None and p.cone_axis is not None:
-            _needle(ax, bp_und, p.cone_axis, K, needle_length, color="red", lw=1.5)
+            _needle(ax, bp_und, p.cone_axis, length_px, color="red", lw=1.5)
         if est.joint_cone_axis is not None:
-            _needle(ax, bp_und, est.joint_cone_axis, K, needle_length, color="magenta", lw=1.2)
+            _needle(ax, bp_und, est.joint_cone_axis, length_px, color="magenta", lw=1.2)
         if est.status != "ok":
             ax.text(u + 3, v - 3, est.status, color="red", fontsize=7)
     path = Path(path)
