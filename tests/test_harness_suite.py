@@ -46,6 +46,7 @@ def test_expansion_and_defaults(tmp_path):
 
 # (text to replace, replacement, key expected in the message, reason fragment)
 BAD = [
+    ('[suite]', '[bogus]\nx = 1\n[suite]', "bogus", "unknown key"),
     ('name = "t"', 'name = "t"\ncolour = 3', "suite.colour", "unknown key"),
     ('values = [0.0, 0.05]', 'values = [0.0, 0.05]\nstep = 1', "sweep[0].step", "unknown key"),
     ('parameter = "sigma"', 'parameter = "sigmaa"', "sweep.noise.values[0].sigmaa",
