@@ -30,7 +30,7 @@ ROI_MARGIN_PX = 10
 
 #: Extra per-row diagnostics carried into the results (means reported per case).
 EXTRA_KEYS = ("eigenvalue_gap", "residual_px", "bp_error_px", "k1_per_mm", "k2_per_mm",
-              "pose_split_deg")
+              "pose_split_deg", "iso_radius_mm", "r_k1", "r_k2", "anisotropy")
 
 
 def isovalue_list(isovalue: float, joint_isovalues) -> tuple[float, ...]:
@@ -86,6 +86,32 @@ def _extras(est) -> dict:
         nn = np.asarray(normals, dtype=np.float64).reshape(-1, 3)
         if nn.shape[0] == 2 and np.all(np.isfinite(nn)):
             out["pose_split_deg"] = float(angle_between_deg(nn[0], nn[1]))
+    return out
+
+
+def _dimensionless_curvature(est, h, K) -> dict:
+    """Isophote radius and curvature x radius at a rendered BP (DESIGN.md 1.4).
+
+    The isophote radius on the surface is estimated from the fitted ellipse:
+    ``r = sqrt(a b) d cos(phi)^1.5 / f`` with ``d`` the distance to the BP and ``phi`` its angle
+    off the optical axis (a small disc facing the camera at that distance is magnified by
+    ``f / (d cos^2 phi)`` radially and ``f / (d cos phi)`` tangentially). Returns
+    ``iso_radius_mm``, ``r_k1``, ``r_k2`` and ``anisotropy`` = ``r |k1 - k2|`` (NaN if unknown).
+    """
+    nan = float("nan")
+    out = {"iso_radius_mm": nan, "r_k1": nan, "r_k2": nan, "anisotropy": nan}
+    ell = getattr(est, "ellipse", None) if est is not None else None
+    if ell is None:
+        return out
+    a, b = (float(x) for x in ell.semi_axes)
+    bp = np.asarray(h.bp_mm, dtype=np.float64)
+    d = float(np.linalg.norm(bp))
+    if not (d > 0 and a > 0 and b > 0):
+        return out
+    cos_phi = bp[2] / d
+    r = math.sqrt(a * b) * d * cos_phi**1.5 / float(K[0, 0])
+    k1, k2 = float(getattr(h, "k1", nan)), float(getattr(h, "k2", nan))
+    out.update(iso_radius_mm=r, r_k1=r * k1, r_k2=r * k2, anisotropy=r * abs(k1 - k2))
     return out
 
 
@@ -213,6 +239,7 @@ class RenderedRunner:
             extras["bp_error_px"] = dist if best is not None else float("nan")
             extras["k1_per_mm"] = float(getattr(h, "k1", float("nan")))
             extras["k2_per_mm"] = float(getattr(h, "k2", float("nan")))
+            extras.update(_dimensionless_curvature(best, h, result.K))
             rows.append(_row(errs, extras))
         if not rows:
             errs = {k: (float("nan"), "no_highlight_in_frame") for k in self.estimators}
