@@ -208,6 +208,9 @@ def provenance(run) -> dict:
     return {
         "git_commit": _git("rev-parse", "HEAD"),
         "git_dirty": None if dirty is None else bool(dirty),
+        # tracked files modified against that commit (the code that ran is HEAD plus these)
+        "git_dirty_files": None if dirty is None else sorted(
+            ln[3:] for ln in dirty.splitlines() if len(ln) > 3),
         "packages": _versions(),
         "mitsuba_variants": run.variants,
         "python": platform.python_version(),
@@ -441,7 +444,10 @@ def _md(results: dict, figures: list[str]) -> str:
         L += [s["description"], ""]
     L += [f"- run id: `{results['run_id']}` ({results['created_utc']}), suite file "
           f"`{s['source']}` (sha256 {s['sha256'][:12]})",
-          f"- git commit `{p['git_commit']}`{' (dirty tree)' if p['git_dirty'] else ''}, "
+          f"- git commit `{p['git_commit']}`"
+          + (f" plus uncommitted changes to {', '.join(p.get('git_dirty_files') or [])}"
+             if p["git_dirty"] else "") + ", "
+          + 
           f"Mitsuba variant(s): {', '.join(p['mitsuba_variants']) or 'none (no render)'}",
           f"- machine: {p['machine']['platform']}, {p['machine']['cpu_count']} CPUs; "
           f"{p['workers']} worker(s), wall time {p['wall_time_s']:.1f} s",
