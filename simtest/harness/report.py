@@ -210,7 +210,7 @@ def provenance(run) -> dict:
         "git_dirty": None if dirty is None else bool(dirty),
         # tracked files modified against that commit (the code that ran is HEAD plus these)
         "git_dirty_files": None if dirty is None else sorted(
-            ln[3:] for ln in dirty.splitlines() if len(ln) > 3),
+            ln.split(None, 1)[1] for ln in dirty.splitlines() if len(ln.split(None, 1)) == 2),
         "packages": _versions(),
         "mitsuba_variants": run.variants,
         "python": platform.python_version(),
