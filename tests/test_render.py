@@ -207,6 +207,52 @@ def test_mesh_highlight_matches_analytic_sphere(tmp_path):
     assert ha.k1 == ha.k2 == 1.0 / R
 
 
+def _render_arrays(spec, seed):
+    r = render_scene(spec, seed=seed)
+    hl = np.array([np.r_[h.bp_px, h.bp_mm, h.normal, h.k1, h.k2] for h in r.highlights])
+    return [r.linear, r.specular, r.sensor, r.normals, r.position, r.depth, r.mask, hl]
+
+
+def _same(a, b):
+    return all(np.array_equal(x, y, equal_nan=True) for x, y in zip(a, b, strict=True))
+
+
+def test_cached_mesh_scene_does_not_leak_between_specs():
+    """A mesh scene is loaded once per structure and updated per render (camera pose, light,
+    Phong c, n, albedo): rendering A, then B and C, then A again gives A's fresh bits."""
+    from simtest.render import render as R
+
+    a = with_overrides(load_scene("colon"), {"camera.width_px": 64, "camera.height_px": 64,
+                                             "render.spp": 4})
+    cam = a.camera
+    shift = np.array([0.0, 0.0, 4.0])
+    b = with_overrides(a, {  # same structure as A: reuses A's loaded scene
+        "camera.position_mm": (np.array(cam.position_mm) + shift).tolist(),
+        "camera.look_at_mm": (np.array(cam.look_at_mm) + shift).tolist(),
+        "camera.up": [0.3, 0.95, 0.0], "material.n": 90.0, "material.c": 0.7,
+        "material.diffuse_albedo": 0.05, "light.intensity": 300.0})
+    c = with_overrides(b, {"light.epsilon_mm": 3.0, "light.falloff": "cancel",
+                           "material.diffuse_albedo": 0.0})  # another structure
+    R.clear_caches()
+    a_fresh = _render_arrays(a, 7)
+    b_after_a = _render_arrays(b, 7)
+    assert len(R._SCENE_CACHE) == 1  # B updated A's scene instead of loading its own
+    c_after_ab = _render_arrays(c, 7)
+    a_again = _render_arrays(a, 7)
+    R.clear_caches()
+    b_fresh = _render_arrays(b, 7)
+    R.clear_caches()
+    c_fresh = _render_arrays(c, 7)
+    assert _same(a_again, a_fresh)
+    assert _same(b_after_a, b_fresh)
+    assert _same(c_after_ab, c_fresh)
+    assert not np.array_equal(a_fresh[0], b_fresh[0])
+    assert not np.array_equal(b_fresh[0], c_fresh[0])
+    # The camera moved 4 mm along the world z axis: the same wall points come out shifted in the
+    # camera frame, so the depth maps differ (a stale pose would leave them equal).
+    assert not np.array_equal(a_fresh[5], b_fresh[5], equal_nan=True)
+
+
 def test_saddle_highlight_at_apex():
     spec = with_overrides(load_scene("saddle"), {"camera.width_px": 128, "camera.height_px": 128,
                                                  "render.spp": 4})

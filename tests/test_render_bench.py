@@ -35,6 +35,7 @@ def test_bench_render_function_reports_per_scene():
     out = bench_render(["plane_fronto", "no_such_scene"], size_px=32, spp=1, repeats=1, cold=False)
     entry = out["scenes"]["plane_fronto"]
     assert entry["warm"]["renders_per_s"] > 0 and entry["warm_rebuild"]["median_s"] > 0
+    assert entry["warm_new_view"]["cpu_s"] > 0
     assert entry["highlights"] == 1
     assert "error" in out["scenes"]["no_such_scene"]
     assert out["config"]["threads"] == 2

@@ -5,8 +5,11 @@ and sample count asked for (the issue's 406 x 406 at 16 spp by default):
 
 - ``warm``: repeated :func:`~simtest.render.render_scene` calls with new seeds once the kernels are
   compiled and the Mitsuba scene is cached (a sweep over seeds or noise);
-- ``warm_rebuild``: the same with the Mitsuba scene rebuilt every time (a sweep over geometry or
-  material parameters: ``mi.load_dict`` and, for meshes, the upload of the mesh);
+- ``warm_new_view``: each render with a new camera pose (moved along its optical axis) and a new
+  Phong exponent, as in a dataset or a sweep over the view (mesh scenes keep their loaded scene and
+  acceleration structure and only update the sensor, light and material values);
+- ``warm_rebuild``: the same spec with the Mitsuba scene rebuilt every time (``mi.load_dict`` and,
+  for meshes, the upload of the mesh and its acceleration structure);
 - ``cold``: the first render in a fresh process with an empty Dr.Jit kernel cache
   (``DRJIT_CACHE_DIR`` pointed at a new folder), after the imports, which are timed separately.
 
@@ -110,14 +113,18 @@ def bench_render(
     -------
     dict
         ``{"config": {...}, "machine": {...}, "scenes": {name: {"warm": {"renders_per_s",
-        "median_s", "min_s", "cpu_s"}, "warm_rebuild": {...}, "cold": {"first_render_s", "import_s",
+        "median_s", "min_s", "cpu_s"}, "warm_new_view": {...}, "warm_rebuild": {...},
+        "cold": {"first_render_s", "import_s",
         "renders_per_s"}, "highlights": int}}}``; a scene that cannot be loaded gets
         ``{"error": message}``.
     """
     import drjit as dr
+    import numpy as np
 
     from simtest.render import render as R
+    from simtest.render.mitsuba_dict import cam_to_world_matrix
     from simtest.render.render import choose_variant, render_scene
+    from simtest.scene import with_overrides
 
     choose_variant(variant)
     dr.set_thread_count(threads)
@@ -140,14 +147,22 @@ def bench_render(
             entry["cold"] = _cold(name, size_px, spp, variant, threads)
         first = render_scene(spec, seed=0, variant=variant)  # compile / load the cache
         entry["highlights"] = len(first.highlights)
-        for key, rebuild in (("warm", False), ("warm_rebuild", True)):
+        forward = cam_to_world_matrix(spec.camera)[:3, 2]
+        views = []
+        for i in range(repeats):
+            step = 0.05 * (i + 1) * forward
+            views.append(with_overrides(spec, {
+                "camera.position_mm": (np.asarray(spec.camera.position_mm) + step).tolist(),
+                "camera.look_at_mm": (np.asarray(spec.camera.look_at_mm) + step).tolist(),
+                "material.n": spec.material.n + 0.5 * (i + 1)}))
+        for key in ("warm", "warm_new_view", "warm_rebuild"):
             times, cpu = [], []
             for i in range(repeats):
-                if rebuild:
-                    R._SCENE_CACHE.clear()
-                    R._MESH_CACHE.clear()
+                if key == "warm_rebuild":
+                    R.clear_caches()
+                s = views[i] if key == "warm_new_view" else spec
                 t, c = time.perf_counter(), time.process_time()
-                render_scene(spec, seed=1 + i, variant=variant)
+                render_scene(s, seed=1 + i, variant=variant)
                 times.append(time.perf_counter() - t)
                 cpu.append(time.process_time() - c)
             med = statistics.median(times)

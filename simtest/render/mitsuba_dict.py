@@ -165,7 +165,8 @@ def mitsuba_scene_dict(
     light_pos_cam : ndarray of shape (3,), optional
         Light position in the camera frame, mm; default :func:`light_position_cam` with ``seed``.
     mesh_cam : dict, optional
-        For mesh and saddle geometry: ``vertices`` (V, 3) and ``normals`` (V, 3) in the camera frame,
+        For mesh and saddle geometry: ``vertices`` (V, 3) and ``normals`` (V, 3) in the camera frame
+        (the renderer passes a mesh file in its world frame and moves ``sensor.to_world`` instead),
         ``faces`` (F, 3). Required for those types.
     seed : int, optional
         Seed of the light draw when ``light_pos_cam`` is None (default ``spec.render.seed``).

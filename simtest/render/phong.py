@@ -53,6 +53,20 @@ def _make_class():
             albedo = float(props.get("albedo", 0.0))
             self.cancel_falloff = bool(props.get("cancel_falloff", False))
             lp = props.get("light_pos", mi.ScalarPoint3f(0.0, 0.0, 0.0))
+            self.set_params(c, n, albedo, [float(lp[i]) for i in range(3)])
+            flags = mi.BSDFFlags.GlossyReflection | mi.BSDFFlags.FrontSide
+            if albedo > 0.0:
+                flags = flags | mi.BSDFFlags.DiffuseReflection
+            self.m_flags = flags
+            self.m_components = [flags]
+
+        def set_params(self, c, n, albedo, light_pos):
+            """Set c, n, the albedo and the light position (world frame, mm) of a loaded BSDF.
+
+            The renderer reuses a loaded scene for new parameter values this way. Whether
+            ``albedo > 0`` (the diffuse flag) and ``cancel_falloff`` are fixed at construction.
+            """
+            c, n, albedo = float(c), float(n), float(albedo)
             self._repr = f"PhongBSDF[c={c}, n={n}, albedo={albedo}]"
             # Opaque JIT values, not Python floats: the compiled kernel then does not depend on
             # the parameter values, so a sweep over n, c, albedo or the light reuses one kernel
@@ -60,12 +74,8 @@ def _make_class():
             self.c = dr.opaque(mi.Float, c)
             self.n = dr.opaque(mi.Float, n)
             self.albedo_over_pi = dr.opaque(mi.Float, albedo / dr.pi)
-            self.light_pos = mi.Point3f(*(dr.opaque(mi.Float, float(lp[i])) for i in range(3)))
-            flags = mi.BSDFFlags.GlossyReflection | mi.BSDFFlags.FrontSide
-            if albedo > 0.0:
-                flags = flags | mi.BSDFFlags.DiffuseReflection
-            self.m_flags = flags
-            self.m_components = [flags]
+            self.light_pos = mi.Point3f(*(dr.opaque(mi.Float, float(light_pos[i]))
+                                          for i in range(3)))
 
         def sample(self, ctx, si, sample1, sample2, active=True):
             # Only direct lighting from a point light is rendered: BSDF sampling never reaches it.

@@ -1,9 +1,13 @@
 """Render a scene spec with Mitsuba 3: image, sensor image, per-pixel and per-highlight truth.
 
 One render gives everything: the ``simtest_gt`` integrator (:mod:`simtest.render.integrator`)
-traces each camera ray once, lights it from the point light and adds shading normals and positions; the colour channels carry the full image (R), the
-specular-only image (G) and the diffuse-only image (B) (see :mod:`simtest.render.phong`); alpha is
-the pixel coverage. The scene is built in the OpenCV camera frame, so all outputs are camera-frame.
+traces each camera ray once, lights it from the point light and adds shading normals and
+positions; the colour channels carry the full image (R), the specular-only image (G) and the
+diffuse-only image (B) (see :mod:`simtest.render.phong`); alpha is the pixel coverage. All outputs
+are camera-frame: analytic shapes and saddles are built in the OpenCV camera frame; mesh files are
+built once in their world frame and a render moves the sensor to the camera pose (the integrator
+writes its AOVs in the camera frame), so that a new view reuses the loaded scene and its
+acceleration structure (:func:`_mitsuba_scene`).
 
 This is the only module of simtest that imports Mitsuba, and it does so inside functions.
 """
@@ -20,6 +24,7 @@ from typing import Any
 import numpy as np
 
 from simtest.render.mitsuba_dict import (
+    _SENSOR_TO_WORLD,
     cam_to_world_matrix,
     intrinsics_matrix,
     light_position_cam,
@@ -251,6 +256,8 @@ def saddle_mesh(distance_mm: float, radius1_mm: float, radius2_mm: float, extent
 
 
 _MESH_CACHE: dict[tuple, Any] = {}
+_MESH_DATA_CACHE: dict[tuple, dict[str, np.ndarray]] = {}
+_MESH_DATA_CACHE_SIZE = 4
 
 
 def _load_mesh_file(path: str):
@@ -263,29 +270,68 @@ def _load_mesh_file(path: str):
     return _MESH_CACHE[key]
 
 
-def _mesh_in_camera(spec: SceneSpec) -> dict[str, np.ndarray]:
+def _scene_pose(spec: SceneSpec) -> np.ndarray:
+    """(4, 4) camera-to-scene-frame pose of a mesh or saddle scene.
+
+    Meshes are rendered in their world frame (a new camera pose then moves only the sensor);
+    a saddle is defined in the camera frame (identity).
+    """
+    if spec.geometry.type == "saddle":
+        return np.eye(4)
+    return cam_to_world_matrix(spec.camera)
+
+
+def _mesh_in_scene(spec: SceneSpec) -> dict[str, np.ndarray]:
+    """Mesh arrays in the scene frame of :func:`_scene_pose` (cached per geometry and file).
+
+    Returns ``vertices`` (V, 3), ``faces`` (F, 3), ``normals`` (V, 3) unit, ``k1``, ``k2`` (V,)
+    (1/mm, sign convention of :mod:`simtest.scene.meshes`, flipped with the normals). Treat the
+    arrays as read-only: they are shared between renders.
+    """
     geo = spec.geometry
+    key: tuple = (geo, os.path.getmtime(geo.path) if geo.type == "mesh" else None)
+    hit = _MESH_DATA_CACHE.get(key)
+    if hit is not None:
+        return hit
     if geo.type == "saddle":
-        return saddle_mesh(geo.distance_mm, geo.radius1_mm, geo.radius2_mm,
+        data = saddle_mesh(geo.distance_mm, geo.radius1_mm, geo.radius2_mm,
                            geo.extent_mm if geo.extent_mm is not None else geo.distance_mm,
                            geo.resolution if geo.resolution is not None else 129)
-    mesh = _load_mesh_file(geo.path)
-    attrs = mesh.vertex_attributes
-    for key in ("k1", "k2"):
-        if key not in attrs:
-            raise ValueError(f"{spec.source}: geometry.path: mesh {geo.path} has no vertex "
-                             f"attribute {key!r} (build it with `simtest meshes build`)")
-    m = np.linalg.inv(cam_to_world_matrix(spec.camera)) @ mesh_to_world_matrix(geo)
-    v = np.asarray(mesh.vertices, dtype=np.float64) @ m[:3, :3].T + m[:3, 3]
-    n = np.asarray(mesh.vertex_normals, dtype=np.float64) @ m[:3, :3].T
-    n /= np.linalg.norm(n, axis=1, keepdims=True)
-    k1, k2 = np.asarray(attrs["k1"], dtype=np.float64), np.asarray(attrs["k2"], dtype=np.float64)
-    s = geo.scale if geo.scale is not None else 1.0
-    k1, k2 = k1 / s, k2 / s
-    if geo.flip_normals:
-        n, k1, k2 = -n, -k2, -k1
-    return {"vertices": v, "faces": np.asarray(mesh.faces, dtype=np.int64), "normals": n,
-            "k1": k1, "k2": k2}
+    else:
+        mesh = _load_mesh_file(geo.path)
+        attrs = mesh.vertex_attributes
+        for name in ("k1", "k2"):
+            if name not in attrs:
+                raise ValueError(f"{spec.source}: geometry.path: mesh {geo.path} has no vertex "
+                                 f"attribute {name!r} (build it with `simtest meshes build`)")
+        m = mesh_to_world_matrix(geo)
+        v = np.asarray(mesh.vertices, dtype=np.float64) @ m[:3, :3].T + m[:3, 3]
+        n = np.asarray(mesh.vertex_normals, dtype=np.float64) @ m[:3, :3].T
+        n /= np.linalg.norm(n, axis=1, keepdims=True)
+        k1 = np.asarray(attrs["k1"], dtype=np.float64)
+        k2 = np.asarray(attrs["k2"], dtype=np.float64)
+        s = geo.scale if geo.scale is not None else 1.0
+        k1, k2 = k1 / s, k2 / s
+        if geo.flip_normals:
+            n, k1, k2 = -n, -k2, -k1
+        data = {"vertices": v, "faces": np.asarray(mesh.faces, dtype=np.int64), "normals": n,
+                "k1": k1, "k2": k2}
+    for a in data.values():
+        a.flags.writeable = False
+    if len(_MESH_DATA_CACHE) >= _MESH_DATA_CACHE_SIZE:
+        _MESH_DATA_CACHE.pop(next(iter(_MESH_DATA_CACHE)))
+    _MESH_DATA_CACHE[key] = data
+    return data
+
+
+def _mesh_in_camera(spec: SceneSpec) -> dict[str, np.ndarray]:
+    """Mesh arrays (as :func:`_mesh_in_scene`) moved into the camera frame."""
+    data = _mesh_in_scene(spec)
+    pose = _scene_pose(spec)
+    if np.array_equal(pose, np.eye(4)):
+        return data
+    R, c = pose[:3, :3], pose[:3, 3]
+    return {**data, "vertices": (data["vertices"] - c) @ R, "normals": data["normals"] @ R}
 
 
 # ------------------------------------------------------------------------------------------------
@@ -295,59 +341,130 @@ _SCENE_CACHE: dict[tuple, Any] = {}
 _SCENE_CACHE_SIZE = 4
 
 
-def _mitsuba_scene(spec: SceneSpec, light_pos: np.ndarray, variant: str):
-    """Load (or reuse) the Mitsuba scene; the seed and sensor do not change it."""
+def clear_caches() -> None:
+    """Forget every loaded Mitsuba scene and mesh (the next render rebuilds them)."""
+    _SCENE_CACHE.clear()
+    _MESH_CACHE.clear()
+    _MESH_DATA_CACHE.clear()
+
+
+def _load_dict(spec: SceneSpec, d: dict):
     import mitsuba as mi
 
-    mesh_key = None
-    if spec.geometry.type == "mesh":
-        mesh_key = os.path.getmtime(spec.geometry.path)
-    key = (variant, spec.camera, spec.material, spec.geometry, spec.light.intensity,
-           spec.light.falloff, tuple(np.round(light_pos, 12)), spec.render.spp,
-           spec.render.sampler, mesh_key)
-    hit = _SCENE_CACHE.get(key)
-    if hit is not None:
-        return hit
-    mesh = _mesh_in_camera(spec) if spec.geometry.type in ("mesh", "saddle") else None
-    d = mitsuba_scene_dict(spec, light_pos_cam=light_pos, mesh_cam=mesh)
     if spec.geometry.type == "cylinder":
         # Mitsuba flags float32 round-off in R diag(r, r, length) as "shearing": silence that.
         level = mi.logger().log_level()
         mi.set_log_level(mi.LogLevel.Error)
         try:
-            scene = mi.load_dict(materialize(d))
+            return mi.load_dict(materialize(d))
         finally:
             mi.set_log_level(level)
-    else:
-        scene = mi.load_dict(materialize(d))
+    return mi.load_dict(materialize(d))
+
+
+def _cache_put(key: tuple, value) -> None:
     if len(_SCENE_CACHE) >= _SCENE_CACHE_SIZE:
         _SCENE_CACHE.pop(next(iter(_SCENE_CACHE)))
-    _SCENE_CACHE[key] = (scene, mesh)
-    return scene, mesh
+    _SCENE_CACHE[key] = value
 
 
-def _make_caster(scene, K: np.ndarray):
+def _mitsuba_scene(spec: SceneSpec, light_pos: np.ndarray, variant: str):
+    """Load (or reuse) the Mitsuba scene; the seed and sensor do not change it.
+
+    Returns ``(scene, pose)``: ``pose`` (4, 4) is the camera-to-scene-frame pose for mesh and
+    saddle scenes, None for analytic shapes (built in the camera frame).
+
+    Mesh and saddle scenes are cached by what their structure depends on (the geometry, the film,
+    the sampler, the material model and flags, whether shadows are traced) and every render sets
+    all the values that may change between specs sharing that structure (camera pose, light
+    position and intensity, Phong c, n, albedo) before rendering, on a fresh scene as on a reused
+    one: a render never depends on what the process rendered before.
+    """
+    geo = spec.geometry
+    if geo.type not in ("mesh", "saddle"):
+        key = (variant, spec.camera, spec.material, geo, spec.light.intensity,
+               spec.light.falloff, tuple(np.round(light_pos, 12)), spec.render.spp,
+               spec.render.sampler)
+        hit = _SCENE_CACHE.get(key)
+        if hit is None:
+            hit = (_load_dict(spec, mitsuba_scene_dict(spec, light_pos_cam=light_pos)), None)
+            _cache_put(key, hit)
+        return hit
+
     import mitsuba as mi
 
+    mat = spec.material
+    shadows = bool(spec.light.epsilon_mm > 0)
+    cam = spec.camera
+    film = (cam.width_px, cam.height_px, cam.focal, tuple(cam.principal_offset_px))
+    if mat.model == "phong":
+        mat_key: tuple = ("phong", mat.diffuse_albedo > 0.0, spec.light.falloff == "cancel")
+    else:
+        mat_key = (mat, spec.light.falloff)
+    key = (variant, "mesh", geo, os.path.getmtime(geo.path) if geo.type == "mesh" else None,
+           film, mat_key, shadows, spec.render.spp, spec.render.sampler)
+    entry = _SCENE_CACHE.get(key)
+    if entry is None:
+        d = mitsuba_scene_dict(spec, light_pos_cam=np.zeros(3), mesh_cam=_mesh_in_scene(spec))
+        scene = _load_dict(spec, d)
+        entry = (scene, mi.traverse(scene))
+        _cache_put(key, entry)
+    scene, params = entry
+    pose = _scene_pose(spec)
+    light_scene = pose[:3, :3] @ np.asarray(light_pos, dtype=np.float64) + pose[:3, 3]
+    params["sensor.to_world"] = mi.ScalarTransform4f((pose @ _SENSOR_TO_WORLD).tolist())
+    params["light.position"] = mi.Point3f(*(float(x) for x in light_scene))
+    params["light.intensity.value"] = mi.Color3f(float(spec.light.intensity))
+    params.update()
+    if mat.model == "phong":
+        bsdf = scene.shapes()[0].bsdf()
+        bsdf.set_params(mat.c, mat.n, mat.diffuse_albedo, light_scene)
+    integ = scene.integrator()
+    integ.set_camera_pose(None if geo.type == "saddle" else pose)
+    return scene, pose
+
+
+def _make_caster(scene, K: np.ndarray, pose: np.ndarray | None = None):
+    """Ray caster through pixels (see :data:`simtest.render.truth.Caster`), camera-frame results.
+
+    ``pose`` is the camera-to-scene-frame pose of a scene not built in the camera frame.
+    """
+    import drjit as dr
+    import mitsuba as mi
+
+    identity = pose is None or np.array_equal(pose, np.eye(4))
+
     def cast(uv: np.ndarray) -> dict:
-        d = pixel_rays(uv, K).astype(np.float32)
+        d = pixel_rays(uv, K)
+        if not identity:
+            d = d @ pose[:3, :3].T
+        d = d.astype(np.float32)
         n_rays = len(d)
-        o = mi.Point3f(np.zeros(n_rays, np.float32), np.zeros(n_rays, np.float32),
-                       np.zeros(n_rays, np.float32))
+        if identity:
+            o = mi.Point3f(np.zeros(n_rays, np.float32), np.zeros(n_rays, np.float32),
+                           np.zeros(n_rays, np.float32))
+        else:
+            c = pose[:3, 3].astype(np.float32)
+            o = mi.Point3f(np.full(n_rays, c[0]), np.full(n_rays, c[1]), np.full(n_rays, c[2]))
         ray = mi.Ray3f(o, mi.Vector3f(d[:, 0], d[:, 1], d[:, 2]))
         si = scene.ray_intersect(ray)
-        hit = np.array(si.is_valid(), dtype=bool)
-        p = np.array(si.p, dtype=np.float64).T
-        n = np.array(si.sh_frame.n, dtype=np.float64).T
+        valid, p_j, n_j, prim_j = si.is_valid(), si.p, si.sh_frame.n, si.prim_index
+        dr.eval(valid, p_j, n_j, prim_j)  # one kernel for all four outputs
+        hit = np.array(valid, dtype=bool)
+        p = np.array(p_j, dtype=np.float64).T
+        n = np.array(n_j, dtype=np.float64).T
+        if not identity:
+            p = (p - pose[:3, 3]) @ pose[:3, :3]
+            n = n @ pose[:3, :3]
         n /= np.maximum(np.linalg.norm(n, axis=1, keepdims=True), 1e-30)
         n = np.where(np.sum(n * p, axis=1, keepdims=True) > 0, -n, n)
-        prim = np.array(si.prim_index, dtype=np.int64)
+        prim = np.array(prim_j, dtype=np.int64)
         return {"hit": hit & np.all(np.isfinite(p), axis=1), "p": p, "n": n, "prim": prim}
 
     return cast
 
 
-def _highlights(spec: SceneSpec, res: dict, light_pos, K, scene, mesh) -> list[HighlightTruth]:
+def _highlights(spec: SceneSpec, res: dict, light_pos, K, scene, pose) -> list[HighlightTruth]:
     geo = spec.geometry
     size = (spec.camera.width_px, spec.camera.height_px)
     w2c = np.linalg.inv(cam_to_world_matrix(spec.camera))
@@ -369,7 +486,8 @@ def _highlights(spec: SceneSpec, res: dict, light_pos, K, scene, mesh) -> list[H
         length = geo.length_mm if geo.length_mm is not None else 20.0 * geo.radius_mm
         hl = cylinder_highlight(c, w2c[:3, :3] @ axis, geo.radius_mm, length, light_pos, K, size)
         return [hl] if hl is not None else []
-    return mesh_highlights(_make_caster(scene, K), res["normals_raw"], res["position_raw"],
+    mesh = _mesh_in_camera(spec)
+    return mesh_highlights(_make_caster(scene, K, pose), res["normals_raw"], res["position_raw"],
                            res["mask"], light_pos, K, mesh["vertices"], mesh["faces"],
                            mesh["k1"], mesh["k2"])
 
@@ -410,7 +528,7 @@ def render_scene(spec: SceneSpec, *, seed: int | None = None,
         raise ValueError(f"seed must be >= 0, got {seed}")
     variant = choose_variant(variant or spec.render.variant)
     light_pos = light_position_cam(spec.light, seed)
-    scene, mesh = _mitsuba_scene(spec, light_pos, variant)
+    scene, pose = _mitsuba_scene(spec, light_pos, variant)
 
     out = np.array(mi.render(scene, spp=spec.render.spp, seed=seed), dtype=np.float32)
     alpha = out[..., 3]
@@ -441,7 +559,7 @@ def render_scene(spec: SceneSpec, *, seed: int | None = None,
                "position_raw": np.where(mask[..., None], position, 0.0), "mask": mask}
     else:
         res = {}
-    highlights = _highlights(spec, res, light_pos, K, scene, mesh)
+    highlights = _highlights(spec, res, light_pos, K, scene, pose)
     sensor = apply_sensor(linear, spec.sensor, seed)
     return RenderResult(
         linear=linear, sensor=sensor, specular=specular, normals=normals, depth=depth,
