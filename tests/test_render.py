@@ -16,7 +16,7 @@ from hypothesis import strategies as st
 
 from simtest.render import RendererUnavailable, choose_variant, render_scene, write_render
 from simtest.render.mitsuba_dict import plane_normal_cam
-from simtest.render.truth import bisector, highlight_complete, pixel_rays
+from simtest.render.truth import bisector, bisector_cos_image, highlight_complete, pixel_rays
 from simtest.scene import (
     bundled_scene_names,
     load_scene,
@@ -251,6 +251,25 @@ def test_cached_mesh_scene_does_not_leak_between_specs():
     # The camera moved 4 mm along the world z axis: the same wall points come out shifted in the
     # camera frame, so the depth maps differ (a stale pose would leave them equal).
     assert not np.array_equal(a_fresh[5], b_fresh[5], equal_nan=True)
+
+
+@settings(max_examples=20, deadline=None)
+@given(st.integers(0, 2**32 - 1), st.floats(-3.0, 3.0))
+def test_bisector_image_colocated_shortcut_is_bit_exact(seed, log_scale):
+    """The co-located branch of bisector_cos_image skips the light arithmetic; it must give the
+    general formula's bits (unit(unit(-p) + unit(0 - p)), in float32)."""
+    rng = np.random.default_rng(seed)
+    p = (rng.normal(size=(12, 10, 3)) * 10.0**log_scale).astype(np.float32)
+    n = rng.normal(size=(12, 10, 3)).astype(np.float32)
+    mask = rng.random((12, 10)) > 0.2
+    q = np.where(mask[..., None], p, 1.0).astype(np.float32)
+    to_cam = -q / np.sqrt(np.einsum("ijk,ijk->ij", q, q))[..., None]
+    to_light = np.float32(0.0) - q
+    to_light /= np.sqrt(np.einsum("ijk,ijk->ij", to_light, to_light))[..., None]
+    h = to_cam + to_light
+    h /= np.sqrt(np.einsum("ijk,ijk->ij", h, h))[..., None]
+    expected = np.where(mask, np.einsum("ijk,ijk->ij", np.where(mask[..., None], n, 0.0), h), -1.0)
+    assert np.array_equal(bisector_cos_image(n, p, mask, np.zeros(3)), expected)
 
 
 def test_saddle_highlight_at_apex():

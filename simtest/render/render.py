@@ -530,7 +530,12 @@ def render_scene(spec: SceneSpec, *, seed: int | None = None,
     light_pos = light_position_cam(spec.light, seed)
     scene, pose = _mitsuba_scene(spec, light_pos, variant)
 
-    out = np.array(mi.render(scene, spp=spec.render.spp, seed=seed), dtype=np.float32)
+    image = mi.render(scene, spp=spec.render.spp, seed=seed)
+    # A view of Dr.Jit's (host) memory, no copy; the view keeps ``image`` alive. Only new arrays
+    # derived from it are returned.
+    out = np.asarray(image)
+    if out.dtype != np.float32:
+        out = out.astype(np.float32)
     alpha = out[..., 3]
     nn, pp = out[..., 4:7], out[..., 7:10]
     nlen = np.sqrt(np.einsum("ijk,ijk->ij", nn, nn))

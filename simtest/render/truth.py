@@ -94,10 +94,15 @@ def bisector_cos_image(normals: np.ndarray, position: np.ndarray, mask: np.ndarr
     """``n . h`` per pixel (H, W); -1 outside ``mask``."""
     p = np.where(mask[..., None], position, 1.0).astype(np.float32)
     to_cam = -p / np.sqrt(np.einsum("ijk,ijk->ij", p, p))[..., None]
-    to_light = np.asarray(light, dtype=np.float32) - p
-    to_light /= np.sqrt(np.einsum("ijk,ijk->ij", to_light, to_light))[..., None]
-    h = to_cam + to_light
-    h /= np.sqrt(np.einsum("ijk,ijk->ij", h, h))[..., None]
+    if not np.any(np.asarray(light, dtype=np.float32)):
+        # Co-located: to_light equals to_cam bit for bit, and (to_cam + to_light) / |...| equals
+        # to_cam / |to_cam| bit for bit (scaling by 2 is exact in floating point).
+        h = to_cam / np.sqrt(np.einsum("ijk,ijk->ij", to_cam, to_cam))[..., None]
+    else:
+        to_light = np.asarray(light, dtype=np.float32) - p
+        to_light /= np.sqrt(np.einsum("ijk,ijk->ij", to_light, to_light))[..., None]
+        h = to_cam + to_light
+        h /= np.sqrt(np.einsum("ijk,ijk->ij", h, h))[..., None]
     n = np.where(mask[..., None], normals, 0.0).astype(np.float32)
     return np.where(mask, np.einsum("ijk,ijk->ij", n, h), -1.0)
 
