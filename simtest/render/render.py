@@ -17,6 +17,7 @@ from __future__ import annotations
 import json
 import os
 import tempfile
+import threading
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -339,13 +340,15 @@ def _mesh_in_camera(spec: SceneSpec) -> dict[str, np.ndarray]:
 
 _SCENE_CACHE: dict[tuple, Any] = {}
 _SCENE_CACHE_SIZE = 4
+_RENDER_LOCK = threading.RLock()
 
 
 def clear_caches() -> None:
     """Forget every loaded Mitsuba scene and mesh (the next render rebuilds them)."""
-    _SCENE_CACHE.clear()
-    _MESH_CACHE.clear()
-    _MESH_DATA_CACHE.clear()
+    with _RENDER_LOCK:
+        _SCENE_CACHE.clear()
+        _MESH_CACHE.clear()
+        _MESH_DATA_CACHE.clear()
 
 
 def _load_dict(spec: SceneSpec, d: dict):
@@ -528,43 +531,46 @@ def render_scene(spec: SceneSpec, *, seed: int | None = None,
         raise ValueError(f"seed must be >= 0, got {seed}")
     variant = choose_variant(variant or spec.render.variant)
     light_pos = light_position_cam(spec.light, seed)
-    scene, pose = _mitsuba_scene(spec, light_pos, variant)
+    # Cached Mitsuba scenes are updated in place for each render (see _mitsuba_scene): one
+    # render at a time per process, from the update to the last highlight ray cast.
+    with _RENDER_LOCK:
+        scene, pose = _mitsuba_scene(spec, light_pos, variant)
 
-    image = mi.render(scene, spp=spec.render.spp, seed=seed)
-    # A view of Dr.Jit's (host) memory, no copy; the view keeps ``image`` alive. Only new arrays
-    # derived from it are returned.
-    out = np.asarray(image)
-    if out.dtype != np.float32:
-        out = out.astype(np.float32)
-    alpha = out[..., 3]
-    nn, pp = out[..., 4:7], out[..., 7:10]
-    nlen = np.sqrt(np.einsum("ijk,ijk->ij", nn, nn))
-    mask = (alpha >= 1.0) & (nlen > 0)
-    linear, specular = out[..., 0].copy(), out[..., 1].copy()
-    if spec.light.falloff == "cancel" and spec.material.model != "phong":
-        cov = np.where(alpha > 0, alpha, 1.0)[..., None]
-        pos_mean = pp / cov  # partially covered pixels: mean over the samples that hit
-        d2 = np.sum((pos_mean - light_pos.astype(np.float32)) ** 2, axis=-1)
-        d2 = np.where(alpha > 0, d2, 0.0).astype(np.float32)
-        linear *= d2
-        specular *= d2
+        image = mi.render(scene, spp=spec.render.spp, seed=seed)
+        # A view of Dr.Jit's (host) memory, no copy; the view keeps ``image`` alive. Only new arrays
+        # derived from it are returned.
+        out = np.asarray(image)
+        if out.dtype != np.float32:
+            out = out.astype(np.float32)
+        alpha = out[..., 3]
+        nn, pp = out[..., 4:7], out[..., 7:10]
+        nlen = np.sqrt(np.einsum("ijk,ijk->ij", nn, nn))
+        mask = (alpha >= 1.0) & (nlen > 0)
+        linear, specular = out[..., 0].copy(), out[..., 1].copy()
+        if spec.light.falloff == "cancel" and spec.material.model != "phong":
+            cov = np.where(alpha > 0, alpha, 1.0)[..., None]
+            pos_mean = pp / cov  # partially covered pixels: mean over the samples that hit
+            d2 = np.sum((pos_mean - light_pos.astype(np.float32)) ** 2, axis=-1)
+            d2 = np.where(alpha > 0, d2, 0.0).astype(np.float32)
+            linear *= d2
+            specular *= d2
 
-    # Unit normals facing the camera (n . ray < 0; the position lies along the ray from the
-    # origin); NaN outside the mask.
-    sign = np.where(np.einsum("ijk,ijk->ij", nn, pp) > 0, -1.0, 1.0).astype(np.float32)
-    scale = np.where(mask, sign / np.where(mask, nlen, 1.0), np.float32(np.nan))
-    normals = nn * scale[..., None]
-    position = np.where(mask[..., None], pp, np.float32(np.nan))
-    depth = position[..., 2].copy()
-    distance = np.sqrt(np.einsum("ijk,ijk->ij", position, position))  # |mean position|
+        # Unit normals facing the camera (n . ray < 0; the position lies along the ray from the
+        # origin); NaN outside the mask.
+        sign = np.where(np.einsum("ijk,ijk->ij", nn, pp) > 0, -1.0, 1.0).astype(np.float32)
+        scale = np.where(mask, sign / np.where(mask, nlen, 1.0), np.float32(np.nan))
+        normals = nn * scale[..., None]
+        position = np.where(mask[..., None], pp, np.float32(np.nan))
+        depth = position[..., 2].copy()
+        distance = np.sqrt(np.einsum("ijk,ijk->ij", position, position))  # |mean position|
 
-    K = intrinsics_matrix(spec.camera)
-    if spec.geometry.type in ("mesh", "saddle"):
-        res = {"normals_raw": np.where(mask[..., None], normals, 0.0),
-               "position_raw": np.where(mask[..., None], position, 0.0), "mask": mask}
-    else:
-        res = {}
-    highlights = _highlights(spec, res, light_pos, K, scene, pose)
+        K = intrinsics_matrix(spec.camera)
+        if spec.geometry.type in ("mesh", "saddle"):
+            res = {"normals_raw": np.where(mask[..., None], normals, 0.0),
+                   "position_raw": np.where(mask[..., None], position, 0.0), "mask": mask}
+        else:
+            res = {}
+        highlights = _highlights(spec, res, light_pos, K, scene, pose)
     sensor = apply_sensor(linear, spec.sensor, seed)
     return RenderResult(
         linear=linear, sensor=sensor, specular=specular, normals=normals, depth=depth,
