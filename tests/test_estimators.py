@@ -23,6 +23,8 @@ from simtest.reconstruct.estimators import (
 from simtest.reconstruct.failures import Failure
 from simtest.tolerances import TOL
 
+from _cases import random_circle_pose
+
 K = np.array([[320.0, 0.0, 202.5], [0.0, 300.0, 190.5], [0.0, 0.0, 1.0]])
 
 
@@ -35,21 +37,10 @@ def random_plane(seed, max_tilt_deg=70.0):
     return rng, foot, normal
 
 
-def random_circle(seed):
-    rng = np.random.default_rng(np.random.SeedSequence([98, seed]))
-    centre = np.array([rng.uniform(-60, 60), rng.uniform(-60, 60), rng.uniform(150, 400)])
-    ray = centre / np.linalg.norm(centre)
-    tilt = np.radians(rng.uniform(0, 70))
-    perp = np.cross(ray, rng.normal(size=3))
-    perp /= np.linalg.norm(perp)
-    normal = -np.cos(tilt) * ray + np.sin(tilt) * perp
-    return centre, normal, rng.uniform(3, 25)
-
-
 @given(st.integers(0, 10_000))
 @settings(max_examples=50, deadline=None)
 def test_exact_circle_one_paper_normal_is_true(seed):
-    centre, normal, radius = random_circle(seed)
+    centre, normal, radius, _ = random_circle_pose(seed, key=98)
     Cn = normalised_conic(project_circle(centre, normal, radius, K), K)
     bp_ray = bp_ray_normal(project_points(centre, K), K)
     est = estimate_from_conic(Cn, bp_ray)
@@ -149,7 +140,7 @@ def test_pipeline_hot_path_forms_agree_with_geometry(seed):
     # they must equal simtest.geometry's functions to rounding.
     from simtest.reconstruct.pipeline import _bp_ray, _normalised_conic
 
-    centre, normal, radius = random_circle(seed)
+    centre, normal, radius, _ = random_circle_pose(seed, key=98)
     C = project_circle(centre, normal, radius, K)
     assert np.allclose(_normalised_conic(C, K), normalised_conic(C, K), rtol=0, atol=1e-14)
     uv = project_points(centre, K)

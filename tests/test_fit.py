@@ -21,6 +21,8 @@ from simtest.geometry import (
 from simtest.reconstruct.fit import fit_ellipse, sampson_distance_px
 from simtest.tolerances import TOL
 
+from _cases import random_circle_pose
+
 K = np.array([[320.0, 0.0, 202.5], [0.0, 300.0, 190.5], [0.0, 0.0, 1.0]])
 
 
@@ -68,14 +70,8 @@ def test_fitted_points_of_an_imaged_circle_give_the_true_normal(seed):
     # Fit-level half of the exact-circle truth (the conic-level half is in test_geometry.py):
     # points sampled exactly on the image of a circle under a random pose, fitted, then
     # circle pose: one of N+ and N- is the true normal to TOL.fitted_normal_deg.
-    rng = np.random.default_rng(np.random.SeedSequence([42, seed]))
-    centre = np.array([rng.uniform(-60, 60), rng.uniform(-60, 60), rng.uniform(150, 400)])
-    ray = centre / np.linalg.norm(centre)
-    tilt = np.radians(rng.uniform(0, 70))
-    perp = np.cross(ray, rng.normal(size=3))
-    perp /= np.linalg.norm(perp)
-    normal = -np.cos(tilt) * ray + np.sin(tilt) * perp
-    C = project_circle(centre, normal, rng.uniform(3, 25), K)
+    centre, normal, radius, rng = random_circle_pose(seed, key=42)
+    C = project_circle(centre, normal, radius, K)
     ellipse = conic_to_ellipse(C)
     pts = sample_ellipse(ellipse, int(rng.integers(20, 400)))
     fit = fit_ellipse(pts)

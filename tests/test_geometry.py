@@ -32,27 +32,15 @@ from simtest.geometry import (
 )
 from simtest.tolerances import TOL
 
+from _cases import random_circle_pose
+
 K = np.array([[320.0, 0.0, 202.5], [0.0, 300.0, 190.5], [0.0, 0.0, 1.0]])
-
-
-def random_circle_pose(seed: int):
-    """A circle of random radius and pose in front of the camera, its normal facing the camera."""
-    rng = np.random.default_rng(np.random.SeedSequence([1234, seed]))
-    centre = np.array([rng.uniform(-60, 60), rng.uniform(-60, 60), rng.uniform(150, 400)])
-    ray = centre / np.linalg.norm(centre)
-    # tilt of the plane relative to the viewing ray in [0, 70] deg so the image is an ellipse
-    tilt = np.radians(rng.uniform(0, 70))
-    perp = np.cross(ray, rng.normal(size=3))
-    perp /= np.linalg.norm(perp)
-    normal = -np.cos(tilt) * ray + np.sin(tilt) * perp
-    radius = rng.uniform(3, 25)
-    return centre, normal, radius
 
 
 @given(st.integers(0, 10_000))
 @settings(max_examples=60, deadline=None)
 def test_circle_pose_exact_conic_gives_true_normal(seed):
-    centre, normal, radius = random_circle_pose(seed)
+    centre, normal, radius, _ = random_circle_pose(seed)
     C = project_circle(centre, normal, radius, K)
     pose = circle_pose(normalised_conic(C, K))
     errors = angle_between_deg(pose.normals, normal)

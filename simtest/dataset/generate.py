@@ -22,6 +22,7 @@ from pathlib import Path
 from typing import Callable
 
 from simtest.dataset.config import DatasetConfig, load_config
+from simtest._io import atomic_write_text
 from simtest.dataset.shards import (
     CARD_NAME,
     FORMAT,
@@ -31,7 +32,6 @@ from simtest.dataset.shards import (
     TMP_SUFFIX,
     DatasetError,
     ShardWriter,
-    atomic_write_text,
     read_card,
     read_shard_rows,
     shard_json_path,

@@ -41,6 +41,8 @@ from typing import Any, Iterable
 
 import numpy as np
 
+from simtest._io import atomic_write_text
+
 __all__ = [
     "CARD_NAME",
     "FORMAT",
@@ -49,7 +51,6 @@ __all__ = [
     "DatasetError",
     "ShardWriter",
     "array_sha256",
-    "atomic_write_text",
     "file_sha256",
     "read_card",
     "read_manifest",
@@ -84,18 +85,6 @@ def file_sha256(path: Path, chunk: int = 1 << 22) -> str:
         while block := fh.read(chunk):
             h.update(block)
     return h.hexdigest()
-
-
-def atomic_write_text(path: Path, text: str) -> Path:
-    """Write ``text`` to ``path`` through a temporary file and ``os.replace``."""
-    path = Path(path)
-    tmp = path.with_name(path.name + TMP_SUFFIX)
-    with open(tmp, "w", encoding="utf-8") as fh:
-        fh.write(text)
-        fh.flush()
-        os.fsync(fh.fileno())
-    os.replace(tmp, path)
-    return path
 
 
 def write_json(path: Path, obj: Any) -> Path:

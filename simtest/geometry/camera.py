@@ -24,12 +24,12 @@ JSON (what ``simtest render`` writes and ``simtest reconstruct`` reads)::
 from __future__ import annotations
 
 import json
-import os
-import tempfile
 from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
+
+from simtest._io import atomic_write_text
 
 __all__ = [
     "Intrinsics",
@@ -312,25 +312,6 @@ def save_intrinsics(path, K, dist_coeffs=None, image_size=None) -> Path:
         image_size=None if image_size is None else (int(image_size[0]), int(image_size[1])),
     )
     return atomic_write_text(path, json.dumps(intr.to_json_dict(), indent=2) + "\n")
-
-
-def atomic_write_text(path, text: str) -> Path:
-    """Write text to ``path`` through a temporary file in the same folder and ``os.replace``.
-
-    A reader never sees a half-written file, and an existing file is kept intact if writing fails.
-    """
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
-    try:
-        with os.fdopen(fd, "w") as f:
-            f.write(text)
-        os.replace(tmp, path)
-    except BaseException:
-        if os.path.exists(tmp):
-            os.unlink(tmp)
-        raise
-    return path
 
 
 def look_at(eye, target, up=(0.0, -1.0, 0.0)) -> np.ndarray:

@@ -45,6 +45,7 @@ __all__ = [
     "cone_axis",
     "ellipse_to_conic",
     "normalised_conic",
+    "plane_basis",
     "project_circle",
     "sample_ellipse",
 ]
@@ -425,14 +426,30 @@ def circle_pose(Cn) -> CirclePose:
     return CirclePose(normals=np.array(normals), centres=np.array(centres), eigenvalues=w)
 
 
-def _section_centre(Q: np.ndarray, n: np.ndarray) -> np.ndarray:
-    """Unit direction (z > 0) of the centre of the section of cone Q by a plane of normal n."""
-    # Plane n.X = 1 parametrised as X = n + a u + b w with (u, w) an orthonormal basis of n-perp.
+def plane_basis(normal) -> tuple[np.ndarray, np.ndarray]:
+    """An orthonormal basis (u, w) of the plane perpendicular to ``normal``.
+
+    Parameters
+    ----------
+    normal : array_like of shape (3,)
+        Unit normal.
+
+    Returns
+    -------
+    u, w : ndarray of shape (3,)
+        Unit vectors with ``(u, w, normal)`` right-handed.
+    """
+    n = np.asarray(normal, dtype=np.float64)
     helper = np.array([1.0, 0.0, 0.0]) if abs(n[0]) < 0.9 else np.array([0.0, 1.0, 0.0])
     u = np.cross(n, helper)
     u /= np.linalg.norm(u)
-    w = np.cross(n, u)
-    B = np.stack([u, w], axis=1)  # (3, 2)
+    return u, np.cross(n, u)
+
+
+def _section_centre(Q: np.ndarray, n: np.ndarray) -> np.ndarray:
+    """Unit direction (z > 0) of the centre of the section of cone Q by a plane of normal n."""
+    # Plane n.X = 1 parametrised as X = n + a u + b w with (u, w) an orthonormal basis of n-perp.
+    B = np.stack(plane_basis(n), axis=1)  # (3, 2)
     M = B.T @ Q @ B
     g = B.T @ Q @ n
     ab = -np.linalg.solve(M, g)
@@ -480,10 +497,7 @@ def project_circle(centre_mm, normal, radius_mm: float, K) -> np.ndarray:
     n = n / nn
     if abs(n @ c) <= 1e-12 * np.linalg.norm(c):
         raise ValueError("the circle's plane passes through the camera centre: degenerate image")
-    helper = np.array([1.0, 0.0, 0.0]) if abs(n[0]) < 0.9 else np.array([0.0, 1.0, 0.0])
-    u = np.cross(n, helper)
-    u /= np.linalg.norm(u)
-    w = np.cross(n, u)
+    u, w = plane_basis(n)
     H = K @ np.stack([u, w, c], axis=1)
     Hinv = np.linalg.inv(H)
     C = Hinv.T @ np.diag([1.0, 1.0, -float(radius_mm) ** 2]) @ Hinv

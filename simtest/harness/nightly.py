@@ -121,7 +121,7 @@ def load_baseline(path: str | Path) -> dict:
 
 def update_baseline(path: str | Path, results: dict, tolerances: dict) -> Path:
     """Write (or replace) the section of ``results``' suite in the baseline file, atomically."""
-    from simtest.harness.report import atomic_write_bytes
+    from simtest._io import atomic_write_bytes
 
     path = Path(path)
     d = load_baseline(path) if path.is_file() else {"schema": BASELINE_SCHEMA,

@@ -37,10 +37,11 @@ from pathlib import Path
 
 import numpy as np
 
+from simtest._io import atomic_write_bytes
 from simtest.harness.metrics import case_metrics
 
 __all__ = ["SCHEMA", "SCHEMA_VERSION", "PAPER_CHECKS", "build_results", "write_report",
-           "provenance", "evaluate_paper_claim", "make_run_id", "atomic_write_bytes"]
+           "provenance", "evaluate_paper_claim", "make_run_id"]
 
 SCHEMA = "simtest.validation"
 SCHEMA_VERSION = 1
@@ -312,20 +313,6 @@ def _relative(path: str) -> str:
 
 # ------------------------------------------------------------------------------------------------
 # writing
-
-
-def atomic_write_bytes(path: Path, data: bytes) -> Path:
-    """Write ``data`` to ``path`` through a temporary file in the same folder and ``os.replace``."""
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
-    try:
-        tmp.write_bytes(data)
-        os.replace(tmp, path)
-    finally:
-        if tmp.exists():
-            tmp.unlink()
-    return path
 
 
 def _fig_png(fig) -> bytes:

@@ -62,11 +62,11 @@ have an empty ``isophotes`` list and null normals except ``bp_ray``.
 from __future__ import annotations
 
 import json
-import os
-import tempfile
 from pathlib import Path
 
 import numpy as np
+
+from simtest._io import atomic_write_text
 
 SCHEMA_VERSION = 1
 
@@ -198,17 +198,7 @@ def write_estimates(path, estimates, *, K, image=None, image_shape=None, dist_co
                              dist_coeffs=dist_coeffs, isovalues=isovalues, normalise=normalise,
                              include_points=include_points)
     text = json.dumps(doc, indent=1, allow_nan=False)
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
-    try:
-        with os.fdopen(fd, "w", encoding="utf-8") as fh:
-            fh.write(text + "\n")
-        os.replace(tmp, path)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
-    return path
+    return atomic_write_text(path, text + "\n")
 
 
 def read_estimates(path) -> dict:

@@ -16,11 +16,11 @@ needles live in undistorted pixel coordinates, so they are offset where distorti
 
 from __future__ import annotations
 
-import os
-import tempfile
 from pathlib import Path
 
 import numpy as np
+
+from simtest._io import atomic_write
 
 
 def _display_image(image: np.ndarray) -> tuple[np.ndarray, dict]:
@@ -119,16 +119,7 @@ def draw_overlay(path, image, estimates, K, *, needle_length: float = 0.15, dpi:
             _needle(ax, bp_und, est.joint_cone_axis, length_px, color="magenta", lw=1.2)
         if est.status != "ok":
             ax.text(u + 3, v - 3, est.status, color="red", fontsize=7)
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.stem}.", suffix=".png", dir=path.parent)
-    os.close(fd)
     try:
-        fig.savefig(tmp, dpi=dpi)
-        os.replace(tmp, path)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
+        return atomic_write(path, lambda tmp: fig.savefig(tmp, dpi=dpi, format="png"))
     finally:
         plt.close(fig)
-    return path

@@ -16,7 +16,6 @@ from __future__ import annotations
 
 import json
 import os
-import tempfile
 import threading
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -24,6 +23,7 @@ from typing import Any
 
 import numpy as np
 
+from simtest._io import atomic_write, atomic_write_text
 from simtest.render.mitsuba_dict import (
     _SENSOR_TO_WORLD,
     cam_to_world_matrix,
@@ -584,18 +584,6 @@ def render_scene(spec: SceneSpec, *, seed: int | None = None,
 # Output files
 
 
-def _atomic_write(path: Path, write) -> None:
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
-    os.close(fd)
-    try:
-        write(tmp)
-        os.replace(tmp, path)
-    except BaseException:
-        if os.path.exists(tmp):
-            os.unlink(tmp)
-        raise
-
-
 def write_render(result: RenderResult, out_dir: str | Path) -> dict[str, Path]:
     """Write a render to ``out_dir`` (created if needed); each file atomically.
 
@@ -625,7 +613,7 @@ def write_render(result: RenderResult, out_dir: str | Path) -> dict[str, Path]:
         pil = Image.fromarray(img, mode="L")
     else:
         pil = Image.fromarray(img.astype(np.uint16))
-    _atomic_write(paths["image"], lambda tmp: pil.save(tmp, format="PNG"))
+    atomic_write(paths["image"], lambda tmp: pil.save(tmp, format="PNG"))
     H, W = result.linear.shape[:2]
     save_intrinsics(paths["intrinsics"], result.K, dist_coeffs=None, image_size=(W, H))
 
@@ -637,7 +625,7 @@ def write_render(result: RenderResult, out_dir: str | Path) -> dict[str, Path]:
                 specular=result.specular, coverage=result.coverage, K=result.K,
                 cam_to_world=result.cam_to_world, light_pos=result.light_pos)
 
-    _atomic_write(paths["ground_truth"], write_npz)
+    atomic_write(paths["ground_truth"], write_npz)
     meta = {
         "scene": result.spec.name,
         "seed": result.seed,
@@ -647,6 +635,5 @@ def write_render(result: RenderResult, out_dir: str | Path) -> dict[str, Path]:
         "highlights": [h.to_dict() for h in result.highlights],
         "spec": scene_to_dict(result.spec),
     }
-    _atomic_write(paths["highlights"],
-                  lambda tmp: Path(tmp).write_text(json.dumps(meta, indent=2)))
+    atomic_write_text(paths["highlights"], json.dumps(meta, indent=2))
     return paths

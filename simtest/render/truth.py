@@ -153,7 +153,7 @@ def _solve_stationary(surface: Callable[[np.ndarray], tuple[np.ndarray, np.ndarr
     """Parameters x where the tangential part of the bisector vanishes on ``surface(x) -> (p, n)``."""
     from scipy.optimize import root
 
-    f1, f2 = np.array([1.0, 0.0, 0.0]), np.array([0.0, 1.0, 0.0])
+    f1 = np.array([1.0, 0.0, 0.0])
     p0, n0 = surface(x0)
     if abs(n0[0]) > 0.9:
         f1 = np.array([0.0, 0.0, 1.0])
@@ -277,7 +277,6 @@ def mesh_highlights(
     step = 1.0
     offs = np.arange(-3, 4, dtype=np.float64)
     grid = np.stack(np.meshgrid(offs, offs, indexing="xy"), axis=-1).reshape(-1, 2)  # (49, 2)
-    best_cos = np.full(len(uv), -np.inf)
     for _ in range(16):
         cand = uv[:, None, :] + step * grid[None, :, :]  # (N, 49, 2)
         res = cast(cand.reshape(-1, 2))
@@ -287,7 +286,6 @@ def mesh_highlights(
         cos = cos.reshape(len(uv), -1)
         j = np.argmax(cos, axis=1)
         uv = cand[np.arange(len(uv)), j]
-        best_cos = cos[np.arange(len(uv)), j]
         step /= 3.0
     res = cast(uv)
     out: list[HighlightTruth] = []

@@ -77,6 +77,8 @@ from typing import Any
 import numpy as np
 import trimesh
 
+from simtest._io import atomic_write_bytes
+
 __all__ = [
     "ColonParams",
     "LiverParams",
@@ -838,16 +840,6 @@ def build_mesh(name: str, seed: int, **params: Any) -> trimesh.Trimesh:
 _PLY_FIELDS = ("x", "y", "z", "nx", "ny", "nz", "k1_0", "k2_0")
 
 
-def _atomic_write_bytes(path: Path, data: bytes) -> None:
-    tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
-    try:
-        tmp.write_bytes(data)
-        os.replace(tmp, path)
-    finally:
-        if tmp.exists():
-            tmp.unlink()
-
-
 def save_mesh(mesh: trimesh.Trimesh, path: str | os.PathLike[str]) -> Path:
     """Write a mesh with normals and curvatures to a binary PLY and its JSON sidecar.
 
@@ -896,7 +888,7 @@ def save_mesh(mesh: trimesh.Trimesh, path: str | os.PathLike[str]) -> Path:
         + f"element face {len(faces)}\nproperty list uchar int vertex_indices\nend_header\n"
     )
     path.parent.mkdir(parents=True, exist_ok=True)
-    _atomic_write_bytes(path, header.encode("ascii") + data.tobytes() + face_rec.tobytes())
+    atomic_write_bytes(path, header.encode("ascii") + data.tobytes() + face_rec.tobytes())
     side = {
         key: mesh.metadata[key] for key in ("generator", "centerline") if key in mesh.metadata
     }
@@ -908,7 +900,7 @@ def save_mesh(mesh: trimesh.Trimesh, path: str | os.PathLike[str]) -> Path:
     # One line per innermost list of numbers (a point, a tangent, a list of arc lengths).
     text = _NUMBER_LIST.sub(lambda m: "[" + ", ".join(x.strip() for x in m[1].split(",")) + "]", text)
     text += "\n"
-    _atomic_write_bytes(path.with_suffix(".json"), text.encode("utf-8"))
+    atomic_write_bytes(path.with_suffix(".json"), text.encode("utf-8"))
     return path
 
 

@@ -117,50 +117,28 @@ def phong_plane_image(
     ValueError
         Invalid K, shape, normal, distance, n, c or supersample.
     """
-    K = validate_intrinsics(K)
-    H, W = (int(x) for x in shape)
-    if H < 1 or W < 1:
-        raise ValueError(f"shape must be positive, got {shape}")
-    if int(supersample) < 1:
-        raise ValueError(f"supersample must be >= 1, got {supersample}")
-    if not n > 0 or not c > 0:
-        raise ValueError(f"n and c must be > 0, got n={n}, c={c}")
     N = _plane(normal, distance_mm)
-    L = np.asarray(light_mm, dtype=np.float64).reshape(3)
-    s = int(supersample)
-    offs = (np.arange(s) + 0.5) / s - 0.5
-    Kinv = np.linalg.inv(K)
-    acc = np.zeros((H, W))
-    vv, uu = np.mgrid[0:H, 0:W].astype(np.float64)
-    for dv in offs:
-        for du in offs:
-            x = np.stack([uu + du, vv + dv, np.ones_like(uu)], axis=-1)
-            d = x @ Kinv.T
-            denom = d @ N
-            with np.errstate(divide="ignore", invalid="ignore"):
-                lam = -distance_mm / denom
-            hit = (denom < 0) & (lam > 0)
-            X = d * np.where(hit, lam, 0.0)[..., None]
-            to_cam = -X
-            to_light = L - X
-            with np.errstate(invalid="ignore", divide="ignore"):
-                to_cam /= np.linalg.norm(to_cam, axis=-1, keepdims=True)
-                dl = np.linalg.norm(to_light, axis=-1, keepdims=True)
-                to_light = to_light / dl
-                refl = 2.0 * (to_light @ N)[..., None] * N - to_light
-                cos_b = np.sum(refl * to_cam, axis=-1)
-                val = c * np.maximum(cos_b, 0.0) ** n
-                if falloff:
-                    val = val * (distance_mm / dl[..., 0]) ** 2
-            acc += np.where(hit, np.nan_to_num(val), 0.0)
-    return acc / (s * s)
+
+    def intersect(d):
+        denom = d @ N
+        with np.errstate(divide="ignore", invalid="ignore"):
+            lam = -distance_mm / denom
+        return (denom < 0) & (lam > 0), lam, np.broadcast_to(N, d.shape)
+
+    return _phong_image(K, shape, n, c, light_mm, supersample, intersect,
+                        falloff_ref_mm=distance_mm if falloff else None)
 
 
 # --- curved surfaces: quadrics ---------------------------------------------------------------------
 
 
-def _quadric_image(K, shape, A, b, c0, n, c, light_mm, supersample, nearest=True):
-    """Phong image of the quadric ``X^T A X + 2 b.X + c0 = 0`` (camera frame), first hit per ray."""
+def _phong_image(K, shape, n, c, light_mm, supersample, intersect, falloff_ref_mm=None):
+    """Eq. 1 through each pixel, box-averaged over s x s sub-pixel rays.
+
+    ``intersect(d)`` takes unit rays (H, W, 3) and returns (hit mask, ray length, unit normal at
+    the hit); normals are turned to face the camera here. With ``falloff_ref_mm`` the intensity is
+    multiplied by ``(falloff_ref_mm / |L - X|)^2``.
+    """
     K = validate_intrinsics(K)
     H, W = (int(x) for x in shape)
     if H < 1 or W < 1:
@@ -179,30 +157,42 @@ def _quadric_image(K, shape, A, b, c0, n, c, light_mm, supersample, nearest=True
         for du in offs:
             d = np.stack([uu + du, vv + dv, np.ones_like(uu)], axis=-1) @ Kinv.T
             d /= np.linalg.norm(d, axis=-1, keepdims=True)
-            # (lam d)^T A (lam d) + 2 lam b.d + c0 = 0
-            qa = np.einsum("...i,ij,...j->...", d, A, d)
-            qb = 2.0 * (d @ b)
-            disc = qb * qb - 4.0 * qa * c0
-            with np.errstate(invalid="ignore", divide="ignore"):
-                sq = np.sqrt(np.maximum(disc, 0.0))
-                r1 = (-qb - sq) / (2.0 * qa)
-                r2 = (-qb + sq) / (2.0 * qa)
-            lo = np.minimum(r1, r2)
-            hi = np.maximum(r1, r2)
-            lam = np.where(lo > 0, lo, hi)
-            hit = (disc >= 0) & np.isfinite(lam) & (lam > 0)
+            hit, lam, N = intersect(d)
+            hit = hit & np.isfinite(lam)
             X = d * np.where(hit, lam, 0.0)[..., None]
-            N = X @ A.T + b
             with np.errstate(invalid="ignore", divide="ignore"):
-                N /= np.linalg.norm(N, axis=-1, keepdims=True)
                 N = np.where((np.sum(N * d, axis=-1) > 0)[..., None], -N, N)
-                to_cam = -d
                 to_light = L - X
-                to_light /= np.linalg.norm(to_light, axis=-1, keepdims=True)
+                dl = np.linalg.norm(to_light, axis=-1, keepdims=True)
+                to_light = to_light / dl
                 refl = 2.0 * np.sum(to_light * N, axis=-1)[..., None] * N - to_light
-                val = c * np.maximum(np.sum(refl * to_cam, axis=-1), 0.0) ** n
+                val = c * np.maximum(np.sum(refl * -d, axis=-1), 0.0) ** n
+                if falloff_ref_mm is not None:
+                    val = val * (falloff_ref_mm / dl[..., 0]) ** 2
             acc += np.where(hit, np.nan_to_num(val), 0.0)
     return acc / (s * s)
+
+
+def _quadric_image(K, shape, A, b, c0, n, c, light_mm, supersample):
+    """Phong image of the quadric ``X^T A X + 2 b.X + c0 = 0`` (camera frame), first hit per ray."""
+
+    def intersect(d):
+        # (lam d)^T A (lam d) + 2 lam b.d + c0 = 0
+        qa = np.einsum("...i,ij,...j->...", d, A, d)
+        qb = 2.0 * (d @ b)
+        disc = qb * qb - 4.0 * qa * c0
+        with np.errstate(invalid="ignore", divide="ignore"):
+            sq = np.sqrt(np.maximum(disc, 0.0))
+            r1 = (-qb - sq) / (2.0 * qa)
+            r2 = (-qb + sq) / (2.0 * qa)
+            lo, hi = np.minimum(r1, r2), np.maximum(r1, r2)
+            lam = np.where(lo > 0, lo, hi)
+            X = d * lam[..., None]
+            N = X @ A.T + b
+            N = N / np.linalg.norm(N, axis=-1, keepdims=True)
+        return (disc >= 0) & (lam > 0), lam, N
+
+    return _phong_image(K, shape, n, c, light_mm, supersample, intersect)
 
 
 def phong_sphere_image(K, shape, centre_mm, radius_mm: float, n: float, c: float = 1.0,

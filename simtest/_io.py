@@ -1,0 +1,62 @@
+"""Atomic file writes: a reader never sees a half-written file.
+
+Every writer in simtest goes through :func:`atomic_write`: the content is written to a temporary
+file in the destination folder (same file system), flushed to disk, then renamed over the
+destination with ``os.replace``. If writing fails or the process is killed, the destination keeps
+its previous content and the temporary file (``.<name>.<random>.tmp``) is removed when possible.
+"""
+
+from __future__ import annotations
+
+import os
+import tempfile
+from collections.abc import Callable
+from pathlib import Path
+
+__all__ = ["TMP_SUFFIX", "atomic_write", "atomic_write_bytes", "atomic_write_text"]
+
+#: Suffix of every temporary file this module creates.
+TMP_SUFFIX = ".tmp"
+
+
+def atomic_write(path, write: Callable[[str], None], *, suffix: str = TMP_SUFFIX) -> Path:
+    """Call ``write(tmp_path)`` on a temporary file, then rename it to ``path``.
+
+    Parameters
+    ----------
+    path : str or Path
+        Destination; its folder is created if needed.
+    write : callable
+        Writes the whole content to the path it is given (e.g. ``fig.savefig``, ``np.savez``).
+    suffix : str
+        Suffix of the temporary file, for writers that infer the format from it (e.g. ``".png"``).
+
+    Returns
+    -------
+    Path
+        The destination.
+    """
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=suffix, dir=path.parent)
+    os.close(fd)
+    try:
+        write(tmp)
+        with open(tmp, "rb+") as fh:
+            os.fsync(fh.fileno())
+        os.replace(tmp, path)
+    except BaseException:
+        if os.path.exists(tmp):
+            os.unlink(tmp)
+        raise
+    return path
+
+
+def atomic_write_bytes(path, data: bytes) -> Path:
+    """Write ``data`` to ``path`` atomically (see the module docstring)."""
+    return atomic_write(path, lambda tmp: Path(tmp).write_bytes(data))
+
+
+def atomic_write_text(path, text: str) -> Path:
+    """Write ``text`` (UTF-8) to ``path`` atomically (see the module docstring)."""
+    return atomic_write(path, lambda tmp: Path(tmp).write_text(text, encoding="utf-8"))

@@ -1,0 +1,29 @@
+"""Random test cases shared by several test files (exact geometry, seeded)."""
+
+from __future__ import annotations
+
+import numpy as np
+
+
+def random_circle_pose(seed: int, key: int = 1234):
+    """A circle of random radius and pose in front of the camera, its normal facing the camera.
+
+    The centre lies 150 to 400 mm away within +-60 mm laterally, the plane is tilted 0 to 70 deg
+    from the viewing ray of the centre (so the image is an ellipse), the radius is 3 to 25 mm.
+
+    Returns
+    -------
+    centre : ndarray of shape (3,)
+    normal : ndarray of shape (3,)
+    radius : float
+    rng : numpy.random.Generator
+        The generator that drew them, for further draws.
+    """
+    rng = np.random.default_rng(np.random.SeedSequence([key, seed]))
+    centre = np.array([rng.uniform(-60, 60), rng.uniform(-60, 60), rng.uniform(150, 400)])
+    ray = centre / np.linalg.norm(centre)
+    tilt = np.radians(rng.uniform(0, 70))
+    perp = np.cross(ray, rng.normal(size=3))
+    perp /= np.linalg.norm(perp)
+    normal = -np.cos(tilt) * ray + np.sin(tilt) * perp
+    return centre, normal, rng.uniform(3, 25), rng
