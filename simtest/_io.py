@@ -19,6 +19,13 @@ __all__ = ["TMP_SUFFIX", "atomic_write", "atomic_write_bytes", "atomic_write_tex
 TMP_SUFFIX = ".tmp"
 
 
+def _default_mode() -> int:
+    """Permissions a plain ``open(path, "w")`` would give: 0o666 less the process umask."""
+    umask = os.umask(0)
+    os.umask(umask)
+    return 0o666 & ~umask
+
+
 def atomic_write(path, write: Callable[[str], None], *, suffix: str = TMP_SUFFIX) -> Path:
     """Call ``write(tmp_path)`` on a temporary file, then rename it to ``path``.
 
@@ -44,6 +51,9 @@ def atomic_write(path, write: Callable[[str], None], *, suffix: str = TMP_SUFFIX
         write(tmp)
         with open(tmp, "rb+") as fh:
             os.fsync(fh.fileno())
+        # mkstemp creates the file 0600; give it the mode an ordinary write would, so datasets
+        # and reports are readable by the people they are shared with.
+        os.chmod(tmp, _default_mode())
         os.replace(tmp, path)
     except BaseException:
         if os.path.exists(tmp):

@@ -33,3 +33,12 @@ def test_suffix_for_writers_that_infer_the_format(tmp_path):
     seen = []
     atomic_write(tmp_path / "x.png", lambda tmp: (seen.append(tmp), open(tmp, "wb").close()), suffix=".png")
     assert seen[0].endswith(".png") and (tmp_path / "x.png").exists()
+
+
+def test_files_get_the_mode_of_an_ordinary_write(tmp_path):
+    import os
+
+    plain = tmp_path / "plain.txt"
+    plain.write_text("x")
+    p = atomic_write_text(tmp_path / "atomic.txt", "x")
+    assert os.stat(p).st_mode == os.stat(plain).st_mode
