@@ -100,6 +100,8 @@ def test_bad_files_give_one_readable_line(scene, tmp_path):
     bad_json.write_text("{ not json")
     singular = tmp_path / "singular.json"
     singular.write_text(json.dumps({"K": [[0, 0, 0], [0, 0, 0], [0, 0, 1]]}))
+    other_size = tmp_path / "other_size.json"
+    save_intrinsics(other_size, intrinsics(300, 240), image_size=(640, 480))
     cases = [
         ([str(tmp_path / "missing.png"), "-k", str(kjson)], ["missing.png", "not found"]),
         ([str(garbage), "-k", str(kjson)], ["garbage.png"]),
@@ -108,7 +110,13 @@ def test_bad_files_give_one_readable_line(scene, tmp_path):
         ([str(png), "-k", str(bad_json)], ["bad.json"]),
         ([str(png), "-k", str(singular)], ["singular.json"]),
         ([str(png), "-k", str(kjson), "-t", "1.5"], ["isovalue"]),
+        ([str(tmp_path), "-k", str(kjson)], ["is a folder"]),
+        ([str(png), "-k", str(other_size)], ["other_size.json", "640 x 480", "240 x 240"]),
     ]
     for args, words in cases:
         res = runner.invoke(app, ["reconstruct", *args, "-o", str(tmp_path / "o")])
         _one_line_error(res, *words)
+    a_file = tmp_path / "a_file"
+    a_file.write_text("")
+    res = runner.invoke(app, ["reconstruct", str(png), "-k", str(kjson), "-o", str(a_file)])
+    _one_line_error(res, "--out must be a folder")

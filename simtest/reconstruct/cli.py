@@ -27,6 +27,8 @@ def load_image(path) -> "np.ndarray":  # noqa: F821
     import numpy as np
 
     path = Path(path)
+    if path.is_dir():
+        raise InputError(f"{path} is a folder, not an image file")
     if not path.is_file():
         raise InputError(f"image file not found: {path}")
     if path.suffix.lower() == ".npy":
@@ -78,6 +80,14 @@ def reconstruct_command(
             raise InputError(f"intrinsics file not found: {intrinsics}") from None
         except OSError as exc:
             raise InputError(f"cannot read intrinsics {intrinsics}: {exc}") from None
+        if intr.image_size is not None and tuple(intr.image_size) != (img.shape[1], img.shape[0]):
+            W, H = intr.image_size
+            raise InputError(
+                f"{intrinsics}: key 'image_size' is {W} x {H} px but {image} is "
+                f"{img.shape[1]} x {img.shape[0]} px: these intrinsics are for another image size"
+            )
+        if out.exists() and not out.is_dir():
+            raise InputError(f"--out must be a folder; {out} is a file")
         from simtest.reconstruct.io import write_estimates
         from simtest.reconstruct.pipeline import reconstruct
 
