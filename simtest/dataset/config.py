@@ -92,7 +92,14 @@ class Dist:
     args: tuple
 
     def support(self) -> tuple[float, float] | None:
-        """Closed interval that holds every draw, or None for non-numeric choices."""
+        """Closed interval that holds every draw.
+
+        Returns
+        -------
+        (float, float) or None
+            ``(low, high)`` in the parameter's unit (``-inf``/``inf`` for an unclipped normal);
+            None for a constant or choice that is not numeric.
+        """
         if self.kind == "constant":
             v = self.args[0]
             return (v, v) if _is_number(v) else None
@@ -196,6 +203,19 @@ class ParamDef:
     choices: tuple[str, ...] | None = None
 
     def default_for(self, family: str) -> Dist:
+        """Default distribution of this parameter for one family.
+
+        Parameters
+        ----------
+        family : str
+            A name in :data:`FAMILIES`.
+
+        Returns
+        -------
+        Dist or None
+            The family's own default if there is one, else the ``"*"`` default, else None
+            (the parameter is not used by that family).
+        """
         return self.default.get(family, self.default.get("*"))
 
 
@@ -318,7 +338,19 @@ class DatasetConfig:
         return -(-self.count // self.shard_size)
 
     def shard_range(self, shard: int) -> range:
-        """Sample indices held by ``shard``."""
+        """Sample indices held by ``shard``.
+
+        Parameters
+        ----------
+        shard : int
+            Shard number in ``[0, n_shards)``.
+
+        Returns
+        -------
+        range
+            ``shard * shard_size`` up to ``min(count, (shard + 1) * shard_size)`` (exclusive);
+            empty for a shard number past the end.
+        """
         start = shard * self.shard_size
         return range(start, min(self.count, start + self.shard_size))
 
@@ -337,7 +369,13 @@ class DatasetConfig:
         }
 
     def fingerprint(self) -> str:
-        """sha256 of the canonical form: two configs that draw the same samples share it."""
+        """sha256 of the canonical form: two configs that draw the same samples share it.
+
+        Returns
+        -------
+        str
+            64 hex digits of ``sha256(json.dumps(to_dict(), sort_keys=True))`` (compact separators).
+        """
         text = json.dumps(self.to_dict(), sort_keys=True, separators=(",", ":"))
         return hashlib.sha256(text.encode()).hexdigest()
 

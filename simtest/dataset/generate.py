@@ -60,6 +60,7 @@ class GenerateReport:
     Attributes
     ----------
     out_dir : Path
+        The dataset folder.
     count : int
         Samples in the dataset.
     written : int
@@ -153,7 +154,27 @@ def _readme(config: DatasetConfig, count: int) -> str:
 
 def make_card(config: DatasetConfig, *, status: str, counts: dict | None = None,
               variants: list | None = None) -> dict:
-    """The ``dataset.json`` card (deterministic: no times, hosts or worker counts)."""
+    """The ``dataset.json`` card (deterministic: no times, hosts or worker counts).
+
+    Parameters
+    ----------
+    config : DatasetConfig
+        The validated config of the dataset.
+    status : str
+        ``"incomplete"`` while shards are written, ``"complete"`` once the manifest is written.
+    counts : dict, optional
+        Final counts (e.g. ``{"samples": N, ...}``); empty while incomplete.
+    variants : list of str, optional
+        Mitsuba variants the samples were rendered with.
+
+    Returns
+    -------
+    dict
+        JSON-ready card: format and version, simtest version, seed, count, shard layout, canonical
+        and as-given config with its fingerprint, sha256 of the bundled meshes used, the channel
+        table (dtype, shape, unit) and the conventions (OpenCV camera frame, pixel (u, v) with
+        integer pixel centres, mm, degrees).
+    """
     from simtest import __version__
     from simtest.dataset.sample import CHANNELS, mesh_sha256
 
@@ -428,12 +449,6 @@ def generate(
     window : int, optional
         Tasks in flight (default 2 x workers + 2); bounds memory.
 
-    Notes
-    -----
-    Local workers are started with the ``spawn`` method (no Mitsuba state is forked), so a script
-    calling this with ``workers > 1`` must guard its entry point with
-    ``if __name__ == "__main__":``.
-
     Returns
     -------
     GenerateReport
@@ -446,6 +461,14 @@ def generate(
         ``out_dir`` holds something else (another config's dataset, unrelated files).
     SampleError
         A sample failed; complete shards are kept and a rerun resumes.
+    ValueError
+        If ``workers < 1``.
+
+    Notes
+    -----
+    Local workers are started with the ``spawn`` method (no Mitsuba state is forked), so a script
+    calling this with ``workers > 1`` must guard its entry point with
+    ``if __name__ == "__main__":``.
     """
     if not isinstance(config, DatasetConfig):
         config = load_config(config)

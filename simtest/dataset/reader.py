@@ -70,6 +70,17 @@ class SimtestDataset(_base()):  # type: ignore[misc]
     ------
     DatasetError
         If ``root`` is not a complete dataset.
+    KeyError
+        If ``keys`` names an unknown array.
+
+    Notes
+    -----
+    ``ds[i]`` returns ``{"index": i, <key>: ndarray, ..., "record": dict}``. Shapes for an image
+    of H x W pixels (rows = v, columns = u): ``sensor`` uint8 (H, W); ``linear``, ``specular`` and
+    ``depth`` (mm) float32 (H, W); ``normals`` float32 (H, W, 3), unit vectors in the OpenCV
+    camera frame facing the camera, zero outside ``mask``; ``mask`` and ``highlight_mask`` bool
+    (H, W). Negative indices count from the end; an out-of-range index raises IndexError and a
+    non-integer one TypeError.
     """
 
     def __init__(self, root, keys: Sequence[str] | None = None, with_record: bool = True,
@@ -139,5 +150,26 @@ class SimtestDataset(_base()):  # type: ignore[misc]
 
 
 def open_dataset(root, keys: Sequence[str] | None = None, with_record: bool = True) -> SimtestDataset:
-    """Open a dataset folder lazily (``simtest.dataset.open``); see :class:`SimtestDataset`."""
+    """Open a dataset folder lazily (``simtest.dataset.open``).
+
+    Parameters
+    ----------
+    root : path
+        Dataset folder (written by ``simtest dataset generate``).
+    keys : sequence of str, optional
+        Arrays to load per sample (default: all); see :class:`SimtestDataset`.
+    with_record : bool
+        Include the manifest row under ``"record"``.
+
+    Returns
+    -------
+    SimtestDataset
+
+    Raises
+    ------
+    DatasetError
+        If ``root`` is not a complete dataset (card or manifest missing or unreadable).
+    KeyError
+        If ``keys`` names an unknown array.
+    """
     return SimtestDataset(root, keys=keys, with_record=with_record)

@@ -107,7 +107,20 @@ class Sample:
 
 
 def sample_rng(seed: int, index: int) -> np.random.Generator:
-    """The generator of sample ``index``: ``default_rng(SeedSequence([seed, index]))``."""
+    """The generator of sample ``index``: ``default_rng(SeedSequence([seed, index]))``.
+
+    Parameters
+    ----------
+    seed : int
+        Root seed of the dataset (0 is valid).
+    index : int
+        Sample index.
+
+    Returns
+    -------
+    numpy.random.Generator
+        A fresh generator; the same ``(seed, index)`` gives the same stream in any process.
+    """
     return np.random.default_rng(np.random.SeedSequence([int(seed), int(index)]))
 
 
@@ -120,13 +133,20 @@ def draw_parameters(config: DatasetConfig, index: int) -> dict[str, Any]:
     Parameters
     ----------
     config : DatasetConfig
+        The validated config.
     index : int
         Sample index, 0 <= index < config.count.
 
     Returns
     -------
     dict
-        ``{"family": str, <param>: value, ..., "render_seed": int}``, JSON-ready.
+        ``{"family": str, <param>: value, ..., "render_seed": int}``, JSON-ready; units as in
+        the parameter names (``_mm``, ``_deg``, ``_px``).
+
+    Raises
+    ------
+    IndexError
+        If ``index`` is outside ``0 .. config.count - 1``.
     """
     if not 0 <= index < max(config.count, 1):
         raise IndexError(f"sample index {index} is outside 0..{config.count - 1}")
@@ -270,12 +290,24 @@ def build_scene(config: DatasetConfig, params: dict):
     Parameters
     ----------
     config : DatasetConfig
+        The validated config (its ``variant`` and ``source`` are used).
     params : dict
         Output of :func:`draw_parameters`.
 
     Returns
     -------
     simtest.scene.SceneSpec
+        Lengths in mm, angles in degrees; the camera has an M x M film with
+        ``K = [[f, 0, M/2 - 0.5], [0, f, M/2 - 0.5], [0, 0, 1]]``.
+
+    Raises
+    ------
+    FileNotFoundError
+        If the bundled colon or liver mesh is missing (build it with ``simtest meshes build``).
+    ValueError
+        If the colon mesh carries no centre line in its metadata.
+    simtest.scene.SceneError
+        If the drawn values make an invalid scene spec.
     """
     from simtest.scene.spec import scene_from_dict
 
@@ -334,7 +366,7 @@ def isophote_record(bp_mm, normal, K, isovalues, phong_n: float) -> list[dict]:
     normal : array_like of shape (3,)
         Unit normal at the BP, camera frame, facing the camera.
     K : ndarray of shape (3, 3)
-        Intrinsics.
+        Intrinsics, pixels (integer pixel centres).
     isovalues : sequence of float
         Levels t in (0, 1) relative to the Phong peak.
     phong_n : float
@@ -437,7 +469,18 @@ def _portable_scene(spec) -> dict:
 
 
 def mesh_sha256(family: str) -> str | None:
-    """sha256 of the bundled mesh file a family renders (None for analytic families or if missing)."""
+    """sha256 of the bundled mesh file a family renders.
+
+    Parameters
+    ----------
+    family : str
+        A name in :data:`simtest.dataset.config.FAMILIES`.
+
+    Returns
+    -------
+    str or None
+        64 hex digits of ``meshes/<family>.ply``; None for analytic families or a missing file.
+    """
     import hashlib
 
     if family not in ("colon", "liver"):
@@ -449,7 +492,30 @@ def mesh_sha256(family: str) -> str | None:
 
 
 def sample_from_render(config: DatasetConfig, index: int, params: dict, result) -> Sample:
-    """Collect the arrays and records of a sample from a :class:`simtest.render.RenderResult`."""
+    """Collect the arrays and records of a sample from a :class:`simtest.render.RenderResult`.
+
+    Parameters
+    ----------
+    config : DatasetConfig
+        The config (its isovalues set the highlight mask and the isophote labels).
+    index : int
+        Sample index.
+    params : dict
+        Output of :func:`draw_parameters`.
+    result : simtest.render.RenderResult
+        The render of :func:`build_scene` ``(config, params)``.
+
+    Returns
+    -------
+    Sample
+        Arrays as in :data:`CHANNELS` (normals zeroed and depth zeroed outside the mask) and
+        the JSON-ready record.
+
+    Raises
+    ------
+    ValueError
+        If the sensor image is not 8-bit.
+    """
     mask = np.asarray(result.mask, dtype=bool)
     normals = np.where(mask[..., None], np.nan_to_num(np.asarray(result.normals, np.float32)), 0.0)
     depth = np.where(mask, np.nan_to_num(np.asarray(result.depth, np.float32)), 0.0)
@@ -527,12 +593,22 @@ def render_sample(config: DatasetConfig, index: int) -> Sample:
     Parameters
     ----------
     config : DatasetConfig
+        The validated config.
     index : int
+        Sample index, 0 <= index < config.count.
 
     Returns
     -------
     Sample
-        Identical (bit for bit) whenever called with the same config and index, in any process.
+        Identical (bit for bit) whenever called with the same config, index and Mitsuba variant,
+        in any process.
+
+    Raises
+    ------
+    IndexError
+        If ``index`` is out of range.
+    FileNotFoundError
+        If a bundled mesh the family needs is missing.
     """
     from simtest.render import render_scene
 

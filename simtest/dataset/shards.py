@@ -74,12 +74,41 @@ class DatasetError(RuntimeError):
 
 
 def array_sha256(a: np.ndarray) -> str:
-    """sha256 of the C-ordered bytes of ``a`` (hex)."""
+    """sha256 of the C-ordered bytes of an array.
+
+    Parameters
+    ----------
+    a : ndarray
+        Any shape and dtype (dtype and shape are not hashed; the manifest records them beside).
+
+    Returns
+    -------
+    str
+        64 hex digits.
+    """
     return hashlib.sha256(np.ascontiguousarray(a).tobytes()).hexdigest()
 
 
 def file_sha256(path: Path, chunk: int = 1 << 22) -> str:
-    """sha256 of a file (hex), read in chunks."""
+    """sha256 of a file, read in chunks.
+
+    Parameters
+    ----------
+    path : Path
+        File to hash.
+    chunk : int
+        Bytes read at a time (4 MiB by default).
+
+    Returns
+    -------
+    str
+        64 hex digits.
+
+    Raises
+    ------
+    OSError
+        If the file cannot be opened or read.
+    """
     h = hashlib.sha256()
     with open(path, "rb") as fh:
         while block := fh.read(chunk):
@@ -88,17 +117,35 @@ def file_sha256(path: Path, chunk: int = 1 << 22) -> str:
 
 
 def write_json(path: Path, obj: Any) -> Path:
-    """Atomically write ``obj`` as indented JSON."""
+    """Atomically write ``obj`` as indented JSON (temporary file, then ``os.replace``).
+
+    Parameters
+    ----------
+    path : Path
+        Destination file.
+    obj : Any
+        JSON-serialisable object.
+
+    Returns
+    -------
+    Path
+        ``path``.
+
+    Raises
+    ------
+    TypeError
+        If ``obj`` is not JSON-serialisable (nothing is written).
+    """
     return atomic_write_text(path, json.dumps(obj, indent=1, sort_keys=False) + "\n")
 
 
 def shard_npz_path(root: Path, shard: int) -> Path:
-    """``root/shards/shard-XXXXX.npz``."""
+    """Path of a shard's array file, ``root/shards/shard-XXXXX.npz`` (five-digit shard number)."""
     return Path(root) / SHARDS_DIR / f"shard-{shard:05d}.npz"
 
 
 def shard_json_path(root: Path, shard: int) -> Path:
-    """``root/shards/shard-XXXXX.json``."""
+    """Path of a shard's row file, ``root/shards/shard-XXXXX.json`` (it marks the shard complete)."""
     return Path(root) / SHARDS_DIR / f"shard-{shard:05d}.json"
 
 
@@ -146,15 +193,34 @@ class ShardWriter:
 
     @property
     def npz_path(self) -> Path:
+        """Final path of the shard, ``root/shards/shard-XXXXX.npz`` (exists once complete)."""
         return shard_npz_path(self.root, self.shard)
 
     @property
     def tmp_path(self) -> Path:
+        """Path written while the shard is incomplete: :attr:`npz_path` + ``".tmp"``."""
         p = self.npz_path
         return p.with_name(p.name + TMP_SUFFIX)
 
     def add(self, sample) -> bool:
-        """Queue ``sample`` (a :class:`simtest.dataset.sample.Sample`); True once the shard is done."""
+        """Queue one sample; write it and any queued successors that are now in order.
+
+        Parameters
+        ----------
+        sample : simtest.dataset.sample.Sample
+            A sample whose ``index`` lies in :attr:`indices`.
+
+        Returns
+        -------
+        bool
+            True once every sample of the shard is written, the ``.npz`` renamed into place and
+            its ``.json`` written; False while samples are missing.
+
+        Raises
+        ------
+        DatasetError
+            If the sample's index is outside the shard or was given before.
+        """
         if sample.index not in self.indices:
             raise DatasetError(f"sample {sample.index} does not belong to shard {self.shard}")
         if sample.index in self._pending or sample.index < self.indices[0] + self._next:
@@ -213,7 +279,22 @@ class ShardWriter:
 
 
 def read_shard_rows(root: Path, shard: int) -> dict | None:
-    """The JSON of a shard, or None if it is missing or unreadable (an incomplete shard)."""
+    """The JSON document of one shard.
+
+    Parameters
+    ----------
+    root : Path
+        Dataset folder.
+    shard : int
+        Shard number.
+
+    Returns
+    -------
+    dict or None
+        The shard's ``.json`` (keys ``shard``, ``npz``, ``npz_sha256``, ``npz_bytes``, ``indices``,
+        ``samples`` and the writer's meta), or None if it is missing or unreadable, which marks an
+        incomplete shard.
+    """
     p = shard_json_path(root, shard)
     try:
         return json.loads(p.read_text(encoding="utf-8"))
@@ -223,6 +304,16 @@ def read_shard_rows(root: Path, shard: int) -> dict | None:
 
 def read_card(root: Path) -> dict:
     """The dataset card ``root/dataset.json``.
+
+    Parameters
+    ----------
+    root : Path
+        Dataset folder.
+
+    Returns
+    -------
+    dict
+        The card (config, seed, version, counts, channels and units).
 
     Raises
     ------
@@ -246,6 +337,17 @@ def read_card(root: Path) -> dict:
 
 def read_manifest(root: Path) -> list[dict]:
     """Rows of ``root/manifest.jsonl``, in index order.
+
+    Parameters
+    ----------
+    root : Path
+        Dataset folder.
+
+    Returns
+    -------
+    list of dict
+        One row per sample (labels, ``index``, ``shard``, per-array ``sha256``/``dtype``/``shape``);
+        blank lines are skipped.
 
     Raises
     ------
@@ -281,7 +383,23 @@ def load_entry(npz: np.lib.npyio.NpzFile, index: int, name: str) -> np.ndarray:
 
 
 def decode_png(a: np.ndarray) -> np.ndarray:
-    """Decode the ``sensor_png`` bytes to the (H, W) (or (H, W, 3)) uint8 image."""
+    """Decode the stored ``sensor_png`` bytes to the sensor image.
+
+    Parameters
+    ----------
+    a : ndarray of shape (nbytes,)
+        uint8 bytes of a PNG file.
+
+    Returns
+    -------
+    ndarray of shape (H, W) or (H, W, 3)
+        uint8 image, rows = v, columns = u.
+
+    Raises
+    ------
+    PIL.UnidentifiedImageError
+        If the bytes are not an image.
+    """
     from PIL import Image
 
     with Image.open(io.BytesIO(np.asarray(a, dtype=np.uint8).tobytes())) as im:

@@ -45,6 +45,7 @@ class VerifyReport:
     Attributes
     ----------
     root : Path
+        The dataset folder checked.
     samples : int
         Samples checked.
     shards : int
@@ -60,9 +61,17 @@ class VerifyReport:
 
     @property
     def ok(self) -> bool:
+        """True when no problem was found."""
         return not self.problems
 
     def add(self, msg: str) -> None:
+        """Record one problem.
+
+        Parameters
+        ----------
+        msg : str
+            One line, ``<path>: <what>``.
+        """
         self.problems.append(msg)
 
 
@@ -149,6 +158,14 @@ def verify(root, *, check_arrays: bool = True) -> VerifyReport:
     -------
     VerifyReport
         ``report.ok`` is True when nothing is wrong.
+
+    Notes
+    -----
+    Nothing is raised for a bad dataset: every problem (an unreadable card or manifest included)
+    is a line of ``report.problems``, and checking stops after 50 of them. The facing test uses the
+    OpenCV camera frame: the ray through pixel (u, v) (integer pixel centres, u = column) is
+    ``K^{-1} (u, v, 1)`` with the sample's recorded ``K``, and a stored normal must satisfy
+    ``n . ray <= FACING_TOL``.
     """
     root = Path(root)
     rep = VerifyReport(root=root)
