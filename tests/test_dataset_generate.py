@@ -100,7 +100,8 @@ def test_two_workers_and_a_dask_cluster_give_identical_datasets(reference, confi
     generate(config_path, two, workers=2, progress=False)
     assert _files(two) == ref
     dask_out = tmp_path / "dask"
-    with LocalCluster(n_workers=2, threads_per_worker=1, processes=False,
+    # worker processes, as on a real cluster: samples are pickled and Mitsuba set up per process
+    with LocalCluster(n_workers=2, threads_per_worker=1, processes=True,
                       dashboard_address=None) as cluster:
         rep = generate(config_path, dask_out, scheduler=cluster.scheduler_address, progress=False)
     assert rep.written == 12
