@@ -30,11 +30,24 @@ def _rate(suite_dict: dict, workers: int):
 
 
 def bench_harness(repeat: int = 3) -> list:
-    """Measure the harness; ``repeat`` scales the number of realisations (at least 1).
+    """Measure the harness with 2 worker processes.
+
+    Parameters
+    ----------
+    repeat : int
+        Scales the number of realisations (clipped to 1 .. 5).
 
     Returns
     -------
     list of simtest.bench.BenchResult
+        ms per realisation of one worker (paper protocol with a fixed light and with a light
+        offset; rendered protocol on ``plane_58deg``) and the projected wall time in seconds of
+        the figure-3 suite with 2 workers (target 300 s).
+
+    Raises
+    ------
+    simtest.harness.suite.SuiteError
+        If the bundled ``paper-figure3`` suite or ``plane_58deg`` scene is missing or invalid.
     """
     from simtest.bench import BenchResult
     from simtest.harness.suite import load_suite

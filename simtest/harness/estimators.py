@@ -18,6 +18,16 @@ Estimators (DESIGN.md section 2):
 The registry is a plain dict so that a test can plant a known bias in one estimator
 (``monkeypatch.setitem(ESTIMATORS, "cone_axis", biased)``) and check that the nightly comparison
 catches it.
+
+References
+----------
+.. [1] K. Makki, A. Bartoli, "Normal Reconstruction from Specularity in the Endoscopic Setting",
+       section 2.3 (the circle-pose normals N+- of ``paper_oracle`` and ``paper_selected``).
+.. [2] D. Forsyth, J. L. Mundy, A. Zisserman, C. Coelho, A. Heller, C. Rothwell, "Invariant
+       descriptors for 3-D object recognition and pose", IEEE TPAMI 13(10), 1991 (circle pose).
+       https://doi.org/10.1109/34.99233
+.. [3] dam410/LightModel, public MATLAB code, branch ``vanishing_line_paper_co`` (prior art of
+       the ``cone_axis`` estimator).
 """
 
 from __future__ import annotations
@@ -30,7 +40,18 @@ __all__ = ["ESTIMATORS", "score", "unit_or_none"]
 
 
 def unit_or_none(v) -> np.ndarray | None:
-    """``v`` as a unit float64 (3,) vector, or None if missing, non-finite or zero."""
+    """``v`` as a unit vector, or None if it cannot be one.
+
+    Parameters
+    ----------
+    v : array_like of 3 numbers, None or False
+        A direction (any length).
+
+    Returns
+    -------
+    ndarray of shape (3,) or None
+        float64 unit vector; None if ``v`` is None/False, not 3 numbers, non-finite or zero.
+    """
     if v is None or v is False:
         return None
     try:
@@ -93,14 +114,20 @@ def score(est, truth, names) -> dict[str, tuple[float, str | None]]:
         An estimate whose status is not ``"ok"`` fails every estimator but ``bp_ray`` with
         that status as the cause.
     truth : array_like of shape (3,)
-        Ground-truth normal, camera frame.
+        Ground-truth normal, OpenCV camera frame (any length; it is normalised).
     names : iterable of str
         Estimators to score (keys of :data:`ESTIMATORS`).
 
     Returns
     -------
     dict
-        name -> ``(error_deg, None)`` or ``(nan, cause)``.
+        name -> ``(error_deg, None)`` or ``(nan, cause)``; the error is
+        ``atan2(|n x truth|, n . truth)`` in degrees, in [0, 180].
+
+    Raises
+    ------
+    KeyError
+        If a name is not in :data:`ESTIMATORS`.
     """
     from simtest.geometry.angles import angle_between_deg
 

@@ -63,8 +63,25 @@ def summarise(errors, causes) -> dict:
 
 
 def case_metrics(result) -> dict:
-    """Statistics of every estimator of a :class:`~simtest.harness.runner.CaseResult`, plus the
-    means of its diagnostics (``extras``: eigenvalue gap, fit residual, BP error, curvature)."""
+    """Statistics of every estimator of one case, plus the means of its diagnostics.
+
+    Parameters
+    ----------
+    result : simtest.harness.runner.CaseResult
+        The scored rows of the case.
+
+    Returns
+    -------
+    dict
+        ``{"estimators": {name: summarise(...)}, "diagnostics": {extra: mean or None}}``; a
+        diagnostic's mean is over its finite values (eigenvalue gap, fit residual in px, BP error
+        in px, curvatures in 1/mm), None if it has none.
+
+    Raises
+    ------
+    ValueError
+        If an estimator's errors and causes differ in length (see :func:`summarise`).
+    """
     est = {k: summarise(result.errors[k], result.causes[k]) for k in result.errors}
     extras = {}
     for k, v in result.extras.items():

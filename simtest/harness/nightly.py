@@ -48,7 +48,13 @@ BASELINE_VERSION = 1
 
 
 def default_baseline_path() -> Path:
-    """``<repo root>/reports/baseline.json``."""
+    """The committed baseline file, ``<repo root>/reports/baseline.json``.
+
+    Returns
+    -------
+    Path
+        The path (the file may not exist yet).
+    """
     import simtest
 
     return Path(simtest.__file__).resolve().parents[1] / "reports" / "baseline.json"
@@ -56,7 +62,25 @@ def default_baseline_path() -> Path:
 
 @dataclass(frozen=True)
 class Change:
-    """One compared metric. ``verdict`` in {"ok", "regression", "improved", "missing", "new"}."""
+    """One compared metric.
+
+    Attributes
+    ----------
+    case : str
+        Case id (``<sweep>@<x>``).
+    label : str
+        ``<sweep>[x=<x>]`` with x in display units.
+    estimator : str
+        Estimator name, ``"*"`` for a whole case that is new or missing.
+    metric : str
+        One of :data:`TRACKED` (degrees, or a fraction for ``failure_rate``), or ``"*"``.
+    baseline, now : float or None
+        Values in the baseline and in this run (None: the estimator never succeeded).
+    tolerance : float or None
+        ``abs + rel x |baseline|``, in the metric's unit; None where not compared.
+    verdict : str
+        ``"ok"``, ``"regression"``, ``"improved"``, ``"missing"`` or ``"new"``.
+    """
 
     case: str
     label: str
@@ -74,7 +98,24 @@ class Change:
 
 
 def tolerances_for(raw_suite: dict | None) -> dict:
-    """Defaults updated with a suite file's ``[tolerances]`` table (validated)."""
+    """Defaults updated with a suite file's ``[tolerances]`` table (validated).
+
+    Parameters
+    ----------
+    raw_suite : dict or None
+        The suite document as read (``Suite.raw``).
+
+    Returns
+    -------
+    dict
+        metric -> ``{"abs": float, "rel": float}`` for every metric of :data:`TRACKED`.
+
+    Raises
+    ------
+    ValueError
+        If the table names an untracked metric, a key other than abs/rel, or a negative or
+        non-numeric value; the message names ``tolerances.<metric>.<key>``.
+    """
     tol = {k: dict(v) for k, v in DEFAULT_TOLERANCES.items()}
     extra = (raw_suite or {}).get("tolerances", {}) or {}
     for metric, v in extra.items():
@@ -88,7 +129,22 @@ def tolerances_for(raw_suite: dict | None) -> dict:
 
 
 def baseline_entry(results: dict, tolerances: dict) -> dict:
-    """The baseline section of one suite from its ``results.json`` document."""
+    """The baseline section of one suite from its ``results.json`` document.
+
+    Parameters
+    ----------
+    results : dict
+        The run's ``results.json`` document.
+    tolerances : dict
+        As from :func:`tolerances_for`; stored with the section.
+
+    Returns
+    -------
+    dict
+        ``created_utc``, ``git_commit``, ``suite_sha256``, ``seed``, ``realisations``,
+        ``tolerances`` and ``cases``: case id -> ``{"sweep", "x" (display units),
+        "estimators": {name: {metric: value or None}}}``.
+    """
     sweeps = {sw["name"]: sw for sw in results["sweeps"]}
     cases = {}
     for c in results["cases"]:
@@ -107,7 +163,23 @@ def baseline_entry(results: dict, tolerances: dict) -> dict:
 
 
 def load_baseline(path: str | Path) -> dict:
-    """Read a baseline file; ValueError naming the file if it is not one."""
+    """Read a baseline file.
+
+    Parameters
+    ----------
+    path : str or Path
+        The baseline JSON.
+
+    Returns
+    -------
+    dict
+        ``{"schema", "schema_version", "suites": {name: section}}``.
+
+    Raises
+    ------
+    ValueError
+        If the file cannot be read, is not JSON, or has another schema; the message names it.
+    """
     path = Path(path)
     try:
         d = json.loads(path.read_text())
@@ -120,7 +192,27 @@ def load_baseline(path: str | Path) -> dict:
 
 
 def update_baseline(path: str | Path, results: dict, tolerances: dict) -> Path:
-    """Write (or replace) the section of ``results``' suite in the baseline file, atomically."""
+    """Write (or replace) the section of ``results``' suite in the baseline file, atomically.
+
+    Parameters
+    ----------
+    path : str or Path
+        The baseline file (created if missing; other suites' sections are kept).
+    results : dict
+        The run's ``results.json`` document.
+    tolerances : dict
+        As from :func:`tolerances_for`.
+
+    Returns
+    -------
+    Path
+        ``path``.
+
+    Raises
+    ------
+    ValueError
+        If an existing file at ``path`` is not a baseline.
+    """
     from simtest._io import atomic_write_bytes
 
     path = Path(path)

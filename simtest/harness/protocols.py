@@ -34,9 +34,20 @@ EXTRA_KEYS = ("eigenvalue_gap", "residual_px", "bp_error_px", "k1_per_mm", "k2_p
 
 
 def isovalue_list(isovalue: float, joint_isovalues) -> tuple[float, ...]:
-    """The isovalues passed to the reconstruction: the primary ``t`` first, then the other
-    nested isovalues of the joint cone axis (the joint fit uses every isophote that succeeded,
-    the primary included)."""
+    """The isovalues passed to the reconstruction, primary first.
+
+    Parameters
+    ----------
+    isovalue : float
+        The primary isovalue ``t`` in (0, 1), relative to the BP intensity.
+    joint_isovalues : iterable of float
+        Further nested isovalues for the joint cone axis (a repeat of ``t`` is dropped).
+
+    Returns
+    -------
+    tuple of float
+        ``(t, *others)``: the joint fit uses every isophote that succeeded, the primary included.
+    """
     t = float(isovalue)
     return (t,) + tuple(float(v) for v in joint_isovalues if float(v) != t)
 
@@ -46,6 +57,24 @@ def reconstruct_known_bp(image, K, bp_px, roi, isovalues):
 
     The image is already normalised to 1 at the BP by the protocol (paper step 4), so the
     isovalues are taken relative to a full scale of 1 and no further smoothing is applied.
+
+    Parameters
+    ----------
+    image : ndarray of shape (H, W)
+        Float image, 1 at the BP.
+    K : ndarray of shape (3, 3)
+        Intrinsics, pixels (integer pixel centres).
+    bp_px : array_like of shape (2,)
+        Known brightest point (u, v), px.
+    roi : tuple of int
+        ``(row0, row1, col0, col1)``, half-open, as from :meth:`PaperRunner.roi`.
+    isovalues : sequence of float
+        As from :func:`isovalue_list`.
+
+    Returns
+    -------
+    simtest.reconstruct.SpecularityEstimate
+        Failures are values (``status`` names the cause), not exceptions.
     """
     from simtest.reconstruct import reconstruct_roi
 
@@ -60,6 +89,20 @@ def reconstruct_image(image, K, isovalues):
     image maximum), not to the dtype's range: a rendered highlight need not reach saturation
     (the sensor's exposure is a swept parameter). Isovalues are relative to each detected BP
     (the reconstruction's default).
+
+    Parameters
+    ----------
+    image : ndarray of shape (H, W)
+        Linear float or 8-bit sensor image.
+    K : ndarray of shape (3, 3)
+        Intrinsics, pixels (integer pixel centres).
+    isovalues : sequence of float
+        As from :func:`isovalue_list`.
+
+    Returns
+    -------
+    list of simtest.reconstruct.SpecularityEstimate
+        One per detected specularity; empty for an all-dark image.
     """
     from simtest.reconstruct import reconstruct
 
@@ -126,8 +169,18 @@ class PaperRunner:
 
     Parameters
     ----------
-    case : Case
+    case : simtest.harness.suite.Case
+        A ``paper`` case: its params are the :class:`simtest.simulate.paper.PaperParams` fields
+        plus ``isovalue`` and ``joint_isovalues``.
     estimators : sequence of str
+        Keys of :data:`simtest.harness.estimators.ESTIMATORS`.
+
+    Raises
+    ------
+    TypeError
+        If the case params hold a key that is not a PaperParams field.
+    ValueError
+        If PaperParams rejects a value.
     """
 
     protocol = "paper"
@@ -142,10 +195,26 @@ class PaperRunner:
         self.estimators = tuple(estimators)
 
     def roi(self, clean: np.ndarray, bp_px) -> tuple[int, int, int, int]:
-        """The "given region of interest containing the specularity" (paper section 3.3): the
-        bounding box of the noiseless image above half the lowest isovalue, plus
-        :data:`ROI_MARGIN_PX`, clipped to the image. Cropping only saves time (marching squares
-        scans the ROI); a contour that leaves it is reported as cut, never silently clipped."""
+        """The "given region of interest containing the specularity" (paper section 3.3).
+
+        The bounding box of the noiseless image above half the lowest isovalue, extended to
+        contain the BP, plus :data:`ROI_MARGIN_PX`, clipped to the image. Cropping only saves
+        time (marching squares scans the ROI); a contour that leaves it is reported as cut,
+        never silently clipped.
+
+        Parameters
+        ----------
+        clean : ndarray of shape (H, W)
+            Noiseless image of the realisation.
+        bp_px : array_like of shape (2,)
+            Brightest point (u, v), px.
+
+        Returns
+        -------
+        tuple of int
+            ``(row0, row1, col0, col1)``, half-open; the whole image if nothing is above the
+            threshold.
+        """
         h, w = clean.shape
         mask = clean > 0.5 * min(self.isovalues) * float(clean.max())
         rows, cols = np.flatnonzero(mask.any(axis=1)), np.flatnonzero(mask.any(axis=0))
@@ -157,6 +226,21 @@ class PaperRunner:
                 max(0, min(cols[0], u) - m), min(w, max(cols[-1], u) + m + 1))
 
     def run(self, seedseq: np.random.SeedSequence) -> list[dict]:
+        """Simulate, reconstruct and score one realisation.
+
+        Parameters
+        ----------
+        seedseq : numpy.random.SeedSequence
+            The realisation's seed (:func:`simtest.harness.suite.realisation_seed`); it drives a
+            PCG64 generator for the noise and the random draws of the simulator.
+
+        Returns
+        -------
+        list of dict
+            One row ``{"errors": {estimator: deg or nan}, "causes": {estimator: None or cause},
+            "extras": {...}}``. A realisation whose BP is not in front of the camera fails every
+            estimator with ``"bp_nonpositive"``.
+        """
         rng = np.random.Generator(np.random.PCG64(seedseq))
         try:
             s = self.sim.sample(rng)
@@ -177,6 +261,21 @@ class RenderedRunner:
     """Runs realisations of a ``rendered`` case: Mitsuba render, detection, reconstruction.
 
     The render seed of realisation ``i`` is the first 31-bit word of its SeedSequence.
+
+    Parameters
+    ----------
+    case : simtest.harness.suite.Case
+        A ``rendered`` case: ``case.scene`` is the base scene file; its params are dotted scene
+        overrides plus ``isovalue``, ``joint_isovalues``, ``image`` (``"linear"`` or
+        ``"sensor"``), ``match_px``, ``radius_over_distance``, ``distance_mm`` and the mesh pose
+        keys of :func:`mesh_pose_overrides`.
+    estimators : sequence of str
+        Keys of :data:`simtest.harness.estimators.ESTIMATORS`.
+
+    Raises
+    ------
+    simtest.scene.SceneError
+        If the scene file or an override is invalid.
     """
 
     protocol = "rendered"
@@ -205,6 +304,24 @@ class RenderedRunner:
         self.variant = None
 
     def run(self, seedseq: np.random.SeedSequence) -> list[dict]:
+        """Render, detect, reconstruct and score one realisation.
+
+        Each in-frame ground-truth highlight is matched to the nearest detected BP within
+        ``match_px`` (pixel distance in (u, v)); an unmatched highlight fails every estimator
+        with ``"not_detected"``.
+
+        Parameters
+        ----------
+        seedseq : numpy.random.SeedSequence
+            The realisation's seed; its first 31-bit word is the render seed.
+
+        Returns
+        -------
+        list of dict
+            One row per in-frame highlight (see the module docstring), or one row failing with
+            ``"no_highlight_in_frame"`` if there is none. Extras hold the BP error (px), the
+            principal curvatures at the BP (1/mm) and the dimensionless curvature (DESIGN.md 1.4).
+        """
         from simtest.render import render_scene
         from simtest.scene import with_overrides
 
@@ -266,6 +383,24 @@ def mesh_pose_overrides(p: dict) -> dict:
     toward the wall on the other side. liver (``liver_azimuth_deg``): on a sphere
     ``mesh_distance_mm`` outside its bounding sphere at that azimuth and ``liver_elevation_deg``,
     aimed at the centre of its bounding box.
+
+    Parameters
+    ----------
+    p : dict
+        ``colon_station``, ``liver_azimuth_deg``, ``mesh_view_deg``, ``mesh_distance_mm``,
+        ``liver_elevation_deg``; the colon is used when ``colon_station`` is not None.
+
+    Returns
+    -------
+    dict
+        Dotted scene overrides: the analytic geometry keys set to None, ``geometry.type = "mesh"``,
+        ``geometry.path`` and the camera ``position_mm``, ``look_at_mm`` (world frame of the mesh,
+        mm) and ``up``.
+
+    Raises
+    ------
+    FileNotFoundError, ValueError
+        If the bundled mesh is missing or unreadable (:func:`simtest.scene.meshes.load_mesh`).
     """
     from pathlib import Path
 
@@ -308,7 +443,24 @@ def mesh_pose_overrides(p: dict) -> dict:
 
 
 def make_runner(case, estimators):
-    """The runner of ``case.protocol``."""
+    """The runner of ``case.protocol``.
+
+    Parameters
+    ----------
+    case : simtest.harness.suite.Case
+        The case.
+    estimators : sequence of str
+        Keys of :data:`simtest.harness.estimators.ESTIMATORS`.
+
+    Returns
+    -------
+    PaperRunner or RenderedRunner
+
+    Raises
+    ------
+    ValueError
+        If the protocol is neither ``"paper"`` nor ``"rendered"``.
+    """
     if case.protocol == "paper":
         return PaperRunner(case, estimators)
     if case.protocol == "rendered":

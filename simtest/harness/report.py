@@ -149,10 +149,25 @@ PAPER_CHECKS = {
 def evaluate_paper_claim(paper: dict, sweep_cases: list[dict]) -> list[dict]:
     """Evaluate the checks of a sweep's ``[sweep.paper]`` table on its cases' metrics.
 
+    Parameters
+    ----------
+    paper : dict
+        The sweep's ``paper`` table: ``check`` (a key of :data:`PAPER_CHECKS` or a list of them),
+        ``value`` (one per check; degrees for error bounds), optional ``estimator`` (default
+        ``"paper_oracle"``).
+    sweep_cases : list of dict
+        The sweep's case documents of ``results.json`` (with ``metrics``), in sweep order.
+
     Returns
     -------
     list of dict
-        ``{"check", "value", "estimator", "holds" (bool or None), "ours" (str)}`` per check.
+        ``{"check", "value", "estimator", "holds" (bool or None), "ours" (str)}`` per check;
+        empty if the table has no ``check``. ``holds`` is None when the metrics cannot decide.
+
+    Raises
+    ------
+    KeyError
+        If a check name is not in :data:`PAPER_CHECKS` (suite validation refuses those first).
     """
     est = paper.get("estimator", "paper_oracle")
     out = []
@@ -195,7 +210,21 @@ def _versions() -> dict:
 
 
 def provenance(run) -> dict:
-    """Git commit, package versions, Mitsuba variant(s), machine, workers, wall time, speed."""
+    """Git commit, package versions, Mitsuba variant(s), machine, workers, wall time, speed.
+
+    Parameters
+    ----------
+    run : simtest.harness.runner.SuiteRun
+        The finished run.
+
+    Returns
+    -------
+    dict
+        JSON-ready: ``git_commit``, ``git_dirty`` and ``git_dirty_files`` (None outside a git
+        checkout), ``packages`` (version or None), ``mitsuba_variants``, ``python``, ``machine``,
+        ``workers``, ``started_utc``, ``wall_time_s`` (seconds) and ``realisations_per_s`` per
+        protocol (realisations per CPU-second x workers).
+    """
     dirty = _git("status", "--porcelain", "--untracked-files=no")
     rates = {}
     for proto, n in run.realisations_by_protocol.items():
@@ -262,13 +291,38 @@ def _open_parameters(suite) -> dict:
 
 
 def make_run_id(suffix: str = "local") -> str:
-    """``YYYYmmddTHHMMSSZ-<suffix>`` (UTC). ``-local`` runs are ignored by git."""
+    """A run id from the current UTC time.
+
+    Parameters
+    ----------
+    suffix : str
+        Appended after a dash (``-local`` runs are ignored by git); empty for none.
+
+    Returns
+    -------
+    str
+        ``YYYYmmddTHHMMSSZ-<suffix>``.
+    """
     now = _dt.datetime.now(_dt.timezone.utc).strftime("%Y%m%dT%H%M%SZ")
     return f"{now}-{suffix}" if suffix else now
 
 
 def build_results(run, run_id: str) -> dict:
-    """The ``results.json`` document of a :class:`~simtest.harness.runner.SuiteRun`."""
+    """The ``results.json`` document of a suite run (schema in the module docstring).
+
+    Parameters
+    ----------
+    run : simtest.harness.runner.SuiteRun
+        The finished run.
+    run_id : str
+        Id written in the document (see :func:`make_run_id`).
+
+    Returns
+    -------
+    dict
+        JSON-ready document (angles in degrees); the ``cases`` numbers depend only on the suite
+        and its seed.
+    """
     suite = run.suite
     cases = []
     for r in run.results:
@@ -580,6 +634,7 @@ def write_report(run, out_dir: str | Path = "reports", run_id: str | None = None
     Parameters
     ----------
     run : SuiteRun
+        The finished run.
     out_dir : path
         Reports root; the files go to ``<out_dir>/<suite name>/<run id>/``.
     run_id : str or None

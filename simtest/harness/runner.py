@@ -53,6 +53,7 @@ class CaseResult:
     Attributes
     ----------
     case : Case
+        The case.
     realisation : ndarray of shape (S,), int
         Realisation index of each row (a rendered realisation may score several highlights).
     errors : dict of str to ndarray of shape (S,)
@@ -81,7 +82,25 @@ class CaseResult:
 
 @dataclass
 class SuiteRun:
-    """The outcome of :func:`run_suite`."""
+    """The outcome of :func:`run_suite`.
+
+    Attributes
+    ----------
+    suite : Suite
+        The suite that ran.
+    results : list of CaseResult
+        One per case of ``suite.cases``, in that order.
+    workers : int
+        Worker processes used (1: in process).
+    wall_s : float
+        Wall time of the run, seconds.
+    started_utc : str
+        Start time, ISO 8601 UTC (``YYYY-MM-DDTHH:MM:SSZ``).
+    cpu_s_by_protocol : dict of str to float
+        Seconds spent in realisations, summed over workers, per protocol.
+    realisations_by_protocol : dict of str to int
+        Realisations run per protocol (a setting shared by several sweeps counts once).
+    """
 
     suite: Suite
     results: list
@@ -93,6 +112,7 @@ class SuiteRun:
 
     @property
     def variants(self) -> list[str]:
+        """Mitsuba variants used by the rendered cases, sorted (empty for paper-only suites)."""
         return sorted({r.variant for r in self.results if r.variant})
 
 
@@ -119,6 +139,20 @@ def _exception_rows(estimators, exc: BaseException) -> list[dict]:
 
 def run_case_chunk(case: Case, estimators: tuple, root_seed: int, start: int, stop: int):
     """Run realisations ``start`` to ``stop - 1`` of one case (in a worker or in process).
+
+    An exception in the set-up or in a realisation never propagates: those realisations fail
+    every estimator with the cause ``exception:<type>`` and the first messages are returned.
+
+    Parameters
+    ----------
+    case : Case
+        The case.
+    estimators : tuple of str
+        Keys of :data:`simtest.harness.estimators.ESTIMATORS`.
+    root_seed : int
+        Suite root seed (0 is valid).
+    start, stop : int
+        Half-open range of realisation indices.
 
     Returns
     -------
@@ -189,15 +223,23 @@ def run_suite(suite: Suite, *, workers: int | None = None, progress: bool = True
     Parameters
     ----------
     suite : Suite
+        A loaded suite.
     workers : int or None
         Worker processes; None: the number of available cores; 1: in this process.
     progress : bool
         Show a rich progress bar (on ``console`` or stderr).
     console : rich.console.Console or None
+        Where the progress bar is drawn (default: a stderr console).
 
     Returns
     -------
     SuiteRun
+        Identical errors and statistics for any ``workers``.
+
+    Raises
+    ------
+    ValueError
+        If ``workers < 1``.
     """
     from datetime import datetime, timezone
 

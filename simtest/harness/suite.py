@@ -132,6 +132,16 @@ def bundled_suite_names() -> list[str]:
 def resolve_suite_path(name_or_path: str | Path) -> Path:
     """A bundled suite name (``"quick"``) or a path to a TOML file -> the file path.
 
+    Parameters
+    ----------
+    name_or_path : str or Path
+        An existing file, or the stem (with or without ``.toml``) of a suite in :func:`suites_dir`.
+
+    Returns
+    -------
+    Path
+        The suite file.
+
     Raises
     ------
     SuiteError
@@ -152,12 +162,38 @@ def stable_hash(key: str) -> int:
     """A 64-bit integer from a string, stable across processes and machines (SHA-256).
 
     Python's ``hash()`` is salted per process, so it cannot seed anything reproducible.
+
+    Parameters
+    ----------
+    key : str
+        Any string (UTF-8 encoded).
+
+    Returns
+    -------
+    int
+        The first 8 bytes of its SHA-256, little-endian, in [0, 2**64).
     """
     return int.from_bytes(hashlib.sha256(key.encode("utf-8")).digest()[:8], "little")
 
 
 def realisation_seed(root_seed: int, case_key: str, index: int) -> np.random.SeedSequence:
-    """``SeedSequence([root_seed, stable_hash(case_key), index])`` for realisation ``index``."""
+    """The seed of realisation ``index`` of a case.
+
+    Parameters
+    ----------
+    root_seed : int
+        Suite root seed (0 is valid).
+    case_key : str
+        :attr:`Case.key`.
+    index : int
+        Realisation index.
+
+    Returns
+    -------
+    numpy.random.SeedSequence
+        ``SeedSequence([root_seed, stable_hash(case_key), index])``: independent of worker count
+        and of the suite the case appears in.
+    """
     return np.random.SeedSequence([int(root_seed), stable_hash(case_key), int(index)])
 
 
@@ -175,6 +211,7 @@ class Case:
     suite, sweep : str
         Names of the suite and sweep that hold it.
     protocol : {"paper", "rendered"}
+        How a realisation is produced (:mod:`simtest.harness.protocols`).
     scene : str or None
         Rendered: the base scene file (absolute path) it is built from.
     scene_name : str or None
@@ -185,6 +222,7 @@ class Case:
     x : float
         The swept value (for plots), before ``display_scale``.
     realisations : int
+        Number of realisations (independent seeds) of the case.
     """
 
     key: str
@@ -207,7 +245,27 @@ class Case:
 
 @dataclass(frozen=True)
 class Sweep:
-    """A named list of cases varying one parameter (or an explicit list of settings)."""
+    """A named list of cases varying one parameter (or an explicit list of settings).
+
+    Attributes
+    ----------
+    name : str
+        Sweep name, unique in the suite.
+    protocol : {"paper", "rendered"}
+        Protocol of its cases.
+    parameter : str
+        The swept parameter (a PaperParams field, a dotted scene key or a reconstruction key).
+    label : str
+        Axis label for plots (with its unit).
+    display_scale : float
+        Factor applied to ``Case.x`` in plots and tables.
+    cases : tuple of Case
+        The expanded settings, in file order.
+    paper : dict or None
+        The paper claim this sweep checks (``claim``, ``check``, ``value``, ...), if any.
+    description : str
+        Free text.
+    """
 
     name: str
     protocol: str
@@ -221,7 +279,27 @@ class Sweep:
 
 @dataclass(frozen=True)
 class Suite:
-    """A loaded, validated suite: sweeps already expanded to cases."""
+    """A loaded, validated suite: sweeps already expanded to cases.
+
+    Attributes
+    ----------
+    name, description : str
+        From the ``[suite]`` table.
+    source : str
+        The file it was read from (for messages).
+    seed : int
+        Root seed of every realisation (0 is valid).
+    realisations : int
+        Default realisations per case.
+    estimators : tuple of str
+        Keys of :data:`simtest.harness.estimators.ESTIMATORS` scored.
+    sweeps : tuple of Sweep
+        In file order.
+    sha256 : str
+        sha256 of the suite file's bytes (empty for a suite built from a dict).
+    raw : dict
+        The document as read, used by :meth:`with_overrides`.
+    """
 
     name: str
     description: str
@@ -240,11 +318,30 @@ class Suite:
 
     @property
     def total_realisations(self) -> int:
+        """Realisations over all cases (a setting shared by two sweeps counts twice)."""
         return sum(c.realisations for c in self.cases)
 
     def with_overrides(self, *, seed: int | None = None,
                        realisations: int | None = None) -> Suite:
-        """A copy with another root seed and/or number of realisations per case."""
+        """A copy with another root seed and/or number of realisations per case.
+
+        Parameters
+        ----------
+        seed : int, optional
+            New root seed (0 is valid); None keeps the suite's.
+        realisations : int, optional
+            Realisations of every case (per-sweep values are dropped); None keeps them.
+
+        Returns
+        -------
+        Suite
+            Re-validated from the raw document, with the same source and sha256.
+
+        Raises
+        ------
+        SuiteError
+            If a new value is invalid.
+        """
         d = dict(self.raw)
         d["suite"] = dict(d.get("suite", {}))
         if seed is not None:
@@ -258,6 +355,16 @@ class Suite:
 
 def load_suite(name_or_path: str | Path) -> Suite:
     """Load and validate a suite file (bundled name or path).
+
+    Parameters
+    ----------
+    name_or_path : str or Path
+        Bundled suite name (``"quick"``) or a TOML file.
+
+    Returns
+    -------
+    Suite
+        Sweeps expanded to cases; ``sha256`` is that of the file's bytes.
 
     Raises
     ------
