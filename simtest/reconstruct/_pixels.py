@@ -41,7 +41,23 @@ def rc_to_uv(rc, row0: float = 0.0, col0: float = 0.0) -> np.ndarray:
 
 
 def uv_to_rc(uv) -> np.ndarray:
-    """Inverse of :func:`rc_to_uv` (no offset): pixel (u, v) to array (row, col), float64."""
+    """Inverse of :func:`rc_to_uv` (no offset): pixel (u, v) to array (row, col).
+
+    Parameters
+    ----------
+    uv : array_like of shape (..., 2)
+        Pixel coordinates (u, v) = (col, row), pixel centres at integer coordinates.
+
+    Returns
+    -------
+    ndarray of shape (..., 2), float64
+        Array coordinates (row, col).
+
+    Examples
+    --------
+    >>> uv_to_rc([20, 10]).tolist()
+    [10.0, 20.0]
+    """
     uv = np.asarray(uv, dtype=np.float64)
     return np.stack([uv[..., 1], uv[..., 0]], axis=-1)
 
@@ -78,7 +94,22 @@ class Roi(NamedTuple):
 
     @classmethod
     def around(cls, centre_uv, half_size: float, image_shape: tuple[int, ...]) -> Roi:
-        """Square ROI of half-width ``half_size`` px around ``centre_uv``, clipped to the image."""
+        """Square ROI of half-width ``half_size`` px around ``centre_uv``, clipped to the image.
+
+        Parameters
+        ----------
+        centre_uv : array_like of shape (2,)
+            Centre (u, v), px.
+        half_size : float
+            Half-width, px; the rows and columns within it (rounded outward) are included.
+        image_shape : tuple of int
+            ``(H, W, ...)`` of the image.
+
+        Returns
+        -------
+        Roi
+            Half-open, clipped to ``[0, H) x [0, W)``.
+        """
         h, w = image_shape[:2]
         r, c = uv_to_rc(centre_uv)
         hs = float(half_size)
@@ -91,7 +122,27 @@ class Roi(NamedTuple):
 
     @classmethod
     def coerce(cls, roi, image_shape: tuple[int, ...], where: str = "roi") -> Roi:
-        """Validate ``(row0, row1, col0, col1)`` against an image shape; ValueError naming ``where``."""
+        """Validate ``(row0, row1, col0, col1)`` against an image shape.
+
+        Parameters
+        ----------
+        roi : sequence of 4 integers
+            ``(row0, row1, col0, col1)``, half-open array indices.
+        image_shape : tuple of int
+            ``(H, W, ...)`` of the image.
+        where : str
+            Name used in the error message (e.g. the CLI option or JSON key).
+
+        Returns
+        -------
+        Roi
+
+        Raises
+        ------
+        ValueError
+            If ``roi`` is not 4 integers, or is empty or outside the image; the message names
+            ``where`` and the value.
+        """
         try:
             vals = [int(x) for x in roi]
             if len(vals) != 4 or any(float(x) != int(x) for x in roi):

@@ -23,7 +23,24 @@ class InputError(ValueError):
 
 
 def load_image(path) -> "np.ndarray":  # noqa: F821
-    """Read an image file as (H, W) or (H, W, 3) RGB (uint8/uint16/float), or raise InputError."""
+    """Read an image file for the reconstruction.
+
+    Parameters
+    ----------
+    path : str or Path
+        A ``.npy`` array, or any image format OpenCV decodes (PNG, JPEG, TIFF, ...).
+
+    Returns
+    -------
+    ndarray of shape (H, W), (H, W, 3) or as stored in the ``.npy``
+        Gray or RGB (OpenCV's BGR/BGRA converted to RGB, alpha dropped); uint8, uint16 or float
+        as stored.
+
+    Raises
+    ------
+    InputError
+        If the path is a folder, is missing, or cannot be read or decoded; the message names it.
+    """
     import numpy as np
 
     path = Path(path)

@@ -77,8 +77,16 @@ class Candidate:
 class Detection:
     """All candidates found in an image, accepted (``status == "ok"``) or not.
 
-    ``threshold`` is the brightness level of the candidate masks, image units;
-    ``n_unexamined`` counts the smallest components left out beyond ``max_candidates``.
+    Attributes
+    ----------
+    candidates : list of Candidate
+        Every examined candidate.
+    full_scale : float
+        Full scale of the image (image units) the relative thresholds refer to.
+    threshold : float
+        Brightness level of the candidate masks, image units (``brightness_rel * full_scale``).
+    n_unexamined : int
+        The smallest components left out beyond ``max_candidates``.
     """
 
     candidates: list[Candidate] = field(default_factory=list)
@@ -99,6 +107,18 @@ class Detection:
 
 def validate_image(image, where: str = "image") -> np.ndarray:
     """Check an image and return it as (H, W) or (H, W, 3) without copying when possible.
+
+    Parameters
+    ----------
+    image : array_like of shape (H, W), (H, W, 1), (H, W, 3) or (H, W, 4)
+        Gray, RGB or RGBA (alpha dropped); uint8, uint16 or float16/32/64; H, W >= 3.
+    where : str
+        Name used in error messages (a file name or argument name).
+
+    Returns
+    -------
+    ndarray of shape (H, W) or (H, W, 3)
+        Same dtype; a view of ``image`` where possible.
 
     Raises
     ------
@@ -132,14 +152,38 @@ def validate_image(image, where: str = "image") -> np.ndarray:
 
 
 def default_full_scale(image: np.ndarray) -> float:
-    """Dtype maximum for integer images, ``max(1, image.max())`` for floats."""
+    """Full scale of an image: the level relative thresholds refer to.
+
+    Parameters
+    ----------
+    image : ndarray
+        A validated image (:func:`validate_image`).
+
+    Returns
+    -------
+    float
+        Dtype maximum for unsigned integer images (255, 65535), ``max(1, image.max())`` for floats.
+    """
     if image.dtype.kind == "u":
         return float(np.iinfo(image.dtype).max)
     return max(1.0, float(image.max()))
 
 
 def luma(image: np.ndarray, *, dtype=np.float64) -> np.ndarray:
-    """Rec. 601 luma of an (H, W, 3) RGB image, or the (H, W) image itself, as ``dtype``."""
+    """Rec. 601 luma ``0.299 R + 0.587 G + 0.114 B`` of an RGB image.
+
+    Parameters
+    ----------
+    image : ndarray of shape (H, W) or (H, W, 3)
+        A validated image; a gray image is returned as is (cast).
+    dtype : numpy dtype
+        Output dtype (float64 by default).
+
+    Returns
+    -------
+    ndarray of shape (H, W)
+        Intensity in image units (no rescaling).
+    """
     if image.ndim == 2:
         return image.astype(dtype, copy=False)
     return (image.astype(dtype, copy=False) @ _LUMA.astype(dtype)).astype(dtype, copy=False)
@@ -173,7 +217,24 @@ def _threshold_mask(gray: np.ndarray, thr: float) -> np.ndarray:
 
 
 def refine_peak_uv(values: np.ndarray, r: int, c: int) -> np.ndarray:
-    """Sub-pixel peak (u, v) from the separable parabola through the 3x3 neighbourhood of (r, c)."""
+    """Sub-pixel peak from the separable parabola through the 3x3 neighbourhood of (r, c).
+
+    Along each axis a parabola through the three values gives the offset
+    ``0.5 (a - d) / (a - 2 b + d)``, clipped to +-0.5 px; an axis with no strict maximum
+    (non-negative curvature) or on the border keeps offset 0.
+
+    Parameters
+    ----------
+    values : ndarray of shape (H, W)
+        Intensities.
+    r, c : int
+        Array index (row, col) of the integer maximum.
+
+    Returns
+    -------
+    ndarray of shape (2,)
+        Peak (u, v), px, pixel centres at integer coordinates.
+    """
     h, w = values.shape
     dr = dc = 0.0
     if 0 < r < h - 1:
@@ -195,6 +256,20 @@ def peak_uv(values: np.ndarray, r: int, c: int, mask: np.ndarray | None = None) 
     A unique maximum is refined by :func:`refine_peak_uv`. A flat top (several 8-connected pixels
     equal to the maximum, as 8-bit quantisation makes of a broad lobe) gives the centroid of that
     plateau instead: a parabola through equal values would sit half a pixel off.
+
+    Parameters
+    ----------
+    values : ndarray of shape (H, W)
+        Intensities.
+    r, c : int
+        Array index (row, col) of a maximum.
+    mask : ndarray of shape (H, W), bool, optional
+        Restricts the plateau to these pixels (the candidate's component).
+
+    Returns
+    -------
+    ndarray of shape (2,)
+        BP (u, v), px, pixel centres at integer coordinates.
     """
     import cv2
 
@@ -211,7 +286,22 @@ def peak_uv(values: np.ndarray, r: int, c: int, mask: np.ndarray | None = None) 
 
 
 def ellipticity(mask: np.ndarray) -> float:
-    """``area / (4 pi sqrt(det Sigma))`` of a binary mask: 1 for a filled ellipse; NaN if degenerate."""
+    """Ellipticity ``area / (4 pi sqrt(det Sigma))`` of a binary mask.
+
+    ``Sigma`` is the second-moment matrix of the pixels, each a unit square (its own 1/12 per
+    axis added to the spread of the centres).
+
+    Parameters
+    ----------
+    mask : ndarray of shape (H, W), bool
+        The component.
+
+    Returns
+    -------
+    float
+        1 for a filled ellipse, about 0.83 for an equilateral triangle, lower for rings and
+        crescents; NaN for fewer than 3 pixels or a singular ``Sigma``.
+    """
     rr, cc = np.nonzero(mask)
     n = rr.size
     if n < 3:

@@ -30,6 +30,16 @@ The joint axis is the unit e maximising ``sum_i e^T D_i e / ||D_i||``, the leadi
 ``sum_i D_i / ||D_i||_F``. This is the least-squares common rank-one axis: since
 ``||D^_i - e e^T||^2 = ||D^_i||^2 + 1 - 2 e^T D^_i e``, it minimises
 ``sum_i ||D^_i - e e^T||_F^2`` over unit e. Each isophote has equal weight.
+
+References
+----------
+.. [1] K. Makki, A. Bartoli, "Normal Reconstruction from Specularity in the Endoscopic Setting",
+       section 2.3, steps 3 and 4 (C' = K^T C K and circle pose).
+.. [2] D. Forsyth, J. L. Mundy, A. Zisserman, C. Coelho, A. Heller, C. Rothwell, "Invariant
+       descriptors for 3-D object recognition and pose", IEEE TPAMI 13(10), 1991, appendix A.
+       https://doi.org/10.1109/34.99233
+.. [3] dam410/LightModel, public MATLAB code, branch ``vanishing_line_paper_co`` (prior art of
+       the cone-axis estimator).
 """
 
 from __future__ import annotations
@@ -75,15 +85,40 @@ def _unit(v) -> np.ndarray:
 
 
 def face_reference(n: np.ndarray, ray: np.ndarray) -> np.ndarray:
-    """Flip ``n`` so that ``n . ray < 0`` (faces the camera along that viewing ray)."""
+    """Flip ``n`` so that ``n . ray <= 0`` (faces the camera along that viewing ray).
+
+    Parameters
+    ----------
+    n : ndarray of shape (3,)
+        A normal, camera frame.
+    ray : ndarray of shape (3,)
+        A viewing direction from the camera (z > 0), camera frame.
+
+    Returns
+    -------
+    ndarray of shape (3,)
+        ``n`` or ``-n`` (same length as ``n``).
+    """
     return -n if float(np.dot(n, ray)) > 0 else n
 
 
 def select_paper_normal(normals: np.ndarray, reference: np.ndarray) -> int:
-    """Index (0 or 1) of the unit normal in ``normals`` (2, 3) closer in angle to the unit ``reference``.
+    """Index of the normal of the pair closer in angle to ``reference``.
 
     The non-oracle rule of this module (see the module docstring): the reference is the BP-ray
     normal. Ties go to index 0.
+
+    Parameters
+    ----------
+    normals : ndarray of shape (2, 3)
+        N+ and N-, unit, camera frame.
+    reference : ndarray of shape (3,)
+        Unit reference normal (the BP-ray normal), camera frame.
+
+    Returns
+    -------
+    int
+        0 (N+) or 1 (N-).
     """
     # for unit vectors the smaller angle is the larger dot product (monotone arccos)
     d = np.asarray(normals, dtype=np.float64) @ np.asarray(reference, dtype=np.float64)
@@ -143,9 +178,21 @@ def estimate_from_conic(Cn: np.ndarray, bp_ray: np.ndarray) -> ConeEstimate | Fa
 
 
 def bp_ray(bp_uv, K) -> np.ndarray:
-    """The ``bp_ray`` estimator: minus the unit viewing ray through the BP (3,), camera frame.
+    """The ``bp_ray`` estimator: minus the unit viewing ray through the BP.
 
     Same as :func:`simtest.geometry.camera.bp_ray_normal`; pass the *undistorted* BP.
+
+    Parameters
+    ----------
+    bp_uv : array_like of shape (2,)
+        Brightest point (u, v), px, pixel centres at integer coordinates.
+    K : ndarray of shape (3, 3)
+        Intrinsics, px.
+
+    Returns
+    -------
+    ndarray of shape (3,)
+        ``-K^{-1} (u, v, 1) / ||K^{-1} (u, v, 1)||``: unit, OpenCV camera frame, facing the camera.
     """
     from simtest.geometry.camera import bp_ray_normal
 

@@ -22,7 +22,11 @@ References
        Proc. WSCG 1998, pp. 125-132. Equation numbers below follow the numbering used in
        scikit-image's ``EllipseModel`` which implements the same paper.
 .. [2] A. Fitzgibbon, M. Pilu and R. B. Fisher, "Direct least square fitting of ellipses",
-       IEEE TPAMI 21(5):476-480, 1999. doi:10.1109/34.765658
+       IEEE TPAMI 21(5):476-480, 1999. https://doi.org/10.1109/34.765658
+.. [3] R. Hartley, A. Zisserman, Multiple View Geometry, 2nd ed., 2003, sec. 4.2.6 (Sampson
+       error). https://doi.org/10.1017/CBO9780511811685
+.. [4] K. Makki, A. Bartoli, "Normal Reconstruction from Specularity in the Endoscopic Setting",
+       section 2.3, step 2 (ellipse fit of the isophote).
 """
 
 from __future__ import annotations
@@ -76,7 +80,24 @@ class EllipseFit:
 
 
 def sampson_distance_px(conic: np.ndarray, points_uv: np.ndarray) -> np.ndarray:
-    """Sampson distance |x^T C x| / |grad| of each point to a point conic, px; shape (N,)."""
+    """Sampson distance of each point to a point conic [3].
+
+    The first-order geometric distance ``|x^T C x| / ||grad_(u,v) (x^T C x)||`` with
+    ``x = (u, v, 1)``.
+
+    Parameters
+    ----------
+    conic : ndarray of shape (3, 3)
+        Symmetric point conic in pixel coordinates (any scale: the ratio is scale-free).
+    points_uv : ndarray of shape (N, 2)
+        Points (u, v), px, pixel centres at integer coordinates.
+
+    Returns
+    -------
+    ndarray of shape (N,)
+        Distances in px (>= 0); a point where the gradient vanishes (the conic's centre) gets
+        ``|x^T C x| / tiny``, a very large value rather than a division by zero.
+    """
     x = np.column_stack([points_uv, np.ones(len(points_uv))])
     cx = x @ conic
     f = np.einsum("ij,ij->i", cx, x)
@@ -96,7 +117,8 @@ def fit_ellipse(points_uv) -> EllipseFit | Failure:
     -------
     EllipseFit or Failure
         Failure reasons: ``too_few_points``, ``non_finite_points``, ``degenerate_points``,
-        ``not_an_ellipse``.
+        ``not_an_ellipse`` (also when the points fit a non-ellipse clearly better, or the fitted
+        ellipse is more than :data:`MAX_AXIS_TO_SPREAD` times the points' spread).
 
     Raises
     ------

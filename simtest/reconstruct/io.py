@@ -127,7 +127,25 @@ def _isophote_dict(iso, include_points: bool) -> dict:
 
 
 def estimate_to_dict(est, include_points: bool = False) -> dict:
-    """One :class:`~simtest.reconstruct.pipeline.SpecularityEstimate` as a schema-1 dict."""
+    """One :class:`~simtest.reconstruct.pipeline.SpecularityEstimate` as a schema-1 dict.
+
+    Parameters
+    ----------
+    est : SpecularityEstimate
+        One estimate.
+    include_points : bool
+        Also write each isophote's contour points (``points_px``, (N, 2) lists).
+
+    Returns
+    -------
+    dict
+        JSON-ready (no NaN: missing values are None): ``bp_px`` [u, v], ``bp_intensity``,
+        ``saturated``, ``roi`` [row0, row1, col0, col1], ``status``, ``detail``, ``normals``
+        (``paper`` 2 x 3, ``paper_selected``, ``paper_selected_index``, ``cone_axis``,
+        ``joint_cone_axis``, ``bp_ray``: unit, OpenCV camera frame, facing the camera),
+        ``ellipse`` (px, degrees), ``conic`` (3 x 3), ``fit_residual_px``, ``eigenvalue_gap`` and
+        ``isophotes``.
+    """
     p = est.primary
     sel_idx = None if p is None else p.paper_selected_index
     return {
@@ -155,7 +173,34 @@ def estimate_to_dict(est, include_points: bool = False) -> dict:
 
 def estimates_document(estimates, *, K, image=None, image_shape=None, dist_coeffs=None,
                        isovalues=(), normalise="bp", include_points=False) -> dict:
-    """The whole schema-1 document as a dict (see the module docstring)."""
+    """The whole schema-1 document as a dict (see the module docstring).
+
+    Parameters
+    ----------
+    estimates : list of SpecularityEstimate
+        From :func:`~simtest.reconstruct.pipeline.reconstruct`.
+    K : array_like of shape (3, 3)
+        Intrinsics used, px.
+    image : str or Path, optional
+        The image file, recorded as text.
+    image_shape : tuple of int, optional
+        ``(H, W, ...)``; the first two are recorded.
+    dist_coeffs : array_like, optional
+        OpenCV distortion coefficients used.
+    isovalues : sequence of float
+        The isovalues t in (0, 1).
+    normalise : str
+        ``"bp"`` or ``"full_scale"``.
+    include_points : bool
+        Also write the contour points.
+
+    Returns
+    -------
+    dict
+        ``schema``, ``simtest_version``, ``image``, ``image_shape``, ``K``, ``dist_coeffs``,
+        ``isovalues``, ``normalise``, ``conventions`` and ``specularities`` (one
+        :func:`estimate_to_dict` each).
+    """
     from simtest import __version__
 
     return {
@@ -193,6 +238,13 @@ def write_estimates(path, estimates, *, K, image=None, image_shape=None, dist_co
     -------
     Path
         The file written.
+
+    Raises
+    ------
+    ValueError
+        If a value is not finite (JSON is written with ``allow_nan=False``); nothing is written.
+    OSError
+        If the folder is not writable.
     """
     doc = estimates_document(estimates, K=K, image=image, image_shape=image_shape,
                              dist_coeffs=dist_coeffs, isovalues=isovalues, normalise=normalise,
@@ -203,6 +255,11 @@ def write_estimates(path, estimates, *, K, image=None, image_shape=None, dist_co
 
 def read_estimates(path) -> dict:
     """Read and check an ``estimates.json`` file.
+
+    Parameters
+    ----------
+    path : str or Path
+        The file written by :func:`write_estimates`.
 
     Returns
     -------

@@ -11,6 +11,14 @@ Notes
 -----
 Coordinates follow :mod:`simtest.reconstruct._pixels`: points are returned as (u, v) = (col, row)
 with pixel centres at integer coordinates; the swap is made by :func:`~._pixels.rc_to_uv` alone.
+
+References
+----------
+.. [1] K. Makki, A. Bartoli, "Normal Reconstruction from Specularity in the Endoscopic Setting",
+       section 2.3, step 1 (isophote extraction).
+.. [2] W. E. Lorensen, H. E. Cline, "Marching cubes: a high resolution 3D surface construction
+       algorithm", SIGGRAPH 1987, Computer Graphics 21(4). https://doi.org/10.1145/37402.37422
+       (the 2D marching-squares case, as implemented by ``skimage.measure.find_contours``).
 """
 
 from __future__ import annotations
@@ -88,7 +96,18 @@ def polygon_contains(polygon_uv: np.ndarray, points_uv) -> np.ndarray | bool:
 
 
 def polygon_area(polygon_uv: np.ndarray) -> float:
-    """Unsigned shoelace area of a closed polygon (N, 2), px^2."""
+    """Unsigned shoelace area of a closed polygon.
+
+    Parameters
+    ----------
+    polygon_uv : ndarray of shape (N, 2)
+        Vertices (u, v) in px, without a repeated end point (the closing edge is implied).
+
+    Returns
+    -------
+    float
+        Area in px^2 (>= 0; 0 for fewer than 3 distinct vertices).
+    """
     x = polygon_uv[:, 0]
     y = polygon_uv[:, 1]
     return 0.5 * abs(float(np.dot(x[:-1], y[1:]) - np.dot(y[:-1], x[1:]) + x[-1] * y[0] - y[-1] * x[0]))
@@ -141,7 +160,7 @@ def extract_isophote(
 
     Notes
     -----
-    Marching squares joins the pixels above ``level`` 4-connectedly
+    Marching squares [2] joins the pixels above ``level`` 4-connectedly
     (``fully_connected="low"``), so two highlights touching at a corner stay apart. Among
     closed contours enclosing the BP the one with the smallest area is kept (a bright ring
     around the highlight would give a second, outer one). If none is closed, the open contours

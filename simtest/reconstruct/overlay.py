@@ -55,7 +55,7 @@ def draw_overlay(path, image, estimates, K, *, needle_length: float = 0.15, dpi:
     estimates : list of SpecularityEstimate
         From :func:`~simtest.reconstruct.pipeline.reconstruct`.
     K : array_like of shape (3, 3)
-        Intrinsics.
+        Intrinsics, px (integer pixel centres).
     needle_length : float
         Length of a needle perpendicular to the optical axis, as a fraction of the larger image
         side (see the module docstring).

@@ -24,6 +24,24 @@ The *primary* isophote is the one at the first isovalue given: the estimate's ``
 Errors: caller mistakes raise ValueError (bad image, K, isovalue, ROI, options); a highlight
 that cannot be reconstructed gets a status from
 :data:`simtest.reconstruct.failures.REASONS` and ``None`` in place of its normals, never NaN.
+
+Conventions: pixel (u, v) = (column, row) with pixel centres at integer coordinates; ROIs are
+half-open array-index ranges ``(row0, row1, col0, col1)``; every normal is a unit vector in the
+OpenCV camera frame (x right, y down, z forward) facing the camera (``n . ray < 0``).
+
+References
+----------
+.. [1] K. Makki, A. Bartoli, "Normal Reconstruction from Specularity in the Endoscopic Setting",
+       section 2.3 (the four steps) and section 3.1, step 4 (smoothing and normalisation).
+.. [2] W. E. Lorensen, H. E. Cline, "Marching cubes: a high resolution 3D surface construction
+       algorithm", SIGGRAPH 1987. https://doi.org/10.1145/37402.37422 (marching squares, step 2).
+.. [3] A. Fitzgibbon, M. Pilu, R. B. Fisher, "Direct least square fitting of ellipses", IEEE
+       TPAMI 21(5), 1999. https://doi.org/10.1109/34.765658; in the form of R. Halir,
+       J. Flusser, "Numerically stable direct least squares fitting of ellipses", WSCG 1998.
+.. [4] D. Forsyth et al., "Invariant descriptors for 3-D object recognition and pose", IEEE
+       TPAMI 13(10), 1991, appendix A. https://doi.org/10.1109/34.99233 (circle pose, step 4).
+.. [5] dam410/LightModel, public MATLAB code, branch ``vanishing_line_paper_co`` (prior art of
+       the cone-axis estimator).
 """
 
 from __future__ import annotations
@@ -206,7 +224,24 @@ class SpecularityEstimate:
 
 
 def validate_isovalues(isovalue) -> tuple[float, ...]:
-    """One isovalue or a sequence of them, each finite and strictly inside (0, 1)."""
+    """Check the isovalue argument.
+
+    Parameters
+    ----------
+    isovalue : float or sequence of float
+        One isovalue or several; each must be finite and strictly inside (0, 1).
+
+    Returns
+    -------
+    tuple of float
+        The isovalues in the order given (at least one).
+
+    Raises
+    ------
+    ValueError
+        If the sequence is empty, or a value is not a number or lies outside (0, 1); the message
+        starts with ``isovalue:`` and shows the value.
+    """
     vals = [isovalue] if np.ndim(isovalue) == 0 else list(np.asarray(isovalue).ravel())
     if not vals:
         raise ValueError("isovalue: an empty sequence was given; need at least one t in (0, 1)")
@@ -223,7 +258,23 @@ def validate_isovalues(isovalue) -> tuple[float, ...]:
 
 
 def validate_dist_coeffs(dist_coeffs) -> np.ndarray | None:
-    """None, or 4, 5, 8, 12 or 14 finite OpenCV distortion coefficients (all zero -> None)."""
+    """Check OpenCV distortion coefficients.
+
+    Parameters
+    ----------
+    dist_coeffs : array_like or None
+        ``(k1, k2, p1, p2[, k3[, k4, k5, k6[, s1, s2, s3, s4[, tx, ty]]]])`` in OpenCV order.
+
+    Returns
+    -------
+    ndarray of shape (4,), (5,), (8,), (12,) or (14,), or None
+        The coefficients as float64; None if ``dist_coeffs`` is None or all zero (no distortion).
+
+    Raises
+    ------
+    ValueError
+        If the count is not 4, 5, 8, 12 or 14 or a value is not finite.
+    """
     if dist_coeffs is None:
         return None
     d = np.asarray(dist_coeffs, dtype=np.float64).ravel()
@@ -451,12 +502,14 @@ def reconstruct_roi(
     Returns
     -------
     SpecularityEstimate
+        Normals are unit vectors in the OpenCV camera frame facing the camera; a highlight that
+        cannot be reconstructed has a status from :data:`~simtest.reconstruct.failures.REASONS`
+        and None normals.
 
     Raises
     ------
     ValueError
-        Bad image, K, isovalue, ROI, BP, normalise or dist_coeffs.
-
+        Bad image, K, isovalue, ROI, BP, normalise, smooth_sigma_px or dist_coeffs.
     """
     img, K, isovalues, dist = _check_common(image, K, isovalue, normalise, dist_coeffs)
     if not (np.isfinite(smooth_sigma_px) and smooth_sigma_px >= 0):
@@ -524,7 +577,16 @@ def reconstruct(
     Raises
     ------
     ValueError
-        Bad image, K, isovalue, ROI, normalise or options.
+        Bad image, K, isovalue, ROI, normalise, smooth_sigma_px or dist_coeffs.
+
+    Examples
+    --------
+    Each estimate holds the BP (u, v) in px and normals in the OpenCV camera frame::
+
+        ests = reconstruct(image, K, [0.1, 0.3])
+        for e in ests:
+            if e.ok:
+                print(e.bp_px, e.cone_axis, e.normals_paper)
     """
     img, K, isovalues, dist = _check_common(image, K, isovalue, normalise, dist_coeffs)
     if not (np.isfinite(smooth_sigma_px) and smooth_sigma_px >= 0):
