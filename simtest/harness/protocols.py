@@ -195,7 +195,7 @@ class PaperRunner:
         self.estimators = tuple(estimators)
 
     def roi(self, clean: np.ndarray, bp_px) -> tuple[int, int, int, int]:
-        """The "given region of interest containing the specularity" (paper section 3.3).
+        """The "given region of interest containing the specularity" (paper section 2.3).
 
         The bounding box of the noiseless image above half the lowest isovalue, extended to
         contain the BP, plus :data:`ROI_MARGIN_PX`, clipped to the image. Cropping only saves

@@ -1,4 +1,4 @@
-"""The paper's synthetic protocol, ``paper`` (Makki and Bartoli, section 4.1 and figure 2).
+"""The paper's synthetic protocol, ``paper`` (Makki and Bartoli, section 3.1 and figure 2).
 
 Stage 1 of the published pipeline, reproduced step by step:
 
@@ -40,7 +40,11 @@ numpy Generator it is given; nothing else is random.
 References
 ----------
 .. [1] K. Makki, A. Bartoli, "Normal Reconstruction from Specularity in the Endoscopic Setting",
-       section 4.1 (synthetic data), figures 2 and 3.
+       section 3.1 (synthetic data, steps 1-4), eq. 1, figures 2 and 3.
+.. [2] B. T. Phong, "Illumination for computer generated pictures", CACM 18(6), 1975.
+       https://doi.org/10.1145/360825.360839
+.. [3] R. Hartley, A. Zisserman, Multiple View Geometry, 2nd ed., 2003, sec. 8.1 (the
+       homography ``K [r1 r2 t]`` of a world plane). https://doi.org/10.1017/CBO9780511811685
 """
 
 from __future__ import annotations
@@ -88,6 +92,12 @@ class PaperParams:
     window_at_bp : bool
         Centre the texture window (and so the image) at the BP. True reproduces the paper's
         epsilon sweep; with epsilon = 0 it changes nothing.
+
+    Raises
+    ------
+    ValueError
+        On construction, if a value is out of its range; the message names
+        ``PaperParams.<field>`` and the value.
     """
 
     image_px: int = 406
@@ -130,12 +140,12 @@ class PaperParams:
 
     @property
     def focal(self) -> float:
-        """f in pixels (``focal_px`` or ``image_px``)."""
+        """f, px (``focal_px`` or ``image_px``)."""
         return float(self.image_px if self.focal_px is None else self.focal_px)
 
     @property
     def distance(self) -> float:
-        """D, camera to window-centre distance in texture pixels (``camera_distance_px`` or V_Z)."""
+        """D, camera to window-centre distance, texture px (``camera_distance_px`` or V_Z)."""
         return float(self.viewer_height_px if self.camera_distance_px is None
                      else self.camera_distance_px)
 
@@ -146,7 +156,13 @@ class PaperParams:
 
     @classmethod
     def field_names(cls) -> tuple[str, ...]:
-        """Names of the parameters (the keys a sweep may vary)."""
+        """Names of the parameters (the keys a sweep may vary).
+
+        Returns
+        -------
+        tuple of str
+            The dataclass field names, in declaration order.
+        """
         return tuple(f.name for f in dataclasses.fields(cls))
 
 
@@ -165,13 +181,15 @@ class PaperSample:
     Attributes
     ----------
     image : ndarray of shape (M, M), float32
-        Smoothed image normalised to 1 at the BP (the input of the reconstruction, step 5).
+        Smoothed image normalised to 1 at the BP (the input of the reconstruction, step 5);
+        rows = v, columns = u.
     K : ndarray of shape (3, 3)
-        Intrinsics of the slanted camera (pixel centres at integer coordinates, c = M/2).
+        Intrinsics of the slanted camera, px (pixel centres at integer coordinates, c = M/2).
     bp_px : ndarray of shape (2,)
-        The true BP in the image, (u, v).
+        The true BP in the image, (u, v), px.
     normal : ndarray of shape (3,)
-        Ground-truth plane normal, camera frame, unit, facing the camera.
+        Ground-truth plane normal, OpenCV camera frame, unit, facing the camera:
+        ``(0, sin theta, -cos theta)``.
     light_px : ndarray of shape (3,)
         Light position in the plane frame (texture pixels).
     bp_value : float
@@ -204,21 +222,28 @@ def _camera_pose(theta_rad: float, centre: np.ndarray, distance: float):
 def paper_homography(params: PaperParams, window_centre=(0.0, 0.0)):
     """Homography from texture pixels to image pixels, with the camera that defines it.
 
+    The camera looks at ``window_centre`` from distance ``params.distance`` along a direction
+    tilted by ``theta`` from the plane normal about the plane's x axis (module docstring, step 2);
+    ``H = K [r1 r2 t] A`` with ``A`` the texture-pixel to plane-point map [3].
+
     Parameters
     ----------
     params : PaperParams
-    window_centre : (2,) float
-        Plane point (texture pixels) at the texture centre; the camera looks at it.
+        The protocol parameters (image size, focal, distance, theta, texture size).
+    window_centre : array_like of shape (2,)
+        Plane point (x, y), texture pixels, at the texture centre; the camera looks at it.
 
     Returns
     -------
     H : ndarray of shape (3, 3)
-        Texture pixel (u, v, 1) -> image pixel, ``H[2, 2] = 1``.
+        Texture pixel (u, v, 1) -> image pixel (u, v, 1), ``H[2, 2] = 1`` (the matrix
+        ``cv2.warpPerspective`` takes).
     K : ndarray of shape (3, 3)
+        ``[[f, 0, M/2], [0, f, M/2], [0, 0, 1]]``, px (the paper's principal point M/2).
     R : ndarray of shape (3, 3)
-        Plane-frame to camera-frame rotation.
+        Plane-frame to camera-frame rotation (rows: the OpenCV camera axes in the plane frame).
     C : ndarray of shape (3,)
-        Camera centre in the plane frame.
+        Camera centre in the plane frame, texture pixels.
     """
     M, f, T = params.image_px, params.focal, params.texture
     x0, y0 = float(window_centre[0]), float(window_centre[1])
@@ -234,10 +259,18 @@ def paper_homography(params: PaperParams, window_centre=(0.0, 0.0)):
 def mirror_point(V, L) -> np.ndarray:
     """The BP on the plane z = 0: where the mirror ray from the light reaches the viewer.
 
+    Parameters
+    ----------
+    V : array_like of shape (3,)
+        Viewer position, plane frame (texture pixels), ``V_Z > 0``.
+    L : array_like of shape (3,)
+        Light position, plane frame, ``L_Z > 0``.
+
     Returns
     -------
     ndarray of shape (2,)
-        ``(x, y)`` with ``I = c`` (beta = 0) there; ``V`` and ``L`` above the plane.
+        ``(x, y)`` where beta = 0 in eq. 1, so ``I = c`` (the maximum); for ``L = V`` it is
+        ``(V_X, V_Y)``. Not checked: ``V_Z + L_Z = 0`` divides by zero.
     """
     V = np.asarray(V, dtype=np.float64)
     L = np.asarray(L, dtype=np.float64)
@@ -255,6 +288,7 @@ class PaperSimulator:
     Parameters
     ----------
     params : PaperParams
+        Validated protocol parameters.
 
     Examples
     --------
@@ -300,7 +334,19 @@ class PaperSimulator:
         return image, (K, bp_px, normal)
 
     def light(self, rng: np.random.Generator) -> np.ndarray:
-        """Draw ``L = V + epsilon (cos a, sin a, b)`` (paper section 4.1); always draws a and b."""
+        """Draw the light position ``L = V + epsilon (cos a, sin a, b)`` (paper section 3.1).
+
+        Parameters
+        ----------
+        rng : numpy.random.Generator
+            The realisation's generator; ``a ~ U[0, 2 pi)`` then ``b ~ U[-0.5, 0.5)`` are always
+            drawn, even for ``epsilon = 0``.
+
+        Returns
+        -------
+        ndarray of shape (3,)
+            L in the plane frame, texture pixels.
+        """
         a = rng.uniform(0.0, 2.0 * math.pi)
         b = rng.uniform(-0.5, 0.5)
         return self.V + self.params.epsilon_px * np.array([math.cos(a), math.sin(a), b])
@@ -365,10 +411,17 @@ def simulate_paper(params: PaperParams, rng: np.random.Generator) -> PaperSample
     Parameters
     ----------
     params : PaperParams
+        Validated protocol parameters.
     rng : numpy.random.Generator
+        The realisation's own generator (derive it from a SeedSequence).
 
     Returns
     -------
     PaperSample
+
+    Raises
+    ------
+    FloatingPointError
+        If the smoothed intensity at the BP is not positive (cannot normalise).
     """
     return PaperSimulator(params).sample(rng)
