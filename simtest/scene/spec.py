@@ -21,6 +21,16 @@ Examples
 (406, 'phong')
 >>> with_overrides(spec, {"material.n": 80}).material.n
 80.0
+
+References
+----------
+.. [1] K. Makki, A. Bartoli, "Normal Reconstruction from Specularity in the Endoscopic Setting",
+       eq. 1 (the Phong lobe) and section 3.1 (the light offset ``L = V + epsilon (cos a, sin a, b)``).
+.. [2] B. T. Phong, "Illumination for computer generated pictures", CACM 18(6), 1975.
+       https://doi.org/10.1145/360825.360839
+.. [3] B. Walter, S. R. Marschner, H. Li, K. E. Torrance, "Microfacet models for refraction
+       through rough surfaces", EGSR 2007. https://doi.org/10.2312/EGWR/EGSR07/195-206
+       (Beckmann and GGX distributions; the Phong-exponent to Beckmann-alpha conversion).
 """
 
 from __future__ import annotations
@@ -100,7 +110,12 @@ class CameraSpec:
 
     @property
     def focal(self) -> float:
-        """Focal length in pixels (from ``focal_px``, ``fov_deg`` or the default ``width_px``)."""
+        """Focal length in pixels (from ``focal_px``, ``fov_deg`` or the default ``width_px``).
+
+        With a field of view, ``f = (W / 2) / tan(fov / 2)``; the intrinsics are then
+        ``K = [[f, 0, W/2 - 0.5 + ox], [0, f, H/2 - 0.5 + oy], [0, 0, 1]]`` with
+        ``(ox, oy) = principal_offset_px`` (pixel centres at integer coordinates).
+        """
         if self.focal_px is not None:
             return float(self.focal_px)
         if self.fov_deg is not None:
@@ -109,7 +124,7 @@ class CameraSpec:
 
     @property
     def fov_x_deg(self) -> float:
-        """Horizontal field of view in degrees."""
+        """Horizontal field of view, degrees: ``2 atan((W / 2) / f)``."""
         return math.degrees(2.0 * math.atan(0.5 * self.width_px / self.focal))
 
 
@@ -118,7 +133,7 @@ class LightSpec:
     """Point light carried by the camera.
 
     The light sits at ``L = V + epsilon (cos a, sin a, b)`` in the camera frame (the paper's
-    parametrisation, section 4); ``a`` and ``b`` are drawn from the render seed (a uniform in
+    parametrisation, section 3.1); ``a`` and ``b`` are drawn from the render seed (a uniform in
     [0, 360) deg, b uniform in [-0.5, 0.5]) unless given.
 
     Attributes
@@ -156,9 +171,11 @@ class MaterialSpec:
     n : float
         Phong exponent, > 0. Also sets the default microfacet alpha = sqrt(2 / (4 n + 2)).
     distribution : {"beckmann", "ggx"}
+        Microfacet normal distribution [3].
     alpha : float or None
         Microfacet roughness in (0, 1]; None derives it from ``n``.
     base : {"conductor", "plastic"}
+        Mitsuba base BSDF of the microfacet model.
     ior : float
         Interior index of refraction of the plastic base, > 1.
     diffuse_albedo : float
@@ -177,7 +194,12 @@ class MaterialSpec:
 
     @property
     def microfacet_alpha(self) -> float:
-        """``alpha`` or, if None, the Beckmann alpha matching Phong ``n``: sqrt(2 / (4 n + 2))."""
+        """``alpha`` or, if None, the Beckmann alpha matching Phong ``n``: sqrt(2 / (4 n + 2)).
+
+        Walter et al. [3] match a Blinn-Phong exponent ``n_h`` (of the half-vector angle) with
+        ``alpha = sqrt(2 / (n_h + 2))``; the paper's lobe is in the mirror-direction angle beta,
+        which near the peak is twice the half-vector angle, so ``n_h ~ 4 n``.
+        """
         if self.alpha is not None:
             return float(self.alpha)
         return math.sqrt(2.0 / (4.0 * self.n + 2.0))
@@ -201,6 +223,7 @@ class GeometrySpec:
     Attributes
     ----------
     type : {"plane", "sphere", "cylinder", "saddle", "mesh"}
+        The surface kind; each takes the keys of :data:`GEOMETRY_KEYS`.
     tilt_deg : float
         plane: angle between the plane normal and the optical axis, [0, 90).
     azimuth_deg : float
@@ -228,8 +251,9 @@ class GeometrySpec:
     path : str
         mesh: PLY file written by ``simtest.scene.meshes.save_mesh``; relative paths are taken from
         the scene file's folder, then from the repository root.
-    translate_mm, rotate_deg, scale : mesh to world transform ``x -> R (scale x) + t``, with
-        ``R = Rz Ry Rx`` from ``rotate_deg`` (degrees about the world axes, x first).
+    translate_mm, rotate_deg, scale : (3,) float, (3,) float, float
+        mesh: mesh-to-world transform ``x -> R (scale x) + t``, with ``R = Rz Ry Rx`` from
+        ``rotate_deg`` (degrees about the world axes, x first) and ``t = translate_mm``.
     flip_normals : bool
         mesh: reverse the vertex normals and curvature signs.
     """
@@ -260,6 +284,21 @@ class SensorSpec:
     ``s = exposure * L``; Poisson noise with ``full_well_e`` electrons at full scale (0: none);
     Gaussian read noise of standard deviation ``gaussian_sigma`` (fraction of full scale); clip to
     [0, saturation]; ``y = s^(1 / gamma)``; quantise to ``2^bit_depth - 1`` levels.
+
+    Attributes
+    ----------
+    exposure : float
+        Multiplier of the linear image, > 0.
+    saturation : float
+        Clip level, fraction of full scale, in (0, 1].
+    gamma : float
+        Output gamma, > 0 (1: linear).
+    bit_depth : int
+        Bits per pixel of the sensor image, 1 to 16.
+    gaussian_sigma : float
+        Read-noise standard deviation, fraction of full scale, >= 0.
+    full_well_e : float
+        Electrons at full scale for Poisson shot noise, >= 0 (0: none).
     """
 
     exposure: float = _fld(1.0, "float", lo=0.0, lo_open=True)
@@ -272,7 +311,19 @@ class SensorSpec:
 
 @dataclass(frozen=True)
 class RenderSpec:
-    """Rendering settings. ``seed`` drives the sampler, the sensor noise and the light draw."""
+    """Rendering settings. ``seed`` drives the sampler, the sensor noise and the light draw.
+
+    Attributes
+    ----------
+    spp : int
+        Samples per pixel, 1 to 2^20.
+    sampler : {"multijitter", "independent", "stratified"}
+        Mitsuba sampler plugin.
+    seed : int
+        Render seed in [0, 2^31 - 1] (0 is valid).
+    variant : str
+        One of :data:`RENDER_VARIANTS`.
+    """
 
     spp: int = _fld(16, "int", lo=1, hi=1 << 20)
     sampler: str = _fld("multijitter", "str", choices=("multijitter", "independent", "stratified"))
@@ -292,7 +343,21 @@ _SECTIONS: dict[str, type] = {
 
 @dataclass(frozen=True)
 class SceneSpec:
-    """A whole scene. ``source`` (file path or "<dict>") is for messages and is not serialised."""
+    """A whole scene: one camera with its light, one surface, a sensor and render settings.
+
+    Attributes
+    ----------
+    name, description : str
+        Free text (``name`` defaults to the file stem when loaded from a file).
+    camera : CameraSpec
+    light : LightSpec
+    material : MaterialSpec
+    geometry : GeometrySpec
+    sensor : SensorSpec
+    render : RenderSpec
+    source : str
+        File path or ``"<dict>"``, for messages; not serialised and not compared.
+    """
 
     name: str = "scene"
     description: str = ""
@@ -449,6 +514,11 @@ def scene_from_dict(d: Mapping[str, Any], source: str = "<dict>",
     base_dir : path, optional
         Folder relative mesh paths are resolved from (before the repository root).
 
+    Returns
+    -------
+    SceneSpec
+        Validated and frozen; a mesh path is made absolute.
+
     Raises
     ------
     SceneError
@@ -482,6 +552,11 @@ def load_scene(path: str | Path) -> SceneSpec:
     path : str or Path
         A ``.toml`` file, or the name of a bundled scene (e.g. ``"plane_58deg"``).
 
+    Returns
+    -------
+    SceneSpec
+        Validated; ``name`` defaults to the file stem and ``source`` is the file path.
+
     Raises
     ------
     SceneError
@@ -514,6 +589,17 @@ def scene_to_dict(spec: SceneSpec) -> dict[str, Any]:
     """Return the nested dict (TOML layout) of ``spec``; None values are left out.
 
     ``scene_from_dict(scene_to_dict(s)) == s`` for a valid spec ``s``.
+
+    Parameters
+    ----------
+    spec : SceneSpec
+        A validated spec.
+
+    Returns
+    -------
+    dict
+        ``{"name", "description", "camera": {...}, ..., "render": {...}}`` with tuples as lists
+        (lengths in mm, angles in degrees, as in the file); ``source`` is not included.
     """
     out: dict[str, Any] = {"name": spec.name, "description": spec.description}
     for section in _SECTIONS:
@@ -534,8 +620,15 @@ def with_overrides(spec: SceneSpec, overrides: Mapping[str, Any]) -> SceneSpec:
     Parameters
     ----------
     spec : SceneSpec
+        The base spec.
     overrides : mapping
-        e.g. ``{"material.n": 80, "geometry.tilt_deg": 30, "render.seed": 3}``.
+        e.g. ``{"material.n": 80, "geometry.tilt_deg": 30, "render.seed": 3}``; ``name`` and
+        ``description`` may be given bare. None unsets an optional key.
+
+    Returns
+    -------
+    SceneSpec
+        A new validated spec (relative mesh paths resolved from the base spec's folder).
 
     Raises
     ------
