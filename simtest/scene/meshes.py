@@ -60,6 +60,19 @@ ring from its centre point: a camera placed on the centre line is inside the lum
 ``radius_min_mm``). :func:`colon_centerline` evaluates the same curve at any arc length, from the
 mesh or from its generator record. Ring i of the mesh holds vertices ``i * n_around`` to
 ``(i + 1) * n_around - 1``.
+
+Frame: the meshes live in their own *world* frame (mm); a scene places the OpenCV camera in it
+(:class:`simtest.scene.spec.CameraSpec`), and the renderer turns normals into the camera frame.
+
+References
+----------
+.. [1] M. P. do Carmo, Differential Geometry of Curves and Surfaces, 1976, sec. 3-3 (fundamental
+       forms, :func:`parametric_curvature`).
+.. [2] R. Goldman, "Curvature formulas for implicit curves and surfaces", CAGD 22, 2005
+       (:func:`implicit_curvature`).
+.. [3] D. Cohen-Steiner, J.-M. Morvan, "Restricted Delaunay triangulations and normal cycle",
+       SoCG 2003. https://doi.org/10.1145/777792.777839 (the discrete curvature measures
+       integrated over a ball that trimesh implements, :func:`principal_curvatures`).
 """
 
 from __future__ import annotations
@@ -107,7 +120,10 @@ _FORMAT_VERSION = 1
 
 
 class MeshError(ValueError):
-    """Bad mesh parameters or a bad mesh file; the message names the file or parameter."""
+    """Bad mesh parameters or a bad mesh file; the message names the file or parameter.
+
+    A subclass of ValueError, so callers that catch ValueError also catch it.
+    """
 
 
 # ------------------------------------------------------------------------------------------------
@@ -324,7 +340,13 @@ class ColonParams:
     ring_curvature_weight_mm: float = 40.0
 
     def validate(self) -> None:
-        """Raise MeshError naming the parameter that is out of range."""
+        """Check every field against its range.
+
+        Raises
+        ------
+        MeshError
+            Naming the parameter that is out of range and its value.
+        """
         _check_params(
             self,
             {
@@ -408,7 +430,13 @@ class LiverParams:
     density_exponent: float = 0.0
 
     def validate(self) -> None:
-        """Raise MeshError naming the parameter that is out of range."""
+        """Check every field against its range.
+
+        Raises
+        ------
+        MeshError
+            Naming the parameter that is out of range and its value.
+        """
         _check_params(
             self,
             {
@@ -830,7 +858,28 @@ def _assemble(
 
 
 def build_mesh(name: str, seed: int, **params: Any) -> trimesh.Trimesh:
-    """Build ``"colon"`` or ``"liver"`` (dispatch to :func:`build_colon` / :func:`build_liver`)."""
+    """Build ``"colon"`` or ``"liver"`` (dispatch to :func:`build_colon` / :func:`build_liver`).
+
+    Parameters
+    ----------
+    name : {"colon", "liver"}
+        The generator.
+    seed : int
+        Root seed (>= 0; 0 is valid).
+    **params
+        Fields of :class:`ColonParams` or :class:`LiverParams` (lengths in mm).
+
+    Returns
+    -------
+    trimesh.Trimesh
+        As returned by the generator: vertices in mm, unit ``vertex_normals``,
+        ``vertex_attributes["k1"]``, ``["k2"]`` in 1/mm (k1 >= k2, module sign convention).
+
+    Raises
+    ------
+    MeshError
+        Unknown name, unknown or out-of-range parameter, or a bad seed.
+    """
     builders = {"colon": build_colon, "liver": build_liver}
     if name not in builders:
         raise MeshError(f"build_mesh: name: unknown mesh {name!r}; known: {sorted(builders)}")
@@ -1031,7 +1080,8 @@ def principal_curvatures(
     Notes
     -----
     Both measures are averages over the ball, so the estimate is the ball average of H and K:
-    it smooths features narrower than ``radius``.
+    it smooths features narrower than ``radius``. The mean-curvature measure is the normal-cycle
+    measure of Cohen-Steiner and Morvan [3]; the Gaussian one is the angle defect.
     """
     from scipy.spatial import cKDTree
 
