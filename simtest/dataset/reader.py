@@ -36,7 +36,13 @@ __all__ = ["SimtestDataset", "open_dataset", "torch_available"]
 
 
 def torch_available() -> bool:
-    """True when PyTorch can be imported (checked without importing it)."""
+    """True when PyTorch can be imported (checked with ``importlib.util.find_spec``, no import).
+
+    Returns
+    -------
+    bool
+        Whether :class:`SimtestDataset` is also a ``torch.utils.data.Dataset``.
+    """
     return importlib.util.find_spec("torch") is not None
 
 

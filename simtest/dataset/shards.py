@@ -145,7 +145,7 @@ def shard_npz_path(root: Path, shard: int) -> Path:
 
 
 def shard_json_path(root: Path, shard: int) -> Path:
-    """Path of a shard's row file, ``root/shards/shard-XXXXX.json`` (it marks the shard complete)."""
+    """Path of a shard's row file, ``root/shards/shard-XXXXX.json`` (marks the shard complete)."""
     return Path(root) / SHARDS_DIR / f"shard-{shard:05d}.json"
 
 

@@ -278,7 +278,23 @@ def compare(base: dict, results: dict, tolerances: dict) -> list[Change]:
 
 
 def changes_table(changes: list[Change], title: str, show_all: bool = False):
-    """A rich Table of the changes that moved (all of them with ``show_all``)."""
+    """A rich Table of the changes that moved (all of them with ``show_all``).
+
+    Parameters
+    ----------
+    changes : list of Change
+        From :func:`compare`.
+    title : str
+        Table title.
+    show_all : bool
+        Also list ``"ok"`` rows.
+
+    Returns
+    -------
+    rich.table.Table
+        One row per change: verdict (coloured), case label, estimator, metric, baseline, now,
+        delta and tolerance (4 significant digits; degrees, or a fraction for failure_rate).
+    """
     from rich.table import Table
 
     t = Table(title=title, show_lines=False)

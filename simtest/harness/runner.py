@@ -39,7 +39,14 @@ _WORKER_ENV = {"OMP_NUM_THREADS": "1", "OPENBLAS_NUM_THREADS": "1", "MKL_NUM_THR
 
 
 def default_workers() -> int:
-    """Number of CPU cores available to this process (at least 1)."""
+    """Number of CPU cores available to this process (at least 1).
+
+    Returns
+    -------
+    int
+        ``len(os.sched_getaffinity(0))`` on Linux (honours CPU pinning and cgroup sets), else
+        ``os.cpu_count()``.
+    """
     try:
         return max(1, len(os.sched_getaffinity(0)))
     except AttributeError:  # pragma: no cover - not Linux

@@ -118,14 +118,26 @@ def _err(source: str, key: str, reason: str) -> SuiteError:
 
 
 def suites_dir() -> Path:
-    """Folder of the bundled suites: ``<repo root>/scenes/suites``."""
+    """Folder of the bundled suites: ``<repo root>/scenes/suites``.
+
+    Returns
+    -------
+    Path
+        The folder (resolved from the installed ``simtest`` package; an editable install).
+    """
     import simtest
 
     return Path(simtest.__file__).resolve().parents[1] / "scenes" / "suites"
 
 
 def bundled_suite_names() -> list[str]:
-    """Names (file stems) of the bundled suites, sorted."""
+    """Names (file stems) of the bundled suites, sorted.
+
+    Returns
+    -------
+    list of str
+        E.g. ``["default", "nightly", "quick", ...]``; empty if the folder is missing.
+    """
     return sorted(p.stem for p in suites_dir().glob("*.toml"))
 
 

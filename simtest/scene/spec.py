@@ -25,7 +25,8 @@ Examples
 References
 ----------
 .. [1] K. Makki, A. Bartoli, "Normal Reconstruction from Specularity in the Endoscopic Setting",
-       eq. 1 (the Phong lobe) and section 3.1 (the light offset ``L = V + epsilon (cos a, sin a, b)``).
+       eq. 1 (the Phong lobe) and section 3.1 (the light offset
+       ``L = V + epsilon (cos a, sin a, b)``).
 .. [2] B. T. Phong, "Illumination for computer generated pictures", CACM 18(6), 1975.
        https://doi.org/10.1145/360825.360839
 .. [3] B. Walter, S. R. Marschner, H. Li, K. E. Torrance, "Microfacet models for refraction
