@@ -40,6 +40,17 @@ def rc_to_uv(rc, row0: float = 0.0, col0: float = 0.0) -> np.ndarray:
     return np.stack([rc[..., 1] + col0, rc[..., 0] + row0], axis=-1)
 
 
+def image_size_wh(shape) -> tuple[int, int]:
+    """Image size (W, H) in pixels, the order of intrinsics files, from an array shape (H, W, ...).
+
+    Examples
+    --------
+    >>> image_size_wh((480, 640, 3))
+    (640, 480)
+    """
+    return int(shape[1]), int(shape[0])
+
+
 def uv_to_rc(uv) -> np.ndarray:
     """Inverse of :func:`rc_to_uv` (no offset): pixel (u, v) to array (row, col).
 

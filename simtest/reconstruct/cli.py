@@ -88,6 +88,7 @@ def reconstruct_command(
 ) -> None:
     """Estimate the normal at every specular highlight of IMAGE."""
     from simtest.geometry.camera import load_intrinsics
+    from simtest.reconstruct._pixels import image_size_wh
 
     try:
         img = load_image(image)
@@ -97,11 +98,11 @@ def reconstruct_command(
             raise InputError(f"intrinsics file not found: {intrinsics}") from None
         except OSError as exc:
             raise InputError(f"cannot read intrinsics {intrinsics}: {exc}") from None
-        if intr.image_size is not None and tuple(intr.image_size) != (img.shape[1], img.shape[0]):
-            W, H = intr.image_size
+        if intr.image_size is not None and tuple(intr.image_size) != image_size_wh(img.shape):
+            (W, H), (w, h) = intr.image_size, image_size_wh(img.shape)
             raise InputError(
                 f"{intrinsics}: key 'image_size' is {W} x {H} px but {image} is "
-                f"{img.shape[1]} x {img.shape[0]} px: these intrinsics are for another image size"
+                f"{w} x {h} px: these intrinsics are for another image size"
             )
         if out.exists() and not out.is_dir():
             raise InputError(f"--out must be a folder; {out} is a file")
