@@ -45,6 +45,7 @@ from simtest.render.truth import (
 from simtest.scene.spec import SceneSpec
 
 __all__ = [
+    "MAX_SEED",
     "RenderResult",
     "RendererUnavailable",
     "choose_variant",
@@ -52,6 +53,11 @@ __all__ = [
     "write_render",
     "saddle_mesh",
 ]
+
+
+#: Largest render seed, as ``render.seed`` in scene files (:mod:`simtest.scene.spec`): Mitsuba's
+#: samplers take 32-bit seeds (a larger one fails inside ``sample_tea_32``).
+MAX_SEED = 2**31 - 1
 
 
 class RendererUnavailable(RuntimeError):
@@ -514,8 +520,13 @@ def render_scene(spec: SceneSpec, *, seed: int | None = None,
 
     Raises
     ------
+    ValueError
+        If ``seed`` is outside [0, 2^31 - 1] (:data:`MAX_SEED`).
     RendererUnavailable
         If Mitsuba cannot run the variant here.
+    simtest.render.truth.HighlightTruthError
+        If the brightest point of an analytic sphere or cylinder cannot be solved for (camera or
+        light inside the surface).
 
     Notes
     -----
@@ -527,8 +538,9 @@ def render_scene(spec: SceneSpec, *, seed: int | None = None,
     import mitsuba as mi
 
     seed = spec.render.seed if seed is None else int(seed)
-    if seed < 0:
-        raise ValueError(f"seed must be >= 0, got {seed}")
+    if not 0 <= seed <= MAX_SEED:
+        raise ValueError(f"render seed {seed} is out of range: must be in [0, 2^31 - 1 = {MAX_SEED}] "
+                         "(Mitsuba's samplers take 32-bit seeds; the range of render.seed in scene files)")
     variant = choose_variant(variant or spec.render.variant)
     light_pos = light_position_cam(spec.light, seed)
     # Cached Mitsuba scenes are updated in place for each render (see _mitsuba_scene): one
