@@ -8,6 +8,7 @@ import numpy as np
 import pytest
 from PIL import Image
 
+from simtest.geometry import angle_between_deg
 from simtest.geometry.camera import load_intrinsics
 from simtest.reconstruct import reconstruct
 from simtest.render import render_scene, write_render
@@ -34,8 +35,7 @@ def test_cone_axis_of_rendered_plane_gives_the_normal(tmp_path, tilt_deg, fov_de
     estimates = [e for e in reconstruct(image, K, 0.1) if e.ok]
     assert len(estimates) == 1
     iso = estimates[0].isophotes[0]
-    cos = float(np.dot(iso.cone_axis, truth["normal"]))
-    angle_deg = np.degrees(np.arccos(np.clip(cos, -1.0, 1.0)))
+    angle_deg = angle_between_deg(iso.cone_axis, truth["normal"])
     # Co-located light on a plane: the t = 0.1 isophote is a right circular cone about the normal
     # (DESIGN fact 2). Measured ~0.001 to 0.005 deg at 200 px; the bound is 0.2 deg.
     assert angle_deg < 0.2

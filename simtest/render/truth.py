@@ -7,7 +7,8 @@ co-located light it is where the normal is parallel to the viewing ray.
 - Plane: mirror the light in the plane; the BP is where the segment from the camera to the mirror
   image crosses the plane (closed form).
 - Sphere, cylinder: closed form with a co-located light; otherwise the stationarity condition (the
-  tangential part of h vanishes) solved with :func:`scipy.optimize.root` on the analytic surface.
+  tangential part of h vanishes) solved with :func:`scipy.optimize.root` on the analytic surface,
+  and checked: :class:`HighlightTruthError` when the solve does not reach a BP.
 - Meshes: candidate pixels where the rendered ground-truth normals nearly bisect, refined by ray
   casting through sub-pixel grids (the normal is the barycentric interpolation of the vertex
   normals, as Mitsuba shades it); k1 and k2 are the barycentric interpolation of the vertex values.
@@ -79,7 +80,14 @@ class HighlightTruth:
     in_frame: bool
 
     def to_dict(self) -> dict:
-        """JSON-ready dict (lists and floats)."""
+        """JSON-ready form, as written to ``highlights.json``.
+
+        Returns
+        -------
+        dict
+            ``bp_px`` [u, v] px, ``bp_mm`` and ``normal`` [x, y, z] (camera frame; mm, unit),
+            ``k1``, ``k2`` (1/mm), ``in_frame`` (bool); lists of floats.
+        """
         return {
             "bp_px": [float(x) for x in self.bp_px],
             "bp_mm": [float(x) for x in self.bp_mm],
@@ -284,7 +292,7 @@ def _solve_stationary(surface: Callable[[np.ndarray], tuple[np.ndarray, np.ndarr
     from scipy.optimize import root
 
     f1 = np.array([1.0, 0.0, 0.0])
-    p0, n0 = surface(x0)
+    _, n0 = surface(x0)
     if abs(n0[0]) > 0.9:
         f1 = np.array([0.0, 0.0, 1.0])
     e1 = _unit(f1 - np.dot(f1, n0) * n0)
@@ -448,17 +456,30 @@ def mesh_highlights(
 ) -> list[HighlightTruth]:
     """BPs of a triangle mesh with interpolated vertex normals, from a render's ground truth.
 
+    A BP is where the shading normal bisects the directions to the camera and the light
+    (DESIGN.md 1.4/1.5). Candidates are the local maxima of :func:`bisector_cos_image` above
+    ``cos(candidate_deg)``; each is refined by casting 7 x 7 sub-pixel grids of rays 16 times
+    (the step shrinks by 3 each time, to ~1e-7 px) and kept if its normal is within ``accept_deg``
+    of the bisector.
+
     Parameters
     ----------
     cast : callable
         Ray caster (see ``Caster``); the renderer passes Mitsuba's ``scene.ray_intersect``.
-    normals, position : ndarray of shape (H, W, 3)
-        Per-pixel ground truth (camera frame); ``mask`` (H, W) bool.
+    normals : ndarray of shape (H, W, 3)
+        Per-pixel unit normals, camera frame, facing the camera (zero outside ``mask``).
+    position : ndarray of shape (H, W, 3)
+        Per-pixel surface points, camera frame, mm (zero outside ``mask``).
+    mask : ndarray of shape (H, W), bool
+        Fully covered pixels.
     light : ndarray of shape (3,)
-        Light position, camera frame.
+        Light position, camera frame, mm.
     K : ndarray of shape (3, 3)
-    vertices, faces : ndarray of shape (V, 3), (F, 3)
-        The mesh in the camera frame.
+        Intrinsics (``cast`` uses the same).
+    vertices : ndarray of shape (V, 3)
+        Mesh vertices, camera frame, mm.
+    faces : ndarray of shape (F, 3), int
+        Triangles as vertex indices (``cast``'s ``prim`` indexes them).
     k1_v, k2_v : ndarray of shape (V,)
         Vertex principal curvatures (1/mm, camera-facing sign convention).
     candidate_deg : float
