@@ -5,10 +5,13 @@ The only package of simtest that imports Mitsuba, and only when a render is aske
 
 Examples
 --------
->>> from simtest.scene import load_scene                      # doctest: +SKIP
->>> from simtest.render import render_scene, write_render     # doctest: +SKIP
->>> result = render_scene(load_scene("plane_58deg"), seed=1)  # doctest: +SKIP
->>> write_render(result, "out/")                              # doctest: +SKIP
+>>> from simtest.scene import bundled_scene_path, load_scene
+>>> from simtest.render import render_scene
+>>> result = render_scene(load_scene(bundled_scene_path("plane_58deg")), seed=1)
+>>> result.sensor.shape, result.normals.shape, len(result.highlights)
+((406, 406), (406, 406, 3), 1)
+
+``write_render(result, "out/")`` then writes the files ``simtest render`` writes.
 """
 
 from __future__ import annotations
