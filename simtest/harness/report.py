@@ -225,7 +225,9 @@ def provenance(run) -> dict:
         ``workers``, ``started_utc``, ``wall_time_s`` (seconds) and ``realisations_per_s`` per
         protocol (realisations per CPU-second x workers).
     """
-    dirty = _git("status", "--porcelain", "--untracked-files=no")
+    # reports/ holds outputs (earlier reports, the baseline), not code: a run that rewrites them is
+    # still a run of the committed code.
+    dirty = _git("status", "--porcelain", "--untracked-files=no", "--", ".", ":(exclude)reports")
     rates = {}
     for proto, n in run.realisations_by_protocol.items():
         cpu = run.cpu_s_by_protocol.get(proto, 0.0)
