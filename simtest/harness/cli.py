@@ -18,15 +18,21 @@ def _fail(msg: str, code: int = 2):
     raise typer.Exit(code)
 
 
+def _fmt(deg: float) -> str:
+    """Two significant digits, without exponents for errors of 10 deg and more."""
+    return f"{deg:.0f}" if deg >= 10 else f"{deg:.2g}"
+
+
 def _summary(results: dict, console) -> None:
     from rich.table import Table
 
     ests = results["suite"]["estimators"]
     t = Table(title=f"{results['suite']['name']}: mean error (deg), min-max over the sweep; "
                     "failure rate")
-    t.add_column("sweep")
+    # fold, never truncate: a number cut to "0.00099..." would be worse than none
+    t.add_column("sweep", overflow="fold")
     for e in ests:
-        t.add_column(e, justify="right")
+        t.add_column(e, justify="right", overflow="fold")
     cases = {c["id"]: c for c in results["cases"]}
     for sw in results["sweeps"]:
         row = [sw["name"]]
@@ -34,8 +40,8 @@ def _summary(results: dict, console) -> None:
             ms = [cases[k]["metrics"]["estimators"][e] for k in sw["cases"]]
             means = [m["mean"] for m in ms if m["mean"] is not None]
             fr = max(m["failure_rate"] for m in ms)
-            cell = "-" if not means else (f"{min(means):.3g}-{max(means):.3g}"
-                                          if len(means) > 1 else f"{means[0]:.3g}")
+            cell = "-" if not means else (f"{_fmt(min(means))} to {_fmt(max(means))}"
+                                          if len(means) > 1 else _fmt(means[0]))
             row.append(cell + (f" [red]({fr:.0%})[/]" if fr > 0 else ""))
         t.add_row(*row)
     console.print(t)
