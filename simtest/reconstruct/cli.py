@@ -78,7 +78,7 @@ def reconstruct_command(
     isovalue: list[float] = typer.Option(
         [0.1], "--isovalue", "-t", help="Isovalue in (0, 1) relative to the BP; repeat for nested isophotes."
     ),
-    normalise: str = typer.Option("bp", help="Intensity normalisation: bp or full_scale."),
+    normalise: str = typer.Option("bp", help="Intensity normalisation: bp (the paper's: t relative to the BP), full_scale, or local (t relative to the BP's height above the median of the ROI border: for highlights on bright tissue)."),
     allow_open: bool = typer.Option(False, "--allow-open", help="Fit isophotes cut by a border (flagged)."),
     smooth_sigma_px: float = typer.Option(
         0.0, "--smooth", help="Gaussian smoothing sigma in px before detection and contouring."

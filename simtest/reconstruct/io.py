@@ -21,7 +21,8 @@ step), never NaN.
       "K": [[fx, 0, cx], [0, fy, cy], [0, 0, 1]],
       "dist_coeffs": [k1, k2, p1, p2, k3] or null,   # OpenCV order; points undistorted if given
       "isovalues": [t1, t2, ...],        # each in (0, 1); t1 is the primary isovalue
-      "normalise": "bp",                 # "bp": t relative to the BP intensity; or "full_scale"
+      "normalise": "bp",                 # "bp": t relative to the BP intensity; "full_scale"; or
+                                         # "local": relative to the BP above the ROI-border median
       "conventions": {...},              # the conventions above, as text
       "specularities": [                 # one per candidate highlight, brightest first
         {

@@ -95,7 +95,9 @@ def draw_overlay(path, image, estimates, K, *, needle_length: float = 0.15, dpi:
             continue
         ax.plot(u, v, "+", color="cyan", ms=8, mew=1.5)
         for iso in est.isophotes:
-            if iso.points_uv is not None:
+            # contour points of a failed isophote (e.g. one cut by the border, which on real tissue
+            # can run round half the image) would hide the picture: draw those that were fitted
+            if iso.points_uv is not None and iso.ok:
                 ax.plot(iso.points_uv[:, 0], iso.points_uv[:, 1], ".", color="yellow", ms=1.5)
             if iso.ellipse is not None:
                 e = iso.ellipse

@@ -7,7 +7,12 @@ does one known highlight (the harness uses it on simulated images whose BP and R
 Per highlight (Makki and Bartoli, "Normal reconstruction"):
 
 1. the intensities are normalised so that the BP has intensity 1 (``normalise="bp"``, the paper's
-   step 4; optional Gaussian smoothing first, ``smooth_sigma_px``);
+   step 4; optional Gaussian smoothing first, ``smooth_sigma_px``). On real tissue the specular
+   lobe sits on a diffuse background that is often brighter than t times the BP, so that no
+   isophote of the specular lobe exists at ``t I_bp``; ``normalise="local"`` takes the median of
+   the ROI's border pixels as the local diffuse level b and contours at ``b + t (I_bp - b)``, i.e.
+   t is relative to the specular part (exact when the diffuse term is constant over the ROI;
+   beyond the paper);
 2. the isophote at each isovalue t is extracted by marching squares
    (:func:`~simtest.reconstruct.isophote.extract_isophote`); the ROI grows (x2, up to 4 times) while
    the lowest isophote is cut by the ROI border; with lens distortion the contour points are
@@ -64,7 +69,7 @@ from simtest.reconstruct.failures import OK, Failure
 from simtest.reconstruct.fit import fit_ellipse
 from simtest.reconstruct.isophote import MIN_CONTOUR_POINTS, extract_isophote, polygon_contains
 
-NORMALISE_MODES = ("bp", "full_scale")
+NORMALISE_MODES = ("bp", "full_scale", "local")
 #: ROI growth when the lowest isophote is cut by a ROI side inside the image.
 ROI_GROWTH_FACTOR = 2.0
 ROI_MAX_GROWTHS = 4
@@ -354,10 +359,17 @@ def _find_bp(img: np.ndarray, roi: Roi, saturation_level) -> tuple[np.ndarray, b
     return peak_uv(vals, r, c) + (roi.col0, roi.row0), False
 
 
-def _one_isophote(vals, roi, img_shape, level_scale, t, bp_uv, K, dist, bp_ray, allow_open):
+def _border_median(vals: np.ndarray) -> float:
+    """Median of the pixels on the border of an ROI: the local diffuse level of ``normalise="local"``."""
+    ring = np.concatenate([vals[0], vals[-1], vals[1:-1, 0], vals[1:-1, -1]])
+    return float(np.median(ring))
+
+
+def _one_isophote(vals, roi, img_shape, level_scale, t, bp_uv, K, dist, bp_ray, allow_open,
+                  level_offset=0.0):
     from simtest.geometry.camera import undistort_points
     iso = extract_isophote(
-        vals, t * level_scale, bp_uv, origin_rc=(roi.row0, roi.col0), image_shape=img_shape,
+        vals, level_offset + t * level_scale, bp_uv, origin_rc=(roi.row0, roi.col0), image_shape=img_shape,
         allow_open=True, min_points=0,
     )
     if not iso:
@@ -403,10 +415,17 @@ def _estimate_one(img, K, dist, isovalues, bp_uv, roi, *, saturated, normalise, 
     while True:
         vals = _roi_values(img, roi, smooth_sigma_px)
         i_bp = _bp_intensity(vals, roi, bp_uv)
-        scale = i_bp if normalise == "bp" else full_scale
+        offset = 0.0
+        if normalise == "bp":
+            scale = i_bp
+        elif normalise == "local":
+            offset = min(_border_median(vals), i_bp)
+            scale = i_bp - offset
+        else:
+            scale = full_scale
         i0 = order[0]
         res, iso = _one_isophote(vals, roi, img.shape, scale, isovalues[i0], bp_uv, K, dist, bp_ray,
-                                 allow_open)
+                                 allow_open, offset)
         if grow and iso is not None and iso.cut_by_roi and growths < ROI_MAX_GROWTHS:
             half = ROI_GROWTH_FACTOR * max(roi.shape) / 2.0
             new = Roi.around(bp_uv, half, img.shape)
@@ -417,7 +436,7 @@ def _estimate_one(img, K, dist, isovalues, bp_uv, roi, *, saturated, normalise, 
         break
     for i in order[1:]:
         results[i], _ = _one_isophote(vals, roi, img.shape, scale, isovalues[i], bp_uv, K, dist,
-                                      bp_ray, allow_open)
+                                      bp_ray, allow_open, offset)
 
     primary = results[0]
     status, detail = primary.status, primary.detail
@@ -446,7 +465,7 @@ def _initial_roi(cand, bp_uv, threshold, t_min, normalise, full_scale, shape) ->
     ROI is grown by the pipeline; this only saves the retries.
     """
     peak = max(cand.peak, threshold * (1 + 1e-6), np.finfo(float).tiny)
-    level = t_min * (peak if normalise == "bp" else full_scale)
+    level = t_min * (full_scale if normalise == "full_scale" else peak)
     num = np.log(peak / level) if level > 0 else 1.0
     den = np.log(peak / threshold) if threshold > 0 else 1.0
     ratio = float(np.clip(np.sqrt(max(num, 0.0) / max(den, 1e-6)), 1.0, 8.0))
@@ -481,8 +500,9 @@ def reconstruct_roi(
     K : array_like of shape (3, 3)
         Intrinsics (pixel centres at integer coordinates).
     isovalue : float or sequence of float
-        Isovalue(s) t in (0, 1), relative to the BP intensity (``normalise="bp"``) or to
-        ``full_scale`` (``normalise="full_scale"``). The first is the primary.
+        Isovalue(s) t in (0, 1), relative to the BP intensity (``normalise="bp"``), to
+        ``full_scale`` (``normalise="full_scale"``), or to the BP's height above the local diffuse
+        level (``normalise="local"``, see the module docstring). The first is the primary.
     bp_uv : array_like of shape (2,), optional
         Brightest point (u, v) px; default the brightest pixel of the ROI (sub-pixel refined), or
         the centroid of its saturated plateau.
@@ -490,8 +510,9 @@ def reconstruct_roi(
         Half-open array-index region searched; default the whole image. Not grown.
     dist_coeffs : array_like, optional
         OpenCV distortion coefficients; contour points and BP are undistorted before use.
-    normalise : {"bp", "full_scale"}
-        Intensity normalisation (the paper's is "bp").
+    normalise : {"bp", "full_scale", "local"}
+        Intensity normalisation (the paper's is "bp"; "local" subtracts the median of the ROI
+        border, for highlights on a bright diffuse background such as real tissue).
     allow_open : bool
         Fit an isophote cut by the ROI or image border (flagged ``closed=False``).
     smooth_sigma_px : float
