@@ -33,6 +33,8 @@ from typing import Any
 import numpy as np
 
 from simtest.dataset.config import PARAMS, DatasetConfig
+from simtest.geometry.angles import unit
+from simtest.geometry.conics import plane_basis
 
 __all__ = [
     "CHANNELS",
@@ -167,19 +169,6 @@ def draw_parameters(config: DatasetConfig, index: int) -> dict[str, Any]:
 # scene building
 
 
-def _unit(v) -> np.ndarray:
-    v = np.asarray(v, dtype=np.float64)
-    return v / np.linalg.norm(v)
-
-
-def _perp_basis(t: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Two unit vectors completing ``t`` (unit) to a right-handed orthonormal basis."""
-    helper = np.array([0.0, 0.0, 1.0]) if abs(t[2]) < 0.9 else np.array([1.0, 0.0, 0.0])
-    e1 = _unit(np.cross(t, helper))
-    e2 = np.cross(t, e1)
-    return e1, e2
-
-
 @functools.lru_cache(maxsize=4)
 def _mesh_info(name: str) -> dict:
     """What the camera placement needs from a bundled mesh (cached per process).
@@ -222,8 +211,8 @@ def _colon_pose(p: dict) -> dict:
     s = float(arc[0] + p["station"] * (arc[-1] - arc[0]))
     line = colon_centerline(info["mesh"], np.array([s]))
     centre = np.asarray(line["points"][0], dtype=np.float64)
-    tangent = _unit(line["tangents"][0])
-    e1, e2 = _perp_basis(tangent)
+    tangent = unit(line["tangents"][0])
+    e1, e2 = plane_basis(tangent, axes=(2, 0))
     az = math.radians(p["azimuth_deg"])
     radial = math.cos(az) * e1 + math.sin(az) * e2
     view = math.radians(p["view_angle_deg"])
@@ -251,21 +240,21 @@ def _liver_pose(p: dict) -> dict:
     v = np.asarray(mesh.vertices, dtype=np.float64) - info["centre"]
     k = int(np.argmax((v @ direction) / np.linalg.norm(v, axis=1)))
     target = np.asarray(mesh.vertices[k], dtype=np.float64)
-    normal = _unit(np.asarray(mesh.vertex_normals[k], dtype=np.float64))
+    normal = unit(np.asarray(mesh.vertex_normals[k], dtype=np.float64))
     if normal @ v[k] < 0:  # outward
         normal = -normal
-    e1, e2 = _perp_basis(normal)
+    e1, e2 = plane_basis(normal, axes=(2, 0))
     roll = math.radians(p["roll_deg"])
     side = math.cos(roll) * e1 + math.sin(roll) * e2
     view = math.radians(p["view_angle_deg"])
     back = math.cos(view) * normal + math.sin(view) * side
     position = target + p["distance_mm"] * back
-    up = _unit(np.cross(back, np.cross(side, back))) if view > 0 else side
+    up = unit(np.cross(back, np.cross(side, back))) if view > 0 else side
     return {"path": info["path"], "position": position, "look_at": target, "up": up}
 
 
 def _roll_up(forward: np.ndarray, roll_deg: float) -> np.ndarray:
-    e1, e2 = _perp_basis(_unit(forward))
+    e1, e2 = plane_basis(unit(forward), axes=(2, 0))
     r = math.radians(roll_deg)
     return math.cos(r) * e1 + math.sin(r) * e2
 
@@ -383,7 +372,7 @@ def isophote_record(bp_mm, normal, K, isovalues, phong_n: float) -> list[dict]:
     from simtest.specular import isophote_radius
 
     X = np.asarray(bp_mm, dtype=np.float64)
-    N = _unit(normal)
+    N = unit(normal)
     d = float(N @ X)  # < 0 when the normal faces the camera
     foot = d * N
     v_z = abs(d)

@@ -44,6 +44,23 @@ def angle_between_deg(a, b) -> np.ndarray | float:
     return float(ang) if ang.ndim == 0 else ang
 
 
+def unit(v) -> np.ndarray:
+    """``v`` scaled to unit length: ``v / |v|``.
+
+    Parameters
+    ----------
+    v : array_like of shape (3,)
+        A non-zero direction (any length).
+
+    Returns
+    -------
+    ndarray of shape (3,), float64
+        The unit vector; NaN (with a numpy warning) if ``v`` is zero.
+    """
+    v = np.asarray(v, dtype=np.float64)
+    return v / np.linalg.norm(v)
+
+
 def face_camera(normal, ray) -> np.ndarray:
     """Flip normals so that they face the camera: ``n . ray < 0``.
 

@@ -426,13 +426,19 @@ def circle_pose(Cn) -> CirclePose:
     return CirclePose(normals=np.array(normals), centres=np.array(centres), eigenvalues=w)
 
 
-def plane_basis(normal) -> tuple[np.ndarray, np.ndarray]:
+def plane_basis(normal, axes: tuple[int, int] = (0, 1)) -> tuple[np.ndarray, np.ndarray]:
     """An orthonormal basis (u, w) of the plane perpendicular to ``normal``.
 
     Parameters
     ----------
     normal : array_like of shape (3,)
         Unit normal.
+    axes : tuple of int
+        Indices of the two coordinate axes the basis may start from: ``u`` is along
+        ``normal x e[axes[0]]`` unless ``|normal[axes[0]]| >= 0.9`` (the normal within about 26 deg
+        of that axis), then along ``normal x e[axes[1]]``. The default (x, then y) is the one of the
+        conics here; the camera placements of ``simtest.dataset`` and ``simtest.harness`` use
+        (z, then x), so their cameras' "up" stays what it was.
 
     Returns
     -------
@@ -440,7 +446,8 @@ def plane_basis(normal) -> tuple[np.ndarray, np.ndarray]:
         Unit vectors with ``(u, w, normal)`` right-handed.
     """
     n = np.asarray(normal, dtype=np.float64)
-    helper = np.array([1.0, 0.0, 0.0]) if abs(n[0]) < 0.9 else np.array([0.0, 1.0, 0.0])
+    first, second = axes
+    helper = np.eye(3)[first if abs(n[first]) < 0.9 else second]
     u = np.cross(n, helper)
     u /= np.linalg.norm(u)
     return u, np.cross(n, u)

@@ -364,17 +364,6 @@ class RenderedRunner:
         return rows
 
 
-def _unit(v):
-    v = np.asarray(v, dtype=np.float64)
-    return v / np.linalg.norm(v)
-
-
-def _perp(t):
-    helper = np.array([0.0, 0.0, 1.0]) if abs(t[2]) < 0.9 else np.array([1.0, 0.0, 0.0])
-    e1 = _unit(np.cross(t, helper))
-    return e1, np.cross(t, e1)
-
-
 def mesh_pose_overrides(p: dict) -> dict:
     """Scene overrides placing the camera in or around a bundled mesh (``meshes/*.ply``).
 
@@ -405,6 +394,8 @@ def mesh_pose_overrides(p: dict) -> dict:
     from pathlib import Path
 
     import simtest
+    from simtest.geometry.angles import unit
+    from simtest.geometry.conics import plane_basis
     from simtest.scene.meshes import colon_centerline, load_mesh
 
     root = Path(simtest.__file__).resolve().parents[1] / "meshes"
@@ -417,8 +408,8 @@ def mesh_pose_overrides(p: dict) -> dict:
         s = float(arc[0] + p["colon_station"] * (arc[-1] - arc[0]))
         cl = colon_centerline(mesh, np.array([s]))
         centre = np.asarray(cl["points"][0], dtype=np.float64)
-        tangent = _unit(cl["tangents"][0])
-        radial, _ = _perp(tangent)
+        tangent = unit(cl["tangents"][0])
+        radial, _ = plane_basis(tangent, axes=(2, 0))
         v = math.radians(p["mesh_view_deg"])
         forward = math.cos(v) * tangent + math.sin(v) * radial
         r_min = float(np.interp(s, arc, np.asarray(line["radius_min_mm"], dtype=np.float64)))
@@ -431,7 +422,7 @@ def mesh_pose_overrides(p: dict) -> dict:
                               math.sin(el)])
         position = c + (radius + p["mesh_distance_mm"]) * direction
         forward = -direction
-    up, _ = _perp(forward)
+    up, _ = plane_basis(forward, axes=(2, 0))
     over = {f"geometry.{k}": None for k in ("tilt_deg", "azimuth_deg", "distance_mm", "extent_mm",
                                             "center_mm", "radius_mm", "axis", "length_mm",
                                             "radius1_mm", "radius2_mm", "resolution")}

@@ -48,6 +48,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from simtest.geometry.angles import unit
 from simtest.reconstruct.failures import Failure
 
 
@@ -77,11 +78,6 @@ class ConeEstimate:
 
     def __bool__(self) -> bool:
         return True
-
-
-def _unit(v) -> np.ndarray:
-    v = np.asarray(v, dtype=np.float64)
-    return v / np.linalg.norm(v)
 
 
 def face_reference(n: np.ndarray, ray: np.ndarray) -> np.ndarray:
@@ -169,8 +165,8 @@ def estimate_from_conic(Cn: np.ndarray, bp_ray: np.ndarray) -> ConeEstimate | Fa
     except (ValueError, np.linalg.LinAlgError) as exc:
         return Failure("pose_failed", str(exc))
     ray = -bp_ray
-    paper = np.array([face_reference(_unit(n), ray) for n in pose.normals])
-    axis = face_reference(_unit(ax.axis), ray)
+    paper = np.array([face_reference(unit(n), ray) for n in pose.normals])
+    axis = face_reference(unit(ax.axis), ray)
     if not (np.isfinite(paper).all() and np.isfinite(axis).all()):
         return Failure("pose_failed", "non-finite normal")
     idx = select_paper_normal(paper, bp_ray)
@@ -238,7 +234,7 @@ def joint_cone_axis(cns, bp_ray: np.ndarray) -> np.ndarray | Failure:
     if n_used == 0:
         return Failure("pose_failed", "no conic given")
     w, v = np.linalg.eigh(acc)
-    axis = face_reference(_unit(v[:, -1]), -bp_ray)
+    axis = face_reference(unit(v[:, -1]), -bp_ray)
     if not np.isfinite(axis).all():
         return Failure("pose_failed", "non-finite joint axis")
     return axis
