@@ -18,7 +18,7 @@ from hypothesis import strategies as st
 from simtest.geometry import angle_between_deg, pixel_to_ray
 from simtest.render import RendererUnavailable, choose_variant, render_scene, write_render
 from simtest.render.mitsuba_dict import plane_normal_cam
-from simtest.render.truth import bisector, bisector_cos_image, highlight_complete, pixel_rays
+from simtest.render.truth import bisector, bisector_cos_image, highlight_complete
 from simtest.scene import (
     bundled_scene_names,
     load_scene,
@@ -42,7 +42,7 @@ def _phong_plane_closed_form(K, size, normal, c, n, sub=16):
     u = np.arange(W)[None, :, None, None] + o[None, None, None, :]
     v = np.arange(H)[:, None, None, None] + o[None, None, :, None]
     u, v = np.broadcast_arrays(u, v)
-    rays = pixel_rays(np.stack([u, v], axis=-1), K)
+    rays = pixel_to_ray(np.stack([u, v], axis=-1), K)
     cos_i = -(rays @ normal)
     cos_beta = np.where(cos_i > 0, 2.0 * cos_i**2 - 1.0, 0.0)
     return (c * np.maximum(cos_beta, 0.0) ** n).mean(axis=(2, 3))
@@ -171,7 +171,7 @@ def test_highlight_truth_plane_and_offset_light():
     (h,) = r.highlights
     assert h.in_frame and (h.k1, h.k2) == (0.0, 0.0)
     # Co-located: the BP normal is minus the viewing ray through the BP pixel (DESIGN fact 4).
-    assert angle_between_deg(h.normal, -pixel_rays(h.bp_px, r.K)) < 1e-9
+    assert angle_between_deg(h.normal, -pixel_to_ray(h.bp_px, r.K)) < 1e-9
     assert angle_between_deg(h.normal, plane_normal_cam(spec.geometry)) < 1e-9
     # The rendered image peaks within a pixel of the BP.
     v, u = np.unravel_index(np.argmax(r.specular), r.specular.shape)

@@ -24,6 +24,7 @@ from typing import Any
 import numpy as np
 
 from simtest._io import atomic_write, atomic_write_text
+from simtest.geometry.camera import pixel_to_ray
 from simtest.render.mitsuba_dict import (
     _SENSOR_TO_WORLD,
     cam_to_world_matrix,
@@ -38,7 +39,6 @@ from simtest.render.truth import (
     HighlightTruth,
     cylinder_highlight,
     mesh_highlights,
-    pixel_rays,
     plane_highlight,
     sphere_highlight,
 )
@@ -444,7 +444,7 @@ def _make_caster(scene, K: np.ndarray, pose: np.ndarray | None = None):
     identity = pose is None or np.array_equal(pose, np.eye(4))
 
     def cast(uv: np.ndarray) -> dict:
-        d = pixel_rays(uv, K)
+        d = pixel_to_ray(uv, K)
         if not identity:
             d = d @ pose[:3, :3].T
         d = d.astype(np.float32)

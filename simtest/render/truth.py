@@ -27,7 +27,7 @@ from typing import Callable
 
 import numpy as np
 
-from simtest.geometry.camera import pixel_to_ray, project_points
+from simtest.geometry.camera import project_points
 
 __all__ = [
     "HighlightTruth",
@@ -40,8 +40,6 @@ __all__ = [
     "cylinder_highlight",
     "mesh_highlights",
     "highlight_complete",
-    "project",
-    "pixel_rays",
 ]
 
 
@@ -165,68 +163,13 @@ def bisector_cos_image(normals: np.ndarray, position: np.ndarray, mask: np.ndarr
     return np.where(mask, np.einsum("ijk,ijk->ij", n, h), -1.0)
 
 
-def project(X: np.ndarray, K: np.ndarray) -> np.ndarray:
-    """Pixel coordinates of camera-frame points: :func:`simtest.geometry.camera.project_points`.
-
-    Kept under this name for the renderer's callers; same bits as ``project_points``.
-
-    Parameters
-    ----------
-    X : array_like of shape (..., 3)
-        Points in the camera frame (OpenCV: x right, y down, z forward), z > 0, mm.
-    K : array_like of shape (3, 3)
-        Intrinsics, pixel centres at integer coordinates.
-
-    Returns
-    -------
-    ndarray of shape (..., 2)
-        Pixel coordinates [u, v] = (column, row), ``x = K X / Z``.
-
-    Raises
-    ------
-    simtest.geometry.camera.IntrinsicsError
-        If K is not a valid intrinsics matrix.
-    ValueError
-        If the last axis of X is not of length 3.
-    """
-    return project_points(X, K)
-
-
-def pixel_rays(uv: np.ndarray, K: np.ndarray) -> np.ndarray:
-    """Unit viewing rays through pixels: :func:`simtest.geometry.camera.pixel_to_ray`.
-
-    Kept under this name for the renderer's callers (the highlight ray caster calls it ~17 times
-    per mesh render; the intrinsics check costs ~20 us a call, negligible next to the ray casts).
-
-    Parameters
-    ----------
-    uv : array_like of shape (..., 2)
-        Pixel coordinates [u, v] = (column, row), pixel centres at integers.
-    K : array_like of shape (3, 3)
-        Intrinsics.
-
-    Returns
-    -------
-    ndarray of shape (..., 3), float64
-        Unit directions ``unit(K^-1 [u, v, 1])`` in the camera frame, z > 0.
-
-    Raises
-    ------
-    simtest.geometry.camera.IntrinsicsError
-        If K is not a valid intrinsics matrix.
-    ValueError
-        If the last axis of uv is not of length 2.
-    """
-    return pixel_to_ray(uv, K)
-
-
 def _in_frame(uv: np.ndarray, size: tuple[int, int]) -> bool:
     w, h = size
     return bool(np.all(np.isfinite(uv)) and -0.5 <= uv[0] < w - 0.5 and -0.5 <= uv[1] < h - 0.5)
 
 
 def _highlight(p, n, k1, k2, K, size) -> HighlightTruth:
-    uv = project(p, K)
+    uv = project_points(p, K)
     return HighlightTruth(np.asarray(uv, float), np.asarray(p, float), _unit(n),
                           float(max(k1, k2)), float(min(k1, k2)), _in_frame(uv, size))
 
