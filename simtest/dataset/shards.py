@@ -377,11 +377,6 @@ def write_manifest(root: Path, rows: Iterable[dict]) -> Path:
     return atomic_write_text(Path(root) / MANIFEST_NAME, text)
 
 
-def load_entry(npz: np.lib.npyio.NpzFile, index: int, name: str) -> np.ndarray:
-    """One array of a sample from an open shard."""
-    return npz[entry_name(index, name)]
-
-
 def decode_png(a: np.ndarray) -> np.ndarray:
     """Decode the stored ``sensor_png`` bytes to the sensor image.
 
