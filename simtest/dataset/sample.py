@@ -177,9 +177,10 @@ def _mesh_info(name: str) -> dict:
     lengths and the smallest wall distance of each ring; liver: the bounding-box centre and the
     radius of the bounding sphere about it.
     """
+    from simtest.scene import bundled_mesh_path
     from simtest.scene.meshes import load_mesh
 
-    path = _mesh_path(name)
+    path = bundled_mesh_path(name)
     if not path.is_file():
         raise FileNotFoundError(f"{path}: bundled {name} mesh missing (build it with `simtest meshes build`)")
     mesh = load_mesh(path)
@@ -194,12 +195,6 @@ def _mesh_info(name: str) -> dict:
         info["arc"] = np.asarray(line["arclength_mm"], dtype=np.float64)
         info["radius_min"] = np.asarray(line["radius_min_mm"], dtype=np.float64)
     return info
-
-
-def _mesh_path(name: str) -> Path:
-    import simtest
-
-    return Path(simtest.__file__).resolve().parents[1] / "meshes" / f"{name}.ply"
 
 
 def _colon_pose(p: dict) -> dict:
@@ -445,13 +440,14 @@ def _portable_scene(spec) -> dict:
     The absolute path differs between machines (a Dask worker's install), which would make the
     records of the same sample differ; ``meshes/<name>.ply`` resolves on any install.
     """
+    from simtest.scene import bundled_mesh_path
     from simtest.scene.spec import scene_to_dict
 
     d = _jsonable(scene_to_dict(spec))
     geo = d.get("geometry", {})
     if geo.get("type") == "mesh" and geo.get("path"):
         path = Path(geo["path"])
-        root = _mesh_path("colon").parent
+        root = bundled_mesh_path("colon").parent
         if path.parent == root:
             geo["path"] = f"meshes/{path.name}"
     return d
@@ -472,9 +468,11 @@ def mesh_sha256(family: str) -> str | None:
     """
     import hashlib
 
+    from simtest.scene import bundled_mesh_path
+
     if family not in ("colon", "liver"):
         return None
-    path = _mesh_path(family)
+    path = bundled_mesh_path(family)
     if not path.is_file():
         return None
     return hashlib.sha256(path.read_bytes()).hexdigest()

@@ -391,16 +391,13 @@ def mesh_pose_overrides(p: dict) -> dict:
     FileNotFoundError, ValueError
         If the bundled mesh is missing or unreadable (:func:`simtest.scene.meshes.load_mesh`).
     """
-    from pathlib import Path
-
-    import simtest
     from simtest.geometry.angles import unit
     from simtest.geometry.conics import plane_basis
+    from simtest.scene import bundled_mesh_path
     from simtest.scene.meshes import colon_centerline, load_mesh
 
-    root = Path(simtest.__file__).resolve().parents[1] / "meshes"
     name = "colon" if p["colon_station"] is not None else "liver"
-    path = root / f"{name}.ply"
+    path = bundled_mesh_path(name)
     mesh = load_mesh(path)
     if name == "colon":
         line = mesh.metadata["centerline"]

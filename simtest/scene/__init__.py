@@ -37,6 +37,7 @@ __all__ = [
     "scene_to_dict",
     "with_overrides",
     "scenes_dir",
+    "bundled_mesh_path",
     "bundled_scene_names",
     "bundled_scene_path",
 ]
@@ -47,6 +48,24 @@ def scenes_dir() -> Path:
     import simtest
 
     return Path(simtest.__file__).resolve().parents[1] / "scenes"
+
+
+def bundled_mesh_path(name: str) -> Path:
+    """Path of the bundled mesh ``name`` (``"colon"`` or ``"liver"``): ``<repo root>/meshes/<name>.ply``.
+
+    Parameters
+    ----------
+    name : str
+        Mesh name (file stem).
+
+    Returns
+    -------
+    Path
+        The path; the file may be missing (``simtest meshes build`` writes it).
+    """
+    import simtest
+
+    return Path(simtest.__file__).resolve().parents[1] / "meshes" / f"{name}.ply"
 
 
 def bundled_scene_names() -> list[str]:
