@@ -28,6 +28,7 @@ from typing import Callable
 import numpy as np
 
 from simtest.geometry.camera import project_points
+from simtest.simulate.analytic import plane_bp
 
 __all__ = [
     "HighlightTruth",
@@ -180,8 +181,8 @@ def plane_highlight(normal: np.ndarray, distance_mm: float, light: np.ndarray, K
 
     The BP is where the segment from the camera centre to the mirror image ``L'`` of the light
     crosses the plane (closed form; there the normal bisects the directions to the camera and the
-    light, DESIGN.md 1.4/1.5). With a co-located light it is the foot of the perpendicular from the
-    camera centre.
+    light, DESIGN.md 1.4/1.5): :func:`simtest.simulate.analytic.plane_bp`. With a co-located light
+    it is the foot of the perpendicular from the camera centre.
 
     Parameters
     ----------
@@ -202,12 +203,9 @@ def plane_highlight(normal: np.ndarray, distance_mm: float, light: np.ndarray, K
         ``k1 = k2 = 0``; None if the light is on or behind the plane (no highlight).
     """
     n = _unit(normal)
-    L = np.asarray(light, dtype=np.float64)
-    if np.dot(n, L) + distance_mm <= 0:
+    if np.dot(n, np.asarray(light, dtype=np.float64)) + distance_mm <= 0:
         return None
-    Lm = L - 2.0 * (np.dot(n, L) + distance_mm) * n
-    p = (-distance_mm / np.dot(n, Lm)) * Lm
-    return _highlight(p, n, 0.0, 0.0, K, size)
+    return _highlight(plane_bp(normal, distance_mm, light), n, 0.0, 0.0, K, size)
 
 
 #: Largest accepted residual of the stationarity solve (tangential part of the unit bisector, i.e.
