@@ -8,12 +8,13 @@ its previous content and the temporary file (``.<name>.<random>.tmp``) is remove
 
 from __future__ import annotations
 
+import json
 import os
 import tempfile
 from collections.abc import Callable
 from pathlib import Path
 
-__all__ = ["TMP_SUFFIX", "atomic_write", "atomic_write_bytes", "atomic_write_text"]
+__all__ = ["TMP_SUFFIX", "atomic_write", "atomic_write_bytes", "atomic_write_json", "atomic_write_text"]
 
 #: Suffix of every temporary file this module creates.
 TMP_SUFFIX = ".tmp"
@@ -70,3 +71,30 @@ def atomic_write_bytes(path, data: bytes) -> Path:
 def atomic_write_text(path, text: str) -> Path:
     """Write ``text`` (UTF-8) to ``path`` atomically (see the module docstring)."""
     return atomic_write(path, lambda tmp: Path(tmp).write_text(text, encoding="utf-8"))
+
+
+def atomic_write_json(path, obj, *, indent: int = 1, **dumps_kwargs) -> Path:
+    """Write ``obj`` as JSON, ``json.dumps(obj, indent=indent, **dumps_kwargs)`` and a newline.
+
+    Parameters
+    ----------
+    path : str or Path
+        Destination, written atomically (see the module docstring).
+    obj : object
+        JSON-serialisable value.
+    indent : int
+        Indentation of ``json.dumps``.
+    **dumps_kwargs
+        Further ``json.dumps`` options (``sort_keys``, ``allow_nan``, ...).
+
+    Returns
+    -------
+    Path
+        The destination.
+
+    Raises
+    ------
+    TypeError, ValueError
+        From ``json.dumps`` (not serialisable, or NaN with ``allow_nan=False``); nothing is written.
+    """
+    return atomic_write_text(path, json.dumps(obj, indent=indent, **dumps_kwargs) + "\n")

@@ -41,7 +41,7 @@ from typing import Any, Iterable
 
 import numpy as np
 
-from simtest._io import atomic_write_text
+from simtest._io import atomic_write_json, atomic_write_text
 
 __all__ = [
     "CARD_NAME",
@@ -136,7 +136,7 @@ def write_json(path: Path, obj: Any) -> Path:
     TypeError
         If ``obj`` is not JSON-serialisable (nothing is written).
     """
-    return atomic_write_text(path, json.dumps(obj, indent=1, sort_keys=False) + "\n")
+    return atomic_write_json(path, obj)
 
 
 def shard_npz_path(root: Path, shard: int) -> Path:

@@ -29,7 +29,7 @@ from pathlib import Path
 
 import numpy as np
 
-from simtest._io import atomic_write_text
+from simtest._io import atomic_write_json
 
 __all__ = [
     "Intrinsics",
@@ -311,7 +311,7 @@ def save_intrinsics(path, K, dist_coeffs=None, image_size=None) -> Path:
         dist_coeffs=_parse_dist(dist_coeffs, "dist_coeffs"),
         image_size=None if image_size is None else (int(image_size[0]), int(image_size[1])),
     )
-    return atomic_write_text(path, json.dumps(intr.to_json_dict(), indent=2) + "\n")
+    return atomic_write_json(path, intr.to_json_dict(), indent=2)
 
 
 def look_at(eye, target, up=(0.0, -1.0, 0.0)) -> np.ndarray:

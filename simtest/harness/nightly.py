@@ -213,14 +213,14 @@ def update_baseline(path: str | Path, results: dict, tolerances: dict) -> Path:
     ValueError
         If an existing file at ``path`` is not a baseline.
     """
-    from simtest._io import atomic_write_bytes
+    from simtest._io import atomic_write_json
 
     path = Path(path)
     d = load_baseline(path) if path.is_file() else {"schema": BASELINE_SCHEMA,
                                                      "schema_version": BASELINE_VERSION,
                                                      "suites": {}}
     d["suites"][results["suite"]["name"]] = baseline_entry(results, tolerances)
-    return atomic_write_bytes(path, (json.dumps(d, indent=1, sort_keys=True) + "\n").encode())
+    return atomic_write_json(path, d, sort_keys=True)
 
 
 def compare(base: dict, results: dict, tolerances: dict) -> list[Change]:

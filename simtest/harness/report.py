@@ -37,7 +37,7 @@ from pathlib import Path
 
 import numpy as np
 
-from simtest._io import atomic_write_bytes
+from simtest._io import atomic_write_bytes, atomic_write_json
 from simtest.harness.metrics import case_metrics
 
 __all__ = ["SCHEMA", "SCHEMA_VERSION", "PAPER_CHECKS", "build_results", "write_report",
@@ -655,8 +655,7 @@ def write_report(run, out_dir: str | Path = "reports", run_id: str | None = None
     figures = _plots(results) if plots else {}
     for name, png in figures.items():
         atomic_write_bytes(folder / "figures" / name, png)
-    atomic_write_bytes(folder / "results.json",
-                       (json.dumps(results, indent=1, allow_nan=False) + "\n").encode())
+    atomic_write_json(folder / "results.json", results, allow_nan=False)
     md = _md(results, sorted(figures))
     atomic_write_bytes(folder / "report.md", md.encode())
     atomic_write_bytes(folder / "report.html", _md_to_html(md, figures).encode())

@@ -67,7 +67,7 @@ from pathlib import Path
 
 import numpy as np
 
-from simtest._io import atomic_write_text
+from simtest._io import atomic_write_json
 
 SCHEMA_VERSION = 1
 
@@ -250,8 +250,7 @@ def write_estimates(path, estimates, *, K, image=None, image_shape=None, dist_co
     doc = estimates_document(estimates, K=K, image=image, image_shape=image_shape,
                              dist_coeffs=dist_coeffs, isovalues=isovalues, normalise=normalise,
                              include_points=include_points)
-    text = json.dumps(doc, indent=1, allow_nan=False)
-    return atomic_write_text(path, text + "\n")
+    return atomic_write_json(path, doc, allow_nan=False)
 
 
 def read_estimates(path) -> dict:
