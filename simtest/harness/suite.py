@@ -406,12 +406,9 @@ def _check_keys(d: Mapping, allowed: set, source: str, where: str) -> None:
 
 
 def _jsonable(v):
-    if isinstance(v, tuple):
+    """Tuples (and lists) as lists, recursively; anything else as it is (1.0 stays 1.0 in the key)."""
+    if isinstance(v, (tuple, list)):
         return [_jsonable(x) for x in v]
-    if isinstance(v, list):
-        return [_jsonable(x) for x in v]
-    if isinstance(v, float) and v.is_integer() and abs(v) < 2**53:
-        return v  # keep floats as floats (1.0 stays 1.0 in the key)
     return v
 
 
