@@ -357,7 +357,11 @@ def _cone_eigen(Cn) -> tuple[np.ndarray, np.ndarray]:
 
 
 def _toward_camera(n: np.ndarray) -> np.ndarray:
-    """Orient a direction as a normal that faces the camera (n_z < 0 for a surface in front)."""
+    """Orient a direction inside the cone (z != 0) as a normal facing the camera: n_z < 0.
+
+    Right for the cone axis, which lies inside the cone, i.e. along a viewing ray with z > 0;
+    not for circle-pose normals, which are oriented against their circle's centre ray instead.
+    """
     n = n / np.linalg.norm(n)
     return -n if n[2] > 0 else n
 
@@ -420,9 +424,13 @@ def circle_pose(Cn) -> CirclePose:
     normals = []
     centres = []
     for sgn in (1.0, -1.0):
-        n = _toward_camera(sgn * sin_phi * V[:, 0] + cos_phi * V[:, 2])
-        normals.append(n)
-        centres.append(_section_centre(Q, n))
+        n = sgn * sin_phi * V[:, 0] + cos_phi * V[:, 2]
+        n /= np.linalg.norm(n)
+        c = _section_centre(Q, n)
+        # Facing the camera means n . c < 0 along the ray to the circle's centre. n_z < 0 is not
+        # the same test: a steep plane seen far off-axis faces the camera with n_z > 0.
+        normals.append(-n if n @ c > 0 else n)
+        centres.append(c)
     return CirclePose(normals=np.array(normals), centres=np.array(centres), eigenvalues=w)
 
 
