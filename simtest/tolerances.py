@@ -31,12 +31,24 @@ class Tolerances:
     right_cone_gap : float
         Eigenvalue gap below which a cone counts as right circular when computed in closed form:
         1e-9 relative.
+    camera_round_trip_px : float
+        pixel -> ray -> pixel through a camera model: 1e-6 px. The iterative inverses stop at
+        1e-9 px and float64 rounding of a 10^3 px coordinate is ~1e-13 px, so 1e-6 px leaves
+        three decades of margin while still catching any model/inverse mismatch (a wrong term
+        moves pixels by far more).
+    camera_jacobian_rel : float
+        Analytic camera Jacobians against central finite differences: 1e-5 of the Jacobian's
+        largest entry. Central differences with a step h have truncation error ~h^2 (relative
+        ~1e-8 at the steps used) and rounding error ~eps |f| / h (~1e-10 relative); the inverse
+        maps' Newton stop (1e-9 px) divided by the step adds at most ~1e-6 relative.
     """
 
     conic_degenerate_rel: float = 1e-12
     exact_normal_deg: float = 1e-6
     fitted_normal_deg: float = 1e-4
     right_cone_gap: float = 1e-9
+    camera_round_trip_px: float = 1e-6
+    camera_jacobian_rel: float = 1e-5
 
 
 #: The project's tolerance table.

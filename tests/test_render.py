@@ -330,7 +330,7 @@ def test_microfacet_channels_and_specular_image():
 def test_write_render_files(tmp_path):
     from PIL import Image
 
-    from simtest.geometry.camera import load_intrinsics
+    from simtest.geometry.camera_file import load_intrinsics
 
     spec = with_overrides(load_scene("plane_fronto"), {
         "camera.width_px": 64, "camera.height_px": 48, "camera.focal_px": 64.0, "render.spp": 2})

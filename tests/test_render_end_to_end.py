@@ -9,7 +9,7 @@ import pytest
 from PIL import Image
 
 from simtest.geometry import angle_between_deg
-from simtest.geometry.camera import load_intrinsics
+from simtest.geometry.camera_file import load_intrinsics
 from simtest.reconstruct import reconstruct
 from simtest.render import render_scene, write_render
 from simtest.scene import scene_from_dict

@@ -1,20 +1,34 @@
-"""Projective geometry of the method: conics, circle pose, cameras and angles (numpy only).
+"""Projective geometry of the method: conics, circle pose, camera models, light rigs and angles.
 
 Nothing here imports Mitsuba or any renderer: the reconstruction core runs on real images too.
 """
 
 from simtest.geometry.angles import angle_between_deg, face_camera
 from simtest.geometry.camera import (
-    Intrinsics,
     IntrinsicsError,
     bp_ray_normal,
-    load_intrinsics,
     look_at,
     pixel_to_ray,
     project_points,
-    save_intrinsics,
     undistort_points,
     validate_intrinsics,
+)
+from simtest.geometry.camera_file import (
+    CameraFile,
+    CameraFileError,
+    Intrinsics,
+    load_camera,
+    load_intrinsics,
+    save_camera,
+    save_intrinsics,
+)
+from simtest.geometry.cameras import (
+    CameraModel,
+    FisheyeCamera,
+    OmnidirectionalCamera,
+    PinholeCamera,
+    as_camera_model,
+    c3vd_camera,
 )
 from simtest.geometry.conics import (
     CirclePose,
@@ -29,21 +43,34 @@ from simtest.geometry.conics import (
     project_circle,
     sample_ellipse,
 )
+from simtest.geometry.lights import Light, LightRig, LightRigError
 
 __all__ = [
+    "CameraFile",
+    "CameraFileError",
+    "CameraModel",
     "CirclePose",
     "ConeAxis",
     "Ellipse",
+    "FisheyeCamera",
     "Intrinsics",
     "IntrinsicsError",
+    "Light",
+    "LightRig",
+    "LightRigError",
+    "OmnidirectionalCamera",
+    "PinholeCamera",
     "angle_between_deg",
+    "as_camera_model",
     "bp_ray_normal",
+    "c3vd_camera",
     "circle_pose",
     "conic_kind",
     "conic_to_ellipse",
     "cone_axis",
     "ellipse_to_conic",
     "face_camera",
+    "load_camera",
     "load_intrinsics",
     "look_at",
     "normalised_conic",
@@ -51,6 +78,7 @@ __all__ = [
     "project_circle",
     "project_points",
     "sample_ellipse",
+    "save_camera",
     "save_intrinsics",
     "undistort_points",
     "validate_intrinsics",

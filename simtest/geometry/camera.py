@@ -1,4 +1,4 @@
-"""Pinhole intrinsics K: validation, rays, projection, distortion and intrinsics files.
+"""Pinhole intrinsics K: validation, rays, projection and distortion.
 
 Convention
 ----------
@@ -8,38 +8,22 @@ pixel (u, v) = (column, row) and ``x = K X / Z``. Worked number: with
 pixel (60, 60), the centre of the pixel in row 60, column 60. A Mitsuba M x M film with focal f has
 ``cx = cy = M / 2 - 0.5`` in this convention (Mitsuba puts pixel centres at i + 0.5).
 
-Intrinsics files
-----------------
-JSON (what ``simtest render`` writes and ``simtest reconstruct`` reads)::
-
-    {"K": [[fx, 0, cx], [0, fy, cy], [0, 0, 1]], "dist_coeffs": [k1, k2, p1, p2, k3],
-     "image_size": [W, H]}
-
-``dist_coeffs`` (OpenCV order) and ``image_size`` are optional. OpenCV YAML/XML files written by
-``cv2.FileStorage`` (e.g. by ``cv2.calibrateCamera`` scripts) are read from the keys
-``camera_matrix`` (or ``K``) and ``dist_coeffs`` (or ``distortion_coefficients``), and
-``image_width``/``image_height`` when present.
+Camera models beyond a distortion-free pinhole (OpenCV distortion, fisheye, omnidirectional) are in
+:mod:`simtest.geometry.cameras`; camera files are read and written by
+:mod:`simtest.geometry.camera_file`.
 """
 
 from __future__ import annotations
 
-import json
-from dataclasses import dataclass
-from pathlib import Path
-
+import cv2
 import numpy as np
 
-from simtest._io import atomic_write_json
-
 __all__ = [
-    "Intrinsics",
     "IntrinsicsError",
     "bp_ray_normal",
-    "load_intrinsics",
     "look_at",
     "pixel_to_ray",
     "project_points",
-    "save_intrinsics",
     "undistort_points",
     "validate_intrinsics",
 ]
@@ -175,7 +159,6 @@ def undistort_points(uv, K, dist_coeffs) -> np.ndarray:
     uv = np.asarray(uv, dtype=np.float64)
     if dist_coeffs is None or not np.any(np.asarray(dist_coeffs, dtype=np.float64)):
         return uv.copy()
-    import cv2
 
     K = validate_intrinsics(K)
     d = np.asarray(dist_coeffs, dtype=np.float64).reshape(-1)
@@ -183,135 +166,6 @@ def undistort_points(uv, K, dist_coeffs) -> np.ndarray:
     criteria = (cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 200, 1e-12)
     out = cv2.undistortPoints(uv.reshape(-1, 1, 2), K, d, R=None, P=K, criteria=criteria)
     return out.reshape(-1, 2)
-
-
-@dataclass(frozen=True)
-class Intrinsics:
-    """Camera intrinsics as read from a file.
-
-    Attributes
-    ----------
-    K : ndarray of shape (3, 3)
-        Pinhole matrix, pixel centres at integer coordinates.
-    dist_coeffs : ndarray of shape (k,) or None
-        OpenCV distortion coefficients, None when the file gives none.
-    image_size : tuple of int (W, H) or None
-        Image size in pixels, when the file gives it.
-    """
-
-    K: np.ndarray
-    dist_coeffs: np.ndarray | None = None
-    image_size: tuple[int, int] | None = None
-
-    def to_json_dict(self) -> dict:
-        """The JSON form of the module docstring."""
-        d: dict = {"K": self.K.tolist()}
-        d["dist_coeffs"] = None if self.dist_coeffs is None else [float(x) for x in self.dist_coeffs]
-        d["image_size"] = None if self.image_size is None else [int(x) for x in self.image_size]
-        return d
-
-
-def _parse_dist(value, where: str) -> np.ndarray | None:
-    if value is None:
-        return None
-    try:
-        d = np.asarray(value, dtype=np.float64).reshape(-1)
-    except (TypeError, ValueError):
-        raise IntrinsicsError(f"{where}: must be a list of numbers, got {value!r}") from None
-    if d.size not in (0, 4, 5, 8, 12, 14):
-        raise IntrinsicsError(f"{where}: OpenCV needs 4, 5, 8, 12 or 14 coefficients, got {d.size}")
-    if not np.all(np.isfinite(d)):
-        raise IntrinsicsError(f"{where}: has non-finite entries")
-    return d if d.size else None
-
-
-def load_intrinsics(path) -> Intrinsics:
-    """Read intrinsics from a JSON file or an OpenCV YAML/XML file.
-
-    Parameters
-    ----------
-    path : str or Path
-        ``.json``, or ``.yml``/``.yaml``/``.xml`` written by ``cv2.FileStorage``.
-
-    Returns
-    -------
-    Intrinsics
-
-    Raises
-    ------
-    IntrinsicsError
-        Missing file, unreadable or malformed content, missing key, or an invalid K; the message
-        names the file and the key.
-    """
-    path = Path(path)
-    if not path.is_file():
-        raise IntrinsicsError(f"{path}: intrinsics file not found")
-    if path.suffix.lower() in (".yml", ".yaml", ".xml"):
-        return _load_opencv(path)
-    try:
-        data = json.loads(path.read_text())
-    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
-        raise IntrinsicsError(f"{path}: not valid JSON ({exc})") from None
-    if not isinstance(data, dict) or "K" not in data:
-        raise IntrinsicsError(f"{path}: missing key 'K' (expected {{\"K\": [[fx,0,cx],[0,fy,cy],[0,0,1]]}})")
-    K = validate_intrinsics(data["K"], where=f"{path}: key 'K'")
-    dist = _parse_dist(data.get("dist_coeffs"), f"{path}: key 'dist_coeffs'")
-    size = data.get("image_size")
-    if size is not None:
-        if not (isinstance(size, list) and len(size) == 2 and all(isinstance(s, int) and s > 0 for s in size)):
-            raise IntrinsicsError(f"{path}: key 'image_size' must be [W, H] positive integers, got {size!r}")
-        size = (int(size[0]), int(size[1]))
-    return Intrinsics(K=K, dist_coeffs=dist, image_size=size)
-
-
-def _load_opencv(path: Path) -> Intrinsics:
-    import cv2
-
-    try:
-        fs = cv2.FileStorage(str(path), cv2.FILE_STORAGE_READ)
-    except cv2.error as exc:
-        raise IntrinsicsError(f"{path}: not a readable OpenCV file ({exc})") from None
-    if not fs.isOpened():
-        raise IntrinsicsError(f"{path}: not a readable OpenCV file")
-    try:
-        key = next((k for k in ("camera_matrix", "K") if not fs.getNode(k).empty()), None)
-        if key is None:
-            raise IntrinsicsError(f"{path}: missing key 'camera_matrix'")
-        K = validate_intrinsics(fs.getNode(key).mat(), where=f"{path}: key '{key}'")
-        dkey = next((k for k in ("dist_coeffs", "distortion_coefficients") if not fs.getNode(k).empty()), None)
-        dist = _parse_dist(fs.getNode(dkey).mat(), f"{path}: key '{dkey}'") if dkey else None
-        w, h = fs.getNode("image_width"), fs.getNode("image_height")
-        size = (int(w.real()), int(h.real())) if not w.empty() and not h.empty() else None
-    finally:
-        fs.release()
-    return Intrinsics(K=K, dist_coeffs=dist, image_size=size)
-
-
-def save_intrinsics(path, K, dist_coeffs=None, image_size=None) -> Path:
-    """Write intrinsics as JSON (the format of the module docstring), atomically.
-
-    Parameters
-    ----------
-    path : str or Path
-        Destination ``.json`` file; written to a temporary file in the same folder, then renamed.
-    K : array_like of shape (3, 3)
-        Intrinsics, validated.
-    dist_coeffs : array_like or None
-        OpenCV distortion coefficients.
-    image_size : (W, H) or None
-        Image size in pixels.
-
-    Returns
-    -------
-    Path
-        The written path.
-    """
-    intr = Intrinsics(
-        K=validate_intrinsics(K),
-        dist_coeffs=_parse_dist(dist_coeffs, "dist_coeffs"),
-        image_size=None if image_size is None else (int(image_size[0]), int(image_size[1])),
-    )
-    return atomic_write_json(path, intr.to_json_dict(), indent=2)
 
 
 def look_at(eye, target, up=(0.0, -1.0, 0.0)) -> np.ndarray:

@@ -87,7 +87,7 @@ def reconstruct_command(
     overlay: bool = typer.Option(True, "--overlay/--no-overlay", help="Write overlay.png."),
 ) -> None:
     """Estimate the normal at every specular highlight of IMAGE."""
-    from simtest.geometry.camera import load_intrinsics
+    from simtest.geometry.camera_file import load_intrinsics
     from simtest.reconstruct._pixels import image_size_wh
 
     try:

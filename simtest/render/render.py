@@ -612,7 +612,7 @@ def write_render(result: RenderResult, out_dir: str | Path) -> dict[str, Path]:
     """
     from PIL import Image
 
-    from simtest.geometry.camera import save_intrinsics
+    from simtest.geometry.camera_file import save_intrinsics
     from simtest.scene.spec import scene_to_dict
 
     out = Path(out_dir)

@@ -1,0 +1,151 @@
+"""Light rigs: the point lights of an endoscope tip, in the camera frame.
+
+Convention
+----------
+Positions are in millimetres in the camera frame (OpenCV axes: x right, y down, z forward), the
+camera centre at the origin. A light's radiant intensity toward a unit direction w is
+``intensity * max(w_z, 0) ** profile_exponent`` (a cos^m profile about +z; m = 0 is isotropic), and
+its irradiance at distance s falls as ``1 / s**2`` (``falloff="inverse_square"``) or not at all
+(``falloff="none"``). With no rig given, simtest uses :meth:`LightRig.colocated`: one isotropic
+light at the camera centre, the co-located case of the paper.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+__all__ = ["FALLOFFS", "MAX_LIGHTS", "Light", "LightRig", "LightRigError"]
+
+#: The falloff laws a light may have.
+FALLOFFS = ("inverse_square", "none")
+#: The most lights a rig may have (endoscope tips carry one to a few light guides).
+MAX_LIGHTS = 8
+
+
+class LightRigError(ValueError):
+    """A light or rig is invalid; the message names the light and the field."""
+
+
+def _number(value, where: str) -> float:
+    if isinstance(value, bool) or not isinstance(value, (int, float, np.integer, np.floating)):
+        raise LightRigError(f"{where}: must be a number, got {value!r}")
+    v = float(value)
+    if not np.isfinite(v):
+        raise LightRigError(f"{where}: must be finite, got {value!r}")
+    return v
+
+
+@dataclass(frozen=True)
+class Light:
+    """One point light.
+
+    Parameters
+    ----------
+    position_mm : array_like of shape (3,)
+        Position in the camera frame, mm.
+    intensity : float
+        Relative weight, > 0.
+    falloff : {"inverse_square", "none"}
+        Distance law of the irradiance.
+    profile_exponent : float
+        m >= 0 of the cos^m angular profile about +z.
+
+    Raises
+    ------
+    LightRigError
+        A non-finite or boolean position, intensity <= 0, an unknown falloff, or m < 0.
+    """
+
+    position_mm: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    intensity: float = 1.0
+    falloff: str = "inverse_square"
+    profile_exponent: float = 0.0
+
+    def __post_init__(self) -> None:
+        p = self.position_mm
+        if isinstance(p, np.ndarray):
+            p = p.tolist()
+        if not isinstance(p, (list, tuple)) or len(p) != 3:
+            raise LightRigError(f"position_mm: must be [x, y, z] in mm, got {self.position_mm!r}")
+        pos = tuple(_number(v, f"position_mm[{i}]") for i, v in enumerate(p))
+        object.__setattr__(self, "position_mm", pos)
+        inten = _number(self.intensity, f"intensity")
+        if inten <= 0:
+            raise LightRigError(f"intensity: must be > 0, got {self.intensity!r}")
+        object.__setattr__(self, "intensity", inten)
+        if self.falloff not in FALLOFFS:
+            raise LightRigError(f"falloff: must be one of {list(FALLOFFS)}, got {self.falloff!r}")
+        m = _number(self.profile_exponent, f"profile_exponent")
+        if m < 0:
+            raise LightRigError(f"profile_exponent: must be >= 0, got {self.profile_exponent!r}")
+        object.__setattr__(self, "profile_exponent", m)
+
+    @property
+    def position(self) -> np.ndarray:
+        """ndarray of shape (3,): the position, mm, camera frame."""
+        return np.array(self.position_mm)
+
+    def to_json_dict(self) -> dict:
+        """The camera file's JSON object for this light."""
+        return {
+            "position_mm": list(self.position_mm),
+            "intensity": self.intensity,
+            "falloff": self.falloff,
+            "profile_exponent": self.profile_exponent,
+        }
+
+
+@dataclass(frozen=True)
+class LightRig:
+    """The lights of a scope tip, 1 to :data:`MAX_LIGHTS`.
+
+    Parameters
+    ----------
+    lights : tuple of Light
+        The lights.
+
+    Raises
+    ------
+    LightRigError
+        No light, more than :data:`MAX_LIGHTS`, or an entry that is not a :class:`Light`.
+
+    Examples
+    --------
+    >>> LightRig.colocated().is_colocated
+    True
+    """
+
+    lights: tuple[Light, ...]
+
+    def __post_init__(self) -> None:
+        lights = tuple(self.lights)
+        if not 1 <= len(lights) <= MAX_LIGHTS:
+            raise LightRigError(f"lights: need 1 to {MAX_LIGHTS} lights, got {len(lights)}")
+        for i, light in enumerate(lights):
+            if not isinstance(light, Light):
+                raise LightRigError(f"lights[{i}]: not a Light ({light!r})")
+        object.__setattr__(self, "lights", lights)
+
+    @classmethod
+    def colocated(cls) -> LightRig:
+        """One isotropic inverse-square light at the camera centre (the paper's co-located case)."""
+        return cls((Light(),))
+
+    @property
+    def is_colocated(self) -> bool:
+        """True when every light sits at the camera centre."""
+        return all(light.position_mm == (0.0, 0.0, 0.0) for light in self.lights)
+
+    @property
+    def positions(self) -> np.ndarray:
+        """ndarray of shape (L, 3): light positions, mm, camera frame."""
+        return np.array([light.position_mm for light in self.lights])
+
+    def __len__(self) -> int:
+        return len(self.lights)
+
+    def to_json_list(self) -> list[dict]:
+        """The camera file's ``"lights"`` list."""
+        return [light.to_json_dict() for light in self.lights]
