@@ -25,7 +25,9 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
+import cv2
 import numpy as np
+from skimage.measure import find_contours
 
 from simtest.reconstruct._pixels import Roi, rc_to_uv, uv_to_rc
 from simtest.reconstruct.failures import Failure
@@ -163,12 +165,16 @@ def extract_isophote(
     Marching squares [2] joins the pixels above ``level`` 4-connectedly
     (``fully_connected="low"``), so two highlights touching at a corner stay apart. Among
     closed contours enclosing the BP the one with the smallest area is kept (a bright ring
-    around the highlight would give a second, outer one). If none is closed, the open contours
+    around the highlight would give a second, outer one). That contour is the outer boundary of
+    the 4-connected component of pixels above ``level`` that holds the BP, and marching squares
+    is local (each point interpolates between a pixel of the component and a 4-neighbour below
+    the level), so it is found by contouring only that component's bounding box plus one pixel,
+    with the pixels of other components lowered below the level (they touch the component at
+    most diagonally, where the "low" connectivity already separates them): the same points, in
+    time proportional to the highlight rather than to the ROI and its noise. If none is closed, the open contours
     bordering the 4-connected component of pixels >= ``level`` that holds the BP are taken, in
     marching-squares order.
     """
-    from skimage.measure import find_contours
-
     sub = np.asarray(values, dtype=np.float64)
     if sub.ndim != 2:
         raise ValueError(f"values must be a 2D array, got shape {sub.shape}")
@@ -186,24 +192,32 @@ def extract_isophote(
     if not float(window.max()) > level:
         return Failure("bp_below_isovalue", f"max near BP {float(window.max()):.6g} <= level {level:.6g}")
 
-    contours = find_contours(sub, level)
-    closed_hits = []
-    open_contours = []
-    for rc in contours:
-        if len(rc) >= 3 and rc[0, 0] == rc[-1, 0] and rc[0, 1] == rc[-1, 1]:
-            uv = rc_to_uv(rc[:-1], roi.row0, roi.col0)
-            if polygon_contains(uv, bp_uv):
-                closed_hits.append(uv)
-        else:
-            open_contours.append(rc)
+    comp = _component_box(sub, level, ri, ci)
+    if comp is not None:
+        # Only the 4-connected component above the level that holds the BP is contoured, in its
+        # bounding box (see Notes): the contour found over the whole region, without the noise.
+        box, (dr, dc), sides = comp
+        contours = find_contours(box, level)
+        closed_hits = []
+        pieces = []
+        for rc in contours:
+            if len(rc) >= 3 and rc[0, 0] == rc[-1, 0] and rc[0, 1] == rc[-1, 1]:
+                uv = rc_to_uv(rc[:-1], roi.row0 + dr, roi.col0 + dc)
+                if polygon_contains(uv, bp_uv):
+                    closed_hits.append(uv)
+            else:
+                pieces.append(rc + (dr, dc))
+    else:  # the BP pixel itself is not above the level: every contour of the region
+        closed_hits, open_contours = _whole_region_contours(sub, level, roi, bp_uv)
+        pieces, sides = [], (False, False, False, False)
+        if not closed_hits:
+            pieces, sides = _open_pieces_around_bp(sub, level, ri, ci, open_contours)
 
     if closed_hits:
         uv = min(closed_hits, key=polygon_area) if len(closed_hits) > 1 else closed_hits[0]
         if len(uv) < min_points:
             return Failure("too_few_points", f"{len(uv)} contour points < {min_points}")
         return Isophote(uv, float(level), True, False, False)
-
-    pieces, sides = _open_pieces_around_bp(sub, level, ri, ci, open_contours)
     if not pieces and not any(sides):
         return Failure("no_contour", f"no contour at level {level:.6g} around BP {bp_uv.tolist()}")
     rc = np.concatenate(pieces, axis=0) if pieces else np.empty((0, 2))
@@ -219,11 +233,56 @@ def extract_isophote(
     return iso
 
 
+def _component_box(sub, level, ri, ci):
+    """The bounding box (plus one pixel inside ``sub``) of the 4-connected component of
+    ``sub > level`` holding pixel (ri, ci), with the other components' pixels lowered below the
+    level, its origin (row, col) in ``sub`` and which sides (top, bottom, left, right) of ``sub``
+    the component reaches; None if that pixel is not above the level."""
+    mask = (sub > level).view(np.uint8)
+    _, labels, stats, _ = cv2.connectedComponentsWithStats(mask, connectivity=4)
+    lab = labels[ri, ci]
+    if lab == 0:
+        return None
+    x, y, w, h = (int(v) for v in stats[lab, :4])
+    H, W = sub.shape
+    sides = (y == 0, y + h == H, x == 0, x + w == W)
+    r0, r1, c0, c1 = max(y - 1, 0), min(y + h + 1, H), max(x - 1, 0), min(x + w + 1, W)
+    box = sub[r0:r1, c0:c1].copy()
+    outside = (labels[r0:r1, c0:c1] != lab).view(np.uint8)
+    box[outside.view(bool) & (box > level)] = level - 1.0
+    # Holes (pixels outside the component that no 8-path outside it joins to the box edge) are
+    # raised above the level: their closed contours never enclose the BP.
+    n, lab8 = cv2.connectedComponents(outside, connectivity=8)
+    if n > 2 or (n == 2 and not _touches_edge(lab8, 1)):
+        edge = np.unique(np.concatenate([lab8[0], lab8[-1], lab8[:, 0], lab8[:, -1]]))
+        hole = (lab8 > 0) & ~np.isin(lab8, edge)
+        box[hole] = level + 1.0
+    return box, (r0, c0), sides
+
+
+def _touches_edge(labels, k) -> bool:
+    return bool((labels[0] == k).any() or (labels[-1] == k).any() or (labels[:, 0] == k).any()
+                or (labels[:, -1] == k).any())
+
+
+def _whole_region_contours(sub, level, roi, bp_uv):
+    """Closed contours of the whole region that enclose the BP (as (u, v)), and the open ones
+    (as (row, col) in ``sub``)."""
+    closed_hits, open_contours = [], []
+    for rc in find_contours(sub, level):
+        if len(rc) >= 3 and rc[0, 0] == rc[-1, 0] and rc[0, 1] == rc[-1, 1]:
+            uv = rc_to_uv(rc[:-1], roi.row0, roi.col0)
+            lo, hi = uv.min(axis=0), uv.max(axis=0)
+            if np.all((lo <= bp_uv) & (bp_uv <= hi)) and polygon_contains(uv, bp_uv):
+                closed_hits.append(uv)
+        else:
+            open_contours.append(rc)
+    return closed_hits, open_contours
+
+
 def _open_pieces_around_bp(sub, level, ri, ci, open_contours):
     """Open contours bounding the 4-connected component of ``sub >= level`` holding (ri, ci), and
     which sides (top, bottom, left, right) of ``sub`` that component reaches."""
-    import cv2
-
     mask = (sub >= level).astype(np.uint8)
     _, labels = cv2.connectedComponents(mask, connectivity=4)
     target = labels[ri, ci]
