@@ -238,18 +238,19 @@ def _component_box(sub, level, ri, ci):
     ``sub > level`` holding pixel (ri, ci), with the other components' pixels lowered below the
     level, its origin (row, col) in ``sub`` and which sides (top, bottom, left, right) of ``sub``
     the component reaches; None if that pixel is not above the level."""
-    mask = (sub > level).view(np.uint8)
-    _, labels, stats, _ = cv2.connectedComponentsWithStats(mask, connectivity=4)
-    lab = labels[ri, ci]
-    if lab == 0:
+    mask = (sub > level).astype(np.uint8)
+    if not mask[ri, ci]:
         return None
-    x, y, w, h = (int(v) for v in stats[lab, :4])
+    # flood fill (4-connected) from the BP: the component becomes 2, its bounding box comes back;
+    # the cost is that of the component, not of the region
+    _, _, _, (x, y, w, h) = cv2.floodFill(mask, None, (int(ci), int(ri)), 2, 0, 0, 4)
     H, W = sub.shape
     sides = (y == 0, y + h == H, x == 0, x + w == W)
     r0, r1, c0, c1 = max(y - 1, 0), min(y + h + 1, H), max(x - 1, 0), min(x + w + 1, W)
     box = sub[r0:r1, c0:c1].copy()
-    outside = (labels[r0:r1, c0:c1] != lab).view(np.uint8)
-    box[outside.view(bool) & (box > level)] = level - 1.0
+    lab = mask[r0:r1, c0:c1]
+    box[lab == 1] = level - 1.0  # pixels of other components (above the level, not joined)
+    outside = (lab != 2).view(np.uint8)
     # Holes (pixels outside the component that no 8-path outside it joins to the box edge) are
     # raised above the level: their closed contours never enclose the BP.
     n, lab8 = cv2.connectedComponents(outside, connectivity=8)

@@ -629,6 +629,11 @@ def reconstruct(
     shift = np.array([r.col0, r.row0], dtype=np.float64)
     t_min = min(isovalues)
     bps = [c.bp_uv + shift for c in det.candidates]
+    # BPs another highlight's isophote must not enclose (``merged``): every candidate's but the
+    # too small ones (noise)
+    bps_arr = np.array(bps, dtype=np.float64).reshape(-1, 2)
+    keep = np.array([c.status != "too_small" for c in det.candidates], dtype=bool)
+    idx = np.arange(len(bps))
     out = []
     for k, cand in enumerate(det.candidates):
         bp = bps[k]
@@ -640,7 +645,7 @@ def reconstruct(
                                            cand.detail, _bp_ray(bp_und, K), ()))
             continue
         roi_k = _initial_roi(cand, bp, det.threshold, t_min, normalise, fs, img.shape)
-        others = [b for j, b in enumerate(bps) if j != k and det.candidates[j].status != "too_small"]
+        others = bps_arr[keep & (idx != k)]
         out.append(_estimate_one(
             img, K, dist, isovalues, bp, roi_k, saturated=cand.saturated, normalise=normalise,
             full_scale=fs, allow_open=allow_open, smooth_sigma_px=float(smooth_sigma_px), grow=True,
