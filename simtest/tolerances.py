@@ -51,6 +51,28 @@ class Tolerances:
         moves a near-fronto-parallel N+- by ~1e-8 (5e-9 on the bench's 100 px highlight). 1e-7
         (6e-6 deg) keeps a margin over that and is far below the 1e-3 deg the reports print.
         Statuses, point counts, BPs and ROIs must be identical.
+    isophote_noise_px : float
+        Floor of the localisation noise of a contour point, px, used only to decide whether a
+        light-aware fit observes the depth (a fit to exact points has zero residual and would call
+        anything observable): 0.05 px, the RMS error of marching squares' linear interpolation on a
+        smooth 8-bit highlight (1/255 of a lobe whose slope is ~0.1 per px gives ~0.04 px).
+    photometric_noise_rel : float
+        Floor of the per-pixel noise of the photometric fit, relative to the ROI's maximum, for the
+        same decision: 0.002, about the RMS of 8-bit quantisation (1 / (255 sqrt 12) = 0.0011)
+        doubled for render noise.
+    exact_image_normal_deg : float
+        Normal error allowed to a light-aware fit of an exact float image (no noise): 0.01 deg.
+        What remains is the contour's spline interpolation (isophote points refined to ~1e-4 px)
+        and the fits' stopping tolerances, both measured below 1e-4 deg; the margin covers the
+        worst conditioned cases (60 mm, 50 deg tilt, epsilon/d = 0.05).
+    exact_image_depth_rel : float
+        Relative depth error allowed in the same setting: 1e-3 (0.1 %; measured below 2e-6).
+    depth_rel_sigma_max : float
+        Largest relative standard deviation of the depth (at the noise floors above) for which a
+        light-aware estimator reports it: 0.5 (the depth known to within a factor of about 1.5).
+        Beyond that the image hardly depends on the distance (epsilon/d too small) and a depth
+        would be a guess; at epsilon/d = 0.05 the isocurve fit's value is 0.2 to 0.3 on exact
+        images of 240 x 240 px, at epsilon = 0 it is infinite.
     """
 
     conic_degenerate_rel: float = 1e-12
@@ -60,6 +82,11 @@ class Tolerances:
     camera_round_trip_px: float = 1e-6
     camera_jacobian_rel: float = 1e-5
     golden_abs: float = 1e-7
+    isophote_noise_px: float = 0.05
+    photometric_noise_rel: float = 0.002
+    exact_image_normal_deg: float = 0.01
+    exact_image_depth_rel: float = 1e-3
+    depth_rel_sigma_max: float = 0.5
 
 
 #: The project's tolerance table.

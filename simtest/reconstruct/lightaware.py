@@ -1,0 +1,892 @@
+"""Light-aware estimators: normal and depth of a highlight lit by a known rig off the camera centre.
+
+With the light exactly at the camera centre the BP ray is the normal at the BP and the image of a
+plane is invariant to the plane's distance. Real endoscopes carry their light guides a few
+millimetres beside the lens, at 5 to 50 mm from the tissue: the offset over the distance,
+epsilon/d, is 0.05 to 0.5, and the BP ray is then off the normal by about half the angle the
+offset subtends (the BP is where the normal *bisects* the directions to camera and light). A known
+(calibrated) offset also breaks the scale ambiguity: the image depends on L/d, so the distance
+becomes observable. Three estimators use the rig:
+
+- :func:`bisector`: the BP ray corrected by the rig for a *given* depth (a depth map, a stereo
+  depth): exact for a plane when the depth is exact.
+- :func:`isocurve_fit`: the general specular isocurve (paper eq. 2, any light and viewer) with the
+  calibrated light position, fitted to the isophote points taken as rays: plane normal, distance h,
+  and the cosine level tau of each isovalue (nested isovalues tie their taus through the
+  roughness n).
+- :func:`photometric_fit`: the ROI's intensities fitted with the image of a plane lit by the whole
+  rig (sum of the lights' Phong lobes with their falloff and emission profile) plus a smooth linear
+  background: normal, distance, roughness and gain; clipped pixels are left out.
+
+Each returns a :class:`LightAwareEstimate`: the normal, the depth in mm of the specular point along
+its ray (None when not observable), a 1-sigma angular uncertainty from the fit's Jacobian, and a
+status with its cause (:data:`STATUSES`).
+
+Model (paper eq. 1 with the mirror direction of eq. 2)
+------------------------------------------------------
+Camera frame (OpenCV), camera centre V = 0, mm. Plane ``n . X = -h`` (n unit, facing the camera,
+h > 0). The pixel ray d (unit) meets the plane at ``X = d h / (-n . d)``. With ``l`` the unit
+direction from X to a light L and ``v = -d`` the direction to the camera, the mirror direction
+of the light is ``r = 2 (n . l) n - l`` and
+
+``cos beta = r . v = 2 (n . l)(n . v) - l . v``,
+
+the quantity whose level sets on the plane are the general specular isocurve (eq. 2:
+``Q(p) = 0`` is ``cos^2 beta = tau^2``; the isophote is the branch ``cos beta = +tau``). The
+photometric model is ``I = g sum_j w_j max(0, cos beta_j)^n f_j p_j + b0 + b1 du + b2 dv`` with
+``f_j = (h / |L_j - X|)^2`` for an inverse-square light (1 otherwise), ``p_j`` the emission profile
+``cos^m`` about +z, gain g and a linear background (b0, b1, b2), solved linearly for each value of
+the nonlinear parameters (variable projection).
+
+Specular point and depth: on the plane (n, h) the specular point of a light L is where the
+segment from the camera centre to the mirror image ``L' = L - 2 (n . L + h) n`` meets the plane,
+``X_s = L' h / (-n . L')``; ``depth_mm = |X_s|``, its distance along its viewing ray. For a rig of
+several lights the depth reported is that of the intensity-weighted mean light position.
+
+Parametrisation, start and uncertainty
+--------------------------------------
+The normal is ``n = unit(n0 + a e1 + b e2)`` about the start normal n0 ((e1, e2) a basis of its
+tangent plane), the distance enters as log h. The start is the bisector at the BP with a nominal
+distance (``nominal_depth_mm``) whose h is then made consistent with the BP: for the start
+normal, the depth along the BP ray at which the specular point projects to the BP. The
+covariance of the parameters is ``s^2 (J^T J)^-1`` at the solution, J the Jacobian re-taken about
+the solution, s^2 the residual variance ``sum r^2 / (m - p)``; ``normal_sigma_deg`` is
+``sqrt(var a + var b)`` in degrees (the RMS angle of the normal's error) and the depth's
+standard deviation follows by the delta method.
+
+Depth observability: the depth's relative standard deviation is computed again with the residual
+variance floored at the localisation noise of a contour point or a pixel
+(``TOL.isophote_noise_px`` and ``TOL.photometric_noise_rel``); above ``TOL.depth_rel_sigma_max``
+(or with a singular J^T J, as at epsilon = 0 where the image does not depend on h) the depth is
+reported as None with status ``depth_not_observable``; the normal is still given (the fit's flat
+direction in h leaves the normal determined).
+
+References
+----------
+.. [1] K. Makki, A. Bartoli, "Normal Reconstruction from Specularity in the Endoscopic Setting",
+       eqs. (1) and (2).
+.. [2] B. T. Phong, "Illumination for computer generated pictures", CACM 18(6), 1975.
+       https://doi.org/10.1145/360825.360839
+.. [3] G. H. Golub, V. Pereyra, "The differentiation of pseudo-inverses and nonlinear least squares
+       problems whose variables separate", SIAM J. Numer. Anal. 10(2), 1973.
+       https://doi.org/10.1137/0710036 (variable projection).
+.. [4] J. Iranzo et al., "EndoMetric: near-light metric scale monocular SLAM", MICCAI 2025,
+       arXiv 2410.15065 (the same near-light baseline, for scale from diffuse shading).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from scipy.ndimage import map_coordinates, spline_filter
+from scipy.optimize import least_squares
+
+from simtest.geometry.angles import unit
+from simtest.geometry.camera import validate_intrinsics
+from simtest.geometry.conics import plane_basis
+from simtest.geometry.lights import LightRig
+from simtest.reconstruct._pixels import uv_to_rc
+from simtest.tolerances import TOL
+
+__all__ = [
+    "STATUSES",
+    "LightAwareEstimate",
+    "bisector",
+    "isocurve_fit",
+    "photometric_fit",
+    "plane_rig_intensity",
+    "refine_isophote_points",
+    "specular_point_depth",
+]
+
+OK = "ok"
+
+#: Status of a light-aware estimate, with its meaning.
+STATUSES: dict[str, str] = {
+    OK: "normal and depth estimated",
+    "depth_not_observable": "normal estimated; the depth is not (epsilon/d too small: the image "
+                            "hardly depends on the distance)",
+    "not_converged": "the least-squares fit stopped without meeting its tolerances",
+    "too_few_points": "fewer isophote points or unclipped pixels than parameters",
+    "multi_light_rig": "the isocurve model (eq. 2) holds for one light; use photometric_fit",
+    "light_behind_plane": "a light of the rig lies behind the fitted plane",
+}
+
+
+@dataclass(frozen=True)
+class LightAwareEstimate:
+    """Result of a light-aware estimator.
+
+    Attributes
+    ----------
+    estimator : str
+        ``"bisector"``, ``"isocurve_fit"`` or ``"photometric_fit"``.
+    status : str
+        A key of :data:`STATUSES`.
+    detail : str
+        Numbers behind the status.
+    normal : ndarray of shape (3,) or None
+        Unit normal, OpenCV camera frame, facing the camera.
+    depth_mm : float or None
+        Distance from the camera centre to the specular point (along its ray), mm; None when not
+        observable.
+    normal_sigma_deg : float or None
+        1-sigma angular uncertainty of the normal (RMS angle), degrees.
+    depth_sigma_mm : float or None
+        1-sigma uncertainty of the depth, mm (None when the depth is not observable).
+    distance_mm : float or None
+        Fitted camera-to-plane distance h, mm (None when not observable).
+    roughness : float or None
+        Fitted Phong roughness n (None when not fitted).
+    taus : ndarray of shape (K,) or None
+        Fitted cosine level tau per isovalue (isocurve_fit).
+    n_evaluations : int
+        Model evaluations of the fit (0 for the closed form).
+    """
+
+    estimator: str
+    status: str
+    detail: str = ""
+    normal: np.ndarray | None = None
+    depth_mm: float | None = None
+    normal_sigma_deg: float | None = None
+    depth_sigma_mm: float | None = None
+    distance_mm: float | None = None
+    roughness: float | None = None
+    taus: np.ndarray | None = None
+    n_evaluations: int = 0
+
+    @property
+    def ok(self) -> bool:
+        """True when the status is ``"ok"`` (normal and depth given)."""
+        return self.status == OK
+
+    @property
+    def has_normal(self) -> bool:
+        """True when a normal is given (status ``ok`` or ``depth_not_observable``)."""
+        return self.normal is not None
+
+
+# ------------------------------------------------------------------------------------------------
+# geometry
+
+
+class _Kinv:
+    """A validated K's inverse, so that rays are made without validating K each time."""
+
+    def __init__(self, K):
+        self.Kinv_T = np.linalg.inv(validate_intrinsics(K)).T
+
+
+def _camera(camera):
+    """``camera`` as given if it has ``pixel_to_ray``, else K (3, 3) validated once."""
+    return camera if hasattr(camera, "pixel_to_ray") or isinstance(camera, _Kinv) else _Kinv(camera)
+
+
+def _rays(camera, uv) -> np.ndarray:
+    """Unit viewing rays (N, 3) of pixels (N, 2): ``camera`` is K (3, 3) or has ``pixel_to_ray``."""
+    uv = np.asarray(uv, dtype=np.float64).reshape(-1, 2)
+    camera = _camera(camera)
+    if hasattr(camera, "pixel_to_ray"):
+        return np.asarray(camera.pixel_to_ray(uv), dtype=np.float64)
+    d = np.column_stack([uv, np.ones(len(uv))]) @ camera.Kinv_T
+    return d / np.sqrt(np.einsum("ij,ij->i", d, d))[:, None]
+
+
+def _rig_arrays(rig: LightRig):
+    L = np.array([lt.position_mm for lt in rig.lights], dtype=np.float64).reshape(-1, 3)
+    w = np.array([lt.intensity for lt in rig.lights], dtype=np.float64)
+    inv_sq = np.array([lt.falloff == "inverse_square" for lt in rig.lights])
+    m = np.array([lt.profile_exponent for lt in rig.lights], dtype=np.float64)
+    return L, w, inv_sq, m
+
+
+def _mean_light(rig: LightRig) -> np.ndarray:
+    L, w, _, _ = _rig_arrays(rig)
+    return (w[:, None] * L).sum(axis=0) / w.sum()
+
+
+def specular_point_depth(normal, distance_mm: float, light_mm) -> float:
+    """Depth (distance from the camera centre) of the specular point of a plane for one light.
+
+    Parameters
+    ----------
+    normal : array_like of shape (3,)
+        Unit plane normal facing the camera, camera frame.
+    distance_mm : float
+        Plane distance h > 0, mm.
+    light_mm : array_like of shape (3,)
+        Light position, camera frame, mm.
+
+    Returns
+    -------
+    float
+        ``|X_s|`` with ``X_s = L' h / (-n . L')`` and ``L' = L - 2 (n . L + h) n`` (module
+        docstring); NaN if the light is behind the plane.
+    """
+    n = np.asarray(normal, dtype=np.float64)
+    L = np.asarray(light_mm, dtype=np.float64)
+    hl = n @ L + distance_mm
+    if not hl > 0:
+        return float("nan")
+    Lm = L - 2.0 * hl * n
+    return float(np.linalg.norm(Lm) * distance_mm / (-(n @ Lm)))
+
+
+def _cos_beta(d: np.ndarray, X: np.ndarray, n: np.ndarray, L: np.ndarray):
+    """cos beta (N,) at the plane points X (N, 3) seen along rays d (N, 3), light L; and |L - X|."""
+    tl = L - X
+    r = np.sqrt(np.einsum("ij,ij->i", tl, tl))
+    nl = (tl @ n) / r
+    nv = -(d @ n)
+    ld = np.einsum("ij,ij->i", tl, d) / r
+    return 2.0 * nl * nv + ld, r
+
+
+def _terms(d, n, dns, h, L, grad=True):
+    """cos beta of one light on the plane (n, h) along rays d, with its derivatives.
+
+    Returns ``cb (N,)``, ``dcb (N, 3)`` with respect to (a, b, log h) given the normal's derivatives
+    ``dns`` (two (3,) vectors), and the pieces the falloff and profile need: ``r = |L - X|``,
+    ``dr (N, 3)``, ``X (N, 3)``, ``dXz (N, 3)``.
+
+    Notes
+    -----
+    With ``delta = -d.n``, ``s = h / delta`` (so ``X = s d``), ``l = (L - X) / r``, ``nl = n.l``
+    and ``ld = l.d``: ``cos beta = 2 nl delta + ld``. A change (dn, dh) gives
+    ``d delta = -d.dn``, ``ds = dh / delta - h d delta / delta^2``, ``dr = -ds ld``,
+    ``dl = ds (l ld - d) / r``, ``d nl = l.dn + n.dl``, ``d ld = ds (ld^2 - 1) / r`` and
+    ``d cos beta = 2 (d nl delta + nl d delta) + d ld``; for log h, dn = 0 and dh = h.
+    """
+    delta = -(d @ n)
+    delta = np.where(delta > 1e-9, delta, 1e-9)
+    s = h / delta
+    X = d * s[:, None]
+    tl = L - X
+    r = np.sqrt(np.einsum("ij,ij->i", tl, tl))
+    l = tl / r[:, None]
+    nl = l @ n
+    ld = np.einsum("ij,ij->i", l, d)
+    cb = 2.0 * nl * delta + ld
+    if not grad:
+        return cb, None, r, None, X, None
+    N = len(d)
+    dcb = np.empty((N, 3))
+    dr = np.empty((N, 3))
+    dXz = np.empty((N, 3))
+    ln = l @ n
+    q = l * ld[:, None] - d  # dl = ds q / r
+    qn = q @ n
+    for k in range(3):
+        if k < 2:
+            dn = dns[k]
+            ddelta = -(d @ dn)
+            ds = -h * ddelta / delta**2
+            dnl = l @ dn + ds * qn / r
+        else:
+            ddelta = 0.0
+            ds = s  # dh = h
+            dnl = ds * qn / r
+        dcb[:, k] = 2.0 * (dnl * delta + nl * ddelta) + ds * (ld * ld - 1.0) / r
+        dr[:, k] = -ds * ld
+        dXz[:, k] = ds * d[:, 2]
+    del ln
+    return cb, dcb, r, dr, X, dXz
+
+
+def _normal_derivs(p, n0, e1, e2):
+    """Normal ``unit(n0 + a e1 + b e2)`` and its derivatives with respect to a and b."""
+    m = n0 + p[0] * e1 + p[1] * e2
+    nm = np.linalg.norm(m)
+    n = m / nm
+    return n, ((e1 - n * (n @ e1)) / nm, (e2 - n * (n @ e2)) / nm)
+
+
+def _rig_image(d, n, dns, h, rig_arr, rough, grad=True):
+    """``S = sum_j w_j max(0, cb_j)^n f_j p_j`` (N,) and ``dS`` (N, 4) w.r.t. (a, b, log h, log n)."""
+    L, w, inv_sq, m = rig_arr
+    S = np.zeros(len(d))
+    dS = np.zeros((len(d), 4)) if grad else None
+    for j in range(len(w)):
+        cb, dcb, r, dr, X, dXz = _terms(d, n, dns, h, L[j], grad)
+        pos = cb > 0
+        lcb = np.log(np.where(pos, cb, 1.0))
+        lobe = np.where(pos, np.exp(rough * lcb), 0.0)
+        fac = np.ones_like(cb)
+        if grad:
+            dlog = np.zeros((len(d), 3))  # d log(f p)
+        if inv_sq[j]:
+            fac = fac * (h / r) ** 2
+            if grad:
+                dlog += -2.0 * dr / r[:, None]
+                dlog[:, 2] += 2.0
+        if m[j] > 0:
+            c = np.maximum((X[:, 2] - L[j, 2]) / r, 1e-12)
+            fac = fac * c ** m[j]
+            if grad:
+                dc = (dXz - c[:, None] * dr) / r[:, None]
+                dlog += m[j] * dc / c[:, None]
+        val = w[j] * lobe * fac
+        S += val
+        if grad:
+            dlobe = np.where(pos, rough * np.exp((rough - 1.0) * lcb), 0.0)[:, None] * dcb
+            dS[:, :3] += w[j] * fac[:, None] * dlobe + val[:, None] * dlog
+            dS[:, 3] += val * lcb * rough
+    return S, dS
+
+
+def _intensity(d, n, h, rig_arr, rough):
+    hit = -(d @ n) > 1e-9
+    return np.where(hit, _rig_image(d, n, None, h, rig_arr, rough, grad=False)[0], 0.0)
+
+
+def plane_rig_intensity(rays: np.ndarray, normal, distance_mm: float, rig: LightRig,
+                        roughness: float) -> np.ndarray:
+    """Specular image of a plane lit by a rig, along given rays (unit gain, no background).
+
+    ``sum_j w_j max(0, cos beta_j)^n f_j p_j`` (module docstring), with
+    ``f_j = (h / |L_j - X|)^2`` for inverse-square lights and ``p_j = max(0, cos theta_j)^m_j``.
+
+    Parameters
+    ----------
+    rays : ndarray of shape (N, 3)
+        Unit viewing rays, camera frame.
+    normal : array_like of shape (3,)
+        Unit plane normal facing the camera.
+    distance_mm : float
+        Plane distance h > 0, mm.
+    rig : LightRig
+        The lights.
+    roughness : float
+        Phong n > 0.
+
+    Returns
+    -------
+    ndarray of shape (N,)
+        Intensity; 0 for rays that miss the plane.
+    """
+    return _intensity(np.asarray(rays, dtype=np.float64), unit(np.asarray(normal, dtype=np.float64)),
+                      float(distance_mm), _rig_arrays(rig), float(roughness))
+
+
+def _distance_for_bp(ray: np.ndarray, n: np.ndarray, L: np.ndarray) -> float | None:
+    """Plane distance h for which a plane of normal n has its specular point on the BP ray.
+
+    The specular point is ``X_s ∝ L' = L0 - 2 h n`` with ``L0 = L - 2 (n . L) n`` (the mirror image
+    of L in the plane through the camera centre), so it lies on the ray b when L' is parallel to b:
+    with ``P = I - b b^T``, ``h = (P L0) . (P n) / (2 |P n|^2)`` (least squares on the component
+    of L' across the ray). None if the result is not > 0 (then no such plane faces the light).
+    """
+    P = np.eye(3) - np.outer(ray, ray)
+    L0 = L - 2.0 * (n @ L) * n
+    pn = P @ n
+    den = 2.0 * (pn @ pn)
+    if not den > 1e-18:
+        return None
+    h = float((P @ L0) @ pn / den)
+    return h if h > 0 else None
+
+
+# ------------------------------------------------------------------------------------------------
+# bisector
+
+
+def bisector(bp_uv, camera, rig: LightRig, depth_mm) -> LightAwareEstimate:
+    """The BP ray corrected by the rig for a given depth: the normal that makes the BP specular.
+
+    At depth s along the BP's ray the surface point is ``X = s d``; the normal that reflects the
+    light L into the camera there bisects the directions to camera and light,
+    ``N = unit(unit(-X) + unit(L - X))``. For a plane, with the true depth of the BP, N is the
+    plane normal exactly (the specular point is the BP of a Phong plane without falloff); with a
+    co-located light it is the ``bp_ray`` normal whatever the depth. For a rig of several lights
+    the intensity-weighted mean light position is used (an approximation: the brightest point of a
+    merged pair is not one light's specular point).
+
+    Parameters
+    ----------
+    bp_uv : array_like of shape (2,)
+        Brightest point (u, v), undistorted px.
+    camera : array_like of shape (3, 3) or CameraModel
+        Intrinsics K, or a camera model with ``pixel_to_ray``.
+    rig : LightRig
+        The lights, camera frame, mm.
+    depth_mm : float or ndarray of shape (H, W)
+        Distance from the camera centre to the BP along its ray, mm; or a depth map (same
+        meaning per pixel), sampled at the nearest pixel of the BP.
+
+    Returns
+    -------
+    LightAwareEstimate
+        ``normal`` (unit, facing the camera), ``depth_mm`` as given, ``normal_sigma_deg`` None.
+
+    Raises
+    ------
+    ValueError
+        A non-finite BP, a depth that is not > 0, or a BP outside the depth map.
+    """
+    bp = np.asarray(bp_uv, dtype=np.float64).reshape(-1)
+    if bp.shape != (2,) or not np.isfinite(bp).all():
+        raise ValueError(f"bp_uv: need 2 finite numbers (u, v), got {bp_uv!r}")
+    dm = np.asarray(depth_mm, dtype=np.float64)
+    if dm.ndim == 2:
+        r, c = (int(v) for v in np.rint(uv_to_rc(bp)))
+        if not (0 <= r < dm.shape[0] and 0 <= c < dm.shape[1]):
+            raise ValueError(f"bp_uv {bp.tolist()} lies outside the depth map of shape {dm.shape}")
+        s = float(dm[r, c])
+    elif dm.ndim == 0:
+        s = float(dm)
+    else:
+        raise ValueError(f"depth_mm: a number or an (H, W) map, got shape {dm.shape}")
+    if not (np.isfinite(s) and s > 0):
+        raise ValueError(f"depth_mm: must be finite and > 0 at the BP, got {s}")
+    d = _rays(camera, bp[None])[0]
+    X = s * d
+    n = unit(unit(-X) + unit(_mean_light(rig) - X))
+    return LightAwareEstimate("bisector", OK, "", n, s)
+
+
+# ------------------------------------------------------------------------------------------------
+# shared fitting machinery
+
+
+def _start(bp_uv, camera, rig, nominal_depth_mm, start_normal):
+    """Start normal n0 and distance h0 (module docstring, "Parametrisation, start")."""
+    d_bp = _rays(camera, np.asarray(bp_uv, dtype=np.float64)[None])[0]
+    Lm = _mean_light(rig)
+    if start_normal is None:
+        n0 = unit(unit(-d_bp * nominal_depth_mm) + unit(Lm - d_bp * nominal_depth_mm))
+    else:
+        n0 = unit(np.asarray(start_normal, dtype=np.float64))
+        if n0 @ d_bp > 0:
+            n0 = -n0
+    h0 = _distance_for_bp(d_bp, n0, Lm) if np.linalg.norm(Lm) > 0 else None
+    if h0 is None or not np.isfinite(h0):
+        h0 = float(-(n0 @ (nominal_depth_mm * d_bp)))
+    return d_bp, n0, max(h0, 1e-3)
+
+
+def _covariance(jac: np.ndarray, resid_var: float) -> np.ndarray | None:
+    """``resid_var (J^T J)^-1``, or None when J^T J is singular (relative condition > 1e12)."""
+    jtj = jac.T @ jac
+    scale = np.sqrt(np.diag(jtj))
+    if not np.all(scale > 0):
+        return None
+    jn = jtj / np.outer(scale, scale)
+    if np.linalg.cond(jn) > 1e12:
+        return None
+    return resid_var * np.linalg.inv(jn) / np.outer(scale, scale)
+
+
+def _solve(resjac, p0, args, loss: str, f_scale: float, max_nfev: int, free=None):
+    """Levenberg-Marquardt (MINPACK, analytic Jacobian), robust loss by reweighting.
+
+    ``loss="linear"``: one LM solve. Otherwise (``soft_l1``, ``huber``, ``cauchy``): the LM solution
+    is reweighted once by iteratively reweighted least squares, each residual scaled by
+    ``sqrt(rho'(z))`` with ``z = (r / f_scale)^2`` (the weights of scipy's robust losses), and
+    re-solved from there. ``free`` (bool mask) holds the other parameters at ``p0``. Returns
+    (x, n_evaluations, converged, message).
+    """
+    if loss not in ("linear", "soft_l1", "huber", "cauchy"):
+        raise ValueError(f"loss: {loss!r} is not one of linear, soft_l1, huber, cauchy")
+    p0 = np.asarray(p0, dtype=np.float64)
+    free = np.ones(len(p0), bool) if free is None else np.asarray(free, bool)
+    cache: dict = {}
+
+    def full(q):
+        p = p0.copy()
+        p[free] = q
+        return p
+
+    def rj(q):  # MINPACK asks for f and J at the same point: compute both once
+        key = q.tobytes()
+        if key not in cache:
+            cache.clear()
+            r, J = resjac(full(q), *args)
+            cache[key] = (r, J[:, free])
+        return cache[key]
+
+    def fun(q, w):
+        return rj(q)[0] * w
+
+    def jac(q, w):
+        return rj(q)[1] * w[:, None]
+
+    q = p0[free]
+    w = np.ones(len(rj(q)[0]))
+    nfev, ok, msg = 0, True, ""
+    for it in range(1 if loss == "linear" else 2):
+        if it:
+            z = (rj(q)[0] / f_scale) ** 2
+            if loss == "soft_l1":
+                w = (1.0 + z) ** -0.25
+            elif loss == "huber":
+                w = np.where(z <= 1.0, 1.0, z ** -0.25)
+            else:
+                w = (1.0 + z) ** -0.5
+        with np.errstate(all="ignore"):
+            res = least_squares(fun, q, jac=jac, args=(w,), method="lm", max_nfev=max_nfev,
+                                xtol=1e-12, ftol=1e-12, gtol=1e-12)
+        nfev += res.nfev
+        q, ok, msg = res.x, res.status > 0 and np.isfinite(res.x).all(), res.message
+    return full(q), nfev, ok, msg
+
+
+def _finish(name, resjac_at, n_hat, h_hat, rig, extra_params, resid_floor, n_eval, converged,
+            roughness=None, taus=None, detail=""):
+    """Covariance about the solution, depth and its observability, and the estimate."""
+    e1, e2 = plane_basis(n_hat)
+    p_hat = np.concatenate([[0.0, 0.0, np.log(h_hat)], extra_params])
+    r0, J = resjac_at(p_hat, n_hat, e1, e2)
+    m, k = J.shape
+    resid_var = float(r0 @ r0) / max(m - k, 1)
+    cov = _covariance(J, resid_var)
+    cov_floor = _covariance(J, max(resid_var, resid_floor**2))
+    Lm = _mean_light(rig)
+    sigma_deg = None if cov is None else float(np.degrees(np.sqrt(max(cov[0, 0] + cov[1, 1], 0.0))))
+    depth = specular_point_depth(n_hat, h_hat, Lm)
+
+    def log_depth(q):
+        return np.log(specular_point_depth(unit(n_hat + q[0] * e1 + q[1] * e2), np.exp(q[2]), Lm))
+
+    g = np.array([(log_depth(p_hat[:3] + dq) - log_depth(p_hat[:3] - dq)) / 2e-7
+                  for dq in 1e-7 * np.eye(3)])
+    rel_floor = None if cov_floor is None else float(np.sqrt(max(g @ cov_floor[:3, :3] @ g, 0.0)))
+    observable = rel_floor is not None and np.isfinite(depth) and rel_floor <= TOL.depth_rel_sigma_max
+    if not converged:
+        status = "not_converged"
+    elif not observable:
+        status = "depth_not_observable"
+        detail = detail or (
+            "J^T J singular in h" if rel_floor is None
+            else f"relative depth sigma {rel_floor:.3g} at the noise floor > {TOL.depth_rel_sigma_max}")
+    else:
+        status = OK
+    depth_sigma = None
+    if observable and cov is not None:
+        depth_sigma = float(depth * np.sqrt(max(g @ cov[:3, :3] @ g, 0.0)))
+    return LightAwareEstimate(
+        name, status, detail, n_hat,
+        depth if observable else None, sigma_deg, depth_sigma,
+        h_hat if observable else None, roughness, taus, n_eval,
+    )
+
+
+# ------------------------------------------------------------------------------------------------
+# isocurve fit
+
+
+def refine_isophote_points(values, level: float, points_uv, origin_uv=(0.0, 0.0),
+                           iterations: int = 3) -> np.ndarray:
+    """Move contour points onto the level set of the cubic-spline interpolant of an image.
+
+    Marching squares interpolates linearly between pixel centres: on a smooth highlight its points
+    sit off the true isophote by a few hundredths of a pixel, inward on the convex side, enough to
+    bias the distance a light-aware fit reads from the isophote's shape. Each point takes Newton
+    steps ``p <- p - (f(p) - level) grad f / |grad f|^2`` on the cubic B-spline interpolant f of the
+    values (gradient by central differences of f, 0.25 px). Points whose step would exceed 1 px are
+    left where they were.
+
+    Parameters
+    ----------
+    values : ndarray of shape (H, W)
+        Intensities (the ROI).
+    level : float
+        The isophote's level, in the units of ``values``.
+    points_uv : ndarray of shape (N, 2)
+        Contour points (u, v) in image px.
+    origin_uv : array_like of shape (2,)
+        Pixel (u, v) of ``values[0, 0]``.
+    iterations : int
+        Newton steps.
+
+    Returns
+    -------
+    ndarray of shape (N, 2)
+        Refined points (u, v), px.
+    """
+    coef = spline_filter(np.asarray(values, dtype=np.float64), order=3, mode="mirror")
+    o = np.asarray(origin_uv, dtype=np.float64)
+    p = np.asarray(points_uv, dtype=np.float64).reshape(-1, 2) - o
+    p0 = p.copy()
+
+    def f(q):
+        return map_coordinates(coef, uv_to_rc(q).T, order=3, mode="mirror", prefilter=False)
+
+    e = 0.25
+    for _ in range(iterations):
+        gu = (f(p + [e, 0]) - f(p - [e, 0])) / (2 * e)
+        gv = (f(p + [0, e]) - f(p - [0, e])) / (2 * e)
+        g2 = gu * gu + gv * gv
+        step = np.where(g2 > 0, (f(p) - level) / np.where(g2 > 0, g2, 1.0), 0.0)
+        p = p - step[:, None] * np.column_stack([gu, gv])
+    bad = ~np.isfinite(p).all(axis=1) | (np.linalg.norm(p - p0, axis=1) > 1.0)
+    p[bad] = p0[bad]
+    return p + o
+
+
+def isocurve_fit(points_uv, isovalues, bp_uv, camera, rig: LightRig, *,
+                 nominal_depth_mm: float = 20.0, start_normal=None,
+                 loss: str = "soft_l1", f_scale_px: float = 0.5,
+                 max_points_per_isophote: int | None = 64,
+                 max_nfev: int = 200) -> LightAwareEstimate:
+    """Fit the general specular isocurve (paper eq. 2) with a calibrated light to isophote points.
+
+    Each contour point is a ray; the plane (n, h) puts it at ``X = d h / (-n . d)`` where its
+    ``cos beta`` (module docstring) should equal its isovalue's level tau. Residuals are
+    ``(cos beta_i - tau_k) / |grad cos beta_i|``, the distance in pixels to the model isophote at
+    first order (gradient in px taken at the start). One isovalue: tau is free. Two or more
+    (nested isophotes): ``log tau_k = (log t_k - log s) / n``, tying the levels through the
+    roughness n and the peak-to-BP ratio s, both fitted. Robust loss (``soft_l1``) in
+    :func:`scipy.optimize.least_squares` (trust region reflective).
+
+    Parameters
+    ----------
+    points_uv : sequence of ndarray of shape (N_k, 2)
+        Isophote points per isovalue, undistorted px (pixel centres at integer coordinates).
+    isovalues : sequence of float
+        t_k in (0, 1), relative to the BP intensity, one per point set.
+    bp_uv : array_like of shape (2,)
+        Brightest point, undistorted px (for the start).
+    camera : array_like of shape (3, 3) or CameraModel
+        Intrinsics K, or a camera model with ``pixel_to_ray``.
+    rig : LightRig
+        Exactly one light (eq. 2 is a one-light model; its falloff and profile are ignored: the
+        model is exact for a light without falloff).
+    nominal_depth_mm : float
+        Depth of the BP assumed for the start's bisector, mm.
+    start_normal : array_like of shape (3,), optional
+        Start normal (e.g. the cone axis) in place of the bisector.
+    loss : str
+        :func:`scipy.optimize.least_squares` loss.
+    f_scale_px : float
+        Soft margin of the robust loss, px.
+    max_points_per_isophote : int or None
+        Keep every k-th point of a longer contour (speed; None keeps all).
+    max_nfev : int
+        Evaluation budget.
+
+    Returns
+    -------
+    LightAwareEstimate
+        ``estimator="isocurve_fit"``; ``taus`` per isovalue; ``roughness`` with >= 2 isovalues.
+
+    Raises
+    ------
+    ValueError
+        Mismatched points and isovalues, an isovalue outside (0, 1), a non-finite BP.
+    """
+    sets = [np.asarray(p, dtype=np.float64).reshape(-1, 2) for p in points_uv]
+    ts = np.asarray(isovalues, dtype=np.float64).reshape(-1)
+    if len(sets) != len(ts) or not len(ts):
+        raise ValueError(f"points_uv and isovalues: need one point set per isovalue, got {len(sets)} and {len(ts)}")
+    if np.any(~((ts > 0) & (ts < 1))):
+        raise ValueError(f"isovalues: each in (0, 1), got {ts.tolist()}")
+    name = "isocurve_fit"
+    camera = _camera(camera)
+    if len(rig.lights) != 1:
+        return LightAwareEstimate(name, "multi_light_rig", f"{len(rig.lights)} lights")
+    L = np.asarray(rig.lights[0].position_mm, dtype=np.float64)
+    uv = np.concatenate(sets)
+    kidx = np.concatenate([np.full(len(s), i) for i, s in enumerate(sets)])
+    n_tau = 1 if len(ts) == 1 else 2
+    if len(uv) < 3 + n_tau + 1:
+        return LightAwareEstimate(name, "too_few_points", f"{len(uv)} points")
+    if max_points_per_isophote:
+        keep = []
+        for i, ps in enumerate(sets):
+            idx = np.nonzero(kidx == i)[0]
+            step = max(1, int(np.ceil(len(ps) / max_points_per_isophote)))
+            keep.append(idx[::step])
+        keep = np.concatenate(keep)
+        uv, kidx = uv[keep], kidx[keep]
+    d = _rays(camera, uv)
+    d_bp, n0, h0 = _start(bp_uv, camera, rig, nominal_depth_mm, start_normal)
+    log_t = np.log(ts)
+
+    def taus_of(q):
+        if n_tau == 1:
+            return np.array([q[0]])
+        return np.exp((log_t - q[1]) * q[0])  # q = (1/n, log s)
+
+    # pixel-unit weights: |grad_px cos beta| at the start (central differences, 0.5 px)
+    def cb_at(dd):
+        return _terms(dd, n0, None, h0, L, grad=False)[0]
+
+    cb_u = cb_at(_rays(camera, uv + [0.5, 0])) - cb_at(_rays(camera, uv - [0.5, 0]))
+    cb_v = cb_at(_rays(camera, uv + [0, 0.5])) - cb_at(_rays(camera, uv - [0, 0.5]))
+    grad = np.hypot(cb_u, cb_v)
+    wts = 1.0 / np.maximum(grad, 1e-12 + 1e-6 * np.median(grad))
+
+    def resjac_at(p, nb, e1, e2):
+        n, dns = _normal_derivs(p, nb, e1, e2)
+        cb, dcb = _terms(d, n, dns, np.exp(p[2]), L)[:2]
+        taus = taus_of(p[3:])
+        r = (cb - taus[kidx]) * wts
+        J = np.empty((len(r), 3 + n_tau))
+        J[:, :3] = dcb * wts[:, None]
+        if n_tau == 1:
+            J[:, 3] = -wts
+        else:
+            tk = taus[kidx]
+            J[:, 3] = -tk * (log_t[kidx] - p[4]) * wts
+            J[:, 4] = tk * p[3] * wts
+        return r, J
+
+    # tau start: the mean cos beta of each set at the start geometry
+    cb0 = cb_at(d)
+    tau0 = np.array([np.clip(np.mean(cb0[kidx == i]), 1e-3, 1 - 1e-9) for i in range(len(ts))])
+    if n_tau == 1:
+        q0 = tau0
+    else:  # fit log tau_k = (log t_k - log s) / n to the start levels
+        A = np.column_stack([log_t, -np.ones_like(log_t)])
+        inv_n, c = np.linalg.lstsq(A, np.log(tau0), rcond=None)[0]
+        inv_n = inv_n if inv_n > 0 else 1.0 / 50.0
+        q0 = np.array([inv_n, c / inv_n])
+    e1, e2 = plane_basis(n0)
+    p0 = np.concatenate([[0.0, 0.0, np.log(h0)], q0])
+    free = np.ones(len(p0), bool)
+    free[2] = np.linalg.norm(L) > 1e-9 * h0  # L = V: the image does not depend on h
+    x, nfev, conv, msg = _solve(resjac_at, p0, (n0, e1, e2), loss, f_scale_px, max_nfev, free)
+    n_hat = _normal_derivs(x, n0, e1, e2)[0]
+    h_hat = float(np.exp(x[2]))
+    q = x[3:]
+    if n_hat @ L + h_hat <= 0:
+        return LightAwareEstimate(name, "light_behind_plane", f"h = {h_hat:.4g} mm", n_evaluations=nfev)
+    return _finish(name, resjac_at, n_hat, h_hat, rig, q, TOL.isophote_noise_px, nfev, conv,
+                   roughness=None if n_tau == 1 else float(1.0 / q[0]),
+                   taus=taus_of(q), detail="" if conv else msg)
+
+
+# ------------------------------------------------------------------------------------------------
+# photometric fit
+
+
+def photometric_fit(values, origin_uv, bp_uv, camera, rig: LightRig, *,
+                    clip_level: float | None = None, nominal_depth_mm: float = 20.0,
+                    start_normal=None, start_roughness: float | None = None,
+                    loss: str = "linear", f_scale: float = 0.02, lobe_fraction: float = 0.02,
+                    max_pixels: int | None = 1500, max_nfev: int = 200) -> LightAwareEstimate:
+    """Fit the intensities of an ROI with the image of a plane lit by the whole rig.
+
+    Model (module docstring): ``I = g sum_j w_j max(0, cos beta_j)^n f_j p_j + b0 + b1 du + b2 dv``
+    per pixel centre; the linear parameters (g, b0, b1, b2) are solved for each value of the
+    nonlinear ones (a, b, log h, log n) by linear least squares (variable projection), and those
+    are fitted by :func:`scipy.optimize.least_squares`. Pixels at or above ``clip_level`` are left
+    out (a saturated plateau carries no shape). A two-light rig's merged highlight is one model.
+    The roughness starts from a log-log regression of the ROI's specular part on the start's
+    cos beta (``log(I - b) = log g + n log cos beta``), unless given.
+
+    Parameters
+    ----------
+    values : ndarray of shape (H, W)
+        ROI intensities (float, any unit).
+    origin_uv : array_like of shape (2,)
+        Pixel (u, v) of ``values[0, 0]`` in the image.
+    bp_uv : array_like of shape (2,)
+        Brightest point, undistorted px (for the start).
+    camera : array_like of shape (3, 3) or CameraModel
+        Intrinsics K, or a camera model with ``pixel_to_ray``.
+    rig : LightRig
+        The lights, camera frame, mm.
+    clip_level : float, optional
+        Pixels ``>= clip_level`` are left out (e.g. 255 for 8-bit); None keeps every pixel.
+    nominal_depth_mm : float
+        Depth of the BP assumed for the start's bisector, mm.
+    start_normal : array_like of shape (3,), optional
+        Start normal (e.g. from :func:`isocurve_fit`).
+    start_roughness : float, optional
+        Start Phong n.
+    loss : str
+        ``linear`` (Gaussian sensor noise), or ``soft_l1``, ``huber``, ``cauchy`` (reweighted).
+    f_scale : float
+        Soft margin of a robust loss, relative to the ROI's maximum.
+    lobe_fraction : float
+        Pixels above ``b + lobe_fraction (peak - b)`` (b the median of the ROI border) are all
+        fitted; the others are subsampled to about as many (the background carries little of the
+        geometry and most of the cost).
+    max_pixels : int or None
+        Keep every k-th selected pixel beyond this count (speed; None keeps all).
+    max_nfev : int
+        Evaluation budget.
+
+    Returns
+    -------
+    LightAwareEstimate
+        ``estimator="photometric_fit"``, with ``roughness``.
+
+    Raises
+    ------
+    ValueError
+        A values array that is not 2-D and finite.
+    """
+    vals = np.asarray(values, dtype=np.float64)
+    if vals.ndim != 2 or not np.isfinite(vals).all():
+        raise ValueError(f"values: need a finite (H, W) array, got shape {vals.shape}")
+    name = "photometric_fit"
+    camera = _camera(camera)
+    H, W = vals.shape
+    o = np.asarray(origin_uv, dtype=np.float64).reshape(2)
+    vv, uu = np.mgrid[0:H, 0:W]
+    keep = np.ones((H, W), bool) if clip_level is None else vals < clip_level
+    border = np.concatenate([vals[0], vals[-1], vals[:, 0], vals[:, -1]])
+    b_level = float(np.median(border))
+    peak = float(vals.max())
+    lobe = keep & (vals > b_level + lobe_fraction * (peak - b_level))
+    rest = keep & ~lobe
+    n_lobe, n_rest = int(np.count_nonzero(lobe)), int(np.count_nonzero(rest))
+    if n_rest > max(n_lobe, 16):  # background: about as many pixels as the lobe has
+        k = int(np.ceil(np.sqrt(n_rest / max(n_lobe, 16))))
+        grid = np.zeros_like(rest)
+        grid[::k, ::k] = True
+        rest &= grid
+    sel = np.flatnonzero(lobe | rest)
+    if max_pixels and len(sel) > max_pixels:
+        sel = sel[:: int(np.ceil(len(sel) / max_pixels))]
+    uv = np.column_stack([uu.ravel()[sel] + o[0], vv.ravel()[sel] + o[1]]).astype(np.float64)
+    y = vals.ravel()[sel]
+    if len(y) < 8 + 1:
+        return LightAwareEstimate(name, "too_few_points", f"{len(y)} unclipped pixels")
+    d = _rays(camera, uv)
+    rig_arr = _rig_arrays(rig)
+    bp = np.asarray(bp_uv, dtype=np.float64).reshape(2)
+    d_bp, n0, h0 = _start(bp, camera, rig, nominal_depth_mm, start_normal)
+    du = (uv[:, 0] - bp[0]) / max(W, H)
+    dv = (uv[:, 1] - bp[1]) / max(W, H)
+    ones = np.ones_like(du)
+    yscale = max(float(np.abs(y).max()), 1e-12)
+    yn = y / yscale
+
+    def resjac_at(p, nb, e1, e2):
+        n, dns = _normal_derivs(p, nb, e1, e2)
+        S, dS = _rig_image(d, n, dns, np.exp(p[2]), rig_arr, np.exp(p[3]))
+        g = p[4]
+        r = g * S + p[5] + p[6] * du + p[7] * dv - yn
+        J = np.column_stack([g * dS, S, ones, du, dv])
+        return r, J
+
+    if start_roughness is None:
+        S1 = _intensity(d, n0, h0, rig_arr, 1.0)  # cos beta times falloff and profile
+        spec = y - b_level
+        selr = (spec > 0.05 * spec.max()) & (S1 > 0)
+        rough0 = 50.0
+        if np.count_nonzero(selr) >= 3:
+            x = np.log(np.clip(S1[selr], 1e-12, None))
+            slope = np.polyfit(x, np.log(spec[selr]), 1)[0]
+            if np.isfinite(slope) and slope > 1:
+                rough0 = float(slope)
+    else:
+        rough0 = float(start_roughness)
+    S0 = _intensity(d, n0, h0, rig_arr, rough0)
+    lin0 = np.linalg.lstsq(np.column_stack([S0, ones, du, dv]), yn, rcond=None)[0]
+    e1, e2 = plane_basis(n0)
+    p0 = np.concatenate([[0.0, 0.0, np.log(h0), np.log(rough0)], lin0])
+    free = np.ones(len(p0), bool)
+    free[2] = np.abs(rig_arr[0]).max() > 1e-9 * h0  # all lights at V: the image does not depend on h
+    x, nfev, conv, msg = _solve(resjac_at, p0, (n0, e1, e2), loss, f_scale, max_nfev, free)
+    n_hat = _normal_derivs(x, n0, e1, e2)[0]
+    h_hat = float(np.exp(x[2]))
+    if np.any(n_hat @ rig_arr[0].T + h_hat <= 0):
+        return LightAwareEstimate(name, "light_behind_plane", f"h = {h_hat:.4g} mm", n_evaluations=nfev)
+    return _finish(name, resjac_at, n_hat, h_hat, rig, x[3:], TOL.photometric_noise_rel, nfev,
+                   conv, roughness=float(np.exp(x[3])), detail="" if conv else msg)

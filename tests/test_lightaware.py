@@ -1,0 +1,244 @@
+"""Light-aware estimators on exact images of planes lit off the camera centre."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from simtest.geometry import angle_between_deg, project_points
+from simtest.geometry.lights import Light, LightRig
+from simtest.reconstruct import reconstruct_roi
+from simtest.reconstruct import lightaware as la
+from simtest.reconstruct.isophote import extract_isophote
+from simtest.simulate.analytic import phong_plane_image
+from simtest.simulate.offset import rig_plane_image, specular_point
+from simtest.tolerances import TOL
+
+ISOVALUES = (0.3, 0.6)
+ROUGHNESS = 60.0
+
+
+def tilted_normal(tilt_deg: float, az_deg: float = 30.0) -> np.ndarray:
+    t, a = np.radians(tilt_deg), np.radians(az_deg)
+    return np.array([np.sin(t) * np.cos(a), np.sin(t) * np.sin(a), -np.cos(t)])
+
+
+def plane_case(h, tilt, rig, f=300.0, size=240, az=30.0):
+    """Exact image of a plane whose (first light's) specular point projects near the image centre."""
+    N = tilted_normal(tilt, az)
+    L = np.asarray(rig.lights[0].position_mm)
+    X, depth = specular_point(N, h, L)
+    K = np.array([[f, 0, 0], [0, f, 0], [0, 0, 1.0]])
+    x = project_points(X, K)
+    # the specular point lands between pixel centres, not on one
+    K[0, 2], K[1, 2] = (size - 1) / 2 - x[0] + 0.3, (size - 1) / 2 - x[1] - 0.2
+    img = rig_plane_image(K, (size, size), N, h, rig, ROUGHNESS)
+    return img, K, N, depth, project_points(X, K)
+
+
+def isophote_points(img, bp, isovalues=ISOVALUES):
+    peak = img.max()
+    out = []
+    for t in isovalues:
+        iso = extract_isophote(img, t * peak, bp)
+        assert iso, iso
+        out.append(la.refine_isophote_points(img, t * peak, iso.points_uv))
+    return out
+
+
+def roi_around(img, bp, half):
+    r0, c0 = int(max(bp[1] - half, 0)), int(max(bp[0] - half, 0))
+    r1, c1 = int(min(bp[1] + half + 1, img.shape[0])), int(min(bp[0] + half + 1, img.shape[1]))
+    return img[r0:r1, c0:c1], (c0, r0)
+
+
+def one_light(x_mm=3.0, falloff="none"):
+    return LightRig((Light((x_mm, 0.0, 0.0), 1.0, falloff),))
+
+
+# --- the simulator ---------------------------------------------------------------------------------
+
+
+@pytest.mark.parametrize("falloff", ["none", "inverse_square"])
+def test_rig_image_equals_one_light_closed_form(falloff):
+    rig = one_light(4.0, falloff)
+    K = np.array([[200.0, 0, 60.5], [0, 200.0, 50.5], [0, 0, 1]])
+    N = tilted_normal(35.0)
+    a = rig_plane_image(K, (100, 120), N, 30.0, rig, 40.0)
+    b = phong_plane_image(K, (100, 120), N, 30.0, 40.0, light_mm=(4.0, 0, 0), falloff=falloff != "none")
+    np.testing.assert_allclose(a, b, rtol=1e-10, atol=1e-14)
+
+
+def test_rig_image_sums_its_lights_with_profile():
+    K = np.array([[200.0, 0, 60.5], [0, 200.0, 50.5], [0, 0, 1]])
+    N = tilted_normal(20.0)
+    l1 = Light((2.0, 0.0, 0.0), 1.0, "inverse_square", 2.0)
+    l2 = Light((-2.0, 1.0, 0.5), 0.5, "none", 0.0)
+    both = rig_plane_image(K, (100, 120), N, 25.0, LightRig((l1, l2)), 50.0)
+    one = rig_plane_image(K, (100, 120), N, 25.0, LightRig((l1,)), 50.0)
+    two = rig_plane_image(K, (100, 120), N, 25.0, LightRig((l2,)), 50.0)
+    np.testing.assert_allclose(both, one + two, rtol=1e-12)
+    # the estimators' own model (an independent derivation) gives the same image
+    rays = la._rays(K, np.stack(np.meshgrid(np.arange(120.0), np.arange(100.0)), -1).reshape(-1, 2))
+    model = la.plane_rig_intensity(rays, N, 25.0, LightRig((l1, l2)), 50.0).reshape(100, 120)
+    np.testing.assert_allclose(model, both, rtol=1e-9, atol=1e-14)
+
+
+def test_specular_point_is_the_peak_without_falloff():
+    img, K, N, depth, bp = plane_case(20.0, 30.0, one_light())
+    assert np.isclose(img.max(), 1.0, atol=1e-3)
+    peak = np.array(np.unravel_index(np.argmax(img), img.shape)[::-1])
+    assert np.all(np.abs(peak - bp) <= 0.5 + 1e-9)
+
+
+# --- the model's derivatives -------------------------------------------------------------------------
+
+
+@settings(max_examples=25, deadline=None)
+@given(tilt=st.floats(0, 60), az=st.floats(0, 360), h=st.floats(5, 80),
+       lx=st.floats(-5, 5), ly=st.floats(-5, 5), rough=st.floats(5, 120), m=st.floats(0, 3))
+def test_analytic_jacobian_matches_finite_differences(tilt, az, h, lx, ly, rough, m):
+    rig = LightRig((Light((lx, ly, 0.5), 1.0, "inverse_square", m), Light((-ly, lx, 0.0), 0.7, "none")))
+    arr = la._rig_arrays(rig)
+    n0 = tilted_normal(tilt, az)
+    e1, e2 = la.plane_basis(n0)
+    rng = np.random.default_rng(0)
+    rays = np.column_stack([rng.uniform(-0.3, 0.3, (40, 2)), np.ones(40)]) - 0.2 * n0
+    rays /= np.linalg.norm(rays, axis=1, keepdims=True)
+    p = np.array([0.01, -0.02, np.log(h), np.log(rough)])
+
+    def S(q):
+        n, dns = la._normal_derivs(q, n0, e1, e2)
+        return la._rig_image(rays, n, dns, np.exp(q[2]), arr, np.exp(q[3]))
+
+    s0, dS = S(p)
+    for k in range(4):
+        dp = np.zeros(4)
+        dp[k] = 1e-6
+        fd = (S(p + dp)[0] - S(p - dp)[0]) / 2e-6
+        np.testing.assert_allclose(dS[:, k], fd, rtol=1e-4, atol=1e-7 * max(1.0, np.abs(s0).max()))
+
+
+# --- bisector ----------------------------------------------------------------------------------------
+
+
+@settings(max_examples=40, deadline=None)
+@given(tilt=st.floats(0, 60), az=st.floats(0, 360), h=st.floats(5, 80),
+       lx=st.floats(-6, 6), ly=st.floats(-6, 6), lz=st.floats(-2, 2))
+def test_bisector_is_exact_with_the_true_depth(tilt, az, h, lx, ly, lz):
+    N = tilted_normal(tilt, az)
+    rig = LightRig((Light((lx, ly, lz)),))
+    if N @ np.array([lx, ly, lz]) + h <= 0.5:
+        return
+    X, depth = specular_point(N, h, (lx, ly, lz))
+    K = np.array([[300.0, 0, 200], [0, 300.0, 150], [0, 0, 1]])
+    est = la.bisector(project_points(X, K), K, rig, depth)
+    assert angle_between_deg(est.normal, N) < 1e-6
+    # the start's closed form: the plane distance putting the specular point on the BP ray
+    # (determined when the light is off the camera and the normal off the BP ray)
+    b = la.unit(X)
+    if np.linalg.norm([lx, ly, lz]) > 0.5 and np.linalg.norm(np.cross(b, N)) > 0.05:
+        assert np.isclose(la._distance_for_bp(b, N, np.array([lx, ly, lz])), h, rtol=1e-6)
+
+
+def test_bisector_colocated_is_the_bp_ray_at_any_depth():
+    K = np.array([[300.0, 0, 200], [0, 300.0, 150], [0, 0, 1]])
+    ray = la._rays(K, [[250.0, 100.0]])[0]
+    for depth in (1.0, 20.0, 300.0):
+        est = la.bisector([250.0, 100.0], K, LightRig.colocated(), depth)
+        assert angle_between_deg(est.normal, -ray) < 1e-9
+
+
+def test_bisector_reads_a_depth_map_and_names_bad_input():
+    K = np.array([[300.0, 0, 20], [0, 300.0, 15], [0, 0, 1]])
+    depth_map = np.full((30, 40), 25.0)
+    a = la.bisector([10.0, 12.0], K, one_light(), depth_map)
+    b = la.bisector([10.0, 12.0], K, one_light(), 25.0)
+    assert np.allclose(a.normal, b.normal) and a.depth_mm == 25.0
+    with pytest.raises(ValueError, match="outside the depth map"):
+        la.bisector([100.0, 12.0], K, one_light(), depth_map)
+    with pytest.raises(ValueError, match="depth_mm"):
+        la.bisector([10.0, 12.0], K, one_light(), -1.0)
+
+
+# --- must hold: exact images, 10 to 60 mm, tilts 0 to 50 deg, one light 3 mm off -----------------
+
+GRID = [(10.0, 0.0), (10.0, 50.0), (25.0, 25.0), (60.0, 0.0), (60.0, 50.0), (40.0, 35.0)]
+
+
+@pytest.mark.parametrize("h,tilt", GRID)
+def test_isocurve_fit_exact_plane(h, tilt):
+    rig = one_light(3.0, "none")  # without falloff eq. 2 is exact
+    img, K, N, depth, bp = plane_case(h, tilt, rig)
+    est = la.isocurve_fit(isophote_points(img, bp), ISOVALUES, bp, K, rig)
+    assert est.ok, (est.status, est.detail)
+    assert angle_between_deg(est.normal, N) < TOL.exact_image_normal_deg
+    assert abs(est.depth_mm / depth - 1) < TOL.exact_image_depth_rel
+    assert np.isclose(est.roughness, ROUGHNESS, rtol=1e-3)
+
+
+@pytest.mark.parametrize("h,tilt", GRID)
+def test_photometric_fit_exact_plane_with_falloff(h, tilt):
+    rig = one_light(3.0, "inverse_square")
+    img, K, N, depth, bp = plane_case(h, tilt, rig)
+    roi, origin = roi_around(img, bp, 60)
+    est = la.photometric_fit(roi, origin, bp, K, rig)
+    assert est.ok, (est.status, est.detail)
+    assert angle_between_deg(est.normal, N) < TOL.exact_image_normal_deg
+    assert abs(est.depth_mm / depth - 1) < TOL.exact_image_depth_rel
+    assert np.isclose(est.roughness, ROUGHNESS, rtol=1e-6)
+
+
+def test_photometric_fit_leaves_out_clipped_pixels():
+    rig = one_light(3.0, "inverse_square")
+    img, K, N, depth, bp = plane_case(25.0, 25.0, rig)
+    clipped = np.minimum(img * 1.6, 1.0)  # a saturated plateau at the top of the lobe
+    roi, origin = roi_around(clipped, bp, 60)
+    est = la.photometric_fit(roi, origin, bp, K, rig, clip_level=1.0)
+    assert est.ok and angle_between_deg(est.normal, N) < TOL.exact_image_normal_deg
+    assert abs(est.depth_mm / depth - 1) < TOL.exact_image_depth_rel
+
+
+def test_two_light_merged_highlight_photometric_fit():
+    # two light guides 2.5 mm either side of the lens: at 30 mm their lobes merge into one blob
+    rig = LightRig((Light((2.5, 0.0, 0.0)), Light((-2.5, 0.0, 0.0))))
+    img, K, N, depth, bp = plane_case(30.0, 20.0, rig)
+    roi, origin = roi_around(img, bp, 70)
+    # one merged blob: the isophote at half the peak is a single closed contour
+    assert extract_isophote(img, 0.5 * img.max(), project_points(la.unit(-N), K))
+    bp_img = np.array(np.unravel_index(np.argmax(img), img.shape)[::-1], dtype=float)
+    est = la.photometric_fit(roi, origin, bp_img, K, rig)
+    assert est.has_normal and angle_between_deg(est.normal, N) < TOL.exact_image_normal_deg
+    # the depth reported is that of the rig's mean light (here the camera centre): not observable
+    # from the mean alone, but the two lights' spread fixes the scale
+    Xm, dm = specular_point(N, 30.0, (0.0, 0.0, 0.0))
+    assert est.depth_mm is not None and abs(est.depth_mm / dm - 1) < TOL.exact_image_depth_rel
+
+
+# --- epsilon = 0 -----------------------------------------------------------------------------------
+
+
+@pytest.mark.parametrize("tilt", [0.0, 30.0])
+def test_colocated_depth_is_null_and_normal_as_good_as_cone_axis(tilt):
+    rig = LightRig((Light(falloff="none"),))
+    img, K, N, depth, bp = plane_case(20.0, tilt, rig)
+    cone = reconstruct_roi(img, K, ISOVALUES, bp_uv=bp)
+    cone_err = angle_between_deg(cone.cone_axis, N)
+    for est in (la.isocurve_fit(isophote_points(img, bp), ISOVALUES, bp, K, rig),
+                la.photometric_fit(*roi_around(img, bp, 60), bp, K, rig)):
+        assert est.status == "depth_not_observable", est
+        assert est.depth_mm is None and est.distance_mm is None
+        assert angle_between_deg(est.normal, N) <= cone_err + TOL.exact_image_normal_deg
+
+
+def test_isocurve_fit_refuses_a_two_light_rig_and_names_bad_input():
+    rig = LightRig((Light((2.0, 0, 0)), Light((-2.0, 0, 0))))
+    K = np.eye(3)
+    est = la.isocurve_fit([np.zeros((10, 2))], [0.5], [0.0, 0.0], K, rig)
+    assert est.status == "multi_light_rig" and not est.has_normal
+    with pytest.raises(ValueError, match="isovalues"):
+        la.isocurve_fit([np.zeros((10, 2))], [1.5], [0.0, 0.0], K, one_light())
+    with pytest.raises(ValueError, match="one point set per isovalue"):
+        la.isocurve_fit([np.zeros((10, 2))], [0.2, 0.5], [0.0, 0.0], K, one_light())
