@@ -5,22 +5,13 @@ Endoscopic Setting": under Phong's specular model with a point light co-located 
 the specular isophotes on a locally planar patch are concentric circles, imaged as nested ellipses,
 and one ellipse gives the patch normal.
 
-Conventions (see DESIGN.md): OpenCV camera frame (x right, y down, z forward); normals are unit
+Conventions (the README's Conventions section): OpenCV camera frame (x right, y down, z forward); normals are unit
 vectors in the camera frame facing the camera; pixel centres at integer (u, v) coordinates; lengths
 in millimetres; angles in degrees at interfaces and radians inside.
 """
 
 from __future__ import annotations
 
-__version__ = "0.1.0"
+from simtest._version import __version__
 
-__all__ = ["__version__", "reconstruct"]
-
-
-def __getattr__(name: str):
-    # Lazy so that `import simtest` stays cheap (the CLI imports it on every call).
-    if name == "reconstruct":
-        from simtest.reconstruct.pipeline import reconstruct
-
-        return reconstruct
-    raise AttributeError(f"module 'simtest' has no attribute {name!r}")
+__all__ = ["__version__"]

@@ -9,6 +9,8 @@ from __future__ import annotations
 
 import typer
 
+from simtest._version import __version__
+
 app = typer.Typer(
     name="simtest",
     help="Testbed for normal reconstruction from specular isophotes in endoscopy.",
@@ -21,8 +23,6 @@ app = typer.Typer(
 @app.command("version")
 def version_command() -> None:
     """Print the simtest version."""
-    from simtest import __version__
-
     typer.echo(__version__)
 
 

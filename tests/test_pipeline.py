@@ -97,13 +97,15 @@ def test_rgb_and_gray_agree():
     assert angle_between_deg(a.cone_axis, b.cone_axis) < 1e-6
 
 
-def test_module_is_callable_like_the_function():
-    K = intrinsics(300, 200)
-    g = phong_plane_image(K, (200, 200), tilted_normal(8, 30), 500.0, 80)
-    assert simtest.reconstruct(g, K, 0.2)[0].ok
+def test_the_function_is_simtest_reconstruct_reconstruct_and_the_package_is_a_plain_module():
+    import types
+
     import simtest.reconstruct as mod
 
-    assert mod(g, K, 0.2)[0].ok
+    K = intrinsics(300, 200)
+    g = phong_plane_image(K, (200, 200), tilted_normal(8, 30), 500.0, 80)
+    assert simtest.reconstruct.reconstruct(g, K, 0.2)[0].ok
+    assert type(mod) is types.ModuleType and not callable(mod)
 
 
 def test_distortion_undistorts_contour_points_before_the_fit():
@@ -154,13 +156,13 @@ def blob(shape=(100, 100), centre=(50, 50), sigma=6.0):
         (dict(K=np.diag([np.nan, 1.0, 1.0])), "K"),
         (dict(K=intrinsics(-300, 100)), "K"),
         (dict(K=np.eye(2)), "K"),
-        (dict(isovalue=0.0), "isovalue"),
-        (dict(isovalue=1.0), "isovalue"),
-        (dict(isovalue=-0.1), "isovalue"),
-        (dict(isovalue=float("nan")), "isovalue"),
-        (dict(isovalue=[0.1, 1.2]), "isovalue"),
-        (dict(isovalue=[]), "isovalue"),
-        (dict(isovalue="high"), "isovalue"),
+        (dict(isovalues=0.0), "isovalues"),
+        (dict(isovalues=1.0), "isovalues"),
+        (dict(isovalues=-0.1), "isovalues"),
+        (dict(isovalues=float("nan")), "isovalues"),
+        (dict(isovalues=[0.1, 1.2]), "isovalues"),
+        (dict(isovalues=[]), "isovalues"),
+        (dict(isovalues="high"), "isovalues"),
         (dict(normalise="max"), "normalise"),
         (dict(dist_coeffs=[0.1, 0.2]), "dist_coeffs"),
         (dict(dist_coeffs=[np.inf, 0, 0, 0]), "dist_coeffs"),
@@ -171,7 +173,7 @@ def blob(shape=(100, 100), centre=(50, 50), sigma=6.0):
 )
 @pytest.mark.parametrize("entry", [reconstruct, reconstruct_roi])
 def test_bad_input_raises_value_error(entry, kwargs, match):
-    args = dict(image=blob(), K=GOOD_K, isovalue=0.3)
+    args = dict(image=blob(), K=GOOD_K, isovalues=0.3)
     args.update(kwargs)
     image, K = args.pop("image"), args.pop("K")
     with pytest.raises(ValueError, match=match):

@@ -7,18 +7,14 @@ on real endoscopic images. Entry points:
 - :func:`reconstruct_roi` (one known highlight, e.g. a simulated image with known BP and ROI),
 - :func:`detect_specularities`, :func:`extract_isophote`, :func:`fit_ellipse` and the estimators
   in :mod:`simtest.reconstruct.estimators`, for use step by step,
-- :func:`write_estimates` / :func:`read_estimates` for ``estimates.json``.
+- :func:`write_estimates` / :func:`read_estimates` for ``estimates.json``,
+- :class:`ReconSettings`, every setting of the reconstruction in one frozen, validated value.
 
-The module itself is callable: ``simtest.reconstruct(image, K, ...)`` is
-:func:`simtest.reconstruct.pipeline.reconstruct` (``import simtest`` resolves the name lazily to
-the function, but once this subpackage is imported the attribute is the module; making the module
-callable keeps ``simtest.reconstruct(...)`` working either way).
+The function is ``simtest.reconstruct.reconstruct`` (``from simtest.reconstruct import
+reconstruct``); ``simtest.reconstruct`` is this package, not a callable.
 """
 
 from __future__ import annotations
-
-import sys
-import types
 
 from simtest.reconstruct._pixels import Roi, rc_to_uv, uv_to_rc
 from simtest.reconstruct.detect import Candidate, Detection, detect_specularities
@@ -38,6 +34,7 @@ from simtest.reconstruct.pipeline import (
     reconstruct,
     reconstruct_roi,
 )
+from simtest.reconstruct.settings import Normalisation, ReconSettings
 
 __all__ = [
     "REASONS",
@@ -49,6 +46,8 @@ __all__ = [
     "Failure",
     "Isophote",
     "IsophoteEstimate",
+    "Normalisation",
+    "ReconSettings",
     "Roi",
     "SpecularityEstimate",
     "detect_specularities",
@@ -65,10 +64,3 @@ __all__ = [
     "write_estimates",
 ]
 
-
-class _CallableModule(types.ModuleType):
-    def __call__(self, *args, **kwargs):
-        return reconstruct(*args, **kwargs)
-
-
-sys.modules[__name__].__class__ = _CallableModule

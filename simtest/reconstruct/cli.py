@@ -75,7 +75,7 @@ def reconstruct_command(
     out: Path = typer.Option(
         Path("."), "--out", "-o", help="Output folder for estimates.json and overlay.png."
     ),
-    isovalue: list[float] = typer.Option(
+    isovalues: list[float] = typer.Option(
         [0.1], "--isovalue", "-t", help="Isovalue in (0, 1) relative to the BP; repeat for nested isophotes."
     ),
     normalise: str = typer.Option("bp", help="Intensity normalisation: bp (the paper's: t relative to the BP), full_scale, or local (t relative to the BP's height above the median of the ROI border: for highlights on bright tissue)."),
@@ -108,15 +108,15 @@ def reconstruct_command(
             raise InputError(f"--out must be a folder; {out} is a file")
         from simtest.reconstruct.io import write_estimates
         from simtest.reconstruct.pipeline import reconstruct
+        from simtest.reconstruct.settings import ReconSettings
 
-        estimates = reconstruct(
-            img, intr.K, isovalue, dist_coeffs=intr.dist_coeffs, normalise=normalise,
-            allow_open=allow_open, smooth_sigma_px=smooth_sigma_px,
-        )
+        settings = ReconSettings(isovalues=isovalues, normalise=normalise, allow_open=allow_open,
+                                 smooth_sigma_px=smooth_sigma_px)
+        estimates = reconstruct(img, intr.K, dist_coeffs=intr.dist_coeffs, settings=settings)
         json_path = write_estimates(
             out / "estimates.json", estimates, K=intr.K, image=image, image_shape=img.shape,
-            dist_coeffs=intr.dist_coeffs, isovalues=isovalue, normalise=normalise,
-            include_points=points,
+            dist_coeffs=intr.dist_coeffs, isovalues=settings.isovalues,
+            normalise=settings.normalise.value, include_points=points,
         )
         if overlay:
             from simtest.reconstruct.overlay import draw_overlay

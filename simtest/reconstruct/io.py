@@ -68,6 +68,7 @@ from pathlib import Path
 import numpy as np
 
 from simtest._io import atomic_write_json
+from simtest._version import __version__
 
 SCHEMA_VERSION = 1
 
@@ -202,8 +203,6 @@ def estimates_document(estimates, *, K, image=None, image_shape=None, dist_coeff
         ``isovalues``, ``normalise``, ``conventions`` and ``specularities`` (one
         :func:`estimate_to_dict` each).
     """
-    from simtest import __version__
-
     return {
         "schema": SCHEMA_VERSION,
         "simtest_version": __version__,

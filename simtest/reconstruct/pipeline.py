@@ -54,8 +54,10 @@ from __future__ import annotations
 from collections.abc import Sequence
 from dataclasses import dataclass
 
+import cv2
 import numpy as np
 
+from simtest.geometry.camera import undistort_points, validate_intrinsics
 from simtest.reconstruct._pixels import Roi, rc_to_uv, uv_to_rc
 from simtest.reconstruct.detect import (
     default_full_scale,
@@ -68,8 +70,8 @@ from simtest.reconstruct.estimators import estimate_from_conic, joint_cone_axis
 from simtest.reconstruct.failures import OK, Failure
 from simtest.reconstruct.fit import fit_ellipse
 from simtest.reconstruct.isophote import MIN_CONTOUR_POINTS, extract_isophote, polygon_contains
+from simtest.reconstruct.settings import Normalisation, ReconSettings
 
-NORMALISE_MODES = ("bp", "full_scale", "local")
 #: ROI growth when the lowest isophote is cut by a ROI side inside the image.
 ROI_GROWTH_FACTOR = 2.0
 ROI_MAX_GROWTHS = 4
@@ -228,40 +230,6 @@ class SpecularityEstimate:
 # argument checks
 
 
-def validate_isovalues(isovalue) -> tuple[float, ...]:
-    """Check the isovalue argument.
-
-    Parameters
-    ----------
-    isovalue : float or sequence of float
-        One isovalue or several; each must be finite and strictly inside (0, 1).
-
-    Returns
-    -------
-    tuple of float
-        The isovalues in the order given (at least one).
-
-    Raises
-    ------
-    ValueError
-        If the sequence is empty, or a value is not a number or lies outside (0, 1); the message
-        starts with ``isovalue:`` and shows the value.
-    """
-    vals = [isovalue] if np.ndim(isovalue) == 0 else list(np.asarray(isovalue).ravel())
-    if not vals:
-        raise ValueError("isovalue: an empty sequence was given; need at least one t in (0, 1)")
-    out = []
-    for v in vals:
-        try:
-            t = float(v)
-        except (TypeError, ValueError):
-            raise ValueError(f"isovalue: {v!r} is not a number") from None
-        if not (np.isfinite(t) and 0.0 < t < 1.0):
-            raise ValueError(f"isovalue: {t!r} is outside the open interval (0, 1)")
-        out.append(t)
-    return tuple(out)
-
-
 def validate_dist_coeffs(dist_coeffs) -> np.ndarray | None:
     """Check OpenCV distortion coefficients.
 
@@ -290,15 +258,34 @@ def validate_dist_coeffs(dist_coeffs) -> np.ndarray | None:
     return d if np.any(d) else None
 
 
-def _check_common(image, K, isovalue, normalise, dist_coeffs):
-    from simtest.geometry.camera import validate_intrinsics
+@dataclass(frozen=True)
+class _Frame:
+    """One image as the pipeline sees it, checked once: the image, its camera and the settings.
 
-    img = validate_image(image)
-    K = validate_intrinsics(K, where="K")
-    isovalues = validate_isovalues(isovalue)
-    if normalise not in NORMALISE_MODES:
-        raise ValueError(f"normalise: {normalise!r} is not one of {NORMALISE_MODES}")
-    return img, K, isovalues, validate_dist_coeffs(dist_coeffs)
+    ``full_scale`` and ``saturation_level`` are the settings' values resolved for this image's
+    dtype (:func:`~simtest.reconstruct.detect.default_full_scale`; the integer dtype maximum).
+    """
+
+    img: np.ndarray
+    K: np.ndarray
+    dist: np.ndarray | None
+    settings: ReconSettings
+    full_scale: float
+    saturation_level: float | None
+
+    @classmethod
+    def make(cls, image, K, dist_coeffs, settings: ReconSettings) -> _Frame:
+        img = validate_image(image)
+        K = validate_intrinsics(K, where="K")
+        fs = default_full_scale(img) if settings.full_scale is None else settings.full_scale
+        sat = settings.saturation_level
+        if sat is None and img.dtype.kind == "u":
+            sat = float(np.iinfo(img.dtype).max)
+        return cls(img, K, validate_dist_coeffs(dist_coeffs), settings, fs, sat)
+
+    def undistort(self, uv: np.ndarray) -> np.ndarray:
+        """Pixel points (N, 2) without lens distortion (the points themselves when there is none)."""
+        return uv if self.dist is None else undistort_points(uv, self.K, self.dist)
 
 
 # ------------------------------------------------------------------------------------------------
@@ -329,8 +316,6 @@ def _bp_ray(bp_uv: np.ndarray, K: np.ndarray) -> np.ndarray:
 def _roi_values(img: np.ndarray, roi: Roi, smooth_sigma_px: float) -> np.ndarray:
     vals = luma(img[roi.slices])
     if smooth_sigma_px > 0:
-        import cv2
-
         vals = cv2.GaussianBlur(vals, (0, 0), smooth_sigma_px, borderType=cv2.BORDER_REFLECT)
     return vals
 
@@ -351,8 +336,6 @@ def _find_bp(img: np.ndarray, roi: Roi, saturation_level) -> tuple[np.ndarray, b
         if sat.ndim == 3:
             sat = sat.all(axis=2)
         if sat[r, c]:
-            import cv2
-
             _, lab = cv2.connectedComponents(sat.view(np.uint8), connectivity=8)
             rr, cc = np.nonzero(lab == lab[r, c])
             return rc_to_uv([rr.mean(), cc.mean()], roi.row0, roi.col0), True
@@ -365,26 +348,44 @@ def _border_median(vals: np.ndarray) -> float:
     return float(np.median(ring))
 
 
-def _one_isophote(vals, roi, img_shape, level_scale, t, bp_uv, K, dist, bp_ray, allow_open,
-                  level_offset=0.0):
-    from simtest.geometry.camera import undistort_points
+@dataclass(frozen=True)
+class _Levels:
+    """Contour level of isovalue t in one ROI: ``offset + t * scale`` (image units)."""
+
+    scale: float
+    offset: float = 0.0
+
+    @classmethod
+    def of(cls, frame: _Frame, vals: np.ndarray, i_bp: float) -> _Levels:
+        mode = frame.settings.normalise
+        if mode == Normalisation.BP:
+            return cls(i_bp)
+        if mode == Normalisation.LOCAL:
+            offset = min(_border_median(vals), i_bp)
+            return cls(i_bp - offset, offset)
+        return cls(frame.full_scale)
+
+    def level(self, t: float) -> float:
+        return self.offset + t * self.scale
+
+
+def _one_isophote(frame: _Frame, vals, roi, levels: _Levels, t, bp_uv, bp_ray):
     iso = extract_isophote(
-        vals, level_offset + t * level_scale, bp_uv, origin_rc=(roi.row0, roi.col0), image_shape=img_shape,
+        vals, levels.level(t), bp_uv, origin_rc=(roi.row0, roi.col0), image_shape=frame.img.shape,
         allow_open=True, min_points=0,
     )
     if not iso:
         return IsophoteEstimate(t, iso.reason, iso.detail), None
-    if iso.cut and not allow_open:
+    if iso.cut and not frame.settings.allow_open:
         where = "image border" if iso.cut_by_image else "ROI border"
         return IsophoteEstimate(t, "contour_cut", f"cut by the {where}", iso.points_uv, False), iso
     if len(iso.points_uv) < MIN_CONTOUR_POINTS:
         return IsophoteEstimate(t, "too_few_points", f"{len(iso.points_uv)} contour points < "
                                 f"{MIN_CONTOUR_POINTS}", iso.points_uv, iso.closed), iso
-    pts = iso.points_uv if dist is None else undistort_points(iso.points_uv, K, dist)
-    fit = fit_ellipse(pts)
+    fit = fit_ellipse(frame.undistort(iso.points_uv))
     if not fit:
         return IsophoteEstimate(t, fit.reason, fit.detail, iso.points_uv, iso.closed), iso
-    cn = _normalised_conic(fit.conic, K)
+    cn = _normalised_conic(fit.conic, frame.K)
     if cn is None:
         return IsophoteEstimate(t, "pose_failed", "C' = K^T C K is zero or not finite",
                                 iso.points_uv, iso.closed), iso
@@ -401,42 +402,32 @@ def _one_isophote(vals, roi, img_shape, level_scale, t, bp_uv, K, dist, bp_ray, 
     ), iso
 
 
-def _estimate_one(img, K, dist, isovalues, bp_uv, roi, *, saturated, normalise, full_scale,
-                  allow_open, smooth_sigma_px, grow, other_bps=()):
-    from simtest.geometry.camera import undistort_points
-
+def _estimate_one(frame: _Frame, bp_uv, roi: Roi, *, saturated: bool, grow: bool,
+                  other_bps=()) -> SpecularityEstimate:
+    isovalues = frame.settings.isovalues
+    sigma = frame.settings.smooth_sigma_px
     bp_uv = np.asarray(bp_uv, dtype=np.float64)
-    bp_und = bp_uv if dist is None else undistort_points(bp_uv[None], K, dist)[0]
-    bp_ray = _bp_ray(bp_und, K)
+    bp_ray = _bp_ray(frame.undistort(bp_uv[None])[0], frame.K)
     # Lowest isovalue first: the widest contour decides the ROI size.
     order = sorted(range(len(isovalues)), key=lambda i: isovalues[i])
     results: list = [None] * len(isovalues)
     growths = 0
     while True:
-        vals = _roi_values(img, roi, smooth_sigma_px)
+        vals = _roi_values(frame.img, roi, sigma)
         i_bp = _bp_intensity(vals, roi, bp_uv)
-        offset = 0.0
-        if normalise == "bp":
-            scale = i_bp
-        elif normalise == "local":
-            offset = min(_border_median(vals), i_bp)
-            scale = i_bp - offset
-        else:
-            scale = full_scale
+        levels = _Levels.of(frame, vals, i_bp)
         i0 = order[0]
-        res, iso = _one_isophote(vals, roi, img.shape, scale, isovalues[i0], bp_uv, K, dist, bp_ray,
-                                 allow_open, offset)
+        res, iso = _one_isophote(frame, vals, roi, levels, isovalues[i0], bp_uv, bp_ray)
         if grow and iso is not None and iso.cut_by_roi and growths < ROI_MAX_GROWTHS:
             half = ROI_GROWTH_FACTOR * max(roi.shape) / 2.0
-            new = Roi.around(bp_uv, half, img.shape)
+            new = Roi.around(bp_uv, half, frame.img.shape)
             if new != roi:
                 roi, growths = new, growths + 1
                 continue
         results[i0] = res
         break
     for i in order[1:]:
-        results[i], _ = _one_isophote(vals, roi, img.shape, scale, isovalues[i], bp_uv, K, dist,
-                                      bp_ray, allow_open, offset)
+        results[i], _ = _one_isophote(frame, vals, roi, levels, isovalues[i], bp_uv, bp_ray)
 
     primary = results[0]
     status, detail = primary.status, primary.detail
@@ -456,7 +447,7 @@ def _estimate_one(img, K, dist, isovalues, bp_uv, roi, *, saturated, normalise, 
     return SpecularityEstimate(bp_uv, i_bp, saturated, roi, status, detail, bp_ray, tuple(results), joint)
 
 
-def _initial_roi(cand, bp_uv, threshold, t_min, normalise, full_scale, shape) -> Roi:
+def _initial_roi(cand, bp_uv, threshold, frame: _Frame) -> Roi:
     """ROI expected to hold the lowest isophote, from the size of the bright component.
 
     Model: a Gaussian-like lobe I = P exp(-r^2 / (2 s^2)) has radius ``s sqrt(2 ln(P / L))`` at
@@ -464,13 +455,15 @@ def _initial_roi(cand, bp_uv, threshold, t_min, normalise, full_scale, shape) ->
     component (clamped to [1, 8]; a clipped highlight makes this an over-estimate). Too small an
     ROI is grown by the pipeline; this only saves the retries.
     """
+    t_min = min(frame.settings.isovalues)
     peak = max(cand.peak, threshold * (1 + 1e-6), np.finfo(float).tiny)
-    level = t_min * (full_scale if normalise == "full_scale" else peak)
+    full = frame.settings.normalise == Normalisation.FULL_SCALE
+    level = t_min * (frame.full_scale if full else peak)
     num = np.log(peak / level) if level > 0 else 1.0
     den = np.log(peak / threshold) if threshold > 0 else 1.0
     ratio = float(np.clip(np.sqrt(max(num, 0.0) / max(den, 1e-6)), 1.0, 8.0))
     radius = max(cand.bbox.shape) / 2.0
-    return Roi.around(bp_uv, 1.2 * ratio * radius + 4.0, shape)
+    return Roi.around(bp_uv, 1.2 * ratio * radius + 4.0, frame.img.shape)
 
 
 # ------------------------------------------------------------------------------------------------
@@ -480,16 +473,13 @@ def _initial_roi(cand, bp_uv, threshold, t_min, normalise, full_scale, shape) ->
 def reconstruct_roi(
     image,
     K,
-    isovalue: float | Sequence[float] = 0.1,
+    isovalues: float | Sequence[float] | None = None,
     *,
     bp_uv=None,
     roi=None,
     dist_coeffs=None,
-    normalise: str = "bp",
-    allow_open: bool = False,
-    smooth_sigma_px: float = 0.0,
-    full_scale: float | None = None,
-    saturation_level: float | None = None,
+    settings: ReconSettings | None = None,
+    **options,
 ) -> SpecularityEstimate:
     """Reconstruct the normal of one known highlight.
 
@@ -499,10 +489,9 @@ def reconstruct_roi(
         uint8, uint16 or float image, RGB.
     K : array_like of shape (3, 3)
         Intrinsics (pixel centres at integer coordinates).
-    isovalue : float or sequence of float
-        Isovalue(s) t in (0, 1), relative to the BP intensity (``normalise="bp"``), to
-        ``full_scale`` (``normalise="full_scale"``), or to the BP's height above the local diffuse
-        level (``normalise="local"``, see the module docstring). The first is the primary.
+    isovalues : float or sequence of float, optional
+        Isovalue(s) t in (0, 1); the first is the primary. Default those of ``settings``
+        (``ReconSettings().isovalues = (0.1,)``).
     bp_uv : array_like of shape (2,), optional
         Brightest point (u, v) px; default the brightest pixel of the ROI (sub-pixel refined), or
         the centroid of its saturated plateau.
@@ -510,15 +499,12 @@ def reconstruct_roi(
         Half-open array-index region searched; default the whole image. Not grown.
     dist_coeffs : array_like, optional
         OpenCV distortion coefficients; contour points and BP are undistorted before use.
-    normalise : {"bp", "full_scale", "local"}
-        Intensity normalisation (the paper's is "bp"; "local" subtracts the median of the ROI
-        border, for highlights on a bright diffuse background such as real tissue).
-    allow_open : bool
-        Fit an isophote cut by the ROI or image border (flagged ``closed=False``).
-    smooth_sigma_px : float
-        Gaussian smoothing of the ROI before contouring (0: none; the paper smooths noisy images).
-    full_scale, saturation_level : float, optional
-        As in :func:`~simtest.reconstruct.detect.detect_specularities`.
+    settings : ReconSettings, optional
+        The reconstruction settings (default ``ReconSettings()``).
+    **options
+        Fields of :class:`~simtest.reconstruct.settings.ReconSettings` to change (``normalise``,
+        ``allow_open``, ``smooth_sigma_px``, ``full_scale``, ``saturation_level``; the detection
+        limits are not used here).
 
     Returns
     -------
@@ -530,17 +516,14 @@ def reconstruct_roi(
     Raises
     ------
     ValueError
-        Bad image, K, isovalue, ROI, BP, normalise, smooth_sigma_px or dist_coeffs.
+        Bad image, K, ROI, BP or dist_coeffs, or a bad or unknown setting.
     """
-    img, K, isovalues, dist = _check_common(image, K, isovalue, normalise, dist_coeffs)
-    if not (np.isfinite(smooth_sigma_px) and smooth_sigma_px >= 0):
-        raise ValueError(f"smooth_sigma_px must be finite and >= 0, got {smooth_sigma_px!r}")
+    settings = ReconSettings.make(settings, isovalues, **options)
+    frame = _Frame.make(image, K, dist_coeffs, settings)
+    img = frame.img
     roi = Roi(0, img.shape[0], 0, img.shape[1]) if roi is None else Roi.coerce(roi, img.shape)
-    fs = default_full_scale(img) if full_scale is None else float(full_scale)
-    if saturation_level is None and img.dtype.kind == "u":
-        saturation_level = float(np.iinfo(img.dtype).max)
     if bp_uv is None:
-        bp, saturated = _find_bp(img, roi, saturation_level)
+        bp, saturated = _find_bp(img, roi, frame.saturation_level)
     else:
         bp = np.asarray(bp_uv, dtype=np.float64).reshape(-1)
         if bp.shape != (2,) or not np.isfinite(bp).all():
@@ -549,26 +532,18 @@ def reconstruct_roi(
         if not (roi.row0 <= r < roi.row1 and roi.col0 <= c < roi.col1):
             raise ValueError(f"bp_uv = {bp.tolist()} lies outside the ROI {tuple(roi)}")
         saturated = False
-    return _estimate_one(
-        img, K, dist, isovalues, bp, roi, saturated=saturated, normalise=normalise, full_scale=fs,
-        allow_open=allow_open, smooth_sigma_px=float(smooth_sigma_px), grow=False,
-    )
+    return _estimate_one(frame, bp, roi, saturated=saturated, grow=False)
 
 
 def reconstruct(
     image,
     K,
-    isovalue: float | Sequence[float] = 0.1,
+    isovalues: float | Sequence[float] | None = None,
     *,
     dist_coeffs=None,
     roi=None,
-    normalise: str = "bp",
-    allow_open: bool = False,
-    smooth_sigma_px: float = 0.0,
-    brightness_rel: float = 0.7,
-    full_scale: float | None = None,
-    saturation_level: float | None = None,
-    min_area_px: int = 4,
+    settings: ReconSettings | None = None,
+    **options,
 ) -> list[SpecularityEstimate]:
     """Detect every specular highlight of an image and estimate its normal.
 
@@ -578,16 +553,20 @@ def reconstruct(
         uint8, uint16 or float image, RGB.
     K : array_like of shape (3, 3)
         Intrinsics (pixel centres at integer coordinates).
-    isovalue : float or sequence of float
+    isovalues : float or sequence of float, optional
         Isovalue(s) t in (0, 1), relative to the BP intensity by default; the first is primary.
+        Default those of ``settings`` (``ReconSettings().isovalues = (0.1,)``).
     dist_coeffs : array_like, optional
         OpenCV distortion coefficients (contour points undistorted before the fit).
     roi : (row0, row1, col0, col1), optional
         Restrict detection to this region (array indices, half-open).
-    normalise, allow_open, smooth_sigma_px : optional
-        As in :func:`reconstruct_roi`; the smoothing applies to detection too.
-    brightness_rel, full_scale, saturation_level, min_area_px : optional
-        Detection options, see :func:`~simtest.reconstruct.detect.detect_specularities`.
+    settings : ReconSettings, optional
+        The reconstruction settings (default ``ReconSettings()``).
+    **options
+        Fields of :class:`~simtest.reconstruct.settings.ReconSettings` to change: ``normalise``,
+        ``allow_open``, ``smooth_sigma_px`` (applies to detection too), and the detection limits
+        ``brightness_rel``, ``full_scale``, ``saturation_level``, ``min_area_px`` (see
+        :func:`~simtest.reconstruct.detect.detect_specularities`).
 
     Returns
     -------
@@ -598,7 +577,7 @@ def reconstruct(
     Raises
     ------
     ValueError
-        Bad image, K, isovalue, ROI, normalise, smooth_sigma_px or dist_coeffs.
+        Bad image, K, ROI or dist_coeffs, or a bad or unknown setting.
 
     Examples
     --------
@@ -609,25 +588,20 @@ def reconstruct(
             if e.ok:
                 print(e.bp_px, e.cone_axis, e.normals_paper)
     """
-    img, K, isovalues, dist = _check_common(image, K, isovalue, normalise, dist_coeffs)
-    if not (np.isfinite(smooth_sigma_px) and smooth_sigma_px >= 0):
-        raise ValueError(f"smooth_sigma_px must be finite and >= 0, got {smooth_sigma_px!r}")
-    fs = default_full_scale(img) if full_scale is None else float(full_scale)
+    settings = ReconSettings.make(settings, isovalues, **options)
+    frame = _Frame.make(image, K, dist_coeffs, settings)
+    img = frame.img
     if roi is not None:
         r = Roi.coerce(roi, img.shape)
         sub = img[r.slices]
     else:
         r, sub = Roi(0, img.shape[0], 0, img.shape[1]), img
     det = detect_specularities(
-        sub, brightness_rel=brightness_rel, full_scale=fs, saturation_level=saturation_level,
-        min_area_px=min_area_px, smooth_sigma_px=float(smooth_sigma_px),
+        sub, brightness_rel=settings.brightness_rel, full_scale=frame.full_scale,
+        saturation_level=settings.saturation_level, min_area_px=settings.min_area_px,
+        smooth_sigma_px=settings.smooth_sigma_px,
     )
-    if saturation_level is None and img.dtype.kind == "u":
-        saturation_level = float(np.iinfo(img.dtype).max)
-    from simtest.geometry.camera import undistort_points
-
     shift = np.array([r.col0, r.row0], dtype=np.float64)
-    t_min = min(isovalues)
     bps = [c.bp_uv + shift for c in det.candidates]
     # BPs another highlight's isophote must not enclose (``merged``): every candidate's but the
     # too small ones (noise)
@@ -640,15 +614,11 @@ def reconstruct(
         if cand.status != OK:
             roi_k = Roi(cand.roi.row0 + r.row0, cand.roi.row1 + r.row0,
                         cand.roi.col0 + r.col0, cand.roi.col1 + r.col0)
-            bp_und = bp if dist is None else undistort_points(bp[None], K, dist)[0]
             out.append(SpecularityEstimate(bp, cand.peak, cand.saturated, roi_k, cand.status,
-                                           cand.detail, _bp_ray(bp_und, K), ()))
+                                           cand.detail, _bp_ray(frame.undistort(bp[None])[0], frame.K), ()))
             continue
-        roi_k = _initial_roi(cand, bp, det.threshold, t_min, normalise, fs, img.shape)
+        roi_k = _initial_roi(cand, bp, det.threshold, frame)
         others = bps_arr[keep & (idx != k)]
-        out.append(_estimate_one(
-            img, K, dist, isovalues, bp, roi_k, saturated=cand.saturated, normalise=normalise,
-            full_scale=fs, allow_open=allow_open, smooth_sigma_px=float(smooth_sigma_px), grow=True,
-            other_bps=others,
-        ))
+        out.append(_estimate_one(frame, bp, roi_k, saturated=cand.saturated, grow=True,
+                                 other_bps=others))
     return out

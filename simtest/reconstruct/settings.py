@@ -1,0 +1,222 @@
+"""Reconstruction settings: one frozen, validated value passed from the caller to marching squares.
+
+:class:`ReconSettings` holds every choice of the reconstruction that is not the image or the
+camera: the isovalues t, the intensity normalisation, the smoothing, whether open contours are
+fitted, and the detection limits. It is checked once, where it is made (``__post_init__``; also
+after :meth:`ReconSettings.replace`), so the pipeline, the harness, the dataset generator and
+``estimates.json`` take it as it is. The name ``isovalues`` is the same from the suite file's
+reconstruction keys to the contour levels.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import difflib
+import enum
+import math
+from collections.abc import Sequence
+from dataclasses import dataclass
+
+import numpy as np
+
+__all__ = ["Normalisation", "ReconSettings", "validate_isovalues"]
+
+
+class Normalisation(enum.StrEnum):
+    """What the isovalue t is relative to (paper section 3.1, step 4, and beyond).
+
+    Members compare equal to their string values (``Normalisation.BP == "bp"``), which are the
+    values written to ``estimates.json`` and accepted on the command line.
+    """
+
+    #: t relative to the BP intensity: the isophote at ``t I_bp`` (the paper's normalisation).
+    BP = "bp"
+    #: t relative to the image's full scale (``ReconSettings.full_scale``, default the dtype
+    #: maximum): the harness's paper protocol, whose images are already 1 at the BP.
+    FULL_SCALE = "full_scale"
+    #: t relative to the BP's height above the local diffuse level b, the median of the ROI's
+    #: border pixels: the isophote at ``b + t (I_bp - b)``. For highlights on bright tissue, where
+    #: no isophote of the specular lobe exists at ``t I_bp``; exact when the diffuse term is
+    #: constant over the ROI (beyond the paper).
+    LOCAL = "local"
+
+
+def validate_isovalues(isovalues) -> tuple[float, ...]:
+    """Check isovalues: one t or several, each finite and strictly inside (0, 1).
+
+    Parameters
+    ----------
+    isovalues : float or sequence of float
+        One isovalue or several, the primary first.
+
+    Returns
+    -------
+    tuple of float
+        The isovalues in the order given (at least one).
+
+    Raises
+    ------
+    ValueError
+        If the sequence is empty, or a value is not a number or lies outside (0, 1); the message
+        starts with ``isovalues:`` and shows the value.
+    """
+    if isinstance(isovalues, (str, bytes)):
+        raise ValueError(f"isovalues: {isovalues!r} is not a number")
+    vals = [isovalues] if np.ndim(isovalues) == 0 else list(np.asarray(isovalues, dtype=object).ravel())
+    if not vals:
+        raise ValueError("isovalues: an empty sequence was given; need at least one t in (0, 1)")
+    out = []
+    for v in vals:
+        try:
+            t = float(v)
+        except (TypeError, ValueError):
+            raise ValueError(f"isovalues: {v!r} is not a number") from None
+        if not (math.isfinite(t) and 0.0 < t < 1.0):
+            raise ValueError(f"isovalues: {t!r} is outside the open interval (0, 1)")
+        out.append(t)
+    return tuple(out)
+
+
+def _positive_or_none(name: str, value) -> float | None:
+    if value is None:
+        return None
+    try:
+        v = float(value)
+    except (TypeError, ValueError):
+        raise ValueError(f"{name}: {value!r} is not a number") from None
+    if not (math.isfinite(v) and v > 0):
+        raise ValueError(f"{name} must be finite and positive, got {value!r}")
+    return v
+
+
+@dataclass(frozen=True)
+class ReconSettings:
+    """Every setting of the reconstruction, validated once when made.
+
+    Parameters
+    ----------
+    isovalues : float or sequence of float
+        Isovalue(s) t in (0, 1), stored as a tuple; the first is the *primary* isovalue (its
+        isophote gives the estimate's conic, normals and status), the others are nested isophotes
+        for the joint cone axis. What t is relative to is set by ``normalise``.
+    normalise : Normalisation or {"bp", "full_scale", "local"}
+        Intensity normalisation, see :class:`Normalisation` (stored as the enum).
+    smooth_sigma_px : float
+        Gaussian smoothing sigma, px, of the image before detection and contouring; 0 for none
+        (the paper smooths noisy images). Finite, in [0, 100].
+    allow_open : bool
+        Fit an isophote cut by the ROI or image border (flagged ``closed=False``).
+    full_scale : float, optional
+        Intensity of a white pixel, the level relative thresholds (``brightness_rel``, and t with
+        ``normalise="full_scale"``) refer to; default the dtype maximum (uint) or
+        ``max(1, image.max())`` (float). Finite and positive.
+    saturation_level : float, optional
+        A pixel is clipped when every channel is >= this; default the integer dtype maximum, and
+        no clipping for float images. Finite and positive.
+    brightness_rel : float
+        Detection: a pixel is bright when its luma is >= ``brightness_rel * full_scale``; in (0, 1).
+    min_area_px : int
+        Detection: bright components smaller than this are rejected as ``too_small``; >= 1.
+
+    Raises
+    ------
+    ValueError
+        Naming the field and the value, for any value outside the ranges above.
+
+    Examples
+    --------
+    >>> s = ReconSettings(isovalues=[0.1, 0.3], normalise="local")
+    >>> s.isovalues, s.normalise is Normalisation.LOCAL
+    ((0.1, 0.3), True)
+    >>> s.replace(isovalues=0.5).isovalues
+    (0.5,)
+    >>> ReconSettings(isovalues=1.5)
+    Traceback (most recent call last):
+    ...
+    ValueError: isovalues: 1.5 is outside the open interval (0, 1)
+    """
+
+    isovalues: tuple[float, ...] = (0.1,)
+    normalise: Normalisation = Normalisation.BP
+    smooth_sigma_px: float = 0.0
+    allow_open: bool = False
+    full_scale: float | None = None
+    saturation_level: float | None = None
+    brightness_rel: float = 0.7
+    min_area_px: int = 4
+
+    def __post_init__(self) -> None:
+        set_ = object.__setattr__
+        set_(self, "isovalues", validate_isovalues(self.isovalues))
+        try:
+            set_(self, "normalise", Normalisation(self.normalise))
+        except ValueError:
+            modes = tuple(m.value for m in Normalisation)
+            raise ValueError(f"normalise: {self.normalise!r} is not one of {modes}") from None
+        try:
+            sigma = float(self.smooth_sigma_px)
+        except (TypeError, ValueError):
+            sigma = float("nan")
+        if not (math.isfinite(sigma) and 0.0 <= sigma <= 100.0):
+            raise ValueError(f"smooth_sigma_px must be finite and in [0, 100] px, got "
+                             f"{self.smooth_sigma_px!r}")
+        set_(self, "smooth_sigma_px", sigma)
+        if not isinstance(self.allow_open, (bool, np.bool_)):
+            raise ValueError(f"allow_open must be true or false, got {self.allow_open!r}")
+        set_(self, "allow_open", bool(self.allow_open))
+        set_(self, "full_scale", _positive_or_none("full_scale", self.full_scale))
+        set_(self, "saturation_level", _positive_or_none("saturation_level", self.saturation_level))
+        try:
+            rel = float(self.brightness_rel)
+        except (TypeError, ValueError):
+            rel = float("nan")
+        if not 0.0 < rel < 1.0:
+            raise ValueError(f"brightness_rel must be in (0, 1), got {self.brightness_rel!r}")
+        set_(self, "brightness_rel", rel)
+        if isinstance(self.min_area_px, bool) or not float(self.min_area_px).is_integer() \
+                or self.min_area_px < 1:
+            raise ValueError(f"min_area_px must be an integer >= 1, got {self.min_area_px!r}")
+        set_(self, "min_area_px", int(self.min_area_px))
+
+    @property
+    def primary_isovalue(self) -> float:
+        """The first isovalue, whose isophote gives the estimate's conic, normals and status."""
+        return self.isovalues[0]
+
+    def replace(self, **changes) -> ReconSettings:
+        """A copy with some fields changed, validated again.
+
+        Raises
+        ------
+        ValueError
+            For an unknown field name or a bad value.
+        """
+        names = {f.name for f in dataclasses.fields(self)}
+        unknown = sorted(set(changes) - names)
+        if unknown:
+            hints = [m for u in unknown for m in difflib.get_close_matches(u, names, n=1)]
+            hint = f" (did you mean {', '.join(hints)}?)" if hints else ""
+            raise ValueError(f"unknown reconstruction setting(s) {', '.join(unknown)}{hint}; "
+                             f"known: {', '.join(sorted(names))}")
+        return dataclasses.replace(self, **changes)
+
+    @classmethod
+    def make(cls, settings: ReconSettings | None = None, isovalues: float | Sequence[float] | None = None,
+             **options) -> ReconSettings:
+        """``settings`` (default :class:`ReconSettings()`) with ``isovalues`` and ``options`` applied.
+
+        The keyword API of :func:`~simtest.reconstruct.pipeline.reconstruct` goes through this.
+        """
+        base = cls() if settings is None else settings
+        if not isinstance(base, cls):
+            raise ValueError(f"settings must be a ReconSettings, got {type(base).__name__}")
+        if isovalues is not None:
+            options["isovalues"] = isovalues
+        return base.replace(**options) if options else base
+
+    def to_dict(self) -> dict:
+        """Plain JSON-ready values (``normalise`` as its string)."""
+        d = dataclasses.asdict(self)
+        d["isovalues"] = list(self.isovalues)
+        d["normalise"] = self.normalise.value
+        return d

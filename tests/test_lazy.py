@@ -1,0 +1,47 @@
+"""The one lazy-import helper: a missing optional back-end is one line naming what to install."""
+
+from __future__ import annotations
+
+import sys
+
+import pytest
+
+from simtest import _lazy
+
+
+def test_a_present_backend_is_imported_and_cached():
+    mod = _lazy.require("dask")
+    assert mod is sys.modules["dask"]
+
+
+def test_a_missing_backend_names_the_extra_to_install(monkeypatch):
+    monkeypatch.setitem(_lazy.BACKENDS, "simtest_no_such_backend", "nothere")
+    with pytest.raises(_lazy.MissingBackend) as info:
+        _lazy.require("simtest_no_such_backend.sub", purpose="the 3D view")
+    msg = str(info.value)
+    assert "\n" not in msg
+    assert msg.startswith("the 3D view needs simtest_no_such_backend")
+    assert 'pip install "simtest[nothere]"' in msg
+
+
+def test_a_missing_default_dependency_says_reinstall(monkeypatch):
+    monkeypatch.setitem(_lazy.BACKENDS, "simtest_no_such_backend", None)
+    with pytest.raises(_lazy.MissingBackend, match="reinstall"):
+        _lazy.require("simtest_no_such_backend")
+
+
+def test_only_the_optional_backends_go_through_it():
+    with pytest.raises(ValueError, match="not one of the optional back-ends"):
+        _lazy.require("numpy")
+
+
+def test_a_backend_missing_its_own_dependency_shows_that_one(monkeypatch, tmp_path):
+    pkg = tmp_path / "simtest_fake_backend"
+    pkg.mkdir()
+    (pkg / "__init__.py").write_text("import simtest_fake_dependency_that_is_missing\n")
+    monkeypatch.syspath_prepend(str(tmp_path))
+    monkeypatch.setitem(_lazy.BACKENDS, "simtest_fake_backend", "x")
+    with pytest.raises(ModuleNotFoundError) as info:
+        _lazy.require("simtest_fake_backend")
+    assert not isinstance(info.value, _lazy.MissingBackend)
+    assert info.value.name == "simtest_fake_dependency_that_is_missing"
