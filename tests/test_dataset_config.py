@@ -56,6 +56,15 @@ BAD = [
     (_base(shard_size=0), "shard_size", "0"),
     (_base(seed=True), "seed", "true"),
     ({"seed": 1, "families": {"planes": 1}}, "count", "missing"),
+    (_base(variant="scalar_rgb"), "variant", "scalar_rgb"),  # the renderer needs a JIT variant
+    (_base(variant=""), "variant", '""'),
+    (_base(compress="yes"), "compress", "yes"),
+    (_base(splits={"train": 0.9, "val": 0.2, "test": 0.0}), "splits", "sum to 1"),
+    (_base(splits={"train": 1.0}), "splits", "exactly train, val and test"),
+    (_base(splits={"train": 1.5, "val": -0.25, "test": -0.25}), "splits.train", "1.5"),
+    (_base(auto_exposure={"percentile": 150, "level": 0.9}), "auto_exposure.percentile", "150"),
+    (_base(auto_exposure={"percentile": 99, "level": 0}), "auto_exposure.level", "0"),
+    (_base(auto_exposure=True), "auto_exposure", "true"),
 ]
 
 
@@ -84,6 +93,7 @@ def test_load_config_reports_toml_syntax_and_missing_file(tmp_path):
         'count = -1\nseed = 1\n[families]\nplanes = 1\n',                      # negative count
         'count = 3\nseed = 1\n[families]\nplanes = 1\n[params]\nphong_n = {dist = "uniform", low = 5, high = 1}\n',
         'count = 3\nseed = 1\nworkers = 2\n[families]\nplanes = 1\n',          # unknown key
+        'count = 3\nseed = 1\nvariant = "scalar_rgb"\n[families]\nplanes = 1\n',  # no JIT variant
     ],
 )
 def test_cli_refuses_bad_config_before_writing_anything(tmp_path, toml):

@@ -19,7 +19,6 @@ from hypothesis import strategies as st
 from PIL import Image
 
 import simtest.dataset
-from simtest.dataset import reader as reader_mod
 from simtest.dataset.config import config_from_dict
 from simtest.dataset.generate import SampleError, generate
 from simtest.dataset.sample import Sample, _encode_png, sample_rng
@@ -252,25 +251,6 @@ def test_documented_numpy_and_pil_recipe_reads_a_sample(tmp_path):
     assert np.array_equal(image, decode_png(ref.arrays["sensor_png"]))
     assert np.array_equal(z[key + "normals"], ref.arrays["normals"])
     z.close()
-
-
-def test_reader_is_a_torch_dataset_exactly_when_torch_is_installed(tmp_path):
-    _, out, _ = _make(tmp_path)
-    ds = simtest.dataset.open(out)
-    if reader_mod.torch_available():
-        import torch.utils.data
-
-        assert isinstance(ds, torch.utils.data.Dataset)
-        batch = next(iter(torch.utils.data.DataLoader(
-            simtest.dataset.open(out, keys=["mask"], with_record=False), batch_size=1)))
-        assert batch["mask"].shape[0] == 1
-    else:
-        # without torch the class has no torch base and the module never imported torch
-        import sys
-
-        assert reader_mod.SimtestDataset.__mro__[1] is object
-        assert "torch" not in sys.modules
-        assert len(ds) == 10
 
 
 def test_an_empty_dataset_is_valid(tmp_path):

@@ -11,8 +11,10 @@ Format
     seed = 2026             # root seed (any integer >= 0; 0 is valid)
     shard_size = 250        # samples per shard file
     isovalues = [0.1, 0.3]  # isophote levels t in (0, 1) (relative to the Phong peak c)
-    variant = "auto"        # Mitsuba variant, or "auto" (pin it to make runs on mixed machines agree)
-    compress = false        # deflate the shard files (smaller, slower to write and read)
+    variant = "auto"        # "auto", "llvm_ad_rgb" or "cuda_ad_rgb" (pin it on mixed machines)
+    compress = true         # deflate the shard files (default; false: larger, a little faster)
+    splits = { train = 0.8, val = 0.1, test = 0.1 }   # seeded split of each sample (default)
+    auto_exposure = { percentile = 99.5, level = 0.9 }  # or false (default shown)
 
     [families]              # weight of each scene family (relative; 0 disables)
     planes = 1.0
@@ -46,6 +48,8 @@ from typing import Any
 
 import numpy as np
 
+from simtest.scene.spec import RENDER_VARIANTS
+
 __all__ = [
     "FAMILIES",
     "PARAMS",
@@ -60,7 +64,18 @@ __all__ = [
 #: Scene families, in the canonical order used for the seeded family draw.
 FAMILIES: tuple[str, ...] = ("planes", "spheres", "cylinders", "colon", "liver")
 
-_TOP_KEYS = ("count", "seed", "shard_size", "isovalues", "variant", "compress", "families", "params")
+_TOP_KEYS = ("count", "seed", "shard_size", "isovalues", "variant", "compress", "splits",
+             "auto_exposure", "families", "params")
+
+#: Default seeded split fractions (train, val, test).
+DEFAULT_SPLITS = (("train", 0.8), ("val", 0.1), ("test", 0.1))
+
+#: Default auto-exposure: the ``percentile`` of the linear image inside the mask is brought to
+#: ``level`` of full scale before the sensor model (the ``exposure`` parameter multiplies on top).
+#: 99.5 puts the top of a dim tissue image (its highlight) near the top of the 8-bit range while
+#: leaving the brightest 0.5 % of surface pixels free to saturate, as an endoscope's auto-exposure
+#: does; 0.9 keeps headroom for the noise.
+DEFAULT_AUTO_EXPOSURE = (99.5, 0.9)
 _DIST_KEYS = {
     "constant": ("value",),
     "uniform": ("low", "high"),
@@ -310,7 +325,7 @@ class DatasetConfig:
     variant : str
         Mitsuba variant or ``"auto"``.
     compress : bool
-        Deflate the arrays in the shard files.
+        Deflate the arrays in the shard files (default True).
     families : tuple of (str, float)
         Families with positive weight, in canonical order.
     params : dict
@@ -319,6 +334,12 @@ class DatasetConfig:
         Where the config came from (file path or ``"<dict>"``), for messages.
     raw : dict
         The config as given (JSON-ready), kept in the dataset card.
+    splits : tuple of (str, float)
+        Fractions of ``train``, ``val`` and ``test`` (summing to 1); sample i's split is a pure
+        function of ``(seed, i)`` (:meth:`split_of`).
+    auto_exposure : (float, float) or None
+        ``(percentile, level)``: scale each linear image so that this percentile of its surface
+        pixels reaches ``level`` x full scale before the sensor model; None: exposure as drawn.
     """
 
     count: int
@@ -331,6 +352,8 @@ class DatasetConfig:
     params: dict = field(hash=False)
     source: str = "<dict>"
     raw: dict = field(default_factory=dict, hash=False, compare=False)
+    splits: tuple[tuple[str, float], ...] = DEFAULT_SPLITS
+    auto_exposure: tuple[float, float] | None = DEFAULT_AUTO_EXPOSURE
 
     @property
     def n_shards(self) -> int:
@@ -354,6 +377,30 @@ class DatasetConfig:
         start = shard * self.shard_size
         return range(start, min(self.count, start + self.shard_size))
 
+    def split_of(self, index: int) -> str:
+        """The split of sample ``index``: a pure function of ``(seed, index)``.
+
+        Parameters
+        ----------
+        index : int
+            Sample index.
+
+        Returns
+        -------
+        str
+            ``"train"``, ``"val"`` or ``"test"``: ``u = sha256("<seed>:<index>")`` read as a fraction
+            in [0, 1) picks the first split whose cumulative fraction exceeds it, so a sample keeps
+            its split when ``count`` grows (and the realised fractions tend to :attr:`splits`).
+        """
+        digest = hashlib.sha256(f"simtest-split:{self.seed}:{int(index)}".encode()).digest()
+        u = int.from_bytes(digest[:8], "big") / 2.0**64
+        acc = 0.0
+        for name, frac in self.splits:
+            acc += frac
+            if u < acc:
+                return name
+        return self.splits[-1][0]
+
     def to_dict(self) -> dict:
         """Canonical, complete JSON-ready form (defaults filled in); ``config_from_dict`` reads it."""
         used = {f for f, _ in self.families}
@@ -364,6 +411,9 @@ class DatasetConfig:
             "isovalues": list(self.isovalues),
             "variant": self.variant,
             "compress": self.compress,
+            "splits": dict(self.splits),
+            "auto_exposure": (None if self.auto_exposure is None else
+                              {"percentile": self.auto_exposure[0], "level": self.auto_exposure[1]}),
             "families": {f: w for f, w in self.families},
             "params": {f: {k: d.as_dict() for k, d in self.params[f].items()} for f in FAMILIES if f in used},
         }
@@ -553,12 +603,38 @@ def config_from_dict(d: dict, source: str = "<dict>") -> DatasetConfig:
         raise _err(source, "isovalues", "isovalues must be distinct", iso)
 
     variant = d.get("variant", "auto")
-    if not isinstance(variant, str) or not variant:
-        raise _err(source, "variant", "must be a Mitsuba variant name or \"auto\"", variant)
+    if variant not in RENDER_VARIANTS:
+        raise _err(source, "variant", "must be one of " + ", ".join(json.dumps(v) for v in RENDER_VARIANTS)
+                   + " (the renderer needs a Dr.Jit JIT variant with RGB channels)", variant)
 
-    compress = d.get("compress", False)
+    compress = d.get("compress", True)
     if not isinstance(compress, bool):
         raise _err(source, "compress", "must be true or false", compress)
+
+    splits_in = d.get("splits", dict(DEFAULT_SPLITS))
+    names = tuple(n for n, _ in DEFAULT_SPLITS)
+    if not isinstance(splits_in, dict) or set(splits_in) != set(names):
+        raise _err(source, "splits", "must be a table with exactly train, val and test", splits_in)
+    for n in names:
+        v = splits_in[n]
+        if not _is_number(v) or not 0 <= v <= 1:
+            raise _err(source, f"splits.{n}", "must be a fraction in [0, 1]", v)
+    if abs(sum(splits_in[n] for n in names) - 1.0) > 1e-9:
+        raise _err(source, "splits", "fractions must sum to 1", splits_in)
+    splits = tuple((n, float(splits_in[n])) for n in names)
+
+    ae = d.get("auto_exposure", {"percentile": DEFAULT_AUTO_EXPOSURE[0], "level": DEFAULT_AUTO_EXPOSURE[1]})
+    if ae is False:
+        auto_exposure = None
+    elif isinstance(ae, dict) and set(ae) == {"percentile", "level"}:
+        pct, level = ae["percentile"], ae["level"]
+        if not _is_number(pct) or not 0 < pct <= 100:
+            raise _err(source, "auto_exposure.percentile", "must be a number in (0, 100]", pct)
+        if not _is_number(level) or not 0 < level <= 1:
+            raise _err(source, "auto_exposure.level", "must be a fraction of full scale in (0, 1]", level)
+        auto_exposure = (float(pct), float(level))
+    else:
+        raise _err(source, "auto_exposure", "must be false or {percentile = P, level = L}", ae)
 
     fam = d.get("families")
     if not isinstance(fam, dict) or not fam:
@@ -624,6 +700,8 @@ def config_from_dict(d: dict, source: str = "<dict>") -> DatasetConfig:
         params=resolved,
         source=source,
         raw=_jsonable(d),
+        splits=splits,
+        auto_exposure=auto_exposure,
     )
 
 

@@ -10,12 +10,18 @@ independent of the scheduler and the number of workers.
 from __future__ import annotations
 
 import concurrent.futures as cf
+import contextlib
+import dataclasses
+import errno
+import fcntl
 import multiprocessing
 import os
 import resource
 import shutil
+import socket
 import time
 from collections import deque
+from datetime import datetime, timezone
 from concurrent.futures.process import BrokenProcessPool
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -32,6 +38,7 @@ from simtest.dataset.shards import (
     TMP_SUFFIX,
     DatasetError,
     ShardWriter,
+    check_shard,
     read_card,
     read_shard_rows,
     shard_json_path,
@@ -42,8 +49,17 @@ from simtest.dataset.shards import (
 
 __all__ = ["GenerateReport", "SampleError", "generate", "make_card"]
 
-#: How long ``--scheduler`` waits for the Dask scheduler to answer.
-CONNECT_TIMEOUT = "20s"
+#: How long ``--scheduler`` waits for the Dask scheduler to answer (a reachable scheduler answers
+#: in milliseconds; a wrong address should fail within a few seconds).
+CONNECT_TIMEOUT = "3s"
+
+#: errno values that mean "the dataset folder cannot be written" (reported as one line).
+_WRITE_ERRNOS = frozenset({errno.ENOSPC, errno.EDQUOT, errno.EROFS, errno.EACCES, errno.EPERM,
+                           errno.EIO, errno.EFBIG})
+
+#: Lock file inside the dataset folder: ``generate`` holds an exclusive ``flock`` on it while it
+#: runs and writes its holder (pid, host, start time) into it; emptied when the run ends.
+LOCK_NAME = ".lock"
 
 #: Environment variable a worker reads for its Dr.Jit thread count (set by the local pool).
 THREADS_ENV = "SIMTEST_DATASET_THREADS"
@@ -229,27 +245,21 @@ def _prepare(config: DatasetConfig, out: Path) -> set[int]:
             raise DatasetError(
                 f"{out}: the bundled mesh files changed since this dataset was started "
                 f"({card.get('meshes')} != {now}); finish it with the old meshes or use another --out")
-    elif out.is_dir() and any(out.iterdir()):
+    elif out.is_dir() and any(p.name != LOCK_NAME for p in out.iterdir()):
         raise DatasetError(f"{out}: is not empty and has no {CARD_NAME}: refusing to write into it")
     out.mkdir(parents=True, exist_ok=True)
-    (out / SHARDS_DIR).mkdir(exist_ok=True)
-    if not card_path.exists():
+    if not card_path.exists():  # first: a folder without a card holds nothing else of ours
         write_json(card_path, make_card(config, status="incomplete"))
+    (out / SHARDS_DIR).mkdir(exist_ok=True)
 
     complete: set[int] = set()
     fp = config.fingerprint()
     for s in range(config.n_shards):
-        rows = read_shard_rows(out, s)
         npz = shard_npz_path(out, s)
-        r = config.shard_range(s)
-        ok = (rows is not None and npz.is_file()
-              and rows.get("config_fingerprint") == fp
-              and rows.get("indices") == [r.start, r.stop]
-              and len(rows.get("samples", [])) == len(r)
-              and rows.get("npz_bytes") == npz.stat().st_size)
-        if ok:
+        # content, not sizes: the shard file's sha256, its fingerprint and its labels' hashes
+        if not check_shard(out, s, fp, config.shard_range(s)):
             complete.add(s)
-        else:  # partial or stale: redo it
+        else:  # partial, corrupt or from another dataset: redo it
             npz.unlink(missing_ok=True)
             shard_json_path(out, s).unlink(missing_ok=True)
     # leftovers of killed runs, and shards beyond the count
@@ -287,8 +297,12 @@ def _finalise(config: DatasetConfig, out: Path) -> None:
         variants.add(str(r.get("variant")))
     write_manifest(out, rows)
     atomic_write_text(out / "README.md", _readme(config, len(rows)))
+    shard_bytes = sum(shard_npz_path(out, s).stat().st_size for s in range(config.n_shards))
     counts = {"samples": len(rows), "by_family": dict(sorted(by_family.items())),
-              "highlights": n_hl, "highlights_in_frame": n_in}
+              "by_split": {name: sum(1 for r in rows if r.get("split") == name) for name, _ in config.splits},
+              "highlights": n_hl, "highlights_in_frame": n_in,
+              "shard_bytes": shard_bytes,
+              "bytes_per_sample": round(shard_bytes / len(rows)) if rows else 0}
     write_json(out / CARD_NAME, make_card(config, status="complete", counts=counts,
                                           variants=sorted(variants)))
 
@@ -355,6 +369,34 @@ class _Pool:
         self.ex.shutdown(wait=True, cancel_futures=cancel)
 
 
+def _check_address(address: str) -> None:
+    """Refuse a scheduler address that cannot work before trying to connect (one line each).
+
+    Raises
+    ------
+    DatasetError
+        If the address has no known protocol or port, or its host name does not resolve.
+    """
+    from distributed.comm.addressing import parse_address, parse_host_port
+
+    where = f"--scheduler {address!r}"
+    if "://" not in address:
+        raise DatasetError(f"{where}: not a scheduler address (expected tcp://HOST:PORT, e.g. "
+                           "tcp://127.0.0.1:8786)")
+    try:
+        proto, loc = parse_address(address, strict=True)
+        if proto not in ("tcp", "tls", "ucx", "ws", "wss", "inproc"):
+            raise ValueError(f"unknown protocol {proto!r}")
+        host, port = parse_host_port(loc) if proto != "inproc" else (None, None)
+    except (ValueError, TypeError) as exc:
+        raise DatasetError(f"{where}: not a scheduler address: {exc}") from None
+    if host is not None:
+        try:
+            socket.getaddrinfo(host, port)
+        except (OSError, UnicodeError) as exc:
+            raise DatasetError(f"{where}: host {host!r} does not resolve: {exc}") from None
+
+
 class _Dask:
     """An existing Dask distributed cluster, reached through its scheduler address."""
 
@@ -363,10 +405,12 @@ class _Dask:
             from distributed import Client
         except ImportError as exc:  # pragma: no cover - dask[distributed] is a dependency
             raise DatasetError("--scheduler needs dask[distributed] installed") from exc
+        _check_address(address)
         try:
             self.client = Client(address, timeout=CONNECT_TIMEOUT, set_as_default=False)
-        except (OSError, TimeoutError) as exc:
-            raise DatasetError(f"--scheduler {address}: cannot connect: {exc}") from None
+        except (OSError, TimeoutError, ValueError) as exc:
+            raise DatasetError(f"--scheduler {address}: cannot connect within {CONNECT_TIMEOUT}: "
+                               f"{exc}") from None
         from distributed import as_completed
 
         self.sample_fn, self.config = sample_fn, config
@@ -479,13 +523,60 @@ def generate(
     if workers is not None and workers < 1:
         raise ValueError(f"workers must be >= 1, got {workers}")
     out = Path(out_dir)
+    if out.exists() and not out.is_dir():
+        raise DatasetError(f"{out}: exists and is not a folder")
+    if (out.is_dir() and not (out / CARD_NAME).exists() and not (out / LOCK_NAME).exists()
+            and any(out.iterdir())):
+        raise DatasetError(f"{out}: is not empty and has no {CARD_NAME}: refusing to write into it")
     # Connect to a cluster before writing anything: a wrong address leaves no folder behind.
     dask_ex = _Dask(sample_fn, config, scheduler) if scheduler is not None else None
     try:
-        return _generate(config, out, dask_ex, workers, sample_fn, progress, window)
+        with _locked(out):
+            return _generate(config, out, dask_ex, workers, sample_fn, progress, window)
+    except OSError as exc:  # full disk, read-only folder, ...: partial files are already removed
+        if exc.errno not in _WRITE_ERRNOS and exc.filename is None:
+            raise
+        what = exc.strerror or str(exc)
+        if exc.errno == errno.ENOSPC:
+            what = "no space left on device"
+        raise DatasetError(f"{exc.filename or out}: cannot write: {what}; partial files removed, "
+                           "complete shards kept: free space and rerun to resume") from None
     finally:
         if dask_ex is not None:
             dask_ex.close()
+
+
+@contextlib.contextmanager
+def _locked(out: Path):
+    """Hold an exclusive lock on the dataset folder ``out`` (created if missing).
+
+    Raises
+    ------
+    DatasetError
+        At once, if another process holds the lock; the message names it (pid, host, start).
+    """
+    out.mkdir(parents=True, exist_ok=True)
+    path = out / LOCK_NAME
+    fd = os.open(path, os.O_RDWR | os.O_CREAT, 0o644)
+    locked = False
+    try:
+        try:
+            fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except BlockingIOError:
+            holder = os.pread(fd, 512, 0).decode("utf-8", errors="replace").strip()
+            raise DatasetError(f"{out}: in use by another `simtest dataset generate` "
+                               f"({holder or 'holder unknown'}): wait for it to end or use another "
+                               "--out") from None
+        locked = True
+        now = datetime.now(timezone.utc).isoformat(timespec="seconds")
+        os.ftruncate(fd, 0)
+        os.pwrite(fd, f"pid {os.getpid()} on {socket.gethostname()} since {now}\n".encode(), 0)
+        yield path
+    finally:
+        if locked:
+            with contextlib.suppress(OSError):
+                os.ftruncate(fd, 0)  # the folder's bytes do not depend on who wrote it
+        os.close(fd)  # releases the lock
 
 
 def _generate(config, out, dask_ex, workers, sample_fn, progress, window) -> GenerateReport:
@@ -534,6 +625,8 @@ def _generate(config, out, dask_ex, workers, sample_fn, progress, window) -> Gen
                             raise SampleError(f"sample {i}: sample_fn returned index {sample.index}")
                         rss[who] = max(rss.get(who, 0.0), rss_kib / 1024.0)
                         shard = i // config.shard_size
+                        sample = dataclasses.replace(
+                            sample, record={**sample.record, "split": config.split_of(i)})
                         if writers[shard].add(sample):
                             del writers[shard]
                         report.written += 1

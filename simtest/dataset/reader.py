@@ -1,10 +1,22 @@
-"""Read a dataset lazily: ``simtest.dataset.open(DIR)``.
+"""Read a dataset lazily: ``simtest.dataset.open(DIR)``, and feed it to PyTorch.
 
 The returned :class:`SimtestDataset` is a map-style sequence: ``len(ds)``, ``ds[i]`` (a dict of
 numpy arrays plus the manifest row under ``"record"``) and iteration. Shard files are opened on
-first use and kept open (a few per process), so reading is lazy and cheap. When PyTorch is
-installed the class is also a ``torch.utils.data.Dataset`` (hand it to a ``DataLoader``; with
-``keys=[...]`` and ``with_record=False`` the default collate stacks the arrays).
+first use and kept open (a few per process), so reading is lazy and cheap. ``split="train"``
+(``"val"``, ``"test"``) keeps the samples of one seeded split.
+
+PyTorch
+-------
+``ds.torch(keys=..., transform=...)`` gives a view for ``torch.utils.data.DataLoader``: each item is
+a dict of tensors (and the integer ``"index"``), so the default collate stacks a batch; labels that
+differ between families (the manifest rows) stay out of the batch and are looked up with
+``view.record(index)``, or kept per item with ``with_record=True`` and
+``collate_fn=simtest.dataset.collate``::
+
+    import torch, simtest.dataset
+    view = simtest.dataset.open("DIR", split="train").torch(keys=("sensor", "normals", "mask"))
+    loader = torch.utils.data.DataLoader(view, batch_size=8, shuffle=True, num_workers=2)
+    batch = next(iter(loader))   # batch["sensor"]: (8, 1, H, W) float32 in [0, 1]
 
 Without simtest (numpy and PIL alone)
 -------------------------------------
@@ -23,41 +35,33 @@ Without simtest (numpy and PIL alone)
 
 from __future__ import annotations
 
-import importlib.util
 from collections import OrderedDict
 from pathlib import Path
-from typing import Iterator, Sequence
+from typing import Callable, Iterator, Sequence
 
 import numpy as np
 
-from simtest.dataset.shards import decode_png, entry_name, read_card, read_manifest
+from simtest.dataset.shards import (
+    DatasetError,
+    decode_png,
+    entry_name,
+    read_card,
+    read_manifest,
+    shard_path_from_row,
+)
 
-__all__ = ["SimtestDataset", "open_dataset", "torch_available"]
+__all__ = ["SPLITS", "SimtestDataset", "TorchView", "collate", "open_dataset"]
 
-
-def torch_available() -> bool:
-    """True when PyTorch can be imported (checked with ``importlib.util.find_spec``, no import).
-
-    Returns
-    -------
-    bool
-        Whether :class:`SimtestDataset` is also a ``torch.utils.data.Dataset``.
-    """
-    return importlib.util.find_spec("torch") is not None
-
-
-def _base() -> type:
-    if torch_available():
-        import torch.utils.data
-
-        return torch.utils.data.Dataset
-    return object
-
+#: Split names a sample may carry (``row["split"]``).
+SPLITS = ("train", "val", "test")
 
 _ARRAYS = ("sensor", "linear", "specular", "normals", "depth", "mask", "highlight_mask")
 
+#: Per-sample fixed-shape labels a torch view can return beside the arrays (from the manifest row).
+_ROW_TENSORS = ("K", "cam_to_world")
 
-class SimtestDataset(_base()):  # type: ignore[misc]
+
+class SimtestDataset:
     """A dataset folder as a lazy sequence of samples.
 
     Parameters
@@ -69,15 +73,19 @@ class SimtestDataset(_base()):  # type: ignore[misc]
         ``"sensor_png"`` the raw PNG bytes.
     with_record : bool
         Include the manifest row (labels, parameters, K, pose, highlights) under ``"record"``.
+    split : str, optional
+        Keep only the samples of one split (``"train"``, ``"val"`` or ``"test"``); positions then
+        run over that split, ``ds[k]["index"]`` is the sample's index in the dataset.
     max_open : int
         Shard files kept open at once.
 
     Raises
     ------
     DatasetError
-        If ``root`` is not a complete dataset.
+        If ``root`` is not a complete dataset, or a manifest row names a shard file outside
+        ``root/shards`` (an absolute path or ``..``).
     KeyError
-        If ``keys`` names an unknown array.
+        If ``keys`` names an unknown array, or ``split`` an unknown split.
 
     Notes
     -----
@@ -90,15 +98,23 @@ class SimtestDataset(_base()):  # type: ignore[misc]
     """
 
     def __init__(self, root, keys: Sequence[str] | None = None, with_record: bool = True,
-                 max_open: int = 4):
+                 split: str | None = None, max_open: int = 4):
         self.root = Path(root)
         self.card = read_card(self.root)
-        self.rows = read_manifest(self.root)
+        rows = read_manifest(self.root)
         allowed = (*_ARRAYS, "sensor_png")
         keys = tuple(keys) if keys is not None else _ARRAYS
         bad = [k for k in keys if k not in allowed]
         if bad:
             raise KeyError(f"unknown array(s) {bad}; known: {', '.join(allowed)}")
+        if split is not None and split not in SPLITS:
+            raise KeyError(f"unknown split {split!r}; known: {', '.join(SPLITS)}")
+        self._paths = [shard_path_from_row(self.root, r) for r in rows]  # refuses ../ and /abs
+        if split is not None:
+            keep = [k for k, r in enumerate(rows) if r.get("split") == split]
+            rows, self._paths = [rows[k] for k in keep], [self._paths[k] for k in keep]
+        self.rows = rows
+        self.split = split
         self.keys = keys
         self.with_record = with_record
         self.max_open = max_open
@@ -107,10 +123,11 @@ class SimtestDataset(_base()):  # type: ignore[misc]
     def __len__(self) -> int:
         return len(self.rows)
 
-    def _shard(self, rel: str):
+    def _shard(self, i: int):
+        rel = self.rows[i]["npz"]  # checked at open: shards/shard-XXXXX.npz
         z = self._open.get(rel)
         if z is None:
-            z = np.load(self.root / rel, allow_pickle=False)
+            z = np.load(self._paths[i], allow_pickle=False)
             self._open[rel] = z
             while len(self._open) > self.max_open:
                 _, old = self._open.popitem(last=False)
@@ -119,7 +136,7 @@ class SimtestDataset(_base()):  # type: ignore[misc]
             self._open.move_to_end(rel)
         return z
 
-    def __getitem__(self, i: int) -> dict:
+    def _position(self, i) -> int:
         if not isinstance(i, int | np.integer):
             raise TypeError(f"index must be an integer, got {type(i).__name__}")
         n = len(self.rows)
@@ -127,8 +144,12 @@ class SimtestDataset(_base()):  # type: ignore[misc]
             i += n
         if not 0 <= i < n:
             raise IndexError(f"sample {i} out of range 0..{n - 1}")
+        return int(i)
+
+    def __getitem__(self, i: int) -> dict:
+        i = self._position(i)
         row = self.rows[i]
-        z = self._shard(row["npz"])
+        z = self._shard(i)
         out: dict = {"index": int(row["index"])}
         for k in self.keys:
             if k == "sensor":
@@ -154,8 +175,135 @@ class SimtestDataset(_base()):  # type: ignore[misc]
         d["_open"] = OrderedDict()
         return d
 
+    def torch(self, keys: Sequence[str] = ("sensor", "normals", "mask"),
+              transform: Callable[[dict], dict] | None = None, with_record: bool = False) -> "TorchView":
+        """A view of this dataset for ``torch.utils.data.DataLoader`` (needs PyTorch).
 
-def open_dataset(root, keys: Sequence[str] | None = None, with_record: bool = True) -> SimtestDataset:
+        Parameters
+        ----------
+        keys : sequence of str
+            Arrays (as in :class:`SimtestDataset`) and row labels ``"K"`` (3, 3) and
+            ``"cam_to_world"`` (4, 4) to return as tensors.
+        transform : callable, optional
+            ``transform(item) -> item`` applied to each item's dict of tensors (augmentation,
+            resizing); must be picklable (a module-level function) for ``num_workers > 0``.
+        with_record : bool
+            Also return the manifest row under ``"record"``; batch such items with
+            ``collate_fn=simtest.dataset.collate`` (rows differ between families, so the default
+            collate cannot stack them).
+
+        Returns
+        -------
+        TorchView
+
+        Raises
+        ------
+        KeyError
+            If ``keys`` names an unknown array or label.
+        ModuleNotFoundError
+            If PyTorch is not installed (``pip install "simtest[torch]"``).
+        """
+        return TorchView(self, keys=keys, transform=transform, with_record=with_record)
+
+
+def _to_tensor(torch, key: str, a):
+    """numpy -> tensor in the layout learning code expects (images channel-first, float in [0, 1])."""
+    a = np.asarray(a)
+    if key == "sensor":  # (H, W) or (H, W, 3) uint8 -> (C, H, W) float32 in [0, 1]
+        a = a[None] if a.ndim == 2 else np.moveaxis(a, -1, 0)
+        return torch.from_numpy(np.ascontiguousarray(a, dtype=np.float32) / np.float32(255.0))
+    if key == "normals":  # (H, W, 3) -> (3, H, W)
+        return torch.from_numpy(np.ascontiguousarray(np.moveaxis(a, -1, 0)))
+    if a.dtype == np.float64:
+        a = a.astype(np.float32)
+    return torch.from_numpy(np.ascontiguousarray(a))
+
+
+class TorchView:
+    """Items of a :class:`SimtestDataset` as dicts of PyTorch tensors (map-style dataset).
+
+    Parameters
+    ----------
+    dataset : SimtestDataset
+        The dataset to read (its ``split`` applies).
+    keys, transform, with_record
+        See :meth:`SimtestDataset.torch`.
+
+    Notes
+    -----
+    Item layout: ``"index"`` (int, the sample's index in the dataset); ``"sensor"`` float32
+    (1, H, W) in [0, 1] (the 8-bit image / 255; (3, H, W) for RGB); ``"normals"`` float32 (3, H, W)
+    in the OpenCV camera frame; ``"linear"``, ``"specular"``, ``"depth"`` (mm) float32 (H, W);
+    ``"mask"``, ``"highlight_mask"`` bool (H, W); ``"K"`` float32 (3, 3) in pixels with integer
+    pixel centres; ``"cam_to_world"`` float32 (4, 4). Samples of one batch must share a size (the
+    default config has a single resolution).
+    """
+
+    def __init__(self, dataset: SimtestDataset, keys: Sequence[str] = ("sensor", "normals", "mask"),
+                 transform: Callable[[dict], dict] | None = None, with_record: bool = False):
+        import torch  # noqa: F401 - fail here, with the install hint, rather than in a worker
+
+        keys = tuple(keys)
+        bad = [k for k in keys if k not in (*_ARRAYS, *_ROW_TENSORS)]
+        if bad:
+            raise KeyError(f"unknown key(s) {bad}; known: {', '.join((*_ARRAYS, *_ROW_TENSORS))}")
+        arrays = tuple(k for k in keys if k in _ARRAYS)
+        self.dataset = SimtestDataset(dataset.root, keys=arrays, with_record=True, split=dataset.split,
+                                      max_open=dataset.max_open)
+        self.keys = keys
+        self.transform = transform
+        self.with_record = with_record
+
+    def __len__(self) -> int:
+        return len(self.dataset)
+
+    def record(self, index: int) -> dict:
+        """The manifest row (labels, parameters, highlights) of the sample with dataset ``index``."""
+        for r in self.dataset.rows:
+            if r["index"] == index:
+                return r
+        raise IndexError(f"no sample {index} in this view")
+
+    def __getitem__(self, i: int) -> dict:
+        import torch
+
+        item = self.dataset[i]
+        row = item["record"]
+        out: dict = {"index": item["index"]}
+        for k in self.keys:
+            out[k] = _to_tensor(torch, k, row[k] if k in _ROW_TENSORS else item[k])
+        if self.transform is not None:
+            out = self.transform(out)
+        if self.with_record:
+            out["record"] = row
+        return out
+
+
+def collate(batch: list[dict]) -> dict:
+    """Batch items of a :class:`TorchView` made with ``with_record=True``.
+
+    Parameters
+    ----------
+    batch : list of dict
+        Items; tensors of one key must share a shape.
+
+    Returns
+    -------
+    dict
+        ``torch.utils.data.default_collate`` of everything but ``"record"``, and ``"record"`` as a
+        list of the rows (their keys differ between families).
+    """
+    from torch.utils.data import default_collate
+
+    rest = [{k: v for k, v in b.items() if k != "record"} for b in batch]
+    out = default_collate(rest)
+    if batch and "record" in batch[0]:
+        out["record"] = [b["record"] for b in batch]
+    return out
+
+
+def open_dataset(root, keys: Sequence[str] | None = None, with_record: bool = True,
+                 split: str | None = None) -> SimtestDataset:
     """Open a dataset folder lazily (``simtest.dataset.open``).
 
     Parameters
@@ -166,16 +314,20 @@ def open_dataset(root, keys: Sequence[str] | None = None, with_record: bool = Tr
         Arrays to load per sample (default: all); see :class:`SimtestDataset`.
     with_record : bool
         Include the manifest row under ``"record"``.
+    split : str, optional
+        ``"train"``, ``"val"`` or ``"test"``: only that split's samples.
 
     Returns
     -------
     SimtestDataset
+        ``.torch(keys=..., transform=...)`` gives the PyTorch view.
 
     Raises
     ------
     DatasetError
-        If ``root`` is not a complete dataset (card or manifest missing or unreadable).
+        If ``root`` is not a complete dataset (card or manifest missing or unreadable), or the
+        manifest names a shard file outside the folder.
     KeyError
         If ``keys`` names an unknown array.
     """
-    return SimtestDataset(root, keys=keys, with_record=with_record)
+    return SimtestDataset(root, keys=keys, with_record=with_record, split=split)

@@ -22,6 +22,7 @@ under test assumes; with a light offset or the falloff kept it is only an approx
 
 from __future__ import annotations
 
+import dataclasses
 import functools
 import io
 import math
@@ -35,6 +36,7 @@ import numpy as np
 from simtest.dataset.config import PARAMS, DatasetConfig
 from simtest.geometry.angles import unit
 from simtest.geometry.conics import plane_basis
+from simtest.render.sensor import apply_sensor
 
 __all__ = [
     "CHANNELS",
@@ -53,17 +55,16 @@ CHANNELS: dict[str, dict[str, str]] = {
     "sensor_png": {
         "dtype": "uint8", "shape": "(nbytes,)", "unit": "PNG file bytes",
         "description": "the sensor image as an endoscope outputs it (8-bit PNG, gray, (H, W) when "
-                       "decoded; exposure, clipping, noise and quantisation applied); decode with "
+                       "decoded; auto-exposure (record `exposure_applied`), clipping, noise and quantisation applied); decode with "
                        "PIL.Image.open(io.BytesIO(a.tobytes()))",
     },
     "linear": {
         "dtype": "float32", "shape": "(H, W)", "unit": _RADIANCE_UNIT,
-        "description": "linear image before the sensor model (specular + diffuse); values below "
-                       "1e-30 stored as 0",
+        "description": "linear image before the sensor model (specular + diffuse)",
     },
     "specular": {
         "dtype": "float32", "shape": "(H, W)", "unit": _RADIANCE_UNIT,
-        "description": "specular-only linear image; values below 1e-30 stored as 0",
+        "description": "specular-only linear image",
     },
     "normals": {
         "dtype": "float32", "shape": "(H, W, 3)", "unit": "unit vector",
@@ -420,18 +421,18 @@ def _jsonable(x):
     return x
 
 
-#: Radiance below this is stored as 0. Dr.Jit's worker threads flush float32 denormals to zero
-#: but a single-threaded render on the calling thread may not, so values of order 1e-38 (summed
-#: over the samples of a pixel: up to ~1e-35) depend on the thread count. 1e-30 is far below any
-#: radiance that can reach the 8-bit sensor (1/255) yet above every denormal sum, which makes the
-#: stored arrays independent of the scheduler and the number of workers.
-FLUSH_BELOW = 1e-30
+def _auto_exposure(linear: np.ndarray, mask: np.ndarray, config: DatasetConfig) -> float:
+    """Exposure multiplier that brings a percentile of the surface's linear image to a level.
 
-
-def _flush(a: np.ndarray) -> np.ndarray:
-    a = np.array(a, dtype=np.float32, copy=True)
-    a[np.abs(a) < FLUSH_BELOW] = 0.0
-    return a
+    Returns ``level / q`` with ``q`` the ``config.auto_exposure`` percentile of ``linear`` inside
+    ``mask`` (its gray values for an RGB image), or 1 when auto-exposure is off or ``q`` is not
+    positive (an empty or black frame).
+    """
+    if config.auto_exposure is None or not mask.any():
+        return 1.0
+    pct, level = config.auto_exposure
+    q = float(np.percentile(_gray(linear)[mask], pct))
+    return level / q if q > 0 and math.isfinite(q) else 1.0
 
 
 def _portable_scene(spec) -> dict:
@@ -506,9 +507,14 @@ def sample_from_render(config: DatasetConfig, index: int, params: dict, result) 
     mask = np.asarray(result.mask, dtype=bool)
     normals = np.where(mask[..., None], np.nan_to_num(np.asarray(result.normals, np.float32)), 0.0)
     depth = np.where(mask, np.nan_to_num(np.asarray(result.depth, np.float32)), 0.0)
-    linear = _flush(_gray(result.gray if hasattr(result, "gray") else result.linear))
-    specular = _flush(_gray(result.specular))
-    sensor = _gray(result.sensor)
+    linear = np.asarray(_gray(result.gray if hasattr(result, "gray") else result.linear), np.float32)
+    specular = np.asarray(_gray(result.specular), np.float32)
+    exposure = _auto_exposure(linear, mask, config) * float(result.spec.sensor.exposure)
+    if exposure != result.spec.sensor.exposure:  # the sensor model again, with the auto exposure
+        sensor_spec = dataclasses.replace(result.spec.sensor, exposure=exposure)
+        sensor = _gray(apply_sensor(result.linear, sensor_spec, result.seed))
+    else:
+        sensor = _gray(result.sensor)
     if sensor.dtype != np.uint8:
         raise ValueError(f"sample {index}: sensor image is {sensor.dtype}, expected uint8 (bit_depth 8)")
     peak = float(np.max(specular)) if specular.size else 0.0
@@ -545,6 +551,7 @@ def sample_from_render(config: DatasetConfig, index: int, params: dict, result) 
         "cam_to_world": np.asarray(result.cam_to_world, np.float64).tolist(),
         "image_size": [int(mask.shape[1]), int(mask.shape[0])],
         "variant": str(result.variant),
+        "exposure_applied": exposure,
         "highlights": highlights,
         "scene": _portable_scene(result.spec),
     }

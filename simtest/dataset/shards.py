@@ -25,7 +25,18 @@ manifest and the card's final counts are written last.
 Hashes
 ------
 ``sha256`` of an array is ``hashlib.sha256(np.ascontiguousarray(a).tobytes()).hexdigest()`` (C
-order; dtype and shape are recorded beside it).
+order; dtype and shape are recorded beside it). Each row also carries ``labels_sha256``, the sha256
+of the row's canonical JSON without that key (:func:`labels_sha256`), so an edited or corrupted
+label is caught like a corrupted array. The shard's zip comment names the shard number, the
+config fingerprint of the dataset it belongs to and the sha256 of its rows' label hashes
+(:func:`shard_comment`): a shard copied in from a dataset with another seed or config is refused
+by ``generate`` (which rewrites it) and by ``verify``.
+
+Paths
+-----
+Manifest rows name their shard as ``shards/shard-XXXXX.npz``; the reader and ``verify`` refuse any
+other form (an absolute path, ``..``), so a manifest can never point outside the dataset folder
+(:func:`shard_path_from_row`).
 """
 
 from __future__ import annotations
@@ -34,6 +45,7 @@ import hashlib
 import io
 import json
 import os
+import re
 import zipfile
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -52,11 +64,14 @@ __all__ = [
     "ShardWriter",
     "array_sha256",
     "file_sha256",
+    "labels_sha256",
     "read_card",
     "read_manifest",
     "read_shard_rows",
+    "shard_comment",
     "shard_json_path",
     "shard_npz_path",
+    "shard_path_from_row",
     "write_json",
 ]
 
@@ -67,6 +82,8 @@ MANIFEST_NAME = "manifest.jsonl"
 SHARDS_DIR = "shards"
 TMP_SUFFIX = ".tmp"
 _ZIP_TIME = (1980, 1, 1, 0, 0, 0)
+#: The only form a manifest row's ``npz`` may take (relative, inside the dataset folder).
+_NPZ_REL = re.compile(r"shards/shard-(\d{5,})\.npz")
 
 
 class DatasetError(RuntimeError):
@@ -114,6 +131,78 @@ def file_sha256(path: Path, chunk: int = 1 << 22) -> str:
         while block := fh.read(chunk):
             h.update(block)
     return h.hexdigest()
+
+
+def labels_sha256(row: dict) -> str:
+    """sha256 of a sample's labels: its row as canonical JSON, without ``labels_sha256`` and ``npz``.
+
+    Parameters
+    ----------
+    row : dict
+        A shard or manifest row (labels, parameters, pose, highlights, array hashes).
+
+    Returns
+    -------
+    str
+        64 hex digits of ``sha256(json.dumps(row, sort_keys=True, separators=(",", ":")))``; JSON
+        floats round-trip exactly, so a row read back from disk hashes as it was written.
+    """
+    body = {k: v for k, v in row.items() if k not in ("labels_sha256", "npz")}
+    return hashlib.sha256(json.dumps(body, sort_keys=True, separators=(",", ":")).encode()).hexdigest()
+
+
+def shard_comment(shard: int, fingerprint: str, label_hashes: Iterable[str]) -> bytes:
+    """The zip comment of a shard file: what binds it to its dataset.
+
+    Parameters
+    ----------
+    shard : int
+        Shard number.
+    fingerprint : str
+        Config fingerprint of the dataset (``DatasetConfig.fingerprint()``, covers the seed).
+    label_hashes : iterable of str
+        ``labels_sha256`` of the shard's rows, in index order.
+
+    Returns
+    -------
+    bytes
+        ASCII ``"simtest-dataset shard=N config_fingerprint=<hex> labels_sha256=<hex>"``, the last
+        the sha256 of the rows' label hashes joined by newlines.
+    """
+    joined = hashlib.sha256("\n".join(label_hashes).encode()).hexdigest()
+    return f"{FORMAT} shard={int(shard)} config_fingerprint={fingerprint} labels_sha256={joined}".encode()
+
+
+def shard_path_from_row(root: Path, row: dict) -> Path:
+    """The shard file of a manifest row, refusing any path outside ``root/shards``.
+
+    Parameters
+    ----------
+    root : Path
+        Dataset folder.
+    row : dict
+        A manifest row; its ``npz`` must read ``shards/shard-XXXXX.npz`` with the row's ``shard``.
+
+    Returns
+    -------
+    Path
+        ``root / row["npz"]``.
+
+    Raises
+    ------
+    DatasetError
+        If ``npz`` is absolute, climbs out with ``..``, has another form, or names another shard
+        than the row's ``shard`` (the message names the index and the path).
+    """
+    rel = row.get("npz")
+    m = _NPZ_REL.fullmatch(rel) if isinstance(rel, str) else None
+    if m is None:
+        raise DatasetError(f"{Path(root) / MANIFEST_NAME}: sample {row.get('index')}: npz {rel!r} is not "
+                           "of the form shards/shard-XXXXX.npz inside the dataset folder: refused")
+    if int(m.group(1)) != row.get("shard"):
+        raise DatasetError(f"{Path(root) / MANIFEST_NAME}: sample {row.get('index')}: npz {rel!r} is not "
+                           f"the file of its shard {row.get('shard')!r}")
+    return Path(root) / rel
 
 
 def write_json(path: Path, obj: Any) -> Path:
@@ -251,11 +340,15 @@ class ShardWriter:
         row["index"] = int(sample.index)
         row["shard"] = int(self.shard)
         row["arrays"] = arrays
+        row["labels_sha256"] = labels_sha256(row)
         self._rows.append(row)
 
     def _finish(self) -> None:
         assert self._zip is not None
+        self._zip.comment = shard_comment(self.shard, str(self.meta.get("config_fingerprint", "")),
+                                          (r["labels_sha256"] for r in self._rows))
         self._zip.close()
+        self._zip = None
         with open(self.tmp_path, "rb+") as fh:
             os.fsync(fh.fileno())
         os.replace(self.tmp_path, self.npz_path)
@@ -271,9 +364,12 @@ class ShardWriter:
         write_json(shard_json_path(self.root, self.shard), doc)
 
     def abort(self) -> None:
-        """Close and delete the partial file (a rerun redoes the shard)."""
+        """Close and delete the partial file (a rerun redoes the shard); never raises OSError."""
         if self._zip is not None:
-            self._zip.close()
+            try:
+                self._zip.close()
+            except (OSError, ValueError):  # e.g. the disk is full: the file is deleted anyway
+                pass
             self._zip = None
         self.tmp_path.unlink(missing_ok=True)
 
@@ -300,6 +396,93 @@ def read_shard_rows(root: Path, shard: int) -> dict | None:
         return json.loads(p.read_text(encoding="utf-8"))
     except (OSError, ValueError):
         return None
+
+
+def read_shard_comment(npz: Path) -> dict:
+    """The fields of a shard file's zip comment (see :func:`shard_comment`).
+
+    Parameters
+    ----------
+    npz : Path
+        A shard file.
+
+    Returns
+    -------
+    dict
+        ``{"shard", "config_fingerprint", "labels_sha256"}`` as strings; empty when the comment
+        is missing or not a simtest shard comment.
+
+    Raises
+    ------
+    OSError, zipfile.BadZipFile
+        If the file cannot be read or is not a zip file.
+    """
+    with zipfile.ZipFile(npz) as z:
+        text = z.comment.decode("ascii", errors="replace")
+    head, _, rest = text.partition(" ")
+    if head != FORMAT:
+        return {}
+    return dict(kv.split("=", 1) for kv in rest.split() if "=" in kv)
+
+
+def check_shard(root: Path, shard: int, fingerprint: str, indices: range) -> list[str]:
+    """What is wrong with the files of one shard (hashes and provenance; arrays not decoded).
+
+    Checks that the row file reads, names this shard, this dataset's config ``fingerprint`` and
+    exactly ``indices``; that the ``.npz`` exists, hashes to the row file's ``npz_sha256``, and
+    that its zip comment names the same shard, fingerprint and label hashes; and that every row's
+    ``labels_sha256`` matches its content (:func:`labels_sha256`).
+
+    Parameters
+    ----------
+    root : Path
+        Dataset folder.
+    shard : int
+        Shard number.
+    fingerprint : str
+        Config fingerprint of the dataset (its card's, or the config being generated).
+    indices : range
+        Sample indices the shard must hold.
+
+    Returns
+    -------
+    list of str
+        One line per problem, each naming the file; empty when the shard is sound.
+    """
+    npz, js = shard_npz_path(root, shard), shard_json_path(root, shard)
+    doc = read_shard_rows(root, shard)
+    if doc is None:
+        return [f"{js}: missing or not JSON"]
+    if not npz.is_file():
+        return [f"{npz}: missing"]
+    out = []
+    if doc.get("config_fingerprint") != fingerprint:
+        out.append(f"{js}: config_fingerprint {str(doc.get('config_fingerprint'))[:12]} is not this "
+                   f"dataset's ({fingerprint[:12]}): a shard of another dataset (seed or config)")
+    if doc.get("shard") != shard or doc.get("indices") != [indices.start, indices.stop]:
+        out.append(f"{js}: names shard {doc.get('shard')!r} with indices {doc.get('indices')!r}, expected "
+                   f"shard {shard} with [{indices.start}, {indices.stop}]")
+    samples = doc.get("samples")
+    if not isinstance(samples, list) or not all(isinstance(r, dict) for r in samples):
+        return out + [f"{js}: samples: not a list of rows"]
+    if [r.get("index") for r in samples] != list(indices):
+        out.append(f"{js}: samples are not {indices.start}..{indices.stop - 1} in order")
+    for r in samples:
+        if r.get("labels_sha256") != labels_sha256(r):
+            out.append(f"{js}: sample {r.get('index')}: labels differ from their labels_sha256")
+    try:
+        digest = file_sha256(npz)
+        comment = read_shard_comment(npz)
+    except (OSError, zipfile.BadZipFile) as exc:
+        return out + [f"{npz}: unreadable: {exc}"]
+    if digest != doc.get("npz_sha256"):
+        out.append(f"{npz}: sha256 differs from {js.name}")
+    want = shard_comment(shard, fingerprint, (str(r.get("labels_sha256")) for r in samples)).decode()
+    got = " ".join([FORMAT] + [f"{k}={v}" for k, v in comment.items()]) if comment else "(none)"
+    if got != want:
+        out.append(f"{npz}: zip comment {got[:60]!r}... does not name shard {shard} of this dataset "
+                   f"(config {fingerprint[:12]}) with these labels")
+    return out
 
 
 def read_card(root: Path) -> dict:

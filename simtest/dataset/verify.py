@@ -2,24 +2,27 @@
 
 from __future__ import annotations
 
-import zipfile
 from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
 
 from simtest.dataset.shards import (
+    CARD_NAME,
+    MANIFEST_NAME,
     SHARDS_DIR,
     TMP_SUFFIX,
     DatasetError,
     array_sha256,
+    check_shard,
     decode_png,
     entry_name,
-    file_sha256,
+    labels_sha256,
     read_card,
     read_manifest,
     read_shard_rows,
     shard_npz_path,
+    shard_path_from_row,
 )
 
 __all__ = ["UNIT_NORMAL_TOL", "VerifyReport", "verify"]
@@ -141,11 +144,14 @@ def _check_sample(rep: VerifyReport, where: str, row: dict, arrays: dict) -> Non
 def verify(root, *, check_arrays: bool = True) -> VerifyReport:
     """Check a dataset folder.
 
-    Checks the card, that the manifest lists exactly samples 0 .. count-1 once each, that every
-    shard file's sha256 matches its row file and every array's sha256, dtype and shape match the
-    manifest, that shapes agree with the image size, normals are unit and face the camera inside
-    the mask and zero outside, depth is positive inside the mask, the PNG decodes, and that no
-    temporary file is left.
+    Checks the card, that the manifest lists exactly samples 0 .. count-1 once each, each naming
+    its shard as ``shards/shard-XXXXX.npz`` (nothing outside the folder); that every shard's row
+    file names this dataset's config fingerprint, every row's labels match their
+    ``labels_sha256``, every shard file's sha256 matches its row file and its zip comment names this
+    dataset (a shard from a dataset with another seed or config fails); that every array's sha256,
+    dtype and shape match the manifest, shapes agree with the image size, normals are unit and face
+    the camera inside the mask and zero outside, depth is positive inside the mask, the PNG decodes,
+    and that no temporary file is left.
 
     Parameters
     ----------
@@ -161,11 +167,11 @@ def verify(root, *, check_arrays: bool = True) -> VerifyReport:
 
     Notes
     -----
-    Nothing is raised for a bad dataset: every problem (an unreadable card or manifest included)
-    is a line of ``report.problems``, and checking stops after 50 of them. The facing test uses the
-    OpenCV camera frame: the ray through pixel (u, v) (integer pixel centres, u = column) is
-    ``K^{-1} (u, v, 1)`` with the sample's recorded ``K``, and a stored normal must satisfy
-    ``n . ray <= FACING_TOL``.
+    Nothing is raised for a bad dataset: every problem (an unreadable card, manifest or shard, a
+    corrupt zip entry included) is a line of ``report.problems`` naming the file, and checking stops
+    after 50 of them. The facing test uses the OpenCV camera frame: the ray through pixel (u, v)
+    (integer pixel centres, u = column) is ``K^{-1} (u, v, 1)`` with the sample's recorded ``K``,
+    and a stored normal must satisfy ``n . ray <= FACING_TOL``.
     """
     root = Path(root)
     rep = VerifyReport(root=root)
@@ -175,84 +181,125 @@ def verify(root, *, check_arrays: bool = True) -> VerifyReport:
     except DatasetError as exc:
         rep.add(str(exc))
         return rep
+    try:
+        _verify(rep, root, card, rows, check_arrays)
+    except _TooMany:
+        rep.add("... too many problems; stopped")
+    return rep
+
+
+class _TooMany(Exception):
+    pass
+
+
+def _verify(rep: VerifyReport, root: Path, card: dict, rows: list, check_arrays: bool) -> None:
+    card_path, man_path = root / CARD_NAME, root / MANIFEST_NAME
+
+    def add(msg: str) -> None:
+        rep.add(msg)
+        if len(rep.problems) >= _MAX_PROBLEMS:
+            raise _TooMany
+
     count, shard_size, n_shards = card.get("count"), card.get("shard_size"), card.get("n_shards")
+    fp = card.get("config_fingerprint")
+    if not (isinstance(count, int) and isinstance(shard_size, int) and shard_size > 0
+            and isinstance(n_shards, int) and isinstance(fp, str)):
+        add(f"{card_path}: count, shard_size, n_shards or config_fingerprint missing or not valid")
+        return
     if card.get("status") != "complete":
-        rep.add(f"{root / 'dataset.json'}: status is {card.get('status')!r}, not 'complete'")
+        add(f"{card_path}: status is {card.get('status')!r}, not 'complete'")
+    bad_rows = [k for k, r in enumerate(rows, 1) if not isinstance(r, dict)]
+    if bad_rows:
+        add(f"{man_path}: line {bad_rows[0]}: not a JSON object")
+        rows = [r for r in rows if isinstance(r, dict)]
     indices = [r.get("index") for r in rows]
     if indices != list(range(count)):
-        dup = len(indices) - len(set(indices))
-        rep.add(f"{root / 'manifest.jsonl'}: {len(rows)} rows ({dup} duplicated), expected indices "
-                f"0..{count - 1} in order")
+        dup = len(indices) - len(set(map(str, indices)))
+        add(f"{man_path}: {len(rows)} rows ({dup} duplicated), expected indices 0..{count - 1} in order")
     counts = card.get("counts", {})
-    if counts.get("samples") != len(rows):
-        rep.add(f"{root / 'dataset.json'}: counts.samples = {counts.get('samples')}, manifest has {len(rows)}")
+    if not isinstance(counts, dict) or counts.get("samples") != len(rows):
+        add(f"{card_path}: counts.samples = {counts.get('samples') if isinstance(counts, dict) else counts}, "
+            f"manifest has {len(rows)}")
     variants = sorted({str(r.get("variant")) for r in rows})
     if len(variants) > 1:
-        rep.add(f"{root / 'manifest.jsonl'}: samples rendered with several Mitsuba variants {variants}: "
-                "the dataset is not reproducible bit for bit (pin `variant` in the config)")
-    by_shard: dict[int, list] = {}
+        add(f"{man_path}: samples rendered with several Mitsuba variants {variants}: "
+            "the dataset is not reproducible bit for bit (pin `variant` in the config)")
+    by_shard: dict = {}
     for r in rows:
+        try:
+            shard_path_from_row(root, r)
+        except DatasetError as exc:
+            add(str(exc))
+            continue
         by_shard.setdefault(r.get("shard"), []).append(r)
-    if sorted(by_shard) != list(range(n_shards)):
-        rep.add(f"{root / 'manifest.jsonl'}: shards {sorted(by_shard)[:10]}..., expected 0..{n_shards - 1}")
+    if sorted(by_shard, key=str) != list(range(n_shards)):
+        add(f"{man_path}: shards {sorted(by_shard, key=str)[:10]}..., expected 0..{n_shards - 1}")
 
     for s in range(n_shards):
+        rep.shards += 1
+        want = range(s * shard_size, min(count, (s + 1) * shard_size))
+        problems = check_shard(root, s, fp, want)
+        for msg in problems:
+            add(msg)
         npz = shard_npz_path(root, s)
         doc = read_shard_rows(root, s)
-        rep.shards += 1
         if doc is None or not npz.is_file():
-            rep.add(f"{npz}: missing shard file or its .json")
             continue
-        if file_sha256(npz) != doc.get("npz_sha256"):
-            rep.add(f"{npz}: sha256 differs from {npz.with_suffix('.json').name}")
-        want = list(range(s * shard_size, min(count, (s + 1) * shard_size)))
-        if [r.get("index") for r in doc.get("samples", [])] != want:
-            rep.add(f"{npz.with_suffix('.json')}: samples are not {want[0]}..{want[-1]}")
-        manifest_rows = {r["index"]: r for r in by_shard.get(s, [])}
         try:
-            z = np.load(npz, allow_pickle=False)
-        except (OSError, ValueError, zipfile.BadZipFile) as exc:
-            rep.add(f"{npz}: unreadable: {exc}")
-            continue
-        with z:
-            expected_keys = set()
-            for srow in doc.get("samples", []):
-                i = srow.get("index")
-                where = f"{npz}: sample {i}"
-                mrow = manifest_rows.get(i)
-                if mrow is None:
-                    rep.add(f"{where}: not in the manifest")
-                    continue
-                if {k: v for k, v in mrow.items() if k != "npz"} != srow:
-                    rep.add(f"{where}: manifest row differs from the shard's row")
-                arrays = {}
-                for name, info in mrow.get("arrays", {}).items():
-                    key = entry_name(i, name)
-                    expected_keys.add(key)
-                    if key not in z.files:
-                        rep.add(f"{where}: entry {key!r} missing")
-                        continue
-                    a = z[key]
-                    if array_sha256(a) != info.get("sha256"):
-                        rep.add(f"{where}: {name}: sha256 mismatch")
-                    if str(a.dtype) != info.get("dtype") or list(a.shape) != info.get("shape"):
-                        rep.add(f"{where}: {name}: {a.dtype} {list(a.shape)} but the manifest says "
-                                f"{info.get('dtype')} {info.get('shape')}")
-                    arrays[name] = a
-                if check_arrays:
-                    _check_sample(rep, where, mrow, arrays)
-                rep.samples += 1
-                if len(rep.problems) > _MAX_PROBLEMS:
-                    rep.add("... too many problems; stopped")
-                    return rep
-            extra = set(z.files) - expected_keys
-            if extra:
-                rep.add(f"{npz}: {len(extra)} entries not in the manifest, e.g. {sorted(extra)[0]!r}")
+            _verify_shard(add, rep, npz, doc, {r["index"]: r for r in by_shard.get(s, [])}, check_arrays)
+        except _TooMany:
+            raise
+        except Exception as exc:  # noqa: BLE001 - a damaged file is a problem to report, not a crash
+            add(f"{npz}: unreadable: {type(exc).__name__}: {exc}")
     for p in list((root / SHARDS_DIR).glob("*")) + list(root.glob("*")):
         if p.name.endswith(TMP_SUFFIX):
-            rep.add(f"{p}: temporary file left over")
+            add(f"{p}: temporary file left over")
         elif p.parent.name == SHARDS_DIR and p.suffix in (".npz", ".json"):
             num = p.stem.removeprefix("shard-")
             if not num.isdigit() or int(num) >= n_shards:
-                rep.add(f"{p}: unexpected shard file")
-    return rep
+                add(f"{p}: unexpected shard file")
+
+
+def _verify_shard(add, rep: VerifyReport, npz: Path, doc: dict, manifest_rows: dict,
+                  check_arrays: bool) -> None:
+    """Check the entries of one shard file against the manifest rows (reads every array)."""
+    with np.load(npz, allow_pickle=False) as z:
+        expected_keys = set()
+        for srow in doc.get("samples", []):
+            i = srow.get("index")
+            where = f"{npz}: sample {i}"
+            mrow = manifest_rows.get(i)
+            if mrow is None:
+                add(f"{where}: not in the manifest")
+                continue
+            if {k: v for k, v in mrow.items() if k != "npz"} != srow:
+                add(f"{where}: manifest row differs from the shard's row")
+            if mrow.get("labels_sha256") != labels_sha256(mrow):
+                add(f"{where}: manifest labels differ from their labels_sha256")
+            arrays = {}
+            for name, info in mrow.get("arrays", {}).items():
+                key = entry_name(i, name)
+                expected_keys.add(key)
+                if key not in z.files:
+                    add(f"{where}: entry {key!r} missing")
+                    continue
+                try:
+                    a = z[key]
+                except Exception as exc:  # noqa: BLE001 - CRC error, truncated entry, bad header
+                    add(f"{where}: {name}: unreadable entry: {type(exc).__name__}: {exc}")
+                    continue
+                if array_sha256(a) != info.get("sha256"):
+                    add(f"{where}: {name}: sha256 mismatch")
+                if str(a.dtype) != info.get("dtype") or list(a.shape) != info.get("shape"):
+                    add(f"{where}: {name}: {a.dtype} {list(a.shape)} but the manifest says "
+                        f"{info.get('dtype')} {info.get('shape')}")
+                arrays[name] = a
+            if check_arrays:
+                before = len(rep.problems)
+                _check_sample(rep, where, mrow, arrays)
+                if len(rep.problems) >= _MAX_PROBLEMS and len(rep.problems) > before:
+                    raise _TooMany
+            rep.samples += 1
+        extra = set(z.files) - expected_keys
+        if extra:
+            add(f"{npz}: {len(extra)} entries not in the manifest, e.g. {sorted(extra)[0]!r}")

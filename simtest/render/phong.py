@@ -25,6 +25,18 @@ __all__ = ["register", "PLUGIN_NAME"]
 
 PLUGIN_NAME = "simtest_phong"
 
+#: log2 of the smallest Phong lobe ``cos(beta)^n`` kept; smaller lobes are set to exactly 0.
+#: 2^-100 (~7.9e-31) is far below anything an 8-bit (or 16-bit) sensor can see, and keeping every
+#: kept lobe a normal float32 (>= 2^-126) makes the image independent of the floating-point mode
+#: of the thread that runs the kernel: Dr.Jit's pool threads flush denormals to zero and the
+#: calling thread (thread count 0 or 1) does not, which changed pixels near 1e-30 with the thread
+#: count (a colon sample of ``scenes/datasets/example.toml``: 1.4848451e-30 vs 1.484845e-30).
+LOBE_LOG2_MIN = -100.0
+
+#: float32's smallest normal number: a ``cos(beta)`` below it is a denormal (read as 0 by a
+#: thread that treats denormals as zero), so it counts as 0 on every thread.
+FLT_MIN = 1.1754943508222875e-38
+
 _registered: set[str] = set()
 
 
@@ -88,7 +100,11 @@ def _make_class():
             cos_o = mi.Frame3f.cos_theta(wo)
             r = mi.Vector3f(-wi.x, -wi.y, wi.z)  # mirror of wi about the shading normal
             cos_beta = dr.maximum(dr.dot(r, wo), 0.0)
-            spec = self.c * dr.power(cos_beta, self.n)
+            # Lobes below 2^LOBE_LOG2_MIN are 0, decided from n log2(cos beta) (never a denormal):
+            # the same image whatever thread runs the kernel (see LOBE_LOG2_MIN).
+            seen = (cos_beta >= FLT_MIN) & (self.n * dr.log2(dr.maximum(cos_beta, FLT_MIN))
+                                            > LOBE_LOG2_MIN)
+            spec = dr.select(seen, self.c * dr.power(cos_beta, self.n), 0.0)
             if self.cancel_falloff:
                 d = si.p - self.light_pos
                 spec = spec * dr.squared_norm(d)
