@@ -244,3 +244,34 @@ def test_a_render_does_not_depend_on_the_drjit_thread_count():
     assert runs[0]["family"] == "colon" and runs[0]["size"] == [256, 256]
     assert runs[0]["sha"] == runs[1]["sha"]
     assert runs[0]["tiny"] == {"linear": 0, "specular": 0, "normals": 0, "depth": 0}
+
+
+def test_a_dataloader_over_every_family_with_the_default_torch_view(reference):
+    """The issue's case: DataLoader over a dataset whose per-family records differ (2 workers)."""
+    import torch
+
+    view = simtest.dataset.open(reference).torch()
+    loader = torch.utils.data.DataLoader(view, batch_size=4, num_workers=2)
+    batches = list(loader)
+    assert [b["sensor"].shape for b in batches] == [(4, 1, 32, 32)] * 3
+    families = {view.record(i)["family"] for b in batches for i in b["index"].tolist()}
+    assert families == set(FAMILIES)
+
+
+def test_auto_exposure_brings_the_percentile_to_the_level():
+    """A dim colon view (falloff kept): the 99.5th percentile of the surface reaches 0.9 x 255."""
+    cfg = config_from_dict({
+        "count": 1, "seed": 3, "families": {"colon": 1.0},
+        "params": {"resolution_px": 48, "spp": 4, "light_falloff": "keep", "light_intensity": 200.0,
+                   "diffuse_albedo": 0.5, "exposure": 1.0, "noise_sigma": 0.0, "full_well_e": 0.0},
+    })
+    s = render_sample(cfg, 0)
+    mask = s.arrays["mask"]
+    img = simtest.dataset.shards.decode_png(s.arrays["sensor_png"]).astype(np.float64)
+    e = s.record["exposure_applied"]
+    linear = s.arrays["linear"].astype(np.float64)
+    # the exposure is exactly the one that maps the percentile to the level (noise-free sensor) ...
+    assert e == pytest.approx(0.9 / np.percentile(linear[mask], 99.5), rel=1e-6)
+    # ... and the 8-bit image shows it: percentiles commute with the scale, then rounding (< 1 level)
+    assert abs(np.percentile(img[mask], 99.5) - 0.9 * 255) <= 1.0
+    assert e > 1.5  # this view is dim: without auto-exposure it would not use the range

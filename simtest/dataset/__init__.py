@@ -4,29 +4,37 @@
 (:mod:`simtest.dataset.config`), each a pure function of (root seed, index)
 (:mod:`simtest.dataset.sample`), into shards with a manifest and a card
 (:mod:`simtest.dataset.shards`), locally or on a Dask cluster (:mod:`simtest.dataset.generate`);
-``simtest dataset verify DIR`` checks it (:mod:`simtest.dataset.verify`) and
-``simtest.dataset.open(DIR)`` reads it lazily (:mod:`simtest.dataset.reader`).
+``simtest dataset verify DIR`` checks it (:mod:`simtest.dataset.verify`),
+``simtest dataset show DIR`` draws a contact sheet (:mod:`simtest.dataset.show`),
+``simtest dataset export DIR --format webdataset|hdf5`` converts it (:mod:`simtest.dataset.export`)
+and ``simtest.dataset.open(DIR)`` reads it lazily, ``.torch(...)`` for a PyTorch ``DataLoader``
+(:mod:`simtest.dataset.reader`).
 
 Functions: ``simtest.dataset.generate.generate``, ``simtest.dataset.verify.verify``,
-``simtest.dataset.open``. Attributes are imported lazily so that ``import simtest.dataset`` stays cheap.
+``simtest.dataset.open``, ``simtest.dataset.collate``. Attributes are imported on first use so that ``import simtest.dataset`` stays cheap; ``dir()``
+lists them.
 """
 
 from __future__ import annotations
 
-__all__ = ["load_config", "open", "render_sample"]
+import importlib
+
+__all__ = ["collate", "load_config", "open", "render_sample"]
+
+_WHERE = {
+    "open": ("simtest.dataset.reader", "open_dataset"),
+    "collate": ("simtest.dataset.reader", "collate"),
+    "load_config": ("simtest.dataset.config", "load_config"),
+    "render_sample": ("simtest.dataset.sample", "render_sample"),
+}
 
 
 def __getattr__(name: str):
-    if name == "open":
-        from simtest.dataset.reader import open_dataset
-
-        return open_dataset
-    if name == "load_config":
-        from simtest.dataset.config import load_config
-
-        return load_config
-    if name == "render_sample":
-        from simtest.dataset.sample import render_sample
-
-        return render_sample
+    if name in _WHERE:
+        module, attr = _WHERE[name]
+        return getattr(importlib.import_module(module), attr)
     raise AttributeError(f"module 'simtest.dataset' has no attribute {name!r}")
+
+
+def __dir__() -> list[str]:
+    return sorted(set(globals()) | set(__all__))

@@ -8,7 +8,7 @@ import typer
 
 dataset_app = typer.Typer(
     name="dataset",
-    help="Rendered datasets for learning: generate (resumable, local or Dask) and verify.",
+    help="Rendered datasets for learning: generate (resumable, local or Dask), verify, show, export.",
     no_args_is_help=True,
     add_completion=False,
     pretty_exceptions_enable=False,
@@ -60,6 +60,46 @@ def verify_command(
                    f"{rep.shards} shards checked)", err=True)
         raise typer.Exit(1)
     typer.echo(f"{root}: OK ({rep.samples} samples in {rep.shards} shards)")
+
+
+@dataset_app.command("export")
+def export_command(
+    root: Path = typer.Argument(..., help="Dataset folder."),
+    fmt: str = typer.Option(..., "--format", "-f", help="webdataset (tar shards) or hdf5 (BlenderProc layout)."),
+    out: Path = typer.Option(None, "--out", "-o", help="Output folder (default: DIR-<format> beside DIR)."),
+) -> None:
+    """Export DIR to WebDataset tar shards or HDF5 files, readable without simtest."""
+    from simtest.dataset.export import export
+    from simtest.dataset.shards import DatasetError
+
+    try:
+        path = export(root, fmt, out)
+    except DatasetError as exc:
+        typer.echo(f"error: {exc}", err=True)
+        raise typer.Exit(2) from None
+    except OSError as exc:
+        typer.echo(f"error: {exc.filename or out or root}: cannot write: {exc.strerror or exc}", err=True)
+        raise typer.Exit(2) from None
+    typer.echo(f"{path}: {fmt} export written (see {path / 'export.json'} for how to read it)")
+
+
+@dataset_app.command("show")
+def show_command(
+    root: Path = typer.Argument(..., help="Dataset folder."),
+    out: Path = typer.Option(None, "--out", "-o", help="PNG to write (default: DIR/contact_sheet.png)."),
+    count: int = typer.Option(8, "--count", "-n", min=1, help="Samples shown, one row each."),
+    start: int = typer.Option(0, "--start", min=0, help="First sample shown."),
+) -> None:
+    """Write a contact sheet: image with BP markers and isophotes, normals, masks per sample."""
+    from simtest.dataset.shards import DatasetError
+    from simtest.dataset.show import contact_sheet
+
+    try:
+        path = contact_sheet(root, out, count=count, start=start)
+    except (DatasetError, ValueError) as exc:
+        typer.echo(f"error: {exc}", err=True)
+        raise typer.Exit(2) from None
+    typer.echo(f"{path}: contact sheet written")
 
 
 @dataset_app.command("params")

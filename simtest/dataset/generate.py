@@ -27,8 +27,9 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Callable
 
-from simtest.dataset.config import DatasetConfig, load_config
 from simtest._io import atomic_write_text
+from simtest._lazy import require
+from simtest.dataset.config import DatasetConfig, load_config
 from simtest.dataset.shards import (
     CARD_NAME,
     FORMAT,
@@ -122,6 +123,8 @@ def _conventions() -> dict:
                      "exactly; t relative to the Phong peak; exact for planes with a co-located "
                      "light and cancelled falloff",
         "randomness": "sample i draws from numpy default_rng(SeedSequence([seed, i]))",
+        "split": "sample i is in the first split whose cumulative fraction exceeds "
+                 "int(sha256('simtest-split:<seed>:<i>')[:8 bytes]) / 2^64",
     }
 
 
@@ -154,7 +157,9 @@ def _readme(config: DatasetConfig, count: int) -> str:
         "  `bp_mm`, GT `normal` at the BP, curvatures `k1` >= `k2` in 1/mm, `isophotes`: the",
         "  tangent-plane isophote conic per isovalue), the shard file (`npz`) and each array's",
         "  sha256, dtype and shape.",
-        "- `shards/shard-XXXXX.npz`: numpy archives with one entry `<index:08d>/<array>` per array.",
+        "- `shards/shard-XXXXX.npz`: numpy archives (deflated) with one entry `<index:08d>/<array>` per",
+        "  array; each row also has its `split` (train/val/test, fixed by seed and index), the",
+        "  `exposure_applied` (auto-exposure) and `labels_sha256` (hash of the row itself).",
         "",
         "## Arrays",
         "",
@@ -212,6 +217,12 @@ def make_card(config: DatasetConfig, *, status: str, counts: dict | None = None,
         "meshes": {f"meshes/{f}.ply": mesh_sha256(f) for f, _ in config.families
                    if f in ("colon", "liver")},
         "channels": CHANNELS,
+        "image": ("grey: one channel, the renderer's monochrome image (specular + diffuse) through "
+                  "the sensor model; RGB tissue colour is not rendered yet"),
+        "splits": dict(config.splits),
+        "auto_exposure": (None if config.auto_exposure is None else
+                          {"percentile": config.auto_exposure[0], "level": config.auto_exposure[1],
+                           "applied": "per sample, record field exposure_applied"}),
         "conventions": _conventions(),
         "layout": {
             "card": CARD_NAME,
@@ -377,8 +388,8 @@ def _check_address(address: str) -> None:
     DatasetError
         If the address has no known protocol or port, or its host name does not resolve.
     """
-    from distributed.comm.addressing import parse_address, parse_host_port
-
+    addressing = require("distributed.comm.addressing", purpose="--scheduler")
+    parse_address, parse_host_port = addressing.parse_address, addressing.parse_host_port
     where = f"--scheduler {address!r}"
     if "://" not in address:
         raise DatasetError(f"{where}: not a scheduler address (expected tcp://HOST:PORT, e.g. "
@@ -401,18 +412,14 @@ class _Dask:
     """An existing Dask distributed cluster, reached through its scheduler address."""
 
     def __init__(self, sample_fn, config, address: str):
-        try:
-            from distributed import Client
-        except ImportError as exc:  # pragma: no cover - dask[distributed] is a dependency
-            raise DatasetError("--scheduler needs dask[distributed] installed") from exc
+        Client = require("distributed", purpose="--scheduler").Client
         _check_address(address)
         try:
             self.client = Client(address, timeout=CONNECT_TIMEOUT, set_as_default=False)
         except (OSError, TimeoutError, ValueError) as exc:
             raise DatasetError(f"--scheduler {address}: cannot connect within {CONNECT_TIMEOUT}: "
                                f"{exc}") from None
-        from distributed import as_completed
-
+        as_completed = require("distributed").as_completed
         self.sample_fn, self.config = sample_fn, config
         self.prefix = f"simtest-dataset-{config.fingerprint()[:12]}"
         self.done = as_completed(loop=self.client.loop)

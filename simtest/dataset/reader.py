@@ -41,6 +41,7 @@ from typing import Callable, Iterator, Sequence
 
 import numpy as np
 
+from simtest._lazy import require
 from simtest.dataset.shards import (
     DatasetError,
     decode_png,
@@ -200,8 +201,8 @@ class SimtestDataset:
         ------
         KeyError
             If ``keys`` names an unknown array or label.
-        ModuleNotFoundError
-            If PyTorch is not installed (``pip install "simtest[torch]"``).
+        simtest._lazy.MissingBackend
+            If PyTorch is not installed (one line: ``pip install "simtest[torch]"``).
         """
         return TorchView(self, keys=keys, transform=transform, with_record=with_record)
 
@@ -241,7 +242,7 @@ class TorchView:
 
     def __init__(self, dataset: SimtestDataset, keys: Sequence[str] = ("sensor", "normals", "mask"),
                  transform: Callable[[dict], dict] | None = None, with_record: bool = False):
-        import torch  # noqa: F401 - fail here, with the install hint, rather than in a worker
+        require("torch", purpose="simtest.dataset.open(DIR).torch()")  # here, not in a worker
 
         keys = tuple(keys)
         bad = [k for k in keys if k not in (*_ARRAYS, *_ROW_TENSORS)]
@@ -265,8 +266,7 @@ class TorchView:
         raise IndexError(f"no sample {index} in this view")
 
     def __getitem__(self, i: int) -> dict:
-        import torch
-
+        torch = require("torch")
         item = self.dataset[i]
         row = item["record"]
         out: dict = {"index": item["index"]}
@@ -293,8 +293,7 @@ def collate(batch: list[dict]) -> dict:
         ``torch.utils.data.default_collate`` of everything but ``"record"``, and ``"record"`` as a
         list of the rows (their keys differ between families).
     """
-    from torch.utils.data import default_collate
-
+    default_collate = require("torch.utils.data", purpose="simtest.dataset.collate").default_collate
     rest = [{k: v for k, v in b.items() if k != "record"} for b in batch]
     out = default_collate(rest)
     if batch and "record" in batch[0]:

@@ -33,6 +33,7 @@ from typing import Any
 
 import numpy as np
 
+from simtest._lazy import require
 from simtest.dataset.config import PARAMS, DatasetConfig
 from simtest.geometry.angles import unit
 from simtest.geometry.conics import plane_basis
@@ -576,9 +577,7 @@ def _configure_threads() -> None:
     from simtest._llvm import configure_llvm_env
 
     configure_llvm_env()
-    import drjit as dr
-
-    dr.set_thread_count(int(n))
+    require("drjit", purpose="rendering a dataset sample").set_thread_count(int(n))
 
 
 def render_sample(config: DatasetConfig, index: int) -> Sample:
