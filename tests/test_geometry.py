@@ -247,21 +247,6 @@ def test_look_at_is_opencv_frame():
         look_at([0, 0, 0], [0, 1, 0], up=(0, 1, 0))
 
 
-def test_geometry_and_reconstruct_never_import_mitsuba():
-    import subprocess
-    import sys
-
-    code = (
-        "import sys, simtest.geometry, simtest.specular, simtest.simulate.analytic\n"
-        "import importlib.util\n"
-        "if importlib.util.find_spec('simtest.reconstruct.pipeline'):\n"
-        "    import simtest.reconstruct.pipeline\n"
-        "bad = [m for m in sys.modules if m.split('.')[0] in ('mitsuba', 'drjit')]\n"
-        "assert not bad, bad\n"
-    )
-    subprocess.run([sys.executable, "-c", code], check=True)
-
-
 @pytest.mark.parametrize("centre", [(0.0, 0.0), (1300.0, 1000.0), (-5e4, 2e4)])
 def test_conic_kind_does_not_depend_on_position(centre):
     # a small (2 x 0.5 px) ellipse is an ellipse wherever it lies in the image

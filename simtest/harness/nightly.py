@@ -27,6 +27,8 @@ import json
 from dataclasses import dataclass
 from pathlib import Path
 
+from simtest.resources import bundled
+
 __all__ = ["TRACKED", "DEFAULT_TOLERANCES", "Change", "baseline_entry", "compare",
            "load_baseline", "update_baseline", "default_baseline_path"]
 
@@ -48,16 +50,14 @@ BASELINE_VERSION = 1
 
 
 def default_baseline_path() -> Path:
-    """The committed baseline file, ``<repo root>/reports/baseline.json``.
+    """The committed baseline file, ``reports/baseline.json`` (:func:`simtest.resources.bundled`).
 
     Returns
     -------
     Path
         The path (the file may not exist yet).
     """
-    import simtest
-
-    return Path(simtest.__file__).resolve().parents[1] / "reports" / "baseline.json"
+    return bundled("reports", "baseline.json")
 
 
 @dataclass(frozen=True)

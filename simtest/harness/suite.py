@@ -61,6 +61,8 @@ from typing import Any, Mapping
 
 import numpy as np
 
+from simtest.resources import bundled
+
 __all__ = [
     "SuiteError",
     "Case",
@@ -118,16 +120,14 @@ def _err(source: str, key: str, reason: str) -> SuiteError:
 
 
 def suites_dir() -> Path:
-    """Folder of the bundled suites: ``<repo root>/scenes/suites``.
+    """Folder of the bundled suites, ``scenes/suites``.
 
     Returns
     -------
     Path
-        The folder (resolved from the installed ``simtest`` package; an editable install).
+        The folder (:func:`simtest.resources.bundled`: a clone's or an installed wheel's).
     """
-    import simtest
-
-    return Path(simtest.__file__).resolve().parents[1] / "scenes" / "suites"
+    return bundled("scenes", "suites")
 
 
 def bundled_suite_names() -> list[str]:

@@ -8,6 +8,8 @@ from __future__ import annotations
 
 from pathlib import Path
 
+from simtest.resources import bundled
+
 from simtest.scene.spec import (
     CameraSpec,
     GeometrySpec,
@@ -44,14 +46,12 @@ __all__ = [
 
 
 def scenes_dir() -> Path:
-    """The folder of bundled scene files: ``<repo root>/scenes`` (next to the package)."""
-    import simtest
-
-    return Path(simtest.__file__).resolve().parents[1] / "scenes"
+    """The folder of bundled scene files, ``scenes/`` (:func:`simtest.resources.bundled`)."""
+    return bundled("scenes")
 
 
 def bundled_mesh_path(name: str) -> Path:
-    """Path of the bundled mesh ``name`` (``"colon"`` or ``"liver"``): ``<repo root>/meshes/<name>.ply``.
+    """Path of the bundled mesh ``name`` (``"colon"`` or ``"liver"``): ``meshes/<name>.ply``.
 
     Parameters
     ----------
@@ -61,11 +61,10 @@ def bundled_mesh_path(name: str) -> Path:
     Returns
     -------
     Path
-        The path; the file may be missing (``simtest meshes build`` writes it).
+        The path (:func:`simtest.resources.bundled`); the file may be missing (``simtest meshes
+        build`` writes it).
     """
-    import simtest
-
-    return Path(simtest.__file__).resolve().parents[1] / "meshes" / f"{name}.ply"
+    return bundled("meshes", f"{name}.ply")
 
 
 def bundled_scene_names() -> list[str]:

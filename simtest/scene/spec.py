@@ -43,6 +43,8 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Mapping
 
+from simtest.resources import data_root
+
 __all__ = [
     "SceneError",
     "CameraSpec",
@@ -251,7 +253,8 @@ class GeometrySpec:
         saddle: vertices per side of its grid mesh.
     path : str
         mesh: PLY file written by ``simtest.scene.meshes.save_mesh``; relative paths are taken from
-        the scene file's folder, then from the repository root.
+        the scene file's folder, then from the bundled data (:func:`simtest.resources.data_root`:
+        the repository root, or the installed package's ``_data``).
     translate_mm, rotate_deg, scale : (3,) float, (3,) float, float
         mesh: mesh-to-world transform ``x -> R (scale x) + t``, with ``R = Rz Ry Rx`` from
         ``rotate_deg`` (degrees about the world axes, x first) and ``t = translate_mm``.
@@ -498,10 +501,6 @@ def _validate(spec: SceneSpec, source: str, base_dirs: tuple[Path, ...]) -> Scen
     return spec
 
 
-def _repo_root() -> Path:
-    return Path(__file__).resolve().parents[2]
-
-
 def scene_from_dict(d: Mapping[str, Any], source: str = "<dict>",
                     base_dir: str | Path | None = None) -> SceneSpec:
     """Build and validate a :class:`SceneSpec` from a nested dict (the TOML layout).
@@ -513,7 +512,7 @@ def scene_from_dict(d: Mapping[str, Any], source: str = "<dict>",
     source : str
         Shown at the start of every error message (the file name).
     base_dir : path, optional
-        Folder relative mesh paths are resolved from (before the repository root).
+        Folder relative mesh paths are resolved from (before the bundled data root).
 
     Returns
     -------
@@ -541,7 +540,7 @@ def scene_from_dict(d: Mapping[str, Any], source: str = "<dict>",
         raise _err(source, "geometry", "missing section [geometry] (it needs at least `type`)")
     spec = SceneSpec(**kwargs, source=source)
     dirs = [Path(base_dir)] if base_dir is not None else []
-    dirs.append(_repo_root())
+    dirs.append(data_root())
     return _validate(spec, source, tuple(dirs))
 
 

@@ -1,0 +1,167 @@
+"""The static import contract: which rooms of simtest may import which, checked on the source.
+
+An AST walk over every file of the package reads every import statement, at module top or inside a
+function, class or conditional, and every ``importlib.import_module`` / ``simtest._lazy.require``
+call with a literal name. Run-time checks of ``sys.modules`` cannot see an import made inside a
+function that has not run yet; this one can.
+
+Rules (the README's Architecture section says why):
+
+- ``simtest.geometry`` and ``simtest.specular`` import nothing of simtest beyond each other and the
+  base modules (``_io``, ``_lazy``, ``_version``, ``tolerances``, ``constants``);
+- ``simtest.reconstruct`` imports no ``simtest.render``, ``simtest.scene``, ``simtest.harness``,
+  ``simtest.dataset``, Mitsuba or Dr.Jit, anywhere in a file: it runs on real images without the
+  renderer.
+"""
+
+from __future__ import annotations
+
+import ast
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+PACKAGE = Path(__file__).resolve().parents[1] / "simtest"
+
+BASE = {"simtest._io", "simtest._lazy", "simtest._version", "simtest.tolerances", "simtest.constants"}
+RULES = {
+    # room -> (allowed simtest prefixes or None for "anything of simtest", forbidden prefixes)
+    "simtest.geometry": ({"simtest.geometry", "simtest.specular", *BASE}, {"mitsuba", "drjit"}),
+    "simtest.specular": ({"simtest.geometry", "simtest.specular", *BASE}, {"mitsuba", "drjit"}),
+    "simtest.reconstruct": (None, {"simtest.render", "simtest.scene", "simtest.harness",
+                                   "simtest.dataset", "mitsuba", "drjit"}),
+}
+
+
+def module_name(path: Path, root: Path = PACKAGE) -> str:
+    """Dotted module name of a file under the package folder ``root``."""
+    parts = list(path.relative_to(root.parent).with_suffix("").parts)
+    if parts[-1] == "__init__":
+        parts.pop()
+    return ".".join(parts)
+
+
+def imported_names(source: str, module: str, is_package: bool = False) -> list[tuple[int, str]]:
+    """Every module a source imports, anywhere in it, as ``(line, dotted name)``.
+
+    ``from a import b`` counts as ``a.b`` (b may be a submodule); relative imports are resolved
+    against ``module``; ``importlib.import_module("x")`` and ``require("x")`` with a literal name
+    count as imports of ``x``.
+    """
+    package = module if is_package else module.rpartition(".")[0]
+    out: list[tuple[int, str]] = []
+    for node in ast.walk(ast.parse(source)):
+        if isinstance(node, ast.Import):
+            out += [(node.lineno, a.name) for a in node.names]
+        elif isinstance(node, ast.ImportFrom):
+            if node.level:
+                base = package.split(".")
+                base = base[: len(base) - (node.level - 1)]
+                mod = ".".join(base + ([node.module] if node.module else []))
+            else:
+                mod = node.module or ""
+            out.append((node.lineno, mod))
+            out += [(node.lineno, f"{mod}.{a.name}") for a in node.names if a.name != "*"]
+        elif isinstance(node, ast.Call) and node.args and isinstance(node.args[0], ast.Constant) \
+                and isinstance(node.args[0].value, str):
+            f = node.func
+            name = f.attr if isinstance(f, ast.Attribute) else getattr(f, "id", "")
+            if name in ("import_module", "require", "__import__"):
+                out.append((node.lineno, node.args[0].value))
+    return out
+
+
+def _under(name: str, prefix: str) -> bool:
+    return name == prefix or name.startswith(prefix + ".")
+
+
+def violations(source: str, module: str, is_package: bool = False) -> list[str]:
+    """Imports of ``source`` (the module ``module``) that break :data:`RULES`."""
+    room = next((r for r in RULES if _under(module, r)), None)
+    if room is None:
+        return []
+    allowed, forbidden = RULES[room]
+    bad = []
+    seen = set()
+    for line, name in imported_names(source, module, is_package):
+        if (line, name.split(".")[0]) in seen:
+            continue
+        if any(_under(name, f) for f in forbidden):
+            bad.append(f"{module}:{line} imports {name} (forbidden in {room})")
+        elif allowed is not None and _under(name, "simtest") and name != "simtest" \
+                and not any(_under(name, a) for a in allowed):
+            # `from simtest.geometry import conics` yields simtest.geometry and
+            # simtest.geometry.conics; both are judged, the first failing one is reported
+            bad.append(f"{module}:{line} imports {name} (only {sorted(allowed)} allowed in {room})")
+        else:
+            continue
+        seen.add((line, name.split(".")[0]))
+    return bad
+
+
+def package_violations(root: Path = PACKAGE) -> list[str]:
+    """Violations in every file of the package."""
+    bad = []
+    for path in sorted(root.rglob("*.py")):
+        bad += violations(path.read_text(encoding="utf-8"), module_name(path, root),
+                          path.name == "__init__.py")
+    return bad
+
+
+def test_the_package_keeps_its_import_contract():
+    assert package_violations() == []
+
+
+def test_the_walk_sees_every_file_and_the_imports_inside_functions():
+    files = list(PACKAGE.rglob("*.py"))
+    assert len(files) > 50
+    names = {n for p in files for _, n in imported_names(p.read_text(), module_name(p))}
+    assert "simtest.reconstruct.pipeline.reconstruct" in names or "simtest.reconstruct.pipeline" in names
+
+
+@pytest.mark.parametrize("planted, culprit", [
+    ("def f():\n    from simtest.render import render_scene\n", "simtest.render"),
+    ("def f():\n    import mitsuba as mi\n    return mi\n", "mitsuba"),
+    ("class A:\n    def m(self):\n        if True:\n            import drjit\n", "drjit"),
+    ("def f():\n    from ..scene import spec\n", "simtest.scene"),
+    ("def f():\n    import importlib\n    importlib.import_module('simtest.harness.suite')\n",
+     "simtest.harness"),
+    ("def f():\n    from simtest._lazy import require\n    require('mitsuba')\n", "mitsuba"),
+    ("try:\n    import simtest.dataset.reader\nexcept ImportError:\n    pass\n", "simtest.dataset"),
+])
+def test_a_planted_forbidden_import_in_reconstruct_is_caught(planted, culprit):
+    path = PACKAGE / "reconstruct" / "pipeline.py"
+    source = path.read_text(encoding="utf-8")
+    assert violations(source, "simtest.reconstruct.pipeline") == []
+    found = violations(source + "\n\n" + planted, "simtest.reconstruct.pipeline")
+    assert len(found) == 1 and culprit in found[0], found
+
+
+@pytest.mark.parametrize("planted, ok", [
+    ("def f():\n    from simtest.reconstruct import fit\n", False),
+    ("def f():\n    import simtest.scene.meshes\n", False),
+    ("def f():\n    from simtest.tolerances import TOL\n", True),
+    ("def f():\n    from simtest.specular import phong\n", True),
+    ("def f():\n    from . import angles\n", True),
+])
+def test_geometry_may_import_only_itself_specular_and_the_base_modules(planted, ok):
+    source = (PACKAGE / "geometry" / "conics.py").read_text(encoding="utf-8")
+    found = violations(source + "\n\n" + planted, "simtest.geometry.conics")
+    assert (found == []) is ok, found
+
+
+def test_importing_every_module_of_geometry_specular_and_reconstruct_loads_no_mitsuba():
+    # the run-time complement of the static walk: every module of those rooms imported in a fresh
+    # interpreter, then no mitsuba or drjit module is loaded
+    code = (
+        "import importlib, pkgutil, sys\n"
+        "import simtest.geometry, simtest.specular, simtest.reconstruct\n"
+        "for pkg in (simtest.geometry, simtest.specular, simtest.reconstruct):\n"
+        "    for m in pkgutil.walk_packages(pkg.__path__, pkg.__name__ + '.'):\n"
+        "        importlib.import_module(m.name)\n"
+        "bad = sorted(m for m in sys.modules if m.split('.')[0] in ('mitsuba', 'drjit'))\n"
+        "assert not bad, bad\n"
+    )
+    subprocess.run([sys.executable, "-c", code], check=True, cwd=PACKAGE.parent)
