@@ -275,3 +275,22 @@ def test_auto_exposure_brings_the_percentile_to_the_level():
     # ... and the 8-bit image shows it: percentiles commute with the scale, then rounding (< 1 level)
     assert abs(np.percentile(img[mask], 99.5) - 0.9 * 255) <= 1.0
     assert e > 1.5  # this view is dim: without auto-exposure it would not use the range
+
+
+def test_each_sample_carries_its_camera_file(reference, tmp_path):
+    """The row's camera file loads with the camera-file reader and matches the render's K and light."""
+    from simtest.geometry.camera_file import load_camera
+
+    rows = read_manifest(reference)
+    for r in rows:
+        path = tmp_path / f"{r['index']}.json"
+        path.write_text(json.dumps(r["camera"]))
+        cam = load_camera(path)
+        assert np.array_equal(cam.model.K, np.asarray(r["K"]))
+        assert tuple(cam.model.image_size) == (32, 32)
+        (light,) = cam.lights.lights
+        cancel = r["params"]["light_falloff"] == "cancel"
+        assert light.falloff == ("none" if cancel else "inverse_square")
+        # the light sits at epsilon (cos a, sin a, b) with b = 0 here: |position| = epsilon
+        assert r["params"]["light_offset_b"] == 0
+        assert np.linalg.norm(light.position) == pytest.approx(r["params"]["light_offset_mm"], abs=1e-9)

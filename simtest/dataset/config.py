@@ -12,7 +12,7 @@ Format
     shard_size = 250        # samples per shard file
     isovalues = [0.1, 0.3]  # isophote levels t in (0, 1) (relative to the Phong peak c)
     variant = "auto"        # "auto", "llvm_ad_rgb" or "cuda_ad_rgb" (pin it on mixed machines)
-    compress = true         # deflate the shard files (default; false: larger, a little faster)
+    compress = true         # deflate the masks and specular image in the shards (default)
     splits = { train = 0.8, val = 0.1, test = 0.1 }   # seeded split of each sample (default)
     auto_exposure = { percentile = 99.5, level = 0.9 }  # or false (default shown)
 
@@ -325,7 +325,8 @@ class DatasetConfig:
     variant : str
         Mitsuba variant or ``"auto"``.
     compress : bool
-        Deflate the arrays in the shard files (default True).
+        Deflate the arrays that compress well (masks, specular image; see
+        :data:`simtest.dataset.shards.DEFLATED`) in the shard files (default True).
     families : tuple of (str, float)
         Families with positive weight, in canonical order.
     params : dict

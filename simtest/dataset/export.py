@@ -10,6 +10,7 @@ share the key ``<index:08d>`` and follow each other in the tar, one file per fie
     00000003.depth.npy         float32 (H, W), mm
     00000003.linear.npy        float32 (H, W)          00000003.specular.npy  float32 (H, W)
     00000003.mask.npy          bool (H, W)             00000003.highlight_mask.npy  bool (H, W)
+    00000003.camera.json       the camera file (model, image size, light rig; simtest's format)
     00000003.json              the manifest row (labels, K, pose, highlights, split)
 
 Read it with ``webdataset.WebDataset("OUT/shard-{00000..00003}.tar").decode()`` or with the
@@ -20,7 +21,8 @@ HDF5 (BlenderProc's layout)
 ---------------------------
 ``OUT/<index>.hdf5``, one file per sample as BlenderProc writes them, with the datasets
 ``colors`` (uint8 (H, W), the sensor image), ``normals``, ``depth``, ``linear``, ``specular``,
-``mask``, ``highlight_mask`` (gzip-compressed) and ``record`` (the manifest row as JSON text);
+``mask``, ``highlight_mask`` (gzip-compressed), ``record`` (the manifest row as JSON text) and
+``camera`` (the camera file as JSON text);
 read with ``h5py`` alone (:data:`READ_HDF5`).
 
 Both exports hold ``export.json`` (source card's config fingerprint, format, count) and are
@@ -61,8 +63,8 @@ with tarfile.open("OUT/shard-00000.tar") as tar:
         key, field = m.name.split(".", 1)
         data = tar.extractfile(m).read()
         s = samples.setdefault(key, {})
-        if field == "json":
-            s["record"] = json.loads(data)
+        if field.endswith("json"):                 # json (the row), camera.json
+            s["record" if field == "json" else "camera"] = json.loads(data)
         elif field.endswith(".npy"):
             s[field[:-4]] = np.load(io.BytesIO(data))
         else:  # sensor.png
@@ -105,6 +107,8 @@ def _webdataset(ds: SimtestDataset, tmp: Path) -> int:
                 _add(tar, f"{key}.sensor.png", np.asarray(s["sensor_png"], np.uint8).tobytes())
                 for f in _FIELDS:
                     _add(tar, f"{key}.{f}.npy", _npy(s[f]))
+                if "camera" in s["record"]:
+                    _add(tar, f"{key}.camera.json", json.dumps(s["record"]["camera"], indent=2).encode())
                 _add(tar, f"{key}.json", json.dumps(s["record"], sort_keys=True).encode())
     return len(by_shard)
 
@@ -117,6 +121,8 @@ def _hdf5(ds: SimtestDataset, tmp: Path) -> int:
             for name in _FIELDS:
                 f.create_dataset(name, data=s[name], compression="gzip")
             f.create_dataset("record", data=json.dumps(s["record"], sort_keys=True))
+            if "camera" in s["record"]:
+                f.create_dataset("camera", data=json.dumps(s["record"]["camera"], indent=2))
     return len(ds)
 
 

@@ -43,7 +43,6 @@ import numpy as np
 
 from simtest._lazy import require
 from simtest.dataset.shards import (
-    DatasetError,
     decode_png,
     entry_name,
     read_card,

@@ -24,20 +24,31 @@ from __future__ import annotations
 
 import dataclasses
 import functools
+import hashlib
 import io
 import math
+import os
 import threading
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
 import numpy as np
+from PIL import Image
 
 from simtest._lazy import require
+from simtest._llvm import configure_llvm_env
 from simtest.dataset.config import PARAMS, DatasetConfig
 from simtest.geometry.angles import unit
-from simtest.geometry.conics import plane_basis
+from simtest.geometry.cameras import PinholeCamera
+from simtest.geometry.conics import conic_kind, conic_to_ellipse, plane_basis, project_circle
+from simtest.geometry.lights import Light, LightRig
+from simtest.render import render_scene
 from simtest.render.sensor import apply_sensor
+from simtest.scene import bundled_mesh_path
+from simtest.scene.meshes import colon_centerline, load_mesh
+from simtest.scene.spec import scene_from_dict, scene_to_dict
+from simtest.specular import isophote_radius
 
 __all__ = [
     "CHANNELS",
@@ -101,8 +112,9 @@ class Sample:
     record : dict
         JSON-ready labels and provenance: ``index``, ``family``, ``params`` (every drawn value),
         ``K`` (3, 3), ``cam_to_world`` (4, 4), ``highlights`` (list of dicts with ``bp_px``,
-        ``bp_mm``, ``normal``, ``k1``, ``k2``, ``in_frame``, ``isophotes``), ``scene`` (the scene
-        spec as a dict), ``variant``, ``render_seed``.
+        ``bp_mm``, ``normal``, ``k1``, ``k2``, ``in_frame``, ``isophotes``), ``camera`` (the
+        camera file: model, image size, light rig; :func:`camera_file`), ``scene`` (the scene
+        spec as a dict), ``variant``, ``render_seed``, ``exposure_applied``.
     """
 
     index: int
@@ -179,9 +191,6 @@ def _mesh_info(name: str) -> dict:
     lengths and the smallest wall distance of each ring; liver: the bounding-box centre and the
     radius of the bounding sphere about it.
     """
-    from simtest.scene import bundled_mesh_path
-    from simtest.scene.meshes import load_mesh
-
     path = bundled_mesh_path(name)
     if not path.is_file():
         raise FileNotFoundError(f"{path}: bundled {name} mesh missing (build it with `simtest meshes build`)")
@@ -201,8 +210,6 @@ def _mesh_info(name: str) -> dict:
 
 def _colon_pose(p: dict) -> dict:
     """Camera inside the colon: on the centre line at ``station``, tilted off its tangent."""
-    from simtest.scene.meshes import colon_centerline
-
     info = _mesh_info("colon")
     arc = info["arc"]
     s = float(arc[0] + p["station"] * (arc[-1] - arc[0]))
@@ -295,8 +302,6 @@ def build_scene(config: DatasetConfig, params: dict):
     simtest.scene.SceneError
         If the drawn values make an invalid scene spec.
     """
-    from simtest.scene.spec import scene_from_dict
-
     fam = params["family"]
     m = params["resolution_px"]
     camera: dict[str, Any] = {"width_px": m, "height_px": m, "fov_deg": params["fov_deg"]}
@@ -365,9 +370,6 @@ def isophote_record(bp_mm, normal, K, isovalues, phong_n: float) -> list[dict]:
         (3 x 3 point conic, unit Frobenius norm, pixels with centres at integers), ``kind`` and
         ``ellipse`` (``center_px``, ``semi_axes_px``, ``angle_deg``; None unless a real ellipse).
     """
-    from simtest.geometry.conics import conic_kind, conic_to_ellipse, project_circle
-    from simtest.specular import isophote_radius
-
     X = np.asarray(bp_mm, dtype=np.float64)
     N = unit(normal)
     d = float(N @ X)  # < 0 when the normal faces the camera
@@ -393,8 +395,6 @@ def isophote_record(bp_mm, normal, K, isovalues, phong_n: float) -> list[dict]:
 
 
 def _encode_png(img: np.ndarray) -> np.ndarray:
-    from PIL import Image
-
     buf = io.BytesIO()
     Image.fromarray(img).save(buf, format="PNG", optimize=False, compress_level=6)
     return np.frombuffer(buf.getvalue(), dtype=np.uint8).copy()
@@ -442,9 +442,6 @@ def _portable_scene(spec) -> dict:
     The absolute path differs between machines (a Dask worker's install), which would make the
     records of the same sample differ; ``meshes/<name>.ply`` resolves on any install.
     """
-    from simtest.scene import bundled_mesh_path
-    from simtest.scene.spec import scene_to_dict
-
     d = _jsonable(scene_to_dict(spec))
     geo = d.get("geometry", {})
     if geo.get("type") == "mesh" and geo.get("path"):
@@ -468,16 +465,40 @@ def mesh_sha256(family: str) -> str | None:
     str or None
         64 hex digits of ``meshes/<family>.ply``; None for analytic families or a missing file.
     """
-    import hashlib
-
-    from simtest.scene import bundled_mesh_path
-
     if family not in ("colon", "liver"):
         return None
     path = bundled_mesh_path(family)
     if not path.is_file():
         return None
     return hashlib.sha256(path.read_bytes()).hexdigest()
+
+
+def camera_file(result) -> dict:
+    """The camera file (camera model, image size, light rig) of a render, as a JSON object.
+
+    Parameters
+    ----------
+    result : simtest.render.RenderResult
+        A render.
+
+    Returns
+    -------
+    dict
+        ``{"model": "pinhole", "K", "dist_coeffs": None, "image_size": [W, H], "lights": [...]}``
+        in the format of :func:`simtest.geometry.camera_file.save_camera` (written to a ``.json``
+        file it loads with :func:`simtest.geometry.camera_file.load_camera`): the pinhole K of the
+        render (pixels, integer pixel centres) and its point light at ``result.light_pos`` (camera
+        frame, mm) with the render's intensity; falloff ``"none"`` when the dataset cancels the
+        1/d^2 falloff of the specular image, else ``"inverse_square"``.
+    """
+    H, W = np.asarray(result.mask).shape
+    d = PinholeCamera(np.asarray(result.K, np.float64), image_size=(W, H)).to_json_dict()
+    light = result.spec.light
+    d["lights"] = LightRig((Light(position_mm=tuple(float(x) for x in result.light_pos),
+                                  intensity=float(light.intensity),
+                                  falloff="none" if light.falloff == "cancel" else "inverse_square"),)
+                           ).to_json_list()
+    return _jsonable(d)
 
 
 def sample_from_render(config: DatasetConfig, index: int, params: dict, result) -> Sample:
@@ -554,6 +575,7 @@ def sample_from_render(config: DatasetConfig, index: int, params: dict, result) 
         "variant": str(result.variant),
         "exposure_applied": exposure,
         "highlights": highlights,
+        "camera": camera_file(result),
         "scene": _portable_scene(result.spec),
     }
     return Sample(index=int(index), arrays=arrays, record=record)
@@ -569,13 +591,9 @@ def _configure_threads() -> None:
     if _THREADS_SET:
         return
     _THREADS_SET = True
-    import os
-
     n = os.environ.get("SIMTEST_DATASET_THREADS")
     if not n:
         return
-    from simtest._llvm import configure_llvm_env
-
     configure_llvm_env()
     require("drjit", purpose="rendering a dataset sample").set_thread_count(int(n))
 
@@ -603,8 +621,6 @@ def render_sample(config: DatasetConfig, index: int) -> Sample:
     FileNotFoundError
         If a bundled mesh the family needs is missing.
     """
-    from simtest.render import render_scene
-
     params = draw_parameters(config, index)
     spec = build_scene(config, params)
     # One render at a time per process: Dask workers run tasks in threads, Mitsuba's variant
