@@ -1,0 +1,200 @@
+"""Scoring reconstructed highlights against per-pixel ground-truth normals (and depth).
+
+Per highlight with an ``ok`` estimate and valid ground truth at its brightest point (BP):
+
+- ``errors_bp_deg``: the angle of every estimator's normal to the ground-truth normal at the BP
+  pixel (nearest pixel);
+- ``errors_footprint_deg``: the angle to the mean ground-truth normal over the primary isophote's
+  footprint (the pixels inside its contour; the mean of unit normals, renormalised);
+- ``dist_pp_px``: distance of the BP from the principal point, px;
+- ``size_px``: the diameter of the disc with the footprint's area, px;
+- ``gt_curvature_per_mm``: with depth, the largest absolute principal curvature of the ground-truth
+  surface at the BP, from a least-squares quadric height field ``h = (k_xx x^2 + 2 k_xy x y + k_yy
+  y^2) / 2 + a x + b y + c`` fitted to the back-projected depth in the BP's tangent frame over a
+  window of the footprint's size (principal curvatures are the eigenvalues of [[k_xx, k_xy],
+  [k_xy, k_yy]]; the height field's slope at the BP is ~0 in that frame).
+
+Estimators are every normal the estimate has (``paper_selected``, ``cone_axis``,
+``joint_cone_axis``, ``bp_ray`` and any the estimates file adds, e.g. the light-aware ones), and
+the recommended ``normal`` where the estimates carry one. Summaries: ``n``, median, mean and 95th
+percentile of the angle in degrees.
+"""
+
+from __future__ import annotations
+
+import cv2
+import numpy as np
+
+from simtest.geometry.angles import angle_between_deg
+from simtest.geometry.cameras import CameraModel
+from simtest.reconstruct.io import estimate_to_dict
+
+__all__ = ["estimator_normals", "score_highlights", "summarise"]
+
+#: Entries of an estimate's ``normals`` that are not one normal per highlight.
+_NOT_ESTIMATORS = {"paper", "paper_selected_index"}
+
+
+def estimator_normals(spec: dict) -> dict[str, np.ndarray | None]:
+    """Every estimator's normal of one specularity dict (``estimates.json`` form).
+
+    Parameters
+    ----------
+    spec : dict
+        One entry of ``specularities``.
+
+    Returns
+    -------
+    dict of str to ndarray of shape (3,) or None
+        Estimator name -> normal (camera frame), None where that estimator gave none.
+    """
+    out: dict[str, np.ndarray | None] = {}
+    for name, v in spec.get("normals", {}).items():
+        if name in _NOT_ESTIMATORS:
+            continue
+        a = None if v is None else np.asarray(v, dtype=np.float64)
+        if a is None or a.shape == (3,):
+            out[name] = a
+    if "normal" in spec:  # the recommended normal (estimates schema 2)
+        out["normal"] = None if spec["normal"] is None else np.asarray(spec["normal"], dtype=np.float64)
+    return out
+
+
+def _footprint(points_uv: np.ndarray, shape) -> tuple[np.ndarray, np.ndarray]:
+    """Row and column indices of the pixels inside a closed contour."""
+    pts = np.asarray(points_uv, dtype=np.float64)
+    lo = np.floor(pts.min(axis=0)).astype(int)
+    hi = np.ceil(pts.max(axis=0)).astype(int)
+    lo = np.maximum(lo, 0)
+    hi = np.minimum(hi, [shape[1] - 1, shape[0] - 1])
+    if np.any(hi < lo):
+        return np.zeros(0, int), np.zeros(0, int)
+    mask = np.zeros((hi[1] - lo[1] + 1, hi[0] - lo[0] + 1), np.uint8)
+    shift = 4  # sub-pixel polygon vertices (1/16 px)
+    poly = np.round((pts - lo) * (1 << shift)).astype(np.int32)
+    cv2.fillPoly(mask, [poly], 1, lineType=cv2.LINE_8, shift=shift)
+    rr, cc = np.nonzero(mask)
+    return rr + lo[1], cc + lo[0]
+
+
+def _curvature(depth_mm, camera: CameraModel, bp_uv, normal, half_px: float) -> float | None:
+    H, W = depth_mm.shape
+    u0, v0 = int(round(bp_uv[0])), int(round(bp_uv[1]))
+    h = int(max(3, np.ceil(half_px)))
+    r0, r1, c0, c1 = max(0, v0 - h), min(H, v0 + h + 1), max(0, u0 - h), min(W, u0 + h + 1)
+    d = depth_mm[r0:r1, c0:c1]
+    vv, uu = np.mgrid[r0:r1, c0:c1]
+    ok = np.isfinite(d)
+    if ok.sum() < 12 or not np.isfinite(depth_mm[v0, u0]):
+        return None
+    rays = camera.pixel_to_ray(np.stack([uu[ok], vv[ok]], axis=1).astype(np.float64))
+    with np.errstate(divide="ignore", invalid="ignore"):
+        X = rays * (d[ok] / rays[:, 2])[:, None]  # z-depth along each ray
+    X = X[np.isfinite(X).all(axis=1) & (rays[:, 2] > 0)]
+    if len(X) < 12:
+        return None
+    ray0 = camera.pixel_to_ray(np.array([[u0, v0]], dtype=np.float64))[0]
+    P0 = ray0 * depth_mm[v0, u0] / ray0[2]
+    n = np.asarray(normal, dtype=np.float64)
+    e1 = np.cross(n, [1.0, 0, 0] if abs(n[0]) < 0.9 else [0, 1.0, 0])
+    e1 /= np.linalg.norm(e1)
+    e2 = np.cross(n, e1)
+    Y = X - P0
+    x, y, z = Y @ e1, Y @ e2, Y @ n
+    A = np.column_stack([0.5 * x * x, x * y, 0.5 * y * y, x, y, np.ones_like(x)])
+    coef, *_ = np.linalg.lstsq(A, z, rcond=None)
+    k = np.linalg.eigvalsh(np.array([[coef[0], coef[1]], [coef[1], coef[2]]]))
+    return float(np.abs(k).max())
+
+
+def score_highlights(frame_id: str, estimates, truth, camera: CameraModel) -> list[dict]:
+    """One row per highlight of a frame (module docstring).
+
+    Parameters
+    ----------
+    frame_id : str
+        The frame's number.
+    estimates : list of SpecularityEstimate
+        From :func:`simtest.reconstruct.reconstruct`.
+    truth : simtest.evaluate.c3vd.GroundTruth
+        The frame's ground truth.
+    camera : CameraModel
+        The camera (principal point, rays for the curvature).
+
+    Returns
+    -------
+    list of dict
+        Rows: ``frame``, ``bp_px``, ``status``, ``scored`` (ok and valid ground truth at the BP),
+        ``dist_pp_px``, ``size_px``, ``gt_curvature_per_mm``, ``errors_bp_deg`` and
+        ``errors_footprint_deg`` ({estimator: degrees or None}).
+    """
+    gt = truth.normals
+    H, W = gt.shape[:2]
+    pp = camera.principal_point
+    rows = []
+    for est in estimates:
+        spec = estimate_to_dict(est)
+        bp = np.asarray(est.bp_px, dtype=np.float64)
+        row = {"frame": frame_id, "bp_px": [float(bp[0]), float(bp[1])], "status": est.status,
+               "dist_pp_px": float(np.hypot(*(bp - pp))), "size_px": None, "gt_curvature_per_mm": None,
+               "scored": False, "errors_bp_deg": {}, "errors_footprint_deg": {}}
+        rows.append(row)
+        if not est.ok:
+            continue
+        u, v = int(round(bp[0])), int(round(bp[1]))
+        if not (0 <= u < W and 0 <= v < H) or not np.isfinite(gt[v, u]).all():
+            row["status_gt"] = "no ground truth at the BP"
+            continue
+        n_bp = gt[v, u]
+        rr, cc = _footprint(est.points_uv, gt.shape)
+        n_fp = None
+        if len(rr):
+            row["size_px"] = float(2.0 * np.sqrt(len(rr) / np.pi))
+            g = gt[rr, cc]
+            g = g[np.isfinite(g).all(axis=1)]
+            if len(g):
+                m = g.mean(axis=0)
+                n_fp = m / np.linalg.norm(m) if np.linalg.norm(m) > 0 else None
+        if truth.depth_mm is not None:
+            half = 0.5 * (row["size_px"] or 6.0)
+            row["gt_curvature_per_mm"] = _curvature(truth.depth_mm, camera, bp, n_bp, half)
+        row["scored"] = True
+        for name, n in estimator_normals(spec).items():
+            row["errors_bp_deg"][name] = None if n is None else float(angle_between_deg(n, n_bp))
+            row["errors_footprint_deg"][name] = (
+                None if n is None or n_fp is None else float(angle_between_deg(n, n_fp))
+            )
+    return rows
+
+
+def summarise(rows: list[dict], key: str = "errors_bp_deg") -> dict[str, dict]:
+    """Per-estimator statistics over the scored rows.
+
+    Parameters
+    ----------
+    rows : list of dict
+        From :func:`score_highlights`.
+    key : {"errors_bp_deg", "errors_footprint_deg"}
+        Which ground truth.
+
+    Returns
+    -------
+    dict
+        ``{name: {"n", "median_deg", "mean_deg", "p95_deg"}}`` (None statistics when n = 0),
+        estimators in a fixed order (``normal`` first when present, ``bp_ray`` last).
+    """
+    names: list[str] = []
+    for r in rows:
+        for name in r[key]:
+            if name not in names:
+                names.append(name)
+    names.sort(key=lambda s: (s != "normal", s == "bp_ray", s))
+    out = {}
+    for name in names:
+        vals = np.array([r[key][name] for r in rows if r["scored"] and r[key].get(name) is not None], dtype=np.float64)
+        if len(vals):
+            out[name] = {"n": int(len(vals)), "median_deg": float(np.median(vals)),
+                         "mean_deg": float(vals.mean()), "p95_deg": float(np.percentile(vals, 95))}
+        else:
+            out[name] = {"n": 0, "median_deg": None, "mean_deg": None, "p95_deg": None}
+    return out

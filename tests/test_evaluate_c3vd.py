@@ -1,0 +1,173 @@
+"""`simtest evaluate c3vd`: small sequences in C3VD's layout built here from analytic scenes (no C3VD
+data: its licence is CC BY-NC-SA), scored against their exact ground truth."""
+
+from __future__ import annotations
+
+import json
+import re
+
+import cv2
+import numpy as np
+import pytest
+import tifffile
+from typer.testing import CliRunner
+
+from simtest._io import atomic_write_set
+from simtest.cli import app
+from simtest.geometry import PinholeCamera, save_camera
+from simtest.simulate.analytic import phong_plane_image, phong_sphere_image
+
+SIZE = 160
+K = np.array([[180.0, 0, (SIZE - 1) / 2], [0, 180.0, (SIZE - 1) / 2], [0, 0, 1]])
+SPHERE_C = np.array([3.0, -2.0, 60.0])
+SPHERE_R = 20.0
+runner = CliRunner()
+
+
+def _rays():
+    vv, uu = np.mgrid[0:SIZE, 0:SIZE].astype(np.float64)
+    d = np.stack([uu, vv, np.ones_like(uu)], axis=-1) @ np.linalg.inv(K).T
+    return d / np.linalg.norm(d, axis=-1, keepdims=True)
+
+
+def plane_truth(normal, dist):
+    d = _rays()
+    lam = -dist / (d @ normal)
+    X = d * lam[..., None]
+    return np.broadcast_to(normal, d.shape).copy(), X[..., 2]
+
+
+def sphere_truth():
+    d = _rays()
+    b = d @ SPHERE_C
+    disc = b * b - (SPHERE_C @ SPHERE_C - SPHERE_R**2)
+    lam = b - np.sqrt(np.maximum(disc, 0))
+    X = d * lam[..., None]
+    n = (X - SPHERE_C) / SPHERE_R
+    hit = disc > 0
+    n[~hit] = 0.0
+    z = np.where(hit, X[..., 2], 0.0)
+    return n, z
+
+
+def encode_normals(n):
+    # C3VD: n = 2 v / 65535 - 1; background (no surface) is written as v = 32768 (n ~ 0)
+    v = np.round((n + 1.0) / 2.0 * 65535)
+    v[np.linalg.norm(n, axis=-1) == 0] = 32768
+    return v.astype(np.uint16)
+
+
+def encode_depth(z):
+    return np.where(z > 0, np.round(z / 100.0 * 65535), 0).astype(np.uint16)
+
+
+def write_frame(seq, idx, img, n, z, occlusion=True):
+    cv2.imwrite(str(seq / f"{idx}_color.png"), cv2.cvtColor(np.round(img / img.max() * 255).astype(np.uint8), cv2.COLOR_GRAY2BGR))
+    tifffile.imwrite(seq / f"{idx}_normals.tiff", encode_normals(n))
+    if z is not None:
+        tifffile.imwrite(seq / f"{idx}_depth.tiff", encode_depth(z))
+    if occlusion:
+        cv2.imwrite(str(seq / f"{idx}_occlusion.png"), np.zeros((SIZE, SIZE), np.uint8))
+
+
+@pytest.fixture
+def sequence(tmp_path):
+    seq = tmp_path / "seq"
+    seq.mkdir()
+    t = np.radians(15)
+    normal = np.array([np.sin(t), 0.0, -np.cos(t)])
+    write_frame(seq, "0000", phong_plane_image(K, (SIZE, SIZE), normal, 40.0, 80), *plane_truth(normal, 40.0))
+    write_frame(seq, "0001", phong_sphere_image(K, (SIZE, SIZE), SPHERE_C, SPHERE_R, 80), *sphere_truth())
+    (seq / "pose.txt").write_text("ignored\n")
+    cam = save_camera(tmp_path / "cam.json", PinholeCamera(K, None, (SIZE, SIZE)))
+    return seq, cam, normal
+
+
+def run(seq, cam, out, *extra):
+    return runner.invoke(app, ["evaluate", "c3vd", str(seq), "--intrinsics", str(cam), "--out", str(out),
+                               "-t", "0.3", "-t", "0.6", "--normalise", "bp", *extra])
+
+
+def test_scores_every_estimator_against_the_ground_truth(sequence, tmp_path):
+    seq, cam, normal = sequence
+    out = tmp_path / "out"
+    res = run(seq, cam, out)
+    assert res.exit_code == 0, res.output
+    doc = json.loads((out / "results.json").read_text())
+    assert doc["n_frames"] == 2 and doc["n_scored"] == 2
+    est = doc["estimators"]
+    assert {"cone_axis", "joint_cone_axis", "paper_selected", "bp_ray"} <= set(est)
+    assert list(est)[-1] == "bp_ray"  # the baseline is listed beside (after) the others
+    for name in ("cone_axis", "joint_cone_axis", "bp_ray"):
+        # co-located plane and sphere: the cone axis and the BP ray are the normal at the BP up to
+        # 8-bit quantisation of the contour and the BP's sub-pixel position (~0.2 deg here)
+        assert est[name]["n"] == 2 and est[name]["p95_deg"] < 1.0, (name, est[name])
+    rows = {r["frame"]: r for r in doc["highlights"] if r["scored"]}
+    # the plane's footprint mean is its normal; the sphere's curvature is 1/R from depth
+    assert rows["0000"]["errors_footprint_deg"]["bp_ray"] < 1.0
+    assert rows["0000"]["gt_curvature_per_mm"] < 0.05 / SPHERE_R
+    assert abs(rows["0001"]["gt_curvature_per_mm"] * SPHERE_R - 1.0) < 0.1  # 16-bit depth (1.5 um) on a small window
+    assert rows["0000"]["size_px"] > 3 and rows["0000"]["dist_pp_px"] >= 0
+    page = (out / "report.html").read_text()
+    assert len(re.findall(r"<img ", page)) == 4 and "bp_ray" in page
+
+
+def test_refuses_missing_and_mismatched_files(sequence, tmp_path):
+    seq, cam, _ = sequence
+    out = tmp_path / "out"
+    (seq / "0001_normals.tiff").unlink()
+    res = run(seq, cam, out)
+    assert res.exit_code == 2 and "0001_normals.tiff: missing" in res.output and not out.exists()
+    tifffile.imwrite(seq / "0001_normals.tiff", np.zeros((SIZE, SIZE - 1, 3), np.uint16))
+    res = run(seq, cam, out)
+    assert res.exit_code == 2 and "0001_normals.tiff" in res.output and "159 x 160" in res.output
+    tifffile.imwrite(seq / "0001_normals.tiff", np.zeros((SIZE, SIZE), np.uint16))
+    res = run(seq, cam, out)
+    assert res.exit_code == 2 and "16-bit with 3 channels" in res.output
+    tifffile.imwrite(seq / "0001_normals.tiff", np.zeros((SIZE, SIZE, 3), np.uint16))
+    (seq / "0000_depth.tiff").unlink()
+    res = run(seq, cam, out)
+    assert res.exit_code == 2 and "0000_depth.tiff: missing (1 of 2 frames have a depth file)" in res.output
+    (seq / "0001_depth.tiff").unlink()
+    (seq / "0002_color.png").write_bytes((seq / "0000_color.png").read_bytes())
+    res = run(seq, cam, out)
+    assert res.exit_code == 2 and "0002_normals.tiff: missing" in res.output
+    (seq / "0002_color.png").unlink()
+    other = save_camera(tmp_path / "other.json", PinholeCamera(K, None, (SIZE + 2, SIZE)))
+    res = run(seq, other, out)
+    assert res.exit_code == 2 and "0000_color.png: 160 x 160 px, but the camera file is for 162 x 160 px" in res.output
+    res = run(tmp_path / "nowhere", cam, out)
+    assert res.exit_code == 2 and "sequence folder not found" in res.output
+    for r in (res,):
+        assert "Traceback" not in r.output and len(r.output.strip().splitlines()) == 1
+    assert not out.exists()
+
+
+def test_outputs_replaced_as_a_set(sequence, tmp_path, monkeypatch):
+    seq, cam, _ = sequence
+    out = tmp_path / "out"
+    assert run(seq, cam, out).exit_code == 0
+    before = {p.name: p.read_bytes() for p in out.iterdir()}
+    # the report fails after results.json could have been written: neither file changes
+    import simtest.evaluate.report as report
+
+    monkeypatch.setattr(report, "render_html", lambda results: (_ for _ in ()).throw(OSError("disk full")))
+    res = run(seq, cam, out, "--max-frames", "1")
+    assert res.exit_code == 2 and "disk full" in res.output
+    assert {p.name: p.read_bytes() for p in out.iterdir()} == before
+
+
+def test_atomic_write_set_keeps_the_old_set_when_a_writer_fails(tmp_path):
+    a, b = tmp_path / "a.json", tmp_path / "b.png"
+    a.write_text("old a")
+    b.write_text("old b")
+
+    def fail(tmp):
+        raise OSError("no space left on device")
+
+    with pytest.raises(OSError):
+        atomic_write_set({a: lambda tmp: open(tmp, "w").write("new a"), b: fail})
+    assert a.read_text() == "old a" and b.read_text() == "old b"
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["a.json", "b.png"]  # no temporaries left
+    atomic_write_set({a: lambda tmp: open(tmp, "w").write("new a"), b: lambda tmp: open(tmp, "w").write("new b")})
+    assert a.read_text() == "new a" and b.read_text() == "new b"
