@@ -29,17 +29,20 @@ def version_command() -> None:
 # --- subcommands: each lives beside the code it drives --------------------------------------------
 from simtest.bench import bench_command  # noqa: E402
 from simtest.dataset.cli import dataset_app  # noqa: E402
+from simtest.evaluate.cli import evaluate_app  # noqa: E402
 from simtest.harness.cli import nightly_command, validate_command  # noqa: E402
-from simtest.reconstruct.cli import reconstruct_command  # noqa: E402
+from simtest.reconstruct.cli import reconstruct_command, view_command  # noqa: E402
 from simtest.render.cli import render_command  # noqa: E402
 from simtest.scene.meshes_cli import meshes_app  # noqa: E402
 
 app.command("validate")(validate_command)
 app.command("nightly")(nightly_command)
 app.command("reconstruct")(reconstruct_command)
+app.command("view")(view_command)
 app.command("render")(render_command)
 app.add_typer(meshes_app, name="meshes")
 app.add_typer(dataset_app, name="dataset")
+app.add_typer(evaluate_app, name="evaluate")
 app.command("bench")(bench_command)
 
 

@@ -235,7 +235,7 @@ def random_images(draw):
     return img
 
 
-@given(img=random_images(), t=st.lists(st.floats(0.01, 0.99), min_size=1, max_size=3),
+@given(img=random_images(), t=st.lists(st.floats(0.01, 0.99), min_size=1, max_size=3, unique=True),
        allow_open=st.booleans())
 @settings(max_examples=120, deadline=None, suppress_health_check=[HealthCheck.too_slow])
 def test_never_crashes_and_never_returns_nan_normals(img, t, allow_open):

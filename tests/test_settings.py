@@ -17,12 +17,19 @@ outside = st.one_of(st.floats(max_value=0.0), st.floats(min_value=1.0), st.just(
                     st.just(math.inf))
 
 
-@given(st.lists(inside, min_size=1, max_size=6))
+@given(st.lists(inside, min_size=1, max_size=6, unique=True))
 def test_isovalues_inside_the_open_interval_are_kept_in_order(ts):
     s = ReconSettings(isovalues=ts)
     assert s.isovalues == tuple(ts)
     assert s.primary_isovalue == ts[0]
     assert ReconSettings(isovalues=np.asarray(ts)).isovalues == tuple(ts)
+
+
+@given(st.lists(inside, min_size=1, max_size=5), st.data())
+def test_a_repeated_isovalue_is_refused(ts, data):
+    dup = data.draw(st.sampled_from(ts))
+    with pytest.raises(ValueError, match="is given twice"):
+        ReconSettings(isovalues=[*ts, dup])
 
 
 @given(st.lists(inside, max_size=3), outside, st.lists(inside, max_size=3))

@@ -46,6 +46,7 @@ __all__ = [
     "CameraFile",
     "CameraFileError",
     "Intrinsics",
+    "camera_from_dict",
     "load_camera",
     "load_intrinsics",
     "save_camera",
@@ -156,6 +157,30 @@ def _model_from_dict(data: dict, where: str) -> CameraModel:
             raise CameraFileError(msg) from None
         key, _, rest = msg.partition(": ")
         raise CameraFileError(f"{where}: key '{key}': {rest}") from None
+
+
+def camera_from_dict(data: dict, where: str = "camera") -> CameraModel:
+    """A camera model from its camera-file JSON object (the ``"lights"`` key is ignored here).
+
+    Parameters
+    ----------
+    data : dict
+        As :meth:`CameraModel.to_json_dict` writes it.
+    where : str
+        What to name in error messages.
+
+    Returns
+    -------
+    CameraModel
+
+    Raises
+    ------
+    CameraFileError
+        As :func:`load_camera`.
+    """
+    if not isinstance(data, dict):
+        raise CameraFileError(f"{where}: must be a JSON object with a 'model' and its parameters")
+    return _model_from_dict(data, where)
 
 
 def _lights_from_list(value, where: str) -> LightRig:

@@ -18,8 +18,9 @@ step), never NaN.
       "simtest_version": "0.1.0",        # str, package version that wrote the file
       "image": "path/to/image.png",      # str or null, the image as given
       "image_shape": [H, W],             # [int, int]
-      "K": [[fx, 0, cx], [0, fy, cy], [0, 0, 1]],
+      "K": [[fx, 0, cx], [0, fy, cy], [0, 0, 1]] or null,   # pinhole K; null for other models
       "dist_coeffs": [k1, k2, p1, p2, k3] or null,   # OpenCV order; points undistorted if given
+      "camera": {"model": ..., ...} or null,   # the camera file's model object (optional field)
       "isovalues": [t1, t2, ...],        # each in (0, 1); t1 is the primary isovalue
       "normalise": "bp",                 # "bp": t relative to the BP intensity; "full_scale"; or
                                          # "local": relative to the BP above the ROI-border median
@@ -42,6 +43,7 @@ step), never NaN.
           },
           "ellipse": {"center_px": [u, v], "semi_axes_px": [a, b], "angle_deg": float} or null,
           "conic": [[...], [...], [...]] or null,      # point conic, undistorted px, |C|_F = 1
+                                                       # (null for fisheye/omnidirectional models)
           "fit_residual_px": float or null,            # RMS Sampson distance
           "eigenvalue_gap": float or null,             # 0 for a right circular cone
           "isophotes": [                 # one per isovalue, same order as "isovalues"
@@ -174,15 +176,15 @@ def estimate_to_dict(est, include_points: bool = False) -> dict:
 
 
 def estimates_document(estimates, *, K, image=None, image_shape=None, dist_coeffs=None,
-                       isovalues=(), normalise="bp", include_points=False) -> dict:
+                       isovalues=(), normalise="bp", include_points=False, camera=None) -> dict:
     """The whole schema-1 document as a dict (see the module docstring).
 
     Parameters
     ----------
     estimates : list of SpecularityEstimate
         From :func:`~simtest.reconstruct.pipeline.reconstruct`.
-    K : array_like of shape (3, 3)
-        Intrinsics used, px.
+    K : array_like of shape (3, 3) or None
+        Pinhole intrinsics used, px (None for a fisheye or omnidirectional camera).
     image : str or Path, optional
         The image file, recorded as text.
     image_shape : tuple of int, optional
@@ -195,6 +197,8 @@ def estimates_document(estimates, *, K, image=None, image_shape=None, dist_coeff
         ``"bp"`` or ``"full_scale"``.
     include_points : bool
         Also write the contour points.
+    camera : CameraModel, optional
+        The camera model used, recorded as ``camera`` (its camera-file object).
 
     Returns
     -------
@@ -210,6 +214,7 @@ def estimates_document(estimates, *, K, image=None, image_shape=None, dist_coeff
         "image_shape": None if image_shape is None else [int(v) for v in image_shape[:2]],
         "K": _mat(K),
         "dist_coeffs": _vec(dist_coeffs),
+        "camera": None if camera is None else camera.to_json_dict(),
         "isovalues": [float(t) for t in isovalues],
         "normalise": normalise,
         "conventions": CONVENTIONS,
@@ -218,7 +223,7 @@ def estimates_document(estimates, *, K, image=None, image_shape=None, dist_coeff
 
 
 def write_estimates(path, estimates, *, K, image=None, image_shape=None, dist_coeffs=None,
-                    isovalues=(), normalise="bp", include_points=False) -> Path:
+                    isovalues=(), normalise="bp", include_points=False, camera=None) -> Path:
     """Write ``estimates.json`` atomically (temporary file in the same folder, then os.replace).
 
     Parameters
@@ -229,7 +234,7 @@ def write_estimates(path, estimates, *, K, image=None, image_shape=None, dist_co
         From :func:`~simtest.reconstruct.pipeline.reconstruct`.
     K : array_like of shape (3, 3)
         Intrinsics used.
-    image, image_shape, dist_coeffs, isovalues, normalise : optional
+    image, image_shape, dist_coeffs, isovalues, normalise, camera : optional
         Recorded as given.
     include_points : bool
         Also write each isophote's contour points (larger file).
@@ -248,7 +253,7 @@ def write_estimates(path, estimates, *, K, image=None, image_shape=None, dist_co
     """
     doc = estimates_document(estimates, K=K, image=image, image_shape=image_shape,
                              dist_coeffs=dist_coeffs, isovalues=isovalues, normalise=normalise,
-                             include_points=include_points)
+                             include_points=include_points, camera=camera)
     return atomic_write_json(path, doc, allow_nan=False)
 
 
@@ -286,5 +291,5 @@ def read_estimates(path) -> dict:
         for key in _REQUIRED_SPEC:
             if key not in spec:
                 raise ValueError(f"{path}: specularities[{i}] is missing key {key!r}")
-    doc["K"] = np.asarray(doc["K"], dtype=np.float64)
+    doc["K"] = None if doc["K"] is None else np.asarray(doc["K"], dtype=np.float64)
     return doc

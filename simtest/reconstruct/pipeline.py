@@ -15,12 +15,15 @@ Per highlight (Makki and Bartoli, "Normal reconstruction"):
    beyond the paper);
 2. the isophote at each isovalue t is extracted by marching squares
    (:func:`~simtest.reconstruct.isophote.extract_isophote`); the ROI grows (x2, up to 4 times) while
-   the lowest isophote is cut by the ROI border; with lens distortion the contour points are
-   undistorted before the fit;
-3. the ellipse is fitted (:func:`~simtest.reconstruct.fit.fit_ellipse`), C' = K^T C K;
+   the lowest isophote is cut by the ROI border;
+3. the contour points are mapped to unit viewing rays by the camera model and the isophote cone
+   C' (``r^T C' r = 0``) is fitted on the rays (:mod:`~simtest.reconstruct.cone_fit`; for a
+   pinhole this is the ellipse fit in undistorted pixels and C' = K^T C K, for a wide-angle model
+   it is exact where no pixel conic exists);
 4. the estimators of :mod:`~simtest.reconstruct.estimators` give the paper pair N+ and N- and the
    non-oracle choice between them, the cone axis with its eigenvalue gap, the BP-ray normal and,
-   with several isovalues, the joint cone axis of the nested isophotes.
+   with several isovalues, the joint cone axis of the nested isophotes, all computed from the
+   cone C'.
 
 The *primary* isophote is the one at the first isovalue given: the estimate's ``conic``,
 ``ellipse``, ``normals_paper``, ``cone_axis``, ``eigenvalue_gap``, ``fit_residual_px`` and
@@ -57,8 +60,10 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
-from simtest.geometry.camera import undistort_points, validate_intrinsics
-from simtest.reconstruct._pixels import Roi, rc_to_uv, uv_to_rc
+from simtest.geometry.camera import validate_intrinsics
+from simtest.geometry.cameras import CameraModel, PinholeCamera
+from simtest.reconstruct._pixels import Roi, image_size_wh, rc_to_uv, uv_to_rc
+from simtest.reconstruct.cone_fit import FitFrame, fit_cone, fit_frame, to_camera, to_fit_frame
 from simtest.reconstruct.detect import (
     default_full_scale,
     detect_specularities,
@@ -68,7 +73,6 @@ from simtest.reconstruct.detect import (
 )
 from simtest.reconstruct.estimators import estimate_from_conic, joint_cone_axis
 from simtest.reconstruct.failures import OK, Failure
-from simtest.reconstruct.fit import fit_ellipse
 from simtest.reconstruct.isophote import MIN_CONTOUR_POINTS, extract_isophote, polygon_contains
 from simtest.reconstruct.settings import Normalisation, ReconSettings
 
@@ -94,11 +98,14 @@ class IsophoteEstimate:
     closed : bool
         False if the contour is cut (then fitted only with ``allow_open=True``).
     conic : ndarray of shape (3, 3) or None
-        Fitted point conic in undistorted pixel coordinates (unit Frobenius norm).
+        Fitted point conic in undistorted pixel coordinates (unit Frobenius norm), for a pinhole
+        camera; None for a fisheye or omnidirectional camera, whose isophotes are no conics in
+        pixels (the fit is the cone ``normalised_conic``).
     ellipse : simtest.geometry.conics.Ellipse or None
-        Its centre (u, v) px, semi-axes (a >= b) px and angle (rad).
+        Its centre (u, v) px, semi-axes (a >= b) px and angle (rad); None as ``conic``.
     fit_residual_px : float or None
-        RMS Sampson distance of the (undistorted) points to the conic, px.
+        RMS Sampson distance of the points to the conic on the fit plane, px
+        (:mod:`~simtest.reconstruct.cone_fit`).
     normals_paper : ndarray of shape (2, 3) or None
         N+ and N-.
     paper_selected : ndarray of shape (3,) or None
@@ -110,7 +117,8 @@ class IsophoteEstimate:
     eigenvalue_gap : float or None
         0 for a right circular cone.
     normalised_conic : ndarray of shape (3, 3) or None
-        C' = K^T C K, unit Frobenius norm.
+        The isophote cone C' in the camera frame (``r^T C' r = 0`` on its unit rays; K^T C K for
+        a pinhole), unit Frobenius norm.
     """
 
     isovalue: float
@@ -153,8 +161,9 @@ class SpecularityEstimate:
         ``merged`` (the primary isophote encloses another highlight's BP).
     detail : str
         Numbers behind the status.
-    bp_ray : ndarray of shape (3,)
-        BP-ray normal (minus the unit viewing ray of the undistorted BP).
+    bp_ray : ndarray of shape (3,) or None
+        BP-ray normal (minus the unit viewing ray of the BP through the camera model); None only
+        when the BP has no ray in the model (status ``non_finite_points``).
     isophotes : tuple of IsophoteEstimate
         One per isovalue, in the order given.
     joint_cone_axis : ndarray of shape (3,) or None
@@ -267,8 +276,7 @@ class _Frame:
     """
 
     img: np.ndarray
-    K: np.ndarray
-    dist: np.ndarray | None
+    camera: CameraModel
     settings: ReconSettings
     full_scale: float
     saturation_level: float | None
@@ -276,16 +284,45 @@ class _Frame:
     @classmethod
     def make(cls, image, K, dist_coeffs, settings: ReconSettings) -> _Frame:
         img = validate_image(image)
-        K = validate_intrinsics(K, where="K")
+        camera = as_camera(K, dist_coeffs)
+        if camera.image_size is not None and tuple(camera.image_size) != image_size_wh(img.shape):
+            (W, H), (w, h) = camera.image_size, image_size_wh(img.shape)
+            raise ValueError(f"camera: image_size is {W} x {H} px but the image is {w} x {h} px")
         fs = default_full_scale(img) if settings.full_scale is None else settings.full_scale
         sat = settings.saturation_level
         if sat is None and img.dtype.kind == "u":
             sat = float(np.iinfo(img.dtype).max)
-        return cls(img, K, validate_dist_coeffs(dist_coeffs), settings, fs, sat)
+        return cls(img, camera, settings, fs, sat)
 
-    def undistort(self, uv: np.ndarray) -> np.ndarray:
-        """Pixel points (N, 2) without lens distortion (the points themselves when there is none)."""
-        return uv if self.dist is None else undistort_points(uv, self.K, self.dist)
+    def bp_ray(self, bp_uv: np.ndarray) -> np.ndarray:
+        """BP-ray normal of a pixel (3,), NaN when the pixel has no ray in the camera model."""
+        return _bp_ray(bp_uv, self.camera)
+
+
+def as_camera(K, dist_coeffs=None) -> CameraModel:
+    """The camera model of a ``reconstruct`` call: a model as given, or a pinhole from K.
+
+    Parameters
+    ----------
+    K : CameraModel or array_like of shape (3, 3)
+        A camera model, or pinhole intrinsics.
+    dist_coeffs : array_like or None
+        OpenCV distortion of a pinhole K; must be None with a camera model (which holds its own).
+
+    Returns
+    -------
+    CameraModel
+
+    Raises
+    ------
+    ValueError
+        Invalid K or coefficients, or coefficients beside a camera model.
+    """
+    if isinstance(K, CameraModel):
+        if dist_coeffs is not None:
+            raise ValueError("dist_coeffs: a camera model holds its own distortion; give one or the other")
+        return K
+    return PinholeCamera(validate_intrinsics(K, where="K"), validate_dist_coeffs(dist_coeffs))
 
 
 # ------------------------------------------------------------------------------------------------
@@ -307,8 +344,14 @@ def _normalised_conic(C: np.ndarray, K: np.ndarray) -> np.ndarray | None:
     return cn / norm
 
 
-def _bp_ray(bp_uv: np.ndarray, K: np.ndarray) -> np.ndarray:
-    """BP-ray normal: minus the unit viewing ray through the pixel ``bp_uv`` (3,)."""
+def _bp_ray(bp_uv: np.ndarray, camera) -> np.ndarray:
+    """BP-ray normal: minus the unit viewing ray through the pixel ``bp_uv`` (3,).
+
+    ``camera`` is a CameraModel or a pinhole K; NaN when the pixel has no ray in the model.
+    """
+    if isinstance(camera, CameraModel) and not (isinstance(camera, PinholeCamera) and camera.dist_coeffs is None):
+        return -camera.pixel_to_ray(np.asarray(bp_uv, dtype=np.float64).reshape(1, 2))[0]
+    K = camera.K if isinstance(camera, PinholeCamera) else camera
     ray = np.linalg.solve(K, np.array([bp_uv[0], bp_uv[1], 1.0]))
     return -ray / np.linalg.norm(ray)
 
@@ -369,7 +412,7 @@ class _Levels:
         return self.offset + t * self.scale
 
 
-def _one_isophote(frame: _Frame, vals, roi, levels: _Levels, t, bp_uv, bp_ray):
+def _one_isophote(frame: _Frame, vals, roi, levels: _Levels, t, bp_uv, bp_ray, fitf: FitFrame):
     iso = extract_isophote(
         vals, levels.level(t), bp_uv, origin_rc=(roi.row0, roi.col0), image_shape=frame.img.shape,
         allow_open=True, min_points=0,
@@ -382,22 +425,19 @@ def _one_isophote(frame: _Frame, vals, roi, levels: _Levels, t, bp_uv, bp_ray):
     if len(iso.points_uv) < MIN_CONTOUR_POINTS:
         return IsophoteEstimate(t, "too_few_points", f"{len(iso.points_uv)} contour points < "
                                 f"{MIN_CONTOUR_POINTS}", iso.points_uv, iso.closed), iso
-    fit = fit_ellipse(frame.undistort(iso.points_uv))
+    fit = fit_cone(iso.points_uv, fitf)
     if not fit:
         return IsophoteEstimate(t, fit.reason, fit.detail, iso.points_uv, iso.closed), iso
-    cn = _normalised_conic(fit.conic, frame.K)
-    if cn is None:
-        return IsophoteEstimate(t, "pose_failed", "C' = K^T C K is zero or not finite",
-                                iso.points_uv, iso.closed), iso
-    est = estimate_from_conic(cn, bp_ray)
+    # the estimators run in the fit frame (identity for a pinhole), normals rotated back
+    est = estimate_from_conic(fit.cone_fit_frame, to_fit_frame(fitf, bp_ray))
     base = dict(points_uv=iso.points_uv, closed=iso.closed, conic=fit.conic, ellipse=fit.ellipse,
-                fit_residual_px=fit.residual_px, normalised_conic=cn)
+                fit_residual_px=fit.residual_px, normalised_conic=fit.cone)
     if not est:
         return IsophoteEstimate(t, est.reason, est.detail, **base), iso
     return IsophoteEstimate(
         t, OK, "" if iso.closed else "open contour fitted (allow_open=True)",
-        normals_paper=est.paper, paper_selected=est.paper_selected,
-        paper_selected_index=est.paper_selected_index, cone_axis=est.cone_axis,
+        normals_paper=to_camera(fitf, est.paper), paper_selected=to_camera(fitf, est.paper_selected),
+        paper_selected_index=est.paper_selected_index, cone_axis=to_camera(fitf, est.cone_axis),
         eigenvalue_gap=est.eigenvalue_gap, **base,
     ), iso
 
@@ -407,7 +447,12 @@ def _estimate_one(frame: _Frame, bp_uv, roi: Roi, *, saturated: bool, grow: bool
     isovalues = frame.settings.isovalues
     sigma = frame.settings.smooth_sigma_px
     bp_uv = np.asarray(bp_uv, dtype=np.float64)
-    bp_ray = _bp_ray(frame.undistort(bp_uv[None])[0], frame.K)
+    bp_ray = frame.bp_ray(bp_uv)
+    if not np.isfinite(bp_ray).all():
+        i_bp = _bp_intensity(luma(frame.img[roi.slices]), roi, bp_uv)
+        return SpecularityEstimate(bp_uv, i_bp, saturated, roi, "non_finite_points",
+                                   "the BP has no viewing ray in the camera model", None, ())
+    fitf = fit_frame(frame.camera, -bp_ray)
     # Lowest isovalue first: the widest contour decides the ROI size.
     order = sorted(range(len(isovalues)), key=lambda i: isovalues[i])
     results: list = [None] * len(isovalues)
@@ -417,7 +462,7 @@ def _estimate_one(frame: _Frame, bp_uv, roi: Roi, *, saturated: bool, grow: bool
         i_bp = _bp_intensity(vals, roi, bp_uv)
         levels = _Levels.of(frame, vals, i_bp)
         i0 = order[0]
-        res, iso = _one_isophote(frame, vals, roi, levels, isovalues[i0], bp_uv, bp_ray)
+        res, iso = _one_isophote(frame, vals, roi, levels, isovalues[i0], bp_uv, bp_ray, fitf)
         if grow and iso is not None and iso.cut_by_roi and growths < ROI_MAX_GROWTHS:
             half = ROI_GROWTH_FACTOR * max(roi.shape) / 2.0
             new = Roi.around(bp_uv, half, frame.img.shape)
@@ -427,7 +472,7 @@ def _estimate_one(frame: _Frame, bp_uv, roi: Roi, *, saturated: bool, grow: bool
         results[i0] = res
         break
     for i in order[1:]:
-        results[i], _ = _one_isophote(frame, vals, roi, levels, isovalues[i], bp_uv, bp_ray)
+        results[i], _ = _one_isophote(frame, vals, roi, levels, isovalues[i], bp_uv, bp_ray, fitf)
 
     primary = results[0]
     status, detail = primary.status, primary.detail
@@ -442,8 +487,10 @@ def _estimate_one(frame: _Frame, bp_uv, roi: Roi, *, saturated: bool, grow: bool
     joint = None
     good = [r.normalised_conic for r in results if r.ok]
     if len(good) >= 2:
-        j = joint_cone_axis(good, bp_ray)
-        joint = j if not isinstance(j, Failure) else None
+        if not fitf.on_image_plane:
+            good = [fitf.R @ c @ fitf.R.T for c in good]
+        j = joint_cone_axis(good, to_fit_frame(fitf, bp_ray))
+        joint = to_camera(fitf, j) if not isinstance(j, Failure) else None
     return SpecularityEstimate(bp_uv, i_bp, saturated, roi, status, detail, bp_ray, tuple(results), joint)
 
 
@@ -487,8 +534,9 @@ def reconstruct_roi(
     ----------
     image : ndarray of shape (H, W), (H, W, 3) or (H, W, 4)
         uint8, uint16 or float image, RGB.
-    K : array_like of shape (3, 3)
-        Intrinsics (pixel centres at integer coordinates).
+    K : CameraModel or array_like of shape (3, 3)
+        The camera: any :class:`~simtest.geometry.cameras.CameraModel` (pinhole, fisheye,
+        omnidirectional), or pinhole intrinsics K (pixel centres at integer coordinates).
     isovalues : float or sequence of float, optional
         Isovalue(s) t in (0, 1); the first is the primary. Default those of ``settings``
         (``ReconSettings().isovalues = (0.1,)``).
@@ -498,7 +546,8 @@ def reconstruct_roi(
     roi : (row0, row1, col0, col1), optional
         Half-open array-index region searched; default the whole image. Not grown.
     dist_coeffs : array_like, optional
-        OpenCV distortion coefficients; contour points and BP are undistorted before use.
+        OpenCV distortion coefficients of a pinhole K (not with a camera model, which holds its
+        own); contour points and BP are mapped to rays through them.
     settings : ReconSettings, optional
         The reconstruction settings (default ``ReconSettings()``).
     **options
@@ -551,13 +600,13 @@ def reconstruct(
     ----------
     image : ndarray of shape (H, W), (H, W, 3) or (H, W, 4)
         uint8, uint16 or float image, RGB.
-    K : array_like of shape (3, 3)
-        Intrinsics (pixel centres at integer coordinates).
+    K : CameraModel or array_like of shape (3, 3)
+        The camera model, or pinhole intrinsics (pixel centres at integer coordinates).
     isovalues : float or sequence of float, optional
         Isovalue(s) t in (0, 1), relative to the BP intensity by default; the first is primary.
         Default those of ``settings`` (``ReconSettings().isovalues = (0.1,)``).
     dist_coeffs : array_like, optional
-        OpenCV distortion coefficients (contour points undistorted before the fit).
+        OpenCV distortion coefficients of a pinhole K (not with a camera model).
     roi : (row0, row1, col0, col1), optional
         Restrict detection to this region (array indices, half-open).
     settings : ReconSettings, optional
@@ -614,8 +663,9 @@ def reconstruct(
         if cand.status != OK:
             roi_k = Roi(cand.roi.row0 + r.row0, cand.roi.row1 + r.row0,
                         cand.roi.col0 + r.col0, cand.roi.col1 + r.col0)
+            ray = frame.bp_ray(bp)
             out.append(SpecularityEstimate(bp, cand.peak, cand.saturated, roi_k, cand.status,
-                                           cand.detail, _bp_ray(frame.undistort(bp[None])[0], frame.K), ()))
+                                           cand.detail, ray if np.isfinite(ray).all() else None, ()))
             continue
         roi_k = _initial_roi(cand, bp, det.threshold, frame)
         others = bps_arr[keep & (idx != k)]

@@ -57,8 +57,8 @@ def validate_isovalues(isovalues) -> tuple[float, ...]:
     Raises
     ------
     ValueError
-        If the sequence is empty, or a value is not a number or lies outside (0, 1); the message
-        starts with ``isovalues:`` and shows the value.
+        If the sequence is empty, a value is not a number or lies outside (0, 1), or a value is
+        given twice; the message starts with ``isovalues:`` and shows the value.
     """
     if isinstance(isovalues, (str, bytes)):
         raise ValueError(f"isovalues: {isovalues!r} is not a number")
@@ -73,6 +73,8 @@ def validate_isovalues(isovalues) -> tuple[float, ...]:
             raise ValueError(f"isovalues: {v!r} is not a number") from None
         if not (math.isfinite(t) and 0.0 < t < 1.0):
             raise ValueError(f"isovalues: {t!r} is outside the open interval (0, 1)")
+        if t in out:  # the same isophote twice would count twice in the joint cone axis
+            raise ValueError(f"isovalues: {t!r} is given twice; give each isovalue once")
         out.append(t)
     return tuple(out)
 

@@ -1,4 +1,4 @@
-"""Closed-form Phong images of a plane seen by a pinhole camera (no renderer).
+"""Closed-form Phong images of planes and quadrics seen by a camera model (no renderer).
 
 Frame: OpenCV camera frame, camera centre at the origin, lengths in mm. The plane is
 ``{X : normal . X = -distance_mm}`` with ``normal`` facing the camera, so the foot of the
@@ -16,6 +16,7 @@ from __future__ import annotations
 import numpy as np
 
 from simtest.geometry.camera import validate_intrinsics
+from simtest.geometry.cameras import CameraModel
 
 __all__ = [
     "cylinder_bp",
@@ -87,8 +88,9 @@ def phong_plane_image(
 
     Parameters
     ----------
-    K : array_like of shape (3, 3)
-        Intrinsics.
+    K : array_like of shape (3, 3) or CameraModel
+        Pinhole intrinsics, or any camera model (fisheye, omnidirectional: each pixel's ray is
+        the model's; pixels without a ray are 0).
     shape : (H, W)
         Image size in pixels.
     normal : array_like of shape (3,)
@@ -139,7 +141,8 @@ def _phong_image(K, shape, n, c, light_mm, supersample, intersect, falloff_ref_m
     the hit); normals are turned to face the camera here. With ``falloff_ref_mm`` the intensity is
     multiplied by ``(falloff_ref_mm / |L - X|)^2``.
     """
-    K = validate_intrinsics(K)
+    camera = K if isinstance(K, CameraModel) else None
+    K = None if camera is not None else validate_intrinsics(K)
     H, W = (int(x) for x in shape)
     if H < 1 or W < 1:
         raise ValueError(f"shape must be positive, got {shape}")
@@ -150,13 +153,17 @@ def _phong_image(K, shape, n, c, light_mm, supersample, intersect, falloff_ref_m
     L = np.asarray(light_mm, dtype=np.float64).reshape(3)
     s = int(supersample)
     offs = (np.arange(s) + 0.5) / s - 0.5
-    Kinv = np.linalg.inv(K)
+    Kinv = None if K is None else np.linalg.inv(K)
     vv, uu = np.mgrid[0:H, 0:W].astype(np.float64)
     acc = np.zeros((H, W))
     for dv in offs:
         for du in offs:
-            d = np.stack([uu + du, vv + dv, np.ones_like(uu)], axis=-1) @ Kinv.T
-            d /= np.linalg.norm(d, axis=-1, keepdims=True)
+            if camera is None:
+                d = np.stack([uu + du, vv + dv, np.ones_like(uu)], axis=-1) @ Kinv.T
+                d /= np.linalg.norm(d, axis=-1, keepdims=True)
+            else:
+                uv = np.stack([(uu + du).ravel(), (vv + dv).ravel()], axis=1)
+                d = np.nan_to_num(camera.pixel_to_ray(uv), nan=0.0).reshape(H, W, 3)
             hit, lam, N = intersect(d)
             hit = hit & np.isfinite(lam)
             X = d * np.where(hit, lam, 0.0)[..., None]

@@ -1,0 +1,239 @@
+"""The isophote cone fitted on viewing rays, for any camera model.
+
+An isophote seen from the camera centre spans a cone of viewing rays; for a co-located light and a
+plane it is a right circular cone whose axis is the plane normal (the paper's step 3 writes it
+C' = K^T C K for a pinhole). With a wide-angle lens the isophote's *pixels* do not lie on a conic
+(the lens bends them), but its *rays* still lie on the cone ``r^T C' r = 0``. So the contour points
+are first mapped to unit rays by the camera model, and the cone is fitted to the rays.
+
+Fit frame
+---------
+A cone through the camera centre meets every plane not through the centre in a conic, so the rays
+are projected centrally onto one plane and the ellipse fitted there (the direct least-squares fit of
+:func:`~simtest.reconstruct.fit.fit_ellipse`); the cone is then exact for exact rays, whatever the
+lens. The plane is chosen per highlight (:func:`fit_frame`):
+
+- a pinhole camera (with or without OpenCV distortion): its own image plane, in undistorted pixels,
+  so the fitted conic C is the undistorted image conic and C' = K^T C K as in the paper;
+- any other model (fisheye, omnidirectional): the plane perpendicular to the ray of the brightest
+  point, in "virtual pixels" of a pinhole ``K_v = diag(f_v, f_v, 1)`` looking along that ray, with
+  f_v the camera's local scale there (px per radian: ``det(J J^T)^(1/4)``, the geometric mean of
+  the singular values of the ray-to-pixel Jacobian J at the unit BP ray). Near the BP a virtual pixel is then about one image pixel, so fit residuals stay in
+  pixels. With R the rotation taking the BP ray to +z, the cone in the camera frame is
+  ``C' = R^T K_v^T C K_v R``.
+
+The estimators (circle pose, cone axis, joint cone axis) run in the fit frame, where the cone's
+image is an ellipse around +z even for a highlight 90 deg off the optical axis, and their normals
+are rotated back to the camera frame (:func:`to_camera`).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from simtest.geometry.cameras import CameraModel, PinholeCamera
+from simtest.reconstruct.failures import Failure
+from simtest.reconstruct.fit import EllipseFit, fit_ellipse
+
+__all__ = ["ConeFit", "FitFrame", "fit_cone", "fit_frame", "rotation_to_z", "to_camera", "to_fit_frame"]
+
+
+@dataclass(frozen=True)
+class FitFrame:
+    """The plane a highlight's rays are fitted on.
+
+    Attributes
+    ----------
+    camera : CameraModel
+        The camera.
+    R : ndarray of shape (3, 3)
+        Rotation from the camera frame to the fit frame (``x_fit = R x_cam``); the identity for a
+        pinhole.
+    K : ndarray of shape (3, 3)
+        Intrinsics of the fit plane: the camera's K for a pinhole, ``diag(f_v, f_v, 1)`` otherwise.
+    on_image_plane : bool
+        True when the fit plane is the camera's (undistorted) image plane, so the fitted conic and
+        ellipse are in image pixels.
+    """
+
+    camera: CameraModel
+    R: np.ndarray
+    K: np.ndarray
+    on_image_plane: bool
+
+    def to_plane(self, rays: np.ndarray) -> np.ndarray:
+        """Central projection of camera-frame rays (N, 3) onto the fit plane, (N, 2) plane px.
+
+        Rays at or behind the plane's horizon (``(R r)_z <= 0``) give NaN rows.
+        """
+        r = rays @ self.R.T
+        with np.errstate(divide="ignore", invalid="ignore"):
+            z = np.where(r[:, 2] > 0, r[:, 2], np.nan)
+            x = r[:, 0] / z
+            y = r[:, 1] / z
+        K = self.K
+        return np.stack([K[0, 0] * x + K[0, 1] * y + K[0, 2], K[1, 1] * y + K[1, 2]], axis=1)
+
+    def from_plane(self, pts: np.ndarray) -> np.ndarray:
+        """Unit camera-frame rays (N, 3) of fit-plane points (N, 2)."""
+        x = np.concatenate([pts, np.ones((len(pts), 1))], axis=1) @ np.linalg.inv(self.K).T
+        r = x @ self.R  # R^T x
+        return r / np.linalg.norm(r, axis=1, keepdims=True)
+
+
+@dataclass(frozen=True)
+class ConeFit:
+    """A cone fitted on rays (truthy).
+
+    Attributes
+    ----------
+    cone : ndarray of shape (3, 3)
+        C' in the camera frame, ``r^T C' r = 0`` on the isophote's rays, symmetric, unit Frobenius
+        norm (any sign).
+    cone_fit_frame : ndarray of shape (3, 3)
+        The same cone in the fit frame, ``R C' R^T`` (what the estimators use).
+    conic : ndarray of shape (3, 3) or None
+        The fitted point conic in image pixels (undistorted) when the fit plane is the image
+        plane (pinhole); None otherwise (a wide-angle isophote is no conic in its pixels).
+    ellipse : simtest.geometry.conics.Ellipse or None
+        That conic's centre (u, v) px, semi-axes px and angle; None as ``conic``.
+    plane_fit : EllipseFit
+        The ellipse fit on the fit plane (its ``conic`` in plane pixels).
+    residual_px : float
+        RMS Sampson distance on the fit plane, px (image px for a pinhole, virtual px otherwise).
+    n_points : int
+        Points fitted.
+    """
+
+    cone: np.ndarray
+    cone_fit_frame: np.ndarray
+    conic: np.ndarray | None
+    ellipse: object | None
+    plane_fit: EllipseFit
+    residual_px: float
+    n_points: int
+
+    def __bool__(self) -> bool:
+        return True
+
+
+def rotation_to_z(d) -> np.ndarray:
+    """A rotation R with ``R d = |d| e_z``.
+
+    Parameters
+    ----------
+    d : array_like of shape (3,)
+        Non-zero direction.
+
+    Returns
+    -------
+    ndarray of shape (3, 3)
+        Proper rotation (det +1); rows are the fit frame's axes in camera coordinates, the image
+        x axis kept as close to the camera's x as possible (so plane pixels read like image pixels).
+    """
+    z = np.asarray(d, dtype=np.float64)
+    z = z / np.linalg.norm(z)
+    ref = np.array([1.0, 0.0, 0.0]) if abs(z[0]) < 0.9 else np.array([0.0, 1.0, 0.0])
+    x = ref - (ref @ z) * z
+    x /= np.linalg.norm(x)
+    y = np.cross(z, x)
+    return np.stack([x, y, z])
+
+
+def fit_frame(camera: CameraModel, bp_ray) -> FitFrame:
+    """The fit plane of a highlight (module Notes).
+
+    Parameters
+    ----------
+    camera : CameraModel
+        The camera.
+    bp_ray : array_like of shape (3,)
+        Unit viewing ray of the brightest point, camera frame (z may be <= 0 for a wide lens).
+
+    Returns
+    -------
+    FitFrame
+    """
+    if isinstance(camera, PinholeCamera):
+        return FitFrame(camera, np.eye(3), camera.K, True)
+    d = np.asarray(bp_ray, dtype=np.float64).reshape(3)
+    R = rotation_to_z(d)
+    J = camera.ray_to_pixel_jacobian(d[None])[0]
+    f = float(max(np.linalg.det(J @ J.T), 0.0) ** 0.25)
+    if not (np.isfinite(f) and f > 0):
+        f = 1.0
+    return FitFrame(camera, R, np.diag([f, f, 1.0]), False)
+
+
+def fit_cone(points_uv, frame: FitFrame) -> ConeFit | Failure:
+    """Fit the isophote cone to contour points through their viewing rays.
+
+    Parameters
+    ----------
+    points_uv : array_like of shape (N, 2)
+        Contour points as found in the image (distorted pixels), px.
+    frame : FitFrame
+        The camera and fit plane (:func:`fit_frame`).
+
+    Returns
+    -------
+    ConeFit or Failure
+        Failures of :func:`~simtest.reconstruct.fit.fit_ellipse`; ``non_finite_points`` also when a
+        point has no ray in the camera model or lies past the fit plane's horizon (more than 90 deg
+        from the BP ray); ``pose_failed`` if the cone is zero or non-finite.
+
+    Notes
+    -----
+    With plane pixels x = K (R r) / (R r)_z and the fitted conic C (``x^T C x = 0``), a ray r lies
+    on the cone iff ``(K R r)^T C (K R r) = 0``, so ``C' = R^T K^T C K R`` (paper step 3 for R = I).
+    For a distortion-free pinhole the plane pixels are the contour points themselves.
+    """
+    pts = np.asarray(points_uv, dtype=np.float64)
+    if pts.ndim != 2 or pts.shape[1] != 2:
+        raise ValueError(f"points_uv must have shape (N, 2), got {pts.shape}")
+    cam = frame.camera
+    if isinstance(cam, PinholeCamera) and cam.dist_coeffs is None:
+        plane = pts
+    else:
+        plane = frame.to_plane(cam.pixel_to_ray(pts))
+    fit = fit_ellipse(plane)
+    if not fit:
+        return fit
+    K = frame.K
+    cf = K.T @ fit.conic @ K
+    cf = 0.5 * (cf + cf.T)
+    norm = float(np.linalg.norm(cf))
+    if not (np.isfinite(norm) and norm > 0):
+        return Failure("pose_failed", "C' = K^T C K is zero or not finite")
+    cf = cf / norm
+    on_image = frame.on_image_plane
+    if on_image:
+        cone = cf
+    else:
+        cone = frame.R.T @ cf @ frame.R
+        cone = 0.5 * (cone + cone.T)
+    return ConeFit(
+        cone=cone,
+        cone_fit_frame=cf,
+        conic=fit.conic if on_image else None,
+        ellipse=fit.ellipse if on_image else None,
+        plane_fit=fit,
+        residual_px=fit.residual_px,
+        n_points=fit.n_points,
+    )
+
+
+def to_camera(frame: FitFrame, v):
+    """Rotate fit-frame vectors (..., 3) back to the camera frame (None stays None)."""
+    if v is None or frame.on_image_plane:
+        return v
+    return np.asarray(v, dtype=np.float64) @ frame.R
+
+
+def to_fit_frame(frame: FitFrame, v):
+    """Rotate camera-frame vectors (..., 3) into the fit frame (None stays None)."""
+    if v is None or frame.on_image_plane:
+        return v
+    return np.asarray(v, dtype=np.float64) @ frame.R.T

@@ -1,0 +1,174 @@
+"""Pictures: the overlay (legend, one colour per estimator, hundreds of highlights), the 3D view
+rendered off-screen, and reconstruct's outputs as a set with its bad-input refusals."""
+
+from __future__ import annotations
+
+import json
+import os
+
+import cv2
+import numpy as np
+import pytest
+from typer.testing import CliRunner
+
+from simtest.cli import app
+from simtest.geometry import PinholeCamera, save_camera
+from simtest.reconstruct import reconstruct
+from simtest.reconstruct import overlay as overlay_mod
+from simtest.reconstruct.io import estimate_to_dict
+from simtest.reconstruct.overlay import draw_overlay, estimator_colour, needle_length_px
+from simtest.simulate.analytic import phong_plane_image, phong_sphere_image
+
+runner = CliRunner()
+
+
+def many_highlights(n=300, shape=(1080, 1350), seed=7):
+    """A frame with n small elliptical Gaussian highlights on a mid-grey background (8-bit)."""
+    rng = np.random.default_rng(seed)
+    H, W = shape
+    img = np.full(shape, 0.25)
+    vv, uu = np.mgrid[0:H, 0:W]
+    centres = []
+    while len(centres) < n:
+        c = rng.uniform([20, 20], [W - 20, H - 20])
+        if all(np.hypot(*(c - d)) > 25 for d in centres):
+            centres.append(c)
+    for c in centres:
+        a, b, th = rng.uniform(2.5, 5.0), rng.uniform(1.5, 2.5), rng.uniform(0, np.pi)
+        r0, r1, c0, c1 = int(c[1]) - 15, int(c[1]) + 16, int(c[0]) - 15, int(c[0]) + 16
+        x, y = uu[r0:r1, c0:c1] - c[0], vv[r0:r1, c0:c1] - c[1]
+        xr, yr = np.cos(th) * x + np.sin(th) * y, -np.sin(th) * x + np.cos(th) * y
+        img[r0:r1, c0:c1] += 0.75 * np.exp(-0.5 * ((xr / a) ** 2 + (yr / b) ** 2))
+    return np.round(np.clip(img, 0, 1) * 255).astype(np.uint8), np.array(centres)
+
+
+def colour_pixels(png, hexcol, tol=40):
+    rgb = np.array([int(hexcol[i:i + 2], 16) for i in (1, 3, 5)])
+    return int(np.count_nonzero(np.abs(png[:, :, ::-1].astype(int) - rgb).max(axis=2) <= tol))
+
+
+def test_overlay_on_a_crowded_real_size_frame(tmp_path):
+    img, centres = many_highlights()
+    K = np.array([[700.0, 0, 674.5], [0, 700, 539.5], [0, 0, 1]])
+    ests = reconstruct(img, K, [0.3, 0.6])
+    ok = [e for e in ests if e.ok]
+    assert len(ok) >= 200  # hundreds of highlights drawn
+    path = draw_overlay(tmp_path / "overlay.png", img, ests, K)
+    png = cv2.imread(str(path))
+    assert png.shape[:2] == (1080, 1350)  # the frame's own pixel size
+    for name in ("cone_axis", "joint_cone_axis", "paper_selected", "bp_ray"):
+        # each estimator visible in its colour (the cone axis and the joint axis coincide here to
+        # <0.01 deg: the wider one underneath shows as a rim around the other)
+        assert colour_pixels(png, estimator_colour(name)) > 300, name
+    # needles shorter than the spacing of the highlights allows, longer than a few pixels
+    L = needle_length_px(np.array([e.bp_px for e in ok]), img.shape)
+    assert 0.03 * 1350 <= L < 60
+
+
+def test_overlay_draws_only_ok_estimates_by_default(tmp_path):
+    K = np.array([[300.0, 0, 119.5], [0, 300, 119.5], [0, 0, 1]])
+    t = np.radians(12)
+    img = phong_plane_image(K, (240, 240), [np.sin(t), 0, -np.cos(t)], 500.0, 60)
+    img[0:4, 200:204] = 1.0  # an extra highlight on the border: rejected (touches_border)
+    ests = reconstruct(img, K, [0.2, 0.4])
+    assert any(not e.ok for e in ests) and any(e.ok for e in ests)
+    red = estimator_colour("cone_axis")
+    a = cv2.imread(str(draw_overlay(tmp_path / "a.png", img, ests, K)))
+    b = cv2.imread(str(draw_overlay(tmp_path / "b.png", img, ests, K, show_rejected=True)))
+    crop = (slice(0, 40), slice(560, 640))  # around the rejected BP (201.5, 1.5), drawn 700/240 larger
+    assert colour_pixels(b[crop], "#ff0000", tol=60) > colour_pixels(a[crop], "#ff0000", tol=60)
+    assert colour_pixels(a, red) > 0
+
+
+def test_overlay_too_large_for_memory_is_refused_before_anything_is_written(tmp_path, monkeypatch):
+    with pytest.raises(ValueError, match="20000 x 20000 px image .* over the 64 Mpx"):
+        overlay_mod.check_overlay_size((20000, 20000))
+    monkeypatch.setattr(overlay_mod, "_available_memory_bytes", lambda: 10**6)
+    with pytest.raises(ValueError, match="GiB are free"):
+        overlay_mod.check_overlay_size((1080, 1350))
+    # through the CLI: nothing is written
+    png, cam = _scene(tmp_path)
+    out = tmp_path / "out"
+    res = runner.invoke(app, ["reconstruct", str(png), "--intrinsics", str(cam), "--out", str(out)])
+    assert res.exit_code == 2 and "use --no-overlay" in res.output and not out.exists()
+
+
+def _scene(tmp_path):
+    K = np.array([[300.0, 0, 119.5], [0, 300, 119.5], [0, 0, 1]])
+    t = np.radians(12)
+    img = phong_plane_image(K, (240, 240), [np.sin(t), 0, -np.cos(t)], 500.0, 60)
+    png = tmp_path / "plane.png"
+    cv2.imwrite(str(png), np.round(img * 60000).astype(np.uint16))
+    return png, save_camera(tmp_path / "cam.json", PinholeCamera(K, None, (240, 240)))
+
+
+def test_reconstruct_outputs_are_replaced_as_a_set(tmp_path, monkeypatch):
+    png, cam = _scene(tmp_path)
+    out = tmp_path / "out"
+    assert runner.invoke(app, ["reconstruct", str(png), "-k", str(cam), "-o", str(out), "-t", "0.2"]).exit_code == 0
+    before = {p.name: p.read_bytes() for p in out.iterdir()}
+    assert set(before) == {"estimates.json", "overlay.png"}
+
+    def full_disk(*args, **kwargs):
+        raise OSError(28, "No space left on device")
+
+    monkeypatch.setattr(overlay_mod, "draw_overlay", full_disk)
+    res = runner.invoke(app, ["reconstruct", str(png), "-k", str(cam), "-o", str(out), "-t", "0.4"])
+    assert res.exit_code == 2 and "No space left on device" in res.output
+    # the new estimates (t = 0.4) were not put beside the old overlay: the old set is intact
+    assert {p.name: p.read_bytes() for p in out.iterdir()} == before
+
+
+@pytest.mark.parametrize(
+    ("args", "msg"),
+    [(["--smooth", "1e6"], "smooth_sigma_px must be finite and in [0, 100] px"),
+     (["--smooth", "nan"], "smooth_sigma_px must be finite and in [0, 100] px"),
+     (["-t", "0.3", "-t", "0.3"], "isovalues: 0.3 is given twice")],
+)
+def test_reconstruct_refuses_bad_options_in_one_line(tmp_path, args, msg):
+    png, cam = _scene(tmp_path)
+    out = tmp_path / "out"
+    res = runner.invoke(app, ["reconstruct", str(png), "-k", str(cam), "-o", str(out), *args])
+    assert res.exit_code == 2 and msg in res.output and len(res.output.strip().splitlines()) == 1
+    assert not out.exists()
+
+
+def test_3d_view_renders_off_screen_without_a_display(tmp_path, monkeypatch):
+    """The headless path CI takes: no DISPLAY, pyvista off-screen (VTK falls back to EGL/OSMesa)."""
+    monkeypatch.delenv("DISPLAY", raising=False)
+    monkeypatch.delenv("WAYLAND_DISPLAY", raising=False)
+    K = np.array([[180.0, 0, 79.5], [0, 180, 79.5], [0, 0, 1]])
+    cam = PinholeCamera(K, None, (160, 160))
+    centre, radius = np.array([3.0, -2.0, 60.0]), 20.0
+    img = phong_sphere_image(K, (160, 160), centre, radius, 30)
+    ests = reconstruct(img, cam, [0.3, 0.6])
+    est_path = tmp_path / "out"
+    # the estimates file, then `simtest view` with the ground-truth surface of a render-like npz
+    from simtest.reconstruct.io import write_estimates
+
+    write_estimates(est_path / "estimates.json", ests, K=K, camera=cam, isovalues=[0.3, 0.6])
+    vv, uu = np.mgrid[0:160, 0:160]
+    d = cam.pixel_to_ray(np.stack([uu.ravel(), vv.ravel()], 1).astype(float)).reshape(160, 160, 3)
+    b = d @ centre
+    disc = b * b - (centre @ centre - radius**2)
+    lam = np.where(disc > 0, b - np.sqrt(np.maximum(disc, 0)), np.nan)
+    np.savez(tmp_path / "ground_truth.npz", depth=(d * lam[..., None])[..., 2])
+    res = runner.invoke(app, ["view", str(est_path / "estimates.json"), "--out", str(tmp_path / "view.png"),
+                              "--truth", str(tmp_path / "ground_truth.npz")])
+    assert res.exit_code == 0, res.output
+    png = cv2.imread(str(tmp_path / "view.png"))
+    assert png is not None and png.shape[1] > png.shape[0]  # two panels side by side
+    assert colour_pixels(png, estimator_colour("cone_axis"), tol=80) > 30  # the discs are drawn
+    left, right = png[:, : png.shape[1] // 2], png[:, png.shape[1] // 2:]
+    assert (right.std(axis=2) > 10).mean() > 0.05  # the shaded ground-truth surface is there
+    assert left.min() < 100  # the camera centre (black) and the rays
+    assert [estimate_to_dict(e)["status"] for e in ests] == ["ok"]
+    # reconstruct --view writes it with the other outputs
+    png_in = tmp_path / "sphere.png"
+    cv2.imwrite(str(png_in), np.round(img / img.max() * 255).astype(np.uint8))
+    camf = save_camera(tmp_path / "cam.json", cam)
+    res = runner.invoke(app, ["reconstruct", str(png_in), "-k", str(camf), "-o", str(tmp_path / "r"), "-t", "0.3", "--view"])
+    assert res.exit_code == 0, res.output
+    assert sorted(p.name for p in (tmp_path / "r").iterdir()) == ["estimates.json", "overlay.png", "view.png"]
+    assert json.loads((tmp_path / "r" / "estimates.json").read_text())["camera"]["model"] == "pinhole"
+    assert "DISPLAY" not in os.environ
