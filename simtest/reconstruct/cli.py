@@ -146,7 +146,7 @@ def reconstruct_command(
 
             writers[out / "view.png"] = lambda tmp: render_view(tmp, doc["specularities"])
         atomic_write_set(writers)
-    except (ValueError, OSError) as exc:  # IntrinsicsError and InputError are ValueErrors
+    except (ValueError, OSError, ImportError) as exc:  # IntrinsicsError, InputError: ValueErrors; no pyvista: ImportError
         msg = " ".join(str(exc).split())
         typer.echo(f"error: {msg}", err=True)
         raise typer.Exit(code=2) from None
@@ -241,7 +241,7 @@ def view_command(
         if truth is not None:
             truth_points = load_truth_points(truth, _camera_of(doc, intrinsics))
         render_view(out, doc["specularities"], estimator=estimator, truth_points=truth_points)
-    except (ValueError, OSError) as exc:
+    except (ValueError, OSError, ImportError) as exc:  # no pyvista: simtest._lazy.MissingBackend
         typer.echo(f"error: {' '.join(str(exc).split())}", err=True)
         raise typer.Exit(code=2) from None
     typer.echo(f"-> {out}")

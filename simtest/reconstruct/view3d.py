@@ -22,6 +22,7 @@ from pathlib import Path
 import numpy as np
 
 from simtest._io import atomic_write
+from simtest._lazy import require
 from simtest.reconstruct.overlay import estimator_colour
 
 __all__ = ["estimate_points", "render_view", "surface_from_depth"]
@@ -133,7 +134,7 @@ def render_view(path, specs, *, estimator: str | None = None, truth_points=None,
     ValueError
         If no highlight has the estimator's normal.
     """
-    import pyvista as pv  # optional heavy back-end, imported where used
+    pv = require("pyvista", purpose="the 3D view")
 
     if estimator is None:
         estimator = "normal" if any(s.get("normal") is not None for s in specs) else "cone_axis"
