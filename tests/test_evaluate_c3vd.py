@@ -110,6 +110,12 @@ def test_scores_every_estimator_against_the_ground_truth(sequence, tmp_path):
     assert rows["0000"]["size_px"] > 3 and rows["0000"]["dist_pp_px"] >= 0
     page = (out / "report.html").read_text()
     assert len(re.findall(r"<img ", page)) == 4 and "bp_ray" in page
+    # --views: the 3D view of a frame beside its ground-truth surface, written with the set
+    res = run(seq, cam, out, "--views", "1")
+    assert res.exit_code == 0, res.output
+    assert sorted(p.name for p in out.iterdir()) == ["report.html", "results.json", "view_0000.png"]
+    view = cv2.imread(str(out / "view_0000.png"))
+    assert view is not None and view.shape[1] > view.shape[0]  # two panels
 
 
 def test_refuses_missing_and_mismatched_files(sequence, tmp_path):

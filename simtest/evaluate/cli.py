@@ -1,8 +1,9 @@
 """``simtest evaluate c3vd SEQ_DIR --intrinsics CAM --out OUT``: reconstruct a C3VD-format sequence
 and score every estimator against its ground-truth normals.
 
-Writes ``OUT/results.json`` and ``OUT/report.html`` (:mod:`simtest.evaluate.report`), replaced as
-a set: both are written to temporary files first, so a failure leaves the previous pair. A bad
+Writes ``OUT/results.json``, ``OUT/report.html`` (:mod:`simtest.evaluate.report`) and with
+``--views N`` ``OUT/view_NNNN.png`` (:mod:`simtest.reconstruct.view3d`), replaced as a set: all are
+written to temporary files first, so a failure leaves the previous set. A bad
 sequence or camera file ends with exit status 2 and one line naming the file (no traceback).
 """
 
@@ -26,6 +27,8 @@ def c3vd_command(
     normalise: str = typer.Option("local", help="Intensity normalisation: bp, full_scale or local (real tissue: local)."),
     smooth_sigma_px: float = typer.Option(0.0, "--smooth", help="Gaussian smoothing sigma in px before detection."),
     max_frames: int = typer.Option(0, "--max-frames", help="Evaluate only the first N frames (0: all).", min=0),
+    views: int = typer.Option(0, "--views", help="Also write OUT/view_NNNN.png, a 3D view (estimates beside the GT "
+                              "surface from depth), for the first N frames with a reconstructed highlight.", min=0),
 ) -> None:
     """Reconstruct every frame of SEQ_DIR and score every estimator against the ground truth."""
     from rich.progress import Progress
@@ -36,7 +39,9 @@ def c3vd_command(
     from simtest.evaluate.report import SCHEMA, SCHEMA_VERSION, render_html
     from simtest.evaluate.score import score_highlights, summarise
     from simtest.geometry.camera_file import load_camera
+    from simtest.reconstruct.io import estimate_to_dict
     from simtest.reconstruct.pipeline import reconstruct
+    from simtest.reconstruct.view3d import render_view, surface_from_depth
     from simtest.reconstruct.settings import ReconSettings
 
     try:
@@ -49,6 +54,7 @@ def c3vd_command(
         settings = ReconSettings(isovalues=isovalue, normalise=normalise, smooth_sigma_px=smooth_sigma_px)
         rows: list[dict] = []
         n_cand = 0
+        view_inputs: list[tuple[str, list, object]] = []
         with Progress(transient=True) as progress:
             task = progress.add_task("reconstructing frames", total=len(frames))
             for fr in frames:
@@ -56,6 +62,9 @@ def c3vd_command(
                 ests = reconstruct(img, camera, settings=settings)
                 n_cand += len(ests)
                 rows.extend(score_highlights(fr.index, ests, truth, camera))
+                if len(view_inputs) < views and any(e.ok for e in ests):
+                    tp = None if truth.depth_mm is None else surface_from_depth(truth.depth_mm, camera)
+                    view_inputs.append((fr.index, [estimate_to_dict(e) for e in ests], tp))
                 progress.advance(task)
         results = {
             "schema": SCHEMA, "schema_version": SCHEMA_VERSION, "simtest_version": __version__,
@@ -68,11 +77,14 @@ def c3vd_command(
         }
         text = json.dumps(results, indent=1, allow_nan=False) + "\n"
         page = render_html(results)
-        atomic_write_set({
+        writers = {
             out / "results.json": lambda tmp: Path(tmp).write_text(text, encoding="ascii"),
             out / "report.html": lambda tmp: Path(tmp).write_text(page, encoding="utf-8"),
-        })
-    except (ValueError, OSError) as exc:  # C3VDError, CameraFileError and settings errors are ValueErrors
+        }
+        for idx, specs, tp in view_inputs:
+            writers[out / f"view_{idx}.png"] = lambda tmp, specs=specs, tp=tp: render_view(tmp, specs, truth_points=tp)
+        atomic_write_set(writers)
+    except (ValueError, OSError, ImportError) as exc:  # C3VDError, CameraFileError, settings: ValueErrors
         typer.echo(f"error: {' '.join(str(exc).split())}", err=True)
         raise typer.Exit(code=2) from None
     med = results["estimators"]

@@ -163,7 +163,7 @@ def render_view(path, specs, *, estimator: str | None = None, truth_points=None,
     pl.set_background("white")
     pl.subplot(0, 0)
     unit = "mm (depth from the light-aware estimate)" if metric else "unit sphere of viewing rays (no depth)"
-    scene(pts, f"{estimator}: {len(pts)} highlights, {unit}")
+    scene(pts, f"{estimator}: {len(pts)} highlight(s), {unit}")
     pl.add_legend([[estimator, colour], ["camera centre, viewing rays", "black"]], bcolor="white",
                   size=(0.45, 0.1), loc="lower left")
     if truth_points is not None:
