@@ -426,7 +426,8 @@ class FisheyeCamera(CameraModel):
     Raises
     ------
     IntrinsicsError
-        Invalid K, D or size, or a D whose image radius stops growing inside the frame.
+        Invalid K, D or size, or a D whose image radius stops growing (or that does not reach the
+        corners by 180 deg off the axis) inside the frame.
 
     Notes
     -----
@@ -434,7 +435,8 @@ class FisheyeCamera(CameraModel):
     (x', y') = theta_d (cos phi, sin phi) with theta_d = theta (1 + k1 theta^2 + k2 theta^4 +
     k3 theta^6 + k4 theta^8), (u, v, 1) = K (x', y', 1) [2]_ (as ``cv2.fisheye.projectPoints``
     for Z > 0; written with atan2 the model extends past 90 deg). The inverse solves theta_d(theta)
-    by Newton's method from theta = theta_d.
+    by Newton's method on the branch where theta_d grows, started from a table of that branch;
+    pixels beyond it have no ray (NaN).
     """
 
     model = "fisheye"
@@ -454,16 +456,23 @@ class FisheyeCamera(CameraModel):
         self.D.setflags(write=False)
         self.image_size = _image_size(image_size, "FisheyeCamera")
         self._Kinv = np.linalg.inv(self.K)
-        self._theta_max = np.pi
+        # the invertible part of theta_d(theta) on [0, 180 deg]: up to its first turn
+        theta = np.linspace(0.0, np.pi, 20001)
+        td = self._theta_d(theta)
+        turn = np.flatnonzero(np.diff(td) <= 0)
+        k = int(turn[0]) + 1 if len(turn) else len(theta)
+        self._table_theta, self._table_td = theta[:k], td[:k]
         if self.image_size is not None:
             W, H = self.image_size
             corners = np.array([[0, 0], [W - 1, 0], [0, H - 1], [W - 1, H - 1]], dtype=np.float64)
             xy = (np.concatenate([corners, np.ones((4, 1))], axis=1) @ self._Kinv.T)[:, :2]
             rmax = np.linalg.norm(xy, axis=1).max()
-            theta = np.linspace(0.0, np.pi, 20001)
-            td = self._theta_d(theta)
-            stop = int(np.argmax(td > rmax)) if np.any(td > rmax) else len(theta) - 1
-            _check_monotone(theta[: stop + 2], td[: stop + 2], "D")
+            if rmax > self._table_td[-1]:
+                raise IntrinsicsError(
+                    f"D: not invertible over the frame (its corners are {rmax:.3g} focal lengths off the "
+                    f"centre; the image radius stops growing at {self._table_td[-1]:.3g}, "
+                    f"{np.degrees(self._table_theta[-1]):.1f} deg off the axis)"
+                )
 
     def _theta_d(self, theta, deriv: bool = False):
         k1, k2, k3, k4 = self.D
@@ -523,7 +532,9 @@ class FisheyeCamera(CameraModel):
         uv = _as_uv(uv)
         xy = (np.concatenate([uv, np.ones((len(uv), 1))], axis=1) @ self._Kinv.T)[:, :2]
         rd = np.linalg.norm(xy, axis=1)
-        theta = rd.copy()
+        inside = rd <= self._table_td[-1]
+        # start from the table of the invertible branch, then Newton within it
+        theta = np.interp(rd, self._table_td, self._table_theta)
         f = max(self.K[0, 0], self.K[1, 1])
         done = np.zeros(len(uv), dtype=bool)
         for _ in range(_NEWTON_MAX_IT):
@@ -533,8 +544,8 @@ class FisheyeCamera(CameraModel):
             if done.all():
                 break
             with np.errstate(all="ignore"):
-                theta = np.where(done, theta, np.clip(theta - res / dtd, 0.0, self._theta_max))
-        theta[~done] = np.nan
+                theta = np.where(done, theta, np.clip(theta - res / dtd, 0.0, self._table_theta[-1]))
+        theta[~(done & inside)] = np.nan
         with np.errstate(divide="ignore", invalid="ignore"):
             cphi = np.where(rd > 0, xy[:, 0] / rd, 1.0)
             sphi = np.where(rd > 0, xy[:, 1] / rd, 0.0)
