@@ -27,8 +27,10 @@ import numpy as np
 from matplotlib.collections import LineCollection
 from matplotlib.figure import Figure
 from matplotlib.lines import Line2D
+from scipy.spatial import cKDTree
 
 from simtest._io import atomic_write
+from simtest.reconstruct.io import estimate_to_dict
 
 __all__ = [
     "ESTIMATOR_COLOURS",
@@ -153,20 +155,11 @@ def needle_length_px(bps: np.ndarray, shape) -> float:
     bps = np.asarray(bps, dtype=np.float64).reshape(-1, 2)
     if len(bps) < 2:
         return hi
-    d = np.linalg.norm(bps[:, None, :] - bps[None, :, :], axis=2) if len(bps) <= 2000 else None
-    if d is None:
-        from scipy.spatial import cKDTree
-
-        nn = cKDTree(bps).query(bps, k=2)[0][:, 1]
-    else:
-        np.fill_diagonal(d, np.inf)
-        nn = d.min(axis=1)
+    nn = cKDTree(bps).query(bps, k=2)[0][:, 1]  # distance to the nearest other BP
     return float(np.clip(1.5 * np.median(nn), lo, hi))
 
 
 def _normals_of(est) -> dict[str, np.ndarray]:
-    from simtest.reconstruct.io import estimate_to_dict
-
     spec = estimate_to_dict(est)
     out = {}
     for name, v in spec["normals"].items():
