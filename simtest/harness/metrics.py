@@ -3,7 +3,7 @@
 For each case and estimator: the number of scored specularities ``n``, of successes ``n_ok``, the
 failure rate and the failures by cause, and over the successes the mean, standard deviation
 (population, ddof = 0: the spread of the realisations drawn, as the paper's black bars), median,
-95th percentile (linear interpolation, numpy's default), min and max, in degrees. Statistics of an
+5th and 95th percentiles (linear interpolation, numpy's default), min and max, in degrees. Statistics of an
 estimator that never succeeded are None.
 
 Numbers are computed from arrays in realisation order, so the same realisations give bit-identical
@@ -19,7 +19,7 @@ import numpy as np
 __all__ = ["summarise", "case_metrics", "STAT_KEYS"]
 
 #: The statistics reported for each case and estimator (degrees, except failure_rate and counts).
-STAT_KEYS = ("mean", "std", "median", "p95", "min", "max")
+STAT_KEYS = ("mean", "std", "median", "p5", "p95", "min", "max")
 
 
 def summarise(errors, causes) -> dict:
@@ -35,7 +35,7 @@ def summarise(errors, causes) -> dict:
     Returns
     -------
     dict
-        ``n, n_ok, failure_rate, failures ({cause: count}), mean, std, median, p95, min, max``.
+        ``n, n_ok, failure_rate, failures ({cause: count}), mean, std, median, p5, p95, min, max``.
 
     Raises
     ------
@@ -56,7 +56,8 @@ def summarise(errors, causes) -> dict:
     if n_ok:
         v = e[ok]
         out.update(mean=float(np.mean(v)), std=float(np.std(v)), median=float(np.median(v)),
-                   p95=float(np.percentile(v, 95)), min=float(np.min(v)), max=float(np.max(v)))
+                   p5=float(np.percentile(v, 5)), p95=float(np.percentile(v, 95)),
+                   min=float(np.min(v)), max=float(np.max(v)))
     else:
         out.update({k: None for k in STAT_KEYS})
     return out

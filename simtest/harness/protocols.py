@@ -19,6 +19,8 @@ import math
 
 import numpy as np
 
+from simtest.geometry.curvature import (curvature_ratio, predicted_eigenvalue_gap,
+                                        predicted_pose_error_deg)
 from simtest.harness.estimators import score
 
 __all__ = ["make_runner", "PaperRunner", "RenderedRunner", "reconstruct_known_bp",
@@ -30,7 +32,8 @@ ROI_MARGIN_PX = 10
 
 #: Extra per-row diagnostics carried into the results (means reported per case).
 EXTRA_KEYS = ("eigenvalue_gap", "residual_px", "bp_error_px", "k1_per_mm", "k2_per_mm",
-              "pose_split_deg", "iso_radius_mm", "r_k1", "r_k2", "anisotropy")
+              "pose_split_deg", "iso_radius_mm", "r_k1", "r_k2", "anisotropy", "bp_distance_mm",
+              "rho", "predicted_gap", "predicted_pose_deg", "false_positives")
 
 
 def isovalue_list(isovalue: float, joint_isovalues) -> tuple[float, ...]:
@@ -156,6 +159,20 @@ def _dimensionless_curvature(est, h, K) -> dict:
     k1, k2 = float(getattr(h, "k1", nan)), float(getattr(h, "k2", nan))
     out.update(iso_radius_mm=r, r_k1=r * k1, r_k2=r * k2, anisotropy=r * abs(k1 - k2))
     return out
+
+
+def _curvature_prediction(h) -> dict:
+    """Distance to the BP, rho and the gap and circle-pose error it predicts (co-located BP).
+
+    See :func:`simtest.geometry.curvature.curvature_ratio` (signed k1 >= k2, positive convex
+    toward the camera). Returns ``bp_distance_mm``, ``rho``, ``predicted_gap`` and
+    ``predicted_pose_deg`` (NaN where the curvatures are unknown).
+    """
+    d = float(np.linalg.norm(np.asarray(h.bp_mm, dtype=np.float64)))
+    rho = curvature_ratio(float(getattr(h, "k1", float("nan"))),
+                          float(getattr(h, "k2", float("nan"))), d)
+    return {"bp_distance_mm": d, "rho": rho, "predicted_gap": predicted_eigenvalue_gap(rho),
+            "predicted_pose_deg": predicted_pose_error_deg(rho)}
 
 
 def _row(errs: dict, extras: dict) -> dict:
@@ -339,6 +356,10 @@ class RenderedRunner:
         ests = reconstruct_image(image, result.K, self.isovalues)
         ok_bps = [(e, np.asarray(e.bp_px, float)) for e in ests
                   if getattr(e, "bp_px", None) is not None]
+        # False positives: detections farther than match_px from every true BP (in frame or not).
+        true_bps = [np.asarray(h.bp_px, float) for h in result.highlights]
+        false_pos = sum(1 for _, ebp in ok_bps
+                        if all(float(np.linalg.norm(ebp - t)) > self.match_px for t in true_bps))
         rows = []
         for h in result.highlights:
             if not getattr(h, "in_frame", True):
@@ -357,10 +378,16 @@ class RenderedRunner:
             extras["k1_per_mm"] = float(getattr(h, "k1", float("nan")))
             extras["k2_per_mm"] = float(getattr(h, "k2", float("nan")))
             extras.update(_dimensionless_curvature(best, h, result.K))
+            extras.update(_curvature_prediction(h))
+            # per image, carried by its first row (NaN on the others): the case mean is the
+            # number of false positives per image
+            extras["false_positives"] = float(false_pos) if not rows else float("nan")
             rows.append(_row(errs, extras))
         if not rows:
             errs = {k: (float("nan"), "no_highlight_in_frame") for k in self.estimators}
-            rows.append(_row(errs, {k: float("nan") for k in EXTRA_KEYS}))
+            extras = {k: float("nan") for k in EXTRA_KEYS}
+            extras["false_positives"] = float(false_pos)
+            rows.append(_row(errs, extras))
         return rows
 
 

@@ -25,7 +25,7 @@ A suite file (``scenes/suites/<name>.toml``) reads::
 
     [sweep.paper]                   # optional: the paper's stated figure for this sweep
     claim = "mean error below 1.25 deg throughout"
-    check = "max_mean_below"        # see simtest.harness.report.PAPER_CHECKS
+    check = "max_mean_below"        # see simtest.harness.claims.PAPER_CHECKS
     value = 1.25
     note = "why ours differs"
 
@@ -61,6 +61,7 @@ from typing import Any, Mapping
 
 import numpy as np
 
+from simtest.harness.claims import PAPER_CHECKS
 from simtest.resources import bundled
 
 __all__ = [
@@ -108,7 +109,7 @@ _SUITE_KEYS = {"name", "description", "protocol", "scene", "realisations", "seed
 _SWEEP_KEYS = {"name", "parameter", "values", "label", "display_scale", "set", "cases", "paper",
                "protocol", "scene", "realisations", "description"}
 _CASE_KEYS = {"x", "set", "label"}
-_PAPER_KEYS = {"claim", "check", "value", "note", "estimator", "range"}
+_PAPER_KEYS = {"claim", "check", "value", "note", "estimator", "range", "source"}
 
 
 class SuiteError(ValueError):
@@ -645,8 +646,6 @@ def suite_from_dict(raw: Mapping[str, Any], source: str = "<dict>", sha256: str 
         paper = sw.get("paper")
         if paper is not None:
             _check_keys(paper, _PAPER_KEYS, source, f"{where}.paper")
-            from simtest.harness.report import PAPER_CHECKS
-
             chk = paper.get("check")
             chks = [chk] if isinstance(chk, str) or chk is None else chk
             vals = [paper.get("value")] if isinstance(chk, str) or chk is None else paper.get("value")
@@ -664,6 +663,9 @@ def suite_from_dict(raw: Mapping[str, Any], source: str = "<dict>", sha256: str 
                     raise _err(source, f"{where}.paper.value", f"check {c_} needs [low, high]")
                 if not two and not _is_num(v_):
                     raise _err(source, f"{where}.paper.value", f"check {c_} needs a number")
+            if paper.get("source", "paper") not in ("paper", "prediction"):
+                raise _err(source, f"{where}.paper.source",
+                           f"expected 'paper' or 'prediction', got {paper.get('source')!r}")
             est = paper.get("estimator", "paper_oracle")
             if est not in ESTIMATOR_NAMES:
                 raise _err(source, f"{where}.paper.estimator", f"unknown estimator {est!r}")

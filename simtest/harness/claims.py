@@ -1,0 +1,432 @@
+"""Claims a report checks against its results: the paper's figure 3, and our own predictions.
+
+Two kinds, both computed from a ``results.json`` document, never typed by hand:
+
+- per sweep, the checks of its ``[sweep.paper]`` table (:data:`PAPER_CHECKS`, evaluated by
+  :func:`evaluate_paper_claim`): what the paper's figure 3 states (``source = "paper"``), or a
+  prediction of ours tied to one sweep (``source = "prediction"``);
+- suite-wide predictions (:data:`CLAIMS`, evaluated by :func:`evaluate_claims`) over every case
+  they apply to: the BP ray is exact on co-located renders, the cone axis is the normal on
+  co-located planes, rho predicts the eigenvalue gap and the circle-pose error on curved patches.
+
+A claim that no case of the suite can decide is left out (a quick suite has no curved scene).
+:func:`explanations` gives, for each alarming cell of the summary (family median error above
+:data:`ALARM_DEG`), the measured reason, when one of its rules applies.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from simtest.tolerances import TOL
+
+__all__ = ["PAPER_CHECKS", "CLAIMS", "ALARM_DEG", "evaluate_paper_claim", "evaluate_claims",
+           "explanations"]
+
+#: A family's median error above this (degrees) is alarming: the report must say why.
+ALARM_DEG = 10.0
+
+#: Families of the rendered protocol whose geometry is an analytic quadric (exact curvature).
+ANALYTIC = ("plane", "sphere", "cylinder", "saddle")
+
+
+# ------------------------------------------------------------------------------------------------
+# the paper's stated figures (and sweep-level predictions)
+
+
+def _series(sweep_cases: list[dict], estimator: str, stat: str = "mean"):
+    xs, ys = [], []
+    for c in sweep_cases:
+        m = c["metrics"]["estimators"].get(estimator, {})
+        v = m.get(stat)
+        if v is not None:
+            xs.append(c["x"])
+            ys.append(v)
+    return np.asarray(xs, float), np.asarray(ys, float)
+
+
+def _chk_max_mean_below(cases, est, value):
+    x, y = _series(cases, est)
+    if not y.size:
+        return None, "no successful realisation"
+    i = int(np.argmax(y))
+    return bool(y[i] < value), f"largest mean {y[i]:.3g} deg (at x = {x[i]:g})"
+
+
+def _chk_max_max_below(cases, est, value):
+    x, y = _series(cases, est, "max")
+    if not y.size:
+        return None, "no successful realisation"
+    i = int(np.argmax(y))
+    return bool(y[i] < value), f"largest single error {y[i]:.3g} deg (at x = {x[i]:g})"
+
+
+def _chk_slope_in_range(cases, est, value):
+    x, y = _series(cases, est)
+    if y.size < 2:
+        return None, "fewer than 2 points"
+    slope = float(np.polyfit(x, y, 1)[0])
+    lo, hi = value
+    return bool(lo <= slope <= hi), f"least-squares slope of the mean {slope:.3g} deg per unit"
+
+
+def _chk_argmin_in_range(cases, est, value):
+    x, y = _series(cases, est)
+    if not y.size:
+        return None, "no successful realisation"
+    i = int(np.argmin(y))
+    lo, hi = value
+    interior = 0 < i < y.size - 1
+    return bool(lo <= x[i] <= hi and interior), \
+        f"smallest mean {y[i]:.3g} deg at x = {x[i]:g} ({'interior' if interior else 'at an end'})"
+
+
+def _chk_stable_up_to(cases, est, value):
+    x, y = _series(cases, est)
+    if not y.size:
+        return None, "no successful realisation"
+    base = y[np.argmin(x)]
+    sel = x <= value
+    worst = float(np.max(y[sel]))
+    allowed = base + max(0.25, 0.5 * base)
+    return bool(worst <= allowed), (f"mean {base:.3g} deg at x = {x.min():g}, at most {worst:.3g} "
+                                    f"deg for x <= {value:g} (stable: within max(0.25 deg, 50 %))")
+
+
+def _chk_increasing(cases, est, value):
+    x, y = _series(cases, est)
+    if y.size < 2:
+        return None, "fewer than 2 points"
+    rho = float(np.corrcoef(np.argsort(np.argsort(x)), np.argsort(np.argsort(y)))[0, 1])
+    return bool(rho >= value), f"rank correlation of mean error with x {rho:.2f}"
+
+
+def _chk_spread_below(cases, est, value):
+    x, y = _series(cases, est)
+    if y.size < 2:
+        return None, "fewer than 2 points"
+    lo, hi = int(np.argmin(y)), int(np.argmax(y))
+    return bool(y[hi] - y[lo] < value), (f"mean from {y[lo]:.3g} deg (x = {x[lo]:g}) to "
+                                         f"{y[hi]:.3g} deg (x = {x[hi]:g}): spread "
+                                         f"{y[hi] - y[lo]:.3g} deg")
+
+
+#: Checks of a sweep against the paper's statement: name -> f(cases, estimator, value) ->
+#: (holds or None, what we measured).
+PAPER_CHECKS = {
+    "max_mean_below": _chk_max_mean_below,
+    "max_max_below": _chk_max_max_below,
+    "slope_in_range": _chk_slope_in_range,
+    "argmin_in_range": _chk_argmin_in_range,
+    "stable_up_to": _chk_stable_up_to,
+    "increasing": _chk_increasing,
+    "spread_below": _chk_spread_below,
+}
+
+
+def evaluate_paper_claim(paper: dict, sweep_cases: list[dict]) -> list[dict]:
+    """Evaluate the checks of a sweep's ``[sweep.paper]`` table on its cases' metrics.
+
+    Parameters
+    ----------
+    paper : dict
+        The sweep's ``paper`` table: ``check`` (a key of :data:`PAPER_CHECKS` or a list of them),
+        ``value`` (one per check; degrees for error bounds), optional ``estimator`` (default
+        ``"paper_oracle"``) and ``source`` (``"paper"``, the default, for the paper's figure 3;
+        ``"prediction"`` for one of ours).
+    sweep_cases : list of dict
+        The sweep's case documents of ``results.json`` (with ``metrics``), in sweep order.
+
+    Returns
+    -------
+    list of dict
+        ``{"check", "value", "estimator", "source", "holds" (bool or None), "ours" (str)}`` per check;
+        empty if the table has no ``check``. ``holds`` is None when the metrics cannot decide.
+
+    Raises
+    ------
+    KeyError
+        If a check name is not in :data:`PAPER_CHECKS` (suite validation refuses those first).
+    """
+    est = paper.get("estimator", "paper_oracle")
+    out = []
+    checks = paper.get("check")
+    values = paper.get("value")
+    if checks is None:
+        return out
+    if isinstance(checks, str):
+        checks, values = [checks], [values]
+    for chk, val in zip(checks, values):
+        holds, ours = PAPER_CHECKS[chk](sweep_cases, est, val)
+        out.append({"check": chk, "value": val, "estimator": est,
+                    "source": paper.get("source", "paper"), "holds": holds, "ours": ours})
+    return out
+
+
+# ------------------------------------------------------------------------------------------------
+# suite-wide predictions
+
+
+def _stat(case: dict, est: str, key: str = "median"):
+    m = case["metrics"]["estimators"].get(est) or {}
+    return m.get(key)
+
+
+def _diag(case: dict, key: str):
+    return case["metrics"].get("diagnostics", {}).get(key)
+
+
+def _unique(cases: list[dict]) -> list[dict]:
+    """One case per key (a setting shared by two sweeps counts once)."""
+    seen, out = set(), []
+    for c in cases:
+        if c["key"] not in seen:
+            seen.add(c["key"])
+            out.append(c)
+    return out
+
+
+def _rendered(results: dict, colocated: bool = True) -> list[dict]:
+    return _unique([c for c in results["cases"]
+                    if c["protocol"] == "rendered" and c.get("colocated") is colocated])
+
+
+def _base_family(c: dict) -> str:
+    return c.get("family", "").split(",")[0]
+
+
+def _range(vals) -> str:
+    v = np.asarray(vals, dtype=np.float64)
+    return f"{v.min():.3g}" if v.min() == v.max() else f"{v.min():.3g} to {v.max():.3g}"
+
+
+def _families_of(cases) -> str:
+    return ", ".join(sorted({_base_family(c) for c in cases}))
+
+
+def _claim_bp_ray_exact(results):
+    cs = [c for c in _rendered(results) if _stat(c, "bp_ray") is not None]
+    if not cs:
+        return None
+    med = [_stat(c, "bp_ray") for c in cs]
+    worst = cs[int(np.argmax(med))]
+    bpe = [_diag(c, "bp_error_px") for c in cs if _diag(c, "bp_error_px") is not None]
+    return (max(med) <= TOL.claim_bp_ray_colocated_deg,
+            f"bp_ray median {_range(med)} deg over {len(cs)} cases ({_families_of(cs)}); worst "
+            f"{worst['id']}" + (f"; BP localisation error {_range(bpe)} px (case means)"
+                                if bpe else ""),
+            f"every co-located rendered case; bound {TOL.claim_bp_ray_colocated_deg:g} deg")
+
+
+def _claim_cone_axis_plane(results):
+    cs = [c for c in _rendered(results) if _base_family(c) == "plane"
+          and _stat(c, "cone_axis") is not None]
+    if not cs:
+        return None
+    med = [_stat(c, "cone_axis") for c in cs]
+    oracle = [_stat(c, "paper_oracle") for c in cs if _stat(c, "paper_oracle") is not None]
+    return (max(med) <= TOL.claim_cone_axis_plane_deg,
+            f"cone_axis median {_range(med)} deg over {len(cs)} cases"
+            + (f" (paper_oracle {_range(oracle)} deg on the same cases)" if oracle else ""),
+            f"co-located rendered planes; bound {TOL.claim_cone_axis_plane_deg:g} deg")
+
+
+def _claim_bp_ray_beats_cone_axis(results):
+    cs = [c for c in _rendered(results) if _base_family(c) not in ("plane", "")
+          and _stat(c, "bp_ray") is not None and _stat(c, "cone_axis") is not None]
+    if not cs:
+        return None
+    wins = [c for c in cs if _stat(c, "bp_ray") < _stat(c, "cone_axis")]
+    per = []
+    for fam in sorted({_base_family(c) for c in cs}):
+        fc = [c for c in cs if _base_family(c) == fam]
+        fw = sum(1 for c in fc if c in wins)
+        per.append(f"{fam} {fw} of {len(fc)} (bp_ray {_range([_stat(c, 'bp_ray') for c in fc])}"
+                   f" deg, cone_axis {_range([_stat(c, 'cone_axis') for c in fc])} deg)")
+    return (len(wins) == len(cs),
+            f"bp_ray lower in {len(wins)} of {len(cs)} cases: " + "; ".join(per),
+            "co-located rendered curved cases, case medians")
+
+
+def _rho_cases(results):
+    return [c for c in _rendered(results) if _diag(c, "predicted_gap") is not None]
+
+
+def _claim_rho_gap(results):
+    cs = [c for c in _rho_cases(results) if _diag(c, "eigenvalue_gap") is not None
+          and _base_family(c) != "plane"]
+    if not cs:
+        return None
+    dev = {c["id"]: abs(_diag(c, "eigenvalue_gap") - _diag(c, "predicted_gap")) for c in cs}
+    ana = [c for c in cs if _base_family(c) in ANALYTIC]
+    per = []
+    for fam in sorted({_base_family(c) for c in cs}):
+        fc = [c for c in cs if _base_family(c) == fam]
+        worst = max(fc, key=lambda c: dev[c["id"]])
+        per.append(f"{fam}: largest |measured - predicted| {dev[worst['id']]:.3g} "
+                   f"({worst['id']}: {_diag(worst, 'eigenvalue_gap'):.3g} vs "
+                   f"{_diag(worst, 'predicted_gap'):.3g})")
+    holds = (max(dev[c["id"]] for c in ana) <= TOL.claim_rho_gap_abs) if ana else None
+    return (holds, "; ".join(per),
+            f"curved co-located cases, case means; verdict on the analytic quadrics, bound "
+            f"{TOL.claim_rho_gap_abs:g}")
+
+
+def _claim_rho_pose(results):
+    cs = [c for c in _rho_cases(results) if _stat(c, "paper_oracle", "mean") is not None
+          and _diag(c, "predicted_pose_deg") is not None and _base_family(c) != "plane"]
+    if not cs:
+        return None
+    dev = {c["id"]: abs(_stat(c, "paper_oracle", "mean") - _diag(c, "predicted_pose_deg"))
+           for c in cs}
+    ana = [c for c in cs if _base_family(c) in ANALYTIC]
+    per = []
+    for fam in sorted({_base_family(c) for c in cs}):
+        fc = [c for c in cs if _base_family(c) == fam]
+        worst = max(fc, key=lambda c: dev[c["id"]])
+        per.append(f"{fam}: largest |measured - predicted| {dev[worst['id']]:.3g} deg "
+                   f"({worst['id']}: {_stat(worst, 'paper_oracle', 'mean'):.3g} vs "
+                   f"{_diag(worst, 'predicted_pose_deg'):.3g} deg)")
+    holds = (max(dev[c["id"]] for c in ana) <= TOL.claim_rho_pose_deg) if ana else None
+    return (holds, "; ".join(per),
+            f"curved co-located cases, paper_oracle case means; verdict on the analytic "
+            f"quadrics, bound {TOL.claim_rho_pose_deg:g} deg")
+
+
+#: Suite-wide predictions: id -> (statement, f(results) -> (holds, measured, scope) or None).
+CLAIMS = {
+    "bp_ray_exact_colocated": (
+        "On co-located renders the BP ray is the normal (the BP is where the normal is parallel "
+        "to the viewing ray, whatever the curvature): its error is BP localisation only",
+        _claim_bp_ray_exact),
+    "cone_axis_colocated_plane": (
+        "On co-located planes the isophote cone is right circular and its axis is the normal",
+        _claim_cone_axis_plane),
+    "bp_ray_beats_cone_axis_curved": (
+        "On co-located curved surfaces the BP ray beats the cone axis",
+        _claim_bp_ray_beats_cone_axis),
+    "rho_predicts_gap": (
+        "The eigenvalue gap of C' is 1 - rho^2, rho = |1 + k2 d| / |1 + k1 d|",
+        _claim_rho_gap),
+    "rho_predicts_pose_error": (
+        "The circle-pose normals N+ and N- leave the normal by asin(sqrt(1 - rho^2))",
+        _claim_rho_pose),
+}
+
+
+def evaluate_claims(results: dict) -> list[dict]:
+    """Verdicts of the paper's figure-3 claims and of our predictions on one results document.
+
+    Parameters
+    ----------
+    results : dict
+        A ``results.json`` document (``cases`` with ``family``, ``colocated`` and metrics;
+        ``sweeps`` with their ``comparison``).
+
+    Returns
+    -------
+    list of dict
+        ``{"id", "source" ("paper" or "prediction"), "claim", "holds" (bool or None),
+        "measured", "scope"}``: first one per sweep check (in sweep order), then one per claim of
+        :data:`CLAIMS` that the suite's cases can decide.
+    """
+    out = []
+    for sw in results["sweeps"]:
+        for i, chk in enumerate(sw.get("comparison") or []):
+            out.append({"id": f"{sw['name']}.{chk['check']}" + (f".{i}" if i else ""),
+                        "source": chk.get("source", "paper"),
+                        "claim": (sw.get("paper") or {}).get("claim", ""),
+                        "holds": chk["holds"],
+                        "measured": f"{chk['estimator']}: {chk['ours']}",
+                        "scope": f"sweep {sw['name']}, check {chk['check']} {chk['value']}"})
+    for cid, (text, fn) in CLAIMS.items():
+        r = fn(results)
+        if r is None:
+            continue
+        holds, measured, scope = r
+        out.append({"id": cid, "source": "prediction", "claim": text,
+                    "holds": None if holds is None else bool(holds), "measured": measured,
+                    "scope": scope})
+    return out
+
+
+# ------------------------------------------------------------------------------------------------
+# explanations of alarming rows
+
+
+def _paper_theta_cases(results):
+    return _unique([c for c in results["cases"] if c["protocol"] == "paper"
+                    and c["params"].get("theta_deg") is not None])
+
+
+def _explain_paper(results, est):
+    cs = [c for c in _paper_theta_cases(results) if _stat(c, est, "mean") is not None]
+    if not cs:
+        return None
+    th = np.array([c["params"]["theta_deg"] for c in cs])
+    err = np.array([_stat(c, est, "mean") for c in cs])
+    if est == "paper_oracle":
+        z = [c for c in cs if c["params"]["theta_deg"] == 0 and _diag(c, "eigenvalue_gap")]
+        if not z:
+            return None
+        g = np.array([_diag(c, "eigenvalue_gap") for c in z])
+        pred = np.degrees(np.arcsin(np.sqrt(np.clip(g, 0, 1))))
+        return (f"at theta = 0 the isophote cone is nearly right circular (mean eigenvalue gap "
+                f"{_range(g)}), and N+- leave its axis by asin(sqrt(gap)) = {_range(pred)} deg; "
+                f"measured oracle error there {_range([_stat(c, est, 'mean') for c in z])} deg")
+    pos = th > 0
+    ratio = err[pos] / th[pos]
+    dev = np.abs(err - th)
+    txt = (f"the paper protocol's camera is slanted by theta and does not carry the light: mean "
+           f"error / theta = {_range(ratio)} over {int(pos.sum())} cases with theta > 0 "
+           f"(largest |error - theta| {dev.max():.3g} deg)")
+    if est == "paper_selected":
+        txt += ("; choosing between N+ and N- by closeness to the BP ray, itself theta off the "
+                "normal, picks the wrong one")
+    return txt
+
+
+def _explain_rendered(results, family, est):
+    cs = [c for c in _rendered(results, colocated=not family.endswith("light offset"))
+          if c.get("family") == family and _stat(c, est) is not None]
+    if not cs:
+        return None
+    if est in ("paper_oracle", "paper_selected"):
+        pc = [c for c in cs if _diag(c, "predicted_pose_deg") is not None]
+        if pc:
+            return (f"curvature anisotropy: asin(sqrt(1 - rho^2)) predicts "
+                    f"{_range([_diag(c, 'predicted_pose_deg') for c in pc])} deg on these cases "
+                    f"(measured mean {_range([_stat(c, est, 'mean') for c in pc])} deg)")
+    worst = max(cs, key=lambda c: _stat(c, est))
+    parts = [f"worst case {worst['id']}: median {_stat(worst, est):.3g} deg"]
+    for key, lab in (("residual_px", "fit residual {:.3g} px"), ("rho", "rho {:.3g}"),
+                     ("eigenvalue_gap", "eigenvalue gap {:.3g}")):
+        v = _diag(worst, key)
+        if v is not None:
+            parts.append(lab.format(v))
+    return ", ".join(parts)
+
+
+def explanations(results: dict) -> list[dict]:
+    """The measured reason behind each alarming family x estimator cell, where a rule applies.
+
+    Parameters
+    ----------
+    results : dict
+        A ``results.json`` document with ``families``.
+
+    Returns
+    -------
+    list of dict
+        ``{"family", "estimator", "median", "text"}`` for every cell whose pooled median exceeds
+        :data:`ALARM_DEG`; ``text`` is None where no rule explains it (the report says so).
+    """
+    out = []
+    for fam, f in results.get("families", {}).items():
+        for est, m in f["estimators"].items():
+            if m.get("median") is None or m["median"] <= ALARM_DEG:
+                continue
+            text = (_explain_paper(results, est) if f["protocol"] == "paper"
+                    else _explain_rendered(results, fam, est))
+            out.append({"family": fam, "estimator": est, "median": m["median"], "text": text})
+    return out

@@ -1,0 +1,118 @@
+"""Reports of a suite run: ``results.json``, ``results.csv``, ``report.md``, ``report.html``.
+
+Layout: ``<out>/<suite>/<run id>/`` holds ``results.json`` (schema in
+:mod:`simtest.harness.report.results`), ``results.csv`` (every case x estimator statistic),
+``report.md``, a self-contained ``report.html`` (figures inlined as base64 PNG) and
+``figures/*.png``. The set is written to a temporary folder beside the run folder and renamed
+into place, so a reader never sees half a report.
+
+Modules, one job each: :mod:`~simtest.harness.claims` (the paper's and our claims, checked on
+results), :mod:`~simtest.harness.report.provenance` (commit, packages, machine, speed),
+:mod:`~simtest.harness.report.results` (the results document and CSV),
+:mod:`~simtest.harness.report.figures` (matplotlib figures and their layout check),
+:mod:`~simtest.harness.report.document` (Markdown and HTML).
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import shutil
+import tempfile
+from pathlib import Path
+
+import matplotlib.pyplot as plt
+
+from simtest.harness.claims import CLAIMS, PAPER_CHECKS, evaluate_claims, evaluate_paper_claim
+from simtest.harness.report.document import html_report, markdown_report
+from simtest.harness.report.figures import figure_png, make_figures
+from simtest.harness.report.provenance import make_run_id, provenance
+from simtest.harness.report.results import SCHEMA, SCHEMA_VERSION, build_results, results_csv
+
+__all__ = ["SCHEMA", "SCHEMA_VERSION", "PAPER_CHECKS", "CLAIMS", "build_results", "write_report",
+           "write_report_files", "provenance", "evaluate_paper_claim", "evaluate_claims",
+           "make_run_id", "results_csv"]
+
+
+def write_report_files(results: dict, folder: str | Path, plots: bool = True,
+                       nightly: dict | None = None, history: list[dict] | None = None) -> Path:
+    """Write the report files of a results document into ``folder``, replacing it as a set.
+
+    Parameters
+    ----------
+    results : dict
+        A ``results.json`` document (as from :func:`build_results`, or read back from disk).
+    folder : path
+        The run folder; an existing one is replaced.
+    plots : bool
+        Draw the figures (matplotlib, Agg).
+    nightly : dict, optional
+        The nightly gate's outcome (a section of the report), see
+        :func:`simtest.harness.report.document.markdown_report`.
+    history : list of dict, optional
+        Nightly history lines, drawn as ``figures/nightly_trend.png``.
+
+    Returns
+    -------
+    Path
+        ``folder``.
+    """
+    folder = Path(folder)
+    folder.parent.mkdir(parents=True, exist_ok=True)
+    tmp = Path(tempfile.mkdtemp(prefix=f".{folder.name}.", dir=folder.parent))
+    try:
+        pngs = {}
+        if plots:
+            for name, fig in make_figures(results, history).items():
+                pngs[name] = figure_png(fig)
+                plt.close(fig)
+        (tmp / "figures").mkdir()
+        for name, png in pngs.items():
+            (tmp / "figures" / name).write_bytes(png)
+        (tmp / "results.json").write_text(json.dumps(results, indent=1, allow_nan=False) + "\n",
+                                          encoding="utf-8")
+        (tmp / "results.csv").write_text(results_csv(results), encoding="utf-8")
+        md = markdown_report(results, sorted(pngs), nightly=nightly)
+        (tmp / "report.md").write_text(md, encoding="utf-8")
+        (tmp / "report.html").write_text(
+            html_report(md, pngs, title=f"simtest report: {results['suite']['name']}"), encoding="utf-8")
+        old = None
+        if folder.exists():
+            old = folder.with_name(f".{folder.name}.old.{os.getpid()}")
+            folder.rename(old)
+        tmp.rename(folder)
+        if old is not None:
+            shutil.rmtree(old, ignore_errors=True)
+    except BaseException:
+        shutil.rmtree(tmp, ignore_errors=True)
+        raise
+    return folder
+
+
+def write_report(run, out_dir: str | Path = "reports", run_id: str | None = None,
+                 plots: bool = True, nightly: dict | None = None,
+                 history: list[dict] | None = None) -> Path:
+    """Write ``results.json``, ``results.csv``, ``report.md``, ``report.html`` and figures.
+
+    Parameters
+    ----------
+    run : simtest.harness.runner.SuiteRun
+        The finished run.
+    out_dir : path
+        Reports root; the files go to ``<out_dir>/<suite name>/<run id>/``.
+    run_id : str or None
+        Default :func:`make_run_id` (``<UTC time>-local``, ignored by git).
+    plots : bool
+        Draw the figures (matplotlib, Agg).
+    nightly, history : optional
+        See :func:`write_report_files`.
+
+    Returns
+    -------
+    Path
+        The run folder.
+    """
+    run_id = run_id or make_run_id()
+    folder = Path(out_dir) / run.suite.name / run_id
+    return write_report_files(build_results(run, run_id), folder, plots=plots, nightly=nightly,
+                              history=history)

@@ -1,0 +1,333 @@
+"""``report.md`` from a ``results.json`` document, and a self-contained ``report.html`` from it.
+
+The Markdown opens with a summary (estimator x scene family table, the verdict of every claim,
+the measured reason behind each alarming cell), then the run's provenance and the details per
+sweep. Every number in it is formatted from the document (nothing typed by hand). The HTML is the
+same Markdown rendered by markdown-it-py (CommonMark plus tables), with every figure inlined as a
+base64 PNG, so the file can be mailed or archived alone.
+"""
+
+from __future__ import annotations
+
+import base64
+import html
+import json
+
+import numpy as np
+from markdown_it import MarkdownIt
+
+from simtest.harness.claims import ALARM_DEG, explanations
+
+__all__ = ["markdown_report", "html_report", "fmt", "cell", "summary_markdown"]
+
+#: Diagnostics listed per sweep (means over the scored highlights), in this order.
+_DIAG_ORDER = ("false_positives", "bp_error_px", "residual_px", "eigenvalue_gap",
+               "predicted_gap", "pose_split_deg", "predicted_pose_deg", "rho", "bp_distance_mm",
+               "k1_per_mm", "k2_per_mm", "iso_radius_mm")
+
+_DIAG_TEXT = {
+    "false_positives": "false positives per image (detections farther than match_px from every "
+                       "true BP)",
+    "bp_error_px": "distance from the detected to the true BP, px",
+    "residual_px": "ellipse fit residual, px",
+    "eigenvalue_gap": "measured eigenvalue gap (l1 - l2) / (l1 - l3) of C' (0: right circular cone)",
+    "predicted_gap": "gap predicted from the curvatures, 1 - rho^2",
+    "pose_split_deg": "angle between N+ and N-, deg",
+    "predicted_pose_deg": "circle-pose error predicted from the curvatures, asin(sqrt(1 - rho^2)), "
+                          "deg",
+    "rho": "rho = |1 + k2 d| / |1 + k1 d| (1: isotropic)",
+    "bp_distance_mm": "distance d from the camera to the true BP, mm",
+    "k1_per_mm": "principal curvature k1 at the true BP, 1/mm (positive: convex toward the camera)",
+    "k2_per_mm": "principal curvature k2 <= k1, 1/mm",
+    "iso_radius_mm": "isophote radius on the surface estimated from the fitted ellipse, mm",
+}
+
+
+def fmt(v, nd: int = 3) -> str:
+    """A number with ``nd`` significant digits, ``-`` for None or NaN.
+
+    Parameters
+    ----------
+    v : float, int, None
+        The value.
+    nd : int
+        Significant digits.
+
+    Returns
+    -------
+    str
+    """
+    if v is None:
+        return "-"
+    if isinstance(v, bool):
+        return str(v)
+    if isinstance(v, int):
+        return str(v)
+    v = float(v)
+    if not np.isfinite(v):
+        return "-"
+    return f"{v:.{nd}g}"
+
+
+def cell(m: dict | None, show_fail: bool = True) -> str:
+    """One table cell: ``median [p5, p95] (n)`` in degrees, plus the failure rate when not 0.
+
+    Parameters
+    ----------
+    m : dict or None
+        Statistics of :func:`simtest.harness.metrics.summarise`.
+    show_fail : bool
+        Append ``, fail x %`` when some realisations failed.
+
+    Returns
+    -------
+    str
+        ``-`` when the estimator never succeeded (with the failure rate).
+    """
+    if not m:
+        return "-"
+    fail = m.get("failure_rate") or 0.0
+    ftxt = f", fail {100 * fail:.3g} %" if show_fail and fail > 0 else ""
+    if m.get("median") is None:
+        return f"- (n {m.get('n', 0)}){ftxt}"
+    return (f"{fmt(m['median'])} [{fmt(m.get('p5'))}, {fmt(m.get('p95'))}] "
+            f"(n {m.get('n_ok', m.get('n', 0))}){ftxt}")
+
+
+def _esc(text: str) -> str:
+    """Text safe inside a Markdown table cell (pipes escaped, no line breaks)."""
+    return str(text).replace("|", "\\|").replace("\n", " ")
+
+
+_VERDICT = {True: "holds", False: "**does not hold**", None: "undecided"}
+
+
+def summary_markdown(results: dict) -> list[str]:
+    """The summary section: family x estimator table, claim verdicts, alarming cells explained.
+
+    Parameters
+    ----------
+    results : dict
+        A ``results.json`` document (schema 2: ``families`` and ``claims``).
+
+    Returns
+    -------
+    list of str
+        Markdown lines.
+    """
+    ests = results["suite"]["estimators"]
+    fams = results.get("families", {})
+    L = ["## Summary", ""]
+    if fams:
+        L += ["Median normal error in degrees [5th, 95th percentile] (n scored specularities), "
+              "pooled over every case of the scene family; the failure rate when some "
+              "realisations failed; the lowest median of each row in bold. False positives: "
+              "detections with no true highlight within match_px (per image; the paper protocol "
+              "knows its BP and detects nothing).", "",
+              "| family | images | false positives | " + " | ".join(ests) + " |",
+              "|---" * (len(ests) + 3) + "|"]
+        for name, f in fams.items():
+            meds = {e: f["estimators"][e]["median"] for e in ests
+                    if f["estimators"].get(e, {}).get("median") is not None}
+            best = min(meds.values()) if meds else None
+            cells = []
+            for e in ests:
+                c = cell(f["estimators"].get(e))
+                if best is not None and meds.get(e) == best:
+                    c = f"**{c}** (best)"
+                cells.append(c)
+            fp = ("n/a" if f.get("false_positives") is None else
+                  f"{f['false_positives']} ({fmt(f['false_positives_per_image'])} per image)")
+            col = "" if f.get("colocated") else " (light not at the camera)"
+            L.append(f"| {_esc(name)}{col} | {f['images']} | {fp} | " + " | ".join(cells) + " |")
+        L.append("")
+    claims = results.get("claims", [])
+    if claims:
+        L += ["### Verdicts", "",
+              "Each claim is checked on this run's results (the paper's figure-3 statements, and "
+              "predictions of ours from the geometry of a co-located light).", "",
+              "| claim | source | verdict | measured | scope |", "|---|---|---|---|---|"]
+        for c in claims:
+            L.append(f"| {_esc(c['claim'])} | {c['source']} | {_VERDICT[c['holds']]} | "
+                     f"{_esc(c['measured'])} | {_esc(c['scope'])} |")
+        L.append("")
+    expl = explanations(results)
+    if expl:
+        L += [f"### Why some rows are alarming (family median above {ALARM_DEG:g} deg)", ""]
+        for x in expl:
+            L.append(f"- {x['family']}, `{x['estimator']}` (median {fmt(x['median'])} deg): "
+                     + (x["text"] if x["text"] else "no rule of the report explains it; see the "
+                        "sweep details below"))
+        L.append("")
+    return L
+
+
+def _nightly_markdown(nightly: dict, figures: list[str]) -> list[str]:
+    L = ["## Nightly gate", "",
+         f"Verdict: **{nightly['verdict']}** against `{nightly.get('baseline', '')}` "
+         f"({nightly.get('summary', '')}).", ""]
+    if nightly.get("problems"):
+        L += [f"- {_esc(p)}" for p in nightly["problems"]] + [""]
+    if "nightly_trend.png" in figures:
+        L += ["![nightly_trend.png](figures/nightly_trend.png)", ""]
+    return L
+
+
+def markdown_report(results: dict, figures: list[str], nightly: dict | None = None) -> str:
+    """The ``report.md`` text of a results document.
+
+    Parameters
+    ----------
+    results : dict
+        A ``results.json`` document.
+    figures : list of str
+        File names of the figures written under ``figures/``.
+    nightly : dict, optional
+        The nightly gate's outcome: ``verdict``, ``baseline``, ``summary``, ``problems``.
+
+    Returns
+    -------
+    str
+        Markdown (CommonMark with tables).
+    """
+    s = results["suite"]
+    p = results["provenance"]
+    cases = {c["id"]: c for c in results["cases"]}
+    n_unique = len({c["key"] for c in results["cases"]})
+    L = [f"# Validation report: {s['name']}", ""]
+    if s["description"]:
+        L += [s["description"], ""]
+    L += summary_markdown(results)
+    if nightly:
+        L += _nightly_markdown(nightly, figures)
+    dirty = (f", plus uncommitted changes to {', '.join(p.get('git_dirty_files') or [])}"
+             if p.get("git_dirty") else " (clean)" if p.get("git_dirty") is False else "")
+    L += ["## Run", "",
+          f"- run id `{results['run_id']}` ({results['created_utc']}), suite file "
+          f"`{s['source']}` (sha256 {s['sha256'][:12]}): {len(results['sweeps'])} sweeps, "
+          f"{len(results['cases'])} cases ({n_unique} distinct settings)",
+          f"- git commit `{p['git_commit']}`{dirty}; Mitsuba variant(s): "
+          f"{', '.join(p['mitsuba_variants']) or 'none (no render)'}",
+          f"- machine: {p['machine']['platform']}, {p['machine']['cpu_count']} CPUs; "
+          f"{p['workers']} worker(s), wall time {p['wall_time_s']:.1f} s",
+          "- speed: " + "; ".join(f"{k}: {v['realisations']} realisations, "
+                                  f"{fmt(v['per_s'])} realisations/s"
+                                  for k, v in p["realisations_per_s"].items()),
+          f"- root seed {s['seed']}; {results['seeding']}",
+          "- errors: angle between the estimated and true normals, atan2(|a x b|, a . b), "
+          "degrees; statistics over the realisations where the estimator succeeded, failures "
+          "counted by cause; every statistic is in `results.json` and `results.csv`", ""]
+    L += ["## Estimators", ""] + [f"- `{k}`: {v}" for k, v in results["estimators"].items()] + [""]
+    comp = [sw for sw in results["sweeps"] if sw.get("paper")]
+    if comp:
+        L += ["## Claims per sweep", "",
+              "| sweep | source | claim | ours | holds | note |", "|---|---|---|---|---|---|"]
+        for sw in comp:
+            ours = "; ".join(c["ours"] for c in sw["comparison"]) or "-"
+            holds = ", ".join({True: "yes", False: "no", None: "n/a"}[c["holds"]]
+                              for c in sw["comparison"]) or "-"
+            L.append(f"| {sw['name']} | {sw['paper'].get('source', 'paper')} | "
+                     f"{_esc(sw['paper'].get('claim', ''))} | {_esc(ours)} | {holds} | "
+                     f"{_esc(sw['paper'].get('note', ''))} |")
+        L.append("")
+    if "curvature_rho.png" in figures:
+        L += ["## Curvature: what rho predicts", "",
+              "Each point is one rendered curved case (means over its highlights). rho = "
+              "|1 + k2 d| / |1 + k1 d| with d the distance to the BP and k1 >= k2 the signed "
+              "principal curvatures there (positive where the patch bulges toward the camera, "
+              "negative inside a lumen). A co-located light makes the isophote cone elliptic "
+              "with its axis on the normal; its eigenvalue gap is 1 - rho^2 and the circle-pose "
+              "normals N+ and N- leave the axis by asin(sqrt(1 - rho^2)), whatever the isophote "
+              "size. Points on the dashed line agree with the prediction.", "",
+              "![curvature_rho.png](figures/curvature_rho.png)", ""]
+    if results.get("open_parameters"):
+        L += ["## Parameters the paper leaves open (our choices)", ""]
+        for k, v in results["open_parameters"].items():
+            L.append(f"- `{k}` = {json.dumps(v['value'])}: {v['why']}")
+        L.append("")
+    ests = s["estimators"]
+    for sw in results["sweeps"]:
+        L += [f"## Sweep `{sw['name']}` ({sw['protocol']}): {sw['label']}", ""]
+        if sw.get("description"):
+            L += [sw["description"], ""]
+        L.append("Median error (deg) [p5, p95] (n successes); failures by cause.")
+        L.append("")
+        L.append(f"| {_esc(sw['label'])} | " + " | ".join(ests) + " | failures |")
+        L.append("|---" * (len(ests) + 2) + "|")
+        for key in sw["cases"]:
+            c = cases[key]
+            fails: dict[str, int] = {}
+            for e in ests:
+                for cause, n in c["metrics"]["estimators"][e]["failures"].items():
+                    fails[cause] = max(fails.get(cause, 0), n)
+            n = c["metrics"]["estimators"][ests[0]]["n"]
+            ftxt = ", ".join(f"{k}: {v}" for k, v in sorted(fails.items())) or "0"
+            L.append(f"| {c['x'] * sw['display_scale']:g} | "
+                     + " | ".join(cell(c["metrics"]["estimators"][e], show_fail=False)
+                                  for e in ests)
+                     + f" | {ftxt} of {n} |")
+        L.append("")
+        diag = [cases[k]["metrics"].get("diagnostics", {}) for k in sw["cases"]]
+        keys = [k for k in _DIAG_ORDER if any(d.get(k) is not None for d in diag)]
+        keys += sorted({k for d in diag for k, v in d.items()
+                        if v is not None and k not in keys and k not in
+                        ("r_k1", "r_k2", "anisotropy")})
+        if keys:
+            L.append("Diagnostics (means over the scored highlights): "
+                     + "; ".join(f"`{k}`: {_DIAG_TEXT.get(k, k)}" for k in keys) + ".")
+            L.append("")
+            L.append(f"| {_esc(sw['label'])} | " + " | ".join(keys) + " |")
+            L.append("|---" * (len(keys) + 1) + "|")
+            for key, d in zip(sw["cases"], diag):
+                L.append(f"| {cases[key]['x'] * sw['display_scale']:g} | "
+                         + " | ".join(fmt(d.get(k)) for k in keys) + " |")
+            L.append("")
+        for f in figures:
+            if f.startswith(sw["name"] + "_"):
+                L.append(f"![{f}](figures/{f})")
+                L.append("")
+        exc = [(cases[k]["x"], e) for k in sw["cases"] for e in cases[k]["exceptions"]]
+        if exc:
+            L += ["Exceptions (first of each case):", ""] + [f"- x = {x:g}: `{e}`" for x, e in exc]
+            L.append("")
+    return "\n".join(L) + "\n"
+
+
+_CSS = """body{font-family:system-ui,sans-serif;max-width:1300px;margin:2em auto;padding:0 1em;
+color:#222}table{border-collapse:collapse;font-size:12px;margin:0.5em 0}td,th{border:1px solid
+#ccc;padding:3px 6px;text-align:right;vertical-align:top}th{background:#f0f0f0}
+td:first-child{text-align:left}code{background:#f5f5f5;padding:0 3px}img{max-width:100%}"""
+
+
+def html_report(markdown: str, images: dict[str, bytes], title: str = "simtest report") -> str:
+    """A self-contained HTML page from the report's Markdown (markdown-it-py, figures inlined).
+
+    Parameters
+    ----------
+    markdown : str
+        The ``report.md`` text; images referenced as ``figures/<name>``.
+    images : dict of str to bytes
+        PNG bytes by file name.
+    title : str
+        Page title.
+
+    Returns
+    -------
+    str
+        HTML5 with every ``figures/<name>`` image replaced by a ``data:image/png;base64`` URI
+        (an image missing from ``images`` keeps its relative link).
+    """
+    md = MarkdownIt("commonmark").enable("table")
+    tokens = md.parse(markdown)
+    for tok in tokens:
+        for ch in tok.children or []:
+            if ch.type == "image":
+                src = str(ch.attrGet("src") or "")
+                name = src.rsplit("/", 1)[-1]
+                if src.startswith("figures/") and name in images:
+                    b64 = base64.b64encode(images[name]).decode("ascii")
+                    ch.attrSet("src", f"data:image/png;base64,{b64}")
+    body = md.renderer.render(tokens, md.options, {})
+    return ("<!DOCTYPE html>\n<html><head><meta charset='utf-8'><title>"
+            f"{html.escape(title)}</title><style>{_CSS}</style></head><body>\n{body}"
+            "</body></html>\n")
