@@ -95,7 +95,7 @@ def test_report_files_self_contained(tmp_path):
     folder = write_report(run, tmp_path, run_id="r1")
     assert folder == tmp_path / "small" / "r1"
     res = json.loads((folder / "results.json").read_text())
-    assert res["schema"] == "simtest.validation" and res["schema_version"] == 1
+    assert res["schema"] == "simtest.validation" and res["schema_version"] == 2
     prov = res["provenance"]
     for k in ("git_commit", "packages", "machine", "wall_time_s", "realisations_per_s", "workers"):
         assert k in prov

@@ -96,30 +96,42 @@ def validate_command(
 
 
 def nightly_command(
-    quick: bool = typer.Option(False, "--quick", help="Run the quick suite (< 2 minutes) instead "
+    quick: bool = typer.Option(False, "--quick", help="Run the quick suite (seconds) instead "
                                                       "of the nightly one."),
     update_baseline: bool = typer.Option(False, "--update-baseline",
-                                         help="Accept this run as the new baseline."),
+                                         help="Accept this code as the new baseline: run the "
+                                              "suite --repeats times with seeds seed, seed + 1, "
+                                              "... and store values, spreads and tolerances."),
+    repeats: int = typer.Option(4, "--repeats", min=1, help="Seed-varied runs that measure the "
+                                                            "spread (with --update-baseline)."),
+    seed: Optional[int] = typer.Option(None, "--seed", min=0, help="Root seed of this run "
+                                                                   "(default: the suite's)."),
     baseline: Optional[Path] = typer.Option(None, "--baseline", help="Baseline file (default: "
                                                                      "reports/baseline.json)."),
+    history: Optional[Path] = typer.Option(None, "--history", help="History file, one JSON "
+                                                                   "line per run (default: "
+                                                                   "<out>/<suite>/history.jsonl)."),
     workers: Optional[int] = typer.Option(None, "--workers", "-w", min=1),
     out: Path = typer.Option(Path("reports"), "--out", help="Reports root folder."),
+    run_id: Optional[str] = typer.Option(None, "--run-id", help="Run folder name (default: "
+                                                                "<UTC time>-local)."),
     suite: Optional[str] = typer.Option(None, "--suite", help="Another suite (name or path)."),
     show_all: bool = typer.Option(False, "--all", help="List unchanged metrics too."),
     progress: bool = typer.Option(True, "--progress/--no-progress"),
 ) -> None:
-    """Run the nightly (or --quick) suite and compare it with the committed baseline.
+    """Run the nightly (or --quick) suite and gate it against the committed baseline.
 
-    Exits 1 on a regression, naming each metric that got worse beyond its tolerance.
+    Exits 1 when a metric regressed beyond its tolerance (measured seed spread plus a relative
+    floor) or is NaN, infinite, non-numeric or missing, naming each; 2 on a bad baseline file.
     """
-    import json
 
     from rich.console import Console
 
-    from simtest.harness.nightly import (changes_table, compare, default_baseline_path,
-                                         load_baseline, tolerances_for)
+    from simtest.harness.nightly import (append_history, changes_table, check_section, compare,
+                                         default_baseline_path, gate_summary, history_line,
+                                         load_baseline, read_history, undetectable_doublings)
     from simtest.harness.nightly import update_baseline as write_baseline
-    from simtest.harness.report import write_report
+    from simtest.harness.report import build_results, make_run_id, write_report_files
     from simtest.harness.runner import run_suite
     from simtest.harness.suite import SuiteError, load_suite
 
@@ -128,41 +140,60 @@ def nightly_command(
     path = baseline or default_baseline_path()
     try:
         s = load_suite(name)
-        tol = tolerances_for(s.raw)
-    except (SuiteError, ValueError) as e:
+        if seed is not None:
+            s = s.with_overrides(seed=seed)
+    except SuiteError as e:
         _fail(str(e))
-    base = None
+    section = None
     if not update_baseline:
         try:
-            base = load_baseline(path)["suites"].get(s.name)
+            section = load_baseline(path)["suites"].get(s.name)
         except ValueError as e:
             _fail(str(e))
-        if base is None:
+        if section is None:
             _fail(f"{path}: suites.{s.name}: no baseline for this suite; create it with "
                   f"`simtest nightly{' --quick' if quick else ''} --update-baseline`")
+        bad = check_section(section, f"{path}: suites.{s.name}")
+        if bad:
+            _fail(bad)
+    run_id = run_id or make_run_id()
+    folder = out / s.name / run_id
     run = run_suite(s, workers=workers, progress=progress, console=console)
-    folder = write_report(run, out, run_id=None)
-    results = json.loads((folder / "results.json").read_text())
-    console.print(f"report: {folder / 'report.html'}")
+    results = build_results(run, run_id)
     if update_baseline:
-        write_baseline(path, results, tol)
-        console.print(f"baseline for suite {s.name} written to {path}")
+        runs = [results]
+        for k in range(1, repeats):
+            sk = s.with_overrides(seed=s.seed + k)
+            console.print(f"repeat {k + 1} of {repeats}: seed {sk.seed}")
+            runs.append(build_results(run_suite(sk, workers=workers, progress=progress,
+                                                console=console), f"{run_id}-seed{sk.seed}"))
+        try:
+            write_baseline(path, runs)
+        except ValueError as e:
+            _fail(str(e))
+        sec = load_baseline(path)["suites"][s.name]
+        weak = undetectable_doublings(sec)
+        write_report_files(results, folder)
+        console.print(f"report: {folder / 'report.html'}")
+        console.print(f"baseline for suite {s.name} written to {path} ({len(sec['metrics'])} "
+                      f"metrics from seeds {sec['seeds']}; {len(weak)} could double unnoticed: "
+                      "too noisy at this many realisations)")
         return
-    if base.get("suite_sha256") and base["suite_sha256"] != results["suite"]["sha256"]:
+    if section.get("suite_sha256") and section["suite_sha256"] != results["suite"]["sha256"]:
         console.print(f"[yellow]note: suite file {s.source} changed since the baseline[/]")
-    changes = compare(base, results, tol)
+    changes = compare(section, results)
+    passed, lines, counts = gate_summary(changes)
+    hist_path = history or (out / s.name / "history.jsonl")
+    append_history(hist_path, history_line(results, passed, counts))
+    summary = ", ".join(f"{v}: {n}" for v, n in sorted(counts.items()))
+    write_report_files(results, folder, history=read_history(hist_path),
+                       nightly={"verdict": "pass" if passed else "FAIL",
+                                "baseline": str(path), "summary": summary, "problems": lines})
     console.print(changes_table(changes, f"{s.name} vs baseline {path.name}", show_all))
-    counts = {}
-    for c in changes:
-        counts[c.verdict] = counts.get(c.verdict, 0) + 1
-    console.print(", ".join(f"{v}: {n}" for v, n in sorted(counts.items())))
-    bad = [c for c in changes if c.verdict in ("regression", "missing")]
-    if bad:
-        for c in bad:
-            if c.verdict == "missing":
-                typer.echo(f"REGRESSION: {c.name}: missing from this run", err=True)
-            else:
-                typer.echo(f"REGRESSION: {c.name}: {c.baseline} -> {c.now} (tolerance "
-                           f"{c.tolerance})", err=True)
+    console.print(summary)
+    console.print(f"report: {folder / 'report.html'}; history: {hist_path}")
+    if not passed:
+        for ln in lines:
+            typer.echo(ln, err=True)
         raise typer.Exit(1)
     console.print("[green]no regression[/]")

@@ -1,52 +1,75 @@
-"""Nightly accuracy guard: run a fixed suite, compare with ``reports/baseline.json``.
+"""Nightly accuracy gate: a fixed suite compared with ``reports/baseline.json``.
 
-The baseline holds, per suite (``nightly``, ``quick``), per case key and estimator, the metrics of
-:data:`TRACKED` from a run whose numbers were accepted. A metric *regresses* when it gets worse
-(errors and failure rates only get worse upwards) by more than ``abs + rel * |baseline|``; it
-*improves* when it gets better by as much (reported, not fatal: rewrite the baseline on purpose
-with ``--update-baseline``). A case or estimator that vanished is a regression; a new one is noted.
+What is compared. Every *metric* of a run, named ``<scope>:<name>:<estimator>:<statistic>``:
 
-Tolerances (:data:`DEFAULT_TOLERANCES`; a suite file may override them in ``[tolerances]``). The
-same code and seed reproduce the numbers exactly on one machine, so the tolerances only have to
-absorb what differs between machines and library versions (OpenCV interpolation, LLVM codegen,
-float summation order in BLAS): far below 0.05 deg on a mean over 20+ realisations. A real
-regression of a few tenths of a degree, or one more failure in 50, is caught.
+- ``family:<family>:<estimator>:median|failure_rate`` and
+  ``family:<family>:*:false_positives_per_image``: the summary table of the report (the headline
+  metrics: many realisations pooled, so seed noise is small against them);
+- ``case:<case id>:<estimator>:median|failure_rate``: every setting of every sweep.
+
+Errors are in degrees, rates are fractions; all are "lower is better".
+
+Tolerances from measured spread. The baseline is made from ``repeats`` runs of the suite with the
+root seeds ``seed, seed + 1, ...``: its value is the run with the suite's own seed (so that the
+same code on the same machine reproduces it exactly), its *spread* the sample standard deviation
+over the repeats, and its tolerance ``k_spread x spread + rel_floor x |value| + abs_floor`` (the
+policy is stored in the baseline). A metric *regresses* when it grows by more than its tolerance;
+it improves when it drops by as much (reported, not fatal). With the default policy (k_spread 3,
+rel_floor 0.25), a metric whose seed spread is below a quarter of its value fails at twice its
+value while another seed passes: :func:`undetectable_doublings` lists the metrics for which
+that does not hold (too noisy for the suite's realisations), and the tests check that every
+estimator family still has metrics that catch a doubling.
+
+Bad numbers are never silently compared: a NaN, infinite, non-numeric or missing metric (in the
+baseline or in the run) fails the gate with one line naming them; a metric that had a value and
+has none now (the estimator never succeeds any more) regresses.
 
 Baseline file::
 
-    {"schema": "simtest.baseline", "schema_version": 1,
-     "suites": {"quick": {"created_utc", "git_commit", "suite_sha256", "seed", "realisations",
-                          "tolerances", "cases": {case id: {"sweep", "x", "estimators":
-                                                  {name: {"mean", "median", "p95",
-                                                          "failure_rate"}}}}}}}
+    {"schema": "simtest.baseline", "schema_version": 2,
+     "suites": {"<suite>": {"created_utc", "git_commit", "machine", "suite_sha256", "seed",
+                            "seeds", "realisations", "policy": {"k_spread", "rel_floor",
+                            "abs_floor": {"deg", "rate"}},
+                            "metrics": {name: {"value", "spread", "tolerance"}}}}}
+
+History: :func:`append_history` adds one JSON line per nightly run (verdict, counts and the
+family medians) to ``<reports>/<suite>/history.jsonl``; the report draws it as a trend figure.
 """
 
 from __future__ import annotations
 
+import fcntl
 import json
+import math
 from dataclasses import dataclass
 from pathlib import Path
 
+import numpy as np
+from rich.table import Table
+
+from simtest._io import atomic_write_json
 from simtest.resources import bundled
 
-__all__ = ["TRACKED", "DEFAULT_TOLERANCES", "Change", "baseline_entry", "compare",
-           "load_baseline", "update_baseline", "default_baseline_path"]
-
-#: Metrics compared, all "lower is better".
-TRACKED = ("mean", "median", "p95", "failure_rate")
-
-#: metric -> {"abs": ..., "rel": ...}; a change beyond abs + rel * |baseline| counts. Degrees for
-#: the error statistics (p95 is noisier than the mean over few realisations: twice as wide);
-#: failure rate in [0, 1] (0.02 = one failure more in 50).
-DEFAULT_TOLERANCES = {
-    "mean": {"abs": 0.05, "rel": 0.05},
-    "median": {"abs": 0.05, "rel": 0.05},
-    "p95": {"abs": 0.1, "rel": 0.1},
-    "failure_rate": {"abs": 0.02, "rel": 0.0},
-}
+__all__ = ["POLICY", "Change", "metrics_of", "baseline_section", "check_section", "compare",
+           "gate_summary", "load_baseline", "update_baseline", "default_baseline_path",
+           "history_line", "append_history", "read_history", "undetectable_doublings", "changes_table",
+           "BASELINE_SCHEMA", "BASELINE_VERSION"]
 
 BASELINE_SCHEMA = "simtest.baseline"
-BASELINE_VERSION = 1
+BASELINE_VERSION = 2
+
+#: Default tolerance policy. k_spread: standard deviations of seed noise allowed (3: a new seed
+#: passes with ~99.7 % probability per metric when the noise is normal and the spread well
+#: measured); rel_floor: relative change always allowed (0.25: half of the doubling that must
+#: fail, so spread-free metrics such as exact zeros or the paper protocol's BP ray still leave
+#: room for platform rounding); abs_floor: for values at or near 0, 1e-6 deg (far below the 1e-3
+#: deg the reports print) and, for rates, one failure more in 50 (0.02).
+POLICY = {"k_spread": 3.0, "rel_floor": 0.25, "abs_floor": {"deg": 1e-6, "rate": 0.02}}
+
+#: Statistics gated: the medians and failure rates (robust at the few realisations a nightly
+#: affords; the mean and p95 of 5 renders move with one outlier, and stay in the report).
+_CASE_STATS = ("median", "failure_rate")
+_FAMILY_STATS = ("median", "failure_rate")
 
 
 def default_baseline_path() -> Path:
@@ -66,25 +89,16 @@ class Change:
 
     Attributes
     ----------
-    case : str
-        Case id (``<sweep>@<x>``).
-    label : str
-        ``<sweep>[x=<x>]`` with x in display units.
-    estimator : str
-        Estimator name, ``"*"`` for a whole case that is new or missing.
     metric : str
-        One of :data:`TRACKED` (degrees, or a fraction for ``failure_rate``), or ``"*"``.
+        ``<scope>:<name>:<estimator>:<statistic>`` (see the module docstring).
     baseline, now : float or None
-        Values in the baseline and in this run (None: the estimator never succeeded).
+        Value in the baseline and in this run (None: absent or never succeeded).
     tolerance : float or None
-        ``abs + rel x |baseline|``, in the metric's unit; None where not compared.
+        Allowed growth, in the metric's unit (degrees or a fraction); None where not compared.
     verdict : str
-        ``"ok"``, ``"regression"``, ``"improved"``, ``"missing"`` or ``"new"``.
+        ``"ok"``, ``"regression"``, ``"improved"``, ``"missing"``, ``"new"`` or ``"invalid"``.
     """
 
-    case: str
-    label: str
-    estimator: str
     metric: str
     baseline: float | None
     now: float | None
@@ -92,74 +106,243 @@ class Change:
     verdict: str
 
     @property
-    def name(self) -> str:
-        """``<sweep>[x=<x>] <estimator> <metric>``: how messages name the metric."""
-        return f"{self.label} {self.estimator} {self.metric}"
+    def estimator(self) -> str:
+        """The estimator part of the metric name (``*`` for per-family counts)."""
+        return self.metric.split(":")[-2]
 
 
-def tolerances_for(raw_suite: dict | None) -> dict:
-    """Defaults updated with a suite file's ``[tolerances]`` table (validated).
-
-    Parameters
-    ----------
-    raw_suite : dict or None
-        The suite document as read (``Suite.raw``).
-
-    Returns
-    -------
-    dict
-        metric -> ``{"abs": float, "rel": float}`` for every metric of :data:`TRACKED`.
-
-    Raises
-    ------
-    ValueError
-        If the table names an untracked metric, a key other than abs/rel, or a negative or
-        non-numeric value; the message names ``tolerances.<metric>.<key>``.
-    """
-    tol = {k: dict(v) for k, v in DEFAULT_TOLERANCES.items()}
-    extra = (raw_suite or {}).get("tolerances", {}) or {}
-    for metric, v in extra.items():
-        if metric not in tol or not isinstance(v, dict) or set(v) - {"abs", "rel"}:
-            raise ValueError(f"tolerances.{metric}: expected one of {TRACKED} with keys abs, rel")
-        for k, x in v.items():
-            if isinstance(x, bool) or not isinstance(x, (int, float)) or x < 0:
-                raise ValueError(f"tolerances.{metric}.{k}: expected a number >= 0, got {x!r}")
-        tol[metric].update({k: float(x) for k, x in v.items()})
-    return tol
+def _unit(metric: str) -> str:
+    return "rate" if metric.endswith(("failure_rate", "false_positives_per_image")) else "deg"
 
 
-def baseline_entry(results: dict, tolerances: dict) -> dict:
-    """The baseline section of one suite from its ``results.json`` document.
+def metrics_of(results: dict) -> dict:
+    """The gate's metrics of a ``results.json`` document.
 
     Parameters
     ----------
     results : dict
-        The run's ``results.json`` document.
-    tolerances : dict
-        As from :func:`tolerances_for`; stored with the section.
+        A results document (schema 2, with ``families``).
+
+    Returns
+    -------
+    dict of str to object
+        Metric name -> value as found (float, None where an estimator never succeeded, or
+        whatever the document holds: :func:`invalid_values` finds the bad ones).
+    """
+    out = {}
+    for fam, f in results.get("families", {}).items():
+        for e, m in f["estimators"].items():
+            for s in _FAMILY_STATS:
+                out[f"family:{fam}:{e}:{s}"] = m.get(s)
+        if f.get("false_positives_per_image") is not None:
+            out[f"family:{fam}:*:false_positives_per_image"] = f["false_positives_per_image"]
+    for c in results["cases"]:
+        for e, m in c["metrics"]["estimators"].items():
+            for s in _CASE_STATS:
+                out[f"case:{c['id']}:{e}:{s}"] = m.get(s)
+    return out
+
+
+def _bad(v) -> str | None:
+    """Why a stored value is not a usable number (None is allowed: 'never succeeded')."""
+    if v is None:
+        return None
+    if isinstance(v, bool) or not isinstance(v, (int, float)):
+        return f"non-numeric {v!r}"
+    if math.isnan(v):
+        return "NaN"
+    if math.isinf(v):
+        return "infinite"
+    return None
+
+
+def baseline_section(runs: list[dict], policy: dict | None = None) -> dict:
+    """The baseline section of one suite from repeated runs with different root seeds.
+
+    Parameters
+    ----------
+    runs : list of dict
+        ``results.json`` documents of the same suite; ``runs[0]`` gives the values (the suite's
+        own seed), all of them the spread. At least 2 for a spread (with 1, spread 0).
+    policy : dict, optional
+        Default :data:`POLICY`.
 
     Returns
     -------
     dict
-        ``created_utc``, ``git_commit``, ``suite_sha256``, ``seed``, ``realisations``,
-        ``tolerances`` and ``cases``: case id -> ``{"sweep", "x" (display units),
-        "estimators": {name: {metric: value or None}}}``.
+        ``created_utc``, ``git_commit``, ``machine``, ``suite_sha256``, ``seed``, ``seeds``,
+        ``realisations``, ``policy`` and ``metrics``: name -> ``{"value", "spread",
+        "tolerance"}`` (value None where the estimator never succeeded; then no tolerance).
+
+    Raises
+    ------
+    ValueError
+        If ``runs`` is empty or a run holds a NaN, infinite or non-numeric metric (named).
     """
-    sweeps = {sw["name"]: sw for sw in results["sweeps"]}
-    cases = {}
-    for c in results["cases"]:
-        sw = sweeps[c["sweep"]]
-        cases[c["id"]] = {
-            "sweep": c["sweep"],
-            "x": c["x"] * sw["display_scale"],
-            "estimators": {e: {m: v.get(m) for m in TRACKED}
-                           for e, v in c["metrics"]["estimators"].items()},
-        }
-    prov = results["provenance"]
-    return {"created_utc": results["created_utc"], "git_commit": prov.get("git_commit"),
-            "suite_sha256": results["suite"]["sha256"], "seed": results["suite"]["seed"],
-            "realisations": results["suite"]["realisations"], "tolerances": tolerances,
-            "cases": cases}
+    if not runs:
+        raise ValueError("baseline_section: no runs")
+    pol = json.loads(json.dumps(policy or POLICY))
+    per = [metrics_of(r) for r in runs]
+    for r, m in zip(runs, per):
+        bad = {k: _bad(v) for k, v in m.items() if _bad(v)}
+        if bad:
+            raise ValueError(f"run with seed {r['suite']['seed']}: {_name_list(bad)}")
+    metrics = {}
+    for name, v in per[0].items():
+        vals = [m.get(name) for m in per]
+        vals = [float(x) for x in vals if x is not None]
+        spread = float(np.std(vals, ddof=1)) if len(vals) >= 2 else 0.0
+        tol = None if v is None else (pol["k_spread"] * spread + pol["rel_floor"] * abs(v)
+                                      + pol["abs_floor"][_unit(name)])
+        metrics[name] = {"value": None if v is None else float(v), "spread": spread,
+                         "tolerance": tol}
+    prov = runs[0].get("provenance", {})
+    mach = prov.get("machine", {})
+    return {"created_utc": runs[0].get("created_utc"), "git_commit": prov.get("git_commit"),
+            "git_dirty": prov.get("git_dirty"),
+            "machine": f"{mach.get('platform', '?')}, {mach.get('cpu_count', '?')} CPUs",
+            "suite_sha256": runs[0]["suite"]["sha256"], "seed": runs[0]["suite"]["seed"],
+            "seeds": [r["suite"]["seed"] for r in runs],
+            "realisations": runs[0]["suite"]["realisations"], "policy": pol, "metrics": metrics}
+
+
+def _name_list(bad: dict, limit: int = 8) -> str:
+    items = [f"{k} ({why})" for k, why in sorted(bad.items())]
+    more = f" and {len(items) - limit} more" if len(items) > limit else ""
+    return f"{len(items)} bad metric(s): " + ", ".join(items[:limit]) + more
+
+
+def check_section(section: dict, where: str) -> str | None:
+    """One line naming every unusable number of a baseline section, or None if it is sound.
+
+    Parameters
+    ----------
+    section : dict
+        ``baseline["suites"][suite]``.
+    where : str
+        Prefix of the message (file and suite).
+
+    Returns
+    -------
+    str or None
+        ``"<where>: N bad metric(s): name (NaN), ..."``; also for a missing ``metrics`` table or
+        an entry without a numeric ``value`` / ``tolerance``.
+    """
+    metrics = section.get("metrics")
+    if not isinstance(metrics, dict) or not metrics:
+        return f"{where}: no metrics table (rewrite it with --update-baseline)"
+    bad = {}
+    for name, m in metrics.items():
+        if not isinstance(m, dict) or "value" not in m:
+            bad[name] = "missing value"
+            continue
+        why = _bad(m["value"])
+        if why is None and m["value"] is not None:
+            why = _bad(m.get("tolerance")) or (None if m.get("tolerance") is not None
+                                               else "missing tolerance")
+            why = why and f"tolerance {why}"
+        if why:
+            bad[name] = why
+    return f"{where}: {_name_list(bad)}" if bad else None
+
+
+def compare(section: dict, results: dict) -> list[Change]:
+    """Compare a run with one suite's baseline section (checked by :func:`check_section`).
+
+    Parameters
+    ----------
+    section : dict
+        ``baseline["suites"][suite]``.
+    results : dict
+        The run's ``results.json`` document.
+
+    Returns
+    -------
+    list of Change
+        One per metric of either, sorted by name. A NaN, infinite or non-numeric value in the
+        run is ``"invalid"``; a metric of the baseline absent from the run ``"missing"``; a
+        value that became None (never succeeds now) a ``"regression"``.
+    """
+    now = metrics_of(results)
+    base = section["metrics"]
+    out = []
+    for name in sorted(set(base) | set(now)):
+        b = base.get(name)
+        if b is None:
+            out.append(Change(name, None, now[name] if not _bad(now[name]) else None, None,
+                              "invalid" if _bad(now[name]) else "new"))
+            continue
+        if name not in now:
+            out.append(Change(name, b["value"], None, None, "missing"))
+            continue
+        v, t, n = b["value"], b.get("tolerance"), now[name]
+        if _bad(n):
+            out.append(Change(name, v, None, t, "invalid"))
+        elif v is None and n is None:
+            out.append(Change(name, None, None, None, "ok"))
+        elif v is None:
+            out.append(Change(name, None, float(n), None, "improved"))  # succeeds now
+        elif n is None:
+            out.append(Change(name, v, None, t, "regression"))  # succeeded before, not now
+        else:
+            d = float(n) - v
+            verdict = "regression" if d > t else "improved" if -d > t else "ok"
+            out.append(Change(name, v, float(n), t, verdict))
+    return out
+
+
+def gate_summary(changes: list[Change]) -> tuple[bool, list[str], dict]:
+    """Verdict, problem lines and counts of a comparison.
+
+    Parameters
+    ----------
+    changes : list of Change
+        From :func:`compare`.
+
+    Returns
+    -------
+    (bool, list of str, dict)
+        ``passed``; one line per problem (``REGRESSION: <metric>: <baseline> -> <now> (tolerance
+        <t>)``, one ``INVALID:`` line naming every NaN, infinite or non-numeric metric of the
+        run, one ``MISSING:`` line naming the metrics the run lacks); counts per verdict.
+    """
+    counts: dict[str, int] = {}
+    for c in changes:
+        counts[c.verdict] = counts.get(c.verdict, 0) + 1
+    lines = [f"REGRESSION: {c.metric}: {_f(c.baseline)} -> {_f(c.now)} (tolerance "
+             f"{_f(c.tolerance)})" for c in changes if c.verdict == "regression"]
+    inv = [c.metric for c in changes if c.verdict == "invalid"]
+    if inv:
+        lines.append(f"INVALID: {len(inv)} NaN, infinite or non-numeric metric(s) in this run: "
+                     + ", ".join(inv[:8]) + (f" and {len(inv) - 8} more" if len(inv) > 8 else ""))
+    miss = [c.metric for c in changes if c.verdict == "missing"]
+    if miss:
+        lines.append(f"MISSING: {len(miss)} metric(s) of the baseline absent from this run: "
+                     + ", ".join(miss[:8]) + (f" and {len(miss) - 8} more" if len(miss) > 8
+                                              else ""))
+    return not lines, lines, counts
+
+
+def _f(v) -> str:
+    return "none" if v is None else f"{v:.4g}"
+
+
+def undetectable_doublings(section: dict) -> list[str]:
+    """Metrics whose tolerance is not below their value: doubling them would pass the gate.
+
+    Parameters
+    ----------
+    section : dict
+        A baseline section.
+
+    Returns
+    -------
+    list of str
+        Names of metrics with a positive value and ``tolerance >= value`` (too noisy for the
+        suite's realisations, or exactly 0).
+    """
+    return sorted(k for k, m in section["metrics"].items()
+                  if m["value"] is not None and m["value"] > 0 and m["tolerance"] >= m["value"])
 
 
 def load_baseline(path: str | Path) -> dict:
@@ -178,107 +361,131 @@ def load_baseline(path: str | Path) -> dict:
     Raises
     ------
     ValueError
-        If the file cannot be read, is not JSON, or has another schema; the message names it.
+        If the file cannot be read, is not JSON, or has another schema or version; the message
+        names the file.
     """
     path = Path(path)
     try:
         d = json.loads(path.read_text())
-    except (OSError, json.JSONDecodeError) as e:
+    except (OSError, json.JSONDecodeError, UnicodeDecodeError) as e:
         raise ValueError(f"{path}: cannot read the baseline: {e}") from None
-    if d.get("schema") != BASELINE_SCHEMA or d.get("schema_version") != BASELINE_VERSION:
-        raise ValueError(f"{path}: schema: expected {BASELINE_SCHEMA} v{BASELINE_VERSION}, got "
-                         f"{d.get('schema')} v{d.get('schema_version')}")
+    if not isinstance(d, dict) or d.get("schema") != BASELINE_SCHEMA \
+            or d.get("schema_version") != BASELINE_VERSION or not isinstance(d.get("suites"), dict):
+        got = (d.get("schema"), d.get("schema_version")) if isinstance(d, dict) else type(d)
+        raise ValueError(f"{path}: schema: expected {BASELINE_SCHEMA} v{BASELINE_VERSION} with a "
+                         f"suites table, got {got} (rewrite it with --update-baseline)")
     return d
 
 
-def update_baseline(path: str | Path, results: dict, tolerances: dict) -> Path:
-    """Write (or replace) the section of ``results``' suite in the baseline file, atomically.
+def update_baseline(path: str | Path, runs: list[dict], policy: dict | None = None) -> Path:
+    """Write (or replace) the section of the runs' suite in the baseline file, atomically.
 
     Parameters
     ----------
     path : str or Path
-        The baseline file (created if missing; other suites' sections are kept).
-    results : dict
-        The run's ``results.json`` document.
-    tolerances : dict
-        As from :func:`tolerances_for`.
+        The baseline file (created if missing; other suites' sections are kept; a file of an
+        older schema is replaced).
+    runs : list of dict
+        As for :func:`baseline_section`.
+    policy : dict, optional
+        Default :data:`POLICY`.
 
     Returns
     -------
     Path
         ``path``.
-
-    Raises
-    ------
-    ValueError
-        If an existing file at ``path`` is not a baseline.
     """
-    from simtest._io import atomic_write_json
-
     path = Path(path)
-    d = load_baseline(path) if path.is_file() else {"schema": BASELINE_SCHEMA,
-                                                     "schema_version": BASELINE_VERSION,
-                                                     "suites": {}}
-    d["suites"][results["suite"]["name"]] = baseline_entry(results, tolerances)
-    return atomic_write_json(path, d, sort_keys=True)
+    try:
+        d = load_baseline(path)
+    except ValueError:
+        d = {"schema": BASELINE_SCHEMA, "schema_version": BASELINE_VERSION, "suites": {}}
+    d["suites"][runs[0]["suite"]["name"]] = baseline_section(runs, policy)
+    return atomic_write_json(path, d, sort_keys=True, allow_nan=False)
 
 
-def compare(base: dict, results: dict, tolerances: dict) -> list[Change]:
-    """Compare a run's results with one suite's baseline section.
+def history_line(results: dict, passed: bool, counts: dict) -> dict:
+    """One line of the nightly history.
 
     Parameters
     ----------
-    base : dict
-        ``baseline["suites"][suite]``.
     results : dict
-        The run's ``results.json`` document.
-    tolerances : dict
-        metric -> {"abs", "rel"}.
+        The run's results document.
+    passed : bool
+        The gate's verdict.
+    counts : dict
+        Verdict counts of :func:`gate_summary`.
 
     Returns
     -------
-    list of Change
-        Every tracked metric of every case and estimator in either.
+    dict
+        ``run_id``, ``created_utc``, ``git_commit``, ``suite``, ``seed``, ``verdict``
+        (``"pass"`` or ``"fail"``), ``counts`` and ``families``: {family: {estimator: median
+        error in degrees or None}}.
     """
-    now = baseline_entry(results, tolerances)["cases"]
-    out: list[Change] = []
-    for key in sorted(set(base["cases"]) | set(now)):
-        b, n = base["cases"].get(key), now.get(key)
-        ref = b or n
-        label = f"{ref['sweep']}[x={ref['x']:g}]"
-        if b is None:
-            out.append(Change(key, label, "*", "*", None, None, None, "new"))
+    return {"run_id": results["run_id"], "created_utc": results["created_utc"],
+            "git_commit": results["provenance"].get("git_commit"),
+            "suite": results["suite"]["name"], "seed": results["suite"]["seed"],
+            "verdict": "pass" if passed else "fail", "counts": counts,
+            "families": {fam: {e: m.get("median") for e, m in f["estimators"].items()}
+                         for fam, f in results.get("families", {}).items()}}
+
+
+def append_history(path: str | Path, line: dict) -> Path:
+    """Append one JSON line to a history file, under an exclusive lock.
+
+    Parameters
+    ----------
+    path : str or Path
+        ``history.jsonl`` (created with its folder if missing).
+    line : dict
+        From :func:`history_line`.
+
+    Returns
+    -------
+    Path
+    """
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    with open(path, "a", encoding="utf-8") as fh:
+        fcntl.flock(fh, fcntl.LOCK_EX)
+        try:
+            fh.write(json.dumps(line, sort_keys=True, allow_nan=False) + "\n")
+        finally:
+            fcntl.flock(fh, fcntl.LOCK_UN)
+    return path
+
+
+def read_history(path: str | Path, limit: int = 60) -> list[dict]:
+    """The last ``limit`` lines of a history file (oldest first); unreadable lines are skipped.
+
+    Parameters
+    ----------
+    path : str or Path
+        ``history.jsonl``; a missing file gives an empty list.
+    limit : int
+        Lines kept.
+
+    Returns
+    -------
+    list of dict
+    """
+    path = Path(path)
+    if not path.is_file():
+        return []
+    out = []
+    for ln in path.read_text(encoding="utf-8").splitlines():
+        try:
+            d = json.loads(ln)
+        except json.JSONDecodeError:
             continue
-        if n is None:
-            out.append(Change(key, label, "*", "*", None, None, None, "missing"))
-            continue
-        for est in sorted(set(b["estimators"]) | set(n["estimators"])):
-            be, ne = b["estimators"].get(est), n["estimators"].get(est)
-            if be is None:
-                out.append(Change(key, label, est, "*", None, None, None, "new"))
-                continue
-            if ne is None:
-                out.append(Change(key, label, est, "*", None, None, None, "missing"))
-                continue
-            for m in TRACKED:
-                bv, nv = be.get(m), ne.get(m)
-                t = tolerances[m]
-                if bv is None and nv is None:
-                    verdict, tol = "ok", None
-                elif bv is None:
-                    verdict, tol = "improved", None  # never succeeded before, does now
-                elif nv is None:
-                    verdict, tol = "regression", None  # succeeded before, never now
-                else:
-                    tol = t["abs"] + t["rel"] * abs(bv)
-                    d = nv - bv
-                    verdict = "regression" if d > tol else "improved" if -d > tol else "ok"
-                out.append(Change(key, label, est, m, bv, nv, tol, verdict))
-    return out
+        if isinstance(d, dict):
+            out.append(d)
+    return out[-limit:]
 
 
 def changes_table(changes: list[Change], title: str, show_all: bool = False):
-    """A rich Table of the changes that moved (all of them with ``show_all``).
+    """A rich Table of the metrics that moved (all of them with ``show_all``).
 
     Parameters
     ----------
@@ -292,25 +499,18 @@ def changes_table(changes: list[Change], title: str, show_all: bool = False):
     Returns
     -------
     rich.table.Table
-        One row per change: verdict (coloured), case label, estimator, metric, baseline, now,
-        delta and tolerance (4 significant digits; degrees, or a fraction for failure_rate).
+        Verdict (coloured), metric, baseline, now, delta, tolerance (4 significant digits).
     """
-    from rich.table import Table
-
     t = Table(title=title, show_lines=False)
-    for col in ("verdict", "case", "estimator", "metric", "baseline", "now", "delta", "tolerance"):
+    for col in ("verdict", "metric", "baseline", "now", "delta", "tolerance"):
         t.add_column(col, justify="right" if col in ("baseline", "now", "delta", "tolerance")
-                     else "left")
-    style = {"regression": "bold red", "missing": "bold red", "improved": "green", "new": "cyan",
-             "ok": "dim"}
-
-    def f(v):
-        return "-" if v is None else f"{v:.4g}"
-
+                     else "left", overflow="fold")
+    style = {"regression": "bold red", "missing": "bold red", "invalid": "bold red",
+             "improved": "green", "new": "cyan", "ok": "dim"}
     for c in changes:
         if c.verdict == "ok" and not show_all:
             continue
         delta = None if c.baseline is None or c.now is None else c.now - c.baseline
-        t.add_row(f"[{style[c.verdict]}]{c.verdict}[/]", c.label, c.estimator, c.metric,
-                  f(c.baseline), f(c.now), "-" if delta is None else f"{delta:+.4g}", f(c.tolerance))
+        t.add_row(f"[{style[c.verdict]}]{c.verdict}[/]", c.metric, _f(c.baseline), _f(c.now),
+                  "-" if delta is None else f"{delta:+.4g}", _f(c.tolerance))
     return t
