@@ -238,9 +238,10 @@ def check_section(section: dict, where: str) -> str | None:
             continue
         why = _bad(m["value"])
         if why is None and m["value"] is not None:
-            why = _bad(m.get("tolerance")) or (None if m.get("tolerance") is not None
-                                               else "missing tolerance")
-            why = why and f"tolerance {why}"
+            if m.get("tolerance") is None:
+                why = "missing tolerance"
+            elif _bad(m["tolerance"]):
+                why = f"tolerance {_bad(m['tolerance'])}"
         if why:
             bad[name] = why
     return f"{where}: {_name_list(bad)}" if bad else None
