@@ -13,10 +13,12 @@ import subprocess
 from importlib import metadata
 from pathlib import Path
 
+from simtest.resources import data_root
+
 __all__ = ["provenance", "open_parameters", "make_run_id", "relative_to_repo"]
 
-#: The repository root (an editable install).
-_ROOT = Path(__file__).resolve().parents[3]
+#: The repository root in a clone (where git runs and paths are made relative).
+_ROOT = data_root()
 
 
 def _git(*args) -> str | None:
