@@ -22,6 +22,7 @@ import io
 
 import numpy as np
 from matplotlib.figure import Figure
+from matplotlib.ticker import FixedLocator, FuncFormatter
 
 from simtest.reconstruct.overlay import estimator_colour
 
@@ -35,6 +36,15 @@ def _png(fig) -> bytes:
     buf = io.BytesIO()
     fig.savefig(buf, format="png", dpi=110, bbox_inches="tight")  # Agg canvas: no display needed
     return buf.getvalue()
+
+
+_TICKS = [0, 0.01, 0.1, 1, 10, 100]
+
+
+def _deg_axis(axis) -> None:
+    """A symmetric-log angle axis in degrees (0 allowed) with plain tick labels."""
+    axis.set_major_locator(FixedLocator(_TICKS))
+    axis.set_major_formatter(FuncFormatter(lambda v, _: f"{v:g}"))
 
 
 def _errors(rows, key, name):
@@ -69,7 +79,9 @@ def figures(results: dict) -> dict[str, bytes]:
             e = np.sort(_errors(rows, key, name))
             if len(e):
                 ax.step(e, np.arange(1, len(e) + 1) / len(e), where="post", label=f"{name} (n={len(e)})", **_style(name))
-        ax.set_xscale("symlog", linthresh=1.0)
+        ax.set_xscale("symlog", linthresh=0.01, linscale=0.3)
+        _deg_axis(ax.xaxis)
+        ax.set_xlim(0, 180)
         ax.set_xlabel("angular error (deg)")
         ax.set_title(title)
         ax.grid(alpha=0.3)
@@ -104,7 +116,8 @@ def figures(results: dict) -> dict[str, bytes]:
                     xm = [pairs[idx == b, 0].mean() for b in range(len(edges) - 1) if np.any(idx == b)]
                     ym = [np.median(pairs[idx == b, 1]) for b in range(len(edges) - 1) if np.any(idx == b)]
                     ax.plot(xm, ym, marker="o", ms=3, label=f"{name} (median per bin)", **_style(name))
-            ax.set_yscale("symlog", linthresh=1.0)
+            ax.set_yscale("symlog", linthresh=0.01, linscale=0.3)
+            _deg_axis(ax.yaxis)
             ax.set_xlabel(label)
             ax.set_ylabel("angular error vs GT at the BP (deg)")
             ax.grid(alpha=0.3)
