@@ -96,7 +96,7 @@ def contact_sheet(root, out=None, count: int = 8, start: int = 0) -> Path:
         axes[0, 0].set_title("empty dataset")
     fig.suptitle(f"{Path(root).name}: samples {picks[0] if picks else '-'}..{picks[-1] if picks else '-'} "
                  f"of {len(ds)}; red +: brightest point (BP), cyan: isophote ellipses", fontsize=9)
-    fig.tight_layout()
+    fig.tight_layout(rect=(0, 0, 1, 1 - 0.4 / (3.1 * rows)))  # 0.4 inch for the title
     atomic_write(out, lambda tmp: fig.savefig(tmp, dpi=90, format="png"), suffix=".png")
     plt.close(fig)
     ds.close()
