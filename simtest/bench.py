@@ -22,13 +22,27 @@ Sections
 
 from __future__ import annotations
 
+import importlib
+import inspect
 import os
 import statistics
 import time
 from collections.abc import Callable
 from dataclasses import dataclass
 
+import cv2
+import numpy as np
 import typer
+from rich.console import Console
+from rich.table import Table
+
+from simtest.geometry.camera import pixel_to_ray, project_points
+from simtest.geometry.conics import normalised_conic
+from simtest.reconstruct.estimators import estimate_from_conic
+from simtest.reconstruct.fit import fit_ellipse
+from simtest.reconstruct.isophote import extract_isophote
+from simtest.reconstruct.pipeline import reconstruct, reconstruct_roi
+from simtest.simulate.analytic import phong_plane_image, plane_bp
 
 
 @dataclass(frozen=True)
@@ -94,7 +108,6 @@ def single_core() -> None:
     """Ask numerical libraries and OpenCV for one thread."""
     for var in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
         os.environ[var] = "1"
-    import cv2
 
     cv2.setNumThreads(1)
 
@@ -117,7 +130,6 @@ def resolve_section(name: str) -> SectionFn | None:
     spec = EXTERNAL_SECTIONS.get(name)
     if spec is None:
         return None
-    import importlib
 
     mod_name, fn_name = spec.split(":")
     try:
@@ -137,10 +149,6 @@ def synthetic_roi_image(size: int = 100, n_phong: float = 400.0):
     Returns ``(image float64 (size, size), K, bp_uv, normal)``; the t = 0.1 isophote is about
     30 px across for the defaults.
     """
-    import numpy as np
-
-    from simtest.geometry.camera import project_points
-    from simtest.simulate.analytic import phong_plane_image, plane_bp
 
     f = 600.0
     K = np.array([[f, 0, size / 2 - 0.5], [0, f, size / 2 - 0.5], [0, 0, 1.0]])
@@ -167,10 +175,6 @@ def synthetic_frame(shape=(1080, 1350), n_highlights: int = 10, seed: int = 0, n
     bps : ndarray of shape (n_highlights, 2)
         Where the BPs were placed (u, v), px.
     """
-    import numpy as np
-
-    from simtest.geometry.camera import pixel_to_ray
-    from simtest.simulate.analytic import phong_plane_image
 
     h, w = shape
     f = 600.0
@@ -203,13 +207,6 @@ def synthetic_frame(shape=(1080, 1350), n_highlights: int = 10, seed: int = 0, n
 @section("reconstruct")
 def bench_reconstruct(repeat: int = 50) -> list[BenchResult]:
     """Reconstruction speed: per specularity (100 x 100 px) and per 1350 x 1080 frame."""
-    import numpy as np
-
-    from simtest.geometry.conics import normalised_conic
-    from simtest.reconstruct.estimators import estimate_from_conic
-    from simtest.reconstruct.fit import fit_ellipse
-    from simtest.reconstruct.isophote import extract_isophote
-    from simtest.reconstruct.pipeline import reconstruct, reconstruct_roi
 
     single_core()
     out = []
@@ -265,7 +262,6 @@ def _flatten(section_name: str, obj, prefix: str = "") -> list[BenchResult]:
 
 def run_section(name: str, fn: SectionFn, repeat: int) -> list[BenchResult]:
     """Call a section with ``repeat`` if it takes it, and turn a dict result into rows."""
-    import inspect
 
     try:
         takes_repeat = "repeat" in inspect.signature(fn).parameters
@@ -286,8 +282,6 @@ def bench_command(
     repeat: int = typer.Option(50, "--repeat", min=1, help="Timed runs per figure (median reported)."),
 ) -> None:
     """Run the speed benchmarks and print a table (median and min per figure, single core)."""
-    from rich.console import Console
-    from rich.table import Table
 
     names = list(SECTIONS) + [n for n in EXTERNAL_SECTIONS if n not in SECTIONS]
     chosen = names if not only else list(only)

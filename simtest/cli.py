@@ -1,18 +1,83 @@
 """The `simtest` command line: one command with subcommands.
 
-Each subcommand lives beside the code it drives (``simtest/<package>/cli.py``) and is registered
-here. Those modules must stay cheap to import: no Mitsuba or Dask import at module level, so that
-``simtest --help`` answers at once.
+Each subcommand lives beside the code it drives (``simtest/<package>/cli.py``, ``simtest/bench.py``)
+and is listed in :data:`SUBCOMMANDS` with its one-line help. A subcommand's module, which imports
+the science at its top (numpy, scipy, trimesh, matplotlib, ...), is imported only when that
+subcommand runs or shows its own help, so that ``simtest --help`` and ``simtest version`` answer at
+once and never import Mitsuba.
 """
 
 from __future__ import annotations
 
+import importlib
+
+import click
 import typer
+from typer.core import TyperGroup
 
 from simtest._version import __version__
 
+#: name -> (module, attribute: a command function or a Typer app, one-line help for the listing)
+SUBCOMMANDS: dict[str, tuple[str, str, str]] = {
+    "validate": ("simtest.harness.cli", "validate_command",
+                 "Run a validation suite and write its report (the main job)."),
+    "nightly": ("simtest.harness.cli", "nightly_command",
+                "Run the nightly (or --quick) suite and compare it with the committed baseline."),
+    "reconstruct": ("simtest.reconstruct.cli", "reconstruct_command",
+                    "Estimate the normal at every specular highlight of IMAGE."),
+    "view": ("simtest.reconstruct.cli", "view_command",
+             "Render a 3D view of the estimated normals (off-screen: works without a display)."),
+    "render": ("simtest.render.cli", "render_command",
+               "Render a scene with its ground truth."),
+    "meshes": ("simtest.scene.meshes_cli", "meshes_app",
+               "Procedural meshes (colon, liver) with ground-truth normals and curvatures."),
+    "dataset": ("simtest.dataset.cli", "dataset_app",
+                "Rendered datasets for learning: generate, verify, show, export."),
+    "evaluate": ("simtest.evaluate.cli", "evaluate_app",
+                 "Score reconstructions against datasets with ground-truth normals."),
+    "bench": ("simtest.bench", "bench_command", "Speed benchmarks."),
+}
+
+
+def load_subcommand(name: str) -> click.Command:
+    """Import the module of subcommand ``name`` and return it as a click command."""
+    module, attr, _ = SUBCOMMANDS[name]
+    obj = getattr(importlib.import_module(module), attr)
+    if isinstance(obj, typer.Typer):
+        group = typer.main.get_group(obj)
+        group.name = name
+        return group
+    single = typer.Typer(add_completion=False)
+    single.command(name)(obj)
+    return typer.main.get_command(single)
+
+
+class _LazyGroup(TyperGroup):
+    """Lists every subcommand from :data:`SUBCOMMANDS`; imports one only when it is used."""
+
+    _listing = False
+
+    def list_commands(self, ctx):
+        return list(self.commands) + [n for n in SUBCOMMANDS if n not in self.commands]
+
+    def get_command(self, ctx, name):
+        if name in SUBCOMMANDS and name not in self.commands:
+            if self._listing:  # the top-level --help needs only the name and the one-line help
+                return click.Command(name, help=SUBCOMMANDS[name][2])
+            self.add_command(load_subcommand(name), name)
+        return super().get_command(ctx, name)
+
+    def format_help(self, ctx, formatter):
+        self._listing = True
+        try:
+            return super().format_help(ctx, formatter)
+        finally:
+            self._listing = False
+
+
 app = typer.Typer(
     name="simtest",
+    cls=_LazyGroup,
     help="Testbed for normal reconstruction from specular isophotes in endoscopy.",
     no_args_is_help=True,
     add_completion=False,
@@ -20,30 +85,16 @@ app = typer.Typer(
 )
 
 
+@app.callback()
+def _root() -> None:
+    # a callback makes the app a group even with one eagerly registered command
+    pass
+
+
 @app.command("version")
 def version_command() -> None:
     """Print the simtest version."""
     typer.echo(__version__)
-
-
-# --- subcommands: each lives beside the code it drives --------------------------------------------
-from simtest.bench import bench_command  # noqa: E402
-from simtest.dataset.cli import dataset_app  # noqa: E402
-from simtest.evaluate.cli import evaluate_app  # noqa: E402
-from simtest.harness.cli import nightly_command, validate_command  # noqa: E402
-from simtest.reconstruct.cli import reconstruct_command, view_command  # noqa: E402
-from simtest.render.cli import render_command  # noqa: E402
-from simtest.scene.meshes_cli import meshes_app  # noqa: E402
-
-app.command("validate")(validate_command)
-app.command("nightly")(nightly_command)
-app.command("reconstruct")(reconstruct_command)
-app.command("view")(view_command)
-app.command("render")(render_command)
-app.add_typer(meshes_app, name="meshes")
-app.add_typer(dataset_app, name="dataset")
-app.add_typer(evaluate_app, name="evaluate")
-app.command("bench")(bench_command)
 
 
 def main() -> None:

@@ -165,3 +165,60 @@ def test_importing_every_module_of_geometry_specular_and_reconstruct_loads_no_mi
         "assert not bad, bad\n"
     )
     subprocess.run([sys.executable, "-c", code], check=True, cwd=PACKAGE.parent)
+
+
+#: Modules that may be imported inside a function: the Mitsuba plugins, which subclass Mitsuba's
+#: classes when imported (``simtest.render.render.choose_variant`` imports them once a variant is
+#: set). The optional back-ends themselves go through ``simtest._lazy.require``, a call.
+LAZY_MODULES = {"simtest.render.integrator", "simtest.render.phong"}
+
+
+def in_function_imports(source: str, module: str, is_package: bool = False) -> list[str]:
+    """Import statements inside function bodies, other than those of :data:`LAZY_MODULES`."""
+    found = []
+    for fn in ast.walk(ast.parse(source)):
+        if not isinstance(fn, (ast.FunctionDef, ast.AsyncFunctionDef)):
+            continue
+        for node in ast.walk(fn):
+            if isinstance(node, (ast.Import, ast.ImportFrom)):
+                names = {n for _, n in imported_names(ast.unparse(node), module, is_package)}
+                if not names <= LAZY_MODULES | {"simtest.render"}:
+                    found.append(f"{module}:{node.lineno} {ast.unparse(node)}")
+    return found
+
+
+def test_imports_sit_at_module_top_except_the_optional_backends():
+    bad = []
+    for path in sorted(PACKAGE.rglob("*.py")):
+        bad += in_function_imports(path.read_text(encoding="utf-8"), module_name(path),
+                                   path.name == "__init__.py")
+    assert bad == []
+
+
+def test_an_import_planted_in_a_function_is_seen():
+    source = "import numpy as np\n\n\ndef f():\n    import cv2\n    return cv2\n"
+    assert len(in_function_imports(source, "simtest.geometry.x")) == 1
+    ok = "def f():\n    from simtest.render import integrator, phong\n"
+    assert in_function_imports(ok, "simtest.render.render") == []
+
+
+def test_simtest_help_lists_every_subcommand_without_importing_the_science():
+    code = (
+        "import sys\n"
+        "from simtest.cli import app\n"
+        "sys.argv = ['simtest', '--help']\n"
+        "try:\n"
+        "    app()\n"
+        "except SystemExit:\n"
+        "    pass\n"
+        "heavy = sorted({m.split('.')[0] for m in sys.modules} & "
+        "{'numpy', 'scipy', 'cv2', 'mitsuba', 'drjit', 'matplotlib', 'trimesh'})\n"
+        "assert not heavy, heavy\n"
+    )
+    out = subprocess.run([sys.executable, "-c", code], check=True, cwd=PACKAGE.parent,
+                         capture_output=True, text=True).stdout
+    from simtest.cli import SUBCOMMANDS, load_subcommand
+
+    for name in SUBCOMMANDS:
+        assert name in out
+        assert load_subcommand(name).name == name

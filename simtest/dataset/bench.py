@@ -3,7 +3,6 @@
 For planes and for the colon, 256 x 256 px at 16 spp, 2 local worker processes (the default
 scheduler), the section generates a small dataset into a temporary folder with the real renderer
 and reports:
-
 - steady-state milliseconds per sample (wall time between the arrival of each worker's first
   sample and the last one, over the samples in between; start-up and first kernel compilation
   excluded), with samples per second in the note. Target: colon at >= 10 samples/s, i.e.
@@ -34,6 +33,13 @@ import time
 from pathlib import Path
 
 from simtest._lazy import require
+from simtest._llvm import configure_llvm_env
+from simtest.bench import BenchResult
+from simtest.dataset import sample as sample_mod
+from simtest.dataset.config import config_from_dict
+from simtest.dataset.generate import generate
+from simtest.dataset.shards import ShardWriter
+from simtest.render import render as render_mod
 
 __all__ = ["bench_dataset", "measure", "stages"]
 
@@ -46,8 +52,6 @@ TARGET_CPU_MS = 200.0
 
 
 def _config(family: str, count: int, seed: int, resolution_px: int, spp: int):
-    from simtest.dataset.config import config_from_dict
-
     return config_from_dict({
         "count": count, "seed": seed, "shard_size": max(1, count // 2),
         "families": {family: 1.0},
@@ -79,7 +83,6 @@ def measure(family: str, count: int = 24, workers: int = 2, seed: int | None = N
         ``samples_per_s`` (steady), ``peak_rss_mib`` (largest worker), ``cpu_ms`` (worker CPU
         time per sample), ``count``.
     """
-    from simtest.dataset.generate import generate
 
     if seed is None:
         seed = int.from_bytes(os.urandom(4), "little")
@@ -152,10 +155,6 @@ def stages(family: str = "colon", count: int = 8, seed: int | None = None, resol
     the thread count afterwards. CPU time (``time.process_time``, all threads) is what two idle
     cores share, so the figures hold on a loaded machine better than wall time does.
     """
-    from simtest._llvm import configure_llvm_env
-    from simtest.dataset import sample as sample_mod
-    from simtest.dataset.shards import ShardWriter
-    from simtest.render import render as render_mod
 
     configure_llvm_env()
     dr = require("drjit", purpose="the dataset bench")
@@ -204,7 +203,6 @@ def bench_dataset(repeat: int = 50) -> list:
     -------
     list of simtest.bench.BenchResult
     """
-    from simtest.bench import BenchResult
 
     count = min(max(repeat, 12), 40)
     results = []

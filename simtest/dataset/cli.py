@@ -1,10 +1,17 @@
-"""``simtest dataset``: generate and verify datasets (cheap to import: no Mitsuba, no Dask)."""
+"""``simtest dataset``: generate and verify datasets (imported by :mod:`simtest.cli` only when it runs; Mitsuba and Dask load when needed)."""
 
 from __future__ import annotations
 
 from pathlib import Path
 
 import typer
+
+from simtest.dataset.config import PARAMS, DatasetConfigError, load_config
+from simtest.dataset.export import export
+from simtest.dataset.generate import SampleError, generate
+from simtest.dataset.shards import DatasetError
+from simtest.dataset.show import contact_sheet
+from simtest.dataset.verify import verify
 
 dataset_app = typer.Typer(
     name="dataset",
@@ -26,9 +33,6 @@ def generate_command(
     progress: bool = typer.Option(True, "--progress/--no-progress", help="Show a progress bar."),
 ) -> None:
     """Render the samples CONFIG describes into shards under OUT; a rerun resumes."""
-    from simtest.dataset.config import DatasetConfigError, load_config
-    from simtest.dataset.generate import SampleError, generate
-    from simtest.dataset.shards import DatasetError
 
     try:
         cfg = load_config(config)
@@ -50,7 +54,6 @@ def verify_command(
     quick: bool = typer.Option(False, "--quick", help="Hashes and counts only; skip array checks."),
 ) -> None:
     """Check every shard and manifest entry: counts, hashes, shapes, unit normals."""
-    from simtest.dataset.verify import verify
 
     rep = verify(root, check_arrays=not quick)
     for p in rep.problems:
@@ -69,8 +72,6 @@ def export_command(
     out: Path = typer.Option(None, "--out", "-o", help="Output folder (default: DIR-<format> beside DIR)."),
 ) -> None:
     """Export DIR to WebDataset tar shards or HDF5 files, readable without simtest."""
-    from simtest.dataset.export import export
-    from simtest.dataset.shards import DatasetError
 
     try:
         path = export(root, fmt, out)
@@ -91,8 +92,6 @@ def show_command(
     start: int = typer.Option(0, "--start", min=0, help="First sample shown."),
 ) -> None:
     """Write a contact sheet: image with BP markers and isophotes, normals, masks per sample."""
-    from simtest.dataset.shards import DatasetError
-    from simtest.dataset.show import contact_sheet
 
     try:
         path = contact_sheet(root, out, count=count, start=start)
@@ -105,7 +104,6 @@ def show_command(
 @dataset_app.command("params")
 def params_command() -> None:
     """List the parameters a dataset config may draw, with units, families and defaults."""
-    from simtest.dataset.config import PARAMS
 
     for p in PARAMS:
         defaults = "; ".join(f"{k}: {d.as_dict()}" for k, d in p.default.items())

@@ -21,15 +21,28 @@ import shutil
 import socket
 import time
 from collections import deque
-from datetime import datetime, timezone
 from concurrent.futures.process import BrokenProcessPool
 from dataclasses import dataclass, field
+from datetime import datetime, timezone
 from pathlib import Path
 from typing import Callable
 
+from rich.progress import (
+    BarColumn,
+    MofNCompleteColumn,
+    Progress,
+    ProgressColumn,
+    TextColumn,
+    TimeElapsedColumn,
+    TimeRemainingColumn,
+)
+from rich.text import Text
+
+from simtest import __version__
 from simtest._io import atomic_write_text
 from simtest._lazy import require
 from simtest.dataset.config import DatasetConfig, load_config
+from simtest.dataset.sample import CHANNELS, mesh_sha256, render_sample
 from simtest.dataset.shards import (
     CARD_NAME,
     FORMAT,
@@ -142,7 +155,6 @@ normals = z[key + "normals"]                                      # (H, W, 3) fl
 
 def _readme(config: DatasetConfig, count: int) -> str:
     """A short README for people who receive the folder without simtest (deterministic)."""
-    from simtest.dataset.sample import CHANNELS
 
     lines = [
         "# simtest dataset",
@@ -197,8 +209,6 @@ def make_card(config: DatasetConfig, *, status: str, counts: dict | None = None,
         table (dtype, shape, unit) and the conventions (OpenCV camera frame, pixel (u, v) with
         integer pixel centres, mm, degrees).
     """
-    from simtest import __version__
-    from simtest.dataset.sample import CHANNELS, mesh_sha256
 
     return {
         "format": FORMAT,
@@ -325,7 +335,6 @@ def _finalise(config: DatasetConfig, out: Path) -> None:
 
 def _run_task(sample_fn: Callable, config: DatasetConfig, index: int):
     """Worker side: one sample, the worker's identity, its peak RSS (KiB) and the CPU seconds."""
-    import socket
 
     cpu0 = time.process_time()
     try:
@@ -446,17 +455,6 @@ class _Dask:
 
 
 def _progress(enabled: bool, total: int, done: int):
-    from rich.progress import (
-        BarColumn,
-        MofNCompleteColumn,
-        Progress,
-        ProgressColumn,
-        TextColumn,
-        TimeElapsedColumn,
-        TimeRemainingColumn,
-    )
-    from rich.text import Text
-
     class RateColumn(ProgressColumn):
         def render(self, task):
             speed = task.finished_speed or task.speed
@@ -525,8 +523,6 @@ def generate(
     if not isinstance(config, DatasetConfig):
         config = load_config(config)
     if sample_fn is None:
-        from simtest.dataset.sample import render_sample
-
         sample_fn = render_sample
     if workers is not None and workers < 1:
         raise ValueError(f"workers must be >= 1, got {workers}")

@@ -3,7 +3,6 @@
 Layout
 ------
 ::
-
     DIR/dataset.json                 the card: config, seed, version, counts, channels and units
     DIR/manifest.jsonl               one JSON row per sample (labels, shard, per-array sha256)
     DIR/shards/shard-00000.npz       the arrays of samples 0 .. shard_size-1 (numpy .npz, lossless;
@@ -53,6 +52,7 @@ from pathlib import Path
 from typing import Any, Iterable
 
 import numpy as np
+from PIL import Image
 
 from simtest._io import atomic_write_json, atomic_write_text
 
@@ -587,7 +587,6 @@ def decode_png(a: np.ndarray) -> np.ndarray:
     PIL.UnidentifiedImageError
         If the bytes are not an image.
     """
-    from PIL import Image
 
     with Image.open(io.BytesIO(np.asarray(a, dtype=np.uint8).tobytes())) as im:
         return np.asarray(im)

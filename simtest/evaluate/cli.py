@@ -13,6 +13,18 @@ import json
 from pathlib import Path
 
 import typer
+from rich.progress import Progress
+
+from simtest import __version__
+from simtest._io import atomic_write_set
+from simtest.evaluate.c3vd import load_frame, scan_sequence
+from simtest.evaluate.report import SCHEMA, SCHEMA_VERSION, render_html
+from simtest.evaluate.score import score_highlights, summarise
+from simtest.geometry.camera_file import load_camera
+from simtest.reconstruct.io import estimate_to_dict
+from simtest.reconstruct.pipeline import reconstruct
+from simtest.reconstruct.settings import ReconSettings
+from simtest.reconstruct.view3d import render_view, surface_from_depth
 
 evaluate_app = typer.Typer(help="Score reconstructions against datasets with ground-truth normals.", no_args_is_help=True)
 
@@ -31,18 +43,6 @@ def c3vd_command(
                               "surface from depth), for the first N frames with a reconstructed highlight.", min=0),
 ) -> None:
     """Reconstruct every frame of SEQ_DIR and score every estimator against the ground truth."""
-    from rich.progress import Progress
-
-    from simtest import __version__
-    from simtest._io import atomic_write_set
-    from simtest.evaluate.c3vd import load_frame, scan_sequence
-    from simtest.evaluate.report import SCHEMA, SCHEMA_VERSION, render_html
-    from simtest.evaluate.score import score_highlights, summarise
-    from simtest.geometry.camera_file import load_camera
-    from simtest.reconstruct.io import estimate_to_dict
-    from simtest.reconstruct.pipeline import reconstruct
-    from simtest.reconstruct.view3d import render_view, surface_from_depth
-    from simtest.reconstruct.settings import ReconSettings
 
     try:
         if out.exists() and not out.is_dir():

@@ -33,6 +33,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from simtest.geometry.camera import validate_intrinsics
 from simtest.tolerances import TOL
 
 __all__ = [
@@ -320,7 +321,6 @@ def normalised_conic(C, K) -> np.ndarray:
     ValueError
         If C or K is malformed (see :func:`simtest.geometry.camera.validate_intrinsics`) or C is zero.
     """
-    from simtest.geometry.camera import validate_intrinsics
 
     C = _check_conic(C)
     K = validate_intrinsics(K)
@@ -499,7 +499,6 @@ def project_circle(centre_mm, normal, radius_mm: float, K) -> np.ndarray:
         If the radius is not positive, the normal is zero, or the plane passes through the camera
         centre (the image is a degenerate line pair).
     """
-    from simtest.geometry.camera import validate_intrinsics
 
     K = validate_intrinsics(K)
     c = np.asarray(centre_mm, dtype=np.float64)

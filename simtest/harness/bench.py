@@ -1,7 +1,6 @@
 """``simtest bench --only harness``: realisations per second of the two protocols, 2 workers.
 
 Figures (from :func:`bench_harness`):
-
 - ``paper`` protocol at the defaults (sigma = 5 %, theta = 58 deg, fixed light: the noiseless
   warp is shared, each realisation draws noise, smooths, reconstructs three isophotes) and with a
   light offset (epsilon = 200: a new texture per realisation), in ms of one worker per realisation
@@ -15,13 +14,14 @@ process start-up of the pool is left out; the wall time of each run is given in 
 
 from __future__ import annotations
 
+from simtest.bench import BenchResult
+from simtest.harness.runner import run_suite
+from simtest.harness.suite import load_suite, suite_from_dict
+
 __all__ = ["bench_harness"]
 
 
 def _rate(suite_dict: dict, workers: int):
-    from simtest.harness.runner import run_suite
-    from simtest.harness.suite import suite_from_dict
-
     run = run_suite(suite_from_dict(suite_dict), workers=workers, progress=False)
     (proto,) = run.cpu_s_by_protocol
     n = run.realisations_by_protocol[proto]
@@ -49,8 +49,6 @@ def bench_harness(repeat: int = 3) -> list:
     simtest.harness.suite.SuiteError
         If the bundled ``paper-figure3`` suite or ``plane_58deg`` scene is missing or invalid.
     """
-    from simtest.bench import BenchResult
-    from simtest.harness.suite import load_suite
 
     workers = 2
     k = min(5, max(1, int(repeat)))  # 50 repeats would take minutes: cap the scale

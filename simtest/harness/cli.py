@@ -1,14 +1,34 @@
 """``simtest validate`` and ``simtest nightly`` (registered in :mod:`simtest.cli`).
 
-Cheap to import: typer only; the harness is imported when a command runs.
+Imported by :mod:`simtest.cli` only when one of these commands runs (``simtest --help`` stays fast).
 """
 
 from __future__ import annotations
 
+import json
 from pathlib import Path
 from typing import Optional
 
 import typer
+from rich.console import Console
+from rich.table import Table
+
+from simtest.harness.nightly import (
+    append_history,
+    changes_table,
+    check_section,
+    compare,
+    default_baseline_path,
+    gate_summary,
+    history_line,
+    load_baseline,
+    read_history,
+    undetectable_doublings,
+    update_baseline as write_baseline,
+)
+from simtest.harness.report import build_results, make_run_id, write_report, write_report_files
+from simtest.harness.runner import run_suite
+from simtest.harness.suite import SuiteError, load_suite
 
 __all__ = ["validate_command", "nightly_command"]
 
@@ -24,8 +44,6 @@ def _fmt(deg: float) -> str:
 
 
 def _summary(results: dict, console) -> None:
-    from rich.table import Table
-
     ests = results["suite"]["estimators"]
     t = Table(title=f"{results['suite']['name']}: mean error (deg), min-max over the sweep; "
                     "failure rate")
@@ -68,11 +86,6 @@ def validate_command(
     With no argument: the bundled `default` suite (rendered bundled scenes and a small part of
     the paper's synthetic protocol), a few minutes on 2 cores.
     """
-    from rich.console import Console
-
-    from simtest.harness.report import write_report
-    from simtest.harness.runner import run_suite
-    from simtest.harness.suite import SuiteError, load_suite
 
     console = Console(stderr=True)
     try:
@@ -85,7 +98,6 @@ def validate_command(
                   f"cases, {s.total_realisations} realisations, seed {s.seed}")
     run = run_suite(s, workers=workers, progress=progress, console=console)
     folder = write_report(run, out, run_id=run_id)
-    import json
 
     results = json.loads((folder / "results.json").read_text())
     _summary(results, console)
@@ -124,16 +136,6 @@ def nightly_command(
     Exits 1 when a metric regressed beyond its tolerance (measured seed spread plus a relative
     floor) or is NaN, infinite, non-numeric or missing, naming each; 2 on a bad baseline file.
     """
-
-    from rich.console import Console
-
-    from simtest.harness.nightly import (append_history, changes_table, check_section, compare,
-                                         default_baseline_path, gate_summary, history_line,
-                                         load_baseline, read_history, undetectable_doublings)
-    from simtest.harness.nightly import update_baseline as write_baseline
-    from simtest.harness.report import build_results, make_run_id, write_report_files
-    from simtest.harness.runner import run_suite
-    from simtest.harness.suite import SuiteError, load_suite
 
     console = Console(stderr=True)
     name = suite or ("quick" if quick else "nightly")

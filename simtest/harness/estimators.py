@@ -6,7 +6,6 @@ a :class:`simtest.reconstruct` ``SpecularityEstimate`` (camera frame, unit, faci
 error in degrees against the ground truth (``atan2(|a x b|, a . b)``), or a failure cause.
 
 Estimators (DESIGN.md section 2):
-
 - ``paper_oracle``: the one of the two circle-pose normals N+- closest to the truth (the paper's
   reporting, an oracle choice).
 - ``paper_selected``: the N+- that the reconstruction's non-oracle rule selects.
@@ -35,6 +34,8 @@ from __future__ import annotations
 from typing import Callable
 
 import numpy as np
+
+from simtest.geometry.angles import angle_between_deg
 
 __all__ = ["ESTIMATORS", "score", "unit_or_none"]
 
@@ -129,7 +130,6 @@ def score(est, truth, names) -> dict[str, tuple[float, str | None]]:
     KeyError
         If a name is not in :data:`ESTIMATORS`.
     """
-    from simtest.geometry.angles import angle_between_deg
 
     truth = unit_or_none(truth)
     out: dict[str, tuple[float, str | None]] = {}

@@ -4,7 +4,6 @@ A runner is built once per case (and cached per worker process), holding what ev
 the case shares (the noiseless warped image of the ``paper`` protocol, the validated scene spec of
 the ``rendered`` protocol). :meth:`run` takes the realisation's SeedSequence and returns a list of
 rows, one per scored specularity:
-
 ``{"errors": {estimator: deg or nan}, "causes": {estimator: None or cause}, "extras": {...}}``
 
 ``paper``: one row per realisation (one specularity, reconstructed in a ROI around the known BP).
@@ -19,9 +18,19 @@ import math
 
 import numpy as np
 
-from simtest.geometry.curvature import (curvature_ratio, predicted_eigenvalue_gap,
-                                        predicted_pose_error_deg)
+from simtest.geometry.angles import angle_between_deg, unit
+from simtest.geometry.conics import plane_basis
+from simtest.geometry.curvature import (
+    curvature_ratio,
+    predicted_eigenvalue_gap,
+    predicted_pose_error_deg,
+)
 from simtest.harness.estimators import score
+from simtest.reconstruct import reconstruct, reconstruct_roi
+from simtest.render import render_scene
+from simtest.scene import bundled_mesh_path, load_scene, with_overrides
+from simtest.scene.meshes import colon_centerline, load_mesh
+from simtest.simulate.paper import PaperParams, PaperSimulator
 
 __all__ = ["make_runner", "PaperRunner", "RenderedRunner", "reconstruct_known_bp",
            "reconstruct_image", "isovalue_list"]
@@ -79,7 +88,6 @@ def reconstruct_known_bp(image, K, bp_px, roi, isovalues):
     simtest.reconstruct.SpecularityEstimate
         Failures are values (``status`` names the cause), not exceptions.
     """
-    from simtest.reconstruct import reconstruct_roi
 
     return reconstruct_roi(image, K, isovalues, bp_uv=bp_px, roi=roi, normalise="full_scale",
                            full_scale=1.0, smooth_sigma_px=0.0)
@@ -107,7 +115,6 @@ def reconstruct_image(image, K, isovalues):
     list of simtest.reconstruct.SpecularityEstimate
         One per detected specularity; empty for an all-dark image.
     """
-    from simtest.reconstruct import reconstruct
 
     peak = float(np.max(image))
     if not peak > 0:
@@ -127,8 +134,6 @@ def _extras(est) -> dict:
     out["pose_split_deg"] = float("nan")
     normals = getattr(est, "normals_paper", None) if est is not None else None
     if normals is not None and normals is not False:
-        from simtest.geometry.angles import angle_between_deg
-
         nn = np.asarray(normals, dtype=np.float64).reshape(-1, 3)
         if nn.shape[0] == 2 and np.all(np.isfinite(nn)):
             out["pose_split_deg"] = float(angle_between_deg(nn[0], nn[1]))
@@ -203,8 +208,6 @@ class PaperRunner:
     protocol = "paper"
 
     def __init__(self, case, estimators) -> None:
-        from simtest.simulate.paper import PaperParams, PaperSimulator
-
         p = dict(case.params)
         self.isovalues = isovalue_list(p.pop("isovalue"), p.pop("joint_isovalues"))
         self.params = PaperParams(**p)
@@ -298,8 +301,6 @@ class RenderedRunner:
     protocol = "rendered"
 
     def __init__(self, case, estimators) -> None:
-        from simtest.scene import load_scene, with_overrides
-
         p = dict(case.params)
         self.isovalues = isovalue_list(p.pop("isovalue"), p.pop("joint_isovalues"))
         self.image_kind = p.pop("image")
@@ -339,8 +340,6 @@ class RenderedRunner:
             ``"no_highlight_in_frame"`` if there is none. Extras hold the BP error (px), the
             principal curvatures at the BP (1/mm) and the dimensionless curvature (DESIGN.md 1.4).
         """
-        from simtest.render import render_scene
-        from simtest.scene import with_overrides
 
         seed = int(seedseq.generate_state(1, np.uint32)[0]) & 0x7FFFFFFF
         spec = with_overrides(self.spec, {"render.seed": seed})
@@ -418,10 +417,6 @@ def mesh_pose_overrides(p: dict) -> dict:
     FileNotFoundError, ValueError
         If the bundled mesh is missing or unreadable (:func:`simtest.scene.meshes.load_mesh`).
     """
-    from simtest.geometry.angles import unit
-    from simtest.geometry.conics import plane_basis
-    from simtest.scene import bundled_mesh_path
-    from simtest.scene.meshes import colon_centerline, load_mesh
 
     name = "colon" if p["colon_station"] is not None else "liver"
     path = bundled_mesh_path(name)

@@ -12,14 +12,28 @@ thousands of images reports the problem instead of stopping (or hiding it).
 
 from __future__ import annotations
 
+import multiprocessing as mp
 import os
 import time
 import traceback
 from collections import OrderedDict
+from concurrent.futures import ProcessPoolExecutor, as_completed
 from dataclasses import dataclass, field
+from datetime import datetime, timezone
 
+import cv2
 import numpy as np
+from rich.console import Console
+from rich.progress import (
+    BarColumn,
+    MofNCompleteColumn,
+    Progress,
+    TextColumn,
+    TimeElapsedColumn,
+    TimeRemainingColumn,
+)
 
+from simtest.harness.protocols import make_runner
 from simtest.harness.suite import Case, Suite, realisation_seed
 
 __all__ = ["CaseResult", "SuiteRun", "run_suite", "run_case_chunk", "default_workers"]
@@ -124,8 +138,6 @@ class SuiteRun:
 
 
 def _get_runner(case: Case, estimators: tuple):
-    from simtest.harness.protocols import make_runner
-
     key = (case.key, case.protocol, case.scene, estimators)
     r = _RUNNERS.get(key)
     if r is None:
@@ -192,8 +204,6 @@ def run_case_chunk(case: Case, estimators: tuple, root_seed: int, start: int, st
 
 def _worker_init() -> None:
     try:
-        import cv2
-
         cv2.setNumThreads(1)
     except Exception:  # pragma: no cover
         pass
@@ -248,11 +258,6 @@ def run_suite(suite: Suite, *, workers: int | None = None, progress: bool = True
     ValueError
         If ``workers < 1``.
     """
-    from datetime import datetime, timezone
-
-    from rich.console import Console
-    from rich.progress import (BarColumn, MofNCompleteColumn, Progress, TextColumn,
-                               TimeElapsedColumn, TimeRemainingColumn)
 
     workers = default_workers() if workers is None else int(workers)
     if workers < 1:
@@ -293,9 +298,6 @@ def run_suite(suite: Suite, *, workers: int | None = None, progress: bool = True
             for c, s, e in tasks:
                 record(run_case_chunk(c, estimators, suite.seed, s, e), bar)
         else:
-            import multiprocessing as mp
-            from concurrent.futures import ProcessPoolExecutor, as_completed
-
             saved = {k: os.environ.get(k) for k in _WORKER_ENV}
             os.environ.update(_WORKER_ENV)
             try:

@@ -1,7 +1,6 @@
 """Sweep files: a suite of parameter sweeps declared in TOML, expanded to cases.
 
 A suite file (``scenes/suites/<name>.toml``) reads::
-
     [suite]
     name = "paper-figure3"          # default: the file stem
     description = "..."
@@ -63,6 +62,8 @@ import numpy as np
 
 from simtest.harness.claims import PAPER_CHECKS
 from simtest.resources import bundled
+from simtest.scene import SceneError, bundled_scene_path, load_scene, with_overrides
+from simtest.simulate.paper import PaperParams
 
 __all__ = [
     "SuiteError",
@@ -443,8 +444,6 @@ def _check_recon(key: str, value, source: str, where: str) -> Any:
 
 
 def _resolve_paper(params: Mapping, source: str, where: str) -> dict:
-    from simtest.simulate.paper import PaperParams
-
     names = set(PaperParams.field_names())
     sim, out = {}, {}
     for k, v in params.items():
@@ -472,8 +471,6 @@ def _resolve_paper(params: Mapping, source: str, where: str) -> dict:
 
 
 def _resolve_rendered(scene_path: Path, params: Mapping, source: str, where: str) -> dict:
-    from simtest.scene import SceneError, load_scene, with_overrides
-
     overrides, out = {}, {}
     for k, v in params.items():
         if k in RECON_KEYS or k in RENDERED_KEYS:
@@ -514,8 +511,6 @@ def _resolve_scene(name, source: str, where: str) -> Path:
     if p.is_file():
         return p.resolve()
     try:
-        from simtest.scene import bundled_scene_path
-
         return bundled_scene_path(name)
     except KeyError as e:
         raise _err(source, where, str(e).strip("'\"")) from None

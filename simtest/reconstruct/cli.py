@@ -19,7 +19,20 @@ from __future__ import annotations
 import json
 from pathlib import Path
 
+import cv2
+import numpy as np
 import typer
+
+from simtest._io import atomic_write_set
+from simtest.evaluate.c3vd import DEPTH_RANGE_MM, U16, _read_tiff
+from simtest.geometry.camera_file import camera_from_dict, load_camera
+from simtest.geometry.cameras import PinholeCamera
+from simtest.reconstruct._pixels import image_size_wh
+from simtest.reconstruct.io import estimates_document, read_estimates
+from simtest.reconstruct.overlay import check_overlay_size, draw_overlay
+from simtest.reconstruct.pipeline import reconstruct
+from simtest.reconstruct.settings import ReconSettings
+from simtest.reconstruct.view3d import render_view, surface_from_depth
 
 
 class InputError(ValueError):
@@ -45,7 +58,6 @@ def load_image(path) -> "np.ndarray":  # noqa: F821
     InputError
         If the path is a folder, is missing, or cannot be read or decoded; the message names it.
     """
-    import numpy as np
 
     path = Path(path)
     if path.is_dir():
@@ -57,7 +69,6 @@ def load_image(path) -> "np.ndarray":  # noqa: F821
             return np.load(path, allow_pickle=False)
         except (OSError, ValueError) as exc:
             raise InputError(f"cannot read image {path}: {exc}") from None
-    import cv2
 
     try:
         data = np.fromfile(path, dtype=np.uint8)
@@ -96,9 +107,6 @@ def reconstruct_command(
     view: bool = typer.Option(False, "--view", help="Also write view.png, a 3D view of the normals (pyvista, off-screen)."),
 ) -> None:
     """Estimate the normal at every specular highlight of IMAGE."""
-    from simtest.geometry.camera_file import load_camera
-    from simtest.geometry.cameras import PinholeCamera
-    from simtest.reconstruct._pixels import image_size_wh
 
     try:
         img = load_image(image)
@@ -116,11 +124,6 @@ def reconstruct_command(
             )
         if out.exists() and not out.is_dir():
             raise InputError(f"--out must be a folder; {out} is a file")
-        from simtest._io import atomic_write_set
-        from simtest.reconstruct.io import estimates_document
-        from simtest.reconstruct.overlay import check_overlay_size, draw_overlay
-        from simtest.reconstruct.pipeline import reconstruct
-        from simtest.reconstruct.settings import ReconSettings
 
         settings = ReconSettings(isovalues=isovalues, normalise=normalise, allow_open=allow_open,
                                  smooth_sigma_px=smooth_sigma_px)
@@ -142,8 +145,6 @@ def reconstruct_command(
             writers[out / "overlay.png"] = lambda tmp: draw_overlay(tmp, img, estimates, camera,
                                                                     show_rejected=overlay_all)
         if view:
-            from simtest.reconstruct.view3d import render_view
-
             writers[out / "view.png"] = lambda tmp: render_view(tmp, doc["specularities"])
         atomic_write_set(writers)
     except (ValueError, OSError, ImportError) as exc:  # IntrinsicsError, InputError: ValueErrors; no pyvista: ImportError
@@ -165,8 +166,6 @@ def reconstruct_command(
 
 def _camera_of(doc: dict, intrinsics: Path | None):
     """The camera of an estimates document: ``--intrinsics`` if given, else the one it records."""
-    from simtest.geometry.camera_file import camera_from_dict, load_camera
-    from simtest.geometry.cameras import PinholeCamera
 
     if intrinsics is not None:
         return load_camera(intrinsics).model
@@ -197,9 +196,6 @@ def load_truth_points(path: Path, camera) -> "np.ndarray":  # noqa: F821
     InputError
         Unreadable file or one without depth.
     """
-    import numpy as np
-
-    from simtest.reconstruct.view3d import surface_from_depth
 
     if not path.is_file():
         raise InputError(f"ground-truth file not found: {path}")
@@ -214,8 +210,6 @@ def load_truth_points(path: Path, camera) -> "np.ndarray":  # noqa: F821
             raise InputError(f"cannot read {path}: {exc}") from None
         raise InputError(f"{path}: no 'position' or 'depth' array")
     if path.suffix.lower() in (".tif", ".tiff"):
-        from simtest.evaluate.c3vd import DEPTH_RANGE_MM, U16, _read_tiff
-
         d = _read_tiff(path, "depth")
         if d.dtype != np.uint16 or d.ndim != 2:
             raise InputError(f"{path}: a C3VD depth map is 16-bit single-channel, got {d.dtype} of shape {d.shape}")
@@ -232,8 +226,6 @@ def view_command(
     estimator: str = typer.Option(None, "--estimator", help="Normal drawn (default: normal if present, else cone_axis)."),
 ) -> None:
     """Render a 3D view of the estimated normals (off-screen: works without a display)."""
-    from simtest.reconstruct.io import read_estimates
-    from simtest.reconstruct.view3d import render_view
 
     try:
         doc = read_estimates(estimates)

@@ -9,7 +9,6 @@ the brightest pixel refined to sub-pixel by a separable parabola through its 3x3
 (or the centroid of its flat top when quantisation makes several pixels equal to the maximum).
 It gives a square region of interest around the BP, large enough to hold the low isophotes, and a
 status: ``"ok"`` or the reason the candidate is rejected:
-
 - ``too_small``: fewer than ``min_area_px`` pixels (noise, glints of a few pixels).
 - ``touches_border``: the component reaches the image border, so its isophotes are cut.
 - ``merged``: several separate saturated plateaus (two highlights run together).
@@ -31,6 +30,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 
+import cv2
 import numpy as np
 
 from simtest.reconstruct._pixels import Roi, rc_to_uv
@@ -193,7 +193,6 @@ def _gray_native(image: np.ndarray) -> np.ndarray:
     """Fast luma for thresholding: OpenCV for uint8/uint16/float32 RGB, numpy otherwise."""
     if image.ndim == 2:
         return image
-    import cv2
 
     if image.dtype in (np.uint8, np.uint16, np.float32):
         return cv2.cvtColor(np.ascontiguousarray(image), cv2.COLOR_RGB2GRAY)
@@ -202,7 +201,6 @@ def _gray_native(image: np.ndarray) -> np.ndarray:
 
 def _threshold_mask(gray: np.ndarray, thr: float) -> np.ndarray:
     """uint8 mask (0/1) of ``gray >= thr``, by cv2.threshold where the dtype allows."""
-    import cv2
 
     if gray.dtype == np.uint8 or gray.dtype == np.uint16:
         t = float(np.ceil(thr)) - 1.0  # integer x >= thr  <=>  x > ceil(thr) - 1
@@ -271,7 +269,6 @@ def peak_uv(values: np.ndarray, r: int, c: int, mask: np.ndarray | None = None) 
     ndarray of shape (2,)
         BP (u, v), px, pixel centres at integer coordinates.
     """
-    import cv2
 
     top = values == values[r, c]
     if mask is not None:
@@ -366,7 +363,6 @@ def detect_specularities(
     ValueError
         For a bad image (see :func:`validate_image`) or bad options.
     """
-    import cv2
 
     img = validate_image(image)
     if not 0.0 < brightness_rel < 1.0:

@@ -49,6 +49,8 @@ from dataclasses import dataclass
 import numpy as np
 
 from simtest.geometry.angles import unit
+from simtest.geometry.camera import bp_ray_normal
+from simtest.geometry.conics import circle_pose, cone_axis
 from simtest.reconstruct.failures import Failure
 
 
@@ -155,7 +157,6 @@ def estimate_from_conic(Cn: np.ndarray, bp_ray: np.ndarray) -> ConeEstimate | Fa
     ConeEstimate or Failure
         ``Failure("pose_failed")`` if C' is not a real elliptic cone whose image is an ellipse.
     """
-    from simtest.geometry.conics import circle_pose, cone_axis
 
     try:
         if not _images_as_ellipse(Cn):
@@ -190,7 +191,6 @@ def bp_ray(bp_uv, K) -> np.ndarray:
     ndarray of shape (3,)
         ``-K^{-1} (u, v, 1) / ||K^{-1} (u, v, 1)||``: unit, OpenCV camera frame, facing the camera.
     """
-    from simtest.geometry.camera import bp_ray_normal
 
     return bp_ray_normal(bp_uv, K)
 

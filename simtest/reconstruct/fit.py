@@ -35,6 +35,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from simtest.geometry.conics import conic_kind, conic_to_ellipse
 from simtest.reconstruct.failures import Failure
 
 #: An ellipse has 5 degrees of freedom; one more point gives a residual.
@@ -132,7 +133,6 @@ def fit_ellipse(points_uv) -> EllipseFit | Failure:
     >>> np.round(fit.ellipse.center, 6).tolist(), np.round(fit.ellipse.semi_axes, 6).tolist()
     ([10.0, 20.0], [5.0, 3.0])
     """
-    from simtest.geometry.conics import conic_kind, conic_to_ellipse
 
     pts = np.asarray(points_uv, dtype=np.float64)
     if pts.ndim != 2 or pts.shape[1] != 2:

@@ -2,7 +2,6 @@
 
 :func:`bench_render` is what ``simtest bench`` calls. For each scene it measures, at the film size
 and sample count asked for (the issue's 406 x 406 at 16 spp by default):
-
 - ``warm``: repeated :func:`~simtest.render.render_scene` calls with new seeds once the kernels are
   compiled and the Mitsuba scene is cached (a sweep over seeds or noise);
 - ``warm_new_view``: each render with a new camera pose (moved along its optical axis) and a new
@@ -30,6 +29,14 @@ import tempfile
 import time
 from typing import Sequence
 
+import numpy as np
+
+from simtest._lazy import require
+from simtest.render import render as R
+from simtest.render.mitsuba_dict import cam_to_world_matrix
+from simtest.render.render import choose_variant, render_scene
+from simtest.scene import load_scene, with_overrides
+
 __all__ = ["bench_render"]
 
 _COLD_SCRIPT = r"""
@@ -56,7 +63,6 @@ print(json.dumps({"import_s": t1 - t0, "first_render_s": t3 - t2, "second_render
 
 def _bench_spec(scene: str, size_px: int, spp: int):
     """The bundled (or file) scene at ``size_px`` square (same field of view) and ``spp``."""
-    from simtest.scene import load_scene, with_overrides
 
     spec = load_scene(scene)
     over = {"camera.width_px": size_px, "camera.height_px": size_px, "render.spp": spp}
@@ -118,13 +124,7 @@ def bench_render(
         "renders_per_s"}, "highlights": int}}}``; a scene that cannot be loaded gets
         ``{"error": message}``.
     """
-    import drjit as dr
-    import numpy as np
-
-    from simtest.render import render as R
-    from simtest.render.mitsuba_dict import cam_to_world_matrix
-    from simtest.render.render import choose_variant, render_scene
-    from simtest.scene import with_overrides
+    dr = require("drjit")
 
     choose_variant(variant)
     dr.set_thread_count(threads)

@@ -1,6 +1,6 @@
 """``simtest render SCENE --out DIR [--seed S] [--variant V]``: render a scene file to DIR.
 
-Cheap to import: Mitsuba loads only when the command runs. Errors are one line on stderr,
+Mitsuba loads only when a render starts (:func:`simtest._lazy.require`). Errors are one line on stderr,
 ``error: <file>: <key>: <reason>``, never a traceback: exit code 2 for bad input (scene file,
 option, output folder), 1 when Mitsuba cannot run here.
 """
@@ -11,6 +11,11 @@ from pathlib import Path
 from typing import Optional
 
 import typer
+from rich.console import Console
+
+from simtest.render.render import RendererUnavailable, render_scene, write_render
+from simtest.render.truth import HighlightTruthError
+from simtest.scene.spec import RENDER_VARIANTS, SceneError, load_scene
 
 __all__ = ["render_command"]
 
@@ -33,11 +38,6 @@ def render_command(
         None, "--variant", help="Mitsuba variant: auto, llvm_ad_rgb, cuda_ad_rgb (default: the scene's)."),
 ) -> None:
     """Render SCENE and write image.png, intrinsics.json, ground_truth.npz and highlights.json."""
-    from rich.console import Console
-
-    from simtest.render.render import RendererUnavailable, render_scene, write_render
-    from simtest.render.truth import HighlightTruthError
-    from simtest.scene.spec import RENDER_VARIANTS, SceneError, load_scene
 
     if variant is not None and variant not in RENDER_VARIANTS:
         raise _fail(f"--variant: {variant!r} is not one of {', '.join(RENDER_VARIANTS)}")

@@ -9,7 +9,10 @@ built once in their world frame and a render moves the sensor to the camera pose
 writes its AOVs in the camera frame), so that a new view reuses the loaded scene and its
 acceleration structure (:func:`_mitsuba_scene`).
 
-This is the only module of simtest that imports Mitsuba, and it does so inside functions.
+This is the only module of simtest that imports Mitsuba, and it does so when a render is asked for,
+through :func:`simtest._lazy.require`; the Mitsuba plugins (:mod:`simtest.render.phong`,
+:mod:`simtest.render.integrator`, which subclass Mitsuba's classes when imported) are imported by
+:func:`choose_variant` once a variant is set.
 """
 
 from __future__ import annotations
@@ -22,9 +25,13 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+from PIL import Image
 
+from simtest import _llvm
 from simtest._io import atomic_write, atomic_write_text
+from simtest._lazy import require
 from simtest.geometry.camera import pixel_to_ray
+from simtest.geometry.camera_file import save_intrinsics
 from simtest.render.mitsuba_dict import (
     _SENSOR_TO_WORLD,
     cam_to_world_matrix,
@@ -42,7 +49,8 @@ from simtest.render.truth import (
     plane_highlight,
     sphere_highlight,
 )
-from simtest.scene.spec import SceneSpec
+from simtest.scene.meshes import load_mesh
+from simtest.scene.spec import SceneSpec, scene_to_dict
 
 __all__ = [
     "MAX_SEED",
@@ -144,7 +152,6 @@ def choose_variant(requested: str | None = None) -> str:
         If the variant cannot run here: no usable LLVM (the message names
         :data:`simtest._llvm.LLVM_FIX`) or no CUDA device.
     """
-    from simtest import _llvm
 
     libllvm = _llvm.configure_llvm_env()
     if libllvm:
@@ -153,8 +160,8 @@ def choose_variant(requested: str | None = None) -> str:
             raise RendererUnavailable(
                 f"Dr.Jit is pointed at LLVM {major} ({libllvm}), too old for the llvm variants "
                 f"(LLVM {_llvm.MIN_LLVM_MAJOR}+ needed): {_llvm.LLVM_FIX}")
-    import drjit as dr
-    import mitsuba as mi
+    dr = require("drjit")
+    mi = require("mitsuba")
 
     variant = requested or "auto"
     if variant == "auto":
@@ -190,7 +197,7 @@ def materialize(d: Any) -> Any:
     (4, 4) numpy arrays under ``to_world`` become ``mi.ScalarTransform4f``; ``simtest_arrays``
     placeholders become ``mi.Mesh`` objects with vertex normals. Needs an active variant.
     """
-    import mitsuba as mi
+    mi = require("mitsuba")
 
     if isinstance(d, dict):
         if d.get("type") == "simtest_arrays":
@@ -206,7 +213,7 @@ def materialize(d: Any) -> Any:
 
 
 def _make_mesh(vertices, faces, normals, bsdf_dict):
-    import mitsuba as mi
+    mi = require("mitsuba")
 
     props = mi.Properties()
     props["bsdf"] = mi.load_dict(bsdf_dict)
@@ -270,8 +277,6 @@ _MESH_DATA_CACHE_SIZE = 4
 def _load_mesh_file(path: str):
     key = (path, os.path.getmtime(path))
     if key not in _MESH_CACHE:
-        from simtest.scene.meshes import load_mesh
-
         _MESH_CACHE.clear()
         _MESH_CACHE[key] = load_mesh(path)
     return _MESH_CACHE[key]
@@ -358,7 +363,7 @@ def clear_caches() -> None:
 
 
 def _load_dict(spec: SceneSpec, d: dict):
-    import mitsuba as mi
+    mi = require("mitsuba")
 
     if spec.geometry.type == "cylinder":
         # Mitsuba flags float32 round-off in R diag(r, r, length) as "shearing": silence that.
@@ -400,7 +405,7 @@ def _mitsuba_scene(spec: SceneSpec, light_pos: np.ndarray, variant: str):
             _cache_put(key, hit)
         return hit
 
-    import mitsuba as mi
+    mi = require("mitsuba")
 
     mat = spec.material
     shadows = bool(spec.light.epsilon_mm > 0)
@@ -438,8 +443,8 @@ def _make_caster(scene, K: np.ndarray, pose: np.ndarray | None = None):
 
     ``pose`` is the camera-to-scene-frame pose of a scene not built in the camera frame.
     """
-    import drjit as dr
-    import mitsuba as mi
+    dr = require("drjit")
+    mi = require("mitsuba")
 
     identity = pose is None or np.array_equal(pose, np.eye(4))
 
@@ -535,7 +540,7 @@ def render_scene(spec: SceneSpec, *, seed: int | None = None,
     the squared light distance of the pixel's mean surface point (exact on fully covered pixels of a
     plane to second order in the pixel footprint).
     """
-    import mitsuba as mi
+    mi = require("mitsuba")
 
     seed = spec.render.seed if seed is None else int(seed)
     if not 0 <= seed <= MAX_SEED:
@@ -610,10 +615,6 @@ def write_render(result: RenderResult, out_dir: str | Path) -> dict[str, Path]:
     dict
         File role -> path.
     """
-    from PIL import Image
-
-    from simtest.geometry.camera_file import save_intrinsics
-    from simtest.scene.spec import scene_to_dict
 
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)

@@ -26,6 +26,8 @@ from dataclasses import dataclass
 from typing import Callable
 
 import numpy as np
+from scipy import ndimage, optimize
+from skimage.feature import peak_local_max
 
 from simtest.geometry.camera import project_points
 from simtest.simulate.analytic import plane_bp
@@ -230,7 +232,6 @@ def _solve_stationary(surface: Callable[[np.ndarray], tuple[np.ndarray, np.ndarr
         If the residual exceeds :data:`STATIONARY_RESIDUAL_TOL` or the point faces away, e.g. when
         the camera or the light is inside a cylinder.
     """
-    from scipy.optimize import root
 
     f1 = np.array([1.0, 0.0, 0.0])
     _, n0 = surface(x0)
@@ -245,7 +246,7 @@ def _solve_stationary(surface: Callable[[np.ndarray], tuple[np.ndarray, np.ndarr
         t = h - np.dot(h, n) * n
         return np.array([np.dot(t, e1), np.dot(t, e2)])
 
-    sol = root(residual, x0, method="hybr", options={"xtol": 1e-14})
+    sol = optimize.root(residual, x0, method="hybr", options={"xtol": 1e-14})
     x = sol.x
     if np.all(np.isfinite(x)):
         p, n = surface(x)
@@ -435,7 +436,6 @@ def mesh_highlights(
     list of HighlightTruth
         Sorted by v then u; duplicates (within 0.5 px) merged.
     """
-    from skimage.feature import peak_local_max
 
     H, W = mask.shape
     g = bisector_cos_image(normals, position, mask, light)
@@ -503,7 +503,6 @@ def highlight_complete(specular: np.ndarray, bp_px: np.ndarray, t: float = 0.1) 
     bool
         False also when the BP pixel is outside the image or dark (``specular <= 0``).
     """
-    from scipy import ndimage
 
     H, W = specular.shape
     u, v = int(round(bp_px[0])), int(round(bp_px[1]))

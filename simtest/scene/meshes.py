@@ -1,7 +1,6 @@
 """Procedural meshes with ground-truth normals and principal curvatures: a colon and a liver.
 
 Two seeded generators build the anatomical surfaces the renderer places in its scenes:
-
 - :func:`build_colon`: a tube of radius about 25 mm along a smooth, gently three-dimensional centre
   line, with haustral folds (ridges that narrow the lumen) of adjustable depth, spacing and
   sharpness, and three taeniae. Normals face the lumen. Open at both ends.
@@ -89,6 +88,8 @@ from typing import Any
 
 import numpy as np
 import trimesh
+from scipy.spatial import ConvexHull, cKDTree
+from trimesh.curvature import discrete_mean_curvature_measure
 
 from simtest._io import atomic_write_bytes
 
@@ -786,7 +787,6 @@ def build_liver(seed: int, **params: Any) -> trimesh.Trimesh:
     # Directions w = normalize(A^gamma q): gamma = 1 gives normals of the base ellipsoid uniform.
     w = q * liver.axes**p.density_exponent
     w /= np.linalg.norm(w, axis=1, keepdims=True)
-    from scipy.spatial import ConvexHull
 
     faces = ConvexHull(w).simplices.astype(np.int64)
     tri = w[faces]
@@ -1083,13 +1083,11 @@ def principal_curvatures(
     it smooths features narrower than ``radius``. The mean-curvature measure is the normal-cycle
     measure of Cohen-Steiner and Morvan [3]; the Gaussian one is the angle defect.
     """
-    from scipy.spatial import cKDTree
 
     if not (isinstance(radius, int | float) and math.isfinite(radius) and radius > 0):
         raise MeshError(f"principal_curvatures: radius: must be a positive number, got {radius!r}")
     idx = np.arange(len(mesh.vertices)) if vertex_indices is None else np.asarray(vertex_indices)
     pts = np.asarray(mesh.vertices)[idx]
-    from trimesh.curvature import discrete_mean_curvature_measure
 
     h = discrete_mean_curvature_measure(mesh, pts, float(radius)) / (math.pi * radius * radius)
 

@@ -1,14 +1,20 @@
 """``simtest meshes``: build the procedural colon and liver meshes.
 
-Cheap to import: the generator (numpy, trimesh, scipy) is imported inside the command.
+Imported by :mod:`simtest.cli` only when the command runs (``simtest --help`` stays fast).
 """
 
 from __future__ import annotations
 
+import time
 from pathlib import Path
 from typing import Annotated
 
 import typer
+from rich.console import Console
+from rich.progress import Progress
+from rich.table import Table
+
+from simtest.scene.meshes import MeshError, build_mesh, save_mesh
 
 meshes_app = typer.Typer(
     name="meshes",
@@ -59,19 +65,12 @@ def build_command(
     ] = None,
 ) -> None:
     """Build meshes/colon.ply and meshes/liver.ply (+ .json sidecars with the parameters)."""
-    import time
-
-    from rich.console import Console
-    from rich.progress import Progress
-    from rich.table import Table
 
     names = list(only) if only else list(_NAMES)
     for name in names:
         if name not in _NAMES:
             raise typer.BadParameter(f"{name!r}: expected one of {', '.join(_NAMES)}", param_hint="--only")
     overrides = _parse_overrides(list(set_ or []))
-
-    from simtest.scene.meshes import MeshError, build_mesh, save_mesh
 
     console = Console()
     table = Table(title=f"meshes (seed {seed})")

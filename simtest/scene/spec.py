@@ -43,7 +43,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Mapping
 
-from simtest.resources import data_root
+from simtest.resources import bundled_scene_path, data_root
 
 __all__ = [
     "SceneError",
@@ -565,8 +565,6 @@ def load_scene(path: str | Path) -> SceneSpec:
     """
     p = Path(path)
     if not p.is_file() and p.suffix != ".toml" and "/" not in str(path):
-        from simtest.scene import bundled_scene_path
-
         try:
             p = bundled_scene_path(str(path))
         except KeyError as exc:

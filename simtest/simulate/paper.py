@@ -1,7 +1,6 @@
 """The paper's synthetic protocol, ``paper`` (Makki and Bartoli, section 3.1 and figure 2).
 
 Stage 1 of the published pipeline, reproduced step by step:
-
 1. **Texture.** An ``T x T`` texture of the scene plane ``z = 0`` computed with eq. 1
    (:func:`simtest.specular.phong_intensity`) for a viewer ``V = (0, 0, V_Z)`` straight above the
    plane's origin and a light ``L = V + epsilon (cos a, sin a, b)``, ``a ~ U[0, 2 pi)``,
@@ -53,7 +52,10 @@ import dataclasses
 import math
 from dataclasses import dataclass, field
 
+import cv2
 import numpy as np
+
+from simtest.specular import phong_intensity
 
 __all__ = ["PaperParams", "PaperSample", "PaperSimulator", "simulate_paper", "paper_homography"]
 
@@ -313,9 +315,6 @@ class PaperSimulator:
 
     def _render_clean(self, L: np.ndarray):
         """Texture for light L (window placed per ``window_at_bp``), warped to the image."""
-        import cv2
-
-        from simtest.specular import phong_intensity
 
         p = self.params
         bp_plane = mirror_point(self.V, L)
@@ -368,7 +367,6 @@ class PaperSimulator:
         FloatingPointError
             If the smoothed intensity at the BP is not positive (cannot normalise).
         """
-        import cv2
 
         p = self.params
         L = self.light(rng)

@@ -1,7 +1,6 @@
 """The ``results.json`` document of a suite run and the CSV beside it.
 
 ``results.json`` (schema :data:`SCHEMA`, version :data:`SCHEMA_VERSION`)::
-
     {"schema": "simtest.validation", "schema_version": 2, "run_id": ..., "created_utc": ...,
      "suite": {"name", "description", "source", "sha256", "seed", "realisations", "estimators"},
      "seeding": "...", "estimators": {name: text},
@@ -36,9 +35,10 @@ import io
 
 import numpy as np
 
-from simtest.harness.metrics import STAT_KEYS, case_metrics, summarise
 from simtest.harness.claims import evaluate_claims, evaluate_paper_claim
+from simtest.harness.metrics import STAT_KEYS, case_metrics, summarise
 from simtest.harness.report.provenance import open_parameters, provenance, relative_to_repo
+from simtest.scene import load_scene
 
 __all__ = ["SCHEMA", "SCHEMA_VERSION", "SEEDING", "ESTIMATOR_TEXT", "build_results",
            "case_family", "results_csv"]
@@ -90,8 +90,6 @@ def case_family(case) -> tuple[str, bool]:
     eps = p.get("light.epsilon_mm")
     if family is None or eps is None:
         try:
-            from simtest.scene import load_scene
-
             spec = load_scene(case.scene)
             family = family or str(p.get("geometry.type") or spec.geometry.type)
             if eps is None:
