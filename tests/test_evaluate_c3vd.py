@@ -155,7 +155,7 @@ def test_outputs_replaced_as_a_set(sequence, tmp_path, monkeypatch):
     assert run(seq, cam, out).exit_code == 0
     before = {p.name: p.read_bytes() for p in out.iterdir()}
     # the report fails after results.json could have been written: neither file changes
-    import simtest.evaluate.report as report
+    import simtest.evaluate.cli as report  # the module whose name the command calls
 
     monkeypatch.setattr(report, "render_html", lambda results: (_ for _ in ()).throw(OSError("disk full")))
     res = run(seq, cam, out, "--max-frames", "1")

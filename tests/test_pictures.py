@@ -112,7 +112,9 @@ def test_reconstruct_outputs_are_replaced_as_a_set(tmp_path, monkeypatch):
     def full_disk(*args, **kwargs):
         raise OSError(28, "No space left on device")
 
-    monkeypatch.setattr(overlay_mod, "draw_overlay", full_disk)
+    import simtest.reconstruct.cli as recon_cli  # the module whose name the command calls
+
+    monkeypatch.setattr(recon_cli, "draw_overlay", full_disk)
     res = runner.invoke(app, ["reconstruct", str(png), "-k", str(cam), "-o", str(out), "-t", "0.4"])
     assert res.exit_code == 2 and "No space left on device" in res.output
     # the new estimates (t = 0.4) were not put beside the old overlay: the old set is intact
