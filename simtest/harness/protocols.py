@@ -42,7 +42,7 @@ ROI_MARGIN_PX = 10
 #: Extra per-row diagnostics carried into the results (means reported per case).
 EXTRA_KEYS = ("eigenvalue_gap", "residual_px", "bp_error_px", "k1_per_mm", "k2_per_mm",
               "pose_split_deg", "iso_radius_mm", "r_k1", "r_k2", "anisotropy", "bp_distance_mm",
-              "rho", "predicted_gap", "predicted_pose_deg", "false_positives")
+              "rho", "predicted_gap", "predicted_pose_deg", "false_positives", "saturated_px")
 
 
 def isovalue_list(isovalue: float, joint_isovalues) -> tuple[float, ...]:
@@ -355,6 +355,9 @@ class RenderedRunner:
         ests = reconstruct_image(image, result.K, self.isovalues)
         ok_bps = [(e, np.asarray(e.bp_px, float)) for e in ests
                   if getattr(e, "bp_px", None) is not None]
+        # Clipping: pixels at the sensor's full scale (0 for a linear float image).
+        saturated = (float(np.sum(image >= np.iinfo(image.dtype).max))
+                     if np.issubdtype(image.dtype, np.integer) else 0.0)
         # False positives: detections farther than match_px from every true BP (in frame or not).
         true_bps = [np.asarray(h.bp_px, float) for h in result.highlights]
         false_pos = sum(1 for _, ebp in ok_bps
@@ -381,11 +384,13 @@ class RenderedRunner:
             # per image, carried by its first row (NaN on the others): the case mean is the
             # number of false positives per image
             extras["false_positives"] = float(false_pos) if not rows else float("nan")
+            extras["saturated_px"] = saturated if not rows else float("nan")
             rows.append(_row(errs, extras))
         if not rows:
             errs = {k: (float("nan"), "no_highlight_in_frame") for k in self.estimators}
             extras = {k: float("nan") for k in EXTRA_KEYS}
             extras["false_positives"] = float(false_pos)
+            extras["saturated_px"] = saturated
             rows.append(_row(errs, extras))
         return rows
 

@@ -21,13 +21,14 @@ from simtest.harness.claims import ALARM_DEG, explanations
 __all__ = ["markdown_report", "html_report", "fmt", "cell", "summary_markdown"]
 
 #: Diagnostics listed per sweep (means over the scored highlights), in this order.
-_DIAG_ORDER = ("false_positives", "bp_error_px", "residual_px", "eigenvalue_gap",
+_DIAG_ORDER = ("false_positives", "saturated_px", "bp_error_px", "residual_px", "eigenvalue_gap",
                "predicted_gap", "pose_split_deg", "predicted_pose_deg", "rho", "bp_distance_mm",
                "k1_per_mm", "k2_per_mm", "iso_radius_mm")
 
 _DIAG_TEXT = {
     "false_positives": "false positives per image (detections farther than match_px from every "
                        "true BP)",
+    "saturated_px": "pixels at the sensor's full scale per image (clipped)",
     "bp_error_px": "distance from the detected to the true BP, px",
     "residual_px": "ellipse fit residual, px",
     "eigenvalue_gap": "measured eigenvalue gap (l1 - l2) / (l1 - l3) of C' (0: right circular cone)",
