@@ -26,6 +26,10 @@ __all__ = ["PAPER_CHECKS", "CLAIMS", "ALARM_DEG", "evaluate_paper_claim", "evalu
 #: A family's median error above this (degrees) is alarming: the report must say why.
 ALARM_DEG = 10.0
 
+#: A paper-protocol case at theta = 0 whose oracle error exceeds this many times its family's
+#: median is explained as the fronto-parallel breakdown.
+THETA0_FACTOR = 3.0
+
 #: Families of the rendered protocol whose geometry is an analytic quadric (exact curvature).
 ANALYTIC = ("plane", "sphere", "cylinder", "saddle")
 
@@ -419,7 +423,9 @@ def explanations(results: dict) -> list[dict]:
     -------
     list of dict
         ``{"family", "estimator", "median", "text"}`` for every cell whose pooled median exceeds
-        :data:`ALARM_DEG`; ``text`` is None where no rule explains it (the report says so).
+        :data:`ALARM_DEG`, and for the paper protocol's oracle at theta = 0 when it exceeds
+        :data:`THETA0_FACTOR` times its family median; ``text`` is None where no rule explains
+        it (the report says so).
     """
     out = []
     for fam, f in results.get("families", {}).items():
@@ -429,4 +435,14 @@ def explanations(results: dict) -> list[dict]:
             text = (_explain_paper(results, est) if f["protocol"] == "paper"
                     else _explain_rendered(results, fam, est))
             out.append({"family": fam, "estimator": est, "median": m["median"], "text": text})
+    # The paper protocol's fronto-parallel breakdown: the oracle's error at theta = 0 stands out
+    # of its family (THETA0_FACTOR x the family median) even when it stays below ALARM_DEG.
+    fam = results.get("families", {}).get("paper protocol", {})
+    fmed = (fam.get("estimators", {}).get("paper_oracle") or {}).get("median")
+    z = [c for c in _paper_theta_cases(results) if c["params"]["theta_deg"] == 0
+         and _stat(c, "paper_oracle", "mean") is not None]
+    if fmed and z and max(_stat(c, "paper_oracle", "mean") for c in z) > THETA0_FACTOR * fmed:
+        out.append({"family": "paper protocol at theta = 0", "estimator": "paper_oracle",
+                    "median": max(_stat(c, "paper_oracle") or 0.0 for c in z),
+                    "text": _explain_paper(results, "paper_oracle")})
     return out

@@ -154,7 +154,8 @@ def summary_markdown(results: dict) -> list[str]:
         L.append("")
     expl = explanations(results)
     if expl:
-        L += [f"### Why some rows are alarming (family median above {ALARM_DEG:g} deg)", ""]
+        L += [f"### Why some rows are alarming (family median above {ALARM_DEG:g} deg, or a "
+              "case far above its family)", ""]
         for x in expl:
             L.append(f"- {x['family']}, `{x['estimator']}` (median {fmt(x['median'])} deg): "
                      + (x["text"] if x["text"] else "no rule of the report explains it; see the "
