@@ -192,22 +192,23 @@ def _rho_figure(results: dict):
         mk = _FAMILY_MARKERS[i % len(_FAMILY_MARKERS)]
         fc = [c for c in cases if c.get("family") == fam]
         d = [c["metrics"]["diagnostics"] for c in fc]
-        concave = np.array([(x.get("k1_per_mm") or 0) <= 0 and (x.get("k2_per_mm") or 0) < 0
-                            for x in d])
+        k1 = np.array([_val(x, "k1_per_mm") for x in d])
+        k2 = np.array([_val(x, "k2_per_mm") for x in d])
+        kind = np.where(k2 >= 0, "convex", np.where(k1 > 0, "saddle", "concave"))
         pg = np.array([_val(x, "predicted_gap") for x in d])
         mg = np.array([_val(x, "eigenvalue_gap") for x in d])
         pp = np.array([_val(x, "predicted_pose_deg") for x in d])
-        for sel, fill in ((~concave, True), (concave, False)):
+        for shape, fill in (("convex", "full"), ("saddle", "left"), ("concave", "none")):
+            sel = kind == shape
             if not sel.any():
                 continue
-            lab = f"{fam} ({'convex or saddle' if fill else 'concave'})"
-            a1.plot(pg[sel], mg[sel], mk, ms=7, color=f"C{i}", mfc=f"C{i}" if fill else "white",
-                    label=lab, ls="none")
+            a1.plot(pg[sel], mg[sel], mk, ms=7, color=f"C{i}", fillstyle=fill,
+                    label=f"{fam} ({shape})", ls="none")
             for j, e in enumerate(ests):
                 me = np.array([_val(c["metrics"]["estimators"].get(e, {}), "mean") for c in fc])
                 a2.plot(pp[sel], me[sel], mk, ms=7 if j == 0 else 4, color=f"C{i}",
-                        mfc=(f"C{i}" if fill else "white") if j == 0 else "none",
-                        ls="none", alpha=1.0 if j == 0 else 0.6)
+                        fillstyle=fill if j == 0 else "none", ls="none",
+                        alpha=1.0 if j == 0 else 0.6)
     a1.plot([0, 1], [0, 1], "k--", lw=1, label="measured = predicted")
     a1.set_xlim(-0.03, 1.03)
     a1.set_ylim(-0.03, 1.03)
@@ -224,7 +225,8 @@ def _rho_figure(results: dict):
     a2.grid(True, alpha=0.3)
     fig.legend(*a1.get_legend_handles_labels(), loc="outside lower center",
                ncols=min(3, len(fams) * 2 + 1), fontsize=8,
-               title="rho = |1 + k2 d| / |1 + k1 d|; filled: convex or saddle, hollow: concave",
+               title="rho = |1 + k2 d| / |1 + k1 d| (case means of k1 >= k2 at the BP): filled "
+                     "convex (k2 >= 0), half saddle (k1 > 0 > k2), hollow concave (k1 <= 0)",
                title_fontsize=8)
     return fig
 
