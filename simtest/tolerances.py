@@ -94,6 +94,12 @@ class Tolerances:
         asin(sqrt(1 - rho^2)), analytic quadric scenes) for the claim to hold: 3 deg, the floor
         that a fitted gap of 1e-3 already costs on a plane (asin(sqrt(1e-3)) = 1.8 deg) plus the
         spread of that floor over realisations.
+    small_isophote_gap_abs : float
+        Agreement between the eigenvalue gap of an exact isophote cone on a curved patch, at a
+        cone half-angle gamma_0 = 0.1 deg, and its small-isophote limit 1 - rho^2
+        (:func:`simtest.geometry.curvature.predicted_eigenvalue_gap`): 1e-4. The limit drops terms of order
+        gamma_0^2 / (1 + k d)^2, at most 16 gamma_0^2 = 4.9e-5 where |1 + k d| >= 0.25 (measured:
+        up to 5.5e-5 over 300 random patches, curvatures -0.05 to 0.2 /mm at 10 to 50 mm).
     """
 
     conic_degenerate_rel: float = 1e-12
@@ -112,6 +118,7 @@ class Tolerances:
     claim_cone_axis_plane_deg: float = 0.05
     claim_rho_gap_abs: float = 0.02
     claim_rho_pose_deg: float = 3.0
+    small_isophote_gap_abs: float = 1e-4
 
 
 #: The project's tolerance table.

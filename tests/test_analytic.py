@@ -60,7 +60,7 @@ def test_offset_light_bp_bisects_directions():
 
 def test_isophote_of_analytic_image_is_the_projected_circle():
     # The t-isophote of the closed-form image lies on the projected circle of radius r- (Prop. 2),
-    # and its cone axis is the normal (DESIGN.md 1.2).
+    # and its cone axis is the normal (Notes of simtest.geometry.conics.cone_axis).
     K = np.array([[150.0, 0, 150.5], [0, 150.0, 150.5], [0, 0, 1]])
     N = tilted_normal(35.0)
     d, n, t = 40.0, 50.0, 0.1

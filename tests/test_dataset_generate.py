@@ -86,7 +86,7 @@ def test_reference_dataset_verifies_with_every_family(reference, config_path):
     for r in rows:
         assert r["image_size"] == [32, 32]
         K = np.asarray(r["K"])
-        assert K[0, 2] == K[1, 2] == 32 / 2 - 0.5  # DESIGN.md: M/2 - 0.5
+        assert K[0, 2] == K[1, 2] == 32 / 2 - 0.5  # README Conventions: M/2 - 0.5
         for h in r["highlights"]:
             assert [iso["t"] for iso in h["isophotes"]] == [0.1, 0.5]
             assert h["k1"] >= h["k2"]

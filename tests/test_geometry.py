@@ -1,4 +1,4 @@
-"""Exact geometric truths of conics, circle pose and the cone axis (DESIGN.md 1.2)."""
+"""Exact geometric truths of conics, circle pose and the cone axis (Notes of simtest.geometry.conics.cone_axis)."""
 
 from __future__ import annotations
 
@@ -57,7 +57,7 @@ def test_circle_pose_exact_conic_gives_true_normal(seed):
 @settings(max_examples=40, deadline=None)
 def test_co_located_circle_gives_right_cone_with_normal_axis(seed):
     # A circle centred on the foot of the perpendicular from the camera: the cone is right circular
-    # and its axis is the plane normal (DESIGN.md 1.2).
+    # and its axis is the plane normal (Notes of cone_axis).
     rng = np.random.default_rng(np.random.SeedSequence([99, seed]))
     tilt = np.radians(rng.uniform(0, 60))
     az = rng.uniform(0, 2 * np.pi)

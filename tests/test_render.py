@@ -170,7 +170,7 @@ def test_highlight_truth_plane_and_offset_light():
     r = render_scene(spec)
     (h,) = r.highlights
     assert h.in_frame and (h.k1, h.k2) == (0.0, 0.0)
-    # Co-located: the BP normal is minus the viewing ray through the BP pixel (Notes of simtest.simulate.analytic.curvature_ratio).
+    # Co-located: the BP normal is minus the viewing ray through the BP pixel (Notes of simtest.geometry.curvature.curvature_ratio).
     assert angle_between_deg(h.normal, -pixel_to_ray(h.bp_px, r.K)) < 1e-9
     assert angle_between_deg(h.normal, plane_normal_cam(spec.geometry)) < 1e-9
     # The rendered image peaks within a pixel of the BP.

@@ -37,7 +37,7 @@ def test_cone_axis_of_rendered_plane_gives_the_normal(tmp_path, tilt_deg, fov_de
     iso = estimates[0].isophotes[0]
     angle_deg = angle_between_deg(iso.cone_axis, truth["normal"])
     # Co-located light on a plane: the t = 0.1 isophote is a right circular cone about the normal
-    # (DESIGN fact 2). Measured ~0.001 to 0.005 deg at 200 px; the bound is 0.2 deg.
+    # (Notes of simtest.geometry.conics.cone_axis). Measured ~0.001 to 0.005 deg at 200 px; the bound is 0.2 deg.
     assert angle_deg < 0.2
     # The detected BP is the true one within a pixel.
     assert np.hypot(*(np.asarray(estimates[0].bp_px) - truth["bp_px"])) < 1.0

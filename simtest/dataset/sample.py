@@ -15,8 +15,8 @@ distance ``V_Z = -N . X_bp`` from the camera centre; the isophote of level ``t``
 Phong peak, so ``c = 1``) is the circle of radius ``r_-`` (paper Prop. 2,
 :func:`simtest.specular.isophote_radius`) centred on the foot of the perpendicular from the camera
 centre, ``F = (N . X_bp) N``, and its image is :func:`simtest.geometry.conics.project_circle`.
-This is exact for a plane lit by a co-located light with the 1/d^2 falloff cancelled (DESIGN.md 1.2;
-then ``F = X_bp``). On curved surfaces it is the first-order (osculating-plane) model the method
+This is exact for a plane lit by a co-located light with the 1/d^2 falloff cancelled (Notes of
+:func:`simtest.geometry.conics.cone_axis`; then ``F = X_bp``). On curved surfaces it is the first-order (osculating-plane) model the method
 under test assumes; with a light offset or the falloff kept it is only an approximation.
 """
 

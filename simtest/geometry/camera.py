@@ -121,7 +121,7 @@ def bp_ray_normal(bp_uv, K) -> np.ndarray:
     """The ``bp_ray`` estimator: minus the unit viewing ray through the brightest point.
 
     With an exactly co-located light the BP is where the surface normal is parallel to the viewing
-    ray, whatever the curvature (DESIGN.md 1.4), so this is the normal at the BP. It is biased when
+    ray, whatever the curvature (Notes of :func:`simtest.geometry.curvature.curvature_ratio`), so this is the normal at the BP. It is biased when
     the BP is saturated or the light is offset.
 
     Parameters

@@ -10,8 +10,10 @@ the curve. All 3D quantities are in the OpenCV camera frame (x right, y down, z 
 normals are unit vectors facing the camera (``n . ray < 0``, so ``n_z < 0`` for a surface in front).
 
 For a circle seen by a camera whose point light is co-located with it, the cone is a *right*
-circular cone whose axis is the plane normal (DESIGN.md 1.2): C' then has a double eigenvalue,
-both circle-pose normals coincide with the cone axis, and there is no two-fold ambiguity.
+circular cone whose axis is the plane normal (derivation in the Notes of :func:`cone_axis`): C'
+then has a double eigenvalue, both circle-pose normals coincide with the cone axis, and there is no
+two-fold ambiguity. How badly the circle pose is conditioned near that case is in the Notes of
+:func:`circle_pose`.
 
 References
 ----------
@@ -369,9 +371,9 @@ def _toward_camera(n: np.ndarray) -> np.ndarray:
 def cone_axis(Cn) -> ConeAxis:
     """Axis of the cone C' (eigenvector of the unique-sign eigenvalue) and the eigenvalue gap.
 
-    This is the ``cone_axis`` estimator of DESIGN.md section 2: for a co-located light and a plane
-    the cone is right circular and its axis is the plane normal (DESIGN.md 1.2). The public MATLAB
-    code dam410/LightModel takes the same eigenvector in its co-located branch.
+    This is the ``cone_axis`` estimator: for a co-located light and a plane the cone is right
+    circular and its axis is the plane normal (Notes). The public MATLAB code dam410/LightModel
+    takes the same eigenvector in its co-located branch (``vanishing_line_paper_co``).
 
     Parameters
     ----------
@@ -386,6 +388,32 @@ def cone_axis(Cn) -> ConeAxis:
     ------
     ValueError
         If C' is not a real elliptic cone (hyperbola, degenerate or imaginary image conic).
+
+    Notes
+    -----
+    *The co-located right cone.* Let the plane be ``n . X = -h`` (``h > 0`` its distance to the
+    camera centre O, ``n`` the unit normal facing the camera) and the point light at O. Phong's
+    intensity (paper eq. 1) is ``I = c max(0, cos beta)^n_s`` with ``beta`` the angle between the
+    direction to the viewer and the mirror direction of the light. For the ray of unit direction
+    ``d`` hitting X, the light arrives along ``d``, leaves along ``r = d - 2 (d . n) n`` and the
+    viewer is in direction ``-d``, so ``cos beta = r . (-d) = 2 (d . n)^2 - 1 = cos 2 gamma`` with
+    ``gamma`` the angle between ``-d`` and ``n``. The intensity depends on ``gamma`` only: the
+    isophote ``I = t c`` is the set of rays at the fixed angle ``gamma_0`` from ``-n``, with
+    ``cos 2 gamma_0 = t^(1/n_s)``. Those rays form a right circular cone of axis ``n`` (it cuts the
+    plane in a circle centred on the foot of the perpendicular ``-h n``, paper Props. 1 and 2 with
+    the light at the camera). In normalised camera coordinates ``X = K^-1 x`` the cone is
+    ``(n . X)^2 = cos^2 gamma_0 |X|^2``, i.e. ``C' ~ cos^2 gamma_0 I - n n^T``: eigenvalues
+    ``cos^2 gamma_0`` (twice, any direction orthogonal to ``n``) and ``cos^2 gamma_0 - 1 < 0`` (the
+    unique sign, eigenvector ``n``). So the eigenvector of the unique-sign eigenvalue is the plane
+    normal and the eigenvalue gap ``(l1 - l2) / (l1 - l3)`` is 0; a gap above 0 measures how far
+    the fitted ellipse is from this model (noise, curvature, light offset).
+
+    References
+    ----------
+    .. [1] K. Makki, A. Bartoli, "Normal Reconstruction from Specularity in the Endoscopic
+           Setting", eq. 1 and Props. 1-2.
+    .. [2] B. T. Phong, "Illumination for computer generated pictures", Commun. ACM 18(6), 1975.
+           https://doi.org/10.1145/360825.360839
     """
     w, V = _cone_eigen(Cn)
     gap = float((w[0] - w[1]) / (w[0] - w[2]))
@@ -415,6 +443,19 @@ def circle_pose(Cn) -> CirclePose:
     ------
     ValueError
         If C' is not a real elliptic cone.
+
+    Notes
+    -----
+    *Conditioning near a right cone.* ``sin^2 phi = (l1 - l2) / (l1 - l3)`` is the eigenvalue gap
+    ``g`` of :func:`cone_axis`, so N+ and N- leave the cone axis ``e3`` by ``asin(sqrt(g))`` each
+    and make ``2 asin(sqrt(g))`` with each other. The square root makes the circle pose badly
+    conditioned near a right cone: ``d phi / d g = 1 / (2 sqrt(g (1 - g)))`` is unbounded as
+    ``g -> 0``. On a plane lit from the camera the true cone is right (``g = 0``, Notes of
+    :func:`cone_axis`), so a fitted gap of ``1e-4`` (a small fit error) already moves N+ and N-
+    by 0.57 deg and ``1e-3`` by 1.8 deg, while the cone axis, the eigenvector of the well
+    separated eigenvalue ``l3``, moves only in proportion to the error of C'. On a curved surface
+    the gap is not a fit error but ``1 - rho^2`` (:func:`simtest.geometry.curvature.curvature_ratio`):
+    then N+ and N- err by ``acos(rho)`` whatever the fit.
     """
     w, V = _cone_eigen(Cn)
     l1, l2, l3 = w

@@ -5,7 +5,8 @@ a :class:`simtest.reconstruct` ``SpecularityEstimate`` (camera frame, unit, faci
 ``truth`` is only used by the oracle. Scoring (:func:`score`) turns the normal into an angular
 error in degrees against the ground truth (``atan2(|a x b|, a . b)``), or a failure cause.
 
-Estimators (DESIGN.md section 2):
+Estimators (derivations in the Notes of :func:`simtest.geometry.conics.cone_axis` and
+:func:`simtest.geometry.conics.circle_pose`):
 - ``paper_oracle``: the one of the two circle-pose normals N+- closest to the truth (the paper's
   reporting, an oracle choice).
 - ``paper_selected``: the N+- that the reconstruction's non-oracle rule selects.

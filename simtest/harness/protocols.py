@@ -141,7 +141,10 @@ def _extras(est) -> dict:
 
 
 def _dimensionless_curvature(est, h, K) -> dict:
-    """Isophote radius and curvature x radius at a rendered BP (DESIGN.md 1.4).
+    """Isophote radius and curvature x radius at a rendered BP.
+
+    What governs the circle-pose error is the curvature ratio rho, not these sizes
+    (:func:`simtest.geometry.curvature.curvature_ratio`); they are reported as diagnostics.
 
     The isophote radius on the surface is estimated from the fitted ellipse:
     ``r = sqrt(a b) d cos(phi)^1.5 / f`` with ``d`` the distance to the BP and ``phi`` its angle
@@ -338,7 +341,7 @@ class RenderedRunner:
         list of dict
             One row per in-frame highlight (see the module docstring), or one row failing with
             ``"no_highlight_in_frame"`` if there is none. Extras hold the BP error (px), the
-            principal curvatures at the BP (1/mm) and the dimensionless curvature (DESIGN.md 1.4).
+            principal curvatures at the BP (1/mm) and the dimensionless curvature.
         """
 
         seed = int(seedseq.generate_state(1, np.uint32)[0]) & 0x7FFFFFFF

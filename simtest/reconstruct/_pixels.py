@@ -1,6 +1,6 @@
 """Pixel-coordinate conventions of the reconstruction package, in one place.
 
-Convention (DESIGN.md section 3): an array index ``(row, col)`` is the pixel ``(u, v) = (col, row)``,
+Convention (the README's Conventions): an array index ``(row, col)`` is the pixel ``(u, v) = (col, row)``,
 with pixel centres at integer coordinates, as :func:`skimage.measure.find_contours` and OpenCV use.
 Worked number: the pixel ``image[10, 20]`` is centred at ``(u, v) = (20, 10)``.
 

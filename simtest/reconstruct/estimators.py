@@ -1,4 +1,4 @@
-"""Normal estimators from one or several isophote conics (DESIGN.md section 2).
+"""Normal estimators from one or several isophote conics.
 
 - ``paper``: the two circle-pose normals N+ and N- of one isophote ellipse (Makki and Bartoli,
   step four; Forsyth et al. 1991 appendix A), and a *non-oracle* choice between them.
@@ -16,7 +16,7 @@ N+ and N- are ``+-sin(phi) e1 + cos(phi) e3`` in the eigenbasis of C' (``simtest
 circle_pose``): both make the *same* angle phi with the cone axis e3, so "the one closer to the cone
 axis" is a tie by construction and cannot choose. The rule used here picks the one closer to the
 BP-ray normal: with a co-located light the BP ray is parallel to the normal at the BP
-(DESIGN.md 1.4), so the BP ray is an unbiased (if noisy) reference that is independent of the
+(whatever the curvature: the Notes of :func:`simtest.geometry.curvature.curvature_ratio`), so the BP ray is an unbiased (if noisy) reference that is independent of the
 conic. Ties (N+ = N-, a right circular cone) return N+.
 
 Joint cone axis

@@ -1,7 +1,8 @@
 """Ground truth per highlight: the brightest point (BP) of each specularity, numpy only.
 
 The BP is where the surface normal bisects the directions to the camera (at the origin) and to the
-light L (DESIGN.md section 1, facts 4 and 5): ``n(p) = h(p) = unit(unit(-p) + unit(L - p))``. With a
+light L (Phong's lobe peaks where the mirror direction of the light points at the camera; Notes of
+:func:`simtest.simulate.analytic.plane_bp`): ``n(p) = h(p) = unit(unit(-p) + unit(L - p))``. With a
 co-located light it is where the normal is parallel to the viewing ray.
 
 - Plane: mirror the light in the plane; the BP is where the segment from the camera to the mirror
@@ -108,7 +109,8 @@ def bisector(p: np.ndarray, light: np.ndarray) -> np.ndarray:
     """Unit bisector of the directions from surface points to the camera and to the light.
 
     ``h(p) = unit(unit(-p) + unit(L - p))``, the camera at the origin; a surface point is a BP when
-    its normal equals ``h`` (DESIGN.md 1.4 and 1.5; with a co-located light ``h = unit(-p)``).
+    its normal equals ``h`` (Notes of :func:`simtest.simulate.analytic.plane_bp`; with a co-located
+    light ``h = unit(-p)``).
 
     Parameters
     ----------
@@ -131,7 +133,7 @@ def bisector_cos_image(normals: np.ndarray, position: np.ndarray, mask: np.ndarr
                        light: np.ndarray) -> np.ndarray:
     """Cosine between each pixel's normal and its bisector, ``n . h(p)``, in float32.
 
-    The BP condition of DESIGN.md 1.4/1.5 holds where this is 1; :func:`mesh_highlights` starts its
+    The BP condition (the normal equals the bisector, :func:`bisector`) holds where this is 1; :func:`mesh_highlights` starts its
     searches at its local maxima. Float32 like the render's AOVs; the co-located branch skips the
     light arithmetic and gives the general formula's bits (tested).
 
@@ -183,7 +185,7 @@ def plane_highlight(normal: np.ndarray, distance_mm: float, light: np.ndarray, K
 
     The BP is where the segment from the camera centre to the mirror image ``L'`` of the light
     crosses the plane (closed form; there the normal bisects the directions to the camera and the
-    light, DESIGN.md 1.4/1.5): :func:`simtest.simulate.analytic.plane_bp`. With a co-located light
+    light): :func:`simtest.simulate.analytic.plane_bp`. With a co-located light
     it is the foot of the perpendicular from the camera centre.
 
     Parameters
@@ -270,7 +272,7 @@ def sphere_highlight(center: np.ndarray, radius: float, light: np.ndarray, K: np
 
     Co-located light (``light`` all zeros): the point of the sphere nearest the camera centre,
     closed form. Otherwise the point where the outward normal bisects the directions to the camera
-    and the light (DESIGN.md 1.4/1.5), solved with :func:`scipy.optimize.root` (hybr) in a tangent
+    and the light (:func:`bisector`), solved with :func:`scipy.optimize.root` (hybr) in a tangent
     parametrisation around the nearest point and checked (see :data:`STATIONARY_RESIDUAL_TOL`).
 
     Parameters
@@ -320,7 +322,7 @@ def cylinder_highlight(center: np.ndarray, axis: np.ndarray, radius: float, leng
 
     Co-located light: the point of the generator line nearest the camera centre, closed form.
     Otherwise the point where the outward normal bisects the directions to the camera and the light
-    (DESIGN.md 1.4/1.5), solved with :func:`scipy.optimize.root` over (position along the axis,
+    (:func:`bisector`), solved with :func:`scipy.optimize.root` over (position along the axis,
     angle around it) and checked (see :data:`STATIONARY_RESIDUAL_TOL`).
 
     Parameters
@@ -399,7 +401,7 @@ def mesh_highlights(
     """BPs of a triangle mesh with interpolated vertex normals, from a render's ground truth.
 
     A BP is where the shading normal bisects the directions to the camera and the light
-    (DESIGN.md 1.4/1.5). Candidates are the local maxima of :func:`bisector_cos_image` above
+    (:func:`bisector`). Candidates are the local maxima of :func:`bisector_cos_image` above
     ``cos(candidate_deg)``; each is refined by casting 7 x 7 sub-pixel grids of rays 16 times
     (the step shrinks by 3 each time, to ~1e-7 px) and kept if its normal is within ``accept_deg``
     of the bisector.

@@ -202,6 +202,23 @@ class MaterialSpec:
         Walter et al. [3] match a Blinn-Phong exponent ``n_h`` (of the half-vector angle) with
         ``alpha = sqrt(2 / (n_h + 2))``; the paper's lobe is in the mirror-direction angle beta,
         which near the peak is twice the half-vector angle, so ``n_h ~ 4 n``.
+
+        Notes
+        -----
+        *The microfacet mapping.* Let ``theta_h`` be the angle between the normal and the half
+        vector of the directions to the light and to the viewer. With a co-located light both
+        directions are the view direction, so the half vector is the view direction and the mirror
+        angle of Phong's lobe (paper eq. 1) is ``beta = 2 theta_h``. Near the peak
+        ``cos(2 theta_h)^n ~ exp(-2 n theta_h^2)`` and a Blinn lobe ``cos(theta_h)^m ~
+        exp(-m theta_h^2 / 2)``, so ``m = 4 n``; Walter et al.'s Blinn-to-Beckmann conversion
+        ``alpha = sqrt(2 / (m + 2))`` gives ``alpha = sqrt(2 / (4 n + 2))``. The rendered lobe
+        also carries Beckmann's ``1 / cos^4 theta_h``, the BSDF's ``1 / (4 cos theta_i cos
+        theta_o)`` and the foreshortening ``cos theta_i``, with ``theta_i = theta_o = theta_h``
+        here: a factor ``1 / cos^5 theta_h ~ exp(5 theta_h^2 / 2)``. So the lobe is
+        ``exp(-theta_h^2 (4 n + 2) / 2 + 5 theta_h^2 / 2) = exp(-2 (n - 0.75) theta_h^2)``: this
+        alpha matches a Phong exponent of ``n - 0.75`` to leading order, and
+        ``alpha^2 = 2 / (4 n + 5)`` would match ``n``. Keep the peak below the sensor's saturation when sweeping alpha (a
+        clipped peak measures the clipping, not the lobe).
         """
         if self.alpha is not None:
             return float(self.alpha)

@@ -62,6 +62,20 @@ def plane_bp(normal, distance_mm: float, light_mm=(0.0, 0.0, 0.0)) -> np.ndarray
     ------
     ValueError
         If the light is not on the camera's side of the plane.
+
+    Notes
+    -----
+    *Light-offset geometry.* Phong's lobe (paper eq. 1) peaks where the mirror direction of the
+    light points at the camera, i.e. where the normal bisects the unit directions to the camera and
+    to the light: ``N = unit(unit(-X) + unit(L - X))``. On the plane ``n . X = -h`` the mirror
+    image of the light is ``L' = L - 2 (n . L + h) n``; a ray from ``L'`` through X reflects at X
+    into the ray from X to L, so the BP is where the segment from the camera centre to ``L'`` meets
+    the plane: ``X = s L'`` with ``s = -h / (n . L')``. With ``L = 0`` this is the foot of the
+    perpendicular ``-h n`` and the BP ray is the normal. With an offset the BP ray leaves the normal
+    by about half the angle the offset subtends at the BP, ``~ |L_perp| / (2 d)`` rad for an offset
+    ``L_perp`` across the ray at distance ``d``; the cone axis follows the BP ray. Since the image
+    then depends on ``L / d``, a known offset makes the distance observable (paper eq. 2 is the
+    isocurve for any light and viewer).
     """
     n = _plane(normal, distance_mm)
     L = np.asarray(light_mm, dtype=np.float64).reshape(3)
@@ -267,7 +281,9 @@ def phong_cylinder_image(K, shape, point_mm, axis, radius_mm: float, n: float, c
 def sphere_bp(centre_mm, radius_mm: float) -> tuple[np.ndarray, np.ndarray]:
     """BP and normal of a sphere under a co-located light: the point nearest the camera.
 
-    There the normal is parallel to the viewing ray (DESIGN.md 1.4).
+    There the normal is parallel to the viewing ray: with the light at the camera, the BP of any
+    surface is where the normal is parallel to the viewing ray (``gamma = 0`` in the Notes of
+    :func:`simtest.geometry.conics.cone_axis`, where ``cos beta = cos 2 gamma`` is largest).
 
     Returns
     -------

@@ -26,8 +26,9 @@ Stage 1 of the published pipeline, reproduced step by step:
    (``cv2.GaussianBlur``, kernel of +-4 sigma for float images, reflected border; the paper does not
    state the width), then division by the smoothed intensity at the BP pixel so that the BP is 1.
 
-The camera of step 2 is **not** the viewer of step 1 when ``theta != 0`` (DESIGN.md section 1.3):
-this is the published protocol, kept for reproducing figure 3, not a co-located endoscope. The
+The camera of step 2 is **not** the viewer of step 1 when ``theta != 0`` (a camera that
+carries its light would see the BP ``theta`` off its optical axis instead; 58 deg needs a field of
+view over 116 deg): this is the published protocol, kept for reproducing figure 3, not a co-located endoscope. The
 ground-truth normal is the plane normal in the frame of that slanted camera (OpenCV frame, facing
 the camera): ``(0, sin theta, -cos theta)``. One of the circle-pose normals N+- is exact for a
 noiseless isophote circle; the cone axis and the BP ray are not (the BP ray is off by ``theta``).
@@ -62,7 +63,7 @@ __all__ = ["PaperParams", "PaperSample", "PaperSimulator", "simulate_paper", "pa
 
 @dataclass(frozen=True)
 class PaperParams:
-    """Parameters of the ``paper`` protocol; the defaults are the paper's (DESIGN.md section 6).
+    """Parameters of the ``paper`` protocol; the defaults are the paper's (its figure 3).
 
     Attributes
     ----------
