@@ -211,6 +211,20 @@ def test_bench_measures_throughput_and_worker_memory():
         assert 20 < r["peak_rss_mib"] < 4096  # a Python process with Mitsuba: tens to hundreds of MiB
 
 
+def test_bench_stages_split_the_cost_and_restore_the_thread_count():
+    import drjit as dr
+
+    from simtest.dataset.bench import stages
+
+    before = dr.thread_count()
+    st = stages("colon", count=2, seed=5, resolution_px=24, spp=2, warmup=1)
+    assert dr.thread_count() == before
+    parts = [st[k] for k in ("render", "truth", "encode", "write")]
+    assert all(p > 0 for p in parts), st  # each stage was reached and timed
+    assert st["total"] == pytest.approx(sum(parts))
+    assert st["count"] == 2 and st["wall_ms"] > 0
+
+
 _THREADS_SCRIPT = """
 import hashlib, json, sys
 from simtest._llvm import configure_llvm_env
