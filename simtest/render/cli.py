@@ -13,7 +13,14 @@ from typing import Optional
 import typer
 from rich.console import Console
 
-from simtest.render.render import RendererUnavailable, render_scene, write_render
+from simtest.render.render import (
+    OutputFolderError,
+    RendererUnavailable,
+    RenderInputError,
+    check_output_folder,
+    render_scene,
+    write_render,
+)
 from simtest.render.truth import HighlightTruthError
 from simtest.scene.spec import RENDER_VARIANTS, SceneError, load_scene
 
@@ -38,11 +45,12 @@ def render_command(
         None, "--variant", help="Mitsuba variant: auto, llvm_ad_rgb, cuda_ad_rgb (default: the scene's)."),
 ) -> None:
     """Render SCENE and write image.png, intrinsics.json, ground_truth.npz and highlights.json."""
-
     if variant is not None and variant not in RENDER_VARIANTS:
         raise _fail(f"--variant: {variant!r} is not one of {', '.join(RENDER_VARIANTS)}")
-    if out.exists() and not out.is_dir():
-        raise _fail(f"--out: {out} is a file, not a folder")
+    try:
+        check_output_folder(out)
+    except OutputFolderError as exc:
+        raise _fail(f"--out: {exc}") from None
     try:
         spec = load_scene(scene)
     except SceneError as exc:
@@ -55,8 +63,12 @@ def render_command(
         raise _fail(str(exc), code=1) from None
     except HighlightTruthError as exc:
         raise _fail(f"{spec.source or scene}: geometry: {exc}") from None
+    except RenderInputError as exc:
+        raise _fail(str(exc)) from None
     try:
         paths = write_render(result, out)
+    except OutputFolderError as exc:
+        raise _fail(f"--out: {exc}") from None
     except OSError as exc:
         raise _fail(f"--out: cannot write the render to {out}: {exc}") from None
     H, W = result.linear.shape

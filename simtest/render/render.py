@@ -17,8 +17,12 @@ through :func:`simtest._lazy.require`; the Mitsuba plugins (:mod:`simtest.render
 
 from __future__ import annotations
 
+import fcntl
 import json
 import os
+import resource
+import shutil
+import tempfile
 import threading
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -56,10 +60,15 @@ __all__ = [
     "MAX_SEED",
     "RenderResult",
     "RendererUnavailable",
+    "RenderInputError",
+    "check_film_fits",
+    "visible_highlights",
     "choose_variant",
     "render_scene",
     "write_render",
     "saddle_mesh",
+    "RENDER_FILES",
+    "OutputFolderError",
 ]
 
 
@@ -70,6 +79,68 @@ MAX_SEED = 2**31 - 1
 
 class RendererUnavailable(RuntimeError):
     """Mitsuba cannot run the requested variant here (no LLVM / no GPU); the message names a fix."""
+
+
+class RenderInputError(ValueError):
+    """A scene cannot be rendered as given: a bad mesh file or a film too large for memory.
+
+    The message names the file or key and the value, for a one-line error.
+    """
+
+
+#: Bytes of memory one film pixel needs during a render, whatever the spp: Mitsuba's LLVM
+#: variant renders the samples of a pixel in a loop, so its peak grows with the film only
+#: (measured on a plane: 818 MB at 2048^2 against 312 MB at 1024^2, about 160 B/px, at 4 and 16
+#: spp alike), plus the float32 images and ground-truth maps the renderer keeps (about 90 B/px)
+#: and the compressed copy written to disk; 400 B/px leaves a margin for other shapes.
+BYTES_PER_PIXEL = 400
+#: Memory a render needs besides its film (the Mitsuba/LLVM runtime, measured ~300 MB).
+BASE_BYTES = 512 * 2**20
+
+
+def available_memory_bytes() -> int | None:
+    """Memory a new allocation can get: MemAvailable, capped by RLIMIT_AS / RLIMIT_DATA.
+
+    Returns None when neither is known (not Linux and no limit).
+    """
+    avail: int | None = None
+    try:
+        with open("/proc/meminfo", encoding="ascii") as fh:
+            for line in fh:
+                if line.startswith("MemAvailable:"):
+                    avail = int(line.split()[1]) * 1024
+                    break
+    except OSError:
+        avail = None
+    for lim in (resource.RLIMIT_AS, resource.RLIMIT_DATA):
+        soft, _ = resource.getrlimit(lim)
+        if soft != resource.RLIM_INFINITY:
+            used = 0
+            if lim == resource.RLIMIT_AS:
+                try:
+                    with open("/proc/self/statm", encoding="ascii") as fh:
+                        used = int(fh.read().split()[0]) * os.sysconf("SC_PAGE_SIZE")
+                except OSError:
+                    used = 0
+            room = max(int(soft) - used, 0)
+            avail = room if avail is None else min(avail, room)
+    return avail
+
+
+def check_film_fits(spec: SceneSpec) -> None:
+    """Raise :class:`RenderInputError` if the film of ``spec`` would not fit in memory.
+
+    The need is estimated as ``BASE_BYTES + BYTES_PER_PIXEL * W * H`` (see
+    :data:`BYTES_PER_PIXEL`), so that a render too large is refused with a message instead of
+    being killed or crashing inside Mitsuba.
+    """
+    W, H = spec.camera.width_px, spec.camera.height_px
+    need = BASE_BYTES + BYTES_PER_PIXEL * W * H
+    avail = available_memory_bytes()
+    if avail is not None and need > avail:
+        raise RenderInputError(
+            f"{spec.source}: camera.width_px x camera.height_px: a {W} x {H} render needs about "
+            f"{need / 2**30:.1f} GiB of memory, more than the {avail / 2**30:.1f} GiB available")
 
 
 @dataclass(frozen=True)
@@ -310,11 +381,26 @@ def _mesh_in_scene(spec: SceneSpec) -> dict[str, np.ndarray]:
                            geo.extent_mm if geo.extent_mm is not None else geo.distance_mm,
                            geo.resolution if geo.resolution is not None else 129)
     else:
-        mesh = _load_mesh_file(geo.path)
+        from simtest.scene.meshes import MeshError
+
+        try:
+            mesh = _load_mesh_file(geo.path)
+        except MeshError as exc:
+            raise RenderInputError(f"{spec.source}: geometry.path: {exc}") from None
+        except Exception as exc:  # noqa: BLE001 - trimesh's PLY reader raises assorted types
+            raise RenderInputError(f"{spec.source}: geometry.path: {geo.path}: not a mesh simtest "
+                                   f"can read ({type(exc).__name__}: {exc})") from None
         attrs = mesh.vertex_attributes
+        faces = np.asarray(mesh.faces)
+        nv = len(mesh.vertices)
+        if faces.size and (faces.min() < 0 or faces.max() >= nv):
+            bad = int(np.argmax(np.any((faces < 0) | (faces >= nv), axis=1)))
+            raise RenderInputError(
+                f"{spec.source}: geometry.path: mesh {geo.path}: face {bad} indexes vertex "
+                f"{faces[bad].tolist()} out of range (the mesh has {nv} vertices)")
         for name in ("k1", "k2"):
             if name not in attrs:
-                raise ValueError(f"{spec.source}: geometry.path: mesh {geo.path} has no vertex "
+                raise RenderInputError(f"{spec.source}: geometry.path: mesh {geo.path} has no vertex "
                                  f"attribute {name!r} (build it with `simtest meshes build`)")
         m = mesh_to_world_matrix(geo)
         v = np.asarray(mesh.vertices, dtype=np.float64) @ m[:3, :3].T + m[:3, 3]
@@ -493,7 +579,8 @@ def _highlights(spec: SceneSpec, res: dict, light_pos, K, scene, pose) -> list[H
         return [hl] if hl is not None else []
     if geo.type == "sphere":
         c = (w2c @ np.append(geo.center_mm, 1.0))[:3]
-        return [sphere_highlight(c, geo.radius_mm, light_pos, K, size)]
+        hl = sphere_highlight(c, geo.radius_mm, light_pos, K, size)
+        return [hl] if hl is not None else []
     if geo.type == "cylinder":
         c = (w2c @ np.append(geo.center_mm, 1.0))[:3]
         axis = np.asarray(geo.axis if geo.axis is not None else (1.0, 0.0, 0.0), dtype=np.float64)
@@ -504,6 +591,41 @@ def _highlights(spec: SceneSpec, res: dict, light_pos, K, scene, pose) -> list[H
     return mesh_highlights(_make_caster(scene, K, pose), res["normals_raw"], res["position_raw"],
                            res["mask"], light_pos, K, mesh["vertices"], mesh["faces"],
                            mesh["k1"], mesh["k2"])
+
+
+def visible_highlights(highlights: list[HighlightTruth], specular: np.ndarray) -> list[HighlightTruth]:
+    """The highlights a camera can see: finite, in front of the camera, lit where in frame.
+
+    A brightest point found on the analytic surface or the mesh is dropped when its position or
+    normal is not finite, when it lies behind the camera (``z <= 0``: e.g. the nearest point of a
+    sphere the camera looks away from), or when it is in frame but its pixel carries no specular
+    light (a shadowed BP, or a light the visible side does not face).
+
+    Parameters
+    ----------
+    highlights : list of HighlightTruth
+    specular : ndarray of shape (H, W)
+        The render's specular-only linear image.
+
+    Returns
+    -------
+    list of HighlightTruth
+        The kept highlights, in their order.
+    """
+    H, W = specular.shape[:2]
+    out = []
+    for h in highlights:
+        if not (np.all(np.isfinite(h.bp_mm)) and np.all(np.isfinite(h.normal))
+                and np.all(np.isfinite(h.bp_px))):
+            continue
+        if h.bp_mm[2] <= 0.0:
+            continue
+        if h.in_frame:
+            u, v = int(round(h.bp_px[0])), int(round(h.bp_px[1]))
+            if 0 <= u < W and 0 <= v < H and not specular[v, u] > 0.0:
+                continue
+        out.append(h)
+    return out
 
 
 def render_scene(spec: SceneSpec, *, seed: int | None = None,
@@ -529,6 +651,9 @@ def render_scene(spec: SceneSpec, *, seed: int | None = None,
         If ``seed`` is outside [0, 2^31 - 1] (:data:`MAX_SEED`).
     RendererUnavailable
         If Mitsuba cannot run the variant here.
+    RenderInputError
+        If the mesh file is not a readable PLY with k1/k2, a face indexes a missing vertex, or the
+        film would not fit in memory (:func:`check_film_fits`).
     simtest.render.truth.HighlightTruthError
         If the brightest point of an analytic sphere or cylinder cannot be solved for (camera or
         light inside the surface).
@@ -546,6 +671,7 @@ def render_scene(spec: SceneSpec, *, seed: int | None = None,
     if not 0 <= seed <= MAX_SEED:
         raise ValueError(f"render seed {seed} is out of range: must be in [0, 2^31 - 1 = {MAX_SEED}] "
                          "(Mitsuba's samplers take 32-bit seeds; the range of render.seed in scene files)")
+    check_film_fits(spec)
     variant = choose_variant(variant or spec.render.variant)
     light_pos = light_position_cam(spec.light, seed)
     # Cached Mitsuba scenes are updated in place for each render (see _mitsuba_scene): one
@@ -587,7 +713,7 @@ def render_scene(spec: SceneSpec, *, seed: int | None = None,
                    "position_raw": np.where(mask[..., None], position, 0.0), "mask": mask}
         else:
             res = {}
-        highlights = _highlights(spec, res, light_pos, K, scene, pose)
+        highlights = visible_highlights(_highlights(spec, res, light_pos, K, scene, pose), specular)
     sensor = apply_sensor(linear, spec.sensor, seed)
     return RenderResult(
         linear=linear, sensor=sensor, specular=specular, normals=normals, depth=depth,
@@ -601,8 +727,87 @@ def render_scene(spec: SceneSpec, *, seed: int | None = None,
 # Output files
 
 
+#: File names of one render's output set (``write_render``); a folder holding anything else is not
+#: replaced.
+RENDER_FILES = ("image.png", "intrinsics.json", "ground_truth.npz", "highlights.json")
+
+
+class OutputFolderError(ValueError):
+    """``write_render`` refuses a folder that holds files other than a previous render's."""
+
+
+def check_output_folder(out: str | Path) -> None:
+    """Raise :class:`OutputFolderError` unless ``out`` is new, or a folder holding only a render.
+
+    ``simtest render`` replaces its output folder as a whole, so it must not hold other files.
+    """
+    out = Path(out)
+    if not out.exists():
+        return
+    if not out.is_dir():
+        raise OutputFolderError(f"{out} is a file, not a folder")
+    other = sorted(p.name for p in out.iterdir() if p.name not in RENDER_FILES)
+    if other:
+        raise OutputFolderError(
+            f"{out} holds files that are not a render's ({', '.join(other[:3])}"
+            f"{', ...' if len(other) > 3 else ''}): give an empty or new folder")
+
+
+def _fsync_dir(path: Path) -> None:
+    fd = os.open(path, os.O_RDONLY)
+    try:
+        os.fsync(fd)
+    finally:
+        os.close(fd)
+
+
+def _replace_folder(out: Path, fill) -> None:
+    """Write a folder as a set: ``fill(tmp)`` writes every file into a fresh sibling folder, which
+    then replaces ``out`` by renames.
+
+    A failure while filling leaves ``out`` as it was (the previous complete set, or nothing); the
+    swap is two renames (``out`` aside, the new folder in), so a crash between them leaves no
+    ``out`` and the previous set under ``.<name>.old-*``, never a mix of old and new files. Two
+    processes writing the same folder are serialised by a lock on the folder that holds
+    it (``flock`` on the parent folder itself, so no lock file is left behind).
+    """
+    parent = out.parent
+    parent.mkdir(parents=True, exist_ok=True)
+    lock = os.open(parent, os.O_RDONLY)
+    try:
+        fcntl.flock(lock, fcntl.LOCK_EX)
+        check_output_folder(out)
+        tmp = Path(tempfile.mkdtemp(prefix=f".{out.name}.", suffix=".tmp", dir=parent))
+        old = None
+        try:
+            fill(tmp)
+            os.chmod(tmp, 0o777 & ~_umask())
+            _fsync_dir(tmp)
+            if out.exists():
+                old = Path(tempfile.mkdtemp(prefix=f".{out.name}.old-", dir=parent))
+                os.rmdir(old)
+                os.rename(out, old)
+            os.rename(tmp, out)
+            _fsync_dir(parent)
+        except BaseException:
+            shutil.rmtree(tmp, ignore_errors=True)
+            if old is not None and old.exists() and not out.exists():
+                os.rename(old, out)
+            raise
+        if old is not None:
+            shutil.rmtree(old, ignore_errors=True)
+    finally:
+        os.close(lock)
+
+
+def _umask() -> int:
+    mask = os.umask(0)
+    os.umask(mask)
+    return mask
+
+
 def write_render(result: RenderResult, out_dir: str | Path) -> dict[str, Path]:
-    """Write a render to ``out_dir`` (created if needed); each file atomically.
+    """Write a render to ``out_dir`` as one set: a failed write leaves the previous set or none.
 
     Files: ``image.png`` (the sensor image, 8 or 16 bit grey), ``intrinsics.json``
     (:func:`simtest.geometry.camera.save_intrinsics`), ``ground_truth.npz`` (``normals`` (H, W, 3),
@@ -610,35 +815,31 @@ def write_render(result: RenderResult, out_dir: str | Path) -> dict[str, Path]:
     ``K``, ``cam_to_world``, ``light_pos``), ``highlights.json`` (``highlights``: list of
     :meth:`HighlightTruth.to_dict`, with the scene, seed and variant).
 
+    The files are written into a temporary sibling folder that then replaces ``out_dir`` by
+    renames (see :func:`_replace_folder`); ``out_dir`` may be new, empty or a previous render's
+    folder (:data:`RENDER_FILES`).
+
     Returns
     -------
     dict
         File role -> path.
+
+    Raises
+    ------
+    OutputFolderError
+        If ``out_dir`` is a file or holds other files than a render's.
+    OSError
+        If writing fails (``out_dir`` then keeps its previous content, or does not exist).
     """
 
-    out = Path(out_dir)
-    out.mkdir(parents=True, exist_ok=True)
-    paths = {k: out / v for k, v in (("image", "image.png"), ("intrinsics", "intrinsics.json"),
-                                      ("ground_truth", "ground_truth.npz"),
-                                      ("highlights", "highlights.json"))}
+    out = Path(out_dir).absolute()
+    names = dict(zip(("image", "intrinsics", "ground_truth", "highlights"), RENDER_FILES))
     img = result.sensor
     if img.dtype == np.uint8:
         pil = Image.fromarray(img, mode="L")
     else:
         pil = Image.fromarray(img.astype(np.uint16))
-    atomic_write(paths["image"], lambda tmp: pil.save(tmp, format="PNG"))
     H, W = result.linear.shape[:2]
-    save_intrinsics(paths["intrinsics"], result.K, dist_coeffs=None, image_size=(W, H))
-
-    def write_npz(tmp):
-        with open(tmp, "wb") as fh:
-            np.savez_compressed(
-                fh, normals=result.normals, depth=result.depth, distance=result.distance,
-                position=result.position, mask=result.mask, linear=result.linear,
-                specular=result.specular, coverage=result.coverage, K=result.K,
-                cam_to_world=result.cam_to_world, light_pos=result.light_pos)
-
-    atomic_write(paths["ground_truth"], write_npz)
     meta = {
         "scene": result.spec.name,
         "seed": result.seed,
@@ -648,5 +849,22 @@ def write_render(result: RenderResult, out_dir: str | Path) -> dict[str, Path]:
         "highlights": [h.to_dict() for h in result.highlights],
         "spec": scene_to_dict(result.spec),
     }
-    atomic_write_text(paths["highlights"], json.dumps(meta, indent=2))
-    return paths
+
+    def fill(tmp: Path) -> None:
+        paths = {k: tmp / v for k, v in names.items()}
+        atomic_write(paths["image"], lambda t: pil.save(t, format="PNG"))
+        save_intrinsics(paths["intrinsics"], result.K, dist_coeffs=None, image_size=(W, H))
+
+        def write_npz(t):
+            with open(t, "wb") as fh:
+                np.savez_compressed(
+                    fh, normals=result.normals, depth=result.depth, distance=result.distance,
+                    position=result.position, mask=result.mask, linear=result.linear,
+                    specular=result.specular, coverage=result.coverage, K=result.K,
+                    cam_to_world=result.cam_to_world, light_pos=result.light_pos)
+
+        atomic_write(paths["ground_truth"], write_npz)
+        atomic_write_text(paths["highlights"], json.dumps(meta, indent=2))
+
+    _replace_folder(out, fill)
+    return {k: out / v for k, v in names.items()}

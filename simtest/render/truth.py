@@ -267,7 +267,7 @@ def _solve_stationary(surface: Callable[[np.ndarray], tuple[np.ndarray, np.ndarr
 
 
 def sphere_highlight(center: np.ndarray, radius: float, light: np.ndarray, K: np.ndarray,
-                     size: tuple[int, int]) -> HighlightTruth:
+                     size: tuple[int, int]) -> HighlightTruth | None:
     """BP of a sphere seen from outside (normals outward, k1 = k2 = +1/R).
 
     Co-located light (``light`` all zeros): the point of the sphere nearest the camera centre,
@@ -290,7 +290,9 @@ def sphere_highlight(center: np.ndarray, radius: float, light: np.ndarray, K: np
 
     Returns
     -------
-    HighlightTruth
+    HighlightTruth or None
+        None when the light is inside the sphere (or on it) and the camera outside: the side the
+        camera sees is then unlit.
 
     Raises
     ------
@@ -299,6 +301,8 @@ def sphere_highlight(center: np.ndarray, radius: float, light: np.ndarray, K: np
     """
     c = np.asarray(center, dtype=np.float64)
     L = np.asarray(light, dtype=np.float64)
+    if np.linalg.norm(L - c) <= radius < np.linalg.norm(c):
+        return None  # light inside, camera outside: the side the camera sees is unlit
     n0 = -_unit(c)
     k = 1.0 / radius
     if np.allclose(L, 0.0):
@@ -345,7 +349,8 @@ def cylinder_highlight(center: np.ndarray, axis: np.ndarray, radius: float, leng
     Returns
     -------
     HighlightTruth or None
-        None when the BP of the infinite cylinder lies beyond the finite length.
+        None when the BP of the infinite cylinder lies beyond the finite length, or when the light
+        is inside the cylinder and the camera outside (the side the camera sees is then unlit).
 
     Raises
     ------
@@ -356,6 +361,13 @@ def cylinder_highlight(center: np.ndarray, axis: np.ndarray, radius: float, leng
     c = np.asarray(center, dtype=np.float64)
     a = _unit(axis)
     L = np.asarray(light, dtype=np.float64)
+
+    def inside(x):
+        xc = x - c
+        return bool(np.linalg.norm(xc - np.dot(xc, a) * a) <= radius and abs(np.dot(xc, a)) <= 0.5 * length)
+
+    if inside(L) and not inside(np.zeros(3)):
+        return None  # light inside the tube, camera outside: the side the camera sees is unlit
     q = c - np.dot(c, a) * a  # foot of the perpendicular from the camera centre to the axis
     n0 = _unit(-q)
     s0 = np.dot(q - c, a)
