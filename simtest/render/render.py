@@ -17,6 +17,7 @@ through :func:`simtest._lazy.require`; the Mitsuba plugins (:mod:`simtest.render
 
 from __future__ import annotations
 
+import dataclasses
 import fcntl
 import json
 import os
@@ -35,7 +36,9 @@ from simtest import _llvm
 from simtest._io import atomic_write, atomic_write_text
 from simtest._lazy import require
 from simtest.geometry.camera import pixel_to_ray
-from simtest.geometry.camera_file import save_intrinsics
+from simtest.geometry.camera_file import save_camera, save_intrinsics
+from simtest.geometry.cameras import CameraModel, PinholeCamera
+from simtest.geometry.lights import Light, LightRig
 from simtest.render.mitsuba_dict import (
     _SENSOR_TO_WORLD,
     cam_to_world_matrix,
@@ -45,6 +48,7 @@ from simtest.render.mitsuba_dict import (
     mitsuba_scene_dict,
     plane_normal_cam,
 )
+from simtest.render.endoscope import camera_model, light_rig, sample_offsets, uses_endoscope
 from simtest.render.sensor import apply_sensor
 from simtest.render.truth import (
     HighlightTruth,
@@ -53,7 +57,7 @@ from simtest.render.truth import (
     plane_highlight,
     sphere_highlight,
 )
-from simtest.scene.meshes import load_mesh
+from simtest.scene.meshes import MeshError, load_mesh
 from simtest.scene.spec import SceneSpec, scene_to_dict
 
 __all__ = [
@@ -179,6 +183,11 @@ class RenderResult:
         Mitsuba variant used.
     seed : int
     spec : SceneSpec
+    camera : CameraModel or None
+        The camera model of an endoscope render (rays traced from it); None for Mitsuba's
+        perspective sensor, whose model is the pinhole ``K``.
+    lights : LightRig or None
+        The light rig of an endoscope render; None for the one light at ``light_pos``.
     """
 
     linear: np.ndarray
@@ -197,6 +206,25 @@ class RenderResult:
     variant: str
     seed: int
     spec: SceneSpec = field(repr=False)
+    camera: CameraModel | None = None
+    lights: LightRig | None = None
+
+    @property
+    def camera_model(self) -> CameraModel:
+        """The camera model of the film (a pinhole with ``K`` for a perspective render)."""
+        if self.camera is not None:
+            return self.camera
+        H, W = self.linear.shape[:2]
+        return PinholeCamera(self.K, image_size=(W, H))
+
+    @property
+    def light_rig(self) -> LightRig:
+        """The lights of the render, camera frame (one light at ``light_pos`` unless a rig)."""
+        if self.lights is not None:
+            return self.lights
+        falloff = "none" if self.spec.light.falloff == "cancel" else "inverse_square"
+        return LightRig((Light(tuple(float(x) for x in self.light_pos), self.spec.light.intensity,
+                               falloff),))
 
     @property
     def gray(self) -> np.ndarray:
@@ -381,8 +409,6 @@ def _mesh_in_scene(spec: SceneSpec) -> dict[str, np.ndarray]:
                            geo.extent_mm if geo.extent_mm is not None else geo.distance_mm,
                            geo.resolution if geo.resolution is not None else 129)
     else:
-        from simtest.scene.meshes import MeshError
-
         try:
             mesh = _load_mesh_file(geo.path)
         except MeshError as exc:
@@ -564,7 +590,12 @@ def _make_caster(scene, K: np.ndarray, pose: np.ndarray | None = None):
     return cast
 
 
-def _highlights(spec: SceneSpec, res: dict, light_pos, K, scene, pose) -> list[HighlightTruth]:
+def _highlights(spec: SceneSpec, res: dict, light_pos, K, scene, pose, *, cast=None) -> list[HighlightTruth]:
+    """Highlights of one light: closed forms for analytic shapes, a search on meshes.
+
+    ``cast`` (uv -> hits, see :data:`simtest.render.truth.Caster`) replaces the pinhole caster of
+    ``scene``/``pose`` (the endoscope renderer passes one that traces its camera model's rays).
+    """
     geo = spec.geometry
     size = (spec.camera.width_px, spec.camera.height_px)
     w2c = np.linalg.inv(cam_to_world_matrix(spec.camera))
@@ -588,7 +619,9 @@ def _highlights(spec: SceneSpec, res: dict, light_pos, K, scene, pose) -> list[H
         hl = cylinder_highlight(c, w2c[:3, :3] @ axis, geo.radius_mm, length, light_pos, K, size)
         return [hl] if hl is not None else []
     mesh = _mesh_in_camera(spec)
-    return mesh_highlights(_make_caster(scene, K, pose), res["normals_raw"], res["position_raw"],
+    if cast is None:
+        cast = _make_caster(scene, K, pose)
+    return mesh_highlights(cast, res["normals_raw"], res["position_raw"],
                            res["mask"], light_pos, K, mesh["vertices"], mesh["faces"],
                            mesh["k1"], mesh["k2"])
 
@@ -673,6 +706,9 @@ def render_scene(spec: SceneSpec, *, seed: int | None = None,
                          "(Mitsuba's samplers take 32-bit seeds; the range of render.seed in scene files)")
     check_film_fits(spec)
     variant = choose_variant(variant or spec.render.variant)
+    if uses_endoscope(spec):
+        with _RENDER_LOCK:
+            return _render_endoscope(spec, seed, variant)
     light_pos = light_position_cam(spec.light, seed)
     # Cached Mitsuba scenes are updated in place for each render (see _mitsuba_scene): one
     # render at a time per process, from the update to the last highlight ray cast.
@@ -724,12 +760,114 @@ def render_scene(spec: SceneSpec, *, seed: int | None = None,
 
 
 # ------------------------------------------------------------------------------------------------
+# Endoscope renders: light rigs and camera models (see simtest.render.endoscope)
+
+#: Pixels per block of the endoscope renderer's sample stream: each block draws its sub-pixel
+#: offsets from ``SeedSequence([seed, RAY_SEED_KEY, block])``, so the image does not depend on how
+#: many rays go to Mitsuba at once.
+BLOCK_PIXELS = 1 << 16
+
+
+def _render_endoscope(spec: SceneSpec, seed: int, variant: str) -> RenderResult:
+    """Render a scene with a light rig or a camera model (see :mod:`simtest.render.endoscope`)."""
+    from simtest.render import wavefront
+
+    model = camera_model(spec)
+    rig = light_rig(spec, seed)
+    W, H = model.image_size
+    geo = spec.geometry
+    mesh = _mesh_in_camera(spec) if geo.type in ("mesh", "saddle") else None
+    key = (variant, "endoscope", spec.camera, spec.material, geo,
+           os.path.getmtime(geo.path) if geo.type == "mesh" else None)
+    scene = _SCENE_CACHE.get(key)
+    if scene is None:
+        d = mitsuba_scene_dict(spec, light_pos_cam=np.zeros(3), mesh_cam=mesh)
+        surface = d["surface"]
+        if surface["bsdf"]["type"] == "simtest_phong":
+            surface["bsdf"]["cancel_falloff"] = False  # the rig's lights carry the falloff
+        scene = _load_dict(spec, {"type": "scene", "surface": surface})
+        _cache_put(key, scene)
+    shadows = bool(geo.type in ("mesh", "saddle") and not rig.is_colocated)
+
+    v, u = np.mgrid[0:H, 0:W]
+    uv = np.stack([u.ravel(), v.ravel()], axis=-1).astype(np.float64)
+    n_pix = len(uv)
+    centre = {k: [] for k in ("hit", "p", "n")}
+    value = np.empty((n_pix, 3), np.float32)
+    coverage = np.empty(n_pix, np.float32)
+    spp = spec.render.spp
+    for b0 in range(0, n_pix, BLOCK_PIXELS):
+        block = uv[b0:b0 + BLOCK_PIXELS]
+        c = wavefront.cast(scene, model.pixel_to_ray(block))
+        for k in centre:
+            centre[k].append(c[k])
+        offs = sample_offsets(spp, len(block), seed, block=b0 // BLOCK_PIXELS)
+        rays = model.pixel_to_ray((block[:, None, :] + offs).reshape(-1, 2))
+        val, hit = wavefront.shade(scene, rays, rig, shadows=shadows)
+        value[b0:b0 + len(block)] = val.reshape(len(block), spp, 3).mean(axis=1)
+        coverage[b0:b0 + len(block)] = hit.reshape(len(block), spp).mean(axis=1)
+    mask = np.concatenate(centre["hit"]).reshape(H, W)
+    p = np.concatenate(centre["p"]).reshape(H, W, 3)
+    n = np.concatenate(centre["n"]).reshape(H, W, 3)
+    nan = np.float32(np.nan)
+    position = np.where(mask[..., None], p, nan).astype(np.float32)
+    normals = np.where(mask[..., None], n, nan).astype(np.float32)
+    depth = position[..., 2].copy()
+    distance = np.where(mask, np.linalg.norm(p, axis=-1), nan).astype(np.float32)
+    value = value.reshape(H, W, 3)
+    linear, specular = value[..., 0].copy(), value[..., 1].copy()
+
+    def cast_uv(q: np.ndarray) -> dict:
+        return wavefront.cast(scene, model.pixel_to_ray(q))
+
+    K = _stand_in_K(model)
+    highlights: list[HighlightTruth] = []
+    res = {"normals_raw": np.where(mask[..., None], n, 0.0), "position_raw": np.where(mask[..., None], p, 0.0),
+           "mask": mask}
+    for i, light in enumerate(rig.lights):
+        found = _highlights(spec, res, light.position, K, None, None, cast=cast_uv)
+        for h in found:
+            uvh = model.ray_to_pixel(h.bp_mm[None])[0] if h.bp_mm[2] > 0 else np.full(2, np.nan)
+            highlights.append(dataclasses.replace(
+                h, bp_px=uvh, light=i,
+                in_frame=bool(np.all(np.isfinite(uvh)) and -0.5 <= uvh[0] < W - 0.5
+                              and -0.5 <= uvh[1] < H - 0.5)))
+    highlights = [h for h in visible_highlights(highlights, specular) if _unoccluded(h, cast_uv)]
+    sensor = apply_sensor(linear, spec.sensor, seed)
+    return RenderResult(
+        linear=linear, sensor=sensor, specular=specular, normals=normals, depth=depth,
+        distance=distance, position=position, mask=mask, coverage=coverage.reshape(H, W),
+        K=K, cam_to_world=cam_to_world_matrix(spec.camera), light_pos=rig.lights[0].position,
+        highlights=highlights, variant=variant, seed=seed, spec=spec, camera=model, lights=rig)
+
+
+def _stand_in_K(model) -> np.ndarray:
+    """K of a pinhole or fisheye model; the pinhole stand-in's K (f = a0) of an omnidirectional."""
+    if hasattr(model, "K"):
+        return np.asarray(model.K, dtype=np.float64)
+    return np.asarray(model.pinhole_stand_in().K, dtype=np.float64)
+
+
+#: Relative depth difference above which a highlight's point counts as hidden behind another surface.
+OCCLUSION_REL = 1e-4
+
+
+def _unoccluded(h: HighlightTruth, cast_uv) -> bool:
+    """Whether the ray through the highlight's pixel first meets the surface at its point."""
+    if not h.in_frame:
+        return True  # out of frame: listed for completeness, not checked against the image
+    c = cast_uv(np.asarray(h.bp_px, dtype=np.float64)[None])
+    dist = float(np.linalg.norm(h.bp_mm))
+    return bool(c["hit"][0]) and abs(float(c["t"][0]) - dist) <= OCCLUSION_REL * dist
+
+
+# ------------------------------------------------------------------------------------------------
 # Output files
 
 
 #: File names of one render's output set (``write_render``); a folder holding anything else is not
 #: replaced.
-RENDER_FILES = ("image.png", "intrinsics.json", "ground_truth.npz", "highlights.json")
+RENDER_FILES = ("image.png", "intrinsics.json", "ground_truth.npz", "highlights.json", "camera.json")
 
 
 class OutputFolderError(ValueError):
@@ -813,7 +951,8 @@ def write_render(result: RenderResult, out_dir: str | Path) -> dict[str, Path]:
     (:func:`simtest.geometry.camera.save_intrinsics`), ``ground_truth.npz`` (``normals`` (H, W, 3),
     ``depth``, ``distance`` (H, W) mm, ``position`` (H, W, 3), ``mask``, ``linear``, ``specular``,
     ``K``, ``cam_to_world``, ``light_pos``), ``highlights.json`` (``highlights``: list of
-    :meth:`HighlightTruth.to_dict`, with the scene, seed and variant).
+    :meth:`HighlightTruth.to_dict`, with the scene, seed and variant), ``camera.json`` (the camera
+    model and its light rig, :func:`simtest.geometry.camera_file.save_camera`).
 
     The files are written into a temporary sibling folder that then replaces ``out_dir`` by
     renames (see :func:`_replace_folder`); ``out_dir`` may be new, empty or a previous render's
@@ -833,7 +972,7 @@ def write_render(result: RenderResult, out_dir: str | Path) -> dict[str, Path]:
     """
 
     out = Path(out_dir).absolute()
-    names = dict(zip(("image", "intrinsics", "ground_truth", "highlights"), RENDER_FILES))
+    names = dict(zip(("image", "intrinsics", "ground_truth", "highlights", "camera"), RENDER_FILES))
     img = result.sensor
     if img.dtype == np.uint8:
         pil = Image.fromarray(img, mode="L")
@@ -865,6 +1004,7 @@ def write_render(result: RenderResult, out_dir: str | Path) -> dict[str, Path]:
 
         atomic_write(paths["ground_truth"], write_npz)
         atomic_write_text(paths["highlights"], json.dumps(meta, indent=2))
+        save_camera(paths["camera"], result.camera_model, result.light_rig)
 
     _replace_folder(out, fill)
     return {k: out / v for k, v in names.items()}

@@ -72,6 +72,8 @@ class HighlightTruth:
         from its normal (convex toward the camera), as in :mod:`simtest.scene.meshes`.
     in_frame : bool
         The BP pixel lies inside the image (``-0.5 <= u < W - 0.5``, same for v).
+    light : int
+        Index of the light (in the render's light rig) whose highlight this is.
     """
 
     bp_px: np.ndarray
@@ -80,6 +82,7 @@ class HighlightTruth:
     k1: float
     k2: float
     in_frame: bool
+    light: int = 0
 
     def to_dict(self) -> dict:
         """JSON-ready form, as written to ``highlights.json``.
@@ -87,10 +90,13 @@ class HighlightTruth:
         Returns
         -------
         dict
-            ``bp_px`` [u, v] px, ``bp_mm`` and ``normal`` [x, y, z] (camera frame; mm, unit),
-            ``k1``, ``k2`` (1/mm), ``in_frame`` (bool); lists of floats.
+            ``bp_px`` [u, v] px, ``bp_mm`` (the specular point) and ``normal`` [x, y, z] (camera
+            frame; mm, unit), ``depth_mm`` (z of the point), ``k1``, ``k2`` (1/mm), ``in_frame``
+            (bool), ``light`` (index in the light rig); lists of floats.
         """
         return {
+            "light": int(self.light),
+            "depth_mm": float(self.bp_mm[2]),
             "bp_px": [float(x) for x in self.bp_px],
             "bp_mm": [float(x) for x in self.bp_mm],
             "normal": [float(x) for x in self.normal],

@@ -100,6 +100,21 @@ class CameraSpec:
     position_mm, look_at_mm, up : (3,) float
         Camera pose in the world frame; ``up`` is the world direction shown at the top of the image
         (OpenCV y points down, so the default up is (0, -1, 0)).
+    model : {"pinhole", "fisheye", "c3vd", "file"}
+        Camera model of the film. "pinhole" without ``dist_coeffs`` is Mitsuba's perspective
+        sensor (the default, bit for bit as before); every other choice traces each pixel's rays
+        from the camera model (:mod:`simtest.render.endoscope`): "pinhole" with ``dist_coeffs``
+        (OpenCV's radial-tangential model), "fisheye" (OpenCV's Kannala-Brandt model with
+        ``fisheye_d``, K from the keys above), "c3vd" (C3VD's omnidirectional calibration of an
+        Olympus colonoscope, 1350 x 1080, scaled to ``width_px``; ``height_px`` must match), "file"
+        (the model of the camera file ``file``; the film size must match it).
+    dist_coeffs : list of float or None
+        OpenCV distortion coefficients (k1, k2, p1, p2[, k3[, k4, k5, k6]]) of the "pinhole" model.
+    fisheye_d : (4,) float or None
+        Kannala-Brandt coefficients (k1, k2, k3, k4) of the "fisheye" model.
+    file : str or None
+        Camera file (JSON: model, image size, optional lights) for ``model = "file"`` or
+        ``light.rig = "file"``; relative paths as for ``geometry.path``.
     """
 
     width_px: int = _fld(406, "int", lo=1, hi=16384)
@@ -110,6 +125,10 @@ class CameraSpec:
     position_mm: tuple[float, float, float] = _fld((0.0, 0.0, 0.0), "vec3")
     look_at_mm: tuple[float, float, float] = _fld((0.0, 0.0, 1.0), "vec3")
     up: tuple[float, float, float] = _fld((0.0, -1.0, 0.0), "vec3")
+    model: str = _fld("pinhole", "str", choices=("pinhole", "fisheye", "c3vd", "file"))
+    dist_coeffs: tuple[float, ...] | None = _fld(None, "floats?")
+    fisheye_d: tuple[float, ...] | None = _fld(None, "floats?")
+    file: str | None = _fld(None, "str?")
 
     @property
     def focal(self) -> float:
@@ -151,6 +170,21 @@ class LightSpec:
         "keep": radiance falls as 1/d^2 with the light distance d (a real endoscope). "cancel":
         the 1/d^2 is undone so that an exact-Phong surface shows ``intensity * c cos(beta)^n``
         (paper eq. 1).
+    rig : {"single", "colonoscope", "laparoscope", "file"}
+        "single": the one light above (the default). A light rig (1 to 8 lights moving with the
+        camera, rendered by :mod:`simtest.render.endoscope`): "colonoscope" (two light guides on
+        opposite sides of the lens, ``guide_offset_mm`` from it along x), "laparoscope" (a ring of
+        ``guide_count`` lights of radius ``guide_offset_mm``), "file" (the lights of
+        ``camera.file``). A rig needs ``epsilon_mm = 0`` and ``falloff = "keep"``; ``intensity``
+        scales each of its lights.
+    guide_offset_mm : float or None
+        Colonoscope: distance of each guide from the lens centre; laparoscope: ring radius
+        (default: the presets' assumed geometry, see :mod:`simtest.render.endoscope`).
+    guide_count : int or None
+        Laparoscope: lights in the ring, 6 to 8 (default 8).
+    profile_exponent : float or None
+        m of each light's cos^m emission profile about the scope axis (default: 0 for "single",
+        the presets' assumed 1 for a rig).
     """
 
     epsilon_mm: float = _fld(0.0, "float", lo=0.0)
@@ -158,6 +192,10 @@ class LightSpec:
     b: float | None = _fld(None, "float?")
     intensity: float = _fld(1.0, "float", lo=0.0, lo_open=True)
     falloff: str = _fld("cancel", "str", choices=("cancel", "keep"))
+    rig: str = _fld("single", "str", choices=("single", "colonoscope", "laparoscope", "file"))
+    guide_offset_mm: float | None = _fld(None, "float?", lo=0.0, lo_open=True)
+    guide_count: int | None = _fld(None, "int?", lo=6, hi=8)
+    profile_exponent: float | None = _fld(None, "float?", lo=0.0)
 
 
 @dataclass(frozen=True)
@@ -426,6 +464,10 @@ def _coerce(value: Any, kind: str, source: str, key: str) -> Any:
         if not isinstance(value, str):
             raise _err(source, key, f"expected a string, got {_tname(value)} {value!r}")
         return value
+    if base == "floats":
+        if not isinstance(value, (list, tuple)) or not value:
+            raise _err(source, key, f"expected a list of numbers, got {value!r}")
+        return tuple(_coerce(x, "float", source, f"{key}[{i}]") for i, x in enumerate(value))
     if base in ("vec2", "vec3"):
         n = int(base[-1])
         if not isinstance(value, (list, tuple)) or len(value) != n:
@@ -485,6 +527,36 @@ def _validate(spec: SceneSpec, source: str, base_dirs: tuple[Path, ...]) -> Scen
              fwd[0] * cam.up[1] - fwd[1] * cam.up[0])
     if _norm(cross) <= 1e-9 * _norm(fwd) * _norm(cam.up):
         raise _err(source, "camera.up", "is parallel to the viewing direction")
+    lt = spec.light
+    if cam.model == "fisheye" and (cam.fisheye_d is None or len(cam.fisheye_d) != 4):
+        raise _err(source, "camera.fisheye_d", "the fisheye model needs 4 coefficients [k1, k2, k3, k4]")
+    if cam.fisheye_d is not None and cam.model != "fisheye":
+        raise _err(source, "camera.fisheye_d", f"only for camera.model = \"fisheye\" (not {cam.model!r})")
+    if cam.dist_coeffs is not None:
+        if cam.model != "pinhole":
+            raise _err(source, "camera.dist_coeffs", f"only for camera.model = \"pinhole\" (not {cam.model!r})")
+        if len(cam.dist_coeffs) not in (4, 5, 8):
+            raise _err(source, "camera.dist_coeffs",
+                       f"expected 4, 5 or 8 OpenCV coefficients, got {len(cam.dist_coeffs)}")
+    needs_file = cam.model == "file" or lt.rig == "file"
+    if needs_file and cam.file is None:
+        raise _err(source, "camera.file", "missing (camera.model or light.rig is \"file\")")
+    if cam.file is not None and not needs_file:
+        raise _err(source, "camera.file", "only with camera.model = \"file\" or light.rig = \"file\"")
+    if lt.rig != "single":
+        if lt.epsilon_mm != 0.0:
+            raise _err(source, "light.epsilon_mm", f"must be 0 with light.rig = {lt.rig!r} (the rig places the lights)")
+        if lt.falloff != "keep":
+            raise _err(source, "light.falloff", f"a light rig falls off as 1/d^2: set light.falloff = \"keep\" "
+                                                f"(light.rig = {lt.rig!r})")
+    if lt.guide_count is not None and lt.rig != "laparoscope":
+        raise _err(source, "light.guide_count", "only for light.rig = \"laparoscope\"")
+    if lt.guide_offset_mm is not None and lt.rig not in ("colonoscope", "laparoscope"):
+        raise _err(source, "light.guide_offset_mm", "only for light.rig = \"colonoscope\" or \"laparoscope\"")
+    if cam.file is not None:
+        spec = dataclasses.replace(spec, camera=dataclasses.replace(
+            cam, file=str(_resolve_file(cam.file, base_dirs, source, "camera.file", "camera file"))))
+        cam = spec.camera
     if mat.model == "microfacet" and mat.base == "conductor" and mat.diffuse_albedo > 0:
         raise _err(source, "material.diffuse_albedo",
                    "a conductor has no diffuse part; use material.base = \"plastic\" for tissue")
@@ -503,19 +575,26 @@ def _validate(spec: SceneSpec, source: str, base_dirs: tuple[Path, ...]) -> Scen
         raise _err(source, "geometry.axis", "is the zero vector")
     if geo.type == "mesh":
         assert geo.path is not None
-        path = Path(geo.path).expanduser()
-        if not path.is_absolute():
-            candidates = [d / path for d in base_dirs]
-            found = next((p for p in candidates if p.is_file()), None)
-            if found is None:
-                tried = ", ".join(str(p) for p in candidates) or str(path)
-                raise _err(source, "geometry.path", f"mesh file not found: {geo.path!r} (tried {tried})")
-            path = found
-        elif not path.is_file():
-            raise _err(source, "geometry.path", f"mesh file not found: {str(path)!r}")
-        geo = dataclasses.replace(geo, path=str(path.resolve()))
+        path = _resolve_file(geo.path, base_dirs, source, "geometry.path", "mesh file")
+        geo = dataclasses.replace(geo, path=str(path))
         spec = dataclasses.replace(spec, geometry=geo)
     return spec
+
+
+def _resolve_file(name: str, base_dirs: tuple[Path, ...], source: str, key: str, what: str) -> Path:
+    """An existing file named in a scene: absolute, or relative to the first of ``base_dirs``
+    holding it. Raises :class:`SceneError` naming ``key`` when there is none."""
+    path = Path(name).expanduser()
+    if not path.is_absolute():
+        candidates = [d / path for d in base_dirs]
+        found = next((p for p in candidates if p.is_file()), None)
+        if found is None:
+            tried = ", ".join(str(p) for p in candidates) or str(path)
+            raise _err(source, key, f"{what} not found: {name!r} (tried {tried})")
+        path = found
+    elif not path.is_file():
+        raise _err(source, key, f"{what} not found: {str(path)!r}")
+    return path.resolve()
 
 
 def scene_from_dict(d: Mapping[str, Any], source: str = "<dict>",

@@ -1,0 +1,121 @@
+"""Wavefront ray casting and light-rig shading on a loaded Mitsuba scene (camera-frame rays).
+
+The endoscope renderer (:func:`simtest.render.render.render_scene` on a scene with a light rig or a
+camera model) computes each ray from the camera model in numpy and hands batches of rays to the
+functions here:
+
+- :func:`cast` intersects rays and returns the hit point, the camera-facing shading normal and the
+  triangle index (the ground truth of the pixel centres, and the highlight search's caster).
+- :func:`shade` evaluates, for each ray, the scene's BSDF for every light of a rig in closed form
+  (see :mod:`simtest.render.endoscope`) with optional shadow rays.
+
+Rays start at the camera centre (the origin of the scene frame). Importing this module imports
+Mitsuba: call it after :func:`simtest.render.render.choose_variant`.
+"""
+
+from __future__ import annotations
+
+import drjit as dr
+import mitsuba as mi
+import numpy as np
+
+from simtest.geometry.lights import LightRig
+
+__all__ = ["BATCH_RAYS", "cast", "shade"]
+
+#: Rays per Mitsuba wavefront: large enough to keep both cores busy, small enough that a
+#: 1350 x 1080 x 16 spp frame does not hold all its rays at once (~120 B per ray in flight).
+BATCH_RAYS = 1 << 21
+
+
+def _rays(d: np.ndarray) -> mi.Ray3f:
+    d = np.ascontiguousarray(d, dtype=np.float32)
+    n = len(d)
+    zero = np.zeros(n, np.float32)
+    return mi.Ray3f(mi.Point3f(zero, zero, zero), mi.Vector3f(d[:, 0], d[:, 1], d[:, 2]))
+
+
+def cast(scene, d: np.ndarray) -> dict[str, np.ndarray]:
+    """Intersect rays from the camera centre.
+
+    Parameters
+    ----------
+    scene : mitsuba.Scene
+        Built in the camera frame (OpenCV axes, mm).
+    d : ndarray of shape (N, 3)
+        Unit ray directions, camera frame (float64; cast as float32).
+
+    Returns
+    -------
+    dict
+        ``hit`` (N,) bool; ``t`` (N,) float64 distance along the ray, mm (``p = t d`` with the
+        float64 direction keeps the point on the pixel's ray); ``p`` (N, 3) float64; ``n`` (N, 3)
+        unit shading normal facing the camera; ``prim`` (N,) int64 triangle index. Misses carry
+        NaN in ``t``, ``p`` and ``n``.
+    """
+    d = np.asarray(d, dtype=np.float64)
+    si = scene.ray_intersect(_rays(d))
+    valid, t_j, n_j, prim_j = si.is_valid(), si.t, si.sh_frame.n, si.prim_index
+    dr.eval(valid, t_j, n_j, prim_j)
+    hit = np.array(valid, dtype=bool)
+    t = np.where(hit, np.array(t_j, dtype=np.float64), np.nan)
+    n = np.array(n_j, dtype=np.float64).T
+    n /= np.maximum(np.linalg.norm(n, axis=1, keepdims=True), 1e-30)
+    n = np.where(np.sum(n * d, axis=1, keepdims=True) > 0, -n, n)
+    n[~hit] = np.nan
+    p = t[:, None] * d
+    hit &= np.isfinite(t)
+    return {"hit": hit, "t": t, "p": p, "n": n, "prim": np.array(prim_j, dtype=np.int64)}
+
+
+def shade(scene, d: np.ndarray, rig: LightRig, *, shadows: bool) -> tuple[np.ndarray, np.ndarray]:
+    """Radiance along rays from the camera centre, lit by every light of ``rig``.
+
+    Parameters
+    ----------
+    scene : mitsuba.Scene
+        Built in the camera frame, one BSDF per shape (no emitters needed).
+    d : ndarray of shape (N, 3)
+        Unit ray directions, camera frame.
+    rig : LightRig
+        Lights in the camera frame.
+    shadows : bool
+        Trace a shadow ray to each light.
+
+    Returns
+    -------
+    value : ndarray of shape (N, 3), float32
+        ``sum_i f(wi, wo_i) I_i max(0, w_z)^m_i / s_i^2`` (``1 / s^2`` only for inverse-square
+        lights) with ``f`` the BSDF (its three colour channels), ``wo_i`` the unit direction to
+        light i, ``w = -wo_i`` the emission direction and ``s_i`` the light distance.
+    hit : ndarray of shape (N,), bool
+
+    Notes
+    -----
+    A point emitter of intensity I gives the radiance ``f I / s^2`` toward the camera (Mitsuba's
+    ``point`` plugin with the ``direct`` integrator: one light, no sampling noise); the rig sums it
+    over its lights with the profile ``max(0, w_z)^m`` about the scope axis.
+    """
+    ray = _rays(d)
+    si = scene.ray_intersect(ray)
+    valid = si.is_valid()
+    bsdf = si.bsdf(ray)
+    ctx = mi.BSDFContext()
+    total = mi.Color3f(0.0)
+    for light in rig.lights:
+        lp = mi.Point3f(*(float(x) for x in light.position_mm))
+        to_light = lp - si.p
+        s2 = dr.squared_norm(to_light)
+        wo = to_light * dr.rsqrt(s2)
+        weight = mi.Float(float(light.intensity))
+        if light.profile_exponent > 0:
+            weight = weight * dr.power(dr.maximum(-wo.z, 0.0), float(light.profile_exponent))
+        if light.falloff == "inverse_square":
+            weight = weight / s2
+        lit = valid
+        if shadows:
+            lit = lit & ~scene.ray_test(si.spawn_ray_to(lp), valid)
+        value = bsdf.eval(ctx, si, si.to_local(wo), lit)
+        total += dr.select(lit, value * weight, mi.Color3f(0.0))
+    dr.eval(total, valid)
+    return np.array(total, dtype=np.float32).T.copy(), np.array(valid, dtype=bool)

@@ -1,0 +1,180 @@
+"""Endoscope renders: light rigs and camera models, against closed forms and exact projections.
+
+Films are small (48 to 96 px, a few spp) to keep the suite fast on a 2-core CPU.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+
+import numpy as np
+import pytest
+
+from simtest.geometry.camera_file import load_camera, save_camera
+from simtest.geometry.cameras import FisheyeCamera, PinholeCamera, c3vd_camera
+from simtest.geometry.lights import Light, LightRig
+from simtest.render import render_scene, write_render
+from simtest.render.endoscope import (
+    COLONOSCOPE_GUIDE_OFFSET_MM,
+    camera_model,
+    colonoscope_rig,
+    laparoscope_rig,
+    scaled_omnidirectional,
+    uses_endoscope,
+)
+from simtest.render.truth import bisector, plane_highlight
+from simtest.scene import SceneError, load_scene, scene_from_dict, with_overrides
+
+pytestmark = pytest.mark.render
+
+#: Largest pixel error of a ground-truth position projected back with the camera model (the must-hold
+#: bound): the positions are float32 (~1e-7 relative), a few 1e-5 px at these focal lengths.
+PROJECTION_TOL_PX = 0.01
+
+
+def _plane(**over):
+    d = {"camera": {"width_px": 64, "height_px": 64, "fov_deg": 100.0},
+         "light": {"rig": "colonoscope", "falloff": "keep", "intensity": 400.0},
+         "material": {"model": "phong", "c": 1.0, "n": 50.0, "diffuse_albedo": 0.2},
+         "geometry": {"type": "plane", "tilt_deg": 15.0, "distance_mm": 20.0},
+         "render": {"spp": 4}}
+    for k, v in over.items():
+        sec, key = k.split(".")
+        d[sec][key] = v
+    return scene_from_dict(d)
+
+
+def test_presets_geometry():
+    rig = colonoscope_rig()
+    assert rig.positions.tolist() == [[-COLONOSCOPE_GUIDE_OFFSET_MM, 0, 0], [COLONOSCOPE_GUIDE_OFFSET_MM, 0, 0]]
+    ring = laparoscope_rig(radius_mm=4.0, count=6)
+    assert len(ring) == 6
+    assert np.allclose(np.linalg.norm(ring.positions, axis=1), 4.0) and np.allclose(ring.positions[:, 2], 0)
+    assert np.allclose(ring.positions.sum(axis=0), 0.0, atol=1e-12)  # evenly spaced
+    with pytest.raises(ValueError, match="6 to 8"):
+        laparoscope_rig(count=5)
+
+
+def test_default_scenes_keep_the_perspective_path():
+    for name in ("plane_58deg", "colon", "sphere"):
+        assert not uses_endoscope(load_scene(name))
+    assert uses_endoscope(_plane())
+
+
+@pytest.mark.parametrize(("over", "key"), [
+    ({"light.falloff": "cancel"}, "light.falloff"),
+    ({"light.epsilon_mm": 2.0}, "light.epsilon_mm"),
+    ({"light.guide_count": 6}, "light.guide_count"),
+])
+def test_rig_keys_are_validated(over, key):
+    with pytest.raises(SceneError, match=key.replace(".", r"\.")):
+        _plane(**over)
+
+
+def test_rig_radiance_matches_the_closed_form():
+    """Lambertian plane, fronto, two lights with a cos^m profile and 1/s^2 falloff."""
+    m, inten, albedo = 2.0, 300.0, 0.5
+    spec = _plane(**{"material.c": 0.0, "material.diffuse_albedo": albedo, "geometry.tilt_deg": 0.0,
+                     "light.profile_exponent": m, "light.intensity": inten, "render.spp": 64})
+    r = render_scene(spec, seed=3)
+    p = r.position.reshape(-1, 3).astype(np.float64)
+    expect = np.zeros(len(p))
+    for L in colonoscope_rig().positions:
+        to_l = L - p
+        s = np.linalg.norm(to_l, axis=1)
+        wo = to_l / s[:, None]
+        cos_o = -wo[:, 2]  # the normal is (0, 0, -1)
+        expect += albedo / math.pi * cos_o * inten * np.maximum(-wo[:, 2], 0) ** m / s**2
+    got = r.linear.reshape(-1)
+    # Each pixel is a 64-sample jittered mean over its footprint, where the radiance changes by up
+    # to 5 % from pixel to pixel: sampling noise up to 1.7e-3 relative (measured), so 4e-3 per
+    # pixel; over the image the noise averages out and what is left is the second-order footprint
+    # bias (measured 6e-5), bounded by 5e-4.
+    assert np.allclose(got, expect, rtol=4e-3, atol=0)
+    assert abs(np.mean(got - expect)) < 5e-4 * np.mean(expect)
+
+
+def test_rig_highlights_match_each_lights_closed_form(tmp_path):
+    spec = _plane(**{"render.spp": 2, "material.diffuse_albedo": 0.0})
+    r = render_scene(spec, seed=1)
+    assert sorted(h.light for h in r.highlights) == [0, 1]
+    n = np.array([0.0, math.sin(math.radians(15.0)), -math.cos(math.radians(15.0))])
+    for h in r.highlights:
+        L = r.light_rig.lights[h.light].position
+        ref = plane_highlight(n, 20.0, L, r.K, (64, 64))
+        assert np.allclose(h.bp_mm, ref.bp_mm, atol=1e-9) and np.allclose(h.bp_px, ref.bp_px, atol=1e-6)
+        assert np.degrees(np.arccos(min(1.0, float(h.normal @ bisector(h.bp_mm, L))))) < 1e-6
+    paths = write_render(r, tmp_path / "o")
+    cam = load_camera(paths["camera"])
+    assert cam.lights == r.light_rig and np.allclose(cam.model.K, r.K)
+    meta = json.loads(paths["highlights"].read_text())
+    assert sorted(h["light"] for h in meta["highlights"]) == [0, 1]
+    assert all(h["depth_mm"] == h["bp_mm"][2] for h in meta["highlights"])
+
+
+def test_single_light_on_the_ray_path_matches_the_perspective_render():
+    """The same scene through the camera model's rays and through Mitsuba's sensor."""
+    base = {"camera": {"width_px": 48, "height_px": 48, "fov_deg": 90.0},
+            "light": {"falloff": "keep", "intensity": 300.0},
+            "material": {"model": "phong", "c": 1.0, "n": 20.0, "diffuse_albedo": 0.3},
+            "geometry": {"type": "sphere", "center_mm": [2.0, -1.0, 40.0], "radius_mm": 12.0},
+            "render": {"spp": 64}}
+    a = render_scene(scene_from_dict(base), seed=1)
+    base["camera"]["dist_coeffs"] = [0.0, 0.0, 0.0, 0.0]  # a pinhole through the ray path
+    b = render_scene(scene_from_dict(base), seed=1)
+    assert b.camera is not None and a.camera is None
+    # Fully covered pixels (perspective mask) have their centre on the sphere (ray-path mask), whose
+    # pixels are at least partly covered.
+    assert np.all(b.mask[a.mask]) and np.all(a.coverage[b.mask] > 0)
+    both = a.mask
+    # Independent 64-sample estimates of the same pixel means: the difference is sampling noise
+    # (Monte Carlo over the pixel footprint, ~1 % of the signal), not a bias.
+    rel = np.abs(a.linear[both] - b.linear[both]) / a.linear[both].max()
+    assert np.median(rel) < 0.01 and abs(np.mean(a.linear[both] - b.linear[both])) < 1e-3 * a.linear.max()
+    assert len(a.highlights) == len(b.highlights) == 1
+    assert np.allclose(a.highlights[0].bp_px, b.highlights[0].bp_px, atol=1e-9)
+
+
+def _models(tmp_path):
+    K = np.array([[40.0, 0, 31.5], [0, 40.0, 23.5], [0, 0, 1]])
+    omni = scaled_omnidirectional(c3vd_camera(), 135)
+    save_camera(tmp_path / "omni.json", omni, colonoscope_rig(profile_exponent=0.0))
+    return {
+        "pinhole_distorted": {"model": "pinhole", "width_px": 64, "height_px": 48, "focal_px": 40.0,
+                              "dist_coeffs": [-0.3, 0.08, 0.001, -0.002, 0.0]},
+        "fisheye": {"model": "fisheye", "width_px": 64, "height_px": 48, "focal_px": 25.0,
+                    "fisheye_d": [0.05, -0.01, 0.002, 0.0]},
+        "c3vd": {"model": "c3vd", "width_px": 135, "height_px": 108},
+        "file": {"model": "file", "file": str(tmp_path / "omni.json"), "width_px": 135, "height_px": 108},
+    }, K
+
+
+@pytest.mark.parametrize("which", ["pinhole_distorted", "fisheye", "c3vd", "file"])
+def test_ground_truth_projects_onto_its_pixel(tmp_path, which):
+    """Must hold: every pixel's GT position projects onto that pixel; GT normals unit, facing the camera."""
+    cams, _ = _models(tmp_path)
+    spec = with_overrides(load_scene("colon"), {
+        **{f"camera.{k}": v for k, v in cams[which].items()}, "camera.fov_deg": None,
+        "light.rig": "file" if which == "file" else "colonoscope", "render.spp": 1})
+    r = render_scene(spec, seed=0)
+    model = camera_model(spec)
+    assert r.camera == model and r.mask.mean() > 0.5
+    v, u = np.nonzero(r.mask)
+    uv = model.ray_to_pixel(r.position[r.mask].astype(np.float64))
+    err = np.abs(uv - np.stack([u, v], axis=-1))
+    assert np.nanmax(err) < PROJECTION_TOL_PX and np.all(np.isfinite(uv))
+    n = r.normals[r.mask].astype(np.float64)
+    assert np.allclose(np.linalg.norm(n, axis=1), 1.0, atol=1e-6)
+    assert np.all(np.sum(n * r.position[r.mask], axis=1) < 0)
+    for h in r.highlights:  # each highlight in view lands on its own pixel too
+        assert np.allclose(model.ray_to_pixel(h.bp_mm[None])[0], h.bp_px, atol=1e-6)
+        assert h.bp_mm[2] > 0 and 0 <= h.light < len(r.light_rig)
+
+
+def test_c3vd_scaling_keeps_the_rays():
+    full, small = c3vd_camera(), scaled_omnidirectional(c3vd_camera(), 270)
+    s = 270 / 1350
+    uv = np.array([[0.0, 0.0], [100.5, 40.25], [269.0, 215.0]])
+    assert small.image_size == (270, 216)
+    assert np.allclose(small.pixel_to_ray(uv), full.pixel_to_ray((uv + 0.5) / s - 0.5), atol=1e-12)
