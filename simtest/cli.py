@@ -29,6 +29,8 @@ SUBCOMMANDS: dict[str, tuple[str, str, str]] = {
              "Render a 3D view of the estimated normals (off-screen: works without a display)."),
     "render": ("simtest.render.cli", "render_command",
                "Render a scene with its ground truth."),
+    "simreal": ("simtest.render.cli", "simreal_command",
+                "Render an endoscope scene and compare its video frame with real frames."),
     "meshes": ("simtest.scene.meshes_cli", "meshes_app",
                "Procedural meshes (colon, liver) with ground-truth normals and curvatures."),
     "dataset": ("simtest.dataset.cli", "dataset_app",

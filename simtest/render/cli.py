@@ -10,9 +10,11 @@ from __future__ import annotations
 from pathlib import Path
 from typing import Optional
 
+import cv2
 import typer
 from rich.console import Console
 
+from simtest._io import atomic_write, atomic_write_json, atomic_write_text
 from simtest.render.render import (
     OutputFolderError,
     RendererUnavailable,
@@ -21,10 +23,11 @@ from simtest.render.render import (
     render_scene,
     write_render,
 )
+from simtest.render.simreal import banner_frames, sim_to_real_figure, sim_to_real_table
 from simtest.render.truth import HighlightTruthError
 from simtest.scene.spec import RENDER_VARIANTS, SceneError, load_scene
 
-__all__ = ["render_command"]
+__all__ = ["render_command", "simreal_command"]
 
 #: Largest render seed: the scene files' ``render.seed`` range (Mitsuba's samplers take 32-bit seeds).
 MAX_SEED = 2**31 - 1  # = simtest.render.render.MAX_SEED (not imported: Mitsuba-free start-up)
@@ -81,3 +84,55 @@ def render_command(
                       highlight=False)
     for role, path in paths.items():
         console.print(f"  {role}: {path}", markup=False, highlight=False)
+
+
+def simreal_command(
+    scene: str = typer.Argument("colonoscope", help="Scene to render (a bundled name or a TOML file)."),
+    out: Path = typer.Option(..., "--out", "-o", help="Output folder (created if needed)."),
+    real: Optional[list[Path]] = typer.Option(
+        None, "--real", help="Real frames: images, or a banner of 280 px tiles (*banner*). "
+        "Default: the Hyper-Kvasir banner in tests/data/real."),
+    seed: Optional[int] = typer.Option(None, "--seed", min=0, max=MAX_SEED, help="Render seed."),
+) -> None:
+    """Render SCENE and compare its video frame with real frames: table (JSON, Markdown) and figure."""
+    paths = real or [Path(__file__).resolve().parents[2] / "tests" / "data" / "real" / "hyperkvasir_banner.jpg"]
+    frames = []
+    for p in paths:
+        if not p.is_file():
+            raise _fail(f"--real: {p}: no such file")
+        if "banner" in p.name:
+            try:
+                frames += banner_frames(p)
+            except ValueError as exc:
+                raise _fail(f"--real: {exc}") from None
+        else:
+            img = cv2.imread(str(p), cv2.IMREAD_COLOR)
+            if img is None:
+                raise _fail(f"--real: {p}: not a readable image")
+            frames.append(cv2.cvtColor(img, cv2.COLOR_BGR2RGB))
+    if len({f.shape[0] for f in frames}) != 1:
+        raise _fail("--real: the real frames must share one height")
+    try:
+        spec = load_scene(scene)
+        result = render_scene(spec, seed=seed)
+    except SceneError as exc:
+        raise _fail(str(exc)) from None
+    except RenderInputError as exc:
+        raise _fail(str(exc)) from None
+    except RendererUnavailable as exc:
+        raise _fail(str(exc), code=1) from None
+    frame = result.frame
+    rows = sim_to_real_table(frame, frames)
+    fig = sim_to_real_figure(frame, frames, rows)
+    out.mkdir(parents=True, exist_ok=True)
+    atomic_write_json(out / "simreal.json", {"scene": spec.name, "seed": result.seed,
+                                             "real": [str(p) for p in paths], "rows": rows})
+    lines = ["| statistic | rendered | real median | real IQR | ratio | within x2 |",
+             "|---|---|---|---|---|---|"]
+    for r in rows:
+        lines.append(f"| {r['statistic']} | {r['rendered']:.4g} | {r['real_median']:.4g} | "
+                     f"{r['real_q25']:.3g} to {r['real_q75']:.3g} | {r['ratio']:.3g} | "
+                     f"{'yes' if r['within_goal'] else 'no'} |")
+    atomic_write_text(out / "simreal.md", "\n".join(lines) + "\n")
+    atomic_write(out / "simreal.png", lambda t: fig.savefig(t, format="png", dpi=110), suffix=".png")
+    typer.echo("\n".join(lines))

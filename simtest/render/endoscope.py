@@ -196,13 +196,14 @@ def sample_offsets(spp: int, n_pixels: int, seed: int, block: int = 0) -> np.nda
 
 
 def uses_endoscope(spec: SceneSpec) -> bool:
-    """Whether ``spec`` needs the endoscope renderer (a light rig or a camera model).
+    """Whether ``spec`` needs the endoscope renderer (a light rig, a camera model or tissue).
 
     Scenes with the default keys (``camera.model = "pinhole"`` without distortion, ``light.rig =
     "single"``) keep Mitsuba's perspective sensor and the one-light integrator, bit for bit.
     """
     cam = spec.camera
-    return cam.model != "pinhole" or cam.dist_coeffs is not None or spec.light.rig != "single"
+    return (cam.model != "pinhole" or cam.dist_coeffs is not None or spec.light.rig != "single"
+            or spec.material.model == "tissue")
 
 
 def camera_model(spec: SceneSpec) -> CameraModel:

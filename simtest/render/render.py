@@ -49,7 +49,8 @@ from simtest.render.mitsuba_dict import (
     plane_normal_cam,
 )
 from simtest.render.endoscope import camera_model, light_rig, sample_offsets, uses_endoscope
-from simtest.render.sensor import apply_sensor
+from simtest.render.sensor import LUMA_WEIGHTS, apply_sensor, frame_luma, video_frame
+from simtest.render.tissue import relief_normal, tissue_params
 from simtest.render.truth import (
     HighlightTruth,
     cylinder_highlight,
@@ -188,6 +189,12 @@ class RenderResult:
         perspective sensor, whose model is the pinhole ``K``.
     lights : LightRig or None
         The light rig of an endoscope render; None for the one light at ``light_pos``.
+    rgb : ndarray of shape (H, W, 3), float32, or None
+        Linear RGB radiance of a tissue render (``material.model = "tissue"``); None when the
+        image is grey (``linear``).
+    shading_normals : ndarray of shape (H, W, 3), float32, or None
+        Unit shading normals with the tissue's micro-relief, facing the camera, NaN outside
+        ``mask`` (``normals`` is the macro normal of the surface); None without micro-relief.
     """
 
     linear: np.ndarray
@@ -208,6 +215,13 @@ class RenderResult:
     spec: SceneSpec = field(repr=False)
     camera: CameraModel | None = None
     lights: LightRig | None = None
+    rgb: np.ndarray | None = None
+    shading_normals: np.ndarray | None = None
+
+    @property
+    def frame(self) -> np.ndarray:
+        """The 8-bit RGB video frame (H, W, 3) of the scene's sensor (:func:`video_frame`)."""
+        return video_frame(self.rgb if self.rgb is not None else self.linear, self.spec.sensor, self.seed)
 
     @property
     def camera_model(self) -> CameraModel:
@@ -626,6 +640,13 @@ def _highlights(spec: SceneSpec, res: dict, light_pos, K, scene, pose, *, cast=N
                            mesh["k1"], mesh["k2"])
 
 
+def _sensor_image(linear: np.ndarray, rgb: np.ndarray | None, spec: SceneSpec, seed: int) -> np.ndarray:
+    """The sensor image: :func:`apply_sensor` ("grey") or the video frame's luma ("video")."""
+    if spec.sensor.output == "video":
+        return frame_luma(video_frame(rgb if rgb is not None else linear, spec.sensor, seed))
+    return apply_sensor(linear, spec.sensor, seed)
+
+
 def visible_highlights(highlights: list[HighlightTruth], specular: np.ndarray) -> list[HighlightTruth]:
     """The highlights a camera can see: finite, in front of the camera, lit where in frame.
 
@@ -750,7 +771,7 @@ def render_scene(spec: SceneSpec, *, seed: int | None = None,
         else:
             res = {}
         highlights = visible_highlights(_highlights(spec, res, light_pos, K, scene, pose), specular)
-    sensor = apply_sensor(linear, spec.sensor, seed)
+    sensor = _sensor_image(linear, None, spec, seed)
     return RenderResult(
         linear=linear, sensor=sensor, specular=specular, normals=normals, depth=depth,
         distance=distance, position=position, mask=mask, coverage=alpha.astype(np.float32),
@@ -783,15 +804,22 @@ def _render_endoscope(spec: SceneSpec, seed: int, variant: str) -> RenderResult:
     if scene is None:
         d = mitsuba_scene_dict(spec, light_pos_cam=np.zeros(3), mesh_cam=mesh)
         surface = d["surface"]
-        if surface["bsdf"]["type"] == "simtest_phong":
+        if spec.material.model == "tissue":
+            surface["bsdf"] = {"type": "diffuse"}  # not used: the tissue is shaded in wavefront
+        elif surface["bsdf"]["type"] == "simtest_phong":
             surface["bsdf"]["cancel_falloff"] = False  # the rig's lights carry the falloff
         scene = _load_dict(spec, {"type": "scene", "surface": surface})
         _cache_put(key, scene)
     shadows = bool(geo.type in ("mesh", "saddle") and not rig.is_colocated)
+    mat = spec.material
+    texture = None
+    if mat.model == "tissue":
+        texture = tissue_params(mat.tissue, mat.texture_seed, mat.relief_mm, mat.relief_scale_mm)
 
     v, u = np.mgrid[0:H, 0:W]
     uv = np.stack([u.ravel(), v.ravel()], axis=-1).astype(np.float64)
     n_pix = len(uv)
+    spec_img = np.empty(n_pix, np.float32)
     centre = {k: [] for k in ("hit", "p", "n")}
     value = np.empty((n_pix, 3), np.float32)
     coverage = np.empty(n_pix, np.float32)
@@ -803,8 +831,13 @@ def _render_endoscope(spec: SceneSpec, seed: int, variant: str) -> RenderResult:
             centre[k].append(c[k])
         offs = sample_offsets(spp, len(block), seed, block=b0 // BLOCK_PIXELS)
         rays = model.pixel_to_ray((block[:, None, :] + offs).reshape(-1, 2))
-        val, hit = wavefront.shade(scene, rays, rig, shadows=shadows)
+        if texture is None:
+            val, hit = wavefront.shade(scene, rays, rig, shadows=shadows)
+            sp = val[:, 1]
+        else:
+            val, sp, hit = wavefront.shade_tissue(scene, rays, rig, texture, mat, shadows=shadows)
         value[b0:b0 + len(block)] = val.reshape(len(block), spp, 3).mean(axis=1)
+        spec_img[b0:b0 + len(block)] = sp.reshape(len(block), spp).mean(axis=1)
         coverage[b0:b0 + len(block)] = hit.reshape(len(block), spp).mean(axis=1)
     mask = np.concatenate(centre["hit"]).reshape(H, W)
     p = np.concatenate(centre["p"]).reshape(H, W, 3)
@@ -815,7 +848,15 @@ def _render_endoscope(spec: SceneSpec, seed: int, variant: str) -> RenderResult:
     depth = position[..., 2].copy()
     distance = np.where(mask, np.linalg.norm(p, axis=-1), nan).astype(np.float32)
     value = value.reshape(H, W, 3)
-    linear, specular = value[..., 0].copy(), value[..., 1].copy()
+    rgb = shading = None
+    if texture is None:
+        linear = value[..., 0].copy()
+    else:
+        rgb = value
+        linear = (value @ np.asarray(LUMA_WEIGHTS, dtype=np.float32)).astype(np.float32)
+        ns = relief_normal(np, (p[..., 0], p[..., 1], p[..., 2]), (n[..., 0], n[..., 1], n[..., 2]), texture)
+        shading = np.where(mask[..., None], np.stack(ns, axis=-1), nan).astype(np.float32)
+    specular = spec_img.reshape(H, W)
 
     def cast_uv(q: np.ndarray) -> dict:
         return wavefront.cast(scene, model.pixel_to_ray(q))
@@ -833,12 +874,13 @@ def _render_endoscope(spec: SceneSpec, seed: int, variant: str) -> RenderResult:
                 in_frame=bool(np.all(np.isfinite(uvh)) and -0.5 <= uvh[0] < W - 0.5
                               and -0.5 <= uvh[1] < H - 0.5)))
     highlights = [h for h in visible_highlights(highlights, specular) if _unoccluded(h, cast_uv)]
-    sensor = apply_sensor(linear, spec.sensor, seed)
+    sensor = _sensor_image(linear, rgb, spec, seed)
     return RenderResult(
         linear=linear, sensor=sensor, specular=specular, normals=normals, depth=depth,
         distance=distance, position=position, mask=mask, coverage=coverage.reshape(H, W),
         K=K, cam_to_world=cam_to_world_matrix(spec.camera), light_pos=rig.lights[0].position,
-        highlights=highlights, variant=variant, seed=seed, spec=spec, camera=model, lights=rig)
+        highlights=highlights, variant=variant, seed=seed, spec=spec, camera=model, lights=rig,
+        rgb=rgb, shading_normals=shading)
 
 
 def _stand_in_K(model) -> np.ndarray:
@@ -867,7 +909,8 @@ def _unoccluded(h: HighlightTruth, cast_uv) -> bool:
 
 #: File names of one render's output set (``write_render``); a folder holding anything else is not
 #: replaced.
-RENDER_FILES = ("image.png", "intrinsics.json", "ground_truth.npz", "highlights.json", "camera.json")
+RENDER_FILES = ("image.png", "intrinsics.json", "ground_truth.npz", "highlights.json", "camera.json",
+                "frame.png")
 
 
 class OutputFolderError(ValueError):
@@ -952,7 +995,9 @@ def write_render(result: RenderResult, out_dir: str | Path) -> dict[str, Path]:
     ``depth``, ``distance`` (H, W) mm, ``position`` (H, W, 3), ``mask``, ``linear``, ``specular``,
     ``K``, ``cam_to_world``, ``light_pos``), ``highlights.json`` (``highlights``: list of
     :meth:`HighlightTruth.to_dict`, with the scene, seed and variant), ``camera.json`` (the camera
-    model and its light rig, :func:`simtest.geometry.camera_file.save_camera`).
+    model and its light rig, :func:`simtest.geometry.camera_file.save_camera`), ``frame.png`` (the
+    8-bit RGB video frame, :attr:`RenderResult.frame`); tissue renders add ``rgb`` (H, W, 3) and
+    ``shading_normals`` (H, W, 3) to ``ground_truth.npz``.
 
     The files are written into a temporary sibling folder that then replaces ``out_dir`` by
     renames (see :func:`_replace_folder`); ``out_dir`` may be new, empty or a previous render's
@@ -972,7 +1017,7 @@ def write_render(result: RenderResult, out_dir: str | Path) -> dict[str, Path]:
     """
 
     out = Path(out_dir).absolute()
-    names = dict(zip(("image", "intrinsics", "ground_truth", "highlights", "camera"), RENDER_FILES))
+    names = dict(zip(("image", "intrinsics", "ground_truth", "highlights", "camera", "frame"), RENDER_FILES))
     img = result.sensor
     if img.dtype == np.uint8:
         pil = Image.fromarray(img, mode="L")
@@ -1000,11 +1045,16 @@ def write_render(result: RenderResult, out_dir: str | Path) -> dict[str, Path]:
                     fh, normals=result.normals, depth=result.depth, distance=result.distance,
                     position=result.position, mask=result.mask, linear=result.linear,
                     specular=result.specular, coverage=result.coverage, K=result.K,
-                    cam_to_world=result.cam_to_world, light_pos=result.light_pos)
+                    cam_to_world=result.cam_to_world, light_pos=result.light_pos,
+                    **({"rgb": result.rgb} if result.rgb is not None else {}),
+                    **({"shading_normals": result.shading_normals}
+                       if result.shading_normals is not None else {}))
 
         atomic_write(paths["ground_truth"], write_npz)
         atomic_write_text(paths["highlights"], json.dumps(meta, indent=2))
         save_camera(paths["camera"], result.camera_model, result.light_rig)
+        frame = Image.fromarray(result.frame, mode="RGB")
+        atomic_write(paths["frame"], lambda t: frame.save(t, format="PNG"))
 
     _replace_folder(out, fill)
     return {k: out / v for k, v in names.items()}

@@ -21,7 +21,7 @@ import numpy as np
 
 from simtest.geometry.lights import LightRig
 
-__all__ = ["BATCH_RAYS", "cast", "shade"]
+__all__ = ["BATCH_RAYS", "cast", "shade", "shade_tissue"]
 
 #: Rays per Mitsuba wavefront: large enough to keep both cores busy, small enough that a
 #: 1350 x 1080 x 16 spp frame does not hold all its rays at once (~120 B per ray in flight).
@@ -119,3 +119,76 @@ def shade(scene, d: np.ndarray, rig: LightRig, *, shadows: bool) -> tuple[np.nda
         total += dr.select(lit, value * weight, mi.Color3f(0.0))
     dr.eval(total, valid)
     return np.array(total, dtype=np.float32).T.copy(), np.array(valid, dtype=bool)
+
+
+class _DrXp:
+    """The numpy names :mod:`simtest.render.tissue` uses, on Dr.Jit arrays."""
+
+    sin, cos, exp, sqrt = staticmethod(dr.sin), staticmethod(dr.cos), staticmethod(dr.exp), staticmethod(dr.sqrt)
+    maximum, minimum, power = staticmethod(dr.maximum), staticmethod(dr.minimum), staticmethod(dr.power)
+    where = staticmethod(dr.select)
+
+
+def shade_tissue(scene, d: np.ndarray, rig: LightRig, texture, material, *,
+                 shadows: bool) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Radiance of procedural tissue (:mod:`simtest.render.tissue`) along rays from the camera centre.
+
+    Parameters
+    ----------
+    scene : mitsuba.Scene
+        Built in the camera frame; its BSDF is not used (the tissue is shaded here).
+    d : ndarray of shape (N, 3)
+        Unit ray directions, camera frame.
+    rig : LightRig
+    texture : simtest.render.tissue.TissueParams
+    material : simtest.scene.spec.MaterialSpec
+        ``distribution`` (lobe), ``microfacet_alpha``, ``n``, ``film_ior``, ``c``.
+    shadows : bool
+
+    Returns
+    -------
+    rgb : ndarray of shape (N, 3), float32
+        ``sum_i (albedo / pi + f_s) cos_o I_i max(0, w_z)^m_i / s_i^2`` with the shading normal.
+    specular : ndarray of shape (N,), float32
+        The specular part alone.
+    hit : ndarray of shape (N,), bool
+    """
+    from simtest.render import tissue
+
+    xp = _DrXp
+    ray = _rays(d)
+    si = scene.ray_intersect(ray)
+    valid = si.is_valid()
+    n = si.sh_frame.n
+    n = dr.select(dr.dot(n, ray.d) > 0, -n, n)  # facing the camera
+    p = (si.p.x, si.p.y, si.p.z)
+    ns = tissue.relief_normal(xp, p, (n.x, n.y, n.z), texture)
+    alb = tissue.albedo(xp, p, texture)
+    wi = -ray.d
+    wi = (wi.x, wi.y, wi.z)
+    rgb = [mi.Float(0.0), mi.Float(0.0), mi.Float(0.0)]
+    spec = mi.Float(0.0)
+    for light in rig.lights:
+        lp = mi.Point3f(*(float(x) for x in light.position_mm))
+        to_light = lp - si.p
+        s2 = dr.squared_norm(to_light)
+        wo = to_light * dr.rsqrt(s2)
+        weight = mi.Float(float(light.intensity))
+        if light.profile_exponent > 0:
+            weight = weight * dr.power(dr.maximum(-wo.z, 0.0), float(light.profile_exponent))
+        if light.falloff == "inverse_square":
+            weight = weight / s2
+        lit = valid & (dr.dot(wo, n) > 0)
+        if shadows:
+            lit = lit & ~scene.ray_test(si.spawn_ray_to(lp), valid)
+        w3 = (wo.x, wo.y, wo.z)
+        cos_o = dr.maximum(ns[0] * wo.x + ns[1] * wo.y + ns[2] * wo.z, 0.0)
+        fs = tissue.specular_lobe(xp, ns, wi, w3, material.distribution, material.microfacet_alpha,
+                                  material.n, material.film_ior, material.c)
+        e = dr.select(lit, cos_o * weight, 0.0)
+        spec += fs * e
+        for c in range(3):
+            rgb[c] += (alb[c] / dr.pi + fs) * e
+    dr.eval(rgb, spec, valid)
+    out = np.stack([np.array(x, dtype=np.float32) for x in rgb], axis=-1)
+    return out, np.array(spec, dtype=np.float32), np.array(valid, dtype=bool)

@@ -221,17 +221,35 @@ class MaterialSpec:
         Interior index of refraction of the plastic base, > 1.
     diffuse_albedo : float
         Lambertian albedo in [0, 1] (tissue), added to the specular lobe. Not with the conductor
-        base (use "plastic").
+        base (use "plastic"). Not used by "tissue" (its albedo is procedural).
+    tissue : {"mucosa", "liver"}
+        ``model = "tissue"``: procedural RGB tissue (:mod:`simtest.render.tissue`): seeded albedo
+        with colour variation and vessel-like lines, micro-relief, and a wet dielectric film whose
+        lobe is ``distribution`` ("beckmann", "ggx", or "phong": paper eq. 1 with exponent ``n``)
+        with Fresnel's reflectance at ``film_ior``, scaled by ``c``.
+    film_ior : float
+        Index of refraction of the tissue's wet film, 1.3 to 1.5 (water 1.33, mucus up to 1.45).
+    relief_mm : float
+        RMS height of the tissue's micro-relief, mm (0: smooth).
+    relief_scale_mm : float
+        Typical wavelength of the micro-relief, 0.05 to 1 mm.
+    texture_seed : int
+        Seed of the tissue texture (albedo pattern and relief), independent of the render seed.
     """
 
-    model: str = _fld("phong", "str", choices=("phong", "microfacet"))
+    model: str = _fld("phong", "str", choices=("phong", "microfacet", "tissue"))
     c: float = _fld(1.0, "float", lo=0.0)
     n: float = _fld(50.0, "float", lo=0.0, lo_open=True)
-    distribution: str = _fld("beckmann", "str", choices=("beckmann", "ggx"))
+    distribution: str = _fld("beckmann", "str", choices=("beckmann", "ggx", "phong"))
     alpha: float | None = _fld(None, "float?", lo=0.0, hi=1.0, lo_open=True)
     base: str = _fld("conductor", "str", choices=("conductor", "plastic"))
     ior: float = _fld(1.5, "float", lo=1.0, lo_open=True)
     diffuse_albedo: float = _fld(0.0, "float", lo=0.0, hi=1.0)
+    tissue: str = _fld("mucosa", "str", choices=("mucosa", "liver"))
+    film_ior: float = _fld(1.38, "float", lo=1.3, hi=1.5)
+    relief_mm: float = _fld(0.0, "float", lo=0.0, hi=1.0)
+    relief_scale_mm: float = _fld(0.3, "float", lo=0.05, hi=1.0)
+    texture_seed: int = _fld(0, "int", lo=0, hi=2**31 - 1)
 
     @property
     def microfacet_alpha(self) -> float:
@@ -358,6 +376,30 @@ class SensorSpec:
         Read-noise standard deviation, fraction of full scale, >= 0.
     full_well_e : float
         Electrons at full scale for Poisson shot noise, >= 0 (0: none).
+    output : {"grey", "video"}
+        What the sensor image is: "grey" (the steps above on the linear image, the default) or
+        "video": the luma (ITU-R BT.601) of the 8-bit RGB video frame made by the keys below
+        (:func:`simtest.render.sensor.video_frame`, written as ``frame.png`` in either case).
+    exposure_mode : {"fixed", "auto"}
+        Video frame: "fixed" multiplies by ``exposure``; "auto" sets the exposure so the mean luma
+        inside the field stop is ``auto_mean`` of full scale (a scope's auto-exposure).
+    auto_mean : float
+        Target mean of the "auto" exposure, (0, 1].
+    white_balance : (3,) float
+        Video frame: gains of R, G, B, > 0.
+    tone : {"gamma", "srgb"}
+        Video frame tone curve: ``s^(1 / gamma)`` or the sRGB curve (IEC 61966-2-1).
+    color_saturation : float
+        Video frame: colour saturation about the luma (1: unchanged, 0: grey), >= 0.
+    vignetting : float
+        Video frame: relative illumination ``1 - v (r / r_max)^2`` (r from the image centre,
+        r_max the half diagonal), v in [0, 1).
+    jpeg_quality : int
+        Video frame: JPEG quality 1 to 100 (encoded and decoded), 0: no compression.
+    field_stop : {"none", "circle", "octagon"}
+        Video frame: the scope's field stop; pixels outside are black.
+    field_stop_radius : float
+        Field-stop radius as a fraction of half the image width (octagon: its inscribed circle).
     """
 
     exposure: float = _fld(1.0, "float", lo=0.0, lo_open=True)
@@ -366,6 +408,16 @@ class SensorSpec:
     bit_depth: int = _fld(8, "int", lo=1, hi=16)
     gaussian_sigma: float = _fld(0.0, "float", lo=0.0)
     full_well_e: float = _fld(0.0, "float", lo=0.0)
+    output: str = _fld("grey", "str", choices=("grey", "video"))
+    exposure_mode: str = _fld("fixed", "str", choices=("fixed", "auto"))
+    auto_mean: float = _fld(0.25, "float", lo=0.0, hi=1.0, lo_open=True)
+    white_balance: tuple[float, float, float] = _fld((1.0, 1.0, 1.0), "vec3")
+    tone: str = _fld("gamma", "str", choices=("gamma", "srgb"))
+    color_saturation: float = _fld(1.0, "float", lo=0.0)
+    vignetting: float = _fld(0.0, "float", lo=0.0, hi=1.0, hi_open=True)
+    jpeg_quality: int = _fld(0, "int", lo=0, hi=100)
+    field_stop: str = _fld("none", "str", choices=("none", "circle", "octagon"))
+    field_stop_radius: float = _fld(1.0, "float", lo=0.0, lo_open=True)
 
 
 @dataclass(frozen=True)
@@ -557,6 +609,13 @@ def _validate(spec: SceneSpec, source: str, base_dirs: tuple[Path, ...]) -> Scen
         spec = dataclasses.replace(spec, camera=dataclasses.replace(
             cam, file=str(_resolve_file(cam.file, base_dirs, source, "camera.file", "camera file"))))
         cam = spec.camera
+    if mat.distribution == "phong" and mat.model != "tissue":
+        raise _err(source, "material.distribution", "\"phong\" is a lobe of model \"tissue\" "
+                   "(model \"phong\" is the paper's exact lobe)")
+    if any(v <= 0 for v in spec.sensor.white_balance):
+        raise _err(source, "sensor.white_balance", f"gains must be > 0, got {list(spec.sensor.white_balance)}")
+    if spec.sensor.output == "video" and spec.sensor.bit_depth != 8:
+        raise _err(source, "sensor.bit_depth", "a video frame is 8-bit: set sensor.bit_depth = 8 with output = \"video\"")
     if mat.model == "microfacet" and mat.base == "conductor" and mat.diffuse_albedo > 0:
         raise _err(source, "material.diffuse_albedo",
                    "a conductor has no diffuse part; use material.base = \"plastic\" for tissue")
