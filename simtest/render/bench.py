@@ -37,7 +37,14 @@ from simtest.render.mitsuba_dict import cam_to_world_matrix
 from simtest.render.render import choose_variant, render_scene
 from simtest.scene import load_scene, with_overrides
 
-__all__ = ["bench_render"]
+__all__ = ["ENDOSCOPE_PRESETS", "bench_endoscope", "bench_render"]
+
+#: The bundled endoscope scenes timed by :func:`bench_endoscope`, each at its own film size and spp.
+ENDOSCOPE_PRESETS = ("colonoscope", "colonoscope_pinhole", "colonoscope_plane", "laparoscope_liver")
+#: Target for one 1350 x 1080 colonoscope frame at 16 spp, seconds (2 cores).
+COLONOSCOPE_TARGET_S = 3.0
+#: Target ratio of the tissue render to the plain Mitsuba render of the same rays.
+PLAIN_RATIO_TARGET = 1.2
 
 _COLD_SCRIPT = r"""
 import json, sys, time
@@ -95,6 +102,7 @@ def bench_render(
     cold: bool = True,
     threads: int = 2,
     variant: str = "llvm_ad_rgb",
+    endoscope: bool = True,
 ) -> dict:
     """Measure renders per second for each scene (image + all ground truth + sensor).
 
@@ -114,6 +122,8 @@ def bench_render(
         Dr.Jit worker threads (``dr.set_thread_count``).
     variant : str
         Mitsuba variant.
+    endoscope : bool
+        Also run :func:`bench_endoscope` (under the key ``"endoscope"``).
 
     Returns
     -------
@@ -169,7 +179,61 @@ def bench_render(
             entry[key] = {"renders_per_s": 1.0 / med, "median_s": med, "min_s": min(times),
                           "cpu_s": statistics.median(cpu)}
         result["scenes"][name] = entry
+    if endoscope:
+        result["endoscope"] = bench_endoscope(threads=threads, variant=variant)
     return result
+
+
+def bench_endoscope(presets: Sequence[str] = ENDOSCOPE_PRESETS, *, repeats: int = 3,
+                    threads: int = 2, variant: str = "llvm_ad_rgb") -> dict:
+    """Renders per second of each endoscope preset, and the colonoscope frame against plain Mitsuba.
+
+    Each preset renders at its own film size and spp (``colonoscope``: C3VD's 1350 x 1080 at 16
+    spp) with everything a render gives (image, video frame, ground truth, highlights). The
+    comparison renders the ``colonoscope`` scene twice per repeat, interleaved: with its procedural
+    tissue, and as "plain Mitsuba": the same camera-model rays and light rig through Mitsuba's
+    built-in ``roughplastic`` BSDF (GGX, alpha 0.05), so the difference is the cost of the tissue
+    shading.
+
+    Returns
+    -------
+    dict
+        ``{"presets": {name: {"renders_per_s", "median_s", "cpu_s", "film_px", "spp"}},
+        "colonoscope_vs_plain": {"tissue_s", "plain_mitsuba_s", "ratio", "target_s",
+        "ratio_target"}}``.
+    """
+    dr = require("drjit")
+    choose_variant(variant)
+    dr.set_thread_count(threads)
+    out: dict = {"presets": {}, "colonoscope_vs_plain": {}}
+    for name in presets:
+        spec = load_scene(name)
+        render_scene(spec, seed=0, variant=variant)  # compile and cache
+        times, cpu = [], []
+        for i in range(repeats):
+            t, c = time.perf_counter(), time.process_time()
+            render_scene(spec, seed=1 + i, variant=variant)
+            times.append(time.perf_counter() - t)
+            cpu.append(time.process_time() - c)
+        med = statistics.median(times)
+        out["presets"][name] = {"renders_per_s": 1.0 / med, "median_s": med, "cpu_s": statistics.median(cpu),
+                                "film_px": spec.camera.width_px * spec.camera.height_px,
+                                "spp": spec.render.spp}
+    spec = load_scene("colonoscope")
+    plain = with_overrides(spec, {"material.model": "microfacet", "material.base": "plastic",
+                                  "material.distribution": "ggx", "material.alpha": 0.05,
+                                  "material.diffuse_albedo": 0.5})
+    render_scene(plain, seed=0, variant=variant)
+    tt, tp = [], []
+    for i in range(repeats):
+        for s_, acc in ((spec, tt), (plain, tp)):
+            t = time.perf_counter()
+            render_scene(s_, seed=1 + i, variant=variant)
+            acc.append(time.perf_counter() - t)
+    mt, mp = statistics.median(tt), statistics.median(tp)
+    out["colonoscope_vs_plain"] = {"tissue_s": mt, "plain_mitsuba_s": mp, "ratio": mt / mp,
+                                   "target_s": COLONOSCOPE_TARGET_S, "ratio_target": PLAIN_RATIO_TARGET}
+    return out
 
 
 if __name__ == "__main__":  # pragma: no cover - manual use: python -m simtest.render.bench

@@ -25,6 +25,7 @@ from simtest.render.render import (
 )
 from simtest.render.simreal import banner_frames, sim_to_real_figure, sim_to_real_table
 from simtest.render.truth import HighlightTruthError
+from simtest.resources import data_root
 from simtest.scene.spec import RENDER_VARIANTS, SceneError, load_scene
 
 __all__ = ["render_command", "simreal_command"]
@@ -95,11 +96,11 @@ def simreal_command(
     seed: Optional[int] = typer.Option(None, "--seed", min=0, max=MAX_SEED, help="Render seed."),
 ) -> None:
     """Render SCENE and compare its video frame with real frames: table (JSON, Markdown) and figure."""
-    paths = real or [Path(__file__).resolve().parents[2] / "tests" / "data" / "real" / "hyperkvasir_banner.jpg"]
+    paths = real or [data_root() / "tests" / "data" / "real" / "hyperkvasir_banner.jpg"]
     frames = []
     for p in paths:
         if not p.is_file():
-            raise _fail(f"--real: {p}: no such file")
+            raise _fail(f"--real: {p}: no such file (give real frames with --real)")
         if "banner" in p.name:
             try:
                 frames += banner_frames(p)
