@@ -830,7 +830,7 @@ def _render_endoscope(spec: SceneSpec, seed: int, variant: str) -> RenderResult:
         for k in centre:
             centre[k].append(c[k])
         offs = sample_offsets(spp, len(block), seed, block=b0 // BLOCK_PIXELS)
-        rays = model.pixel_to_ray((block[:, None, :] + offs).reshape(-1, 2))
+        rays = wavefront.model_rays(model, (block[:, None, :] + offs).reshape(-1, 2))
         if texture is None:
             val, hit = wavefront.shade(scene, rays, rig, shadows=shadows)
             sp = val[:, 1]
