@@ -48,6 +48,7 @@ from simtest.render.mitsuba_dict import (
     mitsuba_scene_dict,
     plane_normal_cam,
 )
+from simtest.render import wavefront
 from simtest.render.endoscope import camera_model, light_rig, sample_offsets, uses_endoscope
 from simtest.render.sensor import LUMA_WEIGHTS, apply_sensor, frame_luma, video_frame
 from simtest.render.tissue import relief_normal, tissue_params
@@ -791,8 +792,6 @@ BLOCK_PIXELS = 1 << 16
 
 def _render_endoscope(spec: SceneSpec, seed: int, variant: str) -> RenderResult:
     """Render a scene with a light rig or a camera model (see :mod:`simtest.render.endoscope`)."""
-    from simtest.render import wavefront
-
     model = camera_model(spec)
     rig = light_rig(spec, seed)
     W, H = model.image_size

@@ -32,8 +32,12 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import cv2
+import matplotlib
 import numpy as np
 from skimage.measure import label
+
+matplotlib.use("Agg", force=False)
+import matplotlib.pyplot as plt  # noqa: E402 - after choosing the back-end
 
 __all__ = [
     "DARK_LEVEL",
@@ -168,11 +172,6 @@ def sim_to_real_table(rendered: np.ndarray, real: list[np.ndarray]) -> list[dict
 def sim_to_real_figure(rendered: np.ndarray, real: list[np.ndarray], rows: list[dict]):
     """Figure: the rendered frame, six real frames, the candidates' area distributions and the
     ratio of each statistic (the factor-2 band shaded). Returns a matplotlib Figure."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
     h = real[0].shape[0]
     sim_frame = at_height(rendered, h)
     fig = plt.figure(figsize=(12, 7.5), constrained_layout=True)

@@ -9,17 +9,19 @@ functions here:
 - :func:`shade` evaluates, for each ray, the scene's BSDF for every light of a rig in closed form
   (see :mod:`simtest.render.endoscope`) with optional shadow rays.
 
-Rays start at the camera centre (the origin of the scene frame). Importing this module imports
-Mitsuba: call it after :func:`simtest.render.render.choose_variant`.
+Rays start at the camera centre (the origin of the scene frame). Mitsuba and Dr.Jit load through
+:func:`simtest._lazy.require` when a function runs: call them after
+:func:`simtest.render.render.choose_variant`.
 """
 
 from __future__ import annotations
 
-import drjit as dr
-import mitsuba as mi
 import numpy as np
 
+from simtest.geometry.cameras import OmnidirectionalCamera, PinholeCamera
 from simtest.geometry.lights import LightRig
+from simtest._lazy import require
+from simtest.render import tissue
 
 __all__ = ["BATCH_RAYS", "cast", "model_rays", "shade", "shade_tissue"]
 
@@ -28,8 +30,10 @@ __all__ = ["BATCH_RAYS", "cast", "model_rays", "shade", "shade_tissue"]
 BATCH_RAYS = 1 << 21
 
 
-def _rays(d) -> mi.Ray3f:
-    """Rays from the origin along ``d``: an (N, 3) numpy array or a Dr.Jit ``Vector3f``."""
+def _rays(d):
+    """Rays (``mitsuba.Ray3f``) from the origin along ``d``: an (N, 3) numpy array or a Dr.Jit
+    ``Vector3f``."""
+    mi = require("mitsuba")
     if isinstance(d, np.ndarray):
         d = np.ascontiguousarray(d, dtype=np.float32)
         d = mi.Vector3f(d[:, 0], d[:, 1], d[:, 2])
@@ -50,8 +54,7 @@ def model_rays(model, uv: np.ndarray):
     v - cy)``, ``r = |(x, y)|``, ray ``(x, y, a0 + a1 r + a2 r^2 + a3 r^3 + a4 r^4)`` normalised.
     Pinhole: ``((u - cx) / fx, (v - cy) / fy, 1)`` normalised.
     """
-    from simtest.geometry.cameras import OmnidirectionalCamera, PinholeCamera
-
+    dr, mi = require("drjit"), require("mitsuba")
     uv = np.ascontiguousarray(uv, dtype=np.float32)
     u, v = mi.Float(uv[:, 0]), mi.Float(uv[:, 1])
     if isinstance(model, OmnidirectionalCamera):
@@ -90,6 +93,7 @@ def cast(scene, d: np.ndarray) -> dict[str, np.ndarray]:
         unit shading normal facing the camera; ``prim`` (N,) int64 triangle index. Misses carry
         NaN in ``t``, ``p`` and ``n``.
     """
+    dr = require("drjit")
     d = np.asarray(d, dtype=np.float64)
     si = scene.ray_intersect(_rays(d))
     valid, t_j, n_j, prim_j = si.is_valid(), si.t, si.sh_frame.n, si.prim_index
@@ -133,6 +137,7 @@ def shade(scene, d: np.ndarray, rig: LightRig, *, shadows: bool) -> tuple[np.nda
     ``point`` plugin with the ``direct`` integrator: one light, no sampling noise); the rig sums it
     over its lights with the profile ``max(0, w_z)^m`` about the scope axis.
     """
+    dr, mi = require("drjit"), require("mitsuba")
     ray = _rays(d)
     si = scene.ray_intersect(ray)
     valid = si.is_valid()
@@ -158,12 +163,16 @@ def shade(scene, d: np.ndarray, rig: LightRig, *, shadows: bool) -> tuple[np.nda
     return np.array(total, dtype=np.float32).T.copy(), np.array(valid, dtype=bool)
 
 
-class _DrXp:
-    """The numpy names :mod:`simtest.render.tissue` uses, on Dr.Jit arrays."""
+def _dr_xp():
+    """The numpy names :mod:`simtest.render.tissue` uses, on Dr.Jit arrays (a namespace)."""
+    dr = require("drjit")
 
-    sin, cos, exp, sqrt = staticmethod(dr.sin), staticmethod(dr.cos), staticmethod(dr.exp), staticmethod(dr.sqrt)
-    maximum, minimum, power = staticmethod(dr.maximum), staticmethod(dr.minimum), staticmethod(dr.power)
-    where = staticmethod(dr.select)
+    class _DrXp:
+        sin, cos, exp, sqrt = staticmethod(dr.sin), staticmethod(dr.cos), staticmethod(dr.exp), staticmethod(dr.sqrt)
+        maximum, minimum, power = staticmethod(dr.maximum), staticmethod(dr.minimum), staticmethod(dr.power)
+        where = staticmethod(dr.select)
+
+    return _DrXp
 
 
 def shade_tissue(scene, d: np.ndarray, rig: LightRig, texture, material, *,
@@ -190,9 +199,8 @@ def shade_tissue(scene, d: np.ndarray, rig: LightRig, texture, material, *,
         The specular part alone.
     hit : ndarray of shape (N,), bool
     """
-    from simtest.render import tissue
-
-    xp = _DrXp
+    dr, mi = require("drjit"), require("mitsuba")
+    xp = _dr_xp()
     ray = _rays(d)
     si = scene.ray_intersect(ray)
     valid = si.is_valid()
