@@ -13,7 +13,6 @@ import pytest
 
 from simtest.geometry.camera_file import load_camera, save_camera
 from simtest.geometry.cameras import FisheyeCamera, PinholeCamera, c3vd_camera
-from simtest.geometry.lights import Light, LightRig
 from simtest.render import render_scene, write_render
 from simtest.render.endoscope import (
     COLONOSCOPE_GUIDE_OFFSET_MM,
