@@ -17,71 +17,28 @@ fit.
 from __future__ import annotations
 
 import json
+import os
+import time
 from pathlib import Path
+from typing import Optional
 
 import cv2
 import numpy as np
 import typer
+from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
 
 from simtest._io import atomic_write_set
 from simtest.evaluate.c3vd import DEPTH_RANGE_MM, U16, _read_tiff
 from simtest.geometry.camera_file import camera_from_dict, load_camera
 from simtest.geometry.cameras import PinholeCamera
 from simtest.reconstruct._pixels import image_size_wh
+from simtest.reconstruct.frames import is_sequence, open_frames, reconstruct_frames, write_frames_jsonl
+from simtest.reconstruct.images import InputError, load_image
 from simtest.reconstruct.io import estimates_document, read_estimates
 from simtest.reconstruct.overlay import check_overlay_size, draw_overlay
 from simtest.reconstruct.pipeline import reconstruct
 from simtest.reconstruct.settings import ReconSettings
 from simtest.reconstruct.view3d import render_view, surface_from_depth
-
-
-class InputError(ValueError):
-    """A user-facing input problem, reported as one line."""
-
-
-def load_image(path) -> "np.ndarray":  # noqa: F821
-    """Read an image file for the reconstruction.
-
-    Parameters
-    ----------
-    path : str or Path
-        A ``.npy`` array, or any image format OpenCV decodes (PNG, JPEG, TIFF, ...).
-
-    Returns
-    -------
-    ndarray of shape (H, W), (H, W, 3) or as stored in the ``.npy``
-        Gray or RGB (OpenCV's BGR/BGRA converted to RGB, alpha dropped); uint8, uint16 or float
-        as stored.
-
-    Raises
-    ------
-    InputError
-        If the path is a folder, is missing, or cannot be read or decoded; the message names it.
-    """
-
-    path = Path(path)
-    if path.is_dir():
-        raise InputError(f"{path} is a folder, not an image file")
-    if not path.is_file():
-        raise InputError(f"image file not found: {path}")
-    if path.suffix.lower() == ".npy":
-        try:
-            return np.load(path, allow_pickle=False)
-        except (OSError, ValueError) as exc:
-            raise InputError(f"cannot read image {path}: {exc}") from None
-
-    try:
-        data = np.fromfile(path, dtype=np.uint8)
-    except OSError as exc:
-        raise InputError(f"cannot read image {path}: {exc}") from None
-    img = cv2.imdecode(data, cv2.IMREAD_UNCHANGED) if data.size else None
-    if img is None:
-        raise InputError(f"cannot decode image {path} (empty, corrupt or not an image format)")
-    if img.ndim == 3 and img.shape[2] == 3:
-        img = cv2.cvtColor(img, cv2.COLOR_BGR2RGB)
-    elif img.ndim == 3 and img.shape[2] == 4:
-        img = cv2.cvtColor(img, cv2.COLOR_BGRA2RGB)
-    return img
 
 
 def reconstruct_command(
@@ -94,20 +51,39 @@ def reconstruct_command(
         Path("."), "--out", "-o", help="Output folder for estimates.json and overlay.png."
     ),
     isovalues: list[float] = typer.Option(
-        [0.1], "--isovalue", "-t", help="Isovalue in (0, 1) relative to the BP; repeat for nested isophotes."
+        [0.7, 0.85], "--isovalue", "-t",
+        help="Isovalue in (0, 1), the first primary; repeat for nested isophotes. Relative to the "
+        "highlight's height above its local background (with --normalise auto or local).",
     ),
-    normalise: str = typer.Option("bp", help="Intensity normalisation: bp (the paper's: t relative to the BP), full_scale, or local (t relative to the BP's height above the median of the ROI border: for highlights on bright tissue)."),
+    normalise: str = typer.Option("auto", help="Intensity normalisation: auto (local where the ROI border is bright, else bp), bp (the paper's: t relative to the BP), full_scale, or local (t relative to the BP's height above the median of the ROI border: for highlights on bright tissue)."),
+    detection: str = typer.Option("local_peak", help="Candidate detection: local_peak (relative to each highlight's height above its local background) or full_scale (luma >= 0.7 of full scale, the paper's)."),
     allow_open: bool = typer.Option(False, "--allow-open", help="Fit isophotes cut by a border (flagged)."),
-    smooth_sigma_px: float = typer.Option(
-        0.0, "--smooth", help="Gaussian smoothing sigma in px before detection and contouring."
+    smooth_sigma_px: Optional[float] = typer.Option(  # noqa: UP045 (typer reads Optional)
+        None, "--smooth", help="Gaussian smoothing sigma in px before detection and contouring "
+        "(default: chosen from the image's noise, 0 on clean images).", show_default=False,
     ),
     points: bool = typer.Option(False, "--points", help="Also write the contour points in estimates.json."),
     overlay: bool = typer.Option(True, "--overlay/--no-overlay", help="Write overlay.png."),
     overlay_all: bool = typer.Option(False, "--overlay-all", help="Mark rejected highlights in overlay.png too."),
     view: bool = typer.Option(False, "--view", help="Also write view.png, a 3D view of the normals (pyvista, off-screen)."),
+    workers: int = typer.Option(
+        0, "--workers", "-j", min=0,
+        help="Worker processes for a folder or video (0: one per core).", show_default=False,
+    ),
 ) -> None:
-    """Estimate the normal at every specular highlight of IMAGE."""
+    """Estimate the normal at every specular highlight of IMAGE: an image file, a folder of frames
+    or a video file (then one line per frame in OUT/estimates.jsonl)."""
 
+    try:
+        settings = ReconSettings.for_frames(
+            isovalues=isovalues, normalise=normalise, allow_open=allow_open,
+            smooth_sigma_px=smooth_sigma_px, detection=detection)
+    except ValueError as exc:
+        typer.echo(f"error: {' '.join(str(exc).split())}", err=True)
+        raise typer.Exit(code=2) from None
+    if is_sequence(image):
+        _reconstruct_sequence(image, intrinsics, out, settings, points=points, workers=workers)
+        return
     try:
         img = load_image(image)
         try:
@@ -124,9 +100,6 @@ def reconstruct_command(
             )
         if out.exists() and not out.is_dir():
             raise InputError(f"--out must be a folder; {out} is a file")
-
-        settings = ReconSettings(isovalues=isovalues, normalise=normalise, allow_open=allow_open,
-                                 smooth_sigma_px=smooth_sigma_px)
         if overlay:  # refused before anything is computed or written
             check_overlay_size(img.shape)
         estimates = reconstruct(img, camera, settings=settings)
@@ -151,17 +124,58 @@ def reconstruct_command(
         msg = " ".join(str(exc).split())
         typer.echo(f"error: {msg}", err=True)
         raise typer.Exit(code=2) from None
-    n_ok = sum(e.ok for e in estimates)
-    typer.echo(f"{len(estimates)} highlight(s), {n_ok} reconstructed -> {json_path}")
+    typer.echo(summary_line(estimates, [json_path] + ([out / "overlay.png"] if overlay else [])))
+
+
+def _reconstruct_sequence(path, intrinsics, out, settings, *, points, workers) -> None:
+    """Folder or video: estimates.jsonl in frame order, a progress bar, frames per second."""
+    counts: dict[str, int] = {}
+    try:
+        source = open_frames(path)
+        try:
+            camera = load_camera(intrinsics).model
+        except FileNotFoundError:
+            raise InputError(f"intrinsics file not found: {intrinsics}") from None
+        if out.exists() and not out.is_dir():
+            raise InputError(f"--out must be a folder; {out} is a file")
+        out.mkdir(parents=True, exist_ok=True)
+        n_workers = workers or os.cpu_count() or 1
+        records = reconstruct_frames(source, camera, settings, workers=n_workers,
+                                     include_points=points)
+        with Progress(TextColumn("reconstruct"), BarColumn(), MofNCompleteColumn(),
+                      TextColumn("{task.fields[fps]:.1f} frames/s"), TimeElapsedColumn(),
+                      transient=True) as bar:
+            task = bar.add_task("frames", total=source.n_frames, fps=0.0)
+            t0 = time.perf_counter()
+
+            def on_frame(rec):
+                for k, v in rec["counts"].items():
+                    counts[k] = counts.get(k, 0) + v
+                done = rec["frame"] + 1
+                bar.update(task, completed=done, fps=done / max(time.perf_counter() - t0, 1e-9))
+
+            jsonl, n, wall = write_frames_jsonl(out / "estimates.jsonl", records, on_frame=on_frame)
+    except (ValueError, OSError) as exc:
+        msg = " ".join(str(exc).split())
+        typer.echo(f"error: {msg}", err=True)
+        raise typer.Exit(code=2) from None
+    n_cand = sum(counts.values())
+    n_ok = counts.pop("ok", 0)
+    rest = ", ".join(f"{k} {v}" for k, v in sorted(counts.items(), key=lambda kv: (-kv[1], kv[0])))
+    typer.echo(f"{n} frame(s) in {wall:.2f} s ({n / max(wall, 1e-9):.1f} frames/s, {n_workers} "
+               f"worker(s)): {n_cand} candidate(s), {n_ok} reconstructed"
+               + (f"; {rest}" if rest else "") + f" -> {jsonl}")
+
+
+def summary_line(estimates, paths) -> str:
+    """One summary of a reconstruction: counts per status, then the output paths."""
+    counts: dict[str, int] = {}
     for e in estimates:
-        if e.ok:
-            n = e.cone_axis
-            typer.echo(
-                f"  BP ({e.bp_px[0]:.1f}, {e.bp_px[1]:.1f}) px: cone axis ({n[0]:+.4f}, {n[1]:+.4f}, "
-                f"{n[2]:+.4f}), gap {e.eigenvalue_gap:.2e}, residual {e.fit_residual_px:.3f} px"
-            )
-        else:
-            typer.echo(f"  BP ({e.bp_px[0]:.1f}, {e.bp_px[1]:.1f}) px: {e.status}")
+        counts[e.status] = counts.get(e.status, 0) + 1
+    n_ok = counts.pop("ok", 0)
+    rest = ", ".join(f"{k} {v}" for k, v in sorted(counts.items(), key=lambda kv: (-kv[1], kv[0])))
+    return (f"{len(estimates)} candidate(s), {n_ok} reconstructed" + (f"; {rest}" if rest else "")
+            + " -> " + ", ".join(str(p) for p in paths))
 
 
 def _camera_of(doc: dict, intrinsics: Path | None):

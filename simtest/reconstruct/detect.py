@@ -61,6 +61,10 @@ class Candidate:
         ``"ok"`` or a reason (see module docstring).
     detail : str
         Numbers behind a rejection.
+    level : float or None
+        Intensity level (image units) at which the component was cut out with
+        ``method="local_peak"`` (its local background plus ``peak_rel`` of its height); None with
+        ``method="full_scale"`` (the level is ``Detection.threshold``).
     """
 
     bp_uv: np.ndarray
@@ -71,6 +75,7 @@ class Candidate:
     roi: Roi
     status: str = "ok"
     detail: str = ""
+    level: float | None = None
 
 
 @dataclass(frozen=True)
@@ -193,7 +198,6 @@ def _gray_native(image: np.ndarray) -> np.ndarray:
     """Fast luma for thresholding: OpenCV for uint8/uint16/float32 RGB, numpy otherwise."""
     if image.ndim == 2:
         return image
-
     if image.dtype in (np.uint8, np.uint16, np.float32):
         return cv2.cvtColor(np.ascontiguousarray(image), cv2.COLOR_RGB2GRAY)
     return luma(image)
@@ -201,7 +205,6 @@ def _gray_native(image: np.ndarray) -> np.ndarray:
 
 def _threshold_mask(gray: np.ndarray, thr: float) -> np.ndarray:
     """uint8 mask (0/1) of ``gray >= thr``, by cv2.threshold where the dtype allows."""
-
     if gray.dtype == np.uint8 or gray.dtype == np.uint16:
         t = float(np.ceil(thr)) - 1.0  # integer x >= thr  <=>  x > ceil(thr) - 1
         if t < 0:
@@ -269,7 +272,6 @@ def peak_uv(values: np.ndarray, r: int, c: int, mask: np.ndarray | None = None) 
     ndarray of shape (2,)
         BP (u, v), px, pixel centres at integer coordinates.
     """
-
     top = values == values[r, c]
     if mask is not None:
         top &= mask
@@ -309,6 +311,130 @@ def ellipticity(mask: np.ndarray) -> float:
     return float(n / (4 * np.pi * np.sqrt(det))) if det > 0 else float("nan")
 
 
+#: Detection methods: ``"local_peak"`` (the default: relative to each highlight's own height
+#: above its local background) and ``"full_scale"`` (a fixed fraction of full scale, the former
+#: default).
+DETECT_METHODS = ("local_peak", "full_scale")
+
+
+def noise_sigma(gray: np.ndarray) -> float:
+    """Robust standard deviation of the pixel noise of an image, image units.
+
+    The median absolute deviation of the difference between each pixel and the mean of its two
+    horizontal neighbours, ``d = x - (left + right) / 2`` (a smooth image has ``d ~ 0``; for white
+    noise of variance s^2, ``var d = 1.5 s^2``), scaled to a standard deviation:
+    ``s = 1.4826 MAD(d) / sqrt(1.5)``.
+
+    Parameters
+    ----------
+    gray : ndarray of shape (H, W)
+        Intensities (W >= 3).
+
+    Returns
+    -------
+    float
+        Estimated noise standard deviation (0 for a noise-free smooth or quantised-flat image).
+    """
+    g = gray.astype(np.float32, copy=False)
+    d = g[:, 1:-1] - 0.5 * (g[:, :-2] + g[:, 2:])
+    d = d[:: max(1, d.shape[0] // 256)]  # a few hundred rows are plenty for a median
+    return float(1.4826 * np.median(np.abs(d - np.median(d))) / np.sqrt(1.5))
+
+
+def auto_smooth_sigma_px(gray: np.ndarray, full_scale: float) -> float:
+    """Gaussian smoothing for detection and contouring chosen from the image's noise.
+
+    0 (none) when the noise is below 0.5 % of full scale (renders, clean frames: 8-bit JPEG
+    ringing included), else ``min(2.5, 1 + noise / (1 % of full scale))`` px: 2 px for 1 %,
+    2.5 px from 1.5 % (a Gaussian of sigma s divides white noise by ``2 s sqrt(pi)``: 2 px cut it
+    sevenfold, enough to keep one highlight in one component; more blurs small highlights away).
+
+    Parameters
+    ----------
+    gray : ndarray of shape (H, W)
+    full_scale : float
+
+    Returns
+    -------
+    float
+        Sigma in px, >= 0.
+    """
+    s = noise_sigma(gray) / full_scale
+    return 0.0 if s < 0.005 else float(min(2.5, 1.0 + s / 0.01))
+
+
+def _scope_border(gray: np.ndarray, level: float) -> np.ndarray | None:
+    """The endoscope's black border: pixels below ``level`` joined to at least two image corners,
+    when they cover 1 % to 60 % of the image (a dark scene, such as a render on black, is not a scope
+    border); dilated by 5 px (the edge of the field of view, and text drawn on it). None if
+    there is none."""
+    dark = (gray < level).astype(np.uint8)
+    n, lab, stats, _ = cv2.connectedComponentsWithStats(dark, connectivity=8)
+    if n <= 1:
+        return None
+    # a scope's field of view is round or octagonal: its black border holds the image corners
+    corners = np.array([lab[0, 0], lab[0, -1], lab[-1, 0], lab[-1, -1]])
+    edge = np.unique(corners[corners > 0])
+    if len(corners[corners > 0]) < 2:
+        return None
+    frac = stats[edge, cv2.CC_STAT_AREA].sum() / gray.size
+    if not 0.01 <= frac <= 0.6:
+        return None
+    border = np.isin(lab, edge).view(np.uint8)
+    # the text drawn on the border: bright holes of the dark region (filled by closing)
+    border = cv2.morphologyEx(border, cv2.MORPH_CLOSE, np.ones((15, 15), np.uint8))
+    return cv2.dilate(border, np.ones((11, 11), np.uint8)).view(bool)
+
+
+#: The background square of :func:`local_peak_mask` is ``min(H, W) / BACKGROUND_DIV`` px (>= 31).
+BACKGROUND_DIV = 10
+
+
+def local_peak_mask(gray: np.ndarray, full_scale: float, *, peak_rel: float = 0.6,
+                    contrast_min_rel: float = 0.08, background_px: int | None = None):
+    """Bright-candidate mask relative to local peaks (``method="local_peak"``).
+
+    The diffuse background is the grey opening of the luma by a square of side ``background_px``
+    (it removes every bright structure narrower than that); the top-hat ``T = gray - background``
+    is the specular part. A pixel is a candidate when ``T >= peak_rel * max(T over the same
+    square around it)`` (relative to its own local peak, not to full scale) and ``T >=
+    contrast_min_rel * full_scale`` (it stands out of the background).
+
+    Parameters
+    ----------
+    gray : ndarray of shape (H, W)
+        Luma (smoothed if the caller smooths).
+    full_scale : float
+        Intensity of white, image units.
+    peak_rel : float
+        Fraction of the local top-hat peak (0.5: the half-height core of each highlight).
+    contrast_min_rel : float
+        Smallest top-hat, fraction of full scale.
+    background_px : int, optional
+        Side of the square, px; default ``max(31, min(H, W) // 16)`` (odd): wider than the
+        highlights of endoscopic frames (up to about 30 px in a 1350 x 1080 frame); a broader lobe
+        keeps a smaller core and its ROI grows in the pipeline.
+
+    Returns
+    -------
+    mask : ndarray of shape (H, W), uint8
+        1 for candidate pixels.
+    background : ndarray of shape (H, W), float32
+        The opening (image units).
+    """
+    g = gray.astype(np.float32, copy=False)
+    h, w = g.shape
+    side = int(background_px) if background_px else max(31, min(h, w) // BACKGROUND_DIV)
+    side += 1 - side % 2
+    kernel = cv2.getStructuringElement(cv2.MORPH_RECT, (side, side))
+    background = cv2.morphologyEx(g, cv2.MORPH_OPEN, kernel, borderType=cv2.BORDER_REPLICATE)
+    top = g - background
+    local_peak = cv2.dilate(top, kernel, borderType=cv2.BORDER_REPLICATE)
+    thr = float(contrast_min_rel * full_scale)
+    mask = ((top >= peak_rel * local_peak) & (top >= thr)).view(np.uint8)
+    return mask, background
+
+
 def detect_specularities(
     image,
     *,
@@ -321,7 +447,10 @@ def detect_specularities(
     roi_scale: float = 3.0,
     roi_margin_px: int = 4,
     max_candidates: int = 1000,
-    smooth_sigma_px: float = 0.0,
+    smooth_sigma_px: float | None = 0.0,
+    method: str = "full_scale",
+    peak_rel: float = 0.6,
+    contrast_min_rel: float = 0.08,
 ) -> Detection:
     """Find candidate specular highlights in a whole image.
 
@@ -349,9 +478,19 @@ def detect_specularities(
     max_candidates : int, optional
         Only the largest ``max_candidates`` components are examined (a safety valve for noise);
         how many were left out is ``Detection.n_unexamined``.
-    smooth_sigma_px : float, optional
-        Gaussian smoothing of the luma before thresholding and BP search (0: none). On a noisy
-        image it keeps one highlight from breaking into several components.
+    smooth_sigma_px : float or None, optional
+        Gaussian smoothing of the luma before thresholding and BP search (0: none; None: chosen
+        from the image's noise by :func:`auto_smooth_sigma_px`). On a noisy image it keeps one
+        highlight from breaking into several components.
+    method : {"full_scale", "local_peak"}
+        ``"full_scale"``: bright pixels are >= ``brightness_rel * full_scale``, components found
+        by their outer boundaries. ``"local_peak"``: bright pixels by :func:`local_peak_mask`
+        (``peak_rel``, ``contrast_min_rel``), components by one
+        ``cv2.connectedComponentsWithStats`` pass; candidates on the endoscope's black border
+        (burnt-in text) get ``black_border``; saturated plateaus are counted after a 3 x 3
+        closing, from 3 px, so that noise does not split one clipped top into several.
+    peak_rel, contrast_min_rel : float
+        See :func:`local_peak_mask` (``method="local_peak"`` only).
 
     Returns
     -------
@@ -373,25 +512,47 @@ def detect_specularities(
     if saturation_level is None and img.dtype.kind == "u":
         saturation_level = float(np.iinfo(img.dtype).max)
 
+    if method not in DETECT_METHODS:
+        raise ValueError(f"method: {method!r} is not one of {DETECT_METHODS}")
     gray = _gray_native(img)
+    if smooth_sigma_px is None:
+        smooth_sigma_px = auto_smooth_sigma_px(gray, fs)
     if smooth_sigma_px > 0:
         gray = cv2.GaussianBlur(gray.astype(np.float32), (0, 0), float(smooth_sigma_px),
                                 borderType=cv2.BORDER_REFLECT)
-    thr = brightness_rel * fs
-    mask = _threshold_mask(gray, thr)
-    # Outer boundaries of the 8-connected bright components (a raster scan: much faster than
-    # connectedComponentsWithStats on a sparse 1.5 Mpx mask); each is then filled in its bbox.
-    contours, _ = cv2.findContours(mask, cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_SIMPLE)
-    if not contours:
-        return Detection([], fs, thr)
     h, w = gray.shape
-    comps = []
-    for cnt in contours:
-        x, y, bw, bh = cv2.boundingRect(cnt)
-        comp = np.zeros((bh, bw), np.uint8)
-        cv2.drawContours(comp, [cnt], -1, 1, thickness=-1, offset=(-x, -y))
-        comp &= mask[y : y + bh, x : x + bw]
-        comps.append((int(np.count_nonzero(comp)), x, y, bw, bh, comp))
+    scope = None
+    levels = None
+    if method == "local_peak":
+        if not 0.0 < peak_rel < 1.0:
+            raise ValueError(f"peak_rel must be in (0, 1), got {peak_rel!r}")
+        mask, background = local_peak_mask(gray, fs, peak_rel=peak_rel,
+                                           contrast_min_rel=contrast_min_rel)
+        thr = contrast_min_rel * fs
+        n_lab, labels, stats, _ = cv2.connectedComponentsWithStats(mask, connectivity=8)
+        if n_lab <= 1:
+            return Detection([], fs, thr)
+        scope = _scope_border(gray, 0.08 * fs)
+        comps = []
+        for k in range(1, n_lab):
+            x, y, bw, bh, area = (int(v) for v in stats[k])
+            comps.append((area, x, y, bw, bh, (labels[y : y + bh, x : x + bw] == k).view(np.uint8)))
+        levels = background
+    else:
+        thr = brightness_rel * fs
+        mask = _threshold_mask(gray, thr)
+        # Outer boundaries of the 8-connected bright components (a raster scan: much faster than
+        # connectedComponentsWithStats on a sparse 1.5 Mpx mask); each is then filled in its bbox.
+        contours, _ = cv2.findContours(mask, cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_SIMPLE)
+        if not contours:
+            return Detection([], fs, thr)
+        comps = []
+        for cnt in contours:
+            x, y, bw, bh = cv2.boundingRect(cnt)
+            comp = np.zeros((bh, bw), np.uint8)
+            cv2.drawContours(comp, [cnt], -1, 1, thickness=-1, offset=(-x, -y))
+            comp &= mask[y : y + bh, x : x + bw]
+            comps.append((int(np.count_nonzero(comp)), x, y, bw, bh, comp))
     comps.sort(key=lambda c: -c[0])
     out: list[Candidate] = []
     for area, x, y, bw, bh, comp in comps[:max_candidates]:
@@ -412,13 +573,16 @@ def detect_specularities(
             sat &= sub_lab
             if sat.any():
                 saturated = True
-                _, _, pstats, pcent = cv2.connectedComponentsWithStats(
-                    sat.view(np.uint8), connectivity=8
-                )
+                sat8 = sat.view(np.uint8)
+                min_plateau = min_plateau_px
+                if method == "local_peak":
+                    sat8 = cv2.morphologyEx(sat8, cv2.MORPH_CLOSE, np.ones((3, 3), np.uint8)) & comp
+                    min_plateau = max(min_plateau_px, 3)
+                _, _, pstats, pcent = cv2.connectedComponentsWithStats(sat8, connectivity=8)
                 areas = pstats[1:, cv2.CC_STAT_AREA]
                 big = int(np.argmax(areas))
-                if int(np.sum(areas >= min_plateau_px)) > 1:
-                    status, detail = "merged", f"{int(np.sum(areas >= min_plateau_px))} saturated plateaus"
+                if int(np.sum(areas >= min_plateau)) > 1:
+                    status, detail = "merged", f"{int(np.sum(areas >= min_plateau))} saturated plateaus"
                 # centroid (x, y) = (col, row) of the plateau in the bbox
                 cx, cy = pcent[1 + big]
                 bp_uv = rc_to_uv([cy, cx], bbox.row0, bbox.col0)
@@ -428,6 +592,8 @@ def detect_specularities(
             status, detail = "too_small", f"{area} px < {min_area_px}"
         elif x == 0 or y == 0 or x + bw >= w or y + bh >= h:
             status, detail = "touches_border", f"bbox (row0, row1, col0, col1) = {tuple(bbox)}"
+        elif scope is not None and scope[bbox.slices].any():
+            status, detail = "black_border", "on or within 5 px of the endoscope's black border"
         elif status == "ok" and area >= 12:
             e = ellipticity(sub_lab)
             if not (ellipticity_min <= e <= 1.0 / ellipticity_min):
@@ -435,6 +601,10 @@ def detect_specularities(
                 detail = f"ellipticity {e:.3f} outside [{ellipticity_min}, {1 / ellipticity_min:.3f}]"
         half = roi_scale * max(bw, bh) / 2.0 + roi_margin_px
         roi = Roi.around(bp_uv, half, img.shape)
-        out.append(Candidate(bp_uv, peak, saturated, area, bbox, roi, status, detail))
+        level = None
+        if levels is not None:  # the detection level of this component: half its local height
+            b = float(levels[y + pr, x + pc])
+            level = b + peak_rel * (peak - b)
+        out.append(Candidate(bp_uv, peak, saturated, area, bbox, roi, status, detail, level))
     out.sort(key=lambda c: -c.peak)
     return Detection(out, fs, thr, max(0, len(comps) - max_candidates))

@@ -20,6 +20,7 @@ REASONS: dict[str, str] = {
     # detection (whole image)
     "too_small": "the candidate highlight has fewer pixels than min_area_px",
     "touches_border": "the candidate highlight touches the image border",
+    "black_border": "the candidate lies on the endoscope's black border (burnt-in text, not tissue)",
     "not_elliptical": "the candidate's shape is far from a filled ellipse (area vs. second moments)",
     "merged": "the candidate holds several saturated plateaus, or its isophote encloses another BP",
     # isophote extraction

@@ -65,6 +65,8 @@ from simtest.geometry.cameras import CameraModel, PinholeCamera
 from simtest.reconstruct._pixels import Roi, image_size_wh, rc_to_uv, uv_to_rc
 from simtest.reconstruct.cone_fit import FitFrame, fit_cone, fit_frame, to_camera, to_fit_frame
 from simtest.reconstruct.detect import (
+    _gray_native,
+    auto_smooth_sigma_px,
     default_full_scale,
     detect_specularities,
     luma,
@@ -74,7 +76,7 @@ from simtest.reconstruct.detect import (
 from simtest.reconstruct.estimators import estimate_from_conic, joint_cone_axis
 from simtest.reconstruct.failures import OK, Failure
 from simtest.reconstruct.isophote import MIN_CONTOUR_POINTS, extract_isophote, polygon_contains
-from simtest.reconstruct.settings import Normalisation, ReconSettings
+from simtest.reconstruct.settings import AUTO_LOCAL_BACKGROUND_REL, Normalisation, ReconSettings
 
 #: ROI growth when the lowest isophote is cut by a ROI side inside the image.
 ROI_GROWTH_FACTOR = 2.0
@@ -280,9 +282,10 @@ class _Frame:
     settings: ReconSettings
     full_scale: float
     saturation_level: float | None
+    smooth_sigma_px: float
 
     @classmethod
-    def make(cls, image, K, dist_coeffs, settings: ReconSettings) -> _Frame:
+    def make(cls, image, K, dist_coeffs, settings: ReconSettings, noise_roi: Roi | None = None) -> _Frame:
         img = validate_image(image)
         camera = as_camera(K, dist_coeffs)
         if camera.image_size is not None and tuple(camera.image_size) != image_size_wh(img.shape):
@@ -292,7 +295,11 @@ class _Frame:
         sat = settings.saturation_level
         if sat is None and img.dtype.kind == "u":
             sat = float(np.iinfo(img.dtype).max)
-        return cls(img, camera, settings, fs, sat)
+        sigma = settings.smooth_sigma_px
+        if sigma is None:  # chosen from the noise of the region looked at
+            region = img if noise_roi is None else img[noise_roi.slices]
+            sigma = auto_smooth_sigma_px(_gray_native(region), fs)
+        return cls(img, camera, settings, fs, sat, float(sigma))
 
     def bp_ray(self, bp_uv: np.ndarray) -> np.ndarray:
         """BP-ray normal of a pixel (3,), NaN when the pixel has no ray in the camera model."""
@@ -401,6 +408,9 @@ class _Levels:
     @classmethod
     def of(cls, frame: _Frame, vals: np.ndarray, i_bp: float) -> _Levels:
         mode = frame.settings.normalise
+        if mode == Normalisation.AUTO:
+            local = _border_median(vals) >= AUTO_LOCAL_BACKGROUND_REL * i_bp
+            mode = Normalisation.LOCAL if local else Normalisation.BP
         if mode == Normalisation.BP:
             return cls(i_bp)
         if mode == Normalisation.LOCAL:
@@ -445,7 +455,7 @@ def _one_isophote(frame: _Frame, vals, roi, levels: _Levels, t, bp_uv, bp_ray, f
 def _estimate_one(frame: _Frame, bp_uv, roi: Roi, *, saturated: bool, grow: bool,
                   other_bps=()) -> SpecularityEstimate:
     isovalues = frame.settings.isovalues
-    sigma = frame.settings.smooth_sigma_px
+    sigma = frame.smooth_sigma_px
     bp_uv = np.asarray(bp_uv, dtype=np.float64)
     bp_ray = frame.bp_ray(bp_uv)
     if not np.isfinite(bp_ray).all():
@@ -503,6 +513,8 @@ def _initial_roi(cand, bp_uv, threshold, frame: _Frame) -> Roi:
     ROI is grown by the pipeline; this only saves the retries.
     """
     t_min = min(frame.settings.isovalues)
+    if cand.level is not None:
+        threshold = cand.level  # this component's own detection level (detection="local_peak")
     peak = max(cand.peak, threshold * (1 + 1e-6), np.finfo(float).tiny)
     full = frame.settings.normalise == Normalisation.FULL_SCALE
     level = t_min * (frame.full_scale if full else peak)
@@ -603,18 +615,22 @@ def reconstruct(
     K : CameraModel or array_like of shape (3, 3)
         The camera model, or pinhole intrinsics (pixel centres at integer coordinates).
     isovalues : float or sequence of float, optional
-        Isovalue(s) t in (0, 1), relative to the BP intensity by default; the first is primary.
-        Default those of ``settings`` (``ReconSettings().isovalues = (0.1,)``).
+        Isovalue(s) t in (0, 1); the first is primary. Default those of ``settings``
+        (``ReconSettings.for_frames()``: 0.7 and 0.85 of the highlight's height above its local
+        background).
     dist_coeffs : array_like, optional
         OpenCV distortion coefficients of a pinhole K (not with a camera model).
     roi : (row0, row1, col0, col1), optional
         Restrict detection to this region (array indices, half-open).
     settings : ReconSettings, optional
-        The reconstruction settings (default ``ReconSettings()``).
+        The reconstruction settings; default :meth:`ReconSettings.for_frames` (the defaults for
+        whole frames: detection relative to local peaks, smoothing chosen from the noise,
+        ``normalise="auto"``). The paper's settings are ``ReconSettings()``.
     **options
         Fields of :class:`~simtest.reconstruct.settings.ReconSettings` to change: ``normalise``,
-        ``allow_open``, ``smooth_sigma_px`` (applies to detection too), and the detection limits
-        ``brightness_rel``, ``full_scale``, ``saturation_level``, ``min_area_px`` (see
+        ``allow_open``, ``smooth_sigma_px`` (applies to detection too; None: from the noise),
+        ``detection``, ``peak_rel`` and the detection limits ``brightness_rel``, ``full_scale``,
+        ``saturation_level``, ``min_area_px`` (see
         :func:`~simtest.reconstruct.detect.detect_specularities`).
 
     Returns
@@ -637,18 +653,16 @@ def reconstruct(
             if e.ok:
                 print(e.bp_px, e.cone_axis, e.normals_paper)
     """
-    settings = ReconSettings.make(settings, isovalues, **options)
-    frame = _Frame.make(image, K, dist_coeffs, settings)
-    img = frame.img
-    if roi is not None:
-        r = Roi.coerce(roi, img.shape)
-        sub = img[r.slices]
-    else:
-        r, sub = Roi(0, img.shape[0], 0, img.shape[1]), img
+    settings = ReconSettings.make(settings, isovalues, frames=True, **options)
+    img = validate_image(image)
+    r = Roi(0, img.shape[0], 0, img.shape[1]) if roi is None else Roi.coerce(roi, img.shape)
+    frame = _Frame.make(img, K, dist_coeffs, settings, noise_roi=r)
+    sub = img[r.slices]
     det = detect_specularities(
         sub, brightness_rel=settings.brightness_rel, full_scale=frame.full_scale,
         saturation_level=settings.saturation_level, min_area_px=settings.min_area_px,
-        smooth_sigma_px=settings.smooth_sigma_px,
+        smooth_sigma_px=frame.smooth_sigma_px, method=settings.detection,
+        peak_rel=settings.peak_rel,
     )
     shift = np.array([r.col0, r.row0], dtype=np.float64)
     bps = [c.bp_uv + shift for c in det.candidates]

@@ -1,0 +1,210 @@
+"""Reconstruction of a sequence: a folder of frames or a video file, frames in order, across cores.
+
+:func:`open_frames` lists the frames of a folder (image files sorted by name) or of a video file
+(read in order by OpenCV's ``VideoCapture``); :func:`reconstruct_frames` runs
+:func:`~simtest.reconstruct.pipeline.reconstruct` on each, in worker processes, and yields one
+record per frame in frame order; :func:`write_frames_jsonl` writes them to ``estimates.jsonl``
+(one JSON line per frame, written to a temporary file and renamed when complete). Each frame is
+reconstructed on its own, so the records are those of frame-by-frame calls whatever the number of
+workers.
+
+A record: ``{"frame": index from 0, "source": file name or "video:<index>", "image_shape":
+[H, W], "counts": {status: n}, "specularities": [estimate dicts, as in estimates.json]}``.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import time
+from collections.abc import Iterator
+from concurrent.futures import ProcessPoolExecutor
+from dataclasses import dataclass
+from pathlib import Path
+
+import cv2
+import numpy as np
+
+from simtest.reconstruct.images import load_image
+from simtest.reconstruct.io import estimate_to_dict
+from simtest.reconstruct.pipeline import reconstruct
+from simtest.reconstruct.settings import ReconSettings
+
+#: Image files a folder of frames may hold (by suffix, case-insensitive).
+FRAME_SUFFIXES = (".png", ".jpg", ".jpeg", ".tif", ".tiff", ".bmp", ".npy")
+#: Suffixes read as video files.
+VIDEO_SUFFIXES = (".mp4", ".avi", ".mov", ".mkv", ".webm", ".m4v", ".mpg", ".mpeg")
+
+
+@dataclass(frozen=True)
+class FrameSource:
+    """A sequence of frames.
+
+    Attributes
+    ----------
+    path : Path
+        The folder or the video file.
+    kind : str
+        ``"folder"`` or ``"video"``.
+    n_frames : int or None
+        Number of frames (a video's count from its header: None if it does not say).
+    files : tuple of Path
+        The frame files of a folder, in order (empty for a video).
+    """
+
+    path: Path
+    kind: str
+    n_frames: int | None
+    files: tuple[Path, ...] = ()
+
+    def __iter__(self) -> Iterator[tuple[int, str, np.ndarray]]:
+        """``(index, source name, RGB or gray image)`` for each frame, in order."""
+        if self.kind == "folder":
+            for i, f in enumerate(self.files):
+                yield i, f.name, load_image(f)
+            return
+        cap = cv2.VideoCapture(str(self.path))
+        try:
+            i = 0
+            while True:
+                ok, bgr = cap.read()
+                if not ok:
+                    break
+                yield i, f"video:{i}", cv2.cvtColor(bgr, cv2.COLOR_BGR2RGB)
+                i += 1
+        finally:
+            cap.release()
+
+
+def is_sequence(path) -> bool:
+    """True if ``path`` is a folder or has a video suffix."""
+    path = Path(path)
+    return path.is_dir() or path.suffix.lower() in VIDEO_SUFFIXES
+
+
+def open_frames(path) -> FrameSource:
+    """The frames of a folder or a video file.
+
+    Parameters
+    ----------
+    path : str or Path
+        A folder of image files (:data:`FRAME_SUFFIXES`, sorted by name) or a video file.
+
+    Returns
+    -------
+    FrameSource
+
+    Raises
+    ------
+    ValueError
+        Naming the path: it does not exist, a folder holds no frame, or OpenCV cannot open the
+        video.
+    """
+    path = Path(path)
+    if path.is_dir():
+        files = tuple(sorted(p for p in path.iterdir()
+                             if p.is_file() and p.suffix.lower() in FRAME_SUFFIXES))
+        if not files:
+            raise ValueError(f"{path}: the folder holds no frame ({', '.join(FRAME_SUFFIXES)})")
+        return FrameSource(path, "folder", len(files), files)
+    if not path.is_file():
+        raise ValueError(f"{path}: no such folder or video file")
+    cap = cv2.VideoCapture(str(path))
+    try:
+        if not cap.isOpened():
+            raise ValueError(f"{path}: OpenCV cannot open this video file")
+        n = int(cap.get(cv2.CAP_PROP_FRAME_COUNT))
+    finally:
+        cap.release()
+    return FrameSource(path, "video", n if n > 0 else None)
+
+
+def _frame_record(args) -> dict:
+    index, name, image, K, settings, dist_coeffs, include_points = args
+    ests = reconstruct(image, K, dist_coeffs=dist_coeffs, settings=settings)
+    counts: dict[str, int] = {}
+    for e in ests:
+        counts[e.status] = counts.get(e.status, 0) + 1
+    return {"frame": index, "source": name, "image_shape": [int(v) for v in image.shape[:2]],
+            "counts": counts,
+            "specularities": [estimate_to_dict(e, include_points) for e in ests]}
+
+
+def reconstruct_frames(source: FrameSource, K, settings: ReconSettings | None = None, *,
+                       dist_coeffs=None, workers: int = 1,
+                       include_points: bool = False) -> Iterator[dict]:
+    """Reconstruct every frame of ``source``; yield one record per frame, in frame order.
+
+    Parameters
+    ----------
+    source : FrameSource
+        From :func:`open_frames`.
+    K : ndarray of shape (3, 3)
+        Intrinsics, px.
+    settings : ReconSettings, optional
+        As in :func:`~simtest.reconstruct.pipeline.reconstruct` (default
+        :meth:`ReconSettings.for_frames`).
+    dist_coeffs : array_like, optional
+        OpenCV distortion coefficients.
+    workers : int
+        Worker processes (1: in this process). Frames are decoded here and sent in order;
+        ``Executor.map`` returns them in that order.
+    include_points : bool
+        Also write each isophote's contour points.
+
+    Yields
+    ------
+    dict
+        The record of each frame (module docstring).
+    """
+    settings = ReconSettings.for_frames() if settings is None else settings
+    jobs = ((i, name, img, K, settings, dist_coeffs, include_points) for i, name, img in source)
+    if workers <= 1:
+        yield from map(_frame_record, jobs)
+        return
+    with ProcessPoolExecutor(max_workers=workers) as pool:
+        # a bounded window of frames in flight, so that a long video is not decoded all at once
+        window = 4 * workers
+        pending = []
+        for job in jobs:
+            pending.append(pool.submit(_frame_record, job))
+            if len(pending) >= window:
+                yield pending.pop(0).result()
+        for fut in pending:
+            yield fut.result()
+
+
+def write_frames_jsonl(path, records, *, on_frame=None) -> tuple[Path, int, float]:
+    """Write records as ``estimates.jsonl`` (one line each), atomically.
+
+    Parameters
+    ----------
+    path : str or Path
+        Destination file; written as ``path.tmp<pid>`` then renamed, so that a failure leaves
+        any previous complete file in place.
+    records : iterable of dict
+        From :func:`reconstruct_frames`.
+    on_frame : callable, optional
+        Called with each record after it is written (progress).
+
+    Returns
+    -------
+    (Path, int, float)
+        The file, the number of frames, and the wall time in s.
+    """
+    path = Path(path)
+    tmp = path.with_name(f"{path.name}.tmp{os.getpid()}")
+    t0 = time.perf_counter()
+    n = 0
+    try:
+        with open(tmp, "w", encoding="ascii") as fh:
+            for rec in records:
+                fh.write(json.dumps(rec, allow_nan=False, separators=(",", ":")) + "\n")
+                n += 1
+                if on_frame is not None:
+                    on_frame(rec)
+        os.replace(tmp, path)
+    finally:
+        if tmp.exists():
+            tmp.unlink()
+    return path, n, time.perf_counter() - t0

@@ -1,0 +1,96 @@
+"""`simtest reconstruct` on a folder of frames and on a video file: estimates.jsonl in frame
+order, the same records as frame-by-frame calls, whatever the number of workers."""
+
+from __future__ import annotations
+
+import json
+
+import cv2
+import numpy as np
+from typer.testing import CliRunner
+
+from simtest.cli import app
+from simtest.reconstruct import reconstruct
+from simtest.reconstruct.frames import _frame_record, open_frames
+from simtest.reconstruct.settings import ReconSettings
+from simtest.simulate.analytic import phong_plane_image
+
+K = np.array([[200.0, 0, 79.5], [0, 200.0, 59.5], [0, 0, 1]])
+
+
+def _frames(n=5):
+    """Frames with one or two highlights that move from frame to frame (so that order matters)."""
+    out = []
+    for i in range(n):
+        img = np.full((120, 160), 20.0)
+        for k in range(1 + i % 2):
+            Kw = K.copy()
+            Kw[0, 2] -= 25 * i + 60 * k - 40
+            img += 200.0 * phong_plane_image(Kw, (120, 160), np.array([0.0, 0.0, -1.0]), 50.0, 300.0)
+        out.append(np.clip(np.rint(img), 0, 255).astype(np.uint8))
+    return out
+
+
+def _write_k(tmp_path):
+    p = tmp_path / "cam.json"
+    p.write_text(json.dumps({"K": K.tolist()}))
+    return p
+
+
+def _expected(images):
+    return [_frame_record((i, "", img, K, ReconSettings.for_frames(), None, False))["specularities"]
+            for i, img in enumerate(images)]
+
+
+def test_folder_of_frames_matches_frame_by_frame_calls(tmp_path):
+    frames = tmp_path / "frames"
+    frames.mkdir()
+    images = _frames()
+    for i, img in enumerate(images):
+        cv2.imwrite(str(frames / f"f{i:03d}.png"), img)
+    (frames / "notes.txt").write_text("not a frame")
+    for workers in ("1", "2"):
+        out = tmp_path / f"out{workers}"
+        res = CliRunner().invoke(app, ["reconstruct", str(frames), "-k", str(_write_k(tmp_path)),
+                                       "-o", str(out), "-j", workers])
+        assert res.exit_code == 0, res.output
+        assert "5 frame(s)" in res.output and "frames/s" in res.output
+        lines = [json.loads(x) for x in (out / "estimates.jsonl").read_text().splitlines()]
+        assert [r["frame"] for r in lines] == list(range(5))
+        assert [r["source"] for r in lines] == [f"f{i:03d}.png" for i in range(5)]
+        assert [r["specularities"] for r in lines] == _expected(images)
+        # the highlights moved: the first ok BP of each frame is not the same
+        bps = [next(s["bp_px"] for s in r["specularities"] if s["status"] == "ok") for r in lines]
+        assert len({round(b[0]) for b in bps}) == 5
+
+
+def test_video_file_matches_frame_by_frame_calls(tmp_path):
+    video = tmp_path / "clip.avi"
+    writer = cv2.VideoWriter(str(video), cv2.VideoWriter_fourcc(*"MJPG"), 25.0, (160, 120))
+    assert writer.isOpened()
+    for img in _frames():
+        writer.write(cv2.cvtColor(img, cv2.COLOR_GRAY2BGR))
+    writer.release()
+    # what OpenCV decodes is the input of both paths (MJPG is lossy)
+    decoded = [img for _, _, img in open_frames(video)]
+    assert len(decoded) == 5
+    out = tmp_path / "out"
+    res = CliRunner().invoke(app, ["reconstruct", str(video), "-k", str(_write_k(tmp_path)),
+                                   "-o", str(out), "-j", "2"])
+    assert res.exit_code == 0, res.output
+    lines = [json.loads(x) for x in (out / "estimates.jsonl").read_text().splitlines()]
+    assert [r["source"] for r in lines] == [f"video:{i}" for i in range(5)]
+    assert [r["specularities"] for r in lines] == _expected(decoded)
+    assert sum(r["counts"].get("ok", 0) for r in lines) == sum(
+        e.ok for img in decoded for e in reconstruct(img, K))
+
+
+def test_empty_folder_and_unreadable_video_are_one_line_errors(tmp_path):
+    empty = tmp_path / "empty"
+    empty.mkdir()
+    bad = tmp_path / "bad.mp4"
+    bad.write_bytes(b"not a video")
+    for path, words in ((empty, "holds no frame"), (bad, "cannot open")):
+        res = CliRunner().invoke(app, ["reconstruct", str(path), "-k", str(_write_k(tmp_path)),
+                                       "-o", str(tmp_path / "o")])
+        assert res.exit_code == 2 and words in res.output and "Traceback" not in res.output
