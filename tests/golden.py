@@ -40,6 +40,10 @@ REAL = DATA / "real"
 PAPER = {"isovalue": [0.1], "normalise": "bp", "detection": "full_scale", "smooth_sigma_px": 0.0}
 #: The README's settings for real tissue.
 LOCAL = {"isovalue": [0.5, 0.7], "normalise": "local", "detection": "full_scale", "smooth_sigma_px": 0.0}
+#: reconstruct's defaults for whole frames (local peaks, auto normalisation and smoothing), as
+#: of the commit that introduced them; spelled out so that a later change of the defaults does
+#: not change the case.
+DEFAULTS = {"isovalue": [0.7, 0.85], "normalise": "auto", "detection": "local_peak", "smooth_sigma_px": None}
 NESTED = {"isovalue": [0.1, 0.3, 0.5], "normalise": "bp", "detection": "full_scale", "smooth_sigma_px": 0.0}
 
 
@@ -73,7 +77,7 @@ def cases() -> dict[str, tuple]:
     out = {}
     for tile in sorted(REAL.glob("hyperkvasir_tile_*.png")):
         stem = tile.stem.replace("hyperkvasir_tile_", "tile_")
-        for tag, st in (("paper", PAPER), ("local", LOCAL)):
+        for tag, st in (("paper", PAPER), ("local", LOCAL), ("defaults", DEFAULTS)):
             out[f"{stem}_{tag}"] = (lambda p=tile: (_read_rgb(p), _real_K(), {}), st, "reconstruct")
     if (RENDERS / "renders.json").exists():
         meta = json.loads((RENDERS / "renders.json").read_text())
@@ -81,6 +85,7 @@ def cases() -> dict[str, tuple]:
             load = (lambda n=name, m=m: (_read_rgb(RENDERS / f"{n}.png"), np.array(m["K"]), {}))
             out[f"render_{name}_paper"] = (load, PAPER, "reconstruct")
             out[f"render_{name}_nested"] = (load, NESTED, "reconstruct")
+            out[f"render_{name}_defaults"] = (load, DEFAULTS, "reconstruct")
 
     def frame():
         from simtest.bench import synthetic_frame
@@ -105,12 +110,15 @@ def cases() -> dict[str, tuple]:
     out["frame10_paper"] = (frame, PAPER, "reconstruct")
     out["frame10_noise2_paper"] = (noisy, PAPER, "reconstruct")
     out["frame10_noise2_smooth2_paper"] = (noisy_smooth, PAPER, "reconstruct")
+    out["frame10_defaults"] = (frame, DEFAULTS, "reconstruct")
+    out["frame10_noise2_defaults"] = (noisy, DEFAULTS, "reconstruct")
     out["roi100_nested"] = (roi, NESTED, "reconstruct_roi")
     banner = REAL / "hyperkvasir_banner.jpg"
     if banner.exists():
         load = lambda: (_read_rgb(banner), banner_K(), {})  # noqa: E731
         out["banner_paper"] = (load, PAPER, "reconstruct")
         out["banner_local"] = (load, LOCAL, "reconstruct")
+        out["banner_defaults"] = (load, DEFAULTS, "reconstruct")
     return out
 
 
