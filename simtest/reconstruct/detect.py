@@ -337,7 +337,7 @@ def noise_sigma(gray: np.ndarray) -> float:
     """
     g = gray.astype(np.float32, copy=False)
     d = g[:, 1:-1] - 0.5 * (g[:, :-2] + g[:, 2:])
-    d = d[:: max(1, d.shape[0] // 256)]  # a few hundred rows are plenty for a median
+    d = d[:: max(1, d.shape[0] // 48)]  # ~50 rows (tens of thousands of pixels): plenty for a median
     return float(1.4826 * np.median(np.abs(d - np.median(d))) / np.sqrt(1.5))
 
 
@@ -395,8 +395,10 @@ def local_peak_mask(gray: np.ndarray, full_scale: float, *, peak_rel: float = 0.
     """Bright-candidate mask relative to local peaks (``method="local_peak"``).
 
     The diffuse background is the grey opening of the luma by a square of side ``background_px``
-    (it removes every bright structure narrower than that); the top-hat ``T = gray - background``
-    is the specular part. A pixel is a candidate when ``T >= peak_rel * max(T over the same
+    (it removes every bright structure narrower than that), computed on the image reduced by area
+    averaging so that the square is about 16 px, then brought back by bilinear interpolation (the
+    background is smooth at that scale; the opening at full size costs ten times more); the
+    top-hat ``T = gray - background`` is the specular part. A pixel is a candidate when ``T >= peak_rel * max(T over the same
     square around it)`` (relative to its own local peak, not to full scale) and ``T >=
     contrast_min_rel * full_scale`` (it stands out of the background).
 
@@ -425,11 +427,21 @@ def local_peak_mask(gray: np.ndarray, full_scale: float, *, peak_rel: float = 0.
     g = gray.astype(np.float32, copy=False)
     h, w = g.shape
     side = int(background_px) if background_px else max(31, min(h, w) // BACKGROUND_DIV)
-    side += 1 - side % 2
-    kernel = cv2.getStructuringElement(cv2.MORPH_RECT, (side, side))
-    background = cv2.morphologyEx(g, cv2.MORPH_OPEN, kernel, borderType=cv2.BORDER_REPLICATE)
+    # The background is smooth at the scale of the square: open (and take the local peaks) on the
+    # image reduced so that the square is ~16 px (area averaging), then back to full size.
+    f = max(1, side // 16)
+    small = cv2.resize(g, (max(1, w // f), max(1, h // f)), interpolation=cv2.INTER_AREA) if f > 1 else g
+    k = max(3, side // f)
+    k += 1 - k % 2
+    kernel = cv2.getStructuringElement(cv2.MORPH_RECT, (k, k))
+    bg_small = cv2.morphologyEx(small, cv2.MORPH_OPEN, kernel, borderType=cv2.BORDER_REPLICATE)
+    background = cv2.resize(bg_small, (w, h), interpolation=cv2.INTER_LINEAR) if f > 1 else bg_small
+    background = np.minimum(background, g)  # an opening never exceeds the image
     top = g - background
-    local_peak = cv2.dilate(top, kernel, borderType=cv2.BORDER_REPLICATE)
+    top_small = cv2.resize(top, small.shape[::-1], interpolation=cv2.INTER_AREA) if f > 1 else top
+    peak_small = cv2.dilate(top_small, kernel, borderType=cv2.BORDER_REPLICATE)
+    local_peak = cv2.resize(peak_small, (w, h), interpolation=cv2.INTER_LINEAR) if f > 1 else peak_small
+    local_peak = np.maximum(local_peak, top)  # the local peak is at least the pixel itself
     thr = float(contrast_min_rel * full_scale)
     mask = ((top >= peak_rel * local_peak) & (top >= thr)).view(np.uint8)
     return mask, background
