@@ -36,6 +36,19 @@ import numpy as np
 from simtest.reconstruct._pixels import Roi, rc_to_uv
 
 _LUMA = np.array([0.299, 0.587, 0.114])
+
+
+def connected_components(mask: np.ndarray) -> tuple[int, np.ndarray]:
+    """8-connected components of a uint8 mask (count with the background, int32 labels), by
+    Grana's block-based algorithm: the default of the installed OpenCV (Spaghetti) took 57 ms on a
+    1350 x 1080 mask where this takes 3 ms; the components are the same."""
+    return cv2.connectedComponentsWithAlgorithm(mask, 8, cv2.CV_32S, cv2.CCL_GRANA)
+
+
+def connected_components_with_stats(mask: np.ndarray):
+    """As :func:`connected_components`, with the stats and centroids of
+    ``cv2.connectedComponentsWithStats``."""
+    return cv2.connectedComponentsWithStatsWithAlgorithm(mask, 8, cv2.CV_32S, cv2.CCL_GRANA)
 _SUPPORTED = (np.uint8, np.uint16, np.float16, np.float32, np.float64)
 
 
@@ -278,8 +291,7 @@ def peak_uv(values: np.ndarray, r: int, c: int, mask: np.ndarray | None = None) 
     r0, r1, c0, c1 = max(0, r - 1), r + 2, max(0, c - 1), c + 2
     if np.count_nonzero(top[r0:r1, c0:c1]) <= 1:
         return refine_peak_uv(values, r, c)
-    _, lab = cv2.connectedComponents(top.view(np.uint8) if top.dtype == bool else top.astype(np.uint8),
-                                     connectivity=8)
+    _, lab = connected_components(top.view(np.uint8) if top.dtype == bool else top.astype(np.uint8))
     rr, cc = np.nonzero(lab == lab[r, c])
     return rc_to_uv([rr.mean(), cc.mean()])
 
@@ -335,9 +347,9 @@ def noise_sigma(gray: np.ndarray) -> float:
     float
         Estimated noise standard deviation (0 for a noise-free smooth or quantised-flat image).
     """
-    g = gray.astype(np.float32, copy=False)
+    # ~50 rows (tens of thousands of pixels) are plenty for a median
+    g = gray[:: max(1, gray.shape[0] // 48)].astype(np.float32)
     d = g[:, 1:-1] - 0.5 * (g[:, :-2] + g[:, 2:])
-    d = d[:: max(1, d.shape[0] // 48)]  # ~50 rows (tens of thousands of pixels): plenty for a median
     return float(1.4826 * np.median(np.abs(d - np.median(d))) / np.sqrt(1.5))
 
 
@@ -365,11 +377,16 @@ def auto_smooth_sigma_px(gray: np.ndarray, full_scale: float) -> float:
 
 def _scope_border(gray: np.ndarray, level: float) -> np.ndarray | None:
     """The endoscope's black border: pixels below ``level`` joined to at least two image corners,
-    when they cover 1 % to 60 % of the image (a dark scene, such as a render on black, is not a scope
-    border); dilated by 5 px (the edge of the field of view, and text drawn on it). None if
-    there is none."""
-    dark = (gray < level).astype(np.uint8)
-    n, lab, stats, _ = cv2.connectedComponentsWithStats(dark, connectivity=8)
+    when they cover 1 % to 60 % of the image (a dark scene, such as a render on black, is not a
+    scope border); closed (the text drawn on it) and dilated by about 5 px (the edge of the field
+    of view). Found on the image reduced 4 times (area averaging): the border is large and its
+    edge needs no finer place. None if there is none."""
+    h, w = gray.shape
+    f = 4 if min(h, w) >= 64 else 1
+    small = cv2.resize(gray.astype(np.float32, copy=False), (max(1, w // f), max(1, h // f)),
+                       interpolation=cv2.INTER_AREA) if f > 1 else gray
+    dark = (small < level).astype(np.uint8)
+    n, lab, stats, _ = connected_components_with_stats(dark)
     if n <= 1:
         return None
     # a scope's field of view is round or octagonal: its black border holds the image corners
@@ -377,13 +394,17 @@ def _scope_border(gray: np.ndarray, level: float) -> np.ndarray | None:
     edge = np.unique(corners[corners > 0])
     if len(corners[corners > 0]) < 2:
         return None
-    frac = stats[edge, cv2.CC_STAT_AREA].sum() / gray.size
+    frac = stats[edge, cv2.CC_STAT_AREA].sum() / dark.size
     if not 0.01 <= frac <= 0.6:
         return None
     border = np.isin(lab, edge).view(np.uint8)
     # the text drawn on the border: bright holes of the dark region (filled by closing)
-    border = cv2.morphologyEx(border, cv2.MORPH_CLOSE, np.ones((15, 15), np.uint8))
-    return cv2.dilate(border, np.ones((11, 11), np.uint8)).view(bool)
+    close, grow = (15 // f) | 1, (11 // f) | 1
+    border = cv2.morphologyEx(border, cv2.MORPH_CLOSE, np.ones((close, close), np.uint8))
+    border = cv2.dilate(border, np.ones((grow, grow), np.uint8))
+    if f > 1:
+        border = cv2.resize(border, (w, h), interpolation=cv2.INTER_NEAREST)
+    return border.view(bool)
 
 
 #: The background square of :func:`local_peak_mask` is ``min(H, W) / BACKGROUND_DIV`` px (>= 31).
@@ -541,7 +562,7 @@ def detect_specularities(
         mask, background = local_peak_mask(gray, fs, peak_rel=peak_rel,
                                            contrast_min_rel=contrast_min_rel)
         thr = contrast_min_rel * fs
-        n_lab, labels, stats, _ = cv2.connectedComponentsWithStats(mask, connectivity=8)
+        n_lab, labels, stats, _ = connected_components_with_stats(mask)
         if n_lab <= 1:
             return Detection([], fs, thr)
         scope = _scope_border(gray, 0.08 * fs)
@@ -590,7 +611,7 @@ def detect_specularities(
                 if method == "local_peak":
                     sat8 = cv2.morphologyEx(sat8, cv2.MORPH_CLOSE, np.ones((3, 3), np.uint8)) & comp
                     min_plateau = max(min_plateau_px, 3)
-                _, _, pstats, pcent = cv2.connectedComponentsWithStats(sat8, connectivity=8)
+                _, _, pstats, pcent = connected_components_with_stats(sat8)
                 areas = pstats[1:, cv2.CC_STAT_AREA]
                 big = int(np.argmax(areas))
                 if int(np.sum(areas >= min_plateau)) > 1:

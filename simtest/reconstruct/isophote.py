@@ -30,6 +30,7 @@ import numpy as np
 from skimage.measure import find_contours
 
 from simtest.reconstruct._pixels import Roi, rc_to_uv, uv_to_rc
+from simtest.reconstruct.detect import connected_components
 from simtest.reconstruct.failures import Failure
 
 #: An ellipse has 5 degrees of freedom; one more point makes the fit over-determined (a residual).
@@ -253,7 +254,7 @@ def _component_box(sub, level, ri, ci):
     outside = (lab != 2).view(np.uint8)
     # Holes (pixels outside the component that no 8-path outside it joins to the box edge) are
     # raised above the level: their closed contours never enclose the BP.
-    n, lab8 = cv2.connectedComponents(outside, connectivity=8)
+    n, lab8 = connected_components(outside)
     if n > 2 or (n == 2 and not _touches_edge(lab8, 1)):
         edge = np.unique(np.concatenate([lab8[0], lab8[-1], lab8[:, 0], lab8[:, -1]]))
         hole = (lab8 > 0) & ~np.isin(lab8, edge)

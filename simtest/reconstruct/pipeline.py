@@ -67,6 +67,7 @@ from simtest.reconstruct.cone_fit import FitFrame, fit_cone, fit_frame, to_camer
 from simtest.reconstruct.detect import (
     _gray_native,
     auto_smooth_sigma_px,
+    connected_components,
     default_full_scale,
     detect_specularities,
     luma,
@@ -386,7 +387,7 @@ def _find_bp(img: np.ndarray, roi: Roi, saturation_level) -> tuple[np.ndarray, b
         if sat.ndim == 3:
             sat = sat.all(axis=2)
         if sat[r, c]:
-            _, lab = cv2.connectedComponents(sat.view(np.uint8), connectivity=8)
+            _, lab = connected_components(sat.view(np.uint8))
             rr, cc = np.nonzero(lab == lab[r, c])
             return rc_to_uv([rr.mean(), cc.mean()], roi.row0, roi.col0), True
     return peak_uv(vals, r, c) + (roi.col0, roi.row0), False
