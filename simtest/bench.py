@@ -40,6 +40,7 @@ import typer
 from rich.console import Console
 from rich.table import Table
 
+from simtest.constants import SINGLE_THREAD_ENV
 from simtest.geometry.camera import pixel_to_ray, project_points
 from simtest.geometry.conics import normalised_conic
 from simtest.reconstruct.estimators import estimate_from_conic
@@ -110,8 +111,7 @@ def section(name: str) -> Callable[[SectionFn], SectionFn]:
 
 def single_core() -> None:
     """Ask numerical libraries and OpenCV for one thread."""
-    for var in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
-        os.environ[var] = "1"
+    os.environ.update(SINGLE_THREAD_ENV)
 
     cv2.setNumThreads(1)
 

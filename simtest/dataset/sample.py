@@ -38,6 +38,7 @@ from PIL import Image
 
 from simtest._lazy import require
 from simtest._llvm import configure_llvm_env
+from simtest.constants import LUMINANCE_BT709, MAX_SEED
 from simtest.dataset.config import PARAMS, DatasetConfig
 from simtest.geometry.angles import unit
 from simtest.geometry.cameras import PinholeCamera
@@ -175,7 +176,7 @@ def draw_parameters(config: DatasetConfig, index: int) -> dict[str, Any]:
     for p in PARAMS:
         if p.name in dists:
             out[p.name] = dists[p.name].draw(rng, integer=p.integer)
-    out["render_seed"] = int(rng.integers(0, 2**31 - 1))
+    out["render_seed"] = int(rng.integers(0, MAX_SEED))
     return out
 
 
@@ -403,10 +404,11 @@ def _encode_png(img: np.ndarray) -> np.ndarray:
 def _gray(a: np.ndarray) -> np.ndarray:
     a = np.asarray(a)
     if a.ndim == 3:
-        # Rec. 709 luma of a (linear or 8-bit) RGB image; the renderer is monochrome in practice.
+        # Rec. 709 luminance (simtest.constants says why not Rec. 601); the renderer is monochrome
+        # in practice.
         if a.dtype == np.uint8:
-            return np.round(a[..., :3].astype(np.float64) @ [0.2126, 0.7152, 0.0722]).astype(np.uint8)
-        return (a[..., :3].astype(np.float64) @ [0.2126, 0.7152, 0.0722]).astype(np.float32)
+            return np.round(a[..., :3].astype(np.float64) @ LUMINANCE_BT709).astype(np.uint8)
+        return (a[..., :3].astype(np.float64) @ LUMINANCE_BT709).astype(np.float32)
     return a
 
 

@@ -18,6 +18,7 @@ import math
 
 import numpy as np
 
+from simtest.constants import MAX_SEED
 from simtest.geometry.angles import angle_between_deg, unit
 from simtest.geometry.conics import plane_basis
 from simtest.geometry.curvature import (
@@ -347,7 +348,7 @@ class RenderedRunner:
             principal curvatures at the BP (1/mm) and the dimensionless curvature.
         """
 
-        seed = int(seedseq.generate_state(1, np.uint32)[0]) & 0x7FFFFFFF
+        seed = int(seedseq.generate_state(1, np.uint32)[0]) & MAX_SEED  # 31 bits
         spec = with_overrides(self.spec, {"render.seed": seed})
         result = render_scene(spec, seed=seed)
         self.variant = getattr(result, "variant", None)

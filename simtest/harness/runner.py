@@ -33,6 +33,7 @@ from rich.progress import (
     TimeRemainingColumn,
 )
 
+from simtest.constants import SINGLE_THREAD_ENV
 from simtest.harness.protocols import make_runner
 from simtest.harness.suite import Case, Suite, realisation_seed
 
@@ -49,7 +50,7 @@ _RUNNERS: OrderedDict = OrderedDict()
 _RUNNERS_MAX = 8
 
 #: Environment for worker processes: one thread each for BLAS/OpenMP (the pool is the parallelism).
-_WORKER_ENV = {"OMP_NUM_THREADS": "1", "OPENBLAS_NUM_THREADS": "1", "MKL_NUM_THREADS": "1"}
+_WORKER_ENV = SINGLE_THREAD_ENV
 
 
 def default_workers() -> int:

@@ -33,9 +33,10 @@ from dataclasses import dataclass, field
 import cv2
 import numpy as np
 
+from simtest.constants import LUMA_BT601
 from simtest.reconstruct._pixels import Roi, rc_to_uv
 
-_LUMA = np.array([0.299, 0.587, 0.114])
+_LUMA = np.array(LUMA_BT601)
 
 
 def connected_components(mask: np.ndarray) -> tuple[int, np.ndarray]:

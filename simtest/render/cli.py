@@ -15,6 +15,7 @@ import typer
 from rich.console import Console
 
 from simtest._io import atomic_write, atomic_write_json, atomic_write_text
+from simtest.constants import MAX_SEED
 from simtest.render.render import (
     OutputFolderError,
     RendererUnavailable,
@@ -29,9 +30,6 @@ from simtest.resources import data_root
 from simtest.scene.spec import RENDER_VARIANTS, SceneError, load_scene
 
 __all__ = ["render_command", "simreal_command"]
-
-#: Largest render seed: the scene files' ``render.seed`` range (Mitsuba's samplers take 32-bit seeds).
-MAX_SEED = 2**31 - 1  # = simtest.render.render.MAX_SEED (not imported: Mitsuba-free start-up)
 
 
 def _fail(message: str, code: int = 2) -> typer.Exit:

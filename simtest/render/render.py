@@ -35,6 +35,7 @@ from PIL import Image
 from simtest import _llvm
 from simtest._io import atomic_write, atomic_write_text
 from simtest._lazy import require
+from simtest.constants import MAX_SEED
 from simtest.geometry.camera import pixel_to_ray
 from simtest.geometry.camera_file import save_camera, save_intrinsics
 from simtest.geometry.cameras import CameraModel, PinholeCamera
@@ -78,9 +79,6 @@ __all__ = [
 ]
 
 
-#: Largest render seed, as ``render.seed`` in scene files (:mod:`simtest.scene.spec`): Mitsuba's
-#: samplers take 32-bit seeds (a larger one fails inside ``sample_tea_32``).
-MAX_SEED = 2**31 - 1
 
 
 class RendererUnavailable(RuntimeError):

@@ -43,6 +43,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Mapping
 
+from simtest.constants import MAX_SEED
 from simtest.resources import bundled_scene_path, data_root
 
 __all__ = [
@@ -249,7 +250,7 @@ class MaterialSpec:
     film_ior: float = _fld(1.38, "float", lo=1.3, hi=1.5)
     relief_mm: float = _fld(0.0, "float", lo=0.0, hi=1.0)
     relief_scale_mm: float = _fld(0.3, "float", lo=0.05, hi=1.0)
-    texture_seed: int = _fld(0, "int", lo=0, hi=2**31 - 1)
+    texture_seed: int = _fld(0, "int", lo=0, hi=MAX_SEED)
 
     @property
     def microfacet_alpha(self) -> float:
@@ -438,7 +439,7 @@ class RenderSpec:
 
     spp: int = _fld(16, "int", lo=1, hi=1 << 20)
     sampler: str = _fld("multijitter", "str", choices=("multijitter", "independent", "stratified"))
-    seed: int = _fld(0, "int", lo=0, hi=2**31 - 1)
+    seed: int = _fld(0, "int", lo=0, hi=MAX_SEED)
     variant: str = _fld("auto", "str", choices=RENDER_VARIANTS)
 
 
