@@ -12,6 +12,7 @@ import io
 import numpy as np
 from PIL import Image
 
+from simtest.constants import LUMA_BT601
 from simtest.scene.spec import SensorSpec
 
 __all__ = ["LUMA_WEIGHTS", "SENSOR_SEED_KEY", "apply_sensor", "field_stop_mask", "frame_luma",
@@ -59,8 +60,8 @@ def apply_sensor(linear: np.ndarray, sensor: SensorSpec, seed: int) -> np.ndarra
     return np.rint(s * levels).astype(sensor_dtype(sensor.bit_depth))
 
 
-#: Luma weights of ITU-R BT.601 (the video luma of an RGB frame).
-LUMA_WEIGHTS = (0.299, 0.587, 0.114)
+#: Luma weights of ITU-R BT.601 (the video luma of an RGB frame): :data:`simtest.constants.LUMA_BT601`.
+LUMA_WEIGHTS = LUMA_BT601
 
 
 def field_stop_mask(shape: tuple[int, int], kind: str, radius: float) -> np.ndarray:

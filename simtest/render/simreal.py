@@ -36,6 +36,8 @@ import matplotlib
 import numpy as np
 from skimage.measure import label
 
+from simtest.constants import LUMA_BT601
+
 matplotlib.use("Agg", force=False)
 import matplotlib.pyplot as plt  # noqa: E402 - after choosing the back-end
 
@@ -92,7 +94,7 @@ def frame_stats(frame: np.ndarray) -> FrameStats:
     f = np.asarray(frame)
     if f.ndim != 3 or f.shape[2] != 3 or f.dtype != np.uint8:
         raise ValueError(f"frame_stats: expected an (H, W, 3) uint8 frame, got {f.shape} {f.dtype}")
-    lum = f.astype(np.float64) @ [0.299, 0.587, 0.114]
+    lum = f.astype(np.float64) @ LUMA_BT601
     lit = lum > DARK_LEVEL
     if not lit.any():
         raise ValueError("frame_stats: the frame has no lit pixel (all luma <= DARK_LEVEL)")
