@@ -778,7 +778,7 @@ def isocurve_fit(points_uv, isovalues, bp_uv, camera, rig: LightRig, *,
 def photometric_fit(values, origin_uv, bp_uv, camera, rig: LightRig, *,
                     clip_level: float | None = None, nominal_depth_mm: float = 20.0,
                     start_normal=None, start_roughness: float | None = None,
-                    loss: str = "linear", f_scale: float = 0.02,
+                    loss: str = "linear", f_scale: float = 0.02, supersample: int = 1,
                     max_pixels: int | None = 16384, max_nfev: int = 200) -> LightAwareEstimate:
     """Fit the intensities of an ROI with the image of a plane lit by the whole rig.
 
@@ -814,6 +814,9 @@ def photometric_fit(values, origin_uv, bp_uv, camera, rig: LightRig, *,
         ``linear`` (Gaussian sensor noise), or ``soft_l1``, ``huber``, ``cauchy`` (reweighted).
     f_scale : float
         Soft margin of a robust loss, relative to the ROI's maximum.
+    supersample : int
+        s x s point samples per pixel, averaged (a renderer's or sensor's box filter; 1: the
+        value at the pixel centre, as the exact images of :mod:`simtest.simulate.offset`).
     max_pixels : int or None
         Beyond this many unclipped pixels, fit those of a regular sub-grid (every k-th row and
         column; None keeps all). Every pixel of the lobe's tails matters: the tilt and the
@@ -854,7 +857,12 @@ def photometric_fit(values, origin_uv, bp_uv, camera, rig: LightRig, *,
     y = vals.ravel()[sel]
     if len(y) < 8 + 1:
         return LightAwareEstimate(name, "too_few_points", f"{len(y)} unclipped pixels")
-    d = _rays(camera, uv)
+    ss = int(supersample)
+    if ss < 1:
+        raise ValueError(f"supersample: must be >= 1, got {supersample!r}")
+    offs = (np.arange(ss) + 0.5) / ss - 0.5
+    sub = np.array([(du_, dv_) for dv_ in offs for du_ in offs])  # (ss^2, 2)
+    d = _rays(camera, (uv[:, None, :] + sub[None]).reshape(-1, 2))
     rig_arr = _rig_arrays(rig)
     bp = np.asarray(bp_uv, dtype=np.float64).reshape(2)
     d_bp, n0, h0 = _start(bp, camera, rig, nominal_depth_mm, start_normal)
@@ -867,13 +875,18 @@ def photometric_fit(values, origin_uv, bp_uv, camera, rig: LightRig, *,
     def resjac_at(p, nb, e1, e2):
         n, dns = _normal_derivs(p, nb, e1, e2)
         S, dS = _rig_image(d, n, dns, np.exp(p[2]), rig_arr, np.exp(p[3]))
+        if ss > 1:  # box filter: the mean of the sub-pixel samples
+            S, dS = S.reshape(-1, ss * ss).mean(axis=1), dS.reshape(-1, ss * ss, 4).mean(axis=1)
         g = p[4]
         r = g * S + p[5] + p[6] * du + p[7] * dv - yn
         J = np.column_stack([g * dS, S, ones, du, dv])
         return r, J
 
+    def model(n, h, rough):
+        return _intensity(d, n, h, rig_arr, rough).reshape(-1, ss * ss).mean(axis=1)
+
     if start_roughness is None:
-        S1 = _intensity(d, n0, h0, rig_arr, 1.0)  # cos beta times falloff and profile
+        S1 = model(n0, h0, 1.0)  # cos beta times falloff and profile
         spec = y - b_level
         selr = (spec > 0.05 * spec.max()) & (S1 > 0)
         rough0 = 50.0
@@ -884,7 +897,7 @@ def photometric_fit(values, origin_uv, bp_uv, camera, rig: LightRig, *,
                 rough0 = float(slope)
     else:
         rough0 = float(start_roughness)
-    S0 = _intensity(d, n0, h0, rig_arr, rough0)
+    S0 = model(n0, h0, rough0)
     lin0 = np.linalg.lstsq(np.column_stack([S0, ones, du, dv]), yn, rcond=None)[0]
     e1, e2 = plane_basis(n0)
     p0 = np.concatenate([[0.0, 0.0, np.log(h0), np.log(rough0)], lin0])

@@ -77,6 +77,7 @@ from simtest.reconstruct.detect import (
 from simtest.reconstruct.estimators import estimate_from_conic, joint_cone_axis
 from simtest.reconstruct.failures import OK, Failure
 from simtest.reconstruct.isophote import MIN_CONTOUR_POINTS, extract_isophote, polygon_contains
+from simtest.reconstruct.recommend import recommend
 from simtest.reconstruct.settings import AUTO_LOCAL_BACKGROUND_REL, Normalisation, ReconSettings
 
 #: ROI growth when the lowest isophote is cut by a ROI side inside the image.
@@ -171,6 +172,9 @@ class SpecularityEstimate:
         One per isovalue, in the order given.
     joint_cone_axis : ndarray of shape (3,) or None
         Common axis of the nested isophotes, when at least two succeeded.
+    light_aware : dict or None
+        The light-aware estimates by name (:mod:`simtest.reconstruct.recommend`), when a light rig
+        off the camera centre is known.
     """
 
     bp_px: np.ndarray
@@ -182,11 +186,18 @@ class SpecularityEstimate:
     bp_ray: np.ndarray
     isophotes: tuple[IsophoteEstimate, ...]
     joint_cone_axis: np.ndarray | None = None
+    light_aware: dict | None = None
 
     @property
     def ok(self) -> bool:
         """True if the status is ``"ok"``."""
         return self.status == OK
+
+    @property
+    def recommended(self):
+        """The recommended normal, its estimator, depth and uncertainty
+        (:func:`simtest.reconstruct.recommend.recommend`)."""
+        return recommend(self)
 
     @property
     def primary(self) -> IsophoteEstimate | None:

@@ -1,0 +1,247 @@
+"""The light-aware estimators run on detected highlights, and the normal recommended to a user.
+
+:func:`with_light_aware` runs :func:`~simtest.reconstruct.lightaware.isocurve_fit` and
+:func:`~simtest.reconstruct.lightaware.photometric_fit` on the highlights that
+:func:`~simtest.reconstruct.reconstruct` found, given the scope's light rig, and attaches the results
+to each :class:`~simtest.reconstruct.pipeline.SpecularityEstimate` (``light_aware``).
+:func:`recommend` then picks one normal per highlight, the ``normal`` of ``estimates.json``.
+
+Recommendation rule
+-------------------
+Chosen from the harness' measurements on Mitsuba renders (``simtest validate rendered`` and the
+``lightaware`` suite), never from ground truth at run time:
+
+1. With a rig whose lights are not all at the camera centre: ``photometric_fit`` when it gives a
+   normal (status ``ok`` or ``depth_not_observable``), else ``isocurve_fit``, else ``bp_ray``. On
+   renders of planes lit 1 to 25 mm off the camera the BP ray and every cone estimator err by about
+   24 deg per unit epsilon/d (they estimate the direction of the BP, not the normal); the
+   photometric fit uses every unclipped pixel and both the lobe's shape and its position, and the
+   isocurve fit only the contour points.
+2. Without a rig, or with every light at the camera centre: ``joint_cone_axis`` when at least two
+   isophotes succeeded, else ``cone_axis``, else ``bp_ray``. Over the co-located rendered suite the
+   joint cone axis has the lowest mean and median error (:func:`colocated_ranking` recomputes the
+   ranking from a ``results.json``); the BP ray is better on the curved meshes (liver, colon), the
+   cone axes on planes, spheres, cylinders and saddles and wherever the BP is clipped.
+
+``depth_mm`` and ``normal_sigma_deg`` are those of the estimator recommended (None for the cone
+axes and the BP ray, which observe neither).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from dataclasses import dataclass
+
+import numpy as np
+
+from simtest.geometry.lights import LightRig
+from simtest.reconstruct.detect import luma
+from simtest.reconstruct._pixels import Roi
+from simtest.reconstruct.lightaware import (
+    LightAwareEstimate,
+    isocurve_fit,
+    photometric_fit,
+    refine_isophote_points,
+)
+
+__all__ = ["LIGHT_AWARE", "Recommendation", "colocated_ranking", "light_aware_estimates",
+           "recommend", "with_light_aware"]
+
+#: The light-aware estimators, in the order of preference of the recommendation rule.
+LIGHT_AWARE = ("photometric_fit", "isocurve_fit")
+#: Fallback order without a rig (or with a co-located one).
+COLOCATED_ORDER = ("joint_cone_axis", "cone_axis", "bp_ray")
+
+
+@dataclass(frozen=True)
+class Recommendation:
+    """The normal recommended for one highlight.
+
+    Attributes
+    ----------
+    normal : ndarray of shape (3,)
+        Unit normal, OpenCV camera frame, facing the camera.
+    normal_from : str
+        The estimator it comes from.
+    depth_mm : float or None
+        Depth of the specular point along its ray, mm (None: not observable or not estimated).
+    normal_sigma_deg : float or None
+        1-sigma angular uncertainty, degrees (None when the estimator gives none).
+    """
+
+    normal: np.ndarray
+    normal_from: str
+    depth_mm: float | None = None
+    normal_sigma_deg: float | None = None
+
+
+def _offset_rig(rig) -> bool:
+    return rig is not None and not all(lt.position_mm == (0.0, 0.0, 0.0) for lt in rig.lights)
+
+
+def light_aware_estimates(image, est, camera, rig: LightRig, *, nominal_depth_mm: float = 20.0,
+                          saturation_level: float | None = None,
+                          roi_scale: float = 1.5, supersample: int = 1) -> dict[str, LightAwareEstimate]:
+    """Run the light-aware estimators on one detected highlight.
+
+    ``isocurve_fit`` takes the points of every isophote that succeeded (refined onto the cubic
+    spline of the image, :func:`~simtest.reconstruct.lightaware.refine_isophote_points`, at the
+    level the points sit on) when the rig has one light; ``photometric_fit`` takes the highlight's
+    ROI grown ``roi_scale`` times about the BP (the lobe's tails carry the distance), clipped pixels
+    left out, started from the isocurve fit's normal and roughness when it has them.
+
+    Parameters
+    ----------
+    image : ndarray of shape (H, W) or (H, W, 3)
+        The image the highlight was detected in.
+    est : SpecularityEstimate
+        From :func:`~simtest.reconstruct.reconstruct` or ``reconstruct_roi``.
+    camera : array_like of shape (3, 3) or CameraModel
+        Intrinsics K, or a camera model with ``pixel_to_ray``.
+    rig : LightRig
+        The scope's lights, camera frame, mm.
+    nominal_depth_mm : float
+        Depth assumed for the fits' start, mm.
+    saturation_level : float, optional
+        Clip level (default: the dtype's maximum for integer images; none for float images).
+    roi_scale : float
+        Growth of the highlight's ROI for the photometric fit.
+    supersample : int
+        Sub-pixel samples per pixel side of the photometric model (its box filter).
+
+    Returns
+    -------
+    dict
+        ``{"isocurve_fit": LightAwareEstimate, "photometric_fit": LightAwareEstimate}`` (the
+        isocurve fit is absent when no isophote succeeded).
+    """
+    img = np.asarray(image)
+    if saturation_level is None and img.dtype.kind == "u":
+        saturation_level = float(np.iinfo(img.dtype).max)
+    gray = luma(img)
+    out: dict[str, LightAwareEstimate] = {}
+    roi = Roi(*(int(v) for v in est.roi))
+    vals = gray[roi.slices]
+    origin = np.array([roi.col0, roi.row0], dtype=np.float64)
+    isos = [i for i in est.isophotes if i.ok and i.points_uv is not None and len(i.points_uv) >= 6]
+    start_n, start_rough = None, None
+    if isos:
+        pts = []
+        for iso in isos:
+            raw = np.asarray(iso.points_uv, dtype=np.float64)
+            level = float(np.median(_spline_values(vals, raw - origin)))
+            pts.append(refine_isophote_points(vals, level, raw, origin))
+        iso_est = isocurve_fit(pts, [i.isovalue for i in isos], est.bp_px, camera, rig,
+                               nominal_depth_mm=nominal_depth_mm)
+        out["isocurve_fit"] = iso_est
+        if iso_est.has_normal:
+            start_n = iso_est.normal
+            if iso_est.roughness is not None and np.isfinite(iso_est.roughness) and iso_est.roughness > 1:
+                start_rough = iso_est.roughness
+    half = roi_scale * max(roi.shape) / 2.0
+    big = Roi.around(est.bp_px, half, img.shape)
+    out["photometric_fit"] = photometric_fit(
+        gray[big.slices], (big.col0, big.row0), est.bp_px, camera, rig,
+        clip_level=saturation_level, nominal_depth_mm=nominal_depth_mm,
+        start_normal=start_n, start_roughness=start_rough, supersample=supersample)
+    return out
+
+
+def _spline_values(vals, uv_local):
+    from scipy.ndimage import map_coordinates
+
+    from simtest.reconstruct._pixels import uv_to_rc
+
+    return map_coordinates(np.asarray(vals, dtype=np.float64), uv_to_rc(uv_local).T, order=3,
+                           mode="mirror")
+
+
+def with_light_aware(image, estimates, camera, rig: LightRig | None, **kwargs) -> list:
+    """The estimates with their light-aware results attached (``light_aware``).
+
+    Nothing is run, and the estimates are returned unchanged, without a rig or with every light at
+    the camera centre (the cone axes and the BP ray are then the estimators of choice, module
+    docstring); nor for highlights rejected at detection as ``too_small`` or ``touches_border``.
+
+    Parameters
+    ----------
+    image : ndarray
+        The image.
+    estimates : sequence of SpecularityEstimate
+        From :func:`~simtest.reconstruct.reconstruct`.
+    camera : array_like of shape (3, 3) or CameraModel
+        Intrinsics K or a camera model.
+    rig : LightRig or None
+        The scope's lights.
+    **kwargs
+        Passed to :func:`light_aware_estimates`.
+
+    Returns
+    -------
+    list of SpecularityEstimate
+    """
+    if not _offset_rig(rig):
+        return list(estimates)
+    out = []
+    for est in estimates:
+        if est.status in ("too_small", "touches_border"):
+            out.append(est)
+            continue
+        out.append(dataclasses.replace(est, light_aware=light_aware_estimates(image, est, camera, rig,
+                                                                             **kwargs)))
+    return out
+
+
+def recommend(est) -> Recommendation:
+    """The normal recommended for one highlight (module docstring, "Recommendation rule").
+
+    Parameters
+    ----------
+    est : SpecularityEstimate
+        With ``light_aware`` attached by :func:`with_light_aware` when a rig is known.
+
+    Returns
+    -------
+    Recommendation
+    """
+    la = getattr(est, "light_aware", None) or {}
+    if la:
+        for name in LIGHT_AWARE:
+            r = la.get(name)
+            if r is not None and r.has_normal and r.status in ("ok", "depth_not_observable"):
+                return Recommendation(np.asarray(r.normal), name, r.depth_mm, r.normal_sigma_deg)
+        return Recommendation(np.asarray(est.bp_ray), "bp_ray")
+    for name in COLOCATED_ORDER:
+        n = getattr(est, name, None)
+        if n is not None:
+            return Recommendation(np.asarray(n), name)
+    return Recommendation(np.asarray(est.bp_ray), "bp_ray")
+
+
+def colocated_ranking(results: dict, exclude_sweeps=("light_offset",)) -> list[tuple[str, float, float]]:
+    """Rank today's estimators by their errors over a rendered suite's co-located cases.
+
+    Parameters
+    ----------
+    results : dict
+        A harness ``results.json`` document.
+    exclude_sweeps : sequence of str
+        Sweeps left out (the light offset is not co-located).
+
+    Returns
+    -------
+    list of (name, mean of case means, median of case means)
+        Best first (by the mean), over the cases where every estimator has a mean.
+    """
+    ests = [e for e in results["suite"]["estimators"] if e in COLOCATED_ORDER]
+    skip = {k for sw in results["sweeps"] if sw["name"] in exclude_sweeps for k in sw["cases"]}
+    vals: dict[str, list[float]] = {e: [] for e in ests}
+    for case in results["cases"]:
+        if case["id"] in skip:
+            continue
+        m = case["metrics"]["estimators"]
+        if all(m.get(e, {}).get("mean") is not None for e in ests):
+            for e in ests:
+                vals[e].append(float(m[e]["mean"]))
+    rows = [(e, float(np.mean(v)), float(np.median(v))) for e, v in vals.items() if v]
+    return sorted(rows, key=lambda r: r[1])
