@@ -539,6 +539,23 @@ def _solve(resjac, p0, args, loss: str, f_scale: float, max_nfev: int, free=None
     return full(q), nfev, ok, msg
 
 
+#: Plausible fitted values: the distance within this factor of the start's, the roughness in
+#: this range. Outside, the plane model is explaining something else (a curved patch whose lobe
+#: the curvature compresses is fitted with n in the thousands and h -> 0): reported as not converged.
+_H_FACTOR = 20.0
+_ROUGHNESS_RANGE = (1.0, 2000.0)
+
+
+def _implausible(h_hat: float, h0: float, roughness: float | None) -> str:
+    """Why a fit's solution is implausible ("" when it is not)."""
+    if not (np.isfinite(h_hat) and h0 / _H_FACTOR <= h_hat <= h0 * _H_FACTOR):
+        return f"fitted distance {h_hat:.4g} mm is not within a factor {_H_FACTOR:g} of the start's {h0:.4g} mm"
+    if roughness is not None and not (np.isfinite(roughness)
+                                      and _ROUGHNESS_RANGE[0] <= roughness <= _ROUGHNESS_RANGE[1]):
+        return f"fitted roughness {roughness:.4g} outside {_ROUGHNESS_RANGE}"
+    return ""
+
+
 def _log_depth_gradient(n, h, Lm) -> np.ndarray:
     """d log(depth) / d(a, b, log h) about (n, h), the tangent basis of :func:`plane_basis` (3,)."""
     e1, e2 = plane_basis(n)
@@ -764,6 +781,9 @@ def isocurve_fit(points_uv, isovalues, bp_uv, camera, rig: LightRig, *,
     n_hat = _normal_derivs(x, n0, e1, e2)[0]
     h_hat = float(np.exp(x[2]))
     q = x[3:]
+    bad = _implausible(h_hat, h0, None if n_tau == 1 else 1.0 / q[0])
+    if bad:
+        return LightAwareEstimate(name, "not_converged", bad, n_evaluations=nfev)
     if n_hat @ L + h_hat <= 0:
         return LightAwareEstimate(name, "light_behind_plane", f"h = {h_hat:.4g} mm", n_evaluations=nfev)
     return _finish(name, resjac_at, n_hat, h_hat, rig, q, TOL.isophote_noise_px, nfev, conv,
@@ -906,6 +926,9 @@ def photometric_fit(values, origin_uv, bp_uv, camera, rig: LightRig, *,
     x, nfev, conv, msg = _solve(resjac_at, p0, (n0, e1, e2), loss, f_scale, max_nfev, free)
     n_hat = _normal_derivs(x, n0, e1, e2)[0]
     h_hat = float(np.exp(x[2]))
+    bad = _implausible(h_hat, h0, float(np.exp(x[3])))
+    if bad:
+        return LightAwareEstimate(name, "not_converged", bad, n_evaluations=nfev)
     if np.any(n_hat @ rig_arr[0].T + h_hat <= 0):
         return LightAwareEstimate(name, "light_behind_plane", f"h = {h_hat:.4g} mm", n_evaluations=nfev)
     return _finish(name, resjac_at, n_hat, h_hat, rig, x[3:], TOL.photometric_noise_rel, nfev,
