@@ -14,6 +14,10 @@ Estimators (derivations in the Notes of :func:`simtest.geometry.conics.cone_axis
   MATLAB code dam410/LightModel, ``vanishing_line_paper_co``).
 - ``joint_cone_axis``: one cone axis fitted jointly to nested isophotes at several isovalues.
 - ``bp_ray``: minus the unit viewing ray through the detected brightest point (the baseline).
+- ``isocurve_fit``, ``photometric_fit``: the light-aware estimators (the general isocurve of eq. 2
+  and the photometric plane fit with the calibrated rig, :mod:`simtest.reconstruct.lightaware`),
+  scored when the rendered protocol ran them (a rig off the camera centre).
+- ``recommended``: the normal ``estimates.json`` recommends (:mod:`simtest.reconstruct.recommend`).
 
 The registry is a plain dict so that a test can plant a known bias in one estimator
 (``monkeypatch.setitem(ESTIMATORS, "cone_axis", biased)``) and check that the nightly comparison
@@ -38,7 +42,7 @@ import numpy as np
 
 from simtest.geometry.angles import angle_between_deg
 
-__all__ = ["ESTIMATORS", "score", "unit_or_none"]
+__all__ = ["ESTIMATORS", "STATUS_FREE", "score", "unit_or_none"]
 
 
 def unit_or_none(v) -> np.ndarray | None:
@@ -85,6 +89,20 @@ def _attr(name: str) -> Callable:
     return get
 
 
+def _light_aware(name: str) -> Callable:
+    def get(est, truth):
+        r = (getattr(est, "light_aware", None) or {}).get(name)
+        return None if r is None else unit_or_none(r.normal)
+
+    get.__name__ = f"_{name}"
+    return get
+
+
+def _recommended(est, truth) -> np.ndarray | None:
+    rec = getattr(est, "recommended", None)
+    return None if rec is None else unit_or_none(rec.normal)
+
+
 #: name -> f(estimate, truth) -> unit normal or None.
 ESTIMATORS: dict[str, Callable] = {
     "paper_oracle": _paper_oracle,
@@ -92,13 +110,23 @@ ESTIMATORS: dict[str, Callable] = {
     "cone_axis": _attr("cone_axis"),
     "joint_cone_axis": _attr("joint_cone_axis"),
     "bp_ray": _attr("bp_ray"),
+    "isocurve_fit": _light_aware("isocurve_fit"),
+    "photometric_fit": _light_aware("photometric_fit"),
+    "recommended": _recommended,
 }
+
+#: Estimators scored whatever the highlight's status (they do not rest on its isophote: the BP
+#: ray, and the photometric fit and the recommendation, which take a merged highlight too).
+STATUS_FREE = ("bp_ray", "photometric_fit", "recommended")
 
 
 def _cause(est, name: str) -> str:
     status = getattr(est, "status", None)
     if status is not None and status != "ok":
         return str(status)
+    if name in ("isocurve_fit", "photometric_fit"):
+        r = (getattr(est, "light_aware", None) or {}).get(name)
+        return f"{name}_not_run" if r is None else str(r.status)
     if name == "joint_cone_axis":
         isos = getattr(est, "isophotes", ()) or ()
         n_ok = sum(1 for i in isos if getattr(i, "status", None) == "ok")
@@ -142,7 +170,7 @@ def score(est, truth, names) -> dict[str, tuple[float, str | None]]:
             out[name] = (float("nan"), "no_ground_truth")
             continue
         status = getattr(est, "status", "ok")
-        if name != "bp_ray" and status is not None and status != "ok":
+        if name not in STATUS_FREE and status is not None and status != "ok":
             # The reconstruction flagged this highlight (merged, cut contour, ...): its isophote
             # normals are not used, as a user of the pipeline would not use them.
             out[name] = (float("nan"), str(status))

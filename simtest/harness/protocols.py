@@ -26,15 +26,18 @@ from simtest.geometry.curvature import (
     predicted_eigenvalue_gap,
     predicted_pose_error_deg,
 )
+from simtest.geometry.lights import Light, LightRig
 from simtest.harness.estimators import score
+from simtest.harness.suite import LIGHT_AWARE_NAMES
 from simtest.reconstruct import reconstruct, reconstruct_roi
+from simtest.reconstruct.recommend import with_light_aware
 from simtest.render import render_scene
 from simtest.scene import bundled_mesh_path, load_scene, with_overrides
 from simtest.scene.meshes import colon_centerline, load_mesh
 from simtest.simulate.paper import PaperParams, PaperSimulator
 
 __all__ = ["make_runner", "PaperRunner", "RenderedRunner", "reconstruct_known_bp",
-           "reconstruct_image", "isovalue_list"]
+           "reconstruct_image", "isovalue_list", "render_rig"]
 
 #: Margin of the paper protocol's ROI around the noiseless highlight, px: 5 smoothing widths of
 #: the default 2 px, far beyond the contour noise (about 2 px RMS at sigma = 5 %).
@@ -360,6 +363,10 @@ class RenderedRunner:
             image = result.sensor
         image = np.asarray(image)
         ests = reconstruct_image(image, result.K, self.isovalues)
+        light_aware = any(e in LIGHT_AWARE_NAMES for e in self.estimators)
+        if light_aware:
+            rig = render_rig(result)
+            ests = with_light_aware(image, ests, result.K, rig)
         ok_bps = [(e, np.asarray(e.bp_px, float)) for e in ests
                   if getattr(e, "bp_px", None) is not None]
         # Clipping: pixels at the sensor's full scale (0 for a linear float image).
@@ -392,6 +399,8 @@ class RenderedRunner:
             # number of false positives per image
             extras["false_positives"] = float(false_pos) if not rows else float("nan")
             extras["saturated_px"] = saturated if not rows else float("nan")
+            if light_aware:
+                extras.update(_depth_errors(best, h, rig))
             rows.append(_row(errs, extras))
         if not rows:
             errs = {k: (float("nan"), "no_highlight_in_frame") for k in self.estimators}
@@ -400,6 +409,45 @@ class RenderedRunner:
             extras["saturated_px"] = saturated
             rows.append(_row(errs, extras))
         return rows
+
+
+def render_rig(result) -> LightRig:
+    """The light rig of a render: its own when the renderer gives one, else its point light.
+
+    A scene's ``light.falloff = "cancel"`` (the 1/d^2 undone, paper eq. 1) is a light without
+    falloff; ``"keep"`` an inverse-square one.
+    """
+    rig = getattr(result, "light_rig", None)
+    if rig is not None:
+        return rig
+    falloff = "none" if result.spec.light.falloff == "cancel" else "inverse_square"
+    return LightRig((Light(tuple(float(x) for x in result.light_pos), 1.0, falloff),))
+
+
+def _depth_errors(est, h, rig) -> dict:
+    """Absolute relative depth error (%) of each light-aware estimator and of the recommendation.
+
+    The truth is the distance from the camera centre to the highlight's BP (the specular point of
+    the render's light). NaN where no depth was given (not observable, failed, not run). Also
+    ``eps_over_d``: the largest light offset of the rig over that distance.
+    """
+    nan = float("nan")
+    true = float(np.linalg.norm(np.asarray(h.bp_mm, dtype=np.float64)))
+    eps_over_d = max(float(np.linalg.norm(lt.position_mm)) for lt in rig.lights) / true if true > 0 else nan
+    out = {"isocurve_fit_depth_err_pct": nan, "photometric_fit_depth_err_pct": nan,
+           "recommended_depth_err_pct": nan, "eps_over_d": nan}
+    if not true > 0:
+        return out
+    out["eps_over_d"] = eps_over_d
+    if est is None:
+        return out
+    for name, r in (getattr(est, "light_aware", None) or {}).items():
+        if r.depth_mm is not None:
+            out[f"{name}_depth_err_pct"] = 100.0 * abs(r.depth_mm / true - 1.0)
+    rec = est.recommended
+    if rec.depth_mm is not None:
+        out["recommended_depth_err_pct"] = 100.0 * abs(rec.depth_mm / true - 1.0)
+    return out
 
 
 def mesh_pose_overrides(p: dict) -> dict:

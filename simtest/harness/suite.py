@@ -86,6 +86,9 @@ PROTOCOLS = ("paper", "rendered")
 
 #: The estimators scored side by side (see :mod:`simtest.harness.estimators`).
 ESTIMATOR_NAMES = ("paper_oracle", "paper_selected", "cone_axis", "joint_cone_axis", "bp_ray")
+#: Estimators that use the scope's light rig (:mod:`simtest.reconstruct.recommend`); a suite lists
+#: them explicitly (``recommended`` is the normal that ``estimates.json`` recommends).
+LIGHT_AWARE_NAMES = ("isocurve_fit", "photometric_fit", "recommended")
 
 #: Reconstruction settings, valid in both protocols, with their defaults.
 RECON_KEYS: dict[str, Any] = {
@@ -562,9 +565,10 @@ def suite_from_dict(raw: Mapping[str, Any], source: str = "<dict>", sha256: str 
         raise _err(source, "suite.seed", f"expected an integer >= 0, got {seed!r}")
     estimators = head.get("estimators", list(ESTIMATOR_NAMES))
     if (not isinstance(estimators, list) or not estimators
-            or any(e not in ESTIMATOR_NAMES for e in estimators)):
+            or any(e not in ESTIMATOR_NAMES + LIGHT_AWARE_NAMES for e in estimators)):
         raise _err(source, "suite.estimators",
-                   f"expected a non-empty list from {ESTIMATOR_NAMES}, got {estimators!r}")
+                   f"expected a non-empty list from {ESTIMATOR_NAMES + LIGHT_AWARE_NAMES}, "
+                   f"got {estimators!r}")
     base = raw.get("base", {})
     _check_keys(base, set(base) if isinstance(base, Mapping) else set(), source, "base")
     if "scene" in head:
@@ -662,7 +666,7 @@ def suite_from_dict(raw: Mapping[str, Any], source: str = "<dict>", sha256: str 
                 raise _err(source, f"{where}.paper.source",
                            f"expected 'paper' or 'prediction', got {paper.get('source')!r}")
             est = paper.get("estimator", "paper_oracle")
-            if est not in ESTIMATOR_NAMES:
+            if est not in ESTIMATOR_NAMES + LIGHT_AWARE_NAMES:
                 raise _err(source, f"{where}.paper.estimator", f"unknown estimator {est!r}")
         cases = []
         xs = [x for x, _, _ in settings]

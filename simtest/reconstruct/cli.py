@@ -11,7 +11,10 @@ Images: anything OpenCV decodes (PNG 8/16-bit, JPEG, TIFF, BMP, ...), read uncha
 RGB; or a ``.npy`` array (float images from the simulator). Camera (``--intrinsics``): a camera
 file (pinhole with OpenCV distortion, fisheye or omnidirectional, :mod:`simtest.geometry.camera_file`)
 or an OpenCV YAML/XML calibration; contour points are mapped to rays through the model before the
-fit.
+fit. A camera file's ``"lights"`` (the scope's light rig, camera frame, mm) switches on the
+light-aware estimators when a light is off the camera centre (:mod:`simtest.reconstruct.recommend`):
+``estimates.json`` then gives their normals, the depth of each specular point and the recommended
+``normal``.
 """
 
 from __future__ import annotations
@@ -37,6 +40,7 @@ from simtest.reconstruct.images import InputError, load_image
 from simtest.reconstruct.io import estimates_document, read_estimates
 from simtest.reconstruct.overlay import check_overlay_size, draw_overlay
 from simtest.reconstruct.pipeline import reconstruct
+from simtest.reconstruct.recommend import with_light_aware
 from simtest.reconstruct.settings import ReconSettings
 from simtest.reconstruct.view3d import render_view, surface_from_depth
 
@@ -87,7 +91,8 @@ def reconstruct_command(
     try:
         img = load_image(image)
         try:
-            camera = load_camera(intrinsics).model
+            camera_file = load_camera(intrinsics)
+            camera = camera_file.model
         except FileNotFoundError:
             raise InputError(f"intrinsics file not found: {intrinsics}") from None
         except OSError as exc:
@@ -103,11 +108,14 @@ def reconstruct_command(
         if overlay:  # refused before anything is computed or written
             check_overlay_size(img.shape)
         estimates = reconstruct(img, camera, settings=settings)
+        # the scope's light rig from the camera file ("lights"; none: one light at the camera)
+        rig = camera_file.lights
+        estimates = with_light_aware(img, estimates, camera, rig)
         pinhole = isinstance(camera, PinholeCamera)
         doc = estimates_document(
             estimates, K=camera.K if pinhole else None, image=image, image_shape=img.shape,
             dist_coeffs=camera.dist_coeffs if pinhole else None, isovalues=settings.isovalues,
-            normalise=settings.normalise.value, include_points=points, camera=camera,
+            normalise=settings.normalise.value, include_points=points, camera=camera, lights=rig,
         )
         text = json.dumps(doc, indent=1, allow_nan=False) + "\n"
         json_path = out / "estimates.json"

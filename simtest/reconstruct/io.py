@@ -4,6 +4,24 @@ Written by ``simtest reconstruct`` and :func:`write_estimates`; read back by
 :func:`read_estimates`. Other tools (harness, notebooks) read it; the schema below is a contract.
 A change that removes or re-interprets a field bumps ``schema``; adding a field does not.
 
+Schema 2
+--------
+Schema 2 is schema 1 plus, per specularity, the normal recommended to a user and the light-aware
+estimators (:mod:`simtest.reconstruct.recommend`, whose docstring states the recommendation rule)::
+
+    "normal": [x, y, z],               # the recommended normal (never null: bp_ray at worst)
+    "normal_from": "photometric_fit" | "isocurve_fit" | "joint_cone_axis" | "cone_axis" | "bp_ray",
+    "depth_mm": float or null,         # depth of the specular point along its ray, mm; null when
+                                       # not observable (no rig, a co-located one, epsilon/d small)
+    "normal_sigma_deg": float or null, # 1-sigma angle of the recommended normal, degrees
+    "normals": {..., "isocurve_fit": [x, y, z] or null, "photometric_fit": [x, y, z] or null},
+    "light_aware": {name: {"status": str, "detail": str, "depth_mm": float or null,
+                           "normal_sigma_deg": float or null, "depth_sigma_mm": float or null,
+                           "distance_mm": float or null, "roughness": float or null}}
+
+and at the top level ``"lights"``: the rig used (the camera file's list), or null. Every field of
+schema 1 keeps its meaning; :func:`read_estimates` reads both.
+
 Schema 1
 --------
 Conventions for every field: camera frame OpenCV (x right, y down, z forward); normals are unit
@@ -72,7 +90,9 @@ import numpy as np
 from simtest._io import atomic_write_json
 from simtest._version import __version__
 
-SCHEMA_VERSION = 1
+SCHEMA_VERSION = 2
+#: The schemas :func:`read_estimates` reads.
+READABLE_SCHEMAS = (1, 2)
 
 CONVENTIONS = {
     "frame": "OpenCV camera frame: x right, y down, z forward",
@@ -131,7 +151,7 @@ def _isophote_dict(iso, include_points: bool) -> dict:
 
 
 def estimate_to_dict(est, include_points: bool = False) -> dict:
-    """One :class:`~simtest.reconstruct.pipeline.SpecularityEstimate` as a schema-1 dict.
+    """One :class:`~simtest.reconstruct.pipeline.SpecularityEstimate` as a schema-2 dict.
 
     Parameters
     ----------
@@ -152,7 +172,18 @@ def estimate_to_dict(est, include_points: bool = False) -> dict:
     """
     p = est.primary
     sel_idx = None if p is None else p.paper_selected_index
+    rec = est.recommended
+    la = getattr(est, "light_aware", None) or {}
     return {
+        "normal": _vec(rec.normal),
+        "normal_from": rec.normal_from,
+        "depth_mm": _num(rec.depth_mm),
+        "normal_sigma_deg": _num(rec.normal_sigma_deg),
+        "light_aware": {name: {"status": r.status, "detail": r.detail, "depth_mm": _num(r.depth_mm),
+                               "normal_sigma_deg": _num(r.normal_sigma_deg),
+                               "depth_sigma_mm": _num(r.depth_sigma_mm),
+                               "distance_mm": _num(r.distance_mm), "roughness": _num(r.roughness)}
+                        for name, r in la.items()},
         "bp_px": _vec(est.bp_px),
         "bp_intensity": float(est.bp_intensity),
         "saturated": bool(est.saturated),
@@ -166,6 +197,8 @@ def estimate_to_dict(est, include_points: bool = False) -> dict:
             "cone_axis": _vec(est.cone_axis),
             "joint_cone_axis": _vec(est.joint_cone_axis),
             "bp_ray": _vec(est.bp_ray),
+            "isocurve_fit": _vec(la["isocurve_fit"].normal) if "isocurve_fit" in la else None,
+            "photometric_fit": _vec(la["photometric_fit"].normal) if "photometric_fit" in la else None,
         },
         "ellipse": _ellipse(est.ellipse),
         "conic": _mat(est.conic),
@@ -176,8 +209,9 @@ def estimate_to_dict(est, include_points: bool = False) -> dict:
 
 
 def estimates_document(estimates, *, K, image=None, image_shape=None, dist_coeffs=None,
-                       isovalues=(), normalise="bp", include_points=False, camera=None) -> dict:
-    """The whole schema-1 document as a dict (see the module docstring).
+                       isovalues=(), normalise="bp", include_points=False, camera=None,
+                       lights=None) -> dict:
+    """The whole schema-2 document as a dict (see the module docstring).
 
     Parameters
     ----------
@@ -199,6 +233,8 @@ def estimates_document(estimates, *, K, image=None, image_shape=None, dist_coeff
         Also write the contour points.
     camera : CameraModel, optional
         The camera model used, recorded as ``camera`` (its camera-file object).
+    lights : LightRig, optional
+        The light rig the light-aware estimators used (written as the camera file's list).
 
     Returns
     -------
@@ -218,12 +254,17 @@ def estimates_document(estimates, *, K, image=None, image_shape=None, dist_coeff
         "isovalues": [float(t) for t in isovalues],
         "normalise": normalise,
         "conventions": CONVENTIONS,
+        "lights": None if lights is None else [
+            {"position_mm": [float(v) for v in lt.position_mm], "intensity": float(lt.intensity),
+             "falloff": lt.falloff, "profile_exponent": float(lt.profile_exponent)}
+            for lt in lights.lights],
         "specularities": [estimate_to_dict(e, include_points) for e in estimates],
     }
 
 
 def write_estimates(path, estimates, *, K, image=None, image_shape=None, dist_coeffs=None,
-                    isovalues=(), normalise="bp", include_points=False, camera=None) -> Path:
+                    isovalues=(), normalise="bp", include_points=False, camera=None,
+                    lights=None) -> Path:
     """Write ``estimates.json`` atomically (temporary file in the same folder, then os.replace).
 
     Parameters
@@ -234,7 +275,7 @@ def write_estimates(path, estimates, *, K, image=None, image_shape=None, dist_co
         From :func:`~simtest.reconstruct.pipeline.reconstruct`.
     K : array_like of shape (3, 3)
         Intrinsics used.
-    image, image_shape, dist_coeffs, isovalues, normalise, camera : optional
+    image, image_shape, dist_coeffs, isovalues, normalise, camera, lights : optional
         Recorded as given.
     include_points : bool
         Also write each isophote's contour points (larger file).
@@ -253,7 +294,7 @@ def write_estimates(path, estimates, *, K, image=None, image_shape=None, dist_co
     """
     doc = estimates_document(estimates, K=K, image=image, image_shape=image_shape,
                              dist_coeffs=dist_coeffs, isovalues=isovalues, normalise=normalise,
-                             include_points=include_points, camera=camera)
+                             include_points=include_points, camera=camera, lights=lights)
     return atomic_write_json(path, doc, allow_nan=False)
 
 
@@ -268,7 +309,7 @@ def read_estimates(path) -> dict:
     Returns
     -------
     dict
-        The document (schema 1), with ``K`` as a (3, 3) ndarray.
+        The document (schema 1 or 2, as written), with ``K`` as a (3, 3) ndarray.
 
     Raises
     ------
@@ -282,8 +323,8 @@ def read_estimates(path) -> dict:
         raise ValueError(f"{path}: cannot read estimates JSON ({exc})") from None
     if not isinstance(doc, dict):
         raise ValueError(f"{path}: top level is not a JSON object")
-    if doc.get("schema") != SCHEMA_VERSION:
-        raise ValueError(f"{path}: key 'schema' is {doc.get('schema')!r}, expected {SCHEMA_VERSION}")
+    if doc.get("schema") not in READABLE_SCHEMAS:
+        raise ValueError(f"{path}: key 'schema' is {doc.get('schema')!r}, expected one of {READABLE_SCHEMAS}")
     for key in _REQUIRED_TOP:
         if key not in doc:
             raise ValueError(f"{path}: missing key {key!r}")

@@ -658,7 +658,7 @@ def refine_isophote_points(values, level: float, points_uv, origin_uv=(0.0, 0.0)
 def isocurve_fit(points_uv, isovalues, bp_uv, camera, rig: LightRig, *,
                  nominal_depth_mm: float = 20.0, start_normal=None,
                  loss: str = "soft_l1", f_scale_px: float = 0.5,
-                 max_points_per_isophote: int | None = 64,
+                 max_points_per_isophote: int | None = 64, n_start_depths: int = 7,
                  max_nfev: int = 200) -> LightAwareEstimate:
     """Fit the general specular isocurve (paper eq. 2) with a calibrated light to isophote points.
 
@@ -693,6 +693,9 @@ def isocurve_fit(points_uv, isovalues, bp_uv, camera, rig: LightRig, *,
         Soft margin of the robust loss, px.
     max_points_per_isophote : int or None
         Keep every k-th point of a longer contour (speed; None keeps all).
+    n_start_depths : int
+        Starts tried along the BP's constraint (depths nominal/8 to nominal*8), besides the given
+        start; the one of least cost is refined (0: only the given start).
     max_nfev : int
         Evaluation budget.
 
@@ -739,14 +742,15 @@ def isocurve_fit(points_uv, isovalues, bp_uv, camera, rig: LightRig, *,
             return np.array([q[0]])
         return np.exp((log_t - q[1]) * q[0])  # q = (1/n, log s)
 
-    # pixel-unit weights: |grad_px cos beta| at the start (central differences, 0.5 px)
-    def cb_at(dd):
-        return _terms(dd, n0, None, h0, L, grad=False)[0]
+    # pixel-unit weights: 1 / |grad_px cos beta| at a start (central differences, 0.5 px)
+    d_pm = [_rays(camera, uv + off) for off in ([0.5, 0], [-0.5, 0], [0, 0.5], [0, -0.5])]
 
-    cb_u = cb_at(_rays(camera, uv + [0.5, 0])) - cb_at(_rays(camera, uv - [0.5, 0]))
-    cb_v = cb_at(_rays(camera, uv + [0, 0.5])) - cb_at(_rays(camera, uv - [0, 0.5]))
-    grad = np.hypot(cb_u, cb_v)
-    wts = 1.0 / np.maximum(grad, 1e-12 + 1e-6 * np.median(grad))
+    def weights(n, h):
+        cu, cu2, cv, cv2 = (_terms(dd, n, None, h, L, grad=False)[0] for dd in d_pm)
+        grad = np.hypot(cu - cu2, cv - cv2)
+        return 1.0 / np.maximum(grad, 1e-12 + 1e-6 * np.median(grad))
+
+    wts = weights(n0, h0)
 
     def resjac_at(p, nb, e1, e2):
         n, dns = _normal_derivs(p, nb, e1, e2)
@@ -763,16 +767,30 @@ def isocurve_fit(points_uv, isovalues, bp_uv, camera, rig: LightRig, *,
             J[:, 4] = tk * p[3] * wts
         return r, J
 
-    # tau start: the mean cos beta of each set at the start geometry
-    cb0 = cb_at(d)
-    tau0 = np.array([np.clip(np.mean(cb0[kidx == i]), 1e-3, 1 - 1e-9) for i in range(len(ts))])
-    if n_tau == 1:
-        q0 = tau0
-    else:  # fit log tau_k = (log t_k - log s) / n to the start levels
-        A = np.column_stack([log_t, -np.ones_like(log_t)])
-        inv_n, c = np.linalg.lstsq(A, np.log(tau0), rcond=None)[0]
-        inv_n = inv_n if inv_n > 0 else 1.0 / 50.0
-        q0 = np.array([inv_n, c / inv_n])
+    def tau_start(n, h):
+        """Levels from the mean cos beta of each point set at (n, h), and the start's cost."""
+        cb0 = _terms(d, n, None, h, L, grad=False)[0]
+        tau0 = np.array([np.clip(np.mean(cb0[kidx == i]), 1e-3, 1 - 1e-9) for i in range(len(ts))])
+        if n_tau == 1:
+            q = tau0
+        else:  # fit log tau_k = (log t_k - log s) / n to the start levels
+            A = np.column_stack([log_t, -np.ones_like(log_t)])
+            inv_n, c = np.linalg.lstsq(A, np.log(tau0), rcond=None)[0]
+            inv_n = inv_n if inv_n > 0 else 1.0 / 50.0
+            q = np.array([inv_n, c / inv_n])
+        r = (cb0 - taus_of(q)[kidx]) * wts
+        return q, float(r @ r)
+
+    # start: the given one and planes along the BP's constraint (as in photometric_fit)
+    cands = [(n0, h0)]
+    if np.linalg.norm(L) > 0:
+        for sdep in nominal_depth_mm * np.geomspace(1 / 8, 8, n_start_depths):
+            X = sdep * d_bp
+            nc = unit(unit(-X) + unit(L - X))
+            cands.append((nc, float(-(nc @ X))))
+    q0, _, n0, h0 = min((tau_start(n, h) + (n, h) for n, h in cands), key=lambda c: c[1])
+    wts = weights(n0, h0)
+    q0 = tau_start(n0, h0)[0]
     e1, e2 = plane_basis(n0)
     p0 = np.concatenate([[0.0, 0.0, np.log(h0)], q0])
     free = np.ones(len(p0), bool)
@@ -799,6 +817,7 @@ def photometric_fit(values, origin_uv, bp_uv, camera, rig: LightRig, *,
                     clip_level: float | None = None, nominal_depth_mm: float = 20.0,
                     start_normal=None, start_roughness: float | None = None,
                     loss: str = "linear", f_scale: float = 0.02, supersample: int = 1,
+                    n_start_depths: int = 7,
                     max_pixels: int | None = 16384, max_nfev: int = 200) -> LightAwareEstimate:
     """Fit the intensities of an ROI with the image of a plane lit by the whole rig.
 
@@ -834,6 +853,9 @@ def photometric_fit(values, origin_uv, bp_uv, camera, rig: LightRig, *,
         ``linear`` (Gaussian sensor noise), or ``soft_l1``, ``huber``, ``cauchy`` (reweighted).
     f_scale : float
         Soft margin of a robust loss, relative to the ROI's maximum.
+    n_start_depths : int
+        Starts tried along the BP's constraint (depths nominal/8 to nominal*8), besides the given
+        start; the cheapest one is refined (0: only the given start).
     supersample : int
         s x s point samples per pixel, averaged (a renderer's or sensor's box filter; 1: the
         value at the pixel centre, as the exact images of :mod:`simtest.simulate.offset`).
@@ -905,20 +927,39 @@ def photometric_fit(values, origin_uv, bp_uv, camera, rig: LightRig, *,
     def model(n, h, rough):
         return _intensity(d, n, h, rig_arr, rough).reshape(-1, ss * ss).mean(axis=1)
 
-    if start_roughness is None:
-        S1 = model(n0, h0, 1.0)  # cos beta times falloff and profile
-        spec = y - b_level
-        selr = (spec > 0.05 * spec.max()) & (S1 > 0)
-        rough0 = 50.0
-        if np.count_nonzero(selr) >= 3:
-            x = np.log(np.clip(S1[selr], 1e-12, None))
-            slope = np.polyfit(x, np.log(spec[selr]), 1)[0]
-            if np.isfinite(slope) and slope > 1:
-                rough0 = float(slope)
-    else:
-        rough0 = float(start_roughness)
-    S0 = model(n0, h0, rough0)
-    lin0 = np.linalg.lstsq(np.column_stack([S0, ones, du, dv]), yn, rcond=None)[0]
+    def start_for(n, h):
+        """Roughness (log-log regression of the specular part on cos beta), linear part, cost."""
+        if start_roughness is None:
+            S1 = model(n, h, 1.0)  # cos beta times falloff and profile
+            spec = y - b_level
+            selr = (spec > 0.05 * spec.max()) & (S1 > 0)
+            rough = 50.0
+            if np.count_nonzero(selr) >= 3:
+                x = np.log(np.clip(S1[selr], 1e-12, None))
+                slope = np.polyfit(x, np.log(spec[selr]), 1)[0]
+                if np.isfinite(slope) and slope > 1:
+                    rough = float(min(slope, _ROUGHNESS_RANGE[1]))
+        else:
+            rough = float(start_roughness)
+        A = np.column_stack([model(n, h, rough), ones, du, dv])
+        lin = np.linalg.lstsq(A, yn, rcond=None)[0]
+        r = A @ lin - yn
+        return rough, lin, float(r @ r)
+
+    # Start: the given one, and planes along the BP's constraint at depths from nominal/8 to
+    # nominal*8 (each the bisector at that depth, its distance such that the specular point is the
+    # BP); the cheapest by its linear least squares. Far off-axis offsets have local minima (a
+    # near plane with a rough lobe mimics a far one with a smooth lobe), which a single start at
+    # the nominal depth can fall into.
+    cands = [(n0, h0)]
+    if np.abs(rig_arr[0]).max() > 0:
+        Lm = _mean_light(rig)
+        for sdep in nominal_depth_mm * np.geomspace(1 / 8, 8, n_start_depths):
+            X = sdep * d_bp
+            nc = unit(unit(-X) + unit(Lm - X))
+            cands.append((nc, float(-(nc @ X))))
+    best = min((start_for(n, h) + (n, h) for n, h in cands), key=lambda c: c[2])
+    rough0, lin0, _, n0, h0 = best
     e1, e2 = plane_basis(n0)
     p0 = np.concatenate([[0.0, 0.0, np.log(h0), np.log(rough0)], lin0])
     free = np.ones(len(p0), bool)

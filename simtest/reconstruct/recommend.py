@@ -81,14 +81,15 @@ def _offset_rig(rig) -> bool:
 
 def light_aware_estimates(image, est, camera, rig: LightRig, *, nominal_depth_mm: float = 20.0,
                           saturation_level: float | None = None,
-                          roi_scale: float = 1.5, supersample: int = 1) -> dict[str, LightAwareEstimate]:
+                          roi_scale: float = 2.5, supersample: int = 1) -> dict[str, LightAwareEstimate]:
     """Run the light-aware estimators on one detected highlight.
 
     ``isocurve_fit`` takes the points of every isophote that succeeded (refined onto the cubic
     spline of the image, :func:`~simtest.reconstruct.lightaware.refine_isophote_points`, at the
     level the points sit on) when the rig has one light; ``photometric_fit`` takes the highlight's
     ROI grown ``roi_scale`` times about the BP (the lobe's tails carry the distance), clipped pixels
-    left out, started from the isocurve fit's normal and roughness when it has them.
+    left out. The two fits start independently (each from its own search along the BP's
+    constraint), so that one's local minimum does not become the other's start.
 
     Parameters
     ----------
@@ -124,7 +125,6 @@ def light_aware_estimates(image, est, camera, rig: LightRig, *, nominal_depth_mm
     vals = gray[roi.slices]
     origin = np.array([roi.col0, roi.row0], dtype=np.float64)
     isos = [i for i in est.isophotes if i.ok and i.points_uv is not None and len(i.points_uv) >= 6]
-    start_n, start_rough = None, None
     if isos:
         pts = []
         for iso in isos:
@@ -134,16 +134,12 @@ def light_aware_estimates(image, est, camera, rig: LightRig, *, nominal_depth_mm
         iso_est = isocurve_fit(pts, [i.isovalue for i in isos], est.bp_px, camera, rig,
                                nominal_depth_mm=nominal_depth_mm)
         out["isocurve_fit"] = iso_est
-        if iso_est.has_normal:
-            start_n = iso_est.normal
-            if iso_est.roughness is not None and np.isfinite(iso_est.roughness) and iso_est.roughness > 1:
-                start_rough = iso_est.roughness
     half = roi_scale * max(roi.shape) / 2.0
     big = Roi.around(est.bp_px, half, img.shape)
     out["photometric_fit"] = photometric_fit(
         gray[big.slices], (big.col0, big.row0), est.bp_px, camera, rig,
         clip_level=saturation_level, nominal_depth_mm=nominal_depth_mm,
-        start_normal=start_n, start_roughness=start_rough, supersample=supersample)
+        supersample=supersample)
     return out
 
 
@@ -161,7 +157,7 @@ def with_light_aware(image, estimates, camera, rig: LightRig | None, **kwargs) -
 
     Nothing is run, and the estimates are returned unchanged, without a rig or with every light at
     the camera centre (the cone axes and the BP ray are then the estimators of choice, module
-    docstring); nor for highlights rejected at detection as ``too_small`` or ``touches_border``.
+    docstring); nor for highlights rejected at detection as ``too_small``.
 
     Parameters
     ----------
@@ -184,7 +180,7 @@ def with_light_aware(image, estimates, camera, rig: LightRig | None, **kwargs) -
         return list(estimates)
     out = []
     for est in estimates:
-        if est.status in ("too_small", "touches_border"):
+        if est.status == "too_small":
             out.append(est)
             continue
         out.append(dataclasses.replace(est, light_aware=light_aware_estimates(image, est, camera, rig,

@@ -58,6 +58,10 @@ ESTIMATOR_TEXT = {
                  "vanishing_line_paper_co)",
     "joint_cone_axis": "joint cone axis of the nested isophotes",
     "bp_ray": "minus the viewing ray of the BP (baseline)",
+    "isocurve_fit": "general isocurve (eq. 2) fitted with the calibrated light (light-aware)",
+    "photometric_fit": "ROI intensities fitted with a plane lit by the rig (light-aware)",
+    "quadric_fit": "ROI intensities fitted with a quadric patch lit by the rig (experimental)",
+    "recommended": "the normal estimates.json recommends (simtest.reconstruct.recommend)",
 }
 
 _MESH_KEYS = {"colon_station": "colon", "liver_azimuth_deg": "liver"}

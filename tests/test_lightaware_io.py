@@ -1,0 +1,106 @@
+"""estimates.json schema 2 (recommended normal, depth, light-aware estimators) and the CLI's rig."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+from typer.testing import CliRunner
+
+from simtest.cli import app
+from simtest.geometry import angle_between_deg
+from simtest.geometry.camera_file import save_camera
+from simtest.geometry.cameras import PinholeCamera
+from simtest.geometry.lights import Light, LightRig
+from simtest.reconstruct import read_estimates, write_estimates
+from simtest.reconstruct.pipeline import reconstruct
+from simtest.reconstruct.recommend import colocated_ranking, recommend, with_light_aware
+from simtest.reconstruct.settings import ReconSettings
+from simtest.tolerances import TOL
+from test_lightaware import one_light, plane_case
+
+runner = CliRunner()
+SETTINGS = ReconSettings(isovalues=(0.3, 0.5, 0.7))
+
+
+def _estimates(rig, h=25.0, tilt=25.0):
+    img, K, N, depth, bp = plane_case(h, tilt, rig)
+    ests = reconstruct(img, K, settings=SETTINGS)
+    assert len(ests) == 1 and ests[0].ok, ests
+    return img, K, N, depth, with_light_aware(img, ests, K, rig)
+
+
+def test_recommended_normal_with_an_offset_rig():
+    rig = one_light(3.0, "inverse_square")
+    img, K, N, depth, ests = _estimates(rig)
+    rec = recommend(ests[0])
+    assert rec.normal_from == "photometric_fit"
+    assert angle_between_deg(rec.normal, N) < TOL.exact_image_normal_deg
+    assert abs(rec.depth_mm / depth - 1) < TOL.exact_image_depth_rel
+    assert rec.normal_sigma_deg is not None and rec.normal_sigma_deg >= 0
+    # the baselines are still there, and err by about half the angle the offset subtends
+    assert angle_between_deg(ests[0].bp_ray, N) > 1.0
+
+
+def test_without_rig_the_recommendation_is_the_joint_cone_axis_and_no_depth():
+    img, K, N, depth, ests = _estimates(LightRig.colocated())
+    assert ests[0].light_aware is None  # nothing run for a co-located rig
+    rec = recommend(ests[0])
+    assert rec.normal_from == "joint_cone_axis" and rec.depth_mm is None
+    assert np.allclose(rec.normal, ests[0].joint_cone_axis)
+
+
+def test_schema_2_round_trip_and_schema_1_still_read(tmp_path):
+    rig = one_light(3.0, "inverse_square")
+    img, K, N, depth, ests = _estimates(rig)
+    path = write_estimates(tmp_path / "estimates.json", ests, K=K, isovalues=SETTINGS.isovalues,
+                           lights=rig)
+    doc = read_estimates(path)
+    assert doc["schema"] == 2
+    spec = doc["specularities"][0]
+    assert spec["normal_from"] == "photometric_fit"
+    assert np.allclose(spec["normal"], spec["normals"]["photometric_fit"])
+    assert spec["normals"]["isocurve_fit"] is not None and spec["normals"]["bp_ray"] is not None
+    assert spec["depth_mm"] == spec["light_aware"]["photometric_fit"]["depth_mm"]
+    assert doc["lights"][0]["position_mm"] == [3.0, 0.0, 0.0]
+    # a schema-1 file (no recommended normal) is still read
+    old = json.loads(path.read_text())
+    old["schema"] = 1
+    for s in old["specularities"]:
+        for key in ("normal", "normal_from", "depth_mm", "normal_sigma_deg", "light_aware"):
+            s.pop(key)
+    old.pop("lights")
+    (tmp_path / "old.json").write_text(json.dumps(old))
+    assert read_estimates(tmp_path / "old.json")["schema"] == 1
+
+
+def test_cli_reads_the_rig_from_the_camera_file(tmp_path):
+    rig = LightRig((Light((0.0, 3.0, 0.0), 1.0, "inverse_square"),))
+    img, K, N, depth, bp = plane_case(20.0, 30.0, rig)
+    np.save(tmp_path / "img.npy", img)
+    save_camera(tmp_path / "camera.json", PinholeCamera(K, image_size=(240, 240)), lights=rig)
+    res = runner.invoke(app, ["reconstruct", str(tmp_path / "img.npy"), "--intrinsics",
+                              str(tmp_path / "camera.json"), "--out", str(tmp_path / "out"),
+                              "-t", "0.3", "-t", "0.5", "-t", "0.7", "--no-overlay"])
+    assert res.exit_code == 0, res.output
+    spec = read_estimates(tmp_path / "out" / "estimates.json")["specularities"][0]
+    assert spec["normal_from"] == "photometric_fit"
+    assert angle_between_deg(spec["normal"], N) < TOL.exact_image_normal_deg
+    assert abs(spec["depth_mm"] / depth - 1) < TOL.exact_image_depth_rel
+
+
+def test_colocated_ranking_reads_a_results_document():
+    results = {"suite": {"estimators": ["cone_axis", "bp_ray", "joint_cone_axis"]},
+               "sweeps": [{"name": "light_offset", "cases": ["c3"]}],
+               "cases": [{"id": "c1", "metrics": {"estimators": {"cone_axis": {"mean": 1.0},
+                                                                 "bp_ray": {"mean": 0.5},
+                                                                 "joint_cone_axis": {"mean": 0.2}}}},
+                         {"id": "c2", "metrics": {"estimators": {"cone_axis": {"mean": 0.1},
+                                                                 "bp_ray": {"mean": 0.3},
+                                                                 "joint_cone_axis": {"mean": 0.1}}}},
+                         {"id": "c3", "metrics": {"estimators": {"cone_axis": {"mean": 0.0},
+                                                                 "bp_ray": {"mean": 0.0},
+                                                                 "joint_cone_axis": {"mean": 9.0}}}}]}
+    ranking = colocated_ranking(results)
+    assert [r[0] for r in ranking] == ["joint_cone_axis", "bp_ray", "cone_axis"]
+    assert np.isclose(ranking[0][1], 0.15)
