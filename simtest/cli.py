@@ -23,6 +23,8 @@ SUBCOMMANDS: dict[str, tuple[str, str, str]] = {
                  "Run a validation suite and write its report (the main job)."),
     "nightly": ("simtest.harness.cli", "nightly_command",
                 "Run the nightly (or --quick) suite and compare it with the committed baseline."),
+    "crb": ("simtest.harness.crb", "crb_command",
+            "The photometric fit against its Cramer-Rao bound (analytic planes; figure)."),
     "reconstruct": ("simtest.reconstruct.cli", "reconstruct_command",
                     "Estimate the normal at every specular highlight of IMAGE."),
     "view": ("simtest.reconstruct.cli", "view_command",

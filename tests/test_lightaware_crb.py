@@ -63,3 +63,15 @@ def test_bound_scales_with_noise_and_depth_bound_is_infinite_colocated():
     assert c.depth_rel == float("inf") and np.isfinite(c.normal_deg)
     with pytest.raises(ValueError, match="sigma"):
         la.photometric_crb(K, (40, 40), (80, 80), N, 20.0, rig, ROUGHNESS, 1.0, 0.0)
+
+
+def test_crb_study_and_figure(tmp_path):
+    from simtest.harness.crb import crb_study, plot_crb
+
+    rows = crb_study(eps_over_d=(0.2,), sigmas=(0.005,), realisations=3, seed=1)
+    assert len(rows) == 1 and rows[0]["n"] == 3
+    r = rows[0]
+    assert np.isfinite(r["crb_normal_deg"]) and np.isfinite(r["crb_depth_pct"])
+    assert r["rms_normal_deg"] is not None
+    png = plot_crb(rows, tmp_path / "crb.png")
+    assert png.stat().st_size > 1000 and not list(tmp_path.glob("*.tmp.png"))

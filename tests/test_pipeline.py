@@ -289,7 +289,7 @@ def test_estimates_json_round_trip(tmp_path):
     text = path.read_text()
     assert "NaN" not in text and "Infinity" not in text
     doc = read_estimates(path)
-    assert doc["schema"] == 1 and doc["isovalues"] == [0.2, 0.4]
+    assert doc["schema"] == 2 and doc["isovalues"] == [0.2, 0.4]
     assert np.array_equal(doc["K"], K)
     ok = [s for s in doc["specularities"] if s["status"] == "ok"]
     bad = [s for s in doc["specularities"] if s["status"] != "ok"]
@@ -302,10 +302,10 @@ def test_estimates_json_round_trip(tmp_path):
     assert bad[0]["normals"]["cone_axis"] is None and bad[0]["normals"]["bp_ray"] is not None
     # unknown schema and missing keys are refused with the file and key named
     d = json.loads(text)
-    d["schema"] = 2
-    (tmp_path / "s2.json").write_text(json.dumps(d))
+    d["schema"] = 3
+    (tmp_path / "s3.json").write_text(json.dumps(d))
     with pytest.raises(ValueError, match="schema"):
-        read_estimates(tmp_path / "s2.json")
+        read_estimates(tmp_path / "s3.json")
     d["schema"] = 1
     del d["specularities"][0]["normals"]
     (tmp_path / "nk.json").write_text(json.dumps(d))

@@ -16,7 +16,8 @@ Estimators (derivations in the Notes of :func:`simtest.geometry.conics.cone_axis
 - ``bp_ray``: minus the unit viewing ray through the detected brightest point (the baseline).
 - ``isocurve_fit``, ``photometric_fit``: the light-aware estimators (the general isocurve of eq. 2
   and the photometric plane fit with the calibrated rig, :mod:`simtest.reconstruct.lightaware`),
-  scored when the rendered protocol ran them (a rig off the camera centre).
+  scored when the rendered protocol ran them (a rig off the camera centre); ``quadric_fit``, the
+  experimental curved-patch fit, only when a suite lists it (it is slow).
 - ``recommended``: the normal ``estimates.json`` recommends (:mod:`simtest.reconstruct.recommend`).
 
 The registry is a plain dict so that a test can plant a known bias in one estimator
@@ -112,19 +113,20 @@ ESTIMATORS: dict[str, Callable] = {
     "bp_ray": _attr("bp_ray"),
     "isocurve_fit": _light_aware("isocurve_fit"),
     "photometric_fit": _light_aware("photometric_fit"),
+    "quadric_fit": _light_aware("quadric_fit"),
     "recommended": _recommended,
 }
 
 #: Estimators scored whatever the highlight's status (they do not rest on its isophote: the BP
 #: ray, and the photometric fit and the recommendation, which take a merged highlight too).
-STATUS_FREE = ("bp_ray", "photometric_fit", "recommended")
+STATUS_FREE = ("bp_ray", "photometric_fit", "quadric_fit", "recommended")
 
 
 def _cause(est, name: str) -> str:
     status = getattr(est, "status", None)
     if status is not None and status != "ok":
         return str(status)
-    if name in ("isocurve_fit", "photometric_fit"):
+    if name in ("isocurve_fit", "photometric_fit", "quadric_fit"):
         r = (getattr(est, "light_aware", None) or {}).get(name)
         return f"{name}_not_run" if r is None else str(r.status)
     if name == "joint_cone_axis":

@@ -366,7 +366,8 @@ class RenderedRunner:
         light_aware = any(e in LIGHT_AWARE_NAMES for e in self.estimators)
         if light_aware:
             rig = render_rig(result)
-            ests = with_light_aware(image, ests, result.K, rig)
+            ests = with_light_aware(image, ests, result.K, rig,
+                                    quadric="quadric_fit" in self.estimators)
         ok_bps = [(e, np.asarray(e.bp_px, float)) for e in ests
                   if getattr(e, "bp_px", None) is not None]
         # Clipping: pixels at the sensor's full scale (0 for a linear float image).

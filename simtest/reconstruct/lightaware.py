@@ -14,6 +14,8 @@ becomes observable. Three estimators use the rig:
   calibrated light position, fitted to the isophote points taken as rays: plane normal, distance h,
   and the cosine level tau of each isovalue (nested isovalues tie their taus through the
   roughness n).
+- :func:`quadric_fit` (experimental): the same with a curved (quadric) patch, for curved surfaces
+  where the plane model explains the curvature's compression of the lobe by roughness and depth.
 - :func:`photometric_fit`: the ROI's intensities fitted with the image of a plane lit by the whole
   rig (sum of the lights' Phong lobes with their falloff and emission profile) plus a smooth linear
   background: normal, distance, roughness and gain; clipped pixels are left out.
@@ -98,6 +100,7 @@ __all__ = [
     "photometric_crb",
     "photometric_fit",
     "plane_rig_intensity",
+    "quadric_fit",
     "refine_isophote_points",
     "specular_point_depth",
 ]
@@ -123,7 +126,7 @@ class LightAwareEstimate:
     Attributes
     ----------
     estimator : str
-        ``"bisector"``, ``"isocurve_fit"`` or ``"photometric_fit"``.
+        ``"bisector"``, ``"isocurve_fit"``, ``"photometric_fit"`` or ``"quadric_fit"``.
     status : str
         A key of :data:`STATUSES`.
     detail : str
@@ -658,7 +661,7 @@ def refine_isophote_points(values, level: float, points_uv, origin_uv=(0.0, 0.0)
 def isocurve_fit(points_uv, isovalues, bp_uv, camera, rig: LightRig, *,
                  nominal_depth_mm: float = 20.0, start_normal=None,
                  loss: str = "soft_l1", f_scale_px: float = 0.5,
-                 max_points_per_isophote: int | None = 64, n_start_depths: int = 7,
+                 max_points_per_isophote: int | None = 64, n_start_depths: int = 0,
                  max_nfev: int = 200) -> LightAwareEstimate:
     """Fit the general specular isocurve (paper eq. 2) with a calibrated light to isophote points.
 
@@ -817,7 +820,7 @@ def photometric_fit(values, origin_uv, bp_uv, camera, rig: LightRig, *,
                     clip_level: float | None = None, nominal_depth_mm: float = 20.0,
                     start_normal=None, start_roughness: float | None = None,
                     loss: str = "linear", f_scale: float = 0.02, supersample: int = 1,
-                    n_start_depths: int = 7,
+                    n_start_depths: int = 0,
                     max_pixels: int | None = 16384, max_nfev: int = 200) -> LightAwareEstimate:
     """Fit the intensities of an ROI with the image of a plane lit by the whole rig.
 
@@ -854,8 +857,9 @@ def photometric_fit(values, origin_uv, bp_uv, camera, rig: LightRig, *,
     f_scale : float
         Soft margin of a robust loss, relative to the ROI's maximum.
     n_start_depths : int
-        Starts tried along the BP's constraint (depths nominal/8 to nominal*8), besides the given
-        start; the cheapest one is refined (0: only the given start).
+        Further starts along the BP's constraint (depths nominal/8 to nominal*8), each refined;
+        the solution of least cost is kept (0: the start, and the nominal bisector when a start is
+        given).
     supersample : int
         s x s point samples per pixel, averaged (a renderer's or sensor's box filter; 1: the
         value at the pixel centre, as the exact images of :mod:`simtest.simulate.offset`).
@@ -946,25 +950,37 @@ def photometric_fit(values, origin_uv, bp_uv, camera, rig: LightRig, *,
         r = A @ lin - yn
         return rough, lin, float(r @ r)
 
-    # Start: the given one, and planes along the BP's constraint at depths from nominal/8 to
-    # nominal*8 (each the bisector at that depth, its distance such that the specular point is the
-    # BP); the cheapest by its linear least squares. Far off-axis offsets have local minima (a
-    # near plane with a rough lobe mimics a far one with a smooth lobe), which a single start at
-    # the nominal depth can fall into.
+    # Starts: the given one (or the bisector at the nominal depth), the nominal bisector too when
+    # a start was given, and n_start_depths planes along the BP's constraint (each the bisector
+    # at a depth from nominal/8 to nominal*8, its distance such that the specular point is the
+    # BP). Each is refined; the solution of least cost is kept. A near plane with a rough lobe can
+    # mimic a far one with a smooth lobe (a local minimum), which one start may fall into.
     cands = [(n0, h0)]
     if np.abs(rig_arr[0]).max() > 0:
         Lm = _mean_light(rig)
-        for sdep in nominal_depth_mm * np.geomspace(1 / 8, 8, n_start_depths):
+        depths = list(nominal_depth_mm * np.geomspace(1 / 8, 8, n_start_depths))
+        if start_normal is not None:
+            depths.append(nominal_depth_mm)
+        for sdep in depths:
             X = sdep * d_bp
             nc = unit(unit(-X) + unit(Lm - X))
             cands.append((nc, float(-(nc @ X))))
-    best = min((start_for(n, h) + (n, h) for n, h in cands), key=lambda c: c[2])
-    rough0, lin0, _, n0, h0 = best
-    e1, e2 = plane_basis(n0)
-    p0 = np.concatenate([[0.0, 0.0, np.log(h0), np.log(rough0)], lin0])
-    free = np.ones(len(p0), bool)
-    free[2] = np.abs(rig_arr[0]).max() > 1e-9 * h0  # all lights at V: the image does not depend on h
-    x, nfev, conv, msg = _solve(resjac_at, p0, (n0, e1, e2), loss, f_scale, max_nfev, free)
+    best = None
+    nfev_total = 0
+    for nc, hc in cands:
+        rough_c, lin_c, _ = start_for(nc, hc)
+        e1, e2 = plane_basis(nc)
+        p0 = np.concatenate([[0.0, 0.0, np.log(hc), np.log(rough_c)], lin_c])
+        free = np.ones(len(p0), bool)
+        free[2] = np.abs(rig_arr[0]).max() > 1e-9 * hc  # all lights at V: no dependence on h
+        x, nfev, conv, msg = _solve(resjac_at, p0, (nc, e1, e2), loss, f_scale, max_nfev, free)
+        nfev_total += nfev
+        r = resjac_at(x, nc, e1, e2)[0]
+        cost = float(r @ r) if np.isfinite(r).all() else np.inf
+        if best is None or cost < best[0]:
+            best = (cost, x, nc, hc, e1, e2, conv, msg)
+    _, x, n0, h0, e1, e2, conv, msg = best
+    nfev = nfev_total
     n_hat = _normal_derivs(x, n0, e1, e2)[0]
     h_hat = float(np.exp(x[2]))
     bad = _implausible(h_hat, h0, float(np.exp(x[3])))
@@ -1079,3 +1095,142 @@ def photometric_crb(camera, origin_uv, shape, normal, distance_mm: float, rig: L
     g = _log_depth_gradient(n, float(distance_mm), _mean_light(rig))
     return CramerRaoBound(float(np.degrees(np.sqrt(cov[0, 0] + cov[1, 1]))),
                           float(np.sqrt(max(g @ cov[:3, :3] @ g, 0.0))), int(keep.sum()))
+
+
+# ------------------------------------------------------------------------------------------------
+# quadric patch (curved surfaces)
+
+
+def _quadric_model(d, b_ray, rig_arr, n0, e1, e2):
+    """Specular image of a quadric patch whose apex lies on the BP ray (see :func:`quadric_fit`)."""
+    L, w, inv_sq, m = rig_arr
+
+    def S(p):
+        N = unit(n0 + p[0] * e1 + p[1] * e2)
+        t1, t2 = plane_basis(N)
+        s = np.exp(p[2])
+        kxx, kxy, kyy = p[3], p[4], p[5]
+        rough = np.exp(p[6])
+        P0 = s * b_ray
+        ax, ay, az = d @ t1, d @ t2, d @ N
+        bx, by, bz = -(P0 @ t1), -(P0 @ t2), -(P0 @ N)
+        # F = z + (k_xx x^2 + 2 k_xy x y + k_yy y^2) / 2 = 0 along the ray: A t^2 + B t + C = 0
+        A = 0.5 * (kxx * ax * ax + 2 * kxy * ax * ay + kyy * ay * ay)
+        B = az + (kxx * ax * bx + kxy * (ax * by + ay * bx) + kyy * ay * by)
+        C = bz + 0.5 * (kxx * bx * bx + 2 * kxy * bx * by + kyy * by * by)
+        disc = B * B - 4 * A * C
+        ok = disc >= 0
+        den = B + np.where(B >= 0, 1.0, -1.0) * np.sqrt(np.where(ok, disc, 0.0))
+        good_den = np.abs(den) > 1e-15
+        t = np.where(good_den, -2 * C / np.where(good_den, den, 1.0), np.inf)  # the root near -C/B
+        ok &= (t > 0) & np.isfinite(t)
+        t = np.where(ok, t, s)
+        X = d * t[:, None]
+        x, y = ax * t + bx, ay * t + by
+        ns = N[None, :] + (kxx * x + kxy * y)[:, None] * t1 + (kxy * x + kyy * y)[:, None] * t2
+        ns /= np.linalg.norm(ns, axis=1, keepdims=True)
+        out = np.zeros(len(d))
+        for j in range(len(w)):
+            tl = L[j] - X
+            r = np.linalg.norm(tl, axis=1)
+            l = tl / r[:, None]
+            cb = 2 * np.sum(ns * l, axis=1) * -np.sum(ns * d, axis=1) + np.sum(l * d, axis=1)
+            val = np.where(cb > 0, np.exp(rough * np.log(np.where(cb > 0, cb, 1.0))), 0.0)
+            if inv_sq[j]:
+                val = val * (s / r) ** 2
+            if m[j] > 0:
+                val = val * np.maximum((X[:, 2] - L[j, 2]) / r, 0.0) ** m[j]
+            out += w[j] * val
+        return np.where(ok, out, 0.0)
+
+    return S
+
+
+def quadric_fit(values, origin_uv, bp_uv, camera, rig: LightRig, *,
+                clip_level: float | None = None, nominal_depth_mm: float = 20.0,
+                start_depths_mm=None, max_nfev: int = 400) -> LightAwareEstimate:
+    """Fit the ROI with the image of a curved (quadric) patch lit by the rig (experimental).
+
+    The patch's apex is on the BP ray at depth s, with normal N (two angles about a start) and a
+    symmetric shape operator (k_xx, k_xy, k_yy) in the tangent basis of N: in the apex's frame
+    ``z = -(k_xx x^2 + 2 k_xy x y + k_yy y^2) / 2`` (z toward the camera; positive curvatures bend
+    away from it, as the outside of a sphere). Each pixel ray meets it at the root of a quadratic
+    nearest the tangent plane; the surface normal there, the rig's lobes (as in
+    :func:`photometric_fit`), gain and linear background (solved linearly) give the image. Nonlinear
+    parameters (a, b, log s, k_xx, k_xy, k_yy, log n) by Levenberg-Marquardt with a
+    finite-difference Jacobian, from the bisector at each start depth; the least cost is kept.
+    ``normal`` is N at the apex, ``depth_mm`` is s (no uncertainty is given: the curvatures,
+    roughness and depth trade off, and the Jacobian's covariance is not yet validated).
+
+    Parameters
+    ----------
+    values, origin_uv, bp_uv, camera, rig, clip_level, nominal_depth_mm
+        As in :func:`photometric_fit`.
+    start_depths_mm : sequence of float, optional
+        Start depths along the BP ray (default: 0.5, 1 and 2 times ``nominal_depth_mm``).
+    max_nfev : int
+        Evaluation budget per start.
+
+    Returns
+    -------
+    LightAwareEstimate
+        ``estimator="quadric_fit"``, status ``ok`` or ``not_converged``.
+
+    Raises
+    ------
+    ValueError
+        A values array that is not 2-D and finite.
+    """
+    vals = np.asarray(values, dtype=np.float64)
+    if vals.ndim != 2 or not np.isfinite(vals).all():
+        raise ValueError(f"values: need a finite (H, W) array, got shape {vals.shape}")
+    name = "quadric_fit"
+    camera = _camera(camera)
+    H, W = vals.shape
+    o = np.asarray(origin_uv, dtype=np.float64).reshape(2)
+    vv, uu = np.mgrid[0:H, 0:W]
+    keep = np.ones((H, W), bool) if clip_level is None else vals < clip_level
+    uv = np.column_stack([uu[keep] + o[0], vv[keep] + o[1]]).astype(np.float64)
+    y = vals[keep]
+    if len(y) < 12:
+        return LightAwareEstimate(name, "too_few_points", f"{len(y)} unclipped pixels")
+    y = y / max(float(np.abs(y).max()), 1e-12)
+    d = _rays(camera, uv)
+    bp = np.asarray(bp_uv, dtype=np.float64).reshape(2)
+    b_ray = _rays(camera, bp[None])[0]
+    rig_arr = _rig_arrays(rig)
+    Lm = _mean_light(rig)
+    du = (uv[:, 0] - bp[0]) / max(H, W)
+    dv = (uv[:, 1] - bp[1]) / max(H, W)
+    ones = np.ones_like(du)
+    starts = (nominal_depth_mm * np.array([0.5, 1.0, 2.0]) if start_depths_mm is None
+              else np.asarray(start_depths_mm, dtype=np.float64).reshape(-1))
+    best = None
+    nfev = 0
+    for s0 in starts:
+        X = s0 * b_ray
+        n0 = unit(unit(-X) + unit(Lm - X))
+        e1, e2 = plane_basis(n0)
+        S = _quadric_model(d, b_ray, rig_arr, n0, e1, e2)
+
+        def res(p, S=S):
+            A = np.column_stack([S(p), ones, du, dv])
+            return A @ np.linalg.lstsq(A, y, rcond=None)[0] - y
+
+        p0 = np.array([0.0, 0.0, np.log(s0), 0.0, 0.0, 0.0, np.log(50.0)])
+        with np.errstate(all="ignore"):
+            r = least_squares(res, p0, method="lm", max_nfev=max_nfev,
+                              x_scale=np.array([0.01, 0.01, 0.1, 0.01, 0.01, 0.01, 0.3]))
+        nfev += r.nfev
+        if np.isfinite(r.cost) and (best is None or r.cost < best[0]):
+            best = (r.cost, r, n0, e1, e2)
+    if best is None:
+        return LightAwareEstimate(name, "not_converged", "no finite solution", n_evaluations=nfev)
+    _, r, n0, e1, e2 = best
+    n_hat = unit(n0 + r.x[0] * e1 + r.x[1] * e2)
+    s_hat = float(np.exp(r.x[2]))
+    rough = float(np.exp(r.x[6]))
+    bad = _implausible(s_hat, float(nominal_depth_mm), rough)
+    if r.status <= 0 or bad:
+        return LightAwareEstimate(name, "not_converged", bad or r.message, n_evaluations=nfev)
+    return LightAwareEstimate(name, OK, "", n_hat, s_hat, None, None, None, rough, None, nfev)

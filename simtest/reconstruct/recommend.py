@@ -41,6 +41,7 @@ from simtest.reconstruct.lightaware import (
     LightAwareEstimate,
     isocurve_fit,
     photometric_fit,
+    quadric_fit,
     refine_isophote_points,
 )
 
@@ -81,15 +82,17 @@ def _offset_rig(rig) -> bool:
 
 def light_aware_estimates(image, est, camera, rig: LightRig, *, nominal_depth_mm: float = 20.0,
                           saturation_level: float | None = None,
-                          roi_scale: float = 2.5, supersample: int = 1) -> dict[str, LightAwareEstimate]:
+                          roi_scale: float = 2.5, supersample: int = 1,
+                          quadric: bool = False) -> dict[str, LightAwareEstimate]:
     """Run the light-aware estimators on one detected highlight.
 
     ``isocurve_fit`` takes the points of every isophote that succeeded (refined onto the cubic
     spline of the image, :func:`~simtest.reconstruct.lightaware.refine_isophote_points`, at the
     level the points sit on) when the rig has one light; ``photometric_fit`` takes the highlight's
     ROI grown ``roi_scale`` times about the BP (the lobe's tails carry the distance), clipped pixels
-    left out. The two fits start independently (each from its own search along the BP's
-    constraint), so that one's local minimum does not become the other's start.
+    left out, refined from two starts (the bisector at the nominal depth and the isocurve fit's
+    normal when it has one) and the better kept, so that one fit's local minimum does not become
+    the other's answer.
 
     Parameters
     ----------
@@ -109,12 +112,16 @@ def light_aware_estimates(image, est, camera, rig: LightRig, *, nominal_depth_mm
         Growth of the highlight's ROI for the photometric fit.
     supersample : int
         Sub-pixel samples per pixel side of the photometric model (its box filter).
+    quadric : bool
+        Also run the (slow, experimental) curved-patch fit
+        :func:`~simtest.reconstruct.lightaware.quadric_fit` on the same ROI, started at the
+        photometric fit's depth and the nominal one.
 
     Returns
     -------
     dict
         ``{"isocurve_fit": LightAwareEstimate, "photometric_fit": LightAwareEstimate}`` (the
-        isocurve fit is absent when no isophote succeeded).
+        isocurve fit is absent when no isophote succeeded), and ``"quadric_fit"`` on request.
     """
     img = np.asarray(image)
     if saturation_level is None and img.dtype.kind == "u":
@@ -125,6 +132,7 @@ def light_aware_estimates(image, est, camera, rig: LightRig, *, nominal_depth_mm
     vals = gray[roi.slices]
     origin = np.array([roi.col0, roi.row0], dtype=np.float64)
     isos = [i for i in est.isophotes if i.ok and i.points_uv is not None and len(i.points_uv) >= 6]
+    start_n = None
     if isos:
         pts = []
         for iso in isos:
@@ -134,12 +142,20 @@ def light_aware_estimates(image, est, camera, rig: LightRig, *, nominal_depth_mm
         iso_est = isocurve_fit(pts, [i.isovalue for i in isos], est.bp_px, camera, rig,
                                nominal_depth_mm=nominal_depth_mm)
         out["isocurve_fit"] = iso_est
+        if iso_est.has_normal:
+            start_n = iso_est.normal
     half = roi_scale * max(roi.shape) / 2.0
     big = Roi.around(est.bp_px, half, img.shape)
     out["photometric_fit"] = photometric_fit(
         gray[big.slices], (big.col0, big.row0), est.bp_px, camera, rig,
         clip_level=saturation_level, nominal_depth_mm=nominal_depth_mm,
-        supersample=supersample)
+        start_normal=start_n, supersample=supersample)
+    if quadric:
+        pho = out["photometric_fit"]
+        starts = [nominal_depth_mm] + ([pho.depth_mm] if pho.depth_mm is not None else [])
+        out["quadric_fit"] = quadric_fit(
+            gray[big.slices], (big.col0, big.row0), est.bp_px, camera, rig,
+            clip_level=saturation_level, nominal_depth_mm=nominal_depth_mm, start_depths_mm=starts)
     return out
 
 
