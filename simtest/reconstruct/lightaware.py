@@ -148,6 +148,10 @@ class LightAwareEstimate:
         Fitted cosine level tau per isovalue (isocurve_fit).
     n_evaluations : int
         Model evaluations of the fit (0 for the closed form).
+    residual_rms : float or None
+        RMS residual at the solution, in the fit's units (px for the isocurve fit; fraction of the
+        ROI's maximum for the photometric fit); a plane model meeting a curved patch leaves a
+        residual well above the sensor's noise.
     """
 
     estimator: str
@@ -161,6 +165,7 @@ class LightAwareEstimate:
     roughness: float | None = None
     taus: np.ndarray | None = None
     n_evaluations: int = 0
+    residual_rms: float | None = None
 
     @property
     def ok(self) -> bool:
@@ -602,6 +607,7 @@ def _finish(name, resjac_at, n_hat, h_hat, rig, extra_params, resid_floor, n_eva
         name, status, detail, n_hat,
         depth if observable else None, sigma_deg, depth_sigma,
         h_hat if observable else None, roughness, taus, n_eval,
+        float(np.sqrt(np.mean(r0 * r0))),
     )
 
 

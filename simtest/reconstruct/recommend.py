@@ -11,12 +11,19 @@ Recommendation rule
 Chosen from the harness' measurements on Mitsuba renders (``simtest validate rendered`` and the
 ``lightaware`` suite), never from ground truth at run time:
 
-1. With a rig whose lights are not all at the camera centre: ``photometric_fit`` when it gives a
-   normal (status ``ok`` or ``depth_not_observable``), else ``isocurve_fit``, else ``bp_ray``. On
-   renders of planes lit 1 to 25 mm off the camera the BP ray and every cone estimator err by about
-   24 deg per unit epsilon/d (they estimate the direction of the BP, not the normal); the
-   photometric fit uses every unclipped pixel and both the lobe's shape and its position, and the
-   isocurve fit only the contour points.
+1. With a rig whose lights are not all at the camera centre: ``photometric_fit`` when its status
+   is ``ok``, else ``isocurve_fit`` when its status is ``ok``, else ``bp_ray``. On renders of
+   planes lit off the camera (the ``lightaware`` suite) the BP ray and every cone estimator err by
+   about 24 deg per unit epsilon/d (they estimate the direction of the BP, not the normal); the
+   photometric fit uses every unclipped pixel, the lobe's shape and its position, and errs by
+   about a tenth of a degree; the isocurve fit, which sees only the contour points, by several
+   times more. A fit whose depth is not observable is not used: with the light off the camera the
+   tilt and the distance trade off, so an undetermined distance leaves the normal undetermined
+   too (on the curved scenes such fits missed by up to 12 deg). Known failure: on curved patches
+   the plane model trades the curvature for roughness and distance, and its normal can be worse
+   than the BP ray's while its status is ``ok`` (the ``lightaware`` suite's sphere, cylinder,
+   saddle, liver and colon sweeps); the experimental :func:`~simtest.reconstruct.lightaware.
+   quadric_fit` is the candidate replacement.
 2. Without a rig, or with every light at the camera centre: ``joint_cone_axis`` when at least two
    isophotes succeeded, else ``cone_axis``, else ``bp_ray``. Over the co-located rendered suite the
    joint cone axis has the lowest mean and median error (:func:`colocated_ranking` recomputes the
@@ -33,10 +40,11 @@ import dataclasses
 from dataclasses import dataclass
 
 import numpy as np
+from scipy.ndimage import map_coordinates
 
 from simtest.geometry.lights import LightRig
+from simtest.reconstruct._pixels import Roi, uv_to_rc
 from simtest.reconstruct.detect import luma
-from simtest.reconstruct._pixels import Roi
 from simtest.reconstruct.lightaware import (
     LightAwareEstimate,
     isocurve_fit,
@@ -160,10 +168,6 @@ def light_aware_estimates(image, est, camera, rig: LightRig, *, nominal_depth_mm
 
 
 def _spline_values(vals, uv_local):
-    from scipy.ndimage import map_coordinates
-
-    from simtest.reconstruct._pixels import uv_to_rc
-
     return map_coordinates(np.asarray(vals, dtype=np.float64), uv_to_rc(uv_local).T, order=3,
                            mode="mirror")
 
@@ -220,7 +224,7 @@ def recommend(est) -> Recommendation:
     if la:
         for name in LIGHT_AWARE:
             r = la.get(name)
-            if r is not None and r.has_normal and r.status in ("ok", "depth_not_observable"):
+            if r is not None and r.has_normal and r.status == "ok":
                 return Recommendation(np.asarray(r.normal), name, r.depth_mm, r.normal_sigma_deg)
         return Recommendation(np.asarray(est.bp_ray), "bp_ray")
     for name in COLOCATED_ORDER:
