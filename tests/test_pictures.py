@@ -160,7 +160,8 @@ def test_3d_view_renders_off_screen_without_a_display(tmp_path, monkeypatch):
     assert res.exit_code == 0, res.output
     png = cv2.imread(str(tmp_path / "view.png"))
     assert png is not None and png.shape[1] > png.shape[0]  # two panels side by side
-    assert colour_pixels(png, estimator_colour("cone_axis"), tol=80) > 30  # the discs are drawn
+    # the discs are drawn, in the colour of the recommended normal (schema 2's "normal")
+    assert colour_pixels(png, estimator_colour("normal"), tol=80) > 30
     left, right = png[:, : png.shape[1] // 2], png[:, png.shape[1] // 2:]
     assert (right.std(axis=2) > 10).mean() > 0.05  # the shaded ground-truth surface is there
     assert left.min() < 100  # the camera centre (black) and the rays

@@ -216,6 +216,9 @@ def draw_overlay(path, image, estimates, K=None, *, estimators=None, show_reject
     rejected = [e for e in estimates if not e.ok]
     names = list(estimators) if estimators is not None else list(DEFAULT_ESTIMATORS)
     normals = [_normals_of(e) for e in ok]
+    for d, e in zip(normals, ok):  # the recommended normal is drawn only if its source is not
+        if e.recommended.normal_from in names:
+            d.pop("normal", None)
     present = [n for n in names if any(n in d for d in normals)]
     bps = np.array([e.bp_px for e in ok], dtype=np.float64).reshape(-1, 2)
     length_px = needle_length * max(h, w) if needle_length is not None else needle_length_px(bps, disp.shape)
