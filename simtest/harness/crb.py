@@ -15,8 +15,14 @@ from __future__ import annotations
 import os
 from pathlib import Path
 
+import matplotlib
 import numpy as np
 import typer
+from rich.console import Console
+
+matplotlib.use("Agg", force=False)
+
+import matplotlib.pyplot as plt  # noqa: E402 - after choosing the back-end
 
 from simtest._io import atomic_write_json
 from simtest.geometry.angles import angle_between_deg
@@ -110,11 +116,6 @@ def plot_crb(rows: list[dict], path) -> Path:
     -------
     Path
     """
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
     path = Path(path)
     fig, axes = plt.subplots(1, 2, figsize=(10, 4), constrained_layout=True)
     for k, sigma in enumerate(sorted({r["sigma"] for r in rows})):
@@ -149,8 +150,6 @@ def crb_command(
     seed: int = typer.Option(0, "--seed", min=0, help="Root seed."),
 ) -> None:
     """The photometric fit against its Cramer-Rao bound: crb.json and crb.png in OUT."""
-    from rich.console import Console
-
     if out.exists() and not out.is_dir():
         typer.echo(f"error: --out: {out} is a file, not a folder", err=True)
         raise typer.Exit(2)
