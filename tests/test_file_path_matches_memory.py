@@ -19,6 +19,7 @@ from typer.testing import CliRunner
 from simtest.cli import app
 from simtest.reconstruct import reconstruct
 from simtest.reconstruct.io import estimates_document
+from simtest.reconstruct.recommend import with_light_aware
 from simtest.render import render_scene, write_render
 from simtest.resources import bundled_scene_path
 from simtest.scene import load_scene, scene_from_dict, with_overrides
@@ -38,7 +39,9 @@ def _check_same(tmp_path, spec) -> int:
     assert np.array_equal(np.asarray(Image.open(paths["image"])), result.sensor)
 
     camera = result.camera_model
-    memory = reconstruct(result.sensor, camera)
+    # the CLI reads the rig from camera.json and runs the light-aware estimators with it
+    memory = with_light_aware(result.sensor, reconstruct(result.sensor, camera), camera,
+                              result.light_rig)
     expected = estimates_document(memory, K=getattr(camera, "K", None), image_shape=result.sensor.shape,
                                   camera=camera)
 
