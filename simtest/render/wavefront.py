@@ -145,15 +145,7 @@ def shade(scene, d: np.ndarray, rig: LightRig, *, shadows: bool) -> tuple[np.nda
     ctx = mi.BSDFContext()
     total = mi.Color3f(0.0)
     for light in rig.lights:
-        lp = mi.Point3f(*(float(x) for x in light.position_mm))
-        to_light = lp - si.p
-        s2 = dr.squared_norm(to_light)
-        wo = to_light * dr.rsqrt(s2)
-        weight = mi.Float(float(light.intensity))
-        if light.profile_exponent > 0:
-            weight = weight * dr.power(dr.maximum(-wo.z, 0.0), float(light.profile_exponent))
-        if light.falloff == "inverse_square":
-            weight = weight / s2
+        lp, wo, weight = _light_at(light, si.p)
         lit = valid
         if shadows:
             lit = lit & ~scene.ray_test(si.spawn_ray_to(lp), valid)
@@ -161,6 +153,26 @@ def shade(scene, d: np.ndarray, rig: LightRig, *, shadows: bool) -> tuple[np.nda
         total += dr.select(lit, value * weight, mi.Color3f(0.0))
     dr.eval(total, valid)
     return np.array(total, dtype=np.float32).T.copy(), np.array(valid, dtype=bool)
+
+
+def _light_at(light, p):
+    """One light of the rig seen from surface points ``p`` (Dr.Jit, camera frame, mm).
+
+    Returns the light's position, the unit direction ``wo`` from ``p`` to it and its weight
+    ``I max(0, w_z)^m / s^2`` (``w = -wo`` the emission direction, ``s`` the distance; the ``1 / s^2``
+    only for an inverse-square light), as the image and the tissue shading both sum them.
+    """
+    dr, mi = require("drjit"), require("mitsuba")
+    lp = mi.Point3f(*(float(x) for x in light.position_mm))
+    to_light = lp - p
+    s2 = dr.squared_norm(to_light)
+    wo = to_light * dr.rsqrt(s2)
+    weight = mi.Float(float(light.intensity))
+    if light.profile_exponent > 0:
+        weight = weight * dr.power(dr.maximum(-wo.z, 0.0), float(light.profile_exponent))
+    if light.falloff == "inverse_square":
+        weight = weight / s2
+    return lp, wo, weight
 
 
 def _dr_xp():
@@ -214,15 +226,7 @@ def shade_tissue(scene, d: np.ndarray, rig: LightRig, texture, material, *,
     rgb = [mi.Float(0.0), mi.Float(0.0), mi.Float(0.0)]
     spec = mi.Float(0.0)
     for light in rig.lights:
-        lp = mi.Point3f(*(float(x) for x in light.position_mm))
-        to_light = lp - si.p
-        s2 = dr.squared_norm(to_light)
-        wo = to_light * dr.rsqrt(s2)
-        weight = mi.Float(float(light.intensity))
-        if light.profile_exponent > 0:
-            weight = weight * dr.power(dr.maximum(-wo.z, 0.0), float(light.profile_exponent))
-        if light.falloff == "inverse_square":
-            weight = weight / s2
+        lp, wo, weight = _light_at(light, si.p)
         lit = valid & (dr.dot(wo, n) > 0)
         if shadows:
             lit = lit & ~scene.ray_test(si.spawn_ray_to(lp), valid)
