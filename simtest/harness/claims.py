@@ -266,45 +266,39 @@ def _rho_cases(results):
     return [c for c in _rendered(results) if _diag(c, "predicted_gap") is not None]
 
 
-def _claim_rho_gap(results):
-    cs = [c for c in _rho_cases(results) if _diag(c, "eigenvalue_gap") is not None
-          and _base_family(c) != "plane"]
+def _rho_claim(results, measured, predicted, bound, unit, what):
+    """Largest |measured - predicted| per curved family; the verdict on the analytic quadrics.
+
+    ``measured(case)`` and ``predicted(case)`` give the two values of a case (None where absent);
+    ``unit`` is appended to each value ("" or " deg"), ``what`` names the measured quantity.
+    """
+    cs = [c for c in _rho_cases(results) if measured(c) is not None
+          and predicted(c) is not None and _base_family(c) != "plane"]
     if not cs:
         return None
-    dev = {c["id"]: abs(_diag(c, "eigenvalue_gap") - _diag(c, "predicted_gap")) for c in cs}
+    dev = {c["id"]: abs(measured(c) - predicted(c)) for c in cs}
     ana = [c for c in cs if _base_family(c) in ANALYTIC]
     per = []
     for fam in sorted({_base_family(c) for c in cs}):
         fc = [c for c in cs if _base_family(c) == fam]
         worst = max(fc, key=lambda c: dev[c["id"]])
-        per.append(f"{fam}: largest |measured - predicted| {dev[worst['id']]:.3g} "
-                   f"({worst['id']}: {_diag(worst, 'eigenvalue_gap'):.3g} vs "
-                   f"{_diag(worst, 'predicted_gap'):.3g})")
-    holds = (max(dev[c["id"]] for c in ana) <= TOL.claim_rho_gap_abs) if ana else None
+        per.append(f"{fam}: largest |measured - predicted| {dev[worst['id']]:.3g}{unit} "
+                   f"({worst['id']}: {measured(worst):.3g} vs {predicted(worst):.3g}{unit})")
+    holds = (max(dev[c["id"]] for c in ana) <= bound) if ana else None
     return (holds, "; ".join(per),
-            f"curved co-located cases, case means; verdict on the analytic quadrics, bound "
-            f"{TOL.claim_rho_gap_abs:g}")
+            f"curved co-located cases, {what}; verdict on the analytic quadrics, bound "
+            f"{bound:g}{unit}")
+
+
+def _claim_rho_gap(results):
+    return _rho_claim(results, lambda c: _diag(c, "eigenvalue_gap"),
+                      lambda c: _diag(c, "predicted_gap"), TOL.claim_rho_gap_abs, "", "case means")
 
 
 def _claim_rho_pose(results):
-    cs = [c for c in _rho_cases(results) if _stat(c, "paper_oracle", "mean") is not None
-          and _diag(c, "predicted_pose_deg") is not None and _base_family(c) != "plane"]
-    if not cs:
-        return None
-    dev = {c["id"]: abs(_stat(c, "paper_oracle", "mean") - _diag(c, "predicted_pose_deg"))
-           for c in cs}
-    ana = [c for c in cs if _base_family(c) in ANALYTIC]
-    per = []
-    for fam in sorted({_base_family(c) for c in cs}):
-        fc = [c for c in cs if _base_family(c) == fam]
-        worst = max(fc, key=lambda c: dev[c["id"]])
-        per.append(f"{fam}: largest |measured - predicted| {dev[worst['id']]:.3g} deg "
-                   f"({worst['id']}: {_stat(worst, 'paper_oracle', 'mean'):.3g} vs "
-                   f"{_diag(worst, 'predicted_pose_deg'):.3g} deg)")
-    holds = (max(dev[c["id"]] for c in ana) <= TOL.claim_rho_pose_deg) if ana else None
-    return (holds, "; ".join(per),
-            f"curved co-located cases, paper_oracle case means; verdict on the analytic "
-            f"quadrics, bound {TOL.claim_rho_pose_deg:g} deg")
+    return _rho_claim(results, lambda c: _stat(c, "paper_oracle", "mean"),
+                      lambda c: _diag(c, "predicted_pose_deg"), TOL.claim_rho_pose_deg, " deg",
+                      "paper_oracle case means")
 
 
 #: Suite-wide predictions: id -> (statement, f(results) -> (holds, measured, scope) or None).
