@@ -84,7 +84,7 @@ def validate_command(
     """Run a validation suite and write its report (results.json, report.md, report.html).
 
     With no argument: the bundled `default` suite (rendered bundled scenes and a small part of
-    the paper's synthetic protocol), a few minutes on 2 cores.
+    the paper's synthetic protocol). The report's provenance records the run's wall time.
     """
 
     console = Console(stderr=True)
