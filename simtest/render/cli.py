@@ -85,6 +85,15 @@ def render_command(
         console.print(f"  {role}: {path}", markup=False, highlight=False)
 
 
+def _shown(path: Path) -> str:
+    """``path`` relative to the data root when it lies inside it (so a committed table names no
+    machine's folders), else as given."""
+    try:
+        return str(Path(path).resolve().relative_to(data_root().resolve()))
+    except ValueError:
+        return str(path)
+
+
 def simreal_command(
     scene: str = typer.Argument("colonoscope", help="Scene to render (a bundled name or a TOML file)."),
     out: Path = typer.Option(..., "--out", "-o", help="Output folder (created if needed)."),
@@ -125,7 +134,7 @@ def simreal_command(
     fig = sim_to_real_figure(frame, frames, rows)
     out.mkdir(parents=True, exist_ok=True)
     atomic_write_json(out / "simreal.json", {"scene": spec.name, "seed": result.seed,
-                                             "real": [str(p) for p in paths], "rows": rows})
+                                             "real": [_shown(p) for p in paths], "rows": rows})
     lines = ["| statistic | rendered | real median | real IQR | ratio | within x2 |",
              "|---|---|---|---|---|---|"]
     for r in rows:
