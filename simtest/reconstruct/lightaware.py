@@ -822,6 +822,29 @@ def isocurve_fit(points_uv, isovalues, bp_uv, camera, rig: LightRig, *,
 # photometric fit
 
 
+def _roi_grid(values, camera, origin_uv, clip_level):
+    """The ROI of a photometric fit: checked values, camera model, origin, pixel grid, unclipped mask.
+
+    Returns ``vals`` (H, W) float64, the camera model, ``o`` (2,) the ROI's top-left pixel (u, v),
+    ``uu, vv`` (H, W) the column and row indices, and ``keep`` (H, W) bool (``vals < clip_level``,
+    all True without a clip level).
+
+    Raises
+    ------
+    ValueError
+        A values array that is not 2-D and finite.
+    """
+    vals = np.asarray(values, dtype=np.float64)
+    if vals.ndim != 2 or not np.isfinite(vals).all():
+        raise ValueError(f"values: need a finite (H, W) array, got shape {vals.shape}")
+    camera = _camera(camera)
+    H, W = vals.shape
+    o = np.asarray(origin_uv, dtype=np.float64).reshape(2)
+    vv, uu = np.mgrid[0:H, 0:W]
+    keep = np.ones((H, W), bool) if clip_level is None else vals < clip_level
+    return vals, camera, o, uu, vv, keep
+
+
 def photometric_fit(values, origin_uv, bp_uv, camera, rig: LightRig, *,
                     clip_level: float | None = None, nominal_depth_mm: float = 20.0,
                     start_normal=None, start_roughness: float | None = None,
@@ -888,15 +911,9 @@ def photometric_fit(values, origin_uv, bp_uv, camera, rig: LightRig, *,
     ValueError
         A values array that is not 2-D and finite.
     """
-    vals = np.asarray(values, dtype=np.float64)
-    if vals.ndim != 2 or not np.isfinite(vals).all():
-        raise ValueError(f"values: need a finite (H, W) array, got shape {vals.shape}")
     name = "photometric_fit"
-    camera = _camera(camera)
+    vals, camera, o, uu, vv, keep = _roi_grid(values, camera, origin_uv, clip_level)
     H, W = vals.shape
-    o = np.asarray(origin_uv, dtype=np.float64).reshape(2)
-    vv, uu = np.mgrid[0:H, 0:W]
-    keep = np.ones((H, W), bool) if clip_level is None else vals < clip_level
     border = np.concatenate([vals[0], vals[-1], vals[:, 0], vals[:, -1]])
     b_level = float(np.median(border))
     sel = np.flatnonzero(keep)
@@ -1187,15 +1204,9 @@ def quadric_fit(values, origin_uv, bp_uv, camera, rig: LightRig, *,
     ValueError
         A values array that is not 2-D and finite.
     """
-    vals = np.asarray(values, dtype=np.float64)
-    if vals.ndim != 2 or not np.isfinite(vals).all():
-        raise ValueError(f"values: need a finite (H, W) array, got shape {vals.shape}")
     name = "quadric_fit"
-    camera = _camera(camera)
+    vals, camera, o, uu, vv, keep = _roi_grid(values, camera, origin_uv, clip_level)
     H, W = vals.shape
-    o = np.asarray(origin_uv, dtype=np.float64).reshape(2)
-    vv, uu = np.mgrid[0:H, 0:W]
-    keep = np.ones((H, W), bool) if clip_level is None else vals < clip_level
     uv = np.column_stack([uu[keep] + o[0], vv[keep] + o[1]]).astype(np.float64)
     y = vals[keep]
     if len(y) < 12:
