@@ -231,10 +231,14 @@ from simtest._llvm import configure_llvm_env
 configure_llvm_env()
 import drjit as dr
 dr.set_thread_count(int(sys.argv[1]))
-from simtest.dataset.config import load_config
+import copy
+from simtest.dataset.config import config_from_dict, load_config
 from simtest.dataset.sample import render_sample
 import numpy as np
-s = render_sample(load_config("scenes/datasets/example.toml"), 3)
+raw = copy.deepcopy(load_config("scenes/datasets/example.toml").raw)
+raw["params"]["colon"].update(appearance=sys.argv[2],
+                              light_rig="point" if sys.argv[2] == "phong" else "colonoscope")
+s = render_sample(config_from_dict(raw), 3)
 tiny = {k: int(np.sum((a != 0) & (np.abs(a) < np.finfo(np.float32).tiny)))
         for k, a in s.arrays.items() if a.dtype == np.float32}
 print(json.dumps({"family": s.record["family"], "tiny": tiny, "size": s.record["image_size"],
@@ -242,8 +246,10 @@ print(json.dumps({"family": s.record["family"], "tiny": tiny, "size": s.record["
 """
 
 
-def test_a_render_does_not_depend_on_the_drjit_thread_count():
-    """Sample 3 of the example config (colon, 256 x 256 px, 16 spp) with 1 and with 2 Dr.Jit threads.
+@pytest.mark.parametrize("appearance", ["phong", "tissue"])
+def test_a_render_does_not_depend_on_the_drjit_thread_count(appearance):
+    """Sample 3 of the example config (colon, 256 x 256 px, 16 spp) with 1 and with 2 Dr.Jit threads,
+    grey Phong under one light and the virtual endoscope's tissue under the colonoscope rig.
 
     With one thread Dr.Jit runs the kernel on the calling thread, which keeps float32 denormals;
     its pool threads flush them to zero. A Phong lobe below 2^-126 once made one `specular` pixel
@@ -252,7 +258,7 @@ def test_a_render_does_not_depend_on_the_drjit_thread_count():
     denormal anywhere in the kernel.
     """
     repo = Path(__file__).resolve().parents[1]
-    runs = [json.loads(subprocess.run([sys.executable, "-c", _THREADS_SCRIPT, str(n)], cwd=repo,
+    runs = [json.loads(subprocess.run([sys.executable, "-c", _THREADS_SCRIPT, str(n), appearance], cwd=repo,
                                       capture_output=True, text=True, check=True).stdout)
             for n in (1, 2)]
     assert runs[0]["family"] == "colon" and runs[0]["size"] == [256, 256]
@@ -308,3 +314,50 @@ def test_each_sample_carries_its_camera_file(reference, tmp_path):
         # the light sits at epsilon (cos a, sin a, b) with b = 0 here: |position| = epsilon
         assert r["params"]["light_offset_b"] == 0
         assert np.linalg.norm(light.position) == pytest.approx(r["params"]["light_offset_mm"], abs=1e-9)
+
+
+def test_tissue_samples_are_rgb_video_frames_lit_by_their_rig(tmp_path):
+    """appearance "tissue": an sRGB frame of the virtual endoscope's tissue, with the rig in the row."""
+    import torch
+
+    from simtest.geometry.camera_file import load_camera
+
+    cfg = config_from_dict({
+        "count": 4, "seed": 11, "shard_size": 2, "families": {"colon": 1.0, "liver": 1.0, "planes": 1.0},
+        "params": {"resolution_px": 32, "spp": 4, "appearance": "tissue", "relief_mm": 0.002,
+                   "light_falloff": "keep", "light_intensity": 400.0,
+                   "light_rig": {"dist": "choice", "values": ["colonoscope", "laparoscope", "point"]}},
+    })
+    out = tmp_path / "ds"
+    generate(cfg, out, workers=1, progress=False)
+    assert verify(out).ok
+    n_lights = {"colonoscope": 2, "laparoscope": 8, "point": 1}
+    ds = simtest.dataset.open(out)
+    for i in range(cfg.count):
+        item = ds[i]
+        r, img, mask = item["record"], item["sensor"], item["mask"]
+        assert r["color"] == "rgb" and img.shape == (32, 32, 3) and img.dtype == np.uint8
+        # procedural mucosa and liver are red-dominant: a grey image copied to 3 channels is not
+        assert img[mask][:, 0].mean() > img[mask][:, 2].mean() + 10
+        path = tmp_path / f"{i}.json"
+        path.write_text(json.dumps(r["camera"]))
+        assert len(load_camera(path).lights.lights) == n_lights[r["params"]["light_rig"]]
+        again = render_sample(cfg, i)  # a sample is a pure function of (config, index)
+        assert all(np.array_equal(again.arrays[k], v) for k, v in item.items() if k in again.arrays)
+    batch = next(iter(torch.utils.data.DataLoader(ds.torch(), batch_size=2)))
+    assert batch["sensor"].shape == (2, 3, 32, 32)
+
+
+def test_the_appearance_parameters_leave_the_earlier_draws_alone():
+    """They come last in the draw order: a config written before them draws the same values."""
+    base = {"count": 8, "seed": 5, "families": {"planes": 1.0, "colon": 1.0},
+            "params": {"phong_n": {"dist": "uniform", "low": 30, "high": 90}}}
+    old = config_from_dict(base)
+    new = config_from_dict({**base, "params": {**base["params"], "appearance": {
+        "dist": "choice", "values": ["phong", "tissue"]}, "light_rig": "colonoscope"}})
+    for i in range(old.count):
+        a, b = draw_parameters(old, i), draw_parameters(new, i)
+        assert a["appearance"] == "phong" and a["light_rig"] == "point"
+        assert {k: v for k, v in a.items() if k not in ("appearance", "light_rig", "render_seed")} == \
+               {k: v for k, v in b.items() if k not in ("appearance", "light_rig", "render_seed")}
+    assert old.fingerprint() != new.fingerprint()

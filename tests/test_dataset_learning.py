@@ -206,3 +206,31 @@ def test_generate_then_read_a_dataset_of_fixed_size_with_the_default_torch_path(
     assert batch["sensor"].shape == (6, 1, 8, 8) and batch["normals"].shape == (6, 3, 8, 8)
     img = simtest.dataset.open(out, keys=("sensor_png",))[5]["sensor_png"]
     assert torch.equal(batch["sensor"][5, 0], torch.from_numpy(decode_png(img) / np.float32(255)))
+
+
+def test_a_dataset_mixing_grey_and_rgb_samples_batches_with_three_channels(tmp_path):
+    """Grey Phong and RGB tissue samples in one dataset: every split's sensor tensor is (3, H, W)."""
+    from simtest.dataset.sample import _encode_png
+
+    cfg = _cfg(count=6, shard_size=4)
+
+    def mixed(config, index):  # every sample 8 x 8; odd indices RGB
+        s = standin_sample(config, 3 * index)
+        arrays, record = dict(s.arrays), {**s.record, "index": index, "color": "grey"}
+        if index % 2:
+            grey = decode_png(arrays["sensor_png"])
+            arrays["sensor_png"] = _encode_png(np.stack([grey, grey // 2, grey // 3], axis=-1))
+            record["color"] = "rgb"
+        return type(s)(index=index, arrays=arrays, record=record)
+
+    out = tmp_path / "ds"
+    generate(cfg, out, workers=1, sample_fn=mixed, progress=False)
+    batch = next(iter(torch.utils.data.DataLoader(simtest.dataset.open(out).torch(), batch_size=6)))
+    assert batch["sensor"].shape == (6, 3, 8, 8)
+    for b in range(6):
+        png = decode_png(simtest.dataset.open(out, keys=("sensor_png",))[b]["sensor_png"])
+        want = np.moveaxis(png, -1, 0) if png.ndim == 3 else np.repeat(png[None], 3, axis=0)
+        assert torch.equal(batch["sensor"][b], torch.from_numpy(want / np.float32(255)))
+    for split in ("train", "val", "test"):  # a split holding only grey samples keeps 3 channels
+        view = simtest.dataset.open(out, split=split).torch()
+        assert all(view[i]["sensor"].shape == (3, 8, 8) for i in range(len(view)))

@@ -304,6 +304,25 @@ PARAMS: tuple[ParamDef, ...] = (
     # --- geometry: liver --------------------------------------------------------------------
     ParamDef("elevation_deg", "elevation of the target point about the liver centre (degrees)", ("liver",),
              {"*": _uni(-60.0, 60.0)}, (-90.0, 90.0)),
+    # --- appearance: the virtual endoscope ----------------------------------------------------
+    # (last, so that configs written before these existed draw the same values)
+    ParamDef("appearance", "\"phong\": grey Phong surface (paper eq. 1, `phong_c`, `phong_n`, "
+             "`diffuse_albedo`), one-channel sensor image; \"tissue\": the virtual endoscope's "
+             "procedural RGB tissue (mucosa; liver on the liver family) under a wet film whose lobe "
+             "(`tissue_lobe`) has the roughness matching `phong_n`, with `relief_mm` of micro-relief, "
+             "made into an sRGB video frame (3 channels)", _ALL, {"*": _const("phong")},
+             choices=("phong", "tissue")),
+    ParamDef("tissue_lobe", "specular lobe of the tissue's wet film (appearance \"tissue\"): \"ggx\", "
+             "\"beckmann\" (alpha = sqrt(2 / (4 phong_n + 2))) or \"phong\" (exponent phong_n)",
+             _ALL, {"*": _const("ggx")}, choices=("ggx", "beckmann", "phong")),
+    ParamDef("relief_mm", "RMS height of the tissue's micro-relief (mm; appearance \"tissue\"; 0: "
+             "smooth, so the highlight labels of the smooth surface hold)", _ALL, {"*": _const(0.0)},
+             (0.0, 1.0)),
+    ParamDef("light_rig", "\"point\": one point light at the light offset (`light_offset_*`); "
+             "\"colonoscope\": two light guides 4 mm either side of the lens; \"laparoscope\": a "
+             "ring of 8 lights of radius 4 mm. A rig moves with the camera, keeps the 1/d^2 falloff "
+             "and ignores `light_offset_*` and `light_falloff`; `light_intensity` scales each light",
+             _ALL, {"*": _const("point")}, choices=("point", "colonoscope", "laparoscope")),
 )
 
 _PARAM_BY_NAME = {p.name: p for p in PARAMS}

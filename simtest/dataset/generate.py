@@ -228,8 +228,9 @@ def make_card(config: DatasetConfig, *, status: str, counts: dict | None = None,
         "meshes": {f"meshes/{f}.ply": mesh_sha256(f) for f, _ in config.families
                    if f in ("colon", "liver")},
         "channels": CHANNELS,
-        "image": ("grey: one channel, the renderer's monochrome image (specular + diffuse) through "
-                  "the sensor model; RGB tissue colour is not rendered yet"),
+        "image": ("per sample (record `color`): appearance \"phong\" gives one channel, the grey Phong "
+                  "render (specular + diffuse) through the sensor model; appearance \"tissue\" gives "
+                  "the virtual endoscope's RGB tissue render as an 8-bit sRGB video frame (3 channels)"),
         "splits": dict(config.splits),
         "auto_exposure": (None if config.auto_exposure is None else
                           {"percentile": config.auto_exposure[0], "level": config.auto_exposure[1],

@@ -101,7 +101,7 @@ class SimtestDataset:
                  split: str | None = None, max_open: int = 4):
         self.root = Path(root)
         self.card = read_card(self.root)
-        rows = read_manifest(self.root)
+        rows = read_rows = read_manifest(self.root)
         allowed = (*_ARRAYS, "sensor_png")
         keys = tuple(keys) if keys is not None else _ARRAYS
         bad = [k for k in keys if k not in allowed]
@@ -114,6 +114,8 @@ class SimtestDataset:
             keep = [k for k, r in enumerate(rows) if r.get("split") == split]
             rows, self._paths = [rows[k] for k in keep], [self._paths[k] for k in keep]
         self.rows = rows
+        #: True when any sample of the whole dataset (every split) has an RGB sensor image.
+        self.has_rgb = any(r.get("color") == "rgb" for r in read_rows)
         self.split = split
         self.keys = keys
         self.with_record = with_record
@@ -206,11 +208,15 @@ class SimtestDataset:
         return TorchView(self, keys=keys, transform=transform, with_record=with_record)
 
 
-def _to_tensor(torch, key: str, a):
-    """numpy -> tensor in the layout learning code expects (images channel-first, float in [0, 1])."""
+def _to_tensor(torch, key: str, a, sensor_channels: int = 1):
+    """numpy -> tensor in the layout learning code expects (images channel-first, float in [0, 1]).
+
+    A grey sensor image is repeated to ``sensor_channels`` channels (3 in a dataset that mixes grey
+    and RGB samples, so that every item of a batch has the same shape).
+    """
     a = np.asarray(a)
     if key == "sensor":  # (H, W) or (H, W, 3) uint8 -> (C, H, W) float32 in [0, 1]
-        a = a[None] if a.ndim == 2 else np.moveaxis(a, -1, 0)
+        a = np.repeat(a[None], sensor_channels, axis=0) if a.ndim == 2 else np.moveaxis(a, -1, 0)
         return torch.from_numpy(np.ascontiguousarray(a, dtype=np.float32) / np.float32(255.0))
     if key == "normals":  # (H, W, 3) -> (3, H, W)
         return torch.from_numpy(np.ascontiguousarray(np.moveaxis(a, -1, 0)))
@@ -232,7 +238,8 @@ class TorchView:
     Notes
     -----
     Item layout: ``"index"`` (int, the sample's index in the dataset); ``"sensor"`` float32
-    (1, H, W) in [0, 1] (the 8-bit image / 255; (3, H, W) for RGB); ``"normals"`` float32 (3, H, W)
+    (C, H, W) in [0, 1] (the 8-bit image / 255), C = 1 when every sample of the dataset is grey,
+    else 3 (RGB tissue samples; a grey sample's channel repeated); ``"normals"`` float32 (3, H, W)
     in the OpenCV camera frame; ``"linear"``, ``"specular"``, ``"depth"`` (mm) float32 (H, W);
     ``"mask"``, ``"highlight_mask"`` bool (H, W); ``"K"`` float32 (3, 3) in pixels with integer
     pixel centres; ``"cam_to_world"`` float32 (4, 4). Samples of one batch must share a size (the
@@ -253,6 +260,9 @@ class TorchView:
         self.keys = keys
         self.transform = transform
         self.with_record = with_record
+        #: Channels of the ``"sensor"`` tensor: 3 if any sample of the dataset (any split) is RGB
+        #: (record ``color``), else 1: every split of one dataset gives the same shape.
+        self.sensor_channels = 3 if dataset.has_rgb else 1
 
     def __len__(self) -> int:
         return len(self.dataset)
@@ -270,7 +280,7 @@ class TorchView:
         row = item["record"]
         out: dict = {"index": item["index"]}
         for k in self.keys:
-            out[k] = _to_tensor(torch, k, row[k] if k in _ROW_TENSORS else item[k])
+            out[k] = _to_tensor(torch, k, row[k] if k in _ROW_TENSORS else item[k], self.sensor_channels)
         if self.transform is not None:
             out = self.transform(out)
         if self.with_record:

@@ -41,11 +41,9 @@ from simtest._llvm import configure_llvm_env
 from simtest.constants import LUMINANCE_BT709, MAX_SEED
 from simtest.dataset.config import PARAMS, DatasetConfig
 from simtest.geometry.angles import unit
-from simtest.geometry.cameras import PinholeCamera
 from simtest.geometry.conics import conic_kind, conic_to_ellipse, plane_basis, project_circle
-from simtest.geometry.lights import Light, LightRig
 from simtest.render import render_scene
-from simtest.render.sensor import apply_sensor
+from simtest.render.sensor import apply_sensor, video_frame
 from simtest.scene import bundled_mesh_path
 from simtest.scene.meshes import colon_centerline, load_mesh
 from simtest.scene.spec import scene_from_dict, scene_to_dict
@@ -67,13 +65,15 @@ _RADIANCE_UNIT = "linear radiance (light_intensity x BRDF, / d^2 in mm when the 
 CHANNELS: dict[str, dict[str, str]] = {
     "sensor_png": {
         "dtype": "uint8", "shape": "(nbytes,)", "unit": "PNG file bytes",
-        "description": "the sensor image as an endoscope outputs it (8-bit PNG, gray, (H, W) when "
-                       "decoded; auto-exposure (record `exposure_applied`), clipping, noise and quantisation applied); decode with "
-                       "PIL.Image.open(io.BytesIO(a.tobytes()))",
+        "description": "the sensor image as an endoscope outputs it (8-bit PNG; auto-exposure (record "
+                       "`exposure_applied`), clipping, noise and quantisation applied): gray (H, W) for "
+                       "appearance \"phong\", an sRGB video frame (H, W, 3) for appearance \"tissue\" "
+                       "(record `color`); decode with PIL.Image.open(io.BytesIO(a.tobytes()))",
     },
     "linear": {
         "dtype": "float32", "shape": "(H, W)", "unit": _RADIANCE_UNIT,
-        "description": "linear image before the sensor model (specular + diffuse)",
+        "description": "linear image before the sensor model (specular + diffuse; for appearance "
+                       "\"tissue\" the BT.601 luma of the linear RGB render)",
     },
     "specular": {
         "dtype": "float32", "shape": "(H, W)", "unit": _RADIANCE_UNIT,
@@ -115,7 +115,8 @@ class Sample:
         ``K`` (3, 3), ``cam_to_world`` (4, 4), ``highlights`` (list of dicts with ``bp_px``,
         ``bp_mm``, ``normal``, ``k1``, ``k2``, ``in_frame``, ``isophotes``), ``camera`` (the
         camera file: model, image size, light rig; :func:`camera_file`), ``scene`` (the scene
-        spec as a dict), ``variant``, ``render_seed``, ``exposure_applied``.
+        spec as a dict), ``variant``, ``render_seed``, ``exposure_applied``, ``color`` ("grey" or
+        "rgb": the sensor image's channels).
     """
 
     index: int
@@ -306,14 +307,27 @@ def build_scene(config: DatasetConfig, params: dict):
     fam = params["family"]
     m = params["resolution_px"]
     camera: dict[str, Any] = {"width_px": m, "height_px": m, "fov_deg": params["fov_deg"]}
-    light = {"epsilon_mm": params["light_offset_mm"], "alpha_deg": params["light_offset_a_deg"],
-             "b": params["light_offset_b"], "falloff": params["light_falloff"],
-             "intensity": params["light_intensity"]}
-    material = {"model": "phong", "c": params["phong_c"], "n": params["phong_n"],
-                "diffuse_albedo": params["diffuse_albedo"]}
+    rig = params.get("light_rig", "point")
+    if rig == "point":
+        light = {"epsilon_mm": params["light_offset_mm"], "alpha_deg": params["light_offset_a_deg"],
+                 "b": params["light_offset_b"], "falloff": params["light_falloff"],
+                 "intensity": params["light_intensity"]}
+    else:
+        light = {"rig": rig, "falloff": "keep", "intensity": params["light_intensity"]}
     sensor = {"exposure": params["exposure"], "saturation": params["saturation"],
               "gaussian_sigma": params["noise_sigma"], "full_well_e": params["full_well_e"],
               "gamma": params["gamma"], "bit_depth": 8}
+    if params.get("appearance", "phong") == "tissue":
+        material = {"model": "tissue", "tissue": "liver" if fam == "liver" else "mucosa",
+                    "distribution": params["tissue_lobe"], "c": params["phong_c"],
+                    "n": params["phong_n"], "relief_mm": params["relief_mm"],
+                    "texture_seed": params["render_seed"]}
+        # The video frame is made from the RGB render in sample_from_render (auto-exposure);
+        # the render's own grey sensor image is its luma.
+        sensor.update(output="video", tone="srgb")
+    else:
+        material = {"model": "phong", "c": params["phong_c"], "n": params["phong_n"],
+                    "diffuse_albedo": params["diffuse_albedo"]}
     render = {"spp": params["spp"], "seed": params["render_seed"], "variant": config.variant,
               "sampler": "multijitter"}
     view = math.radians(params.get("view_angle_deg", 0.0))
@@ -493,13 +507,8 @@ def camera_file(result) -> dict:
         frame, mm) with the render's intensity; falloff ``"none"`` when the dataset cancels the
         1/d^2 falloff of the specular image, else ``"inverse_square"``.
     """
-    H, W = np.asarray(result.mask).shape
-    d = PinholeCamera(np.asarray(result.K, np.float64), image_size=(W, H)).to_json_dict()
-    light = result.spec.light
-    d["lights"] = LightRig((Light(position_mm=tuple(float(x) for x in result.light_pos),
-                                  intensity=float(light.intensity),
-                                  falloff="none" if light.falloff == "cancel" else "inverse_square"),)
-                           ).to_json_list()
+    d = result.camera_model.to_json_dict()
+    d["lights"] = result.light_rig.to_json_list()
     return _jsonable(d)
 
 
@@ -534,7 +543,10 @@ def sample_from_render(config: DatasetConfig, index: int, params: dict, result) 
     linear = np.asarray(_gray(result.gray if hasattr(result, "gray") else result.linear), np.float32)
     specular = np.asarray(_gray(result.specular), np.float32)
     exposure = _auto_exposure(linear, mask, config) * float(result.spec.sensor.exposure)
-    if exposure != result.spec.sensor.exposure:  # the sensor model again, with the auto exposure
+    if result.rgb is not None:  # tissue: the sRGB video frame of the RGB render
+        sensor_spec = dataclasses.replace(result.spec.sensor, exposure_mode="fixed", exposure=exposure)
+        sensor = video_frame(result.rgb, sensor_spec, result.seed)
+    elif exposure != result.spec.sensor.exposure:  # the sensor model again, with the auto exposure
         sensor_spec = dataclasses.replace(result.spec.sensor, exposure=exposure)
         sensor = _gray(apply_sensor(result.linear, sensor_spec, result.seed))
     else:
@@ -576,6 +588,7 @@ def sample_from_render(config: DatasetConfig, index: int, params: dict, result) 
         "image_size": [int(mask.shape[1]), int(mask.shape[0])],
         "variant": str(result.variant),
         "exposure_applied": exposure,
+        "color": "rgb" if sensor.ndim == 3 else "grey",
         "highlights": highlights,
         "camera": camera_file(result),
         "scene": _portable_scene(result.spec),
