@@ -20,7 +20,7 @@ time, owner and mode, so the same dataset exports to the same bytes.
 HDF5 (BlenderProc's layout)
 ---------------------------
 ``OUT/<index>.hdf5``, one file per sample as BlenderProc writes them, with the datasets
-``colors`` (uint8 (H, W), the sensor image), ``normals``, ``depth``, ``linear``, ``specular``,
+``colors`` (uint8 (H, W), or (H, W, 3) for an RGB sample, the sensor image), ``normals``, ``depth``, ``linear``, ``specular``,
 ``mask``, ``highlight_mask`` (gzip-compressed), ``record`` (the manifest row as JSON text) and
 ``camera`` (the camera file as JSON text);
 read with ``h5py`` alone (:data:`READ_HDF5`).
@@ -74,7 +74,7 @@ with tarfile.open("OUT/shard-00000.tar") as tar:
 READ_HDF5 = """\
 import json, h5py
 with h5py.File("OUT/3.hdf5", "r") as f:
-    image = f["colors"][()]                 # (H, W) uint8
+    image = f["colors"][()]                 # (H, W) or (H, W, 3) uint8
     normals = f["normals"][()]              # (H, W, 3) float32, camera frame
     record = json.loads(f["record"][()])    # labels: K, pose, highlights, split"""
 
