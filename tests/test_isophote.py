@@ -139,3 +139,51 @@ def test_polygon_helpers():
     assert polygon_area(square) == 16.0
     assert polygon_contains(square, (2, 2)) and not polygon_contains(square, (5, 2))
     assert polygon_contains(square, [[1, 1], [9, 9], [3, 0.5]]).tolist() == [True, False, True]
+
+
+@given(seed=st.integers(0, 2**32 - 1), h=st.integers(4, 40), w=st.integers(4, 40),
+       blur=st.floats(0.5, 3.0), q=st.floats(0.3, 0.97))
+@settings(max_examples=150, deadline=None)
+def test_the_vectorised_tracer_gives_find_contours_bit_for_bit(seed, h, w, blur, q):
+    # A random smooth field reduced to one 4-connected component without holes (what
+    # extract_isophote contours): the tracer must give find_contours' one closed contour, same
+    # start, same order, same bits; anything else (saddles joining, a pixel at the level) it
+    # declines with None and extract_isophote uses find_contours.
+    import cv2
+    from skimage.measure import find_contours
+    from scipy import ndimage
+
+    from simtest.reconstruct.isophote import _closed_boundary_rc
+
+    rng = np.random.default_rng(seed)
+    img = cv2.GaussianBlur(rng.random((h, w)), (0, 0), blur)
+    level = float(np.quantile(img, q))
+    img[[0, -1]] = level - 1.0
+    img[:, [0, -1]] = level - 1.0
+    lab, n = ndimage.label(img > level)  # 4-connected
+    if n:
+        one = ndimage.binary_fill_holes(lab == 1)
+        img[(img > level) & ~one] = level - 1.0
+        img[one & ~(img > level)] = level + 1.0
+    want = find_contours(img, level)
+    got = _closed_boundary_rc(img, level)
+    if got is None:
+        assert len(want) != 1 or (img == level).any()
+    else:
+        assert len(want) == 1 and np.array_equal(got, want[0][:-1])
+        assert want[0][0].tolist() == want[0][-1].tolist()  # closed
+
+
+def test_the_tracer_declines_open_contours_and_several_contours():
+    from simtest.reconstruct.isophote import _closed_boundary_rc
+
+    img = np.zeros((10, 10))
+    img[3:6, 0:5] = 1.0  # reaches the left edge: open
+    assert _closed_boundary_rc(img, 0.5) is None
+    img = np.zeros((10, 12))
+    img[2:5, 2:5] = img[2:5, 7:10] = 1.0  # two blobs
+    assert _closed_boundary_rc(img, 0.5) is None
+    img = np.zeros((10, 10))
+    img[3:6, 3:6] = 1.0
+    img[4, 4] = 0.5  # a pixel exactly at the level
+    assert _closed_boundary_rc(img, 0.5) is None

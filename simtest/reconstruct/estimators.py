@@ -50,7 +50,7 @@ import numpy as np
 
 from simtest.geometry.angles import unit
 from simtest.geometry.camera import bp_ray_normal
-from simtest.geometry.conics import circle_pose, cone_axis
+from simtest.geometry.conics import cone_pose
 from simtest.reconstruct.failures import Failure
 
 
@@ -161,8 +161,7 @@ def estimate_from_conic(Cn: np.ndarray, bp_ray: np.ndarray) -> ConeEstimate | Fa
     try:
         if not _images_as_ellipse(Cn):
             return Failure("pose_failed", "the normalised conic is not an ellipse (hyperbola, parabola)")
-        pose = circle_pose(Cn)
-        ax = cone_axis(Cn)
+        pose, ax = cone_pose(Cn)
     except (ValueError, np.linalg.LinAlgError) as exc:
         return Failure("pose_failed", str(exc))
     ray = -bp_ray

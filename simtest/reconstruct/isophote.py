@@ -198,9 +198,16 @@ def extract_isophote(
         # Only the 4-connected component above the level that holds the BP is contoured, in its
         # bounding box (see Notes): the contour found over the whole region, without the noise.
         box, (dr, dc), sides = comp
-        contours = find_contours(box, level)
+        ring = _closed_boundary_rc(box, level) if not any(sides) and box.size >= TRACE_MIN_PX else None
         closed_hits = []
         pieces = []
+        if ring is not None:  # the one closed contour of the box, as find_contours gives it
+            uv = rc_to_uv(ring, roi.row0 + dr, roi.col0 + dc)
+            if polygon_contains(uv, bp_uv):
+                closed_hits.append(uv)
+            contours = ()
+        else:
+            contours = find_contours(box, level)
         for rc in contours:
             if len(rc) >= 3 and rc[0, 0] == rc[-1, 0] and rc[0, 1] == rc[-1, 1]:
                 uv = rc_to_uv(rc[:-1], roi.row0 + dr, roi.col0 + dc)
@@ -232,6 +239,93 @@ def extract_isophote(
     if len(iso.points_uv) < min_points:
         return Failure("too_few_points", f"{len(iso.points_uv)} contour points < {min_points}")
     return iso
+
+
+#: Boxes of at least this many pixels are traced by :func:`_closed_boundary_rc`; smaller ones by
+#: ``find_contours``, whose Python assembly of a short contour costs less than the tracer's fixed
+#: numpy overhead (the two cross at about 300 px on the bench's real frame).
+TRACE_MIN_PX = 400
+
+# Marching squares with the pixels below the level 8-connected (``fully_connected="low"``) and
+# the lower values on the left of each segment, as skimage.measure.find_contours: for each case
+# (bit 1 upper-left, 2 upper-right, 4 lower-left, 8 lower-right above the level) the edges
+# (0 top, 1 bottom, 2 left, 3 right) the first and the second segment go from and to; -1 none.
+# Only the saddles 6 and 9 have a second segment.
+_SEG_FROM = np.array([[-1, 0, 3, 3, 2, 0, 3, 3, 1, 0, 1, 1, 2, 0, 2, -1],
+                      [-1, -1, -1, -1, -1, -1, 2, -1, -1, 1, -1, -1, -1, -1, -1, -1]])
+_SEG_TO = np.array([[-1, 2, 0, 2, 1, 1, 0, 1, 3, 2, 0, 2, 3, 3, 0, -1],
+                    [-1, -1, -1, -1, -1, -1, 1, -1, -1, 3, -1, -1, -1, -1, -1, -1]])
+_CROSSES = _SEG_FROM[0] >= 0
+_SADDLE = _SEG_FROM[1] >= 0
+
+
+def _closed_boundary_rc(box: np.ndarray, level: float) -> np.ndarray | None:
+    """The single closed marching-squares contour of ``box`` at ``level``, exactly as
+    ``find_contours(box, level)`` returns it (without the repeated end point); None when the box
+    holds anything else (no contour, an open one, several, or a pixel exactly at the level).
+
+    Notes
+    -----
+    The segments of every square are those of ``find_contours`` (table above), numbered in
+    its raster order; each crossing is named by its pixel edge, so the segment that follows
+    segment s is the one starting on the edge where s ends, and the contour is ordered from these
+    successor links by pointer doubling (log2 N array passes, no loop per point).
+    ``find_contours`` joins the segments in raster order: when the last one comes, the others
+    form one path, which that segment closes, so the contour starts where the last segment ends.
+    Each point interpolates linearly between the two pixels of its edge with skimage's formula
+    ``r0 + (level - a) / (b - a)`` (a the upper or left pixel), so the coordinates are the same
+    bits.
+    """
+    H, W = box.shape
+    hi = (box > level).view(np.uint8)
+    if (box == level).any() or not np.isfinite(box).all():
+        return None
+    case = (hi[:-1, :-1] | (hi[:-1, 1:] << 1) | (hi[1:, :-1] << 2) | (hi[1:, 1:] << 3)).ravel()
+    q = np.flatnonzero(_CROSSES[case])
+    cs = case[q]
+    k = np.zeros(len(q), dtype=np.intp)
+    sad = _SADDLE[cs]
+    if sad.any():  # a saddle's second segment comes right after its first
+        q = np.concatenate([q, q[sad]])
+        k = np.concatenate([k, np.ones(int(sad.sum()), np.intp)])
+        o = np.argsort(2 * q + k, kind="stable")
+        q, k = q[o], k[o]
+        cs = case[q]
+    n = len(q)
+    if n < 3:
+        return None
+    # edge ids: horizontal edge (r, c)-(r, c+1) is r W + c, vertical (r, c)-(r+1, c) is H W + r W + c
+    r, c = np.divmod(q, W - 1)
+    base = r * W + c
+    hw = H * W
+    off = np.array([0, W, hw, hw + 1])  # top, bottom, left, right of square (r, c)
+    f_edge = base + off[_SEG_FROM[k, cs]]
+    t_edge = base + off[_SEG_TO[k, cs]]
+    start = np.full(2 * hw, -1, dtype=np.intp)
+    start[f_edge] = np.arange(n)
+    nxt = start[t_edge]
+    if nxt.min() < 0:
+        return None  # an open contour
+    last = n - 1
+    nxt[last] = last  # cut the cycle after the last segment; d: steps to reach it
+    d = np.ones(n, dtype=np.intp)
+    d[last] = 0
+    step = 1
+    while step < n:
+        d += d[nxt]
+        nxt = nxt[nxt]
+        step *= 2
+    if (nxt != last).any():
+        return None  # several contours
+    e = np.empty(n, dtype=np.intp)
+    e[n - 1 - d] = f_edge  # the start edges in contour order, the last segment's end first
+    vertical = e >= hw
+    e = e - hw * vertical
+    er, ec = np.divmod(e, W)
+    flat = box.ravel()
+    a = flat[e]
+    frac = (level - a) / (flat[e + np.where(vertical, W, 1)] - a)
+    return np.stack([er + frac * vertical, ec + frac * ~vertical], axis=1)
 
 
 def _component_box(sub, level, ri, ci):
