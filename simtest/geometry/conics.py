@@ -35,6 +35,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from simtest.geometry.angles import cross3
 from simtest.geometry.camera import validate_intrinsics
 from simtest.tolerances import TOL
 
@@ -196,10 +197,15 @@ def conic_kind(C) -> str:
     ValueError
         If C is not 3x3 or has non-finite entries.
     """
-    C = _check_conic(C)
+    return _classify(_check_conic(C))[0]
+
+
+def _classify(C: np.ndarray):
+    """:func:`conic_kind` of a checked conic, with what :func:`conic_to_ellipse` reuses: the
+    unit-norm conic, and its centre and ``f0`` when it has a centre (else None)."""
     norm = np.linalg.norm(C)
     if norm == 0:
-        return "degenerate"
+        return "degenerate", C, None, None
     C = C / norm
     A2 = C[:2, :2]
     lam = np.linalg.eigvalsh(A2)
@@ -208,7 +214,7 @@ def conic_kind(C) -> str:
     if lam_max <= eps or abs(lam[0] * lam[1]) <= eps * lam_max**2:
         # no centre: a parabola, or parallel lines / a line (det C ~ 0 relative to its scale)
         sv = np.linalg.svd(C, compute_uv=False)
-        return "degenerate" if sv[-1] <= eps * sv[0] else "parabola"
+        return ("degenerate" if sv[-1] <= eps * sv[0] else "parabola"), C, None, None
     # Classify in the frame centred on the conic's centre, where it reads diag-block (A2, f0): the
     # test no longer depends on where the curve lies in the image (a 1 px ellipse at (1300, 1000)
     # is as good as one at the origin).
@@ -217,11 +223,12 @@ def conic_kind(C) -> str:
     # f0 is a difference of terms of size |C22|; rounding leaves ~1e-16 of them, so compare with
     # the larger of that and the quadratic part.
     if abs(f0) <= eps * max(lam_max, abs(C[2, 2]) + abs(C[2, :2] @ centre)):
-        return "degenerate"  # a point (ellipse type) or two crossing lines (hyperbola type)
+        # a point (ellipse type) or two crossing lines (hyperbola type)
+        return "degenerate", C, centre, f0
     if lam[0] * lam[1] < 0:
-        return "hyperbola"
+        return "hyperbola", C, centre, f0
     sign = 1.0 if lam[0] > 0 else -1.0
-    return "ellipse" if sign * f0 < 0 else "imaginary"
+    return ("ellipse" if sign * f0 < 0 else "imaginary"), C, centre, f0
 
 
 def conic_to_ellipse(C) -> Ellipse | None:
@@ -242,16 +249,15 @@ def conic_to_ellipse(C) -> Ellipse | None:
     ValueError
         If C is not 3x3 or has non-finite entries.
     """
-    if conic_kind(C) != "ellipse":
+    kind, C, centre, f0 = _classify(_check_conic(C))
+    if kind != "ellipse":
         return None
-    C = _check_conic(C)
-    C = C / np.linalg.norm(C)
     A2 = C[:2, :2]
     if np.trace(A2) < 0:
         C = -C
         A2 = C[:2, :2]
-    centre = -np.linalg.solve(A2, C[:2, 2])
-    f0 = C[2, 2] + C[2, :2] @ centre  # < 0 for a real ellipse
+        centre = -np.linalg.solve(A2, C[:2, 2])
+        f0 = C[2, 2] + C[2, :2] @ centre  # < 0 for a real ellipse
     w, V = np.linalg.eigh(A2)  # ascending: w[0] gives the major axis
     a = np.sqrt(-f0 / w[0])
     b = np.sqrt(-f0 / w[1])
@@ -527,21 +533,15 @@ def plane_basis(normal, axes: tuple[int, int] = (0, 1)) -> tuple[np.ndarray, np.
     n = np.asarray(normal, dtype=np.float64)
     first, second = axes
     helper = _AXES[first if abs(n[first]) < 0.9 else second]
-    u = _cross3(n, helper)
+    u = cross3(n, helper)
     u /= np.linalg.norm(u)
-    return u, _cross3(n, u)
+    return u, cross3(n, u)
 
 
 #: The coordinate axes as tuples (helpers of :func:`plane_basis`).
 _AXES = ((1.0, 0.0, 0.0), (0.0, 1.0, 0.0), (0.0, 0.0, 1.0))
 
 
-def _cross3(a, b) -> np.ndarray:
-    """``np.cross`` of two 3-vectors in scalar arithmetic: the same products and differences (so
-    the same bits), without ``np.cross``'s general broadcasting (10 times its cost here)."""
-    a0, a1, a2 = (float(v) for v in a)
-    b0, b1, b2 = (float(v) for v in b)
-    return np.array([a1 * b2 - a2 * b1, a2 * b0 - a0 * b2, a0 * b1 - a1 * b0])
 
 
 def _section_centre(Q: np.ndarray, n: np.ndarray) -> np.ndarray:

@@ -420,13 +420,15 @@ class _Levels:
     @classmethod
     def of(cls, frame: _Frame, vals: np.ndarray, i_bp: float) -> _Levels:
         mode = frame.settings.normalise
+        ring = None
         if mode == Normalisation.AUTO:
-            local = _border_median(vals) >= AUTO_LOCAL_BACKGROUND_REL * i_bp
+            ring = _border_median(vals)
+            local = ring >= AUTO_LOCAL_BACKGROUND_REL * i_bp
             mode = Normalisation.LOCAL if local else Normalisation.BP
         if mode == Normalisation.BP:
             return cls(i_bp)
         if mode == Normalisation.LOCAL:
-            offset = min(_border_median(vals), i_bp)
+            offset = min(_border_median(vals) if ring is None else ring, i_bp)
             return cls(i_bp - offset, offset)
         return cls(frame.full_scale)
 
