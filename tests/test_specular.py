@@ -95,3 +95,21 @@ def test_kappa_limits():
         isophote_radius(1.0, 50, 100)  # t = c: the isophote is the BP itself, kappa = 0
     with pytest.raises(ValueError):
         phong_intensity([0, 0], [0, 0, 1], [0, 0, 1], n=-2)
+
+
+@given(seed=st.integers(0, 2**32 - 1), n=st.floats(1.0, 500.0), flat=st.booleans())
+@settings(max_examples=30, deadline=None)
+def test_phong_intensity_is_the_vector_formula_bit_for_bit(seed, n, flat):
+    # phong_intensity works per coordinate plane for speed; it must give exactly the bits of
+    # the (..., 3)-array formula c max(0, (V - P).(P - R) / (|V - P| |P - R|))^n.
+    rng = np.random.default_rng(seed)
+    P = rng.normal(size=(20, 30, 3)) * rng.uniform(1.0, 500.0)
+    if flat:
+        P[..., 2] = 0.0
+    V = rng.normal(size=3) * 100.0
+    L = rng.normal(size=3) * 100.0
+    V[2], L[2] = abs(V[2]) + 1.0, abs(L[2]) + 1.0
+    R = np.array([L[0], L[1], -L[2]])
+    to_v, refl = V - P, P - R
+    cos_b = np.sum(to_v * refl, axis=-1) / (np.linalg.norm(to_v, axis=-1) * np.linalg.norm(refl, axis=-1))
+    assert np.array_equal(phong_intensity(P, V, L, n, 0.7), 0.7 * np.maximum(cos_b, 0.0) ** n)
