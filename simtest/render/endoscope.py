@@ -32,6 +32,7 @@ import math
 
 import numpy as np
 
+from simtest._lazy import require
 from simtest.geometry.camera_file import load_camera
 from simtest.geometry.cameras import (
     CameraModel,
@@ -55,7 +56,7 @@ __all__ = [
     "uses_endoscope",
     "laparoscope_rig",
     "scaled_omnidirectional",
-    "sample_offsets",
+    "sample_positions",
 ]
 
 #: Distance from the lens centre to each of the colonoscope's two light guides, mm. An assumption:
@@ -163,36 +164,55 @@ def scaled_omnidirectional(model: OmnidirectionalCamera, width_px: int) -> Omnid
                                  image_size=(int(width_px), int(round(H * s))))
 
 
-def sample_offsets(spp: int, n_pixels: int, seed: int, block: int = 0) -> np.ndarray:
-    """Sub-pixel sample offsets in [-0.5, 0.5)^2: stratified jitter, seeded.
+def sample_positions(spp: int, width: int, first_pixel: int, n_pixels: int, seed: int):
+    """Sub-pixel sample positions of a run of pixels, drawn in Dr.Jit (float32), seeded.
+
+    Pixel ``q`` (row-major, ``u = q mod width``, ``v = q div width``) gets ``spp`` samples at
+    ``(u + du, v + dv)`` with ``(du, dv)`` in [-0.5, 0.5)^2: a jittered ``sqrt(spp)``-sided grid when
+    ``spp`` is a square, else ``spp`` strata in ``du`` paired with a per-pixel cyclic shift of the
+    strata in ``dv`` (a Latin hypercube). The jitter of sample ``j`` of pixel ``q`` is the PCG32
+    stream ``q spp + j`` of the state drawn from ``SeedSequence([seed, RAY_SEED_KEY])``, so a
+    pixel's samples do not depend on how the frame is cut into runs, nor on Dr.Jit's thread count.
 
     Parameters
     ----------
     spp : int
-        Samples per pixel. A square number gives a ``sqrt(spp)``-sided jittered grid; otherwise
-        ``spp`` strata along a Latin-hypercube pairing.
-    n_pixels : int
-        Pixels drawn (each gets its own jitter).
+        Samples per pixel (>= 1).
+    width : int
+        Image width, px.
+    first_pixel, n_pixels : int
+        The run: pixels ``first_pixel .. first_pixel + n_pixels - 1`` in row-major order.
     seed : int
-        Root seed; the stream is ``SeedSequence([seed, RAY_SEED_KEY, block])``.
-    block : int
-        Index of the block of pixels drawn.
+        Root seed.
 
     Returns
     -------
-    ndarray of shape (n_pixels, spp, 2), float64
-        (du, dv) offsets from the pixel centre.
+    (mitsuba.Float, mitsuba.Float)
+        ``u`` and ``v`` of the ``n_pixels * spp`` samples, pixel-major (the ``spp`` samples of a
+        pixel are consecutive), pixel centres at integers.
     """
-    rng = np.random.default_rng(np.random.SeedSequence([int(seed), RAY_SEED_KEY, int(block)]))
+    dr, mi = require("drjit"), require("mitsuba")
+    state = int(np.random.SeedSequence([int(seed), RAY_SEED_KEY]).generate_state(1, np.uint64)[0])
+    n = int(n_pixels) * int(spp)
+    off = int(first_pixel) * int(spp)
+    # PCG32 of size n gives element i the state initstate + i and the stream initseq + i: with
+    # both offset by the run's first sample, sample g of the frame draws from (state + g, g).
+    # (opaque: the seed and the run's start are kernel inputs, not constants compiled into it)
+    rng = mi.PCG32(n, dr.opaque(mi.UInt64, (state + off) % 2**64), dr.opaque(mi.UInt64, off))
+    r1, r2 = rng.next_float32(), rng.next_float32()
+    j = dr.arange(mi.UInt32, n)
+    s = j % spp
+    q = j // spp + dr.opaque(mi.UInt32, int(first_pixel))
     k = int(round(math.sqrt(spp)))
     if k * k == spp:
-        i = np.arange(spp)
-        base = np.stack([i % k, i // k], axis=-1).astype(np.float64)
-        return (base[None] + rng.random((n_pixels, spp, 2))) / k - 0.5
-    strata = (np.arange(spp)[None, :] + rng.random((n_pixels, spp))) / spp
-    other = (rng.permuted(np.tile(np.arange(spp), (n_pixels, 1)), axis=1)
-             + rng.random((n_pixels, spp))) / spp
-    return np.stack([strata, other], axis=-1) - 0.5
+        du = (mi.Float(s % k) + r1) / k - 0.5
+        dv = (mi.Float(s // k) + r2) / k - 0.5
+    else:  # the pixel's cyclic shift: the third draw of its first sample
+        r3 = rng.next_float32()
+        shift = mi.UInt32(dr.gather(mi.Float, r3, j - s) * spp) % spp
+        du = (mi.Float(s) + r1) / spp - 0.5
+        dv = (mi.Float((s + shift) % spp) + r2) / spp - 0.5
+    return mi.Float(q % width) + du, mi.Float(q // width) + dv
 
 
 def uses_endoscope(spec: SceneSpec) -> bool:

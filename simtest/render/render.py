@@ -50,9 +50,9 @@ from simtest.render.mitsuba_dict import (
     plane_normal_cam,
 )
 from simtest.render import wavefront
-from simtest.render.endoscope import camera_model, light_rig, sample_offsets, uses_endoscope
+from simtest.render.endoscope import camera_model, light_rig, sample_positions, uses_endoscope
 from simtest.render.sensor import LUMA_WEIGHTS, apply_sensor, frame_luma, video_frame
-from simtest.render.tissue import relief_normal, tissue_params
+from simtest.render.tissue import tissue_params
 from simtest.render.truth import (
     HighlightTruth,
     cylinder_highlight,
@@ -782,9 +782,9 @@ def render_scene(spec: SceneSpec, *, seed: int | None = None,
 # ------------------------------------------------------------------------------------------------
 # Endoscope renders: light rigs and camera models (see simtest.render.endoscope)
 
-#: Pixels per block of the endoscope renderer's sample stream: each block draws its sub-pixel
-#: offsets from ``SeedSequence([seed, RAY_SEED_KEY, block])``, so the image does not depend on how
-#: many rays go to Mitsuba at once.
+#: Pixels per wavefront of the endoscope renderer (times spp rays). The image does not depend on it:
+#: each sample draws its sub-pixel position from its own stream
+#: (:func:`simtest.render.endoscope.sample_positions`) and each pixel's samples are summed in order.
 BLOCK_PIXELS = 1 << 16
 
 
@@ -826,16 +826,15 @@ def _render_endoscope(spec: SceneSpec, seed: int, variant: str) -> RenderResult:
         c = wavefront.cast(scene, model.pixel_to_ray(block))
         for k in centre:
             centre[k].append(c[k])
-        offs = sample_offsets(spp, len(block), seed, block=b0 // BLOCK_PIXELS)
-        rays = wavefront.model_rays(model, (block[:, None, :] + offs).reshape(-1, 2))
+        rays = wavefront.model_rays(model, sample_positions(spp, W, b0, len(block), seed))
         if texture is None:
-            val, hit = wavefront.shade(scene, rays, rig, shadows=shadows)
+            val, cov = wavefront.shade(scene, rays, rig, shadows=shadows, spp=spp)
             sp = val[:, 1]
         else:
-            val, sp, hit = wavefront.shade_tissue(scene, rays, rig, texture, mat, shadows=shadows)
-        value[b0:b0 + len(block)] = val.reshape(len(block), spp, 3).mean(axis=1)
-        spec_img[b0:b0 + len(block)] = sp.reshape(len(block), spp).mean(axis=1)
-        coverage[b0:b0 + len(block)] = hit.reshape(len(block), spp).mean(axis=1)
+            val, sp, cov = wavefront.shade_tissue(scene, rays, rig, texture, mat, shadows=shadows, spp=spp)
+        value[b0:b0 + len(block)] = val
+        spec_img[b0:b0 + len(block)] = sp
+        coverage[b0:b0 + len(block)] = cov
     mask = np.concatenate(centre["hit"]).reshape(H, W)
     p = np.concatenate(centre["p"]).reshape(H, W, 3)
     n = np.concatenate(centre["n"]).reshape(H, W, 3)
@@ -851,8 +850,7 @@ def _render_endoscope(spec: SceneSpec, seed: int, variant: str) -> RenderResult:
     else:
         rgb = value
         linear = (value @ np.asarray(LUMA_WEIGHTS, dtype=np.float32)).astype(np.float32)
-        ns = relief_normal(np, (p[..., 0], p[..., 1], p[..., 2]), (n[..., 0], n[..., 1], n[..., 2]), texture)
-        shading = np.where(mask[..., None], np.stack(ns, axis=-1), nan).astype(np.float32)
+        shading = np.where(mask[..., None], wavefront.relief_normals(p, n, texture), nan).astype(np.float32)
     specular = spec_img.reshape(H, W)
 
     def cast_uv(q: np.ndarray) -> dict:

@@ -23,7 +23,7 @@ from simtest.geometry.lights import LightRig
 from simtest._lazy import require
 from simtest.render import tissue
 
-__all__ = ["BATCH_RAYS", "cast", "model_rays", "shade", "shade_tissue"]
+__all__ = ["BATCH_RAYS", "cast", "model_rays", "relief_normals", "shade", "shade_tissue"]
 
 #: Rays per Mitsuba wavefront: large enough to keep both cores busy, small enough that a
 #: 1350 x 1080 x 16 spp frame does not hold all its rays at once (~120 B per ray in flight).
@@ -40,8 +40,10 @@ def _rays(d):
     return mi.Ray3f(mi.Point3f(0.0), d)
 
 
-def model_rays(model, uv: np.ndarray):
+def model_rays(model, uv):
     """Unit rays of pixel positions ``uv`` (N, 2) through ``model``, computed in Dr.Jit (float32).
+
+    ``uv`` is an (N, 2) numpy array or a pair ``(u, v)`` of Dr.Jit ``Float`` arrays.
 
     The distortion-free pinhole and the omnidirectional model have closed-form rays, evaluated in
     Dr.Jit (the sample rays of a 1350 x 1080 x 16 spp frame cost about 11 s of numpy float64
@@ -55,8 +57,11 @@ def model_rays(model, uv: np.ndarray):
     Pinhole: ``((u - cx) / fx, (v - cy) / fy, 1)`` normalised.
     """
     dr, mi = require("drjit"), require("mitsuba")
-    uv = np.ascontiguousarray(uv, dtype=np.float32)
-    u, v = mi.Float(uv[:, 0]), mi.Float(uv[:, 1])
+    if isinstance(uv, tuple):  # (u, v) Dr.Jit arrays (simtest.render.endoscope.sample_positions)
+        u, v = uv
+    else:
+        uv = np.ascontiguousarray(uv, dtype=np.float32)
+        u, v = mi.Float(uv[:, 0]), mi.Float(uv[:, 1])
     if isinstance(model, OmnidirectionalCamera):
         A = np.asarray(model._Ainv, dtype=np.float64)
         du, dv = u - float(model.cx), v - float(model.cy)
@@ -71,7 +76,8 @@ def model_rays(model, uv: np.ndarray):
         x = (u - float(K[0, 2])) / float(K[0, 0])
         y = (v - float(K[1, 2])) / float(K[1, 1])
         return dr.normalize(mi.Vector3f(x, y, 1.0))
-    d = np.ascontiguousarray(model.pixel_to_ray(uv.astype(np.float64)), dtype=np.float32)
+    uv = np.stack([np.array(u, dtype=np.float64), np.array(v, dtype=np.float64)], axis=-1)
+    d = np.ascontiguousarray(model.pixel_to_ray(uv), dtype=np.float32)
     return mi.Vector3f(d[:, 0], d[:, 1], d[:, 2])
 
 
@@ -109,7 +115,7 @@ def cast(scene, d: np.ndarray) -> dict[str, np.ndarray]:
     return {"hit": hit, "t": t, "p": p, "n": n, "prim": np.array(prim_j, dtype=np.int64)}
 
 
-def shade(scene, d: np.ndarray, rig: LightRig, *, shadows: bool) -> tuple[np.ndarray, np.ndarray]:
+def shade(scene, d: np.ndarray, rig: LightRig, *, shadows: bool, spp: int = 1) -> tuple[np.ndarray, np.ndarray]:
     """Radiance along rays from the camera centre, lit by every light of ``rig``.
 
     Parameters
@@ -122,14 +128,17 @@ def shade(scene, d: np.ndarray, rig: LightRig, *, shadows: bool) -> tuple[np.nda
         Lights in the camera frame.
     shadows : bool
         Trace a shadow ray to each light.
+    spp : int
+        Consecutive rays per pixel: the results are their means (``N / spp`` pixels).
 
     Returns
     -------
-    value : ndarray of shape (N, 3), float32
+    value : ndarray of shape (N / spp, 3), float32
         ``sum_i f(wi, wo_i) I_i max(0, w_z)^m_i / s_i^2`` (``1 / s^2`` only for inverse-square
         lights) with ``f`` the BSDF (its three colour channels), ``wo_i`` the unit direction to
         light i, ``w = -wo_i`` the emission direction and ``s_i`` the light distance.
-    hit : ndarray of shape (N,), bool
+    coverage : ndarray of shape (N / spp,), float32
+        Fraction of the rays that hit the surface.
 
     Notes
     -----
@@ -151,8 +160,22 @@ def shade(scene, d: np.ndarray, rig: LightRig, *, shadows: bool) -> tuple[np.nda
             lit = lit & ~scene.ray_test(si.spawn_ray_to(lp), valid)
         value = bsdf.eval(ctx, si, si.to_local(wo), lit)
         total += dr.select(lit, value * weight, mi.Color3f(0.0))
-    dr.eval(total, valid)
-    return np.array(total, dtype=np.float32).T.copy(), np.array(valid, dtype=bool)
+    r, g, b, cov = _per_pixel(spp, total.x, total.y, total.z, dr.select(valid, 1.0, 0.0))
+    return np.stack([r, g, b], axis=-1), cov
+
+
+def _per_pixel(spp: int, *values):
+    """Means over each run of ``spp`` consecutive samples (a pixel's), in Dr.Jit, as numpy float32.
+
+    The samples of a pixel are summed in order by one Dr.Jit block reduction, so the result does
+    not depend on the thread count; only per-pixel values leave Dr.Jit.
+    """
+    dr = require("drjit")
+    dr.eval(*values)  # one kernel for every per-sample value (a reduction evaluates its input alone)
+    if spp > 1:
+        values = tuple(dr.block_sum(x, spp) / spp for x in values)
+        dr.eval(*values)
+    return tuple(np.array(x, dtype=np.float32) for x in values)
 
 
 def _light_at(light, p):
@@ -187,8 +210,30 @@ def _dr_xp():
     return _DrXp
 
 
+def relief_normals(p: np.ndarray, n: np.ndarray, texture) -> np.ndarray:
+    """Shading normals with the tissue's micro-relief (:func:`simtest.render.tissue.relief_normal`),
+    evaluated in Dr.Jit (float32).
+
+    Parameters
+    ----------
+    p, n : ndarray of shape (..., 3)
+        Surface points (mm) and unit macro normals, camera frame.
+    texture : simtest.render.tissue.TissueParams
+
+    Returns
+    -------
+    ndarray of shape (..., 3), float32
+        Unit shading normals, on the side of ``n``; NaN where ``p`` or ``n`` is.
+    """
+    dr, mi = require("drjit"), require("mitsuba")
+    flat = lambda a: [mi.Float(np.ascontiguousarray(a[..., i].ravel(), dtype=np.float32)) for i in range(3)]  # noqa: E731
+    out = tissue.relief_normal(_dr_xp(), flat(p), flat(n), texture)
+    dr.eval(*out)
+    return np.stack([np.array(x, dtype=np.float32) for x in out], axis=-1).reshape(p.shape)
+
+
 def shade_tissue(scene, d: np.ndarray, rig: LightRig, texture, material, *,
-                 shadows: bool) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+                 shadows: bool, spp: int = 1) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Radiance of procedural tissue (:mod:`simtest.render.tissue`) along rays from the camera centre.
 
     Parameters
@@ -202,14 +247,17 @@ def shade_tissue(scene, d: np.ndarray, rig: LightRig, texture, material, *,
     material : simtest.scene.spec.MaterialSpec
         ``distribution`` (lobe), ``microfacet_alpha``, ``n``, ``film_ior``, ``c``.
     shadows : bool
+    spp : int
+        Consecutive rays per pixel: the results are their means (``N / spp`` pixels).
 
     Returns
     -------
-    rgb : ndarray of shape (N, 3), float32
+    rgb : ndarray of shape (N / spp, 3), float32
         ``sum_i (albedo / pi + f_s) cos_o I_i max(0, w_z)^m_i / s_i^2`` with the shading normal.
-    specular : ndarray of shape (N,), float32
+    specular : ndarray of shape (N / spp,), float32
         The specular part alone.
-    hit : ndarray of shape (N,), bool
+    coverage : ndarray of shape (N / spp,), float32
+        Fraction of the rays that hit the surface.
     """
     dr, mi = require("drjit"), require("mitsuba")
     xp = _dr_xp()
@@ -238,6 +286,5 @@ def shade_tissue(scene, d: np.ndarray, rig: LightRig, texture, material, *,
         spec += fs * e
         for c in range(3):
             rgb[c] += (alb[c] / dr.pi + fs) * e
-    dr.eval(rgb, spec, valid)
-    out = np.stack([np.array(x, dtype=np.float32) for x in rgb], axis=-1)
-    return out, np.array(spec, dtype=np.float32), np.array(valid, dtype=bool)
+    r, g, b, sp, cov = _per_pixel(spp, *rgb, spec, dr.select(valid, 1.0, 0.0))
+    return np.stack([r, g, b], axis=-1), sp, cov
