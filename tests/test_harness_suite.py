@@ -121,3 +121,15 @@ def test_with_overrides_changes_seed_and_realisations():
     assert t.seed == 5 and all(c.realisations == 2 for c in t.cases)
     assert [c.key for c in t.cases] == [c.key for c in s.cases]
     assert np.all([c.realisations for c in s.cases])
+
+
+def test_light_rigs_and_offsets_are_never_counted_as_colocated():
+    """The claims about co-located renders (BP ray exact, cone axis on planes) must not judge a
+    light rig: the guides sit beside the lens even where epsilon is 0."""
+    from simtest.harness.report.results import case_family
+
+    for c in load_suite("endoscope").cases:
+        family, colocated = case_family(c)
+        assert not colocated and family.endswith("light offset"), (c.key, family)
+    plain = [case_family(c) for c in load_suite("rendered").cases]
+    assert any(col for _, col in plain)  # the co-located suite still has co-located cases

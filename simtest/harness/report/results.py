@@ -80,10 +80,11 @@ def case_family(case) -> tuple[str, bool]:
     family : str
         ``"paper protocol"`` for the paper's synthetic protocol; for rendered cases the geometry
         (``"colon"``, ``"liver"``, the scene's ``geometry.type``, or the scene name when it
-        cannot be read), plus ``", light offset"`` when the light is off the camera centre.
+        cannot be read), plus ``", light offset"`` when the light is off the camera centre (an
+        offset or a rig).
     colocated : bool
-        False for the paper protocol (its slanted camera does not carry the light) and for a
-        rendered light offset > 0.
+        False for the paper protocol (its slanted camera does not carry the light), for a
+        rendered light offset > 0 and for a light rig (``light.rig`` other than "single").
     """
     if case.protocol == "paper":
         return "paper protocol", False
@@ -91,16 +92,19 @@ def case_family(case) -> tuple[str, bool]:
         return str(case.scene_name or case.protocol), False
     p = case.params
     family = next((name for key, name in _MESH_KEYS.items() if p.get(key) is not None), None)
-    eps = p.get("light.epsilon_mm")
-    if family is None or eps is None:
+    eps, rig = p.get("light.epsilon_mm"), p.get("light.rig")
+    if family is None or eps is None or rig is None:
         try:
             spec = load_scene(case.scene)
             family = family or str(p.get("geometry.type") or spec.geometry.type)
             if eps is None:
                 eps = getattr(spec.light, "epsilon_mm", 0.0)
+            if rig is None:
+                rig = getattr(spec.light, "rig", "single")
         except Exception:  # noqa: BLE001 - a family name is a label, never a reason to fail
             family = family or str(case.scene_name)
-    colocated = not (eps or 0.0) > 0
+    # a light rig (light guides beside the lens) is never at the camera centre
+    colocated = not (eps or 0.0) > 0 and rig in (None, "single")
     return (family if colocated else f"{family}, light offset"), colocated
 
 
