@@ -113,3 +113,5 @@ def test_phong_intensity_is_the_vector_formula_bit_for_bit(seed, n, flat):
     to_v, refl = V - P, P - R
     cos_b = np.sum(to_v * refl, axis=-1) / (np.linalg.norm(to_v, axis=-1) * np.linalg.norm(refl, axis=-1))
     assert np.array_equal(phong_intensity(P, V, L, n, 0.7), 0.7 * np.maximum(cos_b, 0.0) ** n)
+    if flat:  # points given as (x, y) on the plane z = 0: the same bits
+        assert np.array_equal(phong_intensity(P[..., :2], V, L, n, 0.7), 0.7 * np.maximum(cos_b, 0.0) ** n)

@@ -310,7 +310,7 @@ class PaperSimulator:
         T = p.texture
         g = np.arange(T, dtype=np.float64) - T / 2.0
         gx, gy = np.meshgrid(g, -g)  # plane offsets from the window centre
-        self._offsets = np.stack([gx, gy, np.zeros_like(gx)], axis=-1)  # (T, T, 3), z = 0
+        self._offsets = np.stack([gx, gy], axis=-1)  # (T, T, 2): points (x, y) of the plane z = 0
         if p.epsilon_px == 0.0:
             self._clean, self._geom = self._render_clean(self.V)
 
@@ -320,7 +320,7 @@ class PaperSimulator:
         p = self.params
         bp_plane = mirror_point(self.V, L)
         centre = bp_plane if p.window_at_bp else np.zeros(2)
-        P = self._offsets + np.array([centre[0], centre[1], 0.0])
+        P = self._offsets + np.array([centre[0], centre[1]])
         texture = phong_intensity(P, self.V, L, p.n, p.c).astype(np.float32)
         H, K, R, C = paper_homography(p, centre)
         M = p.image_px
