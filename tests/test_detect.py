@@ -7,7 +7,13 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from simtest.reconstruct.detect import detect_specularities, ellipticity, validate_image
+from simtest.reconstruct.detect import (
+    background_side_px,
+    clipped_mask,
+    detect_specularities,
+    ellipticity,
+    validate_image,
+)
 
 
 def gaussian(shape, centre_uv, sigma, peak=1.0, aspect=1.0):
@@ -69,6 +75,55 @@ def test_two_saturated_plateaus_in_one_component_are_merged():
     img = np.clip(img, 0, 255).astype(np.uint8)  # midpoint 199 >= 0.7 * 255 but < 255
     (cand,) = detect_specularities(img).candidates
     assert cand.status == "merged" and "2 saturated plateaus" in cand.detail
+
+
+@pytest.mark.parametrize("radius", [12.0, 30.0, 45.0])
+def test_a_clipped_highlight_wider_than_the_default_background_square_is_one_candidate(radius):
+    # a clipped disc on a lit falloff, as the auto-exposure makes of a lobe close to the scope:
+    # wider than the default square (31 px here) it used to be taken for background and its rim
+    # cut into pieces; the square now grows to twice the plateau
+    shape = (200, 200)
+    bg = 120.0 * gaussian(shape, (100, 100), 60.0)
+    img = np.clip(bg + gaussian(shape, (100.3, 99.6), radius / 1.8, 400.0), 0, 255).astype(np.uint8)
+    clip = clipped_mask(img, 255)
+    ext = max(np.ptp(np.nonzero(clip)[0]), np.ptp(np.nonzero(clip)[1])) + 1
+    assert background_side_px(shape, clip) == max(31, 2 * ext + 1)
+    det = detect_specularities(img, method="local_peak")
+    (cand,) = [c for c in det.candidates if c.saturated]
+    assert cand.status == "ok", (cand.status, cand.detail)
+    # the BP is the centroid of the clipped disc (see test_saturated_plateau_centroid_is_the_bp)
+    assert np.allclose(cand.bp_uv, (100.3, 99.6), atol=0.25)
+    assert [c for c in det.candidates if c.status == "ok"] == [cand]
+
+
+def test_the_default_background_square_is_unchanged_without_wide_plateaus():
+    assert background_side_px((1080, 1350)) == 108
+    assert background_side_px((280, 280)) == 31
+    small = np.zeros((406, 406), np.uint8)
+    small[100:110, 200:210] = 1  # 10 px plateau: 2 x 10 + 1 < 40
+    assert background_side_px((406, 406), small) == 40
+
+
+@pytest.mark.parametrize("period", [5.0, 6.0, 7.0])
+def test_a_clipped_top_broken_by_speckle_is_one_plateau_on_a_noisy_image(period):
+    # one clipped lobe striped by the relief's speckle (a grating of period 5 to 7 px whose dark
+    # bands, about 3 px wide, cut its clipped top into 2 or 3 plateaus that a 3 x 3 closing leaves
+    # apart) under 2 % read noise: the smoothing chosen from the noise (sigma ~2 px) makes the
+    # closing 2 ceil(2 sigma) + 1 px wide, which joins the pieces into one plateau; a second
+    # lobe 90 px away stays its own candidate
+    rng = np.random.default_rng(3)
+    shape = (160, 240)
+    v = np.mgrid[0 : shape[0], 0 : shape[1]][0].astype(float)
+    lobe = gaussian(shape, (80.0, 80.0), 9.0, 400.0) * (0.5 + 0.5 * np.cos(2 * np.pi * v / period))
+    img = lobe + gaussian(shape, (170.0, 80.0), 5.0, 600.0) + rng.normal(0, 0.02 * 255, shape)
+    img = np.clip(img, 0, 255).astype(np.uint8)
+    det = detect_specularities(img, method="local_peak", smooth_sigma_px=None)
+    sat = sorted((c for c in det.candidates if c.saturated), key=lambda c: c.bp_uv[0])
+    assert [c.status for c in sat] == ["ok", "ok"], [(c.status, c.detail) for c in sat]
+    # the BP is the centroid of the joined plateau: the stripes are symmetric about the lobe's
+    # centre up to one band (half a period)
+    assert np.allclose(sat[0].bp_uv, (80, 80), atol=period / 2)
+    assert np.allclose(sat[1].bp_uv, (170, 80), atol=0.25)
 
 
 def test_ellipticity_of_simple_shapes():
