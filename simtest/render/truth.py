@@ -26,11 +26,13 @@ import math
 from dataclasses import dataclass
 from typing import Callable
 
+import cv2
 import numpy as np
 from scipy import ndimage, optimize
 from skimage.feature import peak_local_max
 
 from simtest.geometry.camera import project_points
+from simtest.reconstruct.detect import ellipticity
 from simtest.simulate.analytic import plane_bp
 
 __all__ = [
@@ -44,6 +46,8 @@ __all__ = [
     "cylinder_highlight",
     "mesh_highlights",
     "highlight_complete",
+    "HighlightTarget",
+    "highlight_targets",
 ]
 
 
@@ -532,3 +536,167 @@ def highlight_complete(specular: np.ndarray, bp_px: np.ndarray, t: float = 0.1) 
     region = labels == labels[v, u]
     border = region[0, :].any() or region[-1, :].any() or region[:, 0].any() or region[:, -1].any()
     return not border
+
+
+#: :func:`highlight_targets`: Gaussian sigma, px, of the specular image before its regions are
+#: taken; the largest smoothing the detector's noise rule chooses (2.5 px) is about it: speckle
+#: finer than this is not a set of separate highlights to a viewer or to the detector.
+TARGET_SIGMA_PX = 2.0
+#: :func:`highlight_targets`: a highlight's region is where the smoothed specular image is at
+#: least this fraction of its value at the BP (the half-maximum region of the lobe).
+TARGET_REL = 0.5
+#: :func:`highlight_targets`: the detector's bound on ellipticity (``not_elliptical`` outside
+#: [0.75, 1 / 0.75]), applied to the region.
+TARGET_ELLIPTICITY_MIN = 0.75
+
+
+@dataclass(frozen=True)
+class HighlightTarget:
+    """One highlight a person sees in a render: the ground-truth BPs of the lights it gathers.
+
+    Attributes
+    ----------
+    bp_px : ndarray of shape (k, 2)
+        [u, v] of the ground-truth BPs it holds, px (k >= 1; several when the highlights of
+        several lights run together).
+    lights : tuple of int
+        Their lights' indices in the rig.
+    highlights : tuple of HighlightTruth
+        The ground truth itself, brightest first.
+    peak_px : ndarray of shape (2,)
+        [u, v] of the maximum of the smoothed specular image over its region, px: where the
+        image shows the highlight's peak (off the BPs on micro-relief, see
+        :func:`highlight_targets`).
+    area_px : int
+        Pixels of its half-maximum region (holes filled).
+    """
+
+    bp_px: np.ndarray
+    lights: tuple[int, ...]
+    highlights: tuple[HighlightTruth, ...]
+    peak_px: np.ndarray
+    area_px: int
+
+    def distance_px(self, uv) -> float:
+        """Distance, px, from the point ``uv`` [u, v] to the convex hull of :attr:`bp_px` and
+        :attr:`peak_px`.
+
+        The peak of several lobes that run together lies between their BPs, and micro-relief
+        moves it off them to :attr:`peak_px`: for one point this is the distance to it, for two
+        the distance to the segment, for more to their hull.
+        """
+        q = np.asarray(uv, dtype=np.float64)
+        pts = np.unique(np.vstack([self.bp_px, self.peak_px[None]]).astype(np.float64), axis=0)
+        if len(pts) >= 3:
+            hull = cv2.convexHull(pts.astype(np.float32)).reshape(-1, 2).astype(np.float64)
+            if len(hull) >= 3 and cv2.pointPolygonTest(hull.astype(np.float32),
+                                                       (float(q[0]), float(q[1])), False) >= 0:
+                return 0.0
+            pts = hull
+        if len(pts) == 1:
+            return float(np.hypot(*(q - pts[0])))
+        best = np.inf
+        for a, b in zip(pts, np.roll(pts, -1, axis=0)):
+            ab = b - a
+            s = 0.0 if not ab.any() else float(np.clip(np.dot(q - a, ab) / np.dot(ab, ab), 0.0, 1.0))
+            best = min(best, float(np.hypot(*(q - a - s * ab))))
+        return best
+
+
+def _climb(values: np.ndarray, r: int, c: int) -> tuple[int, int]:
+    """The local maximum of ``values`` reached from (r, c) by steepest ascent over 8-neighbours."""
+    H, W = values.shape
+    while True:
+        r0, r1, c0, c1 = max(r - 1, 0), min(r + 2, H), max(c - 1, 0), min(c + 2, W)
+        win = values[r0:r1, c0:c1]
+        i, j = np.unravel_index(int(np.argmax(win)), win.shape)
+        if win[i, j] <= values[r, c]:
+            return r, c
+        r, c = r0 + int(i), c0 + int(j)
+
+
+def highlight_targets(highlights: list[HighlightTruth], specular: np.ndarray, valid: np.ndarray,
+                      *, sigma_px: float = TARGET_SIGMA_PX, rel: float = TARGET_REL,
+                      ellipticity_min: float = TARGET_ELLIPTICITY_MIN) -> list[HighlightTarget]:
+    """The ground-truth highlights a person sees as isolated elliptical highlights in a render.
+
+    Parameters
+    ----------
+    highlights : list of HighlightTruth
+        A render's ground truth (every light's BPs, :attr:`RenderResult.highlights`).
+    specular : ndarray of shape (H, W)
+        The render's specular-only linear image (every light).
+    valid : ndarray of shape (H, W), bool
+        Pixels that show the surface: the surface mask within the scope's field stop.
+    sigma_px, rel, ellipticity_min : float
+        See :data:`TARGET_SIGMA_PX`, :data:`TARGET_REL`, :data:`TARGET_ELLIPTICITY_MIN`.
+
+    Returns
+    -------
+    list of HighlightTarget
+        Brightest first.
+
+    Notes
+    -----
+    The ground-truth BP is where the *macro* normal (the smooth mesh or analytic surface, the
+    normal a reconstruction is scored against) bisects the directions to the camera and the
+    light. The tissue's micro-relief tilts the shading normal by a few degrees over a fraction
+    of a millimetre, so the rendered lobe is broken into speckle around the macro BP; the
+    speckle's envelope is the lobe of the macro surface widened by the relief's slopes, and its
+    peak is the macro BP. That envelope is what a person sees as the highlight, so the BP of a
+    target stays the macro one and the specular image is smoothed by ``sigma_px`` (about the
+    speckle's grain) before its regions are taken. The shading normal is not a target: it
+    changes from pixel to pixel and no isophote of the image follows it.
+
+    A BP is a fair target when the image shows an isolated elliptical highlight there. Its region
+    is the 8-connected component of ``smoothed specular >= rel * (its value at the BP)`` holding
+    the BP, holes filled. The BP is a target when that region (1) lies within ``valid`` and off
+    the image border (a highlight cut by the field stop or the frame has no closed isophote),
+    and (2) has an ellipticity (:func:`simtest.reconstruct.detect.ellipticity`, the detector's
+    measure) within [``ellipticity_min``, 1 / ``ellipticity_min``]: on a concave wall seen from
+    near its centre of curvature the bisector condition nearly holds over a large patch and the
+    specular image is a broad irregular sheen holding several BPs of one light, not a highlight
+    with elliptical isophotes. BPs out of frame, on a dark pixel or without specular light are
+    dropped.
+
+    The lights of a scope are a few millimetres apart: at working distances their highlights
+    overlap and a person (and the detector) sees one. BPs are taken brightest first; a BP that
+    lies inside the region of a brighter target joins it, and a target then holds several BPs
+    (a pair of colonoscope light guides, a laparoscope's ring). An estimate reconstructs a
+    target when its BP lies near the convex hull of the target's BPs
+    (:meth:`HighlightTarget.distance_px`): the peak of lobes that run together lies between
+    their BPs.
+    """
+    H, W = specular.shape
+    sm = cv2.GaussianBlur(np.asarray(specular, dtype=np.float32), (0, 0), float(sigma_px),
+                          borderType=cv2.BORDER_REFLECT)
+    valid = np.asarray(valid, dtype=bool)
+    cand = []
+    for h in highlights:
+        if not (h.in_frame and np.all(np.isfinite(h.bp_px))):
+            continue
+        r, c = int(round(h.bp_px[1])), int(round(h.bp_px[0]))
+        if not (0 <= r < H and 0 <= c < W) or not valid[r, c] or not sm[r, c] > 0:
+            continue
+        cand.append((float(sm[r, c]), r, c, h))
+    cand.sort(key=lambda x: -x[0])
+    groups: list[dict] = []
+    for peak, r, c, h in cand:
+        home = next((g for g in groups if g["region"][r, c]), None)
+        if home is not None:
+            home["members"].append(h)
+            continue
+        lab, _ = ndimage.label(sm >= rel * peak, structure=np.ones((3, 3), bool))
+        region = ndimage.binary_fill_holes(lab == lab[r, c])
+        rr, cc = np.nonzero(region)
+        inside = bool(valid[region].all()) and rr.min() > 0 and cc.min() > 0 \
+            and rr.max() < H - 1 and cc.max() < W - 1
+        e = ellipticity(region)
+        fair = inside and bool(ellipticity_min <= e <= 1.0 / ellipticity_min)
+        pr, pc = _climb(sm, r, c)
+        groups.append({"region": region, "members": [h], "fair": fair,
+                       "peak": np.array([pc, pr], dtype=np.float64)})
+    return [HighlightTarget(np.array([m.bp_px for m in g["members"]], dtype=np.float64),
+                            tuple(int(m.light) for m in g["members"]), tuple(g["members"]),
+                            g["peak"], int(g["region"].sum()))
+            for g in groups if g["fair"]]

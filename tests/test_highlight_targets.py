@@ -1,0 +1,84 @@
+"""Which ground-truth highlights a render shows (simtest.render.truth.highlight_targets)."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from simtest.render.truth import HighlightTruth, highlight_targets
+
+
+def _lobe(shape, uv, sigma, peak=1.0):
+    v, u = np.mgrid[0 : shape[0], 0 : shape[1]].astype(float)
+    return peak * np.exp(-((u - uv[0]) ** 2 + (v - uv[1]) ** 2) / (2 * sigma**2))
+
+
+def _truth(uv, light=0, in_frame=True):
+    return HighlightTruth(np.asarray(uv, float), np.array([0.0, 0.0, 20.0]), np.array([0.0, 0.0, -1.0]),
+                          0.0, 0.0, in_frame, light)
+
+
+SHAPE = (100, 160)
+VALID = np.ones(SHAPE, bool)
+
+
+def test_lights_whose_highlights_run_together_are_one_target():
+    # two guides' lobes (sigma 5 px) 6 px apart: one highlight to a person; 60 px apart: two
+    near = _lobe(SHAPE, (50, 50), 5.0) + _lobe(SHAPE, (56, 50), 5.0, 0.9)
+    (t,) = highlight_targets([_truth((50, 50), 0), _truth((56, 50), 1)], near, VALID)
+    assert t.lights == (0, 1) and t.bp_px.tolist() == [[50, 50], [56, 50]]
+    far = _lobe(SHAPE, (40, 50), 5.0) + _lobe(SHAPE, (100, 50), 5.0, 0.9)
+    ts = highlight_targets([_truth((40, 50), 0), _truth((100, 50), 1)], far, VALID)
+    assert [t.lights for t in ts] == [(0,), (1,)]  # brightest first
+
+
+def test_a_highlight_cut_by_the_field_stop_or_the_frame_is_no_target():
+    spec = _lobe(SHAPE, (50, 50), 5.0)
+    valid = VALID.copy()
+    valid[:, 55:] = False  # the half-maximum disc (radius 5.9 px) crosses column 55
+    assert highlight_targets([_truth((50, 50))], spec, valid) == []
+    valid = VALID.copy()
+    valid[:, 57:] = False  # ... but not column 57
+    assert len(highlight_targets([_truth((50, 50))], spec, valid)) == 1
+    at_edge = _lobe(SHAPE, (2, 50), 5.0)
+    assert highlight_targets([_truth((2, 50))], at_edge, VALID) == []
+
+
+def test_a_broad_irregular_sheen_is_no_target_and_out_of_frame_or_dark_bps_are_dropped():
+    # an L-shaped sheen (ellipticity ~0.6) holding a BP
+    sheen = np.zeros(SHAPE)
+    sheen[30:40, 20:90] = 1.0
+    sheen[30:80, 80:90] = 1.0
+    assert highlight_targets([_truth((50, 35))], sheen, VALID) == []
+    spec = _lobe(SHAPE, (50, 50), 5.0)
+    assert highlight_targets([_truth((50, 50), in_frame=False)], spec, VALID) == []
+    spec[:, 120:] = 0.0
+    assert highlight_targets([_truth((150, 90))], spec, VALID) == []  # no specular light there
+
+
+@given(dx=st.integers(-3, 3), dy=st.integers(-3, 3))
+@settings(max_examples=20, deadline=None)
+def test_the_peak_is_the_lobe_maximum_the_bp_lies_on(dx, dy):
+    # micro-relief moves the image's peak off the macro BP: the target's peak is the local
+    # maximum of the smoothed specular image reached from the BP, not the brighter lobe beside it
+    spec = _lobe(SHAPE, (50, 50), 5.0) + _lobe(SHAPE, (120, 50), 5.0, 3.0)
+    ts = highlight_targets([_truth((50 + dx, 50 + dy))], spec, VALID)
+    assert len(ts) == 1 and ts[0].peak_px.tolist() == [50, 50]
+
+
+def test_distance_to_a_target_is_to_the_hull_of_its_points():
+    spec = _lobe(SHAPE, (50, 50), 5.0) + _lobe(SHAPE, (56, 50), 5.0)
+    (t,) = highlight_targets([_truth((50, 50), 0), _truth((56, 50), 1)], spec, VALID)
+    assert t.peak_px[1] == 50 and 50 <= t.peak_px[0] <= 56  # the peak lies on the segment
+    assert t.distance_px((53.0, 50.0)) == 0.0
+    assert t.distance_px((53.0, 54.0)) == pytest.approx(4.0)
+    assert t.distance_px((46.0, 47.0)) == pytest.approx(5.0)  # 3-4-5 from the end (50, 50)
+    # a ring of 8 lights (a laparoscope): every point inside their hull is at distance 0
+    ring = [(80 + 4 * np.cos(a), 50 + 4 * np.sin(a)) for a in np.linspace(0, 2 * np.pi, 8, endpoint=False)]
+    spec = sum(_lobe(SHAPE, uv, 8.0) for uv in ring)
+    (t,) = highlight_targets([_truth(uv, i) for i, uv in enumerate(ring)], spec, VALID)
+    assert len(t.lights) == 8
+    assert t.distance_px((80.0, 50.0)) == 0.0 and t.distance_px((81.0, 51.5)) == 0.0
+    assert t.distance_px((80.0, 60.0)) == pytest.approx(6.0, abs=0.4)  # the hull's edge is ~4 px out
