@@ -177,3 +177,22 @@ def test_atomic_write_set_keeps_the_old_set_when_a_writer_fails(tmp_path):
     assert sorted(p.name for p in tmp_path.iterdir()) == ["a.json", "b.png"]  # no temporaries left
     atomic_write_set({a: lambda tmp: open(tmp, "w").write("new a"), b: lambda tmp: open(tmp, "w").write("new b")})
     assert a.read_text() == "new a" and b.read_text() == "new b"
+
+
+def test_a_miss_written_as_c3vd_writes_it_is_invalid(sequence, tmp_path):
+    # C3VD's renderer writes a pixel whose ray misses the model as n = (-1, -1, -1), i.e. all
+    # zeros in the file (simtest.evaluate.c3vd's notes), which decodes to a unit-length
+    # direction: it must be invalid, as the near-zero normals (v ~ 32768) are
+    from simtest.evaluate.c3vd import load_frame, scan_sequence
+    from simtest.geometry import load_camera
+
+    seq, cam, _ = sequence
+    n, z = sphere_truth()
+    v = encode_normals(n)
+    v[np.linalg.norm(n, axis=-1) == 0] = 0
+    tifffile.imwrite(seq / "0001_normals.tiff", v)
+    frame = [f for f in scan_sequence(seq) if f.index == "0001"][0]
+    _, truth = load_frame(frame, load_camera(cam).model)
+    miss = np.linalg.norm(n, axis=-1) == 0
+    assert miss.any() and (~miss).any()
+    assert np.isnan(truth.normals[miss]).all() and np.isfinite(truth.normals[~miss]).all()

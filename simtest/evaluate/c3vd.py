@@ -20,6 +20,23 @@ viewing ray (a zero or non-finite normal is invalid).
 
 C3VD is CC BY-NC-SA 4.0; simtest ships none of its data (tests build small sequences in this layout).
 
+What the files hold, from the dataset's own ground-truth renderer (``render/Render.cu`` of the
+DurrLab/C3VD repository, the ``rendergt`` program that wrote them [1]_):
+
+- depth is the *z-depth* of the first hit (the camera-frame z of the hit point minus the camera
+  centre, not the distance along the ray), written ``65535 clamp(z / 100, 0, 1)``: 0 where the
+  ray misses the model, 65535 at 100 mm and beyond (a clamped value, so invalid here like 0);
+- normals are the *face* normals of the registered mesh's triangles (flat, not interpolated
+  between vertices), turned to face the camera and rotated into the camera frame, written
+  ``65535 clamp((n + 1) / 2, 0, 1)`` per axis; a miss is written as ``n = (-1, -1, -1)``, i.e.
+  zeros in the file, which is why a zero normal is invalid here. A highlight's normal is
+  therefore piecewise constant over the mesh's triangles; averaging over the isophote's
+  footprint (as ``simtest evaluate c3vd`` also reports) smooths that;
+- the occlusion mask is set where the ray, continued past the visible surface, meets the model
+  again within the renderer's 100 mm range (a fold behind the surface seen), not where the
+  surface seen is hidden; this reader treats those pixels as invalid ground truth, which is
+  conservative.
+
 References
 ----------
 .. [1] T. L. Bobrow, M. Golhar, R. Vijayan, V. S. Akshintala, J. R. Garcia, N. J. Durr,
@@ -191,8 +208,11 @@ def load_frame(frame: C3VDFrame, camera: CameraModel) -> tuple[np.ndarray, Groun
         raise C3VDError(f"{frame.normals}: {raw.shape[1]} x {raw.shape[0]} px, but {frame.color.name} is {W} x {H} px")
     n = 2.0 * raw.astype(np.float64) / U16 - 1.0
     norm = np.linalg.norm(n, axis=2, keepdims=True)
+    # C3VD's renderer writes a miss as n = (-1, -1, -1), all zeros in the file (module notes);
+    # a normal near zero (v ~ 32768) is no direction either
+    miss = (raw == 0).all(axis=2, keepdims=True)
     with np.errstate(invalid="ignore", divide="ignore"):
-        n = np.where(norm > 0.5, n / norm, np.nan)  # renormalise; the all-zero background is invalid
+        n = np.where((norm > 0.5) & ~miss, n / norm, np.nan)  # renormalise
     invalid = ~np.isfinite(n).all(axis=2)
     if frame.occlusion is not None:
         occ = cv2.imread(str(frame.occlusion), cv2.IMREAD_GRAYSCALE)
