@@ -84,9 +84,9 @@ PINNED = {"colon", "cylinder", "liver", "plane_58deg", "plane_fronto", "saddle",
 #: 1/4 at which the scene's visible highlights stay isolated ellipses (at half size the
 #: half-maximum region of colonoscope_pinhole's pair, at a quarter size the colonoscope's, joins
 #: the sheen of the wall beside it: ellipticity 0.67 and 0.50), except laparoscope_liver, kept
-#: at full size: at half size its clipped highlight (45 px) fits the default background square
-#: of detection, at full size (90 px) it did not, which is what this checks. 4 spp: the renders
-#: take seconds.
+#: at full size: the detection of a fixed background square (a tenth of the frame) found its
+#: clipped highlight at half size (45 px wide) but not at full size (90 px), which is what this
+#: checks. 4 spp: the renders take seconds.
 ENDOSCOPE = {"colonoscope": (0.5, 4), "colonoscope_pinhole": (1.0, 4),
              "colonoscope_plane": (0.5, 4), "laparoscope_liver": (1.0, 4)}
 #: An ok estimate reconstructs a target when its BP lies within this distance of the target's
