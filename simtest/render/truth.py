@@ -640,13 +640,20 @@ def highlight_targets(highlights: list[HighlightTruth], specular: np.ndarray, va
     -----
     The ground-truth BP is where the *macro* normal (the smooth mesh or analytic surface, the
     normal a reconstruction is scored against) bisects the directions to the camera and the
-    light. The tissue's micro-relief tilts the shading normal by a few degrees over a fraction
-    of a millimetre, so the rendered lobe is broken into speckle around the macro BP; the
-    speckle's envelope is the lobe of the macro surface widened by the relief's slopes, and its
-    peak is the macro BP. That envelope is what a person sees as the highlight, so the BP of a
-    target stays the macro one and the specular image is smoothed by ``sigma_px`` (about the
-    speckle's grain) before its regions are taken. The shading normal is not a target: it
-    changes from pixel to pixel and no isophote of the image follows it.
+    light; that stays the target's BP and normal. The tissue's micro-relief tilts the shading
+    normal by about a degree (0.003 mm at 1 mm on the colonoscope scenes) and the rendered lobe
+    is broken into speckle around the macro BP. The shading normal is no target: it changes from
+    pixel to pixel, every glint of the speckle is one of its BPs, and no isophote of the image
+    follows it. What a person sees is the speckle's envelope, the lobe of the macro surface
+    widened by the relief's slopes, so the specular image is smoothed by ``sigma_px`` (about the
+    speckle's grain) before its regions are taken. The relief's slopes at the scale of the
+    highlight also move the envelope's peak off the macro BP, far along a direction in which the
+    bisector condition changes slowly (the surface's curvature there is close to that of the
+    bisector field, about 1 / distance): 9 px along the streak of the full-size colonoscope's
+    pair. The target keeps
+    that peak too, :attr:`HighlightTarget.peak_px`, the local maximum of the smoothed image
+    reached from the BP by steepest ascent (not the region's maximum: the region of a lobe on a
+    bright wall can hold brighter light nearer the camera).
 
     A BP is a fair target when the image shows an isolated elliptical highlight there. Its region
     is the 8-connected component of ``smoothed specular >= rel * (its value at the BP)`` holding
@@ -656,16 +663,16 @@ def highlight_targets(highlights: list[HighlightTruth], specular: np.ndarray, va
     measure) within [``ellipticity_min``, 1 / ``ellipticity_min``]: on a concave wall seen from
     near its centre of curvature the bisector condition nearly holds over a large patch and the
     specular image is a broad irregular sheen holding several BPs of one light, not a highlight
-    with elliptical isophotes. BPs out of frame, on a dark pixel or without specular light are
+    with elliptical isophotes. BPs out of frame, outside ``valid`` or without specular light are
     dropped.
 
     The lights of a scope are a few millimetres apart: at working distances their highlights
     overlap and a person (and the detector) sees one. BPs are taken brightest first; a BP that
     lies inside the region of a brighter target joins it, and a target then holds several BPs
     (a pair of colonoscope light guides, a laparoscope's ring). An estimate reconstructs a
-    target when its BP lies near the convex hull of the target's BPs
+    target when its BP lies near the convex hull of the target's BPs and peak
     (:meth:`HighlightTarget.distance_px`): the peak of lobes that run together lies between
-    their BPs.
+    their BPs, and the relief moves it to the peak.
     """
     H, W = specular.shape
     sm = cv2.GaussianBlur(np.asarray(specular, dtype=np.float32), (0, 0), float(sigma_px),
