@@ -1,4 +1,4 @@
-"""Atomic file writes: a reader never sees a half-written file.
+"""Atomic file writes (a reader never sees a half-written file) and the one JSON coercion.
 
 Every writer in simtest goes through :func:`atomic_write`: the content is written to a temporary
 file in the destination folder (same file system), flushed to disk, then renamed over the
@@ -11,13 +11,56 @@ from __future__ import annotations
 import json
 import os
 import tempfile
-from collections.abc import Callable
+from collections.abc import Callable, Mapping
 from pathlib import Path
+from typing import Any
 
-__all__ = ["TMP_SUFFIX", "atomic_write", "atomic_write_bytes", "atomic_write_json", "atomic_write_set", "atomic_write_text"]
+import numpy as np
+
+__all__ = ["TMP_SUFFIX", "atomic_write", "atomic_write_bytes", "atomic_write_json", "atomic_write_set",
+           "atomic_write_text", "jsonable"]
 
 #: Suffix of every temporary file this module creates.
 TMP_SUFFIX = ".tmp"
+
+
+def jsonable(obj: Any, *, default: Callable[[Any], Any] | None = None) -> Any:
+    """A deep copy of ``obj`` made of the types ``json.dumps`` writes, for every room's JSON files.
+
+    Mappings become dicts with ``str`` keys, lists and tuples become lists, numpy arrays nested
+    lists (``tolist``), numpy scalars Python scalars (``item``); ``str``, ``int``, ``float``,
+    ``bool`` and None are kept as they are (so ``1.0`` stays a float and a case key written from it
+    does not change).
+
+    Parameters
+    ----------
+    obj : object
+        Nested mappings, sequences, arrays and scalars.
+    default : callable, optional
+        Applied to any other value (e.g. ``str`` for the dates TOML reads); without it such a value
+        is kept as it is (``json.dumps`` then refuses it).
+
+    Returns
+    -------
+    object
+        The converted copy; ``json.loads(json.dumps(jsonable(obj)))`` equals it for string keys.
+
+    Examples
+    --------
+    >>> jsonable({"a": (1, np.float64(2.5)), "b": np.arange(2)})
+    {'a': [1, 2.5], 'b': [0, 1]}
+    """
+    if isinstance(obj, Mapping):
+        return {str(k): jsonable(v, default=default) for k, v in obj.items()}
+    if isinstance(obj, list | tuple):
+        return [jsonable(v, default=default) for v in obj]
+    if isinstance(obj, np.ndarray):
+        return jsonable(obj.tolist(), default=default)
+    if isinstance(obj, np.generic):
+        return obj.item()
+    if default is None or obj is None or isinstance(obj, str | int | float):
+        return obj
+    return default(obj)
 
 
 def _default_mode() -> int:

@@ -34,7 +34,6 @@ import statistics
 import time
 from collections.abc import Callable
 from dataclasses import dataclass
-from pathlib import Path
 
 import cv2
 import numpy as np
@@ -43,6 +42,7 @@ from rich.console import Console
 from rich.table import Table
 
 from simtest.constants import SINGLE_THREAD_ENV
+from simtest.resources import real_banner_path
 from simtest.geometry.camera import pixel_to_ray, project_points
 from simtest.geometry.conics import normalised_conic
 from simtest.reconstruct.estimators import estimate_from_conic
@@ -226,9 +226,9 @@ def noisy_frame(sigma_rel: float = 0.02, seed: int = 12):
     return np.repeat(gray[:, :, None], 3, axis=2), K, bps
 
 
-#: The real frame of the bench: the Hyper-Kvasir banner (2240 x 840 JPEG, CC BY 4.0, Borgli et
-#: al. 2020; attribution in tests/data/real/README.md), read from the source tree.
-BANNER = Path(__file__).resolve().parents[1] / "tests" / "data" / "real" / "hyperkvasir_banner.jpg"
+#: The real frame of the bench: the Hyper-Kvasir banner (:func:`simtest.resources.real_banner_path`),
+#: read from the source tree.
+BANNER = real_banner_path()
 
 
 def banner_frame():

@@ -23,6 +23,7 @@ __all__ = [
     "bundled_scene_names",
     "bundled_scene_path",
     "data_root",
+    "real_banner_path",
     "scenes_dir",
 ]
 
@@ -109,3 +110,19 @@ def bundled_scene_path(name: str) -> Path:
     if not path.is_file():
         raise KeyError(f"unknown bundled scene {name!r}; known: {', '.join(bundled_scene_names())}")
     return path
+
+
+def real_banner_path() -> Path:
+    """Path of the real-frame banner of the tests: 24 Hyper-Kvasir frames side by side.
+
+    ``tests/data/real/hyperkvasir_banner.jpg`` (2240 x 840 JPEG, CC BY 4.0, Borgli et al. 2020,
+    doi:10.1038/s41597-020-00622-y; attribution in ``tests/data/real/README.md``), the default real
+    frames of ``simtest simreal`` and the frame of the real-image benchmark. It lives in the source
+    tree only (a wheel does not ship the tests), so the file may be missing.
+
+    Returns
+    -------
+    Path
+        The path under :func:`data_root`.
+    """
+    return data_root() / "tests" / "data" / "real" / "hyperkvasir_banner.jpg"

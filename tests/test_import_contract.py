@@ -8,7 +8,7 @@ function that has not run yet; this one can.
 Rules (the README's Architecture section says why):
 
 - ``simtest.geometry`` and ``simtest.specular`` import nothing of simtest beyond each other and the
-  base modules (``_io``, ``_lazy``, ``_version``, ``tolerances``, ``constants``);
+  base modules (``_io``, ``_checks``, ``_lazy``, ``_version``, ``tolerances``, ``constants``);
 - ``simtest.reconstruct`` imports no ``simtest.render``, ``simtest.scene``, ``simtest.harness``,
   ``simtest.dataset``, Mitsuba or Dr.Jit, anywhere in a file: it runs on real images without the
   renderer.
@@ -25,7 +25,8 @@ import pytest
 
 PACKAGE = Path(__file__).resolve().parents[1] / "simtest"
 
-BASE = {"simtest._io", "simtest._lazy", "simtest._version", "simtest.tolerances", "simtest.constants"}
+BASE = {"simtest._io", "simtest._checks", "simtest._lazy", "simtest._version", "simtest.tolerances",
+        "simtest.constants"}
 RULES = {
     # room -> (allowed simtest prefixes or None for "anything of simtest", forbidden prefixes)
     "simtest.geometry": ({"simtest.geometry", "simtest.specular", *BASE}, {"mitsuba", "drjit"}),

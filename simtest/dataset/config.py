@@ -38,6 +38,7 @@ defaults are in :data:`PARAMS`; ``simtest dataset params`` prints them.
 
 from __future__ import annotations
 
+import functools
 import hashlib
 import json
 import math
@@ -48,6 +49,8 @@ from typing import Any
 
 import numpy as np
 
+from simtest._checks import format_value, keyed_error
+from simtest._io import jsonable
 from simtest.scene.spec import RENDER_VARIANTS
 
 __all__ = [
@@ -455,19 +458,15 @@ def _is_number(v) -> bool:
     return isinstance(v, int | float) and not isinstance(v, bool)
 
 
-def _fmt(v) -> str:
-    return json.dumps(v) if not isinstance(v, float) or math.isfinite(v) else str(v)
-
-
-def _err(source: str, key: str, reason: str, value=None, show_value: bool = True) -> DatasetConfigError:
-    tail = f" (got {_fmt(value)})" if show_value else ""
-    return DatasetConfigError(f"{source}: {key}: {reason}{tail}")
+#: ``_err(source, key, reason[, value])``: the one-line error of a bad key, `` (got <value>)``
+#: appended when the value is given (:func:`simtest._checks.keyed_error`).
+_err = functools.partial(keyed_error, DatasetConfigError)
 
 
 def _int(d: dict, key: str, source: str, default=None, minimum: int = 0, maximum=None) -> int:
     if key not in d:
         if default is None:
-            raise _err(source, key, "required key is missing", show_value=False)
+            raise _err(source, key, "required key is missing")
         return default
     v = d[key]
     if not isinstance(v, int) or isinstance(v, bool):
@@ -501,7 +500,7 @@ def _parse_dist(value, key: str, source: str) -> Dist:
     def num(name: str, required: bool = True):
         if name not in value:
             if required:
-                raise _err(source, f"{key}.{name}", f"required by a {kind} distribution", show_value=False)
+                raise _err(source, f"{key}.{name}", f"required by a {kind} distribution")
             return None
         v = value[name]
         if not _is_number(v) or not math.isfinite(v):
@@ -510,12 +509,12 @@ def _parse_dist(value, key: str, source: str) -> Dist:
 
     if kind == "constant":
         if "value" not in value:
-            raise _err(source, f"{key}.value", "required by a constant distribution", show_value=False)
+            raise _err(source, f"{key}.value", "required by a constant distribution")
         return _parse_dist(value["value"], key, source)
     if kind in ("uniform", "loguniform"):
         lo, hi = num("low"), num("high")
         if lo > hi:
-            raise _err(source, key, f"impossible range: low > high ({_fmt(lo)} > {_fmt(hi)})", value)
+            raise _err(source, key, f"impossible range: low > high ({format_value(lo)} > {format_value(hi)})", value)
         if kind == "loguniform" and lo <= 0:
             raise _err(source, f"{key}.low", "a loguniform distribution needs low > 0", lo)
         return Dist(kind, (lo, hi))
@@ -524,11 +523,11 @@ def _parse_dist(value, key: str, source: str) -> Dist:
         if std < 0:
             raise _err(source, f"{key}.std", "must be >= 0", std)
         if lo is not None and hi is not None and lo > hi:
-            raise _err(source, key, f"impossible range: low > high ({_fmt(lo)} > {_fmt(hi)})", value)
+            raise _err(source, key, f"impossible range: low > high ({format_value(lo)} > {format_value(hi)})", value)
         return Dist(kind, (mean, std, lo, hi))
     # choice
     if "values" not in value:
-        raise _err(source, f"{key}.values", "required by a choice distribution", show_value=False)
+        raise _err(source, f"{key}.values", "required by a choice distribution")
     values = value["values"]
     if not isinstance(values, list) or not values:
         raise _err(source, f"{key}.values", "must be a non-empty list", values)
@@ -578,7 +577,7 @@ def _check_domain(p: ParamDef, dist: Dist, key: str, source: str) -> None:
     if bad_low or bad_high:
         lb = "(" if p.open_low else "["
         rb = ")" if p.open_high else "]"
-        reason = f"draws can leave the domain {lb}{_fmt(lo)}, {_fmt(hi)}{rb}"
+        reason = f"draws can leave the domain {lb}{format_value(lo)}, {format_value(hi)}{rb}"
         if dist.kind == "normal":
             reason += " (give low/high to clip a normal distribution)"
         show = dist.args[0] if dist.kind == "constant" else dist.as_dict()
@@ -720,14 +719,10 @@ def config_from_dict(d: dict, source: str = "<dict>") -> DatasetConfig:
         families=families,
         params=resolved,
         source=source,
-        raw=_jsonable(d),
+        raw=jsonable(d, default=str),
         splits=splits,
         auto_exposure=auto_exposure,
     )
-
-
-def _jsonable(d):
-    return json.loads(json.dumps(d, default=str))
 
 
 def load_config(path) -> DatasetConfig:

@@ -36,6 +36,7 @@ from typing import Any
 import numpy as np
 from PIL import Image
 
+from simtest._io import jsonable
 from simtest._lazy import require
 from simtest._llvm import configure_llvm_env
 from simtest.constants import LUMINANCE_BT709, MAX_SEED
@@ -426,18 +427,6 @@ def _gray(a: np.ndarray) -> np.ndarray:
     return a
 
 
-def _jsonable(x):
-    if isinstance(x, np.ndarray):
-        return x.tolist()
-    if isinstance(x, np.generic):
-        return x.item()
-    if isinstance(x, dict):
-        return {k: _jsonable(v) for k, v in x.items()}
-    if isinstance(x, list | tuple):
-        return [_jsonable(v) for v in x]
-    return x
-
-
 def _auto_exposure(linear: np.ndarray, mask: np.ndarray, config: DatasetConfig) -> float:
     """Exposure multiplier that brings a percentile of the surface's linear image to a level.
 
@@ -458,7 +447,7 @@ def _portable_scene(spec) -> dict:
     The absolute path differs between machines (a Dask worker's install), which would make the
     records of the same sample differ; ``meshes/<name>.ply`` resolves on any install.
     """
-    d = _jsonable(scene_to_dict(spec))
+    d = jsonable(scene_to_dict(spec))
     geo = d.get("geometry", {})
     if geo.get("type") == "mesh" and geo.get("path"):
         path = Path(geo["path"])
@@ -509,7 +498,7 @@ def camera_file(result) -> dict:
     """
     d = result.camera_model.to_json_dict()
     d["lights"] = result.light_rig.to_json_list()
-    return _jsonable(d)
+    return jsonable(d)
 
 
 def sample_from_render(config: DatasetConfig, index: int, params: dict, result) -> Sample:
@@ -569,9 +558,9 @@ def sample_from_render(config: DatasetConfig, index: int, params: dict, result) 
     highlights = []
     for h in result.highlights:
         rec = {
-            "bp_px": _jsonable(np.asarray(h.bp_px, np.float64)),
-            "bp_mm": _jsonable(np.asarray(h.bp_mm, np.float64)),
-            "normal": _jsonable(np.asarray(h.normal, np.float64)),
+            "bp_px": jsonable(np.asarray(h.bp_px, np.float64)),
+            "bp_mm": jsonable(np.asarray(h.bp_mm, np.float64)),
+            "normal": jsonable(np.asarray(h.normal, np.float64)),
             "k1": float(h.k1),
             "k2": float(h.k2),
             "in_frame": bool(h.in_frame),
@@ -581,7 +570,7 @@ def sample_from_render(config: DatasetConfig, index: int, params: dict, result) 
     record = {
         "index": int(index),
         "family": params["family"],
-        "params": _jsonable(params),
+        "params": jsonable(params),
         "render_seed": int(params["render_seed"]),
         "K": K.tolist(),
         "cam_to_world": np.asarray(result.cam_to_world, np.float64).tolist(),

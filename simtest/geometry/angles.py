@@ -65,21 +65,28 @@ def angle_between_deg(a, b) -> np.ndarray | float:
     return float(ang) if ang.ndim == 0 else ang
 
 
-def unit(v) -> np.ndarray:
-    """``v`` scaled to unit length: ``v / |v|``.
+def unit(v, axis: int | None = None) -> np.ndarray:
+    """``v`` scaled to unit length: ``v / |v|``; the one normalisation of directions in simtest.
 
     Parameters
     ----------
-    v : array_like of shape (3,)
-        A non-zero direction (any length).
+    v : array_like of shape (3,) or (..., 3)
+        Non-zero direction(s) (any length).
+    axis : int, optional
+        None (default): ``v`` is one vector, divided by its norm (``np.linalg.norm(v)``).
+        ``-1``: ``v`` is a stack of vectors along its last axis, each divided by its own norm.
+        The two differ in the last bit (a dot product against a sum of squares), so a caller keeps
+        the one it was written with.
 
     Returns
     -------
-    ndarray of shape (3,), float64
-        The unit vector; NaN (with a numpy warning) if ``v`` is zero.
+    ndarray, float64, the shape of ``v``
+        The unit vector(s); NaN (with a numpy warning) where ``v`` is zero.
     """
     v = np.asarray(v, dtype=np.float64)
-    return v / np.linalg.norm(v)
+    if axis is None:
+        return v / np.linalg.norm(v)
+    return v / np.linalg.norm(v, axis=axis, keepdims=True)
 
 
 def face_camera(normal, ray) -> np.ndarray:

@@ -49,6 +49,7 @@ from typing import ClassVar
 import cv2
 import numpy as np
 
+from simtest._checks import finite_number
 from simtest.geometry.camera import IntrinsicsError, validate_intrinsics
 
 __all__ = [
@@ -93,12 +94,7 @@ def _image_size(size, where: str) -> tuple[int, int] | None:
 
 
 def _finite_scalar(value, where: str) -> float:
-    if isinstance(value, bool) or not isinstance(value, (int, float, np.integer, np.floating)):
-        raise IntrinsicsError(f"{where}: must be a number, got {value!r}")
-    v = float(value)
-    if not np.isfinite(v):
-        raise IntrinsicsError(f"{where}: must be finite, got {value!r}")
-    return v
+    return finite_number(value, where, IntrinsicsError)
 
 
 class CameraModel(ABC):

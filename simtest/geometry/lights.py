@@ -16,6 +16,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from simtest._checks import finite_number
+
 __all__ = ["FALLOFFS", "MAX_LIGHTS", "Light", "LightRig", "LightRigError"]
 
 #: The falloff laws a light may have.
@@ -29,12 +31,7 @@ class LightRigError(ValueError):
 
 
 def _number(value, where: str) -> float:
-    if isinstance(value, bool) or not isinstance(value, (int, float, np.integer, np.floating)):
-        raise LightRigError(f"{where}: must be a number, got {value!r}")
-    v = float(value)
-    if not np.isfinite(v):
-        raise LightRigError(f"{where}: must be finite, got {value!r}")
-    return v
+    return finite_number(value, where, LightRigError)
 
 
 @dataclass(frozen=True)

@@ -50,6 +50,7 @@ Errors: :class:`SuiteError` (a ValueError) with the message ``"<file>: <key>: <r
 from __future__ import annotations
 
 import dataclasses
+import functools
 import hashlib
 import json
 import math
@@ -60,6 +61,8 @@ from typing import Any, Mapping
 
 import numpy as np
 
+from simtest._checks import keyed_error
+from simtest._io import jsonable
 from simtest.harness.claims import PAPER_CHECKS
 from simtest.resources import bundled
 from simtest.scene import SceneError, bundled_scene_path, load_scene, with_overrides
@@ -120,8 +123,8 @@ class SuiteError(ValueError):
     """A suite file is invalid. The message reads ``"<file>: <key>: <reason>"``."""
 
 
-def _err(source: str, key: str, reason: str) -> SuiteError:
-    return SuiteError(f"{source}: {key}: {reason}")
+#: ``_err(source, key, reason)``: the one-line error of a bad key (:func:`simtest._checks.keyed_error`).
+_err = functools.partial(keyed_error, SuiteError)
 
 
 def suites_dir() -> Path:
@@ -410,13 +413,6 @@ def _check_keys(d: Mapping, allowed: set, source: str, where: str) -> None:
                        f"unknown key (allowed: {', '.join(sorted(allowed))})")
 
 
-def _jsonable(v):
-    """Tuples (and lists) as lists, recursively; anything else as it is (1.0 stays 1.0 in the key)."""
-    if isinstance(v, (tuple, list)):
-        return [_jsonable(x) for x in v]
-    return v
-
-
 def _check_recon(key: str, value, source: str, where: str) -> Any:
     if key == "isovalue":
         if not _is_num(value) or not 0 < value < 1:
@@ -497,7 +493,7 @@ def _resolve_rendered(scene_path: Path, params: Mapping, source: str, where: str
                        f"{spec.geometry.type!r}")
         if out.get("distance_mm") is None:
             raise _err(source, f"{where}.distance_mm", "radius_over_distance needs distance_mm")
-    resolved = {k: _jsonable(v) for k, v in sorted(overrides.items())}
+    resolved = {k: jsonable(v) for k, v in sorted(overrides.items())}
     for k, d in {**RECON_KEYS, **RENDERED_KEYS}.items():
         resolved[k] = out.get(k, d)
     return resolved

@@ -26,7 +26,7 @@ from simtest.render.render import (
 )
 from simtest.render.simreal import banner_frames, sim_to_real_figure, sim_to_real_table
 from simtest.render.truth import HighlightTruthError
-from simtest.resources import data_root
+from simtest.resources import data_root, real_banner_path
 from simtest.scene.spec import RENDER_VARIANTS, SceneError, load_scene
 
 __all__ = ["render_command", "simreal_command"]
@@ -103,7 +103,7 @@ def simreal_command(
     seed: Optional[int] = typer.Option(None, "--seed", min=0, max=MAX_SEED, help="Render seed."),
 ) -> None:
     """Render SCENE and compare its video frame with real frames: table (JSON, Markdown) and figure."""
-    paths = real or [data_root() / "tests" / "data" / "real" / "hyperkvasir_banner.jpg"]
+    paths = real or [real_banner_path()]
     frames = []
     for p in paths:
         if not p.is_file():

@@ -31,6 +31,7 @@ import numpy as np
 from scipy import ndimage, optimize
 from skimage.feature import peak_local_max
 
+from simtest.geometry.angles import unit
 from simtest.geometry.camera import project_points
 from simtest.reconstruct.detect import ellipticity
 from simtest.simulate.analytic import plane_bp
@@ -110,11 +111,6 @@ class HighlightTruth:
         }
 
 
-def _unit(v: np.ndarray) -> np.ndarray:
-    v = np.asarray(v, dtype=np.float64)
-    return v / np.linalg.norm(v, axis=-1, keepdims=True)
-
-
 def bisector(p: np.ndarray, light: np.ndarray) -> np.ndarray:
     """Unit bisector of the directions from surface points to the camera and to the light.
 
@@ -136,7 +132,7 @@ def bisector(p: np.ndarray, light: np.ndarray) -> np.ndarray:
         the two directions are opposite.
     """
     p = np.asarray(p, dtype=np.float64)
-    return _unit(_unit(-p) + _unit(np.asarray(light, dtype=np.float64) - p))
+    return unit(unit(-p, axis=-1) + unit(np.asarray(light, dtype=np.float64) - p, axis=-1), axis=-1)
 
 
 def bisector_cos_image(normals: np.ndarray, position: np.ndarray, mask: np.ndarray,
@@ -185,7 +181,7 @@ def _in_frame(uv: np.ndarray, size: tuple[int, int]) -> bool:
 
 def _highlight(p, n, k1, k2, K, size) -> HighlightTruth:
     uv = project_points(p, K)
-    return HighlightTruth(np.asarray(uv, float), np.asarray(p, float), _unit(n),
+    return HighlightTruth(np.asarray(uv, float), np.asarray(p, float), unit(n, axis=-1),
                           float(max(k1, k2)), float(min(k1, k2)), _in_frame(uv, size))
 
 
@@ -216,7 +212,7 @@ def plane_highlight(normal: np.ndarray, distance_mm: float, light: np.ndarray, K
     HighlightTruth or None
         ``k1 = k2 = 0``; None if the light is on or behind the plane (no highlight).
     """
-    n = _unit(normal)
+    n = unit(normal, axis=-1)
     if np.dot(n, np.asarray(light, dtype=np.float64)) + distance_mm <= 0:
         return None
     return _highlight(plane_bp(normal, distance_mm, light), n, 0.0, 0.0, K, size)
@@ -249,7 +245,7 @@ def _solve_stationary(surface: Callable[[np.ndarray], tuple[np.ndarray, np.ndarr
     _, n0 = surface(x0)
     if abs(n0[0]) > 0.9:
         f1 = np.array([0.0, 0.0, 1.0])
-    e1 = _unit(f1 - np.dot(f1, n0) * n0)
+    e1 = unit(f1 - np.dot(f1, n0) * n0, axis=-1)
     e2 = np.cross(n0, e1)
 
     def residual(x):
@@ -313,15 +309,15 @@ def sphere_highlight(center: np.ndarray, radius: float, light: np.ndarray, K: np
     L = np.asarray(light, dtype=np.float64)
     if np.linalg.norm(L - c) <= radius < np.linalg.norm(c):
         return None  # light inside, camera outside: the side the camera sees is unlit
-    n0 = -_unit(c)
+    n0 = -unit(c, axis=-1)
     k = 1.0 / radius
     if np.allclose(L, 0.0):
         return _highlight(c + radius * n0, n0, k, k, K, size)
-    e1 = _unit(np.cross(n0, [0.0, 1.0, 0.0] if abs(n0[1]) < 0.9 else [1.0, 0.0, 0.0]))
+    e1 = unit(np.cross(n0, [0.0, 1.0, 0.0] if abs(n0[1]) < 0.9 else [1.0, 0.0, 0.0]), axis=-1)
     e2 = np.cross(n0, e1)
 
     def surface(x):
-        n = _unit(n0 + x[0] * e1 + x[1] * e2)
+        n = unit(n0 + x[0] * e1 + x[1] * e2, axis=-1)
         return c + radius * n, n
 
     x = _solve_stationary(surface, np.zeros(2), L,
@@ -369,7 +365,7 @@ def cylinder_highlight(center: np.ndarray, axis: np.ndarray, radius: float, leng
         (e.g. the camera or light inside the cylinder, or the axis nearly along the view).
     """
     c = np.asarray(center, dtype=np.float64)
-    a = _unit(axis)
+    a = unit(axis, axis=-1)
     L = np.asarray(light, dtype=np.float64)
 
     def inside(x):
@@ -379,7 +375,7 @@ def cylinder_highlight(center: np.ndarray, axis: np.ndarray, radius: float, leng
     if inside(L) and not inside(np.zeros(3)):
         return None  # light inside the tube, camera outside: the side the camera sees is unlit
     q = c - np.dot(c, a) * a  # foot of the perpendicular from the camera centre to the axis
-    n0 = _unit(-q)
+    n0 = unit(-q, axis=-1)
     s0 = np.dot(q - c, a)
     if not np.allclose(L, 0.0):
         e = np.cross(a, n0)
@@ -487,7 +483,7 @@ def mesh_highlights(
     for i in range(len(uv)):
         if not res["hit"][i]:
             continue
-        p, n = res["p"][i], _unit(res["n"][i])
+        p, n = res["p"][i], unit(res["n"][i], axis=-1)
         angle = math.degrees(math.acos(min(1.0, float(np.dot(n, bisector(p, light))))))
         if angle > accept_deg:
             continue

@@ -91,7 +91,7 @@ import trimesh
 from scipy.spatial import ConvexHull, cKDTree
 from trimesh.curvature import discrete_mean_curvature_measure
 
-from simtest._io import atomic_write_bytes
+from simtest._io import atomic_write_bytes, jsonable
 
 __all__ = [
     "ColonParams",
@@ -945,7 +945,7 @@ def save_mesh(mesh: trimesh.Trimesh, path: str | os.PathLike[str]) -> Path:
     side["n_faces"] = int(len(faces))
     side["ply_vertex_properties"] = list(_PLY_FIELDS)
     side["units"] = "positions mm; k1, k2 1/mm (k1 >= k2, positive where bending away from N)"
-    text = json.dumps(_jsonable(side), indent=1, sort_keys=True)
+    text = json.dumps(jsonable(side), indent=1, sort_keys=True)
     # One line per innermost list of numbers (a point, a tangent, a list of arc lengths).
     text = _NUMBER_LIST.sub(lambda m: "[" + ", ".join(x.strip() for x in m[1].split(",")) + "]", text)
     text += "\n"
@@ -954,18 +954,6 @@ def save_mesh(mesh: trimesh.Trimesh, path: str | os.PathLike[str]) -> Path:
 
 
 _NUMBER_LIST = re.compile(r"\[\s*([-+0-9.eE,\s]+?)\s*\]")
-
-
-def _jsonable(obj: Any) -> Any:
-    if isinstance(obj, Mapping):
-        return {str(k): _jsonable(v) for k, v in obj.items()}
-    if isinstance(obj, list | tuple):
-        return [_jsonable(v) for v in obj]
-    if isinstance(obj, np.ndarray):
-        return _jsonable(obj.tolist())
-    if isinstance(obj, np.generic):
-        return obj.item()
-    return obj
 
 
 def load_mesh(path: str | os.PathLike[str]) -> trimesh.Trimesh:

@@ -37,12 +37,14 @@ References
 from __future__ import annotations
 
 import dataclasses
+import functools
 import math
 import tomllib
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Mapping
 
+from simtest._checks import keyed_error
 from simtest.constants import MAX_SEED
 from simtest.resources import bundled_scene_path, data_root
 
@@ -486,8 +488,8 @@ class SceneSpec:
 # validation
 
 
-def _err(source: str, key: str, reason: str) -> SceneError:
-    return SceneError(f"{source}: {key}: {reason}")
+#: ``_err(source, key, reason)``: the one-line error of a bad key (:func:`simtest._checks.keyed_error`).
+_err = functools.partial(keyed_error, SceneError)
 
 
 def _tname(v: Any) -> str:
