@@ -23,7 +23,6 @@ under test assumes; with a light offset or the falloff kept it is only an approx
 from __future__ import annotations
 
 import dataclasses
-import functools
 import hashlib
 import io
 import math
@@ -42,11 +41,11 @@ from simtest._llvm import configure_llvm_env
 from simtest.constants import LUMINANCE_BT709, MAX_SEED
 from simtest.dataset.config import PARAMS, DatasetConfig
 from simtest.geometry.angles import unit
-from simtest.geometry.conics import conic_kind, conic_to_ellipse, plane_basis, project_circle
+from simtest.geometry.conics import conic_kind, conic_to_ellipse, project_circle
 from simtest.render import render_scene
 from simtest.render.sensor import apply_sensor, video_frame
 from simtest.scene import bundled_mesh_path
-from simtest.scene.meshes import colon_centerline, load_mesh
+from simtest.scene.poses import colon_pose, liver_surface_pose
 from simtest.scene.spec import scene_from_dict, scene_to_dict
 from simtest.specular import isophote_radius
 
@@ -186,86 +185,6 @@ def draw_parameters(config: DatasetConfig, index: int) -> dict[str, Any]:
 # scene building
 
 
-@functools.lru_cache(maxsize=4)
-def _mesh_info(name: str) -> dict:
-    """What the camera placement needs from a bundled mesh (cached per process).
-
-    colon: the mesh (for :func:`simtest.scene.meshes.colon_centerline`), the centre line's arc
-    lengths and the smallest wall distance of each ring; liver: the bounding-box centre and the
-    radius of the bounding sphere about it.
-    """
-    path = bundled_mesh_path(name)
-    if not path.is_file():
-        raise FileNotFoundError(f"{path}: bundled {name} mesh missing (build it with `simtest meshes build`)")
-    mesh = load_mesh(path)
-    info: dict[str, Any] = {"path": str(path), "mesh": mesh}
-    centre = np.asarray(mesh.bounds, dtype=np.float64).mean(axis=0)
-    info["centre"] = centre
-    info["bounding_radius"] = float(np.max(np.linalg.norm(np.asarray(mesh.vertices) - centre, axis=1)))
-    if name == "colon":
-        line = mesh.metadata.get("centerline")
-        if not isinstance(line, dict) or "arclength_mm" not in line:
-            raise ValueError(f"{path}: metadata: no colon centre line ('centerline')")
-        info["arc"] = np.asarray(line["arclength_mm"], dtype=np.float64)
-        info["radius_min"] = np.asarray(line["radius_min_mm"], dtype=np.float64)
-    return info
-
-
-def _colon_pose(p: dict) -> dict:
-    """Camera inside the colon: on the centre line at ``station``, tilted off its tangent."""
-    info = _mesh_info("colon")
-    arc = info["arc"]
-    s = float(arc[0] + p["station"] * (arc[-1] - arc[0]))
-    line = colon_centerline(info["mesh"], np.array([s]))
-    centre = np.asarray(line["points"][0], dtype=np.float64)
-    tangent = unit(line["tangents"][0])
-    e1, e2 = plane_basis(tangent, axes=(2, 0))
-    az = math.radians(p["azimuth_deg"])
-    radial = math.cos(az) * e1 + math.sin(az) * e2
-    view = math.radians(p["view_angle_deg"])
-    forward = math.cos(view) * tangent + math.sin(view) * radial
-    # Off the centre line, on the side opposite to where it looks, by a fraction of the smallest
-    # wall distance of the nearest ring (so the camera stays inside the lumen).
-    r_min = float(np.interp(s, arc, info["radius_min"]))
-    position = centre - p["radial_offset"] * r_min * radial
-    up = _roll_up(forward, p["roll_deg"])
-    return {"path": info["path"], "position": position, "look_at": position + forward, "up": up}
-
-
-def _liver_pose(p: dict) -> dict:
-    """Camera around the liver, looking at a surface point from ``distance_mm`` away.
-
-    The surface point is the vertex whose direction from the liver's bounding-box centre is
-    closest to (``azimuth_deg``, ``elevation_deg``); the camera sits ``distance_mm`` from it along a
-    direction tilted ``view_angle_deg`` from its outward normal (toward ``roll_deg`` about the
-    normal) and looks at it.
-    """
-    info = _mesh_info("liver")
-    mesh = info["mesh"]
-    az, el = math.radians(p["azimuth_deg"]), math.radians(p["elevation_deg"])
-    direction = np.array([math.cos(el) * math.cos(az), math.cos(el) * math.sin(az), math.sin(el)])
-    v = np.asarray(mesh.vertices, dtype=np.float64) - info["centre"]
-    k = int(np.argmax((v @ direction) / np.linalg.norm(v, axis=1)))
-    target = np.asarray(mesh.vertices[k], dtype=np.float64)
-    normal = unit(np.asarray(mesh.vertex_normals[k], dtype=np.float64))
-    if normal @ v[k] < 0:  # outward
-        normal = -normal
-    e1, e2 = plane_basis(normal, axes=(2, 0))
-    roll = math.radians(p["roll_deg"])
-    side = math.cos(roll) * e1 + math.sin(roll) * e2
-    view = math.radians(p["view_angle_deg"])
-    back = math.cos(view) * normal + math.sin(view) * side
-    position = target + p["distance_mm"] * back
-    up = unit(np.cross(back, np.cross(side, back))) if view > 0 else side
-    return {"path": info["path"], "position": position, "look_at": target, "up": up}
-
-
-def _roll_up(forward: np.ndarray, roll_deg: float) -> np.ndarray:
-    e1, e2 = plane_basis(unit(forward), axes=(2, 0))
-    r = math.radians(roll_deg)
-    return math.cos(r) * e1 + math.sin(r) * e2
-
-
 def build_scene(config: DatasetConfig, params: dict):
     """The scene spec of a sample from its drawn parameters (pure; no rendering).
 
@@ -347,11 +266,15 @@ def build_scene(config: DatasetConfig, params: dict):
         geometry = {"type": "cylinder", "center_mm": [0.0, 0.0, params["distance_mm"] + r],
                     "radius_mm": r, "axis": axis}
     elif fam in ("colon", "liver"):
-        pose = _colon_pose(params) if fam == "colon" else _liver_pose(params)
-        geometry = {"type": "mesh", "path": pose["path"]}
-        camera.update(position_mm=[float(x) for x in pose["position"]],
-                      look_at_mm=[float(x) for x in pose["look_at"]],
-                      up=[float(x) for x in pose["up"]])
+        if fam == "colon":
+            pose = colon_pose(params["station"], params["view_angle_deg"],
+                              azimuth_deg=params["azimuth_deg"], radial_offset=params["radial_offset"],
+                              roll_deg=params["roll_deg"])
+        else:
+            pose = liver_surface_pose(params["azimuth_deg"], params["elevation_deg"],
+                                      params["distance_mm"], params["view_angle_deg"], params["roll_deg"])
+        geometry = {"type": "mesh", "path": pose.path}
+        camera.update(pose.camera_keys())
     else:  # pragma: no cover - the config refuses unknown families
         raise ValueError(f"unknown family {fam!r}")
     d = {"name": f"dataset-{fam}", "camera": camera, "light": light, "material": material,

@@ -19,8 +19,7 @@ import math
 import numpy as np
 
 from simtest.constants import MAX_SEED
-from simtest.geometry.angles import angle_between_deg, unit
-from simtest.geometry.conics import plane_basis
+from simtest.geometry.angles import angle_between_deg
 from simtest.geometry.curvature import (
     curvature_ratio,
     predicted_eigenvalue_gap,
@@ -32,8 +31,8 @@ from simtest.harness.suite import LIGHT_AWARE_NAMES
 from simtest.reconstruct import reconstruct, reconstruct_roi
 from simtest.reconstruct.recommend import with_light_aware
 from simtest.render import render_scene
-from simtest.scene import bundled_mesh_path, load_scene, with_overrides
-from simtest.scene.meshes import colon_centerline, load_mesh
+from simtest.scene import load_scene, with_overrides
+from simtest.scene.poses import colon_pose, liver_orbit_pose
 from simtest.simulate.paper import PaperParams, PaperSimulator
 
 __all__ = ["make_runner", "PaperRunner", "RenderedRunner", "reconstruct_known_bp",
@@ -454,9 +453,10 @@ def _depth_errors(est, h, rig) -> dict:
 def mesh_pose_overrides(p: dict) -> dict:
     """Scene overrides placing the camera in or around a bundled mesh (``meshes/*.ply``).
 
-    colon (``colon_station`` s in [0, 1]): on the centre line at arc length s x length, moved off
-    it by 0.3 x the smallest wall distance of that ring, looking ``mesh_view_deg`` off the tangent
-    toward the wall on the other side. liver (``liver_azimuth_deg``): on a sphere
+    colon (``colon_station`` s in [0, 1]): :func:`simtest.scene.poses.colon_pose`, on the centre
+    line at arc length s x length, moved off it by 0.3 x the smallest wall distance of that ring,
+    looking ``mesh_view_deg`` off the tangent toward the wall on the other side. liver
+    (``liver_azimuth_deg``): :func:`simtest.scene.poses.liver_orbit_pose`, on a sphere
     ``mesh_distance_mm`` outside its bounding sphere at that azimuth and ``liver_elevation_deg``,
     aimed at the centre of its bounding box.
 
@@ -476,40 +476,18 @@ def mesh_pose_overrides(p: dict) -> dict:
     Raises
     ------
     FileNotFoundError, ValueError
-        If the bundled mesh is missing or unreadable (:func:`simtest.scene.meshes.load_mesh`).
+        If the bundled mesh is missing or unreadable (:func:`simtest.scene.poses.mesh_placement`).
     """
 
-    name = "colon" if p["colon_station"] is not None else "liver"
-    path = bundled_mesh_path(name)
-    mesh = load_mesh(path)
-    if name == "colon":
-        line = mesh.metadata["centerline"]
-        arc = np.asarray(line["arclength_mm"], dtype=np.float64)
-        s = float(arc[0] + p["colon_station"] * (arc[-1] - arc[0]))
-        cl = colon_centerline(mesh, np.array([s]))
-        centre = np.asarray(cl["points"][0], dtype=np.float64)
-        tangent = unit(cl["tangents"][0])
-        radial, _ = plane_basis(tangent, axes=(2, 0))
-        v = math.radians(p["mesh_view_deg"])
-        forward = math.cos(v) * tangent + math.sin(v) * radial
-        r_min = float(np.interp(s, arc, np.asarray(line["radius_min_mm"], dtype=np.float64)))
-        position = centre - 0.3 * r_min * radial
+    if p["colon_station"] is not None:
+        pose = colon_pose(p["colon_station"], p["mesh_view_deg"])
     else:
-        c = np.asarray(mesh.bounds, dtype=np.float64).mean(axis=0)
-        radius = float(np.max(np.linalg.norm(np.asarray(mesh.vertices) - c, axis=1)))
-        az, el = math.radians(p["liver_azimuth_deg"]), math.radians(p["liver_elevation_deg"])
-        direction = np.array([math.cos(el) * math.cos(az), math.cos(el) * math.sin(az),
-                              math.sin(el)])
-        position = c + (radius + p["mesh_distance_mm"]) * direction
-        forward = -direction
-    up, _ = plane_basis(forward, axes=(2, 0))
+        pose = liver_orbit_pose(p["liver_azimuth_deg"], p["liver_elevation_deg"], p["mesh_distance_mm"])
     over = {f"geometry.{k}": None for k in ("tilt_deg", "azimuth_deg", "distance_mm", "extent_mm",
                                             "center_mm", "radius_mm", "axis", "length_mm",
                                             "radius1_mm", "radius2_mm", "resolution")}
-    over.update({"geometry.type": "mesh", "geometry.path": str(path),
-                 "camera.position_mm": [float(x) for x in position],
-                 "camera.look_at_mm": [float(x) for x in position + forward],
-                 "camera.up": [float(x) for x in up]})
+    over.update({"geometry.type": "mesh", "geometry.path": pose.path})
+    over.update({f"camera.{k}": v for k, v in pose.camera_keys().items()})
     return over
 
 

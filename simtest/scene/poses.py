@@ -1,0 +1,293 @@
+"""Camera poses in and around the bundled meshes: the one placement used by the harness and the dataset.
+
+The harness's rendered cases (``colon_station``, ``liver_azimuth_deg`` in a suite) and the dataset's
+colon and liver families place their cameras here. Three placements exist, each named for what it
+does:
+
+- :func:`colon_pose`: inside the colon, on its centre line. The harness uses it with the azimuth 0,
+  the offset 0.3 and no roll; the dataset draws all five numbers.
+- :func:`liver_orbit_pose`: outside the liver, on a sphere about its bounding box, aimed at the
+  box centre (the harness: a sweep over the azimuth sees the whole organ).
+- :func:`liver_surface_pose`: at a set distance from one surface point of the liver, looking at it
+  along a line tilted off its normal (the dataset: the view angle of the highlight is drawn).
+
+The two liver placements mean different things on purpose and are kept apart; each returns a
+:class:`CameraPose` in the world frame of the mesh (mm). The arithmetic is the one each caller had
+when it wrote its committed results, operation for operation: the harness's numbers and the
+dataset's fingerprints do not move.
+"""
+
+from __future__ import annotations
+
+import functools
+import math
+from dataclasses import dataclass
+
+import numpy as np
+import trimesh
+
+from simtest.geometry.angles import unit
+from simtest.geometry.conics import plane_basis
+from simtest.resources import bundled_mesh_path
+from simtest.scene.meshes import colon_centerline, load_mesh
+
+__all__ = ["CameraPose", "MeshPlacement", "camera_up", "colon_pose", "liver_orbit_pose",
+           "liver_surface_pose", "mesh_placement"]
+
+#: The basis axes of :func:`simtest.geometry.conics.plane_basis` every placement here starts its
+#: "up" and its sideways directions from: z, or x when the direction is within 26 deg of z.
+_AXES = (2, 0)
+
+
+@dataclass(frozen=True)
+class CameraPose:
+    """A camera placed in the world frame of a mesh.
+
+    Attributes
+    ----------
+    path : str
+        The mesh file (``meshes/<name>.ply``).
+    position : ndarray of shape (3,)
+        Camera centre, mm.
+    look_at : ndarray of shape (3,)
+        A point on the optical axis in front of the camera, mm.
+    up : ndarray of shape (3,)
+        Unit vector that appears up in the image (before Mitsuba's look-at orthogonalises it).
+    """
+
+    path: str
+    position: np.ndarray
+    look_at: np.ndarray
+    up: np.ndarray
+
+    def camera_keys(self) -> dict[str, list[float]]:
+        """The scene's camera keys: ``position_mm``, ``look_at_mm`` and ``up`` as lists of floats."""
+        return {"position_mm": [float(x) for x in self.position],
+                "look_at_mm": [float(x) for x in self.look_at],
+                "up": [float(x) for x in self.up]}
+
+
+@dataclass(frozen=True)
+class MeshPlacement:
+    """What a placement needs from a bundled mesh (:func:`mesh_placement`).
+
+    Attributes
+    ----------
+    path : str
+        The mesh file.
+    mesh : trimesh.Trimesh
+        The mesh, with its sidecar metadata (the colon's centre line).
+    centre : ndarray of shape (3,)
+        Centre of its axis-aligned bounding box, mm.
+    bounding_radius : float
+        Largest vertex distance from ``centre``, mm.
+    arc : ndarray of shape (R,) or None
+        colon: arc length of each centre-line ring, mm; None for other meshes.
+    radius_min : ndarray of shape (R,) or None
+        colon: smallest wall distance of each ring, mm; None for other meshes.
+    """
+
+    path: str
+    mesh: trimesh.Trimesh
+    centre: np.ndarray
+    bounding_radius: float
+    arc: np.ndarray | None = None
+    radius_min: np.ndarray | None = None
+
+
+@functools.lru_cache(maxsize=4)
+def mesh_placement(name: str) -> MeshPlacement:
+    """Load the bundled mesh ``name`` and what the placements need of it (cached per process).
+
+    Parameters
+    ----------
+    name : {"colon", "liver"}
+        The bundled mesh (``meshes/<name>.ply``).
+
+    Returns
+    -------
+    MeshPlacement
+
+    Raises
+    ------
+    FileNotFoundError
+        If the mesh file is missing (``simtest meshes build`` writes it).
+    ValueError
+        If the colon mesh carries no centre line in its metadata.
+    """
+    path = bundled_mesh_path(name)
+    if not path.is_file():
+        raise FileNotFoundError(f"{path}: bundled {name} mesh missing (build it with `simtest meshes build`)")
+    mesh = load_mesh(path)
+    centre = np.asarray(mesh.bounds, dtype=np.float64).mean(axis=0)
+    radius = float(np.max(np.linalg.norm(np.asarray(mesh.vertices) - centre, axis=1)))
+    arc = radius_min = None
+    if name == "colon":
+        line = mesh.metadata.get("centerline")
+        if not isinstance(line, dict) or "arclength_mm" not in line:
+            raise ValueError(f"{path}: metadata: no colon centre line ('centerline')")
+        arc = np.asarray(line["arclength_mm"], dtype=np.float64)
+        radius_min = np.asarray(line["radius_min_mm"], dtype=np.float64)
+    return MeshPlacement(str(path), mesh, centre, radius, arc, radius_min)
+
+
+def camera_up(forward: np.ndarray, roll_deg: float | None = None) -> np.ndarray:
+    """The image's up direction for a camera looking along ``forward``.
+
+    Parameters
+    ----------
+    forward : ndarray of shape (3,)
+        Viewing direction (unit length, or nearly).
+    roll_deg : float or None
+        None: the first vector of ``plane_basis(forward)`` (z x forward, or x x forward near z),
+        as the harness places its cameras. A number: ``forward`` is first normalised, and the up
+        is that basis turned by ``roll_deg`` about it, as the dataset draws it; 0 gives the same
+        direction as None up to the last bits, which is why both are kept.
+
+    Returns
+    -------
+    ndarray of shape (3,)
+        Unit vector perpendicular to ``forward``.
+    """
+    if roll_deg is None:
+        return plane_basis(forward, axes=_AXES)[0]
+    e1, e2 = plane_basis(unit(forward), axes=_AXES)
+    r = math.radians(roll_deg)
+    return math.cos(r) * e1 + math.sin(r) * e2
+
+
+def colon_pose(station: float, view_deg: float, *, azimuth_deg: float | None = None,
+               radial_offset: float = 0.3, roll_deg: float | None = None) -> CameraPose:
+    """Camera inside the bundled colon, on its centre line, looking off the tangent.
+
+    At arc length ``s = s0 + station (s1 - s0)`` of the centre line, with tangent ``t`` and the
+    basis ``(e1, e2)`` of the plane across it, the camera looks along
+    ``cos(view) t + sin(view) r`` with ``r = cos(azimuth) e1 + sin(azimuth) e2``, and stands at the
+    centre-line point moved by ``-radial_offset x r_min(s) x r``: off the line, on the side opposite
+    to where it looks, by a fraction of the smallest wall distance of that ring (so it stays in the
+    lumen).
+
+    Parameters
+    ----------
+    station : float
+        Fraction of the centre line's arc length, in [0, 1].
+    view_deg : float
+        Angle of the viewing direction off the tangent, degrees.
+    azimuth_deg : float or None
+        Direction of the tilt about the tangent, degrees from ``e1``; None: ``r = e1`` exactly (the
+        harness's placement).
+    radial_offset : float
+        Offset from the centre line, as a fraction of the ring's smallest wall distance.
+    roll_deg : float or None
+        Roll of the image about the viewing direction (:func:`camera_up`).
+
+    Returns
+    -------
+    CameraPose
+        ``look_at`` is one millimetre ahead of the camera.
+
+    Raises
+    ------
+    FileNotFoundError, ValueError
+        As :func:`mesh_placement`.
+    """
+    info = mesh_placement("colon")
+    arc = info.arc
+    s = float(arc[0] + station * (arc[-1] - arc[0]))
+    line = colon_centerline(info.mesh, np.array([s]))
+    centre = np.asarray(line["points"][0], dtype=np.float64)
+    tangent = unit(line["tangents"][0])
+    e1, e2 = plane_basis(tangent, axes=_AXES)
+    if azimuth_deg is None:
+        radial = e1
+    else:
+        az = math.radians(azimuth_deg)
+        radial = math.cos(az) * e1 + math.sin(az) * e2
+    view = math.radians(view_deg)
+    forward = math.cos(view) * tangent + math.sin(view) * radial
+    r_min = float(np.interp(s, arc, info.radius_min))
+    position = centre - radial_offset * r_min * radial
+    return CameraPose(info.path, position, position + forward, camera_up(forward, roll_deg))
+
+
+def liver_orbit_pose(azimuth_deg: float, elevation_deg: float, distance_mm: float) -> CameraPose:
+    """Camera outside the bundled liver, on a sphere about it, aimed at its bounding-box centre.
+
+    The camera stands at ``c + (R + distance_mm) d``, with ``c`` the bounding-box centre, ``R`` the
+    bounding-sphere radius about it and ``d = (cos el cos az, cos el sin az, sin el)``, and looks
+    along ``-d``; up from :func:`camera_up` without roll.
+
+    Parameters
+    ----------
+    azimuth_deg, elevation_deg : float
+        Direction ``d`` of the camera from the centre, degrees.
+    distance_mm : float
+        Distance outside the bounding sphere, mm.
+
+    Returns
+    -------
+    CameraPose
+        ``look_at`` is one millimetre ahead of the camera.
+
+    Raises
+    ------
+    FileNotFoundError
+        As :func:`mesh_placement`.
+    """
+    info = mesh_placement("liver")
+    az, el = math.radians(azimuth_deg), math.radians(elevation_deg)
+    direction = np.array([math.cos(el) * math.cos(az), math.cos(el) * math.sin(az), math.sin(el)])
+    position = info.centre + (info.bounding_radius + distance_mm) * direction
+    forward = -direction
+    return CameraPose(info.path, position, position + forward, camera_up(forward))
+
+
+def liver_surface_pose(azimuth_deg: float, elevation_deg: float, distance_mm: float,
+                       view_deg: float, roll_deg: float) -> CameraPose:
+    """Camera looking at one surface point of the bundled liver from a set distance.
+
+    The point is the vertex whose direction from the bounding-box centre is closest to
+    ``d = (cos el cos az, cos el sin az, sin el)``; with ``n`` its outward normal and ``(e1, e2)``
+    the basis across it, the camera stands at ``p + distance_mm b`` with
+    ``b = cos(view) n + sin(view) (cos(roll) e1 + sin(roll) e2)`` and looks at ``p``.
+
+    Parameters
+    ----------
+    azimuth_deg, elevation_deg : float
+        Direction of the surface point from the centre, degrees.
+    distance_mm : float
+        Camera to surface point, mm.
+    view_deg : float
+        Tilt of the line of sight off the normal, degrees.
+    roll_deg : float
+        Direction of that tilt about the normal, degrees; the image's up is the tilt's side
+        direction made perpendicular to the line of sight (the side direction itself at no tilt).
+
+    Returns
+    -------
+    CameraPose
+        ``look_at`` is the surface point.
+
+    Raises
+    ------
+    FileNotFoundError
+        As :func:`mesh_placement`.
+    """
+    info = mesh_placement("liver")
+    mesh = info.mesh
+    az, el = math.radians(azimuth_deg), math.radians(elevation_deg)
+    direction = np.array([math.cos(el) * math.cos(az), math.cos(el) * math.sin(az), math.sin(el)])
+    v = np.asarray(mesh.vertices, dtype=np.float64) - info.centre
+    k = int(np.argmax((v @ direction) / np.linalg.norm(v, axis=1)))
+    target = np.asarray(mesh.vertices[k], dtype=np.float64)
+    normal = unit(np.asarray(mesh.vertex_normals[k], dtype=np.float64))
+    if normal @ v[k] < 0:  # outward
+        normal = -normal
+    e1, e2 = plane_basis(normal, axes=_AXES)
+    roll = math.radians(roll_deg)
+    side = math.cos(roll) * e1 + math.sin(roll) * e2
+    view = math.radians(view_deg)
+    back = math.cos(view) * normal + math.sin(view) * side
+    position = target + distance_mm * back
+    up = unit(np.cross(back, np.cross(side, back))) if view > 0 else side
+    return CameraPose(info.path, position, target, up)
