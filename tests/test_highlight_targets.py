@@ -7,7 +7,8 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from simtest.render.truth import HighlightTruth, highlight_targets
+from simtest.render.truth import highlight_targets
+from simtest.simulate.truth import HighlightTruth
 
 
 def _lobe(shape, uv, sigma, peak=1.0):

@@ -9,6 +9,8 @@ Rules (the README's Architecture section says why):
 
 - ``simtest.geometry`` and ``simtest.specular`` import nothing of simtest beyond each other and the
   base modules (``_io``, ``_checks``, ``_lazy``, ``_version``, ``tolerances``, ``constants``);
+- ``simtest.simulate`` (closed-form images and ground truths) imports only geometry, specular,
+  itself and the base modules: the renderer imports its truths, never the reverse;
 - ``simtest.reconstruct`` imports no ``simtest.render``, ``simtest.scene``, ``simtest.harness``,
   ``simtest.dataset``, Mitsuba or Dr.Jit, anywhere in a file: it runs on real images without the
   renderer.
@@ -31,6 +33,8 @@ RULES = {
     # room -> (allowed simtest prefixes or None for "anything of simtest", forbidden prefixes)
     "simtest.geometry": ({"simtest.geometry", "simtest.specular", *BASE}, {"mitsuba", "drjit"}),
     "simtest.specular": ({"simtest.geometry", "simtest.specular", *BASE}, {"mitsuba", "drjit"}),
+    "simtest.simulate": ({"simtest.geometry", "simtest.specular", "simtest.simulate", *BASE},
+                         {"mitsuba", "drjit"}),
     "simtest.reconstruct": (None, {"simtest.render", "simtest.scene", "simtest.harness",
                                    "simtest.dataset", "mitsuba", "drjit"}),
 }
@@ -150,6 +154,20 @@ def test_a_planted_forbidden_import_in_reconstruct_is_caught(planted, culprit):
 def test_geometry_may_import_only_itself_specular_and_the_base_modules(planted, ok):
     source = (PACKAGE / "geometry" / "conics.py").read_text(encoding="utf-8")
     found = violations(source + "\n\n" + planted, "simtest.geometry.conics")
+    assert (found == []) is ok, found
+
+
+@pytest.mark.parametrize("planted, ok", [
+    ("def f():\n    from simtest.render.render import render_scene\n", False),
+    ("def f():\n    import simtest.scene.meshes\n", False),
+    ("def f():\n    from simtest._lazy import require\n    require('mitsuba')\n", False),
+    ("def f():\n    from simtest.geometry.conics import plane_basis\n", True),
+    ("def f():\n    from .analytic import plane_bp\n", True),
+])
+def test_simulate_may_import_only_geometry_specular_itself_and_the_base_modules(planted, ok):
+    source = (PACKAGE / "simulate" / "truth.py").read_text(encoding="utf-8")
+    assert violations(source, "simtest.simulate.truth") == []
+    found = violations(source + "\n\n" + planted, "simtest.simulate.truth")
     assert (found == []) is ok, found
 
 

@@ -18,7 +18,8 @@ from hypothesis import strategies as st
 from simtest.geometry import angle_between_deg, pixel_to_ray
 from simtest.render import RendererUnavailable, choose_variant, render_scene, write_render
 from simtest.render.mitsuba_dict import plane_normal_cam
-from simtest.render.truth import bisector, bisector_cos_image, highlight_complete
+from simtest.render.truth import bisector_cos_image, highlight_complete
+from simtest.simulate.truth import bisector
 from simtest.scene import (
     bundled_scene_names,
     load_scene,
@@ -453,7 +454,7 @@ def test_failed_stationary_solve_is_an_error(monkeypatch):
     """A root solve that does not converge raises instead of returning a non-BP."""
     import scipy.optimize
 
-    from simtest.render import truth
+    from simtest.simulate import truth
 
     K = np.array([[100.0, 0, 63.5], [0, 100.0, 63.5], [0, 0, 1]])
     c, L = np.array([5.0, -3.0, 80.0]), np.array([8.0, 3.0, 1.0])
@@ -500,8 +501,8 @@ def test_old_llvm_is_refused_with_the_fix(monkeypatch):
     b=st.floats(-0.5, 0.5),
 )
 def test_analytic_highlights_satisfy_the_bisector_condition(tilt, az, eps, a, b):
-    # Pure numpy: the closed forms and root solves of simtest.render.truth, for any light offset.
-    from simtest.render.truth import cylinder_highlight, plane_highlight, sphere_highlight
+    # Pure numpy: the closed forms and root solves of simtest.simulate.truth, for any light offset.
+    from simtest.simulate.truth import cylinder_highlight, plane_highlight, sphere_highlight
     from simtest.scene import scene_from_dict as sfd
 
     K = np.array([[100.0, 0, 63.5], [0, 100.0, 63.5], [0, 0, 1]])

@@ -22,7 +22,7 @@ from simtest.render.endoscope import (
     scaled_omnidirectional,
     uses_endoscope,
 )
-from simtest.render.truth import bisector, plane_highlight
+from simtest.simulate.truth import bisector, plane_highlight
 from simtest.scene import SceneError, load_scene, scene_from_dict, with_overrides
 
 pytestmark = pytest.mark.render

@@ -1,6 +1,6 @@
 """What the principal curvatures at a co-located BP predict for the isophote cone.
 
-Sign convention (the one of :mod:`simtest.render.truth` and :mod:`simtest.scene.meshes`): the
+Sign convention (the one of :mod:`simtest.simulate.truth` and :mod:`simtest.scene.meshes`): the
 principal curvatures ``k1 >= k2`` (1/mm) are signed, positive where the surface bends away from
 its camera-facing normal, i.e. a patch that bulges toward the camera like the outside of a sphere
 (sphere of radius R seen from outside: ``k1 = k2 = +1/R``; cylinder seen from outside:

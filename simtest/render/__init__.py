@@ -23,7 +23,7 @@ from simtest.render.render import (
     render_scene,
     write_render,
 )
-from simtest.render.truth import HighlightTruth
+from simtest.simulate.truth import HighlightTruth
 
 __all__ = [
     "HighlightTruth",

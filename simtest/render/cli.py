@@ -25,7 +25,7 @@ from simtest.render.render import (
     write_render,
 )
 from simtest.render.simreal import banner_frames, sim_to_real_figure, sim_to_real_table
-from simtest.render.truth import HighlightTruthError
+from simtest.simulate.truth import HighlightTruthError
 from simtest.resources import data_root, real_banner_path
 from simtest.scene.spec import RENDER_VARIANTS, SceneError, load_scene
 

@@ -53,15 +53,16 @@ from simtest.render import wavefront
 from simtest.render.endoscope import camera_model, light_rig, sample_positions, uses_endoscope
 from simtest.render.sensor import LUMA_WEIGHTS, apply_sensor, frame_luma, video_frame
 from simtest.render.tissue import tissue_params
-from simtest.render.truth import (
-    HighlightTruth,
-    cylinder_highlight,
-    mesh_highlights,
-    plane_highlight,
-    sphere_highlight,
-)
+from simtest.render.truth import mesh_highlights
 from simtest.scene.meshes import MeshError, load_mesh
 from simtest.scene.spec import SceneSpec, scene_to_dict
+from simtest.simulate.truth import (
+    HighlightTruth,
+    cylinder_highlight,
+    plane_highlight,
+    saddle_mesh,
+    sphere_highlight,
+)
 
 __all__ = [
     "MAX_SEED",
@@ -73,7 +74,6 @@ __all__ = [
     "choose_variant",
     "render_scene",
     "write_render",
-    "saddle_mesh",
     "RENDER_FILES",
     "OutputFolderError",
 ]
@@ -340,45 +340,6 @@ def _make_mesh(vertices, faces, normals, bsdf_dict):
 
 # ------------------------------------------------------------------------------------------------
 # Meshes
-
-
-def saddle_mesh(distance_mm: float, radius1_mm: float, radius2_mm: float, extent_mm: float,
-                resolution: int) -> dict[str, np.ndarray]:
-    """Grid mesh of ``z = d + x^2 / (2 r1) - y^2 / (2 r2)`` in the camera frame, |x|, |y| <= e.
-
-    Returns
-    -------
-    dict
-        ``vertices`` (V, 3), ``faces`` (F, 3), ``normals`` (V, 3) facing the camera (-z side),
-        ``k1``, ``k2`` (V,) analytic principal curvatures (1/mm, positive where the surface bends
-        away from its normal, as in :mod:`simtest.scene.meshes`; at the apex k1 = 1/r1,
-        k2 = -1/r2).
-    """
-    s = np.linspace(-extent_mm, extent_mm, resolution)
-    x, y = np.meshgrid(s, s, indexing="xy")
-    fx, fy = x / radius1_mm, -y / radius2_mm
-    fxx, fyy = 1.0 / radius1_mm, -1.0 / radius2_mm
-    z = distance_mm + 0.5 * x * x / radius1_mm - 0.5 * y * y / radius2_mm
-    w = np.sqrt(1.0 + fx * fx + fy * fy)
-    n = np.stack([fx, fy, -np.ones_like(x)], axis=-1) / w[..., None]
-    # Fundamental forms of a graph; second form II_ij = -X_ij . N with N the camera-facing normal.
-    E, F, G = 1.0 + fx * fx, fx * fy, 1.0 + fy * fy
-    L, M, N = fxx / w, np.zeros_like(x), fyy / w
-    det = E * G - F * F
-    Kg = (L * N - M * M) / det
-    Hm = (E * N - 2.0 * F * M + G * L) / (2.0 * det)
-    disc = np.sqrt(np.maximum(Hm * Hm - Kg, 0.0))
-    idx = np.arange(resolution * resolution).reshape(resolution, resolution)
-    a, b, c, d = idx[:-1, :-1], idx[:-1, 1:], idx[1:, :-1], idx[1:, 1:]
-    faces = np.concatenate([np.stack([a, b, d], -1).reshape(-1, 3),
-                            np.stack([a, d, c], -1).reshape(-1, 3)])
-    return {
-        "vertices": np.stack([x, y, z], -1).reshape(-1, 3),
-        "faces": faces.astype(np.int64),
-        "normals": n.reshape(-1, 3),
-        "k1": (Hm + disc).ravel(),
-        "k2": (Hm - disc).ravel(),
-    }
 
 
 _MESH_CACHE: dict[tuple, Any] = {}
@@ -707,7 +668,7 @@ def render_scene(spec: SceneSpec, *, seed: int | None = None,
     RenderInputError
         If the mesh file is not a readable PLY with k1/k2, a face indexes a missing vertex, or the
         film would not fit in memory (:func:`check_film_fits`).
-    simtest.render.truth.HighlightTruthError
+    simtest.simulate.truth.HighlightTruthError
         If the brightest point of an analytic sphere or cylinder cannot be solved for (camera or
         light inside the surface).
 
