@@ -14,6 +14,7 @@ from hypothesis import strategies as st
 from scipy.spatial import cKDTree
 
 from simtest.scene import meshes as M
+from simtest.scene.meshes import curvature as MC
 
 REPO = Path(__file__).resolve().parents[1]
 R_COLON = 25.0  # default ColonParams.radius_mm
@@ -228,7 +229,7 @@ def test_generator_curvature_matches_trimesh_estimate(name, ball, tol_median, to
     err = np.abs((k1e + k2e) / 2 - mean)[ok]
     assert np.median(err) < tol_median
     assert np.percentile(err, 95) < tol_p95
-    k1b, k2b = M._principal_from_h_k(mean, gauss)
+    k1b, k2b = MC._principal_from_h_k(mean, gauss)
     for est, truth in ((k1e, k1b), (k2e, k2b)):
         err_k = np.abs(est - truth)[ok]
         assert np.median(err_k) < 2 * tol_median

@@ -1,0 +1,248 @@
+"""Parameters of the mesh generators, their checks, the seeds, and the error of a bad mesh input."""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from collections.abc import Mapping
+from typing import Any
+
+import numpy as np
+
+
+
+#: Seed of the committed meshes (``simtest meshes build`` default).
+DEFAULT_SEED = 0
+
+#: Stable integer keys mixed with the root seed (np.random.SeedSequence([seed, key])).
+_SEED_KEYS = {"colon": 1001, "liver": 1002}
+
+
+class MeshError(ValueError):
+    """Bad mesh parameters or a bad mesh file; the message names the file or parameter.
+
+    A subclass of ValueError, so callers that catch ValueError also catch it.
+    """
+
+
+def _check_params(obj: Any, rules: Mapping[str, tuple[float | None, float | None, bool]]) -> None:
+    """Raise MeshError naming the first field outside its range (lo, hi, lo inclusive)."""
+    name = type(obj).__name__
+    for field in dataclasses.fields(obj):
+        value = getattr(obj, field.name)
+        want_int = field.type in ("int", int)
+        if isinstance(value, bool) or not isinstance(value, int | float):
+            raise MeshError(f"{name}: {field.name}: expected a number, got {value!r}")
+        if want_int and not float(value).is_integer():
+            raise MeshError(f"{name}: {field.name}: expected an integer, got {value!r}")
+        if not math.isfinite(value):
+            raise MeshError(f"{name}: {field.name}: must be finite, got {value!r}")
+        lo, hi, lo_incl = rules.get(field.name, (None, None, True))
+        if lo is not None and (value < lo or (value == lo and not lo_incl)):
+            op = ">=" if lo_incl else ">"
+            raise MeshError(f"{name}: {field.name}: must be {op} {lo}, got {value!r}")
+        if hi is not None and value > hi:
+            raise MeshError(f"{name}: {field.name}: must be <= {hi}, got {value!r}")
+
+
+@dataclasses.dataclass(frozen=True)
+class ColonParams:
+    """Parameters of :func:`build_colon` (lengths in mm).
+
+    Attributes
+    ----------
+    length_mm : float
+        Extent of the centre line along z (its parameter t runs over [0, length_mm]).
+    radius_mm : float
+        Wall distance from the centre line between folds and away from the taeniae.
+    bend_mm : float
+        Lateral amplitude of the centre line in x (in y it is ``bend_3d`` times this).
+    bend_wavelength_mm : float
+        Wavelength of the lateral meander in x (the y meander has 1/0.7 times this).
+    bend_3d : float
+        Ratio of the y amplitude to the x amplitude (0: a planar centre line).
+    fold_depth_mm : float
+        How far a fold crest reaches into the lumen (0: no folds).
+    fold_spacing_mm : float
+        Mean arc-length distance between folds.
+    fold_sharpness : float
+        von Mises concentration kappa of the fold profile exp(kappa (cos theta - 1)); larger is
+        narrower (crest curvature about depth * kappa * (2 pi / spacing)^2).
+    fold_jitter : float
+        Relative variation of the local fold spacing, in [0, 0.9] (seeded phase).
+    taenia_count : int
+        Number of taeniae (longitudinal bands) around the wall.
+    taenia_relief : float
+        Fraction of the fold depth removed on a taenia (folds are crescents between taeniae).
+    taenia_indent : float
+        Fractional inward pull of the wall on a taenia (a rounded-polygon cross-section).
+    n_around : int
+        Vertices per ring.
+    n_along : int
+        Number of rings.
+    ring_curvature_weight_mm : float
+        Ring placement: rings are equally spaced in w(t) = wall length + this * turning angle of
+        the mean wall profile, so folds get denser rings (0: equal wall length).
+    """
+
+    length_mm: float = 240.0
+    radius_mm: float = 25.0
+    bend_mm: float = 18.0
+    bend_wavelength_mm: float = 260.0
+    bend_3d: float = 0.5
+    fold_depth_mm: float = 5.0
+    fold_spacing_mm: float = 32.0
+    fold_sharpness: float = 1.5
+    fold_jitter: float = 0.2
+    taenia_count: int = 3
+    taenia_relief: float = 0.6
+    taenia_indent: float = 0.04
+    n_around: int = 96
+    n_along: int = 300
+    ring_curvature_weight_mm: float = 40.0
+
+    def validate(self) -> None:
+        """Check every field against its range.
+
+        Raises
+        ------
+        MeshError
+            Naming the parameter that is out of range and its value.
+        """
+        _check_params(
+            self,
+            {
+                "length_mm": (0.0, None, False),
+                "radius_mm": (0.0, None, False),
+                "bend_mm": (0.0, None, True),
+                "bend_wavelength_mm": (0.0, None, False),
+                "bend_3d": (0.0, None, True),
+                "fold_depth_mm": (0.0, None, True),
+                "fold_spacing_mm": (0.0, None, False),
+                "fold_sharpness": (0.0, None, False),
+                "fold_jitter": (0.0, 0.9, True),
+                "taenia_count": (1, 12, True),
+                "taenia_relief": (0.0, 1.0, True),
+                "taenia_indent": (0.0, 0.5, True),
+                "n_around": (8, 4096, True),
+                "n_along": (4, 100000, True),
+                "ring_curvature_weight_mm": (0.0, None, True),
+            },
+        )
+        r_min = self.radius_mm * (1.0 - self.taenia_indent) - self.fold_depth_mm
+        limit = self.radius_mm * (0.9 - self.taenia_indent)
+        if r_min <= 0.1 * self.radius_mm:
+            raise MeshError(
+                f"ColonParams: fold_depth_mm: {self.fold_depth_mm!r} closes the lumen "
+                f"(smallest wall distance {r_min:.3g} mm with radius_mm={self.radius_mm!r}, "
+                f"taenia_indent={self.taenia_indent!r}); keep it below {limit:.3g}"
+            )
+        # Largest centre-line curvature: |x''| + |y''| bound, parameter t ~ arc length.
+        w = 2.0 * math.pi / self.bend_wavelength_mm
+        kappa_max = self.bend_mm * w * w * (1.0 + self.bend_3d * 0.49)
+        if kappa_max * self.radius_mm >= 0.8:
+            raise MeshError(
+                f"ColonParams: bend_mm: the centre line bends too sharply for the tube "
+                f"(curvature up to {kappa_max:.3g} /mm times radius {self.radius_mm!r} mm >= 0.8 "
+                f"would fold the wall); lower bend_mm or raise bend_wavelength_mm"
+            )
+
+
+@dataclasses.dataclass(frozen=True)
+class LiverParams:
+    """Parameters of :func:`build_liver`.
+
+    Attributes
+    ----------
+    extent_mm : float
+        Largest extent of the mesh's axis-aligned bounding box (the mesh is scaled to it).
+    axis_y, axis_z : float
+        Semi-axes of the base ellipsoid relative to the x semi-axis (left-right).
+    lobe_amplitude : float
+        Standard deviation of the degree-1 coefficients of the seeded radial log-deformation
+        (degree d gets lobe_amplitude / d).
+    lobe_degree : int
+        Highest polynomial degree of the seeded deformation (spherical harmonics up to it).
+    taper : float
+        Deterministic left-right asymmetry: log-radius + taper * w_x (w the unit direction).
+    wedge : float
+        Deterministic wedge: log-radius - wedge * w_x * w_z^2, so the surface is thick on the
+        -x side (a large lobe) and thin on the +x side (a small lobe), as a liver is.
+    bulge : float
+        Deterministic top-bottom asymmetry: log-radius + bulge * (w_z^2 - w_z^3) / 2, so the -z
+        side bulges more than the +z side.
+    n_vertices : int
+        Number of vertices (a spherical Fibonacci lattice of directions, triangulated by its
+        convex hull, i.e. a spherical Delaunay triangulation).
+    density_exponent : float
+        Vertex placement between uniform in direction (0; the most even normal change per edge
+        on the default shapes) and uniform in the normal of the base ellipsoid (1: density
+        proportional to its Gaussian curvature).
+    """
+
+    extent_mm: float = 180.0
+    axis_y: float = 0.72
+    axis_z: float = 0.45
+    lobe_amplitude: float = 0.2
+    lobe_degree: int = 4
+    taper: float = 0.25
+    wedge: float = 0.8
+    bulge: float = 0.3
+    n_vertices: int = 16000
+    density_exponent: float = 0.0
+
+    def validate(self) -> None:
+        """Check every field against its range.
+
+        Raises
+        ------
+        MeshError
+            Naming the parameter that is out of range and its value.
+        """
+        _check_params(
+            self,
+            {
+                "extent_mm": (0.0, None, False),
+                "axis_y": (0.05, 20.0, True),
+                "axis_z": (0.05, 20.0, True),
+                "lobe_amplitude": (0.0, 0.5, True),
+                "lobe_degree": (0, 8, True),
+                "taper": (-1.0, 1.0, True),
+                "wedge": (-2.0, 2.0, True),
+                "bulge": (-1.0, 1.0, True),
+                "n_vertices": (12, 2_000_000, True),
+                "density_exponent": (0.0, 1.0, True),
+            },
+        )
+
+
+def _make_params(cls: type, params: Mapping[str, Any], where: str) -> Any:
+    known = {f.name for f in dataclasses.fields(cls)}
+    unknown = sorted(set(params) - known)
+    if unknown:
+        raise MeshError(f"{where}: unknown parameter(s) {unknown}; known: {sorted(known)}")
+    coerced = {}
+    for field in dataclasses.fields(cls):
+        if field.name not in params:
+            continue
+        value = params[field.name]
+        is_number = isinstance(value, int | float | np.integer | np.floating)
+        if is_number and not isinstance(value, bool):
+            if field.type in ("int", int) and float(value).is_integer():
+                value = int(value)
+            elif field.type in ("float", float):
+                value = float(value)
+        coerced[field.name] = value
+    obj = cls(**coerced)
+    obj.validate()
+    return obj
+
+
+def _check_seed(seed: Any, where: str) -> int:
+    if isinstance(seed, bool) or not isinstance(seed, int | np.integer) or seed < 0:
+        raise MeshError(f"{where}: seed: expected a non-negative integer, got {seed!r}")
+    return int(seed)
+
+
+def _rng(seed: int, name: str) -> np.random.Generator:
+    return np.random.default_rng(np.random.SeedSequence([seed, _SEED_KEYS[name]]))
