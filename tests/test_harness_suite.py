@@ -133,3 +133,49 @@ def test_light_rigs_and_offsets_are_never_counted_as_colocated():
         assert not colocated and family.endswith("light offset"), (c.key, family)
     plain = [case_family(c) for c in load_suite("rendered").cases]
     assert any(col for _, col in plain)  # the co-located suite still has co-located cases
+
+
+def test_each_case_carries_its_typed_settings():
+    from simtest.harness.suite import MeshPose, Scoring, harness_recon_settings
+    from simtest.reconstruct.settings import Normalisation, ReconSettings
+    from simtest.simulate.paper import PaperParams
+
+    for name in ("quick", "nightly", "rendered"):
+        for c in load_suite(name).cases:
+            p = c.params
+            assert isinstance(c.recon, ReconSettings)
+            assert c.recon.isovalues[0] == p["isovalue"]
+            assert set(c.recon.isovalues) == {p["isovalue"], *p["joint_isovalues"]}
+            if c.protocol == "paper":
+                assert isinstance(c.paper, PaperParams) and c.scene_setting is c.scoring is None
+                assert all(getattr(c.paper, k) == v for k, v in p.items()
+                           if k not in ("isovalue", "joint_isovalues"))
+                assert c.recon.normalise is Normalisation.FULL_SCALE and c.recon.full_scale == 1.0
+            else:
+                s = c.scene_setting
+                assert c.paper is None and c.scoring == Scoring(p["image"], p["match_px"])
+                assert s.overrides == {k: v for k, v in p.items() if "." in k}
+                assert s.mesh == MeshPose(**{k: p[k] for k in (
+                    "colon_station", "liver_azimuth_deg", "mesh_view_deg", "mesh_distance_mm",
+                    "liver_elevation_deg")})
+                assert c.recon == harness_recon_settings("rendered", p["isovalue"],
+                                                         p["joint_isovalues"])
+                assert c.recon.detection == "full_scale" and c.recon.smooth_sigma_px == 0.0
+
+
+def test_a_sphere_at_a_distance_is_placed_by_its_overrides():
+    s = suite_from_dict({"suite": {"protocol": "rendered", "scene": "sphere"},
+                         "sweep": [{"name": "r", "parameter": "radius_over_distance",
+                                    "values": [0.5], "set": {"distance_mm": 40.0,
+                                                             "material.n": 80.0}}]})
+    over = s.cases[0].scene_setting.scene_overrides()
+    assert over == {"material.n": 80.0, "geometry.radius_mm": 20.0,
+                    "geometry.center_mm": [0.0, 0.0, 60.0]}
+    assert list(over)[0] == "material.n"  # the suite's own overrides apply first
+
+
+def test_repeated_joint_isovalues_are_refused_when_the_suite_loads():
+    where = r"^<dict>: sweep\.z\.values\[0\]\.joint_isovalues: "
+    with pytest.raises(SuiteError, match=where + r"isovalues: 0\.3 is given twice"):
+        suite_from_dict({"sweep": [{"name": "z", "parameter": "isovalue", "values": [0.1],
+                                    "set": {"joint_isovalues": [0.3, 0.3]}}]})

@@ -8,11 +8,14 @@ import pytest
 from simtest.geometry import angle_between_deg
 from simtest.geometry.lights import Light, LightRig
 from simtest.harness.protocols import reconstruct_image, render_rig
+from simtest.harness.suite import harness_recon_settings
 from simtest.reconstruct.recommend import recommend, with_light_aware
 from simtest.render import render_scene
 from simtest.scene import load_scene, with_overrides
 
 ISOVALUES = (0.3, 0.5, 0.7)
+#: The settings of a rendered harness case with those isovalues.
+SETTINGS = harness_recon_settings("rendered", ISOVALUES[0], ISOVALUES[1:])
 #: The issue's must-holds on rendered planes: mean normal error and depth error (eps/d >= 0.1).
 MEAN_NORMAL_DEG = 0.3
 DEPTH_REL = 0.03
@@ -38,7 +41,7 @@ def plane_results():
     for eps in (1.0, 2.0, 6.0, 10.0):  # epsilon/d = 0.05, 0.1, 0.3, 0.5 at 20 mm
         res = _render({"light.epsilon_mm": eps})
         rig = render_rig(res)
-        ests = with_light_aware(res.sensor, reconstruct_image(res.sensor, res.K, ISOVALUES), res.K, rig)
+        ests = with_light_aware(res.sensor, reconstruct_image(res.sensor, res.K, SETTINGS), res.K, rig)
         h = res.highlights[0]
         est = _matched(ests, h.bp_px)
         out.append((eps / 20.0, est, h))
@@ -68,7 +71,7 @@ def test_two_light_merged_highlight_on_renders():
     sensor = np.rint(np.clip(0.5 * 0.9 * linear, 0.0, 1.0) * 255).astype(np.uint8)
     rig = LightRig(tuple(Light(tuple(float(x) for x in r.light_pos), 0.5, "inverse_square")
                          for r in renders))
-    ests = reconstruct_image(sensor, renders[0].K, ISOVALUES)
+    ests = reconstruct_image(sensor, renders[0].K, SETTINGS)
     assert len(ests) == 1, "the two highlights merge into one blob"
     est = with_light_aware(sensor, ests, renders[0].K, rig)[0]
     pho = est.light_aware["photometric_fit"]

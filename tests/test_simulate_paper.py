@@ -96,8 +96,8 @@ def test_fronto_noiseless_gives_zero_error():
     case = suite.cases[0]
     runner = PaperRunner(case, suite.estimators)
     row = runner.run(realisation_seed(0, case.key, 0))[0]
-    assert all(c is None for c in row["causes"].values()), row["causes"]
-    e = row["errors"]
+    assert all(c is None for c in row.causes.values()), row.causes
+    e = row.errors
     # BP ray: the BP is the principal point and the normal is the optical axis: exact.
     assert e["bp_ray"] < 1e-9
     # Cone axis: a conic centre offset delta tilts the axis by about delta / f rad; OpenCV warps
@@ -107,7 +107,7 @@ def test_fronto_noiseless_gives_zero_error():
     # Circle pose: N+- leave the cone axis by asin(sqrt(gap)) (square-root sensitivity). What is
     # left of the gap is float32 rounding of the image (relative 6e-8) through the fit; gap < 1e-6
     # allows a factor 16, and bounds the oracle error by asin(1e-3) = 0.057 deg.
-    gap = row["extras"]["eigenvalue_gap"]
+    gap = row.extras["eigenvalue_gap"]
     assert gap < 1e-6
     assert e["paper_oracle"] <= math.degrees(math.asin(math.sqrt(gap))) + e["cone_axis"] + 1e-6
     assert e["paper_oracle"] < 0.058

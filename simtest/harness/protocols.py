@@ -3,8 +3,7 @@
 A runner is built once per case (and cached per worker process), holding what every realisation of
 the case shares (the noiseless warped image of the ``paper`` protocol, the validated scene spec of
 the ``rendered`` protocol). :meth:`run` takes the realisation's SeedSequence and returns a list of
-rows, one per scored specularity:
-``{"errors": {estimator: deg or nan}, "causes": {estimator: None or cause}, "extras": {...}}``
+rows (:class:`Row`: errors, causes and extras), one per scored specularity.
 
 ``paper``: one row per realisation (one specularity, reconstructed in a ROI around the known BP).
 ``rendered``: one row per in-frame ground-truth highlight; the whole image goes through
@@ -15,6 +14,7 @@ detection (``simtest.reconstruct``) and each true BP is matched to the nearest d
 from __future__ import annotations
 
 import math
+from dataclasses import dataclass, field
 
 import numpy as np
 
@@ -27,16 +27,17 @@ from simtest.geometry.curvature import (
 )
 from simtest.geometry.lights import Light, LightRig
 from simtest.harness.estimators import score
-from simtest.harness.suite import LIGHT_AWARE_NAMES
+from simtest.harness.suite import LIGHT_AWARE_NAMES, MeshPose
 from simtest.reconstruct import reconstruct, reconstruct_roi
 from simtest.reconstruct.recommend import with_light_aware
+from simtest.reconstruct.settings import ReconSettings
 from simtest.render import render_scene
 from simtest.scene import load_scene, with_overrides
 from simtest.scene.poses import colon_pose, liver_orbit_pose
-from simtest.simulate.paper import PaperParams, PaperSimulator
+from simtest.simulate.paper import PaperSimulator
 
-__all__ = ["make_runner", "PaperRunner", "RenderedRunner", "reconstruct_known_bp",
-           "reconstruct_image", "isovalue_list", "render_rig"]
+__all__ = ["make_runner", "PaperRunner", "RenderedRunner", "Row", "reconstruct_known_bp",
+           "reconstruct_image", "render_rig", "mesh_pose_overrides"]
 
 #: Margin of the paper protocol's ROI around the noiseless highlight, px: 5 smoothing widths of
 #: the default 2 px, far beyond the contour noise (about 2 px RMS at sigma = 5 %).
@@ -48,30 +49,12 @@ EXTRA_KEYS = ("eigenvalue_gap", "residual_px", "bp_error_px", "k1_per_mm", "k2_p
               "rho", "predicted_gap", "predicted_pose_deg", "false_positives", "saturated_px")
 
 
-def isovalue_list(isovalue: float, joint_isovalues) -> tuple[float, ...]:
-    """The isovalues passed to the reconstruction, primary first.
-
-    Parameters
-    ----------
-    isovalue : float
-        The primary isovalue ``t`` in (0, 1), relative to the BP intensity.
-    joint_isovalues : iterable of float
-        Further nested isovalues for the joint cone axis (a repeat of ``t`` is dropped).
-
-    Returns
-    -------
-    tuple of float
-        ``(t, *others)``: the joint fit uses every isophote that succeeded, the primary included.
-    """
-    t = float(isovalue)
-    return (t,) + tuple(float(v) for v in joint_isovalues if float(v) != t)
-
-
-def reconstruct_known_bp(image, K, bp_px, roi, isovalues):
+def reconstruct_known_bp(image, K, bp_px, roi, settings: ReconSettings):
     """Reconstruct the one specularity whose BP is known (``reconstruct_roi``).
 
     The image is already normalised to 1 at the BP by the protocol (paper step 4), so the
-    isovalues are taken relative to a full scale of 1 and no further smoothing is applied.
+    settings of a paper case (:func:`simtest.harness.suite.harness_recon_settings`) take the
+    isovalues relative to a full scale of 1 and apply no further smoothing.
 
     Parameters
     ----------
@@ -83,8 +66,8 @@ def reconstruct_known_bp(image, K, bp_px, roi, isovalues):
         Known brightest point (u, v), px.
     roi : tuple of int
         ``(row0, row1, col0, col1)``, half-open, as from :meth:`PaperRunner.roi`.
-    isovalues : sequence of float
-        As from :func:`isovalue_list`.
+    settings : ReconSettings
+        The case's settings (:attr:`simtest.harness.suite.Case.recon`), passed as they are.
 
     Returns
     -------
@@ -92,17 +75,18 @@ def reconstruct_known_bp(image, K, bp_px, roi, isovalues):
         Failures are values (``status`` names the cause), not exceptions.
     """
 
-    return reconstruct_roi(image, K, isovalues, bp_uv=bp_px, roi=roi, normalise="full_scale",
-                           full_scale=1.0, smooth_sigma_px=0.0)
+    return reconstruct_roi(image, K, bp_uv=bp_px, roi=roi, settings=settings)
 
 
-def reconstruct_image(image, K, isovalues):
+def reconstruct_image(image, K, settings: ReconSettings):
     """Detect and reconstruct every specularity of a whole image (``reconstruct``).
 
     Detection thresholds are relative to the brightest pixel of the image (``full_scale`` =
-    image maximum), not to the dtype's range: a rendered highlight need not reach saturation
-    (the sensor's exposure is a swept parameter). Isovalues are relative to each detected BP
-    (the reconstruction's default).
+    image maximum, set on ``settings`` here), not to the dtype's range: a rendered highlight need
+    not reach saturation (the sensor's exposure is a swept parameter). The settings of a rendered
+    case (:func:`simtest.harness.suite.harness_recon_settings`): the paper's, as the committed
+    reports were made with (not reconstruct's defaults for real frames): threshold at 0.7 of full
+    scale, t relative to the BP, no smoothing.
 
     Parameters
     ----------
@@ -110,8 +94,9 @@ def reconstruct_image(image, K, isovalues):
         Linear float or 8-bit sensor image.
     K : ndarray of shape (3, 3)
         Intrinsics, pixels (integer pixel centres).
-    isovalues : sequence of float
-        As from :func:`isovalue_list`.
+    settings : ReconSettings
+        The case's settings (:attr:`simtest.harness.suite.Case.recon`); its ``full_scale`` is
+        replaced by the image maximum.
 
     Returns
     -------
@@ -122,10 +107,7 @@ def reconstruct_image(image, K, isovalues):
     peak = float(np.max(image))
     if not peak > 0:
         return []
-    # the paper's settings, as the committed reports were made with (not reconstruct's defaults for
-    # real frames): threshold at 0.7 of full scale, t relative to the BP, no smoothing
-    return list(reconstruct(image, K, isovalues, full_scale=peak, detection="full_scale",
-                            normalise="bp", smooth_sigma_px=0.0))
+    return list(reconstruct(image, K, settings=settings.replace(full_scale=peak)))
 
 
 def _extras(est) -> dict:
@@ -189,10 +171,30 @@ def _curvature_prediction(h) -> dict:
             "predicted_pose_deg": predicted_pose_error_deg(rho)}
 
 
-def _row(errs: dict, extras: dict) -> dict:
-    return {"errors": {k: v[0] for k, v in errs.items()},
-            "causes": {k: v[1] for k, v in errs.items()},
-            "extras": extras}
+@dataclass
+class Row:
+    """One scored highlight of a realisation (a paper realisation has one; a render one per
+    in-frame highlight).
+
+    Attributes
+    ----------
+    errors : dict of str to float
+        Angular error per estimator, degrees; NaN where it failed.
+    causes : dict of str to (str or None)
+        Failure cause per estimator (:data:`simtest.reconstruct.failures.REASONS`, or
+        ``exception:<type>``); None where it succeeded.
+    extras : dict of str to float
+        Diagnostics (:data:`EXTRA_KEYS`); a key missing counts as NaN.
+    """
+
+    errors: dict[str, float]
+    causes: dict[str, str | None]
+    extras: dict[str, float] = field(default_factory=dict)
+
+
+def _row(errs: dict, extras: dict) -> Row:
+    return Row(errors={k: v[0] for k, v in errs.items()},
+               causes={k: v[1] for k, v in errs.items()}, extras=extras)
 
 
 class PaperRunner:
@@ -201,25 +203,19 @@ class PaperRunner:
     Parameters
     ----------
     case : simtest.harness.suite.Case
-        A ``paper`` case: its params are the :class:`simtest.simulate.paper.PaperParams` fields
-        plus ``isovalue`` and ``joint_isovalues``.
+        A ``paper`` case: its :attr:`~simtest.harness.suite.Case.paper` parameters and its
+        reconstruction settings :attr:`~simtest.harness.suite.Case.recon` (validated when the
+        suite was loaded).
     estimators : sequence of str
         Keys of :data:`simtest.harness.estimators.ESTIMATORS`.
-
-    Raises
-    ------
-    TypeError
-        If the case params hold a key that is not a PaperParams field.
-    ValueError
-        If PaperParams rejects a value.
     """
 
     protocol = "paper"
 
     def __init__(self, case, estimators) -> None:
-        p = dict(case.params)
-        self.isovalues = isovalue_list(p.pop("isovalue"), p.pop("joint_isovalues"))
-        self.params = PaperParams(**p)
+        self.settings = case.recon
+        self.isovalues = case.recon.isovalues
+        self.params = case.paper
         self.sim = PaperSimulator(self.params)
         self.estimators = tuple(estimators)
 
@@ -265,10 +261,9 @@ class PaperRunner:
 
         Returns
         -------
-        list of dict
-            One row ``{"errors": {estimator: deg or nan}, "causes": {estimator: None or cause},
-            "extras": {...}}``. A realisation whose BP is not in front of the camera fails every
-            estimator with ``"bp_nonpositive"``.
+        list of Row
+            One row. A realisation whose BP is not in front of the camera fails every estimator
+            with ``"bp_nonpositive"``.
         """
         rng = np.random.Generator(np.random.PCG64(seedseq))
         try:
@@ -276,7 +271,7 @@ class PaperRunner:
         except FloatingPointError:
             errs = {k: (float("nan"), "bp_nonpositive") for k in self.estimators}
             return [_row(errs, {k: float("nan") for k in EXTRA_KEYS})]
-        est = reconstruct_known_bp(s.image, s.K, s.bp_px, self.roi(s.clean, s.bp_px), self.isovalues)
+        est = reconstruct_known_bp(s.image, s.K, s.bp_px, self.roi(s.clean, s.bp_px), self.settings)
         errs = score(est, s.normal, self.estimators)
         extras = _extras(est)
         bp = getattr(est, "bp_px", None)
@@ -294,10 +289,11 @@ class RenderedRunner:
     Parameters
     ----------
     case : simtest.harness.suite.Case
-        A ``rendered`` case: ``case.scene`` is the base scene file; its params are dotted scene
-        overrides plus ``isovalue``, ``joint_isovalues``, ``image`` (``"linear"`` or
-        ``"sensor"``), ``match_px``, ``radius_over_distance``, ``distance_mm`` and the mesh pose
-        keys of :func:`mesh_pose_overrides`.
+        A ``rendered`` case: ``case.scene`` is the base scene file, changed as its
+        :attr:`~simtest.harness.suite.Case.scene_setting` says (dotted overrides, sphere or
+        cylinder placement, mesh pose: :func:`mesh_pose_overrides`); it is reconstructed with
+        :attr:`~simtest.harness.suite.Case.recon` and scored as
+        :attr:`~simtest.harness.suite.Case.scoring` says.
     estimators : sequence of str
         Keys of :data:`simtest.harness.estimators.ESTIMATORS`.
 
@@ -310,23 +306,11 @@ class RenderedRunner:
     protocol = "rendered"
 
     def __init__(self, case, estimators) -> None:
-        p = dict(case.params)
-        self.isovalues = isovalue_list(p.pop("isovalue"), p.pop("joint_isovalues"))
-        self.image_kind = p.pop("image")
-        self.match_px = float(p.pop("match_px"))
-        rod = p.pop("radius_over_distance")
-        dist = p.pop("distance_mm")
-        mesh = {k: p.pop(k) for k in ("colon_station", "liver_azimuth_deg", "mesh_view_deg",
-                                      "mesh_distance_mm", "liver_elevation_deg")}
+        self.settings = case.recon
+        self.image_kind = case.scoring.image
+        self.match_px = case.scoring.match_px
         spec = load_scene(case.scene)
-        over = dict(p)
-        if rod is not None:
-            r = rod * dist
-            over["geometry.radius_mm"] = r
-            over["geometry.center_mm"] = [0.0, 0.0, dist + r]
-        if mesh["colon_station"] is not None or mesh["liver_azimuth_deg"] is not None:
-            over.update(mesh_pose_overrides(mesh))
-        self.spec = with_overrides(spec, over)
+        self.spec = with_overrides(spec, case.scene_setting.scene_overrides(mesh_pose_overrides))
         self.estimators = tuple(estimators)
         self.variant = None
 
@@ -344,7 +328,7 @@ class RenderedRunner:
 
         Returns
         -------
-        list of dict
+        list of Row
             One row per in-frame highlight (see the module docstring), or one row failing with
             ``"no_highlight_in_frame"`` if there is none. Extras hold the BP error (px), the
             principal curvatures at the BP (1/mm) and the dimensionless curvature.
@@ -361,7 +345,7 @@ class RenderedRunner:
         else:
             image = result.sensor
         image = np.asarray(image)
-        ests = reconstruct_image(image, result.K, self.isovalues)
+        ests = reconstruct_image(image, result.K, self.settings)
         light_aware = any(e in LIGHT_AWARE_NAMES for e in self.estimators)
         if light_aware:
             rig = render_rig(result)
@@ -450,7 +434,7 @@ def _depth_errors(est, h, rig) -> dict:
     return out
 
 
-def mesh_pose_overrides(p: dict) -> dict:
+def mesh_pose_overrides(p: MeshPose) -> dict:
     """Scene overrides placing the camera in or around a bundled mesh (``meshes/*.ply``).
 
     colon (``colon_station`` s in [0, 1]): :func:`simtest.scene.poses.colon_pose`, on the centre
@@ -462,9 +446,8 @@ def mesh_pose_overrides(p: dict) -> dict:
 
     Parameters
     ----------
-    p : dict
-        ``colon_station``, ``liver_azimuth_deg``, ``mesh_view_deg``, ``mesh_distance_mm``,
-        ``liver_elevation_deg``; the colon is used when ``colon_station`` is not None.
+    p : simtest.harness.suite.MeshPose
+        The case's mesh pose; the colon is used when ``colon_station`` is not None.
 
     Returns
     -------
@@ -479,10 +462,10 @@ def mesh_pose_overrides(p: dict) -> dict:
         If the bundled mesh is missing or unreadable (:func:`simtest.scene.poses.mesh_placement`).
     """
 
-    if p["colon_station"] is not None:
-        pose = colon_pose(p["colon_station"], p["mesh_view_deg"])
+    if p.colon_station is not None:
+        pose = colon_pose(p.colon_station, p.mesh_view_deg)
     else:
-        pose = liver_orbit_pose(p["liver_azimuth_deg"], p["liver_elevation_deg"], p["mesh_distance_mm"])
+        pose = liver_orbit_pose(p.liver_azimuth_deg, p.liver_elevation_deg, p.mesh_distance_mm)
     over = {f"geometry.{k}": None for k in ("tilt_deg", "azimuth_deg", "distance_mm", "extent_mm",
                                             "center_mm", "radius_mm", "axis", "length_mm",
                                             "radius1_mm", "radius2_mm", "resolution")}

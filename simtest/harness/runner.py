@@ -34,10 +34,10 @@ from rich.progress import (
 )
 
 from simtest.constants import SINGLE_THREAD_ENV
-from simtest.harness.protocols import make_runner
+from simtest.harness.protocols import Row, make_runner
 from simtest.harness.suite import Case, Suite, realisation_seed
 
-__all__ = ["CaseResult", "SuiteRun", "run_suite", "run_case_chunk", "default_workers"]
+__all__ = ["CaseResult", "ChunkResult", "SuiteRun", "run_suite", "run_case_chunk", "default_workers"]
 
 #: Realisations per task, by protocol: large enough to amortise the per-case set-up in a worker,
 #: small enough to balance two workers.
@@ -151,10 +151,35 @@ def _get_runner(case: Case, estimators: tuple):
     return r
 
 
-def _exception_rows(estimators, exc: BaseException) -> list[dict]:
+def _exception_rows(estimators, exc: BaseException) -> list[Row]:
     cause = f"exception:{type(exc).__name__}"
-    return [{"errors": {k: float("nan") for k in estimators},
-             "causes": {k: cause for k in estimators}, "extras": {}}]
+    return [Row(errors={k: float("nan") for k in estimators},
+                causes={k: cause for k in estimators}, extras={})]
+
+
+@dataclass
+class ChunkResult:
+    """What :func:`run_case_chunk` returns for a range of realisations of one case.
+
+    Attributes
+    ----------
+    case_id : tuple of (str, int)
+        ``(case.key, case.realisations)``: the cases sharing it run once.
+    items : list of (int, list of Row)
+        Realisation index and its rows, in index order.
+    seconds : float
+        Time spent, seconds.
+    variant : str or None
+        Mitsuba variant used (rendered protocol).
+    messages : list of str
+        First messages of exceptions raised.
+    """
+
+    case_id: tuple[str, int]
+    items: list[tuple[int, list[Row]]]
+    seconds: float
+    variant: str | None
+    messages: list[str]
 
 
 def run_case_chunk(case: Case, estimators: tuple, root_seed: int, start: int, stop: int):
@@ -176,8 +201,7 @@ def run_case_chunk(case: Case, estimators: tuple, root_seed: int, start: int, st
 
     Returns
     -------
-    tuple
-        ``((case.key, case.realisations), [(index, rows), ...], seconds, variant, messages)``.
+    ChunkResult
     """
     t0 = time.perf_counter()
     messages: list[str] = []
@@ -187,8 +211,8 @@ def run_case_chunk(case: Case, estimators: tuple, root_seed: int, start: int, st
     except Exception as e:  # noqa: BLE001 - counted per realisation, never dropped
         messages.append(f"set-up: {type(e).__name__}: {e}")
         rows = _exception_rows(estimators, e)
-        return (case.key, case.realisations), [(i, rows) for i in range(start, stop)], \
-            time.perf_counter() - t0, None, messages
+        return ChunkResult((case.key, case.realisations), [(i, rows) for i in range(start, stop)],
+                           time.perf_counter() - t0, None, messages)
     for i in range(start, stop):
         try:
             rows = runner.run(realisation_seed(root_seed, case.key, i))
@@ -199,8 +223,8 @@ def run_case_chunk(case: Case, estimators: tuple, root_seed: int, start: int, st
                                 f"({os.path.basename(tb.filename)}:{tb.lineno})")
             rows = _exception_rows(estimators, e)
         out.append((i, rows))
-    return (case.key, case.realisations), out, time.perf_counter() - t0, \
-        getattr(runner, "variant", None), messages
+    return ChunkResult((case.key, case.realisations), out, time.perf_counter() - t0,
+                       getattr(runner, "variant", None), messages)
 
 
 def _worker_init() -> None:
@@ -210,28 +234,28 @@ def _worker_init() -> None:
         pass
 
 
-def _assemble(case: Case, estimators: tuple, chunks: list) -> CaseResult:
-    items = sorted(((i, rows) for ch in chunks for (i, rows) in ch["items"]), key=lambda t: t[0])
+def _assemble(case: Case, estimators: tuple, chunks: list[ChunkResult]) -> CaseResult:
+    items = sorted(((i, rows) for ch in chunks for (i, rows) in ch.items), key=lambda t: t[0])
     idx: list[int] = []
     errs: dict[str, list] = {k: [] for k in estimators}
     causes: dict[str, list] = {k: [] for k in estimators}
-    keys = sorted({k for _, rows in items for row in rows for k in row.get("extras", {})})
+    keys = sorted({k for _, rows in items for row in rows for k in row.extras})
     extras: dict[str, list] = {k: [] for k in keys}
     for i, rows in items:
         for row in rows:
             idx.append(i)
             for k in estimators:
-                errs[k].append(row["errors"][k])
-                causes[k].append(row["causes"][k])
+                errs[k].append(row.errors[k])
+                causes[k].append(row.causes[k])
             for k in keys:  # NaN where a row lacks a diagnostic
-                extras[k].append(float(row.get("extras", {}).get(k, float("nan"))))
-    msgs = [m for ch in chunks for m in ch["messages"]][:MAX_EXCEPTIONS]
-    variant = next((ch["variant"] for ch in chunks if ch["variant"]), None)
+                extras[k].append(float(row.extras.get(k, float("nan"))))
+    msgs = [m for ch in chunks for m in ch.messages][:MAX_EXCEPTIONS]
+    variant = next((ch.variant for ch in chunks if ch.variant), None)
     return CaseResult(case=case, realisation=np.asarray(idx, dtype=np.int64),
                       errors={k: np.asarray(v, dtype=np.float64) for k, v in errs.items()},
                       causes=causes,
                       extras={k: np.asarray(v, dtype=np.float64) for k, v in extras.items()},
-                      exceptions=msgs, cpu_s=sum(ch["seconds"] for ch in chunks), variant=variant)
+                      exceptions=msgs, cpu_s=sum(ch.seconds for ch in chunks), variant=variant)
 
 
 def run_suite(suite: Suite, *, workers: int | None = None, progress: bool = True,
@@ -274,7 +298,7 @@ def run_suite(suite: Suite, *, workers: int | None = None, progress: bool = True
         for s in range(0, c.realisations, step):
             tasks.append((c, s, min(c.realisations, s + step)))
     total = sum(c.realisations for c in unique)
-    by_key: dict[tuple, list] = {(c.key, c.realisations): [] for c in unique}
+    by_key: dict[tuple, list[ChunkResult]] = {(c.key, c.realisations): [] for c in unique}
     started = datetime.now(timezone.utc).strftime("%Y-%m-%dT%H:%M:%SZ")
     t0 = time.perf_counter()
 
@@ -282,11 +306,9 @@ def run_suite(suite: Suite, *, workers: int | None = None, progress: bool = True
                     TextColumn("{task.fields[rate]}"), TimeElapsedColumn(), TimeRemainingColumn(),
                     console=console, disable=not progress, transient=False)
 
-    def record(result, bar):
-        key, items, seconds, variant, messages = result
-        by_key[key].append({"items": items, "seconds": seconds, "variant": variant,
-                            "messages": messages})
-        done = len(items)
+    def record(result: ChunkResult, bar):
+        by_key[result.case_id].append(result)
+        done = len(result.items)
         el = time.perf_counter() - t0
         prog.update(bar, advance=done)
         n = prog.tasks[0].completed
@@ -325,7 +347,7 @@ def run_suite(suite: Suite, *, workers: int | None = None, progress: bool = True
     cpu, real = {}, {}
     for c in unique:
         ch = by_key[(c.key, c.realisations)]
-        cpu[c.protocol] = cpu.get(c.protocol, 0.0) + sum(x["seconds"] for x in ch)
+        cpu[c.protocol] = cpu.get(c.protocol, 0.0) + sum(x.seconds for x in ch)
         real[c.protocol] = real.get(c.protocol, 0) + c.realisations
     return SuiteRun(suite=suite, results=results, workers=workers, wall_s=wall,
                     started_utc=started, cpu_s_by_protocol=cpu, realisations_by_protocol=real)

@@ -57,13 +57,14 @@ import math
 import tomllib
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Mapping
+from typing import Any, Callable, Mapping
 
 import numpy as np
 
 from simtest._checks import keyed_error
 from simtest._io import jsonable
 from simtest.harness.claims import PAPER_CHECKS
+from simtest.reconstruct.settings import ReconSettings
 from simtest.resources import bundled
 from simtest.scene import SceneError, bundled_scene_path, load_scene, with_overrides
 from simtest.simulate.paper import PaperParams
@@ -83,6 +84,10 @@ __all__ = [
     "resolve_suite_path",
     "stable_hash",
     "realisation_seed",
+    "Scoring",
+    "MeshPose",
+    "SceneSetting",
+    "harness_recon_settings",
 ]
 
 PROTOCOLS = ("paper", "rendered")
@@ -98,6 +103,10 @@ RECON_KEYS: dict[str, Any] = {
     "isovalue": 0.1,
     "joint_isovalues": [0.1, 0.2, 0.3, 0.4, 0.5],
 }
+
+#: Keys of :class:`MeshPose` among :data:`RENDERED_KEYS`.
+_MESH_POSE_KEYS = ("colon_station", "liver_azimuth_deg", "mesh_view_deg", "mesh_distance_mm",
+                   "liver_elevation_deg")
 
 #: Extra keys of the rendered protocol, with their defaults.
 RENDERED_KEYS: dict[str, Any] = {
@@ -218,6 +227,138 @@ def realisation_seed(root_seed: int, case_key: str, index: int) -> np.random.See
 
 
 @dataclass(frozen=True)
+class Scoring:
+    """How a ``rendered`` realisation is scored (the case keys ``image`` and ``match_px``).
+
+    Attributes
+    ----------
+    image : {"sensor", "linear"}
+        The image reconstructed: the 8-bit sensor image, or the linear render (its grey).
+    match_px : float
+        A true highlight is matched to the nearest detected BP within this distance, px.
+    """
+
+    image: str = RENDERED_KEYS["image"]
+    match_px: float = RENDERED_KEYS["match_px"]
+
+
+@dataclass(frozen=True)
+class MeshPose:
+    """Where a ``rendered`` case places its camera on a bundled mesh (the case's mesh-pose keys).
+
+    The colon is used when ``colon_station`` is set, the liver when ``liver_azimuth_deg`` is;
+    neither: the scene's own camera (:func:`simtest.harness.protocols.mesh_pose_overrides`).
+
+    Attributes
+    ----------
+    colon_station : float or None
+        Fraction of the colon's centre line, in [0, 1].
+    liver_azimuth_deg : float or None
+        Azimuth of the camera about the liver, degrees.
+    mesh_view_deg : float
+        Colon: angle of the view off the centre line's tangent, degrees.
+    mesh_distance_mm : float
+        Liver: distance outside its bounding sphere, mm.
+    liver_elevation_deg : float
+        Liver: elevation of the camera, degrees.
+    """
+
+    colon_station: float | None = RENDERED_KEYS["colon_station"]
+    liver_azimuth_deg: float | None = RENDERED_KEYS["liver_azimuth_deg"]
+    mesh_view_deg: float = RENDERED_KEYS["mesh_view_deg"]
+    mesh_distance_mm: float = RENDERED_KEYS["mesh_distance_mm"]
+    liver_elevation_deg: float = RENDERED_KEYS["liver_elevation_deg"]
+
+    @property
+    def on_mesh(self) -> bool:
+        """Whether the case places its camera on a bundled mesh."""
+        return self.colon_station is not None or self.liver_azimuth_deg is not None
+
+
+@dataclass(frozen=True)
+class SceneSetting:
+    """What a ``rendered`` case changes in its base scene.
+
+    Attributes
+    ----------
+    overrides : dict
+        Dotted scene overrides as the suite gives them (``"material.n"``, ...), sorted by key.
+    radius_over_distance : float or None
+        Sphere or cylinder: its radius as a fraction of ``distance_mm``; the surface is then placed
+        ``distance_mm`` in front of the camera (:meth:`scene_overrides`).
+    distance_mm : float or None
+        Camera to the nearest surface point along the optical axis, mm (with
+        ``radius_over_distance``).
+    mesh : MeshPose
+        The camera's place on a bundled mesh, if any.
+    """
+
+    overrides: dict
+    radius_over_distance: float | None = None
+    distance_mm: float | None = None
+    mesh: MeshPose = field(default_factory=MeshPose)
+
+    def scene_overrides(self, mesh_pose: Callable[[MeshPose], dict] | None = None) -> dict:
+        """Every dotted override of the base scene, in the order they apply.
+
+        Parameters
+        ----------
+        mesh_pose : callable, optional
+            ``MeshPose -> overrides`` placing the camera on the mesh
+            (:func:`simtest.harness.protocols.mesh_pose_overrides`); called only when the case
+            is on a mesh.
+
+        Returns
+        -------
+        dict
+            :attr:`overrides`, then ``geometry.radius_mm = r`` and ``geometry.center_mm = [0, 0,
+            d + r]`` (``r = radius_over_distance x distance_mm``) when set, then the mesh pose's.
+        """
+        over = dict(self.overrides)
+        if self.radius_over_distance is not None:
+            r = self.radius_over_distance * self.distance_mm
+            over["geometry.radius_mm"] = r
+            over["geometry.center_mm"] = [0.0, 0.0, self.distance_mm + r]
+        if self.mesh.on_mesh and mesh_pose is not None:
+            over.update(mesh_pose(self.mesh))
+        return over
+
+
+def harness_recon_settings(protocol: str, isovalue: float, joint_isovalues) -> ReconSettings:
+    """The reconstruction settings of a harness case (the paper's, as the committed reports used).
+
+    Parameters
+    ----------
+    protocol : {"paper", "rendered"}
+        ``paper``: the known highlight of an image normalised to 1 at the BP (``reconstruct_roi``),
+        t relative to a full scale of 1, no smoothing. ``rendered``: every highlight detected at
+        0.7 of the full scale (``reconstruct``; the runner sets the full scale to each image's
+        maximum), t relative to the BP, no smoothing.
+    isovalue : float
+        The primary isovalue t.
+    joint_isovalues : iterable of float
+        Further nested isovalues for the joint cone axis (a repeat of t is dropped).
+
+    Returns
+    -------
+    ReconSettings
+        ``isovalues = (t, *others)``.
+
+    Raises
+    ------
+    ValueError
+        If the isovalues are invalid (:class:`~simtest.reconstruct.settings.ReconSettings`).
+    """
+    t = float(isovalue)
+    isovalues = (t,) + tuple(float(v) for v in joint_isovalues if float(v) != t)
+    if protocol == "paper":
+        return ReconSettings(isovalues=isovalues, normalise="full_scale", full_scale=1.0,
+                             smooth_sigma_px=0.0)
+    return ReconSettings(isovalues=isovalues, normalise="bp", smooth_sigma_px=0.0,
+                         detection="full_scale")
+
+
+@dataclass(frozen=True)
 class Case:
     """One parameter setting of a sweep, run ``realisations`` times.
 
@@ -243,6 +384,19 @@ class Case:
         The swept value (for plots), before ``display_scale``.
     realisations : int
         Number of realisations (independent seeds) of the case.
+    recon : ReconSettings
+        The reconstruction settings (:func:`harness_recon_settings`), made and validated once.
+    paper : PaperParams or None
+        ``paper``: the protocol's parameters; None for ``rendered``.
+    scene_setting : SceneSetting or None
+        ``rendered``: the changes to the base scene; None for ``paper``.
+    scoring : Scoring or None
+        ``rendered``: how a realisation is scored; None for ``paper``.
+
+    Notes
+    -----
+    ``params`` is the case as written (one flat table, the source of ``key`` and of the reports'
+    ``params``); the runners read the typed fields.
     """
 
     key: str
@@ -255,6 +409,10 @@ class Case:
     params: dict
     x: float
     realisations: int
+    recon: ReconSettings
+    paper: PaperParams | None = None
+    scene_setting: SceneSetting | None = None
+    scoring: Scoring | None = None
 
     def to_dict(self) -> dict:
         """JSON-able dict of the case (without the absolute scene path)."""
@@ -515,6 +673,23 @@ def _resolve_scene(name, source: str, where: str) -> Path:
         raise _err(source, where, str(e).strip("'\"")) from None
 
 
+def _typed(protocol: str, params: Mapping, source: str, where: str) -> dict:
+    """The typed fields of a case (:class:`Case`) from its resolved flat ``params``."""
+    try:
+        recon = harness_recon_settings(protocol, params["isovalue"], params["joint_isovalues"])
+    except ValueError as e:
+        raise _err(source, f"{where}.joint_isovalues", str(e)) from None
+    if protocol == "paper":
+        return {"recon": recon, "paper": PaperParams(**{k: v for k, v in params.items()
+                                                         if k not in RECON_KEYS})}
+    mesh = MeshPose(**{k: params[k] for k in _MESH_POSE_KEYS})
+    setting = SceneSetting(overrides={k: v for k, v in params.items() if "." in k},
+                           radius_over_distance=params["radius_over_distance"],
+                           distance_mm=params["distance_mm"], mesh=mesh)
+    return {"recon": recon, "scene_setting": setting,
+            "scoring": Scoring(image=params["image"], match_px=float(params["match_px"]))}
+
+
 def _case_key(protocol: str, scene_name: str | None, params: Mapping) -> str:
     return f"{protocol}|{scene_name or '-'}|" + json.dumps(params, sort_keys=True,
                                                            separators=(",", ":"))
@@ -678,7 +853,8 @@ def suite_from_dict(raw: Mapping[str, Any], source: str = "<dict>", sha256: str 
             key = _case_key(sproto, scene_name, params)
             cases.append(Case(key=key, id=f"{sname}@{x:g}", suite=name, sweep=sname, protocol=sproto,
                               scene=None if scene_path is None else str(scene_path),
-                              scene_name=scene_name, params=params, x=x, realisations=sreal))
+                              scene_name=scene_name, params=params, x=x, realisations=sreal,
+                              **_typed(sproto, params, source, cwhere)))
         sweeps.append(Sweep(name=sname, protocol=sproto, parameter=parameter, label=label,
                             display_scale=float(scale), cases=tuple(cases), paper=paper,
                             description=sw.get("description", "")))
