@@ -191,3 +191,38 @@ def test_sensor_model():
     noisy = SensorSpec(gaussian_sigma=0.02, full_well_e=1000.0)
     assert np.array_equal(apply_sensor(lin, noisy, 5), apply_sensor(lin, noisy, 5))
     assert not np.array_equal(apply_sensor(lin, noisy, 5), apply_sensor(lin, noisy, 6))
+
+
+def test_each_geometry_type_is_its_own_class_with_only_its_keys():
+    from simtest.scene.spec import GEOMETRY_KEYS, GEOMETRY_TYPES
+
+    assert list(GEOMETRY_TYPES) == list(GEOMETRY_KEYS)
+    for kind, cls in GEOMETRY_TYPES.items():
+        required, optional = GEOMETRY_KEYS[kind]
+        assert cls.type == kind
+        assert {f.name for f in dataclasses.fields(cls)} == set(required) | set(optional)
+    for name in bundled_scene_names():
+        spec = load_scene(bundled_scene_path(name))
+        geo = spec.geometry
+        assert type(geo) is GEOMETRY_TYPES[geo.type]
+        d = scene_to_dict(spec)
+        assert next(iter(d["geometry"])) == "type"  # the layout of the files, type first
+        assert scene_from_dict(d, source=spec.source) == spec
+
+
+def test_switching_the_geometry_type_by_override_drops_the_old_keys():
+    plane = scene_from_dict(PLANE)
+    sphere = with_overrides(plane, {"geometry.type": "sphere", "geometry.center_mm": [0, 0, 90],
+                                    "geometry.radius_mm": 20.0})
+    assert sphere.geometry == scene_from_dict(
+        {"geometry": {"type": "sphere", "center_mm": [0, 0, 90], "radius_mm": 20.0}}).geometry
+    # the same type keeps its keys; a key of another type is refused, naming this type's keys
+    assert with_overrides(plane, {"geometry.type": "plane"}).geometry == plane.geometry
+    with pytest.raises(SceneError, match=r"geometry\.radius_mm: not a key of geometry type "
+                                         r"'plane' \(keys: tilt_deg, distance_mm, azimuth_deg"):
+        with_overrides(plane, {"geometry.radius_mm": 3.0})
+    # the old style, unsetting the old keys first, still gives the same spec
+    old = with_overrides(plane, {"geometry.tilt_deg": None, "geometry.distance_mm": None,
+                                 "geometry.type": "sphere", "geometry.center_mm": [0, 0, 90],
+                                 "geometry.radius_mm": 20.0})
+    assert old == sphere

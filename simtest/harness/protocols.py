@@ -452,8 +452,8 @@ def mesh_pose_overrides(p: MeshPose) -> dict:
     Returns
     -------
     dict
-        Dotted scene overrides: the analytic geometry keys set to None, ``geometry.type = "mesh"``,
-        ``geometry.path`` and the camera ``position_mm``, ``look_at_mm`` (world frame of the mesh,
+        Dotted scene overrides: ``geometry.type = "mesh"`` (which drops the base scene's geometry,
+        :func:`simtest.scene.with_overrides`), ``geometry.path`` and the camera ``position_mm``, ``look_at_mm`` (world frame of the mesh,
         mm) and ``up``.
 
     Raises
@@ -466,10 +466,7 @@ def mesh_pose_overrides(p: MeshPose) -> dict:
         pose = colon_pose(p.colon_station, p.mesh_view_deg)
     else:
         pose = liver_orbit_pose(p.liver_azimuth_deg, p.liver_elevation_deg, p.mesh_distance_mm)
-    over = {f"geometry.{k}": None for k in ("tilt_deg", "azimuth_deg", "distance_mm", "extent_mm",
-                                            "center_mm", "radius_mm", "axis", "length_mm",
-                                            "radius1_mm", "radius2_mm", "resolution")}
-    over.update({"geometry.type": "mesh", "geometry.path": pose.path})
+    over = {"geometry.type": "mesh", "geometry.path": pose.path}
     over.update({f"camera.{k}": v for k, v in pose.camera_keys().items()})
     return over
 

@@ -22,7 +22,7 @@ from typing import Any
 
 import numpy as np
 
-from simtest.scene.spec import CameraSpec, GeometrySpec, LightSpec, SceneSpec
+from simtest.scene.spec import CameraSpec, LightSpec, MeshGeometry, PlaneGeometry, SceneSpec
 
 __all__ = [
     "AOVS",
@@ -96,7 +96,7 @@ def light_position_cam(light: LightSpec, seed: int) -> np.ndarray:
     return light.epsilon_mm * np.array([math.cos(a), math.sin(a), b])
 
 
-def plane_normal_cam(geometry: GeometrySpec) -> np.ndarray:
+def plane_normal_cam(geometry: PlaneGeometry) -> np.ndarray:
     """Camera-facing unit normal of a plane spec: ``(sin t cos a, sin t sin a, -cos t)``."""
     t = math.radians(geometry.tilt_deg or 0.0)
     a = math.radians(90.0 if geometry.azimuth_deg is None else geometry.azimuth_deg)
@@ -113,7 +113,7 @@ def rotation_from_z(n: np.ndarray) -> np.ndarray:
     return np.column_stack([a, b, n])
 
 
-def mesh_to_world_matrix(geometry: GeometrySpec) -> np.ndarray:
+def mesh_to_world_matrix(geometry: MeshGeometry) -> np.ndarray:
     """(4, 4) mesh-to-world transform ``x -> Rz Ry Rx (scale x) + t`` of a mesh spec."""
     rx, ry, rz = (math.radians(v) for v in (geometry.rotate_deg or (0.0, 0.0, 0.0)))
     cx, sx, cy, sy, cz, sz = math.cos(rx), math.sin(rx), math.cos(ry), math.sin(ry), math.cos(rz), math.sin(rz)

@@ -42,7 +42,7 @@ import math
 import tomllib
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Mapping
+from typing import Any, ClassVar, Mapping
 
 from simtest._checks import keyed_error
 from simtest.constants import MAX_SEED
@@ -54,6 +54,12 @@ __all__ = [
     "LightSpec",
     "MaterialSpec",
     "GeometrySpec",
+    "PlaneGeometry",
+    "SphereGeometry",
+    "CylinderGeometry",
+    "SaddleGeometry",
+    "MeshGeometry",
+    "GEOMETRY_TYPES",
     "SensorSpec",
     "RenderSpec",
     "SceneSpec",
@@ -296,65 +302,139 @@ GEOMETRY_KEYS: dict[str, tuple[tuple[str, ...], tuple[str, ...]]] = {
 
 
 @dataclass(frozen=True)
-class GeometrySpec:
-    """The one surface in the scene (world frame).
+class PlaneGeometry:
+    """An infinite (or ``extent_mm``-limited) plane, world frame.
 
     Attributes
     ----------
-    type : {"plane", "sphere", "cylinder", "saddle", "mesh"}
-        The surface kind; each takes the keys of :data:`GEOMETRY_KEYS`.
     tilt_deg : float
-        plane: angle between the plane normal and the optical axis, [0, 90).
-    azimuth_deg : float
-        plane: direction of the tilt in the image; the camera-facing normal is
+        Angle between the plane normal and the optical axis, [0, 90); required.
+    azimuth_deg : float or None
+        Direction of the tilt in the image; the camera-facing normal is
         ``(sin t cos a, sin t sin a, -cos t)``, so with the default 90 the BP lies above the image
         centre.
     distance_mm : float
-        plane: distance from the camera centre to the plane (the paper's V_Z); saddle: depth of
-        its apex on the optical axis.
+        Distance from the camera centre to the plane (the paper's V_Z), > 0; required.
     extent_mm : float or None
-        plane/saddle: half side of the square patch (default: 100 x distance for a plane,
-        distance for a saddle).
-    center_mm : (3,) float
-        sphere centre; cylinder: a point on the axis (centre of the finite cylinder).
-    radius_mm : float
-        sphere/cylinder radius.
-    axis : (3,) float
-        cylinder axis direction (normalised on load); default (1, 0, 0).
-    length_mm : float or None
-        cylinder length (default 20 x radius).
-    radius1_mm, radius2_mm : float
-        saddle: z = d + x^2 / (2 r1) - y^2 / (2 r2) in the camera frame.
-    resolution : int
-        saddle: vertices per side of its grid mesh.
-    path : str
-        mesh: PLY file written by ``simtest.scene.meshes.save_mesh``; relative paths are taken from
-        the scene file's folder, then from the bundled data (:func:`simtest.resources.data_root`:
-        the repository root, or the installed package's ``_data``).
-    translate_mm, rotate_deg, scale : (3,) float, (3,) float, float
-        mesh: mesh-to-world transform ``x -> R (scale x) + t``, with ``R = Rz Ry Rx`` from
-        ``rotate_deg`` (degrees about the world axes, x first) and ``t = translate_mm``.
-    flip_normals : bool
-        mesh: reverse the vertex normals and curvature signs.
+        Half side of the square patch (default 100 x distance).
     """
 
-    type: str = _fld("plane", "str", choices=tuple(GEOMETRY_KEYS))
+    type: ClassVar[str] = "plane"
     tilt_deg: float | None = _fld(None, "float?", lo=0.0, hi=90.0, hi_open=True)
     azimuth_deg: float | None = _fld(None, "float?")
     distance_mm: float | None = _fld(None, "float?", lo=0.0, lo_open=True)
     extent_mm: float | None = _fld(None, "float?", lo=0.0, lo_open=True)
+
+
+@dataclass(frozen=True)
+class SphereGeometry:
+    """A sphere, world frame.
+
+    Attributes
+    ----------
+    center_mm : (3,) float
+        Centre; required.
+    radius_mm : float
+        Radius, > 0; required.
+    """
+
+    type: ClassVar[str] = "sphere"
+    center_mm: tuple[float, float, float] | None = _fld(None, "vec3?")
+    radius_mm: float | None = _fld(None, "float?", lo=0.0, lo_open=True)
+
+
+@dataclass(frozen=True)
+class CylinderGeometry:
+    """A finite cylinder, world frame.
+
+    Attributes
+    ----------
+    center_mm : (3,) float
+        A point on the axis, the centre of the cylinder; required.
+    radius_mm : float
+        Radius, > 0; required.
+    axis : (3,) float or None
+        Axis direction (not the zero vector); default (1, 0, 0).
+    length_mm : float or None
+        Length (default 20 x radius).
+    """
+
+    type: ClassVar[str] = "cylinder"
     center_mm: tuple[float, float, float] | None = _fld(None, "vec3?")
     radius_mm: float | None = _fld(None, "float?", lo=0.0, lo_open=True)
     axis: tuple[float, float, float] | None = _fld(None, "vec3?")
     length_mm: float | None = _fld(None, "float?", lo=0.0, lo_open=True)
+
+
+@dataclass(frozen=True)
+class SaddleGeometry:
+    """The saddle ``z = d + x^2 / (2 r1) - y^2 / (2 r2)``, camera frame, ``|x|, |y| <= extent``.
+
+    Built as a grid mesh with analytic normals and curvatures
+    (:func:`simtest.simulate.truth.saddle_mesh`).
+
+    Attributes
+    ----------
+    distance_mm : float
+        Depth d of the apex on the optical axis, > 0; required.
+    extent_mm : float or None
+        Half side of the square patch (default: the distance).
+    radius1_mm, radius2_mm : float
+        r1 and r2, > 0; required.
+    resolution : int or None
+        Vertices per side of the grid mesh, 3 to 4096 (default 129).
+    """
+
+    type: ClassVar[str] = "saddle"
+    distance_mm: float | None = _fld(None, "float?", lo=0.0, lo_open=True)
+    extent_mm: float | None = _fld(None, "float?", lo=0.0, lo_open=True)
     radius1_mm: float | None = _fld(None, "float?", lo=0.0, lo_open=True)
     radius2_mm: float | None = _fld(None, "float?", lo=0.0, lo_open=True)
     resolution: int | None = _fld(None, "int?", lo=3, hi=4096)
+
+
+@dataclass(frozen=True)
+class MeshGeometry:
+    """A triangle mesh file in its own world frame.
+
+    Attributes
+    ----------
+    path : str
+        PLY file written by ``simtest.scene.meshes.save_mesh``; relative paths are taken from the
+        scene file's folder, then from the bundled data (:func:`simtest.resources.data_root`: the
+        repository root, or the installed package's ``_data``); required.
+    translate_mm, rotate_deg, scale : (3,) float, (3,) float, float, or None
+        Mesh-to-world transform ``x -> R (scale x) + t``, with ``R = Rz Ry Rx`` from ``rotate_deg``
+        (degrees about the world axes, x first) and ``t = translate_mm``; defaults identity.
+    flip_normals : bool or None
+        Reverse the vertex normals and curvature signs.
+    """
+
+    type: ClassVar[str] = "mesh"
     path: str | None = _fld(None, "str?")
     translate_mm: tuple[float, float, float] | None = _fld(None, "vec3?")
     rotate_deg: tuple[float, float, float] | None = _fld(None, "vec3?")
     scale: float | None = _fld(None, "float?", lo=0.0, lo_open=True)
     flip_normals: bool | None = _fld(None, "bool?")
+
+
+#: The one surface of a scene: a tagged union of small frozen dataclasses, told apart by their
+#: class attribute ``type`` (the scene file's ``geometry.type``); each holds only its own keys.
+GeometrySpec = PlaneGeometry | SphereGeometry | CylinderGeometry | SaddleGeometry | MeshGeometry
+
+#: The geometry class of each ``geometry.type``.
+GEOMETRY_TYPES: dict[str, type] = {cls.type: cls for cls in (
+    PlaneGeometry, SphereGeometry, CylinderGeometry, SaddleGeometry, MeshGeometry)}
+
+#: Every geometry key, in the order the files and messages list them (``type`` first).
+_GEOMETRY_KEY_ORDER = ("type", "tilt_deg", "azimuth_deg", "distance_mm", "extent_mm", "center_mm",
+                       "radius_mm", "axis", "length_mm", "radius1_mm", "radius2_mm", "resolution",
+                       "path", "translate_mm", "rotate_deg", "scale", "flip_normals")
+
+#: Field metadata (kind and range) of each geometry key; a key shared by several types has the
+#: same meaning and range in each.
+_GEOMETRY_META: dict[str, dict] = {f.name: f.metadata for cls in GEOMETRY_TYPES.values()
+                                   for f in dataclasses.fields(cls)}
 
 
 @dataclass(frozen=True)
@@ -478,7 +558,7 @@ class SceneSpec:
     camera: CameraSpec = field(default_factory=CameraSpec)
     light: LightSpec = field(default_factory=LightSpec)
     material: MaterialSpec = field(default_factory=MaterialSpec)
-    geometry: GeometrySpec = field(default_factory=GeometrySpec)
+    geometry: GeometrySpec = field(default_factory=PlaneGeometry)
     sensor: SensorSpec = field(default_factory=SensorSpec)
     render: RenderSpec = field(default_factory=RenderSpec)
     source: str = field(default="<dict>", compare=False)
@@ -565,6 +645,42 @@ def _build_section(cls: type, data: Any, source: str, section: str):
     return cls(**kwargs)
 
 
+def _build_geometry(data: Any, source: str) -> GeometrySpec:
+    """The geometry class of ``data["type"]`` (default "plane") built from the other keys.
+
+    A key of another geometry type is refused naming the type's keys; a key of none, naming them
+    all; None leaves a key unset.
+    """
+    if not isinstance(data, Mapping):
+        raise _err(source, "geometry", f"expected a table, got {_tname(data)} {data!r}")
+    kind = data.get("type", "plane")
+    kind = _coerce(kind, "str", source, "geometry.type")
+    if kind not in GEOMETRY_TYPES:
+        opts = ", ".join(repr(c) for c in GEOMETRY_TYPES)
+        raise _err(source, "geometry.type", f"{kind!r} is not one of {opts}")
+    cls = GEOMETRY_TYPES[kind]
+    own = {f.name for f in dataclasses.fields(cls)}
+    kwargs = {}
+    for key, value in data.items():
+        dotted = f"geometry.{key}"
+        if key == "type":
+            continue
+        if key not in _GEOMETRY_META:
+            raise _err(source, dotted, f"unknown key (known keys: {', '.join(_GEOMETRY_KEY_ORDER)})")
+        meta = _GEOMETRY_META[key]
+        if value is None:
+            continue
+        v = _coerce(value, meta["kind"], source, dotted)
+        if meta["kind"].rstrip("?") in ("float", "int", "str"):
+            _check_range(v, meta, source, dotted)
+        if key not in own:
+            required, optional = GEOMETRY_KEYS[kind]
+            raise _err(source, dotted,
+                       f"not a key of geometry type {kind!r} (keys: {', '.join(required + optional)})")
+        kwargs[key] = v
+    return cls(**kwargs)
+
+
 def _norm(v: tuple[float, float, float]) -> float:
     return math.sqrt(sum(x * x for x in v))
 
@@ -623,16 +739,10 @@ def _validate(spec: SceneSpec, source: str, base_dirs: tuple[Path, ...]) -> Scen
         raise _err(source, "material.diffuse_albedo",
                    "a conductor has no diffuse part; use material.base = \"plastic\" for tissue")
 
-    required, optional = GEOMETRY_KEYS[geo.type]
-    for f in dataclasses.fields(GeometrySpec):
-        if f.name == "type":
-            continue
-        value = getattr(geo, f.name)
-        if f.name in required and value is None:
+    required, _ = GEOMETRY_KEYS[geo.type]
+    for f in dataclasses.fields(geo):
+        if f.name in required and getattr(geo, f.name) is None:
             raise _err(source, f"geometry.{f.name}", f"missing (required for type {geo.type!r})")
-        if value is not None and f.name not in required + optional:
-            raise _err(source, f"geometry.{f.name}",
-                       f"not a key of geometry type {geo.type!r} (keys: {', '.join(required + optional)})")
     if geo.type == "cylinder" and geo.axis is not None and _norm(geo.axis) == 0.0:
         raise _err(source, "geometry.axis", "is the zero vector")
     if geo.type == "mesh":
@@ -689,6 +799,8 @@ def scene_from_dict(d: Mapping[str, Any], source: str = "<dict>",
     for key, value in d.items():
         if key in ("name", "description"):
             kwargs[key] = _coerce(value, "str", source, key)
+        elif key == "geometry":
+            kwargs[key] = _build_geometry(value, source)
         elif key in _SECTIONS:
             kwargs[key] = _build_section(_SECTIONS[key], value, source, key)
         else:
@@ -760,7 +872,7 @@ def scene_to_dict(spec: SceneSpec) -> dict[str, Any]:
     out: dict[str, Any] = {"name": spec.name, "description": spec.description}
     for section in _SECTIONS:
         sub = getattr(spec, section)
-        d = {}
+        d = {"type": sub.type} if section == "geometry" else {}
         for f in dataclasses.fields(sub):
             v = getattr(sub, f.name)
             if v is None:
@@ -779,7 +891,9 @@ def with_overrides(spec: SceneSpec, overrides: Mapping[str, Any]) -> SceneSpec:
         The base spec.
     overrides : mapping
         e.g. ``{"material.n": 80, "geometry.tilt_deg": 30, "render.seed": 3}``; ``name`` and
-        ``description`` may be given bare. None unsets an optional key.
+        ``description`` may be given bare. None unsets an optional key. Overrides apply in order;
+        ``geometry.type`` set to another type starts the geometry afresh (the old type's keys are
+        dropped), so the keys of the new type follow it.
 
     Returns
     -------
@@ -800,6 +914,8 @@ def with_overrides(spec: SceneSpec, overrides: Mapping[str, Any]) -> SceneSpec:
         if len(parts) != 2 or parts[0] not in _SECTIONS:
             raise _err(spec.source, dotted, "unknown key (expected <section>.<key>, sections: "
                        f"{', '.join(_SECTIONS)})")
+        if dotted == "geometry.type" and value != d["geometry"].get("type"):
+            d["geometry"] = {}  # another kind of surface: the old one's keys do not apply
         d[parts[0]][parts[1]] = list(value) if isinstance(value, tuple) else value
     base = Path(spec.source).resolve().parent if spec.source not in ("<dict>", "") else None
     out = scene_from_dict(d, source=spec.source, base_dir=base)
