@@ -1,5 +1,6 @@
 """One implementation of each helper that several rooms need (JSON coercion, the validators'
-error line and number check, unit vectors, the data root, the seed bound), and what each does."""
+error line and number check, unit vectors, the data root, the seed bound, camera poses on meshes),
+and what each does."""
 
 from __future__ import annotations
 
@@ -32,10 +33,20 @@ def _defs() -> dict[str, list[str]]:
 
 def test_each_shared_helper_is_written_once():
     defs = _defs()
-    for name in ("jsonable", "keyed_error", "finite_number", "format_value", "unit", "data_root"):
+    for name in ("jsonable", "keyed_error", "finite_number", "format_value", "unit", "data_root",
+                 "colon_pose", "liver_orbit_pose", "liver_surface_pose", "camera_up",
+                 "mesh_placement"):
         assert len(defs.get(name, [])) == 1, (name, defs.get(name))
+    # the camera poses on meshes live in simtest.scene.poses, used by the harness and the dataset
+    # (harness.protocols.mesh_pose_overrides turns a case's MeshPose into scene overrides by them)
+    on_mesh = {name: places for name, places in defs.items()
+               if ("colon" in name or "liver" in name or "mesh" in name)
+               and ("pose" in name or "placement" in name) and name != "mesh_pose_overrides"}
+    assert on_mesh and all(d.startswith("scene/poses.py:") for places in on_mesh.values()
+                           for d in places), on_mesh
     # the former private copies are gone
-    for name in ("_jsonable", "_repo_root", "repo_root"):
+    for name in ("_jsonable", "_repo_root", "repo_root", "_colon_pose", "_liver_pose", "_roll_up",
+                 "_mesh_info"):
         assert name not in defs, (name, defs[name])
 
 
