@@ -48,10 +48,12 @@ def test_saturated_plateau_centroid_is_the_bp(dx, dy):
     img = np.clip(gaussian((80, 100), centre, 6.0, 400.0), 0, 255).astype(np.uint8)
     (cand,) = detect_specularities(img).candidates
     assert cand.saturated and cand.status == "ok"
-    # the clipped disc (radius R ~ 7 px, area A ~ 150 px) is symmetric about the centre up to the
-    # pixel quantisation of its rim: each rim pixel in or out moves the centroid by R / A ~ 0.05 px,
-    # and a sub-pixel shift flips a few of them on one side only: 0.25 px (5 flips) bounds it.
-    assert np.allclose(cand.bp_uv, centre, atol=0.25)
+    # the clipped disc (about 100 px) is symmetric about the centre up to the pixel quantisation of
+    # its rim: each rim pixel in or out moves the centroid by ~0.05 px, and a sub-pixel shift flips
+    # a few of them on one side only. Over a 1/64 px grid of shifts the centroid of the clipped
+    # pixels is at most 0.257 px off (shifts near +-0.47 px, where one axis still shows the pixel
+    # set of a centred disc; hypothesis found dy = 0.46875): 0.3 px bounds it.
+    assert np.allclose(cand.bp_uv, centre, atol=0.3)
 
 
 def test_rejection_reasons():
