@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 import trimesh
 from scipy import ndimage
-from hypothesis import given, settings
+from hypothesis import example, given, settings
 from hypothesis import strategies as st
 
 from simtest.geometry import angle_between_deg, pixel_to_ray
@@ -500,6 +500,7 @@ def test_old_llvm_is_refused_with_the_fix(monkeypatch):
     a=st.floats(0.0, 360.0),
     b=st.floats(-0.5, 0.5),
 )
+@example(tilt=0.0, az=0.0, eps=1.2589744168444878e-08, a=30.0, b=0.0)  # once taken for co-located
 def test_analytic_highlights_satisfy_the_bisector_condition(tilt, az, eps, a, b):
     # Pure numpy: the closed forms and root solves of simtest.simulate.truth, for any light offset.
     from simtest.simulate.truth import cylinder_highlight, plane_highlight, sphere_highlight

@@ -281,7 +281,7 @@ def sphere_highlight(center: np.ndarray, radius: float, light: np.ndarray, K: np
         return None  # light inside, camera outside: the side the camera sees is unlit
     n0 = -unit(c, axis=-1)
     k = 1.0 / radius
-    if np.allclose(L, 0.0):
+    if not np.any(L):  # exactly co-located (allclose would take a 1e-8 mm offset for none)
         return _highlight(c + radius * n0, n0, k, k, K, size)
     e1 = unit(np.cross(n0, [0.0, 1.0, 0.0] if abs(n0[1]) < 0.9 else [1.0, 0.0, 0.0]), axis=-1)
     e2 = np.cross(n0, e1)
@@ -347,7 +347,7 @@ def cylinder_highlight(center: np.ndarray, axis: np.ndarray, radius: float, leng
     q = c - np.dot(c, a) * a  # foot of the perpendicular from the camera centre to the axis
     n0 = unit(-q, axis=-1)
     s0 = np.dot(q - c, a)
-    if not np.allclose(L, 0.0):
+    if np.any(L):
         e = np.cross(a, n0)
 
         def surface(x):
