@@ -186,6 +186,9 @@ def fit_ellipse(points_uv) -> EllipseFit | Failure:
     for k in valid:  # normally exactly one; with rounding keep the smallest algebraic residual
         a1 = eigvec[:, k]
         a = np.concatenate([a1, t @ a1])  # coefficient vector (a, b, c, d, e, f) [eqn. 19] from [1]
+        if valid.size == 1:  # nothing to compare: no residual needed
+            best = (None, a)
+            break
         r = float(np.linalg.norm(d1 @ a[:3] + d2 @ a[3:]))
         if best is None or r < best[0]:
             best = (r, a)
@@ -235,7 +238,7 @@ def fit_ellipse(points_uv) -> EllipseFit | Failure:
         return Failure("not_an_ellipse", "the fitted conic is not a real ellipse")
     # Points on a line or two parallel lines are fitted exactly by ever longer ellipses: an ellipse
     # far larger than the points' spread is not determined by them.
-    if e_norm.semi_axes[0] > MAX_AXIS_TO_SPREAD * float(np.sqrt((x * x + y * y).max())):
+    if e_norm.semi_axes[0] > MAX_AXIS_TO_SPREAD * float(np.sqrt((d1[:, 0] + d1[:, 2]).max())):  # x^2 + y^2
         return Failure(
             "not_an_ellipse",
             f"unbounded: semi-major axis {scale * e_norm.semi_axes[0]:.4g} px is more than "
