@@ -60,6 +60,18 @@ class Tolerances:
         Floor of the per-pixel noise of the photometric fit, relative to the ROI's maximum, for the
         same decision: 0.002, about the RMS of 8-bit quantisation (1 / (255 sqrt 12) = 0.0011)
         doubled for render noise.
+    plane_misfit_rho : float
+        Correlation of neighbouring residuals of the photometric plane fit above which the plane
+        model is said not to fit (a curved patch): 0.3. Pixel noise is independent, so a model
+        that fits leaves uncorrelated neighbours; on the lightaware suite's rendered planes (8-bit,
+        16 spp, epsilon/d 0.05 to 0.5, tilts 0 to 40 deg) it measured 0.07 to 0.13 (the pixel's
+        box filter against the model's point sample) and below 0.02 with read noise, on its
+        sphere, cylinder, liver and colon 0.47 to 0.98.
+    plane_misfit_rel : float
+        Smallest systematic residual (square root of the neighbours' residual covariance),
+        relative to the ROI's maximum, for the same decision: 2e-4, a fifth of 8-bit
+        quantisation's RMS; below it the residual is rounding (exact float images), whatever its
+        correlation.
     exact_image_normal_deg : float
         Normal error allowed to a light-aware fit of an exact float image (no noise): 0.01 deg.
         What remains is the contour's spline interpolation (isophote points refined to ~1e-4 px)
@@ -111,6 +123,8 @@ class Tolerances:
     golden_abs: float = 1e-7
     isophote_noise_px: float = 0.05
     photometric_noise_rel: float = 0.002
+    plane_misfit_rho: float = 0.3
+    plane_misfit_rel: float = 2e-4
     exact_image_normal_deg: float = 0.01
     exact_image_depth_rel: float = 1e-3
     depth_rel_sigma_max: float = 0.5

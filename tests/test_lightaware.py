@@ -267,6 +267,8 @@ def test_quadric_fit_on_an_exact_sphere_beats_the_plane_model():
     quad = la.quadric_fit(img, (0, 0), bp, K, rig, nominal_depth_mm=35.0, start_depths_mm=[35.0])
     plane = la.photometric_fit(img, (0, 0), bp, K, rig, nominal_depth_mm=35.0)
     assert quad.ok, quad
+    # the plane's residuals on the sphere are a smooth pattern: reported as a misfit
+    assert plane.status == "plane_misfit", plane
     # the plane model explains the curvature's compression of the lobe by roughness (n ~ 180 for
     # 30) and distance, and misses the normal by degrees; the patch is second-order exact at the
     # apex, so what is left is the sphere's fourth-order departure from it and the trade-off of

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import json
 
 import numpy as np
@@ -40,6 +41,40 @@ def test_recommended_normal_with_an_offset_rig():
     assert rec.normal_sigma_deg is not None and rec.normal_sigma_deg >= 0
     # the baselines are still there, and err by about half the angle the offset subtends
     assert angle_between_deg(ests[0].bp_ray, N) > 1.0
+
+
+def test_a_plane_misfit_rules_out_both_plane_fits():
+    # the photometric fit's residuals say the plane model does not fit: neither it nor the
+    # isocurve fit (the same plane model, seen through the contours) is recommended, however ok
+    rig = one_light(3.0, "inverse_square")
+    img, K, N, depth, ests = _estimates(rig)
+    la_ = dict(ests[0].light_aware)
+    assert la_["isocurve_fit"].ok
+    la_["photometric_fit"] = dataclasses.replace(la_["photometric_fit"], status="plane_misfit")
+    rec = recommend(dataclasses.replace(ests[0], light_aware=la_))
+    assert rec.normal_from == "bp_ray" and rec.depth_mm is None
+    assert np.allclose(rec.normal, ests[0].bp_ray)
+
+
+def test_residual_correlation_separates_noise_from_a_smooth_misfit():
+    # independent pixel noise: neighbours uncorrelated (|rho| within a few 1/sqrt(pairs) = 0.02);
+    # a smooth pattern (a ring) plus the same noise: neighbours agree
+    from simtest.reconstruct.lightaware import _residual_correlation
+
+    rng = np.random.default_rng(0)
+    H = W = 60
+    sel = np.arange(H * W)
+    noise = rng.normal(0.0, 1.0, H * W)
+    rho, c = _residual_correlation(noise, sel, (H, W), 1)
+    assert abs(rho) < 0.1 and abs(c) < 0.1
+    vv, uu = np.mgrid[0:H, 0:W]
+    ring = 3.0 * np.cos(np.hypot(uu - 30, vv - 30) / 4.0).ravel()
+    rho, c = _residual_correlation(ring + noise, sel, (H, W), 1)
+    assert rho > 0.5
+    # on a sub-grid (every 2nd row and column) the neighbours are 2 px apart
+    grid = ((vv % 2 == 0) & (uu % 2 == 0)).ravel()
+    rho2, _ = _residual_correlation(noise[grid], sel[grid], (H, W), 2)
+    assert abs(rho2) < 0.15
 
 
 def test_without_rig_the_recommendation_is_the_joint_cone_axis_and_no_depth():

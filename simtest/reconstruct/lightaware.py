@@ -78,7 +78,7 @@ References
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 from scipy.ndimage import map_coordinates, spline_filter
@@ -116,6 +116,8 @@ STATUSES: dict[str, str] = {
     "too_few_points": "fewer isophote points or unclipped pixels than parameters",
     "multi_light_rig": "the isocurve model (eq. 2) holds for one light; use photometric_fit",
     "light_behind_plane": "a light of the rig lies behind the fitted plane",
+    "plane_misfit": "the plane model does not fit the ROI (its residuals are spatially correlated: "
+                    "a curved patch); the normal is kept for the record, the depth withdrawn",
 }
 
 
@@ -845,6 +847,48 @@ def _roi_grid(values, camera, origin_uv, clip_level):
     return vals, camera, o, uu, vv, keep
 
 
+def _residual_correlation(r, sel, shape, step: int) -> tuple[float, float]:
+    """Correlation of the residuals of neighbouring fitted pixels, and their covariance.
+
+    ``r`` (M,) are the residuals of the pixels ``sel`` (flat indices into an (H, W) grid, on a
+    regular sub-grid of spacing ``step``); the pairs are the horizontal and vertical neighbours
+    on that sub-grid. Returns ``(rho, c)``: ``rho = sum a b / sqrt(sum a^2 sum b^2)`` and
+    ``c = mean(a b)`` (0, 0 without pairs).
+    """
+    R = np.full(int(np.prod(shape)), np.nan)
+    R[sel] = r
+    R = R.reshape(shape)
+    a = np.concatenate([R[:, :-step].ravel(), R[:-step, :].ravel()])
+    b = np.concatenate([R[:, step:].ravel(), R[step:, :].ravel()])
+    ok = np.isfinite(a) & np.isfinite(b)
+    a, b = a[ok], b[ok]
+    den = np.sqrt((a @ a) * (b @ b))
+    if not (len(a) and den > 0):
+        return 0.0, 0.0
+    return float(a @ b / den), float(a @ b / len(a))
+
+
+def _misfit(est: LightAwareEstimate, r, sel, shape, step: int) -> LightAwareEstimate:
+    """``est`` with status ``plane_misfit`` when the residuals are spatially correlated.
+
+    Sensor and render noise are independent from pixel to pixel, so the residuals of a model that
+    fits leave neighbouring pixels uncorrelated; a plane meeting a curved patch leaves a smooth
+    residual pattern (rings, a ridge) whose neighbours agree. The test: the correlation rho of
+    neighbouring residuals above ``TOL.plane_misfit_rho`` and their covariance above
+    ``TOL.plane_misfit_rel^2`` (an exact image's residuals are rounding, correlated or not).
+    The normal is kept (for the record); the depth is withdrawn.
+    """
+    if est.status not in (OK, "depth_not_observable"):
+        return est
+    rho, c = _residual_correlation(r, sel, shape, step)
+    if rho > TOL.plane_misfit_rho and c > TOL.plane_misfit_rel**2:
+        return replace(est, status="plane_misfit", depth_mm=None, depth_sigma_mm=None,
+                       distance_mm=None,
+                       detail=f"neighbouring residuals correlate (rho {rho:.3g} > "
+                              f"{TOL.plane_misfit_rho}; systematic RMS {np.sqrt(c):.3g})")
+    return est
+
+
 def photometric_fit(values, origin_uv, bp_uv, camera, rig: LightRig, *,
                     clip_level: float | None = None, nominal_depth_mm: float = 20.0,
                     start_normal=None, start_roughness: float | None = None,
@@ -904,7 +948,11 @@ def photometric_fit(values, origin_uv, bp_uv, camera, rig: LightRig, *,
     Returns
     -------
     LightAwareEstimate
-        ``estimator="photometric_fit"``, with ``roughness``.
+        ``estimator="photometric_fit"``, with ``roughness``. Status ``plane_misfit`` (normal kept,
+        depth withdrawn) when the residuals of neighbouring pixels correlate: the plane model
+        does not explain the ROI (a curved patch, whose lobe the plane model reproduces by
+        trading the curvature for roughness and distance, and so misses the normal; see
+        ``_misfit``).
 
     Raises
     ------
@@ -917,10 +965,11 @@ def photometric_fit(values, origin_uv, bp_uv, camera, rig: LightRig, *,
     border = np.concatenate([vals[0], vals[-1], vals[:, 0], vals[:, -1]])
     b_level = float(np.median(border))
     sel = np.flatnonzero(keep)
+    step = 1
     if max_pixels and len(sel) > max_pixels:  # a regular sub-grid of the ROI
-        k = int(np.ceil(np.sqrt(len(sel) / max_pixels)))
+        step = int(np.ceil(np.sqrt(len(sel) / max_pixels)))
         grid = np.zeros_like(keep)
-        grid[::k, ::k] = True
+        grid[::step, ::step] = True
         sel = np.flatnonzero(keep & grid)
     uv = np.column_stack([uu.ravel()[sel] + o[0], vv.ravel()[sel] + o[1]]).astype(np.float64)
     y = vals.ravel()[sel]
@@ -1011,8 +1060,9 @@ def photometric_fit(values, origin_uv, bp_uv, camera, rig: LightRig, *,
         return LightAwareEstimate(name, "not_converged", bad, n_evaluations=nfev)
     if np.any(n_hat @ rig_arr[0].T + h_hat <= 0):
         return LightAwareEstimate(name, "light_behind_plane", f"h = {h_hat:.4g} mm", n_evaluations=nfev)
-    return _finish(name, resjac_at, n_hat, h_hat, rig, x[3:], TOL.photometric_noise_rel, nfev,
-                   conv, roughness=float(np.exp(x[3])), detail="" if conv else msg)
+    out = _finish(name, resjac_at, n_hat, h_hat, rig, x[3:], TOL.photometric_noise_rel, nfev,
+                  conv, roughness=float(np.exp(x[3])), detail="" if conv else msg)
+    return _misfit(out, resjac_at(x, n0, e1, e2)[0], sel, keep.shape, step)
 
 
 # ------------------------------------------------------------------------------------------------

@@ -19,11 +19,12 @@ Chosen from the harness' measurements on Mitsuba renders (``simtest validate ren
    about a tenth of a degree; the isocurve fit, which sees only the contour points, by several
    times more. A fit whose depth is not observable is not used: with the light off the camera the
    tilt and the distance trade off, so an undetermined distance leaves the normal undetermined
-   too (on the curved scenes such fits missed by up to 12 deg). Known failure: on curved patches
-   the plane model trades the curvature for roughness and distance, and its normal can be worse
-   than the BP ray's while its status is ``ok`` (the ``lightaware`` suite's sphere, cylinder,
-   saddle, liver and colon sweeps); the experimental :func:`~simtest.reconstruct.lightaware.
-   quadric_fit` is the candidate replacement.
+   too (on the curved scenes such fits missed by up to 12 deg). On curved patches the plane
+   model trades the curvature for roughness and distance and misses the normal, by more than the
+   BP ray on the sphere, while its residual stays near the sensor's noise; its residuals are then
+   spatially correlated, which ``photometric_fit`` reports as ``plane_misfit``. A ``plane_misfit``
+   also rules out ``isocurve_fit`` (the same plane model, seen through the contours): the BP ray
+   is recommended.
 2. Without a rig, or with every light at the camera centre: ``joint_cone_axis`` when at least two
    isophotes succeeded, else ``cone_axis``, else ``bp_ray``. Over the co-located rendered suite the
    joint cone axis has the lowest mean and median error (:func:`colocated_ranking` recomputes the
@@ -222,8 +223,12 @@ def recommend(est) -> Recommendation:
     """
     la = getattr(est, "light_aware", None) or {}
     if la:
+        pho = la.get("photometric_fit")
+        plane_fits = pho is None or pho.status != "plane_misfit"
         for name in LIGHT_AWARE:
             r = la.get(name)
+            if name == "isocurve_fit" and not plane_fits:
+                continue
             if r is not None and r.has_normal and r.status == "ok":
                 return Recommendation(np.asarray(r.normal), name, r.depth_mm, r.normal_sigma_deg)
         return Recommendation(np.asarray(est.bp_ray), "bp_ray")
