@@ -14,6 +14,7 @@ from simtest.geometry.camera_file import save_camera
 from simtest.geometry.cameras import PinholeCamera
 from simtest.geometry.lights import Light, LightRig
 from simtest.reconstruct import read_estimates, write_estimates
+from simtest.reconstruct.lightaware import _residual_correlation
 from simtest.reconstruct.pipeline import reconstruct
 from simtest.reconstruct.recommend import colocated_ranking, recommend, with_light_aware
 from simtest.reconstruct.settings import ReconSettings
@@ -59,8 +60,6 @@ def test_a_plane_misfit_rules_out_both_plane_fits():
 def test_residual_correlation_separates_noise_from_a_smooth_misfit():
     # independent pixel noise: neighbours uncorrelated (|rho| within a few 1/sqrt(pairs) = 0.02);
     # a smooth pattern (a ring) plus the same noise: neighbours agree
-    from simtest.reconstruct.lightaware import _residual_correlation
-
     rng = np.random.default_rng(0)
     H = W = 60
     sel = np.arange(H * W)

@@ -17,7 +17,8 @@ Estimators (derivations in the Notes of :func:`simtest.geometry.conics.cone_axis
 - ``isocurve_fit``, ``photometric_fit``: the light-aware estimators (the general isocurve of eq. 2
   and the photometric plane fit with the calibrated rig, :mod:`simtest.reconstruct.lightaware`),
   scored when the rendered protocol ran them (a rig off the camera centre); ``quadric_fit``, the
-  experimental curved-patch fit, only when a suite lists it (it is slow).
+  curved-patch fit, run where the photometric fit is not ``ok``, and on every highlight when a
+  suite lists it.
 - ``recommended``: the normal ``estimates.json`` recommends (:mod:`simtest.reconstruct.recommend`).
 
 The registry is a plain dict so that a test can plant a known bias in one estimator

@@ -14,8 +14,9 @@ becomes observable. Three estimators use the rig:
   calibrated light position, fitted to the isophote points taken as rays: plane normal, distance h,
   and the cosine level tau of each isovalue (nested isovalues tie their taus through the
   roughness n).
-- :func:`quadric_fit` (experimental): the same with a curved (quadric) patch, for curved surfaces
-  where the plane model explains the curvature's compression of the lobe by roughness and depth.
+- :func:`quadric_fit`: the photometric fit with a curved (quadric) patch, for curved surfaces
+  where the plane model explains the curvature's compression of the lobe by roughness and depth
+  (:func:`photometric_fit` then reports ``plane_misfit``).
 - :func:`photometric_fit`: the ROI's intensities fitted with the image of a plane lit by the whole
   rig (sum of the lights' Phong lobes with their falloff and emission profile) plus a smooth linear
   background: normal, distance, roughness and gain; clipped pixels are left out.
@@ -116,6 +117,8 @@ STATUSES: dict[str, str] = {
     "too_few_points": "fewer isophote points or unclipped pixels than parameters",
     "multi_light_rig": "the isocurve model (eq. 2) holds for one light; use photometric_fit",
     "light_behind_plane": "a light of the rig lies behind the fitted plane",
+    "patch_misfit": "the quadric patch does not fit the ROI (spatially correlated residuals); "
+                    "the normal is kept for the record, the depth withdrawn",
     "plane_misfit": "the plane model does not fit the ROI (its residuals are spatially correlated: "
                     "a curved patch); the normal is kept for the record, the depth withdrawn",
 }
@@ -1174,80 +1177,117 @@ def photometric_crb(camera, origin_uv, shape, normal, distance_mm: float, rig: L
 # quadric patch (curved surfaces)
 
 
-def _quadric_model(d, b_ray, rig_arr, n0, e1, e2):
-    """Specular image of a quadric patch whose apex lies on the BP ray (see :func:`quadric_fit`)."""
+def _quadric_image(d, b_ray, p, rig_arr, Lm):
+    """Specular image (N,) of the quadric patch ``p`` along rays d (see :func:`quadric_fit`).
+
+    ``p = (a, b, log s, kappa_xx, kappa_xy, kappa_yy, log n)``: the apex is at depth s on the ray
+    ``unit(b_ray + a e1 + b e2)``, its normal the bisector there for the light Lm, the shape
+    operator ``kappa / s`` in the apex's tangent basis. Rays that miss the patch give 0.
+    """
     L, w, inv_sq, m = rig_arr
-
-    def S(p):
-        N = unit(n0 + p[0] * e1 + p[1] * e2)
-        t1, t2 = plane_basis(N)
-        s = np.exp(p[2])
-        kxx, kxy, kyy = p[3], p[4], p[5]
-        rough = np.exp(p[6])
-        P0 = s * b_ray
-        ax, ay, az = d @ t1, d @ t2, d @ N
-        bx, by, bz = -(P0 @ t1), -(P0 @ t2), -(P0 @ N)
-        # F = z + (k_xx x^2 + 2 k_xy x y + k_yy y^2) / 2 = 0 along the ray: A t^2 + B t + C = 0
-        A = 0.5 * (kxx * ax * ax + 2 * kxy * ax * ay + kyy * ay * ay)
-        B = az + (kxx * ax * bx + kxy * (ax * by + ay * bx) + kyy * ay * by)
-        C = bz + 0.5 * (kxx * bx * bx + 2 * kxy * bx * by + kyy * by * by)
-        disc = B * B - 4 * A * C
-        ok = disc >= 0
-        den = B + np.where(B >= 0, 1.0, -1.0) * np.sqrt(np.where(ok, disc, 0.0))
-        good_den = np.abs(den) > 1e-15
-        t = np.where(good_den, -2 * C / np.where(good_den, den, 1.0), np.inf)  # the root near -C/B
-        ok &= (t > 0) & np.isfinite(t)
-        t = np.where(ok, t, s)
-        X = d * t[:, None]
-        x, y = ax * t + bx, ay * t + by
-        ns = N[None, :] + (kxx * x + kxy * y)[:, None] * t1 + (kxy * x + kyy * y)[:, None] * t2
-        ns /= np.linalg.norm(ns, axis=1, keepdims=True)
-        out = np.zeros(len(d))
-        for j in range(len(w)):
-            tl = L[j] - X
-            r = np.linalg.norm(tl, axis=1)
-            l = tl / r[:, None]
-            cb = 2 * np.sum(ns * l, axis=1) * -np.sum(ns * d, axis=1) + np.sum(l * d, axis=1)
-            val = np.where(cb > 0, np.exp(rough * np.log(np.where(cb > 0, cb, 1.0))), 0.0)
-            if inv_sq[j]:
-                val = val * (s / r) ** 2
-            if m[j] > 0:
-                val = val * np.maximum((X[:, 2] - L[j, 2]) / r, 0.0) ** m[j]
-            out += w[j] * val
-        return np.where(ok, out, 0.0)
-
-    return S
+    e1, e2 = plane_basis(b_ray)
+    ray0 = unit(b_ray + p[0] * e1 + p[1] * e2)
+    s = np.exp(p[2])
+    P0 = s * ray0
+    N = unit(unit(-P0) + unit(Lm - P0))
+    t1, t2 = plane_basis(N)
+    kxx, kxy, kyy = p[3] / s, p[4] / s, p[5] / s
+    rough = np.exp(p[6])
+    ax, ay, az = d @ t1, d @ t2, d @ N
+    bx, by, bz = -(P0 @ t1), -(P0 @ t2), -(P0 @ N)
+    # F = z + (k_xx x^2 + 2 k_xy x y + k_yy y^2) / 2 = 0 along the ray X = t d: A t^2 + B t + C = 0
+    kzz = 0.5 * (kxx + kyy)  # the z^2 term: exact for a sphere
+    A = 0.5 * (kxx * ax * ax + 2 * kxy * ax * ay + kyy * ay * ay + kzz * az * az)
+    B = az + (kxx * ax * bx + kxy * (ax * by + ay * bx) + kyy * ay * by + kzz * az * bz)
+    C = bz + 0.5 * (kxx * bx * bx + 2 * kxy * bx * by + kyy * by * by + kzz * bz * bz)
+    disc = B * B - 4 * A * C
+    ok = disc >= 0
+    den = B + np.where(B >= 0, 1.0, -1.0) * np.sqrt(np.where(ok, disc, 0.0))
+    good_den = np.abs(den) > 1e-15
+    t = np.where(good_den, -2 * C / np.where(good_den, den, 1.0), np.inf)  # the root near -C/B
+    ok &= (t > 0) & np.isfinite(t)
+    t = np.where(ok, t, s)
+    X = d * t[:, None]
+    x, y = ax * t + bx, ay * t + by
+    z = az * t + bz
+    ns = ((1.0 + kzz * z)[:, None] * N[None, :] + (kxx * x + kxy * y)[:, None] * t1
+          + (kxy * x + kyy * y)[:, None] * t2)
+    ns /= np.sqrt(np.einsum("ij,ij->i", ns, ns))[:, None]
+    nv = -np.einsum("ij,ij->i", ns, d)
+    out = np.zeros(len(d))
+    for j in range(len(w)):
+        tl = L[j] - X
+        r = np.sqrt(np.einsum("ij,ij->i", tl, tl))
+        cb = (2.0 * np.einsum("ij,ij->i", ns, tl) * nv + np.einsum("ij,ij->i", tl, d)) / r
+        pos = cb > 0
+        val = np.where(pos, np.exp(rough * np.log(np.where(pos, cb, 1.0))), 0.0)
+        if inv_sq[j]:
+            val = val * (s / r) ** 2
+        if m[j] > 0:
+            val = val * np.maximum((X[:, 2] - L[j, 2]) / r, 0.0) ** m[j]
+        out += w[j] * val
+    return np.where(ok & (nv > 0), out, 0.0), N
 
 
 def quadric_fit(values, origin_uv, bp_uv, camera, rig: LightRig, *,
                 clip_level: float | None = None, nominal_depth_mm: float = 20.0,
-                start_depths_mm=None, max_nfev: int = 400) -> LightAwareEstimate:
-    """Fit the ROI with the image of a curved (quadric) patch lit by the rig (experimental).
+                start_depths_mm=None, start_roughness: float | None = None,
+                max_pixels: int | None = 800, max_nfev: int = 100) -> LightAwareEstimate:
+    """Fit the ROI with the image of a curved (quadric) patch lit by the rig.
 
-    The patch's apex is on the BP ray at depth s, with normal N (two angles about a start) and a
-    symmetric shape operator (k_xx, k_xy, k_yy) in the tangent basis of N: in the apex's frame
-    ``z = -(k_xx x^2 + 2 k_xy x y + k_yy y^2) / 2`` (z toward the camera; positive curvatures bend
-    away from it, as the outside of a sphere). Each pixel ray meets it at the root of a quadratic
-    nearest the tangent plane; the surface normal there, the rig's lobes (as in
-    :func:`photometric_fit`), gain and linear background (solved linearly) give the image. Nonlinear
-    parameters (a, b, log s, k_xx, k_xy, k_yy, log n) by Levenberg-Marquardt with a
-    finite-difference Jacobian, from the bisector at each start depth; the least cost is kept.
-    ``normal`` is N at the apex, ``depth_mm`` is s (no uncertainty is given: the curvatures,
-    roughness and depth trade off, and the Jacobian's covariance is not yet validated).
+    The patch is second-order about its apex: the apex X0 at depth s on a ray near the BP's
+    (two angles (a, b) about it), its normal N the bisector of the directions from X0 to the
+    camera and to the rig's mean light (so X0 is that light's specular point, the point whose depth
+    and normal are reported), and a symmetric shape operator ``kappa / s`` (kappa_xx, kappa_xy,
+    kappa_yy dimensionless) in the tangent basis (t1, t2) of N: in the apex's frame (z along N,
+    toward the camera) the patch is
+    ``F = z + (k_xx x^2 + 2 k_xy x y + k_yy y^2 + H z^2) / 2 = 0`` with ``H = (k_xx + k_yy) / 2``
+    the mean curvature (positive curvatures bend away from the camera, as the outside of a
+    sphere). Each pixel ray meets it at the root of a quadratic nearest the tangent plane; the
+    surface normal there (the gradient of F), the rig's lobes (as in :func:`photometric_fit`), gain
+    and linear background (solved linearly, variable projection) give the image. The seven
+    nonlinear parameters (a, b, log s, kappa, log n) are fitted by Levenberg-Marquardt
+    (:func:`scipy.optimize.least_squares`, finite-difference Jacobian, scaled) on a regular
+    sub-grid of at most ``max_pixels`` unclipped pixels, from a flat patch at each start depth in
+    turn until one ends at a plausible solution (distance and roughness in the ranges of
+    :func:`photometric_fit`), kept; without one, the least cost. A fit whose neighbouring
+    residuals correlate (the test of :func:`photometric_fit`) is reported as ``patch_misfit``.
+
+    Notes
+    -----
+    Why tie N to the bisector: a surface point with its normal has five degrees of freedom, two of
+    which slide the point along the surface; fixing the point to the one where the normal bisects
+    camera and light removes that freedom without restricting the patch, and makes the normal a
+    function of the depth and the apex ray only. Why the ``H z^2`` term: without it (a
+    paraboloid) the patch departs from a sphere at fourth order in the distance from the apex,
+    and on rendered spheres at epsilon/d = 0.3 that departure moved the fitted depth by 40 % along
+    the valley where depth, curvature and roughness trade off (2 deg of normal); with it a
+    sphere is exact and a cylinder's fourth-order error is halved. The plane model
+    (:func:`photometric_fit`) meets a curved patch by trading the curvature's compression or
+    spreading of the lobe for roughness and distance, and the distance sets the normal through
+    the bisector; the quadric model fits the curvature instead. Uncertainty: ``C = s^2 (J^T J)^-1`` with J the Jacobian of the projected
+    residual at the solution, propagated to N by finite differences.
 
     Parameters
     ----------
     values, origin_uv, bp_uv, camera, rig, clip_level, nominal_depth_mm
         As in :func:`photometric_fit`.
     start_depths_mm : sequence of float, optional
-        Start depths along the BP ray (default: 0.5, 1 and 2 times ``nominal_depth_mm``).
+        Start depths of the apex along the BP ray, tried in turn (default: 1, 3 and 0.5 times
+        ``nominal_depth_mm``).
+    start_roughness : float, optional
+        Start Phong n (default 50).
+    max_pixels : int or None
+        Beyond this many unclipped pixels, fit those of a regular sub-grid (None keeps all).
     max_nfev : int
-        Evaluation budget per start.
+        Evaluation budget per start, in Jacobian evaluations (scipy's ``max_nfev`` for ``lm`` with
+        a finite-difference Jacobian counts each of its 8 residual evaluations).
 
     Returns
     -------
     LightAwareEstimate
-        ``estimator="quadric_fit"``, status ``ok`` or ``not_converged``.
+        ``estimator="quadric_fit"``, status ``ok``, ``depth_not_observable``, ``patch_misfit``
+        or ``not_converged``; ``distance_mm`` is the apex depth s.
 
     Raises
     ------
@@ -1257,8 +1297,15 @@ def quadric_fit(values, origin_uv, bp_uv, camera, rig: LightRig, *,
     name = "quadric_fit"
     vals, camera, o, uu, vv, keep = _roi_grid(values, camera, origin_uv, clip_level)
     H, W = vals.shape
-    uv = np.column_stack([uu[keep] + o[0], vv[keep] + o[1]]).astype(np.float64)
-    y = vals[keep]
+    sel = np.flatnonzero(keep)
+    step = 1
+    if max_pixels and len(sel) > max_pixels:  # a regular sub-grid of the ROI
+        step = int(np.ceil(np.sqrt(len(sel) / max_pixels)))
+        grid = np.zeros_like(keep)
+        grid[::step, ::step] = True
+        sel = np.flatnonzero(keep & grid)
+    uv = np.column_stack([uu.ravel()[sel] + o[0], vv.ravel()[sel] + o[1]]).astype(np.float64)
+    y = vals.ravel()[sel]
     if len(y) < 12:
         return LightAwareEstimate(name, "too_few_points", f"{len(y)} unclipped pixels")
     y = y / max(float(np.abs(y).max()), 1e-12)
@@ -1269,35 +1316,73 @@ def quadric_fit(values, origin_uv, bp_uv, camera, rig: LightRig, *,
     Lm = _mean_light(rig)
     du = (uv[:, 0] - bp[0]) / max(H, W)
     dv = (uv[:, 1] - bp[1]) / max(H, W)
-    ones = np.ones_like(du)
-    starts = (nominal_depth_mm * np.array([0.5, 1.0, 2.0]) if start_depths_mm is None
+    A = np.column_stack([np.zeros_like(du), np.ones_like(du), du, dv])
+
+    def res(p):  # variable projection: the linear part by its normal equations
+        A[:, 0] = _quadric_image(d, b_ray, p, rig_arr, Lm)[0]
+        try:
+            c = np.linalg.solve(A.T @ A, A.T @ y)
+        except np.linalg.LinAlgError:
+            c = np.linalg.lstsq(A, y, rcond=None)[0]
+        return A @ c - y
+
+    starts = (np.array([1.0, 3.0, 0.5]) * nominal_depth_mm if start_depths_mm is None
               else np.asarray(start_depths_mm, dtype=np.float64).reshape(-1))
+    n0 = 50.0 if start_roughness is None else float(start_roughness)
+    px = 1.0 / float(np.linalg.norm(_rays(camera, bp[None] + [1.0, 0.0])[0] - b_ray))  # px per rad
+    x_scale = np.array([1.0 / px, 1.0 / px, 0.1, 0.1, 0.1, 0.1, 0.3])
     best = None
     nfev = 0
     for s0 in starts:
-        X = s0 * b_ray
-        n0 = unit(unit(-X) + unit(Lm - X))
-        e1, e2 = plane_basis(n0)
-        S = _quadric_model(d, b_ray, rig_arr, n0, e1, e2)
-
-        def res(p, S=S):
-            A = np.column_stack([S(p), ones, du, dv])
-            return A @ np.linalg.lstsq(A, y, rcond=None)[0] - y
-
-        p0 = np.array([0.0, 0.0, np.log(s0), 0.0, 0.0, 0.0, np.log(50.0)])
+        p0 = np.array([0.0, 0.0, np.log(s0), 0.0, 0.0, 0.0, np.log(n0)])
         with np.errstate(all="ignore"):
-            r = least_squares(res, p0, method="lm", max_nfev=max_nfev,
-                              x_scale=np.array([0.01, 0.01, 0.1, 0.01, 0.01, 0.01, 0.3]))
+            r = least_squares(res, p0, method="lm", max_nfev=max_nfev * 8, x_scale=x_scale,
+                              ftol=1e-6, xtol=1e-6)
         nfev += r.nfev
-        if np.isfinite(r.cost) and (best is None or r.cost < best[0]):
-            best = (r.cost, r, n0, e1, e2)
+        if np.isfinite(r.cost) and (best is None or r.cost < best.cost):
+            best = r
+        if (np.isfinite(r.cost) and r.status > 0
+                and not _implausible(float(np.exp(r.x[2])), float(nominal_depth_mm),
+                                     float(np.exp(r.x[6])))):
+            best = r  # a plausible solution: the other starts are for a fit that ran off
+            break
     if best is None:
         return LightAwareEstimate(name, "not_converged", "no finite solution", n_evaluations=nfev)
-    _, r, n0, e1, e2 = best
-    n_hat = unit(n0 + r.x[0] * e1 + r.x[1] * e2)
-    s_hat = float(np.exp(r.x[2]))
-    rough = float(np.exp(r.x[6]))
+    x = best.x
+    n_hat = _quadric_image(d[:1], b_ray, x, rig_arr, Lm)[1]
+    s_hat = float(np.exp(x[2]))
+    rough = float(np.exp(x[6]))
     bad = _implausible(s_hat, float(nominal_depth_mm), rough)
-    if r.status <= 0 or bad:
-        return LightAwareEstimate(name, "not_converged", bad or r.message, n_evaluations=nfev)
-    return LightAwareEstimate(name, OK, "", n_hat, s_hat, None, None, None, rough, None, nfev)
+    if best.status <= 0 or bad:
+        return LightAwareEstimate(name, "not_converged", bad or best.message, n_evaluations=nfev)
+    r0 = best.fun
+    J = best.jac
+    m_, k_ = J.shape
+    resid_var = float(r0 @ r0) / max(m_ - k_ - 4, 1)
+    cov = _covariance(J, resid_var)
+    cov_floor = _covariance(J, max(resid_var, TOL.photometric_noise_rel**2))
+    G = np.empty((3, 7))  # dN / dp
+    for i in range(7):
+        dp = np.zeros(7)
+        dp[i] = 1e-6 * x_scale[i]
+        G[:, i] = (_quadric_image(d[:1], b_ray, x + dp, rig_arr, Lm)[1]
+                   - _quadric_image(d[:1], b_ray, x - dp, rig_arr, Lm)[1]) / (2 * dp[i])
+    sigma_deg = (None if cov is None
+                 else float(np.degrees(np.sqrt(max(np.trace(G @ cov @ G.T), 0.0)))))
+    rel_floor = None if cov_floor is None else float(np.sqrt(max(cov_floor[2, 2], 0.0)))
+    observable = rel_floor is not None and rel_floor <= TOL.depth_rel_sigma_max
+    status, detail = OK, ""
+    if not observable:
+        status = "depth_not_observable"
+        detail = ("J^T J singular" if rel_floor is None else
+                  f"relative depth sigma {rel_floor:.3g} at the noise floor > {TOL.depth_rel_sigma_max}")
+    depth_sigma = (float(s_hat * np.sqrt(max(cov[2, 2], 0.0)))
+                   if observable and cov is not None else None)
+    rho, c = _residual_correlation(r0, sel, keep.shape, step)
+    if rho > TOL.plane_misfit_rho and c > TOL.plane_misfit_rel**2:
+        status, observable = "patch_misfit", False
+        detail = (f"neighbouring residuals correlate (rho {rho:.3g} > {TOL.plane_misfit_rho}; "
+                  f"systematic RMS {np.sqrt(c):.3g})")
+    return LightAwareEstimate(name, status, detail, n_hat, s_hat if observable else None, sigma_deg,
+                              depth_sigma if observable else None, s_hat if observable else None,
+                              rough, None, nfev, float(np.sqrt(np.mean(r0 * r0))))

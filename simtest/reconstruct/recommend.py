@@ -12,7 +12,8 @@ Chosen from the harness' measurements on Mitsuba renders (``simtest validate ren
 ``lightaware`` suite), never from ground truth at run time:
 
 1. With a rig whose lights are not all at the camera centre: ``photometric_fit`` when its status
-   is ``ok``, else ``isocurve_fit`` when its status is ``ok``, else ``bp_ray``. On renders of
+   is ``ok``, else ``quadric_fit`` when ``ok``, else ``isocurve_fit`` when ``ok`` (and the plane
+   does not misfit), else ``bp_ray``. On renders of
    planes lit off the camera (the ``lightaware`` suite) the BP ray and every cone estimator err by
    about 24 deg per unit epsilon/d (they estimate the direction of the BP, not the normal); the
    photometric fit uses every unclipped pixel, the lobe's shape and its position, and errs by
@@ -22,9 +23,15 @@ Chosen from the harness' measurements on Mitsuba renders (``simtest validate ren
    too (on the curved scenes such fits missed by up to 12 deg). On curved patches the plane
    model trades the curvature for roughness and distance and misses the normal, by more than the
    BP ray on the sphere, while its residual stays near the sensor's noise; its residuals are then
-   spatially correlated, which ``photometric_fit`` reports as ``plane_misfit``. A ``plane_misfit``
-   also rules out ``isocurve_fit`` (the same plane model, seen through the contours): the BP ray
-   is recommended.
+   spatially correlated, which ``photometric_fit`` reports as ``plane_misfit`` (or its fit runs
+   off, ``not_converged``). A photometric fit that is not ``ok`` runs ``quadric_fit`` (a curved
+   patch, exact on spheres), recommended when its status is ``ok``; then ``isocurve_fit``, unless
+   the plane misfits (the isocurve fit is the same plane model, seen through the contours); else
+   the BP ray. On the ``lightaware-curved`` renders the quadric patch beats the BP ray on
+   the sphere, cylinder and saddle at epsilon/d 0.1 and 0.3; on the liver mesh at epsilon/d 0.07
+   it is worse (the mesh is not a quadric over the highlight, and the fit trades depth against
+   curvature: its dimensionless curvature k d is right, its depth a third of the truth), and on
+   the colon's folds it does not converge (BP ray).
 2. Without a rig, or with every light at the camera centre: ``joint_cone_axis`` when at least two
    isophotes succeeded, else ``cone_axis``, else ``bp_ray``. Over the co-located rendered suite the
    joint cone axis has the lowest mean and median error (:func:`colocated_ranking` recomputes the
@@ -58,7 +65,7 @@ __all__ = ["LIGHT_AWARE", "Recommendation", "colocated_ranking", "light_aware_es
            "recommend", "with_light_aware"]
 
 #: The light-aware estimators, in the order of preference of the recommendation rule.
-LIGHT_AWARE = ("photometric_fit", "isocurve_fit")
+LIGHT_AWARE = ("photometric_fit", "quadric_fit", "isocurve_fit")
 #: Fallback order without a rig (or with a co-located one).
 COLOCATED_ORDER = ("joint_cone_axis", "cone_axis", "bp_ray")
 
@@ -122,15 +129,16 @@ def light_aware_estimates(image, est, camera, rig: LightRig, *, nominal_depth_mm
     supersample : int
         Sub-pixel samples per pixel side of the photometric model (its box filter).
     quadric : bool
-        Also run the (slow, experimental) curved-patch fit
-        :func:`~simtest.reconstruct.lightaware.quadric_fit` on the same ROI, started at the
-        photometric fit's depth and the nominal one.
+        Run the curved-patch fit :func:`~simtest.reconstruct.lightaware.quadric_fit` on the same
+        ROI whatever the photometric fit's status (it runs anyway when that status is not
+        ``ok``: a plane misfit, or a plane fit that ran off on a curved patch).
 
     Returns
     -------
     dict
         ``{"isocurve_fit": LightAwareEstimate, "photometric_fit": LightAwareEstimate}`` (the
-        isocurve fit is absent when no isophote succeeded), and ``"quadric_fit"`` on request.
+        isocurve fit is absent when no isophote succeeded), and ``"quadric_fit"`` on request or
+        when the photometric fit's status is not ``ok``.
     """
     img = np.asarray(image)
     if saturation_level is None and img.dtype.kind == "u":
@@ -159,12 +167,10 @@ def light_aware_estimates(image, est, camera, rig: LightRig, *, nominal_depth_mm
         gray[big.slices], (big.col0, big.row0), est.bp_px, camera, rig,
         clip_level=saturation_level, nominal_depth_mm=nominal_depth_mm,
         start_normal=start_n, supersample=supersample)
-    if quadric:
-        pho = out["photometric_fit"]
-        starts = [nominal_depth_mm] + ([pho.depth_mm] if pho.depth_mm is not None else [])
+    if quadric or not out["photometric_fit"].ok:
         out["quadric_fit"] = quadric_fit(
             gray[big.slices], (big.col0, big.row0), est.bp_px, camera, rig,
-            clip_level=saturation_level, nominal_depth_mm=nominal_depth_mm, start_depths_mm=starts)
+            clip_level=saturation_level, nominal_depth_mm=nominal_depth_mm)
     return out
 
 
