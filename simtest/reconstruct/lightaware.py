@@ -504,8 +504,9 @@ def _solve(resjac, p0, args, loss: str, f_scale: float, max_nfev: int, free=None
     ``loss="linear"``: one LM solve. Otherwise (``soft_l1``, ``huber``, ``cauchy``): the LM solution
     is reweighted once by iteratively reweighted least squares, each residual scaled by
     ``sqrt(rho'(z))`` with ``z = (r / f_scale)^2`` (the weights of scipy's robust losses), and
-    re-solved from there. ``free`` (bool mask) holds the other parameters at ``p0``. Returns
-    (x, n_evaluations, converged, message).
+    re-solved from there. ``free`` (bool mask) holds the other parameters at ``p0``.
+    ``resjac(p, *args, grad=...)`` returns the residuals and, with ``grad``, their Jacobian (else
+    None). Returns (x, n_evaluations, converged, message, residuals at x).
     """
     if loss not in ("linear", "soft_l1", "huber", "cauchy"):
         raise ValueError(f"loss: {loss!r} is not one of linear, soft_l1, huber, cauchy")
@@ -518,26 +519,27 @@ def _solve(resjac, p0, args, loss: str, f_scale: float, max_nfev: int, free=None
         p[free] = q
         return p
 
-    def rj(q):  # MINPACK asks for f and J at the same point: compute both once
+    def rj(q, grad=True):
+        # MINPACK asks for f at each trial point and for J only at the accepted ones (at the
+        # point of its last f): the residual alone first, r and J together when J is asked
         key = q.tobytes()
-        if key not in cache:
-            cache.clear()
-            r, J = resjac(full(q), *args)
-            cache[key] = (r, J[:, free])
-        return cache[key]
+        if cache.get("key") != key or (grad and cache.get("J") is None):
+            r, J = resjac(full(q), *args, grad=grad)
+            cache.update(key=key, r=r, J=None if J is None else J[:, free])
+        return cache["r"], cache["J"]
 
     def fun(q, w):
-        return rj(q)[0] * w
+        return rj(q, grad=False)[0] * w
 
     def jac(q, w):
         return rj(q)[1] * w[:, None]
 
     q = p0[free]
-    w = np.ones(len(rj(q)[0]))
+    w = np.ones(len(rj(q, grad=False)[0]))
     nfev, ok, msg = 0, True, ""
     for it in range(1 if loss == "linear" else 2):
         if it:
-            z = (rj(q)[0] / f_scale) ** 2
+            z = (rj(q, grad=False)[0] / f_scale) ** 2
             if loss == "soft_l1":
                 w = (1.0 + z) ** -0.25
             elif loss == "huber":
@@ -549,7 +551,7 @@ def _solve(resjac, p0, args, loss: str, f_scale: float, max_nfev: int, free=None
                                 xtol=1e-12, ftol=1e-12, gtol=1e-12)
         nfev += res.nfev
         q, ok, msg = res.x, res.status > 0 and np.isfinite(res.x).all(), res.message
-    return full(q), nfev, ok, msg
+    return full(q), nfev, ok, msg, rj(q, grad=False)[0]
 
 
 #: Plausible fitted values: the distance within this factor of the start's, the roughness in
@@ -581,8 +583,12 @@ def _log_depth_gradient(n, h, Lm) -> np.ndarray:
 
 
 def _finish(name, resjac_at, n_hat, h_hat, rig, extra_params, resid_floor, n_eval, converged,
-            roughness=None, taus=None, detail=""):
-    """Covariance about the solution, depth and its observability, and the estimate."""
+            roughness=None, taus=None, detail="", post=None):
+    """Covariance about the solution, depth and its observability, and the estimate.
+
+    ``post(estimate, residuals)``, when given, returns the estimate to report (the residuals at the
+    solution are those the covariance used).
+    """
     e1, e2 = plane_basis(n_hat)
     p_hat = np.concatenate([[0.0, 0.0, np.log(h_hat)], extra_params])
     r0, J = resjac_at(p_hat, n_hat, e1, e2)
@@ -608,12 +614,13 @@ def _finish(name, resjac_at, n_hat, h_hat, rig, extra_params, resid_floor, n_eva
     depth_sigma = None
     if observable and cov is not None:
         depth_sigma = float(depth * np.sqrt(max(g @ cov[:3, :3] @ g, 0.0)))
-    return LightAwareEstimate(
+    est = LightAwareEstimate(
         name, status, detail, n_hat,
         depth if observable else None, sigma_deg, depth_sigma,
         h_hat if observable else None, roughness, taus, n_eval,
         float(np.sqrt(np.mean(r0 * r0))),
     )
+    return est if post is None else post(est, r0)
 
 
 # ------------------------------------------------------------------------------------------------
@@ -766,11 +773,13 @@ def isocurve_fit(points_uv, isovalues, bp_uv, camera, rig: LightRig, *,
 
     wts = weights(n0, h0)
 
-    def resjac_at(p, nb, e1, e2):
+    def resjac_at(p, nb, e1, e2, grad=True):
         n, dns = _normal_derivs(p, nb, e1, e2)
-        cb, dcb = _terms(d, n, dns, np.exp(p[2]), L)[:2]
+        cb, dcb = _terms(d, n, dns, np.exp(p[2]), L, grad)[:2]
         taus = taus_of(p[3:])
         r = (cb - taus[kidx]) * wts
+        if not grad:
+            return r, None
         J = np.empty((len(r), 3 + n_tau))
         J[:, :3] = dcb * wts[:, None]
         if n_tau == 1:
@@ -809,7 +818,7 @@ def isocurve_fit(points_uv, isovalues, bp_uv, camera, rig: LightRig, *,
     p0 = np.concatenate([[0.0, 0.0, np.log(h0)], q0])
     free = np.ones(len(p0), bool)
     free[2] = np.linalg.norm(L) > 1e-9 * h0  # L = V: the image does not depend on h
-    x, nfev, conv, msg = _solve(resjac_at, p0, (n0, e1, e2), loss, f_scale_px, max_nfev, free)
+    x, nfev, conv, msg, _ = _solve(resjac_at, p0, (n0, e1, e2), loss, f_scale_px, max_nfev, free)
     n_hat = _normal_derivs(x, n0, e1, e2)[0]
     h_hat = float(np.exp(x[2]))
     q = x[3:]
@@ -993,13 +1002,17 @@ def photometric_fit(values, origin_uv, bp_uv, camera, rig: LightRig, *,
     yscale = max(float(np.abs(y).max()), 1e-12)
     yn = y / yscale
 
-    def resjac_at(p, nb, e1, e2):
+    def resjac_at(p, nb, e1, e2, grad=True):
         n, dns = _normal_derivs(p, nb, e1, e2)
-        S, dS = _rig_image(d, n, dns, np.exp(p[2]), rig_arr, np.exp(p[3]))
+        S, dS = _rig_image(d, n, dns, np.exp(p[2]), rig_arr, np.exp(p[3]), grad)
         if ss > 1:  # box filter: the mean of the sub-pixel samples
-            S, dS = S.reshape(-1, ss * ss).mean(axis=1), dS.reshape(-1, ss * ss, 4).mean(axis=1)
+            S = S.reshape(-1, ss * ss).mean(axis=1)
+            if grad:
+                dS = dS.reshape(-1, ss * ss, 4).mean(axis=1)
         g = p[4]
         r = g * S + p[5] + p[6] * du + p[7] * dv - yn
+        if not grad:
+            return r, None
         J = np.column_stack([g * dS, S, ones, du, dv])
         return r, J
 
@@ -1048,9 +1061,8 @@ def photometric_fit(values, origin_uv, bp_uv, camera, rig: LightRig, *,
         p0 = np.concatenate([[0.0, 0.0, np.log(hc), np.log(rough_c)], lin_c])
         free = np.ones(len(p0), bool)
         free[2] = np.abs(rig_arr[0]).max() > 1e-9 * hc  # all lights at V: no dependence on h
-        x, nfev, conv, msg = _solve(resjac_at, p0, (nc, e1, e2), loss, f_scale, max_nfev, free)
+        x, nfev, conv, msg, r = _solve(resjac_at, p0, (nc, e1, e2), loss, f_scale, max_nfev, free)
         nfev_total += nfev
-        r = resjac_at(x, nc, e1, e2)[0]
         cost = float(r @ r) if np.isfinite(r).all() else np.inf
         if best is None or cost < best[0]:
             best = (cost, x, nc, hc, e1, e2, conv, msg)
@@ -1063,9 +1075,9 @@ def photometric_fit(values, origin_uv, bp_uv, camera, rig: LightRig, *,
         return LightAwareEstimate(name, "not_converged", bad, n_evaluations=nfev)
     if np.any(n_hat @ rig_arr[0].T + h_hat <= 0):
         return LightAwareEstimate(name, "light_behind_plane", f"h = {h_hat:.4g} mm", n_evaluations=nfev)
-    out = _finish(name, resjac_at, n_hat, h_hat, rig, x[3:], TOL.photometric_noise_rel, nfev,
-                  conv, roughness=float(np.exp(x[3])), detail="" if conv else msg)
-    return _misfit(out, resjac_at(x, n0, e1, e2)[0], sel, keep.shape, step)
+    return _finish(name, resjac_at, n_hat, h_hat, rig, x[3:], TOL.photometric_noise_rel, nfev,
+                   conv, roughness=float(np.exp(x[3])), detail="" if conv else msg,
+                   post=lambda est, r0: _misfit(est, r0, sel, keep.shape, step))
 
 
 # ------------------------------------------------------------------------------------------------
