@@ -498,7 +498,8 @@ def _covariance(jac: np.ndarray, resid_var: float) -> np.ndarray | None:
     return resid_var * np.linalg.inv(jn) / np.outer(scale, scale)
 
 
-def _solve(resjac, p0, args, loss: str, f_scale: float, max_nfev: int, free=None):
+def _solve(resjac, p0, args, loss: str, f_scale: float, max_nfev: int, free=None,
+           lazy_jac: bool = False):
     """Levenberg-Marquardt (MINPACK, analytic Jacobian), robust loss by reweighting.
 
     ``loss="linear"``: one LM solve. Otherwise (``soft_l1``, ``huber``, ``cauchy``): the LM solution
@@ -506,7 +507,10 @@ def _solve(resjac, p0, args, loss: str, f_scale: float, max_nfev: int, free=None
     ``sqrt(rho'(z))`` with ``z = (r / f_scale)^2`` (the weights of scipy's robust losses), and
     re-solved from there. ``free`` (bool mask) holds the other parameters at ``p0``.
     ``resjac(p, *args, grad=...)`` returns the residuals and, with ``grad``, their Jacobian (else
-    None). Returns (x, n_evaluations, converged, message, residuals at x).
+    None). ``lazy_jac``: MINPACK's trial points get the residuals alone and the Jacobian is
+    computed only where it is asked (worth it for a large Jacobian, the photometric fit's; for a
+    few hundred contour points the second call costs more than the Jacobian). Returns (x,
+    n_evaluations, converged, message, residuals at x).
     """
     if loss not in ("linear", "soft_l1", "huber", "cauchy"):
         raise ValueError(f"loss: {loss!r} is not one of linear, soft_l1, huber, cauchy")
@@ -521,7 +525,9 @@ def _solve(resjac, p0, args, loss: str, f_scale: float, max_nfev: int, free=None
 
     def rj(q, grad=True):
         # MINPACK asks for f at each trial point and for J only at the accepted ones (at the
-        # point of its last f): the residual alone first, r and J together when J is asked
+        # point of its last f): with lazy_jac the residual alone first, r and J together when J
+        # is asked; else both at once
+        grad = grad or not lazy_jac
         key = q.tobytes()
         if cache.get("key") != key or (grad and cache.get("J") is None):
             r, J = resjac(full(q), *args, grad=grad)
@@ -1061,7 +1067,8 @@ def photometric_fit(values, origin_uv, bp_uv, camera, rig: LightRig, *,
         p0 = np.concatenate([[0.0, 0.0, np.log(hc), np.log(rough_c)], lin_c])
         free = np.ones(len(p0), bool)
         free[2] = np.abs(rig_arr[0]).max() > 1e-9 * hc  # all lights at V: no dependence on h
-        x, nfev, conv, msg, r = _solve(resjac_at, p0, (nc, e1, e2), loss, f_scale, max_nfev, free)
+        x, nfev, conv, msg, r = _solve(resjac_at, p0, (nc, e1, e2), loss, f_scale, max_nfev, free,
+                                       lazy_jac=True)
         nfev_total += nfev
         cost = float(r @ r) if np.isfinite(r).all() else np.inf
         if best is None or cost < best[0]:
