@@ -842,6 +842,24 @@ def isocurve_fit(points_uv, isovalues, bp_uv, camera, rig: LightRig, *,
 # photometric fit
 
 
+def _roi_samples(vals, o, uu, vv, keep, max_pixels):
+    """The ROI pixels a photometric fit uses: every kept pixel, or a regular sub-grid of them.
+
+    Returns ``(sel, step, uv, y)``: flat indices of the used pixels, the sub-grid step (1: every
+    pixel), their (u, v) image positions (N, 2) in pixels and their values (N,).
+    """
+    sel = np.flatnonzero(keep)
+    step = 1
+    if max_pixels and len(sel) > max_pixels:  # a regular sub-grid of the ROI
+        step = int(np.ceil(np.sqrt(len(sel) / max_pixels)))
+        grid = np.zeros_like(keep)
+        grid[::step, ::step] = True
+        sel = np.flatnonzero(keep & grid)
+    uv = np.column_stack([uu.ravel()[sel] + o[0], vv.ravel()[sel] + o[1]]).astype(np.float64)
+    y = vals.ravel()[sel]
+    return sel, step, uv, y
+
+
 def _roi_grid(values, camera, origin_uv, clip_level):
     """The ROI of a photometric fit: checked values, camera model, origin, pixel grid, unclipped mask.
 
@@ -982,15 +1000,7 @@ def photometric_fit(values, origin_uv, bp_uv, camera, rig: LightRig, *,
     H, W = vals.shape
     border = np.concatenate([vals[0], vals[-1], vals[:, 0], vals[:, -1]])
     b_level = float(np.median(border))
-    sel = np.flatnonzero(keep)
-    step = 1
-    if max_pixels and len(sel) > max_pixels:  # a regular sub-grid of the ROI
-        step = int(np.ceil(np.sqrt(len(sel) / max_pixels)))
-        grid = np.zeros_like(keep)
-        grid[::step, ::step] = True
-        sel = np.flatnonzero(keep & grid)
-    uv = np.column_stack([uu.ravel()[sel] + o[0], vv.ravel()[sel] + o[1]]).astype(np.float64)
-    y = vals.ravel()[sel]
+    sel, step, uv, y = _roi_samples(vals, o, uu, vv, keep, max_pixels)
     if len(y) < 8 + 1:
         return LightAwareEstimate(name, "too_few_points", f"{len(y)} unclipped pixels")
     ss = int(supersample)
@@ -1316,15 +1326,7 @@ def quadric_fit(values, origin_uv, bp_uv, camera, rig: LightRig, *,
     name = "quadric_fit"
     vals, camera, o, uu, vv, keep = _roi_grid(values, camera, origin_uv, clip_level)
     H, W = vals.shape
-    sel = np.flatnonzero(keep)
-    step = 1
-    if max_pixels and len(sel) > max_pixels:  # a regular sub-grid of the ROI
-        step = int(np.ceil(np.sqrt(len(sel) / max_pixels)))
-        grid = np.zeros_like(keep)
-        grid[::step, ::step] = True
-        sel = np.flatnonzero(keep & grid)
-    uv = np.column_stack([uu.ravel()[sel] + o[0], vv.ravel()[sel] + o[1]]).astype(np.float64)
-    y = vals.ravel()[sel]
+    sel, step, uv, y = _roi_samples(vals, o, uu, vv, keep, max_pixels)
     if len(y) < 12:
         return LightAwareEstimate(name, "too_few_points", f"{len(y)} unclipped pixels")
     y = y / max(float(np.abs(y).max()), 1e-12)
