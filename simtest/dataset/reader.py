@@ -101,7 +101,9 @@ class SimtestDataset:
                  split: str | None = None, max_open: int = 4):
         self.root = Path(root)
         self.card = read_card(self.root)
-        rows = read_rows = read_manifest(self.root)
+        rows = read_manifest(self.root)
+        #: True when any sample of the whole dataset (every split) has an RGB sensor image.
+        self.has_rgb = any(r.get("color") == "rgb" for r in rows)
         allowed = (*_ARRAYS, "sensor_png")
         keys = tuple(keys) if keys is not None else _ARRAYS
         bad = [k for k in keys if k not in allowed]
@@ -114,8 +116,6 @@ class SimtestDataset:
             keep = [k for k, r in enumerate(rows) if r.get("split") == split]
             rows, self._paths = [rows[k] for k in keep], [self._paths[k] for k in keep]
         self.rows = rows
-        #: True when any sample of the whole dataset (every split) has an RGB sensor image.
-        self.has_rgb = any(r.get("color") == "rgb" for r in read_rows)
         self.split = split
         self.keys = keys
         self.with_record = with_record
