@@ -226,8 +226,9 @@ def relief_normals(p: np.ndarray, n: np.ndarray, texture) -> np.ndarray:
         Unit shading normals, on the side of ``n``; NaN where ``p`` or ``n`` is.
     """
     dr, mi = require("drjit"), require("mitsuba")
-    flat = lambda a: [mi.Float(np.ascontiguousarray(a[..., i].ravel(), dtype=np.float32)) for i in range(3)]  # noqa: E731
-    out = tissue.relief_normal(_dr_xp(), flat(p), flat(n), texture)
+    p_dr, n_dr = ([mi.Float(np.ascontiguousarray(a[..., i].ravel(), dtype=np.float32)) for i in range(3)]
+                  for a in (p, n))
+    out = tissue.relief_normal(_dr_xp(), p_dr, n_dr, texture)
     dr.eval(*out)
     return np.stack([np.array(x, dtype=np.float32) for x in out], axis=-1).reshape(p.shape)
 
