@@ -10,8 +10,10 @@ from hypothesis import strategies as st
 from simtest.reconstruct.detect import (
     background_side_px,
     clipped_mask,
+    connected_components_with_stats,
     detect_specularities,
     ellipticity,
+    mask_components,
     validate_image,
 )
 
@@ -96,6 +98,58 @@ def test_a_clipped_highlight_wider_than_the_default_background_square_is_one_can
     # the BP is the centroid of the clipped disc (see test_saturated_plateau_centroid_is_the_bp)
     assert np.allclose(cand.bp_uv, (100.3, 99.6), atol=0.25)
     assert [c for c in det.candidates if c.status == "ok"] == [cand]
+
+
+@settings(max_examples=40, deadline=None)
+@given(st.sampled_from([np.uint8, np.uint16]), st.sampled_from([(9, 11), (9, 11, 3), (9, 11, 4)]),
+       st.floats(-3.0, 70000.0), st.integers(0, 2**32 - 1))
+def test_clipped_mask_is_every_channel_at_or_above_the_level(dtype, shape, level, seed):
+    # the OpenCV form (inRange at the ceiling of the level) against the definition, for levels
+    # below zero, between integers, at the dtype maximum and above it
+    top = np.iinfo(dtype).max
+    rng = np.random.default_rng(seed)
+    img = rng.integers(0, top, shape, dtype=dtype, endpoint=True)
+    img[rng.random(shape[:2]) < 0.3] = top
+    level = min(level, top + 2.0) if rng.random() < 0.5 else float(top)
+    img = validate_image(img)
+    want = np.all((img >= level).reshape(*img.shape[:2], -1), axis=2)
+    got = clipped_mask(img, level)
+    assert got.dtype == np.uint8 and np.array_equal(got, want.view(np.uint8))
+
+
+@settings(max_examples=40, deadline=None)
+@given(st.integers(0, 2**32 - 1), st.floats(0.0, 0.6), st.booleans())
+def test_components_band_by_band_are_those_of_one_pass_over_the_mask(seed, fill, blobs):
+    # sparse blobs (empty rows between them: several bands) and dense speckle (one band), with
+    # components nested in the holes of others
+    rng = np.random.default_rng(seed)
+    mask = (rng.random((37, 53)) < fill).astype(np.uint8)
+    if blobs:
+        mask[:] = 0
+        for _ in range(rng.integers(1, 6)):
+            r, c = rng.integers(0, 34), rng.integers(0, 50)
+            mask[r : r + rng.integers(1, 4), c : c + rng.integers(1, 4)] = 1
+    mask[30:37, 40:47] = 1
+    mask[31:36, 41:46] = 0
+    mask[33, 43] = 1
+    n, lab, stats, _ = connected_components_with_stats(mask)
+    want = [(int(a), int(x), int(y), int(w), int(h)) for x, y, w, h, a in stats[1:]]
+    got = mask_components(mask)
+    assert [g[:5] for g in got] == want
+    for k, (_, x, y, w, h, comp) in enumerate(got, start=1):
+        assert np.array_equal(comp, (lab[y : y + h, x : x + w] == k).view(np.uint8))
+    assert mask_components(np.zeros((5, 5), np.uint8)) == []
+
+
+def test_the_background_square_is_set_by_the_widest_plateau_even_one_in_a_hole():
+    clip = np.zeros((200, 200), np.uint8)
+    clip[20:80, 20:80] = 1
+    clip[30:70, 30:70] = 0  # a ring 60 px wide, and a plateau in its hole
+    clip[40:45, 40:45] = 1
+    clip[150:152, 100:131] = 1  # a bar 31 px long
+    assert background_side_px((200, 200), clip) == 2 * 60 + 1
+    clip[10:12, 120:195] = 1  # a bar 75 px long
+    assert background_side_px((200, 200), clip) == 2 * 75 + 1
 
 
 def test_the_default_background_square_is_unchanged_without_wide_plateaus():
