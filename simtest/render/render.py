@@ -53,7 +53,7 @@ from simtest.render import wavefront
 from simtest.render.endoscope import camera_model, light_rig, sample_positions, uses_endoscope
 from simtest.render.sensor import LUMA_WEIGHTS, apply_sensor, frame_luma, video_frame
 from simtest.render.tissue import tissue_params
-from simtest.render.truth import mesh_highlights
+from simtest.render.truth import mesh_highlight_candidates, mesh_highlights
 from simtest.scene.meshes import MeshError, load_mesh
 from simtest.scene.spec import SceneSpec, scene_to_dict
 from simtest.simulate.truth import (
@@ -194,6 +194,9 @@ class RenderResult:
     shading_normals : ndarray of shape (H, W, 3), float32, or None
         Unit shading normals with the tissue's micro-relief, facing the camera, NaN outside
         ``mask`` (``normals`` is the macro normal of the surface); None without micro-relief.
+    video : ndarray of shape (H, W, 3), uint8, or None
+        The video frame when the sensor made one (``sensor.output = "video"``: ``sensor`` is its
+        luma); :attr:`frame` gives it, or develops it from the linear image otherwise.
     """
 
     linear: np.ndarray
@@ -216,10 +219,13 @@ class RenderResult:
     lights: LightRig | None = None
     rgb: np.ndarray | None = None
     shading_normals: np.ndarray | None = None
+    video: np.ndarray | None = field(default=None, repr=False)
 
     @property
     def frame(self) -> np.ndarray:
         """The 8-bit RGB video frame (H, W, 3) of the scene's sensor (:func:`video_frame`)."""
+        if self.video is not None:
+            return self.video
         return video_frame(self.rgb if self.rgb is not None else self.linear, self.spec.sensor, self.seed)
 
     @property
@@ -564,11 +570,14 @@ def _make_caster(scene, K: np.ndarray, pose: np.ndarray | None = None):
     return cast
 
 
-def _highlights(spec: SceneSpec, res: dict, light_pos, K, scene, pose, *, cast=None) -> list[HighlightTruth]:
+def _highlights(spec: SceneSpec, res: dict, light_pos, K, scene, pose, *, cast=None,
+                candidates=None) -> list[HighlightTruth]:
     """Highlights of one light: closed forms for analytic shapes, a search on meshes.
 
     ``cast`` (uv -> hits, see :data:`simtest.render.truth.Caster`) replaces the pinhole caster of
-    ``scene``/``pose`` (the endoscope renderer passes one that traces its camera model's rays).
+    ``scene``/``pose`` (the endoscope renderer passes one that traces its camera model's rays);
+    ``candidates`` are the mesh search's start pixels when already found
+    (:func:`simtest.render.truth.mesh_highlight_candidates`).
     """
     geo = spec.geometry
     size = (spec.camera.width_px, spec.camera.height_px)
@@ -597,14 +606,17 @@ def _highlights(spec: SceneSpec, res: dict, light_pos, K, scene, pose, *, cast=N
         cast = _make_caster(scene, K, pose)
     return mesh_highlights(cast, res["normals_raw"], res["position_raw"],
                            res["mask"], light_pos, K, mesh["vertices"], mesh["faces"],
-                           mesh["k1"], mesh["k2"])
+                           mesh["k1"], mesh["k2"], candidates=candidates)
 
 
-def _sensor_image(linear: np.ndarray, rgb: np.ndarray | None, spec: SceneSpec, seed: int) -> np.ndarray:
-    """The sensor image: :func:`apply_sensor` ("grey") or the video frame's luma ("video")."""
+def _sensor_image(linear: np.ndarray, rgb: np.ndarray | None, spec: SceneSpec,
+                  seed: int) -> tuple[np.ndarray, np.ndarray | None]:
+    """The sensor image: :func:`apply_sensor` ("grey") or the video frame's luma ("video"), and the
+    video frame when one was made (else None)."""
     if spec.sensor.output == "video":
-        return frame_luma(video_frame(rgb if rgb is not None else linear, spec.sensor, seed))
-    return apply_sensor(linear, spec.sensor, seed)
+        frame = video_frame(rgb if rgb is not None else linear, spec.sensor, seed)
+        return frame_luma(frame), frame
+    return apply_sensor(linear, spec.sensor, seed), None
 
 
 def visible_highlights(highlights: list[HighlightTruth], specular: np.ndarray) -> list[HighlightTruth]:
@@ -731,12 +743,12 @@ def render_scene(spec: SceneSpec, *, seed: int | None = None,
         else:
             res = {}
         highlights = visible_highlights(_highlights(spec, res, light_pos, K, scene, pose), specular)
-    sensor = _sensor_image(linear, None, spec, seed)
+    sensor, video = _sensor_image(linear, None, spec, seed)
     return RenderResult(
         linear=linear, sensor=sensor, specular=specular, normals=normals, depth=depth,
         distance=distance, position=position, mask=mask, coverage=alpha.astype(np.float32),
         K=K, cam_to_world=cam_to_world_matrix(spec.camera), light_pos=light_pos,
-        highlights=highlights, variant=variant, seed=seed, spec=spec,
+        highlights=highlights, variant=variant, seed=seed, spec=spec, video=video,
     )
 
 
@@ -777,33 +789,52 @@ def _render_endoscope(spec: SceneSpec, seed: int, variant: str) -> RenderResult:
     v, u = np.mgrid[0:H, 0:W]
     uv = np.stack([u.ravel(), v.ravel()], axis=-1).astype(np.float64)
     n_pix = len(uv)
-    spec_img = np.empty(n_pix, np.float32)
+    # The pixel centres' ground truth first (its casts wait for every kernel queued before them).
     centre = {k: [] for k in ("hit", "p", "n")}
-    value = np.empty((n_pix, 3), np.float32)
-    coverage = np.empty(n_pix, np.float32)
-    spp = spec.render.spp
     for b0 in range(0, n_pix, BLOCK_PIXELS):
-        block = uv[b0:b0 + BLOCK_PIXELS]
-        c = wavefront.cast(scene, model.pixel_to_ray(block))
+        c = wavefront.cast(scene, model.pixel_to_ray(uv[b0:b0 + BLOCK_PIXELS]))
         for k in centre:
             centre[k].append(c[k])
-        rays = wavefront.model_rays(model, sample_positions(spp, W, b0, len(block), seed))
-        if texture is None:
-            val, cov = wavefront.shade(scene, rays, rig, shadows=shadows, spp=spp)
-            sp = val[:, 1]
-        else:
-            val, sp, cov = wavefront.shade_tissue(scene, rays, rig, texture, mat, shadows=shadows, spp=spp)
-        value[b0:b0 + len(block)] = val
-        spec_img[b0:b0 + len(block)] = sp
-        coverage[b0:b0 + len(block)] = cov
     mask = np.concatenate(centre["hit"]).reshape(H, W)
     p = np.concatenate(centre["p"]).reshape(H, W, 3)
     n = np.concatenate(centre["n"]).reshape(H, W, 3)
+    del centre
+    # Then the image: every block's kernels are queued (Dr.Jit's LLVM back-end runs them
+    # asynchronously on its thread pool) while this thread computes the ground-truth maps and the
+    # highlight search's start pixels in numpy; the results are read after that.
+    relief = wavefront.relief_normals(p, n, texture, defer=True) if texture is not None else None
+    spp = spec.render.spp
+    pending = []
+    for b0 in range(0, n_pix, BLOCK_PIXELS):
+        rays = wavefront.model_rays(model, sample_positions(spp, W, b0, min(BLOCK_PIXELS, n_pix - b0), seed))
+        if texture is None:
+            pending.append(wavefront.shade(scene, rays, rig, shadows=shadows, spp=spp, defer=True))
+        else:
+            pending.append(wavefront.shade_tissue(scene, rays, rig, texture, mat, shadows=shadows, spp=spp,
+                                                  defer=True))
     nan = np.float32(np.nan)
     position = np.where(mask[..., None], p, nan).astype(np.float32)
     normals = np.where(mask[..., None], n, nan).astype(np.float32)
     depth = position[..., 2].copy()
     distance = np.where(mask, np.linalg.norm(p, axis=-1), nan).astype(np.float32)
+    res = {"normals_raw": np.where(mask[..., None], n, 0.0), "position_raw": np.where(mask[..., None], p, 0.0),
+           "mask": mask}
+    starts = [mesh_highlight_candidates(res["normals_raw"], res["position_raw"], mask, light.position)
+              if mesh is not None else None for light in rig.lights]
+    spec_img = np.empty(n_pix, np.float32)
+    value = np.empty((n_pix, 3), np.float32)
+    coverage = np.empty(n_pix, np.float32)
+    for b0, job in zip(range(0, n_pix, BLOCK_PIXELS), pending):
+        out = job.fetch()
+        if texture is None:
+            val, cov = out
+            sp = val[:, 1]
+        else:
+            val, sp, cov = out
+        value[b0:b0 + len(val)] = val
+        spec_img[b0:b0 + len(val)] = sp
+        coverage[b0:b0 + len(val)] = cov
+    del pending
     value = value.reshape(H, W, 3)
     rgb = shading = None
     if texture is None:
@@ -811,7 +842,7 @@ def _render_endoscope(spec: SceneSpec, seed: int, variant: str) -> RenderResult:
     else:
         rgb = value
         linear = (value @ np.asarray(LUMA_WEIGHTS, dtype=np.float32)).astype(np.float32)
-        shading = np.where(mask[..., None], wavefront.relief_normals(p, n, texture), nan).astype(np.float32)
+        shading = np.where(mask[..., None], relief.fetch(), nan).astype(np.float32)
     specular = spec_img.reshape(H, W)
 
     def cast_uv(q: np.ndarray) -> dict:
@@ -819,10 +850,8 @@ def _render_endoscope(spec: SceneSpec, seed: int, variant: str) -> RenderResult:
 
     K = _stand_in_K(model)
     highlights: list[HighlightTruth] = []
-    res = {"normals_raw": np.where(mask[..., None], n, 0.0), "position_raw": np.where(mask[..., None], p, 0.0),
-           "mask": mask}
     for i, light in enumerate(rig.lights):
-        found = _highlights(spec, res, light.position, K, None, None, cast=cast_uv)
+        found = _highlights(spec, res, light.position, K, None, None, cast=cast_uv, candidates=starts[i])
         for h in found:
             uvh = model.ray_to_pixel(h.bp_mm[None])[0] if h.bp_mm[2] > 0 else np.full(2, np.nan)
             highlights.append(dataclasses.replace(
@@ -830,13 +859,13 @@ def _render_endoscope(spec: SceneSpec, seed: int, variant: str) -> RenderResult:
                 in_frame=bool(np.all(np.isfinite(uvh)) and -0.5 <= uvh[0] < W - 0.5
                               and -0.5 <= uvh[1] < H - 0.5)))
     highlights = [h for h in visible_highlights(highlights, specular) if _unoccluded(h, cast_uv)]
-    sensor = _sensor_image(linear, rgb, spec, seed)
+    sensor, video = _sensor_image(linear, rgb, spec, seed)
     return RenderResult(
         linear=linear, sensor=sensor, specular=specular, normals=normals, depth=depth,
         distance=distance, position=position, mask=mask, coverage=coverage.reshape(H, W),
         K=K, cam_to_world=cam_to_world_matrix(spec.camera), light_pos=rig.lights[0].position,
         highlights=highlights, variant=variant, seed=seed, spec=spec, camera=model, lights=rig,
-        rgb=rgb, shading_normals=shading)
+        rgb=rgb, shading_normals=shading, video=video)
 
 
 def _stand_in_K(model) -> np.ndarray:

@@ -7,7 +7,10 @@ saturation, vignetting, field stop, JPEG).
 
 from __future__ import annotations
 
+import functools
 import io
+import os
+from concurrent.futures import ThreadPoolExecutor
 
 import numpy as np
 from PIL import Image
@@ -15,7 +18,7 @@ from PIL import Image
 from simtest.constants import LUMA_BT601
 from simtest.scene.spec import SensorSpec
 
-__all__ = ["LUMA_WEIGHTS", "SENSOR_SEED_KEY", "apply_sensor", "field_stop_mask", "frame_luma",
+__all__ = ["LUMA_WEIGHTS", "SENSOR_SEED_KEY", "VIDEO_BANDS", "apply_sensor", "field_stop_mask", "frame_luma",
            "sensor_dtype", "video_frame"]
 
 #: Stable key of the sensor-noise stream in ``SeedSequence([seed, SENSOR_SEED_KEY])``.
@@ -65,7 +68,7 @@ LUMA_WEIGHTS = LUMA_BT601
 
 
 def field_stop_mask(shape: tuple[int, int], kind: str, radius: float) -> np.ndarray:
-    """Pixels inside a scope's field stop, centred on the image.
+    """Pixels inside a scope's field stop, centred on the image (a read-only array, cached).
 
     Parameters
     ----------
@@ -79,6 +82,17 @@ def field_stop_mask(shape: tuple[int, int], kind: str, radius: float) -> np.ndar
     -------
     ndarray of shape (H, W), bool
     """
+    return _field_stop((int(shape[0]), int(shape[1])), str(kind), float(radius))
+
+
+@functools.lru_cache(maxsize=8)
+def _field_stop(shape: tuple[int, int], kind: str, radius: float) -> np.ndarray:
+    out = _field_stop_array(shape, kind, radius)
+    out.flags.writeable = False
+    return out
+
+
+def _field_stop_array(shape: tuple[int, int], kind: str, radius: float) -> np.ndarray:
     H, W = shape
     if kind == "none":
         return np.ones((H, W), dtype=bool)
@@ -92,10 +106,30 @@ def field_stop_mask(shape: tuple[int, int], kind: str, radius: float) -> np.ndar
 
 
 def _srgb(s: np.ndarray) -> np.ndarray:
-    return np.where(s <= 0.0031308, 12.92 * s, 1.055 * np.power(np.maximum(s, 0.0031308), 1 / 2.4) - 0.055)
+    """The sRGB transfer curve (IEC 61966-2-1) of ``s`` in [0, 1], in ``s``'s float type."""
+    c = s.dtype.type
+    return np.where(s <= c(0.0031308), c(12.92) * s,
+                    c(1.055) * np.power(np.maximum(s, c(0.0031308)), c(1 / 2.4)) - c(0.055))
 
 
-def video_frame(rgb: np.ndarray, sensor: SensorSpec, seed: int) -> np.ndarray:
+#: Row bands of a video frame, each developed with its own noise stream
+#: (``SeedSequence([seed, SENSOR_SEED_KEY, 1, band])``): the bands are developed on parallel
+#: threads, and the frame does not depend on how many.
+VIDEO_BANDS = 16
+
+
+@functools.lru_cache(maxsize=8)
+def _vignetting_gain(shape: tuple[int, int], vignetting: float) -> np.ndarray:
+    """``1 - v (r / r_max)^2`` per pixel, r from the image centre, r_max its corner (read-only)."""
+    H, W = shape
+    y, x = np.mgrid[0:H, 0:W].astype(np.float64)
+    r2 = ((x - (W - 1) / 2) ** 2 + (y - (H - 1) / 2) ** 2) / (((W - 1) / 2) ** 2 + ((H - 1) / 2) ** 2)
+    gain = 1.0 - vignetting * r2
+    gain.flags.writeable = False
+    return gain
+
+
+def video_frame(rgb: np.ndarray, sensor: SensorSpec, seed: int, *, threads: int | None = None) -> np.ndarray:
     """An 8-bit RGB video frame from a linear RGB image, as a scope's camera makes it.
 
     Steps, in order: exposure (``exposure``, or "auto": the mean luma inside the field stop made
@@ -105,49 +139,71 @@ def video_frame(rgb: np.ndarray, sensor: SensorSpec, seed: int) -> np.ndarray:
     luma; the tone curve (``gamma`` or sRGB); 8-bit quantisation; the field stop (black outside);
     JPEG at ``jpeg_quality`` (encoded and decoded with Pillow, 4:2:0 chroma) when > 0.
 
+    Every step but the auto-exposure (a mean over the frame) is per pixel; they run on
+    :data:`VIDEO_BANDS` row bands, on ``threads`` threads (numpy releases the GIL), each band with
+    its own noise stream, so the frame does not depend on ``threads``.
+
     Parameters
     ----------
     rgb : ndarray of shape (H, W, 3) or (H, W)
         Linear radiance (a grey image is used for all three channels).
     sensor : SensorSpec
     seed : int
-        Root seed; the noise stream is ``SeedSequence([seed, SENSOR_SEED_KEY, 1])`` (the grey
-        sensor image's stream is ``[seed, SENSOR_SEED_KEY]``).
+        Root seed; band b's noise stream is ``SeedSequence([seed, SENSOR_SEED_KEY, 1, b])`` (the
+        grey sensor image's stream is ``[seed, SENSOR_SEED_KEY]``).
+    threads : int, optional
+        Threads that develop the bands (default: the CPU count, at most 4).
 
     Returns
     -------
     ndarray of shape (H, W, 3), uint8
     """
-    rgb = np.asarray(rgb, dtype=np.float64)
+    rgb = np.asarray(rgb)
     if rgb.ndim == 2:
-        rgb = np.repeat(rgb[..., None], 3, axis=-1)
-    rgb = np.maximum(rgb, 0.0)
+        rgb = rgb[..., None]  # broadcast over the three channels below
     H, W = rgb.shape[:2]
     stop = field_stop_mask((H, W), sensor.field_stop, sensor.field_stop_radius)
     luma_w = np.asarray(LUMA_WEIGHTS)
     if sensor.exposure_mode == "auto":
-        mean = float(np.mean((rgb @ luma_w)[stop])) if stop.any() else 0.0
+        luma = np.maximum(rgb, 0.0) @ luma_w if rgb.shape[-1] == 3 else np.maximum(rgb[..., 0], 0.0) * luma_w.sum()
+        mean = float(np.mean(luma[stop], dtype=np.float64)) if stop.any() else 0.0
         exposure = sensor.auto_mean * sensor.saturation / mean if mean > 0 else 1.0
     else:
         exposure = sensor.exposure
-    s = rgb * exposure
-    if sensor.vignetting > 0:
-        y, x = np.mgrid[0:H, 0:W].astype(np.float64)
-        r2 = ((x - (W - 1) / 2) ** 2 + (y - (H - 1) / 2) ** 2) / (((W - 1) / 2) ** 2 + ((H - 1) / 2) ** 2)
-        s *= (1.0 - sensor.vignetting * r2)[..., None]
-    s *= np.asarray(sensor.white_balance)
-    rng = np.random.default_rng(np.random.SeedSequence([int(seed), SENSOR_SEED_KEY, 1]))
-    if sensor.full_well_e > 0:
-        s = rng.poisson(s * sensor.full_well_e) / sensor.full_well_e
-    if sensor.gaussian_sigma > 0:
-        s = s + rng.normal(0.0, sensor.gaussian_sigma, size=s.shape)
-    s = np.clip(s, 0.0, sensor.saturation) / sensor.saturation
-    if sensor.color_saturation != 1.0:
-        y = (s @ luma_w)[..., None]
-        s = np.clip(y + sensor.color_saturation * (s - y), 0.0, 1.0)
-    s = _srgb(s) if sensor.tone == "srgb" else s ** (1.0 / sensor.gamma)
-    frame = np.rint(s * 255.0).astype(np.uint8)
-    frame[~stop] = 0
+    gain = _vignetting_gain((H, W), float(sensor.vignetting)) if sensor.vignetting > 0 else None
+    frame = np.empty((H, W, 3), dtype=np.uint8)
+    edges = np.linspace(0, H, min(VIDEO_BANDS, H) + 1).astype(int)
+
+    def develop(b: int) -> None:
+        r0, r1 = edges[b], edges[b + 1]
+        rng = np.random.default_rng(np.random.SeedSequence([int(seed), SENSOR_SEED_KEY, 1, b]))
+        s = np.maximum(np.asarray(rgb[r0:r1], dtype=np.float64), 0.0) * exposure
+        if s.shape[-1] == 1:
+            s = np.repeat(s, 3, axis=-1)
+        if gain is not None:
+            s *= gain[r0:r1, :, None]
+        s *= np.asarray(sensor.white_balance)
+        if sensor.full_well_e > 0:
+            s = rng.poisson(s * sensor.full_well_e) / sensor.full_well_e
+        if sensor.gaussian_sigma > 0:
+            s += rng.normal(0.0, sensor.gaussian_sigma, size=s.shape)
+        s = np.clip(s, 0.0, sensor.saturation) / sensor.saturation
+        if sensor.color_saturation != 1.0:
+            y = (s @ luma_w)[..., None]
+            s = np.clip(y + sensor.color_saturation * (s - y), 0.0, 1.0)
+        # sRGB in float32: its error (1e-7 relative) is far below the 8-bit step.
+        s = _srgb(s.astype(np.float32)) if sensor.tone == "srgb" else s ** (1.0 / sensor.gamma)
+        band = np.rint(s * 255.0).astype(np.uint8)
+        band[~stop[r0:r1]] = 0
+        frame[r0:r1] = band
+
+    n_threads = threads if threads is not None else min(4, os.cpu_count() or 1)
+    if n_threads > 1 and len(edges) > 2:
+        with ThreadPoolExecutor(max_workers=n_threads) as pool:
+            list(pool.map(develop, range(len(edges) - 1)))
+    else:
+        for b in range(len(edges) - 1):
+            develop(b)
     if sensor.jpeg_quality > 0:
         buf = io.BytesIO()
         Image.fromarray(frame, mode="RGB").save(buf, format="JPEG", quality=int(sensor.jpeg_quality))

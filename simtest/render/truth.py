@@ -33,6 +33,7 @@ from simtest.simulate.truth import HighlightTruth, bisector, pixel_in_frame
 __all__ = [
     "Caster",
     "bisector_cos_image",
+    "mesh_highlight_candidates",
     "mesh_highlights",
     "highlight_complete",
     "HighlightTarget",
@@ -79,6 +80,31 @@ def bisector_cos_image(normals: np.ndarray, position: np.ndarray, mask: np.ndarr
     return np.where(mask, np.einsum("ijk,ijk->ij", n, h), -1.0)
 
 
+def mesh_highlight_candidates(normals: np.ndarray, position: np.ndarray, mask: np.ndarray,
+                              light: np.ndarray, *, candidate_deg: float = 3.0,
+                              max_highlights: int = 64) -> np.ndarray:
+    """Pixels where a mesh BP search starts: local maxima of :func:`bisector_cos_image`.
+
+    Parameters
+    ----------
+    normals, position, mask, light
+        As :func:`bisector_cos_image`.
+    candidate_deg : float
+        Pixels whose normal is within this angle of the bisector and locally best start a search.
+    max_highlights : int
+        At most this many candidates, the best first.
+
+    Returns
+    -------
+    ndarray of shape (N, 2), float64
+        Pixel coordinates (u, v) of the candidates; (0, 2) when none.
+    """
+    g = bisector_cos_image(normals, position, mask, light)
+    peaks = peak_local_max(g, min_distance=2, threshold_abs=math.cos(math.radians(candidate_deg)),
+                           exclude_border=False, num_peaks=max_highlights)
+    return peaks[:, ::-1].astype(np.float64).reshape(-1, 2)  # (row, col) -> (u, v)
+
+
 #: Caster signature: uv (N, 2) pixel coordinates -> dict with ``hit`` (N,) bool, ``p`` (N, 3),
 #: ``n`` (N, 3) unit camera-facing shading normals, ``prim`` (N,) int triangle index.
 Caster = Callable[[np.ndarray], dict]
@@ -99,6 +125,7 @@ def mesh_highlights(
     candidate_deg: float = 3.0,
     accept_deg: float = 0.01,
     max_highlights: int = 64,
+    candidates: np.ndarray | None = None,
 ) -> list[HighlightTruth]:
     """BPs of a triangle mesh with interpolated vertex normals, from a render's ground truth.
 
@@ -134,6 +161,9 @@ def mesh_highlights(
         A refined BP is kept if its normal is within this angle of the bisector.
     max_highlights : int
         At most this many candidates (the best first) are refined.
+    candidates : ndarray of shape (N, 2), optional
+        The start pixels, when :func:`mesh_highlight_candidates` already gave them (with the same
+        arguments); ``normals`` and ``position`` are then not read.
 
     Returns
     -------
@@ -142,12 +172,12 @@ def mesh_highlights(
     """
 
     H, W = mask.shape
-    g = bisector_cos_image(normals, position, mask, light)
-    peaks = peak_local_max(g, min_distance=2, threshold_abs=math.cos(math.radians(candidate_deg)),
-                           exclude_border=False, num_peaks=max_highlights)
-    if len(peaks) == 0:
+    if candidates is None:
+        candidates = mesh_highlight_candidates(normals, position, mask, light, candidate_deg=candidate_deg,
+                                               max_highlights=max_highlights)
+    if len(candidates) == 0:
         return []
-    uv = peaks[:, ::-1].astype(np.float64)  # (row, col) -> (u, v)
+    uv = np.asarray(candidates, dtype=np.float64)
     step = 1.0
     offs = np.arange(-3, 4, dtype=np.float64)
     grid = np.stack(np.meshgrid(offs, offs, indexing="xy"), axis=-1).reshape(-1, 2)  # (49, 2)

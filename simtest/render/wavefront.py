@@ -23,7 +23,7 @@ from simtest.geometry.lights import LightRig
 from simtest._lazy import require
 from simtest.render import tissue
 
-__all__ = ["BATCH_RAYS", "cast", "model_rays", "relief_normals", "shade", "shade_tissue"]
+__all__ = ["BATCH_RAYS", "Pending", "cast", "model_rays", "relief_normals", "shade", "shade_tissue"]
 
 #: Rays per Mitsuba wavefront: large enough to keep both cores busy, small enough that a
 #: 1350 x 1080 x 16 spp frame does not hold all its rays at once (~120 B per ray in flight).
@@ -115,7 +115,8 @@ def cast(scene, d: np.ndarray) -> dict[str, np.ndarray]:
     return {"hit": hit, "t": t, "p": p, "n": n, "prim": np.array(prim_j, dtype=np.int64)}
 
 
-def shade(scene, d: np.ndarray, rig: LightRig, *, shadows: bool, spp: int = 1) -> tuple[np.ndarray, np.ndarray]:
+def shade(scene, d: np.ndarray, rig: LightRig, *, shadows: bool, spp: int = 1,
+          defer: bool = False) -> tuple[np.ndarray, np.ndarray] | Pending:
     """Radiance along rays from the camera centre, lit by every light of ``rig``.
 
     Parameters
@@ -130,6 +131,8 @@ def shade(scene, d: np.ndarray, rig: LightRig, *, shadows: bool, spp: int = 1) -
         Trace a shadow ray to each light.
     spp : int
         Consecutive rays per pixel: the results are their means (``N / spp`` pixels).
+    defer : bool
+        Queue the kernels and return a :class:`Pending` whose ``fetch()`` gives the results.
 
     Returns
     -------
@@ -160,12 +163,34 @@ def shade(scene, d: np.ndarray, rig: LightRig, *, shadows: bool, spp: int = 1) -
             lit = lit & ~scene.ray_test(si.spawn_ray_to(lp), valid)
         value = bsdf.eval(ctx, si, si.to_local(wo), lit)
         total += dr.select(lit, value * weight, mi.Color3f(0.0))
-    r, g, b, cov = _per_pixel(spp, total.x, total.y, total.z, dr.select(valid, 1.0, 0.0))
-    return np.stack([r, g, b], axis=-1), cov
+    out = Pending(_per_pixel(spp, total.x, total.y, total.z, dr.select(valid, 1.0, 0.0)),
+                  lambda r, g, b, cov: (np.stack([r, g, b], axis=-1), cov))
+    return out if defer else out.fetch()
+
+
+class Pending:
+    """Per-pixel results whose Dr.Jit kernels are queued but not yet read.
+
+    Dr.Jit's LLVM back-end launches kernels asynchronously: :func:`shade`, :func:`shade_tissue` and
+    :func:`relief_normals` with ``defer=True`` queue them and return at once, so numpy work on the calling thread (the ground truth, the
+    highlight search) runs while the thread pool shades. :meth:`fetch` waits for the kernels and
+    returns the numpy float32 arrays.
+    """
+
+    def __init__(self, values: tuple, finish):
+        self._values = values
+        self._finish = finish
+
+    def fetch(self):
+        """Wait for the kernels; return what the shading function returns without ``defer``."""
+        out = tuple(np.array(x, dtype=np.float32) for x in self._values)
+        self._values = ()
+        return self._finish(*out)
 
 
 def _per_pixel(spp: int, *values):
-    """Means over each run of ``spp`` consecutive samples (a pixel's), in Dr.Jit, as numpy float32.
+    """Means over each run of ``spp`` consecutive samples (a pixel's), in Dr.Jit, as queued Dr.Jit
+    arrays (read them with ``numpy.array``).
 
     The samples of a pixel are summed in order by one Dr.Jit block reduction, so the result does
     not depend on the thread count; only per-pixel values leave Dr.Jit.
@@ -175,7 +200,7 @@ def _per_pixel(spp: int, *values):
     if spp > 1:
         values = tuple(dr.block_sum(x, spp) / spp for x in values)
         dr.eval(*values)
-    return tuple(np.array(x, dtype=np.float32) for x in values)
+    return values
 
 
 def _light_at(light, p):
@@ -210,7 +235,7 @@ def _dr_xp():
     return _DrXp
 
 
-def relief_normals(p: np.ndarray, n: np.ndarray, texture) -> np.ndarray:
+def relief_normals(p: np.ndarray, n: np.ndarray, texture, *, defer: bool = False) -> np.ndarray | Pending:
     """Shading normals with the tissue's micro-relief (:func:`simtest.render.tissue.relief_normal`),
     evaluated in Dr.Jit (float32).
 
@@ -219,6 +244,8 @@ def relief_normals(p: np.ndarray, n: np.ndarray, texture) -> np.ndarray:
     p, n : ndarray of shape (..., 3)
         Surface points (mm) and unit macro normals, camera frame.
     texture : simtest.render.tissue.TissueParams
+    defer : bool
+        Queue the kernel and return a :class:`Pending` whose ``fetch()`` gives the result.
 
     Returns
     -------
@@ -228,13 +255,14 @@ def relief_normals(p: np.ndarray, n: np.ndarray, texture) -> np.ndarray:
     dr, mi = require("drjit"), require("mitsuba")
     p_dr, n_dr = ([mi.Float(np.ascontiguousarray(a[..., i].ravel(), dtype=np.float32)) for i in range(3)]
                   for a in (p, n))
-    out = tissue.relief_normal(_dr_xp(), p_dr, n_dr, texture)
+    out = tuple(tissue.relief_normal(_dr_xp(), p_dr, n_dr, texture))
     dr.eval(*out)
-    return np.stack([np.array(x, dtype=np.float32) for x in out], axis=-1).reshape(p.shape)
+    pending = Pending(out, lambda x, y, z: np.stack([x, y, z], axis=-1).reshape(p.shape))
+    return pending if defer else pending.fetch()
 
 
-def shade_tissue(scene, d: np.ndarray, rig: LightRig, texture, material, *,
-                 shadows: bool, spp: int = 1) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def shade_tissue(scene, d: np.ndarray, rig: LightRig, texture, material, *, shadows: bool, spp: int = 1,
+                 defer: bool = False) -> tuple[np.ndarray, np.ndarray, np.ndarray] | Pending:
     """Radiance of procedural tissue (:mod:`simtest.render.tissue`) along rays from the camera centre.
 
     Parameters
@@ -250,6 +278,8 @@ def shade_tissue(scene, d: np.ndarray, rig: LightRig, texture, material, *,
     shadows : bool
     spp : int
         Consecutive rays per pixel: the results are their means (``N / spp`` pixels).
+    defer : bool
+        Queue the kernels and return a :class:`Pending` whose ``fetch()`` gives the results.
 
     Returns
     -------
@@ -287,5 +317,6 @@ def shade_tissue(scene, d: np.ndarray, rig: LightRig, texture, material, *,
         spec += fs * e
         for c in range(3):
             rgb[c] += (alb[c] / dr.pi + fs) * e
-    r, g, b, sp, cov = _per_pixel(spp, *rgb, spec, dr.select(valid, 1.0, 0.0))
-    return np.stack([r, g, b], axis=-1), sp, cov
+    out = Pending(_per_pixel(spp, *rgb, spec, dr.select(valid, 1.0, 0.0)),
+                  lambda r, g, b, sp, cov: (np.stack([r, g, b], axis=-1), sp, cov))
+    return out if defer else out.fetch()
