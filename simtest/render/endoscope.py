@@ -164,7 +164,8 @@ def scaled_omnidirectional(model: OmnidirectionalCamera, width_px: int) -> Omnid
                                  image_size=(int(width_px), int(round(H * s))))
 
 
-def sample_positions(spp: int, width: int, first_pixel: int, n_pixels: int, seed: int):
+def sample_positions(spp: int, width: int, first_pixel: int, n_pixels: int, seed: int, *,
+                     pixels: np.ndarray | None = None):
     """Sub-pixel sample positions of a run of pixels, drawn in Dr.Jit (float32), seeded.
 
     Pixel ``q`` (row-major, ``u = q mod width``, ``v = q div width``) gets ``spp`` samples at
@@ -184,6 +185,9 @@ def sample_positions(spp: int, width: int, first_pixel: int, n_pixels: int, seed
         The run: pixels ``first_pixel .. first_pixel + n_pixels - 1`` in row-major order.
     seed : int
         Root seed.
+    pixels : ndarray of shape (M,), int, optional
+        The run as a list of row-major pixel indices instead (``first_pixel`` and ``n_pixels``
+        are then not used): each pixel gets the very samples it gets in a contiguous run.
 
     Returns
     -------
@@ -198,11 +202,20 @@ def sample_positions(spp: int, width: int, first_pixel: int, n_pixels: int, seed
     # PCG32 of size n gives element i the state initstate + i and the stream initseq + i: with
     # both offset by the run's first sample, sample g of the frame draws from (state + g, g).
     # (opaque: the seed and the run's start are kernel inputs, not constants compiled into it)
-    rng = mi.PCG32(n, dr.opaque(mi.UInt64, (state + off) % 2**64), dr.opaque(mi.UInt64, off))
+    if pixels is None:
+        rng = mi.PCG32(n, dr.opaque(mi.UInt64, (state + off) % 2**64), dr.opaque(mi.UInt64, off))
+        j = dr.arange(mi.UInt32, n)
+        s = j % spp
+        q = j // spp + dr.opaque(mi.UInt32, int(first_pixel))
+    else:
+        n = len(pixels) * int(spp)
+        j = dr.arange(mi.UInt32, n)
+        s = j % spp
+        q = dr.gather(mi.UInt32, mi.UInt32(np.ascontiguousarray(pixels, dtype=np.uint32)), j // spp)
+        g = mi.UInt64(q) * int(spp) + mi.UInt64(s)  # the sample's index in the frame
+        rng = mi.PCG32(n)
+        rng.seed(dr.opaque(mi.UInt64, state) + g, g)
     r1, r2 = rng.next_float32(), rng.next_float32()
-    j = dr.arange(mi.UInt32, n)
-    s = j % spp
-    q = j // spp + dr.opaque(mi.UInt32, int(first_pixel))
     k = int(round(math.sqrt(spp)))
     if k * k == spp:
         du = (mi.Float(s % k) + r1) / k - 0.5

@@ -51,7 +51,7 @@ from simtest.render.mitsuba_dict import (
 )
 from simtest.render import wavefront
 from simtest.render.endoscope import camera_model, light_rig, sample_positions, uses_endoscope
-from simtest.render.sensor import LUMA_WEIGHTS, apply_sensor, frame_luma, video_frame
+from simtest.render.sensor import LUMA_WEIGHTS, apply_sensor, field_stop_mask, frame_luma, video_frame
 from simtest.render.tissue import tissue_params
 from simtest.render.truth import mesh_highlight_candidates, mesh_highlights
 from simtest.scene.meshes import MeshError, load_mesh
@@ -786,32 +786,29 @@ def _render_endoscope(spec: SceneSpec, seed: int, variant: str) -> RenderResult:
     if mat.model == "tissue":
         texture = tissue_params(mat.tissue, mat.texture_seed, mat.relief_mm, mat.relief_scale_mm)
 
-    v, u = np.mgrid[0:H, 0:W]
-    uv = np.stack([u.ravel(), v.ravel()], axis=-1).astype(np.float64)
-    n_pix = len(uv)
+    n_pix = W * H
     # The pixel centres' ground truth first (its casts wait for every kernel queued before them).
-    centre = {k: [] for k in ("hit", "p", "n")}
-    for b0 in range(0, n_pix, BLOCK_PIXELS):
-        c = wavefront.cast(scene, model.pixel_to_ray(uv[b0:b0 + BLOCK_PIXELS]))
-        for k in centre:
-            centre[k].append(c[k])
-    mask = np.concatenate(centre["hit"]).reshape(H, W)
-    p = np.concatenate(centre["p"]).reshape(H, W, 3)
-    n = np.concatenate(centre["n"]).reshape(H, W, 3)
-    del centre
+    c = wavefront.cast(scene, _pixel_rays(model))
+    mask, p, n = c["hit"].reshape(H, W), c["p"].reshape(H, W, 3), c["n"].reshape(H, W, 3)
+    del c
     # Then the image: every block's kernels are queued (Dr.Jit's LLVM back-end runs them
     # asynchronously on its thread pool) while this thread computes the ground-truth maps and the
     # highlight search's start pixels in numpy; the results are read after that.
     relief = wavefront.relief_normals(p, n, texture, defer=True) if texture is not None else None
     spp = spec.render.spp
-    pending = []
-    for b0 in range(0, n_pix, BLOCK_PIXELS):
-        rays = wavefront.model_rays(model, sample_positions(spp, W, b0, min(BLOCK_PIXELS, n_pix - b0), seed))
+    shaded, dark = _shaded_pixels(spec, W, H)
+    pending, covered = [], []
+    for b0 in range(0, len(shaded), BLOCK_PIXELS):
+        run = shaded[b0:b0 + BLOCK_PIXELS]
+        rays = wavefront.model_rays(model, sample_positions(spp, W, 0, 0, seed, pixels=run))
         if texture is None:
             pending.append(wavefront.shade(scene, rays, rig, shadows=shadows, spp=spp, defer=True))
         else:
             pending.append(wavefront.shade_tissue(scene, rays, rig, texture, mat, shadows=shadows, spp=spp,
                                                   defer=True))
+    for b0 in range(0, len(dark), BLOCK_PIXELS):
+        rays = wavefront.model_rays(model, sample_positions(spp, W, 0, 0, seed, pixels=dark[b0:b0 + BLOCK_PIXELS]))
+        covered.append(wavefront.coverage(scene, rays, spp=spp, defer=True))
     nan = np.float32(np.nan)
     position = np.where(mask[..., None], p, nan).astype(np.float32)
     normals = np.where(mask[..., None], n, nan).astype(np.float32)
@@ -821,20 +818,23 @@ def _render_endoscope(spec: SceneSpec, seed: int, variant: str) -> RenderResult:
            "mask": mask}
     starts = [mesh_highlight_candidates(res["normals_raw"], res["position_raw"], mask, light.position)
               if mesh is not None else None for light in rig.lights]
-    spec_img = np.empty(n_pix, np.float32)
-    value = np.empty((n_pix, 3), np.float32)
+    spec_img = np.zeros(n_pix, np.float32)
+    value = np.zeros((n_pix, 3), np.float32)
     coverage = np.empty(n_pix, np.float32)
-    for b0, job in zip(range(0, n_pix, BLOCK_PIXELS), pending):
+    for b0, job in zip(range(0, len(shaded), BLOCK_PIXELS), pending):
         out = job.fetch()
         if texture is None:
             val, cov = out
             sp = val[:, 1]
         else:
             val, sp, cov = out
-        value[b0:b0 + len(val)] = val
-        spec_img[b0:b0 + len(val)] = sp
-        coverage[b0:b0 + len(val)] = cov
-    del pending
+        run = shaded[b0:b0 + BLOCK_PIXELS]
+        value[run] = val
+        spec_img[run] = sp
+        coverage[run] = cov
+    for b0, job in zip(range(0, len(dark), BLOCK_PIXELS), covered):
+        coverage[dark[b0:b0 + BLOCK_PIXELS]] = job.fetch()
+    del pending, covered
     value = value.reshape(H, W, 3)
     rgb = shading = None
     if texture is None:
@@ -866,6 +866,44 @@ def _render_endoscope(spec: SceneSpec, seed: int, variant: str) -> RenderResult:
         K=K, cam_to_world=cam_to_world_matrix(spec.camera), light_pos=rig.lights[0].position,
         highlights=highlights, variant=variant, seed=seed, spec=spec, camera=model, lights=rig,
         rgb=rgb, shading_normals=shading, video=video)
+
+
+def _shaded_pixels(spec: SceneSpec, W: int, H: int) -> tuple[np.ndarray, np.ndarray]:
+    """Row-major indices of the pixels the endoscope renderer shades, and of the others.
+
+    A scope's field stop (``sensor.field_stop``, with a video sensor) lets no light onto the
+    pixels outside it: the renderer traces no shading rays there, and their radiance (``linear``,
+    ``rgb``, ``specular``) is 0; their coverage and ground truth are computed as everywhere.
+    Every shaded pixel gets the samples it gets in a full-frame render, so its value does not
+    depend on the field stop.
+    """
+    sensor = spec.sensor
+    if sensor.output != "video" or sensor.field_stop == "none":
+        return np.arange(W * H, dtype=np.int64), np.zeros(0, dtype=np.int64)
+    inside = field_stop_mask((H, W), sensor.field_stop, sensor.field_stop_radius).ravel()
+    return np.flatnonzero(inside), np.flatnonzero(~inside)
+
+
+_PIXEL_RAYS: dict[tuple, np.ndarray] = {}
+
+
+def _pixel_rays(model) -> np.ndarray:
+    """Unit rays (W H, 3) of every pixel centre through ``model``, row-major, float64 (read-only).
+
+    The table is kept for the last two camera models (a sweep or a dataset renders one camera
+    model at many poses and seeds).
+    """
+    W, H = model.image_size
+    key = (type(model).__name__, json.dumps(model.params(), sort_keys=True, default=repr), W, H)
+    rays = _PIXEL_RAYS.get(key)
+    if rays is None:
+        v, u = np.mgrid[0:H, 0:W]
+        rays = model.pixel_to_ray(np.stack([u.ravel(), v.ravel()], axis=-1).astype(np.float64))
+        rays.flags.writeable = False
+        if len(_PIXEL_RAYS) >= 2:
+            _PIXEL_RAYS.pop(next(iter(_PIXEL_RAYS)))
+        _PIXEL_RAYS[key] = rays
+    return rays
 
 
 def _stand_in_K(model) -> np.ndarray:

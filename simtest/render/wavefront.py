@@ -23,7 +23,7 @@ from simtest.geometry.lights import LightRig
 from simtest._lazy import require
 from simtest.render import tissue
 
-__all__ = ["BATCH_RAYS", "Pending", "cast", "model_rays", "relief_normals", "shade", "shade_tissue"]
+__all__ = ["BATCH_RAYS", "Pending", "cast", "coverage", "model_rays", "relief_normals", "shade", "shade_tissue"]
 
 #: Rays per Mitsuba wavefront: large enough to keep both cores busy, small enough that a
 #: 1350 x 1080 x 16 spp frame does not hold all its rays at once (~120 B per ray in flight).
@@ -106,9 +106,14 @@ def cast(scene, d: np.ndarray) -> dict[str, np.ndarray]:
     dr.eval(valid, t_j, n_j, prim_j)
     hit = np.array(valid, dtype=bool)
     t = np.where(hit, np.array(t_j, dtype=np.float64), np.nan)
-    n = np.array(n_j, dtype=np.float64).T
-    n /= np.maximum(np.linalg.norm(n, axis=1, keepdims=True), 1e-30)
-    n = np.where(np.sum(n * d, axis=1, keepdims=True) > 0, -n, n)
+    # Per coordinate (contiguous rows), in the order of np.linalg.norm and np.sum over the last
+    # axis of an (N, 3) array: the same bits, without strided passes.
+    nx, ny, nz = np.array(n_j, dtype=np.float64)
+    scale = np.maximum(np.sqrt(nx * nx + ny * ny + nz * nz), 1e-30)
+    nx, ny, nz = nx / scale, ny / scale, nz / scale
+    flip = (nx * d[:, 0] + ny * d[:, 1] + nz * d[:, 2]) > 0
+    n = np.stack([nx, ny, nz], axis=1)
+    n[flip] *= -1.0
     n[~hit] = np.nan
     p = t[:, None] * d
     hit &= np.isfinite(t)
@@ -165,6 +170,31 @@ def shade(scene, d: np.ndarray, rig: LightRig, *, shadows: bool, spp: int = 1,
         total += dr.select(lit, value * weight, mi.Color3f(0.0))
     out = Pending(_per_pixel(spp, total.x, total.y, total.z, dr.select(valid, 1.0, 0.0)),
                   lambda r, g, b, cov: (np.stack([r, g, b], axis=-1), cov))
+    return out if defer else out.fetch()
+
+
+def coverage(scene, d, *, spp: int = 1, defer: bool = False) -> np.ndarray | Pending:
+    """Fraction of each pixel's rays that hit the surface (no shading).
+
+    Parameters
+    ----------
+    scene : mitsuba.Scene
+        Built in the camera frame.
+    d : ndarray of shape (N, 3) or mitsuba.Vector3f
+        Unit ray directions, camera frame (:func:`model_rays`).
+    spp : int
+        Consecutive rays per pixel.
+    defer : bool
+        Queue the kernels and return a :class:`Pending` whose ``fetch()`` gives the result.
+
+    Returns
+    -------
+    ndarray of shape (N / spp,), float32
+        The ``coverage`` that :func:`shade` and :func:`shade_tissue` return for the same rays.
+    """
+    dr = require("drjit")
+    valid = scene.ray_intersect_preliminary(_rays(d)).is_valid()
+    out = Pending(_per_pixel(spp, dr.select(valid, 1.0, 0.0)), lambda cov: cov)
     return out if defer else out.fetch()
 
 
