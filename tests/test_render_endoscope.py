@@ -40,7 +40,7 @@ def _plane(**over):
          "render": {"spp": 4}}
     for k, v in over.items():
         sec, key = k.split(".")
-        d[sec][key] = v
+        d.setdefault(sec, {})[key] = v
     return scene_from_dict(d)
 
 
@@ -209,6 +209,40 @@ def test_an_endoscope_image_does_not_depend_on_the_wavefront_size(monkeypatch, s
     for name in ("linear", "specular", "coverage", "sensor", "rgb", "shading_normals"):
         assert np.array_equal(getattr(whole, name), getattr(cut, name), equal_nan=True), name
     assert not np.array_equal(whole.linear, render_scene(spec, seed=4).linear)  # the seed matters
+
+
+def test_no_light_reaches_the_pixels_outside_the_field_stop():
+    """Outside the scope's field stop the renderer shades nothing: radiance 0 there, every pixel
+    inside with the bits of a render without a field stop, coverage and ground truth everywhere."""
+    from simtest.render.sensor import field_stop_mask
+
+    over = {"render.spp": 6, "material.model": "tissue", "sensor.output": "video"}
+    open_ = render_scene(_plane(**over, **{"sensor.field_stop": "none"}), seed=2)
+    stopped = render_scene(_plane(**over, **{"sensor.field_stop": "circle", "sensor.field_stop_radius": 0.8}),
+                           seed=2)
+    inside = field_stop_mask((64, 64), "circle", 0.8)
+    assert 0 < inside.sum() < inside.size
+    for name in ("linear", "specular", "rgb"):
+        a, b = getattr(open_, name), getattr(stopped, name)
+        assert np.array_equal(a[inside], b[inside]), name
+        assert np.all(b[~inside] == 0) and np.any(a[~inside] > 0), name
+    for name in ("coverage", "normals", "position", "depth", "shading_normals"):
+        assert np.array_equal(getattr(open_, name), getattr(stopped, name), equal_nan=True), name
+
+
+def test_sample_positions_of_a_pixel_list_are_those_of_a_run():
+    """A run given as a list of pixels draws for each pixel the samples of a contiguous run."""
+    from simtest.render.endoscope import sample_positions
+    from simtest.render.render import choose_variant
+
+    choose_variant()
+    W, first, n = 9, 4, 20
+    pick = np.array([21, 5, 17, 6, 22])  # unordered, with gaps
+    for spp in (16, 6):
+        run = [np.array(x).reshape(n, spp) for x in sample_positions(spp, W, first, n, 5)]
+        listed = [np.array(x).reshape(len(pick), spp) for x in sample_positions(spp, W, 0, 0, 5, pixels=pick)]
+        for a, b in zip(run, listed):
+            assert np.array_equal(a[pick - first], b)
 
 
 def test_sample_positions_stratify_each_pixel():

@@ -84,6 +84,16 @@ def test_video_frame_defaults_equal_the_grey_sensor():
     assert np.array_equal(frame_luma(frame), frame[..., 0])
 
 
+def test_video_frame_does_not_depend_on_the_thread_count():
+    """Each row band has its own noise stream, so the frame is the same on 1 or 3 threads."""
+    rgb = np.random.default_rng(4).uniform(0.0, 0.05, size=(50, 40, 3))
+    noisy = SensorSpec(full_well_e=500.0, gaussian_sigma=0.01, exposure_mode="auto", vignetting=0.3,
+                       tone="srgb", field_stop="octagon", jpeg_quality=80)
+    one = video_frame(rgb, noisy, 7, threads=1)
+    assert np.array_equal(one, video_frame(rgb, noisy, 7, threads=3))
+    assert not np.array_equal(one, video_frame(rgb, noisy, 8, threads=1))
+
+
 def test_video_frame_steps():
     rng = np.random.default_rng(2)
     rgb = rng.uniform(0.0, 0.05, size=(60, 80, 3))
