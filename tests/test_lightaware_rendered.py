@@ -7,8 +7,8 @@ import pytest
 
 from simtest.geometry import angle_between_deg
 from simtest.geometry.lights import Light, LightRig
-from simtest.harness.protocols import reconstruct_image, render_rig
-from simtest.harness.suite import harness_recon_settings
+from simtest.harness.protocols import RenderedRunner, reconstruct_image, render_rig
+from simtest.harness.suite import harness_recon_settings, load_suite, realisation_seed
 from simtest.reconstruct.recommend import recommend, with_light_aware
 from simtest.render import render_scene
 from simtest.scene import load_scene, with_overrides
@@ -108,3 +108,43 @@ def test_rendered_sphere_is_recommended_the_quadric_patch():
             bp_errs.append(angle_between_deg(est.bp_ray, h.normal))
     assert float(np.median(errs)) <= CURVED_MEDIAN_DEG, errs
     assert float(np.median(errs)) < float(np.median(bp_errs)) / 3, (errs, bp_errs)
+
+
+def _curved_suite_errors(sweep, realisations=(0, 1)):
+    """Errors (deg) of the recommended normal and of the BP ray on a ``lightaware-curved`` sweep,
+    run as the harness runs it (the suite's scene settings and realisation seeds): a list of
+    ``(epsilon/d, recommended, bp_ray)``, one per scored highlight."""
+    suite = load_suite("lightaware-curved")
+    out = []
+    for case in (c for c in suite.cases if c.sweep == sweep):
+        runner = RenderedRunner(case, ("recommended", "bp_ray"))
+        for i in realisations:
+            for row in runner.run(realisation_seed(suite.seed, case.key, i)):
+                out.append((row.extras["eps_over_d"], row.errors["recommended"],
+                            row.errors["bp_ray"]))
+    return out
+
+
+@pytest.mark.parametrize("sweep", ["cylinder_offset", "saddle_offset"])
+def test_rendered_cylinder_and_saddle_are_recommended_a_normal_within_the_median(sweep):
+    # The suite's cylinder (radius 15 mm, 55 mm away) and saddle (r1 = 80 mm, r2 = 150 mm, 60 mm
+    # away) at epsilon/d 0.1 and 0.3, two realisations each: the median over the four is the
+    # must-hold's (the per-epsilon/d medians over six realisations are the suite's).
+    rows = _curved_suite_errors(sweep)
+    eps_d = sorted(r[0] for r in rows)
+    assert eps_d[0] == pytest.approx(0.1, abs=0.01) and eps_d[-1] == pytest.approx(0.31, abs=0.02)
+    rec = [r[1] for r in rows]
+    bp = [r[2] for r in rows]
+    assert float(np.median(rec)) <= CURVED_MEDIAN_DEG, rows
+    assert float(np.median(rec)) < float(np.median(bp)) / 3, rows
+
+
+def test_rendered_colon_recommended_normal_is_never_worse_than_the_bp_ray():
+    # The colon's fold streaks are no quadric patch's lobe: the curved fit misfits or runs off,
+    # and the recommendation falls back to the BP ray (or matches it). epsilon/d 0.1 and 0.3 at
+    # the highlight, as the suite sets them (the must-hold's median <= 1 deg is not met there).
+    rows = _curved_suite_errors("colon_offset")
+    assert len(rows) >= 3
+    assert {round(r[0], 1) for r in rows} == {0.1, 0.3}
+    for eps_d, rec, bp in rows:
+        assert rec <= bp, (eps_d, rec, bp)

@@ -1297,6 +1297,22 @@ def quadric_fit(values, origin_uv, bp_uv, camera, rig: LightRig, *,
     the bisector; the quadric model fits the curvature instead. Uncertainty: ``C = s^2 (J^T J)^-1`` with J the Jacobian of the projected
     residual at the solution, propagated to N by finite differences.
 
+    Where it breaks: the depth, and through the bisector the normal, rests on the patch being a
+    quadric over the ROI. With the apex tied to the BP ray, the normal is the bisector at depth
+    s, off the true one by about ``(epsilon_perp / 2) |1/s - 1/d|`` (2.9 deg times ``|d/s - 1|``
+    at epsilon/d = 0.1): the depth must be right within a factor of about 1.4 for 1 deg there.
+    To first order in epsilon/d the light's offset changes the lobe as the curvature's gradient
+    over the patch does (the third-order terms of the height function
+    ``(c_xxx x^3 + 3 c_xxy x^2 y + 3 c_xyy x y^2 + c_yyy y^3) / 6``). Measured on the
+    ``lightaware-curved`` liver renders: with those four terms added to the patch, the fit's cost
+    changed by at most 1.3 % between half and twice the true depth, where the quadric's changed
+    by 20 % to 120 %: a single highlight does not tell the depth from the surface's third-order
+    shape, and the quadric's depth is the one at which the offset stands in for it (0.4 times
+    the truth on the liver mesh at epsilon/d 0.1, a lobe 12 mm long over which the curvature
+    varies). On spheres, cylinders and saddles the quadric holds and the depth follows. A
+    larger ROI brings in more of the surface's third-order shape: the recommendation fits an ROI
+    1.5 times the highlight's (:func:`~simtest.reconstruct.recommend.light_aware_estimates`).
+
     Parameters
     ----------
     values, origin_uv, bp_uv, camera, rig, clip_level, nominal_depth_mm
