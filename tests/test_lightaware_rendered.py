@@ -140,11 +140,13 @@ def test_rendered_cylinder_and_saddle_are_recommended_a_normal_within_the_median
 
 
 def test_rendered_colon_recommended_normal_is_never_worse_than_the_bp_ray():
-    # The colon's fold streaks are no quadric patch's lobe: the curved fit misfits or runs off,
-    # and the recommendation falls back to the BP ray (or matches it). epsilon/d 0.1 and 0.3 at
-    # the highlight, as the suite sets them (the must-hold's median <= 1 deg is not met there).
+    # The colon's fold streaks are no quadric patch's lobe: the curved fit misfits (correlated
+    # or large residuals) or runs off, and the recommendation is the BP ray. epsilon/d 0.1 and
+    # 0.3 at the highlight, as the suite sets them (the must-hold's median <= 1 deg is not met
+    # there). Without the residual-RMS test the fit of realisation 0 at 0.3 ends "ok" on a
+    # streak, its depth at half the truth.
     rows = _curved_suite_errors("colon_offset")
     assert len(rows) >= 3
     assert {round(r[0], 1) for r in rows} == {0.1, 0.3}
     for eps_d, rec, bp in rows:
-        assert rec <= bp, (eps_d, rec, bp)
+        assert rec == bp, (eps_d, rec, bp)

@@ -1280,7 +1280,8 @@ def quadric_fit(values, origin_uv, bp_uv, camera, rig: LightRig, *,
     sub-grid of at most ``max_pixels`` unclipped pixels, from a flat patch at each start depth in
     turn until one ends at a plausible solution (distance and roughness in the ranges of
     :func:`photometric_fit`), kept; without one, the least cost. A fit whose neighbouring
-    residuals correlate (the test of :func:`photometric_fit`) is reported as ``patch_misfit``.
+    residuals correlate (the test of :func:`photometric_fit`), or whose residual RMS exceeds
+    ``TOL.patch_misfit_rms_rel`` of the ROI's maximum, is reported as ``patch_misfit``.
 
     Notes
     -----
@@ -1416,10 +1417,15 @@ def quadric_fit(values, origin_uv, bp_uv, camera, rig: LightRig, *,
     depth_sigma = (float(s_hat * np.sqrt(max(cov[2, 2], 0.0)))
                    if observable and cov is not None else None)
     rho, c = _residual_correlation(r0, sel, keep.shape, step)
+    rms = float(np.sqrt(np.mean(r0 * r0)))
     if rho > TOL.plane_misfit_rho and c > TOL.plane_misfit_rel**2:
         status, observable = "patch_misfit", False
         detail = (f"neighbouring residuals correlate (rho {rho:.3g} > {TOL.plane_misfit_rho}; "
                   f"systematic RMS {np.sqrt(c):.3g})")
+    elif rms > TOL.patch_misfit_rms_rel:
+        status, observable = "patch_misfit", False
+        detail = (f"residual RMS {rms:.3g} of the ROI's maximum > {TOL.patch_misfit_rms_rel}: "
+                  "the ROI is not one patch's lobe (streaks along folds, several lobes)")
     return LightAwareEstimate(name, status, detail, n_hat, s_hat if observable else None, sigma_deg,
                               depth_sigma if observable else None, s_hat if observable else None,
-                              rough, None, nfev, float(np.sqrt(np.mean(r0 * r0))))
+                              rough, None, nfev, rms)
