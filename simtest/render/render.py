@@ -154,7 +154,8 @@ class RenderResult:
     Attributes
     ----------
     linear : ndarray of shape (H, W), float32
-        Linear radiance (specular + diffuse).
+        Linear radiance (specular + diffuse). An endoscope render with a video sensor's field stop
+        is 0 outside the stop (so are ``rgb`` and ``specular``): no light reaches there.
     sensor : ndarray of shape (H, W), uint8 or uint16
         After exposure, noise, clipping, gamma and quantisation (:func:`apply_sensor`).
     specular : ndarray of shape (H, W), float32
