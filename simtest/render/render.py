@@ -789,13 +789,10 @@ def _render_endoscope(spec: SceneSpec, seed: int, variant: str) -> RenderResult:
 
     n_pix = W * H
     # The pixel centres' ground truth first (its casts wait for every kernel queued before them).
-    c = wavefront.cast(scene, _pixel_rays(model))
-    mask, p, n = c["hit"].reshape(H, W), c["p"].reshape(H, W, 3), c["n"].reshape(H, W, 3)
-    del c
+    centre = wavefront.cast(scene, _pixel_rays(model), later=True)
     # Then the image: every block's kernels are queued (Dr.Jit's LLVM back-end runs them
     # asynchronously on its thread pool) while this thread computes the ground-truth maps and the
     # highlight search's start pixels in numpy; the results are read after that.
-    relief = wavefront.relief_normals(p, n, texture, defer=True) if texture is not None else None
     spp = spec.render.spp
     shaded, dark = _shaded_pixels(spec, W, H)
     pending, covered = [], []
@@ -810,6 +807,9 @@ def _render_endoscope(spec: SceneSpec, seed: int, variant: str) -> RenderResult:
     for b0 in range(0, len(dark), BLOCK_PIXELS):
         rays = wavefront.model_rays(model, sample_positions(spp, W, 0, 0, seed, pixels=dark[b0:b0 + BLOCK_PIXELS]))
         covered.append(wavefront.coverage(scene, rays, spp=spp, defer=True))
+    c = centre()
+    mask, p, n = c["hit"].reshape(H, W), c["p"].reshape(H, W, 3), c["n"].reshape(H, W, 3)
+    del c, centre
     nan = np.float32(np.nan)
     position = np.where(mask[..., None], p, nan).astype(np.float32)
     normals = np.where(mask[..., None], n, nan).astype(np.float32)
@@ -817,6 +817,7 @@ def _render_endoscope(spec: SceneSpec, seed: int, variant: str) -> RenderResult:
     distance = np.where(mask, np.linalg.norm(p, axis=-1), nan).astype(np.float32)
     res = {"normals_raw": np.where(mask[..., None], n, 0.0), "position_raw": np.where(mask[..., None], p, 0.0),
            "mask": mask}
+    relief = wavefront.relief_normals(p, n, texture, defer=True) if texture is not None else None
     starts = [mesh_highlight_candidates(res["normals_raw"], res["position_raw"], mask, light.position)
               if mesh is not None else None for light in rig.lights]
     spec_img = np.zeros(n_pix, np.float32)

@@ -81,7 +81,7 @@ def model_rays(model, uv):
     return mi.Vector3f(d[:, 0], d[:, 1], d[:, 2])
 
 
-def cast(scene, d: np.ndarray) -> dict[str, np.ndarray]:
+def cast(scene, d: np.ndarray, *, later: bool = False):
     """Intersect rays from the camera centre.
 
     Parameters
@@ -90,6 +90,9 @@ def cast(scene, d: np.ndarray) -> dict[str, np.ndarray]:
         Built in the camera frame (OpenCV axes, mm).
     d : ndarray of shape (N, 3)
         Unit ray directions, camera frame (float64; cast as float32).
+    later : bool
+        Read the hits from Dr.Jit now, but return a function that makes the dict below (its float64
+        arithmetic), to call while queued kernels run.
 
     Returns
     -------
@@ -104,20 +107,24 @@ def cast(scene, d: np.ndarray) -> dict[str, np.ndarray]:
     si = scene.ray_intersect(_rays(d))
     valid, t_j, n_j, prim_j = si.is_valid(), si.t, si.sh_frame.n, si.prim_index
     dr.eval(valid, t_j, n_j, prim_j)
-    hit = np.array(valid, dtype=bool)
-    t = np.where(hit, np.array(t_j, dtype=np.float64), np.nan)
-    # Per coordinate (contiguous rows), in the order of np.linalg.norm and np.sum over the last
-    # axis of an (N, 3) array: the same bits, without strided passes.
-    nx, ny, nz = np.array(n_j, dtype=np.float64)
-    scale = np.maximum(np.sqrt(nx * nx + ny * ny + nz * nz), 1e-30)
-    nx, ny, nz = nx / scale, ny / scale, nz / scale
-    flip = (nx * d[:, 0] + ny * d[:, 1] + nz * d[:, 2]) > 0
-    n = np.stack([nx, ny, nz], axis=1)
-    n[flip] *= -1.0
-    n[~hit] = np.nan
-    p = t[:, None] * d
-    hit &= np.isfinite(t)
-    return {"hit": hit, "t": t, "p": p, "n": n, "prim": np.array(prim_j, dtype=np.int64)}
+    hit, t32, n32, prim = (np.array(valid, dtype=bool), np.array(t_j), np.array(n_j),
+                           np.array(prim_j, dtype=np.int64))
+
+    def finish() -> dict[str, np.ndarray]:
+        t = np.where(hit, t32.astype(np.float64), np.nan)
+        # Per coordinate (contiguous rows), in the order of np.linalg.norm and np.sum over the last
+        # axis of an (N, 3) array: the same bits, without strided passes.
+        nx, ny, nz = n32.astype(np.float64)
+        scale = np.maximum(np.sqrt(nx * nx + ny * ny + nz * nz), 1e-30)
+        nx, ny, nz = nx / scale, ny / scale, nz / scale
+        flip = (nx * d[:, 0] + ny * d[:, 1] + nz * d[:, 2]) > 0
+        n = np.stack([nx, ny, nz], axis=1)
+        n[flip] *= -1.0
+        n[~hit] = np.nan
+        p = t[:, None] * d
+        return {"hit": hit & np.isfinite(t), "t": t, "p": p, "n": n, "prim": prim}
+
+    return finish if later else finish()
 
 
 def shade(scene, d: np.ndarray, rig: LightRig, *, shadows: bool, spp: int = 1,
