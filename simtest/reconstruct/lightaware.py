@@ -249,111 +249,135 @@ def specular_point_depth(normal, distance_mm: float, light_mm) -> float:
     return float(np.linalg.norm(Lm) * distance_mm / (-(n @ Lm)))
 
 
-def _cos_beta(d: np.ndarray, X: np.ndarray, n: np.ndarray, L: np.ndarray):
-    """cos beta (N,) at the plane points X (N, 3) seen along rays d (N, 3), light L; and |L - X|."""
-    tl = L - X
-    r = np.sqrt(np.einsum("ij,ij->i", tl, tl))
-    nl = (tl @ n) / r
-    nv = -(d @ n)
-    ld = np.einsum("ij,ij->i", tl, d) / r
-    return 2.0 * nl * nv + ld, r
+def _terms(dT, n, h, L, Ld, P=None, dns=None):
+    """cos beta of one light on the plane (n, h) along unit rays, and its derivatives.
 
-
-def _terms(d, n, dns, h, L, grad=True):
-    """cos beta of one light on the plane (n, h) along rays d, with its derivatives.
-
-    Returns ``cb (N,)``, ``dcb (N, 3)`` with respect to (a, b, log h) given the normal's derivatives
-    ``dns`` (two (3,) vectors), and the pieces the falloff and profile need: ``r = |L - X|``,
-    ``dr (N, 3)``, ``X (N, 3)``, ``dXz (N, 3)``.
+    The rays are given transposed, ``dT`` (3, N) (each operation then runs along N), with
+    ``Ld = L . d`` (N,) (it depends on the rays only). Returns ``cb (N,)``, the pieces
+    ``delta = -d . n``, ``s = |X|``, ``r = |L - X|`` (each (N,)), ``c = n . L + h``, and, when the
+    normal's derivatives ``dns`` (two (3,) vectors) are given, ``dcb (3, N)`` with respect to
+    (a, b, log h) (``P = [dn_a, dn_b] @ dT`` (2, N) may be given too); else None.
 
     Notes
     -----
-    With ``delta = -d.n``, ``s = h / delta`` (so ``X = s d``), ``l = (L - X) / r``, ``nl = n.l``
-    and ``ld = l.d``: ``cos beta = 2 nl delta + ld``. A change (dn, dh) gives
-    ``d delta = -d.dn``, ``ds = dh / delta - h d delta / delta^2``, ``dr = -ds ld``,
-    ``dl = ds (l ld - d) / r``, ``d nl = l.dn + n.dl``, ``d ld = ds (ld^2 - 1) / r`` and
-    ``d cos beta = 2 (d nl delta + nl d delta) + d ld``; for log h, dn = 0 and dh = h.
+    The plane point is ``X = s d`` with ``s = h / delta``. Then ``r^2 = |L|^2 - 2 s Ld + s^2``,
+    ``n . (L - X) = n . L + s delta = c`` and ``(L - X) . d = Ld - s``, so
+    ``cos beta = 2 (n . l)(n . v) - l . v = (2 c delta + Ld - s) / r`` (module docstring): a few
+    operations per ray, no per-ray vectors. A change (dn, dh) gives ``d delta = -d . dn``,
+    ``ds = (dh - s d delta) / delta``, ``dr = ds (s - Ld) / r``, ``dc = dn . L + dh`` and
+    ``d cos beta = (2 (dc delta + c d delta) - ds - cb dr) / r``
+    ``= (2 (dc delta + c d delta) - q ds) / r`` with ``q = 1 + cb (s - Ld) / r``. For a and b
+    (dh = 0, d delta = -P): ``(2 delta dc - P (2 c + q s / delta)) / r``; for log h (dn = 0,
+    dh = h, ds = s): ``(2 h delta - q s) / r``.
     """
-    delta = -(d @ n)
-    delta = np.where(delta > 1e-9, delta, 1e-9)
+    delta = np.maximum(-(n @ dT), 1e-9)
     s = h / delta
-    X = d * s[:, None]
-    tl = L - X
-    r = np.sqrt(np.einsum("ij,ij->i", tl, tl))
-    l = tl / r[:, None]
-    nl = l @ n
-    ld = np.einsum("ij,ij->i", l, d)
-    cb = 2.0 * nl * delta + ld
-    if not grad:
-        return cb, None, r, None, X, None
-    N = len(d)
-    dcb = np.empty((N, 3))
-    dr = np.empty((N, 3))
-    dXz = np.empty((N, 3))
-    ln = l @ n
-    q = l * ld[:, None] - d  # dl = ds q / r
-    qn = q @ n
-    for k in range(3):
-        if k < 2:
-            dn = dns[k]
-            ddelta = -(d @ dn)
-            ds = -h * ddelta / delta**2
-            dnl = l @ dn + ds * qn / r
-        else:
-            ddelta = 0.0
-            ds = s  # dh = h
-            dnl = ds * qn / r
-        dcb[:, k] = 2.0 * (dnl * delta + nl * ddelta) + ds * (ld * ld - 1.0) / r
-        dr[:, k] = -ds * ld
-        dXz[:, k] = ds * d[:, 2]
-    del ln
-    return cb, dcb, r, dr, X, dXz
+    r = np.sqrt(np.maximum(L @ L - 2.0 * s * Ld + s * s, 1e-300))
+    c = n @ L + h
+    cb = (2.0 * c * delta + Ld - s) / r
+    if dns is None:
+        return cb, delta, s, r, c, None
+    if P is None:
+        P = np.array(dns) @ dT
+    q = 1.0 + cb * (s - Ld) / r
+    dcb = np.empty((3, dT.shape[1]))
+    t = 2.0 * delta / r
+    u = (2.0 * c + q * s / delta) / r
+    dcb[0] = t * (dns[0] @ L) - P[0] * u
+    dcb[1] = t * (dns[1] @ L) - P[1] * u
+    dcb[2] = t * h - q * s / r
+    return cb, delta, s, r, c, dcb
 
 
 def _normal_derivs(p, n0, e1, e2):
     """Normal ``unit(n0 + a e1 + b e2)`` and its derivatives with respect to a and b."""
     m = n0 + p[0] * e1 + p[1] * e2
-    nm = np.linalg.norm(m)
+    nm = np.sqrt(m @ m)
     n = m / nm
     return n, ((e1 - n * (n @ e1)) / nm, (e2 - n * (n @ e2)) / nm)
 
 
-def _rig_image(d, n, dns, h, rig_arr, rough, grad=True):
-    """``S = sum_j w_j max(0, cb_j)^n f_j p_j`` (N,) and ``dS`` (N, 4) w.r.t. (a, b, log h, log n)."""
+#: Below this cos beta a lobe is taken as 0 (``cb^n`` < 1e-200 for n >= 1): its derivative
+#: ``n cb^(n-1)`` is then formed without dividing by a denormal.
+_CB_FLOOR = 1e-200
+
+
+def _rig_value(dT, Ld, n, h, rig_arr, rough):
+    """``S = sum_j w_j max(0, cb_j)^n f_j p_j`` (N,) and the per-light pieces its gradient needs.
+
+    ``dT`` (3, N) the unit rays transposed, ``Ld = L @ dT`` (J, N) for the rig's lights L (J, 3).
+    See :func:`_rig_grad` for the derivatives.
+    """
     L, w, inv_sq, m = rig_arr
-    S = np.zeros(len(d))
-    dS = np.zeros((len(d), 4)) if grad else None
+    S = np.zeros(dT.shape[1])
+    parts = []
     for j in range(len(w)):
-        cb, dcb, r, dr, X, dXz = _terms(d, n, dns, h, L[j], grad)
-        pos = cb > 0
-        lcb = np.log(np.where(pos, cb, 1.0))
-        lobe = np.where(pos, np.exp(rough * lcb), 0.0)
-        fac = np.ones_like(cb)
-        if grad:
-            dlog = np.zeros((len(d), 3))  # d log(f p)
+        cb, delta, s, r, c, _ = _terms(dT, n, h, L[j], Ld[j])
+        pos = cb > _CB_FLOOR
+        cbp = np.where(pos, cb, 1.0)
+        lcb = np.log(cbp)
+        val = np.exp(rough * lcb)
+        val[~pos] = 0.0
         if inv_sq[j]:
-            fac = fac * (h / r) ** 2
-            if grad:
-                dlog += -2.0 * dr / r[:, None]
-                dlog[:, 2] += 2.0
+            val *= (h / r) ** 2
+        cp = None
         if m[j] > 0:
-            c = np.maximum((X[:, 2] - L[j, 2]) / r, 1e-12)
-            fac = fac * c ** m[j]
-            if grad:
-                dc = (dXz - c[:, None] * dr) / r[:, None]
-                dlog += m[j] * dc / c[:, None]
-        val = w[j] * lobe * fac
+            cp = np.maximum((s * dT[2] - L[j, 2]) / r, 1e-12)
+            val *= cp ** m[j]
+        if w[j] != 1.0:
+            val *= w[j]
         S += val
-        if grad:
-            dlobe = np.where(pos, rough * np.exp((rough - 1.0) * lcb), 0.0)[:, None] * dcb
-            dS[:, :3] += w[j] * fac[:, None] * dlobe + val[:, None] * dlog
-            dS[:, 3] += val * lcb * rough
-    return S, dS
+        parts.append((cb, cbp, lcb, val, delta, s, r, c, cp))
+    return S, parts
+
+
+def _rig_grad(dT, Ld, parts, n, dns, h, rig_arr, rough):
+    """``dS`` (4, N) of :func:`_rig_value` with respect to (a, b, log h, log n).
+
+    Notes
+    -----
+    Per light, ``d log(val) = n d cb / cb + d log f + d log p`` with ``f = (h / r)^2``
+    (``d log f = 2 dh / h - 2 dr / r``) and ``p = cp^m``, ``cp = (s d_z - L_z) / r``
+    (``d log p = m (ds d_z / (r cp) - dr / r)``), and ``d val / d log n = val n log cb``. With
+    the derivatives of :func:`_terms` (``dr = ds (s - Ld) / r``, ``ds = s P / delta`` and
+    ``d delta = -P`` for a and b, ``ds = s`` for log h) each row is ``val`` times a sum of
+    per-ray factors.
+    """
+    L, w, inv_sq, m = rig_arr
+    P = np.array(dns) @ dT
+    dS = np.zeros((4, dT.shape[1]))
+    for j, (cb, cbp, lcb, val, delta, s, r, c, cp) in enumerate(parts):
+        sl = (s - Ld[j]) / r
+        k = rough / (r * cbp)  # n / (r cb): d log(lobe) = k (2 (dc delta + c d delta) - q ds)
+        C = -k * (1.0 + cb * sl)  # coefficient of ds
+        if inv_sq[j]:
+            C -= 2.0 * sl / r
+        if cp is not None:
+            C += m[j] * (dT[2] / (r * cp) - sl / r)
+        A = 2.0 * k * delta * val  # coefficient of dc, times val
+        Bv = (C * s / delta - 2.0 * k * c) * val  # coefficient of P, times val
+        dS[0] += A * (dns[0] @ L[j]) + P[0] * Bv
+        dS[1] += A * (dns[1] @ L[j]) + P[1] * Bv
+        dS[2] += A * h + (C * s) * val + (2.0 * val if inv_sq[j] else 0.0)
+        dS[3] += val * lcb * rough
+    return dS
+
+
+def _rig_image(d, n, dns, h, rig_arr, rough, grad=True):
+    """``S = sum_j w_j max(0, cb_j)^n f_j p_j`` (N,) and ``dS`` (N, 4) w.r.t. (a, b, log h, log n).
+
+    ``d`` (N, 3) unit rays.
+    """
+    dT = np.ascontiguousarray(np.asarray(d, dtype=np.float64).T)
+    Ld = rig_arr[0] @ dT
+    S, parts = _rig_value(dT, Ld, n, h, rig_arr, rough)
+    return S, (_rig_grad(dT, Ld, parts, n, dns, h, rig_arr, rough).T if grad else None)
 
 
 def _intensity(d, n, h, rig_arr, rough):
-    hit = -(d @ n) > 1e-9
-    return np.where(hit, _rig_image(d, n, None, h, rig_arr, rough, grad=False)[0], 0.0)
+    dT = np.ascontiguousarray(np.asarray(d, dtype=np.float64).T)
+    hit = -(n @ dT) > 1e-9
+    return np.where(hit, _rig_value(dT, rig_arr[0] @ dT, n, h, rig_arr, rough)[0], 0.0)
 
 
 def plane_rig_intensity(rays: np.ndarray, normal, distance_mm: float, rig: LightRig,
@@ -499,7 +523,7 @@ def _covariance(jac: np.ndarray, resid_var: float) -> np.ndarray | None:
 
 
 def _solve(resjac, p0, args, loss: str, f_scale: float, max_nfev: int, free=None,
-           lazy_jac: bool = False):
+           lazy_jac: bool = False, weighted: bool = False):
     """Levenberg-Marquardt (MINPACK, analytic Jacobian), robust loss by reweighting.
 
     ``loss="linear"``: one LM solve. Otherwise (``soft_l1``, ``huber``, ``cauchy``): the LM solution
@@ -509,8 +533,11 @@ def _solve(resjac, p0, args, loss: str, f_scale: float, max_nfev: int, free=None
     ``resjac(p, *args, grad=...)`` returns the residuals and, with ``grad``, their Jacobian (else
     None). ``lazy_jac``: MINPACK's trial points get the residuals alone and the Jacobian is
     computed only where it is asked (worth it for a large Jacobian, the photometric fit's; for a
-    few hundred contour points the second call costs more than the Jacobian). Returns (x,
-    n_evaluations, converged, message, residuals at x).
+    few hundred contour points the second call costs more than the Jacobian). ``weighted``: the
+    reweighting's weights are passed to ``resjac`` too (``w=``), for a model that solves part of
+    itself with them (the photometric fit's linear parameters); it returns the unweighted
+    residuals and Jacobian of that solution. Returns (x, n_evaluations, converged, message,
+    residuals at x).
     """
     if loss not in ("linear", "soft_l1", "huber", "cauchy"):
         raise ValueError(f"loss: {loss!r} is not one of linear, soft_l1, huber, cauchy")
@@ -530,18 +557,23 @@ def _solve(resjac, p0, args, loss: str, f_scale: float, max_nfev: int, free=None
         grad = grad or not lazy_jac
         key = q.tobytes()
         if cache.get("key") != key or (grad and cache.get("J") is None):
-            r, J = resjac(full(q), *args, grad=grad)
-            cache.update(key=key, r=r, J=None if J is None else J[:, free])
+            kw = {"w": model_w[0]} if weighted and model_w[0] is not None else {}
+            r, J = resjac(full(q), *args, grad=grad, **kw)
+            cache.update(key=key, r=r, J=J if J is None or all_free else J[:, free])
         return cache["r"], cache["J"]
 
     def fun(q, w):
-        return rj(q, grad=False)[0] * w
+        r = rj(q, grad=False)[0]
+        return r if w is None else r * w
 
     def jac(q, w):
-        return rj(q)[1] * w[:, None]
+        J = rj(q)[1]
+        return J if w is None else J * w[:, None]
 
+    all_free = bool(free.all())
+    model_w = [None]  # the weights resjac solves its linear part with (weighted only)
     q = p0[free]
-    w = np.ones(len(rj(q, grad=False)[0]))
+    w = None  # unit weights
     nfev, ok, msg = 0, True, ""
     for it in range(1 if loss == "linear" else 2):
         if it:
@@ -552,9 +584,12 @@ def _solve(resjac, p0, args, loss: str, f_scale: float, max_nfev: int, free=None
                 w = np.where(z <= 1.0, 1.0, z ** -0.25)
             else:
                 w = (1.0 + z) ** -0.5
+            if weighted:
+                model_w[0] = w
+                cache.clear()
         with np.errstate(all="ignore"):
             res = least_squares(fun, q, jac=jac, args=(w,), method="lm", max_nfev=max_nfev,
-                                xtol=1e-12, ftol=1e-12, gtol=1e-12)
+                                xtol=1e-12, ftol=1e-12, gtol=1e-12, x_scale="jac")
         nfev += res.nfev
         q, ok, msg = res.x, res.status > 0 and np.isfinite(res.x).all(), res.message
     return full(q), nfev, ok, msg, rj(q, grad=False)[0]
@@ -565,6 +600,9 @@ def _solve(resjac, p0, args, loss: str, f_scale: float, max_nfev: int, free=None
 #: the curvature compresses is fitted with n in the thousands and h -> 0): reported as not converged.
 _H_FACTOR = 20.0
 _ROUGHNESS_RANGE = (1.0, 2000.0)
+#: Gauss-Newton steps on log n alone that refine the photometric fit's start roughness (from 1.7
+#: in log n, a factor 5.6 off, three steps reach 1e-2 on the bench's exact highlight).
+_ROUGHNESS_START_STEPS = 3
 
 
 def _implausible(h_hat: float, h0: float, roughness: float | None) -> str:
@@ -589,17 +627,18 @@ def _log_depth_gradient(n, h, Lm) -> np.ndarray:
 
 
 def _finish(name, resjac_at, n_hat, h_hat, rig, extra_params, resid_floor, n_eval, converged,
-            roughness=None, taus=None, detail="", post=None):
+            roughness=None, taus=None, detail="", post=None, n_linear=0):
     """Covariance about the solution, depth and its observability, and the estimate.
 
     ``post(estimate, residuals)``, when given, returns the estimate to report (the residuals at the
-    solution are those the covariance used).
+    solution are those the covariance used). ``n_linear``: parameters eliminated from the
+    Jacobian by variable projection (they count in the residual variance's degrees of freedom).
     """
     e1, e2 = plane_basis(n_hat)
     p_hat = np.concatenate([[0.0, 0.0, np.log(h_hat)], extra_params])
     r0, J = resjac_at(p_hat, n_hat, e1, e2)
     m, k = J.shape
-    resid_var = float(r0 @ r0) / max(m - k, 1)
+    resid_var = float(r0 @ r0) / max(m - k - n_linear, 1)
     cov = _covariance(J, resid_var)
     cov_floor = _covariance(J, max(resid_var, resid_floor**2))
     Lm = _mean_light(rig)
@@ -760,9 +799,16 @@ def isocurve_fit(points_uv, isovalues, bp_uv, camera, rig: LightRig, *,
             keep.append(idx[::step])
         keep = np.concatenate(keep)
         uv, kidx = uv[keep], kidx[keep]
-    d = _rays(camera, uv)
+    # the contour points' rays and, for the pixel-unit weights, those 0.5 px either side in u, v
+    m_pts = len(uv)
+    offs = np.array([[0.0, 0.0], [0.5, 0], [-0.5, 0], [0, 0.5], [0, -0.5]])
+    dT_all = np.ascontiguousarray(_rays(camera, (uv[None] + offs[:, None]).reshape(-1, 2)).T)
+    Ld_all = L @ dT_all
+    dT, Ld = dT_all[:, :m_pts], Ld_all[:m_pts]
+    dT_pm, Ld_pm = dT_all[:, m_pts:], Ld_all[m_pts:]
     d_bp, n0, h0 = _start(bp_uv, camera, rig, nominal_depth_mm, start_normal)
     log_t = np.log(ts)
+    members = [kidx == i for i in range(len(ts))]
 
     def taus_of(q):
         if n_tau == 1:
@@ -770,10 +816,8 @@ def isocurve_fit(points_uv, isovalues, bp_uv, camera, rig: LightRig, *,
         return np.exp((log_t - q[1]) * q[0])  # q = (1/n, log s)
 
     # pixel-unit weights: 1 / |grad_px cos beta| at a start (central differences, 0.5 px)
-    d_pm = [_rays(camera, uv + off) for off in ([0.5, 0], [-0.5, 0], [0, 0.5], [0, -0.5])]
-
     def weights(n, h):
-        cu, cu2, cv, cv2 = (_terms(dd, n, None, h, L, grad=False)[0] for dd in d_pm)
+        cu, cu2, cv, cv2 = _terms(dT_pm, n, h, L, Ld_pm)[0].reshape(4, -1)
         grad = np.hypot(cu - cu2, cv - cv2)
         return 1.0 / np.maximum(grad, 1e-12 + 1e-6 * np.median(grad))
 
@@ -781,30 +825,31 @@ def isocurve_fit(points_uv, isovalues, bp_uv, camera, rig: LightRig, *,
 
     def resjac_at(p, nb, e1, e2, grad=True):
         n, dns = _normal_derivs(p, nb, e1, e2)
-        cb, dcb = _terms(d, n, dns, np.exp(p[2]), L, grad)[:2]
-        taus = taus_of(p[3:])
-        r = (cb - taus[kidx]) * wts
+        cb, *_, dcb = _terms(dT, n, np.exp(p[2]), L, Ld, dns=dns if grad else None)
+        tk = taus_of(p[3:])[kidx]
+        r = (cb - tk) * wts
         if not grad:
             return r, None
-        J = np.empty((len(r), 3 + n_tau))
-        J[:, :3] = dcb * wts[:, None]
+        JT = np.empty((3 + n_tau, len(r)))
+        JT[:3] = dcb * wts
         if n_tau == 1:
-            J[:, 3] = -wts
+            JT[3] = -wts
         else:
-            tk = taus[kidx]
-            J[:, 3] = -tk * (log_t[kidx] - p[4]) * wts
-            J[:, 4] = tk * p[3] * wts
-        return r, J
+            JT[3] = -tk * (log_t[kidx] - p[4]) * wts
+            JT[4] = tk * p[3] * wts
+        return r, JT.T
 
     def tau_start(n, h):
         """Levels from the mean cos beta of each point set at (n, h), and the start's cost."""
-        cb0 = _terms(d, n, None, h, L, grad=False)[0]
-        tau0 = np.array([np.clip(np.mean(cb0[kidx == i]), 1e-3, 1 - 1e-9) for i in range(len(ts))])
+        cb0 = _terms(dT, n, h, L, Ld)[0]
+        tau0 = np.array([min(max(float(np.mean(cb0[mk])), 1e-3), 1 - 1e-9) for mk in members])
         if n_tau == 1:
             q = tau0
-        else:  # fit log tau_k = (log t_k - log s) / n to the start levels
-            A = np.column_stack([log_t, -np.ones_like(log_t)])
-            inv_n, c = np.linalg.lstsq(A, np.log(tau0), rcond=None)[0]
+        else:  # fit log tau_k = (log t_k - log s) / n to the start levels (a least-squares line)
+            xc = log_t - log_t.mean()
+            lt = np.log(tau0)
+            inv_n = float(xc @ (lt - lt.mean())) / float(xc @ xc)
+            c = inv_n * log_t.mean() - lt.mean()
             inv_n = inv_n if inv_n > 0 else 1.0 / 50.0
             q = np.array([inv_n, c / inv_n])
         r = (cb0 - taus_of(q)[kidx]) * wts
@@ -817,9 +862,11 @@ def isocurve_fit(points_uv, isovalues, bp_uv, camera, rig: LightRig, *,
             X = sdep * d_bp
             nc = unit(unit(-X) + unit(L - X))
             cands.append((nc, float(-(nc @ X))))
-    q0, _, n0, h0 = min((tau_start(n, h) + (n, h) for n, h in cands), key=lambda c: c[1])
-    wts = weights(n0, h0)
-    q0 = tau_start(n0, h0)[0]
+    q0, _, n0_c, h0_c = min((tau_start(n, h) + (n, h) for n, h in cands), key=lambda c: c[1])
+    if n0_c is not n0:  # the weights and levels at the chosen start
+        n0, h0 = n0_c, h0_c
+        wts = weights(n0, h0)
+        q0 = tau_start(n0, h0)[0]
     e1, e2 = plane_basis(n0)
     p0 = np.concatenate([[0.0, 0.0, np.log(h0)], q0])
     free = np.ones(len(p0), bool)
@@ -935,11 +982,13 @@ def photometric_fit(values, origin_uv, bp_uv, camera, rig: LightRig, *,
 
     Model (module docstring): ``I = g sum_j w_j max(0, cos beta_j)^n f_j p_j + b0 + b1 du + b2 dv``
     per pixel centre; the linear parameters (g, b0, b1, b2) are solved for each value of the
-    nonlinear ones (a, b, log h, log n) by linear least squares (variable projection), and those
-    are fitted by :func:`scipy.optimize.least_squares`. Pixels at or above ``clip_level`` are left
-    out (a saturated plateau carries no shape). A two-light rig's merged highlight is one model.
-    The roughness starts from a log-log regression of the ROI's specular part on the start's
-    cos beta (``log(I - b) = log g + n log cos beta``), unless given.
+    nonlinear ones (a, b, log h, log n) by linear least squares (variable projection, Notes), and
+    those four are fitted by Levenberg-Marquardt (:func:`scipy.optimize.least_squares`, analytic
+    Jacobian). Pixels at or above ``clip_level`` are left out (a saturated plateau carries no
+    shape). A two-light rig's merged highlight is one model. The roughness starts from a log-log
+    regression of the ROI's specular part on the start's cos beta
+    (``log(I - b) - log(f p) = log g + n log cos beta``), refined by a few Gauss-Newton steps on
+    log n alone with the start plane held, unless given.
 
     Parameters
     ----------
@@ -994,6 +1043,22 @@ def photometric_fit(values, origin_uv, bp_uv, camera, rig: LightRig, *,
     ------
     ValueError
         A values array that is not 2-D and finite.
+
+    Notes
+    -----
+    Variable projection [3]_. The background columns ``B = [1, du, dv]`` (M, 3) do not depend on
+    the nonlinear parameters p: with Q an orthonormal basis of B and ``P = I - Q Q^T``, the values
+    and the lobe image S(p) (M,) are projected once each, ``y~ = P y`` and ``a = P S``; the gain
+    is then ``g = a . y~ / a . a`` and the residual ``r = g a - y~`` is exactly that of the full
+    linear least squares in (g, b0, b1, b2) at p (pixel by pixel, so the residual tests of
+    ``_misfit`` read it unchanged). Its exact Jacobian (Golub and Pereyra) with ``da = P dS``:
+    ``dr = g (da - a (a . da) / (a . a)) - a (r . da) / (a . a)``; the first term alone
+    (Kaufman's), which is ``P_[S, B] (g dS)``, gives the covariance, equal to the (a, b, log h,
+    log n) block of the full eight-parameter ``s^2 (J^T J)^-1`` (a Schur complement), the
+    residual variance counting all eight parameters. A robust loss reweights the rows: the
+    linear part is then solved with the weights. Four parameters instead of eight, and the
+    linear ones always at their optimum, take Levenberg-Marquardt fewer steps; with the start's
+    roughness refined first it converges in about five evaluations on an exact image.
     """
     name = "photometric_fit"
     vals, camera, o, uu, vv, keep = _roi_grid(values, camera, origin_uv, clip_level)
@@ -1008,51 +1073,114 @@ def photometric_fit(values, origin_uv, bp_uv, camera, rig: LightRig, *,
         raise ValueError(f"supersample: must be >= 1, got {supersample!r}")
     offs = (np.arange(ss) + 0.5) / ss - 0.5
     sub = np.array([(du_, dv_) for dv_ in offs for du_ in offs])  # (ss^2, 2)
-    d = _rays(camera, (uv[:, None, :] + sub[None]).reshape(-1, 2))
+    dT = np.ascontiguousarray(_rays(camera, (uv[:, None, :] + sub[None]).reshape(-1, 2)).T)
     rig_arr = _rig_arrays(rig)
     bp = np.asarray(bp_uv, dtype=np.float64).reshape(2)
     d_bp, n0, h0 = _start(bp, camera, rig, nominal_depth_mm, start_normal)
     du = (uv[:, 0] - bp[0]) / max(W, H)
     dv = (uv[:, 1] - bp[1]) / max(W, H)
-    ones = np.ones_like(du)
     yscale = max(float(np.abs(y).max()), 1e-12)
     yn = y / yscale
+    Ld = rig_arr[0] @ dT  # (J, N)
+    background = np.column_stack([np.ones_like(du), du, dv])
+    proj = {}  # orthonormal basis of the (weighted) background columns, per weights
 
-    def resjac_at(p, nb, e1, e2, grad=True):
-        n, dns = _normal_derivs(p, nb, e1, e2)
-        S, dS = _rig_image(d, n, dns, np.exp(p[2]), rig_arr, np.exp(p[3]), grad)
-        if ss > 1:  # box filter: the mean of the sub-pixel samples
-            S = S.reshape(-1, ss * ss).mean(axis=1)
-            if grad:
-                dS = dS.reshape(-1, ss * ss, 4).mean(axis=1)
-        g = p[4]
-        r = g * S + p[5] + p[6] * du + p[7] * dv - yn
+    def basis(w):
+        """``QT`` (3, M), the background's orthonormal basis (rows), and the projected values."""
+        key = None if w is None else w.tobytes()
+        if proj.get("key") != key or "QT" not in proj:
+            B = background if w is None else background * w[:, None]
+            QT = np.ascontiguousarray(np.linalg.qr(B)[0].T)
+            yw = yn if w is None else yn * w
+            proj.update(key=key, QT=QT, yt=yw - (QT @ yw) @ QT)
+        return proj["QT"], proj["yt"]
+
+    def box(v):
+        """The mean of each pixel's sub-pixel samples (the last axis)."""
+        return v if ss == 1 else v.reshape(*v.shape[:-1], -1, ss * ss).mean(axis=-1)
+
+    state = {}
+
+    def resjac_at(p, nb, e1, e2, grad=True, w=None, kaufman=False):
+        """Residuals of the variable projection (Notes) and their Jacobian in (a, b, log h, log n).
+
+        ``w``: row weights (a robust loss' reweighting): the linear part is solved with them and
+        the residual and Jacobian returned are the unweighted ones of that solution. ``kaufman``:
+        the Jacobian without its second-order term, ``P (g dS)`` (for the covariance).
+        """
+        QT, yt = basis(w)
+        key = (p.tobytes(), nb.tobytes(), None if w is None else w.tobytes())
+        if state.get("key") != key:
+            n, dns = _normal_derivs(p, nb, e1, e2)
+            h, rough = float(np.exp(p[2])), float(np.exp(p[3]))
+            S, parts = _rig_value(dT, Ld, n, h, rig_arr, rough)
+            S = box(S)
+            Sw = S if w is None else S * w
+            St = Sw - (QT @ Sw) @ QT
+            aa = float(St @ St)
+            g = float(St @ yt) / aa if aa > 0 else 0.0
+            rw = g * St - yt
+            state.update(key=key, n=n, dns=dns, h=h, rough=rough, parts=parts, St=St, aa=aa, g=g,
+                         rw=rw, r=rw if w is None else rw / w)
+        st = state
         if not grad:
-            return r, None
-        J = np.column_stack([g * dS, S, ones, du, dv])
-        return r, J
-
-    def model(n, h, rough):
-        return _intensity(d, n, h, rig_arr, rough).reshape(-1, ss * ss).mean(axis=1)
+            return st["r"], None
+        dS = box(_rig_grad(dT, Ld, st["parts"], st["n"], st["dns"], st["h"], rig_arr, st["rough"]))
+        if w is not None:
+            dS = dS * w
+        St, aa, g = st["St"], st["aa"], st["g"]
+        if not aa > 0:
+            return st["r"], np.zeros((len(St), 4))
+        coef = dS @ St * (g / aa)
+        if not kaufman:
+            coef += dS @ st["rw"] / aa
+        JT = g * (dS - (dS @ QT.T) @ QT) - coef[:, None] * St
+        return st["r"], (JT if w is None else JT / w).T
 
     def start_for(n, h):
-        """Roughness (log-log regression of the specular part on cos beta), linear part, cost."""
-        if start_roughness is None:
-            S1 = model(n, h, 1.0)  # cos beta times falloff and profile
-            spec = y - b_level
-            selr = (spec > 0.05 * spec.max()) & (S1 > 0)
-            rough = 50.0
-            if np.count_nonzero(selr) >= 3:
-                x = np.log(np.clip(S1[selr], 1e-12, None))
-                slope = np.polyfit(x, np.log(spec[selr]), 1)[0]
-                if np.isfinite(slope) and slope > 1:
-                    rough = float(min(slope, _ROUGHNESS_RANGE[1]))
-        else:
-            rough = float(start_roughness)
-        A = np.column_stack([model(n, h, rough), ones, du, dv])
-        lin = np.linalg.lstsq(A, yn, rcond=None)[0]
-        r = A @ lin - yn
-        return rough, lin, float(r @ r)
+        """Start roughness: a log-log regression of the specular part on cos beta, then Gauss-Newton.
+
+        The regression's slope is sensitive to the start plane (log cos beta is small near the
+        peak); a few Gauss-Newton steps on log n alone (the plane held, the linear part projected
+        out as in the fit) bring it to the least-squares roughness of the start plane.
+        """
+        if start_roughness is not None:
+            return float(start_roughness)
+        hit = -(n @ dT) > 1e-9
+        # cos beta f p and f p (the lobe at n = 1 and n = 0): their ratio is cos beta (one light)
+        S1, S0 = (box(np.where(hit, _rig_value(dT, Ld, n, h, rig_arr, e)[0], 0.0))
+                  for e in (1.0, 0.0))
+        spec = y - b_level
+        selr = (spec > 0.05 * spec.max()) & (S1 > 0)
+        log_n = np.log(50.0)
+        if np.count_nonzero(selr) >= 3:
+            x = np.log(np.clip(S1[selr] / S0[selr], 1e-12, None))
+            z = np.log(spec[selr] / S0[selr])
+            xc = x - x.mean()
+            den = float(xc @ xc)
+            slope = float(xc @ (z - z.mean())) / den if den > 0 else np.nan  # least-squares line
+            if np.isfinite(slope) and slope > 1:
+                log_n = np.log(min(slope, _ROUGHNESS_RANGE[1]))
+        QT, yt = basis(None)
+        for _ in range(_ROUGHNESS_START_STEPS):
+            rough = float(np.exp(log_n))
+            S, parts = _rig_value(dT, Ld, n, h, rig_arr, rough)
+            S, dS = box(S), box(sum(pt[3] * pt[2] for pt in parts) * rough)  # dS / d log n
+            St, da = S - (QT @ S) @ QT, dS - (QT @ dS) @ QT
+            aa = float(St @ St)
+            if not aa > 0:
+                break
+            g = float(St @ yt) / aa
+            r = g * St - yt
+            J = g * (da - St * (float(St @ da) / aa)) - St * (float(r @ da) / aa)
+            jj = float(J @ J)
+            step = -float(J @ r) / jj if jj > 0 else 0.0
+            if not np.isfinite(step):
+                break
+            log_n = float(np.clip(log_n + np.clip(step, -1.0, 1.0), *np.log(_ROUGHNESS_RANGE)))
+            if abs(step) < 1e-3:
+                break
+        return float(np.exp(log_n))
 
     # Starts: the given one (or the bisector at the nominal depth), the nominal bisector too when
     # a start was given, and n_start_depths planes along the BP's constraint (each the bisector
@@ -1072,13 +1200,12 @@ def photometric_fit(values, origin_uv, bp_uv, camera, rig: LightRig, *,
     best = None
     nfev_total = 0
     for nc, hc in cands:
-        rough_c, lin_c, _ = start_for(nc, hc)
         e1, e2 = plane_basis(nc)
-        p0 = np.concatenate([[0.0, 0.0, np.log(hc), np.log(rough_c)], lin_c])
+        p0 = np.array([0.0, 0.0, np.log(hc), np.log(start_for(nc, hc))])
         free = np.ones(len(p0), bool)
         free[2] = np.abs(rig_arr[0]).max() > 1e-9 * hc  # all lights at V: no dependence on h
         x, nfev, conv, msg, r = _solve(resjac_at, p0, (nc, e1, e2), loss, f_scale, max_nfev, free,
-                                       lazy_jac=True)
+                                       lazy_jac=True, weighted=True)
         nfev_total += nfev
         cost = float(r @ r) if np.isfinite(r).all() else np.inf
         if best is None or cost < best[0]:
@@ -1092,8 +1219,9 @@ def photometric_fit(values, origin_uv, bp_uv, camera, rig: LightRig, *,
         return LightAwareEstimate(name, "not_converged", bad, n_evaluations=nfev)
     if np.any(n_hat @ rig_arr[0].T + h_hat <= 0):
         return LightAwareEstimate(name, "light_behind_plane", f"h = {h_hat:.4g} mm", n_evaluations=nfev)
-    return _finish(name, resjac_at, n_hat, h_hat, rig, x[3:], TOL.photometric_noise_rel, nfev,
-                   conv, roughness=float(np.exp(x[3])), detail="" if conv else msg,
+    return _finish(name, lambda *a: resjac_at(*a, kaufman=True), n_hat, h_hat, rig, x[3:],
+                   TOL.photometric_noise_rel, nfev, conv, roughness=float(np.exp(x[3])),
+                   detail="" if conv else msg, n_linear=4,
                    post=lambda est, r0: _misfit(est, r0, sel, keep.shape, step))
 
 
