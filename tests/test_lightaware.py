@@ -247,6 +247,69 @@ def test_isocurve_fit_refuses_a_two_light_rig_and_names_bad_input():
         la.isocurve_fit([np.zeros((10, 2))], [0.2, 0.5], [0.0, 0.0], K, one_light())
 
 
+# --- the fits' own machinery -----------------------------------------------------------------------
+
+
+@settings(max_examples=25, deadline=None)
+@given(tilt=st.floats(0, 60), az=st.floats(0, 360), h=st.floats(5, 80),
+       lx=st.floats(-5, 5), ly=st.floats(-5, 5), lz=st.floats(-2, 2))
+def test_log_depth_gradient_matches_finite_differences(tilt, az, h, lx, ly, lz):
+    n, L = tilted_normal(tilt, az), np.array([lx, ly, lz])
+    e1, e2 = la.plane_basis(n)
+
+    def log_depth(q):
+        return np.log(la.specular_point_depth(la.unit(n + q[0] * e1 + q[1] * e2), h * np.exp(q[2]), L))
+
+    fd = np.array([(log_depth(dq) - log_depth(-dq)) / 2e-6 for dq in 1e-6 * np.eye(3)])
+    # central differences at 1e-6: truncation ~1e-12 times the third derivative, rounding
+    # ~1e-16 / 1e-6 of a log depth of a few units
+    np.testing.assert_allclose(la._log_depth_gradient(n, h, L), fd, rtol=1e-6, atol=1e-8)
+
+
+def test_photometric_fit_ends_where_the_full_least_squares_is_stationary():
+    # The fit eliminates the gain and background (variable projection): at its solution the
+    # gradient of the full eight-parameter cost, linear parameters at their optimum, vanishes.
+    rig = one_light(3.0, "inverse_square")
+    img, K, N, depth, bp = plane_case(20.0, 30.0, rig, f=200.0, size=120)
+    rng = np.random.default_rng(np.random.SeedSequence(7))
+    roi, origin = roi_around(img + 0.1 + rng.normal(0.0, 0.01, img.shape), bp, 30)
+    est = la.photometric_fit(roi, origin, bp, K, rig)
+    assert est.ok, est
+    H, W = roi.shape
+    vv, uu = np.mgrid[0:H, 0:W]
+    uv = np.column_stack([uu.ravel() + origin[0], vv.ravel() + origin[1]]).astype(float)
+    e1, e2 = la.plane_basis(est.normal)
+    n, dns = la._normal_derivs(np.zeros(2), est.normal, e1, e2)
+    S, dS = la._rig_image(la._rays(K, uv), n, dns, est.distance_mm, la._rig_arrays(rig),
+                          est.roughness)
+    du, dv = (uv - bp).T / max(H, W)
+    A = np.column_stack([S, np.ones_like(S), du, dv])
+    y = roi.ravel() / np.abs(roi).max()
+    lin = np.linalg.lstsq(A, y, rcond=None)[0]
+    r = A @ lin - y
+    J = np.column_stack([lin[0] * dS, A])
+    # the cosine between r and each column of J: 0 at a stationary point (LM stops at 1e-8 of
+    # the cost; a wrong Jacobian of the projected problem would stop it elsewhere)
+    cos = np.abs(J.T @ r) / (np.linalg.norm(J, axis=0) * np.linalg.norm(r))
+    assert cos.max() < 1e-5, cos
+
+
+def test_photometric_fit_robust_loss_discounts_hot_pixels():
+    # hot pixels off the lobe: a robust loss reweights them away (the linear part is solved
+    # with the weights too), the Gaussian one is pulled by them
+    rig = one_light(3.0, "inverse_square")
+    img, K, N, depth, bp = plane_case(25.0, 25.0, rig)
+    roi, origin = roi_around(img, bp, 60)
+    rng = np.random.default_rng(np.random.SeedSequence(3))
+    hot = roi.copy()
+    rr, cc = rng.integers(0, roi.shape[0], 40), rng.integers(0, roi.shape[1], 40)
+    hot[rr, cc] += 0.5 * roi.max()
+    plain = la.photometric_fit(hot, origin, bp, K, rig)
+    robust = la.photometric_fit(hot, origin, bp, K, rig, loss="cauchy", f_scale=0.02)
+    assert robust.has_normal and plain.has_normal
+    assert angle_between_deg(robust.normal, N) < 0.5 * angle_between_deg(plain.normal, N)
+
+
 # --- curved surfaces: the quadric patch ---------------------------------------------------------
 
 
