@@ -641,8 +641,9 @@ def _solve(resjac, p0, args, loss: str, f_scale: float, max_nfev: int, free=None
 #: the curvature compresses is fitted with n in the thousands and h -> 0): reported as not converged.
 _H_FACTOR = 20.0
 _ROUGHNESS_RANGE = (1.0, 2000.0)
-#: Gauss-Newton steps on log n alone that refine the photometric fit's start roughness (from 1.7
-#: in log n, a factor 5.6 off, three steps reach 1e-2 on the bench's exact highlight).
+#: Gauss-Newton steps on log n alone that refine the photometric fit's start roughness: on the
+#: bench's exact highlight (n = 150) three steps from n = 50, 86 or 258 (the regression's starts
+#: with cos beta with and without the falloff) end within 0.003 of log 150.
 _ROUGHNESS_START_STEPS = 3
 
 
