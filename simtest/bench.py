@@ -324,11 +324,13 @@ def _bench_light_aware(repeat: int) -> list[BenchResult]:
     iso = isocurve_fit(pts, isovalues, bp, K, rig)
     med, best = time_ms(lambda: isocurve_fit(pts, isovalues, bp, K, rig), repeat)
     out = [BenchResult("reconstruct", "per highlight: isocurve_fit (light 3 mm off, 2 isophotes)",
-                       med, "ms", 1.0, best, f"status {iso.status}, {n_pts} points (64 per isophote used)")]
+                       med, "ms", 1.0, best, f"status {iso.status}, {n_pts} points (64 per isophote used), "
+                       f"{iso.n_evaluations} model evaluations")]
     pho = photometric_fit(roi, (0, 0), bp, K, rig)
     med, best = time_ms(lambda: photometric_fit(roi, (0, 0), bp, K, rig), repeat)
     out.append(BenchResult("reconstruct", "per highlight: photometric_fit (light 3 mm off)",
-                           med, "ms", 5.0, best, f"status {pho.status}, {roi.size} px ROI"))
+                           med, "ms", 5.0, best, f"status {pho.status}, {roi.size} px ROI, "
+                           f"{pho.n_evaluations} model evaluations"))
     return out
 
 

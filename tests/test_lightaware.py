@@ -310,6 +310,27 @@ def test_photometric_fit_robust_loss_discounts_hot_pixels():
     assert angle_between_deg(robust.normal, N) < 0.5 * angle_between_deg(plain.normal, N)
 
 
+def test_photometric_fit_supersampled_model_matches_a_box_filtered_image():
+    # a renderer's box filter: 3 x 3 samples per pixel averaged; the fit with the same samples
+    # is exact (at f = 120 px the lobe is a few pixels wide and the filter matters)
+    rig = one_light(3.0, "inverse_square")
+    N = tilted_normal(30.0)
+    X, depth = specular_point(N, 20.0, rig.lights[0].position_mm)
+    K = np.array([[120.0, 0, 0], [0, 120.0, 0], [0, 0, 1.0]])
+    x = project_points(X, K)
+    K[0, 2], K[1, 2] = 31.5 - x[0] + 0.3, 31.5 - x[1] - 0.2
+    img = phong_plane_image(K, (64, 64), N, 20.0, ROUGHNESS, light_mm=(3.0, 0, 0), falloff=True,
+                            supersample=3)
+    bp = project_points(X, K)
+    est = la.photometric_fit(img, (0, 0), bp, K, rig, supersample=3)
+    assert est.ok, est
+    assert angle_between_deg(est.normal, N) < TOL.exact_image_normal_deg
+    assert abs(est.depth_mm / depth - 1) < TOL.exact_image_depth_rel
+    # the point-sampled model on the same image is not exact
+    point = la.photometric_fit(img, (0, 0), bp, K, rig)
+    assert angle_between_deg(point.normal, N) > 10 * angle_between_deg(est.normal, N)
+
+
 # --- curved surfaces: the quadric patch ---------------------------------------------------------
 
 

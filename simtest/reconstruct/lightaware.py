@@ -432,13 +432,12 @@ def _distance_for_bp(ray: np.ndarray, n: np.ndarray, L: np.ndarray) -> float | N
     with ``P = I - b b^T``, ``h = (P L0) . (P n) / (2 |P n|^2)`` (least squares on the component
     of L' across the ray). None if the result is not > 0 (then no such plane faces the light).
     """
-    P = np.eye(3) - np.outer(ray, ray)
     L0 = L - 2.0 * (n @ L) * n
-    pn = P @ n
+    pn = n - (ray @ n) * ray  # P n
     den = 2.0 * (pn @ pn)
     if not den > 1e-18:
         return None
-    h = float((P @ L0) @ pn / den)
+    h = float((L0 - (ray @ L0) * ray) @ pn / den)
     return h if h > 0 else None
 
 
@@ -657,8 +656,10 @@ def _implausible(h_hat: float, h0: float, roughness: float | None) -> str:
     return ""
 
 
-def _log_depth_gradient(n, h, Lm) -> np.ndarray:
+def _log_depth_gradient(n, h, Lm, basis=None) -> np.ndarray:
     """d log(depth) / d(a, b, log h) about (n, h), the tangent basis of :func:`plane_basis` (3,).
+
+    ``basis``: that basis (e1, e2) when already at hand.
 
     Notes
     -----
@@ -670,7 +671,7 @@ def _log_depth_gradient(n, h, Lm) -> np.ndarray:
     ``dh = dk = h d log h``: ``d log D / d log h = 1 + 2 h (h + k) / (|L|^2 + 4 k h) - 2 h / (k + h)``.
     NaN with the light behind the plane.
     """
-    e1, e2 = plane_basis(n)
+    e1, e2 = plane_basis(n) if basis is None else basis
     k = float(n @ Lm) + h
     if not k > 0:
         return np.full(3, np.nan)
@@ -699,7 +700,7 @@ def _finish(name, resjac_at, n_hat, h_hat, rig, extra_params, resid_floor, n_eva
     Lm = _mean_light(rig)
     sigma_deg = None if cov is None else float(np.degrees(np.sqrt(max(cov[0, 0] + cov[1, 1], 0.0))))
     depth = specular_point_depth(n_hat, h_hat, Lm)
-    g = _log_depth_gradient(n_hat, h_hat, Lm)
+    g = _log_depth_gradient(n_hat, h_hat, Lm, (e1, e2))
     rel_floor = None if cov_floor is None else float(np.sqrt(max(g @ cov_floor[:3, :3] @ g, 0.0)))
     observable = rel_floor is not None and np.isfinite(depth) and rel_floor <= TOL.depth_rel_sigma_max
     if not converged:
@@ -843,19 +844,14 @@ def isocurve_fit(points_uv, isovalues, bp_uv, camera, rig: LightRig, *,
     if len(rig.lights) != 1:
         return LightAwareEstimate(name, "multi_light_rig", f"{len(rig.lights)} lights")
     L = np.asarray(rig.lights[0].position_mm, dtype=np.float64)
-    uv = np.concatenate(sets)
-    kidx = np.concatenate([np.full(len(s), i) for i, s in enumerate(sets)])
     n_tau = 1 if len(ts) == 1 else 2
-    if len(uv) < 3 + n_tau + 1:
-        return LightAwareEstimate(name, "too_few_points", f"{len(uv)} points")
-    if max_points_per_isophote:
-        keep = []
-        for i, ps in enumerate(sets):
-            idx = np.nonzero(kidx == i)[0]
-            step = max(1, int(np.ceil(len(ps) / max_points_per_isophote)))
-            keep.append(idx[::step])
-        keep = np.concatenate(keep)
-        uv, kidx = uv[keep], kidx[keep]
+    n_all = sum(len(ps) for ps in sets)
+    if n_all < 3 + n_tau + 1:
+        return LightAwareEstimate(name, "too_few_points", f"{n_all} points")
+    if max_points_per_isophote:  # every k-th point of a longer contour
+        sets = [ps[::max(1, -(-len(ps) // max_points_per_isophote))] for ps in sets]
+    uv = np.concatenate(sets)
+    kidx = np.repeat(np.arange(len(sets)), [len(ps) for ps in sets])
     # the contour points' rays and, for the pixel-unit weights, those 0.5 px either side in u, v
     m_pts = len(uv)
     offs = np.array([[0.0, 0.0], [0.5, 0], [-0.5, 0], [0, 0.5], [0, -0.5]])
