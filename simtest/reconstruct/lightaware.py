@@ -79,6 +79,7 @@ References
 
 from __future__ import annotations
 
+import math
 import warnings
 from dataclasses import dataclass, replace
 
@@ -693,16 +694,19 @@ def _finish(name, resjac_at, n_hat, h_hat, rig, extra_params, resid_floor, n_eva
     p_hat = np.concatenate([[0.0, 0.0, np.log(h_hat)], extra_params])
     r0, J = resjac_at(p_hat, n_hat, e1, e2)
     m, k = J.shape
-    resid_var = float(r0 @ r0) / max(m - k - n_linear, 1)
+    rr = float(r0 @ r0)
+    resid_var = rr / max(m - k - n_linear, 1)
     unit_cov = _covariance(J, 1.0)  # (J^T J)^-1: scaled by the residual variance, or its floor
     cov = None if unit_cov is None else resid_var * unit_cov
-    cov_floor = None if unit_cov is None else max(resid_var, resid_floor**2) * unit_cov
+    floor_var = max(resid_var, resid_floor**2)
     Lm = _mean_light(rig)
-    sigma_deg = None if cov is None else float(np.degrees(np.sqrt(max(cov[0, 0] + cov[1, 1], 0.0))))
+    sigma_deg = (None if cov is None
+                 else math.degrees(math.sqrt(max(float(cov[0, 0] + cov[1, 1]), 0.0))))
     depth = specular_point_depth(n_hat, h_hat, Lm)
     g = _log_depth_gradient(n_hat, h_hat, Lm, (e1, e2))
-    rel_floor = None if cov_floor is None else float(np.sqrt(max(g @ cov_floor[:3, :3] @ g, 0.0)))
-    observable = rel_floor is not None and np.isfinite(depth) and rel_floor <= TOL.depth_rel_sigma_max
+    gcg = None if unit_cov is None else float(g @ unit_cov[:3, :3] @ g)  # g^T (J^T J)^-1 g
+    rel_floor = None if gcg is None else math.sqrt(max(floor_var * gcg, 0.0))
+    observable = rel_floor is not None and math.isfinite(depth) and rel_floor <= TOL.depth_rel_sigma_max
     if not converged:
         status = "not_converged"
     elif not observable:
@@ -714,12 +718,11 @@ def _finish(name, resjac_at, n_hat, h_hat, rig, extra_params, resid_floor, n_eva
         status = OK
     depth_sigma = None
     if observable and cov is not None:
-        depth_sigma = float(depth * np.sqrt(max(g @ cov[:3, :3] @ g, 0.0)))
+        depth_sigma = depth * math.sqrt(max(resid_var * gcg, 0.0))
     est = LightAwareEstimate(
         name, status, detail, n_hat,
         depth if observable else None, sigma_deg, depth_sigma,
-        h_hat if observable else None, roughness, taus, n_eval,
-        float(np.sqrt(np.mean(r0 * r0))),
+        h_hat if observable else None, roughness, taus, n_eval, math.sqrt(rr / m),
     )
     return est if post is None else post(est, r0)
 
