@@ -540,10 +540,10 @@ def _covariance(jac: np.ndarray, resid_var: float) -> np.ndarray | None:
 #: Levenberg-Marquardt's tolerances (MINPACK's ftol, xtol, gtol) in the light-aware plane fits.
 #: Near the minimum the cost is ``C* (1 + u^2 / (m - k))`` with u the distance to the minimum in
 #: standard deviations (m residuals, k parameters): a relative cost change below 1e-8 leaves u
-#: below ``1e-4 sqrt(m)``, under 1 % of a standard deviation for the 4096 px of a 64 px ROI and
-#: about 0.1 % for the 128 points of two isophotes. Exact images (C* = 0) converge
-#: quadratically, to rounding, in one or two steps more. Tighter (1e-12) cost 40 to 75 % more
-#: evaluations on the bench's highlight and moved nothing that is reported.
+#: below about ``1e-4 sqrt(m)``, under 1 % of a standard deviation for the 4096 px of a 64 px
+#: ROI and about 0.1 % for the 128 points of two isophotes. Exact images (C* = 0) converge
+#: quadratically, to rounding, in one or two steps more. Tighter (1e-12, as before) took 25 to
+#: 75 % more evaluations on the bench's highlight and changed its results in the ninth digit.
 _LM_TOL = 1e-8
 #: The same for the first pass of a reweighted (robust) fit, which only sets the weights of the
 #: second: the weights move with the residuals, a change at 1e-4 of the cost moves the final
