@@ -245,6 +245,33 @@ def test_sample_positions_of_a_pixel_list_are_those_of_a_run():
             assert np.array_equal(a[pick - first], b)
 
 
+def test_coherent_tracing_gives_the_same_hits():
+    """The renderer traces its camera and shadow rays in Embree's coherent mode (faster); the hits
+    must be those of the default (incoherent) mode to the bit."""
+    from simtest._lazy import require
+    from simtest.render import wavefront
+    from simtest.render.render import choose_variant
+    from simtest.resources import bundled_mesh_path
+
+    choose_variant()
+    mi = require("mitsuba")
+    scene = mi.load_dict({"type": "scene", "m": {"type": "ply", "filename": str(bundled_mesh_path("colon"))}})
+    origin = load_scene("colonoscope").camera.position_mm
+    d = np.random.default_rng(0).normal(size=(20000, 3))
+    d /= np.linalg.norm(d, axis=1, keepdims=True)
+    ray = mi.Ray3f(mi.Point3f(*origin), mi.Vector3f(*(np.ascontiguousarray(d[:, i], dtype=np.float32) for i in range(3))))
+    plain, fast = scene.ray_intersect(ray), wavefront._intersect(scene, ray)
+    valid = plain.is_valid()
+    assert 1000 < int(np.array(valid).sum()) and np.array_equal(np.array(valid), np.array(fast.is_valid()))
+    for a, b in ((plain.t, fast.t), (plain.p, fast.p), (plain.sh_frame.n, fast.sh_frame.n),
+                 (plain.prim_index, fast.prim_index)):
+        assert np.array_equal(np.array(a), np.array(b), equal_nan=True)
+    shadow = plain.spawn_ray_to(mi.Point3f(*(float(x) for x in np.asarray(origin) + [4.0, 0.0, 0.0])))
+    blocked = np.array(scene.ray_test(shadow, valid))
+    assert 0 < blocked.sum() < np.array(valid).sum()  # some shadow rays blocked, some not
+    assert np.array_equal(blocked, np.array(wavefront._occluded(scene, shadow, valid)))
+
+
 def test_sample_positions_stratify_each_pixel():
     """The spp samples of a pixel fall one per stratum: a sqrt(spp) grid, or spp strata on each axis."""
     from simtest.render.endoscope import sample_positions
