@@ -425,6 +425,9 @@ def read_shard_comment(npz: Path) -> dict:
     ------
     OSError, zipfile.BadZipFile
         If the file cannot be read or is not a zip file.
+    NotImplementedError
+        If its central directory asks for a zip version or compression Python cannot read (a
+        damaged header reads that way).
     """
     with zipfile.ZipFile(npz) as z:
         text = z.comment.decode("ascii", errors="replace")
@@ -482,7 +485,7 @@ def check_shard(root: Path, shard: int, fingerprint: str, indices: range) -> lis
     try:
         digest = file_sha256(npz)
         comment = read_shard_comment(npz)
-    except (OSError, zipfile.BadZipFile) as exc:
+    except (OSError, zipfile.BadZipFile, NotImplementedError) as exc:
         return out + [f"{npz}: unreadable: {exc}"]
     if digest != doc.get("npz_sha256"):
         out.append(f"{npz}: sha256 differs from {js.name}")
