@@ -20,7 +20,11 @@ from simtest.reconstruct import (
     reconstruct_roi,
     write_estimates,
 )
+from simtest.reconstruct import pipeline
+from simtest.reconstruct._pixels import Roi
+from simtest.reconstruct.detect import luma
 from simtest.reconstruct.fit import fit_ellipse
+from simtest.reconstruct.settings import ReconSettings
 from simtest.geometry.camera import undistort_points
 from simtest.simulate.analytic import phong_plane_image, plane_bp
 
@@ -370,3 +374,50 @@ def test_local_normalisation_recovers_highlights_on_a_bright_diffuse_background(
     # measured ~1e-4 deg: 0.01 deg leaves a margin of 100
     assert angle_between_deg(local.cone_axis, N) < 0.01
     assert angle_between_deg(local.joint_cone_axis, N) < 0.01
+
+
+@settings(max_examples=25, deadline=None)
+@given(st.integers(0, 2**32 - 1), st.sampled_from([np.uint8, np.uint16, np.float64]))
+def test_the_luma_of_a_roi_sliced_from_the_frame_is_the_luma_computed_for_the_roi(seed, dtype):
+    # the premise of the frame's luma (pipeline._Frame.luma): a pixel's luma does not depend on the
+    # extent of the array it is computed in, for ROIs at least 2 px wide, at any offset and width
+
+    rng = np.random.default_rng(seed)
+    h, w = (int(v) for v in rng.integers(8, 90, 2))
+    img = (rng.random((h, w, 3)) * 300).astype(dtype) if dtype is np.float64 else \
+        rng.integers(0, np.iinfo(dtype).max, (h, w, 3), dtype=dtype, endpoint=True)
+    frame = pipeline._Frame.make(img, intrinsics(100.0, w), None, ReconSettings()).with_frame_luma()
+    assert not frame.luma_frame.flags.writeable
+    for _ in range(40):
+        r0, c0 = int(rng.integers(0, h - 1)), int(rng.integers(0, w - 2))
+        roi = Roi(r0, int(rng.integers(r0 + 1, h + 1)), c0, int(rng.integers(c0 + 2, w + 1)))
+        assert np.array_equal(frame.luma(roi), luma(img[roi.slices]))
+
+
+def test_a_frame_with_many_highlights_gives_the_same_estimates_with_the_frame_luma(monkeypatch):
+    # 12 highlights, reconstructed with the luma of each ROI and with the frame's luma sliced
+
+    size, f = 240, 300.0
+    K = intrinsics(f, size)
+    v, u = np.mgrid[0:size, 0:size].astype(float)
+    acc = np.full((size, size), 20.0)
+    for k in range(12):
+        cu, cv = 30.0 + 60.0 * (k % 4) + 0.3 * k, 40.0 + 75.0 * (k // 4) - 0.2 * k
+        acc += (180.0 + 5 * k) * np.exp(-((u - cu) ** 2 + (v - cv) ** 2 * (1 + 0.05 * k)) / (2 * 7.0**2))
+    gray = np.clip(np.rint(acc), 0, 255).astype(np.uint8)
+    img = np.dstack([gray, (gray * 0.9).astype(np.uint8), (gray * 0.8).astype(np.uint8)])
+
+    def run(threshold):
+        monkeypatch.setattr(pipeline, "LUMA_FRAME_MIN_HIGHLIGHTS", threshold)
+        return reconstruct(img, K, (0.3, 0.5), normalise="bp", detection="full_scale")
+
+    per_roi, sliced = run(10**6), run(1)
+    assert sum(e.ok for e in per_roi) >= 10
+    assert len(per_roi) == len(sliced)
+    for a, b in zip(per_roi, sliced):
+        assert a.status == b.status and a.roi == b.roi and a.bp_intensity == b.bp_intensity
+        for x, y in zip(a.isophotes, b.isophotes):
+            assert x.status == y.status
+            for name in ("points_uv", "normalised_conic", "cone_axis", "normals_paper"):
+                p, q = getattr(x, name), getattr(y, name)
+                assert (p is None and q is None) or np.array_equal(p, q), name

@@ -55,7 +55,7 @@ References
 from __future__ import annotations
 
 from collections.abc import Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import cv2
 import numpy as np
@@ -79,6 +79,12 @@ from simtest.reconstruct.failures import OK, Failure
 from simtest.reconstruct.isophote import MIN_CONTOUR_POINTS, extract_isophote, polygon_contains
 from simtest.reconstruct.recommend import recommend
 from simtest.reconstruct.settings import AUTO_LOCAL_BACKGROUND_REL, Normalisation, ReconSettings
+
+#: A whole-frame call (:func:`reconstruct`) on an RGB image with at least this many accepted
+#: highlights computes the luma of the frame once and slices each ROI's from it (the same values,
+#: see ``_Frame.luma``): on the banner (666 highlights, ROIs grown to 11 times the frame in all)
+#: that is a third of the time of one luma per ROI; for a few highlights the ROIs are cheaper.
+LUMA_FRAME_MIN_HIGHLIGHTS = 32
 
 #: ROI growth when the lowest isophote is cut by a ROI side inside the image.
 ROI_GROWTH_FACTOR = 2.0
@@ -295,6 +301,7 @@ class _Frame:
     full_scale: float
     saturation_level: float | None
     smooth_sigma_px: float
+    luma_frame: np.ndarray | None = None
 
     @classmethod
     def make(cls, image, K, dist_coeffs, settings: ReconSettings, noise_roi: Roi | None = None) -> _Frame:
@@ -316,6 +323,28 @@ class _Frame:
     def bp_ray(self, bp_uv: np.ndarray) -> np.ndarray:
         """BP-ray normal of a pixel (3,), NaN when the pixel has no ray in the camera model."""
         return _bp_ray(bp_uv, self.camera)
+
+    def with_frame_luma(self) -> _Frame:
+        """This frame with the luma of the whole image computed once (read-only), for calls that
+        look at many ROIs of an RGB image (:data:`LUMA_FRAME_MIN_HIGHLIGHTS`)."""
+        if self.img.ndim != 3 or self.luma_frame is not None:
+            return self
+        full = luma(self.img)
+        full.setflags(write=False)
+        return replace(self, luma_frame=full)
+
+    def luma(self, roi: Roi) -> np.ndarray:
+        """Luma of the image in ``roi`` (h, w), float64: sliced from the frame's luma when it
+        was computed, else computed for the ROI.
+
+        Both are the same bits: the luma is one matrix-vector product per image row (numpy's
+        ``matmul``, the same BLAS kernel for every row at least 2 px wide), so a pixel's value does
+        not depend on the extent of the array it is computed in (``tests/test_pipeline.py``
+        checks it over random ROIs). A 1-px wide ROI (numpy's own loop) is computed for itself.
+        """
+        if self.luma_frame is not None and roi.col1 - roi.col0 >= 2:
+            return self.luma_frame[roi.slices]
+        return luma(self.img[roi.slices])
 
 
 def as_camera(K, dist_coeffs=None) -> CameraModel:
@@ -375,8 +404,8 @@ def _bp_ray(bp_uv: np.ndarray, camera) -> np.ndarray:
     return -ray / np.linalg.norm(ray)
 
 
-def _roi_values(img: np.ndarray, roi: Roi, smooth_sigma_px: float) -> np.ndarray:
-    vals = luma(img[roi.slices])
+def _roi_values(frame: _Frame, roi: Roi, smooth_sigma_px: float) -> np.ndarray:
+    vals = frame.luma(roi)
     if smooth_sigma_px > 0:
         vals = cv2.GaussianBlur(vals, (0, 0), smooth_sigma_px, borderType=cv2.BORDER_REFLECT)
     return vals
@@ -473,7 +502,7 @@ def _estimate_one(frame: _Frame, bp_uv, roi: Roi, *, saturated: bool, grow: bool
     bp_uv = np.asarray(bp_uv, dtype=np.float64)
     bp_ray = frame.bp_ray(bp_uv)
     if not np.isfinite(bp_ray).all():
-        i_bp = _bp_intensity(luma(frame.img[roi.slices]), roi, bp_uv)
+        i_bp = _bp_intensity(frame.luma(roi), roi, bp_uv)
         return SpecularityEstimate(bp_uv, i_bp, saturated, roi, "non_finite_points",
                                    "the BP has no viewing ray in the camera model", None, ())
     fitf = fit_frame(frame.camera, -bp_ray)
@@ -482,7 +511,7 @@ def _estimate_one(frame: _Frame, bp_uv, roi: Roi, *, saturated: bool, grow: bool
     results: list = [None] * len(isovalues)
     growths = 0
     while True:
-        vals = _roi_values(frame.img, roi, sigma)
+        vals = _roi_values(frame, roi, sigma)
         i_bp = _bp_intensity(vals, roi, bp_uv)
         levels = _Levels.of(frame, vals, i_bp)
         i0 = order[0]
@@ -678,6 +707,8 @@ def reconstruct(
         smooth_sigma_px=frame.smooth_sigma_px, method=settings.detection,
         peak_rel=settings.peak_rel,
     )
+    if sum(c.status == OK for c in det.candidates) >= LUMA_FRAME_MIN_HIGHLIGHTS:
+        frame = frame.with_frame_luma()
     shift = np.array([r.col0, r.row0], dtype=np.float64)
     bps = [c.bp_uv + shift for c in det.candidates]
     # BPs another highlight's isophote must not enclose (``merged``): every candidate's but the
