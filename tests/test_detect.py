@@ -271,3 +271,19 @@ def test_candidate_cap_counts_what_it_leaves_out():
     det = detect_specularities(img, max_candidates=100)
     assert len(det.candidates) == 100 and det.n_unexamined == 169 - 100
     assert all(c.status == "too_small" for c in det.candidates)
+
+
+@settings(max_examples=30, deadline=None)
+@given(st.integers(0, 2**32 - 1))
+def test_ellipticity_is_its_formula_with_numpys_covariance(seed):
+    # the step-by-step covariance of ellipticity() against np.cov, to the bit
+    rng = np.random.default_rng(seed)
+    mask = rng.random((int(rng.integers(2, 40)), int(rng.integers(2, 40)))) < rng.uniform(0.1, 0.9)
+    rr, cc = np.nonzero(mask)
+    if rr.size < 3:
+        assert np.isnan(ellipticity(mask))
+        return
+    cov = np.cov(np.stack([rr, cc]).astype(np.float64), bias=True)
+    det = (cov[0, 0] + 1 / 12) * (cov[1, 1] + 1 / 12) - cov[0, 1] ** 2
+    want = rr.size / (4 * np.pi * np.sqrt(det)) if det > 0 else float("nan")
+    assert ellipticity(mask) == want or (np.isnan(want) and np.isnan(ellipticity(mask)))

@@ -299,12 +299,12 @@ def refine_peak_uv(values: np.ndarray, r: int, c: int) -> np.ndarray:
         a, b, d = float(values[r - 1, c]), float(values[r, c]), float(values[r + 1, c])
         den = a - 2 * b + d
         if den < 0:
-            dr = float(np.clip(0.5 * (a - d) / den, -0.5, 0.5))
+            dr = min(max(0.5 * (a - d) / den, -0.5), 0.5)
     if 0 < c < w - 1:
         a, b, d = float(values[r, c - 1]), float(values[r, c]), float(values[r, c + 1])
         den = a - 2 * b + d
         if den < 0:
-            dc = float(np.clip(0.5 * (a - d) / den, -0.5, 0.5))
+            dc = min(max(0.5 * (a - d) / den, -0.5), 0.5)
     return rc_to_uv([r + dr, c + dc])
 
 
@@ -361,7 +361,12 @@ def ellipticity(mask: np.ndarray) -> float:
     n = rr.size
     if n < 3:
         return float("nan")
-    cov = np.cov(np.stack([rr, cc]).astype(np.float64), bias=True)
+    # np.cov(np.stack([rr, cc]).astype(float), bias=True) step by step, without its argument
+    # handling (most of its time on a small component): the same operations, the same bits
+    x = np.array([rr, cc], dtype=np.float64)
+    x -= x.mean(axis=1)[:, None]
+    cov = np.dot(x, x.T.conj())
+    cov *= np.true_divide(1, n)
     # a pixel is a unit square: add its own second moment (1/12 per axis) to the centres' spread
     det = (cov[0, 0] + 1 / 12) * (cov[1, 1] + 1 / 12) - cov[0, 1] ** 2
     return float(n / (4 * np.pi * np.sqrt(det))) if det > 0 else float("nan")
@@ -569,16 +574,20 @@ def local_peak_mask(gray: np.ndarray, full_scale: float, *, peak_rel: float = 0.
     k += 1 - k % 2
     kernel = cv2.getStructuringElement(cv2.MORPH_RECT, (k, k))
     bg_small = cv2.morphologyEx(small, cv2.MORPH_OPEN, kernel, borderType=cv2.BORDER_REPLICATE)
+    # whole-frame arrays are updated in place where they can be (a new 1350 x 1080 float array
+    # costs as much as the arithmetic on it)
     background = cv2.resize(bg_small, (w, h), interpolation=cv2.INTER_LINEAR) if f > 1 else bg_small
-    background = np.minimum(background, g)  # an opening never exceeds the image
+    np.minimum(background, g, out=background)  # an opening never exceeds the image
     top = g - background
     top_small = cv2.resize(top, small.shape[::-1], interpolation=cv2.INTER_AREA) if f > 1 else top
     peak_small = cv2.dilate(top_small, kernel, borderType=cv2.BORDER_REPLICATE)
     local_peak = cv2.resize(peak_small, (w, h), interpolation=cv2.INTER_LINEAR) if f > 1 else peak_small
-    local_peak = np.maximum(local_peak, top)  # the local peak is at least the pixel itself
+    np.maximum(local_peak, top, out=local_peak)  # the local peak is at least the pixel itself
     thr = float(contrast_min_rel * full_scale)
-    mask = ((top >= peak_rel * local_peak) & (top >= thr)).view(np.uint8)
-    return mask, background
+    np.multiply(local_peak, peak_rel, out=local_peak)
+    mask = np.greater_equal(top, local_peak)
+    mask &= top >= thr
+    return mask.view(np.uint8), background
 
 
 def detect_specularities(

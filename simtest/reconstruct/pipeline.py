@@ -86,6 +86,8 @@ from simtest.reconstruct.settings import AUTO_LOCAL_BACKGROUND_REL, Normalisatio
 #: that is a third of the time of one luma per ROI; for a few highlights the ROIs are cheaper.
 LUMA_FRAME_MIN_HIGHLIGHTS = 32
 
+_TINY = float(np.finfo(float).tiny)
+
 #: ROI growth when the lowest isophote is cut by a ROI side inside the image.
 ROI_GROWTH_FACTOR = 2.0
 ROI_MAX_GROWTHS = 4
@@ -412,7 +414,8 @@ def _roi_values(frame: _Frame, roi: Roi, smooth_sigma_px: float) -> np.ndarray:
 
 
 def _bp_intensity(vals: np.ndarray, roi: Roi, bp_uv) -> float:
-    r, c = np.rint(uv_to_rc(bp_uv) - (roi.row0, roi.col0)).astype(int)
+    # the BP's pixel in the ROI (round half to even, as np.rint)
+    r, c = round(float(bp_uv[1]) - roi.row0), round(float(bp_uv[0]) - roi.col0)
     return float(vals[max(0, r - 1) : r + 2, max(0, c - 1) : c + 2].max())
 
 
@@ -558,12 +561,12 @@ def _initial_roi(cand, bp_uv, threshold, frame: _Frame) -> Roi:
     t_min = min(frame.settings.isovalues)
     if cand.level is not None:
         threshold = cand.level  # this component's own detection level (detection="local_peak")
-    peak = max(cand.peak, threshold * (1 + 1e-6), np.finfo(float).tiny)
+    peak = max(cand.peak, threshold * (1 + 1e-6), _TINY)
     full = frame.settings.normalise == Normalisation.FULL_SCALE
     level = t_min * (frame.full_scale if full else peak)
     num = np.log(peak / level) if level > 0 else 1.0
     den = np.log(peak / threshold) if threshold > 0 else 1.0
-    ratio = float(np.clip(np.sqrt(max(num, 0.0) / max(den, 1e-6)), 1.0, 8.0))
+    ratio = min(max(float(np.sqrt(max(num, 0.0) / max(den, 1e-6))), 1.0), 8.0)
     radius = max(cand.bbox.shape) / 2.0
     return Roi.around(bp_uv, 1.2 * ratio * radius + 4.0, frame.img.shape)
 
