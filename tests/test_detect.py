@@ -8,11 +8,14 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from simtest.reconstruct.detect import (
+    _gray_native,
+    auto_smooth_sigma_px,
     background_side_px,
     clipped_mask,
     connected_components_with_stats,
     detect_specularities,
     ellipticity,
+    image_smooth_sigma_px,
     mask_components,
     validate_image,
 )
@@ -287,3 +290,20 @@ def test_ellipticity_is_its_formula_with_numpys_covariance(seed):
     det = (cov[0, 0] + 1 / 12) * (cov[1, 1] + 1 / 12) - cov[0, 1] ** 2
     want = rr.size / (4 * np.pi * np.sqrt(det)) if det > 0 else float("nan")
     assert ellipticity(mask) == want or (np.isnan(want) and np.isnan(ellipticity(mask)))
+
+
+@settings(max_examples=30, deadline=None)
+@given(st.integers(0, 2**32 - 1), st.sampled_from([np.uint8, np.uint16, np.float32, np.float64]),
+       st.booleans())
+def test_the_smoothing_from_the_noise_rows_alone_is_that_of_the_whole_luma(seed, dtype, rgb):
+    # the pipeline converts only the rows the noise estimate reads to luma: the same sigma, to
+    # the bit, as from the luma of the whole image (_gray_native: the detector's luma)
+    rng = np.random.default_rng(seed)
+    shape = (int(rng.integers(3, 400)), int(rng.integers(3, 200))) + ((3,) if rgb else ())
+    if dtype in (np.uint8, np.uint16):
+        img = rng.integers(0, np.iinfo(dtype).max, shape, dtype=dtype, endpoint=True)
+        fs = float(np.iinfo(dtype).max)
+    else:
+        img = (rng.random(shape) * rng.uniform(0.5, 2.0)).astype(dtype)
+        fs = max(1.0, float(img.max()))
+    assert image_smooth_sigma_px(img, fs) == auto_smooth_sigma_px(_gray_native(img), fs)

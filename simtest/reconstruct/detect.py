@@ -396,8 +396,17 @@ def noise_sigma(gray: np.ndarray) -> float:
     float
         Estimated noise standard deviation (0 for a noise-free smooth or quantised-flat image).
     """
-    # ~50 rows (tens of thousands of pixels) are plenty for a median
-    g = gray[:: max(1, gray.shape[0] // 48)].astype(np.float32)
+    return _noise_sigma_of_rows(_noise_rows(gray))
+
+
+def _noise_rows(image: np.ndarray) -> np.ndarray:
+    """The rows :func:`noise_sigma` reads: ~50 rows (tens of thousands of pixels) are plenty for
+    a median."""
+    return image[:: max(1, image.shape[0] // 48)]
+
+
+def _noise_sigma_of_rows(rows: np.ndarray) -> float:
+    g = rows.astype(np.float32)
     d = g[:, 1:-1] - 0.5 * (g[:, :-2] + g[:, 2:])
     return float(1.4826 * np.median(np.abs(d - np.median(d))) / np.sqrt(1.5))
 
@@ -420,7 +429,29 @@ def auto_smooth_sigma_px(gray: np.ndarray, full_scale: float) -> float:
     float
         Sigma in px, >= 0.
     """
-    s = noise_sigma(gray) / full_scale
+    return _sigma_for_noise(noise_sigma(gray) / full_scale)
+
+
+def image_smooth_sigma_px(image: np.ndarray, full_scale: float) -> float:
+    """:func:`auto_smooth_sigma_px` of a validated image's luma, computed on the rows the noise
+    estimate reads only (the luma is per pixel, so these are the same values as those rows of
+    the whole image's luma; a 1350 x 1080 RGB frame needs 49 rows of it, not 1080).
+
+    Parameters
+    ----------
+    image : ndarray of shape (H, W) or (H, W, 3)
+        A validated image (:func:`validate_image`).
+    full_scale : float
+
+    Returns
+    -------
+    float
+        Sigma in px, >= 0.
+    """
+    return _sigma_for_noise(_noise_sigma_of_rows(_gray_native(_noise_rows(image))) / full_scale)
+
+
+def _sigma_for_noise(s: float) -> float:
     return 0.0 if s < 0.005 else float(min(2.5, 1.0 + s / 0.01))
 
 

@@ -65,11 +65,10 @@ from simtest.geometry.cameras import CameraModel, PinholeCamera
 from simtest.reconstruct._pixels import Roi, image_size_wh, rc_to_uv, uv_to_rc
 from simtest.reconstruct.cone_fit import FitFrame, fit_cone, fit_frame, to_camera, to_fit_frame
 from simtest.reconstruct.detect import (
-    _gray_native,
-    auto_smooth_sigma_px,
     connected_components,
     default_full_scale,
     detect_specularities,
+    image_smooth_sigma_px,
     luma,
     peak_uv,
     validate_image,
@@ -319,7 +318,7 @@ class _Frame:
         sigma = settings.smooth_sigma_px
         if sigma is None:  # chosen from the noise of the region looked at
             region = img if noise_roi is None else img[noise_roi.slices]
-            sigma = auto_smooth_sigma_px(_gray_native(region), fs)
+            sigma = image_smooth_sigma_px(region, fs)
         return cls(img, camera, settings, fs, sat, float(sigma))
 
     def bp_ray(self, bp_uv: np.ndarray) -> np.ndarray:
