@@ -375,9 +375,11 @@ def _component_box(sub, level, ri, ci):
     # raised above the level: their closed contours never enclose the BP.
     n, lab8 = connected_components(outside)
     if n > 2 or (n == 2 and not _touches_edge(lab8, 1)):
-        edge = np.unique(np.concatenate([lab8[0], lab8[-1], lab8[:, 0], lab8[:, -1]]))
-        hole = (lab8 > 0) & ~np.isin(lab8, edge)
-        box[hole] = level + 1.0
+        edge = np.concatenate([lab8[0], lab8[-1], lab8[:, 0], lab8[:, -1]])
+        is_hole = np.ones(n, dtype=bool)  # per label: outside the component, off the box edge
+        is_hole[0] = False
+        is_hole[edge] = False
+        box[is_hole[lab8]] = level + 1.0
     return box, (r0, c0), sides
 
 
