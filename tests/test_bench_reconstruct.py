@@ -67,3 +67,10 @@ def test_sections_without_repeat_and_dict_results_are_shown(monkeypatch):
         ("scenes/plane/warm/median_s", 0.05, "s"),
         ("scenes/plane/warm/renders_per_s", 20.0, "1/s"),
     ]
+
+
+def test_time_ms_cpu_reports_wall_and_cpu_of_the_same_runs():
+    calls = []
+    med, best, cpu = bench.time_ms_cpu(lambda: calls.append(sum(range(1000))), 4)
+    assert len(calls) == 5  # one warm-up
+    assert 0 <= best <= med and cpu >= 0
