@@ -381,11 +381,12 @@ def test_local_normalisation_recovers_highlights_on_a_bright_diffuse_background(
 def test_the_luma_of_a_roi_sliced_from_the_frame_is_the_luma_computed_for_the_roi(seed, dtype):
     # the premise of the frame's luma (pipeline._Frame.luma): a pixel's luma does not depend on the
     # extent of the array it is computed in, for ROIs at least 2 px wide, at any offset and width
-
     rng = np.random.default_rng(seed)
     h, w = (int(v) for v in rng.integers(8, 90, 2))
-    img = (rng.random((h, w, 3)) * 300).astype(dtype) if dtype is np.float64 else \
-        rng.integers(0, np.iinfo(dtype).max, (h, w, 3), dtype=dtype, endpoint=True)
+    if dtype is np.float64:
+        img = rng.random((h, w, 3)) * 300
+    else:
+        img = rng.integers(0, np.iinfo(dtype).max, (h, w, 3), dtype=dtype, endpoint=True)
     frame = pipeline._Frame.make(img, intrinsics(100.0, w), None, ReconSettings()).with_frame_luma()
     assert not frame.luma_frame.flags.writeable
     for _ in range(40):
