@@ -671,8 +671,8 @@ def detect_specularities(
     method : {"full_scale", "local_peak"}
         ``"full_scale"``: bright pixels are >= ``brightness_rel * full_scale``, components found
         by their outer boundaries. ``"local_peak"``: bright pixels by :func:`local_peak_mask`
-        (``peak_rel``, ``contrast_min_rel``), components by one
-        ``cv2.connectedComponentsWithStats`` pass; candidates on the endoscope's black border
+        (``peak_rel``, ``contrast_min_rel``), components by :func:`mask_components` (those
+        of one ``cv2.connectedComponentsWithStats`` pass); candidates on the endoscope's black border
         (burnt-in text) get ``black_border``; saturated plateaus are counted after a 3 x 3
         closing, from 3 px, so that noise does not split one clipped top into several.
     peak_rel, contrast_min_rel : float
