@@ -18,10 +18,7 @@ from simtest.tolerances import TOL
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 import golden  # noqa: E402
 
-#: The banner's paper-settings cases take tens of seconds (every isophote at t = 0.1 of the BP
-#: runs into the bright tissue and its ROI grows four times); its default-settings case is here.
-SLOW = {"banner_paper", "banner_local"}
-CASES = sorted(n for n in golden.cases() if n not in SLOW)
+CASES = sorted(golden.cases())
 FITTED = {"residual_px", "paper", "cone_axis", "gap", "joint"}
 
 

@@ -285,7 +285,8 @@ def _terms(dT, n, h, L, rl, P=None, dns=None):
     delta = np.maximum((-n) @ dT, 1e-9)
     s = h / delta
     sl = s - Ld
-    ir = 1.0 / np.sqrt(np.maximum(sl * sl + K2, 1e-300))
+    with np.errstate(over="ignore"):  # a plane seen edge-on (delta at its floor): s^2 overflows, 1 / r = 0
+        ir = 1.0 / np.sqrt(np.maximum(sl * sl + K2, 1e-300))
     c = n @ L + h
     cb = (2.0 * c * delta - sl) * ir
     if dns is None:
