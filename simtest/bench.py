@@ -15,8 +15,9 @@ Sections
   circle pose, plus its steps; target 0.1 ms), ms per 1350 x 1080 RGB uint8 frame with 10
   highlights, clean and with 2 % read noise (detection + all reconstructions; target 5 ms, bar
   15 ms), and ms for the Hyper-Kvasir banner, a real 2240 x 840 JPEG with about 1000 candidates,
-  every one examined (target 50 ms, bar 150 ms). Inputs are pinned: seeds 0 and 12, the banner in
-  tests/data/real.
+  every one examined (target 50 ms, bar 150 ms), and for a rendered 1350 x 1080 colonoscope
+  frame (the bundled ``colonoscope`` scene at seed 0, through its own camera model; same target).
+  Inputs are pinned: seeds 0 and 12, the banner in tests/data/real.
   The light-aware fits per highlight (an exact 64 x 64 px highlight of a plane lit 3 mm off the
   camera): ``isocurve_fit`` <= 1 ms, ``photometric_fit`` <= 5 ms.
 - Hooks for other packages: see :data:`EXTERNAL_SECTIONS` below. A package adds a section by
@@ -52,6 +53,8 @@ from simtest.geometry.lights import Light, LightRig
 from simtest.reconstruct.isophote import extract_isophote
 from simtest.reconstruct.lightaware import isocurve_fit, photometric_fit, refine_isophote_points
 from simtest.reconstruct.pipeline import reconstruct, reconstruct_roi
+from simtest.render import RendererUnavailable, render_scene
+from simtest.scene import load_scene
 from simtest.simulate.analytic import phong_plane_image, plane_bp
 from simtest.simulate.offset import rig_plane_image, specular_point
 
@@ -255,10 +258,21 @@ def banner_frame():
     return img, K
 
 
+def colonoscope_frame():
+    """The bundled ``colonoscope`` scene rendered at seed 0: its 8-bit RGB video frame (1080, 1350, 3)
+    and its camera model (C3VD's omnidirectional calibration); None where Mitsuba cannot render."""
+    try:
+        res = render_scene(load_scene("colonoscope"), seed=0)
+    except RendererUnavailable:
+        return None
+    return res.frame, res.camera
+
+
 @section("reconstruct")
 def bench_reconstruct(repeat: int = 50) -> list[BenchResult]:
     """Reconstruction speed with the default settings: per highlight, per synthetic frame (clean
-    and with 2 % noise), per real frame (the banner, every candidate examined)."""
+    and with 2 % noise), per real frame (the banner, every candidate examined), per rendered
+    colonoscope frame."""
 
     single_core()
     out = []
@@ -302,6 +316,18 @@ def bench_reconstruct(repeat: int = 50) -> list[BenchResult]:
         med, best, cpu = time_ms_cpu(lambda: reconstruct(bimg, bK), max(1, repeat // 25))
         out.append(BenchResult("reconstruct", "per real frame: Hyper-Kvasir banner 2240x840 JPEG, "
                                "defaults", med, "ms", 50.0, best,
+                               f"bar 150 ms; {len(ests)} candidates examined, "
+                               f"{sum(e.ok for e in ests)} ok; CPU {cpu:.4g} ms"))
+    scope = colonoscope_frame()
+    if scope is None:
+        out.append(BenchResult("reconstruct", "per rendered colonoscope frame (Mitsuba unavailable)",
+                               float("nan"), "ms", 50.0))
+    else:
+        simg, cam = scope
+        ests = reconstruct(simg, cam)
+        med, best, cpu = time_ms_cpu(lambda: reconstruct(simg, cam), max(1, repeat // 25))
+        out.append(BenchResult("reconstruct", "per rendered colonoscope frame: 1350x1080, scene colonoscope "
+                               "seed 0, defaults", med, "ms", 50.0, best,
                                f"bar 150 ms; {len(ests)} candidates examined, "
                                f"{sum(e.ok for e in ests)} ok; CPU {cpu:.4g} ms"))
     out += _bench_light_aware(repeat)

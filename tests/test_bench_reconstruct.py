@@ -40,6 +40,7 @@ def test_bench_command_reconstruct_section():
     res = CliRunner().invoke(app, ["bench", "--only", "reconstruct", "--repeat", "1"])
     assert res.exit_code == 0, res.output
     assert "per frame" in res.output and "per highlight" in res.output and "banner" in res.output
+    assert "colonoscope" in res.output  # the rendered scope frame (Mitsuba is a dependency)
 
 
 def test_bench_command_refuses_unknown_and_lists_missing_sections(monkeypatch):
