@@ -318,6 +318,8 @@ def bench_reconstruct(repeat: int = 50) -> list[BenchResult]:
                                "defaults", med, "ms", 50.0, best,
                                f"bar 150 ms; {len(ests)} candidates examined, "
                                f"{sum(e.ok for e in ests)} ok; CPU {cpu:.4g} ms"))
+    out += _bench_light_aware(repeat)
+    # Last: the render leaves Mitsuba's memory and threads in the process.
     scope = colonoscope_frame()
     if scope is None:
         out.append(BenchResult("reconstruct", "per rendered colonoscope frame (Mitsuba unavailable)",
@@ -330,7 +332,6 @@ def bench_reconstruct(repeat: int = 50) -> list[BenchResult]:
                                "seed 0, defaults", med, "ms", 50.0, best,
                                f"bar 150 ms; {len(ests)} candidates examined, "
                                f"{sum(e.ok for e in ests)} ok; CPU {cpu:.4g} ms"))
-    out += _bench_light_aware(repeat)
     return out
 
 
