@@ -306,33 +306,27 @@ def bench_reconstruct(repeat: int = 50) -> list[BenchResult]:
                                "defaults", med, "ms", 5.0, best,
                                f"bar 15 ms; {len(ests)} candidates, {sum(e.ok for e in ests)} ok; "
                                f"CPU {cpu:.3g} ms"))
-    banner = banner_frame()
-    if banner is None:
-        out.append(BenchResult("reconstruct", "per real frame: banner (source tree not found)",
-                               float("nan"), "ms", 50.0))
-    else:
-        bimg, bK = banner
-        ests = reconstruct(bimg, bK)
-        med, best, cpu = time_ms_cpu(lambda: reconstruct(bimg, bK), max(1, repeat // 25))
-        out.append(BenchResult("reconstruct", "per real frame: Hyper-Kvasir banner 2240x840 JPEG, "
-                               "defaults", med, "ms", 50.0, best,
-                               f"bar 150 ms; {len(ests)} candidates examined, "
-                               f"{sum(e.ok for e in ests)} ok; CPU {cpu:.4g} ms"))
+    out.append(_candidate_frame_row("per real frame: Hyper-Kvasir banner 2240x840 JPEG, defaults",
+                                    "per real frame: banner (source tree not found)", banner_frame(), repeat))
     out += _bench_light_aware(repeat)
     # Last: the render leaves Mitsuba's memory and threads in the process.
-    scope = colonoscope_frame()
-    if scope is None:
-        out.append(BenchResult("reconstruct", "per rendered colonoscope frame (Mitsuba unavailable)",
-                               float("nan"), "ms", 50.0))
-    else:
-        simg, cam = scope
-        ests = reconstruct(simg, cam)
-        med, best, cpu = time_ms_cpu(lambda: reconstruct(simg, cam), max(1, repeat // 25))
-        out.append(BenchResult("reconstruct", "per rendered colonoscope frame: 1350x1080, scene colonoscope "
-                               "seed 0, defaults", med, "ms", 50.0, best,
-                               f"bar 150 ms; {len(ests)} candidates examined, "
-                               f"{sum(e.ok for e in ests)} ok; CPU {cpu:.4g} ms"))
+    out.append(_candidate_frame_row("per rendered colonoscope frame: 1350x1080, scene colonoscope seed 0, "
+                                    "defaults", "per rendered colonoscope frame (Mitsuba unavailable)",
+                                    colonoscope_frame(), repeat))
     return out
+
+
+def _candidate_frame_row(name: str, missing: str, frame_camera, repeat: int) -> BenchResult:
+    """The row of a frame with about 1000 candidates, every one examined (target 50 ms, bar 150 ms):
+    ``frame_camera`` is ``(image, K or camera model)``, or None (a NaN row named ``missing``)."""
+    if frame_camera is None:
+        return BenchResult("reconstruct", missing, float("nan"), "ms", 50.0)
+    img, cam = frame_camera
+    ests = reconstruct(img, cam)
+    med, best, cpu = time_ms_cpu(lambda: reconstruct(img, cam), max(1, repeat // 25))
+    return BenchResult("reconstruct", name, med, "ms", 50.0, best,
+                       f"bar 150 ms; {len(ests)} candidates examined, {sum(e.ok for e in ests)} ok; "
+                       f"CPU {cpu:.4g} ms")
 
 
 def synthetic_offset_highlight(size: int = 64, n_phong: float = 150.0):

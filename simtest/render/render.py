@@ -423,9 +423,7 @@ def _mesh_in_scene(spec: SceneSpec) -> dict[str, np.ndarray]:
                 "k1": k1, "k2": k2}
     for a in data.values():
         a.flags.writeable = False
-    if len(_MESH_DATA_CACHE) >= _MESH_DATA_CACHE_SIZE:
-        _MESH_DATA_CACHE.pop(next(iter(_MESH_DATA_CACHE)))
-    _MESH_DATA_CACHE[key] = data
+    _cache_put(_MESH_DATA_CACHE, _MESH_DATA_CACHE_SIZE, key, data)
     return data
 
 
@@ -444,6 +442,8 @@ def _mesh_in_camera(spec: SceneSpec) -> dict[str, np.ndarray]:
 
 _SCENE_CACHE: dict[tuple, Any] = {}
 _SCENE_CACHE_SIZE = 4
+#: Pixel-centre ray tables of the endoscope renderer (:func:`_pixel_rays`), by camera model.
+_PIXEL_RAYS: dict[tuple, np.ndarray] = {}
 _RENDER_LOCK = threading.RLock()
 
 
@@ -453,6 +453,7 @@ def clear_caches() -> None:
         _SCENE_CACHE.clear()
         _MESH_CACHE.clear()
         _MESH_DATA_CACHE.clear()
+        _PIXEL_RAYS.clear()
 
 
 def _load_dict(spec: SceneSpec, d: dict):
@@ -469,10 +470,11 @@ def _load_dict(spec: SceneSpec, d: dict):
     return mi.load_dict(materialize(d))
 
 
-def _cache_put(key: tuple, value) -> None:
-    if len(_SCENE_CACHE) >= _SCENE_CACHE_SIZE:
-        _SCENE_CACHE.pop(next(iter(_SCENE_CACHE)))
-    _SCENE_CACHE[key] = value
+def _cache_put(cache: dict, size: int, key: tuple, value) -> None:
+    """Keep ``value`` under ``key`` in ``cache``, dropping the oldest entry beyond ``size``."""
+    if len(cache) >= size:
+        cache.pop(next(iter(cache)))
+    cache[key] = value
 
 
 def _mitsuba_scene(spec: SceneSpec, light_pos: np.ndarray, variant: str):
@@ -495,7 +497,7 @@ def _mitsuba_scene(spec: SceneSpec, light_pos: np.ndarray, variant: str):
         hit = _SCENE_CACHE.get(key)
         if hit is None:
             hit = (_load_dict(spec, mitsuba_scene_dict(spec, light_pos_cam=light_pos)), None)
-            _cache_put(key, hit)
+            _cache_put(_SCENE_CACHE, _SCENE_CACHE_SIZE, key, hit)
         return hit
 
     mi = require("mitsuba")
@@ -515,7 +517,7 @@ def _mitsuba_scene(spec: SceneSpec, light_pos: np.ndarray, variant: str):
         d = mitsuba_scene_dict(spec, light_pos_cam=np.zeros(3), mesh_cam=_mesh_in_scene(spec))
         scene = _load_dict(spec, d)
         entry = (scene, mi.traverse(scene))
-        _cache_put(key, entry)
+        _cache_put(_SCENE_CACHE, _SCENE_CACHE_SIZE, key, entry)
     scene, params = entry
     pose = _scene_pose(spec)
     light_scene = pose[:3, :3] @ np.asarray(light_pos, dtype=np.float64) + pose[:3, 3]
@@ -780,7 +782,7 @@ def _render_endoscope(spec: SceneSpec, seed: int, variant: str) -> RenderResult:
         elif surface["bsdf"]["type"] == "simtest_phong":
             surface["bsdf"]["cancel_falloff"] = False  # the rig's lights carry the falloff
         scene = _load_dict(spec, {"type": "scene", "surface": surface})
-        _cache_put(key, scene)
+        _cache_put(_SCENE_CACHE, _SCENE_CACHE_SIZE, key, scene)
     shadows = bool(geo.type in ("mesh", "saddle") and not rig.is_colocated)
     mat = spec.material
     texture = None
@@ -886,9 +888,6 @@ def _shaded_pixels(spec: SceneSpec, W: int, H: int) -> tuple[np.ndarray, np.ndar
     return np.flatnonzero(inside), np.flatnonzero(~inside)
 
 
-_PIXEL_RAYS: dict[tuple, np.ndarray] = {}
-
-
 def _pixel_rays(model) -> np.ndarray:
     """Unit rays (W H, 3) of every pixel centre through ``model``, row-major, float64 (read-only).
 
@@ -902,9 +901,7 @@ def _pixel_rays(model) -> np.ndarray:
         v, u = np.mgrid[0:H, 0:W]
         rays = model.pixel_to_ray(np.stack([u.ravel(), v.ravel()], axis=-1).astype(np.float64))
         rays.flags.writeable = False
-        if len(_PIXEL_RAYS) >= 2:
-            _PIXEL_RAYS.pop(next(iter(_PIXEL_RAYS)))
-        _PIXEL_RAYS[key] = rays
+        _cache_put(_PIXEL_RAYS, 2, key, rays)
     return rays
 
 

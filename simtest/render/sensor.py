@@ -87,22 +87,20 @@ def field_stop_mask(shape: tuple[int, int], kind: str, radius: float) -> np.ndar
 
 @functools.lru_cache(maxsize=8)
 def _field_stop(shape: tuple[int, int], kind: str, radius: float) -> np.ndarray:
-    out = _field_stop_array(shape, kind, radius)
-    out.flags.writeable = False
-    return out
-
-
-def _field_stop_array(shape: tuple[int, int], kind: str, radius: float) -> np.ndarray:
     H, W = shape
     if kind == "none":
-        return np.ones((H, W), dtype=bool)
-    y, x = np.mgrid[0:H, 0:W].astype(np.float64)
-    x, y = x - (W - 1) / 2.0, y - (H - 1) / 2.0
-    R = radius * W / 2.0
-    if kind == "circle":
-        return x * x + y * y <= R * R
-    ax, ay = np.abs(x), np.abs(y)
-    return (ax <= R) & (ay <= R) & ((ax + ay) / np.sqrt(2.0) <= R)
+        out = np.ones((H, W), dtype=bool)
+    else:
+        y, x = np.mgrid[0:H, 0:W].astype(np.float64)
+        x, y = x - (W - 1) / 2.0, y - (H - 1) / 2.0
+        R = radius * W / 2.0
+        if kind == "circle":
+            out = x * x + y * y <= R * R
+        else:
+            ax, ay = np.abs(x), np.abs(y)
+            out = (ax <= R) & (ay <= R) & ((ax + ay) / np.sqrt(2.0) <= R)
+    out.flags.writeable = False
+    return out
 
 
 def _srgb(s: np.ndarray) -> np.ndarray:

@@ -23,12 +23,7 @@ from simtest.geometry.lights import LightRig
 from simtest._lazy import require
 from simtest.render import tissue
 
-__all__ = ["BATCH_RAYS", "Pending", "cast", "coverage", "model_rays", "relief_normals", "shade", "shade_tissue"]
-
-#: Rays per Mitsuba wavefront: large enough to keep both cores busy, small enough that a
-#: 1350 x 1080 x 16 spp frame does not hold all its rays at once (~120 B per ray in flight).
-BATCH_RAYS = 1 << 21
-
+__all__ = ["Pending", "cast", "coverage", "model_rays", "relief_normals", "shade", "shade_tissue"]
 
 def _intersect(scene, ray):
     """``scene.ray_intersect`` of camera rays, traced as coherent rays.
@@ -224,10 +219,10 @@ def coverage(scene, d, *, spp: int = 1, defer: bool = False) -> np.ndarray | Pen
 class Pending:
     """Per-pixel results whose Dr.Jit kernels are queued but not yet read.
 
-    Dr.Jit's LLVM back-end launches kernels asynchronously: :func:`shade`, :func:`shade_tissue` and
-    :func:`relief_normals` with ``defer=True`` queue them and return at once, so numpy work on the calling thread (the ground truth, the
-    highlight search) runs while the thread pool shades. :meth:`fetch` waits for the kernels and
-    returns the numpy float32 arrays.
+    Dr.Jit's LLVM back-end launches kernels asynchronously: :func:`shade`, :func:`shade_tissue`,
+    :func:`coverage` and :func:`relief_normals` with ``defer=True`` queue them and return at once,
+    so numpy work on the calling thread (the ground truth, the highlight search) runs while the
+    thread pool shades. :meth:`fetch` waits for the kernels and returns the numpy float32 arrays.
     """
 
     def __init__(self, values: tuple, finish):
