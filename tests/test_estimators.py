@@ -17,6 +17,8 @@ from simtest.geometry import (
 )
 from simtest.reconstruct.estimators import (
     estimate_from_conic,
+    estimate_from_conics,
+    joint_cone_axes,
     joint_cone_axis,
     select_paper_normal,
 )
@@ -145,3 +147,39 @@ def test_pipeline_hot_path_forms_agree_with_geometry(seed):
     assert np.allclose(_normalised_conic(C, K), normalised_conic(C, K), rtol=0, atol=1e-14)
     uv = project_points(centre, K)
     assert angle_between_deg(_bp_ray(uv, K), bp_ray_normal(uv, K)) < 1e-9
+
+
+@given(st.integers(0, 10_000), st.integers(1, 9))
+@settings(max_examples=30, deadline=None)
+def test_batched_estimators_are_bit_for_bit_those_of_each_cone_alone(seed, k):
+    """estimate_from_conics and joint_cone_axes batch the eigen-decompositions and circle poses
+    of a frame's isophotes; each cone's result must be the one it gets alone, to the last bit,
+    with non-cones failing at their place and not touching the others."""
+    cns, refs = [], []
+    for i in range(k):
+        centre, normal, radius, _ = random_circle_pose(seed + 7919 * i, key=97)
+        cns.append(normalised_conic(project_circle(centre, normal, radius, K), K))
+        refs.append(bp_ray_normal(project_points(centre, K), K))
+    if k > 1:
+        cns[1] = np.diag([1.0, -1.0, -1.0])  # a hyperbola: not a cone of a visible highlight
+    cns, refs = np.array(cns), np.array(refs)
+    batch = estimate_from_conics(cns, refs)
+    for c, r, got in zip(cns, refs, batch):
+        alone = estimate_from_conic(c, r)
+        assert bool(got) == bool(alone)
+        if not alone:
+            assert (got.reason, got.detail) == (alone.reason, alone.detail)
+            continue
+        assert np.array_equal(got.paper, alone.paper) and np.array_equal(got.cone_axis, alone.cone_axis)
+        assert got.paper_selected_index == alone.paper_selected_index
+        assert got.eigenvalue_gap == alone.eigenvalue_gap
+    # joint axes of consecutive pairs (groups of two conics)
+    m = 2 * (k // 2)
+    group = np.repeat(np.arange(m // 2), 2)
+    joint = joint_cone_axes(cns[:m], group, refs[: m // 2])
+    for g, got in enumerate(joint):
+        alone = joint_cone_axis(cns[2 * g: 2 * g + 2], refs[g])
+        if isinstance(alone, Failure):
+            assert isinstance(got, Failure) and got.detail == alone.detail
+        else:
+            assert np.array_equal(got, alone)

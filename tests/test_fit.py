@@ -18,7 +18,7 @@ from simtest.geometry import (
     project_circle,
     sample_ellipse,
 )
-from simtest.reconstruct.fit import fit_ellipse, sampson_distance_px
+from simtest.reconstruct.fit import fit_ellipse, fit_ellipses, sampson_distance_px
 from simtest.tolerances import TOL
 
 from _cases import random_circle_pose
@@ -179,3 +179,49 @@ def test_noisy_ellipses_are_never_refused(seed, a, ratio):
     assert fit, str(fit)
     # the centre is found to a fraction of the noise times the size-to-count ratio; 1 px is loose
     assert np.linalg.norm(fit.ellipse.center - e.center) < 1.0
+
+
+def _noisy_ellipse(rng, n):
+    t = rng.uniform(0.0, 2 * np.pi, n)
+    a, b = rng.uniform(1.0, 60.0, 2)
+    th = rng.uniform(0.0, np.pi)
+    rot = np.array([[np.cos(th), np.sin(th)], [-np.sin(th), np.cos(th)]])
+    pts = np.column_stack([a * np.cos(t), b * np.sin(t)]) @ rot + rng.uniform(0.0, 1500.0, 2)
+    return pts + rng.normal(0.0, rng.choice([0.0, 0.01, 0.5, 5.0]), pts.shape)
+
+
+@settings(max_examples=30, deadline=None)
+@given(st.integers(0, 2**32 - 1), st.integers(1, 12))
+def test_a_batched_fit_is_bit_for_bit_the_fit_of_each_set_alone(seed, k):
+    """fit_ellipses sums each set's monomials over its own rows and runs LAPACK per matrix, so a
+    set's fit must not depend, even in the last bit, on the other sets of its batch (the
+    pipeline fits a whole frame in one batch; reconstruct_roi fits one highlight)."""
+    rng = np.random.default_rng(seed)
+    sets = [_noisy_ellipse(rng, int(rng.integers(3, 200))) for _ in range(k)]
+    if k > 2:  # a failure in the batch must not touch the others
+        sets[1] = np.column_stack([np.arange(10.0), 2 * np.arange(10.0)])  # collinear
+    batch = fit_ellipses(sets)
+    for s, got in zip(sets, batch):
+        alone = fit_ellipse(s)
+        assert bool(got) == bool(alone)
+        if not alone:
+            assert (got.reason, got.detail) == (alone.reason, alone.detail)
+            continue
+        assert np.array_equal(got.conic, alone.conic)
+        assert np.array_equal(got.ellipse.center, alone.ellipse.center)
+        assert np.array_equal(got.ellipse.semi_axes, alone.ellipse.semi_axes)
+        assert got.ellipse.angle_rad == alone.ellipse.angle_rad and got.residual_px == alone.residual_px
+
+
+def test_batched_fit_refuses_as_the_single_fit_does():
+    """Every failure reason comes out of the batch at its place, with the others fitted."""
+    t = np.linspace(0, 2 * np.pi, 40, endpoint=False)
+    circle = np.column_stack([100 + 7 * np.cos(t), 50 + 7 * np.sin(t)])
+    sets = [circle[:4], np.vstack([circle, [[np.nan, 1.0]]]), np.full((10, 2), 3.0),
+            np.column_stack([np.arange(10.0), 2 * np.arange(10.0)]), circle]
+    got = fit_ellipses(sets)
+    assert [g.reason if not g else "ok" for g in got] == [
+        "too_few_points", "non_finite_points", "degenerate_points", "degenerate_points", "ok"]
+    # the circle: centre and radius exact to rounding of its 40 samples
+    assert np.allclose(got[-1].ellipse.center, [100, 50], atol=1e-9)
+    assert np.allclose(got[-1].ellipse.semi_axes, [7, 7], atol=1e-9)

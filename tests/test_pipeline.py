@@ -18,8 +18,10 @@ from simtest.reconstruct import (
     read_estimates,
     reconstruct,
     reconstruct_roi,
+    reconstruct_rois,
     write_estimates,
 )
+from simtest.geometry.cameras import FisheyeCamera
 from simtest.reconstruct import pipeline
 from simtest.reconstruct._pixels import Roi
 from simtest.reconstruct.detect import luma
@@ -422,3 +424,42 @@ def test_a_frame_with_many_highlights_gives_the_same_estimates_with_the_frame_lu
             for name in ("points_uv", "normalised_conic", "cone_axis", "normals_paper"):
                 p, q = getattr(x, name), getattr(y, name)
                 assert (p is None and q is None) or np.array_equal(p, q), name
+
+
+def _same_estimate(a, b):
+    assert a.status == b.status and a.roi == b.roi and a.bp_intensity == b.bp_intensity
+    assert np.array_equal(a.bp_px, b.bp_px)
+    for x, y in zip(a.isophotes, b.isophotes, strict=True):
+        assert x.status == y.status and x.detail == y.detail
+        for name in ("points_uv", "conic", "normalised_conic", "cone_axis", "normals_paper",
+                     "paper_selected", "eigenvalue_gap", "fit_residual_px"):
+            p, q = getattr(x, name), getattr(y, name)
+            assert (p is None and q is None) or np.array_equal(p, q), name
+    j, k = a.joint_cone_axis, b.joint_cone_axis
+    assert (j is None and k is None) or np.array_equal(j, k)
+
+
+@pytest.mark.parametrize("model", ["pinhole", "fisheye"])
+def test_a_frame_batched_gives_each_highlight_what_it_gets_alone(model):
+    """reconstruct() extracts every highlight's isophotes, then fits all of them in one batch;
+    reconstruct_rois() batches known highlights. Each highlight must get, to the last bit, what
+    reconstruct_roi gives it alone in its final ROI (the batched fits use each highlight's own
+    numbers only), through the pinhole path and through a camera model's rays."""
+    size, f = 240, 300.0
+    K = intrinsics(f, size)
+    cam = K if model == "pinhole" else FisheyeCamera(K, [0.05, -0.01, 0.0, 0.0])
+    v, u = np.mgrid[0:size, 0:size].astype(float)
+    acc = np.full((size, size), 20.0)
+    for k in range(9):
+        cu, cv = 35.0 + 80.0 * (k % 3) + 0.3 * k, 40.0 + 80.0 * (k // 3) - 0.2 * k
+        acc += (180.0 + 5 * k) * np.exp(-((u - cu) ** 2 + (v - cv) ** 2 * (1 + 0.05 * k)) / (2 * 7.0**2))
+    img = np.clip(np.rint(acc), 0, 255).astype(np.uint8)
+    opts = dict(normalise="bp", smooth_sigma_px=0.0)
+    frame = reconstruct(img, cam, (0.3, 0.5), detection="full_scale", **opts)
+    assert sum(e.ok for e in frame) >= 8
+    items = [(img, cam, e.bp_px, tuple(e.roi)) for e in frame if e.isophotes]
+    batched = reconstruct_rois(items, isovalues=(0.3, 0.5), **opts)
+    for e, b, (_, _, bp, roi) in zip([e for e in frame if e.isophotes], batched, items, strict=True):
+        alone = reconstruct_roi(img, cam, (0.3, 0.5), bp_uv=bp, roi=roi, **opts)
+        _same_estimate(alone, b)
+        _same_estimate(alone, e)

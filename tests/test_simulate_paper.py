@@ -118,3 +118,27 @@ def test_fronto_noiseless_gives_zero_error():
 def test_bad_params_name_the_field(field, value):
     with pytest.raises(ValueError, match=f"PaperParams.{field}"):
         PaperParams(**{field: value})
+
+
+def test_a_batch_of_realisations_scores_as_each_one_alone():
+    """The harness runs a chunk of paper realisations with their reconstructions batched
+    (PaperRunner.run_many); every row must be, to the last bit, that of the realisation run alone,
+    so a report does not depend on how realisations are chunked."""
+    from simtest.harness.protocols import PaperRunner
+    from simtest.harness.suite import realisation_seed, suite_from_dict
+
+    suite = suite_from_dict({"sweep": [{"name": "t", "parameter": "theta_deg", "values": [35.0],
+                                        "set": {"sigma": 0.05}}]})
+    case = suite.cases[0]
+    runner = PaperRunner(case, suite.estimators)
+    seeds = [realisation_seed(3, case.key, i) for i in range(12)]
+    batch = runner.run_many(seeds)
+    for s, rows in zip(seeds, batch, strict=True):
+        (a,), (b,) = rows, runner.run(s)
+        assert a.causes == b.causes
+        for k in a.errors:
+            assert np.array_equal(a.errors[k], b.errors[k], equal_nan=True), k
+        assert a.extras.keys() == b.extras.keys()
+        for k in a.extras:
+            assert np.array_equal(a.extras[k], b.extras[k], equal_nan=True), k
+    assert sum(all(c is None for c in r[0].causes.values()) for r in batch) >= 6

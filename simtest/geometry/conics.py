@@ -48,6 +48,7 @@ __all__ = [
     "conic_to_ellipse",
     "cone_axis",
     "cone_pose",
+    "cone_poses",
     "ellipse_to_conic",
     "normalised_conic",
     "plane_basis",
@@ -203,32 +204,10 @@ def conic_kind(C) -> str:
 def _classify(C: np.ndarray):
     """:func:`conic_kind` of a checked conic, with what :func:`conic_to_ellipse` reuses: the
     unit-norm conic, and its centre and ``f0`` when it has a centre (else None)."""
-    norm = np.linalg.norm(C)
-    if norm == 0:
-        return "degenerate", C, None, None
-    C = C / norm
-    A2 = C[:2, :2]
-    lam = np.linalg.eigvalsh(A2)
-    lam_max = np.abs(lam).max()
-    eps = TOL.conic_degenerate_rel
-    if lam_max <= eps or abs(lam[0] * lam[1]) <= eps * lam_max**2:
-        # no centre: a parabola, or parallel lines / a line (det C ~ 0 relative to its scale)
-        sv = np.linalg.svd(C, compute_uv=False)
-        return ("degenerate" if sv[-1] <= eps * sv[0] else "parabola"), C, None, None
-    # Classify in the frame centred on the conic's centre, where it reads diag-block (A2, f0): the
-    # test no longer depends on where the curve lies in the image (a 1 px ellipse at (1300, 1000)
-    # is as good as one at the origin).
-    centre = -np.linalg.solve(A2, C[:2, 2])
-    f0 = C[2, 2] + C[2, :2] @ centre
-    # f0 is a difference of terms of size |C22|; rounding leaves ~1e-16 of them, so compare with
-    # the larger of that and the quadratic part.
-    if abs(f0) <= eps * max(lam_max, abs(C[2, 2]) + abs(C[2, :2] @ centre)):
-        # a point (ellipse type) or two crossing lines (hyperbola type)
-        return "degenerate", C, centre, f0
-    if lam[0] * lam[1] < 0:
-        return "hyperbola", C, centre, f0
-    sign = 1.0 if lam[0] > 0 else -1.0
-    return ("ellipse" if sign * f0 < 0 else "imaginary"), C, centre, f0
+    kinds, Cn, centre, f0 = _classify_many(C[None])
+    if np.isnan(f0[0]):
+        return kinds[0], Cn[0], None, None
+    return kinds[0], Cn[0], centre[0], float(f0[0])
 
 
 def conic_to_ellipse(C) -> Ellipse | None:
@@ -249,25 +228,10 @@ def conic_to_ellipse(C) -> Ellipse | None:
     ValueError
         If C is not 3x3 or has non-finite entries.
     """
-    kind, C, centre, f0 = _classify(_check_conic(C))
-    if kind != "ellipse":
+    centre, axes, angle, ok = _ellipses_of(_check_conic(C)[None])
+    if not ok[0]:
         return None
-    A2 = C[:2, :2]
-    if np.trace(A2) < 0:
-        C = -C
-        A2 = C[:2, :2]
-        centre = -np.linalg.solve(A2, C[:2, 2])
-        f0 = C[2, 2] + C[2, :2] @ centre  # < 0 for a real ellipse
-    w, V = np.linalg.eigh(A2)  # ascending: w[0] gives the major axis
-    a = np.sqrt(-f0 / w[0])
-    b = np.sqrt(-f0 / w[1])
-    major = V[:, 0]
-    angle = float(np.arctan2(major[1], major[0]))
-    if angle <= -np.pi / 2:
-        angle += np.pi
-    elif angle > np.pi / 2:
-        angle -= np.pi
-    return Ellipse(center=centre, semi_axes=np.array([a, b]), angle_rad=angle)
+    return Ellipse(center=centre[0], semi_axes=axes[0], angle_rad=float(angle[0]))
 
 
 def sample_ellipse(ellipse: Ellipse, n: int, *, rng=None, noise_px: float = 0.0) -> np.ndarray:
@@ -341,40 +305,6 @@ def normalised_conic(C, K) -> np.ndarray:
     return Cn / norm
 
 
-def _cone_eigen(Cn) -> tuple[np.ndarray, np.ndarray]:
-    """Eigen-decomposition of a cone with signs normalised so that l1 >= l2 > 0 > l3.
-
-    Returns eigenvalues (3,) and eigenvectors as columns (3, 3) in that order.
-    Raises ValueError if the cone is not real and elliptic (signature (2, 1)).
-    """
-    Cn = _check_conic(Cn, "C'")
-    Cn = Cn / np.linalg.norm(Cn)
-    w, V = np.linalg.eigh(Cn)
-    eps = TOL.conic_degenerate_rel
-    n_pos = int(np.sum(w > eps))
-    n_neg = int(np.sum(w < -eps))
-    if (n_pos, n_neg) == (1, 2):
-        w, V = -w[::-1], V[:, ::-1]
-    elif (n_pos, n_neg) != (2, 1):
-        raise ValueError(
-            f"C' is not a real elliptic cone: eigenvalues {w.tolist()} "
-            "(need two of one sign and one of the other)"
-        )
-    # w ascending after eigh: now w = (l3 < 0 < l2 <= l1) in ascending order.
-    order = [2, 1, 0]
-    return w[order], V[:, order]
-
-
-def _toward_camera(n: np.ndarray) -> np.ndarray:
-    """Orient a direction inside the cone (z != 0) as a normal facing the camera: n_z < 0.
-
-    Right for the cone axis, which lies inside the cone, i.e. along a viewing ray with z > 0;
-    not for circle-pose normals, which are oriented against their circle's centre ray instead.
-    """
-    n = n / np.linalg.norm(n)
-    return -n if n[2] > 0 else n
-
-
 def cone_axis(Cn) -> ConeAxis:
     """Axis of the cone C' (eigenvector of the unique-sign eigenvalue) and the eigenvalue gap.
 
@@ -425,11 +355,6 @@ def cone_axis(Cn) -> ConeAxis:
     return _cone_axis_of(*_cone_eigen(Cn))
 
 
-def _cone_axis_of(w: np.ndarray, V: np.ndarray) -> ConeAxis:
-    gap = float((w[0] - w[1]) / (w[0] - w[2]))
-    return ConeAxis(axis=_toward_camera(V[:, 2]), eigenvalue_gap=gap, eigenvalues=w)
-
-
 def circle_pose(Cn) -> CirclePose:
     """Normals (and centre directions) of the two planes cutting the cone C' in a circle.
 
@@ -468,24 +393,6 @@ def circle_pose(Cn) -> CirclePose:
     then N+ and N- err by ``acos(rho)`` whatever the fit.
     """
     return _circle_pose_of(*_cone_eigen(Cn))
-
-
-def _circle_pose_of(w: np.ndarray, V: np.ndarray) -> CirclePose:
-    l1, l2, l3 = w
-    sin_phi = np.sqrt(max(l1 - l2, 0.0) / (l1 - l3))
-    cos_phi = np.sqrt(max(l2 - l3, 0.0) / (l1 - l3))
-    Q = V @ np.diag(w) @ V.T  # sign-normalised, unit cone
-    normals = []
-    centres = []
-    for sgn in (1.0, -1.0):
-        n = sgn * sin_phi * V[:, 0] + cos_phi * V[:, 2]
-        n /= np.linalg.norm(n)
-        c = _section_centre(Q, n)
-        # Facing the camera means n . c < 0 along the ray to the circle's centre. n_z < 0 is not
-        # the same test: a steep plane seen far off-axis faces the camera with n_z > 0.
-        normals.append(-n if n @ c > 0 else n)
-        centres.append(c)
-    return CirclePose(normals=np.array(normals), centres=np.array(centres), eigenvalues=w)
 
 
 def cone_pose(Cn) -> tuple[CirclePose, ConeAxis]:
@@ -544,17 +451,236 @@ _AXES = ((1.0, 0.0, 0.0), (0.0, 1.0, 0.0), (0.0, 0.0, 1.0))
 
 
 
-def _section_centre(Q: np.ndarray, n: np.ndarray) -> np.ndarray:
-    """Unit direction (z > 0) of the centre of the section of cone Q by a plane of normal n."""
-    # Plane n.X = 1 parametrised as X = n + a u + b w with (u, w) an orthonormal basis of n-perp.
-    B = np.stack(plane_basis(n), axis=1)  # (3, 2)
-    BtQ = B.T @ Q
+def _solve_each(A: np.ndarray, b: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """``solve(A[i], b[i])`` for a stack (k, m, m), (k, m): the solutions (k, m) and which
+    systems are regular (k,) bool (NaN rows where LAPACK finds a singular matrix)."""
+    try:
+        return np.linalg.solve(A, b[..., None])[..., 0], np.ones(len(A), dtype=bool)
+    except np.linalg.LinAlgError:  # one singular system: solve them one by one
+        x = np.full(b.shape, np.nan)
+        ok = np.zeros(len(A), dtype=bool)
+        for i in range(len(A)):
+            try:
+                x[i] = np.linalg.solve(A[i], b[i])
+                ok[i] = True
+            except np.linalg.LinAlgError:
+                pass
+        return x, ok
+
+
+def _classify_many(C: np.ndarray):
+    """:func:`conic_kind` of a stack of symmetric finite conics (k, 3, 3), with what
+    :func:`conic_to_ellipse` reuses: the unit-norm conics (k, 3, 3), their centres (k, 2) and
+    ``f0`` (k,) (NaN where a conic has no centre). Returns ``(kinds (list of str), C, centre, f0)``.
+
+    The classification is made in the frame centred on the conic's centre, where it reads
+    diag-block (A2, f0): the test does not depend on where the curve lies in the image (a 1 px
+    ellipse at (1300, 1000) is as good as one at the origin).
+    """
+    k = len(C)
+    eps = TOL.conic_degenerate_rel
+    norm = np.sqrt(np.einsum("kij,kij->k", C, C))
+    zero = norm == 0
+    C = C / np.where(zero, 1.0, norm)[:, None, None]
+    A2 = C[:, :2, :2]
+    lam = np.linalg.eigvalsh(A2)
+    lam_max = np.abs(lam).max(axis=1)
+    no_centre = zero | (lam_max <= eps) | (np.abs(lam[:, 0] * lam[:, 1]) <= eps * lam_max**2)
+    centre, regular = _solve_each(np.where(no_centre[:, None, None], np.eye(2), A2), C[:, :2, 2])
+    centre = -centre
+    no_centre |= ~regular
+    cross = np.einsum("ki,ki->k", C[:, 2, :2], centre)
+    f0 = C[:, 2, 2] + cross
+    # f0 is a difference of terms of size |C22|; rounding leaves ~1e-16 of them, so compare with
+    # the larger of that and the quadratic part.
+    point = np.abs(f0) <= eps * np.maximum(lam_max, np.abs(C[:, 2, 2]) + np.abs(cross))
+    hyperbola = lam[:, 0] * lam[:, 1] < 0
+    sign = np.where(lam[:, 0] > 0, 1.0, -1.0)
+    kinds = np.where(hyperbola, "hyperbola", np.where(sign * f0 < 0, "ellipse", "imaginary")).astype(object)
+    kinds[point] = "degenerate"  # a point (ellipse type) or two crossing lines (hyperbola type)
+    for i in np.flatnonzero(no_centre):  # a parabola, or parallel lines / a line (det C ~ 0)
+        if zero[i]:
+            kinds[i] = "degenerate"
+        else:
+            sv = np.linalg.svd(C[i], compute_uv=False)
+            kinds[i] = "degenerate" if sv[-1] <= eps * sv[0] else "parabola"
+    centre[no_centre] = np.nan
+    f0[no_centre] = np.nan
+    return list(kinds) if k else [], C, centre, f0
+
+
+def _ellipses_of(C: np.ndarray):
+    """Ellipse parameters of a stack of symmetric finite conics (k, 3, 3): centres (k, 2),
+    semi-axes (k, 2), angles (k,) rad and which are real ellipses (k,) bool (NaN elsewhere)."""
+    kinds, C, centre, f0 = _classify_many(C)
+    ok = np.array([kd == "ellipse" for kd in kinds], dtype=bool)
+    k = len(C)
+    axes = np.full((k, 2), np.nan)
+    angle = np.full(k, np.nan)
+    if not ok.any():
+        return centre, axes, angle, ok
+    C = C[ok]
+    c, f = centre[ok], f0[ok]
+    flip = np.trace(C[:, :2, :2], axis1=1, axis2=2) < 0
+    if flip.any():
+        Cf = -C[flip]
+        cf, _ = _solve_each(Cf[:, :2, :2], Cf[:, :2, 2])
+        c[flip] = -cf
+        f[flip] = Cf[:, 2, 2] + np.einsum("ki,ki->k", Cf[:, 2, :2], -cf)  # < 0 for a real ellipse
+        C = C.copy()
+        C[flip] = Cf
+    w, V = np.linalg.eigh(C[:, :2, :2])  # ascending: w[0] gives the major axis
+    axes[ok] = np.sqrt(-f[:, None] / w)
+    a = np.arctan2(V[:, 1, 0], V[:, 0, 0])
+    a = np.where(a <= -np.pi / 2, a + np.pi, np.where(a > np.pi / 2, a - np.pi, a))
+    angle[ok] = a
+    centre = centre.copy()
+    centre[ok] = c
+    return centre, axes, angle, ok
+
+
+def _cone_eigen_many(Cn: np.ndarray):
+    """Eigen-decompositions of a stack of finite cones (k, 3, 3) with signs normalised so that
+    l1 >= l2 > 0 > l3: eigenvalues (k, 3), eigenvectors as columns (k, 3, 3) in that order, and
+    which cones are real and elliptic (signature (2, 1)) (k,) bool."""
+    Cn = 0.5 * (Cn + np.swapaxes(Cn, 1, 2))
+    Cn = Cn / np.sqrt(np.einsum("kij,kij->k", Cn, Cn))[:, None, None]
+    finite = np.isfinite(Cn).all(axis=(1, 2))
+    w, V = np.linalg.eigh(np.where(finite[:, None, None], Cn, np.eye(3)))
+    eps = TOL.conic_degenerate_rel
+    n_pos = np.sum(w > eps, axis=1)
+    n_neg = np.sum(w < -eps, axis=1)
+    flip = (n_pos == 1) & (n_neg == 2)
+    ok = finite & (flip | ((n_pos == 2) & (n_neg == 1)))
+    w = np.where(flip[:, None], -w[:, ::-1], w)
+    V = np.where(flip[:, None, None], V[:, :, ::-1], V)
+    # w ascending after eigh: now w = (l3 < 0 < l2 <= l1) in ascending order.
+    return w[:, ::-1], V[:, :, ::-1], ok
+
+
+def _eigen_error(w: np.ndarray) -> str:
+    return (f"C' is not a real elliptic cone: eigenvalues {w.tolist()} "
+            "(need two of one sign and one of the other)")
+
+
+def _cone_eigen(Cn) -> tuple[np.ndarray, np.ndarray]:
+    """Eigen-decomposition of a cone with signs normalised so that l1 >= l2 > 0 > l3.
+
+    Returns eigenvalues (3,) and eigenvectors as columns (3, 3) in that order.
+    Raises ValueError if the cone is not real and elliptic (signature (2, 1)).
+    """
+    Cn = _check_conic(Cn, "C'")
+    w, V, ok = _cone_eigen_many(Cn[None])
+    if not ok[0]:
+        raise ValueError(_eigen_error(np.linalg.eigvalsh(Cn / np.linalg.norm(Cn))))
+    return w[0], V[0]
+
+
+def _toward_camera_many(n: np.ndarray) -> np.ndarray:
+    """Orient directions inside the cone (k, 3) (z != 0) as normals facing the camera: n_z < 0.
+
+    Right for the cone axis, which lies inside the cone, i.e. along a viewing ray with z > 0;
+    not for circle-pose normals, which are oriented against their circle's centre ray instead.
+    """
+    n = n / np.linalg.norm(n, axis=-1, keepdims=True)
+    return np.where(n[..., 2:] > 0, -n, n)
+
+
+def _cone_axes_of(w: np.ndarray, V: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Cone axes (k, 3) facing the camera and eigenvalue gaps (k,) of sign-normalised
+    eigen-decompositions (k, 3), (k, 3, 3) (:func:`_cone_eigen_many`)."""
+    gap = (w[:, 0] - w[:, 1]) / (w[:, 0] - w[:, 2])
+    return _toward_camera_many(V[:, :, 2]), gap
+
+
+def _cone_axis_of(w: np.ndarray, V: np.ndarray) -> ConeAxis:
+    axis, gap = _cone_axes_of(w[None], V[None])
+    return ConeAxis(axis=axis[0], eigenvalue_gap=float(gap[0]), eigenvalues=w)
+
+
+def _circle_poses_of(w: np.ndarray, V: np.ndarray):
+    """Circle poses of sign-normalised eigen-decompositions (k, 3), (k, 3, 3): normals N+ and N-
+    (k, 2, 3) facing the camera, their circles' centre directions (k, 2, 3), and which poses are
+    defined (k,) bool (the section of the cone by the plane has a centre)."""
+    l1, l2, l3 = w[:, 0], w[:, 1], w[:, 2]
+    sin_phi = np.sqrt(np.maximum(l1 - l2, 0.0) / (l1 - l3))
+    cos_phi = np.sqrt(np.maximum(l2 - l3, 0.0) / (l1 - l3))
+    Q = np.einsum("kij,kj,klj->kil", V, w, V)  # sign-normalised, unit cone
+    sgn = np.array([1.0, -1.0])
+    n = (sgn[None, :, None] * sin_phi[:, None, None] * V[:, None, :, 0]
+         + cos_phi[:, None, None] * V[:, None, :, 2])
+    n = n / np.linalg.norm(n, axis=-1, keepdims=True)
+    k = len(w)
+    c, ok = _section_centres(np.repeat(Q, 2, axis=0), n.reshape(2 * k, 3))
+    c = c.reshape(k, 2, 3)
+    # Facing the camera means n . c < 0 along the ray to the circle's centre. n_z < 0 is not
+    # the same test: a steep plane seen far off-axis faces the camera with n_z > 0.
+    facing = np.where(np.einsum("kij,kij->ki", n, c)[..., None] > 0, -n, n)
+    return facing, c, ok.reshape(k, 2).all(axis=1)
+
+
+def _circle_pose_of(w: np.ndarray, V: np.ndarray) -> CirclePose:
+    normals, centres, ok = _circle_poses_of(w[None], V[None])
+    if not ok[0]:
+        raise np.linalg.LinAlgError("Singular matrix")
+    return CirclePose(normals=normals[0], centres=centres[0], eigenvalues=w)
+
+
+def cone_poses(Cn) -> dict:
+    """:func:`circle_pose` and :func:`cone_axis` of a stack of cones at once.
+
+    Parameters
+    ----------
+    Cn : array_like of shape (k, 3, 3)
+        Normalised conics C' = K^T C K (any scale or sign), finite.
+
+    Returns
+    -------
+    dict of ndarray
+        ``normals`` (k, 2, 3): N+ and N- facing the camera; ``centres`` (k, 2, 3); ``axis`` (k, 3):
+        the cone axis facing the camera (n_z < 0); ``eigenvalue_gap`` (k,); ``eigenvalues`` (k, 3):
+        (l1, l2, l3); ``ok`` (k,) bool: False where C' is not a real elliptic cone or its circle
+        pose is undefined (then the other entries of that cone are meaningless), and
+        ``error`` (list of str): why, per cone ("" where ok).
+
+    Notes
+    -----
+    The same arithmetic as the one-cone functions, which call this one: one eigen-decomposition
+    per cone, batched in numpy (a highlight's pose costs a few microseconds in a batch of
+    hundreds).
+    """
+    Cn = np.asarray(Cn, dtype=np.float64).reshape(-1, 3, 3)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        w, V, ok = _cone_eigen_many(Cn)
+        normals, centres, pose_ok = _circle_poses_of(w, V)
+        axis, gap = _cone_axes_of(w, V)
+    error = [""] * len(Cn)
+    for i in np.flatnonzero(~ok):
+        c = 0.5 * (Cn[i] + Cn[i].T)
+        error[i] = (_eigen_error(np.linalg.eigvalsh(c / np.linalg.norm(c))) if np.isfinite(c).all()
+                    else f"C' has non-finite entries: {Cn[i].tolist()}")
+    for i in np.flatnonzero(ok & ~pose_ok):
+        error[i] = "Singular matrix"
+    return dict(normals=normals, centres=centres, axis=axis, eigenvalue_gap=gap, eigenvalues=w,
+                ok=ok & pose_ok, error=error)
+
+
+def _section_centres(Q: np.ndarray, n: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Unit directions (k, 3) (z > 0) of the centres of the sections of cones Q (k, 3, 3) by planes
+    of normals n (k, 3), and which sections have a centre (k,) bool."""
+    # Plane n.X = 1 parametrised as X = n + a u + b w with (u, w) an orthonormal basis of n-perp
+    # (that of plane_basis: u along n x e_x, or n x e_y when n is within 26 deg of e_x).
+    helper = np.where(np.abs(n[:, :1]) < 0.9, np.array([1.0, 0.0, 0.0]), np.array([0.0, 1.0, 0.0]))
+    u = np.cross(n, helper)
+    u = u / np.linalg.norm(u, axis=1, keepdims=True)
+    B = np.stack([u, np.cross(n, u)], axis=2)  # (k, 3, 2)
+    BtQ = np.einsum("kia,kij->kaj", B, Q)
     M = BtQ @ B
-    g = BtQ @ n
-    ab = -np.linalg.solve(M, g)
-    X = n + B @ ab
-    X /= np.linalg.norm(X)
-    return -X if X[2] < 0 else X
+    g = np.einsum("kaj,kj->ka", BtQ, n)
+    ab, ok = _solve_each(M, g)
+    X = n - np.einsum("kia,ka->ki", B, ab)
+    X = X / np.linalg.norm(X, axis=1, keepdims=True)
+    return np.where(X[:, 2:] < 0, -X, X), ok
 
 
 def project_circle(centre_mm, normal, radius_mm: float, K) -> np.ndarray:

@@ -28,7 +28,7 @@ from simtest.geometry.curvature import (
 from simtest.geometry.lights import Light, LightRig
 from simtest.harness.estimators import score
 from simtest.harness.suite import LIGHT_AWARE_NAMES, MeshPose
-from simtest.reconstruct import reconstruct, reconstruct_roi
+from simtest.reconstruct import reconstruct, reconstruct_rois
 from simtest.reconstruct.recommend import with_light_aware
 from simtest.reconstruct.settings import ReconSettings
 from simtest.render import render_scene
@@ -36,7 +36,7 @@ from simtest.scene import load_scene, with_overrides
 from simtest.scene.poses import colon_pose, liver_orbit_pose
 from simtest.simulate.paper import PaperSimulator
 
-__all__ = ["make_runner", "PaperRunner", "RenderedRunner", "Row", "reconstruct_known_bp",
+__all__ = ["make_runner", "PaperRunner", "RenderedRunner", "Row",
            "reconstruct_image", "render_rig", "mesh_pose_overrides"]
 
 #: Margin of the paper protocol's ROI around the noiseless highlight, px: 5 smoothing widths of
@@ -47,35 +47,6 @@ ROI_MARGIN_PX = 10
 EXTRA_KEYS = ("eigenvalue_gap", "residual_px", "bp_error_px", "k1_per_mm", "k2_per_mm",
               "pose_split_deg", "iso_radius_mm", "r_k1", "r_k2", "anisotropy", "bp_distance_mm",
               "rho", "predicted_gap", "predicted_pose_deg", "false_positives", "saturated_px")
-
-
-def reconstruct_known_bp(image, K, bp_px, roi, settings: ReconSettings):
-    """Reconstruct the one specularity whose BP is known (``reconstruct_roi``).
-
-    The image is already normalised to 1 at the BP by the protocol (paper step 4), so the
-    settings of a paper case (:func:`simtest.harness.suite.harness_recon_settings`) take the
-    isovalues relative to a full scale of 1 and apply no further smoothing.
-
-    Parameters
-    ----------
-    image : ndarray of shape (H, W)
-        Float image, 1 at the BP.
-    K : ndarray of shape (3, 3)
-        Intrinsics, pixels (integer pixel centres).
-    bp_px : array_like of shape (2,)
-        Known brightest point (u, v), px.
-    roi : tuple of int
-        ``(row0, row1, col0, col1)``, half-open, as from :meth:`PaperRunner.roi`.
-    settings : ReconSettings
-        The case's settings (:attr:`simtest.harness.suite.Case.recon`), passed as they are.
-
-    Returns
-    -------
-    simtest.reconstruct.SpecularityEstimate
-        Failures are values (``status`` names the cause), not exceptions.
-    """
-
-    return reconstruct_roi(image, K, bp_uv=bp_px, roi=roi, settings=settings)
 
 
 def reconstruct_image(image, K, settings: ReconSettings):
@@ -265,20 +236,59 @@ class PaperRunner:
             One row. A realisation whose BP is not in front of the camera fails every estimator
             with ``"bp_nonpositive"``.
         """
-        rng = np.random.Generator(np.random.PCG64(seedseq))
-        try:
-            s = self.sim.sample(rng)
-        except FloatingPointError:
-            errs = {k: (float("nan"), "bp_nonpositive") for k in self.estimators}
-            return [_row(errs, {k: float("nan") for k in EXTRA_KEYS})]
-        est = reconstruct_known_bp(s.image, s.K, s.bp_px, self.roi(s.clean, s.bp_px), self.settings)
-        errs = score(est, s.normal, self.estimators)
+        return self.run_many([seedseq])[0]
+
+    def run_many(self, seedseqs) -> list[list[dict]]:
+        """:meth:`run` of several realisations, their reconstructions batched
+        (:func:`simtest.reconstruct.reconstruct_rois`): the same rows, bit for bit.
+
+        Parameters
+        ----------
+        seedseqs : sequence of numpy.random.SeedSequence
+            The realisations' seeds.
+
+        Returns
+        -------
+        list of list of Row
+            Per realisation, its rows (as :meth:`run`).
+
+        Raises
+        ------
+        Exception
+            Whatever a realisation's simulation or reconstruction raises (the caller then runs
+            the realisations one by one, to tell which).
+        """
+        truth: list = []  # per realisation (normal, BP) or None; the images are not kept
+
+        def items():
+            for seedseq in seedseqs:
+                rng = np.random.Generator(np.random.PCG64(seedseq))
+                try:
+                    s = self.sim.sample(rng)
+                except FloatingPointError:
+                    truth.append(None)
+                    continue
+                truth.append((s.normal, s.bp_px))
+                yield s.image, s.K, s.bp_px, self.roi(s.clean, s.bp_px)
+
+        ests = iter(reconstruct_rois(items(), settings=self.settings))
+        out = []
+        for t in truth:
+            if t is None:
+                errs = {k: (float("nan"), "bp_nonpositive") for k in self.estimators}
+                out.append([_row(errs, {k: float("nan") for k in EXTRA_KEYS})])
+            else:
+                out.append([self._score(*t, next(ests))])
+        return out
+
+    def _score(self, normal, bp_px, est):
+        errs = score(est, normal, self.estimators)
         extras = _extras(est)
         bp = getattr(est, "bp_px", None)
-        extras["bp_error_px"] = (float(np.linalg.norm(np.asarray(bp, float) - s.bp_px))
+        extras["bp_error_px"] = (float(np.linalg.norm(np.asarray(bp, float) - bp_px))
                                  if bp is not None else float("nan"))
         extras["k1_per_mm"] = extras["k2_per_mm"] = 0.0  # a plane
-        return [_row(errs, extras)]
+        return _row(errs, extras)
 
 
 class RenderedRunner:

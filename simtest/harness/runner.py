@@ -213,6 +213,15 @@ def run_case_chunk(case: Case, estimators: tuple, root_seed: int, start: int, st
         rows = _exception_rows(estimators, e)
         return ChunkResult((case.key, case.realisations), [(i, rows) for i in range(start, stop)],
                            time.perf_counter() - t0, None, messages)
+    many = getattr(runner, "run_many", None)
+    if many is not None:  # the chunk's reconstructions batched: the same rows, bit for bit
+        try:
+            batch = many([realisation_seed(root_seed, case.key, i) for i in range(start, stop)])
+        except Exception:  # noqa: BLE001 - run one by one below, to tell which realisation
+            batch = None
+        if batch is not None:
+            return ChunkResult((case.key, case.realisations), list(zip(range(start, stop), batch)),
+                               time.perf_counter() - t0, getattr(runner, "variant", None), messages)
     for i in range(start, stop):
         try:
             rows = runner.run(realisation_seed(root_seed, case.key, i))

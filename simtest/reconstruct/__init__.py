@@ -4,7 +4,8 @@ Pure numpy / scikit-image / OpenCV: this package never imports Mitsuba or the re
 on real endoscopic images. Entry points:
 
 - :func:`reconstruct` (whole image: detect highlights, then one estimate per highlight),
-- :func:`reconstruct_roi` (one known highlight, e.g. a simulated image with known BP and ROI),
+- :func:`reconstruct_roi` (one known highlight, e.g. a simulated image with known BP and ROI) and
+  :func:`reconstruct_rois` (many, their fits batched),
 - :func:`detect_specularities`, :func:`extract_isophote`, :func:`fit_ellipse` and the estimators
   in :mod:`simtest.reconstruct.estimators`, for use step by step,
 - :func:`write_estimates` / :func:`read_estimates` for ``estimates.json``,
@@ -25,7 +26,7 @@ from simtest.reconstruct.estimators import (
     select_paper_normal,
 )
 from simtest.reconstruct.failures import REASONS, Failure
-from simtest.reconstruct.fit import EllipseFit, fit_ellipse
+from simtest.reconstruct.fit import EllipseFit, fit_ellipse, fit_ellipses
 from simtest.reconstruct.io import SCHEMA_VERSION, read_estimates, write_estimates
 from simtest.reconstruct.isophote import Isophote, extract_isophote
 from simtest.reconstruct.pipeline import (
@@ -33,6 +34,7 @@ from simtest.reconstruct.pipeline import (
     SpecularityEstimate,
     reconstruct,
     reconstruct_roi,
+    reconstruct_rois,
 )
 from simtest.reconstruct.settings import Normalisation, ReconSettings
 
@@ -54,11 +56,13 @@ __all__ = [
     "estimate_from_conic",
     "extract_isophote",
     "fit_ellipse",
+    "fit_ellipses",
     "joint_cone_axis",
     "rc_to_uv",
     "read_estimates",
     "reconstruct",
     "reconstruct_roi",
+    "reconstruct_rois",
     "select_paper_normal",
     "uv_to_rc",
     "write_estimates",

@@ -35,9 +35,9 @@ import numpy as np
 
 from simtest.geometry.cameras import CameraModel, PinholeCamera
 from simtest.reconstruct.failures import Failure
-from simtest.reconstruct.fit import EllipseFit, fit_ellipse
+from simtest.reconstruct.fit import EllipseFit, fit_ellipses
 
-__all__ = ["ConeFit", "FitFrame", "fit_cone", "fit_frame", "rotation_to_z", "to_camera", "to_fit_frame"]
+__all__ = ["ConeFit", "FitFrame", "fit_cone", "fit_cones", "fit_frame", "rotation_to_z", "to_camera", "to_fit_frame"]
 
 
 @dataclass(frozen=True)
@@ -184,45 +184,96 @@ def fit_cone(points_uv, frame: FitFrame) -> ConeFit | Failure:
         point has no ray in the camera model or lies past the fit plane's horizon (more than 90 deg
         from the BP ray); ``pose_failed`` if the cone is zero or non-finite.
 
+    Raises
+    ------
+    ValueError
+        If ``points_uv`` is not of shape (N, 2).
+
     Notes
     -----
     With plane pixels x = K (R r) / (R r)_z and the fitted conic C (``x^T C x = 0``), a ray r lies
     on the cone iff ``(K R r)^T C (K R r) = 0``, so ``C' = R^T K^T C K R`` (paper step 3 for R = I).
-    For a distortion-free pinhole the plane pixels are the contour points themselves.
+    For a distortion-free pinhole the plane pixels are the contour points themselves. One call of
+    :func:`fit_cones`.
     """
-    pts = np.asarray(points_uv, dtype=np.float64)
-    if pts.ndim != 2 or pts.shape[1] != 2:
-        raise ValueError(f"points_uv must have shape (N, 2), got {pts.shape}")
-    cam = frame.camera
-    if isinstance(cam, PinholeCamera) and cam.dist_coeffs is None:
-        plane = pts
-    else:
-        plane = frame.to_plane(cam.pixel_to_ray(pts))
-    fit = fit_ellipse(plane)
-    if not fit:
-        return fit
-    K = frame.K
-    cf = K.T @ fit.conic @ K
-    cf = 0.5 * (cf + cf.T)
-    norm = float(np.linalg.norm(cf))
-    if not (np.isfinite(norm) and norm > 0):
-        return Failure("pose_failed", "C' = K^T C K is zero or not finite")
-    cf = cf / norm
-    on_image = frame.on_image_plane
-    if on_image:
-        cone = cf
-    else:
-        cone = frame.R.T @ cf @ frame.R
-        cone = 0.5 * (cone + cone.T)
-    return ConeFit(
-        cone=cone,
-        cone_fit_frame=cf,
-        conic=fit.conic if on_image else None,
-        ellipse=fit.ellipse if on_image else None,
-        plane_fit=fit,
-        residual_px=fit.residual_px,
-        n_points=fit.n_points,
-    )
+    return fit_cones([points_uv], [frame])[0]
+
+
+def fit_cones(points_list, frames) -> list[ConeFit | Failure]:
+    """:func:`fit_cone` of several highlights' contours at once.
+
+    Parameters
+    ----------
+    points_list : sequence of array_like of shape (N_i, 2)
+        Contour points as found in the image (distorted pixels), px.
+    frames : sequence of FitFrame
+        Each contour's camera and fit plane (:func:`fit_frame`), as many as contours.
+
+    Returns
+    -------
+    list of ConeFit or Failure
+        One per contour, in order (see :func:`fit_cone`).
+
+    Raises
+    ------
+    ValueError
+        If a point set is not of shape (N, 2), or the two sequences differ in length.
+
+    Notes
+    -----
+    The contours of one camera are mapped to rays in one call of its model, the ellipses fitted in
+    one batch (:func:`~simtest.reconstruct.fit.fit_ellipses`) and the cones formed in stacked
+    matrix products.
+    """
+    pts_list = []
+    for p in points_list:
+        p = np.asarray(p, dtype=np.float64)
+        if p.ndim != 2 or p.shape[1] != 2:
+            raise ValueError(f"points_uv must have shape (N, 2), got {p.shape}")
+        pts_list.append(p)
+    frames = list(frames)
+    if len(frames) != len(pts_list):
+        raise ValueError(f"{len(pts_list)} contours but {len(frames)} fit frames")
+    if not pts_list:
+        return []
+    plane = list(pts_list)
+    mapped = [i for i, f in enumerate(frames)
+              if not (isinstance(f.camera, PinholeCamera) and f.camera.dist_coeffs is None)]
+    by_camera: dict = {}
+    for i in mapped:
+        by_camera.setdefault(id(frames[i].camera), []).append(i)
+    for idx in by_camera.values():
+        cam = frames[idx[0]].camera
+        n = [len(pts_list[i]) for i in idx]
+        rays = cam.pixel_to_ray(np.concatenate([pts_list[i] for i in idx], axis=0))
+        for i, r in zip(idx, np.split(rays, np.cumsum(n)[:-1])):
+            plane[i] = frames[i].to_plane(r)
+    fits = fit_ellipses(plane)
+    good = [i for i, f in enumerate(fits) if f]
+    out: list = list(fits)
+    if not good:
+        return out
+    K = np.stack([frames[i].K for i in good])
+    C = np.stack([fits[i].conic for i in good])
+    cf = np.swapaxes(K, 1, 2) @ C @ K
+    cf = 0.5 * (cf + np.swapaxes(cf, 1, 2))
+    norm = np.sqrt(np.einsum("kij,kij->k", cf, cf))
+    for j, i in enumerate(good):
+        if not (np.isfinite(norm[j]) and norm[j] > 0):
+            out[i] = Failure("pose_failed", "C' = K^T C K is zero or not finite")
+            continue
+        c = cf[j] / norm[j]
+        fit, frame = fits[i], frames[i]
+        on_image = frame.on_image_plane
+        if on_image:
+            cone = c
+        else:
+            cone = frame.R.T @ c @ frame.R
+            cone = 0.5 * (cone + cone.T)
+        out[i] = ConeFit(cone=cone, cone_fit_frame=c, conic=fit.conic if on_image else None,
+                         ellipse=fit.ellipse if on_image else None, plane_fit=fit,
+                         residual_px=fit.residual_px, n_points=fit.n_points)
+    return out
 
 
 def to_camera(frame: FitFrame, v):

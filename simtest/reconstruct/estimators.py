@@ -50,7 +50,7 @@ import numpy as np
 
 from simtest.geometry.angles import unit
 from simtest.geometry.camera import bp_ray_normal
-from simtest.geometry.conics import cone_pose
+from simtest.geometry.conics import cone_poses
 from simtest.reconstruct.failures import Failure
 
 
@@ -87,20 +87,22 @@ def face_reference(n: np.ndarray, ray: np.ndarray) -> np.ndarray:
 
     Parameters
     ----------
-    n : ndarray of shape (3,)
-        A normal, camera frame.
-    ray : ndarray of shape (3,)
-        A viewing direction from the camera (z > 0), camera frame.
+    n : ndarray of shape (..., 3)
+        Normal(s), camera frame.
+    ray : ndarray of shape (..., 3)
+        Viewing direction(s) from the camera (z > 0), camera frame, broadcast against ``n``.
 
     Returns
     -------
-    ndarray of shape (3,)
-        ``n`` or ``-n`` (same length as ``n``).
+    ndarray of shape (..., 3)
+        Each ``n`` or ``-n`` (same length).
     """
-    return -n if float(np.dot(n, ray)) > 0 else n
+    n = np.asarray(n, dtype=np.float64)
+    d = np.sum(n * np.asarray(ray, dtype=np.float64), axis=-1, keepdims=True)
+    return np.where(d > 0, -n, n)
 
 
-def select_paper_normal(normals: np.ndarray, reference: np.ndarray) -> int:
+def select_paper_normal(normals: np.ndarray, reference: np.ndarray):
     """Index of the normal of the pair closer in angle to ``reference``.
 
     The non-oracle rule of this module (see the module docstring): the reference is the BP-ray
@@ -108,37 +110,42 @@ def select_paper_normal(normals: np.ndarray, reference: np.ndarray) -> int:
 
     Parameters
     ----------
-    normals : ndarray of shape (2, 3)
-        N+ and N-, unit, camera frame.
-    reference : ndarray of shape (3,)
-        Unit reference normal (the BP-ray normal), camera frame.
+    normals : ndarray of shape (2, 3) or (k, 2, 3)
+        N+ and N-, unit, camera frame (a stack of pairs for several highlights).
+    reference : ndarray of shape (3,) or (k, 3)
+        Unit reference normal(s) (the BP-ray normal), camera frame.
 
     Returns
     -------
-    int
-        0 (N+) or 1 (N-).
+    int or ndarray of shape (k,), int
+        0 (N+) or 1 (N-), per pair.
     """
     # for unit vectors the smaller angle is the larger dot product (monotone arccos)
-    d = np.asarray(normals, dtype=np.float64) @ np.asarray(reference, dtype=np.float64)
-    return int(d[1] > d[0])
+    normals = np.asarray(normals, dtype=np.float64)
+    d = np.sum(normals * np.asarray(reference, dtype=np.float64)[..., None, :], axis=-1)
+    idx = (d[..., 1] > d[..., 0]).astype(int)
+    return int(idx) if normals.ndim == 2 else idx
 
 
-def _images_as_ellipse(cn) -> bool:
-    """True if the cone C' cuts the normalised image plane z = 1 in an ellipse-type conic.
+def _images_as_ellipse_many(cn: np.ndarray) -> np.ndarray:
+    """True where a cone C' (k, 3, 3) cuts the normalised image plane z = 1 in an ellipse-type
+    conic (k,) bool.
 
     C' is also the image conic in normalised coordinates (O(1)-conditioned for any visible
     highlight); its type is the sign of det C'[:2, :2] (> 0: ellipse type). A real cone whose
     image is a hyperbola (axis nearly parallel to the image plane) has no normal facing the
     camera. Real versus imaginary is left to the signature test of ``circle_pose``.
     """
+    finite = np.isfinite(cn).all(axis=(1, 2))
+    scale = np.where(finite, np.abs(np.where(finite[:, None, None], cn, 0.0)).max(axis=(1, 2)), 0.0)
+    a = cn[:, :2, :2] / np.where(scale > 0, scale, 1.0)[:, None, None]
+    return finite & (scale > 0) & (a[:, 0, 0] * a[:, 1, 1] - a[:, 0, 1] * a[:, 1, 0] > 1e-12)
+
+
+def _images_as_ellipse(cn) -> bool:
+    """:func:`_images_as_ellipse_many` of one cone (any shape: False unless (3, 3))."""
     cn = np.asarray(cn, dtype=np.float64)
-    if cn.shape != (3, 3) or not np.isfinite(cn).all():
-        return False
-    scale = float(np.abs(cn).max())
-    if scale == 0.0:
-        return False
-    a = cn[:2, :2] / scale
-    return bool(a[0, 0] * a[1, 1] - a[0, 1] * a[1, 0] > 1e-12)
+    return cn.shape == (3, 3) and bool(_images_as_ellipse_many(cn[None])[0])
 
 
 def estimate_from_conic(Cn: np.ndarray, bp_ray: np.ndarray) -> ConeEstimate | Failure:
@@ -157,20 +164,59 @@ def estimate_from_conic(Cn: np.ndarray, bp_ray: np.ndarray) -> ConeEstimate | Fa
     ConeEstimate or Failure
         ``Failure("pose_failed")`` if C' is not a real elliptic cone whose image is an ellipse.
     """
+    Cn = np.asarray(Cn, dtype=np.float64)
+    if Cn.shape != (3, 3):
+        return Failure("pose_failed", "the normalised conic is not an ellipse (hyperbola, parabola)")
+    return estimate_from_conics(Cn[None], np.asarray(bp_ray, dtype=np.float64).reshape(1, 3))[0]
 
-    try:
-        if not _images_as_ellipse(Cn):
-            return Failure("pose_failed", "the normalised conic is not an ellipse (hyperbola, parabola)")
-        pose, ax = cone_pose(Cn)
-    except (ValueError, np.linalg.LinAlgError) as exc:
-        return Failure("pose_failed", str(exc))
-    ray = -bp_ray
-    paper = np.array([face_reference(unit(n), ray) for n in pose.normals])
-    axis = face_reference(unit(ax.axis), ray)
-    if not (np.isfinite(paper).all() and np.isfinite(axis).all()):
-        return Failure("pose_failed", "non-finite normal")
-    idx = select_paper_normal(paper, bp_ray)
-    return ConeEstimate(paper, paper[idx], idx, axis, float(ax.eigenvalue_gap))
+
+def estimate_from_conics(Cns: np.ndarray, bp_rays: np.ndarray) -> list[ConeEstimate | Failure]:
+    """:func:`estimate_from_conic` of a stack of normalised conics, batched.
+
+    Parameters
+    ----------
+    Cns : ndarray of shape (k, 3, 3)
+        Normalised conics C' = K^T C K (any scale and sign).
+    bp_rays : ndarray of shape (k, 3)
+        Their BP-ray normals (unit, facing the camera), camera frame.
+
+    Returns
+    -------
+    list of ConeEstimate or Failure
+        One per conic, in order; ``Failure("pose_failed")`` where C' is not a real elliptic cone
+        whose image is an ellipse.
+
+    Notes
+    -----
+    One batched eigen-decomposition and circle pose for all conics
+    (:func:`simtest.geometry.conics.cone_poses`): a highlight costs a few microseconds in a batch
+    of hundreds.
+    """
+    Cns = np.asarray(Cns, dtype=np.float64).reshape(-1, 3, 3)
+    refs = np.asarray(bp_rays, dtype=np.float64).reshape(-1, 3)
+    k = len(Cns)
+    elliptic = _images_as_ellipse_many(Cns)
+    pose = cone_poses(np.where(elliptic[:, None, None], Cns, np.diag([1.0, 1.0, -1.0])))
+    with np.errstate(invalid="ignore", divide="ignore"):
+        paper = unit(pose["normals"], axis=-1)
+        axis = unit(pose["axis"], axis=-1)
+    ray = -refs
+    paper = face_reference(paper, ray[:, None, :])
+    axis = face_reference(axis, ray)
+    finite = np.isfinite(paper).all(axis=(1, 2)) & np.isfinite(axis).all(axis=1)
+    idx = select_paper_normal(paper, refs)
+    out: list = []
+    for j in range(k):
+        if not elliptic[j]:
+            out.append(Failure("pose_failed", "the normalised conic is not an ellipse (hyperbola, parabola)"))
+        elif not pose["ok"][j]:
+            out.append(Failure("pose_failed", pose["error"][j]))
+        elif not finite[j]:
+            out.append(Failure("pose_failed", "non-finite normal"))
+        else:
+            out.append(ConeEstimate(paper[j], paper[j, idx[j]], int(idx[j]), axis[j],
+                                    float(pose["eigenvalue_gap"][j])))
+    return out
 
 
 def bp_ray(bp_uv, K) -> np.ndarray:
@@ -210,30 +256,77 @@ def joint_cone_axis(cns, bp_ray: np.ndarray) -> np.ndarray | Failure:
         Unit axis facing the camera; ``Failure("pose_failed")`` if a conic is not a real
         elliptic cone or none is given. Method: module docstring ("Joint cone axis").
     """
-    acc = np.zeros((3, 3))
-    n_used = 0
-    for cn in cns:
-        cn = np.asarray(cn, dtype=np.float64)
-        if not _images_as_ellipse(cn):
-            return Failure("pose_failed", "a normalised conic is not an ellipse")
-        cn = 0.5 * (cn + cn.T)
-        w, v = np.linalg.eigh(cn)
-        n_pos = int(np.sum(w > 0))
-        if n_pos == 2:  # make the unique-sign eigenvalue positive
-            cn, w = -cn, -w[::-1]
-        elif n_pos != 1 or np.any(w == 0):
-            return Failure("pose_failed", f"conic eigenvalues {w.tolist()} are not those of a real cone")
-        # w ascending: w[0] <= w[1] < 0 < w[2]; remove the isotropic part of the same-sign pair
-        d = cn - 0.5 * (w[0] + w[1]) * np.eye(3)
-        nd = np.linalg.norm(d)
-        if not nd > 0:
-            return Failure("pose_failed", "a conic is isotropic")
-        acc += d / nd
-        n_used += 1
-    if n_used == 0:
+    cns = [np.asarray(c, dtype=np.float64) for c in cns]
+    if not cns:
         return Failure("pose_failed", "no conic given")
-    w, v = np.linalg.eigh(acc)
-    axis = face_reference(unit(v[:, -1]), -bp_ray)
-    if not np.isfinite(axis).all():
-        return Failure("pose_failed", "non-finite joint axis")
-    return axis
+    if any(c.shape != (3, 3) for c in cns):
+        return Failure("pose_failed", "a normalised conic is not an ellipse")
+    return joint_cone_axes(np.stack(cns), np.zeros(len(cns), dtype=int),
+                           np.asarray(bp_ray, dtype=np.float64).reshape(1, 3))[0]
+
+
+def joint_cone_axes(cns: np.ndarray, group: np.ndarray, bp_rays: np.ndarray) -> list[np.ndarray | Failure]:
+    """:func:`joint_cone_axis` of several groups of conics at once.
+
+    Parameters
+    ----------
+    cns : ndarray of shape (m, 3, 3)
+        Normalised conics C'_i (any scale and sign), grouped by highlight.
+    group : ndarray of shape (m,), int
+        Each conic's group 0 .. g-1, non-decreasing (the conics of a group consecutive).
+    bp_rays : ndarray of shape (g, 3)
+        Each group's BP-ray normal, to orient its axis toward the camera.
+
+    Returns
+    -------
+    list of ndarray of shape (3,) or Failure
+        Per group, its unit axis facing the camera, or ``Failure("pose_failed")`` (a conic is
+        not a real elliptic cone, or the group is empty).
+    """
+    cns = np.asarray(cns, dtype=np.float64).reshape(-1, 3, 3)
+    group = np.asarray(group, dtype=int)
+    refs = np.asarray(bp_rays, dtype=np.float64).reshape(-1, 3)
+    g = len(refs)
+    fail: list = [None] * g
+    elliptic = _images_as_ellipse_many(cns)
+    sym = 0.5 * (cns + np.swapaxes(cns, 1, 2))
+    sym = np.where(elliptic[:, None, None], sym, np.diag([1.0, 1.0, -1.0]))
+    w, v = np.linalg.eigh(sym)
+    n_pos = np.sum(w > 0, axis=1)
+    flip = n_pos == 2  # make the unique-sign eigenvalue positive
+    real = flip | ((n_pos == 1) & ~np.any(w == 0, axis=1))
+    sym = np.where(flip[:, None, None], -sym, sym)
+    w = np.where(flip[:, None], -w[:, ::-1], w)
+    # w ascending: w[0] <= w[1] < 0 < w[2]; remove the isotropic part of the same-sign pair
+    d = sym - 0.5 * (w[:, 0] + w[:, 1])[:, None, None] * np.eye(3)
+    nd = np.sqrt(np.einsum("kij,kij->k", d, d))
+    isotropic = ~(nd > 0)
+    for i in range(len(cns)):
+        j = group[i]
+        if fail[j] is not None:
+            continue
+        if not elliptic[i]:
+            fail[j] = Failure("pose_failed", "a normalised conic is not an ellipse")
+        elif not real[i]:
+            fail[j] = Failure("pose_failed", f"conic eigenvalues {w[i].tolist()} are not those of a real cone")
+        elif isotropic[i]:
+            fail[j] = Failure("pose_failed", "a conic is isotropic")
+    acc = np.zeros((g, 3, 3))
+    np.add.at(acc, group, d / np.where(isotropic, 1.0, nd)[:, None, None])
+    used = np.bincount(group, minlength=g) > 0
+    acc = np.where((used & np.array([f is None for f in fail], dtype=bool))[:, None, None], acc, np.eye(3))
+    _, vv = np.linalg.eigh(acc)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        axis = unit(vv[:, :, -1], axis=-1)
+    axis = face_reference(axis, -refs)
+    out: list = []
+    for j in range(g):
+        if fail[j] is not None:
+            out.append(fail[j])
+        elif not used[j]:
+            out.append(Failure("pose_failed", "no conic given"))
+        elif not np.isfinite(axis[j]).all():
+            out.append(Failure("pose_failed", "non-finite joint axis"))
+        else:
+            out.append(axis[j])
+    return out

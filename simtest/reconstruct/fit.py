@@ -35,7 +35,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from simtest.geometry.conics import conic_kind, conic_to_ellipse
+from simtest.geometry.conics import Ellipse, _ellipses_of, conic_kind
 from simtest.reconstruct.failures import Failure
 
 #: An ellipse has 5 degrees of freedom; one more point gives a residual.
@@ -88,8 +88,9 @@ def sampson_distance_px(conic: np.ndarray, points_uv: np.ndarray) -> np.ndarray:
 
     Parameters
     ----------
-    conic : ndarray of shape (3, 3)
-        Symmetric point conic in pixel coordinates (any scale: the ratio is scale-free).
+    conic : ndarray of shape (3, 3) or (N, 3, 3)
+        Symmetric point conic in pixel coordinates (any scale: the ratio is scale-free), or one
+        per point.
     points_uv : ndarray of shape (N, 2)
         Points (u, v), px, pixel centres at integer coordinates.
 
@@ -99,11 +100,25 @@ def sampson_distance_px(conic: np.ndarray, points_uv: np.ndarray) -> np.ndarray:
         Distances in px (>= 0); a point where the gradient vanishes (the conic's centre) gets
         ``|x^T C x| / tiny``, a very large value rather than a division by zero.
     """
-    x = np.column_stack([points_uv, np.ones(len(points_uv))])
-    cx = x @ conic
-    f = np.einsum("ij,ij->i", cx, x)
-    grad = 2.0 * cx[:, :2]
-    return np.abs(f) / np.maximum(np.hypot(grad[:, 0], grad[:, 1]), np.finfo(float).tiny)
+    c = np.asarray(conic, dtype=np.float64)
+    u, v = points_uv[:, 0], points_uv[:, 1]
+    gu = c[..., 0, 0] * u + c[..., 0, 1] * v + c[..., 0, 2]  # half the gradient of x^T C x
+    gv = c[..., 1, 0] * u + c[..., 1, 1] * v + c[..., 1, 2]
+    f = gu * u + gv * v + c[..., 2, 0] * u + c[..., 2, 1] * v + c[..., 2, 2]
+    return np.abs(f) / np.maximum(2.0 * np.hypot(gu, gv), np.finfo(float).tiny)
+
+
+#: Exponents (i, j) of the monomials x^i y^j whose sums make the scatter matrix S = D^T D of the
+#: design rows d = (x^2, xy, y^2, x, y, 1): every product d_a d_b is one of these 15.
+_MONOMIALS = [(i, s - i) for s in range(5) for i in range(s, -1, -1)]
+_D_EXPONENTS = [(2, 0), (1, 1), (0, 2), (1, 0), (0, 1), (0, 0)]
+_S_INDEX = np.array([[_MONOMIALS.index((a[0] + b[0], a[1] + b[1])) for b in _D_EXPONENTS]
+                     for a in _D_EXPONENTS])
+
+
+def _segment_sums(values: np.ndarray, starts: np.ndarray) -> np.ndarray:
+    """Sums of ``values`` (M, ...) over the consecutive segments that begin at ``starts`` (k,)."""
+    return np.add.reduceat(values, starts, axis=0)
 
 
 def fit_ellipse(points_uv) -> EllipseFit | Failure:
@@ -126,6 +141,10 @@ def fit_ellipse(points_uv) -> EllipseFit | Failure:
     ValueError
         If ``points_uv`` is not of shape (N, 2).
 
+    Notes
+    -----
+    One call of :func:`fit_ellipses`, which holds the method.
+
     Examples
     --------
     >>> t = np.linspace(0, 2 * np.pi, 50, endpoint=False)
@@ -133,121 +152,178 @@ def fit_ellipse(points_uv) -> EllipseFit | Failure:
     >>> np.round(fit.ellipse.center, 6).tolist(), np.round(fit.ellipse.semi_axes, 6).tolist()
     ([10.0, 20.0], [5.0, 3.0])
     """
+    return fit_ellipses([points_uv])[0]
 
-    pts = np.asarray(points_uv, dtype=np.float64)
-    if pts.ndim != 2 or pts.shape[1] != 2:
-        raise ValueError(f"points_uv must have shape (N, 2), got {pts.shape}")
-    n = len(pts)
-    if n < MIN_FIT_POINTS:
-        return Failure("too_few_points", f"{n} points < {MIN_FIT_POINTS}")
-    if not np.isfinite(pts).all():
-        return Failure("non_finite_points", f"{int((~np.isfinite(pts)).any(axis=1).sum())} of {n} points")
 
-    # Centre and scale the points to unit RMS distance from their mean (Hartley-style conditioning).
-    mean = pts.mean(axis=0)
-    centred = pts - mean
-    scale = float(np.sqrt((centred**2).sum(axis=1).mean()))
-    if not scale > 0.0:
-        return Failure("degenerate_points", "all points coincide")
-    x = centred[:, 0] / scale
-    y = centred[:, 1] / scale
+def fit_ellipses(points_list) -> list[EllipseFit | Failure]:
+    """Fit one ellipse to each of several point sets, batched (Fitzgibbon; Halir-Flusser form).
 
-    # Design matrix D = (D1 | D2): quadratic part D1 = (x^2, xy, y^2) [eqn. 15] from [1] and
-    # linear part D2 = (x, y, 1) [eqn. 16] from [1], built in one array
-    d = np.empty((n, 6))
-    d[:, 0] = x * x
-    d[:, 1] = x * y
-    d[:, 2] = y * y
-    d[:, 3] = x
-    d[:, 4] = y
-    d[:, 5] = 1.0
-    d1, d2 = d[:, :3], d[:, 3:]
-    # Scatter matrix S = D^T D and its blocks S1, S2, S3 [eqn. 17] from [1]
-    s_full = d.T @ d
-    s1 = s_full[:3, :3]
-    s2 = s_full[:3, 3:]
-    s3 = s_full[3:, 3:]
+    Parameters
+    ----------
+    points_list : sequence of array_like of shape (N_i, 2)
+        Point sets (u, v) in pixels, each N_i >= 6 to be fitted.
+
+    Returns
+    -------
+    list of EllipseFit or Failure
+        One per point set, in order. Failure reasons: ``too_few_points``, ``non_finite_points``,
+        ``degenerate_points``, ``not_an_ellipse`` (also when the points fit a non-ellipse clearly
+        better, or the fitted ellipse is more than :data:`MAX_AXIS_TO_SPREAD` times the points'
+        spread).
+
+    Raises
+    ------
+    ValueError
+        If a point set is not of shape (N, 2).
+
+    Notes
+    -----
+    Each set is centred and scaled to unit RMS distance from its mean (Hartley-style
+    conditioning). The scatter matrix S = D^T D of the design rows (x^2, xy, y^2, x, y, 1) [eqn.
+    17 of 1] is assembled from the sums of the 15 monomials x^i y^j (i + j <= 4) of each set,
+    summed over all sets in one pass; the reduced 3 x 3 eigenproblem [eqn. 28-29 of 1] and the
+    checks run on the stack of sets at once, so the cost per set is a few microseconds in a batch
+    of hundreds (the pipeline fits every isophote of a frame in one call). A set's fit does not
+    depend on the other sets of the batch beyond rounding (the sums of a set are its own; LAPACK
+    runs on each matrix of a stack alone).
+    """
+    pts_all = []
+    for p in points_list:
+        p = np.asarray(p, dtype=np.float64)
+        if p.ndim != 2 or p.shape[1] != 2:
+            raise ValueError(f"points_uv must have shape (N, 2), got {p.shape}")
+        pts_all.append(p)
+    out: list = [None] * len(pts_all)
+    todo = []
+    for i, p in enumerate(pts_all):
+        n = len(p)
+        if n < MIN_FIT_POINTS:
+            out[i] = Failure("too_few_points", f"{n} points < {MIN_FIT_POINTS}")
+        else:
+            todo.append(i)
+    if not todo:
+        return out
+    pts = np.concatenate([pts_all[i] for i in todo], axis=0)
+    n = np.array([len(pts_all[i]) for i in todo])
+    starts = np.concatenate([[0], np.cumsum(n)[:-1]])
+    item = np.repeat(np.arange(len(todo)), n)
+    bad_rows = _segment_sums((~np.isfinite(pts)).any(axis=1).astype(np.int64), starts)
+    with np.errstate(all="ignore"):
+        fits = _fit_stack(pts, n, starts, item, bad_rows)
+    for j, i in enumerate(todo):
+        out[i] = fits[j]
+    return out
+
+
+def _fit_stack(pts, n, starts, item, bad_rows):
+    """The fits of :func:`fit_ellipses` of the point sets concatenated in ``pts`` (M, 2): set j has
+    ``n[j]`` >= 6 points from row ``starts[j]``; ``item`` (M,) is each row's set."""
+    k = len(n)
+    fail: list = [None] * k
+
+    def refuse(mask, reason, detail):
+        for j in np.flatnonzero(mask):
+            if fail[j] is None:
+                fail[j] = Failure(reason, detail(j))
+
+    refuse(bad_rows > 0, "non_finite_points", lambda j: f"{int(bad_rows[j])} of {int(n[j])} points")
+    clean = np.where(np.isfinite(pts), pts, 0.0)
+    mean = _segment_sums(clean, starts) / n[:, None]
+    centred = clean - mean[item]
+    scale = np.sqrt(_segment_sums((centred**2).sum(axis=1), starts) / n)
+    refuse(~(scale > 0.0), "degenerate_points", lambda j: "all points coincide")
+    safe_scale = np.where(scale > 0.0, scale, 1.0)
+    x = centred[:, 0] / safe_scale[item]
+    y = centred[:, 1] / safe_scale[item]
+
+    # Scatter matrix S = D^T D [eqn. 17] from [1], from the sums of the monomials x^i y^j
+    xp = [np.ones_like(x), x, x * x, x * x * x, (x * x) * (x * x)]
+    yp = [np.ones_like(y), y, y * y, y * y * y, (y * y) * (y * y)]
+    mono = np.stack([xp[i] * yp[j] for i, j in _MONOMIALS], axis=1)
+    s_full = _segment_sums(mono, starts)[:, _S_INDEX]  # (k, 6, 6)
+    s1, s2, s3 = s_full[:, :3, :3], s_full[:, :3, 3:], s_full[:, 3:, 3:]
+    ok = np.array([f is None for f in fail])
+    s3 = np.where(ok[:, None, None], s3, np.eye(3))
     ev3 = np.linalg.eigvalsh(s3)
-    if not ev3[0] > _S3_RCOND * ev3[-1]:
-        return Failure("degenerate_points", f"linear scatter is singular (eigenvalues {ev3.tolist()})")
+    refuse(~(ev3[:, 0] > _S3_RCOND * ev3[:, -1]), "degenerate_points",
+           lambda j: f"linear scatter is singular (eigenvalues {ev3[j].tolist()})")
+    ok = np.array([f is None for f in fail])
+    s3 = np.where(ok[:, None, None], s3, np.eye(3))
     # T = -S3^-1 S2^T, so that a2 = T a1 [eqn. 24] from [1]
-    t = -np.linalg.solve(s3, s2.T)
+    t = -np.linalg.solve(s3, np.swapaxes(s2, 1, 2))
     # Reduced scatter matrix M = C1^-1 (S1 + S2 T) [eqn. 29] from [1]
     m = _C1_INV @ (s1 + s2 @ t)
+    m = np.where(ok[:, None, None] & np.isfinite(m).all(axis=(1, 2))[:, None, None], m, np.eye(3))
     # M a1 = lambda a1: eigenvectors of the reduced problem [eqn. 28] from [1]
-    _, eigvec = np.linalg.eig(m)
-    eigvec = np.real(eigvec)
+    eigvec = np.real(np.linalg.eig(m)[1])
     # The ellipse solution satisfies the constraint a1^T C1 a1 = 4ac - b^2 > 0 [eqn. 14/30] from [1]
-    cond = 4.0 * eigvec[0] * eigvec[2] - eigvec[1] ** 2
-    valid = np.flatnonzero(cond > 0)
-    if valid.size == 0:
-        return Failure("not_an_ellipse", "no eigenvector meets 4ac - b^2 > 0")
-    best = None
-    for k in valid:  # normally exactly one; with rounding keep the smallest algebraic residual
-        a1 = eigvec[:, k]
-        a = np.concatenate([a1, t @ a1])  # coefficient vector (a, b, c, d, e, f) [eqn. 19] from [1]
-        if valid.size == 1:  # nothing to compare: no residual needed
-            best = (None, a)
-            break
-        r = float(np.linalg.norm(d1 @ a[:3] + d2 @ a[3:]))
-        if best is None or r < best[0]:
-            best = (r, a)
-    a_vec = best[1]
-    a, b, c, d, e, f = a_vec
+    cond = 4.0 * eigvec[:, 0] * eigvec[:, 2] - eigvec[:, 1] ** 2  # (k, 3): one per eigenvector
+    valid = cond > 0
+    refuse(~valid.any(axis=1), "not_an_ellipse", lambda j: "no eigenvector meets 4ac - b^2 > 0")
+    # coefficient vectors (a, b, c, d, e, f) of the three eigenvectors [eqn. 19] from [1]
+    cand = np.concatenate([eigvec, t @ eigvec], axis=1)  # (k, 6, 3)
+    # normally one is valid; with rounding keep the smallest algebraic residual |D a|^2 = a^T S a
+    resid = np.einsum("kic,kij,kjc->kc", cand, s_full, cand)
+    best = np.argmin(np.where(valid, resid, np.inf), axis=1)
+    a_vec = cand[np.arange(k), :, best]  # (k, 6)
 
     # Ellipse-specific fitting always returns an ellipse, even for points on a hyperbola or a line
-    # pair. Guard: the unconstrained algebraic fit (smallest eigenvector of S = D^T D [eqn. 17]
-    # from [1]) is the exact conic of noise-free data; if it is not an ellipse and explains the
-    # points clearly better (algebraic residual 4x smaller), the data are not an ellipse.
-    r_ellipse = float(a_vec @ s_full @ a_vec) / float(a_vec @ a_vec)
-    # Eigenvalues alone first (cheaper); the eigenvectors only near or past the threshold, where
-    # the test is made on eigh's own eigenvalue as before (the two differ by rounding, ~1e-16 of
-    # the largest eigenvalue: far inside the 1 % and 1e-12 margins taken here).
-    w_full = np.linalg.eigvalsh(s_full)
-    if r_ellipse > 1e-24 and r_ellipse > 3.96 * max(float(w_full[0] - 1e-12 * w_full[-1]), 0.0):
-        w_full, v_full = np.linalg.eigh(s_full)
-    r_general = max(float(w_full[0]), 0.0)
-    if r_ellipse > 1e-24 and r_ellipse > 4.0 * r_general:
-        g = v_full[:, 0]
-        g_conic = np.array(
-            [[g[0], g[1] / 2, g[3] / 2], [g[1] / 2, g[2], g[4] / 2], [g[3] / 2, g[4] / 2, g[5]]]
-        )
-        kind = conic_kind(g_conic)
-        if kind != "ellipse":
-            return Failure(
-                "not_an_ellipse",
-                f"the points fit a {kind} better (algebraic residual {r_general:.3g} vs {r_ellipse:.3g})",
-            )
+    # pair. Guard: the unconstrained algebraic fit (smallest eigenvector of S [eqn. 17] from [1])
+    # is the exact conic of noise-free data; if it is not an ellipse and explains the points
+    # clearly better (algebraic residual 4x smaller), the data are not an ellipse.
+    r_ellipse = np.einsum("ki,kij,kj->k", a_vec, s_full, a_vec) / np.einsum("ki,ki->k", a_vec, a_vec)
+    ok = np.array([f is None for f in fail])
+    s_safe = np.where(ok[:, None, None], s_full, np.eye(6))
+    w_full = np.linalg.eigvalsh(s_safe)
+    r_general = np.maximum(w_full[:, 0], 0.0)
+    suspect = ok & (r_ellipse > 1e-24) & (r_ellipse > 3.96 * np.maximum(w_full[:, 0] - 1e-12 * w_full[:, -1], 0.0))
+    for j in np.flatnonzero(suspect):  # eigh's own eigenvalue and vector where it matters
+        w_j, v_j = np.linalg.eigh(s_safe[j])
+        r_gen = max(float(w_j[0]), 0.0)
+        if r_ellipse[j] > 4.0 * r_gen:
+            g = v_j[:, 0]
+            g_conic = np.array([[g[0], g[1] / 2, g[3] / 2], [g[1] / 2, g[2], g[4] / 2], [g[3] / 2, g[4] / 2, g[5]]])
+            kind = conic_kind(g_conic)
+            if kind != "ellipse":
+                refuse(np.arange(k) == j, "not_an_ellipse", lambda _: (
+                    f"the points fit a {kind} better (algebraic residual {r_gen:.3g} vs {r_ellipse[j]:.3g})"))
 
     # Point conic in normalised coordinates, then back to pixels: C = T^T A T with x' = T x.
-    a_norm = np.array([[a, b / 2, d / 2], [b / 2, c, e / 2], [d / 2, e / 2, f]])
-    tmat = np.array([[1 / scale, 0.0, -mean[0] / scale], [0.0, 1 / scale, -mean[1] / scale], [0, 0, 1.0]])
-    conic = tmat.T @ a_norm @ tmat
-    conic = 0.5 * (conic + conic.T)
-    conic /= np.linalg.norm(conic)
-    if conic[0, 0] + conic[1, 1] < 0:
-        conic = -conic
-    if not np.isfinite(conic).all():
-        return Failure("degenerate_points", "non-finite conic")
+    a, b, c, d, e, f = a_vec.T
+    a_norm = np.stack([np.stack([a, b / 2, d / 2], 1), np.stack([b / 2, c, e / 2], 1),
+                       np.stack([d / 2, e / 2, f], 1)], 1)
+    tmat = np.zeros((k, 3, 3))
+    tmat[:, 0, 0] = tmat[:, 1, 1] = 1 / safe_scale
+    tmat[:, 0, 2] = -mean[:, 0] / safe_scale
+    tmat[:, 1, 2] = -mean[:, 1] / safe_scale
+    tmat[:, 2, 2] = 1.0
+    conic = np.swapaxes(tmat, 1, 2) @ a_norm @ tmat
+    conic = 0.5 * (conic + np.swapaxes(conic, 1, 2))
+    conic = conic / np.sqrt(np.einsum("kij,kij->k", conic, conic))[:, None, None]
+    conic = np.where((conic[:, 0, 0] + conic[:, 1, 1] < 0)[:, None, None], -conic, conic)
+    refuse(~np.isfinite(conic).all(axis=(1, 2)), "degenerate_points", lambda j: "non-finite conic")
     # Ellipse parameters from the conic of the *normalised* points, then back to pixels: a unit-norm
     # pixel conic of a few-px ellipse ~10^3 px from the origin has singular values down to ~1e-13,
     # where a degeneracy test in pixel coordinates would misclassify it; the normalised conic is
     # O(1)-conditioned for any ellipse.
-    e_norm = conic_to_ellipse(a_norm)
-    if e_norm is None:
-        return Failure("not_an_ellipse", "the fitted conic is not a real ellipse")
+    ok = np.array([f is None for f in fail])
+    centre, axes, angle, is_ellipse = _ellipses_of(np.where(ok[:, None, None] & np.isfinite(a_norm).all(axis=(1, 2))[:, None, None], a_norm, np.eye(3)))
+    refuse(~is_ellipse, "not_an_ellipse", lambda j: "the fitted conic is not a real ellipse")
     # Points on a line or two parallel lines are fitted exactly by ever longer ellipses: an ellipse
     # far larger than the points' spread is not determined by them.
-    if e_norm.semi_axes[0] > MAX_AXIS_TO_SPREAD * float(np.sqrt((d1[:, 0] + d1[:, 2]).max())):  # x^2 + y^2
-        return Failure(
-            "not_an_ellipse",
-            f"unbounded: semi-major axis {scale * e_norm.semi_axes[0]:.4g} px is more than "
-            f"{MAX_AXIS_TO_SPREAD:g} times the points' spread (a line or parallel lines)",
-        )
-    ellipse = type(e_norm)(
-        center=mean + scale * np.asarray(e_norm.center),
-        semi_axes=scale * np.asarray(e_norm.semi_axes),
-        angle_rad=e_norm.angle_rad,
-    )
-    residual = float(np.sqrt(np.mean(sampson_distance_px(conic, pts) ** 2)))
-    return EllipseFit(conic, ellipse, residual, n)
+    spread = np.sqrt(np.maximum.reduceat(x * x + y * y, starts))
+    refuse(axes[:, 0] > MAX_AXIS_TO_SPREAD * spread, "not_an_ellipse", lambda j: (
+        f"unbounded: semi-major axis {scale[j] * axes[j, 0]:.4g} px is more than "
+        f"{MAX_AXIS_TO_SPREAD:g} times the points' spread (a line or parallel lines)"))
+    # RMS Sampson distance of each set's points to its conic, px
+    dist = sampson_distance_px(conic[item], clean)
+    residual = np.sqrt(_segment_sums(dist**2, starts) / n)
+    out = []
+    for j in range(k):
+        if fail[j] is not None:
+            out.append(fail[j])
+            continue
+        ellipse = Ellipse(center=mean[j] + scale[j] * centre[j], semi_axes=scale[j] * axes[j],
+                          angle_rad=float(angle[j]))
+        out.append(EllipseFit(conic[j], ellipse, float(residual[j]), int(n[j])))
+    return out

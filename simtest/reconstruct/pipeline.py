@@ -63,7 +63,7 @@ import numpy as np
 from simtest.geometry.camera import validate_intrinsics
 from simtest.geometry.cameras import CameraModel, PinholeCamera
 from simtest.reconstruct._pixels import Roi, image_size_wh, rc_to_uv, uv_to_rc
-from simtest.reconstruct.cone_fit import FitFrame, fit_cone, fit_frame, to_camera, to_fit_frame
+from simtest.reconstruct.cone_fit import FitFrame, fit_cones, fit_frame, to_camera, to_fit_frame
 from simtest.reconstruct.detect import (
     connected_components,
     default_full_scale,
@@ -73,7 +73,7 @@ from simtest.reconstruct.detect import (
     peak_uv,
     validate_image,
 )
-from simtest.reconstruct.estimators import estimate_from_conic, joint_cone_axis
+from simtest.reconstruct.estimators import estimate_from_conics, joint_cone_axes
 from simtest.reconstruct.failures import OK, Failure
 from simtest.reconstruct.isophote import MIN_CONTOUR_POINTS, extract_isophote, polygon_contains
 from simtest.reconstruct.recommend import recommend
@@ -467,7 +467,16 @@ class _Levels:
         return self.offset + t * self.scale
 
 
-def _one_isophote(frame: _Frame, vals, roi, levels: _Levels, t, bp_uv, bp_ray, fitf: FitFrame):
+@dataclass(frozen=True)
+class _Pending:
+    """An isophote extracted and waiting for its cone fit (done for a whole frame at once)."""
+
+    isovalue: float
+    iso: object  # simtest.reconstruct.isophote.Isophote
+
+
+def _one_isophote(frame: _Frame, vals, roi, levels: _Levels, t, bp_uv):
+    """Extract the isophote at ``t``: ``(IsophoteEstimate of a failure, or _Pending, Isophote or None)``."""
     iso = extract_isophote(
         vals, levels.level(t), bp_uv, origin_rc=(roi.row0, roi.col0), image_shape=frame.img.shape,
         allow_open=True, min_points=0,
@@ -480,25 +489,27 @@ def _one_isophote(frame: _Frame, vals, roi, levels: _Levels, t, bp_uv, bp_ray, f
     if len(iso.points_uv) < MIN_CONTOUR_POINTS:
         return IsophoteEstimate(t, "too_few_points", f"{len(iso.points_uv)} contour points < "
                                 f"{MIN_CONTOUR_POINTS}", iso.points_uv, iso.closed), iso
-    fit = fit_cone(iso.points_uv, fitf)
-    if not fit:
-        return IsophoteEstimate(t, fit.reason, fit.detail, iso.points_uv, iso.closed), iso
-    # the estimators run in the fit frame (identity for a pinhole), normals rotated back
-    est = estimate_from_conic(fit.cone_fit_frame, to_fit_frame(fitf, bp_ray))
-    base = dict(points_uv=iso.points_uv, closed=iso.closed, conic=fit.conic, ellipse=fit.ellipse,
-                fit_residual_px=fit.residual_px, normalised_conic=fit.cone)
-    if not est:
-        return IsophoteEstimate(t, est.reason, est.detail, **base), iso
-    return IsophoteEstimate(
-        t, OK, "" if iso.closed else "open contour fitted (allow_open=True)",
-        normals_paper=to_camera(fitf, est.paper), paper_selected=to_camera(fitf, est.paper_selected),
-        paper_selected_index=est.paper_selected_index, cone_axis=to_camera(fitf, est.cone_axis),
-        eigenvalue_gap=est.eigenvalue_gap, **base,
-    ), iso
+    return _Pending(t, iso), iso
+
+
+@dataclass
+class _Draft:
+    """One highlight after its isophotes were extracted, before the frame's batched fits."""
+
+    bp_uv: np.ndarray
+    i_bp: float
+    saturated: bool
+    roi: Roi
+    bp_ray: np.ndarray
+    fitf: FitFrame
+    results: list
+    other_bps: object = ()
 
 
 def _estimate_one(frame: _Frame, bp_uv, roi: Roi, *, saturated: bool, grow: bool,
-                  other_bps=()) -> SpecularityEstimate:
+                  other_bps=()) -> _Draft | SpecularityEstimate:
+    """Extract one highlight's isophotes (growing the ROI): a draft for :func:`_complete`, or the
+    finished estimate of a BP without a viewing ray."""
     isovalues = frame.settings.isovalues
     sigma = frame.smooth_sigma_px
     bp_uv = np.asarray(bp_uv, dtype=np.float64)
@@ -517,7 +528,7 @@ def _estimate_one(frame: _Frame, bp_uv, roi: Roi, *, saturated: bool, grow: bool
         i_bp = _bp_intensity(vals, roi, bp_uv)
         levels = _Levels.of(frame, vals, i_bp)
         i0 = order[0]
-        res, iso = _one_isophote(frame, vals, roi, levels, isovalues[i0], bp_uv, bp_ray, fitf)
+        res, iso = _one_isophote(frame, vals, roi, levels, isovalues[i0], bp_uv)
         if grow and iso is not None and iso.cut_by_roi and growths < ROI_MAX_GROWTHS:
             half = ROI_GROWTH_FACTOR * max(roi.shape) / 2.0
             new = Roi.around(bp_uv, half, frame.img.shape)
@@ -527,26 +538,80 @@ def _estimate_one(frame: _Frame, bp_uv, roi: Roi, *, saturated: bool, grow: bool
         results[i0] = res
         break
     for i in order[1:]:
-        results[i], _ = _one_isophote(frame, vals, roi, levels, isovalues[i], bp_uv, bp_ray, fitf)
+        results[i], _ = _one_isophote(frame, vals, roi, levels, isovalues[i], bp_uv)
+    return _Draft(bp_uv, i_bp, saturated, roi, bp_ray, fitf, results, other_bps)
 
-    primary = results[0]
+
+def _complete(drafts: list) -> list[SpecularityEstimate]:
+    """Fit the cones of every pending isophote of ``drafts`` in one batch, run the estimators in
+    one batch, and finish each highlight (``merged`` test, joint cone axis)."""
+    pend = [(d, i) for d in drafts if isinstance(d, _Draft)
+            for i, r in enumerate(d.results) if isinstance(r, _Pending)]
+    fits = fit_cones([d.results[i].iso.points_uv for d, i in pend], [d.fitf for d, _ in pend])
+    fitted = [k for k, f in enumerate(fits) if f]
+    ests = [] if not fitted else estimate_from_conics(
+        np.array([fits[k].cone_fit_frame for k in fitted]).reshape(-1, 3, 3),
+        np.array([to_fit_frame(pend[k][0].fitf, pend[k][0].bp_ray) for k in fitted]).reshape(-1, 3))
+    est_of = dict(zip(fitted, ests))
+    for k, ((d, i), fit) in enumerate(zip(pend, fits)):
+        p = d.results[i]
+        t, iso = p.isovalue, p.iso
+        if not fit:
+            d.results[i] = IsophoteEstimate(t, fit.reason, fit.detail, iso.points_uv, iso.closed)
+            continue
+        est = est_of[k]
+        base = dict(points_uv=iso.points_uv, closed=iso.closed, conic=fit.conic, ellipse=fit.ellipse,
+                    fit_residual_px=fit.residual_px, normalised_conic=fit.cone)
+        if not est:
+            d.results[i] = IsophoteEstimate(t, est.reason, est.detail, **base)
+            continue
+        f = d.fitf  # the estimators ran in the fit frame (identity for a pinhole): rotate back
+        d.results[i] = IsophoteEstimate(
+            t, OK, "" if iso.closed else "open contour fitted (allow_open=True)",
+            normals_paper=to_camera(f, est.paper), paper_selected=to_camera(f, est.paper_selected),
+            paper_selected_index=est.paper_selected_index, cone_axis=to_camera(f, est.cone_axis),
+            eigenvalue_gap=est.eigenvalue_gap, **base,
+        )
+    # joint cone axes of the highlights with two or more good isophotes, in one batch
+    multi = [d for d in drafts if isinstance(d, _Draft) and sum(r.ok for r in d.results) >= 2]
+    if not multi:
+        return [_finish(d, None) if isinstance(d, _Draft) else d for d in drafts]
+    cones, group = [], []
+    for g, d in enumerate(multi):
+        for r in d.results:
+            if r.ok:
+                c = r.normalised_conic
+                cones.append(c if d.fitf.on_image_plane else d.fitf.R @ c @ d.fitf.R.T)
+                group.append(g)
+    axes = joint_cone_axes(np.array(cones).reshape(-1, 3, 3), np.array(group, dtype=int),
+                           np.array([to_fit_frame(d.fitf, d.bp_ray) for d in multi]).reshape(-1, 3))
+    joint_of = {id(d): (to_camera(d.fitf, j) if not isinstance(j, Failure) else None)
+                for d, j in zip(multi, axes)}
+    out = []
+    for d in drafts:
+        if not isinstance(d, _Draft):
+            out.append(d)
+            continue
+        out.append(_finish(d, joint_of.get(id(d))))
+    return out
+
+
+def _finish(d: _Draft, joint) -> SpecularityEstimate:
+    """The estimate of a completed draft: the primary isophote's status, ``merged`` when that
+    closed isophote encloses another candidate's BP."""
+    isovalues = [r.isovalue for r in d.results]
+    primary = d.results[0]
     status, detail = primary.status, primary.detail
-    if status == OK and primary.closed and len(other_bps):
+    if status == OK and primary.closed and len(d.other_bps):
         pts = primary.points_uv
         lo, hi = pts.min(axis=0), pts.max(axis=0)
-        cand = np.asarray(other_bps, dtype=np.float64).reshape(-1, 2)
+        cand = np.asarray(d.other_bps, dtype=np.float64).reshape(-1, 2)
         cand = cand[np.all((cand >= lo) & (cand <= hi), axis=1)]
         n_in = int(np.count_nonzero(polygon_contains(pts, cand))) if len(cand) else 0
         if n_in:
             status, detail = "merged", f"the isophote at t = {isovalues[0]} encloses {n_in} other BP(s)"
-    joint = None
-    good = [r.normalised_conic for r in results if r.ok]
-    if len(good) >= 2:
-        if not fitf.on_image_plane:
-            good = [fitf.R @ c @ fitf.R.T for c in good]
-        j = joint_cone_axis(good, to_fit_frame(fitf, bp_ray))
-        joint = to_camera(fitf, j) if not isinstance(j, Failure) else None
-    return SpecularityEstimate(bp_uv, i_bp, saturated, roi, status, detail, bp_ray, tuple(results), joint)
+    return SpecularityEstimate(d.bp_uv, d.i_bp, d.saturated, d.roi, status, detail, d.bp_ray,
+                               tuple(d.results), joint)
 
 
 def _initial_roi(cand, bp_uv, threshold, frame: _Frame) -> Roi:
@@ -625,6 +690,11 @@ def reconstruct_roi(
         Bad image, K, ROI, BP or dist_coeffs, or a bad or unknown setting.
     """
     settings = ReconSettings.make(settings, isovalues, **options)
+    return _complete([_roi_draft(image, K, bp_uv, roi, dist_coeffs, settings)])[0]
+
+
+def _roi_draft(image, K, bp_uv, roi, dist_coeffs, settings: ReconSettings):
+    """Phase one of :func:`reconstruct_roi` (checks, BP, isophotes) for :func:`_complete`."""
     frame = _Frame.make(image, K, dist_coeffs, settings)
     img = frame.img
     roi = Roi(0, img.shape[0], 0, img.shape[1]) if roi is None else Roi.coerce(roi, img.shape)
@@ -639,6 +709,48 @@ def reconstruct_roi(
             raise ValueError(f"bp_uv = {bp.tolist()} lies outside the ROI {tuple(roi)}")
         saturated = False
     return _estimate_one(frame, bp, roi, saturated=saturated, grow=False)
+
+
+def reconstruct_rois(items, isovalues: float | Sequence[float] | None = None, *,
+                     settings: ReconSettings | None = None, **options) -> list[SpecularityEstimate]:
+    """:func:`reconstruct_roi` of many known highlights, their fits batched.
+
+    Parameters
+    ----------
+    items : iterable of tuple
+        ``(image, K, bp_uv, roi)`` per highlight, each as the arguments of :func:`reconstruct_roi`
+        of those names (``bp_uv`` and ``roi`` may be None). Consumed one at a time: an image is
+        released once its isophotes are extracted, so a generator of simulated images keeps
+        memory flat.
+    isovalues : float or sequence of float, optional
+        Isovalue(s) t in (0, 1); the first is the primary. Default those of ``settings``.
+    settings : ReconSettings, optional
+        The settings of every item (default ``ReconSettings()``).
+    **options
+        Fields of :class:`~simtest.reconstruct.settings.ReconSettings` to change.
+
+    Returns
+    -------
+    list of SpecularityEstimate
+        One per item, in order: bit for bit what ``reconstruct_roi`` returns for each alone (the
+        batched fits and estimators compute each highlight from its own numbers only;
+        ``tests/test_pipeline.py`` checks it).
+
+    Raises
+    ------
+    ValueError
+        As :func:`reconstruct_roi`, for the first bad item.
+
+    Notes
+    -----
+    The isophotes of every item are extracted first; then all their ellipse fits
+    (:func:`~simtest.reconstruct.fit.fit_ellipses`), estimators
+    (:func:`~simtest.reconstruct.estimators.estimate_from_conics`) and joint axes run in one batch
+    of numpy calls, whose fixed cost is shared by the items (the harness' paper protocol runs its
+    realisations through here).
+    """
+    settings = ReconSettings.make(settings, isovalues, **options)
+    return _complete([_roi_draft(image, K, bp_uv, roi, None, settings) for image, K, bp_uv, roi in items])
 
 
 def reconstruct(
@@ -732,4 +844,4 @@ def reconstruct(
         others = bps_arr[keep & (idx != k)]
         out.append(_estimate_one(frame, bp, roi_k, saturated=cand.saturated, grow=True,
                                  other_bps=others))
-    return out
+    return _complete(out)
