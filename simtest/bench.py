@@ -52,7 +52,7 @@ from simtest.reconstruct.fit import fit_ellipse
 from simtest.geometry.lights import Light, LightRig
 from simtest.reconstruct.isophote import extract_isophote
 from simtest.reconstruct.lightaware import isocurve_fit, photometric_fit, refine_isophote_points
-from simtest.reconstruct.pipeline import reconstruct, reconstruct_roi
+from simtest.reconstruct.pipeline import reconstruct, reconstruct_roi, reconstruct_rois
 from simtest.render import RendererUnavailable, render_scene
 from simtest.scene import load_scene
 from simtest.simulate.analytic import phong_plane_image, plane_bp
@@ -268,6 +268,10 @@ def colonoscope_frame():
     return res.frame, res.camera
 
 
+#: Highlights per call of the batched per-highlight row (the order of a real frame's count).
+BATCH = 100
+
+
 @section("reconstruct")
 def bench_reconstruct(repeat: int = 50) -> list[BenchResult]:
     """Reconstruction speed with the default settings: per highlight, per synthetic frame (clean
@@ -283,6 +287,12 @@ def bench_reconstruct(repeat: int = 50) -> list[BenchResult]:
     out.append(BenchResult("reconstruct", "per highlight up to cone axis and circle pose: "
                            "reconstruct_roi, 100x100 px, t=0.1", med, "ms", 0.1, best,
                            f"status {est.status}, {n_pts} contour points; CPU {cpu:.3g} ms"))
+    # the same highlight BATCH times through reconstruct_rois (fits batched), per highlight
+    items = [(img, K, bp, None)] * BATCH
+    med, best, cpu = time_ms_cpu(lambda: reconstruct_rois(items, 0.1), max(3, repeat // 5))
+    out.append(BenchResult("reconstruct", f"per highlight up to cone axis and circle pose, batched: "
+                           f"reconstruct_rois of {BATCH} such highlights / {BATCH}", med / BATCH, "ms", 0.1,
+                           best / BATCH, f"CPU {cpu / BATCH:.3g} ms per highlight"))
     iso = extract_isophote(img, 0.1 * img.max(), bp)
     fit = fit_ellipse(iso.points_uv)
     cn = normalised_conic(fit.conic, K)

@@ -670,10 +670,14 @@ def _section_centres(Q: np.ndarray, n: np.ndarray) -> tuple[np.ndarray, np.ndarr
     of normals n (k, 3), and which sections have a centre (k,) bool."""
     # Plane n.X = 1 parametrised as X = n + a u + b w with (u, w) an orthonormal basis of n-perp
     # (that of plane_basis: u along n x e_x, or n x e_y when n is within 26 deg of e_x).
-    helper = np.where(np.abs(n[:, :1]) < 0.9, np.array([1.0, 0.0, 0.0]), np.array([0.0, 1.0, 0.0]))
-    u = np.cross(n, helper)
+    x, y, z = n[:, 0], n[:, 1], n[:, 2]
+    near_x = np.abs(x) >= 0.9
+    zero = np.zeros_like(x)
+    # n x e_x = (0, z, -y); n x e_y = (-z, 0, x)
+    u = np.stack([np.where(near_x, -z, zero), np.where(near_x, zero, z), np.where(near_x, x, -y)], axis=1)
     u = u / np.linalg.norm(u, axis=1, keepdims=True)
-    B = np.stack([u, np.cross(n, u)], axis=2)  # (k, 3, 2)
+    w = np.stack([y * u[:, 2] - z * u[:, 1], z * u[:, 0] - x * u[:, 2], x * u[:, 1] - y * u[:, 0]], axis=1)
+    B = np.stack([u, w], axis=2)  # (k, 3, 2)
     BtQ = np.einsum("kia,kij->kaj", B, Q)
     M = BtQ @ B
     g = np.einsum("kaj,kj->ka", BtQ, n)
