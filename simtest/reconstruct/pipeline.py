@@ -25,6 +25,14 @@ Per highlight (Makki and Bartoli, "Normal reconstruction"):
    with several isovalues, the joint cone axis of the nested isophotes, all computed from the
    cone C'.
 
+Steps 1 and 2 run highlight by highlight (the ROI grows on what the isophote shows); steps 3
+and 4 run once per call for every isophote of every highlight, batched in numpy
+(:func:`~simtest.reconstruct.cone_fit.fit_cones`,
+:func:`~simtest.reconstruct.estimators.estimate_from_conics`,
+:func:`~simtest.reconstruct.estimators.joint_cone_axes`): a highlight gets the same bits as it
+would alone, and a frame of hundreds of highlights pays the fixed cost of the numpy calls once.
+:func:`reconstruct_rois` does the same for many known highlights.
+
 The *primary* isophote is the one at the first isovalue given: the estimate's ``conic``,
 ``ellipse``, ``normals_paper``, ``cone_axis``, ``eigenvalue_gap``, ``fit_residual_px`` and
 ``status`` are those of the primary isophote; every isovalue's own result is in ``isophotes``.
