@@ -21,7 +21,7 @@ from simtest.geometry import (
 )
 from simtest.geometry.conics import circle_pose, plane_basis
 from simtest.reconstruct import reconstruct_roi
-from simtest.reconstruct.cone_fit import fit_cone, fit_frame, rotation_to_z
+from simtest.reconstruct.cone_fit import fit_cone, fit_frame, fit_frames, rotation_to_z
 from simtest.simulate.analytic import phong_plane_image
 from simtest.tolerances import TOL
 
@@ -167,3 +167,26 @@ def test_cli_reconstructs_through_an_omnidirectional_camera_file(tmp_path):
     assert len(ok) == 1
     # 16-bit quantisation moves the contour by ~1e-5 of the highlight: far under 0.05 deg
     assert angle_between_deg(ok[0]["normals"]["cone_axis"], normal) < OMNI_PLANE_DEG
+
+
+@pytest.mark.parametrize("cam", models(), ids=lambda c: type(c).__name__)
+def test_fit_frames_and_bp_rays_of_a_frame_are_those_of_each_highlight_alone(cam):
+    """reconstruct() maps every candidate's BP to its ray and fit frame in one call of the camera
+    model; each must be, to the last bit, what one highlight gets alone (the model's inverse
+    iterates point by point, the rotations are element-wise)."""
+    from simtest.reconstruct.pipeline import _bp_ray, _bp_rays
+
+    rng = np.random.default_rng(5)
+    uv = np.column_stack([rng.uniform(0, 639, 40), rng.uniform(0, 479, 40)])
+    rays = _bp_rays(uv, cam)
+    ok = np.isfinite(rays).all(axis=1)
+    assert ok.sum() >= 30
+    for i in range(len(uv)):
+        assert np.array_equal(rays[i], _bp_ray(uv[i], cam), equal_nan=True)
+    frames = fit_frames(cam, -rays[ok])
+    for f, r in zip(frames, -rays[ok], strict=True):
+        alone = fit_frame(cam, r)
+        assert np.array_equal(f.R, alone.R) and np.array_equal(f.K, alone.K)
+        assert f.on_image_plane == alone.on_image_plane
+        if not f.on_image_plane:  # a rotation taking the BP ray to z (a few ulps of rounding)
+            assert np.allclose(f.R @ f.R.T, np.eye(3), atol=1e-14) and np.allclose(f.R @ r, [0, 0, 1], atol=1e-14)

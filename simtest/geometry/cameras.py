@@ -97,6 +97,22 @@ def _finite_scalar(value, where: str) -> float:
     return finite_number(value, where, IntrinsicsError)
 
 
+
+def _linear_rows(xy: np.ndarray, M: np.ndarray) -> np.ndarray:
+    """``xy @ M.T`` for points (N, 2) and a 2 x 2 M, element by element: each row from its own
+    numbers, whatever N (a matrix product picks another BLAS kernel for one row than for many,
+    which changes the last bit)."""
+    x, y = xy[:, 0], xy[:, 1]
+    return np.stack([M[0, 0] * x + M[0, 1] * y, M[1, 0] * x + M[1, 1] * y], axis=1)
+
+
+def _affine_rows(uv: np.ndarray, Kinv: np.ndarray) -> np.ndarray:
+    """The first two coordinates of ``Kinv (u, v, 1)`` for pixels (N, 2), element by element
+    (as :func:`_linear_rows`)."""
+    u, v = uv[:, 0], uv[:, 1]
+    return np.stack([Kinv[0, 0] * u + Kinv[0, 1] * v + Kinv[0, 2],
+                     Kinv[1, 0] * u + Kinv[1, 1] * v + Kinv[1, 2]], axis=1)
+
 class CameraModel(ABC):
     """A central camera: pixels <-> unit viewing rays through the camera centre.
 
@@ -372,7 +388,7 @@ class PinholeCamera(CameraModel):
     def pixel_to_ray(self, uv) -> np.ndarray:
         uv = _as_uv(uv)
         K = self.K
-        xyd = (np.concatenate([uv, np.ones((len(uv), 1))], axis=1) @ self._Kinv.T)[:, :2]
+        xyd = _affine_rows(uv, self._Kinv)
         if self.dist_coeffs is None or len(uv) == 0:
             xy = xyd
         else:
@@ -526,7 +542,7 @@ class FisheyeCamera(CameraModel):
 
     def pixel_to_ray(self, uv) -> np.ndarray:
         uv = _as_uv(uv)
-        xy = (np.concatenate([uv, np.ones((len(uv), 1))], axis=1) @ self._Kinv.T)[:, :2]
+        xy = _affine_rows(uv, self._Kinv)
         rd = np.linalg.norm(xy, axis=1)
         inside = rd <= self._table_td[-1]
         # start from the table of the invertible branch, then Newton within it
@@ -651,7 +667,7 @@ class OmnidirectionalCamera(CameraModel):
 
     def pixel_to_ray(self, uv) -> np.ndarray:
         uv = _as_uv(uv)
-        xy = (uv - [self.cx, self.cy]) @ self._Ainv.T
+        xy = _linear_rows(uv - [self.cx, self.cy], self._Ainv)
         r = np.linalg.norm(xy, axis=1)
         p = np.concatenate([xy, self._z(r)[:, None]], axis=1)
         out = p / np.linalg.norm(p, axis=1, keepdims=True)
@@ -659,7 +675,7 @@ class OmnidirectionalCamera(CameraModel):
         return out
 
     def _pixel_to_ray_jacobian_direct(self, uv: np.ndarray) -> np.ndarray:
-        xy = (uv - [self.cx, self.cy]) @ self._Ainv.T
+        xy = _linear_rows(uv - [self.cx, self.cy], self._Ainv)
         r = np.linalg.norm(xy, axis=1)
         z, dz = self._z(r, deriv=True)
         p = np.concatenate([xy, z[:, None]], axis=1)
@@ -668,7 +684,7 @@ class OmnidirectionalCamera(CameraModel):
         dp[:, :2, :] = self._Ainv
         with np.errstate(divide="ignore", invalid="ignore"):
             drdxy = np.where(r[:, None] > 0, xy / r[:, None], 0.0)  # dr/d(x, y); a1 term vanishes at r = 0 by symmetry
-        dp[:, 2, :] = (dz[:, None] * drdxy) @ self._Ainv
+        dp[:, 2, :] = _linear_rows(dz[:, None] * drdxy, self._Ainv.T)
         d = p / n[:, None]
         P = (np.eye(3) - d[:, :, None] * d[:, None, :]) / n[:, None, None]
         out = P @ dp
@@ -702,7 +718,7 @@ class OmnidirectionalCamera(CameraModel):
             cphi = np.where(rho > 0, rays[:, 0] / rho, 1.0)
             sphi = np.where(rho > 0, rays[:, 1] / rho, 0.0)
         xy = r[:, None] * np.stack([cphi, sphi], axis=1)
-        out = xy @ self.A.T + [self.cx, self.cy]
+        out = _linear_rows(xy, self.A) + [self.cx, self.cy]
         out[~(done & inside) | ~np.all(np.isfinite(rays), axis=1)] = np.nan
         return out
 

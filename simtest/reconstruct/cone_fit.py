@@ -37,7 +37,7 @@ from simtest.geometry.cameras import CameraModel, PinholeCamera
 from simtest.reconstruct.failures import Failure
 from simtest.reconstruct.fit import EllipseFit, fit_ellipses
 
-__all__ = ["ConeFit", "FitFrame", "fit_cone", "fit_cones", "fit_frame", "rotation_to_z", "to_camera", "to_fit_frame"]
+__all__ = ["ConeFit", "FitFrame", "fit_cone", "fit_cones", "fit_frame", "fit_frames", "rotation_to_z", "rotations_to_z", "to_camera", "to_fit_frame"]
 
 
 @dataclass(frozen=True)
@@ -133,13 +133,18 @@ def rotation_to_z(d) -> np.ndarray:
         Proper rotation (det +1); rows are the fit frame's axes in camera coordinates, the image
         x axis kept as close to the camera's x as possible (so plane pixels read like image pixels).
     """
-    z = np.asarray(d, dtype=np.float64)
-    z = z / np.linalg.norm(z)
-    ref = np.array([1.0, 0.0, 0.0]) if abs(z[0]) < 0.9 else np.array([0.0, 1.0, 0.0])
-    x = ref - (ref @ z) * z
-    x /= np.linalg.norm(x)
-    y = np.cross(z, x)
-    return np.stack([x, y, z])
+    return rotations_to_z(np.asarray(d, dtype=np.float64).reshape(1, 3))[0]
+
+
+def rotations_to_z(d: np.ndarray) -> np.ndarray:
+    """:func:`rotation_to_z` of several directions (k, 3) at once: rotations (k, 3, 3)."""
+    z = d / np.linalg.norm(d, axis=1, keepdims=True)
+    ref = np.where(np.abs(z[:, :1]) < 0.9, np.array([1.0, 0.0, 0.0]), np.array([0.0, 1.0, 0.0]))
+    x = ref - np.sum(ref * z, axis=1, keepdims=True) * z
+    x = x / np.linalg.norm(x, axis=1, keepdims=True)
+    y = np.stack([z[:, 1] * x[:, 2] - z[:, 2] * x[:, 1], z[:, 2] * x[:, 0] - z[:, 0] * x[:, 2],
+                  z[:, 0] * x[:, 1] - z[:, 1] * x[:, 0]], axis=1)  # z x x
+    return np.stack([x, y, z], axis=1)
 
 
 def fit_frame(camera: CameraModel, bp_ray) -> FitFrame:
@@ -156,15 +161,37 @@ def fit_frame(camera: CameraModel, bp_ray) -> FitFrame:
     -------
     FitFrame
     """
+    return fit_frames(camera, np.asarray(bp_ray, dtype=np.float64).reshape(1, 3))[0]
+
+
+def fit_frames(camera: CameraModel, bp_rays: np.ndarray) -> list[FitFrame]:
+    """:func:`fit_frame` of several highlights of one camera at once.
+
+    Parameters
+    ----------
+    camera : CameraModel
+        The camera.
+    bp_rays : ndarray of shape (k, 3)
+        Unit viewing rays of the brightest points, camera frame.
+
+    Returns
+    -------
+    list of FitFrame
+        One per ray: the image plane for a pinhole; otherwise the plane normal to the ray with
+        the focal length ``det(J J^T)^(1/4)`` of the model's ray-to-pixel Jacobian J there (1 where
+        the model has none), in one call of the model for all rays.
+    """
+    d = np.asarray(bp_rays, dtype=np.float64).reshape(-1, 3)
     if isinstance(camera, PinholeCamera):
-        return FitFrame(camera, np.eye(3), camera.K, True)
-    d = np.asarray(bp_ray, dtype=np.float64).reshape(3)
-    R = rotation_to_z(d)
-    J = camera.ray_to_pixel_jacobian(d[None])[0]
-    f = float(max(np.linalg.det(J @ J.T), 0.0) ** 0.25)
-    if not (np.isfinite(f) and f > 0):
-        f = 1.0
-    return FitFrame(camera, R, np.diag([f, f, 1.0]), False)
+        return [FitFrame(camera, np.eye(3), camera.K, True)] * len(d)
+    if not len(d):
+        return []
+    R = rotations_to_z(d)
+    J = camera.ray_to_pixel_jacobian(d)
+    with np.errstate(invalid="ignore"):
+        f = np.maximum(np.linalg.det(J @ np.swapaxes(J, 1, 2)), 0.0) ** 0.25
+    f = np.where(np.isfinite(f) & (f > 0), f, 1.0)
+    return [FitFrame(camera, R[i], np.diag([f[i], f[i], 1.0]), False) for i in range(len(d))]
 
 
 def fit_cone(points_uv, frame: FitFrame) -> ConeFit | Failure:

@@ -71,7 +71,7 @@ import numpy as np
 from simtest.geometry.camera import validate_intrinsics
 from simtest.geometry.cameras import CameraModel, PinholeCamera
 from simtest.reconstruct._pixels import Roi, image_size_wh, rc_to_uv, uv_to_rc
-from simtest.reconstruct.cone_fit import FitFrame, fit_cones, fit_frame, to_camera, to_fit_frame
+from simtest.reconstruct.cone_fit import FitFrame, fit_cones, fit_frame, fit_frames, to_camera, to_fit_frame
 from simtest.reconstruct.detect import (
     connected_components,
     default_full_scale,
@@ -333,6 +333,10 @@ class _Frame:
         """BP-ray normal of a pixel (3,), NaN when the pixel has no ray in the camera model."""
         return _bp_ray(bp_uv, self.camera)
 
+    def bp_rays(self, bp_uv: np.ndarray) -> np.ndarray:
+        """BP-ray normals of pixels (k, 2): (k, 3), the same bits as one by one."""
+        return _bp_rays(np.asarray(bp_uv, dtype=np.float64).reshape(-1, 2), self.camera)
+
     def with_frame_luma(self) -> _Frame:
         """This frame with the luma of the whole image computed once (read-only), for calls that
         look at many ROIs of an RGB image (:data:`LUMA_FRAME_MIN_HIGHLIGHTS`)."""
@@ -406,11 +410,19 @@ def _bp_ray(bp_uv: np.ndarray, camera) -> np.ndarray:
 
     ``camera`` is a CameraModel or a pinhole K; NaN when the pixel has no ray in the model.
     """
+    return _bp_rays(np.asarray(bp_uv, dtype=np.float64).reshape(1, 2), camera)[0]
+
+
+def _bp_rays(bp_uv: np.ndarray, camera) -> np.ndarray:
+    """:func:`_bp_ray` of several pixels (k, 2): (k, 3), each from its own pixel only."""
     if isinstance(camera, CameraModel) and not (isinstance(camera, PinholeCamera) and camera.dist_coeffs is None):
-        return -camera.pixel_to_ray(np.asarray(bp_uv, dtype=np.float64).reshape(1, 2))[0]
+        return -camera.pixel_to_ray(bp_uv)
     K = camera.K if isinstance(camera, PinholeCamera) else camera
-    ray = np.linalg.solve(K, np.array([bp_uv[0], bp_uv[1], 1.0]))
-    return -ray / np.linalg.norm(ray)
+    # K^-1 (u, v, 1) of an upper-triangular K, element by element
+    y = (bp_uv[:, 1] - K[1, 2]) / K[1, 1]
+    x = (bp_uv[:, 0] - K[0, 2] - K[0, 1] * y) / K[0, 0]
+    ray = np.stack([x, y, np.ones_like(x)], axis=1)
+    return -ray / np.linalg.norm(ray, axis=1, keepdims=True)
 
 
 def _roi_values(frame: _Frame, roi: Roi, smooth_sigma_px: float) -> np.ndarray:
@@ -515,18 +527,21 @@ class _Draft:
 
 
 def _estimate_one(frame: _Frame, bp_uv, roi: Roi, *, saturated: bool, grow: bool,
-                  other_bps=()) -> _Draft | SpecularityEstimate:
+                  other_bps=(), bp_ray=None, fitf: FitFrame | None = None) -> _Draft | SpecularityEstimate:
     """Extract one highlight's isophotes (growing the ROI): a draft for :func:`_complete`, or the
-    finished estimate of a BP without a viewing ray."""
+    finished estimate of a BP without a viewing ray. ``bp_ray`` and ``fitf`` are the BP's ray and
+    fit frame when the caller computed them (for many highlights at once)."""
     isovalues = frame.settings.isovalues
     sigma = frame.smooth_sigma_px
     bp_uv = np.asarray(bp_uv, dtype=np.float64)
-    bp_ray = frame.bp_ray(bp_uv)
+    if bp_ray is None:
+        bp_ray = frame.bp_ray(bp_uv)
     if not np.isfinite(bp_ray).all():
         i_bp = _bp_intensity(frame.luma(roi), roi, bp_uv)
         return SpecularityEstimate(bp_uv, i_bp, saturated, roi, "non_finite_points",
                                    "the BP has no viewing ray in the camera model", None, ())
-    fitf = fit_frame(frame.camera, -bp_ray)
+    if fitf is None:
+        fitf = fit_frame(frame.camera, -bp_ray)
     # Lowest isovalue first: the widest contour decides the ROI size.
     order = sorted(range(len(isovalues)), key=lambda i: isovalues[i])
     results: list = [None] * len(isovalues)
@@ -838,18 +853,23 @@ def reconstruct(
     bps_arr = np.array(bps, dtype=np.float64).reshape(-1, 2)
     keep = np.array([c.status != "too_small" for c in det.candidates], dtype=bool)
     idx = np.arange(len(bps))
+    # every candidate's BP ray, and the fit frames of the accepted ones, in one call of the model
+    rays = frame.bp_rays(bps_arr)
+    has_ray = np.isfinite(rays).all(axis=1)
+    fitted = has_ray & np.array([c.status == OK for c in det.candidates], dtype=bool)
+    frames_of = dict(zip(np.flatnonzero(fitted).tolist(), fit_frames(frame.camera, -rays[fitted])))
     out = []
     for k, cand in enumerate(det.candidates):
         bp = bps[k]
         if cand.status != OK:
             roi_k = Roi(cand.roi.row0 + r.row0, cand.roi.row1 + r.row0,
                         cand.roi.col0 + r.col0, cand.roi.col1 + r.col0)
-            ray = frame.bp_ray(bp)
+            ray = rays[k]
             out.append(SpecularityEstimate(bp, cand.peak, cand.saturated, roi_k, cand.status,
-                                           cand.detail, ray if np.isfinite(ray).all() else None, ()))
+                                           cand.detail, ray if has_ray[k] else None, ()))
             continue
         roi_k = _initial_roi(cand, bp, det.threshold, frame)
         others = bps_arr[keep & (idx != k)]
         out.append(_estimate_one(frame, bp, roi_k, saturated=cand.saturated, grow=True,
-                                 other_bps=others))
+                                 other_bps=others, bp_ray=rays[k], fitf=frames_of.get(k)))
     return _complete(out)
