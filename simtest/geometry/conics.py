@@ -468,6 +468,9 @@ def _solve_each(A: np.ndarray, b: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         return x, ok
 
 
+_KINDS = ("ellipse", "imaginary", "hyperbola", "degenerate")
+
+
 def _classify_many(C: np.ndarray):
     """:func:`conic_kind` of a stack of symmetric finite conics (k, 3, 3), with what
     :func:`conic_to_ellipse` reuses: the unit-norm conics (k, 3, 3), their centres (k, 2) and
@@ -486,7 +489,8 @@ def _classify_many(C: np.ndarray):
     lam = np.linalg.eigvalsh(A2)
     lam_max = np.abs(lam).max(axis=1)
     no_centre = zero | (lam_max <= eps) | (np.abs(lam[:, 0] * lam[:, 1]) <= eps * lam_max**2)
-    centre, regular = _solve_each(np.where(no_centre[:, None, None], np.eye(2), A2), C[:, :2, 2])
+    centre, regular = _solve_each(np.where(no_centre[:, None, None], np.eye(2), A2) if no_centre.any() else A2,
+                                  C[:, :2, 2])
     centre = -centre
     no_centre |= ~regular
     cross = np.einsum("ki,ki->k", C[:, 2, :2], centre)
@@ -496,17 +500,20 @@ def _classify_many(C: np.ndarray):
     point = np.abs(f0) <= eps * np.maximum(lam_max, np.abs(C[:, 2, 2]) + np.abs(cross))
     hyperbola = lam[:, 0] * lam[:, 1] < 0
     sign = np.where(lam[:, 0] > 0, 1.0, -1.0)
-    kinds = np.where(hyperbola, "hyperbola", np.where(sign * f0 < 0, "ellipse", "imaginary")).astype(object)
-    kinds[point] = "degenerate"  # a point (ellipse type) or two crossing lines (hyperbola type)
-    for i in np.flatnonzero(no_centre):  # a parabola, or parallel lines / a line (det C ~ 0)
-        if zero[i]:
-            kinds[i] = "degenerate"
-        else:
-            sv = np.linalg.svd(C[i], compute_uv=False)
-            kinds[i] = "degenerate" if sv[-1] <= eps * sv[0] else "parabola"
-    centre[no_centre] = np.nan
-    f0[no_centre] = np.nan
-    return list(kinds) if k else [], C, centre, f0
+    # 0 ellipse, 1 imaginary, 2 hyperbola, 3 degenerate: a point (ellipse type) or two crossing
+    # lines (hyperbola type)
+    code = np.where(point, 3, np.where(hyperbola, 2, np.where(sign * f0 < 0, 0, 1)))
+    kinds = [_KINDS[c] for c in code.tolist()]
+    if no_centre.any():
+        for i in np.flatnonzero(no_centre):  # a parabola, or parallel lines / a line (det C ~ 0)
+            if zero[i]:
+                kinds[i] = "degenerate"
+            else:
+                sv = np.linalg.svd(C[i], compute_uv=False)
+                kinds[i] = "degenerate" if sv[-1] <= eps * sv[0] else "parabola"
+        centre[no_centre] = np.nan
+        f0[no_centre] = np.nan
+    return kinds, C, centre, f0
 
 
 def _ellipses_of(C: np.ndarray):
@@ -546,7 +553,7 @@ def _cone_eigen_many(Cn: np.ndarray):
     Cn = 0.5 * (Cn + np.swapaxes(Cn, 1, 2))
     Cn = Cn / np.sqrt(np.einsum("kij,kij->k", Cn, Cn))[:, None, None]
     finite = np.isfinite(Cn).all(axis=(1, 2))
-    w, V = np.linalg.eigh(np.where(finite[:, None, None], Cn, np.eye(3)))
+    w, V = np.linalg.eigh(Cn if finite.all() else np.where(finite[:, None, None], Cn, np.eye(3)))
     eps = TOL.conic_degenerate_rel
     n_pos = np.sum(w > eps, axis=1)
     n_neg = np.sum(w < -eps, axis=1)
@@ -655,7 +662,7 @@ def cone_poses(Cn) -> dict:
         normals, centres, pose_ok = _circle_poses_of(w, V)
         axis, gap = _cone_axes_of(w, V)
     error = [""] * len(Cn)
-    for i in np.flatnonzero(~ok):
+    for i in np.flatnonzero(~ok) if not ok.all() else ():
         c = 0.5 * (Cn[i] + Cn[i].T)
         error[i] = (_eigen_error(np.linalg.eigvalsh(c / np.linalg.norm(c))) if np.isfinite(c).all()
                     else f"C' has non-finite entries: {Cn[i].tolist()}")

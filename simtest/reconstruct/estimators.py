@@ -196,7 +196,7 @@ def estimate_from_conics(Cns: np.ndarray, bp_rays: np.ndarray) -> list[ConeEstim
     refs = np.asarray(bp_rays, dtype=np.float64).reshape(-1, 3)
     k = len(Cns)
     elliptic = _images_as_ellipse_many(Cns)
-    pose = cone_poses(np.where(elliptic[:, None, None], Cns, np.diag([1.0, 1.0, -1.0])))
+    pose = cone_poses(Cns if elliptic.all() else np.where(elliptic[:, None, None], Cns, np.diag([1.0, 1.0, -1.0])))
     with np.errstate(invalid="ignore", divide="ignore"):
         paper = unit(pose["normals"], axis=-1)
         axis = unit(pose["axis"], axis=-1)

@@ -220,11 +220,14 @@ def _fit_stack(pts, n, starts, item, bad_rows):
     ``n[j]`` >= 6 points from row ``starts[j]``; ``item`` (M,) is each row's set."""
     k = len(n)
     fail: list = [None] * k
+    alive = np.ones(k, dtype=bool)  # no failure yet
 
     def refuse(mask, reason, detail):
-        for j in np.flatnonzero(mask):
-            if fail[j] is None:
+        mask = mask & alive
+        if mask.any():
+            for j in np.flatnonzero(mask):
                 fail[j] = Failure(reason, detail(j))
+            alive[mask] = False
 
     refuse(bad_rows > 0, "non_finite_points", lambda j: f"{int(bad_rows[j])} of {int(n[j])} points")
     clean = np.where(np.isfinite(pts), pts, 0.0)
@@ -242,18 +245,20 @@ def _fit_stack(pts, n, starts, item, bad_rows):
     mono = np.stack([xp[i] * yp[j] for i, j in _MONOMIALS], axis=1)
     s_full = _segment_sums(mono, starts)[:, _S_INDEX]  # (k, 6, 6)
     s1, s2, s3 = s_full[:, :3, :3], s_full[:, :3, 3:], s_full[:, 3:, 3:]
-    ok = np.array([f is None for f in fail])
-    s3 = np.where(ok[:, None, None], s3, np.eye(3))
+    if not alive.all():
+        s3 = np.where(alive[:, None, None], s3, np.eye(3))
     ev3 = np.linalg.eigvalsh(s3)
     refuse(~(ev3[:, 0] > _S3_RCOND * ev3[:, -1]), "degenerate_points",
            lambda j: f"linear scatter is singular (eigenvalues {ev3[j].tolist()})")
-    ok = np.array([f is None for f in fail])
-    s3 = np.where(ok[:, None, None], s3, np.eye(3))
+    if not alive.all():
+        s3 = np.where(alive[:, None, None], s3, np.eye(3))
     # T = -S3^-1 S2^T, so that a2 = T a1 [eqn. 24] from [1]
     t = -np.linalg.solve(s3, np.swapaxes(s2, 1, 2))
     # Reduced scatter matrix M = C1^-1 (S1 + S2 T) [eqn. 29] from [1]
     m = _C1_INV @ (s1 + s2 @ t)
-    m = np.where(ok[:, None, None] & np.isfinite(m).all(axis=(1, 2))[:, None, None], m, np.eye(3))
+    usable = alive & np.isfinite(m).all(axis=(1, 2))
+    if not usable.all():
+        m = np.where(usable[:, None, None], m, np.eye(3))
     # M a1 = lambda a1: eigenvectors of the reduced problem [eqn. 28] from [1]
     eigvec = np.real(np.linalg.eig(m)[1])
     # The ellipse solution satisfies the constraint a1^T C1 a1 = 4ac - b^2 > 0 [eqn. 14/30] from [1]
@@ -272,11 +277,9 @@ def _fit_stack(pts, n, starts, item, bad_rows):
     # is the exact conic of noise-free data; if it is not an ellipse and explains the points
     # clearly better (algebraic residual 4x smaller), the data are not an ellipse.
     r_ellipse = np.einsum("ki,kij,kj->k", a_vec, s_full, a_vec) / np.einsum("ki,ki->k", a_vec, a_vec)
-    ok = np.array([f is None for f in fail])
-    s_safe = np.where(ok[:, None, None], s_full, np.eye(6))
+    s_safe = s_full if alive.all() else np.where(alive[:, None, None], s_full, np.eye(6))
     w_full = np.linalg.eigvalsh(s_safe)
-    r_general = np.maximum(w_full[:, 0], 0.0)
-    suspect = ok & (r_ellipse > 1e-24) & (r_ellipse > 3.96 * np.maximum(w_full[:, 0] - 1e-12 * w_full[:, -1], 0.0))
+    suspect = alive & (r_ellipse > 1e-24) & (r_ellipse > 3.96 * np.maximum(w_full[:, 0] - 1e-12 * w_full[:, -1], 0.0))
     for j in np.flatnonzero(suspect):  # eigh's own eigenvalue and vector where it matters
         w_j, v_j = np.linalg.eigh(s_safe[j])
         r_gen = max(float(w_j[0]), 0.0)
@@ -306,8 +309,9 @@ def _fit_stack(pts, n, starts, item, bad_rows):
     # pixel conic of a few-px ellipse ~10^3 px from the origin has singular values down to ~1e-13,
     # where a degeneracy test in pixel coordinates would misclassify it; the normalised conic is
     # O(1)-conditioned for any ellipse.
-    ok = np.array([f is None for f in fail])
-    centre, axes, angle, is_ellipse = _ellipses_of(np.where(ok[:, None, None] & np.isfinite(a_norm).all(axis=(1, 2))[:, None, None], a_norm, np.eye(3)))
+    usable = alive & np.isfinite(a_norm).all(axis=(1, 2))
+    centre, axes, angle, is_ellipse = _ellipses_of(
+        a_norm if usable.all() else np.where(usable[:, None, None], a_norm, np.eye(3)))
     refuse(~is_ellipse, "not_an_ellipse", lambda j: "the fitted conic is not a real ellipse")
     # Points on a line or two parallel lines are fitted exactly by ever longer ellipses: an ellipse
     # far larger than the points' spread is not determined by them.
