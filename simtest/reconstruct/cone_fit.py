@@ -137,7 +137,19 @@ def rotation_to_z(d) -> np.ndarray:
 
 
 def rotations_to_z(d: np.ndarray) -> np.ndarray:
-    """:func:`rotation_to_z` of several directions (k, 3) at once: rotations (k, 3, 3)."""
+    """:func:`rotation_to_z` of several directions at once.
+
+    Parameters
+    ----------
+    d : ndarray of shape (k, 3)
+        Non-zero directions, camera frame.
+
+    Returns
+    -------
+    ndarray of shape (k, 3, 3)
+        Proper rotations with ``R[i] d[i] = |d[i]| e_z``, element by element (each from its own
+        direction only, the same bits as one at a time).
+    """
     z = d / np.linalg.norm(d, axis=1, keepdims=True)
     ref = np.where(np.abs(z[:, :1]) < 0.9, np.array([1.0, 0.0, 0.0]), np.array([0.0, 1.0, 0.0]))
     x = ref - np.sum(ref * z, axis=1, keepdims=True) * z
