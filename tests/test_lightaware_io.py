@@ -138,3 +138,27 @@ def test_colocated_ranking_reads_a_results_document():
     ranking = colocated_ranking(results)
     assert [r[0] for r in ranking] == ["joint_cone_axis", "bp_ray", "cone_axis"]
     assert np.isclose(ranking[0][1], 0.15)
+
+
+def test_estimates_json_carries_the_per_light_normals_of_a_two_light_patch(tmp_path):
+    # A two-light exact sphere (tests/test_lightaware.py): the recommended cubic patch's normal
+    # and depth at each light's specular point are written, in the rig's order, and read back.
+    from test_lightaware import SPHERE_K, sphere_rig_case, sphere_specular_point
+
+    lights = [(-15.0, 0.0, 0.0), (15.0, 0.0, 0.0)]
+    img, rig, _ = sphere_rig_case(lights)
+    ests = with_light_aware(img, reconstruct(img, SPHERE_K, settings=ReconSettings(
+        isovalues=(0.3, 0.5, 0.7))), SPHERE_K, rig, nominal_depth_mm=20.0)
+    path = tmp_path / "estimates.json"
+    write_estimates(path, ests, K=SPHERE_K, image_shape=img.shape, isovalues=(0.3, 0.5, 0.7),
+                    lights=rig)
+    back = read_estimates(path)
+    for spec in back["specularities"]:
+        assert spec["normal_from"] == "cubic_patch_fit"
+        entry = spec["light_aware"]["cubic_patch_fit"]
+        assert entry["light_normals"] == spec["light_normals"]
+        for j, L in enumerate(lights):
+            X, n = sphere_specular_point(L)
+            assert angle_between_deg(spec["light_normals"][j], n) < 0.1
+            assert abs(spec["light_depths_mm"][j] / np.linalg.norm(X) - 1) < 1e-3
+    assert back["specularities"][0]["light_aware"]["photometric_fit"]["light_normals"] is None

@@ -18,7 +18,8 @@ Estimators (derivations in the Notes of :func:`simtest.geometry.conics.cone_axis
   and the photometric plane fit with the calibrated rig, :mod:`simtest.reconstruct.lightaware`),
   scored when the rendered protocol ran them (a rig off the camera centre); ``quadric_fit``, the
   curved-patch fit, run where the photometric fit is not ``ok``, and on every highlight when a
-  suite lists it.
+  suite lists it; ``cubic_patch_fit``, the third-order patch fitted to the lobes of every light
+  of a rig of several lights, run there too.
 - ``recommended``: the normal ``estimates.json`` recommends (:mod:`simtest.reconstruct.recommend`).
 
 The registry is a plain dict so that a test can plant a known bias in one estimator
@@ -115,19 +116,20 @@ ESTIMATORS: dict[str, Callable] = {
     "isocurve_fit": _light_aware("isocurve_fit"),
     "photometric_fit": _light_aware("photometric_fit"),
     "quadric_fit": _light_aware("quadric_fit"),
+    "cubic_patch_fit": _light_aware("cubic_patch_fit"),
     "recommended": _recommended,
 }
 
 #: Estimators scored whatever the highlight's status (they do not rest on its isophote: the BP
 #: ray, and the photometric fit and the recommendation, which take a merged highlight too).
-STATUS_FREE = ("bp_ray", "photometric_fit", "quadric_fit", "recommended")
+STATUS_FREE = ("bp_ray", "photometric_fit", "quadric_fit", "cubic_patch_fit", "recommended")
 
 
 def _cause(est, name: str) -> str:
     status = getattr(est, "status", None)
     if status is not None and status != "ok":
         return str(status)
-    if name in ("isocurve_fit", "photometric_fit", "quadric_fit"):
+    if name in ("isocurve_fit", "photometric_fit", "quadric_fit", "cubic_patch_fit"):
         r = (getattr(est, "light_aware", None) or {}).get(name)
         return f"{name}_not_run" if r is None else str(r.status)
     if name == "joint_cone_axis":
@@ -137,7 +139,21 @@ def _cause(est, name: str) -> str:
     return f"no_{name}"
 
 
-def score(est, truth, names) -> dict[str, tuple[float, str | None]]:
+def _light_normal(est, name: str, light: int) -> np.ndarray | None:
+    """The normal of ``name`` at the specular point of light ``light``, where the estimator gives
+    one per light (``light_normals``), else None."""
+    if name == "recommended":
+        r = getattr(est, "recommended", None)
+    else:
+        r = (getattr(est, "light_aware", None) or {}).get(name)
+    ln = getattr(r, "light_normals", None) if r is not None else None
+    if ln is None:
+        return None
+    ln = np.asarray(ln, dtype=np.float64).reshape(-1, 3)
+    return unit_or_none(ln[light]) if 0 <= light < len(ln) else None
+
+
+def score(est, truth, names, light: int | None = None) -> dict[str, tuple[float, str | None]]:
     """Angular error of each estimator on one estimate.
 
     Parameters
@@ -150,6 +166,11 @@ def score(est, truth, names) -> dict[str, tuple[float, str | None]]:
         Ground-truth normal, OpenCV camera frame (any length; it is normalised).
     names : iterable of str
         Estimators to score (keys of :data:`ESTIMATORS`).
+    light : int, optional
+        The index in the rig of the light whose highlight ``truth`` belongs to. An estimator that
+        gives a normal per light (``light_normals``: :func:`~simtest.reconstruct.lightaware.cubic_patch_fit`
+        and a recommendation drawn from it) is scored with that light's normal; the others with
+        their one normal.
 
     Returns
     -------
@@ -178,8 +199,9 @@ def score(est, truth, names) -> dict[str, tuple[float, str | None]]:
             # normals are not used, as a user of the pipeline would not use them.
             out[name] = (float("nan"), str(status))
             continue
-        n = ESTIMATORS[name](est, truth)
-        n = unit_or_none(n)
+        n = _light_normal(est, name, light) if light is not None else None
+        if n is None:
+            n = unit_or_none(ESTIMATORS[name](est, truth))
         if n is None:
             out[name] = (float("nan"), _cause(est, name))
         else:

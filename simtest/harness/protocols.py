@@ -382,7 +382,7 @@ class RenderedRunner:
                     best, dist = e, d
             if best is not None and dist > self.match_px:
                 best = None
-            errs = score(best, h.normal, self.estimators)
+            errs = score(best, h.normal, self.estimators, light=int(getattr(h, "light", 0)))
             extras = _extras(best)
             extras["bp_error_px"] = dist if best is not None else float("nan")
             extras["k1_per_mm"] = float(getattr(h, "k1", float("nan")))
@@ -435,13 +435,27 @@ def _depth_errors(est, h, rig) -> dict:
     out["eps_over_d"] = eps_over_d
     if est is None:
         return out
+    light = int(getattr(h, "light", 0))
     for name, r in (getattr(est, "light_aware", None) or {}).items():
-        if r.depth_mm is not None:
-            out[f"{name}_depth_err_pct"] = 100.0 * abs(r.depth_mm / true - 1.0)
+        depth = _light_depth(r, light)
+        if depth is not None:
+            out[f"{name}_depth_err_pct"] = 100.0 * abs(depth / true - 1.0)
+        if getattr(r, "depth_rel_sigma", None) is not None:
+            out[f"{name}_depth_rel_sigma"] = float(r.depth_rel_sigma)
     rec = est.recommended
-    if rec.depth_mm is not None:
-        out["recommended_depth_err_pct"] = 100.0 * abs(rec.depth_mm / true - 1.0)
+    depth = _light_depth(rec, light)
+    if depth is not None:
+        out["recommended_depth_err_pct"] = 100.0 * abs(depth / true - 1.0)
     return out
+
+
+def _light_depth(r, light: int) -> float | None:
+    """The depth an estimate gives for the highlight of light ``light``: its per-light depth where
+    it has one (``light_depths_mm``), else its one depth (None: not observable)."""
+    ld = getattr(r, "light_depths_mm", None)
+    if ld is not None and 0 <= light < len(ld) and np.isfinite(ld[light]):
+        return float(ld[light])
+    return r.depth_mm
 
 
 def mesh_pose_overrides(p: MeshPose) -> dict:

@@ -10,14 +10,20 @@ Schema 2 is schema 1 plus, per specularity, the normal recommended to a user and
 estimators (:mod:`simtest.reconstruct.recommend`, whose docstring states the recommendation rule)::
 
     "normal": [x, y, z],               # the recommended normal (never null: bp_ray at worst)
-    "normal_from": "photometric_fit" | "isocurve_fit" | "joint_cone_axis" | "cone_axis" | "bp_ray",
+    "normal_from": "photometric_fit" | "cubic_patch_fit" | "quadric_fit" | "isocurve_fit"
+                   | "joint_cone_axis" | "cone_axis" | "bp_ray",
     "depth_mm": float or null,         # depth of the specular point along its ray, mm; null when
                                        # not observable (no rig, a co-located one, epsilon/d small)
     "normal_sigma_deg": float or null, # 1-sigma angle of the recommended normal, degrees
     "normals": {..., "isocurve_fit": [x, y, z] or null, "photometric_fit": [x, y, z] or null},
+    "light_normals": [[x, y, z], ...] or null,  # the recommended estimator's normal at each
+                                       # light's specular point (cubic_patch_fit), rig order
+    "light_depths_mm": [float, ...] or null,   # the depth of each light's specular point, mm
     "light_aware": {name: {"status": str, "detail": str, "depth_mm": float or null,
                            "normal_sigma_deg": float or null, "depth_sigma_mm": float or null,
-                           "distance_mm": float or null, "roughness": float or null}}
+                           "distance_mm": float or null, "roughness": float or null,
+                           "light_normals": [[x, y, z], ...] or null,
+                           "light_depths_mm": [float, ...] or null}}
 
 and at the top level ``"lights"``: the rig used (the camera file's list), or null. Every field of
 schema 1 keeps its meaning; :func:`read_estimates` reads both.
@@ -150,6 +156,20 @@ def _isophote_dict(iso, include_points: bool) -> dict:
     return d
 
 
+def _rows(a):
+    """(J, 3) unit vectors as lists, a row that is not finite as null; null for None."""
+    if a is None:
+        return None
+    return [_vec(r) if np.all(np.isfinite(r)) else None
+            for r in np.asarray(a, dtype=np.float64).reshape(-1, 3)]
+
+
+def _nums(a):
+    """(J,) numbers as a list (NaN as null); null for None."""
+    return None if a is None else [float(v) if np.isfinite(v) else None
+                                   for v in np.asarray(a, dtype=np.float64).reshape(-1)]
+
+
 def estimate_to_dict(est, include_points: bool = False) -> dict:
     """One :class:`~simtest.reconstruct.pipeline.SpecularityEstimate` as a schema-2 dict.
 
@@ -179,10 +199,14 @@ def estimate_to_dict(est, include_points: bool = False) -> dict:
         "normal_from": rec.normal_from,
         "depth_mm": _num(rec.depth_mm),
         "normal_sigma_deg": _num(rec.normal_sigma_deg),
+        "light_normals": _rows(getattr(rec, "light_normals", None)),
+        "light_depths_mm": _nums(getattr(rec, "light_depths_mm", None)),
         "light_aware": {name: {"status": r.status, "detail": r.detail, "depth_mm": _num(r.depth_mm),
                                "normal_sigma_deg": _num(r.normal_sigma_deg),
                                "depth_sigma_mm": _num(r.depth_sigma_mm),
-                               "distance_mm": _num(r.distance_mm), "roughness": _num(r.roughness)}
+                               "distance_mm": _num(r.distance_mm), "roughness": _num(r.roughness),
+                               "light_normals": _rows(r.light_normals),
+                               "light_depths_mm": _nums(r.light_depths_mm)}
                         for name, r in la.items()},
         "bp_px": _vec(est.bp_px),
         "bp_intensity": float(est.bp_intensity),

@@ -12,8 +12,9 @@ Chosen from the harness' measurements on Mitsuba renders (``simtest validate ren
 ``lightaware`` suite), never from ground truth at run time:
 
 1. With a rig whose lights are not all at the camera centre: ``photometric_fit`` when its status
-   is ``ok``, else ``quadric_fit`` when ``ok``, else ``isocurve_fit`` when ``ok`` (and the plane
-   does not misfit), else ``bp_ray``. On renders of
+   is ``ok``, else ``cubic_patch_fit`` when ``ok`` (run only with two or more lights at
+   different places), else ``quadric_fit`` when ``ok``, else ``isocurve_fit`` when ``ok`` (and
+   the plane does not misfit), else ``bp_ray``. On renders of
    planes lit off the camera (the ``lightaware`` suite) the BP ray and every cone estimator err by
    about 24 deg per unit epsilon/d (they estimate the direction of the BP, not the normal); the
    photometric fit uses every unclipped pixel, the lobe's shape and its position, and errs by
@@ -36,7 +37,20 @@ Chosen from the harness' measurements on Mitsuba renders (``simtest validate ren
    sphere, cylinder and saddle at epsilon/d 0.1 and 0.3 (medians below 1 deg); on the liver
    mesh it mostly misfits or runs off (BP ray), and where it does not its depth is the one at
    which the light's offset stands in for the surface's third-order shape; on the colon's fold
-   streaks it misfits or runs off (BP ray).
+   streaks it misfits or runs off (BP ray). With two lights at different places (a
+   colonoscope's guides either side of the lens) the lobes shift apart as the light offsets
+   over the depth say while the surface's shape acts on both alike, so the third-order patch
+   fitted to both (``cubic_patch_fit``) fixes the depth with the shape free; on the suite's
+   two-light liver renders (``liver_two_lights``) its status was ``ok`` and it beat the BP ray
+   on every highlight (0.53 and 0.57 deg against 2.2 at epsilon/d 0.1 per light, 0.03 against 8.2 to 8.6
+   at 0.3, realisation 0), where the quadric misfits and the plane fit does not converge; it
+   comes before the quadric, whose depth, with the third-order shape left out, is the one at
+   which the offsets stand in for it. With one light it is not run: its depth is then not
+   observable (on the exact sphere and the liver render the depth profile is flat within
+   0.06 of the noise floor's variance) and a fit whose depth is not observable is not used.
+   On the colon's fold streaks it misfits or does not converge, and the BP ray is kept. Its
+   normal is the apex's (the mean light's specular point); the normal at each light's specular
+   point (``light_normals``) is given beside it.
 2. Without a rig, or with every light at the camera centre: ``joint_cone_axis`` when at least two
    isophotes succeeded, else ``cone_axis``, else ``bp_ray``. Over the co-located rendered suite the
    joint cone axis has the lowest mean and median error (:func:`colocated_ranking` recomputes the
@@ -44,7 +58,8 @@ Chosen from the harness' measurements on Mitsuba renders (``simtest validate ren
    cone axes on planes, spheres, cylinders and saddles and wherever the BP is clipped.
 
 ``depth_mm`` and ``normal_sigma_deg`` are those of the estimator recommended (None for the cone
-axes and the BP ray, which observe neither).
+axes and the BP ray, which observe neither), and so are ``light_normals`` and
+``light_depths_mm`` (``cubic_patch_fit`` only).
 """
 
 from __future__ import annotations
@@ -60,6 +75,7 @@ from simtest.reconstruct._pixels import Roi, uv_to_rc
 from simtest.reconstruct.detect import luma
 from simtest.reconstruct.lightaware import (
     LightAwareEstimate,
+    cubic_patch_fit,
     isocurve_fit,
     photometric_fit,
     quadric_fit,
@@ -70,7 +86,7 @@ __all__ = ["LIGHT_AWARE", "Recommendation", "colocated_ranking", "light_aware_es
            "recommend", "with_light_aware"]
 
 #: The light-aware estimators, in the order of preference of the recommendation rule.
-LIGHT_AWARE = ("photometric_fit", "quadric_fit", "isocurve_fit")
+LIGHT_AWARE = ("photometric_fit", "cubic_patch_fit", "quadric_fit", "isocurve_fit")
 #: Fallback order without a rig (or with a co-located one).
 COLOCATED_ORDER = ("joint_cone_axis", "cone_axis", "bp_ray")
 
@@ -89,23 +105,36 @@ class Recommendation:
         Depth of the specular point along its ray, mm (None: not observable or not estimated).
     normal_sigma_deg : float or None
         1-sigma angular uncertainty, degrees (None when the estimator gives none).
+    light_normals : ndarray of shape (J, 3) or None
+        The normal at the specular point of each of the rig's J lights, where the estimator
+        gives them (:func:`~simtest.reconstruct.lightaware.cubic_patch_fit`), unit, camera frame.
+    light_depths_mm : ndarray of shape (J,) or None
+        The depth of each light's specular point along its ray, mm, likewise.
     """
 
     normal: np.ndarray
     normal_from: str
     depth_mm: float | None = None
     normal_sigma_deg: float | None = None
+    light_normals: np.ndarray | None = None
+    light_depths_mm: np.ndarray | None = None
 
 
 def _offset_rig(rig) -> bool:
     return rig is not None and not all(lt.position_mm == (0.0, 0.0, 0.0) for lt in rig.lights)
 
 
+def _several_lights(rig) -> bool:
+    """Whether the rig has at least two lights at different places (their lobes can differ)."""
+    return rig is not None and len({tuple(lt.position_mm) for lt in rig.lights}) >= 2
+
+
 def light_aware_estimates(image, est, camera, rig: LightRig, *, nominal_depth_mm: float = 20.0,
                           saturation_level: float | None = None,
                           roi_scale: float = 2.5, quadric_roi_scale: float = 1.5,
                           supersample: int = 1,
-                          quadric: bool = False) -> dict[str, LightAwareEstimate]:
+                          quadric: bool = False,
+                          cubic: bool | None = None) -> dict[str, LightAwareEstimate]:
     """Run the light-aware estimators on one detected highlight.
 
     ``isocurve_fit`` takes the points of every isophote that succeeded (refined onto the cubic
@@ -143,13 +172,20 @@ def light_aware_estimates(image, est, camera, rig: LightRig, *, nominal_depth_mm
         highlight's ROI grown ``quadric_roi_scale`` times about the BP) whatever the photometric
         fit's status (it runs anyway when that status is not ``ok``: a plane misfit, or a plane
         fit that ran off on a curved patch).
+    cubic : bool or None
+        Run the third-order patch fit
+        :func:`~simtest.reconstruct.lightaware.cubic_patch_fit` on the same ROI as the quadric's:
+        True always, False never, None (default) when the photometric fit's status is not
+        ``ok`` and the rig has at least two lights at different places (with one light its
+        depth, and with it the normal, is not observable: module docstring).
 
     Returns
     -------
     dict
         ``{"isocurve_fit": LightAwareEstimate, "photometric_fit": LightAwareEstimate}`` (the
-        isocurve fit is absent when no isophote succeeded), and ``"quadric_fit"`` on request or
-        when the photometric fit's status is not ``ok``.
+        isocurve fit is absent when no isophote succeeded), ``"quadric_fit"`` on request or
+        when the photometric fit's status is not ``ok``, and ``"cubic_patch_fit"`` as ``cubic``
+        says.
     """
     img = np.asarray(image)
     if saturation_level is None and img.dtype.kind == "u":
@@ -178,9 +214,13 @@ def light_aware_estimates(image, est, camera, rig: LightRig, *, nominal_depth_mm
         gray[big.slices], (big.col0, big.row0), est.bp_px, camera, rig,
         clip_level=saturation_level, nominal_depth_mm=nominal_depth_mm,
         start_normal=start_n, supersample=supersample)
+    near = Roi.around(est.bp_px, quadric_roi_scale * max(roi.shape) / 2.0, img.shape)
     if quadric or not out["photometric_fit"].ok:
-        near = Roi.around(est.bp_px, quadric_roi_scale * max(roi.shape) / 2.0, img.shape)
         out["quadric_fit"] = quadric_fit(
+            gray[near.slices], (near.col0, near.row0), est.bp_px, camera, rig,
+            clip_level=saturation_level, nominal_depth_mm=nominal_depth_mm)
+    if cubic or (cubic is None and not out["photometric_fit"].ok and _several_lights(rig)):
+        out["cubic_patch_fit"] = cubic_patch_fit(
             gray[near.slices], (near.col0, near.row0), est.bp_px, camera, rig,
             clip_level=saturation_level, nominal_depth_mm=nominal_depth_mm)
     return out
@@ -248,7 +288,8 @@ def recommend(est) -> Recommendation:
             if name == "isocurve_fit" and not plane_fits:
                 continue
             if r is not None and r.has_normal and r.status == "ok":
-                return Recommendation(np.asarray(r.normal), name, r.depth_mm, r.normal_sigma_deg)
+                return Recommendation(np.asarray(r.normal), name, r.depth_mm, r.normal_sigma_deg,
+                                      r.light_normals, r.light_depths_mm)
         return Recommendation(np.asarray(est.bp_ray), "bp_ray")
     for name in COLOCATED_ORDER:
         n = getattr(est, name, None)

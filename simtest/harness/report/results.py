@@ -61,6 +61,7 @@ ESTIMATOR_TEXT = {
     "isocurve_fit": "general isocurve (eq. 2) fitted with the calibrated light (light-aware)",
     "photometric_fit": "ROI intensities fitted with a plane lit by the rig (light-aware)",
     "quadric_fit": "ROI intensities fitted with a quadric patch lit by the rig (experimental)",
+    "cubic_patch_fit": "ROI intensities fitted with a third-order patch lit by every light of the rig",
     "recommended": "the normal estimates.json recommends (simtest.reconstruct.recommend)",
 }
 
