@@ -503,3 +503,15 @@ def test_two_light_curved_highlight_is_recommended_the_cubic_patch_and_scored_pe
     one = with_light_aware(img1, reconstruct(img1, SPHERE_K, settings=ReconSettings(
         isovalues=(0.3, 0.5, 0.7))), SPHERE_K, rig1, nominal_depth_mm=20.0)
     assert all("cubic_patch_fit" not in e.light_aware for e in one)
+
+
+def test_cubic_patch_residual_stays_finite_where_a_fit_runs_off():
+    # A fit that runs off to an enormous depth (log s = 800: s^2 overflows a float) must give a
+    # finite residual, not raise: on the colon render of lightaware-curved (colon_offset at
+    # epsilon/d 0.1, realisations 3 and 4) an OverflowError there failed every estimator.
+    img, rig, bp = sphere_rig_case([(5.0, 0.0, 0.0)])
+    S = la._cubic_setup(img, (0, 0), bp, SPHERE_K, rig, None, 800)
+    for log_s in (800.0, -800.0):
+        p = np.zeros(11)
+        p[2], p[6], p[7] = log_s, np.log(40.0), 0.5
+        assert np.all(np.isfinite(S["res"](p)))

@@ -360,7 +360,11 @@ class RenderedRunner:
         if light_aware:
             rig = render_rig(result)
             ests = with_light_aware(image, ests, result.K, rig,
-                                    quadric="quadric_fit" in self.estimators)
+                                    quadric="quadric_fit" in self.estimators,
+                                    # listed: run on every highlight, for its column and its
+                                    # depth's observability (one light included, where the
+                                    # recommendation does not use it)
+                                    cubic=True if "cubic_patch_fit" in self.estimators else None)
         ok_bps = [(e, np.asarray(e.bp_px, float)) for e in ests
                   if getattr(e, "bp_px", None) is not None]
         # Clipping: pixels at the sensor's full scale (0 for a linear float image).
@@ -422,8 +426,13 @@ def _depth_errors(est, h, rig) -> dict:
     """Absolute relative depth error (%) of each light-aware estimator and of the recommendation.
 
     The truth is the distance from the camera centre to the highlight's BP (the specular point of
-    the render's light). NaN where no depth was given (not observable, failed, not run). Also
-    ``eps_over_d``: the largest light offset of the rig over that distance.
+    the render's light); an estimate with a depth per light is scored with that light's. NaN
+    where no depth was given (not observable, failed, not run). Also ``eps_over_d``: the largest
+    light offset of the rig over that distance; ``<name>_depth_rel_sigma``: the relative 1-sigma
+    of the curved fits' depth at the noise floor (above ``TOL.depth_rel_sigma_max``: not
+    observable); ``cubic_patch_fit_ok_share`` (1 where its status is ``ok``) and
+    ``recommended_bp_ray_share`` (1 where the recommendation fell back to the BP ray), whose
+    case means are the shares.
     """
     nan = float("nan")
     true = float(np.linalg.norm(np.asarray(h.bp_mm, dtype=np.float64)))
@@ -442,7 +451,11 @@ def _depth_errors(est, h, rig) -> dict:
             out[f"{name}_depth_err_pct"] = 100.0 * abs(depth / true - 1.0)
         if getattr(r, "depth_rel_sigma", None) is not None:
             out[f"{name}_depth_rel_sigma"] = float(r.depth_rel_sigma)
+    cubic = (getattr(est, "light_aware", None) or {}).get("cubic_patch_fit")
+    if cubic is not None:
+        out["cubic_patch_fit_ok_share"] = float(cubic.ok)
     rec = est.recommended
+    out["recommended_bp_ray_share"] = float(rec.normal_from == "bp_ray")
     depth = _light_depth(rec, light)
     if depth is not None:
         out["recommended_depth_err_pct"] = 100.0 * abs(depth / true - 1.0)

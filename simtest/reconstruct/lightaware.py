@@ -1694,13 +1694,13 @@ def _cubic_patch_geometry(d, b_ray, p, Lm):
     and the apex frame ``(P0, t1, t2, N)``. See :func:`cubic_patch_fit` for the parameters.
     """
     e1, e2 = plane_basis(b_ray)
-    P0 = np.exp(p[2]) * unit(b_ray + p[0] * e1 + p[1] * e2)
-    s = float(np.exp(p[2]))
+    s = np.exp(np.float64(p[2]))  # numpy scalars: a fit that runs off overflows to inf, no raise
+    P0 = s * unit(b_ray + p[0] * e1 + p[1] * e2)
     N = unit(unit(-P0) + unit(Lm - P0))
     t1, t2 = plane_basis(N)
     kxx, kxy, kyy = p[3] / s, p[4] / s, p[5] / s
     kzz = 0.5 * (kxx + kyy)
-    cxxx, cxxy, cxyy, cyyy = (float(c) / s**2 for c in p[7:11])
+    cxxx, cxxy, cxyy, cyyy = np.asarray(p[7:11], dtype=np.float64) * np.exp(-2.0 * np.float64(p[2]))
     ax, ay, az = d @ t1, d @ t2, d @ N
     bx, by, bz = -(P0 @ t1), -(P0 @ t2), -(P0 @ N)
     # the quadric's root (as in _quadric_image), then Newton on the full F along the ray
@@ -1810,7 +1810,10 @@ def _cubic_setup(values, origin_uv, bp_uv, camera, rig, clip_level, max_pixels):
     A = np.column_stack([np.zeros_like(du), np.ones_like(du), du, dv])
 
     def res(p):
-        A[:, 0] = _cubic_patch_image(d, b_ray, p, rig_arr, Lm)[0]
+        with np.errstate(all="ignore"):
+            A[:, 0] = _cubic_patch_image(d, b_ray, p, rig_arr, Lm)[0]
+        if not np.all(np.isfinite(A[:, 0])):  # a patch run off to an overflow: no image
+            A[:, 0] = 0.0
         try:
             c = np.linalg.solve(A.T @ A, A.T @ y)
         except np.linalg.LinAlgError:

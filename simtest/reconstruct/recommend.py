@@ -287,6 +287,9 @@ def recommend(est) -> Recommendation:
             r = la.get(name)
             if name == "isocurve_fit" and not plane_fits:
                 continue
+            if name == "cubic_patch_fit" and (r is None or r.light_normals is None
+                                              or len(r.light_normals) < 2):
+                continue  # one light: run on request only, its depth is then not observable
             if r is not None and r.has_normal and r.status == "ok":
                 return Recommendation(np.asarray(r.normal), name, r.depth_mm, r.normal_sigma_deg,
                                       r.light_normals, r.light_depths_mm)

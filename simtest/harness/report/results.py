@@ -22,7 +22,8 @@
 
 Angles in degrees. A *family* groups the cases by what is seen: the paper's synthetic protocol,
 or a rendered geometry (plane, sphere, cylinder, saddle, liver, colon, or the scene name for
-anything else), with ``", light offset"`` appended when the light is off the camera centre. The
+anything else), with ``", light offset"`` appended when the light is off the camera centre
+(``" under a light rig, light offset"`` for a rig of lights beside the lens). The
 numbers under ``cases`` and ``families`` depend only on the suite and the seed, never on the
 number of workers; provenance (times, machine) differs between runs.
 """
@@ -81,8 +82,9 @@ def case_family(case) -> tuple[str, bool]:
     family : str
         ``"paper protocol"`` for the paper's synthetic protocol; for rendered cases the geometry
         (``"colon"``, ``"liver"``, the scene's ``geometry.type``, or the scene name when it
-        cannot be read), plus ``", light offset"`` when the light is off the camera centre (an
-        offset or a rig).
+        cannot be read), plus ``", light offset"`` when the light is off the camera centre, and
+        ``" under a light rig, light offset"`` for a rig of lights beside the lens (``light.rig``
+        other than "single"), kept apart from one offset light.
     colocated : bool
         False for the paper protocol (its slanted camera does not carry the light), for a
         rendered light offset > 0 and for a light rig (``light.rig`` other than "single").
@@ -104,8 +106,11 @@ def case_family(case) -> tuple[str, bool]:
                 rig = getattr(spec.light, "rig", "single")
         except Exception:  # noqa: BLE001 - a family name is a label, never a reason to fail
             family = family or str(case.scene_name)
-    # a light rig (light guides beside the lens) is never at the camera centre
-    colocated = not (eps or 0.0) > 0 and rig in (None, "single")
+    # a light rig (light guides beside the lens) is never at the camera centre; its family is
+    # kept apart from one offset light's, which it can beat (two lobes fix the depth)
+    if rig not in (None, "single"):
+        return f"{family} under a light rig, light offset", False
+    colocated = not (eps or 0.0) > 0
     return (family if colocated else f"{family}, light offset"), colocated
 
 
