@@ -241,3 +241,36 @@ def test_markdown_numbers_come_from_the_results():
     m = doc["families"]["plane"]["estimators"]["cone_axis"]
     assert f"{m['median']:.3g} [{m['p5']:.3g}, {m['p95']:.3g}]" in md
     assert html_report("![a](figures/missing.png)", {}).count("figures/missing.png") == 1
+
+
+def test_curved_offset_claim_holds_or_names_where_it_breaks_and_why():
+    # issue 10's curved must-hold, computed from a results document: the recommended median of
+    # every curved case lit off the camera at epsilon/d 0.1 or 0.3 within 1 deg. A case above it
+    # is named with its measured reasons (the BP-ray fallback, the depth's relative sigma).
+    rng = np.random.default_rng(1)
+    ests = ["recommended", "bp_ray"]
+
+    def offset_case(fam, x, eps, rec, diag=None):
+        c = _case(rng, f"{fam}_offset", x, f"{fam}, light offset", "rendered", ests,
+                  {"recommended": rec, "bp_ray": 24 * eps}, {"eps_over_d": eps, **(diag or {})})
+        c["colocated"] = False
+        return c
+
+    good = [offset_case("sphere", 5, 0.1, 0.3), offset_case("sphere", 15, 0.31, 0.8)]
+    bad = offset_case("liver", 6.4, 0.1, 2.4 * 1.2, {"recommended_bp_ray_share": 1.0,
+                                                     "cubic_patch_fit_depth_rel_sigma": 20.0})
+    far = offset_case("liver", 40, 0.6, 9.0)  # outside the must-hold's epsilon/d: not judged
+    plane = _case(rng, "plane_offset", 4, "plane, light offset", "rendered", ests,
+                  {"recommended": 5.0, "bp_ray": 5.0}, {"eps_over_d": 0.1})
+    plane["colocated"] = False
+    doc = {"sweeps": [], "cases": good + [far, plane]}
+    verdict = {c["id"]: c for c in evaluate_claims(doc)}["curved_offset_median"]
+    assert verdict["holds"] is True and "in 2 of 2 cases" in verdict["measured"]
+    doc["cases"].append(bad)
+    verdict = {c["id"]: c for c in evaluate_claims(doc)}["curved_offset_median"]
+    assert verdict["holds"] is False and "in 2 of 3 cases" in verdict["measured"]
+    assert "Breaks on liver_offset@6.4" in verdict["measured"]
+    assert "BP ray on 100 % of highlights" in verdict["measured"]
+    assert "relative depth sigma 20 (not observable)" in verdict["measured"]
+    assert not any(c["id"] == "curved_offset_median"
+                   for c in evaluate_claims({"sweeps": [], "cases": [plane]}))
