@@ -168,9 +168,9 @@ def score(est, truth, names, light: int | None = None) -> dict[str, tuple[float,
         Estimators to score (keys of :data:`ESTIMATORS`).
     light : int, optional
         The index in the rig of the light whose highlight ``truth`` belongs to. An estimator that
-        gives a normal per light (``light_normals``: :func:`~simtest.reconstruct.lightaware.cubic_patch_fit`
-        and a recommendation drawn from it) is scored with that light's normal; the others with
-        their one normal.
+        gives a normal per light (``light_normals``:
+        :func:`~simtest.reconstruct.lightaware.cubic_patch_fit` and a recommendation drawn from
+        it) is scored with that light's normal; the others with their one normal.
 
     Returns
     -------

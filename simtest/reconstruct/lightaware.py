@@ -20,6 +20,12 @@ becomes observable. Three estimators use the rig:
 - :func:`photometric_fit`: the ROI's intensities fitted with the image of a plane lit by the whole
   rig (sum of the lights' Phong lobes with their falloff and emission profile) plus a smooth linear
   background: normal, distance, roughness and gain; clipped pixels are left out.
+- :func:`cubic_patch_fit`: the quadric patch with its four third-order terms, fitted to the lobes
+  of every light of a rig of several lights (a depth profile, then the free fit): with one light
+  the surface's third-order shape stands in for the light's offset and the depth is not
+  observable; two lights apart shift their lobes apart while the shape acts on both alike, which
+  fixes the depth (:func:`patch_depth_profile` measures it), and with it each light's specular
+  point and normal.
 
 Each returns a :class:`LightAwareEstimate`: the normal, the depth in mm of the specular point along
 its ray (None when not observable), a 1-sigma angular uncertainty from the fit's Jacobian, and a
@@ -1543,6 +1549,8 @@ def quadric_fit(values, origin_uv, bp_uv, camera, rig: LightRig, *,
     varies). On spheres, cylinders and saddles the quadric holds and the depth follows. A
     larger ROI brings in more of the surface's third-order shape: the recommendation fits an ROI
     1.5 times the highlight's (:func:`~simtest.reconstruct.recommend.light_aware_estimates`).
+    A second light beside the lens makes the depth observable with the third-order terms free
+    (:func:`cubic_patch_fit`).
 
     Parameters
     ----------

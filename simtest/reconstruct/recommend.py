@@ -41,13 +41,16 @@ Chosen from the harness' measurements on Mitsuba renders (``simtest validate ren
    colonoscope's guides either side of the lens) the lobes shift apart as the light offsets
    over the depth say while the surface's shape acts on both alike, so the third-order patch
    fitted to both (``cubic_patch_fit``) fixes the depth with the shape free; on the suite's
-   two-light liver renders (``liver_two_lights``) its status was ``ok`` and it beat the BP ray
-   on every highlight (0.53 and 0.57 deg against 2.2 at epsilon/d 0.1 per light, 0.03 against 8.2 to 8.6
-   at 0.3, realisation 0), where the quadric misfits and the plane fit does not converge; it
+   two-light liver renders (``liver_two_lights``, six realisations) its status was ``ok`` on
+   every highlight and its median error 0.30 deg at epsilon/d 0.1 per light and 0.09 at 0.3,
+   against 2.2 and 8.4 for the BP ray, where the quadric misfits and the plane fit does not
+   converge; it
    comes before the quadric, whose depth, with the third-order shape left out, is the one at
-   which the offsets stand in for it. With one light it is not run: its depth is then not
-   observable (on the exact sphere and the liver render the depth profile is flat within
-   0.06 of the noise floor's variance) and a fit whose depth is not observable is not used.
+   which the offsets stand in for it. With one light it is not run (nor recommended when run
+   on request): its depth is then not observable (on the exact sphere and the liver render the
+   depth profile is flat within 0.06 of the noise floor's variance; on the suite's one-light
+   curved renders its relative depth sigma was 1.8 to 31, against 0.008 to 0.07 on the
+   two-light liver), and a fit whose depth is not observable is not used.
    On the colon's fold streaks it misfits or does not converge, and the BP ray is kept. Its
    normal is the apex's (the mean light's specular point); the normal at each light's specular
    point (``light_normals``) is given beside it.
