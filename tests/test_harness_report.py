@@ -274,3 +274,17 @@ def test_curved_offset_claim_holds_or_names_where_it_breaks_and_why():
     assert "relative depth sigma 20 (not observable)" in verdict["measured"]
     assert not any(c["id"] == "curved_offset_median"
                    for c in evaluate_claims({"sweeps": [], "cases": [plane]}))
+
+
+def test_an_alarming_curved_fit_is_explained_by_its_depth_observability():
+    rng = np.random.default_rng(2)
+    c = _case(rng, "liver_offset", 6.4, "liver, light offset", "rendered",
+              ["cubic_patch_fit", "bp_ray"], {"cubic_patch_fit": 20.0, "bp_ray": 2.9},
+              {"eps_over_d": 0.1, "cubic_patch_fit_depth_rel_sigma": 20.4})
+    c["colocated"] = False
+    doc = {"sweeps": [], "cases": [c], "families": {"liver, light offset": {
+        "protocol": "rendered", "colocated": False, "cases": [c["id"]],
+        "estimators": c["metrics"]["estimators"]}}}
+    (ex,) = [x for x in explanations(doc) if x["estimator"] == "cubic_patch_fit"]
+    assert "relative depth sigma 20.4 (above 0.5: the depth, and with it the normal, is not " \
+           "observable)" in ex["text"]

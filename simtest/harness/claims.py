@@ -470,6 +470,11 @@ def _explain_rendered(results, family, est):
                     f"(measured mean {_range([_stat(c, est, 'mean') for c in pc])} deg)")
     worst = max(cs, key=lambda c: _stat(c, est))
     parts = [f"worst case {worst['id']}: median {_stat(worst, est):.3g} deg"]
+    sig = _diag(worst, f"{est}_depth_rel_sigma")
+    if sig is not None:  # a curved light-aware fit: whether its depth, hence its normal, is fixed
+        parts.append(f"its relative depth sigma {sig:.3g}"
+                     + (f" (above {TOL.depth_rel_sigma_max:g}: the depth, and with it the "
+                        f"normal, is not observable)" if sig > TOL.depth_rel_sigma_max else ""))
     for key, lab in (("residual_px", "fit residual {:.3g} px"), ("rho", "rho {:.3g}"),
                      ("eigenvalue_gap", "eigenvalue gap {:.3g}")):
         v = _diag(worst, key)
