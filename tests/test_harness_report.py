@@ -258,7 +258,9 @@ def test_curved_offset_claim_holds_or_names_where_it_breaks_and_why():
 
     good = [offset_case("sphere", 5, 0.1, 0.3), offset_case("sphere", 15, 0.31, 0.8)]
     bad = offset_case("liver", 6.4, 0.1, 2.4 * 1.2, {"recommended_bp_ray_share": 1.0,
-                                                     "cubic_patch_fit_depth_rel_sigma": 20.0})
+                                                     "cubic_patch_fit_depth_rel_sigma": 20.0,
+                                                     "cubic_patch_fit_ok_share": 0.0,
+                                                     "cubic_patch_fit_misfit_share": 0.5})
     far = offset_case("liver", 40, 0.6, 9.0)  # outside the must-hold's epsilon/d: not judged
     plane = _case(rng, "plane_offset", 4, "plane, light offset", "rendered", ests,
                   {"recommended": 5.0, "bp_ray": 5.0}, {"eps_over_d": 0.1})
@@ -272,6 +274,7 @@ def test_curved_offset_claim_holds_or_names_where_it_breaks_and_why():
     assert "Breaks on liver_offset@6.4" in verdict["measured"]
     assert "BP ray on 100 % of highlights" in verdict["measured"]
     assert "relative depth sigma 20 (not observable)" in verdict["measured"]
+    assert "ok on 0 % of highlights, its patch misfit on 50 %" in verdict["measured"]
     assert not any(c["id"] == "curved_offset_median"
                    for c in evaluate_claims({"sweeps": [], "cases": [plane]}))
 

@@ -334,7 +334,9 @@ def _why_curved(c) -> str:
             parts.append(f"{est} depth error {e:.3g} %")
     ok = _diag(c, "cubic_patch_fit_ok_share")
     if ok is not None:
-        parts.append(f"cubic_patch_fit ok on {100 * ok:.3g} % of highlights")
+        mis = _diag(c, "cubic_patch_fit_misfit_share") or 0.0
+        parts.append(f"cubic_patch_fit ok on {100 * ok:.3g} % of highlights, its patch misfit "
+                     f"on {100 * mis:.3g} %")
     return "; ".join(p for p in parts if p)
 
 

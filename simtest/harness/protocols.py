@@ -430,7 +430,8 @@ def _depth_errors(est, h, rig) -> dict:
     where no depth was given (not observable, failed, not run). Also ``eps_over_d``: the largest
     light offset of the rig over that distance; ``<name>_depth_rel_sigma``: the relative 1-sigma
     of the curved fits' depth at the noise floor (above ``TOL.depth_rel_sigma_max``: not
-    observable); ``cubic_patch_fit_ok_share`` (1 where its status is ``ok``) and
+    observable); ``cubic_patch_fit_ok_share`` (1 where its status is ``ok``),
+    ``cubic_patch_fit_misfit_share`` (1 where it is ``patch_misfit``) and
     ``recommended_bp_ray_share`` (1 where the recommendation fell back to the BP ray), whose
     case means are the shares.
     """
@@ -454,6 +455,7 @@ def _depth_errors(est, h, rig) -> dict:
     cubic = (getattr(est, "light_aware", None) or {}).get("cubic_patch_fit")
     if cubic is not None:
         out["cubic_patch_fit_ok_share"] = float(cubic.ok)
+        out["cubic_patch_fit_misfit_share"] = float(cubic.status == "patch_misfit")
     rec = est.recommended
     out["recommended_bp_ray_share"] = float(rec.normal_from == "bp_ray")
     depth = _light_depth(rec, light)
