@@ -364,7 +364,7 @@ class RenderedRunner:
                                     # listed: run on every highlight, for its column and its
                                     # depth's observability (one light included, where the
                                     # recommendation does not use it)
-                                    cubic=True if "cubic_patch_fit" in self.estimators else None)
+                                    cubic="cubic_patch_fit" in self.estimators)
         ok_bps = [(e, np.asarray(e.bp_px, float)) for e in ests
                   if getattr(e, "bp_px", None) is not None]
         # Clipping: pixels at the sensor's full scale (0 for a linear float image).

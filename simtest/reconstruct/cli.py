@@ -70,6 +70,12 @@ def reconstruct_command(
     overlay: bool = typer.Option(True, "--overlay/--no-overlay", help="Write overlay.png."),
     overlay_all: bool = typer.Option(False, "--overlay-all", help="Mark rejected highlights in overlay.png too."),
     view: bool = typer.Option(False, "--view", help="Also write view.png, a 3D view of the normals (pyvista, off-screen)."),
+    cubic_patch: bool = typer.Option(
+        False, "--cubic-patch",
+        help="With a light rig of two or more lights apart, also run cubic_patch_fit where the plane fit "
+        "fails (the curved patch fitted to every light's lobe: depth and normal on curved tissue; "
+        "about 1 to 5 s per highlight).",
+    ),
     workers: int = typer.Option(
         0, "--workers", "-j", min=0,
         help="Worker processes for a folder or video (0: one per core).", show_default=False,
@@ -110,7 +116,7 @@ def reconstruct_command(
         estimates = reconstruct(img, camera, settings=settings)
         # the scope's light rig from the camera file ("lights"; none: one light at the camera)
         rig = camera_file.lights
-        estimates = with_light_aware(img, estimates, camera, rig)
+        estimates = with_light_aware(img, estimates, camera, rig, cubic=None if cubic_patch else False)
         pinhole = isinstance(camera, PinholeCamera)
         doc = estimates_document(
             estimates, K=camera.K if pinhole else None, image=image, image_shape=img.shape,

@@ -137,7 +137,7 @@ def light_aware_estimates(image, est, camera, rig: LightRig, *, nominal_depth_mm
                           roi_scale: float = 2.5, quadric_roi_scale: float = 1.5,
                           supersample: int = 1,
                           quadric: bool = False,
-                          cubic: bool | None = None) -> dict[str, LightAwareEstimate]:
+                          cubic: bool | None = False) -> dict[str, LightAwareEstimate]:
     """Run the light-aware estimators on one detected highlight.
 
     ``isocurve_fit`` takes the points of every isophote that succeeded (refined onto the cubic
@@ -178,9 +178,11 @@ def light_aware_estimates(image, est, camera, rig: LightRig, *, nominal_depth_mm
     cubic : bool or None
         Run the third-order patch fit
         :func:`~simtest.reconstruct.lightaware.cubic_patch_fit` on the same ROI as the quadric's:
-        True always, False never, None (default) when the photometric fit's status is not
-        ``ok`` and the rig has at least two lights at different places (with one light its
-        depth, and with it the normal, is not observable: module docstring).
+        True always, False (default: it takes about 1 to 5 s per highlight, against a few ms
+        for the others) never, None when the photometric fit's status is not ``ok`` and the rig
+        has at least two lights at different places (with one light its depth, and with it the
+        normal, is not observable: module docstring); ``simtest reconstruct --cubic-patch``
+        asks for None.
 
     Returns
     -------
@@ -206,27 +208,38 @@ def light_aware_estimates(image, est, camera, rig: LightRig, *, nominal_depth_mm
             raw = np.asarray(iso.points_uv, dtype=np.float64)
             level = float(np.median(_spline_values(vals, raw - origin)))
             pts.append(refine_isophote_points(vals, level, raw, origin))
-        iso_est = isocurve_fit(pts, [i.isovalue for i in isos], est.bp_px, camera, rig,
-                               nominal_depth_mm=nominal_depth_mm)
+        iso_est = _guarded("isocurve_fit", isocurve_fit, pts, [i.isovalue for i in isos], est.bp_px,
+                           camera, rig, nominal_depth_mm=nominal_depth_mm)
         out["isocurve_fit"] = iso_est
         if iso_est.has_normal:
             start_n = iso_est.normal
     half = roi_scale * max(roi.shape) / 2.0
     big = Roi.around(est.bp_px, half, img.shape)
-    out["photometric_fit"] = photometric_fit(
-        gray[big.slices], (big.col0, big.row0), est.bp_px, camera, rig,
+    out["photometric_fit"] = _guarded(
+        "photometric_fit", photometric_fit, gray[big.slices], (big.col0, big.row0), est.bp_px, camera, rig,
         clip_level=saturation_level, nominal_depth_mm=nominal_depth_mm,
         start_normal=start_n, supersample=supersample)
     near = Roi.around(est.bp_px, quadric_roi_scale * max(roi.shape) / 2.0, img.shape)
     if quadric or not out["photometric_fit"].ok:
-        out["quadric_fit"] = quadric_fit(
-            gray[near.slices], (near.col0, near.row0), est.bp_px, camera, rig,
+        out["quadric_fit"] = _guarded(
+            "quadric_fit", quadric_fit, gray[near.slices], (near.col0, near.row0), est.bp_px, camera, rig,
             clip_level=saturation_level, nominal_depth_mm=nominal_depth_mm)
     if cubic or (cubic is None and not out["photometric_fit"].ok and _several_lights(rig)):
-        out["cubic_patch_fit"] = cubic_patch_fit(
-            gray[near.slices], (near.col0, near.row0), est.bp_px, camera, rig,
+        out["cubic_patch_fit"] = _guarded(
+            "cubic_patch_fit", cubic_patch_fit, gray[near.slices], (near.col0, near.row0), est.bp_px, camera, rig,
             clip_level=saturation_level, nominal_depth_mm=nominal_depth_mm)
     return out
+
+
+def _guarded(name: str, fit, *args, **kwargs) -> LightAwareEstimate:
+    """``fit(*args, **kwargs)``, or a ``not_converged`` estimate named ``name`` when the solver
+    refuses the highlight (scipy raises ValueError for residuals that are not finite at the
+    start; a singular or overflowing model raises LinAlgError or FloatingPointError): one
+    highlight's failure is a status, never the frame's."""
+    try:
+        return fit(*args, **kwargs)
+    except (ValueError, np.linalg.LinAlgError, FloatingPointError, OverflowError) as exc:
+        return LightAwareEstimate(name, "not_converged", f"{type(exc).__name__}: {exc}")
 
 
 def _spline_values(vals, uv_local):
