@@ -363,8 +363,10 @@ class RenderedRunner:
                                     quadric="quadric_fit" in self.estimators,
                                     # listed: run on every highlight, for its column and its
                                     # depth's observability (one light included, where the
-                                    # recommendation does not use it)
-                                    cubic="cubic_patch_fit" in self.estimators)
+                                    # recommendation does not use it); else where the
+                                    # recommendation needs it (two lights apart, the plane fit
+                                    # not ok: what `simtest reconstruct --cubic-patch` runs)
+                                    cubic=True if "cubic_patch_fit" in self.estimators else None)
         ok_bps = [(e, np.asarray(e.bp_px, float)) for e in ests
                   if getattr(e, "bp_px", None) is not None]
         # Clipping: pixels at the sensor's full scale (0 for a linear float image).
