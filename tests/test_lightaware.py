@@ -505,10 +505,15 @@ def test_two_light_curved_highlight_is_recommended_the_cubic_patch_and_scored_pe
     one = with_light_aware(img1, reconstruct(img1, SPHERE_K, settings=ReconSettings(
         isovalues=(0.3, 0.5, 0.7))), SPHERE_K, rig1, nominal_depth_mm=20.0, cubic=None)
     assert all("cubic_patch_fit" not in e.light_aware for e in one)
-    # by default the cubic patch is not run at all
+    # by default the cubic patch is not run at all; the progress callback counts every
+    # highlight examined, once, up to the total
+    calls = []
     default = with_light_aware(img, reconstruct(img, SPHERE_K, settings=ReconSettings(
-        isovalues=(0.3, 0.5, 0.7))), SPHERE_K, rig, nominal_depth_mm=20.0)
+        isovalues=(0.3, 0.5, 0.7))), SPHERE_K, rig, nominal_depth_mm=20.0,
+        on_highlight=lambda done, total: calls.append((done, total)))
     assert all("cubic_patch_fit" not in e.light_aware for e in default)
+    n = sum(e.status != "too_small" for e in default)
+    assert calls == [(k, n) for k in range(1, n + 1)]
 
 
 def test_a_fit_the_solver_refuses_is_a_status_not_an_exception(monkeypatch):

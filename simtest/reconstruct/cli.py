@@ -116,7 +116,12 @@ def reconstruct_command(
         estimates = reconstruct(img, camera, settings=settings)
         # the scope's light rig from the camera file ("lights"; none: one light at the camera)
         rig = camera_file.lights
-        estimates = with_light_aware(img, estimates, camera, rig, cubic=None if cubic_patch else False)
+        with Progress(TextColumn("light-aware fits"), BarColumn(), MofNCompleteColumn(),
+                      TimeElapsedColumn(), transient=True) as bar:
+            task = bar.add_task("highlights", total=None)
+            estimates = with_light_aware(
+                img, estimates, camera, rig, cubic=None if cubic_patch else False,
+                on_highlight=lambda done, total: bar.update(task, completed=done, total=total))
         pinhole = isinstance(camera, PinholeCamera)
         doc = estimates_document(
             estimates, K=camera.K if pinhole else None, image=image, image_shape=img.shape,

@@ -247,7 +247,8 @@ def _spline_values(vals, uv_local):
                            mode="mirror")
 
 
-def with_light_aware(image, estimates, camera, rig: LightRig | None, **kwargs) -> list:
+def with_light_aware(image, estimates, camera, rig: LightRig | None, *, on_highlight=None,
+                     **kwargs) -> list:
     """The estimates with their light-aware results attached (``light_aware``).
 
     Nothing is run, and the estimates are returned unchanged, without a rig or with every light at
@@ -264,6 +265,9 @@ def with_light_aware(image, estimates, camera, rig: LightRig | None, **kwargs) -
         Intrinsics K or a camera model.
     rig : LightRig or None
         The scope's lights.
+    on_highlight : callable, optional
+        Called as ``on_highlight(done, total)`` after each highlight's fits (the command line's
+        progress bar: the curved fits take up to seconds per highlight).
     **kwargs
         Passed to :func:`light_aware_estimates`.
 
@@ -274,12 +278,17 @@ def with_light_aware(image, estimates, camera, rig: LightRig | None, **kwargs) -
     if not _offset_rig(rig):
         return list(estimates)
     out = []
+    todo = sum(est.status != "too_small" for est in estimates)
+    done = 0
     for est in estimates:
         if est.status == "too_small":
             out.append(est)
             continue
         out.append(dataclasses.replace(est, light_aware=light_aware_estimates(image, est, camera, rig,
                                                                              **kwargs)))
+        done += 1
+        if on_highlight is not None:
+            on_highlight(done, todo)
     return out
 
 
