@@ -1442,6 +1442,28 @@ def photometric_crb(camera, origin_uv, shape, normal, distance_mm: float, rig: L
 # quadric patch (curved surfaces)
 
 
+def _patch_lobes(d, X, ns, ok, s, rough, rig_arr):
+    """The rig's Phong lobes (N,) seen along rays d (N, 3) on a curved patch: surface points X
+    (N, 3), unit normals ns (N, 3), ``ok`` (N,) where the ray meets it, apex depth s (mm, the
+    inverse-square falloff's reference) and roughness n; 0 where the ray misses or the patch faces
+    away (the image of :func:`_quadric_image` and :func:`_cubic_patch_image`)."""
+    L, w, inv_sq, m = rig_arr
+    nv = -np.einsum("ij,ij->i", ns, d)
+    out = np.zeros(len(d))
+    for j in range(len(w)):
+        tl = L[j] - X
+        r = np.sqrt(np.einsum("ij,ij->i", tl, tl))
+        cb = (2.0 * np.einsum("ij,ij->i", ns, tl) * nv + np.einsum("ij,ij->i", tl, d)) / r
+        pos = cb > 0
+        val = np.where(pos, np.exp(rough * np.log(np.where(pos, cb, 1.0))), 0.0)
+        if inv_sq[j]:
+            val = val * (s / r) ** 2
+        if m[j] > 0:
+            val = val * np.maximum((X[:, 2] - L[j, 2]) / r, 0.0) ** m[j]
+        out += w[j] * val
+    return np.where(ok & (nv > 0), out, 0.0)
+
+
 def _quadric_image(d, b_ray, p, rig_arr, Lm):
     """Specular image (N,) of the quadric patch ``p`` along rays d (see :func:`quadric_fit`).
 
@@ -1449,7 +1471,6 @@ def _quadric_image(d, b_ray, p, rig_arr, Lm):
     ``unit(b_ray + a e1 + b e2)``, its normal the bisector there for the light Lm, the shape
     operator ``kappa / s`` in the apex's tangent basis. Rays that miss the patch give 0.
     """
-    L, w, inv_sq, m = rig_arr
     e1, e2 = plane_basis(b_ray)
     ray0 = unit(b_ray + p[0] * e1 + p[1] * e2)
     s = np.exp(p[2])
@@ -1478,20 +1499,7 @@ def _quadric_image(d, b_ray, p, rig_arr, Lm):
     ns = ((1.0 + kzz * z)[:, None] * N[None, :] + (kxx * x + kxy * y)[:, None] * t1
           + (kxy * x + kyy * y)[:, None] * t2)
     ns /= np.sqrt(np.einsum("ij,ij->i", ns, ns))[:, None]
-    nv = -np.einsum("ij,ij->i", ns, d)
-    out = np.zeros(len(d))
-    for j in range(len(w)):
-        tl = L[j] - X
-        r = np.sqrt(np.einsum("ij,ij->i", tl, tl))
-        cb = (2.0 * np.einsum("ij,ij->i", ns, tl) * nv + np.einsum("ij,ij->i", tl, d)) / r
-        pos = cb > 0
-        val = np.where(pos, np.exp(rough * np.log(np.where(pos, cb, 1.0))), 0.0)
-        if inv_sq[j]:
-            val = val * (s / r) ** 2
-        if m[j] > 0:
-            val = val * np.maximum((X[:, 2] - L[j, 2]) / r, 0.0) ** m[j]
-        out += w[j] * val
-    return np.where(ok & (nv > 0), out, 0.0), N
+    return _patch_lobes(d, X, ns, ok, s, rough, rig_arr), N
 
 
 def quadric_fit(values, origin_uv, bp_uv, camera, rig: LightRig, *,
@@ -1746,23 +1754,9 @@ def _cubic_patch_geometry(d, b_ray, p, Lm):
 
 def _cubic_patch_image(d, b_ray, p, rig_arr, Lm):
     """Specular image (N,) of the cubic patch ``p`` along rays d, and its apex normal (3,)."""
-    L, w, inv_sq, m = rig_arr
     X, ns, ok, N, s, _ = _cubic_patch_geometry(d, b_ray, p, Lm)
     rough = np.exp(p[6])
-    nv = -np.einsum("ij,ij->i", ns, d)
-    out = np.zeros(len(d))
-    for j in range(len(w)):
-        tl = L[j] - X
-        r = np.sqrt(np.einsum("ij,ij->i", tl, tl))
-        cb = (2.0 * np.einsum("ij,ij->i", ns, tl) * nv + np.einsum("ij,ij->i", tl, d)) / r
-        pos = cb > 0
-        val = np.where(pos, np.exp(rough * np.log(np.where(pos, cb, 1.0))), 0.0)
-        if inv_sq[j]:
-            val = val * (s / r) ** 2
-        if m[j] > 0:
-            val = val * np.maximum((X[:, 2] - L[j, 2]) / r, 0.0) ** m[j]
-        out += w[j] * val
-    return np.where(ok & (nv > 0), out, 0.0), N
+    return _patch_lobes(d, X, ns, ok, s, rough, rig_arr), N
 
 
 def _patch_specular_points(b_ray, p, Lm, lights):
