@@ -397,17 +397,24 @@ def test_the_luma_of_a_roi_sliced_from_the_frame_is_the_luma_computed_for_the_ro
         assert np.array_equal(frame.luma(roi), luma(img[roi.slices]))
 
 
+def _lobe_grid(size, n, *, cols, start, step):
+    """An 8-bit gray frame (size, size) of n Gaussian lobes (sigma 7 px, slightly elliptical, peaks
+    180 + 5 k) on a grid of ``cols`` columns from ``start`` (u, v) by ``step`` (du, dv) px, on 20."""
+    v, u = np.mgrid[0:size, 0:size].astype(float)
+    acc = np.full((size, size), 20.0)
+    for k in range(n):
+        cu = start[0] + step[0] * (k % cols) + 0.3 * k
+        cv = start[1] + step[1] * (k // cols) - 0.2 * k
+        acc += (180.0 + 5 * k) * np.exp(-((u - cu) ** 2 + (v - cv) ** 2 * (1 + 0.05 * k)) / (2 * 7.0**2))
+    return np.clip(np.rint(acc), 0, 255).astype(np.uint8)
+
+
 def test_a_frame_with_many_highlights_gives_the_same_estimates_with_the_frame_luma(monkeypatch):
     # 12 highlights, reconstructed with the luma of each ROI and with the frame's luma sliced
 
     size, f = 240, 300.0
     K = intrinsics(f, size)
-    v, u = np.mgrid[0:size, 0:size].astype(float)
-    acc = np.full((size, size), 20.0)
-    for k in range(12):
-        cu, cv = 30.0 + 60.0 * (k % 4) + 0.3 * k, 40.0 + 75.0 * (k // 4) - 0.2 * k
-        acc += (180.0 + 5 * k) * np.exp(-((u - cu) ** 2 + (v - cv) ** 2 * (1 + 0.05 * k)) / (2 * 7.0**2))
-    gray = np.clip(np.rint(acc), 0, 255).astype(np.uint8)
+    gray = _lobe_grid(size, 12, cols=4, start=(30.0, 40.0), step=(60.0, 75.0))
     img = np.dstack([gray, (gray * 0.9).astype(np.uint8), (gray * 0.8).astype(np.uint8)])
 
     def run(threshold):
@@ -448,12 +455,7 @@ def test_a_frame_batched_gives_each_highlight_what_it_gets_alone(model):
     size, f = 240, 300.0
     K = intrinsics(f, size)
     cam = K if model == "pinhole" else FisheyeCamera(K, [0.05, -0.01, 0.0, 0.0])
-    v, u = np.mgrid[0:size, 0:size].astype(float)
-    acc = np.full((size, size), 20.0)
-    for k in range(9):
-        cu, cv = 35.0 + 80.0 * (k % 3) + 0.3 * k, 40.0 + 80.0 * (k // 3) - 0.2 * k
-        acc += (180.0 + 5 * k) * np.exp(-((u - cu) ** 2 + (v - cv) ** 2 * (1 + 0.05 * k)) / (2 * 7.0**2))
-    img = np.clip(np.rint(acc), 0, 255).astype(np.uint8)
+    img = _lobe_grid(size, 9, cols=3, start=(35.0, 40.0), step=(80.0, 80.0))
     opts = dict(normalise="bp", smooth_sigma_px=0.0)
     frame = reconstruct(img, cam, (0.3, 0.5), detection="full_scale", **opts)
     assert sum(e.ok for e in frame) >= 8

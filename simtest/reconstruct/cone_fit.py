@@ -35,7 +35,7 @@ import numpy as np
 
 from simtest.geometry.cameras import CameraModel, PinholeCamera
 from simtest.reconstruct.failures import Failure
-from simtest.reconstruct.fit import EllipseFit, fit_ellipses
+from simtest.reconstruct.fit import EllipseFit, fit_ellipses, point_sets
 
 __all__ = ["ConeFit", "FitFrame", "fit_cone", "fit_cones", "fit_frame", "fit_frames", "rotation_to_z", "rotations_to_z", "to_camera", "to_fit_frame"]
 
@@ -264,12 +264,7 @@ def fit_cones(points_list, frames) -> list[ConeFit | Failure]:
     one batch (:func:`~simtest.reconstruct.fit.fit_ellipses`) and the cones formed in stacked
     matrix products.
     """
-    pts_list = []
-    for p in points_list:
-        p = np.asarray(p, dtype=np.float64)
-        if p.ndim != 2 or p.shape[1] != 2:
-            raise ValueError(f"points_uv must have shape (N, 2), got {p.shape}")
-        pts_list.append(p)
+    pts_list = point_sets(points_list)
     frames = list(frames)
     if len(frames) != len(pts_list):
         raise ValueError(f"{len(pts_list)} contours but {len(frames)} fit frames")

@@ -155,6 +155,32 @@ def fit_ellipse(points_uv) -> EllipseFit | Failure:
     return fit_ellipses([points_uv])[0]
 
 
+def point_sets(points_list) -> list[np.ndarray]:
+    """Point sets as float64 arrays (views where they already are).
+
+    Parameters
+    ----------
+    points_list : sequence of array_like of shape (N_i, 2)
+        Points (u, v), px.
+
+    Returns
+    -------
+    list of ndarray of shape (N_i, 2), float64
+
+    Raises
+    ------
+    ValueError
+        If a set is not of shape (N, 2).
+    """
+    out = []
+    for p in points_list:
+        p = np.asarray(p, dtype=np.float64)
+        if p.ndim != 2 or p.shape[1] != 2:
+            raise ValueError(f"points_uv must have shape (N, 2), got {p.shape}")
+        out.append(p)
+    return out
+
+
 def fit_ellipses(points_list) -> list[EllipseFit | Failure]:
     """Fit one ellipse to each of several point sets, batched (Fitzgibbon; Halir-Flusser form).
 
@@ -187,12 +213,7 @@ def fit_ellipses(points_list) -> list[EllipseFit | Failure]:
     depend on the other sets of the batch beyond rounding (the sums of a set are its own; LAPACK
     runs on each matrix of a stack alone).
     """
-    pts_all = []
-    for p in points_list:
-        p = np.asarray(p, dtype=np.float64)
-        if p.ndim != 2 or p.shape[1] != 2:
-            raise ValueError(f"points_uv must have shape (N, 2), got {p.shape}")
-        pts_all.append(p)
+    pts_all = point_sets(points_list)
     out: list = [None] * len(pts_all)
     todo = []
     for i, p in enumerate(pts_all):
