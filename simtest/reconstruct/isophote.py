@@ -29,6 +29,7 @@ import cv2
 import numpy as np
 from skimage.measure import find_contours
 
+from simtest.reconstruct import _kernels
 from simtest.reconstruct._pixels import Roi, rc_to_uv, uv_to_rc
 from simtest.reconstruct.detect import connected_components
 from simtest.reconstruct.failures import Failure
@@ -195,6 +196,42 @@ def extract_isophote(
     if not float(window.max()) > level:
         return Failure("bp_below_isovalue", f"max near BP {float(window.max()):.6g} <= level {level:.6g}")
 
+    code, pts, inside, sides = _kernels.component_contour(
+        np.ascontiguousarray(sub), float(level), ri, ci, roi.row0, roi.col0, float(bp_uv[0]), float(bp_uv[1]))
+    if code == _kernels.CLOSED:
+        closed_hits, pieces = ([pts] if inside else []), []
+    elif code == _kernels.OPEN:
+        closed_hits, pieces = [], [pts]
+    else:
+        closed_hits, pieces, sides = _contours_numpy(sub, level, roi, ri, ci, bp_uv)
+
+    if closed_hits:
+        uv = min(closed_hits, key=polygon_area) if len(closed_hits) > 1 else closed_hits[0]
+        if len(uv) < min_points:
+            return Failure("too_few_points", f"{len(uv)} contour points < {min_points}")
+        return Isophote(uv, float(level), True, False, False)
+    if not pieces and not any(sides):
+        return Failure("no_contour", f"no contour at level {level:.6g} around BP {bp_uv.tolist()}")
+    rc = np.concatenate(pieces, axis=0) if pieces else np.empty((0, 2))
+    # Which borders the region above the level reaches: ROI sides inside the image, or the image.
+    on_image = [s and b for s, b in zip(sides, roi.touches_image_border(image_shape))]
+    on_roi = [s and not b for s, b in zip(sides, roi.touches_image_border(image_shape))]
+    iso = Isophote(rc_to_uv(rc, roi.row0, roi.col0), float(level), False, any(on_roi), any(on_image))
+    if not allow_open:
+        where = "image border" if iso.cut_by_image else "ROI border"
+        return Failure("contour_cut", f"isophote at level {level:.6g} is cut by the {where}")
+    if len(iso.points_uv) < min_points:
+        return Failure("too_few_points", f"{len(iso.points_uv)} contour points < {min_points}")
+    return iso
+
+
+def _contours_numpy(sub, level, roi, ri, ci, bp_uv):
+    """The contours of :func:`extract_isophote` by numpy, OpenCV and scikit-image calls: the
+    closed ones enclosing the BP as (u, v), the open pieces as (row, col) in ``sub``, and the sides
+    of ``sub`` the BP's component reaches. The reference of
+    :func:`simtest.reconstruct._kernels.component_contour` (the same bits, tested), and its
+    fallback for what that kernel leaves (a pixel exactly at the level, several closed contours,
+    the BP's pixel below the level)."""
     comp = _component_box(sub, level, ri, ci)
     if comp is not None:
         # Only the 4-connected component above the level that holds the BP is contoured, in its
@@ -224,25 +261,7 @@ def extract_isophote(
         pieces, sides = [], (False, False, False, False)
         if not closed_hits:
             pieces, sides = _open_pieces_around_bp(sub, level, ri, ci, open_contours)
-
-    if closed_hits:
-        uv = min(closed_hits, key=polygon_area) if len(closed_hits) > 1 else closed_hits[0]
-        if len(uv) < min_points:
-            return Failure("too_few_points", f"{len(uv)} contour points < {min_points}")
-        return Isophote(uv, float(level), True, False, False)
-    if not pieces and not any(sides):
-        return Failure("no_contour", f"no contour at level {level:.6g} around BP {bp_uv.tolist()}")
-    rc = np.concatenate(pieces, axis=0) if pieces else np.empty((0, 2))
-    # Which borders the region above the level reaches: ROI sides inside the image, or the image.
-    on_image = [s and b for s, b in zip(sides, roi.touches_image_border(image_shape))]
-    on_roi = [s and not b for s, b in zip(sides, roi.touches_image_border(image_shape))]
-    iso = Isophote(rc_to_uv(rc, roi.row0, roi.col0), float(level), False, any(on_roi), any(on_image))
-    if not allow_open:
-        where = "image border" if iso.cut_by_image else "ROI border"
-        return Failure("contour_cut", f"isophote at level {level:.6g} is cut by the {where}")
-    if len(iso.points_uv) < min_points:
-        return Failure("too_few_points", f"{len(iso.points_uv)} contour points < {min_points}")
-    return iso
+    return closed_hits, pieces, sides
 
 
 #: Boxes of at least this many pixels are traced by :func:`_trace_contours`; smaller ones by

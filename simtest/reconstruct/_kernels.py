@@ -1,0 +1,376 @@
+"""Compiled (numba) kernels of the reconstruction's per-highlight hot path.
+
+Each kernel computes, in one compiled call, what a chain of numpy and OpenCV calls computed
+before, with the same floating-point operations in the same order, so its results are the same
+bits (``tests/test_kernels.py`` compares them with the numpy forms, which stay in the code as the
+reference and the fallback). A real frame has hundreds of highlights, each a few hundred pixels:
+there the fixed cost of each numpy call, not the arithmetic, was the time.
+
+Kernels
+-------
+- :func:`component_contour`: the isophote of :func:`~simtest.reconstruct.isophote.extract_isophote`
+  in the common cases, i.e. the flood fill of the brightest point's 4-connected component above
+  the level, its box with the other components lowered and its holes raised, the marching-squares
+  contour of that box in ``skimage.measure.find_contours``' order, and the even-odd test of the
+  BP against it.
+- :func:`border_median`: the median of a region's border pixels (``normalise="local"``).
+
+Notes
+-----
+Compiled with ``cache=True``: the first call in a fresh environment compiles (about a second
+each) and writes the machine code beside this file, or in numba's user cache when the package
+folder is read-only; later processes load it. numba does not contract ``a * b + c`` into a fused
+multiply-add unless ``fastmath`` is set (it is not here), so the arithmetic rounds as numpy's.
+"""
+
+from __future__ import annotations
+
+import numba
+import numpy as np
+
+# Marching-squares segments per case, as in simtest.reconstruct.isophote (and
+# skimage.measure.find_contours with fully_connected="low"): for case bits 1 upper-left,
+# 2 upper-right, 4 lower-left, 8 lower-right above the level, the edges (0 top, 1 bottom, 2 left,
+# 3 right) of the first and second segment; -1 none. Only the saddles 6 and 9 have a second.
+_SEG_FROM = np.array([[-1, 0, 3, 3, 2, 0, 3, 3, 1, 0, 1, 1, 2, 0, 2, -1],
+                      [-1, -1, -1, -1, -1, -1, 2, -1, -1, 1, -1, -1, -1, -1, -1, -1]], dtype=np.int64)
+_SEG_TO = np.array([[-1, 2, 0, 2, 1, 1, 0, 1, 3, 2, 0, 2, 3, 3, 0, -1],
+                    [-1, -1, -1, -1, -1, -1, 1, -1, -1, 3, -1, -1, -1, -1, -1, -1]], dtype=np.int64)
+
+#: :func:`component_contour` result codes.
+NOT_ABOVE = 0  #: the BP's pixel is not above the level (the caller contours the whole region)
+CLOSED = 1  #: one closed contour, as (u, v) in the full image
+OPEN = 2  #: only open contours, concatenated, as (row, col) in the region
+FALLBACK = 3  #: anything else: the caller takes the numpy path
+
+_EMPTY = np.empty((0, 2), dtype=np.float64)
+
+
+@numba.njit(cache=True, nogil=True)
+def _flood4(sub, level, ri, ci):
+    """4-connected flood fill of the pixels of ``sub`` above ``level`` from (ri, ci), as
+    ``cv2.floodFill`` of the mask ``sub > level``: the filled pixels (uint8 1, else 0) and their
+    bounding box (x, y, w, h). Only the filled pixels and their 4-neighbours are read."""
+    H, W = sub.shape
+    filled = np.zeros((H, W), dtype=np.uint8)
+    stack = np.empty(64, dtype=np.int64)
+    top = 0
+    filled[ri, ci] = 1
+    stack[top] = ri * W + ci
+    top += 1
+    r0, r1, c0, c1 = ri, ri, ci, ci
+    while top > 0:
+        top -= 1
+        p = stack[top]
+        r, c = p // W, p % W
+        r0, r1, c0, c1 = min(r0, r), max(r1, r), min(c0, c), max(c1, c)
+        if top + 4 > len(stack):
+            grown = np.empty(2 * len(stack), dtype=np.int64)
+            grown[:top] = stack[:top]
+            stack = grown
+        if r > 0 and not filled[r - 1, c] and sub[r - 1, c] > level:
+            filled[r - 1, c] = 1
+            stack[top] = p - W
+            top += 1
+        if r < H - 1 and not filled[r + 1, c] and sub[r + 1, c] > level:
+            filled[r + 1, c] = 1
+            stack[top] = p + W
+            top += 1
+        if c > 0 and not filled[r, c - 1] and sub[r, c - 1] > level:
+            filled[r, c - 1] = 1
+            stack[top] = p - 1
+            top += 1
+        if c < W - 1 and not filled[r, c + 1] and sub[r, c + 1] > level:
+            filled[r, c + 1] = 1
+            stack[top] = p + 1
+            top += 1
+    return filled, c0, r0, c1 - c0 + 1, r1 - r0 + 1
+
+
+@numba.njit(cache=True, nogil=True)
+def _raise_holes(box, lab, high):
+    """Set to ``high`` every pixel of ``box`` outside the component (``lab != 2``) that no
+    8-path outside the component joins to the box edge (a hole)."""
+    H, W = lab.shape
+    seen = np.zeros((H, W), dtype=np.uint8)
+    stack = np.empty(H * W, dtype=np.int64)
+    top = 0
+    for r in range(H):
+        for c in range(W):
+            if (r == 0 or r == H - 1 or c == 0 or c == W - 1) and lab[r, c] != 2 and not seen[r, c]:
+                seen[r, c] = 1
+                stack[top] = r * W + c
+                top += 1
+    while top > 0:
+        top -= 1
+        p = stack[top]
+        r, c = p // W, p % W
+        for dr in range(-1, 2):
+            rr = r + dr
+            if rr < 0 or rr >= H:
+                continue
+            for dc in range(-1, 2):
+                cc = c + dc
+                if cc < 0 or cc >= W or seen[rr, cc] or lab[rr, cc] == 2:
+                    continue
+                seen[rr, cc] = 1
+                stack[top] = rr * W + cc
+                top += 1
+    for r in range(H):
+        for c in range(W):
+            if lab[r, c] != 2 and not seen[r, c]:
+                box[r, c] = high
+
+
+@numba.njit(cache=True, nogil=True)
+def _edge_points(box, level, edges, row_add, col_add):
+    """The marching-squares point on each pixel edge id (horizontal ``r W + c``, vertical
+    ``H W + r W + c``): ``r0 + (level - a) / (b - a)`` along the edge, ``a`` the upper or left
+    pixel (skimage's interpolation), as (row + row_add, col + col_add)."""
+    H, W = box.shape
+    hw = H * W
+    out = np.empty((len(edges), 2), dtype=np.float64)
+    for i in range(len(edges)):
+        e = edges[i]
+        vertical = e >= hw
+        if vertical:
+            e -= hw
+        er, ec = e // W, e % W
+        a = box[er, ec]
+        if vertical:
+            frac = (level - a) / (box[er + 1, ec] - a)
+            out[i, 0] = (er + frac) + row_add
+            out[i, 1] = (ec + 0.0) + col_add
+        else:
+            frac = (level - a) / (box[er, ec + 1] - a)
+            out[i, 0] = (er + 0.0) + row_add
+            out[i, 1] = (ec + frac) + col_add
+    return out
+
+
+@numba.njit(cache=True, nogil=True, inline="always")
+def _case(box, level, r, c):
+    """Marching-squares case of square (r, c): bit 1 upper-left, 2 upper-right, 4 lower-left,
+    8 lower-right pixel above the level."""
+    return ((1 if box[r, c] > level else 0) | (2 if box[r, c + 1] > level else 0)
+            | (4 if box[r + 1, c] > level else 0) | (8 if box[r + 1, c + 1] > level else 0))
+
+
+@numba.njit(cache=True, nogil=True)
+def _trace(box, level):
+    """The marching-squares contours of ``box`` at ``level`` in ``find_contours``' order, when
+    they are one closed contour or only open ones: ``(code, edge ids)``, the closed contour's
+    start edges without its repeated end, or the open contours' start edges each followed by its
+    end edge; ``FALLBACK`` for anything else (no crossing, several closed contours, a closed
+    contour beside open ones)."""
+    H, W = box.shape
+    hw = H * W
+    n = 0
+    for r in range(H - 1):
+        for c in range(W - 1):
+            cs = _case(box, level, r, c)
+            if _SEG_FROM[0, cs] >= 0:
+                n += 1
+                if _SEG_FROM[1, cs] >= 0:
+                    n += 1
+    if n == 0:
+        return FALLBACK, np.empty(0, dtype=np.int64)
+    f_edge = np.empty(n, dtype=np.int64)
+    t_edge = np.empty(n, dtype=np.int64)
+    s = 0
+    for r in range(H - 1):
+        for c in range(W - 1):
+            cs = _case(box, level, r, c)
+            base = r * W + c
+            for k in range(2):
+                fe = _SEG_FROM[k, cs]
+                if fe < 0:
+                    break
+                te = _SEG_TO[k, cs]
+                # top, bottom, left, right of square (r, c)
+                f_edge[s] = base + (0 if fe == 0 else W if fe == 1 else hw if fe == 2 else hw + 1)
+                t_edge[s] = base + (0 if te == 0 else W if te == 1 else hw if te == 2 else hw + 1)
+                s += 1
+    start = np.full(2 * hw, -1, dtype=np.int64)
+    for i in range(n):
+        start[f_edge[i]] = i
+    nxt = np.empty(n, dtype=np.int64)
+    n_end = 0
+    for i in range(n):
+        nxt[i] = start[t_edge[i]]
+        if nxt[i] < 0:
+            n_end += 1
+    if n_end == 0:
+        # closed: one cycle through every segment, starting after the last one in raster order
+        out = np.empty(n, dtype=np.int64)
+        j = nxt[n - 1]
+        for i in range(n):
+            out[i] = f_edge[j]
+            if i < n - 1 and j == n - 1:
+                return FALLBACK, out[:0]  # a shorter cycle: several closed contours
+            j = nxt[j]
+        return CLOSED, out
+    # open: each contour from its segment without a predecessor to the one without a successor,
+    # the contours in the order of their first segment in raster order
+    has_pred = np.zeros(n, dtype=np.bool_)
+    for i in range(n):
+        if nxt[i] >= 0:
+            has_pred[nxt[i]] = True
+    starts = np.empty(n_end, dtype=np.int64)
+    firsts = np.empty(n_end, dtype=np.int64)
+    m = 0
+    visited = 0
+    for i in range(n):
+        if not has_pred[i]:
+            if m == n_end:
+                return FALLBACK, np.empty(0, dtype=np.int64)
+            lo = i
+            j = i
+            while j >= 0:
+                visited += 1
+                if visited > n:
+                    return FALLBACK, np.empty(0, dtype=np.int64)
+                if j < lo:
+                    lo = j
+                j = nxt[j]
+            starts[m] = i
+            firsts[m] = lo
+            m += 1
+    if visited != n or m != n_end:
+        return FALLBACK, np.empty(0, dtype=np.int64)  # a closed contour beside the open ones
+    order = np.argsort(firsts, kind="mergesort")
+    out = np.empty(n + m, dtype=np.int64)
+    p = 0
+    for o in order:
+        j = starts[o]
+        while True:
+            out[p] = f_edge[j]
+            p += 1
+            if nxt[j] < 0:
+                out[p] = t_edge[j]
+                p += 1
+                break
+            j = nxt[j]
+    return OPEN, out
+
+
+@numba.njit(cache=True, nogil=True)
+def _inside(poly, px, py):
+    """Even-odd test of the point (px, py) against the closed polygon ``poly`` (N, 2), as
+    :func:`simtest.reconstruct.isophote.polygon_contains`."""
+    n = len(poly)
+    count = 0
+    for i in range(n):
+        x, y = poly[i, 0], poly[i, 1]
+        j = i + 1 if i + 1 < n else 0
+        x2, y2 = poly[j, 0], poly[j, 1]
+        if (y > py) != (y2 > py):
+            if px < x + (py - y) * (x2 - x) / (y2 - y):
+                count += 1
+    return count % 2 == 1
+
+
+@numba.njit(cache=True, nogil=True)
+def component_contour(sub, level, ri, ci, row0, col0, bp_u, bp_v):
+    """The isophote of the 4-connected component of ``sub > level`` holding pixel (ri, ci).
+
+    Parameters
+    ----------
+    sub : ndarray of shape (h, w), float64
+        The region's intensities (C-contiguous).
+    level : float
+        Contour level, image units.
+    ri, ci : int
+        The BP's pixel (row, col) in ``sub``.
+    row0, col0 : int
+        Position of ``sub[0, 0]`` in the full image.
+    bp_u, bp_v : float
+        The BP (u, v), full-image px.
+
+    Returns
+    -------
+    code : int
+        :data:`NOT_ABOVE`, :data:`CLOSED`, :data:`OPEN` or :data:`FALLBACK`.
+    points : ndarray of shape (N, 2), float64
+        ``CLOSED``: the contour (u, v) in the full image, without its repeated end point.
+        ``OPEN``: the open contours concatenated, (row, col) in ``sub``. Else empty.
+    inside : bool
+        ``CLOSED``: whether the contour encloses the BP (even-odd rule).
+    sides : (bool, bool, bool, bool)
+        Which sides (top, bottom, left, right) of ``sub`` the component reaches.
+
+    Notes
+    -----
+    The steps and their numpy forms in :mod:`simtest.reconstruct.isophote`: the flood fill and
+    box of ``_component_box`` (the other components' pixels set to ``level - 1``, the holes to
+    ``level + 1``), the contour of ``_trace_contours`` (``FALLBACK`` where it returns None: a
+    pixel of the box exactly at the level or not finite, no crossing, several closed contours,
+    closed and open ones) and ``polygon_contains``.
+    """
+    H, W = sub.shape
+    no_sides = (False, False, False, False)
+    if not sub[ri, ci] > level:
+        return NOT_ABOVE, _EMPTY, False, no_sides
+    filled, x, y, w, h = _flood4(sub, level, ri, ci)
+    sides = (y == 0, y + h == H, x == 0, x + w == W)
+    r0, r1 = max(y - 1, 0), min(y + h + 1, H)
+    c0, c1 = max(x - 1, 0), min(x + w + 1, W)
+    box = sub[r0:r1, c0:c1].copy()
+    # 2: the component; 1: another component's pixel above the level (lowered); 0: below
+    lab = np.empty((r1 - r0, c1 - c0), dtype=np.uint8)
+    low, high = level - 1.0, level + 1.0
+    for r in range(r1 - r0):
+        for c in range(c1 - c0):
+            if filled[r0 + r, c0 + c]:
+                lab[r, c] = 2
+            elif box[r, c] > level:
+                lab[r, c] = 1
+                box[r, c] = low
+            else:
+                lab[r, c] = 0
+    _raise_holes(box, lab, high)
+    for r in range(r1 - r0):
+        for c in range(c1 - c0):
+            v = box[r, c]
+            if v == level or not np.isfinite(v):
+                return FALLBACK, _EMPTY, False, sides
+    code, edges = _trace(box, level)
+    if code == CLOSED:
+        # rc_to_uv(rc, row0 + r0, col0 + c0): (col + (col0 + c0), row + (row0 + r0))
+        rc = _edge_points(box, level, edges, 0.0, 0.0)
+        uv = np.empty_like(rc)
+        cu, rv = float(col0 + c0), float(row0 + r0)
+        for i in range(len(rc)):
+            uv[i, 0] = rc[i, 1] + cu
+            uv[i, 1] = rc[i, 0] + rv
+        return CLOSED, uv, _inside(uv, bp_u, bp_v), sides
+    if code == OPEN:
+        return OPEN, _edge_points(box, level, edges, float(r0), float(c0)), False, sides
+    return FALLBACK, _EMPTY, False, sides
+
+
+@numba.njit(cache=True, nogil=True)
+def border_median(vals):
+    """Median of the border pixels of ``vals`` (h, w), h, w >= 2, as ``np.median`` of
+    ``np.concatenate([vals[0], vals[-1], vals[1:-1, 0], vals[1:-1, -1]])``: the middle value, or
+    the mean of the two middle values for an even count (NaN if any is NaN)."""
+    H, W = vals.shape
+    ring = np.empty(2 * W + 2 * (H - 2), dtype=np.float64)
+    k = 0
+    for c in range(W):
+        ring[k] = vals[0, c]
+        ring[k + W] = vals[H - 1, c]
+        k += 1
+    k = 2 * W
+    for r in range(1, H - 1):
+        ring[k] = vals[r, 0]
+        ring[k + H - 2] = vals[r, W - 1]
+        k += 1
+    for v in ring:
+        if np.isnan(v):
+            return np.nan
+    ring.sort()
+    n = len(ring)
+    if n % 2:
+        return ring[n // 2]
+    return (ring[n // 2 - 1] + ring[n // 2]) / 2.0

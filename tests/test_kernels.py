@@ -1,0 +1,123 @@
+"""The compiled kernels (simtest.reconstruct._kernels) give the bits of the numpy forms they replace.
+
+The numpy forms stay in the code as the reference and the fallback; each test runs both on random
+inputs that reach every branch (closed, open, declined) and compares them bit for bit.
+"""
+
+from __future__ import annotations
+
+from unittest import mock
+
+import numpy as np
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from simtest.reconstruct import _kernels
+from simtest.reconstruct.isophote import Isophote, extract_isophote
+
+
+def _extract_both(*args, **kwargs):
+    """extract_isophote as it runs, and with the kernel declining every case (its numpy path)."""
+    got = extract_isophote(*args, **kwargs)
+    with mock.patch.object(_kernels, "component_contour",
+                           lambda *a: (_kernels.FALLBACK, _kernels._EMPTY, False, (False,) * 4)):
+        want = extract_isophote(*args, **kwargs)
+    return got, want
+
+
+def _same(a, b) -> bool:
+    if type(a) is not type(b):
+        return False
+    if isinstance(a, Isophote):
+        return ((a.closed, a.cut_by_roi, a.cut_by_image, a.level) == (b.closed, b.cut_by_roi, b.cut_by_image, b.level)
+                and a.points_uv.shape == b.points_uv.shape
+                and a.points_uv.tobytes() == b.points_uv.tobytes())
+    return (a.reason, a.detail) == (b.reason, b.detail)
+
+
+def _random_region(rng):
+    """A region with one elliptic lobe, noise or quantisation (pixels exactly at a level), a hole
+    (a ring) or none, a BP at the peak or anywhere, and a level from near 0 to the peak."""
+    h, w = (int(v) for v in rng.integers(5, 60, 2))
+    yy, xx = np.mgrid[0:h, 0:w]
+    cy, cx, s = rng.uniform(0, h - 1), rng.uniform(0, w - 1), rng.uniform(1, 15)
+    img = np.exp(-((yy - cy) ** 2 / (2 * s**2) + (xx - cx) ** 2 / (2 * (s * rng.uniform(0.5, 2)) ** 2)))
+    img += rng.normal(0, rng.choice([0.0, 0.01, 0.05, 0.2]), img.shape)
+    if rng.random() < 0.3:
+        img = np.round(img * 20) / 20
+    if rng.random() < 0.2:
+        img -= 0.8 * np.exp(-((yy - cy) ** 2 + (xx - cx) ** 2) / (2 * (s / 3) ** 2))
+    r, c = np.unravel_index(np.argmax(img), img.shape)
+    if rng.random() < 0.3:
+        r, c = rng.integers(0, h), rng.integers(0, w)
+    level = float(img[r, c] * rng.uniform(0.05, 1.0))
+    if rng.random() < 0.1:
+        level = float(np.round(img[r, c] * 10) / 20)
+    off = (int(rng.integers(0, 50)), int(rng.integers(0, 50)))
+    shape = (off[0] + h + int(rng.integers(0, 3)), off[1] + w + int(rng.integers(0, 3)))
+    bp = np.array([c + rng.uniform(-0.5, 0.5) + off[1], r + rng.uniform(-0.5, 0.5) + off[0]])
+    return img, level, bp, off, shape
+
+
+@given(seed=st.integers(0, 2**32 - 1))
+@settings(max_examples=300, deadline=None)
+def test_extract_isophote_gives_the_numpy_paths_bits(seed):
+    img, level, bp, off, shape = _random_region(np.random.default_rng(seed))
+    try:
+        got, want = _extract_both(img, level, bp, origin_rc=off, image_shape=shape,
+                                  allow_open=True, min_points=0)
+    except ValueError:  # a BP rounded outside the region: both raise before the kernel
+        return
+    assert _same(got, want)
+
+
+def test_every_kernel_branch_is_reached_by_the_random_regions():
+    # the property test above means something only if its inputs reach each branch
+    rng = np.random.default_rng(0)
+    codes = set()
+    for _ in range(400):
+        img, level, bp, off, _ = _random_region(rng)
+        ri, ci = int(round(bp[1] - off[0])), int(round(bp[0] - off[1]))
+        if 0 <= ri < img.shape[0] and 0 <= ci < img.shape[1]:
+            codes.add(_kernels.component_contour(img, level, ri, ci, off[0], off[1], bp[0], bp[1])[0])
+    assert codes == {_kernels.NOT_ABOVE, _kernels.CLOSED, _kernels.OPEN, _kernels.FALLBACK}
+
+
+def test_a_ring_a_neighbour_and_a_cut_highlight():
+    # the exact cases the box construction is for: a hole raised, another component lowered, and
+    # a component reaching two sides of the region (open contours in find_contours' order)
+    img = np.zeros((30, 40))
+    img[5:20, 5:20] = 1.0
+    img[10:14, 10:14] = 0.0  # a hole
+    img[5:9, 21:25] = 1.0  # touches the highlight at a corner only: another component
+    got, want = _extract_both(img, 0.5, (12.0, 7.0), allow_open=True)
+    assert got.closed and _same(got, want)
+    img = np.zeros((30, 40))
+    img[0:12, 25:40] = 1.0
+    got, want = _extract_both(img, 0.5, (30.0, 5.0), allow_open=True)
+    assert not got.closed and got.cut_by_image and _same(got, want)
+
+
+@given(seed=st.integers(0, 2**32 - 1), h=st.integers(2, 40), w=st.integers(2, 40),
+       quantised=st.booleans(), layout=st.sampled_from(["C", "F", "view"]))
+@settings(max_examples=200, deadline=None)
+def test_border_median_is_numpys_median_of_the_ring(seed, h, w, quantised, layout):
+    rng = np.random.default_rng(seed)
+    v = rng.normal(size=(h, w))
+    if quantised:  # repeated values: the even-count mean of two equal middles
+        v = np.round(v * 3)
+    if layout == "F":
+        v = np.asfortranarray(v)
+    elif layout == "view":
+        v = np.pad(v, 2)[2:-2, 2:-2]
+    ring = np.concatenate([v[0], v[-1], v[1:-1, 0], v[1:-1, -1]])
+    # equal in value; a zero may come back as -0.0 where numpy's selection took +0.0 (or the
+    # reverse): the levels offset + t * scale and i_bp - offset computed from it are the same bits
+    assert float(_kernels.border_median(v)) == float(np.median(ring))
+
+
+def test_border_median_of_a_nan_is_nan():
+    v = np.ones((5, 6))
+    v[0, 2] = np.nan
+    assert np.isnan(_kernels.border_median(v))
+    assert np.isnan(np.median(np.concatenate([v[0], v[-1], v[1:-1, 0], v[1:-1, -1]])))
