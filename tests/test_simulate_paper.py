@@ -84,6 +84,26 @@ def test_noise_has_the_requested_sigma():
     assert np.std(resid) == pytest.approx(0.05, rel=0.02)
 
 
+def test_the_image_is_the_papers_formula_in_float32_bit_for_bit():
+    # sample() forms the image in place; it must be the written formula, (clean + sigma * noise)
+    # smoothed, over its value at the BP, each step in float32, from the same random stream
+    import cv2
+
+    from simtest.simulate.paper import _bilinear
+
+    p = PaperParams(sigma=0.05, smoothing_px=2.0, epsilon_px=100.0)
+    sim = PaperSimulator(p)
+    s = sim.sample(np.random.default_rng(11))
+    rng = np.random.default_rng(11)
+    sim.light(rng)  # the light draw comes first
+    clean = sim._render_clean(s.light_px)[0]
+    assert clean.dtype == np.float32
+    want = clean + np.float32(p.sigma) * rng.standard_normal(clean.shape, dtype=np.float32)
+    want = cv2.GaussianBlur(want, (0, 0), sigmaX=2.0, sigmaY=2.0, borderType=cv2.BORDER_REFLECT)
+    want = want / np.float32(_bilinear(want, s.bp_px))
+    assert want.dtype == s.image.dtype and want.tobytes() == s.image.tobytes()
+
+
 def test_fronto_noiseless_gives_zero_error():
     """theta = 0, sigma = 0: the camera is the viewer (co-located), the isophote is a circle
     centred at the BP, and the image is symmetric under the pixel grid's quarter turns about
