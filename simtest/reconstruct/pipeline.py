@@ -719,8 +719,18 @@ def reconstruct_roi(
     return _complete([_roi_draft(image, K, bp_uv, roi, dist_coeffs, settings)])[0]
 
 
-def _roi_draft(image, K, bp_uv, roi, dist_coeffs, settings: ReconSettings):
-    """Phase one of :func:`reconstruct_roi` (checks, BP, isophotes) for :func:`_complete`."""
+def _roi_draft(image, K, bp_uv, roi, dist_coeffs, settings: ReconSettings, cameras: dict | None = None):
+    """Phase one of :func:`reconstruct_roi` (checks, BP, isophotes) for :func:`_complete`.
+
+    ``cameras``: pinhole cameras already built, by the bytes of their K (a batch whose items share
+    one K builds and validates it once; the same camera, the same results)."""
+    if cameras is not None and dist_coeffs is None and not isinstance(K, CameraModel):
+        k = np.asarray(K)
+        if k.shape == (3, 3) and k.dtype.kind in "fiu":
+            key = k.astype(np.float64).tobytes()
+            if key not in cameras:
+                cameras[key] = as_camera(K)
+            K = cameras[key]
     frame = _Frame.make(image, K, dist_coeffs, settings)
     img = frame.img
     roi = Roi(0, img.shape[0], 0, img.shape[1]) if roi is None else Roi.coerce(roi, img.shape)
@@ -776,7 +786,8 @@ def reconstruct_rois(items, isovalues: float | Sequence[float] | None = None, *,
     realisations through here).
     """
     settings = ReconSettings.make(settings, isovalues, **options)
-    return _complete([_roi_draft(image, K, bp_uv, roi, None, settings) for image, K, bp_uv, roi in items])
+    cameras: dict = {}
+    return _complete([_roi_draft(image, K, bp_uv, roi, None, settings, cameras) for image, K, bp_uv, roi in items])
 
 
 def reconstruct(
