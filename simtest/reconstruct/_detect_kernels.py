@@ -176,35 +176,30 @@ def examine_candidates(gray, labels, comps, clipped, scope, levels, min_area_px,
     stack = np.empty(64, dtype=np.int64)
     for k in range(m):
         cid, x, y, bw, bh, area = comps[k, 0], comps[k, 1], comps[k, 2], comps[k, 3], comps[k, 4], comps[k, 5]
-        # np.where(comp, box, box.min()) and its argmax
+        # np.where(comp, box, box.min()) and its argmax, in one pass: the first maximum of the
+        # component, unless that maximum is the box minimum (every value the same: the argmax
+        # is the box's first pixel); and whether the component has clipped pixels
         mn = gray[y, x]
-        for r in range(y, y + bh):
-            for c in range(x, x + bw):
-                if gray[r, c] < mn:
-                    mn = gray[r, c]
-        best = gray[y, x] if labels[y, x] == cid else mn
-        pr, pc = 0, 0
+        best = mn
+        pr, pc = -1, -1
+        sat = False
         for r in range(bh):
             for c in range(bw):
-                v = gray[y + r, x + c] if labels[y + r, x + c] == cid else mn
-                if v > best:
-                    best = v
-                    pr, pc = r, c
-        if labels[y + pr, x + pc] != cid:
+                v = gray[y + r, x + c]
+                if v < mn:
+                    mn = v
+                if labels[y + r, x + c] == cid:
+                    if pr < 0 or v > best:
+                        best = v
+                        pr, pc = r, c
+                    if has_clipped and clipped[y + r, x + c]:
+                        sat = True
+        if best == mn:
+            pr, pc = 0, 0
+            best = gray[y, x]
+        if labels[y + pr, x + pc] != cid or sat:
             ints[k, STATUS] = FALLBACK
             continue
-        if has_clipped:
-            sat = False
-            for r in range(y, y + bh):
-                for c in range(x, x + bw):
-                    if clipped[r, c] and labels[r, c] == cid:
-                        sat = True
-                        break
-                if sat:
-                    break
-            if sat:
-                ints[k, STATUS] = FALLBACK
-                continue
         peak = np.float64(best)
         # peak_uv: a flat top (another pixel of the component at the peak within the 3 x 3
         # neighbourhood) gives the centroid of its 8-connected piece, else the parabola

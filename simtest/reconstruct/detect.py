@@ -115,7 +115,10 @@ def mask_labels(mask: np.ndarray) -> tuple[int, np.ndarray, np.ndarray]:
     -----
     The labels, boxes and order of :func:`connected_components_with_stats` over the whole mask
     (and of :func:`mask_components`), from its bands (see there): a mask whose bright pixels fill
-    a few runs of rows is labelled in those alone, the label image outside them is never written.
+    a few runs of rows is labelled in those alone, the label image outside them is never written
+    (1.3 ms against 3 ms for one pass over a 1350 x 1080 frame with ten highlights). Where the
+    bands hold more than half the rows, one pass over the whole mask is cheaper (3.9 ms against
+    5.3 ms on the bench's colonoscope frame) and is taken.
     """
     h, w = mask.shape
     nz = np.flatnonzero(mask.max(axis=1))
@@ -123,6 +126,10 @@ def mask_labels(mask: np.ndarray) -> tuple[int, np.ndarray, np.ndarray]:
         return 0, np.zeros((h, w), np.int32), np.zeros((0, 5), np.int32)
     gaps = np.flatnonzero(np.diff(nz) > 1)
     starts, ends = np.r_[nz[0], nz[gaps + 1]], np.r_[nz[gaps], nz[-1]] + 1
+    if 2 * int((ends - starts).sum()) > h:
+        # bands over most rows: one pass costs less than theirs and the copies
+        n, labels, stats, _ = connected_components_with_stats(mask)
+        return n - 1, labels, stats[1:]
     labels = None
     parts = []
     n = 0
