@@ -748,6 +748,14 @@ def detect_specularities(
     ------
     ValueError
         For a bad image (see :func:`validate_image`) or bad options.
+
+    Notes
+    -----
+    The candidates are examined by one compiled call over the frame's label image
+    (:func:`simtest.reconstruct._detect_kernels.examine_candidates`, on uint8, uint16, float32
+    and float64 intensities), with the same bits as the numpy form (``_candidates_numpy``, kept
+    as the reference and the fallback, tested against it): clipped candidates, whose BP needs
+    OpenCV's morphology, go through the numpy form one by one.
     """
 
     img = validate_image(image)
