@@ -1,0 +1,316 @@
+"""Compiled (numba) kernels of specularity detection (:mod:`simtest.reconstruct.detect`).
+
+:func:`examine_candidates` does, for every candidate highlight of a frame in one compiled call,
+what the per-candidate loop of ``detect_specularities`` does with a dozen numpy calls: the
+brightest pixel, the sub-pixel brightest point (BP, the parabola of ``refine_peak_uv`` or the
+centroid of the flat top of ``peak_uv``), the rejection status and the region of interest of
+``Roi.around``, with the same floating-point operations in the same order, so the results are the
+same bits (``tests/test_detect_kernels.py`` compares whole detections with the numpy form, which
+stays in ``detect.py`` as the reference and the fallback). A frame has up to a thousand
+candidates of a few pixels each: there the fixed cost of each numpy call was the time.
+
+Kernels
+-------
+- :func:`paste_labels`: a band's component labels into the frame's label image.
+- :func:`examine_candidates`: BP, peak, status and ROI of every candidate.
+
+Notes
+-----
+Compiled with ``cache=True`` (see :mod:`simtest.reconstruct._kernels`): one compilation per
+intensity dtype (uint8, uint16, float32, float64) on the first call in a fresh environment. numba
+does not contract ``a * b + c`` into a fused multiply-add without ``fastmath`` (not set here).
+"""
+
+from __future__ import annotations
+
+import numba
+import numpy as np
+
+#: :func:`examine_candidates` status codes (column ``STATUS`` of its integer result).
+FALLBACK = -1  #: the numpy path examines this candidate (clipped pixels; a brightest pixel outside it)
+OK = 0  #: accepted
+TOO_SMALL = 1  #: ``too_small``
+TOUCHES_BORDER = 2  #: ``touches_border``
+BLACK_BORDER = 3  #: ``black_border``
+NOT_ELLIPTICAL = 4  #: ``not_elliptical``, certainly (see :func:`examine_candidates`)
+ELLIPTICITY_UNSURE = 5  #: the ellipticity is too close to a bound: numpy's value decides
+
+#: Columns of the integer result: status, brightest pixel (row, col) in the bounding box, ROI.
+STATUS, PEAK_ROW, PEAK_COL, ROI_ROW0, ROI_ROW1, ROI_COL0, ROI_COL1 = range(7)
+#: Columns of the float result: BP (u, v), peak, level, ellipticity and its relative tolerance.
+BP_U, BP_V, PEAK, LEVEL, ELLIPTICITY, ELLIPTICITY_TOL = range(6)
+
+_EPS = np.finfo(np.float64).eps
+
+
+@numba.njit(cache=True, nogil=True)
+def paste_labels(dst, lab, offset):
+    """Copy the component labels ``lab`` (0: background) into ``dst`` shifted by ``offset``.
+
+    Parameters
+    ----------
+    dst : ndarray of shape (h, w), int32
+        The frame's label image over the band (a view); its background is left as it is.
+    lab : ndarray of shape (h, w), int32
+        The band's labels.
+    offset : int
+        Components before this band.
+    """
+    h, w = lab.shape
+    for r in range(h):
+        for c in range(w):
+            v = lab[r, c]
+            if v != 0:
+                dst[r, c] = v + offset
+
+
+@numba.njit(cache=True, nogil=True)
+def _ellipticity(labels, cid, x, y, bw, bh):
+    """``ellipticity`` of component ``cid`` in its box, and a bound on its relative difference
+    from numpy's value: ``(e, tol)``; ``tol`` is NaN where the determinant is not positive.
+
+    The same operations as ``detect.ellipticity`` but for the sums of the covariance, which numpy
+    leaves to BLAS (its summation order is not ours). Each of the two computed sums of squares
+    or products of ``n`` centred coordinates is within ``(n + 2) eps`` (relative; ``(n + 2) eps
+    sqrt(a c)`` for the cross term) of the exact one, so each determinant is within
+    ``4 (n + 4) eps A C`` of the exact (``A``, ``C`` the diagonal with the pixel's 1/12), and
+    ``e``, which goes as its inverse square root, within half that relative to ``det``; the two
+    values differ by at most the sum. ``tol`` is four times that, and at least 1e-9.
+    """
+    n = 0
+    sr = 0
+    sc = 0
+    for r in range(bh):
+        for c in range(bw):
+            if labels[y + r, x + c] == cid:
+                n += 1
+                sr += r
+                sc += c
+    mr = sr / n
+    mc = sc / n
+    srr = 0.0
+    scc = 0.0
+    src = 0.0
+    for r in range(bh):
+        dr = r - mr
+        for c in range(bw):
+            if labels[y + r, x + c] == cid:
+                dc = c - mc
+                srr += dr * dr
+                scc += dc * dc
+                src += dr * dc
+    inv = 1.0 / n  # np.true_divide(1, n), as numpy scales the covariance
+    a = srr * inv + 1 / 12
+    cc = scc * inv + 1 / 12
+    b = src * inv
+    det = a * cc - b**2
+    if not det > 0:
+        return np.nan, np.nan
+    e = n / (4 * np.pi * np.sqrt(det))
+    tol = max(1e-9, 16.0 * (n + 4) * _EPS * (a * cc) / det)
+    return e, tol
+
+
+@numba.njit(cache=True, nogil=True)
+def examine_candidates(gray, labels, comps, clipped, scope, levels, min_area_px, ellipticity_min,
+                       ellipticity_max, roi_scale, roi_margin_px, peak_rel):
+    """Brightest pixel, BP, peak, status, ROI and level of every candidate highlight.
+
+    Parameters
+    ----------
+    gray : ndarray of shape (H, W), uint8, uint16, float32 or float64
+        The intensities the detector examines (the luma, smoothed if it smooths), C-contiguous.
+    labels : ndarray of shape (H, W), int32
+        Component labels (0: background).
+    comps : ndarray of shape (M, 6), int64
+        One candidate per row, in the order to examine: label, x, y, width, height (the bounding
+        box, px) and area (px).
+    clipped : ndarray of shape (H, W), uint8, or of size 0
+        Clipped pixels (``detect.clipped_mask``); size 0 without a saturation level.
+    scope : ndarray of shape (H, W), bool, or of size 0
+        The endoscope's black border (``detect._scope_border``); size 0 for none.
+    levels : ndarray of shape (H, W), float32, or of size 0
+        The local background (``method="local_peak"``); size 0 for none.
+    min_area_px, ellipticity_min, ellipticity_max : float
+        Limits of ``too_small`` and ``not_elliptical`` (``ellipticity_max = 1 / ellipticity_min``
+        as Python computes it).
+    roi_scale, roi_margin_px, peak_rel : float
+        As ``detect_specularities``' arguments.
+
+    Returns
+    -------
+    ints : ndarray of shape (M, 7), int64
+        Columns :data:`STATUS` (a status code), :data:`PEAK_ROW`, :data:`PEAK_COL` (the
+        brightest pixel in the box) and the ROI (:data:`ROI_ROW0` .. :data:`ROI_COL1`, half-open
+        array indices). A :data:`FALLBACK` row holds nothing else.
+    floats : ndarray of shape (M, 6), float64
+        Columns :data:`BP_U`, :data:`BP_V` (px, full image), :data:`PEAK` (image units),
+        :data:`LEVEL` (NaN without ``levels``), :data:`ELLIPTICITY` and
+        :data:`ELLIPTICITY_TOL` (its relative tolerance; NaN where not computed).
+
+    Notes
+    -----
+    The numpy form is the loop of ``detect._candidates_numpy``; its steps here:
+
+    - brightest pixel: ``np.argmax(np.where(comp, box, box.min()))`` (the first maximum in
+      raster order). A maximum outside the component (every pixel of it at the box minimum) is a
+      :data:`FALLBACK`, and so is a candidate with clipped pixels (its BP is the centroid of a
+      plateau after a morphological closing: OpenCV).
+    - BP: ``peak_uv``, i.e. the separable parabola of ``refine_peak_uv`` through the values
+      ``np.where(comp, box, box.min())``, or, where another pixel of the 3 x 3 neighbourhood is
+      in the component at the same value, the centroid of the 8-connected flat top (integer sums
+      are exact, so the means are numpy's).
+    - status: ``too_small``, ``touches_border``, ``black_border``, then from 12 px the
+      ellipticity, whose covariance sums cannot be numpy's bits (BLAS): :data:`OK` or
+      :data:`NOT_ELLIPTICAL` only where the value is on one side of both bounds by more than its
+      tolerance, else :data:`ELLIPTICITY_UNSURE` (the caller asks numpy).
+    - ROI: ``Roi.around(bp, roi_scale * max(w, h) / 2 + roi_margin_px, (H, W))``.
+    """
+    H, W = gray.shape
+    m = comps.shape[0]
+    ints = np.zeros((m, 7), dtype=np.int64)
+    floats = np.full((m, 6), np.nan, dtype=np.float64)
+    has_clipped = clipped.size > 0
+    has_scope = scope.size > 0
+    has_levels = levels.size > 0
+    stack = np.empty(64, dtype=np.int64)
+    for k in range(m):
+        cid, x, y, bw, bh, area = comps[k, 0], comps[k, 1], comps[k, 2], comps[k, 3], comps[k, 4], comps[k, 5]
+        # np.where(comp, box, box.min()) and its argmax, in one pass: the first maximum of the
+        # component, unless that maximum is the box minimum (every value the same: the argmax
+        # is the box's first pixel); and whether the component has clipped pixels
+        mn = gray[y, x]
+        best = mn
+        pr, pc = -1, -1
+        sat = False
+        for r in range(bh):
+            for c in range(bw):
+                v = gray[y + r, x + c]
+                if v < mn:
+                    mn = v
+                if labels[y + r, x + c] == cid:
+                    if pr < 0 or v > best:
+                        best = v
+                        pr, pc = r, c
+                    if has_clipped and clipped[y + r, x + c]:
+                        sat = True
+        if best == mn:
+            pr, pc = 0, 0
+            best = gray[y, x]
+        if labels[y + pr, x + pc] != cid or sat:
+            ints[k, STATUS] = FALLBACK
+            continue
+        peak = np.float64(best)
+        # peak_uv: a flat top (another pixel of the component at the peak within the 3 x 3
+        # neighbourhood) gives the centroid of its 8-connected piece, else the parabola
+        n_top = 0
+        for r in range(max(0, pr - 1), min(bh, pr + 2)):
+            for c in range(max(0, pc - 1), min(bw, pc + 2)):
+                if labels[y + r, x + c] == cid and gray[y + r, x + c] == best:
+                    n_top += 1
+        if n_top <= 1:
+            dr = 0.0
+            dc = 0.0
+            if 0 < pr < bh - 1:
+                a = np.float64(gray[y + pr - 1, x + pc] if labels[y + pr - 1, x + pc] == cid else mn)
+                b = np.float64(best)
+                d = np.float64(gray[y + pr + 1, x + pc] if labels[y + pr + 1, x + pc] == cid else mn)
+                den = a - 2 * b + d
+                if den < 0:
+                    t = 0.5 * (a - d) / den
+                    if -0.5 > t:  # Python's max(t, -0.5), then min(., 0.5)
+                        t = -0.5
+                    if 0.5 < t:
+                        t = 0.5
+                    dr = t
+            if 0 < pc < bw - 1:
+                a = np.float64(gray[y + pr, x + pc - 1] if labels[y + pr, x + pc - 1] == cid else mn)
+                b = np.float64(best)
+                d = np.float64(gray[y + pr, x + pc + 1] if labels[y + pr, x + pc + 1] == cid else mn)
+                den = a - 2 * b + d
+                if den < 0:
+                    t = 0.5 * (a - d) / den
+                    if -0.5 > t:
+                        t = -0.5
+                    if 0.5 < t:
+                        t = 0.5
+                    dc = t
+            # rc_to_uv([r + dr, c + dc]) + (col0, row0)
+            bp_u = ((pc + dc) + 0.0) + x
+            bp_v = ((pr + dr) + 0.0) + y
+        else:
+            seen = np.zeros((bh, bw), dtype=np.uint8)
+            seen[pr, pc] = 1
+            stack[0] = pr * bw + pc
+            top = 1
+            n = 0
+            sr = 0
+            sc = 0
+            while top > 0:
+                top -= 1
+                p = stack[top]
+                r, c = p // bw, p % bw
+                n += 1
+                sr += r
+                sc += c
+                if top + 8 > len(stack):
+                    grown = np.empty(2 * len(stack), dtype=np.int64)
+                    grown[:top] = stack[:top]
+                    stack = grown
+                for rr in range(max(0, r - 1), min(bh, r + 2)):
+                    for cc in range(max(0, c - 1), min(bw, c + 2)):
+                        if (not seen[rr, cc] and labels[y + rr, x + cc] == cid
+                                and gray[y + rr, x + cc] == best):
+                            seen[rr, cc] = 1
+                            stack[top] = rr * bw + cc
+                            top += 1
+            # rc_to_uv([rr.mean(), cc.mean()]) + (col0, row0)
+            bp_u = ((sc / n) + 0.0) + x
+            bp_v = ((sr / n) + 0.0) + y
+        status = OK
+        if area < min_area_px:
+            status = TOO_SMALL
+        elif x == 0 or y == 0 or x + bw >= W or y + bh >= H:
+            status = TOUCHES_BORDER
+        else:
+            black = False
+            if has_scope:
+                for r in range(y, y + bh):
+                    for c in range(x, x + bw):
+                        if scope[r, c]:
+                            black = True
+                            break
+                    if black:
+                        break
+            if black:
+                status = BLACK_BORDER
+            elif area >= 12:
+                e, tol = _ellipticity(labels, cid, x, y, bw, bh)
+                floats[k, ELLIPTICITY] = e
+                floats[k, ELLIPTICITY_TOL] = tol
+                if np.isnan(tol):
+                    status = ELLIPTICITY_UNSURE
+                else:
+                    lo, hi = e * (1.0 - tol), e * (1.0 + tol)
+                    if ellipticity_min <= lo and hi <= ellipticity_max:
+                        status = OK
+                    elif hi < ellipticity_min or lo > ellipticity_max:
+                        status = NOT_ELLIPTICAL
+                    else:
+                        status = ELLIPTICITY_UNSURE
+        # Roi.around(bp, half, (H, W))
+        half = roi_scale * max(bw, bh) / 2.0 + roi_margin_px
+        ints[k, ROI_ROW0] = max(0, int(np.floor(bp_v - half)))
+        ints[k, ROI_ROW1] = min(H, int(np.ceil(bp_v + half)) + 1)
+        ints[k, ROI_COL0] = max(0, int(np.floor(bp_u - half)))
+        ints[k, ROI_COL1] = min(W, int(np.ceil(bp_u + half)) + 1)
+        ints[k, STATUS] = status
+        ints[k, PEAK_ROW] = pr
+        ints[k, PEAK_COL] = pc
+        floats[k, BP_U] = bp_u
+        floats[k, BP_V] = bp_v
+        floats[k, PEAK] = peak
+        if has_levels:
+            lb = np.float64(levels[y + pr, x + pc])
+            floats[k, LEVEL] = lb + peak_rel * (peak - lb)
+    return ints, floats
