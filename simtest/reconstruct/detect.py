@@ -53,6 +53,30 @@ def connected_components_with_stats(mask: np.ndarray):
     return cv2.connectedComponentsWithStatsWithAlgorithm(mask, 8, cv2.CV_32S, cv2.CCL_GRANA)
 
 
+def _bands(mask: np.ndarray) -> list[tuple[int, int]]:
+    """The runs of rows of ``mask`` that hold mask pixels, as half-open (row0, row1), row0 widened
+    to an even index (Grana's algorithm labels by 2 x 2 blocks: a band keeps the whole mask's
+    blocks, so its components come in the whole mask's order)."""
+    nz = np.flatnonzero(mask.max(axis=1))
+    if nz.size == 0:
+        return []
+    gaps = np.flatnonzero(np.diff(nz) > 1)
+    starts, ends = np.r_[nz[0], nz[gaps + 1]], np.r_[nz[gaps], nz[-1]] + 1
+    return [(r0 - r0 % 2, r1) for r0, r1 in zip(starts.tolist(), ends.tolist())]
+
+
+def _label_band(mask: np.ndarray, r0: int, r1: int):
+    """:func:`connected_components_with_stats` of the band ``mask[r0:r1]`` cropped to the columns
+    that hold mask pixels, the first widened to an even index: ``(c0, n, labels, stats)``, the
+    labels and stats relative to (r0, c0)."""
+    band = mask[r0:r1]
+    cols = np.flatnonzero(band.max(axis=0))
+    c0, c1 = int(cols[0]), int(cols[-1]) + 1
+    c0 -= c0 % 2
+    n, lab, stats, _ = connected_components_with_stats(np.ascontiguousarray(band[:, c0:c1]))
+    return c0, n, lab, stats
+
+
 def mask_components(mask: np.ndarray) -> list[tuple[int, int, int, int, int, np.ndarray]]:
     """The 8-connected components of a uint8 0/1 mask, each with its area and bounding box.
 
@@ -75,19 +99,9 @@ def mask_components(mask: np.ndarray) -> list[tuple[int, int, int, int, int, np.
     columns has the whole mask's blocks, so the order is the same too. A sparse mask (a few
     highlights in a 1350 x 1080 frame) costs a third of one pass.
     """
-    nz = np.flatnonzero(mask.max(axis=1))
-    if nz.size == 0:
-        return []
-    gaps = np.flatnonzero(np.diff(nz) > 1)
-    starts, ends = np.r_[nz[0], nz[gaps + 1]], np.r_[nz[gaps], nz[-1]] + 1
     out = []
-    for r0, r1 in zip(starts.tolist(), ends.tolist()):
-        r0 -= r0 % 2  # Grana's algorithm labels by 2 x 2 blocks: keep the blocks of the whole mask
-        band = mask[r0:r1]
-        cols = np.flatnonzero(band.max(axis=0))
-        c0, c1 = int(cols[0]), int(cols[-1]) + 1
-        c0 -= c0 % 2
-        n, lab, stats, _ = connected_components_with_stats(np.ascontiguousarray(band[:, c0:c1]))
+    for r0, r1 in _bands(mask):
+        c0, n, lab, stats = _label_band(mask, r0, r1)
         for k in range(1, n):
             x, y, bw, bh, area = (int(v) for v in stats[k])
             out.append((area, x + c0, y + r0, bw, bh, (lab[y : y + bh, x : x + bw] == k).view(np.uint8)))
@@ -121,31 +135,24 @@ def mask_labels(mask: np.ndarray) -> tuple[int, np.ndarray, np.ndarray]:
     5.3 ms on the bench's colonoscope frame) and is taken.
     """
     h, w = mask.shape
-    nz = np.flatnonzero(mask.max(axis=1))
-    if nz.size == 0:
+    bands = _bands(mask)
+    if not bands:
         return 0, np.zeros((h, w), np.int32), np.zeros((0, 5), np.int32)
-    gaps = np.flatnonzero(np.diff(nz) > 1)
-    starts, ends = np.r_[nz[0], nz[gaps + 1]], np.r_[nz[gaps], nz[-1]] + 1
-    if 2 * int((ends - starts).sum()) > h:
+    if 2 * sum(r1 - r0 for r0, r1 in bands) > h:
         # bands over most rows: one pass costs less than theirs and the copies
         n, labels, stats, _ = connected_components_with_stats(mask)
         return n - 1, labels, stats[1:]
     labels = None
     parts = []
     n = 0
-    for r0, r1 in zip(starts.tolist(), ends.tolist()):
-        r0 -= r0 % 2  # Grana's algorithm labels by 2 x 2 blocks: keep the blocks of the whole mask
-        band = mask[r0:r1]
-        cols = np.flatnonzero(band.max(axis=0))
-        c0, c1 = int(cols[0]), int(cols[-1]) + 1
-        c0 -= c0 % 2
-        nb, lab, stats, _ = connected_components_with_stats(np.ascontiguousarray(band[:, c0:c1]))
+    for r0, r1 in bands:
+        c0, nb, lab, stats = _label_band(mask, r0, r1)
         if lab.shape == (h, w):
             labels = lab  # one band: the whole mask
         else:
             if labels is None:
                 labels = np.zeros((h, w), np.int32)
-            _dk.paste_labels(labels[r0:r1, c0:c1], lab, n)
+            _dk.paste_labels(labels[r0:r1, c0 : c0 + lab.shape[1]], lab, n)
         stats = stats[1:]
         stats[:, cv2.CC_STAT_LEFT] += c0
         stats[:, cv2.CC_STAT_TOP] += r0
