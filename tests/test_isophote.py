@@ -141,10 +141,18 @@ def test_polygon_helpers():
     assert polygon_contains(square, [[1, 1], [9, 9], [3, 0.5]]).tolist() == [True, False, True]
 
 
+def _traced(img, level):
+    """The compiled tracer as ``(points, closed)``, or None where it declines."""
+    from simtest.reconstruct import _kernels
+
+    code, pts = _kernels.trace_contours(np.ascontiguousarray(img, dtype=np.float64), float(level))
+    return None if code == _kernels.FALLBACK else (pts, code == _kernels.CLOSED)
+
+
 @given(seed=st.integers(0, 2**32 - 1), h=st.integers(4, 40), w=st.integers(4, 40),
        blur=st.floats(0.5, 3.0), q=st.floats(0.3, 0.97), edges=st.booleans())
 @settings(max_examples=150, deadline=None)
-def test_the_vectorised_tracer_gives_find_contours_bit_for_bit(seed, h, w, blur, q, edges):
+def test_the_compiled_tracer_gives_find_contours_bit_for_bit(seed, h, w, blur, q, edges):
     # A random smooth field reduced to one 4-connected component without holes (what
     # extract_isophote contours), inside the box or (edges) free to reach its sides: the tracer
     # must give find_contours' closed contour, or its open contours concatenated, with the same
@@ -154,7 +162,6 @@ def test_the_vectorised_tracer_gives_find_contours_bit_for_bit(seed, h, w, blur,
     from scipy import ndimage
     from skimage.measure import find_contours
 
-    from simtest.reconstruct.isophote import _trace_contours
 
     rng = np.random.default_rng(seed)
     img = cv2.GaussianBlur(rng.random((h, w)), (0, 0), blur)
@@ -168,7 +175,7 @@ def test_the_vectorised_tracer_gives_find_contours_bit_for_bit(seed, h, w, blur,
         img[(img > level) & ~one] = level - 1.0
         img[one & ~(img > level)] = level + 1.0
     want = find_contours(img, level)
-    got = _trace_contours(img, level)
+    got = _traced(img, level)
     is_closed = [len(c) >= 3 and c[0].tolist() == c[-1].tolist() for c in want]
     if got is None:
         assert (img == level).any() or not want or (any(is_closed) and len(want) > 1)
@@ -181,20 +188,19 @@ def test_the_vectorised_tracer_gives_find_contours_bit_for_bit(seed, h, w, blur,
 def test_the_tracer_gives_open_contours_in_order_and_declines_the_rest():
     from skimage.measure import find_contours
 
-    from simtest.reconstruct.isophote import _trace_contours
 
     img = np.zeros((10, 12))
     img[3:6, 0:5] = 1.0  # reaches the left edge: one open contour
     img[0:4, 8:12] = 1.0  # and the top right corner: a second one
-    pts, closed = _trace_contours(img, 0.5)
+    pts, closed = _traced(img, 0.5)
     want = find_contours(img, 0.5)
     assert not closed and len(want) == 2 and np.array_equal(pts, np.concatenate(want))
     img = np.zeros((10, 12))
     img[2:5, 2:5] = img[2:5, 7:10] = 1.0  # two closed contours
-    assert _trace_contours(img, 0.5) is None
+    assert _traced(img, 0.5) is None
     img[0:2, 0:2] = 1.0  # and an open one
-    assert _trace_contours(img, 0.5) is None
+    assert _traced(img, 0.5) is None
     img = np.zeros((10, 10))
     img[3:6, 3:6] = 1.0
     img[4, 4] = 0.5  # a pixel exactly at the level
-    assert _trace_contours(img, 0.5) is None
+    assert _traced(img, 0.5) is None

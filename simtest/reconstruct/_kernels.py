@@ -13,6 +13,8 @@ Kernels
   the level, its box with the other components lowered and its holes raised, the marching-squares
   contour of that box in ``skimage.measure.find_contours``' order, and the even-odd test of the
   BP against it.
+- :func:`trace_contours`: the marching-squares contours of a box in ``find_contours``' order
+  and bits, when they are one closed contour or only open ones.
 - :func:`border_median`: the median of a region's border pixels (``normalise="local"``).
 
 Notes
@@ -123,10 +125,10 @@ def _raise_holes(box, lab, high):
 
 
 @numba.njit(cache=True, nogil=True)
-def _edge_points(box, level, edges, row_add, col_add):
-    """The marching-squares point on each pixel edge id (horizontal ``r W + c``, vertical
-    ``H W + r W + c``): ``r0 + (level - a) / (b - a)`` along the edge, ``a`` the upper or left
-    pixel (skimage's interpolation), as (row + row_add, col + col_add)."""
+def _edge_points(box, level, edges):
+    """The marching-squares point (row, col) on each pixel edge id (horizontal ``r W + c``,
+    vertical ``H W + r W + c``): ``r0 + (level - a) / (b - a)`` along the edge, ``a`` the upper or
+    left pixel (skimage's interpolation)."""
     H, W = box.shape
     hw = H * W
     out = np.empty((len(edges), 2), dtype=np.float64)
@@ -139,12 +141,12 @@ def _edge_points(box, level, edges, row_add, col_add):
         a = box[er, ec]
         if vertical:
             frac = (level - a) / (box[er + 1, ec] - a)
-            out[i, 0] = (er + frac) + row_add
-            out[i, 1] = (ec + 0.0) + col_add
+            out[i, 0] = er + frac
+            out[i, 1] = ec + 0.0
         else:
             frac = (level - a) / (box[er, ec + 1] - a)
-            out[i, 0] = (er + 0.0) + row_add
-            out[i, 1] = (ec + frac) + col_add
+            out[i, 0] = er + 0.0
+            out[i, 1] = ec + frac
     return out
 
 
@@ -255,6 +257,46 @@ def _trace(box, level):
 
 
 @numba.njit(cache=True, nogil=True)
+def trace_contours(box, level):
+    """The marching-squares contours of ``box`` at ``level`` as ``skimage.measure.find_contours``
+    gives them (``fully_connected="low"``), when they are one closed contour or only open ones.
+
+    Parameters
+    ----------
+    box : ndarray of shape (h, w), float64
+        Intensities.
+    level : float
+        Contour level.
+
+    Returns
+    -------
+    code : int
+        :data:`CLOSED`, :data:`OPEN`, or :data:`FALLBACK` where the box holds anything else (no
+        contour, several closed contours, closed and open ones) or a pixel exactly at the level
+        or not finite (find_contours' own handling of those is left to it).
+    points : ndarray of shape (N, 2), float64
+        (row, col) in ``box``: the closed contour without its repeated end point, or the open
+        contours concatenated in find_contours' order; empty for ``FALLBACK``.
+
+    Notes
+    -----
+    The segments of every square are those of ``find_contours``, numbered in its raster order;
+    each crossing is named by its pixel edge, so the segment after segment s is the one starting
+    on the edge where s ends. ``find_contours`` lists the contours by their first segment: an open
+    contour runs from the segment without a predecessor to the one without a successor; a closed
+    one starts where its last segment in raster order ends. Each point interpolates linearly
+    between the two pixels of its edge with skimage's formula: the same bits.
+    """
+    for v in box.ravel():
+        if v == level or not np.isfinite(v):
+            return FALLBACK, np.empty((0, 2), dtype=np.float64)
+    code, edges = _trace(box, level)
+    if code == FALLBACK:
+        return FALLBACK, np.empty((0, 2), dtype=np.float64)
+    return code, _edge_points(box, level, edges)
+
+
+@numba.njit(cache=True, nogil=True)
 def _inside(poly, px, py):
     """Even-odd test of the point (px, py) against the closed polygon ``poly`` (N, 2), as
     :func:`simtest.reconstruct.isophote.polygon_contains`."""
@@ -303,9 +345,8 @@ def component_contour(sub, level, ri, ci, row0, col0, bp_u, bp_v):
     -----
     The steps and their numpy forms in :mod:`simtest.reconstruct.isophote`: the flood fill and
     box of ``_component_box`` (the other components' pixels set to ``level - 1``, the holes to
-    ``level + 1``), the contour of ``_trace_contours`` (``FALLBACK`` where it returns None: a
-    pixel of the box exactly at the level or not finite, no crossing, several closed contours,
-    closed and open ones) and ``polygon_contains``.
+    ``level + 1``), the contour of ``find_contours`` (:func:`trace_contours`; ``FALLBACK`` where
+    that declines) and ``polygon_contains``.
     """
     H, W = sub.shape
     no_sides = (False, False, False, False)
@@ -329,23 +370,20 @@ def component_contour(sub, level, ri, ci, row0, col0, bp_u, bp_v):
             else:
                 lab[r, c] = 0
     _raise_holes(box, lab, high)
-    for r in range(r1 - r0):
-        for c in range(c1 - c0):
-            v = box[r, c]
-            if v == level or not np.isfinite(v):
-                return FALLBACK, _EMPTY, False, sides
-    code, edges = _trace(box, level)
+    code, rc = trace_contours(box, level)
     if code == CLOSED:
         # rc_to_uv(rc, row0 + r0, col0 + c0): (col + (col0 + c0), row + (row0 + r0))
-        rc = _edge_points(box, level, edges, 0.0, 0.0)
         uv = np.empty_like(rc)
         cu, rv = float(col0 + c0), float(row0 + r0)
         for i in range(len(rc)):
             uv[i, 0] = rc[i, 1] + cu
             uv[i, 1] = rc[i, 0] + rv
         return CLOSED, uv, _inside(uv, bp_u, bp_v), sides
-    if code == OPEN:
-        return OPEN, _edge_points(box, level, edges, float(r0), float(c0)), False, sides
+    if code == OPEN:  # rc + (r0, c0)
+        for i in range(len(rc)):
+            rc[i, 0] += r0
+            rc[i, 1] += c0
+        return OPEN, rc, False, sides
     return FALLBACK, _EMPTY, False, sides
 
 

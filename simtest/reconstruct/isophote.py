@@ -175,9 +175,11 @@ def extract_isophote(
     most diagonally, where the "low" connectivity already separates them): the same points, in
     time proportional to the highlight rather than to the ROI and its noise. If none is closed, the open contours
     bordering the 4-connected component of pixels >= ``level`` that holds the BP are taken, in
-    marching-squares order. A box of :data:`TRACE_MIN_PX` pixels or more is contoured by a
-    vectorised ordering of the marching-squares segments that gives ``find_contours``' contours
-    bit for bit (``_trace_contours``), without its Python loop per segment.
+    marching-squares order. These steps run in one compiled call
+    (:func:`simtest.reconstruct._kernels.component_contour`), which orders the marching-squares
+    segments as ``find_contours`` does and gives its contours bit for bit; what it declines (a
+    pixel exactly at the level, several closed contours, the BP's pixel below the level) goes to
+    ``find_contours`` itself (``_contours_numpy``).
     """
     sub = np.asarray(values, dtype=np.float64)
     if sub.ndim != 2:
@@ -237,19 +239,9 @@ def _contours_numpy(sub, level, roi, ri, ci, bp_uv):
         # Only the 4-connected component above the level that holds the BP is contoured, in its
         # bounding box (see Notes): the contour found over the whole region, without the noise.
         box, (dr, dc), sides = comp
-        traced = _trace_contours(box, level) if box.size >= TRACE_MIN_PX else None
         closed_hits = []
         pieces = []
-        contours = ()
-        if traced is None:
-            contours = find_contours(box, level)
-        elif traced[1]:  # the one closed contour of the box, as find_contours gives it
-            uv = rc_to_uv(traced[0], roi.row0 + dr, roi.col0 + dc)
-            if polygon_contains(uv, bp_uv):
-                closed_hits.append(uv)
-        else:  # its open contours, concatenated as below
-            pieces.append(traced[0] + (dr, dc))
-        for rc in contours:
+        for rc in find_contours(box, level):
             if len(rc) >= 3 and rc[0, 0] == rc[-1, 0] and rc[0, 1] == rc[-1, 1]:
                 uv = rc_to_uv(rc[:-1], roi.row0 + dr, roi.col0 + dc)
                 if polygon_contains(uv, bp_uv):
@@ -262,114 +254,6 @@ def _contours_numpy(sub, level, roi, ri, ci, bp_uv):
         if not closed_hits:
             pieces, sides = _open_pieces_around_bp(sub, level, ri, ci, open_contours)
     return closed_hits, pieces, sides
-
-
-#: Boxes of at least this many pixels are traced by :func:`_trace_contours`; smaller ones by
-#: ``find_contours``, whose Python assembly of a short contour costs less than the tracer's fixed
-#: numpy overhead (the two cross at about 300 px on the bench's real frame).
-TRACE_MIN_PX = 400
-
-# Marching squares with the pixels below the level 8-connected (``fully_connected="low"``) and
-# the lower values on the left of each segment, as skimage.measure.find_contours: for each case
-# (bit 1 upper-left, 2 upper-right, 4 lower-left, 8 lower-right above the level) the edges
-# (0 top, 1 bottom, 2 left, 3 right) the first and the second segment go from and to; -1 none.
-# Only the saddles 6 and 9 have a second segment.
-_SEG_FROM = np.array([[-1, 0, 3, 3, 2, 0, 3, 3, 1, 0, 1, 1, 2, 0, 2, -1],
-                      [-1, -1, -1, -1, -1, -1, 2, -1, -1, 1, -1, -1, -1, -1, -1, -1]])
-_SEG_TO = np.array([[-1, 2, 0, 2, 1, 1, 0, 1, 3, 2, 0, 2, 3, 3, 0, -1],
-                    [-1, -1, -1, -1, -1, -1, 1, -1, -1, 3, -1, -1, -1, -1, -1, -1]])
-_CROSSES = _SEG_FROM[0] >= 0
-_SADDLE = _SEG_FROM[1] >= 0
-
-
-def _trace_contours(box: np.ndarray, level: float):
-    """The marching-squares contours of ``box`` at ``level`` exactly as
-    ``find_contours(box, level)`` gives them, when they are one closed contour or only open ones.
-
-    Returns
-    -------
-    (points_rc, closed) or None
-        ``closed`` True: the one closed contour, (N, 2) (row, col), without its repeated end
-        point. ``closed`` False: every contour is open; their points concatenated in
-        ``find_contours``' order (each contour from its start to its end). None when the box holds
-        anything else (no contour, several closed ones, closed and open ones, or a pixel exactly at
-        the level): then the caller uses ``find_contours``.
-
-    Notes
-    -----
-    The segments of every square are those of ``find_contours`` (table above), numbered in its
-    raster order; each crossing is named by its pixel edge, so the segment that follows segment s
-    is the one starting on the edge where s ends. The contours are ordered from these successor
-    links by pointer doubling (log2 N array passes, no loop per point). ``find_contours`` joins
-    the segments in raster order, extending and merging pieces, and lists the contours by their
-    first segment: an open contour runs from the segment without a predecessor to the one
-    without a successor; a closed one is complete only when its last segment comes, which closes
-    the path of all the others, so it starts where its last segment ends. Each point interpolates
-    linearly between the two pixels of its edge with skimage's formula ``r0 + (level - a) / (b - a)``
-    (a the upper or left pixel): the same bits.
-    """
-    H, W = box.shape
-    if (box == level).any() or not np.isfinite(box).all():
-        return None
-    hi = (box > level).view(np.uint8)
-    case = (hi[:-1, :-1] | (hi[:-1, 1:] << 1) | (hi[1:, :-1] << 2) | (hi[1:, 1:] << 3)).ravel()
-    q = np.flatnonzero(_CROSSES[case])
-    cs = case[q]
-    k = np.zeros(len(q), dtype=np.intp)
-    sad = _SADDLE[cs]
-    if sad.any():  # a saddle's second segment comes right after its first
-        q = np.concatenate([q, q[sad]])
-        k = np.concatenate([k, np.ones(int(sad.sum()), np.intp)])
-        o = np.argsort(2 * q + k, kind="stable")
-        q, k = q[o], k[o]
-        cs = case[q]
-    n = len(q)
-    if n == 0:
-        return None
-    # edge ids: horizontal edge (r, c)-(r, c+1) is r W + c, vertical (r, c)-(r+1, c) is H W + r W + c
-    r, c = np.divmod(q, W - 1)
-    base = r * W + c
-    hw = H * W
-    off = np.array([0, W, hw, hw + 1])  # top, bottom, left, right of square (r, c)
-    f_edge = base + off[_SEG_FROM[k, cs]]
-    t_edge = base + off[_SEG_TO[k, cs]]
-    start = np.full(2 * hw, -1, dtype=np.intp)
-    start[f_edge] = np.arange(n)
-    nxt = start[t_edge]
-    end = nxt < 0  # the last segment of an open contour
-    closed = not end.any()
-    idx = np.arange(n)
-    if closed:
-        end[n - 1] = True  # cut the cycle after the last segment
-    nxt = np.where(end, idx, nxt)
-    d = (~end).astype(np.intp)  # steps to the end of the contour
-    step = 1
-    while step < n:
-        d += d[nxt]
-        nxt = nxt[nxt]
-        step *= 2
-    if not end[nxt].all():
-        return None  # a closed contour beside the cut one, or beside open ones
-    if closed:
-        e = np.empty(n, dtype=np.intp)
-        e[n - 1 - d] = f_edge  # the start edges in contour order, the last segment's end first
-    else:
-        first = np.full(n, n, dtype=np.intp)  # per contour (named by its end): its first segment
-        np.minimum.at(first, nxt, idx)
-        order = np.lexsort((-d, first[nxt]))
-        last = end[order]
-        # each segment's start edge in order, and after each contour's end its end edge
-        pos = idx + np.cumsum(last) - last
-        e = np.empty(n + int(last.sum()), dtype=np.intp)
-        e[pos] = f_edge[order]
-        e[pos[last] + 1] = t_edge[order[last]]
-    vertical = e >= hw
-    e = e - hw * vertical
-    er, ec = np.divmod(e, W)
-    flat = box.ravel()
-    a = flat[e]
-    frac = (level - a) / (flat[e + np.where(vertical, W, 1)] - a)
-    return np.stack([er + frac * vertical, ec + frac * ~vertical], axis=1), closed
 
 
 def _component_box(sub, level, ri, ci):
