@@ -98,7 +98,7 @@ def test_a_ring_a_neighbour_and_a_cut_highlight():
     assert not got.closed and got.cut_by_image and _same(got, want)
 
 
-@given(seed=st.integers(0, 2**32 - 1), h=st.integers(2, 40), w=st.integers(2, 40),
+@given(seed=st.integers(0, 2**32 - 1), h=st.integers(1, 40), w=st.integers(1, 40),
        quantised=st.booleans(), layout=st.sampled_from(["C", "F", "view"]))
 @settings(max_examples=200, deadline=None)
 def test_border_median_is_numpys_median_of_the_ring(seed, h, w, quantised, layout):

@@ -389,11 +389,13 @@ def component_contour(sub, level, ri, ci, row0, col0, bp_u, bp_v):
 
 @numba.njit(cache=True, nogil=True)
 def border_median(vals):
-    """Median of the border pixels of ``vals`` (h, w), h, w >= 2, as ``np.median`` of
+    """Median of the border pixels of ``vals`` (h, w), h, w >= 1, as ``np.median`` of
     ``np.concatenate([vals[0], vals[-1], vals[1:-1, 0], vals[1:-1, -1]])``: the middle value, or
-    the mean of the two middle values for an even count (NaN if any is NaN)."""
+    the mean of the two middle values for an even count (NaN if any is NaN). As there, a single
+    row or column counts twice."""
     H, W = vals.shape
-    ring = np.empty(2 * W + 2 * (H - 2), dtype=np.float64)
+    mid = max(H - 2, 0)  # rows between the first and the last
+    ring = np.empty(2 * W + 2 * mid, dtype=np.float64)
     k = 0
     for c in range(W):
         ring[k] = vals[0, c]
@@ -402,7 +404,7 @@ def border_median(vals):
     k = 2 * W
     for r in range(1, H - 1):
         ring[k] = vals[r, 0]
-        ring[k + H - 2] = vals[r, W - 1]
+        ring[k + mid] = vals[r, W - 1]
         k += 1
     for v in ring:
         if np.isnan(v):
