@@ -35,8 +35,8 @@ BLACK_BORDER = 3  #: ``black_border``
 NOT_ELLIPTICAL = 4  #: ``not_elliptical``, certainly (see :func:`examine_candidates`)
 ELLIPTICITY_UNSURE = 5  #: the ellipticity is too close to a bound: numpy's value decides
 
-#: Columns of the integer result: status, brightest pixel (row, col) in the bounding box, ROI.
-STATUS, PEAK_ROW, PEAK_COL, ROI_ROW0, ROI_ROW1, ROI_COL0, ROI_COL1 = range(7)
+#: Columns of the integer result: status, ROI.
+STATUS, ROI_ROW0, ROI_ROW1, ROI_COL0, ROI_COL1 = range(5)
 #: Columns of the float result: BP (u, v), peak, level, ellipticity and its relative tolerance.
 BP_U, BP_V, PEAK, LEVEL, ELLIPTICITY, ELLIPTICITY_TOL = range(6)
 
@@ -111,6 +111,28 @@ def _ellipticity(labels, cid, x, y, bw, bh):
     return e, tol
 
 
+@numba.njit(cache=True, nogil=True, inline="always")
+def _value(gray, labels, cid, mn, r, c):
+    """``np.where(comp, box, box.min())`` at pixel (r, c), as float64."""
+    return np.float64(gray[r, c] if labels[r, c] == cid else mn)
+
+
+@numba.njit(cache=True, nogil=True, inline="always")
+def _parabola_offset(a, b, d):
+    """``refine_peak_uv``'s offset along one axis through the values ``a, b, d`` (b the
+    maximum): ``0.5 (a - d) / (a - 2 b + d)`` clipped to +-0.5 px, 0 without a strict maximum."""
+    b = np.float64(b)
+    den = a - 2 * b + d
+    if not den < 0:
+        return 0.0
+    t = 0.5 * (a - d) / den
+    if -0.5 > t:  # Python's max(t, -0.5), then min(., 0.5)
+        t = -0.5
+    if 0.5 < t:
+        t = 0.5
+    return t
+
+
 @numba.njit(cache=True, nogil=True)
 def examine_candidates(gray, labels, comps, clipped, scope, levels, min_area_px, ellipticity_min,
                        ellipticity_max, roi_scale, roi_margin_px, peak_rel):
@@ -139,10 +161,9 @@ def examine_candidates(gray, labels, comps, clipped, scope, levels, min_area_px,
 
     Returns
     -------
-    ints : ndarray of shape (M, 7), int64
-        Columns :data:`STATUS` (a status code), :data:`PEAK_ROW`, :data:`PEAK_COL` (the
-        brightest pixel in the box) and the ROI (:data:`ROI_ROW0` .. :data:`ROI_COL1`, half-open
-        array indices). A :data:`FALLBACK` row holds nothing else.
+    ints : ndarray of shape (M, 5), int64
+        Columns :data:`STATUS` (a status code) and the ROI (:data:`ROI_ROW0` ..
+        :data:`ROI_COL1`, half-open array indices). A :data:`FALLBACK` row holds nothing else.
     floats : ndarray of shape (M, 6), float64
         Columns :data:`BP_U`, :data:`BP_V` (px, full image), :data:`PEAK` (image units),
         :data:`LEVEL` (NaN without ``levels``), :data:`ELLIPTICITY` and
@@ -168,7 +189,7 @@ def examine_candidates(gray, labels, comps, clipped, scope, levels, min_area_px,
     """
     H, W = gray.shape
     m = comps.shape[0]
-    ints = np.zeros((m, 7), dtype=np.int64)
+    ints = np.zeros((m, 5), dtype=np.int64)
     floats = np.full((m, 6), np.nan, dtype=np.float64)
     has_clipped = clipped.size > 0
     has_scope = scope.size > 0
@@ -212,29 +233,11 @@ def examine_candidates(gray, labels, comps, clipped, scope, levels, min_area_px,
             dr = 0.0
             dc = 0.0
             if 0 < pr < bh - 1:
-                a = np.float64(gray[y + pr - 1, x + pc] if labels[y + pr - 1, x + pc] == cid else mn)
-                b = np.float64(best)
-                d = np.float64(gray[y + pr + 1, x + pc] if labels[y + pr + 1, x + pc] == cid else mn)
-                den = a - 2 * b + d
-                if den < 0:
-                    t = 0.5 * (a - d) / den
-                    if -0.5 > t:  # Python's max(t, -0.5), then min(., 0.5)
-                        t = -0.5
-                    if 0.5 < t:
-                        t = 0.5
-                    dr = t
+                dr = _parabola_offset(_value(gray, labels, cid, mn, y + pr - 1, x + pc), best,
+                                      _value(gray, labels, cid, mn, y + pr + 1, x + pc))
             if 0 < pc < bw - 1:
-                a = np.float64(gray[y + pr, x + pc - 1] if labels[y + pr, x + pc - 1] == cid else mn)
-                b = np.float64(best)
-                d = np.float64(gray[y + pr, x + pc + 1] if labels[y + pr, x + pc + 1] == cid else mn)
-                den = a - 2 * b + d
-                if den < 0:
-                    t = 0.5 * (a - d) / den
-                    if -0.5 > t:
-                        t = -0.5
-                    if 0.5 < t:
-                        t = 0.5
-                    dc = t
+                dc = _parabola_offset(_value(gray, labels, cid, mn, y + pr, x + pc - 1), best,
+                                      _value(gray, labels, cid, mn, y + pr, x + pc + 1))
             # rc_to_uv([r + dr, c + dc]) + (col0, row0)
             bp_u = ((pc + dc) + 0.0) + x
             bp_v = ((pr + dr) + 0.0) + y
@@ -305,8 +308,6 @@ def examine_candidates(gray, labels, comps, clipped, scope, levels, min_area_px,
         ints[k, ROI_COL0] = max(0, int(np.floor(bp_u - half)))
         ints[k, ROI_COL1] = min(W, int(np.ceil(bp_u + half)) + 1)
         ints[k, STATUS] = status
-        ints[k, PEAK_ROW] = pr
-        ints[k, PEAK_COL] = pc
         floats[k, BP_U] = bp_u
         floats[k, BP_V] = bp_v
         floats[k, PEAK] = peak

@@ -926,14 +926,7 @@ def _candidates_compiled(frame: _DetectFrame, mask: np.ndarray) -> tuple[list[Ca
             out.append(_examine_numpy(frame, scope, area, x, y, bw, bh, comp))
             continue
         bbox = Roi(y, y + bh, x, x + bw)
-        detail = ""
-        if code == _dk.TOO_SMALL:
-            detail = f"{area} px < {frame.min_area_px}"
-        elif code == _dk.TOUCHES_BORDER:
-            detail = f"bbox (row0, row1, col0, col1) = {tuple(bbox)}"
-        elif code == _dk.BLACK_BORDER:
-            detail = "on or within 5 px of the endoscope's black border"
-        elif code == _dk.NOT_ELLIPTICAL or code == _dk.ELLIPTICITY_UNSURE:
+        if code == _dk.NOT_ELLIPTICAL or code == _dk.ELLIPTICITY_UNSURE:
             # numpy's value is within tol (relative) of the kernel's: the kernel's decides
             # where every value that close formats the same
             text = f"{e * (1.0 - tol):.3f}" if code == _dk.NOT_ELLIPTICAL else None
@@ -941,12 +934,30 @@ def _candidates_compiled(frame: _DetectFrame, mask: np.ndarray) -> tuple[list[Ca
                 e = ellipticity((labels[y : y + bh, x : x + bw] == cid))
                 text = f"{e:.3f}"
                 code = _dk.OK if ell_min <= e <= ell_max else _dk.NOT_ELLIPTICAL
-            if code == _dk.NOT_ELLIPTICAL:
-                detail = f"ellipticity {text} outside [{ell_min}, {1 / ell_min:.3f}]"
+        else:
+            text = ""
+        status = _STATUS[code]
         roi = Roi(row[_dk.ROI_ROW0], row[_dk.ROI_ROW1], row[_dk.ROI_COL0], row[_dk.ROI_COL1])
-        out.append(Candidate(bps[k], peak, False, area, bbox, roi, _STATUS[code], detail,
+        out.append(Candidate(bps[k], peak, False, area, bbox, roi, status,
+                             _rejection_detail(status, frame, area, bbox, text),
                              level if with_level else None))
     return out, n_comps
+
+
+def _rejection_detail(status: str, frame: _DetectFrame, area: int, bbox: Roi,
+                      ellipticity_text: str = "") -> str:
+    """The numbers behind a candidate's rejection ``status`` (empty for ``"ok"``): its area, its
+    box, or its ellipticity as ``ellipticity_text`` (formatted by the caller, which knows it)."""
+    if status == "too_small":
+        return f"{area} px < {frame.min_area_px}"
+    if status == "touches_border":
+        return f"bbox (row0, row1, col0, col1) = {tuple(bbox)}"
+    if status == "black_border":
+        return "on or within 5 px of the endoscope's black border"
+    if status == "not_elliptical":
+        return (f"ellipticity {ellipticity_text} outside [{frame.ellipticity_min}, "
+                f"{1 / frame.ellipticity_min:.3f}]")
+    return ""
 
 
 def _candidates_numpy(frame: _DetectFrame, mask: np.ndarray) -> tuple[list[Candidate], int]:
@@ -1017,16 +1028,18 @@ def _examine_numpy(frame: _DetectFrame, scope: np.ndarray | None, area: int, x: 
     if bp_uv is None:
         bp_uv = peak_uv(vals, pr, pc, sub_lab) + (bbox.col0, bbox.row0)
     if area < frame.min_area_px:
-        status, detail = "too_small", f"{area} px < {frame.min_area_px}"
+        status = "too_small"
     elif x == 0 or y == 0 or x + bw >= w or y + bh >= h:
-        status, detail = "touches_border", f"bbox (row0, row1, col0, col1) = {tuple(bbox)}"
+        status = "touches_border"
     elif scope is not None and scope[bbox.slices].any():
-        status, detail = "black_border", "on or within 5 px of the endoscope's black border"
+        status = "black_border"
     elif status == "ok" and area >= 12:
         e = ellipticity(sub_lab)
         if not (ellipticity_min <= e <= 1.0 / ellipticity_min):
             status = "not_elliptical"
-            detail = f"ellipticity {e:.3f} outside [{ellipticity_min}, {1 / ellipticity_min:.3f}]"
+            detail = _rejection_detail(status, frame, area, bbox, f"{e:.3f}")
+    if status in ("too_small", "touches_border", "black_border"):
+        detail = _rejection_detail(status, frame, area, bbox)
     half = frame.roi_scale * max(bw, bh) / 2.0 + frame.roi_margin_px
     roi = Roi.around(bp_uv, half, img.shape)
     level = None
