@@ -1502,6 +1502,58 @@ def _quadric_image(d, b_ray, p, rig_arr, Lm):
     return _patch_lobes(d, X, ns, ok, s, rough, rig_arr), N
 
 
+@dataclass
+class _PatchProblem:
+    """A ROI's samples and what a curved patch's variable-projection fit of them needs
+    (:func:`quadric_fit`, :func:`cubic_patch_fit`): ``y`` (m,) the unclipped intensities over
+    their largest magnitude, ``d`` (m, 3) their pixel rays, ``b_ray`` (3,) the BP's ray,
+    ``rig_arr`` and ``Lm`` the rig's arrays and mean light, ``A`` (m, 4) the linear part's design
+    (column 0 the patch image, then a constant and a plane in the offsets from the BP over the ROI
+    size), ``sel``, ``step`` and ``shape`` the samples' place in the ROI grid, ``px_per_rad`` the
+    image's scale at the BP."""
+
+    y: np.ndarray
+    d: np.ndarray
+    b_ray: np.ndarray
+    rig_arr: object
+    Lm: np.ndarray
+    A: np.ndarray
+    sel: np.ndarray
+    step: int
+    shape: tuple
+    px_per_rad: float
+
+    def residual(self, image) -> np.ndarray:
+        """The residual (m,) of the patch image (m,) (or a scalar) with the linear part fitted
+        by its normal equations (least squares where they are singular): variable projection."""
+        A, y = self.A, self.y
+        A[:, 0] = image
+        try:
+            c = np.linalg.solve(A.T @ A, A.T @ y)
+        except np.linalg.LinAlgError:
+            c = np.linalg.lstsq(A, y, rcond=None)[0]
+        return A @ c - y
+
+
+def _patch_problem(values, origin_uv, bp_uv, camera, rig, clip_level, max_pixels, min_pixels):
+    """The :class:`_PatchProblem` of a ROI, or None with fewer than ``min_pixels`` unclipped
+    samples; and the number of samples: ``(problem or None, m)``."""
+    vals, camera, o, uu, vv, keep = _roi_grid(values, camera, origin_uv, clip_level)
+    H, W = vals.shape
+    sel, step, uv, y = _roi_samples(vals, o, uu, vv, keep, max_pixels)
+    if len(y) < min_pixels:
+        return None, len(y)
+    y = y / max(float(np.abs(y).max()), 1e-12)
+    bp = np.asarray(bp_uv, dtype=np.float64).reshape(2)
+    b_ray = _rays(camera, bp[None])[0]
+    du = (uv[:, 0] - bp[0]) / max(H, W)
+    dv = (uv[:, 1] - bp[1]) / max(H, W)
+    A = np.column_stack([np.zeros_like(du), np.ones_like(du), du, dv])
+    px = 1.0 / float(np.linalg.norm(_rays(camera, bp[None] + [1.0, 0.0])[0] - b_ray))
+    return _PatchProblem(y, _rays(camera, uv), b_ray, _rig_arrays(rig), _mean_light(rig), A, sel,
+                         step, keep.shape, px), len(y)
+
+
 def quadric_fit(values, origin_uv, bp_uv, camera, rig: LightRig, *,
                 clip_level: float | None = None, nominal_depth_mm: float = 20.0,
                 start_depths_mm=None, start_roughness: float | None = None,
@@ -1587,33 +1639,18 @@ def quadric_fit(values, origin_uv, bp_uv, camera, rig: LightRig, *,
         A values array that is not 2-D and finite.
     """
     name = "quadric_fit"
-    vals, camera, o, uu, vv, keep = _roi_grid(values, camera, origin_uv, clip_level)
-    H, W = vals.shape
-    sel, step, uv, y = _roi_samples(vals, o, uu, vv, keep, max_pixels)
-    if len(y) < 12:
-        return LightAwareEstimate(name, "too_few_points", f"{len(y)} unclipped pixels")
-    y = y / max(float(np.abs(y).max()), 1e-12)
-    d = _rays(camera, uv)
-    bp = np.asarray(bp_uv, dtype=np.float64).reshape(2)
-    b_ray = _rays(camera, bp[None])[0]
-    rig_arr = _rig_arrays(rig)
-    Lm = _mean_light(rig)
-    du = (uv[:, 0] - bp[0]) / max(H, W)
-    dv = (uv[:, 1] - bp[1]) / max(H, W)
-    A = np.column_stack([np.zeros_like(du), np.ones_like(du), du, dv])
+    P, n_px = _patch_problem(values, origin_uv, bp_uv, camera, rig, clip_level, max_pixels, 12)
+    if P is None:
+        return LightAwareEstimate(name, "too_few_points", f"{n_px} unclipped pixels")
+    d, b_ray, rig_arr, Lm, sel, step = P.d, P.b_ray, P.rig_arr, P.Lm, P.sel, P.step
 
-    def res(p):  # variable projection: the linear part by its normal equations
-        A[:, 0] = _quadric_image(d, b_ray, p, rig_arr, Lm)[0]
-        try:
-            c = np.linalg.solve(A.T @ A, A.T @ y)
-        except np.linalg.LinAlgError:
-            c = np.linalg.lstsq(A, y, rcond=None)[0]
-        return A @ c - y
+    def res(p):
+        return P.residual(_quadric_image(d, b_ray, p, rig_arr, Lm)[0])
 
     starts = (np.array([1.0, 3.0, 0.5]) * nominal_depth_mm if start_depths_mm is None
               else np.asarray(start_depths_mm, dtype=np.float64).reshape(-1))
     n0 = 50.0 if start_roughness is None else float(start_roughness)
-    px = 1.0 / float(np.linalg.norm(_rays(camera, bp[None] + [1.0, 0.0])[0] - b_ray))  # px per rad
+    px = P.px_per_rad
     x_scale = np.array([1.0 / px, 1.0 / px, 0.1, 0.1, 0.1, 0.1, 0.3])
     best = None
     nfev = 0
@@ -1662,7 +1699,7 @@ def quadric_fit(values, origin_uv, bp_uv, camera, rig: LightRig, *,
                   f"relative depth sigma {rel_floor:.3g} at the noise floor > {TOL.depth_rel_sigma_max}")
     depth_sigma = (float(s_hat * np.sqrt(max(cov[2, 2], 0.0)))
                    if observable and cov is not None else None)
-    rho, c = _residual_correlation(r0, sel, keep.shape, step)
+    rho, c = _residual_correlation(r0, sel, P.shape, step)
     rms = float(np.sqrt(np.mean(r0 * r0)))
     if rho > TOL.plane_misfit_rho and c > TOL.plane_misfit_rel**2:
         status, observable = "patch_misfit", False
@@ -1796,36 +1833,23 @@ def _cubic_setup(values, origin_uv, bp_uv, camera, rig, clip_level, max_pixels):
     11 parameters; a quadric when the last four are 0), ``b_ray``, ``Lm``, ``rig_arr``,
     ``x_scale`` (11,), ``sel``, ``step``, ``shape`` and ``m`` (pixels used).
     """
-    vals, camera, o, uu, vv, keep = _roi_grid(values, camera, origin_uv, clip_level)
-    H, W = vals.shape
-    sel, step, uv, y = _roi_samples(vals, o, uu, vv, keep, max_pixels)
-    if len(y) < 2 * _CUBIC_PARAMS:
+    P, n_px = _patch_problem(values, origin_uv, bp_uv, camera, rig, clip_level, max_pixels,
+                             2 * _CUBIC_PARAMS)
+    if P is None:
         return None
-    y = y / max(float(np.abs(y).max()), 1e-12)
-    d = _rays(camera, uv)
-    bp = np.asarray(bp_uv, dtype=np.float64).reshape(2)
-    b_ray = _rays(camera, bp[None])[0]
-    rig_arr = _rig_arrays(rig)
-    Lm = _mean_light(rig)
-    du = (uv[:, 0] - bp[0]) / max(H, W)
-    dv = (uv[:, 1] - bp[1]) / max(H, W)
-    A = np.column_stack([np.zeros_like(du), np.ones_like(du), du, dv])
+    d, b_ray, rig_arr, Lm = P.d, P.b_ray, P.rig_arr, P.Lm
 
     def res(p):
         with np.errstate(all="ignore"):
-            A[:, 0] = _cubic_patch_image(d, b_ray, p, rig_arr, Lm)[0]
-        if not np.all(np.isfinite(A[:, 0])):  # a patch run off to an overflow: no image
-            A[:, 0] = 0.0
-        try:
-            c = np.linalg.solve(A.T @ A, A.T @ y)
-        except np.linalg.LinAlgError:
-            c = np.linalg.lstsq(A, y, rcond=None)[0]
-        return A @ c - y
+            image = _cubic_patch_image(d, b_ray, p, rig_arr, Lm)[0]
+        if not np.all(np.isfinite(image)):  # a patch run off to an overflow: no image
+            image = 0.0
+        return P.residual(image)
 
-    px = 1.0 / float(np.linalg.norm(_rays(camera, bp[None] + [1.0, 0.0])[0] - b_ray))
+    px = P.px_per_rad
     x_scale = np.array([1.0 / px, 1.0 / px, 0.1, 0.1, 0.1, 0.1, 0.3, 0.1, 0.1, 0.1, 0.1])
     return {"res": res, "b_ray": b_ray, "Lm": Lm, "rig_arr": rig_arr, "x_scale": x_scale,
-            "sel": sel, "step": step, "shape": keep.shape, "m": len(y)}
+            "sel": P.sel, "step": P.step, "shape": P.shape, "m": n_px}
 
 
 def _fit_fixed_depth(S, log_s, free, starts, max_nfev, tol=1e-8):
