@@ -13,7 +13,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from simtest.reconstruct import _kernels
-from simtest.reconstruct.isophote import Isophote, extract_isophote
+from simtest.reconstruct.isophote import Isophote, extract_isophote, isophote_cut_by_roi
 
 
 def _extract_both(*args, **kwargs):
@@ -81,6 +81,48 @@ def test_every_kernel_branch_is_reached_by_the_random_regions():
         if 0 <= ri < img.shape[0] and 0 <= ci < img.shape[1]:
             codes.add(_kernels.component_contour(img, level, ri, ci, off[0], off[1], bp[0], bp[1])[0])
     assert codes == {_kernels.NOT_ABOVE, _kernels.CLOSED, _kernels.OPEN, _kernels.FALLBACK}
+
+
+@given(seed=st.integers(0, 2**32 - 1))
+@settings(max_examples=300, deadline=None)
+def test_the_growth_question_has_the_extractions_answer(seed):
+    # isophote_cut_by_roi answers what the pipeline asks before growing an ROI without tracing
+    # the isophote: the extraction's cut_by_roi (False where it fails), or None where only the
+    # extraction can tell
+    img, level, bp, off, shape = _random_region(np.random.default_rng(seed))
+    try:
+        iso = extract_isophote(img, level, bp, origin_rc=off, image_shape=shape, allow_open=True, min_points=0)
+    except ValueError:
+        return
+    cut = isophote_cut_by_roi(img, level, bp, origin_rc=off, image_shape=shape)
+    if cut is not None:
+        assert cut == (isinstance(iso, Isophote) and iso.cut_by_roi)
+
+
+def test_the_growth_question_meets_each_answer():
+    # the property test above means something only if the random regions give every answer
+    rng = np.random.default_rng(1)
+    seen = set()
+    for _ in range(400):
+        img, level, bp, off, shape = _random_region(rng)
+        try:
+            seen.add(isophote_cut_by_roi(img, level, bp, origin_rc=off, image_shape=shape))
+        except ValueError:
+            pass
+    assert seen == {True, False, None}
+
+
+def test_the_flood_fill_stops_at_a_side_asked_about():
+    # a bar across the region: it reaches the left and right sides, not the top or bottom
+    sub = np.zeros((9, 12))
+    sub[4, :] = 1.0
+    assert _kernels.component_reaches(sub, 0.5, 4, 6, False, False, True, False) == 1
+    assert _kernels.component_reaches(sub, 0.5, 4, 6, True, True, False, False) == 0
+    assert _kernels.component_reaches(sub, 0.5, 3, 6, True, True, True, True) == -1
+    filled, x, y, w, h, stopped = _kernels._flood4(sub, 0.5, 4, 6, False, False, False, True)
+    assert stopped and filled[4, 11] and not filled[4, 0]  # the fill went right first, and stopped
+    filled, x, y, w, h, stopped = _kernels._flood4(sub, 0.5, 4, 6)
+    assert not stopped and (x, y, w, h) == (0, 4, 12, 1) and filled.sum() == 12
 
 
 def test_a_ring_a_neighbour_and_a_cut_highlight():

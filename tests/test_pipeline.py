@@ -389,12 +389,41 @@ def test_the_luma_of_a_roi_sliced_from_the_frame_is_the_luma_computed_for_the_ro
         img = rng.random((h, w, 3)) * 300
     else:
         img = rng.integers(0, np.iinfo(dtype).max, (h, w, 3), dtype=dtype, endpoint=True)
-    frame = pipeline._Frame.make(img, intrinsics(100.0, w), None, ReconSettings()).with_frame_luma()
+    frame = pipeline._Frame.make(img, intrinsics(100.0, w), None, ReconSettings()).for_many_highlights()
     assert not frame.luma_frame.flags.writeable
     for _ in range(40):
         r0, c0 = int(rng.integers(0, h - 1)), int(rng.integers(0, w - 2))
         roi = Roi(r0, int(rng.integers(r0 + 1, h + 1)), c0, int(rng.integers(c0 + 2, w + 1)))
         assert np.array_equal(frame.luma(roi), luma(img[roi.slices]))
+
+
+@settings(max_examples=30, deadline=None)
+@given(st.integers(0, 2**32 - 1), st.sampled_from([0.6, 1.0, 1.7, 2.5]), st.booleans())
+def test_an_roi_smoothed_from_the_smoothed_frame_is_the_roi_smoothed_for_itself(seed, sigma, rgb):
+    # the premise of the frame's smoothed luma (pipeline._smoothed_from_frame): away from the ROI's
+    # inner sides the frame's smoothing is the ROI's, and the bands along them are smoothed again
+    # from strips, to the last bit, at any offset and size (sides on the image border included)
+    rng = np.random.default_rng(seed)
+    h, w = int(rng.integers(150, 400)), int(rng.integers(300, 600))
+    base = cv2.GaussianBlur(rng.random((h, w)) * 200, (0, 0), 3.0) + rng.random((h, w)) * 40
+    img = np.dstack([base, base * 0.8, base * 0.6]) if rgb else base
+    frame = pipeline._Frame.make(img, intrinsics(100.0, w), None,
+                                 ReconSettings(smooth_sigma_px=sigma)).for_many_highlights()
+    assert not frame.smooth_frame.flags.writeable
+    taken = 0
+    for _ in range(30):
+        r0 = int(rng.integers(0, h - 40)) if rng.random() < 0.8 else 0
+        c0 = int(rng.integers(0, w - 220)) if rng.random() < 0.8 else 0
+        r1 = int(rng.integers(r0 + 40, h + 1)) if rng.random() < 0.8 else h
+        c1 = int(rng.integers(c0 + 220, w + 1)) if rng.random() < 0.8 else w
+        roi = Roi(r0, r1, c0, c1)
+        lum = luma(img[roi.slices])
+        out = pipeline._smoothed_from_frame(frame.smooth_frame, frame.luma(roi), roi, sigma)
+        if out is None:  # too narrow for the strips: smoothed for itself by the caller
+            continue
+        taken += 1
+        assert np.array_equal(out, pipeline._smooth(lum, sigma)), (roi, sigma)
+    assert taken >= 10
 
 
 def _lobe_grid(size, n, *, cols, start, step):
@@ -410,18 +439,25 @@ def _lobe_grid(size, n, *, cols, start, step):
 
 
 def test_a_frame_with_many_highlights_gives_the_same_estimates_with_the_frame_luma(monkeypatch):
-    # 12 highlights, reconstructed with the luma of each ROI and with the frame's luma sliced
+    # 12 highlights, reconstructed with the luma (and smoothing) of each ROI and with the frame's
+    # luma (and smoothed luma) sliced
 
     size, f = 240, 300.0
     K = intrinsics(f, size)
     gray = _lobe_grid(size, 12, cols=4, start=(30.0, 40.0), step=(60.0, 75.0))
     img = np.dstack([gray, (gray * 0.9).astype(np.uint8), (gray * 0.8).astype(np.uint8)])
 
-    def run(threshold):
+    def run(threshold, sigma):
         monkeypatch.setattr(pipeline, "LUMA_FRAME_MIN_HIGHLIGHTS", threshold)
-        return reconstruct(img, K, (0.3, 0.5), normalise="bp", detection="full_scale")
+        monkeypatch.setattr(pipeline, "SMOOTH_FRAME_MIN_ROI_PX", 1)  # every ROI wide enough
+        return reconstruct(img, K, (0.3, 0.5), normalise="bp", detection="full_scale",
+                           smooth_sigma_px=sigma)
 
-    per_roi, sliced = run(10**6), run(1)
+    for sigma in (0.0, 1.5):
+        _same_frame(run(10**6, sigma), run(1, sigma))
+
+
+def _same_frame(per_roi, sliced):
     assert sum(e.ok for e in per_roi) >= 10
     assert len(per_roi) == len(sliced)
     for a, b in zip(per_roi, sliced):

@@ -15,6 +15,8 @@ Kernels
   BP against it.
 - :func:`trace_contours`: the marching-squares contours of a box in ``find_contours``' order
   and bits, when they are one closed contour or only open ones.
+- :func:`component_reaches`: whether that component reaches given sides of the box (the
+  ROI's growth asks only that).
 - :func:`border_median`: the median of a region's border pixels (``normalise="local"``).
 
 Notes
@@ -49,10 +51,12 @@ _EMPTY = np.empty((0, 2), dtype=np.float64)
 
 
 @numba.njit(cache=True, nogil=True)
-def _flood4(sub, level, ri, ci):
+def _flood4(sub, level, ri, ci, stop_top=False, stop_bottom=False, stop_left=False, stop_right=False):
     """4-connected flood fill of the pixels of ``sub`` above ``level`` from (ri, ci), as
-    ``cv2.floodFill`` of the mask ``sub > level``: the filled pixels (uint8 1, else 0) and their
-    bounding box (x, y, w, h). Only the filled pixels and their 4-neighbours are read."""
+    ``cv2.floodFill`` of the mask ``sub > level``: the filled pixels (uint8 1, else 0), their
+    bounding box (x, y, w, h) and False. Only the filled pixels and their 4-neighbours are read.
+    With a ``stop_*`` side set, the fill stops at the first pixel it reaches on that side of
+    ``sub`` and returns True last (the pixels and box are then those filled so far)."""
     H, W = sub.shape
     filled = np.zeros((H, W), dtype=np.uint8)
     stack = np.empty(64, dtype=np.int64)
@@ -66,6 +70,8 @@ def _flood4(sub, level, ri, ci):
         p = stack[top]
         r, c = p // W, p % W
         r0, r1, c0, c1 = min(r0, r), max(r1, r), min(c0, c), max(c1, c)
+        if (stop_top and r == 0) or (stop_bottom and r == H - 1) or (stop_left and c == 0) or (stop_right and c == W - 1):
+            return filled, c0, r0, c1 - c0 + 1, r1 - r0 + 1, True
         if top + 4 > len(stack):
             grown = np.empty(2 * len(stack), dtype=np.int64)
             grown[:top] = stack[:top]
@@ -86,7 +92,7 @@ def _flood4(sub, level, ri, ci):
             filled[r, c + 1] = 1
             stack[top] = p + 1
             top += 1
-    return filled, c0, r0, c1 - c0 + 1, r1 - r0 + 1
+    return filled, c0, r0, c1 - c0 + 1, r1 - r0 + 1, False
 
 
 @numba.njit(cache=True, nogil=True)
@@ -352,7 +358,7 @@ def component_contour(sub, level, ri, ci, row0, col0, bp_u, bp_v):
     no_sides = (False, False, False, False)
     if not sub[ri, ci] > level:
         return NOT_ABOVE, _EMPTY, False, no_sides
-    filled, x, y, w, h = _flood4(sub, level, ri, ci)
+    filled, x, y, w, h, _ = _flood4(sub, level, ri, ci)
     sides = (y == 0, y + h == H, x == 0, x + w == W)
     r0, r1 = max(y - 1, 0), min(y + h + 1, H)
     c0, c1 = max(x - 1, 0), min(x + w + 1, W)
@@ -385,6 +391,35 @@ def component_contour(sub, level, ri, ci, row0, col0, bp_u, bp_v):
             rc[i, 1] += c0
         return OPEN, rc, False, sides
     return FALLBACK, _EMPTY, False, sides
+
+
+@numba.njit(cache=True, nogil=True)
+def component_reaches(sub, level, ri, ci, top, bottom, left, right):
+    """Whether the 4-connected component of ``sub > level`` holding pixel (ri, ci) reaches one
+    of the flagged sides of ``sub``, found by a flood fill that stops there.
+
+    Parameters
+    ----------
+    sub : ndarray of shape (h, w), float64
+        The region's intensities.
+    level : float
+        Contour level, image units.
+    ri, ci : int
+        The BP's pixel (row, col) in ``sub``.
+    top, bottom, left, right : bool
+        The sides asked about.
+
+    Returns
+    -------
+    int
+        -1 if the pixel (ri, ci) is not above the level (no component), 1 if the component
+        reaches a flagged side, 0 if not: the ``sides`` of :func:`component_contour` (and of its
+        numpy fallback, the same flood fill), without the contour. The pipeline asks it before
+        growing an ROI, which needs only that answer.
+    """
+    if not sub[ri, ci] > level:
+        return -1
+    return 1 if _flood4(sub, level, ri, ci, top, bottom, left, right)[5] else 0
 
 
 @numba.njit(cache=True, nogil=True)

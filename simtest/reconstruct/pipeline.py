@@ -84,7 +84,7 @@ from simtest.reconstruct.detect import (
 )
 from simtest.reconstruct.estimators import estimate_from_conics, joint_cone_axes
 from simtest.reconstruct.failures import OK, Failure
-from simtest.reconstruct.isophote import MIN_CONTOUR_POINTS, extract_isophote, polygon_contains
+from simtest.reconstruct.isophote import MIN_CONTOUR_POINTS, extract_isophote, isophote_cut_by_roi, polygon_contains
 from simtest.reconstruct.recommend import recommend
 from simtest.reconstruct.settings import AUTO_LOCAL_BACKGROUND_REL, Normalisation, ReconSettings
 
@@ -95,6 +95,18 @@ from simtest.reconstruct.settings import AUTO_LOCAL_BACKGROUND_REL, Normalisatio
 LUMA_FRAME_MIN_HIGHLIGHTS = 32
 
 _TINY = float(np.finfo(float).tiny)
+
+#: A frame prepared for many highlights (``_Frame.for_many_highlights``) smooths its luma once and
+#: takes an ROI of at least this many pixels from it (``_smoothed_from_frame``); a smaller ROI is
+#: smoothed for itself, which is cheaper there (the same bits either way).
+SMOOTH_FRAME_MIN_ROI_PX = 128 * 128
+#: Columns the strip re-smoothed at an ROI's right side starts on a multiple of, and more than
+#: it covers: OpenCV smooths a float64 row in SIMD blocks from its first column and the last few
+#: columns in scalar code, and the two may round a sum differently (an FMA), so the strip puts
+#: each column in the same kind of block as the ROI does, and reaches past the frame's own scalar
+#: columns when the ROI ends on the image's right border. 64 is a multiple of every SIMD width of
+#: doubles (2 to 8 lanes, times OpenCV's unrolling).
+SMOOTH_STRIP_ALIGN = 64
 
 #: ROI growth when the lowest isophote is cut by a ROI side inside the image.
 ROI_GROWTH_FACTOR = 2.0
@@ -312,6 +324,7 @@ class _Frame:
     saturation_level: float | None
     smooth_sigma_px: float
     luma_frame: np.ndarray | None = None
+    smooth_frame: np.ndarray | None = None
 
     @classmethod
     def make(cls, image, K, dist_coeffs, settings: ReconSettings, noise_roi: Roi | None = None) -> _Frame:
@@ -338,14 +351,20 @@ class _Frame:
         """BP-ray normals of pixels (k, 2): (k, 3), the same bits as one by one."""
         return _bp_rays(np.asarray(bp_uv, dtype=np.float64).reshape(-1, 2), self.camera)
 
-    def with_frame_luma(self) -> _Frame:
-        """This frame with the luma of the whole image computed once (read-only), for calls that
-        look at many ROIs of an RGB image (:data:`LUMA_FRAME_MIN_HIGHLIGHTS`)."""
-        if self.img.ndim != 3 or self.luma_frame is not None:
-            return self
-        full = luma(self.img)
-        full.setflags(write=False)
-        return replace(self, luma_frame=full)
+    def for_many_highlights(self) -> _Frame:
+        """This frame with the luma of the whole image computed once, and smoothed once when the
+        frame is smoothed (both read-only), for calls that look at many ROIs
+        (:data:`LUMA_FRAME_MIN_HIGHLIGHTS`): an ROI's values are then slices of them, the same bits
+        (``luma``, ``_roi_values``)."""
+        full = self.luma_frame
+        if full is None and self.img.ndim == 3:
+            full = luma(self.img)
+            full.setflags(write=False)
+        smooth = self.smooth_frame
+        if smooth is None and self.smooth_sigma_px > 0:
+            smooth = _smooth(luma(self.img) if full is None else full, self.smooth_sigma_px)
+            smooth.setflags(write=False)
+        return replace(self, luma_frame=full, smooth_frame=smooth)
 
     def luma(self, roi: Roi) -> np.ndarray:
         """Luma of the image in ``roi`` (h, w), float64: sliced from the frame's luma when it
@@ -426,11 +445,55 @@ def _bp_rays(bp_uv: np.ndarray, camera) -> np.ndarray:
     return -ray / np.linalg.norm(ray, axis=1, keepdims=True)
 
 
+def _smooth(vals: np.ndarray, sigma: float) -> np.ndarray:
+    """Gaussian smoothing of an ROI's intensities (step 1), its borders reflected."""
+    return cv2.GaussianBlur(vals, (0, 0), sigma, borderType=cv2.BORDER_REFLECT)
+
+
 def _roi_values(frame: _Frame, roi: Roi, smooth_sigma_px: float) -> np.ndarray:
+    """An ROI's intensities (h, w), float64: its luma, smoothed with the ROI's borders reflected
+    when ``smooth_sigma_px`` > 0 (from the frame's smoothed luma where it was computed, the same
+    bits: ``_smoothed_from_frame``)."""
     vals = frame.luma(roi)
-    if smooth_sigma_px > 0:
-        vals = cv2.GaussianBlur(vals, (0, 0), smooth_sigma_px, borderType=cv2.BORDER_REFLECT)
-    return vals
+    if smooth_sigma_px <= 0:
+        return vals
+    if frame.smooth_frame is not None and vals.size >= SMOOTH_FRAME_MIN_ROI_PX:
+        out = _smoothed_from_frame(frame.smooth_frame, vals, roi, smooth_sigma_px)
+        if out is not None:
+            return out
+    return _smooth(vals, smooth_sigma_px)
+
+
+def _smoothed_from_frame(smooth_frame: np.ndarray, vals: np.ndarray, roi: Roi, sigma: float) -> np.ndarray | None:
+    """``_smooth(vals, sigma)`` of an ROI, taken from the smoothed frame.
+
+    A pixel farther than the kernel's radius from the ROI's sides has the same neighbourhood in
+    the frame and in the ROI (a side on the image border reflects as the frame's does), and
+    OpenCV computes it with the same operations, but for the last columns of a row, which it
+    computes in scalar code where the rest is in SIMD blocks (:data:`SMOOTH_STRIP_ALIGN`). So the
+    bands along the ROI's top, bottom and left sides inside the image are smoothed again from
+    strips twice the radius wide (a strip's own far side does not reach the band), and the
+    ROI's last columns from a strip that starts on a multiple of the alignment (its blocks are
+    the ROI's) and is wider than the frame's scalar columns.
+
+    Returns None (smooth the ROI itself) for an ROI too narrow for the strips. The bits equal
+    those of smoothing the ROI: ``tests/test_pipeline.py`` checks random ROIs.
+    """
+    r = int(np.ceil(4.0 * sigma)) + 1  # >= OpenCV's radius for float64: round(8 sigma + 1) | 1 taps
+    h, w = vals.shape
+    H = smooth_frame.shape[0]
+    c = (w - SMOOTH_STRIP_ALIGN - 2 * r) // SMOOTH_STRIP_ALIGN * SMOOTH_STRIP_ALIGN
+    if h < 2 * r or c <= 2 * r:
+        return None
+    out = smooth_frame[roi.slices].copy()
+    if roi.row0 > 0:
+        out[:r] = _smooth(vals[: 2 * r], sigma)[:r]
+    if roi.row1 < H:
+        out[h - r :] = _smooth(vals[h - 2 * r :], sigma)[r:]
+    if roi.col0 > 0:
+        out[:, :r] = _smooth(vals[:, : max(2 * r, SMOOTH_STRIP_ALIGN)], sigma)[:, :r]
+    out[:, c + r :] = _smooth(vals[:, c:], sigma)[:, r:]
+    return out
 
 
 def _bp_intensity(vals: np.ndarray, roi: Roi, bp_uv) -> float:
@@ -551,14 +614,19 @@ def _estimate_one(frame: _Frame, bp_uv, roi: Roi, *, saturated: bool, grow: bool
         i_bp = _bp_intensity(vals, roi, bp_uv)
         levels = _Levels.of(frame, vals, i_bp)
         i0 = order[0]
-        res, iso = _one_isophote(frame, vals, roi, levels, isovalues[i0], bp_uv)
-        if grow and iso is not None and iso.cut_by_roi and growths < ROI_MAX_GROWTHS:
-            half = ROI_GROWTH_FACTOR * max(roi.shape) / 2.0
-            new = Roi.around(bp_uv, half, frame.img.shape)
-            if new != roi:
+        res = None
+        if grow and growths < ROI_MAX_GROWTHS:
+            new = Roi.around(bp_uv, ROI_GROWTH_FACTOR * max(roi.shape) / 2.0, frame.img.shape)
+            # an isophote cut by the ROI is discarded for the grown ROI's: ask only whether it is
+            cut = new != roi and isophote_cut_by_roi(vals, levels.level(isovalues[i0]), bp_uv,
+                                                     origin_rc=(roi.row0, roi.col0), image_shape=frame.img.shape)
+            if cut is None:  # only the extraction can tell
+                res, iso = _one_isophote(frame, vals, roi, levels, isovalues[i0], bp_uv)
+                cut = iso is not None and iso.cut_by_roi
+            if cut:
                 roi, growths = new, growths + 1
                 continue
-        results[i0] = res
+        results[i0] = _one_isophote(frame, vals, roi, levels, isovalues[i0], bp_uv)[0] if res is None else res
         break
     for i in order[1:]:
         results[i], _ = _one_isophote(frame, vals, roi, levels, isovalues[i], bp_uv)
@@ -856,7 +924,7 @@ def reconstruct(
         peak_rel=settings.peak_rel,
     )
     if sum(c.status == OK for c in det.candidates) >= LUMA_FRAME_MIN_HIGHLIGHTS:
-        frame = frame.with_frame_luma()
+        frame = frame.for_many_highlights()
     shift = np.array([r.col0, r.row0], dtype=np.float64)
     bps = [c.bp_uv + shift for c in det.candidates]
     # BPs another highlight's isophote must not enclose (``merged``): every candidate's but the
