@@ -71,6 +71,25 @@ def test_extract_isophote_gives_the_numpy_paths_bits(seed):
     assert _same(got, want)
 
 
+@given(seed=st.integers(0, 2**32 - 1))
+@settings(max_examples=100, deadline=None)
+def test_a_region_read_in_place_from_a_wider_array_gives_the_same_isophote(seed):
+    # the pipeline hands the kernels views of the frame's luma (row stride of the frame) uncopied
+    img, level, bp, off, shape = _random_region(np.random.default_rng(seed))
+    wide = np.zeros((img.shape[0], img.shape[1] + 7))
+    wide[:, 3 : 3 + img.shape[1]] = img
+    view = wide[:, 3 : 3 + img.shape[1]]
+    assert not view.flags.c_contiguous
+    kw = dict(origin_rc=off, image_shape=shape, allow_open=True, min_points=0)
+    try:
+        a, b = extract_isophote(img, level, bp, **kw), extract_isophote(view, level, bp, **kw)
+    except ValueError:
+        return
+    assert _same(a, b)
+    assert isophote_cut_by_roi(img, level, bp, origin_rc=off, image_shape=shape) == \
+        isophote_cut_by_roi(view, level, bp, origin_rc=off, image_shape=shape)
+
+
 def test_every_kernel_branch_is_reached_by_the_random_regions():
     # the property test above means something only if its inputs reach each branch
     rng = np.random.default_rng(0)

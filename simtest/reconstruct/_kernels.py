@@ -325,7 +325,7 @@ def component_contour(sub, level, ri, ci, row0, col0, bp_u, bp_v):
     Parameters
     ----------
     sub : ndarray of shape (h, w), float64
-        The region's intensities (C-contiguous).
+        The region's intensities (any strides: a view of the frame's luma is read in place).
     level : float
         Contour level, image units.
     ri, ci : int

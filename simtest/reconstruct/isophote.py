@@ -187,7 +187,7 @@ def extract_isophote(
         return Failure("bp_below_isovalue", f"max near BP {float(window.max()):.6g} <= level {level:.6g}")
 
     code, pts, inside, sides = _kernels.component_contour(
-        np.ascontiguousarray(sub), float(level), ri, ci, roi.row0, roi.col0, float(bp_uv[0]), float(bp_uv[1]))
+        sub, float(level), ri, ci, roi.row0, roi.col0, float(bp_uv[0]), float(bp_uv[1]))
     if code == _kernels.CLOSED:
         closed_hits, pieces = ([pts] if inside else []), []
     elif code == _kernels.OPEN:
@@ -271,7 +271,7 @@ def isophote_cut_by_roi(values: np.ndarray, level: float, bp_uv, *, origin_rc: t
     if not float(window.max()) > level:
         return False
     inner = [not b for b in roi.touches_image_border(image_shape)]
-    got = _kernels.component_reaches(np.ascontiguousarray(sub), float(level), ri, ci, *inner)
+    got = _kernels.component_reaches(sub, float(level), ri, ci, *inner)
     return None if got < 0 else bool(got)
 
 
