@@ -182,3 +182,24 @@ def test_border_median_of_a_nan_is_nan():
     v[0, 2] = np.nan
     assert np.isnan(_kernels.border_median(v))
     assert np.isnan(np.median(np.concatenate([v[0], v[-1], v[1:-1, 0], v[1:-1, -1]])))
+
+
+@given(seed=st.integers(0, 2**32 - 1), dtype=st.sampled_from([np.uint8, np.uint16, np.float32, np.float64]),
+       strided=st.booleans())
+@settings(max_examples=60, deadline=None)
+def test_the_compiled_luma_is_the_blas_products_bits(seed, dtype, strided):
+    # luma_rgb replaces numpy's image @ weights (OpenBLAS); detect.luma and every ROI's luma use it
+    from simtest.reconstruct.detect import _LUMA, _LUMA_WEIGHTS, luma
+
+    rng = np.random.default_rng(seed)
+    h, w = (int(v) for v in rng.integers(1, 80, 2))
+    if np.issubdtype(dtype, np.integer):
+        img = rng.integers(0, np.iinfo(dtype).max, (h, w + 3, 3), dtype=dtype, endpoint=True)
+    else:
+        img = (rng.random((h, w + 3, 3)) * rng.choice([1.0, 255.0, 1e4])).astype(dtype)
+    img = img[:, 2 : 2 + w] if strided else img[:, :w].copy()
+    want = img.astype(np.float64) @ _LUMA
+    got = _kernels.luma_rgb(img, *_LUMA_WEIGHTS)
+    assert got.dtype == np.float64 and got.shape == (h, w)
+    assert got.tobytes() == want.tobytes()
+    assert luma(img).tobytes() == want.tobytes()

@@ -35,9 +35,14 @@ import numpy as np
 
 from simtest.constants import LUMA_BT601
 from simtest.reconstruct import _detect_kernels as _dk
+from simtest.reconstruct import _kernels
 from simtest.reconstruct._pixels import Roi, rc_to_uv
 
 _LUMA = np.array(LUMA_BT601)
+_LUMA_WEIGHTS = tuple(float(w) for w in LUMA_BT601)
+#: Image dtypes whose float64 luma :func:`luma` computes by one compiled pass
+#: (:func:`simtest.reconstruct._kernels.luma_rgb`, the bits of ``image @ _LUMA``).
+_LUMA_COMPILED = (np.uint8, np.uint16, np.float32, np.float64)
 
 
 def connected_components(mask: np.ndarray) -> tuple[int, np.ndarray]:
@@ -313,9 +318,18 @@ def luma(image: np.ndarray, *, dtype=np.float64) -> np.ndarray:
     -------
     ndarray of shape (H, W)
         Intensity in image units (no rescaling).
+
+    Notes
+    -----
+    A float64 luma of a uint8, uint16, float32 or float64 image is one compiled pass
+    (:func:`simtest.reconstruct._kernels.luma_rgb`), the bits of numpy's ``image @ weights``
+    without its float64 copy of the image; each pixel's value depends on that pixel only, so
+    an ROI's luma is the same bits as the frame's luma sliced.
     """
     if image.ndim == 2:
         return image.astype(dtype, copy=False)
+    if np.dtype(dtype) == np.float64 and image.dtype.type in _LUMA_COMPILED:
+        return _kernels.luma_rgb(image, *_LUMA_WEIGHTS)
     return (image.astype(dtype, copy=False) @ _LUMA.astype(dtype)).astype(dtype, copy=False)
 
 

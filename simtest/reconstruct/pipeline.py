@@ -370,12 +370,11 @@ class _Frame:
         """Luma of the image in ``roi`` (h, w), float64: sliced from the frame's luma when it
         was computed, else computed for the ROI.
 
-        Both are the same bits: the luma is one matrix-vector product per image row (numpy's
-        ``matmul``, the same BLAS kernel for every row at least 2 px wide), so a pixel's value does
-        not depend on the extent of the array it is computed in (``tests/test_pipeline.py``
-        checks it over random ROIs). A 1-px wide ROI (numpy's own loop) is computed for itself.
+        Both are the same bits: a pixel's luma is computed from that pixel alone
+        (:func:`~simtest.reconstruct.detect.luma`), whatever the extent of the array
+        (``tests/test_pipeline.py`` checks it over random ROIs).
         """
-        if self.luma_frame is not None and roi.col1 - roi.col0 >= 2:
+        if self.luma_frame is not None:
             return self.luma_frame[roi.slices]
         return luma(self.img[roi.slices])
 
