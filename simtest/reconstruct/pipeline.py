@@ -586,13 +586,16 @@ class _Draft:
     fitf: FitFrame
     results: list
     other_bps: object = ()
+    own_bp: int = -1  # this highlight's own row in other_bps (skipped), -1 if not there
 
 
 def _estimate_one(frame: _Frame, bp_uv, roi: Roi, *, saturated: bool, grow: bool,
-                  other_bps=(), bp_ray=None, fitf: FitFrame | None = None) -> _Draft | SpecularityEstimate:
+                  other_bps=(), own_bp: int = -1, bp_ray=None, fitf: FitFrame | None = None) -> _Draft | SpecularityEstimate:
     """Extract one highlight's isophotes (growing the ROI): a draft for :func:`_complete`, or the
-    finished estimate of a BP without a viewing ray. ``bp_ray`` and ``fitf`` are the BP's ray and
-    fit frame when the caller computed them (for many highlights at once)."""
+    finished estimate of a BP without a viewing ray. ``other_bps`` (k, 2) are the BPs its isophote
+    must not enclose (``merged``), one frame's array shared by its highlights, whose own row
+    ``own_bp`` is skipped. ``bp_ray`` and ``fitf`` are the BP's ray and fit frame when the caller
+    computed them (for many highlights at once)."""
     isovalues = frame.settings.isovalues
     sigma = frame.smooth_sigma_px
     bp_uv = np.asarray(bp_uv, dtype=np.float64)
@@ -629,7 +632,7 @@ def _estimate_one(frame: _Frame, bp_uv, roi: Roi, *, saturated: bool, grow: bool
         break
     for i in order[1:]:
         results[i], _ = _one_isophote(frame, vals, roi, levels, isovalues[i], bp_uv)
-    return _Draft(bp_uv, i_bp, saturated, roi, bp_ray, fitf, results, other_bps)
+    return _Draft(bp_uv, i_bp, saturated, roi, bp_ray, fitf, results, other_bps, own_bp)
 
 
 def _complete(drafts: list) -> list[SpecularityEstimate]:
@@ -692,11 +695,14 @@ def _finish(d: _Draft, joint) -> SpecularityEstimate:
     isovalues = [r.isovalue for r in d.results]
     primary = d.results[0]
     status, detail = primary.status, primary.detail
-    if status == OK and primary.closed and len(d.other_bps):
+    if status == OK and primary.closed and len(d.other_bps) > (d.own_bp >= 0):
         pts = primary.points_uv
         lo, hi = pts.min(axis=0), pts.max(axis=0)
         cand = np.asarray(d.other_bps, dtype=np.float64).reshape(-1, 2)
-        cand = cand[np.all((cand >= lo) & (cand <= hi), axis=1)]
+        near = np.all((cand >= lo) & (cand <= hi), axis=1)
+        if d.own_bp >= 0:
+            near[d.own_bp] = False
+        cand = cand[near]
         n_in = int(np.count_nonzero(polygon_contains(pts, cand))) if len(cand) else 0
         if n_in:
             status, detail = "merged", f"the isophote at t = {isovalues[0]} encloses {n_in} other BP(s)"
@@ -930,7 +936,8 @@ def reconstruct(
     # too small ones (noise)
     bps_arr = np.array(bps, dtype=np.float64).reshape(-1, 2)
     keep = np.array([c.status != "too_small" for c in det.candidates], dtype=bool)
-    idx = np.arange(len(bps))
+    others = bps_arr[keep]
+    row_in_others = np.cumsum(keep) - 1
     # every candidate's BP ray, and the fit frames of the accepted ones, in one call of the model
     rays = frame.bp_rays(bps_arr)
     has_ray = np.isfinite(rays).all(axis=1)
@@ -947,7 +954,7 @@ def reconstruct(
                                            cand.detail, ray if has_ray[k] else None, ()))
             continue
         roi_k = _initial_roi(cand, bp, det.threshold, frame)
-        others = bps_arr[keep & (idx != k)]
-        out.append(_estimate_one(frame, bp, roi_k, saturated=cand.saturated, grow=True,
-                                 other_bps=others, bp_ray=rays[k], fitf=frames_of.get(k)))
+        out.append(_estimate_one(frame, bp, roi_k, saturated=cand.saturated, grow=True, other_bps=others,
+                                 own_bp=int(row_in_others[k]) if keep[k] else -1, bp_ray=rays[k],
+                                 fitf=frames_of.get(k)))
     return _complete(out)
