@@ -24,6 +24,7 @@ References
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import NamedTuple
 
 import cv2
 import numpy as np
@@ -181,10 +182,14 @@ def extract_isophote(
     pixel exactly at the level, several closed contours, the BP's pixel below the level) goes to
     ``find_contours`` itself (``_contours_numpy``).
     """
-    sub, roi, image_shape, bp_uv, ri, ci = _region(values, bp_uv, origin_rc, image_shape)
-    window = sub[max(0, ri - 1) : ri + 2, max(0, ci - 1) : ci + 2]
-    if not float(window.max()) > level:
-        return Failure("bp_below_isovalue", f"max near BP {float(window.max()):.6g} <= level {level:.6g}")
+    return _extract(_region(values, bp_uv, origin_rc, image_shape), level, allow_open, min_points)
+
+
+def _extract(region: _Region, level: float, allow_open: bool, min_points: int) -> Isophote | Failure:
+    """:func:`extract_isophote` in a checked region (one per ROI, whatever the levels asked)."""
+    sub, roi, image_shape, bp_uv, ri, ci, near_bp = region
+    if not near_bp > level:
+        return Failure("bp_below_isovalue", f"max near BP {near_bp:.6g} <= level {level:.6g}")
 
     code, pts, inside, sides = _kernels.component_contour(
         sub, float(level), ri, ci, roi.row0, roi.col0, float(bp_uv[0]), float(bp_uv[1]))
@@ -215,9 +220,23 @@ def extract_isophote(
     return iso
 
 
-def _region(values, bp_uv, origin_rc, image_shape):
+class _Region(NamedTuple):
     """The checked arguments of :func:`extract_isophote`: the region as float64, its ROI, the
-    image shape, the BP as float64 and its pixel (row, col) in the region."""
+    image shape, the BP as float64, its pixel (row, col) in the region and the largest value of
+    the 3 x 3 pixels around it (clipped to the region)."""
+
+    sub: np.ndarray
+    roi: Roi
+    image_shape: tuple
+    bp_uv: np.ndarray
+    ri: int
+    ci: int
+    near_bp: float
+
+
+def _region(values, bp_uv, origin_rc, image_shape) -> _Region:
+    """The :class:`_Region` of :func:`extract_isophote`'s arguments (ValueError as documented
+    there)."""
     sub = np.asarray(values, dtype=np.float64)
     if sub.ndim != 2:
         raise ValueError(f"values must be a 2D array, got shape {sub.shape}")
@@ -231,7 +250,8 @@ def _region(values, bp_uv, origin_rc, image_shape):
     ri, ci = int(round(r_bp)), int(round(c_bp))
     if not (0 <= ri < sub.shape[0] and 0 <= ci < sub.shape[1]):
         raise ValueError(f"bp_uv = {bp_uv.tolist()} lies outside the ROI {tuple(roi)}")
-    return sub, roi, image_shape, bp_uv, ri, ci
+    near_bp = float(sub[max(0, ri - 1) : ri + 2, max(0, ci - 1) : ci + 2].max())
+    return _Region(sub, roi, tuple(image_shape), bp_uv, ri, ci, near_bp)
 
 
 def isophote_cut_by_roi(values: np.ndarray, level: float, bp_uv, *, origin_rc: tuple[int, int],
@@ -266,9 +286,13 @@ def isophote_cut_by_roi(values: np.ndarray, level: float, bp_uv, *, origin_rc: t
     :func:`simtest.reconstruct._kernels.component_reaches` stops at the first pixel on such a
     side. ``tests/test_isophote.py`` checks the answer against the extraction's.
     """
-    sub, roi, image_shape, bp_uv, ri, ci = _region(values, bp_uv, origin_rc, image_shape)
-    window = sub[max(0, ri - 1) : ri + 2, max(0, ci - 1) : ci + 2]
-    if not float(window.max()) > level:
+    return _cut_by_roi(_region(values, bp_uv, origin_rc, image_shape), level)
+
+
+def _cut_by_roi(region: _Region, level: float) -> bool | None:
+    """:func:`isophote_cut_by_roi` in a checked region."""
+    sub, roi, image_shape, bp_uv, ri, ci, near_bp = region
+    if not near_bp > level:
         return False
     inner = [not b for b in roi.touches_image_border(image_shape)]
     got = _kernels.component_reaches(sub, float(level), ri, ci, *inner)

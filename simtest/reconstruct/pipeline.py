@@ -84,7 +84,7 @@ from simtest.reconstruct.detect import (
 )
 from simtest.reconstruct.estimators import estimate_from_conics, joint_cone_axes
 from simtest.reconstruct.failures import OK, Failure
-from simtest.reconstruct.isophote import MIN_CONTOUR_POINTS, extract_isophote, isophote_cut_by_roi, polygon_contains
+from simtest.reconstruct.isophote import MIN_CONTOUR_POINTS, _cut_by_roi, _extract, _region, polygon_contains
 from simtest.reconstruct.recommend import recommend
 from simtest.reconstruct.settings import AUTO_LOCAL_BACKGROUND_REL, Normalisation, ReconSettings
 
@@ -557,12 +557,10 @@ class _Pending:
     iso: object  # simtest.reconstruct.isophote.Isophote
 
 
-def _one_isophote(frame: _Frame, vals, roi, levels: _Levels, t, bp_uv):
-    """Extract the isophote at ``t``: ``(IsophoteEstimate of a failure, or _Pending, Isophote or None)``."""
-    iso = extract_isophote(
-        vals, levels.level(t), bp_uv, origin_rc=(roi.row0, roi.col0), image_shape=frame.img.shape,
-        allow_open=True, min_points=0,
-    )
+def _one_isophote(frame: _Frame, region, levels: _Levels, t):
+    """Extract the isophote at ``t`` in an ROI's checked region (``isophote._region``):
+    ``(IsophoteEstimate of a failure, or _Pending, Isophote or None)``."""
+    iso = _extract(region, levels.level(t), True, 0)
     if not iso:
         return IsophoteEstimate(t, iso.reason, iso.detail), None
     if iso.cut and not frame.settings.allow_open:
@@ -616,22 +614,22 @@ def _estimate_one(frame: _Frame, bp_uv, roi: Roi, *, saturated: bool, grow: bool
         i_bp = _bp_intensity(vals, roi, bp_uv)
         levels = _Levels.of(frame, vals, i_bp)
         i0 = order[0]
+        region = _region(vals, bp_uv, (roi.row0, roi.col0), frame.img.shape)
         res = None
         if grow and growths < ROI_MAX_GROWTHS:
             new = Roi.around(bp_uv, ROI_GROWTH_FACTOR * max(roi.shape) / 2.0, frame.img.shape)
             # an isophote cut by the ROI is discarded for the grown ROI's: ask only whether it is
-            cut = new != roi and isophote_cut_by_roi(vals, levels.level(isovalues[i0]), bp_uv,
-                                                     origin_rc=(roi.row0, roi.col0), image_shape=frame.img.shape)
+            cut = new != roi and _cut_by_roi(region, levels.level(isovalues[i0]))
             if cut is None:  # only the extraction can tell
-                res, iso = _one_isophote(frame, vals, roi, levels, isovalues[i0], bp_uv)
+                res, iso = _one_isophote(frame, region, levels, isovalues[i0])
                 cut = iso is not None and iso.cut_by_roi
             if cut:
                 roi, growths = new, growths + 1
                 continue
-        results[i0] = _one_isophote(frame, vals, roi, levels, isovalues[i0], bp_uv)[0] if res is None else res
+        results[i0] = _one_isophote(frame, region, levels, isovalues[i0])[0] if res is None else res
         break
     for i in order[1:]:
-        results[i], _ = _one_isophote(frame, vals, roi, levels, isovalues[i], bp_uv)
+        results[i], _ = _one_isophote(frame, region, levels, isovalues[i])
     return _Draft(bp_uv, i_bp, saturated, roi, bp_ray, fitf, results, other_bps, own_bp)
 
 
