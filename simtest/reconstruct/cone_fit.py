@@ -35,7 +35,7 @@ import numpy as np
 
 from simtest.geometry.cameras import CameraModel, PinholeCamera
 from simtest.reconstruct.failures import Failure
-from simtest.reconstruct.fit import EllipseFit, fit_ellipses, point_sets
+from simtest.reconstruct.fit import EllipseFit, fit_stacked, point_sets
 
 __all__ = ["ConeFit", "FitFrame", "fit_cone", "fit_cones", "fit_frame", "fit_frames", "rotation_to_z", "rotations_to_z", "to_camera", "to_fit_frame"]
 
@@ -68,13 +68,8 @@ class FitFrame:
 
         Rays at or behind the plane's horizon (``(R r)_z <= 0``) give NaN rows.
         """
-        r = rays @ self.R.T
-        with np.errstate(divide="ignore", invalid="ignore"):
-            z = np.where(r[:, 2] > 0, r[:, 2], np.nan)
-            x = r[:, 0] / z
-            y = r[:, 1] / z
-        K = self.K
-        return np.stack([K[0, 0] * x + K[0, 1] * y + K[0, 2], K[1, 1] * y + K[1, 2]], axis=1)
+        rays = np.asarray(rays, dtype=np.float64).reshape(-1, 3)
+        return _to_planes(rays, self.R[None], self.K[None], np.zeros(len(rays), dtype=np.intp))
 
     def from_plane(self, pts: np.ndarray) -> np.ndarray:
         """Unit camera-frame rays (N, 3) of fit-plane points (N, 2)."""
@@ -260,9 +255,10 @@ def fit_cones(points_list, frames) -> list[ConeFit | Failure]:
 
     Notes
     -----
-    The contours of one camera are mapped to rays in one call of its model, the ellipses fitted in
-    one batch (:func:`~simtest.reconstruct.fit.fit_ellipses`) and the cones formed in stacked
-    matrix products.
+    The contours of one camera are mapped to rays in one call of its model and onto their fit
+    planes in one batched projection, the ellipses fitted in one batch
+    (:func:`~simtest.reconstruct.fit.fit_stacked`) and the cones formed in stacked matrix
+    products.
     """
     pts_list = point_sets(points_list)
     frames = list(frames)
@@ -270,44 +266,83 @@ def fit_cones(points_list, frames) -> list[ConeFit | Failure]:
         raise ValueError(f"{len(pts_list)} contours but {len(frames)} fit frames")
     if not pts_list:
         return []
-    plane = list(pts_list)
-    mapped = [i for i, f in enumerate(frames)
-              if not (isinstance(f.camera, PinholeCamera) and f.camera.dist_coeffs is None)]
-    by_camera: dict = {}
-    for i in mapped:
-        by_camera.setdefault(id(frames[i].camera), []).append(i)
-    for idx in by_camera.values():
-        cam = frames[idx[0]].camera
-        n = [len(pts_list[i]) for i in idx]
-        rays = cam.pixel_to_ray(np.concatenate([pts_list[i] for i in idx], axis=0))
-        for i, r in zip(idx, np.split(rays, np.cumsum(n)[:-1])):
-            plane[i] = frames[i].to_plane(r)
-    fits = fit_ellipses(plane)
-    good = [i for i, f in enumerate(fits) if f]
+    counts = np.array([len(p) for p in pts_list], dtype=np.int64)
+    pts = np.concatenate(pts_list, axis=0)
+    # per distinct frame object (a pinhole's frames are one object): its camera when its points
+    # are mapped to rays, None when the contour points are the plane points already
+    camera_of: dict = {}
+    for f in frames:
+        if id(f) not in camera_of:
+            plain = isinstance(f.camera, PinholeCamera) and f.camera.dist_coeffs is None
+            camera_of[id(f)] = None if plain else f.camera
+    cams = [camera_of[id(f)] for f in frames]
+    mapped = np.array([c is not None for c in cams], dtype=bool)
+    if mapped.any():
+        R = np.stack([f.R for f in frames])
+        K = np.stack([f.K for f in frames])
+        owner = np.repeat(np.arange(len(frames)), counts)
+        cam_ids = np.array([id(c) for c in cams], dtype=np.int64)
+        for cid in np.unique(cam_ids[mapped]).tolist():
+            rows = np.repeat(mapped & (cam_ids == cid), counts)
+            cam = cams[int(np.flatnonzero(mapped & (cam_ids == cid))[0])]
+            pts[rows] = _to_planes(cam.pixel_to_ray(pts[rows]), R, K, owner[rows])
+    fits = fit_stacked(pts, counts)
     out: list = list(fits)
-    if not good:
+    good = np.array([i for i, f in enumerate(fits) if f], dtype=np.intp)
+    if not len(good):
         return out
-    K = np.stack([frames[i].K for i in good])
-    C = np.stack([fits[i].conic for i in good])
-    cf = np.swapaxes(K, 1, 2) @ C @ K
+    gframes = [frames[i] for i in good.tolist()]
+    Kg = np.stack([f.K for f in gframes])
+    C = np.stack([fits[i].conic for i in good.tolist()])
+    cf = np.swapaxes(Kg, 1, 2) @ C @ Kg
     cf = 0.5 * (cf + np.swapaxes(cf, 1, 2))
     norm = np.sqrt(np.einsum("kij,kij->k", cf, cf))
-    for j, i in enumerate(good):
-        if not (np.isfinite(norm[j]) and norm[j] > 0):
+    formed = np.isfinite(norm) & (norm > 0)
+    c = cf / np.where(formed, norm, 1.0)[:, None, None]
+    # the cone in the camera frame, R^T c R, where the fit plane is not the image plane
+    on_image = np.array([f.on_image_plane for f in gframes], dtype=bool)
+    cone = c.copy()
+    if not on_image.all():
+        Rg = np.stack([f.R for f, img in zip(gframes, on_image.tolist()) if not img])
+        rot = np.swapaxes(Rg, 1, 2) @ c[~on_image] @ Rg
+        cone[~on_image] = 0.5 * (rot + np.swapaxes(rot, 1, 2))
+    for j, i in enumerate(good.tolist()):
+        if not formed[j]:
             out[i] = Failure("pose_failed", "C' = K^T C K is zero or not finite")
             continue
-        c = cf[j] / norm[j]
-        fit, frame = fits[i], frames[i]
-        on_image = frame.on_image_plane
-        if on_image:
-            cone = c
-        else:
-            cone = frame.R.T @ c @ frame.R
-            cone = 0.5 * (cone + cone.T)
-        out[i] = ConeFit(cone=cone, cone_fit_frame=c, conic=fit.conic if on_image else None,
-                         ellipse=fit.ellipse if on_image else None, plane_fit=fit,
+        fit = fits[i]
+        img = bool(on_image[j])
+        out[i] = ConeFit(cone=cone[j], cone_fit_frame=c[j], conic=fit.conic if img else None,
+                         ellipse=fit.ellipse if img else None, plane_fit=fit,
                          residual_px=fit.residual_px, n_points=fit.n_points)
     return out
+
+
+def _to_planes(rays: np.ndarray, R: np.ndarray, K: np.ndarray, owner: np.ndarray) -> np.ndarray:
+    """Central projection of camera-frame rays onto their fit planes (:meth:`FitFrame.to_plane`).
+
+    Parameters
+    ----------
+    rays : ndarray of shape (N, 3)
+        Rays, camera frame (any length).
+    R, K : ndarray of shape (g, 3, 3)
+        Rotations camera -> fit frame and intrinsics of g fit planes.
+    owner : ndarray of shape (N,), int
+        Each ray's plane, 0 .. g-1.
+
+    Returns
+    -------
+    ndarray of shape (N, 2)
+        Plane px ``K (R r) / (R r)_z``; NaN rows at or behind a plane's horizon (``(R r)_z <= 0``).
+    """
+    Ro = R[owner]
+    r = np.einsum("nij,nj->ni", Ro, rays)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        z = np.where(r[:, 2] > 0, r[:, 2], np.nan)
+        x = r[:, 0] / z
+        y = r[:, 1] / z
+    Ko = K[owner]
+    return np.stack([Ko[:, 0, 0] * x + Ko[:, 0, 1] * y + Ko[:, 0, 2], Ko[:, 1, 1] * y + Ko[:, 1, 2]], axis=1)
 
 
 def to_camera(frame: FitFrame, v):

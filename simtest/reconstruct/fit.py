@@ -36,7 +36,12 @@ from dataclasses import dataclass
 import numpy as np
 
 from simtest.geometry.conics import Ellipse, _ellipses_of, conic_kind
+from simtest.reconstruct import _fit_kernels
+from simtest.reconstruct._fit_kernels import C1_INV as _C1_INV
+from simtest.reconstruct._fit_kernels import MONOMIALS as _MONOMIALS
+from simtest.reconstruct._fit_kernels import S_INDEX as _S_INDEX
 from simtest.reconstruct.failures import Failure
+from simtest.tolerances import TOL
 
 #: An ellipse has 5 degrees of freedom; one more point gives a residual.
 MIN_FIT_POINTS = 6
@@ -49,8 +54,6 @@ _S3_RCOND = 1e-10
 #: An arc of 60 degrees of a circle already gives a ratio under 4; 10 leaves room for short arcs.
 MAX_AXIS_TO_SPREAD = 10.0
 
-# Constraint matrix C1 of 4ac - b^2 = 1 [eqn. 18] from [1]
-_C1_INV = np.linalg.inv(np.array([[0.0, 0.0, 2.0], [0.0, -1.0, 0.0], [2.0, 0.0, 0.0]]))
 
 
 @dataclass(frozen=True)
@@ -106,14 +109,6 @@ def sampson_distance_px(conic: np.ndarray, points_uv: np.ndarray) -> np.ndarray:
     gv = c[..., 1, 0] * u + c[..., 1, 1] * v + c[..., 1, 2]
     f = gu * u + gv * v + c[..., 2, 0] * u + c[..., 2, 1] * v + c[..., 2, 2]
     return np.abs(f) / np.maximum(2.0 * np.hypot(gu, gv), np.finfo(float).tiny)
-
-
-#: Exponents (i, j) of the monomials x^i y^j whose sums make the scatter matrix S = D^T D of the
-#: design rows d = (x^2, xy, y^2, x, y, 1): every product d_a d_b is one of these 15.
-_MONOMIALS = [(i, s - i) for s in range(5) for i in range(s, -1, -1)]
-_D_EXPONENTS = [(2, 0), (1, 1), (0, 2), (1, 0), (0, 1), (0, 0)]
-_S_INDEX = np.array([[_MONOMIALS.index((a[0] + b[0], a[1] + b[1])) for b in _D_EXPONENTS]
-                     for a in _D_EXPONENTS])
 
 
 def _segment_sums(values: np.ndarray, starts: np.ndarray) -> np.ndarray:
@@ -206,33 +201,78 @@ def fit_ellipses(points_list) -> list[EllipseFit | Failure]:
     -----
     Each set is centred and scaled to unit RMS distance from its mean (Hartley-style
     conditioning). The scatter matrix S = D^T D of the design rows (x^2, xy, y^2, x, y, 1) [eqn.
-    17 of 1] is assembled from the sums of the 15 monomials x^i y^j (i + j <= 4) of each set,
-    summed over all sets in one pass; the reduced 3 x 3 eigenproblem [eqn. 28-29 of 1] and the
-    checks run on the stack of sets at once, so the cost per set is a few microseconds in a batch
-    of hundreds (the pipeline fits every isophote of a frame in one call). A set's fit does not
-    depend on the other sets of the batch beyond rounding (the sums of a set are its own; LAPACK
-    runs on each matrix of a stack alone).
+    17 of 1] is assembled from the sums of the 15 monomials x^i y^j (i + j <= 4) of each set;
+    then come the reduced 3 x 3 eigenproblem [eqn. 28-29 of 1] and the checks. All sets run in
+    one compiled call (:func:`fit_stacked`), a few microseconds per set; the numpy form of the
+    same steps (``_fit_stack``, on the whole stack at once) is the reference and refits the sets
+    the compiled one refuses. A set's fit does not depend on the other sets of the batch (the
+    compiled call fits each set from its own points alone; the numpy form sums each set's own
+    rows and runs LAPACK on each matrix of a stack alone).
     """
     pts_all = point_sets(points_list)
-    out: list = [None] * len(pts_all)
+    if not pts_all:
+        return []
+    return fit_stacked(np.concatenate(pts_all, axis=0), np.array([len(p) for p in pts_all], dtype=np.int64))
+
+
+def fit_stacked(pts: np.ndarray, counts: np.ndarray, *, compiled: bool = True) -> list[EllipseFit | Failure]:
+    """:func:`fit_ellipses` of point sets given concatenated.
+
+    Parameters
+    ----------
+    pts : ndarray of shape (M, 2), float64
+        The point sets (u, v), px, one after the other.
+    counts : ndarray of shape (k,), int
+        Points per set (``counts.sum() == M``).
+    compiled : bool
+        Fit with the compiled kernel (:func:`simtest.reconstruct._fit_kernels.fit_conics`), the
+        numpy form refitting the sets it refuses; False: the numpy form only (the reference).
+
+    Returns
+    -------
+    list of EllipseFit or Failure
+        One per set, as :func:`fit_ellipses`.
+
+    Notes
+    -----
+    The two forms take the same steps with the same LAPACK routines; they agree to rounding
+    (``tests/test_fit_kernels.py``). A set the kernel refuses, or hands over, is refitted by the
+    numpy form, whose failure (reason and detail, with its numbers) is the one reported: the
+    failures are those of the numpy form, word for word.
+    """
+    counts = np.asarray(counts, dtype=np.int64)
+    starts = np.concatenate([[0], np.cumsum(counts)[:-1]]).astype(np.int64)
+    out: list = [None] * len(counts)
     todo = []
-    for i, p in enumerate(pts_all):
-        n = len(p)
-        if n < MIN_FIT_POINTS:
-            out[i] = Failure("too_few_points", f"{n} points < {MIN_FIT_POINTS}")
+    for i, m in enumerate(counts.tolist()):
+        if m < MIN_FIT_POINTS:
+            out[i] = Failure("too_few_points", f"{m} points < {MIN_FIT_POINTS}")
         else:
             todo.append(i)
     if not todo:
         return out
-    pts = np.concatenate([pts_all[i] for i in todo], axis=0)
-    n = np.array([len(pts_all[i]) for i in todo])
-    starts = np.concatenate([[0], np.cumsum(n)[:-1]])
-    item = np.repeat(np.arange(len(todo)), n)
-    bad_rows = _segment_sums((~np.isfinite(pts)).any(axis=1).astype(np.int64), starts)
-    with np.errstate(all="ignore"):
-        fits = _fit_stack(pts, n, starts, item, bad_rows)
-    for j, i in enumerate(todo):
-        out[i] = fits[j]
+    todo = np.array(todo)
+    redo = todo
+    if compiled:
+        pts = np.ascontiguousarray(pts, dtype=np.float64)
+        status, conic, ell, residual = _fit_kernels.fit_conics(
+            pts, starts[todo], counts[todo], _S3_RCOND, MAX_AXIS_TO_SPREAD, TOL.conic_degenerate_rel)
+        ok = status == _fit_kernels.OK
+        for i, c, e, r in zip(todo[ok].tolist(), conic[ok], ell[ok].tolist(), residual[ok].tolist()):
+            out[i] = EllipseFit(c, Ellipse(center=np.array(e[:2]), semi_axes=np.array(e[2:4]), angle_rad=e[4]),
+                                r, int(counts[i]))
+        redo = todo[~ok]
+    if len(redo):
+        rows = np.concatenate([np.arange(starts[i], starts[i] + counts[i]) for i in redo])
+        n = counts[redo]
+        sub_starts = np.concatenate([[0], np.cumsum(n)[:-1]])
+        sub = pts[rows]
+        item = np.repeat(np.arange(len(redo)), n)
+        bad_rows = _segment_sums((~np.isfinite(sub)).any(axis=1).astype(np.int64), sub_starts)
+        with np.errstate(all="ignore"):
+            fits = _fit_stack(sub, n, sub_starts, item, bad_rows)
+        for i, f in zip(redo.tolist(), fits):
+            out[i] = f
     return out
 
 
