@@ -1041,6 +1041,36 @@ def _residual_correlation(r, sel, shape, step: int) -> tuple[float, float]:
     return float(a @ b / den), float(a @ b / len(a))
 
 
+def _patch_verdict(rel_floor: float | None, r, sel, shape, step: int, ok_detail: str,
+                   misfit_hint: str) -> tuple[str, str, bool, float]:
+    """The status of a curved-patch fit (``quadric_fit``, ``cubic_patch_fit``) from its relative
+    depth sigma at the noise floor ``rel_floor`` (None: J^T J singular) and its residuals ``r``
+    of the pixels ``sel`` (see :func:`_residual_correlation`).
+
+    Returns ``(status, detail, observable, rms)``: ``depth_not_observable`` when ``rel_floor``
+    is None or above ``TOL.depth_rel_sigma_max``; ``patch_misfit`` (the depth withdrawn) when
+    neighbouring residuals correlate as in :func:`_misfit`, or their RMS ``rms`` (relative to the
+    ROI's maximum) is above ``TOL.patch_misfit_rms_rel``, the detail then ending in
+    ``misfit_hint``; else ``ok`` with ``ok_detail``.
+    """
+    observable = rel_floor is not None and rel_floor <= TOL.depth_rel_sigma_max
+    status, detail = OK, ok_detail
+    if not observable:
+        status = "depth_not_observable"
+        detail = ("J^T J singular" if rel_floor is None else
+                  f"relative depth sigma {rel_floor:.3g} at the noise floor > {TOL.depth_rel_sigma_max}")
+    rho, c = _residual_correlation(r, sel, shape, step)
+    rms = float(np.sqrt(np.mean(r * r)))
+    if rho > TOL.plane_misfit_rho and c > TOL.plane_misfit_rel**2:
+        status, observable = "patch_misfit", False
+        detail = (f"neighbouring residuals correlate (rho {rho:.3g} > {TOL.plane_misfit_rho}; "
+                  f"systematic RMS {np.sqrt(c):.3g})")
+    elif rms > TOL.patch_misfit_rms_rel:
+        status, observable = "patch_misfit", False
+        detail = f"residual RMS {rms:.3g} of the ROI's maximum > {TOL.patch_misfit_rms_rel}: {misfit_hint}"
+    return status, detail, observable, rms
+
+
 def _misfit(est: LightAwareEstimate, r, sel, shape, step: int) -> LightAwareEstimate:
     """``est`` with status ``plane_misfit`` when the residuals are spatially correlated.
 
@@ -1691,24 +1721,10 @@ def quadric_fit(values, origin_uv, bp_uv, camera, rig: LightRig, *,
     sigma_deg = (None if cov is None
                  else float(np.degrees(np.sqrt(max(np.trace(G @ cov @ G.T), 0.0)))))
     rel_floor = None if cov_floor is None else float(np.sqrt(max(cov_floor[2, 2], 0.0)))
-    observable = rel_floor is not None and rel_floor <= TOL.depth_rel_sigma_max
-    status, detail = OK, ""
-    if not observable:
-        status = "depth_not_observable"
-        detail = ("J^T J singular" if rel_floor is None else
-                  f"relative depth sigma {rel_floor:.3g} at the noise floor > {TOL.depth_rel_sigma_max}")
+    status, detail, observable, rms = _patch_verdict(
+        rel_floor, r0, sel, P.shape, step, "", "the ROI is not one patch's lobe (streaks along folds, several lobes)")
     depth_sigma = (float(s_hat * np.sqrt(max(cov[2, 2], 0.0)))
                    if observable and cov is not None else None)
-    rho, c = _residual_correlation(r0, sel, P.shape, step)
-    rms = float(np.sqrt(np.mean(r0 * r0)))
-    if rho > TOL.plane_misfit_rho and c > TOL.plane_misfit_rel**2:
-        status, observable = "patch_misfit", False
-        detail = (f"neighbouring residuals correlate (rho {rho:.3g} > {TOL.plane_misfit_rho}; "
-                  f"systematic RMS {np.sqrt(c):.3g})")
-    elif rms > TOL.patch_misfit_rms_rel:
-        status, observable = "patch_misfit", False
-        detail = (f"residual RMS {rms:.3g} of the ROI's maximum > {TOL.patch_misfit_rms_rel}: "
-                  "the ROI is not one patch's lobe (streaks along folds, several lobes)")
     return LightAwareEstimate(name, status, detail, n_hat, s_hat if observable else None, sigma_deg,
                               depth_sigma if observable else None, s_hat if observable else None,
                               rough, None, nfev, rms, depth_rel_sigma=rel_floor)
@@ -2086,22 +2102,9 @@ def cubic_patch_fit(values, origin_uv, bp_uv, camera, rig: LightRig, *,
     sigma_deg = (None if cov is None
                  else float(np.degrees(np.sqrt(max(np.trace(G @ cov @ G.T), 0.0)))))
     rel_floor = None if cov_floor is None else float(np.sqrt(max(cov_floor[2, 2], 0.0)))
-    observable = rel_floor is not None and rel_floor <= TOL.depth_rel_sigma_max
-    status, detail = OK, f"profile minimum at {depths[i0]:.4g} mm"
-    if not observable:
-        status = "depth_not_observable"
-        detail = ("J^T J singular" if rel_floor is None else
-                  f"relative depth sigma {rel_floor:.3g} at the noise floor > {TOL.depth_rel_sigma_max}")
-    rho, c = _residual_correlation(r0, S["sel"], S["shape"], S["step"])
-    rms = float(np.sqrt(np.mean(r0 * r0)))
-    if rho > TOL.plane_misfit_rho and c > TOL.plane_misfit_rel**2:
-        status, observable = "patch_misfit", False
-        detail = (f"neighbouring residuals correlate (rho {rho:.3g} > {TOL.plane_misfit_rho}; "
-                  f"systematic RMS {np.sqrt(c):.3g})")
-    elif rms > TOL.patch_misfit_rms_rel:
-        status, observable = "patch_misfit", False
-        detail = (f"residual RMS {rms:.3g} of the ROI's maximum > {TOL.patch_misfit_rms_rel}: "
-                  "the ROI is not one patch's lobes (streaks along folds, a lobe cut off)")
+    status, detail, observable, rms = _patch_verdict(
+        rel_floor, r0, S["sel"], S["shape"], S["step"], f"profile minimum at {depths[i0]:.4g} mm",
+        "the ROI is not one patch's lobes (streaks along folds, a lobe cut off)")
     depth_sigma = (float(s_hat * np.sqrt(max(cov[2, 2], 0.0)))
                    if observable and cov is not None else None)
     ln = ld = None
