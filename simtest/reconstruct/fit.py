@@ -55,7 +55,6 @@ _S3_RCOND = 1e-10
 MAX_AXIS_TO_SPREAD = 10.0
 
 
-
 @dataclass(frozen=True)
 class EllipseFit:
     """A successful ellipse fit (truthy).

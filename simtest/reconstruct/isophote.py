@@ -284,7 +284,7 @@ def isophote_cut_by_roi(values: np.ndarray, level: float, bp_uv, *, origin_rc: t
     the Hyper-Kvasir banner a third of the extractions were such, on ROIs grown to a megapixel
     around isophotes that leak into bright tissue. The flood fill of
     :func:`simtest.reconstruct._kernels.component_reaches` stops at the first pixel on such a
-    side. ``tests/test_isophote.py`` checks the answer against the extraction's.
+    side. ``tests/test_kernels.py`` checks the answer against the extraction's.
     """
     return _cut_by_roi(_region(values, bp_uv, origin_rc, image_shape), level)
 
