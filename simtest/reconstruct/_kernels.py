@@ -9,10 +9,12 @@ there the fixed cost of each numpy call, not the arithmetic, was the time.
 Kernels
 -------
 - :func:`component_contour`: the isophote of :func:`~simtest.reconstruct.isophote.extract_isophote`
-  in the common cases, i.e. the flood fill of the brightest point's 4-connected component above
-  the level, its box with the other components lowered and its holes raised, the marching-squares
-  contour of that box in ``skimage.measure.find_contours``' order, and the even-odd test of the
-  BP against it.
+  in the common cases, found by walking the boundary of the brightest point's 4-connected
+  component above the level (time proportional to the boundary), with the bits of
+  :func:`component_contour_flood`: the flood fill of that component, its box with the other
+  components lowered and its holes raised, the marching-squares contour of that box in
+  ``skimage.measure.find_contours``' order, and the even-odd test of the BP against it (the
+  walk's reference, and its fallback where the walk declines).
 - :func:`trace_contours`: the marching-squares contours of a box in ``find_contours``' order
   and bits, when they are one closed contour or only open ones.
 - :func:`component_reaches`: whether that component reaches given sides of the box (the
@@ -48,6 +50,7 @@ NOT_ABOVE = 0  #: the BP's pixel is not above the level (the caller contours the
 CLOSED = 1  #: one closed contour, as (u, v) in the full image
 OPEN = 2  #: only open contours, concatenated, as (row, col) in the region
 FALLBACK = 3  #: anything else: the caller takes the numpy path
+DECLINED = -1  #: the boundary walk of component_contour leaves the case to the flood fill
 
 _EMPTY = np.empty((0, 2), dtype=np.float64)
 
@@ -321,8 +324,9 @@ def _inside(poly, px, py):
 
 
 @numba.njit(cache=True, nogil=True)
-def component_contour(sub, level, ri, ci, row0, col0, bp_u, bp_v):
-    """The isophote of the 4-connected component of ``sub > level`` holding pixel (ri, ci).
+def component_contour_flood(sub, level, ri, ci, row0, col0, bp_u, bp_v):
+    """The isophote of the 4-connected component of ``sub > level`` holding pixel (ri, ci), by
+    a flood fill of the component (the reference of :func:`component_contour`, and its fallback).
 
     Parameters
     ----------
@@ -393,6 +397,363 @@ def component_contour(sub, level, ri, ci, row0, col0, bp_u, bp_v):
             rc[i, 1] += c0
         return OPEN, rc, False, sides
     return FALLBACK, _EMPTY, False, sides
+
+
+@numba.njit(cache=True, nogil=True, inline="always")
+def _edge_of(r, c, local, W, hw):
+    """Edge id of the ``local`` edge (0 top, 1 bottom, 2 left, 3 right) of square (r, c)."""
+    base = r * W + c
+    return base + (0 if local == 0 else W if local == 1 else hw if local == 2 else hw + 1)
+
+
+@numba.njit(cache=True, nogil=True)
+def _segment_at(sub, level, e, from_side):
+    """The marching-squares segment that starts (``from_side``) or ends on edge ``e``: ``(key,
+    other edge, above pixel row, above pixel col)``, key ``2 (r (W - 1) + c) + k`` the segment's
+    place in ``find_contours``' raster order, or key -1 if no square beside the edge has one
+    (the edge lies on the region's side)."""
+    H, W = sub.shape
+    hw = H * W
+    if e < hw:  # horizontal: top of square (r, c), bottom of square (r - 1, c)
+        r, c = e // W, e % W
+        cand_r = (r, r - 1)
+        cand_l = (0, 1)
+        ar, ac = (r, c) if sub[r, c] > level else (r, c + 1)
+    else:  # vertical: left of square (r, c), right of square (r, c - 1)
+        e2 = e - hw
+        r, c = e2 // W, e2 % W
+        cand_r = (r, r)
+        cand_l = (2, 3)
+        ar, ac = (r, c) if sub[r, c] > level else (r + 1, c)
+    for j in range(2):
+        sr = cand_r[j]
+        sc = c if (e < hw or j == 0) else c - 1
+        if sr < 0 or sr > H - 2 or sc < 0 or sc > W - 2:
+            continue
+        cs = _case(sub, level, sr, sc)
+        for k in range(2):
+            fe = _SEG_FROM[k, cs]
+            if fe < 0:
+                break
+            te = _SEG_TO[k, cs]
+            mine, other = (fe, te) if from_side else (te, fe)
+            if mine == cand_l[j]:
+                return 2 * (sr * (W - 1) + sc) + k, _edge_of(sr, sc, other, W, hw), ar, ac
+    return -1, -1, ar, ac
+
+
+@numba.njit(cache=True, nogil=True, inline="always")
+def _ring_pixel(p, H, W):
+    """Pixel (row, col) at place ``p`` of the region's outer ring, clockwise from (0, 0)."""
+    if p < W:
+        return 0, p
+    p -= W
+    if p < H - 1:
+        return p + 1, W - 1
+    p -= H - 1
+    if p < W - 1:
+        return H - 1, W - 2 - p
+    return H - 2 - (p - (W - 1)), 0
+
+
+@numba.njit(cache=True, nogil=True, inline="always")
+def _ring_place(r, c, H, W):
+    if r == 0:
+        return c
+    if c == W - 1:
+        return W - 1 + r
+    if r == H - 1:
+        return W + H - 2 + (W - 1 - c)
+    return 2 * W + H - 3 + (H - 1 - r)
+
+
+@numba.njit(cache=True, nogil=True, inline="always")
+def _edge_between(r1, c1, r2, c2, W, hw):
+    """Edge id between two 4-adjacent pixels."""
+    if r1 == r2:
+        return r1 * W + min(c1, c2)
+    return hw + min(r1, r2) * W + c1
+
+
+@numba.njit(cache=True, nogil=True, inline="always")
+def _edge_pixels(e, W, hw):
+    """The two pixels (r1, c1, r2, c2) either side of edge ``e``."""
+    if e < hw:
+        r, c = e // W, e % W
+        return r, c, r, c + 1
+    e -= hw
+    r, c = e // W, e % W
+    return r, c, r + 1, c
+
+
+@numba.njit(cache=True, nogil=True)
+def component_contour(sub, level, ri, ci, row0, col0, bp_u, bp_v):
+    """The isophote of the 4-connected component of ``sub > level`` holding pixel (ri, ci),
+    found by walking its boundary: the result of :func:`component_contour_flood`, bit for bit,
+    in time proportional to the boundary instead of the component's box.
+
+    Parameters and Returns
+    ----------------------
+    As :func:`component_contour_flood`.
+
+    Notes
+    -----
+    From the BP's pixel the walk goes right along its row to the first pixel at or below the
+    level: the edge crossed lies on a contour. The marching-squares contour through that edge is
+    followed from square to square (each segment's end edge is the start edge of the next one,
+    in the square on the edge's other side). A closed contour that encloses the BP's pixel
+    centre (an odd number of its points on the edges of row ``ri`` right of it: an exact,
+    integer test) is the component's outer boundary; one that does not (the rim of a hole, an
+    island in it) is passed and the walk goes on to the right. That outer boundary is what
+    ``component_contour_flood`` finds: it contours the component's box with the other
+    components lowered and the holes raised, which leaves that one contour with the same points
+    (each interpolates between a pixel of the component and a 4-neighbour below the level, and
+    "low" connectivity separates diagonal neighbours alike), starting after its last segment in
+    raster order. An open contour met first is one of the component's open contours; each ends
+    on the region's side, where the component's pixels along the region's outer ring lead to
+    the start of the next, round until the first comes back (when the row's run reaches the
+    right side, the ring from there leads to one). The open contours are listed by their first
+    segment in raster order, as ``find_contours`` lists them. Points are computed relative to
+    the component's box (from the pixels the walk passed: every extreme pixel of the component
+    is on its boundary or on the ring) and then shifted, in the flood-fill kernel's order of
+    operations. Anything else (a ring wholly above the level, a pixel of the box exactly at the
+    level or not finite, a walk that does not close, a region under 3 x 3 px) is declined and
+    goes to :func:`component_contour_flood`, which decides those cases.
+    """
+    code, pts, inside, sides = _contour_by_walk(sub, level, ri, ci, row0, col0, bp_u, bp_v)
+    if code == DECLINED:
+        return component_contour_flood(sub, level, ri, ci, row0, col0, bp_u, bp_v)
+    return code, pts, inside, sides
+
+
+@numba.njit(cache=True, nogil=True)
+def _contour_by_walk(sub, level, ri, ci, row0, col0, bp_u, bp_v):
+    """The walk of :func:`component_contour`, or :data:`DECLINED` (the flood fill decides)."""
+    H, W = sub.shape
+    no_sides = (False, False, False, False)
+    if not sub[ri, ci] > level:
+        return NOT_ABOVE, _EMPTY, False, no_sides
+    if H < 3 or W < 3 or not np.isfinite(level) or level - 1.0 == level or level + 1.0 == level:
+        return DECLINED, _EMPTY, False, no_sides
+    hw = H * W
+    cap = 2 * hw + 8
+    keys = np.empty(64, dtype=np.int64)
+    f_edges = np.empty(64, dtype=np.int64)
+    t_edges = np.empty(64, dtype=np.int64)
+    n = 0
+    # bounding box of the component's pixels met on the walk
+    y0, y1, x0, x1 = ri, ri, ci, ci
+    closed = False
+    # the walk along the BP's row to the right
+    t = ci
+    found = False
+    L = 2 * W + 2 * H - 4
+    while True:
+        # next crossing from a pixel above the level to one at or below it
+        while t < W - 1 and not (sub[ri, t] > level and not sub[ri, t + 1] > level):
+            t += 1
+        if t < W - 1:
+            e0 = ri * W + t
+        else:
+            # the component's run reaches the right side at (ri, W - 1): its pixels along the
+            # region's outer ring lead to an edge where one of its open contours ends
+            p = _ring_place(ri, W - 1, H, W)
+            for _ in range(L):
+                nr, nc = _ring_pixel((p + 1) % L, H, W)
+                if not sub[nr, nc] > level:
+                    break
+                p = (p + 1) % L
+            pr, pc = _ring_pixel(p, H, W)
+            if sub[nr, nc] > level:  # the whole ring is above the level
+                break
+            e0 = _edge_between(pr, pc, nr, nc, W, hw)
+        # follow the contour forward from e0
+        n = 0
+        e = e0
+        is_closed = False
+        while True:
+            key, te, ar, ac = _segment_at(sub, level, e, True)
+            if key < 0:
+                break
+            if n == len(keys):
+                keys = np.concatenate((keys, np.empty(n, dtype=np.int64)))
+                f_edges = np.concatenate((f_edges, np.empty(n, dtype=np.int64)))
+                t_edges = np.concatenate((t_edges, np.empty(n, dtype=np.int64)))
+            keys[n], f_edges[n], t_edges[n] = key, e, te
+            n += 1
+            e = te
+            if e == e0:
+                is_closed = True
+                break
+            if n > cap:
+                return DECLINED, _EMPTY, False, no_sides
+        if not is_closed:
+            found = True
+            break
+        # does it enclose the BP's pixel centre? Count its crossings of row ri right of it: a
+        # contour crosses the line of pixel centres only on the edges between two of them
+        crossings = 0
+        for i in range(n):
+            if f_edges[i] < hw and f_edges[i] // W == ri and f_edges[i] % W >= ci:
+                crossings += 1
+        if crossings % 2 == 1:  # the outer boundary (a hole's rim, an island's, do not enclose it)
+            closed = True
+            found = True
+            break
+        t += 1
+    if not found:
+        return DECLINED, _EMPTY, False, no_sides
+
+    if closed:
+        for i in range(n):
+            a1, b1, a2, b2 = _edge_pixels(f_edges[i], W, hw)
+            if not sub[a1, b1] > level:
+                a1, b1 = a2, b2
+            y0, y1, x0, x1 = min(y0, a1), max(y1, a1), min(x0, b1), max(x1, b1)
+        n_chains = 1
+        order_edges = np.empty(n, dtype=np.int64)
+        last = 0
+        for i in range(n):
+            if keys[i] > keys[last]:
+                last = i
+        for i in range(n):
+            order_edges[i] = f_edges[(last + 1 + i) % n]
+        n_out = n
+    else:
+        # open: the chain through e0 from its start on the region's side
+        e = e0
+        steps = 0
+        while True:
+            key, fe, ar, ac = _segment_at(sub, level, e, False)
+            if key < 0:
+                break
+            e = fe
+            steps += 1
+            if steps > cap:
+                return DECLINED, _EMPTY, False, no_sides
+        first_start = e
+        # chains as (start index into the segment arrays, count, lowest key)
+        c_start = np.empty(8, dtype=np.int64)
+        c_count = np.empty(8, dtype=np.int64)
+        c_lo = np.empty(8, dtype=np.int64)
+        n_chains = 0
+        n = 0
+        start = first_start
+        while True:
+            if n_chains == len(c_start):
+                c_start = np.concatenate((c_start, np.empty(n_chains, dtype=np.int64)))
+                c_count = np.concatenate((c_count, np.empty(n_chains, dtype=np.int64)))
+                c_lo = np.concatenate((c_lo, np.empty(n_chains, dtype=np.int64)))
+            c_start[n_chains] = n
+            lo = -1
+            e = start
+            while True:
+                key, te, ar, ac = _segment_at(sub, level, e, True)
+                if key < 0:
+                    break
+                if n == len(keys):
+                    keys = np.concatenate((keys, np.empty(n, dtype=np.int64)))
+                    f_edges = np.concatenate((f_edges, np.empty(n, dtype=np.int64)))
+                    t_edges = np.concatenate((t_edges, np.empty(n, dtype=np.int64)))
+                keys[n], f_edges[n], t_edges[n] = key, e, te
+                y0, y1, x0, x1 = min(y0, ar), max(y1, ar), min(x0, ac), max(x1, ac)
+                if lo < 0 or key < lo:
+                    lo = key
+                n += 1
+                e = te
+                if n > cap:
+                    return DECLINED, _EMPTY, False, no_sides
+            if e == start or lo < 0:
+                return DECLINED, _EMPTY, False, no_sides
+            c_count[n_chains] = n - c_start[n_chains]
+            c_lo[n_chains] = lo
+            n_chains += 1
+            # the chain ends on the region's side: follow the component's pixels along the ring
+            a1, b1, a2, b2 = _edge_pixels(e, W, hw)
+            if sub[a1, b1] > level:
+                pr, pc, qr, qc = a1, b1, a2, b2
+            else:
+                pr, pc, qr, qc = a2, b2, a1, b1
+            y0, y1, x0, x1 = min(y0, pr), max(y1, pr), min(x0, pc), max(x1, pc)
+            if not (pr == 0 or pr == H - 1 or pc == 0 or pc == W - 1) or not (
+                    qr == 0 or qr == H - 1 or qc == 0 or qc == W - 1):
+                return DECLINED, _EMPTY, False, no_sides
+            p_in, p_out = _ring_place(pr, pc, H, W), _ring_place(qr, qc, H, W)
+            if (p_in + 1) % L == p_out:
+                step = L - 1
+            elif (p_out + 1) % L == p_in:
+                step = 1
+            else:
+                return DECLINED, _EMPTY, False, no_sides
+            p = p_in
+            walked = 0
+            while True:
+                nr, nc = _ring_pixel((p + step) % L, H, W)
+                if not sub[nr, nc] > level:
+                    break
+                p = (p + step) % L
+                y0, y1, x0, x1 = min(y0, nr), max(y1, nr), min(x0, nc), max(x1, nc)
+                walked += 1
+                if walked > L:
+                    return DECLINED, _EMPTY, False, no_sides
+            pr, pc = _ring_pixel(p, H, W)
+            start = _edge_between(pr, pc, nr, nc, W, hw)
+            if start == first_start:
+                break
+            if n_chains > L:
+                return DECLINED, _EMPTY, False, no_sides
+        n_out = n + n_chains
+
+    r0, r1 = max(y0 - 1, 0), min(y1 + 2, H)
+    c0, c1 = max(x0 - 1, 0), min(x1 + 2, W)
+    for r in range(r0, r1):
+        for cc in range(c0, c1):
+            v = sub[r, cc]
+            if v == level or not np.isfinite(v):
+                return DECLINED, _EMPTY, False, no_sides
+    sides = (y0 == 0, y1 + 1 == H, x0 == 0, x1 + 1 == W)
+    out = np.empty((n_out, 2), dtype=np.float64)
+    if closed:
+        for i in range(n):
+            _edge_point(sub, level, order_edges[i], r0, c0, W, hw, out, i)
+        cu, rv = float(col0 + c0), float(row0 + r0)
+        for i in range(n):
+            u = out[i, 1] + cu
+            out[i, 1] = out[i, 0] + rv
+            out[i, 0] = u
+        return CLOSED, out, _inside(out, bp_u, bp_v), sides
+    order = np.argsort(c_lo[:n_chains], kind="mergesort")
+    q = 0
+    for o in order:
+        s0, cnt = c_start[o], c_count[o]
+        for i in range(s0, s0 + cnt):
+            _edge_point(sub, level, f_edges[i], r0, c0, W, hw, out, q)
+            q += 1
+        _edge_point(sub, level, t_edges[s0 + cnt - 1], r0, c0, W, hw, out, q)
+        q += 1
+    for i in range(n_out):
+        out[i, 0] += r0
+        out[i, 1] += c0
+    return OPEN, out, False, sides
+
+
+@numba.njit(cache=True, nogil=True, inline="always")
+def _edge_point(sub, level, e, r0, c0, W, hw, out, i):
+    """:func:`_edge_points` of one edge of ``sub`` given in ``sub``'s edge ids, relative to the
+    box whose corner is (r0, c0), into ``out[i]``."""
+    vertical = e >= hw
+    if vertical:
+        e -= hw
+    er, ec = e // W, e % W
+    a = sub[er, ec]
+    if vertical:
+        frac = (level - a) / (sub[er + 1, ec] - a)
+        out[i, 0] = (er - r0) + frac
+        out[i, 1] = (ec - c0) + 0.0
+    else:
+        frac = (level - a) / (sub[er, ec + 1] - a)
+        out[i, 0] = (er - r0) + 0.0
+        out[i, 1] = (ec - c0) + frac
 
 
 @numba.njit(cache=True, nogil=True)
