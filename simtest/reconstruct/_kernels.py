@@ -400,34 +400,35 @@ def component_contour_flood(sub, level, ri, ci, row0, col0, bp_u, bp_v):
 
 
 @numba.njit(cache=True, nogil=True, inline="always")
-def _edge_of(r, c, local, W, hw):
-    """Edge id of the ``local`` edge (0 top, 1 bottom, 2 left, 3 right) of square (r, c)."""
-    base = r * W + c
-    return base + (0 if local == 0 else W if local == 1 else hw if local == 2 else hw + 1)
+def _edge_of(r, c, local):
+    """The ``local`` edge (0 top, 1 bottom, 2 left, 3 right) of square (r, c) as (row, col,
+    vertical): the edge between pixels (row, col) and (row, col + 1), or (row + 1, col) if
+    vertical."""
+    if local == 0:
+        return r, c, 0
+    if local == 1:
+        return r + 1, c, 0
+    if local == 2:
+        return r, c, 1
+    return r, c + 1, 1
 
 
 @numba.njit(cache=True, nogil=True)
-def _segment_at(sub, level, e, from_side):
-    """The marching-squares segment that starts (``from_side``) or ends on edge ``e``: ``(key,
-    other edge, above pixel row, above pixel col)``, key ``2 (r (W - 1) + c) + k`` the segment's
-    place in ``find_contours``' raster order, or key -1 if no square beside the edge has one
-    (the edge lies on the region's side)."""
+def _segment_at(sub, level, er, ec, ev, from_side):
+    """The marching-squares segment that starts (``from_side``) or ends on edge (er, ec, ev):
+    ``(key, other edge's row, col, vertical, above pixel's row, col)``, key
+    ``2 (r (W - 1) + c) + k`` the segment's place in ``find_contours``' raster order, or key -1
+    if no square beside the edge has one (the edge lies on the region's side)."""
     H, W = sub.shape
-    hw = H * W
-    if e < hw:  # horizontal: top of square (r, c), bottom of square (r - 1, c)
-        r, c = e // W, e % W
-        cand_r = (r, r - 1)
-        cand_l = (0, 1)
-        ar, ac = (r, c) if sub[r, c] > level else (r, c + 1)
-    else:  # vertical: left of square (r, c), right of square (r, c - 1)
-        e2 = e - hw
-        r, c = e2 // W, e2 % W
-        cand_r = (r, r)
-        cand_l = (2, 3)
-        ar, ac = (r, c) if sub[r, c] > level else (r + 1, c)
+    if ev == 0:  # top of square (er, ec), bottom of square (er - 1, ec)
+        ar, ac = (er, ec) if sub[er, ec] > level else (er, ec + 1)
+    else:  # left of square (er, ec), right of square (er, ec - 1)
+        ar, ac = (er, ec) if sub[er, ec] > level else (er + 1, ec)
     for j in range(2):
-        sr = cand_r[j]
-        sc = c if (e < hw or j == 0) else c - 1
+        if ev == 0:
+            sr, sc, mine_l = er - j, ec, j
+        else:
+            sr, sc, mine_l = er, ec - j, 2 + j
         if sr < 0 or sr > H - 2 or sc < 0 or sc > W - 2:
             continue
         cs = _case(sub, level, sr, sc)
@@ -437,9 +438,10 @@ def _segment_at(sub, level, e, from_side):
                 break
             te = _SEG_TO[k, cs]
             mine, other = (fe, te) if from_side else (te, fe)
-            if mine == cand_l[j]:
-                return 2 * (sr * (W - 1) + sc) + k, _edge_of(sr, sc, other, W, hw), ar, ac
-    return -1, -1, ar, ac
+            if mine == mine_l:
+                orow, ocol, ov = _edge_of(sr, sc, other)
+                return 2 * (sr * (W - 1) + sc) + k, orow, ocol, ov, ar, ac
+    return -1, 0, 0, 0, ar, ac
 
 
 @numba.njit(cache=True, nogil=True, inline="always")
@@ -458,6 +460,7 @@ def _ring_pixel(p, H, W):
 
 @numba.njit(cache=True, nogil=True, inline="always")
 def _ring_place(r, c, H, W):
+    """Place of pixel (r, c) on the region's outer ring (the inverse of :func:`_ring_pixel`)."""
     if r == 0:
         return c
     if c == W - 1:
@@ -468,22 +471,36 @@ def _ring_place(r, c, H, W):
 
 
 @numba.njit(cache=True, nogil=True, inline="always")
-def _edge_between(r1, c1, r2, c2, W, hw):
-    """Edge id between two 4-adjacent pixels."""
+def _edge_between(r1, c1, r2, c2):
+    """The edge (row, col, vertical) between two 4-adjacent pixels."""
     if r1 == r2:
-        return r1 * W + min(c1, c2)
-    return hw + min(r1, r2) * W + c1
+        return r1, min(c1, c2), 0
+    return min(r1, r2), c1, 1
 
 
 @numba.njit(cache=True, nogil=True, inline="always")
-def _edge_pixels(e, W, hw):
-    """The two pixels (r1, c1, r2, c2) either side of edge ``e``."""
-    if e < hw:
-        r, c = e // W, e % W
-        return r, c, r, c + 1
-    e -= hw
-    r, c = e // W, e % W
-    return r, c, r + 1, c
+def _edge_point(sub, level, er, ec, ev, r0, c0, out, i):
+    """:func:`_edge_points` of edge (er, ec, ev) of ``sub`` relative to the box whose corner is
+    (r0, c0), into ``out[i]``."""
+    a = sub[er, ec]
+    if ev:
+        frac = (level - a) / (sub[er + 1, ec] - a)
+        out[i, 0] = (er - r0) + frac
+        out[i, 1] = (ec - c0) + 0.0
+    else:
+        frac = (level - a) / (sub[er, ec + 1] - a)
+        out[i, 0] = (er - r0) + 0.0
+        out[i, 1] = (ec - c0) + frac
+
+
+@numba.njit(cache=True, nogil=True, inline="always")
+def _grow(a, n):
+    """``a`` (m, 4) with room for at least n + 1 rows."""
+    if n < len(a):
+        return a
+    b = np.empty((2 * len(a), 4), dtype=np.int64)
+    b[:n] = a[:n]
+    return b
 
 
 @numba.njit(cache=True, nogil=True)
@@ -535,54 +552,52 @@ def _contour_by_walk(sub, level, ri, ci, row0, col0, bp_u, bp_v):
         return NOT_ABOVE, _EMPTY, False, no_sides
     if H < 3 or W < 3 or not np.isfinite(level) or level - 1.0 == level or level + 1.0 == level:
         return DECLINED, _EMPTY, False, no_sides
-    hw = H * W
-    cap = 2 * hw + 8
-    keys = np.empty(64, dtype=np.int64)
-    f_edges = np.empty(64, dtype=np.int64)
-    t_edges = np.empty(64, dtype=np.int64)
+    cap = 2 * H * W + 8
+    L = 2 * W + 2 * H - 4
+    # segments: raster key, from-edge (row, col, vertical); to-edges of chain ends apart
+    seg = np.empty((64, 4), dtype=np.int64)
     n = 0
-    # bounding box of the component's pixels met on the walk
-    y0, y1, x0, x1 = ri, ri, ci, ci
-    closed = False
+    y0, y1, x0, x1 = ri, ri, ci, ci  # box of the component's pixels met on the walk
     # the walk along the BP's row to the right
     t = ci
+    closed = False
     found = False
-    L = 2 * W + 2 * H - 4
     while True:
         # next crossing from a pixel above the level to one at or below it
         while t < W - 1 and not (sub[ri, t] > level and not sub[ri, t + 1] > level):
             t += 1
         if t < W - 1:
-            e0 = ri * W + t
+            sr0, sc0, sv0 = ri, t, 0
         else:
             # the component's run reaches the right side at (ri, W - 1): its pixels along the
             # region's outer ring lead to an edge where one of its open contours ends
             p = _ring_place(ri, W - 1, H, W)
+            nr, nc = _ring_pixel((p + 1) % L, H, W)
             for _ in range(L):
-                nr, nc = _ring_pixel((p + 1) % L, H, W)
                 if not sub[nr, nc] > level:
                     break
                 p = (p + 1) % L
-            pr, pc = _ring_pixel(p, H, W)
+                nr, nc = _ring_pixel((p + 1) % L, H, W)
             if sub[nr, nc] > level:  # the whole ring is above the level
                 break
-            e0 = _edge_between(pr, pc, nr, nc, W, hw)
-        # follow the contour forward from e0
+            pr, pc = _ring_pixel(p, H, W)
+            sr0, sc0, sv0 = _edge_between(pr, pc, nr, nc)
+        # follow the contour forward from that edge
         n = 0
-        e = e0
+        er, ec, ev = sr0, sc0, sv0
         is_closed = False
+        crossings = 0
         while True:
-            key, te, ar, ac = _segment_at(sub, level, e, True)
+            key, tr, tc, tv, ar, ac = _segment_at(sub, level, er, ec, ev, True)
             if key < 0:
                 break
-            if n == len(keys):
-                keys = np.concatenate((keys, np.empty(n, dtype=np.int64)))
-                f_edges = np.concatenate((f_edges, np.empty(n, dtype=np.int64)))
-                t_edges = np.concatenate((t_edges, np.empty(n, dtype=np.int64)))
-            keys[n], f_edges[n], t_edges[n] = key, e, te
+            seg = _grow(seg, n)
+            seg[n, 0], seg[n, 1], seg[n, 2], seg[n, 3] = key, er, ec, ev
+            if ev == 0 and er == ri and ec >= ci:
+                crossings += 1
             n += 1
-            e = te
-            if e == e0:
+            er, ec, ev = tr, tc, tv
+            if er == sr0 and ec == sc0 and ev == sv0:
                 is_closed = True
                 break
             if n > cap:
@@ -590,12 +605,8 @@ def _contour_by_walk(sub, level, ri, ci, row0, col0, bp_u, bp_v):
         if not is_closed:
             found = True
             break
-        # does it enclose the BP's pixel centre? Count its crossings of row ri right of it: a
-        # contour crosses the line of pixel centres only on the edges between two of them
-        crossings = 0
-        for i in range(n):
-            if f_edges[i] < hw and f_edges[i] // W == ri and f_edges[i] % W >= ci:
-                crossings += 1
+        # does it enclose the BP's pixel centre? An odd number of crossings of row ri right of
+        # it: a contour crosses the line of pixel centres only on the edges between two of them
         if crossings % 2 == 1:  # the outer boundary (a hole's rim, an island's, do not enclose it)
             closed = True
             found = True
@@ -605,75 +616,68 @@ def _contour_by_walk(sub, level, ri, ci, row0, col0, bp_u, bp_v):
         return DECLINED, _EMPTY, False, no_sides
 
     if closed:
-        for i in range(n):
-            a1, b1, a2, b2 = _edge_pixels(f_edges[i], W, hw)
-            if not sub[a1, b1] > level:
-                a1, b1 = a2, b2
-            y0, y1, x0, x1 = min(y0, a1), max(y1, a1), min(x0, b1), max(x1, b1)
-        n_chains = 1
-        order_edges = np.empty(n, dtype=np.int64)
         last = 0
         for i in range(n):
-            if keys[i] > keys[last]:
+            er, ec, ev = seg[i, 1], seg[i, 2], seg[i, 3]
+            ar, ac = er, ec
+            if not sub[ar, ac] > level:
+                ar, ac = (er, ec + 1) if ev == 0 else (er + 1, ec)
+            y0, y1, x0, x1 = min(y0, ar), max(y1, ar), min(x0, ac), max(x1, ac)
+            if seg[i, 0] > seg[last, 0]:
                 last = i
-        for i in range(n):
-            order_edges[i] = f_edges[(last + 1 + i) % n]
         n_out = n
     else:
-        # open: the chain through e0 from its start on the region's side
-        e = e0
+        # open: the chain through the first edge, from its start on the region's side
+        er, ec, ev = sr0, sc0, sv0
         steps = 0
         while True:
-            key, fe, ar, ac = _segment_at(sub, level, e, False)
+            key, fr, fc, fv, ar, ac = _segment_at(sub, level, er, ec, ev, False)
             if key < 0:
                 break
-            e = fe
+            er, ec, ev = fr, fc, fv
             steps += 1
             if steps > cap:
                 return DECLINED, _EMPTY, False, no_sides
-        first_start = e
-        # chains as (start index into the segment arrays, count, lowest key)
-        c_start = np.empty(8, dtype=np.int64)
-        c_count = np.empty(8, dtype=np.int64)
-        c_lo = np.empty(8, dtype=np.int64)
+        first = (er, ec, ev)
+        # chains: first segment index, count, lowest key, end edge (row, col, vertical)
+        chains = np.empty((8, 4), dtype=np.int64)
+        ends = np.empty((8, 4), dtype=np.int64)
         n_chains = 0
         n = 0
-        start = first_start
         while True:
-            if n_chains == len(c_start):
-                c_start = np.concatenate((c_start, np.empty(n_chains, dtype=np.int64)))
-                c_count = np.concatenate((c_count, np.empty(n_chains, dtype=np.int64)))
-                c_lo = np.concatenate((c_lo, np.empty(n_chains, dtype=np.int64)))
-            c_start[n_chains] = n
+            chains = _grow(chains, n_chains)
+            ends = _grow(ends, n_chains)
+            chains[n_chains, 0] = n
             lo = -1
-            e = start
+            s_r, s_c, s_v = er, ec, ev
             while True:
-                key, te, ar, ac = _segment_at(sub, level, e, True)
+                key, tr, tc, tv, ar, ac = _segment_at(sub, level, er, ec, ev, True)
                 if key < 0:
                     break
-                if n == len(keys):
-                    keys = np.concatenate((keys, np.empty(n, dtype=np.int64)))
-                    f_edges = np.concatenate((f_edges, np.empty(n, dtype=np.int64)))
-                    t_edges = np.concatenate((t_edges, np.empty(n, dtype=np.int64)))
-                keys[n], f_edges[n], t_edges[n] = key, e, te
+                seg = _grow(seg, n)
+                seg[n, 0], seg[n, 1], seg[n, 2], seg[n, 3] = key, er, ec, ev
                 y0, y1, x0, x1 = min(y0, ar), max(y1, ar), min(x0, ac), max(x1, ac)
                 if lo < 0 or key < lo:
                     lo = key
                 n += 1
-                e = te
+                er, ec, ev = tr, tc, tv
                 if n > cap:
                     return DECLINED, _EMPTY, False, no_sides
-            if e == start or lo < 0:
+            if (er == s_r and ec == s_c and ev == s_v) or lo < 0:
                 return DECLINED, _EMPTY, False, no_sides
-            c_count[n_chains] = n - c_start[n_chains]
-            c_lo[n_chains] = lo
+            chains[n_chains, 1] = n - chains[n_chains, 0]
+            chains[n_chains, 2] = lo
+            ends[n_chains, 0], ends[n_chains, 1], ends[n_chains, 2] = er, ec, ev
             n_chains += 1
             # the chain ends on the region's side: follow the component's pixels along the ring
-            a1, b1, a2, b2 = _edge_pixels(e, W, hw)
-            if sub[a1, b1] > level:
-                pr, pc, qr, qc = a1, b1, a2, b2
+            if ev == 0:
+                qr, qc = er, ec + 1
             else:
-                pr, pc, qr, qc = a2, b2, a1, b1
+                qr, qc = er + 1, ec
+            if sub[er, ec] > level:
+                pr, pc = er, ec
+            else:
+                pr, pc, qr, qc = qr, qc, er, ec
             y0, y1, x0, x1 = min(y0, pr), max(y1, pr), min(x0, pc), max(x1, pc)
             if not (pr == 0 or pr == H - 1 or pc == 0 or pc == W - 1) or not (
                     qr == 0 or qr == H - 1 or qc == 0 or qc == W - 1):
@@ -697,8 +701,8 @@ def _contour_by_walk(sub, level, ri, ci, row0, col0, bp_u, bp_v):
                 if walked > L:
                     return DECLINED, _EMPTY, False, no_sides
             pr, pc = _ring_pixel(p, H, W)
-            start = _edge_between(pr, pc, nr, nc, W, hw)
-            if start == first_start:
+            er, ec, ev = _edge_between(pr, pc, nr, nc)
+            if (er, ec, ev) == first:
                 break
             if n_chains > L:
                 return DECLINED, _EMPTY, False, no_sides
@@ -714,46 +718,29 @@ def _contour_by_walk(sub, level, ri, ci, row0, col0, bp_u, bp_v):
     sides = (y0 == 0, y1 + 1 == H, x0 == 0, x1 + 1 == W)
     out = np.empty((n_out, 2), dtype=np.float64)
     if closed:
+        # from the segment after the last one in raster order
         for i in range(n):
-            _edge_point(sub, level, order_edges[i], r0, c0, W, hw, out, i)
+            j = (last + 1 + i) % n
+            _edge_point(sub, level, seg[j, 1], seg[j, 2], seg[j, 3], r0, c0, out, i)
         cu, rv = float(col0 + c0), float(row0 + r0)
         for i in range(n):
             u = out[i, 1] + cu
             out[i, 1] = out[i, 0] + rv
             out[i, 0] = u
         return CLOSED, out, _inside(out, bp_u, bp_v), sides
-    order = np.argsort(c_lo[:n_chains], kind="mergesort")
+    order = np.argsort(chains[:n_chains, 2], kind="mergesort")
     q = 0
     for o in order:
-        s0, cnt = c_start[o], c_count[o]
+        s0, cnt = chains[o, 0], chains[o, 1]
         for i in range(s0, s0 + cnt):
-            _edge_point(sub, level, f_edges[i], r0, c0, W, hw, out, q)
+            _edge_point(sub, level, seg[i, 1], seg[i, 2], seg[i, 3], r0, c0, out, q)
             q += 1
-        _edge_point(sub, level, t_edges[s0 + cnt - 1], r0, c0, W, hw, out, q)
+        _edge_point(sub, level, ends[o, 0], ends[o, 1], ends[o, 2], r0, c0, out, q)
         q += 1
     for i in range(n_out):
         out[i, 0] += r0
         out[i, 1] += c0
     return OPEN, out, False, sides
-
-
-@numba.njit(cache=True, nogil=True, inline="always")
-def _edge_point(sub, level, e, r0, c0, W, hw, out, i):
-    """:func:`_edge_points` of one edge of ``sub`` given in ``sub``'s edge ids, relative to the
-    box whose corner is (r0, c0), into ``out[i]``."""
-    vertical = e >= hw
-    if vertical:
-        e -= hw
-    er, ec = e // W, e % W
-    a = sub[er, ec]
-    if vertical:
-        frac = (level - a) / (sub[er + 1, ec] - a)
-        out[i, 0] = (er - r0) + frac
-        out[i, 1] = (ec - c0) + 0.0
-    else:
-        frac = (level - a) / (sub[er, ec + 1] - a)
-        out[i, 0] = (er - r0) + 0.0
-        out[i, 1] = (ec - c0) + frac
 
 
 @numba.njit(cache=True, nogil=True)
