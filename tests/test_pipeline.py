@@ -501,3 +501,22 @@ def test_a_frame_batched_gives_each_highlight_what_it_gets_alone(model):
         alone = reconstruct_roi(img, cam, (0.3, 0.5), bp_uv=bp, roi=roi, **opts)
         _same_estimate(alone, b)
         _same_estimate(alone, e)
+
+
+@given(seed=st.integers(0, 2**32 - 1))
+@settings(max_examples=200, deadline=None)
+def test_one_bp_ray_in_python_floats_is_the_batched_rays_bits(seed):
+    # _bp_ray's scalar path for a pinhole must give the bits of _bp_rays (numpy), which the
+    # batched frame path uses: a highlight alone and in a frame get the same normals
+    from simtest.geometry.cameras import PinholeCamera
+    from simtest.reconstruct.pipeline import _bp_ray, _bp_rays
+
+    rng = np.random.default_rng(seed)
+    f = 10.0 ** rng.uniform(1, 4)
+    K = np.array([[f * rng.uniform(0.5, 2), rng.normal(0, 5) * (rng.random() < 0.5), rng.uniform(-1e3, 1e3)],
+                  [0.0, f, rng.uniform(-1e3, 1e3)], [0.0, 0.0, 1.0]])
+    uv = rng.uniform(-2e3, 2e3, (16, 2)) * 10.0 ** rng.integers(-6, 1, (16, 1))
+    want = _bp_rays(uv, PinholeCamera(K))
+    for cam in (PinholeCamera(K), K):
+        got = np.stack([_bp_ray(p, cam) for p in uv])
+        assert got.tobytes() == want.tobytes()

@@ -154,6 +154,11 @@ def rotations_to_z(d: np.ndarray) -> np.ndarray:
     return np.stack([x, y, z], axis=1)
 
 
+#: The rotation of a pinhole's fit frame (the image plane), read-only: one array for every frame.
+_IDENTITY = np.eye(3)
+_IDENTITY.setflags(write=False)
+
+
 def fit_frame(camera: CameraModel, bp_ray) -> FitFrame:
     """The fit plane of a highlight (module Notes).
 
@@ -190,7 +195,7 @@ def fit_frames(camera: CameraModel, bp_rays: np.ndarray) -> list[FitFrame]:
     """
     d = np.asarray(bp_rays, dtype=np.float64).reshape(-1, 3)
     if isinstance(camera, PinholeCamera):
-        return [FitFrame(camera, np.eye(3), camera.K, True)] * len(d)
+        return [FitFrame(camera, _IDENTITY, camera.K, True)] * len(d)
     if not len(d):
         return []
     R = rotations_to_z(d)

@@ -246,7 +246,10 @@ def _region(values, bp_uv, origin_rc, image_shape) -> _Region:
             raise ValueError("image_shape is required when origin_rc is not (0, 0)")
         image_shape = sub.shape
     bp_uv = np.asarray(bp_uv, dtype=np.float64)
-    r_bp, c_bp = uv_to_rc(bp_uv) - (roi.row0, roi.col0)
+    if bp_uv.shape == (2,):  # uv_to_rc(bp_uv) - (row0, col0) in Python floats, the same bits
+        r_bp, c_bp = float(bp_uv[1]) - roi.row0, float(bp_uv[0]) - roi.col0
+    else:
+        r_bp, c_bp = uv_to_rc(bp_uv) - (roi.row0, roi.col0)
     ri, ci = int(round(r_bp)), int(round(c_bp))
     if not (0 <= ri < sub.shape[0] and 0 <= ci < sub.shape[1]):
         raise ValueError(f"bp_uv = {bp_uv.tolist()} lies outside the ROI {tuple(roi)}")
