@@ -820,7 +820,7 @@ def _roi_draft(image, K, bp_uv, roi, dist_coeffs, settings: ReconSettings, camer
         bp = np.asarray(bp_uv, dtype=np.float64).reshape(-1)
         if bp.shape != (2,) or not np.isfinite(bp).all():
             raise ValueError(f"bp_uv must be 2 finite numbers (u, v), got {bp_uv!r}")
-        r, c = np.rint(uv_to_rc(bp)).astype(int)
+        r, c = round(float(bp[1])), round(float(bp[0]))  # np.rint(uv_to_rc(bp)): half to even
         if not (roi.row0 <= r < roi.row1 and roi.col0 <= c < roi.col1):
             raise ValueError(f"bp_uv = {bp.tolist()} lies outside the ROI {tuple(roi)}")
         saturated = False
