@@ -285,3 +285,14 @@ def test_a_pixel_at_the_level_anywhere_in_the_components_box_declines_the_walk()
     sub[2:5, 3:5] = 2.0
     sub[0, 0] = 1.0  # outside the box: the walk answers
     assert _kernels._contour_by_walk(sub, 1.0, 3, 3, 0, 0, 3.0, 3.0)[0] == _kernels.CLOSED
+
+
+@given(seed=st.integers(0, 2**32 - 1), flags=st.tuples(st.booleans(), st.booleans(), st.booleans(), st.booleans()))
+@settings(max_examples=400, deadline=None)
+def test_the_walks_growth_answer_is_the_flood_fills(seed, flags):
+    args = _kernel_args(seed)
+    if args is None:
+        return
+    sub, level, ri, ci = args[:4]
+    assert _kernels.component_reaches(sub, level, ri, ci, *flags) == \
+        _kernels.component_reaches_flood(sub, level, ri, ci, *flags)

@@ -18,7 +18,8 @@ Kernels
 - :func:`trace_contours`: the marching-squares contours of a box in ``find_contours``' order
   and bits, when they are one closed contour or only open ones.
 - :func:`component_reaches`: whether that component reaches given sides of the box (the
-  ROI's growth asks only that).
+  ROI's growth asks only that), from the same walk (:func:`component_reaches_flood`, a flood
+  fill, its reference and fallback).
 - :func:`border_median`: the median of a region's border pixels (``normalise="local"``).
 - :func:`luma_rgb`: the luma of an RGB image or ROI.
 
@@ -746,7 +747,29 @@ def _contour_by_walk(sub, level, ri, ci, row0, col0, bp_u, bp_v):
 @numba.njit(cache=True, nogil=True)
 def component_reaches(sub, level, ri, ci, top, bottom, left, right):
     """Whether the 4-connected component of ``sub > level`` holding pixel (ri, ci) reaches one
-    of the flagged sides of ``sub``, found by a flood fill that stops there.
+    of the flagged sides of ``sub``: :func:`component_reaches_flood`'s answer, from the walk of
+    :func:`component_contour` round the component's boundary (a closed outer boundary reaches no
+    side; open contours give the sides the component reaches), in time proportional to the
+    boundary; where the walk declines, from the flood fill.
+
+    Parameters and Returns
+    ----------------------
+    As :func:`component_reaches_flood`.
+    """
+    code, _, _, sides = _contour_by_walk(sub, level, ri, ci, 0, 0, 0.0, 0.0)
+    if code == NOT_ABOVE:
+        return -1
+    if code == DECLINED:
+        return component_reaches_flood(sub, level, ri, ci, top, bottom, left, right)
+    reached = (top and sides[0]) or (bottom and sides[1]) or (left and sides[2]) or (right and sides[3])
+    return 1 if reached else 0
+
+
+@numba.njit(cache=True, nogil=True)
+def component_reaches_flood(sub, level, ri, ci, top, bottom, left, right):
+    """Whether the 4-connected component of ``sub > level`` holding pixel (ri, ci) reaches one
+    of the flagged sides of ``sub``, found by a flood fill that stops there (the reference of
+    :func:`component_reaches`, and its fallback).
 
     Parameters
     ----------

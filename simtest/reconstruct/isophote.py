@@ -285,9 +285,10 @@ def isophote_cut_by_roi(values: np.ndarray, level: float, bp_uv, *, origin_rc: t
     -----
     The pipeline grows an ROI whose lowest isophote is cut by it and discards that isophote: on
     the Hyper-Kvasir banner a third of the extractions were such, on ROIs grown to a megapixel
-    around isophotes that leak into bright tissue. The flood fill of
-    :func:`simtest.reconstruct._kernels.component_reaches` stops at the first pixel on such a
-    side. ``tests/test_kernels.py`` checks the answer against the extraction's.
+    around isophotes that leak into bright tissue.
+    :func:`simtest.reconstruct._kernels.component_reaches` walks the component's boundary (or
+    flood-fills it, stopping at the first pixel on such a side, where the walk declines).
+    ``tests/test_kernels.py`` checks the answer against the extraction's.
     """
     return _cut_by_roi(_region(values, bp_uv, origin_rc, image_shape), level)
 
