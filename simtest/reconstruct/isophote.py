@@ -173,14 +173,15 @@ def extract_isophote(
     is local (each point interpolates between a pixel of the component and a 4-neighbour below
     the level), so it is found by contouring only that component's bounding box plus one pixel,
     with the pixels of other components lowered below the level (they touch the component at
-    most diagonally, where the "low" connectivity already separates them): the same points, in
-    time proportional to the highlight rather than to the ROI and its noise. If none is closed, the open contours
-    bordering the 4-connected component of pixels >= ``level`` that holds the BP are taken, in
-    marching-squares order. These steps run in one compiled call
-    (:func:`simtest.reconstruct._kernels.component_contour`), which orders the marching-squares
-    segments as ``find_contours`` does and gives its contours bit for bit; what it declines (a
-    pixel exactly at the level, several closed contours, the BP's pixel below the level) goes to
-    ``find_contours`` itself (``_contours_numpy``).
+    most diagonally, where the "low" connectivity already separates them): the same points. If
+    none is closed, the open contours bordering the 4-connected component of pixels above
+    ``level`` that holds the BP are taken, in marching-squares order. These steps run in one
+    compiled call (:func:`simtest.reconstruct._kernels.component_contour`), which walks that
+    component's boundary from the BP (time proportional to the contour, not to the ROI and its
+    noise), orders the marching-squares segments as ``find_contours`` does and gives its
+    contours bit for bit; what it declines (a pixel exactly at the level, several closed
+    contours, the BP's pixel below the level) goes to ``find_contours`` itself
+    (``_contours_numpy``).
     """
     return _extract(_region(values, bp_uv, origin_rc, image_shape), level, allow_open, min_points)
 
