@@ -544,6 +544,36 @@ def component_contour(sub, level, ri, ci, row0, col0, bp_u, bp_v):
     return code, pts, inside, sides
 
 
+@numba.njit(cache=True, nogil=True, inline="always")
+def _follow(sub, level, er, ec, ev, seg, n, ri, ci, cap):
+    """Follow the marching-squares contour forward from edge (er, ec, ev), appending its
+    segments (raster key, from-edge) to ``seg`` from row ``n``, until it is back at that edge
+    (closed) or ends on the region's side. Returns ``(seg, n, last edge (row, col, vertical),
+    closed, crossings of row ri right of column ci, lowest key, box (y0, y1, x0, x1) of the
+    pixels above the level beside its edges)``; n is -1 past ``cap`` segments."""
+    sr, sc, sv = er, ec, ev
+    crossings, lo = 0, -1
+    H, W = sub.shape
+    y0, y1, x0, x1 = H, -1, W, -1
+    while True:
+        key, tr, tc, tv, ar, ac = _segment_at(sub, level, er, ec, ev, True)
+        if key < 0:
+            return seg, n, er, ec, ev, False, crossings, lo, y0, y1, x0, x1
+        seg = _grow(seg, n)
+        seg[n, 0], seg[n, 1], seg[n, 2], seg[n, 3] = key, er, ec, ev
+        if ev == 0 and er == ri and ec >= ci:
+            crossings += 1
+        if lo < 0 or key < lo:
+            lo = key
+        y0, y1, x0, x1 = min(y0, ar), max(y1, ar), min(x0, ac), max(x1, ac)
+        n += 1
+        er, ec, ev = tr, tc, tv
+        if er == sr and ec == sc and ev == sv:
+            return seg, n, er, ec, ev, True, crossings, lo, y0, y1, x0, x1
+        if n > cap:
+            return seg, -1, er, ec, ev, False, crossings, lo, y0, y1, x0, x1
+
+
 @numba.njit(cache=True, nogil=True)
 def _contour_by_walk(sub, level, ri, ci, row0, col0, bp_u, bp_v):
     """The walk of :func:`component_contour`, or :data:`DECLINED` (the flood fill decides)."""
@@ -584,25 +614,10 @@ def _contour_by_walk(sub, level, ri, ci, row0, col0, bp_u, bp_v):
             pr, pc = _ring_pixel(p, H, W)
             sr0, sc0, sv0 = _edge_between(pr, pc, nr, nc)
         # follow the contour forward from that edge
-        n = 0
-        er, ec, ev = sr0, sc0, sv0
-        is_closed = False
-        crossings = 0
-        while True:
-            key, tr, tc, tv, ar, ac = _segment_at(sub, level, er, ec, ev, True)
-            if key < 0:
-                break
-            seg = _grow(seg, n)
-            seg[n, 0], seg[n, 1], seg[n, 2], seg[n, 3] = key, er, ec, ev
-            if ev == 0 and er == ri and ec >= ci:
-                crossings += 1
-            n += 1
-            er, ec, ev = tr, tc, tv
-            if er == sr0 and ec == sc0 and ev == sv0:
-                is_closed = True
-                break
-            if n > cap:
-                return DECLINED, _EMPTY, False, no_sides
+        seg, n, er, ec, ev, is_closed, crossings, _, _, _, _, _ = _follow(
+            sub, level, sr0, sc0, sv0, seg, 0, ri, ci, cap)
+        if n < 0:
+            return DECLINED, _EMPTY, False, no_sides
         if not is_closed:
             found = True
             break
@@ -649,23 +664,11 @@ def _contour_by_walk(sub, level, ri, ci, row0, col0, bp_u, bp_v):
             chains = _grow(chains, n_chains)
             ends = _grow(ends, n_chains)
             chains[n_chains, 0] = n
-            lo = -1
-            s_r, s_c, s_v = er, ec, ev
-            while True:
-                key, tr, tc, tv, ar, ac = _segment_at(sub, level, er, ec, ev, True)
-                if key < 0:
-                    break
-                seg = _grow(seg, n)
-                seg[n, 0], seg[n, 1], seg[n, 2], seg[n, 3] = key, er, ec, ev
-                y0, y1, x0, x1 = min(y0, ar), max(y1, ar), min(x0, ac), max(x1, ac)
-                if lo < 0 or key < lo:
-                    lo = key
-                n += 1
-                er, ec, ev = tr, tc, tv
-                if n > cap:
-                    return DECLINED, _EMPTY, False, no_sides
-            if (er == s_r and ec == s_c and ev == s_v) or lo < 0:
+            seg, n, er, ec, ev, is_closed, _, lo, b0, b1, b2, b3 = _follow(
+                sub, level, er, ec, ev, seg, n, ri, ci, cap)
+            if n < 0 or is_closed or lo < 0:
                 return DECLINED, _EMPTY, False, no_sides
+            y0, y1, x0, x1 = min(y0, b0), max(y1, b1), min(x0, b2), max(x1, b3)
             chains[n_chains, 1] = n - chains[n_chains, 0]
             chains[n_chains, 2] = lo
             ends[n_chains, 0], ends[n_chains, 1], ends[n_chains, 2] = er, ec, ev
