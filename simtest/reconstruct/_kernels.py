@@ -139,27 +139,28 @@ def _raise_holes(box, lab, high):
 @numba.njit(cache=True, nogil=True)
 def _edge_points(box, level, edges):
     """The marching-squares point (row, col) on each pixel edge id (horizontal ``r W + c``,
-    vertical ``H W + r W + c``): ``r0 + (level - a) / (b - a)`` along the edge, ``a`` the upper or
-    left pixel (skimage's interpolation)."""
+    vertical ``H W + r W + c``): :func:`_edge_point` of each."""
     H, W = box.shape
     hw = H * W
     out = np.empty((len(edges), 2), dtype=np.float64)
     for i in range(len(edges)):
         e = edges[i]
-        vertical = e >= hw
-        if vertical:
-            e -= hw
-        er, ec = e // W, e % W
-        a = box[er, ec]
-        if vertical:
-            frac = (level - a) / (box[er + 1, ec] - a)
-            out[i, 0] = er + frac
-            out[i, 1] = ec + 0.0
-        else:
-            frac = (level - a) / (box[er, ec + 1] - a)
-            out[i, 0] = er + 0.0
-            out[i, 1] = ec + frac
+        ev = 1 if e >= hw else 0
+        e -= ev * hw
+        _edge_point(box, level, e // W, e % W, ev, 0, 0, out, i)
     return out
+
+
+@numba.njit(cache=True, nogil=True)
+def _any_at_level(a, level):
+    """Whether a pixel of ``a`` (2D, any strides) is exactly at ``level`` or not finite (cases
+    ``find_contours`` is left to handle)."""
+    for r in range(a.shape[0]):
+        for c in range(a.shape[1]):
+            v = a[r, c]
+            if v == level or not np.isfinite(v):
+                return True
+    return False
 
 
 @numba.njit(cache=True, nogil=True, inline="always")
@@ -299,9 +300,8 @@ def trace_contours(box, level):
     one starts where its last segment in raster order ends. Each point interpolates linearly
     between the two pixels of its edge with skimage's formula: the same bits.
     """
-    for v in box.ravel():
-        if v == level or not np.isfinite(v):
-            return FALLBACK, np.empty((0, 2), dtype=np.float64)
+    if _any_at_level(box, level):
+        return FALLBACK, np.empty((0, 2), dtype=np.float64)
     code, edges = _trace(box, level)
     if code == FALLBACK:
         return FALLBACK, np.empty((0, 2), dtype=np.float64)
@@ -384,20 +384,28 @@ def component_contour_flood(sub, level, ri, ci, row0, col0, bp_u, bp_v):
                 lab[r, c] = 0
     _raise_holes(box, lab, high)
     code, rc = trace_contours(box, level)
-    if code == CLOSED:
-        # rc_to_uv(rc, row0 + r0, col0 + c0): (col + (col0 + c0), row + (row0 + r0))
-        uv = np.empty_like(rc)
-        cu, rv = float(col0 + c0), float(row0 + r0)
-        for i in range(len(rc)):
-            uv[i, 0] = rc[i, 1] + cu
-            uv[i, 1] = rc[i, 0] + rv
-        return CLOSED, uv, _inside(uv, bp_u, bp_v), sides
-    if code == OPEN:  # rc + (r0, c0)
+    if code == FALLBACK:
+        return FALLBACK, _EMPTY, False, sides
+    return code, rc, _shift(code == CLOSED, rc, r0, c0, row0, col0, bp_u, bp_v), sides
+
+
+@numba.njit(cache=True, nogil=True)
+def _shift(closed, rc, r0, c0, row0, col0, bp_u, bp_v):
+    """Bring contour points (row, col) in the box whose corner is (r0, c0) of ``sub``, in place,
+    into the frame :func:`component_contour` returns them in: a closed contour to (u, v) in the
+    full image (``rc_to_uv(rc, row0 + r0, col0 + c0)``), open contours to (row, col) in ``sub``.
+    Returns whether a closed contour encloses the BP (even-odd rule; False for open ones)."""
+    if not closed:
         for i in range(len(rc)):
             rc[i, 0] += r0
             rc[i, 1] += c0
-        return OPEN, rc, False, sides
-    return FALLBACK, _EMPTY, False, sides
+        return False
+    cu, rv = float(col0 + c0), float(row0 + r0)
+    for i in range(len(rc)):
+        u = rc[i, 1] + cu
+        rc[i, 1] = rc[i, 0] + rv
+        rc[i, 0] = u
+    return _inside(rc, bp_u, bp_v)
 
 
 @numba.njit(cache=True, nogil=True, inline="always")
@@ -472,6 +480,24 @@ def _ring_place(r, c, H, W):
 
 
 @numba.njit(cache=True, nogil=True, inline="always")
+def _along_ring(sub, level, p, step, H, W):
+    """From place ``p`` of the region's outer ring (a pixel above the level), the run of pixels
+    above the level in direction ``step`` (1 clockwise, L - 1 back): its last place, the next
+    pixel (row, col), at or below the level, the run's box (y0, y1, x0, x1), and False if the
+    whole ring is above the level."""
+    L = 2 * W + 2 * H - 4
+    r, c = _ring_pixel(p, H, W)
+    y0, y1, x0, x1 = r, r, c, c
+    for _ in range(L):
+        nr, nc = _ring_pixel((p + step) % L, H, W)
+        if not sub[nr, nc] > level:
+            return p, nr, nc, y0, y1, x0, x1, True
+        p = (p + step) % L
+        y0, y1, x0, x1 = min(y0, nr), max(y1, nr), min(x0, nc), max(x1, nc)
+    return p, nr, nc, y0, y1, x0, x1, False
+
+
+@numba.njit(cache=True, nogil=True, inline="always")
 def _edge_between(r1, c1, r2, c2):
     """The edge (row, col, vertical) between two 4-adjacent pixels."""
     if r1 == r2:
@@ -481,8 +507,9 @@ def _edge_between(r1, c1, r2, c2):
 
 @numba.njit(cache=True, nogil=True, inline="always")
 def _edge_point(sub, level, er, ec, ev, r0, c0, out, i):
-    """:func:`_edge_points` of edge (er, ec, ev) of ``sub`` relative to the box whose corner is
-    (r0, c0), into ``out[i]``."""
+    """The marching-squares point (row, col) on edge (er, ec, ev) of ``sub``, relative to the box
+    whose corner is (r0, c0), into ``out[i]``: ``(level - a) / (b - a)`` along the edge, ``a``
+    the upper or left pixel (skimage's interpolation)."""
     a = sub[er, ec]
     if ev:
         frac = (level - a) / (sub[er + 1, ec] - a)
@@ -602,19 +629,13 @@ def _contour_by_walk(sub, level, ri, ci, row0, col0, bp_u, bp_v):
         else:
             # the component's run reaches the right side at (ri, W - 1): its pixels along the
             # region's outer ring lead to an edge where one of its open contours ends
-            p = _ring_place(ri, W - 1, H, W)
-            nr, nc = _ring_pixel((p + 1) % L, H, W)
-            for _ in range(L):
-                if not sub[nr, nc] > level:
-                    break
-                p = (p + 1) % L
-                nr, nc = _ring_pixel((p + 1) % L, H, W)
-            if sub[nr, nc] > level:  # the whole ring is above the level
+            p, nr, nc, _, _, _, _, ok = _along_ring(sub, level, _ring_place(ri, W - 1, H, W), 1, H, W)
+            if not ok:  # the whole ring is above the level
                 break
             pr, pc = _ring_pixel(p, H, W)
             sr0, sc0, sv0 = _edge_between(pr, pc, nr, nc)
         # follow the contour forward from that edge
-        seg, n, er, ec, ev, is_closed, crossings, _, _, _, _, _ = _follow(
+        seg, n, er, ec, ev, is_closed, crossings, _, b0, b1, b2, b3 = _follow(
             sub, level, sr0, sc0, sv0, seg, 0, ri, ci, cap)
         if n < 0:
             return DECLINED, _EMPTY, False, no_sides
@@ -632,13 +653,9 @@ def _contour_by_walk(sub, level, ri, ci, row0, col0, bp_u, bp_v):
         return DECLINED, _EMPTY, False, no_sides
 
     if closed:
-        last = 0
+        y0, y1, x0, x1 = min(y0, b0), max(y1, b1), min(x0, b2), max(x1, b3)
+        last = 0  # the segment last in raster order
         for i in range(n):
-            er, ec, ev = seg[i, 1], seg[i, 2], seg[i, 3]
-            ar, ac = er, ec
-            if not sub[ar, ac] > level:
-                ar, ac = (er, ec + 1) if ev == 0 else (er + 1, ec)
-            y0, y1, x0, x1 = min(y0, ar), max(y1, ar), min(x0, ac), max(x1, ac)
             if seg[i, 0] > seg[last, 0]:
                 last = i
         n_out = n
@@ -682,7 +699,6 @@ def _contour_by_walk(sub, level, ri, ci, row0, col0, bp_u, bp_v):
                 pr, pc = er, ec
             else:
                 pr, pc, qr, qc = qr, qc, er, ec
-            y0, y1, x0, x1 = min(y0, pr), max(y1, pr), min(x0, pc), max(x1, pc)
             if not (pr == 0 or pr == H - 1 or pc == 0 or pc == W - 1) or not (
                     qr == 0 or qr == H - 1 or qc == 0 or qc == W - 1):
                 return DECLINED, _EMPTY, False, no_sides
@@ -693,17 +709,10 @@ def _contour_by_walk(sub, level, ri, ci, row0, col0, bp_u, bp_v):
                 step = 1
             else:
                 return DECLINED, _EMPTY, False, no_sides
-            p = p_in
-            walked = 0
-            while True:
-                nr, nc = _ring_pixel((p + step) % L, H, W)
-                if not sub[nr, nc] > level:
-                    break
-                p = (p + step) % L
-                y0, y1, x0, x1 = min(y0, nr), max(y1, nr), min(x0, nc), max(x1, nc)
-                walked += 1
-                if walked > L:
-                    return DECLINED, _EMPTY, False, no_sides
+            p, nr, nc, b0, b1, b2, b3, ok = _along_ring(sub, level, p_in, step, H, W)
+            if not ok:
+                return DECLINED, _EMPTY, False, no_sides
+            y0, y1, x0, x1 = min(y0, b0), max(y1, b1), min(x0, b2), max(x1, b3)
             pr, pc = _ring_pixel(p, H, W)
             er, ec, ev = _edge_between(pr, pc, nr, nc)
             if (er, ec, ev) == first:
@@ -714,11 +723,8 @@ def _contour_by_walk(sub, level, ri, ci, row0, col0, bp_u, bp_v):
 
     r0, r1 = max(y0 - 1, 0), min(y1 + 2, H)
     c0, c1 = max(x0 - 1, 0), min(x1 + 2, W)
-    for r in range(r0, r1):
-        for cc in range(c0, c1):
-            v = sub[r, cc]
-            if v == level or not np.isfinite(v):
-                return DECLINED, _EMPTY, False, no_sides
+    if _any_at_level(sub[r0:r1, c0:c1], level):
+        return DECLINED, _EMPTY, False, no_sides
     sides = (y0 == 0, y1 + 1 == H, x0 == 0, x1 + 1 == W)
     out = np.empty((n_out, 2), dtype=np.float64)
     if closed:
@@ -726,25 +732,16 @@ def _contour_by_walk(sub, level, ri, ci, row0, col0, bp_u, bp_v):
         for i in range(n):
             j = (last + 1 + i) % n
             _edge_point(sub, level, seg[j, 1], seg[j, 2], seg[j, 3], r0, c0, out, i)
-        cu, rv = float(col0 + c0), float(row0 + r0)
-        for i in range(n):
-            u = out[i, 1] + cu
-            out[i, 1] = out[i, 0] + rv
-            out[i, 0] = u
-        return CLOSED, out, _inside(out, bp_u, bp_v), sides
-    order = np.argsort(chains[:n_chains, 2], kind="mergesort")
-    q = 0
-    for o in order:
-        s0, cnt = chains[o, 0], chains[o, 1]
-        for i in range(s0, s0 + cnt):
-            _edge_point(sub, level, seg[i, 1], seg[i, 2], seg[i, 3], r0, c0, out, q)
+    else:
+        q = 0
+        for o in np.argsort(chains[:n_chains, 2], kind="mergesort"):
+            s0, cnt = chains[o, 0], chains[o, 1]
+            for i in range(s0, s0 + cnt):
+                _edge_point(sub, level, seg[i, 1], seg[i, 2], seg[i, 3], r0, c0, out, q)
+                q += 1
+            _edge_point(sub, level, ends[o, 0], ends[o, 1], ends[o, 2], r0, c0, out, q)
             q += 1
-        _edge_point(sub, level, ends[o, 0], ends[o, 1], ends[o, 2], r0, c0, out, q)
-        q += 1
-    for i in range(n_out):
-        out[i, 0] += r0
-        out[i, 1] += c0
-    return OPEN, out, False, sides
+    return CLOSED if closed else OPEN, out, _shift(closed, out, r0, c0, row0, col0, bp_u, bp_v), sides
 
 
 @numba.njit(cache=True, nogil=True)
