@@ -278,11 +278,10 @@ def validate_image(image, where: str = "image") -> np.ndarray:
         raise ValueError(f"{where}: image of shape {arr.shape} is empty or smaller than 3 x 3")
     if arr.dtype.kind == "f" and not np.isfinite(arr).all():
         bad = ~np.isfinite(arr)
-        if bad.any():
-            r, c = np.argwhere(bad)[0][:2]
-            raise ValueError(
-                f"{where}: {int(bad.sum())} non-finite values (NaN or inf), first at row {r}, col {c}"
-            )
+        r, c = np.argwhere(bad)[0][:2]
+        raise ValueError(
+            f"{where}: {int(bad.sum())} non-finite values (NaN or inf), first at row {r}, col {c}"
+        )
     return arr
 
 
