@@ -72,7 +72,7 @@ import numpy as np
 from simtest.geometry.camera import validate_intrinsics
 from simtest.geometry.cameras import CameraModel, PinholeCamera
 from simtest.reconstruct import _kernels
-from simtest.reconstruct._pixels import Roi, image_size_wh, rc_to_uv, uv_to_rc
+from simtest.reconstruct._pixels import Roi, image_size_wh, rc_to_uv
 from simtest.reconstruct.cone_fit import FitFrame, fit_cones, fit_frame, fit_frames, to_camera, to_fit_frame
 from simtest.reconstruct.detect import (
     connected_components,
