@@ -275,6 +275,12 @@ def test_curved_offset_claim_holds_or_names_where_it_breaks_and_why():
     assert "BP ray on 100 % of highlights" in verdict["measured"]
     assert "relative depth sigma 20 (not observable)" in verdict["measured"]
     assert "ok on 0 % of highlights, its patch misfit on 50 %" in verdict["measured"]
+    assert "change by" not in verdict["measured"]  # one light: no second specular point
+    # under two lights, how far the curvature changes between their specular points is named
+    bad["metrics"]["diagnostics"].update(curvature_change_rel=0.69, specular_separation_mm=1.23)
+    verdict = {c["id"]: c for c in evaluate_claims(doc)}["curved_offset_median"]
+    assert "the principal curvatures change by 69 % between the lights' specular points 1.2 mm " \
+           "apart" in verdict["measured"]
     assert not any(c["id"] == "curved_offset_median"
                    for c in evaluate_claims({"sweeps": [], "cases": [plane]}))
 
@@ -291,3 +297,17 @@ def test_an_alarming_curved_fit_is_explained_by_its_depth_observability():
     (ex,) = [x for x in explanations(doc) if x["estimator"] == "cubic_patch_fit"]
     assert "relative depth sigma 20.4 (above 0.5: the depth, and with it the normal, is not " \
            "observable)" in ex["text"]
+
+
+def test_every_diagnostic_of_the_light_aware_suites_is_described():
+    # the report's diagnostics legend gives each light-aware column a text, not its bare key
+    from simtest.harness.report.document import _diag_text
+
+    keys = ["eps_over_d", "recommended_bp_ray_share", "cubic_patch_fit_ok_share",
+            "cubic_patch_fit_misfit_share", "specular_separation_mm", "curvature_change_rel",
+            "quadric_fit_depth_err_pct", "cubic_patch_fit_depth_rel_sigma"]
+    for k in keys:
+        assert _diag_text(k) != k, k
+    assert _diag_text("quadric_fit_depth_err_pct").startswith("quadric_fit: ")
+    assert "above 0.5: not observable" in _diag_text("cubic_patch_fit_depth_rel_sigma")
+    assert _diag_text("unheard_of") == "unheard_of"

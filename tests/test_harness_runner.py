@@ -6,6 +6,8 @@ import json
 
 import numpy as np
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 from simtest.harness import protocols
 from simtest.harness.metrics import summarise
@@ -130,3 +132,39 @@ def test_paper_checks_on_known_curves():
     assert arg["holds"] is True and arg2["holds"] is False
     (inc,) = evaluate_paper_claim({"check": "increasing", "value": 0.9}, _cases(xs, u))
     assert inc["holds"] is False
+
+
+@settings(max_examples=60, deadline=None)
+@given(st.integers(0, 2**32 - 1), st.floats(0.1, 10.0))
+def test_the_curvature_between_two_lights_specular_points(seed, scale):
+    # the partner is the nearest highlight of another light (never one of the same light); the
+    # change is symmetric, 0 for equal curvatures, unchanged when every curvature is scaled, and
+    # the separation is the distance between the specular points
+    from simtest.harness.protocols import curvature_between_lights
+    from simtest.simulate.truth import HighlightTruth
+
+    rng = np.random.default_rng(seed)
+
+    def hl(light, uv, k):
+        return HighlightTruth(np.asarray(uv, float), rng.normal(0, 5, 3) + [0, 0, 30],
+                              np.array([0.0, 0.0, -1.0]), float(max(k)), float(min(k)), True, light)
+
+    a = hl(0, [100, 100], rng.normal(0, 0.05, 2))
+    near = hl(1, [104, 101], rng.normal(0, 0.05, 2))
+    far = hl(1, [160, 40], rng.normal(0, 0.05, 2))
+    same_light = hl(0, [101, 100], rng.normal(0, 0.05, 2))
+    assert curvature_between_lights(a, [a, same_light]) == {}
+    got = curvature_between_lights(a, [a, same_light, far, near])
+    back = curvature_between_lights(near, [a, near, far])
+    assert got["specular_separation_mm"] == pytest.approx(np.linalg.norm(a.bp_mm - near.bp_mm), rel=1e-12)
+    assert got["curvature_change_rel"] == pytest.approx(back["curvature_change_rel"], rel=1e-12)
+    ka, kn = np.array([a.k1, a.k2]), np.array([near.k1, near.k2])
+    want = np.linalg.norm(ka - kn) / max(np.linalg.norm(ka), np.linalg.norm(kn))
+    assert got["curvature_change_rel"] == pytest.approx(want, rel=1e-12)
+    assert 0.0 <= got["curvature_change_rel"] <= 2.0  # |a - b| <= |a| + |b| <= 2 max
+    twin = hl(1, [103, 99], [a.k1, a.k2])
+    assert curvature_between_lights(a, [a, twin])["curvature_change_rel"] == 0.0
+    scaled = [HighlightTruth(x.bp_px, x.bp_mm, x.normal, scale * x.k1, scale * x.k2, True, x.light)
+              for x in (a, near)]
+    assert curvature_between_lights(scaled[0], scaled)["curvature_change_rel"] == pytest.approx(
+        got["curvature_change_rel"], rel=1e-9)

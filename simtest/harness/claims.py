@@ -319,7 +319,9 @@ def _offset_curved_cases(results):
 
 def _why_curved(c) -> str:
     """The measured reason a curved case misses the bound: the recommendation against the BP ray,
-    and the depth's observability by the curved fits (relative 1-sigma at the noise floor)."""
+    the depth's observability by the curved fits (relative 1-sigma at the noise floor), and under
+    several lights how much the curvature changes between their specular points (what a
+    third-order patch must span)."""
     parts = [f"bp_ray {_stat(c, 'bp_ray'):.3g} deg" if _stat(c, "bp_ray") is not None else ""]
     share = _diag(c, "recommended_bp_ray_share")
     if share is not None:
@@ -337,6 +339,10 @@ def _why_curved(c) -> str:
         mis = _diag(c, "cubic_patch_fit_misfit_share") or 0.0
         parts.append(f"cubic_patch_fit ok on {100 * ok:.3g} % of highlights, its patch misfit "
                      f"on {100 * mis:.3g} %")
+    dk, sep = _diag(c, "curvature_change_rel"), _diag(c, "specular_separation_mm")
+    if dk is not None and sep is not None:
+        parts.append(f"the principal curvatures change by {100 * dk:.3g} % between the lights' "
+                     f"specular points {sep:.2g} mm apart")
     return "; ".join(p for p in parts if p)
 
 

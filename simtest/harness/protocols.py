@@ -37,7 +37,7 @@ from simtest.scene.poses import colon_pose, liver_orbit_pose
 from simtest.simulate.paper import PaperSimulator
 
 __all__ = ["make_runner", "PaperRunner", "RenderedRunner", "Row",
-           "reconstruct_image", "render_rig", "mesh_pose_overrides"]
+           "reconstruct_image", "render_rig", "mesh_pose_overrides", "curvature_between_lights"]
 
 #: Margin of the paper protocol's ROI around the noiseless highlight, px: 5 smoothing widths of
 #: the default 2 px, far beyond the contour noise (about 2 px RMS at sigma = 5 %).
@@ -401,6 +401,7 @@ class RenderedRunner:
             extras["saturated_px"] = saturated if not rows else float("nan")
             if light_aware:
                 extras.update(_depth_errors(best, h, rig))
+            extras.update(curvature_between_lights(h, result.highlights))
             rows.append(_row(errs, extras))
         if not rows:
             errs = {k: (float("nan"), "no_highlight_in_frame") for k in self.estimators}
@@ -464,6 +465,43 @@ def _depth_errors(est, h, rig) -> dict:
     if depth is not None:
         out["recommended_depth_err_pct"] = 100.0 * abs(depth / true - 1.0)
     return out
+
+
+def curvature_between_lights(h, highlights) -> dict:
+    """How much the surface's curvature changes between the specular points of two lights.
+
+    Under a rig of several lights a curved patch fitted to one highlight must hold between the
+    specular points of its lights (:func:`~simtest.reconstruct.lightaware.cubic_patch_fit`): a
+    third-order patch lets the curvature change linearly over it, and no more. The partner of
+    ``h`` is the highlight of another light nearest to it in the image.
+
+    Parameters
+    ----------
+    h : simtest.simulate.truth.HighlightTruth
+        The highlight scored.
+    highlights : sequence of HighlightTruth
+        Every highlight of the render (each light's).
+
+    Returns
+    -------
+    dict
+        Empty without a partner (one light, or the others' highlights missing); else
+        ``specular_separation_mm``, the distance between the two specular points (mm, camera
+        frame), and ``curvature_change_rel``, ``|(k1, k2) - (k1', k2')| / max(|(k1, k2)|,
+        |(k1', k2')|)`` (0: the same curvature at both, 1: a change as large as the curvature
+        itself), from the ground-truth principal curvatures at the two points.
+    """
+    light = int(getattr(h, "light", 0))
+    others = [o for o in highlights if int(getattr(o, "light", 0)) != light]
+    if not others:
+        return {}
+    bp = np.asarray(h.bp_px, dtype=np.float64)
+    o = min(others, key=lambda o: float(np.linalg.norm(np.asarray(o.bp_px, dtype=np.float64) - bp)))
+    k, ko = np.array([h.k1, h.k2], dtype=np.float64), np.array([o.k1, o.k2], dtype=np.float64)
+    scale = max(float(np.linalg.norm(k)), float(np.linalg.norm(ko)))
+    sep = float(np.linalg.norm(np.asarray(h.bp_mm, dtype=np.float64) - np.asarray(o.bp_mm, dtype=np.float64)))
+    change = float(np.linalg.norm(k - ko)) / scale if scale > 0 else 0.0
+    return {"specular_separation_mm": sep, "curvature_change_rel": change}
 
 
 def _light_depth(r, light: int) -> float | None:

@@ -17,6 +17,7 @@ import numpy as np
 from markdown_it import MarkdownIt
 
 from simtest.harness.claims import ALARM_DEG, explanations
+from simtest.tolerances import TOL
 
 __all__ = ["markdown_report", "html_report", "fmt", "cell", "summary_markdown"]
 
@@ -41,7 +42,34 @@ _DIAG_TEXT = {
     "k1_per_mm": "principal curvature k1 at the true BP, 1/mm (positive: convex toward the camera)",
     "k2_per_mm": "principal curvature k2 <= k1, 1/mm",
     "iso_radius_mm": "isophote radius on the surface estimated from the fitted ellipse, mm",
+    "eps_over_d": "light offset over distance: the rig's farthest light from the camera centre "
+                  "over the distance to the true BP",
+    "recommended_bp_ray_share": "share of the highlights where the recommendation fell back to "
+                                "the BP ray",
+    "cubic_patch_fit_ok_share": "share of the highlights where cubic_patch_fit's status is ok",
+    "cubic_patch_fit_misfit_share": "share of the highlights where cubic_patch_fit's patch "
+                                    "misfits the ROI (patch_misfit)",
+    "specular_separation_mm": "distance between the specular points of two lights of the rig "
+                              "(this highlight's and the nearest one of another light), mm",
+    "curvature_change_rel": "change of the principal curvatures between those two specular "
+                            "points, |dk| / |k| (a third-order patch holds while it is small)",
 }
+#: Texts of the per-estimator diagnostics ``<estimator><suffix>``.
+_DIAG_SUFFIX_TEXT = {
+    "_depth_err_pct": "{est}: depth error |depth / true - 1|, %",
+    "_depth_rel_sigma": "{est}: relative 1-sigma of its depth at the noise floor (above "
+                        f"{TOL.depth_rel_sigma_max:g}: not observable)",
+}
+
+
+def _diag_text(key: str) -> str:
+    """What a diagnostics column holds: its text, a per-estimator text, or the key itself."""
+    if key in _DIAG_TEXT:
+        return _DIAG_TEXT[key]
+    for suffix, text in _DIAG_SUFFIX_TEXT.items():
+        if key.endswith(suffix):
+            return text.format(est=key[: -len(suffix)])
+    return key
 
 
 def fmt(v, nd: int = 3) -> str:
@@ -276,7 +304,7 @@ def markdown_report(results: dict, figures: list[str], nightly: dict | None = No
                         ("r_k1", "r_k2", "anisotropy")})
         if keys:
             L.append("Diagnostics (means over the scored highlights): "
-                     + "; ".join(f"`{k}`: {_DIAG_TEXT.get(k, k)}" for k in keys) + ".")
+                     + "; ".join(f"`{k}`: {_diag_text(k)}" for k in keys) + ".")
             L.append("")
             L.append(f"| {_esc(sw['label'])} | " + " | ".join(keys) + " |")
             L.append("|---" * (len(keys) + 1) + "|")
