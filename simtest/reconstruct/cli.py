@@ -25,7 +25,6 @@ import time
 from pathlib import Path
 from typing import Optional
 
-import cv2
 import numpy as np
 import typer
 from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
