@@ -13,7 +13,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from simtest.reconstruct import _kernels
-from simtest.reconstruct.isophote import Isophote, extract_isophote, isophote_cut_by_roi
+from simtest.reconstruct.isophote import Isophote, extract_isophote, isophote_cut_by_roi, polygon_contains
 
 
 def _extract_both(*args, **kwargs):
@@ -296,3 +296,32 @@ def test_the_walks_growth_answer_is_the_flood_fills(seed, flags):
     sub, level, ri, ci = args[:4]
     assert _kernels.component_reaches(sub, level, ri, ci, *flags) == \
         _kernels.component_reaches_flood(sub, level, ri, ci, *flags)
+
+
+def _enclosed_numpy(poly, points, skip):
+    """The ``merged`` count as the pipeline computed it in numpy: the other points in the
+    polygon's bounding box, tested by polygon_contains."""
+    lo, hi = poly.min(axis=0), poly.max(axis=0)
+    near = np.all((points >= lo) & (points <= hi), axis=1)
+    if skip >= 0:
+        near[skip] = False
+    return int(np.count_nonzero(polygon_contains(poly, points[near]))) if near.any() else 0
+
+
+@settings(max_examples=60, deadline=None)
+@given(st.integers(0, 2**32 - 1), st.integers(3, 80), st.integers(0, 60))
+def test_count_enclosed_is_the_bounding_box_and_even_odd_count(seed, n_vertices, n_points):
+    rng = np.random.default_rng(seed)
+    # a star-shaped (possibly self-touching) polygon, and points inside, outside, on its vertices
+    # and on its bounding box's sides, where '<=' and the even-odd rule decide
+    ang = np.sort(rng.uniform(0, 2 * np.pi, n_vertices))
+    rad = rng.uniform(1.0, 20.0, n_vertices)
+    poly = np.column_stack([50 + rad * np.cos(ang), 40 + rad * np.sin(ang)])
+    pts = rng.uniform(25, 75, (n_points, 2))
+    if n_points >= 4:
+        pts[0] = poly[0]
+        pts[1] = poly.min(axis=0)
+        pts[2] = [poly[:, 0].max(), pts[2, 1]]
+        pts[3] = np.round(pts[3])
+    skip = int(rng.integers(-1, n_points)) if n_points else -1
+    assert _kernels.count_enclosed(poly, pts.reshape(-1, 2), skip) == _enclosed_numpy(poly, pts.reshape(-1, 2), skip)

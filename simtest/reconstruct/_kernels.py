@@ -20,6 +20,7 @@ Kernels
 - :func:`component_reaches`: whether that component reaches given sides of the box (the
   ROI's growth asks only that), from the same walk (:func:`component_reaches_flood`, a flood
   fill, its reference and fallback).
+- :func:`count_enclosed`: how many other highlights' BPs an isophote encloses (``merged``).
 - :func:`border_median`: the median of a region's border pixels (``normalise="local"``).
 - :func:`luma_rgb`: the luma of an RGB image or ROI.
 
@@ -322,6 +323,35 @@ def _inside(poly, px, py):
             if px < x + (py - y) * (x2 - x) / (y2 - y):
                 count += 1
     return count % 2 == 1
+
+
+@numba.njit(cache=True, nogil=True)
+def count_enclosed(poly, points, skip):
+    """How many of ``points`` (k, 2) but row ``skip`` (-1: none) lie in the closed polygon
+    ``poly`` (N, 2), N >= 1: those in its bounding box (bounds included), tested even-odd by
+    :func:`_inside`. As ``polygon_contains(poly, points[near]).sum()`` with ``near`` the rows
+    within ``poly.min(axis=0)`` and ``poly.max(axis=0)``, without a Python call per highlight
+    (the pipeline's ``merged`` test)."""
+    lo_u, lo_v = poly[0, 0], poly[0, 1]
+    hi_u, hi_v = lo_u, lo_v
+    for i in range(1, len(poly)):
+        u, v = poly[i, 0], poly[i, 1]
+        if u < lo_u:
+            lo_u = u
+        if u > hi_u:
+            hi_u = u
+        if v < lo_v:
+            lo_v = v
+        if v > hi_v:
+            hi_v = v
+    n = 0
+    for k in range(len(points)):
+        if k == skip:
+            continue
+        u, v = points[k, 0], points[k, 1]
+        if lo_u <= u <= hi_u and lo_v <= v <= hi_v and _inside(poly, u, v):
+            n += 1
+    return n
 
 
 @numba.njit(cache=True, nogil=True)
