@@ -124,7 +124,10 @@ class Roi(NamedTuple):
             Half-open, clipped to ``[0, H) x [0, W)``.
         """
         h, w = image_shape[:2]
-        r, c = (float(x) for x in uv_to_rc(centre_uv))
+        if len(centre_uv) == 2:  # (u, v): the values uv_to_rc gives, without its arrays
+            c, r = float(centre_uv[0]), float(centre_uv[1])
+        else:
+            r, c = (float(x) for x in uv_to_rc(centre_uv))
         hs = float(half_size)
         return cls(
             max(0, math.floor(r - hs)),

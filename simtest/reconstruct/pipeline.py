@@ -625,10 +625,10 @@ def _estimate_one(frame: _Frame, bp_uv, roi: Roi, *, saturated: bool, grow: bool
     growths = 0
     while True:
         vals = _roi_values(frame, roi, sigma)
-        i_bp = _bp_intensity(vals, roi, bp_uv)
+        region = _region(vals, bp_uv, (roi.row0, roi.col0), frame.img.shape)
+        i_bp = region.near_bp  # the largest of the BP's 3 x 3 pixels: _bp_intensity
         levels = _Levels.of(frame, vals, i_bp)
         i0 = order[0]
-        region = _region(vals, bp_uv, (roi.row0, roi.col0), frame.img.shape)
         res = None
         if grow and growths < ROI_MAX_GROWTHS:
             new = Roi.around(bp_uv, ROI_GROWTH_FACTOR * max(roi.shape) / 2.0, frame.img.shape)
