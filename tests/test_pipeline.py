@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import gc
 import json
 from pathlib import Path
 
@@ -520,3 +521,28 @@ def test_one_bp_ray_in_python_floats_is_the_batched_rays_bits(seed):
     for cam in (PinholeCamera(K), K):
         got = np.stack([_bp_ray(p, cam) for p in uv])
         assert got.tobytes() == want.tobytes()
+
+
+@pytest.mark.parametrize("enabled", [True, False])
+def test_the_collector_is_left_as_the_caller_had_it(enabled):
+    # reconstruct and reconstruct_rois pause the cyclic collector for their work (_gc_paused):
+    # it is back as it was afterwards, after a bad input too
+    from simtest.bench import synthetic_roi_image
+
+    img, K, bp, _ = synthetic_roi_image()
+    frame = np.repeat(np.clip(img / img.max() * 250, 0, 255).astype(np.uint8)[:, :, None], 3, axis=2)
+    was = gc.isenabled()
+    try:
+        gc.enable() if enabled else gc.disable()
+        assert pipeline.reconstruct(frame, K)  # the highlight is found
+        assert gc.isenabled() is enabled
+        assert pipeline.reconstruct_rois([(img, K, bp, None)], 0.1)[0].ok
+        assert gc.isenabled() is enabled
+        with pytest.raises(ValueError):
+            pipeline.reconstruct(frame, np.eye(2))
+        assert gc.isenabled() is enabled
+        with pytest.raises(ValueError):
+            pipeline.reconstruct_rois([(img, K, (1e9, 0.0), None)], 0.1)
+        assert gc.isenabled() is enabled
+    finally:
+        gc.enable() if was else gc.disable()

@@ -62,7 +62,9 @@ References
 
 from __future__ import annotations
 
+import gc
 import math
+from contextlib import contextmanager
 from collections.abc import Sequence
 from dataclasses import dataclass, replace
 
@@ -380,6 +382,26 @@ class _Frame:
         if self.luma_frame is not None:
             return self.luma_frame[roi.slices]
         return luma(self.img[roi.slices])
+
+
+@contextmanager
+def _gc_paused():
+    """Python's cyclic garbage collector paused for a frame's work, then restored as it was.
+
+    A frame with hundreds of highlights builds thousands of small result objects, none of them
+    in a reference cycle; each allocation burst triggers collections, and every few of them is a
+    full one over every object the process holds (about 170 000 after importing simtest: numba,
+    OpenCV, scikit-image). On the Hyper-Kvasir banner these passes were about a tenth of the
+    time. Nothing the pipeline allocates waits for the collector (no cycles), and a caller that
+    had paused it keeps it paused.
+    """
+    was_enabled = gc.isenabled()
+    gc.disable()
+    try:
+        yield
+    finally:
+        if was_enabled:
+            gc.enable()
 
 
 def as_camera(K, dist_coeffs=None) -> CameraModel:
@@ -864,7 +886,9 @@ def reconstruct_rois(items, isovalues: float | Sequence[float] | None = None, *,
     """
     settings = ReconSettings.make(settings, isovalues, **options)
     cameras: dict = {}
-    return _complete([_roi_draft(image, K, bp_uv, roi, None, settings, cameras) for image, K, bp_uv, roi in items])
+    with _gc_paused():
+        return _complete([_roi_draft(image, K, bp_uv, roi, None, settings, cameras)
+                          for image, K, bp_uv, roi in items])
 
 
 def reconstruct(
@@ -924,44 +948,45 @@ def reconstruct(
             if e.ok:
                 print(e.bp_px, e.cone_axis, e.normals_paper)
     """
-    settings = ReconSettings.make(settings, isovalues, frames=True, **options)
-    img = validate_image(image)
-    r = Roi(0, img.shape[0], 0, img.shape[1]) if roi is None else Roi.coerce(roi, img.shape)
-    frame = _Frame.make(img, K, dist_coeffs, settings, noise_roi=r)
-    sub = img[r.slices]
-    det = detect_specularities(
-        sub, brightness_rel=settings.brightness_rel, full_scale=frame.full_scale,
-        saturation_level=settings.saturation_level, min_area_px=settings.min_area_px,
-        smooth_sigma_px=frame.smooth_sigma_px, method=settings.detection,
-        peak_rel=settings.peak_rel,
-    )
-    if sum(c.status == OK for c in det.candidates) >= LUMA_FRAME_MIN_HIGHLIGHTS:
-        frame = frame.for_many_highlights()
-    shift = np.array([r.col0, r.row0], dtype=np.float64)
-    bps = [c.bp_uv + shift for c in det.candidates]
-    # BPs another highlight's isophote must not enclose (``merged``): every candidate's but the
-    # too small ones (noise)
-    bps_arr = np.array(bps, dtype=np.float64).reshape(-1, 2)
-    keep = np.array([c.status != "too_small" for c in det.candidates], dtype=bool)
-    others = bps_arr[keep]
-    row_in_others = np.cumsum(keep) - 1
-    # every candidate's BP ray, and the fit frames of the accepted ones, in one call of the model
-    rays = frame.bp_rays(bps_arr)
-    has_ray = np.isfinite(rays).all(axis=1)
-    fitted = has_ray & np.array([c.status == OK for c in det.candidates], dtype=bool)
-    frames_of = dict(zip(np.flatnonzero(fitted).tolist(), fit_frames(frame.camera, -rays[fitted])))
-    out = []
-    for k, cand in enumerate(det.candidates):
-        bp = bps[k]
-        if cand.status != OK:
-            roi_k = Roi(cand.roi.row0 + r.row0, cand.roi.row1 + r.row0,
-                        cand.roi.col0 + r.col0, cand.roi.col1 + r.col0)
-            ray = rays[k]
-            out.append(SpecularityEstimate(bp, cand.peak, cand.saturated, roi_k, cand.status,
-                                           cand.detail, ray if has_ray[k] else None, ()))
-            continue
-        roi_k = _initial_roi(cand, bp, det.threshold, frame)
-        out.append(_estimate_one(frame, bp, roi_k, saturated=cand.saturated, grow=True, other_bps=others,
-                                 own_bp=int(row_in_others[k]) if keep[k] else -1, bp_ray=rays[k],
-                                 fitf=frames_of.get(k)))
-    return _complete(out)
+    with _gc_paused():  # thousands of small objects, no cycles (see _gc_paused)
+        settings = ReconSettings.make(settings, isovalues, frames=True, **options)
+        img = validate_image(image)
+        r = Roi(0, img.shape[0], 0, img.shape[1]) if roi is None else Roi.coerce(roi, img.shape)
+        frame = _Frame.make(img, K, dist_coeffs, settings, noise_roi=r)
+        sub = img[r.slices]
+        det = detect_specularities(
+            sub, brightness_rel=settings.brightness_rel, full_scale=frame.full_scale,
+            saturation_level=settings.saturation_level, min_area_px=settings.min_area_px,
+            smooth_sigma_px=frame.smooth_sigma_px, method=settings.detection,
+            peak_rel=settings.peak_rel,
+        )
+        if sum(c.status == OK for c in det.candidates) >= LUMA_FRAME_MIN_HIGHLIGHTS:
+            frame = frame.for_many_highlights()
+        shift = np.array([r.col0, r.row0], dtype=np.float64)
+        bps = [c.bp_uv + shift for c in det.candidates]
+        # BPs another highlight's isophote must not enclose (``merged``): every candidate's but the
+        # too small ones (noise)
+        bps_arr = np.array(bps, dtype=np.float64).reshape(-1, 2)
+        keep = np.array([c.status != "too_small" for c in det.candidates], dtype=bool)
+        others = bps_arr[keep]
+        row_in_others = np.cumsum(keep) - 1
+        # every candidate's BP ray, and the fit frames of the accepted ones, in one call of the model
+        rays = frame.bp_rays(bps_arr)
+        has_ray = np.isfinite(rays).all(axis=1)
+        fitted = has_ray & np.array([c.status == OK for c in det.candidates], dtype=bool)
+        frames_of = dict(zip(np.flatnonzero(fitted).tolist(), fit_frames(frame.camera, -rays[fitted])))
+        out = []
+        for k, cand in enumerate(det.candidates):
+            bp = bps[k]
+            if cand.status != OK:
+                roi_k = Roi(cand.roi.row0 + r.row0, cand.roi.row1 + r.row0,
+                            cand.roi.col0 + r.col0, cand.roi.col1 + r.col0)
+                ray = rays[k]
+                out.append(SpecularityEstimate(bp, cand.peak, cand.saturated, roi_k, cand.status,
+                                               cand.detail, ray if has_ray[k] else None, ()))
+                continue
+            roi_k = _initial_roi(cand, bp, det.threshold, frame)
+            out.append(_estimate_one(frame, bp, roi_k, saturated=cand.saturated, grow=True, other_bps=others,
+                                     own_bp=int(row_in_others[k]) if keep[k] else -1, bp_ray=rays[k],
+                                     fitf=frames_of.get(k)))
+        return _complete(out)
