@@ -168,3 +168,55 @@ def test_the_curvature_between_two_lights_specular_points(seed, scale):
               for x in (a, near)]
     assert curvature_between_lights(scaled[0], scaled)["curvature_change_rel"] == pytest.approx(
         got["curvature_change_rel"], rel=1e-9)
+
+
+def _same_fit(a, b) -> bool:
+    """Two LightAwareEstimate equal field by field (arrays bit for bit, NaN equal to NaN)."""
+    import dataclasses
+
+    for f in dataclasses.fields(a):
+        x, y = getattr(a, f.name), getattr(b, f.name)
+        if isinstance(x, np.ndarray) or isinstance(y, np.ndarray):
+            if not (isinstance(x, np.ndarray) and isinstance(y, np.ndarray)
+                    and np.array_equal(x, y, equal_nan=True)):
+                return False
+        elif x != y and not (isinstance(x, float) and isinstance(y, float) and np.isnan(x) and np.isnan(y)):
+            return False
+    return True
+
+
+def test_the_scored_detections_fitted_alone_get_what_fitting_every_detection_gives():
+    # RenderedRunner fits only the detections ground-truth highlights are matched to
+    # (protocols.fit_scored): on a frame of ten highlights lit 3 mm off the camera, two scored
+    # (one of them matched twice) and one highlight not detected, their light-aware fits are
+    # those of fitting all ten, and the unmatched ones are not fitted
+    from simtest.bench import synthetic_frame
+    from simtest.reconstruct import reconstruct
+    from simtest.reconstruct.recommend import with_light_aware
+    from simtest.geometry.lights import Light, LightRig
+
+    frame, K, _ = synthetic_frame()
+    ests = [e for e in reconstruct(frame, K) if e.ok]
+    assert len(ests) == 10
+    rig = LightRig((Light((3.0, 0.0, 0.0), 1.0, "inverse_square"),))
+    every = with_light_aware(frame, ests, K, rig)
+    matched = [("h0", ests[2], 0.5), ("h1", None, np.inf), ("h2", ests[7], 1.0), ("h3", ests[7], 2.0)]
+    calls = []
+
+    def spy(image, estimates, *args, **kwargs):
+        calls.append(len(estimates))
+        return with_light_aware(image, estimates, *args, **kwargs)
+
+    original = protocols.with_light_aware
+    protocols.with_light_aware = spy
+    try:
+        got = protocols.fit_scored(frame, matched, K, rig)
+    finally:
+        protocols.with_light_aware = original
+    assert calls == [2]  # ests[2] and ests[7], once each
+    assert [(h, d) for h, _, d in got] == [(h, d) for h, _, d in matched]
+    assert got[1][1] is None
+    for (_, e, _), k in zip([got[0], got[2], got[3]], (2, 7, 7)):
+        assert set(e.light_aware) == set(every[k].light_aware) and e.light_aware
+        for name in e.light_aware:
+            assert _same_fit(e.light_aware[name], every[k].light_aware[name]), name

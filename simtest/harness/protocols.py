@@ -37,7 +37,8 @@ from simtest.scene.poses import colon_pose, liver_orbit_pose
 from simtest.simulate.paper import PaperSimulator
 
 __all__ = ["make_runner", "PaperRunner", "RenderedRunner", "Row",
-           "reconstruct_image", "render_rig", "mesh_pose_overrides", "curvature_between_lights"]
+           "reconstruct_image", "render_rig", "mesh_pose_overrides", "curvature_between_lights",
+           "fit_scored"]
 
 #: Margin of the paper protocol's ROI around the noiseless highlight, px: 5 smoothing widths of
 #: the default 2 px, far beyond the contour noise (about 2 px RMS at sigma = 5 %).
@@ -356,17 +357,6 @@ class RenderedRunner:
             image = result.sensor
         image = np.asarray(image)
         ests = reconstruct_image(image, result.K, self.settings)
-        light_aware = any(e in LIGHT_AWARE_NAMES for e in self.estimators)
-        if light_aware:
-            rig = render_rig(result)
-            ests = with_light_aware(image, ests, result.K, rig,
-                                    quadric="quadric_fit" in self.estimators,
-                                    # listed: run on every highlight, for its column and its
-                                    # depth's observability (one light included, where the
-                                    # recommendation does not use it); else where the
-                                    # recommendation needs it (two lights apart, the plane fit
-                                    # not ok: what `simtest reconstruct --cubic-patch` runs)
-                                    cubic=True if "cubic_patch_fit" in self.estimators else None)
         ok_bps = [(e, np.asarray(e.bp_px, float)) for e in ests
                   if getattr(e, "bp_px", None) is not None]
         # Clipping: pixels at the sensor's full scale (0 for a linear float image).
@@ -376,7 +366,8 @@ class RenderedRunner:
         true_bps = [np.asarray(h.bp_px, float) for h in result.highlights]
         false_pos = sum(1 for _, ebp in ok_bps
                         if all(float(np.linalg.norm(ebp - t)) > self.match_px for t in true_bps))
-        rows = []
+        # each in-frame highlight's detection: the nearest BP within match_px (from the BPs alone)
+        matched = []
         for h in result.highlights:
             if not getattr(h, "in_frame", True):
                 continue
@@ -388,6 +379,20 @@ class RenderedRunner:
                     best, dist = e, d
             if best is not None and dist > self.match_px:
                 best = None
+            matched.append((h, best, dist))
+        light_aware = any(e in LIGHT_AWARE_NAMES for e in self.estimators)
+        if light_aware:
+            rig = render_rig(result)
+            matched = fit_scored(image, matched, result.K, rig,
+                                 quadric="quadric_fit" in self.estimators,
+                                 # listed: run on every scored highlight, for its column and its
+                                 # depth's observability (one light included, where the
+                                 # recommendation does not use it); else where the
+                                 # recommendation needs it (two lights apart, the plane fit not
+                                 # ok: what `simtest reconstruct --cubic-patch` runs)
+                                 cubic=True if "cubic_patch_fit" in self.estimators else None)
+        rows = []
+        for h, best, dist in matched:
             errs = score(best, h.normal, self.estimators, light=int(getattr(h, "light", 0)))
             extras = _extras(best)
             extras["bp_error_px"] = dist if best is not None else float("nan")
@@ -410,6 +415,37 @@ class RenderedRunner:
             extras["saturated_px"] = saturated
             rows.append(_row(errs, extras))
         return rows
+
+
+def fit_scored(image, matched: list, camera, rig: LightRig, **kwargs) -> list:
+    """The light-aware fits of the detections that ground-truth highlights are scored on.
+
+    A frame's detections are many (hundreds on a colonoscope frame) and the curved fits take up
+    to seconds each, but a row scores only the detection matched to its highlight. Each
+    detection's fits read the image in its own ROI only
+    (:func:`~simtest.reconstruct.recommend.light_aware_estimates`), so fitting the matched ones
+    gives them what fitting every detection gives (``tests/test_harness_runner.py``).
+
+    Parameters
+    ----------
+    image : ndarray
+        The image the detections were found in.
+    matched : list of (highlight, SpecularityEstimate or None, float)
+        Each scored highlight, its matched detection (None: not detected) and their distance, px.
+    camera : array_like of shape (3, 3) or CameraModel
+    rig : LightRig
+    **kwargs
+        Passed to :func:`~simtest.reconstruct.recommend.with_light_aware`.
+
+    Returns
+    -------
+    list of (highlight, SpecularityEstimate or None, float)
+        ``matched`` with each detection replaced by itself with its light-aware fits (a detection
+        matched twice is fitted once).
+    """
+    scored = list({id(b): b for _, b, _ in matched if b is not None}.values())
+    fitted = dict(zip((id(b) for b in scored), with_light_aware(image, scored, camera, rig, **kwargs)))
+    return [(h, fitted[id(b)] if b is not None else None, d) for h, b, d in matched]
 
 
 def render_rig(result) -> LightRig:
