@@ -283,6 +283,15 @@ def test_curved_offset_claim_holds_or_names_where_it_breaks_and_why():
            "apart" in verdict["measured"]
     assert not any(c["id"] == "curved_offset_median"
                    for c in evaluate_claims({"sweeps": [], "cases": [plane]}))
+    # a plane under a rig of lights is a plane too (its family says "under a light rig")
+    rig_plane = _case(rng, "guide_offset", 2, "plane under a light rig, light offset", "rendered",
+                      ests, {"recommended": 2.3, "bp_ray": 2.3}, {"eps_over_d": 0.1})
+    rig_plane["colocated"] = False
+    assert not any(c["id"] == "curved_offset_median"
+                   for c in evaluate_claims({"sweeps": [], "cases": [plane, rig_plane]}))
+    doc["cases"].append(rig_plane)
+    verdict = {c["id"]: c for c in evaluate_claims(doc)}["curved_offset_median"]
+    assert "in 2 of 3 cases" in verdict["measured"] and "guide_offset" not in verdict["measured"]
 
 
 def test_an_alarming_curved_fit_is_explained_by_its_depth_observability():

@@ -195,8 +195,14 @@ def _rendered(results: dict, colocated: bool = True) -> list[dict]:
                     if c["protocol"] == "rendered" and c.get("colocated") is colocated])
 
 
+#: The qualifier a rig of lights adds to a family's surface (report.results._family).
+_RIG_QUALIFIER = " under a light rig"
+
+
 def _base_family(c: dict) -> str:
-    return c.get("family", "").split(",")[0]
+    """The surface a case's family names: ``"plane"`` for ``"plane, light offset"`` and for
+    ``"plane under a light rig, light offset"`` alike."""
+    return c.get("family", "").split(",")[0].removesuffix(_RIG_QUALIFIER)
 
 
 def _range(vals) -> str:
