@@ -546,3 +546,17 @@ def test_the_collector_is_left_as_the_caller_had_it(enabled):
         assert gc.isenabled() is enabled
     finally:
         gc.enable() if was else gc.disable()
+
+
+def test_a_bp_without_a_viewing_ray_is_a_status_with_its_intensity(monkeypatch):
+    # a BP the camera model gives no ray (outside a fisheye's field, say): no isophotes, status
+    # non_finite_points, and the BP intensity as for any highlight: the largest of the BP's
+    # 3 x 3 pixels of the (unsmoothed) luma
+    from simtest.bench import synthetic_roi_image
+
+    img, K, bp, _ = synthetic_roi_image()
+    monkeypatch.setattr(pipeline._Frame, "bp_ray", lambda self, uv: np.full(3, np.nan))
+    est = pipeline.reconstruct_roi(img, K, 0.1, bp_uv=bp + (7.3, -4.6))
+    assert est.status == "non_finite_points" and est.isophotes == () and est.bp_ray is None
+    r, c = int(np.rint(bp[1] - 4.6)), int(np.rint(bp[0] + 7.3))
+    assert est.bp_intensity == img[r - 1 : r + 2, c - 1 : c + 2].max()

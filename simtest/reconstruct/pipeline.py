@@ -386,7 +386,8 @@ class _Frame:
 
 @contextmanager
 def _gc_paused():
-    """Python's cyclic garbage collector paused for a frame's work, then restored as it was.
+    """Python's cyclic garbage collector paused for a frame's work, then restored as it was
+    (a context manager, and a decorator of :func:`reconstruct` and :func:`reconstruct_rois`).
 
     A frame with hundreds of highlights builds thousands of small result objects, none of them
     in a reference cycle; each allocation burst triggers collections, and every few of them is a
@@ -531,12 +532,6 @@ def _smoothed_from_frame(smooth_frame: np.ndarray, vals: np.ndarray, roi: Roi, s
     return out
 
 
-def _bp_intensity(vals: np.ndarray, roi: Roi, bp_uv) -> float:
-    # the BP's pixel in the ROI (round half to even, as np.rint)
-    r, c = round(float(bp_uv[1]) - roi.row0), round(float(bp_uv[0]) - roi.col0)
-    return float(vals[max(0, r - 1) : r + 2, max(0, c - 1) : c + 2].max())
-
-
 def _find_bp(img: np.ndarray, roi: Roi, saturation_level) -> tuple[np.ndarray, bool]:
     """BP inside ROI: saturated plateau centroid when clipped, else the refined brightest pixel."""
     vals = luma(img[roi.slices])
@@ -636,7 +631,7 @@ def _estimate_one(frame: _Frame, bp_uv, roi: Roi, *, saturated: bool, grow: bool
     if bp_ray is None:
         bp_ray = frame.bp_ray(bp_uv)
     if not np.isfinite(bp_ray).all():
-        i_bp = _bp_intensity(frame.luma(roi), roi, bp_uv)
+        i_bp = _region(frame.luma(roi), bp_uv, (roi.row0, roi.col0), frame.img.shape).near_bp
         return SpecularityEstimate(bp_uv, i_bp, saturated, roi, "non_finite_points",
                                    "the BP has no viewing ray in the camera model", None, ())
     if fitf is None:
@@ -648,7 +643,7 @@ def _estimate_one(frame: _Frame, bp_uv, roi: Roi, *, saturated: bool, grow: bool
     while True:
         vals = _roi_values(frame, roi, sigma)
         region = _region(vals, bp_uv, (roi.row0, roi.col0), frame.img.shape)
-        i_bp = region.near_bp  # the largest of the BP's 3 x 3 pixels: _bp_intensity
+        i_bp = region.near_bp  # the largest of the BP's 3 x 3 pixels
         levels = _Levels.of(frame, vals, i_bp)
         i0 = order[0]
         res = None
@@ -846,6 +841,7 @@ def _roi_draft(image, K, bp_uv, roi, dist_coeffs, settings: ReconSettings, camer
     return _estimate_one(frame, bp, roi, saturated=saturated, grow=False)
 
 
+@_gc_paused()  # thousands of small objects, no cycles (see _gc_paused)
 def reconstruct_rois(items, isovalues: float | Sequence[float] | None = None, *,
                      settings: ReconSettings | None = None, **options) -> list[SpecularityEstimate]:
     """:func:`reconstruct_roi` of many known highlights, their fits batched.
@@ -886,11 +882,10 @@ def reconstruct_rois(items, isovalues: float | Sequence[float] | None = None, *,
     """
     settings = ReconSettings.make(settings, isovalues, **options)
     cameras: dict = {}
-    with _gc_paused():
-        return _complete([_roi_draft(image, K, bp_uv, roi, None, settings, cameras)
-                          for image, K, bp_uv, roi in items])
+    return _complete([_roi_draft(image, K, bp_uv, roi, None, settings, cameras) for image, K, bp_uv, roi in items])
 
 
+@_gc_paused()  # thousands of small objects, no cycles (see _gc_paused)
 def reconstruct(
     image,
     K,
@@ -948,45 +943,44 @@ def reconstruct(
             if e.ok:
                 print(e.bp_px, e.cone_axis, e.normals_paper)
     """
-    with _gc_paused():  # thousands of small objects, no cycles (see _gc_paused)
-        settings = ReconSettings.make(settings, isovalues, frames=True, **options)
-        img = validate_image(image)
-        r = Roi(0, img.shape[0], 0, img.shape[1]) if roi is None else Roi.coerce(roi, img.shape)
-        frame = _Frame.make(img, K, dist_coeffs, settings, noise_roi=r)
-        sub = img[r.slices]
-        det = detect_specularities(
-            sub, brightness_rel=settings.brightness_rel, full_scale=frame.full_scale,
-            saturation_level=settings.saturation_level, min_area_px=settings.min_area_px,
-            smooth_sigma_px=frame.smooth_sigma_px, method=settings.detection,
-            peak_rel=settings.peak_rel,
-        )
-        if sum(c.status == OK for c in det.candidates) >= LUMA_FRAME_MIN_HIGHLIGHTS:
-            frame = frame.for_many_highlights()
-        shift = np.array([r.col0, r.row0], dtype=np.float64)
-        bps = [c.bp_uv + shift for c in det.candidates]
-        # BPs another highlight's isophote must not enclose (``merged``): every candidate's but the
-        # too small ones (noise)
-        bps_arr = np.array(bps, dtype=np.float64).reshape(-1, 2)
-        keep = np.array([c.status != "too_small" for c in det.candidates], dtype=bool)
-        others = bps_arr[keep]
-        row_in_others = np.cumsum(keep) - 1
-        # every candidate's BP ray, and the fit frames of the accepted ones, in one call of the model
-        rays = frame.bp_rays(bps_arr)
-        has_ray = np.isfinite(rays).all(axis=1)
-        fitted = has_ray & np.array([c.status == OK for c in det.candidates], dtype=bool)
-        frames_of = dict(zip(np.flatnonzero(fitted).tolist(), fit_frames(frame.camera, -rays[fitted])))
-        out = []
-        for k, cand in enumerate(det.candidates):
-            bp = bps[k]
-            if cand.status != OK:
-                roi_k = Roi(cand.roi.row0 + r.row0, cand.roi.row1 + r.row0,
-                            cand.roi.col0 + r.col0, cand.roi.col1 + r.col0)
-                ray = rays[k]
-                out.append(SpecularityEstimate(bp, cand.peak, cand.saturated, roi_k, cand.status,
-                                               cand.detail, ray if has_ray[k] else None, ()))
-                continue
-            roi_k = _initial_roi(cand, bp, det.threshold, frame)
-            out.append(_estimate_one(frame, bp, roi_k, saturated=cand.saturated, grow=True, other_bps=others,
-                                     own_bp=int(row_in_others[k]) if keep[k] else -1, bp_ray=rays[k],
-                                     fitf=frames_of.get(k)))
-        return _complete(out)
+    settings = ReconSettings.make(settings, isovalues, frames=True, **options)
+    img = validate_image(image)
+    r = Roi(0, img.shape[0], 0, img.shape[1]) if roi is None else Roi.coerce(roi, img.shape)
+    frame = _Frame.make(img, K, dist_coeffs, settings, noise_roi=r)
+    sub = img[r.slices]
+    det = detect_specularities(
+        sub, brightness_rel=settings.brightness_rel, full_scale=frame.full_scale,
+        saturation_level=settings.saturation_level, min_area_px=settings.min_area_px,
+        smooth_sigma_px=frame.smooth_sigma_px, method=settings.detection,
+        peak_rel=settings.peak_rel,
+    )
+    if sum(c.status == OK for c in det.candidates) >= LUMA_FRAME_MIN_HIGHLIGHTS:
+        frame = frame.for_many_highlights()
+    shift = np.array([r.col0, r.row0], dtype=np.float64)
+    bps = [c.bp_uv + shift for c in det.candidates]
+    # BPs another highlight's isophote must not enclose (``merged``): every candidate's but the
+    # too small ones (noise)
+    bps_arr = np.array(bps, dtype=np.float64).reshape(-1, 2)
+    keep = np.array([c.status != "too_small" for c in det.candidates], dtype=bool)
+    others = bps_arr[keep]
+    row_in_others = np.cumsum(keep) - 1
+    # every candidate's BP ray, and the fit frames of the accepted ones, in one call of the model
+    rays = frame.bp_rays(bps_arr)
+    has_ray = np.isfinite(rays).all(axis=1)
+    fitted = has_ray & np.array([c.status == OK for c in det.candidates], dtype=bool)
+    frames_of = dict(zip(np.flatnonzero(fitted).tolist(), fit_frames(frame.camera, -rays[fitted])))
+    out = []
+    for k, cand in enumerate(det.candidates):
+        bp = bps[k]
+        if cand.status != OK:
+            roi_k = Roi(cand.roi.row0 + r.row0, cand.roi.row1 + r.row0,
+                        cand.roi.col0 + r.col0, cand.roi.col1 + r.col0)
+            ray = rays[k]
+            out.append(SpecularityEstimate(bp, cand.peak, cand.saturated, roi_k, cand.status,
+                                           cand.detail, ray if has_ray[k] else None, ()))
+            continue
+        roi_k = _initial_roi(cand, bp, det.threshold, frame)
+        out.append(_estimate_one(frame, bp, roi_k, saturated=cand.saturated, grow=True, other_bps=others,
+                                 own_bp=int(row_in_others[k]) if keep[k] else -1, bp_ray=rays[k],
+                                 fitf=frames_of.get(k)))
+    return _complete(out)
