@@ -185,7 +185,7 @@ def _same_fit(a, b) -> bool:
     return True
 
 
-def test_the_scored_detections_fitted_alone_get_what_fitting_every_detection_gives():
+def test_the_scored_detections_fitted_alone_get_what_fitting_every_detection_gives(monkeypatch):
     # RenderedRunner fits only the detections ground-truth highlights are matched to
     # (protocols.fit_scored): on a frame of ten highlights lit 3 mm off the camera, two scored
     # (one of them matched twice) and one highlight not detected, their light-aware fits are
@@ -207,12 +207,8 @@ def test_the_scored_detections_fitted_alone_get_what_fitting_every_detection_giv
         calls.append(len(estimates))
         return with_light_aware(image, estimates, *args, **kwargs)
 
-    original = protocols.with_light_aware
-    protocols.with_light_aware = spy
-    try:
-        got = protocols.fit_scored(frame, matched, K, rig)
-    finally:
-        protocols.with_light_aware = original
+    monkeypatch.setattr(protocols, "with_light_aware", spy)
+    got = protocols.fit_scored(frame, matched, K, rig)
     assert calls == [2]  # ests[2] and ests[7], once each
     assert [(h, d) for h, _, d in got] == [(h, d) for h, _, d in matched]
     assert got[1][1] is None

@@ -1041,6 +1041,17 @@ def _residual_correlation(r, sel, shape, step: int) -> tuple[float, float]:
     return float(a @ b / den), float(a @ b / len(a))
 
 
+def _correlated(r, sel, shape, step: int) -> str | None:
+    """The misfit test of the plane and the curved patches: when neighbouring residuals
+    correlate (rho above ``TOL.plane_misfit_rho``, covariance above ``TOL.plane_misfit_rel^2``;
+    see :func:`_residual_correlation`), the detail saying so, else None."""
+    rho, c = _residual_correlation(r, sel, shape, step)
+    if rho > TOL.plane_misfit_rho and c > TOL.plane_misfit_rel**2:
+        return (f"neighbouring residuals correlate (rho {rho:.3g} > {TOL.plane_misfit_rho}; "
+                f"systematic RMS {np.sqrt(c):.3g})")
+    return None
+
+
 def _patch_verdict(rel_floor: float | None, r, sel, shape, step: int, ok_detail: str,
                    misfit_hint: str) -> tuple[str, str, bool, float]:
     """The status of a curved-patch fit (``quadric_fit``, ``cubic_patch_fit``) from its relative
@@ -1059,12 +1070,10 @@ def _patch_verdict(rel_floor: float | None, r, sel, shape, step: int, ok_detail:
         status = "depth_not_observable"
         detail = ("J^T J singular" if rel_floor is None else
                   f"relative depth sigma {rel_floor:.3g} at the noise floor > {TOL.depth_rel_sigma_max}")
-    rho, c = _residual_correlation(r, sel, shape, step)
+    correlated = _correlated(r, sel, shape, step)
     rms = float(np.sqrt(np.mean(r * r)))
-    if rho > TOL.plane_misfit_rho and c > TOL.plane_misfit_rel**2:
-        status, observable = "patch_misfit", False
-        detail = (f"neighbouring residuals correlate (rho {rho:.3g} > {TOL.plane_misfit_rho}; "
-                  f"systematic RMS {np.sqrt(c):.3g})")
+    if correlated:
+        status, observable, detail = "patch_misfit", False, correlated
     elif rms > TOL.patch_misfit_rms_rel:
         status, observable = "patch_misfit", False
         detail = f"residual RMS {rms:.3g} of the ROI's maximum > {TOL.patch_misfit_rms_rel}: {misfit_hint}"
@@ -1083,12 +1092,10 @@ def _misfit(est: LightAwareEstimate, r, sel, shape, step: int) -> LightAwareEsti
     """
     if est.status not in (OK, "depth_not_observable"):
         return est
-    rho, c = _residual_correlation(r, sel, shape, step)
-    if rho > TOL.plane_misfit_rho and c > TOL.plane_misfit_rel**2:
+    correlated = _correlated(r, sel, shape, step)
+    if correlated:
         return replace(est, status="plane_misfit", depth_mm=None, depth_sigma_mm=None,
-                       distance_mm=None,
-                       detail=f"neighbouring residuals correlate (rho {rho:.3g} > "
-                              f"{TOL.plane_misfit_rho}; systematic RMS {np.sqrt(c):.3g})")
+                       distance_mm=None, detail=correlated)
     return est
 
 
