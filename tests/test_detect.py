@@ -307,3 +307,27 @@ def test_the_smoothing_from_the_noise_rows_alone_is_that_of_the_whole_luma(seed,
         img = (rng.random(shape) * rng.uniform(0.5, 2.0)).astype(dtype)
         fs = max(1.0, float(img.max()))
     assert image_smooth_sigma_px(img, fs) == auto_smooth_sigma_px(_gray_native(img), fs)
+
+
+@settings(max_examples=200, deadline=None)
+@given(st.integers(0, 2**32 - 1), st.integers(1, 9), st.integers(3, 60), st.sampled_from(["uniform", "noisy", "flat", "ramp"]))
+def test_the_noise_of_uint8_rows_by_counting_is_numpys_median(seed, h, w, kind):
+    # the 8-bit path reads both medians off histograms of integers; the numpy form (two
+    # np.median calls on the float32 differences) must give the same float, ties and even counts
+    # included
+    from simtest.reconstruct.detect import _noise_sigma_of_rows
+
+    rng = np.random.default_rng(seed)
+    if kind == "uniform":
+        rows = rng.integers(0, 256, (h, w))
+    elif kind == "noisy":
+        rows = np.clip(rng.normal(128, rng.uniform(0, 30), (h, w)), 0, 255)
+    elif kind == "flat":  # mostly one value: the medians are ties
+        rows = np.where(rng.random((h, w)) < 0.3, 255, rng.integers(0, 256))
+    else:
+        rows = np.linspace(0, 255, w)[None] + rng.integers(0, 3, (h, w))
+    rows = np.clip(rows, 0, 255).astype(np.uint8)
+    g = rows.astype(np.float32)
+    d = g[:, 1:-1] - 0.5 * (g[:, :-2] + g[:, 2:])
+    want = float(1.4826 * np.median(np.abs(d - np.median(d))) / np.sqrt(1.5))
+    assert _noise_sigma_of_rows(rows) == want

@@ -431,3 +431,45 @@ def test_mask_labels_are_those_of_one_pass_over_the_mask(seed, fill, blobs):
     got_n, got_lab, got_stats = mask_labels(mask)
     assert got_n == n - 1 and got_lab.dtype == np.int32 and np.array_equal(got_lab, lab)
     assert np.array_equal(got_stats, stats[1:]) and got_stats.shape == (n - 1, 5)
+
+
+# ------------------------------------------------------------------------------------------------
+# the whole-frame arithmetic of local_peak_mask
+
+
+def _peak_mask_numpy(gray, background, local_peak, peak_rel, thr):
+    """The numpy calls top_hat and peak_mask replace (the form of local_peak_mask before them)."""
+    background = background.copy()
+    np.minimum(background, gray, out=background)
+    top = gray - background
+    local_peak = np.maximum(local_peak, top)
+    np.multiply(local_peak, peak_rel, out=local_peak)
+    mask = np.greater_equal(top, local_peak)
+    mask &= top >= thr
+    return background, top, mask.view(np.uint8)
+
+
+@settings(max_examples=80, deadline=None)
+@given(st.integers(0, 2**32 - 1), st.sampled_from([0.0, 0.5, 1 / 3]), st.booleans(),
+       st.floats(0.05, 0.95), st.floats(0.0, 40.0))
+def test_the_compiled_top_hat_and_peak_mask_give_numpys_bits(seed, step, nan, peak_rel, thr):
+    # values on a grid (step > 0) make the ties of the comparisons and of min / max frequent;
+    # step 0: arbitrary float32 values; NaN where numpy's minimum and maximum propagate it
+    rng = np.random.default_rng(seed)
+    h, w = (int(v) for v in rng.integers(1, 50, 2))
+
+    def field():
+        x = (rng.random((h, w)) * 100).astype(np.float32)
+        return np.round(x / step) * np.float32(step) if step else x
+
+    gray, background, local_peak = field(), field(), field()
+    if nan:
+        for a in (gray, background, local_peak):
+            a[rng.random((h, w)) < 0.05] = np.nan
+    want_bg, want_top, want_mask = _peak_mask_numpy(gray, background, local_peak, peak_rel, thr)
+    bg, top, mask = background.copy(), np.empty_like(gray), np.empty((h, w), np.uint8)
+    _dk.top_hat(gray, bg, top)
+    _dk.peak_mask(top, local_peak, np.float32(peak_rel), np.float32(thr), mask)
+    assert np.array_equal(bg, want_bg, equal_nan=True)
+    assert np.array_equal(top, want_top, equal_nan=True)
+    assert np.array_equal(mask, want_mask)

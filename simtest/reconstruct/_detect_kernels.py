@@ -12,6 +12,8 @@ candidates of a few pixels each: there the fixed cost of each numpy call was the
 Kernels
 -------
 - :func:`paste_labels`: a band's component labels into the frame's label image.
+- :func:`top_hat`, :func:`peak_mask`: the whole-frame arithmetic of ``local_peak_mask``, one pass
+  each instead of one numpy call per operation.
 - :func:`examine_candidates`: BP, peak, status and ROI of every candidate.
 
 Notes
@@ -62,6 +64,68 @@ def paste_labels(dst, lab, offset):
             v = lab[r, c]
             if v != 0:
                 dst[r, c] = v + offset
+
+
+@numba.njit(cache=True, nogil=True)
+def top_hat(gray, background, top):
+    """The top-hat of ``local_peak_mask`` in one pass: ``background = min(background, gray)``
+    (in place: an opening never exceeds the image) and ``top = gray - background``.
+
+    Parameters
+    ----------
+    gray : ndarray of shape (H, W), float32
+        The luma examined.
+    background : ndarray of shape (H, W), float32
+        The opening brought back to full size; overwritten with its minimum with ``gray``.
+    top : ndarray of shape (H, W), float32
+        Output, the top-hat (image units).
+
+    Notes
+    -----
+    ``np.minimum`` and the float32 subtraction, element by element (NaN propagates as in
+    ``np.minimum``): the same bits as the two numpy calls it replaces, one pass over the frame
+    instead of two and no temporary (``tests/test_detect_kernels.py``).
+    """
+    h, w = gray.shape
+    for r in range(h):
+        for c in range(w):
+            a = background[r, c]
+            g = gray[r, c]
+            m = a if (a <= g or a != a) else g
+            background[r, c] = m
+            top[r, c] = g - m
+
+
+@numba.njit(cache=True, nogil=True)
+def peak_mask(top, local_peak, peak_rel, thr, mask):
+    """The candidate mask of ``local_peak_mask`` in one pass: ``top >= peak_rel * max(local_peak,
+    top)`` and ``top >= thr``.
+
+    Parameters
+    ----------
+    top : ndarray of shape (H, W), float32
+        The top-hat (:func:`top_hat`).
+    local_peak : ndarray of shape (H, W), float32
+        The dilated top-hat brought back to full size (read only).
+    peak_rel, thr : float32
+        The fraction of the local peak and the smallest top-hat (image units), as float32: numpy
+        multiplies and compares a float32 array with a Python float in float32.
+    mask : ndarray of shape (H, W), uint8
+        Output, 1 for candidate pixels.
+
+    Notes
+    -----
+    ``np.maximum``, the float32 product and the two comparisons, element by element: the same
+    bits as the five numpy calls it replaces (``tests/test_detect_kernels.py``).
+    """
+    h, w = top.shape
+    for r in range(h):
+        for c in range(w):
+            t = top[r, c]
+            p = local_peak[r, c]
+            q = p if (p >= t or p != p) else t
+            q = q * peak_rel
+            mask[r, c] = 1 if (t >= q and t >= thr) else 0
 
 
 @numba.njit(cache=True, nogil=True)
