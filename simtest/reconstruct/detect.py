@@ -505,8 +505,9 @@ def _mad_of_uint8_rows(rows: np.ndarray) -> np.float32:
     float32 arithmetic on ``d`` is exact (multiples of 1/2, of 1/4 after the median is taken off,
     far within float32's 24 bits), so both medians are order statistics read off histograms of
     integers (``np.bincount``), the mean of the two middle ones for an even count as
-    ``np.median`` takes it: a few hundredths of a millisecond where numpy's two partitions of the
-    ~70 000 values took 1.5 ms (``tests/test_detect.py`` compares the two forms).
+    ``np.median`` takes it. On the bench's noisy 1350 x 1080 frame (50 rows, 67 400 values) the
+    whole estimate takes 0.4 ms this way and took 1.6 ms with numpy's two partitions
+    (``tests/test_detect.py`` compares the two forms).
     """
     g = rows.astype(np.int32)
     d2 = 2 * g[:, 1:-1] - (g[:, :-2] + g[:, 2:])  # 2 d, in [-510, 510]
