@@ -885,8 +885,4 @@ def border_median(vals):
     hi = part[n // 2]
     if n % 2:
         return hi
-    lo = part[0]
-    for i in range(1, n // 2):
-        if part[i] > lo:
-            lo = part[i]
-    return (lo + hi) / 2.0
+    return (part[: n // 2].max() + hi) / 2.0
