@@ -199,8 +199,14 @@ def _fit_one(pts, s, m, s3_rcond, axis_to_spread, eps, conic, ell):
     mred = _matmul3(C1_INV, s1 + _matmul3(s2, t))
     if not np.isfinite(mred).all():
         return np.nan, NO_ELLIPSE
-    # M a1 = lambda a1 [eqn. 28]; numba raises on complex eigenvalues (DECLINED)
-    _, vec = np.linalg.eig(mred)
+    # M a1 = lambda a1 [eqn. 28]. Complex eigenvalues are DECLINED: numba raises on them with NumPy
+    # < 2.5, and with NumPy >= 2.5 (whose eig always returns complex arrays) returns them with the
+    # real LAPACK vectors unpacked into complex ones, so the test below and np.real give the same
+    # bits under both.
+    lam, vec_any = np.linalg.eig(mred)
+    if np.any(np.imag(lam) != 0.0):
+        return np.nan, DECLINED
+    vec = np.ascontiguousarray(np.real(vec_any))
     # cand: coefficient vectors (a, b, c, d, e, f) of the eigenvectors [eqn. 19] from [1]
     cand = np.empty((6, 3))
     cand[:3] = vec
