@@ -55,6 +55,7 @@ from simtest.reconstruct.lightaware import isocurve_fit, photometric_fit, refine
 from simtest.reconstruct.pipeline import reconstruct, reconstruct_roi, reconstruct_rois
 from simtest.render import RendererUnavailable, render_scene
 from simtest.scene import load_scene
+from simtest.scene.spec import RENDER_VARIANTS
 from simtest.simulate.analytic import phong_plane_image, plane_bp
 from simtest.simulate.offset import rig_plane_image, specular_point
 
@@ -396,14 +397,23 @@ def _flatten(section_name: str, obj, prefix: str = "") -> list[BenchResult]:
     return rows
 
 
-def run_section(name: str, fn: SectionFn, repeat: int) -> list[BenchResult]:
-    """Call a section with ``repeat`` if it takes it, and turn a dict result into rows."""
+def run_section(name: str, fn: SectionFn, repeat: int, variant: str | None = None) -> list[BenchResult]:
+    """Call a section with ``repeat`` if it takes it, and turn a dict result into rows.
+
+    ``variant`` (a Mitsuba variant, e.g. ``"cuda_ad_rgb"``) is passed to a section that takes a
+    ``variant`` argument (the renderer's); the others ignore it.
+    """
 
     try:
-        takes_repeat = "repeat" in inspect.signature(fn).parameters
+        params = inspect.signature(fn).parameters
     except (TypeError, ValueError):
-        takes_repeat = True
-    res = fn(repeat=repeat) if takes_repeat else fn()
+        params = {"repeat": None}
+    kwargs: dict = {}
+    if "repeat" in params:
+        kwargs["repeat"] = repeat
+    if variant is not None and "variant" in params:
+        kwargs["variant"] = variant
+    res = fn(**kwargs)
     if isinstance(res, dict):
         return _flatten(name, res)
     return list(res)
@@ -416,9 +426,14 @@ def run_section(name: str, fn: SectionFn, repeat: int) -> list[BenchResult]:
 def bench_command(
     only: list[str] = typer.Option(None, "--only", help="Run only these sections (repeatable)."),
     repeat: int = typer.Option(50, "--repeat", min=1, help="Timed runs per figure (median reported)."),
+    variant: str = typer.Option(None, "--variant", help="Mitsuba variant for the render section: "
+                                "llvm_ad_rgb (its default), cuda_ad_rgb or auto."),
 ) -> None:
     """Run the speed benchmarks and print a table (median and min per figure, single core)."""
 
+    if variant is not None and variant not in RENDER_VARIANTS:
+        typer.echo(f"error: --variant {variant!r} is not one of {list(RENDER_VARIANTS)}", err=True)
+        raise typer.Exit(code=2)
     names = list(SECTIONS) + [n for n in EXTERNAL_SECTIONS if n not in SECTIONS]
     chosen = names if not only else list(only)
     unknown = [n for n in chosen if n not in names]
@@ -433,7 +448,7 @@ def bench_command(
         if fn is None:
             table.add_row(name, "(section not available yet)", "", "", "", "", "", "")
             continue
-        for r in run_section(name, fn, repeat):
+        for r in run_section(name, fn, repeat, variant):
             ok = {None: "", True: "yes", False: "NO"}[r.meets_target]
             table.add_row(r.section, r.name, f"{r.value:.3f}", "" if r.best is None else f"{r.best:.3f}",
                           r.unit, "" if r.target is None else f"<= {r.target:g}", ok, r.note)

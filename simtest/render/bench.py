@@ -121,7 +121,8 @@ def bench_render(
     threads : int
         Dr.Jit worker threads (``dr.set_thread_count``).
     variant : str
-        Mitsuba variant.
+        Mitsuba variant: ``llvm_ad_rgb`` (CPU), ``cuda_ad_rgb`` (NVIDIA GPU) or ``auto``
+        (``simtest bench --variant``).
     endoscope : bool
         Also run :func:`bench_endoscope` (under the key ``"endoscope"``).
 
@@ -136,7 +137,7 @@ def bench_render(
     """
     dr = require("drjit")
 
-    choose_variant(variant)
+    variant = choose_variant(variant)  # "auto" resolved: the rows name the variant that ran
     dr.set_thread_count(threads)
     result: dict = {
         "config": {"size_px": size_px, "spp": spp, "repeats": repeats, "threads": threads,
@@ -203,7 +204,7 @@ def bench_endoscope(presets: Sequence[str] = ENDOSCOPE_PRESETS, *, repeats: int 
         "ratio_target"}}``.
     """
     dr = require("drjit")
-    choose_variant(variant)
+    variant = choose_variant(variant)
     dr.set_thread_count(threads)
     out: dict = {"presets": {}, "colonoscope_vs_plain": {}}
     for name in presets:
