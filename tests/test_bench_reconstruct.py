@@ -70,6 +70,28 @@ def test_sections_without_repeat_and_dict_results_are_shown(monkeypatch):
     ]
 
 
+def test_the_variant_reaches_only_sections_that_take_one(monkeypatch):
+    seen = {}
+
+    def render_like(variant="llvm_ad_rgb"):
+        seen["render"] = variant
+        return {"config": {"variant": 1.0}}
+
+    def plain(repeat):
+        seen["plain"] = repeat
+        return []
+
+    bench.run_section("render", render_like, 3, "cuda_ad_rgb")
+    bench.run_section("plain", plain, 3, "cuda_ad_rgb")
+    bench.run_section("render", render_like, 3)  # no --variant: the section's own default
+    assert seen == {"render": "llvm_ad_rgb", "plain": 3}
+    bench.run_section("render", render_like, 3, "cuda_ad_rgb")
+    assert seen["render"] == "cuda_ad_rgb"
+    res = CliRunner().invoke(app, ["bench", "--only", "render", "--variant", "cuda_ad_mono"])
+    assert res.exit_code == 2 and "--variant 'cuda_ad_mono' is not one of" in res.output
+    assert "Traceback" not in res.output
+
+
 def test_time_ms_cpu_reports_wall_and_cpu_of_the_same_runs():
     calls = []
     med, best, cpu = bench.time_ms_cpu(lambda: calls.append(sum(range(1000))), 4)
