@@ -394,7 +394,18 @@ def _flatten(section_name: str, obj, prefix: str = "") -> list[BenchResult]:
             rows += _flatten(section_name, v, f"{prefix}/{k}" if prefix else str(k))
     elif isinstance(obj, (int, float)) and not isinstance(obj, bool):
         rows.append(BenchResult(section_name, prefix, float(obj), _unit_of(prefix.rsplit("/", 1)[-1])))
+    elif isinstance(obj, str):  # a name or an error: shown as a note (value NaN, printed blank)
+        rows.append(BenchResult(section_name, prefix, float("nan"), "", note=obj))
+    elif isinstance(obj, (list, tuple)) and all(isinstance(v, (str, int, float)) for v in obj):
+        rows.append(BenchResult(section_name, prefix, float("nan"), "", note=" / ".join(map(str, obj))))
     return rows
+
+
+def _shown(value: float) -> str:
+    """A figure as the table prints it: blank for a note's NaN, 3 significant digits below 1e-3."""
+    if np.isnan(value):
+        return ""
+    return f"{value:.3g}" if 0 < abs(value) < 1e-3 else f"{value:.3f}"
 
 
 def run_section(name: str, fn: SectionFn, repeat: int, variant: str | None = None) -> list[BenchResult]:
@@ -450,6 +461,6 @@ def bench_command(
             continue
         for r in run_section(name, fn, repeat, variant):
             ok = {None: "", True: "yes", False: "NO"}[r.meets_target]
-            table.add_row(r.section, r.name, f"{r.value:.3f}", "" if r.best is None else f"{r.best:.3f}",
+            table.add_row(r.section, r.name, _shown(r.value), "" if r.best is None else f"{r.best:.3f}",
                           r.unit, "" if r.target is None else f"<= {r.target:g}", ok, r.note)
     Console(width=max(160, Console().width)).print(table)

@@ -64,10 +64,13 @@ def test_sections_without_repeat_and_dict_results_are_shown(monkeypatch):
         return {"scenes": {"plane": {"warm": {"median_s": 0.05, "renders_per_s": 20.0}}}, "note": "x"}
 
     rows = bench.run_section("legacy", legacy, 3)
-    assert [(r.name, r.value, r.unit) for r in rows] == [
+    assert [(r.name, r.value, r.unit) for r in rows[:2]] == [
         ("scenes/plane/warm/median_s", 0.05, "s"),
         ("scenes/plane/warm/renders_per_s", 20.0, "1/s"),
     ]
+    # a string leaf (a variant's name, a scene's error) is a note, not dropped
+    assert rows[2].name == "note" and np.isnan(rows[2].value) and rows[2].note == "x"
+    assert bench._flatten("s", {"pair": [4, 5]})[0].note == "4 / 5"
 
 
 def test_the_variant_reaches_only_sections_that_take_one(monkeypatch):

@@ -39,3 +39,17 @@ def test_bench_render_function_reports_per_scene():
     assert entry["highlights"] == 1
     assert "error" in out["scenes"]["no_such_scene"]
     assert out["config"]["threads"] == 2
+
+
+def test_compare_variants_of_one_variant_finds_no_difference_and_names_a_missing_one():
+    # the same variant twice in two processes: a render repeats bit for bit, so every measured
+    # difference is exactly zero (the GPU's figures beside the CPU's come from this function)
+    from simtest.render.bench import compare_variants
+
+    out = compare_variants("plane_58deg", ("llvm_ad_rgb", "llvm_ad_rgb"))
+    assert out["hit_differs_px"] == 0 and out["linear_max_rel"] == 0.0
+    assert out["normal_p999_deg"] == 0.0 and out["depth_p999_rel"] == 0.0
+    assert out["sensor_equal_frac"] == 1.0 and out["bp_max_px"] == 0.0
+    assert out["highlights"] == [1, 1] and out["px"] > 0
+    bad = compare_variants("plane_58deg", ("llvm_ad_rgb", "no_such_variant"))
+    assert set(bad) == {"error"} and bad["error"].startswith("no_such_variant: ") and "Traceback" not in bad["error"]

@@ -32,12 +32,13 @@ from typing import Sequence
 import numpy as np
 
 from simtest._lazy import require
+from simtest.geometry import angle_between_deg
 from simtest.render import render as R
 from simtest.render.mitsuba_dict import cam_to_world_matrix
 from simtest.render.render import choose_variant, render_scene
 from simtest.scene import load_scene, with_overrides
 
-__all__ = ["ENDOSCOPE_PRESETS", "bench_endoscope", "bench_render"]
+__all__ = ["ENDOSCOPE_PRESETS", "bench_endoscope", "bench_render", "compare_variants"]
 
 #: The bundled endoscope scenes timed by :func:`bench_endoscope`, each at its own film size and spp.
 ENDOSCOPE_PRESETS = ("colonoscope", "colonoscope_pinhole", "colonoscope_plane", "laparoscope_liver")
@@ -77,6 +78,81 @@ def _bench_spec(scene: str, size_px: int, spp: int):
     if cam.fov_deg is None:  # keep the field of view: scale the focal length with the film
         over["camera.focal_px"] = cam.focal * size_px / cam.width_px
     return with_overrides(spec, over)
+
+
+_VARIANT_SCRIPT = r"""
+import json, sys
+import numpy as np
+from simtest.render import render_scene
+from simtest.scene import load_scene
+args = json.loads(sys.argv[1])
+r = render_scene(load_scene(args["scene"]), seed=args["seed"], variant=args["variant"])
+np.savez(args["path"], linear=r.linear, sensor=r.sensor, normals=r.normals, depth=r.depth, mask=r.mask,
+         bp_px=np.array([h.bp_px for h in r.highlights], dtype=np.float64).reshape(-1, 2))
+print(json.dumps({"variant": r.variant}))
+"""
+
+
+def compare_variants(scene: str = "colonoscope", variants: Sequence[str] = ("llvm_ad_rgb", "cuda_ad_rgb"),
+                     *, seed: int = 0) -> dict:
+    """Render one scene with two Mitsuba variants and measure how far their outputs differ.
+
+    Each variant renders in its own process (one variant per process), with the same seed. The
+    ground truth and the linear image should agree up to float rounding (the two back-ends trace
+    the same rays with the same sample streams); the 8-bit sensor images then agree where the
+    sensor's Poisson draws stay in step, and differ by a noise realisation where a rounding
+    difference changes how many draws a pixel's Poisson sample takes.
+
+    Parameters
+    ----------
+    scene : str
+        Bundled scene name or TOML path.
+    variants : pair of str
+        The reference variant first (e.g. ``("llvm_ad_rgb", "cuda_ad_rgb")``).
+    seed : int
+        Root seed of both renders.
+
+    Returns
+    -------
+    dict
+        ``{"variants": [a, b], "px": int, "hit_differs_px": int, "linear_mean_rel": float,
+        "linear_p999_rel": float, "linear_max_rel": float, "normal_p999_deg": float,
+        "depth_p999_rel": float, "highlights": [na, nb], "bp_max_px": float or None,
+        "sensor_equal_frac": float}``: differences of ``b`` from ``a`` over the pixels both hit,
+        the linear image's relative to ``a``'s 99th percentile; or ``{"error": message}`` when a
+        variant cannot render here.
+    """
+    out = {}
+    with tempfile.TemporaryDirectory(prefix="simtest-variants-") as tmp:
+        for v in variants:
+            path = os.path.join(tmp, f"{v}.npz")
+            args = json.dumps({"scene": scene, "seed": int(seed), "variant": v, "path": path})
+            proc = subprocess.run([sys.executable, "-c", _VARIANT_SCRIPT, args], capture_output=True,
+                                  text=True, timeout=600)
+            if proc.returncode != 0:
+                last = proc.stderr.strip().splitlines()[-1] if proc.stderr.strip() else "failed"
+                return {"error": f"{v}: {last}"}
+            with np.load(path) as z:
+                out[v] = {k: z[k] for k in z.files}
+    a, b = (out[v] for v in variants)
+    both = a["mask"] & b["mask"]
+    ref = float(np.percentile(a["linear"][both], 99)) if both.any() else 1.0
+    dlin = np.abs(a["linear"][both].astype(np.float64) - b["linear"][both]) / ref
+    dang = np.asarray(angle_between_deg(a["normals"][both].astype(np.float64), b["normals"][both]))
+    ddep = np.abs(a["depth"][both].astype(np.float64) - b["depth"][both]) / np.abs(a["depth"][both])
+    same = a["bp_px"].shape == b["bp_px"].shape and a["bp_px"].size > 0
+
+    def p999(x):
+        return float(np.percentile(x, 99.9)) if x.size else 0.0
+
+    return {"variants": list(variants), "px": int(both.size),
+            "hit_differs_px": int(np.count_nonzero(a["mask"] != b["mask"])),
+            "linear_mean_rel": float(dlin.mean()) if dlin.size else 0.0,
+            "linear_p999_rel": p999(dlin), "linear_max_rel": float(dlin.max()) if dlin.size else 0.0,
+            "normal_p999_deg": p999(dang), "depth_p999_rel": p999(ddep),
+            "highlights": [int(a["bp_px"].shape[0]), int(b["bp_px"].shape[0])],
+            "bp_max_px": float(np.abs(a["bp_px"] - b["bp_px"]).max()) if same else None,
+            "sensor_equal_frac": float(np.mean(a["sensor"] == b["sensor"]))}
 
 
 def _cold(scene: str, size_px: int, spp: int, variant: str, threads: int) -> dict:
@@ -133,7 +209,8 @@ def bench_render(
         "median_s", "min_s", "cpu_s"}, "warm_new_view": {...}, "warm_rebuild": {...},
         "cold": {"first_render_s", "import_s",
         "renders_per_s"}, "highlights": int}}}``; a scene that cannot be loaded gets
-        ``{"error": message}``.
+        ``{"error": message}``. With a variant other than ``llvm_ad_rgb``, also
+        ``"agreement_with_llvm_ad_rgb"``: :func:`compare_variants` on the ``colonoscope`` frame.
     """
     dr = require("drjit")
 
@@ -182,6 +259,8 @@ def bench_render(
         result["scenes"][name] = entry
     if endoscope:
         result["endoscope"] = bench_endoscope(threads=threads, variant=variant)
+    if variant != "llvm_ad_rgb":  # a GPU's renders beside the CPU's: the same physics?
+        result["agreement_with_llvm_ad_rgb"] = compare_variants("colonoscope", ("llvm_ad_rgb", variant))
     return result
 
 
