@@ -18,7 +18,7 @@ from hypothesis import strategies as st
 from simtest.geometry import angle_between_deg, pixel_to_ray
 from simtest.render import RendererUnavailable, choose_variant, render_scene, write_render
 from simtest.render.mitsuba_dict import plane_normal_cam
-from simtest.render.truth import bisector_cos_image, highlight_complete
+from simtest.render.truth import bisector_cos_image, bisector_cos_image_numpy, highlight_complete
 from simtest.simulate.truth import bisector
 from simtest.scene import (
     bundled_scene_names,
@@ -287,6 +287,37 @@ def test_bisector_image_colocated_shortcut_is_bit_exact(seed, log_scale):
     h /= np.sqrt(np.einsum("ijk,ijk->ij", h, h))[..., None]
     expected = np.where(mask, np.einsum("ijk,ijk->ij", np.where(mask[..., None], n, 0.0), h), -1.0)
     assert np.array_equal(bisector_cos_image(n, p, mask, np.zeros(3)), expected)
+
+
+@settings(max_examples=40, deadline=None)
+@given(st.integers(0, 2**32 - 1), st.floats(-3.0, 3.0), st.sampled_from(["zero", "offset", "far"]),
+       st.sampled_from([np.float32, np.float64]))
+def test_bisector_image_kernel_gives_the_numpy_forms_bits(seed, log_scale, light_kind, dtype):
+    # the compiled pass against the whole-frame numpy passes it replaced: the same bits, with
+    # zeros and negative zeros among the coordinates (the einsum's zero start makes -0 + -0 = +0)
+    rng = np.random.default_rng(seed)
+    p = (rng.normal(size=(17, 13, 3)) * 10.0**log_scale).astype(dtype)
+    n = rng.normal(size=(17, 13, 3)).astype(dtype)
+    n[rng.random((17, 13)) < 0.1] = -0.0
+    p[rng.random((17, 13, 3)) < 0.05] = 0.0
+    n[..., 2][rng.random((17, 13)) < 0.1] = 0.0
+    mask = rng.random((17, 13)) > 0.2
+    light = {"zero": np.zeros(3), "offset": rng.normal(size=3) * 3.0,
+             "far": rng.normal(size=3) * 10.0**log_scale}[light_kind]
+    got = bisector_cos_image(n, p, mask, light)
+    want = bisector_cos_image_numpy(n, p, mask, light)
+    assert got.dtype == want.dtype == np.float32
+    assert np.array_equal(got.view(np.uint32), want.view(np.uint32))
+
+
+def test_bisector_image_kernel_on_a_rendered_frame():
+    # the ground truth of a mesh render (the colon, two lights off the camera) through both forms
+    res = render_scene(with_overrides(load_scene("colon"), {"render.spp": 4}), seed=0)
+    for light in (np.zeros(3), np.array([2.5, 0.0, 0.0]), np.array([-2.5, 0.4, 0.0])):
+        got = bisector_cos_image(res.normals, res.position, res.mask, light)
+        want = bisector_cos_image_numpy(res.normals, res.position, res.mask, light)
+        assert np.array_equal(got.view(np.uint32), want.view(np.uint32))
+        assert (got[res.mask] > 0.5).any()
 
 
 def test_saddle_highlight_at_apex():

@@ -28,6 +28,7 @@ from skimage.feature import peak_local_max
 
 from simtest.geometry.angles import unit
 from simtest.reconstruct.detect import ellipticity
+from simtest.render._truth_kernels import bisector_cos
 from simtest.simulate.truth import HighlightTruth, bisector, pixel_in_frame
 
 __all__ = [
@@ -46,8 +47,38 @@ def bisector_cos_image(normals: np.ndarray, position: np.ndarray, mask: np.ndarr
     """Cosine between each pixel's normal and its bisector, ``n . h(p)``, in float32.
 
     The BP condition (the normal equals the bisector, :func:`bisector`) holds where this is 1; :func:`mesh_highlights` starts its
-    searches at its local maxima. Float32 like the render's AOVs; the co-located branch skips the
-    light arithmetic and gives the general formula's bits (tested).
+    searches at its local maxima. Float32 like the render's AOVs. One compiled pass
+    (:func:`simtest.render._truth_kernels.bisector_cos`) with the bits of
+    :func:`bisector_cos_image_numpy`, its reference (tested).
+
+    Parameters
+    ----------
+    normals : ndarray of shape (H, W, 3)
+        Unit normals, camera frame, facing the camera (values outside ``mask`` are ignored).
+    position : ndarray of shape (H, W, 3)
+        Surface points, camera frame, mm (values outside ``mask`` are ignored).
+    mask : ndarray of shape (H, W), bool
+        Pixels with a surface.
+    light : array_like of shape (3,)
+        Point-light position, camera frame, mm; all zeros for a light at the camera centre.
+
+    Returns
+    -------
+    ndarray of shape (H, W)
+        ``n . h`` in [-1, 1] (float32 round-off aside) inside ``mask``; -1 outside.
+    """
+    mask = np.asarray(mask, dtype=bool)
+    light32 = np.asarray(light, dtype=np.float32).reshape(3)
+    out = np.empty(mask.shape, dtype=np.float32)
+    bisector_cos(normals, position, mask, light32, not np.any(light32), out)
+    return out
+
+
+def bisector_cos_image_numpy(normals: np.ndarray, position: np.ndarray, mask: np.ndarray,
+                             light: np.ndarray) -> np.ndarray:
+    """:func:`bisector_cos_image` in whole-frame numpy passes: the compiled kernel's reference.
+
+    The co-located branch skips the light arithmetic and gives the general formula's bits (tested).
 
     Parameters
     ----------
