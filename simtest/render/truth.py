@@ -79,22 +79,7 @@ def bisector_cos_image_numpy(normals: np.ndarray, position: np.ndarray, mask: np
     """:func:`bisector_cos_image` in whole-frame numpy passes: the compiled kernel's reference.
 
     The co-located branch skips the light arithmetic and gives the general formula's bits (tested).
-
-    Parameters
-    ----------
-    normals : ndarray of shape (H, W, 3)
-        Unit normals, camera frame, facing the camera (values outside ``mask`` are ignored).
-    position : ndarray of shape (H, W, 3)
-        Surface points, camera frame, mm (values outside ``mask`` are ignored).
-    mask : ndarray of shape (H, W), bool
-        Pixels with a surface.
-    light : array_like of shape (3,)
-        Point-light position, camera frame, mm; all zeros for a light at the camera centre.
-
-    Returns
-    -------
-    ndarray of shape (H, W)
-        ``n . h`` in [-1, 1] (float32 round-off aside) inside ``mask``; -1 outside.
+    Parameters and result as :func:`bisector_cos_image`'s.
     """
     p = np.where(mask[..., None], position, 1.0).astype(np.float32)
     to_cam = -p / np.sqrt(np.einsum("ijk,ijk->ij", p, p))[..., None]
