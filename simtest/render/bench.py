@@ -122,19 +122,17 @@ def compare_variants(scene: str = "colonoscope", variants: Sequence[str] = ("llv
         the linear image's relative to ``a``'s 99th percentile; or ``{"error": message}`` when a
         variant cannot render here.
     """
-    out = {}
+    out = []  # by position: the same variant twice gives two renders
     with tempfile.TemporaryDirectory(prefix="simtest-variants-") as tmp:
-        for v in variants:
-            path = os.path.join(tmp, f"{v}.npz")
-            args = json.dumps({"scene": scene, "seed": int(seed), "variant": v, "path": path})
-            proc = subprocess.run([sys.executable, "-c", _VARIANT_SCRIPT, args], capture_output=True,
-                                  text=True, timeout=600)
-            if proc.returncode != 0:
-                last = proc.stderr.strip().splitlines()[-1] if proc.stderr.strip() else "failed"
-                return {"error": f"{v}: {last}"}
+        for i, v in enumerate(variants):
+            path = os.path.join(tmp, f"{i}.npz")
+            _, error = _run_script(_VARIANT_SCRIPT, {"scene": scene, "seed": int(seed), "variant": v,
+                                                     "path": path})
+            if error is not None:
+                return {"error": f"{v}: {error}"}
             with np.load(path) as z:
-                out[v] = {k: z[k] for k in z.files}
-    a, b = (out[v] for v in variants)
+                out.append({k: z[k] for k in z.files})
+    a, b = out
     both = a["mask"] & b["mask"]
     ref = float(np.percentile(a["linear"][both], 99)) if both.any() else 1.0
     dlin = np.abs(a["linear"][both].astype(np.float64) - b["linear"][both]) / ref
@@ -155,16 +153,25 @@ def compare_variants(scene: str = "colonoscope", variants: Sequence[str] = ("llv
             "sensor_equal_frac": float(np.mean(a["sensor"] == b["sensor"]))}
 
 
+def _run_script(script: str, args: dict, env: dict | None = None) -> tuple[dict | None, str | None]:
+    """Run ``script`` in a fresh Python process with ``args`` as JSON in ``argv[1]``.
+
+    Returns ``(the JSON object of its last stdout line, None)``, or ``(None, the last line of its
+    stderr)`` when it fails."""
+    proc = subprocess.run([sys.executable, "-c", script, json.dumps(args)], env=env,
+                          capture_output=True, text=True, timeout=600)
+    if proc.returncode != 0:
+        return None, proc.stderr.strip().splitlines()[-1] if proc.stderr.strip() else "failed"
+    return json.loads(proc.stdout.strip().splitlines()[-1]), None
+
+
 def _cold(scene: str, size_px: int, spp: int, variant: str, threads: int) -> dict:
     with tempfile.TemporaryDirectory(prefix="simtest-drjit-cold-") as cache:
-        env = dict(os.environ, DRJIT_CACHE_DIR=cache)
-        args = json.dumps({"scene": scene, "size_px": size_px, "spp": spp, "variant": variant,
-                           "threads": threads})
-        proc = subprocess.run([sys.executable, "-c", _COLD_SCRIPT, args], env=env,
-                              capture_output=True, text=True, timeout=600)
-    if proc.returncode != 0:
-        return {"error": proc.stderr.strip().splitlines()[-1] if proc.stderr.strip() else "failed"}
-    out = json.loads(proc.stdout.strip().splitlines()[-1])
+        out, error = _run_script(_COLD_SCRIPT, {"scene": scene, "size_px": size_px, "spp": spp,
+                                                "variant": variant, "threads": threads},
+                                 env=dict(os.environ, DRJIT_CACHE_DIR=cache))
+    if error is not None:
+        return {"error": error}
     out["renders_per_s"] = 1.0 / out["first_render_s"]
     return out
 
