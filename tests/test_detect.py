@@ -118,6 +118,16 @@ def test_clipped_mask_is_every_channel_at_or_above_the_level(dtype, shape, level
     want = np.all((img >= level).reshape(*img.shape[:2], -1), axis=2)
     got = clipped_mask(img, level)
     assert got.dtype == np.uint8 and np.array_equal(got, want.view(np.uint8))
+    # the rows examined are those where OpenCV's luma reaches the level: the same mask, with
+    # clipped pixels in a few rows only, and with pixels at the level in one channel short of it
+    sparse = img.copy()
+    sparse[rng.random(shape[:2]) < 0.9] = 0
+    if sparse.ndim == 3:
+        sparse[rng.random(shape[:2]) < 0.2, rng.integers(0, sparse.shape[2])] = int(np.clip(np.ceil(level) - 1, 0, top))
+    for im in (img, sparse):
+        want = np.all((im >= level).reshape(*im.shape[:2], -1), axis=2)
+        got = clipped_mask(im, level, _gray_native(im))
+        assert got.dtype == np.uint8 and np.array_equal(got, want.view(np.uint8))
 
 
 @settings(max_examples=40, deadline=None)

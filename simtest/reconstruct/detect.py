@@ -608,10 +608,32 @@ BACKGROUND_DIV = 10
 BACKGROUND_PLATEAU_FACTOR = 2
 
 
-def clipped_mask(image: np.ndarray, saturation_level: float | None) -> np.ndarray | None:
+def clipped_mask(image: np.ndarray, saturation_level: float | None,
+                 gray: np.ndarray | None = None) -> np.ndarray | None:
     """Pixels clipped white (every channel >= ``saturation_level``), uint8 0/1; None without a
     saturation level (float images).
 
+    Parameters
+    ----------
+    image : ndarray of shape (H, W) or (H, W, C)
+        A validated image (:func:`validate_image`).
+    saturation_level : float or None
+        Image units.
+    gray : ndarray of shape (H, W), optional
+        The image's luma as :func:`_gray_native` gives it (OpenCV's integer Rec. 601 weights, of
+        the same dtype as ``image``). Only rows where it reaches the level are examined: OpenCV's
+        luma is a rounded weighted mean with positive weights summing to one, so a pixel whose
+        channels are all >= an integer level has a luma >= that level, and a row without such a
+        luma holds no clipped pixel. The mask is the same (``tests/test_detect.py`` checks it
+        against the definition); on the bench's noisy 10-highlight frame, whose clipped
+        highlights span a fifth of the rows, that pass costs a fifth.
+
+    Returns
+    -------
+    ndarray of shape (H, W), uint8, or None
+
+    Notes
+    -----
     For uint8 and uint16 images this is one ``cv2.inRange`` pass (an integer pixel is >= the
     level exactly when it is >= its ceiling): a twentieth of the time of numpy's comparison and
     reduction over the channels on a 1350 x 1080 RGB frame; the mask is the same.
@@ -625,6 +647,14 @@ def clipped_mask(image: np.ndarray, saturation_level: float | None) -> np.ndarra
             return np.zeros(image.shape[:2], np.uint8)
         lo = int(max(lo, 0.0))
         nch = 1 if image.ndim == 2 else image.shape[2]
+        if gray is not None and image.ndim == 3 and lo > 0:
+            rows = np.flatnonzero(gray.max(axis=1) >= lo)
+            out = np.zeros(image.shape[:2], np.uint8)
+            if len(rows):
+                r0, r1 = int(rows[0]), int(rows[-1]) + 1
+                m = cv2.inRange(np.ascontiguousarray(image[r0:r1]), (lo,) * nch, (top,) * nch)
+                np.right_shift(m, 7, out=out[r0:r1])  # 255 -> 1
+            return out
         m = cv2.inRange(np.ascontiguousarray(image), (lo,) * nch, (top,) * nch)
         return np.right_shift(m, 7, out=m)  # 255 -> 1
     sat = image >= saturation_level
@@ -823,7 +853,7 @@ def detect_specularities(
 
     if method not in DETECT_METHODS:
         raise ValueError(f"method: {method!r} is not one of {DETECT_METHODS}")
-    gray = _gray_native(img)
+    gray = native = _gray_native(img)
     if smooth_sigma_px is None:
         smooth_sigma_px = auto_smooth_sigma_px(gray, fs)
     if smooth_sigma_px > 0:
@@ -835,7 +865,7 @@ def detect_specularities(
     if method == "local_peak":
         if not 0.0 < peak_rel < 1.0:
             raise ValueError(f"peak_rel must be in (0, 1), got {peak_rel!r}")
-        clipped = clipped_mask(img, saturation_level)
+        clipped = clipped_mask(img, saturation_level, native)
         side = background_side_px((h, w), clipped)
         mask, background = local_peak_mask(gray, fs, peak_rel=peak_rel,
                                            contrast_min_rel=contrast_min_rel, background_px=side)
