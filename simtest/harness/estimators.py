@@ -118,18 +118,23 @@ ESTIMATORS: dict[str, Callable] = {
     "quadric_fit": _light_aware("quadric_fit"),
     "cubic_patch_fit": _light_aware("cubic_patch_fit"),
     "recommended": _recommended,
+    # the photometric fit on the renderer's specular image alone (an oracle input, as
+    # paper_oracle is an oracle choice): what the model recovers when the image holds nothing else
+    "photometric_fit_on_specular": _light_aware("photometric_fit_on_specular"),
 }
 
 #: Estimators scored whatever the highlight's status (they do not rest on its isophote: the BP
 #: ray, and the photometric fit and the recommendation, which take a merged highlight too).
-STATUS_FREE = ("bp_ray", "photometric_fit", "quadric_fit", "cubic_patch_fit", "recommended")
+STATUS_FREE = ("bp_ray", "photometric_fit", "quadric_fit", "cubic_patch_fit", "recommended",
+               "photometric_fit_on_specular")
 
 
 def _cause(est, name: str) -> str:
     status = getattr(est, "status", None)
     if status is not None and status != "ok":
         return str(status)
-    if name in ("isocurve_fit", "photometric_fit", "quadric_fit", "cubic_patch_fit"):
+    if name in ("isocurve_fit", "photometric_fit", "quadric_fit", "cubic_patch_fit",
+                "photometric_fit_on_specular"):
         r = (getattr(est, "light_aware", None) or {}).get(name)
         return f"{name}_not_run" if r is None else str(r.status)
     if name == "joint_cone_axis":

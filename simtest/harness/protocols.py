@@ -13,6 +13,7 @@ detection (``simtest.reconstruct``) and each true BP is matched to the nearest d
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from dataclasses import dataclass, field
 
@@ -29,7 +30,7 @@ from simtest.geometry.lights import Light, LightRig
 from simtest.harness.estimators import score
 from simtest.harness.suite import LIGHT_AWARE_NAMES, MeshPose
 from simtest.reconstruct import reconstruct, reconstruct_rois
-from simtest.reconstruct.recommend import with_light_aware
+from simtest.reconstruct.recommend import light_aware_estimates, with_light_aware
 from simtest.reconstruct.settings import ReconSettings
 from simtest.render import render_scene
 from simtest.scene import load_scene, with_overrides
@@ -391,6 +392,8 @@ class RenderedRunner:
                                  # recommendation needs it (two lights apart, the plane fit not
                                  # ok: what `simtest reconstruct --cubic-patch` runs)
                                  cubic=True if "cubic_patch_fit" in self.estimators else None)
+            if SPECULAR_ORACLE in self.estimators:
+                matched = fit_on_specular(getattr(result, "specular", None), matched, result.K, rig)
         rows = []
         for h, best, dist in matched:
             errs = score(best, h.normal, self.estimators, light=int(getattr(h, "light", 0)))
@@ -446,6 +449,51 @@ def fit_scored(image, matched: list, camera, rig: LightRig, **kwargs) -> list:
     scored = list({id(b): b for _, b, _ in matched if b is not None}.values())
     fitted = dict(zip((id(b) for b in scored), with_light_aware(image, scored, camera, rig, **kwargs)))
     return [(h, fitted[id(b)] if b is not None else None, d) for h, b, d in matched]
+
+
+#: The photometric fit on the renderer's specular image (an oracle input; see :func:`fit_on_specular`).
+SPECULAR_ORACLE = "photometric_fit_on_specular"
+
+
+def fit_on_specular(specular, matched: list, camera, rig: LightRig) -> list:
+    """``photometric_fit`` of each scored detection on the renderer's specular image alone.
+
+    The image a tissue render's sensor sees holds, besides the specular lobes, the diffuse
+    shading of a textured albedo, the sensor's tone curve, its noise and its clipping. Fitted on
+    the specular radiance alone (linear, unclipped, the same ROI and start as on the sensor
+    image: :func:`~simtest.reconstruct.recommend.light_aware_estimates`), the fit shows what the
+    model and the geometry recover when nothing else is in the image; the gap to
+    ``photometric_fit`` is what the rest of the image formation costs. An oracle input, as
+    ``paper_oracle`` is an oracle choice: no real frame has it.
+
+    Parameters
+    ----------
+    specular : ndarray of shape (H, W) or None
+        The render's specular image (``result.specular``); None where the renderer has none
+        (the fit is then not run and the estimator fails as not run).
+    matched : list of (highlight, SpecularityEstimate or None, float)
+        As :func:`fit_scored` returns it.
+    camera : array_like of shape (3, 3) or CameraModel
+    rig : LightRig
+
+    Returns
+    -------
+    list of (highlight, SpecularityEstimate or None, float)
+        ``matched`` with each detection's ``light_aware`` holding :data:`SPECULAR_ORACLE` too.
+    """
+    if specular is None:
+        return matched
+    img = np.asarray(specular, dtype=np.float64)
+    done: dict = {}
+    out = []
+    for h, b, d in matched:
+        if b is not None and id(b) not in done:
+            r = light_aware_estimates(img, b, camera, rig)["photometric_fit"]
+            la = dict(getattr(b, "light_aware", None) or {})
+            la[SPECULAR_ORACLE] = r
+            done[id(b)] = dataclasses.replace(b, light_aware=la)
+        out.append((h, done[id(b)] if b is not None else None, d))
+    return out
 
 
 def render_rig(result) -> LightRig:

@@ -64,6 +64,9 @@ ESTIMATOR_TEXT = {
     "quadric_fit": "ROI intensities fitted with a quadric patch lit by the rig (experimental)",
     "cubic_patch_fit": "ROI intensities fitted with a third-order patch lit by every light of the rig",
     "recommended": "the normal estimates.json recommends (simtest.reconstruct.recommend)",
+    "photometric_fit_on_specular": "photometric_fit on the renderer's specular image alone (oracle "
+                                   "input: no diffuse shading, tone curve, noise or clipping; not "
+                                   "available on a real frame)",
 }
 
 _MESH_KEYS = {"colon_station": "colon", "liver_azimuth_deg": "liver"}
