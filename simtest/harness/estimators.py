@@ -45,7 +45,7 @@ import numpy as np
 
 from simtest.geometry.angles import angle_between_deg
 
-__all__ = ["ESTIMATORS", "STATUS_FREE", "score", "unit_or_none"]
+__all__ = ["ESTIMATORS", "ORACLE_FITS", "STATUS_FREE", "score", "unit_or_none"]
 
 
 def unit_or_none(v) -> np.ndarray | None:
@@ -118,23 +118,23 @@ ESTIMATORS: dict[str, Callable] = {
     "quadric_fit": _light_aware("quadric_fit"),
     "cubic_patch_fit": _light_aware("cubic_patch_fit"),
     "recommended": _recommended,
-    # the photometric fit on the renderer's specular image alone (an oracle input, as
-    # paper_oracle is an oracle choice): what the model recovers when the image holds nothing else
-    "photometric_fit_on_specular": _light_aware("photometric_fit_on_specular"),
 }
+#: The photometric fit on images a real frame does not give (oracle inputs, as paper_oracle is an
+#: oracle choice; :func:`simtest.harness.protocols.fit_on_oracle_image`): the render's specular
+#: radiance alone, and its linear radiance (diffuse shading in; no tone curve, noise or clipping).
+ORACLE_FITS = ("photometric_fit_on_specular", "photometric_fit_on_radiance")
+ESTIMATORS.update({name: _light_aware(name) for name in ORACLE_FITS})
 
 #: Estimators scored whatever the highlight's status (they do not rest on its isophote: the BP
 #: ray, and the photometric fit and the recommendation, which take a merged highlight too).
-STATUS_FREE = ("bp_ray", "photometric_fit", "quadric_fit", "cubic_patch_fit", "recommended",
-               "photometric_fit_on_specular")
+STATUS_FREE = ("bp_ray", "photometric_fit", "quadric_fit", "cubic_patch_fit", "recommended") + ORACLE_FITS
 
 
 def _cause(est, name: str) -> str:
     status = getattr(est, "status", None)
     if status is not None and status != "ok":
         return str(status)
-    if name in ("isocurve_fit", "photometric_fit", "quadric_fit", "cubic_patch_fit",
-                "photometric_fit_on_specular"):
+    if name in ("isocurve_fit", "photometric_fit", "quadric_fit", "cubic_patch_fit") + ORACLE_FITS:
         r = (getattr(est, "light_aware", None) or {}).get(name)
         return f"{name}_not_run" if r is None else str(r.status)
     if name == "joint_cone_axis":

@@ -392,8 +392,9 @@ class RenderedRunner:
                                  # recommendation needs it (two lights apart, the plane fit not
                                  # ok: what `simtest reconstruct --cubic-patch` runs)
                                  cubic=True if "cubic_patch_fit" in self.estimators else None)
-            if SPECULAR_ORACLE in self.estimators:
-                matched = fit_on_specular(getattr(result, "specular", None), matched, result.K, rig)
+            for name, attr in ORACLE_INPUTS.items():
+                if name in self.estimators:
+                    matched = fit_on_oracle_image(name, getattr(result, attr, None), matched, result.K, rig)
         rows = []
         for h, best, dist in matched:
             errs = score(best, h.normal, self.estimators, light=int(getattr(h, "light", 0)))
@@ -451,25 +452,30 @@ def fit_scored(image, matched: list, camera, rig: LightRig, **kwargs) -> list:
     return [(h, fitted[id(b)] if b is not None else None, d) for h, b, d in matched]
 
 
-#: The photometric fit on the renderer's specular image (an oracle input; see :func:`fit_on_specular`).
-SPECULAR_ORACLE = "photometric_fit_on_specular"
+#: The oracle fits (:data:`simtest.harness.estimators.ORACLE_FITS`) and the render's image each
+#: takes (an attribute of the render result; see :func:`fit_on_oracle_image`).
+ORACLE_INPUTS = {"photometric_fit_on_specular": "specular", "photometric_fit_on_radiance": "linear"}
 
 
-def fit_on_specular(specular, matched: list, camera, rig: LightRig) -> list:
-    """``photometric_fit`` of each scored detection on the renderer's specular image alone.
+def fit_on_oracle_image(name: str, image, matched: list, camera, rig: LightRig) -> list:
+    """``photometric_fit`` of each scored detection on an image no real frame gives.
 
     The image a tissue render's sensor sees holds, besides the specular lobes, the diffuse
-    shading of a textured albedo, the sensor's tone curve, its noise and its clipping. Fitted on
-    the specular radiance alone (linear, unclipped, the same ROI and start as on the sensor
-    image: :func:`~simtest.reconstruct.recommend.light_aware_estimates`), the fit shows what the
-    model and the geometry recover when nothing else is in the image; the gap to
-    ``photometric_fit`` is what the rest of the image formation costs. An oracle input, as
-    ``paper_oracle`` is an oracle choice: no real frame has it.
+    shading of a textured albedo, the sensor's tone curve, its noise and its clipping. Fitted
+    with the same ROI and start as on the sensor image
+    (:func:`~simtest.reconstruct.recommend.light_aware_estimates`) on the render's specular
+    radiance alone (``photometric_fit_on_specular``), the fit shows what the model and the
+    geometry recover when nothing else is in the image; on its linear radiance
+    (``photometric_fit_on_radiance``: the diffuse shading in, the sensor's steps out), what the
+    diffuse shading costs; the gap from there to ``photometric_fit`` is the sensor's. Oracle
+    inputs, as ``paper_oracle`` is an oracle choice.
 
     Parameters
     ----------
-    specular : ndarray of shape (H, W) or None
-        The render's specular image (``result.specular``); None where the renderer has none
+    name : str
+        The estimator's name, a key of :data:`ORACLE_INPUTS`.
+    image : ndarray of shape (H, W) or None
+        The render's image for it (linear radiance, any unit); None where the renderer has none
         (the fit is then not run and the estimator fails as not run).
     matched : list of (highlight, SpecularityEstimate or None, float)
         As :func:`fit_scored` returns it.
@@ -479,18 +485,18 @@ def fit_on_specular(specular, matched: list, camera, rig: LightRig) -> list:
     Returns
     -------
     list of (highlight, SpecularityEstimate or None, float)
-        ``matched`` with each detection's ``light_aware`` holding :data:`SPECULAR_ORACLE` too.
+        ``matched`` with each detection's ``light_aware`` holding ``name`` too.
     """
-    if specular is None:
+    if image is None:
         return matched
-    img = np.asarray(specular, dtype=np.float64)
+    img = np.asarray(image, dtype=np.float64)
     done: dict = {}
     out = []
     for h, b, d in matched:
         if b is not None and id(b) not in done:
             r = light_aware_estimates(img, b, camera, rig)["photometric_fit"]
             la = dict(getattr(b, "light_aware", None) or {})
-            la[SPECULAR_ORACLE] = r
+            la[name] = r
             done[id(b)] = dataclasses.replace(b, light_aware=la)
         out.append((h, done[id(b)] if b is not None else None, d))
     return out

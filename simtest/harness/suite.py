@@ -97,7 +97,7 @@ ESTIMATOR_NAMES = ("paper_oracle", "paper_selected", "cone_axis", "joint_cone_ax
 #: Estimators that use the scope's light rig (:mod:`simtest.reconstruct.recommend`); a suite lists
 #: them explicitly (``recommended`` is the normal that ``estimates.json`` recommends).
 LIGHT_AWARE_NAMES = ("isocurve_fit", "photometric_fit", "quadric_fit", "cubic_patch_fit",
-                     "recommended", "photometric_fit_on_specular")
+                     "recommended", "photometric_fit_on_specular", "photometric_fit_on_radiance")
 
 #: Reconstruction settings, valid in both protocols, with their defaults.
 RECON_KEYS: dict[str, Any] = {

@@ -67,6 +67,8 @@ ESTIMATOR_TEXT = {
     "photometric_fit_on_specular": "photometric_fit on the renderer's specular image alone (oracle "
                                    "input: no diffuse shading, tone curve, noise or clipping; not "
                                    "available on a real frame)",
+    "photometric_fit_on_radiance": "photometric_fit on the renderer's linear radiance (oracle input: "
+                                   "the diffuse shading in; no tone curve, noise or clipping)",
 }
 
 _MESH_KEYS = {"colon_station": "colon", "liver_azimuth_deg": "liver"}
