@@ -45,7 +45,7 @@ import numpy as np
 
 from simtest.geometry.angles import angle_between_deg
 
-__all__ = ["ESTIMATORS", "ORACLE_FITS", "STATUS_FREE", "score", "unit_or_none"]
+__all__ = ["ESTIMATORS", "ORACLE_FITS", "ORACLE_INPUTS", "STATUS_FREE", "score", "unit_or_none"]
 
 
 def unit_or_none(v) -> np.ndarray | None:
@@ -120,9 +120,11 @@ ESTIMATORS: dict[str, Callable] = {
     "recommended": _recommended,
 }
 #: The photometric fit on images a real frame does not give (oracle inputs, as paper_oracle is an
-#: oracle choice; :func:`simtest.harness.protocols.fit_on_oracle_image`): the render's specular
-#: radiance alone, and its linear radiance (diffuse shading in; no tone curve, noise or clipping).
-ORACLE_FITS = ("photometric_fit_on_specular", "photometric_fit_on_radiance")
+#: oracle choice; :func:`simtest.harness.protocols.fit_on_oracle_image`), each with the attribute of
+#: the render result it fits: the render's specular radiance alone, and its linear radiance
+#: (diffuse shading in; no tone curve, noise or clipping).
+ORACLE_INPUTS = {"photometric_fit_on_specular": "specular", "photometric_fit_on_radiance": "linear"}
+ORACLE_FITS = tuple(ORACLE_INPUTS)
 ESTIMATORS.update({name: _light_aware(name) for name in ORACLE_FITS})
 
 #: Estimators scored whatever the highlight's status (they do not rest on its isophote: the BP

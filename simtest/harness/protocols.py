@@ -27,7 +27,7 @@ from simtest.geometry.curvature import (
     predicted_pose_error_deg,
 )
 from simtest.geometry.lights import Light, LightRig
-from simtest.harness.estimators import score
+from simtest.harness.estimators import ORACLE_INPUTS, score
 from simtest.harness.suite import LIGHT_AWARE_NAMES, MeshPose
 from simtest.reconstruct import reconstruct, reconstruct_rois
 from simtest.reconstruct.recommend import light_aware_estimates, with_light_aware
@@ -452,11 +452,6 @@ def fit_scored(image, matched: list, camera, rig: LightRig, **kwargs) -> list:
     return [(h, fitted[id(b)] if b is not None else None, d) for h, b, d in matched]
 
 
-#: The oracle fits (:data:`simtest.harness.estimators.ORACLE_FITS`) and the render's image each
-#: takes (an attribute of the render result; see :func:`fit_on_oracle_image`).
-ORACLE_INPUTS = {"photometric_fit_on_specular": "specular", "photometric_fit_on_radiance": "linear"}
-
-
 def fit_on_oracle_image(name: str, image, matched: list, camera, rig: LightRig) -> list:
     """``photometric_fit`` of each scored detection on an image no real frame gives.
 
@@ -473,7 +468,7 @@ def fit_on_oracle_image(name: str, image, matched: list, camera, rig: LightRig) 
     Parameters
     ----------
     name : str
-        The estimator's name, a key of :data:`ORACLE_INPUTS`.
+        The estimator's name, a key of :data:`simtest.harness.estimators.ORACLE_INPUTS`.
     image : ndarray of shape (H, W) or None
         The render's image for it (linear radiance, any unit); None where the renderer has none
         (the fit is then not run and the estimator fails as not run).
