@@ -385,7 +385,7 @@ class RenderedRunner:
         if light_aware:
             rig = render_rig(result)
             matched = fit_scored(image, matched, result.K, rig,
-                                 quadric="quadric_fit" in self.estimators,
+                                 quadric=True if "quadric_fit" in self.estimators else None,
                                  # listed: run on every scored highlight, for its column and its
                                  # depth's observability (one light included, where the
                                  # recommendation does not use it); else where the
@@ -489,7 +489,7 @@ def fit_on_oracle_image(name: str, image, matched: list, camera, rig: LightRig) 
     out = []
     for h, b, d in matched:
         if b is not None and id(b) not in done:
-            r = light_aware_estimates(img, b, camera, rig)["photometric_fit"]
+            r = light_aware_estimates(img, b, camera, rig, quadric=False)["photometric_fit"]
             la = dict(getattr(b, "light_aware", None) or {})
             la[name] = r
             done[id(b)] = dataclasses.replace(b, light_aware=la)

@@ -136,7 +136,7 @@ def light_aware_estimates(image, est, camera, rig: LightRig, *, nominal_depth_mm
                           saturation_level: float | None = None,
                           roi_scale: float = 2.5, quadric_roi_scale: float = 1.5,
                           supersample: int = 1,
-                          quadric: bool = False,
+                          quadric: bool | None = None,
                           cubic: bool | None = False) -> dict[str, LightAwareEstimate]:
     """Run the light-aware estimators on one detected highlight.
 
@@ -170,11 +170,12 @@ def light_aware_estimates(image, est, camera, rig: LightRig, *, nominal_depth_mm
         (module docstring, "Recommendation rule").
     supersample : int
         Sub-pixel samples per pixel side of the photometric model (its box filter).
-    quadric : bool
+    quadric : bool or None
         Run the curved-patch fit :func:`~simtest.reconstruct.lightaware.quadric_fit` (on the
-        highlight's ROI grown ``quadric_roi_scale`` times about the BP) whatever the photometric
-        fit's status (it runs anyway when that status is not ``ok``: a plane misfit, or a plane
-        fit that ran off on a curved patch).
+        highlight's ROI grown ``quadric_roi_scale`` times about the BP): True always, None
+        (default) when the photometric fit's status is not ``ok`` (a plane misfit, or a plane
+        fit that ran off on a curved patch: the recommendation then needs it), False never (the
+        harness' oracle inputs keep the plane fit only).
     cubic : bool or None
         Run the third-order patch fit
         :func:`~simtest.reconstruct.lightaware.cubic_patch_fit` on the same ROI as the quadric's:
@@ -188,9 +189,8 @@ def light_aware_estimates(image, est, camera, rig: LightRig, *, nominal_depth_mm
     -------
     dict
         ``{"isocurve_fit": LightAwareEstimate, "photometric_fit": LightAwareEstimate}`` (the
-        isocurve fit is absent when no isophote succeeded), ``"quadric_fit"`` on request or
-        when the photometric fit's status is not ``ok``, and ``"cubic_patch_fit"`` as ``cubic``
-        says.
+        isocurve fit is absent when no isophote succeeded), ``"quadric_fit"`` and
+        ``"cubic_patch_fit"`` as ``quadric`` and ``cubic`` say.
     """
     img = np.asarray(image)
     if saturation_level is None and img.dtype.kind == "u":
@@ -220,7 +220,7 @@ def light_aware_estimates(image, est, camera, rig: LightRig, *, nominal_depth_mm
         clip_level=saturation_level, nominal_depth_mm=nominal_depth_mm,
         start_normal=start_n, supersample=supersample)
     near = Roi.around(est.bp_px, quadric_roi_scale * max(roi.shape) / 2.0, img.shape)
-    if quadric or not out["photometric_fit"].ok:
+    if quadric or (quadric is None and not out["photometric_fit"].ok):
         out["quadric_fit"] = _guarded(
             "quadric_fit", quadric_fit, gray[near.slices], (near.col0, near.row0), est.bp_px, camera, rig,
             clip_level=saturation_level, nominal_depth_mm=nominal_depth_mm)
