@@ -13,7 +13,8 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from simtest.reconstruct import _kernels
-from simtest.reconstruct.isophote import Isophote, extract_isophote, isophote_cut_by_roi, polygon_contains
+from simtest.reconstruct.isophote import (Isophote, _cut_and_contour, _extract, _region, extract_isophote,
+                                         isophote_cut_by_roi, polygon_contains)
 
 
 def _extract_both(*args, **kwargs):
@@ -285,6 +286,41 @@ def test_a_pixel_at_the_level_anywhere_in_the_components_box_declines_the_walk()
     sub[2:5, 3:5] = 2.0
     sub[0, 0] = 1.0  # outside the box: the walk answers
     assert _kernels._contour_by_walk(sub, 1.0, 3, 3, 0, 0, 3.0, 3.0)[0] == _kernels.CLOSED
+
+
+@given(seed=st.integers(0, 2**32 - 1), flags=st.tuples(st.booleans(), st.booleans(), st.booleans(), st.booleans()))
+@settings(max_examples=400, deadline=None)
+def test_one_walk_answers_the_growth_question_and_traces_the_contour(seed, flags):
+    # the pipeline asks whether an ROI's lowest isophote is cut and then extracts it: one walk
+    # gives component_reaches' answer and component_contour's result (bit for bit) where it traced
+    # it, and says DECLINED where component_contour's flood fill must decide
+    args = _kernel_args(seed)
+    if args is None:
+        return
+    sub, level, ri, ci = args[:4]
+    got = _kernels.component_reaches_contour(*args, *flags)
+    assert got[0] == _kernels.component_reaches(sub, level, ri, ci, *flags)
+    if got[1] == _kernels.DECLINED:
+        assert _kernels._contour_by_walk(*args)[0] == _kernels.DECLINED
+        return
+    want = _kernels.component_contour(*args)
+    assert (got[1], got[3], tuple(got[4])) == (want[0], want[2], tuple(want[3]))
+    assert got[2].shape == want[1].shape and got[2].tobytes() == want[1].tobytes()
+
+
+@given(seed=st.integers(0, 2**32 - 1))
+@settings(max_examples=300, deadline=None)
+def test_the_extraction_from_the_growth_walk_is_the_extraction(seed):
+    # isophote._extract given the contour the growth question traced (_cut_and_contour) returns
+    # what it returns when it traces the contour itself
+    img, level, bp, off, shape = _random_region(np.random.default_rng(seed))
+    try:
+        region = _region(img, bp, off, shape)
+    except ValueError:
+        return
+    cut, walked = _cut_and_contour(region, level)
+    assert cut == isophote_cut_by_roi(img, level, bp, origin_rc=off, image_shape=shape)
+    assert _same(_extract(region, level, True, 0, walked), _extract(region, level, True, 0))
 
 
 @given(seed=st.integers(0, 2**32 - 1), flags=st.tuples(st.booleans(), st.booleans(), st.booleans(), st.booleans()))

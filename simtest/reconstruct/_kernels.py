@@ -19,7 +19,8 @@ Kernels
   and bits, when they are one closed contour or only open ones.
 - :func:`component_reaches`: whether that component reaches given sides of the box (the
   ROI's growth asks only that), from the same walk (:func:`component_reaches_flood`, a flood
-  fill, its reference and fallback).
+  fill, its reference and fallback); :func:`component_reaches_contour` gives the answer and the
+  walk's contour together.
 - :func:`count_enclosed`: how many other highlights' BPs an isophote encloses (``merged``).
 - :func:`border_median`: the median of a region's border pixels (``normalise="local"``).
 - :func:`luma_rgb`: the luma of an RGB image or ROI.
@@ -786,13 +787,38 @@ def component_reaches(sub, level, ri, ci, top, bottom, left, right):
     ----------------------
     As :func:`component_reaches_flood`.
     """
-    code, _, _, sides = _contour_by_walk(sub, level, ri, ci, 0, 0, 0.0, 0.0)
+    return component_reaches_contour(sub, level, ri, ci, 0, 0, 0.0, 0.0, top, bottom, left, right)[0]
+
+
+@numba.njit(cache=True, nogil=True)
+def component_reaches_contour(sub, level, ri, ci, row0, col0, bp_u, bp_v, top, bottom, left, right):
+    """:func:`component_reaches`' answer and, from the same walk, :func:`component_contour`'s
+    result: the pipeline asks whether an ROI's lowest isophote is cut by it and, where it is not,
+    extracts that isophote, which is the contour the walk has just traced.
+
+    Parameters
+    ----------
+    sub, level, ri, ci, row0, col0, bp_u, bp_v
+        As :func:`component_contour_flood`.
+    top, bottom, left, right : bool
+        The sides asked about, as :func:`component_reaches_flood`.
+
+    Returns
+    -------
+    reached : int
+        :func:`component_reaches`' answer (-1, 0 or 1).
+    code, points, inside, sides
+        :func:`component_contour`'s result, bit for bit, where the walk answered (codes
+        :data:`NOT_ABOVE`, :data:`CLOSED`, :data:`OPEN`); code :data:`DECLINED` where it did not
+        (then ``component_contour`` itself decides, by the flood fill).
+    """
+    code, pts, inside, sides = _contour_by_walk(sub, level, ri, ci, row0, col0, bp_u, bp_v)
     if code == NOT_ABOVE:
-        return -1
+        return -1, code, pts, inside, sides
     if code == DECLINED:
-        return component_reaches_flood(sub, level, ri, ci, top, bottom, left, right)
+        return component_reaches_flood(sub, level, ri, ci, top, bottom, left, right), code, pts, inside, sides
     reached = (top and sides[0]) or (bottom and sides[1]) or (left and sides[2]) or (right and sides[3])
-    return 1 if reached else 0
+    return (1 if reached else 0), code, pts, inside, sides
 
 
 @numba.njit(cache=True, nogil=True)

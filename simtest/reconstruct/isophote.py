@@ -186,14 +186,21 @@ def extract_isophote(
     return _extract(_region(values, bp_uv, origin_rc, image_shape), level, allow_open, min_points)
 
 
-def _extract(region: _Region, level: float, allow_open: bool, min_points: int) -> Isophote | Failure:
-    """:func:`extract_isophote` in a checked region (one per ROI, whatever the levels asked)."""
+def _extract(region: _Region, level: float, allow_open: bool, min_points: int,
+             walked: tuple | None = None) -> Isophote | Failure:
+    """:func:`extract_isophote` in a checked region (one per ROI, whatever the levels asked).
+
+    ``walked`` is :func:`simtest.reconstruct._kernels.component_contour`'s result at this level,
+    where :func:`_cut_and_contour` has just traced it (not traced again)."""
     sub, roi, image_shape, bp_uv, ri, ci, near_bp = region
     if not near_bp > level:
         return Failure("bp_below_isovalue", f"max near BP {near_bp:.6g} <= level {level:.6g}")
 
-    code, pts, inside, sides = _kernels.component_contour(
-        sub, float(level), ri, ci, roi.row0, roi.col0, float(bp_uv[0]), float(bp_uv[1]))
+    if walked is None:
+        code, pts, inside, sides = _kernels.component_contour(
+            sub, float(level), ri, ci, roi.row0, roi.col0, float(bp_uv[0]), float(bp_uv[1]))
+    else:
+        code, pts, inside, sides = walked
     if code == _kernels.CLOSED:
         closed_hits, pieces = ([pts] if inside else []), []
     elif code == _kernels.OPEN:
@@ -296,12 +303,20 @@ def isophote_cut_by_roi(values: np.ndarray, level: float, bp_uv, *, origin_rc: t
 
 def _cut_by_roi(region: _Region, level: float) -> bool | None:
     """:func:`isophote_cut_by_roi` in a checked region."""
+    return _cut_and_contour(region, level)[0]
+
+
+def _cut_and_contour(region: _Region, level: float) -> tuple[bool | None, tuple | None]:
+    """:func:`isophote_cut_by_roi`'s answer in a checked region, and the contour its boundary
+    walk traced: ``component_contour``'s result at that level, for :func:`_extract` (the same
+    walk, not made twice where the ROI is not grown), or None where the walk did not trace it."""
     sub, roi, image_shape, bp_uv, ri, ci, near_bp = region
     if not near_bp > level:
-        return False
+        return False, None
     inner = [not b for b in roi.touches_image_border(image_shape)]
-    got = _kernels.component_reaches(sub, float(level), ri, ci, *inner)
-    return None if got < 0 else bool(got)
+    got, *walked = _kernels.component_reaches_contour(
+        sub, float(level), ri, ci, roi.row0, roi.col0, float(bp_uv[0]), float(bp_uv[1]), *inner)
+    return (None if got < 0 else bool(got)), (None if walked[0] == _kernels.DECLINED else tuple(walked))
 
 
 def _contours_numpy(sub, level, roi, ri, ci, bp_uv):

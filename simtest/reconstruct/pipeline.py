@@ -87,7 +87,7 @@ from simtest.reconstruct.detect import (
 )
 from simtest.reconstruct.estimators import estimate_from_conics, joint_cone_axes
 from simtest.reconstruct.failures import OK, Failure
-from simtest.reconstruct.isophote import MIN_CONTOUR_POINTS, _cut_by_roi, _extract, _region
+from simtest.reconstruct.isophote import MIN_CONTOUR_POINTS, _cut_and_contour, _extract, _region
 from simtest.reconstruct.recommend import recommend
 from simtest.reconstruct.settings import AUTO_LOCAL_BACKGROUND_REL, Normalisation, ReconSettings
 
@@ -588,10 +588,11 @@ class _Pending:
     iso: object  # simtest.reconstruct.isophote.Isophote
 
 
-def _one_isophote(frame: _Frame, region, levels: _Levels, t):
+def _one_isophote(frame: _Frame, region, levels: _Levels, t, walked=None):
     """Extract the isophote at ``t`` in an ROI's checked region (``isophote._region``):
-    ``(IsophoteEstimate of a failure, or _Pending, Isophote or None)``."""
-    iso = _extract(region, levels.level(t), True, 0)
+    ``(IsophoteEstimate of a failure, or _Pending, Isophote or None)``. ``walked``: the contour
+    the growth question traced at that level (``isophote._cut_and_contour``), or None."""
+    iso = _extract(region, levels.level(t), True, 0, walked)
     if not iso:
         return IsophoteEstimate(t, iso.reason, iso.detail), None
     if iso.cut and not frame.settings.allow_open:
@@ -646,18 +647,21 @@ def _estimate_one(frame: _Frame, bp_uv, roi: Roi, *, saturated: bool, grow: bool
         i_bp = region.near_bp  # the largest of the BP's 3 x 3 pixels
         levels = _Levels.of(frame, vals, i_bp)
         i0 = order[0]
-        res = None
+        res = walked = None
         if grow and growths < ROI_MAX_GROWTHS:
             new = Roi.around(bp_uv, ROI_GROWTH_FACTOR * max(roi.shape) / 2.0, frame.img.shape)
             # an isophote cut by the ROI is discarded for the grown ROI's: ask only whether it is
-            cut = new != roi and _cut_by_roi(region, levels.level(isovalues[i0]))
+            # (the walk that answers traces the isophote: kept for the extraction when it is not)
+            cut = False
+            if new != roi:
+                cut, walked = _cut_and_contour(region, levels.level(isovalues[i0]))
             if cut is None:  # only the extraction can tell
-                res, iso = _one_isophote(frame, region, levels, isovalues[i0])
+                res, iso = _one_isophote(frame, region, levels, isovalues[i0], walked)
                 cut = iso is not None and iso.cut_by_roi
             if cut:
                 roi, growths = new, growths + 1
                 continue
-        results[i0] = _one_isophote(frame, region, levels, isovalues[i0])[0] if res is None else res
+        results[i0] = _one_isophote(frame, region, levels, isovalues[i0], walked)[0] if res is None else res
         break
     for i in order[1:]:
         results[i], _ = _one_isophote(frame, region, levels, isovalues[i])
