@@ -54,6 +54,7 @@ CLOSED = 1  #: one closed contour, as (u, v) in the full image
 OPEN = 2  #: only open contours, concatenated, as (row, col) in the region
 FALLBACK = 3  #: anything else: the caller takes the numpy path
 DECLINED = -1  #: the boundary walk of component_contour leaves the case to the flood fill
+CUT = 4  #: component_reaches_contour: the walk stopped at an open contour reaching a side asked about
 
 _EMPTY = np.empty((0, 2), dtype=np.float64)
 
@@ -633,8 +634,17 @@ def _follow(sub, level, er, ec, ev, seg, n, ri, ci, cap):
 
 
 @numba.njit(cache=True, nogil=True)
-def _contour_by_walk(sub, level, ri, ci, row0, col0, bp_u, bp_v):
-    """The walk of :func:`component_contour`, or :data:`DECLINED` (the flood fill decides)."""
+def _contour_by_walk(sub, level, ri, ci, row0, col0, bp_u, bp_v, top=False, bottom=False, left=False,
+                     right=False):
+    """The walk of :func:`component_contour`, or :data:`DECLINED` (the flood fill decides).
+
+    ``top`` ... ``right``: sides of ``sub`` at which the walk may stop: the first open contour it
+    follows, when the pixels above the level beside it reach one of them, ends the walk with
+    :data:`CUT` and no contour (the growth question's answer, :func:`component_reaches_contour`).
+    The pixels above the level beside a marching-squares contour of "low" connectivity are
+    4-connected along it, and its start is a pixel of the BP's component, so that component
+    reaches the side: the flood fill's answer, whatever the rest of the walk would do.
+    """
     H, W = sub.shape
     no_sides = (False, False, False, False)
     if not sub[ri, ci] > level:
@@ -671,6 +681,13 @@ def _contour_by_walk(sub, level, ri, ci, row0, col0, bp_u, bp_v):
         if n < 0:
             return DECLINED, _EMPTY, False, no_sides
         if not is_closed:
+            if top or bottom or left or right:
+                # the pixel above the level at the end edge, on the region's side, is the
+                # component's too
+                pr, pc = (er, ec) if sub[er, ec] > level else ((er, ec + 1) if ev == 0 else (er + 1, ec))
+                if ((top and min(y0, b0, pr) == 0) or (bottom and max(y1, b1, pr) + 1 == H)
+                        or (left and min(x0, b2, pc) == 0) or (right and max(x1, b3, pc) + 1 == W)):
+                    return CUT, _EMPTY, False, no_sides
             found = True
             break
         # does it enclose the BP's pixel centre? An odd number of crossings of row ri right of
@@ -808,13 +825,18 @@ def component_reaches_contour(sub, level, ri, ci, row0, col0, bp_u, bp_v, top, b
     reached : int
         :func:`component_reaches`' answer (-1, 0 or 1).
     code, points, inside, sides
-        :func:`component_contour`'s result, bit for bit, where the walk answered (codes
-        :data:`NOT_ABOVE`, :data:`CLOSED`, :data:`OPEN`); code :data:`DECLINED` where it did not
-        (then ``component_contour`` itself decides, by the flood fill).
+        :func:`component_contour`'s result, bit for bit, where the walk traced it (codes
+        :data:`NOT_ABOVE`, :data:`CLOSED`, :data:`OPEN`); code :data:`DECLINED` where it declined
+        (then ``component_contour`` itself decides, by the flood fill), :data:`CUT` where it
+        stopped at the first open contour reaching a side asked about (``reached`` is 1: the
+        ROI is grown, its contour is not needed).
     """
-    code, pts, inside, sides = _contour_by_walk(sub, level, ri, ci, row0, col0, bp_u, bp_v)
+    code, pts, inside, sides = _contour_by_walk(sub, level, ri, ci, row0, col0, bp_u, bp_v,
+                                                top, bottom, left, right)
     if code == NOT_ABOVE:
         return -1, code, pts, inside, sides
+    if code == CUT:
+        return 1, code, pts, inside, sides
     if code == DECLINED:
         return component_reaches_flood(sub, level, ri, ci, top, bottom, left, right), code, pts, inside, sides
     reached = (top and sides[0]) or (bottom and sides[1]) or (left and sides[2]) or (right and sides[3])

@@ -316,7 +316,8 @@ def _cut_and_contour(region: _Region, level: float) -> tuple[bool | None, tuple 
     inner = [not b for b in roi.touches_image_border(image_shape)]
     got, *walked = _kernels.component_reaches_contour(
         sub, float(level), ri, ci, roi.row0, roi.col0, float(bp_uv[0]), float(bp_uv[1]), *inner)
-    return (None if got < 0 else bool(got)), (None if walked[0] == _kernels.DECLINED else tuple(walked))
+    traced = walked[0] in (_kernels.NOT_ABOVE, _kernels.CLOSED, _kernels.OPEN)
+    return (None if got < 0 else bool(got)), (tuple(walked) if traced else None)
 
 
 def _contours_numpy(sub, level, roi, ri, ci, bp_uv):
