@@ -328,7 +328,6 @@ def test_the_extraction_from_the_growth_walk_is_the_extraction(seed):
     assert _same(_extract(region, level, True, 0, walked), _extract(region, level, True, 0))
 
 
-
 def _enclosed_numpy(poly, points, skip):
     """The ``merged`` count as the pipeline computed it in numpy: the other points in the
     polygon's bounding box, tested by polygon_contains."""

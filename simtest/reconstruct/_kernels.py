@@ -538,6 +538,16 @@ def _edge_between(r1, c1, r2, c2):
 
 
 @numba.njit(cache=True, nogil=True, inline="always")
+def _edge_pixels(sub, level, er, ec, ev):
+    """The two pixels of edge (er, ec, vertical ev), the one above the level first:
+    ``(pr, pc, qr, qc)``."""
+    qr, qc = (er, ec + 1) if ev == 0 else (er + 1, ec)
+    if sub[er, ec] > level:
+        return er, ec, qr, qc
+    return qr, qc, er, ec
+
+
+@numba.njit(cache=True, nogil=True, inline="always")
 def _edge_point(sub, level, er, ec, ev, r0, c0, out, i):
     """The marching-squares point (row, col) on edge (er, ec, ev) of ``sub``, relative to the box
     whose corner is (r0, c0), into ``out[i]``: ``(level - a) / (b - a)`` along the edge, ``a``
@@ -684,7 +694,7 @@ def _contour_by_walk(sub, level, ri, ci, row0, col0, bp_u, bp_v, top=False, bott
             if top or bottom or left or right:
                 # the pixel above the level at the end edge, on the region's side, is the
                 # component's too
-                pr, pc = (er, ec) if sub[er, ec] > level else ((er, ec + 1) if ev == 0 else (er + 1, ec))
+                pr, pc, _, _ = _edge_pixels(sub, level, er, ec, ev)
                 if ((top and min(y0, b0, pr) == 0) or (bottom and max(y1, b1, pr) + 1 == H)
                         or (left and min(x0, b2, pc) == 0) or (right and max(x1, b3, pc) + 1 == W)):
                     return CUT, _EMPTY, False, no_sides
@@ -739,14 +749,7 @@ def _contour_by_walk(sub, level, ri, ci, row0, col0, bp_u, bp_v, top=False, bott
             ends[n_chains, 0], ends[n_chains, 1], ends[n_chains, 2] = er, ec, ev
             n_chains += 1
             # the chain ends on the region's side: follow the component's pixels along the ring
-            if ev == 0:
-                qr, qc = er, ec + 1
-            else:
-                qr, qc = er + 1, ec
-            if sub[er, ec] > level:
-                pr, pc = er, ec
-            else:
-                pr, pc, qr, qc = qr, qc, er, ec
+            pr, pc, qr, qc = _edge_pixels(sub, level, er, ec, ev)
             if not (pr == 0 or pr == H - 1 or pc == 0 or pc == W - 1) or not (
                     qr == 0 or qr == H - 1 or qc == 0 or qc == W - 1):
                 return DECLINED, _EMPTY, False, no_sides
