@@ -45,7 +45,8 @@ import numpy as np
 
 from simtest.geometry.angles import angle_between_deg
 
-__all__ = ["ESTIMATORS", "ORACLE_FITS", "ORACLE_INPUTS", "STATUS_FREE", "score", "unit_or_none"]
+__all__ = ["ESTIMATORS", "LIGHT_AWARE_FITS", "ORACLE_FITS", "ORACLE_INPUTS", "STATUS_FREE", "score",
+           "unit_or_none"]
 
 
 def unit_or_none(v) -> np.ndarray | None:
@@ -106,6 +107,10 @@ def _recommended(est, truth) -> np.ndarray | None:
     return None if rec is None else unit_or_none(rec.normal)
 
 
+#: The light-aware fits of :func:`simtest.reconstruct.recommend.light_aware_estimates`, each read
+#: from a highlight's ``light_aware`` entry of its name.
+LIGHT_AWARE_FITS = ("isocurve_fit", "photometric_fit", "quadric_fit", "cubic_patch_fit")
+
 #: name -> f(estimate, truth) -> unit normal or None.
 ESTIMATORS: dict[str, Callable] = {
     "paper_oracle": _paper_oracle,
@@ -113,10 +118,7 @@ ESTIMATORS: dict[str, Callable] = {
     "cone_axis": _attr("cone_axis"),
     "joint_cone_axis": _attr("joint_cone_axis"),
     "bp_ray": _attr("bp_ray"),
-    "isocurve_fit": _light_aware("isocurve_fit"),
-    "photometric_fit": _light_aware("photometric_fit"),
-    "quadric_fit": _light_aware("quadric_fit"),
-    "cubic_patch_fit": _light_aware("cubic_patch_fit"),
+    **{name: _light_aware(name) for name in LIGHT_AWARE_FITS},
     "recommended": _recommended,
 }
 #: The photometric fit on images a real frame does not give (oracle inputs, as paper_oracle is an
@@ -136,7 +138,7 @@ def _cause(est, name: str) -> str:
     status = getattr(est, "status", None)
     if status is not None and status != "ok":
         return str(status)
-    if name in ("isocurve_fit", "photometric_fit", "quadric_fit", "cubic_patch_fit") + ORACLE_FITS:
+    if name in LIGHT_AWARE_FITS + ORACLE_FITS:
         r = (getattr(est, "light_aware", None) or {}).get(name)
         return f"{name}_not_run" if r is None else str(r.status)
     if name == "joint_cone_axis":

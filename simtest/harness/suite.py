@@ -64,7 +64,7 @@ import numpy as np
 from simtest._checks import keyed_error
 from simtest._io import jsonable
 from simtest.harness.claims import PAPER_CHECKS
-from simtest.harness.estimators import ORACLE_FITS
+from simtest.harness.estimators import LIGHT_AWARE_FITS, ORACLE_FITS
 from simtest.reconstruct.settings import ReconSettings
 from simtest.resources import bundled
 from simtest.scene import SceneError, bundled_scene_path, load_scene, with_overrides
@@ -97,8 +97,7 @@ PROTOCOLS = ("paper", "rendered")
 ESTIMATOR_NAMES = ("paper_oracle", "paper_selected", "cone_axis", "joint_cone_axis", "bp_ray")
 #: Estimators that use the scope's light rig (:mod:`simtest.reconstruct.recommend`); a suite lists
 #: them explicitly (``recommended`` is the normal that ``estimates.json`` recommends).
-LIGHT_AWARE_NAMES = ("isocurve_fit", "photometric_fit", "quadric_fit", "cubic_patch_fit",
-                     "recommended") + ORACLE_FITS
+LIGHT_AWARE_NAMES = LIGHT_AWARE_FITS + ("recommended",) + ORACLE_FITS
 
 #: Reconstruction settings, valid in both protocols, with their defaults.
 RECON_KEYS: dict[str, Any] = {
