@@ -8,7 +8,8 @@ function that has not run yet; this one can.
 Rules (the README's Architecture section says why):
 
 - ``simtest.geometry`` and ``simtest.specular`` import nothing of simtest beyond each other and the
-  base modules (``_io``, ``_checks``, ``_lazy``, ``_version``, ``tolerances``, ``constants``);
+  base modules (``_io``, ``_checks``, ``_lazy``, ``_records``, ``_version``, ``tolerances``,
+  ``constants``);
 - ``simtest.simulate`` (closed-form images and ground truths) imports only geometry, specular,
   itself and the base modules: the renderer imports its truths, never the reverse;
 - ``simtest.reconstruct`` imports no ``simtest.render``, ``simtest.scene``, ``simtest.harness``,
@@ -27,8 +28,8 @@ import pytest
 
 PACKAGE = Path(__file__).resolve().parents[1] / "simtest"
 
-BASE = {"simtest._io", "simtest._checks", "simtest._lazy", "simtest._version", "simtest.tolerances",
-        "simtest.constants"}
+BASE = {"simtest._io", "simtest._checks", "simtest._lazy", "simtest._records", "simtest._version",
+        "simtest.tolerances", "simtest.constants"}
 RULES = {
     # room -> (allowed simtest prefixes or None for "anything of simtest", forbidden prefixes)
     "simtest.geometry": ({"simtest.geometry", "simtest.specular", *BASE}, {"mitsuba", "drjit"}),

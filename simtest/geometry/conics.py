@@ -35,6 +35,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from simtest._records import fast_init
 from simtest.geometry.angles import cross3
 from simtest.geometry.camera import validate_intrinsics
 from simtest.tolerances import TOL
@@ -57,6 +58,7 @@ __all__ = [
 ]
 
 
+@fast_init
 @dataclass(frozen=True)
 class Ellipse:
     """Geometric parameters of an image ellipse.

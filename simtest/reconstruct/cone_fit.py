@@ -33,6 +33,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from simtest._records import fast_init
 from simtest.geometry.cameras import CameraModel, PinholeCamera
 from simtest.reconstruct.failures import Failure
 from simtest.reconstruct.fit import EllipseFit, fit_stacked, point_sets
@@ -78,6 +79,7 @@ class FitFrame:
         return r / np.linalg.norm(r, axis=1, keepdims=True)
 
 
+@fast_init
 @dataclass(frozen=True)
 class ConeFit:
     """A cone fitted on rays (truthy).

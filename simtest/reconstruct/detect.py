@@ -33,6 +33,7 @@ from dataclasses import dataclass, field
 import cv2
 import numpy as np
 
+from simtest._records import fast_init
 from simtest.constants import LUMA_BT601
 from simtest.reconstruct import _detect_kernels as _dk
 from simtest.reconstruct import _kernels
@@ -169,6 +170,7 @@ def mask_labels(mask: np.ndarray) -> tuple[int, np.ndarray, np.ndarray]:
 _SUPPORTED = (np.uint8, np.uint16, np.float16, np.float32, np.float64)
 
 
+@fast_init
 @dataclass(frozen=True)
 class Candidate:
     """One candidate highlight.

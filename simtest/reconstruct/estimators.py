@@ -48,12 +48,14 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from simtest._records import fast_init
 from simtest.geometry.angles import unit
 from simtest.geometry.camera import bp_ray_normal
 from simtest.geometry.conics import cone_poses
 from simtest.reconstruct.failures import Failure
 
 
+@fast_init
 @dataclass(frozen=True)
 class ConeEstimate:
     """Normals from one normalised conic C' (all (3,) unit, camera frame, facing the camera).

@@ -13,6 +13,8 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
+from simtest._records import fast_init
+
 OK = "ok"
 
 #: Every failure cause, with what it means. The keys are the status strings of the pipeline.
@@ -37,6 +39,7 @@ REASONS: dict[str, str] = {
 }
 
 
+@fast_init
 @dataclass(frozen=True)
 class Failure:
     """A failed step: falsy, with a cause from :data:`REASONS` and a human-readable detail.

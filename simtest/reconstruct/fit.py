@@ -35,6 +35,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from simtest._records import fast_init
 from simtest.geometry.conics import Ellipse, _ellipses_of, conic_kind
 from simtest.reconstruct import _fit_kernels
 from simtest.reconstruct._fit_kernels import C1_INV as _C1_INV
@@ -55,6 +56,7 @@ _S3_RCOND = 1e-10
 MAX_AXIS_TO_SPREAD = 10.0
 
 
+@fast_init
 @dataclass(frozen=True)
 class EllipseFit:
     """A successful ellipse fit (truthy).

@@ -30,6 +30,7 @@ import cv2
 import numpy as np
 from skimage.measure import find_contours
 
+from simtest._records import fast_init
 from simtest.reconstruct import _kernels
 from simtest.reconstruct._pixels import Roi, rc_to_uv, uv_to_rc
 from simtest.reconstruct.detect import connected_components
@@ -39,6 +40,7 @@ from simtest.reconstruct.failures import Failure
 MIN_CONTOUR_POINTS = 6
 
 
+@fast_init
 @dataclass(frozen=True)
 class Isophote:
     """An isophote contour around a BP.

@@ -71,6 +71,7 @@ from dataclasses import dataclass, replace
 import cv2
 import numpy as np
 
+from simtest._records import fast_init
 from simtest.geometry.camera import validate_intrinsics
 from simtest.geometry.cameras import CameraModel, PinholeCamera
 from simtest.reconstruct import _kernels
@@ -118,6 +119,7 @@ ROI_GROWTH_FACTOR = 2.0
 ROI_MAX_GROWTHS = 4
 
 
+@fast_init
 @dataclass(frozen=True)
 class IsophoteEstimate:
     """The result at one isovalue.
@@ -179,6 +181,7 @@ class IsophoteEstimate:
         return self.status == OK
 
 
+@fast_init
 @dataclass(frozen=True)
 class SpecularityEstimate:
     """Everything estimated for one highlight.
@@ -554,6 +557,7 @@ def _border_median(vals: np.ndarray) -> float:
     return float(_kernels.border_median(vals))  # np.median of the ring's pixels (tested)
 
 
+@fast_init
 @dataclass(frozen=True)
 class _Levels:
     """Contour level of isovalue t in one ROI: ``offset + t * scale`` (image units)."""
@@ -580,6 +584,7 @@ class _Levels:
         return self.offset + t * self.scale
 
 
+@fast_init
 @dataclass(frozen=True)
 class _Pending:
     """An isophote extracted and waiting for its cone fit (done for a whole frame at once)."""
