@@ -575,12 +575,16 @@ def _scope_border(gray: np.ndarray, level: float) -> np.ndarray | None:
     """The endoscope's black border: pixels below ``level`` joined to at least two image corners,
     when they cover 1 % to 60 % of the image (a dark scene, such as a render on black, is not a
     scope border); closed (the text drawn on it) and dilated by about 5 px (the edge of the field
-    of view). Found on the image reduced 4 times (area averaging): the border is large and its
-    edge needs no finer place. None if there is none."""
+    of view). Found on the image reduced 4 times (the mean of each 4 x 4 block; the last rows and
+    columns that fill no block are left out of the reduction, and the border mask is brought back
+    over the whole image): the border is large and its edge needs no finer place. None if there
+    is none."""
     h, w = gray.shape
     f = 4 if min(h, w) >= 64 else 1
-    small = cv2.resize(gray.astype(np.float32, copy=False), (max(1, w // f), max(1, h // f)),
-                       interpolation=cv2.INTER_AREA) if f > 1 else gray
+    # whole f x f blocks (the last h mod f rows and w mod f columns left out): OpenCV's integer
+    # area reduction, a third of the time of the fractional one over the whole image
+    small = cv2.resize(gray[: h // f * f, : w // f * f].astype(np.float32, copy=False),
+                       (max(1, w // f), max(1, h // f)), interpolation=cv2.INTER_AREA) if f > 1 else gray
     dark = (small < level).astype(np.uint8)
     n, lab, stats, _ = connected_components_with_stats(dark)
     if n <= 1:
