@@ -24,6 +24,7 @@ from simtest.reconstruct import detect, pipeline
 from simtest.reconstruct.detect import (
     Candidate,
     Detection,
+    connected_components_boxes,
     connected_components_with_stats,
     detect_specularities,
     ellipticity,
@@ -431,6 +432,22 @@ def test_mask_labels_are_those_of_one_pass_over_the_mask(seed, fill, blobs):
     got_n, got_lab, got_stats = mask_labels(mask)
     assert got_n == n - 1 and got_lab.dtype == np.int32 and np.array_equal(got_lab, lab)
     assert np.array_equal(got_stats, stats[1:]) and got_stats.shape == (n - 1, 5)
+
+
+@settings(max_examples=60, deadline=None)
+@given(st.integers(0, 2**32 - 1), st.floats(0.0, 1.0))
+def test_the_compiled_boxes_are_opencvs_stats(seed, fill):
+    # labels by OpenCV without its statistics, the boxes and areas by label_stats: OpenCV's
+    # labels and stats rows of every component (full and empty masks included)
+    rng = np.random.default_rng(seed)
+    h, w = (int(v) for v in rng.integers(1, 80, 2))
+    mask = (rng.random((h, w)) < fill).astype(np.uint8)
+    n, lab, stats, _ = connected_components_with_stats(mask)
+    got_n, got_lab, got_stats = connected_components_boxes(mask)
+    assert got_n == n and np.array_equal(got_lab, lab)
+    assert got_stats.dtype == np.int32 and np.array_equal(got_stats[1:], stats[1:])
+    if np.any(mask == 0):  # the background's row too, where it has pixels
+        assert np.array_equal(got_stats[0], stats[0])
 
 
 # ------------------------------------------------------------------------------------------------

@@ -12,6 +12,7 @@ candidates of a few pixels each: there the fixed cost of each numpy call was the
 Kernels
 -------
 - :func:`paste_labels`: a band's component labels into the frame's label image.
+- :func:`label_stats`: the boxes and areas of a label image's components.
 - :func:`top_hat`, :func:`peak_mask`: the whole-frame arithmetic of ``local_peak_mask``, one pass
   each instead of one numpy call per operation.
 - :func:`examine_candidates`: BP, peak, status and ROI of every candidate.
@@ -64,6 +65,77 @@ def paste_labels(dst, lab, offset):
             v = lab[r, c]
             if v != 0:
                 dst[r, c] = v + offset
+
+
+@numba.njit(cache=True, nogil=True)
+def label_stats(labels, n):
+    """The bounding box and pixel count of each label of a label image: the ``stats`` of
+    ``cv2.connectedComponentsWithStats``, from its labels alone.
+
+    Parameters
+    ----------
+    labels : ndarray of shape (h, w), int32
+        Labels 0 (background) to ``n - 1``.
+    n : int
+        Number of labels, the background's included.
+
+    Returns
+    -------
+    ndarray of shape (n, 5), int32
+        Per label ``x, y, width, height, area`` (columns ``x : x + width``, rows ``y : y +
+        height``, px), OpenCV's ``CC_STAT_*`` order. A label without pixels (the background of a
+        full mask) has area 0 and a width and height below 1 (OpenCV's row holds other
+        placeholders).
+
+    Notes
+    -----
+    One pass over the components' pixels; the background's box is read from the first and last
+    rows and columns that hold a background pixel (a few rows and columns of a sparse mask).
+    """
+    h, w = labels.shape
+    x0 = np.full(n, w, np.int64)
+    y0 = np.full(n, h, np.int64)
+    x1 = np.full(n, -1, np.int64)
+    y1 = np.full(n, -1, np.int64)
+    area = np.zeros(n, np.int64)
+    for r in range(h):
+        for c in range(w):
+            k = labels[r, c]
+            if k == 0:
+                continue
+            area[k] += 1
+            if c < x0[k]:
+                x0[k] = c
+            if c > x1[k]:
+                x1[k] = c
+            if r < y0[k]:
+                y0[k] = r
+            y1[k] = r  # rows come in order: the last seen is the largest
+    area[0] = h * w - area[1:].sum()
+    if area[0] > 0:
+        y0[0] = _first_line_with_zero(labels, 0, h, 1, True)
+        y1[0] = _first_line_with_zero(labels, h - 1, -1, -1, True)
+        x0[0] = _first_line_with_zero(labels, 0, w, 1, False)
+        x1[0] = _first_line_with_zero(labels, w - 1, -1, -1, False)
+    out = np.empty((n, 5), np.int32)
+    for k in range(n):
+        out[k, 0] = x0[k]
+        out[k, 1] = y0[k]
+        out[k, 2] = x1[k] - x0[k] + 1
+        out[k, 3] = y1[k] - y0[k] + 1
+        out[k, 4] = area[k]
+    return out
+
+
+@numba.njit(cache=True, nogil=True, inline="always")
+def _first_line_with_zero(labels, start, stop, step, rows):
+    """The first row (``rows``) or column from ``start`` toward ``stop`` that holds a 0."""
+    h, w = labels.shape
+    for i in range(start, stop, step):
+        for j in range(w if rows else h):
+            if (labels[i, j] if rows else labels[j, i]) == 0:
+                return i
+    return -1
 
 
 @numba.njit(cache=True, nogil=True)
