@@ -401,7 +401,7 @@ def test_the_luma_of_a_roi_sliced_from_the_frame_is_the_luma_computed_for_the_ro
 @settings(max_examples=30, deadline=None)
 @given(st.integers(0, 2**32 - 1), st.sampled_from([0.6, 1.0, 1.7, 2.5]), st.booleans())
 def test_an_roi_smoothed_from_the_smoothed_frame_is_the_roi_smoothed_for_itself(seed, sigma, rgb):
-    # the premise of the frame's smoothed luma (pipeline._smoothed_from_frame): away from the ROI's
+    # the premise of the frame's smoothed luma (pipeline._patched_from_frame): away from the ROI's
     # inner sides the frame's smoothing is the ROI's, and the bands along them are smoothed again
     # from strips, to the last bit, at any offset and size (sides on the image border included)
     rng = np.random.default_rng(seed)
@@ -411,6 +411,7 @@ def test_an_roi_smoothed_from_the_smoothed_frame_is_the_roi_smoothed_for_itself(
     frame = pipeline._Frame.make(img, intrinsics(100.0, w), None,
                                  ReconSettings(smooth_sigma_px=sigma)).for_many_highlights()
     assert not frame.smooth_frame.flags.writeable
+    pristine = frame.smooth_frame.copy()
     taken = 0
     for _ in range(30):
         r0 = int(rng.integers(0, h - 40)) if rng.random() < 0.8 else 0
@@ -419,12 +420,43 @@ def test_an_roi_smoothed_from_the_smoothed_frame_is_the_roi_smoothed_for_itself(
         c1 = int(rng.integers(c0 + 220, w + 1)) if rng.random() < 0.8 else w
         roi = Roi(r0, r1, c0, c1)
         lum = luma(img[roi.slices])
-        out = pipeline._smoothed_from_frame(frame.smooth_frame, frame.luma(roi), roi, sigma)
-        if out is None:  # too narrow for the strips: smoothed for itself by the caller
+        got = pipeline._patched_from_frame(frame.smooth_frame_rw, frame.luma(roi), roi, sigma)
+        if got is None:  # too narrow for the strips: smoothed for itself by the caller
             continue
+        out, saved = got
         taken += 1
+        assert not out.flags.writeable
         assert np.array_equal(out, pipeline._smooth(lum, sigma)), (roi, sigma)
+        # the bands go back: the frame is the frame again, to the bit
+        pipeline._put_back(saved)
+        assert np.array_equal(frame.smooth_frame, pristine), roi
     assert taken >= 10
+
+
+def test_a_large_rois_bands_leave_the_smoothed_frame_as_it_was():
+    # the pipeline writes a large ROI's bands into the frame's smoothed luma for the time of the
+    # ROI's extraction (pipeline._patched_from_frame) and puts the frame's values back, after the
+    # extraction and when it raises
+    from unittest import mock
+
+    v, u = np.mgrid[0:600, 0:700].astype(float)
+    img = 40.0 + 180.0 * np.exp(-((u - 350.3) ** 2 + (v - 290.6) ** 2) / (2 * 60.0**2))
+    frame = pipeline._Frame.make(img, intrinsics(500.0, 700), None,
+                                 ReconSettings(isovalues=(0.5,), smooth_sigma_px=1.5)).for_many_highlights()
+    pristine = frame.smooth_frame.copy()
+    # the isophote at t = 0.5 (radius 71 px) is cut by a 131 px ROI, which grows once: two ROIs
+    # taken from the frame
+    bp = np.array([350.3, 290.6])
+    roi = Roi.around(bp, 65.0, img.shape)
+    assert roi.shape[0] * roi.shape[1] >= pipeline.SMOOTH_FRAME_MIN_ROI_PX
+    draft = pipeline._estimate_one(frame, bp, roi, saturated=False, grow=True)
+    assert draft.roi == Roi.around(bp, pipeline.ROI_GROWTH_FACTOR * max(roi.shape) / 2.0, img.shape)
+    assert draft.results[0].__class__.__name__ == "_Pending"
+    assert np.array_equal(frame.smooth_frame, pristine)
+    with mock.patch.object(pipeline._Levels, "of", side_effect=RuntimeError("stop")):
+        with pytest.raises(RuntimeError, match="stop"):
+            pipeline._estimate_one(frame, bp, roi, saturated=False, grow=True)
+    assert np.array_equal(frame.smooth_frame, pristine)
 
 
 def _lobe_grid(size, n, *, cols, start, step):

@@ -101,7 +101,7 @@ LUMA_FRAME_MIN_HIGHLIGHTS = 32
 _TINY = float(np.finfo(float).tiny)
 
 #: A frame prepared for many highlights (``_Frame.for_many_highlights``) smooths its luma once and
-#: takes an ROI of at least this many pixels from it (``_smoothed_from_frame``); a smaller ROI is
+#: takes an ROI of at least this many pixels from it (``_patched_from_frame``); a smaller ROI is
 #: smoothed for itself, which is cheaper there (the same bits either way).
 SMOOTH_FRAME_MIN_ROI_PX = 128 * 128
 #: Columns the strip re-smoothed at an ROI's right side starts on a multiple of, and more than
@@ -333,6 +333,9 @@ class _Frame:
     smooth_sigma_px: float
     luma_frame: np.ndarray | None = None
     smooth_frame: np.ndarray | None = None
+    #: The writable array behind ``smooth_frame``, into which a large ROI's bands are written
+    #: for the time of its extraction (``_patched_from_frame``), then put back.
+    smooth_frame_rw: np.ndarray | None = None
 
     @classmethod
     def make(cls, image, K, dist_coeffs, settings: ReconSettings, noise_roi: Roi | None = None) -> _Frame:
@@ -368,11 +371,12 @@ class _Frame:
         if full is None and self.img.ndim == 3:
             full = luma(self.img)
             full.setflags(write=False)
-        smooth = self.smooth_frame
+        smooth, smooth_rw = self.smooth_frame, self.smooth_frame_rw
         if smooth is None and self.smooth_sigma_px > 0:
-            smooth = _smooth(luma(self.img) if full is None else full, self.smooth_sigma_px)
+            smooth_rw = _smooth(luma(self.img) if full is None else full, self.smooth_sigma_px)
+            smooth = smooth_rw.view()
             smooth.setflags(write=False)
-        return replace(self, luma_frame=full, smooth_frame=smooth)
+        return replace(self, luma_frame=full, smooth_frame=smooth, smooth_frame_rw=smooth_rw)
 
     def luma(self, roi: Roi) -> np.ndarray:
         """Luma of the image in ``roi`` (h, w), float64: sliced from the frame's luma when it
@@ -489,22 +493,26 @@ def _smooth(vals: np.ndarray, sigma: float) -> np.ndarray:
     return cv2.GaussianBlur(vals, (0, 0), sigma, borderType=cv2.BORDER_REFLECT)
 
 
-def _roi_values(frame: _Frame, roi: Roi, smooth_sigma_px: float) -> np.ndarray:
-    """An ROI's intensities (h, w), float64: its luma, smoothed with the ROI's borders reflected
-    when ``smooth_sigma_px`` > 0 (from the frame's smoothed luma where it was computed, the same
-    bits: ``_smoothed_from_frame``)."""
+def _roi_values(frame: _Frame, roi: Roi, smooth_sigma_px: float) -> tuple[np.ndarray, list | None]:
+    """An ROI's intensities (h, w), float64 (read-only where they are a view): its luma, smoothed
+    with the ROI's borders reflected when ``smooth_sigma_px`` > 0 (for a large ROI of a frame
+    smoothed once, the frame's values with the ROI's bands written in: ``_patched_from_frame``,
+    the same bits), and what :func:`_put_back` needs to restore the frame afterwards (None when
+    nothing was written)."""
     vals = frame.luma(roi)
     if smooth_sigma_px <= 0:
-        return vals
-    if frame.smooth_frame is not None and vals.size >= SMOOTH_FRAME_MIN_ROI_PX:
-        out = _smoothed_from_frame(frame.smooth_frame, vals, roi, smooth_sigma_px)
-        if out is not None:
-            return out
-    return _smooth(vals, smooth_sigma_px)
+        return vals, None
+    if frame.smooth_frame_rw is not None and vals.size >= SMOOTH_FRAME_MIN_ROI_PX:
+        got = _patched_from_frame(frame.smooth_frame_rw, vals, roi, smooth_sigma_px)
+        if got is not None:
+            return got
+    return _smooth(vals, smooth_sigma_px), None
 
 
-def _smoothed_from_frame(smooth_frame: np.ndarray, vals: np.ndarray, roi: Roi, sigma: float) -> np.ndarray | None:
-    """``_smooth(vals, sigma)`` of an ROI, taken from the smoothed frame.
+def _patched_from_frame(smooth_frame: np.ndarray, vals: np.ndarray, roi: Roi,
+                        sigma: float) -> tuple[np.ndarray, list] | None:
+    """``_smooth(vals, sigma)`` of an ROI, as a view of the smoothed frame with the ROI's bands
+    written in, and the frame's values that were there (for :func:`_put_back`).
 
     A pixel farther than the kernel's radius from the ROI's sides has the same neighbourhood in
     the frame and in the ROI (a side on the image border reflects as the frame's does), and
@@ -513,10 +521,13 @@ def _smoothed_from_frame(smooth_frame: np.ndarray, vals: np.ndarray, roi: Roi, s
     bands along the ROI's top, bottom and left sides inside the image are smoothed again from
     strips twice the radius wide (a strip's own far side does not reach the band), and the
     ROI's last columns from a strip that starts on a multiple of the alignment (its blocks are
-    the ROI's) and is wider than the frame's scalar columns.
+    the ROI's) and is wider than the frame's scalar columns. Writing the bands into the frame
+    for the time of the ROI's extraction, instead of copying the ROI out of it, moves a fifth of
+    the bytes (the banner's large ROIs are 19 Mpx, ten times the frame).
 
     Returns None (smooth the ROI itself) for an ROI too narrow for the strips. The bits equal
-    those of smoothing the ROI: ``tests/test_pipeline.py`` checks random ROIs.
+    those of smoothing the ROI, and the frame is itself again after :func:`_put_back`:
+    ``tests/test_pipeline.py`` checks random ROIs.
     """
     r = int(np.ceil(4.0 * sigma)) + 1  # >= OpenCV's radius for float64: round(8 sigma + 1) | 1 taps
     h, w = vals.shape
@@ -524,15 +535,30 @@ def _smoothed_from_frame(smooth_frame: np.ndarray, vals: np.ndarray, roi: Roi, s
     c = (w - SMOOTH_STRIP_ALIGN - 2 * r) // SMOOTH_STRIP_ALIGN * SMOOTH_STRIP_ALIGN
     if h < 2 * r or c <= 2 * r:
         return None
-    out = smooth_frame[roi.slices].copy()
+    # (rows, columns) of the ROI and their values, in this order (a later band overwrites the
+    # corners of an earlier one)
+    bands = []
     if roi.row0 > 0:
-        out[:r] = _smooth(vals[: 2 * r], sigma)[:r]
+        bands.append((slice(0, r), slice(0, w), _smooth(vals[: 2 * r], sigma)[:r]))
     if roi.row1 < H:
-        out[h - r :] = _smooth(vals[h - 2 * r :], sigma)[r:]
+        bands.append((slice(h - r, h), slice(0, w), _smooth(vals[h - 2 * r :], sigma)[r:]))
     if roi.col0 > 0:
-        out[:, :r] = _smooth(vals[:, : max(2 * r, SMOOTH_STRIP_ALIGN)], sigma)[:, :r]
-    out[:, c + r :] = _smooth(vals[:, c:], sigma)[:, r:]
-    return out
+        bands.append((slice(0, h), slice(0, r), _smooth(vals[:, : max(2 * r, SMOOTH_STRIP_ALIGN)], sigma)[:, :r]))
+    bands.append((slice(0, h), slice(c + r, w), _smooth(vals[:, c:], sigma)[:, r:]))
+    view = smooth_frame[roi.slices]
+    saved = [(view, rows, cols, view[rows, cols].copy()) for rows, cols, _ in bands]  # before any write
+    for rows, cols, v in bands:
+        view[rows, cols] = v
+    out = view.view()
+    out.setflags(write=False)
+    return out, saved
+
+
+def _put_back(saved: list | None) -> None:
+    """Restore the smoothed frame's values that :func:`_patched_from_frame` overwrote (each
+    saved before any band was written, so the order does not matter)."""
+    for view, rows, cols, v in saved or ():
+        view[rows, cols] = v
 
 
 def _find_bp(img: np.ndarray, roi: Roi, saturation_level) -> tuple[np.ndarray, bool]:
@@ -646,30 +672,37 @@ def _estimate_one(frame: _Frame, bp_uv, roi: Roi, *, saturated: bool, grow: bool
     order = sorted(range(len(isovalues)), key=lambda i: isovalues[i])
     results: list = [None] * len(isovalues)
     growths = 0
-    while True:
-        vals = _roi_values(frame, roi, sigma)
-        region = _region(vals, bp_uv, (roi.row0, roi.col0), frame.img.shape)
-        i_bp = region.near_bp  # the largest of the BP's 3 x 3 pixels
-        levels = _Levels.of(frame, vals, i_bp)
-        i0 = order[0]
-        res = walked = None
-        if grow and growths < ROI_MAX_GROWTHS:
-            new = Roi.around(bp_uv, ROI_GROWTH_FACTOR * max(roi.shape) / 2.0, frame.img.shape)
-            # an isophote cut by the ROI is discarded for the grown ROI's: ask only whether it is
-            # (the walk that answers traces the isophote: kept for the extraction when it is not)
-            cut = False
-            if new != roi:
-                cut, walked = _cut_and_contour(region, levels.level(isovalues[i0]))
-            if cut is None:  # only the extraction can tell
-                res, iso = _one_isophote(frame, region, levels, isovalues[i0], walked)
-                cut = iso is not None and iso.cut_by_roi
-            if cut:
-                roi, growths = new, growths + 1
-                continue
-        results[i0] = _one_isophote(frame, region, levels, isovalues[i0], walked)[0] if res is None else res
-        break
-    for i in order[1:]:
-        results[i], _ = _one_isophote(frame, region, levels, isovalues[i])
+    saved = None  # the frame's values under the current ROI's bands (_roi_values), put back after
+    try:
+        while True:
+            _put_back(saved)
+            saved = None
+            vals, saved = _roi_values(frame, roi, sigma)
+            region = _region(vals, bp_uv, (roi.row0, roi.col0), frame.img.shape)
+            i_bp = region.near_bp  # the largest of the BP's 3 x 3 pixels
+            levels = _Levels.of(frame, vals, i_bp)
+            i0 = order[0]
+            res = walked = None
+            if grow and growths < ROI_MAX_GROWTHS:
+                new = Roi.around(bp_uv, ROI_GROWTH_FACTOR * max(roi.shape) / 2.0, frame.img.shape)
+                # an isophote cut by the ROI is discarded for the grown ROI's: ask only whether it
+                # is (the walk that answers traces the isophote: kept for the extraction when it
+                # is not)
+                cut = False
+                if new != roi:
+                    cut, walked = _cut_and_contour(region, levels.level(isovalues[i0]))
+                if cut is None:  # only the extraction can tell
+                    res, iso = _one_isophote(frame, region, levels, isovalues[i0], walked)
+                    cut = iso is not None and iso.cut_by_roi
+                if cut:
+                    roi, growths = new, growths + 1
+                    continue
+            results[i0] = _one_isophote(frame, region, levels, isovalues[i0], walked)[0] if res is None else res
+            break
+        for i in order[1:]:
+            results[i], _ = _one_isophote(frame, region, levels, isovalues[i])
+    finally:
+        _put_back(saved)
     return _Draft(bp_uv, i_bp, saturated, roi, bp_ray, fitf, results, other_bps, own_bp)
 
 
