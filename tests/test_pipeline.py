@@ -440,14 +440,14 @@ def test_a_large_rois_bands_leave_the_smoothed_frame_as_it_was():
     from unittest import mock
 
     v, u = np.mgrid[0:600, 0:700].astype(float)
-    img = 40.0 + 180.0 * np.exp(-((u - 350.3) ** 2 + (v - 290.6) ** 2) / (2 * 60.0**2))
+    img = 40.0 + 180.0 * np.exp(-((u - 350.3) ** 2 + (v - 290.6) ** 2) / (2 * 90.0**2))
     frame = pipeline._Frame.make(img, intrinsics(500.0, 700), None,
                                  ReconSettings(isovalues=(0.5,), smooth_sigma_px=1.5)).for_many_highlights()
     pristine = frame.smooth_frame.copy()
-    # the isophote at t = 0.5 (radius 71 px) is cut by a 131 px ROI, which grows once: two ROIs
+    # the isophote at t = 0.5 (radius 106 px) is cut by a 171 px ROI, which grows once: two ROIs
     # taken from the frame
     bp = np.array([350.3, 290.6])
-    roi = Roi.around(bp, 65.0, img.shape)
+    roi = Roi.around(bp, 85.0, img.shape)
     assert roi.shape[0] * roi.shape[1] >= pipeline.SMOOTH_FRAME_MIN_ROI_PX
     draft = pipeline._estimate_one(frame, bp, roi, saturated=False, grow=True)
     assert draft.roi == Roi.around(bp, pipeline.ROI_GROWTH_FACTOR * max(roi.shape) / 2.0, img.shape)

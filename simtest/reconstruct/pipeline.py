@@ -102,8 +102,10 @@ _TINY = float(np.finfo(float).tiny)
 
 #: A frame prepared for many highlights (``_Frame.for_many_highlights``) smooths its luma once and
 #: takes an ROI of at least this many pixels from it (``_patched_from_frame``); a smaller ROI is
-#: smoothed for itself, which is cheaper there (the same bits either way).
-SMOOTH_FRAME_MIN_ROI_PX = 128 * 128
+#: smoothed for itself, which is cheaper there (the same bits either way). On the Hyper-Kvasir
+#: banner (sigma 1.7 px) the two took the same time at about 160 x 160 px (medians of six ROIs:
+#: 186 against 182 us; at 128 px 114 against 142 us, at 224 px 355 against 249 us).
+SMOOTH_FRAME_MIN_ROI_PX = 160 * 160
 #: Columns the strip re-smoothed at an ROI's right side starts on a multiple of, and more than
 #: it covers: OpenCV smooths a float64 row in SIMD blocks from its first column and the last few
 #: columns in scalar code, and the two may round a sum differently (an FMA), so the strip puts
