@@ -539,14 +539,26 @@ def _patched_from_frame(smooth_frame: np.ndarray, vals: np.ndarray, roi: Roi,
         return None
     # (rows, columns) of the ROI and their values, in this order (a later band overwrites the
     # corners of an earlier one)
+    # Two strips on opposite sides are smoothed in one OpenCV call, side by side (a call's fixed
+    # cost, and a narrow strip's cost per row, are most of a strip's time): a band reads its own
+    # strip only, within the kernel's radius, and each column (row) is computed as in a call of its
+    # own (the left strip's width a multiple of the alignment keeps the right one's SIMD blocks).
     bands = []
-    if roi.row0 > 0:
-        bands.append((slice(0, r), slice(0, w), _smooth(vals[: 2 * r], sigma)[:r]))
-    if roi.row1 < H:
-        bands.append((slice(h - r, h), slice(0, w), _smooth(vals[h - 2 * r :], sigma)[r:]))
+    top, bottom = vals[: 2 * r], vals[h - 2 * r :]
+    if roi.row0 > 0 and roi.row1 < H:
+        both = _smooth(np.concatenate([top, bottom]), sigma)
+        bands += [(slice(0, r), slice(0, w), both[:r]), (slice(h - r, h), slice(0, w), both[3 * r :])]
+    elif roi.row0 > 0:
+        bands.append((slice(0, r), slice(0, w), _smooth(top, sigma)[:r]))
+    elif roi.row1 < H:
+        bands.append((slice(h - r, h), slice(0, w), _smooth(bottom, sigma)[r:]))
+    right = slice(0, h), slice(c + r, w)
     if roi.col0 > 0:
-        bands.append((slice(0, h), slice(0, r), _smooth(vals[:, : max(2 * r, SMOOTH_STRIP_ALIGN)], sigma)[:, :r]))
-    bands.append((slice(0, h), slice(c + r, w), _smooth(vals[:, c:], sigma)[:, r:]))
+        wl = -(-max(2 * r, SMOOTH_STRIP_ALIGN) // SMOOTH_STRIP_ALIGN) * SMOOTH_STRIP_ALIGN
+        both = _smooth(np.concatenate([vals[:, :wl], vals[:, c:]], axis=1), sigma)
+        bands += [(slice(0, h), slice(0, r), both[:, :r]), (*right, both[:, wl + r :])]
+    else:
+        bands.append((*right, _smooth(vals[:, c:], sigma)[:, r:]))
     view = smooth_frame[roi.slices]
     saved = [(view, rows, cols, view[rows, cols].copy()) for rows, cols, _ in bands]  # before any write
     for rows, cols, v in bands:
