@@ -537,12 +537,12 @@ def _patched_from_frame(smooth_frame: np.ndarray, vals: np.ndarray, roi: Roi,
     c = (w - SMOOTH_STRIP_ALIGN - 2 * r) // SMOOTH_STRIP_ALIGN * SMOOTH_STRIP_ALIGN
     if h < 2 * r or c <= 2 * r:
         return None
-    # (rows, columns) of the ROI and their values, in this order (a later band overwrites the
-    # corners of an earlier one)
-    # Two strips on opposite sides are smoothed in one OpenCV call, side by side (a call's fixed
-    # cost, and a narrow strip's cost per row, are most of a strip's time): a band reads its own
-    # strip only, within the kernel's radius, and each column (row) is computed as in a call of its
-    # own (the left strip's width a multiple of the alignment keeps the right one's SIMD blocks).
+    # The bands as (rows, columns) of the ROI and their values, in this order (a later band
+    # overwrites the corners of an earlier one). Two strips on opposite sides are smoothed in one
+    # OpenCV call, stacked or side by side (a call's fixed cost, and a narrow strip's cost per
+    # row, are most of a strip's time): a band reads its own strip only, within the kernel's
+    # radius, and each column (row) is computed as in a call of its own (the left strip's width,
+    # a multiple of the alignment, keeps the right one's SIMD blocks).
     bands = []
     top, bottom = vals[: 2 * r], vals[h - 2 * r :]
     if roi.row0 > 0 and roi.row1 < H:
