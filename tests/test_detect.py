@@ -8,6 +8,8 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from simtest.reconstruct.detect import (
+    BACKGROUND_DIV,
+    BACKGROUND_PLATEAU_FACTOR,
     _gray_native,
     auto_smooth_sigma_px,
     background_side_px,
@@ -163,6 +165,24 @@ def test_the_background_square_is_set_by_the_widest_plateau_even_one_in_a_hole()
     assert background_side_px((200, 200), clip) == 2 * 60 + 1
     clip[10:12, 120:195] = 1  # a bar 75 px long
     assert background_side_px((200, 200), clip) == 2 * 75 + 1
+
+
+@settings(max_examples=60, deadline=None)
+@given(st.integers(0, 2**32 - 1), st.integers(0, 6))
+def test_the_background_square_is_that_of_the_widest_8_connected_plateau(seed, n_blobs):
+    # the definition, by labelling the whole mask, against background_side_px (which contours
+    # only the rows that hold clipped pixels); empty masks included
+    rng = np.random.default_rng(seed)
+    h, w = (int(v) for v in rng.integers(1, 150, 2))
+    clip = np.zeros((h, w), np.uint8)
+    for _ in range(n_blobs):
+        r, c = rng.integers(0, h), rng.integers(0, w)
+        clip[r : r + rng.integers(1, 60), c : c + rng.integers(1, 60)] = 1
+    n, _, stats, _ = connected_components_with_stats(clip)
+    ext = max((max(int(x[2]), int(x[3])) for x in stats[1:]), default=0)
+    default = max(31, min(h, w) // BACKGROUND_DIV)
+    widest = BACKGROUND_PLATEAU_FACTOR * ext + 1
+    assert background_side_px((h, w), clip) == (max(default, widest) if n > 1 else default)
 
 
 def test_the_default_background_square_is_unchanged_without_wide_plateaus():

@@ -708,14 +708,17 @@ def background_side_px(shape: tuple[int, int], clipped: np.ndarray | None = None
     """
     h, w = shape
     side = max(31, min(h, w) // BACKGROUND_DIV)
-    if clipped is not None:
+    rows = np.flatnonzero(clipped.max(axis=1)) if clipped is not None else ()
+    if len(rows):
         # The outer boundaries of the 8-connected plateaus bound them: their bounding boxes are
         # the components' (a plateau in the hole of another lies within the other's box, so the
-        # largest side is the same); a tenth of the time of labelling the frame.
-        contours, _ = cv2.findContours(clipped, cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_SIMPLE)
-        if contours:
-            ext = max(max(cv2.boundingRect(c)[2:]) for c in contours)
-            side = max(side, BACKGROUND_PLATEAU_FACTOR * ext + 1)
+        # largest side is the same); a tenth of the time of labelling the frame. Only the rows
+        # that hold clipped pixels are contoured (the same boxes; 0.33 against 0.14 ms on the
+        # noisy bench frame, whose plateaus span 50 of its 1080 rows).
+        band = clipped[rows[0] : rows[-1] + 1]
+        contours, _ = cv2.findContours(band, cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_SIMPLE)
+        ext = max(max(cv2.boundingRect(c)[2:]) for c in contours)
+        side = max(side, BACKGROUND_PLATEAU_FACTOR * ext + 1)
     return side
 
 
