@@ -560,9 +560,10 @@ def _patched_from_frame(smooth_frame: np.ndarray, vals: np.ndarray, roi: Roi,
     else:
         bands.append((*right, _smooth(vals[:, c:], sigma)[:, r:]))
     view = smooth_frame[roi.slices]
-    saved = [(view, rows, cols, view[rows, cols].copy()) for rows, cols, _ in bands]  # before any write
-    for rows, cols, v in bands:
-        view[rows, cols] = v
+    # each band's place in the frame and the frame's values there, all saved before any write
+    saved = [(view[rows, cols], view[rows, cols].copy()) for rows, cols, _ in bands]
+    for (place, _), (_, _, v) in zip(saved, bands):
+        place[...] = v
     out = view.view()
     out.setflags(write=False)
     return out, saved
@@ -571,8 +572,8 @@ def _patched_from_frame(smooth_frame: np.ndarray, vals: np.ndarray, roi: Roi,
 def _put_back(saved: list | None) -> None:
     """Restore the smoothed frame's values that :func:`_patched_from_frame` overwrote (each
     saved before any band was written, so the order does not matter)."""
-    for view, rows, cols, v in saved or ():
-        view[rows, cols] = v
+    for place, v in saved or ():
+        place[...] = v
 
 
 def _find_bp(img: np.ndarray, roi: Roi, saturation_level) -> tuple[np.ndarray, bool]:
