@@ -296,16 +296,11 @@ def isophote_cut_by_roi(values: np.ndarray, level: float, bp_uv, *, origin_rc: t
     The pipeline grows an ROI whose lowest isophote is cut by it and discards that isophote: on
     the Hyper-Kvasir banner a third of the extractions were such, on ROIs grown to a megapixel
     around isophotes that leak into bright tissue.
-    :func:`simtest.reconstruct._kernels.component_reaches` walks the component's boundary (or
-    flood-fills it, stopping at the first pixel on such a side, where the walk declines).
+    :func:`simtest.reconstruct._kernels.component_reaches_contour` walks the component's boundary
+    (or flood-fills it, stopping at the first pixel on such a side, where the walk declines).
     ``tests/test_kernels.py`` checks the answer against the extraction's.
     """
-    return _cut_by_roi(_region(values, bp_uv, origin_rc, image_shape), level)
-
-
-def _cut_by_roi(region: _Region, level: float) -> bool | None:
-    """:func:`isophote_cut_by_roi` in a checked region."""
-    return _cut_and_contour(region, level)[0]
+    return _cut_and_contour(_region(values, bp_uv, origin_rc, image_shape), level)[0]
 
 
 def _cut_and_contour(region: _Region, level: float) -> tuple[bool | None, tuple | None]:
