@@ -483,10 +483,19 @@ def test_the_compiled_top_hat_and_peak_mask_give_numpys_bits(seed, step, nan, pe
     if nan:
         for a in (gray, background, local_peak):
             a[rng.random((h, w)) < 0.05] = np.nan
+    # quiet rows (a frame's rows without highlights): the top-hat below thr, which peak_mask
+    # skips; some of them all NaN
+    quiet = rng.random(h) < 0.4
+    gray[quiet] = np.minimum(gray[quiet], background[quiet] + np.float32(thr) * np.float32(0.99))
+    if nan and h > 1:
+        gray[int(rng.integers(h))] = np.nan
     want_bg, want_top, want_mask = _peak_mask_numpy(gray, background, local_peak, peak_rel, thr)
-    bg, top, mask = background.copy(), np.empty_like(gray), np.empty((h, w), np.uint8)
-    _dk.top_hat(gray, bg, top)
-    _dk.peak_mask(top, local_peak, np.float32(peak_rel), np.float32(thr), mask)
+    bg, top, mask = background.copy(), np.empty_like(gray), np.full((h, w), 7, np.uint8)
+    rows = np.full(h, 7, np.uint8)
+    _dk.top_hat(gray, bg, top, np.float32(thr), rows)
+    _dk.peak_mask(top, local_peak, np.float32(peak_rel), np.float32(thr), rows, mask)
     assert np.array_equal(bg, want_bg, equal_nan=True)
     assert np.array_equal(top, want_top, equal_nan=True)
     assert np.array_equal(mask, want_mask)
+    # the rows peak_mask reads: those holding a top-hat >= thr
+    assert np.array_equal(rows, (want_top >= np.float32(thr)).any(axis=1).view(np.uint8))

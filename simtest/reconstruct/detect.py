@@ -774,14 +774,16 @@ def local_peak_mask(gray: np.ndarray, full_scale: float, *, peak_rel: float = 0.
     # background = min(background, g) (an opening never exceeds the image), top = g - background:
     # one compiled pass, the bits of numpy's two (the frame's passes are the time of this function)
     top = np.empty_like(g)
-    _dk.top_hat(g, background, top)
+    rows = np.empty(h, np.uint8)
+    thr = np.float32(contrast_min_rel * full_scale)
+    _dk.top_hat(g, background, top, thr, rows)
     top_small = cv2.resize(top, small.shape[::-1], interpolation=cv2.INTER_AREA) if f > 1 else top
     peak_small = cv2.dilate(top_small, kernel, borderType=cv2.BORDER_REPLICATE)
     local_peak = cv2.resize(peak_small, (w, h), interpolation=cv2.INTER_LINEAR) if f > 1 else peak_small
     # top >= peak_rel * max(local_peak, top) (the local peak is at least the pixel itself) and
     # top >= contrast_min_rel * full_scale, in float32 as numpy computes them: one compiled pass
     mask = np.empty((h, w), np.uint8)
-    _dk.peak_mask(top, local_peak, np.float32(peak_rel), np.float32(contrast_min_rel * full_scale), mask)
+    _dk.peak_mask(top, local_peak, np.float32(peak_rel), thr, rows, mask)
     return mask, background
 
 
