@@ -34,7 +34,8 @@ import inspect
 import os
 import statistics
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
+from contextlib import contextmanager
 from dataclasses import dataclass
 
 import cv2
@@ -147,6 +148,107 @@ def time_ms_cpu(fn: Callable[[], object], repeat: int) -> tuple[float, float, fl
         wall.append((t1 - t0) * 1e3)
         cpu.append((c1 - c0) * 1e3)
     return statistics.median(wall), min(wall), statistics.median(cpu)
+
+
+#: The OpenCV functions the reconstruction calls (``simtest.reconstruct``, ``simtest.geometry``):
+#: those :func:`opencv_calls` records.
+OPENCV_FUNCTIONS = (
+    "GaussianBlur", "resize", "cvtColor", "morphologyEx", "dilate", "threshold", "inRange",
+    "findContours", "boundingRect", "drawContours", "floodFill", "getStructuringElement",
+    "connectedComponents", "connectedComponentsWithAlgorithm",
+    "connectedComponentsWithStatsWithAlgorithm", "undistortPoints",
+)
+#: Those of them that write into an argument: replayed on a fresh copy each time.
+_OPENCV_IN_PLACE = frozenset({"drawContours", "floodFill"})
+
+
+@dataclass(frozen=True)
+class OpenCVCall:
+    """One recorded OpenCV call: ``name`` (a member of :data:`OPENCV_FUNCTIONS`), the function
+    itself, and copies of its arguments as they were at the call (arrays copied, lists and
+    tuples of arrays copied element by element)."""
+
+    name: str
+    fn: Callable
+    args: tuple
+    kwargs: dict
+
+
+def _copied(x):
+    """A copy of an argument: arrays copied (contiguous), plain lists and tuples element-wise."""
+    if isinstance(x, np.ndarray):
+        return x.copy()
+    if type(x) in (list, tuple):
+        return type(x)(_copied(v) for v in x)
+    if type(x) is dict:
+        return {k: _copied(v) for k, v in x.items()}
+    return x
+
+
+@contextmanager
+def opencv_calls() -> Iterator[list[OpenCVCall]]:
+    """Record the OpenCV calls made inside the block, in order (a context manager).
+
+    The functions of :data:`OPENCV_FUNCTIONS` are replaced in the ``cv2`` module by recorders
+    that copy their arguments and call the original; the originals are put back on leaving the
+    block, also when it raises. Yields the list the calls are appended to (:class:`OpenCVCall`).
+    Used by the bench to time the library's share of a frame (:func:`replay_opencv_ms`); not
+    thread-safe (it patches the module).
+    """
+    calls: list[OpenCVCall] = []
+    originals = {name: getattr(cv2, name) for name in OPENCV_FUNCTIONS}
+
+    def recorder(name: str, fn: Callable) -> Callable:
+        def call(*args, **kwargs):
+            calls.append(OpenCVCall(name, fn, _copied(args), _copied(kwargs)))
+            return fn(*args, **kwargs)
+
+        return call
+
+    for name, fn in originals.items():
+        setattr(cv2, name, recorder(name, fn))
+    try:
+        yield calls
+    finally:
+        for name, fn in originals.items():
+            setattr(cv2, name, fn)
+
+
+def replay_opencv_ms(calls: list[OpenCVCall], repeat: int) -> tuple[float, float, dict[str, float]]:
+    """Time recorded OpenCV calls replayed alone, in their order, on copies of their arguments.
+
+    Parameters
+    ----------
+    calls : list of OpenCVCall
+        From :func:`opencv_calls`.
+    repeat : int
+        Timed replays after one warm-up replay.
+
+    Returns
+    -------
+    median, best : float
+        Median and minimum over the replays of the sum of the calls' wall times, ms (each call
+        timed alone: copying the arguments of in-place functions is not counted).
+    per_function : dict of str to float
+        Mean time per replay of each function's calls, ms, largest first.
+    """
+    totals: list[float] = []
+    per: dict[str, float] = {}
+    for k in range(max(1, repeat) + 1):
+        total = 0.0
+        for c in calls:
+            args, kwargs = (_copied(c.args), _copied(c.kwargs)) if c.name in _OPENCV_IN_PLACE else (c.args, c.kwargs)
+            t0 = time.perf_counter()
+            c.fn(*args, **kwargs)
+            dt = (time.perf_counter() - t0) * 1e3
+            total += dt
+            if k:
+                per[c.name] = per.get(c.name, 0.0) + dt
+        if k:
+            totals.append(total)
+    n = len(totals)
+    per = {name: t / n for name, t in sorted(per.items(), key=lambda kv: -kv[1])}
+    return statistics.median(totals), min(totals), per
 
 
 def resolve_section(name: str) -> SectionFn | None:
@@ -317,27 +419,43 @@ def bench_reconstruct(repeat: int = 50) -> list[BenchResult]:
                                "defaults", med, "ms", 5.0, best,
                                f"bar 15 ms; {len(ests)} candidates, {sum(e.ok for e in ests)} ok; "
                                f"CPU {cpu:.3g} ms"))
-    out.append(_candidate_frame_row("per real frame: Hyper-Kvasir banner 2240x840 JPEG, defaults",
-                                    "per real frame: banner (source tree not found)", banner_frame(), repeat))
+        out.append(_opencv_row(lambda: reconstruct(frame, Kf), n_frame))
+    out += _candidate_frame_rows("per real frame: Hyper-Kvasir banner 2240x840 JPEG, defaults",
+                                 "per real frame: banner (source tree not found)", banner_frame(), repeat)
     out += _bench_light_aware(repeat)
     # Last: the render leaves Mitsuba's memory and threads in the process.
-    out.append(_candidate_frame_row("per rendered colonoscope frame: 1350x1080, scene colonoscope seed 0, "
-                                    "defaults", "per rendered colonoscope frame (Mitsuba unavailable)",
-                                    colonoscope_frame(), repeat))
+    out += _candidate_frame_rows("per rendered colonoscope frame: 1350x1080, scene colonoscope seed 0, "
+                                 "defaults", "per rendered colonoscope frame (Mitsuba unavailable)",
+                                 colonoscope_frame(), repeat)
     return out
 
 
-def _candidate_frame_row(name: str, missing: str, frame_camera, repeat: int) -> BenchResult:
-    """The row of a frame with about 1000 candidates, every one examined (target 50 ms, bar 150 ms):
-    ``frame_camera`` is ``(image, K or camera model)``, or None (a NaN row named ``missing``)."""
+def _opencv_row(fn: Callable[[], object], repeat: int) -> BenchResult:
+    """The row under a frame's: the OpenCV calls of one ``fn()`` (the frame's reconstruction)
+    replayed alone, in order, on copies of their arguments (:func:`replay_opencv_ms`): the
+    library's share of the frame's time; the note names the three costliest functions."""
+    with opencv_calls() as calls:
+        fn()
+    med, best, per = replay_opencv_ms(calls, repeat)
+    top = ", ".join(f"{name} {t:.3g} ms" for name, t in list(per.items())[:3])
+    return BenchResult("reconstruct", "  of which its OpenCV calls, replayed alone", med, "ms", None, best,
+                       f"{len(calls)} calls; {top}")
+
+
+def _candidate_frame_rows(name: str, missing: str, frame_camera, repeat: int) -> list[BenchResult]:
+    """The rows of a frame with about 1000 candidates, every one examined (target 50 ms, bar 150 ms),
+    and of its OpenCV calls replayed alone (:func:`_opencv_row`): ``frame_camera`` is ``(image, K
+    or camera model)``, or None (one NaN row named ``missing``)."""
     if frame_camera is None:
-        return BenchResult("reconstruct", missing, float("nan"), "ms", 50.0)
+        return [BenchResult("reconstruct", missing, float("nan"), "ms", 50.0)]
     img, cam = frame_camera
     ests = reconstruct(img, cam)
-    med, best, cpu = time_ms_cpu(lambda: reconstruct(img, cam), max(1, repeat // 25))
-    return BenchResult("reconstruct", name, med, "ms", 50.0, best,
-                       f"bar 150 ms; {len(ests)} candidates examined, {sum(e.ok for e in ests)} ok; "
-                       f"CPU {cpu:.4g} ms")
+    n = max(1, repeat // 25)
+    med, best, cpu = time_ms_cpu(lambda: reconstruct(img, cam), n)
+    return [BenchResult("reconstruct", name, med, "ms", 50.0, best,
+                        f"bar 150 ms; {len(ests)} candidates examined, {sum(e.ok for e in ests)} ok; "
+                        f"CPU {cpu:.4g} ms"),
+            _opencv_row(lambda: reconstruct(img, cam), n)]
 
 
 def synthetic_offset_highlight(size: int = 64, n_phong: float = 150.0):

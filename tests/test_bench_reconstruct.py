@@ -3,13 +3,19 @@
 
 from __future__ import annotations
 
+import re
+from pathlib import Path
+
+import cv2
 import numpy as np
+import pytest
 from typer.testing import CliRunner
 
 from simtest import bench
 from simtest.cli import app
 from simtest.geometry import angle_between_deg
 from simtest.reconstruct import reconstruct, reconstruct_roi
+from simtest.reconstruct.io import estimate_to_dict
 
 
 def test_bench_per_specularity(benchmark):
@@ -100,3 +106,66 @@ def test_time_ms_cpu_reports_wall_and_cpu_of_the_same_runs():
     med, best, cpu = bench.time_ms_cpu(lambda: calls.append(sum(range(1000))), 4)
     assert len(calls) == 5  # one warm-up
     assert 0 <= best <= med and cpu >= 0
+
+
+# ---- the library's share of a frame: OpenCV calls recorded, then replayed alone ----------------
+
+
+def _cv2_functions() -> dict:
+    return {name: getattr(cv2, name) for name in bench.OPENCV_FUNCTIONS}
+
+
+def test_opencv_calls_records_copies_in_order_and_puts_cv2_back():
+    before = _cv2_functions()
+    a = np.zeros((8, 8), np.float32)
+    a[4, 4] = 1.0
+    with bench.opencv_calls() as calls:
+        blurred = cv2.GaussianBlur(a, (0, 0), 1.0)
+        a[4, 4] = 5.0  # the recorded argument is the array as it was at the call
+        cv2.resize(a, (4, 4), interpolation=cv2.INTER_AREA)
+    assert [c.name for c in calls] == ["GaussianBlur", "resize"]
+    assert calls[0].args[0][4, 4] == 1.0 and calls[1].args[0][4, 4] == 5.0
+    assert np.array_equal(calls[0].fn(*calls[0].args, **calls[0].kwargs), blurred)
+    assert calls[1].kwargs == {"interpolation": cv2.INTER_AREA}
+    assert _cv2_functions() == before
+    with pytest.raises(RuntimeError, match="inside"):
+        with bench.opencv_calls():
+            raise RuntimeError("inside")
+    assert _cv2_functions() == before
+
+
+def test_a_replay_of_an_in_place_call_starts_from_the_recorded_arguments():
+    img = np.zeros((12, 12), np.uint8)
+    img[3:9, 3:9] = 1
+    with bench.opencv_calls() as calls:
+        cv2.floodFill(img, None, (5, 5), 2, 0, 0, 4)
+        cv2.dilate(img, np.ones((3, 3), np.uint8))
+    assert int(img[5, 5]) == 2 and int(calls[0].args[0][5, 5]) == 1
+    med, best, per = bench.replay_opencv_ms(calls, 3)
+    # floodFill wrote into a copy each time: the recorded image is still the one before the fill
+    assert int(calls[0].args[0][5, 5]) == 1
+    assert set(per) == {"floodFill", "dilate"}
+    assert 0 <= best <= med and list(per.values()) == sorted(per.values(), reverse=True)
+
+
+def test_recording_a_frame_leaves_its_results_alone_and_sees_its_smoothing():
+    frame, K, _ = bench.noisy_frame()
+    want = reconstruct(frame, K)
+    with bench.opencv_calls() as calls:
+        got = reconstruct(frame, K)
+    assert [estimate_to_dict(e, True) for e in got] == [estimate_to_dict(e, True) for e in want]
+    # the noisy frame is smoothed once whole, then each ROI for itself
+    blurs = [c for c in calls if c.name == "GaussianBlur"]
+    assert blurs[0].args[0].shape == frame.shape[:2]
+    assert len(blurs) - 1 == len(want)
+
+
+def test_every_image_function_the_reconstruction_calls_is_recorded():
+    # the replayed row is the library's whole share only if no OpenCV call escapes the recorder
+    root = Path(bench.__file__).resolve().parent
+    used = set()
+    for sub in ("reconstruct", "geometry"):
+        for path in (root / sub).glob("*.py"):
+            used |= set(re.findall(r"cv2\.([A-Za-z_]\w*)\(", path.read_text()))
+    io = {"VideoCapture", "imdecode", "imread", "imwrite", "FileStorage"}
+    assert used - io <= set(bench.OPENCV_FUNCTIONS), used - io - set(bench.OPENCV_FUNCTIONS)
