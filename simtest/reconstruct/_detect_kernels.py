@@ -16,6 +16,7 @@ Kernels
 - :func:`top_hat`, :func:`peak_mask`: the whole-frame arithmetic of ``local_peak_mask``, one pass
   each instead of one numpy call per operation.
 - :func:`examine_candidates`: BP, peak, status and ROI of every candidate.
+- :func:`mad_of_uint8_rows`: the median absolute deviation of the noise estimate, by counting.
 
 Notes
 -----
@@ -136,6 +137,71 @@ def _first_line_with_zero(labels, start, stop, step, rows):
             if (labels[i, j] if rows else labels[j, i]) == 0:
                 return i
     return -1
+
+
+@numba.njit(cache=True, nogil=True)
+def _kth_counted(hist, k):
+    """The ``k``-th smallest (0-based) of the integers counted by ``hist`` (``hist[i]`` values
+    equal to ``i``): the first ``i`` whose running count exceeds ``k``, as ``np.searchsorted(
+    np.cumsum(hist), k, side="right")``."""
+    acc = 0
+    for i in range(len(hist)):
+        acc += hist[i]
+        if acc > k:
+            return i
+    return len(hist)
+
+
+@numba.njit(cache=True, nogil=True)
+def mad_of_uint8_rows(rows):
+    """``np.median(np.abs(d - np.median(d)))`` of the second differences ``d = x - (left +
+    right) / 2`` along uint8 rows, by counting (one pass over the rows, two histograms).
+
+    Parameters
+    ----------
+    rows : ndarray of shape (h, W), uint8
+        ``h >= 1``, ``W >= 3``.
+
+    Returns
+    -------
+    float
+        The median absolute deviation, intensity units: a multiple of 1/4 (or 1/8), exact in
+        float32.
+
+    Notes
+    -----
+    ``2 d = 2 x - (left + right)`` is an integer in [-510, 510], and ``4 |d - median(d)| = |2 (2
+    d) - 4 median(d)|`` one in [0, 4080]: both medians are order statistics of integers, the mean
+    of the two middle ones for an even count as ``np.median`` takes it; numpy's float32
+    arithmetic on these values is exact, so the value is numpy's (``tests/test_detect.py``
+    compares the two on random rows, ties and even counts included).
+    """
+    h, w = rows.shape
+    n = h * (w - 2)
+    if n % 2:
+        k0, k1, nk = n // 2, n // 2, 1
+    else:
+        k0, k1, nk = n // 2 - 1, n // 2, 2
+    # four histograms filled in turn, summed after: consecutive values of a row fall in the same
+    # few bins, and one histogram would make each count wait for the last
+    parts = np.zeros((4, 1021), np.int64)
+    for r in range(h):
+        for c in range(1, w - 1):
+            d2 = 2 * np.int64(rows[r, c]) - (np.int64(rows[r, c - 1]) + np.int64(rows[r, c + 1]))
+            parts[c & 3, d2 + 510] += 1
+    hist = parts[0] + parts[1] + parts[2] + parts[3]
+    m2 = _kth_counted(hist, k0) - 510  # 2 median(d) or, for an even count, the lower middle
+    if nk == 2:
+        m2 += _kth_counted(hist, k1) - 510
+    m4 = m2 * (2 // nk)  # 4 median(d)
+    # the deviations' histogram from the first: every 2 d = v counts at |2 v - m4|
+    dev = np.zeros(4081, np.int64)
+    for v in range(-510, 511):
+        dev[abs(2 * v - m4)] += hist[v + 510]
+    t = _kth_counted(dev, k0)
+    if nk == 2:
+        t += _kth_counted(dev, k1)
+    return t / (4 * nk)
 
 
 @numba.njit(cache=True, nogil=True)
