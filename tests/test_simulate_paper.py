@@ -162,3 +162,65 @@ def test_a_batch_of_realisations_scores_as_each_one_alone():
         for k in a.extras:
             assert np.array_equal(a.extras[k], b.extras[k], equal_nan=True), k
     assert sum(all(c is None for c in r[0].causes.values()) for r in batch) >= 6
+
+
+@settings(max_examples=150, deadline=None)
+@given(seed=st.integers(0, 2**32 - 1), sigma=st.sampled_from([0.0, 0.05]),
+       smoothing=st.sampled_from([0.0, 0.7, 2.0, 3.3]), theta=st.floats(0.0, 80.0),
+       eps=st.sampled_from([0.0, 150.0]), corners=st.lists(st.integers(-20, 140), min_size=4, max_size=4))
+def test_a_sample_asked_for_a_region_is_the_whole_images_bits_there(seed, sigma, smoothing, theta, eps,
+                                                                      corners):
+    # the harness asks for the reconstruction's ROI only: there (and at the BP's 2 x 2 pixels,
+    # which the normalisation reads) the values must be those of the whole image to the bit,
+    # regions at the image's sides and regions that leave the BP out included; the random
+    # stream must be consumed as for the whole image
+    # 120 px: wide enough for SIMD blocks and the scalar last columns of OpenCV's rows, small
+    # enough for 150 examples
+    p = PaperParams(image_px=120, sigma=sigma, smoothing_px=smoothing, theta_deg=theta,
+                    epsilon_px=eps, n=60.0)
+    sim = PaperSimulator(p)
+    r0, r1 = sorted(corners[:2])
+    c0, c1 = sorted(corners[2:])
+    asked = (r0, r1 + 1, c0, c1 + 1)
+    rng_a, rng_b = np.random.default_rng(seed), np.random.default_rng(seed)
+    try:
+        whole = sim.sample(rng_a)
+    except FloatingPointError:
+        with pytest.raises(FloatingPointError):
+            sim.sample(rng_b, region=lambda clean, bp: asked)
+        return
+    part = sim.sample(rng_b, region=lambda clean, bp: asked)
+    assert part.region == asked and whole.region is None
+    assert part.bp_value == whole.bp_value
+    assert rng_a.random() == rng_b.random()
+    # the box computed: the smallest holding the region and the BP's 2 x 2 pixels, in the image
+    u, v = (int(math.floor(min(max(float(x), 0.0), 119.0))) for x in whole.bp_px)
+    inside = np.zeros((120, 120), bool)
+    inside[max(0, min(r0, v)) : max(r1 + 1, v + 2), max(0, min(c0, u)) : max(c1 + 1, u + 2)] = True
+    assert np.array_equal(part.image[inside], whole.image[inside])
+    assert not part.image[~inside].any()
+
+
+@pytest.mark.parametrize("eps", [0.0, 200.0])
+def test_the_harness_rows_are_those_of_the_whole_images(eps):
+    # PaperRunner computes each image in the reconstruction's ROI only; its rows must be those of
+    # the whole smoothed image reconstructed in that ROI, so the reports do not change
+    from simtest.harness.protocols import PaperRunner
+    from simtest.harness.suite import realisation_seed, suite_from_dict
+    from simtest.reconstruct import reconstruct_roi
+
+    suite = suite_from_dict({"sweep": [{"name": "e", "parameter": "epsilon_px", "values": [eps],
+                                        "set": {"n": 100.0}}]})
+    case = suite.cases[0]
+    runner = PaperRunner(case, suite.estimators)
+    seeds = [realisation_seed(5, case.key, i) for i in range(6)]
+    for seedseq, (row,) in zip(seeds, runner.run_many(seeds), strict=True):
+        s = runner.sim.sample(np.random.Generator(np.random.PCG64(seedseq)))
+        est = reconstruct_roi(s.image, s.K, bp_uv=s.bp_px, roi=runner.roi(s.clean, s.bp_px),
+                              settings=runner.settings)
+        want = runner._score(s.normal, s.bp_px, est)
+        assert row.causes == want.causes
+        for k in want.errors:
+            assert np.array_equal(row.errors[k], want.errors[k], equal_nan=True), k
+        for k in want.extras:
+            assert np.array_equal(row.extras[k], want.extras[k], equal_nan=True), k

@@ -200,6 +200,10 @@ class PaperSample:
     clean : ndarray of shape (M, M), float32
         The noiseless warped image (before noise, smoothing and normalisation); shared between
         realisations when the light is fixed: do not modify.
+    region : tuple of int or None
+        ``(row0, row1, col0, col1)``: the region the sample was asked for
+        (:meth:`PaperSimulator.sample`; ``image`` is computed in the smallest box holding it and
+        the BP's 2 x 2 pixels, 0 elsewhere); None for the whole image.
     """
 
     image: np.ndarray
@@ -209,6 +213,7 @@ class PaperSample:
     light_px: np.ndarray
     bp_value: float
     clean: np.ndarray
+    region: tuple[int, int, int, int] | None = None
 
 
 def _camera_pose(theta_rad: float, centre: np.ndarray, distance: float):
@@ -283,6 +288,13 @@ def mirror_point(V, L) -> np.ndarray:
     return L[:2] + s * (V[:2] - L[:2])
 
 
+#: Columns the region a sample is smoothed in starts on a multiple of (:meth:`PaperSimulator.sample`
+#: with ``region``), and reaches past its box by, beyond the kernel's radius: twice the widest
+#: SIMD width of float32 (16 lanes, AVX-512), so that OpenCV computes each column of the box in
+#: the same kind of block (SIMD or the row's scalar last columns) as over the whole image.
+SMOOTH_ALIGN = 32
+
+
 @dataclass
 class PaperSimulator:
     """Draws realisations of the ``paper`` protocol; the noiseless image is computed once when the
@@ -351,13 +363,31 @@ class PaperSimulator:
         b = rng.uniform(-0.5, 0.5)
         return self.V + self.params.epsilon_px * np.array([math.cos(a), math.sin(a), b])
 
-    def sample(self, rng: np.random.Generator) -> PaperSample:
+    @property
+    def fixed(self) -> tuple[np.ndarray, np.ndarray] | None:
+        """``(clean, bp_px)`` of every realisation when the light is fixed (``epsilon = 0``): the
+        noiseless image (M, M), float32 (do not modify) and the BP (u, v), px; None when the
+        light moves (a new noiseless image per realisation)."""
+        return None if self._clean is None else (self._clean, self._geom[1])
+
+    def sample(self, rng: np.random.Generator, region=None) -> PaperSample:
         """One realisation: light draw, noise, smoothing, normalisation at the BP.
 
         Parameters
         ----------
         rng : numpy.random.Generator
             The realisation's own generator (derive it from a SeedSequence).
+        region : callable, optional
+            ``region(clean, bp_px) -> (row0, row1, col0, col1)`` (half-open, px): the only pixels
+            the caller reads (the reconstruction's ROI). The noise is still drawn for the whole
+            image (the random stream is the whole image's, so every realisation's values are
+            those of a call without ``region``), but it is scaled, smoothed and normalised only
+            in the smallest box holding the region and the BP's 2 x 2 pixels (which the
+            normalisation reads), from the noisy image grown by the smoothing kernel's radius:
+            in that box the image is the same bits as without ``region`` (each smoothed pixel
+            reads the pixels within the radius, and OpenCV reflects at the image's own sides),
+            elsewhere it is 0. Default: the whole image. The region asked is the sample's
+            ``region``.
 
         Returns
         -------
@@ -376,23 +406,60 @@ class PaperSimulator:
         else:
             clean, (K, bp_px, normal) = self._render_clean(L)
         M = p.image_px
+        asked = None if region is None else tuple(int(v) for v in region(clean, bp_px))
+        box = (0, M, 0, M) if asked is None else _read_box(asked, bp_px, M)
+        r0, r1, c0, c1 = box
+        # the noisy image is smoothed in the box grown by the kernel's radius; its columns start
+        # on a multiple of SMOOTH_ALIGN and reach that far past the radius, or to the image's
+        # side: OpenCV computes a row in SIMD blocks from its first column and its last columns
+        # in scalar code, which may round differently, so each column of the box is computed in
+        # the same kind of block as in the whole image
+        o0, o1, q0, q1 = 0, M, 0, M
+        if p.smoothing_px > 0:
+            pad = _blur_radius_px(p.smoothing_px) + 1
+            o0, o1 = max(0, r0 - pad), min(M, r1 + pad)
+            q0 = max(0, c0 - pad) // SMOOTH_ALIGN * SMOOTH_ALIGN
+            q1 = c1 + pad + SMOOTH_ALIGN
+            q1 = M if q1 > M - SMOOTH_ALIGN else q1
+        elif box != (0, M, 0, M):
+            o0, o1, q0, q1 = box
         if p.sigma > 0:
             # clean + sigma * noise, in place in the noise's array (float32 throughout: the same
-            # products and sums, the same bits, two fewer 406 x 406 arrays per realisation)
-            image = rng.standard_normal((M, M), dtype=np.float32)
+            # products and sums, the same bits), where it is smoothed
+            image = rng.standard_normal((M, M), dtype=np.float32)[o0:o1, q0:q1]
             image *= np.float32(p.sigma)
-            image += clean
+            image += clean[o0:o1, q0:q1]
         else:
-            image = clean.copy()
+            image = clean[o0:o1, q0:q1].copy()
         if p.smoothing_px > 0:
             image = cv2.GaussianBlur(image, (0, 0), sigmaX=p.smoothing_px, sigmaY=p.smoothing_px,
                                      borderType=cv2.BORDER_REFLECT)
+        if box != (0, M, 0, M):
+            full = np.zeros((M, M), np.float32)
+            full[r0:r1, c0:c1] = image[r0 - o0 : r1 - o0, c0 - q0 : c1 - q0]
+            image = full
         value = _bilinear(image, bp_px)
         if not value > 0:
             raise FloatingPointError(f"smoothed intensity at the BP {bp_px.tolist()} is {value}")
-        image /= np.float32(value)  # image is this realisation's own array here
+        image[r0:r1, c0:c1] /= np.float32(value)  # image is this realisation's own array here
         return PaperSample(image=image, K=K.copy(), bp_px=bp_px.copy(), normal=normal.copy(),
-                           light_px=L, bp_value=float(value), clean=clean)
+                           light_px=L, bp_value=float(value), clean=clean, region=asked)
+
+
+def _blur_radius_px(sigma_px: float) -> int:
+    """Radius of OpenCV's Gaussian kernel for a float image and ``ksize = (0, 0)``: the size is
+    ``cvRound(8 sigma + 1) | 1`` (``cv::GaussianBlur``, OpenCV 4's ``createGaussianKernels``)."""
+    return (int(round(8.0 * sigma_px + 1.0)) | 1) // 2
+
+
+def _read_box(region, bp_px: np.ndarray, M: int) -> tuple[int, int, int, int]:
+    """The smallest box (row0, row1, col0, col1) in the M x M image holding a region and the BP's
+    2 x 2 pixels, which the normalisation reads (:func:`_bilinear`)."""
+    r0, r1, c0, c1 = (int(v) for v in region)
+    u = min(max(float(bp_px[0]), 0.0), M - 1.0)
+    v = min(max(float(bp_px[1]), 0.0), M - 1.0)
+    cu, rv = int(math.floor(u)), int(math.floor(v))
+    return (max(0, min(r0, rv)), min(M, max(r1, rv + 2)), max(0, min(c0, cu)), min(M, max(c1, cu + 2)))
 
 
 def _bilinear(image: np.ndarray, uv: np.ndarray) -> float:
