@@ -115,3 +115,27 @@ def test_phong_intensity_is_the_vector_formula_bit_for_bit(seed, n, flat):
     assert np.array_equal(phong_intensity(P, V, L, n, 0.7), 0.7 * np.maximum(cos_b, 0.0) ** n)
     if flat:  # points given as (x, y) on the plane z = 0: the same bits
         assert np.array_equal(phong_intensity(P[..., :2], V, L, n, 0.7), 0.7 * np.maximum(cos_b, 0.0) ** n)
+
+
+@given(seed=st.integers(0, 2**32 - 1), on_plane=st.booleans())
+@settings(max_examples=60, deadline=None)
+def test_the_compiled_cos_beta_is_the_numpy_forms_bits(seed, on_plane):
+    # points on an integer grid, the viewer's and the light's feet among them: zero products and
+    # sums (signed zeros); a viewer on the plane gives a zero length at its foot (NaN in both)
+    from simtest.specular import _kernels
+    from simtest.specular.phong import _cos_beta_numpy, _mirror
+
+    rng = np.random.default_rng(seed)
+    P = rng.integers(-6, 7, size=(40, 2)).astype(np.float64)
+    V = rng.integers(-6, 7, size=3).astype(np.float64)
+    L = rng.integers(-6, 7, size=3).astype(np.float64)
+    V[2] = 0.0 if on_plane else abs(V[2]) + 1.0
+    L[2] = abs(L[2]) + 1.0
+    P[:2] = [V[:2], L[:2]]
+    R = _mirror(L)
+    with np.errstate(all="ignore"):
+        want = _cos_beta_numpy(P, V, R)
+    got = _kernels.plane_cos_beta(P, V, R)
+    assert np.array_equal(got, want, equal_nan=True)
+    assert np.array_equal(np.signbit(got), np.signbit(want))
+    assert np.isnan(got[0]) == on_plane

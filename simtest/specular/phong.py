@@ -20,6 +20,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from simtest.specular import _kernels
+
 __all__ = [
     "endoscopic_isocurve",
     "general_isocurve",
@@ -79,6 +81,19 @@ def phong_intensity(P, V, L, n: float, c: float = 1.0) -> np.ndarray:
         P = _points(P)
     V = np.asarray(V, dtype=np.float64).reshape(3)
     R = _mirror(L)
+    if P.shape[-1] == 2 or not np.any(P[..., 2]):
+        # on the plane z = 0 (the usual case): one compiled pass, the bits of the numpy form
+        pxy = np.ascontiguousarray(P[..., :2]).reshape(-1, 2)
+        cos_b = _kernels.plane_cos_beta(pxy, V, R).reshape(P.shape[:-1])
+    else:
+        cos_b = _cos_beta_numpy(P, V, R)
+    return c * np.maximum(cos_b, 0.0) ** n
+
+
+def _cos_beta_numpy(P: np.ndarray, V: np.ndarray, R: np.ndarray) -> np.ndarray:
+    """``cos beta`` of :func:`phong_intensity` by numpy (the reference of
+    :func:`simtest.specular._kernels.plane_cos_beta`, and the form for points off the plane):
+    ``P`` (..., 2) or (..., 3), ``V`` and the light's mirror image ``R`` (3,), float64."""
     # cos beta = (V - P) . (P - R) / (|V - P| |P - R|), evaluated per coordinate plane: the same
     # products and the same left-to-right sums over the 3 coordinates as np.sum(..., axis=-1)
     # and np.linalg.norm(..., axis=-1) (so the same bits), without building (..., 3) arrays
@@ -91,8 +106,7 @@ def phong_intensity(P, V, L, n: float, c: float = 1.0) -> np.ndarray:
     rx, ry, rz = px - R[0], py - R[1], pz - R[2]  # = -(R - P)
     dot = vx * rx + vy * ry + vz * rz
     norms = np.sqrt(vx * vx + vy * vy + vz * vz) * np.sqrt(rx * rx + ry * ry + rz * rz)
-    cos_b = dot / norms
-    return c * np.maximum(cos_b, 0.0) ** n
+    return dot / norms
 
 
 def tau_from_isovalue(t, n: float, c: float = 1.0):
