@@ -17,7 +17,9 @@ Sections
   15 ms), and ms for the Hyper-Kvasir banner, a real 2240 x 840 JPEG with about 1000 candidates,
   every one examined (target 50 ms, bar 150 ms), and for a rendered 1350 x 1080 colonoscope
   frame (the bundled ``colonoscope`` scene at seed 0, through its own camera model; same target).
-  Inputs are pinned: seeds 0 and 12, the banner in tests/data/real.
+  Inputs are pinned: seeds 0 and 12, the banner in tests/data/real. Under each frame's row, the
+  frame's OpenCV calls replayed alone (:func:`opencv_calls`, :func:`replay_opencv_ms`): the
+  library's share of its time.
   The light-aware fits per highlight (an exact 64 x 64 px highlight of a plane lit 3 mm off the
   camera): ``isocurve_fit`` <= 1 ms, ``photometric_fit`` <= 5 ms.
 - Hooks for other packages: see :data:`EXTERNAL_SECTIONS` below. A package adds a section by
