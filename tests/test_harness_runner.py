@@ -216,3 +216,31 @@ def test_the_scored_detections_fitted_alone_get_what_fitting_every_detection_giv
         assert set(e.light_aware) == set(every[k].light_aware) and e.light_aware
         for name in e.light_aware:
             assert _same_fit(e.light_aware[name], every[k].light_aware[name]), name
+
+
+def test_the_harness_bench_rate_is_the_marginal_cost_of_a_realisation(monkeypatch):
+    # each worker's first calls (imports, numba's kernels loaded) cost a fixed time that a short
+    # run would spread over its few realisations: the rate is the slope between n and 2 n
+    from types import SimpleNamespace
+
+    from simtest.harness import bench as hbench
+
+    fixed_s, each_s = 1.5, 0.003
+    seen = []
+
+    def fake_run_suite(suite, workers, progress):
+        n = suite.cases[0].realisations
+        seen.append(n)
+        return SimpleNamespace(cpu_s_by_protocol={"paper": fixed_s + each_s * n},
+                               realisations_by_protocol={"paper": n}, wall_s=0.1 * n)
+
+    monkeypatch.setattr(hbench, "run_suite", fake_run_suite)
+    d = {"suite": {"name": "b", "realisations": 100},
+         "sweep": [{"name": "s", "parameter": "theta_deg", "values": [58.0]}]}
+    ms, rate, wall, n = hbench._rate(d, 2)
+    assert seen == [100, 200] and n == 200 and wall == pytest.approx(20.0)
+    assert ms == pytest.approx(1e3 * each_s) and rate == pytest.approx(2 / each_s)
+    # a loaded machine can make the larger run cheaper: then the larger run's mean, not a negative
+    each_s = -0.001
+    ms, _, _, _ = hbench._rate(d, 2)
+    assert ms == pytest.approx(1e3 * (fixed_s - 0.001 * 200) / 200)

@@ -8,8 +8,9 @@ Figures (from :func:`bench_harness`):
   (``scenes/suites/paper-figure3.toml``) with 2 workers, target 120 s.
 - ``rendered`` protocol: the co-located plane of ``plane_58deg`` (406 x 406, 16 spp), same units.
 
-Rates come from the workers' own clocks (realisations / summed worker seconds x workers), so the
-process start-up of the pool is left out; the wall time of each run is given in the note.
+Rates come from the workers' own clocks (summed worker seconds), as the marginal cost of a
+realisation between runs of ``n`` and ``2 n`` realisations: the process start-up of the pool and each
+worker's first calls are left out; the wall time of the larger run is given in the note.
 """
 
 from __future__ import annotations
@@ -22,11 +23,20 @@ __all__ = ["bench_harness"]
 
 
 def _rate(suite_dict: dict, workers: int):
-    run = run_suite(suite_from_dict(suite_dict), workers=workers, progress=False)
-    (proto,) = run.cpu_s_by_protocol
-    n = run.realisations_by_protocol[proto]
-    cpu = run.cpu_s_by_protocol[proto]
-    return 1e3 * cpu / n, n / cpu * workers, run.wall_s, n
+    """``(ms per realisation of one worker, realisations/s with the workers, wall s, n)`` of a
+    one-protocol suite: the marginal cost of a realisation, from two runs of ``n`` and ``2 n``
+    realisations (the difference of the workers' summed seconds over the ``n`` more), so each
+    worker's first calls (its imports, numba's compiled kernels loaded from the cache: about a
+    second per worker) are left out as the pool's start-up is; a whole suite pays them once per
+    worker. The wall time and ``n`` are the larger run's."""
+    n1 = suite_dict["suite"]["realisations"]
+    twice = {**suite_dict, "suite": {**suite_dict["suite"], "realisations": 2 * n1}}
+    runs = [run_suite(suite_from_dict(d), workers=workers, progress=False) for d in (suite_dict, twice)]
+    (proto,) = runs[1].cpu_s_by_protocol
+    (c1, c2), (m1, m2) = ([r.cpu_s_by_protocol[proto] for r in runs],
+                          [r.realisations_by_protocol[proto] for r in runs])
+    cpu_each = (c2 - c1) / (m2 - m1) if c2 > c1 else c2 / m2  # the load can invert two close runs
+    return 1e3 * cpu_each, workers / cpu_each, runs[1].wall_s, m2
 
 
 def bench_harness(repeat: int = 3) -> list:
