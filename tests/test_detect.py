@@ -361,3 +361,57 @@ def test_the_noise_of_uint8_rows_by_counting_is_numpys_median(seed, h, w, kind):
     d = g[:, 1:-1] - 0.5 * (g[:, :-2] + g[:, 2:])
     want = float(1.4826 * np.median(np.abs(d - np.median(d))) / np.sqrt(1.5))
     assert _noise_sigma_of_rows(rows) == want
+
+
+def _scope_border_by_labels(gray, level):
+    """The scope border as it was found by labelling the whole reduced image (the reference of
+    the corners' flood fills)."""
+    import cv2
+
+    from simtest.reconstruct.detect import connected_components_boxes
+
+    h, w = gray.shape
+    f = 4 if min(h, w) >= 64 else 1
+    small = cv2.resize(gray[: h // f * f, : w // f * f].astype(np.float32, copy=False),
+                       (max(1, w // f), max(1, h // f)), interpolation=cv2.INTER_AREA) if f > 1 else gray
+    dark = (small < level).astype(np.uint8)
+    n, lab, stats = connected_components_boxes(dark)
+    if n <= 1:
+        return None
+    corners = np.array([lab[0, 0], lab[0, -1], lab[-1, 0], lab[-1, -1]])
+    edge = np.unique(corners[corners > 0])
+    if len(corners[corners > 0]) < 2:
+        return None
+    frac = stats[edge, cv2.CC_STAT_AREA].sum() / dark.size
+    if not 0.01 <= frac <= 0.6:
+        return None
+    border = np.isin(lab, edge).view(np.uint8)
+    close, grow = (15 // f) | 1, (11 // f) | 1
+    border = cv2.morphologyEx(border, cv2.MORPH_CLOSE, np.ones((close, close), np.uint8))
+    border = cv2.dilate(border, np.ones((grow, grow), np.uint8))
+    if f > 1:
+        border = cv2.resize(border, (w, h), interpolation=cv2.INTER_NEAREST)
+    return border.view(bool)
+
+
+@settings(max_examples=150, deadline=None)
+@given(seed=st.integers(0, 2**32 - 1), shape=st.sampled_from([(40, 50), (96, 130), (150, 121)]),
+       radius=st.floats(0.2, 0.8), speckle=st.floats(0.0, 0.3))
+def test_the_scope_border_from_the_corners_is_the_labellings(seed, shape, radius, speckle):
+    # a lit disc (the field of view) of random size and centre on a dark frame, dark speckle
+    # inside it and lit speckle outside (text on the border): the border's components, areas and
+    # mask must be those of labelling the whole reduced image, None included
+    from simtest.reconstruct.detect import _scope_border
+
+    rng = np.random.default_rng(seed)
+    h, w = shape
+    yy, xx = np.mgrid[:h, :w]
+    cy, cx = rng.uniform(0, h), rng.uniform(0, w)
+    lit = (yy - cy) ** 2 + (xx - cx) ** 2 < (radius * max(h, w)) ** 2
+    flip = rng.random((h, w)) < speckle
+    gray = np.where(lit ^ flip, rng.uniform(60, 255, (h, w)), rng.uniform(0, 15, (h, w))).astype(np.float32)
+    want = _scope_border_by_labels(gray, 20.0)
+    got = _scope_border(gray, 20.0)
+    assert (got is None) == (want is None)
+    if want is not None:
+        assert np.array_equal(got, want)

@@ -583,18 +583,22 @@ def _scope_border(gray: np.ndarray, level: float) -> np.ndarray | None:
     small = cv2.resize(gray[: h // f * f, : w // f * f].astype(np.float32, copy=False),
                        (max(1, w // f), max(1, h // f)), interpolation=cv2.INTER_AREA) if f > 1 else gray
     dark = (small < level).astype(np.uint8)
-    n, lab, stats = connected_components_boxes(dark)
-    if n <= 1:
+    # a scope's field of view is round or octagonal: its black border holds the image corners.
+    # The dark 8-connected components holding them are flood-filled from the corners (2), each
+    # once: the components and areas of a labelling of the whole image, for a fraction of its
+    # time (0.45 against about 0.1 ms on the noisy bench frame, one dark region to its corners)
+    hs, ws = dark.shape
+    corners = [(0, 0), (ws - 1, 0), (0, hs - 1), (ws - 1, hs - 1)]  # (x, y)
+    if sum(int(dark[y, x]) for x, y in corners) < 2:
         return None
-    # a scope's field of view is round or octagonal: its black border holds the image corners
-    corners = np.array([lab[0, 0], lab[0, -1], lab[-1, 0], lab[-1, -1]])
-    edge = np.unique(corners[corners > 0])
-    if len(corners[corners > 0]) < 2:
-        return None
-    frac = stats[edge, cv2.CC_STAT_AREA].sum() / dark.size
+    area = 0
+    for x, y in corners:
+        if dark[y, x] == 1:
+            area += cv2.floodFill(dark, None, (x, y), 2, 0, 0, 8)[0]
+    frac = area / dark.size
     if not 0.01 <= frac <= 0.6:
         return None
-    border = np.isin(lab, edge).view(np.uint8)
+    border = (dark == 2).view(np.uint8)
     # the text drawn on the border: bright holes of the dark region (filled by closing)
     close, grow = (15 // f) | 1, (11 // f) | 1
     border = cv2.morphologyEx(border, cv2.MORPH_CLOSE, np.ones((close, close), np.uint8))
