@@ -582,11 +582,29 @@ def _scope_border(gray: np.ndarray, level: float) -> np.ndarray | None:
     # area reduction, a third of the time of the fractional one over the whole image
     small = cv2.resize(gray[: h // f * f, : w // f * f].astype(np.float32, copy=False),
                        (max(1, w // f), max(1, h // f)), interpolation=cv2.INTER_AREA) if f > 1 else gray
-    dark = (small < level).astype(np.uint8)
-    # a scope's field of view is round or octagonal: its black border holds the image corners.
-    # The dark 8-connected components holding them are flood-filled from the corners (2), each
-    # once: the components and areas of a labelling of the whole image, for a fraction of its
-    # time (0.45 against about 0.1 ms on the noisy bench frame, one dark region to its corners)
+    border = _dark_corner_components((small < level).astype(np.uint8))
+    if border is None:
+        return None
+    # the text drawn on the border: bright holes of the dark region (filled by closing)
+    close, grow = (15 // f) | 1, (11 // f) | 1
+    border = cv2.morphologyEx(border, cv2.MORPH_CLOSE, np.ones((close, close), np.uint8))
+    border = cv2.dilate(border, np.ones((grow, grow), np.uint8))
+    if f > 1:
+        border = cv2.resize(border, (w, h), interpolation=cv2.INTER_NEAREST)
+    return border.view(bool)
+
+
+def _dark_corner_components(dark: np.ndarray) -> np.ndarray | None:
+    """The dark 8-connected components that hold the corners of a uint8 0/1 mask (1 dark), as a
+    uint8 0/1 mask, when at least two corners are dark and those components cover 1 % to 60 % of
+    it; None otherwise. ``dark`` is written (the components become 2).
+
+    A scope's field of view is round or octagonal: its black border holds the image corners. The
+    components are flood-filled from the corners, each once: those of a labelling of the whole
+    mask and their areas, for a fraction of its time (0.45 against about 0.1 ms on the noisy bench
+    frame's reduced image, one dark region to its corners; ``tests/test_detect.py`` compares the
+    two on random masks).
+    """
     hs, ws = dark.shape
     corners = [(0, 0), (ws - 1, 0), (0, hs - 1), (ws - 1, hs - 1)]  # (x, y)
     if sum(int(dark[y, x]) for x, y in corners) < 2:
@@ -595,17 +613,9 @@ def _scope_border(gray: np.ndarray, level: float) -> np.ndarray | None:
     for x, y in corners:
         if dark[y, x] == 1:
             area += cv2.floodFill(dark, None, (x, y), 2, 0, 0, 8)[0]
-    frac = area / dark.size
-    if not 0.01 <= frac <= 0.6:
+    if not 0.01 <= area / dark.size <= 0.6:
         return None
-    border = (dark == 2).view(np.uint8)
-    # the text drawn on the border: bright holes of the dark region (filled by closing)
-    close, grow = (15 // f) | 1, (11 // f) | 1
-    border = cv2.morphologyEx(border, cv2.MORPH_CLOSE, np.ones((close, close), np.uint8))
-    border = cv2.dilate(border, np.ones((grow, grow), np.uint8))
-    if f > 1:
-        border = cv2.resize(border, (w, h), interpolation=cv2.INTER_NEAREST)
-    return border.view(bool)
+    return (dark == 2).view(np.uint8)
 
 
 #: The background square of :func:`local_peak_mask` is ``min(H, W) / BACKGROUND_DIV`` px (>= 31).
