@@ -334,9 +334,8 @@ class _Frame:
     saturation_level: float | None
     smooth_sigma_px: float
     luma_frame: np.ndarray | None = None
-    smooth_frame: np.ndarray | None = None
-    #: The writable array behind ``smooth_frame``, into which a large ROI's bands are written
-    #: for the time of its extraction (``_patched_from_frame``), then put back.
+    #: The frame's smoothed luma (``for_many_highlights``), into which a large ROI's bands are
+    #: written for the time of its extraction (``_patched_from_frame``), then put back.
     smooth_frame_rw: np.ndarray | None = None
 
     @classmethod
@@ -364,21 +363,30 @@ class _Frame:
         """BP-ray normals of pixels (k, 2): (k, 3), the same bits as one by one."""
         return _bp_rays(np.asarray(bp_uv, dtype=np.float64).reshape(-1, 2), self.camera)
 
+    @property
+    def smooth_frame(self) -> np.ndarray | None:
+        """The frame's smoothed luma (H, W), float64, as a read-only view of
+        ``smooth_frame_rw``; None when it was not computed."""
+        if self.smooth_frame_rw is None:
+            return None
+        view = self.smooth_frame_rw.view()
+        view.setflags(write=False)
+        return view
+
     def for_many_highlights(self) -> _Frame:
-        """This frame with the luma of the whole image computed once, and smoothed once when the
-        frame is smoothed (both read-only), for calls that look at many ROIs
+        """This frame with the luma of the whole image computed once (read-only), and smoothed
+        once when the frame is smoothed (a large ROI's bands are written into it for the time of
+        the ROI's extraction, then put back), for calls that look at many ROIs
         (:data:`LUMA_FRAME_MIN_HIGHLIGHTS`): an ROI's values are then slices of them, the same bits
         (``luma``, ``_roi_values``)."""
         full = self.luma_frame
         if full is None and self.img.ndim == 3:
             full = luma(self.img)
             full.setflags(write=False)
-        smooth, smooth_rw = self.smooth_frame, self.smooth_frame_rw
+        smooth = self.smooth_frame_rw
         if smooth is None and self.smooth_sigma_px > 0:
-            smooth_rw = _smooth(luma(self.img) if full is None else full, self.smooth_sigma_px)
-            smooth = smooth_rw.view()
-            smooth.setflags(write=False)
-        return replace(self, luma_frame=full, smooth_frame=smooth, smooth_frame_rw=smooth_rw)
+            smooth = _smooth(luma(self.img) if full is None else full, self.smooth_sigma_px)
+        return replace(self, luma_frame=full, smooth_frame_rw=smooth)
 
     def luma(self, roi: Roi) -> np.ndarray:
         """Luma of the image in ``roi`` (h, w), float64: sliced from the frame's luma when it
