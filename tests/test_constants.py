@@ -7,6 +7,8 @@ from pathlib import Path
 
 import cv2
 import numpy as np
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 from simtest import constants
 from simtest.reconstruct.detect import luma
@@ -53,3 +55,25 @@ def test_thread_environment_is_written_once():
     hits = [p.name for p in PACKAGE.rglob("*.py") if p.name != "constants.py"
             and '"OPENBLAS_NUM_THREADS"' in p.read_text(encoding="utf-8")]
     assert hits == []
+
+
+@settings(max_examples=60, deadline=None)
+@given(st.floats(0.2, 6.0), st.sampled_from([np.float32, np.float64]))
+def test_the_gaussian_radius_is_that_of_opencvs_kernel(sigma, dtype):
+    # the impulse response of cv2.GaussianBlur is its kernel: nonzero exactly on 2 R + 1 pixels
+    # (float kernels of these sigmas have no tap that underflows to zero)
+    n = 2 * 40 + 1
+    delta = np.zeros((n, n), dtype)
+    delta[40, 40] = 1
+    out = cv2.GaussianBlur(delta, (0, 0), sigma, borderType=cv2.BORDER_CONSTANT)
+    cols = np.flatnonzero(out[40])
+    r = constants.gaussian_radius_px(sigma)
+    assert cols.tolist() == list(range(40 - r, 40 + r + 1)), (sigma, cols.tolist())
+
+
+def test_the_smoothing_blocks_are_the_same_bytes_for_both_floats():
+    # the pipeline's strips (float64) and the paper protocol's regions (float32) align to one width
+    from simtest.reconstruct.pipeline import SMOOTH_STRIP_ALIGN
+    from simtest.simulate.paper import SMOOTH_ALIGN
+
+    assert SMOOTH_STRIP_ALIGN * 8 == SMOOTH_ALIGN * 4 == constants.SMOOTH_BLOCK_BYTES

@@ -72,6 +72,7 @@ import cv2
 import numpy as np
 
 from simtest._records import fast_init
+from simtest.constants import gaussian_radius_px, smooth_block_px
 from simtest.geometry.camera import validate_intrinsics
 from simtest.geometry.cameras import CameraModel, PinholeCamera
 from simtest.reconstruct import _kernels
@@ -107,14 +108,12 @@ _TINY = float(np.finfo(float).tiny)
 #: 186 against 182 us; at 128 px 114 against 142 us, at 224 px 355 against 249 us).
 SMOOTH_FRAME_MIN_ROI_PX = 160 * 160
 #: Columns the strip re-smoothed at an ROI's right side starts on a multiple of, and more than
-#: it covers: OpenCV smooths a float64 row in SIMD blocks from its first column and the last few
-#: columns in scalar code, and the two may round a sum differently (an FMA), so the strip puts
-#: each column in the same kind of block as the ROI does, and reaches past the frame's own scalar
-#: columns when the ROI ends on the image's right border. 16 is twice the widest SIMD width of
-#: doubles (8 lanes, AVX-512); on this project's machines (AVX-512 CPUs) 4 already gives the same
-#: bits over random ROIs, 2 does not. The strips cost in proportion to their width: 16 instead of
-#: 64 halved the re-smoothed pixels of the Hyper-Kvasir banner (8.6 to 3.9 Mpx).
-SMOOTH_STRIP_ALIGN = 16
+#: it covers (:data:`simtest.constants.SMOOTH_BLOCK_BYTES` of float64): each column of the strip is
+#: computed in the same kind of block (SIMD, or a row's scalar last columns) as in the ROI, and the
+#: strip reaches past the frame's own scalar columns when the ROI ends on the image's right border.
+#: The strips cost in proportion to their width: 16 instead of 64 halved the re-smoothed pixels of
+#: the Hyper-Kvasir banner (8.6 to 3.9 Mpx).
+SMOOTH_STRIP_ALIGN = smooth_block_px(np.dtype(np.float64).itemsize)
 
 #: ROI growth when the lowest isophote is cut by a ROI side inside the image.
 ROI_GROWTH_FACTOR = 2.0
@@ -539,7 +538,7 @@ def _patched_from_frame(smooth_frame: np.ndarray, vals: np.ndarray, roi: Roi,
     those of smoothing the ROI, and the frame is itself again after :func:`_put_back`:
     ``tests/test_pipeline.py`` checks random ROIs.
     """
-    r = int(np.ceil(4.0 * sigma)) + 1  # >= OpenCV's radius for float64: round(8 sigma + 1) | 1 taps
+    r = gaussian_radius_px(sigma) + 1  # one more than OpenCV's kernel radius
     h, w = vals.shape
     H = smooth_frame.shape[0]
     c = (w - SMOOTH_STRIP_ALIGN - 2 * r) // SMOOTH_STRIP_ALIGN * SMOOTH_STRIP_ALIGN

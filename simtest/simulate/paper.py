@@ -56,6 +56,7 @@ from dataclasses import dataclass, field
 import cv2
 import numpy as np
 
+from simtest.constants import gaussian_radius_px, smooth_block_px
 from simtest.specular import phong_intensity
 
 __all__ = ["PaperParams", "PaperSample", "PaperSimulator", "simulate_paper", "paper_homography"]
@@ -289,10 +290,10 @@ def mirror_point(V, L) -> np.ndarray:
 
 
 #: Columns the region a sample is smoothed in starts on a multiple of (:meth:`PaperSimulator.sample`
-#: with ``region``), and reaches past its box by, beyond the kernel's radius: twice the widest
-#: SIMD width of float32 (16 lanes, AVX-512), so that OpenCV computes each column of the box in
-#: the same kind of block (SIMD or the row's scalar last columns) as over the whole image.
-SMOOTH_ALIGN = 32
+#: with ``region``), and reaches past its box by, beyond the kernel's radius
+#: (:data:`simtest.constants.SMOOTH_BLOCK_BYTES` of float32): OpenCV then computes each column of
+#: the box in the same kind of block (SIMD or the row's scalar last columns) as over the whole image.
+SMOOTH_ALIGN = smooth_block_px(np.dtype(np.float32).itemsize)
 
 
 @dataclass
@@ -420,7 +421,7 @@ class PaperSimulator:
         # the same kind of block as in the whole image
         o0, o1, q0, q1 = 0, M, 0, M
         if p.smoothing_px > 0:
-            pad = _blur_radius_px(p.smoothing_px) + 1
+            pad = gaussian_radius_px(p.smoothing_px) + 1
             o0, o1 = max(0, r0 - pad), min(M, r1 + pad)
             q0 = max(0, c0 - pad) // SMOOTH_ALIGN * SMOOTH_ALIGN
             q1 = c1 + pad + SMOOTH_ALIGN
@@ -448,12 +449,6 @@ class PaperSimulator:
         image[r0:r1, c0:c1] /= np.float32(value)  # image is this realisation's own array here
         return PaperSample(image=image, K=K.copy(), bp_px=bp_px.copy(), normal=normal.copy(),
                            light_px=L, bp_value=float(value), clean=clean, region=asked)
-
-
-def _blur_radius_px(sigma_px: float) -> int:
-    """Radius of OpenCV's Gaussian kernel for a float image and ``ksize = (0, 0)``: the size is
-    ``cvRound(8 sigma + 1) | 1`` (``cv::GaussianBlur``, OpenCV 4's ``createGaussianKernels``)."""
-    return (int(round(8.0 * sigma_px + 1.0)) | 1) // 2
 
 
 def _read_box(region, bp_px: np.ndarray, M: int) -> tuple[int, int, int, int]:
