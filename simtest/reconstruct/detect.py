@@ -882,14 +882,17 @@ def detect_specularities(
         gray = cv2.GaussianBlur(gray.astype(np.float32), (0, 0), float(smooth_sigma_px),
                                 borderType=cv2.BORDER_REFLECT)
     h, w = gray.shape
-    levels = None
+    levels = gray32 = None
     clipped = None  # whole-frame clipped mask, when the method computes it
     if method == "local_peak":
         if not 0.0 < peak_rel < 1.0:
             raise ValueError(f"peak_rel must be in (0, 1), got {peak_rel!r}")
         clipped = clipped_mask(img, saturation_level, native)
         side = background_side_px((h, w), clipped)
-        mask, background = local_peak_mask(gray, fs, peak_rel=peak_rel,
+        # the float32 intensities of the mask and of the scope border, converted once (an 8-bit
+        # gray frame not smoothed: the same values as each converting its own copy)
+        gray32 = gray.astype(np.float32, copy=False)
+        mask, background = local_peak_mask(gray32, fs, peak_rel=peak_rel,
                                            contrast_min_rel=contrast_min_rel, background_px=side)
         thr = contrast_min_rel * fs
         levels = background
@@ -902,7 +905,7 @@ def detect_specularities(
     # apart), its centroid the BP.
     k_close = max(3, 2 * int(np.ceil(2.0 * smooth_sigma_px)) + 1) if smooth_sigma_px > 0 else 3
     frame = _DetectFrame(
-        img=img, gray=gray, method=method, full_scale=fs, clipped=clipped, levels=levels,
+        img=img, gray=gray, gray32=gray32, method=method, full_scale=fs, clipped=clipped, levels=levels,
         saturation_level=saturation_level, min_area_px=min_area_px,
         ellipticity_min=ellipticity_min, min_plateau_px=min_plateau_px, roi_scale=roi_scale,
         roi_margin_px=roi_margin_px, max_candidates=max_candidates, peak_rel=peak_rel,
@@ -922,7 +925,8 @@ class _DetectFrame:
     :func:`detect_specularities`, resolved, and the frame's arrays): ``img`` the validated image,
     ``gray`` the intensities examined (H, W), ``clipped`` the whole-frame clipped mask where the
     method computes it, ``levels`` the local background (``"local_peak"``), ``k_close`` the side
-    of the wide closing of clipped pieces."""
+    of the wide closing of clipped pieces, ``gray32`` the gray as float32 where the method made it
+    (the scope border's input; None: converted from ``gray``)."""
 
     img: np.ndarray
     gray: np.ndarray
@@ -939,10 +943,13 @@ class _DetectFrame:
     max_candidates: int
     peak_rel: float
     k_close: int
+    gray32: np.ndarray | None = None
 
     def scope(self) -> np.ndarray | None:
         """The endoscope's black border (``"local_peak"`` only), see :func:`_scope_border`."""
-        return _scope_border(self.gray, 0.08 * self.full_scale) if self.method == "local_peak" else None
+        if self.method != "local_peak":
+            return None
+        return _scope_border(self.gray if self.gray32 is None else self.gray32, 0.08 * self.full_scale)
 
 
 def _outer_components(mask: np.ndarray) -> list[tuple[int, int, int, int, int, np.ndarray]]:
