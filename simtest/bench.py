@@ -19,7 +19,8 @@ Sections
   frame (the bundled ``colonoscope`` scene at seed 0, through its own camera model; same target).
   Inputs are pinned: seeds 0 and 12, the banner in tests/data/real. Under each frame's row, the
   frame's OpenCV calls replayed alone (:func:`opencv_calls`, :func:`replay_opencv_ms`): the
-  library's share of its time.
+  library's share of its time; then its compiled kernels timed in place (:func:`kernel_times`):
+  the rest of the frame's time is Python and numpy's calls.
   The light-aware fits per highlight (an exact 64 x 64 px highlight of a plane lit 3 mm off the
   camera): ``isocurve_fit`` <= 1 ms, ``photometric_fit`` <= 5 ms.
 - Hooks for other packages: see :data:`EXTERNAL_SECTIONS` below. A package adds a section by
@@ -253,6 +254,72 @@ def replay_opencv_ms(calls: list[OpenCVCall], repeat: int) -> tuple[float, float
     return statistics.median(totals), min(totals), per
 
 
+#: The modules of the reconstruction's compiled (numba) kernels: those :func:`kernel_times` times.
+KERNEL_MODULES = ("simtest.reconstruct._kernels", "simtest.reconstruct._detect_kernels",
+                  "simtest.reconstruct._fit_kernels")
+
+
+def _dispatchers(module) -> list[str]:
+    """Names of the numba-compiled functions a module holds (those called from Python)."""
+    import numba
+
+    return sorted(n for n, f in vars(module).items() if isinstance(f, numba.core.dispatcher.Dispatcher))
+
+
+@contextmanager
+def kernel_times() -> Iterator[dict[str, float]]:
+    """Time the reconstruction's compiled kernels in place, inside the block (a context manager).
+
+    Every numba-compiled function of :data:`KERNEL_MODULES` is replaced in its module by a timer
+    that calls it and adds its wall time to its entry of the yielded dict (name -> ms, summed over
+    the calls), and put back on leaving the block, also when it raises. The pipeline calls its
+    kernels as attributes of their modules, so each of its calls goes through a timer; a kernel
+    that another kernel calls is timed as part of its caller. Unlike OpenCV's calls
+    (:func:`opencv_calls`), the kernels are not replayed: they run on the frame's own arrays and
+    layouts. The timer's own cost (about a microsecond a call) is outside the sums. Not
+    thread-safe (it patches the modules).
+    """
+    times: dict[str, float] = {}
+    patched = []
+    for mod_name in KERNEL_MODULES:
+        mod = importlib.import_module(mod_name)
+        for name in _dispatchers(mod):
+            fn = getattr(mod, name)
+
+            def timer(*args, _fn=fn, _name=name, **kwargs):
+                t0 = time.perf_counter()
+                try:
+                    return _fn(*args, **kwargs)
+                finally:
+                    times[_name] = times.get(_name, 0.0) + (time.perf_counter() - t0) * 1e3
+
+            patched.append((mod, name, fn))
+            setattr(mod, name, timer)
+    try:
+        yield times
+    finally:
+        for mod, name, fn in patched:
+            setattr(mod, name, fn)
+
+
+def kernel_ms(fn: Callable[[], object], repeat: int) -> tuple[float, float, dict[str, float]]:
+    """The compiled kernels' time in ``fn()`` (:func:`kernel_times`) over ``repeat`` runs after
+    one warm-up: median and minimum of the runs' sums, ms, and each kernel's mean per run, ms,
+    largest first."""
+    fn()
+    totals: list[float] = []
+    per: dict[str, float] = {}
+    for _ in range(max(1, repeat)):
+        with kernel_times() as times:
+            fn()
+        totals.append(sum(times.values()))
+        for name, t in times.items():
+            per[name] = per.get(name, 0.0) + t
+    n = len(totals)
+    per = {name: t / n for name, t in sorted(per.items(), key=lambda kv: -kv[1])}
+    return statistics.median(totals), min(totals), per
+
+
 def resolve_section(name: str) -> SectionFn | None:
     """The function of a section, built-in or external; None if unknown or not importable."""
     if name in SECTIONS:
@@ -422,6 +489,7 @@ def bench_reconstruct(repeat: int = 50) -> list[BenchResult]:
                                f"bar 15 ms; {len(ests)} candidates, {sum(e.ok for e in ests)} ok; "
                                f"CPU {cpu:.3g} ms"))
         out.append(_opencv_row(lambda: reconstruct(frame, Kf), n_frame))
+        out.append(_kernel_row(lambda: reconstruct(frame, Kf), n_frame))
     out += _candidate_frame_rows("per real frame: Hyper-Kvasir banner 2240x840 JPEG, defaults",
                                  "per real frame: banner (source tree not found)", banner_frame(), repeat)
     out += _bench_light_aware(repeat)
@@ -444,10 +512,20 @@ def _opencv_row(fn: Callable[[], object], repeat: int) -> BenchResult:
                        f"{len(calls)} calls; {top}")
 
 
+def _kernel_row(fn: Callable[[], object], repeat: int) -> BenchResult:
+    """The second row under a frame's: its compiled kernels timed in place (:func:`kernel_ms`).
+    With the OpenCV row it splits the frame's time: what is left is Python and numpy's calls."""
+    med, best, per = kernel_ms(fn, repeat)
+    top = ", ".join(f"{name} {t:.3g} ms" for name, t in list(per.items())[:3])
+    return BenchResult("reconstruct", "  of which its compiled kernels, timed in place", med, "ms", None, best,
+                       top)
+
+
 def _candidate_frame_rows(name: str, missing: str, frame_camera, repeat: int) -> list[BenchResult]:
     """The rows of a frame with about 1000 candidates, every one examined (target 50 ms, bar 150 ms),
-    and of its OpenCV calls replayed alone (:func:`_opencv_row`): ``frame_camera`` is ``(image, K
-    or camera model)``, or None (one NaN row named ``missing``)."""
+    of its OpenCV calls replayed alone (:func:`_opencv_row`) and of its compiled kernels
+    (:func:`_kernel_row`): ``frame_camera`` is ``(image, K or camera model)``, or None (one NaN
+    row named ``missing``)."""
     if frame_camera is None:
         return [BenchResult("reconstruct", missing, float("nan"), "ms", 50.0)]
     img, cam = frame_camera
@@ -457,7 +535,7 @@ def _candidate_frame_rows(name: str, missing: str, frame_camera, repeat: int) ->
     return [BenchResult("reconstruct", name, med, "ms", 50.0, best,
                         f"bar 150 ms; {len(ests)} candidates examined, {sum(e.ok for e in ests)} ok; "
                         f"CPU {cpu:.4g} ms"),
-            _opencv_row(lambda: reconstruct(img, cam), n)]
+            _opencv_row(lambda: reconstruct(img, cam), n), _kernel_row(lambda: reconstruct(img, cam), n)]
 
 
 def synthetic_offset_highlight(size: int = 64, n_phong: float = 150.0):

@@ -3,6 +3,7 @@
 
 from __future__ import annotations
 
+import importlib
 import re
 from pathlib import Path
 
@@ -169,3 +170,60 @@ def test_every_image_function_the_reconstruction_calls_is_recorded():
             used |= set(re.findall(r"cv2\.([A-Za-z_]\w*)\(", path.read_text()))
     io = {"VideoCapture", "imdecode", "imread", "imwrite", "FileStorage"}
     assert used - io <= set(bench.OPENCV_FUNCTIONS), used - io - set(bench.OPENCV_FUNCTIONS)
+
+
+# ---- the compiled kernels' share of a frame: timed in place -------------------------------------
+
+
+def _kernel_functions() -> dict:
+    out = {}
+    for mod_name in bench.KERNEL_MODULES:
+        mod = importlib.import_module(mod_name)
+        out.update({(mod_name, n): getattr(mod, n) for n in bench._dispatchers(mod)})
+    return out
+
+
+def test_kernel_times_sums_each_kernel_and_puts_the_modules_back():
+    from simtest.reconstruct import _kernels
+
+    before = _kernel_functions()
+    assert ("simtest.reconstruct._kernels", "border_median") in before
+    vals = np.arange(30.0).reshape(5, 6)
+    frame, K, _ = bench.noisy_frame()
+    want = reconstruct(frame, K)
+    with bench.kernel_times() as times:
+        m = _kernels.border_median(vals)
+        _kernels.border_median(vals)
+        got = reconstruct(frame, K)
+    assert m == np.median(np.concatenate([vals[0], vals[-1], vals[1:-1, 0], vals[1:-1, -1]]))
+    # each call went through its timer (the frame's own border medians among them), and the
+    # frame's results are those of an untimed run
+    assert times["border_median"] > 0 and {"top_hat", "peak_mask", "fit_conics"} <= set(times)
+    assert [estimate_to_dict(e, True) for e in got] == [estimate_to_dict(e, True) for e in want]
+    assert _kernel_functions() == before
+    with pytest.raises(RuntimeError, match="inside"):
+        with bench.kernel_times():
+            raise RuntimeError("inside")
+    assert _kernel_functions() == before
+    med, best, per = bench.kernel_ms(lambda: _kernels.border_median(vals), 3)
+    assert list(per) == ["border_median"] and 0 < best <= med
+
+
+def test_every_compiled_kernel_the_reconstruction_calls_is_timed():
+    # the in-place row is the kernels' whole share only if the pipeline calls each of them as an
+    # attribute of its module (a name imported from it would escape the timer)
+    root = Path(bench.__file__).resolve().parent / "reconstruct"
+    alias = {"_kernels": "simtest.reconstruct._kernels", "_dk": "simtest.reconstruct._detect_kernels",
+             "_fit_kernels": "simtest.reconstruct._fit_kernels"}
+    wrapped = {mod: set(bench._dispatchers(importlib.import_module(mod))) for mod in bench.KERNEL_MODULES}
+    called = set()
+    for path in root.glob("*.py"):
+        if path.stem in {m.rsplit(".", 1)[1] for m in bench.KERNEL_MODULES}:
+            continue
+        text = path.read_text()
+        for a, name in re.findall(r"\b(_kernels|_dk|_fit_kernels)\.([A-Za-z_]\w*)\(", text):
+            called.add((alias[a], name))
+        for mod, names in re.findall(r"from simtest\.reconstruct\.(_\w*kernels) import ([^\n]+)", text):
+            imported = {n.split(" as ")[0].strip() for n in names.split(",")}
+            assert not imported & wrapped[f"simtest.reconstruct.{mod}"], (path.name, imported)
+    assert called and all(name in wrapped[mod] for mod, name in called), called
