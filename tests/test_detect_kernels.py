@@ -432,6 +432,13 @@ def test_mask_labels_are_those_of_one_pass_over_the_mask(seed, fill, blobs):
     got_n, got_lab, got_stats = mask_labels(mask)
     assert got_n == n - 1 and got_lab.dtype == np.int32 and np.array_equal(got_lab, lab)
     assert np.array_equal(got_stats, stats[1:]) and got_stats.shape == (n - 1, 5)
+    # the candidates' form (pixels outside the bands unwritten): the same labels and stats, and
+    # inside every component's bounding box the same label image, on memory full of junk
+    junk = np.full((h, w), -7, np.int32)
+    e_n, e_lab, e_stats = detect._mask_labels(mask, lambda shape, dtype: junk.copy())
+    assert e_n == n - 1 and np.array_equal(e_stats, got_stats)
+    for x, y, bw, bh, _ in e_stats:
+        assert np.array_equal(e_lab[y : y + bh, x : x + bw], lab[y : y + bh, x : x + bw])
 
 
 @settings(max_examples=60, deadline=None)

@@ -54,7 +54,8 @@ def paste_labels(dst, lab, offset):
     Parameters
     ----------
     dst : ndarray of shape (h, w), int32
-        The frame's label image over the band (a view); its background is left as it is.
+        The frame's label image over the band (a view), written whole: its background pixels
+        become 0 (the bands of a mask do not overlap, so the frame's image may start unwritten).
     lab : ndarray of shape (h, w), int32
         The band's labels.
     offset : int
@@ -64,8 +65,7 @@ def paste_labels(dst, lab, offset):
     for r in range(h):
         for c in range(w):
             v = lab[r, c]
-            if v != 0:
-                dst[r, c] = v + offset
+            dst[r, c] = v + offset if v != 0 else 0
 
 
 @numba.njit(cache=True, nogil=True)

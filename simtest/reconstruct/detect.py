@@ -150,6 +150,16 @@ def mask_labels(mask: np.ndarray) -> tuple[int, np.ndarray, np.ndarray]:
     bands hold more than half the rows, one pass over the whole mask is cheaper (3.9 ms against
     5.3 ms on the bench's colonoscope frame) and is taken.
     """
+    return _mask_labels(mask, np.zeros)
+
+
+def _mask_labels(mask: np.ndarray, alloc) -> tuple[int, np.ndarray, np.ndarray]:
+    """:func:`mask_labels`, the label image of several bands made by ``alloc(shape, dtype)``:
+    ``np.zeros`` gives the documented image; ``np.empty`` leaves the pixels outside the bands'
+    boxes (rows of a band, columns from its first to its last mask pixel, each box written whole
+    by ``paste_labels``) unwritten, for a caller that reads the labels inside the components'
+    bounding boxes only, which lie in those boxes (zeroing a 1350 x 1080 int32 image takes 0.3 ms,
+    a fiftieth of the noisy bench frame)."""
     h, w = mask.shape
     bands = _bands(mask)
     if not bands:
@@ -167,7 +177,7 @@ def mask_labels(mask: np.ndarray) -> tuple[int, np.ndarray, np.ndarray]:
             labels = lab  # one band: the whole mask
         else:
             if labels is None:
-                labels = np.zeros((h, w), np.int32)
+                labels = alloc((h, w), np.int32)
             _dk.paste_labels(labels[r0:r1, c0 : c0 + lab.shape[1]], lab, n)
         stats = stats[1:]
         stats[:, cv2.CC_STAT_LEFT] += c0
@@ -987,8 +997,9 @@ def _candidates_compiled(frame: _DetectFrame, mask: np.ndarray) -> tuple[list[Ca
         return None
     if frame.method == "local_peak":
         # the components of one labelling of the whole mask: those of mask_components, in the
-        # same order
-        n_comps, labels, stats = mask_labels(mask)
+        # same order; the labels are read inside the components' boxes only (the kernel,
+        # _examine_numpy, ellipticity), so the image outside the bands is left unwritten
+        n_comps, labels, stats = _mask_labels(mask, np.empty)
         if n_comps == 0:
             return [], 0
         table = np.empty((n_comps, 6), np.int64)
