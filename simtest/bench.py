@@ -42,6 +42,7 @@ from contextlib import contextmanager
 from dataclasses import dataclass
 
 import cv2
+import numba
 import numpy as np
 import typer
 from rich.console import Console
@@ -261,8 +262,6 @@ KERNEL_MODULES = ("simtest.reconstruct._kernels", "simtest.reconstruct._detect_k
 
 def _dispatchers(module) -> list[str]:
     """Names of the numba-compiled functions a module holds (those called from Python)."""
-    import numba
-
     return sorted(n for n, f in vars(module).items() if isinstance(f, numba.core.dispatcher.Dispatcher))
 
 
