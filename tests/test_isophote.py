@@ -5,6 +5,7 @@ from __future__ import annotations
 import ast
 import inspect
 
+import cv2
 import numpy as np
 import pytest
 from hypothesis import given, settings
@@ -204,3 +205,30 @@ def test_the_tracer_gives_open_contours_in_order_and_declines_the_rest():
     img[3:6, 3:6] = 1.0
     img[4, 4] = 0.5  # a pixel exactly at the level
     assert _traced(img, 0.5) is None
+
+
+@settings(max_examples=80, deadline=None)
+@given(st.integers(0, 2**32 - 1), st.booleans())
+def test_the_whole_regions_closed_hits_are_its_closed_contours_that_hold_the_bp(seed, on_vertex):
+    # _whole_region_contours tests a contour's box before its polygon (the box taken in array
+    # coordinates, then shifted): only a pre-filter, the same contours as the polygon test alone,
+    # also with the BP on a contour's vertex (on its box's edge) and far from the image origin
+    from skimage.measure import find_contours
+
+    from simtest.reconstruct import isophote
+
+    rng = np.random.default_rng(seed)
+    h, w = (int(v) for v in rng.integers(3, 40, 2))
+    sub = cv2.GaussianBlur(rng.random((h, w)), (0, 0), float(rng.uniform(0.5, 2.0)))
+    level = float(np.median(sub))
+    r0, c0 = (int(v) for v in rng.integers(0, 5000, 2))
+    roi = Roi(r0, r0 + h, c0, c0 + w)
+    closed = [rc[:-1] for rc in find_contours(sub, level)
+              if len(rc) >= 3 and rc[0, 0] == rc[-1, 0] and rc[0, 1] == rc[-1, 1]]
+    bp = np.array([c0 + rng.uniform(0, w - 1), r0 + rng.uniform(0, h - 1)])
+    if on_vertex and closed:
+        row, col = closed[0][int(rng.integers(len(closed[0])))]
+        bp = np.array([col + c0, row + r0])
+    want = [uv for uv in (rc_to_uv(rc, r0, c0) for rc in closed) if polygon_contains(uv, bp)]
+    got, _ = isophote._whole_region_contours(sub, level, roi, bp)
+    assert len(got) == len(want) and all(np.array_equal(a, b) for a, b in zip(got, want))

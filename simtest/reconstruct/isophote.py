@@ -385,12 +385,19 @@ def _whole_region_contours(sub, level, roi, bp_uv):
     """Closed contours of the whole region that enclose the BP (as (u, v)), and the open ones
     (as (row, col) in ``sub``)."""
     closed_hits, open_contours = [], []
+    u, v = float(bp_uv[0]), float(bp_uv[1])
+    row0, col0 = float(roi.row0), float(roi.col0)
     for rc in find_contours(sub, level):
         if len(rc) >= 3 and rc[0, 0] == rc[-1, 0] and rc[0, 1] == rc[-1, 1]:
-            uv = rc_to_uv(rc[:-1], roi.row0, roi.col0)
-            lo, hi = uv.min(axis=0), uv.max(axis=0)
-            if np.all((lo <= bp_uv) & (bp_uv <= hi)) and polygon_contains(uv, bp_uv):
-                closed_hits.append(uv)
+            body = rc[:-1]
+            (r_lo, c_lo), (r_hi, c_hi) = body.min(axis=0).tolist(), body.max(axis=0).tolist()
+            # the box of the points in (u, v) = (col + col0, row + row0): a rounded sum grows with
+            # its term, so the box of the shifted points is the shifted box, the same bits
+            # (rc_to_uv only for the few contours whose box holds the BP)
+            if c_lo + col0 <= u <= c_hi + col0 and r_lo + row0 <= v <= r_hi + row0:
+                uv = rc_to_uv(body, roi.row0, roi.col0)
+                if polygon_contains(uv, bp_uv):
+                    closed_hits.append(uv)
         else:
             open_contours.append(rc)
     return closed_hits, open_contours
