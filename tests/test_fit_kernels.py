@@ -98,13 +98,18 @@ def _assert_agree(got, want):
     assert got.n_points == want.n_points
     assert np.abs(got.conic - want.conic).max() <= REL  # unit Frobenius norm
     size = np.abs(want.ellipse.center).max() + want.ellipse.semi_axes[0]
-    assert np.abs(got.ellipse.center - want.ellipse.center).max() <= REL * size
-    assert np.abs(got.ellipse.semi_axes - want.ellipse.semi_axes).max() <= REL * size
+    a, b = want.ellipse.semi_axes
+    # the centre solves A2 c = -b2 with the conic's quadratic part A2, whose condition number is
+    # (a / b)^2: a thin ellipse's centre and axes move that much more than its conic (seed 112827:
+    # 16 noisy points of a 323 x 16 px ellipse 1800 px from the origin, the conics 1e-10 apart,
+    # the centres 6e-6 px)
+    cond = (a / b) ** 2
+    assert np.abs(got.ellipse.center - want.ellipse.center).max() <= REL * size * cond
+    assert np.abs(got.ellipse.semi_axes - want.ellipse.semi_axes).max() <= REL * size * cond
     # the angle is defined by the eccentricity: a near-circle's turns freely with rounding
     d = abs(got.ellipse.angle_rad - want.ellipse.angle_rad)
     d = min(d, np.pi - d)
-    a, b = want.ellipse.semi_axes
-    assert d * (a - b) <= REL * size
+    assert d * (a - b) <= REL * size * cond
     assert abs(got.residual_px - want.residual_px) <= RESIDUAL_REL * want.residual_px + RESIDUAL_ABS_PX
 
 
