@@ -209,3 +209,45 @@ def test_batched_plane_projection_is_each_frames_own(seed, k):
         frame = FitFrame(None, R[i], K[i], False)
         want = frame.to_plane(rays[owner == i])
         assert np.array_equal(got[owner == i], want, equal_nan=True)
+
+
+@given(seed=st.integers(0, 2**32 - 1), k=st.integers(1, 120))
+@settings(max_examples=40, deadline=None)
+def test_the_guards_shortcut_changes_no_bit(seed, k):
+    # the guard against non-ellipses cleared by a Cholesky factorisation where it certainly
+    # passes (_guard_cleared) gives every output of the eigenvalue guard, to the bit, hyperbola
+    # and line-pair sets (refused by it) included
+    pts, counts = _batch(np.random.default_rng(seed), k)
+    keep = counts >= 6
+    pts = np.concatenate([s for s, n in zip(np.split(pts, np.cumsum(counts)[:-1]), keep) if n] or [np.empty((0, 2))])
+    counts = counts[keep]
+    if not len(counts):
+        return
+    starts = np.concatenate([[0], np.cumsum(counts)[:-1]]).astype(np.int64)
+    args = (np.ascontiguousarray(pts, dtype=np.float64), starts, counts.astype(np.int64),
+            _S3_RCOND, MAX_AXIS_TO_SPREAD, TOL.conic_degenerate_rel)
+    fast = _fit_kernels.fit_conics(*args)
+    full = _fit_kernels.fit_conics(*args, True)
+    for a, b in zip(fast, full, strict=True):
+        assert a.tobytes() == b.tobytes()
+
+
+@given(seed=st.integers(0, 2**32 - 1), ratio=st.floats(0.5, 8.0), spread=st.floats(-12.0, 0.0))
+@settings(max_examples=200, deadline=None)
+def test_a_cleared_guard_is_one_the_eigenvalues_pass(seed, ratio, spread):
+    # on positive semi-definite 6 x 6 matrices whose eigenvalues span up to 12 decades, with the
+    # residual at `ratio` times the least eigenvalue: cleared only where numpy's eigenvalues pass
+    # the guard, and cleared well inside it (ratio < 3.96 / 1.01 and a least eigenvalue not lost
+    # in the rounding of the largest)
+    rng = np.random.default_rng(seed)
+    q, _ = np.linalg.qr(rng.normal(size=(6, 6)))
+    w = np.sort(10.0 ** rng.uniform(spread, 0.0, 6)) * float(rng.uniform(1.0, 1e4))
+    s = (q * w) @ q.T
+    s = 0.5 * (s + s.T)
+    w_np = np.linalg.eigvalsh(s)
+    r = ratio * max(w_np[0], 1e-300)
+    cleared = _fit_kernels._guard_cleared(s, r)
+    if cleared:
+        assert not r > 3.96 * max(w_np[0] - 1e-12 * w_np[5], 0.0)
+    if ratio < 3.96 / 1.01 and w_np[0] > 1e-8 * w_np[5]:
+        assert cleared
