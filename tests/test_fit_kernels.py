@@ -214,9 +214,9 @@ def test_batched_plane_projection_is_each_frames_own(seed, k):
 @given(seed=st.integers(0, 2**32 - 1), k=st.integers(1, 120))
 @settings(max_examples=40, deadline=None)
 def test_the_guards_shortcut_changes_no_bit(seed, k):
-    # the guard against non-ellipses cleared by a Cholesky factorisation where it certainly
-    # passes (_guard_cleared) gives every output of the eigenvalue guard, to the bit, hyperbola
-    # and line-pair sets (refused by it) included
+    # the collinearity check and the guard against non-ellipses cleared by a Cholesky
+    # factorisation where they certainly pass (_least_eigenvalue_above) give every output of the
+    # eigenvalue checks, to the bit, collinear, hyperbola and line-pair sets (refused) included
     pts, counts = _batch(np.random.default_rng(seed), k)
     keep = counts >= 6
     pts = np.concatenate([s for s, n in zip(np.split(pts, np.cumsum(counts)[:-1]), keep) if n] or [np.empty((0, 2))])
@@ -246,8 +246,9 @@ def test_a_cleared_guard_is_one_the_eigenvalues_pass(seed, ratio, spread):
     s = 0.5 * (s + s.T)
     w_np = np.linalg.eigvalsh(s)
     r = ratio * max(w_np[0], 1e-300)
-    cleared = _fit_kernels._guard_cleared(s, r)
+    cleared = _fit_kernels._least_eigenvalue_above(s, r / 3.96)
     if cleared:
         assert not r > 3.96 * max(w_np[0] - 1e-12 * w_np[5], 0.0)
+        assert w_np[0] > 1e-10 * w_np[5]  # the collinearity check's form too (s3_rcond)
     if ratio < 3.96 / 1.01 and w_np[0] > 1e-8 * w_np[5]:
         assert cleared

@@ -146,42 +146,45 @@ def ellipse_of(c, eps):
 
 
 @numba.njit(cache=True, nogil=True)
-def _guard_cleared(sfull, r_ell):
-    """Whether the guard against non-ellipses is certainly passed without the eigenvalues of the
-    6 x 6 scatter matrix S: ``S - tau I`` has a Cholesky factorisation, with ``tau = r_ell / 3.96
-    (1 + 1e-9) + 2.1e-10 trace(S)``.
+def _least_eigenvalue_above(s, base):
+    """Whether the least eigenvalue that LAPACK computes for the symmetric positive semi-definite
+    matrix ``s`` (n x n, n <= 6) is certainly above ``base (1 + 1e-9) + 2e-10 trace(s)``, without
+    computing it: ``s - tau I`` has a Cholesky factorisation, ``tau = base (1 + 1e-9) + 2.1e-10
+    trace(s)``. False decides nothing (the caller computes the eigenvalues).
 
     Notes
     -----
-    The guard refuses a set when ``r_ell > 3.96 max(w0 - 1e-12 w5, 0)``, w0 and w5 the least and
-    largest eigenvalues LAPACK computes for S (positive semi-definite, so ``w5 <= trace(S) = T``).
-    A Cholesky factorisation that succeeds in floating point is exact for ``S - tau I + E`` with
-    ``|E| <= 6 * 7.8e-16 T`` or so [1, thm. 10.3], so the exact least eigenvalue is above
-    ``tau - 1e-14 T``, LAPACK's (backward stable, error far below ``1e-13 T`` for a 6 x 6 matrix)
-    above ``r_ell / 3.96 (1 + 1e-9) + 2e-10 T``, and ``w0 - 1e-12 w5`` above ``r_ell / 3.96``
-    with room for the rounding of the product: the guard passes, whatever the last bits of the
-    eigenvalues. A factorisation that fails decides nothing (the eigenvalues are computed); on
-    the ellipses of a frame (``r_ell`` near w0) it succeeds, and the set saves the call.
+    A Cholesky factorisation that succeeds in floating point is exact for ``s - tau I + E`` with
+    ``|E|`` of the order of ``n^2 eps trace(s)`` (below ``1e-14 trace(s)`` here) [1, thm. 10.3],
+    so the exact least eigenvalue exceeds ``tau - 1e-14 trace(s)``, and LAPACK's, backward stable
+    with an error far below ``1e-13 trace(s)`` for such a matrix, exceeds ``base (1 + 1e-9) +
+    2e-10 trace(s)``; the largest eigenvalue is at most ``trace(s)`` (to ``1e-13`` of it). The two
+    checks of :func:`_fit_one` that read eigenvalues ask for less: the linear scatter's
+    ``ev[0] > s3_rcond ev[2]`` (``base = s3_rcond trace``) and the guard against non-ellipses'
+    ``r_ell <= 3.96 max(w0 - 1e-12 w5, 0)`` (``base = r_ell / 3.96``), each with room for the
+    rounding of its product. On the sets of a frame both pass by orders of magnitude and the
+    eigenvalue calls (LAPACK through numba, 2.5 and 4 us) are saved.
 
     References
     ----------
     .. [1] N. J. Higham, *Accuracy and Stability of Numerical Algorithms*, 2nd ed., SIAM, 2002.
            https://doi.org/10.1137/1.9780898718027
     """
+    n = s.shape[0]
     t = 0.0
-    for i in range(6):
-        t += sfull[i, i]
-    tau = r_ell / 3.96 * (1.0 + 1e-9) + 2.1e-10 * t
-    low = np.zeros((6, 6))
-    for j in range(6):
-        d = sfull[j, j] - tau
+    for i in range(n):
+        t += s[i, i]
+    tau = base * (1.0 + 1e-9) + 2.1e-10 * t
+    low = np.zeros((n, n))
+    for j in range(n):
+        d = s[j, j] - tau
         for k in range(j):
             d -= low[j, k] * low[j, k]
         if not d > 0.0:
             return False
         low[j, j] = math.sqrt(d)
-        for i in range(j + 1, 6):
-            v = sfull[i, j]
+        for i in range(j + 1, n):
+            v = s[i, j]
             for k in range(j):
                 v -= low[i, k] * low[j, k]
             low[i, j] = v / low[j, j]
@@ -191,8 +194,9 @@ def _guard_cleared(sfull, r_ell):
 @numba.njit(cache=True, nogil=True)
 def _fit_one(pts, s, m, s3_rcond, axis_to_spread, eps, conic, ell, full_guard=False):
     """Fit the set ``pts[s:s + m]`` (m >= 6) into ``conic`` (3, 3) and ``ell`` (5,); returns its
-    residual (px) and status code. ``full_guard``: decide the guard against non-ellipses from the
-    eigenvalues always, not first by :func:`_guard_cleared` (the same statuses, tested)."""
+    residual (px) and status code. ``full_guard``: decide the collinearity check and the guard
+    against non-ellipses from the eigenvalues always, not first by
+    :func:`_least_eigenvalue_above` (the same statuses, tested)."""
     for i in range(s, s + m):
         if not (np.isfinite(pts[i, 0]) and np.isfinite(pts[i, 1])):
             return np.nan, NON_FINITE
@@ -234,9 +238,10 @@ def _fit_one(pts, s, m, s3_rcond, axis_to_spread, eps, conic, ell, full_guard=Fa
     s1 = np.ascontiguousarray(sfull[:3, :3])
     s2 = np.ascontiguousarray(sfull[:3, 3:])
     s3 = np.ascontiguousarray(sfull[3:, 3:])
-    ev3 = np.linalg.eigvalsh(s3)
-    if not ev3[0] > s3_rcond * ev3[2]:
-        return np.nan, SINGULAR_SCATTER
+    if full_guard or not _least_eigenvalue_above(s3, s3_rcond * (s3[0, 0] + s3[1, 1] + s3[2, 2])):
+        ev3 = np.linalg.eigvalsh(s3)
+        if not ev3[0] > s3_rcond * ev3[2]:
+            return np.nan, SINGULAR_SCATTER
     # T = -S3^-1 S2^T, so that a2 = T a1 [eqn. 24] from [1]
     t = -np.linalg.solve(s3, np.ascontiguousarray(s2.T))
     # Reduced scatter matrix M = C1^-1 (S1 + S2 T) [eqn. 29] from [1]
@@ -279,7 +284,7 @@ def _fit_one(pts, s, m, s3_rcond, axis_to_spread, eps, conic, ell, full_guard=Fa
         for b in range(6):
             r_ell += av[a] * sfull[a, b] * av[b]
     r_ell /= np.dot(av, av)
-    if r_ell > 1e-24 and (full_guard or not _guard_cleared(sfull, r_ell)):
+    if r_ell > 1e-24 and (full_guard or not _least_eigenvalue_above(sfull, r_ell / 3.96)):
         w_full = np.linalg.eigvalsh(sfull)
         if r_ell > 3.96 * max(w_full[0] - 1e-12 * w_full[5], 0.0):
             return np.nan, SUSPECT
@@ -351,9 +356,10 @@ def fit_conics(pts, starts, counts, s3_rcond, axis_to_spread, eps, full_guard=Fa
     eps : float
         ``TOL.conic_degenerate_rel`` (:func:`ellipse_of`).
     full_guard : bool
-        Decide every set's guard against non-ellipses from the eigenvalues of its 6 x 6 scatter
-        matrix (the reference); default False: first by :func:`_guard_cleared`, which passes
-        most sets without them and gives the same statuses.
+        Decide every set's collinearity check and guard against non-ellipses from the
+        eigenvalues of its scatter matrices (the reference); default False: first by
+        :func:`_least_eigenvalue_above`, which passes most sets without them and gives the same
+        statuses.
 
     Returns
     -------
