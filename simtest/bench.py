@@ -200,7 +200,6 @@ def opencv_calls() -> Iterator[list[OpenCVCall]]:
     thread-safe (it patches the module).
     """
     calls: list[OpenCVCall] = []
-    originals = {name: getattr(cv2, name) for name in OPENCV_FUNCTIONS}
 
     def recorder(name: str, fn: Callable) -> Callable:
         def call(*args, **kwargs):
@@ -209,13 +208,32 @@ def opencv_calls() -> Iterator[list[OpenCVCall]]:
 
         return call
 
-    for name, fn in originals.items():
-        setattr(cv2, name, recorder(name, fn))
-    try:
+    with _wrapped([(cv2, name) for name in OPENCV_FUNCTIONS], recorder):
         yield calls
+
+
+@contextmanager
+def _wrapped(targets: list[tuple[object, str]], wrap: Callable[[str, Callable], Callable]) -> Iterator[None]:
+    """Replace each function ``getattr(namespace, name)`` of ``targets`` by ``wrap(name, fn)`` for
+    the block, and put the originals back on leaving it, also when it raises (the mechanism of
+    :func:`opencv_calls` and :func:`kernel_times`; not thread-safe)."""
+    originals = [(ns, name, getattr(ns, name)) for ns, name in targets]
+    for ns, name, fn in originals:
+        setattr(ns, name, wrap(name, fn))
+    try:
+        yield
     finally:
-        for name, fn in originals.items():
-            setattr(cv2, name, fn)
+        for ns, name, fn in originals:
+            setattr(ns, name, fn)
+
+
+def _summary(totals: list[float], per: dict[str, float]) -> tuple[float, float, dict[str, float]]:
+    """Median and minimum of runs' totals, ms, and each function's summed time over the runs as
+    its mean per run, largest first (the results of :func:`replay_opencv_ms` and
+    :func:`kernel_ms`)."""
+    n = len(totals)
+    per = {name: t / n for name, t in sorted(per.items(), key=lambda kv: -kv[1])}
+    return statistics.median(totals), min(totals), per
 
 
 def replay_opencv_ms(calls: list[OpenCVCall], repeat: int) -> tuple[float, float, dict[str, float]]:
@@ -250,9 +268,7 @@ def replay_opencv_ms(calls: list[OpenCVCall], repeat: int) -> tuple[float, float
                 per[c.name] = per.get(c.name, 0.0) + dt
         if k:
             totals.append(total)
-    n = len(totals)
-    per = {name: t / n for name, t in sorted(per.items(), key=lambda kv: -kv[1])}
-    return statistics.median(totals), min(totals), per
+    return _summary(totals, per)
 
 
 #: The modules of the reconstruction's compiled (numba) kernels: those :func:`kernel_times` times.
@@ -279,26 +295,23 @@ def kernel_times() -> Iterator[dict[str, float]]:
     thread-safe (it patches the modules).
     """
     times: dict[str, float] = {}
-    patched = []
+
+    def timer(name: str, fn: Callable) -> Callable:
+        def call(*args, **kwargs):
+            t0 = time.perf_counter()
+            try:
+                return fn(*args, **kwargs)
+            finally:
+                times[name] = times.get(name, 0.0) + (time.perf_counter() - t0) * 1e3
+
+        return call
+
+    targets = []
     for mod_name in KERNEL_MODULES:
         mod = importlib.import_module(mod_name)
-        for name in _dispatchers(mod):
-            fn = getattr(mod, name)
-
-            def timer(*args, _fn=fn, _name=name, **kwargs):
-                t0 = time.perf_counter()
-                try:
-                    return _fn(*args, **kwargs)
-                finally:
-                    times[_name] = times.get(_name, 0.0) + (time.perf_counter() - t0) * 1e3
-
-            patched.append((mod, name, fn))
-            setattr(mod, name, timer)
-    try:
+        targets += [(mod, name) for name in _dispatchers(mod)]
+    with _wrapped(targets, timer):
         yield times
-    finally:
-        for mod, name, fn in patched:
-            setattr(mod, name, fn)
 
 
 def kernel_ms(fn: Callable[[], object], repeat: int) -> tuple[float, float, dict[str, float]]:
@@ -314,9 +327,7 @@ def kernel_ms(fn: Callable[[], object], repeat: int) -> tuple[float, float, dict
         totals.append(sum(times.values()))
         for name, t in times.items():
             per[name] = per.get(name, 0.0) + t
-    n = len(totals)
-    per = {name: t / n for name, t in sorted(per.items(), key=lambda kv: -kv[1])}
-    return statistics.median(totals), min(totals), per
+    return _summary(totals, per)
 
 
 def resolve_section(name: str) -> SectionFn | None:
@@ -506,18 +517,21 @@ def _opencv_row(fn: Callable[[], object], repeat: int) -> BenchResult:
     with opencv_calls() as calls:
         fn()
     med, best, per = replay_opencv_ms(calls, repeat)
-    top = ", ".join(f"{name} {t:.3g} ms" for name, t in list(per.items())[:3])
     return BenchResult("reconstruct", "  of which its OpenCV calls, replayed alone", med, "ms", None, best,
-                       f"{len(calls)} calls; {top}")
+                       f"{len(calls)} calls; {_costliest(per)}")
 
 
 def _kernel_row(fn: Callable[[], object], repeat: int) -> BenchResult:
     """The second row under a frame's: its compiled kernels timed in place (:func:`kernel_ms`).
     With the OpenCV row it splits the frame's time: what is left is Python and numpy's calls."""
     med, best, per = kernel_ms(fn, repeat)
-    top = ", ".join(f"{name} {t:.3g} ms" for name, t in list(per.items())[:3])
     return BenchResult("reconstruct", "  of which its compiled kernels, timed in place", med, "ms", None, best,
-                       top)
+                       _costliest(per))
+
+
+def _costliest(per: dict[str, float]) -> str:
+    """The note of a split row: its three costliest functions (``per`` largest first) and their ms."""
+    return ", ".join(f"{name} {t:.3g} ms" for name, t in list(per.items())[:3])
 
 
 def _candidate_frame_rows(name: str, missing: str, frame_camera, repeat: int) -> list[BenchResult]:
