@@ -232,3 +232,55 @@ def test_the_whole_regions_closed_hits_are_its_closed_contours_that_hold_the_bp(
     want = [uv for uv in (rc_to_uv(rc, r0, c0) for rc in closed) if polygon_contains(uv, bp)]
     got, _ = isophote._whole_region_contours(sub, level, roi, bp)
     assert len(got) == len(want) and all(np.array_equal(a, b) for a, b in zip(got, want))
+
+
+def _region_below_bp(rng):
+    """A smooth random region (many closed contours at its median-ish level, or quantised so
+    that pixels sit exactly at it), a level, a pixel not above the level and the BP within half a
+    pixel of it, or on a vertex of a closed contour, far from the image origin."""
+    from skimage.measure import find_contours
+
+    h, w = (int(v) for v in rng.integers(2, 50, 2))
+    sub = cv2.GaussianBlur(rng.random((h, w)), (0, 0), float(rng.uniform(0.5, 3.0)))
+    if rng.random() < 0.2:
+        sub = np.round(sub * 30) / 30
+    level = float(np.quantile(sub, rng.uniform(0.05, 0.95)))
+    r0, c0 = (int(v) for v in rng.integers(0, 5000, 2))
+    below = np.argwhere(sub <= level)
+    ri, ci = (int(v) for v in below[rng.integers(len(below))])
+    bp = np.array([c0 + ci + rng.uniform(-0.5, 0.5), r0 + ri + rng.uniform(-0.5, 0.5)])
+    closed = [rc for rc in find_contours(sub, level) if len(rc) >= 3 and (rc[0] == rc[-1]).all()]
+    if closed and rng.random() < 0.2:
+        row, col = closed[0][int(rng.integers(len(closed[0]) - 1))]
+        if 0 <= round(row) < h and 0 <= round(col) < w and sub[round(row), round(col)] <= level:
+            bp = np.array([col + c0, row + r0])
+    return sub, level, Roi(r0, r0 + h, c0, c0 + w), bp
+
+
+@settings(max_examples=400, deadline=None)
+@given(st.integers(0, 2**32 - 1))
+def test_the_compiled_whole_region_verdict_is_find_contours_closed_hits(seed):
+    # region_encloses_bp decides, without find_contours, whether a closed contour of the region
+    # encloses a BP whose pixel is not above the level: 1 exactly where _whole_region_contours
+    # finds closed hits, 0 where it finds none; FALLBACK only with a pixel at the level
+    from simtest.reconstruct import _kernels, isophote
+
+    sub, level, roi, bp = _region_below_bp(np.random.default_rng(seed))
+    got = _kernels.region_encloses_bp(sub, level, roi.row0, roi.col0, float(bp[0]), float(bp[1]))
+    if got == _kernels.FALLBACK:
+        assert (sub == level).any()
+        return
+    hits, _ = isophote._whole_region_contours(sub, level, roi, bp)
+    assert got == (1 if hits else 0)
+
+
+def test_the_whole_region_verdicts_meet_each_answer():
+    # the property test above means something only if its regions give each answer
+    from simtest.reconstruct import _kernels
+
+    rng = np.random.default_rng(0)
+    seen = set()
+    for _ in range(300):
+        sub, level, roi, bp = _region_below_bp(rng)
+        seen.add(_kernels.region_encloses_bp(sub, level, roi.row0, roi.col0, float(bp[0]), float(bp[1])))
+    assert seen == {0, 1, _kernels.FALLBACK}

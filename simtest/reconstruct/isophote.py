@@ -207,6 +207,12 @@ def _extract(region: _Region, level: float, allow_open: bool, min_points: int,
         closed_hits, pieces = ([pts] if inside else []), []
     elif code == _kernels.OPEN:
         closed_hits, pieces = [], [pts]
+    elif code == _kernels.NOT_ABOVE and _kernels.region_encloses_bp(
+            sub, float(level), roi.row0, roi.col0, float(bp_uv[0]), float(bp_uv[1])) == 0:
+        # the BP's pixel is below the level (one at it is FALLBACK) and no closed contour of the
+        # region encloses the BP: no pieces either, the pixel being in no component of the
+        # region at or above the level (what _contours_numpy finds, by find_contours)
+        closed_hits, pieces, sides = [], [], (False, False, False, False)
     else:
         closed_hits, pieces, sides = _contours_numpy(sub, level, roi, ri, ci, bp_uv)
 
