@@ -384,15 +384,15 @@ class PaperSimulator:
             The realisation's own generator (derive it from a SeedSequence).
         region : callable, optional
             ``region(clean, bp_px) -> (row0, row1, col0, col1)`` (half-open, px): the only pixels
-            the caller reads (the reconstruction's ROI). The noise is still drawn for the whole
-            image (the random stream is the whole image's, so every realisation's values are
-            those of a call without ``region``), but it is scaled, smoothed and normalised only
-            in the smallest box holding the region and the BP's 2 x 2 pixels (which the
-            normalisation reads), from the noisy image grown by the smoothing kernel's radius:
-            in that box the image is the same bits as without ``region`` (each smoothed pixel
+            the caller reads (the reconstruction's ROI). The noise is the whole image's random
+            stream in raster order, drawn through the last row that the smallest box holding
+            the region and the BP's 2 x 2 pixels (which the normalisation reads), grown by the
+            smoothing kernel's radius, reads; it is scaled, smoothed and normalised only in that
+            box: there the image is the same bits as without ``region`` (each smoothed pixel
             reads the pixels within the radius, and OpenCV reflects at the image's own sides),
-            elsewhere it is 0. Default: the whole image. The region asked is the sample's
-            ``region``.
+            elsewhere it is 0. The generator is left after that row's noise (after the whole
+            image's without ``region``). Default: the whole image. The region asked is the
+            sample's ``region``.
 
         Returns
         -------
@@ -430,8 +430,11 @@ class PaperSimulator:
             o0, o1, q0, q1 = box
         if p.sigma > 0:
             # clean + sigma * noise, in place in the noise's array (float32 throughout: the same
-            # products and sums, the same bits), where it is smoothed
-            image = rng.standard_normal((M, M), dtype=np.float32)[o0:o1, q0:q1]
+            # products and sums, the same bits), where it is smoothed. The noise is the whole
+            # image's in raster order, drawn only through the last row read: the generator fills
+            # an array one normal after another, so those rows are the whole draw's values (the
+            # rows below, never read, are about a third of the figure-3 suite's draws)
+            image = rng.standard_normal((o1, M), dtype=np.float32)[o0:o1, q0:q1]
             image *= np.float32(p.sigma)
             image += clean[o0:o1, q0:q1]
         else:
