@@ -139,3 +139,35 @@ def test_the_compiled_cos_beta_is_the_numpy_forms_bits(seed, on_plane):
     assert np.array_equal(got, want, equal_nan=True)
     assert np.array_equal(np.signbit(got), np.signbit(want))
     assert np.isnan(got[0]) == on_plane
+
+
+@given(seed=st.integers(0, 2**32 - 1), n=st.floats(1.0, 500.0), c=st.sampled_from([1.0, 0.7]),
+       integer=st.booleans())
+@settings(max_examples=60, deadline=None)
+def test_the_intensity_at_offsets_from_an_origin_is_that_at_the_points(seed, n, c, integer):
+    # the paper protocol passes its fixed grid of offsets and the window centre instead of the
+    # points: the same bits as the points offsets + origin built by numpy, signed zeros and the
+    # NaN of a viewer on the plane included (integer grids hit the viewer's and light's feet)
+    rng = np.random.default_rng(seed)
+    if integer:
+        off = rng.integers(-6, 7, size=(7, 9, 2)).astype(np.float64)
+        origin = rng.integers(-3, 4, size=2).astype(np.float64)
+        V = rng.integers(-6, 7, size=3).astype(np.float64)
+        L = rng.integers(-6, 7, size=3).astype(np.float64)
+        V[2], L[2] = float(rng.integers(0, 3)), abs(L[2]) + 1.0
+    else:
+        off = rng.normal(size=(7, 9, 2)) * rng.uniform(1.0, 300.0)
+        origin = rng.normal(size=2) * 50.0
+        V, L = rng.normal(size=3) * 100.0, rng.normal(size=3) * 100.0
+        V[2], L[2] = abs(V[2]) + 1.0, abs(L[2]) + 1.0
+    with np.errstate(all="ignore"):
+        want = phong_intensity(off + origin, V, L, n, c)
+        got = phong_intensity(off, V, L, n, c, origin=origin)
+    assert np.array_equal(got, want, equal_nan=True)
+    assert np.array_equal(np.signbit(got), np.signbit(want))
+
+
+def test_one_point_gives_a_scalar_and_offsets_need_two_coordinates():
+    assert np.ndim(phong_intensity([1.0, 2.0], [0, 0, 5], [0, 0, 5], 10)) == 0
+    with pytest.raises(ValueError, match=r"\(\.\.\., 2\)"):
+        phong_intensity(np.zeros((3, 3)), [0, 0, 5], [0, 0, 5], 10, origin=(0.0, 0.0))

@@ -333,12 +333,9 @@ class PaperSimulator:
         p = self.params
         bp_plane = mirror_point(self.V, L)
         centre = bp_plane if p.window_at_bp else np.zeros(2)
-        # the plane points offsets + centre, one coordinate at a time (the same sums: numpy's
-        # broadcast over a last axis of 2 took three times as long)
-        P = np.empty_like(self._offsets)
-        np.add(self._offsets[..., 0], centre[0], out=P[..., 0])
-        np.add(self._offsets[..., 1], centre[1], out=P[..., 1])
-        texture = phong_intensity(P, self.V, L, p.n, p.c).astype(np.float32)
+        # at the plane points offsets + centre, added as the kernel reads the offsets (the same
+        # sums, without building the points)
+        texture = phong_intensity(self._offsets, self.V, L, p.n, p.c, origin=centre[:2]).astype(np.float32)
         H, K, R, C = paper_homography(p, centre)
         M = p.image_px
         image = cv2.warpPerspective(texture, H, (M, M), flags=cv2.INTER_LINEAR,

@@ -18,7 +18,19 @@ from __future__ import annotations
 import numba
 import numpy as np
 
-__all__ = ["plane_cos_beta"]
+__all__ = ["plane_cos_beta", "plane_cos_beta_from"]
+
+
+@numba.njit(cache=True, nogil=True, error_model="numpy", inline="always")
+def _cos_beta_at(px, py, V, R, vzrz, vzvz, rzrz):
+    """``cos beta`` at the plane point (px, py), the z terms given (one value on the plane)."""
+    vx = V[0] - px
+    vy = V[1] - py
+    rx = px - R[0]
+    ry = py - R[1]
+    dot = vx * rx + vy * ry + vzrz
+    norms = np.sqrt(vx * vx + vy * vy + vzvz) * np.sqrt(rx * rx + ry * ry + rzrz)
+    return dot / norms
 
 
 @numba.njit(cache=True, nogil=True, error_model="numpy")
@@ -39,19 +51,39 @@ def plane_cos_beta(pxy, V, R):
     """
     vz = V[2] - 0.0
     rz = 0.0 - R[2]
-    vzrz = vz * rz
-    vzvz = vz * vz
-    rzrz = rz * rz
+    vzrz, vzvz, rzrz = vz * rz, vz * vz, rz * rz
     n = pxy.shape[0]
     out = np.empty(n)
     for i in range(n):
-        px = pxy[i, 0]
-        py = pxy[i, 1]
-        vx = V[0] - px
-        vy = V[1] - py
-        rx = px - R[0]
-        ry = py - R[1]
-        dot = vx * rx + vy * ry + vzrz
-        norms = np.sqrt(vx * vx + vy * vy + vzvz) * np.sqrt(rx * rx + ry * ry + rzrz)
-        out[i] = dot / norms
+        out[i] = _cos_beta_at(pxy[i, 0], pxy[i, 1], V, R, vzrz, vzvz, rzrz)
+    return out
+
+
+@numba.njit(cache=True, nogil=True, error_model="numpy")
+def plane_cos_beta_from(pxy, origin, V, R):
+    """:func:`plane_cos_beta` at the points ``pxy + origin``, each coordinate added as ``np.add``
+    adds it (one float64 addition), without building those points (the paper protocol's texture
+    is a fixed grid of offsets moved to each realisation's window centre).
+
+    Parameters
+    ----------
+    pxy : ndarray of shape (N, 2), float64
+        Offsets ``(x, y)`` on the plane.
+    origin : ndarray of shape (2,), float64
+        What is added to each offset, scene-plane frame.
+    V, R : ndarray of shape (3,), float64
+        As :func:`plane_cos_beta`.
+
+    Returns
+    -------
+    ndarray of shape (N,), float64
+    """
+    vz = V[2] - 0.0
+    rz = 0.0 - R[2]
+    vzrz, vzvz, rzrz = vz * rz, vz * vz, rz * rz
+    ox, oy = origin[0], origin[1]
+    n = pxy.shape[0]
+    out = np.empty(n)
+    for i in range(n):
+        out[i] = _cos_beta_at(pxy[i, 0] + ox, pxy[i, 1] + oy, V, R, vzrz, vzvz, rzrz)
     return out

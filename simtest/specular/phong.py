@@ -47,7 +47,7 @@ def _mirror(L) -> np.ndarray:
     return np.array([L[0], L[1], -L[2]])
 
 
-def phong_intensity(P, V, L, n: float, c: float = 1.0) -> np.ndarray:
+def phong_intensity(P, V, L, n: float, c: float = 1.0, origin=None) -> np.ndarray:
     """Phong specular intensity on the plane z = 0 (paper eq. 1).
 
     ``I(p) = c max(0, cos beta)^n`` with beta the angle between the direction to the viewer
@@ -63,31 +63,46 @@ def phong_intensity(P, V, L, n: float, c: float = 1.0) -> np.ndarray:
         Phong roughness exponent, > 0.
     c : float
         Scale factor, > 0.
+    origin : array_like of shape (2,), optional
+        When given, ``P`` (..., 2) are offsets from this point of the plane: the intensity at
+        ``P + origin`` (the same bits as adding them first), without building those points.
 
     Returns
     -------
     ndarray of shape (...)
-        Intensity in [0, c].
+        Intensity in [0, c] (a numpy scalar for one point).
 
     Raises
     ------
     ValueError
-        If n or c is not positive.
+        If n or c is not positive, or ``origin`` is given with points that are not (..., 2).
     """
     if not n > 0 or not c > 0:
         raise ValueError(f"roughness n and scale c must be > 0, got n={n}, c={c}")
     P = np.asarray(P, dtype=np.float64)
-    if P.shape[-1] != 2:
-        P = _points(P)
     V = np.asarray(V, dtype=np.float64).reshape(3)
     R = _mirror(L)
-    if P.shape[-1] == 2 or not np.any(P[..., 2]):
-        # on the plane z = 0 (the usual case): one compiled pass, the bits of the numpy form
-        pxy = np.ascontiguousarray(P[..., :2]).reshape(-1, 2)
-        cos_b = _kernels.plane_cos_beta(pxy, V, R).reshape(P.shape[:-1])
+    if origin is not None:
+        if P.shape[-1] != 2:
+            raise ValueError(f"offsets from an origin must have shape (..., 2), got {P.shape}")
+        o = np.asarray(origin, dtype=np.float64).reshape(2)
+        pxy = np.ascontiguousarray(P).reshape(-1, 2)
+        cos_b = _kernels.plane_cos_beta_from(pxy, o, V, R).reshape(P.shape[:-1])
     else:
-        cos_b = _cos_beta_numpy(P, V, R)
-    return c * np.maximum(cos_b, 0.0) ** n
+        if P.shape[-1] != 2:
+            P = _points(P)
+        if P.shape[-1] == 2 or not np.any(P[..., 2]):
+            # on the plane z = 0 (the usual case): one compiled pass, the bits of the numpy form
+            pxy = np.ascontiguousarray(P[..., :2]).reshape(-1, 2)
+            cos_b = _kernels.plane_cos_beta(pxy, V, R).reshape(P.shape[:-1])
+        else:
+            cos_b = _cos_beta_numpy(P, V, R)
+    # c max(0, cos beta)^n in place in cos_b (its own array): numpy's in-place power takes the
+    # same path as ``**``, so the same bits as the expression, without two temporaries
+    out = np.maximum(cos_b, 0.0, out=cos_b)
+    out **= n
+    out *= c
+    return out[()] if out.ndim == 0 else out
 
 
 def _cos_beta_numpy(P: np.ndarray, V: np.ndarray, R: np.ndarray) -> np.ndarray:
