@@ -183,7 +183,10 @@ def extract_isophote(
     noise), orders the marching-squares segments as ``find_contours`` does and gives its
     contours bit for bit; what it declines (a pixel exactly at the level, several closed
     contours, the BP's pixel below the level) goes to ``find_contours`` itself
-    (``_contours_numpy``).
+    (``_contours_numpy``), but for a BP's pixel below the level that no closed contour of the
+    region encloses (:func:`simtest.reconstruct._kernels.region_encloses_bp` decides it in one
+    compiled pass, with ``find_contours``' points and ``polygon_contains``' test): its failure
+    (``no_contour``) comes without the contours.
     """
     return _extract(_region(values, bp_uv, origin_rc, image_shape), level, allow_open, min_points)
 
