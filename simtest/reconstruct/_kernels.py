@@ -411,14 +411,10 @@ def region_encloses_bp(sub, level, row0, col0, bp_u, bp_v):
     """
     if _any_at_level(sub, level):
         return FALLBACK
-    H, W = sub.shape
-    hw = H * W
     f_edge, _, nxt, _ = _segments(sub, level)
     n = len(f_edge)
     walk = np.zeros(n, dtype=np.int64)  # 0 unvisited, else the number of the walk that came by
-    rc = np.empty((n, 2), dtype=np.float64)
-    uv = np.empty((n, 2), dtype=np.float64)
-    cu, rv = float(col0), float(row0)
+    cycle = np.empty(n, dtype=np.int64)
     k = 0
     for i in range(n):
         if walk[i] != 0:
@@ -434,26 +430,22 @@ def region_encloses_bp(sub, level, row0, col0, bp_u, bp_v):
         m = 0
         j = i
         while True:
-            e = f_edge[j]
-            ev = 1 if e >= hw else 0
-            e -= ev * hw
-            _edge_point(sub, level, e // W, e % W, ev, 0, 0, rc, m)
+            cycle[m] = f_edge[j]
             m += 1
             j = nxt[j]
             if j == i:
                 break
+        rc = _edge_points(sub, level, cycle[:m])
         r_lo, r_hi, c_lo, c_hi = rc[0, 0], rc[0, 0], rc[0, 1], rc[0, 1]
         for q in range(1, m):
             r_lo = min(r_lo, rc[q, 0])
             r_hi = max(r_hi, rc[q, 0])
             c_lo = min(c_lo, rc[q, 1])
             c_hi = max(c_hi, rc[q, 1])
+        cu, rv = float(col0), float(row0)
         if not (c_lo + cu <= bp_u <= c_hi + cu and r_lo + rv <= bp_v <= r_hi + rv):
             continue
-        for q in range(m):
-            uv[q, 0] = rc[q, 1] + cu
-            uv[q, 1] = rc[q, 0] + rv
-        if _inside(uv[:m], bp_u, bp_v):
+        if _shift(True, rc, 0, 0, row0, col0, bp_u, bp_v):  # to (u, v), then the even-odd test
             return 1
     return 0
 
