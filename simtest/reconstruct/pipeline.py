@@ -26,11 +26,12 @@ Per highlight (Makki and Bartoli, "Normal reconstruction"):
    cone C'.
 
 Steps 1 and 2 run highlight by highlight (the ROI grows on what the isophote shows); steps 3
-and 4 run once per call for every isophote of every highlight, batched in numpy
+and 4 run once per call for every isophote of every highlight, batched
 (:func:`~simtest.reconstruct.cone_fit.fit_cones`,
 :func:`~simtest.reconstruct.estimators.estimate_from_conics`,
-:func:`~simtest.reconstruct.estimators.joint_cone_axes`): a highlight gets the same bits as it
-would alone, and a frame of hundreds of highlights pays the fixed cost of the numpy calls once.
+:func:`~simtest.reconstruct.estimators.joint_cone_axes`, each one compiled call over the batch
+with numpy around it): a highlight gets the same bits as it would alone, and a frame of hundreds
+of highlights pays the fixed cost of the calls once.
 :func:`reconstruct_rois` does the same for many known highlights.
 
 The *primary* isophote is the one at the first isovalue given: the estimate's ``conic``,
