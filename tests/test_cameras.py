@@ -237,3 +237,28 @@ def test_as_camera_model_keeps_a_k_working():
     assert isinstance(cam, PinholeCamera) and cam.image_size == (101, 81)
     np.testing.assert_allclose(cam.ray_to_pixel(np.array([[0.1, 0.2, 1.0]])), [[60.0, 60.0]])
     assert as_camera_model(cam) is cam
+
+
+def test_a_camera_model_leaves_the_callers_arrays_writable_and_keeps_its_own():
+    # A model froze the very float64 arrays it was given, so a user's K became read-only after a
+    # reconstruction call; the model now keeps read-only copies.
+    K = np.array([[100.0, 0, 50], [0, 100, 40], [0, 0, 1]])
+    dist = np.array([0.1, -0.05, 0.001, 0.002, 0.0])
+    D = np.array([0.01, -0.002, 0.0003, 0.0])
+    ray = np.array([[0.1, 0.2, 1.0]])
+    for cam, given in ((PinholeCamera(K, dist), (K, dist)), (FisheyeCamera(K, D), (K, D))):
+        before = cam.ray_to_pixel(ray)
+        for a in given:
+            assert a.flags.writeable
+            a += 1.0  # the caller changes its arrays: the model does not move
+            a -= 1.0
+        assert not cam.K.flags.writeable
+        K[0, 2] = 999.0
+        np.testing.assert_array_equal(cam.ray_to_pixel(ray), before)
+        K[0, 2] = 50.0
+    from simtest.reconstruct import reconstruct_roi
+
+    img = np.zeros((81, 101))
+    img[40, 50] = 1.0
+    reconstruct_roi(img, K, 0.5, bp_uv=(50.0, 40.0))
+    assert K.flags.writeable

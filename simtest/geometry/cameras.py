@@ -319,10 +319,12 @@ class PinholeCamera(CameraModel):
     model = "pinhole"
 
     def __init__(self, K, dist_coeffs=None, image_size=None):
-        self.K = validate_intrinsics(K)
+        # the model's own read-only copies: the caller's arrays stay theirs, writable
+        self.K = validate_intrinsics(K).copy()
         self.K.setflags(write=False)
         self.dist_coeffs = _parse_dist(dist_coeffs, "dist_coeffs")
         if self.dist_coeffs is not None:
+            self.dist_coeffs = self.dist_coeffs.copy()
             self.dist_coeffs.setflags(write=False)
         self.image_size = _image_size(image_size, "PinholeCamera")
         d = np.zeros(12)
@@ -454,7 +456,7 @@ class FisheyeCamera(CameraModel):
     model = "fisheye"
 
     def __init__(self, K, D, image_size=None):
-        self.K = validate_intrinsics(K)
+        self.K = validate_intrinsics(K).copy()  # the model's own read-only copies (as PinholeCamera)
         self.K.setflags(write=False)
         if isinstance(D, (list, tuple)) and any(isinstance(x, bool) for x in D):
             raise IntrinsicsError(f"D: must be 4 numbers, got {D!r}")
@@ -464,7 +466,7 @@ class FisheyeCamera(CameraModel):
             raise IntrinsicsError(f"D: must be 4 numbers, got {D!r}") from None
         if D.size != 4 or not np.all(np.isfinite(D)):
             raise IntrinsicsError(f"D: must be 4 finite numbers [k1, k2, k3, k4], got {D.tolist()}")
-        self.D = D
+        self.D = D.copy()
         self.D.setflags(write=False)
         self.image_size = _image_size(image_size, "FisheyeCamera")
         self._Kinv = np.linalg.inv(self.K)
