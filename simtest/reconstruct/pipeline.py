@@ -74,7 +74,6 @@ import numpy as np
 
 from simtest._records import fast_init
 from simtest.constants import gaussian_radius_px, smooth_block_px
-from simtest.geometry.camera import validate_intrinsics
 from simtest.geometry.cameras import CameraModel, PinholeCamera
 from simtest.reconstruct import _kernels
 from simtest.reconstruct._pixels import Roi, image_size_wh, rc_to_uv
@@ -445,7 +444,7 @@ def as_camera(K, dist_coeffs=None) -> CameraModel:
         if dist_coeffs is not None:
             raise ValueError("dist_coeffs: a camera model holds its own distortion; give one or the other")
         return K
-    return PinholeCamera(validate_intrinsics(K, where="K"), validate_dist_coeffs(dist_coeffs))
+    return PinholeCamera(K, validate_dist_coeffs(dist_coeffs))  # which validates K, as "K"
 
 
 # ------------------------------------------------------------------------------------------------
