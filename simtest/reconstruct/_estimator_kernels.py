@@ -3,7 +3,7 @@
 :func:`cone_estimates` does, for every normalised conic C' of a batch in one compiled call, what
 ``estimators._estimate_from_conics_numpy`` does with some sixty numpy calls on the whole stack
 (:func:`simtest.geometry.conics.cone_poses` and the orientation and choice that follow): the
-sign-normalised eigen-decomposition of C', the circle pose N+ and N- [1, 2] with the centres of the
+sign-normalised eigen-decomposition of C', the circle pose N+ and N- with the centres of the
 two sections, the cone axis and its eigenvalue gap, the normals turned toward the camera along the
 BP ray, and the choice between N+ and N-. :func:`joint_axes` does the same for
 ``estimators._joint_cone_axes_numpy`` (the least-squares common axis of nested isophotes). A frame
@@ -29,18 +29,9 @@ centre, a non-finite normal), the kernel only says that it hands the conic over
 (:data:`HANDED_OVER`): ``estimators.py`` runs the numpy form on those conics, whose failure, with
 the numbers of its detail string, is the one reported.
 
-Notes
------
-Compiled with ``cache=True`` (see :mod:`simtest.reconstruct._kernels`). numba does not contract
-``a * b + c`` into a fused multiply-add without ``fastmath`` (not set here).
-
-References
-----------
-.. [1] K. Makki, A. Bartoli, "Normal Reconstruction from Specularity in the Endoscopic Setting",
-       section 2.3, steps 3 and 4 (C' = K^T C K and circle pose).
-.. [2] D. Forsyth, J. L. Mundy, A. Zisserman, C. Coelho, A. Heller, C. Rothwell, "Invariant
-       descriptors for 3-D object recognition and pose", IEEE TPAMI 13(10), 1991, appendix A.
-       https://doi.org/10.1109/34.99233
+Compiled with ``cache=True`` and without ``fastmath``, as :mod:`simtest.reconstruct._fit_kernels`
+(no fused multiply-adds: the arithmetic rounds as numpy's). The method and its references (Makki
+and Bartoli's circle pose, Forsyth et al.'s appendix A): :mod:`simtest.reconstruct.estimators`.
 """
 
 from __future__ import annotations
@@ -84,7 +75,7 @@ def _frobenius(m):
 
 
 @numba.njit(cache=True, nogil=True)
-def images_as_ellipse(c):
+def _images_as_ellipse(c):
     """``estimators._images_as_ellipse_many`` of one cone C' (3, 3): whether it is finite and
     cuts the normalised image plane in an ellipse-type conic (the sign of det C'[:2, :2], scaled
     by the largest entry)."""
@@ -111,7 +102,7 @@ def _symmetric(c):
 
 
 @numba.njit(cache=True, nogil=True)
-def cone_eigen(s, eps):
+def _cone_eigen(s, eps):
     """``conics._cone_eigen_many`` of one cone, given symmetric and of unit Frobenius norm
     (``conics.unit_symmetric_cones``): its decomposition with signs normalised so that
     l1 >= l2 > 0 > l3.
@@ -185,8 +176,8 @@ def _section_centre(Q, n):
 
 
 @numba.njit(cache=True, nogil=True)
-def circle_poses(w, V):
-    """``conics._circle_poses_of`` of one sign-normalised decomposition (:func:`cone_eigen`):
+def _circle_poses(w, V):
+    """``conics._circle_poses_of`` of one sign-normalised decomposition (:func:`_cone_eigen`):
     whether both poses are defined, and the normals N+ and N- (2, 3) facing the camera (against
     the rays to their circles' centres)."""
     l1, l2, l3 = w[0], w[1], w[2]
@@ -254,12 +245,12 @@ def cone_estimates(cns, unit_cones, refs, eps):
     gap = np.full(k, np.nan)
     for j in range(k):
         c = cns[j]
-        if not images_as_ellipse(c):
+        if not _images_as_ellipse(c):
             continue
-        ok, w, V = cone_eigen(unit_cones[j], eps)
+        ok, w, V = _cone_eigen(unit_cones[j], eps)
         if not ok:
             continue
-        ok, normals = circle_poses(w, V)
+        ok, normals = _circle_poses(w, V)
         if not ok:
             continue
         e3 = _unit3(np.ascontiguousarray(V[:, 2]))
@@ -312,7 +303,7 @@ def joint_axes(cns, group, refs):
         if status[j] != OK:
             continue
         c = cns[i]
-        if not images_as_ellipse(c):
+        if not _images_as_ellipse(c):
             status[j] = HANDED_OVER
             continue
         sym = _symmetric(c)
