@@ -12,8 +12,8 @@ from __future__ import annotations
 
 import dataclasses
 import difflib
-import functools
 import enum
+import functools
 import math
 from collections.abc import Sequence
 from dataclasses import dataclass
