@@ -215,14 +215,15 @@ def test_every_compiled_kernel_the_reconstruction_calls_is_timed():
     root = Path(bench.__file__).resolve().parent / "reconstruct"
     alias = {"_kernels": "simtest.reconstruct._kernels", "_dk": "simtest.reconstruct._detect_kernels",
              "_fit_kernels": "simtest.reconstruct._fit_kernels",
-             "_estimator_kernels": "simtest.reconstruct._estimator_kernels"}
+             "_estimator_kernels": "simtest.reconstruct._estimator_kernels",
+             "_lightaware_kernels": "simtest.reconstruct._lightaware_kernels"}
     wrapped = {mod: set(bench._dispatchers(importlib.import_module(mod))) for mod in bench.KERNEL_MODULES}
     called = set()
     for path in root.glob("*.py"):
         if path.stem in {m.rsplit(".", 1)[1] for m in bench.KERNEL_MODULES}:
             continue
         text = path.read_text()
-        for a, name in re.findall(r"\b(_kernels|_dk|_fit_kernels|_estimator_kernels)\.([A-Za-z_]\w*)\(", text):
+        for a, name in re.findall(r"\b(_kernels|_dk|_fit_kernels|_estimator_kernels|_lightaware_kernels)\.([A-Za-z_]\w*)\(", text):
             called.add((alias[a], name))
         for mod, names in re.findall(r"from simtest\.reconstruct\.(_\w*kernels) import ([^\n]+)", text):
             imported = {n.split(" as ")[0].strip() for n in names.split(",")}

@@ -97,6 +97,7 @@ from simtest.geometry.angles import unit
 from simtest.geometry.camera import validate_intrinsics
 from simtest.geometry.conics import plane_basis
 from simtest.geometry.lights import LightRig
+from simtest.reconstruct import _lightaware_kernels
 from simtest.reconstruct._pixels import uv_to_rc
 from simtest.tolerances import TOL
 
@@ -304,6 +305,28 @@ def _terms(dT, n, h, L, rl, P=None, dns=None):
     (dh = 0, d delta = -P): ``(2 delta dc - P (2 c + q s / delta)) / r``; for log h (dn = 0,
     dh = h, ds = s): ``(2 h delta - q s) / r``.
     """
+    if dT.dtype != np.float64:
+        return _terms_numpy(dT, n, h, L, rl, P, dns)
+    Ld, K2 = rl
+    nd = (-n) @ dT
+    c = n @ L + h
+    N = nd.shape[0]
+    cb, delta, s, sl, ir = np.empty((5, N))  # one allocation, its rows the outputs
+    if dns is None:
+        _lightaware_kernels.cos_beta_terms(nd, h, c, Ld, K2, None, None, cb, delta, s, sl, ir, None)
+        return cb, delta, s, sl, ir, c, None
+    if P is None:
+        P = np.array(dns) @ dT
+    dcb = np.empty((3, N))
+    _lightaware_kernels.cos_beta_terms(nd, h, c, Ld, K2, P, np.array([dns[0] @ L, dns[1] @ L]),
+                                       cb, delta, s, sl, ir, dcb)
+    return cb, delta, s, sl, ir, c, dcb
+
+
+def _terms_numpy(dT, n, h, L, rl, P=None, dns=None):
+    """The numpy form of :func:`_terms`: the reference of its compiled pass
+    (:func:`simtest.reconstruct._lightaware_kernels.cos_beta_terms`, the same bits), and its
+    path for rays that are not float64 (numpy would compute in their precision)."""
     Ld, K2 = rl
     delta = np.maximum((-n) @ dT, 1e-9)
     s = h / delta
