@@ -257,6 +257,8 @@ def cone_estimates(cns, unit_cones, refs, eps):
         if e3[2] > 0:  # conics._toward_camera_many
             e3 = -e3
         ray = -refs[j]
+        # the numpy form scales the axis and the pair to unit length once more (``unit`` in
+        # estimators.estimate_from_conics, on vectors already unit): the kernel too, for its bits
         a = _face(_unit3(e3), ray)
         finite = np.isfinite(a).all()
         for s in range(2):

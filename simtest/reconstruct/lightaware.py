@@ -305,8 +305,6 @@ def _terms(dT, n, h, L, rl, P=None, dns=None):
     (dh = 0, d delta = -P): ``(2 delta dc - P (2 c + q s / delta)) / r``; for log h (dn = 0,
     dh = h, ds = s): ``(2 h delta - q s) / r``.
     """
-    if dT.dtype != np.float64:
-        return _terms_numpy(dT, n, h, L, rl, P, dns)
     Ld, K2 = rl
     nd = (-n) @ dT
     c = n @ L + h
@@ -325,8 +323,7 @@ def _terms(dT, n, h, L, rl, P=None, dns=None):
 
 def _terms_numpy(dT, n, h, L, rl, P=None, dns=None):
     """The numpy form of :func:`_terms`: the reference of its compiled pass
-    (:func:`simtest.reconstruct._lightaware_kernels.cos_beta_terms`, the same bits), and its
-    path for rays that are not float64 (numpy would compute in their precision)."""
+    (:func:`simtest.reconstruct._lightaware_kernels.cos_beta_terms`, the same bits)."""
     Ld, K2 = rl
     delta = np.maximum((-n) @ dT, 1e-9)
     s = h / delta
