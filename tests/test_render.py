@@ -524,6 +524,20 @@ def test_old_llvm_is_refused_with_the_fix(monkeypatch):
     assert LLVM_FIX in str(info.value) and "LLVM 15" in str(info.value)
 
 
+def test_an_old_llvm_loaded_by_drjit_itself_is_refused(monkeypatch):
+    # No LLVM 16+ found (DRJIT_LIBLLVM_PATH unset): Dr.Jit loads the system's libLLVM, which on a
+    # bare Debian 12 is LLVM 15 and aborted the process at the first kernel (a bench run did).
+    # The loaded version is faked: the machine running the test may well have LLVM 19 only.
+    from simtest._llvm import LLVM_FIX
+    from simtest.render import render as render_mod
+
+    monkeypatch.setattr(render_mod._llvm, "configure_llvm_env", lambda: None)
+    monkeypatch.setattr(render_mod, "_loaded_llvm_major", lambda dr: 15)
+    with pytest.raises(RendererUnavailable) as info:
+        choose_variant("llvm_ad_rgb")
+    assert LLVM_FIX in str(info.value) and "loaded LLVM 15" in str(info.value)
+
+
 @settings(max_examples=60, deadline=None)
 @given(
     tilt=st.floats(0.0, 80.0),

@@ -256,6 +256,14 @@ class RenderResult:
 # Mitsuba set-up
 
 
+def _loaded_llvm_major(dr) -> int | None:
+    """Major version of the LLVM library Dr.Jit has loaded, or None where Dr.Jit does not say."""
+    try:
+        return int(dr.detail.llvm_version()[0])
+    except Exception:  # noqa: BLE001 - an older or newer Dr.Jit without this call: not checked
+        return None
+
+
 def choose_variant(requested: str | None = None) -> str:
     """Select and activate a Mitsuba variant; return its name.
 
@@ -298,6 +306,14 @@ def choose_variant(requested: str | None = None) -> str:
         raise RendererUnavailable(
             f"Mitsuba variant {variant!r} needs an LLVM shared library that Dr.Jit can load "
             f"(DRJIT_LIBLLVM_PATH={os.environ.get('DRJIT_LIBLLVM_PATH')!r}): {_llvm.LLVM_FIX}")
+    if variant.startswith("llvm"):
+        # With no LLVM 16+ found, Dr.Jit loads whatever libLLVM the system offers; Debian 12's
+        # LLVM 15 aborts the process at the first kernel, so its version is checked here.
+        loaded = _loaded_llvm_major(dr)
+        if loaded is not None and loaded < _llvm.MIN_LLVM_MAJOR:
+            raise RendererUnavailable(
+                f"Dr.Jit loaded LLVM {loaded}, too old for the llvm variants "
+                f"(LLVM {_llvm.MIN_LLVM_MAJOR}+ needed): {_llvm.LLVM_FIX}")
     if variant.startswith("cuda") and not dr.has_backend(dr.JitBackend.CUDA):
         raise RendererUnavailable(f"Mitsuba variant {variant!r} needs a CUDA GPU; none is usable. "
                                   "Use variant 'auto' or 'llvm_ad_rgb'.")
