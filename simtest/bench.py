@@ -539,12 +539,14 @@ def _candidate_frame_rows(name: str, missing: str, frame_camera, repeat: int) ->
     """The rows of a frame with about 1000 candidates, every one examined (target 50 ms, bar 150 ms),
     of its OpenCV calls replayed alone (:func:`_opencv_row`) and of its compiled kernels
     (:func:`_kernel_row`): ``frame_camera`` is ``(image, K or camera model)``, or None (one NaN
-    row named ``missing``)."""
+    row named ``missing``). Each is timed over ``max(3, repeat // 10)`` runs (5 at the default
+    repeat): a frame takes a tenth of a second or more, and a median of two runs was the mean of
+    a slow and a quick one on a machine whose speed moves."""
     if frame_camera is None:
         return [BenchResult("reconstruct", missing, float("nan"), "ms", 50.0)]
     img, cam = frame_camera
     ests = reconstruct(img, cam)
-    n = max(1, repeat // 25)
+    n = max(3, repeat // 10)
     med, best, cpu = time_ms_cpu(lambda: reconstruct(img, cam), n)
     return [BenchResult("reconstruct", name, med, "ms", 50.0, best,
                         f"bar 150 ms; {len(ests)} candidates examined, {sum(e.ok for e in ests)} ok; "

@@ -568,8 +568,9 @@ def _patched_from_frame(smooth_frame: np.ndarray, vals: np.ndarray, roi: Roi,
         bands.append((*right, _smooth(vals[:, c:], sigma)[:, r:]))
     view = smooth_frame[roi.slices]
     # each band's place in the frame and the frame's values there, all saved before any write
-    saved = [(view[rows, cols], view[rows, cols].copy()) for rows, cols, _ in bands]
-    for (place, _), (_, _, v) in zip(saved, bands):
+    places = [view[rows, cols] for rows, cols, _ in bands]
+    saved = [(place, place.copy()) for place in places]
+    for place, (_, _, v) in zip(places, bands):
         place[...] = v
     out = view.view()
     out.setflags(write=False)
@@ -684,7 +685,7 @@ def _estimate_one(frame: _Frame, bp_uv, roi: Roi, *, saturated: bool, grow: bool
     bp_uv = np.asarray(bp_uv, dtype=np.float64)
     if bp_ray is None:
         bp_ray = frame.bp_ray(bp_uv)
-    if not np.isfinite(bp_ray).all():
+    if not all(map(math.isfinite, bp_ray.tolist())):
         i_bp = _region(frame.luma(roi), bp_uv, (roi.row0, roi.col0), frame.img.shape).near_bp
         return SpecularityEstimate(bp_uv, i_bp, saturated, roi, "non_finite_points",
                                    "the BP has no viewing ray in the camera model", None, ())
@@ -1021,10 +1022,11 @@ def reconstruct(
     if sum(c.status == OK for c in det.candidates) >= LUMA_FRAME_MIN_HIGHLIGHTS:
         frame = frame.for_many_highlights()
     shift = np.array([r.col0, r.row0], dtype=np.float64)
-    bps = [c.bp_uv + shift for c in det.candidates]
+    # every candidate's BP in the image, in one addition (each estimate's BP is a row of it)
+    bps_arr = np.array([c.bp_uv for c in det.candidates], dtype=np.float64).reshape(-1, 2) + shift
+    bps = list(bps_arr)
     # BPs another highlight's isophote must not enclose (``merged``): every candidate's but the
     # too small ones (noise)
-    bps_arr = np.array(bps, dtype=np.float64).reshape(-1, 2)
     keep = np.array([c.status != "too_small" for c in det.candidates], dtype=bool)
     others = bps_arr[keep]
     row_in_others = np.cumsum(keep) - 1
