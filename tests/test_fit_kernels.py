@@ -168,9 +168,9 @@ def test_every_kernel_status_is_reached_by_the_random_sets():
     # (complex eigenvalues of the reduced problem of line pairs and hyperbola points)
     rng = np.random.default_rng(0)
     pts, counts = _batch(rng, 3000)
-    # UNBOUNDED for certain: 40 exact points on 60 px of a circle of radius 5000 px (the ellipse
-    # 29 times the points' spread, past the limit of MAX_AXIS_TO_SPREAD = 10 whatever the
-    # rounding). The random sets are unbounded only as near-lines (semi-major axes about 1e5 px),
+    # UNBOUNDED for certain: 40 exact points on 60 px of a circle of radius 5000 px (its semi-major
+    # axis about 167 times the points' spread, their largest distance from their mean, 30 px: far
+    # past the limit of MAX_AXIS_TO_SPREAD = 10 whatever the rounding). The random sets are unbounded only as near-lines (semi-major axes about 1e5 px),
     # whose reduced problem is so near singular that the kernel hands them to numpy (SUSPECT,
     # DECLINED) or decides them itself by the last bits of LAPACK's eigenvalues: on an AMD EPYC
     # none of the 33 reached UNBOUNDED, and this test failed without the arc.
