@@ -170,10 +170,11 @@ def test_every_kernel_status_is_reached_by_the_random_sets():
     pts, counts = _batch(rng, 3000)
     # UNBOUNDED for certain: 40 exact points on 60 px of a circle of radius 5000 px (its semi-major
     # axis about 167 times the points' spread, their largest distance from their mean, 30 px: far
-    # past the limit of MAX_AXIS_TO_SPREAD = 10 whatever the rounding). The random sets are unbounded only as near-lines (semi-major axes about 1e5 px),
-    # whose reduced problem is so near singular that the kernel hands them to numpy (SUSPECT,
-    # DECLINED) or decides them itself by the last bits of LAPACK's eigenvalues: on an AMD EPYC
-    # none of the 33 reached UNBOUNDED, and this test failed without the arc.
+    # past the limit of MAX_AXIS_TO_SPREAD = 10 whatever the rounding). The random sets are
+    # unbounded only as near-lines (semi-major axes about 1e5 px), whose reduced problem is so near
+    # singular that the kernel hands them to numpy (SUSPECT, DECLINED) or decides them itself by
+    # the last bits of LAPACK's eigenvalues: on an AMD EPYC none of the 33 reached UNBOUNDED, and
+    # this test failed without the arc.
     t = np.linspace(-30.0 / 5000.0, 30.0 / 5000.0, 40)
     arc = np.column_stack([300.0 + 5000.0 * np.sin(t), -200.0 + 5000.0 * (1.0 - np.cos(t))])
     pts, counts = np.concatenate([pts, arc]), np.append(counts, len(arc))
