@@ -28,8 +28,8 @@ __all__ = ["BACKENDS", "MissingBackend", "install_hint", "require"]
 BACKENDS: dict[str, str | None] = {
     "mitsuba": None,
     "drjit": None,
-    "dask": None,
-    "distributed": None,
+    "dask": "dask",
+    "distributed": "dask",
     "pyvista": None,
     "torch": "torch",
 }

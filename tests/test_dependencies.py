@@ -1,0 +1,59 @@
+"""A dependency we declare, we use; an optional back-end names the extra that installs it."""
+
+from __future__ import annotations
+
+import re
+import tomllib
+from pathlib import Path
+
+import pytest
+
+from simtest import _lazy
+from simtest.resources import data_root
+
+ROOT = data_root()
+PYPROJECT = tomllib.loads((ROOT / "pyproject.toml").read_text(encoding="utf-8"))
+
+#: distribution name -> the module it is imported as
+IMPORT_NAME = {"opencv-python-headless": "cv2", "scikit-image": "skimage", "pillow": "PIL",
+               "markdown-it-py": "markdown_it", "dask": "distributed"}
+#: declared but imported by a dependency, not by simtest: the reason
+INDIRECT = {"rtree": "trimesh.curvature's ball queries need an R-tree (trimesh does not declare it)"}
+
+
+def _name(requirement: str) -> str:
+    return re.split(r"[\[<>=!~ ;]", requirement, maxsplit=1)[0].strip().lower()
+
+
+def _source() -> str:
+    return "\n".join(p.read_text(encoding="utf-8") for p in (ROOT / "simtest").rglob("*.py"))
+
+
+@pytest.mark.parametrize("requirement", PYPROJECT["project"]["dependencies"]
+                         + PYPROJECT["project"]["optional-dependencies"]["dask"]
+                         + PYPROJECT["project"]["optional-dependencies"]["torch"])
+def test_every_declared_dependency_is_used(requirement):
+    name = _name(requirement)
+    if name in INDIRECT:
+        return
+    module = IMPORT_NAME.get(name, name)
+    pattern = (rf"^\s*(import|from)\s+{re.escape(module)}\b|require\(\s*\"{re.escape(module)}\b")
+    assert re.search(pattern, _source(), re.M), f"{requirement}: declared but never imported"
+
+
+def test_every_backend_extra_is_declared():
+    extras = PYPROJECT["project"]["optional-dependencies"]
+    for package, extra in _lazy.BACKENDS.items():
+        if extra is not None:
+            assert extra in extras, f"{package}: extra [{extra}] is not in pyproject.toml"
+            assert any(_name(r) in {package, "dask"} for r in extras[extra])
+
+
+def test_the_optional_backends_are_not_core_dependencies():
+    core = {_name(r) for r in PYPROJECT["project"]["dependencies"]}
+    assert not core & {"dask", "distributed", "torch", "pyarrow"}
+
+
+def test_the_test_extra_brings_every_optional_backend():
+    test = {_name(r) for r in PYPROJECT["project"]["optional-dependencies"]["test"]}
+    assert {"torch", "dask"} <= test
