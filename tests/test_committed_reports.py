@@ -26,10 +26,12 @@ CASES = {"lightaware": ["plane_offset@4", "sphere_offset@5"],
          "rendered": ["plane_tilt@45", "cylinder_curvature@1"],
          "paper-figure3": ["noise@0.05"]}
 
-#: Relative and absolute tolerance on each statistic (deg): the same code on another processor
-#: differs only in the last bits of LAPACK's and SIMD sums (measured up to 2.2e-11 relative on
-#: the figure-3 suite between two machines); any change of method moves them by far more.
-REL, ABS = 1e-7, 1e-9
+#: Relative and absolute tolerance on each statistic (deg). The same code on another processor
+#: differs in the last bits of LAPACK's and SIMD sums, and the light-aware fits stop at
+#: scipy's convergence tolerance, so those bits move their normals by up to a few 1e-6 deg
+#: (measured: 2.4e-6 deg, 4e-6 relative, on lightaware's plane_offset@10 between two VMs);
+#: a change of method moves the statistics by far more (issue 41's tolerance is 0.01 deg).
+REL, ABS = 1e-4, 1e-5
 
 RUNS = {p.parent.name: p for p in committed_runs(data_root() / "reports")}
 

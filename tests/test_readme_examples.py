@@ -1,0 +1,113 @@
+"""Every example of the README runs as written, in order, from the root of a copy of the clone.
+
+The README is a user's document: its shell blocks (```bash) are run one line at a time with
+``bash -e`` from a temporary copy of the repository (so ``out/`` and the reports they write land
+there), then its Python blocks (```python) are executed in the same folder. Two kinds of lines
+are not run here, and why:
+
+- the two set-up commands (``apt-get ... && pip install ...``): they install the system; CI runs
+  them, and ``test_ci_runs_the_set_up_commands`` checks that ``.ci/run`` runs both;
+- a block whose first line is ``# needs: ...`` (data simtest cannot ship, such as a C3VD
+  sequence): each of its ``simtest`` lines is parsed by the command line itself (every option and
+  argument checked, nothing run), so a renamed flag still fails here.
+"""
+
+from __future__ import annotations
+
+import os
+import re
+import shlex
+import shutil
+import subprocess
+import sys
+from pathlib import Path
+
+import click
+import pytest
+import typer
+
+from simtest.cli import app
+from simtest.resources import data_root
+
+ROOT = data_root()
+README = (ROOT / "README.md").read_text(encoding="utf-8")
+BLOCKS = re.findall(r"^```(\w+)\n(.*?)^```", README, re.S | re.M)
+SETUP = "apt-get update && apt-get install"
+
+
+def _bash_blocks():
+    return [b for lang, b in BLOCKS if lang == "bash"]
+
+
+def _run_lines():
+    return [ln for b in _bash_blocks() if not b.startswith("# needs:")
+            for ln in b.splitlines() if ln.strip() and not ln.startswith(SETUP)]
+
+
+def test_the_readme_is_a_users_document():
+    lines = README.splitlines()
+    assert len(lines) <= 350, f"README.md has {len(lines)} lines (at most 350)"
+    long = [i + 1 for i, ln in enumerate(lines) if len(ln) > 300]
+    assert not long, f"README.md lines over 300 characters: {long}"
+    setup = [b.strip() for b in _bash_blocks()[:2]]
+    assert all(s.startswith(SETUP) for s in setup), "the README starts with the two set-up commands"
+    assert setup[0].endswith("simtest validate") and setup[1].endswith("python -m pytest")
+
+
+def test_ci_runs_the_set_up_commands():
+    ci = (ROOT / ".ci" / "run").read_text(encoding="utf-8")
+    first, second = (b.strip() for b in _bash_blocks()[:2])
+    packages = first.split("apt-get install -y ", 1)[1].split(" &&", 1)[0]
+    assert packages in ci, ".ci/run installs other system packages than the README"
+    assert 'pip install -q -e ".[test]"' in ci and "python -m pytest" in ci
+    assert re.search(r"^simtest validate\b", ci, re.M), ".ci/run does not run the main job"
+
+
+def _copy_of_the_clone(tmp: Path) -> Path:
+    repo = tmp / "clone"
+    ignore = shutil.ignore_patterns(".git", "out", "__pycache__", "*.egg-info", ".pytest_cache",
+                                    "*-local")
+    repo.mkdir()
+    for name in ("scenes", "meshes", "reports", "tests", "simtest", "pyproject.toml", "README.md"):
+        src = ROOT / name
+        (shutil.copytree(src, repo / name, ignore=ignore) if src.is_dir()
+         else shutil.copy2(src, repo / name))
+    return repo
+
+
+@pytest.mark.slow
+def test_every_readme_example_runs(tmp_path):
+    repo = _copy_of_the_clone(tmp_path)
+    env = dict(os.environ, MPLBACKEND="Agg", PYTHONPATH=str(repo))
+    # the `simtest` of the README is this checkout's code, run from the copy
+    shim = tmp_path / "bin"
+    shim.mkdir()
+    (shim / "simtest").write_text(f"#!/bin/sh\nexec {sys.executable} -m simtest.cli \"$@\"\n")
+    (shim / "simtest").chmod(0o755)
+    (shim / "python").symlink_to(sys.executable)
+    env["PATH"] = f"{shim}{os.pathsep}{env['PATH']}"
+    for line in _run_lines():
+        r = subprocess.run(["bash", "-e", "-c", line], cwd=repo, env=env, capture_output=True,
+                           text=True, timeout=300)
+        assert r.returncode == 0, f"README example failed ({r.returncode}): {line}\n{r.stderr[-2000:]}"
+    for lang, block in BLOCKS:
+        if lang == "python":
+            r = subprocess.run([sys.executable, "-c", block], cwd=repo, env=env,
+                               capture_output=True, text=True, timeout=300)
+            assert r.returncode == 0, f"README Python example failed:\n{block}\n{r.stderr[-2000:]}"
+
+
+def test_lines_that_need_outside_data_still_parse():
+    needs = [b for b in _bash_blocks() if b.startswith("# needs:")]
+    assert needs, "the README's C3VD example is a '# needs:' block"
+    top = typer.main.get_command(app)
+    for block in needs:
+        for line in block.splitlines()[1:]:
+            args = shlex.split(line)
+            assert args[0] == "simtest", line
+            cmd, rest, ctx = top, args[1:], click.Context(top, info_name="simtest")
+            while isinstance(cmd, click.Group):
+                name, rest = rest[0], rest[1:]
+                cmd = cmd.get_command(ctx, name)
+                assert cmd is not None, f"{line}: no command {name!r}"
+            cmd.make_context(cmd.name, list(rest))  # raises on an unknown option or argument
