@@ -87,7 +87,7 @@ def section_text(reports: str | Path | None = None, repo: str | Path | None = No
 
     One row per family of scenes of each committed report: the median normal error (deg) of the
     recommended normal (the paper's non-oracle choice of N+ or N-, ``paper_selected``, where the
-    suite has no recommended normal), of the ``bp_ray`` baseline and of the best other estimator, each with the number of
+    suite has no recommended normal), of the ``bp_ray`` baseline and of the other estimator with the lowest median, each with the number of
     highlights it was scored on (``n``). The reports hold the rest (every estimator, every case,
     the figures and the claims).
 
@@ -110,7 +110,7 @@ def section_text(reports: str | Path | None = None, repo: str | Path | None = No
     if not runs:
         return "\n".join(L + ["No committed report yet: run `python -m simtest.harness.regenerate`.",
                               "", END]) + "\n"
-    L += ["| report | family | recommended | bp_ray | best other estimator |", "|---|---|---|---|---|"]
+    L += ["| report | family | recommended | bp_ray | other estimator with the lowest median |", "|---|---|---|---|---|"]
     dates = []
     for folder in runs:
         try:
