@@ -14,10 +14,12 @@ from __future__ import annotations
 import argparse
 import json
 import sys
+import textwrap
 from pathlib import Path
 
 from simtest._io import atomic_write_text
-from simtest.harness.report.document import fmt
+from simtest.harness.claims import best_marks
+from simtest.harness.report.document import BEST_RULE, fmt
 from simtest.resources import data_root
 
 __all__ = ["BEGIN", "END", "committed_runs", "section_text", "replace_section", "main"]
@@ -84,15 +86,17 @@ def _run_block(folder: Path, rel: str) -> list[str]:
               "|---" * (len(ests) + 2) + "|"]
         for fam, f in fams.items():
             meds = {e: f["estimators"][e].get("median") for e in ests}
-            ok = [v for v in meds.values() if v is not None]
-            best = min(ok) if ok else None
-            cells = [("-" if v is None else f"**{fmt(v)}**" if v == best else fmt(v))
-                     for v in meds.values()]
+            marks = best_marks({e: f["estimators"].get(e) for e in ests})
+            cells = [("-" if v is None else f"**{fmt(v)}**" if marks.get(e) == "best"
+                      else f"{fmt(v)} (tie)" if marks.get(e) == "tie" else fmt(v))
+                     for e, v in meds.items()]
             fp = fmt(f.get("false_positives_per_image")) if f.get("false_positives") is not None \
                 else "n/a"
             L.append(f"| {_esc(fam)} | " + " | ".join(cells) + f" | {fp} |")
-        L += ["", "Median normal error (deg) pooled over each family's cases; the lowest per row "
-                  "in bold.", ""]
+        # wrapped: the README keeps every line under 300 characters
+        L += ["", *textwrap.wrap("Median normal error (deg) pooled over each family's cases. "
+                                 + BEST_RULE, 100, break_long_words=False,
+                                 break_on_hyphens=False), ""]
     for c in r.get("claims", []):
         L.append(f"- {_esc(c['claim'])}: **{_VERDICT[c['holds']]}** ({c['source']}; "
                  f"{c['measured']}).")
