@@ -42,10 +42,6 @@ MIN_N_INTERVAL = 10
 #: Confidence of the interval a "best" mark must clear.
 BEST_LEVEL = 0.95
 
-#: A normal distribution's 5th to 95th percentile span in standard deviations (2 x 1.6449).
-_P5_P95_SIGMAS = 2 * 1.6448536269514722
-
-
 # ------------------------------------------------------------------------------------------------
 # which estimator is best (only where the difference exceeds its confidence interval)
 
@@ -53,11 +49,13 @@ _P5_P95_SIGMAS = 2 * 1.6448536269514722
 def median_se(m: dict | None) -> float | None:
     """Standard error of a median error from its summary statistics (degrees).
 
-    The results keep ``p5``, ``p95`` and ``n_ok`` per estimator, not the errors. The spread is
-    taken as the standard deviation of a normal distribution with the same 5th and 95th
-    percentiles, sigma = (p95 - p5) / 3.29 (robust to the few far outliers that inflate
-    ``std``), and the median's large-sample standard error of a normal sample,
-    sqrt(pi / 2) sigma / sqrt(n_ok) (about 1.25 times the mean's).
+    The results keep ``p5``, ``p95`` and ``n_ok`` per estimator, not the errors. The median's
+    large-sample standard error is 1 / (2 f sqrt(n)) with f the density at the median; f is
+    taken as the mean density between the 5th and 95th percentiles, 0.9 / (p95 - p5). For a
+    unimodal distribution that density is at most the one at the median when the median lies
+    near the mode, so the error is overstated rather than understated: by 1.46 for a normal
+    distribution, 1.34 for a half-normal one (angle errors), 1.6 for an exponential one. A
+    mark that clears it is not noise.
 
     Parameters
     ----------
@@ -76,8 +74,8 @@ def median_se(m: dict | None) -> float | None:
     n = int(m.get("n_ok") or 0)
     if n < MIN_N_INTERVAL:
         return None
-    sigma = max(float(m["p95"]) - float(m["p5"]), 0.0) / _P5_P95_SIGMAS
-    return float(np.sqrt(np.pi / 2) * sigma / np.sqrt(n))
+    spread = max(float(m["p95"]) - float(m["p5"]), 0.0)
+    return float(spread / (2 * 0.9 * np.sqrt(n)))
 
 
 def best_marks(stats: dict[str, dict | None], level: float = BEST_LEVEL) -> dict[str, str]:

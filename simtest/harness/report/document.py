@@ -133,8 +133,8 @@ _VERDICT = {True: "holds", False: "**does not hold**", None: "undecided"}
 #: How the summary marks the lowest median (:func:`simtest.harness.claims.best_marks`).
 BEST_RULE = (f"A row's lowest median is in bold, marked (best), only where it is below every "
              f"other by more than the {100 * BEST_LEVEL:g} % confidence interval of the "
-             "difference (t interval of two medians, each with standard error sqrt(pi/2) "
-             "(p95 - p5) / 3.29 / sqrt(n)); the estimators it cannot be told apart from are "
+             "difference (t interval of two medians, each with standard error "
+             "(p95 - p5) / (1.8 sqrt(n))); the estimators it cannot be told apart from are "
              f"marked (tie), and an estimator with fewer than {MIN_N_INTERVAL} successes ties "
              "with every one; no mark where all tie.")
 
