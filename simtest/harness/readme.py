@@ -17,6 +17,7 @@ import sys
 from pathlib import Path
 
 from simtest._io import atomic_write_text
+from simtest.harness.claims import best_marks
 from simtest.harness.report.document import fmt
 from simtest.resources import data_root
 
@@ -68,9 +69,13 @@ def _rows(folder: Path, rel: str) -> list[str]:
         st = f["estimators"]
         med = {e: st[e].get("median") for e in ests}
         n = {e: st[e].get("n_ok") for e in ests}
+        marks = best_marks({e: st.get(e) for e in ests})  # over every estimator, shown or not
 
         def cell(e):
-            return "-" if med.get(e) is None else f"{fmt(med[e])} (n {n[e]})"
+            if med.get(e) is None:
+                return "-"
+            text = f"{fmt(med[e])} (n {n[e]})"
+            return f"**{text}**" if marks.get(e) == "best" else text
         others = [(med[e], e) for e in ests if e not in _NOT_OTHERS and med[e] is not None]
         best = min(others) if others else None
         first = ("recommended" if "recommended" in ests else
@@ -87,8 +92,9 @@ def section_text(reports: str | Path | None = None, repo: str | Path | None = No
 
     One row per family of scenes of each committed report: the median normal error (deg) of the
     recommended normal (the paper's non-oracle choice of N+ or N-, ``paper_selected``, where the
-    suite has no recommended normal), of the ``bp_ray`` baseline and of the other estimator with the lowest median, each with the number of
-    highlights it was scored on (``n``). The reports hold the rest (every estimator, every case,
+    suite has no recommended normal), of the ``bp_ray`` baseline and of the other estimator with
+    the lowest median, each with the number of highlights it was scored on (``n``), in bold where
+    :func:`simtest.harness.claims.best_marks` calls it best among all the row's estimators. The reports hold the rest (every estimator, every case,
     the figures and the claims).
 
     Parameters
@@ -110,7 +116,8 @@ def section_text(reports: str | Path | None = None, repo: str | Path | None = No
     if not runs:
         return "\n".join(L + ["No committed report yet: run `python -m simtest.harness.regenerate`.",
                               "", END]) + "\n"
-    L += ["| report | family | recommended | bp_ray | other estimator with the lowest median |", "|---|---|---|---|---|"]
+    L += ["| report | family | recommended | bp_ray | other estimator with the lowest median |",
+          "|---|---|---|---|---|"]
     dates = []
     for folder in runs:
         try:
@@ -121,6 +128,9 @@ def section_text(reports: str | Path | None = None, repo: str | Path | None = No
         dates.append(f"`{rel}`")
     L += ["", "Median normal error in degrees over each family's highlights (n: highlights "
               "scored), from the committed runs", ", ".join(dates) + ".",
+          "In bold: a median below every other estimator's of its row (shown or not) by more than "
+          "the 95 % confidence interval", "of the difference (the reports' rule); none where the "
+          "lowest cannot be told apart from another.",
           "¹ Suites without a recommended normal (co-located light, the paper's protocol) show "
           "`paper_selected`,", "the paper's circle pose with N+ or N- chosen without the truth.",
           "", END]

@@ -16,7 +16,7 @@ import json
 import numpy as np
 from markdown_it import MarkdownIt
 
-from simtest.harness.claims import ALARM_DEG, explanations
+from simtest.harness.claims import ALARM_DEG, BEST_LEVEL, MIN_N_INTERVAL, best_marks, explanations
 from simtest.tolerances import TOL
 
 __all__ = ["markdown_report", "html_report", "fmt", "cell", "summary_markdown"]
@@ -130,6 +130,14 @@ def _esc(text: str) -> str:
 
 _VERDICT = {True: "holds", False: "**does not hold**", None: "undecided"}
 
+#: How the summary marks the lowest median (:func:`simtest.harness.claims.best_marks`).
+BEST_RULE = (f"A row's lowest median is in bold, marked (best), only where it is below every "
+             f"other by more than the {100 * BEST_LEVEL:g} % confidence interval of the "
+             "difference (t interval of two medians, each with standard error "
+             "(p95 - p5) / (1.8 sqrt(n))); the estimators it cannot be told apart from are "
+             f"marked (tie), and an estimator with fewer than {MIN_N_INTERVAL} successes ties "
+             "with every one; no mark where all tie.")
+
 
 def summary_markdown(results: dict) -> list[str]:
     """The summary section: family x estimator table, claim verdicts, alarming cells explained.
@@ -150,20 +158,20 @@ def summary_markdown(results: dict) -> list[str]:
     if fams:
         L += ["Median normal error in degrees [5th, 95th percentile] (n scored specularities), "
               "pooled over every case of the scene family; the failure rate when some "
-              "realisations failed; the lowest median of each row in bold. False positives: "
+              "realisations failed. " + BEST_RULE + " False positives: "
               "detections with no true highlight within match_px (per image; the paper protocol "
               "knows its BP and detects nothing).", "",
               "| family | images | false positives | " + " | ".join(ests) + " |",
               "|---" * (len(ests) + 3) + "|"]
         for name, f in fams.items():
-            meds = {e: f["estimators"][e]["median"] for e in ests
-                    if f["estimators"].get(e, {}).get("median") is not None}
-            best = min(meds.values()) if meds else None
+            marks = best_marks({e: f["estimators"].get(e) for e in ests})
             cells = []
             for e in ests:
                 c = cell(f["estimators"].get(e))
-                if best is not None and meds.get(e) == best:
+                if marks.get(e) == "best":
                     c = f"**{c}** (best)"
+                elif marks.get(e) == "tie":
+                    c = f"{c} (tie)"
                 cells.append(c)
             fp = ("n/a" if f.get("false_positives") is None else
                   f"{f['false_positives']} ({fmt(f['false_positives_per_image'])} per image)")
@@ -192,18 +200,27 @@ def summary_markdown(results: dict) -> list[str]:
     return L
 
 
-def _nightly_markdown(nightly: dict, figures: list[str]) -> list[str]:
+def _figure(name: str, notes: dict[str, str]) -> list[str]:
+    """A figure's Markdown lines: the image, then its takeaway sentence when it has one."""
+    L = [f"![{name}](figures/{name})", ""]
+    if notes.get(name):
+        L += [f"Takeaway: {_esc(notes[name])}", ""]
+    return L
+
+
+def _nightly_markdown(nightly: dict, figures: list[str], notes: dict[str, str]) -> list[str]:
     L = ["## Nightly gate", "",
          f"Verdict: **{nightly['verdict']}** against `{nightly.get('baseline', '')}` "
          f"({nightly.get('summary', '')}).", ""]
     if nightly.get("problems"):
         L += [f"- {_esc(p)}" for p in nightly["problems"]] + [""]
     if "nightly_trend.png" in figures:
-        L += ["![nightly_trend.png](figures/nightly_trend.png)", ""]
+        L += _figure("nightly_trend.png", notes)
     return L
 
 
-def markdown_report(results: dict, figures: list[str], nightly: dict | None = None) -> str:
+def markdown_report(results: dict, figures: list[str], nightly: dict | None = None,
+                    history: list[dict] | None = None) -> str:
     """The ``report.md`` text of a results document.
 
     Parameters
@@ -214,12 +231,18 @@ def markdown_report(results: dict, figures: list[str], nightly: dict | None = No
         File names of the figures written under ``figures/``.
     nightly : dict, optional
         The nightly gate's outcome: ``verdict``, ``baseline``, ``summary``, ``problems``.
+    history : list of dict, optional
+        Nightly history lines (the takeaway under ``nightly_trend.png``).
 
     Returns
     -------
     str
-        Markdown (CommonMark with tables).
+        Markdown (CommonMark with tables). Every figure is followed by one ``Takeaway:``
+        sentence computed from the results (:func:`simtest.harness.report.figures.takeaways`).
     """
+    from simtest.harness.report.figures import takeaways  # figures imports fmt from here
+
+    notes = takeaways(results, history)
     s = results["suite"]
     p = results["provenance"]
     cases = {c["id"]: c for c in results["cases"]}
@@ -229,7 +252,7 @@ def markdown_report(results: dict, figures: list[str], nightly: dict | None = No
         L += [s["description"], ""]
     L += summary_markdown(results)
     if nightly:
-        L += _nightly_markdown(nightly, figures)
+        L += _nightly_markdown(nightly, figures, notes)
     dirty = (f", plus uncommitted changes to {', '.join(p.get('git_dirty_files') or [])}"
              if p.get("git_dirty") else " (clean)" if p.get("git_dirty") is False else "")
     L += ["## Run", "",
@@ -268,8 +291,8 @@ def markdown_report(results: dict, figures: list[str], nightly: dict | None = No
               "negative inside a lumen). A co-located light makes the isophote cone elliptic "
               "with its axis on the normal; its eigenvalue gap is 1 - rho^2 and the circle-pose "
               "normals N+ and N- leave the axis by asin(sqrt(1 - rho^2)), whatever the isophote "
-              "size. Points on the dashed line agree with the prediction.", "",
-              "![curvature_rho.png](figures/curvature_rho.png)", ""]
+              "size. Points on the dashed line agree with the prediction.", ""]
+        L += _figure("curvature_rho.png", notes)
     if results.get("open_parameters"):
         L += ["## Parameters the paper leaves open (our choices)", ""]
         for k, v in results["open_parameters"].items():
@@ -312,10 +335,9 @@ def markdown_report(results: dict, figures: list[str], nightly: dict | None = No
                 L.append(f"| {cases[key]['x'] * sw['display_scale']:g} | "
                          + " | ".join(fmt(d.get(k)) for k in keys) + " |")
             L.append("")
-        for f in figures:
-            if f.startswith(sw["name"] + "_"):
-                L.append(f"![{f}](figures/{f})")
-                L.append("")
+        for f in (f"{sw['name']}_curves.png", f"{sw['name']}_bars.png"):
+            if f in figures:  # by full name: sweep "isovalue" must not take "isovalue_unbounded_*"
+                L += _figure(f, notes)
         exc = [(cases[k]["x"], e) for k in sw["cases"] for e in cases[k]["exceptions"]]
         if exc:
             L += ["Exceptions (first of each case):", ""] + [f"- x = {x:g}: `{e}`" for x, e in exc]
