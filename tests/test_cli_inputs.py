@@ -197,3 +197,34 @@ def test_one_stderr_line_per_failure_in_a_real_process(files, tmp_path):
             assert w in lines[0], lines[0]
     assert (tmp_path / "view.png").stat().st_size > 0
     assert json.loads((rec / "estimates.json").read_text())["schema"] == 2
+
+
+def test_other_commands_check_out_first_with_exit_4(files, tmp_path, monkeypatch):
+    """render, simreal, meshes build and evaluate c3vd refuse an --out below a file before any
+    work (render_scene is never called), with exit 4 and one line."""
+    from simtest.render import cli as render_cli
+
+    def no_render(*args, **kwargs):
+        raise AssertionError("rendered although --out cannot be written")
+
+    monkeypatch.setattr(render_cli, "render_scene", no_render)
+    below_file = str(files["a_file"] / "sub")
+    for args in (["render", "plane_fronto", "-o", below_file],
+                 ["simreal", "-o", below_file],
+                 ["meshes", "build", "-o", below_file, "--only", "liver"],
+                 ["evaluate", "c3vd", str(tmp_path), "-k", str(files["K"]), "-o", below_file]):
+        res = runner.invoke(app, args)
+        _one_line(res, 4, "--out", "a_file", "is a file")
+    # evaluate's OUT is replaced as a whole: a folder holding other files is refused
+    res = runner.invoke(app, ["evaluate", "c3vd", str(tmp_path), "-k", str(files["K"]),
+                              "-o", str(files["png"].parent)])
+    _one_line(res, 4, "--out", "holds files this command does not write")
+    assert files["a_file"].read_text() == "keep me"
+
+
+def test_reconstruct_requires_out(files, tmp_path, monkeypatch):
+    """No default output folder (it used to be the current folder, mixing outputs with inputs)."""
+    monkeypatch.chdir(tmp_path)
+    res = runner.invoke(app, ["reconstruct", str(files["png"]), "-k", str(files["K"])])
+    assert res.exit_code == 2 and "--out" in res.output
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["in"]
