@@ -148,7 +148,7 @@ def reconstruct_command(
             normalise=settings.normalise.value, include_points=points, camera=camera, lights=rig,
         )
         text = json.dumps(doc, indent=1, allow_nan=False) + "\n"
-    except (ValueError, OSError, ImportError) as exc:  # IntrinsicsError, InputError: ValueErrors; no pyvista: ImportError
+    except (ValueError, OSError, ImportError) as exc:  # IntrinsicsError, InputError: ValueErrors
         fail(exc, BAD_INPUT)
     names = ["estimates.json"] + (["overlay.png"] if overlay else []) + (["view.png"] if view else [])
 

@@ -88,10 +88,10 @@ def _check_layout(shape, dtype, path: Path) -> None:
     """:class:`InputError` naming ``path``, its shape and dtype, unless they are an image's."""
     dtype = np.dtype(dtype)
     ok_rank = len(shape) == 2 or (len(shape) == 3 and shape[2] in (1, 3, 4))
-    ok_dtype = dtype.kind == "f" and dtype.itemsize <= 8 or dtype in (np.uint8, np.uint16)
+    ok_dtype = (dtype.kind == "f" and dtype.itemsize <= 8) or dtype in (np.uint8, np.uint16)
     if not (ok_rank and ok_dtype):
-        raise InputError(f"{path}: holds an array of shape {tuple(shape)}, dtype {dtype.str if dtype.kind == 'U' else dtype}; "
-                         f"{_EXPECTED}")
+        shown = dtype.str if dtype.kind in "US" else dtype  # '<U1' says what numpy's name 'str32' hides
+        raise InputError(f"{path}: holds an array of shape {tuple(shape)}, dtype {shown}; {_EXPECTED}")
 
 
 def _npy_header(path: Path):
