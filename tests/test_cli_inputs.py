@@ -99,6 +99,10 @@ def test_frames_of_two_sizes_are_refused_naming_the_frame(files, tmp_path):
     res = runner.invoke(app, ["reconstruct", str(files["frames"]), "-k", str(files["K"]),
                               "-o", str(tmp_path / "o"), "-j", "1"])
     _one_line(res, 2, "f001.png", "96 x 96 px", "f000.png", "120 x 120 px")
+    # a camera with a size: every frame is held to it (the sequence path did not check it at all)
+    res = runner.invoke(app, ["reconstruct", str(files["frames"]), "-k", str(files["K_other"]),
+                              "-o", str(tmp_path / "o"), "-j", "1"])
+    _one_line(res, 2, "f000.png", "120 x 120 px", "'image_size' is 640 x 480 px")
     assert not (tmp_path / "o").exists()
 
 
