@@ -654,7 +654,9 @@ def bench_command(
     variant: str = typer.Option(None, "--variant", help="Mitsuba variant for the render section: "
                                 "llvm_ad_rgb (its default), cuda_ad_rgb or auto."),
 ) -> None:
-    """Run the speed benchmarks and print a table (median and min per figure, single core)."""
+    """Run the speed benchmarks and print a table (median and min per figure, single core).
+
+    Writes no file: the table goes to standard output."""
 
     if variant is not None and variant not in RENDER_VARIANTS:
         typer.echo(f"error: --variant {variant!r} is not one of {list(RENDER_VARIANTS)}", err=True)

@@ -73,15 +73,16 @@ def test_real_tile_runs(tmp_path):
     kjson = tmp_path / "K.json"
     save_intrinsics(kjson, intrinsics(140, 280))  # stand-in pinhole (tests/data/real/README.md)
     tile = REAL / "hyperkvasir_tile_r1c7_mucosa.png"
-    res = runner.invoke(app, ["reconstruct", str(tile), "-k", str(kjson), "-o", str(tmp_path), "-t", "0.8"])
+    out = tmp_path / "o"
+    res = runner.invoke(app, ["reconstruct", str(tile), "-k", str(kjson), "-o", str(out), "-t", "0.8"])
     assert res.exit_code == 0, res.output
-    doc = read_estimates(tmp_path / "estimates.json")
+    doc = read_estimates(out / "estimates.json")
     assert any(s["status"] == "ok" for s in doc["specularities"])
-    assert (tmp_path / "overlay.png").stat().st_size > 0
+    assert (out / "overlay.png").stat().st_size > 0
 
 
-def _one_line_error(res, *words):
-    assert res.exit_code == 2
+def _one_line_error(res, *words, code=2):
+    assert res.exit_code == code, res.output
     err = res.output  # stdout and stderr together (Click 8.1 and 8.2 alike): nothing but the error
     lines = [ln for ln in err.splitlines() if ln.strip()]
     assert len(lines) == 1, err
@@ -119,4 +120,4 @@ def test_bad_files_give_one_readable_line(scene, tmp_path):
     a_file = tmp_path / "a_file"
     a_file.write_text("")
     res = runner.invoke(app, ["reconstruct", str(png), "-k", str(kjson), "-o", str(a_file)])
-    _one_line_error(res, "--out must be a folder")
+    _one_line_error(res, "--out", "a_file", "is a file, not a folder", code=4)

@@ -55,6 +55,7 @@ import numpy as np
 import tifffile
 
 from simtest.geometry.cameras import CameraModel
+from simtest.reconstruct.images import quiet_stderr
 
 __all__ = ["C3VDError", "C3VDFrame", "GroundTruth", "load_frame", "scan_sequence"]
 
@@ -163,7 +164,8 @@ def _read_tiff(path: Path, what: str) -> np.ndarray:
 def read_color(path: Path) -> np.ndarray:
     """The 8-bit RGB frame (H, W, 3) uint8; one-line C3VDError when unreadable."""
     data = np.fromfile(path, dtype=np.uint8)
-    img = cv2.imdecode(data, cv2.IMREAD_UNCHANGED) if data.size else None
+    with quiet_stderr():  # libpng's own line for a damaged file is not printed (ours names the file)
+        img = cv2.imdecode(data, cv2.IMREAD_UNCHANGED) if data.size else None
     if img is None:
         raise C3VDError(f"{path}: cannot decode the colour frame")
     if img.ndim == 2:
@@ -215,7 +217,8 @@ def load_frame(frame: C3VDFrame, camera: CameraModel) -> tuple[np.ndarray, Groun
         n = np.where((norm > 0.5) & ~miss, n / norm, np.nan)  # renormalise
     invalid = ~np.isfinite(n).all(axis=2)
     if frame.occlusion is not None:
-        occ = cv2.imread(str(frame.occlusion), cv2.IMREAD_GRAYSCALE)
+        with quiet_stderr():
+            occ = cv2.imread(str(frame.occlusion), cv2.IMREAD_GRAYSCALE)
         if occ is None:
             raise C3VDError(f"{frame.occlusion}: cannot decode the occlusion mask")
         if occ.shape != (H, W):

@@ -2,9 +2,11 @@
 and score every estimator against its ground-truth normals.
 
 Writes ``OUT/results.json``, ``OUT/report.html`` (:mod:`simtest.evaluate.report`) and with
-``--views N`` ``OUT/view_NNNN.png`` (:mod:`simtest.reconstruct.view3d`), replaced as a set: all are
-written to temporary files first, so a failure leaves the previous set. A bad
-sequence or camera file ends with exit status 2 and one line naming the file (no traceback).
+``--views N`` ``OUT/view_NNNN.png`` (:mod:`simtest.reconstruct.view3d`), replaced as one folder
+(:func:`~simtest.reconstruct.io.replace_output_folder`): a failure or a kill leaves the whole
+previous set or the whole new one. A bad sequence or camera file ends with exit status 2 and one
+line naming the file (no traceback); an ``OUT`` that cannot be written (a file in the way,
+read-only, files this command does not write inside) with exit status 4, before any work.
 """
 
 from __future__ import annotations
@@ -16,15 +18,19 @@ import typer
 from rich.progress import Progress
 
 from simtest import __version__
-from simtest._io import atomic_write_set
 from simtest.evaluate.c3vd import load_frame, scan_sequence
 from simtest.evaluate.report import SCHEMA, SCHEMA_VERSION, render_html
 from simtest.evaluate.score import score_highlights, summarise
 from simtest.geometry.camera_file import load_camera
+from simtest._exit import BAD_INPUT, fail
+from simtest.reconstruct.cli import check_out_folder, write_out_folder
 from simtest.reconstruct.io import estimate_to_dict
 from simtest.reconstruct.pipeline import reconstruct
 from simtest.reconstruct.settings import ReconSettings
 from simtest.reconstruct.view3d import render_view, surface_from_depth
+
+#: What ``evaluate c3vd`` writes in OUT (fnmatch patterns; nothing else may be there).
+OUTPUT_FILES = ("results.json", "report.html", "view_*.png")
 
 evaluate_app = typer.Typer(help="Score reconstructions against datasets with ground-truth normals.", no_args_is_help=True)
 
@@ -34,7 +40,9 @@ def c3vd_command(
     seq_dir: Path = typer.Argument(..., help="Sequence folder in C3VD's layout (NNNN_color.png, NNNN_normals.tiff, ...).",
                                    show_default=False),
     intrinsics: Path = typer.Option(..., "--intrinsics", "-k", help="Camera file of the sequence (C3VD: omnidirectional)."),
-    out: Path = typer.Option(..., "--out", "-o", help="Output folder for results.json and report.html."),
+    out: Path = typer.Option(..., "--out", "-o", show_default=False,
+                             help="Output folder, new, empty or a previous run's (replaced as a whole): "
+                             "results.json, report.html, view_NNNN.png (--views)."),
     isovalue: list[float] = typer.Option([0.5, 0.7], "--isovalue", "-t", help="Isovalue(s) t in (0, 1); repeat for nested isophotes."),
     normalise: str = typer.Option("local", help="Intensity normalisation: bp, full_scale or local (real tissue: local)."),
     smooth_sigma_px: float = typer.Option(0.0, "--smooth", help="Gaussian smoothing sigma in px before detection."),
@@ -42,11 +50,15 @@ def c3vd_command(
     views: int = typer.Option(0, "--views", help="Also write OUT/view_NNNN.png, a 3D view (estimates beside the GT "
                               "surface from depth), for the first N frames with a reconstructed highlight.", min=0),
 ) -> None:
-    """Reconstruct every frame of SEQ_DIR and score every estimator against the ground truth."""
+    """Reconstruct every frame of SEQ_DIR and score every estimator against the ground truth.
 
+    Writes, in the folder OUT (new, empty, or a previous run's; replaced as a whole, so a failure
+    leaves the previous set): OUT/results.json (every highlight's errors and the summaries),
+    OUT/report.html (the report page) and with --views N OUT/view_NNNN.png (a 3D view of frame
+    NNNN). Exit status 2: bad input; 4: OUT cannot be written."""
+
+    target = check_out_folder(out, OUTPUT_FILES)
     try:
-        if out.exists() and not out.is_dir():
-            raise ValueError(f"--out must be a folder; {out} is a file")
         camera = load_camera(intrinsics).model
         frames = scan_sequence(seq_dir)
         if max_frames:
@@ -77,16 +89,16 @@ def c3vd_command(
         }
         text = json.dumps(results, indent=1, allow_nan=False) + "\n"
         page = render_html(results)
-        writers = {
-            out / "results.json": lambda tmp: Path(tmp).write_text(text, encoding="ascii"),
-            out / "report.html": lambda tmp: Path(tmp).write_text(page, encoding="utf-8"),
-        }
-        for idx, specs, tp in view_inputs:
-            writers[out / f"view_{idx}.png"] = lambda tmp, specs=specs, tp=tp: render_view(tmp, specs, truth_points=tp)
-        atomic_write_set(writers)
     except (ValueError, OSError, ImportError) as exc:  # C3VDError, CameraFileError, settings: ValueErrors
-        typer.echo(f"error: {' '.join(str(exc).split())}", err=True)
-        raise typer.Exit(code=2) from None
+        fail(exc, BAD_INPUT)
+
+    def fill(folder: Path) -> None:
+        (folder / "results.json").write_text(text, encoding="ascii")
+        (folder / "report.html").write_text(page, encoding="utf-8")
+        for idx, specs, tp in view_inputs:
+            render_view(folder / f"view_{idx}.png", specs, truth_points=tp)
+
+    write_out_folder(out, target, fill)
     med = results["estimators"]
     summary = ", ".join(f"{k} {v['median_deg']:.2f}" for k, v in med.items() if v["median_deg"] is not None)
     typer.echo(f"{len(frames)} frame(s), {results['n_highlights']} candidate(s), {results['n_ok']} ok, "

@@ -1,11 +1,16 @@
-"""``simtest reconstruct IMAGE --intrinsics K.json [--out DIR] [--isovalue T ...]``.
+"""``simtest reconstruct IMAGE --intrinsics K.json --out DIR [--isovalue T ...]`` and ``simtest view``.
 
-Writes ``DIR/estimates.json`` (schema in :mod:`simtest.reconstruct.io`), ``DIR/overlay.png``
-(:mod:`simtest.reconstruct.overlay`) and with ``--view`` ``DIR/view.png``
-(:mod:`simtest.reconstruct.view3d`), replaced as a set (a failed write leaves the previous set).
-A missing or unreadable image or intrinsics file, a bad option value, or an image whose overlay
-would not fit in memory ends with exit status 2 and one line ``error: ...`` on stderr (no
-traceback), before anything is written.
+``reconstruct`` writes ``DIR/estimates.json`` (schema in :mod:`simtest.reconstruct.io`),
+``DIR/overlay.png`` (:mod:`simtest.reconstruct.overlay`, unless ``--no-overlay``) and with ``--view``
+``DIR/view.png`` (:mod:`simtest.reconstruct.view3d`); for a folder of frames or a video,
+``DIR/estimates.jsonl``. ``DIR`` is replaced as one folder (:func:`~simtest.reconstruct.io.
+replace_output_folder`): a failure or a kill at any point leaves either the whole previous set or
+the whole new one, never a new ``estimates.json`` beside an old ``overlay.png``; so ``DIR`` must be
+new, empty, or hold only a previous run's outputs. Exit status: 2 and one line ``error: ...`` on
+stderr (no traceback, no library noise) for a missing or unreadable image or intrinsics file, an
+array that is not an image, frames of two sizes, a bad option value, or an image whose overlay
+would not fit in memory; 4 when ``DIR`` cannot be written (a file in the way, read-only, foreign
+files inside); both before anything is written.
 
 Images: anything OpenCV decodes (PNG 8/16-bit, JPEG, TIFF, BMP, ...), read unchanged and turned to
 RGB; or a ``.npy`` array (float images from the simulator). Camera (``--intrinsics``): a camera
@@ -29,14 +34,21 @@ import numpy as np
 import typer
 from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
 
-from simtest._io import atomic_write_set
+from simtest._exit import BAD_INPUT, CANNOT_WRITE, fail, writable_dir
 from simtest.evaluate.c3vd import DEPTH_RANGE_MM, U16, _read_tiff
 from simtest.geometry.camera_file import camera_from_dict, load_camera
 from simtest.geometry.cameras import PinholeCamera
 from simtest.reconstruct._pixels import image_size_wh
 from simtest.reconstruct.frames import is_sequence, open_frames, reconstruct_frames, write_frames_jsonl
 from simtest.reconstruct.images import InputError, load_image
-from simtest.reconstruct.io import estimates_document, read_estimates
+from simtest.reconstruct.io import (
+    RECONSTRUCT_FILES,
+    OutputFolderError,
+    check_output_folder,
+    estimates_document,
+    read_estimates,
+    replace_output_folder,
+)
 from simtest.reconstruct.overlay import check_overlay_size, draw_overlay
 from simtest.reconstruct.pipeline import reconstruct
 from simtest.reconstruct.recommend import with_light_aware
@@ -51,7 +63,9 @@ def reconstruct_command(
         help="Camera file (JSON: pinhole, fisheye or omnidirectional model) or OpenCV YAML/XML.",
     ),
     out: Path = typer.Option(
-        Path("."), "--out", "-o", help="Output folder for estimates.json and overlay.png."
+        ..., "--out", "-o", show_default=False,
+        help="Output folder, new, empty or a previous run's (replaced as a whole): estimates.json, "
+        "overlay.png, view.png (--view); estimates.jsonl for a folder or video.",
     ),
     isovalues: list[float] = typer.Option(
         [0.7, 0.85], "--isovalue", "-t",
@@ -77,21 +91,29 @@ def reconstruct_command(
     ),
     workers: int = typer.Option(
         0, "--workers", "-j", min=0,
-        help="Worker processes for a folder or video (0: one per core).", show_default=False,
+        help="Worker processes for a folder or video (0: one per core; at most the CPU count).",
+        show_default=False,
     ),
 ) -> None:
     """Estimate the normal at every specular highlight of IMAGE: an image file, a folder of frames
-    or a video file (then one line per frame in OUT/estimates.jsonl)."""
+    or a video file.
+
+    Writes, in the folder OUT (new, empty, or a previous run's; replaced as a whole, so a failure
+    leaves the previous set): OUT/estimates.json (the normals, schema 2) and OUT/overlay.png (the
+    image with the highlights marked; not with --no-overlay), and with --view OUT/view.png (a 3D
+    view); for a folder of frames or a video, OUT/estimates.jsonl (one line per frame) instead.
+    Exit status 2: bad input or option; 4: OUT cannot be written."""
 
     try:
         settings = ReconSettings.for_frames(
             isovalues=isovalues, normalise=normalise, allow_open=allow_open,
             smooth_sigma_px=smooth_sigma_px, detection=detection)
     except ValueError as exc:
-        typer.echo(f"error: {' '.join(str(exc).split())}", err=True)
-        raise typer.Exit(code=2) from None
+        fail(exc, BAD_INPUT)
+    check_workers(workers)
+    target = check_out_folder(out, RECONSTRUCT_FILES)
     if is_sequence(image):
-        _reconstruct_sequence(image, intrinsics, out, settings, points=points, workers=workers)
+        _reconstruct_sequence(image, intrinsics, out, target, settings, points=points, workers=workers)
         return
     try:
         img = load_image(image)
@@ -108,8 +130,6 @@ def reconstruct_command(
                 f"{intrinsics}: key 'image_size' is {W} x {H} px but {image} is "
                 f"{w} x {h} px: these intrinsics are for another image size"
             )
-        if out.exists() and not out.is_dir():
-            raise InputError(f"--out must be a folder; {out} is a file")
         if overlay:  # refused before anything is computed or written
             check_overlay_size(img.shape)
         estimates = reconstruct(img, camera, settings=settings)
@@ -128,24 +148,90 @@ def reconstruct_command(
             normalise=settings.normalise.value, include_points=points, camera=camera, lights=rig,
         )
         text = json.dumps(doc, indent=1, allow_nan=False) + "\n"
-        json_path = out / "estimates.json"
-        # the outputs are replaced as a set: all are written to temporary files first, so a failure
-        # (full disk, a broken renderer) leaves the previous complete set
-        writers = {json_path: lambda tmp: Path(tmp).write_text(text, encoding="utf-8")}
+    except (ValueError, OSError, ImportError) as exc:  # IntrinsicsError, InputError: ValueErrors
+        fail(exc, BAD_INPUT)
+    names = ["estimates.json"] + (["overlay.png"] if overlay else []) + (["view.png"] if view else [])
+
+    def fill(folder: Path) -> None:
+        # the whole set is written into a fresh folder beside OUT, which then takes OUT's place
+        (folder / "estimates.json").write_text(text, encoding="utf-8")
         if overlay:
-            writers[out / "overlay.png"] = lambda tmp: draw_overlay(tmp, img, estimates, camera,
-                                                                    show_rejected=overlay_all)
+            draw_overlay(folder / "overlay.png", img, estimates, camera, show_rejected=overlay_all)
         if view:
-            writers[out / "view.png"] = lambda tmp: render_view(tmp, doc["specularities"])
-        atomic_write_set(writers)
-    except (ValueError, OSError, ImportError) as exc:  # IntrinsicsError, InputError: ValueErrors; no pyvista: ImportError
-        msg = " ".join(str(exc).split())
-        typer.echo(f"error: {msg}", err=True)
-        raise typer.Exit(code=2) from None
-    typer.echo(summary_line(estimates, [json_path] + ([out / "overlay.png"] if overlay else [])))
+            render_view(folder / "view.png", doc["specularities"])
+
+    write_out_folder(out, target, fill)
+    typer.echo(summary_line(estimates, [out / n for n in names]))
 
 
-def _reconstruct_sequence(path, intrinsics, out, settings, *, points, workers) -> None:
+def check_workers(workers: int, option: str = "--workers") -> int:
+    """``workers`` if this machine has that many CPUs (``os.cpu_count()``), else exit 2.
+
+    Raises
+    ------
+    typer.Exit
+        With exit status 2 and one line naming the value and the CPU count.
+    """
+    cpus = os.cpu_count() or 1
+    if workers > cpus:
+        fail(f"{option} {workers}: more than the {cpus} CPU(s) of this machine (0: one per CPU)",
+             BAD_INPUT)
+    return workers
+
+
+def check_out_folder(out: Path, owned, option: str = "--out") -> Path:
+    """Check an output folder that is replaced as a whole, before any work.
+
+    Parameters
+    ----------
+    out : Path
+        The folder as given.
+    owned : sequence of str
+        ``fnmatch`` patterns of the files the command writes there (nothing else may be there).
+    option : str
+        The option's name, for messages.
+
+    Returns
+    -------
+    Path
+        The folder's real path (symbolic links and ``..`` resolved): the one swapped.
+
+    Raises
+    ------
+    typer.Exit
+        With exit status 4 and one line saying why: a file in the way, a read-only or full
+        folder, files the command does not write inside, the current folder.
+    """
+    writable_dir(out, option)
+    try:
+        check_output_folder(out, owned, option)
+    except OutputFolderError as exc:
+        fail(exc, CANNOT_WRITE)
+    target = Path(os.path.realpath(out))
+    if target.exists():  # the swap renames OUT itself: its parent must take new entries too
+        writable_dir(target.parent, option)
+    return target
+
+
+def write_out_folder(out: Path, target: Path, fill) -> None:
+    """:func:`~simtest.reconstruct.io.replace_output_folder` with one-line errors.
+
+    Raises
+    ------
+    typer.Exit
+        2 for a bad input found while writing (ValueError, a missing pyvista), 4 for an OSError
+        (disk full, permissions); OUT keeps its previous set either way.
+    """
+    try:
+        replace_output_folder(target, fill)
+    except OSError as exc:
+        fail(f"--out: cannot write {out}: {exc.strerror or exc}"
+             + (f" ({exc.filename})" if getattr(exc, "filename", None) else ""), CANNOT_WRITE)
+    except (ValueError, ImportError) as exc:
+        fail(exc, BAD_INPUT)
+
+
+def _reconstruct_sequence(path, intrinsics, out, target, settings, *, points, workers) -> None:
     """Folder or video: estimates.jsonl in frame order, a progress bar, frames per second."""
     counts: dict[str, int] = {}
     try:
@@ -154,10 +240,14 @@ def _reconstruct_sequence(path, intrinsics, out, settings, *, points, workers) -
             camera = load_camera(intrinsics).model
         except FileNotFoundError:
             raise InputError(f"intrinsics file not found: {intrinsics}") from None
-        if out.exists() and not out.is_dir():
-            raise InputError(f"--out must be a folder; {out} is a file")
-        out.mkdir(parents=True, exist_ok=True)
-        n_workers = workers or os.cpu_count() or 1
+        except OSError as exc:
+            raise InputError(f"cannot read intrinsics {intrinsics}: {exc}") from None
+    except (ValueError, OSError) as exc:
+        fail(exc, BAD_INPUT)
+    n_workers = workers or os.cpu_count() or 1
+    done: dict = {}
+
+    def fill(folder: Path) -> None:
         records = reconstruct_frames(source, camera, settings, workers=n_workers,
                                      include_points=points)
         with Progress(TextColumn("reconstruct"), BarColumn(), MofNCompleteColumn(),
@@ -169,14 +259,14 @@ def _reconstruct_sequence(path, intrinsics, out, settings, *, points, workers) -
             def on_frame(rec):
                 for k, v in rec["counts"].items():
                     counts[k] = counts.get(k, 0) + v
-                done = rec["frame"] + 1
-                bar.update(task, completed=done, fps=done / max(time.perf_counter() - t0, 1e-9))
+                n = rec["frame"] + 1
+                bar.update(task, completed=n, fps=n / max(time.perf_counter() - t0, 1e-9))
 
-            jsonl, n, wall = write_frames_jsonl(out / "estimates.jsonl", records, on_frame=on_frame)
-    except (ValueError, OSError) as exc:
-        msg = " ".join(str(exc).split())
-        typer.echo(f"error: {msg}", err=True)
-        raise typer.Exit(code=2) from None
+            _, done["n"], done["wall"] = write_frames_jsonl(folder / "estimates.jsonl", records,
+                                                            on_frame=on_frame)
+
+    write_out_folder(out, target, fill)
+    n, wall, jsonl = done["n"], done["wall"], out / "estimates.jsonl"
     n_cand = sum(counts.values())
     n_ok = counts.pop("ok", 0)
     rest = ", ".join(f"{k} {v}" for k, v in sorted(counts.items(), key=lambda kv: (-kv[1], kv[0])))
@@ -250,22 +340,89 @@ def load_truth_points(path: Path, camera) -> "np.ndarray":  # noqa: F821
     raise InputError(f"{path}: ground truth must be a .npz (simtest render) or a .tiff depth map (C3VD)")
 
 
+def _size_of_estimates(doc: dict) -> tuple[int, int] | None:
+    """(W, H) of the image the estimates were made from, if they record it."""
+    shape = doc.get("image_shape")
+    if isinstance(shape, list) and len(shape) >= 2 and all(isinstance(v, int) for v in shape[:2]):
+        return int(shape[1]), int(shape[0])
+    return None
+
+
+def check_view_sizes(doc: dict, estimates: Path, camera=None, intrinsics: Path | None = None,
+                     truth_points=None, truth: Path | None = None) -> None:
+    """Refuse a camera or a ground truth made for another image than the estimates'.
+
+    Parameters
+    ----------
+    doc : dict
+        The estimates document (its ``image_shape`` [H, W]).
+    estimates : Path
+        Its file, for messages.
+    camera : CameraModel, optional
+        From ``--intrinsics``: its ``image_size`` (W, H), when it has one, must be the image's.
+    intrinsics : Path, optional
+        The camera file, for messages.
+    truth_points : ndarray of shape (H, W, 3), optional
+        The ground truth: one point per pixel of the image.
+    truth : Path, optional
+        Its file, for messages.
+
+    Raises
+    ------
+    InputError
+        Naming both files and both sizes (W x H px).
+    """
+    image_wh = _size_of_estimates(doc)
+    where = f"the image of {estimates}"
+    cam_wh = None if camera is None or camera.image_size is None else tuple(int(v) for v in camera.image_size)
+    if image_wh is None and cam_wh is not None:  # no recorded size: the camera's is the reference
+        image_wh, where = cam_wh, f"the camera's 'image_size' in {intrinsics}"
+    elif cam_wh is not None and cam_wh != image_wh:
+        raise InputError(f"--intrinsics: {intrinsics}: key 'image_size' is {cam_wh[0]} x {cam_wh[1]} px but "
+                         f"{where} is {image_wh[0]} x {image_wh[1]} px: a camera for another image size")
+    if truth_points is not None and image_wh is not None:
+        H, W = truth_points.shape[:2]
+        if (W, H) != image_wh:
+            raise InputError(f"--truth: {truth} is {W} x {H} px but {where} is {image_wh[0]} x "
+                             f"{image_wh[1]} px: a ground truth for another image")
+
+
 def view_command(
     estimates: Path = typer.Argument(..., help="estimates.json from simtest reconstruct.", show_default=False),
-    out: Path = typer.Option(..., "--out", "-o", help="PNG to write."),
+    out: Path = typer.Option(..., "--out", "-o", help="The PNG file to write (its folder is created).",
+                             show_default=False),
     truth: Path = typer.Option(None, "--truth", help="Ground truth: a render's ground_truth.npz or a C3VD NNNN_depth.tiff."),
     intrinsics: Path = typer.Option(None, "--intrinsics", "-k", help="Camera file (default: the camera the estimates record)."),
     estimator: str = typer.Option(None, "--estimator", help="Normal drawn (default: normal if present, else cone_axis)."),
 ) -> None:
-    """Render a 3D view of the estimated normals (off-screen: works without a display)."""
+    """Render a 3D view of the estimated normals (off-screen: works without a display).
 
+    Writes one file, the PNG named by --out (replaced atomically). Exit status 2: bad input (an
+    unreadable estimates file, a camera or ground truth for another image size); 4: --out cannot
+    be written."""
+
+    if out.is_dir():
+        fail(f"--out: {out} is a folder; give the PNG file to write", CANNOT_WRITE)
+    writable_dir(out.parent, "--out")
     try:
         doc = read_estimates(estimates)
+        camera = None if intrinsics is None else _camera_of(doc, intrinsics)
+        check_view_sizes(doc, estimates, camera, intrinsics)
         truth_points = None
         if truth is not None:
-            truth_points = load_truth_points(truth, _camera_of(doc, intrinsics))
+            truth_points = load_truth_points(truth, camera if camera is not None else _camera_of(doc, None))
+            check_view_sizes(doc, estimates, camera, intrinsics, truth_points, truth)
         render_view(out, doc["specularities"], estimator=estimator, truth_points=truth_points)
-    except (ValueError, OSError, ImportError) as exc:  # no pyvista: simtest._lazy.MissingBackend
-        typer.echo(f"error: {' '.join(str(exc).split())}", err=True)
-        raise typer.Exit(code=2) from None
+    except OSError as exc:
+        if _is_write_error(exc, out):
+            fail(f"--out: cannot write {out}: {exc.strerror or exc}", CANNOT_WRITE)
+        fail(exc, BAD_INPUT)
+    except (ValueError, ImportError) as exc:  # no pyvista: simtest._lazy.MissingBackend
+        fail(exc, BAD_INPUT)
     typer.echo(f"-> {out}")
+
+
+def _is_write_error(exc: OSError, out: Path) -> bool:
+    """True if ``exc`` came from writing ``out`` (its folder), not from reading an input."""
+    name = getattr(exc, "filename", None)
+    return name is not None and Path(os.path.abspath(name)).parent == Path(os.path.abspath(out)).parent

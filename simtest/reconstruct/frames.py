@@ -25,7 +25,8 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from simtest.reconstruct.images import load_image
+from simtest.reconstruct._pixels import image_size_wh
+from simtest.reconstruct.images import InputError, load_image, quiet_stderr
 from simtest.reconstruct.io import estimate_to_dict
 from simtest.reconstruct.pipeline import reconstruct
 from simtest.reconstruct.settings import ReconSettings
@@ -63,11 +64,13 @@ class FrameSource:
             for i, f in enumerate(self.files):
                 yield i, f.name, load_image(f)
             return
-        cap = cv2.VideoCapture(str(self.path))
+        with quiet_stderr():  # FFmpeg's complaints about a damaged stream are not ours to print
+            cap = cv2.VideoCapture(str(self.path))
         try:
             i = 0
             while True:
-                ok, bgr = cap.read()
+                with quiet_stderr():
+                    ok, bgr = cap.read()
                 if not ok:
                     break
                 yield i, f"video:{i}", cv2.cvtColor(bgr, cv2.COLOR_BGR2RGB)
@@ -109,14 +112,55 @@ def open_frames(path) -> FrameSource:
         return FrameSource(path, "folder", len(files), files)
     if not path.is_file():
         raise ValueError(f"{path}: no such folder or video file")
-    cap = cv2.VideoCapture(str(path))
+    with quiet_stderr() as lib:  # FFmpeg prints its own lines for a fake or damaged file
+        cap = cv2.VideoCapture(str(path))
     try:
         if not cap.isOpened():
-            raise ValueError(f"{path}: OpenCV cannot open this video file")
+            said = lib.brief()
+            raise ValueError(f"{path}: OpenCV cannot open this video file"
+                             + (f" (FFmpeg said: {said})" if said else ""))
         n = int(cap.get(cv2.CAP_PROP_FRAME_COUNT))
     finally:
         cap.release()
     return FrameSource(path, "video", n if n > 0 else None)
+
+
+def same_size_frames(source: FrameSource, camera=None) -> Iterator[tuple[int, str, np.ndarray]]:
+    """The frames of ``source``, each checked to have the first frame's size (and the camera's).
+
+    Parameters
+    ----------
+    source : FrameSource
+        From :func:`open_frames`.
+    camera : CameraModel or ndarray, optional
+        Its ``image_size`` (W, H), when it has one, is every frame's required size.
+
+    Yields
+    ------
+    (int, str, ndarray)
+        As iterating ``source`` does.
+
+    Raises
+    ------
+    InputError
+        At the first frame of another size, naming its file (or ``video:<index>``), its size and
+        the first frame's (or the camera's): one camera cannot describe frames of two sizes.
+    """
+    cam_wh = getattr(camera, "image_size", None)
+    cam_wh = None if cam_wh is None else tuple(int(v) for v in cam_wh)
+    first = None
+    for index, name, img in source:
+        wh = image_size_wh(img.shape)
+        where = source.path / name if source.kind == "folder" else f"{source.path} ({name})"
+        if cam_wh is not None and wh != cam_wh:
+            raise InputError(f"{where}: frame is {wh[0]} x {wh[1]} px but the camera's 'image_size' is "
+                             f"{cam_wh[0]} x {cam_wh[1]} px")
+        if first is None:
+            first = (name, wh)
+        elif wh != first[1]:
+            raise InputError(f"{where}: frame is {wh[0]} x {wh[1]} px but the first frame, {first[0]}, is "
+                             f"{first[1][0]} x {first[1][1]} px: a sequence's frames share one size")
+        yield index, name, img
 
 
 def _frame_record(args) -> dict:
@@ -139,8 +183,8 @@ def reconstruct_frames(source: FrameSource, K, settings: ReconSettings | None = 
     ----------
     source : FrameSource
         From :func:`open_frames`.
-    K : ndarray of shape (3, 3)
-        Intrinsics, px.
+    K : ndarray of shape (3, 3) or CameraModel
+        Intrinsics, px, or a camera model (its ``image_size``, if any, is checked on every frame).
     settings : ReconSettings, optional
         As in :func:`~simtest.reconstruct.pipeline.reconstruct` (default
         :meth:`ReconSettings.for_frames`).
@@ -156,9 +200,16 @@ def reconstruct_frames(source: FrameSource, K, settings: ReconSettings | None = 
     ------
     dict
         The record of each frame (module docstring).
+
+    Raises
+    ------
+    InputError
+        At a frame that cannot be read, or whose size differs from the first frame's or the
+        camera's ``image_size`` (:func:`same_size_frames`).
     """
     settings = ReconSettings.for_frames() if settings is None else settings
-    jobs = ((i, name, img, K, settings, dist_coeffs, include_points) for i, name, img in source)
+    jobs = ((i, name, img, K, settings, dist_coeffs, include_points)
+            for i, name, img in same_size_frames(source, K))
     if workers <= 1:
         yield from map(_frame_record, jobs)
         return

@@ -1,15 +1,131 @@
-"""Reading an image file for the reconstruction, with one-line errors (:class:`InputError`)."""
+"""Reading an image file for the reconstruction, with one-line errors (:class:`InputError`).
+
+OpenCV's decoders (libpng, libjpeg, libtiff, FFmpeg) write their own complaints straight to file
+descriptor 2, below Python; :func:`quiet_stderr` captures them around each decoding call, so that a
+corrupt file gives the user exactly one line, ``error: ...``, with the library's words folded in.
+"""
 
 from __future__ import annotations
 
+import os
+import re
+import sys
+import tempfile
+from collections.abc import Iterator
+from contextlib import contextmanager
 from pathlib import Path
 
 import cv2
 import numpy as np
 
+from simtest.reconstruct.detect import validate_image
+
+__all__ = ["InputError", "LibraryMessages", "load_image", "quiet_stderr"]
+
+# FFmpeg asks for its log level from this variable (OpenCV's videoio reads it when it loads the
+# FFmpeg backend): 8 = AV_LOG_FATAL, so a fake video file stays quiet in worker processes too.
+os.environ.setdefault("OPENCV_FFMPEG_LOGLEVEL", "8")
+os.environ.setdefault("OPENCV_LOG_LEVEL", "ERROR")
+
+_ANSI = re.compile(r"\x1b\[[0-9;]*[A-Za-z]")
+
 
 class InputError(ValueError):
     """A user-facing input problem, reported as one line."""
+
+
+class LibraryMessages:
+    """What C libraries wrote to standard error inside :func:`quiet_stderr` (filled on exit)."""
+
+    def __init__(self) -> None:
+        self.text = ""
+
+    def brief(self, limit: int = 160) -> str:
+        """The messages on one line, colour codes removed, cut to ``limit`` characters."""
+        line = " ".join(_ANSI.sub("", self.text).split())
+        return line if len(line) <= limit else line[: limit - 3] + "..."
+
+
+@contextmanager
+def quiet_stderr() -> Iterator[LibraryMessages]:
+    """Capture what is written to file descriptor 2 (C libraries: libpng, FFmpeg, VTK) meanwhile.
+
+    The descriptor is pointed at a temporary file and restored on exit, whatever happens; Python's
+    ``sys.stderr`` is flushed first so that nothing of ours is captured. The whole process is
+    affected meanwhile, so keep the block to the library call.
+
+    Yields
+    ------
+    LibraryMessages
+        Its ``text`` holds the captured bytes (decoded, errors replaced) once the block ends.
+    """
+    messages = LibraryMessages()
+    try:
+        sys.stderr.flush()
+    except (AttributeError, ValueError, OSError):
+        pass
+    try:
+        saved = os.dup(2)
+    except OSError:  # no descriptor 2 at all: nothing to silence
+        yield messages
+        return
+    with tempfile.TemporaryFile() as sink:
+        os.dup2(sink.fileno(), 2)
+        try:
+            yield messages
+        finally:
+            os.dup2(saved, 2)
+            os.close(saved)
+            sink.seek(0)
+            messages.text = sink.read(64 * 1024).decode("utf-8", "replace")
+
+
+_EXPECTED = ("expected an image: shape (H, W), (H, W, 1), (H, W, 3) or (H, W, 4), dtype uint8, "
+             "uint16 or float16/32/64")
+
+
+def _check_layout(shape, dtype, path: Path) -> None:
+    """:class:`InputError` naming ``path``, its shape and dtype, unless they are an image's."""
+    dtype = np.dtype(dtype)
+    ok_rank = len(shape) == 2 or (len(shape) == 3 and shape[2] in (1, 3, 4))
+    ok_dtype = (dtype.kind == "f" and dtype.itemsize <= 8) or dtype in (np.uint8, np.uint16)
+    if not (ok_rank and ok_dtype):
+        shown = dtype.str if dtype.kind in "US" else dtype  # '<U1' says what numpy's name 'str32' hides
+        raise InputError(f"{path}: holds an array of shape {tuple(shape)}, dtype {shown}; {_EXPECTED}")
+
+
+def _npy_header(path: Path):
+    """(shape, dtype) from a ``.npy`` header without loading it; None for a header version this
+    does not parse (numpy's loader then decides).
+
+    Raises
+    ------
+    InputError
+        If the file is not a ``.npy`` file (no magic string, a malformed header) or cannot be read.
+    """
+    try:
+        with open(path, "rb") as fh:
+            version = np.lib.format.read_magic(fh)
+            read = {(1, 0): np.lib.format.read_array_header_1_0,
+                    (2, 0): np.lib.format.read_array_header_2_0}.get(version)
+            if read is None:
+                return None
+            shape, _, dtype = read(fh, max_header_size=1 << 20)
+            return shape, dtype
+    except OSError as exc:
+        raise InputError(f"cannot read image {path}: {exc.strerror or exc}") from None
+    except (ValueError, SyntaxError, EOFError, TypeError) as exc:
+        raise InputError(f"{path}: not a NumPy .npy file ({' '.join(str(exc).split())[:120]})") from None
+
+
+def _checked(img: np.ndarray, path: Path) -> np.ndarray:
+    """``img`` unchanged if the reconstruction accepts it, else :class:`InputError` naming ``path``."""
+    _check_layout(img.shape, img.dtype, path)
+    try:
+        validate_image(img, where=str(path))  # size and finiteness, in the pipeline's own words
+    except ValueError as exc:
+        raise InputError(str(exc)) from None
+    return img
 
 
 def load_image(path) -> "np.ndarray":  # noqa: F821
@@ -29,7 +145,10 @@ def load_image(path) -> "np.ndarray":  # noqa: F821
     Raises
     ------
     InputError
-        If the path is a folder, is missing, or cannot be read or decoded; the message names it.
+        If the path is a folder, is missing, or cannot be read or decoded, or holds an array the
+        reconstruction does not take (rank other than 2 or 3, a string, object or complex dtype,
+        smaller than 3 x 3, NaN pixels); the message names the file, its shape and dtype. Nothing
+        the decoding libraries print reaches standard error (:func:`quiet_stderr`).
     """
 
     path = Path(path)
@@ -38,20 +157,27 @@ def load_image(path) -> "np.ndarray":  # noqa: F821
     if not path.is_file():
         raise InputError(f"image file not found: {path}")
     if path.suffix.lower() == ".npy":
+        header = _npy_header(path)
+        if header is not None:  # refused before loading: a 1-D, 0-D, string or object array
+            _check_layout(*header, path)
         try:
-            return np.load(path, allow_pickle=False)
-        except (OSError, ValueError) as exc:
+            arr = np.load(path, allow_pickle=False)
+        except (OSError, ValueError, EOFError) as exc:
             raise InputError(f"cannot read image {path}: {exc}") from None
+        return _checked(arr, path)
 
     try:
         data = np.fromfile(path, dtype=np.uint8)
     except OSError as exc:
         raise InputError(f"cannot read image {path}: {exc}") from None
-    img = cv2.imdecode(data, cv2.IMREAD_UNCHANGED) if data.size else None
+    with quiet_stderr() as lib:
+        img = cv2.imdecode(data, cv2.IMREAD_UNCHANGED) if data.size else None
     if img is None:
-        raise InputError(f"cannot decode image {path} (empty, corrupt or not an image format)")
+        said = lib.brief()
+        raise InputError(f"cannot decode image {path} (empty, corrupt or not an image format"
+                         + (f"; the decoder said: {said})" if said else ")"))
     if img.ndim == 3 and img.shape[2] == 3:
         img = cv2.cvtColor(img, cv2.COLOR_BGR2RGB)
     elif img.ndim == 3 and img.shape[2] == 4:
         img = cv2.cvtColor(img, cv2.COLOR_BGRA2RGB)
-    return img
+    return _checked(img, path)

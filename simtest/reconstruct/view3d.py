@@ -12,7 +12,10 @@ overlay.estimator_colour`; the camera centre is a small black sphere.
 
 Off-screen rendering needs no X server: VTK uses EGL (or OSMesa) when there is no display; on a
 bare Debian the packages ``libegl1``, ``libegl-mesa0``, ``libgl1-mesa-dri`` and ``libopengl0``
-provide it (the README's set-up command installs them).
+provide it (the README's set-up command installs them). VTK says so on every run ("bad X server
+connection", before it falls back): its logger and warning display are switched off and the
+rendering runs inside :func:`~simtest.reconstruct.images.quiet_stderr`, so a view prints nothing
+on standard error.
 """
 
 from __future__ import annotations
@@ -23,6 +26,7 @@ import numpy as np
 
 from simtest._io import atomic_write
 from simtest._lazy import require
+from simtest.reconstruct.images import quiet_stderr
 from simtest.reconstruct.overlay import estimator_colour
 
 __all__ = ["estimate_points", "render_view", "surface_from_depth"]
@@ -92,6 +96,16 @@ def surface_from_depth(depth_mm, camera, *, z_depth: bool = True) -> np.ndarray:
     return rays * s[..., None]
 
 
+def _silence_vtk() -> None:
+    """Switch off VTK's stderr logger and its warning/error display (process-wide)."""
+    try:
+        from vtkmodules.vtkCommonCore import vtkLogger, vtkObject
+    except ImportError:  # an older VTK layout: the fd-level capture still holds
+        return
+    vtkLogger.SetStderrVerbosity(vtkLogger.VERBOSITY_OFF)
+    vtkObject.GlobalWarningDisplayOff()
+
+
 def _oblique(pl) -> None:
     """Look at everything in the panel from above-right of the endoscope, image up = -y."""
     pl.view_vector((0.9, -0.6, -1.0), viewup=(0.0, -1.0, 0.0))  # from the focal point toward the eye
@@ -141,6 +155,13 @@ def render_view(path, specs, *, estimator: str | None = None, truth_points=None,
     pts, nrm, metric = estimate_points(specs, estimator)
     if not len(pts):
         raise ValueError(f"view: no reconstructed highlight has a '{estimator}' normal")
+    _silence_vtk()
+    with quiet_stderr():
+        return _render(pv, path, specs, estimator, pts, nrm, metric, truth_points, window_size)
+
+
+def _render(pv, path, specs, estimator, pts, nrm, metric, truth_points, window_size) -> Path:
+    """The body of :func:`render_view`, run with standard error captured."""
     colour = estimator_colour(estimator)
     panels = 2 if truth_points is not None else 1
     pl = pv.Plotter(off_screen=True, shape=(1, panels), window_size=tuple(window_size), border=False)

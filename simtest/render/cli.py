@@ -1,12 +1,15 @@
-"""``simtest render SCENE --out DIR [--seed S] [--variant V]``: render a scene file to DIR.
+"""``simtest render SCENE --out DIR [--seed S] [--variant V]``: render a scene file to DIR; and
+``simtest simreal``.
 
 Mitsuba loads only when a render starts (:func:`simtest._lazy.require`). Errors are one line on stderr,
 ``error: <file>: <key>: <reason>``, never a traceback: exit code 2 for bad input (scene file,
-option, output folder), 1 when Mitsuba cannot run here.
+option), 4 when the output folder cannot be written (a file in the way, read-only, files that are
+not a render's inside; checked before rendering), 1 when Mitsuba cannot run here.
 """
 
 from __future__ import annotations
 
+import json
 from pathlib import Path
 from typing import Optional
 
@@ -14,7 +17,8 @@ import cv2
 import typer
 from rich.console import Console
 
-from simtest._io import atomic_write, atomic_write_json, atomic_write_text
+from simtest._exit import CANNOT_WRITE, writable_dir
+from simtest._io import atomic_write_set
 from simtest.constants import MAX_SEED
 from simtest.render.render import (
     OutputFolderError,
@@ -40,19 +44,31 @@ def _fail(message: str, code: int = 2) -> typer.Exit:
 
 def render_command(
     scene: str = typer.Argument(..., help="Scene TOML file, or a bundled scene name such as plane_58deg."),
-    out: Path = typer.Option(..., "--out", "-o", help="Output folder (created if needed)."),
+    out: Path = typer.Option(..., "--out", "-o", show_default=False,
+                             help="Output folder, new, empty or a previous render's (replaced as a whole): "
+                             "image.png, frame.png, intrinsics.json, camera.json, ground_truth.npz, "
+                             "highlights.json."),
     seed: Optional[int] = typer.Option(None, "--seed", min=0, max=MAX_SEED,
                                        help="Root seed in [0, 2^31 - 1] (default: the scene's render.seed)."),
     variant: Optional[str] = typer.Option(
         None, "--variant", help="Mitsuba variant: auto, llvm_ad_rgb, cuda_ad_rgb (default: the scene's)."),
 ) -> None:
-    """Render SCENE and write image.png, intrinsics.json, ground_truth.npz and highlights.json."""
+    """Render SCENE with its ground truth.
+
+    Writes, in the folder OUT (new, empty, or a previous render's; replaced as a whole, so a
+    failure leaves the previous set): OUT/image.png (the sensor image, 8 or 16 bit grey),
+    OUT/frame.png (the 8-bit RGB video frame), OUT/intrinsics.json (K and the image size),
+    OUT/camera.json (the camera model and its light rig), OUT/ground_truth.npz (per-pixel
+    normals, depth, distance, position, mask, the linear and specular images) and
+    OUT/highlights.json (each highlight's brightest point, normal and curvatures). Exit status 2:
+    bad input; 4: OUT cannot be written; 1: Mitsuba cannot run here."""
     if variant is not None and variant not in RENDER_VARIANTS:
         raise _fail(f"--variant: {variant!r} is not one of {', '.join(RENDER_VARIANTS)}")
+    writable_dir(out, "--out")
     try:
         check_output_folder(out)
     except OutputFolderError as exc:
-        raise _fail(f"--out: {exc}") from None
+        raise _fail(f"--out: {exc}", CANNOT_WRITE) from None
     try:
         spec = load_scene(scene)
     except SceneError as exc:
@@ -70,9 +86,9 @@ def render_command(
     try:
         paths = write_render(result, out)
     except OutputFolderError as exc:
-        raise _fail(f"--out: {exc}") from None
+        raise _fail(f"--out: {exc}", CANNOT_WRITE) from None
     except OSError as exc:
-        raise _fail(f"--out: cannot write the render to {out}: {exc}") from None
+        raise _fail(f"--out: cannot write the render to {out}: {exc.strerror or exc}", CANNOT_WRITE) from None
     H, W = result.linear.shape
     console.print(f"{spec.name}: {W} x {H} px, {spec.render.spp} spp, seed {result.seed}, "
                   f"variant {result.variant}, {len(result.highlights)} highlight(s)", highlight=False)
@@ -96,13 +112,20 @@ def _shown(path: Path) -> str:
 
 def simreal_command(
     scene: str = typer.Argument("colonoscope", help="Scene to render (a bundled name or a TOML file)."),
-    out: Path = typer.Option(..., "--out", "-o", help="Output folder (created if needed)."),
+    out: Path = typer.Option(..., "--out", "-o", show_default=False,
+                             help="Output folder (created if needed): simreal.json, simreal.md, simreal.png."),
     real: Optional[list[Path]] = typer.Option(
         None, "--real", help="Real frames: images, or a banner of 280 px tiles (*banner*). "
         "Default: the Hyper-Kvasir banner in tests/data/real."),
     seed: Optional[int] = typer.Option(None, "--seed", min=0, max=MAX_SEED, help="Render seed."),
 ) -> None:
-    """Render SCENE and compare its video frame with real frames: table (JSON, Markdown) and figure."""
+    """Render SCENE and compare its video frame with real frames: table (JSON, Markdown) and figure.
+
+    Writes, in the folder OUT (the three replaced as a set; other files there are kept):
+    OUT/simreal.json (the table's rows, the scene, the seed and the real frames),
+    OUT/simreal.md (the table in Markdown) and OUT/simreal.png (the figure). Exit status 2: bad
+    input; 4: OUT cannot be written; 1: Mitsuba cannot run here."""
+    writable_dir(out, "--out")
     paths = real or [real_banner_path()]
     frames = []
     for p in paths:
@@ -132,15 +155,19 @@ def simreal_command(
     frame = result.frame
     rows = sim_to_real_table(frame, frames)
     fig = sim_to_real_figure(frame, frames, rows)
-    out.mkdir(parents=True, exist_ok=True)
-    atomic_write_json(out / "simreal.json", {"scene": spec.name, "seed": result.seed,
-                                             "real": [_shown(p) for p in paths], "rows": rows})
+    doc = {"scene": spec.name, "seed": result.seed, "real": [_shown(p) for p in paths], "rows": rows}
     lines = ["| statistic | rendered | real median | real IQR | ratio | within x2 |",
              "|---|---|---|---|---|---|"]
     for r in rows:
         lines.append(f"| {r['statistic']} | {r['rendered']:.4g} | {r['real_median']:.4g} | "
                      f"{r['real_q25']:.3g} to {r['real_q75']:.3g} | {r['ratio']:.3g} | "
                      f"{'yes' if r['within_goal'] else 'no'} |")
-    atomic_write_text(out / "simreal.md", "\n".join(lines) + "\n")
-    atomic_write(out / "simreal.png", lambda t: fig.savefig(t, format="png", dpi=110), suffix=".png")
+    try:
+        atomic_write_set({
+            out / "simreal.json": lambda t: Path(t).write_text(json.dumps(doc, indent=1) + "\n", encoding="utf-8"),
+            out / "simreal.md": lambda t: Path(t).write_text("\n".join(lines) + "\n", encoding="utf-8"),
+            out / "simreal.png": lambda t: fig.savefig(t, format="png", dpi=110),
+        })
+    except OSError as exc:
+        raise _fail(f"--out: cannot write {out}: {exc.strerror or exc}", CANNOT_WRITE) from None
     typer.echo("\n".join(lines))

@@ -14,6 +14,7 @@ from rich.console import Console
 from rich.progress import Progress
 from rich.table import Table
 
+from simtest._exit import BAD_INPUT, CANNOT_WRITE, fail, writable_dir
 from simtest.scene.meshes import MeshError, build_mesh, save_mesh
 
 meshes_app = typer.Typer(
@@ -52,9 +53,8 @@ def _parse_overrides(items: list[str]) -> dict[str, dict[str, float]]:
 
 @meshes_app.command("build")
 def build_command(
-    out: Annotated[Path, typer.Option("--out", help="Output folder for <name>.ply and <name>.json.")] = Path(
-        "meshes"
-    ),
+    out: Annotated[Path, typer.Option("--out", "-o", help="Output folder: colon.ply, colon.json, liver.ply, "
+                                      "liver.json (those of --only).")] = Path("meshes"),
     seed: Annotated[int, typer.Option("--seed", min=0, help="Root seed of the generators.")] = 0,
     only: Annotated[
         list[str] | None, typer.Option("--only", help="Build only this mesh (colon or liver); repeatable.")
@@ -64,13 +64,22 @@ def build_command(
         typer.Option("--set", help="Override a generator parameter, e.g. colon.fold_depth_mm=8; repeatable."),
     ] = None,
 ) -> None:
-    """Build meshes/colon.ply and meshes/liver.ply (+ .json sidecars with the parameters)."""
+    """Build the procedural meshes with their ground truth.
+
+    Writes, in the folder OUT (default meshes/ under the current folder; other files there are
+    kept): OUT/colon.ply and OUT/liver.ply (the meshes with per-vertex normals and principal
+    curvatures k1, k2) and OUT/colon.json and OUT/liver.json (the generator's parameters and seed);
+    with --only, those of the meshes named. Exit status 2: bad option; 4: OUT cannot be written."""
 
     names = list(only) if only else list(_NAMES)
     for name in names:
         if name not in _NAMES:
-            raise typer.BadParameter(f"{name!r}: expected one of {', '.join(_NAMES)}", param_hint="--only")
-    overrides = _parse_overrides(list(set_ or []))
+            fail(f"--only: {name!r}: expected one of {', '.join(_NAMES)}", BAD_INPUT)
+    try:
+        overrides = _parse_overrides(list(set_ or []))
+    except typer.BadParameter as exc:
+        fail(f"--set: {exc}", BAD_INPUT)
+    writable_dir(out, "--out")
 
     console = Console()
     table = Table(title=f"meshes (seed {seed})")
@@ -84,10 +93,12 @@ def build_command(
             try:
                 mesh = build_mesh(name, seed, **overrides[name])
             except MeshError as exc:
-                console.print(f"[red]error:[/red] {exc}")
-                raise typer.Exit(code=2) from exc
+                fail(exc, BAD_INPUT)
             elapsed = time.perf_counter() - start
-            path = save_mesh(mesh, out / f"{name}.ply")
+            try:
+                path = save_mesh(mesh, out / f"{name}.ply")
+            except OSError as exc:
+                fail(f"--out: cannot write {out / (name + '.ply')}: {exc.strerror or exc}", CANNOT_WRITE)
             k1, k2 = mesh.vertex_attributes["k1"], mesh.vertex_attributes["k2"]
             table.add_row(
                 name,
