@@ -118,7 +118,8 @@ def writable_dir(path: Path | str, option: str = "--out") -> Path:
             break
         probe = probe.parent
     if probe.exists() and not probe.is_dir():
-        fail(f"{option}: {p}: {probe} is a file, not a folder", CANNOT_WRITE)
+        where = f"{p}" if probe == p else f"{p}: {probe}"
+        fail(f"{option}: {where} is a file, not a folder", CANNOT_WRITE)
     try:
         fd, name = tempfile.mkstemp(prefix=".simtest-probe-", dir=probe)
         os.close(fd)

@@ -116,7 +116,7 @@ def test_reconstruct_outputs_are_replaced_as_a_set(tmp_path, monkeypatch):
 
     monkeypatch.setattr(recon_cli, "draw_overlay", full_disk)
     res = runner.invoke(app, ["reconstruct", str(png), "-k", str(cam), "-o", str(out), "-t", "0.4"])
-    assert res.exit_code == 2 and "No space left on device" in res.output
+    assert res.exit_code == 4 and "No space left on device" in res.output  # CANNOT_WRITE
     # the new estimates (t = 0.4) were not put beside the old overlay: the old set is intact
     assert {p.name: p.read_bytes() for p in out.iterdir()} == before
 

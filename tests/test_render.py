@@ -382,9 +382,9 @@ def test_write_render_files(tmp_path):
     assert set(meta["highlights"][0]) >= {"bp_px", "normal", "k1", "k2"}
 
 
-def _one_line_error(res, *words):
-    """A CLI failure: exit code 2 and nothing but one ``error: ...`` line holding ``words``."""
-    assert res.exit_code == 2, res.output
+def _one_line_error(res, *words, code=2):
+    """A CLI failure: exit ``code`` and nothing but one ``error: ...`` line holding ``words``."""
+    assert res.exit_code == code, res.output
     err = res.output  # stdout and stderr together (Click 8.1 and 8.2 alike)
     lines = [ln for ln in err.splitlines() if ln.strip()]
     assert len(lines) == 1, err
@@ -460,12 +460,14 @@ def test_cli_render_bad_seed_and_output(tmp_path, monkeypatch):
     with monkeypatch.context() as m:
         m.setattr(render_module, "render_scene", no_render)
         res = CliRunner().invoke(app, ["render", str(scene), "--out", str(a_file)])
-    _one_line_error(res, "--out", str(a_file), "is a file")
+    _one_line_error(res, "--out", str(a_file), "is a file", code=4)
     assert a_file.read_text() == "keep me"
 
-    # Writing fails after the render (a folder below a file): one line, exit code 2.
-    res = CliRunner().invoke(app, ["render", str(scene), "--out", str(a_file / "sub")])
-    _one_line_error(res, "--out", str(a_file / "sub"), "cannot write")
+    # A folder below a file: refused before rendering, exit 4 (the output cannot be written).
+    with monkeypatch.context() as m:
+        m.setattr(render_module, "render_scene", no_render)
+        res = CliRunner().invoke(app, ["render", str(scene), "--out", str(a_file / "sub")])
+    _one_line_error(res, "--out", str(a_file / "sub"), "is a file", code=4)
 
 
 def test_render_scene_refuses_out_of_range_seeds():

@@ -21,8 +21,8 @@ _TINY = {"camera": {"width_px": 32, "height_px": 24, "focal_px": 32.0}, "render"
          "geometry": {"type": "plane", "tilt_deg": 10.0, "distance_mm": 20.0}}
 
 
-def _one_line(res, *words):
-    assert res.exit_code == 2, res.output
+def _one_line(res, *words, code=2):
+    assert res.exit_code == code, res.output
     lines = [ln for ln in res.output.splitlines() if ln.strip()]
     assert len(lines) == 1 and lines[0].startswith("error: "), res.output
     assert "Traceback" not in res.output
@@ -106,7 +106,7 @@ def test_failed_write_keeps_the_previous_set_or_none(tmp_path, monkeypatch):
     with pytest.raises(render_module.OutputFolderError, match="notes.txt"):
         write_render(r1, out)
     res = CliRunner().invoke(app, ["render", "plane_fronto", "--out", str(out)])
-    _one_line(res, "--out", "notes.txt")
+    _one_line(res, "--out", "notes.txt", code=4)  # the output folder cannot be replaced
 
 
 def _highlights_after_cli(tmp_path, name, scene_text):
