@@ -30,6 +30,7 @@ from simtest.reconstruct.fit import EllipseFit, fit_ellipse, fit_ellipses
 from simtest.reconstruct.io import SCHEMA_VERSION, read_estimates, write_estimates
 from simtest.reconstruct.isophote import Isophote, extract_isophote
 from simtest.reconstruct.pipeline import (
+    Estimates,
     IsophoteEstimate,
     SpecularityEstimate,
     reconstruct,
@@ -45,6 +46,7 @@ __all__ = [
     "ConeEstimate",
     "Detection",
     "EllipseFit",
+    "Estimates",
     "Failure",
     "Isophote",
     "IsophoteEstimate",

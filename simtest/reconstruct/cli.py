@@ -52,7 +52,7 @@ from simtest.reconstruct.io import (
 from simtest.reconstruct.overlay import check_overlay_size, draw_overlay
 from simtest.reconstruct.pipeline import reconstruct
 from simtest.reconstruct.recommend import with_light_aware
-from simtest.reconstruct.settings import ReconSettings
+from simtest.reconstruct.settings import MAX_CANDIDATES, ReconSettings
 from simtest.reconstruct.view3d import render_view, surface_from_depth
 
 
@@ -94,6 +94,11 @@ def reconstruct_command(
         help="Worker processes for a folder or video (0: one per core; at most the CPU count).",
         show_default=False,
     ),
+    max_candidates: int = typer.Option(
+        MAX_CANDIDATES, "--max-candidates", min=0,
+        help="Bright components examined per frame, the largest first (0: every one); those left "
+        "out are counted in the console line and in estimates.json's 'detection'.",
+    ),
 ) -> None:
     """Estimate the normal at every specular highlight of IMAGE: an image file, a folder of frames
     or a video file.
@@ -107,7 +112,8 @@ def reconstruct_command(
     try:
         settings = ReconSettings.for_frames(
             isovalues=isovalues, normalise=normalise, allow_open=allow_open,
-            smooth_sigma_px=smooth_sigma_px, detection=detection)
+            smooth_sigma_px=smooth_sigma_px, detection=detection,
+            max_candidates=max_candidates or None)
     except ValueError as exc:
         fail(exc, BAD_INPUT)
     check_workers(workers)
@@ -133,6 +139,7 @@ def reconstruct_command(
         if overlay:  # refused before anything is computed or written
             check_overlay_size(img.shape)
         estimates = reconstruct(img, camera, settings=settings)
+        detection_rec = estimates.detection_record()
         # the scope's light rig from the camera file ("lights"; none: one light at the camera)
         rig = camera_file.lights
         with Progress(TextColumn("light-aware fits"), BarColumn(), MofNCompleteColumn(),
@@ -146,6 +153,7 @@ def reconstruct_command(
             estimates, K=camera.K if pinhole else None, image=image, image_shape=img.shape,
             dist_coeffs=camera.dist_coeffs if pinhole else None, isovalues=settings.isovalues,
             normalise=settings.normalise.value, include_points=points, camera=camera, lights=rig,
+            detection=detection_rec,
         )
         text = json.dumps(doc, indent=1, allow_nan=False) + "\n"
     except (ValueError, OSError, ImportError) as exc:  # IntrinsicsError, InputError: ValueErrors
@@ -161,7 +169,7 @@ def reconstruct_command(
             render_view(folder / "view.png", doc["specularities"])
 
     write_out_folder(out, target, fill)
-    typer.echo(summary_line(estimates, [out / n for n in names]))
+    typer.echo(summary_line(estimates, [out / n for n in names], detection_rec))
 
 
 def check_workers(workers: int, option: str = "--workers") -> int:
@@ -234,6 +242,7 @@ def write_out_folder(out: Path, target: Path, fill) -> None:
 def _reconstruct_sequence(path, intrinsics, out, target, settings, *, points, workers) -> None:
     """Folder or video: estimates.jsonl in frame order, a progress bar, frames per second."""
     counts: dict[str, int] = {}
+    left = {"components": 0, "not_examined": 0}
     try:
         source = open_frames(path)
         try:
@@ -259,6 +268,8 @@ def _reconstruct_sequence(path, intrinsics, out, target, settings, *, points, wo
             def on_frame(rec):
                 for k, v in rec["counts"].items():
                     counts[k] = counts.get(k, 0) + v
+                left["components"] += rec["detection"]["components"]
+                left["not_examined"] += rec["detection"]["not_examined"]
                 n = rec["frame"] + 1
                 bar.update(task, completed=n, fps=n / max(time.perf_counter() - t0, 1e-9))
 
@@ -270,20 +281,39 @@ def _reconstruct_sequence(path, intrinsics, out, target, settings, *, points, wo
     n_cand = sum(counts.values())
     n_ok = counts.pop("ok", 0)
     rest = ", ".join(f"{k} {v}" for k, v in sorted(counts.items(), key=lambda kv: (-kv[1], kv[0])))
+    if left["not_examined"]:
+        rest += ("; " if rest else "") + (
+            f"{left['not_examined']} of {left['components']} bright components not examined "
+            f"(--max-candidates {settings.max_candidates}; 0 examines all)")
     typer.echo(f"{n} frame(s) in {wall:.2f} s ({n / max(wall, 1e-9):.1f} frames/s, {n_workers} "
                f"worker(s)): {n_cand} candidate(s), {n_ok} reconstructed"
                + (f"; {rest}" if rest else "") + f" -> {jsonl}")
 
 
-def summary_line(estimates, paths) -> str:
-    """One summary of a reconstruction: counts per status, then the output paths."""
+def summary_line(estimates, paths, detection: dict | None = None) -> str:
+    """One summary of a reconstruction: counts per status, what detection left out, the outputs.
+
+    Parameters
+    ----------
+    estimates : list of SpecularityEstimate
+        The frame's estimates.
+    paths : list of Path
+        The files written.
+    detection : dict, optional
+        :meth:`~simtest.reconstruct.pipeline.Estimates.detection_record`; its ``not_examined``
+        components are counted in the line whenever there are any (no silent cap).
+    """
     counts: dict[str, int] = {}
     for e in estimates:
         counts[e.status] = counts.get(e.status, 0) + 1
     n_ok = counts.pop("ok", 0)
     rest = ", ".join(f"{k} {v}" for k, v in sorted(counts.items(), key=lambda kv: (-kv[1], kv[0])))
+    left = ""
+    if detection and detection.get("not_examined"):
+        left = (f"; {detection['not_examined']} of {detection['components']} bright components "
+                f"not examined (--max-candidates {detection['max_candidates']}; 0 examines all)")
     return (f"{len(estimates)} candidate(s), {n_ok} reconstructed" + (f"; {rest}" if rest else "")
-            + " -> " + ", ".join(str(p) for p in paths))
+            + left + " -> " + ", ".join(str(p) for p in paths))
 
 
 def _camera_of(doc: dict, intrinsics: Path | None):

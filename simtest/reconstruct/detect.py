@@ -243,13 +243,19 @@ class Detection:
     threshold : float
         Brightness level of the candidate masks, image units (``brightness_rel * full_scale``).
     n_unexamined : int
-        The smallest components left out beyond ``max_candidates``.
+        The smallest components left out beyond ``max_candidates`` (not examined, not in
+        ``candidates``).
     """
 
     candidates: list[Candidate] = field(default_factory=list)
     full_scale: float = 1.0
     threshold: float = 0.0
     n_unexamined: int = 0
+
+    @property
+    def n_components(self) -> int:
+        """Bright components found: the examined candidates and those left out."""
+        return len(self.candidates) + self.n_unexamined
 
     @property
     def accepted(self) -> list[Candidate]:
@@ -809,7 +815,7 @@ def detect_specularities(
     min_plateau_px: int = 2,
     roi_scale: float = 3.0,
     roi_margin_px: int = 4,
-    max_candidates: int = 1000,
+    max_candidates: int | None = 1000,
     smooth_sigma_px: float | None = 0.0,
     method: str = "full_scale",
     peak_rel: float = 0.6,
@@ -926,7 +932,7 @@ def detect_specularities(
         found = _candidates_numpy(frame, mask)
     out, n_comps = found
     out.sort(key=lambda c: -c.peak)
-    return Detection(out, fs, thr, max(0, n_comps - max_candidates))
+    return Detection(out, fs, thr, max(0, n_comps - len(out)))
 
 
 @dataclass(frozen=True)

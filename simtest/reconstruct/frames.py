@@ -9,7 +9,8 @@ reconstructed on its own, so the records are those of frame-by-frame calls whate
 workers.
 
 A record: ``{"frame": index from 0, "source": file name or "video:<index>", "image_shape":
-[H, W], "counts": {status: n}, "specularities": [estimate dicts, as in estimates.json]}``.
+[H, W], "counts": {status: n}, "detection": {components, examined, not_examined,
+max_candidates}, "specularities": [estimate dicts, as in estimates.json]}``.
 """
 
 from __future__ import annotations
@@ -170,7 +171,7 @@ def _frame_record(args) -> dict:
     for e in ests:
         counts[e.status] = counts.get(e.status, 0) + 1
     return {"frame": index, "source": name, "image_shape": [int(v) for v in image.shape[:2]],
-            "counts": counts,
+            "counts": counts, "detection": ests.detection_record(),
             "specularities": [estimate_to_dict(e, include_points) for e in ests]}
 
 

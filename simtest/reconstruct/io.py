@@ -25,8 +25,11 @@ estimators (:mod:`simtest.reconstruct.recommend`, whose docstring states the rec
                            "light_normals": [[x, y, z], ...] or null,
                            "light_depths_mm": [float, ...] or null}}
 
-and at the top level ``"lights"``: the rig used (the camera file's list), or null. Every field of
-schema 1 keeps its meaning; :func:`read_estimates` reads both.
+and at the top level ``"lights"``: the rig used (the camera file's list), or null, and
+``"detection"``: ``{"components": bright components found, "examined": those with an entry in
+``specularities``, "not_examined": those left out by the cap, "max_candidates": the cap or null}``
+(null in files written before it). Every field of schema 1 keeps its meaning; :func:`read_estimates`
+reads both.
 
 Schema 1
 --------
@@ -242,7 +245,7 @@ def estimate_to_dict(est, include_points: bool = False) -> dict:
 
 def estimates_document(estimates, *, K, image=None, image_shape=None, dist_coeffs=None,
                        isovalues=(), normalise="bp", include_points=False, camera=None,
-                       lights=None) -> dict:
+                       lights=None, detection=None) -> dict:
     """The whole schema-2 document as a dict (see the module docstring).
 
     Parameters
@@ -267,14 +270,20 @@ def estimates_document(estimates, *, K, image=None, image_shape=None, dist_coeff
         The camera model used, recorded as ``camera`` (its camera-file object).
     lights : LightRig, optional
         The light rig the light-aware estimators used (written as the camera file's list).
+    detection : dict, optional
+        What detection examined: ``{"components", "examined", "not_examined",
+        "max_candidates"}`` (:meth:`~simtest.reconstruct.pipeline.Estimates.detection_record`);
+        default the record ``estimates`` carries, if it is an ``Estimates``, else null.
 
     Returns
     -------
     dict
         ``schema``, ``simtest_version``, ``image``, ``image_shape``, ``K``, ``dist_coeffs``,
-        ``isovalues``, ``normalise``, ``conventions`` and ``specularities`` (one
+        ``isovalues``, ``normalise``, ``conventions``, ``detection`` and ``specularities`` (one
         :func:`estimate_to_dict` each).
     """
+    if detection is None and hasattr(estimates, "detection_record"):
+        detection = estimates.detection_record()
     return {
         "schema": SCHEMA_VERSION,
         "simtest_version": __version__,
@@ -290,6 +299,7 @@ def estimates_document(estimates, *, K, image=None, image_shape=None, dist_coeff
             {"position_mm": [float(v) for v in lt.position_mm], "intensity": float(lt.intensity),
              "falloff": lt.falloff, "profile_exponent": float(lt.profile_exponent)}
             for lt in lights.lights],
+        "detection": detection,
         "specularities": [estimate_to_dict(e, include_points) for e in estimates],
     }
 

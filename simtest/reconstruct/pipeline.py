@@ -951,6 +951,35 @@ def reconstruct_rois(items, isovalues: float | Sequence[float] | None = None, *,
 
 
 @_gc_paused()  # thousands of small objects, no cycles (see _gc_paused)
+class Estimates(list):
+    """The estimates of one frame (a list, brightest first) and what detection left out.
+
+    Parameters
+    ----------
+    estimates : iterable of SpecularityEstimate
+        One per examined candidate.
+    n_components : int
+        Bright components detection found in the frame (or its ROI).
+    n_unexamined : int
+        Components not examined because of ``max_candidates`` (the smallest ones); they have no
+        estimate. 0 when every component was examined.
+    max_candidates : int or None
+        The cap in force (None: none).
+    """
+
+    def __init__(self, estimates=(), *, n_components: int = 0, n_unexamined: int = 0,
+                 max_candidates: int | None = None):
+        super().__init__(estimates)
+        self.n_components = int(n_components)
+        self.n_unexamined = int(n_unexamined)
+        self.max_candidates = max_candidates
+
+    def detection_record(self) -> dict:
+        """``{"components", "examined", "not_examined", "max_candidates"}`` for estimates.json."""
+        return {"components": self.n_components, "examined": self.n_components - self.n_unexamined,
+                "not_examined": self.n_unexamined, "max_candidates": self.max_candidates}
+
+
 def reconstruct(
     image,
     K,
@@ -990,8 +1019,10 @@ def reconstruct(
 
     Returns
     -------
-    list of SpecularityEstimate
-        One per candidate highlight, accepted or rejected (rejected ones carry the detection
+    Estimates
+        A list of SpecularityEstimate, one per examined candidate highlight, accepted or rejected
+        (with ``n_components`` and ``n_unexamined``: the components detection found and those
+        ``max_candidates`` left out; rejected ones carry the detection
         reason as status and no isophotes), brightest first. Empty if there is no candidate.
 
     Raises
@@ -1017,7 +1048,7 @@ def reconstruct(
         sub, brightness_rel=settings.brightness_rel, full_scale=frame.full_scale,
         saturation_level=settings.saturation_level, min_area_px=settings.min_area_px,
         smooth_sigma_px=frame.smooth_sigma_px, method=settings.detection,
-        peak_rel=settings.peak_rel,
+        peak_rel=settings.peak_rel, max_candidates=settings.max_candidates,
     )
     if sum(c.status == OK for c in det.candidates) >= LUMA_FRAME_MIN_HIGHLIGHTS:
         frame = frame.for_many_highlights()
@@ -1049,4 +1080,5 @@ def reconstruct(
         out.append(_estimate_one(frame, bp, roi_k, saturated=cand.saturated, grow=True, other_bps=others,
                                  own_bp=int(row_in_others[k]) if keep[k] else -1, bp_ray=rays[k],
                                  fitf=frames_of.get(k)))
-    return _complete(out)
+    return Estimates(_complete(out), n_components=det.n_components,
+                     n_unexamined=det.n_unexamined, max_candidates=settings.max_candidates)

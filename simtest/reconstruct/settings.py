@@ -20,7 +20,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-__all__ = ["Normalisation", "ReconSettings", "validate_isovalues"]
+__all__ = ["MAX_CANDIDATES", "Normalisation", "ReconSettings", "validate_isovalues"]
 
 
 class Normalisation(enum.StrEnum):
@@ -110,6 +110,13 @@ def _positive_or_none(name: str, value) -> float | None:
     return v
 
 
+#: Detection's default cap on the bright components examined (the largest first). A real
+#: 1350 x 1080 colonoscopy frame can hold 5000 components; every one left out is counted and
+#: reported. ``ReconSettings(max_candidates=None)`` (``simtest reconstruct --max-candidates 0``)
+#: examines them all.
+MAX_CANDIDATES = 1000
+
+
 @dataclass(frozen=True)
 class ReconSettings:
     """Every setting of the reconstruction, validated once when made.
@@ -145,6 +152,11 @@ class ReconSettings:
     peak_rel : float
         Detection with ``"local_peak"``: the fraction of each local peak's height above the
         background that cuts out its component; in (0, 1).
+    max_candidates : int or None
+        Detection examines at most this many bright components, the largest first; None examines
+        every one. The components left out are counted (``Estimates.n_unexamined``, the
+        ``detection`` record of ``estimates.json`` and the console line), never dropped silently.
+        An integer >= 1, or None.
 
     Notes
     -----
@@ -181,6 +193,7 @@ class ReconSettings:
     min_area_px: int = 4
     detection: str = "full_scale"
     peak_rel: float = 0.6
+    max_candidates: int | None = MAX_CANDIDATES
 
     def __post_init__(self) -> None:
         set_ = object.__setattr__
@@ -225,6 +238,13 @@ class ReconSettings:
                 or self.min_area_px < 1:
             raise ValueError(f"min_area_px must be an integer >= 1, got {self.min_area_px!r}")
         set_(self, "min_area_px", int(self.min_area_px))
+        if self.max_candidates is not None:
+            if not isinstance(self.max_candidates, (int, float, np.integer, np.floating)) \
+                    or isinstance(self.max_candidates, bool) \
+                    or not float(self.max_candidates).is_integer() or self.max_candidates < 1:
+                raise ValueError(f"max_candidates must be an integer >= 1 or None (every "
+                                 f"component), got {self.max_candidates!r}")
+            set_(self, "max_candidates", int(self.max_candidates))
 
     @classmethod
     def for_frames(cls, **changes) -> ReconSettings:
