@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import json
 from pathlib import Path
+from typing import Optional
 
 import typer
 from rich.progress import Progress
@@ -27,6 +28,9 @@ from simtest.reconstruct.cli import check_out_folder, write_out_folder
 from simtest.reconstruct.io import estimate_to_dict
 from simtest.reconstruct.pipeline import reconstruct
 from simtest.reconstruct.settings import ReconSettings
+
+#: ``simtest reconstruct``'s defaults for whole frames, which ``evaluate`` uses too
+FRAME_DEFAULTS = ReconSettings.for_frames()
 from simtest.reconstruct.view3d import render_view, surface_from_depth
 
 #: What ``evaluate c3vd`` writes in OUT (fnmatch patterns; nothing else may be there).
@@ -43,9 +47,15 @@ def c3vd_command(
     out: Path = typer.Option(..., "--out", "-o", show_default=False,
                              help="Output folder, new, empty or a previous run's (replaced as a whole): "
                              "results.json, report.html, view_NNNN.png (--views)."),
-    isovalue: list[float] = typer.Option([0.5, 0.7], "--isovalue", "-t", help="Isovalue(s) t in (0, 1); repeat for nested isophotes."),
-    normalise: str = typer.Option("local", help="Intensity normalisation: bp, full_scale or local (real tissue: local)."),
-    smooth_sigma_px: float = typer.Option(0.0, "--smooth", help="Gaussian smoothing sigma in px before detection."),
+    isovalue: list[float] = typer.Option(list(FRAME_DEFAULTS.isovalues), "--isovalue", "-t",
+                                         help="Isovalue(s) t in (0, 1); repeat for nested isophotes (reconstruct's default)."),
+    normalise: str = typer.Option(FRAME_DEFAULTS.normalise.value,
+                                  help="Intensity normalisation: auto, bp, full_scale or local (reconstruct's default)."),
+    smooth_sigma_px: Optional[float] = typer.Option(  # noqa: UP045 (typer reads Optional)
+        None, "--smooth", help="Gaussian smoothing sigma in px before detection (default: from the image's noise, as "
+        "reconstruct).", show_default=False),
+    detection: str = typer.Option(FRAME_DEFAULTS.detection, help="Candidate detection: local_peak or full_scale "
+                                  "(reconstruct's default)."),
     max_frames: int = typer.Option(0, "--max-frames", help="Evaluate only the first N frames (0: all).", min=0),
     views: int = typer.Option(0, "--views", help="Also write OUT/view_NNNN.png, a 3D view (estimates beside the GT "
                               "surface from depth), for the first N frames with a reconstructed highlight.", min=0),
@@ -63,7 +73,8 @@ def c3vd_command(
         frames = scan_sequence(seq_dir)
         if max_frames:
             frames = frames[:max_frames]
-        settings = ReconSettings(isovalues=isovalue, normalise=normalise, smooth_sigma_px=smooth_sigma_px)
+        settings = ReconSettings.for_frames(isovalues=isovalue, normalise=normalise,
+                                            smooth_sigma_px=smooth_sigma_px, detection=detection)
         rows: list[dict] = []
         n_cand = 0
         view_inputs: list[tuple[str, list, object]] = []
@@ -104,3 +115,78 @@ def c3vd_command(
     typer.echo(f"{len(frames)} frame(s), {results['n_highlights']} candidate(s), {results['n_ok']} ok, "
                f"{results['n_scored']} scored; median error (deg) at the BP: {summary or 'none'}")
     typer.echo(f"-> {out / 'results.json'}, {out / 'report.html'}")
+
+
+#: What ``evaluate detection`` writes in OUT (nothing else may be there).
+DETECTION_FILES = ("results.json", "report.md", "detection.png")
+
+
+@evaluate_app.command("detection")
+def detection_command(
+    source: str = typer.Argument(..., help="A labelled set of real frames (JSON, e.g. tests/data/real/"
+                                 "structures_labelled.json) or an endoscope scene (name or TOML) whose render "
+                                 "labels its targets.", show_default=False),
+    out: Path = typer.Option(..., "--out", "-o", show_default=False,
+                             help="Output folder, new, empty or a previous run's (replaced as a whole): "
+                             "results.json, report.md, detection.png."),
+    seed: Optional[int] = typer.Option(None, "--seed", min=0, help="Render seed (a scene; default the scene's)."),  # noqa: UP045
+) -> None:
+    """Score highlight detection: precision, recall and F1 of the candidates and of the "ok"
+    estimates against labelled isolated highlights, per frame and pooled, with reconstruct's
+    defaults.
+
+    Writes, in the folder OUT (new, empty, or a previous run's; replaced as a whole): OUT/results.json
+    (every frame's counts and scores, and where each candidate fell), OUT/report.md (the table)
+    and OUT/detection.png (each frame with its hits, false positives and misses). Exit status 2:
+    bad input; 4: OUT cannot be written."""
+    from simtest.evaluate.detection import (detection_figure, evaluate_frames, labelled_real_frames,
+                                            rendered_frames)
+    from simtest.harness.report.figures import figure_png
+
+    target = check_out_folder(out, DETECTION_FILES)
+    try:
+        frames = (labelled_real_frames(source) if source.endswith(".json")
+                  else rendered_frames(source, seed=seed))
+        with Progress(transient=True) as progress:
+            progress.add_task(f"reconstructing {len(frames)} frame(s)", total=None)
+            results = evaluate_frames(frames)
+        results = {"schema": "simtest.evaluate.detection", "schema_version": 1,
+                   "simtest_version": __version__, "source": source} | results
+        text = json.dumps(results, indent=1, allow_nan=False) + "\n"
+        md = _detection_markdown(results)
+        fig = detection_figure(frames, results)
+        png = figure_png(fig)
+    except (ValueError, OSError, ImportError) as exc:
+        fail(exc, BAD_INPUT)
+
+    def fill(folder: Path) -> None:
+        (folder / "results.json").write_text(text, encoding="ascii")
+        (folder / "report.md").write_text(md, encoding="utf-8")
+        (folder / "detection.png").write_bytes(png)
+
+    write_out_folder(out, target, fill)
+    p = results["pooled"]
+    typer.echo(f"{len(frames)} frame(s), {p['targets']} target(s): ok precision {_fmt(p['precision_ok'])}, "
+               f"recall {_fmt(p['recall_ok'])}; candidates precision {_fmt(p['precision_candidates'])}, "
+               f"recall {_fmt(p['recall_candidates'])} -> {out / 'report.md'}")
+
+
+def _fmt(v) -> str:
+    return "n/a" if v is None else f"{v:.3f}"
+
+
+def _detection_markdown(results: dict) -> str:
+    p = results["pooled"]
+    L = [f"# Highlight detection: {results['source']}", "",
+         "Targets are the labelled isolated specular highlights; a candidate or an ok estimate is a "
+         "true positive when it is the first to fall on a target (see simtest.evaluate.detection).",
+         "", "| frame | targets | candidates | precision | recall | ok | ok precision | ok recall | ok F1 | "
+         "not examined |", "|---|---|---|---|---|---|---|---|---|---|"]
+    for f in results["frames"] + [p | {"not_examined": sum(x["not_examined"] for x in results["frames"])}]:
+        L.append(f"| {f['name']} | {f['targets']} | {f['candidates']} | {_fmt(f['precision_candidates'])} | "
+                 f"{_fmt(f['recall_candidates'])} | {f['ok']} | {_fmt(f['precision_ok'])} | "
+                 f"{_fmt(f['recall_ok'])} | {_fmt(f['f1_ok'])} | {f['not_examined']} |")
+    L += ["", "What the ok estimates fall on (pooled): "
+          + ", ".join(f"{k} {v}" for k, v in p["ok_on"].items()) + ".", "",
+          "![hits, false positives and misses](detection.png)", ""]
+    return "\n".join(L)

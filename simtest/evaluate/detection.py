@@ -1,0 +1,408 @@
+"""Scoring highlight detection against labelled bright structures: precision, recall and F1.
+
+A frame's ground truth is a list of labelled bright structures, each with a *kind*. The targets are
+the ``isolated`` ones: a single compact specular highlight with an elliptical outline, on tissue,
+with no other highlight close by, which is what the isophote method can use. Every other kind
+(``cluster``, ``streak``, ``instrument``, ``overlay``, ``border``, ``texture``) is a bright
+structure a detector may pick but should not call a highlight. Two sources give such labels:
+
+- real frames labelled by hand (``tests/data/real/structures_labelled.json``: the protocol, the
+  two independent passes and their agreement are in ``tests/data/real/README.md``);
+- renders, whose targets are the ground-truth highlights a person sees as isolated elliptical
+  highlights (:func:`simtest.render.truth.highlight_targets`); a render's other bright structures
+  are not labelled.
+
+Matching: a candidate (its BP) falls on the nearest structure whose reach holds it, the reach being
+the radius of a disc of the structure's area plus ``tolerance_px``. Each target counts once, for
+the first (brightest) candidate that falls on it; a second candidate on the same target is a
+duplicate, a false positive. Precision is the fraction of candidates (or of ``ok`` estimates) that
+are a target's first match; recall the fraction of targets matched by a candidate (or an ``ok``
+estimate); F1 their harmonic mean.
+
+References
+----------
+Anchors for the scores: classical specular-highlight detectors reach an F1 of about 0.72 on the
+CVC-ClinicSpec benchmark; SpecReFlow (J. Med. Imaging 2024) a Dice of about 0.83 at the pixel level.
+Those count pixels; these scores count highlights.
+"""
+
+from __future__ import annotations
+
+import math
+from collections import Counter
+from dataclasses import dataclass, field
+
+import numpy as np
+
+__all__ = ["KINDS", "TARGET_KIND", "TOLERANCE_PX", "Structure", "FrameScore", "match_candidates",
+           "score_frame", "pooled"]
+
+#: The kinds of labelled bright structure; ``isolated`` is the target.
+KINDS = ("isolated", "cluster", "streak", "instrument", "overlay", "border", "texture")
+TARGET_KIND = "isolated"
+
+#: Slack added to a structure's radius when matching a candidate's BP, px: a BP is a sub-pixel
+#: point inside a blob a labeller marked by its centroid; 2 px covers the centroid's offset from
+#: the brightest pixel on the small (3 to 30 px) glints of 280 px frames.
+TOLERANCE_PX = 2.0
+
+
+@dataclass(frozen=True)
+class Structure:
+    """One labelled bright structure of a frame.
+
+    Attributes
+    ----------
+    u, v : float
+        Centroid, px (column, row; pixel centres at integer coordinates).
+    area_px : float
+        Area of the structure at half its height above the local background, px.
+    kind : str
+        One of :data:`KINDS`.
+    """
+
+    u: float
+    v: float
+    area_px: float
+    kind: str
+
+    @property
+    def reach_px(self) -> float:
+        """The radius within which a candidate's BP falls on it: sqrt(area / pi) + slack."""
+        return math.sqrt(max(self.area_px, 1.0) / math.pi) + TOLERANCE_PX
+
+
+def match_candidates(bps_px, structures: list[Structure]) -> list[int | None]:
+    """The structure each candidate falls on (the nearest that reaches it), or None.
+
+    Parameters
+    ----------
+    bps_px : array_like of shape (N, 2)
+        The candidates' BPs, [u, v] px, in the order they are ranked (brightest first).
+    structures : list of Structure
+        The frame's labels.
+
+    Returns
+    -------
+    list of int or None
+        Index into ``structures`` per candidate.
+    """
+    bps = np.asarray(bps_px, dtype=np.float64).reshape(-1, 2)
+    if not structures or not len(bps):
+        return [None] * len(bps)
+    cen = np.array([[s.u, s.v] for s in structures])
+    reach = np.array([s.reach_px for s in structures])
+    d = np.linalg.norm(bps[:, None, :] - cen[None, :, :], axis=2)
+    d[d > reach[None, :]] = np.inf
+    best = np.argmin(d, axis=1)
+    return [int(j) if np.isfinite(d[i, j]) else None for i, j in enumerate(best)]
+
+
+@dataclass
+class FrameScore:
+    """Detection scores of one frame (or pooled over frames): counts, then the ratios.
+
+    Attributes
+    ----------
+    name : str
+        The frame (or ``"pooled"``).
+    targets : int
+        Labelled targets (isolated highlights).
+    candidates, candidates_tp : int
+        Candidates examined, and those that are a target's first match.
+    ok, ok_tp : int
+        Estimates with status ``ok``, and those that are a target's first ``ok`` match.
+    targets_found, targets_found_ok : int
+        Targets matched by a candidate, by an ``ok`` estimate.
+    ok_on : Counter
+        The ``ok`` estimates by what they fall on: a kind, ``"duplicate"`` (a target already
+        matched) or ``"unlabelled"``.
+    """
+
+    name: str
+    targets: int = 0
+    candidates: int = 0
+    candidates_tp: int = 0
+    ok: int = 0
+    ok_tp: int = 0
+    targets_found: int = 0
+    targets_found_ok: int = 0
+    ok_on: Counter = field(default_factory=Counter)
+
+    @staticmethod
+    def _ratio(a: int, b: int) -> float | None:
+        return a / b if b else None
+
+    @staticmethod
+    def _f1(p, r) -> float | None:
+        return None if p is None or r is None or p + r == 0 else 2 * p * r / (p + r)
+
+    def as_dict(self) -> dict:
+        """Counts and ratios (None where a ratio has no denominator), JSON-ready."""
+        pc, rc = self._ratio(self.candidates_tp, self.candidates), self._ratio(self.targets_found,
+                                                                               self.targets)
+        po, ro = self._ratio(self.ok_tp, self.ok), self._ratio(self.targets_found_ok, self.targets)
+        return {"name": self.name, "targets": self.targets, "candidates": self.candidates,
+                "candidates_tp": self.candidates_tp, "ok": self.ok, "ok_tp": self.ok_tp,
+                "targets_found": self.targets_found, "targets_found_ok": self.targets_found_ok,
+                "precision_candidates": pc, "recall_candidates": rc, "f1_candidates": self._f1(pc, rc),
+                "precision_ok": po, "recall_ok": ro, "f1_ok": self._f1(po, ro),
+                "ok_on": dict(sorted(self.ok_on.items()))}
+
+
+def score_frame(name: str, specularities: list[dict], structures: list[Structure]) -> tuple[FrameScore, list[dict]]:
+    """Score one frame's estimates against its labels.
+
+    Parameters
+    ----------
+    name : str
+        The frame.
+    specularities : list of dict
+        Its estimates as in ``estimates.json`` (``bp_px``, ``status``), brightest first.
+    structures : list of Structure
+        Its labels.
+
+    Returns
+    -------
+    (FrameScore, list of dict)
+        The scores, and per candidate ``{"bp_px", "status", "on": kind | "duplicate" |
+        "unlabelled", "tp": bool}`` (for the figure and the results).
+    """
+    bps = [s["bp_px"] for s in specularities]
+    hit = match_candidates(bps, structures)
+    sc = FrameScore(name, targets=sum(s.kind == TARGET_KIND for s in structures),
+                    candidates=len(specularities))
+    found: set[int] = set()
+    found_ok: set[int] = set()
+    rows = []
+    for s, j in zip(specularities, hit):
+        ok = s["status"] == "ok"
+        on = "unlabelled" if j is None else structures[j].kind
+        tp = tp_ok = False
+        if on == TARGET_KIND:
+            if j in found:
+                on = "duplicate"
+            else:
+                found.add(j)
+                tp = True
+            if ok and j not in found_ok:
+                found_ok.add(j)
+                tp_ok = True
+        sc.candidates_tp += tp
+        if ok:
+            sc.ok += 1
+            sc.ok_tp += tp_ok
+            sc.ok_on["isolated" if tp_ok else ("duplicate" if on == TARGET_KIND else on)] += 1
+        rows.append({"bp_px": [float(v) for v in s["bp_px"]], "status": s["status"], "on": on,
+                     "tp": tp, "tp_ok": tp_ok})
+    sc.targets_found, sc.targets_found_ok = len(found), len(found_ok)
+    return sc, rows
+
+
+def pooled(scores: list[FrameScore]) -> FrameScore:
+    """The frames' counts summed (ratios of sums, not means of ratios)."""
+    out = FrameScore("pooled")
+    for s in scores:
+        for k in ("targets", "candidates", "candidates_tp", "ok", "ok_tp", "targets_found",
+                  "targets_found_ok"):
+            setattr(out, k, getattr(out, k) + getattr(s, k))
+        out.ok_on.update(s.ok_on)
+    return out
+
+
+# ---------------------------------------------------------------------------------------------
+# sources of labelled frames
+
+
+@dataclass(frozen=True)
+class LabelledFrame:
+    """One frame with its labels.
+
+    Attributes
+    ----------
+    name : str
+        The frame's name (a tile id ``r{r}c{c}``, or a scene name).
+    image : ndarray of shape (H, W, 3) or (H, W)
+        The frame as a camera gives it (uint8).
+    camera : CameraModel
+        Its camera model (an assumed pinhole for the uncalibrated real frames).
+    structures : list of Structure
+        Its labels.
+    """
+
+    name: str
+    image: np.ndarray
+    camera: object
+    structures: list
+
+
+def _tile_box(tile: str, tile_px: int) -> tuple[int, int, int, int]:
+    import re
+
+    m = re.fullmatch(r"r(\d+)c(\d+)", tile)
+    if m is None:
+        raise ValueError(f"tile id {tile!r} is not of the form r<row>c<column>")
+    r, c = int(m.group(1)), int(m.group(2))
+    return r * tile_px, (r + 1) * tile_px, c * tile_px, (c + 1) * tile_px
+
+
+def labelled_real_frames(path, *, focal_px: float = 140.0) -> list[LabelledFrame]:
+    """The frames of a hand-labelled set (``tests/data/real/structures_labelled.json``'s layout).
+
+    Parameters
+    ----------
+    path : str or Path
+        JSON ``{"source": image path (relative to the JSON's folder, or to the repository root),
+        "tile_px": side of a tile (default 280), "tiles": {"r{r}c{c}": [{"u", "v", "area_px",
+        "kind", ...}, ...]}}``; coordinates in tile pixels.
+    focal_px : float
+        The assumed pinhole's focal length, px (the frames are uncalibrated; detection does not
+        depend on it, the normals do).
+
+    Returns
+    -------
+    list of LabelledFrame
+        In the file's order.
+
+    Raises
+    ------
+    ValueError
+        A missing or unreadable file, key or image, or a kind not in :data:`KINDS`, in one line
+        naming the file and the key.
+    """
+    import json
+    from pathlib import Path
+
+    from simtest.geometry.cameras import PinholeCamera
+    from simtest.reconstruct.images import load_image
+
+    path = Path(path)
+    try:
+        doc = json.loads(path.read_text(encoding="utf-8"))
+        src = Path(doc["source"])
+        tiles = doc["tiles"]
+    except (OSError, ValueError, KeyError, TypeError) as exc:
+        raise ValueError(f"{path}: not a labelled set ({type(exc).__name__}: {exc})") from None
+    here = [path.parent / src, path.parent / src.name] + [p / src for p in path.parents]
+    image_path = next((p for p in here if p.is_file()), None)
+    if image_path is None:
+        raise ValueError(f"{path}: key 'source': image {src} not found beside it or above")
+    image = load_image(image_path)
+    side = int(doc.get("tile_px", 280))
+    f = float(focal_px)
+    K = [[f, 0.0, side / 2 - 0.5], [0.0, f, side / 2 - 0.5], [0.0, 0.0, 1.0]]
+    camera = PinholeCamera(K, image_size=(side, side))
+    out = []
+    for tile, items in tiles.items():
+        r0, r1, c0, c1 = _tile_box(tile, side)
+        structs = []
+        for i, s in enumerate(items):
+            kind = s.get("kind")
+            if kind not in KINDS:
+                raise ValueError(f"{path}: tiles.{tile}[{i}].kind: {kind!r} is not one of {KINDS}")
+            structs.append(Structure(float(s["u"]), float(s["v"]), float(s["area_px"]), kind))
+        out.append(LabelledFrame(tile, np.ascontiguousarray(image[r0:r1, c0:c1]), camera, structs))
+    return out
+
+
+def rendered_frames(scene: str, *, seed: int | None = None) -> list[LabelledFrame]:
+    """A render's video frame, labelled with its targets (:func:`highlight_targets`).
+
+    Parameters
+    ----------
+    scene : str
+        A bundled scene name or a scene TOML file.
+    seed : int, optional
+        Render seed (default the scene's).
+
+    Returns
+    -------
+    list of LabelledFrame
+        One frame; its structures are the targets (kind ``isolated``) at each target's peak,
+        with its half-maximum area. Other bright structures of a render are not labelled, so they
+        count as ``unlabelled`` false positives.
+    """
+    from simtest.render.render import render_scene
+    from simtest.render.sensor import field_stop_mask
+    from simtest.render.truth import highlight_targets
+    from simtest.scene.spec import load_scene
+
+    spec = load_scene(scene)
+    res = render_scene(spec, seed=seed)
+    sensor = res.spec.sensor
+    valid = res.mask & field_stop_mask(res.mask.shape, sensor.field_stop, sensor.field_stop_radius)
+    targets = highlight_targets(res.highlights, res.specular, valid)
+    structs = [Structure(float(t.peak_px[0]), float(t.peak_px[1]), float(t.area_px), TARGET_KIND)
+               for t in targets]
+    return [LabelledFrame(spec.name, res.frame, res.camera, structs)]
+
+
+def evaluate_frames(frames: list[LabelledFrame], settings=None) -> dict:
+    """Reconstruct every frame with ``settings`` (default: ``reconstruct``'s) and score it.
+
+    Returns
+    -------
+    dict
+        ``{"frames": [FrameScore.as_dict() + {"candidates_detail": [...]}], "pooled": {...},
+        "settings": {...}}``.
+    """
+    from simtest.reconstruct.io import estimate_to_dict
+    from simtest.reconstruct.pipeline import reconstruct
+    from simtest.reconstruct.settings import ReconSettings
+
+    settings = settings or ReconSettings.for_frames()
+    scores, frames_out = [], []
+    for fr in frames:
+        ests = reconstruct(fr.image, fr.camera, settings=settings)
+        sc, rows = score_frame(fr.name, [estimate_to_dict(e) for e in ests], fr.structures)
+        scores.append(sc)
+        missed = [[s.u, s.v] for j, s in enumerate(fr.structures) if s.kind == TARGET_KIND
+                  and not any(r["tp_ok"] and _on(r, s) for r in rows)]
+        frames_out.append(sc.as_dict() | {"not_examined": ests.n_unexamined, "candidates_detail": rows,
+                                          "missed_targets_ok": missed})
+    return {"frames": frames_out, "pooled": pooled(scores).as_dict(), "settings": settings.to_dict()}
+
+
+def _on(row: dict, s: Structure) -> bool:
+    return math.dist(row["bp_px"], (s.u, s.v)) <= s.reach_px
+
+
+def detection_figure(frames: list[LabelledFrame], results: dict, *, columns: int = 6):
+    """The frames with what detection got right and wrong, as a matplotlib figure.
+
+    Each frame shows its ``ok`` estimates on targets (green circles), its ``ok`` estimates on
+    anything else (red crosses, which are the false positives of "ok"), and the targets no ``ok``
+    estimate found (yellow squares: the misses). Titles give the frame's counts.
+    """
+    import matplotlib
+
+    matplotlib.use("Agg", force=False)
+    import matplotlib.pyplot as plt
+
+    n = len(frames)
+    cols = min(columns, n)
+    rows_n = math.ceil(n / cols)
+    fig, axes = plt.subplots(rows_n, cols, figsize=(max(2.6 * cols, 8.0), 2.9 * rows_n + 0.8),
+                             squeeze=False, layout="constrained")
+    for ax in axes.ravel():
+        ax.set_axis_off()
+    for ax, fr, res in zip(axes.ravel(), frames, results["frames"]):
+        ax.imshow(fr.image, cmap="gray" if fr.image.ndim == 2 else None)
+        tp = np.array([r["bp_px"] for r in res["candidates_detail"] if r["tp_ok"]]).reshape(-1, 2)
+        fp = np.array([r["bp_px"] for r in res["candidates_detail"]
+                       if r["status"] == "ok" and not r["tp_ok"]]).reshape(-1, 2)
+        miss = np.array(res["missed_targets_ok"]).reshape(-1, 2)
+        ax.scatter(tp[:, 0], tp[:, 1], s=40, facecolors="none", edgecolors="#2ca02c", lw=1.2)
+        ax.scatter(fp[:, 0], fp[:, 1], s=30, marker="x", c="#d62728", lw=1.2)
+        ax.scatter(miss[:, 0], miss[:, 1], s=40, marker="s", facecolors="none",
+                   edgecolors="#ffcc00", lw=1.2)
+        ax.set_title(f"{fr.name}: {res['ok_tp']} hit, {res['ok'] - res['ok_tp']} false, "
+                     f"{len(miss)} missed (of {res['targets']})", fontsize=7)
+    p = results["pooled"]
+
+    def pct(v):
+        return "n/a" if v is None else f"{v:.2f}"
+    fig.suptitle(f"ok estimates against labelled isolated highlights: precision {pct(p['precision_ok'])}, "
+                 f"recall {pct(p['recall_ok'])} over {p['targets']} targets\n(green circle: hit, red "
+                 "cross: false positive, yellow square: missed)", fontsize=9)
+    return fig

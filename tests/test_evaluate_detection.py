@@ -1,0 +1,106 @@
+"""Scoring detection against labelled structures: exact counts on constructed frames."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+from hypothesis import given, settings as hsettings, strategies as st
+from PIL import Image
+from typer.testing import CliRunner
+
+from simtest.cli import app
+from simtest.evaluate.detection import (TOLERANCE_PX, Structure, labelled_real_frames,
+                                        match_candidates, pooled, score_frame)
+
+
+def _spec(u, v, status="ok"):
+    return {"bp_px": [u, v], "status": status}
+
+
+def test_counts_on_a_constructed_frame():
+    labels = [Structure(10, 10, 12, "isolated"), Structure(50, 50, 12, "isolated"),
+              Structure(90, 90, 40, "cluster"), Structure(30, 70, 12, "isolated")]
+    cands = [_spec(10.5, 10.2),                     # on target 0: hit
+             _spec(11.0, 9.5),                      # on target 0 again: duplicate
+             _spec(50, 51, "not_elliptical"),       # on target 1, not ok: candidate hit only
+             _spec(90, 91),                         # on the cluster: ok false positive
+             _spec(150, 150)]                       # on nothing: unlabelled
+    sc, rows = score_frame("f", cands, labels)
+    d = sc.as_dict()
+    assert (d["targets"], d["candidates"], d["candidates_tp"], d["ok"], d["ok_tp"]) == (3, 5, 2, 4, 1)
+    assert (d["targets_found"], d["targets_found_ok"]) == (2, 1)
+    assert d["precision_candidates"] == pytest.approx(2 / 5) and d["recall_candidates"] == pytest.approx(2 / 3)
+    assert d["precision_ok"] == pytest.approx(1 / 4) and d["recall_ok"] == pytest.approx(1 / 3)
+    assert d["f1_ok"] == pytest.approx(2 * (1 / 4) * (1 / 3) / (1 / 4 + 1 / 3))
+    assert d["ok_on"] == {"cluster": 1, "duplicate": 1, "isolated": 1, "unlabelled": 1}
+    assert [r["on"] for r in rows] == ["isolated", "duplicate", "isolated", "cluster", "unlabelled"]
+
+
+def test_no_denominator_gives_no_ratio():
+    d = score_frame("empty", [], [])[0].as_dict()
+    assert d["precision_ok"] is None and d["recall_ok"] is None and d["f1_ok"] is None
+
+
+@hsettings(max_examples=60, deadline=None)
+@given(st.lists(st.tuples(st.floats(0, 200), st.floats(0, 200), st.floats(1, 200)), max_size=8),
+       st.lists(st.tuples(st.floats(0, 200), st.floats(0, 200)), max_size=12))
+def test_a_match_is_always_within_reach_and_the_nearest(structs, bps):
+    labels = [Structure(u, v, a, "isolated") for u, v, a in structs]
+    hit = match_candidates(np.array(bps).reshape(-1, 2), labels)
+    for (u, v), j in zip(bps, hit):
+        d = [np.hypot(u - s.u, v - s.v) for s in labels]
+        reach = [d_ <= s.reach_px for d_, s in zip(d, labels)]
+        if j is None:
+            assert not any(reach)
+        else:
+            assert reach[j] and d[j] == min(x for x, r in zip(d, reach) if r)
+    # pooled ratios are ratios of summed counts; every target is found at most once
+    sc, _ = score_frame("p", [_spec(u, v) for u, v in bps], labels)
+    assert sc.targets_found <= sc.targets and sc.ok_tp <= sc.ok
+    both = pooled([sc, sc]).as_dict()
+    assert both["ok"] == 2 * sc.ok and both["precision_ok"] == sc.as_dict()["precision_ok"]
+
+
+def test_reach_is_the_structures_radius_plus_the_slack():
+    s = Structure(0, 0, np.pi * 9, "isolated")
+    assert s.reach_px == pytest.approx(3 + TOLERANCE_PX)
+
+
+def _labelled_set(tmp_path):
+    img = np.full((40, 80, 3), 60, np.uint8)
+    yy, xx = np.mgrid[0:40, 0:40]
+    for c0, (u, v) in ((0, (12, 20)), (40, (25, 15))):
+        blob = np.exp(-((xx - u) ** 2 + (yy - v) ** 2) / (2 * 1.8 ** 2))
+        img[:, c0:c0 + 40] = np.maximum(img[:, c0:c0 + 40], (60 + 190 * blob)[..., None]).astype(np.uint8)
+    Image.fromarray(img).save(tmp_path / "frames.png")
+    doc = {"source": "frames.png", "tile_px": 40,
+           "tiles": {"r0c0": [{"u": 12, "v": 20, "area_px": 12, "kind": "isolated"}],
+                     "r0c1": [{"u": 25, "v": 15, "area_px": 12, "kind": "overlay"}]}}
+    (tmp_path / "labels.json").write_text(json.dumps(doc))
+    return tmp_path / "labels.json"
+
+
+def test_a_labelled_set_is_read_tile_by_tile(tmp_path):
+    frames = labelled_real_frames(_labelled_set(tmp_path))
+    assert [f.name for f in frames] == ["r0c0", "r0c1"]
+    assert frames[1].image.shape == (40, 40, 3) and frames[1].structures[0].kind == "overlay"
+    bad = json.loads((tmp_path / "labels.json").read_text())
+    bad["tiles"]["r0c0"][0]["kind"] = "glint"
+    (tmp_path / "bad.json").write_text(json.dumps(bad))
+    with pytest.raises(ValueError, match=r"tiles.r0c0\[0\].kind"):
+        labelled_real_frames(tmp_path / "bad.json")
+
+
+def test_the_command_writes_its_three_files(tmp_path):
+    res = CliRunner().invoke(app, ["evaluate", "detection", str(_labelled_set(tmp_path)),
+                                   "-o", str(tmp_path / "out")])
+    assert res.exit_code == 0, res.output
+    assert sorted(p.name for p in (tmp_path / "out").iterdir()) == ["detection.png", "report.md",
+                                                                     "results.json"]
+    r = json.loads((tmp_path / "out" / "results.json").read_text())
+    assert r["pooled"]["targets"] == 1 and len(r["frames"]) == 2
+    res = CliRunner().invoke(app, ["evaluate", "detection", str(tmp_path / "nothere.json"),
+                                   "-o", str(tmp_path / "o2")])
+    assert res.exit_code == 2 and len(res.output.strip().splitlines()) == 1
