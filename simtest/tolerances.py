@@ -41,16 +41,6 @@ class Tolerances:
         largest entry. Central differences with a step h have truncation error ~h^2 (relative
         ~1e-8 at the steps used) and rounding error ~eps |f| / h (~1e-10 relative); the inverse
         maps' Newton stop (1e-9 px) divided by the step adds at most ~1e-6 relative.
-    golden_abs : float
-        Agreement of a re-run with the stored outputs of the reconstruction (tests/data/golden)
-        for the same settings, absolute, on unit normals, residuals (px) and eigenvalue gaps:
-        1e-7. The same contour points, assembled from a smaller box (another start point, an
-        integer offset added in another order), change the fit's sums in the last bits (~1e-12
-        after the 6x6 eigenproblem). The circle-pose pair N+- = +-sin(phi) e1 + cos(phi) e3 is
-        square-root conditioned near a right cone (sin(phi) ~ sqrt(gap)), so 1e-16 of rounding
-        moves a near-fronto-parallel N+- by ~1e-8 (5e-9 on the bench's 100 px highlight). 1e-7
-        (6e-6 deg) keeps a margin over that and is far below the 1e-3 deg the reports print.
-        Statuses, point counts, BPs and ROIs must be identical.
     isophote_noise_px : float
         Floor of the localisation noise of a contour point, px, used only to decide whether a
         light-aware fit observes the depth (a fit to exact points has zero residual and would call
@@ -131,7 +121,6 @@ class Tolerances:
     right_cone_gap: float = 1e-9
     camera_round_trip_px: float = 1e-6
     camera_jacobian_rel: float = 1e-5
-    golden_abs: float = 1e-7
     isophote_noise_px: float = 0.05
     photometric_noise_rel: float = 0.002
     plane_misfit_rho: float = 0.3

@@ -12,6 +12,11 @@ Regenerate (only in a commit that says why the results changed)::
     python tests/golden.py            # every case
     python tests/golden.py CASE ...   # some cases
 
+Hold a change to the accuracy tolerance (:mod:`simtest.reconstruct.compare`)::
+
+    python tests/golden.py --snapshot /tmp/before    # on the code before the change
+    python tests/golden.py --compare /tmp/before     # after it: status changes, normals moved
+
 Inputs: the real tiles of tests/data/real with their assumed f = 140 px pinhole; the sensor
 images of the bundled scenes rendered with each scene's own seed, pinned as PNG under
 tests/data/golden/renders (with their K in renders.json, written by ``python tests/golden.py
@@ -197,10 +202,59 @@ def write_renders() -> None:
     (RENDERS / "renders.json").write_text(json.dumps(meta, indent=1) + "\n")
 
 
-def main(argv: list[str]) -> None:
+def as_rows(summary: list[dict]) -> list[dict]:
+    """A case's summary as the rows :func:`simtest.reconstruct.compare.compare_estimates` takes."""
+    rows = []
+    for r in summary:
+        iso = r["isophotes"][0] if r["isophotes"] else {}
+        pair, idx = iso.get("paper"), iso.get("paper_selected_index")
+        rows.append({"bp_px": r["bp"], "status": r["status"], "normals": {
+            "cone_axis": iso.get("cone_axis"), "joint_cone_axis": r["joint"],
+            "paper_selected": None if pair is None or idx is None else pair[idx]}})
+    return rows
+
+
+def snapshot(folder: Path, names=None) -> None:
+    """Write every case's current summary under ``folder`` (before a change)."""
+    folder.mkdir(parents=True, exist_ok=True)
+    for name in names or sorted(cases()):
+        data = json.dumps(run_case(name), separators=(",", ":")) + "\n"
+        (folder / f"{name}.json.gz").write_bytes(gzip.compress(data.encode("ascii"), mtime=0))
+
+
+def compare_with(folder: Path, names=None) -> int:
+    """Compare the current code with a snapshot (or the golden files): the accuracy tolerance.
+
+    Prints, per case and pooled, the ok status changes and the normals' movements per estimator,
+    and every bound of :data:`simtest.reconstruct.compare.ACCURACY` broken; returns 1 if any is.
+    """
+    from simtest.reconstruct.compare import compare_estimates, pooled_comparison
+
+    cmps = []
+    for name in names or sorted(cases()):
+        with gzip.open(folder / f"{name}.json.gz", "rt", encoding="ascii") as fh:
+            before = json.load(fh)
+        c = compare_estimates(as_rows(before), as_rows(run_case(name)), name=name)
+        cmps.append(c)
+        moved = ", ".join(f"{k} median {v['median']:.2g} p95 {v['p95']:.2g} max {v['max']:.2g} deg"
+                          for k, v in c.stats().items())
+        print(f"{name}: {c.candidates} candidates, {len(c.status_changes)} ok status changes; {moved}")
+    total = pooled_comparison(cmps)
+    problems = total.problems()
+    print(f"pooled: {total.candidates} candidates, {len(total.status_changes)} ok status changes; "
+          + ("within the accuracy tolerance" if not problems else "; ".join(problems)))
+    return 1 if problems else 0
+
+
+def main(argv: list[str]) -> int:
     if argv[:1] == ["--renders"]:
         write_renders()
-        return
+        return 0
+    if argv[:1] == ["--snapshot"]:
+        snapshot(Path(argv[1]), argv[2:])
+        return 0
+    if argv[:1] == ["--compare"]:
+        return compare_with(Path(argv[1]), argv[2:])
     names = argv or sorted(cases())
     GOLDEN.mkdir(parents=True, exist_ok=True)
     for name in names:
@@ -208,8 +262,9 @@ def main(argv: list[str]) -> None:
         write_golden(name, rows)
         n_ok = sum(r["status"] == "ok" for r in rows)
         print(f"{name}: {len(rows)} estimates, {n_ok} ok")
+    return 0
 
 
 if __name__ == "__main__":
     sys.path.insert(0, str(ROOT.parent))
-    main(sys.argv[1:])
+    raise SystemExit(main(sys.argv[1:]))

@@ -32,7 +32,7 @@ REL = 1e-9
 #: residual differed by 2e-9 of itself. 1e-7 relative leaves a margin. Exact points have a residual
 #: that is rounding: a unit-norm conic evaluated at 2000 px, divided by the small gradient of a
 #: 0.5 px-wide ellipse, leaves ~3e-9 px that differs between the forms, hence 1e-8 px absolute
-#: (both stay below TOL.golden_abs on residuals of a few px).
+#: (both far below a pixel's rounding).
 RESIDUAL_REL = 1e-7
 RESIDUAL_ABS_PX = 1e-8
 

@@ -1,8 +1,8 @@
-"""Results unchanged for the same settings: the current code reproduces the stored outputs of
-tests/data/golden (made by ``python tests/golden.py``, see its docstring) on the pinned inputs.
-
-Statuses, point counts, BPs, ROIs and the selected index are compared exactly; the fitted floats
-(normals, residuals, eigenvalue gaps) within ``TOL.golden_abs`` (why that size: its docstring).
+"""Results held for the same settings: the current code reproduces the stored outputs of
+tests/data/golden (made by ``python tests/golden.py``, see its docstring) on the pinned inputs,
+within the accuracy tolerance (:data:`simtest.reconstruct.compare.ACCURACY`: ok statuses change on
+at most 1 % of candidates, ok normals move by a median of at most 0.01 deg and a 95th percentile of
+at most 0.05 deg), no longer bit for bit, so that speed work may change the method.
 """
 
 from __future__ import annotations
@@ -13,33 +13,12 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from simtest.tolerances import TOL
+from simtest.reconstruct.compare import ACCURACY, compare_estimates
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 import golden  # noqa: E402
 
 CASES = sorted(golden.cases())
-FITTED = {"residual_px", "paper", "cone_axis", "gap", "joint"}
-
-
-def _same(got, want, where: str) -> None:
-    if isinstance(want, dict):
-        assert set(got) == set(want), where
-        for k in want:
-            if k in FITTED and want[k] is not None and got[k] is not None:
-                g, w = np.asarray(got[k], float), np.asarray(want[k], float)
-                assert g.shape == w.shape and np.all(np.abs(g - w) <= TOL.golden_abs), (
-                    f"{where}.{k}: got {got[k]}, want {want[k]}")
-            else:
-                _same(got[k], want[k], f"{where}.{k}")
-    elif isinstance(want, list):
-        assert isinstance(got, list) and len(got) == len(want), f"{where}: {got} != {want}"
-        for i, (g, w) in enumerate(zip(got, want)):
-            _same(g, w, f"{where}[{i}]")
-    else:
-        assert got == want, f"{where}: got {got!r}, want {want!r}"
-
-
 def test_every_case_has_a_golden_file_and_inputs_are_pinned():
     stored = {p.name[: -len(".json.gz")] for p in golden.GOLDEN.glob("*.json.gz")}
     assert set(golden.cases()) == stored
@@ -49,17 +28,36 @@ def test_every_case_has_a_golden_file_and_inputs_are_pinned():
 
 @pytest.mark.parametrize("name", CASES)
 def test_same_results_for_the_same_settings(name):
-    _same(golden.run_case(name), golden.read_golden(name), name)
+    cmp = compare_estimates(golden.as_rows(golden.read_golden(name)),
+                            golden.as_rows(golden.run_case(name)), name=name)
+    assert cmp.within(ACCURACY), "; ".join(cmp.problems(ACCURACY))
 
 
-def test_the_comparison_catches_a_changed_status_and_a_moved_normal():
-    want = golden.read_golden("frame10_paper")
-    got = [dict(r, isophotes=[dict(i) for i in r["isophotes"]]) for r in want]
-    _same(got, want, "copy")
-    got[3]["isophotes"][0]["cone_axis"] = [c + 1e-6 for c in want[3]["isophotes"][0]["cone_axis"]]
-    with pytest.raises(AssertionError, match="cone_axis"):
-        _same(got, want, "moved")
-    got = [dict(r) for r in want]
-    got[0]["status"] = "merged"
-    with pytest.raises(AssertionError, match="status"):
-        _same(got, want, "status")
+def test_the_tolerance_catches_a_status_change_and_moved_normals_and_passes_noise():
+    rows = golden.as_rows(golden.read_golden("banner_defaults"))
+    ok = [i for i, r in enumerate(rows) if r["status"] == "ok"]
+    assert compare_estimates(rows, rows).within(ACCURACY)
+    # 1 % of the candidates, plus one, turn from ok to rejected: caught
+    flips = [dict(r) for r in rows]
+    n = len(rows) // 100 + 1
+    for i in ok[:n]:
+        flips[i]["status"] = "merged"
+    assert not compare_estimates(rows, flips).within(ACCURACY)
+    assert compare_estimates(rows, flips[: len(rows)]).status_changes  # named
+    # every ok cone axis turned by 0.02 deg (above the 0.01 deg median): caught; 0.001 deg: passes
+    def turned(deg):
+        out = [dict(r, normals=dict(r["normals"])) for r in rows]
+        c, s = np.cos(np.radians(deg)), np.sin(np.radians(deg))
+        for i in ok:
+            if out[i]["normals"]["cone_axis"] is not None:
+                v = np.array(out[i]["normals"]["cone_axis"])
+                axis = np.cross(v, [0, 0, 1.0]) if abs(v[2]) < 0.99 else np.cross(v, [1.0, 0, 0])
+                axis /= np.linalg.norm(axis)
+                k = np.array([[0, -axis[2], axis[1]], [axis[2], 0, -axis[0]], [-axis[1], axis[0], 0]])
+                Rv = np.eye(3) + s * k + (1 - c) * k @ k  # Rodrigues: v turned by deg about axis
+                out[i]["normals"]["cone_axis"] = (Rv @ v).tolist()
+        return out
+    moved = compare_estimates(rows, turned(0.02))
+    assert not moved.within(ACCURACY)
+    assert moved.stats()["cone_axis"]["median"] == pytest.approx(0.02, rel=1e-6)
+    assert compare_estimates(rows, turned(0.001)).within(ACCURACY)
