@@ -23,6 +23,7 @@ from simtest.harness import protocols
 from simtest.harness.nightly import (CAPS, POLICY, baseline_section, check_section, compare,
                                      default_baseline_path, expected_metrics, gate_summary,
                                      metric_class, metrics_of, noisy_headlines, uncovered)
+from simtest.harness.report import write_report_files
 from simtest.harness.suite import load_suite
 
 #: The bias the gate must catch on every estimator's headline metric (issue 37).
@@ -48,19 +49,30 @@ def _committed():
     return json.loads(default_baseline_path().read_text())
 
 
+def _no_report(mp):
+    """Skip drawing the report (seconds of matplotlib): these tests read the gate's verdict."""
+    mp.setattr(hcli, "write_report_files", lambda results, folder, **kw: folder)
+
+
 @pytest.fixture(scope="module")
 def quick_run(tmp_path_factory):
     """One real `nightly --quick` at the baseline's seed: it passes; its results are replayed."""
     d = tmp_path_factory.mktemp("quick")
-    r = _nightly("-o", d, "--run-id", "base")
+    seen = []
+    real = hcli.build_results
+    with pytest.MonkeyPatch.context() as mp:
+        _no_report(mp)
+        mp.setattr(hcli, "build_results", lambda run, rid: seen.append(real(run, rid)) or seen[-1])
+        r = _nightly("-o", d, "--run-id", "base")
     assert r.exit_code == 0, r.output
-    return json.loads((d / "quick" / "base" / "results.json").read_text())
+    return json.loads(json.dumps(seen[0]))
 
 
 def _replay(monkeypatch, results):
     """Make the CLI's run return ``results`` at once (the suite is not run again)."""
     monkeypatch.setattr(hcli, "run_suite", lambda *a, **k: None)
     monkeypatch.setattr(hcli, "build_results", lambda run, run_id: copy.deepcopy(results))
+    _no_report(monkeypatch)
 
 
 def _no_run(monkeypatch):
@@ -214,9 +226,14 @@ def test_a_nan_in_the_run_fails_naming_it(quick_run, tmp_path, monkeypatch):
     res = copy.deepcopy(quick_run)
     res["families"]["plane"]["estimators"]["cone_axis"]["median"] = float("nan")
     _replay(monkeypatch, res)
-    r = _nightly("-o", tmp_path)
+    monkeypatch.setattr(hcli, "write_report_files", write_report_files)  # the real writer
+    r = _nightly("-o", tmp_path, "--run-id", "nan")
     assert r.exit_code == 1, r.output
     assert re.search(r"^INVALID: 1 .*family:plane:cone_axis:median", r.output, re.M), r.output
+    # the report is written all the same, the NaN as null and named in the gate's section
+    doc = json.loads((tmp_path / "quick" / "nan" / "results.json").read_text())
+    assert doc["families"]["plane"]["estimators"]["cone_axis"]["median"] is None
+    assert "family:plane:cone_axis:median" in (tmp_path / "quick" / "nan" / "report.md").read_text()
 
 
 def test_doubled_errors_fail_every_estimators_headline_metrics(quick_run, tmp_path, monkeypatch):
@@ -243,6 +260,7 @@ def test_a_biased_estimator_is_caught_end_to_end(tmp_path, monkeypatch):
                 for n, (e, c) in real(*a, **k).items()}
 
     monkeypatch.setattr(protocols, "score", biased)
+    _no_report(monkeypatch)
     r = _nightly("-o", tmp_path)
     assert r.exit_code == 1, r.output
     sec = _committed()["suites"]["quick"]

@@ -11,7 +11,7 @@ the baseline (present, sound, covering the suite). Exit codes are :mod:`simtest.
 
 from __future__ import annotations
 
-import json
+import math
 import os
 from pathlib import Path
 from typing import Optional
@@ -131,6 +131,18 @@ def _write(results: dict, folder: Path, **kw) -> Path:
         return write_report_files(results, folder, **kw)
     except OSError as e:
         fail(f"--out: cannot write the report in {folder}: {e.strerror or e}", CANNOT_WRITE)
+
+
+def _json_safe(doc):
+    """``doc`` with every NaN or infinite float as None (JSON has no NaN): the nightly gate has
+    judged the original and named those metrics (INVALID), the report and history keep nulls."""
+    if isinstance(doc, dict):
+        return {k: _json_safe(v) for k, v in doc.items()}
+    if isinstance(doc, list):
+        return [_json_safe(v) for v in doc]
+    if isinstance(doc, float) and not math.isfinite(doc):
+        return None
+    return doc
 
 
 def _summary(results: dict, console) -> None:
@@ -329,13 +341,14 @@ def nightly_command(
     where = f"{path}: suites.{s.name}"
     miss = uncovered(section, metrics_of(results))
     if miss:
-        _write(results, folder, nightly={"verdict": "NO VERDICT (the baseline does not cover "
+        _write(_json_safe(results), folder, nightly={"verdict": "NO VERDICT (the baseline does not cover "
                                                     "this run)", "baseline": str(path),
                                          "summary": f"{len(miss)} metric(s) not in the baseline",
                                          "problems": miss[:20]})
         _covers(section, miss, where)
     changes = compare(section, results)
     passed, lines, counts = gate_summary(changes)
+    results = _json_safe(results)  # judged; what is written keeps a NaN as null
     try:
         append_history(hist_path, history_line(results, passed, counts))
     except OSError as e:
