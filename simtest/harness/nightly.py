@@ -21,9 +21,14 @@ abs_floor, cap)`` (the policy is stored in the baseline). The caps (:data:`CAPS`
 - ``headline_deg`` 0.4 deg on every headline metric, so that a bias of 0.5 deg on any
   estimator's headline metric fails (with 0.1 deg to spare for seed noise). A headline metric
   whose seed noise alone (``k_spread x spread``) exceeds the cap would fail the gate on a good
-  run: :func:`noisy_headlines` lists them, ``--update-baseline`` prints them, and the suite must
-  give their sweeps more realisations (the nightly suite does: see its comments) rather than the
-  cap growing;
+  run at *another* seed: :func:`noisy_headlines` lists them, ``--update-baseline`` prints them,
+  and the remedy is more realisations for their sweeps, never a larger cap. The gate itself runs
+  at the baseline's seed (CI does), where a good run repeats the baseline's numbers up to
+  platform rounding, so seed noise does not enter its verdict. The quick suite has no noisy
+  headline metric; the nightly suite has two, measured over 3 seeds at 100 renders per light
+  offset (``plane, light offset``: ``paper_selected`` 0.28 deg and ``bp_ray`` 0.18 deg, one
+  standard deviation; the paper's normals and the BP ray err by 1.4 to 8 deg there, render to
+  render), which a run at another seed may fail;
 - ``deg`` 10 deg on the per-case medians (a few realisations each; doubling any error above
   10 deg still fails);
 - ``rate`` 0.1 on failure rates and false positives per image (five failures more in 50).
