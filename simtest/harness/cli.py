@@ -23,6 +23,7 @@ from rich.table import Table
 from simtest._exit import BAD_BASELINE, BAD_INPUT, CANNOT_WRITE, CHECK_FAILED, fail, safe_name, \
     writable_dir
 from simtest.harness.nightly import (
+    CAPS,
     append_history,
     changes_table,
     check_section,
@@ -333,18 +334,20 @@ def nightly_command(
                       "too noisy at this many realisations)")
         if noisy:
             console.print(f"[yellow]warning: {len(noisy)} headline metric(s) have seed noise "
-                          f"(3 spreads) above the 0.4 deg cap and may fail a good run; give their "
-                          f"sweeps more realisations: {', '.join(noisy)}[/]")
+                          f"(k_spread spreads) above their {CAPS['headline_deg']} deg cap and "
+                          "may fail a good run at another seed; give their sweeps more "
+                          f"realisations: {', '.join(noisy)}[/]")
         return
     if section.get("suite_sha256") and section["suite_sha256"] != results["suite"]["sha256"]:
         console.print(f"[yellow]note: suite file {s.source} changed since the baseline[/]")
     where = f"{path}: suites.{s.name}"
     miss = uncovered(section, metrics_of(results))
     if miss:
-        _write(_json_safe(results), folder, nightly={"verdict": "NO VERDICT (the baseline does not cover "
-                                                    "this run)", "baseline": str(path),
-                                         "summary": f"{len(miss)} metric(s) not in the baseline",
-                                         "problems": miss[:20]})
+        _write(_json_safe(results), folder,
+               nightly={"verdict": "NO VERDICT (the baseline does not cover this run)",
+                        "baseline": str(path),
+                        "summary": f"{len(miss)} metric(s) not in the baseline",
+                        "problems": miss[:20]})
         _covers(section, miss, where)
     changes = compare(section, results)
     passed, lines, counts = gate_summary(changes)
