@@ -1,11 +1,18 @@
 """``simtest validate`` and ``simtest nightly`` (registered in :mod:`simtest.cli`).
 
 Imported by :mod:`simtest.cli` only when one of these commands runs (``simtest --help`` stays fast).
+
+Everything that can be checked before the suite runs is checked first, so that minutes of work
+never end in a usage error: the suite file and its bounds (:data:`simtest.harness.suite.
+MAX_TOTAL_REALISATIONS`), ``-n``, ``-j`` (at most ``os.cpu_count()`` workers), ``--run-id`` (one
+plain folder name), the output folder (:func:`simtest._exit.writable_dir`) and, for ``nightly``,
+the baseline (present, sound, covering the suite). Exit codes are :mod:`simtest._exit`'s.
 """
 
 from __future__ import annotations
 
-import json
+import math
+import os
 from pathlib import Path
 from typing import Optional
 
@@ -13,29 +20,34 @@ import typer
 from rich.console import Console
 from rich.table import Table
 
+from simtest._exit import BAD_BASELINE, BAD_INPUT, CANNOT_WRITE, CHECK_FAILED, fail, safe_name, \
+    writable_dir
 from simtest.harness.nightly import (
+    CAPS,
     append_history,
     changes_table,
     check_section,
     compare,
     default_baseline_path,
+    expected_metrics,
     gate_summary,
     history_line,
     load_baseline,
+    metrics_of,
+    noisy_headlines,
     read_history,
+    uncovered,
     undetectable_doublings,
     update_baseline as write_baseline,
 )
-from simtest.harness.report import build_results, make_run_id, write_report, write_report_files
+from simtest.harness.report import build_results, make_run_id, write_report_files
 from simtest.harness.runner import run_suite
-from simtest.harness.suite import SuiteError, load_suite
+from simtest.harness.suite import MAX_TOTAL_REALISATIONS, SuiteError, load_suite
 
-__all__ = ["validate_command", "nightly_command"]
+__all__ = ["validate_command", "nightly_command", "check_workers", "load_checked_suite"]
 
-
-def _fail(msg: str, code: int = 2):
-    typer.echo(f"error: {msg}", err=True)
-    raise typer.Exit(code)
+_FILES = ("results.json (every statistic), results.csv (one row per case and estimator), "
+          "report.md, report.html (self-contained) and figures/*.png")
 
 
 def _fmt(deg: float) -> str:
@@ -43,10 +55,101 @@ def _fmt(deg: float) -> str:
     return f"{deg:.0f}" if deg >= 10 else f"{deg:.2g}"
 
 
+def check_workers(workers: int | None) -> int | None:
+    """``workers`` if it is at most the machine's CPUs (``os.cpu_count()``), else exit 2.
+
+    Parameters
+    ----------
+    workers : int or None
+        ``-j/--workers`` (None: the default, all available cores).
+
+    Returns
+    -------
+    int or None
+        ``workers`` unchanged.
+
+    Raises
+    ------
+    typer.Exit
+        With exit code 2 and one line when ``workers`` exceeds ``os.cpu_count()`` (more
+        processes than cores only slow a run down and multiply its memory).
+    """
+    cpus = os.cpu_count() or 1
+    if workers is not None and workers > cpus:
+        fail(f"-j/--workers: {workers} workers on a machine with {cpus} CPUs; use at most {cpus}",
+             BAD_INPUT)
+    return workers
+
+
+def load_checked_suite(name: str, seed: int | None = None, realisations: int | None = None):
+    """Load a suite with ``--seed`` / ``-n`` applied, or exit 2 with one line.
+
+    Parameters
+    ----------
+    name : str
+        Bundled suite name or path.
+    seed, realisations : int or None
+        Overrides (None keeps the suite's).
+
+    Returns
+    -------
+    simtest.harness.suite.Suite
+
+    Raises
+    ------
+    typer.Exit
+        With exit code 2 on a bad suite, or when ``-n`` times the suite's distinct settings
+        exceeds :data:`simtest.harness.suite.MAX_TOTAL_REALISATIONS` (checked before anything
+        is allocated).
+    """
+    try:
+        s = load_suite(name)
+        if realisations is not None:
+            n = len(s.distinct_cases)
+            if realisations * n > MAX_TOTAL_REALISATIONS:
+                fail(f"-n/--realisations: {realisations:,} per case x {n} distinct settings = "
+                     f"{realisations * n:,} realisations exceed the maximum of "
+                     f"{MAX_TOTAL_REALISATIONS:,} per run (about 2 KB of results each are held "
+                     "until the report)", BAD_INPUT)
+        if seed is not None or realisations is not None:
+            s = s.with_overrides(seed=seed, realisations=realisations)
+    except SuiteError as e:
+        fail(e, BAD_INPUT)
+    return s
+
+
+def _counts(s) -> str:
+    """The one count of a suite used by the header, the progress bar and the report."""
+    n, d = len(s.cases), len(s.distinct_cases)
+    shared = "" if n == d else (f" ({n - d} shared by several sweeps run once)")
+    return (f"{len(s.sweeps)} sweeps, {n} cases = {d} distinct settings{shared}, "
+            f"{s.total_realisations} realisations")
+
+
+def _write(results: dict, folder: Path, **kw) -> Path:
+    """Write the report set, or exit 4 with one line (what was there before is kept)."""
+    try:
+        return write_report_files(results, folder, **kw)
+    except OSError as e:
+        fail(f"--out: cannot write the report in {folder}: {e.strerror or e}", CANNOT_WRITE)
+
+
+def _json_safe(doc):
+    """``doc`` with every NaN or infinite float as None (JSON has no NaN): the nightly gate has
+    judged the original and named those metrics (INVALID), the report and history keep nulls."""
+    if isinstance(doc, dict):
+        return {k: _json_safe(v) for k, v in doc.items()}
+    if isinstance(doc, list):
+        return [_json_safe(v) for v in doc]
+    if isinstance(doc, float) and not math.isfinite(doc):
+        return None
+    return doc
+
+
 def _summary(results: dict, console) -> None:
     ests = results["suite"]["estimators"]
-    t = Table(title=f"{results['suite']['name']}: mean error (deg), min-max over the sweep; "
-                    "failure rate")
+    t = Table(title=f"{results['suite']['name']}: median error (deg) per setting, lowest to "
+                    "highest over the sweep's settings, as in the report; (worst failure rate)")
     # fold, never truncate: a number cut to "0.00099..." would be worse than none
     t.add_column("sweep", overflow="fold")
     for e in ests:
@@ -56,10 +159,10 @@ def _summary(results: dict, console) -> None:
         row = [sw["name"]]
         for e in ests:
             ms = [cases[k]["metrics"]["estimators"][e] for k in sw["cases"]]
-            means = [m["mean"] for m in ms if m["mean"] is not None]
+            meds = [m["median"] for m in ms if m["median"] is not None]
             fr = max(m["failure_rate"] for m in ms)
-            cell = "-" if not means else (f"{_fmt(min(means))} to {_fmt(max(means))}"
-                                          if len(means) > 1 else _fmt(means[0]))
+            cell = "-" if not meds else (f"{_fmt(min(meds))} to {_fmt(max(meds))}"
+                                         if len(meds) > 1 else _fmt(meds[0]))
             row.append(cell + (f" [red]({fr:.0%})[/]" if fr > 0 else ""))
         t.add_row(*row)
     console.print(t)
@@ -68,38 +171,49 @@ def _summary(results: dict, console) -> None:
 def validate_command(
     suite: str = typer.Argument("default", help="Bundled suite name (scenes/suites/<name>.toml) "
                                                 "or a path to a suite TOML file."),
-    workers: Optional[int] = typer.Option(None, "--workers", "-w", min=1,
+    workers: Optional[int] = typer.Option(None, "--workers", "-j", min=1,
                                           help="Worker processes (default: all cores; 1: in "
-                                               "process)."),
+                                               "process; at most the machine's CPUs)."),
     seed: Optional[int] = typer.Option(None, "--seed", min=0, help="Root seed (default: the "
                                                                    "suite's)."),
-    out: Path = typer.Option(Path("reports"), "--out", help="Reports root folder."),
-    realisations: Optional[int] = typer.Option(None, "--realisations", "-n", min=1,
-                                               help="Realisations per case (default: the "
-                                                    "suite's)."),
-    run_id: Optional[str] = typer.Option(None, "--run-id", help="Run folder name (default: "
-                                                                "<UTC time>-local, git-ignored)."),
+    out: Path = typer.Option(Path("reports"), "--out", "-o",
+                             help="Reports root folder; the run goes to OUT/<suite>/<run id>/."),
+    realisations: Optional[int] = typer.Option(
+        None, "--realisations", "-n", min=1,
+        help=f"Realisations per case (default: the suite's; at most "
+             f"{MAX_TOTAL_REALISATIONS:,} in all per run)."),
+    run_id: Optional[str] = typer.Option(None, "--run-id", help="Run folder name, one plain name "
+                                                                "(default: <UTC time>-local, "
+                                                                "git-ignored)."),
     progress: bool = typer.Option(True, "--progress/--no-progress", help="Show progress."),
 ) -> None:
-    """Run a validation suite and write its report (results.json, report.md, report.html).
+    """Run a validation suite and write its report.
 
     With no argument: the bundled `default` suite (rendered bundled scenes and a small part of
-    the paper's synthetic protocol). The report's provenance records the run's wall time.
+    the paper's synthetic protocol).
+
+    Writes OUT/<suite>/<run id>/: results.json (every statistic), results.csv (one row per case
+    and estimator), report.md, report.html (self-contained) and figures/*.png, replaced as a set
+    (a run id used before is replaced whole, never mixed).
+
+    Counts: a case is one setting of one sweep; a setting shared by two sweeps is two cases but
+    runs once (one distinct setting), and the realisations counted are those that run. The
+    console table shows the median error per setting, the statistic of the report.
+
+    Exit codes: 0 done; 2 bad usage or suite (checked before running); 4 OUT cannot be written
+    (checked before running); 130 interrupted.
     """
 
     console = Console(stderr=True)
-    try:
-        s = load_suite(suite)
-        if seed is not None or realisations is not None:
-            s = s.with_overrides(seed=seed, realisations=realisations)
-    except SuiteError as e:
-        _fail(str(e))
-    console.print(f"[bold]simtest validate[/] {s.name}: {len(s.sweeps)} sweeps, {len(s.cases)} "
-                  f"cases, {s.total_realisations} realisations, seed {s.seed}")
+    check_workers(workers)
+    s = load_checked_suite(suite, seed, realisations)
+    run_id = safe_name(run_id or make_run_id(), "--run-id")
+    folder = out / s.name / run_id
+    writable_dir(folder, "--out")
+    console.print(f"[bold]simtest validate[/] {s.name}: {_counts(s)}, seed {s.seed}")
     run = run_suite(s, workers=workers, progress=progress, console=console)
-    folder = write_report(run, out, run_id=run_id)
-
-    results = json.loads((folder / "results.json").read_text())
+    results = build_results(run, run_id)
+    folder = _write(results, folder)
     _summary(results, console)
     for k, v in results["provenance"]["realisations_per_s"].items():
         console.print(f"{k}: {v['realisations']} realisations, {v['per_s']} realisations/s "
@@ -107,9 +221,34 @@ def validate_command(
     console.print(f"wall time {run.wall_s:.1f} s; report: {folder / 'report.html'}")
 
 
+def _baseline_section(path: Path, s, quick: bool):
+    """The suite's baseline section, sound and covering the suite's cases and families; else 3."""
+    try:
+        section = load_baseline(path)["suites"].get(s.name)
+    except ValueError as e:
+        fail(e, BAD_BASELINE)
+    if section is None:
+        fail(f"{path}: suites.{s.name}: no baseline for this suite; create it with "
+             f"`simtest nightly{' --quick' if quick else ''} --update-baseline`", BAD_BASELINE)
+    where = f"{path}: suites.{s.name}"
+    bad = check_section(section, where)
+    if bad:
+        fail(bad, BAD_BASELINE)
+    _covers(section, expected_metrics(s), where)
+    return section
+
+
+def _covers(section: dict, names, where: str) -> None:
+    miss = uncovered(section, names)
+    if miss:
+        more = f" and {len(miss) - 8} more" if len(miss) > 8 else ""
+        fail(f"{where}: does not cover {len(miss)} metric(s) of this run: "
+             f"{', '.join(miss[:8])}{more} (rewrite it with --update-baseline)", BAD_BASELINE)
+
+
 def nightly_command(
-    quick: bool = typer.Option(False, "--quick", help="Run the quick suite (seconds) instead "
-                                                      "of the nightly one."),
+    quick: bool = typer.Option(False, "--quick", help="Run the quick suite (about a minute on 2 "
+                                                      "cores) instead of the nightly one."),
     update_baseline: bool = typer.Option(False, "--update-baseline",
                                          help="Accept this code as the new baseline: run the "
                                               "suite --repeats times with seeds seed, seed + 1, "
@@ -122,44 +261,54 @@ def nightly_command(
                                                                      "reports/baseline.json)."),
     history: Optional[Path] = typer.Option(None, "--history", help="History file, one JSON "
                                                                    "line per run (default: "
-                                                                   "<out>/<suite>/history.jsonl)."),
-    workers: Optional[int] = typer.Option(None, "--workers", "-w", min=1),
-    out: Path = typer.Option(Path("reports"), "--out", help="Reports root folder."),
-    run_id: Optional[str] = typer.Option(None, "--run-id", help="Run folder name (default: "
-                                                                "<UTC time>-local)."),
+                                                                   "OUT/<suite>/history.jsonl)."),
+    workers: Optional[int] = typer.Option(None, "--workers", "-j", min=1,
+                                          help="Worker processes (default: all cores; 1: in "
+                                               "process; at most the machine's CPUs)."),
+    out: Path = typer.Option(Path("reports"), "--out", "-o",
+                             help="Reports root folder; the run goes to OUT/<suite>/<run id>/."),
+    run_id: Optional[str] = typer.Option(None, "--run-id", help="Run folder name, one plain name "
+                                                                "(default: <UTC time>-local)."),
     suite: Optional[str] = typer.Option(None, "--suite", help="Another suite (name or path)."),
     show_all: bool = typer.Option(False, "--all", help="List unchanged metrics too."),
     progress: bool = typer.Option(True, "--progress/--no-progress"),
 ) -> None:
     """Run the nightly (or --quick) suite and gate it against the committed baseline.
 
-    Exits 1 when a metric regressed beyond its tolerance (measured seed spread plus a relative
-    floor) or is NaN, infinite, non-numeric or missing, naming each; 2 on a bad baseline file.
+    Each metric may grow by its tolerance: its measured seed spread plus a relative floor, capped
+    at 0.4 deg on every family median (each estimator's headline metrics), 10 deg on the case
+    medians and 0.1 on rates (simtest.harness.nightly).
+
+    Writes OUT/<suite>/<run id>/ (results.json, results.csv, report.md, report.html with the
+    gate's verdict, figures/*.png, replaced as a set) and appends one line to
+    OUT/<suite>/history.jsonl (or --history). With --update-baseline: the same report of the
+    first repeat, and the suite's section of the baseline file (--baseline, replaced
+    atomically); no history line.
+
+    Exit codes: 0 no regression; 1 a regression: a metric grew beyond its tolerance, or is NaN,
+    infinite or missing in this run (each named); 2 bad usage (flag, suite, run id); 3 the
+    baseline is unusable: missing, malformed, or not covering this run's metrics (a metric
+    absent, null, non-finite, or with a tolerance above its cap), named in one line; 4 OUT, the
+    history or the baseline cannot be written (checked before running); 130 interrupted.
     """
 
     console = Console(stderr=True)
     name = suite or ("quick" if quick else "nightly")
     path = baseline or default_baseline_path()
-    try:
-        s = load_suite(name)
-        if seed is not None:
-            s = s.with_overrides(seed=seed)
-    except SuiteError as e:
-        _fail(str(e))
-    section = None
-    if not update_baseline:
-        try:
-            section = load_baseline(path)["suites"].get(s.name)
-        except ValueError as e:
-            _fail(str(e))
-        if section is None:
-            _fail(f"{path}: suites.{s.name}: no baseline for this suite; create it with "
-                  f"`simtest nightly{' --quick' if quick else ''} --update-baseline`")
-        bad = check_section(section, f"{path}: suites.{s.name}")
-        if bad:
-            _fail(bad)
-    run_id = run_id or make_run_id()
+    check_workers(workers)
+    s = load_checked_suite(name, seed)
+    run_id = safe_name(run_id or make_run_id(), "--run-id")
     folder = out / s.name / run_id
+    writable_dir(folder, "--out")
+    hist_path = history or (out / s.name / "history.jsonl")
+    if update_baseline:
+        writable_dir(path.parent, "--baseline")
+        section = None
+    else:
+        if hist_path.is_dir():
+            fail(f"--history: {hist_path} is a folder, not a file", CANNOT_WRITE)
+        writable_dir(hist_path.parent, "--history")
+        section = _baseline_section(path, s, quick)
     run = run_suite(s, workers=workers, progress=progress, console=console)
     results = build_results(run, run_id)
     if update_baseline:
@@ -172,30 +321,50 @@ def nightly_command(
         try:
             write_baseline(path, runs)
         except ValueError as e:
-            _fail(str(e))
+            fail(e, BAD_INPUT)
+        except OSError as e:
+            fail(f"--baseline: cannot write {path}: {e.strerror or e}", CANNOT_WRITE)
         sec = load_baseline(path)["suites"][s.name]
         weak = undetectable_doublings(sec)
-        write_report_files(results, folder)
+        noisy = noisy_headlines(sec)
+        _write(results, folder)
         console.print(f"report: {folder / 'report.html'}")
         console.print(f"baseline for suite {s.name} written to {path} ({len(sec['metrics'])} "
                       f"metrics from seeds {sec['seeds']}; {len(weak)} could double unnoticed: "
                       "too noisy at this many realisations)")
+        if noisy:
+            console.print(f"[yellow]warning: {len(noisy)} headline metric(s) have seed noise "
+                          f"(k_spread spreads) above their {CAPS['headline_deg']} deg cap and "
+                          "may fail a good run at another seed; give their sweeps more "
+                          f"realisations: {', '.join(noisy)}[/]")
         return
     if section.get("suite_sha256") and section["suite_sha256"] != results["suite"]["sha256"]:
         console.print(f"[yellow]note: suite file {s.source} changed since the baseline[/]")
+    where = f"{path}: suites.{s.name}"
+    miss = uncovered(section, metrics_of(results))
+    if miss:
+        _write(_json_safe(results), folder,
+               nightly={"verdict": "NO VERDICT (the baseline does not cover this run)",
+                        "baseline": str(path),
+                        "summary": f"{len(miss)} metric(s) not in the baseline",
+                        "problems": miss[:20]})
+        _covers(section, miss, where)
     changes = compare(section, results)
     passed, lines, counts = gate_summary(changes)
-    hist_path = history or (out / s.name / "history.jsonl")
-    append_history(hist_path, history_line(results, passed, counts))
+    results = _json_safe(results)  # judged; what is written keeps a NaN as null
+    try:
+        append_history(hist_path, history_line(results, passed, counts))
+    except OSError as e:
+        fail(f"--history: cannot append to {hist_path}: {e.strerror or e}", CANNOT_WRITE)
     summary = ", ".join(f"{v}: {n}" for v, n in sorted(counts.items()))
-    write_report_files(results, folder, history=read_history(hist_path),
-                       nightly={"verdict": "pass" if passed else "FAIL",
-                                "baseline": str(path), "summary": summary, "problems": lines})
+    _write(results, folder, history=read_history(hist_path),
+           nightly={"verdict": "pass" if passed else "FAIL", "baseline": str(path),
+                    "summary": summary, "problems": lines})
     console.print(changes_table(changes, f"{s.name} vs baseline {path.name}", show_all))
     console.print(summary)
     console.print(f"report: {folder / 'report.html'}; history: {hist_path}")
     if not passed:
         for ln in lines:
             typer.echo(ln, err=True)
-        raise typer.Exit(1)
+        raise typer.Exit(CHECK_FAILED)
     console.print("[green]no regression[/]")

@@ -65,7 +65,7 @@ def main(argv: list[str] | None = None) -> int:
                                                      "suite with a committed report)")
     ap.add_argument("--out", type=Path, default=root / "reports", help="reports root")
     ap.add_argument("--run-id", default=_dt.datetime.now(_dt.timezone.utc).strftime("%Y-%m-%d"))
-    ap.add_argument("--workers", type=int, default=None)
+    ap.add_argument("-j", "--workers", type=int, default=None)
     ap.add_argument("--readme", type=Path, default=root / "README.md")
     ap.add_argument("--no-readme", action="store_true", help="leave the README alone")
     ap.add_argument("--baseline", action="store_true",
@@ -80,8 +80,8 @@ def main(argv: list[str] | None = None) -> int:
         print(f"error: {e}", file=sys.stderr)
         return 2
     for s in suites:
-        console.print(f"[bold]{s.name}[/]: {len(s.cases)} cases, {s.total_realisations} "
-                      "realisations")
+        console.print(f"[bold]{s.name}[/]: {len(s.cases)} cases = {len(s.distinct_cases)} "
+                      f"distinct settings, {s.total_realisations} realisations")
         run = run_suite(s, workers=a.workers, console=console)
         folder = write_report(run, a.out, run_id=a.run_id)
         for old in (a.out / s.name).iterdir():

@@ -299,8 +299,9 @@ def run_suite(suite: Suite, *, workers: int | None = None, progress: bool = True
     console = console or Console(stderr=True)
     estimators = tuple(suite.estimators)
     cases = suite.cases
-    # Identical settings (same key, e.g. the default point of several sweeps) run once.
-    unique = list({(c.key, c.realisations): c for c in cases}.values())
+    # Identical settings (same key, e.g. the default point of several sweeps) run once: the
+    # progress bar counts what runs, as the console header and the report do.
+    unique = suite.distinct_cases
     tasks = []
     for c in unique:
         step = CHUNK.get(c.protocol, 50)
@@ -324,8 +325,8 @@ def run_suite(suite: Suite, *, workers: int | None = None, progress: bool = True
         prog.update(bar, rate=f"{n / el:6.1f} real./s" if el > 0 else "")
 
     with prog:
-        bar = prog.add_task(f"{suite.name}: {len(unique)} cases, {workers} worker(s)", total=total,
-                            rate="")
+        bar = prog.add_task(f"{suite.name}: {len(unique)} distinct settings, {workers} "
+                            "worker(s), realisations", total=total, rate="")
         if workers == 1:
             for c, s, e in tasks:
                 record(run_case_chunk(c, estimators, suite.seed, s, e), bar)

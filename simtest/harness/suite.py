@@ -89,6 +89,7 @@ __all__ = [
     "MeshPose",
     "SceneSetting",
     "harness_recon_settings",
+    "MAX_TOTAL_REALISATIONS",
 ]
 
 PROTOCOLS = ("paper", "rendered")
@@ -98,6 +99,15 @@ ESTIMATOR_NAMES = ("paper_oracle", "paper_selected", "cone_axis", "joint_cone_ax
 #: Estimators that use the scope's light rig (:mod:`simtest.reconstruct.recommend`); a suite lists
 #: them explicitly (``recommended`` is the normal that ``estimates.json`` recommends).
 LIGHT_AWARE_NAMES = LIGHT_AWARE_FITS + ("recommended",) + ORACLE_FITS
+
+#: Most realisations one run may hold, over its distinct settings (a setting shared by several
+#: sweeps runs once). Why: every realisation keeps its scored rows (an error, a cause and the
+#: diagnostics per estimator: about 2 KB in Python objects, measured 1.4 KB for the rows alone with
+#: six estimators) until the report is written, so the cap bounds a run at about 2 GB of memory; it
+#: is 19 times the largest bundled suite (paper-figure3, 53 200 realisations), and at the paper
+#: protocol's few hundred realisations per second and core it is already hours of work. A suite
+#: file or ``-n`` beyond it is refused before anything is allocated.
+MAX_TOTAL_REALISATIONS = 1_000_000
 
 #: Reconstruction settings, valid in both protocols, with their defaults.
 RECON_KEYS: dict[str, Any] = {
@@ -496,9 +506,19 @@ class Suite:
         return [c for s in self.sweeps for c in s.cases]
 
     @property
+    def distinct_cases(self) -> list[Case]:
+        """The cases that run: one per distinct setting (``(key, realisations)``), first seen.
+
+        A setting shared by several sweeps (the default point of two sweeps, say) is one case of
+        each sweep in the reports but runs once; the runner, the progress bar, the console
+        header and the report count these.
+        """
+        return list({(c.key, c.realisations): c for c in self.cases}.values())
+
+    @property
     def total_realisations(self) -> int:
-        """Realisations over all cases (a setting shared by two sweeps counts twice)."""
-        return sum(c.realisations for c in self.cases)
+        """Realisations that run: over :attr:`distinct_cases` (a shared setting counts once)."""
+        return sum(c.realisations for c in self.distinct_cases)
 
     def with_overrides(self, *, seed: int | None = None,
                        realisations: int | None = None) -> Suite:
@@ -767,6 +787,8 @@ def suite_from_dict(raw: Mapping[str, Any], source: str = "<dict>", sha256: str 
         sreal = sw.get("realisations", realisations)
         if isinstance(sreal, bool) or not isinstance(sreal, int) or sreal < 1:
             raise _err(source, f"{where}.realisations", f"expected an integer >= 1, got {sreal!r}")
+        _check_bound(sreal, source, f"{where}.realisations" if "realisations" in sw
+                     else "suite.realisations")
         scene_path, scene_name = None, None
         if sproto == "rendered":
             scene_name = sw.get("scene", head.get("scene"))
@@ -859,9 +881,24 @@ def suite_from_dict(raw: Mapping[str, Any], source: str = "<dict>", sha256: str 
         sweeps.append(Sweep(name=sname, protocol=sproto, parameter=parameter, label=label,
                             display_scale=float(scale), cases=tuple(cases), paper=paper,
                             description=sw.get("description", "")))
-    return Suite(name=name, description=description, source=source, seed=seed,
-                 realisations=realisations, estimators=tuple(estimators), sweeps=tuple(sweeps),
-                 sha256=sha256, raw=_deepcopy(raw))
+    suite = Suite(name=name, description=description, source=source, seed=seed,
+                  realisations=realisations, estimators=tuple(estimators), sweeps=tuple(sweeps),
+                  sha256=sha256, raw=_deepcopy(raw))
+    total = suite.total_realisations
+    if total > MAX_TOTAL_REALISATIONS:
+        raise _err(source, "realisations", f"{total:,} realisations over "
+                   f"{len(suite.distinct_cases)} distinct settings exceed the maximum of "
+                   f"{MAX_TOTAL_REALISATIONS:,} per run (about 2 KB of results each are held "
+                   "until the report: split the suite or lower its realisations)")
+    return suite
+
+
+def _check_bound(n: int, source: str, where: str) -> None:
+    """Refuse one case's realisations above :data:`MAX_TOTAL_REALISATIONS` before expanding."""
+    if n > MAX_TOTAL_REALISATIONS:
+        raise _err(source, where, f"{n:,} realisations exceed the maximum of "
+                   f"{MAX_TOTAL_REALISATIONS:,} per run (about 2 KB of results each are held "
+                   "until the report)")
 
 
 def _deepcopy(d):

@@ -246,7 +246,10 @@ def markdown_report(results: dict, figures: list[str], nightly: dict | None = No
     s = results["suite"]
     p = results["provenance"]
     cases = {c["id"]: c for c in results["cases"]}
-    n_unique = len({c["key"] for c in results["cases"]})
+    # the console header's and the progress bar's count: distinct (key, realisations) settings
+    # run once, whatever number of sweeps share them
+    distinct = {(c["key"], c["realisations"]): c["realisations"] for c in results["cases"]}
+    n_unique, n_real = len(distinct), sum(distinct.values())
     L = [f"# Validation report: {s['name']}", ""]
     if s["description"]:
         L += [s["description"], ""]
@@ -258,7 +261,8 @@ def markdown_report(results: dict, figures: list[str], nightly: dict | None = No
     L += ["## Run", "",
           f"- run id `{results['run_id']}` ({results['created_utc']}), suite file "
           f"`{s['source']}` (sha256 {s['sha256'][:12]}): {len(results['sweeps'])} sweeps, "
-          f"{len(results['cases'])} cases ({n_unique} distinct settings)",
+          f"{len(results['cases'])} cases = {n_unique} distinct settings (a setting shared by "
+          f"several sweeps runs once), {n_real} realisations",
           f"- git commit `{p['git_commit']}`{dirty}; Mitsuba variant(s): "
           f"{', '.join(p['mitsuba_variants']) or 'none (no render)'}",
           f"- machine: {p['machine']['platform']}, {p['machine']['cpu_count']} CPUs; "
