@@ -578,15 +578,18 @@ def history_line(results: dict, passed: bool, counts: dict) -> dict:
     -------
     dict
         ``run_id``, ``created_utc``, ``git_commit``, ``suite``, ``seed``, ``verdict``
-        (``"pass"`` or ``"fail"``), ``counts`` and ``families``: {family: {estimator: median
-        error in degrees or None}}.
+        (``"pass"`` or ``"fail"``), ``counts``, ``families``: {family: {estimator: median
+        error in degrees or None}} and ``n``: {family: {estimator: highlights it succeeded on}}
+        (the trend figure shows it).
     """
     return {"run_id": results["run_id"], "created_utc": results["created_utc"],
             "git_commit": results["provenance"].get("git_commit"),
             "suite": results["suite"]["name"], "seed": results["suite"]["seed"],
             "verdict": "pass" if passed else "fail", "counts": counts,
             "families": {fam: {e: m.get("median") for e, m in f["estimators"].items()}
-                         for fam, f in results.get("families", {}).items()}}
+                         for fam, f in results.get("families", {}).items()},
+            "n": {fam: {e: m.get("n_ok") for e, m in f["estimators"].items()}
+                  for fam, f in results.get("families", {}).items()}}
 
 
 def append_history(path: str | Path, line: dict) -> Path:

@@ -72,7 +72,7 @@ def write_report_files(results: dict, folder: str | Path, plots: bool = True,
         (tmp / "results.json").write_text(json.dumps(results, indent=1, allow_nan=False) + "\n",
                                           encoding="utf-8")
         (tmp / "results.csv").write_text(results_csv(results), encoding="utf-8")
-        md = markdown_report(results, sorted(pngs), nightly=nightly)
+        md = markdown_report(results, sorted(pngs), nightly=nightly, history=history)
         (tmp / "report.md").write_text(md, encoding="utf-8")
         (tmp / "report.html").write_text(
             html_report(md, pngs, title=f"simtest report: {results['suite']['name']}"), encoding="utf-8")
