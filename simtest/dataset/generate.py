@@ -79,6 +79,7 @@ from simtest.dataset.shards import (
     SHARDS_DIR,
     TMP_SUFFIX,
     DatasetError,
+    DatasetWriteError,
     ShardWriter,
     array_sha256,
     card_sha256,
@@ -116,10 +117,6 @@ THREADS_ENV = "SIMTEST_DATASET_THREADS"
 
 class SampleError(RuntimeError):
     """A sample failed to render; the message names its index and the cause."""
-
-
-class DatasetWriteError(DatasetError):
-    """The dataset folder cannot be written (disk full, read-only, quota); one line, naming it."""
 
 
 class Interrupted(RuntimeError):

@@ -70,6 +70,7 @@ __all__ = [
     "FORMAT_VERSION",
     "MANIFEST_NAME",
     "DatasetError",
+    "DatasetWriteError",
     "ShardWriter",
     "array_sha256",
     "card_sha256",
@@ -105,6 +106,13 @@ _NPZ_REL = re.compile(r"shards/shard-([0-9]{5,})\.npz")
 
 class DatasetError(RuntimeError):
     """A dataset folder cannot be written or read; the message names the path."""
+
+
+class DatasetWriteError(DatasetError):
+    """An output cannot be written (disk full, read-only, quota); one line naming it.
+
+    What was there before is left intact and the temporary files are removed.
+    """
 
 
 def array_sha256(a: np.ndarray) -> str:
