@@ -252,15 +252,14 @@ def truth_problem(config: DatasetConfig, params: dict) -> str | None:
     if params["family"] not in ("spheres", "cylinders"):
         return None
     from simtest.render.endoscope import light_rig
-    from simtest.render.mitsuba_dict import cam_to_world_matrix, intrinsics_matrix
     from simtest.simulate.truth import HighlightTruthError, cylinder_highlight, sphere_highlight
 
     spec = build_scene(config, params)
     geo = spec.geometry
-    size = (spec.camera.width_px, spec.camera.height_px)
-    K = intrinsics_matrix(spec.camera)
-    w2c = np.linalg.inv(cam_to_world_matrix(spec.camera))
-    c = (w2c @ np.append(geo.center_mm, 1.0))[:3]
+    # Analytic families are built in the camera frame (build_scene sets no camera pose), and
+    # whether a BP exists does not depend on the intrinsics (they only place its pixel).
+    K, size = np.eye(3), (1, 1)
+    c = np.asarray(geo.center_mm, dtype=np.float64)
     try:
         for light in light_rig(spec, params["render_seed"]).lights:
             pos = np.asarray(light.position_mm, dtype=np.float64)
@@ -269,7 +268,7 @@ def truth_problem(config: DatasetConfig, params: dict) -> str | None:
             else:
                 axis = np.asarray(geo.axis if geo.axis is not None else (1.0, 0.0, 0.0), np.float64)
                 length = geo.length_mm if geo.length_mm is not None else 20.0 * geo.radius_mm
-                cylinder_highlight(c, w2c[:3, :3] @ axis, geo.radius_mm, length, pos, K, size)
+                cylinder_highlight(c, axis, geo.radius_mm, length, pos, K, size)
     except HighlightTruthError as exc:
         return str(exc)
     return None

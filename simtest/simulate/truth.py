@@ -259,7 +259,8 @@ def _solve_stationary(surface: Callable[[np.ndarray], tuple[np.ndarray, np.ndarr
 
 #: Grid of start angles of :func:`circle_reflection`: the minimiser of the path length lies within
 #: one grid step of the grid's best point (the path length is unimodal on the arc facing both
-#: points); 256 steps of 1.4 deg cost ~20 us and bracket a camera as close as 1e-6 R to the circle.
+#: points, and the grid holds the direction of the first point itself, where a camera very near
+#: the circle puts the minimiser); 256 steps of 1.4 deg cost ~20 us.
 _CIRCLE_GRID = 256
 
 
@@ -329,7 +330,12 @@ def circle_reflection(a: np.ndarray, b: np.ndarray, radius: float) -> np.ndarray
     elif ghi == 0.0:
         x = hi
     elif glo < 0.0 < ghi:
-        x = optimize.brentq(slope, lo, hi, xtol=1e-15, rtol=4.0 * np.finfo(float).eps, maxiter=200)
+        # xtol far below 1e-15: the root sits ~d/R from 0 for a camera d from a circle of radius
+        # R, and needs float64's relative precision there too.
+        try:
+            x = optimize.brentq(slope, lo, hi, xtol=1e-22, rtol=4.0 * np.finfo(float).eps, maxiter=400)
+        except RuntimeError as exc:  # not converged within maxiter: not seen
+            raise ValueError(f"circle_reflection: {exc}") from None
     else:
         raise ValueError(f"circle_reflection: no bracket around the grid's best angle "
                          f"(slopes {glo:.3g}, {ghi:.3g})")
