@@ -34,6 +34,7 @@ import ctypes
 import dataclasses
 import errno
 import fcntl
+import hashlib
 import io
 import json
 import multiprocessing
@@ -408,6 +409,7 @@ def spool_path(out: Path, index: int) -> Path:
 def _spool_write(out: Path, sample: Sample, fingerprint: str) -> None:
     """Keep one finished sample (arrays, record, their sha256) in the spool, atomically."""
     meta = {"config_fingerprint": fingerprint, "index": int(sample.index), "record": sample.record,
+            "record_sha256": _record_sha256(sample.record),
             "sha256": {k: array_sha256(np.asarray(a)) for k, a in sample.arrays.items()},
             "order": list(sample.arrays)}
 
@@ -417,6 +419,10 @@ def _spool_write(out: Path, sample: Sample, fingerprint: str) -> None:
                      **{f"a_{k}": np.asarray(a) for k, a in sample.arrays.items()})
 
     atomic_write(spool_path(out, sample.index), write)
+
+
+def _record_sha256(record: dict) -> str:
+    return hashlib.sha256(json.dumps(record, sort_keys=True, separators=(",", ":")).encode()).hexdigest()
 
 
 def _spool_read(path: Path, fingerprint: str, index: int) -> Sample | None:
@@ -430,6 +436,8 @@ def _spool_read(path: Path, fingerprint: str, index: int) -> Sample | None:
     except (OSError, ValueError, KeyError, TypeError, zipfile.BadZipFile, EOFError):
         return None
     if any(array_sha256(a) != meta["sha256"].get(k) for k, a in arrays.items()):
+        return None
+    if _record_sha256(meta["record"]) != meta.get("record_sha256"):
         return None
     return Sample(index=index, arrays=arrays, record=meta["record"])
 
