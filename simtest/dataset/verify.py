@@ -149,8 +149,12 @@ def _check_sample(rep: VerifyReport, where: str, row: dict, arrays: dict) -> Non
 def verify(root, *, check_arrays: bool = True) -> VerifyReport:
     """Check a dataset folder.
 
-    Checks the card, that the manifest lists exactly samples 0 .. count-1 once each, each naming
-    its shard as ``shards/shard-XXXXX.npz`` (nothing outside the folder); that every shard's row
+    Checks the card (its ``card_sha256`` over every value, its ``manifest_sha256`` against the
+    manifest file, its ``config_fingerprint`` against its config: a damaged fingerprint is one
+    problem of the card, not of every shard), that the manifest lists exactly samples 0 .. count-1
+    once each, each naming its shard exactly as ``shards/shard-XXXXX.npz`` (nothing outside the
+    folder, no other spelling of the number; shards counted as numbers, so any number of shards
+    verifies), that ``shards/`` holds no other file, that no spool is left; that every shard's row
     file names this dataset's config fingerprint, every row's labels match their
     ``labels_sha256``, every shard file's sha256 matches its row file and its zip comment names this
     dataset (a shard from a dataset with another seed or config fails); that every array's sha256,
