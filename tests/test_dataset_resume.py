@@ -110,16 +110,17 @@ def test_the_spool_survives_a_full_disk_and_the_resume_completes(tmp_path, monke
 _SCRIPT = textwrap.dedent("""
     import sys, time
     sys.path.insert(0, {tests!r})
-    from test_dataset_format import _cfg, standin_sample
-    from simtest.dataset.generate import Interrupted, generate
 
-    def slow(config, index):
+    def slow(config, index):  # imports here: a spawned worker imports this module too
         open({out!r} + f".running-{{index}}", "w").close()  # the worker is past its start-up
         time.sleep(30)
+        from test_dataset_format import standin_sample
         return standin_sample(config, index)
 
     if __name__ == "__main__":
         import slowmod
+        from test_dataset_format import _cfg
+        from simtest.dataset.generate import Interrupted, generate
         try:
             generate(_cfg(count=8, shard_size=4), {out!r}, workers=2, sample_fn=slowmod.slow,
                      progress=False)
