@@ -226,13 +226,13 @@ def test_a_full_disk_gives_one_line_and_leaves_no_temporary_file(tmp_path, monke
     assert verify(out).ok
 
 
-def test_cli_full_disk_is_one_line_exit_2(tmp_path, monkeypatch):
+def test_cli_full_disk_is_one_line_exit_4(tmp_path, monkeypatch):
     cfg = tmp_path / "c.toml"
     cfg.write_text('count = 2\nseed = 1\n[families]\nplanes = 1\n')
     monkeypatch.setattr(Path, "write_text", _enospc)
     res = CliRunner().invoke(app, ["dataset", "generate", str(cfg), "--out", str(tmp_path / "ds"),
                                    "--workers", "1", "--no-progress"])
-    assert res.exit_code == 2, res.output
+    assert res.exit_code == 4, res.output  # simtest._exit.CANNOT_WRITE
     assert len(res.output.strip().splitlines()) == 1 and "no space left" in res.output
 
 

@@ -7,7 +7,7 @@ Format
 ------
 .. code-block:: toml
 
-    count = 1000            # number of samples (>= 0)
+    count = 1000            # number of samples (0 .. MAX_COUNT = 10 million)
     seed = 2026             # root seed (any integer >= 0; 0 is valid)
     shard_size = 250        # samples per shard file
     isovalues = [0.1, 0.3]  # isophote levels t in (0, 1) (relative to the Phong peak c)
@@ -55,6 +55,7 @@ from simtest.scene.spec import RENDER_VARIANTS
 
 __all__ = [
     "FAMILIES",
+    "MAX_COUNT",
     "PARAMS",
     "DatasetConfig",
     "DatasetConfigError",
@@ -88,6 +89,11 @@ _DIST_KEYS = {
     "choice": ("values", "weights"),
 }
 _MAX_SHARD = 100_000
+#: Most samples a config may ask for. The manifest holds one JSON row (~4 KB with isophote
+#: labels) per sample and is read whole by ``generate``'s last step, ``verify`` and the reader, so
+#: 10 million samples mean ~40 GB of rows in memory and, at 256 x 256 px (~1.7 MB a sample),
+#: ~17 TB of shards: a larger count is a typo, refused before anything is written.
+MAX_COUNT = 10_000_000
 
 
 class DatasetConfigError(ValueError):
@@ -338,7 +344,7 @@ class DatasetConfig:
     Attributes
     ----------
     count : int
-        Number of samples.
+        Number of samples, 0 .. :data:`MAX_COUNT`.
     seed : int
         Root seed; sample i draws from ``SeedSequence([seed, i])``.
     shard_size : int
@@ -609,7 +615,7 @@ def config_from_dict(d: dict, source: str = "<dict>") -> DatasetConfig:
     for k in d:
         if k not in _TOP_KEYS:
             raise _err(source, k, "unknown key (allowed: " + ", ".join(_TOP_KEYS) + ")", d[k])
-    count = _int(d, "count", source, minimum=0)
+    count = _int(d, "count", source, minimum=0, maximum=MAX_COUNT)
     seed = _int(d, "seed", source, minimum=0)
     shard_size = _int(d, "shard_size", source, default=256, minimum=1, maximum=_MAX_SHARD)
 

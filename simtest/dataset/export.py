@@ -27,14 +27,20 @@ read with ``h5py`` alone (:data:`READ_HDF5`).
 
 Both exports hold ``export.json`` (source card's config fingerprint, format, count) and are
 written to a temporary folder renamed into place, so an interrupted export leaves nothing half
-written.
+written. Each HDF5 file is built in memory and written with plain file I/O, so a full disk is an
+ordinary ``OSError`` (no HDF5 library error stack, no crash inside the library); any failure to
+write removes the temporary folder, leaves an earlier export in place and raises
+:class:`~simtest.dataset.shards.DatasetWriteError` (one line). Temporary folders of exports whose
+process died (``.<out>.<pid>.tmp`` of a pid no longer running) are removed by the next export.
 """
 
 from __future__ import annotations
 
+import errno
 import io
 import json
 import os
+import re
 import shutil
 import tarfile
 from pathlib import Path
@@ -44,12 +50,16 @@ import numpy as np
 
 from simtest._io import atomic_write_json
 from simtest.dataset.reader import SimtestDataset
-from simtest.dataset.shards import DatasetError, decode_png
+from simtest.dataset.shards import DatasetError, DatasetWriteError, decode_png
 
 __all__ = ["FORMATS", "READ_HDF5", "READ_WEBDATASET", "export"]
 
 #: Export formats: name -> default folder suffix.
 FORMATS = ("webdataset", "hdf5")
+
+#: errno values that mean the export cannot be written (reported as one line, exit 4).
+_WRITE_ERRNOS = frozenset({errno.ENOSPC, errno.EDQUOT, errno.EROFS, errno.EACCES, errno.EPERM,
+                           errno.EFBIG, errno.EIO})
 
 _FIELDS = ("normals", "depth", "linear", "specular", "mask", "highlight_mask")
 
@@ -113,17 +123,46 @@ def _webdataset(ds: SimtestDataset, tmp: Path) -> int:
     return len(by_shard)
 
 
+def _write_file(path: Path, data: bytes) -> None:
+    """Write ``data`` to ``path`` (plain file I/O: a full disk is an OSError here)."""
+    with open(path, "wb") as fh:
+        fh.write(data)
+
+
 def _hdf5(ds: SimtestDataset, tmp: Path) -> int:
     for k in range(len(ds)):
         s = ds[k]
-        with h5py.File(tmp / f"{s['index']}.hdf5", "w", track_order=True) as f:
+        buf = io.BytesIO()  # built in memory: the HDF5 library never sees a failing disk
+        with h5py.File(buf, "w", track_order=True) as f:
             f.create_dataset("colors", data=decode_png(s["sensor_png"]), compression="gzip")
             for name in _FIELDS:
                 f.create_dataset(name, data=s[name], compression="gzip")
             f.create_dataset("record", data=json.dumps(s["record"], sort_keys=True))
             if "camera" in s["record"]:
                 f.create_dataset("camera", data=json.dumps(s["record"]["camera"], indent=2))
+        _write_file(tmp / f"{s['index']}.hdf5", buf.getvalue())
     return len(ds)
+
+
+def _pid_alive(pid: int) -> bool:
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except PermissionError:
+        return True
+    return True
+
+
+def _remove_stale(out: Path) -> None:
+    """Remove ``.<out>.<pid>.tmp`` / ``.old`` folders left by exports whose process is gone."""
+    pat = re.compile(re.escape(f".{out.name}.") + r"(\d+)\.(tmp|old)")
+    if not out.parent.is_dir():
+        return
+    for p in out.parent.iterdir():
+        m = pat.fullmatch(p.name)
+        if m and p.is_dir() and (int(m.group(1)) == os.getpid() or not _pid_alive(int(m.group(1)))):
+            shutil.rmtree(p, ignore_errors=True)
 
 
 def export(root, fmt: str, out=None) -> Path:
@@ -149,6 +188,9 @@ def export(root, fmt: str, out=None) -> Path:
     DatasetError
         Unknown format, incomplete dataset, manifest paths outside the folder, or an output
         folder that holds something else.
+    DatasetWriteError
+        The export cannot be written (disk full, read-only folder): one line; the temporary
+        folder is removed and an earlier export at ``out`` is left as it was.
     """
     if fmt not in FORMATS:
         raise DatasetError(f"--format {fmt!r}: not one of {', '.join(FORMATS)}")
@@ -157,10 +199,14 @@ def export(root, fmt: str, out=None) -> Path:
     if out.exists() and (not out.is_dir() or (any(out.iterdir()) and not (out / "export.json").is_file())):
         raise DatasetError(f"{out}: exists and is not a simtest export: refusing to replace it")
     ds = SimtestDataset(root, keys=("sensor_png", *_FIELDS), with_record=True)
+    _remove_stale(out)
     tmp = out.with_name(f".{out.name}.{os.getpid()}.tmp")
-    shutil.rmtree(tmp, ignore_errors=True)
-    tmp.mkdir(parents=True)
     old = out.with_name(f".{out.name}.{os.getpid()}.old")
+    try:
+        tmp.mkdir(parents=True)
+    except OSError as exc:
+        ds.close()
+        raise _write_error(exc, out) from None
     try:
         files = _webdataset(ds, tmp) if fmt == "webdataset" else _hdf5(ds, tmp)
         atomic_write_json(tmp / "export.json", {
@@ -172,10 +218,24 @@ def export(root, fmt: str, out=None) -> Path:
             out.rename(old)
         tmp.rename(out)
         shutil.rmtree(old, ignore_errors=True)
+    except OSError as exc:
+        shutil.rmtree(tmp, ignore_errors=True)
+        if exc.errno in _WRITE_ERRNOS or str(exc.filename or "").startswith(str(tmp)):
+            raise _write_error(exc, out) from None
+        raise DatasetError(f"{exc.filename or root}: cannot read: {exc.strerror or exc}") from None
     except BaseException:
         shutil.rmtree(tmp, ignore_errors=True)
         raise
     finally:
         ds.close()
     return out
+
+
+def _write_error(exc: OSError, out: Path) -> DatasetWriteError:
+    """One line for an export that could not be written."""
+    why = {errno.ENOSPC: "no space left on device", errno.EDQUOT: "disk quota exceeded",
+           errno.EROFS: "read-only file system", errno.EACCES: "permission denied",
+           errno.EPERM: "permission denied"}.get(exc.errno, exc.strerror or str(exc))
+    return DatasetWriteError(f"{out}: cannot write the export: {why}; nothing was left behind and "
+                             "an earlier export there is unchanged")
 

@@ -5,21 +5,48 @@ the calling process receives the samples and writes the shards (:class:`ShardWri
 output folder only needs to exist where :func:`generate` runs. Each sample is a pure function of
 ``(config.seed, index)`` (:func:`simtest.dataset.sample.render_sample`), which makes the dataset
 independent of the scheduler and the number of workers.
+
+Work kept as it arrives
+-----------------------
+Every sample whose shard is not yet complete is kept at once in the spool,
+``DIR/spool/<index:08d>.npz`` (its arrays, its record and their sha256; written to a temporary
+file and renamed), so a failure, a kill or a full disk loses at most the samples in flight, never
+more than one sample's render time (well under 30 s) of finished work. A rerun feeds the spooled
+samples of incomplete shards to the shard writer before rendering the rest; the shards it writes
+are byte-identical to an uninterrupted run's (the writer gets the same arrays and records, in
+index order). A shard's spool files are deleted once the shard is renamed into place, and the
+spool folder once the manifest is written. A spool file that does not read back or whose arrays
+no longer match their hashes is deleted and its sample rendered again.
+
+Interrupts
+----------
+SIGTERM is handled like Ctrl-C: the partial shard files are removed (the spool is kept), the
+local workers are stopped, and :class:`Interrupted` is raised (the command line exits 130). Local
+workers ask the kernel to kill them when their parent dies (Linux ``PR_SET_PDEATHSIG``), so even a
+SIGKILL of the parent leaves no worker running.
 """
 
 from __future__ import annotations
 
 import concurrent.futures as cf
 import contextlib
+import ctypes
 import dataclasses
 import errno
 import fcntl
+import hashlib
+import io
+import json
 import multiprocessing
 import os
 import resource
 import shutil
+import signal
 import socket
+import sys
+import threading
 import time
+import zipfile
 from collections import deque
 from concurrent.futures.process import BrokenProcessPool
 from dataclasses import dataclass, field
@@ -39,10 +66,12 @@ from rich.progress import (
 from rich.text import Text
 
 from simtest import __version__
-from simtest._io import atomic_write_text
+import numpy as np
+
+from simtest._io import atomic_write, atomic_write_text
 from simtest._lazy import require
 from simtest.dataset.config import DatasetConfig, load_config
-from simtest.dataset.sample import CHANNELS, mesh_sha256, render_sample
+from simtest.dataset.sample import CHANNELS, Sample, mesh_sha256, render_sample
 from simtest.dataset.shards import (
     CARD_NAME,
     FORMAT,
@@ -51,8 +80,12 @@ from simtest.dataset.shards import (
     SHARDS_DIR,
     TMP_SUFFIX,
     DatasetError,
+    DatasetWriteError,
     ShardWriter,
+    array_sha256,
+    card_sha256,
     check_shard,
+    file_sha256,
     read_card,
     read_shard_rows,
     shard_json_path,
@@ -61,7 +94,11 @@ from simtest.dataset.shards import (
     write_manifest,
 )
 
-__all__ = ["GenerateReport", "SampleError", "generate", "make_card"]
+__all__ = ["GenerateReport", "Interrupted", "SampleError", "DatasetWriteError", "SPOOL_DIR",
+           "generate", "make_card"]
+
+#: Folder of the dataset that keeps finished samples of incomplete shards (see the module notes).
+SPOOL_DIR = "spool"
 
 #: How long ``--scheduler`` waits for the Dask scheduler to answer (a reachable scheduler answers
 #: in milliseconds; a wrong address should fail within a few seconds).
@@ -83,6 +120,10 @@ class SampleError(RuntimeError):
     """A sample failed to render; the message names its index and the cause."""
 
 
+class Interrupted(RuntimeError):
+    """``generate`` was stopped by SIGTERM or Ctrl-C; finished samples are kept for a resume."""
+
+
 @dataclass
 class GenerateReport:
     """What a :func:`generate` call did.
@@ -97,6 +138,8 @@ class GenerateReport:
         Samples rendered and written by this call.
     skipped : int
         Samples in shards that were already complete.
+    resumed : int
+        Samples of incomplete shards taken from the spool instead of rendered again.
     seconds : float
         Wall time of the rendering phase.
     samples_per_s : float
@@ -114,6 +157,7 @@ class GenerateReport:
     count: int
     written: int = 0
     skipped: int = 0
+    resumed: int = 0
     seconds: float = 0.0
     samples_per_s: float = 0.0
     worker_peak_rss_mb: dict = field(default_factory=dict)
@@ -259,10 +303,17 @@ def _prepare(config: DatasetConfig, out: Path) -> set[int]:
     if card_path.exists():
         card = read_card(out)
         if card.get("config_fingerprint") != config.fingerprint():
-            raise DatasetError(
-                f"{out}: holds a dataset made with a different config (fingerprint "
-                f"{str(card.get('config_fingerprint'))[:12]} != {config.fingerprint()[:12]}); "
-                "use another --out or delete the folder")
+            if _json_equal(card.get("config"), config.to_dict()):
+                # The card's fingerprint was damaged but its config is this one: rewrite the card
+                # (the shards are checked against the config's fingerprint below).
+                write_json(card_path, make_card(config, status="incomplete"))
+            else:
+                raise DatasetError(
+                    f"{out}: holds a dataset made with a different config (its {CARD_NAME} names "
+                    f"fingerprint {str(card.get('config_fingerprint'))[:12]}, this config is "
+                    f"{config.fingerprint()[:12]}): pass the config it was made with to resume it, "
+                    "or use another --out")
+            card = read_card(out)
         now = make_card(config, status="incomplete")["meshes"]
         if card.get("meshes", {}) != now:
             raise DatasetError(
@@ -297,7 +348,20 @@ def _prepare(config: DatasetConfig, out: Path) -> set[int]:
     for p in out.iterdir():
         if p.name.endswith(TMP_SUFFIX):
             p.unlink()
+    spool = out / SPOOL_DIR
+    if spool.is_dir():
+        for p in spool.iterdir():
+            if p.name.endswith(TMP_SUFFIX):
+                p.unlink()
     return complete
+
+
+def _json_equal(a, b) -> bool:
+    """Whether two JSON-ready values are equal once written as canonical JSON."""
+    try:
+        return json.dumps(a, sort_keys=True) == json.dumps(b, sort_keys=True)
+    except (TypeError, ValueError):
+        return False
 
 
 def _finalise(config: DatasetConfig, out: Path) -> None:
@@ -326,8 +390,84 @@ def _finalise(config: DatasetConfig, out: Path) -> None:
               "highlights": n_hl, "highlights_in_frame": n_in,
               "shard_bytes": shard_bytes,
               "bytes_per_sample": round(shard_bytes / len(rows)) if rows else 0}
-    write_json(out / CARD_NAME, make_card(config, status="complete", counts=counts,
-                                          variants=sorted(variants)))
+    card = make_card(config, status="complete", counts=counts, variants=sorted(variants))
+    card["manifest_sha256"] = file_sha256(out / MANIFEST_NAME)
+    card["card_sha256"] = card_sha256(card)
+    write_json(out / CARD_NAME, card)
+    shutil.rmtree(out / SPOOL_DIR, ignore_errors=True)
+
+
+# ------------------------------------------------------------------------------------------------
+# spool: finished samples of incomplete shards
+
+
+def spool_path(out: Path, index: int) -> Path:
+    """The spool file of sample ``index``: ``out/spool/<index:08d>.npz``."""
+    return Path(out) / SPOOL_DIR / f"{int(index):08d}.npz"
+
+
+def _spool_write(out: Path, sample: Sample, fingerprint: str) -> None:
+    """Keep one finished sample (arrays, record, their sha256) in the spool, atomically."""
+    meta = {"config_fingerprint": fingerprint, "index": int(sample.index), "record": sample.record,
+            "record_sha256": _record_sha256(sample.record),
+            "sha256": {k: array_sha256(np.asarray(a)) for k, a in sample.arrays.items()},
+            "order": list(sample.arrays)}
+
+    def write(tmp: str) -> None:
+        with open(tmp, "wb") as fh:
+            np.savez(fh, __meta__=np.frombuffer(json.dumps(meta).encode(), dtype=np.uint8),
+                     **{f"a_{k}": np.asarray(a) for k, a in sample.arrays.items()})
+
+    atomic_write(spool_path(out, sample.index), write)
+
+
+def _record_sha256(record: dict) -> str:
+    return hashlib.sha256(json.dumps(record, sort_keys=True, separators=(",", ":")).encode()).hexdigest()
+
+
+def _spool_read(path: Path, fingerprint: str, index: int) -> Sample | None:
+    """The sample kept in ``path``, or None if it does not read back whole and unchanged."""
+    try:
+        with np.load(path, allow_pickle=False) as z:
+            meta = json.loads(z["__meta__"].tobytes().decode())
+            if meta.get("config_fingerprint") != fingerprint or meta.get("index") != index:
+                return None
+            arrays = {k: z[f"a_{k}"] for k in meta["order"]}
+    except (OSError, ValueError, KeyError, TypeError, zipfile.BadZipFile, EOFError):
+        return None
+    if any(array_sha256(a) != meta["sha256"].get(k) for k, a in arrays.items()):
+        return None
+    if _record_sha256(meta["record"]) != meta.get("record_sha256"):
+        return None
+    return Sample(index=index, arrays=arrays, record=meta["record"])
+
+
+def _spool_load(config: DatasetConfig, out: Path, todo: list[int]) -> dict[int, Sample]:
+    """Spooled samples of the incomplete shards ``todo``; every other spool file is deleted."""
+    d = Path(out) / SPOOL_DIR
+    if not d.is_dir():
+        return {}
+    wanted = {i for s in todo for i in config.shard_range(s)}
+    fp = config.fingerprint()
+    got: dict[int, Sample] = {}
+    for p in sorted(d.iterdir()):
+        stem = p.name.removesuffix(".npz")
+        keep = p.is_file() and p.name.endswith(".npz") and stem.isdigit() and int(stem) in wanted
+        sample = _spool_read(p, fp, int(stem)) if keep else None
+        if sample is None:
+            if p.is_dir():
+                shutil.rmtree(p)
+            else:
+                p.unlink()
+        else:
+            got[sample.index] = sample
+    return got
+
+
+def _spool_drop(out: Path, indices) -> None:
+    """Delete the spool files of ``indices`` (their shard is complete)."""
+    for i in indices:
+        spool_path(out, i).unlink(missing_ok=True)
 
 
 # ------------------------------------------------------------------------------------------------
@@ -346,7 +486,32 @@ def _run_task(sample_fn: Callable, config: DatasetConfig, index: int):
     return sample, f"{socket.gethostname()}:{os.getpid()}", rss_kib, time.process_time() - cpu0
 
 
-def _worker_init(threads: int) -> None:
+#: Linux prctl option: the signal the kernel sends this process when its parent dies.
+_PR_SET_PDEATHSIG = 1
+
+
+def _die_with_parent(parent_pid: int) -> None:
+    """Ask the kernel to SIGKILL this process when its parent dies (Linux; elsewhere a no-op).
+
+    Covers a SIGKILL of the parent, which no handler sees. If the parent died before the request
+    was made (the race the man page names), exit at once.
+    """
+    if not sys.platform.startswith("linux"):
+        return
+    try:
+        libc = ctypes.CDLL(None, use_errno=True)
+        libc.prctl(_PR_SET_PDEATHSIG, signal.SIGKILL, 0, 0, 0)
+    except (OSError, AttributeError):  # no prctl: the parent's SIGTERM handler still stops us
+        return
+    if os.getppid() != parent_pid:
+        os._exit(1)
+
+
+def _worker_init(threads: int, parent_pid: int | None = None) -> None:
+    if parent_pid is not None:
+        _die_with_parent(parent_pid)
+    # Ctrl-C reaches the whole process group: the parent stops the workers itself.
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
     os.environ[THREADS_ENV] = str(threads)
 
 
@@ -378,7 +543,7 @@ class _Pool:
         threads = max(1, (os.cpu_count() or 1) // workers)
         self.ex = cf.ProcessPoolExecutor(max_workers=workers,
                                          mp_context=multiprocessing.get_context("spawn"),
-                                         initializer=_worker_init, initargs=(threads,))
+                                         initializer=_worker_init, initargs=(threads, os.getpid()))
         self.sample_fn, self.config = sample_fn, config
 
     def submit(self, index: int):
@@ -388,7 +553,17 @@ class _Pool:
         return cf.wait(futures, return_when=cf.FIRST_COMPLETED).done
 
     def close(self, cancel: bool = False):
-        self.ex.shutdown(wait=True, cancel_futures=cancel)
+        if cancel:  # an error or an interrupt: stop the workers now, not after their renders
+            procs = list((getattr(self.ex, "_processes", None) or {}).values())
+            for p in procs:
+                with contextlib.suppress(OSError, AttributeError, ValueError):
+                    p.terminate()
+            self.ex.shutdown(wait=True, cancel_futures=True)
+            for p in procs:
+                with contextlib.suppress(OSError, AttributeError, ValueError):
+                    p.join(5)
+            return
+        self.ex.shutdown(wait=True)
 
 
 def _check_address(address: str) -> None:
@@ -510,8 +685,12 @@ def generate(
         Invalid config (nothing written).
     DatasetError
         ``out_dir`` holds something else (another config's dataset, unrelated files).
+    DatasetWriteError
+        The folder cannot be written (disk full, read-only); finished samples are kept.
     SampleError
-        A sample failed; complete shards are kept and a rerun resumes.
+        A sample failed; complete shards and the spooled samples are kept and a rerun resumes.
+    Interrupted
+        SIGTERM or Ctrl-C; workers stopped, finished samples kept, a rerun resumes.
     ValueError
         If ``workers < 1``.
 
@@ -536,19 +715,43 @@ def generate(
     # Connect to a cluster before writing anything: a wrong address leaves no folder behind.
     dask_ex = _Dask(sample_fn, config, scheduler) if scheduler is not None else None
     try:
-        with _locked(out):
+        with _locked(out), _sigterm_as_interrupt():
             return _generate(config, out, dask_ex, workers, sample_fn, progress, window)
+    except KeyboardInterrupt:
+        raise Interrupted(f"{out}: interrupted; finished samples are kept (shards and spool): rerun "
+                          "the same command to resume") from None
     except OSError as exc:  # full disk, read-only folder, ...: partial files are already removed
         if exc.errno not in _WRITE_ERRNOS and exc.filename is None:
             raise
         what = exc.strerror or str(exc)
         if exc.errno == errno.ENOSPC:
             what = "no space left on device"
-        raise DatasetError(f"{exc.filename or out}: cannot write: {what}; partial files removed, "
-                           "complete shards kept: free space and rerun to resume") from None
+        raise DatasetWriteError(f"{exc.filename or out}: cannot write: {what}; partial files removed, "
+                                "finished samples kept: free space and rerun to resume") from None
     finally:
         if dask_ex is not None:
             dask_ex.close()
+
+
+@contextlib.contextmanager
+def _sigterm_as_interrupt():
+    """While generating, SIGTERM raises KeyboardInterrupt in the main thread (cleanup runs)."""
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+
+    def handler(signum, frame):
+        raise KeyboardInterrupt
+
+    try:
+        previous = signal.signal(signal.SIGTERM, handler)
+    except (ValueError, OSError):
+        yield
+        return
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGTERM, previous)
 
 
 @contextlib.contextmanager
@@ -587,29 +790,43 @@ def _locked(out: Path):
 def _generate(config, out, dask_ex, workers, sample_fn, progress, window) -> GenerateReport:
     complete = _prepare(config, out)
     todo = [s for s in range(config.n_shards) if s not in complete]
-    indices = deque(i for s in todo for i in config.shard_range(s))
+    spooled = _spool_load(config, out, todo)
+    indices = deque(i for s in todo for i in config.shard_range(s) if i not in spooled)
     report = GenerateReport(out_dir=out, count=config.count,
-                            skipped=sum(len(config.shard_range(s)) for s in complete))
+                            skipped=sum(len(config.shard_range(s)) for s in complete),
+                            resumed=len(spooled))
+    fp = config.fingerprint()
+    meta = {"config_fingerprint": fp}
+    writers = {s: ShardWriter(out, s, config.shard_range(s), meta=meta, compress=config.compress)
+               for s in todo}
 
-    if indices:
-        n_workers = workers if workers is not None else (os.cpu_count() or 1)
-        if dask_ex is not None:
-            ex = dask_ex
-            n_workers = max(1, len(ex.client.nthreads()))
-        elif n_workers == 1:
-            ex = _Inline(sample_fn, config)
-        else:
-            ex = _Pool(sample_fn, config, n_workers)
-        window = window or (2 * n_workers + 2)
-        meta = {"config_fingerprint": config.fingerprint()}
-        writers = {s: ShardWriter(out, s, config.shard_range(s), meta=meta, compress=config.compress)
-                   for s in todo}
-        rss: dict[str, float] = {}
-        inflight: dict = {}
-        prog, task = _progress(progress, config.count, report.skipped)
-        t0 = time.perf_counter()
-        cancel = True
-        try:
+    def accept(sample, spool: bool) -> None:
+        shard = sample.index // config.shard_size
+        if writers[shard].add(sample):
+            del writers[shard]
+            _spool_drop(out, config.shard_range(shard))
+        elif spool:
+            _spool_write(out, sample, fp)
+
+    ex = None
+    cancel = True
+    try:
+        for i in sorted(spooled):
+            accept(spooled.pop(i), spool=False)
+        if indices:
+            n_workers = workers if workers is not None else (os.cpu_count() or 1)
+            if dask_ex is not None:
+                ex = dask_ex
+                n_workers = max(1, len(ex.client.nthreads()))
+            elif n_workers == 1:
+                ex = _Inline(sample_fn, config)
+            else:
+                ex = _Pool(sample_fn, config, n_workers)
+            window = window or (2 * n_workers + 2)
+            rss: dict[str, float] = {}
+            inflight: dict = {}
+            prog, task = _progress(progress, config.count, report.skipped + report.resumed)
+            t0 = time.perf_counter()
             with prog:
                 while indices or inflight:
                     while indices and len(inflight) < window:
@@ -629,22 +846,20 @@ def _generate(config, out, dask_ex, workers, sample_fn, progress, window) -> Gen
                         if sample.index != i:
                             raise SampleError(f"sample {i}: sample_fn returned index {sample.index}")
                         rss[who] = max(rss.get(who, 0.0), rss_kib / 1024.0)
-                        shard = i // config.shard_size
                         sample = dataclasses.replace(
                             sample, record={**sample.record, "split": config.split_of(i)})
-                        if writers[shard].add(sample):
-                            del writers[shard]
+                        accept(sample, spool=True)
                         report.written += 1
                         report.completed_at_s.append(time.perf_counter() - t0)
                         prog.advance(task)
-            cancel = False
-        finally:
-            for w in writers.values():
-                w.abort()
-            if ex is not dask_ex:
-                ex.close(cancel=cancel)
-        report.seconds = time.perf_counter() - t0
-        report.samples_per_s = report.written / report.seconds if report.seconds > 0 else 0.0
-        report.worker_peak_rss_mb = dict(sorted(rss.items()))
+            report.seconds = time.perf_counter() - t0
+            report.samples_per_s = report.written / report.seconds if report.seconds > 0 else 0.0
+            report.worker_peak_rss_mb = dict(sorted(rss.items()))
+        cancel = False
+    finally:
+        for w in writers.values():
+            w.abort()
+        if ex is not None and ex is not dask_ex:
+            ex.close(cancel=cancel)
     _finalise(config, out)
     return report

@@ -43,8 +43,11 @@ import numpy as np
 
 from simtest._lazy import require
 from simtest.dataset.shards import (
+    MANIFEST_NAME,
+    DatasetError,
     decode_png,
     entry_name,
+    labels_sha256,
     read_card,
     read_manifest,
     shard_path_from_row,
@@ -83,7 +86,9 @@ class SimtestDataset:
     ------
     DatasetError
         If ``root`` is not a complete dataset, or a manifest row names a shard file outside
-        ``root/shards`` (an absolute path or ``..``).
+        ``root/shards`` (an absolute path or ``..``); and from ``ds[i]`` when the sample's labels
+        (its manifest row) no longer match their ``labels_sha256`` (the message names the shard
+        and the sample; run ``simtest dataset verify DIR``).
     KeyError
         If ``keys`` names an unknown array, or ``split`` an unknown split.
 
@@ -121,6 +126,7 @@ class SimtestDataset:
         self.with_record = with_record
         self.max_open = max_open
         self._open: OrderedDict = OrderedDict()
+        self._checked: set[int] = set()
 
     def __len__(self) -> int:
         return len(self.rows)
@@ -148,9 +154,21 @@ class SimtestDataset:
             raise IndexError(f"sample {i} out of range 0..{n - 1}")
         return int(i)
 
+    def _row(self, i: int) -> dict:
+        """Row ``i``, once its labels are checked against their hash (edited labels are refused)."""
+        row = self.rows[i]
+        if i not in self._checked:
+            if row.get("labels_sha256") != labels_sha256(row):
+                raise DatasetError(
+                    f"{self.root / MANIFEST_NAME}: shard {row.get('shard')}, sample {row.get('index')}: "
+                    "labels differ from their labels_sha256 (edited or damaged): refused; run "
+                    f"`simtest dataset verify {self.root}`")
+            self._checked.add(i)
+        return row
+
     def __getitem__(self, i: int) -> dict:
         i = self._position(i)
-        row = self.rows[i]
+        row = self._row(i)
         z = self._shard(i)
         out: dict = {"index": int(row["index"])}
         for k in self.keys:
@@ -268,10 +286,18 @@ class TorchView:
         return len(self.dataset)
 
     def record(self, index: int) -> dict:
-        """The manifest row (labels, parameters, highlights) of the sample with dataset ``index``."""
-        for r in self.dataset.rows:
+        """The manifest row (labels, parameters, highlights) of the sample with dataset ``index``.
+
+        Raises
+        ------
+        DatasetError
+            If the row's labels no longer match their ``labels_sha256``.
+        IndexError
+            If no sample of this view has that index.
+        """
+        for k, r in enumerate(self.dataset.rows):
             if r["index"] == index:
-                return r
+                return self.dataset._row(k)
         raise IndexError(f"no sample {index} in this view")
 
     def __getitem__(self, i: int) -> dict:

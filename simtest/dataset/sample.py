@@ -6,6 +6,22 @@ Sample ``i`` of a dataset draws its parameters with
 and the highlight records (:func:`render_sample`). Nothing depends on the worker that runs it or on
 the other samples, so any sample can be regenerated alone and every scheduler gives the same bits.
 
+Poses without a defined truth (the redraw rule)
+-----------------------------------------------
+A drawn pose of an analytic family whose brightest point is undefined for some light is
+redrawn: today that is a cylinder whose drawn pose puts the camera inside the tube (its axis
+passes ``(distance_mm + radius_mm) cos(view_angle_deg)`` from the camera, less than the radius
+for a wide tube at a steep tilt); the camera then sees only the inside, which the one-sided
+surface leaves black, so the sample would have neither an image nor a label
+(:func:`truth_problem`). The family keeps its draw; every other parameter and the render seed are
+drawn again, in the same order, from child ``k`` of the sample's SeedSequence,
+``default_rng(SeedSequence([seed, i], spawn_key=(k - 1,)))``, for k = 1, 2, ... until the pose
+has a defined truth (at most :data:`MAX_REDRAWS` times), and the parameters record ``redraw = k``.
+A sample that needed no redraw is unchanged, and the rule is a pure function of ``(config, i)``,
+so workers and Dask agree. Where the truth is defined but holds no highlight (the BP beyond the
+cylinder's length, behind the camera, or the light inside the surface) the sample is kept with an
+empty ``highlights`` list, as before.
+
 Ground-truth isophote conics (tangent-plane model)
 --------------------------------------------------
 For every highlight and configured isovalue ``t`` the record holds the image conic of the
@@ -54,10 +70,16 @@ __all__ = [
     "Sample",
     "build_scene",
     "draw_parameters",
+    "MAX_REDRAWS",
     "isophote_record",
     "render_sample",
     "sample_rng",
+    "truth_problem",
 ]
+
+#: Most redraws of one sample (see the module notes): a family whose poses need more than that
+#: has a config that rarely gives a defined truth, reported as an error naming the family.
+MAX_REDRAWS = 100
 
 _RADIANCE_UNIT = "linear radiance (light_intensity x BRDF, / d^2 in mm when the falloff is kept)"
 
@@ -146,7 +168,9 @@ def draw_parameters(config: DatasetConfig, index: int) -> dict[str, Any]:
     """Draw the parameters of sample ``index`` (pure function of ``(config, index)``).
 
     The draw order is fixed: the family (weighted), then each parameter the family uses in the
-    order of :data:`simtest.dataset.config.PARAMS`, then the render seed.
+    order of :data:`simtest.dataset.config.PARAMS`, then the render seed. A pose without a
+    defined brightest point is redrawn from a child of the sample's SeedSequence (module notes,
+    "the redraw rule"; :func:`truth_problem`).
 
     Parameters
     ----------
@@ -159,12 +183,16 @@ def draw_parameters(config: DatasetConfig, index: int) -> dict[str, Any]:
     -------
     dict
         ``{"family": str, <param>: value, ..., "render_seed": int}``, JSON-ready; units as in
-        the parameter names (``_mm``, ``_deg``, ``_px``).
+        the parameter names (``_mm``, ``_deg``, ``_px``); plus ``"redraw": k`` (k >= 1) when
+        the pose was redrawn k times.
 
     Raises
     ------
     IndexError
         If ``index`` is outside ``0 .. config.count - 1``.
+    ValueError
+        If :data:`MAX_REDRAWS` redraws in a row have no defined truth (the config's family
+        almost never gives one).
     """
     if not 0 <= index < max(config.count, 1):
         raise IndexError(f"sample index {index} is outside 0..{config.count - 1}")
@@ -172,6 +200,25 @@ def draw_parameters(config: DatasetConfig, index: int) -> dict[str, Any]:
     names = [f for f, _ in config.families]
     w = np.array([w for _, w in config.families], dtype=np.float64)
     family = names[int(rng.choice(len(names), p=w / w.sum()))]
+    out = _draw_family(config, family, rng)
+    why = truth_problem(config, out)
+    k = 0
+    while why is not None:
+        k += 1
+        if k > MAX_REDRAWS:
+            raise ValueError(
+                f"sample {index}: {MAX_REDRAWS} draws in a row of family {family!r} have no defined "
+                f"brightest point (last: {why}); narrow params.{family} (e.g. view_angle_deg, "
+                "radius_mm) so that the camera stays outside the surface")
+        child = np.random.SeedSequence([int(config.seed), int(index)], spawn_key=(k - 1,))
+        out = _draw_family(config, family, np.random.default_rng(child))
+        out["redraw"] = k
+        why = truth_problem(config, out)
+    return out
+
+
+def _draw_family(config: DatasetConfig, family: str, rng: np.random.Generator) -> dict[str, Any]:
+    """The family's parameters in the order of :data:`PARAMS`, then the render seed, from ``rng``."""
     out: dict[str, Any] = {"family": family}
     dists = config.params[family]
     for p in PARAMS:
@@ -179,6 +226,52 @@ def draw_parameters(config: DatasetConfig, index: int) -> dict[str, Any]:
             out[p.name] = dists[p.name].draw(rng, integer=p.integer)
     out["render_seed"] = int(rng.integers(0, MAX_SEED))
     return out
+
+
+def truth_problem(config: DatasetConfig, params: dict) -> str | None:
+    """Why a drawn pose has no defined brightest point, or None when it has one (no rendering).
+
+    Runs the analytic truth (:func:`simtest.simulate.truth.sphere_highlight`,
+    :func:`~simtest.simulate.truth.cylinder_highlight`) of the sample's scene for every light of
+    its rig, as the renderer will; mesh families and planes always have a defined truth (a plane's
+    BP is closed form; a mesh's BPs are searched in the render).
+
+    Parameters
+    ----------
+    config : DatasetConfig
+        The validated config.
+    params : dict
+        Drawn parameters (:func:`draw_parameters`).
+
+    Returns
+    -------
+    str or None
+        The :class:`~simtest.simulate.truth.HighlightTruthError` message (e.g. the camera inside a
+        cylinder), or None.
+    """
+    if params["family"] not in ("spheres", "cylinders"):
+        return None
+    from simtest.render.endoscope import light_rig
+    from simtest.simulate.truth import HighlightTruthError, cylinder_highlight, sphere_highlight
+
+    spec = build_scene(config, params)
+    geo = spec.geometry
+    # Analytic families are built in the camera frame (build_scene sets no camera pose), and
+    # whether a BP exists does not depend on the intrinsics (they only place its pixel).
+    K, size = np.eye(3), (1, 1)
+    c = np.asarray(geo.center_mm, dtype=np.float64)
+    try:
+        for light in light_rig(spec, params["render_seed"]).lights:
+            pos = np.asarray(light.position_mm, dtype=np.float64)
+            if geo.type == "sphere":
+                sphere_highlight(c, geo.radius_mm, pos, K, size)
+            else:
+                axis = np.asarray(geo.axis if geo.axis is not None else (1.0, 0.0, 0.0), np.float64)
+                length = geo.length_mm if geo.length_mm is not None else 20.0 * geo.radius_mm
+                cylinder_highlight(c, axis, geo.radius_mm, length, pos, K, size)
+    except HighlightTruthError as exc:
+        return str(exc)
+    return None
 
 
 # ------------------------------------------------------------------------------------------------

@@ -32,11 +32,19 @@ config fingerprint of the dataset it belongs to and the sha256 of its rows' labe
 (:func:`shard_comment`): a shard copied in from a dataset with another seed or config is refused
 by ``generate`` (which rewrites it) and by ``verify``.
 
+The card ``dataset.json`` of a complete dataset carries ``manifest_sha256`` (the manifest file's
+sha256) and ``card_sha256``, the sha256 of its own canonical JSON without that key
+(:func:`card_sha256`), so an edited value anywhere in the card or the manifest fails ``verify``.
+Cards written before these keys existed are refused by ``verify`` with the remedy (a rerun of
+``generate`` with the same config and ``--out`` rewrites the card without rendering); the readers
+do not need them.
+
 Paths
 -----
-Manifest rows name their shard as ``shards/shard-XXXXX.npz``; the reader and ``verify`` refuse any
-other form (an absolute path, ``..``), so a manifest can never point outside the dataset folder
-(:func:`shard_path_from_row`).
+Manifest rows name their shard exactly as ``shards/shard-XXXXX.npz`` with the row's shard number
+(five digits or more, as :func:`shard_npz_path` writes it); the reader and ``verify`` refuse any
+other form (an absolute path, ``..``, another spelling of the number), so a manifest can never
+point outside the dataset folder nor at a file the writer did not make (:func:`shard_path_from_row`).
 """
 
 from __future__ import annotations
@@ -62,8 +70,10 @@ __all__ = [
     "FORMAT_VERSION",
     "MANIFEST_NAME",
     "DatasetError",
+    "DatasetWriteError",
     "ShardWriter",
     "array_sha256",
+    "card_sha256",
     "file_sha256",
     "labels_sha256",
     "read_card",
@@ -91,11 +101,18 @@ _ZIP_TIME = (1980, 1, 1, 0, 0, 0)
 #: (more than a fifth of a render), so they are stored; the sensor image is already a PNG.
 DEFLATED = frozenset({"mask", "highlight_mask", "specular"})
 #: The only form a manifest row's ``npz`` may take (relative, inside the dataset folder).
-_NPZ_REL = re.compile(r"shards/shard-(\d{5,})\.npz")
+_NPZ_REL = re.compile(r"shards/shard-([0-9]{5,})\.npz")
 
 
 class DatasetError(RuntimeError):
     """A dataset folder cannot be written or read; the message names the path."""
+
+
+class DatasetWriteError(DatasetError):
+    """An output cannot be written (disk full, read-only, quota); one line naming it.
+
+    What was there before is left intact and the temporary files are removed.
+    """
 
 
 def array_sha256(a: np.ndarray) -> str:
@@ -159,6 +176,24 @@ def labels_sha256(row: dict) -> str:
     return hashlib.sha256(json.dumps(body, sort_keys=True, separators=(",", ":")).encode()).hexdigest()
 
 
+def card_sha256(card: dict) -> str:
+    """sha256 of a dataset card: its canonical JSON without the ``card_sha256`` key.
+
+    Parameters
+    ----------
+    card : dict
+        The card (``dataset.json``) as read or about to be written.
+
+    Returns
+    -------
+    str
+        64 hex digits of ``sha256(json.dumps(card, sort_keys=True, separators=(",", ":")))``
+        over every key but ``card_sha256``.
+    """
+    body = {k: v for k, v in card.items() if k != "card_sha256"}
+    return hashlib.sha256(json.dumps(body, sort_keys=True, separators=(",", ":")).encode()).hexdigest()
+
+
 def shard_comment(shard: int, fingerprint: str, label_hashes: Iterable[str]) -> bytes:
     """The zip comment of a shard file: what binds it to its dataset.
 
@@ -207,9 +242,12 @@ def shard_path_from_row(root: Path, row: dict) -> Path:
     if m is None:
         raise DatasetError(f"{Path(root) / MANIFEST_NAME}: sample {row.get('index')}: npz {rel!r} is not "
                            "of the form shards/shard-XXXXX.npz inside the dataset folder: refused")
-    if int(m.group(1)) != row.get("shard"):
+    shard = row.get("shard")
+    if not (isinstance(shard, int) and not isinstance(shard, bool) and shard >= 0
+            and rel == f"{SHARDS_DIR}/{shard_npz_path(Path('.'), shard).name}"):
         raise DatasetError(f"{Path(root) / MANIFEST_NAME}: sample {row.get('index')}: npz {rel!r} is not "
-                           f"the file of its shard {row.get('shard')!r}")
+                           f"the file of its shard {shard!r} (expected shards/shard-"
+                           f"{shard if isinstance(shard, int) else 0:05d}.npz)")
     return Path(root) / rel
 
 

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import hashlib
+import json
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -14,13 +16,16 @@ from simtest.dataset.shards import (
     TMP_SUFFIX,
     DatasetError,
     array_sha256,
+    card_sha256,
     check_shard,
     decode_png,
     entry_name,
+    file_sha256,
     labels_sha256,
     read_card,
     read_manifest,
     read_shard_rows,
+    shard_json_path,
     shard_npz_path,
     shard_path_from_row,
 )
@@ -144,8 +149,12 @@ def _check_sample(rep: VerifyReport, where: str, row: dict, arrays: dict) -> Non
 def verify(root, *, check_arrays: bool = True) -> VerifyReport:
     """Check a dataset folder.
 
-    Checks the card, that the manifest lists exactly samples 0 .. count-1 once each, each naming
-    its shard as ``shards/shard-XXXXX.npz`` (nothing outside the folder); that every shard's row
+    Checks the card (its ``card_sha256`` over every value, its ``manifest_sha256`` against the
+    manifest file, its ``config_fingerprint`` against its config: a damaged fingerprint is one
+    problem of the card, not of every shard), that the manifest lists exactly samples 0 .. count-1
+    once each, each naming its shard exactly as ``shards/shard-XXXXX.npz`` (nothing outside the
+    folder, no other spelling of the number; shards counted as numbers, so any number of shards
+    verifies), that ``shards/`` holds no other file, that no spool is left; that every shard's row
     file names this dataset's config fingerprint, every row's labels match their
     ``labels_sha256``, every shard file's sha256 matches its row file and its zip comment names this
     dataset (a shard from a dataset with another seed or config fails); that every array's sha256,
@@ -206,6 +215,20 @@ def _verify(rep: VerifyReport, root: Path, card: dict, rows: list, check_arrays:
             and isinstance(n_shards, int) and isinstance(fp, str)):
         add(f"{card_path}: count, shard_size, n_shards or config_fingerprint missing or not valid")
         return
+    if "card_sha256" not in card:
+        add(f"{card_path}: no card_sha256 (a card written by an older simtest, or the key was "
+            "removed): rerun `simtest dataset generate` with the same config and --out to rewrite "
+            "the card (nothing is rendered again)")
+    elif card.get("card_sha256") != card_sha256(card):
+        add(f"{card_path}: a value differs from its card_sha256: the card was edited or damaged")
+    if "manifest_sha256" in card:
+        try:
+            if file_sha256(man_path) != card["manifest_sha256"]:
+                add(f"{man_path}: sha256 differs from {CARD_NAME}'s manifest_sha256: the manifest "
+                    "was edited or damaged")
+        except OSError as exc:
+            add(f"{man_path}: unreadable: {exc}")
+    fp = _shard_fingerprint(add, root, card, fp, n_shards)
     if card.get("status") != "complete":
         add(f"{card_path}: status is {card.get('status')!r}, not 'complete'")
     bad_rows = [k for k, r in enumerate(rows, 1) if not isinstance(r, dict)]
@@ -232,8 +255,9 @@ def _verify(rep: VerifyReport, root: Path, card: dict, rows: list, check_arrays:
             add(str(exc))
             continue
         by_shard.setdefault(r.get("shard"), []).append(r)
-    if sorted(by_shard, key=str) != list(range(n_shards)):
-        add(f"{man_path}: shards {sorted(by_shard, key=str)[:10]}..., expected 0..{n_shards - 1}")
+    named = sorted(by_shard)  # ints: shard_path_from_row refused every other kind
+    if named != list(range(n_shards)):
+        add(f"{man_path}: rows name shards {_ranges(named)}, expected 0..{n_shards - 1}")
 
     for s in range(n_shards):
         rep.shards += 1
@@ -251,13 +275,60 @@ def _verify(rep: VerifyReport, root: Path, card: dict, rows: list, check_arrays:
             raise
         except Exception as exc:  # noqa: BLE001 - a damaged file is a problem to report, not a crash
             add(f"{npz}: unreadable: {type(exc).__name__}: {exc}")
+    standard = {f(root, s).name for s in range(n_shards) for f in (shard_npz_path, shard_json_path)}
     for p in list((root / SHARDS_DIR).glob("*")) + list(root.glob("*")):
         if p.name.endswith(TMP_SUFFIX):
             add(f"{p}: temporary file left over")
-        elif p.parent.name == SHARDS_DIR and p.suffix in (".npz", ".json"):
-            num = p.stem.removeprefix("shard-")
-            if not num.isdigit() or int(num) >= n_shards:
-                add(f"{p}: unexpected shard file")
+        elif p.parent.name == SHARDS_DIR and p.name not in standard:
+            add(f"{p}: unexpected file in {SHARDS_DIR}/ (the shards are shard-00000.npz .. "
+                f"{shard_npz_path(root, max(n_shards - 1, 0)).name} with their .json)")
+        elif p.parent == root and p.name == "spool":
+            add(f"{p}: spooled samples left over: the generation did not finish (rerun it)")
+
+
+def _ranges(nums: list) -> str:
+    """``[0, 1, 2, 5, 7, 8]`` as ``"0-2, 5, 7-8"`` (at most 10 runs shown)."""
+    runs: list[list[int]] = []
+    for n in nums:
+        if runs and n == runs[-1][1] + 1:
+            runs[-1][1] = n
+        else:
+            runs.append([n, n])
+    text = ", ".join(f"{a}-{b}" if b > a else f"{a}" for a, b in runs[:10])
+    return text + (", ..." if len(runs) > 10 else "") if runs else "none"
+
+
+def _shard_fingerprint(add, root: Path, card: dict, fp: str, n_shards: int) -> str:
+    """The config fingerprint the shards are checked against, reporting a damaged card once.
+
+    The card's ``config_fingerprint`` must be the sha256 of its ``config``
+    (:meth:`simtest.dataset.config.DatasetConfig.fingerprint`); if it is not, that is one problem
+    of the card and the shards are checked against the config's fingerprint. If two or more
+    shards all name one fingerprint that is not that one, the card does not belong to its shards:
+    one problem, and the shards are checked against their own.
+    """
+    card_path = root / CARD_NAME
+    try:
+        text = json.dumps(card.get("config"), sort_keys=True, separators=(",", ":"))
+        of_config = hashlib.sha256(text.encode()).hexdigest()
+    except (TypeError, ValueError):
+        of_config = None
+    if of_config is not None and of_config != fp:
+        add(f"{card_path}: config_fingerprint {fp[:12]} is not the fingerprint of the card's config "
+            f"({of_config[:12]}): the card was edited or damaged; rerun `simtest dataset generate` "
+            "with the dataset's config and --out to repair it")
+        fp = of_config
+    named = set()
+    for s in range(n_shards):
+        doc = read_shard_rows(root, s)
+        named.add(doc.get("config_fingerprint") if isinstance(doc, dict) else None)
+    named.discard(None)
+    if n_shards >= 2 and len(named) == 1 and fp not in named:
+        theirs = str(next(iter(named)))
+        add(f"{card_path}: its config (fingerprint {fp[:12]}) is not the one all {n_shards} shards were "
+            f"made with ({theirs[:12]}): the card was edited or replaced")
+        fp = theirs
+    return fp
 
 
 def _verify_shard(add, rep: VerifyReport, npz: Path, doc: dict, manifest_rows: dict,

@@ -8,8 +8,22 @@ co-located light it is where the normal is parallel to the viewing ray.
 - Plane: mirror the light in the plane; the BP is where the segment from the camera to the mirror
   image crosses the plane (closed form).
 - Sphere, cylinder: closed form with a co-located light; otherwise the stationarity condition (the
-  tangential part of h vanishes) solved with :func:`scipy.optimize.root` on the analytic surface,
-  and checked: :class:`HighlightTruthError` when the solve does not reach a BP.
+  tangential part of h vanishes) solved with :func:`scipy.optimize.root` from the co-located BP
+  and checked; where that solve does not land on the BP, the BP is found robustly as the
+  minimiser of the light path ``|X| + |L - X|`` over the surface (:func:`circle_reflection`),
+  which reduces to a bracketed 1-D root on a circle. :class:`HighlightTruthError` when the camera
+  is inside the surface (it then sees only the inside, which the one-sided BSDFs leave unlit) or
+  when even that solve fails; None (no highlight) when no point of the surface faces both the
+  camera and the light.
+
+Why the path minimiser is the BP (camera and light outside a convex body, Fermat's principle):
+the gradient of ``f(X) = |X| + |L - X|`` is ``-2 cos(g/2) h(X)``, so a point of the surface where
+the outward normal equals h is stationary, and the ellipsoid ``f <= f(X)`` (foci camera and
+light) touches the tangent plane there from the outside; the body lies on the other side, so the
+point is the unique minimiser of f over the body. Conversely the minimiser over the body is on its
+surface (when the segment from the camera to the light misses the body) and has n = h. On a sphere
+it lies in the plane of the centre, the camera and the light; on a cylinder, unfolding along the
+axis leaves the circle of the cross-section: both are Alhazen's problem on a circle.
 - Saddle: the grid mesh of ``z = d + x^2 / (2 r1) - y^2 / (2 r2)`` with its analytic normals and
   principal curvatures (:func:`saddle_mesh`); the renderer finds its BPs as for any mesh
   (:func:`simtest.render.truth.mesh_highlights`).
@@ -40,6 +54,7 @@ __all__ = [
     "HighlightTruthError",
     "STATIONARY_RESIDUAL_TOL",
     "bisector",
+    "circle_reflection",
     "pixel_in_frame",
     "plane_highlight",
     "sphere_highlight",
@@ -242,14 +257,145 @@ def _solve_stationary(surface: Callable[[np.ndarray], tuple[np.ndarray, np.ndarr
     return x
 
 
+#: Grid of start angles of :func:`circle_reflection`: the minimiser of the path length lies within
+#: one grid step of the grid's best point (the path length is unimodal on the arc facing both
+#: points, and the grid holds the direction of the first point itself, where a camera very near
+#: the circle puts the minimiser); 256 steps of 1.4 deg cost ~20 us.
+_CIRCLE_GRID = 256
+
+
+def circle_reflection(a: np.ndarray, b: np.ndarray, radius: float) -> np.ndarray | None:
+    """Alhazen's problem: the point of a circle where a ray from ``a`` reflects to ``b``.
+
+    The circle has its centre at the origin; the point returned minimises the path length
+    ``|P - a| + |P - b|`` over the circle, i.e. the point of the closed disk nearest to both in
+    that sense, where the outward normal bisects the directions to ``a`` and ``b`` (see the
+    module notes). Found by a grid of :data:`_CIRCLE_GRID` angles around the circle (from the
+    direction of ``a``) and :func:`scipy.optimize.brentq` on the derivative of the path length
+    between the best grid point's neighbours, so it never leaves the right basin.
+
+    Parameters
+    ----------
+    a, b : array_like of shape (2,)
+        The two points (camera and light), outside the circle, in the circle's plane (any
+        length unit, the same as ``radius``).
+    radius : float
+        Circle radius, > 0.
+
+    Returns
+    -------
+    ndarray of shape (2,) or None
+        Unit direction ``w`` of the point ``radius * w`` from the centre; None when the segment
+        from ``a`` to ``b`` meets the closed disk (no point of the circle faces both).
+
+    Raises
+    ------
+    ValueError
+        If ``a`` or ``b`` is inside the circle or on it, or the bracket fails (not seen: it
+        would mean a non-unimodal path length near its minimum).
+    """
+    a = np.asarray(a, dtype=np.float64)
+    b = np.asarray(b, dtype=np.float64)
+    R = float(radius)
+    if not (np.hypot(*a) > R and np.hypot(*b) > R):
+        raise ValueError(f"circle_reflection: points {a.tolist()}, {b.tolist()} must lie outside the "
+                         f"circle of radius {R:g}")
+    ab = b - a
+    L2 = float(ab @ ab)
+    t = 0.0 if L2 == 0.0 else min(1.0, max(0.0, float(-(a @ ab) / L2)))
+    if np.hypot(*(a + t * ab)) <= R:
+        return None
+    phi = math.atan2(a[1], a[0])
+
+    def path(x):
+        th = phi + x
+        P = R * np.stack([np.cos(th), np.sin(th)], axis=-1)
+        return np.linalg.norm(P - a, axis=-1) + np.linalg.norm(P - b, axis=-1)
+
+    def slope(x):  # d/dx of path(x): the tangent times the sum of the unit vectors from a and b
+        th = phi + x
+        w = np.array([math.cos(th), math.sin(th)])
+        P = R * w
+        da, db = P - a, P - b
+        g = da / math.hypot(*da) + db / math.hypot(*db)
+        return R * (-w[1] * g[0] + w[0] * g[1])
+
+    grid = np.linspace(-math.pi, math.pi, _CIRCLE_GRID, endpoint=False)
+    k = int(np.argmin(path(grid)))
+    step = 2.0 * math.pi / _CIRCLE_GRID
+    lo, hi = grid[k] - step, grid[k] + step
+    glo, ghi = slope(lo), slope(hi)
+    if glo == 0.0:
+        x = lo
+    elif ghi == 0.0:
+        x = hi
+    elif glo < 0.0 < ghi:
+        # xtol far below 1e-15: the root sits ~d/R from 0 for a camera d from a circle of radius
+        # R, and needs float64's relative precision there too.
+        try:
+            x = optimize.brentq(slope, lo, hi, xtol=1e-22, rtol=4.0 * np.finfo(float).eps, maxiter=400)
+        except RuntimeError as exc:  # not converged within maxiter: not seen
+            raise ValueError(f"circle_reflection: {exc}") from None
+    else:
+        raise ValueError(f"circle_reflection: no bracket around the grid's best angle "
+                         f"(slopes {glo:.3g}, {ghi:.3g})")
+    return np.array([math.cos(phi + x), math.sin(phi + x)])
+
+
+def _facing(p: np.ndarray, n: np.ndarray, light: np.ndarray) -> tuple[float, float]:
+    """(residual, cos) of a candidate BP: the sine of the angle between n and h, and ``n . h``."""
+    h = bisector(p, light)
+    return float(np.linalg.norm(h - np.dot(h, n) * n)), float(np.dot(h, n))
+
+
+def _robust_bp(what: str, solve, surface, light: np.ndarray, first: HighlightTruthError):
+    """The BP from the path-length minimiser after a failed root solve from the co-located BP.
+
+    ``solve() -> x or None`` gives the minimiser's parameters in ``surface``'s parametrisation
+    (None: no point faces both). The point is polished by the root solve started there (a camera
+    a fraction of a millimetre from a large sphere amplifies the angle's round-off ~R/d times in
+    the residual); the candidate with the smaller residual is kept and checked like the root solve.
+
+    Returns
+    -------
+    tuple of ndarray or None
+        ``(p, n)``, or None when no point faces both the camera and the light.
+
+    Raises
+    ------
+    HighlightTruthError
+        Naming ``first`` (the failed root solve) and why the minimiser failed too.
+    """
+    try:
+        x = solve()
+    except ValueError as exc:
+        raise HighlightTruthError(f"{first}; the path-length minimiser failed too: {exc}") from None
+    if x is None:
+        return None
+    cands = [surface(x)]
+    try:
+        cands.append(surface(_solve_stationary(surface, np.asarray(x, dtype=np.float64), light, what)))
+    except HighlightTruthError:
+        pass
+    scored = sorted(((*_facing(p, n, light), k) for k, (p, n) in enumerate(cands)))
+    res, cos, k = scored[0]
+    if not (res <= STATIONARY_RESIDUAL_TOL and cos > 0.0):
+        raise HighlightTruthError(f"{first}; the path-length minimiser gives residual {res:.3g}, "
+                                  f"n . h = {cos:.4g}")
+    return cands[k]
+
+
 def sphere_highlight(center: np.ndarray, radius: float, light: np.ndarray, K: np.ndarray,
                      size: tuple[int, int]) -> HighlightTruth | None:
     """BP of a sphere seen from outside (normals outward, k1 = k2 = +1/R).
 
     Co-located light (``light`` all zeros): the point of the sphere nearest the camera centre,
     closed form. Otherwise the point where the outward normal bisects the directions to the camera
-    and the light (:func:`bisector`), solved with :func:`scipy.optimize.root` (hybr) in a tangent
-    parametrisation around the nearest point and checked (see :data:`STATIONARY_RESIDUAL_TOL`).
+    and the light (:func:`bisector`): solved with :func:`scipy.optimize.root` (hybr) in a tangent
+    parametrisation around the nearest point and checked (see :data:`STATIONARY_RESIDUAL_TOL`);
+    where that solve does not land on the BP, it is the minimiser of the light path in the plane of
+    the centre, the camera and the light (:func:`circle_reflection`; module notes), checked the
+    same way. Both give the same point where both succeed (the facing stationary point is unique).
 
     Parameters
     ----------
@@ -267,18 +413,26 @@ def sphere_highlight(center: np.ndarray, radius: float, light: np.ndarray, K: np
     Returns
     -------
     HighlightTruth or None
-        None when the light is inside the sphere (or on it) and the camera outside: the side the
-        camera sees is then unlit.
+        None when the light is inside the sphere (or on it) and the camera outside (the side the
+        camera sees is then unlit), or when the segment from the camera to the light crosses the
+        sphere (no point faces both).
 
     Raises
     ------
     HighlightTruthError
-        If the root solve does not converge to a point whose normal bisects the two directions.
+        If the camera is inside the sphere or on it (it sees only the inside, unlit by the
+        one-sided BSDFs), or if neither solve reaches a point whose normal bisects the two
+        directions (not seen over the property tests' draws).
     """
     c = np.asarray(center, dtype=np.float64)
     L = np.asarray(light, dtype=np.float64)
     if np.linalg.norm(L - c) <= radius < np.linalg.norm(c):
         return None  # light inside, camera outside: the side the camera sees is unlit
+    what = f"sphere (centre {np.round(c, 4).tolist()} mm, R {radius:g} mm)"
+    if not np.linalg.norm(c) > radius:
+        raise HighlightTruthError(f"{what}: the camera is inside the sphere (centre at "
+                                  f"{np.linalg.norm(c):.4g} mm <= R): it sees only the inside, which "
+                                  "the one-sided surface leaves unlit; no brightest point")
     n0 = -unit(c, axis=-1)
     k = 1.0 / radius
     if not np.any(L):  # exactly co-located (allclose would take a 1e-8 mm offset for none)
@@ -290,9 +444,28 @@ def sphere_highlight(center: np.ndarray, radius: float, light: np.ndarray, K: np
         n = unit(n0 + x[0] * e1 + x[1] * e2, axis=-1)
         return c + radius * n, n
 
-    x = _solve_stationary(surface, np.zeros(2), L,
-                          what=f"sphere (centre {np.round(c, 4).tolist()} mm, R {radius:g} mm)")
-    p, n = surface(x)
+    def minimiser():  # parameters of surface(): the tangent-plane coordinates of the normal
+        w = L - c
+        wp = w - np.dot(w, n0) * n0
+        if np.linalg.norm(wp) <= 1e-15 * np.linalg.norm(w):  # light on the line of camera and centre
+            return np.zeros(2) if np.dot(w, n0) > radius else None
+        f2 = unit(wp, axis=-1)
+        om = circle_reflection([np.linalg.norm(c), 0.0], [np.dot(w, n0), np.dot(w, f2)], radius)
+        if om is None:
+            return None
+        if not om[0] > 0.0:  # beyond the tangent parametrisation (the far hemisphere)
+            raise ValueError(f"the minimiser lies {math.degrees(math.acos(om[0])):.1f} deg from the "
+                             "point nearest the camera")
+        n = om[0] * n0 + om[1] * f2
+        return np.array([np.dot(n, e1), np.dot(n, e2)]) / om[0]
+
+    try:
+        p, n = surface(_solve_stationary(surface, np.zeros(2), L, what=what))
+    except HighlightTruthError as first:
+        got = _robust_bp(what, minimiser, surface, L, first)
+        if got is None:
+            return None
+        p, n = got
     return _highlight(p, n, k, k, K, size)
 
 
@@ -302,8 +475,13 @@ def cylinder_highlight(center: np.ndarray, axis: np.ndarray, radius: float, leng
 
     Co-located light: the point of the generator line nearest the camera centre, closed form.
     Otherwise the point where the outward normal bisects the directions to the camera and the light
-    (:func:`bisector`), solved with :func:`scipy.optimize.root` over (position along the axis,
-    angle around it) and checked (see :data:`STATIONARY_RESIDUAL_TOL`).
+    (:func:`bisector`): solved with :func:`scipy.optimize.root` over (position along the axis,
+    angle around it) from the co-located BP and checked (see :data:`STATIONARY_RESIDUAL_TOL`);
+    where that solve does not land on the BP, it is the minimiser of the light path: unfolded along
+    the axis, the angle solves Alhazen's problem on the cross-section's circle
+    (:func:`circle_reflection`) and the position along the axis divides the camera's and the
+    light's axial positions in the ratio of their distances to the point's generator line; checked
+    the same way.
 
     Parameters
     ----------
@@ -325,14 +503,18 @@ def cylinder_highlight(center: np.ndarray, axis: np.ndarray, radius: float, leng
     Returns
     -------
     HighlightTruth or None
-        None when the BP of the infinite cylinder lies beyond the finite length, or when the light
-        is inside the cylinder and the camera outside (the side the camera sees is then unlit).
+        None when the BP of the infinite cylinder lies beyond the finite length, when the light
+        is inside the cylinder and the camera outside (the side the camera sees is then unlit), or
+        when the segment from the camera to the light crosses the cylinder (no point faces both).
 
     Raises
     ------
     HighlightTruthError
-        If the root solve does not converge to a point whose normal bisects the two directions
-        (e.g. the camera or light inside the cylinder, or the axis nearly along the view).
+        If the camera is inside the (infinite) cylinder or on it: it sees only the inside of the
+        tube, which the one-sided BSDFs leave unlit, so there is no brightest point (the dataset
+        sampler redraws such poses: :func:`simtest.dataset.sample.draw_parameters`); or if
+        neither solve reaches a point whose normal bisects the two directions (not seen over the
+        property tests' draws).
     """
     c = np.asarray(center, dtype=np.float64)
     a = unit(axis, axis=-1)
@@ -344,7 +526,13 @@ def cylinder_highlight(center: np.ndarray, axis: np.ndarray, radius: float, leng
 
     if inside(L) and not inside(np.zeros(3)):
         return None  # light inside the tube, camera outside: the side the camera sees is unlit
+    what = f"cylinder (axis through {np.round(c, 4).tolist()} mm, R {radius:g} mm)"
     q = c - np.dot(c, a) * a  # foot of the perpendicular from the camera centre to the axis
+    if not np.linalg.norm(q) > radius:
+        raise HighlightTruthError(
+            f"{what}: the camera is inside the cylinder ({np.linalg.norm(q):.4g} mm from its axis "
+            f"<= R): it sees only the inside of the tube, which the one-sided surface leaves unlit; "
+            "no brightest point")
     n0 = unit(-q, axis=-1)
     s0 = np.dot(q - c, a)
     if np.any(L):
@@ -354,10 +542,25 @@ def cylinder_highlight(center: np.ndarray, axis: np.ndarray, radius: float, leng
             n = math.cos(x[1]) * n0 + math.sin(x[1]) * e
             return c + (s0 + x[0]) * a + radius * n, n
 
-        x = _solve_stationary(surface, np.zeros(2), L,
-                              what=f"cylinder (axis through {np.round(c, 4).tolist()} mm, R {radius:g} mm)")
-        p, n = surface(x)
-        s = s0 + x[0]
+        def minimiser():
+            uc = np.array([np.linalg.norm(q), 0.0])  # the camera in the cross-section (n0, e)
+            w = L - c
+            ul = np.array([np.dot(w, n0), np.dot(w, e)])
+            om = circle_reflection(uc, ul, radius)
+            if om is None:
+                return None
+            d1, d2 = np.hypot(*(radius * om - uc)), np.hypot(*(radius * om - ul))
+            tc, tl = -np.dot(c, a), np.dot(w, a)
+            return np.array([tc + (tl - tc) * d1 / (d1 + d2) - s0, math.atan2(om[1], om[0])])
+
+        try:
+            p, n = surface(_solve_stationary(surface, np.zeros(2), L, what=what))
+        except HighlightTruthError as first:
+            got = _robust_bp(what, minimiser, surface, L, first)
+            if got is None:
+                return None
+            p, n = got
+        s = float(np.dot(p - c, a))
     else:
         p, n, s = q + radius * n0, n0, s0
     if abs(s) > 0.5 * length:
