@@ -504,6 +504,8 @@ def test_failed_stationary_solve_is_an_error(monkeypatch):
 
     with monkeypatch.context() as m:
         m.setattr(scipy.optimize, "root", stalled_root)
+        # the fallback (the light-path minimiser) must fail too for the error to be raised
+        m.setattr(truth, "circle_reflection", lambda a, b, r: np.array([0.6, 0.8]))
         with pytest.raises(truth.HighlightTruthError, match=r"sphere .*residual .* > 1e-12.*status 5"):
             truth.sphere_highlight(c, 20.0, L, K, (128, 128))
         with pytest.raises(truth.HighlightTruthError, match=r"cylinder .*status 5"):
