@@ -12,7 +12,7 @@ Examples
 >>> require("no_such_backend")
 Traceback (most recent call last):
 ...
-ValueError: simtest._lazy.require: 'no_such_backend' is not one of the optional back-ends (dask, distributed, drjit, mitsuba, pyvista, torch)
+ValueError: simtest._lazy.require: 'no_such_backend' is not one of the optional back-ends (dask, distributed, drjit, mitsuba, pyvista, torch, vtkmodules)
 """
 
 from __future__ import annotations
@@ -31,6 +31,7 @@ BACKENDS: dict[str, str | None] = {
     "dask": "dask",
     "distributed": "dask",
     "pyvista": None,
+    "vtkmodules": None,  # VTK, which pyvista brings: its logger is silenced for the 3D views
     "torch": "torch",
 }
 

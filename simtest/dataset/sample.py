@@ -59,10 +59,12 @@ from simtest.dataset.config import PARAMS, DatasetConfig
 from simtest.geometry.angles import unit
 from simtest.geometry.conics import conic_kind, conic_to_ellipse, project_circle
 from simtest.render import render_scene
+from simtest.render.endoscope import light_rig
 from simtest.render.sensor import apply_sensor, video_frame
 from simtest.scene import bundled_mesh_path
 from simtest.scene.poses import colon_pose, liver_surface_pose
 from simtest.scene.spec import scene_from_dict, scene_to_dict
+from simtest.simulate.truth import HighlightTruthError, cylinder_highlight, sphere_highlight
 from simtest.specular import isophote_radius
 
 __all__ = [
@@ -251,9 +253,6 @@ def truth_problem(config: DatasetConfig, params: dict) -> str | None:
     """
     if params["family"] not in ("spheres", "cylinders"):
         return None
-    from simtest.render.endoscope import light_rig
-    from simtest.simulate.truth import HighlightTruthError, cylinder_highlight, sphere_highlight
-
     spec = build_scene(config, params)
     geo = spec.geometry
     # Analytic families are built in the camera frame (build_scene sets no camera pose), and

@@ -20,9 +20,12 @@ from rich.progress import Progress
 
 from simtest import __version__
 from simtest.evaluate.c3vd import load_frame, scan_sequence
+from simtest.evaluate.detection import (detection_figure, evaluate_frames, labelled_real_frames,
+                                        rendered_frames)
 from simtest.evaluate.report import SCHEMA, SCHEMA_VERSION, render_html
 from simtest.evaluate.score import score_highlights, summarise
 from simtest.geometry.camera_file import load_camera
+from simtest.harness.report.figures import figure_png
 from simtest._exit import BAD_INPUT, fail
 from simtest.reconstruct.cli import check_out_folder, write_out_folder
 from simtest.reconstruct.io import estimate_to_dict
@@ -139,10 +142,6 @@ def detection_command(
     (every frame's counts and scores, and where each candidate fell), OUT/report.md (the table)
     and OUT/detection.png (each frame with its hits, false positives and misses). Exit status 2:
     bad input; 4: OUT cannot be written."""
-    from simtest.evaluate.detection import (detection_figure, evaluate_frames, labelled_real_frames,
-                                            rendered_frames)
-    from simtest.harness.report.figures import figure_png
-
     target = check_out_folder(out, DETECTION_FILES)
     try:
         frames = (labelled_real_frames(source) if source.endswith(".json")

@@ -28,14 +28,33 @@ Those count pixels; these scores count highlights.
 
 from __future__ import annotations
 
+import json
 import math
+import re
 from collections import Counter
 from dataclasses import dataclass, field
+from pathlib import Path
 
+import matplotlib
 import numpy as np
 
-__all__ = ["KINDS", "TARGET_KIND", "TOLERANCE_PX", "Structure", "FrameScore", "match_candidates",
-           "score_frame", "pooled"]
+matplotlib.use("Agg", force=False)
+
+import matplotlib.pyplot as plt  # noqa: E402 - after choosing the back-end
+
+from simtest.geometry.cameras import PinholeCamera  # noqa: E402
+from simtest.reconstruct.images import load_image  # noqa: E402
+from simtest.reconstruct.io import estimate_to_dict  # noqa: E402
+from simtest.reconstruct.pipeline import reconstruct  # noqa: E402
+from simtest.reconstruct.settings import ReconSettings  # noqa: E402
+from simtest.render.render import render_scene  # noqa: E402
+from simtest.render.sensor import field_stop_mask  # noqa: E402
+from simtest.render.truth import highlight_targets  # noqa: E402
+from simtest.scene.spec import load_scene  # noqa: E402
+
+__all__ = ["KINDS", "TARGET_KIND", "TOLERANCE_PX", "Structure", "FrameScore", "LabelledFrame",
+           "match_candidates", "score_frame", "pooled", "labelled_real_frames", "rendered_frames",
+           "evaluate_frames", "detection_figure"]
 
 #: The kinds of labelled bright structure; ``isolated`` is the target.
 KINDS = ("isolated", "cluster", "streak", "instrument", "overlay", "border", "texture")
@@ -237,8 +256,6 @@ class LabelledFrame:
 
 
 def _tile_box(tile: str, tile_px: int) -> tuple[int, int, int, int]:
-    import re
-
     m = re.fullmatch(r"r(\d+)c(\d+)", tile)
     if m is None:
         raise ValueError(f"tile id {tile!r} is not of the form r<row>c<column>")
@@ -270,12 +287,6 @@ def labelled_real_frames(path, *, focal_px: float = 140.0) -> list[LabelledFrame
         A missing or unreadable file, key or image, or a kind not in :data:`KINDS`, in one line
         naming the file and the key.
     """
-    import json
-    from pathlib import Path
-
-    from simtest.geometry.cameras import PinholeCamera
-    from simtest.reconstruct.images import load_image
-
     path = Path(path)
     try:
         doc = json.loads(path.read_text(encoding="utf-8"))
@@ -322,11 +333,6 @@ def rendered_frames(scene: str, *, seed: int | None = None) -> list[LabelledFram
         with its half-maximum area. Other bright structures of a render are not labelled, so they
         count as ``unlabelled`` false positives.
     """
-    from simtest.render.render import render_scene
-    from simtest.render.sensor import field_stop_mask
-    from simtest.render.truth import highlight_targets
-    from simtest.scene.spec import load_scene
-
     spec = load_scene(scene)
     res = render_scene(spec, seed=seed)
     sensor = res.spec.sensor
@@ -346,10 +352,6 @@ def evaluate_frames(frames: list[LabelledFrame], settings=None) -> dict:
         ``{"frames": [FrameScore.as_dict() + {"candidates_detail": [...]}], "pooled": {...},
         "settings": {...}}``.
     """
-    from simtest.reconstruct.io import estimate_to_dict
-    from simtest.reconstruct.pipeline import reconstruct
-    from simtest.reconstruct.settings import ReconSettings
-
     settings = settings or ReconSettings.for_frames()
     scores, frames_out = [], []
     for fr in frames:
@@ -374,11 +376,6 @@ def detection_figure(frames: list[LabelledFrame], results: dict, *, columns: int
     anything else (red crosses, which are the false positives of "ok"), and the targets no ``ok``
     estimate found (yellow squares: the misses). Titles give the frame's counts.
     """
-    import matplotlib
-
-    matplotlib.use("Agg", force=False)
-    import matplotlib.pyplot as plt
-
     n = len(frames)
     cols = min(columns, n)
     rows_n = math.ceil(n / cols)

@@ -17,6 +17,7 @@ A claim that no case of the suite can decide is left out (a quick suite has no c
 from __future__ import annotations
 
 import numpy as np
+from scipy.stats import t as student_t
 
 from simtest.tolerances import TOL
 
@@ -103,8 +104,6 @@ def best_marks(stats: dict[str, dict | None], level: float = BEST_LEVEL) -> dict
         that cannot be told apart from the lowest; ``{}`` when every estimator with a median
         ties (no mark tells the reader anything) or fewer than two have one.
     """
-    from scipy.stats import t as student_t
-
     meds = {e: float(m["median"]) for e, m in stats.items() if m and m.get("median") is not None}
     if len(meds) < 2:
         return {}

@@ -75,6 +75,7 @@ from rich.table import Table
 
 from simtest._io import atomic_write_json
 from simtest.resources import bundled
+from simtest.harness.report.results import case_family  # the reports' family rule
 
 __all__ = ["POLICY", "CAPS", "Change", "metrics_of", "metric_class", "baseline_section",
            "check_section", "uncovered", "expected_metrics", "noisy_headlines", "compare",
@@ -363,8 +364,6 @@ def expected_metrics(suite) -> set[str]:
     set of str
         Metric names as :func:`metrics_of` writes them.
     """
-    from simtest.harness.report.results import case_family  # the reports' family rule
-
     out = set()
     for c in suite.cases:
         fam = case_family(c)[0]

@@ -18,7 +18,7 @@ from pathlib import Path
 
 from simtest._io import atomic_write_text
 from simtest.harness.claims import best_marks
-from simtest.harness.report.document import fmt
+from simtest.harness.report.numbers import fmt
 from simtest.resources import data_root
 
 __all__ = ["BEGIN", "END", "committed_runs", "section_text", "replace_section", "main"]

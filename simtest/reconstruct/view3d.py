@@ -99,8 +99,9 @@ def surface_from_depth(depth_mm, camera, *, z_depth: bool = True) -> np.ndarray:
 def _silence_vtk() -> None:
     """Switch off VTK's stderr logger and its warning/error display (process-wide)."""
     try:
-        from vtkmodules.vtkCommonCore import vtkLogger, vtkObject
-    except ImportError:  # an older VTK layout: the fd-level capture still holds
+        core = require("vtkmodules.vtkCommonCore", purpose="the 3D view")
+        vtkLogger, vtkObject = core.vtkLogger, core.vtkObject
+    except (ImportError, AttributeError):  # an older VTK layout: the fd-level capture still holds
         return
     vtkLogger.SetStderrVerbosity(vtkLogger.VERBOSITY_OFF)
     vtkObject.GlobalWarningDisplayOff()

@@ -17,6 +17,8 @@ import numpy as np
 from markdown_it import MarkdownIt
 
 from simtest.harness.claims import ALARM_DEG, BEST_LEVEL, MIN_N_INTERVAL, best_marks, explanations
+from simtest.harness.report.figures import takeaways
+from simtest.harness.report.numbers import fmt
 from simtest.tolerances import TOL
 
 __all__ = ["markdown_report", "html_report", "fmt", "cell", "summary_markdown"]
@@ -70,32 +72,6 @@ def _diag_text(key: str) -> str:
         if key.endswith(suffix):
             return text.format(est=key[: -len(suffix)])
     return key
-
-
-def fmt(v, nd: int = 3) -> str:
-    """A number with ``nd`` significant digits, ``-`` for None or NaN.
-
-    Parameters
-    ----------
-    v : float, int, None
-        The value.
-    nd : int
-        Significant digits.
-
-    Returns
-    -------
-    str
-    """
-    if v is None:
-        return "-"
-    if isinstance(v, bool):
-        return str(v)
-    if isinstance(v, int):
-        return str(v)
-    v = float(v)
-    if not np.isfinite(v):
-        return "-"
-    return f"{v:.{nd}g}"
 
 
 def cell(m: dict | None, show_fail: bool = True) -> str:
@@ -240,8 +216,6 @@ def markdown_report(results: dict, figures: list[str], nightly: dict | None = No
         Markdown (CommonMark with tables). Every figure is followed by one ``Takeaway:``
         sentence computed from the results (:func:`simtest.harness.report.figures.takeaways`).
     """
-    from simtest.harness.report.figures import takeaways  # figures imports fmt from here
-
     notes = takeaways(results, history)
     s = results["suite"]
     p = results["provenance"]

@@ -26,7 +26,7 @@ from matplotlib.text import Text  # noqa: E402
 from matplotlib.ticker import FixedLocator, NullFormatter  # noqa: E402
 
 from simtest.harness.claims import BEST_LEVEL, MIN_N_INTERVAL, best_marks  # noqa: E402
-from simtest.harness.report.document import fmt  # noqa: E402
+from simtest.harness.report.numbers import fmt  # noqa: E402
 
 __all__ = ["make_figures", "figure_png", "layout_problems", "style", "trend_figure", "takeaways",
            "x_scale", "MIN_N_INTERVAL"]
