@@ -64,21 +64,24 @@ def test_ci_runs_the_set_up_commands():
 
 
 def _copy_of_the_clone(tmp: Path) -> Path:
+    """The files the examples read by relative path (scenes, the real frames), in a fresh folder.
+
+    The code itself is this checkout's (``PYTHONPATH``), so that numba's cache of compiled
+    kernels, kept beside the code, serves every example instead of each recompiling it.
+    """
     repo = tmp / "clone"
-    ignore = shutil.ignore_patterns(".git", "out", "__pycache__", "*.egg-info", ".pytest_cache",
-                                    "*-local")
-    repo.mkdir()
-    for name in ("scenes", "meshes", "reports", "tests", "simtest", "pyproject.toml", "README.md"):
-        src = ROOT / name
-        (shutil.copytree(src, repo / name, ignore=ignore) if src.is_dir()
-         else shutil.copy2(src, repo / name))
+    (repo / "tests" / "data").mkdir(parents=True)
+    shutil.copytree(ROOT / "scenes", repo / "scenes")
+    shutil.copytree(ROOT / "tests" / "data" / "real", repo / "tests" / "data" / "real")
+    for name in ("pyproject.toml", "README.md"):
+        shutil.copy2(ROOT / name, repo / name)
     return repo
 
 
 @pytest.mark.slow
 def test_every_readme_example_runs(tmp_path):
     repo = _copy_of_the_clone(tmp_path)
-    env = dict(os.environ, MPLBACKEND="Agg", PYTHONPATH=str(repo))
+    env = dict(os.environ, MPLBACKEND="Agg", PYTHONPATH=str(ROOT))
     # the `simtest` of the README is this checkout's code, run from the copy
     shim = tmp_path / "bin"
     shim.mkdir()
