@@ -119,7 +119,8 @@ def reconstruct_command(
     check_workers(workers)
     target = check_out_folder(out, RECONSTRUCT_FILES)
     if is_sequence(image):
-        _reconstruct_sequence(image, intrinsics, out, target, settings, points=points, workers=workers)
+        _reconstruct_sequence(image, intrinsics, out, target, settings, points=points, workers=workers,
+                              cubic=None if cubic_patch else False)
         return
     try:
         img = load_image(image)
@@ -239,14 +240,16 @@ def write_out_folder(out: Path, target: Path, fill) -> None:
         fail(exc, BAD_INPUT)
 
 
-def _reconstruct_sequence(path, intrinsics, out, target, settings, *, points, workers) -> None:
-    """Folder or video: estimates.jsonl in frame order, a progress bar, frames per second."""
+def _reconstruct_sequence(path, intrinsics, out, target, settings, *, points, workers, cubic=False) -> None:
+    """Folder or video: estimates.jsonl in frame order, a progress bar, frames per second; the
+    camera file's light rig runs the light-aware fits on every frame, as on a single image."""
     counts: dict[str, int] = {}
     left = {"components": 0, "not_examined": 0}
     try:
         source = open_frames(path)
         try:
-            camera = load_camera(intrinsics).model
+            camera_file = load_camera(intrinsics)
+            camera, rig = camera_file.model, camera_file.lights
         except FileNotFoundError:
             raise InputError(f"intrinsics file not found: {intrinsics}") from None
         except OSError as exc:
@@ -258,7 +261,7 @@ def _reconstruct_sequence(path, intrinsics, out, target, settings, *, points, wo
 
     def fill(folder: Path) -> None:
         records = reconstruct_frames(source, camera, settings, workers=n_workers,
-                                     include_points=points)
+                                     include_points=points, rig=rig, cubic=cubic)
         with Progress(TextColumn("reconstruct"), BarColumn(), MofNCompleteColumn(),
                       TextColumn("{task.fields[fps]:.1f} frames/s"), TimeElapsedColumn(),
                       transient=True) as bar:
