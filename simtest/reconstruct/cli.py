@@ -19,7 +19,10 @@ or an OpenCV YAML/XML calibration; contour points are mapped to rays through the
 fit. A camera file's ``"lights"`` (the scope's light rig, camera frame, mm) switches on the
 light-aware estimators when a light is off the camera centre (:mod:`simtest.reconstruct.recommend`):
 ``estimates.json`` then gives their normals, the depth of each specular point and the recommended
-``normal``.
+``normal``; so does every line of ``estimates.jsonl`` for a folder or a video (each frame gets the
+fits a single image gets). A rig without physical sense (a light 20 mm or more ahead of the lens,
+more than 200 mm from it, ``"lights": null``, an intensity outside 1e-9 to 1e9:
+:func:`~simtest.geometry.lights.check_scope_rig`) is bad input: exit 2, one line.
 """
 
 from __future__ import annotations

@@ -14,14 +14,16 @@ Chosen from the harness' measurements on Mitsuba renders (``simtest validate ren
 1. With a rig whose lights are not all at the camera centre: ``photometric_fit`` when its status
    is ``ok``, else ``cubic_patch_fit`` when ``ok`` (run only with two or more lights at
    different places), else ``quadric_fit`` when ``ok``, else ``isocurve_fit`` when ``ok`` (and
-   the plane does not misfit), else ``bp_ray``. On renders of
+   the plane does not misfit), else (rule 3) the fit whose depth is not observable but whose
+   normal's sigma beats the BP ray's expected error, else ``bp_ray``. On renders of
    planes lit off the camera (the ``lightaware`` suite) the BP ray and every cone estimator err by
    about 24 deg per unit epsilon/d (they estimate the direction of the BP, not the normal); the
    photometric fit uses every unclipped pixel, the lobe's shape and its position, and errs by
    about a tenth of a degree; the isocurve fit, which sees only the contour points, by several
-   times more. A fit whose depth is not observable is not used: with the light off the camera the
+   times more. A fit whose depth is not observable is not used here: with the light off the camera the
    tilt and the distance trade off, so an undetermined distance leaves the normal undetermined
-   too (on the curved scenes such fits missed by up to 12 deg). On curved patches the plane
+   too (on the curved scenes such fits missed by up to 12 deg) unless its normal's sigma, which
+   carries that trade, says otherwise (rule 3). On curved patches the plane
    model trades the curvature for roughness and distance and misses the normal, by more than the
    BP ray on the sphere, while its residual stays near the sensor's noise; its residuals are then
    spatially correlated, which ``photometric_fit`` reports as ``plane_misfit`` (or its fit runs
@@ -50,7 +52,7 @@ Chosen from the harness' measurements on Mitsuba renders (``simtest validate ren
    on request): its depth is then not observable (on the exact sphere and the liver render the
    depth profile is flat within 0.06 of the noise floor's variance; on the suite's one-light
    curved renders its relative depth sigma was 1.8 to 31, against 0.008 to 0.07 on the
-   two-light liver), and a fit whose depth is not observable is not used.
+   two-light liver), and a cubic patch whose depth is not observable is never used.
    On the colon's fold streaks it misfits or does not converge, and the BP ray is kept. Its
    normal is the apex's (the mean light's specular point); the normal at each light's specular
    point (``light_normals``) is given beside it.
