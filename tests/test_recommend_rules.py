@@ -18,6 +18,7 @@ from simtest.reconstruct.io import estimate_to_dict
 from simtest.reconstruct.pipeline import reconstruct
 from simtest.reconstruct.recommend import (
     DEPTH_REL_SIGMA_CEILING,
+    SIGMA_MARGIN,
     bp_ray_error_deg,
     depth_within_ceiling,
     light_aware_estimates,
@@ -109,7 +110,7 @@ def test_a_noisy_plane_whose_depth_is_known_to_25_percent_gives_no_depth():
     rec = recommend(est)
     assert rec.depth_mm is None
     assert rec.normal_from == "photometric_fit"
-    assert rec.normal_sigma_deg < pho.bp_ray_error_deg
+    assert SIGMA_MARGIN * rec.normal_sigma_deg < pho.bp_ray_error_deg
 
 
 # --- item: the light-aware normal is kept where its sigma beats the BP ray ---------------------------
@@ -141,10 +142,12 @@ def test_an_unobservable_depth_keeps_the_better_light_aware_normal(h, tilt, x_mm
     assert pho.status == "depth_not_observable"
     rec = recommend(est)
     assert rec.normal_from == "photometric_fit" and rec.depth_mm is None
-    assert rec.normal_sigma_deg == pho.normal_sigma_deg < pho.bp_ray_error_deg
+    assert rec.normal_sigma_deg == pho.normal_sigma_deg
+    assert SIGMA_MARGIN * rec.normal_sigma_deg < pho.bp_ray_error_deg
     assert angle_between_deg(rec.normal, N) < angle_between_deg(est.bp_ray, N)
-    # a sigma no better than the BP ray's expected error: the BP ray
-    worse = {"photometric_fit": dataclasses.replace(pho, normal_sigma_deg=pho.bp_ray_error_deg)}
+    # twice the sigma no better than the BP ray's expected error: the BP ray
+    worse = {"photometric_fit": dataclasses.replace(
+        pho, normal_sigma_deg=pho.bp_ray_error_deg / SIGMA_MARGIN)}
     assert recommend(dataclasses.replace(est, light_aware=worse)).normal_from == "bp_ray"
     # a plane misfit is never kept (its sigma describes a model that does not fit), nor the
     # isocurve fit beside it (the same plane model)
