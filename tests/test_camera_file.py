@@ -174,3 +174,61 @@ def test_reconstruct_cli_refuses_a_bad_camera_file_in_one_line(tmp_path, doc, ms
     lines = [line for line in res.output.splitlines() if line.strip()]
     assert len(lines) == 1 and msg in lines[0] and "cam.json" in lines[0]
     assert not out.exists()
+
+
+BAD_RIGS = [
+    # a light behind the tissue: 40 mm ahead of the lens (issue 39: depth +910 %, sigma 0.21 deg)
+    ([{"position_mm": [3, 0, 40]}], "lights[0].position_mm: z = 40 mm"),
+    ([{"position_mm": [3, 0, 0]}, {"position_mm": [0, 0, 20]}], "lights[1].position_mm: z = 20 mm"),
+    ([{"position_mm": [3000, 0, 0]}], "on no scope"),  # metres taken for mm
+    ([{"position_mm": [0, 0, -250]}], "on no scope"),  # far behind the camera
+    (None, "key 'lights' is null"),  # not silently the co-located light
+    ([{"position_mm": [3, 0, 0], "intensity": 1e300}], "lights[0].intensity: must be within"),
+    ([{"position_mm": [3, 0, 0], "intensity": 1e-300}], "lights[0].intensity: must be within"),
+]
+
+
+@pytest.mark.parametrize(("lights", "msg"), BAD_RIGS)
+def test_a_rig_without_physical_sense_is_one_line(tmp_path, lights, msg):
+    p = write(tmp_path, "cam.json", {"K": K.tolist(), "lights": lights})
+    with pytest.raises(CameraFileError) as info:
+        load_camera(p)
+    text = str(info.value)
+    assert text.startswith(str(p)) and msg in text and "\n" not in text
+
+
+def test_a_scope_rig_within_the_bounds_loads(tmp_path):
+    # the colonoscope's guides 4 mm either side, a guide 2 mm behind the lens plane, the bounds'
+    # edges: z just under 20 mm ahead, 200 mm from the lens, intensities 1e-9 and 1e9
+    lights = [{"position_mm": [-4, 0, 0]}, {"position_mm": [4, 0, -2], "intensity": 1e9},
+              {"position_mm": [0, 0, 19.9], "intensity": 1e-9}, {"position_mm": [0, 200, 0]}]
+    rig = load_camera(write(tmp_path, "cam.json", {"K": K.tolist(), "lights": lights})).lights
+    assert len(rig) == 4 and rig.lights[1].intensity == 1e9
+    # no "lights" key at all still means one light at the camera centre
+    assert load_camera(write(tmp_path, "bare.json", {"K": K.tolist()})).lights.is_colocated
+
+
+@pytest.mark.parametrize("sequence", [False, True])
+def test_reconstruct_refuses_an_absurd_rig_without_warnings(tmp_path, sequence):
+    # exit 2 and one line, for an image and for a folder, with RuntimeWarnings made errors: an
+    # intensity of 1e300 leaked overflow warnings from the fits before it was refused
+    import os
+    import subprocess
+    import sys
+
+    frames = tmp_path / "frames"
+    frames.mkdir()
+    img = frames / "f0.png"
+    yy, xx = np.mgrid[0:381, 0:406]
+    cv2.imwrite(str(img), np.clip(240 * np.exp(-((xx - 200) ** 2 + (yy - 190) ** 2) / 50.0), 0, 255)
+                .astype(np.uint8))
+    cam = write(tmp_path, "cam.json", {"K": K.tolist(),
+                                       "lights": [{"position_mm": [3, 0, 0], "intensity": 1e300}]})
+    env = dict(os.environ, PYTHONPATH=os.pathsep.join(sys.path))
+    res = subprocess.run([sys.executable, "-W", "error::RuntimeWarning", "-m", "simtest.cli",
+                          "reconstruct", str(frames if sequence else img), "-k", str(cam), "-o",
+                          str(tmp_path / "out")], capture_output=True, text=True, env=env, timeout=120)
+    assert res.returncode == 2, res.stderr
+    lines = [x for x in res.stderr.splitlines() if x.strip()]
+    assert len(lines) == 1 and lines[0].startswith("error: ") and "intensity" in lines[0], res.stderr
+    assert "Warning" not in res.stdout + res.stderr and not (tmp_path / "out").exists()

@@ -38,7 +38,7 @@ def _write_k(tmp_path):
 
 
 def _expected(images):
-    return [_frame_record((i, "", img, K, ReconSettings.for_frames(), None, False))["specularities"]
+    return [_frame_record((i, "", img, K, ReconSettings.for_frames(), None, False, None, False))["specularities"]
             for i, img in enumerate(images)]
 
 
@@ -94,3 +94,36 @@ def test_empty_folder_and_unreadable_video_are_one_line_errors(tmp_path):
         res = CliRunner().invoke(app, ["reconstruct", str(path), "-k", str(_write_k(tmp_path)),
                                        "-o", str(tmp_path / "o")])
         assert res.exit_code == 2 and words in res.output and "Traceback" not in res.output
+
+
+def test_a_folder_honours_the_camera_files_lights_as_a_single_image_does(tmp_path):
+    # Issue 39: a folder dropped the camera file's rig (0.07 deg as one image, 5.2 deg inside a
+    # folder). An exact plane lit 3 mm off the lens (test_lightaware.plane_case), as one image and
+    # as both frames of a folder: every record's specularities equal the single image's, and they
+    # carry the light-aware fits and the recommended normal.
+    from simtest.geometry.camera_file import save_camera
+    from simtest.geometry.cameras import PinholeCamera
+    from simtest.geometry.lights import Light, LightRig
+    from test_lightaware import plane_case
+
+    rig = LightRig((Light((3.0, 0.0, 0.0), 1.0, "inverse_square"),))
+    img, Kp, N, depth, bp = plane_case(20.0, 30.0, rig)
+    img = np.clip(np.rint(img / img.max() * 230.0), 0, 255).astype(np.uint8)
+    cam = save_camera(tmp_path / "cam.json", PinholeCamera(Kp, image_size=(240, 240)), lights=rig)
+    frames = tmp_path / "frames"
+    frames.mkdir()
+    for i in range(2):
+        cv2.imwrite(str(frames / f"f{i}.png"), img)
+    cv2.imwrite(str(tmp_path / "one.png"), img)
+    one = CliRunner().invoke(app, ["reconstruct", str(tmp_path / "one.png"), "-k", str(cam), "-o",
+                                   str(tmp_path / "single"), "--no-overlay"])
+    assert one.exit_code == 0, one.output
+    single = json.loads((tmp_path / "single" / "estimates.json").read_text())["specularities"]
+    assert single and single[0]["normal_from"] == "photometric_fit"
+    res = CliRunner().invoke(app, ["reconstruct", str(frames), "-k", str(cam), "-o",
+                                   str(tmp_path / "seq"), "-j", "1"])
+    assert res.exit_code == 0, res.output
+    lines = [json.loads(x) for x in (tmp_path / "seq" / "estimates.jsonl").read_text().splitlines()]
+    assert len(lines) == 2
+    for rec in lines:
+        assert rec["specularities"] == single

@@ -16,7 +16,10 @@ What ``simtest render`` writes and ``simtest reconstruct --intrinsics`` reads::
 - ``"image_size"``: [W, H] in pixels (optional; null allowed).
 - ``"lights"``: optional list of lights in the camera frame (:mod:`simtest.geometry.lights`); each has
   ``"position_mm"`` and optionally ``"intensity"`` (1), ``"falloff"`` (``"inverse_square"``) and
-  ``"profile_exponent"`` (0). No ``"lights"``: one light at the camera centre.
+  ``"profile_exponent"`` (0). No ``"lights"`` key: one light at the camera centre; ``"lights":
+  null`` is an error (a rig meant but lost, not silently the co-located light). The lights must
+  make physical sense for a scope (:func:`~simtest.geometry.lights.check_scope_rig`: less than
+  20 mm ahead of the lens plane, within 200 mm of the lens; intensities within 1e-9 to 1e9).
 
 Keys a model does not know are errors (a misspelt ``"dist_coeff"`` would otherwise drop the
 distortion silently), and so are booleans where numbers belong (JSON ``true`` is not 1). Every
@@ -40,7 +43,7 @@ import numpy as np
 from simtest._io import atomic_write_json
 from simtest.geometry.camera import IntrinsicsError, validate_intrinsics
 from simtest.geometry.cameras import CameraModel, FisheyeCamera, OmnidirectionalCamera, PinholeCamera
-from simtest.geometry.lights import Light, LightRig, LightRigError
+from simtest.geometry.lights import Light, LightRig, LightRigError, check_scope_rig
 
 __all__ = [
     "CameraFile",
@@ -184,6 +187,9 @@ def camera_from_dict(data: dict, where: str = "camera") -> CameraModel:
 
 
 def _lights_from_list(value, where: str) -> LightRig:
+    if value is None:
+        raise CameraFileError(f"{where}: key 'lights' is null; give a list of lights, or leave the key out "
+                              f"for one light at the camera centre")
     if not isinstance(value, list):
         raise CameraFileError(f"{where}: key 'lights' must be a list of lights, got {value!r}")
     lights = []
@@ -201,7 +207,7 @@ def _lights_from_list(value, where: str) -> LightRig:
         except LightRigError as exc:
             raise CameraFileError(f"{at}.{exc}") from None
     try:
-        return LightRig(tuple(lights))
+        return check_scope_rig(LightRig(tuple(lights)))
     except LightRigError as exc:
         raise CameraFileError(f"{where}: {exc}") from None
 
@@ -297,7 +303,7 @@ def load_camera(path) -> CameraFile:
     if not isinstance(data, dict):
         raise CameraFileError(f"{path}: must be a JSON object with a 'model' and its parameters")
     model = _model_from_dict(data, str(path))
-    lights = _lights_from_list(data["lights"], str(path)) if data.get("lights") is not None else LightRig.colocated()
+    lights = _lights_from_list(data["lights"], str(path)) if "lights" in data else LightRig.colocated()
     return CameraFile(model=model, lights=lights)
 
 

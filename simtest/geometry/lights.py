@@ -8,22 +8,47 @@ camera centre at the origin. A light's radiant intensity toward a unit direction
 its irradiance at distance s falls as ``1 / s**2`` (``falloff="inverse_square"``) or not at all
 (``falloff="none"``). With no rig given, simtest uses :meth:`LightRig.colocated`: one isotropic
 light at the camera centre, the co-located case of the paper.
+
+Physical sense
+--------------
+Every light's ``intensity`` lies in [:data:`MIN_INTENSITY`, :data:`MAX_INTENSITY`]: intensities are
+relative weights (the fits' gain absorbs their scale; simtest's scenes use 1 to 24000), a value
+beyond 1e9 is a unit slip or a damaged file, and a weight of 1e300 overflows the model's sums
+(its square is inf). A rig given as a scope's lights (a camera file's ``"lights"``, which
+``simtest reconstruct`` fits with) is also checked by :func:`check_scope_rig`: light guides sit at
+the scope's tip, within a few mm of the lens plane, and the tissue is seen from 5 to 50 mm, so
+a light :data:`MAX_AHEAD_MM` or more ahead of the lens (z >= 20 mm) would sit behind the tissue
+of most views (the image of a light behind the surface is no highlight at all, and a fit of one
+gives a confident wrong answer: depth +910 % for ``[3, 0, 40]``), and a light farther than
+:data:`MAX_DISTANCE_MM` from the lens is on no scope (most likely metres or micrometres taken for
+millimetres). The tissue is unknown when the file is read, so the bound ahead is the one that
+can be checked then; 20 mm keeps simtest's own renders, whose lights sit within half their
+offset of the lens plane, readable.
 """
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import numpy as np
 
 from simtest._checks import finite_number
 
-__all__ = ["FALLOFFS", "MAX_LIGHTS", "Light", "LightRig", "LightRigError"]
+__all__ = ["FALLOFFS", "MAX_AHEAD_MM", "MAX_DISTANCE_MM", "MAX_INTENSITY", "MAX_LIGHTS", "MIN_INTENSITY",
+           "Light", "LightRig", "LightRigError", "check_scope_rig"]
 
 #: The falloff laws a light may have.
 FALLOFFS = ("inverse_square", "none")
 #: The most lights a rig may have (endoscope tips carry one to a few light guides).
 MAX_LIGHTS = 8
+#: Bounds of a light's intensity (a relative weight; module docstring, "Physical sense").
+MIN_INTENSITY = 1e-9
+MAX_INTENSITY = 1e9
+#: A scope's light lies less than this far ahead of the lens plane (z < 20 mm), mm.
+MAX_AHEAD_MM = 20.0
+#: A scope's light lies at most this far from the lens, mm.
+MAX_DISTANCE_MM = 200.0
 
 
 class LightRigError(ValueError):
@@ -43,7 +68,7 @@ class Light:
     position_mm : array_like of shape (3,)
         Position in the camera frame, mm.
     intensity : float
-        Relative weight, > 0.
+        Relative weight, in [:data:`MIN_INTENSITY`, :data:`MAX_INTENSITY`].
     falloff : {"inverse_square", "none"}
         Distance law of the irradiance.
     profile_exponent : float
@@ -52,7 +77,8 @@ class Light:
     Raises
     ------
     LightRigError
-        A non-finite or boolean position, intensity <= 0, an unknown falloff, or m < 0.
+        A non-finite or boolean position, an intensity outside [:data:`MIN_INTENSITY`,
+        :data:`MAX_INTENSITY`], an unknown falloff, or m < 0.
     """
 
     position_mm: tuple[float, float, float] = (0.0, 0.0, 0.0)
@@ -71,6 +97,9 @@ class Light:
         inten = _number(self.intensity, f"intensity")
         if inten <= 0:
             raise LightRigError(f"intensity: must be > 0, got {self.intensity!r}")
+        if not MIN_INTENSITY <= inten <= MAX_INTENSITY:
+            raise LightRigError(f"intensity: must be within [{MIN_INTENSITY:g}, {MAX_INTENSITY:g}] (a relative "
+                                f"weight), got {self.intensity!r}")
         object.__setattr__(self, "intensity", inten)
         if self.falloff not in FALLOFFS:
             raise LightRigError(f"falloff: must be one of {list(FALLOFFS)}, got {self.falloff!r}")
@@ -146,3 +175,37 @@ class LightRig:
     def to_json_list(self) -> list[dict]:
         """The camera file's ``"lights"`` list."""
         return [light.to_json_dict() for light in self.lights]
+
+
+def check_scope_rig(rig: LightRig) -> LightRig:
+    """Check that a rig can be a scope's lights (module docstring, "Physical sense").
+
+    Parameters
+    ----------
+    rig : LightRig
+        Lights in the camera frame, mm.
+
+    Returns
+    -------
+    LightRig
+        ``rig``, unchanged.
+
+    Raises
+    ------
+    LightRigError
+        Naming the first light that lies :data:`MAX_AHEAD_MM` or more ahead of the lens plane
+        (``lights[i].position_mm[2]``) or farther than :data:`MAX_DISTANCE_MM` from the lens.
+    """
+    for i, light in enumerate(rig.lights):
+        x, y, z = light.position_mm
+        if z >= MAX_AHEAD_MM:
+            raise LightRigError(
+                f"lights[{i}].position_mm: z = {z:g} mm puts the light {MAX_AHEAD_MM:g} mm or more ahead of "
+                f"the lens, behind the tissue of most views; a scope's light guides sit within a few mm "
+                f"of the lens plane (z < {MAX_AHEAD_MM:g})")
+        dist = math.sqrt(x * x + y * y + z * z)
+        if dist > MAX_DISTANCE_MM:
+            raise LightRigError(
+                f"lights[{i}].position_mm: {dist:.4g} mm from the lens, more than {MAX_DISTANCE_MM:g} mm: "
+                f"on no scope (mm expected, not um or m)")
+    return rig

@@ -19,7 +19,10 @@ or an OpenCV YAML/XML calibration; contour points are mapped to rays through the
 fit. A camera file's ``"lights"`` (the scope's light rig, camera frame, mm) switches on the
 light-aware estimators when a light is off the camera centre (:mod:`simtest.reconstruct.recommend`):
 ``estimates.json`` then gives their normals, the depth of each specular point and the recommended
-``normal``.
+``normal``; so does every line of ``estimates.jsonl`` for a folder or a video (each frame gets the
+fits a single image gets). A rig without physical sense (a light 20 mm or more ahead of the lens,
+more than 200 mm from it, ``"lights": null``, an intensity outside 1e-9 to 1e9:
+:func:`~simtest.geometry.lights.check_scope_rig`) is bad input: exit 2, one line.
 """
 
 from __future__ import annotations
@@ -119,7 +122,8 @@ def reconstruct_command(
     check_workers(workers)
     target = check_out_folder(out, RECONSTRUCT_FILES)
     if is_sequence(image):
-        _reconstruct_sequence(image, intrinsics, out, target, settings, points=points, workers=workers)
+        _reconstruct_sequence(image, intrinsics, out, target, settings, points=points, workers=workers,
+                              cubic=None if cubic_patch else False)
         return
     try:
         img = load_image(image)
@@ -239,14 +243,16 @@ def write_out_folder(out: Path, target: Path, fill) -> None:
         fail(exc, BAD_INPUT)
 
 
-def _reconstruct_sequence(path, intrinsics, out, target, settings, *, points, workers) -> None:
-    """Folder or video: estimates.jsonl in frame order, a progress bar, frames per second."""
+def _reconstruct_sequence(path, intrinsics, out, target, settings, *, points, workers, cubic=False) -> None:
+    """Folder or video: estimates.jsonl in frame order, a progress bar, frames per second; the
+    camera file's light rig runs the light-aware fits on every frame, as on a single image."""
     counts: dict[str, int] = {}
     left = {"components": 0, "not_examined": 0}
     try:
         source = open_frames(path)
         try:
-            camera = load_camera(intrinsics).model
+            camera_file = load_camera(intrinsics)
+            camera, rig = camera_file.model, camera_file.lights
         except FileNotFoundError:
             raise InputError(f"intrinsics file not found: {intrinsics}") from None
         except OSError as exc:
@@ -258,7 +264,7 @@ def _reconstruct_sequence(path, intrinsics, out, target, settings, *, points, wo
 
     def fill(folder: Path) -> None:
         records = reconstruct_frames(source, camera, settings, workers=n_workers,
-                                     include_points=points)
+                                     include_points=points, rig=rig, cubic=cubic)
         with Progress(TextColumn("reconstruct"), BarColumn(), MofNCompleteColumn(),
                       TextColumn("{task.fields[fps]:.1f} frames/s"), TimeElapsedColumn(),
                       transient=True) as bar:

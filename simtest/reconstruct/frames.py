@@ -6,7 +6,10 @@
 record per frame in frame order; :func:`write_frames_jsonl` writes them to ``estimates.jsonl``
 (one JSON line per frame, written to a temporary file and renamed when complete). Each frame is
 reconstructed on its own, so the records are those of frame-by-frame calls whatever the number of
-workers.
+workers. Given the camera file's light rig, each frame's highlights get the light-aware fits of
+:func:`~simtest.reconstruct.recommend.with_light_aware` as a single image does (``simtest
+reconstruct`` on one image): a record's ``specularities`` are then that image's
+``estimates.json`` ``specularities``.
 
 A record: ``{"frame": index from 0, "source": file name or "video:<index>", "image_shape":
 [H, W], "counts": {status: n}, "detection": {components, examined, not_examined,
@@ -30,6 +33,7 @@ from simtest.reconstruct._pixels import image_size_wh
 from simtest.reconstruct.images import InputError, load_image, quiet_stderr
 from simtest.reconstruct.io import estimate_to_dict
 from simtest.reconstruct.pipeline import reconstruct
+from simtest.reconstruct.recommend import with_light_aware
 from simtest.reconstruct.settings import ReconSettings
 
 #: Image files a folder of frames may hold (by suffix, case-insensitive).
@@ -165,19 +169,23 @@ def same_size_frames(source: FrameSource, camera=None) -> Iterator[tuple[int, st
 
 
 def _frame_record(args) -> dict:
-    index, name, image, K, settings, dist_coeffs, include_points = args
+    index, name, image, K, settings, dist_coeffs, include_points, rig, cubic = args
     ests = reconstruct(image, K, dist_coeffs=dist_coeffs, settings=settings)
+    detection = ests.detection_record()
+    # the light-aware step of a single image (nothing runs without a rig or with a co-located one)
+    ests = with_light_aware(image, ests, K, rig, cubic=cubic)
     counts: dict[str, int] = {}
     for e in ests:
         counts[e.status] = counts.get(e.status, 0) + 1
     return {"frame": index, "source": name, "image_shape": [int(v) for v in image.shape[:2]],
-            "counts": counts, "detection": ests.detection_record(),
+            "counts": counts, "detection": detection,
             "specularities": [estimate_to_dict(e, include_points) for e in ests]}
 
 
 def reconstruct_frames(source: FrameSource, K, settings: ReconSettings | None = None, *,
                        dist_coeffs=None, workers: int = 1,
-                       include_points: bool = False) -> Iterator[dict]:
+                       include_points: bool = False, rig=None,
+                       cubic: bool | None = False) -> Iterator[dict]:
     """Reconstruct every frame of ``source``; yield one record per frame, in frame order.
 
     Parameters
@@ -196,6 +204,13 @@ def reconstruct_frames(source: FrameSource, K, settings: ReconSettings | None = 
         ``Executor.map`` returns them in that order.
     include_points : bool
         Also write each isophote's contour points.
+    rig : LightRig, optional
+        The scope's lights (the camera file's ``"lights"``): each frame's highlights get
+        :func:`~simtest.reconstruct.recommend.with_light_aware`'s fits and recommended normal, as
+        a single image's do. None, or every light at the camera centre: none are run.
+    cubic : bool or None
+        Passed to :func:`~simtest.reconstruct.recommend.with_light_aware` (``--cubic-patch``:
+        None; default False).
 
     Yields
     ------
@@ -209,7 +224,7 @@ def reconstruct_frames(source: FrameSource, K, settings: ReconSettings | None = 
         camera's ``image_size`` (:func:`same_size_frames`).
     """
     settings = ReconSettings.for_frames() if settings is None else settings
-    jobs = ((i, name, img, K, settings, dist_coeffs, include_points)
+    jobs = ((i, name, img, K, settings, dist_coeffs, include_points, rig, cubic)
             for i, name, img in same_size_frames(source, K))
     if workers <= 1:
         yield from map(_frame_record, jobs)

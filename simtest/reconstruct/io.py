@@ -15,7 +15,11 @@ estimators (:mod:`simtest.reconstruct.recommend`, whose docstring states the rec
     "depth_mm": float or null,         # depth of the specular point along its ray, mm; null when
                                        # not observable (no rig, a co-located one, epsilon/d small)
     "normal_sigma_deg": float or null, # 1-sigma angle of the recommended normal, degrees
-    "normals": {..., "isocurve_fit": [x, y, z] or null, "photometric_fit": [x, y, z] or null},
+    "normals": {..., "isocurve_fit": [x, y, z] or null, "photometric_fit": [x, y, z] or null,
+                "quadric_fit": [x, y, z] or null, "cubic_patch_fit": [x, y, z] or null},
+                                       # each light-aware estimator's normal (null: not run or
+                                       # no normal); quadric_fit and cubic_patch_fit were added
+                                       # later in schema 2 (absent from older files)
     "light_normals": [[x, y, z], ...] or null,  # the recommended estimator's normal at each
                                        # light's specular point (cubic_patch_fit), rig order
     "light_depths_mm": [float, ...] or null,   # the depth of each light's specular point, mm
@@ -108,6 +112,8 @@ from simtest._io import atomic_write_json
 from simtest._version import __version__
 
 SCHEMA_VERSION = 2
+#: The light-aware estimators whose normals ``normals`` carries (schema 2).
+LIGHT_AWARE_NORMALS = ("isocurve_fit", "photometric_fit", "quadric_fit", "cubic_patch_fit")
 #: The schemas :func:`read_estimates` reads.
 READABLE_SCHEMAS = (1, 2)
 
@@ -232,8 +238,7 @@ def estimate_to_dict(est, include_points: bool = False) -> dict:
             "cone_axis": _vec(est.cone_axis),
             "joint_cone_axis": _vec(est.joint_cone_axis),
             "bp_ray": _vec(est.bp_ray),
-            "isocurve_fit": _vec(la["isocurve_fit"].normal) if "isocurve_fit" in la else None,
-            "photometric_fit": _vec(la["photometric_fit"].normal) if "photometric_fit" in la else None,
+            **{name: _vec(la[name].normal) if name in la else None for name in LIGHT_AWARE_NORMALS},
         },
         "ellipse": _ellipse(est.ellipse),
         "conic": _mat(est.conic),

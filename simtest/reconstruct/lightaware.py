@@ -180,6 +180,12 @@ class LightAwareEstimate:
         with the residual variance floored at ``TOL.photometric_noise_rel`` (the quantity the
         observability test compares with ``TOL.depth_rel_sigma_max``); None when J^T J is
         singular.
+    bp_ray_error_deg : float or None
+        The BP ray's expected error next to this fit, degrees: half the angle the rig's mean light
+        subtends from the camera at the specular point (at this fit's depth, or at the nominal
+        depth where the depth is not observable); set by
+        :func:`simtest.reconstruct.recommend.light_aware_estimates`, whose recommendation keeps a
+        normal whose ``normal_sigma_deg`` is below it. None when not set.
     """
 
     estimator: str
@@ -197,6 +203,7 @@ class LightAwareEstimate:
     light_normals: np.ndarray | None = None
     light_depths_mm: np.ndarray | None = None
     depth_rel_sigma: float | None = None
+    bp_ray_error_deg: float | None = None
 
     @property
     def ok(self) -> bool:

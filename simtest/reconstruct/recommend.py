@@ -14,14 +14,16 @@ Chosen from the harness' measurements on Mitsuba renders (``simtest validate ren
 1. With a rig whose lights are not all at the camera centre: ``photometric_fit`` when its status
    is ``ok``, else ``cubic_patch_fit`` when ``ok`` (run only with two or more lights at
    different places), else ``quadric_fit`` when ``ok``, else ``isocurve_fit`` when ``ok`` (and
-   the plane does not misfit), else ``bp_ray``. On renders of
+   the plane does not misfit), else (rule 3) the fit whose depth is not observable but whose
+   normal's sigma beats the BP ray's expected error, else ``bp_ray``. On renders of
    planes lit off the camera (the ``lightaware`` suite) the BP ray and every cone estimator err by
    about 24 deg per unit epsilon/d (they estimate the direction of the BP, not the normal); the
    photometric fit uses every unclipped pixel, the lobe's shape and its position, and errs by
    about a tenth of a degree; the isocurve fit, which sees only the contour points, by several
-   times more. A fit whose depth is not observable is not used: with the light off the camera the
+   times more. A fit whose depth is not observable is not used here: with the light off the camera the
    tilt and the distance trade off, so an undetermined distance leaves the normal undetermined
-   too (on the curved scenes such fits missed by up to 12 deg). On curved patches the plane
+   too (on the curved scenes such fits missed by up to 12 deg) unless its normal's sigma, which
+   carries that trade, says otherwise (rule 3). On curved patches the plane
    model trades the curvature for roughness and distance and misses the normal, by more than the
    BP ray on the sphere, while its residual stays near the sensor's noise; its residuals are then
    spatially correlated, which ``photometric_fit`` reports as ``plane_misfit`` (or its fit runs
@@ -50,7 +52,7 @@ Chosen from the harness' measurements on Mitsuba renders (``simtest validate ren
    on request): its depth is then not observable (on the exact sphere and the liver render the
    depth profile is flat within 0.06 of the noise floor's variance; on the suite's one-light
    curved renders its relative depth sigma was 1.8 to 31, against 0.008 to 0.07 on the
-   two-light liver), and a fit whose depth is not observable is not used.
+   two-light liver), and a cubic patch whose depth is not observable is never used.
    On the colon's fold streaks it misfits or does not converge, and the BP ray is kept. Its
    normal is the apex's (the mean light's specular point); the normal at each light's specular
    point (``light_normals``) is given beside it.
@@ -60,6 +62,52 @@ Chosen from the harness' measurements on Mitsuba renders (``simtest validate ren
    ranking from a ``results.json``); the BP ray is better on the curved meshes (liver, colon), the
    cone axes on planes, spheres, cylinders and saddles and wherever the BP is clipped.
 
+3. Where no light-aware fit is ``ok`` with a rig off the camera centre, a fit whose depth is not
+   observable (``depth_not_observable``, the misfit tests passed, and the same exclusions as in
+   1.; never ``cubic_patch_fit``, whose third-order shape trades with the depth) is still
+   recommended, the one of least ``normal_sigma_deg``, when twice that sigma
+   (:data:`SIGMA_MARGIN`: the fit's error at 95 %) is below the BP ray's expected error
+   (:func:`bp_ray_error_deg`: half the angle the rig's mean light subtends at the specular
+   point, at the nominal depth of 20 mm where the depth is unknown); ``depth_mm`` is then None. Reasons: the BP is where the normal bisects the directions to the
+   camera and the light, so the BP ray errs by about that half angle whatever the surface, while
+   the fit's sigma comes from its covariance with the distance free, so the tilt that trades
+   with the undetermined distance is in it; a depth that is not observable leaves the normal
+   determined to within that sigma. Falling back to the BP ray there threw away the better
+   normal in 19 of 20 exact 8-bit planes (0.68 against 1.75 deg, issue 39); on 6 noise-free
+   8-bit planes at epsilon/d 0.004 to 0.017 every such fit is kept (0.01 to 0.11 deg, the BP
+   ray 0.10 to 0.26). Why twice the sigma, not once: with 2 % read noise the plane fit's sigma
+   is too small (its errors fall within 2 sigma in 70 % of 47 depth-unobservable planes at
+   epsilon/d 0.008 to 0.2, depths 20 to 60 mm, where the nominal 20 mm also overstates the BP
+   ray's error at 60 mm); keeping the fit when once its sigma beat the BP ray's error made the
+   median recommended error 1.69 deg against the BP ray's 1.08, with twice 1.08 (mean 1.35
+   against 1.52). Once the sigma is honest (issue 39, items 1 to 3) the margin can be 1.
+
+Depth ceiling
+-------------
+A depth is released (``depth_mm``, the status ``ok``) only when its relative 1-sigma,
+``depth_sigma_mm / depth_mm`` (and the noise-floored ``depth_rel_sigma`` of the patch fits, the
+larger), is at most :data:`DEPTH_REL_SIGMA_CEILING` = 0.2 (:func:`depth_within_ceiling`); above it
+the fit's status becomes ``depth_not_observable`` and its depth, distance and per-light depths
+are withdrawn, its normal kept (rule 3 may still recommend it). Why 0.2: the fits estimate
+log h, and the delta method's symmetric sigma describes the depth's interval while the log is
+near linear over +-2 sigma: at 0.2, exp(+-0.4) is -33 % / +49 %, already lopsided; at the
+previous bound of 0.5 (``TOL.depth_rel_sigma_max``, the fits' own observability test at the
+noise floor) a "1-sigma" of 50 % spans a factor of 2.7 at 2 sigma, which is no measurement of
+scale. A depth within 20 % (1 sigma) still gives the metric scale of the view to within a
+factor of 1.5 at 2 sigma.
+
+Isophotes of the isocurve fit
+-----------------------------
+:func:`isocurve_fit` takes its own isophotes, at :data:`ISOCURVE_ISOVALUES` (0.3, 0.5, 0.7) of the
+BP's height above the median of the grown ROI's border, extracted from that ROI (the
+photometric fit's), not the command line's isovalues. The command line's defaults (0.7, 0.85)
+draw two small contours near the peak, where the lobe is nearly its quadratic approximation and
+says little about the distance: on 16 exact 8-bit off-axis planes (epsilon/d 0.07 to 0.27) the
+fit on them ran off (``not_converged``) on 9, had no observable depth on 2 and erred by 4.6 deg
+(median) on the rest; on contours at 0.3, 0.5 and 0.7 it was ``ok`` on all 16, median error
+0.1 deg. Lower levels reach into the tails, where the falloff the isocurve model leaves out and
+the background weigh more.
+
 ``depth_mm`` and ``normal_sigma_deg`` are those of the estimator recommended (None for the cone
 axes and the BP ray, which observe neither), and so are ``light_normals`` and
 ``light_depths_mm`` (``cubic_patch_fit`` only).
@@ -68,14 +116,16 @@ axes and the BP ray, which observe neither), and so are ``light_normals`` and
 from __future__ import annotations
 
 import dataclasses
+import math
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.ndimage import map_coordinates
 
 from simtest.geometry.lights import LightRig
-from simtest.reconstruct._pixels import Roi, uv_to_rc
+from simtest.reconstruct._pixels import Roi
 from simtest.reconstruct.detect import luma
+from simtest.reconstruct import lightaware as _la
+from simtest.reconstruct.isophote import extract_isophote
 from simtest.reconstruct.lightaware import (
     LightAwareEstimate,
     cubic_patch_fit,
@@ -85,13 +135,23 @@ from simtest.reconstruct.lightaware import (
     refine_isophote_points,
 )
 
-__all__ = ["LIGHT_AWARE", "Recommendation", "colocated_ranking", "light_aware_estimates",
+__all__ = ["DEPTH_REL_SIGMA_CEILING", "ISOCURVE_ISOVALUES", "LIGHT_AWARE", "SIGMA_MARGIN", "Recommendation",
+           "bp_ray_error_deg", "colocated_ranking", "depth_within_ceiling", "light_aware_estimates",
            "recommend", "with_light_aware"]
 
 #: The light-aware estimators, in the order of preference of the recommendation rule.
 LIGHT_AWARE = ("photometric_fit", "cubic_patch_fit", "quadric_fit", "isocurve_fit")
 #: Fallback order without a rig (or with a co-located one).
 COLOCATED_ORDER = ("joint_cone_axis", "cone_axis", "bp_ray")
+#: The isovalues of the isophotes :func:`isocurve_fit` is given, relative to the BP's height above
+#: the grown ROI's border median, whatever the command line's isovalues (module docstring,
+#: "Isophotes of the isocurve fit").
+ISOCURVE_ISOVALUES = (0.3, 0.5, 0.7)
+#: Rule 3 keeps a normal whose depth is not observable when this many of its sigmas are below the
+#: BP ray's expected error (module docstring, rule 3).
+SIGMA_MARGIN = 2.0
+#: Largest relative 1-sigma of a released depth (module docstring, "Depth ceiling").
+DEPTH_REL_SIGMA_CEILING = 0.2
 
 
 @dataclass(frozen=True)
@@ -140,9 +200,10 @@ def light_aware_estimates(image, est, camera, rig: LightRig, *, nominal_depth_mm
                           cubic: bool | None = False) -> dict[str, LightAwareEstimate]:
     """Run the light-aware estimators on one detected highlight.
 
-    ``isocurve_fit`` takes the points of every isophote that succeeded (refined onto the cubic
-    spline of the image, :func:`~simtest.reconstruct.lightaware.refine_isophote_points`, at the
-    level the points sit on) when the rig has one light; ``photometric_fit`` takes the highlight's
+    ``isocurve_fit`` takes its own isophotes, at :data:`ISOCURVE_ISOVALUES` of the BP's height above
+    the grown ROI's border median (refined onto the cubic spline of the image,
+    :func:`~simtest.reconstruct.lightaware.refine_isophote_points`; module docstring, "Isophotes
+    of the isocurve fit"), whatever isovalues the highlight was detected with; ``photometric_fit`` takes the highlight's
     ROI grown ``roi_scale`` times about the BP (the lobe's tails carry the distance), clipped pixels
     left out, refined from two starts (the bisector at the nominal depth and the isocurve fit's
     normal when it has one) and the better kept, so that one fit's local minimum does not become
@@ -189,8 +250,11 @@ def light_aware_estimates(image, est, camera, rig: LightRig, *, nominal_depth_mm
     -------
     dict
         ``{"isocurve_fit": LightAwareEstimate, "photometric_fit": LightAwareEstimate}`` (the
-        isocurve fit is absent when no isophote succeeded), ``"quadric_fit"`` and
-        ``"cubic_patch_fit"`` as ``quadric`` and ``cubic`` say.
+        isocurve fit is absent when none of its isophotes closes in the grown ROI),
+        ``"quadric_fit"`` and ``"cubic_patch_fit"`` as ``quadric`` and ``cubic`` say. Each has
+        its depth within :data:`DEPTH_REL_SIGMA_CEILING` (:func:`depth_within_ceiling`) and its
+        ``bp_ray_error_deg`` set (:func:`bp_ray_error_deg` at its depth, or at
+        ``nominal_depth_mm``).
     """
     img = np.asarray(image)
     if saturation_level is None and img.dtype.kind == "u":
@@ -198,27 +262,22 @@ def light_aware_estimates(image, est, camera, rig: LightRig, *, nominal_depth_mm
     gray = luma(img)
     out: dict[str, LightAwareEstimate] = {}
     roi = Roi(*(int(v) for v in est.roi))
-    vals = gray[roi.slices]
-    origin = np.array([roi.col0, roi.row0], dtype=np.float64)
-    isos = [i for i in est.isophotes if i.ok and i.points_uv is not None and len(i.points_uv) >= 6]
+    half = roi_scale * max(roi.shape) / 2.0
+    big = Roi.around(est.bp_px, half, img.shape)
     start_n = None
-    if isos:
-        pts = []
-        for iso in isos:
-            raw = np.asarray(iso.points_uv, dtype=np.float64)
-            level = float(np.median(_spline_values(vals, raw - origin)))
-            pts.append(refine_isophote_points(vals, level, raw, origin))
-        iso_est = _guarded("isocurve_fit", isocurve_fit, pts, [i.isovalue for i in isos], est.bp_px,
+    pts, ts = _isocurve_isophotes(gray, big, est.bp_px)
+    if pts:
+        iso_est = _guarded("isocurve_fit", isocurve_fit, pts, ts, est.bp_px,
                            camera, rig, nominal_depth_mm=nominal_depth_mm)
         out["isocurve_fit"] = iso_est
         if iso_est.has_normal:
             start_n = iso_est.normal
-    half = roi_scale * max(roi.shape) / 2.0
-    big = Roi.around(est.bp_px, half, img.shape)
     out["photometric_fit"] = _guarded(
         "photometric_fit", photometric_fit, gray[big.slices], (big.col0, big.row0), est.bp_px, camera, rig,
         clip_level=saturation_level, nominal_depth_mm=nominal_depth_mm,
         start_normal=start_n, supersample=supersample)
+    # its depth within the ceiling before the curved fits' turn is decided by its status
+    out["photometric_fit"] = depth_within_ceiling(out["photometric_fit"])
     near = Roi.around(est.bp_px, quadric_roi_scale * max(roi.shape) / 2.0, img.shape)
     if quadric or (quadric is None and not out["photometric_fit"].ok):
         out["quadric_fit"] = _guarded(
@@ -228,7 +287,106 @@ def light_aware_estimates(image, est, camera, rig: LightRig, *, nominal_depth_mm
         out["cubic_patch_fit"] = _guarded(
             "cubic_patch_fit", cubic_patch_fit, gray[near.slices], (near.col0, near.row0), est.bp_px, camera, rig,
             clip_level=saturation_level, nominal_depth_mm=nominal_depth_mm)
+    ray = _la._rays(camera, np.asarray(est.bp_px, dtype=np.float64)[None])[0]
+    for name, r in out.items():
+        r = depth_within_ceiling(r)
+        depth = r.depth_mm if r.depth_mm is not None else nominal_depth_mm
+        out[name] = dataclasses.replace(r, bp_ray_error_deg=bp_ray_error_deg(ray, depth, rig))
     return out
+
+
+def _isocurve_isophotes(gray, big: Roi, bp_uv) -> tuple[list[np.ndarray], list[float]]:
+    """The isophotes :func:`isocurve_fit` is given (module docstring, "Isophotes of the isocurve
+    fit"): at each of :data:`ISOCURVE_ISOVALUES` of the BP's height above the median of the
+    ROI's border, the closed contour about the BP, its points refined onto the image's cubic
+    spline; levels whose contour is cut or too short are left out.
+
+    Returns
+    -------
+    (list of ndarray of shape (N_k, 2), list of float)
+        The points (u, v), px, and their isovalues.
+    """
+    vals = np.asarray(gray[big.slices], dtype=np.float64)
+    border = np.concatenate([vals[0], vals[-1], vals[:, 0], vals[:, -1]])
+    base = float(np.median(border))
+    c, r = int(round(bp_uv[0])) - big.col0, int(round(bp_uv[1])) - big.row0
+    peak = float(vals[max(r - 1, 0):r + 2, max(c - 1, 0):c + 2].max())
+    if not peak > base:
+        return [], []
+    origin = (big.col0, big.row0)
+    pts, ts = [], []
+    for t in ISOCURVE_ISOVALUES:
+        level = base + t * (peak - base)
+        iso = extract_isophote(vals, level, bp_uv, origin_rc=(big.row0, big.col0), image_shape=gray.shape)
+        if not iso or iso.points_uv is None or len(iso.points_uv) < 6:
+            continue
+        pts.append(refine_isophote_points(vals, level, iso.points_uv, origin))
+        ts.append(t)
+    return pts, ts
+
+
+def depth_within_ceiling(r: LightAwareEstimate) -> LightAwareEstimate:
+    """``r`` with its depth withdrawn when its relative 1-sigma exceeds the ceiling.
+
+    Parameters
+    ----------
+    r : LightAwareEstimate
+        A fit's result.
+
+    Returns
+    -------
+    LightAwareEstimate
+        ``r`` itself when it gives no depth or the depth's relative 1-sigma (the larger of
+        ``depth_sigma_mm / depth_mm`` and ``depth_rel_sigma``; a depth without sigma counts as
+        unbounded) is at most :data:`DEPTH_REL_SIGMA_CEILING`; else a copy without depth,
+        depth sigma, distance and per-light normals and depths, an ``ok`` status turned
+        ``depth_not_observable`` (module docstring, "Depth ceiling"). The normal is kept.
+    """
+    if r.depth_mm is None:
+        return r
+    rel = (r.depth_sigma_mm / r.depth_mm if r.depth_sigma_mm is not None and r.depth_mm > 0
+           else math.inf)
+    if r.depth_rel_sigma is not None:
+        rel = max(rel, r.depth_rel_sigma)
+    if rel <= DEPTH_REL_SIGMA_CEILING:
+        return r
+    detail = f"relative depth sigma {rel:.3g} > ceiling {DEPTH_REL_SIGMA_CEILING}"
+    return dataclasses.replace(
+        r, status="depth_not_observable" if r.ok else r.status,
+        detail=f"{r.detail}; {detail}" if r.detail else detail,
+        depth_mm=None, depth_sigma_mm=None, distance_mm=None, light_normals=None, light_depths_mm=None)
+
+
+def bp_ray_error_deg(ray, depth_mm: float, rig: LightRig) -> float:
+    """The BP ray's expected error, degrees: half the angle the rig's mean light subtends from the
+    camera at the point ``depth_mm`` along ``ray``.
+
+    The BP is where the normal bisects the directions to the camera and to the light, so the BP
+    ray (the direction to the camera) is off the normal by half the angle between them; exact
+    for a plane and one light.
+
+    Parameters
+    ----------
+    ray : array_like of shape (3,)
+        Unit viewing ray of the BP, camera frame.
+    depth_mm : float
+        Distance of the specular point along the ray, mm, > 0.
+    rig : LightRig
+        The lights (their intensity-weighted mean position is used).
+
+    Returns
+    -------
+    float
+        Degrees, in [0, 90].
+    """
+    X = float(depth_mm) * np.asarray(ray, dtype=np.float64)
+    to_cam = -X / np.linalg.norm(X)
+    to_light = _la._mean_light(rig) - X
+    nl = np.linalg.norm(to_light)
+    if not nl > 0:
+        return 90.0
+    c = float(np.clip(to_cam @ (to_light / nl), -1.0, 1.0))
+    return 0.5 * math.degrees(math.acos(c))
 
 
 def _guarded(name: str, fit, *args, **kwargs) -> LightAwareEstimate:
@@ -240,11 +398,6 @@ def _guarded(name: str, fit, *args, **kwargs) -> LightAwareEstimate:
         return fit(*args, **kwargs)
     except (ValueError, np.linalg.LinAlgError, FloatingPointError, OverflowError) as exc:
         return LightAwareEstimate(name, "not_converged", f"{type(exc).__name__}: {exc}")
-
-
-def _spline_values(vals, uv_local):
-    return map_coordinates(np.asarray(vals, dtype=np.float64), uv_to_rc(uv_local).T, order=3,
-                           mode="mirror")
 
 
 def with_light_aware(image, estimates, camera, rig: LightRig | None, *, on_highlight=None,
@@ -308,16 +461,28 @@ def recommend(est) -> Recommendation:
     if la:
         pho = la.get("photometric_fit")
         plane_fits = pho is None or pho.status != "plane_misfit"
+        candidates = []
         for name in LIGHT_AWARE:
             r = la.get(name)
+            if r is None or not r.has_normal:
+                continue
             if name == "isocurve_fit" and not plane_fits:
                 continue
-            if name == "cubic_patch_fit" and (r is None or r.light_normals is None
-                                              or len(r.light_normals) < 2):
-                continue  # one light: run on request only, its depth is then not observable
-            if r is not None and r.has_normal and r.status == "ok":
+            if name == "cubic_patch_fit" and (r.light_normals is None or len(r.light_normals) < 2):
+                continue  # one light (run on request only) or its depth not observable: the
+                # patch's third-order shape then trades with the depth, and so does its normal
+            if r.status == "ok":
                 return Recommendation(np.asarray(r.normal), name, r.depth_mm, r.normal_sigma_deg,
                                       r.light_normals, r.light_depths_mm)
+            candidates.append((name, r))
+        # rule 3: a normal whose depth is not observable, where its sigma beats the BP ray's error
+        better = [(r.normal_sigma_deg, i, name, r) for i, (name, r) in enumerate(candidates)
+                  if r.status == "depth_not_observable" and r.normal_sigma_deg is not None
+                  and r.bp_ray_error_deg is not None
+                  and SIGMA_MARGIN * r.normal_sigma_deg < r.bp_ray_error_deg]
+        if better:
+            _, _, name, r = min(better)
+            return Recommendation(np.asarray(r.normal), name, None, r.normal_sigma_deg)
         return Recommendation(np.asarray(est.bp_ray), "bp_ray")
     for name in COLOCATED_ORDER:
         n = getattr(est, name, None)

@@ -1,0 +1,183 @@
+"""Issue 39's defects of the light-aware step, on exact analytic planes: the isocurve fit's own
+isophotes, the ceiling on the depth's relative uncertainty, the light-aware normal kept where its
+sigma beats the BP ray's expected error, and every light-aware normal in ``normals``."""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from simtest.geometry import angle_between_deg
+from simtest.reconstruct import read_estimates, write_estimates
+from simtest.reconstruct.io import estimate_to_dict
+from simtest.reconstruct.pipeline import reconstruct
+from simtest.reconstruct.recommend import (
+    DEPTH_REL_SIGMA_CEILING,
+    SIGMA_MARGIN,
+    bp_ray_error_deg,
+    depth_within_ceiling,
+    light_aware_estimates,
+    recommend,
+    with_light_aware,
+)
+from simtest.reconstruct.settings import ReconSettings
+from simtest.simulate.offset import specular_point
+from test_lightaware import one_light, plane_case, tilted_normal
+
+#: The command line's settings: isovalues (0.7, 0.85), local normalisation.
+CLI = ReconSettings.for_frames()
+
+
+def _plane8(h, tilt, x_mm, az=30.0, noise=0.0, seed=0):
+    """An exact plane lit by one inverse-square light x_mm beside the lens, as an 8-bit image
+    (peak 230; optional Gaussian read noise, a fraction of full scale)."""
+    rig = one_light(x_mm, "inverse_square")
+    img, K, N, depth, _ = plane_case(h, tilt, rig, az=az)
+    f = img / img.max() * 230.0
+    if noise:
+        f = f + np.random.default_rng(seed).normal(0.0, noise * 255.0, f.shape)
+    return np.clip(np.rint(f), 0, 255).astype(np.uint8), K, N, depth, rig
+
+
+def _highlight(img, K):
+    ests = [e for e in reconstruct(img, K, settings=CLI) if e.ok]
+    assert len(ests) == 1, ests
+    return ests[0]
+
+
+# --- item: isovalues that suit isocurve_fit, chosen by it ---------------------------------------------
+
+
+def test_isocurve_fit_succeeds_with_the_command_lines_default_isovalues():
+    # On the contours at the command line's 0.7 and 0.85 the fit ran off or lost the depth on 11
+    # of 12 exact 8-bit planes (0 of 160 in issue 39's count); on its own isophotes (0.3, 0.5,
+    # 0.7) it is ok on all 8 planes here (16 of 16 over tilts 15 and 35 deg, epsilon/d 0.07 to
+    # 0.27, measured), median error 0.1 deg. Bounds: at least 7 of 8 ok, median within 0.5 deg
+    # (8-bit quantisation of the contours; the largest single error measured was 1.3 deg).
+    errs, ok = [], 0
+    for h in (15.0, 30.0):
+        for tilt in (15.0, 35.0):
+            for az in (30.0, 200.0):
+                img, K, N, _, rig = _plane8(h, tilt, 3.0, az)
+                est = _highlight(img, K)
+                assert [i.isovalue for i in est.isophotes] == [0.7, 0.85]
+                r = light_aware_estimates(img, est, K, rig, quadric=False)["isocurve_fit"]
+                ok += r.ok
+                if r.ok:
+                    errs.append(angle_between_deg(r.normal, N))
+    assert ok >= 7, ok
+    assert np.median(errs) < 0.5, errs
+
+
+# --- item: a ceiling on the depth's relative uncertainty ---------------------------------------------
+
+
+def test_depth_ceiling_withdraws_a_depth_known_to_50_percent():
+    img, K, N, depth, rig = _plane8(30.0, 20.0, 2.0)
+    est = _highlight(img, K)
+    pho = light_aware_estimates(img, est, K, rig, quadric=False)["photometric_fit"]
+    assert pho.ok and pho.depth_mm is not None
+    assert depth_within_ceiling(pho) is pho  # exact: its sigma is far below the ceiling
+    loose = dataclasses.replace(pho, depth_sigma_mm=0.5 * pho.depth_mm)
+    out = depth_within_ceiling(loose)
+    assert out.status == "depth_not_observable" and out.depth_mm is None
+    assert out.depth_sigma_mm is None and out.distance_mm is None
+    assert f"> ceiling {DEPTH_REL_SIGMA_CEILING}" in out.detail
+    np.testing.assert_array_equal(out.normal, pho.normal)  # the normal is kept
+    # the patch fits' noise-floored relative sigma counts too, the larger of the two
+    floored = dataclasses.replace(pho, depth_rel_sigma=0.3)
+    assert depth_within_ceiling(floored).depth_mm is None
+    within = dataclasses.replace(pho, depth_sigma_mm=0.19 * pho.depth_mm, depth_rel_sigma=0.1)
+    assert depth_within_ceiling(within) is within
+    # a depth without a sigma is not released either
+    assert depth_within_ceiling(dataclasses.replace(pho, depth_sigma_mm=None)).depth_mm is None
+
+
+def test_a_noisy_plane_whose_depth_is_known_to_25_percent_gives_no_depth():
+    # 1 % read noise, epsilon/d 0.03: the photometric fit's relative depth sigma is 0.25 (measured;
+    # it passed as ok before, with the depth 65 % short). Its depth is withdrawn; its normal, whose
+    # sigma is below the BP ray's expected error, is still the one recommended.
+    img, K, N, depth, rig = _plane8(30.0, 20.0, 1.0, noise=0.01)
+    est = with_light_aware(img, [_highlight(img, K)], K, rig, quadric=False)[0]
+    pho = est.light_aware["photometric_fit"]
+    assert pho.status == "depth_not_observable" and pho.depth_mm is None
+    assert "ceiling" in pho.detail
+    rec = recommend(est)
+    assert rec.depth_mm is None
+    assert rec.normal_from == "photometric_fit"
+    assert SIGMA_MARGIN * rec.normal_sigma_deg < pho.bp_ray_error_deg
+
+
+# --- item: the light-aware normal is kept where its sigma beats the BP ray ---------------------------
+
+
+@settings(max_examples=50, deadline=None)
+@given(tilt=st.floats(0, 60), az=st.floats(0, 360), h=st.floats(5, 80),
+       lx=st.floats(-6, 6), ly=st.floats(-6, 6), lz=st.floats(-2, 2))
+def test_bp_ray_error_is_the_half_angle_at_the_specular_point(tilt, az, h, lx, ly, lz):
+    # on a plane the BP ray's error is exactly half the angle the light subtends from the camera
+    # at the specular point (the normal bisects the two directions there); 1e-6 deg: rounding
+    N = tilted_normal(tilt, az)
+    rig = one_light(0.0)
+    rig = type(rig)((dataclasses.replace(rig.lights[0], position_mm=(lx, ly, lz)),))
+    X, depth = specular_point(N, h, rig.lights[0].position)
+    ray = X / np.linalg.norm(X)
+    assert bp_ray_error_deg(ray, depth, rig) == pytest.approx(angle_between_deg(-ray, N), abs=1e-6)
+
+
+@pytest.mark.parametrize(("h", "tilt", "x_mm"), [(60.0, 20.0, 0.5), (60.0, 40.0, 0.25)])
+def test_an_unobservable_depth_keeps_the_better_light_aware_normal(h, tilt, x_mm):
+    # epsilon/d 0.004 to 0.008: the photometric fit's depth is not observable, its normal is good
+    # (0.01 and 0.07 deg, sigma 0.07 and 0.05, measured) where the BP ray errs by 0.26 and 0.10;
+    # the BP ray's expected error at the nominal 20 mm is 0.68 and 0.30 deg. The fit's normal is
+    # recommended (it was discarded for the BP ray before), without a depth.
+    img, K, N, depth, rig = _plane8(h, tilt, x_mm)
+    est = with_light_aware(img, [_highlight(img, K)], K, rig)[0]
+    pho = est.light_aware["photometric_fit"]
+    assert pho.status == "depth_not_observable"
+    rec = recommend(est)
+    assert rec.normal_from == "photometric_fit" and rec.depth_mm is None
+    assert rec.normal_sigma_deg == pho.normal_sigma_deg
+    assert SIGMA_MARGIN * rec.normal_sigma_deg < pho.bp_ray_error_deg
+    assert angle_between_deg(rec.normal, N) < angle_between_deg(est.bp_ray, N)
+    # twice the sigma no better than the BP ray's expected error: the BP ray
+    worse = {"photometric_fit": dataclasses.replace(
+        pho, normal_sigma_deg=pho.bp_ray_error_deg / SIGMA_MARGIN)}
+    assert recommend(dataclasses.replace(est, light_aware=worse)).normal_from == "bp_ray"
+    # a plane misfit is never kept (its sigma describes a model that does not fit), nor the
+    # isocurve fit beside it (the same plane model)
+    misfit = {"photometric_fit": dataclasses.replace(pho, status="plane_misfit"),
+              "isocurve_fit": dataclasses.replace(pho, estimator="isocurve_fit")}
+    assert recommend(dataclasses.replace(est, light_aware=misfit)).normal_from == "bp_ray"
+
+
+# --- item: every light-aware normal in ``normals`` ---------------------------------------------------
+
+
+def test_normals_carry_the_quadric_and_cubic_patch_normals(tmp_path):
+    img, K, N, depth, rig = _plane8(25.0, 25.0, 3.0)
+    est = with_light_aware(img, [_highlight(img, K)], K, rig, quadric=True)[0]
+    la_ = dict(est.light_aware)
+    assert la_["quadric_fit"].normal is not None
+    # a stand-in for a cubic patch fit (its own fit takes seconds): a normal of its own
+    la_["cubic_patch_fit"] = dataclasses.replace(la_["quadric_fit"], estimator="cubic_patch_fit",
+                                                 normal=tilted_normal(10.0, 70.0))
+    est = dataclasses.replace(est, light_aware=la_)
+    normals = estimate_to_dict(est)["normals"]
+    for name in ("isocurve_fit", "photometric_fit", "quadric_fit", "cubic_patch_fit"):
+        np.testing.assert_allclose(normals[name], la_[name].normal, atol=1e-12)
+    path = write_estimates(tmp_path / "estimates.json", [est], K=K, isovalues=CLI.isovalues, lights=rig)
+    back = read_estimates(path)["specularities"][0]["normals"]
+    np.testing.assert_allclose(back["cubic_patch_fit"], tilted_normal(10.0, 70.0), atol=1e-12)
+    # a schema-2 file written before these keys is still read
+    doc = json.loads(path.read_text())
+    for s in doc["specularities"]:
+        s["normals"].pop("quadric_fit")
+        s["normals"].pop("cubic_patch_fit")
+    (tmp_path / "older.json").write_text(json.dumps(doc))
+    assert "quadric_fit" not in read_estimates(tmp_path / "older.json")["specularities"][0]["normals"]
