@@ -4,14 +4,16 @@ Inputs (the scratch folder of the labelling, see README.md here): the proposals 
 propose_structures.py, pass 1 and pass 2 (``{proposal_id: kind}`` each, made independently from
 the same sheets by the written protocol), and the resolution of every disagreement
 (``{proposal_id: kind}``, decided by looking at the crop again). Output: per tile, per structure
-``{id, u, v, u_peak, v_peak, area_px, bbox, kind, pass1, pass2, resolved_by}`` and a header with
+``{id, index, u, v, u_peak, v_peak, area_px, bbox, kind, pass1, pass2, resolved_by}`` (and
+``note``, ``{pass1|pass2|review: text}``, where a labeller wrote one) and a header with
 the protocol version, the counts, the confusion table of the two passes and their agreement (raw
 fraction and Cohen's kappa). With ``--readme`` the counts block between the markers
 ``<!-- structures-counts:begin -->`` and ``<!-- structures-counts:end -->`` of README.md is
 rewritten from the output file.
 
 Usage:
-  python resolve_labels.py PROPOSALS.json PASS1.json PASS2.json|- RESOLUTION.json|- OUT.json
+  python resolve_labels.py PROPOSALS.json PASS1.json PASS2.json|- RESOLUTION.json|- OUT.json \
+      [PASS1_NOTES.json [PASS2_NOTES.json|- [RESOLUTION_NOTES.json]]]
   python resolve_labels.py --readme OUT.json README.md
 
 (``-`` for pass 2 and the resolution when pass 2 never arrived: then kind = pass 1.)
@@ -32,8 +34,9 @@ def cohen_kappa(a, b):
     return po, (po - pe) / (1 - pe) if pe < 1 else 1.0
 
 
-def merge(proposals, pass1, pass2, resolution):
+def merge(proposals, pass1, pass2, resolution, *notes):
     tiles_in = json.load(open(proposals))["tiles"]
+    notes = [json.load(open(n)) if n != "-" else {} for n in notes] + [{}, {}, {}]
     p1 = json.load(open(pass1))
     p2 = json.load(open(pass2)) if pass2 != "-" else None
     res = json.load(open(resolution)) if resolution != "-" else {}
@@ -63,6 +66,9 @@ def merge(proposals, pass1, pass2, resolution):
                         "u_peak": s["u_peak"], "v_peak": s["v_peak"], "area_px": s["area_px"],
                         "bbox": s["bbox"], "kind": kind, "pass1": a, "pass2": b,
                         "resolved_by": by})
+            note = {k: n[i] for k, n in zip(("pass1", "pass2", "review"), notes) if i in n}
+            if note:
+                out[-1]["note"] = note
         tiles[tid] = out
     allk = [s["kind"] for t in tiles.values() for s in t]
     header = {
@@ -107,6 +113,9 @@ def merge(proposals, pass1, pass2, resolution):
             "per_kind": per_kind,
             "confusion_pass1_rows_pass2_columns": conf,
         }
+        iso = [s for t in tiles.values() for s in t if s["kind"] == "isolated"]
+        header["isolated_by"] = {"agreement": sum(s["resolved_by"] == "agreement" for s in iso),
+                                 "review": sum(s["resolved_by"] == "review" for s in iso)}
         header["resolution"] = {
             "resolved_by_review": sum(s["resolved_by"] == "review" for t in tiles.values()
                                       for s in t),
@@ -136,6 +145,10 @@ def readme_block(out):
     nt = sum(1 for t in h["counts_per_tile"].values() if t["isolated"] > 0)
     L.append(f"`isolated` highlights (the detector's targets): {h['counts']['isolated']}, on "
              f"{nt} of the {h['frames']} frames.")
+    if h.get("agreement"):
+        ia = h["isolated_by"]
+        L.append(f"Of them {ia['agreement']} were called `isolated` by both passes and "
+                 f"{ia['review']} were decided in review.")
     a = h.get("agreement")
     if a:
         L += ["",
@@ -172,8 +185,13 @@ if __name__ == "__main__":
         e = text.index("<!-- structures-counts:end -->") + len("<!-- structures-counts:end -->")
         open(sys.argv[3], "w").write(text[:b] + readme_block(out) + text[e:])
     else:
-        out = merge(*sys.argv[1:5])
-        json.dump(out, open(sys.argv[5], "w"), indent=1)
+        out = merge(*sys.argv[1:5], *sys.argv[6:])
+        with open(sys.argv[5], "w") as f:   # the header indented, one structure a line
+            f.write('{"header": ' + json.dumps(out["header"], indent=1) + ',\n "tiles": {')
+            for k, (tid, structs) in enumerate(out["tiles"].items()):
+                f.write((",\n" if k else "\n") + f'  "{tid}": [\n')
+                f.write(",\n".join("   " + json.dumps(x) for x in structs) + "\n  ]")
+            f.write("\n }\n}\n")
         h = out["header"]
         print(h["structures"], h["counts"], h.get("agreement") and
               {k: h["agreement"][k] for k in ("raw", "cohen_kappa", "disagreements")})
