@@ -36,6 +36,8 @@ __all__ = [
     "bisector_cos_image",
     "mesh_highlight_candidates",
     "mesh_highlights",
+    "ReliefHighlight",
+    "relief_highlights",
     "highlight_complete",
     "HighlightTarget",
     "highlight_targets",
@@ -193,21 +195,7 @@ def mesh_highlights(
                                                max_highlights=max_highlights)
     if len(candidates) == 0:
         return []
-    uv = np.asarray(candidates, dtype=np.float64)
-    step = 1.0
-    offs = np.arange(-3, 4, dtype=np.float64)
-    grid = np.stack(np.meshgrid(offs, offs, indexing="xy"), axis=-1).reshape(-1, 2)  # (49, 2)
-    for _ in range(16):
-        cand = uv[:, None, :] + step * grid[None, :, :]  # (N, 49, 2)
-        res = cast(cand.reshape(-1, 2))
-        cos = np.full(len(res["hit"]), -np.inf)
-        hit = res["hit"]
-        cos[hit] = np.sum(res["n"][hit] * bisector(res["p"][hit], light), axis=-1)
-        cos = cos.reshape(len(uv), -1)
-        j = np.argmax(cos, axis=1)
-        uv = cand[np.arange(len(uv)), j]
-        step /= 3.0
-    res = cast(uv)
+    uv, res = _refine(cast, candidates, light)
     out: list[HighlightTruth] = []
     vertices = np.asarray(vertices, dtype=np.float64)
     for i in range(len(uv)):
@@ -227,6 +215,119 @@ def mesh_highlights(
         k2 = float(np.dot(w, k2_v[f]))
         hl = HighlightTruth(uv[i].copy(), p.copy(), n, max(k1, k2), min(k1, k2),
                             pixel_in_frame(uv[i], (W, H)))
+        if all(np.hypot(*(hl.bp_px - o.bp_px)) > 0.5 for o in out):
+            out.append(hl)
+    out.sort(key=lambda h: (h.bp_px[1], h.bp_px[0]))
+    return out
+
+
+def _refine(cast: Caster, candidates: np.ndarray, light: np.ndarray, step: float = 1.0) -> tuple[np.ndarray, dict]:
+    """Climb from each start pixel to where ``cast``'s normal best bisects camera and light.
+
+    Casts 7 x 7 sub-pixel grids of rays 16 times, keeping the ray whose normal is nearest the
+    bisector; the step starts at ``step`` px (1: the search reaches 3 px) and shrinks by 3 each
+    time (to ~1e-7 px). Returns the final pixel positions (N, 2) and ``cast``'s result there.
+    """
+    uv = np.asarray(candidates, dtype=np.float64)
+    offs = np.arange(-3, 4, dtype=np.float64)
+    grid = np.stack(np.meshgrid(offs, offs, indexing="xy"), axis=-1).reshape(-1, 2)  # (49, 2)
+    for _ in range(16):
+        cand = uv[:, None, :] + step * grid[None, :, :]  # (N, 49, 2)
+        res = cast(cand.reshape(-1, 2))
+        cos = np.full(len(res["hit"]), -np.inf)
+        hit = res["hit"]
+        cos[hit] = np.sum(res["n"][hit] * bisector(res["p"][hit], light), axis=-1)
+        cos = cos.reshape(len(uv), -1)
+        j = np.argmax(cos, axis=1)
+        uv = cand[np.arange(len(uv)), j]
+        step /= 3.0
+    return uv, cast(uv)
+
+
+@dataclass(frozen=True)
+class ReliefHighlight(HighlightTruth):
+    """A specular point of the tissue's micro-relief: its *shading* normal bisects the directions to
+    the camera and to the light (a glint), where a :class:`HighlightTruth` is the macro surface's.
+
+    ``normal`` is the shading normal (camera frame, facing the camera), ``macro_normal`` the
+    surface's normal at the same point; ``k1``, ``k2`` are NaN (the relief's curvature is not
+    given). :meth:`to_dict` writes them as null and adds ``kind = "micro_relief"``.
+    """
+
+    macro_normal: np.ndarray | None = None
+
+    def to_dict(self) -> dict:
+        """:meth:`HighlightTruth.to_dict` with ``kind`` "micro_relief", ``macro_normal`` [x, y, z]
+        and ``k1``, ``k2`` null."""
+        d = super().to_dict()
+        d.update(kind="micro_relief", k1=None, k2=None,
+                 macro_normal=[float(x) for x in self.macro_normal] if self.macro_normal is not None else None)
+        return d
+
+
+def relief_highlights(cast: Caster, shading_normals: np.ndarray, position: np.ndarray, mask: np.ndarray,
+                      light: np.ndarray, *, specular: np.ndarray | None = None, candidate_deg: float = 3.0,
+                      accept_deg: float = 0.01, max_highlights: int = 256,
+                      max_bright: int = 64) -> list[ReliefHighlight]:
+    """Specular points of the micro-relief (glints) of one light, from a render's shading normals.
+
+    Parameters
+    ----------
+    cast : callable
+        Ray caster (see ``Caster``) whose ``n`` is the *shading* normal (the relief's, evaluated
+        with the function the renderer shades with) and ``n_macro`` the surface's normal.
+    shading_normals : ndarray of shape (H, W, 3)
+        Per-pixel shading normals, camera frame (values outside ``mask`` are ignored).
+    position : ndarray of shape (H, W, 3)
+        Per-pixel surface points, camera frame, mm (values outside ``mask`` are ignored).
+    mask : ndarray of shape (H, W), bool
+        Pixels with surface truth.
+    light : ndarray of shape (3,)
+        Light position, camera frame, mm.
+    specular : ndarray of shape (H, W), optional
+        The render's specular image: its ``max_bright`` brightest local maxima start searches too
+        (a glint finer than a pixel can be bright where the pixel centre's normal misses the
+        bisector).
+    candidate_deg : float
+        Pixels whose shading normal is within this angle of the bisector and locally best (among
+        their 8 neighbours) start a search.
+    accept_deg : float
+        A refined point is kept if its shading normal is within this angle of the bisector.
+    max_highlights : int
+        At most this many candidates, those nearest the bisector first, are refined: on a
+        relief finer than a pixel the glints are many, and the labels are those found, not all.
+
+    Returns
+    -------
+    list of ReliefHighlight
+        Sorted by v then u; duplicates (within 0.5 px) merged. ``light`` is 0: the caller sets it.
+    """
+    H, W = mask.shape
+    n = np.where(mask[..., None], np.nan_to_num(shading_normals), 0.0)
+    q = np.where(mask[..., None], np.nan_to_num(position), 0.0)
+    g = bisector_cos_image(n, q, mask, light)
+    peaks = peak_local_max(g, min_distance=1, threshold_abs=math.cos(math.radians(candidate_deg)),
+                           exclude_border=False, num_peaks=max_highlights)
+    if specular is not None and max_bright > 0:
+        sp = np.where(mask, np.asarray(specular, dtype=np.float32), 0.0)
+        bright = peak_local_max(sp, min_distance=1, threshold_abs=1e-30, exclude_border=False,
+                                num_peaks=max_bright)
+        peaks = np.unique(np.vstack([peaks.reshape(-1, 2), bright.reshape(-1, 2)]), axis=0)
+    if len(peaks) == 0:
+        return []
+    # Glints lie closer together than a macro surface's BPs: the search stays within 0.5 px of
+    # its start pixel (a first step of 1/6 px), so each start finds the glint in its own pixel.
+    uv, res = _refine(cast, peaks[:, ::-1].astype(np.float64), light, step=1.0 / 6.0)
+    out: list[ReliefHighlight] = []
+    for i in range(len(uv)):
+        if not res["hit"][i]:
+            continue
+        p, ns = res["p"][i], unit(res["n"][i], axis=-1)
+        angle = math.degrees(math.acos(min(1.0, float(np.dot(ns, bisector(p, light))))))
+        if angle > accept_deg:
+            continue
+        hl = ReliefHighlight(uv[i].copy(), p.copy(), ns, math.nan, math.nan, pixel_in_frame(uv[i], (W, H)),
+                             macro_normal=unit(res["n_macro"][i], axis=-1))
         if all(np.hypot(*(hl.bp_px - o.bp_px)) > 0.5 for o in out):
             out.append(hl)
     out.sort(key=lambda h: (h.bp_px[1], h.bp_px[0]))
