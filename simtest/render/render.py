@@ -944,7 +944,12 @@ def _render_endoscope(spec: SceneSpec, seed: int, variant: str) -> RenderResult:
                                        specular=specular):
                 if h.in_frame and h.bp_mm[2] > 0:
                     glints.append(dataclasses.replace(h, light=i))
-        glints = [h for h in visible_highlights(glints, specular) if _unoccluded(h, cast_uv)]
+        glints = visible_highlights(glints, specular)
+        if glints:  # unoccluded, as _unoccluded, in one cast
+            c = cast_uv(np.array([h.bp_px for h in glints], dtype=np.float64))
+            dist = np.linalg.norm(np.array([h.bp_mm for h in glints]), axis=1)
+            seen = c["hit"] & (np.abs(c["t"] - dist) <= OCCLUSION_REL * dist)
+            glints = [h for h, s_ in zip(glints, seen) if s_]
     sensor, video = _sensor_image(linear, rgb, spec, seed)
     return RenderResult(
         linear=linear, sensor=sensor, specular=specular, normals=normals, depth=depth,

@@ -6,10 +6,13 @@ wavefront and the ground truth evaluates the very same function per pixel:
 
 - **Attached to the tissue.** The fields are solid textures of the point ``q`` in the *texture
   frame*: the mesh's own frame (the mesh file's axes, in mm, moved with the mesh's rotation and
-  translation), or the camera frame for the analytic shapes, which are defined in it. A render
-  evaluates them on camera-frame points ``p``: :func:`in_camera` rewrites every plane wave
-  ``sin(k . q + phi)`` with ``q = A p + b`` as ``sin((A^T k) . p + (phi + k . b))``, the same
-  function of the surface point, so a surface point keeps its albedo and relief from any pose.
+  translation), the world frame for spheres and cylinders, the camera frame for planes and
+  saddles, which are defined in it. A render evaluates them on camera-frame points ``p`` and
+  normals ``n`` through the rigid map ``q = A p + b`` of :attr:`TissueParams.frame`
+  (:func:`in_camera`): the fields are evaluated at ``q`` with the normal ``A n`` and the shading
+  normal is turned back by ``A^T``, so a surface point keeps its albedo and relief from any pose.
+  Dr.Jit takes ``A`` and ``b`` as opaque values (``xp.const``), so a new pose reuses the compiled
+  kernels.
 - **Albedo** (diffuse RGB): a base colour per tissue (:data:`TISSUE_ALBEDO`) times a smooth
   colour variation, darkened along vessel-like lines: the zero set of a smooth random field
   ``g(q)`` (a sum of seeded plane waves), drawn as ``exp(-(g / w)^2)`` with a thin ``w``, which
@@ -82,6 +85,9 @@ class TissueParams:
     relief_k: np.ndarray  # (M, 3)
     relief_phase: np.ndarray  # (M,)
     relief_amp: np.ndarray  # (M,) mm; the RMS of the sum is the relief's RMS height
+    #: (4, 4) rigid map from the frame of the points given to the functions below (the camera
+    #: frame) to the texture frame; None: they are given in the texture frame.
+    frame: np.ndarray | None = None
 
 
 def _directions(rng: np.random.Generator, n: int) -> np.ndarray:
@@ -150,36 +156,45 @@ def tissue_params(kind: str, seed: int, relief_mm: float, relief_scale_mm: float
 
 
 def in_camera(t: TissueParams, cam_to_texture: np.ndarray) -> TissueParams:
-    """The texture ``t`` as a function of camera-frame points.
+    """The texture ``t`` as a function of camera-frame points and normals.
 
     Parameters
     ----------
     t : TissueParams
         Waves of the texture frame.
     cam_to_texture : ndarray of shape (4, 4)
-        Rigid map ``q = A p + b`` from camera-frame points ``p`` to texture-frame points ``q``, mm.
+        Rigid map ``q = A p + b`` from camera-frame points ``p`` to texture-frame points ``q``, mm
+        (``A`` a rotation).
 
     Returns
     -------
     TissueParams
-        Waves ``k' = A^T k`` and phases ``phi' = phi + k . b`` (reduced modulo 2 pi, in float64),
-        so that ``sin(k' . p + phi') = sin(k . q + phi)``: the albedo and relief of a surface
-        point do not depend on the camera pose. The identity returns ``t`` itself.
+        ``t`` with :attr:`TissueParams.frame` set: :func:`albedo`, :func:`relief_height` and
+        :func:`relief_normal` then take camera-frame points (and normals, returned in the camera
+        frame) and evaluate the texture at ``q``: the albedo and relief of a surface point do not
+        depend on the camera pose. The identity returns ``t`` unchanged (no frame).
     """
     m = np.asarray(cam_to_texture, dtype=np.float64)
     if np.array_equal(m, np.eye(4)):
-        return t
-    A, b = m[:3, :3], m[:3, 3]
+        return dataclasses.replace(t, frame=None)
+    return dataclasses.replace(t, frame=m.copy())
 
-    def move(k, phase):
-        k = np.asarray(k, dtype=np.float64)
-        return k @ A, np.mod(np.asarray(phase, dtype=np.float64) + k @ b, 2.0 * math.pi)
 
-    ck, cp = move(t.colour_k, t.colour_phase)
-    vk, vp = move(t.vessel_k, t.vessel_phase)
-    rk, rp = move(t.relief_k, t.relief_phase)
-    return dataclasses.replace(t, colour_k=ck, colour_phase=cp, vessel_k=vk, vessel_phase=vp,
-                               relief_k=rk, relief_phase=rp)
+def _const(xp, x: float):
+    """``x`` as the kernel's value: a Python float for numpy, an opaque Dr.Jit value (not baked
+    into the compiled kernel) where ``xp`` offers ``const``."""
+    f = getattr(xp, "const", None)
+    return float(x) if f is None else f(float(x))
+
+
+def _to_texture(xp, p, t: TissueParams):
+    """Points ``p`` (camera frame) in the texture frame, and the rotation ``A`` used (None: none)."""
+    if t.frame is None:
+        return p, None
+    A = [[_const(xp, t.frame[i, j]) for j in range(3)] for i in range(3)]
+    b = [_const(xp, t.frame[i, 3]) for i in range(3)]
+    q = tuple(A[i][0] * p[0] + A[i][1] * p[1] + A[i][2] * p[2] + b[i] for i in range(3))
+    return q, A
 
 
 def _field(xp, p, k, phase):
@@ -192,11 +207,12 @@ def _field(xp, p, k, phase):
 
 
 def albedo(xp, p, t: TissueParams):
-    """Diffuse RGB albedo at surface points ``p`` = (x, y, z) arrays, mm, in the frame of ``t``'s
-    waves (the camera frame after :func:`in_camera`).
+    """Diffuse RGB albedo at surface points ``p`` = (x, y, z) arrays, mm (the camera frame with
+    :func:`in_camera`, else the texture frame).
 
     Returns a tuple of three arrays (R, G, B) in [0, 1].
     """
+    p, _ = _to_texture(xp, p, t)
     var = _field(xp, p, t.colour_k, t.colour_phase)  # smooth, unit RMS
     g = _field(xp, p, t.vessel_k, t.vessel_phase)
     vessel = xp.exp(-(g * g) / (t.vessel_width * t.vessel_width))
@@ -211,7 +227,8 @@ def albedo(xp, p, t: TissueParams):
 
 def relief_height(xp, p, t: TissueParams):
     """Micro-relief height ``h(p) = sum_j a_j sin(k_j . p + phi_j)``, mm, at points ``p`` = (x, y, z)
-    (the frame of ``t``'s waves)."""
+    (the camera frame with :func:`in_camera`)."""
+    p, _ = _to_texture(xp, p, t)
     h = 0.0
     for j in range(len(t.relief_phase)):
         k = t.relief_k[j]
@@ -223,19 +240,22 @@ def relief_height(xp, p, t: TissueParams):
 def relief_normal(xp, p, n, t: TissueParams):
     """Shading normal with micro-relief: ``unit(n - (grad h - (grad h . n) n))``.
 
-    ``p`` and ``n`` are (x, y, z) tuples of arrays (the frame of ``t``'s waves, the camera frame
-    after :func:`in_camera`; ``n`` the unit macro normal); returns the unit shading normal as a
-    tuple, facing the same side as ``n``.
+    ``p`` and ``n`` are (x, y, z) tuples of arrays (the camera frame with :func:`in_camera`, else
+    the texture frame; ``n`` the unit macro normal); returns the unit shading normal in the same
+    frame as a tuple, facing the same side as ``n``.
     """
     if not np.any(t.relief_amp):  # smooth: no waves to evaluate (the normal, normalised)
         inv = 1.0 / xp.sqrt(n[0] * n[0] + n[1] * n[1] + n[2] * n[2])
         return n[0] * inv, n[1] * inv, n[2] * inv
+    p, A = _to_texture(xp, p, t)
     gx = gy = gz = 0.0
     for j in range(len(t.relief_phase)):
         k = t.relief_k[j]
         c = float(t.relief_amp[j]) * xp.cos(p[0] * float(k[0]) + p[1] * float(k[1]) + p[2] * float(k[2])
                                             + float(t.relief_phase[j]))
         gx, gy, gz = gx + c * float(k[0]), gy + c * float(k[1]), gz + c * float(k[2])
+    if A is not None:  # the gradient back in the camera frame: grad_p h = A^T grad_q h
+        gx, gy, gz = (A[0][i] * gx + A[1][i] * gy + A[2][i] * gz for i in range(3))
     gn = gx * n[0] + gy * n[1] + gz * n[2]
     sx, sy, sz = n[0] - (gx - gn * n[0]), n[1] - (gy - gn * n[1]), n[2] - (gz - gn * n[2])
     inv = 1.0 / xp.sqrt(sx * sx + sy * sy + sz * sz)

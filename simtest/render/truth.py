@@ -24,6 +24,7 @@ from typing import Callable
 import cv2
 import numpy as np
 from scipy import ndimage
+from scipy.spatial import cKDTree
 from skimage.feature import peak_local_max
 
 from simtest.geometry.angles import unit
@@ -221,17 +222,19 @@ def mesh_highlights(
     return out
 
 
-def _refine(cast: Caster, candidates: np.ndarray, light: np.ndarray, step: float = 1.0) -> tuple[np.ndarray, dict]:
+def _refine(cast: Caster, candidates: np.ndarray, light: np.ndarray, step: float = 1.0,
+            rounds: int = 16) -> tuple[np.ndarray, dict]:
     """Climb from each start pixel to where ``cast``'s normal best bisects camera and light.
 
-    Casts 7 x 7 sub-pixel grids of rays 16 times, keeping the ray whose normal is nearest the
-    bisector; the step starts at ``step`` px (1: the search reaches 3 px) and shrinks by 3 each
-    time (to ~1e-7 px). Returns the final pixel positions (N, 2) and ``cast``'s result there.
+    Casts 7 x 7 sub-pixel grids of rays ``rounds`` times, keeping the ray whose normal is nearest
+    the bisector; the step starts at ``step`` px (1: the search reaches 3 px) and shrinks by 3
+    each time (1 px and 16 rounds end at ~1e-7 px). Returns the final pixel positions (N, 2) and
+    ``cast``'s result there.
     """
     uv = np.asarray(candidates, dtype=np.float64)
     offs = np.arange(-3, 4, dtype=np.float64)
     grid = np.stack(np.meshgrid(offs, offs, indexing="xy"), axis=-1).reshape(-1, 2)  # (49, 2)
-    for _ in range(16):
+    for _ in range(rounds):
         cand = uv[:, None, :] + step * grid[None, :, :]  # (N, 49, 2)
         res = cast(cand.reshape(-1, 2))
         cos = np.full(len(res["hit"]), -np.inf)
@@ -242,6 +245,19 @@ def _refine(cast: Caster, candidates: np.ndarray, light: np.ndarray, step: float
         uv = cand[np.arange(len(uv)), j]
         step /= 3.0
     return uv, cast(uv)
+
+
+def _peaks(img: np.ndarray, threshold: float, num: int) -> np.ndarray:
+    """(row, col) of the at most ``num`` highest local maxima (8-neighbourhood) of ``img`` at or
+    above ``threshold``, highest first; found on the bounding box of the pixels above it."""
+    rows, cols = np.nonzero(img >= threshold)
+    if len(rows) == 0:
+        return np.zeros((0, 2), dtype=np.int64)
+    r0, r1 = max(int(rows.min()) - 1, 0), min(int(rows.max()) + 2, img.shape[0])
+    c0, c1 = max(int(cols.min()) - 1, 0), min(int(cols.max()) + 2, img.shape[1])
+    crop = img[r0:r1, c0:c1]
+    pk = peak_local_max(crop, min_distance=1, threshold_abs=threshold, exclude_border=False, num_peaks=num)
+    return pk.reshape(-1, 2) + np.array([r0, c0])
 
 
 @dataclass(frozen=True)
@@ -267,7 +283,7 @@ class ReliefHighlight(HighlightTruth):
 
 def relief_highlights(cast: Caster, shading_normals: np.ndarray, position: np.ndarray, mask: np.ndarray,
                       light: np.ndarray, *, specular: np.ndarray | None = None, candidate_deg: float = 3.0,
-                      accept_deg: float = 0.01, max_highlights: int = 256,
+                      accept_deg: float = 0.01, max_highlights: int = 128,
                       max_bright: int = 64) -> list[ReliefHighlight]:
     """Specular points of the micro-relief (glints) of one light, from a render's shading normals.
 
@@ -303,33 +319,37 @@ def relief_highlights(cast: Caster, shading_normals: np.ndarray, position: np.nd
         Sorted by v then u; duplicates (within 0.5 px) merged. ``light`` is 0: the caller sets it.
     """
     H, W = mask.shape
-    n = np.where(mask[..., None], np.nan_to_num(shading_normals), 0.0)
-    q = np.where(mask[..., None], np.nan_to_num(position), 0.0)
-    g = bisector_cos_image(n, q, mask, light)
-    peaks = peak_local_max(g, min_distance=1, threshold_abs=math.cos(math.radians(candidate_deg)),
-                           exclude_border=False, num_peaks=max_highlights)
+    g = bisector_cos_image(shading_normals, position, mask, light)
+    peaks = _peaks(g, math.cos(math.radians(candidate_deg)), max_highlights)
     if specular is not None and max_bright > 0:
         sp = np.where(mask, np.asarray(specular, dtype=np.float32), 0.0)
-        bright = peak_local_max(sp, min_distance=1, threshold_abs=1e-30, exclude_border=False,
-                                num_peaks=max_bright)
-        peaks = np.unique(np.vstack([peaks.reshape(-1, 2), bright.reshape(-1, 2)]), axis=0)
+        top = float(sp.max())
+        if top > 0:  # the brightest local maxima, down to a quarter of the brightest pixel
+            peaks = np.unique(np.vstack([peaks, _peaks(sp, 0.25 * top, max_bright)]), axis=0)
     if len(peaks) == 0:
         return []
     # Glints lie closer together than a macro surface's BPs: the search stays within 0.5 px of
     # its start pixel (a first step of 1/6 px), so each start finds the glint in its own pixel.
-    uv, res = _refine(cast, peaks[:, ::-1].astype(np.float64), light, step=1.0 / 6.0)
-    out: list[ReliefHighlight] = []
-    for i in range(len(uv)):
-        if not res["hit"][i]:
-            continue
-        p, ns = res["p"][i], unit(res["n"][i], axis=-1)
-        angle = math.degrees(math.acos(min(1.0, float(np.dot(ns, bisector(p, light))))))
-        if angle > accept_deg:
-            continue
-        hl = ReliefHighlight(uv[i].copy(), p.copy(), ns, math.nan, math.nan, pixel_in_frame(uv[i], (W, H)),
-                             macro_normal=unit(res["n_macro"][i], axis=-1))
-        if all(np.hypot(*(hl.bp_px - o.bp_px)) > 0.5 for o in out):
-            out.append(hl)
+    # 12 rounds from 1/6 px end at ~1e-6 px, well inside the acceptance angle.
+    uv, res = _refine(cast, peaks[:, ::-1].astype(np.float64), light, step=1.0 / 6.0, rounds=12)
+    hit = res["hit"]
+    ns = unit(np.where(hit[:, None], res["n"], np.nan), axis=-1)
+    cos = np.sum(ns * bisector(np.where(hit[:, None], res["p"], np.nan), light), axis=-1)
+    ok = hit & (cos >= math.cos(math.radians(accept_deg)))
+    idx = np.flatnonzero(ok)
+    idx = idx[np.argsort(-cos[idx], kind="stable")]  # the best of merged duplicates stays
+    keep: list[int] = []
+    if len(idx):
+        tree = cKDTree(uv[idx])
+        taken = np.zeros(len(idx), dtype=bool)
+        for j in range(len(idx)):
+            near = tree.query_ball_point(uv[idx[j]], 0.5)
+            if not taken[near].any():
+                keep.append(int(idx[j]))
+                taken[j] = True
+    out = [ReliefHighlight(uv[i].copy(), res["p"][i].copy(), ns[i], math.nan, math.nan,
+                           pixel_in_frame(uv[i], (W, H)), macro_normal=unit(res["n_macro"][i], axis=-1))
+           for i in keep]
     out.sort(key=lambda h: (h.bp_px[1], h.bp_px[0]))
     return out
 

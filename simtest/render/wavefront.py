@@ -275,10 +275,18 @@ def _dr_xp():
     """The numpy names :mod:`simtest.render.tissue` uses, on Dr.Jit arrays (a namespace)."""
     dr = require("drjit")
 
+    mi = require("mitsuba")
+
     class _DrXp:
         sin, cos, exp, sqrt = staticmethod(dr.sin), staticmethod(dr.cos), staticmethod(dr.exp), staticmethod(dr.sqrt)
         maximum, minimum, power = staticmethod(dr.maximum), staticmethod(dr.minimum), staticmethod(dr.power)
         where = staticmethod(dr.select)
+
+        @staticmethod
+        def const(x: float):
+            """A value the kernel reads at launch (the texture frame of a pose): one compiled
+            kernel serves every pose."""
+            return dr.opaque(mi.Float, x)
 
     return _DrXp
 
