@@ -213,7 +213,8 @@ def test_an_endoscope_image_does_not_depend_on_the_wavefront_size(monkeypatch, s
 
 def test_no_light_reaches_the_pixels_outside_the_field_stop():
     """Outside the scope's field stop the renderer shades nothing: radiance 0 there, every pixel
-    inside with the bits of a render without a field stop, coverage and ground truth everywhere."""
+    inside with the bits of a render without a field stop, coverage everywhere, and no ground truth
+    outside it (issue 40, item 5: mask False, NaN normals, positions, depths)."""
     from simtest.render.sensor import field_stop_mask
 
     over = {"render.spp": 6, "material.model": "tissue", "sensor.output": "video"}
@@ -226,8 +227,13 @@ def test_no_light_reaches_the_pixels_outside_the_field_stop():
         a, b = getattr(open_, name), getattr(stopped, name)
         assert np.array_equal(a[inside], b[inside]), name
         assert np.all(b[~inside] == 0) and np.any(a[~inside] > 0), name
-    for name in ("coverage", "normals", "position", "depth", "shading_normals"):
-        assert np.array_equal(getattr(open_, name), getattr(stopped, name), equal_nan=True), name
+    assert np.array_equal(open_.coverage, stopped.coverage)
+    assert open_.field_stop is None and np.array_equal(stopped.field_stop, inside)
+    assert np.array_equal(stopped.mask, open_.mask & inside) and not stopped.mask[~inside].any()
+    for name in ("normals", "position", "depth", "distance", "shading_normals", "albedo"):
+        a, b = getattr(open_, name), getattr(stopped, name)
+        assert np.array_equal(a[inside], b[inside], equal_nan=True), name
+        assert np.all(np.isnan(b[~inside])) and np.all(np.isfinite(a[~inside])), name
 
 
 def test_sample_positions_of_a_pixel_list_are_those_of_a_run():

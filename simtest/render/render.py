@@ -52,8 +52,8 @@ from simtest.render.mitsuba_dict import (
 from simtest.render import wavefront
 from simtest.render.endoscope import camera_model, light_rig, sample_positions, uses_endoscope
 from simtest.render.sensor import LUMA_WEIGHTS, apply_sensor, field_stop_mask, frame_luma, video_frame
-from simtest.render.tissue import tissue_params
-from simtest.render.truth import mesh_highlight_candidates, mesh_highlights
+from simtest.render.tissue import in_camera, relief_normal, tissue_params
+from simtest.render.truth import ReliefHighlight, mesh_highlight_candidates, mesh_highlights, relief_highlights
 from simtest.scene.meshes import MeshError, load_mesh
 from simtest.scene.spec import SceneSpec, scene_to_dict
 from simtest.simulate.truth import (
@@ -198,6 +198,17 @@ class RenderResult:
     video : ndarray of shape (H, W, 3), uint8, or None
         The video frame when the sensor made one (``sensor.output = "video"``: ``sensor`` is its
         luma); :attr:`frame` gives it, or develops it from the linear image otherwise.
+    field_stop : ndarray of shape (H, W), bool, or None
+        Pixels inside the scope's field stop (``sensor.field_stop`` with a video sensor); None when
+        the whole film sees the scene. Outside it there is no light and no truth: ``mask`` is
+        False and the per-pixel truth NaN there.
+    albedo : ndarray of shape (H, W, 3), float32, or None
+        Linear RGB diffuse albedo of the tissue at each pixel centre's surface point (the function
+        the renderer shades with), NaN outside ``mask``; None without tissue.
+    relief_highlights : list of ReliefHighlight
+        Specular points of the tissue's micro-relief (glints: the shading normal bisects camera
+        and light), in frame, lit and unoccluded, each with its light
+        (:func:`simtest.render.truth.relief_highlights`); ``highlights`` holds the macro surface's.
     """
 
     linear: np.ndarray
@@ -221,6 +232,9 @@ class RenderResult:
     rgb: np.ndarray | None = None
     shading_normals: np.ndarray | None = None
     video: np.ndarray | None = field(default=None, repr=False)
+    field_stop: np.ndarray | None = field(default=None, repr=False)
+    albedo: np.ndarray | None = field(default=None, repr=False)
+    relief_highlights: list = field(default_factory=list)
 
     @property
     def frame(self) -> np.ndarray:
@@ -387,6 +401,37 @@ def _scene_pose(spec: SceneSpec) -> np.ndarray:
     if spec.geometry.type == "saddle":
         return np.eye(4)
     return cam_to_world_matrix(spec.camera)
+
+
+def cam_to_texture_matrix(spec: SceneSpec) -> np.ndarray:
+    """(4, 4) rigid map from the camera frame to the frame the tissue texture is attached to.
+
+    Meshes: the mesh file's own axes moved by the mesh's rotation and translation (mm, without its
+    ``scale``: the texture keeps its wavelengths in mm), so that the tissue stays on the mesh
+    whatever the camera pose or the mesh placement; spheres and cylinders: the world frame (their
+    centres and axes are given in it); planes and saddles are defined in the camera frame, which
+    is then their texture frame (identity).
+    """
+    geo = spec.geometry
+    if geo.type in ("plane", "saddle"):
+        return np.eye(4)
+    c2w = cam_to_world_matrix(spec.camera)
+    if geo.type != "mesh":
+        return c2w
+    m = mesh_to_world_matrix(geo)
+    R = m[:3, :3] / (geo.scale if geo.scale is not None else 1.0)
+    w2t = np.eye(4)
+    w2t[:3, :3], w2t[:3, 3] = R.T, -R.T @ m[:3, 3]
+    return w2t @ c2w
+
+
+def tissue_texture(spec: SceneSpec):
+    """The tissue texture of ``spec`` (``material.model = "tissue"``) as a function of camera-frame
+    points (:func:`simtest.render.tissue.in_camera` of :func:`cam_to_texture_matrix`)."""
+    mat = spec.material
+    t = tissue_params(mat.tissue, mat.texture_seed, mat.relief_mm, mat.relief_scale_mm,
+                      relief_min_mm=mat.relief_min_mm, relief_hurst=mat.relief_hurst)
+    return in_camera(t, cam_to_texture_matrix(spec))
 
 
 def _mesh_in_scene(spec: SceneSpec) -> dict[str, np.ndarray]:
@@ -801,9 +846,7 @@ def _render_endoscope(spec: SceneSpec, seed: int, variant: str) -> RenderResult:
         _cache_put(_SCENE_CACHE, _SCENE_CACHE_SIZE, key, scene)
     shadows = bool(geo.type in ("mesh", "saddle") and not rig.is_colocated)
     mat = spec.material
-    texture = None
-    if mat.model == "tissue":
-        texture = tissue_params(mat.tissue, mat.texture_seed, mat.relief_mm, mat.relief_scale_mm)
+    texture = tissue_texture(spec) if mat.model == "tissue" else None
 
     n_pix = W * H
     # The pixel centres' ground truth first (its casts wait for every kernel queued before them).
@@ -826,7 +869,12 @@ def _render_endoscope(spec: SceneSpec, seed: int, variant: str) -> RenderResult:
         rays = wavefront.model_rays(model, sample_positions(spp, W, 0, 0, seed, pixels=dark[b0:b0 + BLOCK_PIXELS]))
         covered.append(wavefront.coverage(scene, rays, spp=spp, defer=True))
     c = centre()
+    stop = _field_stop(spec, W, H)
     mask, p, n = c["hit"].reshape(H, W), c["p"].reshape(H, W, 3), c["n"].reshape(H, W, 3)
+    if stop is not None:  # no truth where the scope shows nothing
+        mask = mask & stop
+        p = np.where(mask[..., None], p, np.nan)
+        n = np.where(mask[..., None], n, np.nan)
     del c, centre
     nan = np.float32(np.nan)
     position = np.where(mask[..., None], p, nan).astype(np.float32)
@@ -836,6 +884,7 @@ def _render_endoscope(spec: SceneSpec, seed: int, variant: str) -> RenderResult:
     res = {"normals_raw": np.where(mask[..., None], n, 0.0), "position_raw": np.where(mask[..., None], p, 0.0),
            "mask": mask}
     relief = wavefront.relief_normals(p, n, texture, defer=True) if texture is not None else None
+    alb = wavefront.albedo_map(p, texture, defer=True) if texture is not None else None
     starts = [mesh_highlight_candidates(res["normals_raw"], res["position_raw"], mask, light.position)
               if mesh is not None else None for light in rig.lights]
     spec_img = np.zeros(n_pix, np.float32)
@@ -856,17 +905,26 @@ def _render_endoscope(spec: SceneSpec, seed: int, variant: str) -> RenderResult:
         coverage[dark[b0:b0 + BLOCK_PIXELS]] = job.fetch()
     del pending, covered
     value = value.reshape(H, W, 3)
-    rgb = shading = None
+    rgb = shading = albedo = None
     if texture is None:
         linear = value[..., 0].copy()
     else:
         rgb = value
         linear = (value @ np.asarray(LUMA_WEIGHTS, dtype=np.float32)).astype(np.float32)
         shading = np.where(mask[..., None], relief.fetch(), nan).astype(np.float32)
+        albedo = np.where(mask[..., None], alb.fetch(), nan).astype(np.float32)
     specular = spec_img.reshape(H, W)
 
     def cast_uv(q: np.ndarray) -> dict:
         return wavefront.cast(scene, model.pixel_to_ray(q))
+
+    def cast_relief(q: np.ndarray) -> dict:
+        """``cast_uv`` with the relief's shading normal (float64, the renderer's function) as ``n``."""
+        hit = cast_uv(q)
+        pq, nq = hit["p"].T, hit["n"].T
+        hit["n_macro"] = hit["n"]
+        hit["n"] = np.stack(relief_normal(np, tuple(pq), tuple(nq), texture), axis=-1)
+        return hit
 
     K = _stand_in_K(model)
     highlights: list[HighlightTruth] = []
@@ -879,13 +937,36 @@ def _render_endoscope(spec: SceneSpec, seed: int, variant: str) -> RenderResult:
                 in_frame=bool(np.all(np.isfinite(uvh)) and -0.5 <= uvh[0] < W - 0.5
                               and -0.5 <= uvh[1] < H - 0.5)))
     highlights = [h for h in visible_highlights(highlights, specular) if _unoccluded(h, cast_uv)]
+    glints: list[ReliefHighlight] = []
+    if texture is not None and np.any(texture.relief_amp):
+        for i, light in enumerate(rig.lights):
+            for h in relief_highlights(cast_relief, shading, position, mask, light.position,
+                                       specular=specular):
+                if h.in_frame and h.bp_mm[2] > 0:
+                    glints.append(dataclasses.replace(h, light=i))
+        glints = visible_highlights(glints, specular)
+        if glints:  # unoccluded, as _unoccluded, in one cast
+            c = cast_uv(np.array([h.bp_px for h in glints], dtype=np.float64))
+            dist = np.linalg.norm(np.array([h.bp_mm for h in glints]), axis=1)
+            seen = c["hit"] & (np.abs(c["t"] - dist) <= OCCLUSION_REL * dist)
+            glints = [h for h, s_ in zip(glints, seen) if s_]
     sensor, video = _sensor_image(linear, rgb, spec, seed)
     return RenderResult(
         linear=linear, sensor=sensor, specular=specular, normals=normals, depth=depth,
         distance=distance, position=position, mask=mask, coverage=coverage.reshape(H, W),
         K=K, cam_to_world=cam_to_world_matrix(spec.camera), light_pos=rig.lights[0].position,
         highlights=highlights, variant=variant, seed=seed, spec=spec, camera=model, lights=rig,
-        rgb=rgb, shading_normals=shading, video=video)
+        rgb=rgb, shading_normals=shading, video=video, field_stop=stop, albedo=albedo,
+        relief_highlights=glints)
+
+
+def _field_stop(spec: SceneSpec, W: int, H: int) -> np.ndarray | None:
+    """(H, W) bool: the pixels inside the scope's field stop (``sensor.field_stop`` with a video
+    sensor), or None when the whole film sees the scene."""
+    sensor = spec.sensor
+    if sensor.output != "video" or sensor.field_stop == "none":
+        return None
+    return field_stop_mask((H, W), sensor.field_stop, sensor.field_stop_radius)
 
 
 def _shaded_pixels(spec: SceneSpec, W: int, H: int) -> tuple[np.ndarray, np.ndarray]:
@@ -893,14 +974,15 @@ def _shaded_pixels(spec: SceneSpec, W: int, H: int) -> tuple[np.ndarray, np.ndar
 
     A scope's field stop (``sensor.field_stop``, with a video sensor) lets no light onto the
     pixels outside it: the renderer traces no shading rays there, and their radiance (``linear``,
-    ``rgb``, ``specular``) is 0; their coverage and ground truth are computed as everywhere.
+    ``rgb``, ``specular``) is 0; their coverage is computed as everywhere, their ground truth is
+    NaN (``mask`` False).
     Every shaded pixel gets the samples it gets in a full-frame render, so its value does not
     depend on the field stop.
     """
-    sensor = spec.sensor
-    if sensor.output != "video" or sensor.field_stop == "none":
+    stop = _field_stop(spec, W, H)
+    if stop is None:
         return np.arange(W * H, dtype=np.int64), np.zeros(0, dtype=np.int64)
-    inside = field_stop_mask((H, W), sensor.field_stop, sensor.field_stop_radius).ravel()
+    inside = stop.ravel()
     return np.flatnonzero(inside), np.flatnonzero(~inside)
 
 
@@ -1025,17 +1107,32 @@ def _umask() -> int:
     return mask
 
 
+def _light_dict(light: Light) -> dict:
+    """JSON-ready form of one light of a rig (every field of :class:`Light`; tuples as lists)."""
+    out = {}
+    for f in dataclasses.fields(light):
+        v = getattr(light, f.name)
+        out[f.name] = [float(x) for x in v] if isinstance(v, (tuple, list, np.ndarray)) else v
+    return out
+
+
 def write_render(result: RenderResult, out_dir: str | Path) -> dict[str, Path]:
     """Write a render to ``out_dir`` as one set: a failed write leaves the previous set or none.
 
     Files: ``image.png`` (the sensor image, 8 or 16 bit grey), ``intrinsics.json``
     (:func:`simtest.geometry.camera.save_intrinsics`), ``ground_truth.npz`` (``normals`` (H, W, 3),
     ``depth``, ``distance`` (H, W) mm, ``position`` (H, W, 3), ``mask``, ``linear``, ``specular``,
-    ``K``, ``cam_to_world``, ``light_pos``), ``highlights.json`` (``highlights``: list of
-    :meth:`HighlightTruth.to_dict`, with the scene, seed and variant), ``camera.json`` (the camera
-    model and its light rig, :func:`simtest.geometry.camera_file.save_camera`), ``frame.png`` (the
-    8-bit RGB video frame, :attr:`RenderResult.frame`); tissue renders add ``rgb`` (H, W, 3) and
-    ``shading_normals`` (H, W, 3) to ``ground_truth.npz``.
+    ``coverage``, ``K``, ``cam_to_world``, ``light_pos`` (the first light, camera frame, mm),
+    ``light_positions`` (L, 3) (every light of the rig), ``field_stop`` (H, W) bool (the pixels
+    inside the scope's field stop; all True without one; outside it ``mask`` is False and the
+    truth NaN)), ``highlights.json`` (``highlights``: list of :meth:`HighlightTruth.to_dict` with
+    ``kind`` "macro"; ``relief_highlights``: the micro-relief's glints,
+    :meth:`simtest.render.truth.ReliefHighlight.to_dict`, ``kind`` "micro_relief"; ``lights``:
+    every light of the rig (``position_mm``, ``intensity``, ``falloff``, ``profile_exponent``,
+    camera frame); with the scene, seed and variant), ``camera.json`` (the camera model and its
+    light rig, :func:`simtest.geometry.camera_file.save_camera`), ``frame.png`` (the 8-bit RGB
+    video frame, :attr:`RenderResult.frame`); tissue renders add ``rgb`` (H, W, 3),
+    ``shading_normals`` (H, W, 3) and ``albedo`` (H, W, 3) to ``ground_truth.npz``.
 
     The files are written into a temporary sibling folder that then replaces ``out_dir`` by
     renames (see :func:`_replace_folder`); ``out_dir`` may be new, empty or a previous render's
@@ -1062,15 +1159,20 @@ def write_render(result: RenderResult, out_dir: str | Path) -> dict[str, Path]:
     else:
         pil = Image.fromarray(img.astype(np.uint16))
     H, W = result.linear.shape[:2]
+    rig = result.light_rig
     meta = {
         "scene": result.spec.name,
         "seed": result.seed,
         "variant": result.variant,
         "light_pos_mm": [float(x) for x in result.light_pos],
+        "lights": [_light_dict(light) for light in rig.lights],
         "image_size": [W, H],
-        "highlights": [h.to_dict() for h in result.highlights],
+        "highlights": [{**h.to_dict(), "kind": "macro"} for h in result.highlights],
+        "relief_highlights": [h.to_dict() for h in result.relief_highlights],
         "spec": scene_to_dict(result.spec),
     }
+    stop = result.field_stop if result.field_stop is not None else np.ones((H, W), dtype=bool)
+    light_positions = np.array([light.position_mm for light in rig.lights], dtype=np.float64).reshape(-1, 3)
 
     def fill(tmp: Path) -> None:
         paths = {k: tmp / v for k, v in names.items()}
@@ -1084,7 +1186,9 @@ def write_render(result: RenderResult, out_dir: str | Path) -> dict[str, Path]:
                     position=result.position, mask=result.mask, linear=result.linear,
                     specular=result.specular, coverage=result.coverage, K=result.K,
                     cam_to_world=result.cam_to_world, light_pos=result.light_pos,
+                    light_positions=light_positions, field_stop=stop,
                     **({"rgb": result.rgb} if result.rgb is not None else {}),
+                    **({"albedo": result.albedo} if result.albedo is not None else {}),
                     **({"shading_normals": result.shading_normals}
                        if result.shading_normals is not None else {}))
 

@@ -1,18 +1,37 @@
 """Procedural tissue: seeded RGB albedo with vessel-like patterns, micro-relief and a wet specular film.
 
-Everything here is a closed-form function of the surface point ``p`` (camera frame, mm), written
-once for numpy and Dr.Jit alike (the ``xp`` argument: ``numpy`` or ``drjit``), so the renderer
-shades with it in Mitsuba's wavefront and the ground truth evaluates the very same function per
-pixel in float64:
+Everything here is a closed-form function of the surface point, written once for numpy and Dr.Jit
+alike (the ``xp`` argument: ``numpy`` or ``drjit``), so the renderer shades with it in Mitsuba's
+wavefront and the ground truth evaluates the very same function per pixel:
 
+- **Attached to the tissue.** The fields are solid textures of the point ``q`` in the *texture
+  frame*: the mesh's own frame (the mesh file's axes, in mm, moved with the mesh's rotation and
+  translation), the world frame for spheres and cylinders, the camera frame for planes and
+  saddles, which are defined in it. A render evaluates them on camera-frame points ``p`` and
+  normals ``n`` through the rigid map ``q = A p + b`` of :attr:`TissueParams.frame`
+  (:func:`in_camera`): the fields are evaluated at ``q`` with the normal ``A n`` and the shading
+  normal is turned back by ``A^T``, so a surface point keeps its albedo and relief from any pose.
+  Dr.Jit takes ``A`` and ``b`` as opaque values (``xp.const``), so a new pose reuses the compiled
+  kernels.
 - **Albedo** (diffuse RGB): a base colour per tissue (:data:`TISSUE_ALBEDO`) times a smooth
   colour variation, darkened along vessel-like lines: the zero set of a smooth random field
-  ``g(p)`` (a sum of seeded plane waves), drawn as ``exp(-(g / w)^2)`` with a thin ``w``, which
+  ``g(q)`` (a sum of seeded plane waves), drawn as ``exp(-(g / w)^2)`` with a thin ``w``, which
   gives branching, meandering curves like the submucosal vessels seen through mucosa.
-- **Micro-relief**: a height field ``h(p) = A sum_k a_k sin(k_k . p + phi_k)`` (seeded directions,
-  wavelengths between half and twice ``relief_scale_mm``, 0.05 to 1 mm) that tilts the shading
-  normal: ``n_s = unit(n - (grad h - (grad h . n) n))`` (the bump mapping of Blinn 1978,
-  https://doi.org/10.1145/965139.507101, on the tangent plane of the macro normal ``n``).
+- **Micro-relief**: a height field ``h(q) = sum_j a_j sin(k_j . q + phi_j)``, a random-wave
+  (Longuet-Higgins) sum of :data:`N_RELIEF_WAVES` plane waves with isotropic seeded directions,
+  uniform phases and wavelengths drawn stratified log-uniformly between ``relief_min_mm`` and
+  ``relief_scale_mm``, with amplitudes of a self-affine (fractal) surface: power spectral density
+  ``C(q) ~ q^-(2 + 2H)`` (Persson et al. 2005, https://doi.org/10.1088/0953-8984/17/1/R01, eq. 5;
+  the Weierstrass-Mandelbrot construction of Berry & Lewis 1980,
+  https://doi.org/10.1098/rspa.1980.0044), so a wave standing for an equal share of log-wavenumber
+  carries ``a_j ~ lambda_j^H``. The Hurst exponent ``H`` (:data:`RELIEF_HURST` = 0.8 by default) is
+  the value common to natural rough surfaces (0.7 to 0.9 in Persson's survey), not a measurement
+  of mucosa: ``simtest simreal`` compares the result with real frames. The amplitudes are scaled so
+  the RMS height is ``relief_mm``. With ``H < 1`` the slopes grow toward the short wavelengths, so
+  the relief breaks a specular lobe into many small glints rather than a regular cross-hatch. The
+  height tilts the shading normal: ``n_s = unit(n - (grad h - (grad h . n) n))`` (the bump mapping
+  of Blinn 1978, https://doi.org/10.1145/965139.507101, on the tangent plane of the macro normal
+  ``n``).
 - **Specular film**: a dielectric interface (IOR 1.33 to 1.45, water to mucus) with Fresnel's
   reflectance over a rough microfacet lobe, Beckmann or GGX (Walter et al. 2007,
   https://doi.org/10.2312/EGWR/EGSR07/195-206), ``f_s = F(wi . m) D(m) G(wi, wo) / (4 cos_i
@@ -22,13 +41,15 @@ pixel in float64:
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from dataclasses import dataclass
 
 import numpy as np
 
-__all__ = ["TISSUE_ALBEDO", "TISSUE_SEED_KEY", "TissueParams", "tissue_params", "albedo", "relief_height",
-           "relief_normal", "specular_lobe"]
+__all__ = ["TISSUE_ALBEDO", "TISSUE_SEED_KEY", "N_WAVES", "N_RELIEF_WAVES", "RELIEF_HURST", "RELIEF_MIN_MM",
+           "TissueParams", "tissue_params", "in_camera", "albedo", "relief_height", "relief_normal",
+           "specular_lobe"]
 
 #: Linear-RGB diffuse albedo of each tissue before variation. Mucosa: pink (sRGB about (225, 140,
 #: 125), the colour of a bowel wall under white light); liver: red-brown (sRGB about (150, 60, 45)).
@@ -38,13 +59,22 @@ TISSUE_ALBEDO = {"mucosa": (0.75, 0.26, 0.20), "liver": (0.30, 0.045, 0.026)}
 #: Stable key of the tissue texture stream in ``SeedSequence([seed, TISSUE_SEED_KEY])``.
 TISSUE_SEED_KEY = 0x7155E
 
-#: Plane waves in each procedural field.
+#: Plane waves in each albedo field (colour variation, vessels).
 N_WAVES = 12
+#: Plane waves of the micro-relief spectrum.
+N_RELIEF_WAVES = 40
+#: Default Hurst exponent of the micro-relief's self-affine spectrum (see the module notes).
+RELIEF_HURST = 0.8
+#: Default shortest wavelength of the micro-relief, mm: the scale of the colonic crypt openings
+#: (about 0.05 to 0.1 mm apart); shorter waves are below a pixel's footprint at working distances.
+RELIEF_MIN_MM = 0.05
 
 
 @dataclass(frozen=True)
 class TissueParams:
-    """Seeded parameters of one tissue texture (arrays of plane waves, camera-frame mm)."""
+    """Seeded parameters of one tissue texture: plane waves ``sin(k . p + phase)`` of the frame
+    the points are given in (the texture frame from :func:`tissue_params`, the camera frame after
+    :func:`in_camera`), wave vectors in rad/mm."""
 
     base: tuple[float, float, float]
     colour_k: np.ndarray  # (N, 3) wave vectors, rad/mm
@@ -52,21 +82,46 @@ class TissueParams:
     vessel_k: np.ndarray
     vessel_phase: np.ndarray
     vessel_width: float
-    relief_k: np.ndarray
-    relief_phase: np.ndarray
-    relief_amp: np.ndarray  # (N,) mm, sums to the relief amplitude over sqrt(N)
+    relief_k: np.ndarray  # (M, 3)
+    relief_phase: np.ndarray  # (M,)
+    relief_amp: np.ndarray  # (M,) mm; the RMS of the sum is the relief's RMS height
+    #: (4, 4) rigid map from the frame of the points given to the functions below (the camera
+    #: frame) to the texture frame; None: they are given in the texture frame.
+    frame: np.ndarray | None = None
+
+
+def _directions(rng: np.random.Generator, n: int) -> np.ndarray:
+    d = rng.normal(size=(n, 3))
+    return d / np.linalg.norm(d, axis=1, keepdims=True)
 
 
 def _waves(rng: np.random.Generator, wavelength_mm: float, n: int = N_WAVES):
-    d = rng.normal(size=(n, 3))
-    d /= np.linalg.norm(d, axis=1, keepdims=True)
+    d = _directions(rng, n)
     lam = wavelength_mm * np.exp(rng.uniform(math.log(0.5), math.log(2.0), size=n))
     return d * (2.0 * math.pi / lam)[:, None], rng.uniform(0.0, 2.0 * math.pi, size=n)
 
 
+def relief_spectrum(rng: np.random.Generator, relief_mm: float, min_mm: float, max_mm: float,
+                    hurst: float, n: int = N_RELIEF_WAVES):
+    """Wave vectors (n, 3), phases (n,) and amplitudes (n,) of the micro-relief (module notes).
+
+    Wavelengths are stratified log-uniform over [min_mm, max_mm] (one per equal share of
+    log-wavenumber, jittered within it), amplitudes ``~ lambda^hurst`` scaled so that the RMS
+    height of the sum, ``sqrt(sum a^2 / 2)``, is ``relief_mm``.
+    """
+    d = _directions(rng, n)
+    u = (np.arange(n) + rng.uniform(0.0, 1.0, size=n)) / n
+    lam = min_mm * (max_mm / min_mm) ** u
+    phase = rng.uniform(0.0, 2.0 * math.pi, size=n)
+    w = lam ** float(hurst)
+    amp = relief_mm * w / math.sqrt(float(np.sum(w * w)) / 2.0)
+    return d * (2.0 * math.pi / lam)[:, None], phase, amp
+
+
 def tissue_params(kind: str, seed: int, relief_mm: float, relief_scale_mm: float,
-                  vessel_scale_mm: float = 4.0) -> TissueParams:
-    """Draw a tissue texture from ``SeedSequence([seed, TISSUE_SEED_KEY])``.
+                  vessel_scale_mm: float = 4.0, *, relief_min_mm: float | None = None,
+                  relief_hurst: float = RELIEF_HURST) -> TissueParams:
+    """Draw a tissue texture (texture frame) from ``SeedSequence([seed, TISSUE_SEED_KEY])``.
 
     Parameters
     ----------
@@ -76,21 +131,74 @@ def tissue_params(kind: str, seed: int, relief_mm: float, relief_scale_mm: float
     relief_mm : float
         RMS height of the micro-relief, mm (0: smooth).
     relief_scale_mm : float
-        Typical wavelength of the micro-relief, mm.
+        Longest wavelength of the micro-relief spectrum, mm.
     vessel_scale_mm : float
         Typical spacing of the vessel pattern, mm.
+    relief_min_mm : float, optional
+        Shortest wavelength of the micro-relief, mm; default ``min(RELIEF_MIN_MM, relief_scale_mm)``.
+    relief_hurst : float
+        Hurst exponent H of the relief spectrum, amplitudes ``~ lambda^H``.
+
+    Raises
+    ------
+    ValueError
+        If ``relief_min_mm`` exceeds ``relief_scale_mm`` or is not positive.
     """
+    lo = min(RELIEF_MIN_MM, relief_scale_mm) if relief_min_mm is None else float(relief_min_mm)
+    if not 0.0 < lo <= relief_scale_mm:
+        raise ValueError(f"relief_min_mm {lo} must be in (0, relief_scale_mm = {relief_scale_mm}]")
     rng = np.random.default_rng(np.random.SeedSequence([int(seed), TISSUE_SEED_KEY]))
     ck, cp = _waves(rng, 3.0 * vessel_scale_mm)
     vk, vp = _waves(rng, vessel_scale_mm)
-    rk, rp = _waves(rng, relief_scale_mm)
-    amp = np.full(N_WAVES, relief_mm * math.sqrt(2.0 / N_WAVES))  # RMS of the sum = relief_mm
+    rk, rp, amp = relief_spectrum(rng, relief_mm, lo, relief_scale_mm, relief_hurst)
     width = 0.06 if kind == "mucosa" else 0.03
     return TissueParams(TISSUE_ALBEDO[kind], ck, cp, vk, vp, width, rk, rp, amp)
 
 
+def in_camera(t: TissueParams, cam_to_texture: np.ndarray) -> TissueParams:
+    """The texture ``t`` as a function of camera-frame points and normals.
+
+    Parameters
+    ----------
+    t : TissueParams
+        Waves of the texture frame.
+    cam_to_texture : ndarray of shape (4, 4)
+        Rigid map ``q = A p + b`` from camera-frame points ``p`` to texture-frame points ``q``, mm
+        (``A`` a rotation).
+
+    Returns
+    -------
+    TissueParams
+        ``t`` with :attr:`TissueParams.frame` set: :func:`albedo`, :func:`relief_height` and
+        :func:`relief_normal` then take camera-frame points (and normals, returned in the camera
+        frame) and evaluate the texture at ``q``: the albedo and relief of a surface point do not
+        depend on the camera pose. The identity returns ``t`` unchanged (no frame).
+    """
+    m = np.asarray(cam_to_texture, dtype=np.float64)
+    if np.array_equal(m, np.eye(4)):
+        return dataclasses.replace(t, frame=None)
+    return dataclasses.replace(t, frame=m.copy())
+
+
+def _const(xp, x: float):
+    """``x`` as the kernel's value: a Python float for numpy, an opaque Dr.Jit value (not baked
+    into the compiled kernel) where ``xp`` offers ``const``."""
+    f = getattr(xp, "const", None)
+    return float(x) if f is None else f(float(x))
+
+
+def _to_texture(xp, p, t: TissueParams):
+    """Points ``p`` (camera frame) in the texture frame, and the rotation ``A`` used (None: none)."""
+    if t.frame is None:
+        return p, None
+    A = [[_const(xp, t.frame[i, j]) for j in range(3)] for i in range(3)]
+    b = [_const(xp, t.frame[i, 3]) for i in range(3)]
+    q = tuple(A[i][0] * p[0] + A[i][1] * p[1] + A[i][2] * p[2] + b[i] for i in range(3))
+    return q, A
+
+
 def _field(xp, p, k, phase):
-    """sum_j sin(k_j . p + phase_j) / sqrt(N / 2) (unit RMS) and, for ``grad``, its gradient."""
+    """sum_j sin(k_j . p + phase_j) / sqrt(N / 2) (unit RMS)."""
     s = 0.0
     for j in range(len(phase)):
         s = s + xp.sin(p[0] * float(k[j, 0]) + p[1] * float(k[j, 1]) + p[2] * float(k[j, 2])
@@ -99,10 +207,12 @@ def _field(xp, p, k, phase):
 
 
 def albedo(xp, p, t: TissueParams):
-    """Diffuse RGB albedo at surface points ``p`` = (x, y, z) arrays (camera frame, mm).
+    """Diffuse RGB albedo at surface points ``p`` = (x, y, z) arrays, mm (the camera frame with
+    :func:`in_camera`, else the texture frame).
 
     Returns a tuple of three arrays (R, G, B) in [0, 1].
     """
+    p, _ = _to_texture(xp, p, t)
     var = _field(xp, p, t.colour_k, t.colour_phase)  # smooth, unit RMS
     g = _field(xp, p, t.vessel_k, t.vessel_phase)
     vessel = xp.exp(-(g * g) / (t.vessel_width * t.vessel_width))
@@ -116,7 +226,9 @@ def albedo(xp, p, t: TissueParams):
 
 
 def relief_height(xp, p, t: TissueParams):
-    """Micro-relief height ``h(p) = sum_k a_k sin(k_k . p + phi_k)``, mm, at points ``p`` = (x, y, z)."""
+    """Micro-relief height ``h(p) = sum_j a_j sin(k_j . p + phi_j)``, mm, at points ``p`` = (x, y, z)
+    (the camera frame with :func:`in_camera`)."""
+    p, _ = _to_texture(xp, p, t)
     h = 0.0
     for j in range(len(t.relief_phase)):
         k = t.relief_k[j]
@@ -128,15 +240,22 @@ def relief_height(xp, p, t: TissueParams):
 def relief_normal(xp, p, n, t: TissueParams):
     """Shading normal with micro-relief: ``unit(n - (grad h - (grad h . n) n))``.
 
-    ``p`` and ``n`` are (x, y, z) tuples of arrays (camera frame; ``n`` the unit macro normal);
-    returns the unit shading normal as a tuple, facing the same side as ``n``.
+    ``p`` and ``n`` are (x, y, z) tuples of arrays (the camera frame with :func:`in_camera`, else
+    the texture frame; ``n`` the unit macro normal); returns the unit shading normal in the same
+    frame as a tuple, facing the same side as ``n``.
     """
+    if not np.any(t.relief_amp):  # smooth: no waves to evaluate (the normal, normalised)
+        inv = 1.0 / xp.sqrt(n[0] * n[0] + n[1] * n[1] + n[2] * n[2])
+        return n[0] * inv, n[1] * inv, n[2] * inv
+    p, A = _to_texture(xp, p, t)
     gx = gy = gz = 0.0
     for j in range(len(t.relief_phase)):
         k = t.relief_k[j]
         c = float(t.relief_amp[j]) * xp.cos(p[0] * float(k[0]) + p[1] * float(k[1]) + p[2] * float(k[2])
                                             + float(t.relief_phase[j]))
         gx, gy, gz = gx + c * float(k[0]), gy + c * float(k[1]), gz + c * float(k[2])
+    if A is not None:  # the gradient back in the camera frame: grad_p h = A^T grad_q h
+        gx, gy, gz = (A[0][i] * gx + A[1][i] * gy + A[2][i] * gz for i in range(3))
     gn = gx * n[0] + gy * n[1] + gz * n[2]
     sx, sy, sz = n[0] - (gx - gn * n[0]), n[1] - (gy - gn * n[1]), n[2] - (gz - gn * n[2])
     inv = 1.0 / xp.sqrt(sx * sx + sy * sy + sz * sz)

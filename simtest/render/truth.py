@@ -24,6 +24,7 @@ from typing import Callable
 import cv2
 import numpy as np
 from scipy import ndimage
+from scipy.spatial import cKDTree
 from skimage.feature import peak_local_max
 
 from simtest.geometry.angles import unit
@@ -36,6 +37,8 @@ __all__ = [
     "bisector_cos_image",
     "mesh_highlight_candidates",
     "mesh_highlights",
+    "ReliefHighlight",
+    "relief_highlights",
     "highlight_complete",
     "HighlightTarget",
     "highlight_targets",
@@ -193,21 +196,7 @@ def mesh_highlights(
                                                max_highlights=max_highlights)
     if len(candidates) == 0:
         return []
-    uv = np.asarray(candidates, dtype=np.float64)
-    step = 1.0
-    offs = np.arange(-3, 4, dtype=np.float64)
-    grid = np.stack(np.meshgrid(offs, offs, indexing="xy"), axis=-1).reshape(-1, 2)  # (49, 2)
-    for _ in range(16):
-        cand = uv[:, None, :] + step * grid[None, :, :]  # (N, 49, 2)
-        res = cast(cand.reshape(-1, 2))
-        cos = np.full(len(res["hit"]), -np.inf)
-        hit = res["hit"]
-        cos[hit] = np.sum(res["n"][hit] * bisector(res["p"][hit], light), axis=-1)
-        cos = cos.reshape(len(uv), -1)
-        j = np.argmax(cos, axis=1)
-        uv = cand[np.arange(len(uv)), j]
-        step /= 3.0
-    res = cast(uv)
+    uv, res = _refine(cast, candidates, light)
     out: list[HighlightTruth] = []
     vertices = np.asarray(vertices, dtype=np.float64)
     for i in range(len(uv)):
@@ -229,6 +218,138 @@ def mesh_highlights(
                             pixel_in_frame(uv[i], (W, H)))
         if all(np.hypot(*(hl.bp_px - o.bp_px)) > 0.5 for o in out):
             out.append(hl)
+    out.sort(key=lambda h: (h.bp_px[1], h.bp_px[0]))
+    return out
+
+
+def _refine(cast: Caster, candidates: np.ndarray, light: np.ndarray, step: float = 1.0,
+            rounds: int = 16) -> tuple[np.ndarray, dict]:
+    """Climb from each start pixel to where ``cast``'s normal best bisects camera and light.
+
+    Casts 7 x 7 sub-pixel grids of rays ``rounds`` times, keeping the ray whose normal is nearest
+    the bisector; the step starts at ``step`` px (1: the search reaches 3 px) and shrinks by 3
+    each time (1 px and 16 rounds end at ~1e-7 px). Returns the final pixel positions (N, 2) and
+    ``cast``'s result there.
+    """
+    uv = np.asarray(candidates, dtype=np.float64)
+    offs = np.arange(-3, 4, dtype=np.float64)
+    grid = np.stack(np.meshgrid(offs, offs, indexing="xy"), axis=-1).reshape(-1, 2)  # (49, 2)
+    for _ in range(rounds):
+        cand = uv[:, None, :] + step * grid[None, :, :]  # (N, 49, 2)
+        res = cast(cand.reshape(-1, 2))
+        cos = np.full(len(res["hit"]), -np.inf)
+        hit = res["hit"]
+        cos[hit] = np.sum(res["n"][hit] * bisector(res["p"][hit], light), axis=-1)
+        cos = cos.reshape(len(uv), -1)
+        j = np.argmax(cos, axis=1)
+        uv = cand[np.arange(len(uv)), j]
+        step /= 3.0
+    return uv, cast(uv)
+
+
+def _peaks(img: np.ndarray, threshold: float, num: int) -> np.ndarray:
+    """(row, col) of the at most ``num`` highest local maxima (8-neighbourhood) of ``img`` at or
+    above ``threshold``, highest first; found on the bounding box of the pixels above it."""
+    rows, cols = np.nonzero(img >= threshold)
+    if len(rows) == 0:
+        return np.zeros((0, 2), dtype=np.int64)
+    r0, r1 = max(int(rows.min()) - 1, 0), min(int(rows.max()) + 2, img.shape[0])
+    c0, c1 = max(int(cols.min()) - 1, 0), min(int(cols.max()) + 2, img.shape[1])
+    crop = img[r0:r1, c0:c1]
+    pk = peak_local_max(crop, min_distance=1, threshold_abs=threshold, exclude_border=False, num_peaks=num)
+    return pk.reshape(-1, 2) + np.array([r0, c0])
+
+
+@dataclass(frozen=True)
+class ReliefHighlight(HighlightTruth):
+    """A specular point of the tissue's micro-relief: its *shading* normal bisects the directions to
+    the camera and to the light (a glint), where a :class:`HighlightTruth` is the macro surface's.
+
+    ``normal`` is the shading normal (camera frame, facing the camera), ``macro_normal`` the
+    surface's normal at the same point; ``k1``, ``k2`` are NaN (the relief's curvature is not
+    given). :meth:`to_dict` writes them as null and adds ``kind = "micro_relief"``.
+    """
+
+    macro_normal: np.ndarray | None = None
+
+    def to_dict(self) -> dict:
+        """:meth:`HighlightTruth.to_dict` with ``kind`` "micro_relief", ``macro_normal`` [x, y, z]
+        and ``k1``, ``k2`` null."""
+        d = super().to_dict()
+        d.update(kind="micro_relief", k1=None, k2=None,
+                 macro_normal=[float(x) for x in self.macro_normal] if self.macro_normal is not None else None)
+        return d
+
+
+def relief_highlights(cast: Caster, shading_normals: np.ndarray, position: np.ndarray, mask: np.ndarray,
+                      light: np.ndarray, *, specular: np.ndarray | None = None, candidate_deg: float = 3.0,
+                      accept_deg: float = 0.01, max_highlights: int = 128,
+                      max_bright: int = 64) -> list[ReliefHighlight]:
+    """Specular points of the micro-relief (glints) of one light, from a render's shading normals.
+
+    Parameters
+    ----------
+    cast : callable
+        Ray caster (see ``Caster``) whose ``n`` is the *shading* normal (the relief's, evaluated
+        with the function the renderer shades with) and ``n_macro`` the surface's normal.
+    shading_normals : ndarray of shape (H, W, 3)
+        Per-pixel shading normals, camera frame (values outside ``mask`` are ignored).
+    position : ndarray of shape (H, W, 3)
+        Per-pixel surface points, camera frame, mm (values outside ``mask`` are ignored).
+    mask : ndarray of shape (H, W), bool
+        Pixels with surface truth.
+    light : ndarray of shape (3,)
+        Light position, camera frame, mm.
+    specular : ndarray of shape (H, W), optional
+        The render's specular image: its ``max_bright`` brightest local maxima start searches too
+        (a glint finer than a pixel can be bright where the pixel centre's normal misses the
+        bisector).
+    candidate_deg : float
+        Pixels whose shading normal is within this angle of the bisector and locally best (among
+        their 8 neighbours) start a search.
+    accept_deg : float
+        A refined point is kept if its shading normal is within this angle of the bisector.
+    max_highlights : int
+        At most this many candidates, those nearest the bisector first, are refined: on a
+        relief finer than a pixel the glints are many, and the labels are those found, not all.
+
+    Returns
+    -------
+    list of ReliefHighlight
+        Sorted by v then u; duplicates (within 0.5 px) merged. ``light`` is 0: the caller sets it.
+    """
+    H, W = mask.shape
+    g = bisector_cos_image(shading_normals, position, mask, light)
+    peaks = _peaks(g, math.cos(math.radians(candidate_deg)), max_highlights)
+    if specular is not None and max_bright > 0:
+        sp = np.where(mask, np.asarray(specular, dtype=np.float32), 0.0)
+        top = float(sp.max())
+        if top > 0:  # the brightest local maxima, down to a quarter of the brightest pixel
+            peaks = np.unique(np.vstack([peaks, _peaks(sp, 0.25 * top, max_bright)]), axis=0)
+    if len(peaks) == 0:
+        return []
+    # Glints lie closer together than a macro surface's BPs: the search stays within 0.5 px of
+    # its start pixel (a first step of 1/6 px), so each start finds the glint in its own pixel.
+    # 12 rounds from 1/6 px end at ~1e-6 px, well inside the acceptance angle.
+    uv, res = _refine(cast, peaks[:, ::-1].astype(np.float64), light, step=1.0 / 6.0, rounds=12)
+    hit = res["hit"]
+    ns = unit(np.where(hit[:, None], res["n"], np.nan), axis=-1)
+    cos = np.sum(ns * bisector(np.where(hit[:, None], res["p"], np.nan), light), axis=-1)
+    ok = hit & (cos >= math.cos(math.radians(accept_deg)))
+    idx = np.flatnonzero(ok)
+    idx = idx[np.argsort(-cos[idx], kind="stable")]  # the best of merged duplicates stays
+    keep: list[int] = []
+    if len(idx):
+        tree = cKDTree(uv[idx])
+        taken = np.zeros(len(idx), dtype=bool)
+        for j in range(len(idx)):
+            near = tree.query_ball_point(uv[idx[j]], 0.5)
+            if not taken[near].any():
+                keep.append(int(idx[j]))
+                taken[j] = True
+    out = [ReliefHighlight(uv[i].copy(), res["p"][i].copy(), ns[i], math.nan, math.nan,
+                           pixel_in_frame(uv[i], (W, H)), macro_normal=unit(res["n_macro"][i], axis=-1))
+           for i in keep]
     out.sort(key=lambda h: (h.bp_px[1], h.bp_px[0]))
     return out
 

@@ -23,7 +23,7 @@ from simtest.geometry.lights import LightRig
 from simtest._lazy import require
 from simtest.render import tissue
 
-__all__ = ["Pending", "cast", "coverage", "model_rays", "relief_normals", "shade", "shade_tissue"]
+__all__ = ["Pending", "albedo_map", "cast", "coverage", "model_rays", "relief_normals", "shade", "shade_tissue"]
 
 def _intersect(scene, ray):
     """``scene.ray_intersect`` of camera rays, traced as coherent rays.
@@ -275,10 +275,18 @@ def _dr_xp():
     """The numpy names :mod:`simtest.render.tissue` uses, on Dr.Jit arrays (a namespace)."""
     dr = require("drjit")
 
+    mi = require("mitsuba")
+
     class _DrXp:
         sin, cos, exp, sqrt = staticmethod(dr.sin), staticmethod(dr.cos), staticmethod(dr.exp), staticmethod(dr.sqrt)
         maximum, minimum, power = staticmethod(dr.maximum), staticmethod(dr.minimum), staticmethod(dr.power)
         where = staticmethod(dr.select)
+
+        @staticmethod
+        def const(x: float):
+            """A value the kernel reads at launch (the texture frame of a pose): one compiled
+            kernel serves every pose."""
+            return dr.opaque(mi.Float, x)
 
     return _DrXp
 
@@ -306,6 +314,32 @@ def relief_normals(p: np.ndarray, n: np.ndarray, texture, *, defer: bool = False
     out = tuple(tissue.relief_normal(_dr_xp(), p_dr, n_dr, texture))
     dr.eval(*out)
     pending = Pending(out, lambda x, y, z: np.stack([x, y, z], axis=-1).reshape(p.shape))
+    return pending if defer else pending.fetch()
+
+
+def albedo_map(p: np.ndarray, texture, *, defer: bool = False) -> np.ndarray | Pending:
+    """Diffuse albedo of the tissue (:func:`simtest.render.tissue.albedo`) at surface points,
+    evaluated in Dr.Jit (float32) as the renderer shades with it.
+
+    Parameters
+    ----------
+    p : ndarray of shape (..., 3)
+        Surface points, camera frame, mm (``texture`` in the camera frame,
+        :func:`simtest.render.tissue.in_camera`).
+    texture : simtest.render.tissue.TissueParams
+    defer : bool
+        Queue the kernel and return a :class:`Pending` whose ``fetch()`` gives the result.
+
+    Returns
+    -------
+    ndarray of shape (..., 3), float32
+        Linear RGB albedo in [0, 1]; NaN where ``p`` is.
+    """
+    dr, mi = require("drjit"), require("mitsuba")
+    p_dr = [mi.Float(np.ascontiguousarray(p[..., i].ravel(), dtype=np.float32)) for i in range(3)]
+    out = tuple(tissue.albedo(_dr_xp(), p_dr, texture))
+    dr.eval(*out)
+    pending = Pending(out, lambda r, g, b: np.stack([r, g, b], axis=-1).reshape(p.shape))
     return pending if defer else pending.fetch()
 
 

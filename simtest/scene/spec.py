@@ -241,7 +241,13 @@ class MaterialSpec:
     relief_mm : float
         RMS height of the tissue's micro-relief, mm (0: smooth).
     relief_scale_mm : float
-        Typical wavelength of the micro-relief, 0.05 to 1 mm.
+        Longest wavelength of the micro-relief's spectrum, 0.05 to 1 mm.
+    relief_min_mm : float or None
+        Shortest wavelength of the micro-relief's spectrum, mm, at most ``relief_scale_mm``; None:
+        0.05 mm or ``relief_scale_mm`` if that is shorter.
+    relief_hurst : float
+        Hurst exponent H of the micro-relief's self-affine spectrum (power spectral density
+        ``~ q^-(2 + 2H)``, amplitudes ``~ wavelength^H``), 0 to 1; see :mod:`simtest.render.tissue`.
     texture_seed : int
         Seed of the tissue texture (albedo pattern and relief), independent of the render seed.
     """
@@ -258,6 +264,8 @@ class MaterialSpec:
     film_ior: float = _fld(1.38, "float", lo=1.3, hi=1.5)
     relief_mm: float = _fld(0.0, "float", lo=0.0, hi=1.0)
     relief_scale_mm: float = _fld(0.3, "float", lo=0.05, hi=1.0)
+    relief_min_mm: float | None = _fld(None, "float?", lo=0.005, hi=1.0)
+    relief_hurst: float = _fld(0.8, "float", lo=0.0, hi=1.0)
     texture_seed: int = _fld(0, "int", lo=0, hi=MAX_SEED)
 
     @property
@@ -731,6 +739,9 @@ def _validate(spec: SceneSpec, source: str, base_dirs: tuple[Path, ...]) -> Scen
     if mat.distribution == "phong" and mat.model != "tissue":
         raise _err(source, "material.distribution", "\"phong\" is a lobe of model \"tissue\" "
                    "(model \"phong\" is the paper's exact lobe)")
+    if mat.relief_min_mm is not None and mat.relief_min_mm > mat.relief_scale_mm:
+        raise _err(source, "material.relief_min_mm", f"the shortest wavelength {mat.relief_min_mm} mm exceeds "
+                   f"the longest, material.relief_scale_mm = {mat.relief_scale_mm} mm")
     if any(v <= 0 for v in spec.sensor.white_balance):
         raise _err(source, "sensor.white_balance", f"gains must be > 0, got {list(spec.sensor.white_balance)}")
     if spec.sensor.output == "video" and spec.sensor.bit_depth != 8:
