@@ -75,7 +75,7 @@ def _labelled_set(tmp_path):
         blob = np.exp(-((xx - u) ** 2 + (yy - v) ** 2) / (2 * 1.8 ** 2))
         img[:, c0:c0 + 40] = np.maximum(img[:, c0:c0 + 40], (60 + 190 * blob)[..., None]).astype(np.uint8)
     Image.fromarray(img).save(tmp_path / "frames.png")
-    doc = {"source": "frames.png", "tile_px": 40,
+    doc = {"header": {"image": "frames.png", "tile_px": 40},
            "tiles": {"r0c0": [{"u": 12, "v": 20, "area_px": 12, "kind": "isolated"}],
                      "r0c1": [{"u": 25, "v": 15, "area_px": 12, "kind": "overlay"}]}}
     (tmp_path / "labels.json").write_text(json.dumps(doc))
@@ -104,3 +104,20 @@ def test_the_command_writes_its_three_files(tmp_path):
     res = CliRunner().invoke(app, ["evaluate", "detection", str(tmp_path / "nothere.json"),
                                    "-o", str(tmp_path / "o2")])
     assert res.exit_code == 2 and len(res.output.strip().splitlines()) == 1
+
+
+def test_the_committed_labelled_set_loads_with_its_stated_counts():
+    from collections import Counter
+
+    from simtest.resources import data_root
+
+    path = data_root() / "tests" / "data" / "real" / "structures_labelled.json"
+    frames = labelled_real_frames(path)
+    head = json.loads(path.read_text())["header"]
+    assert len(frames) == head["frames"] >= 10
+    kinds = Counter(s.kind for f in frames for s in f.structures)
+    assert dict(kinds) == {k: v for k, v in head["counts"].items() if v}
+    assert sum(kinds.values()) == head["structures"] >= 300
+    for f in frames:
+        assert f.image.shape[:2] == (head["tile_px"], head["tile_px"])
+        assert all(0 <= s.u < head["tile_px"] and 0 <= s.v < head["tile_px"] for s in f.structures)

@@ -269,9 +269,10 @@ def labelled_real_frames(path, *, focal_px: float = 140.0) -> list[LabelledFrame
     Parameters
     ----------
     path : str or Path
-        JSON ``{"source": image path (relative to the JSON's folder, or to the repository root),
-        "tile_px": side of a tile (default 280), "tiles": {"r{r}c{c}": [{"u", "v", "area_px",
-        "kind", ...}, ...]}}``; coordinates in tile pixels.
+        JSON ``{"header": {"image": the image file, beside the JSON, "tile_px": side of a tile
+        (default 280), ...}, "tiles": {"r{r}c{c}": [{"u", "v", "u_peak", "v_peak", "area_px",
+        "kind", ...}, ...]}}``; coordinates in tile pixels; a structure is placed at its peak
+        where it has one, else at its centroid.
     focal_px : float
         The assumed pinhole's focal length, px (the frames are uncalibrated; detection does not
         depend on it, the normals do).
@@ -290,16 +291,16 @@ def labelled_real_frames(path, *, focal_px: float = 140.0) -> list[LabelledFrame
     path = Path(path)
     try:
         doc = json.loads(path.read_text(encoding="utf-8"))
-        src = Path(doc["source"])
+        head = doc.get("header", doc)
+        src = Path(head["image"])
         tiles = doc["tiles"]
-    except (OSError, ValueError, KeyError, TypeError) as exc:
+        side = int(head.get("tile_px", 280))
+    except (OSError, ValueError, KeyError, TypeError, AttributeError) as exc:
         raise ValueError(f"{path}: not a labelled set ({type(exc).__name__}: {exc})") from None
-    here = [path.parent / src, path.parent / src.name] + [p / src for p in path.parents]
-    image_path = next((p for p in here if p.is_file()), None)
-    if image_path is None:
-        raise ValueError(f"{path}: key 'source': image {src} not found beside it or above")
+    image_path = path.parent / src
+    if not image_path.is_file():
+        raise ValueError(f"{path}: key 'image': {image_path} not found")
     image = load_image(image_path)
-    side = int(doc.get("tile_px", 280))
     f = float(focal_px)
     K = [[f, 0.0, side / 2 - 0.5], [0.0, f, side / 2 - 0.5], [0.0, 0.0, 1.0]]
     camera = PinholeCamera(K, image_size=(side, side))
@@ -311,7 +312,9 @@ def labelled_real_frames(path, *, focal_px: float = 140.0) -> list[LabelledFrame
             kind = s.get("kind")
             if kind not in KINDS:
                 raise ValueError(f"{path}: tiles.{tile}[{i}].kind: {kind!r} is not one of {KINDS}")
-            structs.append(Structure(float(s["u"]), float(s["v"]), float(s["area_px"]), kind))
+            # at its peak where the labels give one (a BP is a peak; a streak's centroid is not)
+            u, v = (s["u_peak"], s["v_peak"]) if "u_peak" in s else (s["u"], s["v"])
+            structs.append(Structure(float(u), float(v), float(s["area_px"]), kind))
         out.append(LabelledFrame(tile, np.ascontiguousarray(image[r0:r1, c0:c1]), camera, structs))
     return out
 
