@@ -78,7 +78,7 @@ def merge(proposals, pass1, pass2, resolution, *notes):
         "coordinates": "tile pixels, u = column, v = row, pixel centres at integer coordinates; "
                        "(u, v) the structure's centroid, (u_peak, v_peak) its peak, bbox "
                        "[u0, v0, width, height]; the structure's pixels are those of "
-                       "structures_labelmap.png (banner-sized, uint16) equal to its index",
+                       "labels/structures_labelmap.png (banner-sized, uint16) equal to its index",
         "protocol_version": PROTOCOL,
         "protocol": "tests/data/real/README.md, section 'Every bright structure of the banner'",
         "proposals": "tests/data/real/propose_structures.py",
