@@ -32,7 +32,7 @@ def _specularities(doc: dict) -> list[dict]:
     return json.loads(json.dumps(doc["specularities"]))
 
 
-def _check_same(tmp_path, spec) -> int:
+def _check_same(tmp_path, spec, min_candidates: int = 0) -> int:
     result = render_scene(spec, seed=0)
     paths = write_render(result, tmp_path / "render")
     # The file holds exactly the in-memory sensor image (lossless PNG).
@@ -51,6 +51,7 @@ def _check_same(tmp_path, spec) -> int:
     assert cli.exit_code == 0, cli.output
     from_file = json.loads((out / "estimates.json").read_text())
     assert _specularities(from_file) == _specularities(expected)
+    assert len(from_file["specularities"]) >= min_candidates  # something was compared
     return sum(s["status"] == "ok" for s in from_file["specularities"])
 
 
@@ -76,6 +77,8 @@ def test_bundled_sphere(tmp_path):
 
 def test_colonoscope_video_frame(tmp_path):
     # The virtual endoscope: two light guides, tissue, an 8-bit video frame, C3VD optics (scaled).
+    # (a fifth of the frame's width: every candidate runs the light-aware fits twice, in memory
+    # and through the files, which took 75 s at 270 x 216 px)
     spec = with_overrides(load_scene(bundled_scene_path("colonoscope")),
-                          {"camera.width_px": 270, "camera.height_px": 216, "render.spp": 4})
-    _check_same(tmp_path, spec)
+                          {"camera.width_px": 135, "camera.height_px": 108, "render.spp": 4})
+    _check_same(tmp_path, spec, min_candidates=1)
