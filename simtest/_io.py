@@ -8,8 +8,12 @@ its previous content and the temporary file (``.<name>.<random>.tmp``) is remove
 
 from __future__ import annotations
 
+import ctypes
+import errno
+import fcntl
 import json
 import os
+import shutil
 import tempfile
 from collections.abc import Callable, Mapping
 from pathlib import Path
@@ -18,7 +22,8 @@ from typing import Any
 import numpy as np
 
 __all__ = ["TMP_SUFFIX", "atomic_write", "atomic_write_bytes", "atomic_write_json", "atomic_write_set",
-           "atomic_write_text", "jsonable"]
+           "atomic_write_text", "jsonable", "recover_output_folder",
+           "replace_output_folder"]
 
 #: Suffix of every temporary file this module creates.
 TMP_SUFFIX = ".tmp"
@@ -183,3 +188,161 @@ def atomic_write_set(writers: dict) -> list[Path]:
     for tmp, path in done:
         os.replace(tmp, path)
     return [path for _, path in done]
+
+
+#: The prefix of a previous set renamed aside by the fallback swap (``.<name>.old-*``).
+_OLD = ".old-"
+
+
+_libc = None
+
+
+def _exchange(a: Path, b: Path) -> bool:
+    """Swap two paths in one atomic step (Linux ``renameat2(RENAME_EXCHANGE)``).
+
+    Returns False where the system or the file system does not offer it (then nothing changed).
+    """
+    global _libc
+    if _libc is None:
+        try:
+            _libc = ctypes.CDLL(None, use_errno=True)
+        except OSError:
+            _libc = False
+    fn = getattr(_libc, "renameat2", None) if _libc else None
+    if fn is None:
+        return False
+    at_fdcwd, rename_exchange = -100, 2
+    if fn(ctypes.c_int(at_fdcwd), os.fsencode(a), ctypes.c_int(at_fdcwd), os.fsencode(b),
+          ctypes.c_uint(rename_exchange)) == 0:
+        return True
+    err = ctypes.get_errno()
+    if err in (errno.ENOSYS, errno.EINVAL, errno.ENOTSUP, errno.EOPNOTSUPP):
+        return False
+    raise OSError(err, os.strerror(err), str(b))
+
+
+def _fsync_dir(path: Path) -> None:
+    fd = os.open(path, os.O_RDONLY)
+    try:
+        os.fsync(fd)
+    finally:
+        os.close(fd)
+
+
+def recover_output_folder(out) -> bool:
+    """Put back the previous set if a kill left ``out`` missing between the two renames of the
+    fallback swap (the previous set then sits beside it as ``.<name>.old-*``), and remove what
+    killed runs left beside ``out`` (their temporary folders). Call it holding the parent's lock.
+
+    Returns
+    -------
+    bool
+        True if a previous set was put back.
+    """
+    out = Path(out)
+    if not out.parent.is_dir():
+        return False
+    for stale in out.parent.glob(f".{out.name}.*.tmp"):  # a killed fill's folder (caller holds the lock)
+        if stale.is_dir():
+            shutil.rmtree(stale, ignore_errors=True)
+    if out.exists():
+        for old in out.parent.glob(f".{out.name}{_OLD}*"):  # a killed cleanup's previous set
+            shutil.rmtree(old, ignore_errors=True)
+        return False
+    olds = sorted(out.parent.glob(f".{out.name}{_OLD}*"), key=lambda p: p.stat().st_mtime)
+    if not olds:
+        return False
+    os.rename(olds[-1], out)
+    return True
+
+
+def _swap_by_two_renames(tmp: Path, out: Path) -> None:
+    """The fallback swap: ``out`` aside to ``.<name>.old-*``, then ``tmp`` in (module docs)."""
+    old = Path(tempfile.mkdtemp(prefix=f".{out.name}{_OLD}", dir=out.parent))
+    os.rmdir(old)
+    try:
+        os.rename(out, old)
+        os.rename(tmp, out)
+    except BaseException:
+        shutil.rmtree(tmp, ignore_errors=True)
+        if old.exists() and not out.exists():
+            os.rename(old, out)
+        raise
+    shutil.rmtree(old, ignore_errors=True)
+
+
+def replace_output_folder(out, fill: Callable[[Path], None]) -> Path:
+    """Write a folder as a set: ``fill(tmp)`` writes every file into a fresh folder beside ``out``,
+    which then takes the place of ``out`` in one atomic step.
+
+    Whatever stops the process (an exception, SIGKILL, a full disk), ``out`` holds either its whole
+    previous set or the whole new one, never new files beside old ones:
+
+    - while ``fill`` runs, ``out`` is untouched; on an exception the temporary folder is removed;
+    - the swap is ``renameat2(RENAME_EXCHANGE)`` (Linux), one step; a new ``out`` is one rename;
+    - where the file system lacks the exchange, ``out`` is renamed aside to ``.<name>.old-*`` and
+      the new folder renamed in; a kill between the two leaves no ``out`` and the whole previous
+      set aside, which the next call (:func:`recover_output_folder`) puts back before anything.
+
+    Two processes writing the same folder are serialised by a lock on its parent folder (``flock``
+    on the folder itself, so no lock file is left behind). The caller checks ``out`` first
+    (:func:`simtest.reconstruct.io.check_output_folder`).
+
+    Parameters
+    ----------
+    out : str or Path
+        The output folder (created; its parent too).
+    fill : callable
+        Writes the whole set into the folder it is given.
+
+    Returns
+    -------
+    Path
+        ``out``.
+
+    Raises
+    ------
+    OSError
+        From writing or renaming; ``out`` keeps its previous set.
+    """
+    out = Path(out)
+    parent = out.parent
+    parent.mkdir(parents=True, exist_ok=True)
+    lock = os.open(parent, os.O_RDONLY)
+    try:
+        fcntl.flock(lock, fcntl.LOCK_EX)
+        recover_output_folder(out)
+        tmp = Path(tempfile.mkdtemp(prefix=f".{out.name}.", suffix=".tmp", dir=parent))
+        try:
+            fill(tmp)
+            mask = os.umask(0)
+            os.umask(mask)
+            os.chmod(tmp, 0o777 & ~mask)
+            for f in tmp.iterdir():
+                if f.is_file():
+                    with open(f, "rb+") as fh:
+                        os.fsync(fh.fileno())
+            _fsync_dir(tmp)
+        except BaseException:
+            shutil.rmtree(tmp, ignore_errors=True)
+            raise
+        if not out.exists():
+            try:
+                os.rename(tmp, out)
+            except BaseException:
+                shutil.rmtree(tmp, ignore_errors=True)
+                raise
+        else:
+            try:
+                swapped = _exchange(tmp, out)
+            except BaseException:
+                shutil.rmtree(tmp, ignore_errors=True)
+                raise
+            if swapped:
+                shutil.rmtree(tmp, ignore_errors=True)  # tmp now holds the previous set
+            else:
+                _swap_by_two_renames(tmp, out)
+        _fsync_dir(parent)
+    finally:
+        os.close(lock)
+    return out

@@ -22,7 +22,7 @@ from typer.testing import CliRunner
 
 from simtest.cli import app
 from simtest.geometry import save_intrinsics
-from simtest.reconstruct import io as rio
+from simtest import _io as rio  # the set swap lives in the base module (reconstruct.io re-exports it)
 from simtest.simulate.analytic import phong_plane_image
 
 runner = CliRunner()

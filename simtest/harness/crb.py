@@ -14,8 +14,6 @@ photometric fit achieves over seeded realisations (``SeedSequence([seed, i, j, k
 from __future__ import annotations
 
 import os
-import shutil
-import tempfile
 from pathlib import Path
 
 import matplotlib
@@ -28,7 +26,7 @@ matplotlib.use("Agg", force=False)
 import matplotlib.pyplot as plt  # noqa: E402 - after choosing the back-end
 
 from simtest._exit import BAD_INPUT, CANNOT_WRITE, fail, writable_dir
-from simtest._io import atomic_write_json
+from simtest._io import atomic_write_json, replace_output_folder
 from simtest.geometry.angles import angle_between_deg
 from simtest.geometry.camera import project_points
 from simtest.geometry.lights import Light, LightRig
@@ -192,18 +190,9 @@ def crb_command(
 def _write_set(out: Path, rows: list[dict], seed: int, realisations: int) -> None:
     """Write crb.json and crb.png into a temporary folder beside ``out``, then swap it in."""
     out.parent.mkdir(parents=True, exist_ok=True)
-    tmp = Path(tempfile.mkdtemp(prefix=f".{out.name}.", dir=out.parent))
-    try:
+    def fill(tmp: Path) -> None:
         atomic_write_json(tmp / "crb.json", {"rows": rows, "seed": seed,
                                              "realisations": realisations})
         plot_crb(rows, tmp / "crb.png")
-        old = None
-        if out.exists():
-            old = out.with_name(f".{out.name}.old.{os.getpid()}")
-            out.rename(old)
-        tmp.rename(out)
-        if old is not None:
-            shutil.rmtree(old, ignore_errors=True)
-    except BaseException:
-        shutil.rmtree(tmp, ignore_errors=True)
-        raise
+
+    replace_output_folder(out, fill)  # crb.json and crb.png as a set

@@ -16,13 +16,11 @@ results), :mod:`~simtest.harness.report.provenance` (commit, packages, machine, 
 from __future__ import annotations
 
 import json
-import os
-import shutil
-import tempfile
 from pathlib import Path
 
 import matplotlib.pyplot as plt
 
+from simtest._io import replace_output_folder
 from simtest.harness.claims import CLAIMS, PAPER_CHECKS, evaluate_claims, evaluate_paper_claim
 from simtest.harness.report.document import html_report, markdown_report
 from simtest.harness.report.figures import figure_png, make_figures
@@ -58,34 +56,26 @@ def write_report_files(results: dict, folder: str | Path, plots: bool = True,
         ``folder``.
     """
     folder = Path(folder)
-    folder.parent.mkdir(parents=True, exist_ok=True)
-    tmp = Path(tempfile.mkdtemp(prefix=f".{folder.name}.", dir=folder.parent))
-    try:
-        pngs = {}
-        if plots:
-            for name, fig in make_figures(results, history).items():
-                pngs[name] = figure_png(fig)
-                plt.close(fig)
+    # the figures and the text first (nothing written yet if one of them fails)
+    pngs = {}
+    if plots:
+        for name, fig in make_figures(results, history).items():
+            pngs[name] = figure_png(fig)
+            plt.close(fig)
+    md = markdown_report(results, sorted(pngs), nightly=nightly, history=history)
+    html = html_report(md, pngs, title=f"simtest report: {results['suite']['name']}")
+
+    def fill(tmp: Path) -> None:
         (tmp / "figures").mkdir()
         for name, png in pngs.items():
             (tmp / "figures" / name).write_bytes(png)
         (tmp / "results.json").write_text(json.dumps(results, indent=1, allow_nan=False) + "\n",
                                           encoding="utf-8")
         (tmp / "results.csv").write_text(results_csv(results), encoding="utf-8")
-        md = markdown_report(results, sorted(pngs), nightly=nightly, history=history)
         (tmp / "report.md").write_text(md, encoding="utf-8")
-        (tmp / "report.html").write_text(
-            html_report(md, pngs, title=f"simtest report: {results['suite']['name']}"), encoding="utf-8")
-        old = None
-        if folder.exists():
-            old = folder.with_name(f".{folder.name}.old.{os.getpid()}")
-            folder.rename(old)
-        tmp.rename(folder)
-        if old is not None:
-            shutil.rmtree(old, ignore_errors=True)
-    except BaseException:
-        shutil.rmtree(tmp, ignore_errors=True)
-        raise
+        (tmp / "report.html").write_text(html, encoding="utf-8")
+
+    replace_output_folder(folder, fill)  # as a set: a failure or a kill leaves the old one whole
     return folder
 
 
