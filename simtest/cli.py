@@ -11,9 +11,8 @@ from __future__ import annotations
 
 import importlib
 
-import click
 import typer
-from typer.core import TyperGroup
+from typer.core import TyperCommand, TyperGroup
 
 from simtest._version import __version__
 
@@ -43,8 +42,11 @@ SUBCOMMANDS: dict[str, tuple[str, str, str]] = {
 }
 
 
-def load_subcommand(name: str) -> click.Command:
-    """Import the module of subcommand ``name`` and return it as a click command."""
+def load_subcommand(name: str) -> TyperCommand | TyperGroup:
+    """Import the module of subcommand ``name`` and return it as a command (Typer's Click).
+
+    simtest never imports Click itself: Typer 0.29 and later carry their own copy of it and no
+    longer install Click, so every command object here comes from Typer."""
     module, attr, _ = SUBCOMMANDS[name]
     obj = getattr(importlib.import_module(module), attr)
     if isinstance(obj, typer.Typer):
@@ -67,7 +69,7 @@ class _LazyGroup(TyperGroup):
     def get_command(self, ctx, name):
         if name in SUBCOMMANDS and name not in self.commands:
             if self._listing:  # the top-level --help needs only the name and the one-line help
-                return click.Command(name, help=SUBCOMMANDS[name][2])
+                return TyperCommand(name, help=SUBCOMMANDS[name][2])
             self.add_command(load_subcommand(name), name)
         return super().get_command(ctx, name)
 

@@ -41,7 +41,7 @@ WRITES: dict[str, tuple[str, ...]] = {
 }
 
 
-# Typer 0.29 vendors its own Click (typer._click) while simtest.cli imports click: commands and
+# Typer 0.29 vendors its own Click (typer._click) and no longer installs Click: commands and
 # options are recognised by what they have, not by class.
 
 

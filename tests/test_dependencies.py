@@ -57,3 +57,37 @@ def test_the_optional_backends_are_not_core_dependencies():
 def test_the_test_extra_brings_every_optional_backend():
     test = {_name(r) for r in PYPROJECT["project"]["optional-dependencies"]["test"]}
     assert {"torch", "dask"} <= test
+
+
+#: modules imported that a declared dependency brings under another name: the reason
+BROUGHT_BY = {"vtkmodules": "VTK, a dependency of pyvista (the 3D views' logger)",
+              "mpl_toolkits": "part of matplotlib", "PIL": "pillow"}
+
+
+def test_every_imported_package_is_declared():
+    # A module simtest imports but does not declare works only where something else happened to
+    # install it: Typer 0.29 stopped installing Click, and `import click` broke a fresh install.
+    import ast
+    import sys
+
+    declared = {IMPORT_NAME.get(_name(r), _name(r)).replace("-", "_")
+                for r in PYPROJECT["project"]["dependencies"]
+                + PYPROJECT["project"]["optional-dependencies"]["dask"]
+                + PYPROJECT["project"]["optional-dependencies"]["torch"]}
+    declared |= {"dask", "distributed", "drjit", "mitsuba", "simtest"} | set(BROUGHT_BY)
+    undeclared = set()
+    for path in (ROOT / "simtest").rglob("*.py"):
+        tree = ast.parse(path.read_text(encoding="utf-8"))
+        for node in ast.walk(tree):
+            names = ([a.name for a in node.names] if isinstance(node, ast.Import)
+                     else [node.module] if isinstance(node, ast.ImportFrom) and node.level == 0
+                     and node.module else [])
+            for n in names:
+                top = n.split(".")[0]
+                if top not in sys.stdlib_module_names and top not in declared:
+                    undeclared.add(f"{top} ({path.relative_to(ROOT)})")
+    for m in re.findall(r'require\(\s*"([\w.]+)"', _source()):
+        top = m.split(".")[0]
+        if top in _lazy.BACKENDS and top not in declared:  # others are refused by require
+            undeclared.add(f"{top} (require)")
+    assert not undeclared, f"imported but not declared in pyproject.toml: {sorted(undeclared)}"
