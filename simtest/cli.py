@@ -14,6 +14,8 @@ import importlib
 import typer
 from typer.core import TyperCommand, TyperGroup
 
+from simtest._exit import BAD_INPUT, fail
+from simtest._lazy import MissingBackend
 from simtest._version import __version__
 
 #: name -> (module, attribute: a command function or a Typer app, one-line help for the listing)
@@ -72,6 +74,14 @@ class _LazyGroup(TyperGroup):
                 return TyperCommand(name, help=SUBCOMMANDS[name][2])
             self.add_command(load_subcommand(name), name)
         return super().get_command(ctx, name)
+
+    def invoke(self, ctx):
+        # an optional back-end a subcommand needs and the machine lacks (Dask for --scheduler,
+        # PyTorch, ...): its one line, naming the extra to install, never a traceback
+        try:
+            return super().invoke(ctx)
+        except MissingBackend as exc:
+            fail(exc, BAD_INPUT)
 
     def format_help(self, ctx, formatter):
         self._listing = True

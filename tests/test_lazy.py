@@ -45,3 +45,20 @@ def test_a_backend_missing_its_own_dependency_shows_that_one(monkeypatch, tmp_pa
         _lazy.require("simtest_fake_backend")
     assert not isinstance(info.value, _lazy.MissingBackend)
     assert info.value.name == "simtest_fake_dependency_that_is_missing"
+
+
+def test_a_command_needing_a_missing_extra_is_one_line(monkeypatch, tmp_path):
+    # Dask is the [dask] extra: without it, --scheduler says what to install, exit 2
+    from typer.testing import CliRunner
+
+    from simtest.cli import app
+    from simtest.resources import data_root
+
+    for mod in ("distributed", "distributed.comm", "distributed.comm.addressing"):
+        monkeypatch.setitem(sys.modules, mod, None)  # as if it were not installed
+    res = CliRunner().invoke(app, ["dataset", "generate",
+                                   str(data_root() / "scenes" / "datasets" / "small.toml"),
+                                   "-o", str(tmp_path / "ds"), "--scheduler", "tcp://127.0.0.1:9"])
+    assert res.exit_code == 2, res.output
+    lines = [ln for ln in res.output.splitlines() if ln.strip()]
+    assert len(lines) == 1 and 'pip install "simtest[dask]"' in lines[0], res.output
