@@ -348,6 +348,20 @@ def _facing(p: np.ndarray, n: np.ndarray, light: np.ndarray) -> tuple[float, flo
     return float(np.linalg.norm(h - np.dot(h, n) * n)), float(np.dot(h, n))
 
 
+def _bp(what: str, minimiser, surface, light: np.ndarray):
+    """The BP: the root solve from the co-located BP (parameters 0), else :func:`_robust_bp`.
+
+    Returns
+    -------
+    tuple of ndarray or None
+        ``(p, n)``, or None when no point faces both the camera and the light.
+    """
+    try:
+        return surface(_solve_stationary(surface, np.zeros(2), light, what=what))
+    except HighlightTruthError as first:
+        return _robust_bp(what, minimiser, surface, light, first)
+
+
 def _robust_bp(what: str, solve, surface, light: np.ndarray, first: HighlightTruthError):
     """The BP from the path-length minimiser after a failed root solve from the co-located BP.
 
@@ -459,13 +473,10 @@ def sphere_highlight(center: np.ndarray, radius: float, light: np.ndarray, K: np
         n = om[0] * n0 + om[1] * f2
         return np.array([np.dot(n, e1), np.dot(n, e2)]) / om[0]
 
-    try:
-        p, n = surface(_solve_stationary(surface, np.zeros(2), L, what=what))
-    except HighlightTruthError as first:
-        got = _robust_bp(what, minimiser, surface, L, first)
-        if got is None:
-            return None
-        p, n = got
+    got = _bp(what, minimiser, surface, L)
+    if got is None:
+        return None
+    p, n = got
     return _highlight(p, n, k, k, K, size)
 
 
@@ -553,13 +564,10 @@ def cylinder_highlight(center: np.ndarray, axis: np.ndarray, radius: float, leng
             tc, tl = -np.dot(c, a), np.dot(w, a)
             return np.array([tc + (tl - tc) * d1 / (d1 + d2) - s0, math.atan2(om[1], om[0])])
 
-        try:
-            p, n = surface(_solve_stationary(surface, np.zeros(2), L, what=what))
-        except HighlightTruthError as first:
-            got = _robust_bp(what, minimiser, surface, L, first)
-            if got is None:
-                return None
-            p, n = got
+        got = _bp(what, minimiser, surface, L)
+        if got is None:
+            return None
+        p, n = got
         s = float(np.dot(p - c, a))
     else:
         p, n, s = q + radius * n0, n0, s0
