@@ -76,7 +76,10 @@ def test_a_damaged_spool_file_is_rendered_again(tmp_path):
     kept = {int(p.name[:8]) for p in (out / SPOOL_DIR).iterdir()}
     calls: list = []
     generate(cfg, out, workers=1, sample_fn=_counting(calls), progress=False)
-    assert calls == sorted({2, 3, 4, 5} | (set(range(6)) - kept))
+    # the two damaged samples, and every sample the stopped run did not keep (4 failed; 5 may or
+    # may not have finished before the stop reached the pool, so it is judged by the spool)
+    assert 4 not in kept
+    assert calls == sorted({2, 3} | (set(range(6)) - kept))
     assert _files(out) == _files(ref)
 
 
