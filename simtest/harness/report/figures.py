@@ -455,22 +455,27 @@ def make_figures(results: dict, history: list[dict] | None = None) -> dict:
         paper claim (the paper's figure-3 style), ``curvature_rho.png`` when the suite has
         curved rendered cases, ``nightly_trend.png`` with a history.
     """
+    return {name: draw(*args) for name, draw, _, args in _figure_plan(results, history)}
+
+
+def _figure_plan(results: dict, history: list[dict] | None) -> list[tuple]:
+    """Which figures a report has: ``(file name, draw, takeaway, arguments)`` each, so that
+    :func:`make_figures` and :func:`takeaways` agree on the names by construction."""
     cases = {c["id"]: c for c in results["cases"]}
     ests = list(results["suite"]["estimators"])
-    out = {}
+    plan = []
     for sw in results["sweeps"]:
         sc = [cases[k] for k in sw["cases"]]
         if not sc:
             continue
-        out[f"{sw['name']}_curves.png"] = _curves(sw, sc, ests)
+        plan.append((f"{sw['name']}_curves.png", _curves, _curves_takeaway, (sw, sc, ests)))
         if sw.get("paper") and (sw["paper"].get("source", "paper") == "paper"):
-            out[f"{sw['name']}_bars.png"] = _bars(sw, sc, ests)
-    rho = _rho_figure(results)
-    if rho is not None:
-        out["curvature_rho.png"] = rho
+            plan.append((f"{sw['name']}_bars.png", _bars, _bars_takeaway, (sw, sc, ests)))
+    if _rho_cases(results):
+        plan.append(("curvature_rho.png", _rho_figure, _rho_takeaway, (results,)))
     if history:
-        out["nightly_trend.png"] = trend_figure(history)
-    return out
+        plan.append(("nightly_trend.png", trend_figure, _trend_takeaway, (history,)))
+    return plan
 
 
 # ------------------------------------------------------------------------------------------------
@@ -596,21 +601,7 @@ def takeaways(results: dict, history: list[dict] | None = None) -> dict[str, str
     dict of str to str
         ``{figure file name: sentence}`` for the same names :func:`make_figures` draws.
     """
-    cases = {c["id"]: c for c in results["cases"]}
-    ests = list(results["suite"]["estimators"])
-    out = {}
-    for sw in results["sweeps"]:
-        sc = [cases[k] for k in sw["cases"]]
-        if not sc:
-            continue
-        out[f"{sw['name']}_curves.png"] = _curves_takeaway(sw, sc, ests)
-        if sw.get("paper") and (sw["paper"].get("source", "paper") == "paper"):
-            out[f"{sw['name']}_bars.png"] = _bars_takeaway(sw, sc, ests)
-    if _rho_cases(results):
-        out["curvature_rho.png"] = _rho_takeaway(results)
-    if history:
-        out["nightly_trend.png"] = _trend_takeaway(history)
-    return out
+    return {name: say(*args) for name, _, say, args in _figure_plan(results, history)}
 
 
 def _drawn_texts(fig) -> list:
