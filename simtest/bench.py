@@ -160,7 +160,8 @@ OPENCV_FUNCTIONS = (
     "GaussianBlur", "resize", "cvtColor", "morphologyEx", "dilate", "threshold", "inRange",
     "findContours", "boundingRect", "drawContours", "floodFill", "getStructuringElement",
     "connectedComponents", "connectedComponentsWithAlgorithm",
-    "connectedComponentsWithStatsWithAlgorithm", "undistortPoints",
+    "connectedComponentsWithStatsWithAlgorithm", "undistortPoints", "blur", "integral",
+    "connectedComponentsWithStats",
 )
 #: Those of them that write into an argument: replayed on a fresh copy each time.
 _OPENCV_IN_PLACE = frozenset({"drawContours", "floodFill"})

@@ -35,7 +35,7 @@ WRITES: dict[str, tuple[str, ...]] = {
     "dataset show": ("contact_sheet.png",),
     "dataset params": (),
     "evaluate c3vd": ("results.json", "report.html", "view_NNNN.png"),
-    "evaluate detection": ("results.json", "report.md", "detection.png"),
+    "evaluate detection": ("results.json", "report.md", "detection.png", "reliability.png"),
     "bench": (),
     "version": (),
 }

@@ -93,12 +93,12 @@ def test_a_labelled_set_is_read_tile_by_tile(tmp_path):
         labelled_real_frames(tmp_path / "bad.json")
 
 
-def test_the_command_writes_its_three_files(tmp_path):
+def test_the_command_writes_its_four_files(tmp_path):
     res = CliRunner().invoke(app, ["evaluate", "detection", str(_labelled_set(tmp_path)),
                                    "-o", str(tmp_path / "out")])
     assert res.exit_code == 0, res.output
-    assert sorted(p.name for p in (tmp_path / "out").iterdir()) == ["detection.png", "report.md",
-                                                                     "results.json"]
+    assert sorted(p.name for p in (tmp_path / "out").iterdir()) == ["detection.png", "reliability.png",
+                                                                     "report.md", "results.json"]
     r = json.loads((tmp_path / "out" / "results.json").read_text())
     assert r["pooled"]["targets"] == 1 and len(r["frames"]) == 2
     res = CliRunner().invoke(app, ["evaluate", "detection", str(tmp_path / "nothere.json"),

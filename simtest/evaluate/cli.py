@@ -21,6 +21,7 @@ from rich.progress import Progress
 from simtest import __version__
 from simtest.evaluate.c3vd import load_frame, scan_sequence
 from simtest.evaluate.detection import (detection_figure, evaluate_frames, labelled_real_frames,
+                                        reliability_figure,
                                         rendered_frames)
 from simtest.evaluate.report import SCHEMA, SCHEMA_VERSION, render_html
 from simtest.evaluate.score import score_highlights, summarise
@@ -121,7 +122,7 @@ def c3vd_command(
 
 
 #: What ``evaluate detection`` writes in OUT (nothing else may be there).
-DETECTION_FILES = ("results.json", "report.md", "detection.png")
+DETECTION_FILES = ("results.json", "report.md", "detection.png", "reliability.png")
 
 
 @evaluate_app.command("detection")
@@ -131,7 +132,7 @@ def detection_command(
                                  "labels its targets.", show_default=False),
     out: Path = typer.Option(..., "--out", "-o", show_default=False,
                              help="Output folder, new, empty or a previous run's (replaced as a whole): "
-                             "results.json, report.md, detection.png."),
+                             "results.json, report.md, detection.png, reliability.png."),
     seed: Optional[int] = typer.Option(None, "--seed", min=0, help="Render seed (a scene; default the scene's)."),  # noqa: UP045
 ) -> None:
     """Score highlight detection: precision, recall and F1 of the candidates and of the "ok"
@@ -140,7 +141,8 @@ def detection_command(
 
     Writes, in the folder OUT (new, empty, or a previous run's; replaced as a whole): OUT/results.json
     (every frame's counts and scores, and where each candidate fell), OUT/report.md (the table)
-    and OUT/detection.png (each frame with its hits, false positives and misses). Exit status 2:
+    OUT/detection.png (each frame with its hits, false positives and misses) and
+    OUT/reliability.png (the confidence's reliability diagram). Exit status 2:
     bad input; 4: OUT cannot be written."""
     target = check_out_folder(out, DETECTION_FILES)
     try:
@@ -155,6 +157,7 @@ def detection_command(
         md = _detection_markdown(results)
         fig = detection_figure(frames, results)
         png = figure_png(fig)
+        png_rel = figure_png(reliability_figure(results))
     except (ValueError, OSError, ImportError) as exc:
         fail(exc, BAD_INPUT)
 
@@ -162,6 +165,7 @@ def detection_command(
         (folder / "results.json").write_text(text, encoding="ascii")
         (folder / "report.md").write_text(md, encoding="utf-8")
         (folder / "detection.png").write_bytes(png)
+        (folder / "reliability.png").write_bytes(png_rel)
 
     write_out_folder(out, target, fill)
     p = results["pooled"]
@@ -187,5 +191,16 @@ def _detection_markdown(results: dict) -> str:
                  f"{_fmt(f['recall_ok'])} | {_fmt(f['f1_ok'])} | {f['not_examined']} |")
     L += ["", "What the ok estimates fall on (pooled): "
           + ", ".join(f"{k} {v}" for k, v in p["ok_on"].items()) + ".", "",
-          "![hits, false positives and misses](detection.png)", ""]
+          "Status of every candidate: " + ", ".join(f"{k} {v}" for k, v in results["statuses"].items())
+          + " (reasons in simtest.reconstruct.failures.REASONS).", "",
+          "![hits, false positives and misses](detection.png)", "",
+          "## Confidence", "",
+          "Reliability of each candidate's confidence (simtest.reconstruct.verify.confidence): per bin, "
+          "the fraction of candidates that are a target's first match.", "",
+          "| candidates | bin | n | mean confidence | fraction targets |", "|---|---|---|---|---|"]
+    for key in ("candidates", "ok"):
+        for r in results["reliability"][key]:
+            L.append(f"| {key} | [{r['bin'][0]:.1f}, {r['bin'][1]:.1f}) | {r['n']} | {_fmt(r['mean_confidence'])} | "
+                     f"{_fmt(r['fraction_true'])} |")
+    L += ["", "![reliability diagram](reliability.png)", ""]
     return "\n".join(L)

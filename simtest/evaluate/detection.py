@@ -37,16 +37,20 @@ from pathlib import Path
 
 import matplotlib
 import numpy as np
+from scipy.optimize import minimize
+from scipy.special import expit
 
 matplotlib.use("Agg", force=False)
 
 import matplotlib.pyplot as plt  # noqa: E402 - after choosing the back-end
 
 from simtest.geometry.cameras import PinholeCamera  # noqa: E402
+from simtest.reconstruct.detect import luma  # noqa: E402
 from simtest.reconstruct.images import load_image  # noqa: E402
 from simtest.reconstruct.io import estimate_to_dict  # noqa: E402
 from simtest.reconstruct.pipeline import reconstruct  # noqa: E402
 from simtest.reconstruct.settings import ReconSettings  # noqa: E402
+from simtest.reconstruct.verify import RESIDUAL_MAX_REL, _design, assess  # noqa: E402
 from simtest.render.render import render_scene  # noqa: E402
 from simtest.render.sensor import field_stop_mask  # noqa: E402
 from simtest.render.truth import highlight_targets  # noqa: E402
@@ -54,7 +58,8 @@ from simtest.scene.spec import load_scene  # noqa: E402
 
 __all__ = ["KINDS", "TARGET_KIND", "TOLERANCE_PX", "Structure", "FrameScore", "LabelledFrame",
            "match_candidates", "score_frame", "pooled", "labelled_real_frames", "rendered_frames",
-           "evaluate_frames", "detection_figure"]
+           "evaluate_frames", "detection_figure", "CONFIDENCE_BINS", "confidence_rows", "fit_logistic",
+           "reliability", "cross_validated_confidence", "reliability_figure"]
 
 #: The kinds of labelled bright structure; ``isolated`` is the target.
 KINDS = ("isolated", "cluster", "streak", "instrument", "overlay", "border", "texture")
@@ -213,7 +218,7 @@ def score_frame(name: str, specularities: list[dict], structures: list[Structure
             sc.ok_tp += tp_ok
             sc.ok_on["isolated" if tp_ok else ("duplicate" if on == TARGET_KIND else on)] += 1
         rows.append({"bp_px": [float(v) for v in s["bp_px"]], "status": s["status"], "on": on,
-                     "tp": tp, "tp_ok": tp_ok})
+                     "tp": tp, "tp_ok": tp_ok, "confidence": s.get("confidence")})
     sc.targets_found, sc.targets_found_ok = len(found), len(found_ok)
     return sc, rows
 
@@ -365,7 +370,34 @@ def evaluate_frames(frames: list[LabelledFrame], settings=None) -> dict:
                   and not any(r["tp_ok"] and _on(r, s) for r in rows)]
         frames_out.append(sc.as_dict() | {"not_examined": ests.n_unexamined, "candidates_detail": rows,
                                           "missed_targets_ok": missed})
-    return {"frames": frames_out, "pooled": pooled(scores).as_dict(), "settings": settings.to_dict()}
+    cand = [r for f in frames_out for r in f["candidates_detail"] if r["confidence"] is not None]
+    conf = np.array([r["confidence"] for r in cand], dtype=np.float64)
+    tp = np.array([r["tp"] for r in cand], dtype=bool)
+    ok = np.array([r["status"] == "ok" for r in cand], dtype=bool)
+    statuses = Counter(r["status"] for f in frames_out for r in f["candidates_detail"])
+    return {"frames": frames_out, "pooled": pooled(scores).as_dict(), "settings": settings.to_dict(),
+            "statuses": dict(sorted(statuses.items())),
+            "reliability": {"candidates": reliability(conf, tp), "ok": reliability(conf[ok], tp[ok])}}
+
+
+def reliability_figure(results: dict):
+    """The reliability diagram of the confidence: per bin, the fraction of candidates that are
+    targets against the bin's mean confidence (the diagonal is perfect calibration), for every
+    candidate with a confidence and for the ``ok`` ones, with each bin's count."""
+    fig, ax = plt.subplots(figsize=(5.2, 4.4), layout="constrained")
+    ax.plot([0, 1], [0, 1], color="0.6", lw=1, ls="--", label="perfect calibration")
+    for key, marker, colour in (("candidates", "o", "#1f77b4"), ("ok", "s", "#d62728")):
+        rows = [r for r in results["reliability"][key] if r["n"]]
+        x = [r["mean_confidence"] for r in rows]
+        y = [r["fraction_true"] for r in rows]
+        ax.plot(x, y, marker=marker, color=colour, label=f"{key} (n = {sum(r['n'] for r in rows)})")
+        for r, xi, yi in zip(rows, x, y):
+            ax.annotate(f"n={r['n']}", (xi, yi), textcoords="offset points", xytext=(4, -10), fontsize=7,
+                        color=colour)
+    ax.set(xlim=(0, 1), ylim=(0, 1), xlabel="mean confidence in the bin",
+           ylabel="fraction that are labelled targets", title="Reliability of the confidence")
+    ax.legend(fontsize=8, loc="upper left")
+    return fig
 
 
 def _on(row: dict, s: Structure) -> bool:
@@ -406,3 +438,87 @@ def detection_figure(frames: list[LabelledFrame], results: dict, *, columns: int
                  f"recall {pct(p['recall_ok'])} over {p['targets']} targets\n(green circle: hit, red "
                  "cross: false positive, yellow square: missed)", fontsize=9)
     return fig
+
+
+# ---------------------------------------------------------------------------------------------
+# the confidence's calibration
+
+#: Confidence bins of the reliability diagram (the issue's: [0.5, 0.7), [0.7, 0.9), [0.9, 1]).
+CONFIDENCE_BINS = (0.0, 0.3, 0.5, 0.7, 0.9, 1.0)
+#: L2 penalty of the logistic fit on its weights (not the intercept): a few features and a few
+#: thousand candidates need little; it keeps a feature the labels barely move at a small weight.
+L2_PENALTY = 1.0
+
+
+def confidence_rows(frames: list[LabelledFrame], settings=None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The features of :func:`simtest.reconstruct.verify.confidence` for every ``ok`` estimate of
+    the frames (the fits that pass the specularity checks: the estimates a user takes), with its
+    label.
+
+    Returns
+    -------
+    X : ndarray of shape (N, 5)
+        Features (``verify._design``), one row per ``ok`` estimate.
+    y : ndarray of bool, shape (N,)
+        True where the candidate is a target's first match (an isolated highlight).
+    group : ndarray of int, shape (N,)
+        Index of its frame (for cross-validation by frame).
+    """
+    settings = (settings or ReconSettings.for_frames()).replace(verify=False)
+    xs, ys, gs = [], [], []
+    for g, fr in enumerate(frames):
+        fits = reconstruct(fr.image, fr.camera, settings=settings)
+        if not fits:
+            continue
+        ev, res, _ = assess(fr.image, luma(fr.image), fits, full_scale=255.0 if fr.image.dtype == np.uint8
+                            else float(fr.image.max()))
+        ests = reconstruct(fr.image, fr.camera, settings=settings.replace(verify=True))
+        _, rows = score_frame(fr.name, [estimate_to_dict(e) for e in ests], fr.structures)
+        fitted = np.array([e.ok for e in ests])
+        X = _design(ev, np.where(np.isfinite(res), res, RESIDUAL_MAX_REL))
+        xs.append(X[fitted])
+        ys.append(np.array([r["tp"] for r in rows], dtype=bool)[fitted])
+        gs.append(np.full(int(fitted.sum()), g))
+    return np.concatenate(xs), np.concatenate(ys), np.concatenate(gs)
+
+
+def fit_logistic(X: np.ndarray, y: np.ndarray, penalty: float = L2_PENALTY) -> np.ndarray:
+    """L2-penalised logistic regression by ``scipy.optimize.minimize`` (BFGS).
+
+    Returns
+    -------
+    ndarray of shape (1 + X.shape[1],)
+        Intercept, then weights.
+    """
+    A = np.c_[np.ones(len(X)), X]
+    t = y.astype(np.float64)
+
+    def loss(c):
+        z = A @ c
+        nll = np.sum(np.logaddexp(0.0, z) - t * z)
+        return nll + 0.5 * penalty * np.sum(c[1:] ** 2), A.T @ (expit(z) - t) \
+            + penalty * np.r_[0.0, c[1:]]
+
+    return minimize(loss, np.zeros(A.shape[1]), jac=True, method="BFGS").x
+
+
+def reliability(conf: np.ndarray, y: np.ndarray, bins=CONFIDENCE_BINS) -> list[dict]:
+    """Per confidence bin: count, mean confidence and the fraction of true highlights."""
+    out = []
+    for lo, hi in zip(bins[:-1], bins[1:]):
+        m = (conf >= lo) & ((conf < hi) if hi < 1.0 else (conf <= hi))
+        out.append({"bin": [lo, hi], "n": int(m.sum()),
+                    "mean_confidence": float(conf[m].mean()) if m.any() else None,
+                    "fraction_true": float(y[m].mean()) if m.any() else None})
+    return out
+
+
+def cross_validated_confidence(X: np.ndarray, y: np.ndarray, group: np.ndarray) -> np.ndarray:
+    """Each candidate's confidence from the logistic fitted on the other frames (leave one frame
+    out): the calibration a new frame can expect."""
+    out = np.empty(len(y))
+    for g in np.unique(group):
+        m = group == g
+        c = fit_logistic(X[~m], y[~m])
+        out[m] = 1.0 / (1.0 + np.exp(-(c[0] + X[m] @ c[1:])))
+    return out

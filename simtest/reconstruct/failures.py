@@ -36,6 +36,11 @@ REASONS: dict[str, str] = {
     "not_an_ellipse": "the best conic is not a real ellipse (hyperbola, parabola, line pair)",
     # pose
     "pose_failed": "the normalised conic is not a real cone: no circle pose",
+    # specularity checks of a fitted candidate (simtest.reconstruct.verify)
+    "overlay": "the candidate lies on a flat panel: a burnt-in overlay (text, box, UI), not tissue",
+    "not_specular": "the peak is not specular: not paler than the tissue, or not well above the diffuse level",
+    "cluster": "another specular peak lies inside the candidate's isophote region (clustered glints)",
+    "bad_fit": "the isophote is no ellipse around the BP: residual too large for its size, or BP outside",
 }
 
 

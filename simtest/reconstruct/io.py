@@ -225,6 +225,7 @@ def estimate_to_dict(est, include_points: bool = False) -> dict:
         "roi": [int(v) for v in est.roi],
         "status": est.status,
         "detail": est.detail,
+        "confidence": _num(getattr(est, "confidence", None)),
         "normals": {
             "paper": _mat(est.normals_paper),
             "paper_selected": _vec(est.paper_selected),

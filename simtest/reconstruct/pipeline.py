@@ -92,6 +92,7 @@ from simtest.reconstruct.failures import OK, Failure
 from simtest.reconstruct.isophote import MIN_CONTOUR_POINTS, _cut_and_contour, _extract, _region
 from simtest.reconstruct.recommend import recommend
 from simtest.reconstruct.settings import AUTO_LOCAL_BACKGROUND_REL, Normalisation, ReconSettings
+from simtest.reconstruct.verify import assess, confidence, verdict
 
 #: A whole-frame call (:func:`reconstruct`) on an RGB image with at least this many accepted
 #: highlights computes the luma of the frame once and slices each ROI's from it (the same values,
@@ -212,6 +213,10 @@ class SpecularityEstimate:
     light_aware : dict or None
         The light-aware estimates by name (:mod:`simtest.reconstruct.recommend`), when a light rig
         off the camera centre is known.
+    confidence : float or None
+        In [0, 1]: how likely the candidate is an isolated specular highlight the isophote method
+        can use (:func:`simtest.reconstruct.verify.confidence`, calibrated on labelled real
+        frames); None where the frame was not verified (``ReconSettings.verify`` off).
     """
 
     bp_px: np.ndarray
@@ -224,6 +229,7 @@ class SpecularityEstimate:
     isophotes: tuple[IsophoteEstimate, ...]
     joint_cone_axis: np.ndarray | None = None
     light_aware: dict | None = None
+    confidence: float | None = None
 
     @property
     def ok(self) -> bool:
@@ -1080,5 +1086,25 @@ def reconstruct(
         out.append(_estimate_one(frame, bp, roi_k, saturated=cand.saturated, grow=True, other_bps=others,
                                  own_bp=int(row_in_others[k]) if keep[k] else -1, bp_ray=rays[k],
                                  fitf=frames_of.get(k)))
-    return Estimates(_complete(out), n_components=det.n_components,
+    done = _complete(out)
+    if settings.verify and done:
+        done = _verified(frame, done)
+    return Estimates(done, n_components=det.n_components,
                      n_unexamined=det.n_unexamined, max_candidates=settings.max_candidates)
+
+
+def _verified(frame: _Frame, ests: list[SpecularityEstimate]) -> list[SpecularityEstimate]:
+    """The estimates with their confidence, and the fitted ones that fail a specularity check
+    of :mod:`simtest.reconstruct.verify` with its reason as status (the fit is kept)."""
+    # the frame's luma as the camera gave it (small glints beside a highlight survive no smoothing;
+    # the checks weigh heights against its noise)
+    gray = frame.luma_frame if frame.luma_frame is not None else luma(frame.img)
+    ev, res, inside = assess(frame.img, gray, ests, full_scale=frame.full_scale)
+    conf = confidence(ev, res)
+    checks = verdict(ev, res, inside)
+    out = []
+    for k, e in enumerate(ests):
+        status, detail = (checks[k] if e.ok else (e.status, e.detail))
+        fitted = np.isfinite(res[k])  # a confidence for the fitted candidates only
+        out.append(replace(e, status=status, detail=detail, confidence=float(conf[k]) if fitted else None))
+    return out

@@ -157,6 +157,11 @@ class ReconSettings:
         every one. The components left out are counted (``Estimates.n_unexamined``, the
         ``detection`` record of ``estimates.json`` and the console line), never dropped silently.
         An integer >= 1, or None.
+    verify : bool
+        Judge every fitted candidate by the specularity checks of
+        :mod:`simtest.reconstruct.verify` (colour, height, overlay, isolation, fit) and give each
+        estimate a ``confidence``; a fit that fails a check gets the check's reason as status.
+        On for whole frames, off for the paper's settings (a known highlight).
 
     Notes
     -----
@@ -194,6 +199,7 @@ class ReconSettings:
     detection: str = "full_scale"
     peak_rel: float = 0.6
     max_candidates: int | None = MAX_CANDIDATES
+    verify: bool = False
 
     def __post_init__(self) -> None:
         set_ = object.__setattr__
@@ -225,6 +231,9 @@ class ReconSettings:
         if not isinstance(self.allow_open, (bool, np.bool_)):
             raise ValueError(f"allow_open must be true or false, got {self.allow_open!r}")
         set_(self, "allow_open", bool(self.allow_open))
+        if not isinstance(self.verify, (bool, np.bool_)):
+            raise ValueError(f"verify must be true or false, got {self.verify!r}")
+        set_(self, "verify", bool(self.verify))
         set_(self, "full_scale", _positive_or_none("full_scale", self.full_scale))
         set_(self, "saturation_level", _positive_or_none("saturation_level", self.saturation_level))
         try:
@@ -252,7 +261,7 @@ class ReconSettings:
         reconstruct``): detection relative to local peaks, smoothing chosen from the noise,
         ``normalise="auto"``, isovalues :data:`FRAME_ISOVALUES`; ``changes`` applied on top."""
         base = cls(isovalues=FRAME_ISOVALUES, normalise=Normalisation.AUTO, smooth_sigma_px=None,
-                   detection="local_peak")
+                   detection="local_peak", verify=True)
         return base.replace(**changes) if changes else base
 
     @property

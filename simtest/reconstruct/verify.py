@@ -1,0 +1,414 @@
+"""Is a fitted candidate a specular highlight the isophote method can use? Checks and a confidence.
+
+Detection keeps every bright peak of a frame and the isophote fits succeed on most of them, on
+diffuse texture and fold rims, clustered glints and burnt-in text alike. This module decides which
+fitted candidates earn the status ``ok``, from what makes a highlight specular and usable:
+
+- **Specular colour** (``not_specular``). A dielectric surface reflects the illuminant's colour
+  (neutral Fresnel reflectance over the visible band, the dichromatic model: Shafer, *Color Res.
+  Appl.* 10, 1985, doi:10.1002/col.5080100409), white after the camera's white balance, while the
+  diffuse light carries the tissue's colour. So the peak is paler than the tissue around it: its
+  chroma ``1 - min(RGB) / max(RGB)`` is at most :data:`PALENESS_MAX` times the tissue's (the
+  background's chroma, from the grey opening of each channel), or it is itself near-white
+  (chroma below :data:`WHITE_CHROMA`: on grey or pale tissue the ratio tells nothing).
+- **A compact peak well above the diffuse level** (``not_specular``). Its height above the local
+  background (the luma top-hat) is at least :data:`SIGNIFICANCE_MIN` times the image noise and at
+  least :data:`CONTRAST_MIN` times the room the sensor leaves (the background, or the headroom
+  above it where that is smaller: a specular lobe multiplies the irradiance many-fold and fills the
+  headroom; a lighter patch of tissue adds a few tens of percent), unless its peak is clipped
+  in every channel (then the height is only a lower bound: a lobe clipped on bright tissue near
+  the sensor's ceiling has little headroom left; the colour check still applies).
+- **Not a burnt-in overlay** (``overlay``). Overlays are drawn on flat panels: the black surround of
+  the field of view and coloured boxes. A panel is found from the image as a large region whose
+  pixels vary over 5 x 5 px by less than :data:`PANEL_STD_REL` of the image's noise; a candidate whose
+  isophote region holds more than :data:`PANEL_FRACTION_MAX` of panel pixels is an overlay.
+- **Isolated** (``cluster``). The isophote method contours the highlight out to its region of
+  interest; another specular peak inside that region (a local maximum of the top-hat, itself
+  specular by the colour check, at least :data:`NEIGHBOUR_REL` of this peak's height, beyond
+  :data:`OWN_RADIUS_PX` of its BP) breaks the assumption of one lobe on a locally planar patch.
+- **Nested ellipses** (``bad_fit``). The primary isophote's RMS residual is at most
+  :data:`RESIDUAL_MAX_REL` of its semi-minor axis, and the BP lies inside it.
+
+The ``confidence`` of a fitted estimate is a logistic function of the same quantities
+(:func:`confidence`), whose coefficients were fitted on the ``ok`` estimates of the hand-labelled
+real frames of ``tests/data/real/structures_labelled.json``: of the ``ok`` estimates given
+confidence about c, about a fraction c were labelled isolated specular highlights there
+(``simtest evaluate detection`` draws the reliability diagram; cross-validated by frame in
+:func:`simtest.evaluate.detection.cross_validated_confidence`). A rejected estimate carries the
+confidence it would have had. It is a ranking with that calibration, not a probability on other
+scopes; candidates without a fit have none.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, replace
+
+import cv2
+import numpy as np
+from scipy.spatial import cKDTree
+
+from simtest.reconstruct.detect import background_side_px, noise_sigma
+
+__all__ = ["PALENESS_MAX", "WHITE_CHROMA", "SIGNIFICANCE_MIN", "CONTRAST_MIN", "PANEL_STD_REL",
+           "PANEL_FRACTION_MAX", "NEIGHBOUR_REL", "OWN_RADIUS_PX", "RESIDUAL_MAX_REL",
+           "COEFFICIENTS", "Evidence", "frame_evidence", "assess", "confidence", "verdict"]
+
+#: Largest ratio of the peak's chroma to the tissue's for a specular peak.
+PALENESS_MAX = 0.6
+#: A peak whose chroma is below this is near-white, whatever the tissue's colour.
+WHITE_CHROMA = 0.08
+#: Smallest top-hat height at the BP, in units of the image noise's standard deviation.
+SIGNIFICANCE_MIN = 8.0
+#: Smallest top-hat height at the BP relative to the room the sensor leaves there (the background,
+#: or the headroom above it where smaller): a specular lobe fills at least half of it.
+CONTRAST_MIN = 0.5
+#: A flat-panel pixel varies by less than this fraction of the image's noise (luma standard
+#: deviation over 5 x 5 px): it is flatter than the sensor could image it, so it was drawn. A
+#: noise-free image (a render without sensor noise) has no panels.
+PANEL_STD_REL = 0.5
+#: Smallest flat panel, fraction of the frame's pixels (a box or the surround, not a smooth patch).
+PANEL_MIN_AREA = 0.005
+#: Largest share of panel pixels in a candidate's isophote region.
+PANEL_FRACTION_MAX = 0.1
+#: A neighbouring specular peak counts toward ``cluster`` from this fraction of the peak's height.
+NEIGHBOUR_REL = 0.7
+#: ... separated from the candidate's lobe by a valley below this fraction of its height ...
+VALLEY_REL = 0.5
+#: ... less this many noise standard deviations (a dip the noise could make is no valley).
+VALLEY_NOISE = 3.0
+#: ... within this many semi-major axes of the primary isophote (at t = 0.7 of a Phong lobe, the
+#: t = 0.1 isophote that bounds the region the method contours is about 2.8 times wider) ...
+NEIGHBOUR_REACH = 3.0
+#: ... plus this margin, px (the smoothing's blur).
+OWN_RADIUS_PX = 2.0
+#: Largest RMS isophote residual relative to the ellipse's semi-minor axis.
+RESIDUAL_MAX_REL = 0.3
+
+#: Logistic coefficients of :func:`confidence`: intercept, then the weights of the features of
+#: ``_design`` (paleness, significance, neighbours, residual ratio, panel share). Fitted by
+#: :func:`simtest.evaluate.detection.fit_logistic` on the 240 ``ok`` estimates of the 24 labelled
+#: banner frames (54 of them isolated highlights); the neighbours are 0 on every ``ok`` estimate
+#: (the checks saw to it), so their weight is 0. ``tests/test_verify.py``
+#: refits them.
+COEFFICIENTS = np.array([-4.466, 0.581, 0.390, 0.000, 0.209, 0.031])
+
+
+@dataclass(frozen=True)
+class Evidence:
+    """Per-candidate measurements of a frame (arrays of shape (N,), one row per candidate).
+
+    Attributes
+    ----------
+    chroma_peak, chroma_tissue : ndarray
+        Chroma ``1 - min/max`` of the RGB maximum over the 3 x 3 px around the BP, and of the
+        background (grey opening per channel) there; 0 for a grey image.
+    height : ndarray
+        Luma top-hat at the BP, image units.
+    background : ndarray
+        Luma background at the BP, image units.
+    noise : float
+        Image noise standard deviation, image units.
+    panel_fraction : ndarray
+        Share of flat-panel pixels in the candidate's region of interest.
+    clipped : ndarray of bool
+        The BP is on a clipped plateau (its height is only a lower bound).
+    full_scale : float
+        Intensity of white, image units.
+    neighbours : ndarray of int
+        Specular peaks in the region of interest other than the candidate's own.
+    """
+
+    chroma_peak: np.ndarray
+    chroma_tissue: np.ndarray
+    height: np.ndarray
+    background: np.ndarray
+    noise: float
+    panel_fraction: np.ndarray
+    neighbours: np.ndarray
+    clipped: np.ndarray | None = None
+    full_scale: float = 255.0
+
+    @property
+    def paleness(self) -> np.ndarray:
+        """Chroma of the peak over the tissue's (0: white peak; 1: the tissue's own colour)."""
+        return self.chroma_peak / np.maximum(self.chroma_tissue, 1e-3)
+
+    @property
+    def specular_colour(self) -> np.ndarray:
+        """The colour check: paler than the tissue, or near-white."""
+        return (self.paleness <= PALENESS_MAX) | (self.chroma_peak <= WHITE_CHROMA)
+
+    @property
+    def significance(self) -> np.ndarray:
+        """Height over the noise."""
+        return self.height / max(self.noise, 1e-9)
+
+    @property
+    def contrast(self) -> np.ndarray:
+        """Height over the room the sensor leaves: the background, or the headroom from the
+        background to full scale where that is smaller (bright tissue near the ceiling)."""
+        room = np.minimum(self.background, self.full_scale - self.background)
+        return self.height / np.maximum(room, 1e-9)
+
+
+def _opening(img: np.ndarray, side: int) -> np.ndarray:
+    """Grey opening by a square of ``side`` px on the image reduced so that the square is ~16 px
+    (as :func:`~simtest.reconstruct.detect.local_peak_mask`), back to full size; float32."""
+    h, w = img.shape[:2]
+    f = max(1, side // 16)
+    x = img.astype(np.float32, copy=False)
+    small = cv2.resize(x, (max(1, w // f), max(1, h // f)), interpolation=cv2.INTER_AREA) if f > 1 else x
+    k = max(3, side // f)
+    k += 1 - k % 2
+    bg = cv2.morphologyEx(small, cv2.MORPH_OPEN, cv2.getStructuringElement(cv2.MORPH_RECT, (k, k)),
+                          borderType=cv2.BORDER_REPLICATE)
+    return cv2.resize(bg, (w, h), interpolation=cv2.INTER_LINEAR) if f > 1 else bg
+
+
+def _chroma(rgb: np.ndarray) -> np.ndarray:
+    mx = rgb.max(axis=-1)
+    return 1.0 - rgb.min(axis=-1) / np.maximum(mx, 1e-9)
+
+
+def _panels(gray: np.ndarray, noise: float) -> np.ndarray:
+    """Flat panels: 8-connected regions of pixels whose 5 x 5 luma standard deviation is below
+    :data:`PANEL_STD_REL` of the image noise, of at least :data:`PANEL_MIN_AREA` of the frame;
+    uint8 0/1 (none in a noise-free image)."""
+    if not noise > 0:
+        return np.zeros(gray.shape, np.uint8)
+    g = gray.astype(np.float32, copy=False)
+    m1 = cv2.blur(g, (5, 5))
+    m2 = cv2.blur(g * g, (5, 5))
+    sd = np.sqrt(np.maximum(m2 - m1 * m1, 0.0))
+    flat = (sd < PANEL_STD_REL * noise).astype(np.uint8)
+    n, lab, stats, _ = cv2.connectedComponentsWithStats(flat, connectivity=8)
+    big = np.flatnonzero(stats[:, cv2.CC_STAT_AREA] >= PANEL_MIN_AREA * flat.size)
+    big = big[big > 0]
+    return np.isin(lab, big).astype(np.uint8) if len(big) else np.zeros_like(flat)
+
+
+def _other_peaks(top: np.ndarray, xs: np.ndarray, ys: np.ndarray, bp_ij: np.ndarray, reach: float,
+                 height: float, noise: float) -> int:
+    """Specular peaks (x, y) within ``reach`` of the BP, at least :data:`NEIGHBOUR_REL` of its
+    ``height``, that are not on the BP's own lobe: not joined to it by pixels whose top-hat is at
+    least :data:`VALLEY_REL` of its height less :data:`VALLEY_NOISE` times the ``noise`` (a
+    distinct glint is separated from it by a valley below that level; noise only ruffles a
+    lobe's flank)."""
+    h, w = top.shape
+    # a valley noise could have dug does not separate: the level sits VALLEY_NOISE sigma lower
+    level = VALLEY_REL * height - VALLEY_NOISE * noise
+    r0, r1 = max(0, int(bp_ij[1] - reach)), min(h, int(bp_ij[1] + reach) + 1)
+    c0, c1 = max(0, int(bp_ij[0] - reach)), min(w, int(bp_ij[0] + reach) + 1)
+    win = top[r0:r1, c0:c1]
+    sel = (top[ys, xs] >= NEIGHBOUR_REL * height) & (ys >= r0) & (ys < r1) & (xs >= c0) & (xs < c1)
+    if not sel.any():
+        return 0
+    _, lab = cv2.connectedComponents((win >= level).astype(np.uint8), connectivity=8)
+    own = lab[int(bp_ij[1]) - r0, int(bp_ij[0]) - c0]
+    other = lab[ys[sel] - r0, xs[sel] - c0]
+    return int(np.count_nonzero((other != own) | (own == 0)))
+
+
+def frame_evidence(image: np.ndarray, gray: np.ndarray, bps_uv: np.ndarray, rois, *,
+                   full_scale: float, noise: float, background_px: int,
+                   reach_px: np.ndarray | None = None) -> Evidence:
+    """Measure every candidate of a frame.
+
+    Parameters
+    ----------
+    image : ndarray of shape (H, W, 3) or (H, W)
+        The frame as given (RGB).
+    gray : ndarray of shape (H, W)
+        Its luma, image units.
+    bps_uv : ndarray of shape (N, 2)
+        The candidates' BPs (u, v), px.
+    rois : sequence of Roi
+        Their regions of interest (row0, row1, col0, col1).
+    full_scale : float
+        Intensity of white, image units.
+    noise : float
+        Noise standard deviation of the luma, image units.
+    background_px : int
+        Side of the background opening's square, px (detection's).
+    reach_px : ndarray of shape (N,), optional
+        Radius around each BP in which other specular peaks are counted (``neighbours``), px;
+        NaN (or None for all): not counted. The pipeline gives :data:`NEIGHBOUR_REACH` times the
+        primary isophote's semi-major axis plus :data:`OWN_RADIUS_PX`, the extent of the lobe's
+        outer isophotes.
+
+    Returns
+    -------
+    Evidence
+    """
+    h, w = gray.shape
+    n = len(bps_uv)
+    rgb = image.astype(np.float32) if image.ndim == 3 else np.repeat(gray[..., None], 3, 2).astype(np.float32)
+    rgb = rgb[..., :3]
+    bg_rgb = _opening(rgb, background_px)
+    g = gray.astype(np.float32, copy=False)
+    bg = _opening(g, background_px)
+    top = np.maximum(g - bg, 0.0)
+    chroma = _chroma(rgb)
+    chroma_bg = _chroma(bg_rgb)
+    ij = np.clip(np.rint(np.asarray(bps_uv, np.float64).reshape(-1, 2)).astype(np.int64), 0, [w - 1, h - 1])
+    cols, rows = ij.T  # the BPs' pixels (u is the column)
+    peak_rgb = cv2.dilate(rgb, np.ones((3, 3), np.uint8))[rows, cols]
+    chroma_peak = _chroma(peak_rgb)
+    chroma_tissue = chroma_bg[rows, cols]
+    height = top[rows, cols]
+    background = bg[rows, cols]
+    # flat panels: share in each ROI by an integral image
+    panel = _panels(g, noise)
+    integ = cv2.integral(panel)
+    rr = np.array([[r.row0, r.row1, r.col0, r.col1] for r in rois], np.int64).reshape(-1, 4)
+    area = np.maximum((rr[:, 1] - rr[:, 0]) * (rr[:, 3] - rr[:, 2]), 1)
+    inside = (integ[rr[:, 1], rr[:, 3]] - integ[rr[:, 0], rr[:, 3]] - integ[rr[:, 1], rr[:, 2]]
+              + integ[rr[:, 0], rr[:, 2]])
+    panel_fraction = inside / area
+    # specular peaks of the frame: local maxima of the top-hat that pass the colour check
+    floor = max(SIGNIFICANCE_MIN * noise, 1e-9)
+    is_max = (top >= cv2.dilate(top, np.ones((3, 3), np.uint8))) & (top > floor)
+    pale = (chroma <= PALENESS_MAX * chroma_bg) | (chroma <= WHITE_CHROMA)
+    ys, xs = np.nonzero(is_max & pale)
+    xs, ys = xs.astype(np.int64), ys.astype(np.int64)
+    neighbours = np.zeros(n, np.int64)
+    reach = np.asarray(reach_px, np.float64).reshape(-1) if reach_px is not None else np.full(n, np.nan)
+    if len(xs) and n:
+        tree = cKDTree(np.c_[xs, ys].astype(np.float64))
+        bps = np.asarray(bps_uv, np.float64).reshape(-1, 2)
+        todo = np.flatnonzero(np.isfinite(reach))
+        lists = tree.query_ball_point(bps[todo], reach[todo]) if len(todo) else []
+        for k, idx in zip(todo, lists):
+            if idx:
+                neighbours[k] = _other_peaks(top, xs[idx], ys[idx], ij[k], reach[k], height[k], noise)
+    return Evidence(chroma_peak, chroma_tissue, height, background, float(noise), panel_fraction,
+                    neighbours, full_scale=float(full_scale))
+
+
+def _inside(ell, uv) -> bool:
+    """Whether the point (u, v) px lies inside the ellipse (centre, semi-axes, angle)."""
+    c, s = np.cos(ell.angle_rad), np.sin(ell.angle_rad)
+    d = np.asarray(uv, dtype=np.float64) - ell.center
+    x, y = c * d[0] + s * d[1], -s * d[0] + c * d[1]
+    a, b = ell.semi_axes
+    return bool((x / a) ** 2 + (y / b) ** 2 <= 1.0)
+
+
+def assess(image: np.ndarray, gray: np.ndarray, ests, *, full_scale: float):
+    """The evidence on a frame's estimates, with their fits' residual ratios and BP placement.
+
+    Parameters
+    ----------
+    image : ndarray of shape (H, W, 3) or (H, W)
+        The frame (RGB).
+    gray : ndarray of shape (H, W)
+        Its luma, image units.
+    ests : sequence of SpecularityEstimate
+        Its estimates (N), as the pipeline completed them.
+    full_scale : float
+        Intensity of white, image units.
+
+    Returns
+    -------
+    (Evidence, ndarray of shape (N,), ndarray of bool, shape (N,))
+        The evidence (neighbours counted for the fitted estimates within
+        :data:`NEIGHBOUR_REACH` semi-major axes plus :data:`OWN_RADIUS_PX`), the primary
+        isophote's RMS residual over its semi-minor axis (NaN without a fit; 0 for a fit of a
+        camera model without image conics), and whether the BP lies inside that ellipse.
+    """
+    n = len(ests)
+    res = np.full(n, np.nan)
+    reach = np.full(n, np.nan)
+    inside = np.zeros(n, dtype=bool)
+    for k, e in enumerate(ests):
+        ell, r = e.ellipse, e.fit_residual_px
+        if ell is not None and r is not None:
+            res[k] = r / max(float(ell.semi_axes[1]), 1e-9)
+            inside[k] = _inside(ell, e.bp_px)
+            if e.ok:
+                reach[k] = NEIGHBOUR_REACH * float(ell.semi_axes[0]) + OWN_RADIUS_PX
+        elif e.ok:  # a camera model without image conics: judged on the rest
+            res[k], inside[k] = 0.0, True
+    bps = np.array([e.bp_px for e in ests], dtype=np.float64).reshape(-1, 2)
+    ev = frame_evidence(image, gray, bps, [e.roi for e in ests], full_scale=full_scale,
+                        noise=noise_sigma(gray), background_px=background_side_px(gray.shape),
+                        reach_px=reach)
+    return replace(ev, clipped=np.array([bool(e.saturated) for e in ests], dtype=bool)), res, inside
+
+
+def _design(ev: Evidence, residual_rel: np.ndarray) -> np.ndarray:
+    """The features of :func:`confidence`, (N, 5): log paleness, log significance, log contrast
+    (each clipped), neighbours, log residual ratio."""
+    return np.c_[
+        -np.log(np.clip(ev.paleness, 0.05, 5.0)),
+        np.log(np.clip(ev.significance, 1.0, 1e4)),
+        -ev.neighbours.astype(np.float64),
+        -np.log(np.clip(residual_rel, 0.01, 10.0)),
+        -ev.panel_fraction,
+    ]
+
+
+def confidence(ev: Evidence, residual_rel: np.ndarray, coefficients: np.ndarray | None = None) -> np.ndarray:
+    """The probability-like confidence in [0, 1] that each candidate is an isolated specular
+    highlight: a logistic function of the evidence's features.
+
+    Parameters
+    ----------
+    ev : Evidence
+        The frame's evidence (N candidates).
+    residual_rel : ndarray of shape (N,)
+        Primary isophote's RMS residual over its semi-minor axis (NaN where there is no fit: the
+        feature is taken at :data:`RESIDUAL_MAX_REL`).
+    coefficients : ndarray of shape (6,), optional
+        Intercept and weights; default :data:`COEFFICIENTS`.
+
+    Returns
+    -------
+    ndarray of shape (N,)
+    """
+    c = COEFFICIENTS if coefficients is None else np.asarray(coefficients, np.float64)
+    r = np.where(np.isfinite(residual_rel), residual_rel, RESIDUAL_MAX_REL)
+    z = c[0] + _design(ev, r) @ c[1:]
+    return 1.0 / (1.0 + np.exp(-z))
+
+
+def verdict(ev: Evidence, residual_rel: np.ndarray, bp_inside: np.ndarray) -> list[tuple[str, str]]:
+    """The status each fitted candidate earns: ``("ok", "")`` or a rejection and its numbers.
+
+    Parameters
+    ----------
+    ev : Evidence
+    residual_rel : ndarray of shape (N,)
+        As for :func:`confidence`.
+    bp_inside : ndarray of bool, shape (N,)
+        Whether the BP lies inside the primary isophote's ellipse.
+
+    Returns
+    -------
+    list of (str, str)
+        Status and detail per candidate, the first failing check in the order overlay,
+        not_specular, cluster, bad_fit.
+    """
+    out = []
+    pal, sig, con = ev.paleness, ev.significance, ev.contrast
+    clipped = np.zeros(len(ev.height), bool) if ev.clipped is None else ev.clipped
+    for k in range(len(ev.height)):
+        if ev.panel_fraction[k] > PANEL_FRACTION_MAX:
+            out.append(("overlay", f"{ev.panel_fraction[k]:.0%} of its region is a flat panel "
+                                   f"(> {PANEL_FRACTION_MAX:.0%})"))
+        elif not (pal[k] <= PALENESS_MAX or ev.chroma_peak[k] <= WHITE_CHROMA):
+            out.append(("not_specular", f"peak chroma {ev.chroma_peak[k]:.2f} is {pal[k]:.2f} of the "
+                                        f"tissue's {ev.chroma_tissue[k]:.2f} (> {PALENESS_MAX})"))
+        elif not clipped[k] and (sig[k] < SIGNIFICANCE_MIN or con[k] < CONTRAST_MIN):
+            out.append(("not_specular", f"height {ev.height[k]:.3g} is {sig[k]:.1f} noise sigma and "
+                                        f"{con[k]:.2f} of the background (need {SIGNIFICANCE_MIN:g} "
+                                        f"and {CONTRAST_MIN:g})"))
+        elif ev.neighbours[k] > 0:
+            out.append(("cluster", f"{ev.neighbours[k]} other specular peak(s) in its region"))
+        elif not (residual_rel[k] <= RESIDUAL_MAX_REL) or not bp_inside[k]:
+            why = "the BP lies outside its isophote" if not bp_inside[k] else (
+                f"isophote residual {residual_rel[k]:.2f} of its semi-minor axis (> {RESIDUAL_MAX_REL})")
+            out.append(("bad_fit", why))
+        else:
+            out.append(("ok", ""))
+    return out
