@@ -287,7 +287,7 @@ def light_aware_estimates(image, est, camera, rig: LightRig, *, nominal_depth_mm
         out["cubic_patch_fit"] = _guarded(
             "cubic_patch_fit", cubic_patch_fit, gray[near.slices], (near.col0, near.row0), est.bp_px, camera, rig,
             clip_level=saturation_level, nominal_depth_mm=nominal_depth_mm)
-    ray = _la._rays(camera, np.asarray(est.bp_px, dtype=np.float64)[None])[0]
+    ray = _la.model._rays(camera, np.asarray(est.bp_px, dtype=np.float64)[None])[0]
     for name, r in out.items():
         r = depth_within_ceiling(r)
         depth = r.depth_mm if r.depth_mm is not None else nominal_depth_mm
@@ -381,7 +381,7 @@ def bp_ray_error_deg(ray, depth_mm: float, rig: LightRig) -> float:
     """
     X = float(depth_mm) * np.asarray(ray, dtype=np.float64)
     to_cam = -X / np.linalg.norm(X)
-    to_light = _la._mean_light(rig) - X
+    to_light = _la.model._mean_light(rig) - X
     nl = np.linalg.norm(to_light)
     if not nl > 0:
         return 90.0
