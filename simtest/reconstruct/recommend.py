@@ -197,7 +197,8 @@ def light_aware_estimates(image, est, camera, rig: LightRig, *, nominal_depth_mm
                           roi_scale: float = 2.5, quadric_roi_scale: float = 1.5,
                           supersample: int = 1,
                           quadric: bool | None = None,
-                          cubic: bool | None = False) -> dict[str, LightAwareEstimate]:
+                          cubic: bool | None = False, response=None,
+                          diffuse: bool | None = None) -> dict[str, LightAwareEstimate]:
     """Run the light-aware estimators on one detected highlight.
 
     ``isocurve_fit`` takes its own isophotes, at :data:`ISOCURVE_ISOVALUES` of the BP's height above
@@ -245,6 +246,16 @@ def light_aware_estimates(image, est, camera, rig: LightRig, *, nominal_depth_mm
         has at least two lights at different places (with one light its depth, and with it the
         normal, is not observable: module docstring); ``simtest reconstruct --cubic-patch``
         asks for None.
+    response : SensorResponse, optional
+        The sensor's response (:class:`~simtest.geometry.response.SensorResponse`, a camera
+        file's ``"response"``): the fits then run on the linear intensities of the channel where
+        the tissue is darkest (:meth:`~simtest.geometry.response.SensorResponse.linearize`), its
+        clipped pixels censored (the radiance is at least the clip level), with the rig's diffuse
+        shading in the photometric model; ``saturation_level`` is then the response's.
+    diffuse : bool or None
+        The rig's Lambertian shading as a column of the photometric model
+        (:func:`~simtest.reconstruct.lightaware.photometric_fit`'s ``diffuse``); None (default):
+        with a ``response`` (a sensor frame of tissue), not without.
 
     Returns
     -------
@@ -257,9 +268,16 @@ def light_aware_estimates(image, est, camera, rig: LightRig, *, nominal_depth_mm
         ``nominal_depth_mm``).
     """
     img = np.asarray(image)
-    if saturation_level is None and img.dtype.kind == "u":
-        saturation_level = float(np.iinfo(img.dtype).max)
-    gray = luma(img)
+    censor = False
+    if response is not None:
+        gray, saturation_level, _ = response.linearize(img)
+        censor = True
+    else:
+        if saturation_level is None and img.dtype.kind == "u":
+            saturation_level = float(np.iinfo(img.dtype).max)
+        gray = luma(img)
+    if diffuse is None:
+        diffuse = response is not None
     out: dict[str, LightAwareEstimate] = {}
     roi = Roi(*(int(v) for v in est.roi))
     half = roi_scale * max(roi.shape) / 2.0
@@ -275,7 +293,7 @@ def light_aware_estimates(image, est, camera, rig: LightRig, *, nominal_depth_mm
     out["photometric_fit"] = _guarded(
         "photometric_fit", photometric_fit, gray[big.slices], (big.col0, big.row0), est.bp_px, camera, rig,
         clip_level=saturation_level, nominal_depth_mm=nominal_depth_mm,
-        start_normal=start_n, supersample=supersample)
+        start_normal=start_n, supersample=supersample, diffuse=diffuse, censor=censor)
     # its depth within the ceiling before the curved fits' turn is decided by its status
     out["photometric_fit"] = depth_within_ceiling(out["photometric_fit"])
     near = Roi.around(est.bp_px, quadric_roi_scale * max(roi.shape) / 2.0, img.shape)

@@ -355,3 +355,43 @@ def _roi_grid(values, camera, origin_uv, clip_level):
     vv, uu = np.mgrid[0:H, 0:W]
     keep = np.ones((H, W), bool) if clip_level is None else vals < clip_level
     return vals, camera, o, uu, vv, keep
+
+
+def _rig_diffuse(dT, rl, n, h, rig_arr) -> np.ndarray:
+    """The rig's Lambertian shading of the plane (n, h) along unit rays ``dT`` (3, N): (N,).
+
+    ``D = sum_j w_j max(0, n . l_j) f_j p_j`` with ``l_j`` the unit direction from the plane point
+    to light j, ``f_j = (h / r_j)^2`` for an inverse-square light (1 otherwise) and ``p_j`` its
+    ``cos^m`` profile about +z, the same falloff and profile as the specular lobes of
+    :func:`_rig_value` (unit albedo; the fit's linear part scales it). From the pieces of
+    :func:`_terms`: ``n . (L - X) = c`` so ``n . l = c / r``.
+    """
+    L, w, inv_sq, m = rig_arr
+    D = np.zeros(dT.shape[1])
+    for j in range(len(w)):
+        _, _, s, _, ir, c, _ = _terms(dT, n, h, L[j], (rl[0][j], rl[1][j]))
+        val = max(c, 0.0) * ir
+        if inv_sq[j]:
+            hir = h * ir
+            val = val * (hir * hir)
+        if m[j] > 0:
+            val = val * np.maximum((s * dT[2] - L[j, 2]) * ir, 0.0) ** m[j]
+        D += w[j] * val
+    return D
+
+
+def _rig_diffuse_grad(dT, rl, p, nb, e1, e2, rig_arr, step: float = 1e-6) -> np.ndarray:
+    """Central differences of :func:`_rig_diffuse` in (a, b, log h) about ``p`` (the plane
+    ``unit(nb + a e1 + b e2)`` at ``h = exp(p[2])``): (3, N). The shading is smooth and cheap
+    (no power of cos beta); a step of 1e-6 rad and 1e-6 in log h leaves errors near 1e-10 of it."""
+    out = np.empty((3, dT.shape[1]))
+    for k in range(3):
+        q = np.array(p[:3], dtype=np.float64)
+        vals = []
+        for sgn in (1.0, -1.0):
+            q2 = q.copy()
+            q2[k] += sgn * step
+            mv = nb + q2[0] * e1 + q2[1] * e2
+            vals.append(_rig_diffuse(dT, rl, mv / np.sqrt(mv @ mv), float(np.exp(q2[2])), rig_arr))
+        out[k] = (vals[0] - vals[1]) / (2 * step)
+    return out

@@ -15,6 +15,8 @@ from simtest.reconstruct.lightaware.model import (
     _ray_light,
     _rays,
     _rig_arrays,
+    _rig_diffuse,
+    _rig_diffuse_grad,
     _rig_grad,
     _rig_value,
     _roi_grid,
@@ -40,7 +42,7 @@ def photometric_fit(values, origin_uv, bp_uv, camera, rig: LightRig, *,
                     clip_level: float | None = None, nominal_depth_mm: float = 20.0,
                     start_normal=None, start_roughness: float | None = None,
                     loss: str = "linear", f_scale: float = 0.02, supersample: int = 1,
-                    n_start_depths: int = 0,
+                    n_start_depths: int = 0, diffuse: bool = False, censor: bool = False,
                     max_pixels: int | None = 16384, max_nfev: int = 200) -> LightAwareEstimate:
     """Fit the intensities of an ROI with the image of a plane lit by the whole rig.
 
@@ -91,6 +93,14 @@ def photometric_fit(values, origin_uv, bp_uv, camera, rig: LightRig, *,
         distance trade off along the BP's constraint, and what separates them is the lobe's shape
         down to its faint tails (a fit to the pixels above 2 % of the peak lost a factor of 3 to 5
         in accuracy against the Cramer-Rao bound).
+    diffuse : bool
+        Add the rig's Lambertian shading of the plane as a column of the model beside the lobes
+        and the background (its albedo a linear parameter; Notes): the image of tissue, whose
+        diffuse shading under a near light is no linear background.
+    censor : bool
+        Keep the pixels at or above ``clip_level`` as censored data (the pixel's radiance is at
+        least the clip level: a residual only where the model falls below it) instead of leaving
+        them out.
     max_nfev : int
         Evaluation budget.
 
@@ -123,15 +133,26 @@ def photometric_fit(values, origin_uv, bp_uv, camera, rig: LightRig, *,
     linear part is then solved with the weights. Four parameters instead of eight, and the
     linear ones always at their optimum, take Levenberg-Marquardt fewer steps; with the start's
     roughness refined first it converges in about five evaluations on an exact image.
+
+    With ``diffuse`` or censored pixels the linear part has a second column that depends on p
+    (the shading ``D(p)``, :func:`~simtest.reconstruct.lightaware.model._rig_diffuse`) and an
+    active set (a censored pixel enters, with the clip level as its value, where the model falls
+    below it): the linear parameters are solved by least squares on the active rows at each p,
+    and the Jacobian is Kaufman's, ``P_[S, D, B] (g dS + k dD)`` (k the albedo), for the fit and
+    for the covariance alike.
     """
     name = "photometric_fit"
-    vals, camera, o, uu, vv, keep = _roi_grid(values, camera, origin_uv, clip_level)
+    censor = bool(censor and clip_level is not None)
+    vals, camera, o, uu, vv, keep = _roi_grid(values, camera, origin_uv,
+                                              None if censor else clip_level)
     H, W = vals.shape
     border = np.concatenate([vals[0], vals[-1], vals[:, 0], vals[:, -1]])
     b_level = float(np.median(border))
     sel, step, uv, y = _roi_samples(vals, o, uu, vv, keep, max_pixels)
-    if len(y) < 8 + 1:
-        return LightAwareEstimate(name, "too_few_points", f"{len(y)} unclipped pixels")
+    cens = y >= clip_level if censor else np.zeros(len(y), bool)
+    general = bool(diffuse or cens.any())
+    if np.count_nonzero(~cens) < 8 + 1 + int(diffuse):
+        return LightAwareEstimate(name, "too_few_points", f"{np.count_nonzero(~cens)} unclipped pixels")
     ss = int(supersample)
     if ss < 1:
         raise ValueError(f"supersample: must be >= 1, got {supersample!r}")
@@ -165,7 +186,66 @@ def photometric_fit(values, origin_uv, bp_uv, camera, rig: LightRig, *,
 
     state = {}
 
+    clipn = (float(clip_level) / yscale) if censor else np.inf
+    design = np.empty((len(yn), 5 if diffuse else 4))
+    design[:, -3:] = background
+
+    def resjac_general(p, nb, e1, e2, grad=True, w=None, kaufman=False):
+        """Residuals and Kaufman's Jacobian with the diffuse column and censored rows (Notes).
+
+        Censored rows where the model is at or above the clip level have residual 0 and a zero
+        Jacobian row; the others, the model minus the clip level.
+        """
+        key = (p.tobytes(), nb.tobytes(), None if w is None else w.tobytes(), "general")
+        if state.get("key") != key:
+            n, dns = _normal_derivs(p, nb, e1, e2)
+            h, rough = float(np.exp(p[2])), float(np.exp(p[3]))
+            S, parts = _rig_value(dT, rl, n, h, rig_arr, rough)
+            design[:, 0] = box(S)
+            if diffuse:
+                design[:, 1] = box(_rig_diffuse(dT, rl, n, h, rig_arr))
+            target = np.where(cens, clipn, yn)
+            active = ~cens
+            coef = np.zeros(design.shape[1])
+            for _ in range(3):  # the active set of the censored rows: two updates settle it
+                A, t = design[active], target[active]
+                if w is not None:
+                    A, t = A * w[active, None], t * w[active]
+                coef = np.linalg.lstsq(A, t, rcond=None)[0]
+                model = design @ coef
+                new_active = ~cens | (model < clipn)
+                if np.array_equal(new_active, active):
+                    break
+                active = new_active
+            r = np.where(active, model - target, 0.0)
+            state.update(key=key, n=n, dns=dns, h=h, rough=rough, parts=parts, coef=coef,
+                         active=active, r=r)
+        if not grad:
+            return state["r"], None
+        return state["r"], jac_general(p, nb, e1, e2, state["dns"], w)
+
+    def jac_general(p, nb, e1, e2, dns, w):
+        st = state
+        coef, active = st["coef"], st["active"]
+        G = coef[0] * box(_rig_grad(dT, st["parts"], st["n"], dns, st["h"], rig_arr, st["rough"]))
+        if diffuse:
+            G[:3] += coef[1] * box(_rig_diffuse_grad(dT, rl, p, nb, e1, e2, rig_arr))
+        JT = np.zeros_like(G)
+        A = design[active]
+        Ga = G[:, active]
+        if w is not None:
+            A, Ga = A * w[active, None], Ga * w[active]
+        Q = np.linalg.qr(A)[0]
+        Ja = Ga - (Ga @ Q) @ Q.T
+        JT[:, active] = Ja if w is None else Ja / w[active]
+        return JT.T
+
     def resjac_at(p, nb, e1, e2, grad=True, w=None, kaufman=False):
+        if general:
+            return resjac_general(p, nb, e1, e2, grad, w, kaufman)
+        return resjac_plain(p, nb, e1, e2, grad, w, kaufman)
+
+    def resjac_plain(p, nb, e1, e2, grad=True, w=None, kaufman=False):
         """Residuals of the variable projection (Notes) and their Jacobian in (a, b, log h, log n).
 
         ``w``: row weights (a robust loss' reweighting): the linear part is solved with them and
@@ -299,9 +379,12 @@ def photometric_fit(values, origin_uv, bp_uv, camera, rig: LightRig, *,
         solver's last evaluation, is reused and only the derivatives are taken about ``nb``.
         """
         resjac_at(x, n0, e1, e2, grad=False)
+        if general:  # the diffuse column's derivative by differences about (nb, e1_, e2_)
+            return state["r"], jac_general(p_hat, nb, e1_, e2_,
+                                           _normal_derivs(p_hat, nb, e1_, e2_)[1], None)
         return state["r"], jac_of(_normal_derivs(p_hat, nb, e1_, e2_)[1], None, True)
 
     return _finish(name, at_solution, n_hat, h_hat, rig, x[3:],
                    TOL.photometric_noise_rel, nfev, conv, roughness=float(np.exp(x[3])),
-                   detail="" if conv else msg, n_linear=4,
+                   detail="" if conv else msg, n_linear=design.shape[1] if general else 4,
                    post=lambda est, r0: _misfit(est, r0, sel, keep.shape, step))
