@@ -2,6 +2,9 @@
 
 from __future__ import annotations
 
+import math
+from dataclasses import replace
+
 import numpy as np
 
 from simtest.geometry.angles import unit
@@ -24,7 +27,9 @@ from simtest.reconstruct.lightaware.model import (
 )
 from simtest.reconstruct.lightaware.solve import (
     _ROUGHNESS_RANGE,
+    _correlated,
     _finish,
+    _hac_covariance,
     _implausible,
     _misfit,
     _solve,
@@ -384,7 +389,24 @@ def photometric_fit(values, origin_uv, bp_uv, camera, rig: LightRig, *,
                                            _normal_derivs(p_hat, nb, e1_, e2_)[1], None)
         return state["r"], jac_of(_normal_derivs(p_hat, nb, e1_, e2_)[1], None, True)
 
+    def post(est, r0):
+        """The misfit test, and where neighbouring residuals correlate, the sandwich sigmas.
+
+        Correlated residuals (a texture, a micro-relief, a lobe shape the model lacks, a curved
+        patch) make ``s^2 (J^T J)^-1`` too small: the normal's and the depth's sigmas are then
+        the larger of it and the sandwich's (:func:`~simtest.reconstruct.lightaware.solve._hac_covariance`).
+        """
+        if est.status not in ("ok", "depth_not_observable") or not _correlated(r0, sel, keep.shape, step):
+            return _misfit(est, r0, sel, keep.shape, step)
+        J = at_solution(np.concatenate([[0.0, 0.0, np.log(h_hat)], x[3:]]), n_hat,
+                        *plane_basis(n_hat))[1]
+        cov, _ = _hac_covariance(J, r0, sel, keep.shape, step)
+        if cov is not None:
+            sig = math.degrees(math.sqrt(max(float(cov[0, 0] + cov[1, 1]), 0.0)))
+            est = replace(est, normal_sigma_deg=max(sig, est.normal_sigma_deg or 0.0))
+        return _misfit(est, r0, sel, keep.shape, step)
+
     return _finish(name, at_solution, n_hat, h_hat, rig, x[3:],
                    TOL.photometric_noise_rel, nfev, conv, roughness=float(np.exp(x[3])),
                    detail="" if conv else msg, n_linear=design.shape[1] if general else 4,
-                   post=lambda est, r0: _misfit(est, r0, sel, keep.shape, step))
+                   post=post)

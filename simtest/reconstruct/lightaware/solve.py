@@ -13,6 +13,7 @@ import warnings
 from dataclasses import replace
 
 import numpy as np
+from scipy.ndimage import convolve1d
 from scipy.optimize import leastsq
 
 from simtest.geometry.angles import unit
@@ -303,3 +304,60 @@ def _misfit(est: LightAwareEstimate, r, sel, shape, step: int) -> LightAwareEsti
         return replace(est, status="plane_misfit", depth_mm=None, depth_sigma_mm=None,
                        distance_mm=None, detail=correlated)
     return est
+
+
+#: Longest correlation length, in sub-grid steps, that :func:`_hac_covariance` spans: beyond it
+#: the residual's pattern is as large as the ROI and the sandwich no longer has pairs to average.
+_HAC_MAX_LAG = 24
+
+
+def _hac_covariance(J, r, sel, shape, step: int) -> tuple[np.ndarray | None, int]:
+    """The covariance of a least-squares fit whose residuals correlate between nearby pixels.
+
+    The heteroscedasticity-and-autocorrelation-consistent (sandwich) estimate
+    ``C = (J^T J)^-1 M (J^T J)^-1`` with ``M = sum_i sum_j w(i - j) g_i g_j^T``, ``g_i = J_i r_i``,
+    over pixel pairs on the ROI's sub-grid weighted by a separable Bartlett window
+    ``w = (1 - |dx| / (b + 1)) (1 - |dy| / (b + 1))`` of bandwidth b sub-grid steps [1]_. The
+    bandwidth is three correlation lengths of the residuals, ``b = ceil(-3 / log rho_1)`` with
+    rho_1 their lag-1 correlation (:func:`_residual_correlation`), at most
+    :data:`_HAC_MAX_LAG`; uncorrelated residuals (rho_1 <= 0) give b = 0, White's sandwich.
+    A texture, a micro-relief or a lobe shape the model lacks leaves such residuals; the plain
+    ``s^2 (J^T J)^-1`` then counts each pixel as independent evidence and its sigma is too small.
+
+    Parameters
+    ----------
+    J : ndarray of shape (M, k)
+        Jacobian of the residuals at the solution (the linear parameters projected out).
+    r : ndarray of shape (M,)
+        Residuals of the pixels ``sel``.
+    sel, shape, step
+        The pixels' flat indices into the ROI grid of ``shape``, on a sub-grid of spacing ``step``.
+
+    Returns
+    -------
+    (ndarray of shape (k, k) or None, int)
+        The covariance (None when J^T J is singular) and the bandwidth b.
+
+    References
+    ----------
+    .. [1] W. K. Newey, K. D. West, "A simple, positive semi-definite, heteroskedasticity and
+           autocorrelation consistent covariance matrix", Econometrica 55(3), 1987.
+    """
+    unit_cov = _covariance(J, 1.0)
+    if unit_cov is None:
+        return None, 0
+    rho, _ = _residual_correlation(r, sel, shape, step)
+    b = 0 if not rho > 0 else min(_HAC_MAX_LAG, int(math.ceil(-3.0 / math.log(min(rho, 0.999)))))
+    Hs, Ws = -(-shape[0] // step), -(-shape[1] // step)
+    rows, cols = np.divmod(np.asarray(sel), shape[1])
+    k = J.shape[1]
+    G = np.zeros((k, Hs, Ws))
+    G[:, rows // step, cols // step] = (J * r[:, None]).T
+    if b > 0:
+        w = 1.0 - np.abs(np.arange(-b, b + 1)) / (b + 1.0)
+        KG = convolve1d(convolve1d(G, w, axis=1, mode="constant"), w, axis=2, mode="constant")
+    else:
+        KG = G
+    meat = np.einsum("kij,lij->kl", G, KG)
+    meat = 0.5 * (meat + meat.T)
+    return unit_cov @ meat @ unit_cov, b
