@@ -8,6 +8,8 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from simtest.geometry import angle_between_deg, project_points
+from simtest.geometry.angles import unit
+from simtest.geometry.conics import plane_basis
 from simtest.geometry.lights import Light, LightRig
 from simtest.reconstruct import reconstruct_roi
 from simtest.reconstruct import lightaware as la
@@ -84,7 +86,7 @@ def test_rig_image_sums_its_lights_with_profile():
     two = rig_plane_image(K, (100, 120), N, 25.0, LightRig((l2,)), 50.0)
     np.testing.assert_allclose(both, one + two, rtol=1e-12)
     # the estimators' own model (an independent derivation) gives the same image
-    rays = la._rays(K, np.stack(np.meshgrid(np.arange(120.0), np.arange(100.0)), -1).reshape(-1, 2))
+    rays = la.model._rays(K, np.stack(np.meshgrid(np.arange(120.0), np.arange(100.0)), -1).reshape(-1, 2))
     model = la.plane_rig_intensity(rays, N, 25.0, LightRig((l1, l2)), 50.0).reshape(100, 120)
     np.testing.assert_allclose(model, both, rtol=1e-9, atol=1e-14)
 
@@ -104,17 +106,17 @@ def test_specular_point_is_the_peak_without_falloff():
        lx=st.floats(-5, 5), ly=st.floats(-5, 5), rough=st.floats(5, 120), m=st.floats(0, 3))
 def test_analytic_jacobian_matches_finite_differences(tilt, az, h, lx, ly, rough, m):
     rig = LightRig((Light((lx, ly, 0.5), 1.0, "inverse_square", m), Light((-ly, lx, 0.0), 0.7, "none")))
-    arr = la._rig_arrays(rig)
+    arr = la.model._rig_arrays(rig)
     n0 = tilted_normal(tilt, az)
-    e1, e2 = la.plane_basis(n0)
+    e1, e2 = plane_basis(n0)
     rng = np.random.default_rng(0)
     rays = np.column_stack([rng.uniform(-0.3, 0.3, (40, 2)), np.ones(40)]) - 0.2 * n0
     rays /= np.linalg.norm(rays, axis=1, keepdims=True)
     p = np.array([0.01, -0.02, np.log(h), np.log(rough)])
 
     def S(q):
-        n, dns = la._normal_derivs(q, n0, e1, e2)
-        return la._rig_image(rays, n, dns, np.exp(q[2]), arr, np.exp(q[3]))
+        n, dns = la.model._normal_derivs(q, n0, e1, e2)
+        return la.model._rig_image(rays, n, dns, np.exp(q[2]), arr, np.exp(q[3]))
 
     s0, dS = S(p)
     for k in range(4):
@@ -141,14 +143,14 @@ def test_bisector_is_exact_with_the_true_depth(tilt, az, h, lx, ly, lz):
     assert angle_between_deg(est.normal, N) < 1e-6
     # the start's closed form: the plane distance putting the specular point on the BP ray
     # (determined when the light is off the camera and the normal off the BP ray)
-    b = la.unit(X)
+    b = unit(X)
     if np.linalg.norm([lx, ly, lz]) > 0.5 and np.linalg.norm(np.cross(b, N)) > 0.05:
-        assert np.isclose(la._distance_for_bp(b, N, np.array([lx, ly, lz])), h, rtol=1e-6)
+        assert np.isclose(la.model._distance_for_bp(b, N, np.array([lx, ly, lz])), h, rtol=1e-6)
 
 
 def test_bisector_colocated_is_the_bp_ray_at_any_depth():
     K = np.array([[300.0, 0, 200], [0, 300.0, 150], [0, 0, 1]])
-    ray = la._rays(K, [[250.0, 100.0]])[0]
+    ray = la.model._rays(K, [[250.0, 100.0]])[0]
     for depth in (1.0, 20.0, 300.0):
         est = la.bisector([250.0, 100.0], K, LightRig.colocated(), depth)
         assert angle_between_deg(est.normal, -ray) < 1e-9
@@ -210,7 +212,7 @@ def test_two_light_merged_highlight_photometric_fit():
     img, K, N, depth, bp = plane_case(30.0, 20.0, rig)
     roi, origin = roi_around(img, bp, 70)
     # one merged blob: the isophote at half the peak is a single closed contour
-    assert extract_isophote(img, 0.5 * img.max(), project_points(la.unit(-N), K))
+    assert extract_isophote(img, 0.5 * img.max(), project_points(unit(-N), K))
     bp_img = np.array(np.unravel_index(np.argmax(img), img.shape)[::-1], dtype=float)
     est = la.photometric_fit(roi, origin, bp_img, K, rig)
     assert est.has_normal and angle_between_deg(est.normal, N) < TOL.exact_image_normal_deg
@@ -255,15 +257,15 @@ def test_isocurve_fit_refuses_a_two_light_rig_and_names_bad_input():
        lx=st.floats(-5, 5), ly=st.floats(-5, 5), lz=st.floats(-2, 2))
 def test_log_depth_gradient_matches_finite_differences(tilt, az, h, lx, ly, lz):
     n, L = tilted_normal(tilt, az), np.array([lx, ly, lz])
-    e1, e2 = la.plane_basis(n)
+    e1, e2 = plane_basis(n)
 
     def log_depth(q):
-        return np.log(la.specular_point_depth(la.unit(n + q[0] * e1 + q[1] * e2), h * np.exp(q[2]), L))
+        return np.log(la.specular_point_depth(unit(n + q[0] * e1 + q[1] * e2), h * np.exp(q[2]), L))
 
     fd = np.array([(log_depth(dq) - log_depth(-dq)) / 2e-6 for dq in 1e-6 * np.eye(3)])
     # central differences at 1e-6: truncation ~1e-12 times the third derivative, rounding
     # ~1e-16 / 1e-6 of a log depth of a few units
-    np.testing.assert_allclose(la._log_depth_gradient(n, h, L), fd, rtol=1e-6, atol=1e-8)
+    np.testing.assert_allclose(la.model._log_depth_gradient(n, h, L), fd, rtol=1e-6, atol=1e-8)
 
 
 def test_photometric_fit_ends_where_the_full_least_squares_is_stationary():
@@ -278,9 +280,9 @@ def test_photometric_fit_ends_where_the_full_least_squares_is_stationary():
     H, W = roi.shape
     vv, uu = np.mgrid[0:H, 0:W]
     uv = np.column_stack([uu.ravel() + origin[0], vv.ravel() + origin[1]]).astype(float)
-    e1, e2 = la.plane_basis(est.normal)
-    n, dns = la._normal_derivs(np.zeros(2), est.normal, e1, e2)
-    S, dS = la._rig_image(la._rays(K, uv), n, dns, est.distance_mm, la._rig_arrays(rig),
+    e1, e2 = plane_basis(est.normal)
+    n, dns = la.model._normal_derivs(np.zeros(2), est.normal, e1, e2)
+    S, dS = la.model._rig_image(la.model._rays(K, uv), n, dns, est.distance_mm, la.model._rig_arrays(rig),
                           est.roughness)
     du, dv = (uv - bp).T / max(H, W)
     A = np.column_stack([S, np.ones_like(S), du, dv])
@@ -338,10 +340,10 @@ def test_quadric_fit_is_exact_on_a_sphere_where_the_plane_model_misfits():
     # Sphere of radius 25 mm, 60 mm away, light 6 mm off (epsilon/d = 0.17), no falloff: the
     # specular point by fixed-point iteration of the bisector condition on the sphere.
     S, R, L = np.array([4.0, -3.0, 60.0]), 25.0, np.array([6.0, 0.0, 0.0])
-    n = la.unit(-S)
+    n = unit(-S)
     for _ in range(200):
         X = S + R * n
-        n = la.unit(la.unit(-X) + la.unit(L - X))
+        n = unit(unit(-X) + unit(L - X))
     X = S + R * n
     K = np.array([[300.0, 0, 0], [0, 300.0, 0], [0, 0, 1.0]])
     x = project_points(X, K)
@@ -368,10 +370,10 @@ def test_a_curved_highlight_is_recommended_the_quadric_patch():
     # the whole chain on an exact sphere image: detection, the plane fit's misfit, the quadric
     # patch run because of it and recommended
     S, R, L = np.array([2.0, -1.0, 50.0]), 20.0, np.array([5.0, 0.0, 0.0])
-    n = la.unit(-S)
+    n = unit(-S)
     for _ in range(200):
         X = S + R * n
-        n = la.unit(la.unit(-X) + la.unit(L - X))
+        n = unit(unit(-X) + unit(L - X))
     K = np.array([[250.0, 0, 59.5], [0, 250.0, 59.5], [0, 0, 1.0]])
     img = phong_sphere_image(K, (120, 120), S, R, 40.0, light_mm=L)
     rig = LightRig((Light(tuple(L), 1.0, "none"),))
@@ -399,10 +401,10 @@ SPHERE_K = np.array([[250.0, 0, 59.5], [0, 250.0, 59.5], [0, 0, 1.0]])
 def sphere_specular_point(L):
     """The specular point of light L on the test sphere, and its normal, by fixed-point
     iteration of the bisector condition (independent of the estimators' patch model)."""
-    n = la.unit(-SPHERE_C)
+    n = unit(-SPHERE_C)
     for _ in range(300):
         X = SPHERE_C + SPHERE_R * n
-        n = la.unit(la.unit(-X) + la.unit(np.asarray(L, float) - X))
+        n = unit(unit(-X) + unit(np.asarray(L, float) - X))
     return SPHERE_C + SPHERE_R * n, n
 
 
@@ -422,7 +424,7 @@ def test_cubic_patch_fit_is_exact_on_a_sphere_under_two_lights(eps):
     assert est.ok, est
     # the apex is the mean light's specular point: with the rig symmetric about the lens, the
     # point whose normal points at the camera, on the line from the camera to the centre
-    assert angle_between_deg(est.normal, la.unit(-SPHERE_C)) < TOL.exact_image_normal_deg
+    assert angle_between_deg(est.normal, unit(-SPHERE_C)) < TOL.exact_image_normal_deg
     assert abs(est.depth_mm / (np.linalg.norm(SPHERE_C) - SPHERE_R) - 1) < TOL.exact_image_depth_rel
     # each light's specular point on the fitted patch is the sphere's (the patch, with its
     # third-order terms 0 and its z^2 term, is exact on a sphere)
@@ -539,7 +541,7 @@ def test_cubic_patch_residual_stays_finite_where_a_fit_runs_off():
     # finite residual, not raise: on the colon render of lightaware-curved (colon_offset at
     # epsilon/d 0.1, realisations 3 and 4) an OverflowError there failed every estimator.
     img, rig, bp = sphere_rig_case([(5.0, 0.0, 0.0)])
-    S = la._cubic_setup(img, (0, 0), bp, SPHERE_K, rig, None, 800)
+    S = la.patch._cubic_setup(img, (0, 0), bp, SPHERE_K, rig, None, 800)
     for log_s in (800.0, -800.0):
         p = np.zeros(11)
         p[2], p[6], p[7] = log_s, np.log(40.0), 0.5

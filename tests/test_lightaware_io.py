@@ -14,7 +14,7 @@ from simtest.geometry.camera_file import save_camera
 from simtest.geometry.cameras import PinholeCamera
 from simtest.geometry.lights import Light, LightRig
 from simtest.reconstruct import read_estimates, write_estimates
-from simtest.reconstruct.lightaware import _residual_correlation
+from simtest.reconstruct.lightaware.solve import _residual_correlation
 from simtest.reconstruct.pipeline import reconstruct
 from simtest.reconstruct.recommend import colocated_ranking, recommend, with_light_aware
 from simtest.reconstruct.settings import ReconSettings

@@ -1,7 +1,7 @@
 """The light-aware model's compiled pass (simtest.reconstruct._lightaware_kernels) against numpy.
 
-``lightaware._terms`` hands the element-by-element arithmetic of cos beta and its derivatives to
-one compiled pass; its numpy form (``lightaware._terms_numpy``) stays as the reference. The pass
+``lightaware.model._terms`` hands the element-by-element arithmetic of cos beta and its derivatives to
+one compiled pass; its numpy form (``lightaware.model._terms_numpy``) stays as the reference. The pass
 takes the same operations in the same order on the same BLAS products, so every output must be
 the same bits, on rays of any direction (head-on, grazing, behind the plane), planes near and
 far, lights on the camera centre and far off it, and non-finite light terms.
@@ -26,10 +26,10 @@ def _case(seed: int):
     n = np.array([0.0, 0.0, -1.0]) if seed % 5 == 0 else n / np.linalg.norm(n)  # head-on or any
     h = float(np.exp(rng.uniform(-3.0, 8.0)))  # 0.05 mm to 3 m
     L = rng.standard_normal(3) * rng.choice([0.0, 1.0, 10.0, 1e3])
-    rl = la._ray_light(L, dT)
+    rl = la.model._ray_light(L, dT)
     if seed % 7 == 0:
         rl = (rl[0] * np.nan, rl[1])
-    nn, dns = la._normal_derivs(rng.standard_normal(2) * 0.1, n, rng.standard_normal(3), rng.standard_normal(3))
+    nn, dns = la.model._normal_derivs(rng.standard_normal(2) * 0.1, n, rng.standard_normal(3), rng.standard_normal(3))
     return dT, nn, h, L, rl, dns
 
 
@@ -39,9 +39,9 @@ def test_the_compiled_pass_gives_the_numpy_forms_bits(seed):
     dT, n, h, L, rl, dns = _case(seed)
     P = np.array(dns) @ dT
     for args in ((dT, n, h, L, rl), (dT, n, h, L, rl, None, dns), (dT, n, h, L, rl, P, dns)):
-        got = la._terms(*args)
+        got = la.model._terms(*args)
         with np.errstate(invalid="ignore"):  # the numpy form warns on the non-finite cases
-            want = la._terms_numpy(*args)
+            want = la.model._terms_numpy(*args)
         assert len(got) == len(want) == 7
         for g, w in zip(got, want):
             if w is None:
@@ -57,8 +57,8 @@ def test_an_edge_on_plane_gives_a_zero_inverse_range_not_a_warning():
     dT = np.array([[1.0], [0.0], [0.0]])
     n = np.array([0.0, 0.0, -1.0])
     L = np.zeros(3)
-    rl = la._ray_light(L, dT)
+    rl = la.model._ray_light(L, dT)
     with np.errstate(all="raise"):
-        got = la._terms(dT, n, 1e146, L, rl)  # s = 1e155 mm: s^2 overflows
-        want = la._terms_numpy(dT, n, 1e146, L, rl)
+        got = la.model._terms(dT, n, 1e146, L, rl)  # s = 1e155 mm: s^2 overflows
+        want = la.model._terms_numpy(dT, n, 1e146, L, rl)
     assert got[2][0] == want[2][0] > 1e154 and got[4][0] == want[4][0] == 0.0

@@ -13,6 +13,8 @@ from hypothesis import assume, given, settings
 from hypothesis import strategies as st
 
 from simtest.geometry import angle_between_deg
+from simtest.geometry.angles import unit
+from simtest.geometry.lights import Light, LightRig
 from simtest.reconstruct import read_estimates, write_estimates
 from simtest.reconstruct.io import estimate_to_dict
 from simtest.reconstruct.pipeline import reconstruct
@@ -152,11 +154,37 @@ def test_an_unobservable_depth_keeps_the_better_light_aware_normal(h, tilt, x_mm
     worse = {"photometric_fit": dataclasses.replace(
         pho, normal_sigma_deg=pho.bp_ray_error_deg / SIGMA_MARGIN)}
     assert recommend(dataclasses.replace(est, light_aware=worse)).normal_from == "bp_ray"
-    # a plane misfit is never kept (its sigma describes a model that does not fit), nor the
-    # isocurve fit beside it (the same plane model)
+    # a plane misfit is never kept (its sigma, even the sandwich's, does not cover a wrong local
+    # minimum), nor the isocurve fit beside it (the same plane model)
     misfit = {"photometric_fit": dataclasses.replace(pho, status="plane_misfit"),
               "isocurve_fit": dataclasses.replace(pho, estimator="isocurve_fit")}
     assert recommend(dataclasses.replace(est, light_aware=misfit)).normal_from == "bp_ray"
+
+
+def test_a_fit_far_from_the_bp_ray_by_its_own_sigmas_is_kept():
+    # the BP ray's expected error from the rig's geometry is small (0.3 deg), but the detected BP
+    # may sit off the specular point (diffuse shading pulls it: 3 px, 2 deg on the endoscope
+    # suite's mucosa): a fit whose normal is more than 2 x SIGMA_MARGIN of its sigmas from the BP
+    # ray says by its own sigma that the BP ray is the worse
+    img, K, N, depth, rig = _plane8(60.0, 40.0, 0.25)
+    est = with_light_aware(img, [_highlight(img, K)], K, rig)[0]
+    pho = est.light_aware["photometric_fit"]
+    off = float(np.radians(2.0))
+    bp = np.asarray(est.bp_ray)
+    normal = unit(bp * np.cos(off) + unit(np.cross(bp, [0.0, 1.0, 0.0])) * np.sin(off))
+    for sigma, kept in [(0.45, True), (0.55, False)]:  # 2 deg against 4 sigma: 1.8 and 2.2 deg
+        r = dataclasses.replace(pho, status="depth_not_observable", normal=normal, normal_sigma_deg=sigma,
+                                bp_ray_error_deg=0.3)
+        got = recommend(dataclasses.replace(est, light_aware={"photometric_fit": r})).normal_from
+        assert got == ("photometric_fit" if kept else "bp_ray"), sigma
+
+
+def test_bp_ray_error_of_guides_either_side_of_the_lens():
+    # the mean light of a symmetric rig is at the lens, where the BP ray would err by nothing: the
+    # expected error is each guide's half angle (5.7 deg at 20 mm on the axis with guides at 4 mm)
+    rig = LightRig((Light((-4.0, 0, 0)), Light((4.0, 0, 0))))
+    assert bp_ray_error_deg(np.array([0.0, 0.0, 1.0]), 20.0, rig) == pytest.approx(
+        0.5 * np.degrees(np.arctan(4.0 / 20.0)), abs=1e-9)
 
 
 # --- item: every light-aware normal in ``normals`` ---------------------------------------------------

@@ -20,6 +20,10 @@ What ``simtest render`` writes and ``simtest reconstruct --intrinsics`` reads::
   null`` is an error (a rig meant but lost, not silently the co-located light). The lights must
   make physical sense for a scope (:func:`~simtest.geometry.lights.check_scope_rig`: less than
   20 mm ahead of the lens plane, within 200 mm of the lens; intensities within 1e-9 to 1e9).
+- ``"response"``: optional, the sensor's tone curve, white balance, exposure and clip level
+  (:mod:`simtest.geometry.response`: ``{"curve": "linear" | "srgb" | "gamma", "gamma": g,
+  "white_balance": [r, g, b], "exposure": e, "clip": level}``), so that the light-aware fits run
+  on linear intensities; no ``"response"`` means linear.
 
 Keys a model does not know are errors (a misspelt ``"dist_coeff"`` would otherwise drop the
 distortion silently), and so are booleans where numbers belong (JSON ``true`` is not 1). Every
@@ -44,6 +48,7 @@ from simtest._io import atomic_write_json
 from simtest.geometry.camera import IntrinsicsError, validate_intrinsics
 from simtest.geometry.cameras import CameraModel, FisheyeCamera, OmnidirectionalCamera, PinholeCamera
 from simtest.geometry.lights import Light, LightRig, LightRigError, check_scope_rig
+from simtest.geometry.response import ResponseError, SensorResponse
 
 __all__ = [
     "CameraFile",
@@ -64,7 +69,7 @@ _MODEL_KEYS = {
         "optional": (),
     },
 }
-_COMMON_KEYS = ("model", "image_size", "lights")
+_COMMON_KEYS = ("model", "image_size", "lights", "response")
 _LIGHT_KEYS = ("position_mm", "intensity", "falloff", "profile_exponent")
 
 
@@ -82,10 +87,13 @@ class CameraFile:
         The camera model (with its image size when the file gives one).
     lights : LightRig
         The light rig; :meth:`LightRig.colocated` when the file has no ``"lights"``.
+    response : SensorResponse or None
+        The sensor's response (``"response"``); None when the file has none (linear).
     """
 
     model: CameraModel
     lights: LightRig
+    response: SensorResponse | None = None
 
 
 @dataclass(frozen=True)
@@ -304,10 +312,17 @@ def load_camera(path) -> CameraFile:
         raise CameraFileError(f"{path}: must be a JSON object with a 'model' and its parameters")
     model = _model_from_dict(data, str(path))
     lights = _lights_from_list(data["lights"], str(path)) if "lights" in data else LightRig.colocated()
-    return CameraFile(model=model, lights=lights)
+    response = None
+    if "response" in data:
+        try:
+            response = SensorResponse.from_json(data["response"], f"{path}: response")
+        except ResponseError as exc:
+            raise CameraFileError(str(exc)) from None
+    return CameraFile(model=model, lights=lights, response=response)
 
 
-def save_camera(path, model: CameraModel, lights: LightRig | None = None) -> Path:
+def save_camera(path, model: CameraModel, lights: LightRig | None = None,
+                response: SensorResponse | None = None) -> Path:
     """Write a camera file (module docstring format), atomically.
 
     Parameters
@@ -318,6 +333,8 @@ def save_camera(path, model: CameraModel, lights: LightRig | None = None) -> Pat
         The camera.
     lights : LightRig or None
         Written as ``"lights"`` when given; None leaves the key out (one co-located light).
+    response : SensorResponse or None
+        Written as ``"response"`` when given; None leaves the key out (linear).
 
     Returns
     -------
@@ -329,6 +346,8 @@ def save_camera(path, model: CameraModel, lights: LightRig | None = None) -> Pat
     d = model.to_json_dict()
     if lights is not None:
         d["lights"] = lights.to_json_list()
+    if response is not None:
+        d["response"] = response.to_json()
     return atomic_write_json(path, d, indent=2)
 
 

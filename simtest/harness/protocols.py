@@ -27,6 +27,7 @@ from simtest.geometry.curvature import (
     predicted_pose_error_deg,
 )
 from simtest.geometry.lights import Light, LightRig
+from simtest.geometry.response import SensorResponse
 from simtest.harness.estimators import ORACLE_INPUTS, score
 from simtest.harness.suite import LIGHT_AWARE_NAMES, MeshPose
 from simtest.reconstruct import reconstruct, reconstruct_rois
@@ -394,7 +395,11 @@ class RenderedRunner:
         light_aware = any(e in LIGHT_AWARE_NAMES for e in self.estimators)
         if light_aware:
             rig = render_rig(result)
-            matched = fit_scored(image, matched, result.K, rig,
+            # the fits run on what a user's camera file describes: the video frame with its
+            # sensor response (linear darkest channel, clipped pixels censored, diffuse shading)
+            response = render_response(result)
+            matched = fit_scored(image if response is None else result.video, matched, result.K, rig,
+                                 response=response,
                                  quadric=True if "quadric_fit" in self.estimators else None,
                                  # listed: run on every scored highlight, for its column and its
                                  # depth's observability (one light included, where the
@@ -499,7 +504,9 @@ def fit_on_oracle_image(name: str, image, matched: list, camera, rig: LightRig) 
     out = []
     for h, b, d in matched:
         if b is not None and id(b) not in done:
-            r = light_aware_estimates(img, b, camera, rig, quadric=False)["photometric_fit"]
+            # the radiance holds the diffuse shading: the model's diffuse column is in
+            r = light_aware_estimates(img, b, camera, rig, quadric=False,
+                                      diffuse=name == "photometric_fit_on_radiance")["photometric_fit"]
             la = dict(getattr(b, "light_aware", None) or {})
             la[name] = r
             done[id(b)] = dataclasses.replace(b, light_aware=la)
@@ -518,6 +525,26 @@ def render_rig(result) -> LightRig:
         return rig
     falloff = "none" if result.spec.light.falloff == "cancel" else "inverse_square"
     return LightRig((Light(tuple(float(x) for x in result.light_pos), 1.0, falloff),))
+
+
+def render_response(result) -> SensorResponse | None:
+    """The sensor response of a render's video frame (what ``simtest render`` writes into its
+    camera file's ``"response"``), or None where the sensor made no video frame.
+
+    The tone curve, the white balance and the clip level (8-bit full scale) are the scene's
+    sensor's; the exposure (automatic on the endoscope scenes) is left at 1: a scale of the
+    linear image that the fits' gains absorb. The sensor's colour saturation and vignetting are
+    not part of the response (both are off on the endoscope suite's scenes).
+    """
+    video = getattr(result, "video", None)
+    if video is None:
+        return None
+    sensor = result.spec.sensor
+    if sensor.tone == "srgb":
+        curve, gamma = "srgb", 1.0
+    else:
+        curve, gamma = ("linear", 1.0) if sensor.gamma == 1.0 else ("gamma", float(sensor.gamma))
+    return SensorResponse(curve, gamma, tuple(float(v) for v in sensor.white_balance), 1.0, 255.0)
 
 
 def _depth_errors(est, h, rig) -> dict:

@@ -1,19 +1,19 @@
 """Compiled (numba) kernel of the light-aware plane model (:mod:`simtest.reconstruct.lightaware`).
 
 :func:`cos_beta_terms` does, in one compiled pass over the rays, the element-by-element arithmetic
-of ``lightaware._terms``: cos beta of one light on a plane along each ray, the pieces the rig's
+of ``lightaware.model._terms``: cos beta of one light on a plane along each ray, the pieces the rig's
 lobes are built from, and its derivatives with respect to the plane's parameters. The numpy form
 took some thirty array operations per evaluation on a few hundred isophote points, each costing
 more in its call than in its arithmetic; :func:`~simtest.reconstruct.lightaware.isocurve_fit`
 evaluates the model about ten times per highlight.
 
 The products that sum over the three coordinates (``n . d`` per ray, the normal's derivatives
-along the rays, ``n . L``) stay numpy's (BLAS; ``lightaware._terms`` computes them and hands
+along the rays, ``n . L``) stay numpy's (BLAS; ``lightaware.model._terms`` computes them and hands
 them over), and the kernel takes the same element-by-element operations in the same order as
 the numpy form: multiplications, divisions and square roots are correctly rounded whatever the
 vector width, and no ``a * b + c`` is contracted into a fused multiply-add (no ``fastmath``), so
 the results are the same bits (``tests/test_lightaware_kernels.py`` checks them against the numpy
-form, which stays in ``lightaware.py`` as the reference). Compiled with ``cache=True``, as
+form, which stays in ``lightaware/model.py`` as the reference). Compiled with ``cache=True``, as
 :mod:`simtest.reconstruct._kernels`.
 """
 
@@ -44,7 +44,7 @@ def cos_beta_terms(nd, h, c, Ld, K2, P, dnL, cb, delta, s, sl, ir, dcb):
     c : float
         ``n . L + h`` for the light L (mm).
     Ld, K2 : ndarray of shape (N,), float64
-        ``L . d`` and ``|L|^2 - (L . d)^2`` per ray (``lightaware._ray_light``), mm and mm^2.
+        ``L . d`` and ``|L|^2 - (L . d)^2`` per ray (``lightaware.model._ray_light``), mm and mm^2.
     P : ndarray of shape (2, N), float64, or None
         ``[dn_a, dn_b] @ dT``: the normal's derivatives along the rays; None: no derivatives.
     dnL : ndarray of shape (2,), float64
@@ -57,7 +57,7 @@ def cos_beta_terms(nd, h, c, Ld, K2, P, dnL, cb, delta, s, sl, ir, dcb):
 
     Notes
     -----
-    The formulas and their derivation: ``lightaware._terms``. ``1 / r`` is 0 where ``(s - Ld)^2``
+    The formulas and their derivation: ``lightaware.model._terms``. ``1 / r`` is 0 where ``(s - Ld)^2``
     overflows (a plane seen edge-on), as in the numpy form.
     """
     for i in range(nd.shape[0]):

@@ -1,0 +1,172 @@
+"""The sensor's response: how a scope's camera turns linear radiance into pixel values, and back.
+
+A camera file's optional ``"response"`` object (:mod:`simtest.geometry.camera_file`)::
+
+    "response": {"curve": "srgb", "white_balance": [1, 1, 1], "exposure": 1.0, "clip": 255}
+
+- ``"curve"``: ``"linear"``, ``"srgb"`` (IEC 61966-2-1) or ``"gamma"`` (with ``"gamma"``: g, the
+  curve ``s^(1 / g)``);
+- ``"white_balance"``: per-channel multipliers [r, g, b] applied before the curve (default
+  [1, 1, 1]);
+- ``"exposure"``: a linear scale before the curve (default 1);
+- ``"clip"``: the clip level in the file's units (default: the image dtype's maximum; 1 for float
+  images).
+
+The forward model is ``pixel = clip(curve(exposure * white_balance * radiance))`` with the curve's
+output scaled to full scale (``clip``): the inverse (:meth:`SensorResponse.linearize`) gives the
+radiance up to the exposure, per channel, so that a photometric fit runs on linear intensities.
+No ``"response"`` means linear.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+__all__ = ["CURVES", "ResponseError", "SensorResponse"]
+
+#: The tone curves a response may name.
+CURVES = ("linear", "srgb", "gamma")
+_KEYS = ("curve", "gamma", "white_balance", "exposure", "clip")
+
+
+class ResponseError(ValueError):
+    """A ``"response"`` object is unusable; the one-line message names the key."""
+
+
+def _srgb_inverse(v: np.ndarray) -> np.ndarray:
+    """The inverse sRGB transfer curve (IEC 61966-2-1) of ``v`` in [0, 1]."""
+    return np.where(v <= 0.04045, v / 12.92, ((np.maximum(v, 0.04045) + 0.055) / 1.055) ** 2.4)
+
+
+@dataclass(frozen=True)
+class SensorResponse:
+    """A sensor's tone curve, white balance, exposure and clip level (module docstring).
+
+    Attributes
+    ----------
+    curve : str
+        One of :data:`CURVES`.
+    gamma : float
+        The exponent g of the ``"gamma"`` curve ``s^(1 / g)`` (> 0; 1 otherwise).
+    white_balance : tuple of 3 float
+        Per-channel multipliers before the curve (> 0).
+    exposure : float
+        Linear scale before the curve (> 0).
+    clip : float or None
+        Full scale in the file's units (the value of a saturated pixel); None: the dtype's
+        maximum (1 for float images).
+    """
+
+    curve: str = "linear"
+    gamma: float = 1.0
+    white_balance: tuple[float, float, float] = (1.0, 1.0, 1.0)
+    exposure: float = 1.0
+    clip: float | None = None
+
+    @classmethod
+    def from_json(cls, value, where: str = "response") -> SensorResponse:
+        """The response of a camera file's ``"response"`` object.
+
+        Raises
+        ------
+        ResponseError
+            Not an object, an unknown key, an unknown curve, a ``"gamma"`` curve without
+            ``"gamma"``, a ``"gamma"`` key with another curve, a boolean or a non-positive or
+            non-finite number; the message is one line naming ``where`` and the key.
+        """
+        if not isinstance(value, dict):
+            raise ResponseError(f"{where}: must be an object with a 'curve', got {value!r}")
+        unknown = sorted(set(value) - set(_KEYS))
+        if unknown:
+            raise ResponseError(f"{where}: unknown key '{unknown[0]}' (allowed: {', '.join(_KEYS)})")
+        curve = value.get("curve", "linear")
+        if curve not in CURVES:
+            raise ResponseError(f"{where}.curve: must be one of {', '.join(CURVES)}, got {curve!r}")
+        if (curve == "gamma") != ("gamma" in value):
+            raise ResponseError(f"{where}.gamma: give it with curve 'gamma' and only then")
+
+        def number(key, default):
+            return _positive(value.get(key, default), f"{where}.{key}")
+
+        wb = value.get("white_balance", [1.0, 1.0, 1.0])
+        if not (isinstance(wb, list) and len(wb) == 3):
+            raise ResponseError(f"{where}.white_balance: must be a list of 3 numbers, got {wb!r}")
+        wbs = tuple(_positive(v, f"{where}.white_balance") for v in wb)
+        clip = value.get("clip")
+        return cls(curve, number("gamma", 1.0) if curve == "gamma" else 1.0, wbs,
+                   number("exposure", 1.0), None if clip is None else number("clip", clip))
+
+    def to_json(self) -> dict:
+        """The camera file's ``"response"`` object."""
+        d = {"curve": self.curve, "white_balance": list(self.white_balance), "exposure": self.exposure}
+        if self.curve == "gamma":
+            d["gamma"] = self.gamma
+        if self.clip is not None:
+            d["clip"] = self.clip
+        return d
+
+    def full_scale(self, image) -> float:
+        """The clip level of ``image`` in its units: ``clip``, else the dtype's maximum (1 for floats)."""
+        if self.clip is not None:
+            return float(self.clip)
+        dt = np.asarray(image).dtype
+        return float(np.iinfo(dt).max) if dt.kind in "ui" else 1.0
+
+    def linear(self, values, channel: int | None = None, full_scale: float = 1.0) -> np.ndarray:
+        """Linear radiance (up to the exposure's unit) of pixel values, float64.
+
+        ``values / full_scale`` through the inverse curve, over ``exposure`` and over the white
+        balance of ``channel`` (the mean of the three for a grey image, ``channel`` None).
+        """
+        v = np.clip(np.asarray(values, dtype=np.float64) / full_scale, 0.0, 1.0)
+        if self.curve == "srgb":
+            v = _srgb_inverse(v)
+        elif self.curve == "gamma":
+            v = v ** self.gamma
+        wb = float(np.mean(self.white_balance)) if channel is None else self.white_balance[channel]
+        return v / (self.exposure * wb)
+
+    def linearize(self, image, channel: str | int = "darkest") -> tuple[np.ndarray, float, int | None]:
+        """The single-channel linear image a photometric fit runs on, and its clip level.
+
+        Parameters
+        ----------
+        image : ndarray of shape (H, W) or (H, W, 3)
+            Pixel values in the file's units. A grey image is taken as one channel with the white
+            balance's mean.
+        channel : "darkest" or int
+            For an RGB image: the channel whose median linear value is least (where the tissue is
+            darkest, so that a white highlight stands highest above its diffuse shading), or the
+            channel index given.
+
+        Returns
+        -------
+        linear : ndarray of shape (H, W), float64
+            The channel's linear radiance (module docstring).
+        clip_linear : float
+            The linear value of a clipped pixel of that channel: pixels at or above it are
+            censored (the radiance is at least this).
+        channel : int or None
+            The channel used (None for a grey image).
+        """
+        img = np.asarray(image)
+        fs = self.full_scale(img)
+        if img.ndim == 2:
+            return self.linear(img, None, fs), float(self.linear(fs, None, fs)), None
+        if img.ndim != 3 or img.shape[2] != 3:
+            raise ValueError(f"image: need (H, W) or (H, W, 3), got shape {img.shape}")
+        if channel == "darkest":
+            med = [float(np.median(self.linear(img[::4, ::4, c], c, fs))) for c in range(3)]
+            c = int(np.argmin(med))
+        else:
+            c = int(channel)
+        # pixel values at full scale are censored: their radiance is at least the clip's
+        return self.linear(img[..., c], c, fs), float(self.linear(fs, c, fs)), c
+
+
+def _positive(v, where: str) -> float:
+    if isinstance(v, bool) or not isinstance(v, (int, float)) or not (np.isfinite(v) and v > 0):
+        raise ResponseError(f"{where}: must be a finite number > 0, got {v!r}")
+    return float(v)

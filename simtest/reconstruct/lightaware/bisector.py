@@ -1,0 +1,65 @@
+"""The bisector: the BP ray corrected by the rig for a given depth (closed form)."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from simtest.geometry.angles import unit
+from simtest.geometry.lights import LightRig
+from simtest.reconstruct._pixels import uv_to_rc
+from simtest.reconstruct.lightaware.estimate import LightAwareEstimate, OK
+from simtest.reconstruct.lightaware.model import _mean_light, _rays
+
+
+def bisector(bp_uv, camera, rig: LightRig, depth_mm) -> LightAwareEstimate:
+    """The BP ray corrected by the rig for a given depth: the normal that makes the BP specular.
+
+    At depth s along the BP's ray the surface point is ``X = s d``; the normal that reflects the
+    light L into the camera there bisects the directions to camera and light,
+    ``N = unit(unit(-X) + unit(L - X))``. For a plane, with the true depth of the BP, N is the
+    plane normal exactly (the specular point is the BP of a Phong plane without falloff); with a
+    co-located light it is the ``bp_ray`` normal whatever the depth. For a rig of several lights
+    the intensity-weighted mean light position is used (an approximation: the brightest point of a
+    merged pair is not one light's specular point).
+
+    Parameters
+    ----------
+    bp_uv : array_like of shape (2,)
+        Brightest point (u, v), undistorted px.
+    camera : array_like of shape (3, 3) or CameraModel
+        Intrinsics K, or a camera model with ``pixel_to_ray``.
+    rig : LightRig
+        The lights, camera frame, mm.
+    depth_mm : float or ndarray of shape (H, W)
+        Distance from the camera centre to the BP along its ray, mm; or a depth map (same
+        meaning per pixel), sampled at the nearest pixel of the BP.
+
+    Returns
+    -------
+    LightAwareEstimate
+        ``normal`` (unit, facing the camera), ``depth_mm`` as given, ``normal_sigma_deg`` None.
+
+    Raises
+    ------
+    ValueError
+        A non-finite BP, a depth that is not > 0, or a BP outside the depth map.
+    """
+    bp = np.asarray(bp_uv, dtype=np.float64).reshape(-1)
+    if bp.shape != (2,) or not np.isfinite(bp).all():
+        raise ValueError(f"bp_uv: need 2 finite numbers (u, v), got {bp_uv!r}")
+    dm = np.asarray(depth_mm, dtype=np.float64)
+    if dm.ndim == 2:
+        r, c = (int(v) for v in np.rint(uv_to_rc(bp)))
+        if not (0 <= r < dm.shape[0] and 0 <= c < dm.shape[1]):
+            raise ValueError(f"bp_uv {bp.tolist()} lies outside the depth map of shape {dm.shape}")
+        s = float(dm[r, c])
+    elif dm.ndim == 0:
+        s = float(dm)
+    else:
+        raise ValueError(f"depth_mm: a number or an (H, W) map, got shape {dm.shape}")
+    if not (np.isfinite(s) and s > 0):
+        raise ValueError(f"depth_mm: must be finite and > 0 at the BP, got {s}")
+    d = _rays(camera, bp[None])[0]
+    X = s * d
+    n = unit(unit(-X) + unit(_mean_light(rig) - X))
+    return LightAwareEstimate("bisector", OK, "", n, s)

@@ -1,0 +1,108 @@
+"""The result of every light-aware estimator (:class:`LightAwareEstimate`) and its statuses."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+
+OK = "ok"
+
+
+#: Status of a light-aware estimate, with its meaning.
+STATUSES: dict[str, str] = {
+    OK: "normal and depth estimated",
+    "depth_not_observable": "normal estimated; the depth is not (epsilon/d too small: the image "
+                            "hardly depends on the distance)",
+    "not_converged": "the least-squares fit stopped without meeting its tolerances",
+    "too_few_points": "fewer isophote points or unclipped pixels than parameters",
+    "multi_light_rig": "the isocurve model (eq. 2) holds for one light; use photometric_fit",
+    "light_behind_plane": "a light of the rig lies behind the fitted plane",
+    "patch_misfit": "the quadric patch does not fit the ROI (spatially correlated residuals); "
+                    "the normal is kept for the record, the depth withdrawn",
+    "plane_misfit": "the plane model does not fit the ROI (its residuals are spatially correlated: "
+                    "a curved patch); the normal is kept for the record, the depth withdrawn",
+}
+
+
+@dataclass(frozen=True)
+class LightAwareEstimate:
+    """Result of a light-aware estimator.
+
+    Attributes
+    ----------
+    estimator : str
+        ``"bisector"``, ``"isocurve_fit"``, ``"photometric_fit"``, ``"quadric_fit"`` or
+        ``"cubic_patch_fit"``.
+    status : str
+        A key of :data:`STATUSES`.
+    detail : str
+        Numbers behind the status.
+    normal : ndarray of shape (3,) or None
+        Unit normal, OpenCV camera frame, facing the camera.
+    depth_mm : float or None
+        Distance from the camera centre to the specular point (along its ray), mm; None when not
+        observable.
+    normal_sigma_deg : float or None
+        1-sigma angular uncertainty of the normal (RMS angle), degrees.
+    depth_sigma_mm : float or None
+        1-sigma uncertainty of the depth, mm (None when the depth is not observable).
+    distance_mm : float or None
+        Fitted camera-to-plane distance h, mm (None when not observable).
+    roughness : float or None
+        Fitted Phong roughness n (None when not fitted).
+    taus : ndarray of shape (K,) or None
+        Fitted cosine level tau per isovalue (isocurve_fit).
+    n_evaluations : int
+        Model evaluations of the fit (0 for the closed form).
+    residual_rms : float or None
+        RMS residual at the solution, in the fit's units (px for the isocurve fit; fraction of the
+        ROI's maximum for the photometric fit); a plane model meeting a curved patch leaves a
+        residual well above the sensor's noise.
+    light_normals : ndarray of shape (J, 3) or None
+        :func:`cubic_patch_fit` only: the fitted patch's unit normal at the specular point of
+        each of the rig's J lights (where it bisects the directions to the camera and to that
+        light), OpenCV camera frame, facing the camera; None when the depth is not observable.
+    light_depths_mm : ndarray of shape (J,) or None
+        :func:`cubic_patch_fit` only: the distance from the camera centre to each light's
+        specular point on the fitted patch, mm; None when the depth is not observable.
+    depth_rel_sigma : float or None
+        :func:`quadric_fit` and :func:`cubic_patch_fit`: the relative 1-sigma of the fitted depth
+        with the residual variance floored at ``TOL.photometric_noise_rel`` (the quantity the
+        observability test compares with ``TOL.depth_rel_sigma_max``); None when J^T J is
+        singular.
+    bp_ray_error_deg : float or None
+        The BP ray's expected error next to this fit, degrees: half the angle the rig's mean light
+        subtends from the camera at the specular point (at this fit's depth, or at the nominal
+        depth where the depth is not observable); set by
+        :func:`simtest.reconstruct.recommend.light_aware_estimates`, whose recommendation keeps a
+        normal whose ``normal_sigma_deg`` is below it. None when not set.
+    """
+
+    estimator: str
+    status: str
+    detail: str = ""
+    normal: np.ndarray | None = None
+    depth_mm: float | None = None
+    normal_sigma_deg: float | None = None
+    depth_sigma_mm: float | None = None
+    distance_mm: float | None = None
+    roughness: float | None = None
+    taus: np.ndarray | None = None
+    n_evaluations: int = 0
+    residual_rms: float | None = None
+    light_normals: np.ndarray | None = None
+    light_depths_mm: np.ndarray | None = None
+    depth_rel_sigma: float | None = None
+    bp_ray_error_deg: float | None = None
+
+    @property
+    def ok(self) -> bool:
+        """True when the status is ``"ok"`` (normal and depth given)."""
+        return self.status == OK
+
+    @property
+    def has_normal(self) -> bool:
+        """True when a normal is given (status ``ok`` or ``depth_not_observable``)."""
+        return self.normal is not None

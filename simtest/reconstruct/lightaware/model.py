@@ -1,0 +1,397 @@
+"""The image model of a highlight lit by a rig: rays, the rig's lobes on a plane, their derivatives.
+
+Everything here is the forward model (the package docstring's "Model"): the viewing rays of a camera,
+the rig's arrays, cos beta of each light on a plane along each ray (:func:`_terms`, compiled in
+:mod:`simtest.reconstruct._lightaware_kernels`), the rig's specular image and its gradient in
+(a, b, log h, log n) (:func:`_rig_value`, :func:`_rig_grad`), the specular point's depth and its
+gradient, and the ROI's pixel grid the fits sample.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from simtest.geometry.angles import unit
+from simtest.geometry.camera import validate_intrinsics
+from simtest.geometry.conics import plane_basis
+from simtest.geometry.lights import LightRig
+from simtest.reconstruct import _lightaware_kernels
+
+
+class _Kinv:
+    """A validated K's inverse, so that rays are made without validating K each time."""
+
+    def __init__(self, K):
+        self.Kinv_T = np.linalg.inv(validate_intrinsics(K)).T
+
+
+def _camera(camera):
+    """``camera`` as given if it has ``pixel_to_ray``, else K (3, 3) validated once."""
+    return camera if hasattr(camera, "pixel_to_ray") or isinstance(camera, _Kinv) else _Kinv(camera)
+
+
+def _rays(camera, uv) -> np.ndarray:
+    """Unit viewing rays (N, 3) of pixels (N, 2): ``camera`` is K (3, 3) or has ``pixel_to_ray``."""
+    uv = np.asarray(uv, dtype=np.float64).reshape(-1, 2)
+    camera = _camera(camera)
+    if hasattr(camera, "pixel_to_ray"):
+        return np.asarray(camera.pixel_to_ray(uv), dtype=np.float64)
+    d = np.column_stack([uv, np.ones(len(uv))]) @ camera.Kinv_T
+    return d / np.sqrt(np.einsum("ij,ij->i", d, d))[:, None]
+
+
+def _rig_arrays(rig: LightRig):
+    L = np.array([lt.position_mm for lt in rig.lights], dtype=np.float64).reshape(-1, 3)
+    w = np.array([lt.intensity for lt in rig.lights], dtype=np.float64)
+    inv_sq = np.array([lt.falloff == "inverse_square" for lt in rig.lights])
+    m = np.array([lt.profile_exponent for lt in rig.lights], dtype=np.float64)
+    return L, w, inv_sq, m
+
+
+def _mean_light(rig: LightRig) -> np.ndarray:
+    L, w, _, _ = _rig_arrays(rig)
+    return (w[:, None] * L).sum(axis=0) / w.sum()
+
+
+def specular_point_depth(normal, distance_mm: float, light_mm) -> float:
+    """Depth (distance from the camera centre) of the specular point of a plane for one light.
+
+    Parameters
+    ----------
+    normal : array_like of shape (3,)
+        Unit plane normal facing the camera, camera frame.
+    distance_mm : float
+        Plane distance h > 0, mm.
+    light_mm : array_like of shape (3,)
+        Light position, camera frame, mm.
+
+    Returns
+    -------
+    float
+        ``|X_s|`` with ``X_s = L' h / (-n . L')`` and ``L' = L - 2 (n . L + h) n`` (module
+        docstring); NaN if the light is behind the plane.
+    """
+    n = np.asarray(normal, dtype=np.float64)
+    L = np.asarray(light_mm, dtype=np.float64)
+    hl = n @ L + distance_mm
+    if not hl > 0:
+        return float("nan")
+    Lm = L - 2.0 * hl * n
+    return float(np.linalg.norm(Lm) * distance_mm / (-(n @ Lm)))
+
+
+def _ray_light(L, dT):
+    """``(Ld, K2)``: ``L . d`` and ``|L|^2 - (L . d)^2`` (the light's squared distance from the
+    ray's line) per ray, for lights L (3,) or (J, 3) and unit rays ``dT`` (3, N): (N,) or (J, N)."""
+    Ld = L @ dT
+    LL = (L * L).sum(axis=-1)
+    return Ld, np.maximum((LL if np.ndim(LL) == 0 else LL[:, None]) - Ld * Ld, 0.0)
+
+
+def _terms(dT, n, h, L, rl, P=None, dns=None):
+    """cos beta of one light on the plane (n, h) along unit rays, and its derivatives.
+
+    The rays are given transposed, ``dT`` (3, N) (each operation then runs along N), with
+    ``rl = (Ld, K2)`` of :func:`_ray_light` (they depend on the rays only). Returns
+    ``cb (N,)``, the pieces ``delta = -d . n``, ``s = |X|``, ``sl = s - Ld``, ``ir = 1 / r`` with
+    ``r = |L - X|`` (each (N,)), ``c = n . L + h``, and, when the normal's derivatives ``dns``
+    (two (3,) vectors) are given, ``dcb (3, N)`` with respect to (a, b, log h)
+    (``P = [dn_a, dn_b] @ dT`` (2, N) may be given too); else None.
+
+    Notes
+    -----
+    The plane point is ``X = s d`` with ``s = h / delta``. Then
+    ``r^2 = |L|^2 - 2 s Ld + s^2 = (s - Ld)^2 + K2``, ``n . (L - X) = n . L + s delta = c`` and
+    ``(L - X) . d = Ld - s``, so ``cos beta = 2 (n . l)(n . v) - l . v = (2 c delta + Ld - s) / r``
+    (package docstring): a few operations per ray, no per-ray vectors. A change (dn, dh) gives
+    ``d delta = -d . dn``, ``ds = (dh - s d delta) / delta``, ``dr = ds (s - Ld) / r``,
+    ``dc = dn . L + dh`` and ``d cos beta = (2 (dc delta + c d delta) - ds - cb dr) / r``
+    ``= (2 (dc delta + c d delta) - q ds) / r`` with ``q = 1 + cb (s - Ld) / r``. For a and b
+    (dh = 0, d delta = -P): ``(2 delta dc - P (2 c + q s / delta)) / r``; for log h (dn = 0,
+    dh = h, ds = s): ``(2 h delta - q s) / r``.
+    """
+    Ld, K2 = rl
+    nd = (-n) @ dT
+    c = n @ L + h
+    N = nd.shape[0]
+    cb, delta, s, sl, ir = np.empty((5, N))  # one allocation, its rows the outputs
+    if dns is None:
+        _lightaware_kernels.cos_beta_terms(nd, h, c, Ld, K2, None, None, cb, delta, s, sl, ir, None)
+        return cb, delta, s, sl, ir, c, None
+    if P is None:
+        P = np.array(dns) @ dT
+    dcb = np.empty((3, N))
+    _lightaware_kernels.cos_beta_terms(nd, h, c, Ld, K2, P, np.array([dns[0] @ L, dns[1] @ L]),
+                                       cb, delta, s, sl, ir, dcb)
+    return cb, delta, s, sl, ir, c, dcb
+
+
+def _terms_numpy(dT, n, h, L, rl, P=None, dns=None):
+    """The numpy form of :func:`_terms`: the reference of its compiled pass
+    (:func:`simtest.reconstruct._lightaware_kernels.cos_beta_terms`, the same bits)."""
+    Ld, K2 = rl
+    delta = np.maximum((-n) @ dT, 1e-9)
+    s = h / delta
+    sl = s - Ld
+    with np.errstate(over="ignore"):  # a plane seen edge-on (delta at its floor): s^2 overflows, 1 / r = 0
+        ir = 1.0 / np.sqrt(np.maximum(sl * sl + K2, 1e-300))
+    c = n @ L + h
+    cb = (2.0 * c * delta - sl) * ir
+    if dns is None:
+        return cb, delta, s, sl, ir, c, None
+    if P is None:
+        P = np.array(dns) @ dT
+    qs = (1.0 + cb * sl * ir) * s
+    t = 2.0 * delta * ir
+    u = (2.0 * c + qs / delta) * ir
+    dcb = np.empty((3, dT.shape[1]))
+    dcb[0] = t * (dns[0] @ L) - P[0] * u
+    dcb[1] = t * (dns[1] @ L) - P[1] * u
+    dcb[2] = t * h - qs * ir
+    return cb, delta, s, sl, ir, c, dcb
+
+
+def _normal_derivs(p, n0, e1, e2):
+    """Normal ``unit(n0 + a e1 + b e2)`` and its derivatives with respect to a and b."""
+    m = n0 + p[0] * e1 + p[1] * e2
+    nm = np.sqrt(m @ m)
+    n = m / nm
+    return n, ((e1 - n * (n @ e1)) / nm, (e2 - n * (n @ e2)) / nm)
+
+
+#: Below this cos beta a lobe is taken as 0 (``cb^n`` < 1e-200 for n >= 1): its derivative
+#: ``n cb^(n-1)`` is then formed without dividing by a denormal.
+_CB_FLOOR = 1e-200
+
+
+def _rig_value(dT, rl, n, h, rig_arr, rough):
+    """``S = sum_j w_j max(0, cb_j)^n f_j p_j`` (N,) and the per-light pieces its gradient needs.
+
+    ``dT`` (3, N) the unit rays transposed, ``rl`` the :func:`_ray_light` of the rig's lights
+    (each (J, N)). See :func:`_rig_grad` for the derivatives.
+    """
+    L, w, inv_sq, m = rig_arr
+    S = np.zeros(dT.shape[1])
+    parts = []
+    for j in range(len(w)):
+        cb, delta, s, sl, ir, c, _ = _terms(dT, n, h, L[j], (rl[0][j], rl[1][j]))
+        pos = cb > _CB_FLOOR
+        cbp = np.where(pos, cb, 1.0)
+        lcb = np.log(cbp)
+        val = np.exp(rough * lcb)
+        val[~pos] = 0.0
+        if inv_sq[j]:
+            hir = h * ir
+            val *= hir * hir
+        cp = None
+        if m[j] > 0:
+            cp = np.maximum((s * dT[2] - L[j, 2]) * ir, 1e-12)
+            val *= cp ** m[j]
+        if w[j] != 1.0:
+            val *= w[j]
+        S += val
+        parts.append((cb, cbp, lcb, val, delta, s, sl, ir, c, cp))
+    return S, parts
+
+
+def _rig_grad(dT, parts, n, dns, h, rig_arr, rough):
+    """``dS`` (4, N) of :func:`_rig_value` with respect to (a, b, log h, log n).
+
+    Notes
+    -----
+    Per light, ``d log(val) = n d cb / cb + d log f + d log p`` with ``f = (h / r)^2``
+    (``d log f = 2 dh / h - 2 dr / r``) and ``p = cp^m``, ``cp = (s d_z - L_z) / r``
+    (``d log p = m (ds d_z / (r cp) - dr / r)``), and ``d val / d log n = val n log cb``. With
+    the derivatives of :func:`_terms` (``dr = ds (s - Ld) / r``, ``ds = s P / delta`` and
+    ``d delta = -P`` for a and b, ``ds = s`` for log h) each row is ``val`` times a sum of
+    per-ray factors.
+    """
+    L, w, inv_sq, m = rig_arr
+    P = np.array(dns) @ dT
+    dS = np.zeros((4, dT.shape[1]))
+    for j, (cb, cbp, lcb, val, delta, s, sl, ir, c, cp) in enumerate(parts):
+        slr = sl * ir  # dr / ds
+        k = (rough * ir) / cbp  # n / (r cb): d log(lobe) = k (2 (dc delta + c d delta) - q ds)
+        C = -k * (1.0 + cb * slr)  # coefficient of ds
+        if inv_sq[j]:
+            C -= (2.0 * slr) * ir
+        if cp is not None:
+            C += m[j] * ((dT[2] / cp - slr) * ir)
+        kv = k * val
+        A = (2.0 * delta) * kv  # coefficient of dc, times val
+        Cvs = C * val * s
+        Bv = Cvs / delta - (2.0 * c) * kv  # coefficient of P, times val
+        dS[0] += A * (dns[0] @ L[j]) + P[0] * Bv
+        dS[1] += A * (dns[1] @ L[j]) + P[1] * Bv
+        dS[2] += A * h + Cvs + (2.0 * val if inv_sq[j] else 0.0)
+        dS[3] += (rough * val) * lcb
+    return dS
+
+
+def _rig_image(d, n, dns, h, rig_arr, rough, grad=True):
+    """``S = sum_j w_j max(0, cb_j)^n f_j p_j`` (N,) and ``dS`` (N, 4) w.r.t. (a, b, log h, log n).
+
+    ``d`` (N, 3) unit rays.
+    """
+    dT = np.ascontiguousarray(np.asarray(d, dtype=np.float64).T)
+    rl = _ray_light(rig_arr[0], dT)
+    S, parts = _rig_value(dT, rl, n, h, rig_arr, rough)
+    return S, (_rig_grad(dT, parts, n, dns, h, rig_arr, rough).T if grad else None)
+
+
+def _intensity(d, n, h, rig_arr, rough):
+    dT = np.ascontiguousarray(np.asarray(d, dtype=np.float64).T)
+    hit = -(n @ dT) > 1e-9
+    return np.where(hit, _rig_value(dT, _ray_light(rig_arr[0], dT), n, h, rig_arr, rough)[0], 0.0)
+
+
+def plane_rig_intensity(rays: np.ndarray, normal, distance_mm: float, rig: LightRig,
+                        roughness: float) -> np.ndarray:
+    """Specular image of a plane lit by a rig, along given rays (unit gain, no background).
+
+    ``sum_j w_j max(0, cos beta_j)^n f_j p_j`` (package docstring), with
+    ``f_j = (h / |L_j - X|)^2`` for inverse-square lights and ``p_j = max(0, cos theta_j)^m_j``.
+
+    Parameters
+    ----------
+    rays : ndarray of shape (N, 3)
+        Unit viewing rays, camera frame.
+    normal : array_like of shape (3,)
+        Unit plane normal facing the camera.
+    distance_mm : float
+        Plane distance h > 0, mm.
+    rig : LightRig
+        The lights.
+    roughness : float
+        Phong n > 0.
+
+    Returns
+    -------
+    ndarray of shape (N,)
+        Intensity; 0 for rays that miss the plane.
+    """
+    return _intensity(np.asarray(rays, dtype=np.float64), unit(np.asarray(normal, dtype=np.float64)),
+                      float(distance_mm), _rig_arrays(rig), float(roughness))
+
+
+def _distance_for_bp(ray: np.ndarray, n: np.ndarray, L: np.ndarray) -> float | None:
+    """Plane distance h for which a plane of normal n has its specular point on the BP ray.
+
+    The specular point is ``X_s ∝ L' = L0 - 2 h n`` with ``L0 = L - 2 (n . L) n`` (the mirror image
+    of L in the plane through the camera centre), so it lies on the ray b when L' is parallel to b:
+    with ``P = I - b b^T``, ``h = (P L0) . (P n) / (2 |P n|^2)`` (least squares on the component
+    of L' across the ray). None if the result is not > 0 (then no such plane faces the light).
+    """
+    L0 = L - 2.0 * (n @ L) * n
+    pn = n - (ray @ n) * ray  # P n
+    den = 2.0 * (pn @ pn)
+    if not den > 1e-18:
+        return None
+    h = float((L0 - (ray @ L0) * ray) @ pn / den)
+    return h if h > 0 else None
+
+
+def _log_depth_gradient(n, h, Lm, basis=None) -> np.ndarray:
+    """d log(depth) / d(a, b, log h) about (n, h), the tangent basis of :func:`plane_basis` (3,).
+
+    ``basis``: that basis (e1, e2) when already at hand.
+
+    Notes
+    -----
+    With ``k = n . L + h`` (> 0: the light in front of the plane), the mirror image is
+    ``L' = L - 2 k n``, so ``-n . L' = k + h`` and ``|L'|^2 = |L|^2 + 4 k h``, and the depth of
+    :func:`specular_point_depth` is ``D = h sqrt(|L|^2 + 4 k h) / (k + h)``. About n the normal
+    moves by ``dn = e1 da + e2 db`` (n unit, e1 and e2 orthogonal to it), so
+    ``d log D / da = (e1 . L) (2 h / (|L|^2 + 4 k h) - 1 / (k + h))`` (and e2 for b), and with
+    ``dh = dk = h d log h``: ``d log D / d log h = 1 + 2 h (h + k) / (|L|^2 + 4 k h) - 2 h / (k + h)``.
+    NaN with the light behind the plane.
+    """
+    e1, e2 = plane_basis(n) if basis is None else basis
+    k = float(n @ Lm) + h
+    if not k > 0:
+        return np.full(3, np.nan)
+    q = float(Lm @ Lm) + 4.0 * k * h
+    ga = 2.0 * h / q - 1.0 / (k + h)
+    return np.array([float(e1 @ Lm) * ga, float(e2 @ Lm) * ga,
+                     1.0 + 2.0 * h * (h + k) / q - 2.0 * h / (k + h)])
+
+
+def _roi_samples(vals, o, uu, vv, keep, max_pixels):
+    """The ROI pixels a photometric fit uses: every kept pixel, or a regular sub-grid of them.
+
+    Returns ``(sel, step, uv, y)``: flat indices of the used pixels, the sub-grid step (1: every
+    pixel), their (u, v) image positions (N, 2) in pixels and their values (N,).
+    """
+    sel = np.flatnonzero(keep)
+    step = 1
+    if max_pixels and len(sel) > max_pixels:  # a regular sub-grid of the ROI
+        step = int(np.ceil(np.sqrt(len(sel) / max_pixels)))
+        grid = np.zeros_like(keep)
+        grid[::step, ::step] = True
+        sel = np.flatnonzero(keep & grid)
+    uv = np.column_stack([uu.ravel()[sel] + o[0], vv.ravel()[sel] + o[1]]).astype(np.float64)
+    y = vals.ravel()[sel]
+    return sel, step, uv, y
+
+
+def _roi_grid(values, camera, origin_uv, clip_level):
+    """The ROI of a photometric fit: checked values, camera model, origin, pixel grid, unclipped mask.
+
+    Returns ``vals`` (H, W) float64, the camera model, ``o`` (2,) the ROI's top-left pixel (u, v),
+    ``uu, vv`` (H, W) the column and row indices, and ``keep`` (H, W) bool (``vals < clip_level``,
+    all True without a clip level).
+
+    Raises
+    ------
+    ValueError
+        A values array that is not 2-D and finite.
+    """
+    vals = np.asarray(values, dtype=np.float64)
+    if vals.ndim != 2 or not np.isfinite(vals).all():
+        raise ValueError(f"values: need a finite (H, W) array, got shape {vals.shape}")
+    camera = _camera(camera)
+    H, W = vals.shape
+    o = np.asarray(origin_uv, dtype=np.float64).reshape(2)
+    vv, uu = np.mgrid[0:H, 0:W]
+    keep = np.ones((H, W), bool) if clip_level is None else vals < clip_level
+    return vals, camera, o, uu, vv, keep
+
+
+def _rig_diffuse(dT, rl, n, h, rig_arr) -> np.ndarray:
+    """The rig's Lambertian shading of the plane (n, h) along unit rays ``dT`` (3, N): (N,).
+
+    ``D = sum_j w_j max(0, n . l_j) f_j p_j`` with ``l_j`` the unit direction from the plane point
+    to light j, ``f_j = (h / r_j)^2`` for an inverse-square light (1 otherwise) and ``p_j`` its
+    ``cos^m`` profile about +z, the same falloff and profile as the specular lobes of
+    :func:`_rig_value` (unit albedo; the fit's linear part scales it). From the pieces of
+    :func:`_terms`: ``n . (L - X) = c`` so ``n . l = c / r``.
+    """
+    L, w, inv_sq, m = rig_arr
+    D = np.zeros(dT.shape[1])
+    for j in range(len(w)):
+        _, _, s, _, ir, c, _ = _terms(dT, n, h, L[j], (rl[0][j], rl[1][j]))
+        val = max(c, 0.0) * ir
+        if inv_sq[j]:
+            hir = h * ir
+            val = val * (hir * hir)
+        if m[j] > 0:
+            val = val * np.maximum((s * dT[2] - L[j, 2]) * ir, 0.0) ** m[j]
+        D += w[j] * val
+    return D
+
+
+def _rig_diffuse_grad(dT, rl, p, nb, e1, e2, rig_arr, step: float = 1e-6) -> np.ndarray:
+    """Central differences of :func:`_rig_diffuse` in (a, b, log h) about ``p`` (the plane
+    ``unit(nb + a e1 + b e2)`` at ``h = exp(p[2])``): (3, N). The shading is smooth and cheap
+    (no power of cos beta); a step of 1e-6 rad and 1e-6 in log h leaves errors near 1e-10 of it."""
+    out = np.empty((3, dT.shape[1]))
+    for k in range(3):
+        q = np.array(p[:3], dtype=np.float64)
+        vals = []
+        for sgn in (1.0, -1.0):
+            q2 = q.copy()
+            q2[k] += sgn * step
+            mv = nb + q2[0] * e1 + q2[1] * e2
+            vals.append(_rig_diffuse(dT, rl, mv / np.sqrt(mv @ mv), float(np.exp(q2[2])), rig_arr))
+        out[k] = (vals[0] - vals[1]) / (2 * step)
+    return out

@@ -1,0 +1,412 @@
+"""The photometric plane fit: the ROI's intensities fitted with the image of a plane lit by the rig."""
+
+from __future__ import annotations
+
+import math
+from dataclasses import replace
+
+import numpy as np
+
+from simtest.geometry.angles import unit
+from simtest.geometry.conics import plane_basis
+from simtest.geometry.lights import LightRig
+from simtest.tolerances import TOL
+from simtest.reconstruct.lightaware.estimate import LightAwareEstimate
+from simtest.reconstruct.lightaware.model import (
+    _mean_light,
+    _normal_derivs,
+    _ray_light,
+    _rays,
+    _rig_arrays,
+    _rig_diffuse,
+    _rig_diffuse_grad,
+    _rig_grad,
+    _rig_value,
+    _roi_grid,
+    _roi_samples,
+)
+from simtest.reconstruct.lightaware.solve import (
+    _ROUGHNESS_RANGE,
+    _correlated,
+    _finish,
+    _hac_covariance,
+    _implausible,
+    _misfit,
+    _solve,
+    _start,
+)
+
+
+#: Gauss-Newton steps on log n alone that refine the photometric fit's start roughness: on the
+#: bench's exact highlight (n = 150) three steps from n = 50, 86 or 258 (the regression's starts
+#: with cos beta with and without the falloff) end within 0.003 of log 150.
+_ROUGHNESS_START_STEPS = 3
+
+
+def photometric_fit(values, origin_uv, bp_uv, camera, rig: LightRig, *,
+                    clip_level: float | None = None, nominal_depth_mm: float = 20.0,
+                    start_normal=None, start_roughness: float | None = None,
+                    loss: str = "linear", f_scale: float = 0.02, supersample: int = 1,
+                    n_start_depths: int = 0, diffuse: bool = False, censor: bool = False,
+                    max_pixels: int | None = 16384, max_nfev: int = 200) -> LightAwareEstimate:
+    """Fit the intensities of an ROI with the image of a plane lit by the whole rig.
+
+    Model (package docstring): ``I = g sum_j w_j max(0, cos beta_j)^n f_j p_j + b0 + b1 du + b2 dv``
+    per pixel centre; the linear parameters (g, b0, b1, b2) are solved for each value of the
+    nonlinear ones (a, b, log h, log n) by linear least squares (variable projection, Notes), and
+    those four are fitted by Levenberg-Marquardt (MINPACK through
+    :func:`scipy.optimize.leastsq`, analytic Jacobian). Pixels at or above ``clip_level`` are left
+    out (a saturated plateau carries no shape). A two-light rig's merged highlight is one model.
+    The roughness starts from a log-log regression of the ROI's specular part on the start's
+    cos beta (``log(I - b) - log(f p) = log g + n log cos beta``), refined by a few Gauss-Newton
+    steps on log n alone with the start plane held, unless given.
+
+    Parameters
+    ----------
+    values : ndarray of shape (H, W)
+        ROI intensities (float, any unit).
+    origin_uv : array_like of shape (2,)
+        Pixel (u, v) of ``values[0, 0]`` in the image.
+    bp_uv : array_like of shape (2,)
+        Brightest point, undistorted px (for the start).
+    camera : array_like of shape (3, 3) or CameraModel
+        Intrinsics K, or a camera model with ``pixel_to_ray``.
+    rig : LightRig
+        The lights, camera frame, mm.
+    clip_level : float, optional
+        Pixels ``>= clip_level`` are left out (e.g. 255 for 8-bit); None keeps every pixel.
+    nominal_depth_mm : float
+        Depth of the BP assumed for the start's bisector, mm.
+    start_normal : array_like of shape (3,), optional
+        Start normal (e.g. from :func:`isocurve_fit`).
+    start_roughness : float, optional
+        Start Phong n.
+    loss : str
+        ``linear`` (Gaussian sensor noise), or ``soft_l1``, ``huber``, ``cauchy`` (reweighted).
+    f_scale : float
+        Soft margin of a robust loss, relative to the ROI's maximum.
+    n_start_depths : int
+        Further starts along the BP's constraint (depths nominal/8 to nominal*8), each refined;
+        the solution of least cost is kept (0: the start, and the nominal bisector when a start is
+        given).
+    supersample : int
+        s x s point samples per pixel, averaged (a renderer's or sensor's box filter; 1: the
+        value at the pixel centre, as the exact images of :mod:`simtest.simulate.offset`).
+    max_pixels : int or None
+        Beyond this many unclipped pixels, fit those of a regular sub-grid (every k-th row and
+        column; None keeps all). Every pixel of the lobe's tails matters: the tilt and the
+        distance trade off along the BP's constraint, and what separates them is the lobe's shape
+        down to its faint tails (a fit to the pixels above 2 % of the peak lost a factor of 3 to 5
+        in accuracy against the Cramer-Rao bound).
+    diffuse : bool
+        Add the rig's Lambertian shading of the plane as a column of the model beside the lobes
+        and the background (its albedo a linear parameter; Notes): the image of tissue, whose
+        diffuse shading under a near light is no linear background.
+    censor : bool
+        Keep the pixels at or above ``clip_level`` as censored data (the pixel's radiance is at
+        least the clip level: a residual only where the model falls below it) instead of leaving
+        them out.
+    max_nfev : int
+        Evaluation budget.
+
+    Returns
+    -------
+    LightAwareEstimate
+        ``estimator="photometric_fit"``, with ``roughness``. Status ``plane_misfit`` (normal kept,
+        depth withdrawn) when the residuals of neighbouring pixels correlate: the plane model
+        does not explain the ROI (a curved patch, whose lobe the plane model reproduces by
+        trading the curvature for roughness and distance, and so misses the normal; see
+        ``_misfit``).
+
+    Raises
+    ------
+    ValueError
+        A values array that is not 2-D and finite.
+
+    Notes
+    -----
+    Variable projection [3]_. The background columns ``B = [1, du, dv]`` (M, 3) do not depend on
+    the nonlinear parameters p: with Q an orthonormal basis of B and ``P = I - Q Q^T``, the values
+    and the lobe image S(p) (M,) are projected once each, ``y~ = P y`` and ``a = P S``; the gain
+    is then ``g = a . y~ / a . a`` and the residual ``r = g a - y~`` is exactly that of the full
+    linear least squares in (g, b0, b1, b2) at p (pixel by pixel, so the residual tests of
+    ``_misfit`` read it unchanged). Its exact Jacobian (Golub and Pereyra) with ``da = P dS``:
+    ``dr = g (da - a (a . da) / (a . a)) - a (r . da) / (a . a)``; the first term alone
+    (Kaufman's), which is ``P_[S, B] (g dS)``, gives the covariance, equal to the (a, b, log h,
+    log n) block of the full eight-parameter ``s^2 (J^T J)^-1`` (a Schur complement), the
+    residual variance counting all eight parameters. A robust loss reweights the rows: the
+    linear part is then solved with the weights. Four parameters instead of eight, and the
+    linear ones always at their optimum, take Levenberg-Marquardt fewer steps; with the start's
+    roughness refined first it converges in about five evaluations on an exact image.
+
+    With ``diffuse`` or censored pixels the linear part has a second column that depends on p
+    (the shading ``D(p)``, :func:`~simtest.reconstruct.lightaware.model._rig_diffuse`) and an
+    active set (a censored pixel enters, with the clip level as its value, where the model falls
+    below it): the linear parameters are solved by least squares on the active rows at each p,
+    and the Jacobian is Kaufman's, ``P_[S, D, B] (g dS + k dD)`` (k the albedo), for the fit and
+    for the covariance alike.
+    """
+    name = "photometric_fit"
+    censor = bool(censor and clip_level is not None)
+    vals, camera, o, uu, vv, keep = _roi_grid(values, camera, origin_uv,
+                                              None if censor else clip_level)
+    H, W = vals.shape
+    border = np.concatenate([vals[0], vals[-1], vals[:, 0], vals[:, -1]])
+    b_level = float(np.median(border))
+    sel, step, uv, y = _roi_samples(vals, o, uu, vv, keep, max_pixels)
+    cens = y >= clip_level if censor else np.zeros(len(y), bool)
+    general = bool(diffuse or cens.any())
+    if np.count_nonzero(~cens) < 8 + 1 + int(diffuse):
+        return LightAwareEstimate(name, "too_few_points", f"{np.count_nonzero(~cens)} unclipped pixels")
+    ss = int(supersample)
+    if ss < 1:
+        raise ValueError(f"supersample: must be >= 1, got {supersample!r}")
+    offs = (np.arange(ss) + 0.5) / ss - 0.5
+    sub = np.array([(du_, dv_) for dv_ in offs for du_ in offs])  # (ss^2, 2)
+    dT = np.ascontiguousarray(_rays(camera, (uv[:, None, :] + sub[None]).reshape(-1, 2)).T)
+    rig_arr = _rig_arrays(rig)
+    bp = np.asarray(bp_uv, dtype=np.float64).reshape(2)
+    d_bp, n0, h0 = _start(bp, camera, rig, nominal_depth_mm, start_normal)
+    du = (uv[:, 0] - bp[0]) / max(W, H)
+    dv = (uv[:, 1] - bp[1]) / max(W, H)
+    yscale = max(float(np.abs(y).max()), 1e-12)
+    yn = y / yscale
+    rl = _ray_light(rig_arr[0], dT)  # (J, N) each
+    background = np.column_stack([np.ones_like(du), du, dv])
+    proj = {}  # orthonormal basis of the (weighted) background columns, per weights
+
+    def basis(w):
+        """``QT`` (3, M), the background's orthonormal basis (rows), and the projected values."""
+        key = None if w is None else w.tobytes()
+        if proj.get("key") != key or "QT" not in proj:
+            B = background if w is None else background * w[:, None]
+            QT = np.ascontiguousarray(np.linalg.qr(B)[0].T)
+            yw = yn if w is None else yn * w
+            proj.update(key=key, QT=QT, yt=yw - (QT @ yw) @ QT)
+        return proj["QT"], proj["yt"]
+
+    def box(v):
+        """The mean of each pixel's sub-pixel samples (the last axis)."""
+        return v if ss == 1 else v.reshape(*v.shape[:-1], -1, ss * ss).mean(axis=-1)
+
+    state = {}
+
+    clipn = (float(clip_level) / yscale) if censor else np.inf
+    design = np.empty((len(yn), 5 if diffuse else 4))
+    design[:, -3:] = background
+
+    def resjac_general(p, nb, e1, e2, grad=True, w=None, kaufman=False):
+        """Residuals and Kaufman's Jacobian with the diffuse column and censored rows (Notes).
+
+        Censored rows where the model is at or above the clip level have residual 0 and a zero
+        Jacobian row; the others, the model minus the clip level.
+        """
+        key = (p.tobytes(), nb.tobytes(), None if w is None else w.tobytes(), "general")
+        if state.get("key") != key:
+            n, dns = _normal_derivs(p, nb, e1, e2)
+            h, rough = float(np.exp(p[2])), float(np.exp(p[3]))
+            S, parts = _rig_value(dT, rl, n, h, rig_arr, rough)
+            design[:, 0] = box(S)
+            if diffuse:
+                design[:, 1] = box(_rig_diffuse(dT, rl, n, h, rig_arr))
+            target = np.where(cens, clipn, yn)
+            active = ~cens
+            coef = np.zeros(design.shape[1])
+            for _ in range(3):  # the active set of the censored rows: two updates settle it
+                A, t = design[active], target[active]
+                if w is not None:
+                    A, t = A * w[active, None], t * w[active]
+                coef = np.linalg.lstsq(A, t, rcond=None)[0]
+                model = design @ coef
+                new_active = ~cens | (model < clipn)
+                if np.array_equal(new_active, active):
+                    break
+                active = new_active
+            r = np.where(active, model - target, 0.0)
+            state.update(key=key, n=n, dns=dns, h=h, rough=rough, parts=parts, coef=coef,
+                         active=active, r=r)
+        if not grad:
+            return state["r"], None
+        return state["r"], jac_general(p, nb, e1, e2, state["dns"], w)
+
+    def jac_general(p, nb, e1, e2, dns, w):
+        st = state
+        coef, active = st["coef"], st["active"]
+        G = coef[0] * box(_rig_grad(dT, st["parts"], st["n"], dns, st["h"], rig_arr, st["rough"]))
+        if diffuse:
+            G[:3] += coef[1] * box(_rig_diffuse_grad(dT, rl, p, nb, e1, e2, rig_arr))
+        JT = np.zeros_like(G)
+        A = design[active]
+        Ga = G[:, active]
+        if w is not None:
+            A, Ga = A * w[active, None], Ga * w[active]
+        Q = np.linalg.qr(A)[0]
+        Ja = Ga - (Ga @ Q) @ Q.T
+        JT[:, active] = Ja if w is None else Ja / w[active]
+        return JT.T
+
+    def resjac_at(p, nb, e1, e2, grad=True, w=None, kaufman=False):
+        if general:
+            return resjac_general(p, nb, e1, e2, grad, w, kaufman)
+        return resjac_plain(p, nb, e1, e2, grad, w, kaufman)
+
+    def resjac_plain(p, nb, e1, e2, grad=True, w=None, kaufman=False):
+        """Residuals of the variable projection (Notes) and their Jacobian in (a, b, log h, log n).
+
+        ``w``: row weights (a robust loss' reweighting): the linear part is solved with them and
+        the residual and Jacobian returned are the unweighted ones of that solution. ``kaufman``:
+        the Jacobian without its second-order term, ``P (g dS)`` (for the covariance).
+        """
+        QT, yt = basis(w)
+        key = (p.tobytes(), nb.tobytes(), None if w is None else w.tobytes())
+        if state.get("key") != key:
+            n, dns = _normal_derivs(p, nb, e1, e2)
+            h, rough = float(np.exp(p[2])), float(np.exp(p[3]))
+            S, parts = _rig_value(dT, rl, n, h, rig_arr, rough)
+            S = box(S)
+            Sw = S if w is None else S * w
+            St = Sw - (QT @ Sw) @ QT
+            aa = float(St @ St)
+            g = float(St @ yt) / aa if aa > 0 else 0.0
+            rw = g * St - yt
+            state.update(key=key, n=n, dns=dns, h=h, rough=rough, parts=parts, St=St, aa=aa, g=g,
+                         rw=rw, r=rw if w is None else rw / w)
+        if not grad:
+            return state["r"], None
+        return state["r"], jac_of(state["dns"], w, kaufman)
+
+    def jac_of(dns, w, kaufman):
+        """The Jacobian (M, 4) at the point of ``state``, the normal's derivatives ``dns``."""
+        st = state
+        QT = basis(w)[0]
+        dS = box(_rig_grad(dT, st["parts"], st["n"], dns, st["h"], rig_arr, st["rough"]))
+        if w is not None:
+            dS = dS * w
+        St, aa, g = st["St"], st["aa"], st["g"]
+        if not aa > 0:
+            return np.zeros((len(St), 4))
+        M = np.empty((4, 4))  # JT = g dS - M @ [QT; St]: the projections in one product
+        M[:, :3] = (g * dS) @ QT.T
+        M[:, 3] = dS @ St * (g / aa)
+        if not kaufman:
+            M[:, 3] += dS @ st["rw"] / aa
+        JT = g * dS - M @ np.vstack([QT, St])
+        return (JT if w is None else JT / w).T
+
+    def start_for(n, h):
+        """Start roughness: a log-log regression of the specular part on cos beta, then Gauss-Newton.
+
+        The regression's slope is sensitive to the start plane (log cos beta is small near the
+        peak); a few Gauss-Newton steps on log n alone (the plane held, the linear part projected
+        out as in the fit) bring it to the least-squares roughness of the start plane.
+        """
+        if start_roughness is not None:
+            return float(start_roughness)
+        # cos beta f p and f p (the lobe at n = 1 and n = 0): their ratio is cos beta (one light)
+        S1, parts = _rig_value(dT, rl, n, h, rig_arr, 1.0)  # 0 where a ray misses (cb < 0)
+        S0 = sum(pt[3] / pt[1] for pt in parts)  # val / cb
+        S1, S0 = box(S1), box(S0)
+        spec = y - b_level
+        selr = (spec > 0.05 * spec.max()) & (S1 > 0)
+        log_n = np.log(50.0)
+        if np.count_nonzero(selr) >= 3:
+            x = np.log(np.clip(S1[selr] / S0[selr], 1e-12, None))
+            z = np.log(spec[selr] / S0[selr])
+            xc = x - x.mean()
+            den = float(xc @ xc)
+            slope = float(xc @ (z - z.mean())) / den if den > 0 else np.nan  # least-squares line
+            if np.isfinite(slope) and slope > 1:
+                log_n = np.log(min(slope, _ROUGHNESS_RANGE[1]))
+        QT, yt = basis(None)
+        for _ in range(_ROUGHNESS_START_STEPS):
+            rough = float(np.exp(log_n))
+            S, parts = _rig_value(dT, rl, n, h, rig_arr, rough)
+            S, dS = box(S), box(sum(pt[3] * pt[2] for pt in parts) * rough)  # dS / d log n
+            St, da = S - (QT @ S) @ QT, dS - (QT @ dS) @ QT
+            aa = float(St @ St)
+            if not aa > 0:
+                break
+            g = float(St @ yt) / aa
+            r = g * St - yt
+            J = g * (da - St * (float(St @ da) / aa)) - St * (float(r @ da) / aa)
+            jj = float(J @ J)
+            step = -float(J @ r) / jj if jj > 0 else 0.0
+            if not np.isfinite(step):
+                break
+            log_n = float(np.clip(log_n + np.clip(step, -1.0, 1.0), *np.log(_ROUGHNESS_RANGE)))
+            if abs(step) < 1e-3:
+                break
+        return float(np.exp(log_n))
+
+    # Starts: the given one (or the bisector at the nominal depth), the nominal bisector too when
+    # a start was given, and n_start_depths planes along the BP's constraint (each the bisector
+    # at a depth from nominal/8 to nominal*8, its distance such that the specular point is the
+    # BP). Each is refined; the solution of least cost is kept. A near plane with a rough lobe can
+    # mimic a far one with a smooth lobe (a local minimum), which one start may fall into.
+    cands = [(n0, h0)]
+    if np.abs(rig_arr[0]).max() > 0:
+        Lm = _mean_light(rig)
+        depths = (list(nominal_depth_mm * np.geomspace(1 / 8, 8, n_start_depths))
+                  if n_start_depths else [])
+        if start_normal is not None:
+            depths.append(nominal_depth_mm)
+        for sdep in depths:
+            X = sdep * d_bp
+            nc = unit(unit(-X) + unit(Lm - X))
+            cands.append((nc, float(-(nc @ X))))
+    best = None
+    nfev_total = 0
+    for nc, hc in cands:
+        e1, e2 = plane_basis(nc)
+        p0 = np.array([0.0, 0.0, np.log(hc), np.log(start_for(nc, hc))])
+        free = np.ones(len(p0), bool)
+        free[2] = np.abs(rig_arr[0]).max() > 1e-9 * hc  # all lights at V: no dependence on h
+        x, nfev, conv, msg, r = _solve(resjac_at, p0, (nc, e1, e2), loss, f_scale, max_nfev, free,
+                                       lazy_jac=True, weighted=True)
+        nfev_total += nfev
+        cost = float(r @ r) if np.isfinite(r).all() else np.inf
+        if best is None or cost < best[0]:
+            best = (cost, x, nc, hc, e1, e2, conv, msg)
+    _, x, n0, h0, e1, e2, conv, msg = best
+    nfev = nfev_total
+    n_hat = _normal_derivs(x, n0, e1, e2)[0]
+    h_hat = float(np.exp(x[2]))
+    bad = _implausible(h_hat, h0, float(np.exp(x[3])))
+    if bad:
+        return LightAwareEstimate(name, "not_converged", bad, n_evaluations=nfev)
+    if np.any(n_hat @ rig_arr[0].T + h_hat <= 0):
+        return LightAwareEstimate(name, "light_behind_plane", f"h = {h_hat:.4g} mm", n_evaluations=nfev)
+
+    def at_solution(p_hat, nb, e1_, e2_):
+        """Residuals and covariance Jacobian about (nb, e1_, e2_) at the solution x.
+
+        The plane and roughness are x's (``nb`` is x's normal): the model at x, most often the
+        solver's last evaluation, is reused and only the derivatives are taken about ``nb``.
+        """
+        resjac_at(x, n0, e1, e2, grad=False)
+        if general:  # the diffuse column's derivative by differences about (nb, e1_, e2_)
+            return state["r"], jac_general(p_hat, nb, e1_, e2_,
+                                           _normal_derivs(p_hat, nb, e1_, e2_)[1], None)
+        return state["r"], jac_of(_normal_derivs(p_hat, nb, e1_, e2_)[1], None, True)
+
+    def post(est, r0):
+        """The misfit test, and where neighbouring residuals correlate, the sandwich sigmas.
+
+        Correlated residuals (a texture, a micro-relief, a lobe shape the model lacks, a curved
+        patch) make ``s^2 (J^T J)^-1`` too small: the normal's and the depth's sigmas are then
+        the larger of it and the sandwich's (:func:`~simtest.reconstruct.lightaware.solve._hac_covariance`).
+        """
+        if est.status not in ("ok", "depth_not_observable") or not _correlated(r0, sel, keep.shape, step):
+            return _misfit(est, r0, sel, keep.shape, step)
+        J = at_solution(np.concatenate([[0.0, 0.0, np.log(h_hat)], x[3:]]), n_hat,
+                        *plane_basis(n_hat))[1]
+        cov, _ = _hac_covariance(J, r0, sel, keep.shape, step)
+        if cov is not None:
+            sig = math.degrees(math.sqrt(max(float(cov[0, 0] + cov[1, 1]), 0.0)))
+            est = replace(est, normal_sigma_deg=max(sig, est.normal_sigma_deg or 0.0))
+        return _misfit(est, r0, sel, keep.shape, step)
+
+    return _finish(name, at_solution, n_hat, h_hat, rig, x[3:],
+                   TOL.photometric_noise_rel, nfev, conv, roughness=float(np.exp(x[3])),
+                   detail="" if conv else msg, n_linear=design.shape[1] if general else 4,
+                   post=post)

@@ -1,0 +1,363 @@
+"""The fitting machinery the light-aware fits share.
+
+The start (:func:`_start`), Levenberg-Marquardt with a robust loss by reweighting (:func:`_solve`),
+the covariance and the depth's observability (:func:`_covariance`, :func:`_finish`), the
+plausibility of a solution (:func:`_implausible`) and the misfit tests on the residuals
+(:func:`_misfit`, :func:`_patch_verdict`).
+"""
+
+from __future__ import annotations
+
+import math
+import warnings
+from dataclasses import replace
+
+import numpy as np
+from scipy.ndimage import convolve1d
+from scipy.optimize import leastsq
+
+from simtest.geometry.angles import unit
+from simtest.geometry.conics import plane_basis
+from simtest.tolerances import TOL
+from simtest.reconstruct.lightaware.estimate import LightAwareEstimate, OK
+from simtest.reconstruct.lightaware.model import (
+    _distance_for_bp,
+    _log_depth_gradient,
+    _mean_light,
+    _rays,
+    specular_point_depth,
+)
+
+
+def _start(bp_uv, camera, rig, nominal_depth_mm, start_normal):
+    """Start normal n0 and distance h0 (package docstring, "Parametrisation, start")."""
+    d_bp = _rays(camera, np.asarray(bp_uv, dtype=np.float64)[None])[0]
+    Lm = _mean_light(rig)
+    if start_normal is None:
+        n0 = unit(unit(-d_bp * nominal_depth_mm) + unit(Lm - d_bp * nominal_depth_mm))
+    else:
+        n0 = unit(np.asarray(start_normal, dtype=np.float64))
+        if n0 @ d_bp > 0:
+            n0 = -n0
+    h0 = _distance_for_bp(d_bp, n0, Lm) if np.linalg.norm(Lm) > 0 else None
+    if h0 is None or not np.isfinite(h0):
+        h0 = float(-(n0 @ (nominal_depth_mm * d_bp)))
+    return d_bp, n0, max(h0, 1e-3)
+
+
+def _covariance(jac: np.ndarray, resid_var: float) -> np.ndarray | None:
+    """``resid_var (J^T J)^-1``, or None when J^T J is singular.
+
+    Singular: a column of J below 1e-10 of the largest (a parameter the model does not depend on,
+    such as h with the light at the camera centre, whose column is rounding noise), or a condition
+    number above 1e12 after scaling the columns to unit norm.
+    """
+    jtj = jac.T @ jac
+    scale = np.sqrt(np.diag(jtj))
+    if not np.all(scale > 1e-10 * scale.max()):  # a column of rounding noise: a flat direction
+        return None
+    jn = jtj / np.outer(scale, scale)
+    if np.linalg.cond(jn) > 1e12:
+        return None
+    return resid_var * np.linalg.inv(jn) / np.outer(scale, scale)
+
+
+#: Levenberg-Marquardt's tolerances (MINPACK's ftol, xtol, gtol) in the light-aware plane fits.
+#: Near the minimum the cost is ``C* (1 + u^2 / (m - k))`` with u the distance to the minimum in
+#: standard deviations (m residuals, k parameters): a relative cost change below 1e-8 leaves u
+#: below about ``1e-4 sqrt(m)``, under 1 % of a standard deviation for the 4096 px of a 64 px
+#: ROI and about 0.1 % for the 128 points of two isophotes. Exact images (C* = 0) converge
+#: quadratically, to rounding, in one or two steps more. Tighter (1e-12, as before) took 25 to
+#: 75 % more evaluations on the bench's highlight and changed its results in the ninth digit.
+_LM_TOL = 1e-8
+
+
+#: The same for the first pass of a reweighted (robust) fit, which only sets the weights of the
+#: second: the weights move with the residuals, a change at 1e-4 of the cost moves the final
+#: solution by a second-order amount (1e-9 of the depth on the bench's highlight).
+_LM_TOL_FIRST_PASS = 1e-4
+
+
+def _solve(resjac, p0, args, loss: str, f_scale: float, max_nfev: int, free=None,
+           lazy_jac: bool = False, weighted: bool = False):
+    """Levenberg-Marquardt (MINPACK, analytic Jacobian), robust loss by reweighting.
+
+    ``loss="linear"``: one LM solve. Otherwise (``soft_l1``, ``huber``, ``cauchy``): the LM solution
+    is reweighted once by iteratively reweighted least squares, each residual scaled by
+    ``sqrt(rho'(z))`` with ``z = (r / f_scale)^2`` (the weights of scipy's robust losses), and
+    re-solved from there. ``free`` (bool mask) holds the other parameters at ``p0``.
+    ``resjac(p, *args, grad=...)`` returns the residuals and, with ``grad``, their Jacobian (else
+    None). ``lazy_jac``: MINPACK's trial points get the residuals alone and the Jacobian is
+    computed only where it is asked (worth it for a large Jacobian, the photometric fit's; for a
+    few hundred contour points the second call costs more than the Jacobian). ``weighted``: the
+    reweighting's weights are passed to ``resjac`` too (``w=``), for a model that solves part of
+    itself with them (the photometric fit's linear parameters); it returns the unweighted
+    residuals and Jacobian of that solution. MINPACK's lmder is called through
+    :func:`scipy.optimize.leastsq`: ``least_squares(method="lm")`` is the same solver behind a
+    wrapper that cost as much as the model on a few hundred isophote points. Returns (x,
+    n_evaluations (the model evaluated at a new point), converged, message, residuals at x).
+    """
+    if loss not in ("linear", "soft_l1", "huber", "cauchy"):
+        raise ValueError(f"loss: {loss!r} is not one of linear, soft_l1, huber, cauchy")
+    p0 = np.asarray(p0, dtype=np.float64)
+    free = np.ones(len(p0), bool) if free is None else np.asarray(free, bool)
+    cache: dict = {}
+
+    def full(q):
+        p = p0.copy()
+        p[free] = q
+        return p
+
+    def rj(q, grad=True):
+        # MINPACK asks for f at each trial point and for J only at the accepted ones (at the
+        # point of its last f): with lazy_jac the residual alone first, r and J together when J
+        # is asked; else both at once
+        grad = grad or not lazy_jac
+        key = q.tobytes()
+        if cache.get("key") != key or (grad and cache.get("J") is None):
+            kw = {"w": model_w[0]} if weighted and model_w[0] is not None else {}
+            r, J = resjac(full(q), *args, grad=grad, **kw)
+            if cache.get("key") != key:
+                count[0] += 1
+            cache.update(key=key, r=r, J=J if J is None or all_free else J[:, free])
+        return cache["r"], cache["J"]
+
+    def fun(q, w):
+        r = rj(q, grad=False)[0]
+        return r if w is None else r * w
+
+    def jac(q, w):
+        J = rj(q)[1]
+        return J if w is None else J * w[:, None]
+
+    all_free = bool(free.all())
+    model_w = [None]  # the weights resjac solves its linear part with (weighted only)
+    count = [0]  # model evaluations (new points)
+    q = p0[free]
+    w = None  # unit weights
+    ok, msg = True, ""
+    for it in range(1 if loss == "linear" else 2):
+        if it:
+            z = (rj(q, grad=False)[0] / f_scale) ** 2
+            if loss == "soft_l1":
+                w = (1.0 + z) ** -0.25
+            elif loss == "huber":
+                w = np.where(z <= 1.0, 1.0, z ** -0.25)
+            else:
+                w = (1.0 + z) ** -0.5
+            if weighted:
+                model_w[0] = w
+                cache.clear()
+        # MINPACK's lmder through leastsq (least_squares' method="lm" is the same solver behind
+        # a heavier wrapper); without full_output it skips a covariance we do not use and warns
+        # with its message when it stops short
+        with np.errstate(all="ignore"), warnings.catch_warnings(record=True) as caught:
+            warnings.simplefilter("always")
+            # the first pass of a reweighted fit only sets the weights: looser tolerances
+            tol = _LM_TOL if it or loss == "linear" else _LM_TOL_FIRST_PASS
+            q, ier = leastsq(fun, q, args=(w,), Dfun=jac, xtol=tol, ftol=tol, gtol=tol,
+                             maxfev=max_nfev)
+        ok = ier in (1, 2, 3, 4) and bool(np.isfinite(q).all())
+        msg = "" if ier in (1, 2, 3, 4) else (str(caught[-1].message) if caught
+                                               else f"MINPACK info {ier}")
+    return full(q), count[0], ok, msg, rj(q, grad=False)[0]
+
+
+#: Plausible fitted values: the distance within this factor of the start's, the roughness in
+#: this range. Outside, the plane model is explaining something else (a curved patch whose lobe
+#: the curvature compresses is fitted with n in the thousands and h -> 0): reported as not converged.
+_H_FACTOR = 20.0
+
+
+_ROUGHNESS_RANGE = (1.0, 2000.0)
+
+
+def _implausible(h_hat: float, h0: float, roughness: float | None) -> str:
+    """Why a fit's solution is implausible ("" when it is not)."""
+    if not (np.isfinite(h_hat) and h0 / _H_FACTOR <= h_hat <= h0 * _H_FACTOR):
+        return f"fitted distance {h_hat:.4g} mm is not within a factor {_H_FACTOR:g} of the start's {h0:.4g} mm"
+    if roughness is not None and not (np.isfinite(roughness)
+                                      and _ROUGHNESS_RANGE[0] <= roughness <= _ROUGHNESS_RANGE[1]):
+        return f"fitted roughness {roughness:.4g} outside {_ROUGHNESS_RANGE}"
+    return ""
+
+
+def _finish(name, resjac_at, n_hat, h_hat, rig, extra_params, resid_floor, n_eval, converged,
+            roughness=None, taus=None, detail="", post=None, n_linear=0):
+    """Covariance about the solution, depth and its observability, and the estimate.
+
+    ``post(estimate, residuals)``, when given, returns the estimate to report (the residuals at the
+    solution are those the covariance used). ``n_linear``: parameters eliminated from the
+    Jacobian by variable projection (they count in the residual variance's degrees of freedom).
+    """
+    e1, e2 = plane_basis(n_hat)
+    p_hat = np.concatenate([[0.0, 0.0, np.log(h_hat)], extra_params])
+    r0, J = resjac_at(p_hat, n_hat, e1, e2)
+    m, k = J.shape
+    rr = float(r0 @ r0)
+    resid_var = rr / max(m - k - n_linear, 1)
+    unit_cov = _covariance(J, 1.0)  # (J^T J)^-1: scaled by the residual variance, or its floor
+    cov = None if unit_cov is None else resid_var * unit_cov
+    floor_var = max(resid_var, resid_floor**2)
+    Lm = _mean_light(rig)
+    sigma_deg = (None if cov is None
+                 else math.degrees(math.sqrt(max(float(cov[0, 0] + cov[1, 1]), 0.0))))
+    depth = specular_point_depth(n_hat, h_hat, Lm)
+    g = _log_depth_gradient(n_hat, h_hat, Lm, (e1, e2))
+    gcg = None if unit_cov is None else float(g @ unit_cov[:3, :3] @ g)  # g^T (J^T J)^-1 g
+    rel_floor = None if gcg is None else math.sqrt(max(floor_var * gcg, 0.0))
+    observable = rel_floor is not None and math.isfinite(depth) and rel_floor <= TOL.depth_rel_sigma_max
+    if not converged:
+        status = "not_converged"
+    elif not observable:
+        status = "depth_not_observable"
+        detail = detail or (
+            "J^T J singular in h" if rel_floor is None
+            else f"relative depth sigma {rel_floor:.3g} at the noise floor > {TOL.depth_rel_sigma_max}")
+    else:
+        status = OK
+    depth_sigma = None
+    if observable and cov is not None:
+        depth_sigma = depth * math.sqrt(max(resid_var * gcg, 0.0))
+    est = LightAwareEstimate(
+        name, status, detail, n_hat,
+        depth if observable else None, sigma_deg, depth_sigma,
+        h_hat if observable else None, roughness, taus, n_eval, math.sqrt(rr / m),
+    )
+    return est if post is None else post(est, r0)
+
+
+def _residual_correlation(r, sel, shape, step: int) -> tuple[float, float]:
+    """Correlation of the residuals of neighbouring fitted pixels, and their covariance.
+
+    ``r`` (M,) are the residuals of the pixels ``sel`` (flat indices into an (H, W) grid, on a
+    regular sub-grid of spacing ``step``); the pairs are the horizontal and vertical neighbours
+    on that sub-grid. Returns ``(rho, c)``: ``rho = sum a b / sqrt(sum a^2 sum b^2)`` and
+    ``c = mean(a b)`` (0, 0 without pairs).
+    """
+    R = np.full(int(np.prod(shape)), np.nan)
+    R[sel] = r
+    R = R.reshape(shape)
+    a = np.concatenate([R[:, :-step].ravel(), R[:-step, :].ravel()])
+    b = np.concatenate([R[:, step:].ravel(), R[step:, :].ravel()])
+    ok = np.isfinite(a) & np.isfinite(b)
+    a, b = a[ok], b[ok]
+    den = np.sqrt((a @ a) * (b @ b))
+    if not (len(a) and den > 0):
+        return 0.0, 0.0
+    return float(a @ b / den), float(a @ b / len(a))
+
+
+def _correlated(r, sel, shape, step: int) -> str | None:
+    """The misfit test of the plane and the curved patches: when neighbouring residuals
+    correlate (rho above ``TOL.plane_misfit_rho``, covariance above ``TOL.plane_misfit_rel^2``;
+    see :func:`_residual_correlation`), the detail saying so, else None."""
+    rho, c = _residual_correlation(r, sel, shape, step)
+    if rho > TOL.plane_misfit_rho and c > TOL.plane_misfit_rel**2:
+        return (f"neighbouring residuals correlate (rho {rho:.3g} > {TOL.plane_misfit_rho}; "
+                f"systematic RMS {np.sqrt(c):.3g})")
+    return None
+
+
+def _patch_verdict(rel_floor: float | None, r, sel, shape, step: int, ok_detail: str,
+                   misfit_hint: str) -> tuple[str, str, bool, float]:
+    """The status of a curved-patch fit (``quadric_fit``, ``cubic_patch_fit``) from its relative
+    depth sigma at the noise floor ``rel_floor`` (None: J^T J singular) and its residuals ``r``
+    of the pixels ``sel`` (see :func:`_residual_correlation`).
+
+    Returns ``(status, detail, observable, rms)``: ``depth_not_observable`` when ``rel_floor``
+    is None or above ``TOL.depth_rel_sigma_max``; ``patch_misfit`` (the depth withdrawn) when
+    neighbouring residuals correlate as in :func:`_misfit`, or their RMS ``rms`` (relative to the
+    ROI's maximum) is above ``TOL.patch_misfit_rms_rel``, the detail then ending in
+    ``misfit_hint``; else ``ok`` with ``ok_detail``.
+    """
+    observable = rel_floor is not None and rel_floor <= TOL.depth_rel_sigma_max
+    status, detail = OK, ok_detail
+    if not observable:
+        status = "depth_not_observable"
+        detail = ("J^T J singular" if rel_floor is None else
+                  f"relative depth sigma {rel_floor:.3g} at the noise floor > {TOL.depth_rel_sigma_max}")
+    correlated = _correlated(r, sel, shape, step)
+    rms = float(np.sqrt(np.mean(r * r)))
+    if correlated:
+        status, observable, detail = "patch_misfit", False, correlated
+    elif rms > TOL.patch_misfit_rms_rel:
+        status, observable = "patch_misfit", False
+        detail = f"residual RMS {rms:.3g} of the ROI's maximum > {TOL.patch_misfit_rms_rel}: {misfit_hint}"
+    return status, detail, observable, rms
+
+
+def _misfit(est: LightAwareEstimate, r, sel, shape, step: int) -> LightAwareEstimate:
+    """``est`` with status ``plane_misfit`` when the residuals are spatially correlated.
+
+    Sensor and render noise are independent from pixel to pixel, so the residuals of a model that
+    fits leave neighbouring pixels uncorrelated; a plane meeting a curved patch leaves a smooth
+    residual pattern (rings, a ridge) whose neighbours agree. The test: the correlation rho of
+    neighbouring residuals above ``TOL.plane_misfit_rho`` and their covariance above
+    ``TOL.plane_misfit_rel^2`` (an exact image's residuals are rounding, correlated or not).
+    The normal is kept (for the record); the depth is withdrawn.
+    """
+    if est.status not in (OK, "depth_not_observable"):
+        return est
+    correlated = _correlated(r, sel, shape, step)
+    if correlated:
+        return replace(est, status="plane_misfit", depth_mm=None, depth_sigma_mm=None,
+                       distance_mm=None, detail=correlated)
+    return est
+
+
+#: Longest correlation length, in sub-grid steps, that :func:`_hac_covariance` spans: beyond it
+#: the residual's pattern is as large as the ROI and the sandwich no longer has pairs to average.
+_HAC_MAX_LAG = 24
+
+
+def _hac_covariance(J, r, sel, shape, step: int) -> tuple[np.ndarray | None, int]:
+    """The covariance of a least-squares fit whose residuals correlate between nearby pixels.
+
+    The heteroscedasticity-and-autocorrelation-consistent (sandwich) estimate
+    ``C = (J^T J)^-1 M (J^T J)^-1`` with ``M = sum_i sum_j w(i - j) g_i g_j^T``, ``g_i = J_i r_i``,
+    over pixel pairs on the ROI's sub-grid weighted by a separable Bartlett window
+    ``w = (1 - |dx| / (b + 1)) (1 - |dy| / (b + 1))`` of bandwidth b sub-grid steps [1]_. The
+    bandwidth is three correlation lengths of the residuals, ``b = ceil(-3 / log rho_1)`` with
+    rho_1 their lag-1 correlation (:func:`_residual_correlation`), at most
+    :data:`_HAC_MAX_LAG`; uncorrelated residuals (rho_1 <= 0) give b = 0, White's sandwich.
+    A texture, a micro-relief or a lobe shape the model lacks leaves such residuals; the plain
+    ``s^2 (J^T J)^-1`` then counts each pixel as independent evidence and its sigma is too small.
+
+    Parameters
+    ----------
+    J : ndarray of shape (M, k)
+        Jacobian of the residuals at the solution (the linear parameters projected out).
+    r : ndarray of shape (M,)
+        Residuals of the pixels ``sel``.
+    sel, shape, step
+        The pixels' flat indices into the ROI grid of ``shape``, on a sub-grid of spacing ``step``.
+
+    Returns
+    -------
+    (ndarray of shape (k, k) or None, int)
+        The covariance (None when J^T J is singular) and the bandwidth b.
+
+    References
+    ----------
+    .. [1] W. K. Newey, K. D. West, "A simple, positive semi-definite, heteroskedasticity and
+           autocorrelation consistent covariance matrix", Econometrica 55(3), 1987.
+    """
+    unit_cov = _covariance(J, 1.0)
+    if unit_cov is None:
+        return None, 0
+    rho, _ = _residual_correlation(r, sel, shape, step)
+    b = 0 if not rho > 0 else min(_HAC_MAX_LAG, int(math.ceil(-3.0 / math.log(min(rho, 0.999)))))
+    Hs, Ws = -(-shape[0] // step), -(-shape[1] // step)
+    rows, cols = np.divmod(np.asarray(sel), shape[1])
+    k = J.shape[1]
+    G = np.zeros((k, Hs, Ws))
+    G[:, rows // step, cols // step] = (J * r[:, None]).T
+    if b > 0:
+        w = 1.0 - np.abs(np.arange(-b, b + 1)) / (b + 1.0)
+        KG = convolve1d(convolve1d(G, w, axis=1, mode="constant"), w, axis=2, mode="constant")
+    else:
+        KG = G
+    meat = np.einsum("kij,lij->kl", G, KG)
+    meat = 0.5 * (meat + meat.T)
+    return unit_cov @ meat @ unit_cov, b

@@ -1,0 +1,122 @@
+"""The image model of a sensor frame: the response undone, the diffuse shading, clipped pixels censored."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from simtest.geometry import angle_between_deg
+from simtest.geometry.camera_file import CameraFileError, load_camera, save_camera
+from simtest.geometry.cameras import PinholeCamera
+from simtest.geometry.lights import Light, LightRig
+from simtest.geometry.response import ResponseError, SensorResponse
+from simtest.reconstruct import lightaware as la
+from simtest.reconstruct.lightaware import model as lam
+from test_lightaware import plane_case
+
+RIG = LightRig((Light((-4.0, 0, 0), 1.0, "inverse_square", 1.0), Light((4.0, 0, 0), 1.0, "inverse_square", 1.0)))
+
+
+def _srgb(s):
+    return np.where(s <= 0.0031308, 12.92 * s, 1.055 * np.power(np.maximum(s, 0.0031308), 1 / 2.4) - 0.055)
+
+
+@settings(max_examples=30, deadline=None)
+@given(curve=st.sampled_from(["linear", "srgb", "gamma"]), g=st.floats(1.2, 3.0),
+       wb=st.tuples(*[st.floats(0.5, 2.0)] * 3), exposure=st.floats(0.2, 5.0))
+def test_linearize_inverts_the_forward_response(curve, g, wb, exposure):
+    # pixel = clip(curve(exposure * wb * radiance)) at 16 bits: linearize gives the radiance back
+    # to the quantisation step (1 / 65535 of full scale, through the curve's slope)
+    rng = np.random.default_rng(0)
+    rad = rng.uniform(0, 0.9, (8, 9, 3)) / (exposure * np.array(wb))
+    s = np.clip(exposure * np.array(wb) * rad, 0, 1)
+    enc = {"linear": s, "srgb": _srgb(s), "gamma": s ** (1 / g)}[curve]
+    pix = np.rint(enc * 65535).astype(np.uint16)
+    resp = SensorResponse(curve, g if curve == "gamma" else 1.0, wb, exposure)
+    for c in range(3):
+        lin, clip, ch = resp.linearize(pix, channel=c)
+        assert ch == c
+        np.testing.assert_allclose(lin, rad[..., c], atol=5e-3 / (exposure * wb[c]))
+        assert clip == pytest.approx(1.0 / (exposure * wb[c]))
+
+
+def test_linearize_picks_the_darkest_channel():
+    img = np.zeros((20, 20, 3), np.uint8)
+    img[..., 0], img[..., 1], img[..., 2] = 200, 90, 60
+    assert SensorResponse("srgb").linearize(img)[2] == 2
+    # a white balance that lifts blue makes green the darkest in linear terms
+    assert SensorResponse("srgb", white_balance=(1.0, 1.0, 0.3)).linearize(img)[2] == 1
+
+
+def test_camera_file_response_round_trip_and_errors(tmp_path):
+    model = PinholeCamera(np.array([[300.0, 0, 100], [0, 300, 100], [0, 0, 1]]), image_size=(200, 200))
+    resp = SensorResponse("gamma", 2.2, (1.5, 1.0, 1.2), 0.8, 255.0)
+    p = save_camera(tmp_path / "cam.json", model, RIG, resp)
+    assert load_camera(p).response == resp
+    assert load_camera(save_camera(tmp_path / "c2.json", model, RIG)).response is None
+    base = json.loads(p.read_text())
+    for bad, key in [({"curve": "log"}, "curve"), ({"curve": "srgb", "gamma": 2.2}, "gamma"),
+                     ({"curve": "gamma"}, "gamma"), ({"curve": "srgb", "exposure": 0}, "exposure"),
+                     ({"curve": "srgb", "white_balance": [1, True, 1]}, "white_balance"),
+                     ({"curve": "srgb", "clip": float("inf")}, "clip"), ({"curve": "srgb", "gain": 1}, "gain"),
+                     (None, "response")]:
+        base["response"] = bad
+        (tmp_path / "bad.json").write_text(json.dumps(base))
+        with pytest.raises(CameraFileError, match=key) as exc:
+            load_camera(tmp_path / "bad.json")
+        assert "\n" not in str(exc.value) and "bad.json" in str(exc.value)
+    with pytest.raises(ResponseError):
+        SensorResponse.from_json([1, 2])
+
+
+@pytest.mark.parametrize("albedo", [0.3, 1.0])
+@pytest.mark.parametrize("clip", [None, 0.6])
+def test_diffuse_column_and_censored_pixels(albedo, clip):
+    # An exact plane under the two-guide rig with the rig's Lambertian shading added (albedo times
+    # the lobe's peak) and a constant: without the diffuse column the plane model trades the
+    # shading for roughness and misfits (0.02 to 0.2 deg off); with it the fit is exact again,
+    # and so with the top 40 % clipped, left out or censored.
+    img, K, N, depth, bp = plane_case(20.0, 30.0, RIG, size=160)
+    H, W = img.shape
+    vv, uu = np.mgrid[0:H, 0:W]
+    dT = np.ascontiguousarray(lam._rays(K, np.column_stack([uu.ravel(), vv.ravel()]).astype(float)).T)
+    arr = lam._rig_arrays(RIG)
+    D = lam._rig_diffuse(dT, lam._ray_light(arr[0], dT), N, 20.0, arr).reshape(H, W)
+    y = img + albedo * D / D.max() * img.max() + 0.01 * img.max()
+    level = None if clip is None else clip * y.max()
+    if level is not None:
+        y = np.minimum(y, level)
+    plain = la.photometric_fit(y, (0, 0), bp, K, RIG, clip_level=level)
+    assert plain.status != "ok" or angle_between_deg(plain.normal, N) > 0.01
+    for censor in (False, True):
+        r = la.photometric_fit(y, (0, 0), bp, K, RIG, clip_level=level, diffuse=True, censor=censor)
+        assert r.ok, r
+        # exact image: the error is the solver's tolerance (1e-8 relative cost), far below 1e-3 deg
+        assert angle_between_deg(r.normal, N) < 1e-3
+        assert r.roughness == pytest.approx(60.0, rel=1e-4)
+
+
+def test_sandwich_sigma_covers_correlated_residuals():
+    # An exact two-guide plane with spatially correlated noise (white noise smoothed over 2 px,
+    # 2 % of the peak): the residuals correlate, the fit reports plane_misfit, and its sigma is
+    # the sandwich's, which counts them. The plain s^2 (J^T J)^-1 takes each pixel as
+    # independent evidence: 0.004 to 0.006 deg here, where the errors are 0.001 to 0.08. The
+    # errors fall within 2 sigma on at least 9 of 10 realisations (the must-hold's 90 %). (On a
+    # 100 px ROI the same plane's fit ends in a local minimum 4.4 deg off, noise-free, with a
+    # sandwich sigma of 0.19: a bias no sigma of the fit covers; the recommendation keeps no
+    # plane misfit.)
+    from scipy.ndimage import gaussian_filter
+
+    img, K, N, depth, bp = plane_case(20.0, 30.0, RIG, size=120)
+    within = 0
+    for seed in range(10):
+        rng = np.random.default_rng(seed)
+        noise = gaussian_filter(rng.normal(size=img.shape), 2.0)
+        r = la.photometric_fit(img + noise * (0.02 * img.max() / noise.std()), (0, 0), bp, K, RIG)
+        assert r.status == "plane_misfit"
+        within += angle_between_deg(r.normal, N) < 2 * r.normal_sigma_deg
+    assert within >= 9
