@@ -151,6 +151,7 @@ def reconstruct_command(
             task = bar.add_task("highlights", total=None)
             estimates = with_light_aware(
                 img, estimates, camera, rig, cubic=None if cubic_patch else False,
+                response=camera_file.response,
                 on_highlight=lambda done, total: bar.update(task, completed=done, total=total))
         pinhole = isinstance(camera, PinholeCamera)
         doc = estimates_document(
