@@ -121,3 +121,22 @@ def test_the_committed_labelled_set_loads_with_its_stated_counts():
     for f in frames:
         assert f.image.shape[:2] == (head["tile_px"], head["tile_px"])
         assert all(0 <= s.u < head["tile_px"] and 0 <= s.v < head["tile_px"] for s in f.structures)
+
+
+def test_labeller_agreement_scores_each_pass_against_the_other(tmp_path):
+    from simtest.evaluate.detection import labeller_agreement
+
+    def s(p1, p2, kind):
+        return {"u": 1, "v": 1, "area_px": 4, "kind": kind, "pass1": p1, "pass2": p2}
+    doc = {"header": {"image": "x.png"}, "tiles": {"r0c0": [
+        s("isolated", "isolated", "isolated"), s("isolated", "cluster", "isolated"),
+        s("cluster", "isolated", "cluster"), s("texture", "texture", "texture")]}}
+    (tmp_path / "l.json").write_text(json.dumps(doc))
+    a = labeller_agreement(tmp_path / "l.json")
+    # pass 2 says isolated twice, once where pass 1 does; pass 1 says it twice
+    assert a["pass2_vs_pass1"] == {"precision": 0.5, "recall": 0.5, "labelled": 2, "truth": 2}
+    assert a["pass1_vs_resolved"]["precision"] == 1.0 and a["pass1_vs_resolved"]["recall"] == 1.0
+    for item in doc["tiles"]["r0c0"]:
+        del item["pass2"]
+    (tmp_path / "l.json").write_text(json.dumps(doc))
+    assert labeller_agreement(tmp_path / "l.json") is None

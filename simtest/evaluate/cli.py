@@ -21,7 +21,7 @@ from rich.progress import Progress
 from simtest import __version__
 from simtest.evaluate.c3vd import load_frame, scan_sequence
 from simtest.evaluate.detection import (detection_figure, evaluate_frames, labelled_real_frames,
-                                        reliability_figure,
+                                        labeller_agreement, reliability_figure,
                                         rendered_frames)
 from simtest.evaluate.report import SCHEMA, SCHEMA_VERSION, render_html
 from simtest.evaluate.score import score_highlights, summarise
@@ -153,6 +153,8 @@ def detection_command(
             results = evaluate_frames(frames)
         results = {"schema": "simtest.evaluate.detection", "schema_version": 1,
                    "simtest_version": __version__, "source": source} | results
+        if source.endswith(".json"):
+            results["labeller_agreement"] = labeller_agreement(source)
         text = json.dumps(results, indent=1, allow_nan=False) + "\n"
         md = _detection_markdown(results)
         fig = detection_figure(frames, results)
@@ -189,6 +191,13 @@ def _detection_markdown(results: dict) -> str:
         L.append(f"| {f['name']} | {f['targets']} | {f['candidates']} | {_fmt(f['precision_candidates'])} | "
                  f"{_fmt(f['recall_candidates'])} | {f['ok']} | {_fmt(f['precision_ok'])} | "
                  f"{_fmt(f['recall_ok'])} | {_fmt(f['f1_ok'])} | {f['not_examined']} |")
+    agree = results.get("labeller_agreement")
+    if agree:
+        a, b = agree["pass2_vs_pass1"], agree["pass2_vs_resolved"]
+        L += ["", f"How far the labellers agree on the targets (a ceiling for any detector scored against "
+              f"these labels): the second pass's isolated highlights scored against the first's have "
+              f"precision {_fmt(a['precision'])} and recall {_fmt(a['recall'])}; against the resolved "
+              f"labels precision {_fmt(b['precision'])} and recall {_fmt(b['recall'])}."]
     L += ["", "What the ok estimates fall on (pooled): "
           + ", ".join(f"{k} {v}" for k, v in p["ok_on"].items()) + ".", "",
           "Status of every candidate: " + ", ".join(f"{k} {v}" for k, v in results["statuses"].items())

@@ -58,7 +58,7 @@ from simtest.scene.spec import load_scene  # noqa: E402
 
 __all__ = ["KINDS", "TARGET_KIND", "TOLERANCE_PX", "Structure", "FrameScore", "LabelledFrame",
            "match_candidates", "score_frame", "pooled", "labelled_real_frames", "rendered_frames",
-           "evaluate_frames", "detection_figure", "CONFIDENCE_BINS", "confidence_rows", "fit_logistic",
+           "evaluate_frames", "detection_figure", "labeller_agreement", "CONFIDENCE_BINS", "confidence_rows", "fit_logistic",
            "reliability", "cross_validated_confidence", "reliability_figure"]
 
 #: The kinds of labelled bright structure; ``isolated`` is the target.
@@ -322,6 +322,39 @@ def labelled_real_frames(path, *, focal_px: float = 140.0) -> list[LabelledFrame
             structs.append(Structure(float(u), float(v), float(s["area_px"]), kind))
         out.append(LabelledFrame(tile, np.ascontiguousarray(image[r0:r1, c0:c1]), camera, structs))
     return out
+
+
+def labeller_agreement(path) -> dict | None:
+    """How far two people agree on the target kind in a hand-labelled set: a ceiling for any
+    detector scored against it.
+
+    Parameters
+    ----------
+    path : str or Path
+        A labelled set whose structures carry ``pass1`` and ``pass2`` (the two independent
+        passes) beside the resolved ``kind``.
+
+    Returns
+    -------
+    dict or None
+        ``{"pass2_vs_pass1": {"precision", "recall"}, "pass1_vs_resolved": {...},
+        "pass2_vs_resolved": {...}}``: each pass's ``isolated`` labels scored as detections
+        against the other's (or the resolved ones); None when the passes are not recorded.
+    """
+    doc = json.loads(Path(path).read_text(encoding="utf-8"))
+    items = [s for tile in doc.get("tiles", {}).values() for s in tile]
+    if not items or not all("pass1" in s and "pass2" in s for s in items):
+        return None
+
+    def score(pred: str, truth: str) -> dict:
+        p = [s[pred] == TARGET_KIND for s in items]
+        t = [s[truth] == TARGET_KIND for s in items]
+        both = sum(a and b for a, b in zip(p, t))
+        return {"precision": both / max(sum(p), 1), "recall": both / max(sum(t), 1),
+                "labelled": sum(p), "truth": sum(t)}
+
+    return {"pass2_vs_pass1": score("pass2", "pass1"), "pass1_vs_resolved": score("pass1", "kind"),
+            "pass2_vs_resolved": score("pass2", "kind")}
 
 
 def rendered_frames(scene: str, *, seed: int | None = None) -> list[LabelledFrame]:
