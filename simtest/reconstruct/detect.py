@@ -815,7 +815,7 @@ def detect_specularities(
     min_plateau_px: int = 2,
     roi_scale: float = 3.0,
     roi_margin_px: int = 4,
-    max_candidates: int | None = 1000,
+    max_candidates: int | None = None,
     smooth_sigma_px: float | None = 0.0,
     method: str = "full_scale",
     peak_rel: float = 0.6,
@@ -845,7 +845,8 @@ def detect_specularities(
         the BP, clipped to the image (the t = 0.1 isophote of a Phong lobe is about 2.8 times
         wider than its 0.7 level). The pipeline grows it when an isophote is cut.
     max_candidates : int, optional
-        Only the largest ``max_candidates`` components are examined (a safety valve for noise);
+        Only the largest ``max_candidates`` components are examined (a safety valve for noise;
+        default None, every one);
         how many were left out is ``Detection.n_unexamined``.
     smooth_sigma_px : float or None, optional
         Gaussian smoothing of the luma before thresholding and BP search (0: none; None: chosen
