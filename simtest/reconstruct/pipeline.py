@@ -63,6 +63,7 @@ References
 
 from __future__ import annotations
 
+import functools
 import gc
 import math
 from contextlib import contextmanager
@@ -73,7 +74,7 @@ import cv2
 import numpy as np
 
 from simtest._records import fast_init
-from simtest.constants import gaussian_radius_px, smooth_block_px
+from simtest.constants import LUMA_BT601, gaussian_radius_px, smooth_block_px
 from simtest.geometry.cameras import CameraModel, PinholeCamera
 from simtest.reconstruct import _kernels
 from simtest.reconstruct._pixels import Roi, image_size_wh, rc_to_uv
@@ -336,6 +337,9 @@ class _Frame:
     #: The frame's smoothed luma (``for_many_highlights``), into which a large ROI's bands are
     #: written for the time of its extraction (``_patched_from_frame``), then put back.
     smooth_frame_rw: np.ndarray | None = None
+    #: The whole frame's smoothed luma as detection computed it (float32, read-only; see
+    #: ``with_detection_smoothing``): every ROI's values are slices of it.
+    smoothed32: np.ndarray | None = None
 
     @classmethod
     def make(cls, image, K, dist_coeffs, settings: ReconSettings, noise_roi: Roi | None = None) -> _Frame:
@@ -386,6 +390,28 @@ class _Frame:
         if smooth is None and self.smooth_sigma_px > 0:
             smooth = _smooth(luma(self.img) if full is None else full, self.smooth_sigma_px)
         return replace(self, luma_frame=full, smooth_frame_rw=smooth)
+
+    def with_detection_smoothing(self, smoothed: np.ndarray) -> _Frame:
+        """This frame with its ROIs' values sliced from detection's smoothed luma (H, W) of the
+        whole image (one smoothing per frame, :data:`simtest.reconstruct.detect.Detection.smoothed`)
+        instead of each ROI smoothed alone with its borders reflected.
+
+        The values differ from an ROI's own smoothing within the kernel's radius of the ROI's
+        sides inside the image (there the frame's true neighbours replace the reflected ones:
+        the frame's values are, if anything, the better ones), and by float32 rounding
+        (``5e-8`` relative); :mod:`simtest.reconstruct.compare` holds the results to
+        :data:`~simtest.reconstruct.compare.ACCURACY` (``tests/test_golden.py``)."""
+        return replace(self, smoothed32=smoothed)
+
+    @property
+    def img3(self) -> np.ndarray:
+        """The image as (H, W, C) (a view)."""
+        return self.img if self.img.ndim == 3 else self.img[:, :, None]
+
+    @property
+    def kernel(self) -> np.ndarray:
+        """OpenCV's Gaussian kernel of ``_smooth`` at this frame's sigma, float64 (2 R + 1,)."""
+        return _gaussian_kernel(self.smooth_sigma_px)
 
     def luma(self, roi: Roi) -> np.ndarray:
         """Luma of the image in ``roi`` (h, w), float64: sliced from the frame's luma when it
@@ -497,6 +523,18 @@ def _bp_rays(bp_uv: np.ndarray, camera) -> np.ndarray:
     return -ray / np.linalg.norm(ray, axis=1, keepdims=True)
 
 
+_LUMA_W = tuple(float(w) for w in LUMA_BT601)
+
+
+@functools.lru_cache(maxsize=16)
+def _gaussian_kernel(sigma: float) -> np.ndarray:
+    """The taps :func:`_smooth` uses on float64 values (``ksize=(0, 0)``): OpenCV's kernel of
+    ``2 gaussian_radius_px(sigma) + 1`` taps."""
+    k = cv2.getGaussianKernel(2 * gaussian_radius_px(sigma) + 1, sigma, cv2.CV_64F).ravel()
+    k.setflags(write=False)
+    return k
+
+
 def _smooth(vals: np.ndarray, sigma: float) -> np.ndarray:
     """Gaussian smoothing of an ROI's intensities (step 1), its borders reflected."""
     return cv2.GaussianBlur(vals, (0, 0), sigma, borderType=cv2.BORDER_REFLECT)
@@ -508,6 +546,8 @@ def _roi_values(frame: _Frame, roi: Roi, smooth_sigma_px: float) -> tuple[np.nda
     smoothed once, the frame's values with the ROI's bands written in: ``_patched_from_frame``,
     the same bits), and what :func:`_put_back` needs to restore the frame afterwards (None when
     nothing was written)."""
+    if frame.smoothed32 is not None and smooth_sigma_px > 0:
+        return frame.smoothed32[roi.slices], None  # float32, read-only: the kernels read it as it is
     vals = frame.luma(roi)
     if smooth_sigma_px <= 0:
         return vals, None
@@ -615,11 +655,17 @@ class _Levels:
     offset: float = 0.0
 
     @classmethod
-    def of(cls, frame: _Frame, vals: np.ndarray, i_bp: float) -> _Levels:
+    def of(cls, frame: _Frame, vals: np.ndarray, i_bp: float, roi: Roi | None = None) -> _Levels:
         mode = frame.settings.normalise
         ring = None
+        if roi is not None and frame.smoothed32 is not None and mode in (Normalisation.AUTO, Normalisation.LOCAL):
+            # the ROI's values are the frame's smoothing; its background level is that of the ROI
+            # smoothed alone (_kernels.smoothed_border_median), as without the frame's
+            ring = float(_kernels.smoothed_border_median(frame.img3, *_LUMA_W, roi.row0, roi.row1,
+                                                         roi.col0, roi.col1, frame.kernel))
         if mode == Normalisation.AUTO:
-            ring = _border_median(vals)
+            if ring is None:
+                ring = _border_median(vals)
             local = ring >= AUTO_LOCAL_BACKGROUND_REL * i_bp
             mode = Normalisation.LOCAL if local else Normalisation.BP
         if mode == Normalisation.BP:
@@ -703,7 +749,7 @@ def _estimate_one(frame: _Frame, bp_uv, roi: Roi, *, saturated: bool, grow: bool
             vals, saved = _roi_values(frame, roi, sigma)
             region = _region(vals, bp_uv, (roi.row0, roi.col0), frame.img.shape)
             i_bp = region.near_bp  # the largest of the BP's 3 x 3 pixels
-            levels = _Levels.of(frame, vals, i_bp)
+            levels = _Levels.of(frame, vals, i_bp, roi)
             i0 = order[0]
             res = walked = None
             if grow and growths < ROI_MAX_GROWTHS:
@@ -1050,7 +1096,9 @@ def reconstruct(
         smooth_sigma_px=frame.smooth_sigma_px, method=settings.detection,
         peak_rel=settings.peak_rel, max_candidates=settings.max_candidates,
     )
-    if sum(c.status == OK for c in det.candidates) >= LUMA_FRAME_MIN_HIGHLIGHTS:
+    if det.smoothed is not None and det.smoothed.shape == img.shape[:2]:
+        frame = frame.with_detection_smoothing(det.smoothed)
+    elif sum(c.status == OK for c in det.candidates) >= LUMA_FRAME_MIN_HIGHLIGHTS:
         frame = frame.for_many_highlights()
     shift = np.array([r.col0, r.row0], dtype=np.float64)
     # every candidate's BP in the image, in one addition (each estimate's BP is a row of it)
