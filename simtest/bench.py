@@ -616,7 +616,7 @@ def _bench_video(n_frames: int = VIDEO_FRAMES) -> list[BenchResult]:
         path, K = made
         t0 = time.perf_counter()
         _, n, _ = write_frames_jsonl(Path(tmp) / "estimates.jsonl",
-                                     reconstruct_frames(open_frames(path), K, workers=workers))
+                                     reconstruct_frames(open_frames(path), K, workers=workers, encoded=True))
         wall = time.perf_counter() - t0
     per = wall / max(n, 1) * 1e3
     return [BenchResult("reconstruct", name, per, "ms", VIDEO_TARGET_MS_PER_FRAME, None,

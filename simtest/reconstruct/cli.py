@@ -264,7 +264,7 @@ def _reconstruct_sequence(path, intrinsics, out, target, settings, *, points, wo
 
     def fill(folder: Path) -> None:
         records = reconstruct_frames(source, camera, settings, workers=n_workers,
-                                     include_points=points, rig=rig, cubic=cubic)
+                                     include_points=points, rig=rig, cubic=cubic, encoded=True)
         with Progress(TextColumn("reconstruct"), BarColumn(), MofNCompleteColumn(),
                       TextColumn("{task.fields[fps]:.1f} frames/s"), TimeElapsedColumn(),
                       transient=True) as bar:
