@@ -592,3 +592,28 @@ def test_a_bp_without_a_viewing_ray_is_a_status_with_its_intensity(monkeypatch):
     assert est.status == "non_finite_points" and est.isophotes == () and est.bp_ray is None
     r, c = int(np.rint(bp[1] - 4.6)), int(np.rint(bp[0] + 7.3))
     assert est.bp_intensity == img[r - 1 : r + 2, c - 1 : c + 2].max()
+
+
+def test_reconstruct_pauses_the_cyclic_collector_and_restores_it(monkeypatch):
+    """reconstruct() runs with gc paused (its thousands of small objects have no cycles; full
+    collections over every object the process holds were a third of a 3000-component frame) and
+    gives the collector back as it was; Estimates stays a list type."""
+    import gc
+
+    from simtest.reconstruct import pipeline as P
+
+    seen = []
+    real = P.detect_specularities
+
+    def spy(*a, **k):
+        seen.append(gc.isenabled())
+        return real(*a, **k)
+
+    monkeypatch.setattr(P, "detect_specularities", spy)
+    img = np.zeros((40, 40), np.uint8)
+    img[18:22, 18:22] = 200
+    K = np.array([[100.0, 0, 19.5], [0, 100.0, 19.5], [0, 0, 1]])
+    assert gc.isenabled()
+    out = P.reconstruct(img, K)
+    assert seen == [False] and gc.isenabled()
+    assert isinstance(out, P.Estimates) and isinstance(P.Estimates, type) and issubclass(P.Estimates, list)

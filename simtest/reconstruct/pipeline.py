@@ -996,7 +996,6 @@ def reconstruct_rois(items, isovalues: float | Sequence[float] | None = None, *,
     return _complete([_roi_draft(image, K, bp_uv, roi, None, settings, cameras) for image, K, bp_uv, roi in items])
 
 
-@_gc_paused()  # thousands of small objects, no cycles (see _gc_paused)
 class Estimates(list):
     """The estimates of one frame (a list, brightest first) and what detection left out.
 
@@ -1026,6 +1025,7 @@ class Estimates(list):
                 "not_examined": self.n_unexamined, "max_candidates": self.max_candidates}
 
 
+@_gc_paused()  # thousands of small objects, no cycles (see _gc_paused)
 def reconstruct(
     image,
     K,
