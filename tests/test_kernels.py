@@ -392,3 +392,17 @@ def test_the_float32_luma_and_its_whole_number_flag():
     img[3, 4, 1] += 1
     out, whole = _kernels.luma_rgb32(img, *w)
     assert not whole and np.array_equal(out, _kernels.luma_rgb(img, *w).astype(np.float32))
+
+
+@settings(max_examples=40, deadline=None)
+@given(seed=st.integers(0, 2**31), n_points=st.integers(0, 60))
+def test_count_enclosed_on_points_sorted_by_u_is_the_same_count(seed, n_points):
+    rng = np.random.default_rng(seed)
+    ang = np.sort(rng.uniform(0, 2 * np.pi, 12))
+    poly = np.stack([20 + rng.uniform(3, 9, 12) * np.cos(ang), 20 + rng.uniform(3, 9, 12) * np.sin(ang)], axis=1)
+    pts = np.round(rng.uniform(5, 35, (n_points, 2)) * 2) / 2  # ties in u
+    order = np.argsort(pts[:, 0], kind="stable")
+    srt = np.ascontiguousarray(pts[order])
+    for skip in (-1, *range(min(n_points, 3))):
+        want = _kernels.count_enclosed(poly, pts, int(order[skip]) if skip >= 0 else -1)
+        assert _kernels.count_enclosed_sorted(poly, srt, np.ascontiguousarray(srt[:, 0]), skip) == want

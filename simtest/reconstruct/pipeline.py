@@ -829,6 +829,19 @@ def _complete(drafts: list) -> list[SpecularityEstimate]:
     return out
 
 
+class _SortedBps:
+    """A frame's BPs (k, 2) sorted by u, and their u (k,) contiguous, for the ``merged`` test."""
+
+    __slots__ = ("uv", "u")
+
+    def __init__(self, uv: np.ndarray):
+        self.uv = uv
+        self.u = np.ascontiguousarray(uv[:, 0])
+
+    def __len__(self) -> int:
+        return len(self.uv)
+
+
 def _finish(d: _Draft, joint) -> SpecularityEstimate:
     """The estimate of a completed draft: the primary isophote's status, ``merged`` when that
     closed isophote encloses another candidate's BP."""
@@ -837,8 +850,12 @@ def _finish(d: _Draft, joint) -> SpecularityEstimate:
     status, detail = primary.status, primary.detail
     if status == OK and primary.closed and len(d.other_bps) > (d.own_bp >= 0):
         # the other BPs in the isophote's bounding box, tested even-odd (polygon_contains)
-        others = np.asarray(d.other_bps, dtype=np.float64).reshape(-1, 2)
-        n_in = int(_kernels.count_enclosed(primary.points_uv, others, d.own_bp))
+        if isinstance(d.other_bps, _SortedBps):
+            n_in = int(_kernels.count_enclosed_sorted(primary.points_uv, d.other_bps.uv, d.other_bps.u,
+                                                      d.own_bp))
+        else:
+            others = np.asarray(d.other_bps, dtype=np.float64).reshape(-1, 2)
+            n_in = int(_kernels.count_enclosed(primary.points_uv, others, d.own_bp))
         if n_in:
             status, detail = "merged", f"the isophote at t = {isovalues[0]} encloses {n_in} other BP(s)"
     return SpecularityEstimate(d.bp_uv, d.i_bp, d.saturated, d.roi, status, detail, d.bp_ray,
@@ -1107,8 +1124,12 @@ def reconstruct(
     # BPs another highlight's isophote must not enclose (``merged``): every candidate's but the
     # too small ones (noise)
     keep = np.array([c.status != "too_small" for c in det.candidates], dtype=bool)
-    others = bps_arr[keep]
-    row_in_others = np.cumsum(keep) - 1
+    # sorted by u, so that each isophote tests only the BPs in its u range (count_enclosed_sorted)
+    kept = np.flatnonzero(keep)
+    order = np.argsort(bps_arr[kept, 0], kind="stable")
+    others = _SortedBps(np.ascontiguousarray(bps_arr[kept][order]))
+    row_in_others = np.full(len(keep), -1, dtype=np.int64)
+    row_in_others[kept[order]] = np.arange(len(kept))
     # every candidate's BP ray, and the fit frames of the accepted ones, in one call of the model
     rays = frame.bp_rays(bps_arr)
     has_ray = np.isfinite(rays).all(axis=1)
