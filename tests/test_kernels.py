@@ -382,7 +382,7 @@ def test_the_border_level_of_an_roi_smoothed_alone_from_its_ring(seed, channels,
     assert abs(got - want) <= 1e-9 * max(1.0, abs(want))
 
 
-def test_the_float32_luma_and_its_whole_number_flag():
+def test_the_float32_luma_and_its_gray_flag():
     rng = np.random.default_rng(1)
     gray = rng.integers(0, 256, (20, 30), dtype=np.uint8)
     img = np.repeat(gray[:, :, None], 3, axis=2)

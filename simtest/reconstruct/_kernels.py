@@ -1155,18 +1155,28 @@ def border_median_of_ring(ring):
 @numba.njit(cache=True, nogil=True, fastmath={"contract"})
 def luma_rgb32(img, w0, w1, w2):
     """:func:`luma_rgb` rounded to float32 (H, W): ``luma_rgb(...).astype(np.float32)`` without
-    the float64 frame, and whether every value is a whole number (a gray frame, R = G = B: then
-    it is the 8-bit gray OpenCV computes, and one smoothing serves detection and contouring)."""
+    the float64 frame, and whether the frame is gray (R = G = B everywhere: then the luma is the
+    channel's value, as OpenCV's 8-bit gray is, and one smoothing serves detection and
+    contouring; the check stops at the first colour pixel)."""
     H, W = img.shape[0], img.shape[1]
     out = np.empty((H, W), dtype=np.float32)
-    whole = True
+    gray = True
     for r in range(H):
         for c in range(W):
-            v = np.float32(float(img[r, c, 0]) * w0 + float(img[r, c, 1]) * w1 + float(img[r, c, 2]) * w2)
-            out[r, c] = v
-            if whole and v != np.floor(v):
-                whole = False
-    return out, whole
+            if img[r, c, 0] != img[r, c, 1] or img[r, c, 0] != img[r, c, 2]:
+                gray = False
+                break
+        if not gray:
+            break
+    if gray:  # w0 + w1 + w2 = 1: the luma of (x, x, x) is x to float64 rounding, x in float32
+        for r in range(H):
+            for c in range(W):
+                out[r, c] = np.float32(img[r, c, 0])
+        return out, True
+    for r in range(H):
+        for c in range(W):
+            out[r, c] = float(img[r, c, 0]) * w0 + float(img[r, c, 1]) * w1 + float(img[r, c, 2]) * w2
+    return out, False
 
 
 @numba.njit(cache=True, nogil=True)

@@ -910,7 +910,7 @@ def detect_specularities(
         if img.ndim == 2:
             src = gray.astype(np.float32)
         elif img.dtype.type in _LUMA_COMPILED:
-            src, whole = _kernels.luma_rgb32(img, *_LUMA_WEIGHTS)
+            src, whole = _kernels.luma_rgb32(img, *_LUMA_WEIGHTS)  # whole: a gray frame
         else:
             src = luma(img, dtype=np.float32)
         smoothed = cv2.GaussianBlur(src, (0, 0), sigma, borderType=cv2.BORDER_REFLECT)
