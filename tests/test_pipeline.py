@@ -617,3 +617,26 @@ def test_reconstruct_pauses_the_cyclic_collector_and_restores_it(monkeypatch):
     out = P.reconstruct(img, K)
     assert seen == [False] and gc.isenabled()
     assert isinstance(out, P.Estimates) and isinstance(P.Estimates, type) and issubclass(P.Estimates, list)
+
+
+def test_an_rois_own_smoothing_from_the_frames():
+    """pipeline._own_smoothing (an ROI smoothed alone, rebuilt from the frame's one smoothing and
+    strips along its inner sides) is _smooth of the ROI's luma to float32 rounding, for ROIs on
+    and off the image border, small and large."""
+    from simtest.reconstruct.detect import detect_specularities
+    from simtest.reconstruct._pixels import Roi
+
+    rng = np.random.default_rng(3)
+    img = rng.integers(0, 256, (90, 110, 3), dtype=np.uint8)
+    K = np.array([[100.0, 0, 54.5], [0, 100.0, 44.5], [0, 0, 1]])
+    for sigma in (1.0, 2.5):
+        frame = pipeline._Frame.make(img, K, None, ReconSettings.for_frames(smooth_sigma_px=sigma))
+        frame = frame.with_detection_smoothing(
+            detect_specularities(img, smooth_sigma_px=sigma, method="local_peak").smoothed)
+        for _ in range(60):
+            r0, c0 = int(rng.integers(0, 80)), int(rng.integers(0, 100))
+            roi = Roi(r0, min(90, r0 + int(rng.integers(1, 90))), c0, min(110, c0 + int(rng.integers(1, 110))))
+            got = pipeline._own_smoothing(frame, roi, sigma)
+            want = pipeline._smooth(frame.luma(roi), sigma)
+            # float32 holds 255-scale values to 1.5e-5; the strips' sums in another order
+            assert np.abs(got - want).max() < 1e-4, roi
