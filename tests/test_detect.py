@@ -403,3 +403,19 @@ def test_the_dark_corner_components_by_flood_fill_are_the_labellings(seed, shape
     assert (got is None) == (want is None)
     if want is not None:
         assert np.array_equal(got, want)
+
+
+def test_detection_hands_over_its_smoothing_of_the_unrounded_luma():
+    """One smoothing per frame: Detection.smoothed is the whole frame's luma (unrounded, float32)
+    smoothed once, read-only; the pipeline contours every ROI in it. None when not smoothed."""
+    import cv2
+
+    from simtest.reconstruct.detect import luma
+
+    rng = np.random.default_rng(5)
+    img = rng.integers(0, 256, (40, 60, 3), dtype=np.uint8)
+    det = detect_specularities(img, smooth_sigma_px=1.5, method="local_peak")
+    want = cv2.GaussianBlur(luma(img).astype(np.float32), (0, 0), 1.5, borderType=cv2.BORDER_REFLECT)
+    assert det.smoothed.dtype == np.float32 and not det.smoothed.flags.writeable
+    assert np.array_equal(det.smoothed, want)
+    assert detect_specularities(img, smooth_sigma_px=0.0).smoothed is None

@@ -54,6 +54,15 @@ def test_the_default_cap_is_a_setting():
     assert ReconSettings(max_candidates=None).max_candidates is None
 
 
+def test_the_defaults_examine_every_component():
+    """Issue 38 item 4: whole frames are examined in full unless a cap is asked for."""
+    assert MAX_CANDIDATES is None
+    assert ReconSettings.for_frames().max_candidates is None
+    ests = reconstruct(_glints(40, seed=3), K)
+    assert ests.n_components > 5 and ests.n_unexamined == 0 and len(ests) == ests.n_components
+    assert ests.detection_record()["max_candidates"] is None
+
+
 def test_the_console_and_estimates_json_count_what_was_left_out(tmp_path):
     from PIL import Image
 

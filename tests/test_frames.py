@@ -127,3 +127,22 @@ def test_a_folder_honours_the_camera_files_lights_as_a_single_image_does(tmp_pat
     assert len(lines) == 2
     for rec in lines:
         assert rec["specularities"] == single
+
+
+def test_records_encoded_in_the_workers_write_the_same_file(tmp_path):
+    """reconstruct_frames(encoded=True) (what simtest reconstruct runs: each frame's JSON line made
+    in its worker) writes the bytes of the plain records, in frame order."""
+    from simtest.reconstruct.frames import FrameRecord, reconstruct_frames, write_frames_jsonl
+
+    frames = tmp_path / "frames"
+    frames.mkdir()
+    for i, img in enumerate(_frames(4)):
+        cv2.imwrite(str(frames / f"f{i:03d}.png"), img)
+    plain, _, _ = write_frames_jsonl(tmp_path / "plain.jsonl", reconstruct_frames(open_frames(frames), K))
+    recs = list(reconstruct_frames(open_frames(frames), K, workers=2, encoded=True))
+    assert all(isinstance(r, FrameRecord) and "specularities" not in r for r in recs)
+    assert [r["frame"] for r in recs] == [0, 1, 2, 3]
+    enc, _, _ = write_frames_jsonl(tmp_path / "enc.jsonl", recs)
+    assert enc.read_bytes() == plain.read_bytes()
+    assert [json.loads(x)["specularities"] for x in enc.read_text().splitlines()] == _expected(
+        [img for _, _, img in open_frames(frames)])

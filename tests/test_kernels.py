@@ -355,3 +355,54 @@ def test_count_enclosed_is_the_bounding_box_and_even_odd_count(seed, n_vertices,
         pts[3] = np.round(pts[3])
     skip = int(rng.integers(-1, n_points)) if n_points else -1
     assert _kernels.count_enclosed(poly, pts.reshape(-1, 2), skip) == _enclosed_numpy(poly, pts.reshape(-1, 2), skip)
+
+
+@settings(max_examples=60, deadline=None)
+@given(seed=st.integers(0, 2**31), channels=st.sampled_from([1, 3]), sigma=st.sampled_from([0.8, 1.7, 2.5]),
+       dtype=st.sampled_from([np.uint8, np.float64]), r0=st.integers(0, 20), c0=st.integers(0, 20),
+       h=st.integers(1, 30), w=st.integers(1, 30))
+def test_the_border_level_of_an_roi_smoothed_alone_from_its_ring(seed, channels, sigma, dtype, r0, c0, h, w):
+    """smoothed_border_median (the pipeline's local background level when the frame is smoothed
+    once) is the median of the ring of the ROI's luma smoothed alone by OpenCV, its sides
+    reflected, to rounding; ROIs down to one pixel (reflected more than once)."""
+    import cv2
+
+    from simtest.reconstruct.detect import luma
+    from simtest.reconstruct.pipeline import _LUMA_W, _gaussian_kernel
+
+    rng = np.random.default_rng(seed)
+    img = rng.uniform(0, 255, (50, 50, channels))
+    img = img.astype(np.uint8) if dtype == np.uint8 else img
+    roi = img[r0 : r0 + h, c0 : c0 + w]
+    vals = luma(roi if channels == 3 else roi[:, :, 0])
+    want = _kernels.border_median(cv2.GaussianBlur(vals, (0, 0), sigma, borderType=cv2.BORDER_REFLECT))
+    got = _kernels.smoothed_border_median(img, *_LUMA_W, r0, r0 + roi.shape[0], c0, c0 + roi.shape[1],
+                                          _gaussian_kernel(sigma))
+    # the same sums in another order (OpenCV: the row pass first, over the ROI): float64 rounding
+    assert abs(got - want) <= 1e-9 * max(1.0, abs(want))
+
+
+def test_the_float32_luma_and_its_gray_flag():
+    rng = np.random.default_rng(1)
+    gray = rng.integers(0, 256, (20, 30), dtype=np.uint8)
+    img = np.repeat(gray[:, :, None], 3, axis=2)
+    w = (0.299, 0.587, 0.114)
+    out, whole = _kernels.luma_rgb32(img, *w)
+    assert whole and np.array_equal(out, gray.astype(np.float32))
+    img[3, 4, 1] += 1
+    out, whole = _kernels.luma_rgb32(img, *w)
+    assert not whole and np.array_equal(out, _kernels.luma_rgb(img, *w).astype(np.float32))
+
+
+@settings(max_examples=40, deadline=None)
+@given(seed=st.integers(0, 2**31), n_points=st.integers(0, 60))
+def test_count_enclosed_on_points_sorted_by_u_is_the_same_count(seed, n_points):
+    rng = np.random.default_rng(seed)
+    ang = np.sort(rng.uniform(0, 2 * np.pi, 12))
+    poly = np.stack([20 + rng.uniform(3, 9, 12) * np.cos(ang), 20 + rng.uniform(3, 9, 12) * np.sin(ang)], axis=1)
+    pts = np.round(rng.uniform(5, 35, (n_points, 2)) * 2) / 2  # ties in u
+    order = np.argsort(pts[:, 0], kind="stable")
+    srt = np.ascontiguousarray(pts[order])
+    for skip in (-1, *range(min(n_points, 3))):
+        want = _kernels.count_enclosed(poly, pts, int(order[skip]) if skip >= 0 else -1)
+        assert _kernels.count_enclosed_sorted(poly, srt, np.ascontiguousarray(srt[:, 0]), skip) == want

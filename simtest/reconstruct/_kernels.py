@@ -1031,3 +1031,176 @@ def border_median(vals):
     if n % 2:
         return hi
     return (part[: n // 2].max() + hi) / 2.0
+
+
+@numba.njit(cache=True, nogil=True, inline="always")
+def _reflect(p, n):
+    """OpenCV's ``borderInterpolate`` for ``BORDER_REFLECT`` (``fedcba|abcdef|fedcba``)."""
+    if n == 1:
+        return 0
+    while p < 0 or p >= n:
+        p = -p - 1 if p < 0 else 2 * n - p - 1
+    return p
+
+
+@numba.njit(cache=True, nogil=True, fastmath={"contract"}, inline="always")
+def _luma_at(img, r, c, w0, w1, w2):
+    """The luma of one pixel as :func:`luma_rgb` computes it (one channel: the value)."""
+    if img.shape[2] == 1:
+        return float(img[r, c, 0])
+    return float(img[r, c, 0]) * w0 + float(img[r, c, 1]) * w1 + float(img[r, c, 2]) * w2
+
+
+@numba.njit(cache=True, nogil=True)
+def _fold(kern, n):
+    """The taps of ``kern`` (2 R + 1,) folded by ``BORDER_REFLECT`` onto the first ``n`` pixels
+    from a side: the smoothed value at that side is ``sum_i folded[i] x[i]``."""
+    R = len(kern) // 2
+    out = np.zeros(min(n, R + 1))
+    for a in range(len(kern)):
+        out[_reflect(a - R, n)] += kern[a]
+    return out
+
+
+@numba.njit(cache=True, nogil=True)
+def _smooth_line(vals, kern, out, first, last):
+    """``out[k - first] = sum_b kern[b] vals[reflect(k + b - R)]`` for k in [first, last) (the
+    1D smoothing of ``vals`` with its ends reflected), through a padded copy (no branches in the
+    sums)."""
+    n = len(vals)
+    R = len(kern) // 2
+    pad = np.empty(n + 2 * R)
+    for k in range(n + 2 * R):
+        pad[k] = vals[_reflect(k - R, n)]
+    for k in range(first, last):
+        s = 0.0
+        for b in range(len(kern)):
+            s += kern[b] * pad[k + b]
+        out[k - first] = s
+
+
+@numba.njit(cache=True, nogil=True)
+def smoothed_border_median(img, w0, w1, w2, row0, row1, col0, col1, kern):
+    """:func:`border_median` of an ROI's luma smoothed alone (its sides reflected), computed for
+    its border pixels only.
+
+    Parameters
+    ----------
+    img : ndarray of shape (H, W, C), C in (1, 3, 4)
+        The image (C = 1: its values; else channels 0, 1, 2 are R, G, B).
+    w0, w1, w2 : float
+        The luma weights (:func:`luma_rgb`).
+    row0, row1, col0, col1 : int
+        The ROI, half-open array indices inside the image.
+    kern : ndarray of shape (2 R + 1,), float64
+        The Gaussian kernel (``cv2.getGaussianKernel(ksize, sigma, cv2.CV_64F)``).
+
+    Returns
+    -------
+    float
+        The median of the border pixels of ``cv2.GaussianBlur(luma(img[roi]), (0, 0), sigma,
+        borderType=cv2.BORDER_REFLECT)``, to rounding (``tests/test_kernels.py`` compares them).
+        The pipeline contours an ROI in the frame's smoothed luma and takes its local background
+        level from here: the level of the ROI smoothed alone, as before the frame was smoothed
+        once (the paper pose is sensitive to it), at the cost of the ROI's perimeter times the
+        kernel's radius, not of its area.
+
+    Notes
+    -----
+    A border pixel's smoothing across its side is a sum over the first R + 1 rows (columns)
+    from that side with the taps folded by the reflection (:func:`_fold`): along the top row,
+    the R + 1 top rows are summed with the folded taps first, and that one row smoothed along
+    itself; down the first column, each row's first R + 1 pixels are summed with the folded
+    taps, and that column smoothed down itself.
+    """
+    h, w = row1 - row0, col1 - col0
+    kr = _fold(kern, h)
+    kc = _fold(kern, w)
+    top = np.zeros(w)
+    bot = np.zeros(w)
+    for i in range(len(kr)):
+        for c in range(w):
+            top[c] += kr[i] * _luma_at(img, row0 + i, col0 + c, w0, w1, w2)
+            bot[c] += kr[i] * _luma_at(img, row1 - 1 - i, col0 + c, w0, w1, w2)
+    left = np.zeros(h)
+    right = np.zeros(h)
+    for r in range(h):
+        for j in range(len(kc)):
+            left[r] += kc[j] * _luma_at(img, row0 + r, col0 + j, w0, w1, w2)
+            right[r] += kc[j] * _luma_at(img, row0 + r, col1 - 1 - j, w0, w1, w2)
+    mid = max(h - 2, 0)
+    ring = np.empty(2 * w + 2 * mid, dtype=np.float64)
+    _smooth_line(top, kern, ring[:w], 0, w)
+    _smooth_line(bot, kern, ring[w : 2 * w], 0, w)
+    if mid:
+        _smooth_line(left, kern, ring[2 * w : 2 * w + mid], 1, h - 1)
+        _smooth_line(right, kern, ring[2 * w + mid :], 1, h - 1)
+    return border_median_of_ring(ring)
+
+
+@numba.njit(cache=True, nogil=True)
+def border_median_of_ring(ring):
+    """The median of :func:`border_median` of the ring's values (NaN if any is NaN)."""
+    for v in ring:
+        if np.isnan(v):
+            return np.nan
+    n = len(ring)
+    part = np.partition(ring, n // 2)
+    hi = part[n // 2]
+    if n % 2:
+        return hi
+    return (part[: n // 2].max() + hi) / 2.0
+
+
+@numba.njit(cache=True, nogil=True, fastmath={"contract"})
+def luma_rgb32(img, w0, w1, w2):
+    """:func:`luma_rgb` rounded to float32 (H, W): ``luma_rgb(...).astype(np.float32)`` without
+    the float64 frame, and whether the frame is gray (R = G = B everywhere: then the luma is the
+    channel's value, as OpenCV's 8-bit gray is, and one smoothing serves detection and
+    contouring; the check stops at the first colour pixel)."""
+    H, W = img.shape[0], img.shape[1]
+    out = np.empty((H, W), dtype=np.float32)
+    gray = True
+    for r in range(H):
+        for c in range(W):
+            if img[r, c, 0] != img[r, c, 1] or img[r, c, 0] != img[r, c, 2]:
+                gray = False
+                break
+        if not gray:
+            break
+    if gray:  # w0 + w1 + w2 = 1: the luma of (x, x, x) is x to float64 rounding, x in float32
+        for r in range(H):
+            for c in range(W):
+                out[r, c] = np.float32(img[r, c, 0])
+        return out, True
+    for r in range(H):
+        for c in range(W):
+            out[r, c] = float(img[r, c, 0]) * w0 + float(img[r, c, 1]) * w1 + float(img[r, c, 2]) * w2
+    return out, False
+
+
+@numba.njit(cache=True, nogil=True)
+def count_enclosed_sorted(poly, points, us, skip):
+    """:func:`count_enclosed` of points sorted by u (``us`` their u, ascending): only the rows
+    whose u lies in the polygon's u range are tested (binary search), so a frame of thousands of
+    highlights costs n log n, not n^2; the same count."""
+    lo_u, lo_v = poly[0, 0], poly[0, 1]
+    hi_u, hi_v = lo_u, lo_v
+    for i in range(1, len(poly)):
+        u, v = poly[i, 0], poly[i, 1]
+        if u < lo_u:
+            lo_u = u
+        if u > hi_u:
+            hi_u = u
+        if v < lo_v:
+            lo_v = v
+        if v > hi_v:
+            hi_v = v
+    n = 0
+    for k in range(np.searchsorted(us, lo_u, "left"), np.searchsorted(us, hi_u, "right")):
+        if k == skip:
+            continue
+        u, v = points[k, 0], points[k, 1]
+        if lo_u <= u <= hi_u and lo_v <= v <= hi_v and _inside(poly, u, v):
+            n += 1
+    return n

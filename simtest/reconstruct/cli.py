@@ -98,9 +98,9 @@ def reconstruct_command(
         show_default=False,
     ),
     max_candidates: int = typer.Option(
-        MAX_CANDIDATES, "--max-candidates", min=0,
-        help="Bright components examined per frame, the largest first (0: every one); those left "
-        "out are counted in the console line and in estimates.json's 'detection'.",
+        MAX_CANDIDATES or 0, "--max-candidates", min=0,
+        help="Bright components examined per frame, the largest first (0, the default: every one); "
+        "those left out are counted in the console line and in estimates.json's 'detection'.",
     ),
 ) -> None:
     """Estimate the normal at every specular highlight of IMAGE: an image file, a folder of frames
@@ -265,7 +265,7 @@ def _reconstruct_sequence(path, intrinsics, out, target, settings, *, points, wo
 
     def fill(folder: Path) -> None:
         records = reconstruct_frames(source, camera, settings, workers=n_workers,
-                                     include_points=points, rig=rig, cubic=cubic)
+                                     include_points=points, rig=rig, cubic=cubic, encoded=True)
         with Progress(TextColumn("reconstruct"), BarColumn(), MofNCompleteColumn(),
                       TextColumn("{task.fields[fps]:.1f} frames/s"), TimeElapsedColumn(),
                       transient=True) as bar:

@@ -245,12 +245,16 @@ class Detection:
     n_unexamined : int
         The smallest components left out beyond ``max_candidates`` (not examined, not in
         ``candidates``).
+    smoothed : ndarray of shape (H, W), float32, or None
+        The smoothed luma detection examined (read-only), when it smoothed (``smooth_sigma_px``
+        > 0); the pipeline contours every ROI of the frame in it (one smoothing per frame).
     """
 
     candidates: list[Candidate] = field(default_factory=list)
     full_scale: float = 1.0
     threshold: float = 0.0
     n_unexamined: int = 0
+    smoothed: np.ndarray | None = None
 
     @property
     def n_components(self) -> int:
@@ -815,7 +819,7 @@ def detect_specularities(
     min_plateau_px: int = 2,
     roi_scale: float = 3.0,
     roi_margin_px: int = 4,
-    max_candidates: int | None = 1000,
+    max_candidates: int | None = None,
     smooth_sigma_px: float | None = 0.0,
     method: str = "full_scale",
     peak_rel: float = 0.6,
@@ -845,7 +849,8 @@ def detect_specularities(
         the BP, clipped to the image (the t = 0.1 isophote of a Phong lobe is about 2.8 times
         wider than its 0.7 level). The pipeline grows it when an isophote is cut.
     max_candidates : int, optional
-        Only the largest ``max_candidates`` components are examined (a safety valve for noise);
+        Only the largest ``max_candidates`` components are examined (a safety valve for noise;
+        default None, every one);
         how many were left out is ``Detection.n_unexamined``.
     smooth_sigma_px : float or None, optional
         Gaussian smoothing of the luma before thresholding and BP search (0: none; None: chosen
@@ -894,9 +899,24 @@ def detect_specularities(
     gray = native = _gray_native(img)
     if smooth_sigma_px is None:
         smooth_sigma_px = auto_smooth_sigma_px(gray, fs)
+    smoothed = None
     if smooth_sigma_px > 0:
-        gray = cv2.GaussianBlur(gray.astype(np.float32), (0, 0), float(smooth_sigma_px),
-                                borderType=cv2.BORDER_REFLECT)
+        # Detection thresholds the smoothed gray (for an 8-bit RGB frame OpenCV's, rounded to
+        # whole levels); the pipeline contours its ROIs in the smoothed luma, unrounded
+        # (Detection.smoothed): one smoothing serves both where they are the same values (a gray
+        # frame), else each is smoothed once for the whole frame.
+        sigma = float(smooth_sigma_px)
+        whole = img.ndim == 2
+        if img.ndim == 2:
+            src = gray.astype(np.float32)
+        elif img.dtype.type in _LUMA_COMPILED:
+            src, whole = _kernels.luma_rgb32(img, *_LUMA_WEIGHTS)  # whole: a gray frame
+        else:
+            src = luma(img, dtype=np.float32)
+        smoothed = cv2.GaussianBlur(src, (0, 0), sigma, borderType=cv2.BORDER_REFLECT)
+        # (a float image's gray is its luma unrounded: the same values to float32 rounding)
+        gray = smoothed if whole or img.dtype.kind == "f" else \
+            cv2.GaussianBlur(gray.astype(np.float32), (0, 0), sigma, borderType=cv2.BORDER_REFLECT)
     h, w = gray.shape
     levels = gray32 = None
     clipped = None  # whole-frame clipped mask, when the method computes it
@@ -932,7 +952,9 @@ def detect_specularities(
         found = _candidates_numpy(frame, mask)
     out, n_comps = found
     out.sort(key=lambda c: -c.peak)
-    return Detection(out, fs, thr, max(0, n_comps - len(out)))
+    if smoothed is not None:
+        smoothed.setflags(write=False)
+    return Detection(out, fs, thr, max(0, n_comps - len(out)), smoothed)
 
 
 @dataclass(frozen=True)

@@ -168,6 +168,30 @@ def same_size_frames(source: FrameSource, camera=None) -> Iterator[tuple[int, st
         yield index, name, img
 
 
+class FrameRecord(dict):
+    """A frame's record encoded where it was made (:func:`reconstruct_frames` with ``encoded``):
+    the dict holds the record's small keys (``frame``, ``source``, ``image_shape``, ``counts``,
+    ``detection``; not ``specularities``), ``line`` the whole record's JSON line as
+    :func:`write_frames_jsonl` writes it. A worker process sends its text back (a copy of one
+    string) instead of thousands of small objects to pickle, and its JSON encoding runs on the
+    worker's core, beside the other frames'."""
+
+    line: str = ""
+
+
+def _json_line(rec: dict) -> str:
+    """A record as one line of estimates.jsonl (no newline)."""
+    return json.dumps(rec, allow_nan=False, separators=(",", ":"))
+
+
+def _encoded_record(args) -> FrameRecord:
+    """:func:`_frame_record` as a :class:`FrameRecord`."""
+    rec = _frame_record(args)
+    out = FrameRecord({k: v for k, v in rec.items() if k != "specularities"})
+    out.line = _json_line(rec)
+    return out
+
+
 def _frame_record(args) -> dict:
     index, name, image, K, settings, dist_coeffs, include_points, rig, cubic = args
     ests = reconstruct(image, K, dist_coeffs=dist_coeffs, settings=settings)
@@ -185,7 +209,7 @@ def _frame_record(args) -> dict:
 def reconstruct_frames(source: FrameSource, K, settings: ReconSettings | None = None, *,
                        dist_coeffs=None, workers: int = 1,
                        include_points: bool = False, rig=None,
-                       cubic: bool | None = False) -> Iterator[dict]:
+                       cubic: bool | None = False, encoded: bool = False) -> Iterator[dict]:
     """Reconstruct every frame of ``source``; yield one record per frame, in frame order.
 
     Parameters
@@ -211,11 +235,15 @@ def reconstruct_frames(source: FrameSource, K, settings: ReconSettings | None = 
     cubic : bool or None
         Passed to :func:`~simtest.reconstruct.recommend.with_light_aware` (``--cubic-patch``:
         None; default False).
+    encoded : bool
+        Yield :class:`FrameRecord` s, each encoded as its JSON line where it was made (a worker,
+        in parallel), for :func:`write_frames_jsonl` (the same bytes in the file); their dicts
+        hold the record's keys but ``specularities``.
 
     Yields
     ------
     dict
-        The record of each frame (module docstring).
+        The record of each frame (module docstring), or its :class:`FrameRecord`.
 
     Raises
     ------
@@ -226,15 +254,17 @@ def reconstruct_frames(source: FrameSource, K, settings: ReconSettings | None = 
     settings = ReconSettings.for_frames() if settings is None else settings
     jobs = ((i, name, img, K, settings, dist_coeffs, include_points, rig, cubic)
             for i, name, img in same_size_frames(source, K))
+    one = _encoded_record if encoded else _frame_record
     if workers <= 1:
-        yield from map(_frame_record, jobs)
+        yield from map(one, jobs)
         return
     with ProcessPoolExecutor(max_workers=workers) as pool:
-        # a bounded window of frames in flight, so that a long video is not decoded all at once
+        # a bounded window of frames in flight, so that a long video is not decoded all at once;
+        # this process decodes the next frames while the workers reconstruct the earlier ones
         window = 4 * workers
         pending = []
         for job in jobs:
-            pending.append(pool.submit(_frame_record, job))
+            pending.append(pool.submit(one, job))
             if len(pending) >= window:
                 yield pending.pop(0).result()
         for fut in pending:
@@ -250,7 +280,7 @@ def write_frames_jsonl(path, records, *, on_frame=None) -> tuple[Path, int, floa
         Destination file; written as ``path.tmp<pid>`` then renamed, so that a failure leaves
         any previous complete file in place.
     records : iterable of dict
-        From :func:`reconstruct_frames`.
+        From :func:`reconstruct_frames` (a :class:`FrameRecord` is written as its ``line``).
     on_frame : callable, optional
         Called with each record after it is written (progress).
 
@@ -266,7 +296,7 @@ def write_frames_jsonl(path, records, *, on_frame=None) -> tuple[Path, int, floa
     try:
         with open(tmp, "w", encoding="ascii") as fh:
             for rec in records:
-                fh.write(json.dumps(rec, allow_nan=False, separators=(",", ":")) + "\n")
+                fh.write((rec.line if isinstance(rec, FrameRecord) else _json_line(rec)) + "\n")
                 n += 1
                 if on_frame is not None:
                     on_frame(rec)

@@ -123,11 +123,12 @@ _REQUIRED_SPEC = ("bp_px", "status", "normals", "ellipse", "conic", "fit_residua
 
 
 def _vec(x):
-    return None if x is None else [float(v) for v in np.asarray(x, dtype=np.float64).ravel()]
+    # tolist: the same Python floats as float() of each element, in one call
+    return None if x is None else np.asarray(x, dtype=np.float64).ravel().tolist()
 
 
 def _mat(x):
-    return None if x is None else [[float(v) for v in row] for row in np.asarray(x, dtype=np.float64)]
+    return None if x is None else np.asarray(x, dtype=np.float64).tolist()  # (rows, columns)
 
 
 def _num(x):

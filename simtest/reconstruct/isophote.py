@@ -255,8 +255,11 @@ class _Region(NamedTuple):
 
 def _region(values, bp_uv, origin_rc, image_shape) -> _Region:
     """The :class:`_Region` of :func:`extract_isophote`'s arguments (ValueError as documented
-    there)."""
-    sub = np.asarray(values, dtype=np.float64)
+    there). A float32 array is kept as it is (the pipeline's ROIs are views of the frame's
+    float32 smoothing: the kernels compare and interpolate its values in float64, no copy);
+    anything else becomes float64."""
+    sub = values if isinstance(values, np.ndarray) and values.dtype == np.float32 else \
+        np.asarray(values, dtype=np.float64)
     if sub.ndim != 2:
         raise ValueError(f"values must be a 2D array, got shape {sub.shape}")
     roi = Roi(origin_rc[0], origin_rc[0] + sub.shape[0], origin_rc[1], origin_rc[1] + sub.shape[1])

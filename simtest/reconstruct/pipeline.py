@@ -63,6 +63,7 @@ References
 
 from __future__ import annotations
 
+import functools
 import gc
 import math
 from contextlib import contextmanager
@@ -73,7 +74,7 @@ import cv2
 import numpy as np
 
 from simtest._records import fast_init
-from simtest.constants import gaussian_radius_px, smooth_block_px
+from simtest.constants import LUMA_BT601, gaussian_radius_px, smooth_block_px
 from simtest.geometry.cameras import CameraModel, PinholeCamera
 from simtest.reconstruct import _kernels
 from simtest.reconstruct._pixels import Roi, image_size_wh, rc_to_uv
@@ -342,6 +343,9 @@ class _Frame:
     #: The frame's smoothed luma (``for_many_highlights``), into which a large ROI's bands are
     #: written for the time of its extraction (``_patched_from_frame``), then put back.
     smooth_frame_rw: np.ndarray | None = None
+    #: The whole frame's smoothed luma as detection computed it (float32, read-only; see
+    #: ``with_detection_smoothing``): every ROI's values are slices of it.
+    smoothed32: np.ndarray | None = None
 
     @classmethod
     def make(cls, image, K, dist_coeffs, settings: ReconSettings, noise_roi: Roi | None = None) -> _Frame:
@@ -392,6 +396,28 @@ class _Frame:
         if smooth is None and self.smooth_sigma_px > 0:
             smooth = _smooth(luma(self.img) if full is None else full, self.smooth_sigma_px)
         return replace(self, luma_frame=full, smooth_frame_rw=smooth)
+
+    def with_detection_smoothing(self, smoothed: np.ndarray) -> _Frame:
+        """This frame with its ROIs' values sliced from detection's smoothed luma (H, W) of the
+        whole image (one smoothing per frame, :data:`simtest.reconstruct.detect.Detection.smoothed`)
+        instead of each ROI smoothed alone with its borders reflected.
+
+        The values differ from an ROI's own smoothing within the kernel's radius of the ROI's
+        sides inside the image (there the frame's true neighbours replace the reflected ones:
+        the frame's values are, if anything, the better ones), and by float32 rounding
+        (``5e-8`` relative); :mod:`simtest.reconstruct.compare` holds the results to
+        :data:`~simtest.reconstruct.compare.ACCURACY` (``tests/test_golden.py``)."""
+        return replace(self, smoothed32=smoothed)
+
+    @property
+    def img3(self) -> np.ndarray:
+        """The image as (H, W, C) (a view)."""
+        return self.img if self.img.ndim == 3 else self.img[:, :, None]
+
+    @property
+    def kernel(self) -> np.ndarray:
+        """OpenCV's Gaussian kernel of ``_smooth`` at this frame's sigma, float64 (2 R + 1,)."""
+        return _gaussian_kernel(self.smooth_sigma_px)
 
     def luma(self, roi: Roi) -> np.ndarray:
         """Luma of the image in ``roi`` (h, w), float64: sliced from the frame's luma when it
@@ -503,6 +529,18 @@ def _bp_rays(bp_uv: np.ndarray, camera) -> np.ndarray:
     return -ray / np.linalg.norm(ray, axis=1, keepdims=True)
 
 
+_LUMA_W = tuple(float(w) for w in LUMA_BT601)
+
+
+@functools.lru_cache(maxsize=16)
+def _gaussian_kernel(sigma: float) -> np.ndarray:
+    """The taps :func:`_smooth` uses on float64 values (``ksize=(0, 0)``): OpenCV's kernel of
+    ``2 gaussian_radius_px(sigma) + 1`` taps."""
+    k = cv2.getGaussianKernel(2 * gaussian_radius_px(sigma) + 1, sigma, cv2.CV_64F).ravel()
+    k.setflags(write=False)
+    return k
+
+
 def _smooth(vals: np.ndarray, sigma: float) -> np.ndarray:
     """Gaussian smoothing of an ROI's intensities (step 1), its borders reflected."""
     return cv2.GaussianBlur(vals, (0, 0), sigma, borderType=cv2.BORDER_REFLECT)
@@ -514,6 +552,8 @@ def _roi_values(frame: _Frame, roi: Roi, smooth_sigma_px: float) -> tuple[np.nda
     smoothed once, the frame's values with the ROI's bands written in: ``_patched_from_frame``,
     the same bits), and what :func:`_put_back` needs to restore the frame afterwards (None when
     nothing was written)."""
+    if frame.smoothed32 is not None and smooth_sigma_px > 0:
+        return frame.smoothed32[roi.slices], None  # float32, read-only: the kernels read it as it is
     vals = frame.luma(roi)
     if smooth_sigma_px <= 0:
         return vals, None
@@ -621,11 +661,17 @@ class _Levels:
     offset: float = 0.0
 
     @classmethod
-    def of(cls, frame: _Frame, vals: np.ndarray, i_bp: float) -> _Levels:
+    def of(cls, frame: _Frame, vals: np.ndarray, i_bp: float, roi: Roi | None = None) -> _Levels:
         mode = frame.settings.normalise
         ring = None
+        if roi is not None and frame.smoothed32 is not None and mode in (Normalisation.AUTO, Normalisation.LOCAL):
+            # the ROI's values are the frame's smoothing; its background level is that of the ROI
+            # smoothed alone (_kernels.smoothed_border_median), as without the frame's
+            ring = float(_kernels.smoothed_border_median(frame.img3, *_LUMA_W, roi.row0, roi.row1,
+                                                         roi.col0, roi.col1, frame.kernel))
         if mode == Normalisation.AUTO:
-            ring = _border_median(vals)
+            if ring is None:
+                ring = _border_median(vals)
             local = ring >= AUTO_LOCAL_BACKGROUND_REL * i_bp
             mode = Normalisation.LOCAL if local else Normalisation.BP
         if mode == Normalisation.BP:
@@ -702,22 +748,32 @@ def _estimate_one(frame: _Frame, bp_uv, roi: Roi, *, saturated: bool, grow: bool
     results: list = [None] * len(isovalues)
     growths = 0
     saved = None  # the frame's values under the current ROI's bands (_roi_values), put back after
+    # With the frame smoothed once (smoothed32), an ROI's values are the frame's; within the
+    # kernel's reach of an ROI side inside the image they are not the ROI's own smoothing (its
+    # sides reflected). Where the answer depends on those pixels (the component reaches such a
+    # side, or a contour comes near one) the ROI is looked at again, smoothed alone ("exact"):
+    # the same decisions and contours as without the frame's smoothing.
+    fast = frame.smoothed32 is not None and sigma > 0
+    exact = not fast
     try:
         while True:
             _put_back(saved)
             saved = None
-            vals, saved = _roi_values(frame, roi, sigma)
+            if exact and fast:
+                vals = _own_smoothing(frame, roi, sigma)
+            else:
+                vals, saved = _roi_values(frame, roi, sigma)
             region = _region(vals, bp_uv, (roi.row0, roi.col0), frame.img.shape)
             i_bp = region.near_bp  # the largest of the BP's 3 x 3 pixels
-            levels = _Levels.of(frame, vals, i_bp)
+            levels = _Levels.of(frame, vals, i_bp, None if exact else roi)
             i0 = order[0]
             res = walked = None
+            cut = False
             if grow and growths < ROI_MAX_GROWTHS:
                 new = Roi.around(bp_uv, ROI_GROWTH_FACTOR * max(roi.shape) / 2.0, frame.img.shape)
                 # an isophote cut by the ROI is discarded for the grown ROI's: ask only whether it
                 # is (the walk that answers traces the isophote: kept for the extraction when it
                 # is not)
-                cut = False
                 if new != roi:
                     cut, walked = _cut_and_contour(region, levels.level(isovalues[i0]))
                 if cut is None:  # only the extraction can tell
@@ -725,14 +781,70 @@ def _estimate_one(frame: _Frame, bp_uv, roi: Roi, *, saturated: bool, grow: bool
                     cut = iso is not None and iso.cut_by_roi
                 if cut:
                     roi, growths = new, growths + 1
+                    exact = not fast
                     continue
-            results[i0] = _one_isophote(frame, region, levels, isovalues[i0], walked)[0] if res is None else res
+            if not cut:
+                results[i0] = _one_isophote(frame, region, levels, isovalues[i0], walked)[0] if res is None else res
+                for i in order[1:]:
+                    results[i], _ = _one_isophote(frame, region, levels, isovalues[i])
+            if not exact and _near_inner_side(results, roi, sigma, frame.img.shape):
+                exact = True  # this ROI again, smoothed alone
+                continue
             break
-        for i in order[1:]:
-            results[i], _ = _one_isophote(frame, region, levels, isovalues[i])
     finally:
         _put_back(saved)
     return _Draft(bp_uv, i_bp, saturated, roi, bp_ray, fitf, results, other_bps, own_bp)
+
+
+def _own_smoothing(frame: _Frame, roi: Roi, sigma: float) -> np.ndarray:
+    """``_smooth(frame.luma(roi), sigma)`` (the ROI's luma smoothed alone, its sides reflected),
+    from the frame's smoothing (float32, ``smoothed32``): the ROI's values copied, and the bands
+    along its sides inside the image, within the kernel's reach, smoothed again from strips of
+    the ROI twice that wide (a band's pixels see only their strip, reflected at the ROI's sides as
+    the ROI's are). The same values to float32 rounding (float32, as the frame's), at the cost of
+    a copy and the perimeter, not of smoothing the area; an ROI too small for the strips is
+    smoothed whole (float64)."""
+    r = gaussian_radius_px(sigma) + 1
+    h, w = roi.shape
+    if h < 4 * r or w < 4 * r:
+        return _smooth(frame.luma(roi), sigma)
+    vals = np.array(frame.smoothed32[roi.slices])  # float32, as the frame's (the kernels read it)
+    top, bottom, left, right = roi.touches_image_border(frame.img.shape)
+    r0, r1, c0, c1 = roi
+    # two strips on opposite sides in one OpenCV call, stacked or side by side (each band reads
+    # its own strip only, within the kernel's reach: a call's fixed cost is most of a strip's)
+    if not top or not bottom:
+        both = _smooth(np.concatenate([frame.luma(Roi(r0, r0 + 2 * r, c0, c1)),
+                                       frame.luma(Roi(r1 - 2 * r, r1, c0, c1))]), sigma)
+        if not top:
+            vals[:r] = both[:r]
+        if not bottom:
+            vals[h - r :] = both[3 * r :]
+    if not left or not right:
+        both = _smooth(np.concatenate([frame.luma(Roi(r0, r1, c0, c0 + 2 * r)),
+                                       frame.luma(Roi(r0, r1, c1 - 2 * r, c1))], axis=1), sigma)
+        if not left:
+            vals[:, :r] = both[:, :r]
+        if not right:
+            vals[:, w - r :] = both[:, 3 * r :]
+    return vals
+
+
+def _near_inner_side(results, roi: Roi, sigma: float, image_shape) -> bool:
+    """Whether a contour of ``results`` (``_Pending`` or an estimate with points) comes within
+    the Gaussian kernel's radius (plus one pixel) of a side of ``roi`` that lies inside the
+    image, where the frame's smoothing and the ROI's own (its sides reflected) differ."""
+    reach = gaussian_radius_px(sigma) + 1
+    top, bottom, left, right = roi.touches_image_border(image_shape)
+    for r in results:
+        pts = r.iso.points_uv if isinstance(r, _Pending) else getattr(r, "points_uv", None)
+        if pts is None or not len(pts):
+            continue
+        (u_lo, v_lo), (u_hi, v_hi) = pts.min(axis=0).tolist(), pts.max(axis=0).tolist()
+        if ((not top and v_lo - roi.row0 < reach) or (not bottom and roi.row1 - 1 - v_hi < reach)
+                or (not left and u_lo - roi.col0 < reach) or (not right and roi.col1 - 1 - u_hi < reach)):
+            return True
+    return False
 
 
 def _complete(drafts: list) -> list[SpecularityEstimate]:
@@ -789,6 +901,19 @@ def _complete(drafts: list) -> list[SpecularityEstimate]:
     return out
 
 
+class _SortedBps:
+    """A frame's BPs (k, 2) sorted by u, and their u (k,) contiguous, for the ``merged`` test."""
+
+    __slots__ = ("uv", "u")
+
+    def __init__(self, uv: np.ndarray):
+        self.uv = uv
+        self.u = np.ascontiguousarray(uv[:, 0])
+
+    def __len__(self) -> int:
+        return len(self.uv)
+
+
 def _finish(d: _Draft, joint) -> SpecularityEstimate:
     """The estimate of a completed draft: the primary isophote's status, ``merged`` when that
     closed isophote encloses another candidate's BP."""
@@ -797,8 +922,12 @@ def _finish(d: _Draft, joint) -> SpecularityEstimate:
     status, detail = primary.status, primary.detail
     if status == OK and primary.closed and len(d.other_bps) > (d.own_bp >= 0):
         # the other BPs in the isophote's bounding box, tested even-odd (polygon_contains)
-        others = np.asarray(d.other_bps, dtype=np.float64).reshape(-1, 2)
-        n_in = int(_kernels.count_enclosed(primary.points_uv, others, d.own_bp))
+        if isinstance(d.other_bps, _SortedBps):
+            n_in = int(_kernels.count_enclosed_sorted(primary.points_uv, d.other_bps.uv, d.other_bps.u,
+                                                      d.own_bp))
+        else:
+            others = np.asarray(d.other_bps, dtype=np.float64).reshape(-1, 2)
+            n_in = int(_kernels.count_enclosed(primary.points_uv, others, d.own_bp))
         if n_in:
             status, detail = "merged", f"the isophote at t = {isovalues[0]} encloses {n_in} other BP(s)"
     return SpecularityEstimate(d.bp_uv, d.i_bp, d.saturated, d.roi, status, detail, d.bp_ray,
@@ -956,7 +1085,6 @@ def reconstruct_rois(items, isovalues: float | Sequence[float] | None = None, *,
     return _complete([_roi_draft(image, K, bp_uv, roi, None, settings, cameras) for image, K, bp_uv, roi in items])
 
 
-@_gc_paused()  # thousands of small objects, no cycles (see _gc_paused)
 class Estimates(list):
     """The estimates of one frame (a list, brightest first) and what detection left out.
 
@@ -986,6 +1114,7 @@ class Estimates(list):
                 "not_examined": self.n_unexamined, "max_candidates": self.max_candidates}
 
 
+@_gc_paused()  # thousands of small objects, no cycles (see _gc_paused)
 def reconstruct(
     image,
     K,
@@ -1056,7 +1185,9 @@ def reconstruct(
         smooth_sigma_px=frame.smooth_sigma_px, method=settings.detection,
         peak_rel=settings.peak_rel, max_candidates=settings.max_candidates,
     )
-    if sum(c.status == OK for c in det.candidates) >= LUMA_FRAME_MIN_HIGHLIGHTS:
+    if det.smoothed is not None and det.smoothed.shape == img.shape[:2]:
+        frame = frame.with_detection_smoothing(det.smoothed)
+    elif sum(c.status == OK for c in det.candidates) >= LUMA_FRAME_MIN_HIGHLIGHTS:
         frame = frame.for_many_highlights()
     shift = np.array([r.col0, r.row0], dtype=np.float64)
     # every candidate's BP in the image, in one addition (each estimate's BP is a row of it)
@@ -1065,8 +1196,12 @@ def reconstruct(
     # BPs another highlight's isophote must not enclose (``merged``): every candidate's but the
     # too small ones (noise)
     keep = np.array([c.status != "too_small" for c in det.candidates], dtype=bool)
-    others = bps_arr[keep]
-    row_in_others = np.cumsum(keep) - 1
+    # sorted by u, so that each isophote tests only the BPs in its u range (count_enclosed_sorted)
+    kept = np.flatnonzero(keep)
+    order = np.argsort(bps_arr[kept, 0], kind="stable")
+    others = _SortedBps(np.ascontiguousarray(bps_arr[kept][order]))
+    row_in_others = np.full(len(keep), -1, dtype=np.int64)
+    row_in_others[kept[order]] = np.arange(len(kept))
     # every candidate's BP ray, and the fit frames of the accepted ones, in one call of the model
     rays = frame.bp_rays(bps_arr)
     has_ray = np.isfinite(rays).all(axis=1)

@@ -110,11 +110,11 @@ def _positive_or_none(name: str, value) -> float | None:
     return v
 
 
-#: Detection's default cap on the bright components examined (the largest first). A real
-#: 1350 x 1080 colonoscopy frame can hold 5000 components; every one left out is counted and
-#: reported. ``ReconSettings(max_candidates=None)`` (``simtest reconstruct --max-candidates 0``)
-#: examines them all.
-MAX_CANDIDATES = 1000
+#: Detection's default cap on the bright components examined (the largest first): None, every
+#: one (a real 1350 x 1080 colonoscopy frame can hold 5000 components, and every one is examined
+#: unless a cap is asked for). ``ReconSettings(max_candidates=N)`` (``simtest reconstruct
+#: --max-candidates N``) examines the N largest; those left out are counted and reported.
+MAX_CANDIDATES = None
 
 
 @dataclass(frozen=True)
