@@ -386,6 +386,7 @@ def shade_tissue(scene, d: np.ndarray, rig: LightRig, texture, material, *, shad
     wi = (wi.x, wi.y, wi.z)
     rgb = [mi.Float(0.0), mi.Float(0.0), mi.Float(0.0)]
     spec = mi.Float(0.0)
+    alpha = tissue._const(xp, material.microfacet_alpha)  # opaque: a new roughness reuses the kernel
     for light in rig.lights:
         lp, wo, weight = _light_at(light, si.p)
         lit = valid & (dr.dot(wo, n) > 0)
@@ -393,7 +394,7 @@ def shade_tissue(scene, d: np.ndarray, rig: LightRig, texture, material, *, shad
             lit = lit & ~_occluded(scene, si.spawn_ray_to(lp), valid)
         w3 = (wo.x, wo.y, wo.z)
         cos_o = dr.maximum(ns[0] * wo.x + ns[1] * wo.y + ns[2] * wo.z, 0.0)
-        fs = tissue.specular_lobe(xp, ns, wi, w3, material.distribution, material.microfacet_alpha,
+        fs = tissue.specular_lobe(xp, ns, wi, w3, material.distribution, alpha,
                                   material.n, material.film_ior, material.c)
         e = dr.select(lit, cos_o * weight, 0.0)
         spec += fs * e
