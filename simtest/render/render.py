@@ -50,7 +50,7 @@ from simtest.render.mitsuba_dict import (
     plane_normal_cam,
 )
 from simtest.render import wavefront
-from simtest.render.endoscope import camera_model, light_rig, sample_positions, uses_endoscope
+from simtest.render.endoscope import camera_model, guide_radius_mm, light_rig, sample_positions, uses_endoscope
 from simtest.render.sensor import LUMA_WEIGHTS, apply_sensor, field_stop_mask, frame_luma, video_frame
 from simtest.render.tissue import TISSUE_ALBEDO, in_camera, relief_normal, tissue_params
 from simtest.render.truth import ReliefHighlight, mesh_highlight_candidates, mesh_highlights, relief_highlights
@@ -431,7 +431,8 @@ def tissue_texture(spec: SceneSpec):
     points (:func:`simtest.render.tissue.in_camera` of :func:`cam_to_texture_matrix`)."""
     mat = spec.material
     t = tissue_params(mat.tissue, mat.texture_seed, mat.relief_mm, mat.relief_scale_mm,
-                      relief_min_mm=mat.relief_min_mm, relief_hurst=mat.relief_hurst, base=mat.albedo)
+                      relief_min_mm=mat.relief_min_mm, relief_hurst=mat.relief_hurst, base=mat.albedo,
+                      film_variation=mat.film_variation, film_scale_mm=mat.film_scale_mm)
     if mat.wall_tissue is not None:
         t = dataclasses.replace(t, wall_base=TISSUE_ALBEDO[mat.wall_tissue],
                                 wall_centre=tuple(float(x) for x in mat.wall_centre_mm),
@@ -855,6 +856,7 @@ def _render_endoscope(spec: SceneSpec, seed: int, variant: str) -> RenderResult:
         scene = _load_dict(spec, {"type": "scene", "surface": surface})
         _cache_put(_SCENE_CACHE, _SCENE_CACHE_SIZE, key, scene)
     shadows = bool(geo.type in ("mesh", "saddle") and not rig.is_colocated)
+    guide_r = guide_radius_mm(spec)
     mat = spec.material
     texture = tissue_texture(spec) if mat.model == "tissue" else None
 
@@ -871,9 +873,11 @@ def _render_endoscope(spec: SceneSpec, seed: int, variant: str) -> RenderResult:
         run = shaded[b0:b0 + BLOCK_PIXELS]
         rays = wavefront.model_rays(model, sample_positions(spp, W, 0, 0, seed, pixels=run))
         if texture is None:
-            pending.append(wavefront.shade(scene, rays, rig, shadows=shadows, spp=spp, defer=True))
+            pending.append(wavefront.shade(scene, rays, rig, shadows=shadows, spp=spp, defer=True,
+                                           guide_radius_mm=guide_r))
         else:
             pending.append(wavefront.shade_tissue(scene, rays, rig, texture, mat, shadows=shadows, spp=spp,
+                                                  guide_radius_mm=guide_r,
                                                   defer=True))
     for b0 in range(0, len(dark), BLOCK_PIXELS):
         rays = wavefront.model_rays(model, sample_positions(spp, W, 0, 0, seed, pixels=dark[b0:b0 + BLOCK_PIXELS]))
@@ -1176,7 +1180,8 @@ def write_render(result: RenderResult, out_dir: str | Path) -> dict[str, Path]:
         "seed": result.seed,
         "variant": result.variant,
         "light_pos_mm": [float(x) for x in result.light_pos],
-        "lights": [_light_dict(light) for light in rig.lights],
+        "lights": [{**_light_dict(light), "diameter_mm": 2.0 * guide_radius_mm(result.spec)}
+                   for light in rig.lights],
         "image_size": [W, H],
         "highlights": [{**h.to_dict(), "kind": "macro"} for h in result.highlights],
         "relief_highlights": [h.to_dict() for h in result.relief_highlights],

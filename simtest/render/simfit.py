@@ -4,8 +4,9 @@
 statistics of :mod:`simtest.render.simreal` on its video frame come near those of real frames:
 
 - **Render parameters** (each value needs a render): the micro-relief's RMS height
-  (``material.relief_mm``) and Hurst exponent (``material.relief_hurst``, the slope of its
-  spectrum), and the wet film's roughness (``material.alpha``).
+  (``material.relief_mm``) and spectrum (its Hurst exponent ``material.relief_hurst``), the wet
+  film's roughness (``material.alpha``) and how much it varies with the film's thickness over
+  the surface (``material.film_variation``).
 - **Develop parameters** (applied to one render's linear images, no new render): the tissue's
   base albedo (``material.albedo``, three channels: the render keeps the diffuse and specular
   parts apart, and the diffuse part is linear in the albedo), the auto-exposure target
@@ -56,7 +57,7 @@ __all__ = ["MARGIN", "SPREAD_WEIGHT", "FitResult", "develop", "fit_scene", "spli
 
 #: The loss pushes every statistic inside this factor first (below the goal's 2, so that the
 #: change from the fit's reduced film to the scene's own leaves it within 2).
-MARGIN = 1.5
+MARGIN = 1.4
 #: Weight of the plain squared log-ratios in the loss (after the band): small, so it only chooses
 #: among points that are all inside the band.
 SPREAD_WEIGHT = 0.05
@@ -67,8 +68,12 @@ SPREAD_WEIGHT = 0.05
 DEVELOP_BOUNDS = {"albedo_r": (0.02, 1.0), "albedo_g": (0.005, 1.0), "albedo_b": (0.005, 1.0),
                   "auto_mean": (0.03, 0.6), "gaussian_sigma": (0.0005, 0.05), "gamma": (1.4, 3.2)}
 #: Bounds of the render parameters: relief RMS height (mm), film roughness (GGX/Beckmann alpha),
-#: the relief's Hurst exponent.
-RENDER_BOUNDS = {"relief_mm": (1e-5, 0.02), "alpha": (0.005, 0.5), "relief_hurst": (0.3, 1.0)}
+#: the relief's Hurst exponent, the standard deviation of the film's log-roughness.
+RENDER_BOUNDS = {"relief_mm": (1e-5, 0.02), "alpha": (0.005, 0.5), "relief_hurst": (0.3, 1.0),
+                 "film_variation": (0.05, 2.5)}
+#: Where the search starts the film's variation when the scene has none (a uniform film is not
+#: in the log-space box; 0.7: roughness varying by a factor 2 either way).
+FILM_VARIATION_START = 0.7
 
 
 def split_frames(frames: list) -> tuple[list, list]:
@@ -280,7 +285,8 @@ def fit_scene(spec: SceneSpec, frames: list[np.ndarray], *, seed: int = 0, outer
            "gaussian_sigma": max(spec.sensor.gaussian_sigma, 0.001),
            "gamma": spec.sensor.gamma if spec.sensor.tone == "gamma" else 2.2}
     dev = {k: min(max(v, DEVELOP_BOUNDS[k][0]), DEVELOP_BOUNDS[k][1]) for k, v in dev.items()}
-    rnd = {"relief_mm": max(mat.relief_mm, 1e-5), "alpha": mat.microfacet_alpha, "relief_hurst": mat.relief_hurst}
+    rnd = {"relief_mm": max(mat.relief_mm, 1e-5), "alpha": mat.microfacet_alpha, "relief_hurst": mat.relief_hurst,
+           "film_variation": mat.film_variation if mat.film_variation > 0 else FILM_VARIATION_START}
     rnd = {k: min(max(v, RENDER_BOUNDS[k][0]), RENDER_BOUNDS[k][1]) for k, v in rnd.items()}
     W, H = spec.camera.width_px, spec.camera.height_px
     small = {"camera.width_px": max(8, round(W * fit_scale)), "camera.height_px": max(8, round(H * fit_scale)),
@@ -290,7 +296,8 @@ def fit_scene(spec: SceneSpec, frames: list[np.ndarray], *, seed: int = 0, outer
 
     def with_render(s: SceneSpec, p: dict) -> SceneSpec:
         return with_overrides(s, {"material.relief_mm": p["relief_mm"], "material.alpha": p["alpha"],
-                                  "material.relief_hurst": p["relief_hurst"], "material.albedo": list(base)})
+                                  "material.relief_hurst": p["relief_hurst"],
+                                  "material.film_variation": p["film_variation"], "material.albedo": list(base)})
 
     def inner(res, s: SceneSpec, start: dict, evals: int, draws: int) -> tuple[float, dict]:
         seeds = _noise_seeds(rseed, draws)

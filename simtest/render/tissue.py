@@ -33,6 +33,9 @@ wavefront and the ground truth evaluates the very same function per pixel:
   height tilts the shading normal: ``n_s = unit(n - (grad h - (grad h . n) n))`` (the bump mapping
   of Blinn 1978, https://doi.org/10.1145/965139.507101, on the tangent plane of the macro normal
   ``n``).
+- **Film thickness**: a smooth seeded field over the surface modulates the film's roughness
+  (:func:`film_alpha`, ``material.film_variation``): smooth mirror-like patches where the film
+  is thick, rough ones where it is thin.
 - **Specular film**: a dielectric interface (IOR 1.33 to 1.45, water to mucus) with Fresnel's
   reflectance over a rough microfacet lobe, Beckmann or GGX (Walter et al. 2007,
   https://doi.org/10.2312/EGWR/EGSR07/195-206), ``f_s = F(wi . m) D(m) G(wi, wo) / (4 cos_i
@@ -50,7 +53,7 @@ import numpy as np
 
 __all__ = ["TISSUE_ALBEDO", "TISSUE_SEED_KEY", "N_WAVES", "N_RELIEF_WAVES", "RELIEF_HURST", "RELIEF_MIN_MM",
            "TissueParams", "tissue_params", "in_camera", "albedo", "relief_height", "relief_normal",
-           "specular_lobe"]
+           "film_alpha", "specular_lobe"]
 
 #: Linear-RGB diffuse albedo of each tissue before variation. Mucosa: pink (sRGB about (225, 140,
 #: 125), the colour of a bowel wall under white light); liver: red-brown (sRGB about (150, 60, 45)).
@@ -97,6 +100,11 @@ class TissueParams:
     wall_base: tuple[float, float, float] | None = None
     wall_centre: tuple[float, float, float] | None = None
     wall_radius: float = 0.0
+    #: Waves of the wet film's thickness field (unit RMS) and the standard deviation of the log of
+    #: the film's roughness over it (0: a uniform film).
+    film_k: np.ndarray | None = None
+    film_phase: np.ndarray | None = None
+    film_variation: float = 0.0
 
 
 def _directions(rng: np.random.Generator, n: int) -> np.ndarray:
@@ -130,7 +138,8 @@ def relief_spectrum(rng: np.random.Generator, relief_mm: float, min_mm: float, m
 def tissue_params(kind: str, seed: int, relief_mm: float, relief_scale_mm: float,
                   vessel_scale_mm: float = 4.0, *, relief_min_mm: float | None = None,
                   relief_hurst: float = RELIEF_HURST,
-                  base: tuple[float, float, float] | None = None) -> TissueParams:
+                  base: tuple[float, float, float] | None = None,
+                  film_variation: float = 0.0, film_scale_mm: float = 2.0) -> TissueParams:
     """Draw a tissue texture (texture frame) from ``SeedSequence([seed, TISSUE_SEED_KEY])``.
 
     Parameters
@@ -151,6 +160,11 @@ def tissue_params(kind: str, seed: int, relief_mm: float, relief_scale_mm: float
     base : (float, float, float), optional
         Linear-RGB base albedo; default ``TISSUE_ALBEDO[kind]``. The seeded pattern does not
         depend on it.
+    film_variation : float
+        Standard deviation of the log of the wet film's roughness over the surface (0: uniform;
+        :func:`film_alpha`).
+    film_scale_mm : float
+        Typical wavelength of the film's thickness field, mm.
 
     Raises
     ------
@@ -165,8 +179,10 @@ def tissue_params(kind: str, seed: int, relief_mm: float, relief_scale_mm: float
     vk, vp = _waves(rng, vessel_scale_mm)
     rk, rp, amp = relief_spectrum(rng, relief_mm, lo, relief_scale_mm, relief_hurst)
     width = 0.06 if kind == "mucosa" else 0.03
+    fk, fp = _waves(rng, film_scale_mm)  # drawn last: the other fields do not depend on it
     colour = TISSUE_ALBEDO[kind] if base is None else tuple(float(x) for x in base)
-    return TissueParams(colour, ck, cp, vk, vp, width, rk, rp, amp)
+    return TissueParams(colour, ck, cp, vk, vp, width, rk, rp, amp, film_k=fk, film_phase=fp,
+                        film_variation=float(film_variation))
 
 
 def in_camera(t: TissueParams, cam_to_texture: np.ndarray) -> TissueParams:
@@ -280,6 +296,25 @@ def relief_normal(xp, p, n, t: TissueParams):
     sx, sy, sz = n[0] - (gx - gn * n[0]), n[1] - (gy - gn * n[1]), n[2] - (gz - gn * n[2])
     inv = 1.0 / xp.sqrt(sx * sx + sy * sy + sz * sz)
     return sx * inv, sy * inv, sz * inv
+
+
+def film_alpha(xp, p, t: TissueParams, alpha: float):
+    """The wet film's roughness at surface points ``p`` (the camera frame with :func:`in_camera`):
+    ``alpha exp(v f(q))`` with ``f`` the film's thickness field (a unit-RMS sum of seeded plane
+    waves of the texture frame, wavelengths about ``film_scale_mm``) and ``v`` =
+    :attr:`TissueParams.film_variation`; ``alpha`` itself where ``v`` is 0.
+
+    A thick film smooths the tissue's relief into a smoother mirror (small ``alpha``: glints
+    small and bright), a thin one leaves it rough (broad, dim sheen): with ``v > 0`` a frame shows
+    highlights of every size between the two, as real mucosa does, instead of one broad sheen
+    beside point glints. Clipped to [0.002, 1].
+    """
+    if t.film_variation == 0.0 or t.film_k is None:
+        return alpha
+    q, _ = _to_texture(xp, p, t)
+    f = _field(xp, q, t.film_k, t.film_phase)
+    a = alpha * xp.exp(_const(xp, t.film_variation) * f)
+    return xp.minimum(xp.maximum(a, 0.002), 1.0)
 
 
 def _fresnel_dielectric(xp, cos_i, eta):

@@ -189,13 +189,18 @@ class LightSpec:
         camera, rendered by :mod:`simtest.render.endoscope`): "colonoscope" (two light guides on
         opposite sides of the lens, ``guide_offset_mm`` from it along x), "laparoscope" (a ring of
         ``guide_count`` lights of radius ``guide_offset_mm``), "file" (the lights of
-        ``camera.file``). A rig needs ``epsilon_mm = 0`` and ``falloff = "keep"``; ``intensity``
-        scales each of its lights.
+        ``camera.file``), "cf_h190" (an Olympus CF-H190 colonoscope: two disc guides 3.3 mm from
+        the lens, :func:`simtest.render.endoscope.cf_h190_rig`). A rig needs ``epsilon_mm = 0``
+        and ``falloff = "keep"``; ``intensity`` scales each of its lights.
     guide_offset_mm : float or None
         Colonoscope: distance of each guide from the lens centre; laparoscope: ring radius
         (default: the presets' assumed geometry, see :mod:`simtest.render.endoscope`).
     guide_count : int or None
         Laparoscope: lights in the ring, 6 to 8 (default 8).
+    guide_diameter_mm : float or None
+        Diameter of each light guide's output face, mm (0 to 10): a disc in the lens plane whose
+        points emit with the cos^m profile (:mod:`simtest.render.endoscope`); 0: point lights.
+        Default 0, and the preset's for "cf_h190".
     profile_exponent : float or None
         m of each light's cos^m emission profile about the scope axis (default: 0 for "single",
         the presets' assumed 1 for a rig).
@@ -206,8 +211,9 @@ class LightSpec:
     b: float | None = _fld(None, "float?")
     intensity: float = _fld(1.0, "float", lo=0.0, lo_open=True)
     falloff: str = _fld("cancel", "str", choices=("cancel", "keep"))
-    rig: str = _fld("single", "str", choices=("single", "colonoscope", "laparoscope", "file"))
+    rig: str = _fld("single", "str", choices=("single", "colonoscope", "laparoscope", "file", "cf_h190"))
     guide_offset_mm: float | None = _fld(None, "float?", lo=0.0, lo_open=True)
+    guide_diameter_mm: float | None = _fld(None, "float?", lo=0.0, hi=10.0)
     guide_count: int | None = _fld(None, "int?", lo=6, hi=8)
     profile_exponent: float | None = _fld(None, "float?", lo=0.0)
 
@@ -246,7 +252,7 @@ class MaterialSpec:
     relief_mm : float
         RMS height of the tissue's micro-relief, mm (0: smooth).
     relief_scale_mm : float
-        Longest wavelength of the micro-relief's spectrum, 0.05 to 1 mm.
+        Longest wavelength of the micro-relief's spectrum, 0.05 to 5 mm.
     relief_min_mm : float or None
         Shortest wavelength of the micro-relief's spectrum, mm, at most ``relief_scale_mm``; None:
         0.05 mm or ``relief_scale_mm`` if that is shorter.
@@ -258,6 +264,11 @@ class MaterialSpec:
     albedo : (float, float, float) or None
         Linear-RGB base albedo of the tissue, each in (0, 1]; None: the tissue's default
         (:data:`simtest.render.tissue.TISSUE_ALBEDO`). ``simtest simreal --fit`` sets it.
+    film_variation : float
+        Standard deviation of the log of the wet film's roughness over the surface, 0 to 3 (0: a
+        uniform film; :func:`simtest.render.tissue.film_alpha`).
+    film_scale_mm : float
+        Typical wavelength of the film's thickness variation, mm.
     wall_tissue : {"mucosa", "liver", "peritoneum"} or None
         A second tissue (its default albedo) at the surface points at least ``wall_radius_mm``
         from ``wall_centre_mm`` (the texture frame: a mesh's own axes), such as the wall of
@@ -278,11 +289,13 @@ class MaterialSpec:
     tissue: str = _fld("mucosa", "str", choices=("mucosa", "liver", "peritoneum"))
     film_ior: float = _fld(1.38, "float", lo=1.3, hi=1.5)
     relief_mm: float = _fld(0.0, "float", lo=0.0, hi=1.0)
-    relief_scale_mm: float = _fld(0.3, "float", lo=0.05, hi=1.0)
+    relief_scale_mm: float = _fld(0.3, "float", lo=0.05, hi=5.0)
     relief_min_mm: float | None = _fld(None, "float?", lo=0.005, hi=1.0)
     relief_hurst: float = _fld(0.8, "float", lo=0.0, hi=1.0)
     texture_seed: int = _fld(0, "int", lo=0, hi=MAX_SEED)
     albedo: tuple[float, float, float] | None = _fld(None, "vec3?")
+    film_variation: float = _fld(0.0, "float", lo=0.0, hi=3.0)
+    film_scale_mm: float = _fld(2.0, "float", lo=0.05, hi=50.0)
     wall_tissue: str | None = _fld(None, "str?", choices=("mucosa", "liver", "peritoneum"))
     wall_centre_mm: tuple[float, float, float] | None = _fld(None, "vec3?")
     wall_radius_mm: float | None = _fld(None, "float?", lo=0.0, lo_open=True)
@@ -753,6 +766,9 @@ def _validate(spec: SceneSpec, source: str, base_dirs: tuple[Path, ...]) -> Scen
                                                 f"(light.rig = {lt.rig!r})")
     if lt.guide_count is not None and lt.rig != "laparoscope":
         raise _err(source, "light.guide_count", "only for light.rig = \"laparoscope\"")
+    if lt.guide_diameter_mm is not None and lt.rig not in ("colonoscope", "laparoscope", "cf_h190"):
+        raise _err(source, "light.guide_diameter_mm", "only for light.rig = \"colonoscope\", \"laparoscope\" or "
+                   "\"cf_h190\"")
     if lt.guide_offset_mm is not None and lt.rig not in ("colonoscope", "laparoscope"):
         raise _err(source, "light.guide_offset_mm", "only for light.rig = \"colonoscope\" or \"laparoscope\"")
     if cam.file is not None:
