@@ -62,3 +62,18 @@ def test_laparoscope_fills_the_field_and_does_not_clip():
     assert (ratio < 0.25).mean() > 0.3 and (ratio > 0.45).mean() > 0.05
     # metering on tissue: the field's mean luma is the target (every field pixel is tissue)
     assert not np.isnan(res.depth[stop]).any()
+
+
+def test_committed_abdomen_mesh_matches_its_generator():
+    from simtest.scene.meshes.abdomen import build_liver_in_abdomen
+
+    gen = json.loads(MESH.with_suffix(".json").read_text())["generator"]
+    fresh = build_liver_in_abdomen(gen["seed"], wall_axis=gen["wall_axis"], wall_radius_mm=gen["wall_radius_mm"],
+                                   gap_mm=gen["gap_mm"], cap_deg=gen["cap_deg"],
+                                   wall_spacing_mm=gen["wall_spacing_mm"], **gen["params"])
+    committed = load_mesh(MESH)
+    assert len(fresh.faces) == len(committed.faces)
+    # float32 files, as tests/test_meshes.py: libm may differ by an ulp across platforms
+    np.testing.assert_allclose(committed.vertices, fresh.vertices, rtol=1e-6, atol=1e-4)
+    np.testing.assert_allclose(committed.vertex_normals, fresh.vertex_normals, atol=1e-6)
+    assert MESH.stat().st_size < 2_000_000

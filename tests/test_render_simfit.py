@@ -78,6 +78,19 @@ def test_develop_equals_a_render_with_the_albedo():
 
 
 @pytest.mark.render
+def test_fit_shows_the_frame_the_fitted_scene_renders():
+    from simtest.render.render import render_scene
+    from simtest.render.simfit import fit_scene
+
+    real = np.zeros((40, 48, 3), np.uint8)
+    real[4:-4, 4:-4] = (200, 110, 90)
+    real[10:12, 10:12] = 255
+    res = fit_scene(scene_from_dict(PLANE), [real], outer_evals=3, inner_evals=10, polish_evals=0)
+    assert np.array_equal(render_scene(res.spec).frame, res.after)
+    assert res.spec.render.seed == res.seed and res.renders == 3 + 2 + 1
+
+
+@pytest.mark.render
 def test_simreal_fit_cli(tmp_path):
     import cv2
 

@@ -24,8 +24,9 @@ of whose points renders the scene once at a reduced film (``fit_scale``, ``fit_s
 inner search over the develop parameters from the best point so far. The best point is then
 polished by a few steps of the outer search at the scene's own film and spp (the blob statistics
 at the real frames' scale depend on the film: clipping and the tone curve act before the
-resize), the develop parameters searched again on the best render, and the fitted scene rendered
-once more as a whole (the frame the report shows). The statistics of each loss are pooled over
+resize), the develop parameters searched again on the best render, then the sensor's alone on the
+fitted scene's own render with its own frame's loss added (developing that render again is exact,
+so the frame the report shows is the one ``simtest render`` makes of the fitted scene). The statistics of each loss are pooled over
 a few sensor-noise draws (:func:`_pooled_stats`). Every render uses
 the one root seed (common random numbers: the loss is a deterministic function of the
 parameters, and Nelder-Mead draws nothing).
@@ -67,6 +68,8 @@ SPREAD_WEIGHT = 0.05
 #: scale), display gamma.
 DEVELOP_BOUNDS = {"albedo_r": (0.02, 1.0), "albedo_g": (0.005, 1.0), "albedo_b": (0.005, 1.0),
                   "auto_mean": (0.03, 0.6), "gaussian_sigma": (0.0005, 0.05), "gamma": (1.4, 3.2)}
+#: The develop parameters of the sensor alone (the last stage, on the fitted albedo's render).
+SENSOR_BOUNDS = {k: DEVELOP_BOUNDS[k] for k in ("auto_mean", "gaussian_sigma", "gamma")}
 #: Bounds of the render parameters: relief RMS height (mm), film roughness (GGX/Beckmann alpha),
 #: the relief's Hurst exponent, the standard deviation of the film's log-roughness.
 RENDER_BOUNDS = {"relief_mm": (1e-5, 0.02), "alpha": (0.005, 0.5), "relief_hurst": (0.3, 1.0),
@@ -128,8 +131,11 @@ def develop(rgb: np.ndarray, specular: np.ndarray, base_albedo, params: dict, sp
 
     new = _with_develop(spec, params, base_albedo)
     gain = np.asarray(new.material.albedo, dtype=np.float32) / np.asarray(base_albedo, dtype=np.float32)
-    s = specular[..., None]
-    lin = (rgb - s) * gain + s
+    if np.all(gain == 1.0):  # the render's own albedo: its image as it is (no round-off)
+        lin = rgb
+    else:
+        s = specular[..., None]
+        lin = (rgb - s) * gain + s
     return video_frame(lin, new.sensor, seed, tissue=tissue), new
 
 
@@ -353,8 +359,28 @@ def fit_scene(spec: SceneSpec, frames: list[np.ndarray], *, seed: int = 0, outer
     state["renders"] += 1
     loss, d = inner(res, full, d, max(10, inner_evals * 2 // 3), noise_draws)
     _, fitted = develop(res.rgb, res.specular, base, d, full, res.seed, res.coverage >= TISSUE_COVERAGE)
-    fitted = dataclasses.replace(with_overrides(fitted, {"render.seed": rseed}), source=spec.source)
-    after = render_scene(fitted, seed=rseed).frame  # the fitted scene as `simtest render` makes it
-    say(f"at the scene's film ({W} x {H}, {spec.render.spp} spp): loss {loss:.4g}")
+    fitted = with_overrides(fitted, {"render.seed": rseed})
+    # 3. the sensor on the fitted scene's own render (the albedo now in the render: developing it
+    # again is exact), the loss of the scene's own frame (its seed's noise) added to the pooled
+    # one: the frame the scene makes is the one judged
+    own = render_scene(fitted, seed=rseed)
+    state["renders"] += 1
+    alb = fitted.material.albedo
+    seeds = _noise_seeds(rseed, noise_draws)
+    tissue = own.coverage >= TISSUE_COVERAGE
+    start = {k: d[k] for k in SENSOR_BOUNDS}
+
+    def f_sensor(x):
+        q = _from_unit(x, SENSOR_BOUNDS)
+        frs = [develop(own.rgb, own.specular, alb, q, fitted, sd, tissue)[0] for sd in seeds]
+        return (fit_loss(_pooled_stats(frs, height), ref) + fit_loss(_pooled_stats(frs[:1], height), ref)
+                + _penalty(x))
+
+    x = _nelder_mead(f_sensor, _to_unit(start, SENSOR_BOUNDS), max(10, inner_evals // 2), 0.1)
+    d = {**d, **_from_unit(x, SENSOR_BOUNDS)}
+    loss = f_sensor(x)
+    after, fitted = develop(own.rgb, own.specular, alb, d, fitted, rseed, tissue)
+    fitted = dataclasses.replace(fitted, source=spec.source)
+    say(f"at the scene's film ({W} x {H}, {spec.render.spp} spp): loss {loss:.4g} (pooled + own frame)")
     return FitResult(spec=fitted, before=before_res.frame, after=after, params={**p, **d},
-                     renders=state["renders"] + 2, history=history, seed=rseed)
+                     renders=state["renders"] + 1, history=history, seed=rseed)
