@@ -48,9 +48,12 @@ def test_disc_irradiance_in_closed_form():
     # 64 samples of the Vogel spiral integrate the smooth integrand to 0.1 % (measured 0.1 %)
     assert ratio == pytest.approx(D_MM**2 / (D_MM**2 + R_MM**2), rel=3e-3)
     assert np.array_equal(render_scene(_with_light(guide_diameter_mm=0.0)).linear, point.linear)
-    # the ground truth is the discs' centres': the same highlights as the point lights
-    assert point.highlights
-    assert [h.bp_px.tolist() for h in disc.highlights] == [h.bp_px.tolist() for h in point.highlights]
+    # the ground truth is the discs' centres': a glossy tilted plane has the same highlights
+    glossy = {**BASE, "material": {**BASE["material"], "c": 1.0, "alpha": 0.2},
+              "geometry": {"type": "plane", "tilt_deg": 10.0, "distance_mm": D_MM}, "render": {"spp": 4}}
+    hp = render_scene(scene_from_dict(glossy)).highlights
+    hd = render_scene(scene_from_dict({**glossy, "light": {**BASE["light"], "guide_diameter_mm": 2.0}})).highlights
+    assert hp and [h.bp_px.tolist() for h in hd] == [h.bp_px.tolist() for h in hp]
 
 
 @pytest.mark.render

@@ -14,7 +14,9 @@ from pathlib import Path
 from typing import Optional
 
 import cv2
+import numpy as np
 import typer
+from PIL import Image
 from rich.console import Console
 
 from simtest._exit import CANNOT_WRITE, writable_dir
@@ -28,10 +30,18 @@ from simtest.render.render import (
     render_scene,
     write_render,
 )
-from simtest.render.simreal import banner_frames, sim_to_real_figure, sim_to_real_table
+from simtest.render.simfit import fit_scene, split_frames
+from simtest.render.simreal import (
+    FACTOR_GOAL,
+    at_height,
+    banner_frames,
+    fit_figure,
+    sim_to_real_figure,
+    sim_to_real_table,
+)
 from simtest.simulate.truth import HighlightTruthError
 from simtest.resources import data_root, real_banner_path
-from simtest.scene.spec import RENDER_VARIANTS, SceneError, load_scene
+from simtest.scene.spec import RENDER_VARIANTS, SceneError, load_scene, scene_to_toml
 
 __all__ = ["render_command", "simreal_command"]
 
@@ -219,11 +229,6 @@ def simreal_command(
 
 def _simreal_fit(spec, frames: list, paths: list[Path], out: Path, renders: int, polish: int, seed: int) -> None:
     """``simreal --fit``: fit, then write the fitted scene and the before/after report."""
-    from simtest.render.simfit import fit_scene, split_frames
-    from simtest.render.simreal import FACTOR_GOAL, fit_figure
-    from PIL import Image
-
-    from simtest.scene.spec import scene_to_toml
 
     fit_frames, held = split_frames(frames)
     console = Console(stderr=True, soft_wrap=True)
@@ -273,12 +278,8 @@ def _simreal_fit(spec, frames: list, paths: list[Path], out: Path, renders: int,
     typer.echo("\n".join(lines))
 
 
-def _side_by_side(before, after, fit_frames, held) -> "np.ndarray":
+def _side_by_side(before, after, fit_frames, held) -> np.ndarray:
     """Before and after at the real frames' height beside four fitted and four held-out frames."""
-    import numpy as np
-
-    from simtest.render.simreal import at_height
-
     h = fit_frames[0].shape[0]
     row = [at_height(before, h), at_height(after, h)] + list(fit_frames[:2]) + list(held[:2])
     gap = np.full((h, 6, 3), 255, np.uint8)

@@ -43,6 +43,10 @@ from dataclasses import dataclass, field
 from typing import Callable
 
 import numpy as np
+from scipy.optimize import minimize
+
+from simtest.render.render import TISSUE_COVERAGE, render_scene
+from simtest.render.sensor import video_frame
 
 from simtest.render.simreal import (
     FACTOR_GOAL,
@@ -51,6 +55,7 @@ from simtest.render.simreal import (
     log_ratio,
     real_reference,
 )
+from simtest.render.tissue import TISSUE_ALBEDO
 from simtest.scene.spec import SceneSpec, with_overrides
 
 __all__ = ["MARGIN", "SPREAD_WEIGHT", "FitResult", "develop", "fit_scene", "split_frames",
@@ -127,8 +132,6 @@ def develop(rgb: np.ndarray, specular: np.ndarray, base_albedo, params: dict, sp
     spec : SceneSpec
         ``spec`` with the parameters set (``material.albedo``, ``sensor.*``).
     """
-    from simtest.render.sensor import video_frame
-
     new = _with_develop(spec, params, base_albedo)
     gain = np.asarray(new.material.albedo, dtype=np.float32) / np.asarray(base_albedo, dtype=np.float32)
     if np.all(gain == 1.0):  # the render's own albedo: its image as it is (no round-off)
@@ -173,8 +176,6 @@ def _penalty(x: np.ndarray) -> float:
 
 
 def _nelder_mead(f: Callable[[np.ndarray], float], x0: np.ndarray, maxfev: int, step: float) -> np.ndarray:
-    from scipy.optimize import minimize
-
     n = len(x0)
     simplex = np.vstack([x0] + [x0 + step * np.eye(n)[i] * (1 if x0[i] < 0.5 else -1) for i in range(n)])
     res = minimize(f, x0, method="Nelder-Mead",
@@ -272,9 +273,6 @@ def fit_scene(spec: SceneSpec, frames: list[np.ndarray], *, seed: int = 0, outer
     ValueError
         If the scene is not a tissue scene with a video sensor, or there is no frame.
     """
-    from simtest.render.render import TISSUE_COVERAGE, render_scene
-    from simtest.render.tissue import TISSUE_ALBEDO
-
     if spec.material.model != "tissue" or spec.sensor.output != "video":
         raise ValueError(f"{spec.source}: material.model: the fit needs a tissue scene with a video "
                          f"sensor (material.model = \"tissue\", sensor.output = \"video\")")

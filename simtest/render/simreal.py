@@ -44,6 +44,8 @@ import numpy as np
 from skimage.measure import label
 
 from simtest.constants import LUMA_BT601
+from simtest.reconstruct.detect import default_full_scale, detect_specularities, image_smooth_sigma_px
+from simtest.reconstruct.settings import ReconSettings
 
 matplotlib.use("Agg", force=False)
 import matplotlib.pyplot as plt  # noqa: E402 - after choosing the back-end
@@ -134,9 +136,6 @@ def _detector_count(frame: np.ndarray) -> int:
     """Bright components simtest's detector finds with the defaults for whole frames
     (:meth:`~simtest.reconstruct.settings.ReconSettings.for_frames`: local peaks, smoothing chosen
     from the noise), every component counted (no ``max_candidates`` cap)."""
-    from simtest.reconstruct.detect import default_full_scale, detect_specularities, image_smooth_sigma_px
-    from simtest.reconstruct.settings import ReconSettings
-
     st = ReconSettings.for_frames()
     fs = default_full_scale(frame)
     det = detect_specularities(frame, brightness_rel=st.brightness_rel, full_scale=fs,
