@@ -183,7 +183,8 @@ def simreal_command(
     Markdown) and OUT/simreal.png (the figure). With --fit FRAMES: the scene's micro-relief
     (height, spectrum), film roughness, albedo, exposure, noise and tone are fitted to alternate
     frames of FRAMES (scipy's Nelder-Mead on the log-ratios of the statistics; --renders renders
-    at half the film and 4 spp, then the scene's own), and OUT/fitted.toml (the fitted scene),
+    at half the film and 4 spp, then --polish at the scene's own film and spp: about 10 minutes
+    for the colonoscope on 2 cores), and OUT/fitted.toml (the fitted scene),
     OUT/frames.png (before and after beside real frames) are written too, with simreal.json and
     simreal.md holding every statistic before and after on the fitted and the held-out frames.
     Exit status 2: bad input; 4: OUT cannot be written; 1: Mitsuba cannot run here."""
