@@ -14,7 +14,9 @@ from pathlib import Path
 from typing import Optional
 
 import cv2
+import numpy as np
 import typer
+from PIL import Image
 from rich.console import Console
 
 from simtest._exit import CANNOT_WRITE, writable_dir
@@ -28,10 +30,18 @@ from simtest.render.render import (
     render_scene,
     write_render,
 )
-from simtest.render.simreal import banner_frames, sim_to_real_figure, sim_to_real_table
+from simtest.render.simfit import fit_scene, split_frames
+from simtest.render.simreal import (
+    FACTOR_GOAL,
+    at_height,
+    banner_frames,
+    fit_figure,
+    sim_to_real_figure,
+    sim_to_real_table,
+)
 from simtest.simulate.truth import HighlightTruthError
 from simtest.resources import data_root, real_banner_path
-from simtest.scene.spec import RENDER_VARIANTS, SceneError, load_scene
+from simtest.scene.spec import RENDER_VARIANTS, SceneError, load_scene, scene_to_toml
 
 __all__ = ["render_command", "simreal_command"]
 
@@ -110,58 +120,103 @@ def _shown(path: Path) -> str:
         return str(path)
 
 
-def simreal_command(
-    scene: str = typer.Argument("colonoscope", help="Scene to render (a bundled name or a TOML file)."),
-    out: Path = typer.Option(..., "--out", "-o", show_default=False,
-                             help="Output folder (created if needed): simreal.json, simreal.md, simreal.png."),
-    real: Optional[list[Path]] = typer.Option(
-        None, "--real", help="Real frames: images, or a banner of 280 px tiles (*banner*). "
-        "Default: the Hyper-Kvasir banner in tests/data/real."),
-    seed: Optional[int] = typer.Option(None, "--seed", min=0, max=MAX_SEED, help="Render seed."),
-) -> None:
-    """Render SCENE and compare its video frame with real frames: table (JSON, Markdown) and figure.
-
-    Writes, in the folder OUT (the three replaced as a set; other files there are kept):
-    OUT/simreal.json (the table's rows, the scene, the seed and the real frames),
-    OUT/simreal.md (the table in Markdown) and OUT/simreal.png (the figure). Exit status 2: bad
-    input; 4: OUT cannot be written; 1: Mitsuba cannot run here."""
-    writable_dir(out, "--out")
-    paths = real or [real_banner_path()]
+def _read_frames(paths: list[Path], option: str) -> list:
+    """RGB uint8 frames of image files (a banner of 280 px tiles, ``*banner*``, gives its tiles);
+    raises the one-line failure naming ``option`` and the file."""
     frames = []
     for p in paths:
         if not p.is_file():
-            raise _fail(f"--real: {p}: no such file (give real frames with --real)")
+            raise _fail(f"{option}: {p}: no such file (give real frames with {option})")
         if "banner" in p.name:
             try:
                 frames += banner_frames(p)
             except ValueError as exc:
-                raise _fail(f"--real: {exc}") from None
+                raise _fail(f"{option}: {exc}") from None
         else:
             img = cv2.imread(str(p), cv2.IMREAD_COLOR)
             if img is None:
-                raise _fail(f"--real: {p}: not a readable image")
+                raise _fail(f"{option}: {p}: not a readable image")
             frames.append(cv2.cvtColor(img, cv2.COLOR_BGR2RGB))
     if len({f.shape[0] for f in frames}) != 1:
-        raise _fail("--real: the real frames must share one height")
+        raise _fail(f"{option}: the real frames must share one height")
+    return frames
+
+
+def _table_md(rows: list[dict]) -> list[str]:
+    lines = ["| statistic | rendered | real | real IQR (per frame) | ratio | within x2 |",
+             "|---|---|---|---|---|---|"]
+    for r in rows:
+        real = f"{r['real']:.4g}" + (" (pooled)" if r.get("real_pooled") else "")
+        lines.append(f"| {r['statistic']} | {r['rendered']:.4g} | {real} | "
+                     f"{r['real_q25']:.3g} to {r['real_q75']:.3g} | {r['ratio']:.3g} | "
+                     f"{'yes' if r['within_goal'] else 'no'} |")
+    return lines
+
+
+def simreal_command(
+    scene_arg: Optional[str] = typer.Argument(None, metavar="[SCENE]",
+                                              help="Scene to render (a bundled name or a TOML file); "
+                                              "default colonoscope."),
+    out: Path = typer.Option(..., "--out", "-o", show_default=False,
+                             help="Output folder (created if needed): simreal.json, simreal.md, simreal.png "
+                             "(with --fit also fitted.toml and frames.png)."),
+    real: Optional[list[Path]] = typer.Option(
+        None, "--real", help="Real frames: images, or a banner of 280 px tiles (*banner*). "
+        "Default: the Hyper-Kvasir banner in tests/data/real."),
+    fit: Optional[list[Path]] = typer.Option(
+        None, "--fit", help="Fit the scene's appearance and sensor to these real frames (images or a "
+        "*banner* of 280 px tiles): alternate frames are fitted, the others held out."),
+    scene_opt: Optional[str] = typer.Option(None, "--scene", help="The scene (same as SCENE)."),
+    renders: int = typer.Option(14, "--renders", min=3, max=200,
+                                help="With --fit: renders of the search at half the film and 4 spp."),
+    polish: int = typer.Option(6, "--polish", min=0, max=100,
+                               help="With --fit: renders at the scene's own film and spp that polish the search's "
+                               "best point."),
+    seed: Optional[int] = typer.Option(None, "--seed", min=0, max=MAX_SEED,
+                                       help="Render seed (with --fit: the root seed of the fit)."),
+) -> None:
+    """Render SCENE and compare its video frame with real frames: table (JSON, Markdown) and figure;
+    with --fit, first fit the scene to real frames.
+
+    Writes, in the folder OUT (replaced as a set; other files there are kept): OUT/simreal.json
+    (the table's rows, the scene, the seed and the real frames), OUT/simreal.md (the table in
+    Markdown) and OUT/simreal.png (the figure). With --fit FRAMES: the scene's micro-relief
+    (height, spectrum), film roughness, albedo, exposure, noise and tone are fitted to alternate
+    frames of FRAMES (scipy's Nelder-Mead on the log-ratios of the statistics; --renders renders
+    at half the film and 4 spp, then --polish at the scene's own film and spp: about 10 minutes
+    for the colonoscope on 2 cores), and OUT/fitted.toml (the fitted scene),
+    OUT/frames.png (before and after beside real frames) are written too, with simreal.json and
+    simreal.md holding every statistic before and after on the fitted and the held-out frames.
+    Exit status 2: bad input; 4: OUT cannot be written; 1: Mitsuba cannot run here."""
+    if scene_arg is not None and scene_opt is not None and scene_arg != scene_opt:
+        raise _fail(f"--scene: {scene_opt!r} and SCENE {scene_arg!r} disagree (give one)")
+    scene = scene_opt or scene_arg or "colonoscope"
+    writable_dir(out, "--out")
+    if fit:
+        if real:
+            raise _fail("--real: not with --fit (the fit's held-out frames are its check)")
+        frames = _read_frames(list(fit), "--fit")
+    else:
+        frames = _read_frames(list(real or [real_banner_path()]), "--real")
     try:
         spec = load_scene(scene)
-        result = render_scene(spec, seed=seed)
     except SceneError as exc:
         raise _fail(str(exc)) from None
+    if fit:
+        _simreal_fit(spec, frames, list(fit), out, renders, polish, spec.render.seed if seed is None else seed)
+        return
+    try:
+        result = render_scene(spec, seed=seed)
     except RenderInputError as exc:
         raise _fail(str(exc)) from None
     except RendererUnavailable as exc:
         raise _fail(str(exc), code=1) from None
     frame = result.frame
+    paths = real or [real_banner_path()]
     rows = sim_to_real_table(frame, frames)
     fig = sim_to_real_figure(frame, frames, rows)
     doc = {"scene": spec.name, "seed": result.seed, "real": [_shown(p) for p in paths], "rows": rows}
-    lines = ["| statistic | rendered | real median | real IQR | ratio | within x2 |",
-             "|---|---|---|---|---|---|"]
-    for r in rows:
-        lines.append(f"| {r['statistic']} | {r['rendered']:.4g} | {r['real_median']:.4g} | "
-                     f"{r['real_q25']:.3g} to {r['real_q75']:.3g} | {r['ratio']:.3g} | "
-                     f"{'yes' if r['within_goal'] else 'no'} |")
+    lines = _table_md(rows)
     try:
         atomic_write_set({
             out / "simreal.json": lambda t: Path(t).write_text(json.dumps(doc, indent=1) + "\n", encoding="utf-8"),
@@ -171,3 +226,65 @@ def simreal_command(
     except OSError as exc:
         raise _fail(f"--out: cannot write {out}: {exc.strerror or exc}", CANNOT_WRITE) from None
     typer.echo("\n".join(lines))
+
+
+def _simreal_fit(spec, frames: list, paths: list[Path], out: Path, renders: int, polish: int, seed: int) -> None:
+    """``simreal --fit``: fit, then write the fitted scene and the before/after report."""
+
+    fit_frames, held = split_frames(frames)
+    console = Console(stderr=True, soft_wrap=True)
+    try:
+        res = fit_scene(spec, fit_frames, seed=seed, outer_evals=renders, polish_evals=polish,
+                        progress=lambda s: console.print(s, markup=False, highlight=False))
+    except ValueError as exc:
+        raise _fail(str(exc)) from None
+    except RenderInputError as exc:
+        raise _fail(str(exc)) from None
+    except RendererUnavailable as exc:
+        raise _fail(str(exc), code=1) from None
+    tables = {}
+    for name, fr in (("fitted", fit_frames), ("held_out", held)):
+        if fr:
+            tables[name] = {"before": sim_to_real_table(res.before, fr), "after": sim_to_real_table(res.after, fr)}
+    counts = {name: {when: sum(r["within_goal"] for r in rows) for when, rows in t.items()} for name, t in tables.items()}
+    n_stats = len(tables["fitted"]["after"])
+    src = [_shown(p) for p in paths]
+    header = (f"{spec.name}, fitted by `simtest simreal --fit` to {len(fit_frames)} real frames "
+              f"(alternate frames of {', '.join(src)}; {len(held)} held out), root seed {seed}.\n"
+              f"Within x{FACTOR_GOAL:g} of the real frames after the fit: "
+              + "; ".join(f"{n.replace('_', '-')} {c['after']} of {n_stats}" for n, c in counts.items()) + ".\n"
+              + "Fitted: " + ", ".join(f"{k} {v:.4g}" for k, v in res.params.items()))
+    doc = {"scene": spec.name, "seed": seed, "real": src, "fit_frames": len(fit_frames),
+           "held_out_frames": len(held), "split": "alternate frames: even indices fitted, odd held out",
+           "params": res.params, "renders": res.renders, "history": res.history, "within_goal": counts,
+           "tables": tables, "rows": tables["fitted"]["after"]}
+    lines = [f"# simreal --fit: {spec.name}", "", header.replace("\n", "\n\n"), ""]
+    for name, t in tables.items():
+        for when in ("before", "after"):
+            lines += [f"## {name.replace('_', '-')} frames, {when} the fit ({counts[name][when]} of {n_stats} within "
+                      f"x{FACTOR_GOAL:g})", ""] + _table_md(t[when]) + [""]
+    fig = fit_figure(res.before, res.after, fit_frames, held, tables)
+    toml = scene_to_toml(res.spec, out, header)
+    strip = _side_by_side(res.before, res.after, fit_frames, held)
+    try:
+        atomic_write_set({
+            out / "simreal.json": lambda t: Path(t).write_text(json.dumps(doc, indent=1) + "\n", encoding="utf-8"),
+            out / "simreal.md": lambda t: Path(t).write_text("\n".join(lines) + "\n", encoding="utf-8"),
+            out / "simreal.png": lambda t: fig.savefig(t, format="png", dpi=100),
+            out / "frames.png": lambda t: Image.fromarray(strip).save(t, format="PNG"),
+            out / "fitted.toml": lambda t: Path(t).write_text(toml, encoding="utf-8"),
+        })
+    except OSError as exc:
+        raise _fail(f"--out: cannot write {out}: {exc.strerror or exc}", CANNOT_WRITE) from None
+    typer.echo("\n".join(lines))
+
+
+def _side_by_side(before, after, fit_frames, held) -> np.ndarray:
+    """Before and after at the real frames' height beside four fitted and four held-out frames."""
+    h = fit_frames[0].shape[0]
+    row = [at_height(before, h), at_height(after, h)] + list(fit_frames[:2]) + list(held[:2])
+    gap = np.full((h, 6, 3), 255, np.uint8)
+    parts = []
+    for f in row:
+        parts += [f, gap]
+    return np.concatenate(parts[:-1], axis=1)

@@ -20,8 +20,14 @@ instead:
   (s the light distance), times the BSDF. This is Mitsuba's point emitter with a profile, evaluated
   for every light at every sample instead of sampling one light per sample: the image carries no
   light-selection noise. Shadow rays are traced on meshes.
-- **Presets.** :func:`colonoscope_rig` and :func:`laparoscope_rig` (geometry and sources in their
-  docstrings).
+- **Light guides as discs.** With a guide diameter (``light.guide_diameter_mm``, the "cf_h190"
+  preset's by default) each light is a disc in the lens plane centred on its position: the
+  ``spp`` samples of a pixel take their light points on a Vogel (golden-angle) spiral over the
+  disc, one per sample, each emitting the light's intensity with the same cos^m profile, so a
+  pixel's mean is the disc's radiance (the area emitter's integral by stratified quadrature) with
+  no added noise. The ground truth stays that of the disc's centre (its position).
+- **Presets.** :func:`colonoscope_rig`, :func:`cf_h190_rig` and :func:`laparoscope_rig` (geometry
+  and sources in their docstrings).
 
 Importing this module is cheap; Mitsuba loads when a render runs.
 """
@@ -52,6 +58,11 @@ __all__ = [
     "RAY_SEED_KEY",
     "camera_model",
     "colonoscope_rig",
+    "cf_h190_rig",
+    "guide_radius_mm",
+    "CF_H190_GUIDE_OFFSET_MM",
+    "CF_H190_GUIDE_DIAMETER_MM",
+    "CF_H190_GAMMA",
     "light_rig",
     "uses_endoscope",
     "laparoscope_rig",
@@ -73,6 +84,19 @@ LAPAROSCOPE_RING_RADIUS_MM = 4.0
 #: diffusing lens spreads its light over the scope's 140 to 170 deg field; m = 1 (Lambertian) is an
 #: assumption, not a measurement.
 GUIDE_PROFILE_EXPONENT = 1.0
+
+#: Olympus CF-H190 colonoscope (the scope of the EndoMapper dataset): distance of each of its two
+#: light guides from the lens centre, mm. From EndoMapper's photometric calibration of this scope
+#: (Azagra et al., "EndoMapper dataset of complete calibrated endoscopy procedures", Scientific
+#: Data 10, 671, 2023, https://doi.org/10.1038/s41597-023-02564-7: lights about 3.3 mm from the
+#: lens, camera response gamma 2.2). The guides' layout along the image's x axis is assumed.
+CF_H190_GUIDE_OFFSET_MM = 3.3
+#: Diameter of each CF-H190 light guide's output face, mm: an assumption (fibre-bundle guides of
+#: colonoscopes are about 1 mm across), not part of the calibration.
+CF_H190_GUIDE_DIAMETER_MM = 1.0
+#: The camera response of the CF-H190 in the same calibration (a display gamma): a scene of this
+#: scope sets ``sensor.tone = "gamma"`` and ``sensor.gamma`` to it.
+CF_H190_GAMMA = 2.2
 
 #: Stable key of the sub-pixel sample stream in ``SeedSequence([seed, RAY_SEED_KEY])``.
 RAY_SEED_KEY = 0xE4D05
@@ -108,6 +132,28 @@ def colonoscope_rig(offset_mm: float = COLONOSCOPE_GUIDE_OFFSET_MM,
     """
     return LightRig(tuple(Light((s * float(offset_mm), 0.0, 0.0), intensity, "inverse_square",
                                 profile_exponent) for s in (-1.0, 1.0)))
+
+
+def cf_h190_rig(profile_exponent: float = GUIDE_PROFILE_EXPONENT, intensity: float = 1.0) -> LightRig:
+    """The light guides of an Olympus CF-H190 colonoscope: :func:`colonoscope_rig` at
+    :data:`CF_H190_GUIDE_OFFSET_MM` (EndoMapper's calibration; source there). Each guide is a disc
+    of :data:`CF_H190_GUIDE_DIAMETER_MM` (:func:`guide_radius_mm`).
+
+    Examples
+    --------
+    >>> cf_h190_rig().positions.tolist()
+    [[-3.3, 0.0, 0.0], [3.3, 0.0, 0.0]]
+    """
+    return colonoscope_rig(CF_H190_GUIDE_OFFSET_MM, profile_exponent, intensity)
+
+
+def guide_radius_mm(spec: SceneSpec) -> float:
+    """Radius of each light guide's disc, mm (0: point lights): ``light.guide_diameter_mm / 2``,
+    by default 0, or :data:`CF_H190_GUIDE_DIAMETER_MM` / 2 for the "cf_h190" rig."""
+    lt = spec.light
+    if lt.guide_diameter_mm is not None:
+        return 0.5 * float(lt.guide_diameter_mm)
+    return 0.5 * CF_H190_GUIDE_DIAMETER_MM if lt.rig == "cf_h190" else 0.0
 
 
 def laparoscope_rig(radius_mm: float = LAPAROSCOPE_RING_RADIUS_MM, count: int = 8,
@@ -291,6 +337,8 @@ def light_rig(spec: SceneSpec, seed: int) -> LightRig:
     if lt.rig == "colonoscope":
         off = COLONOSCOPE_GUIDE_OFFSET_MM if lt.guide_offset_mm is None else lt.guide_offset_mm
         return colonoscope_rig(off, m, lt.intensity)
+    if lt.rig == "cf_h190":
+        return cf_h190_rig(m, lt.intensity)
     if lt.rig == "laparoscope":
         r = LAPAROSCOPE_RING_RADIUS_MM if lt.guide_offset_mm is None else lt.guide_offset_mm
         return laparoscope_rig(r, lt.guide_count or 8, m, lt.intensity)

@@ -50,9 +50,9 @@ from simtest.render.mitsuba_dict import (
     plane_normal_cam,
 )
 from simtest.render import wavefront
-from simtest.render.endoscope import camera_model, light_rig, sample_positions, uses_endoscope
+from simtest.render.endoscope import camera_model, guide_radius_mm, light_rig, sample_positions, uses_endoscope
 from simtest.render.sensor import LUMA_WEIGHTS, apply_sensor, field_stop_mask, frame_luma, video_frame
-from simtest.render.tissue import in_camera, relief_normal, tissue_params
+from simtest.render.tissue import TISSUE_ALBEDO, in_camera, relief_normal, tissue_params
 from simtest.render.truth import ReliefHighlight, mesh_highlight_candidates, mesh_highlights, relief_highlights
 from simtest.scene.meshes import MeshError, load_mesh
 from simtest.scene.spec import SceneSpec, scene_to_dict
@@ -241,7 +241,8 @@ class RenderResult:
         """The 8-bit RGB video frame (H, W, 3) of the scene's sensor (:func:`video_frame`)."""
         if self.video is not None:
             return self.video
-        return video_frame(self.rgb if self.rgb is not None else self.linear, self.spec.sensor, self.seed)
+        return video_frame(self.rgb if self.rgb is not None else self.linear, self.spec.sensor, self.seed,
+                           tissue=self.coverage >= TISSUE_COVERAGE)
 
     @property
     def camera_model(self) -> CameraModel:
@@ -430,7 +431,12 @@ def tissue_texture(spec: SceneSpec):
     points (:func:`simtest.render.tissue.in_camera` of :func:`cam_to_texture_matrix`)."""
     mat = spec.material
     t = tissue_params(mat.tissue, mat.texture_seed, mat.relief_mm, mat.relief_scale_mm,
-                      relief_min_mm=mat.relief_min_mm, relief_hurst=mat.relief_hurst)
+                      relief_min_mm=mat.relief_min_mm, relief_hurst=mat.relief_hurst, base=mat.albedo,
+                      film_variation=mat.film_variation, film_scale_mm=mat.film_scale_mm)
+    if mat.wall_tissue is not None:
+        t = dataclasses.replace(t, wall_base=TISSUE_ALBEDO[mat.wall_tissue],
+                                wall_centre=tuple(float(x) for x in mat.wall_centre_mm),
+                                wall_radius=float(mat.wall_radius_mm))
     return in_camera(t, cam_to_texture_matrix(spec))
 
 
@@ -674,11 +680,12 @@ def _highlights(spec: SceneSpec, res: dict, light_pos, K, scene, pose, *, cast=N
 
 
 def _sensor_image(linear: np.ndarray, rgb: np.ndarray | None, spec: SceneSpec,
-                  seed: int) -> tuple[np.ndarray, np.ndarray | None]:
+                  seed: int, tissue: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray | None]:
     """The sensor image: :func:`apply_sensor` ("grey") or the video frame's luma ("video"), and the
-    video frame when one was made (else None)."""
+    video frame when one was made (else None). ``tissue``: the pixels the surface covers (the
+    "tissue" metering's)."""
     if spec.sensor.output == "video":
-        frame = video_frame(rgb if rgb is not None else linear, spec.sensor, seed)
+        frame = video_frame(rgb if rgb is not None else linear, spec.sensor, seed, tissue=tissue)
         return frame_luma(frame), frame
     return apply_sensor(linear, spec.sensor, seed), None
 
@@ -807,7 +814,7 @@ def render_scene(spec: SceneSpec, *, seed: int | None = None,
         else:
             res = {}
         highlights = visible_highlights(_highlights(spec, res, light_pos, K, scene, pose), specular)
-    sensor, video = _sensor_image(linear, None, spec, seed)
+    sensor, video = _sensor_image(linear, None, spec, seed, tissue=alpha >= TISSUE_COVERAGE)
     return RenderResult(
         linear=linear, sensor=sensor, specular=specular, normals=normals, depth=depth,
         distance=distance, position=position, mask=mask, coverage=alpha.astype(np.float32),
@@ -818,6 +825,10 @@ def render_scene(spec: SceneSpec, *, seed: int | None = None,
 
 # ------------------------------------------------------------------------------------------------
 # Endoscope renders: light rigs and camera models (see simtest.render.endoscope)
+
+#: Coverage from which a pixel counts as tissue for the "tissue" metering of the auto-exposure
+#: (``sensor.metering``): half the pixel or more on the surface.
+TISSUE_COVERAGE = 0.5
 
 #: Pixels per wavefront of the endoscope renderer (times spp rays). The image does not depend on it:
 #: each sample draws its sub-pixel position from its own stream
@@ -845,6 +856,7 @@ def _render_endoscope(spec: SceneSpec, seed: int, variant: str) -> RenderResult:
         scene = _load_dict(spec, {"type": "scene", "surface": surface})
         _cache_put(_SCENE_CACHE, _SCENE_CACHE_SIZE, key, scene)
     shadows = bool(geo.type in ("mesh", "saddle") and not rig.is_colocated)
+    guide_r = guide_radius_mm(spec)
     mat = spec.material
     texture = tissue_texture(spec) if mat.model == "tissue" else None
 
@@ -861,9 +873,11 @@ def _render_endoscope(spec: SceneSpec, seed: int, variant: str) -> RenderResult:
         run = shaded[b0:b0 + BLOCK_PIXELS]
         rays = wavefront.model_rays(model, sample_positions(spp, W, 0, 0, seed, pixels=run))
         if texture is None:
-            pending.append(wavefront.shade(scene, rays, rig, shadows=shadows, spp=spp, defer=True))
+            pending.append(wavefront.shade(scene, rays, rig, shadows=shadows, spp=spp, defer=True,
+                                           guide_radius_mm=guide_r))
         else:
             pending.append(wavefront.shade_tissue(scene, rays, rig, texture, mat, shadows=shadows, spp=spp,
+                                                  guide_radius_mm=guide_r,
                                                   defer=True))
     for b0 in range(0, len(dark), BLOCK_PIXELS):
         rays = wavefront.model_rays(model, sample_positions(spp, W, 0, 0, seed, pixels=dark[b0:b0 + BLOCK_PIXELS]))
@@ -950,10 +964,11 @@ def _render_endoscope(spec: SceneSpec, seed: int, variant: str) -> RenderResult:
             dist = np.linalg.norm(np.array([h.bp_mm for h in glints]), axis=1)
             seen = c["hit"] & (np.abs(c["t"] - dist) <= OCCLUSION_REL * dist)
             glints = [h for h, s_ in zip(glints, seen) if s_]
-    sensor, video = _sensor_image(linear, rgb, spec, seed)
+    coverage = coverage.reshape(H, W)
+    sensor, video = _sensor_image(linear, rgb, spec, seed, tissue=coverage >= TISSUE_COVERAGE)
     return RenderResult(
         linear=linear, sensor=sensor, specular=specular, normals=normals, depth=depth,
-        distance=distance, position=position, mask=mask, coverage=coverage.reshape(H, W),
+        distance=distance, position=position, mask=mask, coverage=coverage,
         K=K, cam_to_world=cam_to_world_matrix(spec.camera), light_pos=rig.lights[0].position,
         highlights=highlights, variant=variant, seed=seed, spec=spec, camera=model, lights=rig,
         rgb=rgb, shading_normals=shading, video=video, field_stop=stop, albedo=albedo,
@@ -1165,7 +1180,8 @@ def write_render(result: RenderResult, out_dir: str | Path) -> dict[str, Path]:
         "seed": result.seed,
         "variant": result.variant,
         "light_pos_mm": [float(x) for x in result.light_pos],
-        "lights": [_light_dict(light) for light in rig.lights],
+        "lights": [{**_light_dict(light), "diameter_mm": 2.0 * guide_radius_mm(result.spec)}
+                   for light in rig.lights],
         "image_size": [W, H],
         "highlights": [{**h.to_dict(), "kind": "macro"} for h in result.highlights],
         "relief_highlights": [h.to_dict() for h in result.relief_highlights],

@@ -127,11 +127,12 @@ def _vignetting_gain(shape: tuple[int, int], vignetting: float) -> np.ndarray:
     return gain
 
 
-def video_frame(rgb: np.ndarray, sensor: SensorSpec, seed: int, *, threads: int | None = None) -> np.ndarray:
+def video_frame(rgb: np.ndarray, sensor: SensorSpec, seed: int, *, threads: int | None = None,
+                tissue: np.ndarray | None = None) -> np.ndarray:
     """An 8-bit RGB video frame from a linear RGB image, as a scope's camera makes it.
 
-    Steps, in order: exposure (``exposure``, or "auto": the mean luma inside the field stop made
-    ``auto_mean``); vignetting ``1 - v (r / r_max)^2``; white-balance gains; shot noise (Poisson,
+    Steps, in order: exposure (``exposure``, or "auto": the mean luma inside the field stop, or
+    of its pixels on tissue with ``metering = "tissue"``, made ``auto_mean``); vignetting ``1 - v (r / r_max)^2``; white-balance gains; shot noise (Poisson,
     ``full_well_e`` electrons at full scale) and read noise (``gaussian_sigma``), per channel;
     clipping at ``saturation`` (then scaled to full scale); colour saturation about the BT.601
     luma; the tone curve (``gamma`` or sRGB); 8-bit quantisation; the field stop (black outside);
@@ -151,6 +152,9 @@ def video_frame(rgb: np.ndarray, sensor: SensorSpec, seed: int, *, threads: int 
         grey sensor image's stream is ``[seed, SENSOR_SEED_KEY]``).
     threads : int, optional
         Threads that develop the bands (default: the CPU count, at most 4).
+    tissue : ndarray of shape (H, W), bool, optional
+        Pixels on tissue: with ``sensor.metering = "tissue"`` the auto-exposure averages the
+        field stop's pixels among them only (all of the field stop without it).
 
     Returns
     -------
@@ -164,7 +168,10 @@ def video_frame(rgb: np.ndarray, sensor: SensorSpec, seed: int, *, threads: int 
     luma_w = np.asarray(LUMA_WEIGHTS)
     if sensor.exposure_mode == "auto":
         luma = np.maximum(rgb, 0.0) @ luma_w if rgb.shape[-1] == 3 else np.maximum(rgb[..., 0], 0.0) * luma_w.sum()
-        mean = float(np.mean(luma[stop], dtype=np.float64)) if stop.any() else 0.0
+        meter = stop
+        if sensor.metering == "tissue" and tissue is not None and (stop & tissue).any():
+            meter = stop & np.asarray(tissue, dtype=bool)
+        mean = float(np.mean(luma[meter], dtype=np.float64)) if meter.any() else 0.0
         exposure = sensor.auto_mean * sensor.saturation / mean if mean > 0 else 1.0
     else:
         exposure = sensor.exposure

@@ -12,7 +12,8 @@ wavefront and the ground truth evaluates the very same function per pixel:
   (:func:`in_camera`): the fields are evaluated at ``q`` with the normal ``A n`` and the shading
   normal is turned back by ``A^T``, so a surface point keeps its albedo and relief from any pose.
   Dr.Jit takes ``A`` and ``b`` as opaque values (``xp.const``), so a new pose reuses the compiled
-  kernels.
+  kernels; so are the relief's amplitudes (its height and Hurst exponent) and the film's
+  roughness, so that a fit or a sweep over them compiles once.
 - **Albedo** (diffuse RGB): a base colour per tissue (:data:`TISSUE_ALBEDO`) times a smooth
   colour variation, darkened along vessel-like lines: the zero set of a smooth random field
   ``g(q)`` (a sum of seeded plane waves), drawn as ``exp(-(g / w)^2)`` with a thin ``w``, which
@@ -32,6 +33,9 @@ wavefront and the ground truth evaluates the very same function per pixel:
   height tilts the shading normal: ``n_s = unit(n - (grad h - (grad h . n) n))`` (the bump mapping
   of Blinn 1978, https://doi.org/10.1145/965139.507101, on the tangent plane of the macro normal
   ``n``).
+- **Film thickness**: a smooth seeded field over the surface modulates the film's roughness
+  (:func:`film_alpha`, ``material.film_variation``): smooth mirror-like patches where the film
+  is thick, rough ones where it is thin.
 - **Specular film**: a dielectric interface (IOR 1.33 to 1.45, water to mucus) with Fresnel's
   reflectance over a rough microfacet lobe, Beckmann or GGX (Walter et al. 2007,
   https://doi.org/10.2312/EGWR/EGSR07/195-206), ``f_s = F(wi . m) D(m) G(wi, wo) / (4 cos_i
@@ -49,12 +53,15 @@ import numpy as np
 
 __all__ = ["TISSUE_ALBEDO", "TISSUE_SEED_KEY", "N_WAVES", "N_RELIEF_WAVES", "RELIEF_HURST", "RELIEF_MIN_MM",
            "TissueParams", "tissue_params", "in_camera", "albedo", "relief_height", "relief_normal",
-           "specular_lobe"]
+           "film_alpha", "specular_lobe"]
 
 #: Linear-RGB diffuse albedo of each tissue before variation. Mucosa: pink (sRGB about (225, 140,
 #: 125), the colour of a bowel wall under white light); liver: red-brown (sRGB about (150, 60, 45)).
 #: Assumed values chosen to match the colour of endoscopic frames, not measured reflectances.
-TISSUE_ALBEDO = {"mucosa": (0.75, 0.26, 0.20), "liver": (0.30, 0.045, 0.026)}
+TISSUE_ALBEDO = {"mucosa": (0.75, 0.26, 0.20), "liver": (0.30, 0.045, 0.026),
+                 # peritoneum over fat (abdominal wall, omentum): pale yellow-pink, sRGB about
+                 # (215, 170, 140); assumed like the others
+                 "peritoneum": (0.68, 0.40, 0.26)}
 
 #: Stable key of the tissue texture stream in ``SeedSequence([seed, TISSUE_SEED_KEY])``.
 TISSUE_SEED_KEY = 0x7155E
@@ -88,6 +95,16 @@ class TissueParams:
     #: (4, 4) rigid map from the frame of the points given to the functions below (the camera
     #: frame) to the texture frame; None: they are given in the texture frame.
     frame: np.ndarray | None = None
+    #: Base albedo of a second tissue (a wall around the first), used at texture-frame points at
+    #: least ``wall_radius`` from ``wall_centre`` (mm); None: one tissue everywhere.
+    wall_base: tuple[float, float, float] | None = None
+    wall_centre: tuple[float, float, float] | None = None
+    wall_radius: float = 0.0
+    #: Waves of the wet film's thickness field (unit RMS) and the standard deviation of the log of
+    #: the film's roughness over it (0: a uniform film).
+    film_k: np.ndarray | None = None
+    film_phase: np.ndarray | None = None
+    film_variation: float = 0.0
 
 
 def _directions(rng: np.random.Generator, n: int) -> np.ndarray:
@@ -120,7 +137,9 @@ def relief_spectrum(rng: np.random.Generator, relief_mm: float, min_mm: float, m
 
 def tissue_params(kind: str, seed: int, relief_mm: float, relief_scale_mm: float,
                   vessel_scale_mm: float = 4.0, *, relief_min_mm: float | None = None,
-                  relief_hurst: float = RELIEF_HURST) -> TissueParams:
+                  relief_hurst: float = RELIEF_HURST,
+                  base: tuple[float, float, float] | None = None,
+                  film_variation: float = 0.0, film_scale_mm: float = 2.0) -> TissueParams:
     """Draw a tissue texture (texture frame) from ``SeedSequence([seed, TISSUE_SEED_KEY])``.
 
     Parameters
@@ -138,6 +157,14 @@ def tissue_params(kind: str, seed: int, relief_mm: float, relief_scale_mm: float
         Shortest wavelength of the micro-relief, mm; default ``min(RELIEF_MIN_MM, relief_scale_mm)``.
     relief_hurst : float
         Hurst exponent H of the relief spectrum, amplitudes ``~ lambda^H``.
+    base : (float, float, float), optional
+        Linear-RGB base albedo; default ``TISSUE_ALBEDO[kind]``. The seeded pattern does not
+        depend on it.
+    film_variation : float
+        Standard deviation of the log of the wet film's roughness over the surface (0: uniform;
+        :func:`film_alpha`).
+    film_scale_mm : float
+        Typical wavelength of the film's thickness field, mm.
 
     Raises
     ------
@@ -152,7 +179,10 @@ def tissue_params(kind: str, seed: int, relief_mm: float, relief_scale_mm: float
     vk, vp = _waves(rng, vessel_scale_mm)
     rk, rp, amp = relief_spectrum(rng, relief_mm, lo, relief_scale_mm, relief_hurst)
     width = 0.06 if kind == "mucosa" else 0.03
-    return TissueParams(TISSUE_ALBEDO[kind], ck, cp, vk, vp, width, rk, rp, amp)
+    fk, fp = _waves(rng, film_scale_mm)  # drawn last: the other fields do not depend on it
+    colour = TISSUE_ALBEDO[kind] if base is None else tuple(float(x) for x in base)
+    return TissueParams(colour, ck, cp, vk, vp, width, rk, rp, amp, film_k=fk, film_phase=fp,
+                        film_variation=float(film_variation))
 
 
 def in_camera(t: TissueParams, cam_to_texture: np.ndarray) -> TissueParams:
@@ -208,19 +238,25 @@ def _field(xp, p, k, phase):
 
 def albedo(xp, p, t: TissueParams):
     """Diffuse RGB albedo at surface points ``p`` = (x, y, z) arrays, mm (the camera frame with
-    :func:`in_camera`, else the texture frame).
+    :func:`in_camera`, else the texture frame); the wall's tissue (:attr:`TissueParams.wall_base`)
+    where the point is at least ``wall_radius`` from ``wall_centre``.
 
     Returns a tuple of three arrays (R, G, B) in [0, 1].
     """
     p, _ = _to_texture(xp, p, t)
     var = _field(xp, p, t.colour_k, t.colour_phase)  # smooth, unit RMS
+    wall = None
+    if t.wall_base is not None:
+        d = [p[i] - float(t.wall_centre[i]) for i in range(3)]
+        wall = (d[0] * d[0] + d[1] * d[1] + d[2] * d[2]) >= float(t.wall_radius) ** 2
     g = _field(xp, p, t.vessel_k, t.vessel_phase)
     vessel = xp.exp(-(g * g) / (t.vessel_width * t.vessel_width))
     # Vessels absorb green and blue more than red (haemoglobin): darker and redder lines.
     absorb = (0.25, 0.55, 0.45)
     out = []
     for c in range(3):
-        a = t.base[c] * (1.0 + 0.12 * var) * (1.0 - absorb[c] * vessel)
+        base = t.base[c] if wall is None else xp.where(wall, t.wall_base[c], t.base[c])
+        a = base * (1.0 + 0.12 * var) * (1.0 - absorb[c] * vessel)
         out.append(xp.minimum(xp.maximum(a, 0.0), 1.0))
     return tuple(out)
 
@@ -232,7 +268,7 @@ def relief_height(xp, p, t: TissueParams):
     h = 0.0
     for j in range(len(t.relief_phase)):
         k = t.relief_k[j]
-        h = h + float(t.relief_amp[j]) * xp.sin(p[0] * float(k[0]) + p[1] * float(k[1]) + p[2] * float(k[2])
+        h = h + _const(xp, t.relief_amp[j]) * xp.sin(p[0] * float(k[0]) + p[1] * float(k[1]) + p[2] * float(k[2])
                                                 + float(t.relief_phase[j]))
     return h
 
@@ -251,8 +287,8 @@ def relief_normal(xp, p, n, t: TissueParams):
     gx = gy = gz = 0.0
     for j in range(len(t.relief_phase)):
         k = t.relief_k[j]
-        c = float(t.relief_amp[j]) * xp.cos(p[0] * float(k[0]) + p[1] * float(k[1]) + p[2] * float(k[2])
-                                            + float(t.relief_phase[j]))
+        c = _const(xp, t.relief_amp[j]) * xp.cos(p[0] * float(k[0]) + p[1] * float(k[1]) + p[2] * float(k[2])
+                                                 + float(t.relief_phase[j]))
         gx, gy, gz = gx + c * float(k[0]), gy + c * float(k[1]), gz + c * float(k[2])
     if A is not None:  # the gradient back in the camera frame: grad_p h = A^T grad_q h
         gx, gy, gz = (A[0][i] * gx + A[1][i] * gy + A[2][i] * gz for i in range(3))
@@ -260,6 +296,25 @@ def relief_normal(xp, p, n, t: TissueParams):
     sx, sy, sz = n[0] - (gx - gn * n[0]), n[1] - (gy - gn * n[1]), n[2] - (gz - gn * n[2])
     inv = 1.0 / xp.sqrt(sx * sx + sy * sy + sz * sz)
     return sx * inv, sy * inv, sz * inv
+
+
+def film_alpha(xp, p, t: TissueParams, alpha: float):
+    """The wet film's roughness at surface points ``p`` (the camera frame with :func:`in_camera`):
+    ``alpha exp(v f(q))`` with ``f`` the film's thickness field (a unit-RMS sum of seeded plane
+    waves of the texture frame, wavelengths about ``film_scale_mm``) and ``v`` =
+    :attr:`TissueParams.film_variation`; ``alpha`` itself where ``v`` is 0.
+
+    A thick film smooths the tissue's relief into a smoother mirror (small ``alpha``: glints
+    small and bright), a thin one leaves it rough (broad, dim sheen): with ``v > 0`` a frame shows
+    highlights of every size between the two, as real mucosa does, instead of one broad sheen
+    beside point glints. Clipped to [0.002, 1].
+    """
+    if t.film_variation == 0.0 or t.film_k is None:
+        return alpha
+    q, _ = _to_texture(xp, p, t)
+    f = _field(xp, q, t.film_k, t.film_phase)
+    a = alpha * xp.exp(_const(xp, t.film_variation) * f)
+    return xp.minimum(xp.maximum(a, 0.002), 1.0)
 
 
 def _fresnel_dielectric(xp, cos_i, eta):

@@ -139,7 +139,7 @@ def cast(scene, d: np.ndarray, *, later: bool = False):
 
 
 def shade(scene, d: np.ndarray, rig: LightRig, *, shadows: bool, spp: int = 1,
-          defer: bool = False) -> tuple[np.ndarray, np.ndarray] | Pending:
+          defer: bool = False, guide_radius_mm: float = 0.0) -> tuple[np.ndarray, np.ndarray] | Pending:
     """Radiance along rays from the camera centre, lit by every light of ``rig``.
 
     Parameters
@@ -156,6 +156,8 @@ def shade(scene, d: np.ndarray, rig: LightRig, *, shadows: bool, spp: int = 1,
         Consecutive rays per pixel: the results are their means (``N / spp`` pixels).
     defer : bool
         Queue the kernels and return a :class:`Pending` whose ``fetch()`` gives the results.
+    guide_radius_mm : float
+        Each light a disc of this radius in the lens plane (:func:`disc_offsets`); 0: points.
 
     Returns
     -------
@@ -179,8 +181,10 @@ def shade(scene, d: np.ndarray, rig: LightRig, *, shadows: bool, spp: int = 1,
     bsdf = si.bsdf(ray)
     ctx = mi.BSDFContext()
     total = mi.Color3f(0.0)
-    for light in rig.lights:
-        lp, wo, weight = _light_at(light, si.p)
+    n_rays = dr.width(ray.d)
+    for i, light in enumerate(rig.lights):
+        off = disc_offsets(n_rays, spp, guide_radius_mm, i) if guide_radius_mm > 0 else None
+        lp, wo, weight = _light_at(light, si.p, off)
         lit = valid
         if shadows:
             lit = lit & ~_occluded(scene, si.spawn_ray_to(lp), valid)
@@ -251,8 +255,28 @@ def _per_pixel(spp: int, *values):
     return values
 
 
-def _light_at(light, p):
-    """One light of the rig seen from surface points ``p`` (Dr.Jit, camera frame, mm).
+#: Golden angle, rad: the step of the Vogel spiral of the disc guides' sample points.
+GOLDEN_ANGLE = float(np.pi * (3.0 - np.sqrt(5.0)))
+
+
+def disc_offsets(n_rays: int, spp: int, radius_mm: float, light_index: int):
+    """Offsets (x, y) in the lens plane, mm, of each ray's point on a disc guide (Dr.Jit Floats).
+
+    Sample ``k`` of a pixel (rays are ``spp`` consecutive per pixel) takes point ``k`` of a Vogel
+    spiral over the disc of radius ``radius_mm``: radius ``R sqrt((k + 1/2) / spp)``, angle ``k
+    g + i pi / 2`` (``g`` the golden angle, ``i`` the light's index): equal areas per sample, so a
+    pixel's mean is the disc's integral.
+    """
+    dr, mi = require("drjit"), require("mitsuba")
+    k = mi.Float(dr.arange(mi.UInt32, n_rays) % spp)
+    r = float(radius_mm) * dr.sqrt((k + 0.5) / float(spp))
+    a = k * GOLDEN_ANGLE + 0.5 * np.pi * light_index
+    return r * dr.cos(a), r * dr.sin(a)
+
+
+def _light_at(light, p, offset=None):
+    """One light of the rig seen from surface points ``p`` (Dr.Jit, camera frame, mm); ``offset``:
+    the (x, y) offsets in the lens plane of each ray's point on a disc guide (None: the point).
 
     Returns the light's position, the unit direction ``wo`` from ``p`` to it and its weight
     ``I max(0, w_z)^m / s^2`` (``w = -wo`` the emission direction, ``s`` the distance; the ``1 / s^2``
@@ -260,6 +284,8 @@ def _light_at(light, p):
     """
     dr, mi = require("drjit"), require("mitsuba")
     lp = mi.Point3f(*(float(x) for x in light.position_mm))
+    if offset is not None:
+        lp = mi.Point3f(lp.x + offset[0], lp.y + offset[1], lp.z)
     to_light = lp - p
     s2 = dr.squared_norm(to_light)
     wo = to_light * dr.rsqrt(s2)
@@ -344,7 +370,7 @@ def albedo_map(p: np.ndarray, texture, *, defer: bool = False) -> np.ndarray | P
 
 
 def shade_tissue(scene, d: np.ndarray, rig: LightRig, texture, material, *, shadows: bool, spp: int = 1,
-                 defer: bool = False) -> tuple[np.ndarray, np.ndarray, np.ndarray] | Pending:
+                 defer: bool = False, guide_radius_mm: float = 0.0) -> tuple[np.ndarray, np.ndarray, np.ndarray] | Pending:
     """Radiance of procedural tissue (:mod:`simtest.render.tissue`) along rays from the camera centre.
 
     Parameters
@@ -362,6 +388,8 @@ def shade_tissue(scene, d: np.ndarray, rig: LightRig, texture, material, *, shad
         Consecutive rays per pixel: the results are their means (``N / spp`` pixels).
     defer : bool
         Queue the kernels and return a :class:`Pending` whose ``fetch()`` gives the results.
+    guide_radius_mm : float
+        Each light a disc of this radius in the lens plane (:func:`disc_offsets`); 0: points.
 
     Returns
     -------
@@ -386,14 +414,18 @@ def shade_tissue(scene, d: np.ndarray, rig: LightRig, texture, material, *, shad
     wi = (wi.x, wi.y, wi.z)
     rgb = [mi.Float(0.0), mi.Float(0.0), mi.Float(0.0)]
     spec = mi.Float(0.0)
-    for light in rig.lights:
-        lp, wo, weight = _light_at(light, si.p)
+    # opaque: a new roughness reuses the kernel; varying over the film where it varies
+    alpha = tissue.film_alpha(xp, p, texture, tissue._const(xp, material.microfacet_alpha))
+    n_rays = dr.width(ray.d)
+    for i, light in enumerate(rig.lights):
+        off = disc_offsets(n_rays, spp, guide_radius_mm, i) if guide_radius_mm > 0 else None
+        lp, wo, weight = _light_at(light, si.p, off)
         lit = valid & (dr.dot(wo, n) > 0)
         if shadows:
             lit = lit & ~_occluded(scene, si.spawn_ray_to(lp), valid)
         w3 = (wo.x, wo.y, wo.z)
         cos_o = dr.maximum(ns[0] * wo.x + ns[1] * wo.y + ns[2] * wo.z, 0.0)
-        fs = tissue.specular_lobe(xp, ns, wi, w3, material.distribution, material.microfacet_alpha,
+        fs = tissue.specular_lobe(xp, ns, wi, w3, material.distribution, alpha,
                                   material.n, material.film_ior, material.c)
         e = dr.select(lit, cos_o * weight, 0.0)
         spec += fs * e

@@ -38,11 +38,15 @@ from __future__ import annotations
 
 import dataclasses
 import functools
+import json
 import math
+import os
 import tomllib
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, ClassVar, Mapping
+
+import numpy as np
 
 from simtest._checks import keyed_error
 from simtest.constants import MAX_SEED
@@ -66,6 +70,7 @@ __all__ = [
     "load_scene",
     "scene_from_dict",
     "scene_to_dict",
+    "scene_to_toml",
     "with_overrides",
     "GEOMETRY_KEYS",
     "RENDER_VARIANTS",
@@ -184,13 +189,18 @@ class LightSpec:
         camera, rendered by :mod:`simtest.render.endoscope`): "colonoscope" (two light guides on
         opposite sides of the lens, ``guide_offset_mm`` from it along x), "laparoscope" (a ring of
         ``guide_count`` lights of radius ``guide_offset_mm``), "file" (the lights of
-        ``camera.file``). A rig needs ``epsilon_mm = 0`` and ``falloff = "keep"``; ``intensity``
-        scales each of its lights.
+        ``camera.file``), "cf_h190" (an Olympus CF-H190 colonoscope: two disc guides 3.3 mm from
+        the lens, :func:`simtest.render.endoscope.cf_h190_rig`). A rig needs ``epsilon_mm = 0``
+        and ``falloff = "keep"``; ``intensity`` scales each of its lights.
     guide_offset_mm : float or None
         Colonoscope: distance of each guide from the lens centre; laparoscope: ring radius
         (default: the presets' assumed geometry, see :mod:`simtest.render.endoscope`).
     guide_count : int or None
         Laparoscope: lights in the ring, 6 to 8 (default 8).
+    guide_diameter_mm : float or None
+        Diameter of each light guide's output face, mm (0 to 10): a disc in the lens plane whose
+        points emit with the cos^m profile (:mod:`simtest.render.endoscope`); 0: point lights.
+        Default 0, and the preset's for "cf_h190".
     profile_exponent : float or None
         m of each light's cos^m emission profile about the scope axis (default: 0 for "single",
         the presets' assumed 1 for a rig).
@@ -201,8 +211,9 @@ class LightSpec:
     b: float | None = _fld(None, "float?")
     intensity: float = _fld(1.0, "float", lo=0.0, lo_open=True)
     falloff: str = _fld("cancel", "str", choices=("cancel", "keep"))
-    rig: str = _fld("single", "str", choices=("single", "colonoscope", "laparoscope", "file"))
+    rig: str = _fld("single", "str", choices=("single", "colonoscope", "laparoscope", "file", "cf_h190"))
     guide_offset_mm: float | None = _fld(None, "float?", lo=0.0, lo_open=True)
+    guide_diameter_mm: float | None = _fld(None, "float?", lo=0.0, hi=10.0)
     guide_count: int | None = _fld(None, "int?", lo=6, hi=8)
     profile_exponent: float | None = _fld(None, "float?", lo=0.0)
 
@@ -241,7 +252,7 @@ class MaterialSpec:
     relief_mm : float
         RMS height of the tissue's micro-relief, mm (0: smooth).
     relief_scale_mm : float
-        Longest wavelength of the micro-relief's spectrum, 0.05 to 1 mm.
+        Longest wavelength of the micro-relief's spectrum, 0.05 to 5 mm.
     relief_min_mm : float or None
         Shortest wavelength of the micro-relief's spectrum, mm, at most ``relief_scale_mm``; None:
         0.05 mm or ``relief_scale_mm`` if that is shorter.
@@ -250,6 +261,21 @@ class MaterialSpec:
         ``~ q^-(2 + 2H)``, amplitudes ``~ wavelength^H``), 0 to 1; see :mod:`simtest.render.tissue`.
     texture_seed : int
         Seed of the tissue texture (albedo pattern and relief), independent of the render seed.
+    albedo : (float, float, float) or None
+        Linear-RGB base albedo of the tissue, each in (0, 1]; None: the tissue's default
+        (:data:`simtest.render.tissue.TISSUE_ALBEDO`). ``simtest simreal --fit`` sets it.
+    film_variation : float
+        Standard deviation of the log of the wet film's roughness over the surface, 0 to 3 (0: a
+        uniform film; :func:`simtest.render.tissue.film_alpha`).
+    film_scale_mm : float
+        Typical wavelength of the film's thickness variation, mm.
+    wall_tissue : {"mucosa", "liver", "peritoneum"} or None
+        A second tissue (its default albedo) at the surface points at least ``wall_radius_mm``
+        from ``wall_centre_mm`` (the texture frame: a mesh's own axes), such as the wall of
+        :func:`simtest.scene.meshes.abdomen.build_liver_in_abdomen` around its liver. The three
+        keys go together.
+    wall_centre_mm : (float, float, float) or None
+    wall_radius_mm : float or None
     """
 
     model: str = _fld("phong", "str", choices=("phong", "microfacet", "tissue"))
@@ -260,13 +286,19 @@ class MaterialSpec:
     base: str = _fld("conductor", "str", choices=("conductor", "plastic"))
     ior: float = _fld(1.5, "float", lo=1.0, lo_open=True)
     diffuse_albedo: float = _fld(0.0, "float", lo=0.0, hi=1.0)
-    tissue: str = _fld("mucosa", "str", choices=("mucosa", "liver"))
+    tissue: str = _fld("mucosa", "str", choices=("mucosa", "liver", "peritoneum"))
     film_ior: float = _fld(1.38, "float", lo=1.3, hi=1.5)
     relief_mm: float = _fld(0.0, "float", lo=0.0, hi=1.0)
-    relief_scale_mm: float = _fld(0.3, "float", lo=0.05, hi=1.0)
+    relief_scale_mm: float = _fld(0.3, "float", lo=0.05, hi=5.0)
     relief_min_mm: float | None = _fld(None, "float?", lo=0.005, hi=1.0)
     relief_hurst: float = _fld(0.8, "float", lo=0.0, hi=1.0)
     texture_seed: int = _fld(0, "int", lo=0, hi=MAX_SEED)
+    albedo: tuple[float, float, float] | None = _fld(None, "vec3?")
+    film_variation: float = _fld(0.0, "float", lo=0.0, hi=3.0)
+    film_scale_mm: float = _fld(2.0, "float", lo=0.05, hi=50.0)
+    wall_tissue: str | None = _fld(None, "str?", choices=("mucosa", "liver", "peritoneum"))
+    wall_centre_mm: tuple[float, float, float] | None = _fld(None, "vec3?")
+    wall_radius_mm: float | None = _fld(None, "float?", lo=0.0, lo_open=True)
 
     @property
     def microfacet_alpha(self) -> float:
@@ -476,6 +508,9 @@ class SensorSpec:
         inside the field stop is ``auto_mean`` of full scale (a scope's auto-exposure).
     auto_mean : float
         Target mean of the "auto" exposure, (0, 1].
+    metering : {"field", "tissue"}
+        Pixels the "auto" exposure averages: the whole field stop, or only those on tissue (the
+        surface covers the pixel), so that background beyond the scene does not brighten it.
     white_balance : (3,) float
         Video frame: gains of R, G, B, > 0.
     tone : {"gamma", "srgb"}
@@ -502,6 +537,7 @@ class SensorSpec:
     output: str = _fld("grey", "str", choices=("grey", "video"))
     exposure_mode: str = _fld("fixed", "str", choices=("fixed", "auto"))
     auto_mean: float = _fld(0.25, "float", lo=0.0, hi=1.0, lo_open=True)
+    metering: str = _fld("field", "str", choices=("field", "tissue"))
     white_balance: tuple[float, float, float] = _fld((1.0, 1.0, 1.0), "vec3")
     tone: str = _fld("gamma", "str", choices=("gamma", "srgb"))
     color_saturation: float = _fld(1.0, "float", lo=0.0)
@@ -730,6 +766,9 @@ def _validate(spec: SceneSpec, source: str, base_dirs: tuple[Path, ...]) -> Scen
                                                 f"(light.rig = {lt.rig!r})")
     if lt.guide_count is not None and lt.rig != "laparoscope":
         raise _err(source, "light.guide_count", "only for light.rig = \"laparoscope\"")
+    if lt.guide_diameter_mm is not None and lt.rig not in ("colonoscope", "laparoscope", "cf_h190"):
+        raise _err(source, "light.guide_diameter_mm", "only for light.rig = \"colonoscope\", \"laparoscope\" or "
+                   "\"cf_h190\"")
     if lt.guide_offset_mm is not None and lt.rig not in ("colonoscope", "laparoscope"):
         raise _err(source, "light.guide_offset_mm", "only for light.rig = \"colonoscope\" or \"laparoscope\"")
     if cam.file is not None:
@@ -742,6 +781,12 @@ def _validate(spec: SceneSpec, source: str, base_dirs: tuple[Path, ...]) -> Scen
     if mat.relief_min_mm is not None and mat.relief_min_mm > mat.relief_scale_mm:
         raise _err(source, "material.relief_min_mm", f"the shortest wavelength {mat.relief_min_mm} mm exceeds "
                    f"the longest, material.relief_scale_mm = {mat.relief_scale_mm} mm")
+    walls = (mat.wall_tissue, mat.wall_centre_mm, mat.wall_radius_mm)
+    if any(w is not None for w in walls) and any(w is None for w in walls):
+        raise _err(source, "material.wall_tissue", "material.wall_tissue, wall_centre_mm and wall_radius_mm go "
+                   "together (give all three or none)")
+    if mat.albedo is not None and not all(0.0 < v <= 1.0 for v in mat.albedo):
+        raise _err(source, "material.albedo", f"each channel must be in (0, 1], got {list(mat.albedo)}")
     if any(v <= 0 for v in spec.sensor.white_balance):
         raise _err(source, "sensor.white_balance", f"gains must be > 0, got {list(spec.sensor.white_balance)}")
     if spec.sensor.output == "video" and spec.sensor.bit_depth != 8:
@@ -931,3 +976,42 @@ def with_overrides(spec: SceneSpec, overrides: Mapping[str, Any]) -> SceneSpec:
     base = Path(spec.source).resolve().parent if spec.source not in ("<dict>", "") else None
     out = scene_from_dict(d, source=spec.source, base_dir=base)
     return out
+
+
+def _toml_value(v: Any) -> str:
+    if isinstance(v, bool):
+        return "true" if v else "false"
+    if isinstance(v, (int, np.integer)):
+        return str(int(v))
+    if isinstance(v, (float, np.floating)):
+        return repr(float(v))
+    if isinstance(v, str):
+        return json.dumps(v)  # a TOML basic string is a JSON string
+    if isinstance(v, (list, tuple)):
+        return "[" + ", ".join(_toml_value(x) for x in v) + "]"
+    raise TypeError(f"no TOML form for {v!r}")
+
+
+def scene_to_toml(spec: SceneSpec, folder: str | Path | None = None, header: str = "") -> str:
+    """The scene file (TOML text) of ``spec``: ``load_scene`` of it gives ``spec`` back.
+
+    Parameters
+    ----------
+    spec : SceneSpec
+    folder : str or Path, optional
+        The folder the file will be written to: file paths of the scene (``geometry.path``,
+        ``camera.file``) are written relative to it (absolute without).
+    header : str
+        Comment lines put first (each prefixed with ``# ``).
+    """
+    d = scene_to_dict(spec)
+    if folder is not None:
+        for section, key in (("geometry", "path"), ("camera", "file")):
+            if key in d.get(section, {}):
+                d[section][key] = os.path.relpath(d[section][key], Path(folder).resolve())
+    lines = [f"# {x}" if x else "#" for x in header.splitlines()]
+    lines += [f"name = {_toml_value(d['name'])}", f"description = {_toml_value(d['description'])}"]
+    for section in _SECTIONS:
+        lines += ["", f"[{section}]"]
+        lines += [f"{k} = {_toml_value(v)}" for k, v in d[section].items()]
+    return "\n".join(lines) + "\n"

@@ -1,0 +1,384 @@
+"""Sim-to-real calibration: fit a scene's appearance and sensor to real frames' statistics.
+
+``simtest simreal --fit REAL_FRAMES`` adjusts the parameters of a tissue scene so that the
+statistics of :mod:`simtest.render.simreal` on its video frame come near those of real frames:
+
+- **Render parameters** (each value needs a render): the micro-relief's RMS height
+  (``material.relief_mm``) and spectrum (its Hurst exponent ``material.relief_hurst``), the wet
+  film's roughness (``material.alpha``) and how much it varies with the film's thickness over
+  the surface (``material.film_variation``).
+- **Develop parameters** (applied to one render's linear images, no new render): the tissue's
+  base albedo (``material.albedo``, three channels: the render keeps the diffuse and specular
+  parts apart, and the diffuse part is linear in the albedo), the auto-exposure target
+  (``sensor.auto_mean``), the read noise (``sensor.gaussian_sigma``) and the tone curve
+  (``sensor.tone = "gamma"`` with ``sensor.gamma``).
+
+The loss is over the log-ratios ``r_k = log((s_k + f_k) / (t_k + f_k))`` of each statistic
+``s_k`` of the rendered frame against the real frames' value ``t_k``
+(:func:`simtest.render.simreal.real_reference`; ``f_k`` the floor
+:data:`simtest.render.simreal.RATIO_FLOOR`): ``sum_k max(0, |r_k| - log(MARGIN))^2 + W sum_k
+r_k^2`` (:data:`MARGIN`, :data:`SPREAD_WEIGHT`): every statistic inside a band narrower than the
+factor-2 goal first, then as near as the others allow. It is minimised by Nelder-Mead
+(scipy.optimize) in two levels: an outer search over the render parameters (in log space), each
+of whose points renders the scene once at a reduced film (``fit_scale``, ``fit_spp``) and runs an
+inner search over the develop parameters from the best point so far. The best point is then
+polished by a few steps of the outer search at the scene's own film and spp (the blob statistics
+at the real frames' scale depend on the film: clipping and the tone curve act before the
+resize), the develop parameters searched again on the best render, then the sensor's alone on the
+fitted scene's own render with its own frame's loss added (developing that render again is exact,
+so the frame the report shows is the one ``simtest render`` makes of the fitted scene). The statistics of each loss are pooled over
+a few sensor-noise draws (:func:`_pooled_stats`). Every render uses
+the one root seed (common random numbers: the loss is a deterministic function of the
+parameters, and Nelder-Mead draws nothing).
+
+Hold-out: :func:`split_frames` gives alternate frames to the fit and to the check, so the fitted
+scene is also judged on frames it was not fitted to.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from dataclasses import dataclass, field
+from typing import Callable
+
+import numpy as np
+from scipy.optimize import minimize
+
+from simtest.render.render import TISSUE_COVERAGE, render_scene
+from simtest.render.sensor import video_frame
+
+from simtest.render.simreal import (
+    FACTOR_GOAL,
+    STATISTICS,
+    at_height,
+    log_ratio,
+    real_reference,
+)
+from simtest.render.tissue import TISSUE_ALBEDO
+from simtest.scene.spec import SceneSpec, with_overrides
+
+__all__ = ["MARGIN", "SPREAD_WEIGHT", "FitResult", "develop", "fit_scene", "split_frames",
+           "fit_loss"]
+
+#: The loss pushes every statistic inside this factor first (below the goal's 2, so that the
+#: change from the fit's reduced film to the scene's own leaves it within 2).
+MARGIN = 1.4
+#: Weight of the plain squared log-ratios in the loss (after the band): small, so it only chooses
+#: among points that are all inside the band.
+SPREAD_WEIGHT = 0.05
+
+#: Bounds of the develop parameters: base albedo per channel (linear RGB), auto-exposure target
+#: (mean luma inside the field stop, fraction of full scale), read noise (fraction of full
+#: scale), display gamma.
+DEVELOP_BOUNDS = {"albedo_r": (0.02, 1.0), "albedo_g": (0.005, 1.0), "albedo_b": (0.005, 1.0),
+                  "auto_mean": (0.03, 0.6), "gaussian_sigma": (0.0005, 0.05), "gamma": (1.4, 3.2)}
+#: The develop parameters of the sensor alone (the last stage, on the fitted albedo's render).
+SENSOR_BOUNDS = {k: DEVELOP_BOUNDS[k] for k in ("auto_mean", "gaussian_sigma", "gamma")}
+#: Bounds of the render parameters: relief RMS height (mm), film roughness (GGX/Beckmann alpha),
+#: the relief's Hurst exponent, the standard deviation of the film's log-roughness.
+RENDER_BOUNDS = {"relief_mm": (1e-5, 0.02), "alpha": (0.005, 0.5), "relief_hurst": (0.3, 1.0),
+                 "film_variation": (0.05, 2.5)}
+#: Where the search starts the film's variation when the scene has none (a uniform film is not
+#: in the log-space box; 0.7: roughness varying by a factor 2 either way).
+FILM_VARIATION_START = 0.7
+
+
+def split_frames(frames: list) -> tuple[list, list]:
+    """Alternate frames: (fit, held out) = (frames[0::2], frames[1::2]); all to the fit if there is
+    only one frame."""
+    if len(frames) < 2:
+        return list(frames), []
+    return list(frames[0::2]), list(frames[1::2])
+
+
+def fit_loss(stats: dict[str, float], reference: dict[str, float]) -> float:
+    """The fit's loss of a frame's statistics against the real reference (module notes)."""
+    band = math.log(MARGIN)
+    total = 0.0
+    for k in STATISTICS:
+        s, t = stats.get(k, float("nan")), reference.get(k, float("nan"))
+        if not (np.isfinite(s) and np.isfinite(t)):
+            continue
+        r = log_ratio(k, s, t)
+        total += max(0.0, abs(r) - band) ** 2 + SPREAD_WEIGHT * r * r
+    return total
+
+
+def develop(rgb: np.ndarray, specular: np.ndarray, base_albedo, params: dict, spec: SceneSpec,
+            seed: int, tissue: np.ndarray | None = None) -> tuple[np.ndarray, SceneSpec]:
+    """The video frame of a render with other develop parameters, and the scene that makes it.
+
+    Parameters
+    ----------
+    rgb : ndarray of shape (H, W, 3), float32
+        Linear RGB radiance of a tissue render (``RenderResult.rgb``).
+    specular : ndarray of shape (H, W), float32
+        Its specular part (white: the same in each channel).
+    base_albedo : (3,) array_like
+        The base albedo the render was made with.
+    params : dict
+        Develop parameters (:data:`DEVELOP_BOUNDS`); missing ones keep the scene's.
+    spec : SceneSpec
+        The rendered scene.
+    seed : int
+        Render seed (the sensor noise stream).
+    tissue : ndarray of shape (H, W), bool, optional
+        Pixels on tissue (the "tissue" metering's, :func:`simtest.render.sensor.video_frame`).
+
+    Returns
+    -------
+    frame : ndarray of shape (H, W, 3), uint8
+    spec : SceneSpec
+        ``spec`` with the parameters set (``material.albedo``, ``sensor.*``).
+    """
+    new = _with_develop(spec, params, base_albedo)
+    gain = np.asarray(new.material.albedo, dtype=np.float32) / np.asarray(base_albedo, dtype=np.float32)
+    if np.all(gain == 1.0):  # the render's own albedo: its image as it is (no round-off)
+        lin = rgb
+    else:
+        s = specular[..., None]
+        lin = (rgb - s) * gain + s
+    return video_frame(lin, new.sensor, seed, tissue=tissue), new
+
+
+def _with_develop(spec: SceneSpec, params: dict, base_albedo) -> SceneSpec:
+    alb = tuple(float(params.get(f"albedo_{c}", base_albedo[i])) for i, c in enumerate("rgb"))
+    ov = {"material.albedo": list(alb)}
+    if "auto_mean" in params:
+        ov["sensor.exposure_mode"] = "auto"
+        ov["sensor.auto_mean"] = float(params["auto_mean"])
+    if "gaussian_sigma" in params:
+        ov["sensor.gaussian_sigma"] = float(params["gaussian_sigma"])
+    if "gamma" in params:
+        ov["sensor.tone"] = "gamma"
+        ov["sensor.gamma"] = float(params["gamma"])
+    return with_overrides(spec, ov)
+
+
+def _to_unit(params: dict, bounds: dict) -> np.ndarray:
+    """Parameters as log-position in their bounds, 0..1 (the optimiser's coordinates)."""
+    return np.array([(math.log(params[k]) - math.log(lo)) / (math.log(hi) - math.log(lo))
+                     for k, (lo, hi) in bounds.items()])
+
+
+def _from_unit(x: np.ndarray, bounds: dict) -> dict:
+    out = {}
+    for xi, (k, (lo, hi)) in zip(x, bounds.items()):
+        t = min(max(float(xi), 0.0), 1.0)
+        out[k] = float(math.exp(math.log(lo) + t * (math.log(hi) - math.log(lo))))
+    return out
+
+
+def _penalty(x: np.ndarray) -> float:
+    """Outside the unit box: a wall the simplex walks back from (the point is clipped onto it)."""
+    return float(np.sum(np.clip(x - 1.0, 0, None) ** 2 + np.clip(-x, 0, None) ** 2)) * 10.0
+
+
+def _nelder_mead(f: Callable[[np.ndarray], float], x0: np.ndarray, maxfev: int, step: float) -> np.ndarray:
+    n = len(x0)
+    simplex = np.vstack([x0] + [x0 + step * np.eye(n)[i] * (1 if x0[i] < 0.5 else -1) for i in range(n)])
+    res = minimize(f, x0, method="Nelder-Mead",
+                   options={"maxfev": maxfev, "initial_simplex": simplex, "xatol": 1e-3, "fatol": 1e-4})
+    return np.clip(res.x, 0.0, 1.0)
+
+
+@dataclass
+class FitResult:
+    """A fit's outcome.
+
+    Attributes
+    ----------
+    spec : SceneSpec
+        The fitted scene (the input scene with the fitted parameters set).
+    before, after : ndarray of shape (H, W, 3), uint8
+        The video frames of the input scene and of the fitted one (each at its own film and spp).
+    params : dict
+        The fitted parameters by name (render and develop).
+    renders : int
+        Renders the fit made (the reduced ones, then the two at the scene's film).
+    history : list of dict
+        The outer search's points: the render parameters and the loss of each.
+    seed : int
+        The render seed used (drawn from the root seed).
+    """
+
+    spec: SceneSpec
+    before: np.ndarray
+    after: np.ndarray
+    params: dict
+    renders: int
+    history: list = field(default_factory=list)
+    seed: int = 0
+
+
+#: Stable key of the noise draws of the fit's loss in ``SeedSequence([seed, NOISE_SEED_KEY])``.
+NOISE_SEED_KEY = 0xF17
+
+
+def _noise_seeds(seed: int, k: int) -> list[int]:
+    """The sensor-noise seeds of the loss: the render's own seed, then ``k - 1`` drawn from
+    ``SeedSequence([seed, NOISE_SEED_KEY])``."""
+    extra = np.random.SeedSequence([int(seed), NOISE_SEED_KEY]).generate_state(max(k - 1, 0))
+    return [int(seed)] + [int(x % (2**31 - 1)) for x in extra]
+
+
+def _pooled_stats(frames: list[np.ndarray], height: int) -> dict[str, float]:
+    """Statistics of a frame over several sensor-noise draws, pooled as the real frames' are
+    (:func:`simtest.render.simreal.real_reference`): the blob statistics of one draw swing with
+    the noise (the 90th percentile of the blob areas from 11 to 23 px between two draws of the
+    fitted colonoscope), so a fit to one draw fits its noise."""
+    small = [at_height(f, height) for f in frames]
+    return real_reference(small)
+
+
+def fit_scene(spec: SceneSpec, frames: list[np.ndarray], *, seed: int = 0, outer_evals: int = 14,
+              inner_evals: int = 60, fit_scale: float = 0.5, fit_spp: int = 4, noise_draws: int = 3,
+              polish_evals: int = 6,
+              progress: Callable[[str], None] | None = None) -> FitResult:
+    """Fit the render and develop parameters of a tissue scene to real frames (module notes).
+
+    Parameters
+    ----------
+    spec : SceneSpec
+        A scene with ``material.model = "tissue"`` and a video sensor.
+    frames : list of ndarray of shape (h, w, 3), uint8
+        The real frames to fit to (one height).
+    seed : int
+        Root seed: every render of the fit uses it (the renderer draws its sample, light and noise
+        streams from ``SeedSequence([seed, key])``), and the fitted scene's ``render.seed`` is it.
+    outer_evals : int
+        Renders of the outer search (at ``fit_scale`` of the film, ``fit_spp`` samples).
+    fit_scale : float
+        Film scale of the outer search's renders, (0, 1].
+    fit_spp : int
+        Samples per pixel of the outer search's renders.
+    noise_draws : int
+        Sensor-noise draws the loss pools its statistics over (:func:`_pooled_stats`) at the
+        scene's film; one fewer in the outer search.
+    inner_evals : int
+        Develop evaluations of the first inner search (half as many for the later ones, which
+        start from the best point so far; two thirds at the scene's film).
+    polish_evals : int
+        Renders at the scene's own film and spp that move the reduced film's optimum (0: none).
+    progress : callable, optional
+        Called with a line of text after each render.
+
+    Returns
+    -------
+    FitResult
+
+    Raises
+    ------
+    ValueError
+        If the scene is not a tissue scene with a video sensor, or there is no frame.
+    """
+    if spec.material.model != "tissue" or spec.sensor.output != "video":
+        raise ValueError(f"{spec.source}: material.model: the fit needs a tissue scene with a video "
+                         f"sensor (material.model = \"tissue\", sensor.output = \"video\")")
+    if not frames:
+        raise ValueError("fit_scene: no real frame to fit to")
+    say = progress or (lambda _s: None)
+    rseed = int(seed)
+    height = frames[0].shape[0]
+    ref = real_reference(frames)
+    mat = spec.material
+    base = tuple(mat.albedo) if mat.albedo is not None else TISSUE_ALBEDO[mat.tissue]
+    dev = {"albedo_r": base[0], "albedo_g": base[1], "albedo_b": base[2],
+           "auto_mean": spec.sensor.auto_mean if spec.sensor.exposure_mode == "auto" else 0.2,
+           "gaussian_sigma": max(spec.sensor.gaussian_sigma, 0.001),
+           "gamma": spec.sensor.gamma if spec.sensor.tone == "gamma" else 2.2}
+    dev = {k: min(max(v, DEVELOP_BOUNDS[k][0]), DEVELOP_BOUNDS[k][1]) for k, v in dev.items()}
+    rnd = {"relief_mm": max(mat.relief_mm, 1e-5), "alpha": mat.microfacet_alpha, "relief_hurst": mat.relief_hurst,
+           "film_variation": mat.film_variation if mat.film_variation > 0 else FILM_VARIATION_START}
+    rnd = {k: min(max(v, RENDER_BOUNDS[k][0]), RENDER_BOUNDS[k][1]) for k, v in rnd.items()}
+    W, H = spec.camera.width_px, spec.camera.height_px
+    small = {"camera.width_px": max(8, round(W * fit_scale)), "camera.height_px": max(8, round(H * fit_scale)),
+             "render.spp": int(fit_spp)}
+    state: dict = {"dev": dev, "best": {}, "renders": 0}
+    history: list[dict] = []
+
+    def with_render(s: SceneSpec, p: dict) -> SceneSpec:
+        return with_overrides(s, {"material.relief_mm": p["relief_mm"], "material.alpha": p["alpha"],
+                                  "material.relief_hurst": p["relief_hurst"],
+                                  "material.film_variation": p["film_variation"], "material.albedo": list(base)})
+
+    def inner(res, s: SceneSpec, start: dict, evals: int, draws: int) -> tuple[float, dict]:
+        seeds = _noise_seeds(rseed, draws)
+        tissue = res.coverage >= TISSUE_COVERAGE
+
+        def f(x):
+            p = _from_unit(x, DEVELOP_BOUNDS)
+            frs = [develop(res.rgb, res.specular, base, p, s, sd, tissue)[0] for sd in seeds]
+            return fit_loss(_pooled_stats(frs, height), ref) + _penalty(x)
+
+        x = _nelder_mead(f, _to_unit(start, DEVELOP_BOUNDS), evals, 0.15)
+        p = _from_unit(x, DEVELOP_BOUNDS)
+        return f(x), p
+
+    def outer(x, film: dict, evals: int, draws: int, stage: str):
+        p = _from_unit(x, RENDER_BOUNDS)
+        s = with_overrides(with_render(spec, p), film)
+        res = render_scene(s, seed=rseed)
+        state["renders"] += 1
+        loss, d = inner(res, s, state["dev"], evals, draws)
+        loss += _penalty(x)
+        history.append({"stage": stage, **p, **d, "loss": loss})
+        best = state["best"].get(stage, (math.inf, None))
+        if loss < best[0]:
+            state["best"][stage] = (loss, (p, d))
+            state["dev"] = d
+        say(f"render {state['renders']} ({stage}): " + ", ".join(f"{k} {v:.4g}" for k, v in p.items())
+            + f": loss {loss:.4g}")
+        return loss
+
+    before_res = render_scene(spec, seed=rseed)
+    # 1. the search at the reduced film: the first inner search in full, the later ones from the
+    # best develop so far with half the evaluations
+    first = [True]
+
+    def coarse(x):
+        evals = inner_evals if first[0] else max(10, inner_evals // 2)
+        first[0] = False
+        return outer(x, small, evals, max(1, noise_draws - 1), "reduced film")
+
+    _nelder_mead(coarse, _to_unit(rnd, RENDER_BOUNDS), outer_evals, 0.2)
+    p, d = state["best"]["reduced film"][1]
+    # 2. the polish at the scene's film and spp: the blob statistics at the real frames' scale
+    # depend on the film the frame is developed at (clipping and the tone curve act before the
+    # resize), so the reduced film's optimum is moved with a few renders of the scene's own
+    if polish_evals > 0:
+        state["dev"] = d
+        _nelder_mead(lambda x: outer(x, {}, max(10, inner_evals // 4), max(1, noise_draws - 1), "scene's film"),
+                     _to_unit(p, RENDER_BOUNDS), polish_evals, 0.06)
+        p, d = state["best"]["scene's film"][1]
+    full = with_render(spec, p)
+    res = render_scene(full, seed=rseed)
+    state["renders"] += 1
+    loss, d = inner(res, full, d, max(10, inner_evals * 2 // 3), noise_draws)
+    _, fitted = develop(res.rgb, res.specular, base, d, full, res.seed, res.coverage >= TISSUE_COVERAGE)
+    fitted = with_overrides(fitted, {"render.seed": rseed})
+    # 3. the sensor on the fitted scene's own render (the albedo now in the render: developing it
+    # again is exact), the loss of the scene's own frame (its seed's noise) added to the pooled
+    # one: the frame the scene makes is the one judged
+    own = render_scene(fitted, seed=rseed)
+    state["renders"] += 1
+    alb = fitted.material.albedo
+    seeds = _noise_seeds(rseed, noise_draws)
+    tissue = own.coverage >= TISSUE_COVERAGE
+    start = {k: d[k] for k in SENSOR_BOUNDS}
+
+    def f_sensor(x):
+        q = _from_unit(x, SENSOR_BOUNDS)
+        frs = [develop(own.rgb, own.specular, alb, q, fitted, sd, tissue)[0] for sd in seeds]
+        return (fit_loss(_pooled_stats(frs, height), ref) + fit_loss(_pooled_stats(frs[:1], height), ref)
+                + _penalty(x))
+
+    x = _nelder_mead(f_sensor, _to_unit(start, SENSOR_BOUNDS), max(10, inner_evals // 2), 0.1)
+    d = {**d, **_from_unit(x, SENSOR_BOUNDS)}
+    loss = f_sensor(x)
+    after, fitted = develop(own.rgb, own.specular, alb, d, fitted, rseed, tissue)
+    fitted = dataclasses.replace(fitted, source=spec.source)
+    say(f"at the scene's film ({W} x {H}, {spec.render.spp} spp): loss {loss:.4g} (pooled + own frame)")
+    return FitResult(spec=fitted, before=before_res.frame, after=after, params={**p, **d},
+                     renders=state["renders"] + 1, history=history, seed=rseed)

@@ -1,0 +1,133 @@
+"""The liver in its abdomen: the liver mesh and, behind it, a wall of neighbouring tissue.
+
+A laparoscope sees the liver against the diaphragm, the abdominal wall and the organs around it,
+never against a void. :func:`build_liver_in_abdomen` joins the liver of
+:func:`~simtest.scene.meshes.liver.build_liver` with the inside of a spherical cap (the
+"wall"): a sphere of radius ``wall_radius_mm`` whose centre lies on the line from the liver's
+centre toward the scope (``wall_axis``), as far toward the scope as keeps every point of the
+liver at least ``gap_mm`` inside the sphere. Every point of the liver is inside the sphere, so the two surfaces
+never meet, and from a scope inside the sphere every ray that misses the liver meets the wall.
+
+The cap's normals point to the sphere's centre (toward the scope) and its principal curvatures
+are exact, ``k1 = k2 = -1 / wall_radius_mm`` (the surface bends toward its normal: negative in
+the convention of :mod:`simtest.scene.meshes.curvature`). The wall's points are exactly at
+``wall_radius_mm`` from the centre and the liver's are at most ``wall_radius_mm - gap_mm``: the
+tissue texture tells them apart by that distance (``material.wall_tissue``).
+"""
+
+from __future__ import annotations
+
+import math
+from typing import Any
+
+import numpy as np
+import trimesh
+from scipy.spatial import ConvexHull
+
+from simtest.scene.meshes.files import _assemble
+from simtest.scene.meshes.liver import _fibonacci_sphere, build_liver
+from simtest.scene.meshes.params import MeshError
+
+__all__ = ["wall_sphere", "build_liver_in_abdomen"]
+
+
+def wall_sphere(liver_vertices: np.ndarray, wall_axis, wall_radius_mm: float, gap_mm: float) -> tuple[np.ndarray, float]:
+    """Centre (3,) and radius of the wall's sphere for a liver's vertices (module notes).
+
+    Raises
+    ------
+    MeshError
+        If the axis is zero or the radius does not exceed the liver's reach plus the gap.
+    """
+    u = np.asarray(wall_axis, dtype=np.float64)
+    if not np.linalg.norm(u) > 0:
+        raise MeshError("build_liver_in_abdomen: wall_axis must be a non-zero vector")
+    u = u / np.linalg.norm(u)
+    v = np.asarray(liver_vertices, dtype=np.float64)
+    mid = 0.5 * (v.min(axis=0) + v.max(axis=0))
+    target = wall_radius_mm - gap_mm
+
+    def reach(t: float) -> float:
+        return float(np.max(np.linalg.norm(v - (mid + t * u), axis=1)))
+
+    if reach(0.0) > target:
+        raise MeshError(f"build_liver_in_abdomen: wall_radius_mm {wall_radius_mm} is too small: the liver reaches "
+                        f"{reach(0.0):.1f} mm from its centre (needs at most wall_radius_mm - gap_mm = {target})")
+    # the centre as far toward the scope as the gap allows: reach(t) grows with t past the liver
+    lo, hi = 0.0, float(wall_radius_mm)
+    for _ in range(60):
+        mid_t = 0.5 * (lo + hi)
+        lo, hi = (mid_t, hi) if reach(mid_t) <= target else (lo, mid_t)
+    centre = mid + lo * u
+    return centre, float(wall_radius_mm)
+
+
+def build_liver_in_abdomen(seed: int, *, wall_axis=(-0.5, -0.5, -0.7), wall_radius_mm: float = 400.0,
+                           gap_mm: float = 15.0, cap_deg: float = 80.0, wall_spacing_mm: float = 6.0,
+                           **liver_params: Any) -> trimesh.Trimesh:
+    """The liver (:func:`build_liver` with ``seed`` and ``liver_params``) and the wall behind it.
+
+    Parameters
+    ----------
+    seed : int
+        Root seed of the liver.
+    wall_axis : (3,) array_like
+        Direction from the liver toward the scope, mesh frame (need not be unit).
+    wall_radius_mm : float
+        Radius of the wall's sphere, mm.
+    gap_mm : float
+        Least distance between the liver and the wall's sphere, mm.
+    cap_deg : float
+        Half-angle of the cap about ``-wall_axis`` seen from the sphere's centre, degrees.
+    wall_spacing_mm : float
+        Typical vertex spacing of the wall, mm.
+
+    Returns
+    -------
+    trimesh.Trimesh
+        Liver faces first, then the wall's; ``vertex_normals`` unit (the liver's outward, the
+        wall's toward the sphere's centre), ``vertex_attributes["k1"]``, ``["k2"]`` (1/mm);
+        ``metadata["generator"]`` with the wall's ``wall_centre_mm`` and ``wall_radius_mm``.
+
+    Raises
+    ------
+    MeshError
+        Bad liver parameters, or a wall that would cut the liver.
+    """
+    liver = build_liver(seed, **liver_params)
+    centre, R = wall_sphere(liver.vertices, wall_axis, wall_radius_mm, gap_mm)
+    u = np.asarray(wall_axis, dtype=np.float64)
+    u /= np.linalg.norm(u)
+    cap = math.radians(cap_deg)
+    area = 4.0 * math.pi * R * R
+    n = max(200, int(area / (0.5 * math.sqrt(3) * wall_spacing_mm**2) / 2))  # ~ spacing on the sphere
+    d = _fibonacci_sphere(n)
+    faces = ConvexHull(d).simplices.astype(np.int64)
+    inside = (d @ -u) >= math.cos(cap)
+    keep = inside[faces].all(axis=1)
+    faces = faces[keep]
+    used = np.unique(faces)
+    remap = -np.ones(len(d), dtype=np.int64)
+    remap[used] = np.arange(len(used))
+    faces = remap[faces]
+    d = d[used]
+    tri = d[faces]
+    # wound so that the face normal points to the centre (inward), as the vertex normals
+    outward = np.einsum("ij,ij->i", np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0]), tri.sum(1))
+    faces[outward > 0] = faces[outward > 0][:, ::-1]
+    wall_v = centre + R * d
+    k = np.full(len(d), -1.0 / R)
+    nl = len(liver.vertices)
+    mesh = _assemble(np.vstack([liver.vertices, wall_v]),
+                     np.vstack([np.asarray(liver.faces), faces + nl]),
+                     np.vstack([liver.vertex_normals, -d]),
+                     np.concatenate([liver.vertex_attributes["k1"], k]),
+                     np.concatenate([liver.vertex_attributes["k2"], k]))
+    gen = dict(liver.metadata["generator"])
+    gen.update({"name": "liver_in_abdomen", "function": "simtest.scene.meshes.abdomen.build_liver_in_abdomen",
+                "liver_faces": int(len(liver.faces)), "wall_axis": [float(x) for x in u],
+                "wall_centre_mm": [float(x) for x in centre], "wall_radius_mm": R, "gap_mm": float(gap_mm),
+                "cap_deg": float(cap_deg), "wall_spacing_mm": float(wall_spacing_mm),
+                "curvature": gen.get("curvature", "") + "; wall: exact, -1 / wall_radius_mm"})
+    mesh.metadata["generator"] = gen
+    return mesh
