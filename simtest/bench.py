@@ -41,10 +41,12 @@ import importlib
 import inspect
 import os
 import statistics
+import tempfile
 import time
 from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 from dataclasses import dataclass
+from pathlib import Path
 
 import cv2
 import numba
@@ -60,6 +62,7 @@ from simtest.geometry.conics import normalised_conic
 from simtest.reconstruct.estimators import estimate_from_conic
 from simtest.reconstruct.fit import fit_ellipse
 from simtest.geometry.lights import Light, LightRig
+from simtest.reconstruct.frames import open_frames, reconstruct_frames, write_frames_jsonl
 from simtest.reconstruct.isophote import extract_isophote
 from simtest.reconstruct.lightaware import isocurve_fit, photometric_fit, refine_isophote_points
 from simtest.reconstruct.pipeline import reconstruct, reconstruct_roi, reconstruct_rois
@@ -575,8 +578,6 @@ def bench_video_file(folder, n_frames: int = VIDEO_FRAMES, step_px: int = VIDEO_
     by ``step_px`` more each (a slow pan over real content), 25 frames/s, Motion-JPEG in AVI
     (OpenCV's ``VideoWriter``, no codec outside OpenCV). Returns ``(path, K)``, or None without
     the source tree (the banner) or where OpenCV cannot write MJPG."""
-    from pathlib import Path
-
     first = banner_mosaic(0)
     if first is None:
         return None
@@ -601,11 +602,6 @@ def _bench_video(n_frames: int = VIDEO_FRAMES) -> list[BenchResult]:
     written in frame order (:func:`~simtest.reconstruct.frames.reconstruct_frames`,
     :func:`~simtest.reconstruct.frames.write_frames_jsonl`); wall ms per frame, the pool's start
     included, one run (a video is many frames)."""
-    import tempfile
-    from pathlib import Path
-
-    from simtest.reconstruct.frames import open_frames, reconstruct_frames, write_frames_jsonl
-
     name = (f"video: 1350x1080 MJPG, {n_frames} frames of banner_mosaic panning {VIDEO_STEP_PX} px a "
             f"frame, decode + reconstruct + estimates.jsonl on {VIDEO_WORKERS} worker processes, wall per frame")
     workers = min(VIDEO_WORKERS, os.cpu_count() or 1)

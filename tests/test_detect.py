@@ -405,17 +405,24 @@ def test_the_dark_corner_components_by_flood_fill_are_the_labellings(seed, shape
         assert np.array_equal(got, want)
 
 
-def test_detection_hands_over_its_smoothing_of_the_unrounded_luma():
-    """One smoothing per frame: Detection.smoothed is the whole frame's luma (unrounded, float32)
-    smoothed once, read-only; the pipeline contours every ROI in it. None when not smoothed."""
+def test_detection_hands_over_its_smoothing_and_the_pipeline_smooths_the_unrounded_luma():
+    """One smoothing per frame: Detection.smoothed is the frame's gray smoothed once (read-only);
+    the pipeline contours many ROIs in the luma smoothed once: detection's for a gray frame, the
+    unrounded luma for a colour one (OpenCV's 8-bit gray is rounded). None when not smoothed."""
     import cv2
 
     from simtest.reconstruct.detect import luma
+    from simtest.reconstruct.pipeline import _frame_luma_smoothing
 
     rng = np.random.default_rng(5)
     img = rng.integers(0, 256, (40, 60, 3), dtype=np.uint8)
     det = detect_specularities(img, smooth_sigma_px=1.5, method="local_peak")
-    want = cv2.GaussianBlur(luma(img).astype(np.float32), (0, 0), 1.5, borderType=cv2.BORDER_REFLECT)
+    gray = cv2.cvtColor(img, cv2.COLOR_RGB2GRAY).astype(np.float32)
     assert det.smoothed.dtype == np.float32 and not det.smoothed.flags.writeable
-    assert np.array_equal(det.smoothed, want)
+    assert np.array_equal(det.smoothed, cv2.GaussianBlur(gray, (0, 0), 1.5, borderType=cv2.BORDER_REFLECT))
+    want = cv2.GaussianBlur(luma(img).astype(np.float32), (0, 0), 1.5, borderType=cv2.BORDER_REFLECT)
+    assert np.array_equal(_frame_luma_smoothing(img, det.smoothed, 1.5), want)
+    grey = np.repeat(img[:, :, :1], 3, axis=2)
+    det = detect_specularities(grey, smooth_sigma_px=1.5, method="local_peak")
+    assert _frame_luma_smoothing(grey, det.smoothed, 1.5) is det.smoothed
     assert detect_specularities(img, smooth_sigma_px=0.0).smoothed is None

@@ -382,16 +382,17 @@ def test_the_border_level_of_an_roi_smoothed_alone_from_its_ring(seed, channels,
     assert abs(got - want) <= 1e-9 * max(1.0, abs(want))
 
 
-def test_the_float32_luma_and_its_gray_flag():
+def test_the_float32_luma_and_the_gray_test():
     rng = np.random.default_rng(1)
     gray = rng.integers(0, 256, (20, 30), dtype=np.uint8)
     img = np.repeat(gray[:, :, None], 3, axis=2)
     w = (0.299, 0.587, 0.114)
-    out, whole = _kernels.luma_rgb32(img, *w)
-    assert whole and np.array_equal(out, gray.astype(np.float32))
+    assert _kernels.is_gray(img)
+    # the luma of (x, x, x) is x in float32: a gray frame's OpenCV gray is its luma
+    assert np.array_equal(_kernels.luma_rgb32(img, *w), gray.astype(np.float32))
     img[3, 4, 1] += 1
-    out, whole = _kernels.luma_rgb32(img, *w)
-    assert not whole and np.array_equal(out, _kernels.luma_rgb(img, *w).astype(np.float32))
+    assert not _kernels.is_gray(img)
+    assert np.array_equal(_kernels.luma_rgb32(img, *w), _kernels.luma_rgb(img, *w).astype(np.float32))
 
 
 @settings(max_examples=40, deadline=None)

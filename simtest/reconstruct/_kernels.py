@@ -1152,31 +1152,28 @@ def border_median_of_ring(ring):
     return (part[: n // 2].max() + hi) / 2.0
 
 
-@numba.njit(cache=True, nogil=True, fastmath={"contract"})
-def luma_rgb32(img, w0, w1, w2):
-    """:func:`luma_rgb` rounded to float32 (H, W): ``luma_rgb(...).astype(np.float32)`` without
-    the float64 frame, and whether the frame is gray (R = G = B everywhere: then the luma is the
-    channel's value, as OpenCV's 8-bit gray is, and one smoothing serves detection and
-    contouring; the check stops at the first colour pixel)."""
+@numba.njit(cache=True, nogil=True)
+def is_gray(img):
+    """Whether R = G = B at every pixel of an (H, W, C >= 3) image (stops at the first colour
+    pixel)."""
     H, W = img.shape[0], img.shape[1]
-    out = np.empty((H, W), dtype=np.float32)
-    gray = True
     for r in range(H):
         for c in range(W):
             if img[r, c, 0] != img[r, c, 1] or img[r, c, 0] != img[r, c, 2]:
-                gray = False
-                break
-        if not gray:
-            break
-    if gray:  # w0 + w1 + w2 = 1: the luma of (x, x, x) is x to float64 rounding, x in float32
-        for r in range(H):
-            for c in range(W):
-                out[r, c] = np.float32(img[r, c, 0])
-        return out, True
+                return False
+    return True
+
+
+@numba.njit(cache=True, nogil=True, fastmath={"contract"})
+def luma_rgb32(img, w0, w1, w2):
+    """:func:`luma_rgb` rounded to float32 (H, W): ``luma_rgb(...).astype(np.float32)`` without
+    the float64 frame."""
+    H, W = img.shape[0], img.shape[1]
+    out = np.empty((H, W), dtype=np.float32)
     for r in range(H):
         for c in range(W):
             out[r, c] = float(img[r, c, 0]) * w0 + float(img[r, c, 1]) * w1 + float(img[r, c, 2]) * w2
-    return out, False
+    return out
 
 
 @numba.njit(cache=True, nogil=True)

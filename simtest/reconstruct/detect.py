@@ -246,8 +246,10 @@ class Detection:
         The smallest components left out beyond ``max_candidates`` (not examined, not in
         ``candidates``).
     smoothed : ndarray of shape (H, W), float32, or None
-        The smoothed luma detection examined (read-only), when it smoothed (``smooth_sigma_px``
-        > 0); the pipeline contours every ROI of the frame in it (one smoothing per frame).
+        The smoothed gray detection examined (read-only), when it smoothed (``smooth_sigma_px``
+        > 0): for an 8-bit or 16-bit RGB frame OpenCV's gray, rounded to whole levels, smoothed;
+        the luma itself for a gray frame (R = G = B), a single-channel or a float image, where
+        the pipeline contours every ROI of the frame in it (one smoothing per frame).
     """
 
     candidates: list[Candidate] = field(default_factory=list)
@@ -899,24 +901,9 @@ def detect_specularities(
     gray = native = _gray_native(img)
     if smooth_sigma_px is None:
         smooth_sigma_px = auto_smooth_sigma_px(gray, fs)
-    smoothed = None
     if smooth_sigma_px > 0:
-        # Detection thresholds the smoothed gray (for an 8-bit RGB frame OpenCV's, rounded to
-        # whole levels); the pipeline contours its ROIs in the smoothed luma, unrounded
-        # (Detection.smoothed): one smoothing serves both where they are the same values (a gray
-        # frame), else each is smoothed once for the whole frame.
-        sigma = float(smooth_sigma_px)
-        whole = img.ndim == 2
-        if img.ndim == 2:
-            src = gray.astype(np.float32)
-        elif img.dtype.type in _LUMA_COMPILED:
-            src, whole = _kernels.luma_rgb32(img, *_LUMA_WEIGHTS)  # whole: a gray frame
-        else:
-            src = luma(img, dtype=np.float32)
-        smoothed = cv2.GaussianBlur(src, (0, 0), sigma, borderType=cv2.BORDER_REFLECT)
-        # (a float image's gray is its luma unrounded: the same values to float32 rounding)
-        gray = smoothed if whole or img.dtype.kind == "f" else \
-            cv2.GaussianBlur(gray.astype(np.float32), (0, 0), sigma, borderType=cv2.BORDER_REFLECT)
+        gray = cv2.GaussianBlur(gray.astype(np.float32), (0, 0), float(smooth_sigma_px),
+                                borderType=cv2.BORDER_REFLECT)
     h, w = gray.shape
     levels = gray32 = None
     clipped = None  # whole-frame clipped mask, when the method computes it
@@ -952,7 +939,9 @@ def detect_specularities(
         found = _candidates_numpy(frame, mask)
     out, n_comps = found
     out.sort(key=lambda c: -c.peak)
-    if smoothed is not None:
+    smoothed = None
+    if smooth_sigma_px > 0:
+        smoothed = gray
         smoothed.setflags(write=False)
     return Detection(out, fs, thr, max(0, n_comps - len(out)), smoothed)
 

@@ -901,6 +901,20 @@ def _complete(drafts: list) -> list[SpecularityEstimate]:
     return out
 
 
+def _frame_luma_smoothing(img: np.ndarray, detection_smoothed: np.ndarray, sigma: float) -> np.ndarray:
+    """The whole frame's luma smoothed once (float32, read-only): detection's smoothing where
+    detection smoothed the luma itself (a single-channel, gray (R = G = B) or float image), else
+    the unrounded luma (:func:`simtest.reconstruct._kernels.luma_rgb32`) smoothed as detection
+    smooths (an 8-bit frame's OpenCV gray is rounded to whole levels, which moves contours)."""
+    if img.ndim == 2 or img.dtype.kind == "f" or _kernels.is_gray(img):
+        return detection_smoothed
+    src = _kernels.luma_rgb32(img, *_LUMA_W) if img.dtype.type in (np.uint8, np.uint16) else \
+        luma(img).astype(np.float32)
+    out = cv2.GaussianBlur(src, (0, 0), float(sigma), borderType=cv2.BORDER_REFLECT)
+    out.setflags(write=False)
+    return out
+
+
 class _SortedBps:
     """A frame's BPs (k, 2) sorted by u, and their u (k,) contiguous, for the ``merged`` test."""
 
@@ -1185,10 +1199,13 @@ def reconstruct(
         smooth_sigma_px=frame.smooth_sigma_px, method=settings.detection,
         peak_rel=settings.peak_rel, max_candidates=settings.max_candidates,
     )
-    if det.smoothed is not None and det.smoothed.shape == img.shape[:2]:
-        frame = frame.with_detection_smoothing(det.smoothed)
-    elif sum(c.status == OK for c in det.candidates) >= LUMA_FRAME_MIN_HIGHLIGHTS:
-        frame = frame.for_many_highlights()
+    if sum(c.status == OK for c in det.candidates) >= LUMA_FRAME_MIN_HIGHLIGHTS:
+        # many ROIs: contoured in one smoothing of the frame's luma (detection's own where it is
+        # the luma: a gray, single-channel or float frame), not each smoothed for itself
+        if det.smoothed is not None and det.smoothed.shape == img.shape[:2]:
+            frame = frame.with_detection_smoothing(_frame_luma_smoothing(img, det.smoothed, frame.smooth_sigma_px))
+        else:
+            frame = frame.for_many_highlights()
     shift = np.array([r.col0, r.row0], dtype=np.float64)
     # every candidate's BP in the image, in one addition (each estimate's BP is a row of it)
     bps_arr = np.array([c.bp_uv for c in det.candidates], dtype=np.float64).reshape(-1, 2) + shift
