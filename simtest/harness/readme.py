@@ -40,16 +40,26 @@ def committed_runs(reports: str | Path) -> list[Path]:
     list of Path
         One ``<reports>/<suite>/<run id>`` per suite that has a run folder holding a
         ``results.json`` and not ending in ``-local`` (local runs are git-ignored), the latest by
-        name (run ids are dates or UTC times), sorted by suite name.
+        name (run ids are dates or UTC times), sorted by suite name; folders of other commands'
+        reports (results without a ``suite``) are passed over.
     """
     out = []
     root = Path(reports)
     for suite in sorted(p for p in root.iterdir() if p.is_dir()) if root.is_dir() else []:
         runs = sorted(p for p in suite.iterdir() if p.is_dir() and not p.name.endswith("-local")
                       and not p.name.startswith(".") and (p / "results.json").is_file())
-        if runs:
+        if runs and _is_suite_run(runs[-1]):
             out.append(runs[-1])
     return out
+
+
+def _is_suite_run(folder: Path) -> bool:
+    """A validation suite's run (its results name their suite), not another command's report
+    (``evaluate detection``'s, say) kept under the same root."""
+    try:
+        return "suite" in json.loads((folder / "results.json").read_text(encoding="utf-8"))
+    except (OSError, ValueError):
+        return False
 
 
 def _esc(t) -> str:

@@ -86,11 +86,11 @@ RESIDUAL_MAX_REL = 0.3
 
 #: Logistic coefficients of :func:`confidence`: intercept, then the weights of the features of
 #: ``_design`` (paleness, significance, neighbours, residual ratio, panel share). Fitted by
-#: :func:`simtest.evaluate.detection.fit_logistic` on the 240 ``ok`` estimates of the 24 labelled
+#: :func:`simtest.evaluate.detection.fit_logistic` on the 242 ``ok`` estimates of the 24 labelled
 #: banner frames (54 of them isolated highlights); the neighbours are 0 on every ``ok`` estimate
 #: (the checks saw to it), so their weight is 0. ``tests/test_verify.py``
 #: refits them.
-COEFFICIENTS = np.array([-4.466, 0.581, 0.390, 0.000, 0.209, 0.031])
+COEFFICIENTS = np.array([-4.506, 0.567, 0.396, 0.000, 0.217, 0.030])
 
 
 @dataclass(frozen=True)
@@ -188,12 +188,14 @@ def _panels(gray: np.ndarray, noise: float) -> np.ndarray:
 
 
 def _other_peaks(top: np.ndarray, xs: np.ndarray, ys: np.ndarray, bp_ij: np.ndarray, reach: float,
-                 height: float, noise: float) -> int:
+                 height: float, noise: float, ellipse=None) -> int:
     """Specular peaks (x, y) within ``reach`` of the BP, at least :data:`NEIGHBOUR_REL` of its
     ``height``, that are not on the BP's own lobe: not joined to it by pixels whose top-hat is at
     least :data:`VALLEY_REL` of its height less :data:`VALLEY_NOISE` times the ``noise`` (a
     distinct glint is separated from it by a valley below that level; noise only ruffles a
-    lobe's flank)."""
+    lobe's flank), and that lie outside the highlight's own isophote ``ellipse`` (peaks it
+    encloses are the highlight's own structure: the specular points of guides that run together,
+    a clipped top broken by noise)."""
     h, w = top.shape
     # a valley noise could have dug does not separate: the level sits VALLEY_NOISE sigma lower
     level = VALLEY_REL * height - VALLEY_NOISE * noise
@@ -201,6 +203,11 @@ def _other_peaks(top: np.ndarray, xs: np.ndarray, ys: np.ndarray, bp_ij: np.ndar
     c0, c1 = max(0, int(bp_ij[0] - reach)), min(w, int(bp_ij[0] + reach) + 1)
     win = top[r0:r1, c0:c1]
     sel = (top[ys, xs] >= NEIGHBOUR_REL * height) & (ys >= r0) & (ys < r1) & (xs >= c0) & (xs < c1)
+    if ellipse is not None and sel.any():
+        c, s = np.cos(ellipse.angle_rad), np.sin(ellipse.angle_rad)
+        du, dv = xs - ellipse.center[0], ys - ellipse.center[1]
+        a, b = ellipse.semi_axes
+        sel &= ((c * du + s * dv) / a) ** 2 + ((-s * du + c * dv) / b) ** 2 > 1.0
     if not sel.any():
         return 0
     _, lab = cv2.connectedComponents((win >= level).astype(np.uint8), connectivity=8)
@@ -211,7 +218,7 @@ def _other_peaks(top: np.ndarray, xs: np.ndarray, ys: np.ndarray, bp_ij: np.ndar
 
 def frame_evidence(image: np.ndarray, gray: np.ndarray, bps_uv: np.ndarray, rois, *,
                    full_scale: float, noise: float, background_px: int,
-                   reach_px: np.ndarray | None = None) -> Evidence:
+                   reach_px: np.ndarray | None = None, ellipses=None) -> Evidence:
     """Measure every candidate of a frame.
 
     Parameters
@@ -235,6 +242,8 @@ def frame_evidence(image: np.ndarray, gray: np.ndarray, bps_uv: np.ndarray, rois
         NaN (or None for all): not counted. The pipeline gives :data:`NEIGHBOUR_REACH` times the
         primary isophote's semi-major axis plus :data:`OWN_RADIUS_PX`, the extent of the lobe's
         outer isophotes.
+    ellipses : sequence of Ellipse or None, optional
+        Each candidate's primary isophote: peaks inside it are its own, not neighbours.
 
     Returns
     -------
@@ -280,7 +289,8 @@ def frame_evidence(image: np.ndarray, gray: np.ndarray, bps_uv: np.ndarray, rois
         lists = tree.query_ball_point(bps[todo], reach[todo]) if len(todo) else []
         for k, idx in zip(todo, lists):
             if idx:
-                neighbours[k] = _other_peaks(top, xs[idx], ys[idx], ij[k], reach[k], height[k], noise)
+                neighbours[k] = _other_peaks(top, xs[idx], ys[idx], ij[k], reach[k], height[k], noise,
+                                             None if ellipses is None else ellipses[k])
     return Evidence(chroma_peak, chroma_tissue, height, background, float(noise), panel_fraction,
                     neighbours, full_scale=float(full_scale))
 
@@ -332,7 +342,7 @@ def assess(image: np.ndarray, gray: np.ndarray, ests, *, full_scale: float):
     bps = np.array([e.bp_px for e in ests], dtype=np.float64).reshape(-1, 2)
     ev = frame_evidence(image, gray, bps, [e.roi for e in ests], full_scale=full_scale,
                         noise=noise_sigma(gray), background_px=background_side_px(gray.shape),
-                        reach_px=reach)
+                        reach_px=reach, ellipses=[e.ellipse for e in ests])
     return replace(ev, clipped=np.array([bool(e.saturated) for e in ests], dtype=bool)), res, inside
 
 

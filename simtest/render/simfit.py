@@ -220,7 +220,7 @@ def _noise_seeds(seed: int, k: int) -> list[int]:
     """The sensor-noise seeds of the loss: the render's own seed, then ``k - 1`` drawn from
     ``SeedSequence([seed, NOISE_SEED_KEY])``."""
     extra = np.random.SeedSequence([int(seed), NOISE_SEED_KEY]).generate_state(max(k - 1, 0))
-    return [int(seed)] + [int(x % (2**31 - 1)) for x in extra]
+    return [int(seed)] + [int(x % MAX_SEED) for x in extra]
 
 
 def _pooled_stats(frames: list[np.ndarray], height: int) -> dict[str, float]:
