@@ -344,12 +344,8 @@ def _inside(poly, px, py):
 
 
 @numba.njit(cache=True, nogil=True)
-def count_enclosed(poly, points, skip):
-    """How many of ``points`` (k, 2) but row ``skip`` (-1: none) lie in the closed polygon
-    ``poly`` (N, 2), N >= 1: those in its bounding box (bounds included), tested even-odd by
-    :func:`_inside`. As ``polygon_contains(poly, points[near]).sum()`` with ``near`` the rows
-    within ``poly.min(axis=0)`` and ``poly.max(axis=0)``, without a Python call per highlight
-    (the pipeline's ``merged`` test)."""
+def _bounds(poly):
+    """The bounding box of a polygon (N, 2), N >= 1: (min u, min v, max u, max v)."""
     lo_u, lo_v = poly[0, 0], poly[0, 1]
     hi_u, hi_v = lo_u, lo_v
     for i in range(1, len(poly)):
@@ -362,6 +358,17 @@ def count_enclosed(poly, points, skip):
             lo_v = v
         if v > hi_v:
             hi_v = v
+    return lo_u, lo_v, hi_u, hi_v
+
+
+@numba.njit(cache=True, nogil=True)
+def count_enclosed(poly, points, skip):
+    """How many of ``points`` (k, 2) but row ``skip`` (-1: none) lie in the closed polygon
+    ``poly`` (N, 2), N >= 1: those in its bounding box (bounds included), tested even-odd by
+    :func:`_inside`. As ``polygon_contains(poly, points[near]).sum()`` with ``near`` the rows
+    within ``poly.min(axis=0)`` and ``poly.max(axis=0)``, without a Python call per highlight
+    (the pipeline's ``merged`` test)."""
+    lo_u, lo_v, hi_u, hi_v = _bounds(poly)
     n = 0
     for k in range(len(points)):
         if k == skip:
@@ -1181,18 +1188,7 @@ def count_enclosed_sorted(poly, points, us, skip):
     """:func:`count_enclosed` of points sorted by u (``us`` their u, ascending): only the rows
     whose u lies in the polygon's u range are tested (binary search), so a frame of thousands of
     highlights costs n log n, not n^2; the same count."""
-    lo_u, lo_v = poly[0, 0], poly[0, 1]
-    hi_u, hi_v = lo_u, lo_v
-    for i in range(1, len(poly)):
-        u, v = poly[i, 0], poly[i, 1]
-        if u < lo_u:
-            lo_u = u
-        if u > hi_u:
-            hi_u = u
-        if v < lo_v:
-            lo_v = v
-        if v > hi_v:
-            hi_v = v
+    lo_u, lo_v, hi_u, hi_v = _bounds(poly)
     n = 0
     for k in range(np.searchsorted(us, lo_u, "left"), np.searchsorted(us, hi_u, "right")):
         if k == skip:

@@ -23,6 +23,36 @@ from simtest.reconstruct.lightaware.model import (
 from simtest.reconstruct.lightaware.solve import _covariance, _implausible, _patch_verdict
 
 
+
+def _quadric_root(kxx, kxy, kyy, d, P0, t1, t2, N):
+    """Where the rays ``t d`` (d (k, 3), camera frame) first meet the quadric patch
+    ``z + (k_xx x^2 + 2 k_xy x y + k_yy y^2 + k_zz z^2) / 2 = 0`` in the frame (t1, t2, N) at P0,
+    with ``k_zz = (k_xx + k_yy) / 2`` (exact for a sphere): A t^2 + B t + C = 0, the root near
+    -C/B in the cancellation-free form.
+
+    Returns
+    -------
+    ax, ay, az, bx, by, bz : ndarray
+        The rays and -P0 in the patch frame.
+    t : ndarray
+        The ray parameter (inf where there is no root).
+    ok : ndarray of bool
+        A real, positive, finite root.
+    """
+    kzz = 0.5 * (kxx + kyy)
+    ax, ay, az = d @ t1, d @ t2, d @ N
+    bx, by, bz = -(P0 @ t1), -(P0 @ t2), -(P0 @ N)
+    A = 0.5 * (kxx * ax * ax + 2 * kxy * ax * ay + kyy * ay * ay + kzz * az * az)
+    B = az + (kxx * ax * bx + kxy * (ax * by + ay * bx) + kyy * ay * by + kzz * az * bz)
+    C = bz + 0.5 * (kxx * bx * bx + 2 * kxy * bx * by + kyy * by * by + kzz * bz * bz)
+    disc = B * B - 4 * A * C
+    ok = disc >= 0
+    den = B + np.where(B >= 0, 1.0, -1.0) * np.sqrt(np.where(ok, disc, 0.0))
+    good_den = np.abs(den) > 1e-15
+    t = np.where(good_den, -2 * C / np.where(good_den, den, 1.0), np.inf)
+    ok &= (t > 0) & np.isfinite(t)
+    return ax, ay, az, bx, by, bz, t, ok
+
 def _patch_lobes(d, X, ns, ok, s, rough, rig_arr):
     """The rig's Phong lobes (N,) seen along rays d (N, 3) on a curved patch: surface points X
     (N, 3), unit normals ns (N, 3), ``ok`` (N,) where the ray meets it, apex depth s (mm, the
@@ -60,19 +90,9 @@ def _quadric_image(d, b_ray, p, rig_arr, Lm):
     t1, t2 = plane_basis(N)
     kxx, kxy, kyy = p[3] / s, p[4] / s, p[5] / s
     rough = np.exp(p[6])
-    ax, ay, az = d @ t1, d @ t2, d @ N
-    bx, by, bz = -(P0 @ t1), -(P0 @ t2), -(P0 @ N)
-    # F = z + (k_xx x^2 + 2 k_xy x y + k_yy y^2) / 2 = 0 along the ray X = t d: A t^2 + B t + C = 0
+    # F = z + (k_xx x^2 + 2 k_xy x y + k_yy y^2) / 2 = 0 along the ray X = t d
     kzz = 0.5 * (kxx + kyy)  # the z^2 term: exact for a sphere
-    A = 0.5 * (kxx * ax * ax + 2 * kxy * ax * ay + kyy * ay * ay + kzz * az * az)
-    B = az + (kxx * ax * bx + kxy * (ax * by + ay * bx) + kyy * ay * by + kzz * az * bz)
-    C = bz + 0.5 * (kxx * bx * bx + 2 * kxy * bx * by + kyy * by * by + kzz * bz * bz)
-    disc = B * B - 4 * A * C
-    ok = disc >= 0
-    den = B + np.where(B >= 0, 1.0, -1.0) * np.sqrt(np.where(ok, disc, 0.0))
-    good_den = np.abs(den) > 1e-15
-    t = np.where(good_den, -2 * C / np.where(good_den, den, 1.0), np.inf)  # the root near -C/B
-    ok &= (t > 0) & np.isfinite(t)
+    ax, ay, az, bx, by, bz, t, ok = _quadric_root(kxx, kxy, kyy, d, P0, t1, t2, N)
     t = np.where(ok, t, s)
     X = d * t[:, None]
     x, y = ax * t + bx, ay * t + by
@@ -338,18 +358,8 @@ def _cubic_patch_geometry(d, b_ray, p, Lm):
     kxx, kxy, kyy = p[3] / s, p[4] / s, p[5] / s
     kzz = 0.5 * (kxx + kyy)
     cxxx, cxxy, cxyy, cyyy = np.asarray(p[7:11], dtype=np.float64) * np.exp(-2.0 * np.float64(p[2]))
-    ax, ay, az = d @ t1, d @ t2, d @ N
-    bx, by, bz = -(P0 @ t1), -(P0 @ t2), -(P0 @ N)
     # the quadric's root (as in _quadric_image), then Newton on the full F along the ray
-    A = 0.5 * (kxx * ax * ax + 2 * kxy * ax * ay + kyy * ay * ay + kzz * az * az)
-    B = az + (kxx * ax * bx + kxy * (ax * by + ay * bx) + kyy * ay * by + kzz * az * bz)
-    C = bz + 0.5 * (kxx * bx * bx + 2 * kxy * bx * by + kyy * by * by + kzz * bz * bz)
-    disc = B * B - 4 * A * C
-    ok = disc >= 0
-    den = B + np.where(B >= 0, 1.0, -1.0) * np.sqrt(np.where(ok, disc, 0.0))
-    good_den = np.abs(den) > 1e-15
-    t = np.where(good_den, -2 * C / np.where(good_den, den, 1.0), np.inf)
-    ok &= (t > 0) & np.isfinite(t)
+    ax, ay, az, bx, by, bz, t, ok = _quadric_root(kxx, kxy, kyy, d, P0, t1, t2, N)
     t = np.where(ok, t, s)
 
     def grad(t):
