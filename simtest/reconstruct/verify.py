@@ -72,6 +72,9 @@ PANEL_MIN_AREA = 0.005
 PANEL_FRACTION_MAX = 0.1
 #: A neighbouring specular peak counts toward ``cluster`` from this fraction of the peak's height.
 NEIGHBOUR_REL = 0.7
+#: ... at least this fraction of the candidate's own area above that valley level (a glint of
+#: comparable size; the micro-relief's sparkle on a broad lobe is not a cluster) ...
+NEIGHBOUR_AREA_REL = 0.1
 #: ... separated from the candidate's lobe by a valley below this fraction of its height ...
 VALLEY_REL = 0.5
 #: ... less this many noise standard deviations (a dip the noise could make is no valley).
@@ -86,11 +89,11 @@ RESIDUAL_MAX_REL = 0.3
 
 #: Logistic coefficients of :func:`confidence`: intercept, then the weights of the features of
 #: ``_design`` (paleness, significance, neighbours, residual ratio, panel share). Fitted by
-#: :func:`simtest.evaluate.detection.fit_logistic` on the 242 ``ok`` estimates of the 24 labelled
+#: :func:`simtest.evaluate.detection.fit_logistic` on the 257 ``ok`` estimates of the 24 labelled
 #: banner frames (54 of them isolated highlights); the neighbours are 0 on every ``ok`` estimate
 #: (the checks saw to it), so their weight is 0. ``tests/test_verify.py``
 #: refits them.
-COEFFICIENTS = np.array([-4.506, 0.567, 0.396, 0.000, 0.217, 0.030])
+COEFFICIENTS = np.array([-5.045, 0.512, 0.487, 0.000, 0.270, 0.039])
 
 
 @dataclass(frozen=True)
@@ -195,7 +198,8 @@ def _other_peaks(top: np.ndarray, xs: np.ndarray, ys: np.ndarray, bp_ij: np.ndar
     distinct glint is separated from it by a valley below that level; noise only ruffles a
     lobe's flank), and that lie outside the highlight's own isophote ``ellipse`` (peaks it
     encloses are the highlight's own structure: the specular points of guides that run together,
-    a clipped top broken by noise)."""
+    a clipped top broken by noise), and whose own region above that level is at least
+    :data:`NEIGHBOUR_AREA_REL` of the candidate's."""
     h, w = top.shape
     # a valley noise could have dug does not separate: the level sits VALLEY_NOISE sigma lower
     level = VALLEY_REL * height - VALLEY_NOISE * noise
@@ -210,10 +214,13 @@ def _other_peaks(top: np.ndarray, xs: np.ndarray, ys: np.ndarray, bp_ij: np.ndar
         sel &= ((c * du + s * dv) / a) ** 2 + ((-s * du + c * dv) / b) ** 2 > 1.0
     if not sel.any():
         return 0
-    _, lab = cv2.connectedComponents((win >= level).astype(np.uint8), connectivity=8)
+    _, lab, stats, _ = cv2.connectedComponentsWithStats((win >= level).astype(np.uint8), connectivity=8)
     own = lab[int(bp_ij[1]) - r0, int(bp_ij[0]) - c0]
     other = lab[ys[sel] - r0, xs[sel] - c0]
-    return int(np.count_nonzero((other != own) | (own == 0)))
+    area = stats[:, cv2.CC_STAT_AREA]
+    # a glint of comparable size, not the sparkle of micro-relief on a broad lobe
+    big = area[other] >= NEIGHBOUR_AREA_REL * area[own] if own > 0 else np.ones(len(other), bool)
+    return int(np.count_nonzero(((other != own) | (own == 0)) & big))
 
 
 def frame_evidence(image: np.ndarray, gray: np.ndarray, bps_uv: np.ndarray, rois, *,

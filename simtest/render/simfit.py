@@ -45,6 +45,7 @@ from typing import Callable
 import numpy as np
 from scipy.optimize import minimize
 
+from simtest.constants import MAX_SEED
 from simtest.render.render import TISSUE_COVERAGE, render_scene
 from simtest.render.sensor import video_frame
 
