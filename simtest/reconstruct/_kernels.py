@@ -1027,17 +1027,9 @@ def border_median(vals):
         ring[k] = vals[r, 0]
         ring[k + mid] = vals[r, W - 1]
         k += 1
-    for v in ring:
-        if np.isnan(v):
-            return np.nan
     # the middle order statistics by selection, not a sort: a grown ROI's ring has thousands of
     # pixels (the values, hence the median, are the same)
-    n = len(ring)
-    part = np.partition(ring, n // 2)
-    hi = part[n // 2]
-    if n % 2:
-        return hi
-    return (part[: n // 2].max() + hi) / 2.0
+    return border_median_of_ring(ring)
 
 
 @numba.njit(cache=True, nogil=True, inline="always")
