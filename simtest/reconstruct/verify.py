@@ -138,8 +138,8 @@ class Evidence:
 
     @property
     def specular_colour(self) -> np.ndarray:
-        """The colour check: paler than the tissue, or near-white."""
-        return (self.paleness <= PALENESS_MAX) | (self.chroma_peak <= WHITE_CHROMA)
+        """The colour check (:func:`_specular_colour`) at each BP."""
+        return _specular_colour(self.chroma_peak, self.chroma_tissue)
 
     @property
     def significance(self) -> np.ndarray:
@@ -166,6 +166,12 @@ def _opening(img: np.ndarray, side: int) -> np.ndarray:
     bg = cv2.morphologyEx(small, cv2.MORPH_OPEN, cv2.getStructuringElement(cv2.MORPH_RECT, (k, k)),
                           borderType=cv2.BORDER_REPLICATE)
     return cv2.resize(bg, (w, h), interpolation=cv2.INTER_LINEAR) if f > 1 else bg
+
+
+def _specular_colour(chroma: np.ndarray, chroma_tissue: np.ndarray) -> np.ndarray:
+    """The colour check: a chroma at most :data:`PALENESS_MAX` of the tissue's, or near-white
+    (at most :data:`WHITE_CHROMA`); arrays of any one shape."""
+    return (chroma <= PALENESS_MAX * chroma_tissue) | (chroma <= WHITE_CHROMA)
 
 
 def _chroma(rgb: np.ndarray) -> np.ndarray:
@@ -208,10 +214,7 @@ def _other_peaks(top: np.ndarray, xs: np.ndarray, ys: np.ndarray, bp_ij: np.ndar
     win = top[r0:r1, c0:c1]
     sel = (top[ys, xs] >= NEIGHBOUR_REL * height) & (ys >= r0) & (ys < r1) & (xs >= c0) & (xs < c1)
     if ellipse is not None and sel.any():
-        c, s = np.cos(ellipse.angle_rad), np.sin(ellipse.angle_rad)
-        du, dv = xs - ellipse.center[0], ys - ellipse.center[1]
-        a, b = ellipse.semi_axes
-        sel &= ((c * du + s * dv) / a) ** 2 + ((-s * du + c * dv) / b) ** 2 > 1.0
+        sel &= _ellipse_level(ellipse, xs, ys) > 1.0
     if not sel.any():
         return 0
     _, lab, stats, _ = cv2.connectedComponentsWithStats((win >= level).astype(np.uint8), connectivity=8)
@@ -268,7 +271,9 @@ def frame_evidence(image: np.ndarray, gray: np.ndarray, bps_uv: np.ndarray, rois
     chroma_bg = _chroma(bg_rgb)
     ij = np.clip(np.rint(np.asarray(bps_uv, np.float64).reshape(-1, 2)).astype(np.int64), 0, [w - 1, h - 1])
     cols, rows = ij.T  # the BPs' pixels (u is the column)
-    peak_rgb = cv2.dilate(rgb, np.ones((3, 3), np.uint8))[rows, cols]
+    # the RGB maximum over the 3 x 3 px around each BP (the window clipped to the frame)
+    peak_rgb = np.max([rgb[np.clip(rows + dr, 0, h - 1), np.clip(cols + dc, 0, w - 1)]
+                       for dr in (-1, 0, 1) for dc in (-1, 0, 1)], axis=0)
     chroma_peak = _chroma(peak_rgb)
     chroma_tissue = chroma_bg[rows, cols]
     height = top[rows, cols]
@@ -284,8 +289,7 @@ def frame_evidence(image: np.ndarray, gray: np.ndarray, bps_uv: np.ndarray, rois
     # specular peaks of the frame: local maxima of the top-hat that pass the colour check
     floor = max(SIGNIFICANCE_MIN * noise, 1e-9)
     is_max = (top >= cv2.dilate(top, np.ones((3, 3), np.uint8))) & (top > floor)
-    pale = (chroma <= PALENESS_MAX * chroma_bg) | (chroma <= WHITE_CHROMA)
-    ys, xs = np.nonzero(is_max & pale)
+    ys, xs = np.nonzero(is_max & _specular_colour(chroma, chroma_bg))
     xs, ys = xs.astype(np.int64), ys.astype(np.int64)
     neighbours = np.zeros(n, np.int64)
     reach = np.asarray(reach_px, np.float64).reshape(-1) if reach_px is not None else np.full(n, np.nan)
@@ -302,13 +306,13 @@ def frame_evidence(image: np.ndarray, gray: np.ndarray, bps_uv: np.ndarray, rois
                     neighbours, full_scale=float(full_scale))
 
 
-def _inside(ell, uv) -> bool:
-    """Whether the point (u, v) px lies inside the ellipse (centre, semi-axes, angle)."""
+def _ellipse_level(ell, u, v):
+    """``(x / a)^2 + (y / b)^2`` of points (u, v) px in the ellipse's own axes (centre,
+    semi-axes a >= b, angle): at most 1 inside it; arrays or scalars."""
     c, s = np.cos(ell.angle_rad), np.sin(ell.angle_rad)
-    d = np.asarray(uv, dtype=np.float64) - ell.center
-    x, y = c * d[0] + s * d[1], -s * d[0] + c * d[1]
+    du, dv = u - ell.center[0], v - ell.center[1]
     a, b = ell.semi_axes
-    return bool((x / a) ** 2 + (y / b) ** 2 <= 1.0)
+    return ((c * du + s * dv) / a) ** 2 + ((-s * du + c * dv) / b) ** 2
 
 
 def assess(image: np.ndarray, gray: np.ndarray, ests, *, full_scale: float):
@@ -341,7 +345,7 @@ def assess(image: np.ndarray, gray: np.ndarray, ests, *, full_scale: float):
         ell, r = e.ellipse, e.fit_residual_px
         if ell is not None and r is not None:
             res[k] = r / max(float(ell.semi_axes[1]), 1e-9)
-            inside[k] = _inside(ell, e.bp_px)
+            inside[k] = bool(_ellipse_level(ell, float(e.bp_px[0]), float(e.bp_px[1])) <= 1.0)
             if e.ok:
                 reach[k] = NEIGHBOUR_REACH * float(ell.semi_axes[0]) + OWN_RADIUS_PX
         elif e.ok:  # a camera model without image conics: judged on the rest
@@ -354,8 +358,8 @@ def assess(image: np.ndarray, gray: np.ndarray, ests, *, full_scale: float):
 
 
 def _design(ev: Evidence, residual_rel: np.ndarray) -> np.ndarray:
-    """The features of :func:`confidence`, (N, 5): log paleness, log significance, log contrast
-    (each clipped), neighbours, log residual ratio."""
+    """The features of :func:`confidence`, (N, 5): minus log paleness, log significance (each
+    clipped), minus the neighbours, minus log residual ratio (clipped), minus the panel share."""
     return np.c_[
         -np.log(np.clip(ev.paleness, 0.05, 5.0)),
         np.log(np.clip(ev.significance, 1.0, 1e4)),
@@ -407,13 +411,13 @@ def verdict(ev: Evidence, residual_rel: np.ndarray, bp_inside: np.ndarray) -> li
         not_specular, cluster, bad_fit.
     """
     out = []
-    pal, sig, con = ev.paleness, ev.significance, ev.contrast
+    pal, sig, con, colour = ev.paleness, ev.significance, ev.contrast, ev.specular_colour
     clipped = np.zeros(len(ev.height), bool) if ev.clipped is None else ev.clipped
     for k in range(len(ev.height)):
         if ev.panel_fraction[k] > PANEL_FRACTION_MAX:
             out.append(("overlay", f"{ev.panel_fraction[k]:.0%} of its region is a flat panel "
                                    f"(> {PANEL_FRACTION_MAX:.0%})"))
-        elif not (pal[k] <= PALENESS_MAX or ev.chroma_peak[k] <= WHITE_CHROMA):
+        elif not colour[k]:
             out.append(("not_specular", f"peak chroma {ev.chroma_peak[k]:.2f} is {pal[k]:.2f} of the "
                                         f"tissue's {ev.chroma_tissue[k]:.2f} (> {PALENESS_MAX})"))
         elif not clipped[k] and (sig[k] < SIGNIFICANCE_MIN or con[k] < CONTRAST_MIN):
