@@ -140,3 +140,54 @@ def test_labeller_agreement_scores_each_pass_against_the_other(tmp_path):
         del item["pass2"]
     (tmp_path / "l.json").write_text(json.dumps(doc))
     assert labeller_agreement(tmp_path / "l.json") is None
+
+
+SUITE = """
+[suite]
+name = "tiny"
+description = "two renders of the flat mucosa"
+protocol = "rendered"
+scene = "colonoscope_plane"
+realisations = 1
+seed = 3
+estimators = ["bp_ray"]
+
+[[sweep]]
+name = "distance"
+parameter = "geometry.distance_mm"
+values = [20.0, 30.0]
+"""
+
+
+def test_a_suite_is_scored_render_by_render_with_the_seeds_validate_gives(tmp_path):
+    from simtest.constants import MAX_SEED
+    from simtest.evaluate.detection import is_suite, suite_frames
+    from simtest.harness.suite import load_suite, realisation_seed
+
+    path = tmp_path / "tiny.toml"
+    path.write_text(SUITE)
+    assert is_suite(str(path)) and is_suite("endoscope") and not is_suite("colonoscope")
+    seen = []
+    frames = suite_frames(str(path), progress=lambda d, n: seen.append((d, n)))
+    assert [f.name for f in frames] == ["distance@20#0", "distance@30#0"]
+    assert seen == [(1, 2), (2, 2)]
+    # the render of a case is the one validate makes: same scene change, same seed
+    case = load_suite(path).cases[0]
+    seed = int(realisation_seed(3, case.key, 0).generate_state(1, np.uint32)[0]) & MAX_SEED
+    from simtest.render.render import render_scene
+    from simtest.scene import load_scene, with_overrides
+    spec = with_overrides(load_scene("colonoscope_plane"), {"geometry.distance_mm": 20.0, "render.seed": seed})
+    np.testing.assert_array_equal(frames[0].image, render_scene(spec, seed=seed).frame)
+    res = CliRunner().invoke(app, ["evaluate", "detection", str(path), "-o", str(tmp_path / "out")])
+    assert res.exit_code == 0, res.output
+    r = json.loads((tmp_path / "out" / "results.json").read_text())
+    (g,) = r["groups"]
+    assert g["name"] == "distance" and g["frames"] == 2
+    assert g["targets"] == sum(f["targets"] for f in r["frames"])
+    assert "| distance (2 frames) |" in (tmp_path / "out" / "report.md").read_text()
+
+
+def test_a_paper_suite_is_refused_in_one_line(tmp_path):
+    res = CliRunner().invoke(app, ["evaluate", "detection", "quick", "-o", str(tmp_path / "out")])
+    assert res.exit_code == 2
+    assert len(res.output.strip().splitlines()) == 1 and "rendered" in res.output

@@ -8,6 +8,7 @@ neighbours and surround are varied one at a time.
 from __future__ import annotations
 
 import numpy as np
+import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
@@ -125,3 +126,29 @@ def test_refitting_the_confidence_gives_the_shipped_coefficients():
 
     X, y, _ = confidence_rows(labelled_real_frames(_labelled_path()))
     np.testing.assert_allclose(fit_logistic(X, y), COEFFICIENTS, atol=6e-3)  # written with 3 decimals
+
+
+def test_an_isophote_narrower_than_a_pixel_is_a_bad_fit():
+    from simtest.reconstruct.verify import MINOR_AXIS_MIN_PX, verdict
+    from dataclasses import replace
+    ev = replace(_evidence(np.array([0.0, 0.0]), 2),
+                 minor_px=np.array([0.9 * MINOR_AXIS_MIN_PX, 1.1 * MINOR_AXIS_MIN_PX]))
+    (s0, d0), (s1, _) = verdict(ev, np.array([0.05, 0.05]), np.array([True, True]))
+    assert (s0, s1) == ("bad_fit", "ok") and "semi-minor" in d0
+
+
+def test_a_quantised_noise_free_frame_is_judged_against_its_rounding_noise():
+    """Noise-free 8-bit frames (a render, a JPEG's flat blocks) measure a noise of 0; the
+    significance then divides by the quantisation's 1 / sqrt(12) LSB, not by 0."""
+    from simtest.reconstruct.verify import QUANTISATION_SIGMA_LSB, frame_evidence
+    from simtest.reconstruct._pixels import Roi
+    from simtest.reconstruct.detect import luma
+    img = np.broadcast_to(TISSUE.astype(np.uint8), (64, 64, 3)).copy()
+    img[32, 32] = 255
+    ev = frame_evidence(img, luma(img), np.array([[32.0, 32.0]]), [Roi(20, 44, 20, 44)],
+                        full_scale=255.0, noise=0.0, background_px=15)
+    assert ev.noise == pytest.approx(QUANTISATION_SIGMA_LSB)
+    assert np.isfinite(ev.significance).all()
+    ev_f = frame_evidence(img.astype(np.float32), luma(img), np.array([[32.0, 32.0]]), [Roi(20, 44, 20, 44)],
+                          full_scale=255.0, noise=0.0, background_px=15)
+    assert ev_f.noise == 0.0

@@ -20,9 +20,9 @@ from rich.progress import Progress
 
 from simtest import __version__
 from simtest.evaluate.c3vd import load_frame, scan_sequence
-from simtest.evaluate.detection import (detection_figure, evaluate_frames, labelled_real_frames,
-                                        labeller_agreement, reliability_figure,
-                                        rendered_frames)
+from simtest.evaluate.detection import (detection_figure, evaluate_frames, groups, is_suite,
+                                        labelled_real_frames, labeller_agreement, reliability_figure,
+                                        rendered_frames, suite_frames)
 from simtest.evaluate.report import SCHEMA, SCHEMA_VERSION, render_html
 from simtest.evaluate.score import score_highlights, summarise
 from simtest.geometry.camera_file import load_camera
@@ -128,12 +128,15 @@ DETECTION_FILES = ("results.json", "report.md", "detection.png", "reliability.pn
 @evaluate_app.command("detection")
 def detection_command(
     source: str = typer.Argument(..., help="A labelled set of real frames (JSON, e.g. tests/data/real/"
-                                 "structures_labelled.json) or an endoscope scene (name or TOML) whose render "
-                                 "labels its targets.", show_default=False),
+                                 "structures_labelled.json), an endoscope scene (name or TOML) whose render "
+                                 "labels its targets, or a rendered suite (name, e.g. endoscope, or TOML): "
+                                 "every case's renders.", show_default=False),
     out: Path = typer.Option(..., "--out", "-o", show_default=False,
                              help="Output folder, new, empty or a previous run's (replaced as a whole): "
                              "results.json, report.md, detection.png, reliability.png."),
     seed: Optional[int] = typer.Option(None, "--seed", min=0, help="Render seed (a scene; default the scene's)."),  # noqa: UP045
+    realisations: Optional[int] = typer.Option(  # noqa: UP045
+        None, "--realisations", "-n", min=1, help="Renders per setting (a suite; default the suite's)."),
 ) -> None:
     """Score highlight detection: precision, recall and F1 of the candidates and of the "ok"
     estimates against labelled isolated highlights, per frame and pooled, with reconstruct's
@@ -146,15 +149,24 @@ def detection_command(
     bad input; 4: OUT cannot be written."""
     target = check_out_folder(out, DETECTION_FILES)
     try:
-        frames = (labelled_real_frames(source) if source.endswith(".json")
-                  else rendered_frames(source, seed=seed))
         with Progress(transient=True) as progress:
+            if source.endswith(".json"):
+                frames = labelled_real_frames(source)
+            elif is_suite(source):
+                task = progress.add_task(f"rendering {source}", total=None)
+                frames = suite_frames(source, realisations=realisations,
+                                      progress=lambda done, total: progress.update(task, completed=done,
+                                                                                   total=total))
+            else:
+                frames = rendered_frames(source, seed=seed)
             progress.add_task(f"reconstructing {len(frames)} frame(s)", total=None)
             results = evaluate_frames(frames)
         results = {"schema": "simtest.evaluate.detection", "schema_version": 1,
                    "simtest_version": __version__, "source": source} | results
         if source.endswith(".json"):
             results["labeller_agreement"] = labeller_agreement(source)
+        if any("@" in f["name"] for f in results["frames"]):
+            results["groups"] = groups(results["frames"])
         text = json.dumps(results, indent=1, allow_nan=False) + "\n"
         md = _detection_markdown(results)
         fig = detection_figure(frames, results)
@@ -185,8 +197,20 @@ def _detection_markdown(results: dict) -> str:
     L = [f"# Highlight detection: {results['source']}", "",
          "Targets are the labelled isolated specular highlights; a candidate or an ok estimate is a "
          "true positive when it is the first to fall on a target (see simtest.evaluate.detection).",
-         "", "| frame | targets | candidates | precision | recall | ok | ok precision | ok recall | ok F1 | "
-         "not examined |", "|---|---|---|---|---|---|---|---|---|---|"]
+         ""]
+    head = ["| {} | targets | candidates | precision | recall | ok | ok precision | ok recall | ok F1 | "
+            "not examined |", "|---|---|---|---|---|---|---|---|---|---|"]
+    if results.get("groups"):
+        L += ["Pooled per sweep (its frames are named sweep@value#realisation below):", "",
+              head[0].format("sweep"), head[1]]
+        for g in results["groups"]:
+            f = [x for x in results["frames"] if x["name"].split("@", 1)[0] == g["name"]]
+            L.append(f"| {g['name']} ({g['frames']} frames) | {g['targets']} | {g['candidates']} | "
+                     f"{_fmt(g['precision_candidates'])} | {_fmt(g['recall_candidates'])} | {g['ok']} | "
+                     f"{_fmt(g['precision_ok'])} | {_fmt(g['recall_ok'])} | {_fmt(g['f1_ok'])} | "
+                     f"{sum(x['not_examined'] for x in f)} |")
+        L.append("")
+    L += [head[0].format("frame"), head[1]]
     for f in results["frames"] + [p | {"not_examined": sum(x["not_examined"] for x in results["frames"])}]:
         L.append(f"| {f['name']} | {f['targets']} | {f['candidates']} | {_fmt(f['precision_candidates'])} | "
                  f"{_fmt(f['recall_candidates'])} | {f['ok']} | {_fmt(f['precision_ok'])} | "

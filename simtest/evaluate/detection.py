@@ -44,6 +44,7 @@ matplotlib.use("Agg", force=False)
 
 import matplotlib.pyplot as plt  # noqa: E402 - after choosing the back-end
 
+from simtest.constants import MAX_SEED  # noqa: E402
 from simtest.geometry.cameras import PinholeCamera  # noqa: E402
 from simtest.reconstruct.detect import luma  # noqa: E402
 from simtest.reconstruct.images import load_image  # noqa: E402
@@ -57,7 +58,7 @@ from simtest.render.truth import highlight_targets  # noqa: E402
 from simtest.scene.spec import load_scene  # noqa: E402
 
 __all__ = ["KINDS", "TARGET_KIND", "TOLERANCE_PX", "Structure", "FrameScore", "LabelledFrame",
-           "match_candidates", "score_frame", "pooled", "labelled_real_frames", "rendered_frames",
+           "match_candidates", "score_frame", "pooled", "groups", "is_suite", "labelled_real_frames", "rendered_frames", "suite_frames",
            "evaluate_frames", "detection_figure", "labeller_agreement", "CONFIDENCE_BINS", "confidence_rows", "fit_logistic",
            "reliability", "cross_validated_confidence", "reliability_figure"]
 
@@ -375,13 +376,96 @@ def rendered_frames(scene: str, *, seed: int | None = None) -> list[LabelledFram
         count as ``unlabelled`` false positives.
     """
     spec = load_scene(scene)
+    return [_rendered_frame(spec, seed, spec.name)]
+
+
+def _rendered_frame(spec, seed: int | None, name: str) -> LabelledFrame:
+    """Render ``spec`` at ``seed`` and label the video frame with its targets."""
     res = render_scene(spec, seed=seed)
     sensor = res.spec.sensor
     valid = res.mask & field_stop_mask(res.mask.shape, sensor.field_stop, sensor.field_stop_radius)
     targets = highlight_targets(res.highlights, res.specular, valid)
     structs = [Structure(float(t.peak_px[0]), float(t.peak_px[1]), float(t.area_px), TARGET_KIND)
                for t in targets]
-    return [LabelledFrame(spec.name, res.frame, res.camera, structs)]
+    return LabelledFrame(name, res.frame, res.camera, structs)
+
+
+def suite_frames(suite: str, *, realisations: int | None = None, progress=None) -> list[LabelledFrame]:
+    """The video frames of a rendered suite's cases (``simtest validate``'s renders), labelled
+    with their targets (:func:`highlight_targets`).
+
+    Parameters
+    ----------
+    suite : str
+        A bundled suite name (``endoscope``) or a suite TOML file; every case must be rendered.
+    realisations : int, optional
+        Realisations per distinct setting (default the suite's). Realisation ``i`` of a case is
+        rendered at the seed ``validate`` gives it (:func:`simtest.harness.suite.realisation_seed`
+        from the suite's root seed), so the frames are the ones the suite's report scores.
+    progress : callable, optional
+        Called as ``progress(done, total)`` after each render.
+
+    Returns
+    -------
+    list of LabelledFrame
+        Named ``<sweep>@<x>#<i>`` (the first sweep that holds a setting), sweep by sweep.
+
+    Raises
+    ------
+    ValueError
+        The suite cannot be read (:class:`simtest.harness.suite.SuiteError`), or a case is not
+        rendered.
+    """
+    from simtest.harness.protocols import mesh_pose_overrides
+    from simtest.harness.suite import load_suite, realisation_seed
+    from simtest.scene import with_overrides
+
+    s = load_suite(suite)
+    if realisations is not None:
+        s = s.with_overrides(realisations=realisations)
+    cases = s.distinct_cases
+    for c in cases:
+        if c.protocol != "rendered":
+            raise ValueError(f"{s.source}: case {c.id} is a {c.protocol!r} case; detection is scored on "
+                             "rendered cases only")
+    total = sum(c.realisations for c in cases)
+    frames: list[LabelledFrame] = []
+    for c in cases:
+        spec = with_overrides(load_scene(c.scene), c.scene_setting.scene_overrides(mesh_pose_overrides))
+        for i in range(c.realisations):
+            seed = int(realisation_seed(s.seed, c.key, i).generate_state(1, np.uint32)[0]) & MAX_SEED
+            frames.append(_rendered_frame(with_overrides(spec, {"render.seed": seed}), seed, f"{c.id}#{i}"))
+            if progress is not None:
+                progress(len(frames), total)
+    return frames
+
+
+def is_suite(source: str) -> bool:
+    """Whether ``source`` names a suite (a bundled suite's name, or a TOML file with a
+    ``[suite]`` table) rather than a scene."""
+    from simtest.harness.suite import bundled_suite_names
+
+    p = Path(source)
+    if p.suffix == ".toml" and p.is_file():
+        import tomllib
+
+        try:
+            return "suite" in tomllib.loads(p.read_text(encoding="utf-8"))
+        except (OSError, UnicodeDecodeError, tomllib.TOMLDecodeError):
+            return False
+    return not p.suffix and source in bundled_suite_names()
+
+
+def groups(frames_out: list[dict]) -> list[dict]:
+    """Pooled scores per group of frames named ``<group>@...`` (a suite's sweeps), in order."""
+    by: dict[str, list[FrameScore]] = {}
+    for f in frames_out:
+        g = f["name"].split("@", 1)[0]
+        sc = FrameScore(g, **{k: f[k] for k in ("targets", "candidates", "candidates_tp", "ok", "ok_tp",
+                                                "targets_found", "targets_found_ok")},
+                        ok_on=Counter(f["ok_on"]))
+        by.setdefault(g, []).append(sc)
+    return [pooled(v).as_dict() | {"name": g, "frames": len(v)} for g, v in by.items()]
 
 
 def evaluate_frames(frames: list[LabelledFrame], settings=None) -> dict:
@@ -437,13 +521,26 @@ def _on(row: dict, s: Structure) -> bool:
     return math.dist(row["bp_px"], (s.u, s.v)) <= s.reach_px
 
 
+#: Most frames :func:`detection_figure` draws.
+FIGURE_FRAMES_MAX = 24
+
+
 def detection_figure(frames: list[LabelledFrame], results: dict, *, columns: int = 6):
     """The frames with what detection got right and wrong, as a matplotlib figure.
 
     Each frame shows its ``ok`` estimates on targets (green circles), its ``ok`` estimates on
     anything else (red crosses, which are the false positives of "ok"), and the targets no ``ok``
-    estimate found (yellow squares: the misses). Titles give the frame's counts.
+    estimate found (yellow squares: the misses). Titles give the frame's counts. Of more than
+    :data:`FIGURE_FRAMES_MAX` frames, only those with a false positive or a miss are drawn (at
+    most that many, in order; the title says how many were left out).
     """
+    pairs = list(zip(frames, results["frames"]))
+    left_out = 0
+    if len(pairs) > FIGURE_FRAMES_MAX:
+        wrong = [(fr, res) for fr, res in pairs if res["ok"] > res["ok_tp"] or res["missed_targets_ok"]]
+        left_out = len(pairs) - min(len(wrong), FIGURE_FRAMES_MAX)
+        pairs = wrong[:FIGURE_FRAMES_MAX] or pairs[:1]
+    frames = [fr for fr, _ in pairs]
     n = len(frames)
     cols = min(columns, n)
     rows_n = math.ceil(n / cols)
@@ -451,7 +548,7 @@ def detection_figure(frames: list[LabelledFrame], results: dict, *, columns: int
                              squeeze=False, layout="constrained")
     for ax in axes.ravel():
         ax.set_axis_off()
-    for ax, fr, res in zip(axes.ravel(), frames, results["frames"]):
+    for ax, (fr, res) in zip(axes.ravel(), pairs):
         ax.imshow(fr.image, cmap="gray" if fr.image.ndim == 2 else None)
         tp = np.array([r["bp_px"] for r in res["candidates_detail"] if r["tp_ok"]]).reshape(-1, 2)
         fp = np.array([r["bp_px"] for r in res["candidates_detail"]
@@ -469,7 +566,8 @@ def detection_figure(frames: list[LabelledFrame], results: dict, *, columns: int
         return "n/a" if v is None else f"{v:.2f}"
     fig.suptitle(f"ok estimates against labelled isolated highlights: precision {pct(p['precision_ok'])}, "
                  f"recall {pct(p['recall_ok'])} over {p['targets']} targets\n(green circle: hit, red "
-                 "cross: false positive, yellow square: missed)", fontsize=9)
+                 "cross: false positive, yellow square: missed)"
+                 + (f"; {left_out} frames without an error not drawn" if left_out else ""), fontsize=9)
     return fig
 
 

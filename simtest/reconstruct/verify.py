@@ -27,7 +27,8 @@ fitted candidates earn the status ``ok``, from what makes a highlight specular a
   specular by the colour check, at least :data:`NEIGHBOUR_REL` of this peak's height, beyond
   :data:`OWN_RADIUS_PX` of its BP) breaks the assumption of one lobe on a locally planar patch.
 - **Nested ellipses** (``bad_fit``). The primary isophote's RMS residual is at most
-  :data:`RESIDUAL_MAX_REL` of its semi-minor axis, and the BP lies inside it.
+  :data:`RESIDUAL_MAX_REL` of its semi-minor axis, the BP lies inside it, and it is resolved by
+  the pixel grid (semi-minor axis at least :data:`MINOR_AXIS_MIN_PX`).
 
 The ``confidence`` of a fitted estimate is a logistic function of the same quantities
 (:func:`confidence`), whose coefficients were fitted on the ``ok`` estimates of the hand-labelled
@@ -50,7 +51,7 @@ from scipy.spatial import cKDTree
 from simtest.reconstruct.detect import background_side_px, noise_sigma
 
 __all__ = ["PALENESS_MAX", "WHITE_CHROMA", "SIGNIFICANCE_MIN", "CONTRAST_MIN", "PANEL_STD_REL",
-           "PANEL_FRACTION_MAX", "NEIGHBOUR_REL", "OWN_RADIUS_PX", "RESIDUAL_MAX_REL",
+           "PANEL_FRACTION_MAX", "NEIGHBOUR_REL", "OWN_RADIUS_PX", "RESIDUAL_MAX_REL", "MINOR_AXIS_MIN_PX",
            "COEFFICIENTS", "Evidence", "frame_evidence", "assess", "confidence", "verdict"]
 
 #: Largest ratio of the peak's chroma to the tissue's for a specular peak.
@@ -86,14 +87,23 @@ NEIGHBOUR_REACH = 3.0
 OWN_RADIUS_PX = 2.0
 #: Largest RMS isophote residual relative to the ellipse's semi-minor axis.
 RESIDUAL_MAX_REL = 0.3
+#: Smallest semi-minor axis of the primary isophote, px: an isophote narrower than one pixel is
+#: below what the pixel grid samples (its contour is traced between pixel centres), so its shape
+#: is the sampling's, not the highlight's.
+MINOR_AXIS_MIN_PX = 0.5
+#: Smallest noise an integer image's significance is judged against, in units of its least
+#: significant bit: the rounding error of quantisation, uniform over one step, has standard
+#: deviation 1 / sqrt(12). A compressed frame (JPEG removes the sensor noise in flat blocks) or a
+#: noise-free render otherwise measures a noise of 0 and every peak is infinitely significant.
+QUANTISATION_SIGMA_LSB = 1.0 / np.sqrt(12.0)
 
 #: Logistic coefficients of :func:`confidence`: intercept, then the weights of the features of
 #: ``_design`` (paleness, significance, neighbours, residual ratio, panel share). Fitted by
-#: :func:`simtest.evaluate.detection.fit_logistic` on the 257 ``ok`` estimates of the 24 labelled
+#: :func:`simtest.evaluate.detection.fit_logistic` on the 250 ``ok`` estimates of the 24 labelled
 #: banner frames (54 of them isolated highlights); the neighbours are 0 on every ``ok`` estimate
 #: (the checks saw to it), so their weight is 0. ``tests/test_verify.py``
 #: refits them.
-COEFFICIENTS = np.array([-5.045, 0.512, 0.487, 0.000, 0.270, 0.039])
+COEFFICIENTS = np.array([-5.031, 0.496, 0.493, 0.000, 0.278, 0.039])
 
 
 @dataclass(frozen=True)
@@ -110,7 +120,8 @@ class Evidence:
     background : ndarray
         Luma background at the BP, image units.
     noise : float
-        Image noise standard deviation, image units.
+        Image noise standard deviation, image units (at least :data:`QUANTISATION_SIGMA_LSB`
+        for an integer image).
     panel_fraction : ndarray
         Share of flat-panel pixels in the candidate's region of interest.
     clipped : ndarray of bool
@@ -119,6 +130,8 @@ class Evidence:
         Intensity of white, image units.
     neighbours : ndarray of int
         Specular peaks in the region of interest other than the candidate's own.
+    minor_px : ndarray, optional
+        Semi-minor axis of each candidate's primary isophote, px (NaN without a fit).
     """
 
     chroma_peak: np.ndarray
@@ -130,6 +143,7 @@ class Evidence:
     neighbours: np.ndarray
     clipped: np.ndarray | None = None
     full_scale: float = 255.0
+    minor_px: np.ndarray | None = None
 
     @property
     def paleness(self) -> np.ndarray:
@@ -302,7 +316,10 @@ def frame_evidence(image: np.ndarray, gray: np.ndarray, bps_uv: np.ndarray, rois
             if idx:
                 neighbours[k] = _other_peaks(top, xs[idx], ys[idx], ij[k], reach[k], height[k], noise,
                                              None if ellipses is None else ellipses[k])
-    return Evidence(chroma_peak, chroma_tissue, height, background, float(noise), panel_fraction,
+    # the significance's noise: an integer image's pixels carry at least its quantisation's
+    integer = np.issubdtype(image.dtype, np.integer)
+    noise_sig = max(float(noise), QUANTISATION_SIGMA_LSB) if integer else float(noise)
+    return Evidence(chroma_peak, chroma_tissue, height, background, noise_sig, panel_fraction,
                     neighbours, full_scale=float(full_scale))
 
 
@@ -340,11 +357,13 @@ def assess(image: np.ndarray, gray: np.ndarray, ests, *, full_scale: float):
     n = len(ests)
     res = np.full(n, np.nan)
     reach = np.full(n, np.nan)
+    minor = np.full(n, np.nan)
     inside = np.zeros(n, dtype=bool)
     for k, e in enumerate(ests):
         ell, r = e.ellipse, e.fit_residual_px
         if ell is not None and r is not None:
-            res[k] = r / max(float(ell.semi_axes[1]), 1e-9)
+            minor[k] = float(ell.semi_axes[1])
+            res[k] = r / max(minor[k], 1e-9)
             inside[k] = bool(_ellipse_level(ell, float(e.bp_px[0]), float(e.bp_px[1])) <= 1.0)
             if e.ok:
                 reach[k] = NEIGHBOUR_REACH * float(ell.semi_axes[0]) + OWN_RADIUS_PX
@@ -354,7 +373,7 @@ def assess(image: np.ndarray, gray: np.ndarray, ests, *, full_scale: float):
     ev = frame_evidence(image, gray, bps, [e.roi for e in ests], full_scale=full_scale,
                         noise=noise_sigma(gray), background_px=background_side_px(gray.shape),
                         reach_px=reach, ellipses=[e.ellipse for e in ests])
-    return replace(ev, clipped=np.array([bool(e.saturated) for e in ests], dtype=bool)), res, inside
+    return replace(ev, clipped=np.array([bool(e.saturated) for e in ests], dtype=bool), minor_px=minor), res, inside
 
 
 def _design(ev: Evidence, residual_rel: np.ndarray) -> np.ndarray:
@@ -413,6 +432,7 @@ def verdict(ev: Evidence, residual_rel: np.ndarray, bp_inside: np.ndarray) -> li
     out = []
     pal, sig, con, colour = ev.paleness, ev.significance, ev.contrast, ev.specular_colour
     clipped = np.zeros(len(ev.height), bool) if ev.clipped is None else ev.clipped
+    minor = np.full(len(ev.height), np.nan) if ev.minor_px is None else ev.minor_px
     for k in range(len(ev.height)):
         if ev.panel_fraction[k] > PANEL_FRACTION_MAX:
             out.append(("overlay", f"{ev.panel_fraction[k]:.0%} of its region is a flat panel "
@@ -430,6 +450,9 @@ def verdict(ev: Evidence, residual_rel: np.ndarray, bp_inside: np.ndarray) -> li
             why = "the BP lies outside its isophote" if not bp_inside[k] else (
                 f"isophote residual {residual_rel[k]:.2f} of its semi-minor axis (> {RESIDUAL_MAX_REL})")
             out.append(("bad_fit", why))
+        elif minor[k] < MINOR_AXIS_MIN_PX:
+            out.append(("bad_fit", f"isophote semi-minor axis {minor[k]:.2f} px (< {MINOR_AXIS_MIN_PX} px: "
+                                   "narrower than the pixel grid resolves)"))
         else:
             out.append(("ok", ""))
     return out
