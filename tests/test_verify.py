@@ -122,9 +122,12 @@ def _labelled_path():
 
 
 def test_refitting_the_confidence_gives_the_shipped_coefficients():
-    from simtest.evaluate.detection import confidence_rows, fit_logistic, labelled_real_frames
+    from simtest.evaluate.detection import (L2_PENALTY, confidence_rows, fit_logistic, labelled_real_frames,
+                                            select_penalty)
 
-    X, y, _ = confidence_rows(labelled_real_frames(_labelled_path()))
+    X, y, group = confidence_rows(labelled_real_frames(_labelled_path()))
+    # the shipped penalty is the one that predicts held-out frames best
+    assert select_penalty(X, y, group) == L2_PENALTY
     np.testing.assert_allclose(fit_logistic(X, y), COEFFICIENTS, atol=6e-3)  # written with 3 decimals
 
 

@@ -20,9 +20,9 @@ from rich.progress import Progress
 
 from simtest import __version__
 from simtest.evaluate.c3vd import load_frame, scan_sequence
-from simtest.evaluate.detection import (detection_figure, evaluate_frames, groups, is_suite,
-                                        labelled_real_frames, labeller_agreement, reliability_figure,
-                                        rendered_frames, suite_frames)
+from simtest.evaluate.detection import (cross_validated_report, detection_figure, evaluate_frames,
+                                        groups, is_suite, labelled_real_frames, labeller_agreement,
+                                        reliability_figure, rendered_frames, suite_frames)
 from simtest.evaluate.report import SCHEMA, SCHEMA_VERSION, render_html
 from simtest.evaluate.score import score_highlights, summarise
 from simtest.geometry.camera_file import load_camera
@@ -165,6 +165,7 @@ def detection_command(
                    "simtest_version": __version__, "source": source} | results
         if source.endswith(".json"):
             results["labeller_agreement"] = labeller_agreement(source)
+            results["confidence_cross_validated"] = cross_validated_report(frames)
         if any("@" in f["name"] for f in results["frames"]):
             results["groups"] = groups(results["frames"])
         text = json.dumps(results, indent=1, allow_nan=False) + "\n"
@@ -234,6 +235,14 @@ def _detection_markdown(results: dict) -> str:
     for key in ("candidates", "ok"):
         for r in results["reliability"][key]:
             L.append(f"| {key} | [{r['bin'][0]:.1f}, {r['bin'][1]:.1f}) | {r['n']} | {_fmt(r['mean_confidence'])} | "
+                     f"{_fmt(r['fraction_true'])} |")
+    cv = results.get("confidence_cross_validated")
+    if cv:
+        L += ["", f"Leave one frame out (the confidence a new frame can expect, on the {cv['n']} ok "
+              f"estimates): ranking AUC {_fmt(cv['auc'])} (0.5: no better than chance).", "",
+              "| bin | n | mean confidence | fraction targets |", "|---|---|---|---|"]
+        for r in cv["reliability"]:
+            L.append(f"| [{r['bin'][0]:.1f}, {r['bin'][1]:.1f}) | {r['n']} | {_fmt(r['mean_confidence'])} | "
                      f"{_fmt(r['fraction_true'])} |")
     L += ["", "![reliability diagram](reliability.png)", ""]
     return "\n".join(L)

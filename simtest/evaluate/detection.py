@@ -60,7 +60,7 @@ from simtest.scene.spec import load_scene  # noqa: E402
 __all__ = ["KINDS", "TARGET_KIND", "TOLERANCE_PX", "Structure", "FrameScore", "LabelledFrame",
            "match_candidates", "score_frame", "pooled", "groups", "is_suite", "labelled_real_frames", "rendered_frames", "suite_frames",
            "evaluate_frames", "detection_figure", "labeller_agreement", "CONFIDENCE_BINS", "confidence_rows", "fit_logistic",
-           "reliability", "cross_validated_confidence", "reliability_figure"]
+           "reliability", "cross_validated_confidence", "cross_validated_report", "ranking_auc", "select_penalty", "reliability_figure"]
 
 #: The kinds of labelled bright structure; ``isolated`` is the target.
 KINDS = ("isolated", "cluster", "streak", "instrument", "overlay", "border", "texture")
@@ -576,9 +576,13 @@ def detection_figure(frames: list[LabelledFrame], results: dict, *, columns: int
 
 #: Confidence bins of the reliability diagram (the issue's: [0.5, 0.7), [0.7, 0.9), [0.9, 1]).
 CONFIDENCE_BINS = (0.0, 0.3, 0.5, 0.7, 0.9, 1.0)
-#: L2 penalty of the logistic fit on its weights (not the intercept): a few features and a few
-#: thousand candidates need little; it keeps a feature the labels barely move at a small weight.
-L2_PENALTY = 1.0
+#: L2 penalty of the logistic fit on its weights (not the intercept): the grid value of
+#: :data:`PENALTY_GRID` with the smallest leave-one-frame-out log-loss on the labelled banner
+#: frames (:func:`select_penalty`; ``tests/test_verify.py`` checks it). A weaker penalty lets the
+#: weights follow frame-specific accidents, and new frames then get over-confident values.
+L2_PENALTY = 10.0
+#: Penalties :func:`select_penalty` tries.
+PENALTY_GRID = (0.01, 0.1, 1.0, 10.0, 100.0, 1000.0)
 
 
 def confidence_rows(frames: list[LabelledFrame], settings=None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -644,12 +648,74 @@ def reliability(conf: np.ndarray, y: np.ndarray, bins=CONFIDENCE_BINS) -> list[d
     return out
 
 
-def cross_validated_confidence(X: np.ndarray, y: np.ndarray, group: np.ndarray) -> np.ndarray:
+def cross_validated_confidence(X: np.ndarray, y: np.ndarray, group: np.ndarray,
+                               penalty: float = L2_PENALTY) -> np.ndarray:
     """Each candidate's confidence from the logistic fitted on the other frames (leave one frame
-    out): the calibration a new frame can expect."""
+    out): the calibration a new frame can expect.
+
+    Parameters
+    ----------
+    X : ndarray of shape (N, F)
+        Features (:func:`confidence_rows`).
+    y : ndarray of bool, shape (N,)
+        Labels.
+    group : ndarray of int, shape (N,)
+        Frame of each row.
+    penalty : float
+        L2 penalty of :func:`fit_logistic`.
+
+    Returns
+    -------
+    ndarray of shape (N,)
+    """
     out = np.empty(len(y))
     for g in np.unique(group):
         m = group == g
-        c = fit_logistic(X[~m], y[~m])
+        c = fit_logistic(X[~m], y[~m], penalty)
         out[m] = 1.0 / (1.0 + np.exp(-(c[0] + X[m] @ c[1:])))
     return out
+
+
+def ranking_auc(conf: np.ndarray, y: np.ndarray) -> float | None:
+    """The probability that a true highlight gets a higher confidence than a false one (ties
+    count a half): the area under the ROC curve, by the Mann-Whitney U statistic; None without
+    both classes."""
+    from scipy.stats import mannwhitneyu
+
+    y = np.asarray(y, bool)
+    if y.all() or not y.any():
+        return None
+    return float(mannwhitneyu(conf[y], conf[~y]).statistic / (y.sum() * (~y).sum()))
+
+
+def cross_validated_report(frames: list[LabelledFrame]) -> dict:
+    """The confidence a new frame can expect: leave-one-frame-out confidences of the ``ok``
+    estimates (:func:`cross_validated_confidence`, penalty :data:`L2_PENALTY`), their ranking
+    AUC (:func:`ranking_auc`) and reliability per bin.
+
+    Returns
+    -------
+    dict
+        ``{"n", "auc", "reliability": [...]}``.
+    """
+    X, y, group = confidence_rows(frames)
+    cv = cross_validated_confidence(X, y, group)
+    return {"n": int(len(y)), "auc": ranking_auc(cv, y), "reliability": reliability(cv, y)}
+
+
+def select_penalty(X: np.ndarray, y: np.ndarray, group: np.ndarray, grid=PENALTY_GRID) -> float:
+    """The L2 penalty of ``grid`` whose leave-one-frame-out confidences
+    (:func:`cross_validated_confidence`) have the smallest mean log-loss (ties: the larger
+    penalty).
+
+    Returns
+    -------
+    float
+    """
+    best, best_loss = None, np.inf
+    for pen in sorted(grid, reverse=True):
+        p = np.clip(cross_validated_confidence(X, y, group, pen), 1e-12, 1 - 1e-12)
+        loss = -float(np.mean(np.where(y, np.log(p), np.log1p(-p))))
+        if loss < best_loss - 1e-12:
+            best, best_loss = float(pen), loss
+    return best

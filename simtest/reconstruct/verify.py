@@ -32,12 +32,14 @@ fitted candidates earn the status ``ok``, from what makes a highlight specular a
 
 The ``confidence`` of a fitted estimate is a logistic function of the same quantities
 (:func:`confidence`), whose coefficients were fitted on the ``ok`` estimates of the hand-labelled
-real frames of ``tests/data/real/structures_labelled.json``: of the ``ok`` estimates given
-confidence about c, about a fraction c were labelled isolated specular highlights there
-(``simtest evaluate detection`` draws the reliability diagram; cross-validated by frame in
-:func:`simtest.evaluate.detection.cross_validated_confidence`). A rejected estimate carries the
-confidence it would have had. It is a ranking with that calibration, not a probability on other
-scopes; candidates without a fit have none.
+real frames of ``tests/data/real/structures_labelled.json``, with the L2 penalty that predicts
+held-out frames best (:func:`simtest.evaluate.detection.select_penalty`): of the ``ok`` estimates
+given confidence about c, about a fraction c were labelled isolated specular highlights there.
+The quantities separate isolated highlights from clusters and texture only weakly on those
+labels (``simtest evaluate detection`` prints the leave-one-frame-out ranking AUC and reliability),
+so the confidences stay near the labels' base rate. A rejected estimate carries the confidence it
+would have had. It is a ranking with that calibration, not a probability on other scopes;
+candidates without a fit have none.
 """
 
 from __future__ import annotations
@@ -99,11 +101,11 @@ QUANTISATION_SIGMA_LSB = 1.0 / np.sqrt(12.0)
 
 #: Logistic coefficients of :func:`confidence`: intercept, then the weights of the features of
 #: ``_design`` (paleness, significance, neighbours, residual ratio, panel share). Fitted by
-#: :func:`simtest.evaluate.detection.fit_logistic` on the 250 ``ok`` estimates of the 24 labelled
-#: banner frames (54 of them isolated highlights); the neighbours are 0 on every ``ok`` estimate
+#: :func:`simtest.evaluate.detection.fit_logistic` (penalty ``L2_PENALTY``) on the 250 ``ok``
+#: estimates of the 24 labelled banner frames (54 of them isolated highlights); the neighbours are 0 on every ``ok`` estimate
 #: (the checks saw to it), so their weight is 0. ``tests/test_verify.py``
 #: refits them.
-COEFFICIENTS = np.array([-5.031, 0.496, 0.493, 0.000, 0.278, 0.039])
+COEFFICIENTS = np.array([-3.878, 0.377, 0.306, 0.000, 0.228, 0.004])
 
 
 @dataclass(frozen=True)
