@@ -1,5 +1,6 @@
 """``simtest evaluate c3vd SEQ_DIR --intrinsics CAM --out OUT``: reconstruct a C3VD-format sequence
-and score every estimator against its ground-truth normals.
+and score every estimator against its ground-truth normals, and, where the camera file carries a
+light rig of offset lights, the light-aware fits' depths against its depth maps.
 
 Writes ``OUT/results.json``, ``OUT/report.html`` (:mod:`simtest.evaluate.report`) and with
 ``--views N`` ``OUT/view_NNNN.png`` (:mod:`simtest.reconstruct.view3d`), replaced as one folder
@@ -24,13 +25,14 @@ from simtest.evaluate.detection import (cross_validated_report, detection_figure
                                         groups, is_suite, labelled_real_frames, labeller_agreement,
                                         reliability_figure, rendered_frames, suite_frames)
 from simtest.evaluate.report import SCHEMA, SCHEMA_VERSION, render_html
-from simtest.evaluate.score import score_highlights, summarise
+from simtest.evaluate.score import score_highlights, summarise, summarise_depth
 from simtest.geometry.camera_file import load_camera
 from simtest.harness.report.figures import figure_png
 from simtest._exit import BAD_INPUT, fail
 from simtest.reconstruct.cli import check_out_folder, write_out_folder
 from simtest.reconstruct.io import estimate_to_dict
 from simtest.reconstruct.pipeline import reconstruct
+from simtest.reconstruct.recommend import with_light_aware
 from simtest.reconstruct.settings import ReconSettings
 
 #: ``simtest reconstruct``'s defaults for whole frames, which ``evaluate`` uses too
@@ -64,7 +66,9 @@ def c3vd_command(
     views: int = typer.Option(0, "--views", help="Also write OUT/view_NNNN.png, a 3D view (estimates beside the GT "
                               "surface from depth), for the first N frames with a reconstructed highlight.", min=0),
 ) -> None:
-    """Reconstruct every frame of SEQ_DIR and score every estimator against the ground truth.
+    """Reconstruct every frame of SEQ_DIR and score every estimator against the ground truth:
+    the normals, and with a light rig in the camera file ("lights") the light-aware fits' depth of
+    the specular point against NNNN_depth.tiff (relative error).
 
     Writes, in the folder OUT (new, empty, or a previous run's; replaced as a whole, so a failure
     leaves the previous set): OUT/results.json (every highlight's errors and the summaries),
@@ -73,7 +77,8 @@ def c3vd_command(
 
     target = check_out_folder(out, OUTPUT_FILES)
     try:
-        camera = load_camera(intrinsics).model
+        camera_file = load_camera(intrinsics)
+        camera = camera_file.model
         frames = scan_sequence(seq_dir)
         if max_frames:
             frames = frames[:max_frames]
@@ -87,6 +92,8 @@ def c3vd_command(
             for fr in frames:
                 img, truth = load_frame(fr, camera)
                 ests = reconstruct(img, camera, settings=settings)
+                # the camera file's light rig and sensor response, as reconstruct uses them
+                ests = with_light_aware(img, ests, camera, camera_file.lights, response=camera_file.response)
                 n_cand += len(ests)
                 rows.extend(score_highlights(fr.index, ests, truth, camera))
                 if len(view_inputs) < views and any(e.ok for e in ests):
@@ -100,6 +107,7 @@ def c3vd_command(
             "n_ok": sum(r["status"] == "ok" for r in rows), "n_scored": sum(r["scored"] for r in rows),
             "estimators": summarise(rows, "errors_bp_deg"),
             "estimators_footprint": summarise(rows, "errors_footprint_deg"),
+            "depth": summarise_depth(rows) if any(fr.depth is not None for fr in frames) else None,
             "highlights": rows,
         }
         text = json.dumps(results, indent=1, allow_nan=False) + "\n"
@@ -118,6 +126,9 @@ def c3vd_command(
     summary = ", ".join(f"{k} {v['median_deg']:.2f}" for k, v in med.items() if v["median_deg"] is not None)
     typer.echo(f"{len(frames)} frame(s), {results['n_highlights']} candidate(s), {results['n_ok']} ok, "
                f"{results['n_scored']} scored; median error (deg) at the BP: {summary or 'none'}")
+    if results["depth"]:
+        typer.echo("median |relative depth error|: " + ", ".join(
+            f"{k} {100 * v['median_abs']:.1f} % (n = {v['n']})" for k, v in results["depth"].items()))
     typer.echo(f"-> {out / 'results.json'}, {out / 'report.html'}")
 
 

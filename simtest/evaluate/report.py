@@ -7,6 +7,7 @@
      "n_frames": int, "n_highlights": int, "n_ok": int, "n_scored": int,
      "estimators": {name: {"n", "median_deg", "mean_deg", "p95_deg"}},       # vs GT at the BP
      "estimators_footprint": {name: {...}},                               # vs footprint mean
+     "depth": {name: {"n", "median_abs", "median", "p95_abs"}},           # relative depth error
      "highlights": [rows of simtest.evaluate.score.score_highlights]}
 
 ``report.html`` is self-contained (figures inlined as PNG): the tables above, the error
@@ -121,7 +122,8 @@ def figures(results: dict) -> dict[str, bytes]:
             ax.set_xlabel(label)
             ax.set_ylabel("angular error vs GT at the BP (deg)")
             ax.grid(alpha=0.3)
-            ax.legend(fontsize=8)
+            if ax.get_legend_handles_labels()[0]:  # too few points for a binned median: no legend
+                ax.legend(fontsize=8)
         ax.set_title(title)
         figs[title] = _png(fig)
     return figs
@@ -132,6 +134,16 @@ def _table(stats: dict) -> str:
     body = []
     for name, s in stats.items():
         cells = [html.escape(name), str(s["n"])] + ["-" if s[k] is None else f"{s[k]:.2f}" for k in ("median_deg", "mean_deg", "p95_deg")]
+        body.append("<tr>" + "".join(f"<td>{c}</td>" for c in cells) + "</tr>")
+    return f"<table>{head}{''.join(body)}</table>"
+
+
+def _depth_table(stats: dict) -> str:
+    head = ("<tr><th>estimator</th><th>n</th><th>median |error| (%)</th><th>median error (%)</th>"
+            "<th>p95 |error| (%)</th></tr>")
+    body = []
+    for name, s in stats.items():
+        cells = [html.escape(name), str(s["n"])] + [f"{100 * s[k]:.1f}" for k in ("median_abs", "median", "p95_abs")]
         body.append("<tr>" + "".join(f"<td>{c}</td>" for c in cells) + "</tr>")
     return f"<table>{head}{''.join(body)}</table>"
 
@@ -163,6 +175,11 @@ def render_html(results: dict) -> str:
         "<h2>Against the ground-truth normal averaged over the isophote's footprint</h2>",
         _table(s["estimators_footprint"]),
     ]
+    if s.get("depth") is not None:
+        parts += ["<h2>Depth of the specular point along its ray, relative to the ground truth</h2>",
+                  _depth_table(s["depth"]) if s["depth"] else
+                  "<p>No estimator gave a depth (a camera file without a light rig of offset lights, or "
+                  "no depth observable).</p>"]
     for title, png in figs.items():
         b64 = base64.b64encode(png).decode("ascii")
         parts.append(f"<h2>{html.escape(title)}</h2><p><img alt='{html.escape(title)}' src='data:image/png;base64,{b64}'></p>")
