@@ -129,6 +129,13 @@ def test_refitting_the_confidence_gives_the_shipped_coefficients():
     # the shipped penalty is the one that predicts held-out frames best
     assert select_penalty(X, y, group) == L2_PENALTY
     np.testing.assert_allclose(fit_logistic(X, y), COEFFICIENTS, atol=6e-3)  # written with 3 decimals
+    # calibrated on frames it was not fitted to (leave one frame out): in every bin from 0.5 up,
+    # the fraction of isolated highlights is within 0.1 of the bin's mean confidence
+    from simtest.evaluate.detection import cross_validated_confidence, reliability
+    rows = [r for r in reliability(cross_validated_confidence(X, y, group), y) if r["bin"][0] >= 0.5 and r["n"]]
+    assert rows  # the confidence does reach 0.5 on held-out frames
+    for r in rows:
+        assert abs(r["fraction_true"] - r["mean_confidence"]) <= 0.1, r
 
 
 def test_an_isophote_narrower_than_a_pixel_is_a_bad_fit():
@@ -155,3 +162,41 @@ def test_a_quantised_noise_free_frame_is_judged_against_its_rounding_noise():
     ev_f = frame_evidence(img.astype(np.float32), luma(img), np.array([[32.0, 32.0]]), [Roi(20, 44, 20, 44)],
                           full_scale=255.0, noise=0.0, background_px=15)
     assert ev_f.noise == 0.0
+
+
+@settings(max_examples=40, deadline=None)
+@given(st.floats(1.0, 8.0), st.floats(0.4, 1.0), st.floats(0.0, np.pi), st.floats(0.0, 100.0))
+def test_a_lone_gaussian_lobe_has_no_other_light_in_its_surround(s, q, angle, tissue):
+    """The surround excludes exactly where the own lobe stays above OWN_REL of its height (the
+    t = 0.7 isophote of an elliptical Gaussian lobe, scaled to that level), whatever the level of
+    the tissue under it; a second lobe as bright just beyond that is other light."""
+    from simtest.geometry.conics import Ellipse
+    from simtest.reconstruct.verify import NEIGHBOUR_REACH, OWN_RADIUS_PX, _surround_fraction
+    c, si = np.cos(angle), np.sin(angle)
+    yy, xx = np.mgrid[0:121, 0:121].astype(np.float64)
+    x, y = c * (xx - 60) + si * (yy - 60), -si * (xx - 60) + c * (yy - 60)
+    lobe = 100.0 * np.exp(-0.5 * ((x / s) ** 2 + (y / (q * s)) ** 2))
+    r07 = np.sqrt(2 * np.log(1 / 0.7))
+    ell = Ellipse(np.array([60.0, 60.0]), np.array([r07 * s, r07 * q * s]), angle)
+    reach = NEIGHBOUR_REACH * r07 * s + OWN_RADIUS_PX
+    assert _surround_fraction(tissue + lobe, ell, np.array([60, 60]), reach) == 0.0
+    d = 2.0 * s + 2.0  # beyond the own lobe's OWN_REL level (1.8 s along the major axis)
+    other = lobe + 100.0 * np.exp(-0.5 * ((xx - 60 - d * c) ** 2 + (yy - 60 - d * si) ** 2) / (0.6 * s) ** 2)
+    assert _surround_fraction(tissue + other, ell, np.array([60, 60]), reach) > 0.0
+
+
+def test_a_glint_beside_a_streak_is_a_cluster_and_beside_a_lit_fold_is_not():
+    """Light narrower than the surround (a streak of glints 3 px wide, 0.6 of the peak) counts
+    toward cluster; the shading of a surface broader than it (a lit fold over half the surround,
+    as bright) does not."""
+    from simtest.geometry.conics import Ellipse
+    from simtest.reconstruct.verify import SURROUND_FRACTION_MAX, _surround_fraction
+    yy, xx = np.mgrid[0:61, 0:61].astype(np.float64)
+    lobe = 100.0 * np.exp(-0.5 * ((xx - 30) ** 2 + (yy - 30) ** 2) / 4.0)
+    r07 = np.sqrt(2 * np.log(1 / 0.7))
+    ell = Ellipse(np.array([30.0, 30.0]), np.array([2 * r07, 2 * r07]), 0.0)
+    reach = 3 * 2 * r07 + 2
+    streak = np.maximum(lobe, np.where(np.abs(xx - 36) <= 1, 60.0, 0.0))
+    assert _surround_fraction(streak, ell, np.array([30, 30]), reach) > SURROUND_FRACTION_MAX
+    fold = np.maximum(lobe, np.where(xx > 33, 60.0, 0.0))
+    assert _surround_fraction(fold, ell, np.array([30, 30]), reach) <= SURROUND_FRACTION_MAX

@@ -580,7 +580,7 @@ CONFIDENCE_BINS = (0.0, 0.3, 0.5, 0.7, 0.9, 1.0)
 #: :data:`PENALTY_GRID` with the smallest leave-one-frame-out log-loss on the labelled banner
 #: frames (:func:`select_penalty`; ``tests/test_verify.py`` checks it). A weaker penalty lets the
 #: weights follow frame-specific accidents, and new frames then get over-confident values.
-L2_PENALTY = 10.0
+L2_PENALTY = 1.0
 #: Penalties :func:`select_penalty` tries.
 PENALTY_GRID = (0.01, 0.1, 1.0, 10.0, 100.0, 1000.0)
 

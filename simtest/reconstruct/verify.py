@@ -53,7 +53,8 @@ from scipy.spatial import cKDTree
 from simtest.reconstruct.detect import background_side_px, noise_sigma
 
 __all__ = ["PALENESS_MAX", "WHITE_CHROMA", "SIGNIFICANCE_MIN", "CONTRAST_MIN", "PANEL_STD_REL",
-           "PANEL_FRACTION_MAX", "NEIGHBOUR_REL", "OWN_RADIUS_PX", "RESIDUAL_MAX_REL", "MINOR_AXIS_MIN_PX",
+           "PANEL_FRACTION_MAX", "NEIGHBOUR_REL", "OWN_RADIUS_PX", "SURROUND_REL", "OWN_REL",
+           "SURROUND_FRACTION_MAX", "RESIDUAL_MAX_REL", "MINOR_AXIS_MIN_PX",
            "COEFFICIENTS", "Evidence", "frame_evidence", "assess", "confidence", "verdict"]
 
 #: Largest ratio of the peak's chroma to the tissue's for a specular peak.
@@ -87,6 +88,18 @@ VALLEY_NOISE = 3.0
 NEIGHBOUR_REACH = 3.0
 #: ... plus this margin, px (the smoothing's blur).
 OWN_RADIUS_PX = 2.0
+#: The surround's light is counted from this fraction of the peak's height (top-hat) ...
+SURROUND_REL = 0.5
+#: ... in the surround: within the reach above (:data:`NEIGHBOUR_REACH`, :data:`OWN_RADIUS_PX`),
+#: outside where the highlight's own lobe stays above this fraction of its height (its primary
+#: isophote, at t = 0.7, scaled by sqrt(ln(1 / OWN_REL) / ln(1 / 0.7)), the ratio of a Gaussian
+#: lobe's radii at the two levels). It is well below SURROUND_REL because the Gaussian model
+#: places the flank only roughly: the isophote's t is relative to the ROI's border and the
+#: top-hat to the grey opening, and Phong and GGX lobes have heavier tails ...
+OWN_REL = 0.2
+#: ... and a highlight whose surround holds more than this fraction of such light is one of a
+#: cluster, or a glint on a sheen.
+SURROUND_FRACTION_MAX = 0.1
 #: Largest RMS isophote residual relative to the ellipse's semi-minor axis.
 RESIDUAL_MAX_REL = 0.3
 #: Smallest semi-minor axis of the primary isophote, px: an isophote narrower than one pixel is
@@ -100,12 +113,11 @@ MINOR_AXIS_MIN_PX = 0.5
 QUANTISATION_SIGMA_LSB = 1.0 / np.sqrt(12.0)
 
 #: Logistic coefficients of :func:`confidence`: intercept, then the weights of the features of
-#: ``_design`` (paleness, significance, neighbours, residual ratio, panel share). Fitted by
-#: :func:`simtest.evaluate.detection.fit_logistic` (penalty ``L2_PENALTY``) on the 250 ``ok``
-#: estimates of the 24 labelled banner frames (54 of them isolated highlights); the neighbours are 0 on every ``ok`` estimate
-#: (the checks saw to it), so their weight is 0. ``tests/test_verify.py``
-#: refits them.
-COEFFICIENTS = np.array([-3.878, 0.377, 0.306, 0.000, 0.228, 0.004])
+#: ``_design`` (paleness, significance, surround, residual ratio, panel share). Fitted by
+#: :func:`simtest.evaluate.detection.fit_logistic` (penalty ``L2_PENALTY``) on the 190 ``ok``
+#: estimates of the 24 labelled banner frames (53 of them isolated highlights).
+#: ``tests/test_verify.py`` refits them.
+COEFFICIENTS = np.array([-9.876, 0.575, -0.279, 2.285, -0.166, 0.001])
 
 
 @dataclass(frozen=True)
@@ -134,6 +146,10 @@ class Evidence:
         Specular peaks in the region of interest other than the candidate's own.
     minor_px : ndarray, optional
         Semi-minor axis of each candidate's primary isophote, px (NaN without a fit).
+    surround : ndarray, optional
+        Fraction of the candidate's surround holding other light at :data:`SURROUND_REL` of its
+        height above the surround's median or more (:func:`_surround_fraction`; NaN where not
+        measured).
     """
 
     chroma_peak: np.ndarray
@@ -146,6 +162,7 @@ class Evidence:
     clipped: np.ndarray | None = None
     full_scale: float = 255.0
     minor_px: np.ndarray | None = None
+    surround: np.ndarray | None = None
 
     @property
     def paleness(self) -> np.ndarray:
@@ -321,8 +338,45 @@ def frame_evidence(image: np.ndarray, gray: np.ndarray, bps_uv: np.ndarray, rois
     # the significance's noise: an integer image's pixels carry at least its quantisation's
     integer = np.issubdtype(image.dtype, np.integer)
     noise_sig = max(float(noise), QUANTISATION_SIGMA_LSB) if integer else float(noise)
+    surround = np.full(n, np.nan)
+    if ellipses is not None:
+        for k in np.flatnonzero(np.isfinite(reach)):
+            if ellipses[k] is not None:
+                surround[k] = _surround_fraction(g, ellipses[k], ij[k], reach[k])
     return Evidence(chroma_peak, chroma_tissue, height, background, noise_sig, panel_fraction,
-                    neighbours, full_scale=float(full_scale))
+                    neighbours, full_scale=float(full_scale), surround=surround)
+
+
+#: The own lobe's radius at :data:`OWN_REL` over its radius at t = 0.7, squared (a Gaussian
+#: lobe exp(-r^2 / 2 s^2) reaches level t at r = s sqrt(2 ln(1 / t))).
+_OWN_LEVEL = float(np.log(1.0 / OWN_REL) / np.log(1.0 / 0.7))
+
+
+def _surround_fraction(gray: np.ndarray, ell, bp_ij: np.ndarray, reach: float) -> float:
+    """Share of the surround's pixels (within ``reach`` of the BP, outside the own lobe's
+    :data:`OWN_REL` level: the primary isophote ``ell`` scaled by :data:`_OWN_LEVEL`) whose
+    local top-hat is at least :data:`SURROUND_REL` of the peak's (the luma's maximum over the
+    3 x 3 px around the BP). The local top-hat is the luma less its grey opening by a square as
+    wide as the reach: it keeps light narrower than the reach (other glints, a streak) and drops
+    the shading of surfaces broader than it (a lit fold beside the highlight, the dark surround
+    of the field of view). 0 without a surround or a peak."""
+    h, w = gray.shape
+    R = int(np.ceil(reach))
+    bi, bj = int(bp_ij[1]), int(bp_ij[0])
+    r0, r1 = max(0, bi - R), min(h, bi + R + 1)
+    c0, c1 = max(0, bj - R), min(w, bj + R + 1)
+    yy, xx = np.mgrid[r0:r1, c0:c1].astype(np.float64)
+    ring = ((xx - bp_ij[0]) ** 2 + (yy - bp_ij[1]) ** 2 <= reach * reach) & (_ellipse_level(ell, xx, yy) > _OWN_LEVEL)
+    if not ring.any():
+        return 0.0
+    win = np.ascontiguousarray(gray[r0:r1, c0:c1], dtype=np.float32)
+    k = max(3, R | 1)  # odd, about the reach
+    top = win - cv2.morphologyEx(win, cv2.MORPH_OPEN, cv2.getStructuringElement(cv2.MORPH_RECT, (k, k)),
+                                 borderType=cv2.BORDER_REPLICATE)
+    peak = float(top[max(0, bi - 1 - r0):bi + 2 - r0, max(0, bj - 1 - c0):bj + 2 - c0].max())
+    if not peak > 0:
+        return 0.0
+    return float(np.count_nonzero(top[ring] >= SURROUND_REL * peak) / np.count_nonzero(ring))
 
 
 def _ellipse_level(ell, u, v):
@@ -380,11 +434,14 @@ def assess(image: np.ndarray, gray: np.ndarray, ests, *, full_scale: float):
 
 def _design(ev: Evidence, residual_rel: np.ndarray) -> np.ndarray:
     """The features of :func:`confidence`, (N, 5): minus log paleness, log significance (each
-    clipped), minus the neighbours, minus log residual ratio (clipped), minus the panel share."""
+    clipped), minus log of the surround's share of other light (:func:`_surround_fraction`; 0
+    where not measured, a share under 1 % taken as 1 %: the ring's resolution), minus log
+    residual ratio (clipped), minus the panel share."""
+    surround = np.zeros(len(ev.height)) if ev.surround is None else np.nan_to_num(ev.surround, nan=0.0)
     return np.c_[
         -np.log(np.clip(ev.paleness, 0.05, 5.0)),
         np.log(np.clip(ev.significance, 1.0, 1e4)),
-        -ev.neighbours.astype(np.float64),
+        -np.log(surround + 0.01),
         -np.log(np.clip(residual_rel, 0.01, 10.0)),
         -ev.panel_fraction,
     ]
@@ -435,6 +492,7 @@ def verdict(ev: Evidence, residual_rel: np.ndarray, bp_inside: np.ndarray) -> li
     pal, sig, con, colour = ev.paleness, ev.significance, ev.contrast, ev.specular_colour
     clipped = np.zeros(len(ev.height), bool) if ev.clipped is None else ev.clipped
     minor = np.full(len(ev.height), np.nan) if ev.minor_px is None else ev.minor_px
+    surround = np.full(len(ev.height), np.nan) if ev.surround is None else ev.surround
     for k in range(len(ev.height)):
         if ev.panel_fraction[k] > PANEL_FRACTION_MAX:
             out.append(("overlay", f"{ev.panel_fraction[k]:.0%} of its region is a flat panel "
@@ -448,6 +506,9 @@ def verdict(ev: Evidence, residual_rel: np.ndarray, bp_inside: np.ndarray) -> li
                                         f"and {CONTRAST_MIN:g})"))
         elif ev.neighbours[k] > 0:
             out.append(("cluster", f"{ev.neighbours[k]} other specular peak(s) in its region"))
+        elif surround[k] > SURROUND_FRACTION_MAX:
+            out.append(("cluster", f"{surround[k]:.0%} of its surround is other light at {SURROUND_REL:g} of its "
+                                   f"height (> {SURROUND_FRACTION_MAX:.0%})"))
         elif not (residual_rel[k] <= RESIDUAL_MAX_REL) or not bp_inside[k]:
             why = "the BP lies outside its isophote" if not bp_inside[k] else (
                 f"isophote residual {residual_rel[k]:.2f} of its semi-minor axis (> {RESIDUAL_MAX_REL})")
