@@ -78,20 +78,6 @@ def test_develop_equals_a_render_with_the_albedo():
     assert np.mean(frame != b.frame) < 0.05
 
 
-@pytest.mark.render
-def test_fit_shows_the_frame_the_fitted_scene_renders():
-    from simtest.render.render import render_scene
-    from simtest.render.simfit import fit_scene
-
-    real = np.zeros((40, 48, 3), np.uint8)
-    real[4:-4, 4:-4] = (200, 110, 90)
-    real[10:12, 10:12] = 255
-    res = fit_scene(scene_from_dict(PLANE), [real], outer_evals=3, inner_evals=10, polish_evals=0)
-    assert np.array_equal(render_scene(res.spec).frame, res.after)
-    # 3 searched, the fitted render parameters and the fitted scene at each render seed, the input
-    assert res.spec.render.seed == res.seed and res.renders == 3 + 2 * RENDER_SEEDS + 1
-
-
 def test_render_seeds_are_the_root_then_drawn_ones():
     seeds = render_seeds_of(7, 3)
     assert seeds[0] == 7 and len(set(seeds)) == 3 and all(0 <= s < MAX_SEED for s in seeds)
@@ -100,9 +86,7 @@ def test_render_seeds_are_the_root_then_drawn_ones():
 
 
 @pytest.mark.render
-def test_the_last_stages_judge_renders_at_several_seeds(monkeypatch):
-    # the fit at one render seed fitted that render's noise (12 of 12 within x2 at seed 0, 9 to 11
-    # at seeds 1 to 4): the last develop searches must see renders at other seeds
+def test_fit_shows_the_frame_the_fitted_scene_renders_and_judges_several_render_seeds(monkeypatch):
     from simtest.render import simfit
     from simtest.render.render import render_scene
 
@@ -115,11 +99,16 @@ def test_the_last_stages_judge_renders_at_several_seeds(monkeypatch):
     monkeypatch.setattr(simfit, "render_scene", recording)
     real = np.zeros((40, 48, 3), np.uint8)
     real[4:-4, 4:-4] = (200, 110, 90)
-    simfit.fit_scene(scene_from_dict(PLANE), [real], outer_evals=3, inner_evals=10, polish_evals=0,
-                     render_seeds=3)
+    real[10:12, 10:12] = 255
+    res = simfit.fit_scene(scene_from_dict(PLANE), [real], outer_evals=3, inner_evals=10, polish_evals=0)
+    assert np.array_equal(render_scene(res.spec).frame, res.after)
+    # 3 searched at half the film; at the scene's: the input scene, then the fitted render
+    # parameters and the fitted scene at each render seed. The fit at one render seed fitted that
+    # render's noise (12 of 12 within x2 at seed 0, 9 to 11 at seeds 1 to 4): the last develop
+    # searches must see renders at other seeds.
     full = [sd for w, sd in seen if w == PLANE["camera"]["width_px"]]
-    # the input scene, then the fitted render parameters and the fitted scene at each seed
-    assert full == [0] + render_seeds_of(0, 3) * 2
+    assert full == [0] + render_seeds_of(0, RENDER_SEEDS) * 2 and RENDER_SEEDS > 1
+    assert res.spec.render.seed == res.seed and res.renders == 3 + 2 * RENDER_SEEDS + 1
 
 
 @pytest.mark.render
