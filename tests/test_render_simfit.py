@@ -78,6 +78,13 @@ def test_develop_equals_a_render_with_the_albedo():
     assert np.mean(frame != b.frame) < 0.05
 
 
+def test_keep_names_render_parameters():
+    from simtest.render.simfit import fit_scene
+
+    with pytest.raises(ValueError, match="keep"):
+        fit_scene(scene_from_dict(PLANE), [np.zeros((8, 8, 3), np.uint8)], keep=("gamma",))
+
+
 def test_render_seeds_are_the_root_then_drawn_ones():
     seeds = render_seeds_of(7, 3)
     assert seeds[0] == 7 and len(set(seeds)) == 3 and all(0 <= s < MAX_SEED for s in seeds)
@@ -100,8 +107,13 @@ def test_fit_shows_the_frame_the_fitted_scene_renders_and_judges_several_render_
     real = np.zeros((40, 48, 3), np.uint8)
     real[4:-4, 4:-4] = (200, 110, 90)
     real[10:12, 10:12] = 255
-    res = simfit.fit_scene(scene_from_dict(PLANE), [real], outer_evals=3, inner_evals=10, polish_evals=0)
+    res = simfit.fit_scene(scene_from_dict(PLANE), [real], outer_evals=3, inner_evals=10, polish_evals=0,
+                           keep=("relief_hurst",))
     assert np.array_equal(render_scene(res.spec).frame, res.after)
+    # a kept render parameter is the scene's; the others were searched
+    assert res.spec.material.relief_hurst == scene_from_dict(PLANE).material.relief_hurst
+    assert {h["relief_hurst"] for h in res.history} == {res.spec.material.relief_hurst}
+    assert len({h["alpha"] for h in res.history}) > 1
     # 3 searched at half the film; at the scene's: the input scene, then the fitted render
     # parameters and the fitted scene at each render seed. The fit at one render seed fitted that
     # render's noise (12 of 12 within x2 at seed 0, 9 to 11 at seeds 1 to 4): the last develop

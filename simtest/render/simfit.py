@@ -260,7 +260,7 @@ def _seed_loss(develop_one: Callable, res, draws: int, height: int, ref: dict) -
 
 def fit_scene(spec: SceneSpec, frames: list[np.ndarray], *, seed: int = 0, outer_evals: int = 14,
               inner_evals: int = 60, fit_scale: float = 0.5, fit_spp: int = 4, noise_draws: int = 3,
-              polish_evals: int = 6, render_seeds: int = RENDER_SEEDS,
+              polish_evals: int = 6, render_seeds: int = RENDER_SEEDS, keep: tuple[str, ...] = (),
               progress: Callable[[str], None] | None = None) -> FitResult:
     """Fit the render and develop parameters of a tissue scene to real frames (module notes).
 
@@ -291,6 +291,9 @@ def fit_scene(spec: SceneSpec, frames: list[np.ndarray], *, seed: int = 0, outer
         Renders of the fitted scene (the root seed's, then ``render_seeds - 1`` drawn by
         :func:`render_seeds_of`) whose losses the last two develop searches add up: the
         statistics of the frame must hold at other render seeds too (1: the root seed's alone).
+    keep : tuple of str
+        Render parameters (keys of :data:`RENDER_BOUNDS`) held at the scene's values: the search
+        runs over the others (all of them kept: the develop parameters alone are fitted).
     progress : callable, optional
         Called with a line of text after each render.
 
@@ -308,6 +311,9 @@ def fit_scene(spec: SceneSpec, frames: list[np.ndarray], *, seed: int = 0, outer
                          f"sensor (material.model = \"tissue\", sensor.output = \"video\")")
     if not frames:
         raise ValueError("fit_scene: no real frame to fit to")
+    unknown = sorted(set(keep) - set(RENDER_BOUNDS))
+    if unknown:
+        raise ValueError(f"fit_scene: keep: {unknown} are no render parameters ({', '.join(RENDER_BOUNDS)})")
     say = progress or (lambda _s: None)
     rseed = int(seed)
     height = frames[0].shape[0]
@@ -322,6 +328,13 @@ def fit_scene(spec: SceneSpec, frames: list[np.ndarray], *, seed: int = 0, outer
     rnd = {"relief_mm": max(mat.relief_mm, 1e-5), "alpha": mat.microfacet_alpha, "relief_hurst": mat.relief_hurst,
            "film_variation": mat.film_variation if mat.film_variation > 0 else FILM_VARIATION_START}
     rnd = {k: min(max(v, RENDER_BOUNDS[k][0]), RENDER_BOUNDS[k][1]) for k, v in rnd.items()}
+    if "film_variation" in keep:  # kept as it is, uniform too
+        rnd["film_variation"] = mat.film_variation
+    free = {k: b for k, b in RENDER_BOUNDS.items() if k not in keep}
+    kept = {k: v for k, v in rnd.items() if k in keep}
+
+    def searched(x) -> dict:
+        return {**kept, **_from_unit(x, free)}
     W, H = spec.camera.width_px, spec.camera.height_px
     small = {"camera.width_px": max(8, round(W * fit_scale)), "camera.height_px": max(8, round(H * fit_scale)),
              "render.spp": int(fit_spp)}
@@ -347,7 +360,7 @@ def fit_scene(spec: SceneSpec, frames: list[np.ndarray], *, seed: int = 0, outer
         return f(x), p
 
     def outer(x, film: dict, evals: int, draws: int, stage: str):
-        p = _from_unit(x, RENDER_BOUNDS)
+        p = searched(x)
         s = with_overrides(with_render(spec, p), film)
         res = render_scene(s, seed=rseed)
         state["renders"] += 1
@@ -372,15 +385,18 @@ def fit_scene(spec: SceneSpec, frames: list[np.ndarray], *, seed: int = 0, outer
         first[0] = False
         return outer(x, small, evals, max(1, noise_draws - 1), "reduced film")
 
-    _nelder_mead(coarse, _to_unit(rnd, RENDER_BOUNDS), outer_evals, 0.2)
+    if free:
+        _nelder_mead(coarse, _to_unit(rnd, free), outer_evals, 0.2)
+    else:  # nothing to search: the develop parameters of the scene's render parameters
+        coarse(np.zeros(0))
     p, d = state["best"]["reduced film"][1]
     # 2. the polish at the scene's film and spp: the blob statistics at the real frames' scale
     # depend on the film the frame is developed at (clipping and the tone curve act before the
     # resize), so the reduced film's optimum is moved with a few renders of the scene's own
-    if polish_evals > 0:
+    if polish_evals > 0 and free:
         state["dev"] = d
         _nelder_mead(lambda x: outer(x, {}, max(10, inner_evals // 4), max(1, noise_draws - 1), "scene's film"),
-                     _to_unit(p, RENDER_BOUNDS), polish_evals, 0.06)
+                     _to_unit(p, free), polish_evals, 0.06)
         p, d = state["best"]["scene's film"][1]
     full = with_render(spec, p)
     rseeds = render_seeds_of(rseed, render_seeds)
