@@ -200,7 +200,8 @@ class FitResult:
     params : dict
         The fitted parameters by name (render and develop).
     renders : int
-        Renders the fit made (the reduced ones, then the two at the scene's film).
+        Renders the fit made: the search's (reduced film, then the polish at the scene's film),
+        the fitted render parameters' and the fitted scene's at each render seed, the input scene's.
     history : list of dict
         The outer search's points: the render parameters and the loss of each.
     seed : int
