@@ -103,10 +103,19 @@ TARGET_TOL_PX = 3.0
 ENDOSCOPE_AXIS_DEG = 12.0
 
 
+#: Scenes calibrated to real frames by `simtest simreal --fit`, checked against those frames
+#: (tests/test_render_colonoscope_fitted.py) rather than here: on colonoscope_fitted the relief
+#: that gives the real frames' sparkle turns the clipped macro highlights into speckled sheens
+#: (light 1's top holds 2 saturated plateaus: ``merged``), none of its 4 targets is reconstructed,
+#: while :func:`~simtest.render.truth.highlight_targets` takes the targets from the smoothed
+#: linear specular image, before the sensor clips it (reports/simreal/README.md).
+CALIBRATED = {"colonoscope_fitted"}
+
+
 def test_every_bundled_scene_is_checked():
     scenes = {p.stem for p in (golden.ROOT.parent / "scenes").glob("*.toml")}
-    assert set(RENDERS) == PINNED and not PINNED & set(ENDOSCOPE)
-    assert PINNED | set(ENDOSCOPE) == scenes
+    assert set(RENDERS) == PINNED and not PINNED & set(ENDOSCOPE) and not CALIBRATED & (PINNED | set(ENDOSCOPE))
+    assert PINNED | set(ENDOSCOPE) | CALIBRATED == scenes
 
 
 @pytest.mark.parametrize("name", sorted(RENDERS))

@@ -64,14 +64,23 @@ def test_laparoscope_fills_the_field_and_does_not_clip():
     assert not np.isnan(res.depth[stop]).any()
 
 
-def test_committed_abdomen_mesh_matches_its_generator():
-    from simtest.scene.meshes.abdomen import build_liver_in_abdomen
+def test_meshes_build_makes_the_committed_abdomen_mesh(tmp_path):
+    # `simtest meshes build` builds liver_abdomen (it built colon and liver only), the same file
+    from typer.testing import CliRunner
 
+    from simtest.scene.meshes.abdomen import LAPAROSCOPE_WALL_AXIS
+    from simtest.scene.meshes_cli import meshes_app
+
+    result = CliRunner().invoke(meshes_app, ["build", "--out", str(tmp_path), "--only", "liver_abdomen"])
+    assert result.exit_code == 0, result.output
     gen = json.loads(MESH.with_suffix(".json").read_text())["generator"]
-    fresh = build_liver_in_abdomen(gen["seed"], wall_axis=gen["wall_axis"], wall_radius_mm=gen["wall_radius_mm"],
-                                   gap_mm=gen["gap_mm"], cap_deg=gen["cap_deg"],
-                                   wall_spacing_mm=gen["wall_spacing_mm"], **gen["params"])
-    committed = load_mesh(MESH)
+    fresh_gen = json.loads((tmp_path / "liver_abdomen.json").read_text())["generator"]
+    assert gen["wall_axis"] == pytest.approx(LAPAROSCOPE_WALL_AXIS, abs=1e-15)
+    floats = ("wall_axis", "wall_centre_mm")  # an ulp apart from the normalisation's round-off
+    assert {k: v for k, v in fresh_gen.items() if k not in floats} == {k: v for k, v in gen.items()
+                                                                      if k not in floats}
+    assert fresh_gen["wall_centre_mm"] == pytest.approx(gen["wall_centre_mm"], abs=1e-9)
+    fresh, committed = load_mesh(tmp_path / "liver_abdomen.ply"), load_mesh(MESH)
     assert len(fresh.faces) == len(committed.faces)
     # float32 files, as tests/test_meshes.py: libm may differ by an ulp across platforms
     np.testing.assert_allclose(committed.vertices, fresh.vertices, rtol=1e-6, atol=1e-4)

@@ -27,9 +27,12 @@ at the real frames' scale depend on the film: clipping and the tone curve act be
 resize), the develop parameters searched again on the best render, then the sensor's alone on the
 fitted scene's own render with its own frame's loss added (developing that render again is exact,
 so the frame the report shows is the one ``simtest render`` makes of the fitted scene). The statistics of each loss are pooled over
-a few sensor-noise draws (:func:`_pooled_stats`). Every render uses
-the one root seed (common random numbers: the loss is a deterministic function of the
-parameters, and Nelder-Mead draws nothing).
+a few sensor-noise draws (:func:`_pooled_stats`). The search's renders use the one root seed
+(common random numbers: the loss is a deterministic function of the parameters, and Nelder-Mead
+draws nothing); the last two develop searches add up the losses of renders at
+:data:`RENDER_SEEDS` render seeds (the root seed's and others drawn from it,
+:func:`render_seeds_of`), so that the fitted scene holds at render seeds it was not developed
+on, not only for the one frame whose Monte Carlo and sensor noise it was fitted to.
 
 Hold-out: :func:`split_frames` gives alternate frames to the fit and to the check, so the fitted
 scene is also judged on frames it was not fitted to.
@@ -59,8 +62,8 @@ from simtest.render.simreal import (
 from simtest.render.tissue import TISSUE_ALBEDO
 from simtest.scene.spec import SceneSpec, with_overrides
 
-__all__ = ["MARGIN", "SPREAD_WEIGHT", "FitResult", "develop", "fit_scene", "split_frames",
-           "fit_loss"]
+__all__ = ["MARGIN", "SPREAD_WEIGHT", "RENDER_SEEDS", "FitResult", "develop", "fit_scene", "split_frames",
+           "fit_loss", "render_seeds_of"]
 
 #: The loss pushes every statistic inside this factor first (below the goal's 2, so that the
 #: change from the fit's reduced film to the scene's own leaves it within 2).
@@ -197,7 +200,8 @@ class FitResult:
     params : dict
         The fitted parameters by name (render and develop).
     renders : int
-        Renders the fit made (the reduced ones, then the two at the scene's film).
+        Renders the fit made: the search's (reduced film, then the polish at the scene's film),
+        the fitted render parameters' and the fitted scene's at each render seed, the input scene's.
     history : list of dict
         The outer search's points: the render parameters and the loss of each.
     seed : int
@@ -233,9 +237,31 @@ def _pooled_stats(frames: list[np.ndarray], height: int) -> dict[str, float]:
     return real_reference(small)
 
 
+#: Renders of the fitted scene whose losses the last develop searches add up (``fit_scene``'s
+#: ``render_seeds``): at one render seed the fit fitted that render's Monte Carlo and sensor noise
+#: (2026-11-24: 12 of 12 within x2 at the root seed, 9 to 11 of 12 at render seeds 1 to 4).
+RENDER_SEEDS = 3
+#: Stable key of the extra render seeds in ``SeedSequence([seed, RENDER_SEED_KEY])``.
+RENDER_SEED_KEY = 0x5EED
+
+
+def render_seeds_of(seed: int, k: int) -> list[int]:
+    """The render seeds of the fit's last stages: the root seed, then ``k - 1`` drawn from
+    ``SeedSequence([seed, RENDER_SEED_KEY])`` (below :data:`simtest.constants.MAX_SEED`)."""
+    extra = np.random.SeedSequence([int(seed), RENDER_SEED_KEY]).generate_state(max(k - 1, 0))
+    return [int(seed)] + [int(x % MAX_SEED) for x in extra]
+
+
+def _seed_loss(develop_one: Callable, res, draws: int, height: int, ref: dict) -> float:
+    """The loss of one render's frames: developed at its own seed's ``draws`` noise seeds
+    (:func:`_noise_seeds`) and pooled (:func:`_pooled_stats`)."""
+    frs = [develop_one(res, sd) for sd in _noise_seeds(res.seed, draws)]
+    return fit_loss(_pooled_stats(frs, height), ref)
+
+
 def fit_scene(spec: SceneSpec, frames: list[np.ndarray], *, seed: int = 0, outer_evals: int = 14,
               inner_evals: int = 60, fit_scale: float = 0.5, fit_spp: int = 4, noise_draws: int = 3,
-              polish_evals: int = 6,
+              polish_evals: int = 6, render_seeds: int = RENDER_SEEDS, keep: tuple[str, ...] = (),
               progress: Callable[[str], None] | None = None) -> FitResult:
     """Fit the render and develop parameters of a tissue scene to real frames (module notes).
 
@@ -262,6 +288,13 @@ def fit_scene(spec: SceneSpec, frames: list[np.ndarray], *, seed: int = 0, outer
         start from the best point so far; two thirds at the scene's film).
     polish_evals : int
         Renders at the scene's own film and spp that move the reduced film's optimum (0: none).
+    render_seeds : int
+        Renders of the fitted scene (the root seed's, then ``render_seeds - 1`` drawn by
+        :func:`render_seeds_of`) whose losses the last two develop searches add up: the
+        statistics of the frame must hold at other render seeds too (1: the root seed's alone).
+    keep : tuple of str
+        Render parameters (keys of :data:`RENDER_BOUNDS`) held at the scene's values: the search
+        runs over the others (all of them kept: the develop parameters alone are fitted).
     progress : callable, optional
         Called with a line of text after each render.
 
@@ -279,6 +312,9 @@ def fit_scene(spec: SceneSpec, frames: list[np.ndarray], *, seed: int = 0, outer
                          f"sensor (material.model = \"tissue\", sensor.output = \"video\")")
     if not frames:
         raise ValueError("fit_scene: no real frame to fit to")
+    unknown = sorted(set(keep) - set(RENDER_BOUNDS))
+    if unknown:
+        raise ValueError(f"fit_scene: keep: {unknown} are no render parameters ({', '.join(RENDER_BOUNDS)})")
     say = progress or (lambda _s: None)
     rseed = int(seed)
     height = frames[0].shape[0]
@@ -293,6 +329,13 @@ def fit_scene(spec: SceneSpec, frames: list[np.ndarray], *, seed: int = 0, outer
     rnd = {"relief_mm": max(mat.relief_mm, 1e-5), "alpha": mat.microfacet_alpha, "relief_hurst": mat.relief_hurst,
            "film_variation": mat.film_variation if mat.film_variation > 0 else FILM_VARIATION_START}
     rnd = {k: min(max(v, RENDER_BOUNDS[k][0]), RENDER_BOUNDS[k][1]) for k, v in rnd.items()}
+    if "film_variation" in keep:  # kept as it is, uniform too
+        rnd["film_variation"] = mat.film_variation
+    free = {k: b for k, b in RENDER_BOUNDS.items() if k not in keep}
+    kept = {k: v for k, v in rnd.items() if k in keep}
+
+    def searched(x) -> dict:
+        return {**kept, **_from_unit(x, free)}
     W, H = spec.camera.width_px, spec.camera.height_px
     small = {"camera.width_px": max(8, round(W * fit_scale)), "camera.height_px": max(8, round(H * fit_scale)),
              "render.spp": int(fit_spp)}
@@ -318,7 +361,7 @@ def fit_scene(spec: SceneSpec, frames: list[np.ndarray], *, seed: int = 0, outer
         return f(x), p
 
     def outer(x, film: dict, evals: int, draws: int, stage: str):
-        p = _from_unit(x, RENDER_BOUNDS)
+        p = searched(x)
         s = with_overrides(with_render(spec, p), film)
         res = render_scene(s, seed=rseed)
         state["renders"] += 1
@@ -343,43 +386,62 @@ def fit_scene(spec: SceneSpec, frames: list[np.ndarray], *, seed: int = 0, outer
         first[0] = False
         return outer(x, small, evals, max(1, noise_draws - 1), "reduced film")
 
-    _nelder_mead(coarse, _to_unit(rnd, RENDER_BOUNDS), outer_evals, 0.2)
+    if free:
+        _nelder_mead(coarse, _to_unit(rnd, free), outer_evals, 0.2)
+    else:  # nothing to search: the develop parameters of the scene's render parameters
+        coarse(np.zeros(0))
     p, d = state["best"]["reduced film"][1]
     # 2. the polish at the scene's film and spp: the blob statistics at the real frames' scale
     # depend on the film the frame is developed at (clipping and the tone curve act before the
     # resize), so the reduced film's optimum is moved with a few renders of the scene's own
-    if polish_evals > 0:
+    if polish_evals > 0 and free:
         state["dev"] = d
         _nelder_mead(lambda x: outer(x, {}, max(10, inner_evals // 4), max(1, noise_draws - 1), "scene's film"),
-                     _to_unit(p, RENDER_BOUNDS), polish_evals, 0.06)
+                     _to_unit(p, free), polish_evals, 0.06)
         p, d = state["best"]["scene's film"][1]
     full = with_render(spec, p)
-    res = render_scene(full, seed=rseed)
-    state["renders"] += 1
-    loss, d = inner(res, full, d, max(10, inner_evals * 2 // 3), noise_draws)
+    rseeds = render_seeds_of(rseed, render_seeds)
+    fulls = [render_scene(full, seed=sd) for sd in rseeds]
+    state["renders"] += len(fulls)
+    draws = max(1, noise_draws - 1) if len(fulls) > 1 else noise_draws
+
+    def f_full(x):
+        q = _from_unit(x, DEVELOP_BOUNDS)
+        return sum(_seed_loss(lambda lin_res, sd: develop(lin_res.rgb, lin_res.specular, base, q, full, sd,
+                                                          lin_res.coverage >= TISSUE_COVERAGE)[0],
+                              r, draws, height, ref) for r in fulls) + _penalty(x)
+
+    x = _nelder_mead(f_full, _to_unit(d, DEVELOP_BOUNDS), max(10, inner_evals * 2 // 3), 0.1)
+    d = _from_unit(x, DEVELOP_BOUNDS)
+    res = fulls[0]
     _, fitted = develop(res.rgb, res.specular, base, d, full, res.seed, res.coverage >= TISSUE_COVERAGE)
     fitted = with_overrides(fitted, {"render.seed": rseed})
     # 3. the sensor on the fitted scene's own render (the albedo now in the render: developing it
     # again is exact), the loss of the scene's own frame (its seed's noise) added to the pooled
     # one: the frame the scene makes is the one judged
-    own = render_scene(fitted, seed=rseed)
-    state["renders"] += 1
+    owns = [render_scene(fitted, seed=sd) for sd in rseeds]
+    state["renders"] += len(owns)
+    own = owns[0]
     alb = fitted.material.albedo
-    seeds = _noise_seeds(rseed, noise_draws)
     tissue = own.coverage >= TISSUE_COVERAGE
     start = {k: d[k] for k in SENSOR_BOUNDS}
 
     def f_sensor(x):
         q = _from_unit(x, SENSOR_BOUNDS)
-        frs = [develop(own.rgb, own.specular, alb, q, fitted, sd, tissue)[0] for sd in seeds]
-        return (fit_loss(_pooled_stats(frs, height), ref) + fit_loss(_pooled_stats(frs[:1], height), ref)
-                + _penalty(x))
+
+        def dev(r, sd):
+            return develop(r.rgb, r.specular, alb, q, fitted, sd, r.coverage >= TISSUE_COVERAGE)[0]
+
+        own_frame = dev(own, rseed)
+        return (sum(_seed_loss(dev, r, draws, height, ref) for r in owns)
+                + fit_loss(_pooled_stats([own_frame], height), ref) + _penalty(x))
 
     x = _nelder_mead(f_sensor, _to_unit(start, SENSOR_BOUNDS), max(10, inner_evals // 2), 0.1)
     d = {**d, **_from_unit(x, SENSOR_BOUNDS)}
     loss = f_sensor(x)
     after, fitted = develop(own.rgb, own.specular, alb, d, fitted, rseed, tissue)
     fitted = dataclasses.replace(fitted, source=spec.source)
-    say(f"at the scene's film ({W} x {H}, {spec.render.spp} spp): loss {loss:.4g} (pooled + own frame)")
+    say(f"at the scene's film ({W} x {H}, {spec.render.spp} spp): loss {loss:.4g} (render seeds "
+        f"{', '.join(map(str, rseeds))}, each pooled over its noise draws, + the own frame)")
     return FitResult(spec=fitted, before=before_res.frame, after=after, params={**p, **d},
                      renders=state["renders"] + 1, history=history, seed=rseed)

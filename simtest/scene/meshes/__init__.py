@@ -55,7 +55,8 @@ Mitsuba's PLY loader exposes them as mesh attributes ``vertex_k1`` and ``vertex_
 ``shape.eval_attribute_1`` interpolates at an intersection) and a JSON sidecar ``<name>.json``
 with the generator, its parameters, the seed, and for the colon the sampled centre line.
 :func:`load_mesh` reads both back. ``simtest meshes build`` writes ``meshes/colon.ply``,
-``meshes/liver.ply`` and their sidecars.
+``meshes/liver.ply``, ``meshes/liver_abdomen.ply`` (the liver with the wall behind it,
+:mod:`~simtest.scene.meshes.abdomen`) and their sidecars.
 
 Centre line of the colon
 ------------------------
@@ -117,16 +118,20 @@ __all__ = [
 
 
 def build_mesh(name: str, seed: int, **params: Any) -> trimesh.Trimesh:
-    """Build ``"colon"`` or ``"liver"`` (dispatch to :func:`build_colon` / :func:`build_liver`).
+    """Build ``"colon"``, ``"liver"`` or ``"liver_abdomen"`` (dispatch to :func:`build_colon`,
+    :func:`build_liver`, :func:`~simtest.scene.meshes.abdomen.build_liver_in_abdomen`).
 
     Parameters
     ----------
-    name : {"colon", "liver"}
-        The generator.
+    name : {"colon", "liver", "liver_abdomen"}
+        The generator. ``"liver_abdomen"`` is the liver with the wall behind it of
+        meshes/liver_abdomen.ply (the laparoscope scene's): its wall's axis defaults to
+        :data:`~simtest.scene.meshes.abdomen.LAPAROSCOPE_WALL_AXIS`.
     seed : int
         Root seed (>= 0; 0 is valid).
     **params
-        Fields of :class:`ColonParams` or :class:`LiverParams` (lengths in mm).
+        Fields of :class:`ColonParams` or :class:`LiverParams` (lengths in mm); for
+        ``"liver_abdomen"`` also the wall's keywords of ``build_liver_in_abdomen``.
 
     Returns
     -------
@@ -139,7 +144,12 @@ def build_mesh(name: str, seed: int, **params: Any) -> trimesh.Trimesh:
     MeshError
         Unknown name, unknown or out-of-range parameter, or a bad seed.
     """
-    builders = {"colon": build_colon, "liver": build_liver}
+    from simtest.scene.meshes.abdomen import LAPAROSCOPE_WALL_AXIS, build_liver_in_abdomen
+
+    def liver_abdomen(seed: int, **p: Any) -> trimesh.Trimesh:
+        return build_liver_in_abdomen(seed, **{"wall_axis": LAPAROSCOPE_WALL_AXIS, **p})
+
+    builders = {"colon": build_colon, "liver": build_liver, "liver_abdomen": liver_abdomen}
     if name not in builders:
         raise MeshError(f"build_mesh: name: unknown mesh {name!r}; known: {sorted(builders)}")
     return builders[name](seed, **params)

@@ -28,7 +28,12 @@ from simtest.scene.meshes.files import _assemble
 from simtest.scene.meshes.liver import _fibonacci_sphere, build_liver
 from simtest.scene.meshes.params import MeshError
 
-__all__ = ["wall_sphere", "build_liver_in_abdomen"]
+__all__ = ["LAPAROSCOPE_WALL_AXIS", "wall_sphere", "build_liver_in_abdomen"]
+
+#: The wall's axis of meshes/liver_abdomen.ply (``simtest meshes build`` builds it with this): the
+#: unit direction from the liver's centre (the middle of its bounding box) toward the scope of
+#: scenes/laparoscope_liver.toml, so that the cap lies behind the liver as that scope sees it.
+LAPAROSCOPE_WALL_AXIS = (-0.5022907830486957, -0.5249903665151608, -0.6870873920620324)
 
 
 def wall_sphere(liver_vertices: np.ndarray, wall_axis, wall_radius_mm: float, gap_mm: float) -> tuple[np.ndarray, float]:
