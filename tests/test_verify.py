@@ -67,6 +67,20 @@ def test_two_glints_close_together_are_a_cluster():
     assert _at(ests, 100, 100).status == "cluster"
 
 
+@pytest.mark.parametrize("lens", ["pinhole", "fisheye"])
+def test_clusters_are_found_through_a_wide_angle_lens_too(lens):
+    """A camera model without image conics (fisheye, omnidirectional) fits its isophotes on the
+    viewing rays; the checks still take the isophote's image outline, so a cluster is refused and
+    a lone glint passes whatever the lens."""
+    from simtest.geometry.cameras import FisheyeCamera, PinholeCamera
+    cam = (PinholeCamera(K, None, (200, 200)) if lens == "pinhole"
+           else FisheyeCamera(K, np.array([0.02, -0.01, 0.0, 0.0]), (200, 200)))
+    img = _frame([(100, 100, 1.5, 150, WHITE), (106, 100, 1.5, 140, WHITE), (40, 150, 2.0, 150, WHITE)])
+    ests = reconstruct(img, cam)
+    assert _at(ests, 100, 100).status == "cluster"
+    assert _at(ests, 40, 150).status == "ok"
+
+
 def test_the_same_glints_far_apart_are_each_ok():
     ests = reconstruct(_frame([(60, 100, 2.0, 150, WHITE), (140, 100, 2.0, 140, WHITE)]), K)
     assert _at(ests, 60, 100).status == "ok"

@@ -51,6 +51,7 @@ import numpy as np
 from scipy.spatial import cKDTree
 
 from simtest.reconstruct.detect import background_side_px, noise_sigma
+from simtest.reconstruct.fit import fit_ellipse
 
 __all__ = ["PALENESS_MAX", "WHITE_CHROMA", "SIGNIFICANCE_MIN", "CONTRAST_MIN", "PANEL_STD_REL",
            "PANEL_FRACTION_MAX", "NEIGHBOUR_REL", "OWN_RADIUS_PX", "SURROUND_REL", "OWN_REL",
@@ -407,28 +408,38 @@ def assess(image: np.ndarray, gray: np.ndarray, ests, *, full_scale: float):
     (Evidence, ndarray of shape (N,), ndarray of bool, shape (N,))
         The evidence (neighbours counted for the fitted estimates within
         :data:`NEIGHBOUR_REACH` semi-major axes plus :data:`OWN_RADIUS_PX`), the primary
-        isophote's RMS residual over its semi-minor axis (NaN without a fit; 0 for a fit of a
-        camera model without image conics), and whether the BP lies inside that ellipse.
+        isophote's RMS residual over its semi-minor axis (NaN without a fit; 0 for a camera model
+        without image conics, whose isophote's image points are fitted with an ellipse here for
+        the other checks), and whether the BP lies inside that ellipse.
     """
     n = len(ests)
+    ellipses = [e.ellipse for e in ests]
     res = np.full(n, np.nan)
     reach = np.full(n, np.nan)
     minor = np.full(n, np.nan)
     inside = np.zeros(n, dtype=bool)
     for k, e in enumerate(ests):
         ell, r = e.ellipse, e.fit_residual_px
+        if ell is None and e.ok and e.points_uv is not None:
+            # a camera model without image conics fits its isophote on the viewing rays, where
+            # it is a conic; the image outline the lens distorts still gives the checks its size,
+            # reach and own lobe (its residual is the lens's, not the fit's: taken as 0)
+            fit = fit_ellipse(e.points_uv)
+            if fit:
+                ell, r = fit.ellipse, 0.0
+                ellipses[k] = ell
         if ell is not None and r is not None:
             minor[k] = float(ell.semi_axes[1])
             res[k] = r / max(minor[k], 1e-9)
             inside[k] = bool(_ellipse_level(ell, float(e.bp_px[0]), float(e.bp_px[1])) <= 1.0)
             if e.ok:
                 reach[k] = NEIGHBOUR_REACH * float(ell.semi_axes[0]) + OWN_RADIUS_PX
-        elif e.ok:  # a camera model without image conics: judged on the rest
+        elif e.ok:  # no image outline at all: judged on the rest
             res[k], inside[k] = 0.0, True
     bps = np.array([e.bp_px for e in ests], dtype=np.float64).reshape(-1, 2)
     ev = frame_evidence(image, gray, bps, [e.roi for e in ests], full_scale=full_scale,
                         noise=noise_sigma(gray), background_px=background_side_px(gray.shape),
-                        reach_px=reach, ellipses=[e.ellipse for e in ests])
+                        reach_px=reach, ellipses=ellipses)
     return replace(ev, clipped=np.array([bool(e.saturated) for e in ests], dtype=bool), minor_px=minor), res, inside
 
 
