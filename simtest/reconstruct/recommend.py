@@ -209,7 +209,8 @@ def light_aware_estimates(image, est, camera, rig: LightRig, *, nominal_depth_mm
                           supersample: int = 1,
                           quadric: bool | None = None,
                           cubic: bool | None = False, response=None,
-                          diffuse: bool | None = None) -> dict[str, LightAwareEstimate]:
+                          diffuse: bool | None = None,
+                          lobe: str | None = None) -> dict[str, LightAwareEstimate]:
     """Run the light-aware estimators on one detected highlight.
 
     ``isocurve_fit`` takes its own isophotes, at :data:`ISOCURVE_ISOVALUES` of the BP's height above
@@ -267,6 +268,11 @@ def light_aware_estimates(image, est, camera, rig: LightRig, *, nominal_depth_mm
         The rig's Lambertian shading as a column of the photometric model
         (:func:`~simtest.reconstruct.lightaware.photometric_fit`'s ``diffuse``); None (default):
         with a ``response`` (a sensor frame of tissue), not without.
+    lobe : {"phong", "ggx", "auto"} or None
+        The photometric fit's specular lobe (:func:`~simtest.reconstruct.lightaware.photometric_fit`);
+        None (default): ``"auto"`` with a ``response`` (a sensor frame of tissue under its wet
+        film: GGX where Phong misfits and GGX does not), ``"phong"`` without (the paper's model,
+        in which the exact planes of the ``lightaware`` suite are rendered).
 
     Returns
     -------
@@ -304,7 +310,8 @@ def light_aware_estimates(image, est, camera, rig: LightRig, *, nominal_depth_mm
     out["photometric_fit"] = _guarded(
         "photometric_fit", photometric_fit, gray[big.slices], (big.col0, big.row0), est.bp_px, camera, rig,
         clip_level=saturation_level, nominal_depth_mm=nominal_depth_mm,
-        start_normal=start_n, supersample=supersample, diffuse=diffuse, censor=censor)
+        start_normal=start_n, supersample=supersample, diffuse=diffuse, censor=censor,
+        lobe=lobe if lobe is not None else ("auto" if response is not None else "phong"))
     # its depth within the ceiling before the curved fits' turn is decided by its status
     out["photometric_fit"] = depth_within_ceiling(out["photometric_fit"])
     near = Roi.around(est.bp_px, quadric_roi_scale * max(roi.shape) / 2.0, img.shape)
