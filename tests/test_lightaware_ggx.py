@@ -109,3 +109,10 @@ def test_auto_lobe_keeps_phong_where_both_lobes_misfit():
     assert e.status == "plane_misfit" and e.lobe == "phong" and "ggx's" in e.detail
     p = la.photometric_fit(y, (0, 0), bp, K, RIG)
     assert np.array_equal(e.normal, p.normal)
+
+
+def test_a_ggx_fit_run_off_to_a_mirror_is_finite():
+    # A GGX fit whose alpha underflows to 0 (exp of a large negative log alpha) raised
+    # ZeroDivisionError out of `simtest reconstruct` on a colonoscope frame (a traceback): its Phong
+    # n is now finite, and so implausible (not_converged), not an exception.
+    assert np.isfinite(lam.phong_of_ggx_alpha(0.0)) and lam.phong_of_ggx_alpha(0.0) > 1e100

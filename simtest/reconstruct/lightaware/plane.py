@@ -40,6 +40,12 @@ from simtest.reconstruct.lightaware.solve import (
 )
 
 
+#: The residual of every pixel at a trial point where the model is not finite: far above any
+#: residual of the normalised values (at most a few units), so that Levenberg-Marquardt rejects
+#: the step and shortens it.
+_NOT_FINITE_RESIDUAL = 1e6
+
+
 #: Gauss-Newton steps on log n alone that refine the photometric fit's start roughness: on the
 #: bench's exact highlight (n = 150) three steps from n = 50, 86 or 258 (the regression's starts
 #: with cos beta with and without the falloff) end within 0.003 of log 150.
@@ -268,6 +274,14 @@ def photometric_fit(values, origin_uv, bp_uv, camera, rig: LightRig, *,
             target = np.where(cens, clipn, yn)
             active = ~cens
             coef = np.zeros(design.shape[1])
+            if not np.isfinite(design).all():
+                # a trial point where the model overflows (a plane seen edge-on, a lobe run off):
+                # residuals that MINPACK rejects, instead of a least squares that LAPACK
+                # refuses with a line of its own on stderr
+                r = np.full(len(yn), _NOT_FINITE_RESIDUAL)
+                state.update(key=key, n=n, dns=dns, h=h, rough=rough, parts=parts, coef=coef,
+                             active=active, r=r)
+                return (r, np.zeros((len(yn), 4))) if grad else (r, None)
             for _ in range(3):  # the active set of the censored rows: two updates settle it
                 A, t = design[active], target[active]
                 if w is not None:
@@ -448,11 +462,15 @@ def photometric_fit(values, origin_uv, bp_uv, camera, rig: LightRig, *,
         cost = float(r @ r) if np.isfinite(r).all() else np.inf
         if best is None or cost < best[0]:
             best = (cost, x, nc, hc, e1, e2, conv, msg)
+    if not best[0] < 0.25 * _NOT_FINITE_RESIDUAL**2 * len(yn):
+        return LightAwareEstimate(name, "not_converged", "the model is not finite about the solution",
+                                  n_evaluations=nfev_total)
     _, x, n0, h0, e1, e2, conv, msg = best
     nfev = nfev_total
     n_hat = _normal_derivs(x, n0, e1, e2)[0]
     h_hat = float(np.exp(x[2]))
-    rough_hat = phong_of_ggx_alpha(float(np.exp(x[3]))) if ggx else float(np.exp(x[3]))
+    with np.errstate(over="ignore"):  # a fit run off to an infinite roughness: implausible below
+        rough_hat = phong_of_ggx_alpha(float(np.exp(x[3]))) if ggx else float(np.exp(x[3]))
     bad = _implausible(h_hat, h0, rough_hat)
     if bad:
         return LightAwareEstimate(name, "not_converged", bad, n_evaluations=nfev)
