@@ -57,8 +57,8 @@ def photometric_fit(values, origin_uv, bp_uv, camera, rig: LightRig, *,
                     start_normal=None, start_roughness: float | None = None,
                     loss: str = "linear", f_scale: float = 0.02, supersample: int = 1,
                     n_start_depths: int = 0, diffuse: bool = False, censor: bool = False,
-                    max_pixels: int | None = 16384, max_nfev: int = 200, lobe: str = "phong",
-                    exclude=None) -> LightAwareEstimate:
+                    max_pixels: int | None = 16384, max_nfev: int = 200,
+                    lobe: str = "phong") -> LightAwareEstimate:
     """Fit the intensities of an ROI with the image of a plane lit by the whole rig.
 
     Model (package docstring): ``I = g sum_j w_j max(0, cos beta_j)^n f_j p_j + b0 + b1 du + b2 dv``
@@ -126,9 +126,6 @@ def photometric_fit(values, origin_uv, bp_uv, camera, rig: LightRig, *,
         both fitted and the one chosen by the Bayesian information criterion of the residual
         (Notes). The estimate's ``lobe`` says which; its ``roughness`` is Phong's n, or for GGX
         the Phong n of the same peak curvature (``2 / alpha^2 - 2``).
-    exclude : ndarray of shape (H, W), bool, optional
-        Pixels left out of the fit (neither fitted nor censored: e.g. a pixel clipped in some
-        colour channels only).
 
     Returns
     -------
@@ -192,7 +189,7 @@ def photometric_fit(values, origin_uv, bp_uv, camera, rig: LightRig, *,
     if lobe == "auto":
         kw = dict(clip_level=clip_level, nominal_depth_mm=nominal_depth_mm, loss=loss, f_scale=f_scale,
                   supersample=supersample, n_start_depths=n_start_depths, diffuse=diffuse, censor=censor,
-                  max_pixels=max_pixels, max_nfev=max_nfev, exclude=exclude)
+                  max_pixels=max_pixels, max_nfev=max_nfev)
         pho = photometric_fit(values, origin_uv, bp_uv, camera, rig, start_normal=start_normal,
                               start_roughness=start_roughness, lobe="phong", **kw)
         if pho.ok or pho.status in ("depth_not_observable", "too_few_points"):
@@ -207,8 +204,6 @@ def photometric_fit(values, origin_uv, bp_uv, camera, rig: LightRig, *,
     censor = bool(censor and clip_level is not None)
     vals, camera, o, uu, vv, keep = _roi_grid(values, camera, origin_uv,
                                               None if censor else clip_level)
-    if exclude is not None:
-        keep = keep & ~np.asarray(exclude, dtype=bool).reshape(keep.shape)
     H, W = vals.shape
     border = np.concatenate([vals[0], vals[-1], vals[:, 0], vals[:, -1]])
     b_level = float(np.median(border))
