@@ -17,6 +17,7 @@ from PIL import Image
 from typer.testing import CliRunner
 
 from simtest.cli import app
+from simtest.geometry.response import video_response
 from simtest.reconstruct import reconstruct
 from simtest.reconstruct.io import estimates_document
 from simtest.reconstruct.recommend import with_light_aware
@@ -39,9 +40,11 @@ def _check_same(tmp_path, spec, min_candidates: int = 0) -> int:
     assert np.array_equal(np.asarray(Image.open(paths["image"])), result.sensor)
 
     camera = result.camera_model
-    # the CLI reads the rig from camera.json and runs the light-aware estimators with it
+    # the CLI reads the rig from camera.json and runs the light-aware estimators with it, on the
+    # linear intensities of the video sensor's response that the file carries
+    response = video_response(spec.sensor) if result.video is not None else None
     memory = with_light_aware(result.sensor, reconstruct(result.sensor, camera), camera,
-                              result.light_rig)
+                              result.light_rig, response=response)
     expected = estimates_document(memory, K=getattr(camera, "K", None), image_shape=result.sensor.shape,
                                   camera=camera)
 

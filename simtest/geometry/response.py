@@ -24,7 +24,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-__all__ = ["CURVES", "ResponseError", "SensorResponse"]
+__all__ = ["CURVES", "ResponseError", "SensorResponse", "video_response"]
 
 #: The tone curves a response may name.
 CURVES = ("linear", "srgb", "gamma")
@@ -164,6 +164,35 @@ class SensorResponse:
             c = int(channel)
         # pixel values at full scale are censored: their radiance is at least the clip's
         return self.linear(img[..., c], c, fs), float(self.linear(fs, c, fs)), c
+
+
+def video_response(sensor) -> SensorResponse:
+    """The response of the 8-bit RGB video frame a scene's sensor makes
+    (:func:`simtest.render.sensor.video_frame`): what ``simtest render`` writes into its camera file.
+
+    The tone curve (``tone`` "srgb", else ``gamma``: "linear" at 1, "gamma" otherwise), the white
+    balance and the clip level (255, the 8-bit full scale) are the sensor's. The frame clips at
+    ``saturation`` and scales that to full scale, so the response's linear values are the
+    radiance times the frame's exposure over the saturation: the exposure is left at 1, a scale
+    of the linear image that the fits' gains absorb (an automatic exposure changes from frame to
+    frame). The sensor's colour saturation (a mix of the channels) and vignetting (a smooth gain
+    over the frame) are not in the response's format.
+
+    Parameters
+    ----------
+    sensor : simtest.scene.spec.SensorSpec
+        The scene's sensor (its ``tone``, ``gamma`` and ``white_balance``).
+
+    Returns
+    -------
+    SensorResponse
+    """
+    if sensor.tone == "srgb":
+        curve, gamma = "srgb", 1.0
+    else:
+        g = float(sensor.gamma)
+        curve, gamma = ("linear", 1.0) if g == 1.0 else ("gamma", g)
+    return SensorResponse(curve, gamma, tuple(float(v) for v in sensor.white_balance), 1.0, 255.0)
 
 
 def _positive(v, where: str) -> float:

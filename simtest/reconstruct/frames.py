@@ -6,9 +6,9 @@
 record per frame in frame order; :func:`write_frames_jsonl` writes them to ``estimates.jsonl``
 (one JSON line per frame, written to a temporary file and renamed when complete). Each frame is
 reconstructed on its own, so the records are those of frame-by-frame calls whatever the number of
-workers. Given the camera file's light rig, each frame's highlights get the light-aware fits of
-:func:`~simtest.reconstruct.recommend.with_light_aware` as a single image does (``simtest
-reconstruct`` on one image): a record's ``specularities`` are then that image's
+workers. Given the camera file's light rig (and its sensor response), each frame's highlights get
+the light-aware fits of :func:`~simtest.reconstruct.recommend.with_light_aware` as a single image
+does (``simtest reconstruct`` on one image): a record's ``specularities`` are then that image's
 ``estimates.json`` ``specularities``.
 
 A record: ``{"frame": index from 0, "source": file name or "video:<index>", "image_shape":
@@ -193,11 +193,13 @@ def _encoded_record(args) -> FrameRecord:
 
 
 def _frame_record(args) -> dict:
-    index, name, image, K, settings, dist_coeffs, include_points, rig, cubic = args
+    index, name, image, K, settings, dist_coeffs, include_points, rig, cubic, *more = args
+    response = more[0] if more else None  # the camera file's response (None: linear)
     ests = reconstruct(image, K, dist_coeffs=dist_coeffs, settings=settings)
     detection = ests.detection_record()
-    # the light-aware step of a single image (nothing runs without a rig or with a co-located one)
-    ests = with_light_aware(image, ests, K, rig, cubic=cubic)
+    # the light-aware step of a single image (nothing runs without a rig or with a co-located one),
+    # on the linear intensities of the camera file's response as a single image's
+    ests = with_light_aware(image, ests, K, rig, cubic=cubic, response=response)
     counts: dict[str, int] = {}
     for e in ests:
         counts[e.status] = counts.get(e.status, 0) + 1
@@ -209,7 +211,8 @@ def _frame_record(args) -> dict:
 def reconstruct_frames(source: FrameSource, K, settings: ReconSettings | None = None, *,
                        dist_coeffs=None, workers: int = 1,
                        include_points: bool = False, rig=None,
-                       cubic: bool | None = False, encoded: bool = False) -> Iterator[dict]:
+                       cubic: bool | None = False, encoded: bool = False,
+                       response=None) -> Iterator[dict]:
     """Reconstruct every frame of ``source``; yield one record per frame, in frame order.
 
     Parameters
@@ -239,6 +242,10 @@ def reconstruct_frames(source: FrameSource, K, settings: ReconSettings | None = 
         Yield :class:`FrameRecord` s, each encoded as its JSON line where it was made (a worker,
         in parallel), for :func:`write_frames_jsonl` (the same bytes in the file); their dicts
         hold the record's keys but ``specularities``.
+    response : SensorResponse, optional
+        The sensor's response (the camera file's ``"response"``), passed to
+        :func:`~simtest.reconstruct.recommend.with_light_aware` as a single image's: the fits run
+        on each frame's linear intensities, clipped pixels censored. None: linear.
 
     Yields
     ------
@@ -252,7 +259,7 @@ def reconstruct_frames(source: FrameSource, K, settings: ReconSettings | None = 
         camera's ``image_size`` (:func:`same_size_frames`).
     """
     settings = ReconSettings.for_frames() if settings is None else settings
-    jobs = ((i, name, img, K, settings, dist_coeffs, include_points, rig, cubic)
+    jobs = ((i, name, img, K, settings, dist_coeffs, include_points, rig, cubic, response)
             for i, name, img in same_size_frames(source, K))
     one = _encoded_record if encoded else _frame_record
     if workers <= 1:

@@ -40,6 +40,7 @@ from simtest.geometry.camera import pixel_to_ray
 from simtest.geometry.camera_file import save_camera, save_intrinsics
 from simtest.geometry.cameras import CameraModel, PinholeCamera
 from simtest.geometry.lights import Light, LightRig
+from simtest.geometry.response import video_response
 from simtest.render.mitsuba_dict import (
     _SENSOR_TO_WORLD,
     cam_to_world_matrix,
@@ -1145,7 +1146,8 @@ def write_render(result: RenderResult, out_dir: str | Path) -> dict[str, Path]:
     :meth:`simtest.render.truth.ReliefHighlight.to_dict`, ``kind`` "micro_relief"; ``lights``:
     every light of the rig (``position_mm``, ``intensity``, ``falloff``, ``profile_exponent``,
     camera frame); with the scene, seed and variant), ``camera.json`` (the camera model and its
-    light rig, :func:`simtest.geometry.camera_file.save_camera`), ``frame.png`` (the 8-bit RGB
+    light rig, :func:`simtest.geometry.camera_file.save_camera`; with a video sensor, its
+    ``"response"``, :func:`simtest.geometry.response.video_response`), ``frame.png`` (the 8-bit RGB
     video frame, :attr:`RenderResult.frame`); tissue renders add ``rgb`` (H, W, 3),
     ``shading_normals`` (H, W, 3) and ``albedo`` (H, W, 3) to ``ground_truth.npz``.
 
@@ -1210,7 +1212,10 @@ def write_render(result: RenderResult, out_dir: str | Path) -> dict[str, Path]:
 
         atomic_write(paths["ground_truth"], write_npz)
         atomic_write_text(paths["highlights"], json.dumps(meta, indent=2))
-        save_camera(paths["camera"], result.camera_model, result.light_rig)
+        # a video frame's camera file carries its sensor's response, so that the light-aware fits
+        # of `simtest reconstruct` run on the frame's linear intensities
+        save_camera(paths["camera"], result.camera_model, result.light_rig,
+                    video_response(result.spec.sensor) if result.video is not None else None)
         frame = Image.fromarray(result.frame, mode="RGB")
         atomic_write(paths["frame"], lambda t: frame.save(t, format="PNG"))
 

@@ -19,7 +19,9 @@ becomes observable. Three estimators use the rig:
   (:func:`photometric_fit` then reports ``plane_misfit``).
 - :func:`photometric_fit`: the ROI's intensities fitted with the image of a plane lit by the whole
   rig (sum of the lights' Phong lobes with their falloff and emission profile) plus a smooth linear
-  background: normal, distance, roughness and gain; clipped pixels are left out.
+  background: normal, distance, roughness and gain; clipped pixels are left out (or censored);
+  optionally the rig's Lambertian shading as a further column, and a GGX lobe under a dielectric
+  film (the renderer's wet film) in place of Phong's, or chosen beside it per fit (``lobe``).
 - :func:`cubic_patch_fit`: the quadric patch with its four third-order terms, fitted to the lobes
   of every light of a rig of several lights (a depth profile, then the free fit): with one light
   the surface's third-order shape stands in for the light's offset and the depth is not

@@ -51,7 +51,8 @@ class LightAwareEstimate:
     distance_mm : float or None
         Fitted camera-to-plane distance h, mm (None when not observable).
     roughness : float or None
-        Fitted Phong roughness n (None when not fitted).
+        Fitted Phong roughness n (None when not fitted); for a GGX lobe (``lobe``), the Phong n of
+        the same peak curvature, ``2 / alpha^2 - 2``.
     taus : ndarray of shape (K,) or None
         Fitted cosine level tau per isovalue (isocurve_fit).
     n_evaluations : int
@@ -78,6 +79,11 @@ class LightAwareEstimate:
         depth where the depth is not observable); set by
         :func:`simtest.reconstruct.recommend.light_aware_estimates`, whose recommendation keeps a
         normal whose ``normal_sigma_deg`` is below it. None when not set.
+    lobe : str or None
+        :func:`photometric_fit`: the specular lobe of the model kept, ``"phong"`` or ``"ggx"``
+        (its ``lobe="auto"`` chooses by the residual's information criterion); None elsewhere.
+    n_residuals : int
+        :func:`photometric_fit`: the number of pixels fitted (the m of the criterion); 0 elsewhere.
     """
 
     estimator: str
@@ -96,6 +102,8 @@ class LightAwareEstimate:
     light_depths_mm: np.ndarray | None = None
     depth_rel_sigma: float | None = None
     bp_ray_error_deg: float | None = None
+    lobe: str | None = None
+    n_residuals: int = 0
 
     @property
     def ok(self) -> bool:

@@ -395,3 +395,73 @@ def _rig_diffuse_grad(dT, rl, p, nb, e1, e2, rig_arr, step: float = 1e-6) -> np.
             vals.append(_rig_diffuse(dT, rl, mv / np.sqrt(mv @ mv), float(np.exp(q2[2])), rig_arr))
         out[k] = (vals[0] - vals[1]) / (2 * step)
     return out
+
+
+#: Refractive index of the wet film in the GGX lobe's Fresnel factor: mucus and water lie between
+#: 1.33 and 1.45 (the renderer's film, :mod:`simtest.render.tissue`), where Fresnel's reflectance
+#: changes by under 2 % across a highlight's lobe (incidence within 30 deg of the half-vector's):
+#: the lobe's gain absorbs the rest.
+GGX_FILM_IOR = 1.38
+
+
+def _fresnel_dielectric(cos_i, eta):
+    """Unpolarised Fresnel reflectance of a dielectric interface (exact), ``cos_i`` in [0, 1]."""
+    sin2_t = (1.0 - cos_i * cos_i) / (eta * eta)
+    cos_t = np.sqrt(np.maximum(1.0 - sin2_t, 0.0))
+    rs = (cos_i - eta * cos_t) / (cos_i + eta * cos_t)
+    rp = (eta * cos_i - cos_t) / (eta * cos_i + cos_t)
+    return 0.5 * (rs * rs + rp * rp)
+
+
+def _rig_value_ggx(dT, rl, n, h, rig_arr, alpha, ior: float = GGX_FILM_IOR):
+    """The rig's GGX lobes under a dielectric film on the plane (n, h) along unit rays ``dT`` (3, N).
+
+    ``S = sum_j w_j F(v . m) D(m) G1(v) G1(l_j) / (4 n . v) f_j p_j``: the radiance of the
+    renderer's wet film (:func:`simtest.render.tissue.specular_lobe`, ``lobe = "ggx"``: Walter et
+    al. 2007, eqs. 25-34, with Smith's G) lit by each light, its BRDF times ``n . l`` times the
+    light's falloff ``f_j = (h / r_j)^2`` and profile ``p_j`` (as :func:`_rig_value`'s), for the
+    half-vector ``m = unit(v + l_j)``, v the direction to the camera. From the pieces of
+    :func:`_terms`: ``n . v = delta``, ``n . l = c / r``, ``v . l = (s - Ld) / r``, so
+    ``n . m = (delta + c / r) / sqrt(2 + 2 v . l)`` and ``v . m = sqrt((1 + v . l) / 2)``.
+
+    Returns
+    -------
+    ndarray of shape (N,)
+        0 where the light or the camera is below the plane.
+    """
+    L, w, inv_sq, m = rig_arr
+    a2 = float(alpha) ** 2
+    S = np.zeros(dT.shape[1])
+    for j in range(len(w)):
+        _, delta, s, sl, ir, c, _ = _terms(dT, n, h, L[j], (rl[0][j], rl[1][j]))
+        cos_o = c * ir
+        vl = sl * ir
+        hv = np.sqrt(np.maximum(2.0 + 2.0 * vl, 1e-300))
+        cos_h = np.clip((delta + cos_o) / hv, 1e-6, 1.0)
+        c2 = cos_h * cos_h
+        D = a2 / (np.pi * (c2 * (a2 - 1.0) + 1.0) ** 2)
+        ci = np.maximum(delta, 1e-6)
+        co = np.maximum(cos_o, 1e-6)
+        g1i = 2.0 / (1.0 + np.sqrt(1.0 + a2 * (1.0 - ci * ci) / (ci * ci)))
+        g1o = 2.0 / (1.0 + np.sqrt(1.0 + a2 * (1.0 - co * co) / (co * co)))
+        F = _fresnel_dielectric(np.sqrt(np.clip(0.5 * (1.0 + vl), 0.0, 1.0)), ior)
+        val = F * D * g1i * g1o / (4.0 * ci)
+        val[(cos_o <= 0.0) | (delta <= 1e-9)] = 0.0
+        if inv_sq[j]:
+            hir = h * ir
+            val *= hir * hir
+        if m[j] > 0:
+            val *= np.maximum((s * dT[2] - L[j, 2]) * ir, 1e-12) ** m[j]
+        S += w[j] * val
+    return S
+
+
+def ggx_alpha_of_phong(n: float) -> float:
+    """The GGX roughness alpha whose lobe's peak curvature matches a Phong lobe of exponent n:
+    ``alpha = sqrt(2 / (n + 2))`` (Walter et al. 2007, section 5.2, Beckmann's)."""
+    return float(np.sqrt(2.0 / (max(float(n), 0.0) + 2.0)))
+
+
+def phong_of_ggx_alpha(alpha: float) -> float:
+    """The Phong exponent of :func:`ggx_alpha_of_phong`'s correspondence, ``2 / alpha^2 - 2``."""
+    return float(2.0 / max(float(alpha) ** 2, 1e-300) - 2.0)
