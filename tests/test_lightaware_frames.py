@@ -57,6 +57,15 @@ def test_a_folders_frames_are_fitted_on_the_camera_files_response(tmp_path):
     rough = [s["light_aware"]["photometric_fit"]["roughness"] for s in plain["specularities"]
              if s["status"] == "ok"]
     assert rough and rough[0] < 0.6 * ROUGHNESS
+    # and through the command line: the camera file's response reaches a folder's frames
+    cam_file = save_camera(tmp_path / "cam.json", cam, lights=rig, response=resp)
+    res = CliRunner().invoke(app, ["reconstruct", str(frames), "--intrinsics", str(cam_file), "-o",
+                                   str(tmp_path / "out"), "-j", "1"])
+    assert res.exit_code == 0, res.output
+    line = json.loads((tmp_path / "out" / "estimates.jsonl").read_text().splitlines()[0])
+    rough = [s["light_aware"]["photometric_fit"]["roughness"] for s in line["specularities"]
+             if s["status"] == "ok"]
+    assert rough and rough[0] == pytest.approx(ROUGHNESS, rel=2e-3)
 
 
 @pytest.mark.render

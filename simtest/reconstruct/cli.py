@@ -265,7 +265,8 @@ def _reconstruct_sequence(path, intrinsics, out, target, settings, *, points, wo
 
     def fill(folder: Path) -> None:
         records = reconstruct_frames(source, camera, settings, workers=n_workers,
-                                     include_points=points, rig=rig, cubic=cubic, encoded=True)
+                                     include_points=points, rig=rig, cubic=cubic, encoded=True,
+                                     response=camera_file.response)
         with Progress(TextColumn("reconstruct"), BarColumn(), MofNCompleteColumn(),
                       TextColumn("{task.fields[fps]:.1f} frames/s"), TimeElapsedColumn(),
                       transient=True) as bar:

@@ -26,6 +26,7 @@ estimators (:mod:`simtest.reconstruct.recommend`, whose docstring states the rec
     "light_aware": {name: {"status": str, "detail": str, "depth_mm": float or null,
                            "normal_sigma_deg": float or null, "depth_sigma_mm": float or null,
                            "distance_mm": float or null, "roughness": float or null,
+                           "lobe": "phong" | "ggx" | null,   # photometric_fit's lobe
                            "light_normals": [[x, y, z], ...] or null,
                            "light_depths_mm": [float, ...] or null}}
 
@@ -217,6 +218,7 @@ def estimate_to_dict(est, include_points: bool = False) -> dict:
                                "normal_sigma_deg": _num(r.normal_sigma_deg),
                                "depth_sigma_mm": _num(r.depth_sigma_mm),
                                "distance_mm": _num(r.distance_mm), "roughness": _num(r.roughness),
+                               "lobe": getattr(r, "lobe", None),
                                "light_normals": _rows(r.light_normals),
                                "light_depths_mm": _nums(r.light_depths_mm)}
                         for name, r in la.items()},

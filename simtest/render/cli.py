@@ -68,8 +68,9 @@ def render_command(
     Writes, in the folder OUT (new, empty, or a previous render's; replaced as a whole, so a
     failure leaves the previous set): OUT/image.png (the sensor image, 8 or 16 bit grey),
     OUT/frame.png (the 8-bit RGB video frame), OUT/intrinsics.json (K and the image size),
-    OUT/camera.json (the camera model and its light rig), OUT/ground_truth.npz (per-pixel
-    normals, depth, distance, position, mask, the linear and specular images) and
+    OUT/camera.json (the camera model, its light rig and, with a video sensor, its response),
+    OUT/ground_truth.npz (per-pixel normals, depth, distance, position, mask, the linear and
+    specular images) and
     OUT/highlights.json (each highlight's brightest point, normal and curvatures). Exit status 2:
     bad input; 4: OUT cannot be written; 1: Mitsuba cannot run here."""
     if variant is not None and variant not in RENDER_VARIANTS:
