@@ -1189,3 +1189,155 @@ def count_enclosed_sorted(poly, points, us, skip):
         if lo_u <= u <= hi_u and lo_v <= v <= hi_v and _inside(poly, u, v):
             n += 1
     return n
+
+
+@numba.njit(cache=True, nogil=True)
+def other_peaks(top, pk_row, pk_col, bp_u, bp_v, bp_col, bp_row, reach, min_top, level, has_ellipse,
+                e_cu, e_cv, e_a, e_b, e_cos, e_sin, area_rel):
+    """Specular peaks of other lobes near each candidate: the count of
+    :func:`simtest.reconstruct.verify._other_peaks` over the peaks that
+    ``cKDTree.query_ball_point`` finds within ``reach`` of the BP, for all candidates in one call.
+
+    Parameters
+    ----------
+    top : ndarray of shape (H, W), float32
+        The luma top-hat.
+    pk_row, pk_col : ndarray of shape (P,), int64
+        The frame's specular peaks, in row-major order (``np.nonzero``'s).
+    bp_u, bp_v : ndarray of shape (N,), float64
+        The BPs, px (the ball's centres).
+    bp_col, bp_row : ndarray of shape (N,), int64
+        The BPs' pixels (rounded, clipped to the frame).
+    reach : ndarray of shape (N,), float64
+        Radius of the ball and half-side of the window, px.
+    min_top, level : ndarray of shape (N,), float32
+        A neighbour's smallest top-hat, and the valley level (as ``_other_peaks`` rounds them).
+    has_ellipse : ndarray of shape (N,), bool
+        Whether the candidate's own isophote excludes the peaks it encloses.
+    e_cu, e_cv, e_a, e_b, e_cos, e_sin : ndarray of shape (N,), float64
+        That ellipse's centre, semi-axes, and the cosine and sine of its angle (numpy's).
+    area_rel : float
+        :data:`~simtest.reconstruct.verify.NEIGHBOUR_AREA_REL`.
+
+    Returns
+    -------
+    ndarray of shape (N,), int64
+
+    Notes
+    -----
+    The window's 8-connected components above the level are flood-filled from the BP and from
+    the selected peaks only (OpenCV labels them all: the counts are the same).
+    """
+    h, w = top.shape
+    n = len(bp_u)
+    out = np.zeros(n, np.int64)
+    npk = len(pk_row)
+    lab = np.zeros((0, 0), np.int32)
+    stack = np.empty(0, np.int64)
+    base = 0
+    for k in range(n):
+        rk = reach[k]
+        r0 = max(0, int(bp_row[k] - rk))
+        r1 = min(h, int(bp_row[k] + rk) + 1)
+        c0 = max(0, int(bp_col[k] - rk))
+        c1 = min(w, int(bp_col[k] + rk) + 1)
+        r2 = rk * rk
+        # the selected peaks: in the ball and the window, high enough, outside the own ellipse
+        lo, hi = 0, npk
+        while lo < hi:  # first peak on row r0
+            mid = (lo + hi) // 2
+            if pk_row[mid] < r0:
+                lo = mid + 1
+            else:
+                hi = mid
+        sel = np.empty(0, np.int64)
+        nsel = 0
+        j = lo
+        while j < npk and pk_row[j] < r1:
+            y, x = pk_row[j], pk_col[j]
+            if c0 <= x < c1:
+                dx = x - bp_u[k]
+                dy = y - bp_v[k]
+                if dx * dx + dy * dy <= r2 and top[y, x] >= min_top[k]:
+                    keep = True
+                    if has_ellipse[k]:
+                        du = x - e_cu[k]
+                        dv = y - e_cv[k]
+                        p = (e_cos[k] * du + e_sin[k] * dv) / e_a[k]
+                        q = (-e_sin[k] * du + e_cos[k] * dv) / e_b[k]
+                        keep = p * p + q * q > 1.0
+                    if keep:
+                        if nsel == len(sel):
+                            grown = np.empty(max(8, 2 * nsel), np.int64)
+                            grown[:nsel] = sel[:nsel]
+                            sel = grown
+                        sel[nsel] = j
+                        nsel += 1
+            j += 1
+        if nsel == 0:
+            continue
+        lev = level[k]
+        wh, ww = r1 - r0, c1 - c0
+        own_r, own_c = bp_row[k] - r0, bp_col[k] - c0
+        if not top[bp_row[k], bp_col[k]] >= lev:  # the BP on the background: every peak counts
+            out[k] = nsel
+            continue
+        if len(lab) == 0:  # one label image and stack for every candidate, labels above `base`
+            lab = np.zeros((h, w), np.int32)
+            stack = np.empty(h * w, np.int64)
+        areas = np.zeros(nsel + 2, np.int64)
+        n_lab = 0
+        seed_lab = np.zeros(nsel + 1, np.int64)
+        n_bg = -1
+        for s in range(nsel + 1):
+            if s == 0:  # component 1: the BP's
+                sr, sc = own_r, own_c
+            else:
+                sr, sc = pk_row[sel[s - 1]] - r0, pk_col[sel[s - 1]] - c0
+            if lab[sr + r0, sc + c0] > base:
+                seed_lab[s] = lab[sr + r0, sc + c0] - base
+                continue
+            if not top[sr + r0, sc + c0] >= lev:  # a peak below the level: the background's label
+                seed_lab[s] = -1
+                if n_bg < 0:
+                    n_bg = 0
+                    for rr in range(r0, r1):
+                        for cc in range(c0, c1):
+                            if not top[rr, cc] >= lev:
+                                n_bg += 1
+                continue
+            n_lab += 1
+            lab[sr + r0, sc + c0] = base + n_lab
+            stack[0] = sr * ww + sc
+            top_s = 1
+            area = 0
+            while top_s > 0:
+                top_s -= 1
+                pr, pc = stack[top_s] // ww, stack[top_s] % ww
+                area += 1
+                for dr in range(-1, 2):
+                    qr = pr + dr
+                    if qr < 0 or qr >= wh:
+                        continue
+                    for dc in range(-1, 2):
+                        qc = pc + dc
+                        if qc < 0 or qc >= ww or lab[qr + r0, qc + c0] > base:
+                            continue
+                        if top[qr + r0, qc + c0] >= lev:
+                            lab[qr + r0, qc + c0] = base + n_lab
+                            stack[top_s] = qr * ww + qc
+                            top_s += 1
+            areas[n_lab] = area
+            seed_lab[s] = n_lab
+        base += n_lab
+        own_area = areas[1]
+        cnt = 0
+        for s in range(1, nsel + 1):
+            lb = seed_lab[s]
+            if lb == 1:
+                continue
+            a = n_bg if lb < 0 else areas[lb]
+            if a >= area_rel * own_area:
+                cnt += 1
+        out[k] = cnt
+    return out
