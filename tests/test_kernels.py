@@ -483,3 +483,43 @@ def test_other_peaks_meets_each_case():
     ij = bps.astype(np.int64)
     args = (top, xs, ys, bps, ij, np.array([45.0]), np.array([100.0], np.float32), 1.0, None, np.array([0]))
     assert verify._other_peaks_compiled(*args)[0] == 1 == _other_peaks_loop(*args)[0]
+
+
+@given(seed=st.integers(0, 2**32 - 1), h=st.integers(1, 30), w=st.integers(1, 30), plateau=st.booleans())
+@settings(max_examples=200, deadline=None)
+def test_top_hat_maxima_are_numpys_and_opencvs(seed, h, w, plateau):
+    """verify's top-hat and its 3 x 3 maxima above the floor, compiled, against the numpy and
+    OpenCV form they replace (np.maximum, cv2.dilate, np.flatnonzero), on quantised values
+    (plateaus: ties with neighbours), negative differences, and a floor rounded to float32."""
+    import cv2
+
+    rng = np.random.default_rng(seed)
+    g = rng.normal(10, 5, (h, w)).astype(np.float32)
+    if plateau:
+        g = np.round(g / 4) * 4
+    bg = rng.normal(8, 3, (h, w)).astype(np.float32)
+    floor = float(rng.uniform(0, 8)) + 1e-9  # not a float32: numpy rounds it to compare
+    want_top = np.maximum(g - bg, 0.0)
+    want = np.flatnonzero((want_top >= cv2.dilate(want_top, np.ones((3, 3), np.uint8))) & (want_top > floor))
+    top, mask = np.empty_like(g), np.empty((h, w), bool)
+    _kernels.top_hat_maxima(g, bg, np.float32(floor), top, mask)
+    assert top.tobytes() == want_top.tobytes()
+    np.testing.assert_array_equal(np.flatnonzero(mask), want)
+
+
+@given(seed=st.integers(0, 2**32 - 1), h=st.integers(1, 40), w=st.integers(1, 40))
+@settings(max_examples=200, deadline=None)
+def test_flat_pixels_are_numpys(seed, h, w):
+    """The flat mask of verify._panels, compiled, against its numpy form, on the 5 x 5 means of
+    a luma with flat, quantised and noisy parts (variances that round below zero included)."""
+    import cv2
+
+    rng = np.random.default_rng(seed)
+    g = np.round(rng.normal(100, rng.uniform(0, 3), (h, w)), int(rng.integers(0, 3))).astype(np.float32)
+    g[: h // 2] = np.float32(rng.uniform(0, 255))  # a flat part: m2 - m1^2 rounds about 0
+    m1, m2 = cv2.blur(g, (5, 5)), cv2.blur(g * g, (5, 5))
+    thr = float(rng.uniform(0, 1.5))
+    want = (np.sqrt(np.maximum(m2 - m1 * m1, 0.0)) < thr).astype(np.uint8)
+    out = np.empty((h, w), np.uint8)
+    n = _kernels.flat_pixels(m1, m2, np.float32(thr), out)
+    assert out.tobytes() == want.tobytes() and n == int(want.sum())

@@ -651,3 +651,26 @@ def test_an_rois_own_smoothing_from_the_frames():
             want = pipeline._smooth(frame.luma(roi), sigma)
             # float32 holds 255-scale values to 1.5e-5; the strips' sums in another order
             assert np.abs(got - want).max() < 1e-4, roi
+
+
+def test_the_verified_estimates_are_copied_as_dataclasses_replace_copies_them():
+    """pipeline._replaced (the verifier's copy of each estimate with its status, detail and
+    confidence) gives what dataclasses.replace gives, as long as the class has no __post_init__
+    nor __slots__ for replace's __init__ to run."""
+    import dataclasses
+
+    from simtest.bench import synthetic_frame
+    from simtest.reconstruct import pipeline
+
+    assert not hasattr(pipeline.SpecularityEstimate, "__post_init__")
+    assert "__slots__" not in vars(pipeline.SpecularityEstimate)
+    frame, K, _ = synthetic_frame(n_highlights=2)
+    est = reconstruct(frame, K)[0]
+    changes = {"status": "cluster", "detail": "2 other specular peak(s)", "confidence": 0.25}
+    got, want = pipeline._replaced(est, **changes), dataclasses.replace(est, **changes)
+    assert type(got) is type(want) and got.__dict__.keys() == want.__dict__.keys()
+    assert all(got.__dict__[k] is want.__dict__[k] or got.__dict__[k] == want.__dict__[k]
+               for k in ("status", "detail", "confidence", "isophotes", "roi", "bp_px"))
+    assert est.status != "cluster"  # the original is left alone
+    with pytest.raises(dataclasses.FrozenInstanceError):
+        got.status = "ok"

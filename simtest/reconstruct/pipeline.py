@@ -1258,5 +1258,15 @@ def _verified(frame: _Frame, ests: list[SpecularityEstimate]) -> list[Specularit
     for k, e in enumerate(ests):
         status, detail = (checks[k] if e.ok else (e.status, e.detail))
         fitted = np.isfinite(res[k])  # a confidence for the fitted candidates only
-        out.append(replace(e, status=status, detail=detail, confidence=float(conf[k]) if fitted else None))
+        out.append(_replaced(e, status=status, detail=detail, confidence=float(conf[k]) if fitted else None))
     return out
+
+
+def _replaced(est: SpecularityEstimate, **changes) -> SpecularityEstimate:
+    """``dataclasses.replace(est, **changes)`` for the fields of a :class:`SpecularityEstimate`
+    (which has no ``__post_init__``), by copying its ``__dict__``: a fifth of the time, for the
+    thousands of candidates of a real frame."""
+    new = object.__new__(SpecularityEstimate)
+    new.__dict__.update(est.__dict__)
+    new.__dict__.update(changes)
+    return new

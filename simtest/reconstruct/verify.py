@@ -47,7 +47,7 @@ from types import SimpleNamespace
 import cv2
 import numpy as np
 
-from simtest.reconstruct._kernels import other_peaks
+from simtest.reconstruct._kernels import flat_pixels, other_peaks, top_hat_maxima
 from simtest.reconstruct.detect import background_side_px, connected_components, noise_sigma
 
 __all__ = ["PALENESS_MAX", "WHITE_CHROMA", "SIGNIFICANCE_MIN", "CONTRAST_MIN", "PANEL_STD_REL",
@@ -192,10 +192,12 @@ def _panels(gray: np.ndarray, noise: float) -> np.ndarray:
     g = gray.astype(np.float32, copy=False)
     m1 = cv2.blur(g, (5, 5))
     m2 = cv2.blur(g * g, (5, 5))
-    sd = np.sqrt(np.maximum(m2 - m1 * m1, 0.0))
-    flat = (sd < PANEL_STD_REL * noise).astype(np.uint8)
+    # flat = sqrt(max(m2 - m1 * m1, 0)) < PANEL_STD_REL * noise in one compiled pass (numpy rounds
+    # the threshold to float32 to compare)
+    flat = np.empty(g.shape, np.uint8)
+    n_flat = flat_pixels(m1, m2, np.float32(PANEL_STD_REL * noise), flat)
     min_area = PANEL_MIN_AREA * flat.size
-    if cv2.countNonZero(flat) < min_area:  # too few flat pixels for any panel
+    if n_flat < min_area:  # too few flat pixels for any panel
         return np.zeros_like(flat)
     # labels alone and their areas (OpenCV's stats cost 9 ms on 1350 x 1080 px, these 3)
     n, lab = connected_components(flat)
@@ -295,7 +297,11 @@ def frame_evidence(image: np.ndarray, gray: np.ndarray, bps_uv: np.ndarray, rois
     bg_rgb = _opening(rgb, background_px)
     g = gray.astype(np.float32, copy=False)
     bg = _opening(g, background_px)
-    top = np.maximum(g - bg, 0.0)
+    # the top-hat and its 3 x 3 maxima above the floor, in one compiled call (numpy rounds the
+    # floor to float32 to compare)
+    top, is_max = np.empty_like(g), np.empty(g.shape, bool)
+    top_hat_maxima(g, bg, np.float32(max(SIGNIFICANCE_MIN * noise, 1e-9)), top, is_max)
+    ys, xs = np.divmod(np.flatnonzero(is_max), w)  # np.nonzero's, in half the time
     ij = np.clip(np.rint(np.asarray(bps_uv, np.float64).reshape(-1, 2)).astype(np.int64), 0, [w - 1, h - 1])
     cols, rows = ij.T  # the BPs' pixels (u is the column)
     # the RGB maximum over the 3 x 3 px around each BP (the window clipped to the frame)
@@ -313,11 +319,8 @@ def frame_evidence(image: np.ndarray, gray: np.ndarray, bps_uv: np.ndarray, rois
     inside = (integ[rr[:, 1], rr[:, 3]] - integ[rr[:, 0], rr[:, 3]] - integ[rr[:, 1], rr[:, 2]]
               + integ[rr[:, 0], rr[:, 2]])
     panel_fraction = inside / area
-    # specular peaks of the frame: local maxima of the top-hat that pass the colour check
-    floor = max(SIGNIFICANCE_MIN * noise, 1e-9)
-    is_max = (top >= cv2.dilate(top, np.ones((3, 3), np.uint8))) & (top > floor)
-    ys, xs = np.divmod(np.flatnonzero(is_max), w)  # np.nonzero's, in half the time
-    # the chromas at those pixels only (a reduction over the frame's last axis costs ~0.1 s)
+    # specular peaks of the frame: the top-hat's local maxima that pass the colour check (the
+    # chromas read at those pixels only: a reduction over the frame's last axis costs ~0.1 s)
     colour = _specular_colour(_chroma(rgb[ys, xs]), _chroma(bg_rgb[ys, xs]))
     ys, xs = ys[colour], xs[colour]
     xs, ys = xs.astype(np.int64), ys.astype(np.int64)
