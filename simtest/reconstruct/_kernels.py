@@ -1232,7 +1232,7 @@ def other_peaks(top, pk_row, pk_col, bp_u, bp_v, bp_col, bp_row, reach, min_top,
     n = len(bp_u)
     out = np.zeros(n, np.int64)
     npk = len(pk_row)
-    lab = np.zeros((0, 0), np.int32)
+    lab = np.zeros(0, np.int32)  # window-sized, grown as needed (row-major in the window)
     stack = np.empty(0, np.int64)
     base = 0
     for k in range(n):
@@ -1282,9 +1282,10 @@ def other_peaks(top, pk_row, pk_col, bp_u, bp_v, bp_col, bp_row, reach, min_top,
         if not top[bp_row[k], bp_col[k]] >= lev:  # the BP on the background: every peak counts
             out[k] = nsel
             continue
-        if len(lab) == 0:  # one label image and stack for every candidate, labels above `base`
-            lab = np.zeros((h, w), np.int32)
-            stack = np.empty(h * w, np.int64)
+        if len(lab) < wh * ww:  # one label buffer and stack for the candidates, labels above `base`
+            lab = np.zeros(max(wh * ww, 2 * len(lab)), np.int32)
+            stack = np.empty(len(lab), np.int64)
+            base = 0
         areas = np.zeros(nsel + 2, np.int64)
         n_lab = 0
         seed_lab = np.zeros(nsel + 1, np.int64)
@@ -1294,8 +1295,8 @@ def other_peaks(top, pk_row, pk_col, bp_u, bp_v, bp_col, bp_row, reach, min_top,
                 sr, sc = own_r, own_c
             else:
                 sr, sc = pk_row[sel[s - 1]] - r0, pk_col[sel[s - 1]] - c0
-            if lab[sr + r0, sc + c0] > base:
-                seed_lab[s] = lab[sr + r0, sc + c0] - base
+            if lab[sr * ww + sc] > base:
+                seed_lab[s] = lab[sr * ww + sc] - base
                 continue
             if not top[sr + r0, sc + c0] >= lev:  # a peak below the level: the background's label
                 seed_lab[s] = -1
@@ -1307,7 +1308,7 @@ def other_peaks(top, pk_row, pk_col, bp_u, bp_v, bp_col, bp_row, reach, min_top,
                                 n_bg += 1
                 continue
             n_lab += 1
-            lab[sr + r0, sc + c0] = base + n_lab
+            lab[sr * ww + sc] = base + n_lab
             stack[0] = sr * ww + sc
             top_s = 1
             area = 0
@@ -1321,10 +1322,10 @@ def other_peaks(top, pk_row, pk_col, bp_u, bp_v, bp_col, bp_row, reach, min_top,
                         continue
                     for dc in range(-1, 2):
                         qc = pc + dc
-                        if qc < 0 or qc >= ww or lab[qr + r0, qc + c0] > base:
+                        if qc < 0 or qc >= ww or lab[qr * ww + qc] > base:
                             continue
                         if top[qr + r0, qc + c0] >= lev:
-                            lab[qr + r0, qc + c0] = base + n_lab
+                            lab[qr * ww + qc] = base + n_lab
                             stack[top_s] = qr * ww + qc
                             top_s += 1
             areas[n_lab] = area
