@@ -523,3 +523,19 @@ def test_flat_pixels_are_numpys(seed, h, w):
     out = np.empty((h, w), np.uint8)
     n = _kernels.flat_pixels(m1, m2, np.float32(thr), out)
     assert out.tobytes() == want.tobytes() and n == int(want.sum())
+
+
+@given(seed=st.integers(0, 2**32 - 1), h=st.integers(1, 40), w=st.integers(1, 40))
+@settings(max_examples=100, deadline=None)
+def test_label_areas_and_labels_in_are_numpys(seed, h, w):
+    """The label areas and the big labels' pixels of verify._panels, compiled, against
+    np.bincount and a table indexed by the labels."""
+    rng = np.random.default_rng(seed)
+    n = int(rng.integers(1, 12))
+    lab = rng.integers(0, n, (h, w)).astype(np.int32)
+    areas = _kernels.label_areas(lab, n)
+    np.testing.assert_array_equal(areas, np.bincount(lab.ravel(), minlength=n))
+    keep = (rng.random(n) < 0.5).astype(np.uint8)
+    out = np.empty((h, w), np.uint8)
+    _kernels.labels_in(lab, keep, out)
+    assert out.tobytes() == keep[lab].tobytes()

@@ -1426,3 +1426,24 @@ def flat_pixels(m1, m2, thr, out):
             out[r, c] = 1 if f else 0
             n += 1 if f else 0
     return n
+
+
+@numba.njit(cache=True, nogil=True)
+def label_areas(labels, n):
+    """Pixels of each label 0 .. n - 1 of a label image (``np.bincount(labels.ravel(),
+    minlength=n)``), int64."""
+    out = np.zeros(n, np.int64)
+    h, w = labels.shape
+    for r in range(h):
+        for c in range(w):
+            out[labels[r, c]] += 1
+    return out
+
+
+@numba.njit(cache=True, nogil=True)
+def labels_in(labels, keep, out):
+    """``out = keep[labels]`` (uint8) for a label image and a per-label uint8 table."""
+    h, w = labels.shape
+    for r in range(h):
+        for c in range(w):
+            out[r, c] = keep[labels[r, c]]
