@@ -47,7 +47,7 @@ from types import SimpleNamespace
 import cv2
 import numpy as np
 
-from simtest.reconstruct._kernels import flat_pixels, label_areas, labels_in, other_peaks, top_hat_maxima
+from simtest.reconstruct import _kernels
 from simtest.reconstruct.detect import background_side_px, connected_components, noise_sigma
 
 __all__ = ["PALENESS_MAX", "WHITE_CHROMA", "SIGNIFICANCE_MIN", "CONTRAST_MIN", "PANEL_STD_REL",
@@ -195,7 +195,7 @@ def _panels(gray: np.ndarray, noise: float) -> np.ndarray:
     # flat = sqrt(max(m2 - m1 * m1, 0)) < PANEL_STD_REL * noise in one compiled pass (numpy rounds
     # the threshold to float32 to compare)
     flat = np.empty(g.shape, np.uint8)
-    n_flat = flat_pixels(m1, m2, np.float32(PANEL_STD_REL * noise), flat)
+    n_flat = _kernels.flat_pixels(m1, m2, np.float32(PANEL_STD_REL * noise), flat)
     min_area = PANEL_MIN_AREA * flat.size
     if n_flat < min_area:  # too few flat pixels for any panel
         return np.zeros_like(flat)
@@ -203,11 +203,11 @@ def _panels(gray: np.ndarray, noise: float) -> np.ndarray:
     # components' pixels, by compiled passes (np.bincount and a uint8 table indexed by the labels
     # took 8 ms on the banner)
     n, lab = connected_components(flat)
-    big = label_areas(lab, n) >= min_area
+    big = _kernels.label_areas(lab, n) >= min_area
     big[0] = False
     if not big.any():
         return np.zeros_like(flat)
-    labels_in(lab, big.view(np.uint8), flat)  # flat is no longer needed: the panels overwrite it
+    _kernels.labels_in(lab, big.view(np.uint8), flat)  # flat is no longer needed: the panels overwrite it
     return flat
 
 
@@ -257,7 +257,7 @@ def _other_peaks_compiled(top, xs, ys, bps, ij, reach, height, noise, ellipses, 
     # the same roundings as _other_peaks: float32 thresholds from the float32 height
     min_top = NEIGHBOUR_REL * height
     level = VALLEY_REL * height - VALLEY_NOISE * noise
-    return other_peaks(top, ys, xs, bps[todo, 0].copy(), bps[todo, 1].copy(), ij[todo, 0].copy(),
+    return _kernels.other_peaks(top, ys, xs, bps[todo, 0].copy(), bps[todo, 1].copy(), ij[todo, 0].copy(),
                        ij[todo, 1].copy(), reach[todo].copy(), min_top, level, has, ell[0], ell[1],
                        ell[2], ell[3], np.cos(ell[4]), np.sin(ell[4]), NEIGHBOUR_AREA_REL)
 
@@ -305,7 +305,7 @@ def frame_evidence(image: np.ndarray, gray: np.ndarray, bps_uv: np.ndarray, rois
     # the top-hat and its 3 x 3 maxima above the floor, in one compiled call (numpy rounds the
     # floor to float32 to compare)
     top, is_max = np.empty_like(g), np.empty(g.shape, bool)
-    top_hat_maxima(g, bg, np.float32(max(SIGNIFICANCE_MIN * noise, 1e-9)), top, is_max)
+    _kernels.top_hat_maxima(g, bg, np.float32(max(SIGNIFICANCE_MIN * noise, 1e-9)), top, is_max)
     ys, xs = np.divmod(np.flatnonzero(is_max), w)  # np.nonzero's, in half the time
     ij = np.clip(np.rint(np.asarray(bps_uv, np.float64).reshape(-1, 2)).astype(np.int64), 0, [w - 1, h - 1])
     cols, rows = ij.T  # the BPs' pixels (u is the column)
