@@ -230,3 +230,17 @@ def test_every_compiled_kernel_the_reconstruction_calls_is_timed():
             imported = {n.split(" as ")[0].strip() for n in names.split(",")}
             assert not imported & wrapped[f"simtest.reconstruct.{mod}"], (path.name, imported)
     assert called and all(name in wrapped[mod] for mod, name in called), called
+
+
+def test_the_video_row_tells_the_candidates_and_the_cpu_a_frame(monkeypatch):
+    """The video row's note says how many candidates a frame of the MJPG video holds and the CPU
+    time a frame took in this process and its workers (the figures that tell per-frame work
+    from the pool's overheads)."""
+    monkeypatch.setattr(bench, "VIDEO_WORKERS", 1)
+    (row,) = bench._bench_video(1)
+    if row.value != row.value:  # NaN: no banner or no MJPG writer in this environment
+        pytest.fail(f"the bench video could not be made: {row.name}")
+    got = re.search(r"1 frames of (\d+) candidates .* CPU (\d+) ms a frame", row.note)
+    assert got, row.note
+    assert int(got.group(1)) > 500  # the mosaic's ~640 components and MJPG's blocks
+    assert 0 < int(got.group(2)) < 60_000

@@ -407,3 +407,135 @@ def test_count_enclosed_on_points_sorted_by_u_is_the_same_count(seed, n_points):
     for skip in (-1, *range(min(n_points, 3))):
         want = _kernels.count_enclosed(poly, pts, int(order[skip]) if skip >= 0 else -1)
         assert _kernels.count_enclosed_sorted(poly, srt, np.ascontiguousarray(srt[:, 0]), skip) == want
+
+
+def _other_peaks_loop(top, xs, ys, bps, ij, reach, height, noise, ellipses, todo):
+    """verify's neighbour count as it was before the compiled call: a k-d tree's ball around each
+    BP, then verify._other_peaks (OpenCV's labels) on each candidate that has peaks in it."""
+    from scipy.spatial import cKDTree
+
+    from simtest.reconstruct import verify
+
+    out = np.zeros(len(todo), np.int64)
+    tree = cKDTree(np.c_[xs, ys].astype(np.float64))
+    for i, (k, idx) in enumerate(zip(todo, tree.query_ball_point(bps[todo], reach[todo]))):
+        if idx:
+            out[i] = verify._other_peaks(top, xs[idx], ys[idx], ij[k], reach[k], height[k], noise,
+                                         None if ellipses is None else ellipses[k])
+    return out
+
+
+@given(seed=st.integers(0, 2**32 - 1), with_ellipses=st.booleans())
+@settings(max_examples=150, deadline=None)
+def test_other_peaks_counts_the_neighbours_verifys_loop_counted(seed, with_ellipses):
+    """The compiled neighbour count (verify._other_peaks_compiled) against the loop of
+    verify._other_peaks it replaced, on random top-hats of Gaussian lobes, plateaus and noise
+    (valleys above and below the level, peaks on the BP's own lobe and on others, BPs at the
+    frame's edges, below the level, and inside and outside their ellipses)."""
+    from simtest.geometry.conics import Ellipse
+    from simtest.reconstruct import verify
+
+    rng = np.random.default_rng(seed)
+    h, w = int(rng.integers(20, 90)), int(rng.integers(20, 90))
+    yy, xx = np.mgrid[0:h, 0:w]
+    top = rng.normal(0, 0.5, (h, w))
+    for _ in range(int(rng.integers(1, 12))):
+        cy, cx, s, a = rng.uniform(0, h), rng.uniform(0, w), rng.uniform(0.7, 6), rng.uniform(5, 60)
+        top += a * np.exp(-((yy - cy) ** 2 + (xx - cx) ** 2) / (2 * s * s))
+    top = np.maximum(np.round(top, int(rng.integers(0, 2))), 0.0).astype(np.float32)
+    ys, xs = np.nonzero((top >= np.maximum.reduce([np.roll(np.roll(top, dy, 0), dx, 1)
+                                                   for dy in (-1, 0, 1) for dx in (-1, 0, 1)])) & (top > 2))
+    xs, ys = xs.astype(np.int64), ys.astype(np.int64)
+    if not len(xs):
+        return
+    n = int(rng.integers(1, 15))
+    pick = rng.integers(0, len(xs), n)
+    bps = np.c_[xs[pick], ys[pick]] + rng.uniform(-0.6, 0.6, (n, 2))
+    bps[rng.random(n) < 0.2] = rng.uniform(0, [w, h], (1, 2))  # some BPs not on a peak
+    ij = np.clip(np.rint(bps).astype(np.int64), 0, [w - 1, h - 1])
+    reach = rng.uniform(1, 40, n)
+    reach[rng.random(n) < 0.2] = np.nan
+    height = top[ij[:, 1], ij[:, 0]]
+    ellipses = None
+    if with_ellipses:
+        ellipses = [None if rng.random() < 0.2 else
+                    Ellipse(center=bps[k] + rng.normal(0, 1, 2), semi_axes=np.sort(rng.uniform(0.5, 12, 2))[::-1],
+                            angle_rad=float(rng.uniform(-np.pi, np.pi))) for k in range(n)]
+    todo = np.flatnonzero(np.isfinite(reach))
+    if not len(todo):
+        return
+    noise = float(rng.uniform(0, 3))
+    args = (top, xs, ys, bps, ij, reach, height, noise, ellipses, todo)
+    np.testing.assert_array_equal(verify._other_peaks_compiled(*args), _other_peaks_loop(*args))
+
+
+def test_other_peaks_meets_each_case():
+    """A peak on the BP's own lobe, one beyond a valley, one too small, one on the background."""
+    from simtest.reconstruct import verify
+
+    top = np.zeros((30, 60), np.float32)
+    top[10:20, 5:15] = 100.0  # the candidate's lobe, 100 px
+    top[14, 12] = 101.0  # a peak on its own lobe: not a neighbour
+    top[10:20, 30:40] = 90.0  # another lobe beyond a valley: a neighbour
+    top[15, 50] = 95.0  # a one-pixel glint: under a tenth of the lobe's area
+    xs, ys = np.array([12, 35, 50], np.int64), np.array([14, 15, 15], np.int64)
+    bps = np.array([[12.0, 14.0]])
+    ij = bps.astype(np.int64)
+    args = (top, xs, ys, bps, ij, np.array([45.0]), np.array([100.0], np.float32), 1.0, None, np.array([0]))
+    assert verify._other_peaks_compiled(*args)[0] == 1 == _other_peaks_loop(*args)[0]
+
+
+@given(seed=st.integers(0, 2**32 - 1), h=st.integers(1, 30), w=st.integers(1, 30), plateau=st.booleans())
+@settings(max_examples=200, deadline=None)
+def test_top_hat_maxima_are_numpys_and_opencvs(seed, h, w, plateau):
+    """verify's top-hat and its 3 x 3 maxima above the floor, compiled, against the numpy and
+    OpenCV form they replace (np.maximum, cv2.dilate, np.flatnonzero), on quantised values
+    (plateaus: ties with neighbours), negative differences, and a floor rounded to float32."""
+    import cv2
+
+    rng = np.random.default_rng(seed)
+    g = rng.normal(10, 5, (h, w)).astype(np.float32)
+    if plateau:
+        g = np.round(g / 4) * 4
+    bg = rng.normal(8, 3, (h, w)).astype(np.float32)
+    floor = float(rng.uniform(0, 8)) + 1e-9  # not a float32: numpy rounds it to compare
+    want_top = np.maximum(g - bg, 0.0)
+    want = np.flatnonzero((want_top >= cv2.dilate(want_top, np.ones((3, 3), np.uint8))) & (want_top > floor))
+    top, mask = np.empty_like(g), np.empty((h, w), bool)
+    _kernels.top_hat_maxima(g, bg, np.float32(floor), top, mask)
+    assert top.tobytes() == want_top.tobytes()
+    np.testing.assert_array_equal(np.flatnonzero(mask), want)
+
+
+@given(seed=st.integers(0, 2**32 - 1), h=st.integers(1, 40), w=st.integers(1, 40))
+@settings(max_examples=200, deadline=None)
+def test_flat_pixels_are_numpys(seed, h, w):
+    """The flat mask of verify._panels, compiled, against its numpy form, on the 5 x 5 means of
+    a luma with flat, quantised and noisy parts (variances that round below zero included)."""
+    import cv2
+
+    rng = np.random.default_rng(seed)
+    g = np.round(rng.normal(100, rng.uniform(0, 3), (h, w)), int(rng.integers(0, 3))).astype(np.float32)
+    g[: h // 2] = np.float32(rng.uniform(0, 255))  # a flat part: m2 - m1^2 rounds about 0
+    m1, m2 = cv2.blur(g, (5, 5)), cv2.blur(g * g, (5, 5))
+    thr = float(rng.uniform(0, 1.5))
+    want = (np.sqrt(np.maximum(m2 - m1 * m1, 0.0)) < thr).astype(np.uint8)
+    out = np.empty((h, w), np.uint8)
+    n = _kernels.flat_pixels(m1, m2, np.float32(thr), out)
+    assert out.tobytes() == want.tobytes() and n == int(want.sum())
+
+
+@given(seed=st.integers(0, 2**32 - 1), h=st.integers(1, 40), w=st.integers(1, 40))
+@settings(max_examples=100, deadline=None)
+def test_label_areas_and_labels_in_are_numpys(seed, h, w):
+    """The label areas and the big labels' pixels of verify._panels, compiled, against
+    np.bincount and a table indexed by the labels."""
+    rng = np.random.default_rng(seed)
+    n = int(rng.integers(1, 12))
+    lab = rng.integers(0, n, (h, w)).astype(np.int32)
+    areas = _kernels.label_areas(lab, n)
+    np.testing.assert_array_equal(areas, np.bincount(lab.ravel(), minlength=n))
+    keep = (rng.random(n) < 0.5).astype(np.uint8)
+    out = np.empty((h, w), np.uint8)
+    _kernels.labels_in(lab, keep, out)
+    assert out.tobytes() == keep[lab].tobytes()

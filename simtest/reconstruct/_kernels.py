@@ -1189,3 +1189,261 @@ def count_enclosed_sorted(poly, points, us, skip):
         if lo_u <= u <= hi_u and lo_v <= v <= hi_v and _inside(poly, u, v):
             n += 1
     return n
+
+
+@numba.njit(cache=True, nogil=True)
+def other_peaks(top, pk_row, pk_col, bp_u, bp_v, bp_col, bp_row, reach, min_top, level, has_ellipse,
+                e_cu, e_cv, e_a, e_b, e_cos, e_sin, area_rel):
+    """Specular peaks of other lobes near each candidate: the count of
+    :func:`simtest.reconstruct.verify._other_peaks` over the peaks that
+    ``cKDTree.query_ball_point`` finds within ``reach`` of the BP, for all candidates in one call.
+
+    Parameters
+    ----------
+    top : ndarray of shape (H, W), float32
+        The luma top-hat.
+    pk_row, pk_col : ndarray of shape (P,), int64
+        The frame's specular peaks, in row-major order (``np.nonzero``'s).
+    bp_u, bp_v : ndarray of shape (N,), float64
+        The BPs, px (the ball's centres).
+    bp_col, bp_row : ndarray of shape (N,), int64
+        The BPs' pixels (rounded, clipped to the frame).
+    reach : ndarray of shape (N,), float64
+        Radius of the ball and half-side of the window, px.
+    min_top, level : ndarray of shape (N,), float32
+        A neighbour's smallest top-hat, and the valley level (as ``_other_peaks`` rounds them).
+    has_ellipse : ndarray of shape (N,), bool
+        Whether the candidate's own isophote excludes the peaks it encloses.
+    e_cu, e_cv, e_a, e_b, e_cos, e_sin : ndarray of shape (N,), float64
+        That ellipse's centre, semi-axes, and the cosine and sine of its angle (numpy's).
+    area_rel : float
+        :data:`~simtest.reconstruct.verify.NEIGHBOUR_AREA_REL`.
+
+    Returns
+    -------
+    ndarray of shape (N,), int64
+
+    Notes
+    -----
+    The window's 8-connected components above the level are flood-filled from the BP and from
+    the selected peaks only (OpenCV labels them all: the counts are the same).
+    """
+    h, w = top.shape
+    n = len(bp_u)
+    out = np.zeros(n, np.int64)
+    npk = len(pk_row)
+    lab = np.zeros(0, np.int32)  # window-sized, grown as needed (row-major in the window)
+    stack = np.empty(0, np.int64)
+    base = 0
+    for k in range(n):
+        rk = reach[k]
+        r0 = max(0, int(bp_row[k] - rk))
+        r1 = min(h, int(bp_row[k] + rk) + 1)
+        c0 = max(0, int(bp_col[k] - rk))
+        c1 = min(w, int(bp_col[k] + rk) + 1)
+        r2 = rk * rk
+        # the selected peaks: in the ball and the window, high enough, outside the own ellipse
+        lo, hi = 0, npk
+        while lo < hi:  # first peak on row r0
+            mid = (lo + hi) // 2
+            if pk_row[mid] < r0:
+                lo = mid + 1
+            else:
+                hi = mid
+        sel = np.empty(0, np.int64)
+        nsel = 0
+        j = lo
+        while j < npk and pk_row[j] < r1:
+            y, x = pk_row[j], pk_col[j]
+            if c0 <= x < c1:
+                dx = x - bp_u[k]
+                dy = y - bp_v[k]
+                if dx * dx + dy * dy <= r2 and top[y, x] >= min_top[k]:
+                    keep = True
+                    if has_ellipse[k]:
+                        du = x - e_cu[k]
+                        dv = y - e_cv[k]
+                        p = (e_cos[k] * du + e_sin[k] * dv) / e_a[k]
+                        q = (-e_sin[k] * du + e_cos[k] * dv) / e_b[k]
+                        keep = p * p + q * q > 1.0
+                    if keep:
+                        if nsel == len(sel):
+                            grown = np.empty(max(8, 2 * nsel), np.int64)
+                            grown[:nsel] = sel[:nsel]
+                            sel = grown
+                        sel[nsel] = j
+                        nsel += 1
+            j += 1
+        if nsel == 0:
+            continue
+        lev = level[k]
+        wh, ww = r1 - r0, c1 - c0
+        own_r, own_c = bp_row[k] - r0, bp_col[k] - c0
+        if not top[bp_row[k], bp_col[k]] >= lev:  # the BP on the background: every peak counts
+            out[k] = nsel
+            continue
+        if len(lab) < wh * ww:  # one label buffer and stack for the candidates, labels above `base`
+            lab = np.zeros(max(wh * ww, 2 * len(lab)), np.int32)
+            stack = np.empty(len(lab), np.int64)
+            base = 0
+        areas = np.zeros(nsel + 2, np.int64)
+        n_lab = 0
+        seed_lab = np.zeros(nsel + 1, np.int64)
+        n_bg = -1
+        for s in range(nsel + 1):
+            if s == 0:  # component 1: the BP's
+                sr, sc = own_r, own_c
+            else:
+                sr, sc = pk_row[sel[s - 1]] - r0, pk_col[sel[s - 1]] - c0
+            if lab[sr * ww + sc] > base:
+                seed_lab[s] = lab[sr * ww + sc] - base
+                continue
+            if not top[sr + r0, sc + c0] >= lev:  # a peak below the level: the background's label
+                seed_lab[s] = -1
+                if n_bg < 0:
+                    n_bg = 0
+                    for rr in range(r0, r1):
+                        for cc in range(c0, c1):
+                            if not top[rr, cc] >= lev:
+                                n_bg += 1
+                continue
+            n_lab += 1
+            lab[sr * ww + sc] = base + n_lab
+            stack[0] = sr * ww + sc
+            top_s = 1
+            area = 0
+            while top_s > 0:
+                top_s -= 1
+                pr, pc = stack[top_s] // ww, stack[top_s] % ww
+                area += 1
+                for dr in range(-1, 2):
+                    qr = pr + dr
+                    if qr < 0 or qr >= wh:
+                        continue
+                    for dc in range(-1, 2):
+                        qc = pc + dc
+                        if qc < 0 or qc >= ww or lab[qr * ww + qc] > base:
+                            continue
+                        if top[qr + r0, qc + c0] >= lev:
+                            lab[qr * ww + qc] = base + n_lab
+                            stack[top_s] = qr * ww + qc
+                            top_s += 1
+            areas[n_lab] = area
+            seed_lab[s] = n_lab
+        base += n_lab
+        own_area = areas[1]
+        cnt = 0
+        for s in range(1, nsel + 1):
+            lb = seed_lab[s]
+            if lb == 1:
+                continue
+            a = n_bg if lb < 0 else areas[lb]
+            if a >= area_rel * own_area:
+                cnt += 1
+        out[k] = cnt
+    return out
+
+
+@numba.njit(cache=True, nogil=True)
+def top_hat_maxima(g, bg, floor, top, mask):
+    """The top-hat ``top = max(g - bg, 0)`` and the mask of its pixels that are at least each of
+    their 8 neighbours inside the frame and above ``floor``: ``(top >= cv2.dilate(top, 3 x 3)) &
+    (top > floor)`` of :func:`simtest.reconstruct.verify.frame_evidence` (the 3 x 3 maximum as the
+    maximum of three rows' 3-wide maxima), in one pass over the rows instead of eight over the
+    frame; branch-free loops that LLVM vectorises.
+
+    Parameters
+    ----------
+    g, bg : ndarray of shape (H, W), float32
+        The luma and its background.
+    floor : float32
+        The smallest top-hat of a maximum (numpy compares a float32 array with a Python float
+        rounded to float32: the caller rounds it).
+    top : ndarray of shape (H, W), float32
+        Output: the top-hat.
+    mask : ndarray of shape (H, W), bool
+        Output: the maxima.
+    """
+    h, w = g.shape
+    hmax = np.empty((3, w), np.float32)  # the 3-wide maxima of rows r - 1, r, r + 1 (a ring)
+    for r in range(min(2, h)):
+        _top_row(g, bg, top, r)
+        _row_max3(top, r, hmax[r % 3])
+    for r in range(h):
+        if 1 <= r < h - 1:  # row r + 1 enters
+            _top_row(g, bg, top, r + 1)
+            _row_max3(top, r + 1, hmax[(r + 1) % 3])
+        a = hmax[(r - 1) % 3] if r >= 1 else hmax[r % 3]
+        b = hmax[r % 3]
+        d = hmax[(r + 1) % 3] if r + 1 < h else hmax[r % 3]
+        for c in range(w):
+            t = top[r, c]
+            mask[r, c] = (t > floor) & (t >= a[c]) & (t >= b[c]) & (t >= d[c])
+
+
+@numba.njit(cache=True, nogil=True, inline="always")
+def _top_row(g, bg, top, r):
+    """``top[r] = np.maximum(g[r] - bg[r], 0)`` in float32 (NaN kept, as numpy keeps it)."""
+    zero = np.float32(0.0)
+    for c in range(g.shape[1]):
+        d = g[r, c] - bg[r, c]
+        top[r, c] = d if (d >= zero) | (d != d) else zero
+
+
+@numba.njit(cache=True, nogil=True, inline="always")
+def _row_max3(top, r, dst):
+    """``dst[c] = max(top[r, c - 1 : c + 2])`` (the window clipped to the row)."""
+    w = top.shape[1]
+    if w == 1:
+        dst[0] = top[r, 0]
+        return
+    for c in range(1, w - 1):
+        x, y, z = top[r, c - 1], top[r, c], top[r, c + 1]
+        m = x if x > y else y
+        dst[c] = m if m > z else z
+    x, y = top[r, 0], top[r, 1]
+    dst[0] = x if x > y else y
+    x, y = top[r, w - 2], top[r, w - 1]
+    dst[w - 1] = x if x > y else y
+
+
+@numba.njit(cache=True, nogil=True)
+def flat_pixels(m1, m2, thr, out):
+    """``out = sqrt(max(m2 - m1 * m1, 0)) < thr`` (uint8 0/1) in float32 as numpy computes it
+    (``thr`` rounded to float32 by the caller, as numpy compares), and the count of ones: the
+    flat mask of :func:`simtest.reconstruct.verify._panels` from the 5 x 5 means of the luma and
+    of its square, in one pass."""
+    h, w = m1.shape
+    zero = np.float32(0.0)
+    n = 0
+    for r in range(h):
+        for c in range(w):
+            a = m1[r, c]
+            v = m2[r, c] - a * a
+            if v < zero:
+                v = zero
+            f = np.sqrt(v) < thr
+            out[r, c] = 1 if f else 0
+            n += 1 if f else 0
+    return n
+
+
+@numba.njit(cache=True, nogil=True)
+def label_areas(labels, n):
+    """Pixels of each label 0 .. n - 1 of a label image (``np.bincount(labels.ravel(),
+    minlength=n)``), int64."""
+    out = np.zeros(n, np.int64)
+    h, w = labels.shape
+    for r in range(h):
+        for c in range(w):
+            out[labels[r, c]] += 1
+    return out
+
+
+@numba.njit(cache=True, nogil=True)
+def labels_in(labels, keep, out):
+    """``out = keep[labels]`` (uint8) for a label image and a per-label uint8 table."""
+    h, w = labels.shape
+    for r in range(h):
+        for c in range(w):
+            out[r, c] = keep[labels[r, c]]
