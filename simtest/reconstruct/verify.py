@@ -149,9 +149,9 @@ class Evidence:
     minor_px : ndarray, optional
         Semi-minor axis of each candidate's primary isophote, px (NaN without a fit).
     surround : ndarray, optional
-        Fraction of the candidate's surround holding other light at :data:`SURROUND_REL` of its
-        height above the surround's median or more (:func:`_surround_fraction`; NaN where not
-        measured).
+        Fraction of the candidate's surround lit by other light (:func:`_surround_fraction`),
+        measured by :func:`assess` for the candidates that pass the checks before it; 1 for the
+        other fitted ones, NaN for the rest.
     """
 
     chroma_peak: np.ndarray
@@ -372,13 +372,8 @@ def frame_evidence(image: np.ndarray, gray: np.ndarray, bps_uv: np.ndarray, rois
     # the significance's noise: an integer image's pixels carry at least its quantisation's
     integer = np.issubdtype(image.dtype, np.integer)
     noise_sig = max(float(noise), QUANTISATION_SIGMA_LSB) if integer else float(noise)
-    surround = np.full(n, np.nan)
-    if ellipses is not None:
-        for k in np.flatnonzero(np.isfinite(reach)):
-            if ellipses[k] is not None:
-                surround[k] = _surround_fraction(g, ellipses[k], ij[k], reach[k])
     return Evidence(chroma_peak, chroma_tissue, height, background, noise_sig, panel_fraction,
-                    neighbours, full_scale=float(full_scale), surround=surround)
+                    neighbours, full_scale=float(full_scale))
 
 
 #: The own lobe's radius at :data:`OWN_REL` over its radius at t = 0.7, squared (a Gaussian
@@ -478,15 +473,27 @@ def assess(image: np.ndarray, gray: np.ndarray, ests, *, full_scale: float):
     ev = frame_evidence(image, gray, bps, [e.roi for e in ests], full_scale=full_scale,
                         noise=noise_sigma(gray), background_px=background_side_px(gray.shape),
                         reach_px=reach, ellipses=ells)
-    return replace(ev, clipped=np.array([bool(e.saturated) for e in ests], dtype=bool), minor_px=minor), res, inside
+    clipped = np.array([bool(e.saturated) for e in ests], dtype=bool)
+    # the surround, for the candidates that pass every check before it (verdict's order); the
+    # others' share counts as 1 (all lit) in their confidence
+    surround = np.where(np.isfinite(reach), 1.0, np.nan)
+    passed = (np.isfinite(reach) & (ev.panel_fraction <= PANEL_FRACTION_MAX) & ev.specular_colour
+              & (clipped | ((ev.significance >= SIGNIFICANCE_MIN) & (ev.contrast >= CONTRAST_MIN)))
+              & (ev.neighbours == 0))
+    if passed.any():
+        g = np.asarray(gray, dtype=np.float32)
+        ij = np.clip(np.rint(bps).astype(np.int64), 0, [gray.shape[1] - 1, gray.shape[0] - 1])
+        for k in np.flatnonzero(passed):
+            surround[k] = _surround_fraction(g, ells[k], ij[k], reach[k])
+    return replace(ev, clipped=clipped, minor_px=minor, surround=surround), res, inside
 
 
 def _design(ev: Evidence, residual_rel: np.ndarray) -> np.ndarray:
     """The features of :func:`confidence`, (N, 5): minus log paleness, log significance (each
-    clipped), minus log of the surround's share of other light (:func:`_surround_fraction`; 0
+    clipped), minus log of the surround's share of other light (:func:`_surround_fraction`; 1
     where not measured, a share under 1 % taken as 1 %: the ring's resolution), minus log
     residual ratio (clipped), minus the panel share."""
-    surround = np.zeros(len(ev.height)) if ev.surround is None else np.nan_to_num(ev.surround, nan=0.0)
+    surround = np.ones(len(ev.height)) if ev.surround is None else np.nan_to_num(ev.surround, nan=1.0)
     return np.c_[
         -np.log(np.clip(ev.paleness, 0.05, 5.0)),
         np.log(np.clip(ev.significance, 1.0, 1e4)),
