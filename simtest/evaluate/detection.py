@@ -31,6 +31,7 @@ from __future__ import annotations
 import json
 import math
 import re
+import tomllib
 from collections import Counter
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -39,6 +40,7 @@ import matplotlib
 import numpy as np
 from scipy.optimize import minimize
 from scipy.special import expit
+from scipy.stats import mannwhitneyu
 
 matplotlib.use("Agg", force=False)
 
@@ -46,6 +48,8 @@ import matplotlib.pyplot as plt  # noqa: E402 - after choosing the back-end
 
 from simtest.constants import MAX_SEED  # noqa: E402
 from simtest.geometry.cameras import PinholeCamera  # noqa: E402
+from simtest.harness.protocols import mesh_pose_overrides  # noqa: E402
+from simtest.harness.suite import bundled_suite_names, load_suite, realisation_seed  # noqa: E402
 from simtest.reconstruct.detect import luma  # noqa: E402
 from simtest.reconstruct.images import load_image  # noqa: E402
 from simtest.reconstruct.io import estimate_to_dict  # noqa: E402
@@ -55,6 +59,7 @@ from simtest.reconstruct.verify import RESIDUAL_MAX_REL, _design, assess  # noqa
 from simtest.render.render import render_scene  # noqa: E402
 from simtest.render.sensor import field_stop_mask  # noqa: E402
 from simtest.render.truth import highlight_targets  # noqa: E402
+from simtest.scene import with_overrides  # noqa: E402
 from simtest.scene.spec import load_scene  # noqa: E402
 
 __all__ = ["KINDS", "TARGET_KIND", "TOLERANCE_PX", "Structure", "FrameScore", "LabelledFrame",
@@ -416,10 +421,6 @@ def suite_frames(suite: str, *, realisations: int | None = None, progress=None) 
         The suite cannot be read (:class:`simtest.harness.suite.SuiteError`), or a case is not
         rendered.
     """
-    from simtest.harness.protocols import mesh_pose_overrides
-    from simtest.harness.suite import load_suite, realisation_seed
-    from simtest.scene import with_overrides
-
     s = load_suite(suite)
     if realisations is not None:
         s = s.with_overrides(realisations=realisations)
@@ -443,12 +444,8 @@ def suite_frames(suite: str, *, realisations: int | None = None, progress=None) 
 def is_suite(source: str) -> bool:
     """Whether ``source`` names a suite (a bundled suite's name, or a TOML file with a
     ``[suite]`` table) rather than a scene."""
-    from simtest.harness.suite import bundled_suite_names
-
     p = Path(source)
     if p.suffix == ".toml" and p.is_file():
-        import tomllib
-
         try:
             return "suite" in tomllib.loads(p.read_text(encoding="utf-8"))
         except (OSError, UnicodeDecodeError, tomllib.TOMLDecodeError):
@@ -680,8 +677,6 @@ def ranking_auc(conf: np.ndarray, y: np.ndarray) -> float | None:
     """The probability that a true highlight gets a higher confidence than a false one (ties
     count a half): the area under the ROC curve, by the Mann-Whitney U statistic; None without
     both classes."""
-    from scipy.stats import mannwhitneyu
-
     y = np.asarray(y, bool)
     if y.all() or not y.any():
         return None

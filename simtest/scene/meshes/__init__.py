@@ -88,6 +88,7 @@ from typing import Any
 
 import trimesh
 
+from simtest.scene.meshes.abdomen import LAPAROSCOPE_WALL_AXIS, build_liver_in_abdomen
 from simtest.scene.meshes.colon import build_colon, colon_centerline
 from simtest.scene.meshes.curvature import (
     FD_STEP_MM,
@@ -144,8 +145,6 @@ def build_mesh(name: str, seed: int, **params: Any) -> trimesh.Trimesh:
     MeshError
         Unknown name, unknown or out-of-range parameter, or a bad seed.
     """
-    from simtest.scene.meshes.abdomen import LAPAROSCOPE_WALL_AXIS, build_liver_in_abdomen
-
     def liver_abdomen(seed: int, **p: Any) -> trimesh.Trimesh:
         return build_liver_in_abdomen(seed, **{"wall_axis": LAPAROSCOPE_WALL_AXIS, **p})
 
