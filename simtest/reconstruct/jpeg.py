@@ -205,6 +205,12 @@ def _grid(image: np.ndarray):
         nq = int(np.count_nonzero(steps >= MIN_STEP))
         if best is None or nq > best[0]:
             best = (nq, dy, dx, coef, steps)
+    if len(cands) == 1 and best is not None and best[0] < MIN_QUANTISED:
+        # clear blockiness, few steps seen (quality 15 and below: steps of 40 and more leave few
+        # coefficients outside their zero bins): read every block, accept a single step
+        coef = dct_blocks(_blocks(image, cands[0][0], cands[0][1], h * w))
+        steps = _steps_of(coef)
+        best = (int(np.count_nonzero(steps >= MIN_STEP)) * MIN_QUANTISED, cands[0][0], cands[0][1], coef, steps)
     if best is None or best[0] < MIN_QUANTISED:
         return None
     _, dy, dx, coef, steps = best
@@ -217,16 +223,16 @@ def _grid(image: np.ndarray):
 def jpeg_grid(image: np.ndarray) -> tuple[int, int] | None:
     """The 8 x 8 JPEG block grid an 8-bit image carries, if any.
 
-The blockiness of each of the 8 phases per axis (mean absolute luma difference across the
+    The blockiness of each of the 8 phases per axis (mean absolute luma difference across the
     phase's boundaries over that across all phases, [1]_) proposes the grid: the blockiest phase
-    per axis where it is clear on both (:data:`BLOCKINESS_CLEAR`), else the four offsets of the two
-    blockiest phases per axis. Each candidate is confirmed by the quantisation it reveals
+    per axis where it is clear on both (:data:`BLOCKINESS_CLEAR`), else the four offsets of the
+    two blockiest phases per axis. Each candidate is confirmed by the quantisation it reveals
     (the steps of :func:`quantisation_steps` on :data:`GRID_BLOCKS` of its blocks): the grid is
-    the candidate with the most frequencies with an identified step (>= :data:`MIN_STEP`), if at least
-    :data:`MIN_QUANTISED`. At quality 95 or above on noisy content the blockiness is weak and the
-    grid may be missed (None); the error such a frame carries is about 1.5 grey levels. An image that was never JPEG (sensor noise,
-    smooth synthetic content, a PNG render) has DCT coefficients without periodicity on any
-    grid, so None.
+    the candidate with the most frequencies with an identified step (>= :data:`MIN_STEP`), if at
+    least :data:`MIN_QUANTISED` (or one, read on every block, where the blockiness is clear). An
+    image that was never JPEG (sensor noise, smooth synthetic content, a PNG render) has DCT
+    coefficients without periodicity on any grid, so None. At quality 95 and above the
+    blockiness is weak and the grid may be missed (None; at 98 the error is under 1 grey level).
 
     Parameters
     ----------
