@@ -35,11 +35,12 @@ MIN_COEFFICIENTS = 40
 #: A candidate step ``q`` is the quantiser's when at least this share of its coefficients outside
 #: the zero bin lie within 1 of a nonzero multiple of ``q`` (rounded magnitudes ``n q - 1, n q,
 #: n q + 1``): the decoder's integer IDCT and its rounding of Y and of R, G, B to 8 bits move each
-#: coefficient by up to about 1 (measured: 84 % within +-1, 54 % within +-0.5 at quality 50) ...
+#: coefficient by up to about 1.5 (measured with OpenCV's libjpeg: 84 % within +-1, 54 % within
+#: +-0.5 at quality 50, and biased towards 0 by ~0.3) ...
 PERIODICITY_MIN = 0.8
-#: ... and this many binomial standard deviations above the share ``3 / q`` that chance gives,
-#: with more of them exactly at the multiples than one below or one above (so that ``q + 1`` and
-#: ``q - 1`` do not pass for ``q``). Steps 2 and 3 are not told from unquantised (their window
+#: ... and this many binomial standard deviations above the share ``3 / q`` that chance gives
+#: (``q + 1`` then passes for ``q`` too; the step is refined as the least-squares slope of the
+#: magnitudes on their multiples' indices). Steps 2 and 3 are not told from unquantised (their window
 #: covers every value); they add at most 0.75 grey levels^2 to a frequency's error.
 CHANCE_SD = 4.0
 #: Smallest identifiable step.
@@ -120,7 +121,9 @@ def _blocks(image: np.ndarray, dy: int, dx: int, max_blocks: int) -> np.ndarray:
     nby, nbx = (h - dy) // BLOCK, (w - dx) // BLOCK
     if nby < 1 or nbx < 1:
         return np.zeros((0, BLOCK, BLOCK), np.float32)
-    s = max(1, int(np.ceil(np.sqrt(nby * nbx / max_blocks))))
+    # every s-th block row and column: s = 2 already quarters them, so up to twice the
+    # budget is read whole
+    s = 1 if nby * nbx <= 2 * max_blocks else int(np.ceil(np.sqrt(nby * nbx / max_blocks)))
     c = 1 if image.ndim == 2 else 3
     view = image[dy:dy + nby * BLOCK, dx:dx + nbx * BLOCK].reshape(nby, BLOCK, nbx, BLOCK, c)
     b = np.ascontiguousarray(view[::s, :, ::s].transpose(0, 2, 1, 3, 4)).reshape(-1, BLOCK * BLOCK * c)
@@ -151,8 +154,9 @@ def _steps_of(coef: np.ndarray) -> np.ndarray:
     """Per-frequency step from coefficients (N, 64): the largest ``q`` in 4..255 with at least
     :data:`MIN_COEFFICIENTS` coefficients outside its zero bin (``|c| >= q / 2``), of which a
     share of at least :data:`PERIODICITY_MIN`, and well above chance (:data:`CHANCE_SD`), lie
-    within 1 of a nonzero multiple of ``q``, most of them at the multiple itself (a step's
-    divisors pass too, so the largest is the step); 1 if none passes but the frequency has that
+    within 1 of a nonzero multiple of ``q`` (a step's divisors pass too, so the largest is taken),
+    refined to the least-squares slope ``sum(n |c|) / sum(n^2)`` of the magnitudes on their
+    multiples' indices n (the decoder moves the coefficients by up to ~1.5, also at q + 1); 1 if none passes but the frequency has that
     many coefficients of magnitude >= 2 (unquantised, or a step of 2 or 3); 0 if it has fewer (a
     dead frequency: its coefficients all fell into the zero bin, the step is not identifiable).
     int64, shape (64,)."""
@@ -168,10 +172,16 @@ def _steps_of(coef: np.ndarray) -> np.ndarray:
     share = (at[0] + at[1] + at[2]) / np.maximum(count, 1.0)
     chance = np.minimum(3.0 / _Q[:, None], 1.0)
     floor = np.maximum(PERIODICITY_MIN, chance + CHANCE_SD * np.sqrt(chance * (1 - chance) / np.maximum(count, 1.0)))
-    ok = (count >= MIN_COEFFICIENTS) & (share >= floor) & (at[1] >= at[0]) & (at[1] >= at[2])
-    largest = _Q[(ok.shape[0] - 1) - np.argmax(ok[::-1], axis=0)]
+    ok = (count >= MIN_COEFFICIENTS) & (share >= floor)
+    largest = _Q[(ok.shape[0] - 1) - np.argmax(ok[::-1], axis=0)].astype(np.float64)
+    # the window of +-1 lets q + 1 pass for q: the step is the least-squares slope of the
+    # coefficients' magnitudes on their multiples' indices, sum(n |c|) / sum(n^2)
+    a = np.abs(coef).astype(np.float64)
+    idx = np.floor(a / largest + 0.5) * (a >= largest / 2)
+    slope = (idx * a).sum(axis=0) / np.maximum((idx * idx).sum(axis=0), 1.0)
+    step = np.maximum(np.rint(slope), MIN_STEP)
     active = hist[2:].sum(axis=0) >= MIN_COEFFICIENTS
-    return np.where(ok.any(axis=0), largest, np.where(active, 1, 0)).astype(np.int64)
+    return np.where(ok.any(axis=0), step, np.where(active, 1, 0)).astype(np.int64)
 
 
 def _blockiness(y_rows: np.ndarray) -> np.ndarray:
@@ -342,6 +352,23 @@ def quantisation_sigma(image: np.ndarray) -> float:
     return 0.0 if g is None else _sigma_of(g[2], g[3])
 
 
+def _quiet_sd(c: np.ndarray, q: np.ndarray) -> np.ndarray:
+    """Per identified frequency (columns of ``c``, magnitudes (N, K), steps ``q`` (K,)), the
+    Gaussian standard deviation of the original coefficients from the share outside the zero
+    bin among the half of the blocks whose other identified frequencies' indices are smallest."""
+    n, k = c.shape
+    idx = np.floor(c / q + 0.5)  # quantisation indices
+    total = idx.sum(axis=1)
+    out = np.empty(k)
+    for j in range(k):
+        busy = total - idx[:, j]
+        quiet = busy <= np.median(busy)
+        m = max(int(np.count_nonzero(quiet)), 1)
+        out[j] = max(np.count_nonzero(idx[quiet, j] > 0), 0.5) / m
+    z = norm.isf(np.minimum(out, 0.5) / 2)
+    return np.where(out < 0.5, q / (2 * z), np.sqrt((c * c).mean(axis=0)))
+
+
 def _sigma_of(coef: np.ndarray, steps: np.ndarray) -> float:
     """:func:`quantisation_sigma` from the coefficients (N, 64) and their steps (64,)."""
     n = len(coef)
@@ -357,8 +384,14 @@ def _sigma_of(coef: np.ndarray, steps: np.ndarray) -> float:
     z = norm.isf(np.minimum(out, 0.5) / 2)  # >= 0.67
     sd = np.where(out < 0.5, q / (2 * z), np.sqrt((c * c).mean(axis=0)))
     var[known] = _gauss_error_var(q, sd)
-    # dead frequencies lost their whole content: the smallest identified original variance
+    # dead frequencies lost their whole content, the sensor noise of every block and the texture
+    # below their step: taken as the smallest identified original variance in the quieter half
+    # of the blocks (those whose other identified AC frequencies hold the least, so that the
+    # texture of the busy blocks does not inflate it)
+    # (the DC is the blocks' mean, not texture or noise: it does not count; where no AC
+    # frequency is identified, the smallest step's uniform error q^2 / 12 stands in)
     dead = steps == 0
+    ac = np.flatnonzero(known)[:] != 0
     if dead.any():
-        var[dead] = float(np.min(sd * sd))
+        var[dead] = float(np.min(_quiet_sd(c, q)[ac] ** 2)) if ac.any() else float(q.min() ** 2 / 12)
     return float(np.sqrt(var.mean()))
