@@ -163,3 +163,36 @@ def test_rejects_non_8_bit_and_bad_shapes():
         J.jpeg_grid(np.zeros((32, 32), np.float32))
     with pytest.raises(ValueError):
         J.quantisation_sigma(np.zeros((32, 32, 4), np.uint8))
+    # the verifier's convenience: deeper or float frames carry no baseline JPEG error
+    d = jpeg(textured(4), 50)
+    assert J.quantisation_sigma(d.astype(np.uint16)) == 0.0
+    assert J.quantisation_sigma(d.astype(np.float32) / 255) == 0.0
+
+
+def test_pillow_jpeg_as_the_sensor_writes_it():
+    """simtest's sensor encodes with Pillow (4:2:0 chroma): the same grid and error model."""
+    import io
+
+    from PIL import Image
+
+    o = textured(5)
+    buf = io.BytesIO()
+    Image.fromarray(o).save(buf, format="JPEG", quality=50)
+    d = np.asarray(Image.open(buf).convert("RGB"))
+    assert J.jpeg_grid(d) == (0, 0)
+    assert 0.8 <= J.quantisation_sigma(d) / y_rms(d, o) <= 2.0  # as at 50 with OpenCV
+
+
+def test_banner_is_quality_100_so_no_grid():
+    """The Hyper-Kvasir banner's tables are all 1 (quality 100; its frames' earlier compression
+    was lost in the collage's resampling): nothing to find, and nothing claimed."""
+    from pathlib import Path
+
+    from PIL import Image
+
+    path = Path(__file__).parent / "data" / "real" / "hyperkvasir_banner.jpg"
+    with Image.open(path) as im:
+        assert all(max(t) == 1 for t in im.quantization.values())
+        rgb = np.asarray(im.convert("RGB"))
+    assert J.jpeg_grid(rgb) is None
+    assert J.quantisation_sigma(rgb) == 0.0

@@ -363,7 +363,14 @@ def quantisation_sigma(image: np.ndarray) -> float:
     Returns
     -------
     float
-        Grey levels (0..255 scale); 0.0 if the image carries no JPEG grid.
+        Grey levels (0..255 scale); 0.0 if the image carries no JPEG grid, and for an image that
+        is not uint8 (baseline JPEG decodes to 8 bits; a frame scaled to float after decoding is
+        not read).
+
+    Raises
+    ------
+    ValueError
+        If a uint8 image's shape is not (H, W) or (H, W, 3).
 
     Notes
     -----
@@ -373,8 +380,9 @@ def quantisation_sigma(image: np.ndarray) -> float:
     is not uniform over the frame: flat blocks lose their noise (small error), blocks on edges
     ring (large error); this is the frame's root mean square.
     """
-    image = _check(image)
-    g = _grid(image)
+    if np.asarray(image).dtype != np.uint8:
+        return 0.0  # not a decoded baseline JPEG
+    g = _grid(_check(image))
     return 0.0 if g is None else _sigma_of(g[2], g[3])
 
 
