@@ -106,8 +106,10 @@ def test_crops_find_the_shifted_grid(oy, ox, quality, seed):
     c = d[oy:, ox:]
     assert J.jpeg_grid(c) == ((8 - oy) % 8, (8 - ox) % 8)
     # other blocks (the crop loses a block row or column): the dead frequencies' variance is
-    # the smallest of a few identified ones, which moves by up to ~20 % with the blocks read
-    assert J.quantisation_sigma(c) == pytest.approx(J.quantisation_sigma(d), rel=0.25)
+    # the smallest of the few identified ones; below quality 50 a borderline frequency (~40
+    # coefficients outside its zero bin) may be identified in one and not the other, which moved
+    # sigma by up to 27 % (seed 912, quality 30); above, by under 15 %
+    assert J.quantisation_sigma(c) == pytest.approx(J.quantisation_sigma(d), rel=0.35 if quality < 50 else 0.2)
 
 
 @settings(max_examples=15, deadline=None)
