@@ -2,11 +2,15 @@
 
 from __future__ import annotations
 
+import io
+from pathlib import Path
+
 import cv2
 import numpy as np
 import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
+from PIL import Image
 
 from simtest.reconstruct import jpeg as J
 
@@ -173,10 +177,6 @@ def test_rejects_non_8_bit_and_bad_shapes():
 
 def test_pillow_jpeg_as_the_sensor_writes_it():
     """simtest's sensor encodes with Pillow (4:2:0 chroma): the same grid and error model."""
-    import io
-
-    from PIL import Image
-
     o = textured(5)
     buf = io.BytesIO()
     Image.fromarray(o).save(buf, format="JPEG", quality=50)
@@ -188,10 +188,6 @@ def test_pillow_jpeg_as_the_sensor_writes_it():
 def test_banner_is_quality_100_so_no_grid():
     """The Hyper-Kvasir banner's tables are all 1 (quality 100; its frames' earlier compression
     was lost in the collage's resampling): nothing to find, and nothing claimed."""
-    from pathlib import Path
-
-    from PIL import Image
-
     path = Path(__file__).parent / "data" / "real" / "hyperkvasir_banner.jpg"
     with Image.open(path) as im:
         assert all(max(t) == 1 for t in im.quantization.values())

@@ -22,7 +22,7 @@ References
 from __future__ import annotations
 
 import numpy as np
-from scipy.stats import norm
+from scipy.special import ndtri
 
 __all__ = ["BLOCK", "GRID_BLOCKS", "BLOCKINESS_CLEAR", "MIN_COEFFICIENTS", "PERIODICITY_MIN",
            "CHANCE_SD", "MIN_STEP", "MIN_QUANTISED", "luma_y", "dct_blocks", "jpeg_grid",
@@ -409,7 +409,7 @@ def _quiet_sd(c: np.ndarray, q: np.ndarray) -> np.ndarray:
         quiet = busy <= np.median(busy)
         m = max(int(np.count_nonzero(quiet)), 1)
         out[j] = max(np.count_nonzero(idx[quiet, j] > 0), 0.5) / m
-    z = norm.isf(np.minimum(out, 0.5) / 2)
+    z = -ndtri(np.minimum(out, 0.5) / 2)
     return np.where(out < 0.5, q / (2 * z), np.sqrt((c * c).mean(axis=0)))
 
 
@@ -425,7 +425,7 @@ def _sigma_of(coef: np.ndarray, steps: np.ndarray) -> float:
     # the original coefficients' standard deviation: from the share outside the zero bin,
     # 1 - P0 = 2 Phi(-q / 2 sd), where most fell in it; their own spread otherwise
     out = np.maximum(np.count_nonzero(c >= q / 2, axis=0), 0.5) / n
-    z = norm.isf(np.minimum(out, 0.5) / 2)  # >= 0.67
+    z = -ndtri(np.minimum(out, 0.5) / 2)  # >= 0.67
     sd = np.where(out < 0.5, q / (2 * z), np.sqrt((c * c).mean(axis=0)))
     var[known] = _gauss_error_var(q, sd)
     # dead frequencies lost their whole content, the sensor noise of every block and the texture
