@@ -214,3 +214,28 @@ def test_a_glint_beside_a_streak_is_a_cluster_and_beside_a_lit_fold_is_not():
     assert _surround_fraction(streak, ell, np.array([30, 30]), reach) > SURROUND_FRACTION_MAX
     fold = np.maximum(lobe, np.where(xx > 33, 60.0, 0.0))
     assert _surround_fraction(fold, ell, np.array([30, 30]), reach) <= SURROUND_FRACTION_MAX
+
+
+def test_a_jpeg_frames_significance_counts_its_quantisation_error():
+    """JPEG hides the sensor noise in its flat blocks (the measured noise falls) and adds its own
+    error; the significance divides by both, in quadrature, and an uncompressed frame by the
+    sensor's alone."""
+    import cv2
+    from simtest.reconstruct._pixels import Roi
+    from simtest.reconstruct.detect import luma, noise_sigma
+    from simtest.reconstruct.jpeg import quantisation_sigma
+    from simtest.reconstruct.verify import frame_evidence
+    raw = _frame([(100, 100, 3.0, 150, WHITE)])
+    yy, xx = np.mgrid[0:200, 0:200]
+    texture = 25.0 * np.sin(xx / 3.0) * np.cos(yy / 4.0)  # tissue texture: JPEG's steps show in it
+    raw = np.clip(raw + texture[..., None], 0, 255).astype(np.uint8)
+    ok, buf = cv2.imencode(".jpg", cv2.cvtColor(raw, cv2.COLOR_RGB2BGR), [cv2.IMWRITE_JPEG_QUALITY, 30])
+    jpg = cv2.cvtColor(cv2.imdecode(buf, cv2.IMREAD_COLOR), cv2.COLOR_BGR2RGB)
+    for img, compressed in ((raw, False), (jpg, True)):
+        g = luma(img)
+        n = noise_sigma(g)
+        ev = frame_evidence(img, g, np.array([[100.0, 100.0]]), [Roi(80, 120, 80, 120)], full_scale=255.0,
+                            noise=n, background_px=15)
+        q = quantisation_sigma(img)
+        assert (q > 0) == compressed
+        assert ev.noise == pytest.approx(max(np.hypot(n, q), 1 / np.sqrt(12)))

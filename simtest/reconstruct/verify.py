@@ -12,7 +12,9 @@ fitted candidates earn the status ``ok``, from what makes a highlight specular a
   background's chroma, from the grey opening of each channel), or it is itself near-white
   (chroma below :data:`WHITE_CHROMA`: on grey or pale tissue the ratio tells nothing).
 - **A compact peak well above the diffuse level** (``not_specular``). Its height above the local
-  background (the luma top-hat) is at least :data:`SIGNIFICANCE_MIN` times the image noise and at
+  background (the luma top-hat) is at least :data:`SIGNIFICANCE_MIN` times the image noise (the
+  sensor's, and on a JPEG-compressed frame the error its quantisation added, which hides the
+  sensor noise in flat blocks and rings near edges) and at
   least :data:`CONTRAST_MIN` times the room the sensor leaves (the background, or the headroom
   above it where that is smaller: a specular lobe multiplies the irradiance many-fold and fills the
   headroom; a lighter patch of tissue adds a few tens of percent), unless its peak is clipped
@@ -53,6 +55,7 @@ import numpy as np
 from simtest.reconstruct import _kernels
 from simtest.reconstruct.detect import background_side_px, connected_components, noise_sigma
 from simtest.reconstruct.fit import fit_ellipse
+from simtest.reconstruct.jpeg import quantisation_sigma
 
 __all__ = ["PALENESS_MAX", "WHITE_CHROMA", "SIGNIFICANCE_MIN", "CONTRAST_MIN", "PANEL_STD_REL",
            "PANEL_FRACTION_MAX", "NEIGHBOUR_REL", "OWN_RADIUS_PX", "SURROUND_REL", "OWN_REL",
@@ -136,8 +139,10 @@ class Evidence:
     background : ndarray
         Luma background at the BP, image units.
     noise : float
-        Image noise standard deviation, image units (at least :data:`QUANTISATION_SIGMA_LSB`
-        for an integer image).
+        Noise standard deviation the significance divides by, image units: the sensor's and,
+        where the frame carries a JPEG block grid, the quantisation error JPEG added
+        (:func:`simtest.reconstruct.jpeg.quantisation_sigma`), in quadrature; at least
+        :data:`QUANTISATION_SIGMA_LSB` for an integer image.
     panel_fraction : ndarray
         Share of flat-panel pixels in the candidate's region of interest.
     clipped : ndarray of bool
@@ -369,9 +374,13 @@ def frame_evidence(image: np.ndarray, gray: np.ndarray, bps_uv: np.ndarray, rois
     if len(xs) and len(todo):
         neighbours[todo] = _other_peaks_compiled(top, xs, ys, np.asarray(bps_uv, np.float64).reshape(-1, 2),
                                                  ij, reach, height, noise, ellipses, todo)
-    # the significance's noise: an integer image's pixels carry at least its quantisation's
-    integer = np.issubdtype(image.dtype, np.integer)
-    noise_sig = max(float(noise), QUANTISATION_SIGMA_LSB) if integer else float(noise)
+    # the significance's noise: the sensor's, and the error JPEG's quantisation added where the
+    # frame carries a JPEG block grid (its flat blocks hide the sensor noise, and its ringing makes
+    # peaks); an integer image's pixels carry at least the rounding's
+    q_sig = quantisation_sigma(image) * float(full_scale) / 255.0
+    noise_sig = float(np.hypot(noise, q_sig))
+    if np.issubdtype(image.dtype, np.integer):
+        noise_sig = max(noise_sig, QUANTISATION_SIGMA_LSB)
     return Evidence(chroma_peak, chroma_tissue, height, background, noise_sig, panel_fraction,
                     neighbours, full_scale=float(full_scale))
 
