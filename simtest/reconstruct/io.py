@@ -257,6 +257,10 @@ _json = json.JSONEncoder(allow_nan=False, separators=(",", ":")).encode
 _DEG = 180.0 / np.pi
 
 
+def _json_or_null(x) -> str:
+    return "null" if x is None else _json(x)
+
+
 def _not_finite(text: str) -> ValueError:
     return ValueError(f"Out of range float values are not JSON compliant: {text}")
 
@@ -392,8 +396,8 @@ def estimate_json(est, include_points: bool = False) -> str:
                    for name, r in la.items()}
         head = (f'{{"normal":{normal},"normal_from":{_jstr(rec.normal_from)},"depth_mm":{_ftxt(rec.depth_mm)},'
                 f'"normal_sigma_deg":{_ftxt(rec.normal_sigma_deg)},'
-                f'"light_normals":{_json(_rows(getattr(rec, "light_normals", None)))},'
-                f'"light_depths_mm":{_json(_nums(getattr(rec, "light_depths_mm", None)))},'
+                f'"light_normals":{_json_or_null(_rows(getattr(rec, "light_normals", None)))},'
+                f'"light_depths_mm":{_json_or_null(_nums(getattr(rec, "light_depths_mm", None)))},'
                 f'"light_aware":{_json(la_dict) if la else "{}"}')
         la_txt = (",".join(f'"{name}":{_atxt(la[name].normal, True) if name in la else "null"}'
                            for name in LIGHT_AWARE_NORMALS) if la else _NO_LIGHT_AWARE_NORMALS)
