@@ -246,6 +246,195 @@ def estimate_to_dict(est, include_points: bool = False) -> dict:
     }
 
 
+# ------------------------------------------------------------------------------------------------
+# the same JSON text, written directly (a video's estimates.jsonl: thousands of estimates a frame)
+
+#: json.dumps' string writer (``ensure_ascii``: the default), quotes included.
+_jstr = json.encoder.encode_basestring_ascii
+#: The compact writer of estimates.jsonl, for the parts written as dicts (light-aware results).
+_json = json.JSONEncoder(allow_nan=False, separators=(",", ":")).encode
+#: np.degrees is x * (180 / pi) in float64 (the same bits for a Python float).
+_DEG = 180.0 / np.pi
+
+
+def _json_or_null(x) -> str:
+    return "null" if x is None else _json(x)
+
+
+def _not_finite(text: str) -> ValueError:
+    return ValueError(f"Out of range float values are not JSON compliant: {text}")
+
+
+def _ftxt(x) -> str:
+    """``float(x)`` as json.dumps writes it (float.__repr__), ``null`` for None."""
+    if x is None:
+        return "null"
+    t = repr(float(x))
+    if "n" in t:  # nan, inf, -inf: json.dumps(allow_nan=False) refuses them too
+        raise _not_finite(t)
+    return t
+
+
+def _atxt(x, flat: bool) -> str:
+    """An array as json.dumps writes its float64 ``tolist()`` (flattened if ``flat``); ``null``
+    for None. A list's repr of finite floats differs from compact JSON only by its spaces."""
+    if x is None:
+        return "null"
+    if type(x) is np.ndarray and x.dtype.char == "d" and (x.ndim == 1 or not flat):
+        t = repr(x.tolist())  # float64 already: skip the conversions (the same Python floats)
+    else:
+        a = np.asarray(x, dtype=np.float64)
+        t = repr((a.ravel() if flat else a).tolist())
+    t = t.replace(" ", "")
+    if "n" in t:
+        raise _not_finite(t)
+    return t
+
+
+def _ellipse_txt(e) -> str:
+    if e is None:
+        return "null"
+    return (f'{{"center_px":{_atxt(e.center, True)},"semi_axes_px":{_atxt(e.semi_axes, True)},'
+            f'"angle_deg":{_ftxt(float(e.angle_rad) * _DEG)}}}')
+
+
+def _int_txt(x) -> str:
+    # an int (or None) as json.dumps writes it; anything else goes through json (which raises)
+    return "null" if x is None else repr(x) if type(x) is int else _json(x)
+
+
+def _isophote_json(iso, include_points: bool):
+    """The text of :func:`_isophote_dict` and the texts of the parts a specularity repeats from
+    its primary isophote: (ellipse, conic, fit_residual_px, eigenvalue_gap, paper,
+    paper_selected, paper_selected_index, cone_axis)."""
+    parts = (_ellipse_txt(iso.ellipse), _atxt(iso.conic, False), _ftxt(iso.fit_residual_px),
+             _ftxt(iso.eigenvalue_gap), _atxt(iso.normals_paper, False), _atxt(iso.paper_selected, True),
+             _int_txt(iso.paper_selected_index), _atxt(iso.cone_axis, True))
+    n_points = 0 if iso.points_uv is None else int(len(iso.points_uv))
+    text = (f'{{"isovalue":{_ftxt(iso.isovalue)},"status":{_jstr(iso.status)},"detail":{_jstr(iso.detail)},'
+            f'"closed":{"true" if iso.closed else "false"},"n_points":{n_points},"ellipse":{parts[0]},'
+            f'"conic":{parts[1]},"fit_residual_px":{parts[2]},"eigenvalue_gap":{parts[3]},'
+            f'"normals":{{"paper":{parts[4]},"paper_selected":{parts[5]},"paper_selected_index":{parts[6]},'
+            f'"cone_axis":{parts[7]}}}')
+    if include_points and iso.points_uv is not None:
+        text += f',"points_px":{_atxt(iso.points_uv, False)}'
+    return text + "}", parts
+
+
+def _roi_txt(roi) -> str:
+    # [int(v) for v in roi] as json writes it ("%d" truncates as int() does)
+    return "[%d,%d,%d,%d]" % tuple(roi) if len(roi) == 4 else _json([int(v) for v in roi])
+
+
+_NO_PRIMARY = ("null",) * 8
+_NO_LIGHT_AWARE_NORMALS = ",".join(f'"{name}":null' for name in LIGHT_AWARE_NORMALS)
+
+
+def estimate_json(est, include_points: bool = False) -> str:
+    """:func:`estimate_to_dict` as the compact JSON text estimates.jsonl holds, written directly.
+
+    The same text as ``json.dumps(estimate_to_dict(est, include_points), allow_nan=False,
+    separators=(",", ":"))``, character for character, at a fraction of its cost: no dicts, each
+    float formatted once where the dict repeats it (the primary isophote's fit at the top level,
+    the recommended normal), and a short path for a rejected candidate (no isophotes, no
+    light-aware results).
+
+    Parameters
+    ----------
+    est : SpecularityEstimate
+        One estimate.
+    include_points : bool
+        Also write each isophote's contour points.
+
+    Returns
+    -------
+    str
+        One JSON object, no whitespace.
+
+    Raises
+    ------
+    ValueError
+        If a value is not finite (as json.dumps with ``allow_nan=False``).
+    """
+    la = getattr(est, "light_aware", None) or {}
+    bp_ray = est.bp_ray
+    ray_txt = _atxt(bp_ray, True)
+    joint = getattr(est, "joint_cone_axis", None)
+    if not est.isophotes and not la and joint is None and bp_ray is not None:
+        # a rejected candidate: recommend() gives its BP ray (nothing else exists)
+        head = f'{{"normal":{ray_txt},"normal_from":"bp_ray","depth_mm":null,"normal_sigma_deg":null,' \
+               '"light_normals":null,"light_depths_mm":null,"light_aware":{}'
+        prim, isos, la_txt, joint_txt = _NO_PRIMARY, "", _NO_LIGHT_AWARE_NORMALS, "null"
+    else:
+        isos, prim = [], None
+        for iso in est.isophotes:
+            text, parts = _isophote_json(iso, include_points)
+            isos.append(text)
+            if prim is None:
+                prim = parts
+        isos = ",".join(isos)
+        prim = _NO_PRIMARY if prim is None else prim
+        joint_txt = _atxt(joint, True)
+        rec = est.recommended
+        n = rec.normal
+        # recommend() passes its source's array on (np.asarray): the same array, the same text
+        if n is bp_ray:
+            normal = ray_txt
+        elif n is joint:
+            normal = joint_txt
+        elif est.isophotes and n is est.isophotes[0].cone_axis:
+            normal = prim[7]
+        else:
+            normal = _atxt(n, True)
+        la_dict = {name: {"status": r.status, "detail": r.detail, "depth_mm": _num(r.depth_mm),
+                          "normal_sigma_deg": _num(r.normal_sigma_deg),
+                          "depth_sigma_mm": _num(r.depth_sigma_mm),
+                          "distance_mm": _num(r.distance_mm), "roughness": _num(r.roughness),
+                          "lobe": getattr(r, "lobe", None),
+                          "light_normals": _rows(r.light_normals),
+                          "light_depths_mm": _nums(r.light_depths_mm)}
+                   for name, r in la.items()}
+        head = (f'{{"normal":{normal},"normal_from":{_jstr(rec.normal_from)},"depth_mm":{_ftxt(rec.depth_mm)},'
+                f'"normal_sigma_deg":{_ftxt(rec.normal_sigma_deg)},'
+                f'"light_normals":{_json_or_null(_rows(getattr(rec, "light_normals", None)))},'
+                f'"light_depths_mm":{_json_or_null(_nums(getattr(rec, "light_depths_mm", None)))},'
+                f'"light_aware":{_json(la_dict) if la else "{}"}')
+        la_txt = (",".join(f'"{name}":{_atxt(la[name].normal, True) if name in la else "null"}'
+                           for name in LIGHT_AWARE_NORMALS) if la else _NO_LIGHT_AWARE_NORMALS)
+    return (f'{head},"bp_px":{_atxt(est.bp_px, True)},"bp_intensity":{_ftxt(est.bp_intensity)},'
+            f'"saturated":{"true" if est.saturated else "false"},'
+            f'"roi":{_roi_txt(est.roi)},"status":{_jstr(est.status)},'
+            f'"detail":{_jstr(est.detail)},"confidence":{_ftxt(getattr(est, "confidence", None))},'
+            f'"normals":{{"paper":{prim[4]},"paper_selected":{prim[5]},"paper_selected_index":{prim[6]},'
+            f'"cone_axis":{prim[7]},"joint_cone_axis":{joint_txt},"bp_ray":{ray_txt},{la_txt}}},'
+            f'"ellipse":{prim[0]},"conic":{prim[1]},"fit_residual_px":{prim[2]},"eigenvalue_gap":{prim[3]},'
+            f'"isophotes":[{isos}]}}')
+
+
+def estimates_json(estimates, include_points: bool = False) -> str:
+    """A list of estimates as the compact JSON array of their :func:`estimate_json` texts.
+
+    Parameters
+    ----------
+    estimates : iterable of SpecularityEstimate
+        One frame's estimates.
+    include_points : bool
+        Also write each isophote's contour points.
+
+    Returns
+    -------
+    str
+        ``json.dumps([estimate_to_dict(e, include_points) for e in estimates], allow_nan=False,
+        separators=(",", ":"))``, character for character.
+
+    Raises
+    ------
+    ValueError
+        If a value is not finite.
+    """
+    return "[" + ",".join([estimate_json(e, include_points) for e in estimates]) + "]"
+
+
 def estimates_document(estimates, *, K, image=None, image_shape=None, dist_coeffs=None,
                        isovalues=(), normalise="bp", include_points=False, camera=None,
                        lights=None, detection=None) -> dict:

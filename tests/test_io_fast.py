@@ -1,0 +1,113 @@
+"""estimates.jsonl's direct JSON writer (io.estimate_json, io.estimates_json): the same text as
+json.dumps of estimate_to_dict, character for character, on real, rendered-free synthetic and
+light-aware estimates (issue 41: the video's per-frame encoding)."""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import math
+from pathlib import Path
+
+import cv2
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from simtest import bench
+from simtest.reconstruct import io
+from simtest.reconstruct.pipeline import reconstruct
+from simtest.reconstruct.recommend import with_light_aware
+from simtest.reconstruct.settings import ReconSettings
+from test_lightaware import one_light, plane_case
+
+REAL = Path(__file__).parent / "data" / "real"
+
+
+def _reference(ests, include_points=False) -> str:
+    """The old encoding: one dict per estimate, then json.dumps as estimates.jsonl writes it."""
+    return json.dumps([io.estimate_to_dict(e, include_points) for e in ests], allow_nan=False,
+                      separators=(",", ":"))
+
+
+def _same_text(ests):
+    for include_points in (False, True):
+        assert io.estimates_json(ests, include_points) == _reference(ests, include_points)
+        for e in ests[:50]:
+            assert io.estimate_json(e, include_points) == _reference([e], include_points)[1:-1]
+
+
+def test_real_tile_is_written_character_for_character():
+    img = cv2.cvtColor(cv2.imread(str(REAL / "hyperkvasir_tile_r2c3_polyp.png")), cv2.COLOR_BGR2RGB)
+    h, w = img.shape[:2]
+    K = np.array([[140.0, 0, (w - 1) / 2], [0, 140.0, (h - 1) / 2], [0, 0, 1]])
+    ests = reconstruct(img, K, settings=ReconSettings.for_frames())
+    statuses = {e.status for e in ests}
+    # fitted and rejected candidates both (the two paths of the writer)
+    assert "ok" in statuses and any(not e.isophotes for e in ests), statuses
+    _same_text(list(ests))
+
+
+def test_bench_noisy_frame_is_written_character_for_character():
+    frame, K, _ = bench.noisy_frame()
+    ests = list(reconstruct(frame, K))
+    assert sum(e.ok for e in ests) >= 8
+    _same_text(ests)
+
+
+def test_synthetic_frame_with_saturated_and_rejected_candidates():
+    frame, K, _ = bench.synthetic_frame(n_highlights=5, n_saturated=2)
+    frame = frame.copy()
+    frame[100, 100] = 255            # a single bright pixel: too small
+    frame[300:302, 40:42] = 250      # another
+    frame[0:30, 600:640] = 240       # a bright block on the border
+    ests = list(reconstruct(frame, K, settings=ReconSettings(isovalues=(0.3, 0.5))))
+    assert any(e.saturated for e in ests)
+    assert any(not e.isophotes for e in ests)                     # rejected by detection
+    assert any(e.ok and len(e.isophotes) == 2 for e in ests)      # fitted, nested isophotes
+    _same_text(ests)
+
+
+def test_light_aware_results_are_written_character_for_character():
+    rig = one_light(3.0, "inverse_square")
+    img, K, _, _, _ = plane_case(25.0, 25.0, rig)
+    ests = with_light_aware(img, reconstruct(img, K, settings=ReconSettings(isovalues=(0.3, 0.5, 0.7))),
+                            K, rig, cubic=None)
+    assert ests[0].light_aware and ests[0].recommended.normal_from != "bp_ray"
+    _same_text(list(ests))
+    # a rejected candidate that carries light-aware results (not the short path)
+    rej = dataclasses.replace(ests[0], isophotes=(), status="too_small", detail="1 px < 4")
+    _same_text([rej])
+
+
+def test_a_value_that_is_not_finite_is_refused_as_json_dumps_does():
+    frame, K, _ = bench.synthetic_frame(n_highlights=2, n_saturated=0)
+    e = next(e for e in reconstruct(frame, K) if e.ok)
+    for bad in (dataclasses.replace(e, bp_intensity=float("nan")),
+                dataclasses.replace(e, bp_ray=np.array([0.0, np.inf, -1.0])),
+                dataclasses.replace(e, isophotes=(dataclasses.replace(e.isophotes[0], fit_residual_px=np.nan),))):
+        with pytest.raises(ValueError):
+            _reference([bad])
+        with pytest.raises(ValueError):
+            io.estimate_json(bad)
+
+
+finite = st.floats(allow_nan=False, allow_infinity=False)
+
+
+@settings(max_examples=200, deadline=None)
+@given(st.lists(finite, min_size=0, max_size=9), finite,
+       st.lists(st.floats(allow_nan=False, allow_infinity=False, width=32), min_size=9, max_size=9))
+def test_numbers_are_written_as_json_writes_them(values, x, values32):
+    a = np.array(values, dtype=np.float64)
+    assert io._atxt(a, True) == json.dumps(a.tolist(), separators=(",", ":"))
+    assert io._atxt(values, True) == json.dumps(a.tolist(), separators=(",", ":"))
+    assert io._ftxt(x) == json.dumps(float(x))
+    # float32 arrays and numbers: converted to float64 first, as estimate_to_dict does
+    m = np.array(values32, dtype=np.float32).reshape(3, 3)
+    assert io._atxt(m, False) == json.dumps(io._mat(m), separators=(",", ":"))
+    assert io._atxt(m, True) == json.dumps(io._vec(m), separators=(",", ":"))
+    assert io._ftxt(m[0, 0]) == json.dumps(float(m[0, 0]))
+    # the ellipse's angle: x * (180 / pi) is np.degrees, bit for bit
+    assert float(x) * io._DEG == float(np.degrees(x)) or not math.isfinite(float(x) * io._DEG)
