@@ -203,6 +203,49 @@ def _opening(img: np.ndarray, side: int) -> np.ndarray:
     return cv2.resize(bg, (w, h), interpolation=cv2.INTER_LINEAR) if f > 1 else bg
 
 
+def _opening_small(img: np.ndarray, side: int):
+    """:func:`_opening` before its last step: ``(bg_small, f)``, the opening on the image reduced by
+    ``f`` (float32), when the frame's sides are multiples of ``f > 1`` (then :func:`_upsampled`
+    gives any window of the full-size opening); otherwise ``(the full-size opening, 1)``."""
+    h, w = img.shape[:2]
+    f = max(1, side // 16)
+    if f == 1 or h % f or w % f:
+        return _opening(img, side), 1
+    x = img.astype(np.float32, copy=False)
+    small = cv2.resize(x, (w // f, h // f), interpolation=cv2.INTER_AREA)
+    k = max(3, side // f)
+    k += 1 - k % 2
+    bg = cv2.morphologyEx(small, cv2.MORPH_OPEN, cv2.getStructuringElement(cv2.MORPH_RECT, (k, k)),
+                          borderType=cv2.BORDER_REPLICATE)
+    return bg, f
+
+
+def _upsampled(bg: np.ndarray, f: int, shape: tuple[int, int], windows) -> np.ndarray:
+    """A frame-sized array (``shape`` (H, W), channels as ``bg``'s) holding :func:`_opening`'s
+    values inside the ``windows`` (row0, row1, col0, col1; unset elsewhere), from
+    :func:`_opening_small`'s ``(bg, f)``.
+
+    Each window is the bilinear enlargement (``cv2.resize``, INTER_LINEAR, by ``f``) of the
+    reduced opening's blocks under it and one more on each side (clipped to the frame): an
+    output pixel of block b interpolates blocks b - 1 to b + 1, and OpenCV's enlargement by an
+    integer factor of a crop that starts on a block is the frame's, to the bit
+    (``tests/test_verify.py`` checks it)."""
+    if f == 1:
+        return bg
+    h, w = shape
+    sh, sw = bg.shape[:2]
+    out = np.empty((h, w) + bg.shape[2:], np.float32)
+    for r0, r1, c0, c1 in windows:
+        if r1 <= r0 or c1 <= c0:
+            continue
+        s0, s1 = max(0, r0 // f - 1), min(sh, (r1 - 1) // f + 2)
+        t0, t1 = max(0, c0 // f - 1), min(sw, (c1 - 1) // f + 2)
+        up = cv2.resize(np.ascontiguousarray(bg[s0:s1, t0:t1]), ((t1 - t0) * f, (s1 - s0) * f),
+                        interpolation=cv2.INTER_LINEAR)
+        out[r0:r1, c0:c1] = up[r0 - s0 * f:r1 - s0 * f, c0 - t0 * f:c1 - t0 * f]
+    return out
+
+
 def _specular_colour(chroma: np.ndarray, chroma_tissue: np.ndarray) -> np.ndarray:
     """The colour check: a chroma at most :data:`PALENESS_MAX` of the tissue's, or near-white
     (at most :data:`WHITE_CHROMA`); arrays of any one shape."""
@@ -430,9 +473,7 @@ def frame_evidence(image: np.ndarray, gray: np.ndarray, bps_uv: np.ndarray, rois
     n = len(bps_uv)
     rgb = image.astype(np.float32) if image.ndim == 3 else np.repeat(gray[..., None], 3, 2).astype(np.float32)
     rgb = rgb[..., :3]
-    bg_rgb = _opening(rgb, background_px)
     g = gray.astype(np.float32, copy=False)
-    bg = _opening(g, background_px)
     ij = np.clip(np.rint(np.asarray(bps_uv, np.float64).reshape(-1, 2)).astype(np.int64), 0, [w - 1, h - 1])
     cols, rows = ij.T  # the BPs' pixels (u is the column)
     reach = np.asarray(reach_px, np.float64).reshape(-1) if reach_px is not None else np.full(n, np.nan)
@@ -449,9 +490,18 @@ def frame_evidence(image: np.ndarray, gray: np.ndarray, bps_uv: np.ndarray, rois
         windowed = float(np.sum(spans * widths)) <= WINDOWED_AREA_MAX * h * w
     floor = np.float32(max(SIGNIFICANCE_MIN * noise, 1e-9))  # numpy rounds the floor to float32 to compare
     if windowed:
+        # the openings only where read: at the BPs, and in the reach windows (with the 1 px the
+        # maxima read beyond them) where the top-hat, its maxima and their colour are
+        at_bp = np.c_[rows, rows + 1, cols, cols + 1]
+        wide = np.c_[np.maximum(win[:, 0] - 1, 0), np.minimum(win[:, 1] + 1, h),
+                     np.maximum(win[:, 2] - 1, 0), np.minimum(win[:, 3] + 1, w)]
+        bg_rgb = _upsampled(*_opening_small(rgb, background_px), (h, w), np.r_[at_bp, win])
+        bg = _upsampled(*_opening_small(g, background_px), (h, w), np.r_[at_bp, wide])
         top, ys, xs = _maxima_windows(g, bg, floor, win)
         height = _top_at(g, bg, rows, cols)
     else:
+        bg_rgb = _opening(rgb, background_px)
+        bg = _opening(g, background_px)
         # the top-hat and its 3 x 3 maxima above the floor, in one compiled call
         top, is_max = np.empty_like(g), np.empty(g.shape, bool)
         _kernels.top_hat_maxima(g, bg, floor, top, is_max)
