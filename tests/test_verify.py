@@ -276,12 +276,12 @@ def test_windowed_evidence_is_the_whole_frames_on_the_noisy_bench_frame_and_a_re
 
 
 @settings(max_examples=25, deadline=None)
-@given(st.integers(0, 2**31 - 1), st.sampled_from([(96, 120, 48), (90, 99, 48), (97, 121, 48), (80, 64, 31)]),
-       st.integers(1, 4), st.booleans())
-def test_windowed_evidence_is_the_whole_frames_on_lobes_near_edges_and_corners(seed, size, n_lobes, panel):
+@given(st.integers(0, 2**31 - 1), st.sampled_from([(96, 120, 48), (90, 99, 48), (97, 121, 48), (80, 64, 31), (288, 360, 48)]),
+       st.integers(1, 4), st.booleans(), st.booleans())
+def test_windowed_evidence_is_the_whole_frames_on_lobes_near_edges_and_corners(seed, size, n_lobes, panel, grey):
     """Synthetic frames with a few lobes at random positions (often at an edge or a corner, where
-    the windows are clipped), random sizes, heights and colours, with or without a flat panel
-    under a region, frame sides that are multiples of the reduction (48 px square: by 3) or not
+    the windows are clipped), random sizes, heights and colours, on tissue with dark pits, with or without a flat panel
+    under a region, in colour or grey, frame sides that are multiples of the reduction (48 px square: by 3) or not
     (the openings then whole), and a full-size opening (31 px): frame_evidence's windowed path
     gives every field of the whole frame's, to the bit."""
     from simtest.reconstruct._pixels import Roi
@@ -306,13 +306,17 @@ def test_windowed_evidence_is_the_whole_frames_on_lobes_near_edges_and_corners(s
         reach.append(rng.uniform(2.0, 40.0) if rng.random() < 0.8 else np.nan)
         ells.append(Ellipse(center=(u, v), semi_axes=(1.2 * s, s), angle_rad=float(rng.uniform(0, np.pi)))
                     if rng.random() < 0.7 else None)
+    # dark pits: the openings' minima, which a window cut short of the opening's reach misses
+    for _ in range(h * w // 2000):
+        u, v = rng.uniform(0, w - 1), rng.uniform(0, h - 1)
+        img *= 1.0 - rng.uniform(0.2, 0.8) * np.exp(-((xx - u) ** 2 + (yy - v) ** 2) / 8.0)[..., None]
     img += rng.normal(0.0, NOISE, img.shape)
     if panel:  # a flat box under (or beside) the first lobe's region
         r = rois[0]
         img[max(0, r.row0 - 5):r.row0 + 15, max(0, r.col0 - 5):r.col0 + 15] = (30.0, 160.0, 40.0)
     img = np.clip(np.rint(img), 0, 255).astype(np.uint8)
     gray = luma(img)
-    args = (img, gray, np.array(bps), rois)
+    args = (gray if grey else img, gray, np.array(bps), rois)  # a grey frame: its luma as the image
     kw = dict(full_scale=255.0, noise=NOISE, background_px=side, reach_px=np.array(reach), ellipses=ells)
     _same_evidence(frame_evidence(*args, **kw, windowed=False), frame_evidence(*args, **kw, windowed=True))
     # and the maxima inside the windows (read by the neighbour count only where a lobe is close)

@@ -246,6 +246,47 @@ def _upsampled(bg: np.ndarray, f: int, shape: tuple[int, int], windows) -> np.nd
     return out
 
 
+def _opening_at(img: np.ndarray, side: int, rows: np.ndarray, cols: np.ndarray) -> np.ndarray:
+    """:func:`_opening` of ``img`` (H, W, C) at the pixels (``rows``, ``cols``) only: float32 of
+    shape (P, C), to the bit the whole frame's.
+
+    The reduced opening is computed over the blocks that those pixels' enlargement reads (the
+    block of each and its 8 neighbours) widened by the opening's reach (its square's side less
+    one: the erosion's half-side, then the dilation's), box by box of the widened blocks'
+    connected groups: each reduced pixel averages its own f x f block only (``cv2.resize``'s
+    INTER_AREA by an integer factor), and a box holds the whole reach of the blocks of its group
+    (or the frame's edge, replicated alike). Frames whose sides are no multiple of f, or f = 1:
+    the whole frame's opening."""
+    h, w = img.shape[:2]
+    f = max(1, side // 16)
+    if f == 1 or h % f or w % f:
+        return _opening(img.astype(np.float32, copy=False), side)[rows, cols]
+    k = max(3, side // f)
+    k += 1 - k % 2
+    sh, sw = h // f, w // f
+    sy, sx = rows // f, cols // f
+    need = np.zeros((sh, sw), np.uint8)
+    for dr in (-1, 0, 1):
+        for dc in (-1, 0, 1):
+            need[np.clip(sy + dr, 0, sh - 1), np.clip(sx + dc, 0, sw - 1)] = 1
+    grown = cv2.dilate(need, np.ones((2 * k - 1, 2 * k - 1), np.uint8))
+    n, lab, stats, _ = cv2.connectedComponentsWithStats(grown, connectivity=8)
+    rect = cv2.getStructuringElement(cv2.MORPH_RECT, (k, k))
+    owner = lab[sy, sx]  # each pixel's group (its blocks lie in it)
+    out = np.empty((len(rows),) + img.shape[2:], np.float32)
+    for i in range(1, n):
+        x0, y0, bw, bh = (int(v) for v in stats[i, :4])
+        crop = img[y0 * f:(y0 + bh) * f, x0 * f:(x0 + bw) * f].astype(np.float32)
+        small = cv2.resize(crop, (bw, bh), interpolation=cv2.INTER_AREA)
+        op = cv2.morphologyEx(small, cv2.MORPH_OPEN, rect, borderType=cv2.BORDER_REPLICATE)
+        # the enlargement of the box: exact at its pixels, whose 3 x 3 blocks are exact in it
+        # and at least one block from its edges inside the frame (:func:`_upsampled`)
+        up = cv2.resize(op, (bw * f, bh * f), interpolation=cv2.INTER_LINEAR)
+        j = np.flatnonzero(owner == i)
+        out[j] = up[rows[j] - y0 * f, cols[j] - x0 * f]
+    return out
+
+
 def _specular_colour(chroma: np.ndarray, chroma_tissue: np.ndarray) -> np.ndarray:
     """The colour check: a chroma at most :data:`PALENESS_MAX` of the tissue's, or near-white
     (at most :data:`WHITE_CHROMA`); arrays of any one shape."""
@@ -471,8 +512,6 @@ def frame_evidence(image: np.ndarray, gray: np.ndarray, bps_uv: np.ndarray, rois
     """
     h, w = gray.shape
     n = len(bps_uv)
-    rgb = image.astype(np.float32) if image.ndim == 3 else np.repeat(gray[..., None], 3, 2).astype(np.float32)
-    rgb = rgb[..., :3]
     g = gray.astype(np.float32, copy=False)
     ij = np.clip(np.rint(np.asarray(bps_uv, np.float64).reshape(-1, 2)).astype(np.int64), 0, [w - 1, h - 1])
     cols, rows = ij.T  # the BPs' pixels (u is the column)
@@ -495,11 +534,22 @@ def frame_evidence(image: np.ndarray, gray: np.ndarray, bps_uv: np.ndarray, rois
         at_bp = np.c_[rows, rows + 1, cols, cols + 1]
         wide = np.c_[np.maximum(win[:, 0] - 1, 0), np.minimum(win[:, 1] + 1, h),
                      np.maximum(win[:, 2] - 1, 0), np.minimum(win[:, 3] + 1, w)]
-        bg_rgb = _upsampled(*_opening_small(rgb, background_px), (h, w), np.r_[at_bp, win])
         bg = _upsampled(*_opening_small(g, background_px), (h, w), np.r_[at_bp, wide])
         top, ys, xs = _maxima_windows(g, bg, floor, win)
         height = _top_at(g, bg, rows, cols)
+        # the colour: the frame's RGB and its opening at the BPs and the maxima only
+        src = image[..., :3] if image.ndim == 3 else gray
+        at = _opening_at(src, background_px, np.r_[rows, ys], np.r_[cols, xs])
+        if image.ndim != 3:  # a grey frame: its three channels alike
+            at = np.repeat(at[:, None], 3, 1)
+        bg_rgb_bp, bg_rgb_pk = at[:n], at[n:]
+
+        def rgb_at(r, c):
+            v = src[r, c].astype(np.float32)
+            return v if image.ndim == 3 else np.repeat(v[:, None], 3, 1)
     else:
+        rgb = image.astype(np.float32) if image.ndim == 3 else np.repeat(gray[..., None], 3, 2).astype(np.float32)
+        rgb = rgb[..., :3]
         bg_rgb = _opening(rgb, background_px)
         bg = _opening(g, background_px)
         # the top-hat and its 3 x 3 maxima above the floor, in one compiled call
@@ -507,11 +557,15 @@ def frame_evidence(image: np.ndarray, gray: np.ndarray, bps_uv: np.ndarray, rois
         _kernels.top_hat_maxima(g, bg, floor, top, is_max)
         ys, xs = np.divmod(np.flatnonzero(is_max), w)  # np.nonzero's, in half the time
         height = top[rows, cols]
+        bg_rgb_bp, bg_rgb_pk = bg_rgb[rows, cols], bg_rgb[ys, xs]
+
+        def rgb_at(r, c):
+            return rgb[r, c]
     # the RGB maximum over the 3 x 3 px around each BP (the window clipped to the frame)
-    peak_rgb = np.max([rgb[np.clip(rows + dr, 0, h - 1), np.clip(cols + dc, 0, w - 1)]
+    peak_rgb = np.max([rgb_at(np.clip(rows + dr, 0, h - 1), np.clip(cols + dc, 0, w - 1))
                        for dr in (-1, 0, 1) for dc in (-1, 0, 1)], axis=0)
     chroma_peak = _chroma(peak_rgb)
-    chroma_tissue = _chroma(bg_rgb[rows, cols])
+    chroma_tissue = _chroma(bg_rgb_bp)
     background = bg[rows, cols]
     # flat panels: share in each ROI by an integral image (none where none can be: see
     # _surely_no_panels)
@@ -526,7 +580,7 @@ def frame_evidence(image: np.ndarray, gray: np.ndarray, bps_uv: np.ndarray, rois
         panel_fraction = inside / area
     # specular peaks of the frame: the top-hat's local maxima that pass the colour check (the
     # chromas read at those pixels only: a reduction over the frame's last axis costs ~0.1 s)
-    colour = _specular_colour(_chroma(rgb[ys, xs]), _chroma(bg_rgb[ys, xs]))
+    colour = _specular_colour(_chroma(rgb_at(ys, xs)), _chroma(bg_rgb_pk))
     ys, xs = ys[colour], xs[colour]
     xs, ys = xs.astype(np.int64), ys.astype(np.int64)
     neighbours = np.zeros(n, np.int64)
