@@ -537,6 +537,14 @@ def frame_evidence(image: np.ndarray, gray: np.ndarray, bps_uv: np.ndarray, rois
         bg = _upsampled(*_opening_small(g, background_px), (h, w), np.r_[at_bp, wide])
         top, ys, xs = _maxima_windows(g, bg, floor, win)
         height = _top_at(g, bg, rows, cols)
+        # only the maxima that some candidate's neighbour count can select (at least
+        # NEIGHBOUR_REL of its height, as _kernels.other_peaks compares) need their colour; the
+        # others it never reads
+        if len(todo):
+            strong = top[ys, xs] >= np.fmin.reduce(NEIGHBOUR_REL * height[todo])  # NaN: none
+            ys, xs = ys[strong], xs[strong]
+        else:
+            ys, xs = ys[:0], xs[:0]
         # the colour: the frame's RGB and its opening at the BPs and the maxima only
         src = image[..., :3] if image.ndim == 3 else gray
         at = _opening_at(src, background_px, np.r_[rows, ys], np.r_[cols, xs])
