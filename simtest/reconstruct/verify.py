@@ -620,7 +620,9 @@ def _surround_fraction(gray: np.ndarray, ell, bp_ij: np.ndarray, reach: float) -
     bi, bj = int(bp_ij[1]), int(bp_ij[0])
     r0, r1 = max(0, bi - R), min(h, bi + R + 1)
     c0, c1 = max(0, bj - R), min(w, bj + R + 1)
-    yy, xx = np.mgrid[r0:r1, c0:c1].astype(np.float64)
+    # a column and a row of coordinates, broadcast (the same values as the full grids, per pixel)
+    yy = np.arange(r0, r1, dtype=np.float64)[:, None]
+    xx = np.arange(c0, c1, dtype=np.float64)[None, :]
     ring = ((xx - bp_ij[0]) ** 2 + (yy - bp_ij[1]) ** 2 <= reach * reach) & (_ellipse_level(ell, xx, yy) > _OWN_LEVEL)
     if not ring.any():
         return 0.0
@@ -631,7 +633,7 @@ def _surround_fraction(gray: np.ndarray, ell, bp_ij: np.ndarray, reach: float) -
     peak = float(top[max(0, bi - 1 - r0):bi + 2 - r0, max(0, bj - 1 - c0):bj + 2 - c0].max())
     if not peak > 0:
         return 0.0
-    return float(np.count_nonzero(top[ring] >= SURROUND_REL * peak) / np.count_nonzero(ring))
+    return float(np.count_nonzero((top >= SURROUND_REL * peak) & ring) / np.count_nonzero(ring))
 
 
 def _ellipse_level(ell, u, v):
