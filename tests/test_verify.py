@@ -248,7 +248,8 @@ def _both_paths(monkeypatch, img, K):
 
     out = {}
     for mode in ("whole", "windowed"):
-        monkeypatch.setattr(pipeline, "assess", lambda *a, m=mode, **k: verify.assess(*a, **k, windowed=m == "windowed"))
+        monkeypatch.setattr(pipeline, "assess",
+                            lambda *a, m=mode, **k: verify.assess(*a, **k, windowed=m == "windowed"))
         out[mode] = [(e.status, e.confidence) for e in reconstruct(img, K)]
     monkeypatch.setattr(pipeline, "assess", both)
     reconstruct(img, K)
@@ -276,14 +277,15 @@ def test_windowed_evidence_is_the_whole_frames_on_the_noisy_bench_frame_and_a_re
 
 
 @settings(max_examples=25, deadline=None)
-@given(st.integers(0, 2**31 - 1), st.sampled_from([(96, 120, 48), (90, 99, 48), (97, 121, 48), (80, 64, 31), (288, 360, 48)]),
+@given(st.integers(0, 2**31 - 1),
+       st.sampled_from([(96, 120, 48), (90, 99, 48), (97, 121, 48), (80, 64, 31), (288, 360, 48)]),
        st.integers(1, 4), st.booleans(), st.booleans())
 def test_windowed_evidence_is_the_whole_frames_on_lobes_near_edges_and_corners(seed, size, n_lobes, panel, grey):
     """Synthetic frames with a few lobes at random positions (often at an edge or a corner, where
-    the windows are clipped), random sizes, heights and colours, on tissue with dark pits, with or without a flat panel
-    under a region, in colour or grey, frame sides that are multiples of the reduction (48 px square: by 3) or not
-    (the openings then whole), and a full-size opening (31 px): frame_evidence's windowed path
-    gives every field of the whole frame's, to the bit."""
+    the windows are clipped), random sizes, heights and colours, on tissue with dark pits, with or
+    without a flat panel under a region, in colour or grey, frame sides that are multiples of the
+    reduction (48 px square: by 3) or not (the openings then whole), and a full-size opening
+    (31 px): frame_evidence's windowed path gives every field of the whole frame's, to the bit."""
     from simtest.reconstruct._pixels import Roi
     from simtest.reconstruct.detect import luma
     from simtest.geometry.conics import Ellipse
