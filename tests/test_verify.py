@@ -239,3 +239,146 @@ def test_a_jpeg_frames_significance_counts_its_quantisation_error():
         q = quantisation_sigma(img)
         assert (q > 0) == compressed
         assert ev.noise == pytest.approx(max(np.hypot(n, q), 1 / np.sqrt(12)))
+
+
+# -- the windowed path of frame_evidence (issue 41): the same evidence, to the bit ------------------
+
+def _same_evidence(a, b):
+    """Every field of two Evidence equal (NaN where NaN), dtypes included."""
+    import dataclasses
+    for f in dataclasses.fields(a):
+        x, y = getattr(a, f.name), getattr(b, f.name)
+        if x is None or y is None:
+            assert x is None and y is None, f.name
+            continue
+        x, y = np.asarray(x), np.asarray(y)
+        assert x.dtype == y.dtype and x.shape == y.shape, f.name
+        assert np.array_equal(x, y, equal_nan=x.dtype.kind == "f"), f.name
+
+
+def _both_paths(monkeypatch, img, K):
+    """Statuses and confidences of reconstruct with the windowed and the whole-frame evidence,
+    each assess call's two Evidences compared field by field."""
+    import simtest.reconstruct.pipeline as pipeline
+    from simtest.reconstruct import verify
+    seen = []
+
+    def both(*a, **k):
+        whole = verify.assess(*a, **k, windowed=False)
+        win = verify.assess(*a, **k, windowed=True)
+        _same_evidence(whole[0], win[0])
+        assert np.array_equal(whole[1], win[1], equal_nan=True) and np.array_equal(whole[2], win[2])
+        seen.append(len(a[2]))
+        return win
+
+    out = {}
+    for mode in ("whole", "windowed"):
+        monkeypatch.setattr(pipeline, "assess",
+                            lambda *a, m=mode, **k: verify.assess(*a, **k, windowed=m == "windowed"))
+        out[mode] = [(e.status, e.confidence) for e in reconstruct(img, K)]
+    monkeypatch.setattr(pipeline, "assess", both)
+    reconstruct(img, K)
+    assert seen and seen[0] > 0
+    return out["whole"], out["windowed"]
+
+
+def test_windowed_evidence_is_the_whole_frames_on_the_noisy_bench_frame_and_a_real_tile(monkeypatch):
+    """The noisy 10-highlight bench frame (1350 x 1080, reduced openings by 6: the enlarged windows)
+    and a real 280 x 280 tile (openings at full size): the windowed evidence, statuses and
+    confidences are the whole frame's."""
+    from pathlib import Path
+
+    import cv2
+
+    from simtest import bench
+    img, Kb = bench.noisy_frame()[:2]
+    whole, win = _both_paths(monkeypatch, img, Kb)
+    assert whole == win and any(s == "ok" for s, _ in win)
+    tile = Path(__file__).parent / "data" / "real" / "hyperkvasir_tile_r2c3_polyp.png"
+    rgb = cv2.cvtColor(cv2.imread(str(tile), cv2.IMREAD_COLOR), cv2.COLOR_BGR2RGB)
+    Kt = np.array([[140.0, 0, 139.5], [0, 140.0, 139.5], [0, 0, 1]])
+    whole, win = _both_paths(monkeypatch, rgb, Kt)
+    assert whole == win and len(win) > 0
+
+
+@settings(max_examples=25, deadline=None)
+@given(st.integers(0, 2**31 - 1),
+       st.sampled_from([(96, 120, 48), (90, 99, 48), (97, 121, 48), (80, 64, 31), (288, 360, 48)]),
+       st.integers(1, 4), st.booleans(), st.booleans())
+def test_windowed_evidence_is_the_whole_frames_on_lobes_near_edges_and_corners(seed, size, n_lobes, panel, grey):
+    """Synthetic frames with a few lobes at random positions (often at an edge or a corner, where
+    the windows are clipped), random sizes, heights and colours, on tissue with dark pits, with or
+    without a flat panel under a region, in colour or grey, frame sides that are multiples of the
+    reduction (48 px square: by 3) or not (the openings then whole), and a full-size opening
+    (31 px): frame_evidence's windowed path gives every field of the whole frame's, to the bit."""
+    from simtest.reconstruct._pixels import Roi
+    from simtest.reconstruct.detect import luma
+    from simtest.geometry.conics import Ellipse
+    from simtest.reconstruct.verify import frame_evidence
+    h, w, side = size
+    rng = np.random.default_rng(seed)
+    yy, xx = np.mgrid[0:h, 0:w].astype(np.float64)
+    img = np.broadcast_to(TISSUE, (h, w, 3)).copy()
+    bps, rois, reach, ells = [], [], [], []
+    for _ in range(n_lobes):
+        # a third of the positions on an edge or a corner
+        u = float(rng.choice([0.0, w - 1.0, rng.uniform(0, w - 1)]))
+        v = float(rng.choice([0.0, h - 1.0, rng.uniform(0, h - 1)]))
+        s = rng.uniform(1.0, 6.0)
+        colour = np.array([1.0, 1.0, 1.0]) if rng.random() < 0.7 else TISSUE / TISSUE.max()
+        img += rng.uniform(20, 90) * colour * np.exp(-((xx - u) ** 2 + (yy - v) ** 2) / (2 * s * s))[..., None]
+        bps.append((u + rng.uniform(-0.5, 0.5), v + rng.uniform(-0.5, 0.5)))
+        r = int(rng.integers(3, 30))
+        rois.append(Roi(max(0, int(v) - r), min(h, int(v) + r), max(0, int(u) - r), min(w, int(u) + r)))
+        reach.append(rng.uniform(2.0, 40.0) if rng.random() < 0.8 else np.nan)
+        ells.append(Ellipse(center=(u, v), semi_axes=(1.2 * s, s), angle_rad=float(rng.uniform(0, np.pi)))
+                    if rng.random() < 0.7 else None)
+    # dark pits: the openings' minima, which a window cut short of the opening's reach misses
+    for _ in range(h * w // 2000):
+        u, v = rng.uniform(0, w - 1), rng.uniform(0, h - 1)
+        img *= 1.0 - rng.uniform(0.2, 0.8) * np.exp(-((xx - u) ** 2 + (yy - v) ** 2) / 8.0)[..., None]
+    img += rng.normal(0.0, NOISE, img.shape)
+    if panel:  # a flat box under (or beside) the first lobe's region
+        r = rois[0]
+        img[max(0, r.row0 - 5):r.row0 + 15, max(0, r.col0 - 5):r.col0 + 15] = (30.0, 160.0, 40.0)
+    img = np.clip(np.rint(img), 0, 255).astype(np.uint8)
+    gray = luma(img)
+    args = (gray if grey else img, gray, np.array(bps), rois)  # a grey frame: its luma as the image
+    kw = dict(full_scale=255.0, noise=NOISE, background_px=side, reach_px=np.array(reach), ellipses=ells)
+    _same_evidence(frame_evidence(*args, **kw, windowed=False), frame_evidence(*args, **kw, windowed=True))
+    # and the maxima inside the windows (read by the neighbour count only where a lobe is close)
+    from simtest.reconstruct import _kernels
+    from simtest.reconstruct.verify import _maxima_windows, _opening
+    g = gray.astype(np.float32)
+    bg = _opening(g, side)
+    floor = np.float32(8.0 * NOISE)
+    top, is_max = np.empty_like(g), np.empty(g.shape, bool)
+    _kernels.top_hat_maxima(g, bg, floor, top, is_max)
+    wins = [(int(rng.integers(0, h - 1)), int(rng.integers(1, h)), int(rng.integers(0, w - 1)), int(rng.integers(1, w)))
+            for _ in range(3)]
+    wins = [(min(a, b), max(a, b) + 1, min(c, d), max(c, d) + 1) for a, b, c, d in wins]
+    t_w, ys, xs = _maxima_windows(g, bg, floor, wins)
+    inside = np.zeros((h, w), bool)
+    for r0, r1, c0, c1 in wins:
+        inside[r0:r1, c0:c1] = True
+        assert np.array_equal(t_w[r0:r1, c0:c1], top[r0:r1, c0:c1])
+    assert np.array_equal(np.ravel_multi_index((ys, xs), (h, w)), np.flatnonzero(is_max & inside))
+
+
+def test_opencv_enlarges_a_block_aligned_crop_as_the_frame():
+    """What the windowed openings rest on: cv2.resize (INTER_LINEAR, an integer factor f) of a crop
+    of the reduced image, away from the crop's inner edges by one block, equals the enlarged frame
+    there, to the bit (a drifting coordinate rounding would break it)."""
+    import cv2
+    rng = np.random.default_rng(3)
+    for f, (sh, sw) in [(6, (180, 225)), (3, (33, 47)), (2, (20, 31))]:
+        small = (rng.random((sh, sw, 3)) * 255).astype(np.float32)
+        ref = cv2.resize(small, (sw * f, sh * f), interpolation=cv2.INTER_LINEAR)
+        for _ in range(10):
+            s0, t0 = rng.integers(0, sh - 3), rng.integers(0, sw - 3)
+            s1, t1 = rng.integers(s0 + 3, sh + 1), rng.integers(t0 + 3, sw + 1)
+            up = cv2.resize(np.ascontiguousarray(small[s0:s1, t0:t1]), ((t1 - t0) * f, (s1 - s0) * f),
+                            interpolation=cv2.INTER_LINEAR)
+            a0, a1 = (0 if s0 == 0 else f), up.shape[0] - (0 if s1 == sh else f)
+            b0, b1 = (0 if t0 == 0 else f), up.shape[1] - (0 if t1 == sw else f)
+            assert np.array_equal(up[a0:a1, b0:b1], ref[s0 * f + a0:s0 * f + a1, t0 * f + b0:t0 * f + b1])

@@ -208,6 +208,90 @@ def _opening(img: np.ndarray, side: int) -> np.ndarray:
     return cv2.resize(bg, (w, h), interpolation=cv2.INTER_LINEAR) if f > 1 else bg
 
 
+def _opening_small(img: np.ndarray, side: int):
+    """:func:`_opening` before its last step: ``(bg_small, f)``, the opening on the image reduced by
+    ``f`` (float32), when the frame's sides are multiples of ``f > 1`` (then :func:`_upsampled`
+    gives any window of the full-size opening); otherwise ``(the full-size opening, 1)``."""
+    h, w = img.shape[:2]
+    f = max(1, side // 16)
+    if f == 1 or h % f or w % f:
+        return _opening(img, side), 1
+    x = img.astype(np.float32, copy=False)
+    small = cv2.resize(x, (w // f, h // f), interpolation=cv2.INTER_AREA)
+    k = max(3, side // f)
+    k += 1 - k % 2
+    bg = cv2.morphologyEx(small, cv2.MORPH_OPEN, cv2.getStructuringElement(cv2.MORPH_RECT, (k, k)),
+                          borderType=cv2.BORDER_REPLICATE)
+    return bg, f
+
+
+def _upsampled(bg: np.ndarray, f: int, shape: tuple[int, int], windows) -> np.ndarray:
+    """A frame-sized array (``shape`` (H, W), channels as ``bg``'s) holding :func:`_opening`'s
+    values inside the ``windows`` (row0, row1, col0, col1; unset elsewhere), from
+    :func:`_opening_small`'s ``(bg, f)``.
+
+    Each window is the bilinear enlargement (``cv2.resize``, INTER_LINEAR, by ``f``) of the
+    reduced opening's blocks under it and one more on each side (clipped to the frame): an
+    output pixel of block b interpolates blocks b - 1 to b + 1, and OpenCV's enlargement by an
+    integer factor of a crop that starts on a block is the frame's, to the bit
+    (``tests/test_verify.py`` checks it)."""
+    if f == 1:
+        return bg
+    h, w = shape
+    sh, sw = bg.shape[:2]
+    out = np.empty((h, w) + bg.shape[2:], np.float32)
+    for r0, r1, c0, c1 in windows:
+        if r1 <= r0 or c1 <= c0:
+            continue
+        s0, s1 = max(0, r0 // f - 1), min(sh, (r1 - 1) // f + 2)
+        t0, t1 = max(0, c0 // f - 1), min(sw, (c1 - 1) // f + 2)
+        up = cv2.resize(np.ascontiguousarray(bg[s0:s1, t0:t1]), ((t1 - t0) * f, (s1 - s0) * f),
+                        interpolation=cv2.INTER_LINEAR)
+        out[r0:r1, c0:c1] = up[r0 - s0 * f:r1 - s0 * f, c0 - t0 * f:c1 - t0 * f]
+    return out
+
+
+def _opening_at(img: np.ndarray, side: int, rows: np.ndarray, cols: np.ndarray) -> np.ndarray:
+    """:func:`_opening` of ``img`` (H, W, C) at the pixels (``rows``, ``cols``) only: float32 of
+    shape (P, C), to the bit the whole frame's.
+
+    The reduced opening is computed over the blocks that those pixels' enlargement reads (the
+    block of each and its 8 neighbours) widened by the opening's reach (its square's side less
+    one: the erosion's half-side, then the dilation's), box by box of the widened blocks'
+    connected groups: each reduced pixel averages its own f x f block only (``cv2.resize``'s
+    INTER_AREA by an integer factor), and a box holds the whole reach of the blocks of its group
+    (or the frame's edge, replicated alike). Frames whose sides are no multiple of f, or f = 1:
+    the whole frame's opening."""
+    h, w = img.shape[:2]
+    f = max(1, side // 16)
+    if f == 1 or h % f or w % f:
+        return _opening(img.astype(np.float32, copy=False), side)[rows, cols]
+    k = max(3, side // f)
+    k += 1 - k % 2
+    sh, sw = h // f, w // f
+    sy, sx = rows // f, cols // f
+    need = np.zeros((sh, sw), np.uint8)
+    for dr in (-1, 0, 1):
+        for dc in (-1, 0, 1):
+            need[np.clip(sy + dr, 0, sh - 1), np.clip(sx + dc, 0, sw - 1)] = 1
+    grown = cv2.dilate(need, np.ones((2 * k - 1, 2 * k - 1), np.uint8))
+    n, lab, stats, _ = cv2.connectedComponentsWithStats(grown, connectivity=8)
+    rect = cv2.getStructuringElement(cv2.MORPH_RECT, (k, k))
+    owner = lab[sy, sx]  # each pixel's group (its blocks lie in it)
+    out = np.empty((len(rows),) + img.shape[2:], np.float32)
+    for i in range(1, n):
+        x0, y0, bw, bh = (int(v) for v in stats[i, :4])
+        crop = img[y0 * f:(y0 + bh) * f, x0 * f:(x0 + bw) * f].astype(np.float32)
+        small = cv2.resize(crop, (bw, bh), interpolation=cv2.INTER_AREA)
+        op = cv2.morphologyEx(small, cv2.MORPH_OPEN, rect, borderType=cv2.BORDER_REPLICATE)
+        # the enlargement of the box: exact at its pixels, whose 3 x 3 blocks are exact in it
+        # and at least one block from its edges inside the frame (:func:`_upsampled`)
+        up = cv2.resize(op, (bw * f, bh * f), interpolation=cv2.INTER_LINEAR)
+        j = np.flatnonzero(owner == i)
+        out[j] = up[rows[j] - y0 * f, cols[j] - x0 * f]
+    return out
+
+
 def _specular_colour(chroma: np.ndarray, chroma_tissue: np.ndarray) -> np.ndarray:
     """The colour check: a chroma at most :data:`PALENESS_MAX` of the tissue's, or near-white
     (at most :data:`WHITE_CHROMA`); arrays of any one shape."""
@@ -301,9 +385,99 @@ def _other_peaks_compiled(top, xs, ys, bps, ij, reach, height, noise, ellipses, 
                        ell[2], ell[3], np.cos(ell[4]), np.sin(ell[4]), NEIGHBOUR_AREA_REL)
 
 
+#: The windowed path of :func:`frame_evidence` (top-hat and maxima only around the candidates
+#: that count neighbours, the panel map only where a region of interest may hold one) is taken
+#: while its windows cover at most this fraction of the frame; denser frames are measured whole.
+WINDOWED_AREA_MAX = 0.25
+#: Margin around a region of interest in which :func:`_surely_no_panels` follows a possibly flat
+#: component, px: one that stays inside it is too small for a panel.
+_PANEL_MARGIN_PX = 16
+#: Relative slack of :func:`_surely_no_panels`' flatness test: the float32 means and variance of
+#: :func:`_panels` (each rounded at most a few float32 ulps, 2^-24 relative) differ from the exact
+#: variance by at most about 6 x 2^-24 of the mean square; 1e-5 is 30 times that.
+_FLAT_SLACK = 1e-5
+
+
+def _surely_no_panels(gray: np.ndarray, noise: float, rr: np.ndarray) -> bool:
+    """Whether no pixel of any region of interest ``rr`` (rows of row0, row1, col0, col1) can be
+    a panel pixel of :func:`_panels`, decided without the frame: True only when proven.
+
+    A panel pixel is flat, and its flat component holds at least :data:`PANEL_MIN_AREA` of the
+    frame. Around each region (with :data:`_PANEL_MARGIN_PX`), the pixels that could be flat
+    are those whose exact 5 x 5 variance (float64, the frame's reflected border) is below the
+    threshold plus :data:`_FLAT_SLACK`: a superset of :func:`_panels`' flat pixels. If every
+    component of that superset that reaches into a region is smaller than a panel and lies
+    inside the margin (not cut by the window's edge inside the frame), no flat component, a
+    subset of one of them, reaches into a region as a panel. Non-finite pixels: not proven."""
+    h, w = gray.shape
+    thr2 = (PANEL_STD_REL * noise) ** 2 * (1.0 + _FLAT_SLACK)
+    min_area = PANEL_MIN_AREA * h * w
+    m = _PANEL_MARGIN_PX
+    for row0, row1, col0, col1 in rr:
+        if row1 <= row0 or col1 <= col0:
+            continue
+        # the window W and its 2 px of data for the 5 x 5 means (the frame's edges reflected)
+        wr0, wr1, wc0, wc1 = max(0, row0 - m), min(h, row1 + m), max(0, col0 - m), min(w, col1 + m)
+        cr0, cr1, cc0, cc1 = max(0, wr0 - 2), min(h, wr1 + 2), max(0, wc0 - 2), min(w, wc1 + 2)
+        x = np.asarray(gray[cr0:cr1, cc0:cc1], dtype=np.float32).astype(np.float64)
+        if not np.isfinite(x).all():
+            return False
+        m1 = cv2.blur(x, (5, 5), borderType=cv2.BORDER_REFLECT_101)
+        m2 = cv2.blur(x * x, (5, 5), borderType=cv2.BORDER_REFLECT_101)
+        sl = (slice(wr0 - cr0, wr1 - cr0), slice(wc0 - cc0, wc1 - cc0))
+        m1, m2 = m1[sl], m2[sl]
+        maybe = ((m2 - m1 * m1) < thr2 + _FLAT_SLACK * m2).astype(np.uint8)
+        roi = maybe[row0 - wr0:row1 - wr0, col0 - wc0:col1 - wc0]
+        if not roi.any():
+            continue
+        n, lab, stats, _ = cv2.connectedComponentsWithStats(maybe, connectivity=8)
+        ids = np.unique(lab[row0 - wr0:row1 - wr0, col0 - wc0:col1 - wc0])
+        ids = ids[ids > 0]
+        st = stats[ids]
+        x0, y0 = st[:, cv2.CC_STAT_LEFT], st[:, cv2.CC_STAT_TOP]
+        x1, y1 = x0 + st[:, cv2.CC_STAT_WIDTH], y0 + st[:, cv2.CC_STAT_HEIGHT]
+        cut = (((x0 == 0) & (wc0 > 0)) | ((y0 == 0) & (wr0 > 0)) | ((x1 == wc1 - wc0) & (wc1 < w))
+               | ((y1 == wr1 - wr0) & (wr1 < h)))
+        if cut.any() or (st[:, cv2.CC_STAT_AREA] >= min_area).any():
+            return False
+    return True
+
+
+def _maxima_windows(g: np.ndarray, bg: np.ndarray, floor: np.float32, windows) -> tuple:
+    """:func:`~simtest.reconstruct._kernels.top_hat_maxima` over the ``windows`` (row0, row1,
+    col0, col1) only: a frame-sized top-hat exact inside them (elsewhere unset) and the maxima
+    inside them (rows, columns; row-major, each once). Each window is measured with 1 px more
+    (clipped to the frame): the 3 x 3 maximum of a pixel reads only its neighbours in the frame,
+    so the values are the whole frame's."""
+    h, w = g.shape
+    top = np.empty((h, w), np.float32)
+    idx = []
+    for r0, r1, c0, c1 in windows:
+        if r1 <= r0 or c1 <= c0:
+            continue
+        e0, e1, f0, f1 = max(0, r0 - 1), min(h, r1 + 1), max(0, c0 - 1), min(w, c1 + 1)
+        t = np.empty((e1 - e0, f1 - f0), np.float32)
+        mk = np.empty(t.shape, bool)
+        _kernels.top_hat_maxima(np.ascontiguousarray(g[e0:e1, f0:f1]), np.ascontiguousarray(bg[e0:e1, f0:f1]),
+                                floor, t, mk)
+        top[r0:r1, c0:c1] = t[r0 - e0:r1 - e0, c0 - f0:c1 - f0]
+        yy, xx = np.nonzero(mk[r0 - e0:r1 - e0, c0 - f0:c1 - f0])
+        idx.append((yy + r0).astype(np.int64) * w + (xx + c0))
+    flat = np.unique(np.concatenate(idx)) if idx else np.zeros(0, np.int64)
+    ys, xs = np.divmod(flat, w)
+    return top, ys, xs
+
+
+def _top_at(g: np.ndarray, bg: np.ndarray, rows: np.ndarray, cols: np.ndarray) -> np.ndarray:
+    """The top-hat ``max(g - bg, 0)`` (float32, NaN kept) of :func:`~simtest.reconstruct._kernels.top_hat_maxima`
+    at the pixels (rows, cols)."""
+    d = g[rows, cols] - bg[rows, cols]
+    return np.where((d >= 0) | np.isnan(d), d, np.float32(0.0)).astype(np.float32, copy=False)
+
+
 def frame_evidence(image: np.ndarray, gray: np.ndarray, bps_uv: np.ndarray, rois, *,
                    full_scale: float, noise: float, background_px: int,
-                   reach_px: np.ndarray | None = None, ellipses=None) -> Evidence:
+                   reach_px: np.ndarray | None = None, ellipses=None, windowed: bool | None = None) -> Evidence:
     """Measure every candidate of a frame.
 
     Parameters
@@ -329,6 +503,16 @@ def frame_evidence(image: np.ndarray, gray: np.ndarray, bps_uv: np.ndarray, rois
         outer isophotes.
     ellipses : sequence of Ellipse or None, optional
         Each candidate's primary isophote: peaks inside it are its own, not neighbours.
+    windowed : bool, optional
+        Measure only where the checks read (True): the luma's opening, top-hat and maxima in the
+        candidates' reach windows and at the BPs (:func:`_upsampled`, :func:`_maxima_windows`),
+        the RGB opening at the BPs and at the maxima a neighbour count can select
+        (:func:`_opening_at`), and no panel map when :func:`_surely_no_panels` proves that no
+        region of interest holds a panel pixel; or over the whole frame (False). The evidence is
+        the same, to the bit (``tests/test_verify.py`` compares them); the default takes the
+        windows while they cover at most :data:`WINDOWED_AREA_MAX` of the frame (a few
+        candidates, where the frame-wide passes were most of the cost: 20 -> 14 ms of
+        :func:`assess` on the noisy 10-highlight bench frame, one core).
 
     Returns
     -------
@@ -336,41 +520,86 @@ def frame_evidence(image: np.ndarray, gray: np.ndarray, bps_uv: np.ndarray, rois
     """
     h, w = gray.shape
     n = len(bps_uv)
-    rgb = image.astype(np.float32) if image.ndim == 3 else np.repeat(gray[..., None], 3, 2).astype(np.float32)
-    rgb = rgb[..., :3]
-    bg_rgb = _opening(rgb, background_px)
     g = gray.astype(np.float32, copy=False)
-    bg = _opening(g, background_px)
-    # the top-hat and its 3 x 3 maxima above the floor, in one compiled call (numpy rounds the
-    # floor to float32 to compare)
-    top, is_max = np.empty_like(g), np.empty(g.shape, bool)
-    _kernels.top_hat_maxima(g, bg, np.float32(max(SIGNIFICANCE_MIN * noise, 1e-9)), top, is_max)
-    ys, xs = np.divmod(np.flatnonzero(is_max), w)  # np.nonzero's, in half the time
     ij = np.clip(np.rint(np.asarray(bps_uv, np.float64).reshape(-1, 2)).astype(np.int64), 0, [w - 1, h - 1])
     cols, rows = ij.T  # the BPs' pixels (u is the column)
+    reach = np.asarray(reach_px, np.float64).reshape(-1) if reach_px is not None else np.full(n, np.nan)
+    todo = np.flatnonzero(np.isfinite(reach))
+    rr = np.array([[r.row0, r.row1, r.col0, r.col1] for r in rois], np.int64).reshape(-1, 4)
+    # the windows that _kernels.other_peaks reads (its rows r0:r1 and columns c0:c1 of the top-hat)
+    win = np.c_[np.maximum(0, (rows[todo] - reach[todo]).astype(np.int64)),
+                np.minimum(h, (rows[todo] + reach[todo]).astype(np.int64) + 1),
+                np.maximum(0, (cols[todo] - reach[todo]).astype(np.int64)),
+                np.minimum(w, (cols[todo] + reach[todo]).astype(np.int64) + 1)].reshape(-1, 4)
+    if windowed is None:
+        spans = np.maximum(np.r_[win[:, 1] - win[:, 0] + 2, rr[:, 1] - rr[:, 0] + 2 * _PANEL_MARGIN_PX], 0)
+        widths = np.maximum(np.r_[win[:, 3] - win[:, 2] + 2, rr[:, 3] - rr[:, 2] + 2 * _PANEL_MARGIN_PX], 0)
+        windowed = float(np.sum(spans * widths)) <= WINDOWED_AREA_MAX * h * w
+    floor = np.float32(max(SIGNIFICANCE_MIN * noise, 1e-9))  # numpy rounds the floor to float32 to compare
+    if windowed:
+        # the openings only where read: at the BPs, and in the reach windows (with the 1 px the
+        # maxima read beyond them) where the top-hat, its maxima and their colour are
+        at_bp = np.c_[rows, rows + 1, cols, cols + 1]
+        wide = np.c_[np.maximum(win[:, 0] - 1, 0), np.minimum(win[:, 1] + 1, h),
+                     np.maximum(win[:, 2] - 1, 0), np.minimum(win[:, 3] + 1, w)]
+        bg = _upsampled(*_opening_small(g, background_px), (h, w), np.r_[at_bp, wide])
+        top, ys, xs = _maxima_windows(g, bg, floor, win)
+        height = _top_at(g, bg, rows, cols)
+        # only the maxima that some candidate's neighbour count can select (at least
+        # NEIGHBOUR_REL of its height, as _kernels.other_peaks compares) need their colour; the
+        # others it never reads
+        if len(todo):
+            strong = top[ys, xs] >= np.fmin.reduce(NEIGHBOUR_REL * height[todo])  # NaN: none
+            ys, xs = ys[strong], xs[strong]
+        else:
+            ys, xs = ys[:0], xs[:0]
+        # the colour: the frame's RGB and its opening at the BPs and the maxima only
+        src = image[..., :3] if image.ndim == 3 else gray
+        at = _opening_at(src, background_px, np.r_[rows, ys], np.r_[cols, xs])
+        if image.ndim != 3:  # a grey frame: its three channels alike
+            at = np.repeat(at[:, None], 3, 1)
+        bg_rgb_bp, bg_rgb_pk = at[:n], at[n:]
+
+        def rgb_at(r, c):
+            v = src[r, c].astype(np.float32)
+            return v if image.ndim == 3 else np.repeat(v[:, None], 3, 1)
+    else:
+        rgb = image.astype(np.float32) if image.ndim == 3 else np.repeat(gray[..., None], 3, 2).astype(np.float32)
+        rgb = rgb[..., :3]
+        bg_rgb = _opening(rgb, background_px)
+        bg = _opening(g, background_px)
+        # the top-hat and its 3 x 3 maxima above the floor, in one compiled call
+        top, is_max = np.empty_like(g), np.empty(g.shape, bool)
+        _kernels.top_hat_maxima(g, bg, floor, top, is_max)
+        ys, xs = np.divmod(np.flatnonzero(is_max), w)  # np.nonzero's, in half the time
+        height = top[rows, cols]
+        bg_rgb_bp, bg_rgb_pk = bg_rgb[rows, cols], bg_rgb[ys, xs]
+
+        def rgb_at(r, c):
+            return rgb[r, c]
     # the RGB maximum over the 3 x 3 px around each BP (the window clipped to the frame)
-    peak_rgb = np.max([rgb[np.clip(rows + dr, 0, h - 1), np.clip(cols + dc, 0, w - 1)]
+    peak_rgb = np.max([rgb_at(np.clip(rows + dr, 0, h - 1), np.clip(cols + dc, 0, w - 1))
                        for dr in (-1, 0, 1) for dc in (-1, 0, 1)], axis=0)
     chroma_peak = _chroma(peak_rgb)
-    chroma_tissue = _chroma(bg_rgb[rows, cols])
-    height = top[rows, cols]
+    chroma_tissue = _chroma(bg_rgb_bp)
     background = bg[rows, cols]
-    # flat panels: share in each ROI by an integral image
-    panel = _panels(g, noise)
-    integ = cv2.integral(panel)
-    rr = np.array([[r.row0, r.row1, r.col0, r.col1] for r in rois], np.int64).reshape(-1, 4)
-    area = np.maximum((rr[:, 1] - rr[:, 0]) * (rr[:, 3] - rr[:, 2]), 1)
-    inside = (integ[rr[:, 1], rr[:, 3]] - integ[rr[:, 0], rr[:, 3]] - integ[rr[:, 1], rr[:, 2]]
-              + integ[rr[:, 0], rr[:, 2]])
-    panel_fraction = inside / area
+    # flat panels: share in each ROI by an integral image (none where none can be: see
+    # _surely_no_panels)
+    if windowed and (not noise > 0 or _surely_no_panels(gray, noise, rr)):
+        panel_fraction = np.zeros(n)
+    else:
+        panel = _panels(g, noise)
+        integ = cv2.integral(panel)
+        area = np.maximum((rr[:, 1] - rr[:, 0]) * (rr[:, 3] - rr[:, 2]), 1)
+        inside = (integ[rr[:, 1], rr[:, 3]] - integ[rr[:, 0], rr[:, 3]] - integ[rr[:, 1], rr[:, 2]]
+                  + integ[rr[:, 0], rr[:, 2]])
+        panel_fraction = inside / area
     # specular peaks of the frame: the top-hat's local maxima that pass the colour check (the
     # chromas read at those pixels only: a reduction over the frame's last axis costs ~0.1 s)
-    colour = _specular_colour(_chroma(rgb[ys, xs]), _chroma(bg_rgb[ys, xs]))
+    colour = _specular_colour(_chroma(rgb_at(ys, xs)), _chroma(bg_rgb_pk))
     ys, xs = ys[colour], xs[colour]
     xs, ys = xs.astype(np.int64), ys.astype(np.int64)
     neighbours = np.zeros(n, np.int64)
-    reach = np.asarray(reach_px, np.float64).reshape(-1) if reach_px is not None else np.full(n, np.nan)
-    todo = np.flatnonzero(np.isfinite(reach))
     if len(xs) and len(todo):
         neighbours[todo] = _other_peaks_compiled(top, xs, ys, np.asarray(bps_uv, np.float64).reshape(-1, 2),
                                                  ij, reach, height, noise, ellipses, todo)
@@ -403,7 +632,9 @@ def _surround_fraction(gray: np.ndarray, ell, bp_ij: np.ndarray, reach: float) -
     bi, bj = int(bp_ij[1]), int(bp_ij[0])
     r0, r1 = max(0, bi - R), min(h, bi + R + 1)
     c0, c1 = max(0, bj - R), min(w, bj + R + 1)
-    yy, xx = np.mgrid[r0:r1, c0:c1].astype(np.float64)
+    # a column and a row of coordinates, broadcast (the same values as the full grids, per pixel)
+    yy = np.arange(r0, r1, dtype=np.float64)[:, None]
+    xx = np.arange(c0, c1, dtype=np.float64)[None, :]
     ring = ((xx - bp_ij[0]) ** 2 + (yy - bp_ij[1]) ** 2 <= reach * reach) & (_ellipse_level(ell, xx, yy) > _OWN_LEVEL)
     if not ring.any():
         return 0.0
@@ -414,7 +645,7 @@ def _surround_fraction(gray: np.ndarray, ell, bp_ij: np.ndarray, reach: float) -
     peak = float(top[max(0, bi - 1 - r0):bi + 2 - r0, max(0, bj - 1 - c0):bj + 2 - c0].max())
     if not peak > 0:
         return 0.0
-    return float(np.count_nonzero(top[ring] >= SURROUND_REL * peak) / np.count_nonzero(ring))
+    return float(np.count_nonzero((top >= SURROUND_REL * peak) & ring) / np.count_nonzero(ring))
 
 
 def _ellipse_level(ell, u, v):
@@ -426,7 +657,7 @@ def _ellipse_level(ell, u, v):
     return ((c * du + s * dv) / a) ** 2 + ((-s * du + c * dv) / b) ** 2
 
 
-def assess(image: np.ndarray, gray: np.ndarray, ests, *, full_scale: float):
+def assess(image: np.ndarray, gray: np.ndarray, ests, *, full_scale: float, windowed: bool | None = None):
     """The evidence on a frame's estimates, with their fits' residual ratios and BP placement.
 
     Parameters
@@ -439,6 +670,8 @@ def assess(image: np.ndarray, gray: np.ndarray, ests, *, full_scale: float):
         Its estimates (N), as the pipeline completed them.
     full_scale : float
         Intensity of white, image units.
+    windowed : bool, optional
+        As for :func:`frame_evidence` (the same evidence either way).
 
     Returns
     -------
@@ -481,7 +714,7 @@ def assess(image: np.ndarray, gray: np.ndarray, ests, *, full_scale: float):
     res[ok & ~fitted], inside[ok & ~fitted] = 0.0, True
     ev = frame_evidence(image, gray, bps, [e.roi for e in ests], full_scale=full_scale,
                         noise=noise_sigma(gray), background_px=background_side_px(gray.shape),
-                        reach_px=reach, ellipses=ells)
+                        reach_px=reach, ellipses=ells, windowed=windowed)
     clipped = np.array([bool(e.saturated) for e in ests], dtype=bool)
     # the surround, for the candidates that pass every check before it (verdict's order); the
     # others' share counts as 1 (all lit) in their confidence
@@ -490,7 +723,7 @@ def assess(image: np.ndarray, gray: np.ndarray, ests, *, full_scale: float):
               & (clipped | ((ev.significance >= SIGNIFICANCE_MIN) & (ev.contrast >= CONTRAST_MIN)))
               & (ev.neighbours == 0))
     if passed.any():
-        g = np.asarray(gray, dtype=np.float32)
+        g = np.asarray(gray)  # _surround_fraction converts its window to float32 (the same values)
         ij = np.clip(np.rint(bps).astype(np.int64), 0, [gray.shape[1] - 1, gray.shape[0] - 1])
         for k in np.flatnonzero(passed):
             surround[k] = _surround_fraction(g, ells[k], ij[k], reach[k])
