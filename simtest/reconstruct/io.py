@@ -183,6 +183,16 @@ def _nums(a):
                                    for v in np.asarray(a, dtype=np.float64).reshape(-1)]
 
 
+def _light_aware_dict(la: dict) -> dict:
+    """The ``light_aware`` block of a specularity: each light-aware result's fields, JSON-ready."""
+    return {name: {"status": r.status, "detail": r.detail, "depth_mm": _num(r.depth_mm),
+                   "normal_sigma_deg": _num(r.normal_sigma_deg), "depth_sigma_mm": _num(r.depth_sigma_mm),
+                   "distance_mm": _num(r.distance_mm), "roughness": _num(r.roughness),
+                   "lobe": getattr(r, "lobe", None), "light_normals": _rows(r.light_normals),
+                   "light_depths_mm": _nums(r.light_depths_mm)}
+            for name, r in la.items()}
+
+
 def estimate_to_dict(est, include_points: bool = False) -> dict:
     """One :class:`~simtest.reconstruct.pipeline.SpecularityEstimate` as a schema-2 dict.
 
@@ -214,14 +224,7 @@ def estimate_to_dict(est, include_points: bool = False) -> dict:
         "normal_sigma_deg": _num(rec.normal_sigma_deg),
         "light_normals": _rows(getattr(rec, "light_normals", None)),
         "light_depths_mm": _nums(getattr(rec, "light_depths_mm", None)),
-        "light_aware": {name: {"status": r.status, "detail": r.detail, "depth_mm": _num(r.depth_mm),
-                               "normal_sigma_deg": _num(r.normal_sigma_deg),
-                               "depth_sigma_mm": _num(r.depth_sigma_mm),
-                               "distance_mm": _num(r.distance_mm), "roughness": _num(r.roughness),
-                               "lobe": getattr(r, "lobe", None),
-                               "light_normals": _rows(r.light_normals),
-                               "light_depths_mm": _nums(r.light_depths_mm)}
-                        for name, r in la.items()},
+        "light_aware": _light_aware_dict(la),
         "bp_px": _vec(est.bp_px),
         "bp_intensity": float(est.bp_intensity),
         "saturated": bool(est.saturated),
@@ -386,14 +389,7 @@ def estimate_json(est, include_points: bool = False) -> str:
             normal = prim[7]
         else:
             normal = _atxt(n, True)
-        la_dict = {name: {"status": r.status, "detail": r.detail, "depth_mm": _num(r.depth_mm),
-                          "normal_sigma_deg": _num(r.normal_sigma_deg),
-                          "depth_sigma_mm": _num(r.depth_sigma_mm),
-                          "distance_mm": _num(r.distance_mm), "roughness": _num(r.roughness),
-                          "lobe": getattr(r, "lobe", None),
-                          "light_normals": _rows(r.light_normals),
-                          "light_depths_mm": _nums(r.light_depths_mm)}
-                   for name, r in la.items()}
+        la_dict = _light_aware_dict(la)
         head = (f'{{"normal":{normal},"normal_from":{_jstr(rec.normal_from)},"depth_mm":{_ftxt(rec.depth_mm)},'
                 f'"normal_sigma_deg":{_ftxt(rec.normal_sigma_deg)},'
                 f'"light_normals":{_json_or_null(_rows(getattr(rec, "light_normals", None)))},'
