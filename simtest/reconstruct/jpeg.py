@@ -24,6 +24,8 @@ from __future__ import annotations
 import numpy as np
 from scipy.special import ndtri
 
+from simtest.constants import LUMA_BT601
+
 __all__ = ["BLOCK", "GRID_BLOCKS", "BLOCKINESS_CLEAR", "MIN_COEFFICIENTS", "PERIODICITY_MIN",
            "CHANCE_SD", "MIN_STEP", "MIN_QUANTISED", "luma_y", "dct_blocks", "jpeg_grid",
            "quantisation_steps", "quantisation_sigma"]
@@ -58,11 +60,11 @@ GRID_BLOCKS = 1024
 #: Largest step searched (the baseline JPEG's 8-bit tables).
 MAX_STEP = 255
 
-_Y_WEIGHTS = (0.299, 0.587, 0.114)  # JFIF's Y from R, G, B (ITU-R BT.601)
+_Y_WEIGHTS = LUMA_BT601  # JFIF's Y from R, G, B (ITU-R BT.601)
 
 
 def _dct_matrix(n: int = BLOCK) -> np.ndarray:
-    """Orthonormal DCT-II matrix D (n x n): ``cv2.dct(block) == D @ block @ D.T``."""
+    """Orthonormal DCT-II matrix D (n x n): OpenCV's ``dct`` of a block is ``D @ block @ D.T``."""
     k = np.arange(n)[:, None]
     m = np.arange(n)[None, :]
     d = np.cos(np.pi * (2 * m + 1) * k / (2 * n)) * np.sqrt(2.0 / n)
@@ -153,7 +155,7 @@ def dct_blocks(blocks: np.ndarray) -> np.ndarray:
     -------
     ndarray of shape (N, 64), float32
         Coefficients, frequency ``k = 8 u + v`` (u vertical, v horizontal), equal to
-        ``cv2.dct(block - 128)`` and to JPEG's FDCT output before quantisation.
+        OpenCV's ``dct`` of ``block - 128`` and to JPEG's FDCT output before quantisation.
     """
     b = np.asarray(blocks, np.float32) - 128.0
     return (_D @ b @ _D.T).reshape(len(b), BLOCK * BLOCK)
