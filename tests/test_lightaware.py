@@ -487,8 +487,10 @@ def test_two_light_curved_highlight_is_recommended_the_cubic_patch_and_scored_pe
     img, rig, _ = sphere_rig_case(lights)
     ests = reconstruct(img, SPHERE_K, settings=ReconSettings(isovalues=(0.3, 0.5, 0.7)))
     # cubic=None: run where the plane fit fails and the rig has two lights apart (what
-    # `simtest reconstruct --cubic-patch` asks for; the default leaves the slow fit out)
-    ests = with_light_aware(img, ests, SPHERE_K, rig, nominal_depth_mm=20.0, cubic=None)
+    # `simtest reconstruct --cubic-patch` asks for; the default leaves the slow fit out). The two
+    # lobes merge (status merged): fit_rejected fits them all the same
+    ests = with_light_aware(img, ests, SPHERE_K, rig, nominal_depth_mm=20.0, cubic=None,
+                            fit_rejected=True)
     assert len(ests) >= 1
     for j, L in enumerate(lights):
         X, n = sphere_specular_point(L)
@@ -505,13 +507,13 @@ def test_two_light_curved_highlight_is_recommended_the_cubic_patch_and_scored_pe
         assert errs["bp_ray"][0] > 3.0, errs
     img1, rig1, _ = sphere_rig_case(lights[1:])
     one = with_light_aware(img1, reconstruct(img1, SPHERE_K, settings=ReconSettings(
-        isovalues=(0.3, 0.5, 0.7))), SPHERE_K, rig1, nominal_depth_mm=20.0, cubic=None)
+        isovalues=(0.3, 0.5, 0.7))), SPHERE_K, rig1, nominal_depth_mm=20.0, cubic=None, fit_rejected=True)
     assert all("cubic_patch_fit" not in e.light_aware for e in one)
     # by default the cubic patch is not run at all; the progress callback counts every
     # highlight examined, once, up to the total
     calls = []
     default = with_light_aware(img, reconstruct(img, SPHERE_K, settings=ReconSettings(
-        isovalues=(0.3, 0.5, 0.7))), SPHERE_K, rig, nominal_depth_mm=20.0,
+        isovalues=(0.3, 0.5, 0.7))), SPHERE_K, rig, nominal_depth_mm=20.0, fit_rejected=True,
         on_highlight=lambda done, total: calls.append((done, total)))
     assert all("cubic_patch_fit" not in e.light_aware for e in default)
     n = sum(e.status != "too_small" for e in default)
@@ -530,7 +532,7 @@ def test_a_fit_the_solver_refuses_is_a_status_not_an_exception(monkeypatch):
     lights = [(-15.0, 0.0, 0.0), (15.0, 0.0, 0.0)]
     img, rig, _ = sphere_rig_case(lights)
     ests = with_light_aware(img, reconstruct(img, SPHERE_K, settings=ReconSettings(
-        isovalues=(0.3, 0.5, 0.7))), SPHERE_K, rig, nominal_depth_mm=20.0)
+        isovalues=(0.3, 0.5, 0.7))), SPHERE_K, rig, nominal_depth_mm=20.0, fit_rejected=True)
     assert ests and all(e.light_aware["photometric_fit"].status == "not_converged" for e in ests)
     assert all("not finite" in e.light_aware["photometric_fit"].detail for e in ests)
     assert all(recommend(e).normal is not None for e in ests)

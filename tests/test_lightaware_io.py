@@ -148,7 +148,8 @@ def test_estimates_json_carries_the_per_light_normals_of_a_two_light_patch(tmp_p
     lights = [(-15.0, 0.0, 0.0), (15.0, 0.0, 0.0)]
     img, rig, _ = sphere_rig_case(lights)
     ests = with_light_aware(img, reconstruct(img, SPHERE_K, settings=ReconSettings(
-        isovalues=(0.3, 0.5, 0.7))), SPHERE_K, rig, nominal_depth_mm=20.0, cubic=None)
+        isovalues=(0.3, 0.5, 0.7))), SPHERE_K, rig, nominal_depth_mm=20.0, cubic=None,
+                            fit_rejected=True)  # the two lobes merge
     path = tmp_path / "estimates.json"
     write_estimates(path, ests, K=SPHERE_K, image_shape=img.shape, isovalues=(0.3, 0.5, 0.7),
                     lights=rig)

@@ -463,7 +463,8 @@ def fit_scored(image, matched: list, camera, rig: LightRig, **kwargs) -> list:
         matched twice is fitted once).
     """
     scored = list({id(b): b for _, b, _ in matched if b is not None}.values())
-    fitted = dict(zip((id(b) for b in scored), with_light_aware(image, scored, camera, rig, **kwargs)))
+    fitted = dict(zip((id(b) for b in scored), with_light_aware(image, scored, camera, rig, fit_rejected=True,
+                                                                      **kwargs)))
     return [(h, fitted[id(b)] if b is not None else None, d) for h, b, d in matched]
 
 

@@ -167,13 +167,10 @@ ISOCURVE_ISOVALUES = (0.3, 0.5, 0.7)
 #: Rule 3 keeps a normal whose depth is not observable when this many of its sigmas are below the
 #: BP ray's expected error (module docstring, rule 3).
 SIGMA_MARGIN = 2.0
-#: Candidate statuses that get no light-aware fit: too small to fit, or judged no specular
-#: highlight of the tissue (the scope's black border, a burnt-in overlay, a peak that is not
-#: specular: :mod:`simtest.reconstruct.verify`). On a rendered 1350 x 1080 colonoscope frame
-#: with its camera file the fits ran on 567 candidates, 297 of them ``not_specular`` or
-#: ``black_border``, at 0.5 s each on one core (299 s for the frame). The paper's ellipse
-#: failures (``not_elliptical``, ``too_few_points``, ``merged``, ...) still get them: the fits
-#: need no ellipse.
+#: Candidate statuses that never get a light-aware fit, not even with ``fit_rejected`` of
+#: :func:`with_light_aware`: too small to fit, or judged no specular highlight of the tissue (the
+#: scope's black border, a burnt-in overlay, a peak that is not specular:
+#: :mod:`simtest.reconstruct.verify`).
 NOT_FITTED = ("too_small", "black_border", "overlay", "not_specular")
 #: Largest relative 1-sigma of a released depth (module docstring, "Depth ceiling").
 DEPTH_REL_SIGMA_CEILING = 0.2
@@ -472,13 +469,19 @@ def _guarded(name: str, fit, *args, **kwargs) -> LightAwareEstimate:
 
 
 def with_light_aware(image, estimates, camera, rig: LightRig | None, *, on_highlight=None,
-                     **kwargs) -> list:
+                     fit_rejected: bool = False, **kwargs) -> list:
     """The estimates with their light-aware results attached (``light_aware``).
 
     Nothing is run, and the estimates are returned unchanged, without a rig or with every light at
     the camera centre (the cone axes and the BP ray are then the estimators of choice, module
-    docstring); nor for candidates whose status says they are no specular highlight of the
-    tissue (:data:`NOT_FITTED`).
+    docstring). By default only the accepted highlights (status ``ok``) are fitted: a rejected
+    candidate keeps its status whatever its fits give, so its normal is not one to use, and on a
+    rendered 1350 x 1080 colonoscope frame the fits of its 270 rejected candidates took 130 s of
+    the frame's 133 s on one core, the 24 of them timed each ending ``plane_misfit`` or
+    ``not_converged``. With ``fit_rejected`` every candidate the paper's ellipse rejected is fitted
+    too (the fits need no ellipse: a two-light rig's lobes that merge into one highlight, or the
+    harness scoring the estimators on every rendered highlight it matched), but never those whose
+    status says they are no specular highlight of the tissue (:data:`NOT_FITTED`).
 
     Parameters
     ----------
@@ -493,6 +496,9 @@ def with_light_aware(image, estimates, camera, rig: LightRig | None, *, on_highl
     on_highlight : callable, optional
         Called as ``on_highlight(done, total)`` after each highlight's fits (the command line's
         progress bar: the curved fits take up to seconds per highlight).
+    fit_rejected : bool, optional
+        Fit also the candidates rejected for a reason other than :data:`NOT_FITTED` (default: the
+        accepted ones only).
     **kwargs
         Passed to :func:`light_aware_estimates`.
 
@@ -502,11 +508,14 @@ def with_light_aware(image, estimates, camera, rig: LightRig | None, *, on_highl
     """
     if not _offset_rig(rig):
         return list(estimates)
+    def fitted(est) -> bool:
+        return est.ok or (fit_rejected and est.status not in NOT_FITTED)
+
     out = []
-    todo = sum(est.status not in NOT_FITTED for est in estimates)
+    todo = sum(fitted(est) for est in estimates)
     done = 0
     for est in estimates:
-        if est.status in NOT_FITTED:
+        if not fitted(est):
             out.append(est)
             continue
         out.append(dataclasses.replace(est, light_aware=light_aware_estimates(image, est, camera, rig,
