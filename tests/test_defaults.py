@@ -80,8 +80,9 @@ def test_defaults_on_real_images(name):
 #: renders were pinned (their golden outputs are kept).
 PINNED = {"colon", "cylinder", "liver", "plane_58deg", "plane_fronto", "saddle", "sphere"}
 #: The endoscope scenes, rendered live: (film scale, samples per pixel). The scale keeps each
-#: scene's field of view (C3VD's lens is scaled with its film). colonoscope_plane is rendered at
-#: half size; the others at full size: at half size the half-maximum region of
+#: scene's field of view (C3VD's lens is scaled with its film). Every scene is rendered at full
+#: size: at half size colonoscope_plane's two guide highlights, 8 px apart, are one cluster, the
+#: half-maximum region of
 #: colonoscope_pinhole's pair joins the sheen of the wall beside it (ellipticity 0.67: no
 #: target left to check), the colonoscope's pair is a streak of speckle about 20 px long whose
 #: brightest glint (the detected BP) lay 4.2 px from the envelope's peak, at 0.94 of it, and the
@@ -89,7 +90,7 @@ PINNED = {"colon", "cylinder", "liver", "plane_58deg", "plane_fronto", "saddle",
 #: clipped highlight at half size (45 px wide) but not at full size (90 px), which is what this
 #: checks. 4 spp: the renders take seconds.
 ENDOSCOPE = {"colonoscope": (1.0, 4), "colonoscope_pinhole": (1.0, 4),
-             "colonoscope_plane": (0.5, 4), "laparoscope_liver": (1.0, 4)}
+             "colonoscope_plane": (1.0, 4), "laparoscope_liver": (1.0, 4)}
 #: An ok estimate reconstructs a target when its BP lies within this distance of the target's
 #: points (:meth:`~simtest.render.truth.HighlightTarget.distance_px`): the BP of an 8-bit frame
 #: (sub-pixel peak, plateau centroid, a clipped top's centroid) against points on the pixel

@@ -10,7 +10,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from simtest.render import render_scene
-from simtest.render.sensor import apply_sensor, field_stop_mask, frame_luma, video_frame
+from simtest.render.sensor import apply_sensor, field_stop_mask, frame_luma, peak_exposure, video_frame
 from simtest.render.tissue import (
     albedo,
     relief_height,
@@ -122,6 +122,32 @@ def test_video_frame_steps():
     for q in (95, 30):
         jpeg_err.append(np.abs(video_frame(img, SensorSpec(jpeg_quality=q), 0) - raw).mean())
     assert 0 < jpeg_err[0] < jpeg_err[1]
+
+
+@settings(max_examples=25, deadline=None)
+@given(seed=st.integers(0, 2**31 - 1), percent=st.floats(0.5, 20.0), spread=st.floats(1.0, 4.0),
+       wb=st.tuples(st.floats(0.5, 2.0), st.floats(0.5, 2.0), st.floats(0.5, 2.0)))
+def test_peak_protecting_auto_exposure_clips_at_most_the_allowed_share(seed, percent, spread, wb):
+    """With ``auto_clip_percent`` the exposure is the mean's target or less, and no more than that
+    share of the pixels clips in a channel (without noise; ties on the quantile's value are of
+    measure zero for continuous radiance), while the mean alone would clip more where the
+    radiance spreads over decades (a wide field's falloff)."""
+    rng = np.random.default_rng(seed)
+    rgb = np.exp(spread * rng.standard_normal((40, 50, 3)))
+    mean_only = SensorSpec(exposure_mode="auto", auto_mean=0.3, white_balance=wb)
+    peak = SensorSpec(exposure_mode="auto", auto_mean=0.3, white_balance=wb, auto_clip_percent=percent)
+    clipped = (video_frame(rgb, peak, 0) == 255).any(-1).mean() * 100
+    # the 8-bit rounding clips the pixels within half a step of saturation too: a margin of 1/255
+    # of the exposure
+    exposure = peak_exposure(rgb, np.ones(rgb.shape[:2], bool), peak)
+    near = ((rgb * np.asarray(wb)).max(-1) * exposure >= 1.0 - 0.5 / 255).mean() * 100
+    assert clipped <= near + 1e-9
+    assert near <= percent + 100.0 / rgb[..., 0].size + 1.0  # one pixel, and the rounding band
+    assert clipped <= (video_frame(rgb, mean_only, 0) == 255).any(-1).mean() * 100
+    # 100 % (the default): the mean alone sets the exposure
+    assert np.array_equal(video_frame(rgb, mean_only, 0),
+                          video_frame(rgb, SensorSpec(exposure_mode="auto", auto_mean=0.3,
+                                                      white_balance=wb, auto_clip_percent=100.0), 0))
 
 
 def test_tissue_render_truth_and_diffuse_closed_form():

@@ -19,6 +19,7 @@ from simtest.constants import LUMA_BT601
 from simtest.scene.spec import SensorSpec
 
 __all__ = ["LUMA_WEIGHTS", "SENSOR_SEED_KEY", "VIDEO_BANDS", "apply_sensor", "field_stop_mask", "frame_luma",
+           "peak_exposure",
            "sensor_dtype", "video_frame"]
 
 #: Stable key of the sensor-noise stream in ``SeedSequence([seed, SENSOR_SEED_KEY])``.
@@ -127,12 +128,35 @@ def _vignetting_gain(shape: tuple[int, int], vignetting: float) -> np.ndarray:
     return gain
 
 
+def peak_exposure(rgb: np.ndarray, meter: np.ndarray, sensor: SensorSpec) -> float:
+    """The largest exposure at which at most ``sensor.auto_clip_percent`` % of the metered pixels
+    clip in their brightest white-balanced channel (before noise and vignetting).
+
+    Parameters
+    ----------
+    rgb : ndarray of shape (H, W, 3) or (H, W, 1)
+        Linear radiance.
+    meter : ndarray of shape (H, W), bool
+        The metered pixels (at least one).
+    sensor : SensorSpec
+
+    Returns
+    -------
+    float
+        The exposure (``inf`` where the metered pixels' quantile is 0: nothing would clip).
+    """
+    peak = (np.maximum(rgb[meter], 0.0) * np.asarray(sensor.white_balance)).max(axis=-1)
+    q = float(np.quantile(peak, 1.0 - sensor.auto_clip_percent / 100.0))
+    return sensor.saturation / q if q > 0 else float("inf")
+
+
 def video_frame(rgb: np.ndarray, sensor: SensorSpec, seed: int, *, threads: int | None = None,
                 tissue: np.ndarray | None = None) -> np.ndarray:
     """An 8-bit RGB video frame from a linear RGB image, as a scope's camera makes it.
 
     Steps, in order: exposure (``exposure``, or "auto": the mean luma inside the field stop, or
-    of its pixels on tissue with ``metering = "tissue"``, made ``auto_mean``); vignetting ``1 - v (r / r_max)^2``; white-balance gains; shot noise (Poisson,
+    of its pixels on tissue with ``metering = "tissue"``, made ``auto_mean``, but no more than
+    lets ``auto_clip_percent`` % of them clip: :func:`peak_exposure`); vignetting ``1 - v (r / r_max)^2``; white-balance gains; shot noise (Poisson,
     ``full_well_e`` electrons at full scale) and read noise (``gaussian_sigma``), per channel;
     clipping at ``saturation`` (then scaled to full scale); colour saturation about the BT.601
     luma; the tone curve (``gamma`` or sRGB); 8-bit quantisation; the field stop (black outside);
@@ -173,6 +197,8 @@ def video_frame(rgb: np.ndarray, sensor: SensorSpec, seed: int, *, threads: int 
             meter = stop & np.asarray(tissue, dtype=bool)
         mean = float(np.mean(luma[meter], dtype=np.float64)) if meter.any() else 0.0
         exposure = sensor.auto_mean * sensor.saturation / mean if mean > 0 else 1.0
+        if sensor.auto_clip_percent < 100.0 and meter.any():
+            exposure = min(exposure, peak_exposure(rgb, meter, sensor))
     else:
         exposure = sensor.exposure
     gain = _vignetting_gain((H, W), float(sensor.vignetting)) if sensor.vignetting > 0 else None

@@ -511,6 +511,12 @@ class SensorSpec:
     metering : {"field", "tissue"}
         Pixels the "auto" exposure averages: the whole field stop, or only those on tissue (the
         surface covers the pixel), so that background beyond the scene does not brighten it.
+    auto_clip_percent : float
+        Peak-protecting "auto" exposure, in [0, 100]: the exposure is at most the one at which
+        this percentage of the metered pixels clips in its brightest white-balanced channel (a
+        scope's video processor meters the peaks as well as the mean, so that the tissue nearest
+        the light guides is not burnt out; the few pixels allowed to clip are the specular
+        highlights'). 100 (default): the mean alone sets the exposure.
     white_balance : (3,) float
         Video frame: gains of R, G, B, > 0.
     tone : {"gamma", "srgb"}
@@ -538,6 +544,7 @@ class SensorSpec:
     exposure_mode: str = _fld("fixed", "str", choices=("fixed", "auto"))
     auto_mean: float = _fld(0.25, "float", lo=0.0, hi=1.0, lo_open=True)
     metering: str = _fld("field", "str", choices=("field", "tissue"))
+    auto_clip_percent: float = _fld(100.0, "float", lo=0.0, hi=100.0)
     white_balance: tuple[float, float, float] = _fld((1.0, 1.0, 1.0), "vec3")
     tone: str = _fld("gamma", "str", choices=("gamma", "srgb"))
     color_saturation: float = _fld(1.0, "float", lo=0.0)
