@@ -13,6 +13,7 @@ from typer.testing import CliRunner
 from simtest.cli import app
 from simtest.evaluate.detection import (TOLERANCE_PX, Structure, labelled_real_frames,
                                         match_candidates, pooled, score_frame)
+from simtest.render.truth import HighlightTarget
 
 
 def _spec(u, v, status="ok"):
@@ -66,6 +67,25 @@ def test_a_match_is_always_within_reach_and_the_nearest(structs, bps):
 def test_reach_is_the_structures_radius_plus_the_slack():
     s = Structure(0, 0, np.pi * 9, "isolated")
     assert s.reach_px == pytest.approx(3 + TOLERANCE_PX)
+
+
+@hsettings(max_examples=60, deadline=None)
+@given(st.floats(5.0, 40.0), st.floats(0.0, 1.0), st.floats(-30.0, 30.0), st.floats(1.0, 200.0))
+def test_a_rendered_target_of_two_guides_is_reached_from_either_lobe(sep, along, off, area):
+    # two lights' BPs (the guides' lobes that run together) and the peak at the second: a
+    # candidate's distance is to the segment between them, so a candidate on the first lobe,
+    # beyond the disc around the peak, falls on the target; the plain centroid rule is the
+    # special case of one BP
+    a, b = np.array([100.0, 50.0]), np.array([100.0 + sep, 50.0])
+    target = HighlightTarget(np.array([a, b]), (0, 1), (), b, int(area))
+    s = Structure(float(b[0]), float(b[1]), area, "isolated", target)
+    q = a + along * (b - a) + np.array([0.0, off])
+    assert s.distance_px(q) == pytest.approx(abs(off), abs=1e-9)
+    (hit,) = match_candidates(q[None], [s])
+    assert (hit == 0) == (abs(off) <= s.reach_px)
+    one = Structure(float(b[0]), float(b[1]), area, "isolated",
+                    HighlightTarget(b[None], (1,), (), b, int(area)))
+    assert one.distance_px(q) == pytest.approx(np.hypot(*(q - b)))
 
 
 def _labelled_set(tmp_path):

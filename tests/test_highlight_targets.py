@@ -59,6 +59,21 @@ def test_a_broad_irregular_sheen_is_no_target_and_out_of_frame_or_dark_bps_are_d
     assert highlight_targets([_truth((150, 90))], spec, VALID) == []  # no specular light there
 
 
+@given(n=st.integers(2, 5), extra=st.integers(0, 3))
+@settings(max_examples=20, deadline=None)
+def test_a_sheen_holding_several_bps_of_one_light_is_no_target(n, extra):
+    # n specular points of light 0 (sparkle of micro-relief) under one smooth envelope: a sheen,
+    # whatever other lights' BPs it holds; one BP each of n + extra lights under the same
+    # envelope (a laparoscope's ring): a target
+    spec = _lobe(SHAPE, (80, 50), 8.0)
+    spots = [(77 + k, 49 + k % 3) for k in range(n + extra)]  # all within the half-maximum disc
+    one_light = [_truth(uv, 0 if k < n else k) for k, uv in enumerate(spots)]
+    assert highlight_targets(one_light, spec, VALID) == []
+    ring = [_truth(uv, k) for k, uv in enumerate(spots)]
+    (t,) = highlight_targets(ring, spec, VALID)
+    assert sorted(t.lights) == list(range(n + extra))
+
+
 @given(dx=st.integers(-3, 3), dy=st.integers(-3, 3))
 @settings(max_examples=20, deadline=None)
 def test_the_peak_is_the_lobe_maximum_the_bp_lies_on(dx, dy):

@@ -13,7 +13,11 @@ structure a detector may pick but should not call a highlight. Two sources give 
   are not labelled.
 
 Matching: a candidate (its BP) falls on the nearest structure whose reach holds it, the reach being
-the radius of a disc of the structure's area plus ``tolerance_px``. Each target counts once, for
+the radius of a disc of the structure's area plus ``tolerance_px``, measured from the structure's
+centroid or, for a rendered target that holds several lights' BPs (the lobes of a scope's guides
+that run together), from the convex hull of those BPs and its peak
+(:meth:`simtest.render.truth.HighlightTarget.distance_px`): a candidate on either guide's lobe falls
+on it. Each target counts once, for
 the first (brightest) candidate that falls on it; a second candidate on the same target is a
 duplicate, a false positive. Precision is the fraction of candidates (or of ``ok`` estimates) that
 are a target's first match; recall the fraction of targets matched by a candidate (or an ``ok``
@@ -58,7 +62,7 @@ from simtest.reconstruct.settings import ReconSettings  # noqa: E402
 from simtest.reconstruct.verify import RESIDUAL_MAX_REL, _design, assess  # noqa: E402
 from simtest.render.render import render_scene  # noqa: E402
 from simtest.render.sensor import field_stop_mask  # noqa: E402
-from simtest.render.truth import highlight_targets  # noqa: E402
+from simtest.render.truth import HighlightTarget, highlight_targets  # noqa: E402
 from simtest.scene import with_overrides  # noqa: E402
 from simtest.scene.spec import load_scene  # noqa: E402
 
@@ -89,17 +93,26 @@ class Structure:
         Area of the structure at half its height above the local background, px.
     kind : str
         One of :data:`KINDS`.
+    target : HighlightTarget or None
+        A rendered target's ground truth (its lights' BPs and its peak), None for a label.
     """
 
     u: float
     v: float
     area_px: float
     kind: str
+    target: HighlightTarget | None = field(default=None, compare=False, repr=False)
 
     @property
     def reach_px(self) -> float:
         """The radius within which a candidate's BP falls on it: sqrt(area / pi) + slack."""
         return math.sqrt(max(self.area_px, 1.0) / math.pi) + TOLERANCE_PX
+
+    def distance_px(self, uv) -> float:
+        """Distance, px, from ``uv`` [u, v] to the centroid, or to a rendered target's hull of BPs
+        and peak where that is nearer."""
+        d = math.dist((float(uv[0]), float(uv[1])), (self.u, self.v))
+        return d if self.target is None else min(d, self.target.distance_px(uv))
 
 
 def match_candidates(bps_px, structures: list[Structure]) -> list[int | None]:
@@ -123,6 +136,11 @@ def match_candidates(bps_px, structures: list[Structure]) -> list[int | None]:
     cen = np.array([[s.u, s.v] for s in structures])
     reach = np.array([s.reach_px for s in structures])
     d = np.linalg.norm(bps[:, None, :] - cen[None, :, :], axis=2)
+    for j, s in enumerate(structures):
+        if s.target is not None:  # the hull of its BPs and peak, for the candidates near enough
+            extent = float(np.max(np.linalg.norm(s.target.bp_px - cen[j], axis=1), initial=0.0))
+            for i in np.flatnonzero(d[:, j] <= reach[j] + extent):
+                d[i, j] = s.distance_px(bps[i])
     d[d > reach[None, :]] = np.inf
     best = np.argmin(d, axis=1)
     return [int(j) if np.isfinite(d[i, j]) else None for i, j in enumerate(best)]
@@ -390,7 +408,7 @@ def _rendered_frame(spec, seed: int | None, name: str) -> LabelledFrame:
     sensor = res.spec.sensor
     valid = res.mask & field_stop_mask(res.mask.shape, sensor.field_stop, sensor.field_stop_radius)
     targets = highlight_targets(res.highlights, res.specular, valid)
-    structs = [Structure(float(t.peak_px[0]), float(t.peak_px[1]), float(t.area_px), TARGET_KIND)
+    structs = [Structure(float(t.peak_px[0]), float(t.peak_px[1]), float(t.area_px), TARGET_KIND, t)
                for t in targets]
     return LabelledFrame(name, res.frame, res.camera, structs)
 
@@ -515,7 +533,7 @@ def reliability_figure(results: dict):
 
 
 def _on(row: dict, s: Structure) -> bool:
-    return math.dist(row["bp_px"], (s.u, s.v)) <= s.reach_px
+    return s.distance_px(row["bp_px"]) <= s.reach_px
 
 
 #: Most frames :func:`detection_figure` draws.

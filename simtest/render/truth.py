@@ -513,6 +513,15 @@ def highlight_targets(highlights: list[HighlightTruth], specular: np.ndarray, va
     with elliptical isophotes. BPs out of frame, outside ``valid`` or without specular light are
     dropped.
 
+    (3) Its region holds at most one BP of each light. Where one light has several specular
+    points within one visible highlight, the surface's normal turns back and forth on a scale
+    finer than the highlight: micro-relief breaks a lobe into sparkle (the endoscope suite's
+    relief of 5 um RMS and more gathers 4 BPs of two lights into a sheen of 4800 to 18500 px),
+    or a rough film spreads it into a broad sheen over a curved wall (GGX alpha 0.1 and 0.2 on
+    the colon wall: 4300 and 8300 px). No locally planar patch gives that image, and a person
+    sees a sheen, not a highlight. The highlights of different lights that run together (a
+    scope's guides, a laparoscope's ring of eight) stay a target.
+
     The lights of a scope are a few millimetres apart: at working distances their highlights
     overlap and a person (and the detector) sees one. BPs are taken brightest first; a BP that
     lies inside the region of a brighter target joins it, and a target then holds several BPs
@@ -553,4 +562,10 @@ def highlight_targets(highlights: list[HighlightTruth], specular: np.ndarray, va
     return [HighlightTarget(np.array([m.bp_px for m in g["members"]], dtype=np.float64),
                             tuple(int(m.light) for m in g["members"]), tuple(g["members"]),
                             g["peak"], int(g["region"].sum()))
-            for g in groups if g["fair"]]
+            for g in groups if g["fair"] and _one_bp_per_light(g["members"])]
+
+
+def _one_bp_per_light(members) -> bool:
+    """Whether no light has two of these BPs (:func:`highlight_targets`, rule 3)."""
+    lights = [int(m.light) for m in members]
+    return len(set(lights)) == len(lights)
