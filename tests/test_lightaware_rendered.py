@@ -218,8 +218,8 @@ def test_rendered_liver_depth_is_observable_under_two_lights_and_not_under_one()
 
 def test_the_plane_fit_on_the_endoscope_renders_specular_image_recovers_the_normal():
     # The endoscope suite's flat mucosa (guides 4 mm off the lens, plane 20 mm away, GGX film):
-    # its sensor image holds the textured albedo's diffuse shading, the sRGB tone curve and a
-    # clipped plateau besides the lobes, and the photometric fit does not converge there. On the
+    # its sensor image holds the textured albedo's diffuse shading and the sRGB tone curve
+    # besides the lobes, and the photometric fit there errs by tenths of a degree. On the
     # render's specular radiance alone (the oracle input of ``photometric_fit_on_specular``)
     # the same fit recovers the plane: the model and its geometry are right, the rest of the
     # image formation is what defeats it. Bound: 0.05 deg, ten times the 0.003 deg measured and
@@ -229,7 +229,11 @@ def test_the_plane_fit_on_the_endoscope_renders_specular_image_recovers_the_norm
     runner = RenderedRunner(case, ("photometric_fit", "photometric_fit_on_specular",
                                    "photometric_fit_on_radiance", "bp_ray"))
     rows = runner.run(realisation_seed(suite.seed, case.key, 0))
-    assert len(rows) == 2  # one row per guide's highlight (merged into one detection)
+    assert len(rows) == 2  # one row per guide's highlight
+    # the two guides' lobes, 18 px apart under the peak-protecting exposure, are two detections,
+    # one of them the other's cluster neighbour: the rows of the detected ones are scored
+    rows = [row for row in rows if np.isfinite(row.errors["bp_ray"])]
+    assert rows
     for row in rows:
         oracle, bp = row.errors["photometric_fit_on_specular"], row.errors["bp_ray"]
         assert oracle <= 0.05, row.errors
