@@ -250,6 +250,10 @@ class Detection:
         > 0): for an 8-bit or 16-bit RGB frame OpenCV's gray, rounded to whole levels, smoothed;
         the luma itself for a gray frame (R = G = B), a single-channel or a float image, where
         the pipeline contours every ROI of the frame in it (one smoothing per frame).
+    gray : ndarray of shape (H, W) or None
+        The gray detection examined before any smoothing (not to be written): OpenCV's gray of an RGB
+        frame (rounded to whole levels for 8-bit and 16-bit frames; the channel itself where
+        R = G = B), the image itself when single-channel.
     """
 
     candidates: list[Candidate] = field(default_factory=list)
@@ -257,6 +261,7 @@ class Detection:
     threshold: float = 0.0
     n_unexamined: int = 0
     smoothed: np.ndarray | None = None
+    gray: np.ndarray | None = None
 
     @property
     def n_components(self) -> int:
@@ -583,7 +588,29 @@ def image_smooth_sigma_px(image: np.ndarray, full_scale: float) -> float:
     float
         Sigma in px, >= 0.
     """
-    return _sigma_for_noise(_noise_sigma_of_rows(_gray_native(_noise_rows(image))) / full_scale)
+    return _sigma_for_noise(image_noise_sigma(image) / full_scale)
+
+
+def image_noise_sigma(image: np.ndarray) -> float:
+    """:func:`noise_sigma` of a validated image's luma (OpenCV's gray of an RGB image), read on
+    the rows the estimate reads only (what :func:`image_smooth_sigma_px` measures).
+
+    Parameters
+    ----------
+    image : ndarray of shape (H, W) or (H, W, 3)
+        A validated image (:func:`validate_image`).
+
+    Returns
+    -------
+    float
+        Image units, >= 0.
+    """
+    return _noise_sigma_of_rows(_gray_native(_noise_rows(image)))
+
+
+def smooth_sigma_for_noise(noise: float, full_scale: float) -> float:
+    """:func:`auto_smooth_sigma_px`'s choice for a measured ``noise`` (image units), px."""
+    return _sigma_for_noise(noise / full_scale)
 
 
 def _sigma_for_noise(s: float) -> float:
@@ -943,7 +970,7 @@ def detect_specularities(
     if smooth_sigma_px > 0:
         smoothed = gray
         smoothed.setflags(write=False)
-    return Detection(out, fs, thr, max(0, n_comps - len(out)), smoothed)
+    return Detection(out, fs, thr, max(0, n_comps - len(out)), smoothed, native)
 
 
 @dataclass(frozen=True)

@@ -84,9 +84,10 @@ from simtest.reconstruct.detect import (
     connected_components,
     default_full_scale,
     detect_specularities,
-    image_smooth_sigma_px,
+    image_noise_sigma,
     luma,
     peak_uv,
+    smooth_sigma_for_noise,
     validate_image,
 )
 from simtest.reconstruct.estimators import estimate_from_conics, joint_cone_axes
@@ -347,6 +348,10 @@ class _Frame:
     #: The whole frame's smoothed luma as detection computed it (float32, read-only; see
     #: ``with_detection_smoothing``): every ROI's values are slices of it.
     smoothed32: np.ndarray | None = None
+    #: The luma's noise standard deviation (image units) measured to choose the smoothing
+    #: (:func:`~simtest.reconstruct.detect.image_noise_sigma` of the region looked at); None
+    #: when the settings fixed the smoothing.
+    noise: float | None = None
 
     @classmethod
     def make(cls, image, K, dist_coeffs, settings: ReconSettings, noise_roi: Roi | None = None) -> _Frame:
@@ -359,11 +364,12 @@ class _Frame:
         sat = settings.saturation_level
         if sat is None and img.dtype.kind == "u":
             sat = float(np.iinfo(img.dtype).max)
-        sigma = settings.smooth_sigma_px
+        sigma, noise = settings.smooth_sigma_px, None
         if sigma is None:  # chosen from the noise of the region looked at
             region = img if noise_roi is None else img[noise_roi.slices]
-            sigma = image_smooth_sigma_px(region, fs)
-        return cls(img, camera, settings, fs, sat, float(sigma))
+            noise = image_noise_sigma(region)
+            sigma = smooth_sigma_for_noise(noise, fs)
+        return cls(img, camera, settings, fs, sat, float(sigma), noise=noise)
 
     def bp_ray(self, bp_uv: np.ndarray) -> np.ndarray:
         """BP-ray normal of a pixel (3,), NaN when the pixel has no ray in the camera model."""
@@ -1276,18 +1282,25 @@ def reconstruct(
                                  fitf=frames_of.get(k)))
     done = _complete(out)
     if settings.verify and done:
-        done = _verified(frame, done)
+        whole = sub.shape == img.shape
+        done = _verified(frame, done, det.gray if whole else None, frame.noise if whole else None)
     return Estimates(done, n_components=det.n_components,
                      n_unexamined=det.n_unexamined, max_candidates=settings.max_candidates)
 
 
-def _verified(frame: _Frame, ests: list[SpecularityEstimate]) -> list[SpecularityEstimate]:
+def _verified(frame: _Frame, ests: list[SpecularityEstimate], native: np.ndarray | None = None,
+              noise: float | None = None) -> list[SpecularityEstimate]:
     """The estimates with their confidence, and the fitted ones that fail a specularity check
-    of :mod:`simtest.reconstruct.verify` with its reason as status (the fit is kept)."""
+    of :mod:`simtest.reconstruct.verify` with its reason as status (the fit is kept).
+
+    ``native`` is detection's unsmoothed gray of the whole frame (``Detection.gray``) and
+    ``noise`` the noise measured on it (``_Frame.noise``), or None: measured again."""
     # the frame's luma as the camera gave it (small glints beside a highlight survive no smoothing;
-    # the checks weigh heights against its noise)
-    gray = frame.luma_frame if frame.luma_frame is not None else luma(frame.img)
-    ev, res, inside = assess(frame.img, gray, ests, full_scale=frame.full_scale)
+    # the checks weigh heights against its noise): detection's gray where it is the luma itself
+    # (a single-channel frame, or R = G = B, where OpenCV's gray is the channel), else the float32
+    # luma (the checks measure in float32)
+    gray = _verifier_luma(frame, native)
+    ev, res, inside = assess(frame.img, gray, ests, full_scale=frame.full_scale, noise=noise)
     conf = confidence(ev, res)
     checks = verdict(ev, res, inside)
     out = []
@@ -1296,6 +1309,21 @@ def _verified(frame: _Frame, ests: list[SpecularityEstimate]) -> list[Specularit
         fitted = np.isfinite(res[k])  # a confidence for the fitted candidates only
         out.append(_replaced(e, status=status, detail=detail, confidence=float(conf[k]) if fitted else None))
     return out
+
+
+def _verifier_luma(frame: _Frame, native: np.ndarray | None) -> np.ndarray:
+    """The luma :func:`_verified` measures in (H, W): ``native`` (detection's gray) where it is
+    the luma's values (a single-channel image, or an RGB one with R = G = B), the frame's luma
+    where it was computed, else OpenCV's float32 luma of the frame (the verifier's arithmetic is
+    float32: within a float32 rounding of the float64 luma, a third of its time)."""
+    img = frame.img
+    if native is not None and native.shape == img.shape[:2] and (img.ndim == 2 or _kernels.is_gray(img)):
+        return native
+    if frame.luma_frame is not None:
+        return frame.luma_frame
+    if img.ndim == 3 and img.shape[2] == 3 and img.dtype.type in (np.uint8, np.uint16, np.float32):
+        return cv2.cvtColor(img.astype(np.float32), cv2.COLOR_RGB2GRAY)
+    return luma(img)
 
 
 def _replaced(est: SpecularityEstimate, **changes) -> SpecularityEstimate:

@@ -648,6 +648,27 @@ def _surround_fraction(gray: np.ndarray, ell, bp_ij: np.ndarray, reach: float) -
     return float(np.count_nonzero((top >= SURROUND_REL * peak) & ring) / np.count_nonzero(ring))
 
 
+def _surround_fractions(gray: np.ndarray, ells, bp_ij: np.ndarray, reach: np.ndarray) -> np.ndarray:
+    """:func:`_surround_fraction` of several candidates (ellipses ``ells``, BP pixels ``bp_ij``
+    (n, 2), ``reach`` (n,)) in one compiled call (:func:`~simtest.reconstruct._kernels.surround_fractions`:
+    the opening by van Herk and Gil-Werman's running extremes, the same values as OpenCV's; the
+    loop of OpenCV calls cost 0.3 ms a candidate of the noisy bench frame and 50 us on the banner);
+    a window with a non-finite value is measured by :func:`_surround_fraction`."""
+    if not len(ells):
+        return np.zeros(0)
+    p = np.array([(e.center[0], e.center[1], e.semi_axes[0], e.semi_axes[1], e.angle_rad) for e in ells],
+                 np.float64).reshape(-1, 5)
+    bp_ij = np.asarray(bp_ij, np.int64).reshape(-1, 2)
+    src = gray if gray.dtype in (np.uint8, np.uint16, np.float32, np.float64) else gray.astype(np.float64)
+    out = _kernels.surround_fractions(src, np.ascontiguousarray(bp_ij[:, 0]), np.ascontiguousarray(bp_ij[:, 1]),
+                                      np.asarray(reach, np.float64), p[:, 0].copy(), p[:, 1].copy(),
+                                      p[:, 2].copy(), p[:, 3].copy(), np.cos(p[:, 4]), np.sin(p[:, 4]),
+                                      _OWN_LEVEL, SURROUND_REL)
+    for k in np.flatnonzero(np.isnan(out)):
+        out[k] = _surround_fraction(gray, ells[k], bp_ij[k], float(reach[k]))
+    return out
+
+
 def _ellipse_level(ell, u, v):
     """``(x / a)^2 + (y / b)^2`` of points (u, v) px in the ellipse's own axes (centre,
     semi-axes a >= b, angle): at most 1 inside it; arrays or scalars."""
@@ -657,7 +678,8 @@ def _ellipse_level(ell, u, v):
     return ((c * du + s * dv) / a) ** 2 + ((-s * du + c * dv) / b) ** 2
 
 
-def assess(image: np.ndarray, gray: np.ndarray, ests, *, full_scale: float, windowed: bool | None = None):
+def assess(image: np.ndarray, gray: np.ndarray, ests, *, full_scale: float, windowed: bool | None = None,
+           noise: float | None = None):
     """The evidence on a frame's estimates, with their fits' residual ratios and BP placement.
 
     Parameters
@@ -672,6 +694,10 @@ def assess(image: np.ndarray, gray: np.ndarray, ests, *, full_scale: float, wind
         Intensity of white, image units.
     windowed : bool, optional
         As for :func:`frame_evidence` (the same evidence either way).
+    noise : float, optional
+        The luma's noise standard deviation, image units, where the caller measured it (the
+        pipeline: on the rows detection read, :func:`~simtest.reconstruct.detect.noise_sigma` of
+        OpenCV's gray); default :func:`~simtest.reconstruct.detect.noise_sigma` of ``gray``.
 
     Returns
     -------
@@ -713,7 +739,7 @@ def assess(image: np.ndarray, gray: np.ndarray, ests, *, full_scale: float, wind
     # no image outline at all: judged on the rest
     res[ok & ~fitted], inside[ok & ~fitted] = 0.0, True
     ev = frame_evidence(image, gray, bps, [e.roi for e in ests], full_scale=full_scale,
-                        noise=noise_sigma(gray), background_px=background_side_px(gray.shape),
+                        noise=noise_sigma(gray) if noise is None else float(noise), background_px=background_side_px(gray.shape),
                         reach_px=reach, ellipses=ells, windowed=windowed)
     clipped = np.array([bool(e.saturated) for e in ests], dtype=bool)
     # the surround, for the candidates that pass every check before it (verdict's order); the
@@ -725,8 +751,8 @@ def assess(image: np.ndarray, gray: np.ndarray, ests, *, full_scale: float, wind
     if passed.any():
         g = np.asarray(gray)  # _surround_fraction converts its window to float32 (the same values)
         ij = np.clip(np.rint(bps).astype(np.int64), 0, [gray.shape[1] - 1, gray.shape[0] - 1])
-        for k in np.flatnonzero(passed):
-            surround[k] = _surround_fraction(g, ells[k], ij[k], reach[k])
+        surround[passed] = _surround_fractions(g, [ells[k] for k in np.flatnonzero(passed)], ij[passed],
+                                               reach[passed])
     return replace(ev, clipped=clipped, minor_px=minor, surround=surround), res, inside
 
 
