@@ -1508,7 +1508,8 @@ def rect_opening(src, k):
     """Grey opening of a float32 array (h, w) by a k x k square (k odd), the array's edges
     replicated: ``cv2.morphologyEx(src, cv2.MORPH_OPEN, ones((k, k)),
     borderType=cv2.BORDER_REPLICATE)`` for finite values (minima and maxima are exact: the same
-    values; ``tests/test_kernels.py`` compares them). Erosion then dilation, each over the
+    values, but for the sign of a zero where 0.0 and -0.0 tie; ``tests/test_kernels.py`` compares
+    them). Erosion then dilation, each over the
     columns, then over the rows of the transposed array."""
     a = k // 2
     t = _columns_extreme(src, a, False)
@@ -1577,4 +1578,38 @@ def surround_fractions(gray, bj, bi, reach, cu, cv, sa, sb, cs, sn, own_level, r
                 if ring[r, c] and win[r, c] - op[r, c] >= thr:
                     m += 1
         out[q] = m / n_ring
+    return out
+
+
+
+@numba.njit(cache=True, nogil=True)
+def linear_at_points(small, h, w, rows, cols):
+    """``cv2.resize(small, (w, h), interpolation=cv2.INTER_LINEAR)[rows, cols]`` at those pixels
+    only, for a float32 (sh, sw, C) array: OpenCV's sample positions (``(x + 0.5) sw / w - 0.5``),
+    clamped at the sides, its weights in float32 (to its rounding). float32 (P, C)."""
+    sh, sw, C = small.shape
+    n = len(rows)
+    out = np.empty((n, C), np.float32)
+    one = np.float32(1.0)
+    for p in range(n):
+        y = (rows[p] + 0.5) * (sh / h) - 0.5
+        y0 = int(np.floor(y))
+        ay = np.float32(y - y0)
+        if y0 < 0:
+            y0, ay = 0, np.float32(0.0)
+        if y0 >= sh - 1:
+            y0, ay = sh - 1, np.float32(0.0)
+        y1 = min(y0 + 1, sh - 1)
+        x = (cols[p] + 0.5) * (sw / w) - 0.5
+        x0 = int(np.floor(x))
+        ax = np.float32(x - x0)
+        if x0 < 0:
+            x0, ax = 0, np.float32(0.0)
+        if x0 >= sw - 1:
+            x0, ax = sw - 1, np.float32(0.0)
+        x1 = min(x0 + 1, sw - 1)
+        for ch in range(C):
+            top = small[y0, x0, ch] * (one - ax) + small[y0, x1, ch] * ax
+            bot = small[y1, x0, ch] * (one - ax) + small[y1, x1, ch] * ax
+            out[p, ch] = top * (one - ay) + bot * ay
     return out

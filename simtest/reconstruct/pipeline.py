@@ -1299,8 +1299,8 @@ def _verified(frame: _Frame, ests: list[SpecularityEstimate], native: np.ndarray
     # the checks weigh heights against its noise): detection's gray where it is the luma itself
     # (a single-channel frame, or R = G = B, where OpenCV's gray is the channel), else the float32
     # luma (the checks measure in float32)
-    gray = _verifier_luma(frame, native)
-    ev, res, inside = assess(frame.img, gray, ests, full_scale=frame.full_scale, noise=noise)
+    gray, grey = _verifier_luma(frame, native)
+    ev, res, inside = assess(frame.img, gray, ests, full_scale=frame.full_scale, noise=noise, grey=grey)
     conf = confidence(ev, res)
     checks = verdict(ev, res, inside)
     out = []
@@ -1311,19 +1311,23 @@ def _verified(frame: _Frame, ests: list[SpecularityEstimate], native: np.ndarray
     return out
 
 
-def _verifier_luma(frame: _Frame, native: np.ndarray | None) -> np.ndarray:
-    """The luma :func:`_verified` measures in (H, W): ``native`` (detection's gray) where it is
-    the luma's values (a single-channel image, or an RGB one with R = G = B), the frame's luma
-    where it was computed, else OpenCV's float32 luma of the frame (the verifier's arithmetic is
-    float32: within a float32 rounding of the float64 luma, a third of its time)."""
+def _verifier_luma(frame: _Frame, native: np.ndarray | None) -> tuple[np.ndarray, bool]:
+    """The luma :func:`_verified` measures in (H, W), and whether it is the value of R, G and B
+    alike: ``native`` (detection's gray) where it is the luma's values (a single-channel image,
+    or an RGB one with R = G = B), the frame's luma where it was computed, else OpenCV's float32
+    luma of the frame (the verifier's arithmetic is float32: within a float32 rounding of the
+    float64 luma, a third of its time)."""
     img = frame.img
-    if native is not None and native.shape == img.shape[:2] and (img.ndim == 2 or _kernels.is_gray(img)):
-        return native
+    if native is not None and native.shape == img.shape[:2]:
+        if img.ndim == 2:
+            return native, False
+        if img.shape[2] >= 3 and _kernels.is_gray(img):
+            return native, True
     if frame.luma_frame is not None:
-        return frame.luma_frame
+        return frame.luma_frame, False
     if img.ndim == 3 and img.shape[2] == 3 and img.dtype.type in (np.uint8, np.uint16, np.float32):
-        return cv2.cvtColor(img.astype(np.float32), cv2.COLOR_RGB2GRAY)
-    return luma(img)
+        return cv2.cvtColor(img.astype(np.float32), cv2.COLOR_RGB2GRAY), False
+    return luma(img), False
 
 
 def _replaced(est: SpecularityEstimate, **changes) -> SpecularityEstimate:
