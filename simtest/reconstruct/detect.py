@@ -989,8 +989,11 @@ def detect_specularities(
 #: 2 px leaves 0.6 % of the amplitude at the reduced frame's Nyquist frequency (a quarter cycle a
 #: pixel), so the reduced smoothed frame holds what the full one does.
 MULTIRES_SIGMA_MIN_PX = 2.0
-#: ... on frames whose sides are at least this many px (a small frame costs little).
+#: ... on frames whose sides are at least this many px (a small frame costs little), and with at
+#: most this many candidates (each is examined in a window at full resolution, about 0.3 ms; a
+#: frame with more is detected at full resolution).
 MULTIRES_SIDE_MIN_PX = 256
+MULTIRES_CANDIDATES_MAX = 64
 
 
 def _detect_half_resolution(img, native, fs, saturation_level, *, min_area_px, ellipticity_min, min_plateau_px,
@@ -1006,8 +1009,10 @@ def _detect_half_resolution(img, native, fs, saturation_level, *, min_area_px, e
     and area are scaled back; its BP is the maximum of the full frame's smoothing within 2 px of
     the reduced one's, refined by :func:`refine_peak_uv` as at full resolution (that smoothing
     computed in a window around it only), a clipped plateau's centroid scaled back; its ROI is
-    proposed at full resolution. On the bench's noisy 1350 x 1080 frame: 9 -> 3 ms, the same
-    candidates (:mod:`simtest.reconstruct.compare` holds the results to its tolerance).
+    proposed at full resolution. On the bench's noisy 1350 x 1080 frame: 9 -> 5.5 ms, the same
+    BPs and ROIs, areas within 3 px (:mod:`simtest.reconstruct.compare` holds the results to its
+    tolerance). None (the caller detects at full resolution) where the reduced frame's block grid
+    is not the full one's, or with more than :data:`MULTIRES_CANDIDATES_MAX` candidates.
     """
     h, w = native.shape
     h2, w2 = h // 2, w // 2
@@ -1036,6 +1041,8 @@ def _detect_half_resolution(img, native, fs, saturation_level, *, min_area_px, e
     if found is None:
         found = _candidates_numpy(frame2, mask2)
     cands2, n_comps = found
+    if len(cands2) > MULTIRES_CANDIDATES_MAX:
+        return None  # each costs a window at full resolution: the whole frame is cheaper
     # the full frame's smoothing, background and local peaks, written in the candidates' windows
     # only (np.empty: the rest is never read)
     gray = np.empty((h, w), np.float32)
