@@ -584,3 +584,17 @@ def test_the_surround_of_several_candidates_in_one_call_is_verifys_loop(seed, n,
     ij, reach = np.array(ij), np.array(reach)
     want = [verify._surround_fraction(img, e, b, r) for e, b, r in zip(ells, ij, reach)]
     assert verify._surround_fractions(img, ells, ij, reach).tolist() == want
+
+
+@given(seed=st.integers(0, 2**32 - 1), coarse=st.booleans())
+@settings(max_examples=40, deadline=None)
+def test_the_counts_near_each_steps_multiples_are_numpys_reduceat(seed, coarse):
+    """jpeg._steps_of's counts of coefficients within 1 of each candidate step's multiples, one
+    compiled pass (_kernels.multiple_counts), are numpy's three reduceat over gathered rows."""
+    from simtest.reconstruct import jpeg
+
+    nbin, qs, mult_idx, mult_start, _ = jpeg._COARSE if coarse else jpeg._FULL
+    rng = np.random.default_rng(seed)
+    hist = rng.integers(0, 50, (nbin, int(rng.integers(1, 65)))).astype(np.int32)
+    want = sum(np.add.reduceat(hist[mult_idx + d], mult_start, axis=0) for d in (-1, 0, 1))
+    assert np.array_equal(_kernels.multiple_counts(hist, mult_idx, mult_start), want)

@@ -1613,3 +1613,22 @@ def linear_at_points(small, h, w, rows, cols):
             bot = small[y1, x0, ch] * (one - ax) + small[y1, x1, ch] * ax
             out[p, ch] = top * (one - ay) + bot * ay
     return out
+
+
+@numba.njit(cache=True, nogil=True)
+def multiple_counts(hist, mult_idx, mult_start):
+    """Per candidate step and frequency, the coefficients within 1 of a nonzero multiple of the
+    step: ``sum(np.add.reduceat(hist[mult_idx + d], mult_start, axis=0) for d in (-1, 0, 1))``
+    of :func:`simtest.reconstruct.jpeg._steps_of` (a histogram (bins, K) of rounded magnitudes;
+    the multiples of each step concatenated, each step's run starting at ``mult_start``, none
+    empty), int64 (len(mult_start), K), without the gathered copies."""
+    nq = len(mult_start)
+    K = hist.shape[1]
+    out = np.zeros((nq, K), np.int64)
+    for i in range(nq):
+        j1 = mult_start[i + 1] if i + 1 < nq else len(mult_idx)
+        for j in range(mult_start[i], j1):
+            b = mult_idx[j]
+            for k in range(K):
+                out[i, k] += hist[b - 1, k] + hist[b, k] + hist[b + 1, k]
+    return out

@@ -1235,12 +1235,17 @@ def _verified(frame: _Frame, ests: list[SpecularityEstimate], native: np.ndarray
     of :mod:`simtest.reconstruct.verify` with its reason as status (the fit is kept).
 
     ``native`` is detection's unsmoothed gray of the whole frame (``Detection.gray``) and
-    ``noise`` the noise measured on it (``_Frame.noise``), or None: measured again."""
+    ``noise`` the noise measured on it (``_Frame.noise``), or None: measured again (also where
+    the verifier measures in another luma than ``native``)."""
     # the frame's luma as the camera gave it (small glints beside a highlight survive no smoothing;
     # the checks weigh heights against its noise): detection's gray where it is the luma itself
     # (a single-channel frame, or R = G = B, where OpenCV's gray is the channel), else the float32
     # luma (the checks measure in float32)
     gray, grey = _verifier_luma(frame, native)
+    if gray is not native:
+        # a colour frame: OpenCV's gray, rounded to whole levels, carries the rounding's noise
+        # (0.6 against 0.29 levels on a small colonoscope_plane render): measured on the luma
+        noise = None
     ev, res, inside = assess(frame.img, gray, ests, full_scale=frame.full_scale, noise=noise, grey=grey)
     conf = confidence(ev, res)
     checks = verdict(ev, res, inside)

@@ -54,7 +54,7 @@ import numpy as np
 
 from simtest.reconstruct import _kernels
 from simtest.reconstruct.detect import background_side_px, connected_components, noise_sigma
-from simtest.reconstruct.fit import fit_ellipse
+from simtest.reconstruct.fit import fit_ellipses
 from simtest.reconstruct.jpeg import quantisation_sigma
 
 __all__ = ["PALENESS_MAX", "WHITE_CHROMA", "SIGNIFICANCE_MIN", "CONTRAST_MIN", "PANEL_STD_REL",
@@ -727,14 +727,14 @@ def assess(image: np.ndarray, gray: np.ndarray, ests, *, full_scale: float, wind
     ells = [e.ellipse for e in ests]
     resid = [e.fit_residual_px for e in ests]
     ok = np.array([e.ok for e in ests], dtype=bool)
-    for k in np.flatnonzero(ok):
-        if ells[k] is None and ests[k].points_uv is not None:
-            # a camera model without image conics fits its isophote on the viewing rays, where
-            # it is a conic; the image outline the lens distorts still gives the checks its size,
-            # reach and own lobe (its residual is the lens's, not the fit's: taken as 0)
-            fit = fit_ellipse(ests[k].points_uv)
-            if fit:
-                ells[k], resid[k] = fit.ellipse, 0.0
+    # a camera model without image conics fits its isophote on the viewing rays, where it is a
+    # conic; the image outline the lens distorts still gives the checks its size, reach and own
+    # lobe (its residual is the lens's, not the fit's: taken as 0); all fitted in one batch
+    # (fit_ellipses: 300 fits of the colonoscope frame, 7 ms one by one)
+    refit = [k for k in np.flatnonzero(ok) if ells[k] is None and ests[k].points_uv is not None]
+    for k, fit in zip(refit, fit_ellipses([ests[k].points_uv for k in refit]) if refit else ()):
+        if fit:
+            ells[k], resid[k] = fit.ellipse, 0.0
     fitted = np.array([ell is not None and r is not None for ell, r in zip(ells, resid)], dtype=bool)
     if fitted.any():  # every fitted estimate's numbers at once (arrays in the ellipse's place)
         f = np.flatnonzero(fitted)
