@@ -436,7 +436,8 @@ def _surely_no_panels(gray: np.ndarray, noise: float, rr: np.ndarray) -> bool:
         if not roi.any():
             continue
         n, lab, stats, _ = cv2.connectedComponentsWithStats(maybe, connectivity=8)
-        ids = np.unique(lab[row0 - wr0:row1 - wr0, col0 - wc0:col1 - wc0])
+        # the labels present in the region (np.unique's hashing cost 0.25 ms a region)
+        ids = np.flatnonzero(np.bincount(lab[row0 - wr0:row1 - wr0, col0 - wc0:col1 - wc0].ravel(), minlength=n))
         ids = ids[ids > 0]
         st = stats[ids]
         x0, y0 = st[:, cv2.CC_STAT_LEFT], st[:, cv2.CC_STAT_TOP]
@@ -468,7 +469,8 @@ def _maxima_windows(g: np.ndarray, bg: np.ndarray, floor: np.float32, windows) -
         top[r0:r1, c0:c1] = t[r0 - e0:r1 - e0, c0 - f0:c1 - f0]
         yy, xx = np.nonzero(mk[r0 - e0:r1 - e0, c0 - f0:c1 - f0])
         idx.append((yy + r0).astype(np.int64) * w + (xx + c0))
-    flat = np.unique(np.concatenate(idx)) if idx else np.zeros(0, np.int64)
+    flat = np.sort(np.concatenate(idx)) if idx else np.zeros(0, np.int64)
+    flat = flat[np.r_[True, flat[1:] != flat[:-1]]] if len(flat) else flat  # each once (np.unique's)
     ys, xs = np.divmod(flat, w)
     return top, ys, xs
 
