@@ -155,11 +155,13 @@ def test_recording_a_frame_leaves_its_results_alone_and_sees_its_smoothing():
     with bench.opencv_calls() as calls:
         got = reconstruct(frame, K)
     assert [estimate_to_dict(e, True) for e in got] == [estimate_to_dict(e, True) for e in want]
-    # the noisy frame is smoothed once whole, then each ROI for itself (10 highlights: fewer than
-    # pipeline.LUMA_FRAME_MIN_HIGHLIGHTS, so no frame-wide smoothing for the contours)
+    # the noisy frame (sigma 2.5 px) is smoothed once whole at half resolution for detection
+    # (detect.MULTIRES_SIGMA_MIN_PX), each candidate in a window at full resolution, then each
+    # ROI for itself (10 highlights: fewer than pipeline.LUMA_FRAME_MIN_HIGHLIGHTS, so no
+    # frame-wide smoothing for the contours)
     blurs = [c for c in calls if c.name == "GaussianBlur"]
-    assert blurs[0].args[0].shape == frame.shape[:2]
-    assert len(blurs) - 1 == len(want)
+    assert blurs[0].args[0].shape == (frame.shape[0] // 2, frame.shape[1] // 2)
+    assert len(blurs) - 1 == 2 * len(want)
 
 
 def test_every_image_function_the_reconstruction_calls_is_recorded():

@@ -426,3 +426,31 @@ def test_detection_hands_over_its_smoothing_and_the_pipeline_smooths_the_unround
     det = detect_specularities(grey, smooth_sigma_px=1.5, method="local_peak")
     assert _frame_luma_smoothing(grey, det.smoothed, 1.5) is det.smoothed
     assert detect_specularities(img, smooth_sigma_px=0.0).smoothed is None
+
+
+def test_a_smoothed_frame_detected_at_half_resolution_has_the_full_resolutions_candidates(monkeypatch):
+    """Issue 41: local-peak detection of a frame smoothed by >= 2 px looks for its components on
+    the frame reduced twice and examines each at full resolution: on the bench's noisy frame
+    (2 % noise, sigma 2.5 px, two clipped highlights) the BPs, peaks, statuses and ROIs are
+    those of the full-resolution detection, the areas within 1 %, the levels within 0.1 grey
+    level (the background enlarged from the same blocks' means, to float32 rounding)."""
+    from simtest import bench
+    from simtest.reconstruct import detect
+
+    img, _, _ = bench.noisy_frame()
+    half = detect.detect_specularities(img, method="local_peak", smooth_sigma_px=2.5)
+    monkeypatch.setattr(detect, "MULTIRES_SIGMA_MIN_PX", np.inf)
+    full = detect.detect_specularities(img, method="local_peak", smooth_sigma_px=2.5)
+    assert half.smoothed is None and full.smoothed is not None  # the path taken
+    assert len(half.candidates) == len(full.candidates) == 10
+    for a, b in zip(half.candidates, full.candidates):
+        assert a.bp_uv.tolist() == b.bp_uv.tolist() and a.peak == b.peak and a.saturated == b.saturated
+        assert (a.status, a.roi) == (b.status, b.roi)
+        assert abs(a.area_px - b.area_px) <= 0.01 * b.area_px
+        assert abs(a.level - b.level) < 0.1
+    # more candidates than MULTIRES_CANDIDATES_MAX: the full resolution's, unchanged
+    monkeypatch.setattr(detect, "MULTIRES_SIGMA_MIN_PX", 2.0)
+    monkeypatch.setattr(detect, "MULTIRES_CANDIDATES_MAX", 5)
+    again = detect.detect_specularities(img, method="local_peak", smooth_sigma_px=2.5)
+    assert again.smoothed is not None
+    assert [c.bp_uv.tolist() for c in again.candidates] == [c.bp_uv.tolist() for c in full.candidates]

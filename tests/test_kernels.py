@@ -8,11 +8,13 @@ from __future__ import annotations
 
 from unittest import mock
 
+import cv2
 import numpy as np
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from simtest.reconstruct import _kernels
+from simtest.geometry.conics import Ellipse
+from simtest.reconstruct import _kernels, verify
 from simtest.reconstruct.isophote import (Isophote, _cut_and_contour, _extract, _region, extract_isophote,
                                          isophote_cut_by_roi, polygon_contains)
 
@@ -539,3 +541,60 @@ def test_label_areas_and_labels_in_are_numpys(seed, h, w):
     out = np.empty((h, w), np.uint8)
     _kernels.labels_in(lab, keep, out)
     assert out.tobytes() == keep[lab].tobytes()
+
+
+@given(seed=st.integers(0, 2**32 - 1), h=st.integers(1, 60), w=st.integers(1, 60), k=st.integers(1, 70),
+       quantised=st.booleans())
+@settings(max_examples=200, deadline=None)
+def test_the_compiled_opening_is_opencvs(seed, h, w, k, quantised):
+    """van Herk and Gil-Werman's running extremes give OpenCV's grey opening by a square, edges
+    replicated: the same values (minima and maxima are exact), squares wider than the array too."""
+    rng = np.random.default_rng(seed)
+    x = rng.normal(0.0, 10.0, (h, w)).astype(np.float32)
+    if quantised:  # ties
+        x = np.round(x / 5.0).astype(np.float32)
+    k |= 1
+    want = cv2.morphologyEx(x, cv2.MORPH_OPEN, np.ones((k, k), np.uint8), borderType=cv2.BORDER_REPLICATE)
+    got = _kernels.rect_opening(x, k)
+    # equal values (a tie of 0.0 and -0.0 may keep either sign, as OpenCV's SIMD min may)
+    assert got.dtype == np.float32 and np.array_equal(got, want)
+
+
+@given(seed=st.integers(0, 2**32 - 1), n=st.integers(1, 6), dtype=st.sampled_from([np.uint8, np.float32, np.float64]))
+@settings(max_examples=60, deadline=None)
+def test_the_surround_of_several_candidates_in_one_call_is_verifys_loop(seed, n, dtype):
+    """verify._surround_fractions (one compiled call) gives verify._surround_fraction's share of
+    each candidate, windows cut by the frame's edges included."""
+    rng = np.random.default_rng(seed)
+    h, w = 90, 120
+    yy, xx = np.mgrid[0:h, 0:w].astype(np.float64)
+    img = rng.uniform(0, 30, (h, w))
+    ells, ij, reach = [], [], []
+    for _ in range(n):
+        cu, cv = rng.uniform(0, w - 1), rng.uniform(0, h - 1)
+        s, q, ang = rng.uniform(1.5, 8.0), rng.uniform(0.4, 1.0), rng.uniform(0, np.pi)
+        c, si = np.cos(ang), np.sin(ang)
+        x, y = c * (xx - cu) + si * (yy - cv), -si * (xx - cu) + c * (yy - cv)
+        img += rng.uniform(50, 200) * np.exp(-0.5 * ((x / s) ** 2 + (y / (q * s)) ** 2))
+        r07 = np.sqrt(2 * np.log(1 / 0.7))
+        ells.append(Ellipse(np.array([cu, cv]), np.array([r07 * s, r07 * q * s]), ang))
+        ij.append([int(round(cu)), int(round(cv))])
+        reach.append(verify.NEIGHBOUR_REACH * r07 * s + verify.OWN_RADIUS_PX)
+    img = np.clip(img, 0, 255).astype(dtype)
+    ij, reach = np.array(ij), np.array(reach)
+    want = [verify._surround_fraction(img, e, b, r) for e, b, r in zip(ells, ij, reach)]
+    assert verify._surround_fractions(img, ells, ij, reach).tolist() == want
+
+
+@given(seed=st.integers(0, 2**32 - 1), coarse=st.booleans())
+@settings(max_examples=40, deadline=None)
+def test_the_counts_near_each_steps_multiples_are_numpys_reduceat(seed, coarse):
+    """jpeg._steps_of's counts of coefficients within 1 of each candidate step's multiples, one
+    compiled pass (_kernels.multiple_counts), are numpy's three reduceat over gathered rows."""
+    from simtest.reconstruct import jpeg
+
+    nbin, qs, mult_idx, mult_start, _ = jpeg._COARSE if coarse else jpeg._FULL
+    rng = np.random.default_rng(seed)
+    hist = rng.integers(0, 50, (nbin, int(rng.integers(1, 65)))).astype(np.int32)
+    want = sum(np.add.reduceat(hist[mult_idx + d], mult_start, axis=0) for d in (-1, 0, 1))
+    assert np.array_equal(_kernels.multiple_counts(hist, mult_idx, mult_start), want)

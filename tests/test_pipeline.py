@@ -497,8 +497,19 @@ def test_a_frame_with_many_highlights_gives_the_same_estimates_with_the_frame_lu
     per_roi, sliced = run(10**6, 1.5), run(1, 1.5)
     assert sum(e.ok for e in per_roi) >= 10
     assert [(e.status, e.roi) for e in per_roi] == [(e.status, e.roi) for e in sliced]
-    assert compare_estimates([estimate_to_dict(e) for e in per_roi],
-                             [estimate_to_dict(e) for e in sliced]).within(ACCURACY)
+    # issue 41: a contour within the kernel's reach of an ROI side inside the image (here nearly
+    # every one: the ROIs are tight) is no longer traced again in the ROI smoothed alone (its
+    # sides reflected): the frame's true neighbours move it slightly. The cone axes stay within
+    # the tolerance; the paper's two normals of a near-frontal ellipse are ill conditioned: on
+    # one highlight of the 11 they turn by 0.38 deg and swap (the 95th percentile of 11 is that
+    # one), the others move by at most 1e-4 deg.
+    cmp = compare_estimates([estimate_to_dict(e) for e in per_roi], [estimate_to_dict(e) for e in sliced])
+    assert not cmp.status_changes
+    stats = cmp.stats()
+    for k in ("cone_axis", "joint_cone_axis"):
+        assert stats[k]["median"] <= ACCURACY.median_move_deg and stats[k]["p95"] <= ACCURACY.p95_move_deg
+    moved = np.array(cmp.moves_deg["paper_selected"])
+    assert np.median(moved) <= ACCURACY.median_move_deg and np.count_nonzero(moved > ACCURACY.p95_move_deg) <= 1
 
 
 def _same_frame(per_roi, sliced):
@@ -630,29 +641,6 @@ def test_reconstruct_pauses_the_cyclic_collector_and_restores_it(monkeypatch):
     assert isinstance(out, P.Estimates) and isinstance(P.Estimates, type) and issubclass(P.Estimates, list)
 
 
-def test_an_rois_own_smoothing_from_the_frames():
-    """pipeline._own_smoothing (an ROI smoothed alone, rebuilt from the frame's one smoothing and
-    strips along its inner sides) is _smooth of the ROI's luma to float32 rounding, for ROIs on
-    and off the image border, small and large."""
-    from simtest.reconstruct.detect import detect_specularities
-    from simtest.reconstruct._pixels import Roi
-
-    rng = np.random.default_rng(3)
-    img = rng.integers(0, 256, (90, 110, 3), dtype=np.uint8)
-    K = np.array([[100.0, 0, 54.5], [0, 100.0, 44.5], [0, 0, 1]])
-    for sigma in (1.0, 2.5):
-        frame = pipeline._Frame.make(img, K, None, ReconSettings.for_frames(smooth_sigma_px=sigma))
-        det = detect_specularities(img, smooth_sigma_px=sigma, method="local_peak")
-        frame = frame.with_detection_smoothing(pipeline._frame_luma_smoothing(img, det.smoothed, sigma))
-        for _ in range(60):
-            r0, c0 = int(rng.integers(0, 80)), int(rng.integers(0, 100))
-            roi = Roi(r0, min(90, r0 + int(rng.integers(1, 90))), c0, min(110, c0 + int(rng.integers(1, 110))))
-            got = pipeline._own_smoothing(frame, roi, sigma)
-            want = pipeline._smooth(frame.luma(roi), sigma)
-            # float32 holds 255-scale values to 1.5e-5; the strips' sums in another order
-            assert np.abs(got - want).max() < 1e-4, roi
-
-
 def test_the_verified_estimates_are_copied_as_dataclasses_replace_copies_them():
     """pipeline._replaced (the verifier's copy of each estimate with its status, detail and
     confidence) gives what dataclasses.replace gives, as long as the class has no __post_init__
@@ -692,3 +680,24 @@ def test_a_frame_asks_the_c_library_to_keep_freed_whole_frame_arrays(monkeypatch
     assert kept.called
     if platform.libc_ver()[0] == "glibc":
         assert pipeline._keep_freed_memory()
+
+
+def test_the_verifier_reuses_detections_gray_and_noise_within_the_accuracy_tolerance():
+    """Issue 41: reconstruct's verifier measures in detection's gray where it is the luma (R = G
+    = B: the channel itself), with the noise measured to choose the smoothing, on one channel of
+    a grey frame; its statuses and confidences are those of the verifier given the float64 luma
+    and measuring the noise again (the same values here: the gray is the luma, its rows the
+    same). (Colour frames: tests/golden.py --compare on the banner holds them to the tolerance.)"""
+    from simtest import bench
+
+    img, K, _ = bench.noisy_frame()
+    ests = pipeline.reconstruct(img, K)
+    frame = pipeline._Frame.make(img, K, None, ReconSettings.make(None, None, frames=True))
+    assert frame.noise is not None and frame.noise > 0
+    plain = [pipeline._replaced(e, status="ok" if e.fit_residual_px is not None and e.status != "merged"
+                                else e.status) for e in ests]
+    redo = pipeline._verified(frame, plain)  # no native gray, no noise: the float64 luma, measured
+    assert [e.status for e in redo] == [e.status for e in ests]
+    assert [e.confidence for e in redo] == pytest.approx([e.confidence for e in ests], rel=1e-6)
+    got = pipeline._verifier_luma(frame, luma(img).astype(np.float32))
+    assert got[1] is True  # R = G = B: measured on one channel

@@ -1447,3 +1447,188 @@ def labels_in(labels, keep, out):
     for r in range(h):
         for c in range(w):
             out[r, c] = keep[labels[r, c]]
+
+
+@numba.njit(cache=True, nogil=True)
+def _columns_extreme(src, a, is_max):
+    """``out[i] = min`` (``max`` where ``is_max``) of ``src[max(0, i - a) : min(h, i + a + 1)]``
+    over rows, for each column of a float32 (h, w) array: the window of side ``2 a + 1``
+    clipped to the array (OpenCV's replicated border gives the same), by van Herk and
+    Gil-Werman's running extremes over blocks of the window's side (three comparisons a pixel,
+    whatever the side), a contiguous row of the array at a time."""
+    h, w = src.shape
+    k = 2 * a + 1
+    L = h + 2 * a  # the rows padded by a on each side (padding: the neutral element)
+    g = np.empty((L, w), np.float32)
+    hb = np.empty((L, w), np.float32)
+    neutral = np.float32(-np.inf) if is_max else np.float32(np.inf)
+    for p in range(L):
+        r = p - a
+        pad = r < 0 or r >= h
+        if p % k == 0:
+            for c in range(w):
+                g[p, c] = neutral if pad else src[r, c]
+        elif pad:
+            for c in range(w):
+                g[p, c] = g[p - 1, c]
+        elif is_max:
+            for c in range(w):
+                g[p, c] = max(g[p - 1, c], src[r, c])
+        else:
+            for c in range(w):
+                g[p, c] = min(g[p - 1, c], src[r, c])
+    for p in range(L - 1, -1, -1):
+        r = p - a
+        pad = r < 0 or r >= h
+        if p == L - 1 or (p + 1) % k == 0:
+            for c in range(w):
+                hb[p, c] = neutral if pad else src[r, c]
+        elif pad:
+            for c in range(w):
+                hb[p, c] = hb[p + 1, c]
+        elif is_max:
+            for c in range(w):
+                hb[p, c] = max(hb[p + 1, c], src[r, c])
+        else:
+            for c in range(w):
+                hb[p, c] = min(hb[p + 1, c], src[r, c])
+    out = np.empty((h, w), np.float32)
+    for i in range(h):
+        if is_max:
+            for c in range(w):
+                out[i, c] = max(hb[i, c], g[i + k - 1, c])
+        else:
+            for c in range(w):
+                out[i, c] = min(hb[i, c], g[i + k - 1, c])
+    return out
+
+
+@numba.njit(cache=True, nogil=True)
+def rect_opening(src, k):
+    """Grey opening of a float32 array (h, w) by a k x k square (k odd), the array's edges
+    replicated: ``cv2.morphologyEx(src, cv2.MORPH_OPEN, ones((k, k)),
+    borderType=cv2.BORDER_REPLICATE)`` for finite values (minima and maxima are exact: the same
+    values, but for the sign of a zero where 0.0 and -0.0 tie; ``tests/test_kernels.py`` compares
+    them). Erosion then dilation, each over the
+    columns, then over the rows of the transposed array."""
+    a = k // 2
+    t = _columns_extreme(src, a, False)
+    t = _columns_extreme(np.ascontiguousarray(t.T), a, False)
+    t = _columns_extreme(t, a, True)
+    return np.ascontiguousarray(_columns_extreme(np.ascontiguousarray(t.T), a, True))
+
+
+@numba.njit(cache=True, nogil=True)
+def surround_fractions(gray, bj, bi, reach, cu, cv, sa, sb, cs, sn, own_level, rel):
+    """:func:`simtest.reconstruct.verify._surround_fraction` of several candidates in one call:
+    BP pixels (``bj`` column, ``bi`` row), ``reach`` px, primary ellipses (centre ``cu``, ``cv``,
+    semi-axes ``sa`` >= ``sb``, ``cs``, ``sn`` the cosine and sine of the angle), the own lobe's
+    level ``own_level`` (``verify._OWN_LEVEL``) and the light's share ``rel``
+    (``verify.SURROUND_REL``). float64 (n,); NaN where a window holds a non-finite value (the
+    caller measures that one with OpenCV)."""
+    h, w = gray.shape
+    n = len(bi)
+    out = np.zeros(n)
+    for q in range(n):
+        R = int(np.ceil(reach[q]))
+        pi, pj = bi[q], bj[q]
+        r0, r1 = max(0, pi - R), min(h, pi + R + 1)
+        c0, c1 = max(0, pj - R), min(w, pj + R + 1)
+        hh, ww = r1 - r0, c1 - c0
+        ring = np.zeros((hh, ww), np.bool_)
+        n_ring = 0
+        rr = reach[q] * reach[q]
+        for r in range(hh):
+            y = float(r + r0)
+            for c in range(ww):
+                x = float(c + c0)
+                if (x - pj) ** 2 + (y - pi) ** 2 <= rr:
+                    du, dv = x - cu[q], y - cv[q]
+                    lev = ((cs[q] * du + sn[q] * dv) / sa[q]) ** 2 + ((-sn[q] * du + cs[q] * dv) / sb[q]) ** 2
+                    if lev > own_level:
+                        ring[r, c] = True
+                        n_ring += 1
+        if n_ring == 0:
+            continue
+        win = np.empty((hh, ww), np.float32)
+        finite = True
+        for r in range(hh):
+            for c in range(ww):
+                v = np.float32(gray[r + r0, c + c0])
+                win[r, c] = v
+                if not np.isfinite(v):
+                    finite = False
+        if not finite:
+            out[q] = np.nan
+            continue
+        k = max(3, R | 1)
+        op = rect_opening(win, k)
+        peak = np.float32(-np.inf)
+        for r in range(max(0, pi - 1 - r0), min(hh, pi + 2 - r0)):
+            for c in range(max(0, pj - 1 - c0), min(ww, pj + 2 - c0)):
+                t = win[r, c] - op[r, c]
+                if t > peak:
+                    peak = t
+        if not peak > 0:
+            continue
+        thr = np.float32(rel * float(peak))
+        m = 0
+        for r in range(hh):
+            for c in range(ww):
+                if ring[r, c] and win[r, c] - op[r, c] >= thr:
+                    m += 1
+        out[q] = m / n_ring
+    return out
+
+
+
+@numba.njit(cache=True, nogil=True)
+def linear_at_points(small, h, w, rows, cols):
+    """``cv2.resize(small, (w, h), interpolation=cv2.INTER_LINEAR)[rows, cols]`` at those pixels
+    only, for a float32 (sh, sw, C) array: OpenCV's sample positions (``(x + 0.5) sw / w - 0.5``),
+    clamped at the sides, its weights in float32 (to its rounding). float32 (P, C)."""
+    sh, sw, C = small.shape
+    n = len(rows)
+    out = np.empty((n, C), np.float32)
+    one = np.float32(1.0)
+    for p in range(n):
+        y = (rows[p] + 0.5) * (sh / h) - 0.5
+        y0 = int(np.floor(y))
+        ay = np.float32(y - y0)
+        if y0 < 0:
+            y0, ay = 0, np.float32(0.0)
+        if y0 >= sh - 1:
+            y0, ay = sh - 1, np.float32(0.0)
+        y1 = min(y0 + 1, sh - 1)
+        x = (cols[p] + 0.5) * (sw / w) - 0.5
+        x0 = int(np.floor(x))
+        ax = np.float32(x - x0)
+        if x0 < 0:
+            x0, ax = 0, np.float32(0.0)
+        if x0 >= sw - 1:
+            x0, ax = sw - 1, np.float32(0.0)
+        x1 = min(x0 + 1, sw - 1)
+        for ch in range(C):
+            top = small[y0, x0, ch] * (one - ax) + small[y0, x1, ch] * ax
+            bot = small[y1, x0, ch] * (one - ax) + small[y1, x1, ch] * ax
+            out[p, ch] = top * (one - ay) + bot * ay
+    return out
+
+
+@numba.njit(cache=True, nogil=True)
+def multiple_counts(hist, mult_idx, mult_start):
+    """Per candidate step and frequency, the coefficients within 1 of a nonzero multiple of the
+    step: ``sum(np.add.reduceat(hist[mult_idx + d], mult_start, axis=0) for d in (-1, 0, 1))``
+    of :func:`simtest.reconstruct.jpeg._steps_of` (a histogram (bins, K) of rounded magnitudes;
+    the multiples of each step concatenated, each step's run starting at ``mult_start``, none
+    empty), int64 (len(mult_start), K), without the gathered copies."""
+    nq = len(mult_start)
+    K = hist.shape[1]
+    out = np.zeros((nq, K), np.int64)
+    for i in range(nq):
+        j1 = mult_start[i + 1] if i + 1 < nq else len(mult_idx)
+        for j in range(mult_start[i], j1):
+            b = mult_idx[j]
+            for k in range(K):
+                out[i, k] += hist[b - 1, k] + hist[b, k] + hist[b + 1, k]
+    return out

@@ -25,6 +25,7 @@ import numpy as np
 from scipy.special import ndtri
 
 from simtest.constants import LUMA_BT601
+from simtest.reconstruct import _kernels
 
 __all__ = ["BLOCK", "GRID_BLOCKS", "BLOCKINESS_CLEAR", "MIN_COEFFICIENTS", "PERIODICITY_MIN",
            "CHANCE_SD", "MIN_STEP", "MIN_QUANTISED", "luma_y", "dct_blocks", "jpeg_grid",
@@ -186,8 +187,10 @@ def _steps_of(coef: np.ndarray, tables=_FULL) -> np.ndarray:
     coef = coef[:, active]
     below = np.cumsum(hist, axis=0)  # (bins, K)
     count = (n - below[zero_bin - 1]).astype(np.float64)  # (Q, K) outside the zero bin
-    at = [np.add.reduceat(hist[mult_idx + d], mult_start, axis=0) for d in (-1, 0, 1)]
-    share = (at[0] + at[1] + at[2]) / np.maximum(count, 1.0)
+    # the counts within 1 of each step's multiples, in one compiled pass (numpy's three
+    # reduceat over gathered copies took 2 of the 3.7 ms of the full tables)
+    at = _kernels.multiple_counts(np.ascontiguousarray(hist), mult_idx, mult_start)
+    share = at / np.maximum(count, 1.0)
     chance = np.minimum(3.0 / qs[:, None], 1.0)
     spread = np.sqrt(chance * (1 - chance) / np.maximum(count, 1.0))  # binomial sd of the share
     floor = np.maximum(PERIODICITY_MIN, chance + CHANCE_SD * spread)
