@@ -301,6 +301,9 @@ def light_aware_estimates(image, est, camera, rig: LightRig, *, nominal_depth_mm
     """
     img = np.asarray(image)
     censor = False
+    # an unsigned integer image's 0 is a floor its read noise is clipped at (0 in the linear
+    # image too: every response curve maps 0 to 0)
+    floor = 0.0 if img.dtype.kind == "u" else None
     if response is not None:
         gray, saturation_level, _ = response.linearize(img)
         censor = True
@@ -326,7 +329,7 @@ def light_aware_estimates(image, est, camera, rig: LightRig, *, nominal_depth_mm
         "photometric_fit", photometric_fit, gray[big.slices], (big.col0, big.row0), est.bp_px, camera, rig,
         clip_level=saturation_level, nominal_depth_mm=nominal_depth_mm,
         start_normal=start_n, supersample=supersample, diffuse=diffuse, censor=censor,
-        lobe=lobe)
+        lobe=lobe, floor_level=floor)
     # its depth within the ceiling before the curved fits' turn is decided by its status
     out["photometric_fit"] = depth_within_ceiling(out["photometric_fit"])
     near = Roi.around(est.bp_px, quadric_roi_scale * max(roi.shape) / 2.0, img.shape)

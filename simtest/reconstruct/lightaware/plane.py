@@ -52,13 +52,19 @@ _NOT_FINITE_RESIDUAL = 1e6
 _ROUGHNESS_START_STEPS = 3
 
 
+#: Noise sigmas above the floor below which a fitted model's pixels are left out
+#: (``photometric_fit``'s ``floor_level``): a Gaussian clipped at 3 sigma below its mean is
+#: clipped in 0.13 % of draws, and its mean is raised by 0.0004 sigma.
+_FLOOR_MARGIN = 3.0
+
+
 def photometric_fit(values, origin_uv, bp_uv, camera, rig: LightRig, *,
                     clip_level: float | None = None, nominal_depth_mm: float = 20.0,
                     start_normal=None, start_roughness: float | None = None,
                     loss: str = "linear", f_scale: float = 0.02, supersample: int = 1,
                     n_start_depths: int = 0, diffuse: bool = False, censor: bool = False,
-                    max_pixels: int | None = 16384, max_nfev: int = 200,
-                    lobe: str = "phong") -> LightAwareEstimate:
+                    max_pixels: int | None = 16384, refine_all: bool = True, max_nfev: int = 200,
+                    lobe: str = "phong", floor_level: float | None = None) -> LightAwareEstimate:
     """Fit the intensities of an ROI with the image of a plane lit by the whole rig.
 
     Model (package docstring): ``I = g sum_j w_j max(0, cos beta_j)^n f_j p_j + b0 + b1 du + b2 dv``
@@ -103,11 +109,21 @@ def photometric_fit(values, origin_uv, bp_uv, camera, rig: LightRig, *,
         s x s point samples per pixel, averaged (a renderer's or sensor's box filter; 1: the
         value at the pixel centre, as the exact images of :mod:`simtest.simulate.offset`).
     max_pixels : int or None
-        Beyond this many unclipped pixels, fit those of a regular sub-grid (every k-th row and
-        column; None keeps all). Every pixel of the lobe's tails matters: the tilt and the
-        distance trade off along the BP's constraint, and what separates them is the lobe's shape
-        down to its faint tails (a fit to the pixels above 2 % of the peak lost a factor of 3 to 5
-        in accuracy against the Cramer-Rao bound).
+        Beyond this many unclipped pixels, the starts are refined on a regular sub-grid (every
+        k-th row and column; None: every pixel), and the best of them, with ``refine_all`` and
+        where the plane explains the sub-grid (its residuals pass the misfit test), once more on
+        every unclipped pixel. Where the plane misfits, the model's error, not the noise,
+        dominates and more pixels of it would not help: the sub-grid's fit is kept (on a
+        rendered colonoscope frame's sensor image, whose highlights misfit, the refinement
+        would take 40 to 440 thousand pixels per fit). Every pixel of the lobe's
+        tails matters: the tilt and the distance trade off along the BP's constraint, and what
+        separates them is the lobe's shape down to its faint tails (a fit to the pixels above
+        2 % of the peak lost a factor of 3 to 5 in accuracy against the Cramer-Rao bound; on a
+        sub-grid of every second row and column the normal's error was 1.4 to 3.2 times the bound
+        with 2 % read noise, refined on every pixel 0.9 to 1.2 times).
+    refine_all : bool
+        Refine the sub-grid's solution on every unclipped pixel (above); False keeps the
+        sub-grid's (about k^2 times cheaper, its standard deviations k times larger).
     diffuse : bool
         Add the rig's Lambertian shading of the plane as a column of the model beside the lobes
         and the background (its albedo a linear parameter; Notes): the image of tissue, whose
@@ -118,6 +134,16 @@ def photometric_fit(values, origin_uv, bp_uv, camera, rig: LightRig, *,
         them out.
     max_nfev : int
         Evaluation budget.
+    floor_level : float, optional
+        The image's floor (e.g. 0 for an 8-bit image): pixels at or below it are clipped from
+        below, their noise cut off. Where the ROI has such pixels and every pixel was fitted, the
+        fit is refined once more without the pixels whose fitted model lies within
+        ``_FLOOR_MARGIN`` (3) noise sigmas of the floor (the noise sigma from the residuals'
+        median absolute deviation): there the mean of the clipped data is above the model's, a
+        bias proportional to the noise. On an exact 8-bit plane on a black background with 1 %
+        read noise (epsilon/d 0.033, 20 noise realisations) the normal was then 0.39 deg off on
+        average in one direction, its spread 0.44, its sigma 0.31 (77 % of errors within 2
+        sigma); without the clipping 0.05 deg off. None: no floor.
     lobe : {"phong", "ggx", "auto"}
         The specular lobe of the model: Phong's ``max(0, cos beta)^n`` (the paper's eq. 1), a GGX
         microfacet lobe under a dielectric film (the renderer's tissue,
@@ -189,7 +215,8 @@ def photometric_fit(values, origin_uv, bp_uv, camera, rig: LightRig, *,
     if lobe == "auto":
         kw = dict(clip_level=clip_level, nominal_depth_mm=nominal_depth_mm, loss=loss, f_scale=f_scale,
                   supersample=supersample, n_start_depths=n_start_depths, diffuse=diffuse, censor=censor,
-                  max_pixels=max_pixels, max_nfev=max_nfev)
+                  max_pixels=max_pixels, refine_all=refine_all, max_nfev=max_nfev,
+                  floor_level=floor_level)
         pho = photometric_fit(values, origin_uv, bp_uv, camera, rig, start_normal=start_normal,
                               start_roughness=start_roughness, lobe="phong", **kw)
         if pho.ok or pho.status in ("depth_not_observable", "too_few_points"):
@@ -207,26 +234,36 @@ def photometric_fit(values, origin_uv, bp_uv, camera, rig: LightRig, *,
     H, W = vals.shape
     border = np.concatenate([vals[0], vals[-1], vals[:, 0], vals[:, -1]])
     b_level = float(np.median(border))
-    sel, step, uv, y = _roi_samples(vals, o, uu, vv, keep, max_pixels)
-    cens = y >= clip_level if censor else np.zeros(len(y), bool)
-    general = bool(diffuse or cens.any() or ggx)
-    if np.count_nonzero(~cens) < 8 + 1 + int(diffuse):
-        return LightAwareEstimate(name, "too_few_points", f"{np.count_nonzero(~cens)} unclipped pixels")
     ss = int(supersample)
     if ss < 1:
         raise ValueError(f"supersample: must be >= 1, got {supersample!r}")
     offs = (np.arange(ss) + 0.5) / ss - 0.5
     sub = np.array([(du_, dv_) for dv_ in offs for du_ in offs])  # (ss^2, 2)
-    dT = np.ascontiguousarray(_rays(camera, (uv[:, None, :] + sub[None]).reshape(-1, 2)).T)
     rig_arr = _rig_arrays(rig)
     bp = np.asarray(bp_uv, dtype=np.float64).reshape(2)
+
+    def samples(mp, keep_=keep):
+        """The pixels fitted (every one of ``keep_``, or a sub-grid beyond ``mp``) and what the
+        model needs of them: ``(sel, step, y, cens, general, dT, rl, yscale, yn, background,
+        clipn, design)``."""
+        sel_, step_, uv_, y_ = _roi_samples(vals, o, uu, vv, keep_, mp)
+        cens_ = y_ >= clip_level if censor else np.zeros(len(y_), bool)
+        dT_ = np.ascontiguousarray(_rays(camera, (uv_[:, None, :] + sub[None]).reshape(-1, 2)).T)
+        du_ = (uv_[:, 0] - bp[0]) / max(W, H)
+        dv_ = (uv_[:, 1] - bp[1]) / max(W, H)
+        yscale_ = max(float(np.abs(y_).max()), 1e-12)
+        background_ = np.column_stack([np.ones_like(du_), du_, dv_])
+        design_ = np.empty((len(y_), 5 if diffuse else 4))
+        design_[:, -3:] = background_
+        return (sel_, step_, y_, cens_, bool(diffuse or cens_.any() or ggx), dT_,
+                _ray_light(rig_arr[0], dT_), yscale_, y_ / yscale_, background_,
+                (float(clip_level) / yscale_) if censor else np.inf, design_)
+
+    (sel, step, y, cens, general, dT, rl, yscale, yn, background, clipn,
+     design) = samples(max_pixels)
+    if np.count_nonzero(~cens) < 8 + 1 + int(diffuse):
+        return LightAwareEstimate(name, "too_few_points", f"{np.count_nonzero(~cens)} unclipped pixels")
     d_bp, n0, h0 = _start(bp, camera, rig, nominal_depth_mm, start_normal)
-    du = (uv[:, 0] - bp[0]) / max(W, H)
-    dv = (uv[:, 1] - bp[1]) / max(W, H)
-    yscale = max(float(np.abs(y).max()), 1e-12)
-    yn = y / yscale
-    rl = _ray_light(rig_arr[0], dT)  # (J, N) each
-    background = np.column_stack([np.ones_like(du), du, dv])
     proj = {}  # orthonormal basis of the (weighted) background columns, per weights
 
     def basis(w):
@@ -244,10 +281,6 @@ def photometric_fit(values, origin_uv, bp_uv, camera, rig: LightRig, *,
         return v if ss == 1 else v.reshape(*v.shape[:-1], -1, ss * ss).mean(axis=-1)
 
     state = {}
-
-    clipn = (float(clip_level) / yscale) if censor else np.inf
-    design = np.empty((len(yn), 5 if diffuse else 4))
-    design[:, -3:] = background
 
     def resjac_general(p, nb, e1, e2, grad=True, w=None, kaufman=False):
         """Residuals and Kaufman's Jacobian with the diffuse column and censored rows (Notes).
@@ -456,11 +489,58 @@ def photometric_fit(values, origin_uv, bp_uv, camera, rig: LightRig, *,
         nfev_total += nfev
         cost = float(r @ r) if np.isfinite(r).all() else np.inf
         if best is None or cost < best[0]:
-            best = (cost, x, nc, hc, e1, e2, conv, msg)
+            best = (cost, x, nc, hc, e1, e2, conv, msg, r)
     if not best[0] < 0.25 * _NOT_FINITE_RESIDUAL**2 * len(yn):
         return LightAwareEstimate(name, "not_converged", "the model is not finite about the solution",
                                   n_evaluations=nfev_total)
-    _, x, n0, h0, e1, e2, conv, msg = best
+    _, x, n0, h0, e1, e2, conv, msg, r = best
+    if step > 1 and refine_all and not _correlated(r, sel, keep.shape, step):
+        # the starts were refined on a sub-grid: where the plane explains it (its residuals do
+        # not correlate, the error is the noise's) the best is refined on every kept pixel (the
+        # sub-grid's covariance is step^2 times the whole ROI's; the two solutions lie apart
+        # along the valley where the tilt and the distance trade off, which takes the second
+        # fit about as many evaluations as the first); where it misfits, the model's error
+        # dominates and more pixels of it would not help
+        (sel, step, y, cens, general, dT, rl, yscale, yn, background, clipn,
+         design) = samples(None)
+        state.clear()
+        proj.clear()
+        free = np.ones(len(x), bool)
+        free[2] = np.abs(rig_arr[0]).max() > 1e-9 * h0
+        x2, nfev, conv2, msg2, r = _solve(resjac_at, x, (n0, e1, e2), loss, f_scale, max_nfev, free,
+                                          lazy_jac=True, weighted=True)
+        nfev_total += nfev
+        if np.isfinite(r).all() and float(r @ r) < 0.25 * _NOT_FINITE_RESIDUAL**2 * len(yn):
+            x, conv, msg = x2, conv2, msg2
+        else:
+            return LightAwareEstimate(name, "not_converged", "the model is not finite about the "
+                                      "solution on every pixel", n_evaluations=nfev_total)
+    if floor_level is not None and step == 1 and np.any(y <= floor_level):
+        # pixels clipped from below (an 8-bit image's 0 under read noise): where the model is
+        # within a few noise sigmas of the floor the data's mean is the clipped Gaussian's, above
+        # the model; those pixels, chosen by the model (not by their values, which would select
+        # their noise), are left out and the fit refined on the rest
+        r_ = resjac_at(x, n0, e1, e2, grad=False)[0]
+        model_n = yn + r_
+        low = y <= floor_level
+        s_n = 1.4826 * float(np.median(np.abs(r_[~low]))) if np.any(~low) else 0.0
+        drop = model_n <= float(floor_level) / yscale + _FLOOR_MARGIN * s_n
+        if drop.any() and np.count_nonzero(~drop & ~cens) >= 8 + 1 + int(diffuse):
+            keep2 = keep.copy()
+            keep2.flat[sel[drop]] = False
+            (sel, step, y, cens, general, dT, rl, yscale, yn, background, clipn,
+             design) = samples(None, keep2)
+            state.clear()
+            proj.clear()
+            free = np.ones(len(x), bool)
+            free[2] = np.abs(rig_arr[0]).max() > 1e-9 * h0
+            x2, nfev, conv2, msg2, r = _solve(resjac_at, x, (n0, e1, e2), loss, f_scale, max_nfev,
+                                              free, lazy_jac=True, weighted=True)
+            nfev_total += nfev
+            if not (np.isfinite(r).all() and float(r @ r) < 0.25 * _NOT_FINITE_RESIDUAL**2 * len(yn)):
+                return LightAwareEstimate(name, "not_converged", "the model is not finite about the "
+                                          "solution above the floor", n_evaluations=nfev_total)
+            x, conv, msg = x2, conv2, msg2
     nfev = nfev_total
     n_hat = _normal_derivs(x, n0, e1, e2)[0]
     h_hat = float(np.exp(x[2]))
