@@ -28,9 +28,11 @@ from simtest.reconstruct.lightaware.model import (
     phong_of_ggx_alpha,
     _roi_samples,
 )
+from simtest.reconstruct.lightaware.patch import _quadric_image
 from simtest.reconstruct.lightaware.solve import (
     _ROUGHNESS_RANGE,
     _correlated,
+    _curvature_score,
     _finish,
     _hac_covariance,
     _implausible,
@@ -50,6 +52,13 @@ _NOT_FINITE_RESIDUAL = 1e6
 #: bench's exact highlight (n = 150) three steps from n = 50, 86 or 258 (the regression's starts
 #: with cos beta with and without the falloff) end within 0.003 of log 150.
 _ROUGHNESS_START_STEPS = 3
+
+
+#: Step of the curvatures (dimensionless, ``kappa = s / radius``) in the central differences of
+#: the quadric patch's image about a plane (``photometric_fit``'s curvature test): the image is
+#: smooth in them, and 1e-4 of a sphere whose radius is the depth leaves differences accurate to
+#: about 1e-8 of them, far below what the test resolves.
+_CURVATURE_STEP = 1e-4
 
 
 #: Noise sigmas above the floor below which a fitted model's pixels are left out
@@ -564,6 +573,31 @@ def photometric_fit(values, origin_uv, bp_uv, camera, rig: LightRig, *,
                                            _normal_derivs(p_hat, nb, e1_, e2_)[1], None)
         return state["r"], jac_of(_normal_derivs(p_hat, nb, e1_, e2_)[1], None, True)
 
+    def curvature(r0):
+        """The score test for a curved patch (:func:`~simtest.reconstruct.lightaware.solve._curvature_score`):
+        the quadric patch's image (:func:`~simtest.reconstruct.lightaware.patch._quadric_image`)
+        at the plane's specular point of the mean light with zero curvature is the plane's; its
+        derivatives in the three curvatures are the columns the residual is tested against."""
+        Lm = _mean_light(rig)
+        c = float(n_hat @ Lm) + h_hat
+        Lp = Lm - 2.0 * c * n_hat  # the mean light's mirror image in the plane
+        den = -float(n_hat @ Lp)
+        if not (c > 0 and den > 0):
+            return None
+        Xs = Lp * (h_hat / den)
+        p0 = np.array([0.0, 0.0, np.log(np.linalg.norm(Xs)), 0.0, 0.0, 0.0, np.log(rough_hat)])
+        rays = dT.T
+        cols = np.empty((len(yn), 3))
+        for k in range(3):
+            dp = np.zeros(7)
+            dp[3 + k] = _CURVATURE_STEP
+            cols[:, k] = box(_quadric_image(rays, unit(Xs), p0 + dp, rig_arr, Lm)[0]
+                             - _quadric_image(rays, unit(Xs), p0 - dp, rig_arr, Lm)[0])
+        J = at_solution(np.concatenate([[0.0, 0.0, np.log(h_hat)], x[3:]]), n_hat,
+                        *plane_basis(n_hat))[1]
+        span = np.column_stack([J, state["St"], background])
+        return _curvature_score(cols, span, r0)
+
     def post(est, r0):
         """The misfit test, and where neighbouring residuals correlate, the sandwich sigmas.
 
@@ -571,7 +605,13 @@ def photometric_fit(values, origin_uv, bp_uv, camera, rig: LightRig, *,
         patch) make ``s^2 (J^T J)^-1`` too small: the normal's and the depth's sigmas are then
         the larger of it and the sandwich's (:func:`~simtest.reconstruct.lightaware.solve._hac_covariance`).
         """
-        if est.status not in ("ok", "depth_not_observable") or not _correlated(r0, sel, keep.shape, step):
+        if est.status not in ("ok", "depth_not_observable"):
+            return est
+        if not _correlated(r0, sel, keep.shape, step):
+            curved = None if general else curvature(r0)
+            if curved:
+                return replace(est, status="plane_misfit", depth_mm=None, depth_sigma_mm=None,
+                               distance_mm=None, detail=curved)
             return _misfit(est, r0, sel, keep.shape, step)
         J = at_solution(np.concatenate([[0.0, 0.0, np.log(h_hat)], x[3:]]), n_hat,
                         *plane_basis(n_hat))[1]
