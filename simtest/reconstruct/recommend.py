@@ -221,7 +221,7 @@ def light_aware_estimates(image, est, camera, rig: LightRig, *, nominal_depth_mm
                           quadric: bool | None = None,
                           cubic: bool | None = False, response=None,
                           diffuse: bool | None = None,
-                          lobe: str = "phong") -> dict[str, LightAwareEstimate]:
+                          lobe: str = "phong", linear=None) -> dict[str, LightAwareEstimate]:
     """Run the light-aware estimators on one detected highlight.
 
     ``isocurve_fit`` takes its own isophotes, at :data:`ISOCURVE_ISOVALUES` of the BP's height above
@@ -289,6 +289,11 @@ def light_aware_estimates(image, est, camera, rig: LightRig, *, nominal_depth_mm
         lobes misfit on every frame and Phong is kept. Where the image is the film's own (the
         renderer's specular radiance) GGX fits it to the render's noise where Phong misfits.
 
+    linear : tuple, optional
+        ``response.linearize(image)`` when already at hand (:func:`with_light_aware` computes it
+        once per frame: on a 1350 x 1080 RGB frame it takes 25 ms, which each highlight took
+        again).
+
     Returns
     -------
     dict
@@ -305,7 +310,7 @@ def light_aware_estimates(image, est, camera, rig: LightRig, *, nominal_depth_mm
     # image too: every response curve maps 0 to 0)
     floor = 0.0 if img.dtype.kind == "u" else None
     if response is not None:
-        gray, saturation_level, _ = response.linearize(img)
+        gray, saturation_level, _ = response.linearize(img) if linear is None else linear
         censor = True
     else:
         if saturation_level is None and img.dtype.kind == "u":
@@ -514,6 +519,8 @@ def with_light_aware(image, estimates, camera, rig: LightRig | None, *, on_highl
     def fitted(est) -> bool:
         return est.ok or (fit_rejected and est.status not in NOT_FITTED)
 
+    if kwargs.get("response") is not None and "linear" not in kwargs:
+        kwargs = dict(kwargs, linear=kwargs["response"].linearize(np.asarray(image)))
     out = []
     todo = sum(fitted(est) for est in estimates)
     done = 0
