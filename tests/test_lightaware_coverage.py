@@ -4,6 +4,7 @@ on noisy exact planes and spheres: the plane fit's curvature test and its floor.
 from __future__ import annotations
 
 import numpy as np
+import pytest
 
 from simtest.geometry import angle_between_deg, project_points
 from simtest.geometry.angles import unit
@@ -96,3 +97,43 @@ def test_sigma_covers_the_errors_on_8_bit_planes_with_read_noise_clipped_at_0():
         sig.append(pho.normal_sigma_deg)
     covered = float(np.mean(np.array(errs) < 2.0 * np.array(sig)))
     assert covered >= COVERAGE, (errs, sig)
+
+
+def test_curvature_columns_span_the_quadric_patchs_derivatives():
+    """The analytic derivatives of the image in the three curvatures at zero curvature
+    (``model._curvature_columns``) against central differences of the quadric patch's image
+    (``patch._quadric_image``, step 1e-5): the same three directions (each column of the
+    differences is within 1e-6 of its projection on the analytic span, relative; measured 0 to
+    1e-8), for two lights with falloff, one with a profile. (A rig mixing falloffs differs: the
+    quadric's falloff is relative to the apex depth, the plane's to its distance, so their
+    images weigh such lights differently.)"""
+    from simtest.reconstruct.lightaware import model as lam
+    from simtest.reconstruct.lightaware.patch import _quadric_image
+    from test_lightaware import tilted_normal
+
+    rig = LightRig((Light((3.0, 0.0, 0.0), 1.0, "inverse_square", 1.5),
+                    Light((-2.0, 1.0, 0.5), 0.6, "inverse_square")))
+    arr = lam._rig_arrays(rig)
+    n, h, rough = tilted_normal(20.0), 25.0, 40.0
+    Lm = lam._mean_light(rig)
+    c = float(n @ Lm) + h
+    Lp = Lm - 2.0 * c * n
+    Xs = Lp * (h / -float(n @ Lp))
+    K = np.array([[300.0, 0, 0], [0, 300.0, 0], [0, 0, 1.0]])
+    x0 = project_points(Xs, K)
+    vv, uu = np.mgrid[-40:41, -40:41]
+    uv = np.column_stack([uu.ravel() + x0[0], vv.ravel() + x0[1]]).astype(float)
+    dT = np.ascontiguousarray(lam._rays(K, uv).T)
+    A = lam._curvature_columns(dT, lam._ray_light(arr[0], dT), n, h, arr, rough, Xs).T
+    p0 = np.array([0.0, 0.0, np.log(np.linalg.norm(Xs)), 0.0, 0.0, 0.0, np.log(rough)])
+    Q = np.linalg.qr(A)[0]
+    for k in range(3):
+        dp = np.zeros(7)
+        dp[3 + k] = 1e-5
+        fd = (_quadric_image(dT.T, unit(Xs), p0 + dp, arr, Lm)[0]
+              - _quadric_image(dT.T, unit(Xs), p0 - dp, arr, Lm)[0]) / 2e-5
+        assert np.linalg.norm(fd - Q @ (Q.T @ fd)) < 1e-6 * np.linalg.norm(fd), k
+    # and the zero-curvature quadric is the plane (its falloff's reference a constant factor)
+    S = lam._rig_value(dT, lam._ray_light(arr[0], dT), n, h, arr, rough)[0]
+    q = _quadric_image(dT.T, unit(Xs), p0, arr, Lm)[0]
+    np.testing.assert_allclose(q * (h / np.linalg.norm(Xs)) ** 2, S, rtol=1e-9, atol=1e-12 * S.max())

@@ -426,6 +426,49 @@ def _rig_diffuse_grad(dT, rl, p, nb, e1, e2, rig_arr) -> np.ndarray:
     return out
 
 
+def _curvature_columns(dT, rl, n, h, rig_arr, rough, apex) -> np.ndarray:
+    """The derivatives (3, N) of the rig's Phong image of a curved patch in its three curvatures,
+    at zero curvature: the patch the plane (n, h), bent about ``apex`` (a point of the plane, the
+    tangent basis t1, t2 of :func:`plane_basis`) as the quadric patch of
+    :func:`~simtest.reconstruct.lightaware.patch.quadric_fit` is
+    (``z + (k_xx x^2 + 2 k_xy x y + k_yy y^2) / 2 = 0``), each up to a constant factor.
+
+    Notes
+    -----
+    To first order in the curvatures a pixel's surface point moves along its ray by
+    ``ds = q / (2 delta)`` (``q = k_xx x^2 + 2 k_xy x y + k_yy y^2``, (x, y) the plane point's
+    coordinates about the apex, ``delta = -n . d``) and its normal tilts by
+    ``dn = (k_xx x + k_xy y) t1 + (k_xy x + k_yy y) t2``. With the point held,
+    ``d cos beta = 2 delta (dn . l) - 2 (n . l) (dn . d)`` (``cos beta = 2 (n . l)(n . v) - l . v``,
+    v = -d); with the normal held, ``d cos beta / ds = (2 delta^2 - 1 - cos beta (s - Ld) / r) / r``
+    (:func:`_terms`' pieces, ``n . (L - X)`` growing by ``delta ds``), and the falloff and
+    profile change with ds as in :func:`_rig_grad`. Columns k_xx, k_xy, k_yy.
+    """
+    L, w, inv_sq, m = rig_arr
+    t1, t2 = plane_basis(n)
+    A1, A2 = t1 @ dT, t2 @ dT
+    out = np.zeros((3, dT.shape[1]))
+    S, parts = _rig_value(dT, rl, n, h, rig_arr, rough)
+    for j, (cb, cbp, lcb, val, delta, s, sl, ir, c, cp) in enumerate(parts):
+        x = s * A1 - float(apex @ t1)
+        y = s * A2 - float(apex @ t2)
+        k = rough / cbp
+        slr2 = sl * ir * ir
+        g_ds = k * ir * (2.0 * delta * delta - 1.0 - cb * sl * ir)  # d log val per ds
+        if inv_sq[j]:
+            g_ds = g_ds - 2.0 * slr2
+        if cp is not None:
+            g_ds = g_ds + m[j] * (dT[2] * ir / cp - slr2)
+        tL1, tL2 = float(t1 @ L[j]), float(t2 @ L[j])
+        for i, (al, be, ds) in enumerate(((x, 0.0, 0.5 * x * x / delta),
+                                          (y, x, x * y / delta),
+                                          (0.0, y, 0.5 * y * y / delta))):
+            dnd = al * A1 + be * A2
+            dcb = 2.0 * delta * (al * tL1 + be * tL2 - s * dnd) * ir - 2.0 * c * ir * dnd
+            out[i] += val * (k * dcb + g_ds * ds)
+    return out
+
+
 #: Refractive index of the wet film in the GGX lobe's Fresnel factor: mucus and water lie between
 #: 1.33 and 1.45 (the renderer's film, :mod:`simtest.render.tissue`), where Fresnel's reflectance
 #: changes by under 2 % across a highlight's lobe (incidence within 30 deg of the half-vector's):

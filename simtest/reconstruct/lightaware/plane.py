@@ -18,6 +18,7 @@ from simtest.reconstruct.lightaware.model import (
     _ray_light,
     _rays,
     _rig_arrays,
+    _curvature_columns,
     _rig_diffuse,
     _rig_diffuse_grad,
     _rig_grad,
@@ -28,7 +29,6 @@ from simtest.reconstruct.lightaware.model import (
     phong_of_ggx_alpha,
     _roi_samples,
 )
-from simtest.reconstruct.lightaware.patch import _quadric_image
 from simtest.reconstruct.lightaware.solve import (
     _ROUGHNESS_RANGE,
     _correlated,
@@ -52,14 +52,6 @@ _NOT_FINITE_RESIDUAL = 1e6
 #: bench's exact highlight (n = 150) three steps from n = 50, 86 or 258 (the regression's starts
 #: with cos beta with and without the falloff) end within 0.003 of log 150.
 _ROUGHNESS_START_STEPS = 3
-
-
-#: Step of the curvatures (dimensionless, ``kappa = s / radius``) in the forward differences of
-#: the quadric patch's image about a plane (``photometric_fit``'s curvature test): the image is
-#: smooth in them, and 1e-4 of a sphere whose radius is the depth leaves differences accurate to
-#: about 1e-4 of them (they only span the directions tested; the test's statistic moves by as
-#: little).
-_CURVATURE_STEP = 1e-4
 
 
 #: Noise sigmas above the floor below which a fitted model's pixels are left out
@@ -576,9 +568,11 @@ def photometric_fit(values, origin_uv, bp_uv, camera, rig: LightRig, *,
 
     def curvature(r0):
         """The score test for a curved patch (:func:`~simtest.reconstruct.lightaware.solve._curvature_score`):
-        the quadric patch's image (:func:`~simtest.reconstruct.lightaware.patch._quadric_image`)
-        at the plane's specular point of the mean light with zero curvature is the plane's; its
-        derivatives in the three curvatures are the columns the residual is tested against."""
+        the quadric patch of :func:`~simtest.reconstruct.lightaware.patch.quadric_fit` at the
+        plane's specular point of the mean light with zero curvature is the plane; its image's
+        derivatives in the three curvatures
+        (:func:`~simtest.reconstruct.lightaware.model._curvature_columns`) are the columns the
+        residual is tested against."""
         Lm = _mean_light(rig)
         c = float(n_hat @ Lm) + h_hat
         Lp = Lm - 2.0 * c * n_hat  # the mean light's mirror image in the plane
@@ -586,20 +580,7 @@ def photometric_fit(values, origin_uv, bp_uv, camera, rig: LightRig, *,
         if not (c > 0 and den > 0):
             return None
         Xs = Lp * (h_hat / den)
-        p0 = np.array([0.0, 0.0, np.log(np.linalg.norm(Xs)), 0.0, 0.0, 0.0, np.log(rough_hat)])
-        # where the plane's lobe is below 1e-9 of its peak a small curvature changes nothing
-        # the test can see: the quadric's image is taken only where it is not
-        S = _rig_value(dT, rl, n_hat, h_hat, rig_arr, rough_hat)[0]
-        lit = S > 1e-9 * max(float(S.max()), 1e-300)
-        rays = dT.T[lit]
-        base = _quadric_image(rays, unit(Xs), p0, rig_arr, Lm)[0]
-        cols = np.empty((len(yn), 3))
-        full = np.zeros(dT.shape[1])
-        for k in range(3):
-            dp = np.zeros(7)
-            dp[3 + k] = _CURVATURE_STEP
-            full[lit] = _quadric_image(rays, unit(Xs), p0 + dp, rig_arr, Lm)[0] - base
-            cols[:, k] = box(full)
+        cols = box(_curvature_columns(dT, rl, n_hat, h_hat, rig_arr, rough_hat, Xs)).T
         J = at_solution(np.concatenate([[0.0, 0.0, np.log(h_hat)], x[3:]]), n_hat,
                         *plane_basis(n_hat))[1]
         span = np.column_stack([J, state["St"], background])
