@@ -66,7 +66,8 @@ def photometric_fit(values, origin_uv, bp_uv, camera, rig: LightRig, *,
                     loss: str = "linear", f_scale: float = 0.02, supersample: int = 1,
                     n_start_depths: int = 0, diffuse: bool = False, censor: bool = False,
                     max_pixels: int | None = 16384, refine_all: bool = True, max_nfev: int = 200,
-                    lobe: str = "phong", floor_level: float | None = None) -> LightAwareEstimate:
+                    lobe: str = "phong", floor_level: float | None = None,
+                    floor_refit: bool = False, floor_step: float = 0.0) -> LightAwareEstimate:
     """Fit the intensities of an ROI with the image of a plane lit by the whole rig.
 
     Model (package docstring): ``I = g sum_j w_j max(0, cos beta_j)^n f_j p_j + b0 + b1 du + b2 dv``
@@ -117,7 +118,11 @@ def photometric_fit(values, origin_uv, bp_uv, camera, rig: LightRig, *,
         every unclipped pixel. Where the plane misfits, the model's error, not the noise,
         dominates and more pixels of it would not help: the sub-grid's fit is kept (on a
         rendered colonoscope frame's sensor image, whose highlights misfit, the refinement
-        would take 40 to 440 thousand pixels per fit). Every pixel of the lobe's
+        would take 40 to 440 thousand pixels per fit), and so is it where pixels lie at
+        ``floor_level`` (noise clipped there biases the fit, and more pixels would shrink its
+        sigma about that bias: an 8-bit plane with 1 % noise on black, epsilon/d 0.033, gave
+        its depth 52 % short with a sigma of 17 %, ok, where the sub-grid's sigma withheld it).
+        Every pixel of the lobe's
         tails matters: the tilt and the distance trade off along the BP's constraint, and what
         separates them is the lobe's shape down to its faint tails (a fit to the pixels above
         2 % of the peak lost a factor of 3 to 5 in accuracy against the Cramer-Rao bound; on a
@@ -138,14 +143,24 @@ def photometric_fit(values, origin_uv, bp_uv, camera, rig: LightRig, *,
         Evaluation budget.
     floor_level : float, optional
         The image's floor (e.g. 0 for an 8-bit image): pixels at or below it are clipped from
-        below, their noise cut off. Where the ROI has such pixels and every pixel was fitted, the
-        fit is refined once more without the pixels whose fitted model lies within
-        ``_FLOOR_MARGIN`` (3) noise sigmas of the floor (the noise sigma from the residuals'
-        median absolute deviation): there the mean of the clipped data is above the model's, a
-        bias proportional to the noise. On an exact 8-bit plane on a black background with 1 %
-        read noise (epsilon/d 0.033, 20 noise realisations) the normal was then 0.39 deg off on
-        average in one direction, its spread 0.44, its sigma 0.31 (77 % of errors within 2
-        sigma); without the clipping 0.05 deg off. None: no floor.
+        below, their noise cut off, and where the model lies within ``_FLOOR_MARGIN`` (3) noise
+        sigmas of the floor (the noise sigma from the residuals' median absolute deviation) the
+        mean of the clipped data is above the model's, a bias proportional to the noise. The
+        curvature test (Returns) reads only the pixels above that margin. None: no floor.
+    floor_refit : bool
+        With ``floor_level``, refine the fit once more without the pixels within the margin
+        (where every pixel was fitted). On an exact 8-bit plane on a black background with 1 %
+        read noise (epsilon/d 0.033, 20 noise realisations) the normal was otherwise 0.39 deg
+        off on average in one direction, its spread 0.44, its sigma 0.31 (77 % of errors within
+        2 sigma); refined, 0.19 off, spread 0.51, sigma 0.62. Off by default: on the
+        ``lightaware`` suite's noisy renders it cost the tails' information (its
+        plane_noise_offset cases' photometric fit 0.21 to 0.31 deg mean at 1 % noise, 1.36 to
+        3.28 at 2 %); a censored likelihood (the clipped pixel's probability) would keep it.
+    floor_step : float
+        The image's quantisation step at the floor (1 for an 8-bit image): the refinement runs
+        only where the noise sigma exceeds it (below, the floor's pixels are rounding's, not
+        clipped noise, and leaving out the levels near 0 of a noise-free 8-bit render took the
+        tails' information: plane_tilt_offset@40 0.024 to 0.072 deg mean).
     lobe : {"phong", "ggx", "auto"}
         The specular lobe of the model: Phong's ``max(0, cos beta)^n`` (the paper's eq. 1), a GGX
         microfacet lobe under a dielectric film (the renderer's tissue,
@@ -162,7 +177,10 @@ def photometric_fit(values, origin_uv, bp_uv, camera, rig: LightRig, *,
         depth withdrawn) when the residuals of neighbouring pixels correlate: the plane model
         does not explain the ROI (a curved patch, whose lobe the plane model reproduces by
         trading the curvature for roughness and distance, and so misses the normal; see
-        ``_misfit``).
+        ``_misfit``), or, without the diffuse column and censored pixels, when the residual holds
+        the pattern a curvature of the patch would make (the score test of
+        :func:`~simtest.reconstruct.lightaware.solve._curvature_score`, which sees a sphere at
+        1 % noise where the neighbours' correlation does not).
 
     Raises
     ------
@@ -218,7 +236,7 @@ def photometric_fit(values, origin_uv, bp_uv, camera, rig: LightRig, *,
         kw = dict(clip_level=clip_level, nominal_depth_mm=nominal_depth_mm, loss=loss, f_scale=f_scale,
                   supersample=supersample, n_start_depths=n_start_depths, diffuse=diffuse, censor=censor,
                   max_pixels=max_pixels, refine_all=refine_all, max_nfev=max_nfev,
-                  floor_level=floor_level)
+                  floor_level=floor_level, floor_refit=floor_refit, floor_step=floor_step)
         pho = photometric_fit(values, origin_uv, bp_uv, camera, rig, start_normal=start_normal,
                               start_roughness=start_roughness, lobe="phong", **kw)
         if pho.ok or pho.status in ("depth_not_observable", "too_few_points"):
@@ -496,13 +514,16 @@ def photometric_fit(values, origin_uv, bp_uv, camera, rig: LightRig, *,
         return LightAwareEstimate(name, "not_converged", "the model is not finite about the solution",
                                   n_evaluations=nfev_total)
     _, x, n0, h0, e1, e2, conv, msg, r = best
-    if step > 1 and refine_all and not _correlated(r, sel, keep.shape, step):
+    clipped_low = floor_level is not None and bool(np.any(y <= floor_level))
+    if step > 1 and refine_all and not clipped_low and not _correlated(r, sel, keep.shape, step):
         # the starts were refined on a sub-grid: where the plane explains it (its residuals do
         # not correlate, the error is the noise's) the best is refined on every kept pixel (the
         # sub-grid's covariance is step^2 times the whole ROI's; the two solutions lie apart
         # along the valley where the tilt and the distance trade off, which takes the second
         # fit about as many evaluations as the first); where it misfits, the model's error
-        # dominates and more pixels of it would not help
+        # dominates and more pixels of it would not help; where the ROI's noise is clipped at
+        # the floor, that clipping biases the fit (an error its sigma does not hold) and more
+        # pixels would only shrink the sigma about it
         (sel, step, y, cens, general, dT, rl, yscale, yn, background, clipn,
          design) = samples(None)
         state.clear()
@@ -517,7 +538,7 @@ def photometric_fit(values, origin_uv, bp_uv, camera, rig: LightRig, *,
         else:
             return LightAwareEstimate(name, "not_converged", "the model is not finite about the "
                                       "solution on every pixel", n_evaluations=nfev_total)
-    if floor_level is not None and step == 1 and np.any(y <= floor_level):
+    if floor_refit and floor_level is not None and step == 1 and np.any(y <= floor_level):
         # pixels clipped from below (an 8-bit image's 0 under read noise): where the model is
         # within a few noise sigmas of the floor the data's mean is the clipped Gaussian's, above
         # the model; those pixels, chosen by the model (not by their values, which would select
@@ -527,7 +548,8 @@ def photometric_fit(values, origin_uv, bp_uv, camera, rig: LightRig, *,
         low = y <= floor_level
         s_n = 1.4826 * float(np.median(np.abs(r_[~low]))) if np.any(~low) else 0.0
         drop = model_n <= float(floor_level) / yscale + _FLOOR_MARGIN * s_n
-        if drop.any() and np.count_nonzero(~drop & ~cens) >= 8 + 1 + int(diffuse):
+        if (drop.any() and s_n * yscale > floor_step
+                and np.count_nonzero(~drop & ~cens) >= 8 + 1 + int(diffuse)):
             keep2 = keep.copy()
             keep2.flat[sel[drop]] = False
             (sel, step, y, cens, general, dT, rl, yscale, yn, background, clipn,
@@ -584,6 +606,13 @@ def photometric_fit(values, origin_uv, bp_uv, camera, rig: LightRig, *,
         J = at_solution(np.concatenate([[0.0, 0.0, np.log(h_hat)], x[3:]]), n_hat,
                         *plane_basis(n_hat))[1]
         span = np.column_stack([J, state["St"], background])
+        if floor_level is not None and np.any(y <= floor_level):
+            # the pixels near the floor hold clipped noise, a pattern of its own: the test reads
+            # the rest (chosen by the model, as the floor's refinement chooses them)
+            above = y > floor_level
+            s_n = 1.4826 * float(np.median(np.abs(r0[above]))) if np.any(above) else 0.0
+            rows = yn + r0 > float(floor_level) / yscale + _FLOOR_MARGIN * s_n
+            cols, span, r0 = cols[rows], span[rows], r0[rows]
         return _curvature_score(cols, span, r0)
 
     def post(est, r0):
