@@ -4,7 +4,6 @@ on noisy exact planes and spheres: the plane fit's curvature test and its floor.
 from __future__ import annotations
 
 import numpy as np
-import pytest
 
 from simtest.geometry import angle_between_deg, project_points
 from simtest.geometry.angles import unit

@@ -15,6 +15,7 @@ from dataclasses import replace
 import numpy as np
 from scipy.ndimage import convolve1d
 from scipy.optimize import leastsq
+from scipy.special import chdtri
 
 from simtest.geometry.angles import unit
 from simtest.geometry.conics import plane_basis
@@ -313,8 +314,6 @@ def _curvature_score(cols, span, r) -> str | None:
     .. [2] C. R. Rao, "Large sample tests of statistical hypotheses concerning several parameters
            with applications to problems of estimation", Proc. Cambridge Philos. Soc. 44(1), 1948.
     """
-    from scipy.stats import chi2
-
     m, k = span.shape
     if m <= k + 3 or not np.isfinite(cols).all():
         return None
@@ -331,9 +330,9 @@ def _curvature_score(cols, span, r) -> str | None:
         return None
     T = zz / s2
     rms = math.sqrt(zz / m)
-    if T > chi2.isf(_CURVATURE_ALPHA, U.shape[1]) and rms > TOL.plane_misfit_rel:
+    if T > chdtri(U.shape[1], _CURVATURE_ALPHA) and rms > TOL.plane_misfit_rel:
         return (f"the residual holds a curved patch's pattern (score {T:.3g} > "
-                f"{chi2.isf(_CURVATURE_ALPHA, U.shape[1]):.3g}; RMS {rms:.3g})")
+                f"{chdtri(U.shape[1], _CURVATURE_ALPHA):.3g}; RMS {rms:.3g})")
     return None
 
 
