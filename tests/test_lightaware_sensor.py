@@ -10,6 +10,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from simtest.geometry import angle_between_deg
+from simtest.geometry.angles import unit
 from simtest.geometry.camera_file import CameraFileError, load_camera, save_camera
 from simtest.geometry.cameras import PinholeCamera
 from simtest.geometry.lights import Light, LightRig
@@ -98,6 +99,34 @@ def test_diffuse_column_and_censored_pixels(albedo, clip):
         # exact image: the error is the solver's tolerance (1e-8 relative cost), far below 1e-3 deg
         assert angle_between_deg(r.normal, N) < 1e-3
         assert r.roughness == pytest.approx(60.0, rel=1e-4)
+
+
+@pytest.mark.parametrize("rig", [RIG, LightRig((Light((3.0, 0.0, 0.0), 1.0, "inverse_square", 2.0),
+                                                  Light((-3.0, 1.0, 0.5), 0.7, "none")))])
+def test_diffuse_gradient_is_the_central_differences_of_the_shading(rig):
+    # the analytic derivatives of the rig's Lambertian shading in (a, b, log h) against central
+    # differences (step 1e-6: their own error is about 1e-9 of the derivative)
+    from simtest.geometry.conics import plane_basis
+
+    K = np.array([[200.0, 0, 50], [0, 200.0, 40], [0, 0, 1]])
+    vv, uu = np.mgrid[0:80, 0:100]
+    dT = np.ascontiguousarray(lam._rays(K, np.column_stack([uu.ravel(), vv.ravel()]).astype(float)).T)
+    arr = lam._rig_arrays(rig)
+    rl = lam._ray_light(arr[0], dT)
+    nb = unit(np.array([0.2, -0.1, -1.0]))
+    e1, e2 = plane_basis(nb)
+    p = np.array([0.03, -0.02, np.log(20.0)])
+    G = lam._rig_diffuse_grad(dT, rl, p, nb, e1, e2, arr)
+    F = np.empty_like(G)
+    for k in range(3):
+        vals = []
+        for sg in (1.0, -1.0):
+            q = p.copy()
+            q[k] += sg * 1e-6
+            mv = nb + q[0] * e1 + q[1] * e2
+            vals.append(lam._rig_diffuse(dT, rl, mv / np.linalg.norm(mv), float(np.exp(q[2])), arr))
+        F[k] = (vals[0] - vals[1]) / 2e-6
+    np.testing.assert_allclose(G, F, rtol=0, atol=1e-7 * np.abs(F).max())
 
 
 def test_sandwich_sigma_covers_correlated_residuals():

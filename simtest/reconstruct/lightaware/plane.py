@@ -18,6 +18,7 @@ from simtest.reconstruct.lightaware.model import (
     _ray_light,
     _rays,
     _rig_arrays,
+    _curvature_columns,
     _rig_diffuse,
     _rig_diffuse_grad,
     _rig_grad,
@@ -31,6 +32,7 @@ from simtest.reconstruct.lightaware.model import (
 from simtest.reconstruct.lightaware.solve import (
     _ROUGHNESS_RANGE,
     _correlated,
+    _curvature_score,
     _finish,
     _hac_covariance,
     _implausible,
@@ -52,13 +54,20 @@ _NOT_FINITE_RESIDUAL = 1e6
 _ROUGHNESS_START_STEPS = 3
 
 
+#: Noise sigmas above the floor below which a fitted model's pixels are left out
+#: (``photometric_fit``'s ``floor_level``): a Gaussian clipped at 3 sigma below its mean is
+#: clipped in 0.13 % of draws, and its mean is raised by 0.0004 sigma.
+_FLOOR_MARGIN = 3.0
+
+
 def photometric_fit(values, origin_uv, bp_uv, camera, rig: LightRig, *,
                     clip_level: float | None = None, nominal_depth_mm: float = 20.0,
                     start_normal=None, start_roughness: float | None = None,
                     loss: str = "linear", f_scale: float = 0.02, supersample: int = 1,
                     n_start_depths: int = 0, diffuse: bool = False, censor: bool = False,
-                    max_pixels: int | None = 16384, max_nfev: int = 200,
-                    lobe: str = "phong") -> LightAwareEstimate:
+                    max_pixels: int | None = 16384, refine_all: bool = True, max_nfev: int = 200,
+                    lobe: str = "phong", floor_level: float | None = None,
+                    floor_refit: bool = False, floor_step: float = 0.0) -> LightAwareEstimate:
     """Fit the intensities of an ROI with the image of a plane lit by the whole rig.
 
     Model (package docstring): ``I = g sum_j w_j max(0, cos beta_j)^n f_j p_j + b0 + b1 du + b2 dv``
@@ -103,11 +112,25 @@ def photometric_fit(values, origin_uv, bp_uv, camera, rig: LightRig, *,
         s x s point samples per pixel, averaged (a renderer's or sensor's box filter; 1: the
         value at the pixel centre, as the exact images of :mod:`simtest.simulate.offset`).
     max_pixels : int or None
-        Beyond this many unclipped pixels, fit those of a regular sub-grid (every k-th row and
-        column; None keeps all). Every pixel of the lobe's tails matters: the tilt and the
-        distance trade off along the BP's constraint, and what separates them is the lobe's shape
-        down to its faint tails (a fit to the pixels above 2 % of the peak lost a factor of 3 to 5
-        in accuracy against the Cramer-Rao bound).
+        Beyond this many unclipped pixels, the starts are refined on a regular sub-grid (every
+        k-th row and column; None: every pixel), and the best of them, with ``refine_all`` and
+        where the plane explains the sub-grid (its residuals pass the misfit test), once more on
+        every unclipped pixel. Where the plane misfits, the model's error, not the noise,
+        dominates and more pixels of it would not help: the sub-grid's fit is kept (on a
+        rendered colonoscope frame's sensor image, whose highlights misfit, the refinement
+        would take 40 to 440 thousand pixels per fit), and so is it where pixels lie at
+        ``floor_level`` (noise clipped there biases the fit, and more pixels would shrink its
+        sigma about that bias: an 8-bit plane with 1 % noise on black, epsilon/d 0.033, gave
+        its depth 52 % short with a sigma of 17 %, ok, where the sub-grid's sigma withheld it).
+        Every pixel of the lobe's
+        tails matters: the tilt and the distance trade off along the BP's constraint, and what
+        separates them is the lobe's shape down to its faint tails (a fit to the pixels above
+        2 % of the peak lost a factor of 3 to 5 in accuracy against the Cramer-Rao bound; on a
+        sub-grid of every second row and column the normal's error was 1.4 to 3.2 times the bound
+        with 2 % read noise, refined on every pixel 0.9 to 1.2 times).
+    refine_all : bool
+        Refine the sub-grid's solution on every unclipped pixel (above); False keeps the
+        sub-grid's (about k^2 times cheaper, its standard deviations k times larger).
     diffuse : bool
         Add the rig's Lambertian shading of the plane as a column of the model beside the lobes
         and the background (its albedo a linear parameter; Notes): the image of tissue, whose
@@ -118,6 +141,26 @@ def photometric_fit(values, origin_uv, bp_uv, camera, rig: LightRig, *,
         them out.
     max_nfev : int
         Evaluation budget.
+    floor_level : float, optional
+        The image's floor (e.g. 0 for an 8-bit image): pixels at or below it are clipped from
+        below, their noise cut off, and where the model lies within ``_FLOOR_MARGIN`` (3) noise
+        sigmas of the floor (the noise sigma from the residuals' median absolute deviation) the
+        mean of the clipped data is above the model's, a bias proportional to the noise. The
+        curvature test (Returns) reads only the pixels above that margin. None: no floor.
+    floor_refit : bool
+        With ``floor_level``, refine the fit once more without the pixels within the margin
+        (where every pixel was fitted). On an exact 8-bit plane on a black background with 1 %
+        read noise (epsilon/d 0.033, 20 noise realisations) the normal was otherwise 0.39 deg
+        off on average in one direction, its spread 0.44, its sigma 0.31 (77 % of errors within
+        2 sigma); refined, 0.19 off, spread 0.51, sigma 0.62. Off by default: on the
+        ``lightaware`` suite's noisy renders it cost the tails' information (its
+        plane_noise_offset cases' photometric fit 0.21 to 0.31 deg mean at 1 % noise, 1.36 to
+        3.28 at 2 %); a censored likelihood (the clipped pixel's probability) would keep it.
+    floor_step : float
+        The image's quantisation step at the floor (1 for an 8-bit image): the refinement runs
+        only where the noise sigma exceeds it (below, the floor's pixels are rounding's, not
+        clipped noise, and leaving out the levels near 0 of a noise-free 8-bit render took the
+        tails' information: plane_tilt_offset@40 0.024 to 0.072 deg mean).
     lobe : {"phong", "ggx", "auto"}
         The specular lobe of the model: Phong's ``max(0, cos beta)^n`` (the paper's eq. 1), a GGX
         microfacet lobe under a dielectric film (the renderer's tissue,
@@ -134,7 +177,10 @@ def photometric_fit(values, origin_uv, bp_uv, camera, rig: LightRig, *,
         depth withdrawn) when the residuals of neighbouring pixels correlate: the plane model
         does not explain the ROI (a curved patch, whose lobe the plane model reproduces by
         trading the curvature for roughness and distance, and so misses the normal; see
-        ``_misfit``).
+        ``_misfit``), or, without the diffuse column and censored pixels, when the residual holds
+        the pattern a curvature of the patch would make (the score test of
+        :func:`~simtest.reconstruct.lightaware.solve._curvature_score`, which sees a sphere at
+        1 % noise where the neighbours' correlation does not).
 
     Raises
     ------
@@ -189,7 +235,8 @@ def photometric_fit(values, origin_uv, bp_uv, camera, rig: LightRig, *,
     if lobe == "auto":
         kw = dict(clip_level=clip_level, nominal_depth_mm=nominal_depth_mm, loss=loss, f_scale=f_scale,
                   supersample=supersample, n_start_depths=n_start_depths, diffuse=diffuse, censor=censor,
-                  max_pixels=max_pixels, max_nfev=max_nfev)
+                  max_pixels=max_pixels, refine_all=refine_all, max_nfev=max_nfev,
+                  floor_level=floor_level, floor_refit=floor_refit, floor_step=floor_step)
         pho = photometric_fit(values, origin_uv, bp_uv, camera, rig, start_normal=start_normal,
                               start_roughness=start_roughness, lobe="phong", **kw)
         if pho.ok or pho.status in ("depth_not_observable", "too_few_points"):
@@ -207,26 +254,36 @@ def photometric_fit(values, origin_uv, bp_uv, camera, rig: LightRig, *,
     H, W = vals.shape
     border = np.concatenate([vals[0], vals[-1], vals[:, 0], vals[:, -1]])
     b_level = float(np.median(border))
-    sel, step, uv, y = _roi_samples(vals, o, uu, vv, keep, max_pixels)
-    cens = y >= clip_level if censor else np.zeros(len(y), bool)
-    general = bool(diffuse or cens.any() or ggx)
-    if np.count_nonzero(~cens) < 8 + 1 + int(diffuse):
-        return LightAwareEstimate(name, "too_few_points", f"{np.count_nonzero(~cens)} unclipped pixels")
     ss = int(supersample)
     if ss < 1:
         raise ValueError(f"supersample: must be >= 1, got {supersample!r}")
     offs = (np.arange(ss) + 0.5) / ss - 0.5
     sub = np.array([(du_, dv_) for dv_ in offs for du_ in offs])  # (ss^2, 2)
-    dT = np.ascontiguousarray(_rays(camera, (uv[:, None, :] + sub[None]).reshape(-1, 2)).T)
     rig_arr = _rig_arrays(rig)
     bp = np.asarray(bp_uv, dtype=np.float64).reshape(2)
+
+    def samples(mp, keep_=keep):
+        """The pixels fitted (every one of ``keep_``, or a sub-grid beyond ``mp``) and what the
+        model needs of them: ``(sel, step, y, cens, general, dT, rl, yscale, yn, background,
+        clipn, design)``."""
+        sel_, step_, uv_, y_ = _roi_samples(vals, o, uu, vv, keep_, mp)
+        cens_ = y_ >= clip_level if censor else np.zeros(len(y_), bool)
+        dT_ = np.ascontiguousarray(_rays(camera, (uv_[:, None, :] + sub[None]).reshape(-1, 2)).T)
+        du_ = (uv_[:, 0] - bp[0]) / max(W, H)
+        dv_ = (uv_[:, 1] - bp[1]) / max(W, H)
+        yscale_ = max(float(np.abs(y_).max()), 1e-12)
+        background_ = np.column_stack([np.ones_like(du_), du_, dv_])
+        design_ = np.empty((len(y_), 5 if diffuse else 4))
+        design_[:, -3:] = background_
+        return (sel_, step_, y_, cens_, bool(diffuse or cens_.any() or ggx), dT_,
+                _ray_light(rig_arr[0], dT_), yscale_, y_ / yscale_, background_,
+                (float(clip_level) / yscale_) if censor else np.inf, design_)
+
+    (sel, step, y, cens, general, dT, rl, yscale, yn, background, clipn,
+     design) = samples(max_pixels)
+    if np.count_nonzero(~cens) < 8 + 1 + int(diffuse):
+        return LightAwareEstimate(name, "too_few_points", f"{np.count_nonzero(~cens)} unclipped pixels")
     d_bp, n0, h0 = _start(bp, camera, rig, nominal_depth_mm, start_normal)
-    du = (uv[:, 0] - bp[0]) / max(W, H)
-    dv = (uv[:, 1] - bp[1]) / max(W, H)
-    yscale = max(float(np.abs(y).max()), 1e-12)
-    yn = y / yscale
-    rl = _ray_light(rig_arr[0], dT)  # (J, N) each
-    background = np.column_stack([np.ones_like(du), du, dv])
     proj = {}  # orthonormal basis of the (weighted) background columns, per weights
 
     def basis(w):
@@ -244,10 +301,6 @@ def photometric_fit(values, origin_uv, bp_uv, camera, rig: LightRig, *,
         return v if ss == 1 else v.reshape(*v.shape[:-1], -1, ss * ss).mean(axis=-1)
 
     state = {}
-
-    clipn = (float(clip_level) / yscale) if censor else np.inf
-    design = np.empty((len(yn), 5 if diffuse else 4))
-    design[:, -3:] = background
 
     def resjac_general(p, nb, e1, e2, grad=True, w=None, kaufman=False):
         """Residuals and Kaufman's Jacobian with the diffuse column and censored rows (Notes).
@@ -456,11 +509,62 @@ def photometric_fit(values, origin_uv, bp_uv, camera, rig: LightRig, *,
         nfev_total += nfev
         cost = float(r @ r) if np.isfinite(r).all() else np.inf
         if best is None or cost < best[0]:
-            best = (cost, x, nc, hc, e1, e2, conv, msg)
+            best = (cost, x, nc, hc, e1, e2, conv, msg, r)
     if not best[0] < 0.25 * _NOT_FINITE_RESIDUAL**2 * len(yn):
         return LightAwareEstimate(name, "not_converged", "the model is not finite about the solution",
                                   n_evaluations=nfev_total)
-    _, x, n0, h0, e1, e2, conv, msg = best
+    _, x, n0, h0, e1, e2, conv, msg, r = best
+    clipped_low = floor_level is not None and bool(np.any(y <= floor_level))
+    if step > 1 and refine_all and not clipped_low and not _correlated(r, sel, keep.shape, step):
+        # the starts were refined on a sub-grid: where the plane explains it (its residuals do
+        # not correlate, the error is the noise's) the best is refined on every kept pixel (the
+        # sub-grid's covariance is step^2 times the whole ROI's; the two solutions lie apart
+        # along the valley where the tilt and the distance trade off, which takes the second
+        # fit about as many evaluations as the first); where it misfits, the model's error
+        # dominates and more pixels of it would not help; where the ROI's noise is clipped at
+        # the floor, that clipping biases the fit (an error its sigma does not hold) and more
+        # pixels would only shrink the sigma about it
+        (sel, step, y, cens, general, dT, rl, yscale, yn, background, clipn,
+         design) = samples(None)
+        state.clear()
+        proj.clear()
+        free = np.ones(len(x), bool)
+        free[2] = np.abs(rig_arr[0]).max() > 1e-9 * h0
+        x2, nfev, conv2, msg2, r = _solve(resjac_at, x, (n0, e1, e2), loss, f_scale, max_nfev, free,
+                                          lazy_jac=True, weighted=True)
+        nfev_total += nfev
+        if np.isfinite(r).all() and float(r @ r) < 0.25 * _NOT_FINITE_RESIDUAL**2 * len(yn):
+            x, conv, msg = x2, conv2, msg2
+        else:
+            return LightAwareEstimate(name, "not_converged", "the model is not finite about the "
+                                      "solution on every pixel", n_evaluations=nfev_total)
+    if floor_refit and floor_level is not None and step == 1 and np.any(y <= floor_level):
+        # pixels clipped from below (an 8-bit image's 0 under read noise): where the model is
+        # within a few noise sigmas of the floor the data's mean is the clipped Gaussian's, above
+        # the model; those pixels, chosen by the model (not by their values, which would select
+        # their noise), are left out and the fit refined on the rest
+        r_ = resjac_at(x, n0, e1, e2, grad=False)[0]
+        model_n = yn + r_
+        low = y <= floor_level
+        s_n = 1.4826 * float(np.median(np.abs(r_[~low]))) if np.any(~low) else 0.0
+        drop = model_n <= float(floor_level) / yscale + _FLOOR_MARGIN * s_n
+        if (drop.any() and s_n * yscale > floor_step
+                and np.count_nonzero(~drop & ~cens) >= 8 + 1 + int(diffuse)):
+            keep2 = keep.copy()
+            keep2.flat[sel[drop]] = False
+            (sel, step, y, cens, general, dT, rl, yscale, yn, background, clipn,
+             design) = samples(None, keep2)
+            state.clear()
+            proj.clear()
+            free = np.ones(len(x), bool)
+            free[2] = np.abs(rig_arr[0]).max() > 1e-9 * h0
+            x2, nfev, conv2, msg2, r = _solve(resjac_at, x, (n0, e1, e2), loss, f_scale, max_nfev,
+                                              free, lazy_jac=True, weighted=True)
+            nfev_total += nfev
+            if not (np.isfinite(r).all() and float(r @ r) < 0.25 * _NOT_FINITE_RESIDUAL**2 * len(yn)):
+                return LightAwareEstimate(name, "not_converged", "the model is not finite about the "
+                                          "solution above the floor", n_evaluations=nfev_total)
+            x, conv, msg = x2, conv2, msg2
     nfev = nfev_total
     n_hat = _normal_derivs(x, n0, e1, e2)[0]
     h_hat = float(np.exp(x[2]))
@@ -484,6 +588,33 @@ def photometric_fit(values, origin_uv, bp_uv, camera, rig: LightRig, *,
                                            _normal_derivs(p_hat, nb, e1_, e2_)[1], None)
         return state["r"], jac_of(_normal_derivs(p_hat, nb, e1_, e2_)[1], None, True)
 
+    def curvature(r0):
+        """The score test for a curved patch (:func:`~simtest.reconstruct.lightaware.solve._curvature_score`):
+        the quadric patch of :func:`~simtest.reconstruct.lightaware.patch.quadric_fit` at the
+        plane's specular point of the mean light with zero curvature is the plane; its image's
+        derivatives in the three curvatures
+        (:func:`~simtest.reconstruct.lightaware.model._curvature_columns`) are the columns the
+        residual is tested against."""
+        Lm = _mean_light(rig)
+        c = float(n_hat @ Lm) + h_hat
+        Lp = Lm - 2.0 * c * n_hat  # the mean light's mirror image in the plane
+        den = -float(n_hat @ Lp)
+        if not (c > 0 and den > 0):
+            return None
+        Xs = Lp * (h_hat / den)
+        cols = box(_curvature_columns(dT, rl, n_hat, h_hat, rig_arr, rough_hat, Xs)).T
+        J = at_solution(np.concatenate([[0.0, 0.0, np.log(h_hat)], x[3:]]), n_hat,
+                        *plane_basis(n_hat))[1]
+        span = np.column_stack([J, state["St"], background])
+        if floor_level is not None and np.any(y <= floor_level):
+            # the pixels near the floor hold clipped noise, a pattern of its own: the test reads
+            # the rest (chosen by the model, as the floor's refinement chooses them)
+            above = y > floor_level
+            s_n = 1.4826 * float(np.median(np.abs(r0[above]))) if np.any(above) else 0.0
+            rows = yn + r0 > float(floor_level) / yscale + _FLOOR_MARGIN * s_n
+            cols, span, r0 = cols[rows], span[rows], r0[rows]
+        return _curvature_score(cols, span, r0)
+
     def post(est, r0):
         """The misfit test, and where neighbouring residuals correlate, the sandwich sigmas.
 
@@ -491,7 +622,13 @@ def photometric_fit(values, origin_uv, bp_uv, camera, rig: LightRig, *,
         patch) make ``s^2 (J^T J)^-1`` too small: the normal's and the depth's sigmas are then
         the larger of it and the sandwich's (:func:`~simtest.reconstruct.lightaware.solve._hac_covariance`).
         """
-        if est.status not in ("ok", "depth_not_observable") or not _correlated(r0, sel, keep.shape, step):
+        if est.status not in ("ok", "depth_not_observable"):
+            return est
+        if not _correlated(r0, sel, keep.shape, step):
+            curved = None if general else curvature(r0)
+            if curved:
+                return replace(est, status="plane_misfit", depth_mm=None, depth_sigma_mm=None,
+                               distance_mm=None, detail=curved)
             return _misfit(est, r0, sel, keep.shape, step)
         J = at_solution(np.concatenate([[0.0, 0.0, np.log(h_hat)], x[3:]]), n_hat,
                         *plane_basis(n_hat))[1]

@@ -15,6 +15,7 @@ from dataclasses import replace
 import numpy as np
 from scipy.ndimage import convolve1d
 from scipy.optimize import leastsq
+from scipy.special import chdtri
 
 from simtest.geometry.angles import unit
 from simtest.geometry.conics import plane_basis
@@ -285,6 +286,54 @@ def _patch_verdict(rel_floor: float | None, r, sel, shape, step: int, ok_detail:
         status, observable = "patch_misfit", False
         detail = f"residual RMS {rms:.3g} of the ROI's maximum > {TOL.patch_misfit_rms_rel}: {misfit_hint}"
     return status, detail, observable, rms
+
+
+#: False-alarm probability of :func:`_curvature_score`'s test on a plane with white noise (the
+#: chi-square's upper tail with 3 degrees of freedom: 21.1).
+_CURVATURE_ALPHA = 1e-4
+
+
+def _curvature_score(cols, span, r) -> str | None:
+    """The score (Lagrange multiplier) test of the plane fit against a curved patch.
+
+    Under the plane model with white noise the residual r (M,) has no component along the
+    directions a curvature would change the image in, beyond the noise's: with ``cols`` (M, 3)
+    the image's derivatives in the patch's three curvatures at zero curvature, made orthogonal to
+    ``span`` (M, k: the plane fit's Jacobian and its linear columns) and orthonormal (Qc), the
+    statistic ``T = |Qc^T r|^2 / s^2`` (``s^2 = |r|^2 / (M - k)``) is chi-square with 3 degrees of
+    freedom [2]_. A curved patch the plane fit has absorbed (the lobe compressed by the
+    curvature, traded for roughness and distance) leaves its residual there: at 1 % noise on an
+    exact sphere the residuals' neighbour correlation (:func:`_correlated`) no longer sees it,
+    this test does (it tests the one pattern a curvature makes, not any pattern). Returns the
+    detail of a misfit when T exceeds the tail of probability :data:`_CURVATURE_ALPHA` and the
+    curved component's RMS over the ROI exceeds ``TOL.plane_misfit_rel`` (below it the residual
+    is rounding), else None.
+
+    References
+    ----------
+    .. [2] C. R. Rao, "Large sample tests of statistical hypotheses concerning several parameters
+           with applications to problems of estimation", Proc. Cambridge Philos. Soc. 44(1), 1948.
+    """
+    m, k = span.shape
+    if m <= k + 3 or not np.isfinite(cols).all():
+        return None
+    Q = np.linalg.qr(span)[0]
+    Cp = cols - Q @ (Q.T @ cols)
+    U, sv, _ = np.linalg.svd(Cp, full_matrices=False)
+    U = U[:, sv > 1e-9 * max(float(sv.max()), 1e-300)]
+    if U.shape[1] == 0:
+        return None
+    z = U.T @ r
+    zz = float(z @ z)
+    s2 = max(float(r @ r) - zz, 0.0) / (m - k - U.shape[1])
+    if not s2 > 0:
+        return None
+    T = zz / s2
+    rms = math.sqrt(zz / m)
+    if T > chdtri(U.shape[1], _CURVATURE_ALPHA) and rms > TOL.plane_misfit_rel:
+        return (f"the residual holds a curved patch's pattern (score {T:.3g} > "
+                f"{chdtri(U.shape[1], _CURVATURE_ALPHA):.3g}; RMS {rms:.3g})")
+    return None
 
 
 def _misfit(est: LightAwareEstimate, r, sel, shape, step: int) -> LightAwareEstimate:
