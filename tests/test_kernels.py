@@ -598,3 +598,17 @@ def test_the_counts_near_each_steps_multiples_are_numpys_reduceat(seed, coarse):
     hist = rng.integers(0, 50, (nbin, int(rng.integers(1, 65)))).astype(np.int32)
     want = sum(np.add.reduceat(hist[mult_idx + d], mult_start, axis=0) for d in (-1, 0, 1))
     assert np.array_equal(_kernels.multiple_counts(hist, mult_idx, mult_start), want)
+
+
+@settings(max_examples=60, deadline=None)
+@given(st.integers(2, 20), st.integers(2, 20), st.integers(2, 8), st.sampled_from([1, 3]), st.integers(0, 2**31 - 1))
+def test_linear_at_points_is_opencvs_enlargement_read_at_those_pixels(sh, sw, f, channels, seed):
+    # the verifier reads the enlarged reduced opening at a few pixels only; the values are
+    # OpenCV's INTER_LINEAR ones, up to float32 rounding of values below 256 (2^-15 relative)
+    rng = np.random.default_rng(seed)
+    small = rng.uniform(0, 255, (sh, sw, channels)).astype(np.float32)
+    h, w = sh * f, sw * f
+    big = cv2.resize(small, (w, h), interpolation=cv2.INTER_LINEAR).reshape(h, w, channels)
+    rows, cols = rng.integers(0, h, 40), rng.integers(0, w, 40)
+    got = _kernels.linear_at_points(small, h, w, rows, cols)
+    assert np.allclose(got, big[rows, cols], rtol=0, atol=255 * 2.0 ** -15)

@@ -1583,6 +1583,21 @@ def surround_fractions(gray, bj, bi, reach, cu, cv, sa, sb, cs, sn, own_level, r
 
 
 @numba.njit(cache=True, nogil=True)
+def _linear_sample(i, n_small, n_full):
+    """OpenCV's INTER_LINEAR source of output index ``i`` along one axis (``n_full`` from
+    ``n_small``): the lower index, its float32 weight toward the upper one, and the upper index,
+    clamped at the sides."""
+    t = (i + 0.5) * (n_small / n_full) - 0.5
+    i0 = int(np.floor(t))
+    a = np.float32(t - i0)
+    if i0 < 0:
+        i0, a = 0, np.float32(0.0)
+    if i0 >= n_small - 1:
+        i0, a = n_small - 1, np.float32(0.0)
+    return i0, a, min(i0 + 1, n_small - 1)
+
+
+@numba.njit(cache=True, nogil=True)
 def linear_at_points(small, h, w, rows, cols):
     """``cv2.resize(small, (w, h), interpolation=cv2.INTER_LINEAR)[rows, cols]`` at those pixels
     only, for a float32 (sh, sw, C) array: OpenCV's sample positions (``(x + 0.5) sw / w - 0.5``),
@@ -1592,22 +1607,8 @@ def linear_at_points(small, h, w, rows, cols):
     out = np.empty((n, C), np.float32)
     one = np.float32(1.0)
     for p in range(n):
-        y = (rows[p] + 0.5) * (sh / h) - 0.5
-        y0 = int(np.floor(y))
-        ay = np.float32(y - y0)
-        if y0 < 0:
-            y0, ay = 0, np.float32(0.0)
-        if y0 >= sh - 1:
-            y0, ay = sh - 1, np.float32(0.0)
-        y1 = min(y0 + 1, sh - 1)
-        x = (cols[p] + 0.5) * (sw / w) - 0.5
-        x0 = int(np.floor(x))
-        ax = np.float32(x - x0)
-        if x0 < 0:
-            x0, ax = 0, np.float32(0.0)
-        if x0 >= sw - 1:
-            x0, ax = sw - 1, np.float32(0.0)
-        x1 = min(x0 + 1, sw - 1)
+        y0, ay, y1 = _linear_sample(rows[p], sh, h)
+        x0, ax, x1 = _linear_sample(cols[p], sw, w)
         for ch in range(C):
             top = small[y0, x0, ch] * (one - ax) + small[y0, x1, ch] * ax
             bot = small[y1, x0, ch] * (one - ax) + small[y1, x1, ch] * ax
