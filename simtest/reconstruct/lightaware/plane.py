@@ -175,13 +175,17 @@ def photometric_fit(values, origin_uv, bp_uv, camera, rig: LightRig, *,
     -------
     LightAwareEstimate
         ``estimator="photometric_fit"``, with ``roughness``. Status ``plane_misfit`` (normal kept,
-        depth withdrawn) when the residuals of neighbouring pixels correlate: the plane model
-        does not explain the ROI (a curved patch, whose lobe the plane model reproduces by
-        trading the curvature for roughness and distance, and so misses the normal; see
-        ``_misfit``), or, without the diffuse column and censored pixels, when the residual holds
-        the pattern a curvature of the patch would make (the score test of
+        depth withdrawn) when the plane model does not explain the ROI (a curved patch, whose
+        lobe the plane model reproduces by trading the curvature for roughness and distance, and
+        so misses the normal). Without the diffuse column, censored pixels and the GGX lobe: when
+        the residuals of neighbouring pixels correlate (``_misfit``), or the residual holds the
+        pattern a curvature of the patch would make (the score test of
         :func:`~simtest.reconstruct.lightaware.solve._curvature_score`, which sees a sphere at
-        1 % noise where the neighbours' correlation does not).
+        1 % noise where the neighbours' correlation does not). With them (the sensor path), by
+        that score test alone, scored against the residual's own spatially correlated noise: a
+        textured albedo under the rig's diffuse light correlates neighbouring residuals of an
+        exact plane, which that test tells from a curvature; the sigmas then count the
+        residual's correlation area (``sensor_verdict`` in the source).
 
     Raises
     ------
