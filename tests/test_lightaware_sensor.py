@@ -207,3 +207,22 @@ def test_a_noisy_sphere_misfits_on_the_sensor_path(seed):
     assert len(ests) == 1
     r = la.photometric_fit(img, (0, 0), ests[0].bp_px, K, rig, nominal_depth_mm=dist, diffuse=True)
     assert r.status == "plane_misfit" and "curved patch" in r.detail, r
+
+
+@pytest.mark.parametrize("s", [0.0, 1.0, 2.0])
+def test_correlation_area_of_smoothed_white_noise(s):
+    # White noise smoothed by a Gaussian of s px has a Gaussian autocorrelation of s sqrt(2) px,
+    # whose integral is 4 pi s^2 px (white: 1). The estimate from one 120 x 120 field scatters by
+    # up to 70 % at s = 2 (about 300 independent patches, and the window's cut at the first zero
+    # of a noisy radial profile); the median of five is within a factor 1.6.
+    from scipy.ndimage import gaussian_filter
+    from simtest.reconstruct.lightaware.solve import _correlation_area
+
+    shape = (120, 120)
+    areas = []
+    for seed in range(5):
+        z = np.random.default_rng(seed).normal(size=shape)
+        z = gaussian_filter(z, s) if s else z
+        areas.append(_correlation_area(z.ravel(), np.arange(z.size), shape, 1))
+    expected = max(4 * np.pi * s * s, 1.0)
+    assert expected / 1.6 < np.median(areas) < 1.6 * expected
