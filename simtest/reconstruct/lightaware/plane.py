@@ -717,6 +717,11 @@ def _choose_lobe(pho: LightAwareEstimate, ggx: LightAwareEstimate) -> LightAware
         return (failed, misfit, 0.0 if misfit and e is pho else (1.0 if misfit else _bic(e)))
 
     best, other = (pho, ggx) if rank(pho) <= rank(ggx) else (ggx, pho)
+    if best is ggx and pho.status == "plane_misfit" and _bic(ggx) > _bic(pho):
+        # the GGX fit, judged by the sensor path's test (which takes a correlated residual for a
+        # texture), passes with a larger residual than the Phong fit that misfits: no better
+        # model of the image, and Phong's misfit stands
+        best, other = pho, ggx
     why = (f"{best.lobe} lobe: residual RMS {best.residual_rms:.4g} against {other.lobe}'s "
            f"{other.residual_rms:.4g}" if other.residual_rms is not None and best.residual_rms is not None
            else f"{best.lobe} lobe")
