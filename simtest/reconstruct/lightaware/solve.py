@@ -307,7 +307,8 @@ def _curvature_score(cols, span, r, grid=None) -> str | None:
     this test does (it tests the one pattern a curvature makes, not any pattern). Returns the
     detail of a misfit when T exceeds the tail of probability :data:`_CURVATURE_ALPHA` and the
     curved component's RMS over the ROI exceeds ``TOL.plane_misfit_rel`` (below it the residual
-    is rounding), else None.
+    is rounding), else None; False where no test can be made (too few pixels, non-finite or
+    degenerate columns, no residual variance).
 
     ``grid``: ``(sel, shape, step)`` of the residuals' pixels (as :func:`_hac_covariance`), for
     residuals that correlate between nearby pixels (a textured albedo under the rig's diffuse
