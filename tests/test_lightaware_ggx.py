@@ -97,7 +97,10 @@ def test_auto_lobe_keeps_phong_where_both_lobes_misfit():
     # An exact Phong plane with spatially correlated noise (white noise smoothed over 2 px, 2 % of
     # the peak, as test_lightaware_sensor's sandwich case): the residuals of either lobe
     # correlate, neither is the image's model, and "auto" keeps Phong's fit (its detail names
-    # GGX's residual) instead of ranking two misfits by their likelihoods.
+    # GGX's residual) instead of ranking two misfits by their likelihoods. The GGX fit alone is
+    # judged by the sensor path's curvature test, which takes the correlated residual for a
+    # texture and passes it (0.10 deg off, sigma 0.14); its residual RMS (0.025) is above the
+    # Phong fit's (0.019), so "auto" still keeps Phong's misfit.
     from scipy.ndimage import gaussian_filter
 
     img, K, N, _, bp = plane_case(20.0, 30.0, RIG, size=120)
@@ -105,7 +108,7 @@ def test_auto_lobe_keeps_phong_where_both_lobes_misfit():
     y = img + noise * (0.02 * img.max() / noise.std())
     g = la.photometric_fit(y, (0, 0), bp, K, RIG, lobe="ggx")
     e = la.photometric_fit(y, (0, 0), bp, K, RIG, lobe="auto")
-    assert g.status == "plane_misfit"
+    assert g.status == "ok" and g.residual_rms > 1.2 * la.photometric_fit(y, (0, 0), bp, K, RIG).residual_rms
     assert e.status == "plane_misfit" and e.lobe == "phong" and "ggx's" in e.detail
     p = la.photometric_fit(y, (0, 0), bp, K, RIG)
     assert np.array_equal(e.normal, p.normal)

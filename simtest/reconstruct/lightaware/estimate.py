@@ -21,8 +21,9 @@ STATUSES: dict[str, str] = {
     "light_behind_plane": "a light of the rig lies behind the fitted plane",
     "patch_misfit": "the quadric patch does not fit the ROI (spatially correlated residuals); "
                     "the normal is kept for the record, the depth withdrawn",
-    "plane_misfit": "the plane model does not fit the ROI (its residuals are spatially correlated: "
-                    "a curved patch); the normal is kept for the record, the depth withdrawn",
+    "plane_misfit": "the plane model does not fit the ROI (its residuals are spatially correlated, "
+                    "or hold a curved patch's pattern); the normal is kept for the record, the "
+                    "depth withdrawn",
 }
 
 

@@ -32,6 +32,7 @@ from simtest.reconstruct.lightaware.model import (
 from simtest.reconstruct.lightaware.solve import (
     _ROUGHNESS_RANGE,
     _correlated,
+    _correlation_area,
     _curvature_score,
     _finish,
     _hac_covariance,
@@ -174,13 +175,17 @@ def photometric_fit(values, origin_uv, bp_uv, camera, rig: LightRig, *,
     -------
     LightAwareEstimate
         ``estimator="photometric_fit"``, with ``roughness``. Status ``plane_misfit`` (normal kept,
-        depth withdrawn) when the residuals of neighbouring pixels correlate: the plane model
-        does not explain the ROI (a curved patch, whose lobe the plane model reproduces by
-        trading the curvature for roughness and distance, and so misses the normal; see
-        ``_misfit``), or, without the diffuse column and censored pixels, when the residual holds
-        the pattern a curvature of the patch would make (the score test of
+        depth withdrawn) when the plane model does not explain the ROI (a curved patch, whose
+        lobe the plane model reproduces by trading the curvature for roughness and distance, and
+        so misses the normal). Without the diffuse column, censored pixels and the GGX lobe: when
+        the residuals of neighbouring pixels correlate (``_misfit``), or the residual holds the
+        pattern a curvature of the patch would make (the score test of
         :func:`~simtest.reconstruct.lightaware.solve._curvature_score`, which sees a sphere at
-        1 % noise where the neighbours' correlation does not).
+        1 % noise where the neighbours' correlation does not). With them (the sensor path), by
+        that score test alone, scored against the residual's own spatially correlated noise: a
+        textured albedo under the rig's diffuse light correlates neighbouring residuals of an
+        exact plane, which that test tells from a curvature; the sigmas then count the
+        residual's correlation area (``sensor_verdict`` in the source).
 
     Raises
     ------
@@ -588,7 +593,7 @@ def photometric_fit(values, origin_uv, bp_uv, camera, rig: LightRig, *,
                                            _normal_derivs(p_hat, nb, e1_, e2_)[1], None)
         return state["r"], jac_of(_normal_derivs(p_hat, nb, e1_, e2_)[1], None, True)
 
-    def curvature(r0):
+    def curvature(r0, hac=False):
         """The score test for a curved patch (:func:`~simtest.reconstruct.lightaware.solve._curvature_score`):
         the quadric patch of :func:`~simtest.reconstruct.lightaware.patch.quadric_fit` at the
         plane's specular point of the mean light with zero curvature is the plane; its image's
@@ -600,20 +605,21 @@ def photometric_fit(values, origin_uv, bp_uv, camera, rig: LightRig, *,
         Lp = Lm - 2.0 * c * n_hat  # the mean light's mirror image in the plane
         den = -float(n_hat @ Lp)
         if not (c > 0 and den > 0):
-            return None
+            return False
         Xs = Lp * (h_hat / den)
         cols = box(_curvature_columns(dT, rl, n_hat, h_hat, rig_arr, rough_hat, Xs)).T
         J = at_solution(np.concatenate([[0.0, 0.0, np.log(h_hat)], x[3:]]), n_hat,
                         *plane_basis(n_hat))[1]
-        span = np.column_stack([J, state["St"], background])
+        span = np.column_stack([J, design] if general else [J, state["St"], background])
+        sel_ = sel
         if floor_level is not None and np.any(y <= floor_level):
             # the pixels near the floor hold clipped noise, a pattern of its own: the test reads
             # the rest (chosen by the model, as the floor's refinement chooses them)
             above = y > floor_level
             s_n = 1.4826 * float(np.median(np.abs(r0[above]))) if np.any(above) else 0.0
             rows = yn + r0 > float(floor_level) / yscale + _FLOOR_MARGIN * s_n
-            cols, span, r0 = cols[rows], span[rows], r0[rows]
-        return _curvature_score(cols, span, r0)
+            cols, span, r0, sel_ = cols[rows], span[rows], r0[rows], sel[rows]
+        return _curvature_score(cols, span, r0, (sel_, keep.shape, step) if hac else None)
 
     def post(est, r0):
         """The misfit test, and where neighbouring residuals correlate, the sandwich sigmas.
@@ -621,22 +627,70 @@ def photometric_fit(values, origin_uv, bp_uv, camera, rig: LightRig, *,
         Correlated residuals (a texture, a micro-relief, a lobe shape the model lacks, a curved
         patch) make ``s^2 (J^T J)^-1`` too small: the normal's and the depth's sigmas are then
         the larger of it and the sandwich's (:func:`~simtest.reconstruct.lightaware.solve._hac_covariance`).
+        The sensor path (the diffuse column, censored pixels or the GGX lobe) is judged by
+        :func:`sensor_verdict`.
         """
         if est.status not in ("ok", "depth_not_observable"):
             return est
+        if general:
+            return sensor_verdict(est, r0)
         if not _correlated(r0, sel, keep.shape, step):
-            curved = None if general else curvature(r0)
+            curved = curvature(r0)
             if curved:
                 return replace(est, status="plane_misfit", depth_mm=None, depth_sigma_mm=None,
                                distance_mm=None, detail=curved)
             return _misfit(est, r0, sel, keep.shape, step)
+        return _misfit(with_sandwich(est, r0), r0, sel, keep.shape, step)
+
+    def with_sandwich(est, r0):
+        """``est`` with the normal's sigma at least the sandwich's."""
         J = at_solution(np.concatenate([[0.0, 0.0, np.log(h_hat)], x[3:]]), n_hat,
                         *plane_basis(n_hat))[1]
         cov, _ = _hac_covariance(J, r0, sel, keep.shape, step)
         if cov is not None:
             sig = math.degrees(math.sqrt(max(float(cov[0, 0] + cov[1, 1]), 0.0)))
             est = replace(est, normal_sigma_deg=max(sig, est.normal_sigma_deg or 0.0))
-        return _misfit(est, r0, sel, keep.shape, step)
+        return est
+
+    def sensor_verdict(est, r0):
+        """The misfit test and the sigmas of the sensor path.
+
+        On a sensor frame the tissue's albedo texture (vessels, mucosal pattern) under the rig's
+        diffuse light leaves residuals that correlate between neighbours on an exact plane, so
+        the neighbours' correlation says nothing of the surface's shape there. The test is the
+        curvature's score test with the residual's own correlated noise
+        (:func:`~simtest.reconstruct.lightaware.solve._curvature_score` with its grid): a
+        texture passes it, a curved patch does not (``plane_misfit``). One that passes has
+        sigmas that count the texture as the noise it is: ``s^2 (J^T J)^-1`` (``s^2`` the
+        residual's variance, the texture's included) times the residual's correlation area
+        (:func:`~simtest.reconstruct.lightaware.solve._correlation_area`: the fitted pixels per
+        independent one), the normal's at least the sandwich's where the residuals correlate;
+        a depth whose relative sigma is then above ``TOL.depth_rel_sigma_max`` is withdrawn
+        (``depth_not_observable``). Where the test cannot be made (no specular point of the mean
+        light on the plane, a degenerate pattern) the neighbours' correlation decides, as on the
+        plain path.
+        """
+        curved = curvature(r0, hac=True)
+        if curved:
+            return replace(est, status="plane_misfit", depth_mm=None, depth_sigma_mm=None,
+                           distance_mm=None, detail=curved)
+        correlated = _correlated(r0, sel, keep.shape, step)
+        if curved is False:
+            return _misfit(with_sandwich(est, r0), r0, sel, keep.shape, step) if correlated else est
+        scale = math.sqrt(_correlation_area(r0, sel, keep.shape, step))
+        sig = None if est.normal_sigma_deg is None else est.normal_sigma_deg * scale
+        est = replace(est, normal_sigma_deg=sig)
+        if correlated:
+            est = with_sandwich(est, r0)
+        if est.depth_sigma_mm is not None:
+            dsig = est.depth_sigma_mm * scale
+            if est.depth_mm and dsig > TOL.depth_rel_sigma_max * abs(est.depth_mm):
+                return replace(est, status="depth_not_observable", depth_mm=None,
+                               depth_sigma_mm=None, distance_mm=None,
+                               detail=f"relative depth sigma {dsig / abs(est.depth_mm):.3g} with the "
+                                      f"residual's correlation > {TOL.depth_rel_sigma_max}")
+            est = replace(est, depth_sigma_mm=dsig)
+        return est
 
     est = _finish(name, at_solution, n_hat, h_hat, rig, x[3:],
                   TOL.photometric_noise_rel, nfev, conv, roughness=rough_hat,
@@ -663,6 +717,11 @@ def _choose_lobe(pho: LightAwareEstimate, ggx: LightAwareEstimate) -> LightAware
         return (failed, misfit, 0.0 if misfit and e is pho else (1.0 if misfit else _bic(e)))
 
     best, other = (pho, ggx) if rank(pho) <= rank(ggx) else (ggx, pho)
+    if best is ggx and pho.status == "plane_misfit" and _bic(ggx) > _bic(pho):
+        # the GGX fit, judged by the sensor path's test (which takes a correlated residual for a
+        # texture), passes with a larger residual than the Phong fit that misfits: no better
+        # model of the image, and Phong's misfit stands
+        best, other = pho, ggx
     why = (f"{best.lobe} lobe: residual RMS {best.residual_rms:.4g} against {other.lobe}'s "
            f"{other.residual_rms:.4g}" if other.residual_rms is not None and best.residual_rms is not None
            else f"{best.lobe} lobe")
