@@ -425,6 +425,7 @@ class RenderedRunner:
             extras["saturated_px"] = saturated if not rows else float("nan")
             if light_aware:
                 extras.update(_depth_errors(best, h, rig))
+                extras.update(_sigma_coverage(best, errs))
             extras.update(curvature_between_lights(h, result.highlights))
             rows.append(_row(errs, extras))
         if not rows:
@@ -588,6 +589,19 @@ def _depth_errors(est, h, rig) -> dict:
     if depth is not None:
         out["recommended_depth_err_pct"] = 100.0 * abs(depth / true - 1.0)
     return out
+
+
+def _sigma_coverage(est, errs: dict) -> dict:
+    """``recommended_within_2sigma``: 1 where the recommended normal's error is at most twice its
+    stated ``normal_sigma_deg``, 0 where it is more, NaN where it states none (the BP ray) or was
+    not scored; its case mean is the share of the highlights its sigma covers at 2 sigma (issue
+    39: at least 0.9)."""
+    rec = getattr(est, "recommended", None) if est is not None else None
+    sigma = getattr(rec, "normal_sigma_deg", None) if rec is not None else None
+    err = errs.get("recommended", (float("nan"), None))[0]
+    if sigma is None or not np.isfinite(err):
+        return {"recommended_within_2sigma": float("nan")}
+    return {"recommended_within_2sigma": float(err <= 2.0 * float(sigma))}
 
 
 def curvature_between_lights(h, highlights) -> dict:

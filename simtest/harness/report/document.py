@@ -48,6 +48,8 @@ _DIAG_TEXT = {
                   "over the distance to the true BP",
     "recommended_bp_ray_share": "share of the highlights where the recommendation fell back to "
                                 "the BP ray",
+    "recommended_within_2sigma": "share of the highlights with a stated sigma whose recommended "
+                                 "normal's error is at most twice it",
     "cubic_patch_fit_ok_share": "share of the highlights where cubic_patch_fit's status is ok",
     "cubic_patch_fit_misfit_share": "share of the highlights where cubic_patch_fit's patch "
                                     "misfits the ROI (patch_misfit)",
