@@ -229,11 +229,13 @@ def _detection_markdown(results: dict) -> str:
                  f"{_fmt(f['recall_ok'])} | {_fmt(f['f1_ok'])} | {f['not_examined']} |")
     agree = results.get("labeller_agreement")
     if agree:
-        a, b = agree["pass2_vs_pass1"], agree["pass2_vs_resolved"]
+        a, b, c = agree["pass2_vs_pass1"], agree["pass2_vs_resolved"], agree["pass1_vs_resolved"]
         L += ["", f"How far the labellers agree on the targets (a ceiling for any detector scored against "
               f"these labels): the second pass's isolated highlights scored against the first's have "
-              f"precision {_fmt(a['precision'])} and recall {_fmt(a['recall'])}; against the resolved "
-              f"labels precision {_fmt(b['precision'])} and recall {_fmt(b['recall'])}."]
+              f"precision {_fmt(a['precision'])} and recall {_fmt(a['recall'])}. Against the resolved "
+              f"labels, the first pass has precision {_fmt(c['precision'])} and recall "
+              f"{_fmt(c['recall'])}, the second precision {_fmt(b['precision'])} and recall "
+              f"{_fmt(b['recall'])}: each labeller, read as a detector, beside the ok row above."]
     L += ["", "What the ok estimates fall on (pooled): "
           + ", ".join(f"{k} {v}" for k, v in p["ok_on"].items()) + ".", "",
           "Status of every candidate: " + ", ".join(f"{k} {v}" for k, v in results["statuses"].items())
