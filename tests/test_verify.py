@@ -7,6 +7,7 @@ neighbours and surround are varied one at a time.
 
 from __future__ import annotations
 
+import cv2
 import numpy as np
 import pytest
 from hypothesis import given, settings
@@ -382,3 +383,33 @@ def test_opencv_enlarges_a_block_aligned_crop_as_the_frame():
             a0, a1 = (0 if s0 == 0 else f), up.shape[0] - (0 if s1 == sh else f)
             b0, b1 = (0 if t0 == 0 else f), up.shape[1] - (0 if t1 == sw else f)
             assert np.array_equal(up[a0:a1, b0:b1], ref[s0 * f + a0:s0 * f + a1, t0 * f + b0:t0 * f + b1])
+
+
+def test_a_candidate_not_specular_at_its_bp_is_neither_contoured_nor_fitted():
+    """The colour and height checks read only the BP (issue 41): a candidate that fails them is
+    rejected before its isophotes are extracted (no isophotes, no confidence), with the detail the
+    verdict gives, while a white lobe beside it is fitted and ok."""
+    from simtest.reconstruct.verify import bp_checks
+    img = _frame([(100, 100, 3.0, 0.5, TISSUE), (40, 150, 2.0, 150, WHITE)])
+    ests = reconstruct(img, K)
+    e = _at(ests, 100, 100)
+    assert e.status == "not_specular" and "chroma" in e.detail, (e.status, e.detail)
+    assert e.isophotes == () and e.confidence is None
+    white = _at(ests, 40, 150)
+    assert white.status == "ok" and white.isophotes and white.confidence is not None
+    # bp_checks alone: the tissue lobe fails with the verdict's words, the white one passes
+    gray = cv2.cvtColor(img.astype(np.float32), cv2.COLOR_RGB2GRAY)
+    got = bp_checks(img, gray, np.array([e.bp_px, white.bp_px]), np.zeros(2, bool), full_scale=255.0,
+                    noise=NOISE)
+    assert got[1] is None and got[0].startswith("peak chroma")
+
+
+def test_the_frame_wide_passes_run_once_for_the_bp_checks_and_the_verdict(monkeypatch):
+    """Inside reconstruct the verifier's frame-wide passes (the reduced openings, the JPEG
+    quantisation's noise) are shared by the BP checks and the verdict: each runs once a frame."""
+    from simtest.reconstruct import verify
+    calls = []
+    real = verify.quantisation_sigma
+    monkeypatch.setattr(verify, "quantisation_sigma", lambda *a: calls.append(1) or real(*a))
+    reconstruct(_frame([(100, 100, 3.0, 0.5, TISSUE), (40, 150, 2.0, 150, WHITE)]), K)
+    assert len(calls) == 1

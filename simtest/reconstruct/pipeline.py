@@ -86,6 +86,7 @@ from simtest.reconstruct.detect import (
     detect_specularities,
     image_noise_sigma,
     luma,
+    noise_sigma,
     peak_uv,
     smooth_sigma_for_noise,
     validate_image,
@@ -95,7 +96,7 @@ from simtest.reconstruct.failures import OK, Failure
 from simtest.reconstruct.isophote import MIN_CONTOUR_POINTS, _cut_and_contour, _extract, _region
 from simtest.reconstruct.recommend import recommend
 from simtest.reconstruct.settings import AUTO_LOCAL_BACKGROUND_REL, Normalisation, ReconSettings
-from simtest.reconstruct.verify import assess, confidence, verdict
+from simtest.reconstruct.verify import assess, bp_checks, confidence, shared_passes, verdict
 
 #: A whole-frame call (:func:`reconstruct`) on an RGB image with at least this many accepted
 #: highlights computes the luma of the frame once and slices each ROI's from it (the same values,
@@ -1112,6 +1113,7 @@ class Estimates(list):
 
 
 @_gc_paused()  # thousands of small objects, no cycles (see _gc_paused)
+@shared_passes()  # the verifier's frame-wide passes, once for the BP checks and the verdict
 def reconstruct(
     image,
     K,
@@ -1206,16 +1208,33 @@ def reconstruct(
     rays = frame.bp_rays(bps_arr)
     has_ray = np.isfinite(rays).all(axis=1)
     fitted = has_ray & np.array([c.status == OK for c in det.candidates], dtype=bool)
+    whole = sub.shape == img.shape
+    verifier = None
+    if settings.verify:
+        # the verifier's luma and noise, and its checks that read only the BP (colour, height)
+        # before any isophote: a candidate that fails them is not_specular whatever its fit, and
+        # is neither contoured nor fitted (issue 41; a third of a real frame's candidates)
+        verifier = _verifier_inputs(frame, det.gray if whole else None, frame.noise if whole else None)
+        gray_v, grey_v, noise_v = verifier
+        fk = np.flatnonzero(fitted)
+        sat = np.array([det.candidates[k].saturated for k in fk.tolist()], dtype=bool)
+        early = {k: d for k, d in zip(fk.tolist(), bp_checks(frame.img, gray_v, bps_arr[fk], sat,
+                                                             full_scale=frame.full_scale, noise=noise_v,
+                                                             grey=grey_v)) if d is not None}
+        fitted[list(early)] = False
+    else:
+        early = {}
     frames_of = dict(zip(np.flatnonzero(fitted).tolist(), fit_frames(frame.camera, -rays[fitted])))
     out = []
     for k, cand in enumerate(det.candidates):
         bp = bps[k]
-        if cand.status != OK:
+        if cand.status != OK or k in early:
             roi_k = Roi(cand.roi.row0 + r.row0, cand.roi.row1 + r.row0,
                         cand.roi.col0 + r.col0, cand.roi.col1 + r.col0)
             ray = rays[k]
-            out.append(SpecularityEstimate(bp, cand.peak, cand.saturated, roi_k, cand.status,
-                                           cand.detail, ray if has_ray[k] else None, ()))
+            status, detail = ("not_specular", early[k]) if k in early else (cand.status, cand.detail)
+            out.append(SpecularityEstimate(bp, cand.peak, cand.saturated, roi_k, status,
+                                           detail, ray if has_ray[k] else None, ()))
             continue
         roi_k = _initial_roi(cand, bp, det.threshold, frame)
         out.append(_estimate_one(frame, bp, roi_k, saturated=cand.saturated, grow=True, other_bps=others,
@@ -1223,16 +1242,15 @@ def reconstruct(
                                  fitf=frames_of.get(k)))
     done = _complete(out)
     if settings.verify and done:
-        whole = sub.shape == img.shape
-        done = _verified(frame, done, det.gray if whole else None, frame.noise if whole else None)
+        done = _verified(frame, done, verifier=verifier)
     return Estimates(done, n_components=det.n_components,
                      n_unexamined=det.n_unexamined, max_candidates=settings.max_candidates)
 
 
-def _verified(frame: _Frame, ests: list[SpecularityEstimate], native: np.ndarray | None = None,
-              noise: float | None = None) -> list[SpecularityEstimate]:
-    """The estimates with their confidence, and the fitted ones that fail a specularity check
-    of :mod:`simtest.reconstruct.verify` with its reason as status (the fit is kept).
+def _verifier_inputs(frame: _Frame, native: np.ndarray | None = None,
+                     noise: float | None = None) -> tuple[np.ndarray, bool, float]:
+    """``(gray, grey, noise)``: the luma the verifier measures in (:func:`_verifier_luma`), whether
+    it is the value of R, G and B alike, and its noise standard deviation.
 
     ``native`` is detection's unsmoothed gray of the whole frame (``Detection.gray``) and
     ``noise`` the noise measured on it (``_Frame.noise``), or None: measured again (also where
@@ -1246,6 +1264,17 @@ def _verified(frame: _Frame, ests: list[SpecularityEstimate], native: np.ndarray
         # a colour frame: OpenCV's gray, rounded to whole levels, carries the rounding's noise
         # (0.6 against 0.29 levels on a small colonoscope_plane render): measured on the luma
         noise = None
+    return gray, grey, noise_sigma(gray) if noise is None else float(noise)
+
+
+def _verified(frame: _Frame, ests: list[SpecularityEstimate], native: np.ndarray | None = None,
+              noise: float | None = None, *, verifier: tuple | None = None) -> list[SpecularityEstimate]:
+    """The estimates with their confidence, and the fitted ones that fail a specularity check
+    of :mod:`simtest.reconstruct.verify` with its reason as status (the fit is kept).
+
+    ``native`` and ``noise`` as for :func:`_verifier_inputs`, or ``verifier``: its result,
+    where the caller has it."""
+    gray, grey, noise = _verifier_inputs(frame, native, noise) if verifier is None else verifier
     ev, res, inside = assess(frame.img, gray, ests, full_scale=frame.full_scale, noise=noise, grey=grey)
     conf = confidence(ev, res)
     checks = verdict(ev, res, inside)
