@@ -413,3 +413,21 @@ def test_the_frame_wide_passes_run_once_for_the_bp_checks_and_the_verdict(monkey
     monkeypatch.setattr(verify, "quantisation_sigma", lambda *a: calls.append(1) or real(*a))
     reconstruct(_frame([(100, 100, 3.0, 0.5, TISSUE), (40, 150, 2.0, 150, WHITE)]), K)
     assert len(calls) == 1
+
+
+def test_a_verdict_on_some_candidates_is_the_whole_verdict_on_those():
+    """``verdict(..., only=...)`` judges the candidates named (the pipeline's fitted ones) as the
+    whole verdict does, status and detail, and leaves the others None."""
+    from simtest.reconstruct.verify import verdict
+    rng = np.random.default_rng(3)
+    n = 40
+    ev = Evidence(rng.uniform(0, 0.3, n), rng.uniform(0, 0.5, n), rng.uniform(0, 100, n).astype(np.float32),
+                  rng.uniform(10, 200, n), 2.0, rng.uniform(0, 0.2, n), rng.integers(0, 2, n),
+                  clipped=rng.random(n) < 0.2, minor_px=rng.uniform(0, 3, n), surround=rng.uniform(0, 0.2, n))
+    res, inside = rng.uniform(0, 0.5, n), rng.random(n) < 0.9
+    whole = verdict(ev, res, inside)
+    assert {s for s, _ in whole} >= {"ok", "not_specular", "cluster", "bad_fit", "overlay"}
+    some = rng.choice(n, 15, replace=False)
+    got = verdict(ev, res, inside, only=some)
+    assert [got[k] for k in some] == [whole[k] for k in some]
+    assert all(got[k] is None for k in set(range(n)) - set(some.tolist()))

@@ -1277,7 +1277,7 @@ def _verified(frame: _Frame, ests: list[SpecularityEstimate], native: np.ndarray
     gray, grey, noise = _verifier_inputs(frame, native, noise) if verifier is None else verifier
     ev, res, inside = assess(frame.img, gray, ests, full_scale=frame.full_scale, noise=noise, grey=grey)
     conf = confidence(ev, res)
-    checks = verdict(ev, res, inside)
+    checks = verdict(ev, res, inside, only=[k for k, e in enumerate(ests) if e.ok])
     out = []
     for k, e in enumerate(ests):
         status, detail = (checks[k] if e.ok else (e.status, e.detail))
