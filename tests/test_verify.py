@@ -431,3 +431,22 @@ def test_a_verdict_on_some_candidates_is_the_whole_verdict_on_those():
     got = verdict(ev, res, inside, only=some)
     assert [got[k] for k in some] == [whole[k] for k in some]
     assert all(got[k] is None for k in set(range(n)) - set(some.tolist()))
+
+
+def test_the_verifier_measures_only_the_estimates_with_isophotes(monkeypatch):
+    """Detection's rejections and the BP checks' have no fit to judge: the verifier's evidence is
+    measured for the estimates with isophotes only, and the others come back as they were."""
+    import simtest.reconstruct.pipeline as pipeline
+    from simtest.reconstruct import verify
+    seen = []
+
+    def assess(image, gray, ests, **k):
+        seen.append(len(ests))
+        return verify.assess(image, gray, ests, **k)
+
+    monkeypatch.setattr(pipeline, "assess", assess)
+    img = _frame([(100, 100, 3.0, 0.5, TISSUE), (40, 150, 2.0, 150, WHITE), (150, 40, 0.6, 60, WHITE)])
+    ests = reconstruct(img, K)
+    with_isophotes = [e for e in ests if e.isophotes]
+    assert seen == [len(with_isophotes)] and len(with_isophotes) < len(ests)
+    assert all(e.confidence is None for e in ests if not e.isophotes)

@@ -1275,15 +1275,21 @@ def _verified(frame: _Frame, ests: list[SpecularityEstimate], native: np.ndarray
     ``native`` and ``noise`` as for :func:`_verifier_inputs`, or ``verifier``: its result,
     where the caller has it."""
     gray, grey, noise = _verifier_inputs(frame, native, noise) if verifier is None else verifier
-    ev, res, inside = assess(frame.img, gray, ests, full_scale=frame.full_scale, noise=noise, grey=grey)
-    conf = confidence(ev, res)
-    checks = verdict(ev, res, inside, only=[k for k, e in enumerate(ests) if e.ok])
-    out = []
-    for k, e in enumerate(ests):
+    # only the estimates with isophotes can have a fit (a confidence) or be ok (a verdict); the
+    # others (detection's rejections, the BP checks', most of a real frame's thousands) are
+    # returned as they are: each estimate's evidence is measured from its own BP and region only
+    fit = [e for e in ests if e.isophotes]
+    if not fit:
+        return list(ests)
+    ev, res, inside = assess(frame.img, gray, fit, full_scale=frame.full_scale, noise=noise, grey=grey)
+    conf = confidence(ev, res).tolist()
+    checks = verdict(ev, res, inside, only=[k for k, e in enumerate(fit) if e.ok])
+    judged = {}
+    for k, e in enumerate(fit):
         status, detail = (checks[k] if e.ok else (e.status, e.detail))
-        fitted = np.isfinite(res[k])  # a confidence for the fitted candidates only
-        out.append(_replaced(e, status=status, detail=detail, confidence=float(conf[k]) if fitted else None))
-    return out
+        fitted = math.isfinite(res[k])  # a confidence for the fitted candidates only
+        judged[id(e)] = _replaced(e, status=status, detail=detail, confidence=conf[k] if fitted else None)
+    return [judged.get(id(e), e) for e in ests]
 
 
 def _verifier_luma(frame: _Frame, native: np.ndarray | None) -> tuple[np.ndarray, bool]:

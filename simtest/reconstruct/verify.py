@@ -237,6 +237,11 @@ def _shared(fn, img: np.ndarray, *args):
     return hit[1]
 
 
+def _float32(img: np.ndarray) -> np.ndarray:
+    """The image as float32 (itself when it is)."""
+    return img.astype(np.float32, copy=False)
+
+
 def _opening(img: np.ndarray, side: int) -> np.ndarray:
     """Grey opening by a square of ``side`` px on the image reduced so that the square is ~16 px
     (as :func:`~simtest.reconstruct.detect.local_peak_mask`), back to full size; float32."""
@@ -581,7 +586,7 @@ def frame_evidence(image: np.ndarray, gray: np.ndarray, bps_uv: np.ndarray, rois
     """
     h, w = gray.shape
     n = len(bps_uv)
-    g = gray.astype(np.float32, copy=False)
+    g = _shared(_float32, gray)
     ij = np.clip(np.rint(np.asarray(bps_uv, np.float64).reshape(-1, 2)).astype(np.int64), 0, [w - 1, h - 1])
     cols, rows = ij.T  # the BPs' pixels (u is the column)
     reach = np.asarray(reach_px, np.float64).reshape(-1) if reach_px is not None else np.full(n, np.nan)
