@@ -450,3 +450,17 @@ def test_the_verifier_measures_only_the_estimates_with_isophotes(monkeypatch):
     with_isophotes = [e for e in ests if e.isophotes]
     assert seen == [len(with_isophotes)] and len(with_isophotes) < len(ests)
     assert all(e.confidence is None for e in ests if not e.isophotes)
+
+
+def test_a_colour_frame_is_verified_in_the_luma_its_rois_are_smoothed_from():
+    """A colour 8-bit frame's float32 luma is computed once (``luma_rgb32``) and read by both the
+    frame's smoothing and the verifier: no float32 copy of the RGB frame converted by OpenCV."""
+    import cv2 as cv2_module
+
+    from simtest.bench import opencv_calls
+    img = _frame([(100, 100, 3.0, 150, WHITE), (40, 150, 2.0, 150, WHITE)])
+    with opencv_calls() as calls:
+        ests = reconstruct(img, K)
+    assert any(e.ok for e in ests)
+    grays = [c for c in calls if c.name == "cvtColor" and c.args[1] == cv2_module.COLOR_RGB2GRAY]
+    assert grays and all(c.args[0].dtype == np.uint8 for c in grays)  # detection's rounded gray only

@@ -353,6 +353,12 @@ class _Frame:
     #: (:func:`~simtest.reconstruct.detect.image_noise_sigma` of the region looked at); None
     #: when the settings fixed the smoothing.
     noise: float | None = None
+    #: A colour (not gray) 8- or 16-bit RGB frame's luma in float32 (H, W), read-only, where
+    #: ``reconstruct`` computed it (:func:`_colour_luma32`): the verifier's luma, and the one the
+    #: frame's ROIs are smoothed from.
+    luma32: np.ndarray | None = None
+    #: Whether the image's R, G and B are equal (``_kernels.is_gray``), where it was asked.
+    grey: bool | None = None
 
     @classmethod
     def make(cls, image, K, dist_coeffs, settings: ReconSettings, noise_roi: Roi | None = None) -> _Frame:
@@ -885,15 +891,33 @@ def _complete(drafts: list) -> list[SpecularityEstimate]:
     return out
 
 
-def _frame_luma_smoothing(img: np.ndarray, detection_smoothed: np.ndarray, sigma: float) -> np.ndarray:
+def _colour_luma32(img: np.ndarray, grey: bool | None = None) -> np.ndarray | None:
+    """The luma of a colour 8- or 16-bit RGB frame in float32 (H, W), read-only
+    (:func:`simtest.reconstruct._kernels.luma_rgb32`); None for any other frame (single-channel,
+    gray (R = G = B), float, RGBA). ``grey``: whether R = G = B, where the caller knows."""
+    if img.ndim != 3 or img.shape[2] != 3 or img.dtype.type not in (np.uint8, np.uint16):
+        return None
+    if grey if grey is not None else _kernels.is_gray(img):
+        return None
+    out = _kernels.luma_rgb32(img, *_LUMA_W)
+    out.setflags(write=False)
+    return out
+
+
+def _frame_luma_smoothing(img: np.ndarray, detection_smoothed: np.ndarray, sigma: float,
+                          luma32: np.ndarray | None = None) -> np.ndarray:
     """The whole frame's luma smoothed once (float32, read-only): detection's smoothing where
     detection smoothed the luma itself (a single-channel, gray (R = G = B) or float image), else
-    the unrounded luma (:func:`simtest.reconstruct._kernels.luma_rgb32`) smoothed as detection
-    smooths (an 8-bit frame's OpenCV gray is rounded to whole levels, which moves contours)."""
-    if img.ndim == 2 or img.dtype.kind == "f" or _kernels.is_gray(img):
+    the unrounded luma (:func:`simtest.reconstruct._kernels.luma_rgb32`; ``luma32`` where the
+    caller has it, :func:`_colour_luma32`) smoothed as detection smooths (an 8-bit frame's OpenCV
+    gray is rounded to whole levels, which moves contours)."""
+    if luma32 is not None:
+        src = luma32
+    elif img.ndim == 2 or img.dtype.kind == "f" or _kernels.is_gray(img):
         return detection_smoothed
-    src = _kernels.luma_rgb32(img, *_LUMA_W) if img.dtype.type in (np.uint8, np.uint16) else \
-        luma(img).astype(np.float32)
+    else:
+        src = _kernels.luma_rgb32(img, *_LUMA_W) if img.dtype.type in (np.uint8, np.uint16) else \
+            luma(img).astype(np.float32)
     out = cv2.GaussianBlur(src, (0, 0), float(sigma), borderType=cv2.BORDER_REFLECT)
     out.setflags(write=False)
     return out
@@ -1184,11 +1208,16 @@ def reconstruct(
         smooth_sigma_px=frame.smooth_sigma_px, method=settings.detection,
         peak_rel=settings.peak_rel, max_candidates=settings.max_candidates,
     )
-    if sum(c.status == OK for c in det.candidates) >= LUMA_FRAME_MIN_HIGHLIGHTS:
+    many = sum(c.status == OK for c in det.candidates) >= LUMA_FRAME_MIN_HIGHLIGHTS
+    if settings.verify or many:
+        grey = img.ndim == 3 and img.shape[2] >= 3 and bool(_kernels.is_gray(img))
+        frame = replace(frame, luma32=None if grey else _colour_luma32(img, False), grey=grey)
+    if many:
         # many ROIs: contoured in one smoothing of the frame's luma (detection's own where it is
         # the luma: a gray, single-channel or float frame), not each smoothed for itself
         if det.smoothed is not None and det.smoothed.shape == img.shape[:2]:
-            frame = frame.with_detection_smoothing(_frame_luma_smoothing(img, det.smoothed, frame.smooth_sigma_px))
+            frame = frame.with_detection_smoothing(_frame_luma_smoothing(img, det.smoothed, frame.smooth_sigma_px,
+                                                                         frame.luma32))
         else:
             frame = frame.for_many_highlights()
     shift = np.array([r.col0, r.row0], dtype=np.float64)
@@ -1295,17 +1324,19 @@ def _verified(frame: _Frame, ests: list[SpecularityEstimate], native: np.ndarray
 def _verifier_luma(frame: _Frame, native: np.ndarray | None) -> tuple[np.ndarray, bool]:
     """The luma :func:`_verified` measures in (H, W), and whether it is the value of R, G and B
     alike: ``native`` (detection's gray) where it is the luma's values (a single-channel image,
-    or an RGB one with R = G = B), the frame's luma where it was computed, else OpenCV's float32
-    luma of the frame (the verifier's arithmetic is float32: within a float32 rounding of the
+    or an RGB one with R = G = B), the frame's luma where it was computed (float64, or a colour
+    frame's float32 ``luma32``), else OpenCV's float32 luma of the frame (the verifier's arithmetic is float32: within a float32 rounding of the
     float64 luma, a third of its time)."""
     img = frame.img
-    if native is not None and native.shape == img.shape[:2]:
+    if native is not None and native.shape == img.shape[:2] and frame.luma32 is None:
         if img.ndim == 2:
             return native, False
-        if img.shape[2] >= 3 and _kernels.is_gray(img):
+        if img.shape[2] >= 3 and (frame.grey if frame.grey is not None else _kernels.is_gray(img)):
             return native, True
     if frame.luma_frame is not None:
         return frame.luma_frame, False
+    if frame.luma32 is not None:  # a colour frame's (not gray: is_gray was asked)
+        return frame.luma32, False
     if img.ndim == 3 and img.shape[2] == 3 and img.dtype.type in (np.uint8, np.uint16, np.float32):
         return cv2.cvtColor(img.astype(np.float32), cv2.COLOR_RGB2GRAY), False
     return luma(img), False
