@@ -1209,13 +1209,16 @@ def reconstruct(
         peak_rel=settings.peak_rel, max_candidates=settings.max_candidates,
     )
     many = sum(c.status == OK for c in det.candidates) >= LUMA_FRAME_MIN_HIGHLIGHTS
-    if settings.verify or many:
+    sliced = many and det.smoothed is not None and det.smoothed.shape == img.shape[:2]
+    if sliced or (settings.verify and not many):
+        # the colour frame's float32 luma, for the frame's smoothing and the verifier (which reads
+        # for_many_highlights' float64 luma where that is computed)
         grey = img.ndim == 3 and img.shape[2] >= 3 and bool(_kernels.is_gray(img))
         frame = replace(frame, luma32=None if grey else _colour_luma32(img, False), grey=grey)
     if many:
         # many ROIs: contoured in one smoothing of the frame's luma (detection's own where it is
         # the luma: a gray, single-channel or float frame), not each smoothed for itself
-        if det.smoothed is not None and det.smoothed.shape == img.shape[:2]:
+        if sliced:
             frame = frame.with_detection_smoothing(_frame_luma_smoothing(img, det.smoothed, frame.smooth_sigma_px,
                                                                          frame.luma32))
         else:
