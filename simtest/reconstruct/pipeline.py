@@ -1289,8 +1289,8 @@ def reconstruct(
     for k, cand in enumerate(det.candidates):
         bp = bps[k]
         if cand.status != OK or k in early:
-            roi_k = Roi(cand.roi.row0 + r.row0, cand.roi.row1 + r.row0,
-                        cand.roi.col0 + r.col0, cand.roi.col1 + r.col0)
+            roi_k = cand.roi if not (r.row0 or r.col0) else Roi(
+                cand.roi.row0 + r.row0, cand.roi.row1 + r.row0, cand.roi.col0 + r.col0, cand.roi.col1 + r.col0)
             ray = rays[k]
             status, detail = ("not_specular", early[k]) if k in early else (cand.status, cand.detail)
             out.append(SpecularityEstimate(bp, cand.peak, cand.saturated, roi_k, status,
