@@ -1152,6 +1152,18 @@ def border_median_of_ring(ring):
 
 
 @numba.njit(cache=True, nogil=True)
+def count_enclosed_sorted_many(polys, starts, counts, points, us, skips):
+    """:func:`count_enclosed_sorted` of several polygons in one call: polygon j is
+    ``polys[starts[j]:starts[j] + counts[j]]`` (counts >= 1) and skips row ``skips[j]`` of the
+    points (sorted by u, ``us`` their u); int64 (len(starts),). A frame's ``merged`` tests in one
+    compiled call instead of one a highlight."""
+    out = np.zeros(len(starts), np.int64)
+    for j in range(len(starts)):
+        out[j] = count_enclosed_sorted(polys[starts[j]:starts[j] + counts[j]], points, us, skips[j])
+    return out
+
+
+@numba.njit(cache=True, nogil=True)
 def is_gray(img):
     """Whether R = G = B at every pixel of an (H, W, C >= 3) image (stops at the first colour
     pixel)."""

@@ -870,7 +870,8 @@ def _complete(drafts: list) -> list[SpecularityEstimate]:
     # joint cone axes of the highlights with two or more good isophotes, in one batch
     multi = [d for d in drafts if isinstance(d, _Draft) and sum(r.ok for r in d.results) >= 2]
     if not multi:
-        return [_finish(d, None) if isinstance(d, _Draft) else d for d in drafts]
+        enclosed = _enclosed_counts([d for d in drafts if isinstance(d, _Draft)])
+        return [_finish(d, None, enclosed.get(id(d))) if isinstance(d, _Draft) else d for d in drafts]
     cones, group = [], []
     for g, d in enumerate(multi):
         for r in d.results:
@@ -882,13 +883,36 @@ def _complete(drafts: list) -> list[SpecularityEstimate]:
                            np.array([to_fit_frame(d.fitf, d.bp_ray) for d in multi]).reshape(-1, 3))
     joint_of = {id(d): (to_camera(d.fitf, j) if not isinstance(j, Failure) else None)
                 for d, j in zip(multi, axes)}
+    enclosed = _enclosed_counts([d for d in drafts if isinstance(d, _Draft)])
     out = []
     for d in drafts:
         if not isinstance(d, _Draft):
             out.append(d)
             continue
-        out.append(_finish(d, joint_of.get(id(d))))
+        out.append(_finish(d, joint_of.get(id(d)), enclosed.get(id(d))))
     return out
+
+
+def _enclosed_counts(drafts: list) -> dict:
+    """``id(draft) -> n``: how many other BPs the closed ok primary isophote of each draft whose
+    other BPs are a frame's sorted array (``_SortedBps``) encloses, in one compiled call
+    (:func:`simtest.reconstruct._kernels.count_enclosed_sorted_many`: the counts of
+    ``count_enclosed_sorted`` one draft at a time). The drafts not counted here are counted by
+    :func:`_finish` itself."""
+    todo = [d for d in drafts if isinstance(d.other_bps, _SortedBps) and d.results[0].status == OK
+            and d.results[0].closed and len(d.other_bps) > (d.own_bp >= 0)]
+    if not todo:
+        return {}
+    others = todo[0].other_bps
+    if any(d.other_bps is not others for d in todo):
+        return {}
+    polys = [d.results[0].points_uv for d in todo]
+    counts = np.array([len(p) for p in polys], dtype=np.int64)
+    starts = np.concatenate([[0], np.cumsum(counts)[:-1]]).astype(np.int64)
+    n_in = _kernels.count_enclosed_sorted_many(
+        np.ascontiguousarray(np.concatenate(polys, axis=0), dtype=np.float64), starts, counts, others.uv,
+        others.u, np.array([d.own_bp for d in todo], dtype=np.int64))
+    return dict(zip(map(id, todo), n_in.tolist()))
 
 
 def _colour_luma32(img: np.ndarray, grey: bool | None = None) -> np.ndarray | None:
@@ -936,15 +960,18 @@ class _SortedBps:
         return len(self.uv)
 
 
-def _finish(d: _Draft, joint) -> SpecularityEstimate:
+def _finish(d: _Draft, joint, enclosed: int | None = None) -> SpecularityEstimate:
     """The estimate of a completed draft: the primary isophote's status, ``merged`` when that
-    closed isophote encloses another candidate's BP."""
+    closed isophote encloses another candidate's BP (``enclosed``: how many, where
+    :func:`_enclosed_counts` counted them)."""
     isovalues = [r.isovalue for r in d.results]
     primary = d.results[0]
     status, detail = primary.status, primary.detail
     if status == OK and primary.closed and len(d.other_bps) > (d.own_bp >= 0):
         # the other BPs in the isophote's bounding box, tested even-odd (polygon_contains)
-        if isinstance(d.other_bps, _SortedBps):
+        if enclosed is not None:
+            n_in = enclosed
+        elif isinstance(d.other_bps, _SortedBps):
             n_in = int(_kernels.count_enclosed_sorted(primary.points_uv, d.other_bps.uv, d.other_bps.u,
                                                       d.own_bp))
         else:
