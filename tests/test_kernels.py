@@ -634,3 +634,14 @@ def test_count_enclosed_sorted_many_is_each_polygons_count(n_polys, n_points, se
     got = _kernels.count_enclosed_sorted_many(np.concatenate(polys), starts, counts, pts, us, skips)
     want = [_kernels.count_enclosed_sorted(p, pts, us, int(s)) for p, s in zip(polys, skips)]
     assert got.tolist() == want
+
+
+def test_smoothed_border_medians_are_each_rois_own():
+    """The first ROIs' rings of a frame in one call give each ROI's smoothed_border_median."""
+    rng = np.random.default_rng(5)
+    img = rng.integers(0, 256, (60, 80, 3)).astype(np.uint8)
+    kern = cv2.getGaussianKernel(9, 1.5, cv2.CV_64F).ravel()
+    rois = np.array([[0, 60, 0, 80], [5, 20, 7, 40], [30, 31, 2, 3], [10, 59, 70, 80]], dtype=np.int64)
+    got = _kernels.smoothed_border_medians(img, 0.299, 0.587, 0.114, rois, kern)
+    want = [_kernels.smoothed_border_median(img, 0.299, 0.587, 0.114, *r, kern) for r in rois.tolist()]
+    assert got.tolist() == want

@@ -1138,6 +1138,16 @@ def smoothed_border_median(img, w0, w1, w2, row0, row1, col0, col1, kern):
 
 
 @numba.njit(cache=True, nogil=True)
+def smoothed_border_medians(img, w0, w1, w2, rois, kern):
+    """:func:`smoothed_border_median` of several ROIs (k, 4) (row0, row1, col0, col1) in one call:
+    float64 (k,), each from its own ROI only."""
+    out = np.empty(len(rois))
+    for j in range(len(rois)):
+        out[j] = smoothed_border_median(img, w0, w1, w2, rois[j, 0], rois[j, 1], rois[j, 2], rois[j, 3], kern)
+    return out
+
+
+@numba.njit(cache=True, nogil=True)
 def border_median_of_ring(ring):
     """The median of :func:`border_median` of the ring's values (NaN if any is NaN)."""
     for v in ring:

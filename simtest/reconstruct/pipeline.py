@@ -710,10 +710,13 @@ class _Levels:
     offset: float = 0.0
 
     @classmethod
-    def of(cls, frame: _Frame, vals: np.ndarray, i_bp: float, roi: Roi | None = None) -> _Levels:
+    def of(cls, frame: _Frame, vals: np.ndarray, i_bp: float, roi: Roi | None = None,
+           ring: float | None = None) -> _Levels:
+        """``ring``: the ROI's smoothed border median where the caller computed it
+        (:func:`_first_rings`)."""
         mode = frame.settings.normalise
-        ring = None
-        if roi is not None and frame.smoothed32 is not None and mode in (Normalisation.AUTO, Normalisation.LOCAL):
+        if ring is None and roi is not None and frame.smoothed32 is not None and \
+                mode in (Normalisation.AUTO, Normalisation.LOCAL):
             # the ROI's values are the frame's smoothing; its background level is that of the ROI
             # smoothed alone (_kernels.smoothed_border_median), as without the frame's
             ring = float(_kernels.smoothed_border_median(frame.img3, *_LUMA_W, roi.row0, roi.row1,
@@ -775,12 +778,14 @@ class _Draft:
 
 
 def _estimate_one(frame: _Frame, bp_uv, roi: Roi, *, saturated: bool, grow: bool,
-                  other_bps=(), own_bp: int = -1, bp_ray=None, fitf: FitFrame | None = None) -> _Draft | SpecularityEstimate:
+                  other_bps=(), own_bp: int = -1, bp_ray=None, fitf: FitFrame | None = None,
+                  ring: float | None = None) -> _Draft | SpecularityEstimate:
     """Extract one highlight's isophotes (growing the ROI): a draft for :func:`_complete`, or the
     finished estimate of a BP without a viewing ray. ``other_bps`` (k, 2) are the BPs its isophote
     must not enclose (``merged``), one frame's array shared by its highlights, whose own row
     ``own_bp`` is skipped. ``bp_ray`` and ``fitf`` are the BP's ray and fit frame when the caller
-    computed them (for many highlights at once)."""
+    computed them (for many highlights at once); ``ring`` the first ROI's smoothed border
+    median (:func:`_first_rings`), or None."""
     isovalues = frame.settings.isovalues
     sigma = frame.smooth_sigma_px
     bp_uv = np.asarray(bp_uv, dtype=np.float64)
@@ -810,7 +815,7 @@ def _estimate_one(frame: _Frame, bp_uv, roi: Roi, *, saturated: bool, grow: bool
             vals, saved = _roi_values(frame, roi, sigma)
             region = _region(vals, bp_uv, (roi.row0, roi.col0), frame.img.shape)
             i_bp = region.near_bp  # the largest of the BP's 3 x 3 pixels
-            levels = _Levels.of(frame, vals, i_bp, roi if fast else None)
+            levels = _Levels.of(frame, vals, i_bp, roi if fast else None, ring if fast and not growths else None)
             i0 = order[0]
             res = walked = None
             cut = False
@@ -1002,6 +1007,18 @@ def _initial_roi(cand, bp_uv, threshold, frame: _Frame) -> Roi:
     ratio = min(max(float(np.sqrt(max(num, 0.0) / max(den, 1e-6))), 1.0), 8.0)
     radius = max(cand.bbox.shape) / 2.0
     return Roi.around(bp_uv, 1.2 * ratio * radius + 4.0, frame.img.shape)
+
+
+def _first_rings(frame: _Frame, rois: list[Roi]) -> list:
+    """Each ROI's smoothed border median (``_Levels.of``'s ring) in one compiled call
+    (:func:`simtest.reconstruct._kernels.smoothed_border_medians`: each ROI's
+    ``smoothed_border_median``), where the frame's ROIs read them (smoothed once, normalised
+    ``auto`` or ``local``); else None for each."""
+    if not rois or frame.smoothed32 is None or not frame.smooth_sigma_px > 0 or \
+            frame.settings.normalise not in (Normalisation.AUTO, Normalisation.LOCAL):
+        return [None] * len(rois)
+    rr = np.array(rois, dtype=np.int64).reshape(-1, 4)
+    return _kernels.smoothed_border_medians(frame.img3, *_LUMA_W, rr, frame.kernel).tolist()
 
 
 def _initial_rois(cands: list, bps_uv: np.ndarray, threshold, frame: _Frame) -> list[Roi]:
@@ -1312,6 +1329,7 @@ def reconstruct(
     # the fitted candidates' first ROIs, in one batch of numpy calls
     rois_of = dict(zip(fk.tolist(), _initial_rois([det.candidates[k] for k in fk.tolist()], bps_arr[fk],
                                                   det.threshold, frame)))
+    rings_of = dict(zip(fk.tolist(), _first_rings(frame, [rois_of[k] for k in fk.tolist()])))
     out = []
     for k, cand in enumerate(det.candidates):
         bp = bps[k]
@@ -1326,7 +1344,7 @@ def reconstruct(
         roi_k = rois_of[k] if k in rois_of else _initial_roi(cand, bp, det.threshold, frame)
         out.append(_estimate_one(frame, bp, roi_k, saturated=cand.saturated, grow=True, other_bps=others,
                                  own_bp=int(row_in_others[k]) if keep[k] else -1, bp_ray=rays[k],
-                                 fitf=frames_of.get(k)))
+                                 fitf=frames_of.get(k), ring=rings_of.get(k)))
     done = _complete(out)
     if settings.verify and done:
         done = _verified(frame, done, verifier=verifier)
