@@ -246,3 +246,21 @@ def test_the_video_row_tells_the_candidates_and_the_cpu_a_frame(monkeypatch):
     assert got, row.note
     assert int(got.group(1)) > 500  # the mosaic's ~640 components and MJPG's blocks
     assert 0 < int(got.group(2)) < 60_000
+
+
+def test_the_decoded_video_frame_is_the_real_frame_with_thousands_of_components():
+    """The real-frame row that speaks for issue 41's frame of about 5000 components is the bench
+    video's first frame as the video path decodes it: the mosaic through MJPG, whose blocks
+    multiply its bright components (the mosaic alone has about 640); its row's note names the
+    count, every component examined."""
+    got = bench.video_first_frame()
+    if got is None:
+        pytest.fail("the bench video could not be made (no banner or no MJPG codec)")
+    frame, K = got
+    assert frame.shape == (1080, 1350, 3) and frame.dtype == np.uint8
+    mosaic, K_mosaic = bench.banner_mosaic()
+    np.testing.assert_array_equal(K, K_mosaic)
+    # decoded, not the mosaic itself: MJPG's error, a few levels
+    assert 0 < np.abs(frame.astype(int) - mosaic).mean() < 5
+    ests = reconstruct(frame, K)
+    assert ests.n_unexamined == 0 and len(ests) == ests.n_components > 2000

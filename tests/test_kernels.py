@@ -612,3 +612,36 @@ def test_linear_at_points_is_opencvs_enlargement_read_at_those_pixels(sh, sw, f,
     rows, cols = rng.integers(0, h, 40), rng.integers(0, w, 40)
     got = _kernels.linear_at_points(small, h, w, rows, cols)
     assert np.allclose(got, big[rows, cols], rtol=0, atol=255 * 2.0 ** -15)
+
+
+@settings(max_examples=40, deadline=None)
+@given(st.integers(1, 6), st.integers(0, 40), st.integers(0, 2**31 - 1))
+def test_count_enclosed_sorted_many_is_each_polygons_count(n_polys, n_points, seed):
+    """The frame's ``merged`` tests in one call give each polygon's count_enclosed_sorted."""
+    rng = np.random.default_rng(seed)
+    polys = []
+    for _ in range(n_polys):
+        m = int(rng.integers(1, 30))
+        ang = np.sort(rng.uniform(0, 2 * np.pi, m))
+        c, r = rng.uniform(0, 50, 2), rng.uniform(1, 20)
+        polys.append(np.c_[c[0] + r * np.cos(ang), c[1] + r * np.sin(ang)])
+    pts = rng.uniform(-5, 55, (n_points, 2))
+    pts = pts[np.argsort(pts[:, 0], kind="stable")]
+    us = np.ascontiguousarray(pts[:, 0])
+    skips = rng.integers(-1, max(n_points, 1), n_polys)
+    counts = np.array([len(p) for p in polys], dtype=np.int64)
+    starts = np.concatenate([[0], np.cumsum(counts)[:-1]]).astype(np.int64)
+    got = _kernels.count_enclosed_sorted_many(np.concatenate(polys), starts, counts, pts, us, skips)
+    want = [_kernels.count_enclosed_sorted(p, pts, us, int(s)) for p, s in zip(polys, skips)]
+    assert got.tolist() == want
+
+
+def test_smoothed_border_medians_are_each_rois_own():
+    """The first ROIs' rings of a frame in one call give each ROI's smoothed_border_median."""
+    rng = np.random.default_rng(5)
+    img = rng.integers(0, 256, (60, 80, 3)).astype(np.uint8)
+    kern = cv2.getGaussianKernel(9, 1.5, cv2.CV_64F).ravel()
+    rois = np.array([[0, 60, 0, 80], [5, 20, 7, 40], [30, 31, 2, 3], [10, 59, 70, 80]], dtype=np.int64)
+    got = _kernels.smoothed_border_medians(img, 0.299, 0.587, 0.114, rois, kern)
+    want = [_kernels.smoothed_border_median(img, 0.299, 0.587, 0.114, *r, kern) for r in rois.tolist()]
+    assert got.tolist() == want

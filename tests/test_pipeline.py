@@ -701,3 +701,23 @@ def test_the_verifier_reuses_detections_gray_and_noise_within_the_accuracy_toler
     assert [e.confidence for e in redo] == pytest.approx([e.confidence for e in ests], rel=1e-6)
     got = pipeline._verifier_luma(frame, luma(img).astype(np.float32))
     assert got[1] is True  # R = G = B: measured on one channel
+
+
+def test_the_batched_initial_rois_are_each_candidates_own():
+    """``_initial_rois`` (one batch of numpy calls for a frame's candidates) gives each candidate
+    the ROI ``_initial_roi`` gives it alone: the real banner's candidates, with their own levels
+    and with the frame's threshold (method full_scale), and under full-scale normalisation."""
+    from simtest import bench
+    from simtest.reconstruct.detect import detect_specularities
+    from simtest.reconstruct.pipeline import _Frame, _initial_roi, _initial_rois
+    from simtest.reconstruct.settings import ReconSettings
+    img, K = bench.banner_frame()
+    for method, normalise in (("local_peak", "auto"), ("full_scale", "full_scale")):
+        settings = ReconSettings.make(None, None, frames=True, normalise=normalise, detection=method)
+        frame = _Frame.make(img, K, None, settings)
+        det = detect_specularities(img, method=method, smooth_sigma_px=frame.smooth_sigma_px)
+        cands = det.candidates
+        assert len(cands) > 100
+        bps = np.array([c.bp_uv for c in cands], dtype=np.float64)
+        assert _initial_rois(cands, bps, det.threshold, frame) == [
+            _initial_roi(c, bp, det.threshold, frame) for c, bp in zip(cands, bps)]

@@ -7,6 +7,7 @@ neighbours and surround are varied one at a time.
 
 from __future__ import annotations
 
+import cv2
 import numpy as np
 import pytest
 from hypothesis import given, settings
@@ -382,3 +383,84 @@ def test_opencv_enlarges_a_block_aligned_crop_as_the_frame():
             a0, a1 = (0 if s0 == 0 else f), up.shape[0] - (0 if s1 == sh else f)
             b0, b1 = (0 if t0 == 0 else f), up.shape[1] - (0 if t1 == sw else f)
             assert np.array_equal(up[a0:a1, b0:b1], ref[s0 * f + a0:s0 * f + a1, t0 * f + b0:t0 * f + b1])
+
+
+def test_a_candidate_not_specular_at_its_bp_is_neither_contoured_nor_fitted():
+    """The colour and height checks read only the BP (issue 41): a candidate that fails them is
+    rejected before its isophotes are extracted (no isophotes, no confidence), with the detail the
+    verdict gives, while a white lobe beside it is fitted and ok."""
+    from simtest.reconstruct.verify import bp_checks
+    img = _frame([(100, 100, 3.0, 0.5, TISSUE), (40, 150, 2.0, 150, WHITE)])
+    ests = reconstruct(img, K)
+    e = _at(ests, 100, 100)
+    assert e.status == "not_specular" and "chroma" in e.detail, (e.status, e.detail)
+    assert e.isophotes == () and e.confidence is None
+    white = _at(ests, 40, 150)
+    assert white.status == "ok" and white.isophotes and white.confidence is not None
+    # bp_checks alone: the tissue lobe fails with the verdict's words, the white one passes
+    gray = cv2.cvtColor(img.astype(np.float32), cv2.COLOR_RGB2GRAY)
+    got = bp_checks(img, gray, np.array([e.bp_px, white.bp_px]), np.zeros(2, bool), full_scale=255.0,
+                    noise=NOISE)
+    assert got[1] is None and got[0].startswith("peak chroma")
+
+
+def test_the_frame_wide_passes_run_once_for_the_bp_checks_and_the_verdict(monkeypatch):
+    """Inside reconstruct the verifier's frame-wide passes (the reduced openings, the JPEG
+    quantisation's noise) are shared by the BP checks and the verdict: each runs once a frame."""
+    from simtest.reconstruct import verify
+    calls = []
+    real = verify.quantisation_sigma
+    monkeypatch.setattr(verify, "quantisation_sigma", lambda *a: calls.append(1) or real(*a))
+    reconstruct(_frame([(100, 100, 3.0, 0.5, TISSUE), (40, 150, 2.0, 150, WHITE)]), K)
+    assert len(calls) == 1
+
+
+def test_a_verdict_on_some_candidates_is_the_whole_verdict_on_those():
+    """``verdict(..., only=...)`` judges the candidates named (the pipeline's fitted ones) as the
+    whole verdict does, status and detail, and leaves the others None."""
+    from simtest.reconstruct.verify import verdict
+    rng = np.random.default_rng(3)
+    n = 40
+    ev = Evidence(rng.uniform(0, 0.3, n), rng.uniform(0, 0.5, n), rng.uniform(0, 100, n).astype(np.float32),
+                  rng.uniform(10, 200, n), 2.0, rng.uniform(0, 0.2, n), rng.integers(0, 2, n),
+                  clipped=rng.random(n) < 0.2, minor_px=rng.uniform(0, 3, n), surround=rng.uniform(0, 0.2, n))
+    res, inside = rng.uniform(0, 0.5, n), rng.random(n) < 0.9
+    whole = verdict(ev, res, inside)
+    assert {s for s, _ in whole} >= {"ok", "not_specular", "cluster", "bad_fit", "overlay"}
+    some = rng.choice(n, 15, replace=False)
+    got = verdict(ev, res, inside, only=some)
+    assert [got[k] for k in some] == [whole[k] for k in some]
+    assert all(got[k] is None for k in set(range(n)) - set(some.tolist()))
+
+
+def test_the_verifier_measures_only_the_estimates_with_isophotes(monkeypatch):
+    """Detection's rejections and the BP checks' have no fit to judge: the verifier's evidence is
+    measured for the estimates with isophotes only, and the others come back as they were."""
+    import simtest.reconstruct.pipeline as pipeline
+    from simtest.reconstruct import verify
+    seen = []
+
+    def assess(image, gray, ests, **k):
+        seen.append(len(ests))
+        return verify.assess(image, gray, ests, **k)
+
+    monkeypatch.setattr(pipeline, "assess", assess)
+    img = _frame([(100, 100, 3.0, 0.5, TISSUE), (40, 150, 2.0, 150, WHITE), (150, 40, 0.6, 60, WHITE)])
+    ests = reconstruct(img, K)
+    with_isophotes = [e for e in ests if e.isophotes]
+    assert seen == [len(with_isophotes)] and len(with_isophotes) < len(ests)
+    assert all(e.confidence is None for e in ests if not e.isophotes)
+
+
+def test_a_colour_frame_is_verified_in_the_luma_its_rois_are_smoothed_from():
+    """A colour 8-bit frame's float32 luma is computed once (``luma_rgb32``) and read by both the
+    frame's smoothing and the verifier: no float32 copy of the RGB frame converted by OpenCV."""
+    import cv2 as cv2_module
+
+    from simtest.bench import opencv_calls
+    img = _frame([(100, 100, 3.0, 150, WHITE), (40, 150, 2.0, 150, WHITE)])
+    with opencv_calls() as calls:
+        ests = reconstruct(img, K)
+    assert any(e.ok for e in ests)
+    grays = [c for c in calls if c.name == "cvtColor" and c.args[1] == cv2_module.COLOR_RGB2GRAY]
+    assert grays and all(c.args[0].dtype == np.uint8 for c in grays)  # detection's rounded gray only

@@ -1138,6 +1138,16 @@ def smoothed_border_median(img, w0, w1, w2, row0, row1, col0, col1, kern):
 
 
 @numba.njit(cache=True, nogil=True)
+def smoothed_border_medians(img, w0, w1, w2, rois, kern):
+    """:func:`smoothed_border_median` of several ROIs (k, 4) (row0, row1, col0, col1) in one call:
+    float64 (k,), each from its own ROI only."""
+    out = np.empty(len(rois))
+    for j in range(len(rois)):
+        out[j] = smoothed_border_median(img, w0, w1, w2, rois[j, 0], rois[j, 1], rois[j, 2], rois[j, 3], kern)
+    return out
+
+
+@numba.njit(cache=True, nogil=True)
 def border_median_of_ring(ring):
     """The median of :func:`border_median` of the ring's values (NaN if any is NaN)."""
     for v in ring:
@@ -1149,6 +1159,18 @@ def border_median_of_ring(ring):
     if n % 2:
         return hi
     return (part[: n // 2].max() + hi) / 2.0
+
+
+@numba.njit(cache=True, nogil=True)
+def count_enclosed_sorted_many(polys, starts, counts, points, us, skips):
+    """:func:`count_enclosed_sorted` of several polygons in one call: polygon j is
+    ``polys[starts[j]:starts[j] + counts[j]]`` (counts >= 1) and skips row ``skips[j]`` of the
+    points (sorted by u, ``us`` their u); int64 (len(starts),). A frame's ``merged`` tests in one
+    compiled call instead of one a highlight."""
+    out = np.zeros(len(starts), np.int64)
+    for j in range(len(starts)):
+        out[j] = count_enclosed_sorted(polys[starts[j]:starts[j] + counts[j]], points, us, skips[j])
+    return out
 
 
 @numba.njit(cache=True, nogil=True)

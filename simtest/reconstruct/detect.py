@@ -1253,9 +1253,11 @@ def _candidates_compiled(frame: _DetectFrame, mask: np.ndarray) -> tuple[list[Ca
         np.zeros((0, 0), np.float32) if frame.levels is None else frame.levels,
         float(frame.min_area_px), float(ell_min), float(ell_max), float(frame.roi_scale),
         float(frame.roi_margin_px), float(frame.peak_rel))
-    bps = floats[:, :2].copy()
+    bps = list(floats[:, :2].copy())  # each candidate's BP a row of one array (views, made at once)
     with_level = frame.levels is not None
     out = []
+    new_roi = tuple.__new__  # Roi(...) without its generated __new__'s call (thousands a frame)
+    r0, r1, c0, c1 = _dk.ROI_ROW0, _dk.ROI_ROW1, _dk.ROI_COL0, _dk.ROI_COL1
     for k, (row, (cid, x, y, bw, bh, area), (_, _, peak, level, e, tol)) in enumerate(
             zip(ints.tolist(), table.tolist(), floats.tolist())):
         code = row[_dk.STATUS]
@@ -1263,7 +1265,7 @@ def _candidates_compiled(frame: _DetectFrame, mask: np.ndarray) -> tuple[list[Ca
             comp = (labels[y : y + bh, x : x + bw] == cid).view(np.uint8)
             out.append(_examine_numpy(frame, scope, area, x, y, bw, bh, comp))
             continue
-        bbox = Roi(y, y + bh, x, x + bw)
+        bbox = new_roi(Roi, (y, y + bh, x, x + bw))
         if code == _dk.NOT_ELLIPTICAL or code == _dk.ELLIPTICITY_UNSURE:
             # numpy's value is within tol (relative) of the kernel's: the kernel's decides
             # where every value that close formats the same
@@ -1275,9 +1277,9 @@ def _candidates_compiled(frame: _DetectFrame, mask: np.ndarray) -> tuple[list[Ca
         else:
             text = ""
         status = _STATUS[code]
-        roi = Roi(row[_dk.ROI_ROW0], row[_dk.ROI_ROW1], row[_dk.ROI_COL0], row[_dk.ROI_COL1])
+        roi = new_roi(Roi, (row[r0], row[r1], row[c0], row[c1]))
         out.append(Candidate(bps[k], peak, False, area, bbox, roi, status,
-                             _rejection_detail(status, frame, area, bbox, text),
+                             "" if code == _dk.OK else _rejection_detail(status, frame, area, bbox, text),
                              level if with_level else None))
     return out, n_comps
 

@@ -86,6 +86,7 @@ from simtest.reconstruct.detect import (
     detect_specularities,
     image_noise_sigma,
     luma,
+    noise_sigma,
     peak_uv,
     smooth_sigma_for_noise,
     validate_image,
@@ -95,7 +96,7 @@ from simtest.reconstruct.failures import OK, Failure
 from simtest.reconstruct.isophote import MIN_CONTOUR_POINTS, _cut_and_contour, _extract, _region
 from simtest.reconstruct.recommend import recommend
 from simtest.reconstruct.settings import AUTO_LOCAL_BACKGROUND_REL, Normalisation, ReconSettings
-from simtest.reconstruct.verify import assess, confidence, verdict
+from simtest.reconstruct.verify import assess, bp_checks, confidence, shared_passes, verdict
 
 #: A whole-frame call (:func:`reconstruct`) on an RGB image with at least this many accepted
 #: highlights computes the luma of the frame once and slices each ROI's from it (the same values,
@@ -352,6 +353,12 @@ class _Frame:
     #: (:func:`~simtest.reconstruct.detect.image_noise_sigma` of the region looked at); None
     #: when the settings fixed the smoothing.
     noise: float | None = None
+    #: A colour (not gray) 8- or 16-bit RGB frame's luma in float32 (H, W), read-only, where
+    #: ``reconstruct`` computed it (:func:`_colour_luma32`): the verifier's luma, and the one the
+    #: frame's ROIs are smoothed from.
+    luma32: np.ndarray | None = None
+    #: Whether the image's R, G and B are equal (``_kernels.is_gray``), where it was asked.
+    grey: bool | None = None
 
     @classmethod
     def make(cls, image, K, dist_coeffs, settings: ReconSettings, noise_roi: Roi | None = None) -> _Frame:
@@ -703,10 +710,13 @@ class _Levels:
     offset: float = 0.0
 
     @classmethod
-    def of(cls, frame: _Frame, vals: np.ndarray, i_bp: float, roi: Roi | None = None) -> _Levels:
+    def of(cls, frame: _Frame, vals: np.ndarray, i_bp: float, roi: Roi | None = None,
+           ring: float | None = None) -> _Levels:
+        """``ring``: the ROI's smoothed border median where the caller computed it
+        (:func:`_first_rings`)."""
         mode = frame.settings.normalise
-        ring = None
-        if roi is not None and frame.smoothed32 is not None and mode in (Normalisation.AUTO, Normalisation.LOCAL):
+        if ring is None and roi is not None and frame.smoothed32 is not None and \
+                mode in (Normalisation.AUTO, Normalisation.LOCAL):
             # the ROI's values are the frame's smoothing; its background level is that of the ROI
             # smoothed alone (_kernels.smoothed_border_median), as without the frame's
             ring = float(_kernels.smoothed_border_median(frame.img3, *_LUMA_W, roi.row0, roi.row1,
@@ -768,12 +778,14 @@ class _Draft:
 
 
 def _estimate_one(frame: _Frame, bp_uv, roi: Roi, *, saturated: bool, grow: bool,
-                  other_bps=(), own_bp: int = -1, bp_ray=None, fitf: FitFrame | None = None) -> _Draft | SpecularityEstimate:
+                  other_bps=(), own_bp: int = -1, bp_ray=None, fitf: FitFrame | None = None,
+                  ring: float | None = None) -> _Draft | SpecularityEstimate:
     """Extract one highlight's isophotes (growing the ROI): a draft for :func:`_complete`, or the
     finished estimate of a BP without a viewing ray. ``other_bps`` (k, 2) are the BPs its isophote
     must not enclose (``merged``), one frame's array shared by its highlights, whose own row
     ``own_bp`` is skipped. ``bp_ray`` and ``fitf`` are the BP's ray and fit frame when the caller
-    computed them (for many highlights at once)."""
+    computed them (for many highlights at once); ``ring`` the first ROI's smoothed border
+    median (:func:`_first_rings`), or None."""
     isovalues = frame.settings.isovalues
     sigma = frame.smooth_sigma_px
     bp_uv = np.asarray(bp_uv, dtype=np.float64)
@@ -803,7 +815,7 @@ def _estimate_one(frame: _Frame, bp_uv, roi: Roi, *, saturated: bool, grow: bool
             vals, saved = _roi_values(frame, roi, sigma)
             region = _region(vals, bp_uv, (roi.row0, roi.col0), frame.img.shape)
             i_bp = region.near_bp  # the largest of the BP's 3 x 3 pixels
-            levels = _Levels.of(frame, vals, i_bp, roi if fast else None)
+            levels = _Levels.of(frame, vals, i_bp, roi if fast else None, ring if fast and not growths else None)
             i0 = order[0]
             res = walked = None
             cut = False
@@ -863,7 +875,8 @@ def _complete(drafts: list) -> list[SpecularityEstimate]:
     # joint cone axes of the highlights with two or more good isophotes, in one batch
     multi = [d for d in drafts if isinstance(d, _Draft) and sum(r.ok for r in d.results) >= 2]
     if not multi:
-        return [_finish(d, None) if isinstance(d, _Draft) else d for d in drafts]
+        enclosed = _enclosed_counts([d for d in drafts if isinstance(d, _Draft)])
+        return [_finish(d, None, enclosed.get(id(d))) if isinstance(d, _Draft) else d for d in drafts]
     cones, group = [], []
     for g, d in enumerate(multi):
         for r in d.results:
@@ -875,24 +888,65 @@ def _complete(drafts: list) -> list[SpecularityEstimate]:
                            np.array([to_fit_frame(d.fitf, d.bp_ray) for d in multi]).reshape(-1, 3))
     joint_of = {id(d): (to_camera(d.fitf, j) if not isinstance(j, Failure) else None)
                 for d, j in zip(multi, axes)}
+    enclosed = _enclosed_counts([d for d in drafts if isinstance(d, _Draft)])
     out = []
     for d in drafts:
         if not isinstance(d, _Draft):
             out.append(d)
             continue
-        out.append(_finish(d, joint_of.get(id(d))))
+        out.append(_finish(d, joint_of.get(id(d)), enclosed.get(id(d))))
     return out
 
 
-def _frame_luma_smoothing(img: np.ndarray, detection_smoothed: np.ndarray, sigma: float) -> np.ndarray:
+def _enclosed_counts(drafts: list) -> dict:
+    """``id(draft) -> n``: how many other BPs the closed ok primary isophote of each draft whose
+    other BPs are a frame's sorted array (``_SortedBps``) encloses, in one compiled call
+    (:func:`simtest.reconstruct._kernels.count_enclosed_sorted_many`: the counts of
+    ``count_enclosed_sorted`` one draft at a time). The drafts not counted here are counted by
+    :func:`_finish` itself."""
+    todo = [d for d in drafts if isinstance(d.other_bps, _SortedBps) and d.results[0].status == OK
+            and d.results[0].closed and len(d.other_bps) > (d.own_bp >= 0)]
+    if not todo:
+        return {}
+    others = todo[0].other_bps
+    if any(d.other_bps is not others for d in todo):
+        return {}
+    polys = [d.results[0].points_uv for d in todo]
+    counts = np.array([len(p) for p in polys], dtype=np.int64)
+    starts = np.concatenate([[0], np.cumsum(counts)[:-1]]).astype(np.int64)
+    n_in = _kernels.count_enclosed_sorted_many(
+        np.ascontiguousarray(np.concatenate(polys, axis=0), dtype=np.float64), starts, counts, others.uv,
+        others.u, np.array([d.own_bp for d in todo], dtype=np.int64))
+    return dict(zip(map(id, todo), n_in.tolist()))
+
+
+def _colour_luma32(img: np.ndarray, grey: bool | None = None) -> np.ndarray | None:
+    """The luma of a colour 8- or 16-bit RGB frame in float32 (H, W), read-only
+    (:func:`simtest.reconstruct._kernels.luma_rgb32`); None for any other frame (single-channel,
+    gray (R = G = B), float, RGBA). ``grey``: whether R = G = B, where the caller knows."""
+    if img.ndim != 3 or img.shape[2] != 3 or img.dtype.type not in (np.uint8, np.uint16):
+        return None
+    if grey if grey is not None else _kernels.is_gray(img):
+        return None
+    out = _kernels.luma_rgb32(img, *_LUMA_W)
+    out.setflags(write=False)
+    return out
+
+
+def _frame_luma_smoothing(img: np.ndarray, detection_smoothed: np.ndarray, sigma: float,
+                          luma32: np.ndarray | None = None) -> np.ndarray:
     """The whole frame's luma smoothed once (float32, read-only): detection's smoothing where
     detection smoothed the luma itself (a single-channel, gray (R = G = B) or float image), else
-    the unrounded luma (:func:`simtest.reconstruct._kernels.luma_rgb32`) smoothed as detection
-    smooths (an 8-bit frame's OpenCV gray is rounded to whole levels, which moves contours)."""
-    if img.ndim == 2 or img.dtype.kind == "f" or _kernels.is_gray(img):
+    the unrounded luma (:func:`simtest.reconstruct._kernels.luma_rgb32`; ``luma32`` where the
+    caller has it, :func:`_colour_luma32`) smoothed as detection smooths (an 8-bit frame's OpenCV
+    gray is rounded to whole levels, which moves contours)."""
+    if luma32 is not None:
+        src = luma32
+    elif img.ndim == 2 or img.dtype.kind == "f" or _kernels.is_gray(img):
         return detection_smoothed
-    src = _kernels.luma_rgb32(img, *_LUMA_W) if img.dtype.type in (np.uint8, np.uint16) else \
-        luma(img).astype(np.float32)
+    else:
+        src = _kernels.luma_rgb32(img, *_LUMA_W) if img.dtype.type in (np.uint8, np.uint16) else \
+            luma(img).astype(np.float32)
     out = cv2.GaussianBlur(src, (0, 0), float(sigma), borderType=cv2.BORDER_REFLECT)
     out.setflags(write=False)
     return out
@@ -911,15 +965,18 @@ class _SortedBps:
         return len(self.uv)
 
 
-def _finish(d: _Draft, joint) -> SpecularityEstimate:
+def _finish(d: _Draft, joint, enclosed: int | None = None) -> SpecularityEstimate:
     """The estimate of a completed draft: the primary isophote's status, ``merged`` when that
-    closed isophote encloses another candidate's BP."""
+    closed isophote encloses another candidate's BP (``enclosed``: how many, where
+    :func:`_enclosed_counts` counted them)."""
     isovalues = [r.isovalue for r in d.results]
     primary = d.results[0]
     status, detail = primary.status, primary.detail
     if status == OK and primary.closed and len(d.other_bps) > (d.own_bp >= 0):
         # the other BPs in the isophote's bounding box, tested even-odd (polygon_contains)
-        if isinstance(d.other_bps, _SortedBps):
+        if enclosed is not None:
+            n_in = enclosed
+        elif isinstance(d.other_bps, _SortedBps):
             n_in = int(_kernels.count_enclosed_sorted(primary.points_uv, d.other_bps.uv, d.other_bps.u,
                                                       d.own_bp))
         else:
@@ -950,6 +1007,42 @@ def _initial_roi(cand, bp_uv, threshold, frame: _Frame) -> Roi:
     ratio = min(max(float(np.sqrt(max(num, 0.0) / max(den, 1e-6))), 1.0), 8.0)
     radius = max(cand.bbox.shape) / 2.0
     return Roi.around(bp_uv, 1.2 * ratio * radius + 4.0, frame.img.shape)
+
+
+def _first_rings(frame: _Frame, rois: list[Roi]) -> list:
+    """Each ROI's smoothed border median (``_Levels.of``'s ring) in one compiled call
+    (:func:`simtest.reconstruct._kernels.smoothed_border_medians`: each ROI's
+    ``smoothed_border_median``), where the frame's ROIs read them (smoothed once, normalised
+    ``auto`` or ``local``); else None for each."""
+    if not rois or frame.smoothed32 is None or not frame.smooth_sigma_px > 0 or \
+            frame.settings.normalise not in (Normalisation.AUTO, Normalisation.LOCAL):
+        return [None] * len(rois)
+    rr = np.array(rois, dtype=np.int64).reshape(-1, 4)
+    return _kernels.smoothed_border_medians(frame.img3, *_LUMA_W, rr, frame.kernel).tolist()
+
+
+def _initial_rois(cands: list, bps_uv: np.ndarray, threshold, frame: _Frame) -> list[Roi]:
+    """:func:`_initial_roi` of many candidates (BPs ``bps_uv`` (k, 2)) in one batch of numpy
+    calls (the same formulas elementwise; a real frame has hundreds)."""
+    if not cands:
+        return []
+    t_min = min(frame.settings.isovalues)
+    thr = np.array([threshold if c.level is None else c.level for c in cands], dtype=np.float64)
+    peak = np.maximum(np.maximum(np.array([c.peak for c in cands], dtype=np.float64), thr * (1 + 1e-6)), _TINY)
+    full = frame.settings.normalise == Normalisation.FULL_SCALE
+    level = t_min * (frame.full_scale if full else peak)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        num = np.where(level > 0, np.log(peak / np.where(level > 0, level, 1.0)), 1.0)
+        den = np.where(thr > 0, np.log(peak / np.where(thr > 0, thr, 1.0)), 1.0)
+    ratio = np.minimum(np.maximum(np.sqrt(np.maximum(num, 0.0) / np.maximum(den, 1e-6)), 1.0), 8.0)
+    radius = np.array([max(c.bbox.row1 - c.bbox.row0, c.bbox.col1 - c.bbox.col0) for c in cands],
+                      dtype=np.float64) / 2.0
+    hs = 1.2 * ratio * radius + 4.0
+    h, w = frame.img.shape[:2]
+    u, v = bps_uv[:, 0], bps_uv[:, 1]  # Roi.around, elementwise
+    rows = np.c_[np.maximum(0, np.floor(v - hs)), np.minimum(h, np.ceil(v + hs) + 1),
+                 np.maximum(0, np.floor(u - hs)), np.minimum(w, np.ceil(u + hs) + 1)].astype(np.int64)
+    return [Roi(*r) for r in rows.tolist()]
 
 
 # ------------------------------------------------------------------------------------------------
@@ -1112,6 +1205,7 @@ class Estimates(list):
 
 
 @_gc_paused()  # thousands of small objects, no cycles (see _gc_paused)
+@shared_passes()  # the verifier's frame-wide passes, once for the BP checks and the verdict
 def reconstruct(
     image,
     K,
@@ -1182,11 +1276,19 @@ def reconstruct(
         smooth_sigma_px=frame.smooth_sigma_px, method=settings.detection,
         peak_rel=settings.peak_rel, max_candidates=settings.max_candidates,
     )
-    if sum(c.status == OK for c in det.candidates) >= LUMA_FRAME_MIN_HIGHLIGHTS:
+    many = sum(c.status == OK for c in det.candidates) >= LUMA_FRAME_MIN_HIGHLIGHTS
+    sliced = many and det.smoothed is not None and det.smoothed.shape == img.shape[:2]
+    if sliced or (settings.verify and not many):
+        # the colour frame's float32 luma, for the frame's smoothing and the verifier (which reads
+        # for_many_highlights' float64 luma where that is computed)
+        grey = img.ndim == 3 and img.shape[2] >= 3 and bool(_kernels.is_gray(img))
+        frame = replace(frame, luma32=None if grey else _colour_luma32(img, False), grey=grey)
+    if many:
         # many ROIs: contoured in one smoothing of the frame's luma (detection's own where it is
         # the luma: a gray, single-channel or float frame), not each smoothed for itself
-        if det.smoothed is not None and det.smoothed.shape == img.shape[:2]:
-            frame = frame.with_detection_smoothing(_frame_luma_smoothing(img, det.smoothed, frame.smooth_sigma_px))
+        if sliced:
+            frame = frame.with_detection_smoothing(_frame_luma_smoothing(img, det.smoothed, frame.smooth_sigma_px,
+                                                                         frame.luma32))
         else:
             frame = frame.for_many_highlights()
     shift = np.array([r.col0, r.row0], dtype=np.float64)
@@ -1206,33 +1308,54 @@ def reconstruct(
     rays = frame.bp_rays(bps_arr)
     has_ray = np.isfinite(rays).all(axis=1)
     fitted = has_ray & np.array([c.status == OK for c in det.candidates], dtype=bool)
-    frames_of = dict(zip(np.flatnonzero(fitted).tolist(), fit_frames(frame.camera, -rays[fitted])))
+    whole = sub.shape == img.shape
+    verifier = None
+    if settings.verify:
+        # the verifier's luma and noise, and its checks that read only the BP (colour, height)
+        # before any isophote: a candidate that fails them is not_specular whatever its fit, and
+        # is neither contoured nor fitted (issue 41; a third of a real frame's candidates)
+        verifier = _verifier_inputs(frame, det.gray if whole else None, frame.noise if whole else None)
+        gray_v, grey_v, noise_v = verifier
+        fk = np.flatnonzero(fitted)
+        sat = np.array([det.candidates[k].saturated for k in fk.tolist()], dtype=bool)
+        early = {k: d for k, d in zip(fk.tolist(), bp_checks(frame.img, gray_v, bps_arr[fk], sat,
+                                                             full_scale=frame.full_scale, noise=noise_v,
+                                                             grey=grey_v)) if d is not None}
+        fitted[list(early)] = False
+    else:
+        early = {}
+    fk = np.flatnonzero(fitted)
+    frames_of = dict(zip(fk.tolist(), fit_frames(frame.camera, -rays[fitted])))
+    # the fitted candidates' first ROIs, in one batch of numpy calls
+    rois_of = dict(zip(fk.tolist(), _initial_rois([det.candidates[k] for k in fk.tolist()], bps_arr[fk],
+                                                  det.threshold, frame)))
+    rings_of = dict(zip(fk.tolist(), _first_rings(frame, [rois_of[k] for k in fk.tolist()])))
     out = []
     for k, cand in enumerate(det.candidates):
         bp = bps[k]
-        if cand.status != OK:
-            roi_k = Roi(cand.roi.row0 + r.row0, cand.roi.row1 + r.row0,
-                        cand.roi.col0 + r.col0, cand.roi.col1 + r.col0)
+        if cand.status != OK or k in early:
+            roi_k = cand.roi if not (r.row0 or r.col0) else Roi(
+                cand.roi.row0 + r.row0, cand.roi.row1 + r.row0, cand.roi.col0 + r.col0, cand.roi.col1 + r.col0)
             ray = rays[k]
-            out.append(SpecularityEstimate(bp, cand.peak, cand.saturated, roi_k, cand.status,
-                                           cand.detail, ray if has_ray[k] else None, ()))
+            status, detail = ("not_specular", early[k]) if k in early else (cand.status, cand.detail)
+            out.append(SpecularityEstimate(bp, cand.peak, cand.saturated, roi_k, status,
+                                           detail, ray if has_ray[k] else None, ()))
             continue
-        roi_k = _initial_roi(cand, bp, det.threshold, frame)
+        roi_k = rois_of[k] if k in rois_of else _initial_roi(cand, bp, det.threshold, frame)
         out.append(_estimate_one(frame, bp, roi_k, saturated=cand.saturated, grow=True, other_bps=others,
                                  own_bp=int(row_in_others[k]) if keep[k] else -1, bp_ray=rays[k],
-                                 fitf=frames_of.get(k)))
+                                 fitf=frames_of.get(k), ring=rings_of.get(k)))
     done = _complete(out)
     if settings.verify and done:
-        whole = sub.shape == img.shape
-        done = _verified(frame, done, det.gray if whole else None, frame.noise if whole else None)
+        done = _verified(frame, done, verifier=verifier)
     return Estimates(done, n_components=det.n_components,
                      n_unexamined=det.n_unexamined, max_candidates=settings.max_candidates)
 
 
-def _verified(frame: _Frame, ests: list[SpecularityEstimate], native: np.ndarray | None = None,
-              noise: float | None = None) -> list[SpecularityEstimate]:
-    """The estimates with their confidence, and the fitted ones that fail a specularity check
-    of :mod:`simtest.reconstruct.verify` with its reason as status (the fit is kept).
+def _verifier_inputs(frame: _Frame, native: np.ndarray | None = None,
+                     noise: float | None = None) -> tuple[np.ndarray, bool, float]:
+    """``(gray, grey, noise)``: the luma the verifier measures in (:func:`_verifier_luma`), whether
+    it is the value of R, G and B alike, and its noise standard deviation.
 
     ``native`` is detection's unsmoothed gray of the whole frame (``Detection.gray``) and
     ``noise`` the noise measured on it (``_Frame.noise``), or None: measured again (also where
@@ -1246,31 +1369,50 @@ def _verified(frame: _Frame, ests: list[SpecularityEstimate], native: np.ndarray
         # a colour frame: OpenCV's gray, rounded to whole levels, carries the rounding's noise
         # (0.6 against 0.29 levels on a small colonoscope_plane render): measured on the luma
         noise = None
-    ev, res, inside = assess(frame.img, gray, ests, full_scale=frame.full_scale, noise=noise, grey=grey)
-    conf = confidence(ev, res)
-    checks = verdict(ev, res, inside)
-    out = []
-    for k, e in enumerate(ests):
+    return gray, grey, noise_sigma(gray) if noise is None else float(noise)
+
+
+def _verified(frame: _Frame, ests: list[SpecularityEstimate], native: np.ndarray | None = None,
+              noise: float | None = None, *, verifier: tuple | None = None) -> list[SpecularityEstimate]:
+    """The estimates with their confidence, and the fitted ones that fail a specularity check
+    of :mod:`simtest.reconstruct.verify` with its reason as status (the fit is kept).
+
+    ``native`` and ``noise`` as for :func:`_verifier_inputs`, or ``verifier``: its result,
+    where the caller has it."""
+    gray, grey, noise = _verifier_inputs(frame, native, noise) if verifier is None else verifier
+    # only the estimates with isophotes can have a fit (a confidence) or be ok (a verdict); the
+    # others (detection's rejections, the BP checks', most of a real frame's thousands) are
+    # returned as they are: each estimate's evidence is measured from its own BP and region only
+    fit = [e for e in ests if e.isophotes]
+    if not fit:
+        return list(ests)
+    ev, res, inside = assess(frame.img, gray, fit, full_scale=frame.full_scale, noise=noise, grey=grey)
+    conf = confidence(ev, res).tolist()
+    checks = verdict(ev, res, inside, only=[k for k, e in enumerate(fit) if e.ok])
+    judged = {}
+    for k, e in enumerate(fit):
         status, detail = (checks[k] if e.ok else (e.status, e.detail))
-        fitted = np.isfinite(res[k])  # a confidence for the fitted candidates only
-        out.append(_replaced(e, status=status, detail=detail, confidence=float(conf[k]) if fitted else None))
-    return out
+        fitted = math.isfinite(res[k])  # a confidence for the fitted candidates only
+        judged[id(e)] = _replaced(e, status=status, detail=detail, confidence=conf[k] if fitted else None)
+    return [judged.get(id(e), e) for e in ests]
 
 
 def _verifier_luma(frame: _Frame, native: np.ndarray | None) -> tuple[np.ndarray, bool]:
     """The luma :func:`_verified` measures in (H, W), and whether it is the value of R, G and B
     alike: ``native`` (detection's gray) where it is the luma's values (a single-channel image,
-    or an RGB one with R = G = B), the frame's luma where it was computed, else OpenCV's float32
-    luma of the frame (the verifier's arithmetic is float32: within a float32 rounding of the
+    or an RGB one with R = G = B), the frame's luma where it was computed (float64, or a colour
+    frame's float32 ``luma32``), else OpenCV's float32 luma of the frame (the verifier's arithmetic is float32: within a float32 rounding of the
     float64 luma, a third of its time)."""
     img = frame.img
-    if native is not None and native.shape == img.shape[:2]:
+    if native is not None and native.shape == img.shape[:2] and frame.luma32 is None:
         if img.ndim == 2:
             return native, False
-        if img.shape[2] >= 3 and _kernels.is_gray(img):
+        if img.shape[2] >= 3 and (frame.grey if frame.grey is not None else _kernels.is_gray(img)):
             return native, True
     if frame.luma_frame is not None:
         return frame.luma_frame, False
+    if frame.luma32 is not None:  # a colour frame's (not gray: is_gray was asked)
+        return frame.luma32, False
     if img.ndim == 3 and img.shape[2] == 3 and img.dtype.type in (np.uint8, np.uint16, np.float32):
         return cv2.cvtColor(img.astype(np.float32), cv2.COLOR_RGB2GRAY), False
     return luma(img), False

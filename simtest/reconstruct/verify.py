@@ -40,12 +40,18 @@ given confidence about c, about a fraction c were labelled isolated specular hig
 The quantities separate isolated highlights from clusters and texture only weakly on those
 labels (``simtest evaluate detection`` prints the leave-one-frame-out ranking AUC and reliability),
 so the confidences stay near the labels' base rate. A rejected estimate carries the confidence it
-would have had. It is a ranking with that calibration, not a probability on other scopes;
+would have had, but for one that fails the colour or the height check: those read only its BP, so
+the pipeline runs them first (:func:`bp_checks`) and neither contours nor fits such a candidate
+(``not_specular`` without isophotes or confidence). It is a ranking with that calibration, not a probability on other scopes;
 candidates without a fit have none.
 """
 
 from __future__ import annotations
 
+import math
+from collections.abc import Iterator
+from contextlib import contextmanager
+from contextvars import ContextVar
 from dataclasses import dataclass, replace
 from types import SimpleNamespace
 
@@ -57,7 +63,7 @@ from simtest.reconstruct.detect import background_side_px, connected_components,
 from simtest.reconstruct.fit import fit_ellipses
 from simtest.reconstruct.jpeg import quantisation_sigma
 
-__all__ = ["PALENESS_MAX", "WHITE_CHROMA", "SIGNIFICANCE_MIN", "CONTRAST_MIN", "PANEL_STD_REL",
+__all__ = ["bp_checks", "shared_passes", "PALENESS_MAX", "WHITE_CHROMA", "SIGNIFICANCE_MIN", "CONTRAST_MIN", "PANEL_STD_REL",
            "PANEL_FRACTION_MAX", "NEIGHBOUR_REL", "OWN_RADIUS_PX", "SURROUND_REL", "OWN_REL",
            "SURROUND_FRACTION_MAX", "RESIDUAL_MAX_REL", "MINOR_AXIS_MIN_PX",
            "COEFFICIENTS", "Evidence", "frame_evidence", "assess", "confidence", "verdict"]
@@ -197,6 +203,45 @@ class Evidence:
         return self.height / np.maximum(room, 1e-9)
 
 
+#: The frame-wide passes :func:`shared_passes` keeps: ``key -> (the array, the result)``, or None
+#: outside such a block.
+_SHARED: ContextVar[dict | None] = ContextVar("simtest_verify_shared", default=None)
+
+
+@contextmanager
+def shared_passes() -> Iterator[None]:
+    """Inside the block, the frame-wide passes of :func:`frame_evidence` (the reduced openings of
+    the luma and the colour, the JPEG quantisation's noise) are computed once per array and
+    argument and reused by later calls (a context manager, and a decorator).
+
+    The pipeline measures a frame's candidates twice, at their BPs before the fits
+    (:func:`bp_checks`) and all of them after; the arrays must not change inside the block (the
+    results are keyed by the array's memory, shape, strides and dtype, and hold the array).
+    Per context (thread or task): a nested block starts empty and ends with its own."""
+    token = _SHARED.set({})
+    try:
+        yield
+    finally:
+        _SHARED.reset(token)
+
+
+def _shared(fn, img: np.ndarray, *args):
+    """``fn(img, *args)``, computed once per array and arguments inside :func:`shared_passes`."""
+    memo = _SHARED.get()
+    if memo is None:
+        return fn(img, *args)
+    key = (fn.__name__, img.__array_interface__["data"][0], img.shape, img.strides, img.dtype.str, args)
+    hit = memo.get(key)
+    if hit is None:
+        hit = memo[key] = (img, fn(img, *args))
+    return hit[1]
+
+
+def _float32(img: np.ndarray) -> np.ndarray:
+    """The image as float32 (itself when it is)."""
+    return img.astype(np.float32, copy=False)
+
+
 def _opening(img: np.ndarray, side: int) -> np.ndarray:
     """Grey opening by a square of ``side`` px on the image reduced so that the square is ~16 px
     (as :func:`~simtest.reconstruct.detect.local_peak_mask`), back to full size; float32."""
@@ -296,7 +341,7 @@ def _opening_at(img: np.ndarray, side: int, rows: np.ndarray, cols: np.ndarray) 
     f = max(1, side // 16)
     if f == 1 or h % f or w % f:
         return _opening(img.astype(np.float32, copy=False), side)[rows, cols]
-    bg, _ = _opening_small(img, side)
+    bg, _ = _shared(_opening_small, img, side)
     return _linear_points(bg, (h, w), rows, cols)
 
 
@@ -478,17 +523,21 @@ def _maxima_windows(g: np.ndarray, bg: np.ndarray, floor: np.float32, windows) -
     return top, ys, xs
 
 
-def _top_at(g: np.ndarray, bg: np.ndarray, rows: np.ndarray, cols: np.ndarray) -> np.ndarray:
+#: The row and column offsets of the 3 x 3 px around a pixel.
+_NINE_DR, _NINE_DC = (np.repeat(np.arange(-1, 2), 3), np.tile(np.arange(-1, 2), 3))
+
+
+def _top_of(g_at: np.ndarray, bg_at: np.ndarray) -> np.ndarray:
     """The top-hat ``max(g - bg, 0)`` (float32, NaN kept) of :func:`~simtest.reconstruct._kernels.top_hat_maxima`
-    at the pixels (rows, cols)."""
-    d = g[rows, cols] - bg[rows, cols]
+    of values read at some pixels (the luma ``g_at`` and its opening ``bg_at``)."""
+    d = g_at - bg_at
     return np.where((d >= 0) | np.isnan(d), d, np.float32(0.0)).astype(np.float32, copy=False)
 
 
 def frame_evidence(image: np.ndarray, gray: np.ndarray, bps_uv: np.ndarray, rois, *,
                    full_scale: float, noise: float, background_px: int,
                    reach_px: np.ndarray | None = None, ellipses=None, windowed: bool | None = None,
-                   grey: bool = False) -> Evidence:
+                   grey: bool = False, panels: bool = True) -> Evidence:
     """Measure every candidate of a frame.
 
     Parameters
@@ -527,6 +576,9 @@ def frame_evidence(image: np.ndarray, gray: np.ndarray, bps_uv: np.ndarray, rois
     grey : bool
         The caller knows that the image's R, G and B are equal and ``gray`` is their value:
         the colour's opening is then the gray's (one channel reduced instead of three).
+    panels : bool
+        Measure the flat panels' share in the regions of interest (False: 0 for every candidate,
+        and no panel map: :func:`bp_checks` reads only the BPs).
 
     Returns
     -------
@@ -534,7 +586,7 @@ def frame_evidence(image: np.ndarray, gray: np.ndarray, bps_uv: np.ndarray, rois
     """
     h, w = gray.shape
     n = len(bps_uv)
-    g = gray.astype(np.float32, copy=False)
+    g = _shared(_float32, gray)
     ij = np.clip(np.rint(np.asarray(bps_uv, np.float64).reshape(-1, 2)).astype(np.int64), 0, [w - 1, h - 1])
     cols, rows = ij.T  # the BPs' pixels (u is the column)
     reach = np.asarray(reach_px, np.float64).reshape(-1) if reach_px is not None else np.full(n, np.nan)
@@ -550,15 +602,19 @@ def frame_evidence(image: np.ndarray, gray: np.ndarray, bps_uv: np.ndarray, rois
         widths = np.maximum(np.r_[win[:, 3] - win[:, 2] + 2, rr[:, 3] - rr[:, 2] + 2 * _PANEL_MARGIN_PX], 0)
         windowed = float(np.sum(spans * widths)) <= WINDOWED_AREA_MAX * h * w
     floor = np.float32(max(SIGNIFICANCE_MIN * noise, 1e-9))  # numpy rounds the floor to float32 to compare
+    bg_small, f = _shared(_opening_small, gray, background_px)
+    # the luma's opening at the BPs: the reduced opening enlarged at those pixels only (one compiled
+    # call; on both paths, which so give the same values: a window per BP cost 5 ms on a real
+    # frame's 1400 BPs)
+    bg_bp = _linear_points(bg_small, (h, w), rows, cols) if f > 1 else bg_small[rows, cols]
+    height = _top_of(g[rows, cols], bg_bp)
     if windowed:
-        # the openings only where read: at the BPs, and in the reach windows (with the 1 px the
-        # maxima read beyond them) where the top-hat, its maxima and their colour are
-        at_bp = np.c_[rows, rows + 1, cols, cols + 1]
+        # the opening only where read: in the reach windows (with the 1 px the maxima read beyond
+        # them) where the top-hat, its maxima and their colour are
         wide = np.c_[np.maximum(win[:, 0] - 1, 0), np.minimum(win[:, 1] + 1, h),
                      np.maximum(win[:, 2] - 1, 0), np.minimum(win[:, 3] + 1, w)]
-        bg = _upsampled(*_opening_small(gray, background_px), (h, w), np.r_[at_bp, wide])
+        bg = _upsampled(bg_small, f, (h, w), wide)
         top, ys, xs = _maxima_windows(g, bg, floor, win)
-        height = _top_at(g, bg, rows, cols)
         # only the maxima that some candidate's neighbour count can select (at least
         # NEIGHBOUR_REL of its height, as _kernels.other_peaks compares) need their colour; the
         # others it never reads
@@ -568,12 +624,12 @@ def frame_evidence(image: np.ndarray, gray: np.ndarray, bps_uv: np.ndarray, rois
         else:
             ys, xs = ys[:0], xs[:0]
     else:
-        bg = _opening(gray, background_px)
+        # _opening's values: its reduced opening enlarged
+        bg = cv2.resize(bg_small, (w, h), interpolation=cv2.INTER_LINEAR) if f > 1 else bg_small
         # the top-hat and its 3 x 3 maxima above the floor, in one compiled call
         top, is_max = np.empty_like(g), np.empty(g.shape, bool)
         _kernels.top_hat_maxima(g, bg, floor, top, is_max)
         ys, xs = np.divmod(np.flatnonzero(is_max), w)  # np.nonzero's, in half the time
-        height = top[rows, cols]
         if len(todo):  # the maxima a neighbour count can select (as on the windowed path)
             strong = top[ys, xs] >= np.fmin.reduce(NEIGHBOUR_REL * height[todo])  # NaN: none
             ys, xs = ys[strong], xs[strong]
@@ -589,16 +645,16 @@ def frame_evidence(image: np.ndarray, gray: np.ndarray, bps_uv: np.ndarray, rois
 
     def rgb_at(r, c):
         v = src[r, c].astype(np.float32)
-        return v if src.ndim == 3 else np.repeat(v[:, None], 3, 1)
-    # the RGB maximum over the 3 x 3 px around each BP (the window clipped to the frame)
-    peak_rgb = np.max([rgb_at(np.clip(rows + dr, 0, h - 1), np.clip(cols + dc, 0, w - 1))
-                       for dr in (-1, 0, 1) for dc in (-1, 0, 1)], axis=0)
+        return v if src.ndim == 3 else np.repeat(v[..., None], 3, -1)
+    # the RGB maximum over the 3 x 3 px around each BP (the window clipped to the frame), in one
+    # gather of the nine pixels
+    peak_rgb = rgb_at(np.clip(rows[:, None] + _NINE_DR, 0, h - 1), np.clip(cols[:, None] + _NINE_DC, 0, w - 1)).max(axis=1)
     chroma_peak = _chroma(peak_rgb)
     chroma_tissue = _chroma(bg_rgb_bp)
-    background = bg[rows, cols]
+    background = bg_bp
     # flat panels: share in each ROI by an integral image (none where none can be: see
     # _surely_no_panels)
-    if windowed and (not noise > 0 or _surely_no_panels(gray, noise, rr)):
+    if not panels or (windowed and (not noise > 0 or _surely_no_panels(gray, noise, rr))):
         panel_fraction = np.zeros(n)
     else:
         panel = _panels(g, noise)
@@ -619,12 +675,49 @@ def frame_evidence(image: np.ndarray, gray: np.ndarray, bps_uv: np.ndarray, rois
     # the significance's noise: the sensor's, and the error JPEG's quantisation added where the
     # frame carries a JPEG block grid (its flat blocks hide the sensor noise, and its ringing makes
     # peaks); an integer image's pixels carry at least the rounding's
-    q_sig = quantisation_sigma(gray if grey and gray.dtype == image.dtype else image) * float(full_scale) / 255.0
+    q_sig = _shared(quantisation_sigma, gray if grey and gray.dtype == image.dtype else image) * float(full_scale) / 255.0
     noise_sig = float(np.hypot(noise, q_sig))
     if np.issubdtype(image.dtype, np.integer):
         noise_sig = max(noise_sig, QUANTISATION_SIGMA_LSB)
     return Evidence(chroma_peak, chroma_tissue, height, background, noise_sig, panel_fraction,
                     neighbours, full_scale=float(full_scale))
+
+
+def bp_checks(image: np.ndarray, gray: np.ndarray, bps_uv: np.ndarray, clipped: np.ndarray, *,
+              full_scale: float, noise: float, grey: bool = False) -> list[str | None]:
+    """The checks of :func:`verdict` that read only a candidate's BP, before any fit: the colour
+    and the height (``not_specular``). The pipeline runs them on detection's candidates and
+    extracts and fits the isophotes of those that pass only (issue 41: a real frame's candidates
+    are a third ``not_specular``; their isophotes were a third of its time).
+
+    Parameters
+    ----------
+    image, gray, full_scale, noise, grey
+        As for :func:`frame_evidence` (``noise``: the luma's, as :func:`assess` takes it).
+    bps_uv : ndarray of shape (N, 2)
+        The candidates' BPs (u, v), px.
+    clipped : ndarray of bool, shape (N,)
+        The BP is on a clipped plateau (the height check is then skipped, as in :func:`verdict`).
+
+    Returns
+    -------
+    list of str or None
+        Per candidate: None where it passes, else the detail of its ``not_specular`` status,
+        the words and numbers :func:`verdict` gives it (the measurements are the same:
+        :func:`frame_evidence`'s at the BP, which neither the fit nor the region of interest
+        changes).
+    """
+    n = len(bps_uv)
+    if not n:
+        return []
+    bps = np.asarray(bps_uv, np.float64).reshape(-1, 2)
+    ij = np.clip(np.rint(bps).astype(np.int64), 0, [gray.shape[1] - 1, gray.shape[0] - 1])
+    rois = [SimpleNamespace(row0=int(r), row1=int(r) + 1, col0=int(c), col1=int(c) + 1) for c, r in ij.tolist()]
+    ev = frame_evidence(image, gray, bps, rois, full_scale=full_scale, noise=noise,
+                        background_px=background_side_px(gray.shape), windowed=True, grey=grey, panels=False)
+    ev = replace(ev, clipped=np.asarray(clipped, bool).reshape(-1))
+    checks = verdict(ev, np.full(n, np.nan), np.zeros(n, bool))
+    return [detail if status == "not_specular" else None for status, detail in checks]
 
 
 #: The own lobe's radius at :data:`OWN_REL` over its radius at t = 0.7, squared (a Gaussian
@@ -810,7 +903,8 @@ def confidence(ev: Evidence, residual_rel: np.ndarray, coefficients: np.ndarray 
     return 1.0 / (1.0 + np.exp(-z))
 
 
-def verdict(ev: Evidence, residual_rel: np.ndarray, bp_inside: np.ndarray) -> list[tuple[str, str]]:
+def verdict(ev: Evidence, residual_rel: np.ndarray, bp_inside: np.ndarray,
+            only=None) -> list[tuple[str, str] | None]:
     """The status each fitted candidate earns: ``("ok", "")`` or a rejection and its numbers.
 
     Parameters
@@ -820,41 +914,52 @@ def verdict(ev: Evidence, residual_rel: np.ndarray, bp_inside: np.ndarray) -> li
         As for :func:`confidence`.
     bp_inside : ndarray of bool, shape (N,)
         Whether the BP lies inside the primary isophote's ellipse.
+    only : array_like of int, optional
+        Judge only these candidates (the others get None): a frame's fitted ones, a few hundred
+        of its thousands (the details' formatting was a millisecond a thousand candidates).
 
     Returns
     -------
-    list of (str, str)
+    list of (str, str) or None
         Status and detail per candidate, the first failing check in the order overlay,
         not_specular, cluster, bad_fit.
     """
-    out = []
-    pal, sig, con, colour = ev.paleness, ev.significance, ev.contrast, ev.specular_colour
-    clipped = np.zeros(len(ev.height), bool) if ev.clipped is None else ev.clipped
-    minor = np.full(len(ev.height), np.nan) if ev.minor_px is None else ev.minor_px
-    surround = np.full(len(ev.height), np.nan) if ev.surround is None else ev.surround
-    for k in range(len(ev.height)):
-        if ev.panel_fraction[k] > PANEL_FRACTION_MAX:
-            out.append(("overlay", f"{ev.panel_fraction[k]:.0%} of its region is a flat panel "
-                                   f"(> {PANEL_FRACTION_MAX:.0%})"))
+    n = len(ev.height)
+    out: list = [None] * n
+    # Python floats (their formatting is several times numpy scalars'), read once per array
+    pal, sig, con = ev.paleness.tolist(), ev.significance.tolist(), ev.contrast.tolist()
+    colour = ev.specular_colour.tolist()
+    clipped = [False] * n if ev.clipped is None else np.asarray(ev.clipped, bool).tolist()
+    minor = [math.nan] * n if ev.minor_px is None else np.asarray(ev.minor_px, np.float64).tolist()
+    surround = [math.nan] * n if ev.surround is None else np.asarray(ev.surround, np.float64).tolist()
+    panel = np.asarray(ev.panel_fraction, np.float64).tolist()
+    neighbours = np.asarray(ev.neighbours).tolist()
+    height, cpeak, ctissue = ev.height.tolist(), ev.chroma_peak.tolist(), ev.chroma_tissue.tolist()
+    res = np.asarray(residual_rel, np.float64).tolist()
+    inside = np.asarray(bp_inside, bool).tolist()
+    for k in (range(n) if only is None else np.asarray(only, np.int64).tolist()):
+        if panel[k] > PANEL_FRACTION_MAX:
+            out[k] = ("overlay", f"{panel[k]:.0%} of its region is a flat panel "
+                                 f"(> {PANEL_FRACTION_MAX:.0%})")
         elif not colour[k]:
-            out.append(("not_specular", f"peak chroma {ev.chroma_peak[k]:.2f} is {pal[k]:.2f} of the "
-                                        f"tissue's {ev.chroma_tissue[k]:.2f} (> {PALENESS_MAX})"))
+            out[k] = ("not_specular", f"peak chroma {cpeak[k]:.2f} is {pal[k]:.2f} of the "
+                                      f"tissue's {ctissue[k]:.2f} (> {PALENESS_MAX})")
         elif not clipped[k] and (sig[k] < SIGNIFICANCE_MIN or con[k] < CONTRAST_MIN):
-            out.append(("not_specular", f"height {ev.height[k]:.3g} is {sig[k]:.1f} noise sigma and "
-                                        f"{con[k]:.2f} of the background (need {SIGNIFICANCE_MIN:g} "
-                                        f"and {CONTRAST_MIN:g})"))
-        elif ev.neighbours[k] > 0:
-            out.append(("cluster", f"{ev.neighbours[k]} other specular peak(s) in its region"))
+            out[k] = ("not_specular", f"height {height[k]:.3g} is {sig[k]:.1f} noise sigma and "
+                                      f"{con[k]:.2f} of the background (need {SIGNIFICANCE_MIN:g} "
+                                      f"and {CONTRAST_MIN:g})")
+        elif neighbours[k] > 0:
+            out[k] = ("cluster", f"{neighbours[k]} other specular peak(s) in its region")
         elif surround[k] > SURROUND_FRACTION_MAX:
-            out.append(("cluster", f"{surround[k]:.0%} of its surround is other light at {SURROUND_REL:g} of its "
-                                   f"height (> {SURROUND_FRACTION_MAX:.0%})"))
-        elif not (residual_rel[k] <= RESIDUAL_MAX_REL) or not bp_inside[k]:
-            why = "the BP lies outside its isophote" if not bp_inside[k] else (
-                f"isophote residual {residual_rel[k]:.2f} of its semi-minor axis (> {RESIDUAL_MAX_REL})")
-            out.append(("bad_fit", why))
+            out[k] = ("cluster", f"{surround[k]:.0%} of its surround is other light at {SURROUND_REL:g} of its "
+                                 f"height (> {SURROUND_FRACTION_MAX:.0%})")
+        elif not (res[k] <= RESIDUAL_MAX_REL) or not inside[k]:
+            why = "the BP lies outside its isophote" if not inside[k] else (
+                f"isophote residual {res[k]:.2f} of its semi-minor axis (> {RESIDUAL_MAX_REL})")
+            out[k] = ("bad_fit", why)
         elif minor[k] < MINOR_AXIS_MIN_PX:
-            out.append(("bad_fit", f"isophote semi-minor axis {minor[k]:.2f} px (< {MINOR_AXIS_MIN_PX} px: "
-                                   "narrower than the pixel grid resolves)"))
+            out[k] = ("bad_fit", f"isophote semi-minor axis {minor[k]:.2f} px (< {MINOR_AXIS_MIN_PX} px: "
+                                 "narrower than the pixel grid resolves)")
         else:
-            out.append(("ok", ""))
+            out[k] = ("ok", "")
     return out
