@@ -189,7 +189,8 @@ class Recommendation:
     depth_mm : float or None
         Depth of the specular point along its ray, mm (None: not observable or not estimated).
     normal_sigma_deg : float or None
-        1-sigma angular uncertainty, degrees (None when the estimator gives none).
+        1-sigma angular uncertainty, degrees (None when the estimator gives none); with
+        ``light_normals``, the largest of the normal's and theirs.
     light_normals : ndarray of shape (J, 3) or None
         The normal at the specular point of each of the rig's J lights, where the estimator
         gives them (:func:`~simtest.reconstruct.lightaware.cubic_patch_fit`), unit, camera frame.
@@ -424,7 +425,8 @@ def depth_within_ceiling(r: LightAwareEstimate) -> LightAwareEstimate:
     return dataclasses.replace(
         r, status="depth_not_observable" if r.ok else r.status,
         detail=f"{r.detail}; {detail}" if r.detail else detail,
-        depth_mm=None, depth_sigma_mm=None, distance_mm=None, light_normals=None, light_depths_mm=None)
+        depth_mm=None, depth_sigma_mm=None, distance_mm=None, light_normals=None, light_depths_mm=None,
+        light_normal_sigmas_deg=None)
 
 
 def bp_ray_error_deg(ray, depth_mm: float, rig: LightRig) -> float:
@@ -464,6 +466,22 @@ def bp_ray_error_deg(ray, depth_mm: float, rig: LightRig) -> float:
         c = float(np.clip(to_cam @ (to_light / nl), -1.0, 1.0))
         half.append(0.5 * math.degrees(math.acos(c)))
     return float(np.average(half, weights=w))
+
+
+def _stated_sigma(r: LightAwareEstimate) -> float | None:
+    """The ``normal_sigma_deg`` a recommendation drawn from ``r`` states: the fit's own, or with
+    a normal per light (``light_normals``) the largest of it and theirs
+    (``light_normal_sigmas_deg``), so that it covers every normal the recommendation gives (a
+    per-light truth is compared with that light's normal, whose sigma also carries the
+    curvature's: on the two-light spheres and cylinders 20 to 40 times the apex's)."""
+    sig = r.normal_sigma_deg
+    ls = getattr(r, "light_normal_sigmas_deg", None)
+    if sig is None or r.light_normals is None or ls is None:
+        return sig
+    ls = np.asarray(ls, dtype=np.float64)
+    if not np.isfinite(ls).all():
+        return None  # a light's normal without a sigma: none is stated
+    return float(max(sig, float(ls.max())))
 
 
 def _angle_deg(a, b) -> float:
@@ -574,7 +592,7 @@ def recommend(est) -> Recommendation:
                 continue  # one light (run on request only) or its depth not observable: the
                 # patch's third-order shape then trades with the depth, and so does its normal
             if r.status == "ok":
-                return Recommendation(np.asarray(r.normal), name, r.depth_mm, r.normal_sigma_deg,
+                return Recommendation(np.asarray(r.normal), name, r.depth_mm, _stated_sigma(r),
                                       r.light_normals, r.light_depths_mm)
             candidates.append((name, r))
         # rule 3: a normal whose depth is not observable, where its sigma beats the BP ray's error
