@@ -1,0 +1,116 @@
+"""Issue 39: the curved-patch fits' stated sigmas cover their errors (two-light spheres).
+
+Exact Phong spheres under two lights either side of the lens, made photon-like noisy (the noise
+grows with the radiance and is 0 in the dark surround, as on a render) and quantised to 8 bits;
+small images (60 px) so that each fit takes about a second."""
+
+from __future__ import annotations
+
+from types import SimpleNamespace
+
+import numpy as np
+
+from simtest.geometry import angle_between_deg
+from simtest.geometry.angles import unit
+from simtest.geometry.lights import Light, LightRig
+from simtest.reconstruct import lightaware as la
+from simtest.reconstruct.lightaware.estimate import LightAwareEstimate
+from simtest.reconstruct.lightaware.patch import _patch_covariances
+from simtest.reconstruct.recommend import recommend
+from simtest.simulate.analytic import phong_sphere_image
+
+#: Sphere of radius 20 mm whose nearest point is 50.1 mm away, Phong n = 40; f = 125 px, 60 px.
+C, R = np.array([3.0, -2.0, 70.0]), 20.0
+K = np.array([[125.0, 0, 29.5], [0, 125.0, 29.5], [0, 0, 1.0]])
+
+
+def _specular_point(L):
+    """The sphere's specular point of light L and its normal (fixed-point iteration of the
+    bisector condition, independent of the patch model)."""
+    n = unit(-C)
+    for _ in range(300):
+        X = C + R * n
+        n = unit(unit(-X) + unit(np.asarray(L, float) - X))
+    return C + R * n, n
+
+
+def _noisy_two_light_sphere(eps, seed):
+    lights = [(-eps, 0.0, 0.0), (eps, 0.0, 0.0)]
+    clean = sum(phong_sphere_image(K, (60, 60), C, R, 40.0, light_mm=L) for L in lights)
+    rig = LightRig(tuple(Light(tuple(float(x) for x in L), 1.0, "none") for L in lights))
+    rng = np.random.default_rng(seed)
+    img = clean / clean.max() * 200.0  # peak 200 of 255
+    # photon-like: standard deviation 0.1 sqrt(counts), 1.4 counts at the peak
+    img = np.clip(np.round(img + 0.1 * np.sqrt(img) * rng.normal(size=img.shape)), 0, 255)
+    bp = np.array(np.unravel_index(np.argmax(clean), clean.shape)[::-1], dtype=np.float64)
+    return img, rig, bp, lights
+
+
+def test_each_lights_normal_sigma_covers_its_error_on_noisy_two_light_spheres():
+    # Seed 1: the error at each light's specular point (0.41 deg) is 4.8 times the plain
+    # s^2 (J^T J)^-1 sigma (0.086), within twice the sandwich's (0.25): the noise sits on the
+    # lobes, the 0 surround dilutes s^2. Seed 3: the fit's depth is 13 % off along a curved
+    # valley that the local covariance sees as 0.7 % wide (its normals 0.37 deg off with 0.03
+    # stated); the profile's two refits give 0.45. Without the per-light sigma the apex's
+    # (0.005 and 0.016 deg) would be stated.
+    for seed in (1, 3):
+        img, rig, bp, lights = _noisy_two_light_sphere(5.0, seed)
+        est = la.cubic_patch_fit(img, (0, 0), bp, K, rig, nominal_depth_mm=20.0)
+        assert est.ok, est
+        assert est.light_normal_sigmas_deg is not None and len(est.light_normal_sigmas_deg) == 2
+        for j, L in enumerate(lights):
+            err = angle_between_deg(est.light_normals[j], _specular_point(L)[1])
+            sig = float(est.light_normal_sigmas_deg[j])
+            assert err <= 2.0 * sig, (seed, j, err, sig)
+            # and not vacuous: a sigma within 3 times the error's scale (errors 0.2 to 0.4 deg)
+            assert sig < 1.0, (seed, j, err, sig)
+
+
+def test_patch_covariance_counts_noise_that_sits_where_the_jacobian_is():
+    # Linear least squares y = J p + e, the noise e only on the rows where J is large (the
+    # lobe), none elsewhere (the 0 surround of an 8-bit render): the true covariance is the
+    # sandwich (J^T J)^-1 J^T V J (J^T J)^-1; the plain s^2 (J^T J)^-1 averages V over every
+    # row and is 10 times too small here. The covariance the patch fits state must reach it.
+    rng = np.random.default_rng(0)
+    m = 400
+    t = np.linspace(-1.0, 1.0, m)
+    lobe = np.exp(-(t / 0.1) ** 2)
+    J = np.column_stack([lobe, t * lobe, np.ones(m)])
+    sd = 0.01 * lobe  # noise on the lobe only
+    Jp = np.linalg.pinv(J)
+    true = Jp @ np.diag(sd**2) @ Jp.T
+    plain_ratio, stated_ratio = [], []
+    for _ in range(20):
+        e = sd * rng.normal(size=m)
+        r = e - J @ (Jp @ e)  # the residual of the least-squares fit
+        s2 = float(r @ r) / (m - 3)
+        covs = _patch_covariances(J, r, s2, np.arange(m), (1, m), 1)
+        stated = max(float(c[0, 0]) for c in covs)
+        plain_ratio.append(s2 * float(np.linalg.inv(J.T @ J)[0, 0]) / true[0, 0])
+        stated_ratio.append(stated / true[0, 0])
+    assert np.median(plain_ratio) < 0.5, plain_ratio  # the plain estimate alone falls short
+    # the sandwich is consistent: its median within 30 % of the truth over 20 draws
+    assert 0.7 < np.median(stated_ratio) < 1.3, stated_ratio
+
+
+def test_the_recommendation_states_the_largest_of_the_normals_sigmas():
+    # A recommendation drawn from the cubic patch gives a normal per light beside the apex's;
+    # the truth at each light's highlight is compared with that light's normal, so the sigma
+    # stated is the largest (the apex's alone was 20 to 40 times too small on the renders).
+    n = unit(np.array([0.1, 0.0, -1.0]))
+    cubic = LightAwareEstimate("cubic_patch_fit", "ok", normal=n, depth_mm=50.0,
+                               normal_sigma_deg=0.01, depth_sigma_mm=1.0,
+                               light_normals=np.array([n, n]), light_depths_mm=np.array([50.0, 50.0]),
+                               light_normal_sigmas_deg=np.array([0.3, 0.5]))
+    pho = LightAwareEstimate("photometric_fit", "plane_misfit", normal=n)
+    est = SimpleNamespace(light_aware={"photometric_fit": pho, "cubic_patch_fit": cubic},
+                          bp_ray=unit(np.array([0.0, 0.0, -1.0])))
+    rec = recommend(est)
+    assert rec.normal_from == "cubic_patch_fit"
+    assert rec.normal_sigma_deg == 0.5
+    # a light's normal without a sigma: no sigma is stated rather than the apex's
+    est.light_aware["cubic_patch_fit"] = LightAwareEstimate(
+        "cubic_patch_fit", "ok", normal=n, depth_mm=50.0, normal_sigma_deg=0.01,
+        light_normals=np.array([n, n]), light_depths_mm=np.array([50.0, 50.0]),
+        light_normal_sigmas_deg=np.array([0.3, np.nan]))
+    assert recommend(est).normal_sigma_deg is None
