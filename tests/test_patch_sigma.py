@@ -6,6 +6,7 @@ small images (60 px) so that each fit takes about a second."""
 
 from __future__ import annotations
 
+import dataclasses
 from types import SimpleNamespace
 
 import numpy as np
@@ -114,3 +115,35 @@ def test_the_recommendation_states_the_largest_of_the_normals_sigmas():
         light_normals=np.array([n, n]), light_depths_mm=np.array([50.0, 50.0]),
         light_normal_sigmas_deg=np.array([0.3, np.nan]))
     assert recommend(est).normal_sigma_deg is None
+
+
+def test_a_two_light_patch_whose_depth_the_ceiling_withdrew_keeps_its_normals_where_its_sigma_says():
+    # Two lights fixed the depth at the noise floor, but its relative sigma (0.3, the profile's
+    # width read into it) is above the ceiling: the depth goes, the per-light normals, whose
+    # sigmas carry that depth's variance, stay; their stated sigma (0.5 deg, twice 1.0) beats
+    # the BP ray's expected error (3 deg), so rule 3 recommends them rather than the BP ray.
+    from simtest.reconstruct.recommend import DEPTH_REL_SIGMA_CEILING, depth_within_ceiling
+
+    n = unit(np.array([0.05, 0.0, -1.0]))
+    ln = np.array([unit(np.array([0.03, 0.0, -1.0])), unit(np.array([0.07, 0.0, -1.0]))])
+    cubic = LightAwareEstimate("cubic_patch_fit", "ok", normal=n, depth_mm=50.0,
+                               normal_sigma_deg=0.05, depth_sigma_mm=15.0, distance_mm=50.0,
+                               light_normals=ln, light_depths_mm=np.array([50.0, 50.1]),
+                               light_normal_sigmas_deg=np.array([0.4, 0.5]),
+                               depth_rel_sigma=0.05, bp_ray_error_deg=3.0)
+    assert 15.0 / 50.0 > DEPTH_REL_SIGMA_CEILING
+    withdrawn = depth_within_ceiling(cubic)
+    assert withdrawn.status == "depth_not_observable"
+    assert withdrawn.depth_mm is None and withdrawn.light_depths_mm is None
+    assert withdrawn.light_normals is not None and withdrawn.light_normal_sigmas_deg is not None
+    pho = LightAwareEstimate("photometric_fit", "plane_misfit", normal=n)
+    est = SimpleNamespace(light_aware={"photometric_fit": pho, "cubic_patch_fit": withdrawn},
+                          bp_ray=unit(np.array([0.0, 0.0, -1.0])))
+    rec = recommend(est)
+    assert rec.normal_from == "cubic_patch_fit"
+    assert rec.depth_mm is None and rec.normal_sigma_deg == 0.5
+    np.testing.assert_array_equal(rec.light_normals, ln)
+    # a stated sigma that does not beat the BP ray: the BP ray
+    est.light_aware["cubic_patch_fit"] = depth_within_ceiling(
+        dataclasses.replace(cubic, light_normal_sigmas_deg=np.array([0.4, 1.6])))
+    assert recommend(est).normal_from == "bp_ray"

@@ -64,8 +64,11 @@ Chosen from the harness' measurements on Mitsuba renders (``simtest validate ren
 
 3. Where no light-aware fit is ``ok`` with a rig off the camera centre, a fit whose depth is not
    observable (``depth_not_observable``, the misfit tests passed, and the same exclusions as in
-   1.; never ``cubic_patch_fit``, whose third-order shape trades with the depth) is still
-   recommended, the one of least ``normal_sigma_deg``, when twice that sigma
+   1.; ``cubic_patch_fit`` only with its normal per light, i.e. two lights whose depth passed
+   the noise floor's test and only the ceiling withdrew it: under one light its third-order
+   shape trades with the depth) is still
+   recommended, the one of least stated sigma (``normal_sigma_deg``, with a normal per light
+   the largest of theirs: :func:`_stated_sigma`), when twice that sigma
    (:data:`SIGMA_MARGIN`: the fit's error at 95 %) is below the BP ray's expected error
    (:func:`bp_ray_error_deg`: half the angle the rig's mean light subtends at the specular
    point, at the nominal depth of 20 mm where the depth is unknown); ``depth_mm`` is then None. Reasons: the BP is where the normal bisects the directions to the
@@ -410,8 +413,10 @@ def depth_within_ceiling(r: LightAwareEstimate) -> LightAwareEstimate:
         ``r`` itself when it gives no depth or the depth's relative 1-sigma (the larger of
         ``depth_sigma_mm / depth_mm`` and ``depth_rel_sigma``; a depth without sigma counts as
         unbounded) is at most :data:`DEPTH_REL_SIGMA_CEILING`; else a copy without depth,
-        depth sigma, distance and per-light normals and depths, an ``ok`` status turned
-        ``depth_not_observable`` (module docstring, "Depth ceiling"). The normal is kept.
+        depth sigma, distance and per-light depths, an ``ok`` status turned
+        ``depth_not_observable`` (module docstring, "Depth ceiling"). The normal is kept, and so
+        are the per-light normals with their sigmas, which carry the depth's variance (rule 3
+        may recommend them).
     """
     if r.depth_mm is None:
         return r
@@ -425,8 +430,7 @@ def depth_within_ceiling(r: LightAwareEstimate) -> LightAwareEstimate:
     return dataclasses.replace(
         r, status="depth_not_observable" if r.ok else r.status,
         detail=f"{r.detail}; {detail}" if r.detail else detail,
-        depth_mm=None, depth_sigma_mm=None, distance_mm=None, light_normals=None, light_depths_mm=None,
-        light_normal_sigmas_deg=None)
+        depth_mm=None, depth_sigma_mm=None, distance_mm=None, light_depths_mm=None)
 
 
 def bp_ray_error_deg(ray, depth_mm: float, rig: LightRig) -> float:
@@ -596,14 +600,14 @@ def recommend(est) -> Recommendation:
                                       r.light_normals, r.light_depths_mm)
             candidates.append((name, r))
         # rule 3: a normal whose depth is not observable, where its sigma beats the BP ray's error
-        better = [(r.normal_sigma_deg, i, name, r) for i, (name, r) in enumerate(candidates)
-                  if r.status == "depth_not_observable" and r.normal_sigma_deg is not None
+        better = [(_stated_sigma(r), i, name, r) for i, (name, r) in enumerate(candidates)
+                  if r.status == "depth_not_observable" and _stated_sigma(r) is not None
                   and r.bp_ray_error_deg is not None
-                  and SIGMA_MARGIN * r.normal_sigma_deg < max(r.bp_ray_error_deg,
-                                                              0.5 * _angle_deg(est.bp_ray, r.normal))]
+                  and SIGMA_MARGIN * _stated_sigma(r) < max(r.bp_ray_error_deg,
+                                                            0.5 * _angle_deg(est.bp_ray, r.normal))]
         if better:
-            _, _, name, r = min(better)
-            return Recommendation(np.asarray(r.normal), name, None, r.normal_sigma_deg)
+            sigma, _, name, r = min(better)
+            return Recommendation(np.asarray(r.normal), name, None, sigma, r.light_normals, None)
         return Recommendation(np.asarray(est.bp_ray), "bp_ray")
     for name in COLOCATED_ORDER:
         n = getattr(est, name, None)

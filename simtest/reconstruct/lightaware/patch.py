@@ -199,7 +199,8 @@ def quadric_fit(values, origin_uv, bp_uv, camera, rig: LightRig, *,
     spreading of the lobe for roughness and distance, and the distance sets the normal through
     the bisector; the quadric model fits the curvature instead. Uncertainty: the larger of
     ``C = s^2 (J^T J)^-1`` and the sandwich (:func:`_patch_covariances`), with J the Jacobian of
-    the projected residual at the solution, propagated to N by finite differences.
+    the projected residual at the solution, and the depth's width along the parameters' valley
+    beyond it (:func:`_depth_valley`), propagated to N by finite differences.
 
     Where it breaks: the depth, and through the bisector the normal, rests on the patch being a
     quadric over the ROI. With the apex tied to the BP ray, the normal is the bisector at depth
@@ -295,11 +296,15 @@ def quadric_fit(values, origin_uv, bp_uv, camera, rig: LightRig, *,
         dp[i] = 1e-6 * x_scale[i]
         G[:, i] = (_quadric_image(d[:1], b_ray, x + dp, rig_arr, Lm)[1]
                    - _quadric_image(d[:1], b_ray, x - dp, rig_arr, Lm)[1]) / (2 * dp[i])
-    sigma_deg = _sigma_deg(G, covs)
+    valley, excess, rises = _depth_valley({"res": res, "x_scale": x_scale}, x, float(r0 @ r0),
+                                          resid_var, covs, max_nfev)
+    sigma_deg = _valley_sigma_deg(G, covs, G @ valley, excess)
     rel_floor = None if cov_floor is None else float(np.sqrt(max(cov_floor[2, 2], 0.0)))
     status, detail, observable, rms = _patch_verdict(
-        rel_floor, r0, sel, P.shape, step, "", "the ROI is not one patch's lobe (streaks along folds, several lobes)")
-    depth_sigma = (float(s_hat * np.sqrt(max(max(c[2, 2] for c in covs), 0.0)))
+        rel_floor, r0, sel, P.shape, step,
+        (f"the fit's cost rises by {rises[0]:.3g} and {rises[1]:.3g} residual variances at "
+         f"+-{_VALLEY_STEP:.0%} of its depth"), "the ROI is not one patch's lobe (streaks along folds, several lobes)")
+    depth_sigma = (float(s_hat * np.sqrt(max(max(c[2, 2] for c in covs), 0.0) + excess))
                    if observable and covs else None)
     return LightAwareEstimate(name, status, detail, n_hat, s_hat if observable else None, sigma_deg,
                               depth_sigma if observable else None, s_hat if observable else None,
@@ -483,15 +488,19 @@ def _depth_valley(S, x, cost0, resid_var, covs, max_nfev):
     sphere (60 px, epsilon/d 0.1) the local 1-sigma of the depth was 0.7 %, the profile's 9 %,
     and the fit's depth 13 % off (its normals 0.37 deg off with a stated 0.03).
 
+    ``S`` holds the fit's residual ``res(p)`` and ``x_scale``; the same reading serves
+    :func:`quadric_fit` (7 parameters, log depth third as here).
+
     Returns
     -------
-    (ndarray of shape (11,), float, tuple)
+    (ndarray of shape (k,), float, tuple)
         ``v`` (zeros where a profile fit failed), the variance of log depth in excess of the
         local covariance's largest (0 where the profile is narrower; inf where it does not
         rise: the depth is then not bounded), and the two rises over ``s^2`` (NaN where a fit
         failed).
     """
-    free = [i for i in range(_CUBIC_PARAMS) if i != 2]
+    k = len(x)
+    free = [i for i in range(k) if i != 2]
     ends, rises, var = [], [], 0.0
     for step in _VALLEY_STEPS:
         for sgn in (1.0, -1.0):
@@ -506,7 +515,7 @@ def _depth_valley(S, x, cost0, resid_var, covs, max_nfev):
                 rises.append(rise)
             var = max(var, step**2 / rise if rise > 0 else np.inf)
     if len(ends) < 2:
-        return np.zeros(_CUBIC_PARAMS), 0.0, (np.nan, np.nan)
+        return np.zeros(k), 0.0, (np.nan, np.nan)
     v = (ends[0] - ends[1]) / (2.0 * _VALLEY_STEP)
     local = max(float(cv[2, 2]) for cv in covs) if covs else 0.0
     plain = float(covs[0][2, 2]) if covs else 0.0
