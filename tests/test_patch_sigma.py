@@ -10,6 +10,7 @@ import dataclasses
 from types import SimpleNamespace
 
 import numpy as np
+import pytest
 
 from simtest.geometry import angle_between_deg
 from simtest.geometry.angles import unit
@@ -147,3 +148,27 @@ def test_a_two_light_patch_whose_depth_the_ceiling_withdrew_keeps_its_normals_wh
     est.light_aware["cubic_patch_fit"] = depth_within_ceiling(
         dataclasses.replace(cubic, light_normal_sigmas_deg=np.array([0.4, 1.6])))
     assert recommend(est).normal_from == "bp_ray"
+
+
+def test_the_depth_valley_reads_a_flat_bottomed_profile_at_its_widest():
+    # A profile of the log depth t that is quadratic near its minimum and levels off beyond
+    # w = 0.1 (rise A (1 - exp(-t^2 / w^2)) residual variances, A = 4): the curvature at 5 %
+    # says sigma 0.053, the reading at 40 % (a rise of 4) says 0.2, and that is the one
+    # stated. The two-light liver at epsilon/d 0.1 is such a profile (its depths 1 to 24 % long
+    # with 5 to 6 % read at 5 %).
+    from simtest.reconstruct.lightaware.patch import _depth_valley
+
+    var, A, w = 1e-4, 4.0, 0.1
+
+    def res(p):
+        t = p[2]
+        return np.array([np.sqrt(var * A * (1.0 - np.exp(-t * t / w**2))),
+                         10.0 * (p[0] - 1.0), 10.0 * (p[1] - 2.0)])
+
+    x = np.array([1.0, 2.0, 0.0])
+    near = 0.05 / np.sqrt(A * (1.0 - np.exp(-0.25)))
+    covs = [np.diag([1e-6, 1e-6, near**2])]
+    v, excess, rises = _depth_valley({"res": res, "x_scale": np.ones(3)}, x, 0.0, var, covs, 100)
+    assert np.sqrt(near**2 + excess) == pytest.approx(0.4 / np.sqrt(A * (1.0 - np.exp(-16.0))), rel=1e-3)
+    assert rises == pytest.approx((A * (1 - np.exp(-0.25)),) * 2, rel=1e-6)
+    assert v[2] == pytest.approx(1.0)
