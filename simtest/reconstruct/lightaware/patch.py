@@ -303,7 +303,8 @@ def quadric_fit(values, origin_uv, bp_uv, camera, rig: LightRig, *,
     status, detail, observable, rms = _patch_verdict(
         rel_floor, r0, sel, P.shape, step,
         (f"the fit's cost rises by {rises[0]:.3g} and {rises[1]:.3g} residual variances at "
-         f"+-{_VALLEY_STEP:.0%} of its depth"), "the ROI is not one patch's lobe (streaks along folds, several lobes)")
+         f"+-{_VALLEY_STEP:.0%} of its depth"),
+        "the ROI is not one patch's lobe (streaks along folds, several lobes)")
     depth_sigma = (float(s_hat * np.sqrt(max(max(c[2, 2] for c in covs), 0.0) + excess))
                    if observable and covs else None)
     return LightAwareEstimate(name, status, detail, n_hat, s_hat if observable else None, sigma_deg,
