@@ -46,7 +46,10 @@ Chosen from the harness' measurements on Mitsuba renders (``simtest validate ren
    two-light liver renders (``liver_two_lights``, six realisations) its status was ``ok`` on
    every highlight and its median error 0.30 deg at epsilon/d 0.1 per light and 0.09 at 0.3,
    against 2.2 and 8.4 for the BP ray, where the quadric misfits and the plane fit does not
-   converge; it
+   converge; on the suite's two-light spheres and cylinders (``sphere_two_lights``,
+   ``cylinder_two_lights``, epsilon/d 0.1 and 0.3 per light, 12 highlights each) 0.11, 0.11,
+   0.23 and 0.25 deg against 2.0, 8.3, 0.67 and 8.8, every error within twice its stated sigma
+   (:func:`_stated_sigma`); it
    comes before the quadric, whose depth, with the third-order shape left out, is the one at
    which the offsets stand in for it. With one light it is not run (nor recommended when run
    on request): its depth is then not observable (on the exact sphere and the liver render the
@@ -64,8 +67,11 @@ Chosen from the harness' measurements on Mitsuba renders (``simtest validate ren
 
 3. Where no light-aware fit is ``ok`` with a rig off the camera centre, a fit whose depth is not
    observable (``depth_not_observable``, the misfit tests passed, and the same exclusions as in
-   1.; never ``cubic_patch_fit``, whose third-order shape trades with the depth) is still
-   recommended, the one of least ``normal_sigma_deg``, when twice that sigma
+   1.; ``cubic_patch_fit`` only with its normal per light, i.e. two lights whose depth passed
+   the noise floor's test and only the ceiling withdrew it: under one light its third-order
+   shape trades with the depth) is still
+   recommended, the one of least stated sigma (``normal_sigma_deg``, with a normal per light
+   the largest of theirs: :func:`_stated_sigma`), when twice that sigma
    (:data:`SIGMA_MARGIN`: the fit's error at 95 %) is below the BP ray's expected error
    (:func:`bp_ray_error_deg`: half the angle the rig's mean light subtends at the specular
    point, at the nominal depth of 20 mm where the depth is unknown); ``depth_mm`` is then None. Reasons: the BP is where the normal bisects the directions to the
@@ -189,7 +195,8 @@ class Recommendation:
     depth_mm : float or None
         Depth of the specular point along its ray, mm (None: not observable or not estimated).
     normal_sigma_deg : float or None
-        1-sigma angular uncertainty, degrees (None when the estimator gives none).
+        1-sigma angular uncertainty, degrees (None when the estimator gives none); with
+        ``light_normals``, the largest of the normal's and theirs.
     light_normals : ndarray of shape (J, 3) or None
         The normal at the specular point of each of the rig's J lights, where the estimator
         gives them (:func:`~simtest.reconstruct.lightaware.cubic_patch_fit`), unit, camera frame.
@@ -409,8 +416,10 @@ def depth_within_ceiling(r: LightAwareEstimate) -> LightAwareEstimate:
         ``r`` itself when it gives no depth or the depth's relative 1-sigma (the larger of
         ``depth_sigma_mm / depth_mm`` and ``depth_rel_sigma``; a depth without sigma counts as
         unbounded) is at most :data:`DEPTH_REL_SIGMA_CEILING`; else a copy without depth,
-        depth sigma, distance and per-light normals and depths, an ``ok`` status turned
-        ``depth_not_observable`` (module docstring, "Depth ceiling"). The normal is kept.
+        depth sigma, distance and per-light depths, an ``ok`` status turned
+        ``depth_not_observable`` (module docstring, "Depth ceiling"). The normal is kept, and so
+        are the per-light normals with their sigmas, which carry the depth's variance (rule 3
+        may recommend them).
     """
     if r.depth_mm is None:
         return r
@@ -424,7 +433,7 @@ def depth_within_ceiling(r: LightAwareEstimate) -> LightAwareEstimate:
     return dataclasses.replace(
         r, status="depth_not_observable" if r.ok else r.status,
         detail=f"{r.detail}; {detail}" if r.detail else detail,
-        depth_mm=None, depth_sigma_mm=None, distance_mm=None, light_normals=None, light_depths_mm=None)
+        depth_mm=None, depth_sigma_mm=None, distance_mm=None, light_depths_mm=None)
 
 
 def bp_ray_error_deg(ray, depth_mm: float, rig: LightRig) -> float:
@@ -464,6 +473,22 @@ def bp_ray_error_deg(ray, depth_mm: float, rig: LightRig) -> float:
         c = float(np.clip(to_cam @ (to_light / nl), -1.0, 1.0))
         half.append(0.5 * math.degrees(math.acos(c)))
     return float(np.average(half, weights=w))
+
+
+def _stated_sigma(r: LightAwareEstimate) -> float | None:
+    """The ``normal_sigma_deg`` a recommendation drawn from ``r`` states: the fit's own, or with
+    a normal per light (``light_normals``) the largest of it and theirs
+    (``light_normal_sigmas_deg``), so that it covers every normal the recommendation gives (a
+    per-light truth is compared with that light's normal, whose sigma also carries the
+    curvature's: on the two-light spheres and cylinders 20 to 40 times the apex's)."""
+    sig = r.normal_sigma_deg
+    ls = getattr(r, "light_normal_sigmas_deg", None)
+    if sig is None or r.light_normals is None or ls is None:
+        return sig
+    ls = np.asarray(ls, dtype=np.float64)
+    if not np.isfinite(ls).all():
+        return None  # a light's normal without a sigma: none is stated
+    return float(max(sig, float(ls.max())))
 
 
 def _angle_deg(a, b) -> float:
@@ -574,18 +599,18 @@ def recommend(est) -> Recommendation:
                 continue  # one light (run on request only) or its depth not observable: the
                 # patch's third-order shape then trades with the depth, and so does its normal
             if r.status == "ok":
-                return Recommendation(np.asarray(r.normal), name, r.depth_mm, r.normal_sigma_deg,
+                return Recommendation(np.asarray(r.normal), name, r.depth_mm, _stated_sigma(r),
                                       r.light_normals, r.light_depths_mm)
             candidates.append((name, r))
         # rule 3: a normal whose depth is not observable, where its sigma beats the BP ray's error
-        better = [(r.normal_sigma_deg, i, name, r) for i, (name, r) in enumerate(candidates)
-                  if r.status == "depth_not_observable" and r.normal_sigma_deg is not None
+        better = [(_stated_sigma(r), i, name, r) for i, (name, r) in enumerate(candidates)
+                  if r.status == "depth_not_observable" and _stated_sigma(r) is not None
                   and r.bp_ray_error_deg is not None
-                  and SIGMA_MARGIN * r.normal_sigma_deg < max(r.bp_ray_error_deg,
-                                                              0.5 * _angle_deg(est.bp_ray, r.normal))]
+                  and SIGMA_MARGIN * _stated_sigma(r) < max(r.bp_ray_error_deg,
+                                                            0.5 * _angle_deg(est.bp_ray, r.normal))]
         if better:
-            _, _, name, r = min(better)
-            return Recommendation(np.asarray(r.normal), name, None, r.normal_sigma_deg)
+            sigma, _, name, r = min(better)
+            return Recommendation(np.asarray(r.normal), name, None, sigma, r.light_normals, None)
         return Recommendation(np.asarray(est.bp_ray), "bp_ray")
     for name in COLOCATED_ORDER:
         n = getattr(est, name, None)

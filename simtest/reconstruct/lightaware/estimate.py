@@ -85,6 +85,9 @@ class LightAwareEstimate:
         (its ``lobe="auto"`` chooses by the residual's information criterion); None elsewhere.
     n_residuals : int
         :func:`photometric_fit`: the number of pixels fitted (the m of the criterion); 0 elsewhere.
+    light_normal_sigmas_deg : ndarray of shape (J,) or None
+        :func:`cubic_patch_fit` only: the 1-sigma angular uncertainty of each of
+        ``light_normals``, degrees; None where those are.
     """
 
     estimator: str
@@ -105,6 +108,7 @@ class LightAwareEstimate:
     bp_ray_error_deg: float | None = None
     lobe: str | None = None
     n_residuals: int = 0
+    light_normal_sigmas_deg: np.ndarray | None = None
 
     @property
     def ok(self) -> bool:
