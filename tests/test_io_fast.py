@@ -111,3 +111,26 @@ def test_numbers_are_written_as_json_writes_them(values, x, values32):
     assert io._ftxt(m[0, 0]) == json.dumps(float(m[0, 0]))
     # the ellipse's angle: x * (180 / pi) is np.degrees, bit for bit
     assert float(x) * io._DEG == float(np.degrees(x)) or not math.isfinite(float(x) * io._DEG)
+
+
+#: float64 values over the whole range and the notations' edges: repr writes |x| < 1e-4 and
+#: |x| >= 1e16 with an exponent, orjson (io._atxt's fast path) positionally or as "1e16"
+edges = st.sampled_from([0.0, -0.0, 1e-4, np.nextafter(1e-4, 0.0), 1e16, np.nextafter(1e16, 0.0), 5e-324,
+                         1.7976931348623157e308, 10.00001, 0.1, 1 / 3, -2.5e-5])
+any_double = st.one_of(edges, finite, st.builds(lambda m, e: m * 10.0 ** e, st.floats(-10, 10), st.integers(-30, 30)))
+
+
+@settings(max_examples=300, deadline=None)
+@given(st.lists(any_double, min_size=6, max_size=6), st.integers(0, 2))
+def test_float64_arrays_are_written_as_json_writes_them_on_the_fast_path(values, shape):
+    a = np.array(values, dtype=np.float64).reshape([(6,), (2, 3), (3, 2)][shape])
+    assert io._atxt(a, False) == json.dumps(a.tolist(), separators=(",", ":"))
+    assert io._atxt(a, True) == json.dumps(a.ravel().tolist(), separators=(",", ":"))
+    assert io._atxt(a.T, False) == json.dumps(a.T.tolist(), separators=(",", ":"))  # not C-contiguous
+    assert io._atxt(a[::2], False) == json.dumps(a[::2].tolist(), separators=(",", ":"))
+
+
+def test_a_non_finite_array_is_refused_on_the_fast_path():
+    for bad in (np.array([1.0, np.nan, 2.0]), np.array([[0.5, -np.inf], [1.0, 2.0]])):
+        with pytest.raises(ValueError):
+            io._atxt(bad, False)

@@ -103,6 +103,11 @@ from pathlib import Path
 
 import numpy as np
 
+try:  # optional: a float64 array's JSON text in C (estimates.jsonl's cost); the same text without it
+    import orjson as _orjson
+except ImportError:  # pragma: no cover - orjson is in the environment
+    _orjson = None
+
 from simtest._io import atomic_write_json, recover_output_folder, replace_output_folder
 from simtest._version import __version__
 
@@ -256,6 +261,8 @@ def estimate_to_dict(est, include_points: bool = False) -> dict:
 _jstr = json.encoder.encode_basestring_ascii
 #: The compact writer of estimates.jsonl, for the parts written as dicts (light-aware results).
 _json = json.JSONEncoder(allow_nan=False, separators=(",", ":")).encode
+#: orjson's option for numpy arrays (:func:`_atxt`).
+_ORJSON_NUMPY = 0 if _orjson is None else _orjson.OPT_SERIALIZE_NUMPY
 #: np.degrees is x * (180 / pi) in float64 (the same bits for a Python float).
 _DEG = 180.0 / np.pi
 
@@ -284,6 +291,14 @@ def _atxt(x, flat: bool) -> str:
     if x is None:
         return "null"
     if type(x) is np.ndarray and x.dtype.char == "d" and (x.ndim == 1 or not flat):
+        if _orjson is not None and x.ndim <= 2 and x.flags.c_contiguous:
+            # orjson's shortest round-trip digits are float.__repr__'s; its text differs only in
+            # the notation of |x| < 1e-4 (positional: "0.0000...") and of |x| >= 1e16 (its
+            # exponent, "e"), and writes NaN and inf as null ("n"): those arrays (and any with
+            # ".0000" in a number, harmlessly) take repr's path (tests/test_io_json.py)
+            t = _orjson.dumps(x, option=_ORJSON_NUMPY).decode()
+            if "e" not in t and "n" not in t and ".0000" not in t:
+                return t
         t = repr(x.tolist())  # float64 already: skip the conversions (the same Python floats)
     else:
         a = np.asarray(x, dtype=np.float64)
