@@ -128,6 +128,8 @@ def test_float64_arrays_are_written_as_json_writes_them_on_the_fast_path(values,
     assert io._atxt(a, True) == json.dumps(a.ravel().tolist(), separators=(",", ":"))
     assert io._atxt(a.T, False) == json.dumps(a.T.tolist(), separators=(",", ":"))  # not C-contiguous
     assert io._atxt(a[::2], False) == json.dumps(a[::2].tolist(), separators=(",", ":"))
+    for v in values:  # scalars (io._ftxt's fast path)
+        assert io._ftxt(v) == json.dumps(float(v))
 
 
 def test_a_non_finite_array_is_refused_on_the_fast_path():

@@ -279,6 +279,10 @@ def _ftxt(x) -> str:
     """``float(x)`` as json.dumps writes it (float.__repr__), ``null`` for None."""
     if x is None:
         return "null"
+    if _orjson is not None:  # as _atxt: orjson's text where it is repr's
+        t = _orjson.dumps(float(x)).decode()
+        if "e" not in t and "n" not in t and ".0000" not in t:
+            return t
     t = repr(float(x))
     if "n" in t:  # nan, inf, -inf: json.dumps(allow_nan=False) refuses them too
         raise _not_finite(t)
