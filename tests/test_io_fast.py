@@ -136,3 +136,22 @@ def test_a_non_finite_array_is_refused_on_the_fast_path():
     for bad in (np.array([1.0, np.nan, 2.0]), np.array([[0.5, -np.inf], [1.0, 2.0]])):
         with pytest.raises(ValueError):
             io._atxt(bad, False)
+
+
+def test_a_frames_rejected_candidates_are_written_at_once_as_one_at_a_time():
+    """io.estimates_json writes a frame's rejected candidates together (_rejected_texts): each the
+    text of estimate_json, which writes it alone; and a rejected candidate whose numbers orjson
+    writes otherwise than json (|x| < 1e-4) takes the one-at-a-time path, the same text."""
+    img = cv2.cvtColor(cv2.imread(str(REAL / "hyperkvasir_tile_r2c3_polyp.png")), cv2.COLOR_BGR2RGB)
+    h, w = img.shape[:2]
+    K = np.array([[140.0, 0, (w - 1) / 2], [0, 140.0, (h - 1) / 2], [0, 0, 1]])
+    ests = list(reconstruct(img, K))
+    rej = [e for e in ests if io._is_rejected(e)]
+    assert len(rej) >= 2
+    texts = io._rejected_texts(ests)
+    assert sum(t is not None for t in texts) == (len(rej) if io._orjson is not None else 0)
+    for e, t in zip(ests, texts):
+        assert t is None or t == io.estimate_json(e)
+    tiny = [dataclasses.replace(rej[0], bp_ray=np.array([1e-5, 0.0, -1.0]))] + rej[1:]
+    assert io.estimates_json(tiny) == _reference(tiny)
+    assert io.estimates_json(ests) == _reference(ests)

@@ -447,7 +447,66 @@ def estimates_json(estimates, include_points: bool = False) -> str:
     ValueError
         If a value is not finite.
     """
-    return "[" + ",".join([estimate_json(e, include_points) for e in estimates]) + "]"
+    ests = list(estimates)
+    texts = _rejected_texts(ests)
+    return "[" + ",".join([estimate_json(e, include_points) if t is None else t
+                           for e, t in zip(ests, texts)]) + "]"
+
+
+def _is_rejected(est) -> bool:
+    """Whether :func:`estimate_json` writes ``est`` by its short path (a rejected candidate: no
+    isophotes, no light-aware results, no joint axis, a BP ray)."""
+    return (not est.isophotes and not getattr(est, "light_aware", None)
+            and getattr(est, "joint_cone_axis", None) is None and est.bp_ray is not None)
+
+
+#: The constant parts of a rejected candidate's text (:func:`estimate_json`'s short path).
+_REJ_HEAD = '"normal_from":"bp_ray","depth_mm":null,"normal_sigma_deg":null,"light_normals":null,' \
+            '"light_depths_mm":null,"light_aware":{}'
+_REJ_NORMALS = '"normals":{"paper":null,"paper_selected":null,"paper_selected_index":null,"cone_axis":null,' \
+               '"joint_cone_axis":null,"bp_ray":'
+_REJ_TAIL = ('},"ellipse":null,"conic":null,"fit_residual_px":null,"eigenvalue_gap":null,"isophotes":[]}')
+
+
+def _rows_txt(a: np.ndarray) -> list[str] | None:
+    """The texts of the rows of a float64 array (n, k), as :func:`_atxt` writes each row, from
+    one orjson call; None where that text is not json.dumps' (see :func:`_atxt`)."""
+    t = _orjson.dumps(a, option=_ORJSON_NUMPY).decode()
+    if "e" in t or "n" in t or ".0000" in t:
+        return None
+    return t[2:-2].split("],[")
+
+
+def _rejected_texts(ests: list) -> list:
+    """Each estimate's :func:`estimate_json` text where it is a rejected candidate's (most of a
+    real frame's thousands), written for all of them at once: their BP rays, BPs and
+    intensities each in one orjson call, the text of each then one format. None for the
+    others, and for all where orjson is missing or its text is not json.dumps' (they take
+    :func:`estimate_json`). The same text, character for character (``tests/test_io_fast.py``)."""
+    out: list = [None] * len(ests)
+    rej = [k for k, e in enumerate(ests) if _is_rejected(e)]
+    if _orjson is None or len(rej) < 2:
+        return out
+    try:
+        rays = np.array([ests[k].bp_ray for k in rej], dtype=np.float64)
+        bps = np.array([ests[k].bp_px for k in rej], dtype=np.float64)
+        heights = np.array([ests[k].bp_intensity for k in rej], dtype=np.float64)
+    except (TypeError, ValueError):  # ragged or odd values: one at a time
+        return out
+    if rays.shape != (len(rej), 3) or bps.shape != (len(rej), 2):
+        return out
+    ray_t, bp_t = _rows_txt(rays), _rows_txt(bps)
+    h_t = _orjson.dumps(heights, option=_ORJSON_NUMPY).decode()
+    if ray_t is None or bp_t is None or "e" in h_t or "n" in h_t or ".0000" in h_t:
+        return out
+    for k, ray, bp, h in zip(rej, ray_t, bp_t, h_t[1:-1].split(",")):
+        e = ests[k]
+        out[k] = (f'{{"normal":[{ray}],{_REJ_HEAD},"bp_px":[{bp}],"bp_intensity":{h},'
+                  f'"saturated":{"true" if e.saturated else "false"},"roi":{_roi_txt(e.roi)},'
+                  f'"status":{_jstr(e.status)},"detail":{_jstr(e.detail)},'
+                  f'"confidence":{_ftxt(getattr(e, "confidence", None))},{_REJ_NORMALS}[{ray}],'
+                  f'{_NO_LIGHT_AWARE_NORMALS}{_REJ_TAIL}')
+    return out
 
 
 def estimates_document(estimates, *, K, image=None, image_shape=None, dist_coeffs=None,
