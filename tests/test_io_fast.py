@@ -111,3 +111,47 @@ def test_numbers_are_written_as_json_writes_them(values, x, values32):
     assert io._ftxt(m[0, 0]) == json.dumps(float(m[0, 0]))
     # the ellipse's angle: x * (180 / pi) is np.degrees, bit for bit
     assert float(x) * io._DEG == float(np.degrees(x)) or not math.isfinite(float(x) * io._DEG)
+
+
+#: float64 values over the whole range and the notations' edges: repr writes |x| < 1e-4 and
+#: |x| >= 1e16 with an exponent, orjson (io._atxt's fast path) positionally or as "1e16"
+edges = st.sampled_from([0.0, -0.0, 1e-4, np.nextafter(1e-4, 0.0), 1e16, np.nextafter(1e16, 0.0), 5e-324,
+                         1.7976931348623157e308, 10.00001, 0.1, 1 / 3, -2.5e-5])
+any_double = st.one_of(edges, finite, st.builds(lambda m, e: m * 10.0 ** e, st.floats(-10, 10), st.integers(-30, 30)))
+
+
+@settings(max_examples=300, deadline=None)
+@given(st.lists(any_double, min_size=6, max_size=6), st.integers(0, 2))
+def test_float64_arrays_are_written_as_json_writes_them_on_the_fast_path(values, shape):
+    a = np.array(values, dtype=np.float64).reshape([(6,), (2, 3), (3, 2)][shape])
+    assert io._atxt(a, False) == json.dumps(a.tolist(), separators=(",", ":"))
+    assert io._atxt(a, True) == json.dumps(a.ravel().tolist(), separators=(",", ":"))
+    assert io._atxt(a.T, False) == json.dumps(a.T.tolist(), separators=(",", ":"))  # not C-contiguous
+    assert io._atxt(a[::2], False) == json.dumps(a[::2].tolist(), separators=(",", ":"))
+    for v in values:  # scalars (io._ftxt's fast path)
+        assert io._ftxt(v) == json.dumps(float(v))
+
+
+def test_a_non_finite_array_is_refused_on_the_fast_path():
+    for bad in (np.array([1.0, np.nan, 2.0]), np.array([[0.5, -np.inf], [1.0, 2.0]])):
+        with pytest.raises(ValueError):
+            io._atxt(bad, False)
+
+
+def test_a_frames_rejected_candidates_are_written_at_once_as_one_at_a_time():
+    """io.estimates_json writes a frame's rejected candidates together (_rejected_texts): each the
+    text of estimate_json, which writes it alone; and a rejected candidate whose numbers orjson
+    writes otherwise than json (|x| < 1e-4) takes the one-at-a-time path, the same text."""
+    img = cv2.cvtColor(cv2.imread(str(REAL / "hyperkvasir_tile_r2c3_polyp.png")), cv2.COLOR_BGR2RGB)
+    h, w = img.shape[:2]
+    K = np.array([[140.0, 0, (w - 1) / 2], [0, 140.0, (h - 1) / 2], [0, 0, 1]])
+    ests = list(reconstruct(img, K))
+    rej = [e for e in ests if io._is_rejected(e)]
+    assert len(rej) >= 2
+    texts = io._rejected_texts(ests)
+    assert sum(t is not None for t in texts) == (len(rej) if io._orjson is not None else 0)
+    for e, t in zip(ests, texts):
+        assert t is None or t == io.estimate_json(e)
+    tiny = [dataclasses.replace(rej[0], bp_ray=np.array([1e-5, 0.0, -1.0]))] + rej[1:]
+    assert io.estimates_json(tiny) == _reference(tiny)
+    assert io.estimates_json(ests) == _reference(ests)

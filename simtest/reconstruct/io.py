@@ -103,6 +103,11 @@ from pathlib import Path
 
 import numpy as np
 
+try:  # optional: a float64 array's JSON text in C (estimates.jsonl's cost); the same text without it
+    import orjson as _orjson
+except ImportError:  # pragma: no cover - orjson is in the environment
+    _orjson = None
+
 from simtest._io import atomic_write_json, recover_output_folder, replace_output_folder
 from simtest._version import __version__
 
@@ -256,6 +261,8 @@ def estimate_to_dict(est, include_points: bool = False) -> dict:
 _jstr = json.encoder.encode_basestring_ascii
 #: The compact writer of estimates.jsonl, for the parts written as dicts (light-aware results).
 _json = json.JSONEncoder(allow_nan=False, separators=(",", ":")).encode
+#: orjson's option for numpy arrays (:func:`_atxt`).
+_ORJSON_NUMPY = 0 if _orjson is None else _orjson.OPT_SERIALIZE_NUMPY
 #: np.degrees is x * (180 / pi) in float64 (the same bits for a Python float).
 _DEG = 180.0 / np.pi
 
@@ -272,6 +279,10 @@ def _ftxt(x) -> str:
     """``float(x)`` as json.dumps writes it (float.__repr__), ``null`` for None."""
     if x is None:
         return "null"
+    if _orjson is not None:  # as _atxt: orjson's text where it is repr's
+        t = _orjson.dumps(float(x)).decode()
+        if "e" not in t and "n" not in t and ".0000" not in t:
+            return t
     t = repr(float(x))
     if "n" in t:  # nan, inf, -inf: json.dumps(allow_nan=False) refuses them too
         raise _not_finite(t)
@@ -284,6 +295,14 @@ def _atxt(x, flat: bool) -> str:
     if x is None:
         return "null"
     if type(x) is np.ndarray and x.dtype.char == "d" and (x.ndim == 1 or not flat):
+        if _orjson is not None and x.ndim <= 2 and x.flags.c_contiguous:
+            # orjson's shortest round-trip digits are float.__repr__'s; its text differs only in
+            # the notation of |x| < 1e-4 (positional: "0.0000...") and of |x| >= 1e16 (its
+            # exponent, "e"), and writes NaN and inf as null ("n"): those arrays (and any with
+            # ".0000" in a number, harmlessly) take repr's path (tests/test_io_json.py)
+            t = _orjson.dumps(x, option=_ORJSON_NUMPY).decode()
+            if "e" not in t and "n" not in t and ".0000" not in t:
+                return t
         t = repr(x.tolist())  # float64 already: skip the conversions (the same Python floats)
     else:
         a = np.asarray(x, dtype=np.float64)
@@ -428,7 +447,66 @@ def estimates_json(estimates, include_points: bool = False) -> str:
     ValueError
         If a value is not finite.
     """
-    return "[" + ",".join([estimate_json(e, include_points) for e in estimates]) + "]"
+    ests = list(estimates)
+    texts = _rejected_texts(ests)
+    return "[" + ",".join([estimate_json(e, include_points) if t is None else t
+                           for e, t in zip(ests, texts)]) + "]"
+
+
+def _is_rejected(est) -> bool:
+    """Whether :func:`estimate_json` writes ``est`` by its short path (a rejected candidate: no
+    isophotes, no light-aware results, no joint axis, a BP ray)."""
+    return (not est.isophotes and not getattr(est, "light_aware", None)
+            and getattr(est, "joint_cone_axis", None) is None and est.bp_ray is not None)
+
+
+#: The constant parts of a rejected candidate's text (:func:`estimate_json`'s short path).
+_REJ_HEAD = '"normal_from":"bp_ray","depth_mm":null,"normal_sigma_deg":null,"light_normals":null,' \
+            '"light_depths_mm":null,"light_aware":{}'
+_REJ_NORMALS = '"normals":{"paper":null,"paper_selected":null,"paper_selected_index":null,"cone_axis":null,' \
+               '"joint_cone_axis":null,"bp_ray":'
+_REJ_TAIL = ('},"ellipse":null,"conic":null,"fit_residual_px":null,"eigenvalue_gap":null,"isophotes":[]}')
+
+
+def _rows_txt(a: np.ndarray) -> list[str] | None:
+    """The texts of the rows of a float64 array (n, k), as :func:`_atxt` writes each row, from
+    one orjson call; None where that text is not json.dumps' (see :func:`_atxt`)."""
+    t = _orjson.dumps(a, option=_ORJSON_NUMPY).decode()
+    if "e" in t or "n" in t or ".0000" in t:
+        return None
+    return t[2:-2].split("],[")
+
+
+def _rejected_texts(ests: list) -> list:
+    """Each estimate's :func:`estimate_json` text where it is a rejected candidate's (most of a
+    real frame's thousands), written for all of them at once: their BP rays, BPs and
+    intensities each in one orjson call, the text of each then one format. None for the
+    others, and for all where orjson is missing or its text is not json.dumps' (they take
+    :func:`estimate_json`). The same text, character for character (``tests/test_io_fast.py``)."""
+    out: list = [None] * len(ests)
+    rej = [k for k, e in enumerate(ests) if _is_rejected(e)]
+    if _orjson is None or len(rej) < 2:
+        return out
+    try:
+        rays = np.array([ests[k].bp_ray for k in rej], dtype=np.float64)
+        bps = np.array([ests[k].bp_px for k in rej], dtype=np.float64)
+        heights = np.array([ests[k].bp_intensity for k in rej], dtype=np.float64)
+    except (TypeError, ValueError):  # ragged or odd values: one at a time
+        return out
+    if rays.shape != (len(rej), 3) or bps.shape != (len(rej), 2):
+        return out
+    ray_t, bp_t = _rows_txt(rays), _rows_txt(bps)
+    h_t = _orjson.dumps(heights, option=_ORJSON_NUMPY).decode()
+    if ray_t is None or bp_t is None or "e" in h_t or "n" in h_t or ".0000" in h_t:
+        return out
+    for k, ray, bp, h in zip(rej, ray_t, bp_t, h_t[1:-1].split(",")):
+        e = ests[k]
+        out[k] = (f'{{"normal":[{ray}],{_REJ_HEAD},"bp_px":[{bp}],"bp_intensity":{h},'
+                  f'"saturated":{"true" if e.saturated else "false"},"roi":{_roi_txt(e.roi)},'
+                  f'"status":{_jstr(e.status)},"detail":{_jstr(e.detail)},'
+                  f'"confidence":{_ftxt(getattr(e, "confidence", None))},{_REJ_NORMALS}[{ray}],'
+                  f'{_NO_LIGHT_AWARE_NORMALS}{_REJ_TAIL}')
+    return out
 
 
 def estimates_document(estimates, *, K, image=None, image_shape=None, dist_coeffs=None,
