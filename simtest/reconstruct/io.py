@@ -102,11 +102,7 @@ import os
 from pathlib import Path
 
 import numpy as np
-
-try:  # optional: a float64 array's JSON text in C (estimates.jsonl's cost); the same text without it
-    import orjson as _orjson
-except ImportError:  # pragma: no cover - orjson is in the environment
-    _orjson = None
+import orjson as _orjson  # a float64 array's JSON text in C: estimates.jsonl's cost on a video
 
 from simtest._io import atomic_write_json, recover_output_folder, replace_output_folder
 from simtest._version import __version__
@@ -262,7 +258,7 @@ _jstr = json.encoder.encode_basestring_ascii
 #: The compact writer of estimates.jsonl, for the parts written as dicts (light-aware results).
 _json = json.JSONEncoder(allow_nan=False, separators=(",", ":")).encode
 #: orjson's option for numpy arrays (:func:`_atxt`).
-_ORJSON_NUMPY = 0 if _orjson is None else _orjson.OPT_SERIALIZE_NUMPY
+_ORJSON_NUMPY = _orjson.OPT_SERIALIZE_NUMPY
 #: np.degrees is x * (180 / pi) in float64 (the same bits for a Python float).
 _DEG = 180.0 / np.pi
 
@@ -279,10 +275,9 @@ def _ftxt(x) -> str:
     """``float(x)`` as json.dumps writes it (float.__repr__), ``null`` for None."""
     if x is None:
         return "null"
-    if _orjson is not None:  # as _atxt: orjson's text where it is repr's
-        t = _orjson.dumps(float(x)).decode()
-        if "e" not in t and "n" not in t and ".0000" not in t:
-            return t
+    t = _orjson.dumps(float(x)).decode()  # as _atxt: orjson's text where it is repr's
+    if "e" not in t and "n" not in t and ".0000" not in t:
+        return t
     t = repr(float(x))
     if "n" in t:  # nan, inf, -inf: json.dumps(allow_nan=False) refuses them too
         raise _not_finite(t)
@@ -295,7 +290,7 @@ def _atxt(x, flat: bool) -> str:
     if x is None:
         return "null"
     if type(x) is np.ndarray and x.dtype.char == "d" and (x.ndim == 1 or not flat):
-        if _orjson is not None and x.ndim <= 2 and x.flags.c_contiguous:
+        if x.ndim <= 2 and x.flags.c_contiguous:
             # orjson's shortest round-trip digits are float.__repr__'s; its text differs only in
             # the notation of |x| < 1e-4 (positional: "0.0000...") and of |x| >= 1e16 (its
             # exponent, "e"), and writes NaN and inf as null ("n"): those arrays (and any with
@@ -485,7 +480,7 @@ def _rejected_texts(ests: list) -> list:
     :func:`estimate_json`). The same text, character for character (``tests/test_io_fast.py``)."""
     out: list = [None] * len(ests)
     rej = [k for k, e in enumerate(ests) if _is_rejected(e)]
-    if _orjson is None or len(rej) < 2:
+    if len(rej) < 2:
         return out
     try:
         rays = np.array([ests[k].bp_ray for k in rej], dtype=np.float64)
