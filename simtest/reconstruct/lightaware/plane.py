@@ -236,8 +236,7 @@ def photometric_fit(values, origin_uv, bp_uv, camera, rig: LightRig, *,
     for the covariance alike.
 
     With ``lobe="auto"`` the Phong fit runs first; where its residuals say the model is wrong
-    (``plane_misfit``), its depth is not observable (a lobe of the wrong shape trades the
-    distance against the roughness) or it does not converge, the GGX fit runs, started from its plane and
+    (``plane_misfit``) or it does not converge, the GGX fit runs, started from its plane and
     from the GGX roughness of the same peak curvature. The one kept (:func:`_choose_lobe`): a
     fit that converged over one that did not; a fit whose residuals pass the misfit test over
     one whose residuals do not; of two that pass, the lower Bayesian information criterion
@@ -281,7 +280,7 @@ def photometric_fit(values, origin_uv, bp_uv, camera, rig: LightRig, *,
                   floor_level=floor_level, floor_refit=floor_refit, floor_step=floor_step)
         pho = photometric_fit(values, origin_uv, bp_uv, camera, rig, start_normal=start_normal,
                               start_roughness=start_roughness, lobe="phong", **kw)
-        if pho.ok or pho.status == "too_few_points":
+        if pho.ok or pho.status in ("depth_not_observable", "too_few_points"):
             return replace(pho, detail=f"{pho.detail}; phong lobe fits" if pho.detail else "phong lobe fits")
         ggx = photometric_fit(values, origin_uv, bp_uv, camera, rig,
                               start_normal=pho.normal if pho.has_normal else start_normal,
