@@ -102,10 +102,17 @@ def test_clipped_channels_are_censored_or_left_out():
     assert r.distance_mm == pytest.approx(20.0, rel=1e-3)
 
 
-def test_grey_tissue_falls_back_to_the_darkest_channel():
-    # body colours near white: the projection's noise gain would be far above its bound, so the
-    # fit runs on one channel (the one whose median is least) and says so
-    rgb, s, K, N, depth, bp = _colour_plane(0, base=np.array([0.5, 0.49, 0.48]), absorb=np.full(3, 0.5))
+@pytest.mark.parametrize("base, absorb", [
+    # body colours near white: the projection's noise gain would be far above its bound
+    (np.array([0.5, 0.49, 0.48]), np.array([0.5, 0.2, 0.6])),
+    # one body colour (vessels that darken every channel alike): projecting out the leading
+    # colour alone would leave the rest of the texture in (on the colon wall's JPEG frames such
+    # fits passed 6 to 7 deg off, their depth half the true one)
+    (BASE, np.full(3, 0.5)),
+])
+def test_no_two_body_colours_falls_back_to_the_darkest_channel(base, absorb):
+    # the fit runs on one channel (the one whose median is least) and says so
+    rgb, s, K, N, depth, bp = _colour_plane(0, base=base, absorb=absorb)
     assert lam.specular_image(rgb) is None
     r = la.photometric_fit(rgb, (0, 0), bp, K, RIG, diffuse=True, lobe="phong")
     assert "channel 2" in r.detail

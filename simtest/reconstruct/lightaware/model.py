@@ -584,10 +584,12 @@ def specular_image(rgb, clip_level=None, *, ring=None):
     of the peak (:data:`_BODY_TRIM_SHARE`). A share e of white left in a body colour leaks
     e times its shading into the values: the diffuse column takes the shading's smooth part, e
     times its texture stays. A second body colour is used only where the border's second singular
-    value stands above its third (:data:`_BODY_SECOND_SNR`); where the two-colour projection's
-    noise gain ``|w|`` exceeds :data:`BODY_PROJECTION_MAX_GAIN` the leading colour alone is
-    projected out, and where that too exceeds it, None is returned (the caller fits one
-    channel).
+    value stands above its third (:data:`_BODY_SECOND_SNR`); where the border holds one body
+    colour, or the projection's noise gain ``|w|`` exceeds :data:`BODY_PROJECTION_MAX_GAIN`,
+    None is returned and the caller fits one channel. Not the leading colour alone: that leaves
+    the texture's second colour in the values (the vessels), and on the endoscope suite's colon
+    wall in JPEG frames (whose subsampled chroma hides the second colour on the border) such
+    fits passed 6 to 7 deg off with their depth half the true one.
 
     Parameters
     ----------
@@ -605,8 +607,8 @@ def specular_image(rgb, clip_level=None, *, ring=None):
         ``(values, lower, missing, w)``: ``values`` (H, W) ``w . I``; ``lower`` (H, W) bool where a
         pixel's value is a lower bound (clipped channels, each with ``w_c >= 0``: censored data);
         ``missing`` (H, W) bool where a clipped channel has ``w_c < 0`` (no bound: left out);
-        ``w`` (3,). None where no projection's gain is within the bound, or the border has fewer
-        than 3 unclipped pixels.
+        ``w`` (3,). None where the border holds no second body colour, the projection's gain is
+        above the bound, or the border has fewer than 3 unclipped pixels.
 
     Raises
     ------
@@ -662,20 +664,19 @@ def specular_image(rgb, clip_level=None, *, ring=None):
 
 def _body_weights(colours) -> np.ndarray | None:
     """The projection's weights ``w`` (3,) from body colours (M, 3) (:func:`specular_image`):
-    orthogonal to their two (or one) leading right singular vectors, ``w . (1, 1, 1) = 1``, the
-    noise gain ``|w|`` within :data:`BODY_PROJECTION_MAX_GAIN`; None where none is."""
+    orthogonal to their two leading right singular vectors, ``w . (1, 1, 1) = 1``, the noise gain
+    ``|w|`` within :data:`BODY_PROJECTION_MAX_GAIN`; None where the colours hold no second one
+    or the gain is above it."""
     sv, Vt = np.linalg.svd(colours, full_matrices=False)[1:]
     one = np.ones(3)
     # a second body colour only where the colours hold one: its singular value well above the
     # third's (the noise's and what white remains) and above round-off
-    ks = (2, 1) if sv[1] > _BODY_SECOND_SNR * sv[2] and sv[1] > 1e-9 * sv[0] else (1,)
-    for k in ks:
-        B = Vt[:k].T
-        P = np.eye(3) - B @ B.T  # the rows of Vt are orthonormal
-        den = float(one @ P @ one)
-        if not den > 0:
-            continue
-        w = (P @ one) / den
-        if float(np.linalg.norm(w)) <= BODY_PROJECTION_MAX_GAIN:
-            return w
-    return None
+    if not (sv[1] > _BODY_SECOND_SNR * sv[2] and sv[1] > 1e-9 * sv[0]):
+        return None
+    B = Vt[:2].T
+    P = np.eye(3) - B @ B.T  # the rows of Vt are orthonormal
+    den = float(one @ P @ one)
+    if not den > 0:
+        return None
+    w = (P @ one) / den
+    return w if float(np.linalg.norm(w)) <= BODY_PROJECTION_MAX_GAIN else None

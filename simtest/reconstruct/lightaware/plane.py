@@ -96,7 +96,9 @@ def photometric_fit(values, origin_uv, bp_uv, camera, rig: LightRig, *,
         body colours, measured on the ROI's border, projected out
         (:func:`~simtest.reconstruct.lightaware.model.specular_image`: the albedo's texture
         leaves the fit), or where they are too near white, the channel where the tissue is
-        darkest. The estimate's detail says which.
+        darkest. The estimate's detail says which. A projected fit that passes is checked on
+        the darkest channel too (started from its solution): where that fit misfits, so does
+        the estimate (a curved patch is curved in every channel).
     origin_uv : array_like of shape (2,)
         Pixel (u, v) of ``values[0, 0]`` in the image.
     bp_uv : array_like of shape (2,)
@@ -291,6 +293,7 @@ def photometric_fit(values, origin_uv, bp_uv, camera, rig: LightRig, *,
     name = "photometric_fit"
     lower = missing = None  # the colour path's per-pixel censoring (lower bounds) and gaps
     colour_detail = ""
+    rgb_in, floor_in, clip_in = values, floor_level, clip_level
     if np.ndim(values) == 3:
         values, clip_level, lower, missing, colour_detail = _colour_values(values, clip_level)
         if lower is not None:
@@ -746,7 +749,36 @@ def photometric_fit(values, origin_uv, bp_uv, camera, rig: LightRig, *,
                   post=post)
     if colour_detail:
         est = replace(est, detail=f"{est.detail}; {colour_detail}" if est.detail else colour_detail)
-    return replace(est, lobe="ggx" if ggx else "phong", n_residuals=int(len(yn)))
+    est = replace(est, lobe="ggx" if ggx else "phong", n_residuals=int(len(yn)))
+    if lower is not None and est.status in ("ok", "depth_not_observable"):
+        # the shape check on the darkest channel: a curved patch is curved in every channel, and
+        # the projection's residual can hide it (a JPEG frame's chroma, subsampled and blocky,
+        # correlates the projected residual over blocks, against which the score test weighs
+        # the curvature's pattern: on the endoscope suite's colon wall every JPEG frame's
+        # projected fit passed 6 to 15 deg off, where the darkest channel's misfits)
+        c, clip_c = _darkest(rgb_in, clip_in)
+        chan = photometric_fit(np.asarray(rgb_in, dtype=np.float64)[..., c], origin_uv, bp_uv, camera,
+                               rig, clip_level=clip_c, nominal_depth_mm=nominal_depth_mm,
+                               start_normal=est.normal, loss=loss, f_scale=f_scale,
+                               supersample=supersample, n_start_depths=0, diffuse=diffuse,
+                               censor=censor, max_pixels=max_pixels, refine_all=refine_all,
+                               max_nfev=max_nfev, lobe=lobe, floor_level=floor_in,
+                               floor_refit=floor_refit, floor_step=floor_step)
+        if chan.status == "plane_misfit":
+            est = replace(est, status="plane_misfit", depth_mm=None, depth_sigma_mm=None,
+                          distance_mm=None, detail=f"channel {c}'s fit misfits ({chan.detail}); "
+                                                   f"{est.detail}")
+    return est
+
+
+def _darkest(rgb, clip_level) -> tuple[int, float | None]:
+    """The channel of an RGB ROI whose median is least (where the tissue is darkest) and its
+    clip level (``clip_level`` one number or each channel's; None)."""
+    rgb = np.asarray(rgb, dtype=np.float64)
+    c = int(np.argmin(np.median(rgb.reshape(-1, 3), axis=0)))
+    clip = None if clip_level is None else float(np.broadcast_to(
+        np.asarray(clip_level, dtype=np.float64).reshape(-1), (3,))[c])
+    return c, clip
 
 
 def _colour_values(rgb, clip_level):
@@ -754,9 +786,9 @@ def _colour_values(rgb, clip_level):
 
     Returns ``(values, clip_level, lower, missing, detail)``: the body-colour projection of
     :func:`~simtest.reconstruct.lightaware.model.specular_image` (no scalar clip level; its
-    censored and missing pixels), or, where no projection is within its noise gain, the channel
-    whose median is least (where the tissue is darkest) with that channel's clip level and no
-    masks.
+    censored and missing pixels), or, where it gives none (the border holds one body colour, or
+    white lies too near them), the channel whose median is least (where the tissue is darkest)
+    with that channel's clip level and no masks.
     """
     rgb = np.asarray(rgb, dtype=np.float64)
     out = specular_image(rgb, clip_level)
@@ -764,10 +796,9 @@ def _colour_values(rgb, clip_level):
         values, lower, missing, w = out
         return (values, None, lower, missing,
                 "body colours projected out (w = " + ", ".join(f"{x:.3g}" for x in w) + ")")
-    c = int(np.argmin(np.median(rgb.reshape(-1, 3), axis=0)))
-    clip = None if clip_level is None else float(np.broadcast_to(
-        np.asarray(clip_level, dtype=np.float64).reshape(-1), (3,))[c])
-    return rgb[..., c], clip, None, None, f"channel {c} (the body colours are too near white to project out)"
+    c, clip = _darkest(rgb, clip_level)
+    return rgb[..., c], clip, None, None, (f"channel {c} (no two body colours to project out: the "
+                                           "border holds one, or white lies too near them)")
 
 
 def _bic(est: LightAwareEstimate) -> float:
