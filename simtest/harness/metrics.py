@@ -16,10 +16,18 @@ from collections import Counter
 
 import numpy as np
 
-__all__ = ["summarise", "case_metrics", "STAT_KEYS"]
+__all__ = ["summarise", "case_metrics", "STAT_KEYS", "MEDIAN_SUFFIX", "MEDIAN_DIAGNOSTICS"]
 
 #: The statistics reported for each case and estimator (degrees, except failure_rate and counts).
 STAT_KEYS = ("mean", "std", "median", "p5", "p95", "min", "max")
+
+#: Diagnostics (by suffix) whose median is reported beside their mean, as ``<key>_median``: a
+#: depth error's distribution is skewed (a few highlights far off lift the mean), and issue 39's
+#: must-hold on the flat mucosa bounds its median.
+MEDIAN_DIAGNOSTICS = ("_depth_err_pct",)
+
+#: The suffix of a diagnostic's median (``recommended_depth_err_pct_median``).
+MEDIAN_SUFFIX = "_median"
 
 
 def summarise(errors, causes) -> dict:
@@ -76,7 +84,9 @@ def case_metrics(result) -> dict:
     dict
         ``{"estimators": {name: summarise(...)}, "diagnostics": {extra: mean or None}}``; a
         diagnostic's mean is over its finite values (eigenvalue gap, fit residual in px, BP error
-        in px, curvatures in 1/mm), None if it has none.
+        in px, curvatures in 1/mm), None if it has none. A diagnostic whose key ends with one of
+        :data:`MEDIAN_DIAGNOSTICS` (the depth errors, %) has its median over its finite values
+        beside it, as ``<key>_median``.
 
     Raises
     ------
@@ -89,4 +99,6 @@ def case_metrics(result) -> dict:
         v = np.asarray(v, dtype=np.float64)
         f = v[np.isfinite(v)]
         extras[k] = float(np.mean(f)) if f.size else None
+        if k.endswith(MEDIAN_DIAGNOSTICS):
+            extras[k + MEDIAN_SUFFIX] = float(np.median(f)) if f.size else None
     return {"estimators": est, "diagnostics": extras}
