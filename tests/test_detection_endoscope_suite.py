@@ -2,10 +2,14 @@
 least 0.95 against the rendered targets and find at least 0.9 of them (pooled).
 
 The committed report (``reports/detection/<date>-endoscope``, ``simtest evaluate detection
-endoscope``) scores the suite's 5 realisations of every setting (135 renders, about two minutes on
-one core); this test scores one realisation of each (27 renders at the seeds ``validate`` gives
-them), so each of the suite's sweeps (guide offset, working distance, micro-relief, film roughness,
-read noise, JPEG quality) is in it.
+endoscope``) scores every realisation of every setting (189 renders). This test scores one
+realisation of each setting of the six sweeps the must-hold was set on (27 renders at the seeds
+``validate`` gives them): guide offset and working distance on the flat mucosa; micro-relief, film
+roughness, read noise and JPEG quality on the colon wall. The flat-mucosa sweeps of relief, film
+roughness, noise and JPEG (``plane_*``, added for the light-aware fits) are scored in the report
+and do not meet these bars: there the two guides' lobes, 17 px apart, break into micro-relief
+sparkle or drown in noise and JPEG blocks while the rendered truth keeps one target (one
+realisation of them with the six: ok precision 0.939, recall 0.705).
 """
 
 from __future__ import annotations
@@ -22,8 +26,11 @@ OK_RECALL_MIN = 0.9
 @pytest.mark.render
 def test_ok_estimates_on_the_endoscope_suite_meet_the_rendered_bars():
     frames = suite_frames("endoscope", realisations=1)
-    assert {f.name.split("@")[0] for f in frames} == {"guide_offset", "working_distance", "micro_relief",
-                                                      "film_roughness", "read_noise", "jpeg_quality"}
+    assert {f.name.split("@")[0] for f in frames} == {
+        "guide_offset", "working_distance", "micro_relief", "film_roughness", "read_noise", "jpeg_quality",
+        "plane_relief", "plane_film_roughness", "plane_read_noise", "plane_jpeg_quality"}
+    frames = [f for f in frames if not f.name.startswith("plane_")]
+    assert len(frames) == 27
     pooled = evaluate_frames(frames)["pooled"]
     assert pooled["targets"] >= 20  # every sweep shows targets, not a few frames' worth
     assert pooled["precision_ok"] >= OK_PRECISION_MIN, pooled
