@@ -368,6 +368,10 @@ def light_aware_estimates(image, est, camera, rig: LightRig, *, nominal_depth_mm
     for name, r in out.items():
         r = depth_within_ceiling(r)
         depth = r.depth_mm if r.depth_mm is not None else nominal_depth_mm
+        if r.depth_mm is None and r.depth_range_mm is not None:
+            # a depth the fit cannot vouch for: the BP ray's error at the farthest depth it
+            # cannot exclude, its least (the nominal 20 mm overstated it 3 times on the liver)
+            depth = r.depth_range_mm[1]
         out[name] = dataclasses.replace(r, bp_ray_error_deg=bp_ray_error_deg(ray, depth, rig))
     return out
 

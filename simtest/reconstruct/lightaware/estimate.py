@@ -88,6 +88,12 @@ class LightAwareEstimate:
     light_normal_sigmas_deg : ndarray of shape (J,) or None
         :func:`cubic_patch_fit` only: the 1-sigma angular uncertainty of each of
         ``light_normals``, degrees; None where those are.
+    depth_range_mm : tuple of float or None
+        :func:`quadric_fit` under one light: the depths (near, far) of the specular point, mm,
+        that the data cannot exclude (the fitted depth within
+        :data:`~simtest.reconstruct.lightaware.patch.ONE_LIGHT_DEPTH_FACTOR` either way: the
+        third-order shape the quadric leaves out trades with the depth); the depth itself is
+        then None. None elsewhere.
     """
 
     estimator: str
@@ -109,6 +115,7 @@ class LightAwareEstimate:
     lobe: str | None = None
     n_residuals: int = 0
     light_normal_sigmas_deg: np.ndarray | None = None
+    depth_range_mm: tuple[float, float] | None = None
 
     @property
     def ok(self) -> bool:
