@@ -14,7 +14,8 @@ OK = "ok"
 STATUSES: dict[str, str] = {
     OK: "normal and depth estimated",
     "depth_not_observable": "normal estimated; the depth is not (epsilon/d too small: the image "
-                            "hardly depends on the distance)",
+                            "hardly depends on the distance; or a curved patch under one light, "
+                            "whose depth trades with its third-order shape)",
     "not_converged": "the least-squares fit stopped without meeting its tolerances",
     "too_few_points": "fewer isophote points or unclipped pixels than parameters",
     "multi_light_rig": "the isocurve model (eq. 2) holds for one light; use photometric_fit",
