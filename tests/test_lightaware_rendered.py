@@ -85,11 +85,16 @@ def test_two_light_merged_highlight_on_renders():
 CURVED_MEDIAN_DEG = 1.0
 
 
-def test_rendered_sphere_is_recommended_the_quadric_patch():
+def test_rendered_sphere_under_one_light_is_recommended_the_bp_ray():
     # The lightaware-curved suite's sphere (radius 20 mm, 50 mm away, Phong n = 30, falloff
     # kept), lit 5 and 15 mm off the camera (epsilon/d 0.1 and 0.3), two seeds each: the plane
-    # fit reports its misfit, the quadric patch is run and recommended.
-    errs, bp_errs = [], []
+    # fit reports its misfit and the quadric patch is run. Its normal is good here (a sphere has
+    # no third-order shape: suite medians 0.31 and 0.79 deg), but under one light its depth
+    # trades with the third-order shape the data cannot exclude (on the liver the same fit erred
+    # 3.8 deg, its depth 57 % short, where the BP ray erred 2.9): no depth is released, its sigma
+    # spans the depths within a factor 2.5, and the BP ray is recommended (issue 39: the
+    # one-light curved target is withdrawn).
+    errs = []
     for eps in (5.0, 15.0):
         for seed in (1, 2):
             spec = with_overrides(load_scene("sphere"), {"camera.width_px": 200,
@@ -102,12 +107,13 @@ def test_rendered_sphere_is_recommended_the_quadric_patch():
             h = res.highlights[0]
             est = _matched(ests, h.bp_px)
             assert est.light_aware["photometric_fit"].status == "plane_misfit"
+            q = est.light_aware["quadric_fit"]
+            assert q.status != "ok" and q.depth_mm is None, q
             rec = recommend(est)
-            assert rec.normal_from == "quadric_fit", est.light_aware["quadric_fit"]
-            errs.append(angle_between_deg(rec.normal, h.normal))
-            bp_errs.append(angle_between_deg(est.bp_ray, h.normal))
-    assert float(np.median(errs)) <= CURVED_MEDIAN_DEG, errs
-    assert float(np.median(errs)) < float(np.median(bp_errs)) / 3, (errs, bp_errs)
+            assert rec.normal_from == "bp_ray", q
+            if q.has_normal:
+                errs.append(angle_between_deg(q.normal, h.normal))
+    assert len(errs) >= 3 and float(np.median(errs)) <= CURVED_MEDIAN_DEG, errs
 
 
 def _curved_suite_errors(sweep, realisations=(0, 1)):
@@ -126,17 +132,17 @@ def _curved_suite_errors(sweep, realisations=(0, 1)):
 
 
 @pytest.mark.parametrize("sweep", ["cylinder_offset", "saddle_offset"])
-def test_rendered_cylinder_and_saddle_are_recommended_a_normal_within_the_median(sweep):
+def test_rendered_cylinder_and_saddle_under_one_light_are_recommended_the_bp_ray(sweep):
     # The suite's cylinder (radius 15 mm, 55 mm away) and saddle (r1 = 80 mm, r2 = 150 mm, 60 mm
-    # away) at epsilon/d 0.1 and 0.3, two realisations each: the median over the four is the
-    # must-hold's (the per-epsilon/d medians over six realisations are the suite's).
+    # away) at epsilon/d 0.1 and 0.3, two realisations each: under one light the quadric's depth
+    # is not observable (its third-order shape trades with it) and the BP ray is kept on every
+    # highlight, as on the liver and colon (the quadric's own medians there were 0.4 to 0.73 deg:
+    # the suite's quadric_fit column).
     rows = _curved_suite_errors(sweep)
     eps_d = sorted(r[0] for r in rows)
     assert eps_d[0] == pytest.approx(0.1, abs=0.01) and eps_d[-1] == pytest.approx(0.31, abs=0.02)
-    rec = [r[1] for r in rows]
-    bp = [r[2] for r in rows]
-    assert float(np.median(rec)) <= CURVED_MEDIAN_DEG, rows
-    assert float(np.median(rec)) < float(np.median(bp)) / 3, rows
+    for eps_d, rec, bp in rows:
+        assert rec == bp, (eps_d, rec, bp)
 
 
 def test_rendered_colon_recommended_normal_is_never_worse_than_the_bp_ray():

@@ -14,7 +14,8 @@ OK = "ok"
 STATUSES: dict[str, str] = {
     OK: "normal and depth estimated",
     "depth_not_observable": "normal estimated; the depth is not (epsilon/d too small: the image "
-                            "hardly depends on the distance)",
+                            "hardly depends on the distance; or a curved patch under one light, "
+                            "whose depth trades with its third-order shape)",
     "not_converged": "the least-squares fit stopped without meeting its tolerances",
     "too_few_points": "fewer isophote points or unclipped pixels than parameters",
     "multi_light_rig": "the isocurve model (eq. 2) holds for one light; use photometric_fit",
@@ -88,6 +89,12 @@ class LightAwareEstimate:
     light_normal_sigmas_deg : ndarray of shape (J,) or None
         :func:`cubic_patch_fit` only: the 1-sigma angular uncertainty of each of
         ``light_normals``, degrees; None where those are.
+    depth_range_mm : tuple of float or None
+        :func:`quadric_fit` under one light: the depths (near, far) of the specular point, mm,
+        that the data cannot exclude (the fitted depth within
+        :data:`~simtest.reconstruct.lightaware.patch.ONE_LIGHT_DEPTH_FACTOR` either way: the
+        third-order shape the quadric leaves out trades with the depth); the depth itself is
+        then None. None elsewhere.
     """
 
     estimator: str
@@ -109,6 +116,7 @@ class LightAwareEstimate:
     lobe: str | None = None
     n_residuals: int = 0
     light_normal_sigmas_deg: np.ndarray | None = None
+    depth_range_mm: tuple[float, float] | None = None
 
     @property
     def ok(self) -> bool:
