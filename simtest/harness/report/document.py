@@ -61,6 +61,7 @@ _DIAG_TEXT = {
 #: Texts of the per-estimator diagnostics ``<estimator><suffix>``.
 _DIAG_SUFFIX_TEXT = {
     "_depth_err_pct": "{est}: depth error |depth / true - 1|, %",
+    "_depth_err_pct_median": "{est}: median depth error |depth / true - 1|, %",
     "_depth_rel_sigma": "{est}: relative 1-sigma of its depth at the noise floor (above "
                         f"{TOL.depth_rel_sigma_max:g}: not observable)",
 }
