@@ -14,7 +14,7 @@ pairwise sums against a running sum) and call the same LAPACK routines of two Op
 from __future__ import annotations
 
 import numpy as np
-from hypothesis import given, settings
+from hypothesis import example, given, settings
 from hypothesis import strategies as st
 
 from simtest.reconstruct import _fit_kernels
@@ -110,11 +110,15 @@ def _assert_agree(got, want):
     d = abs(got.ellipse.angle_rad - want.ellipse.angle_rad)
     d = min(d, np.pi - d)
     assert d * (a - b) <= REL * size * cond
-    assert abs(got.residual_px - want.residual_px) <= RESIDUAL_REL * want.residual_px + RESIDUAL_ABS_PX
+    # the residual of points on a thin ellipse is read through the same ill-conditioned centre and
+    # axes: its rounding floor grows by cond too (seed 121, k 162: a 0.55 x 0.029 px ellipse, exact
+    # points, residuals 6.0e-8 and 4.9e-8 px)
+    assert abs(got.residual_px - want.residual_px) <= RESIDUAL_REL * want.residual_px + RESIDUAL_ABS_PX * cond
 
 
 @given(seed=st.integers(0, 2**32 - 1), k=st.integers(1, 200))
 @settings(max_examples=60, deadline=None)
+@example(seed=121, k=162)
 def test_compiled_fit_agrees_with_the_numpy_form(seed, k):
     pts, counts = _batch(np.random.default_rng(seed), k)
     got = fit_stacked(pts, counts, compiled=True)
