@@ -16,7 +16,7 @@ from simtest.reconstruct import lightaware as la
 from simtest.reconstruct.lightaware import model as lam
 from simtest.simulate.offset import rig_plane_image
 from test_lightaware import plane_case
-from test_lightaware_sensor import RIG
+from test_lightaware_sensor import RIG, rig_diffuse_shading
 
 #: Mucosa's base colour and its vessels' absorption per channel (as the renderer's tissue).
 BASE = np.array([0.75, 0.26, 0.20])
@@ -34,10 +34,7 @@ def _colour_plane(seed, size=240, base=BASE, absorb=ABSORB):
     _, K, N, depth, bp = plane_case(20.0, 30.0, RIG, size=size)
     spec = rig_plane_image(K, (size, size), N, 20.0, RIG, SHARP)
     H, W = spec.shape
-    vv, uu = np.mgrid[0:H, 0:W]
-    dT = np.ascontiguousarray(lam._rays(K, np.column_stack([uu.ravel(), vv.ravel()]).astype(float)).T)
-    arr = lam._rig_arrays(RIG)
-    D = lam._rig_diffuse(dT, lam._ray_light(arr[0], dT), N, 20.0, arr).reshape(H, W)
+    D = rig_diffuse_shading(K, spec.shape, N, 20.0, RIG)
     rng = np.random.default_rng(seed)
     var = gaussian_filter(rng.normal(size=(H, W)), 8.0)
     g = gaussian_filter(rng.normal(size=(H, W)), 4.0)

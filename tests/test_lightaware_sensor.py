@@ -74,6 +74,17 @@ def test_camera_file_response_round_trip_and_errors(tmp_path):
         SensorResponse.from_json([1, 2])
 
 
+def rig_diffuse_shading(K, shape, normal, depth_mm, rig):
+    """The rig's Lambertian shading (unit albedo) of the plane with ``normal`` at ``depth_mm``
+    along the optical axis, on an image of ``shape`` (H, W) through ``K``: the diffuse column of
+    the light-aware image model, per pixel."""
+    H, W = shape[:2]
+    vv, uu = np.mgrid[0:H, 0:W]
+    dT = np.ascontiguousarray(lam._rays(K, np.column_stack([uu.ravel(), vv.ravel()]).astype(float)).T)
+    arr = lam._rig_arrays(rig)
+    return lam._rig_diffuse(dT, lam._ray_light(arr[0], dT), normal, depth_mm, arr).reshape(H, W)
+
+
 @pytest.mark.parametrize("albedo", [0.3, 1.0])
 @pytest.mark.parametrize("clip", [None, 0.6])
 def test_diffuse_column_and_censored_pixels(albedo, clip):
@@ -82,11 +93,7 @@ def test_diffuse_column_and_censored_pixels(albedo, clip):
     # shading for roughness and misfits (0.02 to 0.2 deg off); with it the fit is exact again,
     # and so with the top 40 % clipped, left out or censored.
     img, K, N, depth, bp = plane_case(20.0, 30.0, RIG, size=160)
-    H, W = img.shape
-    vv, uu = np.mgrid[0:H, 0:W]
-    dT = np.ascontiguousarray(lam._rays(K, np.column_stack([uu.ravel(), vv.ravel()]).astype(float)).T)
-    arr = lam._rig_arrays(RIG)
-    D = lam._rig_diffuse(dT, lam._ray_light(arr[0], dT), N, 20.0, arr).reshape(H, W)
+    D = rig_diffuse_shading(K, img.shape, N, 20.0, RIG)
     y = img + albedo * D / D.max() * img.max() + 0.01 * img.max()
     level = None if clip is None else clip * y.max()
     if level is not None:
@@ -158,11 +165,7 @@ def _textured_plane(seed, size=120):
     from scipy.ndimage import gaussian_filter
 
     img, K, N, depth, bp = plane_case(20.0, 30.0, RIG, size=size)
-    H, W = img.shape
-    vv, uu = np.mgrid[0:H, 0:W]
-    dT = np.ascontiguousarray(lam._rays(K, np.column_stack([uu.ravel(), vv.ravel()]).astype(float)).T)
-    arr = lam._rig_arrays(RIG)
-    D = lam._rig_diffuse(dT, lam._ray_light(arr[0], dT), N, 20.0, arr).reshape(H, W)
+    D = rig_diffuse_shading(K, img.shape, N, 20.0, RIG)
     rng = np.random.default_rng(seed)
     tex = gaussian_filter(rng.normal(size=img.shape), 3.0)
     y = (img / img.max() * 0.5 + (1 + 0.2 * tex / tex.std()) * D / D.max() * 0.4 + 0.02
