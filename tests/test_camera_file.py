@@ -153,6 +153,9 @@ def test_light_rig_validation():
     rig = LightRig((Light([1, 2, 3]),))
     np.testing.assert_array_equal(rig.positions, [[1.0, 2.0, 3.0]])
     assert not rig.is_colocated
+    # separate lights: two places, not two lights (a doubled light at one place is one light's lobe)
+    assert not rig.has_separate_lights and not LightRig((Light([1, 2, 3]), Light([1, 2, 3]))).has_separate_lights
+    assert LightRig((Light([-4, 0, 0]), Light([4, 0, 0]))).has_separate_lights
 
 
 @pytest.mark.parametrize(

@@ -165,6 +165,12 @@ class LightRig:
         return all(light.position_mm == (0.0, 0.0, 0.0) for light in self.lights)
 
     @property
+    def has_separate_lights(self) -> bool:
+        """True when at least two lights sit at different places (their lobes can differ, and
+        two highlights can fix a curved patch's depth that one leaves free)."""
+        return len({light.position_mm for light in self.lights}) >= 2
+
+    @property
     def positions(self) -> np.ndarray:
         """ndarray of shape (L, 3): light positions, mm, camera frame."""
         return np.array([light.position_mm for light in self.lights])

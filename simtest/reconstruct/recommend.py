@@ -224,12 +224,12 @@ class Recommendation:
 
 
 def _offset_rig(rig) -> bool:
-    return rig is not None and not all(lt.position_mm == (0.0, 0.0, 0.0) for lt in rig.lights)
+    return rig is not None and not rig.is_colocated
 
 
 def _several_lights(rig) -> bool:
     """Whether the rig has at least two lights at different places (their lobes can differ)."""
-    return rig is not None and len({tuple(lt.position_mm) for lt in rig.lights}) >= 2
+    return rig is not None and rig.has_separate_lights
 
 
 def light_aware_estimates(image, est, camera, rig: LightRig, *, nominal_depth_mm: float = 20.0,
@@ -543,7 +543,7 @@ def _stated_sigma(r: LightAwareEstimate) -> float | None:
     per-light truth is compared with that light's normal, whose sigma also carries the
     curvature's: on the two-light spheres and cylinders 20 to 40 times the apex's)."""
     sig = r.normal_sigma_deg
-    ls = getattr(r, "light_normal_sigmas_deg", None)
+    ls = r.light_normal_sigmas_deg
     if sig is None or r.light_normals is None or ls is None:
         return sig
     ls = np.asarray(ls, dtype=np.float64)

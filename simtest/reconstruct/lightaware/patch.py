@@ -314,7 +314,7 @@ def quadric_fit(values, origin_uv, bp_uv, camera, rig: LightRig, *,
     depth_sigma = (float(s_hat * np.sqrt(max(max(c[2, 2] for c in covs), 0.0) + excess))
                    if observable and covs else None)
     depth_range = None
-    if len({tuple(lt.position_mm) for lt in rig.lights}) < 2:
+    if not rig.has_separate_lights:
         # one light: the third-order shape the quadric leaves out trades with the depth (Notes)
         sigma_deg, depth_range = _one_light_band(x, sigma_deg, d[:1], b_ray, rig_arr, Lm)
         if status == "ok":
