@@ -259,6 +259,14 @@ _jstr = json.encoder.encode_basestring_ascii
 _json = json.JSONEncoder(allow_nan=False, separators=(",", ":")).encode
 #: orjson's option for numpy arrays (:func:`_atxt`).
 _ORJSON_NUMPY = _orjson.OPT_SERIALIZE_NUMPY
+
+
+def _orjson_is_repr(t: str) -> bool:
+    """Whether orjson's text ``t`` of finite floats is the one json.dumps writes (float.__repr__):
+    it differs only in the notation of |x| < 1e-4 (positional: "0.0000...") and of |x| >= 1e16
+    (its exponent, "e"), and writes NaN and inf as null ("n"); a text with none of these (or with
+    ".0000" inside a number, harmlessly refused) is repr's."""
+    return "e" not in t and "n" not in t and ".0000" not in t
 #: np.degrees is x * (180 / pi) in float64 (the same bits for a Python float).
 _DEG = 180.0 / np.pi
 
@@ -276,7 +284,7 @@ def _ftxt(x) -> str:
     if x is None:
         return "null"
     t = _orjson.dumps(float(x)).decode()  # as _atxt: orjson's text where it is repr's
-    if "e" not in t and "n" not in t and ".0000" not in t:
+    if _orjson_is_repr(t):
         return t
     t = repr(float(x))
     if "n" in t:  # nan, inf, -inf: json.dumps(allow_nan=False) refuses them too
@@ -291,12 +299,10 @@ def _atxt(x, flat: bool) -> str:
         return "null"
     if type(x) is np.ndarray and x.dtype.char == "d" and (x.ndim == 1 or not flat):
         if x.ndim <= 2 and x.flags.c_contiguous:
-            # orjson's shortest round-trip digits are float.__repr__'s; its text differs only in
-            # the notation of |x| < 1e-4 (positional: "0.0000...") and of |x| >= 1e16 (its
-            # exponent, "e"), and writes NaN and inf as null ("n"): those arrays (and any with
-            # ".0000" in a number, harmlessly) take repr's path (tests/test_io_json.py)
+            # orjson's shortest round-trip digits are float.__repr__'s; where its text is not
+            # repr's (_orjson_is_repr) the array takes repr's path (tests/test_io_fast.py)
             t = _orjson.dumps(x, option=_ORJSON_NUMPY).decode()
-            if "e" not in t and "n" not in t and ".0000" not in t:
+            if _orjson_is_repr(t):
                 return t
         t = repr(x.tolist())  # float64 already: skip the conversions (the same Python floats)
     else:
@@ -467,7 +473,7 @@ def _rows_txt(a: np.ndarray) -> list[str] | None:
     """The texts of the rows of a float64 array (n, k), as :func:`_atxt` writes each row, from
     one orjson call; None where that text is not json.dumps' (see :func:`_atxt`)."""
     t = _orjson.dumps(a, option=_ORJSON_NUMPY).decode()
-    if "e" in t or "n" in t or ".0000" in t:
+    if not _orjson_is_repr(t):
         return None
     return t[2:-2].split("],[")
 
@@ -476,7 +482,7 @@ def _rejected_texts(ests: list) -> list:
     """Each estimate's :func:`estimate_json` text where it is a rejected candidate's (most of a
     real frame's thousands), written for all of them at once: their BP rays, BPs and
     intensities each in one orjson call, the text of each then one format. None for the
-    others, and for all where orjson is missing or its text is not json.dumps' (they take
+    others, and for all where orjson's text is not json.dumps' (they take
     :func:`estimate_json`). The same text, character for character (``tests/test_io_fast.py``)."""
     out: list = [None] * len(ests)
     rej = [k for k, e in enumerate(ests) if _is_rejected(e)]
@@ -492,7 +498,7 @@ def _rejected_texts(ests: list) -> list:
         return out
     ray_t, bp_t = _rows_txt(rays), _rows_txt(bps)
     h_t = _orjson.dumps(heights, option=_ORJSON_NUMPY).decode()
-    if ray_t is None or bp_t is None or "e" in h_t or "n" in h_t or ".0000" in h_t:
+    if ray_t is None or bp_t is None or not _orjson_is_repr(h_t):
         return out
     for k, ray, bp, h in zip(rej, ray_t, bp_t, h_t[1:-1].split(",")):
         e = ests[k]
