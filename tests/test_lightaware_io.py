@@ -158,6 +158,10 @@ def test_estimates_json_carries_the_per_light_normals_of_a_two_light_patch(tmp_p
         assert spec["normal_from"] == "cubic_patch_fit"
         entry = spec["light_aware"]["cubic_patch_fit"]
         assert entry["light_normals"] == spec["light_normals"]
+        # each light's normal carries its own sigma, and the recommendation states the largest
+        sig = entry["light_normal_sigmas_deg"]
+        assert len(sig) == len(lights) and all(v is not None and v > 0 for v in sig)
+        assert spec["normal_sigma_deg"] >= max(sig)
         for j, L in enumerate(lights):
             X, n = sphere_specular_point(L)
             assert angle_between_deg(spec["light_normals"][j], n) < 0.1

@@ -18,6 +18,7 @@ from simtest.geometry.lights import Light, LightRig
 from simtest.reconstruct import lightaware as la
 from simtest.reconstruct.lightaware.model import _mean_light, _rays, _rig_arrays
 from simtest.reconstruct.lightaware.patch import ONE_LIGHT_DEPTH_FACTOR, _cubic_patch_image
+from simtest.reconstruct.io import _light_aware_dict
 from simtest.reconstruct.recommend import bp_error_depth_mm, bp_ray_error_deg, recommend
 
 K = np.array([[150.0, 0, 29.5], [0, 150.0, 29.5], [0, 0, 1.0]])
@@ -75,6 +76,9 @@ def test_one_light_quadric_is_not_recommended_over_the_bp_ray():
     # and a fit with a depth is read at it, one without either at the nominal depth
     assert bp_error_depth_mm(dataclasses.replace(q, depth_mm=33.0), 20.0) == 33.0
     assert bp_error_depth_mm(dataclasses.replace(q, depth_range_mm=None), 20.0) == 20.0
+    # estimates.json states the band in place of the depth
+    entry = _light_aware_dict({"quadric_fit": q})["quadric_fit"]
+    assert entry["depth_mm"] is None and entry["depth_range_mm"] == list(q.depth_range_mm)
 
 
 def test_two_light_quadric_keeps_its_depth():

@@ -28,7 +28,11 @@ estimators (:mod:`simtest.reconstruct.recommend`, whose docstring states the rec
                            "distance_mm": float or null, "roughness": float or null,
                            "lobe": "phong" | "ggx" | null,   # photometric_fit's lobe
                            "light_normals": [[x, y, z], ...] or null,
-                           "light_depths_mm": [float, ...] or null}}
+                           "light_depths_mm": [float, ...] or null,
+                           "light_normal_sigmas_deg": [float, ...] or null,  # 1-sigma of each
+                                       # of light_normals, degrees (cubic_patch_fit)
+                           "depth_range_mm": [near, far] or null}}  # one-light quadric_fit:
+                                       # the depths the data cannot exclude, mm (depth_mm null)
 
 and at the top level ``"lights"``: the rig used (the camera file's list), or null, and
 ``"detection"``: ``{"components": bright components found, "examined": those with an entry in
@@ -190,7 +194,9 @@ def _light_aware_dict(la: dict) -> dict:
                    "normal_sigma_deg": _num(r.normal_sigma_deg), "depth_sigma_mm": _num(r.depth_sigma_mm),
                    "distance_mm": _num(r.distance_mm), "roughness": _num(r.roughness),
                    "lobe": getattr(r, "lobe", None), "light_normals": _rows(r.light_normals),
-                   "light_depths_mm": _nums(r.light_depths_mm)}
+                   "light_depths_mm": _nums(r.light_depths_mm),
+                   "light_normal_sigmas_deg": _nums(r.light_normal_sigmas_deg),
+                   "depth_range_mm": _nums(r.depth_range_mm)}
             for name, r in la.items()}
 
 
