@@ -10,7 +10,7 @@ from unittest import mock
 
 import cv2
 import numpy as np
-from hypothesis import given, settings
+from hypothesis import example, given, settings
 from hypothesis import strategies as st
 
 from simtest.geometry.conics import Ellipse
@@ -64,6 +64,11 @@ def _random_region(rng):
 
 @given(seed=st.integers(0, 2**32 - 1))
 @settings(max_examples=300, deadline=None)
+# pixels within 1e-25 of a level 0 (a quantised lobe less a hole): interpolated points round onto
+# pixel centres, where find_contours joins segments by their coordinates (an open contour lost a
+# 12-point loop; a 5-point closed one appeared around a BP below the level)
+@example(seed=5884)
+@example(seed=19756)
 def test_extract_isophote_gives_the_numpy_paths_bits(seed):
     img, level, bp, off, shape = _random_region(np.random.default_rng(seed))
     try:

@@ -168,6 +168,19 @@ def _any_at_level(a, level):
     return False
 
 
+@numba.njit(cache=True, nogil=True)
+def _on_a_pixel_centre(pts, n):
+    """Whether one of the first ``n`` points (row, col) of ``pts`` (N, 2) lies on a pixel centre
+    (both coordinates whole numbers): a pixel so near the level (not at it) that the
+    interpolation rounds onto it. Two edges of that pixel then give the same point, which
+    ``find_contours`` (joining segments by their points' coordinates) may join where the edges
+    do not meet: its contours are left to it."""
+    for i in range(n):
+        if pts[i, 0] == np.floor(pts[i, 0]) and pts[i, 1] == np.floor(pts[i, 1]):
+            return True
+    return False
+
+
 @numba.njit(cache=True, nogil=True, inline="always")
 def _case(box, level, r, c):
     """Marching-squares case of square (r, c): bit 1 upper-left, 2 upper-right, 4 lower-left,
@@ -304,8 +317,9 @@ def trace_contours(box, level):
     -------
     code : int
         :data:`CLOSED`, :data:`OPEN`, or :data:`FALLBACK` where the box holds anything else (no
-        contour, several closed contours, closed and open ones) or a pixel exactly at the level
-        or not finite (find_contours' own handling of those is left to it).
+        contour, several closed contours, closed and open ones) or a pixel exactly at the level,
+        not finite, or so near the level that a point falls on its centre (find_contours' own
+        handling of those is left to it).
     points : ndarray of shape (N, 2), float64
         (row, col) in ``box``: the closed contour without its repeated end point, or the open
         contours concatenated in find_contours' order; empty for ``FALLBACK``.
@@ -324,7 +338,10 @@ def trace_contours(box, level):
     code, edges = _trace(box, level)
     if code == FALLBACK:
         return FALLBACK, np.empty((0, 2), dtype=np.float64)
-    return code, _edge_points(box, level, edges)
+    pts = _edge_points(box, level, edges)
+    if _on_a_pixel_centre(pts, len(pts)):
+        return FALLBACK, np.empty((0, 2), dtype=np.float64)
+    return code, pts
 
 
 @numba.njit(cache=True, nogil=True)
@@ -401,8 +418,8 @@ def region_encloses_bp(sub, level, row0, col0, bp_u, bp_v):
     -------
     int
         1 when some closed contour encloses the BP, 0 when none does, :data:`FALLBACK` when a
-        pixel of the region is exactly at the level or not finite (``find_contours``' own
-        handling of those is left to it).
+        pixel of the region is exactly at the level or not finite, or so near it that a contour
+        point falls on its centre (``find_contours``' own handling of those is left to it).
 
     Notes
     -----
@@ -418,8 +435,11 @@ def region_encloses_bp(sub, level, row0, col0, bp_u, bp_v):
     """
     if _any_at_level(sub, level):
         return FALLBACK
-    f_edge, _, nxt, _ = _segments(sub, level)
+    f_edge, t_edge, nxt, _ = _segments(sub, level)
     n = len(f_edge)
+    if _on_a_pixel_centre(_edge_points(sub, level, f_edge), n) or \
+            _on_a_pixel_centre(_edge_points(sub, level, t_edge), n):
+        return FALLBACK  # find_contours may join segments at such a point into other contours
     walk = np.zeros(n, dtype=np.int64)  # 0 unvisited, else the number of the walk that came by
     cycle = np.empty(n, dtype=np.int64)
     k = 0
@@ -893,6 +913,8 @@ def _contour_by_walk(sub, level, ri, ci, row0, col0, bp_u, bp_v, top=False, bott
                 q += 1
             _edge_point(sub, level, ends[o, 0], ends[o, 1], ends[o, 2], r0, c0, out, q)
             q += 1
+    if _on_a_pixel_centre(out, n_out):
+        return DECLINED, _EMPTY, False, no_sides
     return CLOSED if closed else OPEN, out, _shift(closed, out, r0, c0, row0, col0, bp_u, bp_v), sides
 
 
