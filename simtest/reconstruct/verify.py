@@ -505,7 +505,8 @@ def _surely_no_panels(gray: np.ndarray, noise: float, rr: np.ndarray) -> bool:
 def _maxima_windows(g: np.ndarray, bg: np.ndarray, floor: np.float32, windows) -> tuple:
     """:func:`~simtest.reconstruct._kernels.top_hat_maxima` over the ``windows`` (row0, row1,
     col0, col1) only: a frame-sized top-hat exact inside them (elsewhere unset) and the maxima
-    inside them (rows, columns; row-major, each once). Each window is measured with 1 px more
+    inside them above ``floor`` (rows, columns; row-major, each once; :func:`frame_evidence`
+    passes the smallest top-hat a neighbour count can select). Each window is measured with 1 px more
     (clipped to the frame): the 3 x 3 maximum of a pixel reads only its neighbours in the frame,
     so the values are the whole frame's."""
     h, w = g.shape
@@ -617,33 +618,29 @@ def frame_evidence(image: np.ndarray, gray: np.ndarray, bps_uv: np.ndarray, rois
     # an 8-bit gray frame's conversion was 0.3 ms of the noisy bench frame's)
     g = _shared(_float32, gray) if not windowed else gray
     height = _top_of(g[rows, cols].astype(np.float32, copy=False), bg_bp)
+    # only the maxima that some candidate's neighbour count can select (a top-hat of at least
+    # NEIGHBOUR_REL of its height, as _kernels.other_peaks compares) are read: the maxima are
+    # taken above the larger of the floor and that (t > floor and t >= s, as t > the float32
+    # below s; NaN or no count: none), not all of them (the banner's 77 000) then filtered
+    if len(todo):
+        s = np.float32(np.fmin.reduce(NEIGHBOUR_REL * height[todo]))  # NaN: none
+        floor_max = np.float32(np.nan) if np.isnan(s) else max(floor, np.nextafter(s, np.float32(-np.inf)))
+    else:
+        floor_max = np.float32(np.inf)
     if windowed:
         # the opening only where read: in the reach windows (with the 1 px the maxima read beyond
         # them) where the top-hat, its maxima and their colour are
         wide = np.c_[np.maximum(win[:, 0] - 1, 0), np.minimum(win[:, 1] + 1, h),
                      np.maximum(win[:, 2] - 1, 0), np.minimum(win[:, 3] + 1, w)]
         bg = _upsampled(bg_small, f, (h, w), wide)
-        top, ys, xs = _maxima_windows(g, bg, floor, win)
-        # only the maxima that some candidate's neighbour count can select (at least
-        # NEIGHBOUR_REL of its height, as _kernels.other_peaks compares) need their colour; the
-        # others it never reads
-        if len(todo):
-            strong = top[ys, xs] >= np.fmin.reduce(NEIGHBOUR_REL * height[todo])  # NaN: none
-            ys, xs = ys[strong], xs[strong]
-        else:
-            ys, xs = ys[:0], xs[:0]
+        top, ys, xs = _maxima_windows(g, bg, floor_max, win)
     else:
         # _opening's values: its reduced opening enlarged
         bg = cv2.resize(bg_small, (w, h), interpolation=cv2.INTER_LINEAR) if f > 1 else bg_small
         # the top-hat and its 3 x 3 maxima above the floor, in one compiled call
         top, is_max = np.empty_like(g), np.empty(g.shape, bool)
-        _kernels.top_hat_maxima(g, bg, floor, top, is_max)
+        _kernels.top_hat_maxima(g, bg, floor_max, top, is_max)
         ys, xs = np.divmod(np.flatnonzero(is_max), w)  # np.nonzero's, in half the time
-        if len(todo):  # the maxima a neighbour count can select (as on the windowed path)
-            strong = top[ys, xs] >= np.fmin.reduce(NEIGHBOUR_REL * height[todo])  # NaN: none
-            ys, xs = ys[strong], xs[strong]
-        else:
-            ys, xs = ys[:0], xs[:0]
     # the colour: the frame's RGB and its opening at the BPs and the maxima only (the opening
     # reduced over the whole frame, enlarged at those pixels)
     src = image[..., :3] if image.ndim == 3 and not grey else gray
