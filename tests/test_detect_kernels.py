@@ -59,9 +59,11 @@ def _same(got: Detection, want: Detection) -> bool:
 
 
 def _detect_both(image, **kwargs) -> tuple[Detection, Detection]:
-    """detect_specularities as it runs, and with the compiled path declining (the numpy path)."""
+    """detect_specularities as it runs, and with the compiled paths declining (the numpy path:
+    the frame's candidates, and those the reduced frame's detection examines in windows)."""
     got = detect_specularities(image, **kwargs)
-    with mock.patch.object(detect, "_candidates_compiled", lambda *a: None):
+    with mock.patch.object(detect, "_candidates_compiled", lambda *a: None), \
+            mock.patch.object(detect, "_examine_in_window", lambda *a: None):
         want = detect_specularities(image, **kwargs)
     return got, want
 
@@ -121,7 +123,9 @@ def test_bench_frames_give_the_numpy_paths_detection(name):
     spy = _Spy()
     with mock.patch.object(_dk, "examine_candidates", spy):
         got, want = _detect_both(sub, **kwargs)
-    assert spy.calls == 1 and len(got.candidates) >= 10
+    # one call for the frame (or its reduced form), and one a candidate examined in its window
+    # at full resolution (the reduced frame's unclipped candidates)
+    assert spy.calls >= 1 and len(got.candidates) >= 10
     assert _same(got, want)
     # and with the paper's settings (full scale threshold)
     got, want = _detect_both(sub)
@@ -384,7 +388,7 @@ def test_the_kernel_is_sure_of_the_ellipticity_only_beyond_its_tolerance():
                              (e * (1 + 1e-6), 10.0, _dk.NOT_ELLIPTICAL),
                              (0.1, e * (1 - 1e-6), _dk.NOT_ELLIPTICAL)]:
             ints, floats = _dk.examine_candidates(gray, lab, table[k - 1 : k], none8, noneb, nonef,
-                                                  4.0, lo, hi, 3.0, 4.0, 0.6)
+                                                  4.0, lo, hi, 3.0, 4.0, 0.6, 0, 0)
             assert ints[0, _dk.STATUS] == want
             assert abs(floats[0, _dk.ELLIPTICITY] - e) <= 1e-12 * e
 
@@ -506,3 +510,22 @@ def test_the_compiled_top_hat_and_peak_mask_give_numpys_bits(seed, step, nan, pe
     assert np.array_equal(mask, want_mask)
     # the rows peak_mask reads: those holding a top-hat >= thr
     assert np.array_equal(rows, (want_top >= np.float32(thr)).any(axis=1).view(np.uint8))
+
+
+@settings(max_examples=15, deadline=None)
+@given(st.integers(0, 2**32 - 1), st.floats(2.0, 9.0), st.integers(0, 3), st.floats(2.0, 4.0))
+def test_candidates_examined_in_windows_at_full_resolution_are_numpys(seed, noise, n_saturated, sigma):
+    """The reduced frame's candidates examined at full resolution by the compiled kernel in their
+    windows (detect._examine_in_window, the BP moved by the window's corner inside the kernel)
+    are numpy's (_examine_numpy's), bit for bit: noisy frames of highlights, some clipped (those
+    go to numpy), some on the frame's sides, smoothed enough for the reduced frame's detection."""
+    frame, _, _ = bench.synthetic_frame(seed=seed % 1000, n_highlights=12, n_saturated=n_saturated)
+    rng = np.random.default_rng(seed)
+    gray = np.clip(frame[:, :, 0] + rng.normal(0.0, noise, frame.shape[:2]), 0, 255).astype(np.uint8)
+    gray[:40, 600:680] = gray[200:240, 600:680]  # a highlight's flank cut by the top side
+    img = np.repeat(gray[:, :, None], 3, axis=2)
+    spy = _Spy()
+    with mock.patch.object(_dk, "examine_candidates", spy):
+        got, want = _detect_both(img, method="local_peak", smooth_sigma_px=sigma)
+    assert spy.calls > 1  # the windows were examined by the kernel
+    assert _same(got, want)

@@ -194,3 +194,18 @@ def test_banner_is_quality_100_so_no_grid():
         rgb = np.asarray(im.convert("RGB"))
     assert J.jpeg_grid(rgb) is None
     assert J.quantisation_sigma(rgb) == 0.0
+
+
+@settings(max_examples=40, deadline=None)
+@given(st.integers(0, 2**32 - 1), st.integers(2, 9), st.integers(9, 60), st.sampled_from([np.float32, np.float64]))
+def test_blockiness_is_one_median_per_phase(seed, rows, width, dtype):
+    """_blockiness (medians of the phases of equal length taken together) gives the values, and
+    the dtype, of one np.median per phase's columns."""
+    y = np.random.default_rng(seed).random((rows, width)).astype(dtype)
+    d = np.abs(np.diff(y, axis=1)).mean(axis=0)
+    p = (np.arange(len(d)) + 1) % 8
+    per = np.array([np.median(d[p == k]) for k in range(8)])
+    want = per / max(float(per.mean()), 1e-9)
+    got = J._blockiness(y)
+    assert got.dtype == want.dtype
+    assert np.array_equal(got, want)

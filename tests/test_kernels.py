@@ -650,3 +650,24 @@ def test_smoothed_border_medians_are_each_rois_own():
     got = _kernels.smoothed_border_medians(img, 0.299, 0.587, 0.114, rois, kern)
     want = [_kernels.smoothed_border_median(img, 0.299, 0.587, 0.114, *r, kern) for r in rois.tolist()]
     assert got.tolist() == want
+
+
+@settings(max_examples=80, deadline=None)
+@given(st.integers(0, 2**32 - 1), st.integers(1, 12), st.integers(1, 12), st.sampled_from([np.uint8, np.uint16]),
+       st.integers(-1, 2))
+def test_is_gray_packed_is_is_gray(seed, h, w, dtype, channel):
+    """The packed rows' test (pipeline._is_gray's) answers as the per-pixel one and as numpy, on
+    gray frames and on gray frames with one pixel's channel changed (anywhere: the row ends, the
+    last pixel)."""
+    rng = np.random.default_rng(seed)
+    g = rng.integers(0, np.iinfo(dtype).max, (h, w), endpoint=True).astype(dtype)
+    img = np.repeat(g[:, :, None], 3, axis=2)
+    if channel >= 0:
+        r, c = int(rng.integers(0, h)), int(rng.integers(0, w))
+        img[r, c, channel] ^= dtype(1 + int(rng.integers(0, 100)))
+    want = bool((img[..., 0] == img[..., 1]).all() and (img[..., 0] == img[..., 2]).all())
+    assert bool(_kernels.is_gray_packed(img.reshape(h, -1))) == want
+    assert bool(_kernels.is_gray(img)) == want
+    from simtest.reconstruct.pipeline import _is_gray
+
+    assert _is_gray(img) == want and _is_gray(img[:, ::-1]) == want  # packed, and not contiguous

@@ -464,3 +464,32 @@ def test_a_colour_frame_is_verified_in_the_luma_its_rois_are_smoothed_from():
     assert any(e.ok for e in ests)
     grays = [c for c in calls if c.name == "cvtColor" and c.args[1] == cv2_module.COLOR_RGB2GRAY]
     assert grays and all(c.args[0].dtype == np.uint8 for c in grays)  # detection's rounded gray only
+
+
+@settings(max_examples=60, deadline=None)
+@given(st.integers(0, 2**32 - 1), st.integers(3, 60), st.integers(3, 60), st.integers(0, 20),
+       st.sampled_from([np.uint8, np.uint16, np.float32, np.float64]), st.floats(0.05, 4.0))
+def test_maybe_flat_is_opencvs_blurred_variance_test(seed, h, w, margin, dtype, thr2):
+    """_kernels.maybe_flat (the running sums of _surely_no_panels) marks exactly the pixels that
+    the float64 5 x 5 blurs of OpenCV mark, on integer levels (where both sums are exact), on
+    windows at the frame's edges (reflected) and inside it."""
+    from simtest.reconstruct import _kernels
+
+    rng = np.random.default_rng(seed)
+    g = rng.integers(0, 6, (h, w)).astype(dtype)
+    g[rng.random((h, w)) < rng.random()] = 3  # flat patches
+    row0, col0 = int(rng.integers(0, h - 1)), int(rng.integers(0, w - 1))
+    row1, col1 = int(rng.integers(row0 + 1, h + 1)), int(rng.integers(col0 + 1, w + 1))
+    wr0, wr1, wc0, wc1 = max(0, row0 - margin), min(h, row1 + margin), max(0, col0 - margin), min(w, col1 + margin)
+    cr0, cr1, cc0, cc1 = max(0, wr0 - 2), min(h, wr1 + 2), max(0, wc0 - 2), min(w, wc1 + 2)
+    x = g[cr0:cr1, cc0:cc1].astype(np.float32).astype(np.float64)
+    m1 = cv2.blur(x, (5, 5), borderType=cv2.BORDER_REFLECT_101)[wr0 - cr0:wr1 - cr0, wc0 - cc0:wc1 - cc0]
+    m2 = cv2.blur(x * x, (5, 5), borderType=cv2.BORDER_REFLECT_101)[wr0 - cr0:wr1 - cr0, wc0 - cc0:wc1 - cc0]
+    want = ((m2 - m1 * m1) < thr2 + 1e-5 * m2).astype(np.uint8)
+    got = np.empty_like(want)
+    n = _kernels.maybe_flat(g[cr0:cr1, cc0:cc1], wr0 - cr0, wr1 - cr0, wc0 - cc0, wc1 - cc0, thr2, 1e-5, got)
+    assert np.array_equal(got, want)
+    assert n == int(want.sum())
+    g = g.astype(np.float64)
+    g[cr0, cc0] = np.nan
+    assert _kernels.maybe_flat(g[cr0:cr1, cc0:cc1], wr0 - cr0, wr1 - cr0, wc0 - cc0, wc1 - cc0, thr2, 1e-5, got) == -1

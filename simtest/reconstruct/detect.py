@@ -1018,8 +1018,12 @@ def _detect_half_resolution(img, native, fs, saturation_level, *, min_area_px, e
     h2, w2 = h // 2, w // 2
     clipped = clipped_mask(img, saturation_level, native)
     side = background_side_px((h, w), clipped)
-    half = cv2.resize(native[: 2 * h2, : 2 * w2].astype(np.float32, copy=False), (w2, h2),
-                      interpolation=cv2.INTER_AREA)
+    if native.dtype == np.uint8:  # OpenCV's values, without the frame's float32 copy
+        half = np.empty((h2, w2), np.float32)
+        _dk.half_means_uint8(native, half)
+    else:
+        half = cv2.resize(native[: 2 * h2, : 2 * w2].astype(np.float32, copy=False), (w2, h2),
+                          interpolation=cv2.INTER_AREA)
     sigma2 = float(np.sqrt(max(smooth_sigma_px ** 2 - 0.25, 0.0)) / 2.0)
     gray2 = cv2.GaussianBlur(half, (0, 0), sigma2, borderType=cv2.BORDER_REFLECT)
     clipped2 = None
@@ -1146,8 +1150,53 @@ def _component_at_full_resolution(full: _DetectFrame, native, c: Candidate, bg_s
         m *= 2
     full.gray[r0:r1, c0:c1] = g
     full.levels[r0:r1, c0:c1] = bg
+    got = _examine_in_window(full, g, lab, bg, k, x, y, bw, bh, area, r0, c0)
+    if got is not None:
+        return got
     comp = (lab[y : y + bh, x : x + bw] == k).view(np.uint8)
     return _examine_numpy(full, None, area, x + c0, y + r0, bw, bh, comp)
+
+
+def _examine_in_window(full: _DetectFrame, g: np.ndarray, lab: np.ndarray, bg: np.ndarray, k: int, x: int,
+                       y: int, bw: int, bh: int, area: int, r0: int, c0: int) -> Candidate | None:
+    """:func:`_examine_numpy` of the component ``k`` of a window's labels ``lab`` (box at column
+    ``x``, row ``y`` of the window, whose corner is the frame's row ``r0``, column ``c0``), by the
+    compiled examination (:func:`simtest.reconstruct._detect_kernels.examine_candidates`) of the
+    window's smoothing ``g`` and background ``bg``, without the scope's border (as
+    :func:`_component_at_full_resolution` examines it): its brightest pixel, BP, status and
+    level, the same bits; None where the kernel leaves the candidate to numpy (clipped pixels).
+    The window holds the whole component and touches the frame's sides only where it does (the
+    caller grows it until the component is not cut), so its ``touches_border`` is the frame's;
+    the ROI is proposed in the frame. 0.1 ms a candidate less than numpy's (a sixth of the
+    noisy bench frame's detection)."""
+    clipped = full.clipped
+    win_clipped = (np.zeros((0, 0), np.uint8) if clipped is None
+                   else np.ascontiguousarray(clipped[r0 : r0 + g.shape[0], c0 : c0 + g.shape[1]]))
+    ell_min = full.ellipticity_min
+    ints, floats = _dk.examine_candidates(
+        g, lab, np.array([[k, x, y, bw, bh, area]], np.int64), win_clipped, np.zeros((0, 0), np.bool_), bg,
+        float(full.min_area_px), float(ell_min), float(1.0 / ell_min), float(full.roi_scale),
+        float(full.roi_margin_px), float(full.peak_rel), c0, r0)
+    code = int(ints[0, _dk.STATUS])
+    if code == _dk.FALLBACK:
+        return None
+    u, v, peak, level, e, tol = floats[0].tolist()
+    bbox = Roi(y + r0, y + r0 + bh, x + c0, x + c0 + bw)
+    if code == _dk.NOT_ELLIPTICAL or code == _dk.ELLIPTICITY_UNSURE:
+        # as _candidates_compiled: the kernel's value decides where every value within its
+        # tolerance formats the same, numpy's otherwise
+        text = f"{e * (1.0 - tol):.3f}" if code == _dk.NOT_ELLIPTICAL else None
+        if text is None or text != f"{e * (1.0 + tol):.3f}":
+            e = ellipticity(lab[y : y + bh, x : x + bw] == k)
+            text = f"{e:.3f}"
+            code = _dk.OK if ell_min <= e <= 1.0 / ell_min else _dk.NOT_ELLIPTICAL
+    else:
+        text = ""
+    status = _STATUS[code]
+    bp = np.array([u, v])  # in the frame (the kernel adds the window's corner as numpy adds the box's)
+    roi = Roi.around(bp, full.roi_scale * max(bw, bh) / 2.0 + full.roi_margin_px, full.img.shape)
+    return Candidate(bp, peak, False, area, bbox, roi, status,
+                     "" if code == _dk.OK else _rejection_detail(status, full, area, bbox, text), level)
 
 
 @dataclass(frozen=True)
@@ -1252,7 +1301,7 @@ def _candidates_compiled(frame: _DetectFrame, mask: np.ndarray) -> tuple[list[Ca
         np.zeros((0, 0), np.bool_) if scope is None else scope,
         np.zeros((0, 0), np.float32) if frame.levels is None else frame.levels,
         float(frame.min_area_px), float(ell_min), float(ell_max), float(frame.roi_scale),
-        float(frame.roi_margin_px), float(frame.peak_rel))
+        float(frame.roi_margin_px), float(frame.peak_rel), 0, 0)
     bps = list(floats[:, :2].copy())  # each candidate's BP a row of one array (views, made at once)
     with_level = frame.levels is not None
     out = []

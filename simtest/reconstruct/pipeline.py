@@ -920,13 +920,22 @@ def _enclosed_counts(drafts: list) -> dict:
     return dict(zip(map(id, todo), n_in.tolist()))
 
 
+def _is_gray(img: np.ndarray) -> bool:
+    """:func:`simtest.reconstruct._kernels.is_gray` of an (H, W, C >= 3) image, by
+    :func:`~simtest.reconstruct._kernels.is_gray_packed` where the image is a C-contiguous 8- or
+    16-bit RGB one (its rows packed, half the time)."""
+    if img.shape[2] == 3 and img.dtype.type in (np.uint8, np.uint16) and img.flags.c_contiguous:
+        return bool(_kernels.is_gray_packed(img.reshape(img.shape[0], -1)))
+    return bool(_kernels.is_gray(img))
+
+
 def _colour_luma32(img: np.ndarray, grey: bool | None = None) -> np.ndarray | None:
     """The luma of a colour 8- or 16-bit RGB frame in float32 (H, W), read-only
     (:func:`simtest.reconstruct._kernels.luma_rgb32`); None for any other frame (single-channel,
     gray (R = G = B), float, RGBA). ``grey``: whether R = G = B, where the caller knows."""
     if img.ndim != 3 or img.shape[2] != 3 or img.dtype.type not in (np.uint8, np.uint16):
         return None
-    if grey if grey is not None else _kernels.is_gray(img):
+    if grey if grey is not None else _is_gray(img):
         return None
     out = _kernels.luma_rgb32(img, *_LUMA_W)
     out.setflags(write=False)
@@ -942,7 +951,7 @@ def _frame_luma_smoothing(img: np.ndarray, detection_smoothed: np.ndarray, sigma
     gray is rounded to whole levels, which moves contours)."""
     if luma32 is not None:
         src = luma32
-    elif img.ndim == 2 or img.dtype.kind == "f" or _kernels.is_gray(img):
+    elif img.ndim == 2 or img.dtype.kind == "f" or _is_gray(img):
         return detection_smoothed
     else:
         src = _kernels.luma_rgb32(img, *_LUMA_W) if img.dtype.type in (np.uint8, np.uint16) else \
@@ -1281,7 +1290,7 @@ def reconstruct(
     if sliced or (settings.verify and not many):
         # the colour frame's float32 luma, for the frame's smoothing and the verifier (which reads
         # for_many_highlights' float64 luma where that is computed)
-        grey = img.ndim == 3 and img.shape[2] >= 3 and bool(_kernels.is_gray(img))
+        grey = img.ndim == 3 and img.shape[2] >= 3 and bool(_is_gray(img))
         frame = replace(frame, luma32=None if grey else _colour_luma32(img, False), grey=grey)
     if many:
         # many ROIs: contoured in one smoothing of the frame's luma (detection's own where it is
@@ -1407,7 +1416,7 @@ def _verifier_luma(frame: _Frame, native: np.ndarray | None) -> tuple[np.ndarray
     if native is not None and native.shape == img.shape[:2] and frame.luma32 is None:
         if img.ndim == 2:
             return native, False
-        if img.shape[2] >= 3 and (frame.grey if frame.grey is not None else _kernels.is_gray(img)):
+        if img.shape[2] >= 3 and (frame.grey if frame.grey is not None else _is_gray(img)):
             return native, True
     if frame.luma_frame is not None:
         return frame.luma_frame, False

@@ -451,13 +451,19 @@ _PANEL_MARGIN_PX = 16
 _FLAT_SLACK = 1e-5
 
 
+#: The luma dtypes :func:`_surely_no_panels` passes to its kernel as they are (one compilation
+#: each); others are converted to float64 first.
+_MAYBE_FLAT_DTYPES = (np.uint8, np.uint16, np.float32, np.float64)
+
+
 def _surely_no_panels(gray: np.ndarray, noise: float, rr: np.ndarray) -> bool:
     """Whether no pixel of any region of interest ``rr`` (rows of row0, row1, col0, col1) can be
     a panel pixel of :func:`_panels`, decided without the frame: True only when proven.
 
     A panel pixel is flat, and its flat component holds at least :data:`PANEL_MIN_AREA` of the
     frame. Around each region (with :data:`_PANEL_MARGIN_PX`), the pixels that could be flat
-    are those whose exact 5 x 5 variance (float64, the frame's reflected border) is below the
+    are those whose exact 5 x 5 variance (float64, the frame's reflected border;
+    :func:`~simtest.reconstruct._kernels.maybe_flat`) is below the
     threshold plus :data:`_FLAT_SLACK`: a superset of :func:`_panels`' flat pixels. If every
     component of that superset that reaches into a region is smaller than a panel and lies
     inside the margin (not cut by the window's edge inside the frame), no flat component, a
@@ -472,14 +478,13 @@ def _surely_no_panels(gray: np.ndarray, noise: float, rr: np.ndarray) -> bool:
         # the window W and its 2 px of data for the 5 x 5 means (the frame's edges reflected)
         wr0, wr1, wc0, wc1 = max(0, row0 - m), min(h, row1 + m), max(0, col0 - m), min(w, col1 + m)
         cr0, cr1, cc0, cc1 = max(0, wr0 - 2), min(h, wr1 + 2), max(0, wc0 - 2), min(w, wc1 + 2)
-        x = np.asarray(gray[cr0:cr1, cc0:cc1], dtype=np.float32).astype(np.float64)
-        if not np.isfinite(x).all():
-            return False
-        m1 = cv2.blur(x, (5, 5), borderType=cv2.BORDER_REFLECT_101)
-        m2 = cv2.blur(x * x, (5, 5), borderType=cv2.BORDER_REFLECT_101)
-        sl = (slice(wr0 - cr0, wr1 - cr0), slice(wc0 - cc0, wc1 - cc0))
-        m1, m2 = m1[sl], m2[sl]
-        maybe = ((m2 - m1 * m1) < thr2 + _FLAT_SLACK * m2).astype(np.uint8)
+        # the window's possibly flat pixels in one compiled pass (the crop read as float32, then
+        # float64; OpenCV's two float64 blurs and numpy's test cost 0.13 ms a region)
+        x = gray[cr0:cr1, cc0:cc1]
+        maybe = np.empty((wr1 - wr0, wc1 - wc0), np.uint8)
+        if _kernels.maybe_flat(x if x.dtype.type in _MAYBE_FLAT_DTYPES else x.astype(np.float64), wr0 - cr0,
+                               wr1 - cr0, wc0 - cc0, wc1 - cc0, thr2, _FLAT_SLACK, maybe) < 0:
+            return False  # a non-finite pixel
         roi = maybe[row0 - wr0:row1 - wr0, col0 - wc0:col1 - wc0]
         if not roi.any():
             continue
@@ -500,7 +505,8 @@ def _surely_no_panels(gray: np.ndarray, noise: float, rr: np.ndarray) -> bool:
 def _maxima_windows(g: np.ndarray, bg: np.ndarray, floor: np.float32, windows) -> tuple:
     """:func:`~simtest.reconstruct._kernels.top_hat_maxima` over the ``windows`` (row0, row1,
     col0, col1) only: a frame-sized top-hat exact inside them (elsewhere unset) and the maxima
-    inside them (rows, columns; row-major, each once). Each window is measured with 1 px more
+    inside them above ``floor`` (rows, columns; row-major, each once; :func:`frame_evidence`
+    passes the smallest top-hat a neighbour count can select). Each window is measured with 1 px more
     (clipped to the frame): the 3 x 3 maximum of a pixel reads only its neighbours in the frame,
     so the values are the whole frame's."""
     h, w = g.shape
@@ -512,7 +518,8 @@ def _maxima_windows(g: np.ndarray, bg: np.ndarray, floor: np.float32, windows) -
         e0, e1, f0, f1 = max(0, r0 - 1), min(h, r1 + 1), max(0, c0 - 1), min(w, c1 + 1)
         t = np.empty((e1 - e0, f1 - f0), np.float32)
         mk = np.empty(t.shape, bool)
-        _kernels.top_hat_maxima(np.ascontiguousarray(g[e0:e1, f0:f1]), np.ascontiguousarray(bg[e0:e1, f0:f1]),
+        _kernels.top_hat_maxima(np.ascontiguousarray(g[e0:e1, f0:f1], dtype=np.float32),
+                                np.ascontiguousarray(bg[e0:e1, f0:f1]),
                                 floor, t, mk)
         top[r0:r1, c0:c1] = t[r0 - e0:r1 - e0, c0 - f0:c1 - f0]
         yy, xx = np.nonzero(mk[r0 - e0:r1 - e0, c0 - f0:c1 - f0])
@@ -586,7 +593,6 @@ def frame_evidence(image: np.ndarray, gray: np.ndarray, bps_uv: np.ndarray, rois
     """
     h, w = gray.shape
     n = len(bps_uv)
-    g = _shared(_float32, gray)
     ij = np.clip(np.rint(np.asarray(bps_uv, np.float64).reshape(-1, 2)).astype(np.int64), 0, [w - 1, h - 1])
     cols, rows = ij.T  # the BPs' pixels (u is the column)
     reach = np.asarray(reach_px, np.float64).reshape(-1) if reach_px is not None else np.full(n, np.nan)
@@ -607,34 +613,34 @@ def frame_evidence(image: np.ndarray, gray: np.ndarray, bps_uv: np.ndarray, rois
     # call; on both paths, which so give the same values: a window per BP cost 5 ms on a real
     # frame's 1400 BPs)
     bg_bp = _linear_points(bg_small, (h, w), rows, cols) if f > 1 else bg_small[rows, cols]
-    height = _top_of(g[rows, cols], bg_bp)
+    # the luma as float32 (the checks' arithmetic): converted over the whole frame only where the
+    # whole frame is measured; the windowed path converts the pixels it reads (the same values;
+    # an 8-bit gray frame's conversion was 0.3 ms of the noisy bench frame's)
+    g = _shared(_float32, gray) if not windowed else gray
+    height = _top_of(g[rows, cols].astype(np.float32, copy=False), bg_bp)
+    # only the maxima that some candidate's neighbour count can select (a top-hat of at least
+    # NEIGHBOUR_REL of its height, as _kernels.other_peaks compares) are read: the maxima are
+    # taken above the larger of the floor and that (t > floor and t >= s, as t > the float32
+    # below s; NaN or no count: none), not all of them (the banner's 77 000) then filtered
+    if len(todo):
+        s = np.float32(np.fmin.reduce(NEIGHBOUR_REL * height[todo]))  # NaN: none
+        floor_max = np.float32(np.nan) if np.isnan(s) else max(floor, np.nextafter(s, np.float32(-np.inf)))
+    else:
+        floor_max = np.float32(np.inf)
     if windowed:
         # the opening only where read: in the reach windows (with the 1 px the maxima read beyond
         # them) where the top-hat, its maxima and their colour are
         wide = np.c_[np.maximum(win[:, 0] - 1, 0), np.minimum(win[:, 1] + 1, h),
                      np.maximum(win[:, 2] - 1, 0), np.minimum(win[:, 3] + 1, w)]
         bg = _upsampled(bg_small, f, (h, w), wide)
-        top, ys, xs = _maxima_windows(g, bg, floor, win)
-        # only the maxima that some candidate's neighbour count can select (at least
-        # NEIGHBOUR_REL of its height, as _kernels.other_peaks compares) need their colour; the
-        # others it never reads
-        if len(todo):
-            strong = top[ys, xs] >= np.fmin.reduce(NEIGHBOUR_REL * height[todo])  # NaN: none
-            ys, xs = ys[strong], xs[strong]
-        else:
-            ys, xs = ys[:0], xs[:0]
+        top, ys, xs = _maxima_windows(g, bg, floor_max, win)
     else:
         # _opening's values: its reduced opening enlarged
         bg = cv2.resize(bg_small, (w, h), interpolation=cv2.INTER_LINEAR) if f > 1 else bg_small
         # the top-hat and its 3 x 3 maxima above the floor, in one compiled call
         top, is_max = np.empty_like(g), np.empty(g.shape, bool)
-        _kernels.top_hat_maxima(g, bg, floor, top, is_max)
+        _kernels.top_hat_maxima(g, bg, floor_max, top, is_max)
         ys, xs = np.divmod(np.flatnonzero(is_max), w)  # np.nonzero's, in half the time
-        if len(todo):  # the maxima a neighbour count can select (as on the windowed path)
-            strong = top[ys, xs] >= np.fmin.reduce(NEIGHBOUR_REL * height[todo])  # NaN: none
-            ys, xs = ys[strong], xs[strong]
-        else:
-            ys, xs = ys[:0], xs[:0]
     # the colour: the frame's RGB and its opening at the BPs and the maxima only (the opening
     # reduced over the whole frame, enlarged at those pixels)
     src = image[..., :3] if image.ndim == 3 and not grey else gray
@@ -657,7 +663,7 @@ def frame_evidence(image: np.ndarray, gray: np.ndarray, bps_uv: np.ndarray, rois
     if not panels or (windowed and (not noise > 0 or _surely_no_panels(gray, noise, rr))):
         panel_fraction = np.zeros(n)
     else:
-        panel = _panels(g, noise)
+        panel = _panels(_shared(_float32, gray), noise)
         integ = cv2.integral(panel)
         area = np.maximum((rr[:, 1] - rr[:, 0]) * (rr[:, 3] - rr[:, 2]), 1)
         inside = (integ[rr[:, 1], rr[:, 3]] - integ[rr[:, 0], rr[:, 3]] - integ[rr[:, 1], rr[:, 2]]
