@@ -32,6 +32,7 @@ from simtest.reconstruct.lightaware.model import (
 )
 from simtest.reconstruct.lightaware.solve import (
     _ROUGHNESS_RANGE,
+    _cluster_covariance,
     _correlated,
     _correlation_area,
     _curvature_score,
@@ -733,6 +734,17 @@ def photometric_fit(values, origin_uv, bp_uv, camera, rig: LightRig, *,
         est = replace(est, normal_sigma_deg=sig)
         if correlated:
             est = with_sandwich(est, r0)
+        if est.normal_sigma_deg:
+            # at least the cluster sandwich's (8 x 8 px blocks): the depth's sigma grows with
+            # the normal's by the same factor
+            J = at_solution(np.concatenate([[0.0, 0.0, np.log(h_hat)], x[3:]]), n_hat,
+                            *plane_basis(n_hat))[1]
+            cov = _cluster_covariance(J, r0, sel, keep.shape)
+            if cov is not None:
+                csig = math.degrees(math.sqrt(max(float(cov[0, 0] + cov[1, 1]), 0.0)))
+                if csig > est.normal_sigma_deg:
+                    scale *= csig / est.normal_sigma_deg
+                    est = replace(est, normal_sigma_deg=csig)
         if est.depth_sigma_mm is not None:
             dsig = est.depth_sigma_mm * scale
             if est.depth_mm and dsig > TOL.depth_rel_sigma_max * abs(est.depth_mm):

@@ -427,6 +427,63 @@ def _hac_covariance(J, r, sel, shape, step: int) -> tuple[np.ndarray | None, int
     return unit_cov @ meat @ unit_cov, b
 
 
+#: Side (px of the ROI) of the square clusters of :func:`_cluster_covariance`: a JPEG block, and
+#: about the scale of the mucosa's vessels and of what the body-colour projection leaves of them.
+CLUSTER_PX = 8
+
+
+def _cluster_covariance(J, r, sel, shape, block: int = CLUSTER_PX) -> np.ndarray | None:
+    """The cluster-robust (sandwich) covariance of a least-squares fit over square pixel blocks.
+
+    ``C = G / (G - 1) (J^T J)^-1 M (J^T J)^-1`` with ``M = sum_c s_c s_c^T``, ``s_c`` the sum of
+    ``g_i = J_i r_i`` over the fitted pixels of block c (``block`` x ``block`` px of the ROI) and
+    G the number of blocks that hold any [8]_. Whatever the residuals' correlation within a block
+    (any shape, any sign: no window or bandwidth is chosen), and independent blocks, it is
+    consistent; :func:`_hac_covariance`'s window and :func:`_correlation_area`'s first zero
+    crossing both read the residual's autocorrelation and miss a weak correlation that is spread
+    over many lags under a strong white part. That is a sensor frame's residual: the render's
+    or the shot noise (white) over what the body-colour projection leaves of the albedo's
+    texture and the tone curve's and JPEG's quantisation (correlated over a few pixels, a JPEG
+    block). On the endoscope suite's clean flat mucosa the white estimate gave 0.006 to 0.009 deg
+    where the errors were 0.01 to 0.03 deg (within twice it on 1 of 9 highlights); over 8 x 8
+    blocks, 0.012 to 0.026.
+
+    Parameters
+    ----------
+    J : ndarray of shape (M, k)
+        Jacobian of the residuals at the solution (the linear parameters projected out).
+    r : ndarray of shape (M,)
+        Residuals of the pixels ``sel`` (flat indices into an ROI grid of ``shape``).
+    sel, shape
+        As :func:`_hac_covariance`'s (a sub-grid's pixels keep their ROI positions).
+    block : int
+        Side of a cluster, px.
+
+    Returns
+    -------
+    ndarray of shape (k, k) or None
+        None when J^T J is singular or fewer than two blocks hold pixels.
+
+    References
+    ----------
+    .. [8] A. C. Cameron, D. L. Miller, "A practitioner's guide to cluster-robust inference",
+           J. Human Resources 50(2), 317-372, 2015. https://doi.org/10.3368/jhr.50.2.317
+    """
+    unit_cov = _covariance(J, 1.0)
+    if unit_cov is None:
+        return None
+    rows, cols = np.divmod(np.asarray(sel), shape[1])
+    bw = -(-shape[1] // block)
+    _, cid = np.unique((rows // block) * bw + cols // block, return_inverse=True)
+    G = int(cid.max()) + 1 if len(cid) else 0
+    if G < 2:
+        return None
+    g = J * np.asarray(r, dtype=np.float64)[:, None]
+    S = np.stack([np.bincount(cid, g[:, j], minlength=G) for j in range(J.shape[1])], axis=1)
+    meat = (S.T @ S) * (G / (G - 1.0))
+    return unit_cov @ meat @ unit_cov
+
+
 def _correlation_area(r, sel, shape, step: int) -> float:
     """The number of fitted pixels one independent residual spans: the sum of the residuals'
     empirical 2-D autocorrelation over the lags within its first zero crossing (>= 1).
