@@ -561,7 +561,7 @@ _BODY_TRIM_SHARE = 0.02
 _BODY_SECOND_SNR = 3.0
 
 
-def specular_image(rgb, clip_level=None, *, ring=None):
+def specular_image(rgb, clip_level=None, *, ring=None, fluctuation: bool = True):
     """The specular reflection of a linear RGB ROI, the tissue's body colours projected out.
 
     Dichromatic reflection [6]_: a pixel's linear radiance is ``I = S (1, 1, 1) + D a(x)``, the
@@ -600,6 +600,9 @@ def specular_image(rgb, clip_level=None, *, ring=None):
         least that). None: nothing clipped.
     ring : ndarray of shape (H, W), bool, optional
         The pixels B is measured on (default: the ROI's border rows and columns).
+    fluctuation : bool
+        Where the border tells no second body colour, the least-fluctuation weights
+        (:func:`_least_fluctuation_weights`; False: None there).
 
     Returns
     -------
@@ -654,13 +657,13 @@ def specular_image(rgb, clip_level=None, *, ring=None):
             break
         keep = new
     w = None if w is None else _body_weights(border[keep])
-    if w is None:
+    if w is None and fluctuation:
         # the border's second body colour is lost in the noise (on the endoscope's mucosa at
         # 0.5 % read noise and above, where the darkest channel is at 1 to 3 noise sigmas): the
         # projection that lets through the least of the ROI's fluctuations instead
         w = _least_fluctuation_weights(v, clipped.any(axis=2))
-        if w is None:
-            return None
+    if w is None:
+        return None
     values = v @ w
     anyc = clipped.any(axis=2)
     neg = (clipped & (w < 0)).any(axis=2)
