@@ -18,11 +18,11 @@ MAX_NORMAL_DEG = 0.5
 MAX_DEPTH_PCT = 5.0
 
 
-def _rows(sweep: str, value: float):
+def _rows(sweep: str, value: float, realisation: int = 0):
     suite = load_suite("endoscope")
     case = next(c for c in suite.cases if c.sweep == sweep and float(c.x) == value)
     runner = make_runner(case, ("recommended", "photometric_fit", "bp_ray"))
-    rows = runner.run(realisation_seed(suite.seed, case.key, 0))
+    rows = runner.run(realisation_seed(suite.seed, case.key, realisation))
     return [r for r in rows if np.isfinite(r.errors["recommended"])]
 
 
@@ -47,3 +47,17 @@ def test_a_misfitting_least_fluctuation_fit_gives_way_to_the_darkest_channel():
     assert rows
     for r in rows:
         assert r.errors["recommended"] < 1.0 < r.errors["bp_ray"], r
+
+
+def test_on_the_colon_wall_a_least_fluctuation_fit_without_its_depth_is_not_recommended():
+    # The colon wall (curved) of the suite's micro_relief@0, realisation 4: the border tells no
+    # second body colour, and the fit on the least-fluctuation weights passed with its depth not
+    # observable, 17.5 deg off with a sigma of 1.7 deg, and was recommended over the BP ray
+    # (2.3 deg). Such a fit gives way to the darkest channel's (issue 39's must-hold on curved
+    # meshes: never worse than the BP ray by more than the recommendation's stated sigma)
+    rows = _rows("micro_relief", 0.0, realisation=4)
+    assert rows
+    # within 1 deg of the BP ray's error: a recommended fit's own sigma may allow that much (its
+    # sigma beats the BP ray's 2 to 5 deg), the 17.5 deg of that fit it does not
+    for r in rows:
+        assert r.errors["recommended"] <= r.errors["bp_ray"] + 1.0, r
