@@ -586,10 +586,17 @@ def specular_image(rgb, clip_level=None, *, ring=None, fluctuation: bool = True)
     times its texture stays. A second body colour is used only where the border's second singular
     value stands above its third (:data:`_BODY_SECOND_SNR`); where the border holds one body
     colour, or the projection's noise gain ``|w|`` exceeds :data:`BODY_PROJECTION_MAX_GAIN`,
-    None is returned and the caller fits one channel. Not the leading colour alone: that leaves
-    the texture's second colour in the values (the vessels), and on the endoscope suite's colon
-    wall in JPEG frames (whose subsampled chroma hides the second colour on the border) such
-    fits passed 6 to 7 deg off with their depth half the true one.
+    the least-fluctuation weights of the whole ROI stand in (``fluctuation``,
+    :func:`_least_fluctuation_weights`: the leading body colour removed, and of the rest, what
+    lets through the least of the ROI's texture and noise together), and where they too are
+    beyond the bound or not measurable, None is returned and the caller fits one channel. Not
+    the leading colour alone, orthogonally: that leaves the texture's second colour in the values
+    (the vessels), and on the endoscope suite's colon wall in JPEG frames (whose subsampled
+    chroma hides the second colour on the border) such fits passed 6 to 7 deg off with their
+    depth half the true one. Why the border's colours are lost in read noise: the sensor's noise
+    is added to the linear channels and clipped at 0, and on the endoscope's mucosa the blue
+    channel's body reflection is 1 to 3 noise sigmas at 0.5 to 2 % read noise, where the
+    border's second singular value (1.5 % of the first, noise-free) is within the noise's.
 
     Parameters
     ----------
@@ -610,8 +617,9 @@ def specular_image(rgb, clip_level=None, *, ring=None, fluctuation: bool = True)
         ``(values, lower, missing, w)``: ``values`` (H, W) ``w . I``; ``lower`` (H, W) bool where a
         pixel's value is a lower bound (clipped channels, each with ``w_c >= 0``: censored data);
         ``missing`` (H, W) bool where a clipped channel has ``w_c < 0`` (no bound: left out);
-        ``w`` (3,). None where the border holds no second body colour, the projection's gain is
-        above the bound, or the border has fewer than 3 unclipped pixels.
+        ``w`` (3,). None where neither the border's two body colours nor (with ``fluctuation``)
+        the least-fluctuation weights give a projection within the gain's bound, or the border
+        has fewer than 3 unclipped pixels.
 
     Raises
     ------
