@@ -10,6 +10,8 @@ import pytest
 
 from simtest.reconstruct.lightaware.solve import CLUSTER_PX, _cluster_covariance, _covariance
 
+BLOCK = CLUSTER_PX[0]
+
 SIZE = 64
 
 
@@ -31,8 +33,8 @@ def _draws(kind, n, rng):
         e = rng.normal(0.0, 1.0, SIZE * SIZE)
         if kind == "blocks":
             # a shared offset per 8 x 8 block, twice the white noise's sigma
-            off = rng.normal(0.0, 2.0, (SIZE // CLUSTER_PX, SIZE // CLUSTER_PX))
-            e = e + np.kron(off, np.ones((CLUSTER_PX, CLUSTER_PX))).ravel()
+            off = rng.normal(0.0, 2.0, (SIZE // BLOCK, SIZE // BLOCK))
+            e = e + np.kron(off, np.ones((BLOCK, BLOCK))).ravel()
         p = np.linalg.lstsq(J, e, rcond=None)[0]
         r = e - J @ p
         fits.append(p)

@@ -31,6 +31,7 @@ from simtest.reconstruct.lightaware.model import (
     specular_image,
 )
 from simtest.reconstruct.lightaware.solve import (
+    CLUSTER_PX,
     _ROUGHNESS_RANGE,
     _cluster_covariance,
     _correlated,
@@ -761,12 +762,14 @@ def photometric_fit(values, origin_uv, bp_uv, camera, rig: LightRig, *,
         if correlated:
             est = with_sandwich(est, r0)
         if est.normal_sigma_deg:
-            # at least the cluster sandwich's (8 x 8 px blocks): the depth's sigma grows with
-            # the normal's by the same factor
+            # at least the cluster jackknife's (the larger over CLUSTER_PX's blocks): the
+            # depth's sigma grows with the normal's by the same factor
             J = at_solution(np.concatenate([[0.0, 0.0, np.log(h_hat)], x[3:]]), n_hat,
                             *plane_basis(n_hat))[1]
-            cov = _cluster_covariance(J, r0, sel, keep.shape)
-            if cov is not None:
+            for block in CLUSTER_PX:
+                cov = _cluster_covariance(J, r0, sel, keep.shape, block)
+                if cov is None:
+                    continue
                 csig = math.degrees(math.sqrt(max(float(cov[0, 0] + cov[1, 1]), 0.0)))
                 if csig > est.normal_sigma_deg:
                     scale *= csig / est.normal_sigma_deg
