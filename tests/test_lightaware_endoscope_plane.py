@@ -1,0 +1,66 @@
+"""Issue 39's flat-mucosa must-hold on the endoscope suite's own cases (the colonoscope rig's video
+frame of a textured plane, through detection, the light-aware fits and the recommendation): one
+realisation each of the settings that failed it (0.5 to 2 % read noise: the fit fell back to the
+darkest channel, whose albedo texture took 0.6 to 0.8 deg and 8 to 9 % of the depth) and of the
+JPEG setting whose block grid is not seen (quality 95), where a fit on the least-fluctuation
+projection misfits and the darkest channel's fit must stand in for it, not the BP ray."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from simtest.harness.runner import make_runner
+from simtest.harness.suite import load_suite, realisation_seed
+
+#: issue 39's must-hold on the flat mucosa: recommended normal and depth of the specular point
+MAX_NORMAL_DEG = 0.5
+MAX_DEPTH_PCT = 5.0
+
+
+def _rows(sweep: str, value: float, realisation: int = 0):
+    suite = load_suite("endoscope")
+    case = next(c for c in suite.cases if c.sweep == sweep and float(c.x) == value)
+    runner = make_runner(case, ("recommended", "photometric_fit", "bp_ray"))
+    rows = runner.run(realisation_seed(suite.seed, case.key, realisation))
+    return [r for r in rows if np.isfinite(r.errors["recommended"])]
+
+
+@pytest.mark.parametrize("noise", [0.02])
+def test_flat_mucosa_in_read_noise_meets_the_must_hold(noise):
+    rows = _rows("plane_read_noise", noise)
+    assert rows
+    for r in rows:
+        assert r.errors["recommended"] <= MAX_NORMAL_DEG, r
+        assert r.extras["recommended_depth_err_pct"] <= MAX_DEPTH_PCT, r
+        # its sigma covers the error at 2 sigma, and is no more than the BP ray's error
+        assert r.extras["recommended_within_2sigma"] == 1.0, r
+        assert r.errors["recommended"] < r.errors["bp_ray"], r
+
+
+def test_a_misfitting_least_fluctuation_fit_gives_way_to_the_darkest_channel():
+    # JPEG at quality 95: the block grid is not seen, the colour path runs, the border tells no
+    # second body colour and the fit on the least-fluctuation weights misfits (0.3 deg off): the
+    # darkest channel's fit stands in (0.6 deg), where the recommendation fell back to the BP
+    # ray (6 deg)
+    rows = _rows("plane_jpeg_quality", 95)
+    assert rows
+    for r in rows:
+        assert r.errors["recommended"] < 1.0 < r.errors["bp_ray"], r
+
+
+@pytest.mark.parametrize("relief, realisation", [(0.0, 4), (0.002, 1)])
+def test_on_the_colon_wall_a_least_fluctuation_fit_without_its_depth_is_not_recommended(relief, realisation):
+    # The colon wall (curved) of the suite's micro_relief sweep: the border tells no second body
+    # colour, and the fit on the least-fluctuation weights passed its own tests with its depth
+    # not observable (relief 0, realisation 4: 17.5 deg off, sigma 1.7 deg) or above the
+    # recommendation's ceiling (relief 0.002, realisation 1: relative depth sigma 0.37, 16 deg
+    # off, sigma 2.4), and was recommended over the BP ray (2.3 and 1.5 deg). Such a fit gives
+    # way to the darkest channel's (issue 39's must-hold on curved meshes: never worse than the
+    # BP ray by more than the recommendation's stated sigma)
+    rows = _rows("micro_relief", relief, realisation=realisation)
+    assert rows
+    # within 1 deg of the BP ray's error: a recommended fit's own sigma may allow that much (its
+    # sigma beats the BP ray's 2 to 5 deg), the 17.5 deg of that fit it does not
+    for r in rows:
+        assert r.errors["recommended"] <= r.errors["bp_ray"] + 1.0, r
