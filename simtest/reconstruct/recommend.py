@@ -105,14 +105,11 @@ Chosen from the harness' measurements on Mitsuba renders (``simtest validate ren
    (:func:`~simtest.reconstruct.lightaware.solve._hac_covariance`, which counts correlated
    residuals): a plane fit that ends in a wrong local minimum (an exact two-guide plane on a
    100 px ROI: 4.4 deg off, sandwich sigma 0.19) misfits with a sigma that does not cover its
-   error. On the endoscope suite's flat mucosa every sensor-frame fit misfits and the BP ray
-   stays recommended, although the fit's normal is the better there (0.2 to 0.8 deg against
-   2.0 to 2.5). The GGX lobe (``photometric_fit``'s ``lobe="auto"``, run on sensor frames),
-   which fits the renderer's film to its sampling noise, misfits there too: the whole frame is
-   the ROI and its residual is the albedo's texture (vessels, colour variation) in the diffuse
-   shading, while the lobe lies inside the core clipped in every channel (outside it the
-   specular radiance is under 2 % of its peak), so that the frame's specular evidence is the
-   core's contour.
+   error. On a sensor frame (RGB, a response, no JPEG grid) the fit runs on the three linear
+   channels with the tissue's body colours projected out (``model.specular_image``), so that
+   the albedo's texture under the rig's diffuse light is not left in the residual; where the
+   lobe itself does not fit (micro-relief breaking it into sparkle, a film sharper than the
+   sensor resolves) the fit misfits and the BP ray stays. The endoscope suite's report gives the share of each.
 
 Depth ceiling
 -------------
