@@ -10,6 +10,7 @@ gradient, and the ROI's pixel grid the fits sample.
 from __future__ import annotations
 
 import numpy as np
+from scipy.ndimage import maximum_filter, minimum_filter, uniform_filter
 
 from simtest.geometry.angles import unit
 from simtest.geometry.camera import validate_intrinsics
@@ -716,8 +717,6 @@ def _least_fluctuation_weights(v, clipped) -> np.ndarray | None:
     .. [7] O. L. Frost, "An algorithm for linearly constrained adaptive array processing",
            Proc. IEEE 60(8), 926-935, 1972. https://doi.org/10.1109/PROC.1972.8817
     """
-    from scipy.ndimage import maximum_filter, minimum_filter, uniform_filter
-
     k = _FLUCTUATION_BOX
     if min(v.shape[:2]) < 2 * k:
         return None
