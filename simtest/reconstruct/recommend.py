@@ -109,7 +109,8 @@ Chosen from the harness' measurements on Mitsuba renders (``simtest validate ren
    channels with the tissue's body colours projected out (``model.specular_image``), so that
    the albedo's texture under the rig's diffuse light is not left in the residual; where the
    lobe itself does not fit (micro-relief breaking it into sparkle, a film sharper than the
-   sensor resolves) the fit misfits and the BP ray stays. The endoscope suite's report gives the share of each.
+   sensor resolves) the fit misfits and the BP ray stays. The endoscope suite's report gives
+   the share of each.
 
 Depth ceiling
 -------------
