@@ -26,6 +26,7 @@ from simtest.reconstruct.lightaware.model import (
     _log_depth_gradient,
     _mean_light,
     _rays,
+    phong_of_ggx_alpha,
     specular_point_depth,
 )
 
@@ -166,11 +167,16 @@ def _solve(resjac, p0, args, loss: str, f_scale: float, max_nfev: int, free=None
 
 #: Plausible fitted values: the distance within this factor of the start's, the roughness in
 #: this range. Outside, the plane model is explaining something else (a curved patch whose lobe
-#: the curvature compresses is fitted with n in the thousands and h -> 0): reported as not converged.
+#: the curvature compresses is fitted with a large n and h -> 0): reported as not converged.
 _H_FACTOR = 20.0
 
+#: The smoothest wet film the fits take for real: GGX alpha 0.015 (Phong n 8887 of the same peak
+#: curvature). The renderer's mucosa goes down to alpha 0.03 (n 2220: the endoscope suite's
+#: smoothest film); a bound at n 2000 turned its GGX fit, 0.02 deg off with its depth 0.1 % off,
+#: into ``not_converged``, and its highlights fell back to the BP ray (5.7 deg).
+SMOOTHEST_FILM_ALPHA = 0.015
 
-_ROUGHNESS_RANGE = (1.0, 2000.0)
+_ROUGHNESS_RANGE = (1.0, phong_of_ggx_alpha(SMOOTHEST_FILM_ALPHA))
 
 
 def _implausible(h_hat: float, h0: float, roughness: float | None) -> str:
