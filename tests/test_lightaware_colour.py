@@ -72,7 +72,8 @@ def test_a_textured_colour_plane_fits_exactly(seed):
     assert not dark.ok or angle_between_deg(dark.normal, N) > 0.03, dark
     r = la.photometric_fit(rgb, (0, 0), bp, K, RIG, diffuse=True, lobe="phong")
     assert r.ok, r
-    assert "body colours projected out" in r.detail
+    assert "body colours projected out" in r.detail and r.projection == "body_colours"
+    assert dark.projection is None  # one channel given: nothing projected
     assert angle_between_deg(r.normal, N) < 1e-3
     assert r.distance_mm == pytest.approx(20.0, rel=1e-3)
 
@@ -105,7 +106,7 @@ def test_body_colours_near_white_fall_back_to_the_darkest_channel():
     rgb, s, K, N, depth, bp = _colour_plane(0, base=np.array([0.5, 0.49, 0.48]), absorb=np.array([0.5, 0.2, 0.6]))
     assert lam.specular_image(rgb) is None
     r = la.photometric_fit(rgb, (0, 0), bp, K, RIG, diffuse=True, lobe="phong")
-    assert "channel 2" in r.detail
+    assert "channel 2" in r.detail and r.projection == "darkest_channel"
 
 
 def test_one_body_colour_is_projected_out_by_the_least_fluctuation_weights():
@@ -117,7 +118,7 @@ def test_one_body_colour_is_projected_out_by_the_least_fluctuation_weights():
     assert w.sum() == pytest.approx(1.0, abs=1e-12)
     assert abs(w @ BASE) < 1e-3 * np.linalg.norm(w) * np.linalg.norm(BASE)
     r = la.photometric_fit(rgb, (0, 0), bp, K, RIG, diffuse=True, lobe="phong")
-    assert "body colours projected out" in r.detail
+    assert "body colours projected out" in r.detail and r.projection == "least_fluctuation"
     assert r.ok, r
     assert angle_between_deg(r.normal, N) < 0.01
     assert r.distance_mm == pytest.approx(20.0, rel=1e-3)

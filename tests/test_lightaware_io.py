@@ -167,3 +167,5 @@ def test_estimates_json_carries_the_per_light_normals_of_a_two_light_patch(tmp_p
             assert angle_between_deg(spec["light_normals"][j], n) < 0.1
             assert abs(spec["light_depths_mm"][j] / np.linalg.norm(X) - 1) < 1e-3
     assert back["specularities"][0]["light_aware"]["photometric_fit"]["light_normals"] is None
+    # a grey image: one channel fitted, no projection
+    assert back["specularities"][0]["light_aware"]["photometric_fit"]["projection"] is None

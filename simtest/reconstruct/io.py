@@ -27,6 +27,9 @@ estimators (:mod:`simtest.reconstruct.recommend`, whose docstring states the rec
                            "normal_sigma_deg": float or null, "depth_sigma_mm": float or null,
                            "distance_mm": float or null, "roughness": float or null,
                            "lobe": "phong" | "ggx" | null,   # photometric_fit's lobe
+                           "projection": "body_colours" | "least_fluctuation" |
+                                         "darkest_channel" | null,  # photometric_fit on RGB:
+                                       # the single image fitted (null: one channel)
                            "light_normals": [[x, y, z], ...] or null,
                            "light_depths_mm": [float, ...] or null,
                            "light_normal_sigmas_deg": [float, ...] or null,  # 1-sigma of each
@@ -193,7 +196,8 @@ def _light_aware_dict(la: dict) -> dict:
     return {name: {"status": r.status, "detail": r.detail, "depth_mm": _num(r.depth_mm),
                    "normal_sigma_deg": _num(r.normal_sigma_deg), "depth_sigma_mm": _num(r.depth_sigma_mm),
                    "distance_mm": _num(r.distance_mm), "roughness": _num(r.roughness),
-                   "lobe": getattr(r, "lobe", None), "light_normals": _rows(r.light_normals),
+                   "lobe": getattr(r, "lobe", None), "projection": getattr(r, "projection", None),
+                   "light_normals": _rows(r.light_normals),
                    "light_depths_mm": _nums(r.light_depths_mm),
                    "light_normal_sigmas_deg": _nums(r.light_normal_sigmas_deg),
                    "depth_range_mm": _nums(r.depth_range_mm)}

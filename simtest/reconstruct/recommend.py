@@ -383,8 +383,7 @@ def light_aware_estimates(image, est, camera, rig: LightRig, *, nominal_depth_mm
         **pkw)
     # its depth within the ceiling before the curved fits' turn is decided by its status
     out["photometric_fit"] = depth_within_ceiling(out["photometric_fit"])
-    if colour and not out["photometric_fit"].ok and \
-            _la.plane.LEAST_FLUCTUATION_DETAIL in (out["photometric_fit"].detail or ""):
+    if colour and not out["photometric_fit"].ok and out["photometric_fit"].projection == "least_fluctuation":
         # a fit on the least-fluctuation projection is kept only with its depth within the
         # ceiling (photometric_fit's ``projection``): on the endoscope suite's colon wall one
         # passed the fit's own tests with a relative depth sigma of 0.37, 16 deg off with a sigma

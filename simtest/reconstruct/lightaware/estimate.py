@@ -95,6 +95,12 @@ class LightAwareEstimate:
         :data:`~simtest.reconstruct.lightaware.patch.ONE_LIGHT_DEPTH_FACTOR` either way: the
         third-order shape the quadric leaves out trades with the depth); the depth itself is
         then None. None elsewhere.
+    projection : str or None
+        :func:`photometric_fit` on three linear channels: the single image fitted,
+        ``"body_colours"`` (the specular image orthogonal to the ROI border's two body colours),
+        ``"least_fluctuation"`` (white kept, the leading body colour removed, the least of the
+        ROI's texture and noise let through) or ``"darkest_channel"``; None for a one-channel
+        input and elsewhere.
     """
 
     estimator: str
@@ -117,6 +123,7 @@ class LightAwareEstimate:
     n_residuals: int = 0
     light_normal_sigmas_deg: np.ndarray | None = None
     depth_range_mm: tuple[float, float] | None = None
+    projection: str | None = None
 
     @property
     def ok(self) -> bool:

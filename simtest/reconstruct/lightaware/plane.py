@@ -297,7 +297,7 @@ def photometric_fit(values, origin_uv, bp_uv, camera, rig: LightRig, *,
                                          and again.residual_rms < first.residual_rms)):
                 best = again
         if (np.ndim(values) == 3 and projection == "auto" and best.status != "ok"
-                and LEAST_FLUCTUATION_DETAIL in (best.detail or "")):
+                and best.projection == "least_fluctuation"):
             chan = photometric_fit(values, origin_uv, bp_uv, camera, rig, projection="border", **kw)
             why = f"the least-fluctuation projection's fit is not ok ({best.status}: {best.detail})"
             return replace(chan, detail=f"{chan.detail}; {why}" if chan.detail else why)
@@ -320,10 +320,10 @@ def photometric_fit(values, origin_uv, bp_uv, camera, rig: LightRig, *,
     ggx = lobe == "ggx"
     name = "photometric_fit"
     lower = missing = None  # the colour path's per-pixel censoring (lower bounds) and gaps
-    colour_detail = ""
+    colour_detail, how = "", None
     rgb_in, floor_in, clip_in = values, floor_level, clip_level
     if np.ndim(values) == 3:
-        values, clip_level, lower, missing, colour_detail = _colour_values(values, clip_level, projection)
+        values, clip_level, lower, missing, colour_detail, how = _colour_values(values, clip_level, projection)
         if lower is not None:
             floor_level = None  # a projection of three channels has no floor of its own
     censor = bool(censor and (clip_level is not None or lower is not None))
@@ -790,7 +790,7 @@ def photometric_fit(values, origin_uv, bp_uv, camera, rig: LightRig, *,
                   post=post)
     if colour_detail:
         est = replace(est, detail=f"{est.detail}; {colour_detail}" if est.detail else colour_detail)
-    est = replace(est, lobe="ggx" if ggx else "phong", n_residuals=int(len(yn)))
+    est = replace(est, lobe="ggx" if ggx else "phong", n_residuals=int(len(yn)), projection=how)
     if lower is not None and est.status in ("ok", "depth_not_observable"):
         # the shape check on the darkest channel: a curved patch is curved in every channel, and
         # the projection's residual can hide it (a JPEG frame's chroma, subsampled and blocky,
@@ -822,32 +822,28 @@ def _darkest(rgb, clip_level) -> tuple[int, float | None]:
     return c, clip
 
 
-#: What the detail of a fit on the least-fluctuation projection says (``_colour_values``).
-LEAST_FLUCTUATION_DETAIL = "least-fluctuation weights"
-
-
 def _colour_values(rgb, clip_level, projection: str = "auto"):
     """The single image a colour ROI is fitted on (``photometric_fit``'s ``values`` (H, W, 3)).
 
-    Returns ``(values, clip_level, lower, missing, detail)``: the body-colour projection of
+    Returns ``(values, clip_level, lower, missing, detail, how)``: the body-colour projection of
     :func:`~simtest.reconstruct.lightaware.model.specular_image` (no scalar clip level; its
     censored and missing pixels), or, where it gives none (the border holds one body colour, or
     white lies too near them), the channel whose median is least (where the tissue is darkest)
-    with that channel's clip level and no masks.
+    with that channel's clip level and no masks; ``how`` is the estimate's ``projection``
+    (``"body_colours"``, ``"least_fluctuation"`` or ``"darkest_channel"``).
     """
     rgb = np.asarray(rgb, dtype=np.float64)
-    out = specular_image(rgb, clip_level, fluctuation=False)
-    how = "body colours projected out"
+    out, how = specular_image(rgb, clip_level, fluctuation=False), "body_colours"
     if out is None and projection == "auto":
-        out = specular_image(rgb, clip_level)
-        how = f"body colours projected out by the {LEAST_FLUCTUATION_DETAIL}"
+        out, how = specular_image(rgb, clip_level), "least_fluctuation"
     if out is not None:
         values, lower, missing, w = out
-        return (values, None, lower, missing,
-                f"{how} (w = " + ", ".join(f"{x:.3g}" for x in w) + ")")
+        text = ("body colours projected out" if how == "body_colours"
+                else "body colours projected out by the least-fluctuation weights")
+        return (values, None, lower, missing, f"{text} (w = " + ", ".join(f"{x:.3g}" for x in w) + ")", how)
     c, clip = _darkest(rgb, clip_level)
     return rgb[..., c], clip, None, None, (f"channel {c} (no two body colours to project out: the "
-                                           "border holds one, or white lies too near them)")
+                                           "border holds one, or white lies too near them)"), "darkest_channel"
 
 
 def _bic(est: LightAwareEstimate) -> float:
