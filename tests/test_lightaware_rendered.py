@@ -119,7 +119,9 @@ def test_rendered_sphere_under_one_light_is_recommended_the_bp_ray():
 def _curved_suite_errors(sweep, realisations=(0, 1)):
     """Errors (deg) of the recommended normal and of the BP ray on a ``lightaware-curved`` sweep,
     run as the harness runs it (the suite's scene settings and realisation seeds): a list of
-    ``(epsilon/d, recommended, bp_ray)``, one per scored highlight."""
+    ``(epsilon/d, recommended, bp_ray, within 2 sigma)``, one per scored highlight (the last 1.0
+    where the recommended normal's error is at most twice its stated sigma, 0.0 where not, NaN
+    where it states none)."""
     suite = load_suite("lightaware-curved")
     out = []
     for case in (c for c in suite.cases if c.sweep == sweep):
@@ -127,22 +129,23 @@ def _curved_suite_errors(sweep, realisations=(0, 1)):
         for i in realisations:
             for row in runner.run(realisation_seed(suite.seed, case.key, i)):
                 out.append((row.extras["eps_over_d"], row.errors["recommended"],
-                            row.errors["bp_ray"]))
+                            row.errors["bp_ray"], row.extras["recommended_within_2sigma"]))
     return out
 
 
 @pytest.mark.parametrize("sweep", ["cylinder_offset", "saddle_offset"])
-def test_rendered_cylinder_and_saddle_under_one_light_are_recommended_the_bp_ray(sweep):
+def test_rendered_cylinder_and_saddle_under_one_light_keep_the_bp_ray_or_beat_it(sweep):
     # The suite's cylinder (radius 15 mm, 55 mm away) and saddle (r1 = 80 mm, r2 = 150 mm, 60 mm
     # away) at epsilon/d 0.1 and 0.3, two realisations each: under one light the quadric's depth
-    # is not observable (its third-order shape trades with it) and the BP ray is kept on every
-    # highlight, as on the liver and colon (the quadric's own medians there were 0.4 to 0.73 deg:
-    # the suite's quadric_fit column).
+    # is not observable (its third-order shape trades with it), and the BP ray is kept unless a
+    # misfitting plane's normal is confirmed by the quadric's (recommend's rule 4); such a normal
+    # is better than the BP ray and within twice its stated sigma (the cylinder at 0.3,
+    # realisation 0: 2.6 deg against 8.2).
     rows = _curved_suite_errors(sweep)
     eps_d = sorted(r[0] for r in rows)
     assert eps_d[0] == pytest.approx(0.1, abs=0.01) and eps_d[-1] == pytest.approx(0.31, abs=0.02)
-    for eps_d, rec, bp in rows:
-        assert rec == bp, (eps_d, rec, bp)
+    for eps_d, rec, bp, within in rows:
+        assert rec == bp or (rec < bp and within == 1.0), (eps_d, rec, bp, within)
 
 
 def test_rendered_colon_recommended_normal_is_never_worse_than_the_bp_ray():
@@ -154,7 +157,7 @@ def test_rendered_colon_recommended_normal_is_never_worse_than_the_bp_ray():
     rows = _curved_suite_errors("colon_offset")
     assert len(rows) >= 3
     assert {round(r[0], 1) for r in rows} == {0.1, 0.3}
-    for eps_d, rec, bp in rows:
+    for eps_d, rec, bp, _ in rows:
         assert rec == bp, (eps_d, rec, bp)
 
 

@@ -212,3 +212,67 @@ def test_normals_carry_the_quadric_and_cubic_patch_normals(tmp_path):
         s["normals"].pop("cubic_patch_fit")
     (tmp_path / "older.json").write_text(json.dumps(doc))
     assert "quadric_fit" not in read_estimates(tmp_path / "older.json")["specularities"][0]["normals"]
+
+
+# --- rule 4: a misfitting plane whose normal the quadric confirms -----------------------------------
+
+def _tilted(v, deg, axis=(0.0, 1.0, 0.0)):
+    """``v`` turned by ``deg`` about the direction of ``v x axis``."""
+    v = unit(np.asarray(v, dtype=np.float64))
+    k = unit(np.cross(v, axis))
+    t = np.radians(deg)
+    return unit(v * np.cos(t) + np.cross(k, v) * np.sin(t))
+
+
+_RULE4_BASE = {}
+
+
+def _rule4_base():
+    """A highlight of an exact 8-bit plane lit 3 mm off the lens, and its photometric fit (ok)."""
+    if not _RULE4_BASE:
+        img, K, N, depth, rig = _plane8(25.0, 25.0, 3.0)
+        est = with_light_aware(img, [_highlight(img, K)], K, rig)[0]
+        _RULE4_BASE.update(est=est, pho=est.light_aware["photometric_fit"])
+    return _RULE4_BASE["est"], _RULE4_BASE["pho"]
+
+
+@settings(max_examples=60, deadline=None)
+@given(gap=st.floats(0.0, 6.0), s_q=st.floats(0.05, 8.0), bp_err=st.floats(0.5, 30.0),
+       off=st.floats(0.0, 2.0))
+def test_a_misfitting_plane_is_kept_where_the_quadric_confirms_it(gap, s_q, bp_err, off):
+    # Rule 4: the misfitting plane's normal is recommended, depth withheld, with the stated sigma
+    # g + s_q, exactly where it lies within the quadric's sigma of the quadric's normal (g <= s_q)
+    # and twice that sigma beats the BP ray's expected error; else the BP ray. The plane's normal is
+    # put `off` deg from the BP ray (well below 2 x SIGMA_MARGIN x sigma: that term does not decide)
+    est, pho = _rule4_base()
+    # (away from the two boundaries by more than the angles' rounding: acos near 1 resolves
+    # about 1e-8 rad, 1e-6 deg)
+    assume(abs(gap - s_q) > 1e-5 and abs(SIGMA_MARGIN * (gap + s_q) - bp_err) > 1e-5)
+    assume(off < SIGMA_MARGIN * (gap + s_q) and 0.5 * off < bp_err)
+    n_p = _tilted(est.bp_ray, off)
+    n_q = _tilted(n_p, gap, axis=(1.0, 0.0, 0.0))
+    plane = dataclasses.replace(pho, status="plane_misfit", normal=n_p, depth_mm=None, depth_sigma_mm=None,
+                                distance_mm=None, bp_ray_error_deg=bp_err)
+    quad = dataclasses.replace(pho, estimator="quadric_fit", status="patch_misfit", normal=n_q,
+                               normal_sigma_deg=s_q, depth_mm=None, bp_ray_error_deg=bp_err)
+    rec = recommend(dataclasses.replace(est, light_aware={"photometric_fit": plane, "quadric_fit": quad}))
+    g = angle_between_deg(n_p, n_q)
+    if g <= s_q and SIGMA_MARGIN * (g + s_q) < bp_err:
+        assert rec.normal_from == "photometric_fit" and rec.depth_mm is None
+        assert np.allclose(rec.normal, n_p)
+        assert rec.normal_sigma_deg == pytest.approx(g + s_q, abs=1e-6)
+    else:
+        assert rec.normal_from == "bp_ray"
+
+
+def test_a_quadric_without_a_stated_sigma_confirms_nothing():
+    # the patch fits state 180 deg where their covariance is singular: no confirmation
+    est, pho = _rule4_base()
+    plane = dataclasses.replace(pho, status="plane_misfit", depth_mm=None, bp_ray_error_deg=20.0)
+    for sigma in (180.0, None):
+        quad = dataclasses.replace(pho, estimator="quadric_fit", status="patch_misfit", normal_sigma_deg=sigma)
+        rec = recommend(dataclasses.replace(est, light_aware={"photometric_fit": plane, "quadric_fit": quad}))
+        assert rec.normal_from == "bp_ray", sigma
+    # and without a quadric, the misfit alone is never recommended
+    rec = recommend(dataclasses.replace(est, light_aware={"photometric_fit": plane}))
+    assert rec.normal_from == "bp_ray"

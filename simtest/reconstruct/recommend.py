@@ -109,8 +109,25 @@ Chosen from the harness' measurements on Mitsuba renders (``simtest validate ren
    channels with the tissue's body colours projected out (``model.specular_image``), so that
    the albedo's texture under the rig's diffuse light is not left in the residual; where the
    lobe itself does not fit (micro-relief breaking it into sparkle, a film sharper than the
-   sensor resolves) the fit misfits and the BP ray stays. The endoscope suite's report gives
+   sensor resolves) the fit misfits, and rule 4 decides. The endoscope suite's report gives
    the share of each.
+
+4. Where rules 1 to 3 found nothing, a ``plane_misfit`` photometric fit whose normal the curved
+   patch confirms: ``quadric_fit`` gives a normal with a stated sigma s_q, the plane's normal
+   lies within s_q of it (angle g <= s_q), and twice the stated sigma ``g + s_q`` is below the BP
+   ray's expected error (as in rule 3); ``depth_mm`` is then None (the misfit withdrew it). The
+   plane's normal errs by at most g plus the quadric's error, so ``g + s_q`` states what the
+   quadric's sigma covers. Why: micro-relief on flat mucosa (the shading normal leaving the
+   plane's) leaves a residual that the curvature test reads as a curved patch, while the plane's normal, averaged over the lobe,
+   stays near the macro normal: on the endoscope suite's flat mucosa with relief 0.002 to
+   0.01 mm the misfitting plane fits erred by 0.21 to 0.48 deg (the quadric confirming them
+   within 0.52 to 0.76 deg, s_q 0.95 to 1.15), where the BP ray erred by 4.9 to 12.9 deg. On a
+   curved patch the plane trades curvature for distance and misses the normal, and the quadric
+   then disagrees: on the ``lightaware-curved`` one-light spheres the plane missed by 2.9 to 17
+   deg with g 3.1 to 16 deg (never within s_q, 2 to 6.7 deg), and the BP ray stayed. Rule 4 took 4
+   of the suite's one-light cylinder and saddle highlights, each better than the BP ray (0.14 to
+   2.6 deg against 2.8 to 9.3) and within twice its stated sigma. A quadric whose sigma is not
+   stated (180 deg: its covariance singular) confirms nothing.
 
 Depth ceiling
 -------------
@@ -563,6 +580,27 @@ def _stated_sigma(r: LightAwareEstimate) -> float | None:
     return float(max(sig, float(ls.max())))
 
 
+def _confirmed_plane(est, pho: LightAwareEstimate | None, quad: LightAwareEstimate | None) -> float | None:
+    """Rule 4 (module docstring): the stated sigma ``g + s_q`` of a misfitting plane's normal that
+    the quadric's normal confirms, or None where it does not (no misfitting plane normal, no
+    quadric normal with a stated sigma below 90 deg, the two more than s_q apart, or twice
+    ``g + s_q`` not below the BP ray's expected error)."""
+    if pho is None or pho.status != "plane_misfit" or not pho.has_normal:
+        return None
+    if quad is None or not quad.has_normal:
+        return None
+    s_q = _stated_sigma(quad)
+    if s_q is None or not s_q < 90.0:
+        return None
+    gap = _angle_deg(pho.normal, quad.normal)
+    if gap > s_q:
+        return None
+    sigma = gap + s_q
+    bp_err = max(pho.bp_ray_error_deg if pho.bp_ray_error_deg is not None else 0.0,
+                 0.5 * _angle_deg(est.bp_ray, pho.normal))
+    return sigma if SIGMA_MARGIN * sigma < bp_err else None
+
+
 def _angle_deg(a, b) -> float:
     """Angle between two directions, degrees (0 where either is missing)."""
     if a is None or b is None:
@@ -685,6 +723,9 @@ def recommend(est) -> Recommendation:
         if better:
             sigma, _, name, r = min(better)
             return Recommendation(np.asarray(r.normal), name, None, sigma, r.light_normals, None)
+        confirmed = _confirmed_plane(est, pho, la.get("quadric_fit"))
+        if confirmed is not None:
+            return Recommendation(np.asarray(pho.normal), "photometric_fit", None, confirmed)
         return Recommendation(np.asarray(est.bp_ray), "bp_ray")
     for name in COLOCATED_ORDER:
         n = getattr(est, name, None)
