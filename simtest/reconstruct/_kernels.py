@@ -1825,3 +1825,91 @@ def luma_diff_means(img, step, across_columns, w0, w1, w2):
         for i in range(len(out)):
             out[i] /= n
     return out
+
+
+@numba.njit(cache=True, nogil=True)
+def maxima_in_windows(gray, bg_small, windows, floor, top):
+    """:func:`top_hat_maxima` in windows of a frame, with the background enlarged from the reduced
+    opening ``bg_small`` on the fly: ``verify._upsampled`` and ``verify._maxima_windows`` in one
+    call (the background, the top-hat and the 3 x 3 maxima of each window measured with 1 px more,
+    clipped to the frame, so that they are the whole frame's).
+
+    Parameters
+    ----------
+    gray : ndarray of shape (H, W)
+        The luma (any real dtype; read as float32).
+    bg_small : ndarray of shape (sh, sw), float32
+        The reduced opening, enlarged to (H, W) as ``cv2.resize(bg_small, (W, H),
+        interpolation=cv2.INTER_LINEAR)`` (its sample positions and clamping; float32).
+    windows : ndarray of shape (n, 4), int64
+        Row0, row1, col0, col1 of each window.
+    floor : float32
+        The smallest top-hat of a maximum.
+    top : ndarray of shape (H, W), float32
+        Output: the top-hat inside the windows (elsewhere unwritten).
+
+    Returns
+    -------
+    ndarray of int64
+        The maxima's flat indices (row * W + column), sorted, each once.
+    """
+    H, W = gray.shape
+    sh, sw = bg_small.shape
+    one = np.float32(1.0)
+    zero = np.float32(0.0)
+    n_out = 0
+    out = np.empty(64, np.int64)
+    for q in range(windows.shape[0]):
+        r0, r1, c0, c1 = windows[q, 0], windows[q, 1], windows[q, 2], windows[q, 3]
+        if r1 <= r0 or c1 <= c0:
+            continue
+        e0, e1, f0, f1 = max(0, r0 - 1), min(H, r1 + 1), max(0, c0 - 1), min(W, c1 + 1)
+        nr, nc = e1 - e0, f1 - f0
+        x0 = np.empty(nc, np.int64)
+        x1 = np.empty(nc, np.int64)
+        ax = np.empty(nc, np.float32)
+        for j in range(nc):
+            x0[j], ax[j], x1[j] = _linear_sample(f0 + j, sw, W)
+        t = np.empty((nr, nc), np.float32)
+        for i in range(nr):
+            y0, ay, y1 = _linear_sample(e0 + i, sh, H)
+            for j in range(nc):
+                a = ax[j]
+                tp = bg_small[y0, x0[j]] * (one - a) + bg_small[y0, x1[j]] * a
+                bt = bg_small[y1, x0[j]] * (one - a) + bg_small[y1, x1[j]] * a
+                b = tp * (one - ay) + bt * ay
+                d = np.float32(gray[e0 + i, f0 + j]) - b
+                t[i, j] = d if (d >= zero) | (d != d) else zero
+        for i in range(r0 - e0, r1 - e0):
+            for j in range(c0 - f0, c1 - f0):
+                v = t[i, j]
+                top[e0 + i, f0 + j] = v
+                if not v > floor:
+                    continue
+                is_max = True
+                for di in range(-1, 2):
+                    ii = i + di
+                    if ii < 0 or ii >= nr:
+                        continue
+                    for dj in range(-1, 2):
+                        jj = j + dj
+                        if jj < 0 or jj >= nc:
+                            continue
+                        if not v >= t[ii, jj]:
+                            is_max = False
+                if is_max:
+                    if n_out == len(out):
+                        grown = np.empty(2 * len(out), np.int64)
+                        grown[:n_out] = out[:n_out]
+                        out = grown
+                    out[n_out] = (e0 + i) * W + (f0 + j)
+                    n_out += 1
+    res = np.sort(out[:n_out])
+    if n_out == 0:
+        return res
+    m = 1
+    for k in range(1, n_out):
+        if res[k] != res[m - 1]:
+            res[m] = res[k]
+            m += 1
+    return res[:m]

@@ -1057,12 +1057,13 @@ def _detect_half_resolution(img, native, fs, saturation_level, *, min_area_px, e
         saturation_level=saturation_level, min_area_px=min_area_px, ellipticity_min=ellipticity_min,
         min_plateau_px=min_plateau_px, roi_scale=roi_scale, roi_margin_px=roi_margin_px,
         max_candidates=max_candidates, peak_rel=peak_rel, k_close=k_close_full)
-    rad = gaussian_radius_px(smooth_sigma_px)
+    # the full frame's Gaussian (OpenCV's taps for a float image), applied in each window by
+    # _dk.window_component with the frame's sides reflected: the frame's smoothing there
+    kern = cv2.getGaussianKernel(2 * gaussian_radius_px(smooth_sigma_px) + 1, smooth_sigma_px).astype(np.float32).ravel()
     thr = np.float32(contrast_min_rel * fs)
     out = []
     for c in cands2:
-        got = _component_at_full_resolution(full, native, c, bg_small, peak_small, smooth_sigma_px, rad,
-                                            np.float32(peak_rel), thr)
+        got = _component_at_full_resolution(full, native, c, bg_small, peak_small, kern, np.float32(peak_rel), thr)
         if got is None:  # its BP's pixel is not in the full frame's mask: the reduced frame's
             b = c.bbox
             bbox = Roi(2 * b.row0, min(h, 2 * b.row1), 2 * b.col0, min(w, 2 * b.col1))
@@ -1112,8 +1113,8 @@ def _linear_at(small: np.ndarray, shape: tuple[int, int], r0: int, r1: int, c0: 
     return top * (one - ay)[:, None] + bot * ay[:, None]
 
 
-def _component_at_full_resolution(full: _DetectFrame, native, c: Candidate, bg_small, peak_small, sigma: float,
-                                  rad: int, peak_rel: np.float32, thr: np.float32) -> Candidate | None:
+def _component_at_full_resolution(full: _DetectFrame, native, c: Candidate, bg_small, peak_small, kern: np.ndarray,
+                                  peak_rel: np.float32, thr: np.float32) -> Candidate | None:
     """The full frame's component of a candidate found on the reduced frame, examined as at full
     resolution (:func:`_examine_numpy`): the window around its box (grown until the component
     lies inside it) smoothed, its background and local peaks enlarged from the reduced frame's
@@ -1126,28 +1127,21 @@ def _component_at_full_resolution(full: _DetectFrame, native, c: Candidate, bg_s
     while True:
         r0, r1 = max(0, 2 * b.row0 - m), min(h, 2 * b.row1 + m)
         c0, c1 = max(0, 2 * b.col0 - m), min(w, 2 * b.col1 + m)
-        s0, s1, t0, t1 = max(0, r0 - rad), min(h, r1 + rad), max(0, c0 - rad), min(w, c1 + rad)
-        sm = cv2.GaussianBlur(native[s0:s1, t0:t1].astype(np.float32), (0, 0), sigma, borderType=cv2.BORDER_REFLECT)
-        g = np.ascontiguousarray(sm[r0 - s0 : r1 - s0, c0 - t0 : c1 - t0])
-        bg = np.minimum(_linear_at(bg_small, (h, w), r0, r1, c0, c1), g)
-        top = g - bg
-        lp = _linear_at(peak_small, (h, w), r0, r1, c0, c1)
-        mask = ((top >= peak_rel * np.maximum(lp, top)) & (top >= thr)).view(np.uint8)
         # the BP's pixel: the largest smoothed value within 2 px of the reduced frame's BP
         gc = min(max(int(round(2.0 * c.bp_uv[0] + 0.5)), c0), c1 - 1) - c0
         gr = min(max(int(round(2.0 * c.bp_uv[1] + 0.5)), r0), r1 - 1) - r0
-        lr, lc = max(0, gr - 2), max(0, gc - 2)
-        core = np.where(mask[lr : gr + 3, lc : gc + 3].view(bool), g[lr : gr + 3, lc : gc + 3], -np.inf)
-        if not np.isfinite(core.max()):
+        g = np.empty((r1 - r0, c1 - c0), np.float32)
+        bg = np.empty_like(g)
+        lab = np.empty(g.shape, np.int32)
+        found, x, y, bw, bh, area = _dk.window_component(native, r0, r1, c0, c1, kern, bg_small, peak_small,
+                                                          peak_rel, thr, gr, gc, g, bg, lab)
+        if not found:
             return None
-        pr, pc = divmod(int(np.argmax(core)), core.shape[1])
-        n, lab, stats, _ = cv2.connectedComponentsWithStats(mask, connectivity=8)
-        k = lab[lr + pr, lc + pc]
-        x, y, bw, bh, area = (int(v) for v in stats[k])
         cut = (x == 0 and c0 > 0) or (y == 0 and r0 > 0) or (x + bw == c1 - c0 and c1 < w) or (y + bh == r1 - r0 and r1 < h)
         if not cut:
             break
         m *= 2
+    k = 1
     full.gray[r0:r1, c0:c1] = g
     full.levels[r0:r1, c0:c1] = bg
     got = _examine_in_window(full, g, lab, bg, k, x, y, bw, bh, area, r0, c0)
