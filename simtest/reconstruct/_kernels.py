@@ -1828,6 +1828,17 @@ def luma_diff_means(img, step, across_columns, w0, w1, w2):
 
 
 @numba.njit(cache=True, nogil=True)
+def _append_maxima(mk, i0, i1, j0, j1, e0, f0, W, out, n):
+    """Write the flat frame indices of ``mk[i0:i1, j0:j1]``'s set pixels (a window whose corner
+    is the frame's row ``e0``, column ``f0``; frame width ``W``) into ``out`` from index n."""
+    for i in range(i0, i1):
+        for j in range(j0, j1):
+            if mk[i, j]:
+                out[n] = (e0 + i) * W + (f0 + j)
+                n += 1
+
+
+@numba.njit(cache=True, nogil=True)
 def maxima_in_windows(gray, bg_small, windows, floor, top):
     """:func:`top_hat_maxima` in windows of a frame, with the background enlarged from the reduced
     opening ``bg_small`` on the fly: ``verify._upsampled`` and ``verify._maxima_windows`` in one
@@ -1856,7 +1867,6 @@ def maxima_in_windows(gray, bg_small, windows, floor, top):
     H, W = gray.shape
     sh, sw = bg_small.shape
     one = np.float32(1.0)
-    zero = np.float32(0.0)
     n_out = 0
     out = np.empty(64, np.int64)
     for q in range(windows.shape[0]):
@@ -1870,40 +1880,37 @@ def maxima_in_windows(gray, bg_small, windows, floor, top):
         ax = np.empty(nc, np.float32)
         for j in range(nc):
             x0[j], ax[j], x1[j] = _linear_sample(f0 + j, sw, W)
-        t = np.empty((nr, nc), np.float32)
-        for i in range(nr):
-            y0, ay, y1 = _linear_sample(e0 + i, sh, H)
+        # the enlarged background: each reduced row enlarged along the row once (the rows of a
+        # window read a few), then the two rows' values weighed per pixel
+        s_lo, _, _ = _linear_sample(e0, sh, H)
+        _, _, s_hi = _linear_sample(e1 - 1, sh, H)
+        lines = np.empty((s_hi - s_lo + 1, nc), np.float32)
+        for s in range(s_lo, s_hi + 1):
             for j in range(nc):
                 a = ax[j]
-                tp = bg_small[y0, x0[j]] * (one - a) + bg_small[y0, x1[j]] * a
-                bt = bg_small[y1, x0[j]] * (one - a) + bg_small[y1, x1[j]] * a
-                b = tp * (one - ay) + bt * ay
-                d = np.float32(gray[e0 + i, f0 + j]) - b
-                t[i, j] = d if (d >= zero) | (d != d) else zero
+                lines[s - s_lo, j] = bg_small[s, x0[j]] * (one - a) + bg_small[s, x1[j]] * a
+        gw = np.empty((nr, nc), np.float32)
+        bw = np.empty((nr, nc), np.float32)
+        for i in range(nr):
+            y0, ay, y1 = _linear_sample(e0 + i, sh, H)
+            la, lb = lines[y0 - s_lo], lines[y1 - s_lo]
+            for j in range(nc):
+                bw[i, j] = la[j] * (one - ay) + lb[j] * ay
+                gw[i, j] = np.float32(gray[e0 + i, f0 + j])
+        t = np.empty((nr, nc), np.float32)
+        mk = np.empty((nr, nc), np.bool_)
+        top_hat_maxima(gw, bw, floor, t, mk)
+        m = 0
         for i in range(r0 - e0, r1 - e0):
             for j in range(c0 - f0, c1 - f0):
-                v = t[i, j]
-                top[e0 + i, f0 + j] = v
-                if not v > floor:
-                    continue
-                is_max = True
-                for di in range(-1, 2):
-                    ii = i + di
-                    if ii < 0 or ii >= nr:
-                        continue
-                    for dj in range(-1, 2):
-                        jj = j + dj
-                        if jj < 0 or jj >= nc:
-                            continue
-                        if not v >= t[ii, jj]:
-                            is_max = False
-                if is_max:
-                    if n_out == len(out):
-                        grown = np.empty(2 * len(out), np.int64)
-                        grown[:n_out] = out[:n_out]
-                        out = grown
-                    out[n_out] = (e0 + i) * W + (f0 + j)
-                    n_out += 1
+                top[e0 + i, f0 + j] = t[i, j]
+                m += mk[i, j]
+        if n_out + m > len(out):  # grown once a window (not in the scan: numba's reference counts)
+            grown = np.empty(max(2 * len(out), n_out + m), np.int64)
+            grown[:n_out] = out[:n_out]
+            out = grown
+        _append_maxima(mk, r0 - e0, r1 - e0, c0 - f0, c1 - f0, e0, f0, W, out, n_out)
+        n_out += m
     res = np.sort(out[:n_out])
     if n_out == 0:
         return res

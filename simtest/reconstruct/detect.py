@@ -627,6 +627,17 @@ def _scope_border(gray: np.ndarray, level: float) -> np.ndarray | None:
     is none."""
     h, w = gray.shape
     f = 4 if min(h, w) >= 64 else 1
+    if f > 1:
+        # the reduced image's corners (the corner blocks' means, as the reduction gives them):
+        # fewer than two dark, no border, without reducing the whole frame (0.5 ms of a clean
+        # 1350 x 1080 frame without a scope border)
+        hf, wf = h // f * f, w // f * f
+        dark = 0
+        for r, c in ((0, 0), (0, wf - f), (hf - f, 0), (hf - f, wf - f)):
+            block = np.ascontiguousarray(gray[r : r + f, c : c + f], dtype=np.float32)
+            dark += bool(cv2.resize(block, (1, 1), interpolation=cv2.INTER_AREA)[0, 0] < level)
+        if dark < 2:
+            return None
     # whole f x f blocks (the last h mod f rows and w mod f columns left out): OpenCV's integer
     # area reduction, a third of the time of the fractional one over the whole image
     small = cv2.resize(gray[: h // f * f, : w // f * f].astype(np.float32, copy=False),
