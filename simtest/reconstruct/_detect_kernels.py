@@ -586,6 +586,19 @@ def _linear_source(i, n_small, n_full):
 
 
 @numba.njit(cache=True, nogil=True)
+def _taps_row(kern, src, out):
+    """``out[j] = sum_t kern[t] src[j + t]`` in float32 (the taps in order), for a contiguous row:
+    one pass over the row per tap (vectorised)."""
+    n = len(out)
+    for j in range(n):
+        out[j] = 0.0
+    for t in range(len(kern)):
+        kt = kern[t]
+        for j in range(n):
+            out[j] += kt * src[j + t]
+
+
+@numba.njit(cache=True, nogil=True)
 def window_component(native, r0, r1, c0, c1, kern, bg_small, peak_small, peak_rel, thr, gr, gc, g, bg, lab):
     """The candidate mask of ``local_peak_mask`` in a window of the full frame, from the frame's
     smoothing and the reduced frame's background and local peaks, and the 8-connected component
@@ -632,21 +645,20 @@ def window_component(native, r0, r1, c0, c1, kern, bg_small, peak_small, peak_re
         cols[j] = _reflected(c0 - K + j, W)
     buf = np.empty(nc + 2 * K, np.float32)
     tmp = np.zeros((nr + 2 * K, nc), np.float32)
+    acc = np.empty(nc, np.float32)
     for i in range(nr + 2 * K):
         rr = _reflected(r0 - K + i, H)
         for j in range(nc + 2 * K):
             buf[j] = np.float32(native[rr, cols[j]])
-        for t in range(n_t):
-            kt = kern[t]
-            for j in range(nc):
-                tmp[i, j] += kt * buf[j + t]
-    for i in range(nr):
-        for j in range(nc):
-            g[i, j] = 0.0
-        for t in range(n_t):
-            kt = kern[t]
-            for j in range(nc):
-                g[i, j] += kt * tmp[i + t, j]
+        _taps_row(kern, buf, acc)
+        tmp[i, :] = acc
+    col = np.empty(nr + 2 * K, np.float32)
+    acc_c = np.empty(nr, np.float32)
+    tmp_t = np.ascontiguousarray(tmp.T)  # the vertical pass along contiguous columns
+    for j in range(nc):
+        col[:] = tmp_t[j]
+        _taps_row(kern, col, acc_c)
+        g[:, j] = acc_c
     # the mask: top-hat over the enlarged background, against the enlarged local peaks (each
     # column's sources computed once)
     sh, sw = bg_small.shape
@@ -661,7 +673,10 @@ def window_component(native, r0, r1, c0, c1, kern, bg_small, peak_small, peak_re
     for j in range(nc):
         bx0[j], bx1[j], ax[j] = _linear_source(c0 + j, sw, W)
         px0[j], px1[j], qx[j] = _linear_source(c0 + j, pw, W)
-    mask = np.zeros((nr, nc), np.uint8)
+    # the mask, padded by a row and a column of 0 on each side (the flood fill below needs no
+    # bounds checks)
+    W2 = nc + 2
+    mp = np.zeros((nr + 2) * W2, np.uint8)
     for i in range(nr):
         by0, by1, ay = _linear_source(r0 + i, sh, H)
         py0, py1, qy = _linear_source(r0 + i, ph, H)
@@ -679,13 +694,13 @@ def window_component(native, r0, r1, c0, c1, kern, bg_small, peak_small, peak_re
             bot = peak_small[py1, px0[j]] * (one - a) + peak_small[py1, px1[j]] * a
             p = top * (one - qy) + bot * qy
             q = p if (p >= t or p != p) else t
-            mask[i, j] = 1 if (t >= q * peak_rel and t >= thr) else 0
+            mp[(i + 1) * W2 + j + 1] = 1 if (t >= q * peak_rel and t >= thr) else 0
     # the BP's pixel: the largest smoothed value of the mask within 2 px of the reduced BP
     best = np.float32(-np.inf)
     pr, pc = -1, -1
     for i in range(max(0, gr - 2), min(nr, gr + 3)):
         for j in range(max(0, gc - 2), min(nc, gc + 3)):
-            if mask[i, j] and g[i, j] > best:
+            if mp[(i + 1) * W2 + j + 1] and g[i, j] > best:
                 best = g[i, j]
                 pr, pc = i, j
     for i in range(nr):
@@ -693,29 +708,27 @@ def window_component(native, r0, r1, c0, c1, kern, bg_small, peak_small, peak_re
             lab[i, j] = 0
     if pr < 0:
         return False, 0, 0, 0, 0, 0
-    # its 8-connected component (a flood fill)
+    # its 8-connected component: a flood fill over the padded mask (a filled pixel's mask is
+    # cleared, so each is pushed once)
+    offs = np.array([-W2 - 1, -W2, -W2 + 1, -1, 1, W2 - 1, W2, W2 + 1], np.int64)
     stack = np.empty(nr * nc, np.int64)
-    top_ = 0
-    lab[pr, pc] = 1
-    stack[0] = pr * nc + pc
-    top_ = 1
+    start = (pr + 1) * W2 + pc + 1
+    mp[start] = 0
+    stack[0] = start
+    n_st = 1
     ya, yb, xa, xb = pr, pr, pc, pc
     area = 0
-    while top_ > 0:
-        top_ -= 1
-        p = stack[top_]
-        i, j = p // nc, p % nc
+    while n_st > 0:
+        n_st -= 1
+        p = stack[n_st]
+        i, j = p // W2 - 1, p % W2 - 1
+        lab[i, j] = 1
         area += 1
         ya, yb, xa, xb = min(ya, i), max(yb, i), min(xa, j), max(xb, j)
-        for di in range(-1, 2):
-            ii = i + di
-            if ii < 0 or ii >= nr:
-                continue
-            for dj in range(-1, 2):
-                jj = j + dj
-                if jj < 0 or jj >= nc or lab[ii, jj] or not mask[ii, jj]:
-                    continue
-                lab[ii, jj] = 1
-                stack[top_] = ii * nc + jj
-                top_ += 1
+        for o in offs:
+            q = p + o
+            if mp[q]:
+                mp[q] = 0
+                stack[n_st] = q
+                n_st += 1
     return True, xa, ya, xb - xa + 1, yb - ya + 1, area

@@ -617,6 +617,21 @@ def _sigma_for_noise(s: float) -> float:
     return 0.0 if s < 0.005 else float(min(2.5, 1.0 + s / 0.01))
 
 
+def _area_reduced(img: np.ndarray, f: int) -> np.ndarray:
+    """The means of the ``f`` x ``f`` blocks of a float32 image whose sides are multiples of f:
+    ``cv2.resize(img, (W // f, H // f), interpolation=cv2.INTER_AREA)``, as a chain of 2 x 2
+    reductions (OpenCV's vectorised path, a third of the general integer one's time on a 1350 x
+    1080 frame) and one by the odd rest; the same means to float32 rounding (the sums grouped
+    otherwise)."""
+    h, w = img.shape[:2]
+    while f % 2 == 0 and f > 1:
+        h, w, f = h // 2, w // 2, f // 2
+        img = cv2.resize(img, (w, h), interpolation=cv2.INTER_AREA)
+    if f > 1:
+        img = cv2.resize(img, (w // f, h // f), interpolation=cv2.INTER_AREA)
+    return img
+
+
 def _scope_border(gray: np.ndarray, level: float) -> np.ndarray | None:
     """The endoscope's black border: pixels below ``level`` joined to at least two image corners,
     when they cover 1 % to 60 % of the image (a dark scene, such as a render on black, is not a
@@ -640,8 +655,7 @@ def _scope_border(gray: np.ndarray, level: float) -> np.ndarray | None:
             return None
     # whole f x f blocks (the last h mod f rows and w mod f columns left out): OpenCV's integer
     # area reduction, a third of the time of the fractional one over the whole image
-    small = cv2.resize(gray[: h // f * f, : w // f * f].astype(np.float32, copy=False),
-                       (max(1, w // f), max(1, h // f)), interpolation=cv2.INTER_AREA) if f > 1 else gray
+    small = _area_reduced(gray[: h // f * f, : w // f * f].astype(np.float32, copy=False), f) if f > 1 else gray
     border = _dark_corner_components((small < level).astype(np.uint8))
     if border is None:
         return None
@@ -824,7 +838,11 @@ def local_peak_mask(gray: np.ndarray, full_scale: float, *, peak_rel: float = 0.
     # The background is smooth at the scale of the square: open (and take the local peaks) on the
     # image reduced so that the square is ~16 px (area averaging), then back to full size.
     f = max(1, side // 16)
-    small = cv2.resize(g, (max(1, w // f), max(1, h // f)), interpolation=cv2.INTER_AREA) if f > 1 else g
+    whole = f > 1 and h % f == 0 and w % f == 0  # whole blocks: the reductions by 2 x 2 steps
+    if whole:
+        small = _area_reduced(g, f)
+    else:
+        small = cv2.resize(g, (max(1, w // f), max(1, h // f)), interpolation=cv2.INTER_AREA) if f > 1 else g
     k = max(3, side // f)
     k += 1 - k % 2
     kernel = cv2.getStructuringElement(cv2.MORPH_RECT, (k, k))
@@ -838,7 +856,10 @@ def local_peak_mask(gray: np.ndarray, full_scale: float, *, peak_rel: float = 0.
     rows = np.empty(h, np.uint8)
     thr = np.float32(contrast_min_rel * full_scale)
     _dk.top_hat(g, background, top, thr, rows)
-    top_small = cv2.resize(top, small.shape[::-1], interpolation=cv2.INTER_AREA) if f > 1 else top
+    if whole:
+        top_small = _area_reduced(top, f)
+    else:
+        top_small = cv2.resize(top, small.shape[::-1], interpolation=cv2.INTER_AREA) if f > 1 else top
     peak_small = cv2.dilate(top_small, kernel, borderType=cv2.BORDER_REPLICATE)
     local_peak = cv2.resize(peak_small, (w, h), interpolation=cv2.INTER_LINEAR) if f > 1 else peak_small
     # top >= peak_rel * max(local_peak, top) (the local peak is at least the pixel itself) and
