@@ -1675,14 +1675,23 @@ def surround_fractions(gray, bj, bi, reach, cu, cv, sa, sb, cs, sn, own_level, r
         ring = np.zeros((hh, ww), np.bool_)
         n_ring = 0
         rr = reach[q] * reach[q]
+        cq, sq, aq, bq, uq, vq = cs[q], sn[q], sa[q], sb[q], cu[q], cv[q]
         for r in range(hh):
             y = float(r + r0)
+            dy = y - pi
+            dy2 = dy * dy
+            if dy2 > rr:
+                continue
+            dv = y - vq
             for c in range(ww):
                 x = float(c + c0)
-                if (x - pj) ** 2 + (y - pi) ** 2 <= rr:
-                    du, dv = x - cu[q], y - cv[q]
-                    lev = ((cs[q] * du + sn[q] * dv) / sa[q]) ** 2 + ((-sn[q] * du + cs[q] * dv) / sb[q]) ** 2
-                    if lev > own_level:
+                dx = x - pj
+                # products, not ** 2 (numba called pow for each: most of the time)
+                if dx * dx + dy2 <= rr:
+                    du = x - uq
+                    e1 = (cq * du + sq * dv) / aq
+                    e2 = (-sq * du + cq * dv) / bq
+                    if e1 * e1 + e2 * e2 > own_level:
                         ring[r, c] = True
                         n_ring += 1
         if n_ring == 0:
@@ -1920,3 +1929,20 @@ def maxima_in_windows(gray, bg_small, windows, floor, top):
             res[m] = res[k]
             m += 1
     return res[:m]
+
+
+@numba.njit(cache=True, nogil=True)
+def magnitude_histogram(coef, nbin):
+    """Per frequency (column of ``coef``, (N, K) float32), the histogram of the coefficients'
+    rounded magnitudes ``min(rint(|c|), nbin - 1)`` (halves to even, as ``np.rint``): int32 of
+    shape (nbin, K), the ``np.bincount`` of :func:`simtest.reconstruct.jpeg._steps_of` without its
+    flattened index copies (a third of that function's time)."""
+    n, K = coef.shape
+    hist = np.zeros((nbin, K), np.int32)
+    top = nbin - 1
+    for i in range(n):
+        for k in range(K):
+            m = np.rint(abs(coef[i, k]))
+            b = top if m >= top else int(m)
+            hist[b, k] += 1
+    return hist

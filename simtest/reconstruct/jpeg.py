@@ -74,6 +74,8 @@ def _dct_matrix(n: int = BLOCK) -> np.ndarray:
 
 
 _D = _dct_matrix().astype(np.float32)
+#: The 2-D DCT of a row-major flattened 8 x 8 block, transposed: ``kron(D, D).T`` (float32).
+_DD_T = np.ascontiguousarray(np.kron(_dct_matrix(), _dct_matrix()).T.astype(np.float32))
 
 
 def _step_tables(m: int, q_max: int):
@@ -158,8 +160,11 @@ def dct_blocks(blocks: np.ndarray) -> np.ndarray:
         Coefficients, frequency ``k = 8 u + v`` (u vertical, v horizontal), equal to
         OpenCV's ``dct`` of ``block - 128`` and to JPEG's FDCT output before quantisation.
     """
-    b = np.asarray(blocks, np.float32) - 128.0
-    return (_D @ b @ _D.T).reshape(len(b), BLOCK * BLOCK)
+    b = np.asarray(blocks, np.float32).reshape(-1, BLOCK * BLOCK) - np.float32(128.0)
+    # D b D^T of each block as one product of the flattened blocks with D (x) D (row-major
+    # vec(D b D^T) = (D (x) D) vec(b)): one GEMM instead of numpy's batched 8 x 8 products (a
+    # tenth of the time for the grid search's 256 blocks)
+    return b @ _DD_T
 
 
 def _steps_of(coef: np.ndarray, tables=_FULL) -> np.ndarray:
@@ -176,9 +181,8 @@ def _steps_of(coef: np.ndarray, tables=_FULL) -> np.ndarray:
     if n == 0:
         return np.zeros(BLOCK * BLOCK, np.int64)
     nbin, qs, mult_idx, mult_start, zero_bin = tables
-    m = np.minimum(np.rint(np.abs(coef)).astype(np.int64), nbin - 1)
-    flat = (m + (nbin * np.arange(BLOCK * BLOCK))[None, :]).ravel()
-    hist = np.bincount(flat, minlength=nbin * BLOCK * BLOCK).astype(np.int32).reshape(BLOCK * BLOCK, nbin).T
+    c = coef if coef.dtype.type in (np.float32, np.float64) else coef.astype(np.float64)
+    hist = _kernels.magnitude_histogram(np.ascontiguousarray(c), nbin)  # (bins, 64)
     active = hist[2:].sum(axis=0) >= MIN_COEFFICIENTS
     out = np.where(active, 1, 0).astype(np.int64)
     if not active.any():
