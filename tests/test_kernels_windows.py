@@ -90,3 +90,36 @@ def test_window_component_is_the_frames_mask_and_component(seed, sigma, r0, c0, 
     k = labels[max(0, gr - 2) + pr, max(0, gc - 2) + pc]
     assert (x, y, bw, bh, area) == tuple(int(v) for v in stats[k])
     assert np.array_equal(lab == 1, labels == k)
+
+
+@settings(max_examples=20, deadline=None)
+@given(seed=st.integers(0, 2**32 - 1), f=st.integers(2, 6), sh=st.integers(4, 20), sw=st.integers(4, 20))
+def test_top_hat_and_peak_mask_rows_are_the_enlarged_frames(seed, f, sh, sw):
+    """The compiled passes with the enlargement down the columns done inside them give OpenCV's
+    full-size enlargement to float32 rounding (1e-3 of 255 grey levels): the background (in the
+    rows with a candidate when asked for those only), the top-hat, and the mask wherever no
+    pixel lies within that rounding of a threshold."""
+    from simtest.reconstruct import detect
+
+    rng = np.random.default_rng(seed)
+    h, w = sh * f, sw * f
+    g = cv2.GaussianBlur((rng.random((h, w)) * 255).astype(np.float32), (0, 0), 1.0)
+    side = 16 * f + rng.integers(0, 16)
+    mask, background = detect.local_peak_mask(g, 255.0, background_px=int(side))
+    mask_r, background_r = detect.local_peak_mask(g, 255.0, background_px=int(side), _hit_rows_only=True)
+    # the reference: OpenCV's full-size enlargements (local_peak_mask before issue 41's passes)
+    k = max(3, int(side) // f)
+    k += 1 - k % 2
+    kernel = cv2.getStructuringElement(cv2.MORPH_RECT, (k, k))
+    bg_small = cv2.morphologyEx(detect._area_reduced(g, f), cv2.MORPH_OPEN, kernel, borderType=cv2.BORDER_REPLICATE)
+    bg = np.minimum(cv2.resize(bg_small, (w, h), interpolation=cv2.INTER_LINEAR), g)
+    top = g - bg
+    peak = cv2.dilate(detect._area_reduced(top, f), kernel, borderType=cv2.BORDER_REPLICATE)
+    lp = cv2.resize(peak, (w, h), interpolation=cv2.INTER_LINEAR)
+    thr, rel = np.float32(0.08 * 255), np.float32(0.6)
+    want = ((top >= rel * np.maximum(lp, top)) & (top >= thr)).astype(np.uint8)
+    np.testing.assert_allclose(background, bg, atol=1e-3)
+    hit = (top >= thr).any(axis=1)
+    np.testing.assert_allclose(background_r[hit], bg[hit], atol=1e-3)
+    near = (np.abs(top - thr) < 1e-2) | (np.abs(top - rel * np.maximum(lp, top)) < 1e-2)
+    assert np.array_equal(mask[~near], want[~near]) and np.array_equal(mask_r, mask)

@@ -732,3 +732,74 @@ def window_component(native, r0, r1, c0, c1, kern, bg_small, peak_small, peak_re
                 stack[n_st] = q
                 n_st += 1
     return True, xa, ya, xb - xa + 1, yb - ya + 1, area
+
+
+@numba.njit(cache=True, nogil=True)
+def linear_rows(n_full, n_small):
+    """OpenCV's INTER_LINEAR sources along one axis of an enlargement from ``n_small`` to
+    ``n_full`` samples: per output index the lower source index, the upper one and the float32
+    weight of the upper (``(i + 0.5) n_small / n_full - 0.5``, clamped at the sides)."""
+    i0 = np.empty(n_full, np.int64)
+    i1 = np.empty(n_full, np.int64)
+    a = np.empty(n_full, np.float32)
+    for i in range(n_full):
+        k, k1, w = _linear_source(i, n_small, n_full)
+        i0[i] = k
+        i1[i] = k1
+        a[i] = w
+    return i0, i1, a
+
+
+@numba.njit(cache=True, nogil=True)
+def top_hat_rows(gray, wide, y0, y1, ay, background, top, thr, rows, hit_rows_only):
+    """:func:`top_hat` with the background enlarged on the fly from ``wide`` (sh, W): the reduced
+    opening enlarged along its rows only (``cv2.resize(bg_small, (W, sh), INTER_LINEAR)``),
+    each frame row r weighing rows ``y0[r]`` and ``y1[r]`` of it by ``ay[r]``
+    (:func:`linear_rows`): ``cv2.resize(bg_small, (W, H), INTER_LINEAR)`` to float32 rounding,
+    without the full-size enlargement's pass (issue 41: a third of ``local_peak_mask``'s passes
+    over the frame). ``background`` gets ``min(enlarged, gray)``; with ``hit_rows_only``, in the
+    rows that hold a top-hat ``>= thr`` only (the rows of the candidates, whose levels are read
+    there; the others unwritten: a third of the pass's memory traffic)."""
+    h, w = gray.shape
+    one = np.float32(1.0)
+    for r in range(h):
+        a = ay[r]
+        b = one - a
+        lo, hi = wide[y0[r]], wide[y1[r]]
+        hit = 0
+        for c in range(w):
+            e = lo[c] * b + hi[c] * a
+            g = gray[r, c]
+            m = e if (e <= g or e != e) else g
+            t = g - m
+            top[r, c] = t
+            hit |= t >= thr
+        rows[r] = hit
+        if hit or not hit_rows_only:
+            for c in range(w):
+                e = lo[c] * b + hi[c] * a
+                g = gray[r, c]
+                background[r, c] = e if (e <= g or e != e) else g
+
+
+@numba.njit(cache=True, nogil=True)
+def peak_mask_rows(top, wide, y0, y1, ay, peak_rel, thr, rows, mask):
+    """:func:`peak_mask` with the local peaks enlarged on the fly from ``wide`` (the reduced local
+    peaks enlarged along their rows, as :func:`top_hat_rows`), in the rows that hold a top-hat
+    ``>= thr`` only."""
+    h, w = top.shape
+    one = np.float32(1.0)
+    for r in range(h):
+        if rows[r] == 0:
+            for c in range(w):
+                mask[r, c] = 0
+            continue
+        a = ay[r]
+        b = one - a
+        lo, hi = wide[y0[r]], wide[y1[r]]
+        for c in range(w):
+            t = top[r, c]
+            p = lo[c] * b + hi[c] * a
+            q = p if (p >= t or p != p) else t
+            q = q * peak_rel
+            mask[r, c] = 1 if (t >= q and t >= thr) else 0

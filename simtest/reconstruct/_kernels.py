@@ -1524,13 +1524,18 @@ def maybe_flat(x, r0, r1, c0, c1, thr2, slack, out):
     s1 = np.empty((q1 - q0, w))
     s2 = np.empty((q1 - q0, w))
     pad = np.empty(w + 4)
+    cols = np.empty(w + 4, np.int64)  # the reflected columns, once
+    for j in range(w + 4):
+        cols[j] = _reflect101(c0 - 2 + j, W)
     for i in range(q0, q1):
         ri = _reflect101(i, H)
+        finite = True
         for j in range(w + 4):
-            v = np.float64(np.float32(x[ri, _reflect101(c0 - 2 + j, W)]))
-            if not np.isfinite(v):
-                return -1
+            v = np.float64(np.float32(x[ri, cols[j]]))
+            finite &= np.isfinite(v)
             pad[j] = v
+        if not finite:
+            return -1
         a = 0.0
         b = 0.0
         for j in range(5):

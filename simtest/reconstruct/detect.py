@@ -798,7 +798,8 @@ def background_side_px(shape: tuple[int, int], clipped: np.ndarray | None = None
 
 
 def local_peak_mask(gray: np.ndarray, full_scale: float, *, peak_rel: float = 0.6,
-                    contrast_min_rel: float = 0.08, background_px: int | None = None, _parts: list | None = None):
+                    contrast_min_rel: float = 0.08, background_px: int | None = None, _parts: list | None = None,
+                    _hit_rows_only: bool = False):
     """Bright-candidate mask relative to local peaks (``method="local_peak"``).
 
     The diffuse background is the grey opening of the luma by a square of side ``background_px``
@@ -849,23 +850,39 @@ def local_peak_mask(gray: np.ndarray, full_scale: float, *, peak_rel: float = 0.
     bg_small = cv2.morphologyEx(small, cv2.MORPH_OPEN, kernel, borderType=cv2.BORDER_REPLICATE)
     # whole-frame arrays are updated in place where they can be (a new 1350 x 1080 float array
     # costs as much as the arithmetic on it)
-    background = cv2.resize(bg_small, (w, h), interpolation=cv2.INTER_LINEAR) if f > 1 else bg_small
-    # background = min(background, g) (an opening never exceeds the image), top = g - background:
-    # one compiled pass, the bits of numpy's two (the frame's passes are the time of this function)
     top = np.empty_like(g)
     rows = np.empty(h, np.uint8)
     thr = np.float32(contrast_min_rel * full_scale)
-    _dk.top_hat(g, background, top, thr, rows)
+    if f > 1:
+        # the enlargement along the rows by OpenCV (the reduced rows), down the columns inside the
+        # compiled pass: background = min(enlarged, g) (an opening never exceeds the image) and
+        # top = g - background, one pass over the frame (to float32 rounding OpenCV's enlargement)
+        sh = bg_small.shape[0]
+        y0, y1, ay = _dk.linear_rows(h, sh)
+        background = np.empty_like(g)
+        _dk.top_hat_rows(np.ascontiguousarray(g), cv2.resize(bg_small, (w, sh), interpolation=cv2.INTER_LINEAR),
+                         y0, y1, ay, background, top, thr, rows, _hit_rows_only)
+    else:
+        background = bg_small
+        # background = min(background, g), top = g - background: one compiled pass
+        _dk.top_hat(g, background, top, thr, rows)
     if whole:
         top_small = _area_reduced(top, f)
     else:
         top_small = cv2.resize(top, small.shape[::-1], interpolation=cv2.INTER_AREA) if f > 1 else top
     peak_small = cv2.dilate(top_small, kernel, borderType=cv2.BORDER_REPLICATE)
-    local_peak = cv2.resize(peak_small, (w, h), interpolation=cv2.INTER_LINEAR) if f > 1 else peak_small
     # top >= peak_rel * max(local_peak, top) (the local peak is at least the pixel itself) and
     # top >= contrast_min_rel * full_scale, in float32 as numpy computes them: one compiled pass
+    # (the local peaks enlarged as the background, in the rows that hold candidates only)
     mask = np.empty((h, w), np.uint8)
-    _dk.peak_mask(top, local_peak, np.float32(peak_rel), thr, rows, mask)
+    if f > 1:
+        _dk.peak_mask_rows(top, cv2.resize(peak_small, (w, peak_small.shape[0]), interpolation=cv2.INTER_LINEAR),
+                           y0, y1, ay, np.float32(peak_rel), thr, rows, mask)
+    else:
+        _dk.peak_mask(top, peak_small, np.float32(peak_rel), thr, rows, mask)
+    # (``_hit_rows_only``: detect_specularities reads the background at its candidates' pixels
+    # only, which lie in the rows that hold a top-hat >= the threshold: the other rows' background
+    # is left unwritten where the reduction is whole)
     if _parts is not None:  # the reduced background and local peaks (_detect_half_resolution)
         _parts.extend((bg_small, peak_small, f))
     return mask, background
@@ -986,7 +1003,8 @@ def detect_specularities(
         # gray frame not smoothed: the same values as each converting its own copy)
         gray32 = gray.astype(np.float32, copy=False)
         mask, background = local_peak_mask(gray32, fs, peak_rel=peak_rel,
-                                           contrast_min_rel=contrast_min_rel, background_px=side)
+                                           contrast_min_rel=contrast_min_rel, background_px=side,
+                                           _hit_rows_only=True)
         thr = contrast_min_rel * fs
         levels = background
     else:
@@ -1063,7 +1081,7 @@ def _detect_half_resolution(img, native, fs, saturation_level, *, min_area_px, e
         clipped2 = cv2.resize(clipped[: 2 * h2, : 2 * w2], (w2, h2), interpolation=cv2.INTER_AREA)
     parts: list = []
     mask2, background2 = local_peak_mask(gray2, fs, peak_rel=peak_rel, contrast_min_rel=contrast_min_rel,
-                                         background_px=max(3, side // 2), _parts=parts)
+                                         background_px=max(3, side // 2), _parts=parts, _hit_rows_only=True)
     bg_small, peak_small, f2 = parts
     if max(1, side // 16) != 2 * f2 or bg_small.shape != (h // (2 * f2), w // (2 * f2)):
         return None  # the reduced grids differ: the caller detects at full resolution
