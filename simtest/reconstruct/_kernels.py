@@ -1951,3 +1951,29 @@ def magnitude_histogram(coef, nbin):
             b = top if m >= top else int(m)
             hist[b, k] += 1
     return hist
+
+
+@numba.njit(cache=True, nogil=True)
+def first_maybe_flat_region(x, rr, start, margin, thr2, slack):
+    """The first region of interest from ``start`` (rows of ``rr``: row0, row1, col0, col1 of the
+    frame ``x``) with a pixel that :func:`maybe_flat` marks (each window the region with
+    ``margin`` px, clipped to the frame, read with 2 px more), ``len(rr)`` if none, -1 if a
+    window holds a non-finite value: the scan of ``verify._surely_no_panels`` in one call (its
+    loop of calls cost 30 us a region)."""
+    H, W = x.shape
+    for q in range(start, rr.shape[0]):
+        row0, row1, col0, col1 = rr[q, 0], rr[q, 1], rr[q, 2], rr[q, 3]
+        if row1 <= row0 or col1 <= col0:
+            continue
+        wr0, wr1 = max(0, row0 - margin), min(H, row1 + margin)
+        wc0, wc1 = max(0, col0 - margin), min(W, col1 + margin)
+        cr0, cr1 = max(0, wr0 - 2), min(H, wr1 + 2)
+        cc0, cc1 = max(0, wc0 - 2), min(W, wc1 + 2)
+        maybe = np.empty((wr1 - wr0, wc1 - wc0), np.uint8)
+        if maybe_flat(x[cr0:cr1, cc0:cc1], wr0 - cr0, wr1 - cr0, wc0 - cc0, wc1 - cc0, thr2, slack, maybe) < 0:
+            return -1
+        for i in range(row0 - wr0, row1 - wr0):
+            for j in range(col0 - wc0, col1 - wc0):
+                if maybe[i, j]:
+                    return q
+    return rr.shape[0]
