@@ -431,8 +431,9 @@ def test_detection_hands_over_its_smoothing_and_the_pipeline_smooths_the_unround
 def test_a_smoothed_frame_detected_at_half_resolution_has_the_full_resolutions_candidates(monkeypatch):
     """Issue 41: local-peak detection of a frame smoothed by >= 2 px looks for its components on
     the frame reduced twice and examines each at full resolution: on the bench's noisy frame
-    (2 % noise, sigma 2.5 px, two clipped highlights) the BPs, peaks, statuses and ROIs are
-    those of the full-resolution detection, the areas within 1 %, the levels within 0.1 grey
+    (2 % noise, sigma 2.5 px, two clipped highlights) the statuses and ROIs are those of the
+    full-resolution detection, the BPs and peaks to float32 rounding of the smoothing, the areas
+    within 1 %, the levels within 0.1 grey
     level (the background enlarged from the same blocks' means, to float32 rounding)."""
     from simtest import bench
     from simtest.reconstruct import detect
@@ -444,7 +445,11 @@ def test_a_smoothed_frame_detected_at_half_resolution_has_the_full_resolutions_c
     assert half.smoothed is None and full.smoothed is not None  # the path taken
     assert len(half.candidates) == len(full.candidates) == 10
     for a, b in zip(half.candidates, full.candidates):
-        assert a.bp_uv.tolist() == b.bp_uv.tolist() and a.peak == b.peak and a.saturated == b.saturated
+        # each window is smoothed by the compiled taps, in float32 like OpenCV's but summed in
+        # another order: the peaks within 1e-3 grey levels (a few float32 ulps of 255), the BPs
+        # (parabola vertices of those values, or a plateau's centroid) within 0.01 px
+        assert np.abs(a.bp_uv - b.bp_uv).max() < 0.01 and abs(a.peak - b.peak) < 1e-3
+        assert a.saturated == b.saturated
         assert (a.status, a.roi) == (b.status, b.roi)
         assert abs(a.area_px - b.area_px) <= 0.01 * b.area_px
         assert abs(a.level - b.level) < 0.1

@@ -557,3 +557,249 @@ def examine_candidates(gray, labels, comps, clipped, scope, levels, min_area_px,
             lb = np.float64(levels[y + pr, x + pc])
             floats[k, LEVEL] = lb + peak_rel * (peak - lb)
     return ints, floats
+
+
+@numba.njit(cache=True, nogil=True, inline="always")
+def _reflected(p, n):
+    """Index ``p`` of an axis of ``n`` samples with OpenCV's BORDER_REFLECT (``fedcba|abcdef``)."""
+    while p < 0 or p >= n:
+        if p < 0:
+            p = -p - 1
+        else:
+            p = 2 * n - p - 1
+    return p
+
+
+@numba.njit(cache=True, nogil=True, inline="always")
+def _linear_source(i, n_small, n_full):
+    """OpenCV's INTER_LINEAR source of output index ``i`` along one axis (``n_full`` from
+    ``n_small``): the lower index, the upper one and the float32 weight of the upper, clamped
+    at the sides."""
+    t = (i + 0.5) * (n_small / n_full) - 0.5
+    k = int(np.floor(t))
+    a = np.float32(t - k)
+    if k < 0:
+        k, a = 0, np.float32(0.0)
+    if k >= n_small - 1:
+        k, a = n_small - 1, np.float32(0.0)
+    return k, min(k + 1, n_small - 1), a
+
+
+@numba.njit(cache=True, nogil=True)
+def _taps_row(kern, src, out):
+    """``out[j] = sum_t kern[t] src[j + t]`` in float32 (the taps in order), for a contiguous row:
+    one pass over the row per tap (vectorised)."""
+    n = len(out)
+    for j in range(n):
+        out[j] = 0.0
+    for t in range(len(kern)):
+        kt = kern[t]
+        for j in range(n):
+            out[j] += kt * src[j + t]
+
+
+@numba.njit(cache=True, nogil=True)
+def window_component(native, r0, r1, c0, c1, kern, bg_small, peak_small, peak_rel, thr, gr, gc, g, bg, lab):
+    """The candidate mask of ``local_peak_mask`` in a window of the full frame, from the frame's
+    smoothing and the reduced frame's background and local peaks, and the 8-connected component
+    of the window's mask that holds a candidate's BP pixel: what
+    ``detect._component_at_full_resolution`` computed with a Gaussian blur of the window, two
+    OpenCV enlargements, numpy's mask and ``cv2.connectedComponentsWithStats``, in one call.
+
+    Parameters
+    ----------
+    native : ndarray of shape (H, W)
+        The frame's unsmoothed luma (any real dtype).
+    r0, r1, c0, c1 : int
+        The window (rows r0:r1, columns c0:c1 of the frame).
+    kern : ndarray of shape (2 K + 1,), float32
+        The Gaussian's taps (``cv2.getGaussianKernel``): the window is smoothed as the whole frame
+        is, with the frame's sides reflected (``BORDER_REFLECT``), in float32.
+    bg_small, peak_small : ndarray, float32
+        The reduced background and local peaks, enlarged to (H, W) bilinearly as
+        ``cv2.resize(..., INTER_LINEAR)`` (its sample positions and clamping; float32).
+    peak_rel, thr : float32
+        As :func:`peak_mask`.
+    gr, gc : int
+        The reduced frame's BP in the window (row, column): the component's pixel is the largest
+        smoothed value of the mask within 2 px of it (the first in row-major order).
+    g, bg : ndarray of shape (r1 - r0, c1 - c0), float32
+        Outputs: the window's smoothing and its background (``min(background, g)``).
+    lab : ndarray of shape (r1 - r0, c1 - c0), int32
+        Output: 1 on the component, 0 elsewhere.
+
+    Returns
+    -------
+    (found, x, y, bw, bh, area) : (bool, int, int, int, int, int)
+        Whether the mask holds a pixel near the BP, and the component's box (column, row,
+        width, height in the window) and area.
+    """
+    H, W = native.shape
+    nr, nc = r1 - r0, c1 - c0
+    K = len(kern) // 2
+    n_t = 2 * K + 1
+    # horizontal pass over the rows the vertical one reads (the frame's sides reflected), each row
+    # gathered once into a buffer (the taps' loop then runs over contiguous float32)
+    cols = np.empty(nc + 2 * K, np.int64)
+    for j in range(nc + 2 * K):
+        cols[j] = _reflected(c0 - K + j, W)
+    buf = np.empty(nc + 2 * K, np.float32)
+    tmp = np.zeros((nr + 2 * K, nc), np.float32)
+    acc = np.empty(nc, np.float32)
+    for i in range(nr + 2 * K):
+        rr = _reflected(r0 - K + i, H)
+        for j in range(nc + 2 * K):
+            buf[j] = np.float32(native[rr, cols[j]])
+        _taps_row(kern, buf, acc)
+        tmp[i, :] = acc
+    col = np.empty(nr + 2 * K, np.float32)
+    acc_c = np.empty(nr, np.float32)
+    tmp_t = np.ascontiguousarray(tmp.T)  # the vertical pass along contiguous columns
+    for j in range(nc):
+        col[:] = tmp_t[j]
+        _taps_row(kern, col, acc_c)
+        g[:, j] = acc_c
+    # the mask: top-hat over the enlarged background, against the enlarged local peaks (each
+    # column's sources computed once)
+    sh, sw = bg_small.shape
+    ph, pw = peak_small.shape
+    one = np.float32(1.0)
+    bx0 = np.empty(nc, np.int64)
+    bx1 = np.empty(nc, np.int64)
+    ax = np.empty(nc, np.float32)
+    px0 = np.empty(nc, np.int64)
+    px1 = np.empty(nc, np.int64)
+    qx = np.empty(nc, np.float32)
+    for j in range(nc):
+        bx0[j], bx1[j], ax[j] = _linear_source(c0 + j, sw, W)
+        px0[j], px1[j], qx[j] = _linear_source(c0 + j, pw, W)
+    # the mask, padded by a row and a column of 0 on each side (the flood fill below needs no
+    # bounds checks)
+    W2 = nc + 2
+    mp = np.zeros((nr + 2) * W2, np.uint8)
+    for i in range(nr):
+        by0, by1, ay = _linear_source(r0 + i, sh, H)
+        py0, py1, qy = _linear_source(r0 + i, ph, H)
+        for j in range(nc):
+            a = ax[j]
+            top = bg_small[by0, bx0[j]] * (one - a) + bg_small[by0, bx1[j]] * a
+            bot = bg_small[by1, bx0[j]] * (one - a) + bg_small[by1, bx1[j]] * a
+            b = top * (one - ay) + bot * ay
+            v = g[i, j]
+            m = b if (b <= v or b != b) else v
+            bg[i, j] = m
+            t = v - m
+            a = qx[j]
+            top = peak_small[py0, px0[j]] * (one - a) + peak_small[py0, px1[j]] * a
+            bot = peak_small[py1, px0[j]] * (one - a) + peak_small[py1, px1[j]] * a
+            p = top * (one - qy) + bot * qy
+            q = p if (p >= t or p != p) else t
+            mp[(i + 1) * W2 + j + 1] = 1 if (t >= q * peak_rel and t >= thr) else 0
+    # the BP's pixel: the largest smoothed value of the mask within 2 px of the reduced BP
+    best = np.float32(-np.inf)
+    pr, pc = -1, -1
+    for i in range(max(0, gr - 2), min(nr, gr + 3)):
+        for j in range(max(0, gc - 2), min(nc, gc + 3)):
+            if mp[(i + 1) * W2 + j + 1] and g[i, j] > best:
+                best = g[i, j]
+                pr, pc = i, j
+    for i in range(nr):
+        for j in range(nc):
+            lab[i, j] = 0
+    if pr < 0:
+        return False, 0, 0, 0, 0, 0
+    # its 8-connected component: a flood fill over the padded mask (a filled pixel's mask is
+    # cleared, so each is pushed once)
+    offs = np.array([-W2 - 1, -W2, -W2 + 1, -1, 1, W2 - 1, W2, W2 + 1], np.int64)
+    stack = np.empty(nr * nc, np.int64)
+    start = (pr + 1) * W2 + pc + 1
+    mp[start] = 0
+    stack[0] = start
+    n_st = 1
+    ya, yb, xa, xb = pr, pr, pc, pc
+    area = 0
+    while n_st > 0:
+        n_st -= 1
+        p = stack[n_st]
+        i, j = p // W2 - 1, p % W2 - 1
+        lab[i, j] = 1
+        area += 1
+        ya, yb, xa, xb = min(ya, i), max(yb, i), min(xa, j), max(xb, j)
+        for o in offs:
+            q = p + o
+            if mp[q]:
+                mp[q] = 0
+                stack[n_st] = q
+                n_st += 1
+    return True, xa, ya, xb - xa + 1, yb - ya + 1, area
+
+
+@numba.njit(cache=True, nogil=True)
+def linear_rows(n_full, n_small):
+    """OpenCV's INTER_LINEAR sources along one axis of an enlargement from ``n_small`` to
+    ``n_full`` samples: per output index the lower source index, the upper one and the float32
+    weight of the upper (``(i + 0.5) n_small / n_full - 0.5``, clamped at the sides)."""
+    i0 = np.empty(n_full, np.int64)
+    i1 = np.empty(n_full, np.int64)
+    a = np.empty(n_full, np.float32)
+    for i in range(n_full):
+        k, k1, w = _linear_source(i, n_small, n_full)
+        i0[i] = k
+        i1[i] = k1
+        a[i] = w
+    return i0, i1, a
+
+
+@numba.njit(cache=True, nogil=True)
+def top_hat_rows(gray, wide, y0, y1, ay, background, top, thr, rows, hit_rows_only):
+    """:func:`top_hat` with the background enlarged on the fly from ``wide`` (sh, W): the reduced
+    opening enlarged along its rows only (``cv2.resize(bg_small, (W, sh), INTER_LINEAR)``),
+    each frame row r weighing rows ``y0[r]`` and ``y1[r]`` of it by ``ay[r]``
+    (:func:`linear_rows`): ``cv2.resize(bg_small, (W, H), INTER_LINEAR)`` to float32 rounding,
+    without the full-size enlargement's pass (issue 41: a third of ``local_peak_mask``'s passes
+    over the frame). ``background`` gets ``min(enlarged, gray)``; with ``hit_rows_only``, in the
+    rows that hold a top-hat ``>= thr`` only (the rows of the candidates, whose levels are read
+    there; the others unwritten: a third of the pass's memory traffic)."""
+    h, w = gray.shape
+    one = np.float32(1.0)
+    for r in range(h):
+        a = ay[r]
+        b = one - a
+        lo, hi = wide[y0[r]], wide[y1[r]]
+        hit = 0
+        for c in range(w):
+            e = lo[c] * b + hi[c] * a
+            g = gray[r, c]
+            m = e if (e <= g or e != e) else g
+            t = g - m
+            top[r, c] = t
+            hit |= t >= thr
+        rows[r] = hit
+        if hit or not hit_rows_only:
+            for c in range(w):
+                e = lo[c] * b + hi[c] * a
+                g = gray[r, c]
+                background[r, c] = e if (e <= g or e != e) else g
+
+
+@numba.njit(cache=True, nogil=True)
+def peak_mask_rows(top, wide, y0, y1, ay, peak_rel, thr, rows, mask):
+    """:func:`peak_mask` with the local peaks enlarged on the fly from ``wide`` (the reduced local
+    peaks enlarged along their rows, as :func:`top_hat_rows`), in the rows that hold a top-hat
+    ``>= thr`` only."""
+    h, w = top.shape
+    one = np.float32(1.0)
+    for r in range(h):
+        if rows[r] == 0:
+            for c in range(w):
+                mask[r, c] = 0
+            continue
+        a = ay[r]
+        b = one - a
+        lo, hi = wide[y0[r]], wide[y1[r]]
+        for c in range(w):
+            t = top[r, c]
+            p = lo[c] * b + hi[c] * a
+            q = p if (p >= t or p != p) else t
+            q = q * peak_rel
+            mask[r, c] = 1 if (t >= q and t >= thr) else 0

@@ -1524,13 +1524,18 @@ def maybe_flat(x, r0, r1, c0, c1, thr2, slack, out):
     s1 = np.empty((q1 - q0, w))
     s2 = np.empty((q1 - q0, w))
     pad = np.empty(w + 4)
+    cols = np.empty(w + 4, np.int64)  # the reflected columns, once
+    for j in range(w + 4):
+        cols[j] = _reflect101(c0 - 2 + j, W)
     for i in range(q0, q1):
         ri = _reflect101(i, H)
+        finite = True
         for j in range(w + 4):
-            v = np.float64(np.float32(x[ri, _reflect101(c0 - 2 + j, W)]))
-            if not np.isfinite(v):
-                return -1
+            v = np.float64(np.float32(x[ri, cols[j]]))
+            finite &= np.isfinite(v)
             pad[j] = v
+        if not finite:
+            return -1
         a = 0.0
         b = 0.0
         for j in range(5):
@@ -1675,14 +1680,23 @@ def surround_fractions(gray, bj, bi, reach, cu, cv, sa, sb, cs, sn, own_level, r
         ring = np.zeros((hh, ww), np.bool_)
         n_ring = 0
         rr = reach[q] * reach[q]
+        cq, sq, aq, bq, uq, vq = cs[q], sn[q], sa[q], sb[q], cu[q], cv[q]
         for r in range(hh):
             y = float(r + r0)
+            dy = y - pi
+            dy2 = dy * dy
+            if dy2 > rr:
+                continue
+            dv = y - vq
             for c in range(ww):
                 x = float(c + c0)
-                if (x - pj) ** 2 + (y - pi) ** 2 <= rr:
-                    du, dv = x - cu[q], y - cv[q]
-                    lev = ((cs[q] * du + sn[q] * dv) / sa[q]) ** 2 + ((-sn[q] * du + cs[q] * dv) / sb[q]) ** 2
-                    if lev > own_level:
+                dx = x - pj
+                # products, not ** 2 (numba called pow for each: most of the time)
+                if dx * dx + dy2 <= rr:
+                    du = x - uq
+                    e1 = (cq * du + sq * dv) / aq
+                    e2 = (-sq * du + cq * dv) / bq
+                    if e1 * e1 + e2 * e2 > own_level:
                         ring[r, c] = True
                         n_ring += 1
         if n_ring == 0:
@@ -1770,3 +1784,196 @@ def multiple_counts(hist, mult_idx, mult_start):
             for k in range(K):
                 out[i, k] += hist[b - 1, k] + hist[b, k] + hist[b + 1, k]
     return out
+
+
+@numba.njit(cache=True, nogil=True, inline="always")
+def _y_row(img, r, c0, step, m, w0, w1, w2, out):
+    """JFIF luma (float32) of ``m`` pixels of row ``r`` of an (H, W, C) image, columns c0,
+    c0 + step, ... (C = 1: the grey values), into ``out``."""
+    if img.shape[2] == 1:
+        for j in range(m):
+            out[j] = np.float32(img[r, c0 + j * step, 0])
+    else:
+        for j in range(m):
+            c = c0 + j * step
+            out[j] = np.float32(img[r, c, 0]) * w0 + np.float32(img[r, c, 1]) * w1 + np.float32(img[r, c, 2]) * w2
+
+
+@numba.njit(cache=True, nogil=True)
+def luma_diff_means(img, step, across_columns, w0, w1, w2):
+    """The mean absolute luma difference between neighbouring columns over every ``step``-th row
+    (``across_columns``; shape (W - 1,)), or between neighbouring rows over every ``step``-th
+    column (shape (H - 1,)), float64: ``np.abs(np.diff(Y, axis=1)).mean(axis=0)`` of
+    :func:`simtest.reconstruct.jpeg._blockiness` on ``Y = luma_y(img[::step])`` (or of
+    ``luma_y(img[:, ::step]).T``) without the sampled luma's copy (numpy's gather of every
+    step-th column of an RGB frame cost 0.6 ms). ``img`` is (H, W, C), C = 1 or 3, any
+    strides; the luma float32 as ``luma_y``'s (to its rounding), the sums float64."""
+    H, W = img.shape[0], img.shape[1]
+    w0 = np.float32(w0)
+    w1 = np.float32(w1)
+    w2 = np.float32(w2)
+    if across_columns:
+        out = np.zeros(max(W - 1, 0), np.float64)
+        buf = np.empty(W, np.float32)
+        n = 0
+        for r in range(0, H, step):
+            _y_row(img, r, 0, 1, W, w0, w1, w2, buf)
+            for c in range(W - 1):
+                out[c] += abs(buf[c + 1] - buf[c])
+            n += 1
+    else:
+        out = np.zeros(max(H - 1, 0), np.float64)
+        m = (W + step - 1) // step
+        a = np.empty(m, np.float32)
+        b = np.empty(m, np.float32)
+        _y_row(img, 0, 0, step, m, w0, w1, w2, a)
+        for r in range(1, H):
+            _y_row(img, r, 0, step, m, w0, w1, w2, b)
+            acc = 0.0
+            for j in range(m):
+                acc += abs(b[j] - a[j])
+            out[r - 1] = acc
+            a, b = b, a
+        n = m
+    if n > 0:
+        for i in range(len(out)):
+            out[i] /= n
+    return out
+
+
+@numba.njit(cache=True, nogil=True)
+def _append_maxima(mk, i0, i1, j0, j1, e0, f0, W, out, n):
+    """Write the flat frame indices of ``mk[i0:i1, j0:j1]``'s set pixels (a window whose corner
+    is the frame's row ``e0``, column ``f0``; frame width ``W``) into ``out`` from index n."""
+    for i in range(i0, i1):
+        for j in range(j0, j1):
+            if mk[i, j]:
+                out[n] = (e0 + i) * W + (f0 + j)
+                n += 1
+
+
+@numba.njit(cache=True, nogil=True)
+def maxima_in_windows(gray, bg_small, windows, floor, top):
+    """:func:`top_hat_maxima` in windows of a frame, with the background enlarged from the reduced
+    opening ``bg_small`` on the fly: ``verify._upsampled`` and ``verify._maxima_windows`` in one
+    call (the background, the top-hat and the 3 x 3 maxima of each window measured with 1 px more,
+    clipped to the frame, so that they are the whole frame's).
+
+    Parameters
+    ----------
+    gray : ndarray of shape (H, W)
+        The luma (any real dtype; read as float32).
+    bg_small : ndarray of shape (sh, sw), float32
+        The reduced opening, enlarged to (H, W) as ``cv2.resize(bg_small, (W, H),
+        interpolation=cv2.INTER_LINEAR)`` (its sample positions and clamping; float32).
+    windows : ndarray of shape (n, 4), int64
+        Row0, row1, col0, col1 of each window.
+    floor : float32
+        The smallest top-hat of a maximum.
+    top : ndarray of shape (H, W), float32
+        Output: the top-hat inside the windows (elsewhere unwritten).
+
+    Returns
+    -------
+    ndarray of int64
+        The maxima's flat indices (row * W + column), sorted, each once.
+    """
+    H, W = gray.shape
+    sh, sw = bg_small.shape
+    one = np.float32(1.0)
+    n_out = 0
+    out = np.empty(64, np.int64)
+    for q in range(windows.shape[0]):
+        r0, r1, c0, c1 = windows[q, 0], windows[q, 1], windows[q, 2], windows[q, 3]
+        if r1 <= r0 or c1 <= c0:
+            continue
+        e0, e1, f0, f1 = max(0, r0 - 1), min(H, r1 + 1), max(0, c0 - 1), min(W, c1 + 1)
+        nr, nc = e1 - e0, f1 - f0
+        x0 = np.empty(nc, np.int64)
+        x1 = np.empty(nc, np.int64)
+        ax = np.empty(nc, np.float32)
+        for j in range(nc):
+            x0[j], ax[j], x1[j] = _linear_sample(f0 + j, sw, W)
+        # the enlarged background: each reduced row enlarged along the row once (the rows of a
+        # window read a few), then the two rows' values weighed per pixel
+        s_lo, _, _ = _linear_sample(e0, sh, H)
+        _, _, s_hi = _linear_sample(e1 - 1, sh, H)
+        lines = np.empty((s_hi - s_lo + 1, nc), np.float32)
+        for s in range(s_lo, s_hi + 1):
+            for j in range(nc):
+                a = ax[j]
+                lines[s - s_lo, j] = bg_small[s, x0[j]] * (one - a) + bg_small[s, x1[j]] * a
+        gw = np.empty((nr, nc), np.float32)
+        bw = np.empty((nr, nc), np.float32)
+        for i in range(nr):
+            y0, ay, y1 = _linear_sample(e0 + i, sh, H)
+            la, lb = lines[y0 - s_lo], lines[y1 - s_lo]
+            for j in range(nc):
+                bw[i, j] = la[j] * (one - ay) + lb[j] * ay
+                gw[i, j] = np.float32(gray[e0 + i, f0 + j])
+        t = np.empty((nr, nc), np.float32)
+        mk = np.empty((nr, nc), np.bool_)
+        top_hat_maxima(gw, bw, floor, t, mk)
+        m = 0
+        for i in range(r0 - e0, r1 - e0):
+            for j in range(c0 - f0, c1 - f0):
+                top[e0 + i, f0 + j] = t[i, j]
+                m += mk[i, j]
+        if n_out + m > len(out):  # grown once a window (not in the scan: numba's reference counts)
+            grown = np.empty(max(2 * len(out), n_out + m), np.int64)
+            grown[:n_out] = out[:n_out]
+            out = grown
+        _append_maxima(mk, r0 - e0, r1 - e0, c0 - f0, c1 - f0, e0, f0, W, out, n_out)
+        n_out += m
+    res = np.sort(out[:n_out])
+    if n_out == 0:
+        return res
+    m = 1
+    for k in range(1, n_out):
+        if res[k] != res[m - 1]:
+            res[m] = res[k]
+            m += 1
+    return res[:m]
+
+
+@numba.njit(cache=True, nogil=True)
+def magnitude_histogram(coef, nbin):
+    """Per frequency (column of ``coef``, (N, K) float32), the histogram of the coefficients'
+    rounded magnitudes ``min(rint(|c|), nbin - 1)`` (halves to even, as ``np.rint``): int32 of
+    shape (nbin, K), the ``np.bincount`` of :func:`simtest.reconstruct.jpeg._steps_of` without its
+    flattened index copies (a third of that function's time)."""
+    n, K = coef.shape
+    hist = np.zeros((nbin, K), np.int32)
+    top = nbin - 1
+    for i in range(n):
+        for k in range(K):
+            m = np.rint(abs(coef[i, k]))
+            b = top if m >= top else int(m)
+            hist[b, k] += 1
+    return hist
+
+
+@numba.njit(cache=True, nogil=True)
+def first_maybe_flat_region(x, rr, start, margin, thr2, slack):
+    """The first region of interest from ``start`` (rows of ``rr``: row0, row1, col0, col1 of the
+    frame ``x``) with a pixel that :func:`maybe_flat` marks (each window the region with
+    ``margin`` px, clipped to the frame, read with 2 px more), ``len(rr)`` if none, -1 if a
+    window holds a non-finite value: the scan of ``verify._surely_no_panels`` in one call (its
+    loop of calls cost 30 us a region)."""
+    H, W = x.shape
+    for q in range(start, rr.shape[0]):
+        row0, row1, col0, col1 = rr[q, 0], rr[q, 1], rr[q, 2], rr[q, 3]
+        if row1 <= row0 or col1 <= col0:
+            continue
+        wr0, wr1 = max(0, row0 - margin), min(H, row1 + margin)
+        wc0, wc1 = max(0, col0 - margin), min(W, col1 + margin)
+        cr0, cr1 = max(0, wr0 - 2), min(H, wr1 + 2)
+        cc0, cc1 = max(0, wc0 - 2), min(W, wc1 + 2)
+        maybe = np.empty((wr1 - wr0, wc1 - wc0), np.uint8)
+        if maybe_flat(x[cr0:cr1, cc0:cc1], wr0 - cr0, wr1 - cr0, wc0 - cc0, wc1 - cc0, thr2, slack, maybe) < 0:
+            return -1
+        for i in range(row0 - wr0, row1 - wr0):
+            for j in range(col0 - wc0, col1 - wc0):
+                if maybe[i, j]:
+                    return q
+    return rr.shape[0]

@@ -617,6 +617,21 @@ def _sigma_for_noise(s: float) -> float:
     return 0.0 if s < 0.005 else float(min(2.5, 1.0 + s / 0.01))
 
 
+def _area_reduced(img: np.ndarray, f: int) -> np.ndarray:
+    """The means of the ``f`` x ``f`` blocks of a float32 image whose sides are multiples of f:
+    ``cv2.resize(img, (W // f, H // f), interpolation=cv2.INTER_AREA)``, as a chain of 2 x 2
+    reductions (OpenCV's vectorised path, a third of the general integer one's time on a 1350 x
+    1080 frame) and one by the odd rest; the same means to float32 rounding (the sums grouped
+    otherwise)."""
+    h, w = img.shape[:2]
+    while f % 2 == 0 and f > 1:
+        h, w, f = h // 2, w // 2, f // 2
+        img = cv2.resize(img, (w, h), interpolation=cv2.INTER_AREA)
+    if f > 1:
+        img = cv2.resize(img, (w // f, h // f), interpolation=cv2.INTER_AREA)
+    return img
+
+
 def _scope_border(gray: np.ndarray, level: float) -> np.ndarray | None:
     """The endoscope's black border: pixels below ``level`` joined to at least two image corners,
     when they cover 1 % to 60 % of the image (a dark scene, such as a render on black, is not a
@@ -627,10 +642,20 @@ def _scope_border(gray: np.ndarray, level: float) -> np.ndarray | None:
     is none."""
     h, w = gray.shape
     f = 4 if min(h, w) >= 64 else 1
+    if f > 1:
+        # the reduced image's corners (the corner blocks' means, as the reduction gives them):
+        # fewer than two dark, no border, without reducing the whole frame (0.5 ms of a clean
+        # 1350 x 1080 frame without a scope border)
+        hf, wf = h // f * f, w // f * f
+        dark = 0
+        for r, c in ((0, 0), (0, wf - f), (hf - f, 0), (hf - f, wf - f)):
+            block = np.ascontiguousarray(gray[r : r + f, c : c + f], dtype=np.float32)
+            dark += bool(cv2.resize(block, (1, 1), interpolation=cv2.INTER_AREA)[0, 0] < level)
+        if dark < 2:
+            return None
     # whole f x f blocks (the last h mod f rows and w mod f columns left out): OpenCV's integer
     # area reduction, a third of the time of the fractional one over the whole image
-    small = cv2.resize(gray[: h // f * f, : w // f * f].astype(np.float32, copy=False),
-                       (max(1, w // f), max(1, h // f)), interpolation=cv2.INTER_AREA) if f > 1 else gray
+    small = _area_reduced(gray[: h // f * f, : w // f * f].astype(np.float32, copy=False), f) if f > 1 else gray
     border = _dark_corner_components((small < level).astype(np.uint8))
     if border is None:
         return None
@@ -773,7 +798,8 @@ def background_side_px(shape: tuple[int, int], clipped: np.ndarray | None = None
 
 
 def local_peak_mask(gray: np.ndarray, full_scale: float, *, peak_rel: float = 0.6,
-                    contrast_min_rel: float = 0.08, background_px: int | None = None, _parts: list | None = None):
+                    contrast_min_rel: float = 0.08, background_px: int | None = None, _parts: list | None = None,
+                    _hit_rows_only: bool = False):
     """Bright-candidate mask relative to local peaks (``method="local_peak"``).
 
     The diffuse background is the grey opening of the luma by a square of side ``background_px``
@@ -813,27 +839,50 @@ def local_peak_mask(gray: np.ndarray, full_scale: float, *, peak_rel: float = 0.
     # The background is smooth at the scale of the square: open (and take the local peaks) on the
     # image reduced so that the square is ~16 px (area averaging), then back to full size.
     f = max(1, side // 16)
-    small = cv2.resize(g, (max(1, w // f), max(1, h // f)), interpolation=cv2.INTER_AREA) if f > 1 else g
+    whole = f > 1 and h % f == 0 and w % f == 0  # whole blocks: the reductions by 2 x 2 steps
+    if whole:
+        small = _area_reduced(g, f)
+    else:
+        small = cv2.resize(g, (max(1, w // f), max(1, h // f)), interpolation=cv2.INTER_AREA) if f > 1 else g
     k = max(3, side // f)
     k += 1 - k % 2
     kernel = cv2.getStructuringElement(cv2.MORPH_RECT, (k, k))
     bg_small = cv2.morphologyEx(small, cv2.MORPH_OPEN, kernel, borderType=cv2.BORDER_REPLICATE)
     # whole-frame arrays are updated in place where they can be (a new 1350 x 1080 float array
     # costs as much as the arithmetic on it)
-    background = cv2.resize(bg_small, (w, h), interpolation=cv2.INTER_LINEAR) if f > 1 else bg_small
-    # background = min(background, g) (an opening never exceeds the image), top = g - background:
-    # one compiled pass, the bits of numpy's two (the frame's passes are the time of this function)
     top = np.empty_like(g)
     rows = np.empty(h, np.uint8)
     thr = np.float32(contrast_min_rel * full_scale)
-    _dk.top_hat(g, background, top, thr, rows)
-    top_small = cv2.resize(top, small.shape[::-1], interpolation=cv2.INTER_AREA) if f > 1 else top
+    if f > 1:
+        # the enlargement along the rows by OpenCV (the reduced rows), down the columns inside the
+        # compiled pass: background = min(enlarged, g) (an opening never exceeds the image) and
+        # top = g - background, one pass over the frame (to float32 rounding OpenCV's enlargement)
+        sh = bg_small.shape[0]
+        y0, y1, ay = _dk.linear_rows(h, sh)
+        background = np.empty_like(g)
+        _dk.top_hat_rows(np.ascontiguousarray(g), cv2.resize(bg_small, (w, sh), interpolation=cv2.INTER_LINEAR),
+                         y0, y1, ay, background, top, thr, rows, _hit_rows_only)
+    else:
+        background = bg_small
+        # background = min(background, g), top = g - background: one compiled pass
+        _dk.top_hat(g, background, top, thr, rows)
+    if whole:
+        top_small = _area_reduced(top, f)
+    else:
+        top_small = cv2.resize(top, small.shape[::-1], interpolation=cv2.INTER_AREA) if f > 1 else top
     peak_small = cv2.dilate(top_small, kernel, borderType=cv2.BORDER_REPLICATE)
-    local_peak = cv2.resize(peak_small, (w, h), interpolation=cv2.INTER_LINEAR) if f > 1 else peak_small
     # top >= peak_rel * max(local_peak, top) (the local peak is at least the pixel itself) and
     # top >= contrast_min_rel * full_scale, in float32 as numpy computes them: one compiled pass
+    # (the local peaks enlarged as the background, in the rows that hold candidates only)
     mask = np.empty((h, w), np.uint8)
-    _dk.peak_mask(top, local_peak, np.float32(peak_rel), thr, rows, mask)
+    if f > 1:
+        _dk.peak_mask_rows(top, cv2.resize(peak_small, (w, peak_small.shape[0]), interpolation=cv2.INTER_LINEAR),
+                           y0, y1, ay, np.float32(peak_rel), thr, rows, mask)
+    else:
+        _dk.peak_mask(top, peak_small, np.float32(peak_rel), thr, rows, mask)
+    # (``_hit_rows_only``: detect_specularities reads the background at its candidates' pixels
+    # only, which lie in the rows that hold a top-hat >= the threshold: the other rows' background
+    # is left unwritten where the reduction is whole)
     if _parts is not None:  # the reduced background and local peaks (_detect_half_resolution)
         _parts.extend((bg_small, peak_small, f))
     return mask, background
@@ -954,7 +1003,8 @@ def detect_specularities(
         # gray frame not smoothed: the same values as each converting its own copy)
         gray32 = gray.astype(np.float32, copy=False)
         mask, background = local_peak_mask(gray32, fs, peak_rel=peak_rel,
-                                           contrast_min_rel=contrast_min_rel, background_px=side)
+                                           contrast_min_rel=contrast_min_rel, background_px=side,
+                                           _hit_rows_only=True)
         thr = contrast_min_rel * fs
         levels = background
     else:
@@ -1031,7 +1081,7 @@ def _detect_half_resolution(img, native, fs, saturation_level, *, min_area_px, e
         clipped2 = cv2.resize(clipped[: 2 * h2, : 2 * w2], (w2, h2), interpolation=cv2.INTER_AREA)
     parts: list = []
     mask2, background2 = local_peak_mask(gray2, fs, peak_rel=peak_rel, contrast_min_rel=contrast_min_rel,
-                                         background_px=max(3, side // 2), _parts=parts)
+                                         background_px=max(3, side // 2), _parts=parts, _hit_rows_only=True)
     bg_small, peak_small, f2 = parts
     if max(1, side // 16) != 2 * f2 or bg_small.shape != (h // (2 * f2), w // (2 * f2)):
         return None  # the reduced grids differ: the caller detects at full resolution
@@ -1057,12 +1107,13 @@ def _detect_half_resolution(img, native, fs, saturation_level, *, min_area_px, e
         saturation_level=saturation_level, min_area_px=min_area_px, ellipticity_min=ellipticity_min,
         min_plateau_px=min_plateau_px, roi_scale=roi_scale, roi_margin_px=roi_margin_px,
         max_candidates=max_candidates, peak_rel=peak_rel, k_close=k_close_full)
-    rad = gaussian_radius_px(smooth_sigma_px)
+    # the full frame's Gaussian (OpenCV's taps for a float image), applied in each window by
+    # _dk.window_component with the frame's sides reflected: the frame's smoothing there
+    kern = cv2.getGaussianKernel(2 * gaussian_radius_px(smooth_sigma_px) + 1, smooth_sigma_px).astype(np.float32).ravel()
     thr = np.float32(contrast_min_rel * fs)
     out = []
     for c in cands2:
-        got = _component_at_full_resolution(full, native, c, bg_small, peak_small, smooth_sigma_px, rad,
-                                            np.float32(peak_rel), thr)
+        got = _component_at_full_resolution(full, native, c, bg_small, peak_small, kern, np.float32(peak_rel), thr)
         if got is None:  # its BP's pixel is not in the full frame's mask: the reduced frame's
             b = c.bbox
             bbox = Roi(2 * b.row0, min(h, 2 * b.row1), 2 * b.col0, min(w, 2 * b.col1))
@@ -1112,8 +1163,8 @@ def _linear_at(small: np.ndarray, shape: tuple[int, int], r0: int, r1: int, c0: 
     return top * (one - ay)[:, None] + bot * ay[:, None]
 
 
-def _component_at_full_resolution(full: _DetectFrame, native, c: Candidate, bg_small, peak_small, sigma: float,
-                                  rad: int, peak_rel: np.float32, thr: np.float32) -> Candidate | None:
+def _component_at_full_resolution(full: _DetectFrame, native, c: Candidate, bg_small, peak_small, kern: np.ndarray,
+                                  peak_rel: np.float32, thr: np.float32) -> Candidate | None:
     """The full frame's component of a candidate found on the reduced frame, examined as at full
     resolution (:func:`_examine_numpy`): the window around its box (grown until the component
     lies inside it) smoothed, its background and local peaks enlarged from the reduced frame's
@@ -1126,28 +1177,21 @@ def _component_at_full_resolution(full: _DetectFrame, native, c: Candidate, bg_s
     while True:
         r0, r1 = max(0, 2 * b.row0 - m), min(h, 2 * b.row1 + m)
         c0, c1 = max(0, 2 * b.col0 - m), min(w, 2 * b.col1 + m)
-        s0, s1, t0, t1 = max(0, r0 - rad), min(h, r1 + rad), max(0, c0 - rad), min(w, c1 + rad)
-        sm = cv2.GaussianBlur(native[s0:s1, t0:t1].astype(np.float32), (0, 0), sigma, borderType=cv2.BORDER_REFLECT)
-        g = np.ascontiguousarray(sm[r0 - s0 : r1 - s0, c0 - t0 : c1 - t0])
-        bg = np.minimum(_linear_at(bg_small, (h, w), r0, r1, c0, c1), g)
-        top = g - bg
-        lp = _linear_at(peak_small, (h, w), r0, r1, c0, c1)
-        mask = ((top >= peak_rel * np.maximum(lp, top)) & (top >= thr)).view(np.uint8)
         # the BP's pixel: the largest smoothed value within 2 px of the reduced frame's BP
         gc = min(max(int(round(2.0 * c.bp_uv[0] + 0.5)), c0), c1 - 1) - c0
         gr = min(max(int(round(2.0 * c.bp_uv[1] + 0.5)), r0), r1 - 1) - r0
-        lr, lc = max(0, gr - 2), max(0, gc - 2)
-        core = np.where(mask[lr : gr + 3, lc : gc + 3].view(bool), g[lr : gr + 3, lc : gc + 3], -np.inf)
-        if not np.isfinite(core.max()):
+        g = np.empty((r1 - r0, c1 - c0), np.float32)
+        bg = np.empty_like(g)
+        lab = np.empty(g.shape, np.int32)
+        found, x, y, bw, bh, area = _dk.window_component(native, r0, r1, c0, c1, kern, bg_small, peak_small,
+                                                          peak_rel, thr, gr, gc, g, bg, lab)
+        if not found:
             return None
-        pr, pc = divmod(int(np.argmax(core)), core.shape[1])
-        n, lab, stats, _ = cv2.connectedComponentsWithStats(mask, connectivity=8)
-        k = lab[lr + pr, lc + pc]
-        x, y, bw, bh, area = (int(v) for v in stats[k])
         cut = (x == 0 and c0 > 0) or (y == 0 and r0 > 0) or (x + bw == c1 - c0 and c1 < w) or (y + bh == r1 - r0 and r1 < h)
         if not cut:
             break
         m *= 2
+    k = 1
     full.gray[r0:r1, c0:c1] = g
     full.levels[r0:r1, c0:c1] = bg
     got = _examine_in_window(full, g, lab, bg, k, x, y, bw, bh, area, r0, c0)

@@ -472,9 +472,18 @@ def _surely_no_panels(gray: np.ndarray, noise: float, rr: np.ndarray) -> bool:
     thr2 = (PANEL_STD_REL * noise) ** 2 * (1.0 + _FLAT_SLACK)
     min_area = PANEL_MIN_AREA * h * w
     m = _PANEL_MARGIN_PX
-    for row0, row1, col0, col1 in rr:
-        if row1 <= row0 or col1 <= col0:
-            continue
+    src = gray if gray.dtype.type in _MAYBE_FLAT_DTYPES else gray.astype(np.float64)
+    rr = np.ascontiguousarray(rr, dtype=np.int64).reshape(-1, 4)
+    start = 0
+    while True:
+        # the regions without a possibly flat pixel, skipped in one compiled call
+        q = _kernels.first_maybe_flat_region(src, rr, start, m, thr2, _FLAT_SLACK)
+        if q < 0:
+            return False  # a non-finite pixel
+        if q >= len(rr):
+            return True
+        start = q + 1
+        row0, row1, col0, col1 = (int(v) for v in rr[q])
         # the window W and its 2 px of data for the 5 x 5 means (the frame's edges reflected)
         wr0, wr1, wc0, wc1 = max(0, row0 - m), min(h, row1 + m), max(0, col0 - m), min(w, col1 + m)
         cr0, cr1, cc0, cc1 = max(0, wr0 - 2), min(h, wr1 + 2), max(0, wc0 - 2), min(w, wc1 + 2)
@@ -499,7 +508,6 @@ def _surely_no_panels(gray: np.ndarray, noise: float, rr: np.ndarray) -> bool:
                | ((y1 == wr1 - wr0) & (wr1 < h)))
         if cut.any() or (st[:, cv2.CC_STAT_AREA] >= min_area).any():
             return False
-    return True
 
 
 def _maxima_windows(g: np.ndarray, bg: np.ndarray, floor: np.float32, windows) -> tuple:
@@ -632,8 +640,13 @@ def frame_evidence(image: np.ndarray, gray: np.ndarray, bps_uv: np.ndarray, rois
         # them) where the top-hat, its maxima and their colour are
         wide = np.c_[np.maximum(win[:, 0] - 1, 0), np.minimum(win[:, 1] + 1, h),
                      np.maximum(win[:, 2] - 1, 0), np.minimum(win[:, 3] + 1, w)]
-        bg = _upsampled(bg_small, f, (h, w), wide)
-        top, ys, xs = _maxima_windows(g, bg, floor_max, win)
+        if f > 1 and g.dtype.type in _MAYBE_FLAT_DTYPES:
+            # the enlargement, top-hat and maxima of every window in one compiled call
+            top = np.empty((h, w), np.float32)
+            ys, xs = np.divmod(_kernels.maxima_in_windows(g, bg_small, win, floor_max, top), w)
+        else:
+            bg = _upsampled(bg_small, f, (h, w), wide)
+            top, ys, xs = _maxima_windows(g, bg, floor_max, win)
     else:
         # _opening's values: its reduced opening enlarged
         bg = cv2.resize(bg_small, (w, h), interpolation=cv2.INTER_LINEAR) if f > 1 else bg_small
