@@ -8,7 +8,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 import pytest
-from hypothesis import given, settings
+from hypothesis import example, given, settings
 from hypothesis import strategies as st
 from PIL import Image
 
@@ -60,6 +60,9 @@ def test_dct_blocks_is_cv2_dct_after_level_shift():
 
 @settings(max_examples=12, deadline=None)
 @given(quality=st.integers(25, 90), seed=st.integers(0, 10_000))
+# a step of 3 whose multiples passed for 4's, then clamped up to MIN_STEP (20 of 272 seeds at
+# quality 90): now not identifiable (1)
+@example(quality=90, seed=7677)
 def test_steps_are_the_encoders_table(quality, seed):
     """Every AC step identified is the encoder's (to 1 above 10), and some are (steps of 2 and 3
     are not told from unquantised; the high frequencies of a heavily quantised frame are dead)."""
@@ -105,6 +108,12 @@ def test_sigma_tracks_the_measured_error(quality, lo, hi):
 @settings(max_examples=15, deadline=None)
 @given(oy=st.integers(0, 7), ox=st.integers(0, 7), quality=st.sampled_from([30, 50, 75, 90]),
        seed=st.integers(0, 1000))
+# a frequency whose step (23) has 39 coefficients outside its zero bin, one short of
+# MIN_COEFFICIENTS, read as its divisor 6 in the crop (481) or in the whole frame (202): sigma 1.9
+# against 5.4 (11 of 1001 seeds at quality 30, ox 1), until a divisor was told by its empty first
+# multiple (jpeg.UNIMODAL_SHARE)
+@example(oy=0, ox=1, quality=30, seed=481)
+@example(oy=0, ox=1, quality=30, seed=202)
 def test_crops_find_the_shifted_grid(oy, ox, quality, seed):
     d = jpeg(textured(seed), quality)
     c = d[oy:, ox:]

@@ -595,14 +595,22 @@ def test_the_surround_of_several_candidates_in_one_call_is_verifys_loop(seed, n,
 @settings(max_examples=40, deadline=None)
 def test_the_counts_near_each_steps_multiples_are_numpys_reduceat(seed, coarse):
     """jpeg._steps_of's counts of coefficients within 1 of each candidate step's multiples, one
-    compiled pass (_kernels.multiple_counts), are numpy's three reduceat over gathered rows."""
+    compiled pass (_kernels.multiple_counts), are numpy's three reduceat over gathered rows; its
+    first multiple's count and the largest later one's are those rows' first and largest."""
     from simtest.reconstruct import jpeg
 
     nbin, qs, mult_idx, mult_start, _ = jpeg._COARSE if coarse else jpeg._FULL
     rng = np.random.default_rng(seed)
     hist = rng.integers(0, 50, (nbin, int(rng.integers(1, 65)))).astype(np.int32)
-    want = sum(np.add.reduceat(hist[mult_idx + d], mult_start, axis=0) for d in (-1, 0, 1))
-    assert np.array_equal(_kernels.multiple_counts(hist, mult_idx, mult_start), want)
+    windows = sum(hist[mult_idx + d].astype(np.int64) for d in (-1, 0, 1))  # (rows, K)
+    want = np.add.reduceat(windows, mult_start, axis=0)
+    at, first, later = _kernels.multiple_counts(hist, mult_idx, mult_start)
+    assert np.array_equal(at, want)
+    assert np.array_equal(first, windows[mult_start])
+    ends = np.append(mult_start[1:], len(mult_idx))
+    want_later = np.array([windows[a + 1:b].max(axis=0) if b > a + 1 else np.zeros(hist.shape[1], np.int64)
+                           for a, b in zip(mult_start, ends)])
+    assert np.array_equal(later, want_later)
 
 
 @settings(max_examples=60, deadline=None)

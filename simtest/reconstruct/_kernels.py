@@ -1773,17 +1773,27 @@ def multiple_counts(hist, mult_idx, mult_start):
     step: ``sum(np.add.reduceat(hist[mult_idx + d], mult_start, axis=0) for d in (-1, 0, 1))``
     of :func:`simtest.reconstruct.jpeg._steps_of` (a histogram (bins, K) of rounded magnitudes;
     the multiples of each step concatenated, each step's run starting at ``mult_start``, none
-    empty), int64 (len(mult_start), K), without the gathered copies."""
+    empty), int64 (len(mult_start), K), without the gathered copies; and, of the same windows,
+    the first multiple's count and the largest count at a later multiple (0 where the step has
+    one multiple), each int64 (len(mult_start), K)."""
     nq = len(mult_start)
     K = hist.shape[1]
     out = np.zeros((nq, K), np.int64)
+    first = np.zeros((nq, K), np.int64)
+    later = np.zeros((nq, K), np.int64)
     for i in range(nq):
+        j0 = mult_start[i]
         j1 = mult_start[i + 1] if i + 1 < nq else len(mult_idx)
-        for j in range(mult_start[i], j1):
+        for j in range(j0, j1):
             b = mult_idx[j]
             for k in range(K):
-                out[i, k] += hist[b - 1, k] + hist[b, k] + hist[b + 1, k]
-    return out
+                n = hist[b - 1, k] + hist[b, k] + hist[b + 1, k]
+                out[i, k] += n
+                if j == j0:
+                    first[i, k] = n
+                elif n > later[i, k]:
+                    later[i, k] = n
+    return out, first, later
 
 
 @numba.njit(cache=True, nogil=True, inline="always")

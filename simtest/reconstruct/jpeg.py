@@ -28,7 +28,7 @@ from simtest.constants import LUMA_BT601
 from simtest.reconstruct import _kernels
 
 __all__ = ["BLOCK", "GRID_BLOCKS", "BLOCKINESS_CLEAR", "MIN_COEFFICIENTS", "PERIODICITY_MIN",
-           "CHANCE_SD", "MIN_STEP", "MIN_QUANTISED", "luma_y", "dct_blocks", "jpeg_grid",
+           "CHANCE_SD", "MIN_STEP", "MIN_QUANTISED", "UNIMODAL_SHARE", "luma_y", "dct_blocks", "jpeg_grid",
            "quantisation_steps", "quantisation_sigma"]
 
 #: Side of a JPEG block, px.
@@ -48,6 +48,12 @@ PERIODICITY_MIN = 0.8
 CHANCE_SD = 4.0
 #: Smallest identifiable step.
 MIN_STEP = 4
+#: A candidate step is kept only where the coefficients within 1 of its first multiple are at
+#: least this share of those near any later multiple (:func:`_steps_of`). Why a half: a true step's
+#: counts fall off from the first multiple (equal at most where the step is far below the
+#: coefficients' spread, then within the binomial scatter of a few tens of counts, which a half
+#: leaves room for); a divisor's first multiple lies between the step's and holds next to none.
+UNIMODAL_SHARE = 0.5
 #: A frame carries a JPEG grid when at least this many of its 64 frequencies show a step.
 MIN_QUANTISED = 4
 #: A phase whose blockiness (:func:`_blockiness`, 1 on average) is at least this on both axes is
@@ -171,7 +177,9 @@ def _steps_of(coef: np.ndarray, tables=_FULL) -> np.ndarray:
     """Per-frequency step from coefficients (N, 64): the largest ``q`` in 4..255 with at least
     :data:`MIN_COEFFICIENTS` coefficients outside its zero bin (``|c| >= q / 2``), of which a
     share of at least :data:`PERIODICITY_MIN`, and well above chance (:data:`CHANCE_SD`), lie
-    within 1 of a nonzero multiple of ``q`` (a step's divisors pass too, so the largest is taken),
+    within 1 of a nonzero multiple of ``q``, and whose first multiple holds at least
+    :data:`UNIMODAL_SHARE` of any later one's count (a step's divisors may pass the rest; the
+    largest is taken),
     refined to the least-squares slope ``sum(n |c|) / sum(n^2)`` of the magnitudes on their
     multiples' indices n (the decoder moves the coefficients by up to ~1.5, so q + 1 passes
     too); 1 if none passes but the frequency has that many coefficients of magnitude >= 2
@@ -193,20 +201,29 @@ def _steps_of(coef: np.ndarray, tables=_FULL) -> np.ndarray:
     count = (n - below[zero_bin - 1]).astype(np.float64)  # (Q, K) outside the zero bin
     # the counts within 1 of each step's multiples, in one compiled pass (numpy's three
     # reduceat over gathered copies took 2 of the 3.7 ms of the full tables)
-    at = _kernels.multiple_counts(np.ascontiguousarray(hist), mult_idx, mult_start)
+    at, first, later = _kernels.multiple_counts(np.ascontiguousarray(hist), mult_idx, mult_start)
     share = at / np.maximum(count, 1.0)
     chance = np.minimum(3.0 / qs[:, None], 1.0)
     spread = np.sqrt(chance * (1 - chance) / np.maximum(count, 1.0))  # binomial sd of the share
     floor = np.maximum(PERIODICITY_MIN, chance + CHANCE_SD * spread)
-    ok = (count >= MIN_COEFFICIENTS) & (share >= floor)
+    # a quantised frequency's magnitudes fall off from its first multiple (a zero-mean law of
+    # the coefficients, Laplacian for the AC ones): a candidate whose first multiple holds
+    # fewer than UNIMODAL_SHARE of a later one's is a divisor of the step, passing the share
+    # test on the step's own multiples where the step itself has too few coefficients outside
+    # its zero bin (39 at 22 to 24 against MIN_COEFFICIENTS: 6 read for 23, whose 1-sigma then
+    # set the dead frequencies' and took sigma from 5.4 to 1.9)
+    ok = (count >= MIN_COEFFICIENTS) & (share >= floor) & (first >= UNIMODAL_SHARE * later)
     largest = qs[(ok.shape[0] - 1) - np.argmax(ok[::-1], axis=0)].astype(np.float64)
     # the window of +-1 lets q + 1 pass for q: the step is the least-squares slope of the
     # coefficients' magnitudes on their multiples' indices, sum(n |c|) / sum(n^2)
     a = np.abs(coef).astype(np.float64)
     idx = np.floor(a / largest + 0.5) * (a >= largest / 2)
     slope = (idx * a).sum(axis=0) / np.maximum((idx * idx).sum(axis=0), 1.0)
-    step = np.maximum(np.rint(slope), MIN_STEP)
-    out[active] = np.where(ok.any(axis=0), step, 1)
+    step = np.rint(slope)
+    # a slope below MIN_STEP is a step of 2 or 3 whose multiples passed for 4's (their +-1
+    # windows overlap): not identifiable, as the docstring says, not 4 (quality 90: 20 of 272
+    # seeds had a 3 read as 4)
+    out[active] = np.where(ok.any(axis=0) & (step >= MIN_STEP), step, 1)
     return out
 
 
