@@ -30,6 +30,8 @@ from __future__ import annotations
 import numba
 import numpy as np
 
+from simtest.reconstruct._kernels import _linear_sample
+
 #: :func:`examine_candidates` status codes (column ``STATUS`` of its integer result).
 FALLBACK = -1  #: the numpy path examines this candidate (clipped pixels; a brightest pixel outside it)
 OK = 0  #: accepted
@@ -570,21 +572,6 @@ def _reflected(p, n):
     return p
 
 
-@numba.njit(cache=True, nogil=True, inline="always")
-def _linear_source(i, n_small, n_full):
-    """OpenCV's INTER_LINEAR source of output index ``i`` along one axis (``n_full`` from
-    ``n_small``): the lower index, the upper one and the float32 weight of the upper, clamped
-    at the sides."""
-    t = (i + 0.5) * (n_small / n_full) - 0.5
-    k = int(np.floor(t))
-    a = np.float32(t - k)
-    if k < 0:
-        k, a = 0, np.float32(0.0)
-    if k >= n_small - 1:
-        k, a = n_small - 1, np.float32(0.0)
-    return k, min(k + 1, n_small - 1), a
-
-
 @numba.njit(cache=True, nogil=True)
 def _taps_row(kern, src, out):
     """``out[j] = sum_t kern[t] src[j + t]`` in float32 (the taps in order), for a contiguous row:
@@ -671,15 +658,15 @@ def window_component(native, r0, r1, c0, c1, kern, bg_small, peak_small, peak_re
     px1 = np.empty(nc, np.int64)
     qx = np.empty(nc, np.float32)
     for j in range(nc):
-        bx0[j], bx1[j], ax[j] = _linear_source(c0 + j, sw, W)
-        px0[j], px1[j], qx[j] = _linear_source(c0 + j, pw, W)
+        bx0[j], ax[j], bx1[j] = _linear_sample(c0 + j, sw, W)
+        px0[j], qx[j], px1[j] = _linear_sample(c0 + j, pw, W)
     # the mask, padded by a row and a column of 0 on each side (the flood fill below needs no
     # bounds checks)
     W2 = nc + 2
     mp = np.zeros((nr + 2) * W2, np.uint8)
     for i in range(nr):
-        by0, by1, ay = _linear_source(r0 + i, sh, H)
-        py0, py1, qy = _linear_source(r0 + i, ph, H)
+        by0, ay, by1 = _linear_sample(r0 + i, sh, H)
+        py0, qy, py1 = _linear_sample(r0 + i, ph, H)
         for j in range(nc):
             a = ax[j]
             top = bg_small[by0, bx0[j]] * (one - a) + bg_small[by0, bx1[j]] * a
@@ -743,7 +730,7 @@ def linear_rows(n_full, n_small):
     i1 = np.empty(n_full, np.int64)
     a = np.empty(n_full, np.float32)
     for i in range(n_full):
-        k, k1, w = _linear_source(i, n_small, n_full)
+        k, w, k1 = _linear_sample(i, n_small, n_full)
         i0[i] = k
         i1[i] = k1
         a[i] = w
