@@ -118,16 +118,17 @@ Chosen from the harness' measurements on Mitsuba renders (``simtest validate ren
    ray's expected error (as in rule 3); ``depth_mm`` is then None (the misfit withdrew it). The
    plane's normal errs by at most g plus the quadric's error, so ``g + s_q`` states what the
    quadric's sigma covers. Why: micro-relief on flat mucosa (the shading normal leaving the
-   plane's) leaves a residual that the curvature test reads as a curved patch, while the plane's normal, averaged over the lobe,
-   stays near the macro normal: on the endoscope suite's flat mucosa with relief 0.002 to
-   0.01 mm the misfitting plane fits erred by 0.21 to 0.48 deg (the quadric confirming them
-   within 0.52 to 0.76 deg, s_q 0.95 to 1.15), where the BP ray erred by 4.9 to 12.9 deg. On a
-   curved patch the plane trades curvature for distance and misses the normal, and the quadric
-   then disagrees: on the ``lightaware-curved`` one-light spheres the plane missed by 2.9 to 17
-   deg with g 3.1 to 16 deg (never within s_q, 2 to 6.7 deg), and the BP ray stayed. Rule 4 took 4
-   of the suite's one-light cylinder and saddle highlights, each better than the BP ray (0.14 to
-   2.6 deg against 2.8 to 9.3) and within twice its stated sigma. A quadric whose sigma is not
-   stated (180 deg: its covariance singular) confirms nothing.
+   plane's) leaves a residual that the curvature test reads as a curved patch, while the plane's
+   normal, averaged over the lobe, stays near the macro normal: on the endoscope suite's flat
+   mucosa with relief 0.002 to 0.01 mm the misfitting plane fits erred by 0.21 to 0.48 deg (the
+   quadric confirming them within 0.52 to 0.76 deg, s_q 0.95 to 1.15), where the BP ray erred by
+   4.9 to 12.9 deg. On a curved patch the plane trades curvature for distance and misses the
+   normal, and the quadric then disagrees: on the ``lightaware-curved`` one-light spheres the
+   plane missed by 2.9 to 17 deg with g 3.1 to 16 deg (never within s_q, 2 to 6.7 deg), and the
+   BP ray stayed. Rule 4 took 4 of the suite's one-light cylinder and saddle highlights, each
+   better than the BP ray (0.14 to 2.6 deg against 2.8 to 9.3) and within twice its stated sigma.
+   A quadric whose sigma is not stated (180 deg: its depth not bounded along its valley) confirms
+   nothing.
 
 Depth ceiling
 -------------
@@ -596,9 +597,15 @@ def _confirmed_plane(est, pho: LightAwareEstimate | None, quad: LightAwareEstima
     if gap > s_q:
         return None
     sigma = gap + s_q
-    bp_err = max(pho.bp_ray_error_deg if pho.bp_ray_error_deg is not None else 0.0,
-                 0.5 * _angle_deg(est.bp_ray, pho.normal))
-    return sigma if SIGMA_MARGIN * sigma < bp_err else None
+    return sigma if SIGMA_MARGIN * sigma < _bp_ray_error_beside(est, pho) else None
+
+
+def _bp_ray_error_beside(est, r: LightAwareEstimate) -> float:
+    """The BP ray's error that rules 3 and 4 compare a fit's stated sigma with, degrees: its
+    expected error next to the fit (``r.bp_ray_error_deg``; 0 where not set), and at least half
+    the angle between the BP ray and the fit's normal (module docstring, rule 3)."""
+    expected = r.bp_ray_error_deg if r.bp_ray_error_deg is not None else 0.0
+    return max(expected, 0.5 * _angle_deg(est.bp_ray, r.normal))
 
 
 def _angle_deg(a, b) -> float:
@@ -718,8 +725,7 @@ def recommend(est) -> Recommendation:
         better = [(_stated_sigma(r), i, name, r) for i, (name, r) in enumerate(candidates)
                   if r.status == "depth_not_observable" and _stated_sigma(r) is not None
                   and r.bp_ray_error_deg is not None
-                  and SIGMA_MARGIN * _stated_sigma(r) < max(r.bp_ray_error_deg,
-                                                            0.5 * _angle_deg(est.bp_ray, r.normal))]
+                  and SIGMA_MARGIN * _stated_sigma(r) < _bp_ray_error_beside(est, r)]
         if better:
             sigma, _, name, r = min(better)
             return Recommendation(np.asarray(r.normal), name, None, sigma, r.light_normals, None)
