@@ -2,8 +2,8 @@
 frame of a textured plane, through detection, the light-aware fits and the recommendation): one
 realisation each of the settings that failed it (0.5 to 2 % read noise: the fit fell back to the
 darkest channel, whose albedo texture took 0.6 to 0.8 deg and 8 to 9 % of the depth) and of the
-JPEG setting whose block grid is not seen (quality 95), where a fit on the least-fluctuation
-projection misfits and the darkest channel's fit must stand in for it, not the BP ray."""
+JPEG setting whose block grid is not seen (quality 95), where the border's body colours must be
+told through the encoder's rounding."""
 
 from __future__ import annotations
 
@@ -38,15 +38,20 @@ def test_flat_mucosa_in_read_noise_meets_the_must_hold(noise):
         assert r.errors["recommended"] < r.errors["bp_ray"], r
 
 
-def test_a_misfitting_least_fluctuation_fit_gives_way_to_the_darkest_channel():
-    # JPEG at quality 95: the block grid is not seen, the colour path runs, the border tells no
-    # second body colour and the fit on the least-fluctuation weights misfits (0.3 deg off): the
-    # darkest channel's fit stands in (0.6 deg), where the recommendation fell back to the BP
-    # ray (6 deg)
-    rows = _rows("plane_jpeg_quality", 95)
+@pytest.mark.parametrize("realisation", [0, 1])
+def test_flat_mucosa_in_a_jpeg_frame_at_quality_95_meets_the_must_hold(realisation):
+    # JPEG at quality 95: the block grid is not seen and the colour path runs. The encoder's
+    # rounding of the chroma brings the border's third singular value to half its second (the
+    # vessels' second body colour), which a bound of 3 on their ratio took for no second colour:
+    # the least-fluctuation weights' fit misfit (0.3 deg off) and the darkest channel's stood in,
+    # 0.6 deg off and 8 % short in depth. The border band's body colours (ratio about 2) fit it
+    # within the must-hold, their error within twice their sigma
+    rows = _rows("plane_jpeg_quality", 95, realisation)
     assert rows
     for r in rows:
-        assert r.errors["recommended"] < 1.0 < r.errors["bp_ray"], r
+        assert r.errors["recommended"] <= MAX_NORMAL_DEG, r
+        assert r.extras["recommended_depth_err_pct"] <= MAX_DEPTH_PCT, r
+        assert r.extras["recommended_within_2sigma"] == 1.0, r
 
 
 @pytest.mark.parametrize("relief, realisation", [(0.0, 4), (0.002, 1)])

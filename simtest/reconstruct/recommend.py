@@ -400,7 +400,17 @@ def light_aware_estimates(image, est, camera, rig: LightRig, *, nominal_depth_mm
         "photometric_fit", photometric_fit, fit_values, (big.col0, big.row0), est.bp_px, camera, rig,
         **pkw)
     # its depth within the ceiling before the curved fits' turn is decided by its status
+    fitted_ok = out["photometric_fit"].ok
     out["photometric_fit"] = depth_within_ceiling(out["photometric_fit"])
+    if colour and fitted_ok and not out["photometric_fit"].ok and out["photometric_fit"].projection == "body_colours":
+        # the body colours' depth above the ceiling: the least-fluctuation weights' fit where it
+        # is ok within it (as photometric_fit's "auto" projection does for a fit without depth)
+        lf = depth_within_ceiling(_guarded(
+            "photometric_fit", photometric_fit, fit_values, (big.col0, big.row0), est.bp_px, camera,
+            rig, projection="least_fluctuation", **pkw))
+        if lf.ok and lf.projection == "least_fluctuation":
+            why = "the body colours' depth is above the ceiling"
+            out["photometric_fit"] = dataclasses.replace(lf, detail=f"{lf.detail}; {why}" if lf.detail else why)
     if colour and not out["photometric_fit"].ok and out["photometric_fit"].projection == "least_fluctuation":
         # a fit on the least-fluctuation projection is kept only with its depth within the
         # ceiling (photometric_fit's ``projection``): on the endoscope suite's colon wall one
@@ -410,7 +420,7 @@ def light_aware_estimates(image, est, camera, rig: LightRig, *, nominal_depth_mm
         why = f"the least-fluctuation projection's fit: {out['photometric_fit'].status}"
         chan = depth_within_ceiling(_guarded(
             "photometric_fit", photometric_fit, fit_values, (big.col0, big.row0), est.bp_px, camera,
-            rig, projection="border", **pkw))
+            rig, projection="darkest_channel", **pkw))
         out["photometric_fit"] = dataclasses.replace(
             chan, detail=f"{chan.detail}; {why}" if chan.detail else why)
     near = Roi.around(est.bp_px, quadric_roi_scale * max(roi.shape) / 2.0, img.shape)

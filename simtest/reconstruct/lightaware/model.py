@@ -558,11 +558,38 @@ BODY_PROJECTION_MAX_GAIN = 10.0
 _BODY_TRIM_PASSES = 3
 _BODY_TRIM_SHARE = 0.02
 #: The least ratio of the border's second singular value to its third for a second body colour
-#: (the third is the noise's and what white remains): the endoscope's mucosa gives about 35.
-_BODY_SECOND_SNR = 3.0
+#: (the third is the noise's and what white remains). Where the noise swamps the second colour the
+#: ratio is about 1 (1.03 to 1.08 on the endoscope suite's flat mucosa at 1 to 2 % read noise,
+#: whose second singular value is 11 to 20 % of the first); a texture's second colour above a
+#: weaker noise gives 1.9 to 2.1 (the same mucosa in JPEG frames at quality 95 and 75: the
+#: encoder's rounding of the chroma is 0.5 to 0.6 grey levels RMS, the vessels' second colour
+#: 1.5 % of the first singular value) and 5 to 6 noise-free. The border then holds thousands of
+#: pixels (:func:`_border_band`), so that a ratio of 1.5 is far beyond the sampling scatter of
+#: two equal singular values (on average ``1 + 1.25 / sqrt(M)`` over M pixels). The bound was 3, which
+#: sent the JPEG frames to the least-fluctuation weights, whose fit misfit (JPEG's rounding in
+#: the fluctuations they are measured on), and on to the darkest channel: 0.59 to 0.63 deg off,
+#: depth 7.7 to 8.2 % short, where the border's body colours give 0.06 to 0.12 deg and 0.6 to
+#: 1.1 %.
+_BODY_SECOND_SNR = 1.5
+#: Width of :func:`specular_image`'s border band, px: the ROI's smaller side over this, between
+#: 1 and :data:`_BODY_BAND_MAX` (a 406 px ROI: 6 px, 9600 pixels; a 40 px one: 1 px).
+_BODY_BAND_DIVISOR = 64
+_BODY_BAND_MAX = 8
 
 
-def specular_image(rgb, clip_level=None, *, ring=None, fluctuation: bool = True):
+def _border_band(shape) -> np.ndarray:
+    """The pixels of an (H, W) ROI that :func:`specular_image` measures the body colours on: the
+    band of :data:`_BODY_BAND_DIVISOR`-th of its smaller side (1 to :data:`_BODY_BAND_MAX` px) along
+    its edges, where the lobes' tails are faintest. (H, W) bool."""
+    h, w = int(shape[0]), int(shape[1])
+    b = int(np.clip(min(h, w) // _BODY_BAND_DIVISOR, 1, _BODY_BAND_MAX))
+    ring = np.zeros((h, w), bool)
+    ring[:b] = ring[-b:] = True
+    ring[:, :b] = ring[:, -b:] = True
+    return ring
+
+
+def specular_image(rgb, clip_level=None, *, ring=None, fluctuation: bool = True, border: bool = True):
     """The specular reflection of a linear RGB ROI, the tissue's body colours projected out.
 
     Dichromatic reflection [6]_: a pixel's linear radiance is ``I = S (1, 1, 1) + D a(x)``, the
@@ -578,8 +605,8 @@ def specular_image(rgb, clip_level=None, *, ring=None, fluctuation: bool = True)
     flat mucosa at 20 mm it took the darkest channel's fit 9 % short in depth and 0.6 deg off in
     normal, the same error on every frame of one texture).
 
-    B is measured on the ROI's border (the lobe's faint tails, where the body reflection
-    dominates): the two leading right singular vectors of its unclipped pixels' colours (about 0:
+    B is measured on a band along the ROI's edges (:func:`_border_band`: the lobe's faint tails,
+    where the body reflection dominates): the two leading right singular vectors of its unclipped pixels' colours (about 0:
     colours are proportional to the shading), the colours off their plane (where the border
     crosses another lobe) left out in a few passes where their projected value is above a share
     of the peak (:data:`_BODY_TRIM_SHARE`). A share e of white left in a body colour leaks
@@ -607,10 +634,14 @@ def specular_image(rgb, clip_level=None, *, ring=None, fluctuation: bool = True)
         Each channel's linear clip level: a channel at or above it is clipped (its radiance at
         least that). None: nothing clipped.
     ring : ndarray of shape (H, W), bool, optional
-        The pixels B is measured on (default: the ROI's border rows and columns).
+        The pixels B is measured on (default: the band along the ROI's edges,
+        :func:`_border_band`).
     fluctuation : bool
         Where the border tells no second body colour, the least-fluctuation weights
         (:func:`_least_fluctuation_weights`; False: None there).
+    border : bool
+        Measure the body colours on the border (default); False: the least-fluctuation weights
+        whatever the border tells (with ``fluctuation``).
 
     Returns
     -------
@@ -644,28 +675,26 @@ def specular_image(rgb, clip_level=None, *, ring=None, fluctuation: bool = True)
             raise ValueError(f"clip_level: need 1 or 3 numbers, got {clip_level!r}")
     clipped = v >= clip  # (H, W, 3)
     if ring is None:
-        ring = np.zeros(v.shape[:2], bool)
-        ring[0] = ring[-1] = True
-        ring[:, 0] = ring[:, -1] = True
-    border = v[ring & ~clipped.any(axis=2)]
-    if len(border) < 3:
+        ring = _border_band(v.shape[:2])
+    edge = v[ring & ~clipped.any(axis=2)]
+    if len(edge) < 3:
         return None
     free = v[~clipped.any(axis=2)]
-    keep = np.ones(len(border), bool)
+    keep = np.ones(len(edge), bool)
     w = None
-    for _ in range(_BODY_TRIM_PASSES):
-        w = _body_weights(border[keep])
+    for _ in range(_BODY_TRIM_PASSES if border else 0):
+        w = _body_weights(edge[keep])
         if w is None:
             break
         # border pixels whose specular value is above a share of the ROI's peak hold a lobe's
         # white (where the border crosses another light's lobe or a neighbouring highlight):
         # they are left out and the body colours measured again
-        spec = border @ w
+        spec = edge @ w
         new = spec <= _BODY_TRIM_SHARE * max(float((free @ w).max()), 0.0)
         if np.array_equal(new, keep) or np.count_nonzero(new) < 3:
             break
         keep = new
-    w = None if w is None else _body_weights(border[keep])
+    w = None if w is None else _body_weights(edge[keep])
     if w is None and fluctuation:
         # the border's second body colour is lost in the noise (on the endoscope's mucosa at
         # 0.5 % read noise and above, where the darkest channel is at 1 to 3 noise sigmas): the

@@ -187,20 +187,27 @@ def photometric_fit(values, origin_uv, bp_uv, camera, rig: LightRig, *,
         only where the noise sigma exceeds it (below, the floor's pixels are rounding's, not
         clipped noise, and leaving out the levels near 0 of a noise-free 8-bit render took the
         tails' information: plane_tilt_offset@40 0.024 to 0.072 deg mean).
-    projection : {"auto", "border"}
+    projection : {"auto", "border", "least_fluctuation", "darkest_channel"}
         For RGB values, the projection that removes the tissue's body colours
         (:func:`~simtest.reconstruct.lightaware.model.specular_image`): ``"border"`` the one
         orthogonal to the two body colours measured on the ROI's border, or where the border
-        tells no second one, the darkest channel; ``"auto"`` (default) where the border tells no
-        second one, the least-fluctuation weights (``model._least_fluctuation_weights``: the
-        body colours lost in read noise), and where the fit on those is not ``ok`` (a misfit, a
-        depth not observable), the darkest channel's fit in its place. The weights trade the
+        tells no second one, the darkest channel; ``"least_fluctuation"`` the least-fluctuation
+        weights (``model._least_fluctuation_weights``: the body colours lost in read noise), or
+        where they are beyond their bound, the darkest channel; ``"darkest_channel"`` that
+        channel alone. ``"auto"`` (default): the border's body colours, and where their fit
+        ends without a depth (``depth_not_observable``, ``not_converged``; a misfit stands), the
+        least-fluctuation weights' fit in its place where that one is ``ok`` (on an exact 8-bit
+        plane of strongly absorbing vessels, one body colours' fit ended 5.4 deg off with its
+        depth not observable and a sigma of 0.39 deg); where the border tells no second body
+        colour, the least-fluctuation weights, and where the fit on those is not ``ok`` (a
+        misfit, a depth not observable), the darkest channel's fit in its place. The weights trade the
         texture they leave in against the noise, and the fit cannot see what they leave: it is
         kept only where it passes with its depth. A JPEG frame whose block grid is not seen (at
-        quality 95): its subsampled chroma leaves a pattern in the projection's residual that
-        the curvature test reads as a curved patch; on the endoscope suite's flat mucosa that
-        fit misfit 0.3 deg off, and the recommendation fell back to the BP ray, 6 deg off, where
-        the darkest channel's fit passes 0.6 deg off. On its colon wall one such fit passed with
+        quality 95): its subsampled chroma leaves a pattern in the least-fluctuation
+        projection's residual that the curvature test reads as a curved patch; on the endoscope
+        suite's flat mucosa, before the border's body colours were told there
+        (``model._BODY_SECOND_SNR``), that fit misfit 0.3 deg off, and the recommendation fell
+        back to the BP ray, 6 deg off, where the darkest channel's fit passes 0.6 deg off. On its colon wall one such fit passed with
         its depth not observable, 17.5 deg off with a sigma of 1.7 deg, and was recommended
         over the BP ray (2.3 deg).
     lobe : {"phong", "ggx", "auto"}
@@ -278,8 +285,8 @@ def photometric_fit(values, origin_uv, bp_uv, camera, rig: LightRig, *,
     """
     if lobe not in ("phong", "ggx", "auto"):
         raise ValueError(f"lobe: {lobe!r} is not one of phong, ggx, auto")
-    if projection not in ("auto", "border"):
-        raise ValueError(f"projection: {projection!r} is not one of auto, border")
+    if projection not in PROJECTIONS:
+        raise ValueError(f"projection: {projection!r} is not one of {', '.join(PROJECTIONS)}")
     if n_start_depths is None:
         kw = dict(clip_level=clip_level, nominal_depth_mm=nominal_depth_mm, start_normal=start_normal,
                   start_roughness=start_roughness, loss=loss, f_scale=f_scale, supersample=supersample,
@@ -296,9 +303,17 @@ def photometric_fit(values, origin_uv, bp_uv, camera, rig: LightRig, *,
                                      or (again.residual_rms is not None
                                          and again.residual_rms < first.residual_rms)):
                 best = again
+        if (np.ndim(values) == 3 and projection == "auto" and best.projection == "body_colours"
+                and best.status in ("depth_not_observable", "not_converged")):
+            # the body colours' fit found no depth (a misfit is the surface's shape, seen in every
+            # projection, and stands): the least-fluctuation weights' fit, kept where it is ok
+            lf = photometric_fit(values, origin_uv, bp_uv, camera, rig, projection="least_fluctuation", **kw)
+            if lf.ok and lf.projection == "least_fluctuation":
+                why = f"the body colours' fit is not ok ({best.status}: {best.detail})"
+                return replace(lf, detail=f"{lf.detail}; {why}" if lf.detail else why)
         if (np.ndim(values) == 3 and projection == "auto" and best.status != "ok"
                 and best.projection == "least_fluctuation"):
-            chan = photometric_fit(values, origin_uv, bp_uv, camera, rig, projection="border", **kw)
+            chan = photometric_fit(values, origin_uv, bp_uv, camera, rig, projection="darkest_channel", **kw)
             why = f"the least-fluctuation projection's fit is not ok ({best.status}: {best.detail})"
             return replace(chan, detail=f"{chan.detail}; {why}" if chan.detail else why)
         return best
@@ -822,6 +837,10 @@ def _darkest(rgb, clip_level) -> tuple[int, float | None]:
     return c, clip
 
 
+#: The values of ``photometric_fit``'s ``projection``.
+PROJECTIONS = ("auto", "border", "least_fluctuation", "darkest_channel")
+
+
 def _colour_values(rgb, clip_level, projection: str = "auto"):
     """The single image a colour ROI is fitted on (``photometric_fit``'s ``values`` (H, W, 3)).
 
@@ -833,9 +852,11 @@ def _colour_values(rgb, clip_level, projection: str = "auto"):
     (``"body_colours"``, ``"least_fluctuation"`` or ``"darkest_channel"``).
     """
     rgb = np.asarray(rgb, dtype=np.float64)
-    out, how = specular_image(rgb, clip_level, fluctuation=False), "body_colours"
-    if out is None and projection == "auto":
-        out, how = specular_image(rgb, clip_level), "least_fluctuation"
+    out, how = None, None
+    if projection in ("auto", "border"):
+        out, how = specular_image(rgb, clip_level, fluctuation=False), "body_colours"
+    if out is None and projection in ("auto", "least_fluctuation"):
+        out, how = specular_image(rgb, clip_level, border=False), "least_fluctuation"
     if out is not None:
         values, lower, missing, w = out
         text = ("body colours projected out" if how == "body_colours"
