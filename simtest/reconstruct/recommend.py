@@ -411,13 +411,19 @@ def light_aware_estimates(image, est, camera, rig: LightRig, *, nominal_depth_mm
         if lf.ok and lf.projection == "least_fluctuation":
             why = "the body colours' depth is above the ceiling"
             out["photometric_fit"] = dataclasses.replace(lf, detail=f"{lf.detail}; {why}" if lf.detail else why)
-    if colour and not out["photometric_fit"].ok and out["photometric_fit"].projection == "least_fluctuation":
+    pf = out["photometric_fit"]
+    if colour and ((not pf.ok and pf.projection == "least_fluctuation")
+                   or (pf.projection == "body_colours" and pf.status in ("depth_not_observable", "not_converged"))):
         # a fit on the least-fluctuation projection is kept only with its depth within the
         # ceiling (photometric_fit's ``projection``): on the endoscope suite's colon wall one
         # passed the fit's own tests with a relative depth sigma of 0.37, 16 deg off with a sigma
         # of 2.4, and was recommended over the BP ray (1.5 deg); the darkest channel's fit then
-        # stands in, as before the projection
-        why = f"the least-fluctuation projection's fit: {out['photometric_fit'].status}"
+        # stands in, as before the projection. So does it for the body colours' fit without its
+        # depth: their plane, measured on the border through the sensor's noise, leaves some
+        # texture too (the colon wall without relief: two such fits 17.4 and 17.6 deg off with
+        # sigmas of 3.6 deg were recommended over a BP ray 2.3 deg off); a misfit of theirs
+        # stands (rule 4 may confirm its normal)
+        why = f"the {pf.projection.replace('_', ' ')} projection's fit: {pf.status}"
         chan = depth_within_ceiling(_guarded(
             "photometric_fit", photometric_fit, fit_values, (big.col0, big.row0), est.bp_px, camera,
             rig, projection="darkest_channel", **pkw))
