@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import cv2
 import numpy as np
 import pytest
 from hypothesis import given, settings
@@ -10,6 +11,7 @@ from hypothesis import strategies as st
 from simtest.reconstruct.detect import (
     BACKGROUND_DIV,
     BACKGROUND_PLATEAU_FACTOR,
+    _gray_and_grey,
     _gray_native,
     auto_smooth_sigma_px,
     background_side_px,
@@ -21,6 +23,7 @@ from simtest.reconstruct.detect import (
     mask_components,
     validate_image,
 )
+from simtest.reconstruct.pipeline import _is_gray
 
 
 def gaussian(shape, centre_uv, sigma, peak=1.0, aspect=1.0):
@@ -459,3 +462,20 @@ def test_a_smoothed_frame_detected_at_half_resolution_has_the_full_resolutions_c
     again = detect.detect_specularities(img, method="local_peak", smooth_sigma_px=2.5)
     assert again.smoothed is not None
     assert [c.bp_uv.tolist() for c in again.candidates] == [c.bp_uv.tolist() for c in full.candidates]
+
+
+@given(seed=st.integers(0, 2**32 - 1), colour_at=st.one_of(st.none(), st.integers(0, 40 * 50 - 1)))
+@settings(max_examples=40, deadline=None)
+def test_gray_and_grey_is_opencvs_gray_and_the_gray_test(seed, colour_at):
+    # the R channel of a gray 8-bit frame is OpenCV's gray of it (its fixed-point weights sum to
+    # one), and the one-pass test says gray exactly where R = G = B everywhere (a single colour
+    # pixel anywhere makes it a colour frame, converted by OpenCV)
+    rng = np.random.default_rng(seed)
+    img = np.repeat(rng.integers(0, 256, (40, 50, 1), dtype=np.uint8), 3, axis=2)
+    if colour_at is not None:
+        r, c = divmod(colour_at, 50)
+        img[r, c, rng.integers(0, 3)] ^= np.uint8(rng.integers(1, 256))
+    gray, grey = _gray_and_grey(img)
+    assert grey == _is_gray(img) == (colour_at is None)
+    assert np.array_equal(gray, cv2.cvtColor(img, cv2.COLOR_RGB2GRAY))
+    assert _gray_and_grey(img.astype(np.uint16))[1] is None  # not asked: 16-bit

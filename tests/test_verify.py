@@ -493,3 +493,32 @@ def test_maybe_flat_is_opencvs_blurred_variance_test(seed, h, w, margin, dtype, 
     g = g.astype(np.float64)
     g[cr0, cc0] = np.nan
     assert _kernels.maybe_flat(g[cr0:cr1, cc0:cc1], wr0 - cr0, wr1 - cr0, wc0 - cc0, wc1 - cc0, thr2, 1e-5, got) == -1
+
+
+@settings(max_examples=80, deadline=None)
+@given(st.integers(0, 2**32 - 1), st.integers(20, 120), st.integers(20, 120), st.integers(1, 6),
+       st.sampled_from([np.uint8, np.float32]))
+def test_surely_no_panels_in_one_call_is_the_loops(seed, h, w, n_regions, dtype):
+    """verify._surely_no_panels (one compiled call: the windows' marks and a flood fill of their
+    components) proves what its loop of maybe_flat, OpenCV's labelling and numpy per region
+    (_surely_no_panels_loop, the reference) proves: flat patches of every size, cut by the windows
+    or not, at the frame's sides and inside it, and a non-finite pixel."""
+    from simtest.reconstruct import verify
+
+    rng = np.random.default_rng(seed)
+    g = rng.normal(100.0, 3.0, (h, w))
+    for _ in range(int(rng.integers(0, 4))):  # flat patches (clipped tops, panels)
+        r0, c0 = int(rng.integers(0, h)), int(rng.integers(0, w))
+        g[r0:r0 + int(rng.integers(1, h)), c0:c0 + int(rng.integers(1, w))] = 200.0
+    g = np.clip(np.rint(g), 0, 255).astype(dtype)
+    rr = []
+    for _ in range(n_regions):
+        r0, c0 = int(rng.integers(0, h - 1)), int(rng.integers(0, w - 1))
+        rr.append((r0, int(rng.integers(r0 + 1, min(h, r0 + 30) + 1)), c0, int(rng.integers(c0 + 1, min(w, c0 + 30) + 1))))
+    rr = np.array(rr, np.int64)
+    noise = 3.0
+    assert verify._surely_no_panels(g, noise, rr) == verify._surely_no_panels_loop(g, noise, rr)
+    if dtype == np.float32:
+        g[rr[0, 0], rr[0, 2]] = np.nan
+        assert verify._surely_no_panels(g, noise, rr) is False
+        assert verify._surely_no_panels_loop(g, noise, rr) is False

@@ -28,7 +28,7 @@ diffuse areas in endoscopy.
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import cv2
 import numpy as np
@@ -254,6 +254,9 @@ class Detection:
         The gray detection examined before any smoothing (not to be written): OpenCV's gray of an RGB
         frame (rounded to whole levels for 8-bit and 16-bit frames; the channel itself where
         R = G = B), the image itself when single-channel.
+    grey : bool or None
+        Whether the image's R, G and B are equal, where detection found out (an 8-bit RGB frame:
+        its gray is then the R channel, :func:`_gray_and_grey`); None where it did not ask.
     """
 
     candidates: list[Candidate] = field(default_factory=list)
@@ -262,6 +265,7 @@ class Detection:
     n_unexamined: int = 0
     smoothed: np.ndarray | None = None
     gray: np.ndarray | None = None
+    grey: bool | None = None
 
     @property
     def n_components(self) -> int:
@@ -378,6 +382,20 @@ def _gray_native(image: np.ndarray) -> np.ndarray:
     if image.dtype in (np.uint8, np.uint16, np.float32):
         return cv2.cvtColor(np.ascontiguousarray(image), cv2.COLOR_RGB2GRAY)
     return luma(image)
+
+
+def _gray_and_grey(image: np.ndarray) -> tuple[np.ndarray, bool | None]:
+    """:func:`_gray_native` of an image and whether its R, G and B are equal (None: not asked).
+    A C-contiguous 8-bit RGB frame is tested and, where gray, its R channel taken as its gray in
+    one compiled pass (:func:`~simtest.reconstruct._kernels.grey_channel_packed`: OpenCV's gray
+    of R = G = B is R, ``tests/test_detect.py`` checks it); a colour one stops at its first
+    colour row and is converted by OpenCV."""
+    if image.ndim == 3 and image.shape[2] == 3 and image.dtype == np.uint8 and image.flags.c_contiguous:
+        out = np.empty(image.shape[:2], np.uint8)
+        if _kernels.grey_channel_packed(image.reshape(image.shape[0], -1), out):
+            return out, True
+        return _gray_native(image), False
+    return _gray_native(image), None
 
 
 def _threshold_mask(gray: np.ndarray, thr: float) -> np.ndarray:
@@ -976,7 +994,8 @@ def detect_specularities(
 
     if method not in DETECT_METHODS:
         raise ValueError(f"method: {method!r} is not one of {DETECT_METHODS}")
-    gray = native = _gray_native(img)
+    gray, grey = _gray_and_grey(img)
+    native = gray
     if smooth_sigma_px is None:
         smooth_sigma_px = auto_smooth_sigma_px(gray, fs)
     if (method == "local_peak" and smooth_sigma_px >= MULTIRES_SIGMA_MIN_PX and min(gray.shape) >= MULTIRES_SIDE_MIN_PX
@@ -987,7 +1006,7 @@ def detect_specularities(
             max_candidates=max_candidates, smooth_sigma_px=float(smooth_sigma_px), peak_rel=peak_rel,
             contrast_min_rel=contrast_min_rel)
         if det is not None:
-            return det
+            return replace(det, grey=grey)
     if smooth_sigma_px > 0:
         gray = cv2.GaussianBlur(gray.astype(np.float32), (0, 0), float(smooth_sigma_px),
                                 borderType=cv2.BORDER_REFLECT)
@@ -1031,7 +1050,7 @@ def detect_specularities(
     if smooth_sigma_px > 0:
         smoothed = gray
         smoothed.setflags(write=False)
-    return Detection(out, fs, thr, max(0, n_comps - len(out)), smoothed, native)
+    return Detection(out, fs, thr, max(0, n_comps - len(out)), smoothed, native, grey)
 
 
 #: Detection relative to local peaks on a frame smoothed by at least this sigma, px, looks for

@@ -1290,7 +1290,9 @@ def reconstruct(
     if sliced or (settings.verify and not many):
         # the colour frame's float32 luma, for the frame's smoothing and the verifier (which reads
         # for_many_highlights' float64 luma where that is computed)
-        grey = img.ndim == 3 and img.shape[2] >= 3 and bool(_is_gray(img))
+        # (detection's answer where it asked, on the whole frame)
+        grey = img.ndim == 3 and img.shape[2] >= 3 and (
+            det.grey if det.grey is not None and sub.shape == img.shape else bool(_is_gray(img)))
         frame = replace(frame, luma32=None if grey else _colour_luma32(img, False), grey=grey)
     if many:
         # many ROIs: contoured in one smoothing of the frame's luma (detection's own where it is

@@ -474,6 +474,20 @@ def _surely_no_panels(gray: np.ndarray, noise: float, rr: np.ndarray) -> bool:
     m = _PANEL_MARGIN_PX
     src = gray if gray.dtype.type in _MAYBE_FLAT_DTYPES else gray.astype(np.float64)
     rr = np.ascontiguousarray(rr, dtype=np.int64).reshape(-1, 4)
+    # every region's window, its possibly flat pixels and their components in one compiled call
+    # (-1, a non-finite pixel: not proven)
+    return _kernels.surely_no_panels(src, rr, m, thr2, _FLAT_SLACK, min_area) == 1
+
+
+def _surely_no_panels_loop(gray: np.ndarray, noise: float, rr: np.ndarray) -> bool:
+    """:func:`_surely_no_panels` by a loop of compiled calls, OpenCV's labelling and numpy per
+    region: the reference of its one compiled call (``tests/test_verify.py`` compares them)."""
+    h, w = gray.shape
+    thr2 = (PANEL_STD_REL * noise) ** 2 * (1.0 + _FLAT_SLACK)
+    min_area = PANEL_MIN_AREA * h * w
+    m = _PANEL_MARGIN_PX
+    src = gray if gray.dtype.type in _MAYBE_FLAT_DTYPES else gray.astype(np.float64)
+    rr = np.ascontiguousarray(rr, dtype=np.int64).reshape(-1, 4)
     start = 0
     while True:
         # the regions without a possibly flat pixel, skipped in one compiled call
