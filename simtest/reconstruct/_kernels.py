@@ -2017,27 +2017,6 @@ def first_maybe_flat_region(x, rr, start, margin, thr2, slack):
 
 
 @numba.njit(cache=True, nogil=True)
-def phase_medians(d, block):
-    """The median of each of the ``block`` phases of ``d`` (phase k: ``d[(k - 1) % block ::
-    block]``), float64 (block,), NaN for an empty phase: the medians of
-    ``jpeg._phase_blockiness`` (numpy's stacked ``np.median`` calls: 0.2 ms a call on a frame's
-    1349 differences), in one call."""
-    out = np.empty(block)
-    n = len(d)
-    for k in range(block):
-        s = (k - 1) % block
-        m = len(range(s, n, block))
-        if m == 0:
-            out[k] = np.nan
-            continue
-        v = np.empty(m)
-        for i in range(m):
-            v[i] = d[s + i * block]
-        out[k] = np.median(v)
-    return out
-
-
-@numba.njit(cache=True, nogil=True)
 def surely_no_panels(x, rr, margin, thr2, slack, min_area):
     """The proof of ``verify._surely_no_panels`` in one call: 1 when no region of interest (rows of
     ``rr``: row0, row1, col0, col1 of the frame ``x``) holds a pixel of a flat component that

@@ -1131,8 +1131,21 @@ def _detect_half_resolution(img, native, fs, saturation_level, *, min_area_px, e
     kern = cv2.getGaussianKernel(2 * gaussian_radius_px(smooth_sigma_px) + 1, smooth_sigma_px).astype(np.float32).ravel()
     thr = np.float32(contrast_min_rel * fs)
     out = []
-    for c in cands2:
-        got = _component_at_full_resolution(full, native, c, bg_small, peak_small, kern, np.float32(peak_rel), thr)
+    # every candidate's window, component and examination in one compiled call (the loop of
+    # _component_at_full_resolution's calls cost 40 us a candidate of glue); a candidate the
+    # kernel leaves to numpy is measured again by that function
+    ell_min = ellipticity_min
+    boxes = np.array([tuple(c.bbox) for c in cands2], np.int64).reshape(-1, 4)
+    bps2 = np.array([c.bp_uv for c in cands2], np.float64).reshape(-1, 2)
+    found_k, ints, floats, comps = _dk.components_at_full_resolution(
+        native, boxes, bps2, kern, bg_small, peak_small, np.float32(peak_rel), thr,
+        np.zeros((0, 0), np.uint8) if clipped is None else clipped, gray, levels, float(min_area_px),
+        float(ell_min), float(1.0 / ell_min), float(roi_scale), float(roi_margin_px), float(peak_rel),
+        int(k_close_full), int(min_plateau_px))
+    for c, ok, row, fl, cp in zip(cands2, found_k.tolist(), ints.tolist(), floats.tolist(), comps.tolist()):
+        got = _from_window(full, row, fl, cp) if ok else None
+        if ok and got is None:  # left to numpy: measured again
+            got = _component_at_full_resolution(full, native, c, bg_small, peak_small, kern, np.float32(peak_rel), thr)
         if got is None:  # its BP's pixel is not in the full frame's mask: the reduced frame's
             b = c.bbox
             bbox = Roi(2 * b.row0, min(h, 2 * b.row1), 2 * b.col0, min(w, 2 * b.col1))
@@ -1227,7 +1240,7 @@ def _examine_in_window(full: _DetectFrame, g: np.ndarray, lab: np.ndarray, bg: n
     compiled examination (:func:`simtest.reconstruct._detect_kernels.examine_candidates`) of the
     window's smoothing ``g`` and background ``bg``, without the scope's border (as
     :func:`_component_at_full_resolution` examines it): its brightest pixel, BP, status and
-    level, the same bits; None where the kernel leaves the candidate to numpy (clipped pixels).
+    level, the same bits (a clipped one's plateaus too); None where the kernel leaves the candidate to numpy.
     The window holds the whole component and touches the frame's sides only where it does (the
     caller grows it until the component is not cut), so its ``touches_border`` is the frame's;
     the ROI is proposed in the frame. 0.1 ms a candidate less than numpy's (a sixth of the
@@ -1239,7 +1252,8 @@ def _examine_in_window(full: _DetectFrame, g: np.ndarray, lab: np.ndarray, bg: n
     ints, floats = _dk.examine_candidates(
         g, lab, np.array([[k, x, y, bw, bh, area]], np.int64), win_clipped, np.zeros((0, 0), np.bool_), bg,
         float(full.min_area_px), float(ell_min), float(1.0 / ell_min), float(full.roi_scale),
-        float(full.roi_margin_px), float(full.peak_rel), c0, r0)
+        float(full.roi_margin_px), float(full.peak_rel), c0, r0, int(full.k_close), int(full.min_plateau_px),
+        full.method == "local_peak")
     code = int(ints[0, _dk.STATUS])
     if code == _dk.FALLBACK:
         return None
@@ -1258,8 +1272,32 @@ def _examine_in_window(full: _DetectFrame, g: np.ndarray, lab: np.ndarray, bg: n
     status = _STATUS[code]
     bp = np.array([u, v])  # in the frame (the kernel adds the window's corner as numpy adds the box's)
     roi = Roi.around(bp, full.roi_scale * max(bw, bh) / 2.0 + full.roi_margin_px, full.img.shape)
-    return Candidate(bp, peak, False, area, bbox, roi, status,
-                     "" if code == _dk.OK else _rejection_detail(status, full, area, bbox, text), level)
+    return Candidate(bp, peak, bool(ints[0, _dk.SATURATED]), area, bbox, roi, status,
+                     _kernel_detail(code, status, full, area, bbox, text, int(ints[0, _dk.N_PLATEAUS])), level)
+
+
+def _from_window(full: _DetectFrame, row: list, fl: list, cp: list) -> Candidate | None:
+    """The candidate of one row of :func:`~simtest.reconstruct._detect_kernels.components_at_full_resolution`
+    (``row`` its ints, ``fl`` its floats, ``cp`` its component's box, area and window corner), as
+    :func:`_examine_in_window` makes it; None where the kernel leaves it to numpy (a
+    :data:`~simtest.reconstruct._detect_kernels.FALLBACK`, or an ellipticity whose detail numpy's
+    value decides)."""
+    code = row[_dk.STATUS]
+    if code in (_dk.FALLBACK, _dk.ELLIPTICITY_UNSURE):
+        return None
+    u, v, peak, level, e, tol = fl
+    x, y, bw, bh, area = cp[:5]
+    bbox = Roi(y, y + bh, x, x + bw)
+    text = ""
+    if code == _dk.NOT_ELLIPTICAL:
+        text = f"{e * (1.0 - tol):.3f}"
+        if text != f"{e * (1.0 + tol):.3f}":
+            return None
+    status = _STATUS[code]
+    bp = np.array([u, v])
+    roi = Roi.around(bp, full.roi_scale * max(bw, bh) / 2.0 + full.roi_margin_px, full.img.shape)
+    return Candidate(bp, peak, bool(row[_dk.SATURATED]), area, bbox, roi, status,
+                     _kernel_detail(code, status, full, area, bbox, text, row[_dk.N_PLATEAUS]), level)
 
 
 @dataclass(frozen=True)
@@ -1315,7 +1353,17 @@ def _outer_components(mask: np.ndarray) -> list[tuple[int, int, int, int, int, n
 #: Intensity dtypes :func:`_candidates_compiled` takes (one compilation each).
 _COMPILED_DTYPES = (np.uint8, np.uint16, np.float32, np.float64)
 _STATUS = {_dk.OK: "ok", _dk.TOO_SMALL: "too_small", _dk.TOUCHES_BORDER: "touches_border",
-           _dk.BLACK_BORDER: "black_border", _dk.NOT_ELLIPTICAL: "not_elliptical"}
+           _dk.BLACK_BORDER: "black_border", _dk.NOT_ELLIPTICAL: "not_elliptical", _dk.MERGED: "merged"}
+
+
+def _kernel_detail(code: int, status: str, frame: _DetectFrame, area: int, bbox: Roi, text: str,
+                   n_plateaus: int) -> str:
+    """The detail of a candidate the kernel examined: ``_examine_numpy``'s words for its status."""
+    if code == _dk.OK:
+        return ""
+    if code == _dk.MERGED:
+        return f"{n_plateaus} saturated plateaus"
+    return _rejection_detail(status, frame, area, bbox, text)
 
 
 def _candidates_compiled(frame: _DetectFrame, mask: np.ndarray) -> tuple[list[Candidate], int] | None:
@@ -1364,7 +1412,8 @@ def _candidates_compiled(frame: _DetectFrame, mask: np.ndarray) -> tuple[list[Ca
         np.zeros((0, 0), np.bool_) if scope is None else scope,
         np.zeros((0, 0), np.float32) if frame.levels is None else frame.levels,
         float(frame.min_area_px), float(ell_min), float(ell_max), float(frame.roi_scale),
-        float(frame.roi_margin_px), float(frame.peak_rel), 0, 0)
+        float(frame.roi_margin_px), float(frame.peak_rel), 0, 0, int(frame.k_close), int(frame.min_plateau_px),
+        frame.method == "local_peak")
     bps = list(floats[:, :2].copy())  # each candidate's BP a row of one array (views, made at once)
     with_level = frame.levels is not None
     out = []
@@ -1390,8 +1439,8 @@ def _candidates_compiled(frame: _DetectFrame, mask: np.ndarray) -> tuple[list[Ca
             text = ""
         status = _STATUS[code]
         roi = new_roi(Roi, (row[r0], row[r1], row[c0], row[c1]))
-        out.append(Candidate(bps[k], peak, False, area, bbox, roi, status,
-                             "" if code == _dk.OK else _rejection_detail(status, frame, area, bbox, text),
+        out.append(Candidate(bps[k], peak, bool(row[_dk.SATURATED]), area, bbox, roi, status,
+                             _kernel_detail(code, status, frame, area, bbox, text, row[_dk.N_PLATEAUS]),
                              level if with_level else None))
     return out, n_comps
 
