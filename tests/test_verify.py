@@ -522,3 +522,27 @@ def test_surely_no_panels_in_one_call_is_the_loops(seed, h, w, n_regions, dtype)
         g[rr[0, 0], rr[0, 2]] = np.nan
         assert verify._surely_no_panels(g, noise, rr) is False
         assert verify._surely_no_panels_loop(g, noise, rr) is False
+
+
+@settings(max_examples=20, deadline=None)
+@given(st.integers(0, 2**32 - 1), st.sampled_from([(1080, 1350), (480, 640), (96, 128)]))
+def test_the_opening_seeded_from_detections_half_means_is_the_grays(seed, shape):
+    """verify.seed_opening: the reduced opening from the 2 x 2 means (detection's reduced frame)
+    is _opening_small's of the gray to float32 rounding (the block means grouped otherwise: 1e-6
+    relative leaves a margin of ~10), and frame_evidence reads it inside shared_passes; an odd
+    block side is not seeded."""
+    from simtest.reconstruct import _detect_kernels, verify
+    from simtest.reconstruct.detect import background_side_px
+
+    rng = np.random.default_rng(seed)
+    g = np.clip(rng.normal(60, 20, shape) + 150 * (rng.random(shape) < 0.01), 0, 255).astype(np.uint8)
+    half = np.empty((shape[0] // 2, shape[1] // 2), np.float32)
+    _detect_kernels.half_means_uint8(g, half)
+    side = background_side_px(shape)
+    want, f = verify._opening_small(g, side)
+    with verify.shared_passes():
+        seeded = verify.seed_opening(g, side, half)
+        got, f_got = verify._shared(verify._opening_small, g, side)
+    assert seeded == (f % 2 == 0 and f > 1)
+    assert f_got == f and np.allclose(got, want, rtol=1e-6, atol=1e-6 * float(np.abs(want).max()))
+    assert not verify.seed_opening(g, side, half)  # outside the block: nothing

@@ -257,6 +257,9 @@ class Detection:
     grey : bool or None
         Whether the image's R, G and B are equal, where detection found out (an 8-bit RGB frame:
         its gray is then the R channel, :func:`_gray_and_grey`); None where it did not ask.
+    half : ndarray of shape (H // 2, W // 2), float32, or None
+        The means of ``gray``'s 2 x 2 blocks, where detection reduced the frame (read-only; the
+        verifier reduces its opening's blocks from them).
     """
 
     candidates: list[Candidate] = field(default_factory=list)
@@ -266,6 +269,7 @@ class Detection:
     smoothed: np.ndarray | None = None
     gray: np.ndarray | None = None
     grey: bool | None = None
+    half: np.ndarray | None = None
 
     @property
     def n_components(self) -> int:
@@ -1158,7 +1162,8 @@ def _detect_half_resolution(img, native, fs, saturation_level, *, min_area_px, e
                             _rejection_detail(c.status, full, got.area_px, got.bbox), got.level)
         out.append(got)
     out.sort(key=lambda c: -c.peak)
-    return Detection(out, fs, contrast_min_rel * fs, max(0, n_comps - len(out)), None, native)
+    half.setflags(write=False)
+    return Detection(out, fs, contrast_min_rel * fs, max(0, n_comps - len(out)), None, native, half=half)
 
 
 def _linear_at(small: np.ndarray, shape: tuple[int, int], r0: int, r1: int, c0: int, c1: int) -> np.ndarray:

@@ -81,6 +81,7 @@ from simtest.reconstruct import _kernels
 from simtest.reconstruct._pixels import Roi, image_size_wh, rc_to_uv
 from simtest.reconstruct.cone_fit import FitFrame, fit_cones, fit_frame, fit_frames, to_camera, to_fit_frame
 from simtest.reconstruct.detect import (
+    background_side_px,
     connected_components,
     default_full_scale,
     detect_specularities,
@@ -96,7 +97,7 @@ from simtest.reconstruct.failures import OK, Failure
 from simtest.reconstruct.isophote import MIN_CONTOUR_POINTS, _cut_and_contour, _extract, _region
 from simtest.reconstruct.recommend import recommend
 from simtest.reconstruct.settings import AUTO_LOCAL_BACKGROUND_REL, Normalisation, ReconSettings
-from simtest.reconstruct.verify import assess, bp_checks, confidence, shared_passes, verdict
+from simtest.reconstruct.verify import assess, bp_checks, confidence, seed_opening, shared_passes, verdict
 
 #: A whole-frame call (:func:`reconstruct`) on an RGB image with at least this many accepted
 #: highlights computes the luma of the frame once and slices each ROI's from it (the same values,
@@ -1347,6 +1348,9 @@ def reconstruct(
         # is neither contoured nor fitted (issue 41; a third of a real frame's candidates)
         verifier = _verifier_inputs(frame, det.gray if whole else None, frame.noise if whole else None)
         gray_v, grey_v, noise_v = verifier
+        if whole and det.half is not None and gray_v is det.gray:
+            # the verifier's reduced opening from detection's 2 x 2 means of the same gray
+            seed_opening(gray_v, background_side_px(gray_v.shape), det.half)
         fk = np.flatnonzero(fitted)
         sat = np.array([det.candidates[k].saturated for k in fk.tolist()], dtype=bool)
         early = {k: d for k, d in zip(fk.tolist(), bp_checks(frame.img, gray_v, bps_arr[fk], sat,
