@@ -800,6 +800,22 @@ def window_component(native, r0, r1, c0, c1, kern, bg_small, peak_small, peak_re
     for j in range(nc):
         bx0[j], ax[j], bx1[j] = _linear_sample(c0 + j, sw, W)
         px0[j], qx[j], px1[j] = _linear_sample(c0 + j, pw, W)
+    # each reduced row the window's rows read, enlarged along the row once (the rows of a
+    # window read a few): the same products as per pixel, computed once per source row
+    bs_lo, _, _ = _linear_sample(r0, sh, H)
+    _, _, bs_hi = _linear_sample(r1 - 1, sh, H)
+    ps_lo, _, _ = _linear_sample(r0, ph, H)
+    _, _, ps_hi = _linear_sample(r1 - 1, ph, H)
+    blines = np.empty((bs_hi - bs_lo + 1, nc), np.float32)
+    for q in range(bs_lo, bs_hi + 1):
+        for j in range(nc):
+            a = ax[j]
+            blines[q - bs_lo, j] = bg_small[q, bx0[j]] * (one - a) + bg_small[q, bx1[j]] * a
+    plines = np.empty((ps_hi - ps_lo + 1, nc), np.float32)
+    for q in range(ps_lo, ps_hi + 1):
+        for j in range(nc):
+            a = qx[j]
+            plines[q - ps_lo, j] = peak_small[q, px0[j]] * (one - a) + peak_small[q, px1[j]] * a
     # the mask, padded by a row and a column of 0 on each side (the flood fill below needs no
     # bounds checks)
     W2 = nc + 2
@@ -807,21 +823,18 @@ def window_component(native, r0, r1, c0, c1, kern, bg_small, peak_small, peak_re
     for i in range(nr):
         by0, ay, by1 = _linear_sample(r0 + i, sh, H)
         py0, qy, py1 = _linear_sample(r0 + i, ph, H)
+        btop, bbot = blines[by0 - bs_lo], blines[by1 - bs_lo]
+        ptop, pbot = plines[py0 - ps_lo], plines[py1 - ps_lo]
+        base = (i + 1) * W2 + 1
         for j in range(nc):
-            a = ax[j]
-            top = bg_small[by0, bx0[j]] * (one - a) + bg_small[by0, bx1[j]] * a
-            bot = bg_small[by1, bx0[j]] * (one - a) + bg_small[by1, bx1[j]] * a
-            b = top * (one - ay) + bot * ay
+            b = btop[j] * (one - ay) + bbot[j] * ay
             v = g[i, j]
             m = b if (b <= v or b != b) else v
             bg[i, j] = m
             t = v - m
-            a = qx[j]
-            top = peak_small[py0, px0[j]] * (one - a) + peak_small[py0, px1[j]] * a
-            bot = peak_small[py1, px0[j]] * (one - a) + peak_small[py1, px1[j]] * a
-            p = top * (one - qy) + bot * qy
+            p = ptop[j] * (one - qy) + pbot[j] * qy
             q = p if (p >= t or p != p) else t
-            mp[(i + 1) * W2 + j + 1] = 1 if (t >= q * peak_rel and t >= thr) else 0
+            mp[base + j] = 1 if (t >= q * peak_rel and t >= thr) else 0
     # the BP's pixel: the largest smoothed value of the mask within 2 px of the reduced BP
     best = np.float32(-np.inf)
     pr, pc = -1, -1
