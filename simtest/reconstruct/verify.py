@@ -673,15 +673,15 @@ def frame_evidence(image: np.ndarray, gray: np.ndarray, bps_uv: np.ndarray, rois
     else:
         floor_max = np.float32(np.inf)
     if windowed:
-        # the opening only where read: in the reach windows (with the 1 px the maxima read beyond
-        # them) where the top-hat, its maxima and their colour are
-        wide = np.c_[np.maximum(win[:, 0] - 1, 0), np.minimum(win[:, 1] + 1, h),
-                     np.maximum(win[:, 2] - 1, 0), np.minimum(win[:, 3] + 1, w)]
         if f > 1 and g.dtype.type in _MAYBE_FLAT_DTYPES:
             # the enlargement, top-hat and maxima of every window in one compiled call
             top = np.empty((h, w), np.float32)
             ys, xs = np.divmod(_kernels.maxima_in_windows(g, bg_small, win, floor_max, top), w)
         else:
+            # the opening only where read: in the reach windows (with the 1 px the maxima read
+            # beyond them) where the top-hat, its maxima and their colour are
+            wide = np.c_[np.maximum(win[:, 0] - 1, 0), np.minimum(win[:, 1] + 1, h),
+                         np.maximum(win[:, 2] - 1, 0), np.minimum(win[:, 3] + 1, w)]
             bg = _upsampled(bg_small, f, (h, w), wide)
             top, ys, xs = _maxima_windows(g, bg, floor_max, win)
     else:
