@@ -546,3 +546,29 @@ def test_the_opening_seeded_from_detections_half_means_is_the_grays(seed, shape)
     assert seeded == (f % 2 == 0 and f > 1)
     assert f_got == f and np.allclose(got, want, rtol=1e-6, atol=1e-6 * float(np.abs(want).max()))
     assert not verify.seed_opening(g, side, half)  # outside the block: nothing
+
+
+@settings(max_examples=30, deadline=None)
+@given(st.integers(0, 2**32 - 1), st.integers(1, 40), st.integers(1, 40), st.sampled_from(["gray8", "gray16", "luma"]),
+       st.floats(0.1, 30.0))
+def test_the_flat_map_in_one_pass_is_opencvs_blurs(seed, h, w, kind, thr):
+    """_kernels.flat_map (the 5 x 5 means of the luma and its square summed in float64) marks
+    the pixels that OpenCV's two float32 box filters and flat_pixels mark, on the luma of 8- and
+    16-bit frames (exact sums), with flat patches and at the frame's sides."""
+    from simtest.reconstruct import _kernels
+    from simtest.reconstruct.pipeline import _luma32
+
+    rng = np.random.default_rng(seed)
+    if kind == "gray8":
+        g = rng.integers(0, 256, (h, w)).astype(np.float32)
+    elif kind == "gray16":
+        g = rng.integers(0, 65536, (h, w)).astype(np.float32)
+    else:
+        g = _luma32(rng.integers(0, 256, (h, w, 3), dtype=np.uint8))
+    g[rng.random((h, w)) < 0.4] = g.flat[0]  # flat patches
+    t = np.float32(thr if kind != "gray16" else 100 * thr)
+    want = np.empty((h, w), np.uint8)
+    n_want = _kernels.flat_pixels(cv2.blur(g, (5, 5)), cv2.blur(g * g, (5, 5)), t, want)
+    got = np.empty((h, w), np.uint8)
+    assert _kernels.flat_map(g, t, got) == n_want
+    assert np.array_equal(got, want)

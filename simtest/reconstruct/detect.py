@@ -375,7 +375,12 @@ def luma(image: np.ndarray, *, dtype=np.float64) -> np.ndarray:
     if image.ndim == 2:
         return image.astype(dtype, copy=False)
     if np.dtype(dtype) == np.float64 and image.dtype.type in _LUMA_COMPILED:
-        return _kernels.luma_rgb(image, *_LUMA_WEIGHTS)
+        rows = _kernels.packed_rows(image)
+        if rows is None:
+            return _kernels.luma_rgb(image, *_LUMA_WEIGHTS)
+        out = np.empty(image.shape[:2], np.float64)  # the same bits, vectorised (packed pixels)
+        _kernels.luma_rows(rows, *_LUMA_WEIGHTS, out)
+        return out
     return (image.astype(dtype, copy=False) @ _LUMA.astype(dtype)).astype(dtype, copy=False)
 
 

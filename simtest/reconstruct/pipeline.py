@@ -948,8 +948,20 @@ def _colour_luma32(img: np.ndarray, grey: bool | None = None) -> np.ndarray | No
         return None
     if grey if grey is not None else _is_gray(img):
         return None
-    out = _kernels.luma_rgb32(img, *_LUMA_W)
+    out = _luma32(img)
     out.setflags(write=False)
+    return out
+
+
+def _luma32(img: np.ndarray) -> np.ndarray:
+    """:func:`simtest.reconstruct._kernels.luma_rgb32` of an (H, W, 3) image: by
+    :func:`~simtest.reconstruct._kernels.luma_rows` where its pixels are packed along its rows
+    (the same bits, a quarter of the time)."""
+    rows = _kernels.packed_rows(img)
+    if rows is None:
+        return _kernels.luma_rgb32(img, *_LUMA_W)
+    out = np.empty(img.shape[:2], np.float32)
+    _kernels.luma_rows(rows, *_LUMA_W, out)
     return out
 
 
@@ -965,7 +977,7 @@ def _frame_luma_smoothing(img: np.ndarray, detection_smoothed: np.ndarray, sigma
     elif img.ndim == 2 or img.dtype.kind == "f" or _is_gray(img):
         return detection_smoothed
     else:
-        src = _kernels.luma_rgb32(img, *_LUMA_W) if img.dtype.type in (np.uint8, np.uint16) else \
+        src = _luma32(img) if img.dtype.type in (np.uint8, np.uint16) else \
             luma(img).astype(np.float32)
     out = cv2.GaussianBlur(src, (0, 0), float(sigma), borderType=cv2.BORDER_REFLECT)
     out.setflags(write=False)

@@ -382,19 +382,24 @@ def _chroma(rgb: np.ndarray) -> np.ndarray:
     return 1.0 - np.minimum(np.minimum(r, g), b) / np.maximum(mx, 1e-9)
 
 
-def _panels(gray: np.ndarray, noise: float) -> np.ndarray:
+def _panels(gray: np.ndarray, noise: float, integer_source: bool = False) -> np.ndarray:
     """Flat panels: 8-connected regions of pixels whose 5 x 5 luma standard deviation is below
     :data:`PANEL_STD_REL` of the image noise, of at least :data:`PANEL_MIN_AREA` of the frame;
-    uint8 0/1 (none in a noise-free image)."""
+    uint8 0/1 (none in a noise-free image). ``integer_source``: the luma is that of an 8- or 16-bit
+    frame (its 5 x 5 sums are exact in float64: the means, square and test in one compiled pass,
+    :func:`~simtest.reconstruct._kernels.flat_map`, the same mask)."""
     if not noise > 0:
         return np.zeros(gray.shape, np.uint8)
     g = gray.astype(np.float32, copy=False)
-    m1 = cv2.blur(g, (5, 5))
-    m2 = cv2.blur(g * g, (5, 5))
-    # flat = sqrt(max(m2 - m1 * m1, 0)) < PANEL_STD_REL * noise in one compiled pass (numpy rounds
-    # the threshold to float32 to compare)
+    # flat = sqrt(max(m2 - m1 * m1, 0)) < PANEL_STD_REL * noise (numpy rounds the threshold to
+    # float32 to compare)
     flat = np.empty(g.shape, np.uint8)
-    n_flat = _kernels.flat_pixels(m1, m2, np.float32(PANEL_STD_REL * noise), flat)
+    if integer_source:
+        n_flat = _kernels.flat_map(np.ascontiguousarray(g), np.float32(PANEL_STD_REL * noise), flat)
+    else:
+        m1 = cv2.blur(g, (5, 5))
+        m2 = cv2.blur(g * g, (5, 5))
+        n_flat = _kernels.flat_pixels(m1, m2, np.float32(PANEL_STD_REL * noise), flat)
     min_area = PANEL_MIN_AREA * flat.size
     if n_flat < min_area:  # too few flat pixels for any panel
         return np.zeros_like(flat)
@@ -713,7 +718,7 @@ def frame_evidence(image: np.ndarray, gray: np.ndarray, bps_uv: np.ndarray, rois
     if not panels or (windowed and (not noise > 0 or _surely_no_panels(gray, noise, rr))):
         panel_fraction = np.zeros(n)
     else:
-        panel = _panels(_shared(_float32, gray), noise)
+        panel = _panels(_shared(_float32, gray), noise, image.dtype.type in (np.uint8, np.uint16))
         integ = cv2.integral(panel)
         area = np.maximum((rr[:, 1] - rr[:, 0]) * (rr[:, 3] - rr[:, 2]), 1)
         inside = (integ[rr[:, 1], rr[:, 3]] - integ[rr[:, 0], rr[:, 3]] - integ[rr[:, 1], rr[:, 2]]
