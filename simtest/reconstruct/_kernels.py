@@ -2160,3 +2160,26 @@ def flat_map(g, thr, out):
             for j in range(W):
                 n += orow[j]
     return n
+
+
+@numba.njit(cache=True, nogil=True)
+def phase_medians(d, block):
+    """The median of each of the ``block`` phases of ``d`` (float64; phase k:
+    ``d[(k - 1) % block :: block]``), (block,), NaN for an empty phase: ``jpeg._phase_blockiness``'
+    stacked ``np.median`` calls (0.25 ms for the grid search's two profiles of a 1350 x 1080
+    frame) in one call, the same values (the middle order statistic, or the mean of the two
+    middle ones: ``(a + b) / 2`` as numpy's mean of two float64 values)."""
+    out = np.empty(block)
+    n = len(d)
+    for k in range(block):
+        s = (k - 1) % block
+        m = len(range(s, n, block))
+        if m == 0:
+            out[k] = np.nan
+            continue
+        v = np.empty(m)
+        for i in range(m):
+            v[i] = d[s + i * block]
+        v.sort()
+        out[k] = v[m // 2] if m % 2 else (v[m // 2 - 1] + v[m // 2]) / 2.0
+    return out
