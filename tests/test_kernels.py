@@ -197,7 +197,7 @@ def test_border_median_of_a_nan_is_nan():
 @settings(max_examples=60, deadline=None)
 def test_the_compiled_luma_is_the_blas_products_bits(seed, dtype, strided):
     # luma_rgb replaces numpy's image @ weights (OpenBLAS); detect.luma and every ROI's luma use it
-    from simtest.reconstruct.detect import _LUMA, _LUMA_WEIGHTS, luma
+    from simtest.reconstruct.detect import _LUMA, _LUMA_WEIGHTS, luma, packed_rows
 
     rng = np.random.default_rng(seed)
     # w >= 2: numpy's product of a one-column image, shape (h, 1, 3), is a stack of h 1 x 3
@@ -218,8 +218,8 @@ def test_the_compiled_luma_is_the_blas_products_bits(seed, dtype, strided):
     assert _kernels.luma_rgb(img[:, 1:2], *_LUMA_WEIGHTS).tobytes() == got[:, 1:2].copy().tobytes()
     # luma_rows (the packed rows of a frame, or of a slice of one, as detect.luma and the
     # pipeline's float32 luma read them): the same bits, in float64 and float32
-    rows = _kernels.packed_rows(img)
-    assert rows is not None and _kernels.packed_rows(img[:, :, [0, 1, 2, 0]]) is None
+    rows = packed_rows(img)
+    assert rows is not None and packed_rows(img[:, :, [0, 1, 2, 0]]) is None
     out = np.empty((h, w))
     _kernels.luma_rows(rows, *_LUMA_WEIGHTS, out)
     assert out.tobytes() == want.tobytes()

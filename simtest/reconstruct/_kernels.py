@@ -1045,19 +1045,6 @@ def luma_rows(rows, w0, w1, w2, out):
             o[c] = float(row[3 * c]) * w0 + float(row[3 * c + 1]) * w1 + float(row[3 * c + 2]) * w2
 
 
-def packed_rows(img: np.ndarray) -> np.ndarray | None:
-    """The rows (H, 3 W) of an (H, W, 3) image whose pixels are packed along its rows (channel and
-    pixel strides of one and three items: a C-contiguous frame or a slice of its rows and columns),
-    as a view for :func:`luma_rows`; None for any other layout."""
-    if img.ndim != 3 or img.shape[2] != 3:
-        return None
-    it = img.itemsize
-    if img.strides[2] != it or img.strides[1] != 3 * it or img.strides[0] < 3 * it * img.shape[1]:
-        return None
-    return np.lib.stride_tricks.as_strided(img, shape=(img.shape[0], 3 * img.shape[1]), strides=(img.strides[0], it),
-                                           writeable=False)
-
-
 @numba.njit(cache=True, nogil=True)
 def border_median(vals):
     """Median of the border pixels of ``vals`` (h, w), h, w >= 1, as ``np.median`` of

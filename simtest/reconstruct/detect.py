@@ -375,13 +375,26 @@ def luma(image: np.ndarray, *, dtype=np.float64) -> np.ndarray:
     if image.ndim == 2:
         return image.astype(dtype, copy=False)
     if np.dtype(dtype) == np.float64 and image.dtype.type in _LUMA_COMPILED:
-        rows = _kernels.packed_rows(image)
+        rows = packed_rows(image)
         if rows is None:
             return _kernels.luma_rgb(image, *_LUMA_WEIGHTS)
         out = np.empty(image.shape[:2], np.float64)  # the same bits, vectorised (packed pixels)
         _kernels.luma_rows(rows, *_LUMA_WEIGHTS, out)
         return out
     return (image.astype(dtype, copy=False) @ _LUMA.astype(dtype)).astype(dtype, copy=False)
+
+
+def packed_rows(img: np.ndarray) -> np.ndarray | None:
+    """The rows (H, 3 W) of an (H, W, 3) image whose pixels are packed along its rows (channel and
+    pixel strides of one and three items: a C-contiguous frame or a slice of its rows and columns),
+    as a view for :func:`~simtest.reconstruct._kernels.luma_rows`; None for any other layout."""
+    if img.ndim != 3 or img.shape[2] != 3:
+        return None
+    it = img.itemsize
+    if img.strides[2] != it or img.strides[1] != 3 * it or img.strides[0] < 3 * it * img.shape[1]:
+        return None
+    return np.lib.stride_tricks.as_strided(img, shape=(img.shape[0], 3 * img.shape[1]), strides=(img.strides[0], it),
+                                           writeable=False)
 
 
 def _gray_native(image: np.ndarray) -> np.ndarray:

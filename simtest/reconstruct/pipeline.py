@@ -88,6 +88,7 @@ from simtest.reconstruct.detect import (
     image_noise_sigma,
     luma,
     noise_sigma,
+    packed_rows,
     peak_uv,
     smooth_sigma_for_noise,
     validate_image,
@@ -957,7 +958,7 @@ def _luma32(img: np.ndarray) -> np.ndarray:
     """:func:`simtest.reconstruct._kernels.luma_rgb32` of an (H, W, 3) image: by
     :func:`~simtest.reconstruct._kernels.luma_rows` where its pixels are packed along its rows
     (the same bits, a quarter of the time)."""
-    rows = _kernels.packed_rows(img)
+    rows = packed_rows(img)
     if rows is None:
         return _kernels.luma_rgb32(img, *_LUMA_W)
     out = np.empty(img.shape[:2], np.float32)
