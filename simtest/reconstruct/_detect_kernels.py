@@ -779,13 +779,17 @@ def window_component(native, r0, r1, c0, c1, kern, bg_small, peak_small, peak_re
             buf[j] = np.float32(native[rr, cols[j]])
         _taps_row(kern, buf, acc)
         tmp[i, :] = acc
-    col = np.empty(nr + 2 * K, np.float32)
-    acc_c = np.empty(nr, np.float32)
-    tmp_t = np.ascontiguousarray(tmp.T)  # the vertical pass along contiguous columns
-    for j in range(nc):
-        col[:] = tmp_t[j]
-        _taps_row(kern, col, acc_c)
-        g[:, j] = acc_c
+    # the vertical pass row by row: each output row the taps' weighted sum of the rows below it,
+    # in the taps' order (the same sums as along each column), over contiguous rows
+    for i in range(nr):
+        gi = g[i]
+        for j in range(nc):
+            gi[j] = 0.0
+        for t in range(n_t):
+            kt = kern[t]
+            src = tmp[i + t]
+            for j in range(nc):
+                gi[j] += kt * src[j]
     # the mask: top-hat over the enlarged background, against the enlarged local peaks (each
     # column's sources computed once)
     sh, sw = bg_small.shape
