@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import cv2
 import numpy as np
 import pytest
 from hypothesis import given, settings
@@ -10,6 +11,8 @@ from hypothesis import strategies as st
 from simtest.reconstruct.detect import (
     BACKGROUND_DIV,
     BACKGROUND_PLATEAU_FACTOR,
+    _gray_and_grey,
+    _median,
     _gray_native,
     auto_smooth_sigma_px,
     background_side_px,
@@ -21,6 +24,7 @@ from simtest.reconstruct.detect import (
     mask_components,
     validate_image,
 )
+from simtest.reconstruct.pipeline import _is_gray
 
 
 def gaussian(shape, centre_uv, sigma, peak=1.0, aspect=1.0):
@@ -459,3 +463,36 @@ def test_a_smoothed_frame_detected_at_half_resolution_has_the_full_resolutions_c
     again = detect.detect_specularities(img, method="local_peak", smooth_sigma_px=2.5)
     assert again.smoothed is not None
     assert [c.bp_uv.tolist() for c in again.candidates] == [c.bp_uv.tolist() for c in full.candidates]
+
+
+@given(seed=st.integers(0, 2**32 - 1), colour_at=st.one_of(st.none(), st.integers(0, 40 * 50 - 1)))
+@settings(max_examples=40, deadline=None)
+def test_gray_and_grey_is_opencvs_gray_and_the_gray_test(seed, colour_at):
+    # the R channel of a gray 8-bit frame is OpenCV's gray of it (its fixed-point weights sum to
+    # one), and the one-pass test says gray exactly where R = G = B everywhere (a single colour
+    # pixel anywhere makes it a colour frame, converted by OpenCV)
+    rng = np.random.default_rng(seed)
+    img = np.repeat(rng.integers(0, 256, (40, 50, 1), dtype=np.uint8), 3, axis=2)
+    if colour_at is not None:
+        r, c = divmod(colour_at, 50)
+        img[r, c, rng.integers(0, 3)] ^= np.uint8(rng.integers(1, 256))
+    gray, grey = _gray_and_grey(img)
+    assert grey == _is_gray(img) == (colour_at is None)
+    assert np.array_equal(gray, cv2.cvtColor(img, cv2.COLOR_RGB2GRAY))
+    assert _gray_and_grey(img.astype(np.uint16))[1] is None  # not asked: 16-bit
+
+
+@given(seed=st.integers(0, 2**32 - 1), n=st.integers(1, 80), dtype=st.sampled_from([np.float32, np.float64]),
+       rounded=st.booleans(), nan=st.booleans())
+@settings(max_examples=200, deadline=None)
+def test_median_by_one_partition_is_numpys(seed, n, dtype, rounded, nan):
+    # the same value and type as np.median: odd and even counts, ties (rounded values), NaN
+    rng = np.random.default_rng(seed)
+    a = rng.normal(0.0, 3.0, n).astype(dtype)
+    if rounded:
+        a = np.round(a)
+    if nan:
+        a[rng.integers(0, n)] = np.nan
+    want, got = np.median(a), _median(a)
+    assert type(got) is type(want)
+    assert (np.isnan(want) and np.isnan(got)) or got == want

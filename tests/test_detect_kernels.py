@@ -74,11 +74,13 @@ class _Spy:
     def __init__(self):
         self.codes: list[int] = []
         self.calls = 0
+        self.saturated = 0
 
     def __call__(self, *args):
         ints, floats = _EXAMINE(*args)
         self.calls += 1
         self.codes.extend(ints[:, _dk.STATUS].tolist())
+        self.saturated += int(np.count_nonzero(ints[:, _dk.SATURATED]))
         return ints, floats
 
 
@@ -298,10 +300,11 @@ def test_random_masks_give_the_numpy_paths_candidates(seed):
 
 def test_every_kernel_branch_is_reached_by_the_random_masks():
     # the property test above means something only if its inputs reach each branch: every status
-    # code, both fallbacks (clipped pixels, a brightest pixel outside the component), the flat-top
-    # centroid and the parabola
+    # code (merged clipped plateaus among them), clipped candidates examined by the kernel, the
+    # fallback (a brightest pixel outside the component), the flat-top centroid and the parabola
     rng = np.random.default_rng(0)
     codes, tops, fallbacks = set(), set(), {"clipped": 0, "outside": 0}
+    in_kernel = 0
     for _ in range(300):
         frame, mask, scope = _random_examination(rng)
         spy = _Spy()
@@ -310,6 +313,7 @@ def test_every_kernel_branch_is_reached_by_the_random_masks():
         if got is None:
             continue
         codes.update(spy.codes)
+        in_kernel += spy.saturated
         for c in got[0]:
             if c.saturated:
                 fallbacks["clipped"] += 1
@@ -332,9 +336,35 @@ def test_every_kernel_branch_is_reached_by_the_random_masks():
                 top = (vals == vals[pr, pc]) & comp
                 tops.add(int(np.count_nonzero(top[max(0, pr - 1) : pr + 2, max(0, pc - 1) : pc + 2]) > 1))
     assert codes >= {_dk.FALLBACK, _dk.OK, _dk.TOO_SMALL, _dk.TOUCHES_BORDER, _dk.BLACK_BORDER,
-                     _dk.NOT_ELLIPTICAL}
+                     _dk.NOT_ELLIPTICAL, _dk.MERGED}
     assert tops == {0, 1}
     assert fallbacks["clipped"] > 0 and fallbacks["outside"] > 0
+    # clipped candidates are examined by the kernel (but those whose brightest pixel is outside
+    # their component: a fallback whatever their clipping)
+    assert 0.9 * fallbacks["clipped"] < in_kernel <= fallbacks["clipped"]
+
+
+@given(st.integers(0, 2**32 - 1), st.integers(1, 40), st.integers(1, 40), st.sampled_from([3, 5, 7]))
+@settings(max_examples=200, deadline=None)
+def test_clipped_plateaus_written_out_are_opencvs(seed, h, w, k):
+    # the closing and the labelling of the clipped plateaus (_dk.close_binary, _dk.plateau_pieces)
+    # against the OpenCV calls of _examine_numpy they replace: the closed pixels, the count of
+    # pieces of at least a size, and the centroid of the first largest piece in OpenCV's order
+    # (random sparse and dense masks: pieces of equal area whose order decides)
+    rng = np.random.default_rng(seed)
+    mask = (rng.random((h, w)) < rng.uniform(0.02, 0.7)).astype(np.uint8)
+    got = np.empty_like(mask)
+    _dk.close_binary(mask, k, got)
+    assert np.array_equal(got, cv2.morphologyEx(mask, cv2.MORPH_CLOSE, np.ones((k, k), np.uint8)))
+    min_area = int(rng.integers(1, 5))
+    n_big, cx, cy = _dk.plateau_pieces(mask, min_area)
+    n, _, stats, cent = connected_components_with_stats(mask)
+    if n == 1:
+        assert n_big == -1
+        return
+    areas = stats[1:, cv2.CC_STAT_AREA]
+    assert n_big == int(np.sum(areas >= min_area))
+    assert (cx, cy) == tuple(cent[1 + int(np.argmax(areas))])
 
 
 # ------------------------------------------------------------------------------------------------
@@ -516,16 +546,24 @@ def test_the_compiled_top_hat_and_peak_mask_give_numpys_bits(seed, step, nan, pe
 @given(st.integers(0, 2**32 - 1), st.floats(2.0, 9.0), st.integers(0, 3), st.floats(2.0, 4.0))
 def test_candidates_examined_in_windows_at_full_resolution_are_numpys(seed, noise, n_saturated, sigma):
     """The reduced frame's candidates examined at full resolution by the compiled kernel in their
-    windows (detect._examine_in_window, the BP moved by the window's corner inside the kernel)
-    are numpy's (_examine_numpy's), bit for bit: noisy frames of highlights, some clipped (those
-    go to numpy), some on the frame's sides, smoothed enough for the reduced frame's detection."""
+    windows (all in one call, _dk.components_at_full_resolution, the BP moved by the window's
+    corner inside the kernel) are numpy's (_examine_numpy's), bit for bit: noisy frames of
+    highlights, some clipped (their plateaus in the kernel too), some on the frame's sides,
+    smoothed enough for the reduced frame's detection."""
     frame, _, _ = bench.synthetic_frame(seed=seed % 1000, n_highlights=12, n_saturated=n_saturated)
     rng = np.random.default_rng(seed)
     gray = np.clip(frame[:, :, 0] + rng.normal(0.0, noise, frame.shape[:2]), 0, 255).astype(np.uint8)
     gray[:40, 600:680] = gray[200:240, 600:680]  # a highlight's flank cut by the top side
     img = np.repeat(gray[:, :, None], 3, axis=2)
-    spy = _Spy()
-    with mock.patch.object(_dk, "examine_candidates", spy):
+    real = _dk.components_at_full_resolution
+    rows = []
+
+    def windows(*args):
+        found, ints, floats, comps = real(*args)
+        rows.extend(ints[found, _dk.STATUS].tolist())
+        return found, ints, floats, comps
+
+    with mock.patch.object(_dk, "components_at_full_resolution", windows):
         got, want = _detect_both(img, method="local_peak", smooth_sigma_px=sigma)
-    assert spy.calls > 1  # the windows were examined by the kernel
+    assert len(rows) > 1 and _dk.FALLBACK not in rows  # the windows were examined by the kernel
     assert _same(got, want)

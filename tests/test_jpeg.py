@@ -246,3 +246,19 @@ def test_magnitude_histogram_is_the_bincount_of_rounded_magnitudes(seed, n, nbin
     m = np.minimum(np.rint(np.abs(c)).astype(np.int64), nbin - 1)
     want = np.stack([np.bincount(m[:, k], minlength=nbin) for k in range(64)], axis=1)
     assert np.array_equal(J._kernels.magnitude_histogram(c, nbin), want)
+
+
+@given(st.integers(0, 2**32 - 1), st.integers(1, 300), st.booleans())
+@settings(max_examples=100, deadline=None)
+def test_the_phase_medians_in_one_call_are_numpys(seed, n, rounded):
+    # jpeg._phase_blockiness' compiled medians against the stacked np.median calls they replace:
+    # odd and even phase lengths, ties, empty phases (fewer than 8 differences)
+    from simtest.reconstruct import _kernels, jpeg
+
+    rng = np.random.default_rng(seed)
+    d = rng.random(n) * 10.0
+    if rounded:
+        d = np.round(d, 1)
+    starts = [(k - 1) % jpeg.BLOCK for k in range(jpeg.BLOCK)]
+    want = np.array([np.median(d[s::jpeg.BLOCK]) if len(d[s::jpeg.BLOCK]) else np.nan for s in starts])
+    assert np.array_equal(_kernels.phase_medians(d, jpeg.BLOCK), want, equal_nan=True)

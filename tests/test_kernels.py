@@ -14,7 +14,7 @@ from hypothesis import example, given, settings
 from hypothesis import strategies as st
 
 from simtest.geometry.conics import Ellipse
-from simtest.reconstruct import _kernels, verify
+from simtest.reconstruct import _kernels, pipeline, verify
 from simtest.reconstruct.isophote import (Isophote, _cut_and_contour, _extract, _region, extract_isophote,
                                          isophote_cut_by_roi, polygon_contains)
 
@@ -197,7 +197,7 @@ def test_border_median_of_a_nan_is_nan():
 @settings(max_examples=60, deadline=None)
 def test_the_compiled_luma_is_the_blas_products_bits(seed, dtype, strided):
     # luma_rgb replaces numpy's image @ weights (OpenBLAS); detect.luma and every ROI's luma use it
-    from simtest.reconstruct.detect import _LUMA, _LUMA_WEIGHTS, luma
+    from simtest.reconstruct.detect import _LUMA, _LUMA_WEIGHTS, luma, packed_rows
 
     rng = np.random.default_rng(seed)
     # w >= 2: numpy's product of a one-column image, shape (h, 1, 3), is a stack of h 1 x 3
@@ -216,6 +216,14 @@ def test_the_compiled_luma_is_the_blas_products_bits(seed, dtype, strided):
     assert got.tobytes() == want.tobytes()
     assert luma(img).tobytes() == want.tobytes()
     assert _kernels.luma_rgb(img[:, 1:2], *_LUMA_WEIGHTS).tobytes() == got[:, 1:2].copy().tobytes()
+    # luma_rows (the packed rows of a frame, or of a slice of one, as detect.luma and the
+    # pipeline's float32 luma read them): the same bits, in float64 and float32
+    rows = packed_rows(img)
+    assert rows is not None and packed_rows(img[:, :, [0, 1, 2, 0]]) is None
+    out = np.empty((h, w))
+    _kernels.luma_rows(rows, *_LUMA_WEIGHTS, out)
+    assert out.tobytes() == want.tobytes()
+    assert pipeline._luma32(img).tobytes() == _kernels.luma_rgb32(img, *_LUMA_WEIGHTS).tobytes()
 
 
 def _smooth_noise_region(rng):

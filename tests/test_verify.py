@@ -493,3 +493,82 @@ def test_maybe_flat_is_opencvs_blurred_variance_test(seed, h, w, margin, dtype, 
     g = g.astype(np.float64)
     g[cr0, cc0] = np.nan
     assert _kernels.maybe_flat(g[cr0:cr1, cc0:cc1], wr0 - cr0, wr1 - cr0, wc0 - cc0, wc1 - cc0, thr2, 1e-5, got) == -1
+
+
+@settings(max_examples=80, deadline=None)
+@given(st.integers(0, 2**32 - 1), st.integers(20, 120), st.integers(20, 120), st.integers(1, 6),
+       st.sampled_from([np.uint8, np.float32]))
+def test_surely_no_panels_in_one_call_is_the_loops(seed, h, w, n_regions, dtype):
+    """verify._surely_no_panels (one compiled call: the windows' marks and a flood fill of their
+    components) proves what its loop of maybe_flat, OpenCV's labelling and numpy per region
+    (_surely_no_panels_loop, the reference) proves: flat patches of every size, cut by the windows
+    or not, at the frame's sides and inside it, and a non-finite pixel."""
+    from simtest.reconstruct import verify
+
+    rng = np.random.default_rng(seed)
+    g = rng.normal(100.0, 3.0, (h, w))
+    for _ in range(int(rng.integers(0, 4))):  # flat patches (clipped tops, panels)
+        r0, c0 = int(rng.integers(0, h)), int(rng.integers(0, w))
+        g[r0:r0 + int(rng.integers(1, h)), c0:c0 + int(rng.integers(1, w))] = 200.0
+    g = np.clip(np.rint(g), 0, 255).astype(dtype)
+    rr = []
+    for _ in range(n_regions):
+        r0, c0 = int(rng.integers(0, h - 1)), int(rng.integers(0, w - 1))
+        rr.append((r0, int(rng.integers(r0 + 1, min(h, r0 + 30) + 1)), c0, int(rng.integers(c0 + 1, min(w, c0 + 30) + 1))))
+    rr = np.array(rr, np.int64)
+    noise = 3.0
+    assert verify._surely_no_panels(g, noise, rr) == verify._surely_no_panels_loop(g, noise, rr)
+    if dtype == np.float32:
+        g[rr[0, 0], rr[0, 2]] = np.nan
+        assert verify._surely_no_panels(g, noise, rr) is False
+        assert verify._surely_no_panels_loop(g, noise, rr) is False
+
+
+@settings(max_examples=20, deadline=None)
+@given(st.integers(0, 2**32 - 1), st.sampled_from([(1080, 1350), (480, 640), (96, 128)]))
+def test_the_opening_seeded_from_detections_half_means_is_the_grays(seed, shape):
+    """verify.seed_opening: the reduced opening from the 2 x 2 means (detection's reduced frame)
+    is _opening_small's of the gray to float32 rounding (the block means grouped otherwise: 1e-6
+    relative leaves a margin of ~10), and frame_evidence reads it inside shared_passes; an odd
+    block side is not seeded."""
+    from simtest.reconstruct import _detect_kernels, verify
+    from simtest.reconstruct.detect import background_side_px
+
+    rng = np.random.default_rng(seed)
+    g = np.clip(rng.normal(60, 20, shape) + 150 * (rng.random(shape) < 0.01), 0, 255).astype(np.uint8)
+    half = np.empty((shape[0] // 2, shape[1] // 2), np.float32)
+    _detect_kernels.half_means_uint8(g, half)
+    side = background_side_px(shape)
+    want, f = verify._opening_small(g, side)
+    with verify.shared_passes():
+        seeded = verify.seed_opening(g, side, half)
+        got, f_got = verify._shared(verify._opening_small, g, side)
+    assert seeded == (f % 2 == 0 and f > 1)
+    assert f_got == f and np.allclose(got, want, rtol=1e-6, atol=1e-6 * float(np.abs(want).max()))
+    assert not verify.seed_opening(g, side, half)  # outside the block: nothing
+
+
+@settings(max_examples=30, deadline=None)
+@given(st.integers(0, 2**32 - 1), st.integers(1, 40), st.integers(1, 40), st.sampled_from(["gray8", "gray16", "luma"]),
+       st.floats(0.1, 30.0))
+def test_the_flat_map_in_one_pass_is_opencvs_blurs(seed, h, w, kind, thr):
+    """_kernels.flat_map (the 5 x 5 means of the luma and its square summed in float64) marks
+    the pixels that OpenCV's two float32 box filters and flat_pixels mark, on the luma of 8- and
+    16-bit frames (exact sums), with flat patches and at the frame's sides."""
+    from simtest.reconstruct import _kernels
+    from simtest.reconstruct.pipeline import _luma32
+
+    rng = np.random.default_rng(seed)
+    if kind == "gray8":
+        g = rng.integers(0, 256, (h, w)).astype(np.float32)
+    elif kind == "gray16":
+        g = rng.integers(0, 65536, (h, w)).astype(np.float32)
+    else:
+        g = _luma32(rng.integers(0, 256, (h, w, 3), dtype=np.uint8))
+    g[rng.random((h, w)) < 0.4] = g.flat[0]  # flat patches
+    t = np.float32(thr if kind != "gray16" else 100 * thr)
+    want = np.empty((h, w), np.uint8)
+    n_want = _kernels.flat_pixels(cv2.blur(g, (5, 5)), cv2.blur(g * g, (5, 5)), t, want)
+    got = np.empty((h, w), np.uint8)
+    assert _kernels.flat_map(g, t, got) == n_want
+    assert np.array_equal(got, want)

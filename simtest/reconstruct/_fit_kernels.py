@@ -82,6 +82,116 @@ def _matmul3(a, b):
 
 
 @numba.njit(cache=True, nogil=True)
+def _solve3(a, b):
+    """``np.linalg.solve(a, b)`` of a 3 x 3 system with k right-hand sides (b (3, k)), written out:
+    Gaussian elimination with partial pivoting (LAPACK's ``dgesv`` steps, without its call: a
+    numba LAPACK call costs a few microseconds, the arithmetic tens of nanoseconds). Returns
+    ``(ok, x)``; ok False where a pivot is exactly zero (LAPACK's refusal of a singular matrix)
+    or not finite."""
+    m = a.copy()
+    x = b.copy()
+    k = x.shape[1]
+    for c in range(3):
+        p = c
+        best = abs(m[c, c])
+        for r in range(c + 1, 3):
+            if abs(m[r, c]) > best:
+                p, best = r, abs(m[r, c])
+        if not best > 0.0 or not math.isfinite(best):
+            return False, x
+        if p != c:
+            for j in range(3):
+                m[c, j], m[p, j] = m[p, j], m[c, j]
+            for j in range(k):
+                x[c, j], x[p, j] = x[p, j], x[c, j]
+        for r in range(c + 1, 3):
+            f = m[r, c] / m[c, c]
+            for j in range(c + 1, 3):
+                m[r, j] -= f * m[c, j]
+            for j in range(k):
+                x[r, j] -= f * x[c, j]
+    for j in range(k):
+        for r in range(2, -1, -1):
+            acc = x[r, j]
+            for q in range(r + 1, 3):
+                acc -= m[r, q] * x[q, j]
+            x[r, j] = acc / m[r, r]
+    return True, x
+
+
+@numba.njit(cache=True, nogil=True)
+def _eig3_real(m):
+    """The eigenvalues and unit eigenvectors (columns) of a real 3 x 3 matrix whose eigenvalues are
+    real and distinct, in closed form (LAPACK's ``dgeev`` through numba cost more than the rest of
+    a fit): the roots of the characteristic cubic by the trigonometric formula, each vector the
+    largest cross product of two rows of ``m - lambda I`` (orthogonal to every row: its null
+    vector). Returns ``(ok, lam, vec)``; ok False where the cubic has complex roots, a root is
+    repeated or no cross product is nonzero (the caller declines the set: numpy's form decides).
+    The vectors' signs are arbitrary (as LAPACK's: every use of them is sign-free)."""
+    lam = np.empty(3)
+    vec = np.empty((3, 3))
+    tr = m[0, 0] + m[1, 1] + m[2, 2]
+    # the cubic of the shifted matrix b = m - (tr / 3) I: mu^3 - p mu - q = 0, mu = lambda - tr / 3
+    sh = tr / 3.0
+    b00, b11, b22 = m[0, 0] - sh, m[1, 1] - sh, m[2, 2] - sh
+    p = -((b00 * b11 - m[0, 1] * m[1, 0]) + (b00 * b22 - m[0, 2] * m[2, 0]) + (b11 * b22 - m[1, 2] * m[2, 1]))
+    q = (b00 * (b11 * b22 - m[1, 2] * m[2, 1]) - m[0, 1] * (m[1, 0] * b22 - m[1, 2] * m[2, 0])
+         + m[0, 2] * (m[1, 0] * m[2, 1] - b11 * m[2, 0]))
+    if not (p > 0.0 and math.isfinite(p) and math.isfinite(q)):
+        return False, lam, vec
+    # three real roots: mu = 2 sqrt(p / 3) cos(phi / 3 - 2 pi j / 3), cos(phi) = (q / 2) / (p / 3)^1.5
+    r = math.sqrt(p / 3.0)
+    c = q / (2.0 * r * r * r)
+    if not abs(c) < 1.0:  # complex (|c| > 1) or repeated (|c| = 1) roots
+        return False, lam, vec
+    phi = math.acos(c) / 3.0
+    for j in range(3):
+        lam[j] = sh + 2.0 * r * math.cos(phi - 2.0 * math.pi * j / 3.0)
+    for j in range(3):
+        a0 = (m[0, 0] - lam[j], m[0, 1], m[0, 2])
+        a1 = (m[1, 0], m[1, 1] - lam[j], m[1, 2])
+        a2 = (m[2, 0], m[2, 1], m[2, 2] - lam[j])
+        best = 0.0
+        for pair in range(3):
+            u, w = (a0, a1) if pair == 0 else ((a0, a2) if pair == 1 else (a1, a2))
+            cx = u[1] * w[2] - u[2] * w[1]
+            cy = u[2] * w[0] - u[0] * w[2]
+            cz = u[0] * w[1] - u[1] * w[0]
+            n2 = cx * cx + cy * cy + cz * cz
+            if n2 > best:
+                best = n2
+                vec[0, j], vec[1, j], vec[2, j] = cx, cy, cz
+        if not (best > 0.0 and math.isfinite(best)):
+            return False, lam, vec
+        nrm = math.sqrt(best)
+        for i in range(3):
+            vec[i, j] /= nrm
+    return True, lam, vec
+
+
+@numba.njit(cache=True, nogil=True)
+def _eigh2(a, b, c):
+    """The eigenvalues (ascending) of the symmetric 2 x 2 matrix [[a, b], [b, c]] and the unit
+    eigenvector (x, y) of the smaller, in closed form (``np.linalg.eigh``'s, to rounding; the
+    vector's sign arbitrary). The smaller-magnitude eigenvalue is the determinant over the larger
+    one (no cancellation)."""
+    m = 0.5 * (a + c)
+    d = math.hypot(0.5 * (a - c), b)
+    big = m + d if m >= 0.0 else m - d
+    small = (a * c - b * b) / big if big != 0.0 else 0.0
+    lo, hi = (small, big) if small <= big else (big, small)
+    # the eigenvector of lo: the larger of (b, lo - a) and (lo - c, b)
+    x0, y0 = b, lo - a
+    x1, y1 = lo - c, b
+    if x1 * x1 + y1 * y1 > x0 * x0 + y0 * y0:
+        x0, y0 = x1, y1
+    n = math.hypot(x0, y0)
+    if n > 0.0:
+        return lo, hi, x0 / n, y0 / n
+    return lo, hi, 1.0, 0.0
+
+
+@numba.njit(cache=True, nogil=True)
 def ellipse_of(c, eps):
     """Ellipse parameters of a symmetric finite point conic, as ``conics._ellipses_of`` of it.
 
@@ -119,30 +229,31 @@ def ellipse_of(c, eps):
     if norm == 0.0:
         return False, np.nan, np.nan, np.nan, np.nan, np.nan
     cn = c / norm
-    a2 = np.ascontiguousarray(cn[:2, :2])
-    lam = np.linalg.eigvalsh(a2)
-    lam_max = max(abs(lam[0]), abs(lam[1]))
-    if lam_max <= eps or abs(lam[0] * lam[1]) <= eps * lam_max**2:
+    a, b, d = cn[0, 0], cn[0, 1], cn[1, 1]
+    lam0, lam1, _, _ = _eigh2(a, b, d)
+    lam_max = max(abs(lam0), abs(lam1))
+    if lam_max <= eps or abs(lam0 * lam1) <= eps * lam_max**2:
         return False, np.nan, np.nan, np.nan, np.nan, np.nan  # a parabola, lines (no centre)
-    centre = -np.linalg.solve(a2, np.ascontiguousarray(cn[:2, 2]))
-    cross = cn[2, 0] * centre[0] + cn[2, 1] * centre[1]
+    # the centre -A2^-1 (g, h) by Cramer's rule (A2 is far from singular past the test above)
+    det = a * d - b * b
+    g, h = cn[0, 2], cn[1, 2]
+    cu = -(d * g - b * h) / det
+    cv = -(a * h - b * g) / det
+    cross = cn[2, 0] * cu + cn[2, 1] * cv
     f0 = cn[2, 2] + cross
     if abs(f0) <= eps * max(lam_max, abs(cn[2, 2]) + abs(cross)):
         return False, np.nan, np.nan, np.nan, np.nan, np.nan  # a point or two crossing lines
-    if lam[0] * lam[1] < 0 or (1.0 if lam[0] > 0 else -1.0) * f0 >= 0:
+    if lam0 * lam1 < 0 or (1.0 if lam0 > 0 else -1.0) * f0 >= 0:
         return False, np.nan, np.nan, np.nan, np.nan, np.nan  # a hyperbola or imaginary
-    if cn[0, 0] + cn[1, 1] < 0:
-        cn = -cn
-        a2 = np.ascontiguousarray(cn[:2, :2])
-        centre = -np.linalg.solve(a2, np.ascontiguousarray(cn[:2, 2]))
-        f0 = cn[2, 2] + (cn[2, 0] * centre[0] + cn[2, 1] * centre[1])
-    w, v = np.linalg.eigh(a2)  # ascending: w[0] gives the major axis
-    angle = math.atan2(v[1, 0], v[0, 0])
+    if a + d < 0:  # made positive definite: the centre is the same, f0 and the eigenvalues negated
+        a, b, d, f0 = -a, -b, -d, -f0
+    w0, w1, vx, vy = _eigh2(a, b, d)  # ascending: w0 gives the major axis
+    angle = math.atan2(vy, vx)
     if angle <= -np.pi / 2:
         angle += np.pi
     elif angle > np.pi / 2:
         angle -= np.pi
-    return True, centre[0], centre[1], math.sqrt(-f0 / w[0]), math.sqrt(-f0 / w[1]), angle
+    return True, cu, cv, math.sqrt(-f0 / w0), math.sqrt(-f0 / w1), angle
 
 
 @numba.njit(cache=True, nogil=True)
@@ -243,19 +354,19 @@ def _fit_one(pts, s, m, s3_rcond, axis_to_spread, eps, conic, ell, full_guard=Fa
         if not ev3[0] > s3_rcond * ev3[2]:
             return np.nan, SINGULAR_SCATTER
     # T = -S3^-1 S2^T, so that a2 = T a1 [eqn. 24] from [1]
-    t = -np.linalg.solve(s3, np.ascontiguousarray(s2.T))
+    ok, t = _solve3(s3, np.ascontiguousarray(s2.T))
+    if not ok:
+        return np.nan, DECLINED
+    t = -t
     # Reduced scatter matrix M = C1^-1 (S1 + S2 T) [eqn. 29] from [1]
     mred = _matmul3(C1_INV, s1 + _matmul3(s2, t))
     if not np.isfinite(mred).all():
         return np.nan, NO_ELLIPSE
-    # M a1 = lambda a1 [eqn. 28]. Complex eigenvalues are DECLINED: numba raises on them with NumPy
-    # < 2.5, and with NumPy >= 2.5 (whose eig always returns complex arrays) returns them with the
-    # real LAPACK vectors unpacked into complex ones, so the test below and np.real give the same
-    # bits under both.
-    lam, vec_any = np.linalg.eig(mred)
-    if np.any(np.imag(lam) != 0.0):
+    # M a1 = lambda a1 [eqn. 28], in closed form; complex or repeated eigenvalues are DECLINED
+    # (numpy's form decides)
+    ok, lam, vec = _eig3_real(mred)
+    if not ok:
         return np.nan, DECLINED
-    vec = np.ascontiguousarray(np.real(vec_any))
     # cand: coefficient vectors (a, b, c, d, e, f) of the eigenvectors [eqn. 19] from [1]
     cand = np.empty((6, 3))
     cand[:3] = vec

@@ -1030,6 +1030,21 @@ def luma_rgb(img, w0, w1, w2):
     return out
 
 
+@numba.njit(cache=True, nogil=True, fastmath={"contract"})
+def luma_rows(rows, w0, w1, w2, out):
+    """:func:`luma_rgb` (the same operations and bits) of an RGB image whose pixels are packed
+    along its rows, given as those rows (H, 3 W) (any row stride: a frame, or a band or an ROI of
+    one), into ``out`` (H, W), float64 or float32 (:func:`luma_rgb32`'s rounding): a loop of unit
+    stride over each row, which the compiler vectorises (the (H, W, 3) indexing was not: 2.6 ->
+    0.6 ms on the 2240 x 840 banner)."""
+    H, W = out.shape
+    for r in range(H):
+        row = rows[r]
+        o = out[r]
+        for c in range(W):
+            o[c] = float(row[3 * c]) * w0 + float(row[3 * c + 1]) * w1 + float(row[3 * c + 2]) * w2
+
+
 @numba.njit(cache=True, nogil=True)
 def border_median(vals):
     """Median of the border pixels of ``vals`` (h, w), h, w >= 1, as ``np.median`` of
@@ -1229,6 +1244,33 @@ def is_gray_packed(rows):
             return False
     return True
 
+
+
+@numba.njit(cache=True, nogil=True)
+def grey_channel_packed(rows, out):
+    """:func:`is_gray_packed` of a C-contiguous 8-bit RGB image given as its rows (H, 3 W), and,
+    where it is gray, its R channel written into ``out`` (H, W): OpenCV's gray of such a frame
+    (``cv2.cvtColor(img, cv2.COLOR_RGB2GRAY)`` of R = G = B is R: its fixed-point weights sum to
+    one) and the pipeline's gray test in one pass (0.35 + 0.3 ms on a 1350 x 1080 gray frame).
+    Returns False at the first row with a colour pixel (``out`` then holds nothing useful)."""
+    H, n = rows.shape
+    W = n // 3
+    if H == 0 or n == 0:
+        return True
+    m = np.zeros(n - 1, rows.dtype)  # all ones where a pair lies within a pixel
+    for i in range(n - 1):
+        if i % 3 != 2:
+            m[i] = ~m[i]
+    zero = rows[0, 0] ^ rows[0, 0]
+    for r in range(H):
+        acc = zero
+        for i in range(n - 1):
+            acc |= (rows[r, i] ^ rows[r, i + 1]) & m[i]
+        if acc:
+            return False
+        for j in range(W):
+            out[r, j] = rows[r, 3 * j]
+    return True
 
 @numba.njit(cache=True, nogil=True, fastmath={"contract"})
 def luma_rgb32(img, w0, w1, w2):
@@ -1987,3 +2029,144 @@ def first_maybe_flat_region(x, rr, start, margin, thr2, slack):
                 if maybe[i, j]:
                     return q
     return rr.shape[0]
+
+
+@numba.njit(cache=True, nogil=True)
+def surely_no_panels(x, rr, margin, thr2, slack, min_area):
+    """The proof of ``verify._surely_no_panels`` in one call: 1 when no region of interest (rows of
+    ``rr``: row0, row1, col0, col1 of the frame ``x``) holds a pixel of a flat component that
+    could be a panel, 0 when that is not proven, -1 when a window holds a non-finite value.
+
+    Each region's window (the region with ``margin`` px, clipped to the frame, read with 2 px
+    more) is marked by :func:`maybe_flat`; every 8-connected component of the marks that reaches
+    into the region is followed (a flood fill inside the window): one that touches the window's
+    side inside the frame (cut: it may go on) or holds at least ``min_area`` px proves nothing.
+    The components and their tests are those of OpenCV's labelling of the window (the loop of
+    :func:`first_maybe_flat_region`, ``cv2.connectedComponentsWithStats`` and numpy per region it
+    replaces: 0.8 ms of the noisy bench frame, whose two clipped tops are flat)."""
+    H, W = x.shape
+    for q in range(rr.shape[0]):
+        row0, row1, col0, col1 = rr[q, 0], rr[q, 1], rr[q, 2], rr[q, 3]
+        if row1 <= row0 or col1 <= col0:
+            continue
+        wr0, wr1 = max(0, row0 - margin), min(H, row1 + margin)
+        wc0, wc1 = max(0, col0 - margin), min(W, col1 + margin)
+        cr0, cr1 = max(0, wr0 - 2), min(H, wr1 + 2)
+        cc0, cc1 = max(0, wc0 - 2), min(W, wc1 + 2)
+        h, w = wr1 - wr0, wc1 - wc0
+        maybe = np.empty((h, w), np.uint8)
+        if maybe_flat(x[cr0:cr1, cc0:cc1], wr0 - cr0, wr1 - cr0, wc0 - cc0, wc1 - cc0, thr2, slack, maybe) < 0:
+            return -1
+        stack = np.empty(0, np.int64)
+        for i in range(row0 - wr0, row1 - wr0):
+            for j in range(col0 - wc0, col1 - wc0):
+                if maybe[i, j] != 1:
+                    continue
+                # this pixel's component (marks set to 2 as they are reached)
+                if len(stack) < h * w:
+                    stack = np.empty(h * w, np.int64)
+                maybe[i, j] = 2
+                stack[0] = i * w + j
+                top = 1
+                area = 0
+                cut = False
+                while top > 0:
+                    top -= 1
+                    p = stack[top]
+                    pi, pj = p // w, p % w
+                    area += 1
+                    if (pi == 0 and wr0 > 0) or (pj == 0 and wc0 > 0) or (pi == h - 1 and wr1 < H) or (
+                            pj == w - 1 and wc1 < W):
+                        cut = True
+                    for di in range(-1, 2):
+                        ni = pi + di
+                        if ni < 0 or ni >= h:
+                            continue
+                        for dj in range(-1, 2):
+                            nj = pj + dj
+                            if nj < 0 or nj >= w or maybe[ni, nj] != 1:
+                                continue
+                            maybe[ni, nj] = 2
+                            stack[top] = ni * w + nj
+                            top += 1
+                if cut or area >= min_area:
+                    return 0
+    return 1
+
+
+@numba.njit(cache=True, nogil=True)
+def flat_map(g, thr, out):
+    """:func:`flat_pixels` of OpenCV's 5 x 5 means of a float32 luma ``g`` (H, W) and of its
+    float32 square (``cv2.blur(g, (5, 5))``, ``cv2.blur(g * g, (5, 5))``, BORDER_REFLECT_101), in
+    one pass: the window sums in float64 (as OpenCV's box filter sums float32), scaled by 1 / 25
+    and rounded to float32, then the flat test; the mask and its count (``verify._panels``' two
+    blurs, square and test in one pass). The sums are exact for the luma of 8- and 16-bit frames
+    (their values and squares span fewer than 53 bits), so their order is free;
+    ``tests/test_verify.py`` compares the mask with OpenCV's."""
+    H, W = g.shape
+    scale = 1.0 / 25.0
+    zero = np.float32(0.0)
+    cols = np.empty(W + 4, np.int64)
+    for j in range(W + 4):
+        cols[j] = _reflect101(j - 2, W)
+    s1 = np.empty((5, W))  # the row sums of the window's 5 rows, a ring
+    s2 = np.empty((5, W))
+    pad1 = np.empty(W + 4)
+    pad2 = np.empty(W + 4)
+    a1 = np.zeros(W)
+    a2 = np.zeros(W)
+    n = 0
+    for i in range(-2, H + 2):
+        ri = _reflect101(i, H)
+        for j in range(W + 4):
+            v = g[ri, cols[j]]
+            pad1[j] = np.float64(v)
+            pad2[j] = np.float64(v * v)
+        slot = (i + 2) % 5
+        o1 = s1[slot]
+        o2 = s2[slot]
+        if i >= 3:  # the row leaving the window
+            for j in range(W):
+                a1[j] -= o1[j]
+                a2[j] -= o2[j]
+        for j in range(W):
+            b1 = (((pad1[j] + pad1[j + 1]) + pad1[j + 2]) + pad1[j + 3]) + pad1[j + 4]
+            b2 = (((pad2[j] + pad2[j + 1]) + pad2[j + 2]) + pad2[j + 3]) + pad2[j + 4]
+            o1[j] = b1
+            o2[j] = b2
+            a1[j] += b1
+            a2[j] += b2
+        r = i - 2  # the output row whose window is complete
+        if r >= 0:
+            orow = out[r]
+            for j in range(W):
+                m1 = np.float32(a1[j] * scale)
+                m2 = np.float32(a2[j] * scale)
+                v = max(m2 - m1 * m1, zero)
+                orow[j] = 1 if np.sqrt(v) < thr else 0
+            for j in range(W):
+                n += orow[j]
+    return n
+
+
+@numba.njit(cache=True, nogil=True)
+def phase_medians(d, block):
+    """The median of each of the ``block`` phases of ``d`` (float64; phase k:
+    ``d[(k - 1) % block :: block]``), (block,), NaN for an empty phase: ``jpeg._phase_blockiness``'
+    stacked ``np.median`` calls (0.25 ms for the grid search's two profiles of a 1350 x 1080
+    frame) in one call, the same values (the middle order statistic, or the mean of the two
+    middle ones: ``(a + b) / 2`` as numpy's mean of two float64 values)."""
+    out = np.empty(block)
+    n = len(d)
+    for k in range(block):
+        s = (k - 1) % block
+        m = len(range(s, n, block))
+        if m == 0:
+            out[k] = np.nan
+            continue
+        v = np.empty(m)
+        for i in range(m):
+            v[i] = d[s + i * block]
+        v.sort()
+        out[k] = v[m // 2] if m % 2 else (v[m // 2 - 1] + v[m // 2]) / 2.0
+    return out

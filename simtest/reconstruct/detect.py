@@ -28,7 +28,7 @@ diffuse areas in endoscopy.
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import cv2
 import numpy as np
@@ -254,6 +254,12 @@ class Detection:
         The gray detection examined before any smoothing (not to be written): OpenCV's gray of an RGB
         frame (rounded to whole levels for 8-bit and 16-bit frames; the channel itself where
         R = G = B), the image itself when single-channel.
+    grey : bool or None
+        Whether the image's R, G and B are equal, where detection found out (an 8-bit RGB frame:
+        its gray is then the R channel, :func:`_gray_and_grey`); None where it did not ask.
+    half : ndarray of shape (H // 2, W // 2), float32, or None
+        The means of ``gray``'s 2 x 2 blocks, where detection reduced the frame (read-only; the
+        verifier reduces its opening's blocks from them).
     """
 
     candidates: list[Candidate] = field(default_factory=list)
@@ -262,6 +268,8 @@ class Detection:
     n_unexamined: int = 0
     smoothed: np.ndarray | None = None
     gray: np.ndarray | None = None
+    grey: bool | None = None
+    half: np.ndarray | None = None
 
     @property
     def n_components(self) -> int:
@@ -367,8 +375,26 @@ def luma(image: np.ndarray, *, dtype=np.float64) -> np.ndarray:
     if image.ndim == 2:
         return image.astype(dtype, copy=False)
     if np.dtype(dtype) == np.float64 and image.dtype.type in _LUMA_COMPILED:
-        return _kernels.luma_rgb(image, *_LUMA_WEIGHTS)
+        rows = packed_rows(image)
+        if rows is None:
+            return _kernels.luma_rgb(image, *_LUMA_WEIGHTS)
+        out = np.empty(image.shape[:2], np.float64)  # the same bits, vectorised (packed pixels)
+        _kernels.luma_rows(rows, *_LUMA_WEIGHTS, out)
+        return out
     return (image.astype(dtype, copy=False) @ _LUMA.astype(dtype)).astype(dtype, copy=False)
+
+
+def packed_rows(img: np.ndarray) -> np.ndarray | None:
+    """The rows (H, 3 W) of an (H, W, 3) image whose pixels are packed along its rows (channel and
+    pixel strides of one and three items: a C-contiguous frame or a slice of its rows and columns),
+    as a view for :func:`~simtest.reconstruct._kernels.luma_rows`; None for any other layout."""
+    if img.ndim != 3 or img.shape[2] != 3:
+        return None
+    it = img.itemsize
+    if img.strides[2] != it or img.strides[1] != 3 * it or img.strides[0] < 3 * it * img.shape[1]:
+        return None
+    return np.lib.stride_tricks.as_strided(img, shape=(img.shape[0], 3 * img.shape[1]), strides=(img.strides[0], it),
+                                           writeable=False)
 
 
 def _gray_native(image: np.ndarray) -> np.ndarray:
@@ -378,6 +404,20 @@ def _gray_native(image: np.ndarray) -> np.ndarray:
     if image.dtype in (np.uint8, np.uint16, np.float32):
         return cv2.cvtColor(np.ascontiguousarray(image), cv2.COLOR_RGB2GRAY)
     return luma(image)
+
+
+def _gray_and_grey(image: np.ndarray) -> tuple[np.ndarray, bool | None]:
+    """:func:`_gray_native` of an image and whether its R, G and B are equal (None: not asked).
+    A C-contiguous 8-bit RGB frame is tested and, where gray, its R channel taken as its gray in
+    one compiled pass (:func:`~simtest.reconstruct._kernels.grey_channel_packed`: OpenCV's gray
+    of R = G = B is R, ``tests/test_detect.py`` checks it); a colour one stops at its first
+    colour row and is converted by OpenCV."""
+    if image.ndim == 3 and image.shape[2] == 3 and image.dtype == np.uint8 and image.flags.c_contiguous:
+        out = np.empty(image.shape[:2], np.uint8)
+        if _kernels.grey_channel_packed(image.reshape(image.shape[0], -1), out):
+            return out, True
+        return _gray_native(image), False
+    return _gray_native(image), None
 
 
 def _threshold_mask(gray: np.ndarray, thr: float) -> np.ndarray:
@@ -531,9 +571,24 @@ def _noise_sigma_of_rows(rows: np.ndarray) -> float:
         mad = _mad_of_uint8_rows(rows)
     else:
         g = rows.astype(np.float32)
-        d = g[:, 1:-1] - 0.5 * (g[:, :-2] + g[:, 2:])
-        mad = np.median(np.abs(d - np.median(d)))  # float32, as its float32 data
+        d = (g[:, 1:-1] - 0.5 * (g[:, :-2] + g[:, 2:])).ravel()
+        mad = _median(np.abs(d - _median(d)))  # float32, as its float32 data
     return float(1.4826 * mad / np.sqrt(1.5))
+
+
+def _median(a: np.ndarray):
+    """``np.median`` of a 1-D float array, the same value, by one partition at the upper middle
+    index (the lower middle value is the largest below it): numpy's median partitions at both
+    middle indices at once, twice the time (2.6 -> 1.4 ms for the two medians of the banner's
+    noise estimate, 107 000 float32 values; ``tests/test_detect.py`` compares them)."""
+    n = a.size
+    if n == 0 or np.isnan(a).any():
+        return np.median(a)
+    k = n // 2
+    p = np.partition(a, k)
+    if n % 2:
+        return p[k]
+    return (p[:k].max() + p[k]) / a.dtype.type(2)
 
 
 def _mad_of_uint8_rows(rows: np.ndarray) -> np.float32:
@@ -712,12 +767,12 @@ def clipped_mask(image: np.ndarray, saturation_level: float | None,
         Image units.
     gray : ndarray of shape (H, W), optional
         The image's luma as :func:`_gray_native` gives it (OpenCV's integer Rec. 601 weights, of
-        the same dtype as ``image``). Only rows where it reaches the level are examined: OpenCV's
-        luma is a rounded weighted mean with positive weights summing to one, so a pixel whose
-        channels are all >= an integer level has a luma >= that level, and a row without such a
-        luma holds no clipped pixel. The mask is the same (``tests/test_detect.py`` checks it
-        against the definition); on the bench's noisy 10-highlight frame, whose clipped
-        highlights span a fifth of the rows, that pass costs a fifth.
+        the same dtype as ``image``). Only pixels where it reaches the level are examined
+        (:func:`~simtest.reconstruct._detect_kernels.clipped_where_gray`): OpenCV's luma is a
+        rounded weighted mean with positive weights summing to one, so a pixel whose channels are
+        all >= an integer level has a luma >= that level. The mask is the same
+        (``tests/test_detect.py`` checks it against the definition); the banner's channels are
+        read at a few pixels instead of over the rows of its clipped highlights (1 -> 0.2 ms).
 
     Returns
     -------
@@ -738,6 +793,11 @@ def clipped_mask(image: np.ndarray, saturation_level: float | None,
             return np.zeros(image.shape[:2], np.uint8)
         lo = int(max(lo, 0.0))
         nch = 1 if image.ndim == 2 else image.shape[2]
+        if gray is not None and image.ndim == 3 and lo > 0 and gray.dtype == image.dtype:
+            # the channels read only where the gray reaches the level, in one compiled pass
+            out = np.empty(image.shape[:2], np.uint8)
+            _dk.clipped_where_gray(image, gray, lo, out)
+            return out
         if gray is not None and image.ndim == 3 and lo > 0:
             rows = np.flatnonzero(gray.max(axis=1) >= lo)
             out = np.zeros(image.shape[:2], np.uint8)
@@ -976,7 +1036,8 @@ def detect_specularities(
 
     if method not in DETECT_METHODS:
         raise ValueError(f"method: {method!r} is not one of {DETECT_METHODS}")
-    gray = native = _gray_native(img)
+    gray, grey = _gray_and_grey(img)
+    native = gray
     if smooth_sigma_px is None:
         smooth_sigma_px = auto_smooth_sigma_px(gray, fs)
     if (method == "local_peak" and smooth_sigma_px >= MULTIRES_SIGMA_MIN_PX and min(gray.shape) >= MULTIRES_SIDE_MIN_PX
@@ -987,7 +1048,7 @@ def detect_specularities(
             max_candidates=max_candidates, smooth_sigma_px=float(smooth_sigma_px), peak_rel=peak_rel,
             contrast_min_rel=contrast_min_rel)
         if det is not None:
-            return det
+            return replace(det, grey=grey)
     if smooth_sigma_px > 0:
         gray = cv2.GaussianBlur(gray.astype(np.float32), (0, 0), float(smooth_sigma_px),
                                 borderType=cv2.BORDER_REFLECT)
@@ -1031,7 +1092,7 @@ def detect_specularities(
     if smooth_sigma_px > 0:
         smoothed = gray
         smoothed.setflags(write=False)
-    return Detection(out, fs, thr, max(0, n_comps - len(out)), smoothed, native)
+    return Detection(out, fs, thr, max(0, n_comps - len(out)), smoothed, native, grey)
 
 
 #: Detection relative to local peaks on a frame smoothed by at least this sigma, px, looks for
@@ -1112,8 +1173,21 @@ def _detect_half_resolution(img, native, fs, saturation_level, *, min_area_px, e
     kern = cv2.getGaussianKernel(2 * gaussian_radius_px(smooth_sigma_px) + 1, smooth_sigma_px).astype(np.float32).ravel()
     thr = np.float32(contrast_min_rel * fs)
     out = []
-    for c in cands2:
-        got = _component_at_full_resolution(full, native, c, bg_small, peak_small, kern, np.float32(peak_rel), thr)
+    # every candidate's window, component and examination in one compiled call (the loop of
+    # _component_at_full_resolution's calls cost 40 us a candidate of glue); a candidate the
+    # kernel leaves to numpy is measured again by that function
+    ell_min = ellipticity_min
+    boxes = np.array([tuple(c.bbox) for c in cands2], np.int64).reshape(-1, 4)
+    bps2 = np.array([c.bp_uv for c in cands2], np.float64).reshape(-1, 2)
+    found_k, ints, floats, comps = _dk.components_at_full_resolution(
+        native, boxes, bps2, kern, bg_small, peak_small, np.float32(peak_rel), thr,
+        np.zeros((0, 0), np.uint8) if clipped is None else clipped, gray, levels, float(min_area_px),
+        float(ell_min), float(1.0 / ell_min), float(roi_scale), float(roi_margin_px), float(peak_rel),
+        int(k_close_full), int(min_plateau_px))
+    for c, ok, row, fl, cp in zip(cands2, found_k.tolist(), ints.tolist(), floats.tolist(), comps.tolist()):
+        got = _from_window(full, row, fl, cp) if ok else None
+        if ok and got is None:  # left to numpy: measured again
+            got = _component_at_full_resolution(full, native, c, bg_small, peak_small, kern, np.float32(peak_rel), thr)
         if got is None:  # its BP's pixel is not in the full frame's mask: the reduced frame's
             b = c.bbox
             bbox = Roi(2 * b.row0, min(h, 2 * b.row1), 2 * b.col0, min(w, 2 * b.col1))
@@ -1126,7 +1200,8 @@ def _detect_half_resolution(img, native, fs, saturation_level, *, min_area_px, e
                             _rejection_detail(c.status, full, got.area_px, got.bbox), got.level)
         out.append(got)
     out.sort(key=lambda c: -c.peak)
-    return Detection(out, fs, contrast_min_rel * fs, max(0, n_comps - len(out)), None, native)
+    half.setflags(write=False)
+    return Detection(out, fs, contrast_min_rel * fs, max(0, n_comps - len(out)), None, native, half=half)
 
 
 def _linear_at(small: np.ndarray, shape: tuple[int, int], r0: int, r1: int, c0: int, c1: int) -> np.ndarray:
@@ -1208,7 +1283,7 @@ def _examine_in_window(full: _DetectFrame, g: np.ndarray, lab: np.ndarray, bg: n
     compiled examination (:func:`simtest.reconstruct._detect_kernels.examine_candidates`) of the
     window's smoothing ``g`` and background ``bg``, without the scope's border (as
     :func:`_component_at_full_resolution` examines it): its brightest pixel, BP, status and
-    level, the same bits; None where the kernel leaves the candidate to numpy (clipped pixels).
+    level, the same bits (a clipped one's plateaus too); None where the kernel leaves the candidate to numpy.
     The window holds the whole component and touches the frame's sides only where it does (the
     caller grows it until the component is not cut), so its ``touches_border`` is the frame's;
     the ROI is proposed in the frame. 0.1 ms a candidate less than numpy's (a sixth of the
@@ -1220,7 +1295,8 @@ def _examine_in_window(full: _DetectFrame, g: np.ndarray, lab: np.ndarray, bg: n
     ints, floats = _dk.examine_candidates(
         g, lab, np.array([[k, x, y, bw, bh, area]], np.int64), win_clipped, np.zeros((0, 0), np.bool_), bg,
         float(full.min_area_px), float(ell_min), float(1.0 / ell_min), float(full.roi_scale),
-        float(full.roi_margin_px), float(full.peak_rel), c0, r0)
+        float(full.roi_margin_px), float(full.peak_rel), c0, r0, int(full.k_close), int(full.min_plateau_px),
+        full.method == "local_peak")
     code = int(ints[0, _dk.STATUS])
     if code == _dk.FALLBACK:
         return None
@@ -1239,8 +1315,32 @@ def _examine_in_window(full: _DetectFrame, g: np.ndarray, lab: np.ndarray, bg: n
     status = _STATUS[code]
     bp = np.array([u, v])  # in the frame (the kernel adds the window's corner as numpy adds the box's)
     roi = Roi.around(bp, full.roi_scale * max(bw, bh) / 2.0 + full.roi_margin_px, full.img.shape)
-    return Candidate(bp, peak, False, area, bbox, roi, status,
-                     "" if code == _dk.OK else _rejection_detail(status, full, area, bbox, text), level)
+    return Candidate(bp, peak, bool(ints[0, _dk.SATURATED]), area, bbox, roi, status,
+                     _kernel_detail(code, status, full, area, bbox, text, int(ints[0, _dk.N_PLATEAUS])), level)
+
+
+def _from_window(full: _DetectFrame, row: list, fl: list, cp: list) -> Candidate | None:
+    """The candidate of one row of :func:`~simtest.reconstruct._detect_kernels.components_at_full_resolution`
+    (``row`` its ints, ``fl`` its floats, ``cp`` its component's box, area and window corner), as
+    :func:`_examine_in_window` makes it; None where the kernel leaves it to numpy (a
+    :data:`~simtest.reconstruct._detect_kernels.FALLBACK`, or an ellipticity whose detail numpy's
+    value decides)."""
+    code = row[_dk.STATUS]
+    if code in (_dk.FALLBACK, _dk.ELLIPTICITY_UNSURE):
+        return None
+    u, v, peak, level, e, tol = fl
+    x, y, bw, bh, area = cp[:5]
+    bbox = Roi(y, y + bh, x, x + bw)
+    text = ""
+    if code == _dk.NOT_ELLIPTICAL:
+        text = f"{e * (1.0 - tol):.3f}"
+        if text != f"{e * (1.0 + tol):.3f}":
+            return None
+    status = _STATUS[code]
+    bp = np.array([u, v])
+    roi = Roi.around(bp, full.roi_scale * max(bw, bh) / 2.0 + full.roi_margin_px, full.img.shape)
+    return Candidate(bp, peak, bool(row[_dk.SATURATED]), area, bbox, roi, status,
+                     _kernel_detail(code, status, full, area, bbox, text, row[_dk.N_PLATEAUS]), level)
 
 
 @dataclass(frozen=True)
@@ -1296,7 +1396,17 @@ def _outer_components(mask: np.ndarray) -> list[tuple[int, int, int, int, int, n
 #: Intensity dtypes :func:`_candidates_compiled` takes (one compilation each).
 _COMPILED_DTYPES = (np.uint8, np.uint16, np.float32, np.float64)
 _STATUS = {_dk.OK: "ok", _dk.TOO_SMALL: "too_small", _dk.TOUCHES_BORDER: "touches_border",
-           _dk.BLACK_BORDER: "black_border", _dk.NOT_ELLIPTICAL: "not_elliptical"}
+           _dk.BLACK_BORDER: "black_border", _dk.NOT_ELLIPTICAL: "not_elliptical", _dk.MERGED: "merged"}
+
+
+def _kernel_detail(code: int, status: str, frame: _DetectFrame, area: int, bbox: Roi, text: str,
+                   n_plateaus: int) -> str:
+    """The detail of a candidate the kernel examined: ``_examine_numpy``'s words for its status."""
+    if code == _dk.OK:
+        return ""
+    if code == _dk.MERGED:
+        return f"{n_plateaus} saturated plateaus"
+    return _rejection_detail(status, frame, area, bbox, text)
 
 
 def _candidates_compiled(frame: _DetectFrame, mask: np.ndarray) -> tuple[list[Candidate], int] | None:
@@ -1345,7 +1455,8 @@ def _candidates_compiled(frame: _DetectFrame, mask: np.ndarray) -> tuple[list[Ca
         np.zeros((0, 0), np.bool_) if scope is None else scope,
         np.zeros((0, 0), np.float32) if frame.levels is None else frame.levels,
         float(frame.min_area_px), float(ell_min), float(ell_max), float(frame.roi_scale),
-        float(frame.roi_margin_px), float(frame.peak_rel), 0, 0)
+        float(frame.roi_margin_px), float(frame.peak_rel), 0, 0, int(frame.k_close), int(frame.min_plateau_px),
+        frame.method == "local_peak")
     bps = list(floats[:, :2].copy())  # each candidate's BP a row of one array (views, made at once)
     with_level = frame.levels is not None
     out = []
@@ -1371,8 +1482,9 @@ def _candidates_compiled(frame: _DetectFrame, mask: np.ndarray) -> tuple[list[Ca
             text = ""
         status = _STATUS[code]
         roi = new_roi(Roi, (row[r0], row[r1], row[c0], row[c1]))
-        out.append(Candidate(bps[k], peak, False, area, bbox, roi, status,
-                             "" if code == _dk.OK else _rejection_detail(status, frame, area, bbox, text),
+        out.append(Candidate(bps[k], peak, bool(row[_dk.SATURATED]), area, bbox, roi, status,
+                             "" if code == _dk.OK else _kernel_detail(code, status, frame, area, bbox, text,
+                                                                       row[_dk.N_PLATEAUS]),
                              level if with_level else None))
     return out, n_comps
 

@@ -250,6 +250,10 @@ def _phase_blockiness(d: np.ndarray) -> np.ndarray:
     # Phase k holds d[j] for (j + 1) % 8 == k, i.e. d[(k - 1) % 8 :: 8]; the phases of equal
     # length are stacked and their medians taken in one call (np.median along an axis: the same
     # values as one call per phase, in a tenth of the time)
+    if d.dtype == np.float64 and not np.isnan(d).any():
+        # the eight medians in one compiled call (np.median's values; tests/test_jpeg.py)
+        per = _kernels.phase_medians(np.ascontiguousarray(d), BLOCK)
+        return per / max(float(per.mean()), 1e-9)
     per = np.empty(BLOCK, d.dtype)  # np.median's dtype: d's
     starts = [(k - 1) % BLOCK for k in range(BLOCK)]
     sizes = [len(range(s, len(d), BLOCK)) for s in starts]

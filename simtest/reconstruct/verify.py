@@ -303,6 +303,29 @@ def _opening_small(img: np.ndarray, side: int):
     return bg, f
 
 
+def seed_opening(gray: np.ndarray, side: int, half: np.ndarray) -> bool:
+    """Inside :func:`shared_passes`, :func:`_opening_small` of ``gray`` (H, W) computed from the
+    means of its 2 x 2 blocks ``half`` (H // 2, W // 2, float32: detection's reduced frame) where
+    its block side f is even: the f x f means as the means of ``half``'s (f / 2) x (f / 2) blocks
+    (to float32 rounding, as OpenCV's reduction groups its sums; a fifth of the gray's own
+    reduction, 0.35 ms of the noisy bench frame). Returns whether it was seeded (nothing is
+    done outside the block, for an odd f, or sides that f does not divide)."""
+    memo = _SHARED.get()
+    h, w = gray.shape
+    f = max(1, side // 16)
+    if memo is None or f % 2 or h % f or w % f or half.shape != (h // 2, w // 2):
+        return False
+    small = half if f == 2 else cv2.resize(np.ascontiguousarray(half), (w // f, h // f), interpolation=cv2.INTER_AREA)
+    k = max(3, side // f)
+    k += 1 - k % 2
+    bg = cv2.morphologyEx(small, cv2.MORPH_OPEN, cv2.getStructuringElement(cv2.MORPH_RECT, (k, k)),
+                          borderType=cv2.BORDER_REPLICATE)
+    key = (_opening_small.__name__, gray.__array_interface__["data"][0], gray.shape, gray.strides, gray.dtype.str,
+           (side,))
+    memo[key] = (gray, (bg, f))
+    return True
+
+
 def _upsampled(bg: np.ndarray, f: int, shape: tuple[int, int], windows) -> np.ndarray:
     """A frame-sized array (``shape`` (H, W), channels as ``bg``'s) holding :func:`_opening`'s
     values inside the ``windows`` (row0, row1, col0, col1; unset elsewhere), from
@@ -359,19 +382,24 @@ def _chroma(rgb: np.ndarray) -> np.ndarray:
     return 1.0 - np.minimum(np.minimum(r, g), b) / np.maximum(mx, 1e-9)
 
 
-def _panels(gray: np.ndarray, noise: float) -> np.ndarray:
+def _panels(gray: np.ndarray, noise: float, integer_source: bool = False) -> np.ndarray:
     """Flat panels: 8-connected regions of pixels whose 5 x 5 luma standard deviation is below
     :data:`PANEL_STD_REL` of the image noise, of at least :data:`PANEL_MIN_AREA` of the frame;
-    uint8 0/1 (none in a noise-free image)."""
+    uint8 0/1 (none in a noise-free image). ``integer_source``: the luma is that of an 8- or 16-bit
+    frame (its 5 x 5 sums are exact in float64: the means, square and test in one compiled pass,
+    :func:`~simtest.reconstruct._kernels.flat_map`, the same mask)."""
     if not noise > 0:
         return np.zeros(gray.shape, np.uint8)
     g = gray.astype(np.float32, copy=False)
-    m1 = cv2.blur(g, (5, 5))
-    m2 = cv2.blur(g * g, (5, 5))
-    # flat = sqrt(max(m2 - m1 * m1, 0)) < PANEL_STD_REL * noise in one compiled pass (numpy rounds
-    # the threshold to float32 to compare)
+    # flat = sqrt(max(m2 - m1 * m1, 0)) < PANEL_STD_REL * noise (numpy rounds the threshold to
+    # float32 to compare)
     flat = np.empty(g.shape, np.uint8)
-    n_flat = _kernels.flat_pixels(m1, m2, np.float32(PANEL_STD_REL * noise), flat)
+    if integer_source:
+        n_flat = _kernels.flat_map(np.ascontiguousarray(g), np.float32(PANEL_STD_REL * noise), flat)
+    else:
+        m1 = cv2.blur(g, (5, 5))
+        m2 = cv2.blur(g * g, (5, 5))
+        n_flat = _kernels.flat_pixels(m1, m2, np.float32(PANEL_STD_REL * noise), flat)
     min_area = PANEL_MIN_AREA * flat.size
     if n_flat < min_area:  # too few flat pixels for any panel
         return np.zeros_like(flat)
@@ -468,6 +496,20 @@ def _surely_no_panels(gray: np.ndarray, noise: float, rr: np.ndarray) -> bool:
     component of that superset that reaches into a region is smaller than a panel and lies
     inside the margin (not cut by the window's edge inside the frame), no flat component, a
     subset of one of them, reaches into a region as a panel. Non-finite pixels: not proven."""
+    h, w = gray.shape
+    thr2 = (PANEL_STD_REL * noise) ** 2 * (1.0 + _FLAT_SLACK)
+    min_area = PANEL_MIN_AREA * h * w
+    m = _PANEL_MARGIN_PX
+    src = gray if gray.dtype.type in _MAYBE_FLAT_DTYPES else gray.astype(np.float64)
+    rr = np.ascontiguousarray(rr, dtype=np.int64).reshape(-1, 4)
+    # every region's window, its possibly flat pixels and their components in one compiled call
+    # (-1, a non-finite pixel: not proven)
+    return _kernels.surely_no_panels(src, rr, m, thr2, _FLAT_SLACK, min_area) == 1
+
+
+def _surely_no_panels_loop(gray: np.ndarray, noise: float, rr: np.ndarray) -> bool:
+    """:func:`_surely_no_panels` by a loop of compiled calls, OpenCV's labelling and numpy per
+    region: the reference of its one compiled call (``tests/test_verify.py`` compares them)."""
     h, w = gray.shape
     thr2 = (PANEL_STD_REL * noise) ** 2 * (1.0 + _FLAT_SLACK)
     min_area = PANEL_MIN_AREA * h * w
@@ -636,15 +678,15 @@ def frame_evidence(image: np.ndarray, gray: np.ndarray, bps_uv: np.ndarray, rois
     else:
         floor_max = np.float32(np.inf)
     if windowed:
-        # the opening only where read: in the reach windows (with the 1 px the maxima read beyond
-        # them) where the top-hat, its maxima and their colour are
-        wide = np.c_[np.maximum(win[:, 0] - 1, 0), np.minimum(win[:, 1] + 1, h),
-                     np.maximum(win[:, 2] - 1, 0), np.minimum(win[:, 3] + 1, w)]
         if f > 1 and g.dtype.type in _MAYBE_FLAT_DTYPES:
             # the enlargement, top-hat and maxima of every window in one compiled call
             top = np.empty((h, w), np.float32)
             ys, xs = np.divmod(_kernels.maxima_in_windows(g, bg_small, win, floor_max, top), w)
         else:
+            # the opening only where read: in the reach windows (with the 1 px the maxima read
+            # beyond them) where the top-hat, its maxima and their colour are
+            wide = np.c_[np.maximum(win[:, 0] - 1, 0), np.minimum(win[:, 1] + 1, h),
+                         np.maximum(win[:, 2] - 1, 0), np.minimum(win[:, 3] + 1, w)]
             bg = _upsampled(bg_small, f, (h, w), wide)
             top, ys, xs = _maxima_windows(g, bg, floor_max, win)
     else:
@@ -676,7 +718,7 @@ def frame_evidence(image: np.ndarray, gray: np.ndarray, bps_uv: np.ndarray, rois
     if not panels or (windowed and (not noise > 0 or _surely_no_panels(gray, noise, rr))):
         panel_fraction = np.zeros(n)
     else:
-        panel = _panels(_shared(_float32, gray), noise)
+        panel = _panels(_shared(_float32, gray), noise, image.dtype.type in (np.uint8, np.uint16))
         integ = cv2.integral(panel)
         area = np.maximum((rr[:, 1] - rr[:, 0]) * (rr[:, 3] - rr[:, 2]), 1)
         inside = (integ[rr[:, 1], rr[:, 3]] - integ[rr[:, 0], rr[:, 3]] - integ[rr[:, 1], rr[:, 2]]
