@@ -197,6 +197,7 @@ def test_every_kernel_status_is_reached_by_the_random_sets():
 
 @given(seed=st.integers(0, 2**32 - 1))
 @settings(max_examples=200, deadline=None)
+@example(seed=462008)
 def test_closed_form_solves_agree_with_lapack(seed):
     # the written-out 3 x 3 solve, 3 x 3 real eigenproblem and 2 x 2 symmetric one of the fit
     # against numpy's LAPACK (the routines they replace), on random well-conditioned matrices:
@@ -214,12 +215,23 @@ def test_closed_form_solves_agree_with_lapack(seed):
     m = v @ np.diag(lam) @ np.linalg.inv(v)
     ok, got_lam, got_vec = _fit_kernels._eig3_real(m)
     assert ok
+    # backward error: each pair an eigenpair of a matrix within 1e-11 of m (relative; 4e-13 the
+    # largest over 20000 seeds: the characteristic cubic's rounding)
+    for i in range(3):
+        assert np.linalg.norm(m @ got_vec[:, i] - got_lam[i] * got_vec[:, i]) <= 1e-11 * np.linalg.norm(m)
     want_lam, want_vec = np.linalg.eig(m)
-    order_got, order_want = np.argsort(got_lam), np.argsort(want_lam.real)
-    assert np.allclose(got_lam[order_got], want_lam.real[order_want], rtol=1e-9, atol=1e-9)
-    for i, j in zip(order_got, order_want):  # unit vectors, the same up to sign
-        g, w = got_vec[:, i], want_vec[:, j].real
-        assert abs(abs(g @ w) - 1.0) < 1e-9
+    # forward error: the same as LAPACK's to 1e-9 where the eigenproblem is well conditioned (the
+    # eigenvalues' condition number times |m| over their gap at most 1e3: 1e-12 over 20000 seeds);
+    # beyond, both solvers' eigenvalues move by that condition times their rounding (seed 462008:
+    # two eigenvalues 0.18 apart, the cubic's 8e-8 from LAPACK's, LAPACK's own 2e-10 from the
+    # construction's)
+    kappa = max(np.linalg.norm(want_vec[:, i]) * np.linalg.norm(np.linalg.inv(want_vec)[i]) for i in range(3))
+    if kappa * np.linalg.norm(m) / np.min(np.diff(np.sort(want_lam.real))) <= 1e3:
+        order_got, order_want = np.argsort(got_lam), np.argsort(want_lam.real)
+        assert np.allclose(got_lam[order_got], want_lam.real[order_want], rtol=1e-9, atol=1e-9)
+        for i, j in zip(order_got, order_want):  # unit vectors, the same up to sign
+            g, w = got_vec[:, i], want_vec[:, j].real
+            assert abs(abs(g @ w) - 1.0) < 1e-9
     s = rng.normal(size=(2, 2))
     s = s + s.T
     lo, hi, vx, vy = _fit_kernels._eigh2(s[0, 0], s[0, 1], s[1, 1])
