@@ -689,6 +689,14 @@ def frame_evidence(image: np.ndarray, gray: np.ndarray, bps_uv: np.ndarray, rois
                          np.maximum(win[:, 2] - 1, 0), np.minimum(win[:, 3] + 1, w)]
             bg = _upsampled(bg_small, f, (h, w), wide)
             top, ys, xs = _maxima_windows(g, bg, floor_max, win)
+    elif f > 1 and gray.dtype.type in _MAYBE_FLAT_DTYPES:
+        # the windowed path's compiled call over one window, the frame: the same arithmetic
+        # (cv2.resize's enlargement differs from it by a float32 ulp at some pixels, which on a
+        # flat plateau, a panel at the frame's edge, moved the 3 x 3 maxima's ties: 39 maxima in
+        # a window against the windowed path's 19, and a candidate's neighbour count with them)
+        top = np.empty((h, w), np.float32)
+        whole = np.array([[0, h, 0, w]], np.int64)
+        ys, xs = np.divmod(_kernels.maxima_in_windows(gray, bg_small, whole, floor_max, top), w)
     else:
         # _opening's values: its reduced opening enlarged
         bg = cv2.resize(bg_small, (w, h), interpolation=cv2.INTER_LINEAR) if f > 1 else bg_small
