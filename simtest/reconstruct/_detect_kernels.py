@@ -30,7 +30,7 @@ from __future__ import annotations
 import numba
 import numpy as np
 
-from simtest.reconstruct._kernels import _linear_sample
+from simtest.reconstruct._kernels import _linear_sample, _rows_enlarged
 
 #: :func:`examine_candidates` status codes (column ``STATUS`` of its integer result).
 FALLBACK = -1  #: the numpy path examines this candidate (clipped pixels; a brightest pixel outside it)
@@ -810,16 +810,8 @@ def window_component(native, r0, r1, c0, c1, kern, bg_small, peak_small, peak_re
     _, _, bs_hi = _linear_sample(r1 - 1, sh, H)
     ps_lo, _, _ = _linear_sample(r0, ph, H)
     _, _, ps_hi = _linear_sample(r1 - 1, ph, H)
-    blines = np.empty((bs_hi - bs_lo + 1, nc), np.float32)
-    for q in range(bs_lo, bs_hi + 1):
-        for j in range(nc):
-            a = ax[j]
-            blines[q - bs_lo, j] = bg_small[q, bx0[j]] * (one - a) + bg_small[q, bx1[j]] * a
-    plines = np.empty((ps_hi - ps_lo + 1, nc), np.float32)
-    for q in range(ps_lo, ps_hi + 1):
-        for j in range(nc):
-            a = qx[j]
-            plines[q - ps_lo, j] = peak_small[q, px0[j]] * (one - a) + peak_small[q, px1[j]] * a
+    blines = _rows_enlarged(bg_small, bs_lo, bs_hi, bx0, bx1, ax)
+    plines = _rows_enlarged(peak_small, ps_lo, ps_hi, px0, px1, qx)
     # the mask, padded by a row and a column of 0 on each side (the flood fill below needs no
     # bounds checks)
     W2 = nc + 2

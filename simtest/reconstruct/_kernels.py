@@ -1223,6 +1223,29 @@ def is_gray(img):
 
 
 @numba.njit(cache=True, nogil=True)
+def _pixel_pairs_mask(rows):
+    """All ones where a pair of neighbouring values of a packed RGB row (H, 3 W) lies within one
+    pixel, zero across a pixel's boundary: (3 W - 1,), the rows' dtype."""
+    n = rows.shape[1]
+    m = np.zeros(n - 1, rows.dtype)
+    for i in range(n - 1):
+        if i % 3 != 2:
+            m[i] = ~m[i]
+    return m
+
+
+@numba.njit(cache=True, nogil=True)
+def _row_is_gray(rows, r, m):
+    """Whether row r of a packed RGB image has R = G = B at every pixel: its neighbouring values
+    XOR-ed, masked by :func:`_pixel_pairs_mask` and OR-ed together (a loop of unit stride that
+    the compiler vectorises)."""
+    acc = rows[r, 0] ^ rows[r, 0]
+    for i in range(m.shape[0]):
+        acc |= (rows[r, i] ^ rows[r, i + 1]) & m[i]
+    return acc == 0
+
+
+@numba.njit(cache=True, nogil=True)
 def is_gray_packed(rows):
     """:func:`is_gray` of a C-contiguous integer RGB image (H, W, 3) given as its rows (H, 3 W):
     each row's neighbouring values XOR-ed, the pairs across a pixel's boundary masked out, and
@@ -1231,19 +1254,11 @@ def is_gray_packed(rows):
     H, n = rows.shape
     if H == 0 or n == 0:
         return True
-    m = np.zeros(n - 1, rows.dtype)  # all ones where a pair lies within a pixel
-    for i in range(n - 1):
-        if i % 3 != 2:
-            m[i] = ~m[i]
-    zero = rows[0, 0] ^ rows[0, 0]
+    m = _pixel_pairs_mask(rows)
     for r in range(H):
-        acc = zero
-        for i in range(n - 1):
-            acc |= (rows[r, i] ^ rows[r, i + 1]) & m[i]
-        if acc:
+        if not _row_is_gray(rows, r, m):
             return False
     return True
-
 
 
 @numba.njit(cache=True, nogil=True)
@@ -1257,6 +1272,13 @@ def grey_channel_packed(rows, out):
     W = n // 3
     if H == 0 or n == 0:
         return True
+    m = _pixel_pairs_mask(rows)
+    for r in range(H):
+        if not _row_is_gray(rows, r, m):
+            return False
+        for j in range(W):
+            out[r, j] = rows[r, 3 * j]
+    return True
     m = np.zeros(n - 1, rows.dtype)  # all ones where a pair lies within a pixel
     for i in range(n - 1):
         if i % 3 != 2:
@@ -1271,6 +1293,7 @@ def grey_channel_packed(rows, out):
         for j in range(W):
             out[r, j] = rows[r, 3 * j]
     return True
+
 
 @numba.njit(cache=True, nogil=True, fastmath={"contract"})
 def luma_rgb32(img, w0, w1, w2):
@@ -1791,6 +1814,22 @@ def _linear_sample(i, n_small, n_full):
 
 
 @numba.njit(cache=True, nogil=True)
+def _rows_enlarged(small, lo, hi, x0, x1, ax):
+    """Rows ``lo`` to ``hi`` of a reduced image (float32) each enlarged along the row at the
+    columns :func:`_linear_sample` gives (lower index ``x0``, upper ``x1``, weight ``ax``, each
+    (nc,)): (hi - lo + 1, nc) float32, OpenCV's INTER_LINEAR products, computed once per source
+    row for the windows that read a few rows each."""
+    one = np.float32(1.0)
+    nc = x0.shape[0]
+    out = np.empty((hi - lo + 1, nc), np.float32)
+    for q in range(lo, hi + 1):
+        for j in range(nc):
+            a = ax[j]
+            out[q - lo, j] = small[q, x0[j]] * (one - a) + small[q, x1[j]] * a
+    return out
+
+
+@numba.njit(cache=True, nogil=True)
 def linear_at_points(small, h, w, rows, cols):
     """``cv2.resize(small, (w, h), interpolation=cv2.INTER_LINEAR)[rows, cols]`` at those pixels
     only, for a float32 (sh, sw, C) array: OpenCV's sample positions (``(x + 0.5) sw / w - 0.5``),
@@ -1950,11 +1989,7 @@ def maxima_in_windows(gray, bg_small, windows, floor, top):
         # window read a few), then the two rows' values weighed per pixel
         s_lo, _, _ = _linear_sample(e0, sh, H)
         _, _, s_hi = _linear_sample(e1 - 1, sh, H)
-        lines = np.empty((s_hi - s_lo + 1, nc), np.float32)
-        for s in range(s_lo, s_hi + 1):
-            for j in range(nc):
-                a = ax[j]
-                lines[s - s_lo, j] = bg_small[s, x0[j]] * (one - a) + bg_small[s, x1[j]] * a
+        lines = _rows_enlarged(bg_small, s_lo, s_hi, x0, x1, ax)
         gw = np.empty((nr, nc), np.float32)
         bw = np.empty((nr, nc), np.float32)
         for i in range(nr):

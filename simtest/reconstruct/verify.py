@@ -484,6 +484,17 @@ _FLAT_SLACK = 1e-5
 _MAYBE_FLAT_DTYPES = (np.uint8, np.uint16, np.float32, np.float64)
 
 
+def _panel_proof_inputs(gray: np.ndarray, noise: float, rr: np.ndarray):
+    """What :func:`_surely_no_panels` and its reference loop read: the frame as the compiled
+    variance reads it, the regions (n, 4) int64, the flat threshold on the 5 x 5 variance with
+    its slack, the panel's least area (px) and the margin (px)."""
+    h, w = gray.shape
+    thr2 = (PANEL_STD_REL * noise) ** 2 * (1.0 + _FLAT_SLACK)
+    src = gray if gray.dtype.type in _MAYBE_FLAT_DTYPES else gray.astype(np.float64)
+    rr = np.ascontiguousarray(rr, dtype=np.int64).reshape(-1, 4)
+    return src, rr, thr2, PANEL_MIN_AREA * h * w, _PANEL_MARGIN_PX
+
+
 def _surely_no_panels(gray: np.ndarray, noise: float, rr: np.ndarray) -> bool:
     """Whether no pixel of any region of interest ``rr`` (rows of row0, row1, col0, col1) can be
     a panel pixel of :func:`_panels`, decided without the frame: True only when proven.
@@ -496,12 +507,7 @@ def _surely_no_panels(gray: np.ndarray, noise: float, rr: np.ndarray) -> bool:
     component of that superset that reaches into a region is smaller than a panel and lies
     inside the margin (not cut by the window's edge inside the frame), no flat component, a
     subset of one of them, reaches into a region as a panel. Non-finite pixels: not proven."""
-    h, w = gray.shape
-    thr2 = (PANEL_STD_REL * noise) ** 2 * (1.0 + _FLAT_SLACK)
-    min_area = PANEL_MIN_AREA * h * w
-    m = _PANEL_MARGIN_PX
-    src = gray if gray.dtype.type in _MAYBE_FLAT_DTYPES else gray.astype(np.float64)
-    rr = np.ascontiguousarray(rr, dtype=np.int64).reshape(-1, 4)
+    src, rr, thr2, min_area, m = _panel_proof_inputs(gray, noise, rr)
     # every region's window, its possibly flat pixels and their components in one compiled call
     # (-1, a non-finite pixel: not proven)
     return _kernels.surely_no_panels(src, rr, m, thr2, _FLAT_SLACK, min_area) == 1
@@ -511,11 +517,7 @@ def _surely_no_panels_loop(gray: np.ndarray, noise: float, rr: np.ndarray) -> bo
     """:func:`_surely_no_panels` by a loop of compiled calls, OpenCV's labelling and numpy per
     region: the reference of its one compiled call (``tests/test_verify.py`` compares them)."""
     h, w = gray.shape
-    thr2 = (PANEL_STD_REL * noise) ** 2 * (1.0 + _FLAT_SLACK)
-    min_area = PANEL_MIN_AREA * h * w
-    m = _PANEL_MARGIN_PX
-    src = gray if gray.dtype.type in _MAYBE_FLAT_DTYPES else gray.astype(np.float64)
-    rr = np.ascontiguousarray(rr, dtype=np.int64).reshape(-1, 4)
+    src, rr, thr2, min_area, m = _panel_proof_inputs(gray, noise, rr)
     start = 0
     while True:
         # the regions without a possibly flat pixel, skipped in one compiled call
