@@ -396,24 +396,27 @@ def light_aware_estimates(image, est, camera, rig: LightRig, *, nominal_depth_mm
     pkw = dict(clip_level=fit_clip, nominal_depth_mm=nominal_depth_mm,
                start_normal=start_n, supersample=supersample, diffuse=diffuse, censor=censor,
                lobe=lobe, floor_level=floor, floor_refit=floor_refit, floor_step=floor_step)
-    out["photometric_fit"] = _guarded(
-        "photometric_fit", photometric_fit, fit_values, (big.col0, big.row0), est.bp_px, camera, rig,
-        **pkw)
+
+    def fitted(projection: str) -> LightAwareEstimate:
+        """The photometric fit on ``projection``, guarded, before the depth ceiling."""
+        return _guarded("photometric_fit", photometric_fit, fit_values, (big.col0, big.row0), est.bp_px,
+                        camera, rig, projection=projection, **pkw)
+
+    first = fitted("auto")
     # its depth within the ceiling before the curved fits' turn is decided by its status
-    fitted_ok = out["photometric_fit"].ok
-    out["photometric_fit"] = depth_within_ceiling(out["photometric_fit"])
-    if colour and fitted_ok and not out["photometric_fit"].ok and out["photometric_fit"].projection == "body_colours":
+    out["photometric_fit"] = depth_within_ceiling(first)
+    if colour and first.ok and not out["photometric_fit"].ok and first.projection == "body_colours":
         # the body colours' depth above the ceiling: the least-fluctuation weights' fit where it
         # is ok within it (as photometric_fit's "auto" projection does for a fit without depth)
-        lf = depth_within_ceiling(_guarded(
-            "photometric_fit", photometric_fit, fit_values, (big.col0, big.row0), est.bp_px, camera,
-            rig, projection="least_fluctuation", **pkw))
+        lf = depth_within_ceiling(fitted("least_fluctuation"))
         if lf.ok and lf.projection == "least_fluctuation":
             why = "the body colours' depth is above the ceiling"
-            out["photometric_fit"] = dataclasses.replace(lf, detail=f"{lf.detail}; {why}" if lf.detail else why)
+            out["photometric_fit"] = dataclasses.replace(
+                lf, detail=f"{lf.detail}; {why}" if lf.detail else why)
     pf = out["photometric_fit"]
     if colour and ((not pf.ok and pf.projection == "least_fluctuation")
-                   or (pf.projection == "body_colours" and pf.status in ("depth_not_observable", "not_converged"))):
+                   or (pf.projection == "body_colours"
+                       and pf.status in ("depth_not_observable", "not_converged"))):
         # a fit on the least-fluctuation projection is kept only with its depth within the
         # ceiling (photometric_fit's ``projection``): on the endoscope suite's colon wall one
         # passed the fit's own tests with a relative depth sigma of 0.37, 16 deg off with a sigma
@@ -424,9 +427,7 @@ def light_aware_estimates(image, est, camera, rig: LightRig, *, nominal_depth_mm
         # sigmas of 3.6 deg were recommended over a BP ray 2.3 deg off); a misfit of theirs
         # stands (rule 4 may confirm its normal)
         why = f"the {pf.projection.replace('_', ' ')} projection's fit: {pf.status}"
-        chan = depth_within_ceiling(_guarded(
-            "photometric_fit", photometric_fit, fit_values, (big.col0, big.row0), est.bp_px, camera,
-            rig, projection="darkest_channel", **pkw))
+        chan = depth_within_ceiling(fitted("darkest_channel"))
         out["photometric_fit"] = dataclasses.replace(
             chan, detail=f"{chan.detail}; {why}" if chan.detail else why)
     near = Roi.around(est.bp_px, quadric_roi_scale * max(roi.shape) / 2.0, img.shape)

@@ -200,16 +200,16 @@ def photometric_fit(values, origin_uv, bp_uv, camera, rig: LightRig, *,
         plane of strongly absorbing vessels, one body colours' fit ended 5.4 deg off with its
         depth not observable and a sigma of 0.39 deg); where the border tells no second body
         colour, the least-fluctuation weights, and where the fit on those is not ``ok`` (a
-        misfit, a depth not observable), the darkest channel's fit in its place. The weights trade the
-        texture they leave in against the noise, and the fit cannot see what they leave: it is
-        kept only where it passes with its depth. A JPEG frame whose block grid is not seen (at
-        quality 95): its subsampled chroma leaves a pattern in the least-fluctuation
-        projection's residual that the curvature test reads as a curved patch; on the endoscope
-        suite's flat mucosa, before the border's body colours were told there
-        (``model._BODY_SECOND_SNR``), that fit misfit 0.3 deg off, and the recommendation fell
-        back to the BP ray, 6 deg off, where the darkest channel's fit passes 0.6 deg off. On its colon wall one such fit passed with
-        its depth not observable, 17.5 deg off with a sigma of 1.7 deg, and was recommended
-        over the BP ray (2.3 deg).
+        misfit, a depth not observable), the darkest channel's fit in its place. The weights
+        trade the texture they leave in against the noise, and the fit cannot see what they
+        leave: it is kept only where it passes with its depth. A JPEG frame whose block grid is
+        not seen (at quality 95): its subsampled chroma leaves a pattern in the
+        least-fluctuation projection's residual that the curvature test reads as a curved
+        patch; on the endoscope suite's flat mucosa, before the border's body colours were told
+        there (``model._BODY_SECOND_SNR``), that fit misfit 0.3 deg off, and the recommendation
+        fell back to the BP ray, 6 deg off, where the darkest channel's fit passes 0.6 deg off.
+        On its colon wall one such fit passed with its depth not observable, 17.5 deg off with
+        a sigma of 1.7 deg, and was recommended over the BP ray (2.3 deg).
     lobe : {"phong", "ggx", "auto"}
         The specular lobe of the model: Phong's ``max(0, cos beta)^n`` (the paper's eq. 1), a GGX
         microfacet lobe under a dielectric film (the renderer's tissue,
@@ -307,7 +307,8 @@ def photometric_fit(values, origin_uv, bp_uv, camera, rig: LightRig, *,
                 and best.status in ("depth_not_observable", "not_converged")):
             # the body colours' fit found no depth (a misfit is the surface's shape, seen in every
             # projection, and stands): the least-fluctuation weights' fit, kept where it is ok
-            lf = photometric_fit(values, origin_uv, bp_uv, camera, rig, projection="least_fluctuation", **kw)
+            lf = photometric_fit(values, origin_uv, bp_uv, camera, rig, projection="least_fluctuation",
+                                 **kw)
             if lf.ok and lf.projection == "least_fluctuation":
                 why = f"the body colours' fit is not ok ({best.status}: {best.detail})"
                 return replace(lf, detail=f"{lf.detail}; {why}" if lf.detail else why)
@@ -338,7 +339,8 @@ def photometric_fit(values, origin_uv, bp_uv, camera, rig: LightRig, *,
     colour_detail, how = "", None
     rgb_in, floor_in, clip_in = values, floor_level, clip_level
     if np.ndim(values) == 3:
-        values, clip_level, lower, missing, colour_detail, how = _colour_values(values, clip_level, projection)
+        values, clip_level, lower, missing, colour_detail, how = _colour_values(values, clip_level,
+                                                                                projection)
         if lower is not None:
             floor_level = None  # a projection of three channels has no floor of its own
     censor = bool(censor and (clip_level is not None or lower is not None))
@@ -861,10 +863,12 @@ def _colour_values(rgb, clip_level, projection: str = "auto"):
         values, lower, missing, w = out
         text = ("body colours projected out" if how == "body_colours"
                 else "body colours projected out by the least-fluctuation weights")
-        return (values, None, lower, missing, f"{text} (w = " + ", ".join(f"{x:.3g}" for x in w) + ")", how)
+        weights = ", ".join(f"{x:.3g}" for x in w)
+        return values, None, lower, missing, f"{text} (w = {weights})", how
     c, clip = _darkest(rgb, clip_level)
-    return rgb[..., c], clip, None, None, (f"channel {c} (no two body colours to project out: the "
-                                           "border holds one, or white lies too near them)"), "darkest_channel"
+    why = (f"channel {c} (no two body colours to project out: the border holds one, or white lies "
+           "too near them)")
+    return rgb[..., c], clip, None, None, why, "darkest_channel"
 
 
 def _bic(est: LightAwareEstimate) -> float:
