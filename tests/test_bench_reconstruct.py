@@ -239,11 +239,15 @@ def test_the_video_row_tells_the_candidates_and_the_cpu_a_frame(monkeypatch):
     time a frame took in this process and its workers (the figures that tell per-frame work
     from the pool's overheads)."""
     monkeypatch.setattr(bench, "VIDEO_WORKERS", 1)
-    (row,) = bench._bench_video(1)
+    (row,) = bench._bench_video(3)
     if row.value != row.value:  # NaN: no banner or no MJPG writer in this environment
         pytest.fail(f"the bench video could not be made: {row.name}")
-    got = re.search(r"1 frames of (\d+) candidates .* CPU (\d+) ms a frame", row.note)
+    got = re.search(r"3 frames of (\d+) candidates .* CPU (\d+) ms a frame", row.note)
     assert got, row.note
+    # both rates: from the start (the row's value) and once the pool runs (a long video's)
+    rates = re.search(r"([\d.]+) frames/s from the start .*, ([\d.]+) frames/s after the first frame", row.note)
+    assert rates and float(rates.group(2)) > 0, row.note
+    assert float(rates.group(1)) == pytest.approx(1e3 / row.value, rel=0.06)  # one decimal shown
     assert int(got.group(1)) > 500  # the mosaic's ~640 components and MJPG's blocks
     assert 0 < int(got.group(2)) < 60_000
 

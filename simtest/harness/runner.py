@@ -33,7 +33,7 @@ from rich.progress import (
     TimeRemainingColumn,
 )
 
-from simtest.constants import SINGLE_THREAD_ENV
+from simtest._threads import one_thread_each
 from simtest.harness.protocols import Row, make_runner
 from simtest.harness.suite import Case, Suite, realisation_seed
 
@@ -48,9 +48,6 @@ MAX_EXCEPTIONS = 5
 
 _RUNNERS: OrderedDict = OrderedDict()
 _RUNNERS_MAX = 8
-
-#: Environment for worker processes: one thread each for BLAS/OpenMP (the pool is the parallelism).
-_WORKER_ENV = SINGLE_THREAD_ENV
 
 
 def default_workers() -> int:
@@ -331,9 +328,7 @@ def run_suite(suite: Suite, *, workers: int | None = None, progress: bool = True
             for c, s, e in tasks:
                 record(run_case_chunk(c, estimators, suite.seed, s, e), bar)
         else:
-            saved = {k: os.environ.get(k) for k in _WORKER_ENV}
-            os.environ.update(_WORKER_ENV)
-            try:
+            with one_thread_each():
                 ctx = mp.get_context("spawn")  # no inherited Mitsuba/LLVM threads
                 with ProcessPoolExecutor(max_workers=workers, mp_context=ctx,
                                          initializer=_worker_init) as pool:
@@ -346,12 +341,6 @@ def run_suite(suite: Suite, *, workers: int | None = None, progress: bool = True
                         for f in futs:
                             f.cancel()
                         raise
-            finally:
-                for k, v in saved.items():
-                    if v is None:
-                        os.environ.pop(k, None)
-                    else:
-                        os.environ[k] = v
     wall = time.perf_counter() - t0
     results = [_assemble(c, estimators, by_key[(c.key, c.realisations)]) for c in cases]
     cpu, real = {}, {}

@@ -29,6 +29,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 
+from simtest._threads import one_thread_each
 from simtest.reconstruct._pixels import image_size_wh
 from simtest.reconstruct.images import InputError, load_image, quiet_stderr
 from simtest.reconstruct.io import estimate_to_dict, estimates_json
@@ -236,8 +237,9 @@ def reconstruct_frames(source: FrameSource, K, settings: ReconSettings | None = 
     dist_coeffs : array_like, optional
         OpenCV distortion coefficients.
     workers : int
-        Worker processes (1: in this process). Frames are decoded here and sent in order;
-        ``Executor.map`` returns them in that order.
+        Worker processes (1: in this process). Frames are decoded here and sent in order, and
+        their records come back in that order. Each worker runs BLAS on one thread
+        (:func:`simtest._threads.one_thread_each`): the workers are the parallelism.
     include_points : bool
         Also write each isophote's contour points.
     rig : LightRig, optional
@@ -274,7 +276,8 @@ def reconstruct_frames(source: FrameSource, K, settings: ReconSettings | None = 
     if workers <= 1:
         yield from map(one, jobs)
         return
-    with ProcessPoolExecutor(max_workers=workers) as pool:
+    # one BLAS thread in each worker (and here): the pool is the parallelism (simtest._threads)
+    with one_thread_each(), ProcessPoolExecutor(max_workers=workers) as pool:
         # a bounded window of frames in flight, so that a long video is not decoded all at once;
         # this process decodes the next frames while the workers reconstruct the earlier ones
         window = 4 * workers

@@ -1,0 +1,51 @@
+"""One thread per process for the numerical libraries, where processes are the parallelism.
+
+A process pool on every core already fills the machine; a BLAS library that starts its own
+threads in each worker then only adds threads that wait for work by spinning. OpenBLAS does so
+after each call: on the 2-core VM a frame's reconstruction took 240 ms of CPU for 135 ms of wall
+time, the difference spent spinning on the core that the other worker needed.
+
+:func:`one_thread_each` covers both ways a worker starts: a forked worker inherits this process's
+BLAS settings (set at run time by threadpoolctl, as the environment is read only when the library
+loads), a spawned one reads the environment (``OPENBLAS_NUM_THREADS`` and the like) when it
+imports numpy.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import os
+from collections.abc import Iterator
+
+from threadpoolctl import threadpool_limits
+
+from simtest.constants import SINGLE_THREAD_ENV
+
+__all__ = ["one_thread_each"]
+
+
+@contextlib.contextmanager
+def one_thread_each() -> Iterator[None]:
+    """Within the block, this process and the worker processes it starts (forked or spawned) run
+    BLAS and OpenMP on one thread each; on leaving, the previous limits and environment return.
+
+    Yields
+    ------
+    None
+
+    Notes
+    -----
+    The run-time limit is threadpoolctl's (https://github.com/joblib/threadpoolctl), the
+    environment :data:`simtest.constants.SINGLE_THREAD_ENV`.
+    """
+    saved = {k: os.environ.get(k) for k in SINGLE_THREAD_ENV}
+    os.environ.update(SINGLE_THREAD_ENV)
+    try:
+        with threadpool_limits(limits=1):
+            yield
+    finally:
+        for k, v in saved.items():
+            if v is None:
+                os.environ.pop(k, None)
+            else:
+                os.environ[k] = v

@@ -1,0 +1,41 @@
+"""simtest._threads.one_thread_each: one BLAS thread here and in the workers started within, the
+previous state back after."""
+
+import multiprocessing as mp
+import os
+
+import numpy as np  # noqa: F401  (loads the BLAS whose threads are limited)
+import pytest
+from threadpoolctl import threadpool_info
+
+from simtest._threads import one_thread_each
+from simtest.constants import SINGLE_THREAD_ENV
+
+
+def _blas_threads() -> list[int]:
+    return [d["num_threads"] for d in threadpool_info() if d["user_api"] == "blas"]
+
+
+def _in_worker(_):
+    return _blas_threads(), {k: os.environ.get(k) for k in SINGLE_THREAD_ENV}
+
+
+def test_limits_this_process_and_restores(monkeypatch):
+    monkeypatch.setenv("OPENBLAS_NUM_THREADS", "7")
+    monkeypatch.delenv("OMP_NUM_THREADS", raising=False)
+    before = _blas_threads()
+    with one_thread_each():
+        assert all(n == 1 for n in _blas_threads())
+        assert {k: os.environ[k] for k in SINGLE_THREAD_ENV} == SINGLE_THREAD_ENV
+    assert _blas_threads() == before
+    assert os.environ["OPENBLAS_NUM_THREADS"] == "7"  # put back, not dropped
+    assert "OMP_NUM_THREADS" not in os.environ  # dropped, as it was absent
+
+
+@pytest.mark.parametrize("method", ["fork", "spawn"])
+def test_workers_started_within_get_one_thread(method):
+    # a forked worker inherits the run-time limit, a spawned one reads the environment
+    with one_thread_each(), mp.get_context(method).Pool(1) as pool:
+        threads, env = pool.map(_in_worker, [0])[0]
+    assert all(n == 1 for n in threads)
+    assert env == SINGLE_THREAD_ENV
