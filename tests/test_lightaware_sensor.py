@@ -45,6 +45,51 @@ def test_linearize_inverts_the_forward_response(curve, g, wb, exposure):
         assert clip == pytest.approx(1.0 / (exposure * wb[c]))
 
 
+@settings(max_examples=40, deadline=None)
+@given(clip_code=st.integers(1, 255), bright=st.floats(0.0, 1.0), seed=st.integers(0, 2**16))
+def test_a_frame_the_forward_model_wrote_passes_the_clip_check(clip_code, bright, seed):
+    # pixel = clip(curve(...)): every value at or below the clip level, whatever its share of
+    # clipped pixels (bright: up to all of them), so the frame is the sensor's
+    rng = np.random.default_rng(seed)
+    rad = rng.uniform(0.0, 1.0 + 3.0 * bright, (16, 12, 3))
+    pix = np.minimum(np.rint(_srgb(np.clip(rad, 0, 1)) * clip_code), clip_code).astype(np.uint8)
+    SensorResponse("srgb", clip=float(clip_code)).check_frame(pix)
+    SensorResponse("srgb").check_frame(pix)  # no clip: the dtype's maximum
+
+
+def test_a_clip_in_the_wrong_units_is_one_line_naming_the_key():
+    tissue = np.full((40, 40, 3), (180, 90, 60), np.uint8)
+    with pytest.raises(ResponseError, match=r"response\.clip: 1 is below 100% of the frame's pixel values "
+                                            r"\(largest 180\).*255 for an 8-bit frame"):
+        SensorResponse("srgb", clip=1.0).linearize(tissue)
+    with pytest.raises(ResponseError, match=r"response\.clip: 4095 is above the largest value a uint8 frame"):
+        SensorResponse("srgb", clip=4095.0).check_frame(tissue)
+    # a float frame in 8-bit units without a clip: the default (1) is named as such
+    with pytest.raises(ResponseError, match=r"1 \(not given: the dtype's maximum, 1 for floats\)"):
+        SensorResponse("linear").check_frame(tissue.astype(np.float32))
+    # a decoder's overshoot above a clip below the dtype's maximum (a quarter of the frame at
+    # most) passes: video range, white at 235, a clipped highlight decoded up to 250
+    video = tissue.copy()
+    video[:15, :15] = 250  # 14 % of the pixels
+    SensorResponse("srgb", clip=235.0).check_frame(video)
+
+
+def test_reconstruct_refuses_a_clip_in_the_wrong_units(tmp_path):
+    from typer.testing import CliRunner
+
+    from simtest.cli import app
+
+    model = PinholeCamera(np.array([[300.0, 0, 20], [0, 300, 20], [0, 0, 1]]), image_size=(40, 40))
+    cam = save_camera(tmp_path / "cam.json", model, RIG, SensorResponse("srgb", clip=1.0))
+    frame = tmp_path / "frame.npy"
+    np.save(frame, np.full((40, 40, 3), (180, 90, 60), np.uint8))
+    res = CliRunner().invoke(app, ["reconstruct", str(frame), "--intrinsics", str(cam), "-o", str(tmp_path / "o")])
+    assert res.exit_code == 2, res.output
+    lines = [ln for ln in res.output.splitlines() if ln.strip()]
+    assert len(lines) == 1 and lines[0].startswith(f"error: {cam}: response.clip: 1 is below"), res.output
+    assert not (tmp_path / "o").exists()
+
+
 def test_linearize_picks_the_darkest_channel():
     img = np.zeros((20, 20, 3), np.uint8)
     img[..., 0], img[..., 1], img[..., 2] = 200, 90, 60

@@ -27,6 +27,7 @@ from simtest.evaluate.detection import (cross_validated_report, detection_figure
 from simtest.evaluate.report import SCHEMA, SCHEMA_VERSION, render_html
 from simtest.evaluate.score import score_highlights, summarise, summarise_depth
 from simtest.geometry.camera_file import load_camera
+from simtest.geometry.response import ResponseError
 from simtest.harness.report.figures import figure_png
 from simtest._exit import BAD_INPUT, fail
 from simtest.reconstruct.cli import check_out_folder, write_out_folder
@@ -93,7 +94,10 @@ def c3vd_command(
                 img, truth = load_frame(fr, camera)
                 ests = reconstruct(img, camera, settings=settings)
                 # the camera file's light rig and sensor response, as reconstruct uses them
-                ests = with_light_aware(img, ests, camera, camera_file.lights, response=camera_file.response)
+                try:
+                    ests = with_light_aware(img, ests, camera, camera_file.lights, response=camera_file.response)
+                except ResponseError as exc:  # a frame the response could not have written: name both
+                    raise ResponseError(f"{intrinsics}: {exc} (frame {fr.index})") from None
                 n_cand += len(ests)
                 rows.extend(score_highlights(fr.index, ests, truth, camera))
                 if len(view_inputs) < views and any(e.ok for e in ests):

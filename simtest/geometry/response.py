@@ -24,11 +24,16 @@ from dataclasses import dataclass
 
 import numpy as np
 
-__all__ = ["CURVES", "ResponseError", "SensorResponse", "video_response"]
+__all__ = ["CURVES", "MAX_ABOVE_CLIP_SHARE", "ResponseError", "SensorResponse", "video_response"]
 
 #: The tone curves a response may name.
 CURVES = ("linear", "srgb", "gamma")
 _KEYS = ("curve", "gamma", "white_balance", "exposure", "clip")
+#: The largest share of a frame's pixel values above its response's clip level that
+#: :meth:`SensorResponse.check_frame` accepts. A sensor's clip is its largest value; values above it
+#: come from a decoder's overshoot near clipped areas, a few percent of a frame at most. A quarter
+#: is far above that and far below the share a clip in the wrong units leaves (nearly all).
+MAX_ABOVE_CLIP_SHARE = 0.25
 
 
 class ResponseError(ValueError):
@@ -114,6 +119,43 @@ class SensorResponse:
         dt = np.asarray(image).dtype
         return float(np.iinfo(dt).max) if dt.kind in "ui" else 1.0
 
+    def check_frame(self, image) -> None:
+        """Refuse a frame that no sensor with this response could have written.
+
+        The forward model clips every pixel at ``clip`` (module docstring), so a frame cannot
+        hold values the clip level cannot reach, nor a large share above it:
+
+        - an integer frame whose dtype's maximum is below ``clip``: no pixel reaches the clip,
+          so clipped pixels would not be censored;
+        - more than :data:`MAX_ABOVE_CLIP_SHARE` of the pixel values (every channel) above
+          ``clip``: the level is not in the file's units (1 for an 8-bit frame, a fraction
+          where 255 was meant). A decoder's overshoot (a JPEG's ringing at the edge of a clipped
+          highlight, a video's values above its nominal white) puts some values above a clip
+          below the dtype's maximum, only near clipped areas.
+
+        Parameters
+        ----------
+        image : ndarray of shape (H, W) or (H, W, 3)
+            Pixel values in the file's units.
+
+        Raises
+        ------
+        ResponseError
+            One line naming the key, its value and what the frame holds.
+        """
+        img = np.asarray(image)
+        fs = self.full_scale(img)
+        if img.dtype.kind in "ui" and fs > np.iinfo(img.dtype).max:
+            raise ResponseError(f"response.clip: {fs:g} is above the largest value a {img.dtype} frame holds "
+                                f"({np.iinfo(img.dtype).max}): its clipped pixels would not be seen")
+        sample = img[::4, ::4]  # every 16th pixel: a share, not a count
+        share = float(np.count_nonzero(sample > fs)) / max(sample.size, 1)
+        if share > MAX_ABOVE_CLIP_SHARE:
+            given = "" if self.clip is not None else " (not given: the dtype's maximum, 1 for floats)"
+            raise ResponseError(f"response.clip: {fs:g}{given} is below {share:.0%} of the frame's pixel values "
+                                f"(largest {float(sample.max()):g}): the clip level is in the file's units, "
+                                f"255 for an 8-bit frame")
+
     def linear(self, values, channel: int | None = None, full_scale: float = 1.0) -> np.ndarray:
         """Linear radiance (up to the exposure's unit) of pixel values, float64.
 
@@ -150,8 +192,16 @@ class SensorResponse:
             censored (the radiance is at least this).
         channel : int or None
             The channel used (None for a grey image).
+
+        Raises
+        ------
+        ResponseError
+            A frame the response could not have written (:meth:`check_frame`).
+        ValueError
+            An image that is neither (H, W) nor (H, W, 3).
         """
         img = np.asarray(image)
+        self.check_frame(img)
         fs = self.full_scale(img)
         if img.ndim == 2:
             return self.linear(img, None, fs), float(self.linear(fs, None, fs)), None

@@ -41,6 +41,7 @@ from simtest._exit import BAD_INPUT, CANNOT_WRITE, fail, writable_dir
 from simtest.evaluate.c3vd import DEPTH_RANGE_MM, U16, _read_tiff
 from simtest.geometry.camera_file import camera_from_dict, load_camera
 from simtest.geometry.cameras import PinholeCamera
+from simtest.geometry.response import ResponseError
 from simtest.reconstruct._pixels import image_size_wh
 from simtest.reconstruct.frames import is_sequence, open_frames, reconstruct_frames, write_frames_jsonl
 from simtest.reconstruct.images import InputError, load_image
@@ -142,6 +143,11 @@ def reconstruct_command(
             )
         if overlay:  # refused before anything is computed or written
             check_overlay_size(img.shape)
+        if camera_file.response is not None:  # a frame its response could not have written
+            try:
+                camera_file.response.check_frame(img)
+            except ResponseError as exc:
+                raise InputError(f"{intrinsics}: {exc} (frame {image})") from None
         estimates = reconstruct(img, camera, settings=settings)
         detection_rec = estimates.detection_record()
         # the scope's light rig from the camera file ("lights"; none: one light at the camera)

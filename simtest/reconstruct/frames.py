@@ -30,6 +30,7 @@ import cv2
 import numpy as np
 
 from simtest._threads import one_thread_each
+from simtest.geometry.response import ResponseError
 from simtest.reconstruct._pixels import image_size_wh
 from simtest.reconstruct.images import InputError, load_image, quiet_stderr
 from simtest.reconstruct.io import estimate_to_dict, estimates_json
@@ -205,7 +206,10 @@ def _frame_head(args) -> tuple[dict, list, bool]:
     detection = ests.detection_record()
     # the light-aware step of a single image (nothing runs without a rig or with a co-located one),
     # on the linear intensities of the camera file's response as a single image's
-    ests = with_light_aware(image, ests, K, rig, cubic=cubic, response=response)
+    try:
+        ests = with_light_aware(image, ests, K, rig, cubic=cubic, response=response)
+    except ResponseError as exc:  # a frame the response could not have written: name it
+        raise InputError(f"frame {name}: the camera file's {exc}") from None
     counts: dict[str, int] = {}
     for e in ests:
         counts[e.status] = counts.get(e.status, 0) + 1
