@@ -276,3 +276,38 @@ def test_a_quadric_without_a_stated_sigma_confirms_nothing():
     # and without a quadric, the misfit alone is never recommended
     rec = recommend(dataclasses.replace(est, light_aware={"photometric_fit": plane}))
     assert rec.normal_from == "bp_ray"
+
+
+# --- item: the slow patch fits run only where the plane fit misfits ----------------------------------
+
+
+@pytest.mark.parametrize("status", ["ok", "depth_not_observable", "too_few_points", "light_behind_plane",
+                                    "plane_misfit", "not_converged"])
+def test_the_patch_fits_run_only_where_the_plane_is_not_the_surface(monkeypatch, status):
+    # the photometric fit's status stands in for what each outcome of a real fit says; the
+    # quadric (and, with two lights apart, the cubic patch) run after a misfit or a fit that ran
+    # off, never after a fit whose plane fits (a patch has more parameters to trade with the
+    # depth) or one with too few pixels for the plane's parameters (fewer than a patch's)
+    import simtest.reconstruct.recommend as rec
+
+    img, K, N, _, _ = _plane8(30.0, 20.0, 2.0)
+    rig = LightRig((Light((-2.0, 0.0, 0.0), 1.0, "inverse_square", 0.0),
+                    Light((2.0, 0.0, 0.0), 1.0, "inverse_square", 0.0)))
+    est = _highlight(img, K)
+    real = rec.photometric_fit
+
+    def fit(*a, **k):
+        return dataclasses.replace(real(*a, **k), status=status)
+
+    ran = []
+    monkeypatch.setattr(rec, "photometric_fit", fit)
+    for name in ("quadric_fit", "cubic_patch_fit"):
+        monkeypatch.setattr(rec, name, lambda *a, _n=name, **k: ran.append(_n) or
+                            rec.LightAwareEstimate(_n, "not_converged", "not run here"))
+    out = light_aware_estimates(img, est, K, rig, cubic=None)
+    expected = ["quadric_fit", "cubic_patch_fit"] if status in rec.CURVED_FIT_AFTER else []
+    assert ran == expected and [k for k in out if k in ran] == expected
+    # asked for, they run whatever the plane's status
+    ran.clear()
+    light_aware_estimates(img, est, K, rig, quadric=True, cubic=True)
+    assert ran == ["quadric_fit", "cubic_patch_fit"]

@@ -27,8 +27,8 @@ Chosen from the harness' measurements on Mitsuba renders (``simtest validate ren
    model trades the curvature for roughness and distance and misses the normal, by more than the
    BP ray on the sphere, while its residual stays near the sensor's noise; its residuals are then
    spatially correlated, which ``photometric_fit`` reports as ``plane_misfit`` (or its fit runs
-   off, ``not_converged``). A photometric fit that is not ``ok`` runs ``quadric_fit`` (a curved
-   patch, exact on spheres), recommended when its status is ``ok``; then ``isocurve_fit``, unless
+   off, ``not_converged``). A photometric fit that misfits or runs off (:data:`CURVED_FIT_AFTER`)
+   runs ``quadric_fit`` (a curved patch, exact on spheres), recommended when its status is ``ok``; then ``isocurve_fit``, unless
    the plane misfits (the isocurve fit is the same plane model, seen through the contours); else
    the BP ray. Under one light the quadric is never ``ok``: its depth is not observable (a single
    highlight does not tell the depth from the surface's third-order shape, issue 10), so it is
@@ -191,6 +191,13 @@ __all__ = ["DEPTH_REL_SIGMA_CEILING", "ISOCURVE_ISOVALUES", "LIGHT_AWARE", "NOT_
 
 #: The light-aware estimators, in the order of preference of the recommendation rule.
 LIGHT_AWARE = ("photometric_fit", "cubic_patch_fit", "quadric_fit", "isocurve_fit")
+#: The photometric fit's statuses after which the curved-patch fits run by default (``quadric``,
+#: ``cubic`` None in :func:`light_aware_estimates`): those that say the plane is not the ROI's
+#: surface (its residual holds a curved patch's pattern, or the fit ran off). After the others
+#: a patch fit cannot do better and takes seconds: ``depth_not_observable`` (the plane fits; a
+#: patch has more parameters to trade with the depth), ``too_few_points`` (fewer pixels than a
+#: patch's parameters too), ``light_behind_plane``.
+CURVED_FIT_AFTER = ("plane_misfit", "not_converged")
 #: Fallback order without a rig (or with a co-located one).
 COLOCATED_ORDER = ("joint_cone_axis", "cone_axis", "bp_ray")
 #: The isovalues of the isophotes :func:`isocurve_fit` is given, relative to the BP's height above
@@ -293,14 +300,15 @@ def light_aware_estimates(image, est, camera, rig: LightRig, *, nominal_depth_mm
     quadric : bool or None
         Run the curved-patch fit :func:`~simtest.reconstruct.lightaware.quadric_fit` (on the
         highlight's ROI grown ``quadric_roi_scale`` times about the BP): True always, None
-        (default) when the photometric fit's status is not ``ok`` (a plane misfit, or a plane
-        fit that ran off on a curved patch: the recommendation then needs it), False never (the
-        harness' oracle inputs keep the plane fit only).
+        (default) when the photometric fit's status is in :data:`CURVED_FIT_AFTER` (a plane
+        misfit, or a plane fit that ran off on a curved patch: the recommendation then needs
+        it), False never (the harness' oracle inputs keep the plane fit only).
     cubic : bool or None
         Run the third-order patch fit
         :func:`~simtest.reconstruct.lightaware.cubic_patch_fit` on the same ROI as the quadric's:
         True always, False (default: it takes about 1 to 5 s per highlight, against a few ms
-        for the others) never, None when the photometric fit's status is not ``ok`` and the rig
+        for the others) never, None when the photometric fit's status is in
+        :data:`CURVED_FIT_AFTER` and the rig
         has at least two lights at different places (with one light its depth, and with it the
         normal, is not observable: module docstring); ``simtest reconstruct --cubic-patch``
         asks for None.
@@ -431,11 +439,12 @@ def light_aware_estimates(image, est, camera, rig: LightRig, *, nominal_depth_mm
         out["photometric_fit"] = dataclasses.replace(
             chan, detail=f"{chan.detail}; {why}" if chan.detail else why)
     near = Roi.around(est.bp_px, quadric_roi_scale * max(roi.shape) / 2.0, img.shape)
-    if quadric or (quadric is None and not out["photometric_fit"].ok):
+    curved = out["photometric_fit"].status in CURVED_FIT_AFTER
+    if quadric or (quadric is None and curved):
         out["quadric_fit"] = _guarded(
             "quadric_fit", quadric_fit, gray[near.slices], (near.col0, near.row0), est.bp_px, camera, rig,
             clip_level=saturation_level, nominal_depth_mm=nominal_depth_mm)
-    if cubic or (cubic is None and not out["photometric_fit"].ok and _several_lights(rig)):
+    if cubic or (cubic is None and curved and _several_lights(rig)):
         out["cubic_patch_fit"] = _guarded(
             "cubic_patch_fit", cubic_patch_fit, gray[near.slices], (near.col0, near.row0), est.bp_px, camera, rig,
             clip_level=saturation_level, nominal_depth_mm=nominal_depth_mm)
