@@ -268,3 +268,27 @@ def test_the_decoded_video_frame_is_the_real_frame_with_thousands_of_components(
     assert 0 < np.abs(frame.astype(int) - mosaic).mean() < 5
     ests = reconstruct(frame, K)
     assert ests.n_unexamined == 0 and len(ests) == ests.n_components > 2000
+
+
+def test_the_real_tile_row_counts_its_fits_and_names_the_missing_tile(monkeypatch, tmp_path):
+    """The real tile's row (light-aware fits with an assumed rig) says how many highlights were
+    fitted and what each was recommended; without the source tree it is one NaN row. The fits
+    are stood in for here (they take seconds a highlight; the bench runs them)."""
+    import dataclasses
+
+    from simtest.reconstruct.lightaware import LightAwareEstimate
+
+    def fake(img, ests, camera, rig, **kw):
+        assert kw["response"].clip == 255.0 and len(rig.lights) == 2
+        ok = [k for k, e in enumerate(ests) if e.ok][:3]
+        ran_off = {"photometric_fit": LightAwareEstimate("photometric_fit", "not_converged", "stood in")}
+        return [dataclasses.replace(e, light_aware=ran_off) if k in ok else e for k, e in enumerate(ests)]
+
+    monkeypatch.setattr(bench, "with_light_aware", fake)
+    (row,) = bench._bench_real_tile_rig()
+    assert row.value > 0 and row.target is None
+    got = re.search(r"(\d+) candidates, 3 fitted \(\d+ ms each\), recommended: bp_ray 3; CPU", row.note)
+    assert got and int(got.group(1)) > 100, row.note  # the tile's glints, texture and rim
+    monkeypatch.setattr(bench, "data_root", lambda: tmp_path)
+    (row,) = bench._bench_real_tile_rig()
+    assert row.value != row.value and "source tree not found" in row.name
