@@ -62,3 +62,22 @@ def test_an_edge_on_plane_gives_a_zero_inverse_range_not_a_warning():
         got = la.model._terms(dT, n, 1e146, L, rl)  # s = 1e155 mm: s^2 overflows
         want = la.model._terms_numpy(dT, n, 1e146, L, rl)
     assert got[2][0] == want[2][0] > 1e154 and got[4][0] == want[4][0] == 0.0
+
+
+@given(st.integers(0, 1_000_000), st.floats(1e-3, 1.0), st.floats(1.0, 2.0))
+@settings(max_examples=200, deadline=None)
+def test_the_compiled_ggx_lobe_gives_the_numpy_forms_bits(seed, alpha, ior):
+    # the rig's GGX lobes under the film (lightaware.model._rig_value_ggx) against their numpy
+    # form, on the rays, planes and lights of _case: two lights (one inverse square with a
+    # profile, one neither), rays behind the plane and non-finite light terms among them
+    dT, n, h, L, _, _ = _case(seed)
+    Ls = np.array([L, -0.5 * L + 1.0])
+    arr = (Ls, np.array([1.0, 0.7]), np.array([True, False]), np.array([1.5, 0.0]))
+    rl = la.model._ray_light(Ls, dT)
+    if seed % 7 == 0:
+        rl = (rl[0] * np.nan, rl[1])
+    with np.errstate(all="ignore"):  # the numpy form warns on the non-finite cases
+        want = la.model._rig_value_ggx_numpy(dT, rl, n, h, arr, alpha, ior)
+        got = la.model._rig_value_ggx(dT, rl, n, h, arr, alpha, ior)
+    assert got.shape == want.shape and np.array_equal(got, want, equal_nan=True)
+    assert np.array_equal(np.signbit(got), np.signbit(want))

@@ -505,6 +505,26 @@ def _rig_value_ggx(dT, rl, n, h, rig_arr, alpha, ior: float = GGX_FILM_IOR):
     L, w, inv_sq, m = rig_arr
     a2 = float(alpha) ** 2
     S = np.zeros(dT.shape[1])
+    val = np.empty(dT.shape[1])
+    for j in range(len(w)):
+        _, delta, s, sl, ir, c, _ = _terms(dT, n, h, L[j], (rl[0][j], rl[1][j]))
+        # the element-by-element lobe in one compiled pass (the numpy form: _rig_value_ggx_numpy)
+        _lightaware_kernels.ggx_film_lobe(delta, s, sl, ir, float(c), a2, float(ior), val)
+        if inv_sq[j]:
+            hir = h * ir
+            val *= hir * hir
+        if m[j] > 0:
+            val *= np.maximum((s * dT[2] - L[j, 2]) * ir, 1e-12) ** m[j]
+        S += w[j] * val
+    return S
+
+
+def _rig_value_ggx_numpy(dT, rl, n, h, rig_arr, alpha, ior: float = GGX_FILM_IOR):
+    """The numpy form of :func:`_rig_value_ggx`: the reference of its compiled pass
+    (:func:`simtest.reconstruct._lightaware_kernels.ggx_film_lobe`, the same bits)."""
+    L, w, inv_sq, m = rig_arr
+    a2 = float(alpha) ** 2
+    S = np.zeros(dT.shape[1])
     for j in range(len(w)):
         _, delta, s, sl, ir, c, _ = _terms(dT, n, h, L[j], (rl[0][j], rl[1][j]))
         cos_o = c * ir
