@@ -221,8 +221,7 @@ def test_rendered_liver_depth_profile_is_the_images_not_the_depths_8th_digit():
     # The profile is the image's, not the 8th digit's of the depths asked for: the cuda_ad_rgb
     # render of this scene (the same 8-bit image) gives a truth 3e-8 deeper, at which the
     # profile's fits from the narrow flat start alone all missed a lobe (costs 1.8 to 8.3, against
-    # 0.0014 to 0.0093 here); each fit also starts wide now (_PROFILE_WIDE_START). (A test of its
-    # own, as the next: four profiles in one test held the suite's last minute on one worker.)
+    # 0.0014 to 0.0093 here); each fit also starts wide now (_PROFILE_WIDE_START).
     moved = _liver_profile("liver_two_lights", 19.1, [0.71, 1.0, 1.41], depth_scale=1.0 + 3e-8)
     assert np.all(np.delete(moved, 1) > 9.0), moved
 
