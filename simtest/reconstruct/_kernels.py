@@ -1184,6 +1184,179 @@ def smoothed_border_medians(img, w0, w1, w2, rois, kern):
     return out
 
 
+#: :func:`grown_isophotes`' normalisations (``_Levels.of``'s modes): t relative to the BP's height
+#: above the ROI's border median or the BP ("auto"), to that height ("local"), to the BP ("bp"),
+#: to full scale ("full_scale").
+NORM_AUTO, NORM_LOCAL, NORM_BP, NORM_FULL_SCALE = 0, 1, 2, 3
+#: :func:`grown_isophotes`' per-isovalue code of a level the BP does not exceed (no contour walked).
+NOT_WALKED = -9
+
+
+@numba.njit(cache=True, nogil=True, inline="always")
+def _roi_around(u, v, hs, h, w):
+    """``Roi.around((u, v), hs, (h, w))``: row0, row1, col0, col1 (floor and ceil as Python's)."""
+    return (max(0, int(np.floor(v - hs))), min(h, int(np.ceil(v + hs)) + 1),
+            max(0, int(np.floor(u - hs))), min(w, int(np.ceil(u + hs)) + 1))
+
+
+@numba.njit(cache=True, nogil=True)
+def grown_isophotes(sm, img, w0, w1, w2, kern, rois, bps, rings, own_ring, ts, mode, auto_rel, full_scale,
+                    max_growths, growth_factor):
+    """``pipeline._estimate_one``'s loop for a frame whose ROIs' values are slices of one array,
+    every candidate in one call: each ROI's region of ``sm``, its BP pixel and level, grown while its
+    lowest isophote is cut by it (:func:`component_reaches_contour`), then each isophote's
+    contour walked (:func:`component_contour`); what is left is the Python objects.
+
+    Parameters
+    ----------
+    sm : ndarray of shape (H, W), float32 or float64
+        The frame's smoothed luma (``_Frame.smoothed32``), or its luma where it is not smoothed
+        (``_Frame.luma_frame``).
+    img, w0, w1, w2, kern
+        As :func:`smoothed_border_median` (a grown ROI's border level, ``own_ring`` False).
+    rois : ndarray of shape (n, 4), int64
+        The first ROIs (row0, row1, col0, col1).
+    bps : ndarray of shape (n, 2), float64
+        The BPs (u, v), px.
+    rings : ndarray of shape (n,), float64
+        The first ROIs' smoothed border medians (``pipeline._first_rings``; ``own_ring`` False).
+    own_ring : bool
+        The border level is :func:`border_median` of the region itself (a frame not smoothed),
+        not the smoothed one of ``rings`` and :func:`smoothed_border_median`.
+    ts : ndarray of shape (m,), float64
+        The isovalues, lowest first (the order in which the pipeline extracts them).
+    mode : int
+        :data:`NORM_AUTO`, :data:`NORM_LOCAL`, :data:`NORM_BP` or :data:`NORM_FULL_SCALE`.
+    auto_rel, full_scale : float
+        ``AUTO_LOCAL_BACKGROUND_REL`` and the frame's full scale.
+    max_growths, growth_factor : int, float
+        ``ROI_MAX_GROWTHS`` and ``ROI_GROWTH_FACTOR``.
+
+    Returns
+    -------
+    done : ndarray of shape (n,), bool
+        False where the candidate is left to ``_estimate_one`` (a BP outside its ROI, or a cut
+        only the extraction can tell); nothing else of it is set.
+    roi : ndarray of shape (n, 4), int64
+        The final ROI.
+    near, scale, offset : ndarray of shape (n,), float64
+        Its BP's 3 x 3 maximum and ``_Levels``' scale and offset (level = offset + t scale).
+    code : ndarray of shape (n, m), int64
+        Per isovalue, :func:`component_contour`'s code, or :data:`NOT_WALKED` where the BP's
+        maximum does not exceed the level (the extraction fails without a walk).
+    inside : ndarray of shape (n, m), bool
+    sides : ndarray of shape (n, m, 4), bool
+    start, count : ndarray of shape (n, m), int64
+        The contour's points are ``pts[start:start + count]``.
+    pts : ndarray of shape (P, 2), float64
+
+    Notes
+    -----
+    The same calls, arguments and arithmetic as the Python loop (``tests/test_pipeline.py``
+    compares the drafts): the region is a view of ``sm``, its BP pixel rounds half to even as
+    Python's ``round``, a grown ROI's ring is :func:`smoothed_border_median`'s, the levels are
+    ``_Levels.of``'s.
+    """
+    H, W = sm.shape
+    n = rois.shape[0]
+    m = len(ts)
+    done = np.zeros(n, np.bool_)
+    roi_out = np.zeros((n, 4), np.int64)
+    near_out = np.zeros(n)
+    scale_out = np.zeros(n)
+    offset_out = np.zeros(n)
+    code_out = np.full((n, m), NOT_WALKED, np.int64)
+    inside_out = np.zeros((n, m), np.bool_)
+    sides_out = np.zeros((n, m, 4), np.bool_)
+    start_out = np.zeros((n, m), np.int64)
+    count_out = np.zeros((n, m), np.int64)
+    pts = np.empty((1024, 2))
+    n_pts = 0
+    for k in range(n):
+        r0, r1, c0, c1 = rois[k, 0], rois[k, 1], rois[k, 2], rois[k, 3]
+        u, v = bps[k, 0], bps[k, 1]
+        growths = 0
+        ok = True
+        while True:
+            sub = sm[r0:r1, c0:c1]
+            hh, ww = r1 - r0, c1 - c0
+            ri = int(np.rint(v - r0))
+            ci = int(np.rint(u - c0))
+            if not (0 <= ri < hh and 0 <= ci < ww):
+                ok = False
+                break
+            near = np.float64(sub[max(0, ri - 1), max(0, ci - 1)])
+            for i in range(max(0, ri - 1), min(hh, ri + 2)):
+                for j in range(max(0, ci - 1), min(ww, ci + 2)):
+                    x = np.float64(sub[i, j])
+                    if x > near or x != x:
+                        near = x
+            md = mode
+            ring = np.nan
+            if md == NORM_AUTO or md == NORM_LOCAL:
+                if own_ring:
+                    ring = border_median(sub)
+                elif growths == 0:
+                    ring = rings[k]
+                else:
+                    ring = smoothed_border_median(img, w0, w1, w2, r0, r1, c0, c1, kern)
+            if md == NORM_AUTO:
+                md = NORM_LOCAL if ring >= auto_rel * near else NORM_BP
+            if md == NORM_BP:
+                scale, offset = near, 0.0
+            elif md == NORM_LOCAL:
+                offset = near if near < ring else ring
+                scale = near - offset
+            else:
+                scale, offset = full_scale, 0.0
+            level0 = offset + ts[0] * scale
+            walked = False
+            wcode, wpts, winside, wsides = NOT_ABOVE, _EMPTY, False, (False, False, False, False)
+            cut = False
+            if growths < max_growths:
+                nr0, nr1, nc0, nc1 = _roi_around(u, v, growth_factor * max(hh, ww) / 2.0, H, W)
+                if (nr0, nr1, nc0, nc1) != (r0, r1, c0, c1) and near > level0:
+                    got, wcode, wpts, winside, wsides = component_reaches_contour(
+                        sub, level0, ri, ci, r0, c0, u, v, r0 > 0, r1 < H, c0 > 0, c1 < W)
+                    walked = wcode == NOT_ABOVE or wcode == CLOSED or wcode == OPEN
+                    if got < 0:
+                        ok = False
+                        break
+                    cut = got == 1
+                if cut:
+                    r0, r1, c0, c1 = nr0, nr1, nc0, nc1
+                    growths += 1
+                    continue
+            for q in range(m):
+                level = offset + ts[q] * scale
+                if not near > level:
+                    continue
+                if q == 0 and walked:
+                    code, p, ins, sd = wcode, wpts, winside, wsides
+                else:
+                    code, p, ins, sd = component_contour(sub, level, ri, ci, r0, c0, u, v)
+                code_out[k, q] = code
+                inside_out[k, q] = ins
+                sides_out[k, q, 0], sides_out[k, q, 1], sides_out[k, q, 2], sides_out[k, q, 3] = sd
+                np_ = p.shape[0]
+                if n_pts + np_ > pts.shape[0]:
+                    grown = np.empty((max(2 * pts.shape[0], n_pts + np_), 2))
+                    grown[:n_pts] = pts[:n_pts]
+                    pts = grown
+                pts[n_pts:n_pts + np_] = p
+                start_out[k, q] = n_pts
+                count_out[k, q] = np_
+                n_pts += np_
+            break
+        if not ok:
+            continue
+        done[k] = True
+        roi_out[k, 0], roi_out[k, 1], roi_out[k, 2], roi_out[k, 3] = r0, r1, c0, c1
+        near_out[k], scale_out[k], offset_out[k] = near, scale, offset
+    return (done, roi_out, near_out, scale_out, offset_out, code_out, inside_out, sides_out, start_out,
+            count_out, pts[:n_pts].copy())
+
+
 @numba.njit(cache=True, nogil=True)
 def border_median_of_ring(ring):
     """The median of :func:`border_median` of the ring's values (NaN if any is NaN)."""
