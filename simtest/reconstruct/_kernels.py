@@ -2106,22 +2106,15 @@ def luma_diff_means(img, step, across_columns, w0, w1, w2):
 
 
 @numba.njit(cache=True, nogil=True)
-def _append_maxima(mk, i0, i1, j0, j1, e0, f0, W, out, n):
-    """Write the flat frame indices of ``mk[i0:i1, j0:j1]``'s set pixels (a window whose corner
-    is the frame's row ``e0``, column ``f0``; frame width ``W``) into ``out`` from index n."""
-    for i in range(i0, i1):
-        for j in range(j0, j1):
-            if mk[i, j]:
-                out[n] = (e0 + i) * W + (f0 + j)
-                n += 1
-
-
-@numba.njit(cache=True, nogil=True)
 def maxima_in_windows(gray, bg_small, windows, floor, top):
     """:func:`top_hat_maxima` in windows of a frame, with the background enlarged from the reduced
     opening ``bg_small`` on the fly: ``verify._upsampled`` and ``verify._maxima_windows`` in one
     call (the background, the top-hat and the 3 x 3 maxima of each window measured with 1 px more,
-    clipped to the frame, so that they are the whole frame's).
+    clipped to the frame, so that they are the whole frame's), row by row: each row's background,
+    top-hat and 3-wide maxima once, kept for the rows around it in a ring of three (no
+    window-sized copies of the luma, background, top-hat and mask), the maxima's test over views
+    indexed from 0 (vectorised): the banner's whole frame 7.9 -> 3 ms, the noisy bench frame's
+    ten windows 0.53 -> 0.26 ms, the same values.
 
     Parameters
     ----------
@@ -2145,6 +2138,7 @@ def maxima_in_windows(gray, bg_small, windows, floor, top):
     H, W = gray.shape
     sh, sw = bg_small.shape
     one = np.float32(1.0)
+    zero = np.float32(0.0)
     n_out = 0
     out = np.empty(64, np.int64)
     for q in range(windows.shape[0]):
@@ -2163,28 +2157,47 @@ def maxima_in_windows(gray, bg_small, windows, floor, top):
         s_lo, _, _ = _linear_sample(e0, sh, H)
         _, _, s_hi = _linear_sample(e1 - 1, sh, H)
         lines = _rows_enlarged(bg_small, s_lo, s_hi, x0, x1, ax)
-        gw = np.empty((nr, nc), np.float32)
-        bw = np.empty((nr, nc), np.float32)
+        # the top-hat and the 3-wide maxima of rows i - 1, i, i + 1 of the window (a ring)
+        tops = np.empty((3, nc), np.float32)
+        hmax = np.empty((3, nc), np.float32)
+        mk = np.empty(nc, np.bool_)
+        for i in range(min(2, nr)):
+            _window_top_row(gray, lines, e0 + i, f0, nc, s_lo, sh, H, one, zero, tops[i % 3])
+            _max3_of_row(tops[i % 3], hmax[i % 3])
+        j0, j1 = c0 - f0, c1 - f0
         for i in range(nr):
-            y0, ay, y1 = _linear_sample(e0 + i, sh, H)
-            la, lb = lines[y0 - s_lo], lines[y1 - s_lo]
-            for j in range(nc):
-                bw[i, j] = la[j] * (one - ay) + lb[j] * ay
-                gw[i, j] = np.float32(gray[e0 + i, f0 + j])
-        t = np.empty((nr, nc), np.float32)
-        mk = np.empty((nr, nc), np.bool_)
-        top_hat_maxima(gw, bw, floor, t, mk)
-        m = 0
-        for i in range(r0 - e0, r1 - e0):
-            for j in range(c0 - f0, c1 - f0):
-                top[e0 + i, f0 + j] = t[i, j]
-                m += mk[i, j]
-        if n_out + m > len(out):  # grown once a window (not in the scan: numba's reference counts)
-            grown = np.empty(max(2 * len(out), n_out + m), np.int64)
-            grown[:n_out] = out[:n_out]
-            out = grown
-        _append_maxima(mk, r0 - e0, r1 - e0, c0 - f0, c1 - f0, e0, f0, W, out, n_out)
-        n_out += m
+            if 1 <= i < nr - 1:  # row i + 1 enters
+                _window_top_row(gray, lines, e0 + i + 1, f0, nc, s_lo, sh, H, one, zero, tops[(i + 1) % 3])
+                _max3_of_row(tops[(i + 1) % 3], hmax[(i + 1) % 3])
+            r = e0 + i
+            if r < r0 or r >= r1:
+                continue
+            t = tops[i % 3]
+            a = hmax[(i - 1) % 3] if i >= 1 else hmax[i % 3]
+            b = hmax[i % 3]
+            d = hmax[(i + 1) % 3] if i + 1 < nr else hmax[i % 3]
+            if n_out + (j1 - j0) > len(out):  # grown before the row (not in the scan)
+                grown = np.empty(max(2 * len(out), n_out + (j1 - j0)), np.int64)
+                grown[:n_out] = out[:n_out]
+                out = grown
+            # the row's top-hat, its maxima's mask (branch-free) and their indices, over views
+            # indexed from 0 (a loop from j0 > 0 keeps numba's negative-index checks, which stop
+            # LLVM's vectorisation: 3 times the time)
+            tv, av, bv, dv = t[j0:j1], a[j0:j1], b[j0:j1], d[j0:j1]
+            trow = top[r, c0:c1]
+            m = j1 - j0
+            for j in range(m):
+                trow[j] = tv[j]
+            for j in range(m):
+                v = tv[j]
+                mk[j] = (v > floor) & (v >= av[j]) & (v >= bv[j]) & (v >= dv[j])
+            base = r * W + c0
+            for j in range(m):
+                if mk[j]:
+                    out[n_out] = base + j
+                    n_out += 1
+    if windows.shape[0] == 1:  # one window's maxima come in row-major order, each once
+        return out[:n_out].copy()
     res = np.sort(out[:n_out])
     if n_out == 0:
         return res
@@ -2194,6 +2207,36 @@ def maxima_in_windows(gray, bg_small, windows, floor, top):
             res[m] = res[k]
             m += 1
     return res[:m]
+
+
+@numba.njit(cache=True, nogil=True, inline="always")
+def _window_top_row(gray, lines, r, f0, nc, s_lo, sh, H, one, zero, dst):
+    """The top-hat ``max(g - background, 0)`` (float32, NaN kept) of frame row ``r``, columns
+    f0 to f0 + nc, the background the enlargement of the reduced rows ``lines`` (from reduced row
+    ``s_lo``) down the columns, as :func:`maxima_in_windows` weighs them."""
+    y0, ay, y1 = _linear_sample(r, sh, H)
+    la, lb = lines[y0 - s_lo], lines[y1 - s_lo]
+    for j in range(nc):
+        bgv = la[j] * (one - ay) + lb[j] * ay
+        dv = np.float32(gray[r, f0 + j]) - bgv
+        dst[j] = dv if (dv >= zero) | (dv != dv) else zero
+
+
+@numba.njit(cache=True, nogil=True, inline="always")
+def _max3_of_row(row, dst):
+    """``dst[c] = max(row[c - 1 : c + 2])`` (the window clipped to the row), as :func:`_row_max3`."""
+    w = row.shape[0]
+    if w == 1:
+        dst[0] = row[0]
+        return
+    for c in range(1, w - 1):
+        x, y, z = row[c - 1], row[c], row[c + 1]
+        m = x if x > y else y
+        dst[c] = m if m > z else z
+    x, y = row[0], row[1]
+    dst[0] = x if x > y else y
+    x, y = row[w - 2], row[w - 1]
+    dst[w - 1] = x if x > y else y
 
 
 @numba.njit(cache=True, nogil=True)
