@@ -498,6 +498,20 @@ def test_median_by_one_partition_is_numpys(seed, n, dtype, rounded, nan):
     assert (np.isnan(want) and np.isnan(got)) or got == want
 
 
+@given(seed=st.integers(0, 2**32 - 1), n=st.integers(1, 80), dtype=st.sampled_from([np.float32, np.float64]),
+       zeros=st.floats(0.0, 1.0), negative_zero=st.booleans())
+@settings(max_examples=200, deadline=None)
+def test_median_with_the_middle_at_zero_is_numpys(seed, n, dtype, zeros, negative_zero):
+    # the middle order statistics counted at 0 (a frame's flat rows): the same value and type as
+    # np.median, with the zeros' run ending just below, at and above the middle, -0.0 among them
+    rng = np.random.default_rng(seed)
+    a = rng.normal(0.0, 3.0, n).astype(dtype)
+    a[rng.random(n) < zeros] = -0.0 if negative_zero else 0.0
+    want, got = np.median(a), _median(a)
+    assert type(got) is type(want)
+    assert got == want
+
+
 @settings(max_examples=20, deadline=None)
 @given(seed=st.integers(0, 2**32 - 1), h=st.integers(16, 80), w=st.integers(16, 80))
 def test_the_scope_border_from_the_frames_2x2_means_is_its_own(seed, h, w):
