@@ -496,3 +496,52 @@ def test_median_by_one_partition_is_numpys(seed, n, dtype, rounded, nan):
     want, got = np.median(a), _median(a)
     assert type(got) is type(want)
     assert (np.isnan(want) and np.isnan(got)) or got == want
+
+
+@given(seed=st.integers(0, 2**32 - 1), n=st.integers(1, 80), dtype=st.sampled_from([np.float32, np.float64]),
+       zeros=st.floats(0.0, 1.0), negative_zero=st.booleans())
+@settings(max_examples=200, deadline=None)
+def test_median_with_the_middle_at_zero_is_numpys(seed, n, dtype, zeros, negative_zero):
+    # the middle order statistics counted at 0 (a frame's flat rows): the same value and type as
+    # np.median, with the zeros' run ending just below, at and above the middle, -0.0 among them
+    rng = np.random.default_rng(seed)
+    a = rng.normal(0.0, 3.0, n).astype(dtype)
+    a[rng.random(n) < zeros] = -0.0 if negative_zero else 0.0
+    want, got = np.median(a), _median(a)
+    assert type(got) is type(want)
+    assert got == want
+
+
+@settings(max_examples=20, deadline=None)
+@given(seed=st.integers(0, 2**32 - 1), h=st.integers(16, 80), w=st.integers(16, 80))
+def test_the_scope_border_from_the_frames_2x2_means_is_its_own(seed, h, w):
+    """``_scope_border`` given the means of the gray's 2 x 2 blocks (``local_peak_mask``'s first
+    reduction) reduces from them: the same border as from the gray itself, on frames with a dark
+    ring and odd sides (the rows and columns no 4 x 4 block fills are left out alike)."""
+    from simtest.reconstruct.detect import _area_reduced, _scope_border
+
+    rng = np.random.default_rng(seed)
+    h, w = 2 * h + int(rng.integers(0, 2)), 2 * w + int(rng.integers(0, 2))
+    yy, xx = np.mgrid[:h, :w]
+    inside = (yy - h / 2) ** 2 / (h / 2) ** 2 + (xx - w / 2) ** 2 / (w / 2) ** 2 < rng.uniform(0.6, 1.2)
+    gray = np.where(inside, rng.uniform(60, 255, (h, w)), rng.uniform(0, 10, (h, w))).astype(np.float32)
+    half = _area_reduced(np.ascontiguousarray(gray[: h // 2 * 2, : w // 2 * 2]), 2)
+    own, given_half = _scope_border(gray, 20.0), _scope_border(gray, 20.0, half)
+    assert (own is None) == (given_half is None)
+    if own is not None:
+        assert np.array_equal(own, given_half)
+
+
+def test_detection_gives_the_native_grays_2x2_means_where_it_reduced_it_unsmoothed():
+    """A frame detected at full resolution without smoothing hands the verifier the means of its
+    gray's 2 x 2 blocks (``Detection.half``, from ``local_peak_mask``); a smoothed one does not
+    (those would be the smoothed gray's)."""
+    from simtest.bench import synthetic_frame
+
+    img, _, _ = synthetic_frame()
+    det = detect_specularities(img, method="local_peak", smooth_sigma_px=0.0)
+    g = det.gray.astype(np.float32)
+    ref = cv2.resize(g, (g.shape[1] // 2, g.shape[0] // 2), interpolation=cv2.INTER_AREA)
+    assert det.half is not None and not det.half.flags.writeable
+    np.testing.assert_array_equal(det.half, ref)
+    assert detect_specularities(img, method="local_peak", smooth_sigma_px=1.0).half is None

@@ -755,3 +755,36 @@ def test_few_rois_smoothed_alone_in_float32_are_the_float64_results(kind, monkey
     for a, b in zip(got, want):
         if a.ok:
             assert angle_between_deg(a.cone_axis, b.cone_axis) < 1e-4
+
+
+@pytest.mark.parametrize("normalise, sigma", [("auto", None), ("local", 0.0), ("bp", None), ("full_scale", 0.0)])
+def test_the_compiled_roi_growth_gives_the_python_loops_estimates(normalise, sigma, monkeypatch):
+    """``_grown_drafts`` (every fitted candidate's ROI growth, levels and contour walks in one
+    compiled call, ``_kernels.grown_isophotes``) gives each highlight, to the bit, what
+    ``_estimate_one``'s loop gives it: the real banner smoothed once (sigma from its noise) and
+    not smoothed (its float64 luma sliced), under each normalisation; the few candidates the
+    call leaves (a cut only the extraction can tell) go through the loop."""
+    from simtest import bench
+    from simtest.reconstruct import _kernels
+
+    img, K = bench.banner_frame()
+    options = {"normalise": normalise, "verify": False}
+    if sigma is not None:
+        options["smooth_sigma_px"] = sigma
+    grown = _kernels.grown_isophotes
+    done = []
+
+    def recorded(*args):
+        out = grown(*args)
+        done.append(int(out[0].sum()))
+        return out
+
+    monkeypatch.setattr(_kernels, "grown_isophotes", recorded)
+    got = reconstruct(img, K, **options)
+    assert len(done) == 1 and done[0] > 300  # the banner's fitted candidates, all but a few
+    monkeypatch.setattr(pipeline, "_grown_drafts", lambda *args, **kwargs: {})
+    ref = reconstruct(img, K, **options)
+    assert sum(e.ok for e in ref) > 50
+    assert len(got) == len(ref)
+    for a, b in zip(got, ref):
+        _same_estimate(a, b)
