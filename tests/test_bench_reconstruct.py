@@ -292,3 +292,19 @@ def test_the_real_tile_row_counts_its_fits_and_names_the_missing_tile(monkeypatc
     monkeypatch.setattr(bench, "data_root", lambda: tmp_path)
     (row,) = bench._bench_real_tile_rig()
     assert row.value != row.value and "source tree not found" in row.name
+
+
+def test_the_video_row_runs_on_every_core_even_when_the_bench_is_pinned_to_one():
+    """`taskset -c 0 simtest bench` pins the process to one core, which its forked workers
+    inherit: the video row (a target for the 2-core VM) widens the affinity for its pool and
+    gives the pinning back after."""
+    import os
+
+    saved = os.sched_getaffinity(0)
+    try:
+        os.sched_setaffinity(0, {min(saved)})
+        with bench._every_core():
+            assert os.sched_getaffinity(0) == set(range(os.cpu_count())) or len(saved) < os.cpu_count()
+        assert os.sched_getaffinity(0) == {min(saved)}
+    finally:
+        os.sched_setaffinity(0, saved)
