@@ -502,44 +502,49 @@ def _rig_value_ggx(dT, rl, n, h, rig_arr, alpha, ior: float = GGX_FILM_IOR):
     ndarray of shape (N,)
         0 where the light or the camera is below the plane.
     """
-    L, w, inv_sq, m = rig_arr
-    a2 = float(alpha) ** 2
-    S = np.zeros(dT.shape[1])
-    val = np.empty(dT.shape[1])
-    for j in range(len(w)):
-        _, delta, s, sl, ir, c, _ = _terms(dT, n, h, L[j], (rl[0][j], rl[1][j]))
-        # the element-by-element lobe in one compiled pass (the numpy form: _rig_value_ggx_numpy)
-        _lightaware_kernels.ggx_film_lobe(delta, s, sl, ir, float(c), a2, float(ior), val)
-        if inv_sq[j]:
-            hir = h * ir
-            val *= hir * hir
-        if m[j] > 0:
-            val *= np.maximum((s * dT[2] - L[j, 2]) * ir, 1e-12) ** m[j]
-        S += w[j] * val
-    return S
+    return _ggx_sum(dT, rl, n, h, rig_arr, alpha, ior, _ggx_lobe)
+
+
+def _ggx_lobe(delta, s, sl, ir, c, a2, ior):
+    """One light's film lobe along the rays, before falloff and profile, in one compiled pass
+    (:func:`simtest.reconstruct._lightaware_kernels.ggx_film_lobe`)."""
+    out = np.empty(delta.shape[0])
+    _lightaware_kernels.ggx_film_lobe(delta, s, sl, ir, float(c), a2, float(ior), out)
+    return out
+
+
+def _ggx_lobe_numpy(delta, s, sl, ir, c, a2, ior):
+    """The numpy form of :func:`_ggx_lobe`: the reference of its compiled pass (the same bits)."""
+    cos_o = c * ir
+    vl = sl * ir
+    hv = np.sqrt(np.maximum(2.0 + 2.0 * vl, 1e-300))
+    cos_h = np.clip((delta + cos_o) / hv, 1e-6, 1.0)
+    c2 = cos_h * cos_h
+    D = a2 / (np.pi * (c2 * (a2 - 1.0) + 1.0) ** 2)
+    ci = np.maximum(delta, 1e-6)
+    co = np.maximum(cos_o, 1e-6)
+    g1i = 2.0 / (1.0 + np.sqrt(1.0 + a2 * (1.0 - ci * ci) / (ci * ci)))
+    g1o = 2.0 / (1.0 + np.sqrt(1.0 + a2 * (1.0 - co * co) / (co * co)))
+    F = _fresnel_dielectric(np.sqrt(np.clip(0.5 * (1.0 + vl), 0.0, 1.0)), ior)
+    val = F * D * g1i * g1o / (4.0 * ci)
+    val[(cos_o <= 0.0) | (delta <= 1e-9)] = 0.0
+    return val
 
 
 def _rig_value_ggx_numpy(dT, rl, n, h, rig_arr, alpha, ior: float = GGX_FILM_IOR):
-    """The numpy form of :func:`_rig_value_ggx`: the reference of its compiled pass
-    (:func:`simtest.reconstruct._lightaware_kernels.ggx_film_lobe`, the same bits)."""
+    """:func:`_rig_value_ggx` with its lobes' numpy form (:func:`_ggx_lobe_numpy`, the reference)."""
+    return _ggx_sum(dT, rl, n, h, rig_arr, alpha, ior, _ggx_lobe_numpy)
+
+
+def _ggx_sum(dT, rl, n, h, rig_arr, alpha, ior, lobe):
+    """The sum over the rig's lights of ``lobe``'s values times each light's falloff and
+    profile (:func:`_rig_value_ggx`)."""
     L, w, inv_sq, m = rig_arr
     a2 = float(alpha) ** 2
     S = np.zeros(dT.shape[1])
     for j in range(len(w)):
         _, delta, s, sl, ir, c, _ = _terms(dT, n, h, L[j], (rl[0][j], rl[1][j]))
-        cos_o = c * ir
-        vl = sl * ir
-        hv = np.sqrt(np.maximum(2.0 + 2.0 * vl, 1e-300))
-        cos_h = np.clip((delta + cos_o) / hv, 1e-6, 1.0)
-        c2 = cos_h * cos_h
-        D = a2 / (np.pi * (c2 * (a2 - 1.0) + 1.0) ** 2)
-        ci = np.maximum(delta, 1e-6)
-        co = np.maximum(cos_o, 1e-6)
-        g1i = 2.0 / (1.0 + np.sqrt(1.0 + a2 * (1.0 - ci * ci) / (ci * ci)))
-        g1o = 2.0 / (1.0 + np.sqrt(1.0 + a2 * (1.0 - co * co) / (co * co)))
-        F = _fresnel_dielectric(np.sqrt(np.clip(0.5 * (1.0 + vl), 0.0, 1.0)), ior)
-        val = F * D * g1i * g1o / (4.0 * ci)
-        val[(cos_o <= 0.0) | (delta <= 1e-9)] = 0.0
+        val = lobe(delta, s, sl, ir, c, a2, ior)
         if inv_sq[j]:
             hir = h * ir
             val *= hir * hir
