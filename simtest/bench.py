@@ -48,6 +48,7 @@ import resource
 import statistics
 import tempfile
 import time
+from collections import Counter
 from collections.abc import Callable, Iterator
 from contextlib import contextmanager, suppress
 from dataclasses import dataclass
@@ -70,6 +71,7 @@ from simtest.reconstruct.fit import fit_ellipse
 from simtest.geometry.lights import Light, LightRig
 from simtest.geometry.response import SensorResponse, video_response
 from simtest.reconstruct.frames import open_frames, reconstruct_frames, write_frames_jsonl
+from simtest.reconstruct.images import load_image
 from simtest.reconstruct.isophote import extract_isophote
 from simtest.reconstruct.lightaware import isocurve_fit, photometric_fit, refine_isophote_points
 from simtest.reconstruct.pipeline import reconstruct, reconstruct_roi, reconstruct_rois
@@ -452,9 +454,17 @@ BANNER = real_banner_path()
 def banner_frame():
     """The banner as RGB uint8 and an assumed pinhole (f = 140 px, principal point at the centre:
     the banner is 24 uncalibrated frames side by side); None if the source tree is not there."""
-    if not BANNER.is_file():
+    return _real_frame(BANNER)
+
+
+def _real_frame(path: Path):
+    """A real frame of the source tree as RGB uint8 (read as ``simtest reconstruct`` reads it,
+    :func:`~simtest.reconstruct.images.load_image`) and its assumed pinhole (f = 140 px, the
+    principal point at the centre: the Hyper-Kvasir frames are uncalibrated); None if the file
+    is not there (a wheel does not ship the tests)."""
+    if not path.is_file():
         return None
-    img = cv2.cvtColor(cv2.imread(str(BANNER), cv2.IMREAD_COLOR), cv2.COLOR_BGR2RGB)
+    img = load_image(path)
     h, w = img.shape[:2]
     K = np.array([[140.0, 0, (w - 1) / 2], [0, 140.0, (h - 1) / 2], [0, 0, 1]])
     return img, K
@@ -548,21 +558,17 @@ def _bench_real_tile_rig() -> list[BenchResult]:
     renders); no target (issue 39's 2 s is the rendered frame's row)."""
     name = ("per real frame with an assumed rig: Hyper-Kvasir tile 280x280, two guides +-4 mm, sRGB; "
             "reconstruct + light-aware fits, one run")
-    path = data_root() / "tests" / "data" / "real" / REAL_TILE
-    if not path.is_file():
+    got = _real_frame(data_root() / "tests" / "data" / "real" / REAL_TILE)
+    if got is None:
         return [BenchResult("reconstruct", name + " (source tree not found)", float("nan"), "ms", None)]
-    img = cv2.cvtColor(cv2.imread(str(path), cv2.IMREAD_COLOR), cv2.COLOR_BGR2RGB)
-    h, w = img.shape[:2]
-    K = np.array([[140.0, 0.0, (w - 1) / 2.0], [0.0, 140.0, (h - 1) / 2.0], [0.0, 0.0, 1.0]])
+    img, K = got
     rig = LightRig(tuple(Light((x, 0.0, 0.0), 1.0, "inverse_square", 0.0) for x in (-4.0, 4.0)))
     response = SensorResponse("srgb", clip=255.0)
     cpu0, t0 = time.process_time(), time.perf_counter()
     ests = with_light_aware(img, reconstruct(img, K), K, rig, cubic=False, response=response)
     wall, cpu = (time.perf_counter() - t0) * 1e3, (time.process_time() - cpu0) * 1e3
     fitted = [e for e in ests if getattr(e, "light_aware", None)]
-    by = {}
-    for e in fitted:
-        by[e.recommended.normal_from] = by.get(e.recommended.normal_from, 0) + 1
+    by = Counter(e.recommended.normal_from for e in fitted)
     return [BenchResult("reconstruct", name, wall, "ms", None, None,
                         f"{len(ests)} candidates, {len(fitted)} fitted ({wall / max(len(fitted), 1):.0f} ms "
                         f"each), recommended: " + ", ".join(f"{k} {v}" for k, v in sorted(by.items()))

@@ -28,8 +28,8 @@ Chosen from the harness' measurements on Mitsuba renders (``simtest validate ren
    BP ray on the sphere, while its residual stays near the sensor's noise; its residuals are then
    spatially correlated, which ``photometric_fit`` reports as ``plane_misfit`` (or its fit runs
    off, ``not_converged``). A photometric fit that misfits or runs off (:data:`CURVED_FIT_AFTER`)
-   runs ``quadric_fit`` (a curved patch, exact on spheres), recommended when its status is ``ok``; then ``isocurve_fit``, unless
-   the plane misfits (the isocurve fit is the same plane model, seen through the contours); else
+   runs ``quadric_fit`` (a curved patch, exact on spheres), recommended when its status is
+   ``ok``; then ``isocurve_fit``, unless the plane misfits (the isocurve fit is the same plane model, seen through the contours); else
    the BP ray. Under one light the quadric is never ``ok``: its depth is not observable (a single
    highlight does not tell the depth from the surface's third-order shape, issue 10), so it is
    withdrawn, and its normal's sigma spans the bisectors at the depths within
@@ -308,10 +308,9 @@ def light_aware_estimates(image, est, camera, rig: LightRig, *, nominal_depth_mm
         :func:`~simtest.reconstruct.lightaware.cubic_patch_fit` on the same ROI as the quadric's:
         True always, False (default: it takes about 1 to 5 s per highlight, against a few ms
         for the others) never, None when the photometric fit's status is in
-        :data:`CURVED_FIT_AFTER` and the rig
-        has at least two lights at different places (with one light its depth, and with it the
-        normal, is not observable: module docstring); ``simtest reconstruct --cubic-patch``
-        asks for None.
+        :data:`CURVED_FIT_AFTER` and the rig has at least two lights at different places (with
+        one light its depth, and with it the normal, is not observable: module docstring);
+        ``simtest reconstruct --cubic-patch`` asks for None.
     response : SensorResponse, optional
         The sensor's response (:class:`~simtest.geometry.response.SensorResponse`, a camera
         file's ``"response"``): the fits then run on the linear intensities of the channel where
