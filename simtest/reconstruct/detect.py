@@ -376,13 +376,23 @@ def luma(image: np.ndarray, *, dtype=np.float64) -> np.ndarray:
     if image.ndim == 2:
         return image.astype(dtype, copy=False)
     if np.dtype(dtype) == np.float64 and image.dtype.type in _LUMA_COMPILED:
-        rows = packed_rows(image)
-        if rows is None:
-            return _kernels.luma_rgb(image, *_LUMA_WEIGHTS)
-        out = np.empty(image.shape[:2], np.float64)  # the same bits, vectorised (packed pixels)
-        _kernels.luma_rows(rows, *_LUMA_WEIGHTS, out)
-        return out
+        return compiled_luma(image, np.float64)
     return (image.astype(dtype, copy=False) @ _LUMA.astype(dtype)).astype(dtype, copy=False)
+
+
+def compiled_luma(image: np.ndarray, dtype) -> np.ndarray:
+    """The Rec. 601 luma (H, W) of an (H, W, 3) image in float64 or float32, by the compiled
+    kernels: :func:`~simtest.reconstruct._kernels.luma_rows` where its pixels are packed along
+    its rows (:func:`packed_rows`; vectorised, a quarter of the time), else
+    :func:`~simtest.reconstruct._kernels.luma_rgb` (float64) or
+    :func:`~simtest.reconstruct._kernels.luma_rgb32` (float32); the same bits either way."""
+    rows = packed_rows(image)
+    if rows is None:
+        kernel = _kernels.luma_rgb if np.dtype(dtype) == np.float64 else _kernels.luma_rgb32
+        return kernel(image, *_LUMA_WEIGHTS)
+    out = np.empty(image.shape[:2], dtype)
+    _kernels.luma_rows(rows, *_LUMA_WEIGHTS, out)
+    return out
 
 
 def packed_rows(img: np.ndarray) -> np.ndarray | None:

@@ -82,13 +82,13 @@ from simtest.reconstruct._pixels import Roi, image_size_wh, rc_to_uv
 from simtest.reconstruct.cone_fit import FitFrame, fit_cones, fit_frame, fit_frames, to_camera, to_fit_frame
 from simtest.reconstruct.detect import (
     background_side_px,
+    compiled_luma,
     connected_components,
     default_full_scale,
     detect_specularities,
     image_noise_sigma,
     luma,
     noise_sigma,
-    packed_rows,
     peak_uv,
     smooth_sigma_for_noise,
     validate_image,
@@ -1019,15 +1019,9 @@ def _colour_luma32(img: np.ndarray, grey: bool | None = None) -> np.ndarray | No
 
 
 def _luma32(img: np.ndarray) -> np.ndarray:
-    """:func:`simtest.reconstruct._kernels.luma_rgb32` of an (H, W, 3) image: by
-    :func:`~simtest.reconstruct._kernels.luma_rows` where its pixels are packed along its rows
-    (the same bits, a quarter of the time)."""
-    rows = packed_rows(img)
-    if rows is None:
-        return _kernels.luma_rgb32(img, *_LUMA_W)
-    out = np.empty(img.shape[:2], np.float32)
-    _kernels.luma_rows(rows, *_LUMA_W, out)
-    return out
+    """:func:`simtest.reconstruct._kernels.luma_rgb32` of an (H, W, 3) image
+    (:func:`~simtest.reconstruct.detect.compiled_luma` in float32)."""
+    return compiled_luma(img, np.float32)
 
 
 def _frame_luma_smoothing(img: np.ndarray, detection_smoothed: np.ndarray, sigma: float,
