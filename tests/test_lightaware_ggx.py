@@ -122,6 +122,20 @@ def test_a_ggx_fit_run_off_to_a_mirror_is_finite():
     assert np.isfinite(lam.phong_of_ggx_alpha(0.0)) and lam.phong_of_ggx_alpha(0.0) > 1e100
 
 
+
+def test_a_ggx_fit_run_off_to_a_broad_lobe_is_finite():
+    # The other way off: a GGX fit of a lobe broader than its ROI (the sheen of a film over 20 um of
+    # micro-relief, the endoscope suite's flat mucosa) ran its log alpha up until ``alpha ** 2``
+    # raised OverflowError out of the fit. The square is now a product: the model overflows to
+    # inf, which the fits reject as a trial point (not finite), and nothing is raised.
+    _, K, N, _, _ = plane_case(20.0, 30.0, RIG, size=16)
+    vv, uu = np.mgrid[0:16, 0:16]
+    dT = np.linalg.solve(K, np.stack([uu.ravel(), vv.ravel(), np.ones(256)]))
+    dT = np.ascontiguousarray(dT / np.linalg.norm(dT, axis=0))
+    arr = lam._rig_arrays(RIG)
+    vals = lam._rig_value_ggx(dT, lam._ray_light(arr[0], dT), N, 20.0, arr, float(np.exp(400.0)))
+    assert vals.shape == (256,) and not np.isfinite(vals).all()
+
 def _ggx_plane(alpha, size=240):
     """The exact GGX image (peak 1) of plane_case's plane (h 20 mm, tilt 30 deg, f 300 px) under
     the two guides, with its K, normal and the first light's BP."""

@@ -540,7 +540,9 @@ def _ggx_sum(dT, rl, n, h, rig_arr, alpha, ior, lobe):
     """The sum over the rig's lights of ``lobe``'s values times each light's falloff and
     profile (:func:`_rig_value_ggx`)."""
     L, w, inv_sq, m = rig_arr
-    a2 = float(alpha) ** 2
+    # a product, not ``** 2``: a fit's trial roughness that runs off (a lobe broader than the
+    # ROI) overflows to inf, which the fits reject as a non-finite model, where ``** 2`` raises
+    a2 = float(alpha) * float(alpha)
     S = np.zeros(dT.shape[1])
     for j in range(len(w)):
         _, delta, s, sl, ir, c, _ = _terms(dT, n, h, L[j], (rl[0][j], rl[1][j]))
