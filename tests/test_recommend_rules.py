@@ -101,9 +101,11 @@ def test_depth_ceiling_withdraws_a_depth_known_to_50_percent():
 
 
 def test_a_noisy_plane_whose_depth_is_known_to_25_percent_gives_no_depth():
-    # 1 % read noise, epsilon/d 0.03: the photometric fit's relative depth sigma is 0.25 (measured;
-    # it passed as ok before, with the depth 65 % short). Its depth is withdrawn; its normal, whose
-    # sigma is below the BP ray's expected error, is still the one recommended.
+    # 1 % read noise, epsilon/d 0.03: the photometric fit's relative depth sigma is 0.28 (measured;
+    # it passed as ok before, with the depth 65 % short). Its depth is withdrawn; its normal is
+    # recommended where twice its sigma is below the BP ray's expected error (rule 3), else the BP
+    # ray. Measured: the fit 1.61 deg off with a sigma of 0.68 (0.62 before the sigma counted the
+    # residual's correlation), the BP ray's expected error 1.36 and its error 1.05: the BP ray.
     img, K, N, depth, rig = _plane8(30.0, 20.0, 1.0, noise=0.01)
     est = with_light_aware(img, [_highlight(img, K)], K, rig, quadric=False)[0]
     pho = est.light_aware["photometric_fit"]
@@ -111,8 +113,8 @@ def test_a_noisy_plane_whose_depth_is_known_to_25_percent_gives_no_depth():
     assert "ceiling" in pho.detail
     rec = recommend(est)
     assert rec.depth_mm is None
-    assert rec.normal_from == "photometric_fit"
-    assert SIGMA_MARGIN * rec.normal_sigma_deg < pho.bp_ray_error_deg
+    kept = SIGMA_MARGIN * pho.normal_sigma_deg < pho.bp_ray_error_deg
+    assert rec.normal_from == ("photometric_fit" if kept else "bp_ray")
 
 
 # --- item: the light-aware normal is kept where its sigma beats the BP ray ---------------------------
