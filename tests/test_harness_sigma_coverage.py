@@ -1,15 +1,20 @@
 """The reports' 2-sigma coverage of the recommended normal (issue 39: at least 0.9 of the
-highlights' errors within twice their stated sigma)."""
+highlights' errors within twice their stated sigma): per highlight, per case (the share and its
+count), and pooled over a suite in its verdict."""
 
 from __future__ import annotations
 
 import math
 from types import SimpleNamespace
 
+import numpy as np
 import pytest
-from hypothesis import given, strategies as st
+from hypothesis import given, settings, strategies as st
 
+from simtest.harness.claims import evaluate_claims
+from simtest.harness.metrics import case_metrics
 from simtest.harness.protocols import _sigma_coverage
+from simtest.tolerances import TOL
 
 
 def _est(sigma):
@@ -30,3 +35,77 @@ def test_covered_exactly_when_the_error_is_within_twice_sigma(err, sigma):
 ])
 def test_no_sigma_or_no_score_is_no_sample(est, errs):
     assert math.isnan(_sigma_coverage(est, errs)["recommended_within_2sigma"])
+
+
+# --- the case counts and the suite verdict ----------------------------------------------------
+
+
+def _result(within):
+    n = len(within)
+    return SimpleNamespace(errors={"bp_ray": np.ones(n)}, causes={"bp_ray": [None] * n},
+                           extras={"recommended_within_2sigma": np.asarray(within, dtype=np.float64)})
+
+
+def _case(i, within):
+    return {"id": f"c@{i}", "key": f"k{i}", "protocol": "rendered", "colocated": False,
+            "family": "plane, light offset", "metrics": case_metrics(_result(within))}
+
+
+_ROW = st.lists(st.sampled_from([0.0, 1.0, float("nan")]), min_size=1, max_size=12)
+
+
+@settings(max_examples=60, deadline=None)
+@given(st.lists(_ROW, min_size=1, max_size=6))
+def test_the_pooled_coverage_is_the_share_over_every_highlight_with_a_sigma(rows):
+    # the verdict pools the highlights, not the case means: a case of 1 highlight weighs 1
+    flat = np.array([v for r in rows for v in r])
+    stated = flat[np.isfinite(flat)]
+    for r in rows:
+        d = case_metrics(_result(r))["diagnostics"]
+        assert d["recommended_within_2sigma_n"] == int(np.isfinite(r).sum())
+    verdicts = {v["id"]: v for v in evaluate_claims({"cases": [_case(i, r) for i, r in enumerate(rows)],
+                                                     "sweeps": []})}
+    if stated.size == 0:
+        assert "sigma_coverage" not in verdicts  # no case decides it
+        return
+    v = verdicts["sigma_coverage"]
+    share = float(stated.mean())
+    assert v["holds"] is (share >= TOL.claim_sigma_coverage)
+    assert v["measured"].startswith(f"{share:.3g} of {stated.size} highlights")
+
+
+def test_a_few_large_cases_outweigh_many_small_ones():
+    # 9 cases of one covered highlight and one case of 20 with 10 covered: the case means average
+    # 0.95, the highlights 19 of 29 = 0.66; the claim does not hold
+    rows = [[1.0]] * 9 + [[1.0] * 10 + [0.0] * 10]
+    v = {v["id"]: v for v in evaluate_claims({"cases": [_case(i, r) for i, r in enumerate(rows)],
+                                              "sweeps": []})}["sigma_coverage"]
+    assert v["holds"] is False and v["measured"].startswith("0.655 of 29 highlights")
+
+
+def _curved_case(i, rows):
+    """A curved case whose highlights have (recommended error, sigma, BP ray error) ``rows``."""
+    beyond = [float(e > b + s) for e, s, b in rows]
+    r = SimpleNamespace(errors={"bp_ray": np.ones(len(rows))}, causes={"bp_ray": [None] * len(rows)},
+                        extras={"recommended_beyond_bp_ray": np.asarray(beyond)})
+    return {"id": f"liver@{i}", "key": f"k{i}", "protocol": "rendered", "colocated": False,
+            "family": "liver, light offset", "metrics": case_metrics(r)}
+
+
+@given(err=st.floats(0.0, 30.0), sigma=st.floats(1e-3, 10.0), bp=st.floats(0.0, 30.0))
+def test_beyond_the_bp_ray_exactly_when_the_error_exceeds_its_error_plus_sigma(err, sigma, bp):
+    got = _sigma_coverage(_est(sigma), {"recommended": (err, None), "bp_ray": (bp, None)})
+    assert got["recommended_beyond_bp_ray"] == (1.0 if err > bp + sigma else 0.0)
+    # without a scored BP ray there is nothing to compare with
+    assert math.isnan(_sigma_coverage(_est(sigma), {"recommended": (err, None)})["recommended_beyond_bp_ray"])
+
+
+def test_one_highlight_beyond_the_bp_ray_breaks_the_curved_claim():
+    ok = [(1.0, 0.5, 1.2), (3.0, 1.0, 2.5)]  # within the BP ray's error plus sigma
+    bad = ok + [(4.0, 0.5, 3.0)]               # 1 deg worse than the BP ray with a sigma of 0.5
+    for rows, holds in ((ok, True), (bad, False)):
+        v = {v["id"]: v for v in evaluate_claims({"cases": [_curved_case(0, rows)], "sweeps": []})}
+        assert v["never_beyond_bp_ray_curved"]["holds"] is holds
+    # planes are not in its scope
+    plane = dict(_curved_case(1, bad), family="plane, light offset")
+    assert "never_beyond_bp_ray_curved" not in {v["id"] for v in evaluate_claims({"cases": [plane], "sweeps": []})}

@@ -19,6 +19,7 @@ from __future__ import annotations
 import numpy as np
 from scipy.stats import t as student_t
 
+from simtest.harness.metrics import COUNT_SUFFIX
 from simtest.tolerances import TOL
 
 __all__ = ["PAPER_CHECKS", "CLAIMS", "ALARM_DEG", "MIN_N_INTERVAL", "BEST_LEVEL",
@@ -472,6 +473,55 @@ def _claim_curved_offset(results):
             f"(+-{_EPS_SLACK:g}, case means of eps_over_d), case medians; bound {bound:g} deg")
 
 
+def _claim_sigma_coverage(results):
+    """Issue 39's coverage must-hold, pooled over a suite's rendered cases: the share of the
+    highlights with a stated sigma whose recommended normal errs by at most twice it (each case's
+    ``recommended_within_2sigma`` weighted by its count); None where no case states a sigma."""
+    key = "recommended_within_2sigma"
+    covered = stated = 0.0
+    worst = []
+    for c in _unique([c for c in results["cases"] if c["protocol"] == "rendered"]):
+        share, n = _diag(c, key), _diag(c, key + COUNT_SUFFIX)
+        if share is None or not n:
+            continue
+        covered += share * n
+        stated += n
+        worst.append((share, c["id"], int(n)))
+    if not stated:
+        return None
+    bound = TOL.claim_sigma_coverage
+    pooled = covered / stated
+    text = (f"{pooled:.3g} of {int(stated)} highlights with a stated sigma, over {len(worst)} cases; "
+            "lowest: " + ", ".join(f"{cid} {share:.2g} of {n}" for share, cid, n in sorted(worst)[:3]))
+    return (pooled >= bound, text,
+            f"rendered cases, pooled (each case's share weighted by its count); bound {bound:g}")
+
+
+def _claim_never_beyond_bp_ray(results):
+    """Issue 39's per-highlight must-hold on curved surfaces: no recommended normal with a stated
+    sigma errs by more than the BP ray's error plus that sigma (each case's
+    ``recommended_beyond_bp_ray`` times its count); None where no curved case states a sigma."""
+    key = "recommended_beyond_bp_ray"
+    beyond = stated = 0.0
+    bad = []
+    for c in _unique(_rendered(results, colocated=False)):
+        if _base_family(c) in ("plane", ""):
+            continue
+        share, n = _diag(c, key), _diag(c, key + COUNT_SUFFIX)
+        if share is None or not n:
+            continue
+        beyond += share * n
+        stated += n
+        if share > 0:
+            bad.append(f"{c['id']} {round(share * n)} of {int(n)}")
+    if not stated:
+        return None
+    text = f"{round(beyond)} of {int(stated)} highlights with a stated sigma" + (
+        ": " + ", ".join(bad) if bad else "")
+    return (not bad, text, "rendered curved cases lit off the camera, every highlight with a "
+                           "stated sigma and a scored BP ray")
+
+
 #: Suite-wide predictions: id -> (statement, f(results) -> (holds, measured, scope) or None).
 CLAIMS = {
     "bp_ray_exact_colocated": (
@@ -496,6 +546,14 @@ CLAIMS = {
         "cylinders under a light rig (issue 39; under one light the depth of a curved patch is "
         "not observable and the BP ray is kept)",
         _claim_curved_offset),
+    "sigma_coverage": (
+        "The recommended normal's stated sigma covers its error: at least 90 % of the highlights "
+        "with a stated sigma err by at most twice it (issue 39)",
+        _claim_sigma_coverage),
+    "never_beyond_bp_ray_curved": (
+        "On rendered curved surfaces lit off the camera no recommended normal errs by more than "
+        "the BP ray's error plus its stated sigma (issue 39)",
+        _claim_never_beyond_bp_ray),
 }
 
 

@@ -16,7 +16,8 @@ from collections import Counter
 
 import numpy as np
 
-__all__ = ["summarise", "case_metrics", "STAT_KEYS", "MEDIAN_SUFFIX", "MEDIAN_DIAGNOSTICS"]
+__all__ = ["summarise", "case_metrics", "STAT_KEYS", "MEDIAN_SUFFIX", "MEDIAN_DIAGNOSTICS",
+           "COUNTED_DIAGNOSTICS", "COUNT_SUFFIX"]
 
 #: The statistics reported for each case and estimator (degrees, except failure_rate and counts).
 STAT_KEYS = ("mean", "std", "median", "p5", "p95", "min", "max")
@@ -28,6 +29,15 @@ MEDIAN_DIAGNOSTICS = ("_depth_err_pct",)
 
 #: The suffix of a diagnostic's median (``recommended_depth_err_pct_median``).
 MEDIAN_SUFFIX = "_median"
+
+#: Diagnostics (by suffix) whose number of finite values is reported beside their mean, as
+#: ``<key>_n``: a share over the highlights that have it (``recommended_within_2sigma``,
+#: ``recommended_beyond_bp_ray``: those with a stated sigma), which a suite pools over its cases
+#: weighted by these counts.
+COUNTED_DIAGNOSTICS = ("_within_2sigma", "_beyond_bp_ray")
+
+#: The suffix of a diagnostic's count (``recommended_within_2sigma_n``).
+COUNT_SUFFIX = "_n"
 
 
 def summarise(errors, causes) -> dict:
@@ -86,7 +96,8 @@ def case_metrics(result) -> dict:
         diagnostic's mean is over its finite values (eigenvalue gap, fit residual in px, BP error
         in px, curvatures in 1/mm), None if it has none. A diagnostic whose key ends with one of
         :data:`MEDIAN_DIAGNOSTICS` (the depth errors, %) has its median over its finite values
-        beside it, as ``<key>_median``.
+        beside it, as ``<key>_median``; one ending with one of :data:`COUNTED_DIAGNOSTICS` its
+        number of finite values, as ``<key>_n``.
 
     Raises
     ------
@@ -101,4 +112,6 @@ def case_metrics(result) -> dict:
         extras[k] = float(np.mean(f)) if f.size else None
         if k.endswith(MEDIAN_DIAGNOSTICS):
             extras[k + MEDIAN_SUFFIX] = float(np.median(f)) if f.size else None
+        if k.endswith(COUNTED_DIAGNOSTICS):
+            extras[k + COUNT_SUFFIX] = int(f.size)
     return {"estimators": est, "diagnostics": extras}

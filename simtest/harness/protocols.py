@@ -595,13 +595,17 @@ def _sigma_coverage(est, errs: dict) -> dict:
     """``recommended_within_2sigma``: 1 where the recommended normal's error is at most twice its
     stated ``normal_sigma_deg``, 0 where it is more, NaN where it states none (the BP ray) or was
     not scored; its case mean is the share of the highlights its sigma covers at 2 sigma (issue
-    39: at least 0.9)."""
+    39: at least 0.9). ``recommended_beyond_bp_ray``: 1 where that error exceeds the BP ray's by
+    more than the sigma (issue 39: never on curved meshes), 0 where not, NaN as above or where
+    the BP ray was not scored."""
     rec = getattr(est, "recommended", None) if est is not None else None
     sigma = getattr(rec, "normal_sigma_deg", None) if rec is not None else None
     err = errs.get("recommended", (float("nan"), None))[0]
     if sigma is None or not np.isfinite(err):
-        return {"recommended_within_2sigma": float("nan")}
-    return {"recommended_within_2sigma": float(err <= 2.0 * float(sigma))}
+        return {"recommended_within_2sigma": float("nan"), "recommended_beyond_bp_ray": float("nan")}
+    bp = errs.get("bp_ray", (float("nan"), None))[0]
+    return {"recommended_within_2sigma": float(err <= 2.0 * float(sigma)),
+            "recommended_beyond_bp_ray": float(err > bp + float(sigma)) if np.isfinite(bp) else float("nan")}
 
 
 def curvature_between_lights(h, highlights) -> dict:

@@ -50,6 +50,8 @@ _DIAG_TEXT = {
                                 "the BP ray",
     "recommended_within_2sigma": "share of the highlights with a stated sigma whose recommended "
                                  "normal's error is at most twice it",
+    "recommended_beyond_bp_ray": "share of the highlights with a stated sigma whose recommended "
+                                 "normal errs by more than the BP ray's error plus that sigma",
     "cubic_patch_fit_ok_share": "share of the highlights where cubic_patch_fit's status is ok",
     "cubic_patch_fit_misfit_share": "share of the highlights where cubic_patch_fit's patch "
                                     "misfits the ROI (patch_misfit)",
@@ -62,6 +64,8 @@ _DIAG_TEXT = {
 _DIAG_SUFFIX_TEXT = {
     "_depth_err_pct": "{est}: depth error |depth / true - 1|, %",
     "_depth_err_pct_median": "{est}: median depth error |depth / true - 1|, %",
+    "_within_2sigma_n": "{est}: highlights with a stated sigma (the share's count)",
+    "_beyond_bp_ray_n": "{est}: highlights with a stated sigma and a BP ray (the share's count)",
     "_depth_rel_sigma": "{est}: relative 1-sigma of its depth at the noise floor (above "
                         f"{TOL.depth_rel_sigma_max:g}: not observable)",
 }
