@@ -109,3 +109,23 @@ def test_one_highlight_beyond_the_bp_ray_breaks_the_curved_claim():
     # planes are not in its scope
     plane = dict(_curved_case(1, bad), family="plane, light offset")
     assert "never_beyond_bp_ray_curved" not in {v["id"] for v in evaluate_claims({"cases": [plane], "sweeps": []})}
+
+
+def _rig_case(i, rec, bp, rel):
+    """A curved case under a two-guide rig at epsilon/d 0.1: medians ``rec`` and ``bp`` (deg), the
+    cubic patch's relative depth sigma ``rel``."""
+    def stats(m):
+        return {"n": 3, "n_ok": 3, "median": m, "failure_rate": 0.0}
+    return {"id": f"liver_two_lights@{i}", "key": f"k{i}", "protocol": "rendered", "colocated": False,
+            "family": "liver under a light rig, light offset",
+            "metrics": {"estimators": {"recommended": stats(rec), "bp_ray": stats(bp)},
+                        "diagnostics": {"eps_over_d": 0.1, "cubic_patch_fit_depth_rel_sigma": rel}}}
+
+
+@given(rec=st.floats(0.0, 10.0), bp=st.floats(0.01, 10.0), rel=st.floats(0.0, 2.0))
+def test_two_guides_halve_the_bp_ray_where_the_depth_is_observable(rec, bp, rel):
+    v = {v["id"]: v for v in evaluate_claims({"cases": [_rig_case(0, rec, bp, rel)], "sweeps": []})}
+    if rel > TOL.depth_rel_sigma_max:  # the depth not observable: the case is out of scope
+        assert "two_guides_halve_bp_ray" not in v
+    else:
+        assert v["two_guides_halve_bp_ray"]["holds"] is (rec <= 0.5 * bp)

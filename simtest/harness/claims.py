@@ -522,6 +522,31 @@ def _claim_never_beyond_bp_ray(results):
                            "stated sigma and a scored BP ray")
 
 
+def _claim_halves_bp_ray(results):
+    """Issue 39's two-guide must-hold: on curved cases under a rig of several lights whose depth
+    the third-order patch observes (its relative depth 1-sigma at the noise floor, the
+    Cramer-Rao bound's, at most ``TOL.depth_rel_sigma_max``), the recommended median is at most
+    half the BP ray's; None where no such case was run."""
+    cs = []
+    for c in _offset_curved_cases(results):
+        rel = _diag(c, "cubic_patch_fit_depth_rel_sigma")
+        if (_RIG_QUALIFIER in c.get("family", "") and rel is not None
+                and rel <= TOL.depth_rel_sigma_max and _stat(c, "bp_ray") is not None):
+            cs.append(c)
+    if not cs:
+        return None
+    bad = [c for c in cs if _stat(c, "recommended") > 0.5 * _stat(c, "bp_ray")]
+    text = (f"recommended median at most half the BP ray's in {len(cs) - len(bad)} of {len(cs)} cases: "
+            + ", ".join(f"{c['id']} {_stat(c, 'recommended'):.3g} against {_stat(c, 'bp_ray'):.3g} deg "
+                        f"(relative depth sigma {_diag(c, 'cubic_patch_fit_depth_rel_sigma'):.2g})"
+                        for c in cs))
+    if bad:
+        text += ". Breaks on " + "; ".join(f"{c['id']} ({_why_curved(c)})" for c in bad)
+    return (not bad, text, f"rendered curved cases under a light rig at epsilon/d {CURVED_OFFSET_EPS} "
+                           f"whose cubic patch's relative depth sigma is at most "
+                           f"{TOL.depth_rel_sigma_max:g}, case medians")
+
+
 #: Suite-wide predictions: id -> (statement, f(results) -> (holds, measured, scope) or None).
 CLAIMS = {
     "bp_ray_exact_colocated": (
@@ -554,6 +579,11 @@ CLAIMS = {
         "On rendered curved surfaces lit off the camera no recommended normal errs by more than "
         "the BP ray's error plus its stated sigma (issue 39)",
         _claim_never_beyond_bp_ray),
+    "two_guides_halve_bp_ray": (
+        "On rendered curved surfaces under two guides whose depth the third-order patch observes "
+        "(the Cramer-Rao bound at the noise floor), the recommended median is at most half the BP "
+        "ray's (issue 39)",
+        _claim_halves_bp_ray),
 }
 
 
