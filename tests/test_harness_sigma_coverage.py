@@ -71,7 +71,7 @@ def test_the_pooled_coverage_is_the_share_over_every_highlight_with_a_sigma(rows
     v = verdicts["sigma_coverage"]
     share = float(stated.mean())
     assert v["holds"] is (share >= TOL.claim_sigma_coverage)
-    assert v["measured"].startswith(f"{share:.3g} of {stated.size} highlights")
+    assert v["measured"].startswith(f"share within twice the sigma {share:.3g} over {stated.size} highlights")
 
 
 def test_a_few_large_cases_outweigh_many_small_ones():
@@ -80,7 +80,7 @@ def test_a_few_large_cases_outweigh_many_small_ones():
     rows = [[1.0]] * 9 + [[1.0] * 10 + [0.0] * 10]
     v = {v["id"]: v for v in evaluate_claims({"cases": [_case(i, r) for i, r in enumerate(rows)],
                                               "sweeps": []})}["sigma_coverage"]
-    assert v["holds"] is False and v["measured"].startswith("0.655 of 29 highlights")
+    assert v["holds"] is False and v["measured"].startswith("share within twice the sigma 0.655 over 29 ")
 
 
 def _curved_case(i, rows):

@@ -491,8 +491,9 @@ def _claim_sigma_coverage(results):
         return None
     bound = TOL.claim_sigma_coverage
     pooled = covered / stated
-    text = (f"{pooled:.3g} of {int(stated)} highlights with a stated sigma, over {len(worst)} cases; "
-            "lowest: " + ", ".join(f"{cid} {share:.2g} of {n}" for share, cid, n in sorted(worst)[:3]))
+    text = (f"share within twice the sigma {pooled:.3g} over {int(stated)} highlights with a stated sigma "
+            f"in {len(worst)} cases; lowest cases: "
+            + ", ".join(f"{cid} {share:.2g} of {n}" for share, cid, n in sorted(worst)[:3]))
     return (pooled >= bound, text,
             f"rendered cases, pooled (each case's share weighted by its count); bound {bound:g}")
 
