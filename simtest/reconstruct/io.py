@@ -558,30 +558,32 @@ def _rejected_texts(ests: list) -> list:
 
 
 def _array_texts(values: list, flat: bool) -> list:
-    """:func:`_atxt` of each value, the float64 arrays of one shape written together (one stack,
-    one orjson call, its text split at the items' brackets; repr's text of the stack where
-    orjson's is not json.dumps'); None where a value is left to :func:`_atxt` (another type, a
-    shape alone, an empty one, or a stack that is not finite: :func:`_atxt` raises its error)."""
-    out: list = [None] * len(values)
-    shapes: dict = {}
-    for k, x in enumerate(values):
-        if x is None:
-            out[k] = "null"
-        elif type(x) is np.ndarray and x.dtype.char == "d" and x.size and (
-                x.ndim == 1 or (x.ndim == 2 and not flat)):
-            shapes.setdefault(x.shape, []).append(k)
-    for shape, ks in shapes.items():
-        if len(ks) < 2:
-            continue
-        t = _as_repr(_orjson.dumps(np.stack([values[k] for k in ks]), option=_ORJSON_NUMPY).decode())
-        if t is None:
-            continue
-        if len(shape) == 1:  # "[[a,b],[c,d]]": each item between "],["
-            for k, part in zip(ks, t[2:-2].split("],[")):
-                out[k] = f"[{part}]"
-        else:  # "[[[a,b],[c,d]],[[e,f],[g,h]]]": each item between "]],[["
-            for k, part in zip(ks, t[3:-3].split("]],[[")):
-                out[k] = f"[[{part}]]"
+    """:func:`_atxt` of each value, all written together: one float64 stack (``np.array`` of them,
+    as :func:`_atxt` converts each), one orjson call, its text split at the items' brackets.
+    ``null`` for None; None for every other value where they do not stack (shapes that differ,
+    items that are not arrays of one or two dimensions, an empty one) or a value is not finite:
+    :func:`_atxt` writes each then (and raises its error)."""
+    out: list = ["null"] * len(values)
+    ks = [k for k, x in enumerate(values) if x is not None]
+    for k in ks:
+        out[k] = None
+    if len(ks) < 2:
+        return out
+    try:
+        stack = np.array([values[k] for k in ks], dtype=np.float64)
+    except (TypeError, ValueError):  # ragged, or not numbers
+        return out
+    if not stack.size or stack.ndim not in (2, 3) or (flat and stack.ndim == 3):
+        return out
+    t = _as_repr(_orjson.dumps(stack, option=_ORJSON_NUMPY).decode())
+    if t is None:
+        return out
+    if stack.ndim == 2:  # "[[a,b],[c,d]]": each item between "],["
+        for k, part in zip(ks, t[2:-2].split("],[")):
+            out[k] = f"[{part}]"
+    else:  # "[[[a,b],[c,d]],[[e,f],[g,h]]]": each item between "]],[["
+        for k, part in zip(ks, t[3:-3].split("]],[[")):
+            out[k] = f"[[{part}]]"
     return out
 
 
