@@ -872,18 +872,20 @@ def _complete(drafts: list) -> list[SpecularityEstimate]:
             d.results[i] = IsophoteEstimate(t, fit.reason, fit.detail, iso.points_uv, iso.closed)
             continue
         est = est_of[k]
-        base = dict(points_uv=iso.points_uv, closed=iso.closed, conic=fit.conic, ellipse=fit.ellipse,
-                    fit_residual_px=fit.residual_px, normalised_conic=fit.cone)
+        # (IsophoteEstimate's fields given in order: no keyword dicts, 1500 isophotes a real frame)
         if not est:
-            d.results[i] = IsophoteEstimate(t, est.reason, est.detail, **base)
+            d.results[i] = IsophoteEstimate(t, est.reason, est.detail, iso.points_uv, iso.closed, fit.conic,
+                                            fit.ellipse, fit.residual_px, None, None, None, None, None, fit.cone)
             continue
         f = d.fitf  # the estimators ran in the fit frame (identity for a pinhole): rotate back
+        if f.on_image_plane:
+            paper, selected, axis = est.paper, est.paper_selected, est.cone_axis
+        else:
+            paper, selected, axis = to_camera(f, est.paper), to_camera(f, est.paper_selected), to_camera(f, est.cone_axis)
         d.results[i] = IsophoteEstimate(
-            t, OK, "" if iso.closed else "open contour fitted (allow_open=True)",
-            normals_paper=to_camera(f, est.paper), paper_selected=to_camera(f, est.paper_selected),
-            paper_selected_index=est.paper_selected_index, cone_axis=to_camera(f, est.cone_axis),
-            eigenvalue_gap=est.eigenvalue_gap, **base,
-        )
+            t, OK, "" if iso.closed else "open contour fitted (allow_open=True)", iso.points_uv, iso.closed,
+            fit.conic, fit.ellipse, fit.residual_px, paper, selected, est.paper_selected_index, axis,
+            est.eigenvalue_gap, fit.cone)
     # joint cone axes of the highlights with two or more good isophotes, in one batch
     multi = [d for d in drafts if isinstance(d, _Draft) and sum(r.ok for r in d.results) >= 2]
     if not multi:
