@@ -1444,6 +1444,9 @@ def reconstruct(
                            [det.candidates[k].saturated for k in fk.tolist()], others,
                            [int(row_in_others[k]) if keep[k] else -1 for k in fk.tolist()])
     out = []
+    # each candidate's ray a row of the rays (views made at once, as rays[k]), and whether it
+    # has one, as Python objects: the loop below reads them for a real frame's thousands
+    ray_rows, ray_ok = list(rays), has_ray.tolist()
     for k, cand in enumerate(det.candidates):
         bp = bps[k]
         if k in drafts:
@@ -1452,10 +1455,9 @@ def reconstruct(
         if cand.status != OK or k in early:
             roi_k = cand.roi if not (r.row0 or r.col0) else Roi(
                 cand.roi.row0 + r.row0, cand.roi.row1 + r.row0, cand.roi.col0 + r.col0, cand.roi.col1 + r.col0)
-            ray = rays[k]
             status, detail = ("not_specular", early[k]) if k in early else (cand.status, cand.detail)
             out.append(SpecularityEstimate(bp, cand.peak, cand.saturated, roi_k, status,
-                                           detail, ray if has_ray[k] else None, ()))
+                                           detail, ray_rows[k] if ray_ok[k] else None, ()))
             continue
         roi_k = rois_of[k] if k in rois_of else _initial_roi(cand, bp, det.threshold, frame)
         out.append(_estimate_one(frame, bp, roi_k, saturated=cand.saturated, grow=True, other_bps=others,
