@@ -146,3 +146,17 @@ def test_records_encoded_in_the_workers_write_the_same_file(tmp_path):
     assert enc.read_bytes() == plain.read_bytes()
     assert [json.loads(x)["specularities"] for x in enc.read_text().splitlines()] == _expected(
         [img for _, _, img in open_frames(frames)])
+
+
+def test_estimates_jsonl_is_one_ascii_line_a_record_each_ending_in_a_newline(tmp_path):
+    """write_frames_jsonl writes bytes: each record's compact JSON (non-ASCII escaped, as json.dumps
+    writes it) and b"\\n", whatever the platform's newline; a FrameRecord as its line."""
+    from simtest.reconstruct.frames import FrameRecord, write_frames_jsonl
+
+    enc = FrameRecord({"frame": 1})
+    enc.line = '{"frame":1,"specularities":[]}'
+    recs = [{"frame": 0, "source": "caf\u00e9.png", "x": [0.1, 1e-05]}, enc]
+    path, n, _ = write_frames_jsonl(tmp_path / "estimates.jsonl", recs)
+    assert n == 2
+    assert path.read_bytes() == (b'{"frame":0,"source":"caf\\u00e9.png","x":[0.1,1e-05]}\n'
+                                 b'{"frame":1,"specularities":[]}\n')

@@ -155,3 +155,57 @@ def test_a_frames_rejected_candidates_are_written_at_once_as_one_at_a_time():
     tiny = [dataclasses.replace(rej[0], bp_ray=np.array([1e-5, 0.0, -1.0]))] + rej[1:]
     assert io.estimates_json(tiny) == _reference(tiny)
     assert io.estimates_json(ests) == _reference(ests)
+
+
+@settings(max_examples=300, deadline=None)
+@given(st.lists(any_double, min_size=1, max_size=12))
+def test_orjson_text_in_reprs_notation_is_json_dumps_text(values):
+    """io._as_repr: orjson's text of a float64 array, its exponents signed and padded and its
+    1e-5 <= |x| < 1e-4 written with an exponent, is json.dumps' text (repr's) over the whole range."""
+    a = np.array(values, dtype=np.float64)
+    t = io._as_repr(io._orjson.dumps(a, option=io._ORJSON_NUMPY).decode())
+    assert t == json.dumps(a.tolist(), separators=(",", ":"))
+    # the same for a list of Python floats (io._float_texts)
+    assert io._as_repr(io._orjson.dumps(a.tolist()).decode()) == t
+
+
+def test_orjson_text_of_values_at_the_notations_edges_is_json_dumps_text():
+    rng = np.random.default_rng(3)
+    a = np.concatenate([rng.uniform(-2e-4, 2e-4, 5000), rng.uniform(-1e9, 1e9, 2000).round(7),
+                        10.0 ** rng.uniform(-320, 308, 5000) * rng.choice([-1.0, 1.0], 5000),
+                        [1e-5, np.nextafter(1e-5, 0.0), 1e-4, np.nextafter(1e-4, 0.0), 561191710.0000259, 1e16,
+                         np.nextafter(1e16, 0.0), 5e-324, 1e-10, 1e100, -1e-5, 2e-05, 10.00001]])
+    t = io._as_repr(io._orjson.dumps(a, option=io._ORJSON_NUMPY).decode())
+    assert t == json.dumps(a.tolist(), separators=(",", ":"))
+    assert io._as_repr(io._orjson.dumps(np.array([1.0, np.nan]), option=io._ORJSON_NUMPY).decode()) is None
+
+
+def test_a_frames_fitted_candidates_are_written_at_once_as_one_at_a_time():
+    """io.estimates_json writes a frame's fitted candidates together (_fitted_texts): each the
+    text of estimate_json; one with a number that is not finite makes the frame's writer refuse it
+    as json.dumps does, and numbers orjson writes otherwise than json (|x| < 1e-4, >= 1e16) are
+    written as json writes them."""
+    img = cv2.cvtColor(cv2.imread(str(REAL / "hyperkvasir_tile_r2c3_polyp.png")), cv2.COLOR_BGR2RGB)
+    h, w = img.shape[:2]
+    K = np.array([[140.0, 0, (w - 1) / 2], [0, 140.0, (h - 1) / 2], [0, 0, 1]])
+    ests = list(reconstruct(img, K))
+    fitted = [k for k, e in enumerate(ests) if e.isophotes]
+    assert len(fitted) >= 3
+    texts = io._rejected_texts(ests)
+    io._fitted_texts(ests, texts, False)
+    assert all(t is not None for t in texts)
+    for e, t in zip(ests, texts):
+        assert t == io.estimate_json(e)
+    e = ests[fitted[0]]
+    iso = dataclasses.replace(e.isophotes[0], fit_residual_px=3e-5, eigenvalue_gap=2e16,
+                              cone_axis=np.array([1e-5, -7e-9, -1.0]))
+    odd = list(ests)
+    odd[fitted[0]] = dataclasses.replace(e, isophotes=(iso,) + e.isophotes[1:], bp_intensity=12345678901234567.0)
+    assert io.estimates_json(odd) == _reference(odd)
+    bad = list(ests)
+    bad[fitted[1]] = dataclasses.replace(ests[fitted[1]], isophotes=(dataclasses.replace(
+        ests[fitted[1]].isophotes[0], conic=np.full((3, 3), np.nan)),) + ests[fitted[1]].isophotes[1:])
+    with pytest.raises(ValueError):
+        _reference(bad)
+    with pytest.raises(ValueError):
+        io.estimates_json(bad)

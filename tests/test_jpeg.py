@@ -262,3 +262,33 @@ def test_the_phase_medians_in_one_call_are_numpys(seed, n, rounded):
     starts = [(k - 1) % jpeg.BLOCK for k in range(jpeg.BLOCK)]
     want = np.array([np.median(d[s::jpeg.BLOCK]) if len(d[s::jpeg.BLOCK]) else np.nan for s in starts])
     assert np.array_equal(_kernels.phase_medians(d, jpeg.BLOCK), want, equal_nan=True)
+
+
+def _quiet_sd_one_column_at_a_time(c, q):
+    """jpeg._quiet_sd as it was written: a loop over the frequencies (the reference of its
+    columns-at-once form)."""
+    from scipy.special import ndtri
+
+    n, k = c.shape
+    idx = np.floor(c / q + 0.5)
+    total = idx.sum(axis=1)
+    out = np.empty(k)
+    for j in range(k):
+        busy = total - idx[:, j]
+        quiet = busy <= np.median(busy)
+        m = max(int(np.count_nonzero(quiet)), 1)
+        out[j] = max(np.count_nonzero(idx[quiet, j] > 0), 0.5) / m
+    z = -ndtri(np.minimum(out, 0.5) / 2)
+    return np.where(out < 0.5, q / (2 * z), np.sqrt((c * c).mean(axis=0)))
+
+
+@settings(max_examples=100, deadline=None)
+@given(st.integers(0, 2**32 - 1))
+def test_quiet_sd_of_all_frequencies_at_once_is_one_at_a_time(seed):
+    rng = np.random.default_rng(seed)
+    n, k = int(rng.integers(1, 300)), int(rng.integers(1, 20))
+    q = rng.integers(2, 40, k).astype(float)
+    c = np.abs(rng.laplace(0.0, rng.uniform(0.5, 50.0), (n, k)))
+    if seed % 2:
+        c = np.round(c)  # ties at the median
+    assert J._quiet_sd(c, q).tobytes() == _quiet_sd_one_column_at_a_time(c, q).tobytes()

@@ -313,15 +313,15 @@ def fit_cones(points_list, frames) -> list[ConeFit | Failure]:
         Rg = np.stack([f.R for f, img in zip(gframes, on_image.tolist()) if not img])
         rot = np.swapaxes(Rg, 1, 2) @ c[~on_image] @ Rg
         cone[~on_image] = 0.5 * (rot + np.swapaxes(rot, 1, 2))
-    for j, i in enumerate(good.tolist()):
-        if not formed[j]:
+    # (ConeFit's fields in order: cone, cone_fit_frame, conic, ellipse, plane_fit, residual_px,
+    # n_points; no keyword dicts, a real frame's 1500 fits)
+    for j, i, is_formed, img in zip(range(len(good)), good.tolist(), formed.tolist(), on_image.tolist()):
+        if not is_formed:
             out[i] = Failure("pose_failed", "C' = K^T C K is zero or not finite")
             continue
         fit = fits[i]
-        img = bool(on_image[j])
-        out[i] = ConeFit(cone=cone[j], cone_fit_frame=c[j], conic=fit.conic if img else None,
-                         ellipse=fit.ellipse if img else None, plane_fit=fit,
-                         residual_px=fit.residual_px, n_points=fit.n_points)
+        out[i] = ConeFit(cone[j], c[j], fit.conic if img else None, fit.ellipse if img else None, fit,
+                         fit.residual_px, fit.n_points)
     return out
 
 

@@ -29,6 +29,8 @@ diffuse areas in endoscopy.
 from __future__ import annotations
 
 from dataclasses import dataclass, field, replace
+from itertools import repeat
+from operator import add
 
 import cv2
 import numpy as np
@@ -1494,33 +1496,44 @@ def _candidates_compiled(frame: _DetectFrame, mask: np.ndarray) -> tuple[list[Ca
         frame.method == "local_peak")
     bps = list(floats[:, :2].copy())  # each candidate's BP a row of one array (views, made at once)
     with_level = frame.levels is not None
-    out = []
     new_roi = tuple.__new__  # Roi(...) without its generated __new__'s call (thousands a frame)
-    r0, r1, c0, c1 = _dk.ROI_ROW0, _dk.ROI_ROW1, _dk.ROI_COL0, _dk.ROI_COL1
-    for k, (row, (cid, x, y, bw, bh, area), (_, _, peak, level, e, tol)) in enumerate(
-            zip(ints.tolist(), table.tolist(), floats.tolist())):
-        code = row[_dk.STATUS]
+    # the accepted and the too small candidates (most of a real frame's thousands) built from the
+    # columns at once (map: no Python loop); the others one by one below
+    n = len(table)
+    codes = ints[:, _dk.STATUS].tolist()
+    cids, xs, ys, bws, bhs, areas = table.T.tolist()
+    bboxes = list(map(new_roi, repeat(Roi), zip(ys, map(add, ys, bhs), xs, map(add, xs, bws))))
+    rois = list(map(new_roi, repeat(Roi), ints[:, _dk.ROI_ROW0:_dk.ROI_COL1 + 1].tolist()))
+    min_area = frame.min_area_px
+    details = ["" if c == _dk.OK else f"{a} px < {min_area}" for c, a in zip(codes, areas)]
+    out = list(map(Candidate, bps, floats[:, 2].tolist(), (ints[:, _dk.SATURATED] != 0).tolist(), areas, bboxes,
+                   rois, [_STATUS.get(c, "") for c in codes], details,
+                   floats[:, 3].tolist() if with_level else repeat(None, n)))
+    ok_or_small = (_dk.OK, _dk.TOO_SMALL)
+    for k in [k for k, c in enumerate(codes) if c not in ok_or_small]:
+        code = codes[k]
+        x, y, bw, bh, area = xs[k], ys[k], bws[k], bhs[k], areas[k]
         if code == _dk.FALLBACK:
-            comp = (labels[y : y + bh, x : x + bw] == cid).view(np.uint8)
-            out.append(_examine_numpy(frame, scope, area, x, y, bw, bh, comp))
+            comp = (labels[y : y + bh, x : x + bw] == cids[k]).view(np.uint8)
+            out[k] = _examine_numpy(frame, scope, area, x, y, bw, bh, comp)
             continue
-        bbox = new_roi(Roi, (y, y + bh, x, x + bw))
+        _, _, peak, level, e, tol = floats[k].tolist()
+        bbox = bboxes[k]
         if code == _dk.NOT_ELLIPTICAL or code == _dk.ELLIPTICITY_UNSURE:
             # numpy's value is within tol (relative) of the kernel's: the kernel's decides
             # where every value that close formats the same
             text = f"{e * (1.0 - tol):.3f}" if code == _dk.NOT_ELLIPTICAL else None
             if text is None or text != f"{e * (1.0 + tol):.3f}":
-                e = ellipticity((labels[y : y + bh, x : x + bw] == cid))
+                e = ellipticity((labels[y : y + bh, x : x + bw] == cids[k]))
                 text = f"{e:.3f}"
                 code = _dk.OK if ell_min <= e <= ell_max else _dk.NOT_ELLIPTICAL
         else:
             text = ""
         status = _STATUS[code]
-        roi = new_roi(Roi, (row[r0], row[r1], row[c0], row[c1]))
-        out.append(Candidate(bps[k], peak, bool(row[_dk.SATURATED]), area, bbox, roi, status,
-                             "" if code == _dk.OK else _kernel_detail(code, status, frame, area, bbox, text,
-                                                                       row[_dk.N_PLATEAUS]),
-                             level if with_level else None))
+        out[k] = Candidate(bps[k], peak, bool(ints[k, _dk.SATURATED]), area, bbox, rois[k], status,
+                           "" if code == _dk.OK else _kernel_detail(code, status, frame, area, bbox, text,
+                                                                     int(ints[k, _dk.N_PLATEAUS])),
+                           level if with_level else None)
     return out, n_comps
 
 

@@ -259,9 +259,14 @@ def fit_stacked(pts: np.ndarray, counts: np.ndarray, *, compiled: bool = True) -
         status, conic, ell, residual = _fit_kernels.fit_conics(
             pts, starts[todo], counts[todo], _S3_RCOND, MAX_AXIS_TO_SPREAD, TOL.conic_degenerate_rel)
         ok = status == _fit_kernels.OK
-        for i, c, e, r in zip(todo[ok].tolist(), conic[ok], ell[ok].tolist(), residual[ok].tolist()):
-            out[i] = EllipseFit(c, Ellipse(center=np.array(e[:2]), semi_axes=np.array(e[2:4]), angle_rad=e[4]),
-                                r, int(counts[i]))
+        e_ok = ell[ok]
+        # each ellipse's centre and semi-axes rows of two arrays (views, made at once: not two
+        # arrays a fit, a real frame's 1500), float64 as before
+        centres, semi = list(np.ascontiguousarray(e_ok[:, :2])), list(np.ascontiguousarray(e_ok[:, 2:4]))
+        n_of = counts.tolist()
+        for i, c, cen, ax, ang, r in zip(todo[ok].tolist(), conic[ok], centres, semi, e_ok[:, 4].tolist(),
+                                         residual[ok].tolist()):
+            out[i] = EllipseFit(c, Ellipse(cen, ax, ang), r, n_of[i])
         redo = todo[~ok]
     if len(redo):
         rows = np.concatenate([np.arange(starts[i], starts[i] + counts[i]) for i in redo])

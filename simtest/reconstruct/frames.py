@@ -317,9 +317,13 @@ def write_frames_jsonl(path, records, *, on_frame=None) -> tuple[Path, int, floa
     t0 = time.perf_counter()
     n = 0
     try:
-        with open(tmp, "w", encoding="ascii") as fh:
+        # bytes, not text: a frame's line is megabytes (thousands of candidates), which a text
+        # file encodes and scans for newlines again (1.5 ms a frame of the video's parent
+        # process); the JSON is ASCII (json.dumps' ensure_ascii), each line ends in "\n"
+        with open(tmp, "wb") as fh:
             for rec in records:
-                fh.write((rec.line if isinstance(rec, FrameRecord) else _json_line(rec)) + "\n")
+                fh.write((rec.line if isinstance(rec, FrameRecord) else _json_line(rec)).encode("ascii"))
+                fh.write(b"\n")
                 n += 1
                 if on_frame is not None:
                     on_frame(rec)

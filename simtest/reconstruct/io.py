@@ -106,6 +106,7 @@ from __future__ import annotations
 import fnmatch
 import json
 import os
+import re
 from pathlib import Path
 
 import numpy as np
@@ -273,10 +274,45 @@ _ORJSON_NUMPY = _orjson.OPT_SERIALIZE_NUMPY
 
 def _orjson_is_repr(t: str) -> bool:
     """Whether orjson's text ``t`` of finite floats is the one json.dumps writes (float.__repr__):
-    it differs only in the notation of |x| < 1e-4 (positional: "0.0000...") and of |x| >= 1e16
-    (its exponent, "e"), and writes NaN and inf as null ("n"); a text with none of these (or with
-    ".0000" inside a number, harmlessly refused) is repr's."""
+    it differs only in the notation of |x| < 1e-4 (positional: "0.0000...", or an exponent without
+    its sign's padding, "1e-7") and of |x| >= 1e16 (its exponent, "1e16"), and writes NaN and inf
+    as null ("n"); a text with none of these (or with ".0000" inside a number, harmlessly
+    refused) is repr's."""
     return "e" not in t and "n" not in t and ".0000" not in t
+
+
+#: orjson's exponent of two digits or more after the padding :func:`_as_repr` adds to every one
+_EXP_LONG = re.compile(r"e-0(?=\d\d)")
+#: orjson's positional text of 1e-5 <= |x| < 1e-4 (its only positional |x| < 1e-4): "0.0000" and
+#: the digits (at the start of a number: :func:`_exp5` checks; a look-behind here would make
+#: the search ten times slower)
+_POSITIONAL = re.compile(r"0\.0000([1-9])(\d*)")
+
+
+def _exp5(m) -> str:
+    i = m.start()
+    if i and m.string[i - 1] in "0123456789.":  # inside a number, as 10.00001: repr's already
+        return m.group(0)
+    rest = m.group(2)
+    return f"{m.group(1)}.{rest}e-05" if rest else f"{m.group(1)}e-05"
+
+
+def _as_repr(t: str) -> str | None:
+    """orjson's text of float64s (an array's or a list's) as json.dumps writes them (repr's
+    notation): its shortest round-trip digits are repr's, only the notation differs; orjson writes
+    an exponent bare ("1e-7", "1.5e16": repr "1e-07", "1.5e+16") and 1e-5 <= |x| < 1e-4
+    positionally ("0.0000123": repr "1.23e-05"). None where a value is not finite (orjson's
+    null). A text of numbers only (no strings), so every "e" is an exponent
+    (``tests/test_io_fast.py`` compares it with repr over the whole float64 range)."""
+    if "n" in t:
+        return None
+    if "e" in t:  # every exponent signed, at least two digits: "e-7" -> "e-07", "e16" -> "e+16"
+        t = _EXP_LONG.sub("e-", t.replace("e-", "E").replace("e", "e+").replace("E", "e-0"))
+    if ".0000" in t:
+        t = _POSITIONAL.sub(_exp5, t)
+    return t
+
+
 #: np.degrees is x * (180 / pi) in float64 (the same bits for a Python float).
 _DEG = 180.0 / np.pi
 
@@ -293,7 +329,7 @@ def _ftxt(x) -> str:
     """``float(x)`` as json.dumps writes it (float.__repr__), ``null`` for None."""
     if x is None:
         return "null"
-    t = _orjson.dumps(float(x)).decode()  # as _atxt: orjson's text where it is repr's
+    t = _orjson.dumps(float(x)).decode()  # as _atxt: orjson's text in repr's notation
     if _orjson_is_repr(t):
         return t
     t = repr(float(x))
@@ -309,10 +345,10 @@ def _atxt(x, flat: bool) -> str:
         return "null"
     if type(x) is np.ndarray and x.dtype.char == "d" and (x.ndim == 1 or not flat):
         if x.ndim <= 2 and x.flags.c_contiguous:
-            # orjson's shortest round-trip digits are float.__repr__'s; where its text is not
-            # repr's (_orjson_is_repr) the array takes repr's path (tests/test_io_fast.py)
-            t = _orjson.dumps(x, option=_ORJSON_NUMPY).decode()
-            if _orjson_is_repr(t):
+            # orjson's shortest round-trip digits are float.__repr__'s, in repr's notation
+            # (_as_repr); an array that is not finite takes repr's path (tests/test_io_fast.py)
+            t = _as_repr(_orjson.dumps(x, option=_ORJSON_NUMPY).decode())
+            if t is not None:
                 return t
         t = repr(x.tolist())  # float64 already: skip the conversions (the same Python floats)
     else:
@@ -460,6 +496,7 @@ def estimates_json(estimates, include_points: bool = False) -> str:
     """
     ests = list(estimates)
     texts = _rejected_texts(ests)
+    _fitted_texts(ests, texts, include_points)
     return "[" + ",".join([estimate_json(e, include_points) if t is None else t
                            for e, t in zip(ests, texts)]) + "]"
 
@@ -482,8 +519,8 @@ _REJ_TAIL = ('},"ellipse":null,"conic":null,"fit_residual_px":null,"eigenvalue_g
 def _rows_txt(a: np.ndarray) -> list[str] | None:
     """The texts of the rows of a float64 array (n, k), as :func:`_atxt` writes each row, from
     one orjson call; None where that text is not json.dumps' (see :func:`_atxt`)."""
-    t = _orjson.dumps(a, option=_ORJSON_NUMPY).decode()
-    if not _orjson_is_repr(t):
+    t = _as_repr(_orjson.dumps(a, option=_ORJSON_NUMPY).decode())
+    if t is None:
         return None
     return t[2:-2].split("],[")
 
@@ -507,8 +544,8 @@ def _rejected_texts(ests: list) -> list:
     if rays.shape != (len(rej), 3) or bps.shape != (len(rej), 2):
         return out
     ray_t, bp_t = _rows_txt(rays), _rows_txt(bps)
-    h_t = _orjson.dumps(heights, option=_ORJSON_NUMPY).decode()
-    if ray_t is None or bp_t is None or not _orjson_is_repr(h_t):
+    h_t = _as_repr(_orjson.dumps(heights, option=_ORJSON_NUMPY).decode())
+    if ray_t is None or bp_t is None or h_t is None:
         return out
     for k, ray, bp, h in zip(rej, ray_t, bp_t, h_t[1:-1].split(",")):
         e = ests[k]
@@ -518,6 +555,163 @@ def _rejected_texts(ests: list) -> list:
                   f'"confidence":{_ftxt(getattr(e, "confidence", None))},{_REJ_NORMALS}[{ray}],'
                   f'{_NO_LIGHT_AWARE_NORMALS}{_REJ_TAIL}')
     return out
+
+
+def _array_texts(values: list, flat: bool) -> list:
+    """:func:`_atxt` of each value, all written together: one float64 stack (``np.array`` of them,
+    as :func:`_atxt` converts each), one orjson call, its text split at the items' brackets.
+    ``null`` for None; None for every other value where they do not stack (shapes that differ,
+    items that are not arrays of one or two dimensions, an empty one) or a value is not finite:
+    :func:`_atxt` writes each then (and raises its error)."""
+    out: list = ["null"] * len(values)
+    ks = [k for k, x in enumerate(values) if x is not None]
+    for k in ks:
+        out[k] = None
+    if len(ks) < 2:
+        return out
+    try:
+        stack = np.array([values[k] for k in ks], dtype=np.float64)
+    except (TypeError, ValueError):  # ragged, or not numbers
+        return out
+    if not stack.size or stack.ndim not in (2, 3) or (flat and stack.ndim == 3):
+        return out
+    t = _as_repr(_orjson.dumps(stack, option=_ORJSON_NUMPY).decode())
+    if t is None:
+        return out
+    if stack.ndim == 2:  # "[[a,b],[c,d]]": each item between "],["
+        for k, part in zip(ks, t[2:-2].split("],[")):
+            out[k] = f"[{part}]"
+    else:  # "[[[a,b],[c,d]],[[e,f],[g,h]]]": each item between "]],[["
+        for k, part in zip(ks, t[3:-3].split("]],[[")):
+            out[k] = f"[[{part}]]"
+    return out
+
+
+def _float_texts(values: list) -> list:
+    """:func:`_ftxt` of each value, written together (one orjson call, or one repr of the list
+    where orjson's text is not json.dumps'); None for all but the None values (``null``) where
+    a value is not a finite number (:func:`_ftxt` raises its error)."""
+    out: list = [None] * len(values)
+    ks, fs = [], []
+    try:
+        for k, x in enumerate(values):
+            if x is None:
+                out[k] = "null"
+            else:
+                fs.append(float(x))
+                ks.append(k)
+    except (TypeError, ValueError):
+        return out
+    if not fs:
+        return out
+    t = _as_repr(_orjson.dumps(fs).decode())
+    if t is None:
+        return [None if x is not None else "null" for x in values]
+    for k, part in zip(ks, t[1:-1].split(",")):
+        out[k] = part
+    return out
+
+
+def _filled(texts: list, values: list, fn) -> list:
+    """``texts`` with each None replaced by ``fn`` of its value (which raises as it would alone)."""
+    return [fn(v) if t is None else t for t, v in zip(texts, values)]
+
+
+def _fitted_texts(ests: list, out: list, include_points: bool) -> None:
+    """Write into ``out`` each :func:`estimate_json` text left None there (the fitted candidates,
+    with isophotes: a real frame's hundreds), the numbers of all of them written at once
+    (:func:`_array_texts`, :func:`_float_texts`): their isophotes' ellipses, conics, normals and
+    fit numbers, their BPs, BP rays and joint axes. The candidates with light-aware results, and
+    all where any value would raise, are left None (:func:`estimate_json` then writes them, or
+    raises its error). The same text, character for character (``tests/test_io_fast.py``)."""
+    sel = [k for k, t in enumerate(out) if t is None and not getattr(ests[k], "light_aware", None)
+           and not _is_rejected(ests[k])]
+    if len(sel) < 2:
+        return
+    es = [ests[k] for k in sel]
+    try:
+        isos = [iso for e in es for iso in e.isophotes]
+        ells = [iso.ellipse for iso in isos]
+        cen = _filled(_array_texts([None if el is None else el.center for el in ells], True),
+                      [None if el is None else el.center for el in ells], lambda v: _atxt(v, True))
+        semi = _filled(_array_texts([None if el is None else el.semi_axes for el in ells], True),
+                       [None if el is None else el.semi_axes for el in ells], lambda v: _atxt(v, True))
+        angles = [None if el is None else float(el.angle_rad) * _DEG for el in ells]
+        ang = _filled(_float_texts(angles), angles, _ftxt)
+        cols = []
+        for name, flat in (("conic", False), ("normals_paper", False), ("paper_selected", True),
+                           ("cone_axis", True)):
+            vals = [getattr(iso, name) for iso in isos]
+            cols.append(_filled(_array_texts(vals, flat), vals, lambda v, f=flat: _atxt(v, f)))
+        conic, paper, psel, cone = cols
+        nums = []
+        for name in ("isovalue", "fit_residual_px", "eigenvalue_gap"):
+            vals = [getattr(iso, name) for iso in isos]
+            nums.append(_filled(_float_texts(vals), vals, _ftxt))
+        isoval, resid, gap = nums
+        iso_txt, iso_parts = [], []
+        for j, iso in enumerate(isos):
+            ell = "null" if ells[j] is None else \
+                f'{{"center_px":{cen[j]},"semi_axes_px":{semi[j]},"angle_deg":{ang[j]}}}'
+            parts = (ell, conic[j], resid[j], gap[j], paper[j], psel[j], _int_txt(iso.paper_selected_index),
+                     cone[j])
+            iso_parts.append(parts)
+            n_points = 0 if iso.points_uv is None else int(len(iso.points_uv))
+            text = (f'{{"isovalue":{isoval[j]},"status":{_jstr(iso.status)},"detail":{_jstr(iso.detail)},'
+                    f'"closed":{"true" if iso.closed else "false"},"n_points":{n_points},"ellipse":{parts[0]},'
+                    f'"conic":{parts[1]},"fit_residual_px":{parts[2]},"eigenvalue_gap":{parts[3]},'
+                    f'"normals":{{"paper":{parts[4]},"paper_selected":{parts[5]},"paper_selected_index":{parts[6]},'
+                    f'"cone_axis":{parts[7]}}}')
+            if include_points and iso.points_uv is not None:
+                text += f',"points_px":{_atxt(iso.points_uv, False)}'
+            iso_txt.append(text + "}")
+        rays = [e.bp_ray for e in es]
+        ray_t = _filled(_array_texts(rays, True), rays, lambda v: _atxt(v, True))
+        joints = [getattr(e, "joint_cone_axis", None) for e in es]
+        joint_t = _filled(_array_texts(joints, True), joints, lambda v: _atxt(v, True))
+        bps = [e.bp_px for e in es]
+        bp_t = _filled(_array_texts(bps, True), bps, lambda v: _atxt(v, True))
+        hs = [e.bp_intensity for e in es]
+        h_t = _filled(_float_texts(hs), hs, _ftxt)
+        confs = [getattr(e, "confidence", None) for e in es]
+        conf_t = _filled(_float_texts(confs), confs, _ftxt)
+        texts = []
+        j = 0
+        for i, est in enumerate(es):
+            n_iso = len(est.isophotes)
+            prim = iso_parts[j] if n_iso else _NO_PRIMARY
+            isos_txt = ",".join(iso_txt[j:j + n_iso])
+            j += n_iso
+            bp_ray, joint = est.bp_ray, joints[i]
+            rec = est.recommended
+            n = rec.normal
+            # as estimate_json: recommend() passes its source's array on
+            if n is bp_ray:
+                normal = ray_t[i]
+            elif n is joint:
+                normal = joint_t[i]
+            elif n_iso and n is est.isophotes[0].cone_axis:
+                normal = prim[7]
+            else:
+                normal = _atxt(n, True)
+            texts.append(
+                f'{{"normal":{normal},"normal_from":{_jstr(rec.normal_from)},"depth_mm":{_ftxt(rec.depth_mm)},'
+                f'"normal_sigma_deg":{_ftxt(rec.normal_sigma_deg)},'
+                f'"light_normals":{_json_or_null(_rows(getattr(rec, "light_normals", None)))},'
+                f'"light_depths_mm":{_json_or_null(_nums(getattr(rec, "light_depths_mm", None)))},'
+                f'"light_aware":{{}},"bp_px":{bp_t[i]},"bp_intensity":{h_t[i]},'
+                f'"saturated":{"true" if est.saturated else "false"},'
+                f'"roi":{_roi_txt(est.roi)},"status":{_jstr(est.status)},'
+                f'"detail":{_jstr(est.detail)},"confidence":{conf_t[i]},'
+                f'"normals":{{"paper":{prim[4]},"paper_selected":{prim[5]},"paper_selected_index":{prim[6]},'
+                f'"cone_axis":{prim[7]},"joint_cone_axis":{joint_t[i]},"bp_ray":{ray_t[i]},'
+                f'{_NO_LIGHT_AWARE_NORMALS}}},'
+                f'"ellipse":{prim[0]},"conic":{prim[1]},"fit_residual_px":{prim[2]},"eigenvalue_gap":{prim[3]},'
+                f'"isophotes":[{isos_txt}]}}')
+    except (TypeError, ValueError, AttributeError):
+        return  # a value one of them would raise on: estimate_json writes each, and raises
+    for k, t in zip(sel, texts):
+        out[k] = t
 
 
 def estimates_document(estimates, *, K, image=None, image_shape=None, dist_coeffs=None,

@@ -455,15 +455,14 @@ def _quiet_sd(c: np.ndarray, q: np.ndarray) -> np.ndarray:
     """Per identified frequency (columns of ``c``, magnitudes (N, K), steps ``q`` (K,)), the
     Gaussian standard deviation of the original coefficients from the share outside the zero
     bin among the half of the blocks whose other identified frequencies' indices are smallest."""
-    n, k = c.shape
     idx = np.floor(c / q + 0.5)  # quantisation indices
     total = idx.sum(axis=1)
-    out = np.empty(k)
-    for j in range(k):
-        busy = total - idx[:, j]
-        quiet = busy <= np.median(busy)
-        m = max(int(np.count_nonzero(quiet)), 1)
-        out[j] = max(np.count_nonzero(idx[quiet, j] > 0), 0.5) / m
+    # every frequency at once (columns): the other frequencies' indices per block, their median,
+    # the quiet blocks and the counts (whole numbers: the same values as one column at a time)
+    busy = total[:, None] - idx
+    quiet = busy <= np.median(busy, axis=0)
+    m = np.maximum(np.count_nonzero(quiet, axis=0), 1)
+    out = np.maximum(np.count_nonzero(quiet & (idx > 0), axis=0), 0.5) / m
     z = -ndtri(np.minimum(out, 0.5) / 2)
     return np.where(out < 0.5, q / (2 * z), np.sqrt((c * c).mean(axis=0)))
 

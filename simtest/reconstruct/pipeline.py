@@ -872,18 +872,20 @@ def _complete(drafts: list) -> list[SpecularityEstimate]:
             d.results[i] = IsophoteEstimate(t, fit.reason, fit.detail, iso.points_uv, iso.closed)
             continue
         est = est_of[k]
-        base = dict(points_uv=iso.points_uv, closed=iso.closed, conic=fit.conic, ellipse=fit.ellipse,
-                    fit_residual_px=fit.residual_px, normalised_conic=fit.cone)
+        # (IsophoteEstimate's fields given in order: no keyword dicts, 1500 isophotes a real frame)
         if not est:
-            d.results[i] = IsophoteEstimate(t, est.reason, est.detail, **base)
+            d.results[i] = IsophoteEstimate(t, est.reason, est.detail, iso.points_uv, iso.closed, fit.conic,
+                                            fit.ellipse, fit.residual_px, None, None, None, None, None, fit.cone)
             continue
         f = d.fitf  # the estimators ran in the fit frame (identity for a pinhole): rotate back
+        if f.on_image_plane:
+            paper, selected, axis = est.paper, est.paper_selected, est.cone_axis
+        else:
+            paper, selected, axis = to_camera(f, est.paper), to_camera(f, est.paper_selected), to_camera(f, est.cone_axis)
         d.results[i] = IsophoteEstimate(
-            t, OK, "" if iso.closed else "open contour fitted (allow_open=True)",
-            normals_paper=to_camera(f, est.paper), paper_selected=to_camera(f, est.paper_selected),
-            paper_selected_index=est.paper_selected_index, cone_axis=to_camera(f, est.cone_axis),
-            eigenvalue_gap=est.eigenvalue_gap, **base,
-        )
+            t, OK, "" if iso.closed else "open contour fitted (allow_open=True)", iso.points_uv, iso.closed,
+            fit.conic, fit.ellipse, fit.residual_px, paper, selected, est.paper_selected_index, axis,
+            est.eigenvalue_gap, fit.cone)
     # joint cone axes of the highlights with two or more good isophotes, in one batch
     multi = [d for d in drafts if isinstance(d, _Draft) and sum(r.ok for r in d.results) >= 2]
     if not multi:
@@ -1442,6 +1444,9 @@ def reconstruct(
                            [det.candidates[k].saturated for k in fk.tolist()], others,
                            [int(row_in_others[k]) if keep[k] else -1 for k in fk.tolist()])
     out = []
+    # each candidate's ray a row of the rays (views made at once, as rays[k]), and whether it
+    # has one, as Python objects: the loop below reads them for a real frame's thousands
+    ray_rows, ray_ok = list(rays), has_ray.tolist()
     for k, cand in enumerate(det.candidates):
         bp = bps[k]
         if k in drafts:
@@ -1450,10 +1455,9 @@ def reconstruct(
         if cand.status != OK or k in early:
             roi_k = cand.roi if not (r.row0 or r.col0) else Roi(
                 cand.roi.row0 + r.row0, cand.roi.row1 + r.row0, cand.roi.col0 + r.col0, cand.roi.col1 + r.col0)
-            ray = rays[k]
             status, detail = ("not_specular", early[k]) if k in early else (cand.status, cand.detail)
             out.append(SpecularityEstimate(bp, cand.peak, cand.saturated, roi_k, status,
-                                           detail, ray if has_ray[k] else None, ()))
+                                           detail, ray_rows[k] if ray_ok[k] else None, ()))
             continue
         roi_k = rois_of[k] if k in rois_of else _initial_roi(cand, bp, det.threshold, frame)
         out.append(_estimate_one(frame, bp, roi_k, saturated=cand.saturated, grow=True, other_bps=others,

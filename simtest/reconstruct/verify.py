@@ -607,7 +607,7 @@ def frame_evidence(image: np.ndarray, gray: np.ndarray, bps_uv: np.ndarray, rois
         Its luma, image units.
     bps_uv : ndarray of shape (N, 2)
         The candidates' BPs (u, v), px.
-    rois : sequence of Roi
+    rois : sequence of Roi, or ndarray of shape (N, 4), int
         Their regions of interest (row0, row1, col0, col1).
     full_scale : float
         Intensity of white, image units.
@@ -649,7 +649,8 @@ def frame_evidence(image: np.ndarray, gray: np.ndarray, bps_uv: np.ndarray, rois
     cols, rows = ij.T  # the BPs' pixels (u is the column)
     reach = np.asarray(reach_px, np.float64).reshape(-1) if reach_px is not None else np.full(n, np.nan)
     todo = np.flatnonzero(np.isfinite(reach))
-    rr = np.array([[r.row0, r.row1, r.col0, r.col1] for r in rois], np.int64).reshape(-1, 4)
+    rr = (np.asarray(rois, np.int64) if isinstance(rois, np.ndarray)
+          else np.array([[r.row0, r.row1, r.col0, r.col1] for r in rois], np.int64)).reshape(-1, 4)
     # the windows that _kernels.other_peaks reads (its rows r0:r1 and columns c0:c1 of the top-hat)
     win = np.c_[np.maximum(0, (rows[todo] - reach[todo]).astype(np.int64)),
                 np.minimum(h, (rows[todo] + reach[todo]).astype(np.int64) + 1),
@@ -783,7 +784,10 @@ def bp_checks(image: np.ndarray, gray: np.ndarray, bps_uv: np.ndarray, clipped: 
         return []
     bps = np.asarray(bps_uv, np.float64).reshape(-1, 2)
     ij = np.clip(np.rint(bps).astype(np.int64), 0, [gray.shape[1] - 1, gray.shape[0] - 1])
-    rois = [SimpleNamespace(row0=int(r), row1=int(r) + 1, col0=int(c), col1=int(c) + 1) for c, r in ij.tolist()]
+    # each BP's pixel its region (row0, row1, col0, col1), as one array (not an object each: a
+    # real frame's thousand candidates)
+    rows, cols = ij[:, 1], ij[:, 0]
+    rois = np.stack([rows, rows + 1, cols, cols + 1], axis=1)
     ev = frame_evidence(image, gray, bps, rois, full_scale=full_scale, noise=noise,
                         background_px=background_side_px(gray.shape), windowed=True, grey=grey, panels=False)
     ev = replace(ev, clipped=np.asarray(clipped, bool).reshape(-1))
