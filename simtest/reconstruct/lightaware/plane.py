@@ -232,8 +232,10 @@ def photometric_fit(values, origin_uv, bp_uv, camera, rig: LightRig, *,
         1 % noise where the neighbours' correlation does not). With them (the sensor path), by
         that score test alone, scored against the residual's own spatially correlated noise: a
         textured albedo under the rig's diffuse light correlates neighbouring residuals of an
-        exact plane, which that test tells from a curvature; the sigmas then count the
-        residual's correlation area (``sensor_verdict`` in the source).
+        exact plane, which that test tells from a curvature. On both paths the sigmas of a fit
+        that passes count the residual's correlation area (an integer image's rounding of a
+        smooth lobe correlates its residual too), on the sensor path also the cluster
+        jackknife's (``counted`` in the source).
 
     Raises
     ------
