@@ -59,6 +59,7 @@ import cv2
 import numpy as np
 
 from simtest.reconstruct import _kernels
+from simtest.reconstruct._pixels import uv_to_rc
 from simtest.reconstruct.detect import background_side_px, connected_components, noise_sigma
 from simtest.reconstruct.fit import fit_ellipses
 from simtest.reconstruct.jpeg import quantisation_sigma
@@ -786,7 +787,8 @@ def bp_checks(image: np.ndarray, gray: np.ndarray, bps_uv: np.ndarray, clipped: 
     ij = np.clip(np.rint(bps).astype(np.int64), 0, [gray.shape[1] - 1, gray.shape[0] - 1])
     # each BP's pixel its region (row0, row1, col0, col1), as one array (not an object each: a
     # real frame's thousand candidates)
-    rows, cols = ij[:, 1], ij[:, 0]
+    rc = uv_to_rc(ij).astype(np.int64)  # (u, v) to (row, col): the one place that swaps them
+    rows, cols = rc[:, 0], rc[:, 1]
     rois = np.stack([rows, rows + 1, cols, cols + 1], axis=1)
     ev = frame_evidence(image, gray, bps, rois, full_scale=full_scale, noise=noise,
                         background_px=background_side_px(gray.shape), windowed=True, grey=grey, panels=False)
