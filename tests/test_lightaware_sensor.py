@@ -90,6 +90,29 @@ def test_reconstruct_refuses_a_clip_in_the_wrong_units(tmp_path):
     assert not (tmp_path / "o").exists()
 
 
+@pytest.mark.parametrize("lights", [RIG, None])
+def test_a_folder_refuses_a_clip_in_the_wrong_units_as_one_image_does(tmp_path, lights):
+    # A folder checked its frames against the response only where the light-aware fits ran (a rig
+    # off the camera): with no lights in the camera file, one image was refused and a folder of
+    # it was not. Every frame is now checked before its reconstruction, lights or none.
+    import cv2
+    from typer.testing import CliRunner
+
+    from simtest.cli import app
+
+    model = PinholeCamera(np.array([[300.0, 0, 20], [0, 300, 20], [0, 0, 1]]), image_size=(40, 40))
+    cam = save_camera(tmp_path / "cam.json", model, lights, SensorResponse("srgb", clip=1.0))
+    folder = tmp_path / "frames"
+    folder.mkdir()
+    for i in range(2):
+        cv2.imwrite(str(folder / f"f{i}.png"), np.full((40, 40, 3), (60, 90, 180), np.uint8))
+    res = CliRunner().invoke(app, ["reconstruct", str(folder), "--intrinsics", str(cam), "-o", str(tmp_path / "o")])
+    assert res.exit_code == 2, res.output
+    lines = [ln for ln in res.output.splitlines() if ln.strip()]
+    assert len(lines) == 1 and lines[0].startswith("error: frame ") and "response.clip: 1 is below" in lines[0], res.output
+    assert not (tmp_path / "o" / "estimates.jsonl").exists()
+
+
 def test_linearize_picks_the_darkest_channel():
     img = np.zeros((20, 20, 3), np.uint8)
     img[..., 0], img[..., 1], img[..., 2] = 200, 90, 60

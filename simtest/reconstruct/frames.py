@@ -202,6 +202,12 @@ def _frame_head(args) -> tuple[dict, list, bool]:
     """A frame's record but ``specularities``, its estimates and ``include_points``."""
     index, name, image, K, settings, dist_coeffs, include_points, rig, cubic, *more = args
     response = more[0] if more else None  # the camera file's response (None: linear)
+    if response is not None:  # a frame the response could not have written, lights or none (as
+        # a single image is refused): named before its reconstruction
+        try:
+            response.check_frame(image)
+        except ResponseError as exc:
+            raise InputError(f"frame {name}: the camera file's {exc}") from None
     ests = reconstruct(image, K, dist_coeffs=dist_coeffs, settings=settings)
     detection = ests.detection_record()
     # the light-aware step of a single image (nothing runs without a rig or with a co-located one),
