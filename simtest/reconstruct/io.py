@@ -379,15 +379,21 @@ def _isophote_json(iso, include_points: bool):
     parts = (_ellipse_txt(iso.ellipse), _atxt(iso.conic, False), _ftxt(iso.fit_residual_px),
              _ftxt(iso.eigenvalue_gap), _atxt(iso.normals_paper, False), _atxt(iso.paper_selected, True),
              _int_txt(iso.paper_selected_index), _atxt(iso.cone_axis, True))
+    return _isophote_text(iso, _ftxt(iso.isovalue), parts, include_points), parts
+
+
+def _isophote_text(iso, isovalue: str, parts: tuple, include_points: bool) -> str:
+    """The text of :func:`_isophote_dict` from the isovalue's text and the texts of its parts
+    (:func:`_isophote_json`'s), one isophote at a time or a frame's at once alike."""
     n_points = 0 if iso.points_uv is None else int(len(iso.points_uv))
-    text = (f'{{"isovalue":{_ftxt(iso.isovalue)},"status":{_jstr(iso.status)},"detail":{_jstr(iso.detail)},'
+    text = (f'{{"isovalue":{isovalue},"status":{_jstr(iso.status)},"detail":{_jstr(iso.detail)},'
             f'"closed":{"true" if iso.closed else "false"},"n_points":{n_points},"ellipse":{parts[0]},'
             f'"conic":{parts[1]},"fit_residual_px":{parts[2]},"eigenvalue_gap":{parts[3]},'
             f'"normals":{{"paper":{parts[4]},"paper_selected":{parts[5]},"paper_selected_index":{parts[6]},'
             f'"cone_axis":{parts[7]}}}')
     if include_points and iso.points_uv is not None:
         text += f',"points_px":{_atxt(iso.points_uv, False)}'
-    return text + "}", parts
+    return text + "}"
 
 
 def _roi_txt(roi) -> str:
@@ -656,15 +662,7 @@ def _fitted_texts(ests: list, out: list, include_points: bool) -> None:
             parts = (ell, conic[j], resid[j], gap[j], paper[j], psel[j], _int_txt(iso.paper_selected_index),
                      cone[j])
             iso_parts.append(parts)
-            n_points = 0 if iso.points_uv is None else int(len(iso.points_uv))
-            text = (f'{{"isovalue":{isoval[j]},"status":{_jstr(iso.status)},"detail":{_jstr(iso.detail)},'
-                    f'"closed":{"true" if iso.closed else "false"},"n_points":{n_points},"ellipse":{parts[0]},'
-                    f'"conic":{parts[1]},"fit_residual_px":{parts[2]},"eigenvalue_gap":{parts[3]},'
-                    f'"normals":{{"paper":{parts[4]},"paper_selected":{parts[5]},"paper_selected_index":{parts[6]},'
-                    f'"cone_axis":{parts[7]}}}')
-            if include_points and iso.points_uv is not None:
-                text += f',"points_px":{_atxt(iso.points_uv, False)}'
-            iso_txt.append(text + "}")
+            iso_txt.append(_isophote_text(iso, isoval[j], parts, include_points))
         rays = [e.bp_ray for e in es]
         ray_t = _filled(_array_texts(rays, True), rays, lambda v: _atxt(v, True))
         joints = [getattr(e, "joint_cone_axis", None) for e in es]
