@@ -297,3 +297,54 @@ def test_correlation_area_of_smoothed_white_noise(s):
         areas.append(_correlation_area(z.ravel(), np.arange(z.size), shape, 1))
     expected = max(4 * np.pi * s * s, 1.0)
     assert expected / 1.6 < np.median(areas) < 1.6 * expected
+
+
+@settings(max_examples=80, deadline=None)
+@given(sx=st.floats(2.0, 40.0), sy=st.floats(2.0, 40.0), peak=st.floats(20.0, 255.0),
+       cx=st.floats(0.0, 64.0), cy=st.floats(0.0, 64.0), theta=st.floats(0.0, 3.2))
+def test_a_lone_lobe_holds_no_albedo_line(sx, sy, peak, cx, cy, theta):
+    # an elliptical lobe's level sets are ellipses, closed under the disc's closing: nothing of
+    # it is left out, whatever its width, peak, place (the ROI's border cutting it included) or
+    # orientation, rounded to 8 bits (the threshold, two steps, is above the rounding's one)
+    from simtest.reconstruct.lightaware.model import albedo_lines
+
+    yy, xx = np.mgrid[0:64, 0:64].astype(float)
+    u, v = xx - cx, yy - cy
+    a, b = u * np.cos(theta) + v * np.sin(theta), -u * np.sin(theta) + v * np.cos(theta)
+    lobe = np.rint(10.0 + peak * np.exp(-0.5 * ((a / sx) ** 2 + (b / sy) ** 2)))
+    assert not albedo_lines(lobe).any()
+
+
+def test_albedo_lines_are_the_thin_dark_lines_over_a_lobe():
+    # a lobe over a shading gradient, crossed by two lines 1 and 3 px wide, 6 levels dark: away
+    # from the lobe (beyond twice its sigma) every line pixel is found, on its flanks fewer (the
+    # closing sees the flank's slope: a miss, never a false line); nothing but the lines grown by
+    # a pixel is found; and on flat shading a dark band wider than the disc is not a line (on a
+    # slope, the band's side next to its higher wall is: its bottom is narrow at low levels)
+    from simtest.reconstruct.lightaware.model import ALBEDO_LINE_PX, albedo_lines
+
+    yy, xx = np.mgrid[0:80, 0:80].astype(float)
+    img = 40.0 + 0.5 * xx + 150.0 * np.exp(-((xx - 40) ** 2 + (yy - 40) ** 2) / (2 * 12.0 ** 2))
+    truth = np.zeros(img.shape, bool)
+    truth[20, :], truth[50:53, :] = True, True
+    got = albedo_lines(np.rint(img - 6.0 * truth))
+    grown = truth | np.roll(truth, 1, axis=0) | np.roll(truth, -1, axis=0)
+    away = (slice(None), slice(4, 15))
+    assert got[away][truth[away]].all()
+    assert not (got & ~grown).any()
+    band = np.zeros(img.shape, bool)
+    band[:, 30:30 + 2 * ALBEDO_LINE_PX] = True
+    assert not albedo_lines(np.rint(40.0 - 6.0 * band)).any()
+
+
+def test_the_darkest_channels_fit_leaves_the_vessels_out():
+    # photometric_fit's exclude: the pixels given are left out as clipped pixels are (a fit on the
+    # ROI with its lines left out equals one on the ROI whose lines are set to anything else)
+    img, K, N, _, bp = plane_case(20.0, 25.0, RIG, size=60)
+    lines = np.zeros(img.shape, bool)
+    lines[::7, :] = True
+    a = la.photometric_fit(img, (0, 0), bp, K, RIG, exclude=lines)
+    b = la.photometric_fit(np.where(lines, 0.0, img), (0, 0), bp, K, RIG, exclude=lines)
+    assert a.status == b.status and np.allclose(a.normal, b.normal, atol=1e-12)
+    with pytest.raises(ValueError, match="exclude"):
+        la.photometric_fit(img, (0, 0), bp, K, RIG, exclude=lines[1:])

@@ -171,7 +171,7 @@ import numpy as np
 
 from simtest.geometry.lights import LightRig
 from simtest.reconstruct._pixels import Roi
-from simtest.reconstruct.detect import luma
+from simtest.reconstruct.detect import luma, noise_sigma
 from simtest.reconstruct import lightaware as _la
 from simtest.reconstruct.isophote import extract_isophote
 from simtest.reconstruct.jpeg import jpeg_grid
@@ -403,6 +403,12 @@ def light_aware_estimates(image, est, camera, rig: LightRig, *, nominal_depth_mm
     pkw = dict(clip_level=fit_clip, nominal_depth_mm=nominal_depth_mm,
                start_normal=start_n, supersample=supersample, diffuse=diffuse, censor=censor,
                lobe=lobe, floor_level=floor, floor_refit=floor_refit, floor_step=floor_step)
+    if response is not None and not colour and img.ndim == 3:
+        # one channel of a sensor frame whose colours cannot be projected out (a JPEG grid):
+        # the albedo's dark lines (vessels) are left out of the fit (model.albedo_lines)
+        y = luma(img[big.slices])
+        pkw["exclude"] = _la.model.albedo_lines(y, 1.0 if img.dtype.kind in "ui" else 0.0,
+                                                noise_sigma(y) if min(y.shape) >= 3 else 0.0)
 
     def fitted(projection: str) -> LightAwareEstimate:
         """The photometric fit on ``projection``, guarded, before the depth ceiling."""

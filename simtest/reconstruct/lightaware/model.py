@@ -10,7 +10,7 @@ gradient, and the ROI's pixel grid the fits sample.
 from __future__ import annotations
 
 import numpy as np
-from scipy.ndimage import maximum_filter, minimum_filter, uniform_filter
+from scipy.ndimage import grey_closing, maximum_filter, minimum_filter, uniform_filter
 
 from simtest.geometry.angles import unit
 from simtest.geometry.camera import validate_intrinsics
@@ -333,6 +333,55 @@ def _roi_samples(vals, o, uu, vv, keep, max_pixels):
     uv = np.column_stack([uu.ravel()[sel] + o[0], vv.ravel()[sel] + o[1]]).astype(np.float64)
     y = vals.ravel()[sel]
     return sel, step, uv, y
+
+
+#: The albedo's thin dark lines that a fit on one channel leaves out (:func:`albedo_lines`): lines
+#: narrower than this disc's diameter, px...
+ALBEDO_LINE_PX = 7
+#: ... and darker than its closing by at least this many of the frame's quantisation steps (or
+#: three noise sigmas, the larger).
+ALBEDO_LINE_STEPS = 2.0
+
+
+def albedo_lines(luma_roi, step: float = 1.0, noise: float = 0.0) -> np.ndarray:
+    """The pixels of the tissue albedo's thin dark lines (vessels) in an ROI of a frame's luma.
+
+    The wet film reflects the light above the tissue, so its lobe is smooth, its level sets
+    discs or ellipses, with no dark line of its own; the vessels darken the diffuse shading
+    beneath it in lines a few pixels wide. Where a fit cannot project the tissue's body colours
+    out (a JPEG frame's chroma, subsampled and quantised: the darkest channel's fit), those lines
+    are left out of it: the pixels whose black top-hat (the closing by a disc of
+    :data:`ALBEDO_LINE_PX` px, minus the image) is at least ``max(ALBEDO_LINE_STEPS * step, 3 *
+    noise)``, grown by one pixel (the line's blurred edge), none within the disc's radius of the
+    ROI's border (where the closing sees past the ROI). A lone lobe is its own closing (flat
+    morphology commutes with thresholds, and a convex level set is closed under a disc), so it
+    loses nothing (``test_a_lone_lobe_holds_no_albedo_line``: 8-bit elliptical Gaussians 2 to
+    40 px wide); the saddle between two lobes nearer than the disc's width is taken for a line.
+
+    Parameters
+    ----------
+    luma_roi : ndarray of shape (H, W)
+        The ROI's luma in the frame's units (e.g. 0 to 255).
+    step : float
+        The frame's quantisation step in those units (1 for an integer frame).
+    noise : float
+        The frame's noise sigma in those units.
+
+    Returns
+    -------
+    ndarray of shape (H, W), bool
+        True on the lines.
+    """
+    v = np.asarray(luma_roi, dtype=np.float32)
+    lines = np.zeros(v.shape[:2], bool)
+    h = ALBEDO_LINE_PX // 2
+    if v.ndim != 2 or min(v.shape) <= 2 * h:
+        return lines
+    yy, xx = np.mgrid[-h:h + 1, -h:h + 1]
+    disc = xx * xx + yy * yy <= h * h + 0.5
+    top_hat = grey_closing(v, footprint=disc, mode="nearest") - v
+    lines[h:-h, h:-h] = top_hat[h:-h, h:-h] >= max(ALBEDO_LINE_STEPS * float(step), 3.0 * float(noise))
+    return maximum_filter(lines, size=3, mode="nearest")
 
 
 def _roi_grid(values, camera, origin_uv, clip_level):

@@ -78,7 +78,7 @@ def photometric_fit(values, origin_uv, bp_uv, camera, rig: LightRig, *,
                     max_pixels: int | None = 16384, refine_all: bool = True, max_nfev: int = 200,
                     lobe: str = "phong", floor_level: float | None = None,
                     floor_refit: bool = False, floor_step: float = 0.0,
-                    projection: str = "auto") -> LightAwareEstimate:
+                    projection: str = "auto", exclude=None) -> LightAwareEstimate:
     """Fit the intensities of an ROI with the image of a plane lit by the whole rig.
 
     Model (package docstring): ``I = g sum_j w_j max(0, cos beta_j)^n f_j p_j + b0 + b1 du + b2 dv``
@@ -210,6 +210,9 @@ def photometric_fit(values, origin_uv, bp_uv, camera, rig: LightRig, *,
         fell back to the BP ray, 6 deg off, where the darkest channel's fit passes 0.6 deg off.
         On its colon wall one such fit passed with its depth not observable, 17.5 deg off with
         a sigma of 1.7 deg, and was recommended over the BP ray (2.3 deg).
+    exclude : ndarray of shape (H, W) of bool, optional
+        ROI pixels left out of the fit, as clipped pixels are without ``censor`` (the albedo's
+        dark lines: :func:`~simtest.reconstruct.lightaware.model.albedo_lines`).
     lobe : {"phong", "ggx", "auto"}
         The specular lobe of the model: Phong's ``max(0, cos beta)^n`` (the paper's eq. 1), a GGX
         microfacet lobe under a dielectric film (the renderer's tissue,
@@ -294,7 +297,7 @@ def photometric_fit(values, origin_uv, bp_uv, camera, rig: LightRig, *,
                   start_roughness=start_roughness, loss=loss, f_scale=f_scale, supersample=supersample,
                   diffuse=diffuse, censor=censor, max_pixels=max_pixels, refine_all=refine_all,
                   max_nfev=max_nfev, lobe=lobe, floor_level=floor_level, floor_refit=floor_refit,
-                  floor_step=floor_step)
+                  floor_step=floor_step, exclude=exclude)
         first = photometric_fit(values, origin_uv, bp_uv, camera, rig, n_start_depths=0,
                                 projection=projection, **kw)
         best = first
@@ -325,7 +328,7 @@ def photometric_fit(values, origin_uv, bp_uv, camera, rig: LightRig, *,
                   supersample=supersample, n_start_depths=n_start_depths, diffuse=diffuse, censor=censor,
                   max_pixels=max_pixels, refine_all=refine_all, max_nfev=max_nfev,
                   floor_level=floor_level, floor_refit=floor_refit, floor_step=floor_step,
-                  projection=projection)
+                  projection=projection, exclude=exclude)
         pho = photometric_fit(values, origin_uv, bp_uv, camera, rig, start_normal=start_normal,
                               start_roughness=start_roughness, lobe="phong", **kw)
         if pho.ok or pho.status in ("depth_not_observable", "too_few_points"):
@@ -350,6 +353,11 @@ def photometric_fit(values, origin_uv, bp_uv, camera, rig: LightRig, *,
                                               None if censor else clip_level)
     if lower is not None:
         keep &= ~missing if censor else ~(missing | lower)
+    if exclude is not None:
+        ex = np.asarray(exclude, dtype=bool)
+        if ex.shape != keep.shape:
+            raise ValueError(f"exclude: shape {ex.shape} is not the ROI's {keep.shape}")
+        keep &= ~ex
     H, W = vals.shape
     border = np.concatenate([vals[0], vals[-1], vals[:, 0], vals[:, -1]])
     b_level = float(np.median(border))
@@ -844,7 +852,7 @@ def photometric_fit(values, origin_uv, bp_uv, camera, rig: LightRig, *,
                                supersample=supersample, n_start_depths=0, diffuse=diffuse,
                                censor=censor, max_pixels=max_pixels, refine_all=refine_all,
                                max_nfev=max_nfev, lobe=lobe, floor_level=floor_in,
-                               floor_refit=floor_refit, floor_step=floor_step)
+                               floor_refit=floor_refit, floor_step=floor_step, exclude=exclude)
         if chan.status == "plane_misfit":
             est = replace(est, status="plane_misfit", depth_mm=None, depth_sigma_mm=None,
                           distance_mm=None, detail=f"channel {c}'s fit misfits ({chan.detail}); "
