@@ -473,27 +473,33 @@ def _claim_curved_offset(results):
             f"(+-{_EPS_SLACK:g}, case means of eps_over_d), case medians; bound {bound:g} deg")
 
 
+def _counted(cases: list[dict], key: str) -> list[tuple[dict, float, int]]:
+    """``(case, share, n)`` for each case whose share diagnostic ``key`` has highlights: its mean
+    and its count (``key`` + :data:`~simtest.harness.metrics.COUNT_SUFFIX`), which a suite-wide
+    verdict pools by the counts."""
+    out = []
+    for c in cases:
+        share, n = _diag(c, key), _diag(c, key + COUNT_SUFFIX)
+        if share is not None and n:
+            out.append((c, float(share), int(n)))
+    return out
+
+
 def _claim_sigma_coverage(results):
     """Issue 39's coverage must-hold, pooled over a suite's rendered cases: the share of the
     highlights with a stated sigma whose recommended normal errs by at most twice it (each case's
     ``recommended_within_2sigma`` weighted by its count); None where no case states a sigma."""
-    key = "recommended_within_2sigma"
-    covered = stated = 0.0
-    worst = []
-    for c in _unique([c for c in results["cases"] if c["protocol"] == "rendered"]):
-        share, n = _diag(c, key), _diag(c, key + COUNT_SUFFIX)
-        if share is None or not n:
-            continue
-        covered += share * n
-        stated += n
-        worst.append((share, c["id"], int(n)))
+    cs = _counted(_unique([c for c in results["cases"] if c["protocol"] == "rendered"]),
+                  "recommended_within_2sigma")
+    stated = sum(n for _, _, n in cs)
     if not stated:
         return None
     bound = TOL.claim_sigma_coverage
-    pooled = covered / stated
-    text = (f"share within twice the sigma {pooled:.3g} over {int(stated)} highlights with a stated sigma "
-            f"in {len(worst)} cases; lowest cases: "
-            + ", ".join(f"{cid} {share:.2g} of {n}" for share, cid, n in sorted(worst)[:3]))
+    pooled = sum(share * n for _, share, n in cs) / stated
+    worst = sorted((share, c["id"], n) for c, share, n in cs)[:3]
+    text = (f"share within twice the sigma {pooled:.3g} over {stated} highlights with a stated sigma "
+            f"in {len(cs)} cases; lowest cases: "
+            + ", ".join(f"{cid} {share:.2g} of {n}" for share, cid, n in worst))
     return (pooled >= bound, text,
             f"rendered cases, pooled (each case's share weighted by its count); bound {bound:g}")
 
@@ -502,22 +508,13 @@ def _claim_never_beyond_bp_ray(results):
     """Issue 39's per-highlight must-hold on curved surfaces: no recommended normal with a stated
     sigma errs by more than the BP ray's error plus that sigma (each case's
     ``recommended_beyond_bp_ray`` times its count); None where no curved case states a sigma."""
-    key = "recommended_beyond_bp_ray"
-    beyond = stated = 0.0
-    bad = []
-    for c in _unique(_rendered(results, colocated=False)):
-        if _base_family(c) in ("plane", ""):
-            continue
-        share, n = _diag(c, key), _diag(c, key + COUNT_SUFFIX)
-        if share is None or not n:
-            continue
-        beyond += share * n
-        stated += n
-        if share > 0:
-            bad.append(f"{c['id']} {round(share * n)} of {int(n)}")
+    cs = _counted([c for c in _unique(_rendered(results, colocated=False))
+                   if _base_family(c) not in ("plane", "")], "recommended_beyond_bp_ray")
+    stated = sum(n for _, _, n in cs)
     if not stated:
         return None
-    text = f"{round(beyond)} of {int(stated)} highlights with a stated sigma" + (
+    bad = [f"{c['id']} {round(share * n)} of {n}" for c, share, n in cs if share > 0]
+    text = f"{round(sum(share * n for _, share, n in cs))} of {stated} highlights with a stated sigma" + (
         ": " + ", ".join(bad) if bad else "")
     return (not bad, text, "rendered curved cases lit off the camera, every highlight with a "
                            "stated sigma and a scored BP ray")

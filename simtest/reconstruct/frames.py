@@ -211,11 +211,9 @@ def _frame_head(args) -> tuple[dict, list, bool]:
     ests = reconstruct(image, K, dist_coeffs=dist_coeffs, settings=settings)
     detection = ests.detection_record()
     # the light-aware step of a single image (nothing runs without a rig or with a co-located one),
-    # on the linear intensities of the camera file's response as a single image's
-    try:
-        ests = with_light_aware(image, ests, K, rig, cubic=cubic, response=response)
-    except ResponseError as exc:  # a frame the response could not have written: name it
-        raise InputError(f"frame {name}: the camera file's {exc}") from None
+    # on the linear intensities of the camera file's response as a single image's (the frame
+    # checked against it above)
+    ests = with_light_aware(image, ests, K, rig, cubic=cubic, response=response)
     counts: dict[str, int] = {}
     for e in ests:
         counts[e.status] = counts.get(e.status, 0) + 1
