@@ -300,13 +300,15 @@ def _exp5(m) -> str:
 def _as_repr(t: str) -> str | None:
     """orjson's text of float64s (an array's or a list's) as json.dumps writes them (repr's
     notation): its shortest round-trip digits are repr's, only the notation differs; orjson writes
-    an exponent bare ("1e-7", "1.5e16": repr "1e-07", "1.5e+16") and 1e-5 <= |x| < 1e-4
-    positionally ("0.0000123": repr "1.23e-05"). None where a value is not finite (orjson's
-    null). A text of numbers only (no strings), so every "e" is an exponent
-    (``tests/test_io_fast.py`` compares it with repr over the whole float64 range)."""
+    an exponent bare ("1e-7", "1.5e16": repr "1e-07", "1.5e+16"; orjson 3.10 and later write
+    "1.5e+16", which is first made bare) and 1e-5 <= |x| < 1e-4 positionally ("0.0000123": repr
+    "1.23e-05"). None where a value is not finite (orjson's null). A text of numbers only (no
+    strings), so every "e" is an exponent (``tests/test_io_fast.py`` compares it with repr over
+    the whole float64 range)."""
     if "n" in t:
         return None
     if "e" in t:  # every exponent signed, at least two digits: "e-7" -> "e-07", "e16" -> "e+16"
+        t = t.replace("e+", "e")  # orjson's own sign, where its version writes one
         t = _EXP_LONG.sub("e-", t.replace("e-", "E").replace("e", "e+").replace("E", "e-0"))
     if ".0000" in t:
         t = _POSITIONAL.sub(_exp5, t)
