@@ -269,6 +269,8 @@ def test_curved_offset_claim_holds_or_names_where_it_breaks_and_why():
     doc = {"sweeps": [], "cases": good + [far, plane]}
     verdict = {c["id"]: c for c in evaluate_claims(doc)}["curved_offset_median"]
     assert verdict["holds"] is True and "in 2 of 2 cases" in verdict["measured"]
+    # one light: the spheres are held to the BP ray only, and the text says the bound took none
+    assert "under a light rig (0 of these cases)" in verdict["measured"]
     doc["cases"].append(bad)
     verdict = {c["id"]: c for c in evaluate_claims(doc)}["curved_offset_median"]
     assert verdict["holds"] is False and "in 2 of 3 cases" in verdict["measured"]
@@ -300,6 +302,7 @@ def test_curved_offset_claim_holds_or_names_where_it_breaks_and_why():
     doc["cases"] = good + [rig_sphere]
     verdict = {c["id"]: c for c in evaluate_claims(doc)}["curved_offset_median"]
     assert verdict["holds"] is False and "Breaks on sphere_two_lights@5" in verdict["measured"]
+    assert "under a light rig (1 of these cases)" in verdict["measured"]
     rig_sphere["metrics"]["estimators"]["recommended"]["median"] = 0.4
     assert {c["id"]: c for c in evaluate_claims(doc)}["curved_offset_median"]["holds"] is True
 
