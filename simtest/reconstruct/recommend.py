@@ -453,14 +453,20 @@ def light_aware_estimates(image, est, camera, rig: LightRig, *, nominal_depth_mm
             chan, detail=f"{chan.detail}; {why}" if chan.detail else why)
     near = Roi.around(est.bp_px, quadric_roi_scale * max(roi.shape) / 2.0, img.shape)
     curved = out["photometric_fit"].status in CURVED_FIT_AFTER
+    # a curved patch that misfits serves the recommendation only through the quadric's sigma
+    # where the plane misfits (rule 4): elsewhere its sigma, whose depth valley takes most of
+    # the fit's time, is not read (on a real frame's glints the plane fit often runs off and
+    # the quadric misfits: seconds a highlight)
+    plane_misfit = out["photometric_fit"].status == "plane_misfit"
     if quadric or (quadric is None and curved):
         out["quadric_fit"] = _guarded(
             "quadric_fit", quadric_fit, gray[near.slices], (near.col0, near.row0), est.bp_px, camera, rig,
-            clip_level=saturation_level, nominal_depth_mm=nominal_depth_mm)
+            clip_level=saturation_level, nominal_depth_mm=nominal_depth_mm,
+            misfit_sigma=plane_misfit or bool(quadric))
     if cubic or (cubic is None and curved and _several_lights(rig)):
         out["cubic_patch_fit"] = _guarded(
             "cubic_patch_fit", cubic_patch_fit, gray[near.slices], (near.col0, near.row0), est.bp_px, camera, rig,
-            clip_level=saturation_level, nominal_depth_mm=nominal_depth_mm)
+            clip_level=saturation_level, nominal_depth_mm=nominal_depth_mm, misfit_sigma=bool(cubic))
     ray = _la.model._rays(camera, np.asarray(est.bp_px, dtype=np.float64)[None])[0]
     for name, r in out.items():
         r = depth_within_ceiling(r)

@@ -163,7 +163,8 @@ def _patch_problem(values, origin_uv, bp_uv, camera, rig, clip_level, max_pixels
 def quadric_fit(values, origin_uv, bp_uv, camera, rig: LightRig, *,
                 clip_level: float | None = None, nominal_depth_mm: float = 20.0,
                 start_depths_mm=None, start_roughness: float | None = None,
-                max_pixels: int | None = 800, max_nfev: int = 100) -> LightAwareEstimate:
+                max_pixels: int | None = 800, max_nfev: int = 100,
+                misfit_sigma: bool = True) -> LightAwareEstimate:
     """Fit the ROI with the image of a curved (quadric) patch lit by the rig.
 
     The patch is second-order about its apex: the apex X0 at depth s on a ray near the BP's
@@ -239,6 +240,11 @@ def quadric_fit(values, origin_uv, bp_uv, camera, rig: LightRig, *,
     max_nfev : int
         Evaluation budget per start, in Jacobian evaluations (scipy's ``max_nfev`` for ``lm`` with
         a finite-difference Jacobian counts each of its 8 residual evaluations).
+    misfit_sigma : bool
+        State a sigma for a fit that misfits (``patch_misfit``): read its depth valley as for the
+        others. False: a misfit states none (``normal_sigma_deg`` None) and its valley, six
+        refits with the depth fixed and most of the fit's time, is not read
+        (:data:`MISFIT_SIGMA_NOTE`). The misfit verdict does not depend on it.
 
     Returns
     -------
@@ -302,15 +308,19 @@ def quadric_fit(values, origin_uv, bp_uv, camera, rig: LightRig, *,
         dp[i] = 1e-6 * x_scale[i]
         G[:, i] = (_quadric_image(d[:1], b_ray, x + dp, rig_arr, Lm)[1]
                    - _quadric_image(d[:1], b_ray, x - dp, rig_arr, Lm)[1]) / (2 * dp[i])
-    valley, excess, rises = _depth_valley({"res": res, "x_scale": x_scale}, x, float(r0 @ r0),
-                                          resid_var, covs, max_nfev)
-    sigma_deg = _valley_sigma_deg(G, covs, G @ valley, excess)
     rel_floor = None if cov_floor is None else float(np.sqrt(max(cov_floor[2, 2], 0.0)))
     status, detail, observable, rms = _patch_verdict(
-        rel_floor, r0, sel, P.shape, step,
-        (f"the fit's cost rises by {rises[0]:.3g} and {rises[1]:.3g} residual variances at "
-         f"+-{_VALLEY_STEP:.0%} of its depth"),
+        rel_floor, r0, sel, P.shape, step, "",
         "the ROI is not one patch's lobe (streaks along folds, several lobes)")
+    if status == "patch_misfit" and not misfit_sigma:
+        sigma_deg = None
+        detail = f"{detail}; {MISFIT_SIGMA_NOTE}"
+    else:
+        valley, excess, rises = _depth_valley({"res": res, "x_scale": x_scale}, x, float(r0 @ r0),
+                                              resid_var, covs, max_nfev)
+        sigma_deg = _valley_sigma_deg(G, covs, G @ valley, excess)
+        if status == "ok":
+            detail = _valley_detail(rises)
     depth_sigma = (float(s_hat * np.sqrt(max(max(c[2, 2] for c in covs), 0.0) + excess))
                    if observable and covs else None)
     depth_range = None
@@ -527,6 +537,16 @@ _VALLEY_STEP = 0.05
 #: says, and each step's width counts.
 _VALLEY_STEPS = (_VALLEY_STEP, 0.15, 0.4)
 
+#: The detail a patch fit's misfit ends with where it states no sigma (``misfit_sigma`` False:
+#: the recommendation has no use for it, :func:`~simtest.reconstruct.recommend.light_aware_estimates`).
+MISFIT_SIGMA_NOTE = "no sigma stated (a misfit's depth valley not read)"
+
+
+def _valley_detail(rises) -> str:
+    """The detail of an ``ok`` patch fit: how its cost rises at the valley's nearest steps."""
+    return (f"the fit's cost rises by {rises[0]:.3g} and {rises[1]:.3g} residual variances at "
+            f"+-{_VALLEY_STEP:.0%} of its depth")
+
 
 def _depth_valley(S, x, cost0, resid_var, covs, max_nfev):
     """The cubic patch's cost along its depth, beyond the local covariance.
@@ -736,7 +756,7 @@ def patch_depth_profile(values, origin_uv, bp_uv, camera, rig: LightRig, depths_
 def cubic_patch_fit(values, origin_uv, bp_uv, camera, rig: LightRig, *,
                     clip_level: float | None = None, nominal_depth_mm: float = 20.0,
                     start_roughness: float | None = None, max_pixels: int | None = 800,
-                    max_nfev: int = 100) -> LightAwareEstimate:
+                    max_nfev: int = 100, misfit_sigma: bool = True) -> LightAwareEstimate:
     """Fit the ROI with the image of a third-order surface patch lit by the whole rig.
 
     The patch is :func:`quadric_fit`'s with the four third-order terms of the height function
@@ -878,13 +898,19 @@ def cubic_patch_fit(values, origin_uv, bp_uv, camera, rig: LightRig, *,
         dp[i] = 1e-6 * S["x_scale"][i]
         G[:, i] = (_cubic_patch_geometry(b_ray[None], b_ray, x + dp, Lm)[3]
                    - _cubic_patch_geometry(b_ray[None], b_ray, x - dp, Lm)[3]) / (2 * dp[i])
-    valley, excess, rises = _depth_valley(S, x, float(r0 @ r0), resid_var, covs, max_nfev)
-    sigma_deg = _valley_sigma_deg(G, covs, G @ valley, excess)
     rel_floor = None if cov_floor is None else float(np.sqrt(max(cov_floor[2, 2], 0.0)))
     status, detail, observable, rms = _patch_verdict(
-        rel_floor, r0, S["sel"], S["shape"], S["step"], (f"profile minimum at {depths[i0]:.4g} mm; the fit's cost rises by {rises[0]:.3g} and "
-                   f"{rises[1]:.3g} residual variances at +-{_VALLEY_STEP:.0%} of its depth"),
+        rel_floor, r0, S["sel"], S["shape"], S["step"], "",
         "the ROI is not one patch's lobes (streaks along folds, a lobe cut off)")
+    excess = 0.0
+    if status == "patch_misfit" and not misfit_sigma:
+        sigma_deg = None
+        detail = f"{detail}; {MISFIT_SIGMA_NOTE}"
+    else:
+        valley, excess, rises = _depth_valley(S, x, float(r0 @ r0), resid_var, covs, max_nfev)
+        sigma_deg = _valley_sigma_deg(G, covs, G @ valley, excess)
+        if status == "ok":
+            detail = f"profile minimum at {depths[i0]:.4g} mm; {_valley_detail(rises)}"
     depth_sigma = (float(s_hat * np.sqrt(max(max(c[2, 2] for c in covs), 0.0) + excess))
                    if observable and covs else None)
     ln = ld = lsig = None
