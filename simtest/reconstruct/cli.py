@@ -95,7 +95,8 @@ def reconstruct_command(
     ),
     workers: int = typer.Option(
         0, "--workers", "-j", min=0,
-        help="Worker processes for a folder or video (0: one per core; at most the CPU count).",
+        help="Worker processes for a folder or video, or for a single image's light-aware fits "
+        "(0: one per core; at most the CPU count).",
         show_default=False,
     ),
     max_candidates: int = typer.Option(
@@ -155,9 +156,10 @@ def reconstruct_command(
         with Progress(TextColumn("light-aware fits"), BarColumn(), MofNCompleteColumn(),
                       TimeElapsedColumn(), transient=True) as bar:
             task = bar.add_task("highlights", total=None)
+            # the highlights' fits shared among --workers processes (one per core by default)
             estimates = with_light_aware(
                 img, estimates, camera, rig, cubic=None if cubic_patch else False,
-                response=camera_file.response,
+                response=camera_file.response, workers=workers or os.cpu_count() or 1,
                 on_highlight=lambda done, total: bar.update(task, completed=done, total=total))
         pinhole = isinstance(camera, PinholeCamera)
         doc = estimates_document(

@@ -173,10 +173,12 @@ from __future__ import annotations
 
 import dataclasses
 import math
+from concurrent.futures import ProcessPoolExecutor, as_completed
 from dataclasses import dataclass
 
 import numpy as np
 
+from simtest._threads import one_thread_each
 from simtest.geometry.lights import LightRig
 from simtest.reconstruct._pixels import Roi
 from simtest.reconstruct.detect import luma, noise_sigma
@@ -675,7 +677,7 @@ def _guarded(name: str, fit, *args, **kwargs) -> LightAwareEstimate:
 
 
 def with_light_aware(image, estimates, camera, rig: LightRig | None, *, on_highlight=None,
-                     fit_rejected: bool = False, **kwargs) -> list:
+                     fit_rejected: bool = False, workers: int = 1, **kwargs) -> list:
     """The estimates with their light-aware results attached (``light_aware``).
 
     Nothing is run, and the estimates are returned unchanged, without a rig or with every light at
@@ -705,13 +707,27 @@ def with_light_aware(image, estimates, camera, rig: LightRig | None, *, on_highl
     fit_rejected : bool, optional
         Fit also the candidates rejected for a reason other than :data:`NOT_FITTED` (default: the
         accepted ones only).
+    workers : int
+        Worker processes the highlights' fits are shared among (1: in this process). Each
+        highlight's fits read the image in its own ROI only, so the results are the same, bit for
+        bit, whatever the number (``tests/test_lightaware_workers.py``); the image, camera, rig
+        and arguments go to each worker once, the highlights one by one. With more than one, this
+        process and the workers run BLAS on one thread each (:func:`simtest._threads.one_thread_each`).
     **kwargs
         Passed to :func:`light_aware_estimates`.
 
     Returns
     -------
     list of SpecularityEstimate
+        In the order of ``estimates``.
+
+    Raises
+    ------
+    ValueError
+        If ``workers`` is below 1.
     """
+    if workers < 1:
+        raise ValueError(f"workers must be at least 1, got {workers}")
     if not _offset_rig(rig):
         return list(estimates)
     def fitted(est) -> bool:
@@ -721,19 +737,40 @@ def with_light_aware(image, estimates, camera, rig: LightRig | None, *, on_highl
         kwargs = dict(kwargs, linear=kwargs["response"].linearize(np.asarray(image)))
     if "colour" not in kwargs:
         kwargs = dict(kwargs, colour=colour_fit_applies(image, kwargs.get("response")))
-    out = []
-    todo = sum(fitted(est) for est in estimates)
-    done = 0
-    for est in estimates:
-        if not fitted(est):
-            out.append(est)
-            continue
-        out.append(dataclasses.replace(est, light_aware=light_aware_estimates(image, est, camera, rig,
-                                                                             **kwargs)))
-        done += 1
+    out = list(estimates)
+    todo = [i for i, est in enumerate(out) if fitted(est)]
+    if workers > 1 and len(todo) > 1:
+        with one_thread_each(), ProcessPoolExecutor(
+                max_workers=min(workers, len(todo)), initializer=_fit_context,
+                initargs=(image, camera, rig, kwargs)) as pool:
+            futures = {pool.submit(_fits_in_context, out[i]): i for i in todo}
+            for done, fut in enumerate(as_completed(futures), 1):
+                i = futures[fut]
+                out[i] = dataclasses.replace(out[i], light_aware=fut.result())
+                if on_highlight is not None:
+                    on_highlight(done, len(todo))
+        return out
+    for done, i in enumerate(todo, 1):
+        out[i] = dataclasses.replace(out[i], light_aware=light_aware_estimates(image, out[i], camera, rig,
+                                                                              **kwargs))
         if on_highlight is not None:
-            on_highlight(done, todo)
+            on_highlight(done, len(todo))
     return out
+
+
+#: A worker's image, camera, rig and arguments of :func:`with_light_aware` (:func:`_fit_context`).
+_CONTEXT: dict = {}
+
+
+def _fit_context(image, camera, rig, kwargs) -> None:
+    """A worker's initializer: what every highlight's fits share, received once."""
+    _CONTEXT.update(image=image, camera=camera, rig=rig, kwargs=kwargs)
+
+
+def _fits_in_context(est) -> dict[str, LightAwareEstimate]:
+    """:func:`light_aware_estimates` of one highlight in a worker (:func:`_fit_context`)."""
+    c = _CONTEXT
+    return light_aware_estimates(c["image"], est, c["camera"], c["rig"], **c["kwargs"])
 
 
 def recommend(est) -> Recommendation:

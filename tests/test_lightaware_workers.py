@@ -1,0 +1,63 @@
+"""A frame's light-aware fits shared among worker processes give what one process gives, bit for
+bit (``with_light_aware(workers=...)``, ``simtest reconstruct -j`` on a single image): each
+highlight's fits read the image in its own ROI only, and every process runs BLAS on one thread."""
+
+from __future__ import annotations
+
+import dataclasses
+import pickle
+
+import numpy as np
+import pytest
+
+from simtest.geometry.lights import Light, LightRig
+from simtest.geometry.response import SensorResponse
+from simtest.reconstruct.pipeline import reconstruct
+from simtest.reconstruct.recommend import with_light_aware
+from simtest.reconstruct.settings import ReconSettings
+from test_lightaware import plane_case
+
+TWO_GUIDES = LightRig((Light((3.0, 0.0, 0.0), 1.0, "inverse_square"),
+                       Light((-3.0, 0.0, 0.0), 1.0, "inverse_square")))
+
+
+def _frame():
+    """Four copies of a plane's highlight side by side, with a little seeded read noise (so that
+    their fits differ), as an 8-bit RGB frame: four accepted highlights to share."""
+    img, K, _, _, _ = plane_case(20.0, 30.0, LightRig(TWO_GUIDES.lights[:1]), size=70)
+    tile = img / img.max() * 230.0
+    frame = np.concatenate([np.concatenate([tile, tile], axis=1)] * 2, axis=0)
+    frame = frame + np.random.default_rng(5).normal(0.0, 2.0, frame.shape)
+    gray = np.clip(np.rint(frame), 0, 255).astype(np.uint8)
+    return np.repeat(gray[..., None], 3, axis=2), K
+
+
+def _light_aware_bytes(ests) -> list[bytes]:
+    return [pickle.dumps({k: dataclasses.asdict(v) for k, v in sorted(e.light_aware.items())})
+            if e.light_aware else b"" for e in ests]
+
+
+def test_workers_give_the_fits_of_one_process_bit_for_bit():
+    rgb, K = _frame()
+    ests = reconstruct(rgb, K, settings=ReconSettings.for_frames())
+    assert sum(e.ok for e in ests) >= 3, [e.status for e in ests]
+    response = SensorResponse("srgb", clip=255.0)
+    calls = []
+    one = with_light_aware(rgb, ests, K, TWO_GUIDES, response=response)
+    two = with_light_aware(rgb, ests, K, TWO_GUIDES, response=response, workers=2,
+                           on_highlight=lambda done, total: calls.append((done, total)))
+    assert [e.status for e in two] == [e.status for e in ests]  # in the order given
+    assert _light_aware_bytes(two) == _light_aware_bytes(one)
+    for a, b in zip(one, two):
+        np.testing.assert_array_equal(a.recommended.normal, b.recommended.normal)
+    n_fitted = sum(bool(e.light_aware) for e in one)
+    assert calls == [(i, n_fitted) for i in range(1, n_fitted + 1)]
+    for e, c in zip(two, ests):
+        if not e.light_aware:
+            assert e is c  # a candidate not fitted is returned as given
+
+
+def test_workers_must_be_at_least_one():
+    rgb, K = _frame()
+    with pytest.raises(ValueError, match="workers must be at least 1, got 0"):
+        with_light_aware(rgb, [], K, TWO_GUIDES, workers=0)
