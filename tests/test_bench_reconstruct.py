@@ -4,6 +4,7 @@
 from __future__ import annotations
 
 import importlib
+import os
 import re
 from pathlib import Path
 
@@ -285,10 +286,13 @@ def test_the_real_tile_row_counts_its_fits_and_names_the_missing_tile(monkeypatc
         return [dataclasses.replace(e, light_aware=ran_off) if k in ok else e for k, e in enumerate(ests)]
 
     monkeypatch.setattr(bench, "with_light_aware", fake)
-    (row,) = bench._bench_real_tile_rig()
+    row, shared = bench._bench_real_tile_rig()
     assert row.value > 0 and row.target is None
     got = re.search(r"(\d+) candidates, 3 fitted \(\d+ ms each\), recommended: bp_ray 3; CPU", row.note)
     assert got and int(got.group(1)) > 100, row.note  # the tile's glints, texture and rim
+    # the same fits shared among a worker per core, and how much faster that was
+    assert f"among {os.cpu_count() or 1} worker processes" in shared.name and shared.value > 0
+    assert re.fullmatch(r"\d+\.\d\d times as fast as one process", shared.note), shared.note
     monkeypatch.setattr(bench, "data_root", lambda: tmp_path)
     (row,) = bench._bench_real_tile_rig()
     assert row.value != row.value and "source tree not found" in row.name
