@@ -79,7 +79,8 @@ def _bands(mask: np.ndarray) -> list[tuple[int, int]]:
     if nz.size == 0:
         return []
     gaps = np.flatnonzero(np.diff(nz) > 1)
-    starts, ends = np.r_[nz[0], nz[gaps + 1]], np.r_[nz[gaps], nz[-1]] + 1
+    starts = np.concatenate([nz[:1], nz[gaps + 1]])
+    ends = np.concatenate([nz[gaps], nz[-1:]]) + 1
     return [(r0 - r0 % 2, r1) for r0, r1 in zip(starts.tolist(), ends.tolist())]
 
 

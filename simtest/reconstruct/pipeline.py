@@ -1133,8 +1133,8 @@ def _initial_rois(cands: list, bps_uv: np.ndarray, threshold, frame: _Frame) -> 
     hs = 1.2 * ratio * radius + 4.0
     h, w = frame.img.shape[:2]
     u, v = bps_uv[:, 0], bps_uv[:, 1]  # Roi.around, elementwise
-    rows = np.c_[np.maximum(0, np.floor(v - hs)), np.minimum(h, np.ceil(v + hs) + 1),
-                 np.maximum(0, np.floor(u - hs)), np.minimum(w, np.ceil(u + hs) + 1)].astype(np.int64)
+    rows = np.stack([np.maximum(0, np.floor(v - hs)), np.minimum(h, np.ceil(v + hs) + 1),
+                     np.maximum(0, np.floor(u - hs)), np.minimum(w, np.ceil(u + hs) + 1)], axis=1).astype(np.int64)
     return [Roi(*r) for r in rows.tolist()]
 
 
