@@ -66,6 +66,32 @@ def half_means_uint8(img, out):
 
 
 @numba.njit(cache=True, nogil=True)
+def block_means(img, f, out):
+    """The means of the ``f`` x ``f`` blocks of an image (H, W) into ``out`` (H // f, W // f),
+    float32: each block's f rows summed in float32 (in order), then its f columns, times
+    ``1 / f^2``: ``cv2.resize(img, (W // f, H // f), interpolation=cv2.INTER_AREA)`` to float32
+    rounding (OpenCV groups the sums otherwise). The rows that fill no block are not read. For
+    an odd f (OpenCV's general area path) a half to two thirds of OpenCV's time: 0.49 -> 0.29 ms
+    on the banner's 2240 x 840 px reduced by 5; by 2, OpenCV's vectorised path is faster."""
+    ho, wo = out.shape
+    n = wo * f
+    inv = np.float32(1.0 / (f * f))
+    acc = np.empty(n, np.float32)
+    for i in range(ho):
+        r = i * f
+        for j in range(n):
+            acc[j] = np.float32(img[r, j])
+        for q in range(1, f):
+            for j in range(n):
+                acc[j] += np.float32(img[r + q, j])
+        for j in range(wo):
+            s = acc[j * f]
+            for c in range(1, f):
+                s += acc[j * f + c]
+            out[i, j] = s * inv
+
+
+@numba.njit(cache=True, nogil=True)
 def paste_labels(dst, lab, offset):
     """Copy the component labels ``lab`` (0: background) into ``dst`` shifted by ``offset``.
 

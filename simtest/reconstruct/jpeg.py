@@ -173,7 +173,7 @@ def dct_blocks(blocks: np.ndarray) -> np.ndarray:
     return b @ _DD_T
 
 
-def _steps_of(coef: np.ndarray, tables=_FULL) -> np.ndarray:
+def _steps_of(coef: np.ndarray, tables=_FULL, fewest: int = 0) -> np.ndarray:
     """Per-frequency step from coefficients (N, 64): the largest ``q`` in 4..255 with at least
     :data:`MIN_COEFFICIENTS` coefficients outside its zero bin (``|c| >= q / 2``), of which a
     share of at least :data:`PERIODICITY_MIN`, and well above chance (:data:`CHANCE_SD`), lie
@@ -184,7 +184,11 @@ def _steps_of(coef: np.ndarray, tables=_FULL) -> np.ndarray:
     multiples' indices n (the decoder moves the coefficients by up to ~1.5, so q + 1 passes
     too); 1 if none passes but the frequency has that many coefficients of magnitude >= 2
     (unquantised, or a step of 2 or 3); 0 if it has fewer (a dead frequency: its coefficients
-    all fell into the zero bin, the step is not identifiable). int64, shape (64,)."""
+    all fell into the zero bin, the step is not identifiable). int64, shape (64,).
+
+    ``fewest``: a caller that only counts the identified steps and needs at least this many gets
+    zeros where fewer frequencies have enough coefficients to show one (the count is below it
+    either way; the search is skipped: 0.1 ms a grid candidate of a smooth frame never JPEG)."""
     n = coef.shape[0]
     if n == 0:
         return np.zeros(BLOCK * BLOCK, np.int64)
@@ -192,6 +196,8 @@ def _steps_of(coef: np.ndarray, tables=_FULL) -> np.ndarray:
     c = coef if coef.dtype.type in (np.float32, np.float64) else coef.astype(np.float64)
     hist = _kernels.magnitude_histogram(np.ascontiguousarray(c), nbin)  # (bins, 64)
     active = hist[2:].sum(axis=0) >= MIN_COEFFICIENTS
+    if np.count_nonzero(active) < fewest:
+        return np.zeros(BLOCK * BLOCK, np.int64)
     out = np.where(active, 1, 0).astype(np.int64)
     if not active.any():
         return out
@@ -283,7 +289,9 @@ def _grid(image: np.ndarray):
         coef = dct_blocks(_blocks(image, dy, dx, GRID_BLOCKS if len(cands) == 1 else GRID_BLOCKS // 4))
         if len(coef) < MIN_COEFFICIENTS:
             continue
-        steps = _steps_of(coef, _COARSE if len(cands) > 1 else _FULL)
+        # (a candidate of the weak path counts only if it shows MIN_QUANTISED steps; the clear
+        # one is read again below with fewer)
+        steps = _steps_of(coef, _COARSE if len(cands) > 1 else _FULL, MIN_QUANTISED if len(cands) > 1 else 0)
         nq = int(np.count_nonzero(steps >= MIN_STEP))
         if best is None or nq > best[0]:
             best = (nq, dy, dx, coef, steps)
