@@ -5,12 +5,14 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from hypothesis import assume, given, settings
+from hypothesis import strategies as st
 
 from simtest.geometry import angle_between_deg
 from simtest.simulate.offset import specular_point
 from simtest.reconstruct import lightaware as la
 from simtest.reconstruct.lightaware import model as lam
-from test_lightaware import ROUGHNESS, plane_case
+from test_lightaware import ROUGHNESS, plane_case, tilted_normal
 from test_lightaware_sensor import RIG
 
 
@@ -174,3 +176,63 @@ def test_a_film_smoother_than_the_bound_is_not_converged():
     img, K, _, bp = _ggx_plane(0.01)
     e = la.photometric_fit(img, (0, 0), bp, K, RIG, lobe="ggx")
     assert e.status == "not_converged" and "roughness" in e.detail, e
+
+
+def _ggx_grads(p, n0, rig, alpha_scale=1.0):
+    """The analytic derivatives of the rig's GGX image in (a, b, log h, log alpha) at ``p`` and
+    their central differences (steps of 1e-6), over 300 rays about the optical axis."""
+    from simtest.geometry.conics import plane_basis
+
+    arr = lam._rig_arrays(rig)
+    rng = np.random.default_rng(3)
+    d = np.column_stack([rng.uniform(-0.35, 0.35, (300, 2)), np.ones(300)])
+    dT = np.ascontiguousarray((d / np.linalg.norm(d, axis=1)[:, None]).T)
+    rl = lam._ray_light(arr[0], dT)
+    e1, e2 = plane_basis(n0)
+    n, dns = lam._normal_derivs(p, n0, e1, e2)
+    got = lam._rig_grad_ggx(dT, rl, n, dns, float(np.exp(p[2])), arr, float(np.exp(p[3])))
+    want = np.empty_like(got)
+    for k in range(4):
+        vals = []
+        for sgn in (1.0, -1.0):
+            q = np.array(p, dtype=np.float64)
+            q[k] += sgn * 1e-6
+            m = n0 + q[0] * e1 + q[1] * e2
+            vals.append(lam._rig_value_ggx(dT, rl, m / np.linalg.norm(m), float(np.exp(q[2])), arr,
+                                           float(np.exp(q[3]))))
+        want[k] = (vals[0] - vals[1]) / 2e-6
+    return got, want
+
+
+@settings(max_examples=40, deadline=None)
+@given(tilt=st.floats(0.0, 35.0), az=st.floats(0.0, 360.0), h=st.floats(8.0, 60.0),
+       alpha=st.floats(0.03, 0.5), x=st.floats(-6.0, 6.0), y=st.floats(-3.0, 3.0),
+       inverse_square=st.booleans(), profile=st.sampled_from([0.0, 1.5]), two=st.booleans())
+def test_the_ggx_jacobian_is_the_derivative_of_the_lobe_image(tilt, az, h, alpha, x, y, inverse_square,
+                                                              profile, two):
+    # the photometric fit's GGX Jacobian (analytic) against central differences of the image it
+    # differentiates, for planes, rigs of one or two lights with or without falloff and profile;
+    # 1e-5 of the largest derivative: the differences' own error (a step of 1e-6 on a lobe whose
+    # third derivative is of order its value) is below 1e-8 of it
+    from simtest.geometry.lights import Light, LightRig
+
+    falloff = "inverse_square" if inverse_square else "none"
+    lights = [Light((x, y, 0.0), 1.0, falloff, profile)]
+    if two:
+        lights.append(Light((-x, -y, 0.5), 0.7, falloff, profile))
+    n0 = tilted_normal(tilt, az)
+    got, want = _ggx_grads(np.array([0.01, -0.02, np.log(h), np.log(alpha)]), n0, LightRig(tuple(lights)))
+    # (a row may be 0 itself: the depth's, for a light at the camera without falloff)
+    scale = float(np.abs(want).max())
+    assume(scale > 0)
+    np.testing.assert_allclose(got, want, rtol=0.0, atol=1e-5 * scale)
+
+
+def test_the_ggx_jacobian_of_a_roughness_run_off_to_zero_is_finite():
+    # a fit's trial roughness that underflows to alpha = 0 (a mirror): no division by alpha^2
+    from simtest.geometry.lights import Light, LightRig
+
+    rig = LightRig((Light((3.0, 0.0, 0.0), 1.0, "inverse_square"),))
+    got, _ = _ggx_grads(np.array([0.0, 0.0, np.log(20.0), -800.0]), np.array([0.0, 0.3, -1.0]) / np.hypot(0.3, 1.0),
+                        rig)
+    assert np.isfinite(got).all()

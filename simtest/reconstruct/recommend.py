@@ -711,8 +711,9 @@ def with_light_aware(image, estimates, camera, rig: LightRig | None, *, on_highl
         Worker processes the highlights' fits are shared among (1: in this process). Each
         highlight's fits read the image in its own ROI only, so the results are the same, bit for
         bit, whatever the number (``tests/test_lightaware_workers.py``); the image, camera, rig
-        and arguments go to each worker once, the highlights one by one. With more than one, this
-        process and the workers run BLAS on one thread each (:func:`simtest._threads.one_thread_each`).
+        and arguments go to each worker once, the highlights one by one. This process and the
+        workers run BLAS on one thread each (:func:`simtest._threads.one_thread_each`), with one
+        worker too.
     **kwargs
         Passed to :func:`light_aware_estimates`.
 
@@ -739,22 +740,24 @@ def with_light_aware(image, estimates, camera, rig: LightRig | None, *, on_highl
         kwargs = dict(kwargs, colour=colour_fit_applies(image, kwargs.get("response")))
     out = list(estimates)
     todo = [i for i, est in enumerate(out) if fitted(est)]
-    if workers > 1 and len(todo) > 1:
-        with one_thread_each(), ProcessPoolExecutor(
-                max_workers=min(workers, len(todo)), initializer=_fit_context,
-                initargs=(image, camera, rig, kwargs)) as pool:
-            futures = {pool.submit(_fits_in_context, out[i]): i for i in todo}
-            for done, fut in enumerate(as_completed(futures), 1):
-                i = futures[fut]
-                out[i] = dataclasses.replace(out[i], light_aware=fut.result())
-                if on_highlight is not None:
-                    on_highlight(done, len(todo))
-        return out
-    for done, i in enumerate(todo, 1):
-        out[i] = dataclasses.replace(out[i], light_aware=light_aware_estimates(image, out[i], camera, rig,
-                                                                              **kwargs))
-        if on_highlight is not None:
-            on_highlight(done, len(todo))
+    # one BLAS thread here as in the workers: a product summed over many pixels on several
+    # threads differs in its last bits, which a fit's iterations carry to its results
+    with one_thread_each():
+        if workers > 1 and len(todo) > 1:
+            with ProcessPoolExecutor(max_workers=min(workers, len(todo)), initializer=_fit_context,
+                                     initargs=(image, camera, rig, kwargs)) as pool:
+                futures = {pool.submit(_fits_in_context, out[i]): i for i in todo}
+                for done, fut in enumerate(as_completed(futures), 1):
+                    i = futures[fut]
+                    out[i] = dataclasses.replace(out[i], light_aware=fut.result())
+                    if on_highlight is not None:
+                        on_highlight(done, len(todo))
+            return out
+        for done, i in enumerate(todo, 1):
+            out[i] = dataclasses.replace(out[i], light_aware=light_aware_estimates(image, out[i], camera,
+                                                                                  rig, **kwargs))
+            if on_highlight is not None:
+                on_highlight(done, len(todo))
     return out
 
 

@@ -605,6 +605,112 @@ def _ggx_sum(dT, rl, n, h, rig_arr, alpha, ior, lobe):
     return S
 
 
+def _fresnel_of_vl(vl, ior):
+    """Fresnel's reflectance at the half-vector, ``F(v . m)`` with ``v . m = sqrt((1 + v . l) / 2)``,
+    as :func:`_ggx_lobe_numpy` forms it from ``vl = v . l``."""
+    return _fresnel_dielectric(np.sqrt(np.clip(0.5 * (1.0 + vl), 0.0, 1.0)), ior)
+
+
+#: Step in ``v . l`` of :func:`_rig_grad_ggx`'s central difference of Fresnel's factor (a smooth
+#: function of one variable: its error is near 1e-14, far below the fit's resolution).
+_FRESNEL_STEP = 1e-6
+
+
+def _rig_grad_ggx(dT, rl, n, dns, h, rig_arr, alpha, ior: float = GGX_FILM_IOR) -> np.ndarray:
+    """``dS`` (4, N) of :func:`_rig_value_ggx` with respect to (a, b, log h, log alpha).
+
+    Notes
+    -----
+    Per light, ``log val = log F + log D + log G1(v) + log G1(l) - log(4 n . v) + log f + log p``
+    (the film lobe of :func:`_rig_value_ggx`, falloff ``f = (h / r)^2``, profile ``p = cp^m``), so
+    ``d val = val (sum of the terms' logarithmic derivatives)``. The pieces, from :func:`_terms`'
+    (``d delta = -P``, ``ds = s P / delta`` for a and b; ``ds = s``, ``dc = h`` for log h;
+    ``dc = dn . L`` for a and b): ``d r^-1 = -r^-3 (s - Ld) ds``, ``d cos_o = dc / r + c d r^-1``
+    (``cos_o = n . l``), ``d vl = ds / r + (s - Ld) d r^-1`` (``vl = v . l``), the half-vector's
+    ``cos_h = (delta + cos_o) / sqrt(2 + 2 vl)``; GGX's ``d log D / d cos_h = -4 (a2 - 1) cos_h / t``
+    with ``t = cos_h^2 (a2 - 1) + 1`` and ``d log D / d a2 = 1 / a2 - 2 cos_h^2 / t``; Smith's
+    ``G1(x) = 2 / (1 + u)``, ``u = sqrt(1 + a2 (1 / x^2 - 1))``: ``d log G1 / d x = a2 / ((1 + u)
+    u x^3)`` and ``d log G1 / d a2 = -(1 / x^2 - 1) / (2 u (1 + u))`` (Walter et al. 2007, eqs.
+    33-34, doi:10.2312/EGWR/EGSR07/195-206); ``d a2 / d log alpha = 2 a2``. Fresnel's factor, a
+    function of ``vl`` alone, is differentiated by a central difference
+    (:data:`_FRESNEL_STEP`). Where a floor or clip of the lobe's pieces holds (cos_h at 1e-6 or
+    1, ``n . v`` or ``n . l`` at 1e-6, ``cp`` at 1e-12) its derivative is 0, as the value's.
+    ``tests/test_lightaware_ggx.py`` holds it to central differences of the value.
+    """
+    L, w, inv_sq, m = rig_arr
+    a2 = float(alpha) * float(alpha)
+    am1 = a2 - 1.0
+    # dn . d per ray, term by term (no BLAS call: the same bits on any number of threads)
+    P = [dn[0] * dT[0] + dn[1] * dT[1] + dn[2] * dT[2] for dn in dns]
+    N = dT.shape[1]
+    dS = np.zeros((4, N))
+    for j in range(len(w)):
+        _, delta, s, sl, ir, c, _ = _terms(dT, n, h, L[j], (rl[0][j], rl[1][j]))
+        val = _ggx_lobe_numpy(delta, s, sl, ir, c, a2, ior)
+        cos_o = c * ir
+        vl = sl * ir
+        hv2 = np.maximum(2.0 + 2.0 * vl, 1e-300)
+        hv = np.sqrt(hv2)
+        q = delta + cos_o
+        raw = q / hv
+        cos_h = np.clip(raw, 1e-6, 1.0)
+        free_h = (raw > 1e-6) & (raw < 1.0)
+        t = cos_h * cos_h * am1 + 1.0
+        ci = np.maximum(delta, 1e-6)
+        co = np.maximum(cos_o, 1e-6)
+        ui = np.sqrt(1.0 + a2 * (1.0 - ci * ci) / (ci * ci))
+        uo = np.sqrt(1.0 + a2 * (1.0 - co * co) / (co * co))
+        F = _fresnel_of_vl(vl, ior)
+        dF = (_fresnel_of_vl(vl + _FRESNEL_STEP, ior) - _fresnel_of_vl(vl - _FRESNEL_STEP, ior)) \
+            / (2.0 * _FRESNEL_STEP)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            dlogF = np.where(F > 0.0, dF / F, 0.0)
+        # logarithmic derivatives in the pieces
+        kD = np.where(free_h, -4.0 * am1 * cos_h / t, 0.0)  # d log D / d cos_h
+        kGi = np.where(delta > 1e-6, a2 / ((1.0 + ui) * ui * ci ** 3), 0.0) - np.where(delta > 1e-6, 1.0 / ci, 0.0)
+        kGo = np.where(cos_o > 1e-6, a2 / ((1.0 + uo) * uo * co ** 3), 0.0)  # d log G1(l) / d cos_o
+        cp = None
+        if m[j] > 0:
+            raw_cp = (s * dT[2] - L[j, 2]) * ir
+            cp = np.maximum(raw_cp, 1e-12)
+        for k in range(3):
+            if k < 2:
+                dd, ds, dc = -P[k], s * P[k] / delta, float(dns[k] @ L[j])
+            else:
+                dd, ds, dc = np.zeros(N), s, h
+            dir_ = -(ir ** 3) * sl * ds
+            dco = dc * ir + c * dir_
+            dvl = ds * ir + sl * dir_
+            dhv = dvl / hv
+            dch = (dd + dco) / hv - q * dhv / hv2
+            g = kD * dch + kGi * dd + kGo * dco + dlogF * dvl
+            if inv_sq[j]:
+                # d log f = 2 d log h + 2 d log r^-1, d log r^-1 = -r^-2 (s - Ld) ds
+                g = g - 2.0 * (ir * ir) * sl * ds + (2.0 if k == 2 else 0.0)
+            if cp is not None:
+                dcp = ds * dT[2] * ir + (s * dT[2] - L[j, 2]) * dir_
+                g = g + np.where(raw_cp > 1e-12, m[j] * dcp / cp, 0.0)
+            dS[k] += w[j] * _lobe_scale(val, h, ir, inv_sq[j], cp, m[j]) * g
+        # log alpha: through a2 in D and both G1, times d a2 / d log alpha = 2 a2 (written out,
+        # so that an alpha run off to 0 gives 0, not a division by it)
+        gi = -(1.0 / (ci * ci) - 1.0) / (2.0 * ui * (1.0 + ui))
+        go = -(1.0 / (co * co) - 1.0) / (2.0 * uo * (1.0 + uo))
+        dS[3] += w[j] * _lobe_scale(val, h, ir, inv_sq[j], cp, m[j]) * (
+            2.0 - 4.0 * a2 * cos_h * cos_h / t + 2.0 * a2 * (gi + go))
+    return dS
+
+
+def _lobe_scale(val, h, ir, inv_sq, cp, m) -> np.ndarray:
+    """One light's lobe ``val`` times its falloff and profile, as :func:`_ggx_sum` scales it."""
+    out = val
+    if inv_sq:
+        hir = h * ir
+        out = out * (hir * hir)
+    if cp is not None:
+        out = out * cp ** m
+    return out
+
+
 def ggx_alpha_of_phong(n: float) -> float:
     """The GGX roughness alpha whose lobe's peak curvature matches a Phong lobe of exponent n:
     ``alpha = sqrt(2 / (n + 2))`` (Walter et al. 2007, section 5.2, Beckmann's)."""

@@ -24,6 +24,7 @@ from simtest.reconstruct.lightaware.model import (
     _rig_grad,
     _rig_value,
     _rig_value_ggx,
+    _rig_grad_ggx,
     _roi_grid,
     ggx_alpha_of_phong,
     phong_of_ggx_alpha,
@@ -462,7 +463,7 @@ def photometric_fit(values, origin_uv, bp_uv, camera, rig: LightRig, *,
         st = state
         coef, active = st["coef"], st["active"]
         if ggx:
-            G = coef[0] * ggx_grad(p, nb, e1, e2)
+            G = coef[0] * ggx_grad(st, dns)
         else:
             G = coef[0] * box(_rig_grad(dT, st["parts"], st["n"], dns, st["h"], rig_arr, st["rough"]))
         if diffuse:
@@ -477,21 +478,11 @@ def photometric_fit(values, origin_uv, bp_uv, camera, rig: LightRig, *,
         JT[:, active] = Ja if w is None else Ja / w[active]
         return JT.T
 
-    def ggx_grad(p, nb, e1, e2, step: float = 1e-6):
-        """Central differences of the GGX lobe image in (a, b, log h, log alpha) about ``p``
-        (the plane ``unit(nb + a e1 + b e2)``): (4, M). The lobe is smooth in each; a step of
-        1e-6 leaves errors near 1e-10 of it, far below what the fit resolves."""
-        out = np.empty((4, len(yn)))
-        for k in range(4):
-            vals_ = []
-            for sgn in (1.0, -1.0):
-                q = np.array(p[:4], dtype=np.float64)
-                q[k] += sgn * step
-                mv = nb + q[0] * e1 + q[1] * e2
-                vals_.append(box(_rig_value_ggx(dT, rl, mv / np.sqrt(mv @ mv), float(np.exp(q[2])),
-                                                rig_arr, float(np.exp(q[3])))))
-            out[k] = (vals_[0] - vals_[1]) / (2 * step)
-        return out
+    def ggx_grad(st, dns):
+        """The GGX lobe image's derivatives in (a, b, log h, log alpha) at the state ``st`` of
+        :func:`resjac_general` (:func:`~simtest.reconstruct.lightaware.model._rig_grad_ggx`,
+        analytic): (4, M)."""
+        return box(_rig_grad_ggx(dT, rl, st["n"], dns, st["h"], rig_arr, st["rough"]))
 
     def resjac_at(p, nb, e1, e2, grad=True, w=None, kaufman=False):
         if general:
