@@ -312,15 +312,9 @@ def quadric_fit(values, origin_uv, bp_uv, camera, rig: LightRig, *,
     status, detail, observable, rms = _patch_verdict(
         rel_floor, r0, sel, P.shape, step, "",
         "the ROI is not one patch's lobe (streaks along folds, several lobes)")
-    if status == "patch_misfit" and not misfit_sigma:
-        sigma_deg = None
-        detail = f"{detail}; {MISFIT_SIGMA_NOTE}"
-    else:
-        valley, excess, rises = _depth_valley({"res": res, "x_scale": x_scale}, x, float(r0 @ r0),
-                                              resid_var, covs, max_nfev)
-        sigma_deg = _valley_sigma_deg(G, covs, G @ valley, excess)
-        if status == "ok":
-            detail = _valley_detail(rises)
+    sigma_deg, _, excess, detail = _patch_sigma(status, detail, misfit_sigma,
+                                                {"res": res, "x_scale": x_scale}, x, float(r0 @ r0),
+                                                resid_var, covs, max_nfev, G)
     depth_sigma = (float(s_hat * np.sqrt(max(max(c[2, 2] for c in covs), 0.0) + excess))
                    if observable and covs else None)
     depth_range = None
@@ -542,10 +536,19 @@ _VALLEY_STEPS = (_VALLEY_STEP, 0.15, 0.4)
 MISFIT_SIGMA_NOTE = "no sigma stated (a misfit's depth valley not read)"
 
 
-def _valley_detail(rises) -> str:
-    """The detail of an ``ok`` patch fit: how its cost rises at the valley's nearest steps."""
-    return (f"the fit's cost rises by {rises[0]:.3g} and {rises[1]:.3g} residual variances at "
-            f"+-{_VALLEY_STEP:.0%} of its depth")
+def _patch_sigma(status, detail, misfit_sigma, S, x, cost0, resid_var, covs, max_nfev, G):
+    """A patch fit's normal sigma from its depth valley (:func:`_depth_valley`,
+    :func:`_valley_sigma_deg`; ``G`` (3, k) the normal's derivative), or none for a misfit when
+    ``misfit_sigma`` is False (its valley not read). Returns ``(sigma_deg, valley, excess,
+    detail)``: the valley's direction (None where not read) and excess variance of log depth,
+    and the detail, for an ``ok`` fit how its cost rises at the valley's nearest steps."""
+    if status == "patch_misfit" and not misfit_sigma:
+        return None, None, 0.0, f"{detail}; {MISFIT_SIGMA_NOTE}"
+    valley, excess, rises = _depth_valley(S, x, cost0, resid_var, covs, max_nfev)
+    if status == "ok":
+        detail = (f"the fit's cost rises by {rises[0]:.3g} and {rises[1]:.3g} residual variances at "
+                  f"+-{_VALLEY_STEP:.0%} of its depth")
+    return _valley_sigma_deg(G, covs, G @ valley, excess), valley, excess, detail
 
 
 def _depth_valley(S, x, cost0, resid_var, covs, max_nfev):
@@ -902,15 +905,10 @@ def cubic_patch_fit(values, origin_uv, bp_uv, camera, rig: LightRig, *,
     status, detail, observable, rms = _patch_verdict(
         rel_floor, r0, S["sel"], S["shape"], S["step"], "",
         "the ROI is not one patch's lobes (streaks along folds, a lobe cut off)")
-    excess = 0.0
-    if status == "patch_misfit" and not misfit_sigma:
-        sigma_deg = None
-        detail = f"{detail}; {MISFIT_SIGMA_NOTE}"
-    else:
-        valley, excess, rises = _depth_valley(S, x, float(r0 @ r0), resid_var, covs, max_nfev)
-        sigma_deg = _valley_sigma_deg(G, covs, G @ valley, excess)
-        if status == "ok":
-            detail = f"profile minimum at {depths[i0]:.4g} mm; {_valley_detail(rises)}"
+    sigma_deg, valley, excess, detail = _patch_sigma(status, detail, misfit_sigma, S, x, float(r0 @ r0),
+                                                     resid_var, covs, max_nfev, G)
+    if status == "ok":
+        detail = f"profile minimum at {depths[i0]:.4g} mm; {detail}"
     depth_sigma = (float(s_hat * np.sqrt(max(max(c[2, 2] for c in covs), 0.0) + excess))
                    if observable and covs else None)
     ln = ld = lsig = None
