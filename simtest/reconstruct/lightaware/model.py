@@ -595,13 +595,8 @@ def _ggx_sum(dT, rl, n, h, rig_arr, alpha, ior, lobe):
     S = np.zeros(dT.shape[1])
     for j in range(len(w)):
         _, delta, s, sl, ir, c, _ = _terms(dT, n, h, L[j], (rl[0][j], rl[1][j]))
-        val = lobe(delta, s, sl, ir, c, a2, ior)
-        if inv_sq[j]:
-            hir = h * ir
-            val *= hir * hir
-        if m[j] > 0:
-            val *= np.maximum((s * dT[2] - L[j, 2]) * ir, 1e-12) ** m[j]
-        S += w[j] * val
+        cp = np.maximum((s * dT[2] - L[j, 2]) * ir, 1e-12) if m[j] > 0 else None
+        S += w[j] * _lobe_scale(lobe(delta, s, sl, ir, c, a2, ior), h, ir, inv_sq[j], cp, m[j])
     return S
 
 
@@ -667,17 +662,19 @@ def _rig_grad_ggx(dT, rl, n, dns, h, rig_arr, alpha, ior: float = GGX_FILM_IOR) 
             dlogF = np.where(F > 0.0, dF / F, 0.0)
         # logarithmic derivatives in the pieces
         kD = np.where(free_h, -4.0 * am1 * cos_h / t, 0.0)  # d log D / d cos_h
-        kGi = np.where(delta > 1e-6, a2 / ((1.0 + ui) * ui * ci ** 3), 0.0) - np.where(delta > 1e-6, 1.0 / ci, 0.0)
+        # d log G1(v) / d delta, and d log (1 / (4 n . v)) / d delta = -1 / delta
+        kGi = np.where(delta > 1e-6, a2 / ((1.0 + ui) * ui * ci ** 3) - 1.0 / ci, 0.0)
         kGo = np.where(cos_o > 1e-6, a2 / ((1.0 + uo) * uo * co ** 3), 0.0)  # d log G1(l) / d cos_o
         cp = None
         if m[j] > 0:
             raw_cp = (s * dT[2] - L[j, 2]) * ir
             cp = np.maximum(raw_cp, 1e-12)
+        scaled = w[j] * _lobe_scale(val, h, ir, inv_sq[j], cp, m[j])  # this light's term of S
         for k in range(3):
             if k < 2:
                 dd, ds, dc = -P[k], s * P[k] / delta, float(dns[k] @ L[j])
             else:
-                dd, ds, dc = np.zeros(N), s, h
+                dd, ds, dc = 0.0, s, h
             dir_ = -(ir ** 3) * sl * ds
             dco = dc * ir + c * dir_
             dvl = ds * ir + sl * dir_
@@ -690,18 +687,18 @@ def _rig_grad_ggx(dT, rl, n, dns, h, rig_arr, alpha, ior: float = GGX_FILM_IOR) 
             if cp is not None:
                 dcp = ds * dT[2] * ir + (s * dT[2] - L[j, 2]) * dir_
                 g = g + np.where(raw_cp > 1e-12, m[j] * dcp / cp, 0.0)
-            dS[k] += w[j] * _lobe_scale(val, h, ir, inv_sq[j], cp, m[j]) * g
+            dS[k] += scaled * g
         # log alpha: through a2 in D and both G1, times d a2 / d log alpha = 2 a2 (written out,
         # so that an alpha run off to 0 gives 0, not a division by it)
         gi = -(1.0 / (ci * ci) - 1.0) / (2.0 * ui * (1.0 + ui))
         go = -(1.0 / (co * co) - 1.0) / (2.0 * uo * (1.0 + uo))
-        dS[3] += w[j] * _lobe_scale(val, h, ir, inv_sq[j], cp, m[j]) * (
-            2.0 - 4.0 * a2 * cos_h * cos_h / t + 2.0 * a2 * (gi + go))
+        dS[3] += scaled * (2.0 - 4.0 * a2 * cos_h * cos_h / t + 2.0 * a2 * (gi + go))
     return dS
 
 
 def _lobe_scale(val, h, ir, inv_sq, cp, m) -> np.ndarray:
-    """One light's lobe ``val`` times its falloff and profile, as :func:`_ggx_sum` scales it."""
+    """One light's lobe ``val`` times its falloff ``(h / r)^2`` (``inv_sq``) and profile ``cp^m``
+    (``cp`` None: none): the term :func:`_ggx_sum` adds, before the light's weight."""
     out = val
     if inv_sq:
         hir = h * ir
