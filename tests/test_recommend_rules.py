@@ -16,7 +16,7 @@ from simtest.geometry import angle_between_deg
 from simtest.geometry.angles import unit
 from simtest.geometry.lights import Light, LightRig
 from simtest.reconstruct import read_estimates, write_estimates
-from simtest.reconstruct.io import estimate_to_dict
+from simtest.reconstruct.io import estimate_to_dict, estimates_json
 from simtest.reconstruct.pipeline import reconstruct
 from simtest.reconstruct.recommend import (
     DEPTH_REL_SIGMA_CEILING,
@@ -313,3 +313,29 @@ def test_the_patch_fits_run_only_where_the_plane_is_not_the_surface(monkeypatch,
     ran.clear()
     light_aware_estimates(img, est, K, rig, quadric=True, cubic=True)
     assert ran == ["quadric_fit", "cubic_patch_fit"]
+
+
+# --- rule 1 for the candidates the light-aware step does not fit ------------------------------------
+
+def test_a_rejected_candidate_under_an_offset_rig_gets_the_bp_ray():
+    # A candidate rejected after its isophotes gave a joint cone axis: with no rig, or a rig at
+    # the camera centre, the co-located order recommends that axis; under a light off the lens
+    # the co-located estimators' normals are not the surface's (the BP ray errs by the half angle
+    # at most, the cone axis by the light's whole offset), and rule 1 gives the BP ray, as it does
+    # to a fitted highlight whose fits all fail. The JSON writer's two paths say the same.
+    img, K, N, depth, rig = _plane8(25.0, 25.0, 3.0)
+    est = _highlight(img, K)
+    assert est.joint_cone_axis is not None
+    rejected = dataclasses.replace(est, status="not_specular")
+    assert rejected.recommended.normal_from == "joint_cone_axis"
+    co_located = LightRig((Light((0.0, 0.0, 0.0)),))
+    assert with_light_aware(img, [rejected], K, co_located)[0].light_aware is None
+    out = with_light_aware(img, [rejected, est], K, rig)
+    assert out[0].light_aware == {} and out[1].light_aware
+    rec = out[0].recommended
+    assert rec.normal_from == "bp_ray" and rec.normal is out[0].bp_ray
+    for e in (out[0], dataclasses.replace(out[0], isophotes=())):
+        d = estimate_to_dict(e)
+        assert d["normal_from"] == "bp_ray" and d["normal"] == list(e.bp_ray)
+    assert json.loads(estimates_json(out[:1]))[0]["normal_from"] == "bp_ray"
+    assert json.loads(estimates_json([out[0], out[0]]))[1]["normal"] == list(out[0].bp_ray)

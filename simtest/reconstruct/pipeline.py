@@ -218,7 +218,8 @@ class SpecularityEstimate:
         Common axis of the nested isophotes, when at least two succeeded.
     light_aware : dict or None
         The light-aware estimates by name (:mod:`simtest.reconstruct.recommend`), when a light rig
-        off the camera centre is known.
+        off the camera centre is known; an empty dict where that rig is known but no fit ran (a
+        rejected candidate: its recommended normal is the BP ray's). None: no such rig.
     confidence : float or None
         In [0, 1]: how likely the candidate is an isolated specular highlight the isophote method
         can use (:func:`simtest.reconstruct.verify.confidence`, calibrated on labelled real

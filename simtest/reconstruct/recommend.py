@@ -740,6 +740,13 @@ def with_light_aware(image, estimates, camera, rig: LightRig | None, *, on_highl
         kwargs = dict(kwargs, colour=colour_fit_applies(image, kwargs.get("response")))
     out = list(estimates)
     todo = [i for i, est in enumerate(out) if fitted(est)]
+    # the others are marked with no fits ({}): under a rig off the camera centre the co-located
+    # estimators' normals are not recommended (rule 1: the BP ray), as for a fitted highlight
+    # whose fits all fail (a rejected candidate with a joint cone axis would otherwise get it)
+    skipped = set(range(len(out))).difference(todo)
+    for i in sorted(skipped):
+        if out[i].light_aware is None:
+            out[i] = dataclasses.replace(out[i], light_aware={})
     # one BLAS thread here as in the workers: a product summed over many pixels on several
     # threads differs in its last bits, which a fit's iterations carry to its results
     with one_thread_each():
@@ -788,8 +795,8 @@ def recommend(est) -> Recommendation:
     -------
     Recommendation
     """
-    la = getattr(est, "light_aware", None) or {}
-    if la:
+    la = getattr(est, "light_aware", None)
+    if la is not None:  # a rig off the camera centre is known ({}: no fit ran, the BP ray's)
         pho = la.get("photometric_fit")
         plane_fits = pho is None or pho.status != "plane_misfit"
         candidates = []
