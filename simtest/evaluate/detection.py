@@ -50,9 +50,8 @@ matplotlib.use("Agg", force=False)
 
 import matplotlib.pyplot as plt  # noqa: E402 - after choosing the back-end
 
-from simtest.constants import MAX_SEED  # noqa: E402
 from simtest.geometry.cameras import PinholeCamera  # noqa: E402
-from simtest.harness.protocols import mesh_pose_overrides  # noqa: E402
+from simtest.harness.protocols import mesh_pose_overrides, realisation_overrides  # noqa: E402
 from simtest.harness.suite import bundled_suite_names, load_suite, realisation_seed  # noqa: E402
 from simtest.reconstruct.detect import luma  # noqa: E402
 from simtest.reconstruct.images import load_image  # noqa: E402
@@ -452,8 +451,8 @@ def suite_frames(suite: str, *, realisations: int | None = None, progress=None) 
     for c in cases:
         spec = with_overrides(load_scene(c.scene), c.scene_setting.scene_overrides(mesh_pose_overrides))
         for i in range(c.realisations):
-            seed = int(realisation_seed(s.seed, c.key, i).generate_state(1, np.uint32)[0]) & MAX_SEED
-            frames.append(_rendered_frame(with_overrides(spec, {"render.seed": seed}), seed, f"{c.id}#{i}"))
+            over = realisation_overrides(c.scene_setting, realisation_seed(s.seed, c.key, i))
+            frames.append(_rendered_frame(with_overrides(spec, over), over["render.seed"], f"{c.id}#{i}"))
             if progress is not None:
                 progress(len(frames), total)
     return frames

@@ -40,7 +40,7 @@ from simtest.simulate.paper import PaperSimulator
 
 __all__ = ["make_runner", "PaperRunner", "RenderedRunner", "Row",
            "reconstruct_image", "render_rig", "mesh_pose_overrides", "curvature_between_lights",
-           "fit_scored"]
+           "fit_scored", "realisation_overrides"]
 
 #: Margin of the paper protocol's ROI around the noiseless highlight, px: 5 smoothing widths of
 #: the default 2 px, far beyond the contour noise (about 2 px RMS at sigma = 5 %).
@@ -304,10 +304,37 @@ class PaperRunner:
         return _row(errs, extras)
 
 
+def realisation_overrides(setting, seedseq: np.random.SeedSequence) -> dict:
+    """The scene overrides of one realisation of a ``rendered`` case: its seeds.
+
+    Parameters
+    ----------
+    setting : simtest.harness.suite.SceneSetting
+        The case's scene setting (its ``texture``).
+    seedseq : numpy.random.SeedSequence
+        The realisation's seed (:func:`~simtest.harness.suite.realisation_seed`).
+
+    Returns
+    -------
+    dict
+        ``{"render.seed": s0}``, and with ``texture = "per_realisation"`` also
+        ``"material.texture_seed": s1``: ``s0`` and ``s1`` the first two 31-bit words of the
+        SeedSequence (the first is that of ``generate_state(1)``, so a case that draws no texture
+        renders as before).
+    """
+    words = seedseq.generate_state(2, np.uint32)
+    over = {"render.seed": int(words[0]) & MAX_SEED}
+    if setting.texture == "per_realisation":
+        over["material.texture_seed"] = int(words[1]) & MAX_SEED
+    return over
+
+
 class RenderedRunner:
     """Runs realisations of a ``rendered`` case: Mitsuba render, detection, reconstruction.
 
-    The render seed of realisation ``i`` is the first 31-bit word of its SeedSequence.
+    The render seed of realisation ``i`` is the first 31-bit word of its SeedSequence; with the
+    case's ``texture = "per_realisation"`` (:class:`~simtest.harness.suite.SceneSetting`) the
+    tissue's ``material.texture_seed`` is the second.
 
     Parameters
     ----------
@@ -332,6 +359,7 @@ class RenderedRunner:
         self.settings = case.recon
         self.image_kind = case.scoring.image
         self.match_px = case.scoring.match_px
+        self.scene_setting = case.scene_setting
         spec = load_scene(case.scene)
         self.spec = with_overrides(spec, case.scene_setting.scene_overrides(mesh_pose_overrides))
         self.estimators = tuple(estimators)
@@ -357,8 +385,9 @@ class RenderedRunner:
             principal curvatures at the BP (1/mm) and the dimensionless curvature.
         """
 
-        seed = int(seedseq.generate_state(1, np.uint32)[0]) & MAX_SEED  # 31 bits
-        spec = with_overrides(self.spec, {"render.seed": seed})
+        over = realisation_overrides(self.scene_setting, seedseq)
+        seed = over["render.seed"]
+        spec = with_overrides(self.spec, over)
         result = render_scene(spec, seed=seed)
         self.variant = getattr(result, "variant", None)
         if self.image_kind == "linear":

@@ -38,11 +38,15 @@ length, looking ``mesh_view_deg`` off the tangent) and ``liver_azimuth_deg`` (ca
 ``liver_elevation_deg``, aimed at its centre), which replace the scene's geometry. Both:
 the reconstruction settings ``isovalue`` (t in (0, 1)) and ``joint_isovalues`` (list, for the
 nested-isophote joint cone axis); rendered also ``image`` ("sensor" or "linear"),
-``match_px`` (max distance from a true BP to a detected one) and ``distance_mm``.
+``match_px`` (max distance from a true BP to a detected one), ``distance_mm`` and ``texture``
+("scene", or "per_realisation": a procedural tissue's texture drawn for each realisation,
+:class:`SceneSetting`).
 
 Seeds: realisation ``i`` of a case draws from
 ``SeedSequence([root_seed, stable_hash(case.key), i])`` (:func:`realisation_seed`), so results do
-not depend on how realisations are shared between workers.
+not depend on how realisations are shared between workers; its first word is the render seed, its
+second the texture seed where one is drawn
+(:func:`simtest.harness.protocols.realisation_overrides`).
 
 Errors: :class:`SuiteError` (a ValueError) with the message ``"<file>: <key>: <reason>"``.
 """
@@ -130,7 +134,11 @@ RENDERED_KEYS: dict[str, Any] = {
     "mesh_view_deg": 30.0,
     "mesh_distance_mm": 40.0,
     "liver_elevation_deg": 20.0,
+    "texture": "scene",
 }
+#: Values of the rendered key ``texture``: the scene's tissue texture in every realisation, or a
+#: texture drawn for each (:class:`SceneSetting`).
+TEXTURES = ("scene", "per_realisation")
 
 _SUITE_KEYS = {"name", "description", "protocol", "scene", "realisations", "seed", "estimators"}
 _SWEEP_KEYS = {"name", "parameter", "values", "label", "display_scale", "set", "cases", "paper",
@@ -302,12 +310,20 @@ class SceneSetting:
         ``radius_over_distance``).
     mesh : MeshPose
         The camera's place on a bundled mesh, if any.
+    texture : {"scene", "per_realisation"}
+        The procedural tissue's texture (albedo, vessels, micro-relief, film): the scene's
+        ``material.texture_seed`` in every realisation (``"scene"``, the default), or one drawn for
+        each realisation from its seed (``"per_realisation"``,
+        :class:`~simtest.harness.protocols.RenderedRunner`), so that a case's realisations sample
+        the tissue as well as the sensor's noise, and its statistics are not those of one
+        texture's accidents.
     """
 
     overrides: dict
     radius_over_distance: float | None = None
     distance_mm: float | None = None
     mesh: MeshPose = field(default_factory=MeshPose)
+    texture: str = RENDERED_KEYS["texture"]
 
     def scene_overrides(self, mesh_pose: Callable[[MeshPose], dict] | None = None) -> dict:
         """Every dotted override of the base scene, in the order they apply.
@@ -607,6 +623,11 @@ def _check_recon(key: str, value, source: str, where: str) -> Any:
         if value not in ("sensor", "linear"):
             raise _err(source, where, f"image must be 'sensor' or 'linear', got {value!r}")
         return value
+    if key == "texture":
+        if value not in TEXTURES:
+            raise _err(source, where, f"texture must be one of {', '.join(map(repr, TEXTURES))}, "
+                                      f"got {value!r}")
+        return value
     if key in ("match_px", "radius_over_distance", "distance_mm", "mesh_distance_mm"):
         if value is not None and (not _is_num(value) or value <= 0):
             raise _err(source, where, f"{key} must be a number > 0, got {value!r}")
@@ -672,9 +693,16 @@ def _resolve_rendered(scene_path: Path, params: Mapping, source: str, where: str
                        f"{spec.geometry.type!r}")
         if out.get("distance_mm") is None:
             raise _err(source, f"{where}.distance_mm", "radius_over_distance needs distance_mm")
+    if out.get("texture", "scene") != "scene" and spec.material.model != "tissue":
+        raise _err(source, f"{where}.texture", f"needs a procedural tissue (material.model = "
+                                               f"\"tissue\"), got {spec.material.model!r}")
     resolved = {k: jsonable(v) for k, v in sorted(overrides.items())}
     for k, d in {**RECON_KEYS, **RENDERED_KEYS}.items():
         resolved[k] = out.get(k, d)
+    if resolved["texture"] == RENDERED_KEYS["texture"]:
+        # the default is left out of the case's key: the cases of suites that do not name it keep
+        # their keys, and so their realisations' seeds
+        del resolved["texture"]
     return resolved
 
 
@@ -706,7 +734,8 @@ def _typed(protocol: str, params: Mapping, source: str, where: str) -> dict:
     mesh = MeshPose(**{k: params[k] for k in _MESH_POSE_KEYS})
     setting = SceneSetting(overrides={k: v for k, v in params.items() if "." in k},
                            radius_over_distance=params["radius_over_distance"],
-                           distance_mm=params["distance_mm"], mesh=mesh)
+                           distance_mm=params["distance_mm"], mesh=mesh,
+                           texture=params.get("texture", RENDERED_KEYS["texture"]))
     return {"recon": recon, "scene_setting": setting,
             "scoring": Scoring(image=params["image"], match_px=float(params["match_px"]))}
 
