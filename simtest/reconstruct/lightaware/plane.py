@@ -672,7 +672,7 @@ def photometric_fit(values, origin_uv, bp_uv, camera, rig: LightRig, *,
     h_hat = float(np.exp(x[2]))
     with np.errstate(over="ignore"):  # a fit run off to an infinite roughness: implausible below
         rough_hat = phong_of_ggx_alpha(float(np.exp(x[3]))) if ggx else float(np.exp(x[3]))
-    bad = _implausible(h_hat, h0, rough_hat)
+    bad = _implausible(h_hat, h0, rough_hat, shaded=diffuse)
     if bad:
         return LightAwareEstimate(name, "not_converged", bad, n_evaluations=nfev)
     if np.any(n_hat @ rig_arr[0].T + h_hat <= 0):
