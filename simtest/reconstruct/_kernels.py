@@ -1497,6 +1497,58 @@ def count_enclosed_sorted(poly, points, us, skip):
 
 
 @numba.njit(cache=True, nogil=True)
+def _span_fill(top, r0, c0, wh, ww, lev, lab, base, label, stack, sr, sc):
+    """Label ``label`` on the 8-connected component of pixel (``sr``, ``sc``) of the window
+    (rows ``r0 : r0 + wh``, columns ``c0 : c0 + ww`` of ``top``) whose pixels have ``top >= lev``
+    and no label above ``base`` in ``lab`` (row-major in the window); returns its area, px.
+
+    A span fill: each run of such pixels along a row is labelled at once, and the rows above and
+    below it are scanned over the run widened by one column on each side (8-connectivity) for
+    the runs to fill next (one seed per run on ``stack``, which holds at least ``4 * wh * ww``
+    entries: a pixel lies in the widened scan of at most two runs of each neighbouring row, so it
+    is pushed at most four times). The same component as the pixel-by-pixel flood fill it
+    replaced, with each pixel read about three times instead of nine (0.47 -> 0.2 ms of
+    :func:`other_peaks` on the noisy bench frame)."""
+    area = 0
+    stack[0] = sr * ww + sc
+    n = 1
+    while n > 0:
+        n -= 1
+        pr = stack[n] // ww
+        pc = stack[n] - pr * ww
+        row = pr * ww
+        if lab[row + pc] > base:  # filled by another run since it was pushed
+            continue
+        fr = pr + r0
+        lo = pc
+        while lo > 0 and lab[row + lo - 1] <= base and top[fr, c0 + lo - 1] >= lev:
+            lo -= 1
+        hi = pc
+        while hi + 1 < ww and lab[row + hi + 1] <= base and top[fr, c0 + hi + 1] >= lev:
+            hi += 1
+        for c in range(lo, hi + 1):
+            lab[row + c] = label
+        area += hi - lo + 1
+        a = max(lo - 1, 0)
+        b = min(hi + 1, ww - 1)
+        for qr in (pr - 1, pr + 1):
+            if qr < 0 or qr >= wh:
+                continue
+            qrow = qr * ww
+            fq = qr + r0
+            inrun = False
+            for c in range(a, b + 1):
+                if lab[qrow + c] <= base and top[fq, c0 + c] >= lev:
+                    if not inrun:
+                        stack[n] = qrow + c
+                        n += 1
+                        inrun = True
+                else:
+                    inrun = False
+    return area
+
+
+@numba.njit(cache=True, nogil=True)
 def other_peaks(top, pk_row, pk_col, bp_u, bp_v, bp_col, bp_row, reach, min_top, level, has_ellipse,
                 e_cu, e_cv, e_a, e_b, e_cos, e_sin, area_rel):
     """Specular peaks of other lobes near each candidate: the count of
@@ -1589,7 +1641,7 @@ def other_peaks(top, pk_row, pk_col, bp_u, bp_v, bp_col, bp_row, reach, min_top,
             continue
         if len(lab) < wh * ww:  # one label buffer and stack for the candidates, labels above `base`
             lab = np.zeros(max(wh * ww, 2 * len(lab)), np.int32)
-            stack = np.empty(len(lab), np.int64)
+            stack = np.empty(4 * len(lab) + 8, np.int64)  # see _span_fill
             base = 0
         areas = np.zeros(nsel + 2, np.int64)
         n_lab = 0
@@ -1613,27 +1665,7 @@ def other_peaks(top, pk_row, pk_col, bp_u, bp_v, bp_col, bp_row, reach, min_top,
                                 n_bg += 1
                 continue
             n_lab += 1
-            lab[sr * ww + sc] = base + n_lab
-            stack[0] = sr * ww + sc
-            top_s = 1
-            area = 0
-            while top_s > 0:
-                top_s -= 1
-                pr, pc = stack[top_s] // ww, stack[top_s] % ww
-                area += 1
-                for dr in range(-1, 2):
-                    qr = pr + dr
-                    if qr < 0 or qr >= wh:
-                        continue
-                    for dc in range(-1, 2):
-                        qc = pc + dc
-                        if qc < 0 or qc >= ww or lab[qr * ww + qc] > base:
-                            continue
-                        if top[qr + r0, qc + c0] >= lev:
-                            lab[qr * ww + qc] = base + n_lab
-                            stack[top_s] = qr * ww + qc
-                            top_s += 1
-            areas[n_lab] = area
+            areas[n_lab] = _span_fill(top, r0, c0, wh, ww, lev, lab, base, base + n_lab, stack, sr, sc)
             seed_lab[s] = n_lab
         base += n_lab
         own_area = areas[1]
