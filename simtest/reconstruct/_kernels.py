@@ -1582,8 +1582,11 @@ def other_peaks(top, pk_row, pk_col, bp_u, bp_v, bp_col, bp_row, reach, min_top,
 
     Notes
     -----
-    The window's 8-connected components above the level are flood-filled from the BP and from
-    the selected peaks only (OpenCV labels them all: the counts are the same).
+    The window's 8-connected components above the level are filled (:func:`_span_fill`) from
+    the BP and from the selected peaks only (OpenCV labels them all: the counts are the same).
+    Each row's peaks are found from where the row's start (one pass over the peaks) by a
+    binary search for the window's first column: the peaks of the window only are read, not
+    every peak of its rows (the banner's 15 000 peaks: 4.1 -> 1.7 ms).
     """
     h, w = top.shape
     n = len(bp_u)
@@ -1592,6 +1595,12 @@ def other_peaks(top, pk_row, pk_col, bp_u, bp_v, bp_col, bp_row, reach, min_top,
     lab = np.zeros(0, np.int32)  # window-sized, grown as needed (row-major in the window)
     stack = np.empty(0, np.int64)
     base = 0
+    # where each row's peaks start (pk_row[row_start[y] : row_start[y + 1]] == y)
+    row_start = np.zeros(h + 1, np.int64)
+    for j in range(npk):
+        row_start[pk_row[j] + 1] += 1
+    for y in range(h):
+        row_start[y + 1] += row_start[y]
     for k in range(n):
         rk = reach[k]
         r0 = max(0, int(bp_row[k] - rk))
@@ -1600,19 +1609,21 @@ def other_peaks(top, pk_row, pk_col, bp_u, bp_v, bp_col, bp_row, reach, min_top,
         c1 = min(w, int(bp_col[k] + rk) + 1)
         r2 = rk * rk
         # the selected peaks: in the ball and the window, high enough, outside the own ellipse
-        lo, hi = 0, npk
-        while lo < hi:  # first peak on row r0
-            mid = (lo + hi) // 2
-            if pk_row[mid] < r0:
-                lo = mid + 1
-            else:
-                hi = mid
+        # (each row's peaks from the first at a column >= c0 to the last before c1: those of the
+        # window, in row-major order, without reading the rest of its rows' peaks)
         sel = np.empty(0, np.int64)
         nsel = 0
-        j = lo
-        while j < npk and pk_row[j] < r1:
-            y, x = pk_row[j], pk_col[j]
-            if c0 <= x < c1:
+        for y in range(r0, r1):
+            lo, hi = row_start[y], row_start[y + 1]
+            while lo < hi:  # first peak of the row at a column >= c0
+                mid = (lo + hi) // 2
+                if pk_col[mid] < c0:
+                    lo = mid + 1
+                else:
+                    hi = mid
+            j = lo
+            while j < row_start[y + 1] and pk_col[j] < c1:
+                x = pk_col[j]
                 dx = x - bp_u[k]
                 dy = y - bp_v[k]
                 if dx * dx + dy * dy <= r2 and top[y, x] >= min_top[k]:
@@ -1630,7 +1641,7 @@ def other_peaks(top, pk_row, pk_col, bp_u, bp_v, bp_col, bp_row, reach, min_top,
                             sel = grown
                         sel[nsel] = j
                         nsel += 1
-            j += 1
+                j += 1
         if nsel == 0:
             continue
         lev = level[k]
