@@ -556,6 +556,26 @@ def test_label_areas_and_labels_in_are_numpys(seed, h, w):
     assert out.tobytes() == keep[lab].tobytes()
 
 
+@given(seed=st.integers(0, 2**32 - 1), h=st.integers(1, 40), w=st.integers(1, 40), fill=st.floats(0.02, 0.8),
+       min_area=st.integers(1, 40))
+@settings(max_examples=150, deadline=None)
+def test_big_component_counts_are_the_panel_maps_integral_sums(seed, h, w, fill, min_area):
+    """The panel pixels of each region counted from the mask's runs (_kernels.big_component_counts)
+    against what frame_evidence counted before: OpenCV's 8-connected labels, the components of
+    at least min_area px, their map summed over the region (regions clipped to the mask, empty
+    and reaching past its sides too)."""
+    from simtest.reconstruct.detect import connected_components
+    rng = np.random.default_rng(seed)
+    mask = (rng.random((h, w)) < fill).astype(np.uint8)
+    n, lab = connected_components(mask)
+    big = np.bincount(lab.ravel(), minlength=n) >= min_area
+    big[0] = False
+    panel = big[lab]
+    rr = np.sort(rng.integers(-3, max(h, w) + 3, (12, 4)), axis=1).astype(np.int64)
+    want = [int(panel[max(0, a):max(0, b), max(0, c):max(0, d)].sum()) for a, b, c, d in rr]
+    assert _kernels.big_component_counts(mask, float(min_area), rr).tolist() == want
+
+
 @given(seed=st.integers(0, 2**32 - 1), h=st.integers(1, 60), w=st.integers(1, 60), k=st.integers(1, 70),
        quantised=st.booleans())
 @settings(max_examples=200, deadline=None)
