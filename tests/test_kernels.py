@@ -556,6 +556,21 @@ def test_label_areas_and_labels_in_are_numpys(seed, h, w):
     assert out.tobytes() == keep[lab].tobytes()
 
 
+@given(seed=st.integers(0, 2**32 - 1), h=st.integers(1, 30), w=st.integers(1, 30), n=st.integers(0, 5))
+@settings(max_examples=100, deadline=None)
+def test_in_windows_is_the_windows_coverage(seed, h, w, n):
+    """_kernels.in_windows (the maxima frame_evidence keeps on a frame measured whole) against
+    numpy's coverage of the windows, empty ones and none included."""
+    rng = np.random.default_rng(seed)
+    wins = np.array([(*sorted(rng.integers(0, h + 1, 2)), *sorted(rng.integers(0, w + 1, 2))) for _ in range(n)],
+                    np.int64).reshape(-1, 4)
+    cover = np.zeros((h, w), bool)
+    for r0, r1, c0, c1 in wins:
+        cover[r0:r1, c0:c1] = True
+    idx = rng.integers(0, h * w, 40).astype(np.int64)
+    assert _kernels.in_windows(idx, h, w, wins).tolist() == cover.ravel()[idx].tolist()
+
+
 @given(seed=st.integers(0, 2**32 - 1), h=st.integers(1, 40), w=st.integers(1, 40), fill=st.floats(0.02, 0.8),
        min_area=st.integers(1, 40))
 @settings(max_examples=150, deadline=None)

@@ -351,16 +351,6 @@ def test_windowed_evidence_is_the_whole_frames_on_lobes_near_edges_and_corners(s
     args = (gray if grey else img, gray, np.array(bps), rois)  # a grey frame: its luma as the image
     kw = dict(full_scale=255.0, noise=NOISE, background_px=side, reach_px=np.array(reach), ellipses=ells)
     _same_evidence(frame_evidence(*args, **kw, windowed=False), frame_evidence(*args, **kw, windowed=True))
-    # the frame measured whole, its top-hat and maxima over the whole frame or in the reach
-    # windows only (WINDOWED_MAXIMA_AREA_MAX): the same evidence (the neighbour counts read only
-    # the windows)
-    from unittest import mock
-
-    from simtest.reconstruct import verify
-    with mock.patch.object(verify, "WINDOWED_MAXIMA_AREA_MAX", 0.0):
-        every = frame_evidence(*args, **kw, windowed=False)
-    with mock.patch.object(verify, "WINDOWED_MAXIMA_AREA_MAX", np.inf):
-        _same_evidence(every, frame_evidence(*args, **kw, windowed=False))
     # and the maxima inside the windows (read by the neighbour count only where a lobe is close)
     from simtest.reconstruct import _kernels
     from simtest.reconstruct.verify import _maxima_windows, _opening

@@ -2249,6 +2249,23 @@ def luma_diff_means(img, step, across_columns, w0, w1, w2):
 
 
 @numba.njit(cache=True, nogil=True)
+def in_windows(idx, h, w, windows):
+    """Whether each pixel ``idx`` (flat indices ``row * w + column`` of an (h, w) frame, (P,)
+    int64) lies in one of the ``windows`` (row0, row1, col0, col1; (n, 4) int64, half-open,
+    within the frame): bool (P,), from the windows' coverage of the frame."""
+    cover = np.zeros(h * w, np.bool_)
+    for q in range(windows.shape[0]):
+        for r in range(max(0, windows[q, 0]), min(h, windows[q, 1])):
+            base = r * w
+            for c in range(max(0, windows[q, 2]), min(w, windows[q, 3])):
+                cover[base + c] = True
+    out = np.empty(len(idx), np.bool_)
+    for p in range(len(idx)):
+        out[p] = cover[idx[p]]
+    return out
+
+
+@numba.njit(cache=True, nogil=True)
 def maxima_in_windows(gray, bg_small, windows, floor, top):
     """:func:`top_hat_maxima` in windows of a frame, with the background enlarged from the reduced
     opening ``bg_small`` on the fly: ``verify._upsampled`` and ``verify._maxima_windows`` in one
