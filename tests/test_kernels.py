@@ -556,6 +556,36 @@ def test_label_areas_and_labels_in_are_numpys(seed, h, w):
     assert out.tobytes() == keep[lab].tobytes()
 
 
+@given(seed=st.integers(0, 2**32 - 1), h=st.integers(1, 20), w=st.integers(1, 20),
+       kind=st.sampled_from(["rgb8", "rgba8", "grey8", "rgb32nan", "grey64"]))
+@settings(max_examples=100, deadline=None)
+def test_rgb_gathers_are_numpys(seed, h, w, kind):
+    """_kernels.rgb_at_points and rgb_max9 (frame_evidence's colours at the maxima and the 3 x 3
+    maximum around each BP) against the numpy gathers they replaced: float32, a grey frame's
+    channel repeated, the window clipped at the sides, NaN propagated."""
+    rng = np.random.default_rng(seed)
+    c = {"rgb8": 3, "rgba8": 4, "grey8": 0, "rgb32nan": 3, "grey64": 0}[kind]
+    shape = (h, w, c) if c else (h, w)
+    if kind.endswith("8"):
+        img = rng.integers(0, 256, shape).astype(np.uint8)
+    else:
+        img = rng.normal(100.0, 30.0, shape).astype(np.float32 if "32" in kind else np.float64)
+        if "nan" in kind:
+            img[rng.random(shape) < 0.05] = np.nan
+    src = img[..., :3] if img.ndim == 3 else img  # frame_evidence's view (RGBA: not contiguous)
+    src3 = src if src.ndim == 3 else src[:, :, None]
+
+    def numpy_at(r, c):
+        v = src[r, c].astype(np.float32)
+        return v if src.ndim == 3 else np.repeat(v[..., None], 3, -1)
+    rows, cols = rng.integers(0, h, 25).astype(np.int64), rng.integers(0, w, 25).astype(np.int64)
+    np.testing.assert_array_equal(_kernels.rgb_at_points(src3, rows, cols), numpy_at(rows, cols))
+    dr, dc = np.repeat(np.arange(-1, 2), 3), np.tile(np.arange(-1, 2), 3)
+    want = numpy_at(np.clip(rows[:, None] + dr, 0, h - 1), np.clip(cols[:, None] + dc, 0, w - 1)).max(axis=1)
+    got = _kernels.rgb_max9(src3, rows, cols)
+    assert got.dtype == want.dtype and np.array_equal(got, want, equal_nan=True)
+
+
 @given(seed=st.integers(0, 2**32 - 1), h=st.integers(1, 30), w=st.integers(1, 30), n=st.integers(0, 5))
 @settings(max_examples=100, deadline=None)
 def test_in_windows_is_the_windows_coverage(seed, h, w, n):

@@ -2248,6 +2248,52 @@ def luma_diff_means(img, step, across_columns, w0, w1, w2):
     return out
 
 
+@numba.njit(cache=True, nogil=True, inline="always")
+def _channel_at(src, r, c, k):
+    """Channel ``k`` of pixel (r, c) of an (H, W, C) image as float32; a single channel (C = 1,
+    a grey image) stands for each of three."""
+    return np.float32(src[r, c, k if k < src.shape[2] else 0])
+
+
+@numba.njit(cache=True, nogil=True)
+def rgb_at_points(src, rows, cols):
+    """``src[rows, cols].astype(np.float32)`` (P, 3) of an RGB image (H, W, >= 3) at those pixels,
+    or of a grey one (H, W, 1) repeated over three channels: ``verify.frame_evidence``'s gathers in
+    one compiled loop (numpy's fancy indexing cost 0.4 ms for the banner's 15 000 maxima)."""
+    n = len(rows)
+    out = np.empty((n, 3), np.float32)
+    for p in range(n):
+        r, c = rows[p], cols[p]
+        for k in range(3):
+            out[p, k] = _channel_at(src, r, c, k)
+    return out
+
+
+@numba.njit(cache=True, nogil=True)
+def rgb_max9(src, rows, cols):
+    """Per pixel (``rows``, ``cols``), the maximum of each channel (as :func:`rgb_at_points`)
+    over the 3 x 3 px around it, clipped to the image: ``verify.frame_evidence``'s gather of the
+    nine pixels and numpy's ``max(axis=1)``, float32 (P, 3), NaN where any of them is NaN (as
+    numpy's maximum propagates it)."""
+    h, w = src.shape[0], src.shape[1]
+    n = len(rows)
+    out = np.empty((n, 3), np.float32)
+    for p in range(n):
+        for k in range(3):
+            m = np.float32(-np.inf)
+            for dr in range(-1, 2):
+                r = min(max(rows[p] + dr, 0), h - 1)
+                for dc in range(-1, 2):
+                    c = min(max(cols[p] + dc, 0), w - 1)
+                    v = _channel_at(src, r, c, k)
+                    if m != m:
+                        pass
+                    elif v != v or v > m:
+                        m = v
+            out[p, k] = m
+    return out
+
+
 @numba.njit(cache=True, nogil=True)
 def in_windows(idx, h, w, windows):
     """Whether each pixel ``idx`` (flat indices ``row * w + column`` of an (h, w) frame, (P,)

@@ -632,9 +632,6 @@ def _maxima_windows(g: np.ndarray, bg: np.ndarray, floor: np.float32, windows) -
     return top, ys, xs
 
 
-#: The row and column offsets of the 3 x 3 px around a pixel.
-_NINE_DR, _NINE_DC = (np.repeat(np.arange(-1, 2), 3), np.tile(np.arange(-1, 2), 3))
-
 
 def _top_of(g_at: np.ndarray, bg_at: np.ndarray) -> np.ndarray:
     """The top-hat ``max(g - bg, 0)`` (float32, NaN kept) of :func:`~simtest.reconstruct._kernels.top_hat_maxima`
@@ -771,12 +768,11 @@ def frame_evidence(image: np.ndarray, gray: np.ndarray, bps_uv: np.ndarray, rois
         at = np.repeat(at[:, None], 3, 1)
     bg_rgb_bp, bg_rgb_pk = at[:n], at[n:]
 
-    def rgb_at(r, c):
-        v = src[r, c].astype(np.float32)
-        return v if src.ndim == 3 else np.repeat(v[..., None], 3, -1)
-    # the RGB maximum over the 3 x 3 px around each BP (the window clipped to the frame), in one
-    # gather of the nine pixels
-    peak_rgb = rgb_at(np.clip(rows[:, None] + _NINE_DR, 0, h - 1), np.clip(cols[:, None] + _NINE_DC, 0, w - 1)).max(axis=1)
+    # the RGB maximum over the 3 x 3 px around each BP (the window clipped to the frame), by one
+    # compiled call (numpy's gather of the nine pixels and their maximum: the same values; a grey
+    # frame's one channel read as the three)
+    src3 = src if src.ndim == 3 else src[:, :, None]
+    peak_rgb = _kernels.rgb_max9(src3, np.asarray(rows, np.int64), np.asarray(cols, np.int64))
     chroma_peak = _chroma(peak_rgb)
     chroma_tissue = _chroma(bg_rgb_bp)
     background = bg_bp
@@ -792,7 +788,8 @@ def frame_evidence(image: np.ndarray, gray: np.ndarray, bps_uv: np.ndarray, rois
         panel_fraction = inside / area
     # specular peaks of the frame: the top-hat's local maxima that pass the colour check (the
     # chromas read at those pixels only: a reduction over the frame's last axis costs ~0.1 s)
-    colour = _specular_colour(_chroma(rgb_at(ys, xs)), _chroma(bg_rgb_pk))
+    colour = _specular_colour(_chroma(_kernels.rgb_at_points(src3, np.asarray(ys, np.int64), np.asarray(xs, np.int64))),
+                              _chroma(bg_rgb_pk))
     ys, xs = ys[colour], xs[colour]
     xs, ys = xs.astype(np.int64), ys.astype(np.int64)
     neighbours = np.zeros(n, np.int64)
