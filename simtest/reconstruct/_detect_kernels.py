@@ -332,9 +332,11 @@ def peak_mask(top, local_peak, peak_rel, thr, rows, mask):
 
 
 @numba.njit(cache=True, nogil=True)
-def _ellipticity(labels, cid, x, y, bw, bh):
+def _ellipticity(labels, cid, x, y, bw, bh, n=0, sr=0, sc=0):
     """``ellipticity`` of component ``cid`` in its box, and a bound on its relative difference
     from numpy's value: ``(e, tol)``; ``tol`` is NaN where the determinant is not positive.
+    ``n``, ``sr``, ``sc``: the component's pixel count and the sums of its rows and columns in
+    the box, where the caller counted them (integers: the same sums), else 0 (counted here).
 
     The same operations as ``detect.ellipticity`` but for the sums of the covariance, which numpy
     leaves to BLAS (its summation order is not ours). Each of the two computed sums of squares
@@ -344,15 +346,13 @@ def _ellipticity(labels, cid, x, y, bw, bh):
     ``e``, which goes as its inverse square root, within half that relative to ``det``; the two
     values differ by at most the sum. ``tol`` is four times that, and at least 1e-9.
     """
-    n = 0
-    sr = 0
-    sc = 0
-    for r in range(bh):
-        for c in range(bw):
-            if labels[y + r, x + c] == cid:
-                n += 1
-                sr += r
-                sc += c
+    if n == 0:
+        for r in range(bh):
+            for c in range(bw):
+                if labels[y + r, x + c] == cid:
+                    n += 1
+                    sr += r
+                    sc += c
     mr = sr / n
     mc = sc / n
     srr = 0.0
@@ -603,12 +603,20 @@ def examine_candidates(gray, labels, comps, clipped, scope, levels, min_area_px,
         best = mn
         pr, pc = -1, -1
         sat = False
+        # (and the component's pixel count and the sums of its rows and columns, which its
+        # ellipticity reads: one pass over the box fewer)
+        n_px = 0
+        s_r = 0
+        s_c = 0
         for r in range(bh):
             for c in range(bw):
                 v = gray[y + r, x + c]
                 if v < mn:
                     mn = v
                 if labels[y + r, x + c] == cid:
+                    n_px += 1
+                    s_r += r
+                    s_c += c
                     if pr < 0 or v > best:
                         best = v
                         pr, pc = r, c
@@ -698,7 +706,7 @@ def examine_candidates(gray, labels, comps, clipped, scope, levels, min_area_px,
             if black:
                 status = BLACK_BORDER
             elif status == OK and area >= 12:
-                e, tol = _ellipticity(labels, cid, x, y, bw, bh)
+                e, tol = _ellipticity(labels, cid, x, y, bw, bh, n_px, s_r, s_c)
                 floats[k, ELLIPTICITY] = e
                 floats[k, ELLIPTICITY_TOL] = tol
                 if np.isnan(tol):
