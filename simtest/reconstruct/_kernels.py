@@ -2575,8 +2575,15 @@ def flat_map(g, thr, out):
     n = 0
     for i in range(-2, H + 2):
         ri = _reflect101(i, H)
-        for j in range(W + 4):
-            v = g[ri, cols[j]]
+        grow = g[ri]
+        # the row's own pixels read in order (vectorised), the two reflected on each side by
+        # their indices: the same values
+        for j in range(W):
+            v = grow[j]
+            pad1[j + 2] = np.float64(v)
+            pad2[j + 2] = np.float64(v * v)
+        for j in (0, 1, W + 2, W + 3):
+            v = grow[cols[j]]
             pad1[j] = np.float64(v)
             pad2[j] = np.float64(v * v)
         slot = (i + 2) % 5
