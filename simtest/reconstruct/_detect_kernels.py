@@ -807,10 +807,16 @@ def window_component(native, r0, r1, c0, c1, kern, bg_small, peak_small, peak_re
     buf = np.empty(nc + 2 * K, np.float32)
     tmp = np.zeros((nr + 2 * K, nc), np.float32)
     acc = np.empty(nc, np.float32)
+    inside = c0 - K >= 0 and c1 + K <= W  # no column reflected: each row read in order
     for i in range(nr + 2 * K):
         rr = _reflected(r0 - K + i, H)
-        for j in range(nc + 2 * K):
-            buf[j] = np.float32(native[rr, cols[j]])
+        if inside:
+            src_row = native[rr, c0 - K : c1 + K]
+            for j in range(nc + 2 * K):
+                buf[j] = np.float32(src_row[j])
+        else:
+            for j in range(nc + 2 * K):
+                buf[j] = np.float32(native[rr, cols[j]])
         _taps_row(kern, buf, acc)
         tmp[i, :] = acc
     # the vertical pass row by row: each output row the taps' weighted sum of the rows below it,
