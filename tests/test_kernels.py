@@ -556,6 +556,71 @@ def test_label_areas_and_labels_in_are_numpys(seed, h, w):
     assert out.tobytes() == keep[lab].tobytes()
 
 
+@given(seed=st.integers(0, 2**32 - 1), h=st.integers(1, 20), w=st.integers(1, 20),
+       kind=st.sampled_from(["rgb8", "rgba8", "grey8", "rgb32nan", "grey64"]))
+@settings(max_examples=100, deadline=None)
+def test_rgb_gathers_are_numpys(seed, h, w, kind):
+    """_kernels.rgb_at_points and rgb_max9 (frame_evidence's colours at the maxima and the 3 x 3
+    maximum around each BP) against the numpy gathers they replaced: float32, a grey frame's
+    channel repeated, the window clipped at the sides, NaN propagated."""
+    rng = np.random.default_rng(seed)
+    c = {"rgb8": 3, "rgba8": 4, "grey8": 0, "rgb32nan": 3, "grey64": 0}[kind]
+    shape = (h, w, c) if c else (h, w)
+    if kind.endswith("8"):
+        img = rng.integers(0, 256, shape).astype(np.uint8)
+    else:
+        img = rng.normal(100.0, 30.0, shape).astype(np.float32 if "32" in kind else np.float64)
+        if "nan" in kind:
+            img[rng.random(shape) < 0.05] = np.nan
+    src = img[..., :3] if img.ndim == 3 else img  # frame_evidence's view (RGBA: not contiguous)
+    src3 = src if src.ndim == 3 else src[:, :, None]
+
+    def numpy_at(r, c):
+        v = src[r, c].astype(np.float32)
+        return v if src.ndim == 3 else np.repeat(v[..., None], 3, -1)
+    rows, cols = rng.integers(0, h, 25).astype(np.int64), rng.integers(0, w, 25).astype(np.int64)
+    np.testing.assert_array_equal(_kernels.rgb_at_points(src3, rows, cols), numpy_at(rows, cols))
+    dr, dc = np.repeat(np.arange(-1, 2), 3), np.tile(np.arange(-1, 2), 3)
+    want = numpy_at(np.clip(rows[:, None] + dr, 0, h - 1), np.clip(cols[:, None] + dc, 0, w - 1)).max(axis=1)
+    got = _kernels.rgb_max9(src3, rows, cols)
+    assert got.dtype == want.dtype and np.array_equal(got, want, equal_nan=True)
+
+
+@given(seed=st.integers(0, 2**32 - 1), h=st.integers(1, 30), w=st.integers(1, 30), n=st.integers(0, 5))
+@settings(max_examples=100, deadline=None)
+def test_in_windows_is_the_windows_coverage(seed, h, w, n):
+    """_kernels.in_windows (the maxima frame_evidence keeps on a frame measured whole) against
+    numpy's coverage of the windows, empty ones and none included."""
+    rng = np.random.default_rng(seed)
+    wins = np.array([(*sorted(rng.integers(0, h + 1, 2)), *sorted(rng.integers(0, w + 1, 2))) for _ in range(n)],
+                    np.int64).reshape(-1, 4)
+    cover = np.zeros((h, w), bool)
+    for r0, r1, c0, c1 in wins:
+        cover[r0:r1, c0:c1] = True
+    idx = rng.integers(0, h * w, 40).astype(np.int64)
+    assert _kernels.in_windows(idx, h, w, wins).tolist() == cover.ravel()[idx].tolist()
+
+
+@given(seed=st.integers(0, 2**32 - 1), h=st.integers(1, 40), w=st.integers(1, 40), fill=st.floats(0.02, 0.8),
+       min_area=st.integers(1, 40))
+@settings(max_examples=150, deadline=None)
+def test_big_component_counts_are_the_panel_maps_integral_sums(seed, h, w, fill, min_area):
+    """The panel pixels of each region counted from the mask's runs (_kernels.big_component_counts)
+    against what frame_evidence counted before: OpenCV's 8-connected labels, the components of
+    at least min_area px, their map summed over the region (regions clipped to the mask, empty
+    and reaching past its sides too)."""
+    from simtest.reconstruct.detect import connected_components
+    rng = np.random.default_rng(seed)
+    mask = (rng.random((h, w)) < fill).astype(np.uint8)
+    n, lab = connected_components(mask)
+    big = np.bincount(lab.ravel(), minlength=n) >= min_area
+    big[0] = False
+    panel = big[lab]
+    rr = np.sort(rng.integers(-3, max(h, w) + 3, (12, 4)), axis=1).astype(np.int64)
+    want = [int(panel[max(0, a):max(0, b), max(0, c):max(0, d)].sum()) for a, b, c, d in rr]
+    assert _kernels.big_component_counts(mask, float(min_area), rr).tolist() == want
+
+
 @given(seed=st.integers(0, 2**32 - 1), h=st.integers(1, 60), w=st.integers(1, 60), k=st.integers(1, 70),
        quantised=st.booleans())
 @settings(max_examples=200, deadline=None)

@@ -332,9 +332,11 @@ def peak_mask(top, local_peak, peak_rel, thr, rows, mask):
 
 
 @numba.njit(cache=True, nogil=True)
-def _ellipticity(labels, cid, x, y, bw, bh):
+def _ellipticity(labels, cid, x, y, bw, bh, n=0, sr=0, sc=0):
     """``ellipticity`` of component ``cid`` in its box, and a bound on its relative difference
     from numpy's value: ``(e, tol)``; ``tol`` is NaN where the determinant is not positive.
+    ``n``, ``sr``, ``sc``: the component's pixel count and the sums of its rows and columns in
+    the box, where the caller counted them (integers: the same sums), else 0 (counted here).
 
     The same operations as ``detect.ellipticity`` but for the sums of the covariance, which numpy
     leaves to BLAS (its summation order is not ours). Each of the two computed sums of squares
@@ -344,15 +346,13 @@ def _ellipticity(labels, cid, x, y, bw, bh):
     ``e``, which goes as its inverse square root, within half that relative to ``det``; the two
     values differ by at most the sum. ``tol`` is four times that, and at least 1e-9.
     """
-    n = 0
-    sr = 0
-    sc = 0
-    for r in range(bh):
-        for c in range(bw):
-            if labels[y + r, x + c] == cid:
-                n += 1
-                sr += r
-                sc += c
+    if n == 0:
+        for r in range(bh):
+            for c in range(bw):
+                if labels[y + r, x + c] == cid:
+                    n += 1
+                    sr += r
+                    sc += c
     mr = sr / n
     mc = sc / n
     srr = 0.0
@@ -603,12 +603,20 @@ def examine_candidates(gray, labels, comps, clipped, scope, levels, min_area_px,
         best = mn
         pr, pc = -1, -1
         sat = False
+        # (and the component's pixel count and the sums of its rows and columns, which its
+        # ellipticity reads: one pass over the box fewer)
+        n_px = 0
+        s_r = 0
+        s_c = 0
         for r in range(bh):
             for c in range(bw):
                 v = gray[y + r, x + c]
                 if v < mn:
                     mn = v
                 if labels[y + r, x + c] == cid:
+                    n_px += 1
+                    s_r += r
+                    s_c += c
                     if pr < 0 or v > best:
                         best = v
                         pr, pc = r, c
@@ -698,7 +706,7 @@ def examine_candidates(gray, labels, comps, clipped, scope, levels, min_area_px,
             if black:
                 status = BLACK_BORDER
             elif status == OK and area >= 12:
-                e, tol = _ellipticity(labels, cid, x, y, bw, bh)
+                e, tol = _ellipticity(labels, cid, x, y, bw, bh, n_px, s_r, s_c)
                 floats[k, ELLIPTICITY] = e
                 floats[k, ELLIPTICITY_TOL] = tol
                 if np.isnan(tol):
@@ -799,10 +807,16 @@ def window_component(native, r0, r1, c0, c1, kern, bg_small, peak_small, peak_re
     buf = np.empty(nc + 2 * K, np.float32)
     tmp = np.zeros((nr + 2 * K, nc), np.float32)
     acc = np.empty(nc, np.float32)
+    inside = c0 - K >= 0 and c1 + K <= W  # no column reflected: each row read in order
     for i in range(nr + 2 * K):
         rr = _reflected(r0 - K + i, H)
-        for j in range(nc + 2 * K):
-            buf[j] = np.float32(native[rr, cols[j]])
+        if inside:
+            src_row = native[rr, c0 - K : c1 + K]
+            for j in range(nc + 2 * K):
+                buf[j] = np.float32(src_row[j])
+        else:
+            for j in range(nc + 2 * K):
+                buf[j] = np.float32(native[rr, cols[j]])
         _taps_row(kern, buf, acc)
         tmp[i, :] = acc
     # the vertical pass row by row: each output row the taps' weighted sum of the rows below it,
@@ -870,29 +884,46 @@ def window_component(native, r0, r1, c0, c1, kern, bg_small, peak_small, peak_re
             lab[i, j] = 0
     if pr < 0:
         return False, 0, 0, 0, 0, 0
-    # its 8-connected component: a flood fill over the padded mask (a filled pixel's mask is
-    # cleared, so each is pushed once)
-    offs = np.array([-W2 - 1, -W2, -W2 + 1, -1, 1, W2 - 1, W2, W2 + 1], np.int64)
-    stack = np.empty(nr * nc, np.int64)
-    start = (pr + 1) * W2 + pc + 1
-    mp[start] = 0
-    stack[0] = start
+    # its 8-connected component: a span fill over the padded mask (each run of mask pixels along
+    # a row filled at once and its mask cleared, the rows above and below scanned over the run
+    # widened by a column on each side for the runs to fill next, one seed per run; the padding
+    # needs no bounds checks). A pixel lies in the widened scans of at most two runs of each
+    # neighbouring row: at most four pushes a pixel. The same component as the pixel-by-pixel
+    # flood fill it replaced, in about half its time (0.16 -> 0.08 ms of the noisy bench frame's
+    # ten windows)
+    stack = np.empty(4 * nr * nc + 8, np.int64)
+    stack[0] = (pr + 1) * W2 + pc + 1
     n_st = 1
     ya, yb, xa, xb = pr, pr, pc, pc
     area = 0
     while n_st > 0:
         n_st -= 1
         p = stack[n_st]
-        i, j = p // W2 - 1, p % W2 - 1
-        lab[i, j] = 1
-        area += 1
-        ya, yb, xa, xb = min(ya, i), max(yb, i), min(xa, j), max(xb, j)
-        for o in offs:
-            q = p + o
-            if mp[q]:
-                mp[q] = 0
-                stack[n_st] = q
-                n_st += 1
+        if not mp[p]:  # filled by another run since it was pushed
+            continue
+        lo = p
+        while mp[lo - 1]:
+            lo -= 1
+        hi = p
+        while mp[hi + 1]:
+            hi += 1
+        i = p // W2 - 1
+        j0 = lo - (i + 1) * W2 - 1
+        for q in range(lo, hi + 1):
+            mp[q] = 0
+            lab[i, q - lo + j0] = 1
+        area += hi - lo + 1
+        ya, yb, xa, xb = min(ya, i), max(yb, i), min(xa, j0), max(xb, j0 + hi - lo)
+        for q0 in (lo - 1 - W2, lo - 1 + W2):
+            inrun = False
+            for q in range(q0, q0 + hi - lo + 3):
+                if mp[q]:
+                    if not inrun:
+                        stack[n_st] = q
+                        n_st += 1
+                        inrun = True
+                else:
+                    inrun = False
     return True, xa, ya, xb - xa + 1, yb - ya + 1, area
 
 

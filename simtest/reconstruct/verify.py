@@ -409,14 +409,10 @@ def _chroma(rgb: np.ndarray) -> np.ndarray:
     return 1.0 - np.minimum(np.minimum(r, g), b) / np.maximum(mx, 1e-9)
 
 
-def _panels(gray: np.ndarray, noise: float, integer_source: bool = False) -> np.ndarray:
-    """Flat panels: 8-connected regions of pixels whose 5 x 5 luma standard deviation is below
-    :data:`PANEL_STD_REL` of the image noise, of at least :data:`PANEL_MIN_AREA` of the frame;
-    uint8 0/1 (none in a noise-free image). ``integer_source``: the luma is that of an 8- or 16-bit
-    frame (its 5 x 5 sums are exact in float64: the means, square and test in one compiled pass,
-    :func:`~simtest.reconstruct._kernels.flat_map`, the same mask)."""
-    if not noise > 0:
-        return np.zeros(gray.shape, np.uint8)
+def _flat_mask(gray: np.ndarray, noise: float, integer_source: bool = False) -> tuple[np.ndarray, int]:
+    """The flat pixels of :func:`_panels` (uint8 0/1, (H, W)) and their count: a 5 x 5 luma
+    standard deviation below :data:`PANEL_STD_REL` of the image noise. ``integer_source`` as
+    :func:`_panels`."""
     g = gray.astype(np.float32, copy=False)
     # flat = sqrt(max(m2 - m1 * m1, 0)) < PANEL_STD_REL * noise (numpy rounds the threshold to
     # float32 to compare)
@@ -427,6 +423,18 @@ def _panels(gray: np.ndarray, noise: float, integer_source: bool = False) -> np.
         m1 = cv2.blur(g, (5, 5))
         m2 = cv2.blur(g * g, (5, 5))
         n_flat = _kernels.flat_pixels(m1, m2, np.float32(PANEL_STD_REL * noise), flat)
+    return flat, int(n_flat)
+
+
+def _panels(gray: np.ndarray, noise: float, integer_source: bool = False) -> np.ndarray:
+    """Flat panels: 8-connected regions of pixels whose 5 x 5 luma standard deviation is below
+    :data:`PANEL_STD_REL` of the image noise, of at least :data:`PANEL_MIN_AREA` of the frame;
+    uint8 0/1 (none in a noise-free image). ``integer_source``: the luma is that of an 8- or 16-bit
+    frame (its 5 x 5 sums are exact in float64: the means, square and test in one compiled pass,
+    :func:`~simtest.reconstruct._kernels.flat_map`, the same mask)."""
+    if not noise > 0:
+        return np.zeros(gray.shape, np.uint8)
+    flat, n_flat = _flat_mask(gray, noise, integer_source)
     min_area = PANEL_MIN_AREA * flat.size
     if n_flat < min_area:  # too few flat pixels for any panel
         return np.zeros_like(flat)
@@ -440,6 +448,21 @@ def _panels(gray: np.ndarray, noise: float, integer_source: bool = False) -> np.
         return np.zeros_like(flat)
     _kernels.labels_in(lab, big.view(np.uint8), flat)  # flat is no longer needed: the panels overwrite it
     return flat
+
+
+def _panel_pixels_in(gray: np.ndarray, noise: float, integer_source: bool, rr: np.ndarray) -> np.ndarray:
+    """How many pixels of :func:`_panels` each region ``rr`` (rows of row0, row1, col0, col1)
+    holds, int64 (n,): the flat mask's big components' runs counted in the regions by one
+    compiled call (:func:`~simtest.reconstruct._kernels.big_component_counts`), without the
+    frame's labels, the panel map and its integral image (OpenCV's labelling, the label areas,
+    the map and the integral cost 3 ms of the banner's 5.5 ms of panels, these counts 0.5)."""
+    if not noise > 0:
+        return np.zeros(len(rr), np.int64)
+    flat, n_flat = _flat_mask(gray, noise, integer_source)
+    min_area = PANEL_MIN_AREA * flat.size
+    if n_flat < min_area:  # too few flat pixels for any panel
+        return np.zeros(len(rr), np.int64)
+    return _kernels.big_component_counts(flat, float(min_area), np.ascontiguousarray(rr, dtype=np.int64).reshape(-1, 4))
 
 
 def _other_peaks(top: np.ndarray, xs: np.ndarray, ys: np.ndarray, bp_ij: np.ndarray, reach: float,
@@ -609,9 +632,6 @@ def _maxima_windows(g: np.ndarray, bg: np.ndarray, floor: np.float32, windows) -
     return top, ys, xs
 
 
-#: The row and column offsets of the 3 x 3 px around a pixel.
-_NINE_DR, _NINE_DC = (np.repeat(np.arange(-1, 2), 3), np.tile(np.arange(-1, 2), 3))
-
 
 def _top_of(g_at: np.ndarray, bg_at: np.ndarray) -> np.ndarray:
     """The top-hat ``max(g - bg, 0)`` (float32, NaN kept) of :func:`~simtest.reconstruct._kernels.top_hat_maxima`
@@ -728,7 +748,11 @@ def frame_evidence(image: np.ndarray, gray: np.ndarray, bps_uv: np.ndarray, rois
         # a window against the windowed path's 19, and a candidate's neighbour count with them)
         top = np.empty((h, w), np.float32)
         whole = np.array([[0, h, 0, w]], np.int64)
-        ys, xs = np.divmod(_kernels.maxima_in_windows(gray, bg_small, whole, floor_max, top), w)
+        idx = _kernels.maxima_in_windows(gray, bg_small, whole, floor_max, top)
+        # only the maxima in some candidate's reach window, the only ones its neighbour count
+        # reads (as the windowed path finds them; their colours are read next: the banner's
+        # 52 000 maxima, 15 000 in its 417 windows)
+        ys, xs = np.divmod(idx[_kernels.in_windows(idx, h, w, win)], w)
     else:
         # _opening's values: its reduced opening enlarged
         bg = cv2.resize(bg_small, (w, h), interpolation=cv2.INTER_LINEAR) if f > 1 else bg_small
@@ -744,12 +768,11 @@ def frame_evidence(image: np.ndarray, gray: np.ndarray, bps_uv: np.ndarray, rois
         at = np.repeat(at[:, None], 3, 1)
     bg_rgb_bp, bg_rgb_pk = at[:n], at[n:]
 
-    def rgb_at(r, c):
-        v = src[r, c].astype(np.float32)
-        return v if src.ndim == 3 else np.repeat(v[..., None], 3, -1)
-    # the RGB maximum over the 3 x 3 px around each BP (the window clipped to the frame), in one
-    # gather of the nine pixels
-    peak_rgb = rgb_at(np.clip(rows[:, None] + _NINE_DR, 0, h - 1), np.clip(cols[:, None] + _NINE_DC, 0, w - 1)).max(axis=1)
+    # the RGB maximum over the 3 x 3 px around each BP (the window clipped to the frame), by one
+    # compiled call (numpy's gather of the nine pixels and their maximum: the same values; a grey
+    # frame's one channel read as the three)
+    src3 = src if src.ndim == 3 else src[:, :, None]
+    peak_rgb = _kernels.rgb_max9(src3, np.asarray(rows, np.int64), np.asarray(cols, np.int64))
     chroma_peak = _chroma(peak_rgb)
     chroma_tissue = _chroma(bg_rgb_bp)
     background = bg_bp
@@ -758,15 +781,15 @@ def frame_evidence(image: np.ndarray, gray: np.ndarray, bps_uv: np.ndarray, rois
     if not panels or (windowed and (not noise > 0 or _surely_no_panels(gray, noise, rr))):
         panel_fraction = np.zeros(n)
     else:
-        panel = _panels(_shared(_float32, gray), noise, image.dtype.type in (np.uint8, np.uint16))
-        integ = cv2.integral(panel)
+        # (the panel pixels counted in each ROI from the flat mask's runs, not the panel map's
+        # integral image: the same counts)
+        inside = _panel_pixels_in(_shared(_float32, gray), noise, image.dtype.type in (np.uint8, np.uint16), rr)
         area = np.maximum((rr[:, 1] - rr[:, 0]) * (rr[:, 3] - rr[:, 2]), 1)
-        inside = (integ[rr[:, 1], rr[:, 3]] - integ[rr[:, 0], rr[:, 3]] - integ[rr[:, 1], rr[:, 2]]
-                  + integ[rr[:, 0], rr[:, 2]])
         panel_fraction = inside / area
     # specular peaks of the frame: the top-hat's local maxima that pass the colour check (the
     # chromas read at those pixels only: a reduction over the frame's last axis costs ~0.1 s)
-    colour = _specular_colour(_chroma(rgb_at(ys, xs)), _chroma(bg_rgb_pk))
+    colour = _specular_colour(_chroma(_kernels.rgb_at_points(src3, np.asarray(ys, np.int64), np.asarray(xs, np.int64))),
+                              _chroma(bg_rgb_pk))
     ys, xs = ys[colour], xs[colour]
     xs, ys = xs.astype(np.int64), ys.astype(np.int64)
     neighbours = np.zeros(n, np.int64)
