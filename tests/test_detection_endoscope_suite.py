@@ -23,7 +23,7 @@ from __future__ import annotations
 import pytest
 
 from simtest.evaluate.detection import evaluate_frames, suite_frames
-from simtest.harness.suite import resolve_suite_path
+from test_harness_texture import one_texture_endoscope
 
 #: The must-hold's bars (issue 38).
 OK_PRECISION_MIN = 0.95
@@ -32,11 +32,7 @@ OK_RECALL_MIN = 0.9
 
 @pytest.mark.render
 def test_ok_estimates_on_the_endoscope_suite_meet_the_rendered_bars(tmp_path):
-    text = resolve_suite_path("endoscope").read_text()
-    assert text.count('texture = "per_realisation"\n') == 1
-    one_texture = tmp_path / "endoscope.toml"
-    one_texture.write_text(text.replace('texture = "per_realisation"\n', ""))
-    frames = suite_frames(str(one_texture), realisations=1)
+    frames = suite_frames(str(one_texture_endoscope(tmp_path)), realisations=1)
     assert {f.name.split("@")[0] for f in frames} == {
         "guide_offset", "working_distance", "micro_relief", "film_roughness", "read_noise", "jpeg_quality",
         "plane_relief", "plane_film_roughness", "plane_read_noise", "plane_jpeg_quality"}

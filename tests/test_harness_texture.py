@@ -10,8 +10,22 @@ from hypothesis import strategies as st
 
 from simtest.harness import protocols
 from simtest.harness.protocols import make_runner, realisation_overrides
-from simtest.harness.suite import SceneSetting, SuiteError, realisation_seed, suite_from_dict
 from simtest.constants import MAX_SEED
+from simtest.harness.suite import SceneSetting, SuiteError, realisation_seed, resolve_suite_path, suite_from_dict
+
+#: The endoscope suite's line that draws a texture for each realisation.
+PER_REALISATION = 'texture = "per_realisation"\n'
+
+
+def one_texture_endoscope(directory):
+    """The endoscope suite file without its ``texture`` key, written into ``directory``: its cases
+    keep the keys and seeds ``validate`` gave before the suite drew a texture for each
+    realisation, and render the scene's one texture (the frames earlier tests were set on)."""
+    text = resolve_suite_path("endoscope").read_text()
+    assert text.count(PER_REALISATION) == 1
+    path = directory / "endoscope.toml"
+    path.write_text(text.replace(PER_REALISATION, ""))
+    return path
 
 
 def _suite(texture=None, scene="colonoscope_plane"):
