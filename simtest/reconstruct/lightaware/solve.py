@@ -179,8 +179,9 @@ SMOOTHEST_FILM_ALPHA = 0.015
 #: path): GGX alpha 0.5 (Phong n 6). A lobe that broad spreads the film's reflection over a cone
 #: as wide as the shading's, so that over the ROI the lobe's column and the shading's are nearly
 #: collinear and the fit trades one for the other: on the endoscope suite's colon wall (the
-#: texture drawn for each realisation) two body-colour fits ended at n 1.1 with the depth 84 %
-#: short, 26 deg off with a sigma of 3.3 deg, and were recommended over the BP ray. The
+#: texture drawn for each realisation) two fits ended below n 6 with the depth 84 % short (one,
+#: on the body colours, at n 1.1, 26 deg off with a sigma of 3.3 deg), and were recommended over
+#: the BP ray. The
 #: renderer's films go to alpha 0.3 (n 20); micro-relief 0.002 mm on the flat mucosa broadens
 #: the plane fit's lobe to n 24. Without a shading column a broad lobe stands alone beside the
 #: linear background, and the bound is n 1 (the curved patches fitted on the relief's smaller
