@@ -161,7 +161,11 @@ def photometric_fit(values, origin_uv, bp_uv, camera, rig: LightRig, *,
     diffuse : bool
         Add the rig's Lambertian shading of the plane as a column of the model beside the lobes
         and the background (its albedo a linear parameter; Notes): the image of tissue, whose
-        diffuse shading under a near light is no linear background.
+        diffuse shading under a near light is no linear background. The lobe is then taken for
+        real only up to :data:`~simtest.reconstruct.lightaware.solve.ROUGHEST_FILM_ALPHA`
+        (GGX alpha 0.5, Phong n 6): broader, it is as broad as the shading, the two columns
+        trade one for the other, and the fit is ``not_converged`` (its detail names the
+        roughness).
     censor : bool
         Keep the pixels at or above ``clip_level`` as censored data (the pixel's radiance is at
         least the clip level: a residual only where the model falls below it) instead of leaving
