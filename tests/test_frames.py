@@ -160,3 +160,27 @@ def test_estimates_jsonl_is_one_ascii_line_a_record_each_ending_in_a_newline(tmp
     assert n == 2
     assert path.read_bytes() == (b'{"frame":0,"source":"caf\\u00e9.png","x":[0.1,1e-05]}\n'
                                  b'{"frame":1,"specularities":[]}\n')
+
+
+def test_frames_through_the_shared_slots_give_frame_by_frame_records(tmp_path):
+    """With workers, frames of the first frame's shape and dtype reach the workers through shared
+    slots (one per frame in flight, reused: 11 frames through 8 slots) and any other frame in its
+    job (a colour frame among gray ones, same size); every record is still that of a frame-by-frame
+    call, in order."""
+    from simtest.reconstruct.frames import FrameRecord, reconstruct_frames, write_frames_jsonl
+
+    frames = tmp_path / "frames"
+    frames.mkdir()
+    images = _frames(11)
+    images[4] = np.ascontiguousarray(np.repeat(images[4][..., None], 3, axis=2))
+    images[4][..., 0] //= 2  # tinted, so that its record is its own
+    for i, img in enumerate(images):
+        cv2.imwrite(str(frames / f"f{i:03d}.png"), img[..., ::-1] if img.ndim == 3 else img)
+    plain, _, _ = write_frames_jsonl(tmp_path / "plain.jsonl", reconstruct_frames(open_frames(frames), K))
+    recs = list(reconstruct_frames(open_frames(frames), K, workers=2, encoded=True))
+    assert all(isinstance(r, FrameRecord) and isinstance(r.line, bytes) for r in recs)
+    assert [r["frame"] for r in recs] == list(range(11))
+    enc, _, _ = write_frames_jsonl(tmp_path / "enc.jsonl", recs)
+    assert enc.read_bytes() == plain.read_bytes()
+    assert [json.loads(x)["specularities"] for x in enc.read_text().splitlines()] == _expected(
+        [img for _, _, img in open_frames(frames)])

@@ -19,10 +19,13 @@ max_candidates}, "specularities": [estimate dicts, as in estimates.json]}``.
 from __future__ import annotations
 
 import json
+import mmap
+import multiprocessing
 import os
 import time
 from collections.abc import Iterator
 from concurrent.futures import ProcessPoolExecutor
+from itertools import chain
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -174,11 +177,11 @@ class FrameRecord(dict):
     """A frame's record encoded where it was made (:func:`reconstruct_frames` with ``encoded``):
     the dict holds the record's small keys (``frame``, ``source``, ``image_shape``, ``counts``,
     ``detection``; not ``specularities``), ``line`` the whole record's JSON line as
-    :func:`write_frames_jsonl` writes it. A worker process sends its text back (a copy of one
-    string) instead of thousands of small objects to pickle, and its JSON encoding runs on the
-    worker's core, beside the other frames'."""
+    :func:`write_frames_jsonl` writes it (ASCII bytes, or a str). A worker process sends its text
+    back (a copy of one buffer) instead of thousands of small objects to pickle, and its JSON
+    encoding runs on the worker's core, beside the other frames'."""
 
-    line: str = ""
+    line: bytes | str = b""
 
 
 def _json_line(rec: dict) -> str:
@@ -189,18 +192,68 @@ def _json_line(rec: dict) -> str:
 def _encoded_record(args) -> FrameRecord:
     """:func:`_frame_record` as a :class:`FrameRecord`: its line is ``_json_line`` of the record,
     character for character, with the specularities written by
-    :func:`~simtest.reconstruct.io.estimates_json` (no dicts: a third of the cost)."""
+    :func:`~simtest.reconstruct.io.estimates_json` (no dicts: a third of the cost), as ASCII
+    bytes (a worker's bytes reach the parent by a copy; a str is decoded from UTF-8 there)."""
     head, ests, include_points = _frame_head(args)
     out = FrameRecord(head)
     # the record's keys in order, specularities last: its JSON object, the closing brace
     # replaced by the specularities
-    out.line = f'{_json_line(head)[:-1]},"specularities":{estimates_json(ests, include_points)}}}'
+    out.line = f'{_json_line(head)[:-1]},"specularities":{estimates_json(ests, include_points)}}}'.encode("ascii")
     return out
+
+
+class _InRing:
+    """A job's frame left in the worker's :class:`_FrameRing` (its slot), not sent in the job."""
+
+    __slots__ = ("slot",)
+
+    def __init__(self, slot: int):
+        self.slot = slot
+
+
+class _FrameRing:
+    """Slots for the frames in flight, in memory that this process and the worker processes it
+    forks share (an anonymous shared mapping): a frame is copied into a slot here and read there,
+    where a pickled frame (4.4 MB for 1350 x 1080 RGB) was written to a pipe, read from it and
+    unpickled, a fifth of the parent's CPU time on a video (2 ms of 19 a frame). Every slot holds
+    a frame of the first frame's shape and dtype; another frame travels in its job."""
+
+    #: The worker's ring, set by :meth:`attach` in each worker process.
+    current: _FrameRing | None = None
+
+    def __init__(self, first: np.ndarray, n_slots: int):
+        self.shape, self.dtype, self.n_slots = first.shape, first.dtype, n_slots
+        self.buffer = mmap.mmap(-1, max(first.nbytes, 1) * n_slots)
+        self.slots = np.frombuffer(self.buffer, dtype=first.dtype,
+                                   count=first.size * n_slots).reshape((n_slots, *first.shape))
+
+    def holds(self, image: np.ndarray) -> bool:
+        """Whether ``image`` fits a slot (the first frame's shape and dtype)."""
+        return image.shape == self.shape and image.dtype == self.dtype
+
+    def put(self, slot: int, image: np.ndarray) -> _InRing:
+        """Copy ``image`` into ``slot`` (free: its previous frame's record has come back)."""
+        np.copyto(self.slots[slot], image)
+        return _InRing(slot)
+
+    def frame(self, slot: int) -> np.ndarray:
+        """The frame in ``slot``, a read-only view (the parent writes it only once this frame's
+        record has come back)."""
+        view = self.slots[slot]
+        view.setflags(write=False)
+        return view
+
+    @staticmethod
+    def attach(ring: _FrameRing) -> None:
+        """A worker's initializer: the ring it was forked with (the mapping is inherited)."""
+        _FrameRing.current = ring
 
 
 def _frame_head(args) -> tuple[dict, list, bool]:
     """A frame's record but ``specularities``, its estimates and ``include_points``."""
     index, name, image, K, settings, dist_coeffs, include_points, rig, cubic, *more = args
+    if isinstance(image, _InRing):
+        image = _FrameRing.current.frame(image.slot)
     response = more[0] if more else None  # the camera file's response (None: linear)
     if response is not None:  # a frame the response could not have written, lights or none (as
         # a single image is refused): named before its reconstruction
@@ -245,8 +298,9 @@ def reconstruct_frames(source: FrameSource, K, settings: ReconSettings | None = 
     dist_coeffs : array_like, optional
         OpenCV distortion coefficients.
     workers : int
-        Worker processes (1: in this process). Frames are decoded here and sent in order, and
-        their records come back in that order. Each worker runs BLAS on one thread
+        Worker processes (1: in this process). Frames are decoded here and passed on in order
+        (through slots of memory shared with the forked workers, :class:`_FrameRing`), and their
+        records come back in that order. Each worker runs BLAS on one thread
         (:func:`simtest._threads.one_thread_each`): the workers are the parallelism.
     include_points : bool
         Also write each isophote's contour points.
@@ -284,16 +338,27 @@ def reconstruct_frames(source: FrameSource, K, settings: ReconSettings | None = 
     if workers <= 1:
         yield from map(one, jobs)
         return
+    jobs = iter(jobs)
+    first = next(jobs, None)
+    if first is None:
+        return
+    # a bounded window of frames in flight, so that a long video is not decoded all at once;
+    # this process decodes the next frames while the workers reconstruct the earlier ones
+    window = 4 * workers
+    # the frames reach forked workers through shared slots, one per frame in flight; where
+    # processes are not forked (no fork on the platform), in their jobs
+    ring = _FrameRing(first[2], window) if "fork" in multiprocessing.get_all_start_methods() else None
+    pool_args = {} if ring is None else {"mp_context": multiprocessing.get_context("fork"),
+                                         "initializer": _FrameRing.attach, "initargs": (ring,)}
     # one BLAS thread in each worker (and here): the pool is the parallelism (simtest._threads)
-    with one_thread_each(), ProcessPoolExecutor(max_workers=workers) as pool:
-        # a bounded window of frames in flight, so that a long video is not decoded all at once;
-        # this process decodes the next frames while the workers reconstruct the earlier ones
-        window = 4 * workers
+    with one_thread_each(), ProcessPoolExecutor(max_workers=workers, **pool_args) as pool:
         pending = []
-        for job in jobs:
-            pending.append(pool.submit(one, job))
-            if len(pending) >= window:
+        for n, job in enumerate(chain([first], jobs)):
+            if len(pending) >= window:  # the oldest frame's record, and its slot free again
                 yield pending.pop(0).result()
+            if ring is not None and ring.holds(job[2]):
+                job = (*job[:2], ring.put(n % window, job[2]), *job[3:])
+            pending.append(pool.submit(one, job))
         for fut in pending:
             yield fut.result()
 
@@ -326,7 +391,8 @@ def write_frames_jsonl(path, records, *, on_frame=None) -> tuple[Path, int, floa
         # process); the JSON is ASCII (json.dumps' ensure_ascii), each line ends in "\n"
         with open(tmp, "wb") as fh:
             for rec in records:
-                fh.write((rec.line if isinstance(rec, FrameRecord) else _json_line(rec)).encode("ascii"))
+                line = rec.line if isinstance(rec, FrameRecord) else _json_line(rec)
+                fh.write(line if isinstance(line, bytes) else line.encode("ascii"))
                 fh.write(b"\n")
                 n += 1
                 if on_frame is not None:
