@@ -95,7 +95,7 @@ from simtest.reconstruct.detect import (
 )
 from simtest.reconstruct.estimators import estimate_from_conics, joint_cone_axes
 from simtest.reconstruct.failures import OK, Failure
-from simtest.reconstruct.isophote import MIN_CONTOUR_POINTS, _cut_and_contour, _extract, _Region, _region
+from simtest.reconstruct.isophote import MIN_CONTOUR_POINTS, Isophote, _cut_and_contour, _extract, _Region, _region
 from simtest.reconstruct.recommend import recommend
 from simtest.reconstruct.settings import AUTO_LOCAL_BACKGROUND_REL, Normalisation, ReconSettings
 from simtest.reconstruct.verify import assess, bp_checks, confidence, seed_opening, shared_passes, verdict
@@ -975,13 +975,27 @@ def _grown_drafts(frame: _Frame, ks: list, bps: list, rois_of: dict, rings_of: d
         roi = Roi(*box)
         bp_uv = bps[k]
         levels = _Levels(sc, off)
-        region = _Region(sm[roi.row0:roi.row1, roi.col0:roi.col1], roi, shape, bp_uv,
-                         int(round(float(bp_uv[1]) - roi.row0)), int(round(float(bp_uv[0]) - roi.col0)), i_bp)
+        region = None
         results: list = [None] * len(isovalues)
         for q, i in enumerate(order):
+            t = isovalues[i]
+            level = levels.level(t)
+            if codes[q] == _kernels.CLOSED and ins[q] and i_bp > level:
+                # a closed walk around the BP, above its level: the isophote _one_isophote makes
+                # of it (_extract's first case), without the region's checks (most of a real
+                # frame's 1500 isophotes)
+                uv = pts[st[q]:st[q] + cn[q]]
+                results[i] = _Pending(t, Isophote(uv, float(level), True, False, False)) \
+                    if len(uv) >= MIN_CONTOUR_POINTS else IsophoteEstimate(
+                        t, "too_few_points", f"{len(uv)} contour points < {MIN_CONTOUR_POINTS}", uv, True)
+                continue
+            if region is None:
+                region = _Region(sm[roi.row0:roi.row1, roi.col0:roi.col1], roi, shape, bp_uv,
+                                 int(round(float(bp_uv[1]) - roi.row0)), int(round(float(bp_uv[0]) - roi.col0)),
+                                 i_bp)
             walked = None if codes[q] == _kernels.NOT_WALKED else \
                 (codes[q], pts[st[q]:st[q] + cn[q]], ins[q], tuple(sds[q]))
-            results[i] = _one_isophote(frame, region, levels, isovalues[i], walked)[0]
+            results[i] = _one_isophote(frame, region, levels, t, walked)[0]
         out[k] = _Draft(bp_uv, i_bp, sat, roi, rays[k], frames_of[k], results, others, own)
     return out
 
