@@ -211,3 +211,21 @@ def test_a_paper_suite_is_refused_in_one_line(tmp_path):
     res = CliRunner().invoke(app, ["evaluate", "detection", "quick", "-o", str(tmp_path / "out")])
     assert res.exit_code == 2
     assert len(res.output.strip().splitlines()) == 1 and "rendered" in res.output
+
+
+def test_the_cross_validation_takes_the_estimates_the_scoring_made():
+    """`evaluate detection` on a labelled set reconstructs each frame once for its scores and hands
+    those estimates to the confidence's cross-validation (evaluate_frames' keep): the same report
+    as the cross-validation reconstructing the frames itself, and the estimates kept are the
+    frames' own, in order."""
+    from simtest.evaluate.detection import cross_validated_report, evaluate_frames
+    from simtest.reconstruct import reconstruct
+    from simtest.resources import data_root
+
+    frames = labelled_real_frames(data_root() / "tests" / "data" / "real" / "structures_labelled.json")[:6]
+    kept: list = []
+    evaluate_frames(frames, keep=kept)
+    assert len(kept) == len(frames)
+    assert [e.bp_px.tolist() for e in kept[2]] == [e.bp_px.tolist() for e in reconstruct(frames[2].image,
+                                                                                          frames[2].camera)]
+    assert cross_validated_report(frames, verified=kept) == cross_validated_report(frames)

@@ -163,6 +163,7 @@ def detection_command(
     OUT/reliability.png (the confidence's reliability diagram). Exit status 2:
     bad input; 4: OUT cannot be written."""
     target = check_out_folder(out, DETECTION_FILES)
+    kept: list = []  # each frame's estimates, for the confidence's cross-validation
     try:
         with Progress(transient=True) as progress:
             if source.endswith(".json"):
@@ -175,12 +176,12 @@ def detection_command(
             else:
                 frames = rendered_frames(source, seed=seed)
             progress.add_task(f"reconstructing {len(frames)} frame(s)", total=None)
-            results = evaluate_frames(frames)
+            results = evaluate_frames(frames, keep=kept)
         results = {"schema": "simtest.evaluate.detection", "schema_version": 1,
                    "simtest_version": __version__, "source": source} | results
         if source.endswith(".json"):
             results["labeller_agreement"] = labeller_agreement(source)
-            results["confidence_cross_validated"] = cross_validated_report(frames)
+            results["confidence_cross_validated"] = cross_validated_report(frames, verified=kept)
         if any("@" in f["name"] for f in results["frames"]):
             results["groups"] = groups(results["frames"])
         text = json.dumps(results, indent=1, allow_nan=False) + "\n"

@@ -482,8 +482,18 @@ def groups(frames_out: list[dict]) -> list[dict]:
     return [pooled(v).as_dict() | {"name": g, "frames": len(v)} for g, v in by.items()]
 
 
-def evaluate_frames(frames: list[LabelledFrame], settings=None) -> dict:
+def evaluate_frames(frames: list[LabelledFrame], settings=None, *, keep: list | None = None) -> dict:
     """Reconstruct every frame with ``settings`` (default: ``reconstruct``'s) and score it.
+
+    Parameters
+    ----------
+    frames : list of LabelledFrame
+        The frames and their labels.
+    settings : ReconSettings, optional
+        Default :meth:`ReconSettings.for_frames`.
+    keep : list, optional
+        Where given, each frame's estimates (``Estimates``) are appended to it, in frame order:
+        :func:`cross_validated_report` takes them instead of reconstructing the frames again.
 
     Returns
     -------
@@ -495,6 +505,8 @@ def evaluate_frames(frames: list[LabelledFrame], settings=None) -> dict:
     scores, frames_out = [], []
     for fr in frames:
         ests = reconstruct(fr.image, fr.camera, settings=settings)
+        if keep is not None:
+            keep.append(ests)
         sc, rows = score_frame(fr.name, [estimate_to_dict(e) for e in ests], fr.structures)
         scores.append(sc)
         missed = [[s.u, s.v] for j, s in enumerate(fr.structures) if s.kind == TARGET_KIND
@@ -599,10 +611,15 @@ L2_PENALTY = 1.0
 PENALTY_GRID = (0.01, 0.1, 1.0, 10.0, 100.0, 1000.0)
 
 
-def confidence_rows(frames: list[LabelledFrame], settings=None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def confidence_rows(frames: list[LabelledFrame], settings=None, *,
+                    verified: list | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """The features of :func:`simtest.reconstruct.verify.confidence` for every ``ok`` estimate of
     the frames (the fits that pass the specularity checks: the estimates a user takes), with its
     label.
+
+    ``verified``: each frame's estimates with the checks (``settings`` with ``verify=True``)
+    where the caller has them (:func:`evaluate_frames`' ``keep``), one per frame; else each
+    frame is reconstructed for them.
 
     Returns
     -------
@@ -621,7 +638,8 @@ def confidence_rows(frames: list[LabelledFrame], settings=None) -> tuple[np.ndar
             continue
         ev, res, _ = assess(fr.image, luma(fr.image), fits, full_scale=255.0 if fr.image.dtype == np.uint8
                             else float(fr.image.max()))
-        ests = reconstruct(fr.image, fr.camera, settings=settings.replace(verify=True))
+        ests = reconstruct(fr.image, fr.camera, settings=settings.replace(verify=True)) if verified is None \
+            else verified[g]
         _, rows = score_frame(fr.name, [estimate_to_dict(e) for e in ests], fr.structures)
         fitted = np.array([e.ok for e in ests])
         X = _design(ev, np.where(np.isfinite(res), res, RESIDUAL_MAX_REL))
@@ -700,17 +718,18 @@ def ranking_auc(conf: np.ndarray, y: np.ndarray) -> float | None:
     return float(mannwhitneyu(conf[y], conf[~y]).statistic / (y.sum() * (~y).sum()))
 
 
-def cross_validated_report(frames: list[LabelledFrame]) -> dict:
+def cross_validated_report(frames: list[LabelledFrame], *, verified: list | None = None) -> dict:
     """The confidence a new frame can expect: leave-one-frame-out confidences of the ``ok``
     estimates (:func:`cross_validated_confidence`, penalty :data:`L2_PENALTY`), their ranking
-    AUC (:func:`ranking_auc`) and reliability per bin.
+    AUC (:func:`ranking_auc`) and reliability per bin. ``verified``: as for
+    :func:`confidence_rows` (the frames' estimates with the default settings).
 
     Returns
     -------
     dict
         ``{"n", "auc", "reliability": [...]}``.
     """
-    X, y, group = confidence_rows(frames)
+    X, y, group = confidence_rows(frames, verified=verified)
     cv = cross_validated_confidence(X, y, group)
     return {"n": int(len(y)), "auc": ranking_auc(cv, y), "reliability": reliability(cv, y)}
 
