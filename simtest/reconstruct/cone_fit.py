@@ -299,15 +299,21 @@ def fit_cones(points_list, frames) -> list[ConeFit | Failure]:
     if not len(good):
         return out
     gframes = [frames[i] for i in good.tolist()]
-    Kg = np.stack([f.K for f in gframes])
     C = np.stack([fits[i].conic for i in good.tolist()])
-    cf = np.swapaxes(Kg, 1, 2) @ C @ Kg
+    if len(camera_of) == 1:
+        # one frame object for all (a pinhole's image plane): its K once, broadcast (the same products)
+        Kg = frames[0].K
+        cf = Kg.T @ C @ Kg
+    else:
+        Kg = np.stack([f.K for f in gframes])
+        cf = np.swapaxes(Kg, 1, 2) @ C @ Kg
     cf = 0.5 * (cf + np.swapaxes(cf, 1, 2))
     norm = np.sqrt(np.einsum("kij,kij->k", cf, cf))
     formed = np.isfinite(norm) & (norm > 0)
     c = cf / np.where(formed, norm, 1.0)[:, None, None]
     # the cone in the camera frame, R^T c R, where the fit plane is not the image plane
-    on_image = np.array([f.on_image_plane for f in gframes], dtype=bool)
+    on_image = np.full(len(gframes), bool(gframes[0].on_image_plane)) if Kg.ndim == 2 else \
+        np.array([f.on_image_plane for f in gframes], dtype=bool)
     cone = c.copy()
     if not on_image.all():
         Rg = np.stack([f.R for f, img in zip(gframes, on_image.tolist()) if not img])
