@@ -862,8 +862,9 @@ def _estimate_one(frame: _Frame, bp_uv, roi: Roi, *, saturated: bool, grow: bool
 def _complete(drafts: list) -> list[SpecularityEstimate]:
     """Fit the cones of every pending isophote of ``drafts`` in one batch, run the estimators in
     one batch, and finish each highlight (``merged`` test, joint cone axis)."""
-    pend = [(d, i) for d in drafts if isinstance(d, _Draft)
-            for i, r in enumerate(d.results) if isinstance(r, _Pending)]
+    # the drafts among the estimates (a real frame's thousands of rejections are finished already)
+    dr = [d for d in drafts if type(d) is _Draft]
+    pend = [(d, i) for d in dr for i, r in enumerate(d.results) if type(r) is _Pending]
     fits = fit_cones([d.results[i].iso.points_uv for d, i in pend], [d.fitf for d, _ in pend])
     fitted = [k for k, f in enumerate(fits) if f]
     ests = [] if not fitted else estimate_from_conics(
@@ -892,10 +893,10 @@ def _complete(drafts: list) -> list[SpecularityEstimate]:
             fit.conic, fit.ellipse, fit.residual_px, paper, selected, est.paper_selected_index, axis,
             est.eigenvalue_gap, fit.cone)
     # joint cone axes of the highlights with two or more good isophotes, in one batch
-    multi = [d for d in drafts if isinstance(d, _Draft) and sum(r.ok for r in d.results) >= 2]
+    multi = [d for d in dr if sum(r.status == OK for r in d.results) >= 2]
     if not multi:
-        enclosed = _enclosed_counts([d for d in drafts if isinstance(d, _Draft)])
-        return [_finish(d, None, enclosed.get(id(d))) if isinstance(d, _Draft) else d for d in drafts]
+        enclosed = _enclosed_counts(dr)
+        return [_finish(d, None, enclosed.get(id(d))) if type(d) is _Draft else d for d in drafts]
     cones, group = [], []
     for g, d in enumerate(multi):
         for r in d.results:
@@ -907,14 +908,8 @@ def _complete(drafts: list) -> list[SpecularityEstimate]:
                            np.array([to_fit_frame(d.fitf, d.bp_ray) for d in multi]).reshape(-1, 3))
     joint_of = {id(d): (to_camera(d.fitf, j) if not isinstance(j, Failure) else None)
                 for d, j in zip(multi, axes)}
-    enclosed = _enclosed_counts([d for d in drafts if isinstance(d, _Draft)])
-    out = []
-    for d in drafts:
-        if not isinstance(d, _Draft):
-            out.append(d)
-            continue
-        out.append(_finish(d, joint_of.get(id(d)), enclosed.get(id(d))))
-    return out
+    enclosed = _enclosed_counts(dr)
+    return [_finish(d, joint_of.get(id(d)), enclosed.get(id(d))) if type(d) is _Draft else d for d in drafts]
 
 
 #: ``_Levels.of``'s normalisations as :func:`simtest.reconstruct._kernels.grown_isophotes` takes them.
@@ -1086,7 +1081,6 @@ def _finish(d: _Draft, joint, enclosed: int | None = None) -> SpecularityEstimat
     """The estimate of a completed draft: the primary isophote's status, ``merged`` when that
     closed isophote encloses another candidate's BP (``enclosed``: how many, where
     :func:`_enclosed_counts` counted them)."""
-    isovalues = [r.isovalue for r in d.results]
     primary = d.results[0]
     status, detail = primary.status, primary.detail
     if status == OK and primary.closed and len(d.other_bps) > (d.own_bp >= 0):
@@ -1100,7 +1094,7 @@ def _finish(d: _Draft, joint, enclosed: int | None = None) -> SpecularityEstimat
             others = np.asarray(d.other_bps, dtype=np.float64).reshape(-1, 2)
             n_in = int(_kernels.count_enclosed(primary.points_uv, others, d.own_bp))
         if n_in:
-            status, detail = "merged", f"the isophote at t = {isovalues[0]} encloses {n_in} other BP(s)"
+            status, detail = "merged", f"the isophote at t = {primary.isovalue} encloses {n_in} other BP(s)"
     return SpecularityEstimate(d.bp_uv, d.i_bp, d.saturated, d.roi, status, detail, d.bp_ray,
                                tuple(d.results), joint)
 
