@@ -950,8 +950,10 @@ def assess(image: np.ndarray, gray: np.ndarray, ests, *, full_scale: float, wind
     minor = np.full(n, np.nan)
     inside = np.zeros(n, dtype=bool)
     bps = np.array([e.bp_px for e in ests], dtype=np.float64).reshape(-1, 2)
-    ells = [e.ellipse for e in ests]
-    resid = [e.fit_residual_px for e in ests]
+    # each estimate's primary isophote read once (its ellipse and residual are the primary's)
+    prims = [e.primary for e in ests]
+    ells = [None if p is None else p.ellipse for p in prims]
+    resid = [None if p is None else p.fit_residual_px for p in prims]
     ok = np.array([e.ok for e in ests], dtype=bool)
     # a camera model without image conics fits its isophote on the viewing rays, where it is a
     # conic; the image outline the lens distorts still gives the checks its size, reach and own
