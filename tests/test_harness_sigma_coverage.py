@@ -129,3 +129,42 @@ def test_two_guides_halve_the_bp_ray_where_the_depth_is_observable(rec, bp, rel)
         assert "two_guides_halve_bp_ray" not in v
     else:
         assert v["two_guides_halve_bp_ray"]["holds"] is (rec <= 0.5 * bp)
+
+
+def _plane_rig_case(i, rec, depth, eps=0.2, family="plane under a light rig, light offset", n_ok=15):
+    """A flat-mucosa case: the recommended median ``rec`` (deg) with p5 and p95 0.5 deg either
+    side, the median depth error ``depth`` (%, or None: no depth), at epsilon/d ``eps``."""
+    stats = {"n": 2 * n_ok, "n_ok": n_ok, "median": rec, "p5": max(rec - 0.5, 0.0), "p95": rec + 0.5,
+             "failure_rate": 0.5}
+    return {"id": f"plane_read_noise@{i}", "key": f"k{i}", "protocol": "rendered", "colocated": False,
+            "family": family,
+            "metrics": {"estimators": {"recommended": stats, "bp_ray": dict(stats, median=5.7)},
+                        "diagnostics": {"eps_over_d": eps, "recommended_depth_err_pct_median": depth}}}
+
+
+@given(rec=st.floats(0.0, 2.0), depth=st.one_of(st.none(), st.floats(0.0, 20.0)))
+def test_the_flat_mucosa_holds_exactly_within_both_bounds(rec, depth):
+    v = {v["id"]: v for v in evaluate_claims({"cases": [_plane_rig_case(0, rec, depth)], "sweeps": []})}
+    want = rec <= TOL.claim_flat_rig_median_deg and depth is not None and depth <= TOL.claim_flat_rig_depth_pct
+    assert v["flat_rig_median"]["holds"] is want
+    assert ("Misses: plane_read_noise@0" in v["flat_rig_median"]["measured"]) is (not want)
+
+
+def test_the_flat_mucosa_shows_each_median_with_its_standard_error():
+    # the standard error of a median of 15 highlights from p95 - p5: 0.93 deg for the first
+    # (p5 clipped at 0), 1 deg for the second: 0.93 / (2 * 0.9 * sqrt(15)) = 0.133, 0.143 deg
+    cases = [_plane_rig_case(0, 0.43, 3.8), _plane_rig_case(1, 0.56, None)]
+    v = {v["id"]: v for v in evaluate_claims({"cases": cases, "sweeps": []})}["flat_rig_median"]
+    assert v["holds"] is False
+    assert "plane_read_noise@0 0.43 +- 0.13 deg, depth 3.8 %" in v["measured"]
+    assert "plane_read_noise@1 0.56 +- 0.14 deg, no depth" in v["measured"]
+    assert v["measured"].startswith("within 0.5 deg and 5 % in 1 of 2 cases")
+
+
+@pytest.mark.parametrize("eps, family", [(0.025, "plane under a light rig, light offset"),  # depth free
+                                         (0.4, "plane under a light rig, light offset"),
+                                         (0.2, "plane, light offset"),                      # one light
+                                         (0.2, "sphere under a light rig, light offset")])
+def test_the_flat_mucosa_judges_planes_under_a_rig_at_epsilon_over_d_0_1_to_0_3_only(eps, family):
+    case = _plane_rig_case(0, 3.0, None, eps=eps, family=family)
+    assert "flat_rig_median" not in {v["id"] for v in evaluate_claims({"cases": [case], "sweeps": []})}

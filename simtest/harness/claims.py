@@ -479,6 +479,58 @@ def _claim_curved_offset(results):
             f"(+-{_EPS_SLACK:g}, case means of eps_over_d), case medians; bound {bound:g} deg")
 
 
+#: The light offsets of the flat-mucosa claim: the band where two guides fix a plane's depth
+#: (the colonoscope's guides 4 mm off the lens at 20 mm are epsilon/d 0.2), the curved claims'
+#: two offsets and what lies between (with their slack).
+FLAT_RIG_EPS = (0.1, 0.3)
+
+
+def _flat_rig_cases(results):
+    """The rendered plane cases under a light rig at epsilon/d :data:`FLAT_RIG_EPS` (+-
+    :data:`_EPS_SLACK`) with a recommended median."""
+    lo, hi = FLAT_RIG_EPS
+    out = []
+    for c in _rendered(results, colocated=False):
+        e = _diag(c, "eps_over_d")
+        if (_base_family(c) == "plane" and _RIG_QUALIFIER in c.get("family", "") and e is not None
+                and lo - _EPS_SLACK <= e <= hi + _EPS_SLACK and _stat(c, "recommended") is not None):
+            out.append(c)
+    return out
+
+
+def _claim_flat_rig(results):
+    """Issue 39's flat-mucosa must-hold: on each rendered plane case under a light rig at
+    epsilon/d 0.1 to 0.3, the recommended normal's median error is at most
+    ``TOL.claim_flat_rig_median_deg`` and the recommended depth's median error at most
+    ``TOL.claim_flat_rig_depth_pct`` (no depth misses it). Each median is shown with its standard
+    error (:func:`median_se`), so that a reader tells a miss from the spread of a few highlights;
+    the verdict is on the medians themselves. None where no such case was run."""
+    cs = sorted(_flat_rig_cases(results), key=lambda c: c["id"])
+    if not cs:
+        return None
+    bound, depth_bound = TOL.claim_flat_rig_median_deg, TOL.claim_flat_rig_depth_pct
+
+    def shown(c) -> str:
+        med, se = _stat(c, "recommended"), median_se(c["metrics"]["estimators"].get("recommended"))
+        depth = _diag(c, "recommended_depth_err_pct_median")
+        return (f"{med:.3g}" + (f" +- {se:.2g}" if se is not None else "") + " deg, "
+                + ("no depth" if depth is None else f"depth {depth:.2g} %"))
+
+    def misses(c) -> bool:
+        depth = _diag(c, "recommended_depth_err_pct_median")
+        return _stat(c, "recommended") > bound or depth is None or depth > depth_bound
+
+    bad = [c for c in cs if misses(c)]
+    text = (f"within {bound:g} deg and {depth_bound:g} % in {len(cs) - len(bad)} of {len(cs)} cases "
+            f"(median +- its standard error, median depth error): "
+            + "; ".join(f"{c['id']} {shown(c)}" for c in cs))
+    if bad:
+        text += ". Misses: " + ", ".join(c["id"] for c in bad)
+    return (not bad, text, f"rendered planes under a light rig at epsilon/d {FLAT_RIG_EPS[0]:g} to "
+                           f"{FLAT_RIG_EPS[1]:g} (+-{_EPS_SLACK:g}), case medians; bounds {bound:g} deg, "
+                           f"{depth_bound:g} %")
+
+
 def _counted(cases: list[dict], key: str) -> list[tuple[dict, float, int]]:
     """``(case, share, n)`` for each case whose share diagnostic ``key`` has highlights: its mean
     and its count (``key`` + :data:`~simtest.harness.metrics.COUNT_SUFFIX`), which a suite-wide
@@ -575,6 +627,12 @@ CLAIMS = {
         "cylinders under a light rig (issue 39; under one light the depth of a curved patch is "
         "not observable and the BP ray is kept)",
         _claim_curved_offset),
+    "flat_rig_median": (
+        "On a rendered plane under a light rig at epsilon/d 0.1 to 0.3 (the endoscope's flat "
+        "mucosa, every relief, film, noise and JPEG setting) the recommended normal's median error "
+        f"is at most {TOL.claim_flat_rig_median_deg:g} deg and its depth's median error at most "
+        f"{TOL.claim_flat_rig_depth_pct:g} % (issue 39)",
+        _claim_flat_rig),
     "sigma_coverage": (
         "The recommended normal's stated sigma covers its error: at least 90 % of the highlights "
         "with a stated sigma err by at most twice it (issue 39)",
