@@ -360,8 +360,9 @@ def _ellipticity(labels, cid, x, y, bw, bh, n=0, sr=0, sc=0):
     src = 0.0
     for r in range(bh):
         dr = r - mr
+        l_row = labels[y + r, x : x + bw]
         for c in range(bw):
-            if labels[y + r, x + c] == cid:
+            if l_row[c] == cid:
                 dc = c - mc
                 srr += dr * dr
                 scc += dc * dc
@@ -376,6 +377,28 @@ def _ellipticity(labels, cid, x, y, bw, bh, n=0, sr=0, sc=0):
     e = n / (4 * np.pi * np.sqrt(det))
     tol = max(1e-9, 16.0 * (n + 4) * _EPS * (a * cc) / det)
     return e, tol
+
+
+@numba.njit(cache=True, nogil=True, inline="always")
+def _box_min(gray, x, y, bw, bh):
+    """``gray[y : y + bh, x : x + bw].min()``: the first least value in raster order."""
+    mn = gray[y, x]
+    for r in range(bh):
+        g_row = gray[y + r, x : x + bw]
+        for c in range(bw):
+            v = g_row[c]
+            if v < mn:
+                mn = v
+    return mn
+
+
+@numba.njit(cache=True, nogil=True, inline="always")
+def _outside_cross(labels, cid, x, y, bw, bh, pr, pc):
+    """Whether a neighbour that the parabolas through box pixel (pr, pc) read (above and below
+    it where both are in the box, left and right likewise) is outside component ``cid``."""
+    if 0 < pr < bh - 1 and (labels[y + pr - 1, x + pc] != cid or labels[y + pr + 1, x + pc] != cid):
+        return True
+    return 0 < pc < bw - 1 and (labels[y + pr, x + pc - 1] != cid or labels[y + pr, x + pc + 1] != cid)
 
 
 @numba.njit(cache=True, nogil=True, inline="always")
@@ -596,11 +619,14 @@ def examine_candidates(gray, labels, comps, clipped, scope, levels, min_area_px,
     stack = np.empty(64, dtype=np.int64)
     for k in range(m):
         cid, x, y, bw, bh, area = comps[k, 0], comps[k, 1], comps[k, 2], comps[k, 3], comps[k, 4], comps[k, 5]
-        # np.where(comp, box, box.min()) and its argmax, in one pass: the first maximum of the
-        # component, unless that maximum is the box minimum (every value the same: the argmax
-        # is the box's first pixel); and whether the component has clipped pixels
-        mn = gray[y, x]
-        best = mn
+        # np.where(comp, box, box.min()) and its argmax: the first maximum of the component,
+        # unless that maximum is the box minimum (every value the same: the argmax is the box's
+        # first pixel); and whether the component has clipped pixels
+        best = gray[y, x]
+        # the least of the component's values and the box's first (at least the box minimum,
+        # which is read only where it matters: below; the box's pass was a third of a real
+        # frame's examination)
+        low = best
         pr, pc = -1, -1
         sat = False
         # (and the component's pixel count and the sums of its rows and columns, which its
@@ -609,22 +635,32 @@ def examine_candidates(gray, labels, comps, clipped, scope, levels, min_area_px,
         s_r = 0
         s_c = 0
         for r in range(bh):
+            g_row = gray[y + r, x : x + bw]
+            l_row = labels[y + r, x : x + bw]
             for c in range(bw):
-                v = gray[y + r, x + c]
-                if v < mn:
-                    mn = v
-                if labels[y + r, x + c] == cid:
+                if l_row[c] == cid:
+                    v = g_row[c]
                     n_px += 1
                     s_r += r
                     s_c += c
                     if pr < 0 or v > best:
                         best = v
                         pr, pc = r, c
+                    if v < low:
+                        low = v
                     if has_clipped and clipped[y + r, x + c]:
                         sat = True
-        if best == mn:
-            pr, pc = 0, 0
-            best = gray[y, x]
+        # the box minimum, where the maximum can be it (low == best: a flat component whose
+        # value is the box's first); below, where a neighbour of the BP's parabola is outside
+        # the component
+        mn = best
+        have_mn = False
+        if low == best:
+            mn = _box_min(gray, x, y, bw, bh)
+            have_mn = True
+            if best == mn:
+                pr, pc = 0, 0
+                best = gray[y, x]
         if labels[y + pr, x + pc] != cid or (sat and k_close == 0):
             ints[k, STATUS] = FALLBACK
             continue
@@ -650,6 +686,8 @@ def examine_candidates(gray, labels, comps, clipped, scope, levels, min_area_px,
         elif n_top <= 1:
             dr = 0.0
             dc = 0.0
+            if not have_mn and _outside_cross(labels, cid, x, y, bw, bh, pr, pc):
+                mn = _box_min(gray, x, y, bw, bh)
             if 0 < pr < bh - 1:
                 dr = _parabola_offset(_value(gray, labels, cid, mn, y + pr - 1, x + pc), best,
                                       _value(gray, labels, cid, mn, y + pr + 1, x + pc))

@@ -1116,11 +1116,11 @@ def detect_specularities(
         roi_margin_px=roi_margin_px, max_candidates=max_candidates, peak_rel=peak_rel,
         k_close=k_close, half=half,
     )
-    found = _candidates_compiled(frame, mask)
+    found = _candidates_compiled(frame, mask, True)  # by peak
     if found is None:
         found = _candidates_numpy(frame, mask)
+        found[0].sort(key=lambda c: -c.peak)
     out, n_comps = found
-    out.sort(key=lambda c: -c.peak)
     smoothed = None
     if smooth_sigma_px > 0:
         smoothed = gray
@@ -1449,12 +1449,15 @@ def _kernel_detail(code: int, status: str, frame: _DetectFrame, area: int, bbox:
     return _rejection_detail(status, frame, area, bbox, text)
 
 
-def _candidates_compiled(frame: _DetectFrame, mask: np.ndarray) -> tuple[list[Candidate], int] | None:
+def _candidates_compiled(frame: _DetectFrame, mask: np.ndarray,
+                         by_peak: bool = False) -> tuple[list[Candidate], int] | None:
     """The candidates of a frame's mask, as :func:`_candidates_numpy` (the same bits), examined
     by one compiled call (:func:`simtest.reconstruct._detect_kernels.examine_candidates`) on the
     frame's label image; the candidates with clipped pixels, and those the kernel declines, by
     :func:`_examine_numpy`. None (the caller takes the numpy path) for a float16 image, or
-    ``method="full_scale"`` components that share pixels.
+    ``method="full_scale"`` components that share pixels. With ``by_peak`` the candidates come
+    in ``detect_specularities``' order (by decreasing peak, ties largest first) instead of
+    :func:`_candidates_numpy`'s (largest first).
     """
     gray = frame.gray
     if gray.dtype.type not in _COMPILED_DTYPES:
@@ -1497,46 +1500,73 @@ def _candidates_compiled(frame: _DetectFrame, mask: np.ndarray) -> tuple[list[Ca
         float(frame.min_area_px), float(ell_min), float(ell_max), float(frame.roi_scale),
         float(frame.roi_margin_px), float(frame.peak_rel), 0, 0, int(frame.k_close), int(frame.min_plateau_px),
         frame.method == "local_peak")
-    bps = list(floats[:, :2].copy())  # each candidate's BP a row of one array (views, made at once)
-    with_level = frame.levels is not None
-    new_roi = tuple.__new__  # Roi(...) without its generated __new__'s call (thousands a frame)
-    # the accepted and the too small candidates (most of a real frame's thousands) built from the
-    # columns at once (map: no Python loop); the others one by one below
     n = len(table)
-    codes = ints[:, _dk.STATUS].tolist()
+    codes = ints[:, _dk.STATUS]  # (a view: the ellipticities numpy decides are written back)
+    # the candidates the kernel leaves to numpy, examined first: their peaks join the sort below
+    declined = np.flatnonzero(codes == _dk.FALLBACK)
+    redone = {k: _examine_numpy(frame, scope, area, x, y, bw, bh,
+                                (labels[y : y + bh, x : x + bw] == cid).view(np.uint8))
+              for k, (cid, x, y, bw, bh, area) in zip(declined.tolist(), table[declined].tolist())}
+    if by_peak:
+        # by decreasing peak, ties in the order above: the bits of a stable list.sort(key=-peak)
+        # on the built list (the peaks are finite), without its thousands of key calls; the
+        # columns are put in that order before anything is built from them
+        peaks = floats[:, _dk.PEAK].copy()
+        for k, c in redone.items():
+            peaks[k] = c.peak
+        order = np.argsort(-peaks, kind="stable")
+        table, ints, floats = table[order], ints[order], floats[order]
+        codes = ints[:, _dk.STATUS]
+        at = np.empty(n, np.int64)
+        at[order] = np.arange(n)
+        redone = {int(at[k]): c for k, c in redone.items()}
     cids, xs, ys, bws, bhs, areas = table.T.tolist()
-    bboxes = list(map(new_roi, repeat(Roi), zip(ys, map(add, ys, bhs), xs, map(add, xs, bws))))
-    rois = list(map(new_roi, repeat(Roi), ints[:, _dk.ROI_ROW0:_dk.ROI_COL1 + 1].tolist()))
-    min_area = frame.min_area_px
-    details = ["" if c == _dk.OK else f"{a} px < {min_area}" for c, a in zip(codes, areas)]
-    out = list(map(Candidate, bps, floats[:, 2].tolist(), (ints[:, _dk.SATURATED] != 0).tolist(), areas, bboxes,
-                   rois, [_STATUS.get(c, "") for c in codes], details,
-                   floats[:, 3].tolist() if with_level else repeat(None, n)))
-    ok_or_small = (_dk.OK, _dk.TOO_SMALL)
-    for k in [k for k, c in enumerate(codes) if c not in ok_or_small]:
-        code = codes[k]
-        x, y, bw, bh, area = xs[k], ys[k], bws[k], bhs[k], areas[k]
-        if code == _dk.FALLBACK:
-            comp = (labels[y : y + bh, x : x + bw] == cids[k]).view(np.uint8)
-            out[k] = _examine_numpy(frame, scope, area, x, y, bw, bh, comp)
-            continue
-        _, _, peak, level, e, tol = floats[k].tolist()
-        bbox = bboxes[k]
+    # the rejections other than too_small (a few hundred of a real frame's thousands): their
+    # words, and the ellipticities numpy decides, one by one
+    words = {}
+    bounds = _ellipticity_bounds_words(frame)
+    rest = np.flatnonzero(codes > _dk.TOO_SMALL)
+    for k, code, e, tol, n_plateaus in zip(rest.tolist(), codes[rest].tolist(),
+                                           floats[rest, _dk.ELLIPTICITY].tolist(),
+                                           floats[rest, _dk.ELLIPTICITY_TOL].tolist(),
+                                           ints[rest, _dk.N_PLATEAUS].tolist()):
         if code == _dk.NOT_ELLIPTICAL or code == _dk.ELLIPTICITY_UNSURE:
             # numpy's value is within tol (relative) of the kernel's: the kernel's decides
             # where every value that close formats the same
             text = f"{e * (1.0 - tol):.3f}" if code == _dk.NOT_ELLIPTICAL else None
             if text is None or text != f"{e * (1.0 + tol):.3f}":
-                e = ellipticity((labels[y : y + bh, x : x + bw] == cids[k]))
+                x, y = xs[k], ys[k]
+                e = ellipticity((labels[y : y + bhs[k], x : x + bws[k]] == cids[k]))
                 text = f"{e:.3f}"
                 code = _dk.OK if ell_min <= e <= ell_max else _dk.NOT_ELLIPTICAL
+                codes[k] = code
+            if code == _dk.NOT_ELLIPTICAL:
+                words[k] = f"ellipticity {text} {bounds}"  # _rejection_detail's words
+        elif code == _dk.MERGED:
+            words[k] = f"{n_plateaus} saturated plateaus"
         else:
-            text = ""
-        status = _STATUS[code]
-        out[k] = Candidate(bps[k], peak, bool(ints[k, _dk.SATURATED]), area, bbox, rois[k], status,
-                           "" if code == _dk.OK else _kernel_detail(code, status, frame, area, bbox, text,
-                                                                     int(ints[k, _dk.N_PLATEAUS])),
-                           level if with_level else None)
+            words[k] = _rejection_detail(_STATUS[code], frame, areas[k],
+                                         Roi(ys[k], ys[k] + bhs[k], xs[k], xs[k] + bws[k]))
+    codes = codes.tolist()
+    # every candidate built from the columns at once (map: no Python loop), the accepted and the
+    # too small (most of a real frame's thousands) with their words; a too small one's words
+    # name its area, below min_area_px: a few strings, made once
+    bps = list(floats[:, :2].copy())  # each candidate's BP a row of one array (views, made at once)
+    new_roi = tuple.__new__  # Roi(...) without its generated __new__'s call (thousands a frame)
+    bboxes = map(new_roi, repeat(Roi), zip(ys, map(add, ys, bhs), xs, map(add, xs, bws)))
+    rois = map(new_roi, repeat(Roi), zip(*ints[:, _dk.ROI_ROW0:_dk.ROI_COL1 + 1].T.tolist()))
+    min_area = frame.min_area_px
+    small = np.where(ints[:, _dk.STATUS] == _dk.TOO_SMALL, table[:, 5], -1)
+    small_words = {a: f"{a} px < {min_area}" for a in np.unique(small).tolist()}
+    small_words[-1] = ""
+    details = list(map(small_words.__getitem__, small.tolist()))
+    for k, w in words.items():
+        details[k] = w
+    out = list(map(Candidate, bps, floats[:, _dk.PEAK].tolist(), (ints[:, _dk.SATURATED] != 0).tolist(), areas,
+                   bboxes, rois, map(_STATUS.get, codes), details,
+                   floats[:, _dk.LEVEL].tolist() if frame.levels is not None else repeat(None, n)))
+    for k, c in redone.items():
+        out[k] = c
     return out, n_comps
 
 
@@ -1551,9 +1581,13 @@ def _rejection_detail(status: str, frame: _DetectFrame, area: int, bbox: Roi,
     if status == "black_border":
         return "on or within 5 px of the endoscope's black border"
     if status == "not_elliptical":
-        return (f"ellipticity {ellipticity_text} outside [{frame.ellipticity_min}, "
-                f"{1 / frame.ellipticity_min:.3f}]")
+        return f"ellipticity {ellipticity_text} {_ellipticity_bounds_words(frame)}"
     return ""
+
+
+def _ellipticity_bounds_words(frame: _DetectFrame) -> str:
+    """The bounds in a ``not_elliptical`` candidate's detail (:func:`_rejection_detail`)."""
+    return f"outside [{frame.ellipticity_min}, {1 / frame.ellipticity_min:.3f}]"
 
 
 def _candidates_numpy(frame: _DetectFrame, mask: np.ndarray) -> tuple[list[Candidate], int]:
