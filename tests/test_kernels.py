@@ -752,3 +752,9 @@ def test_is_gray_packed_is_is_gray(seed, h, w, dtype, channel):
     from simtest.reconstruct.pipeline import _is_gray
 
     assert _is_gray(img) == want and _is_gray(img[:, ::-1]) == want  # packed, and not contiguous
+    # detection's test and copy of a gray frame's channel in one pass: the same answer, and where
+    # gray the R channel itself
+    out = np.zeros((h, w), dtype)
+    assert bool(_kernels.grey_channel_packed(img.reshape(h, -1), out)) == want
+    if want:
+        assert np.array_equal(out, img[..., 0])
