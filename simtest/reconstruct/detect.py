@@ -888,7 +888,7 @@ def background_side_px(shape: tuple[int, int], clipped: np.ndarray | None = None
 
 def local_peak_mask(gray: np.ndarray, full_scale: float, *, peak_rel: float = 0.6,
                     contrast_min_rel: float = 0.08, background_px: int | None = None, _parts: list | None = None,
-                    _hit_rows_only: bool = False, _half: list | None = None):
+                    _hit_rows_only: bool = False, _half: list | None = None, _gray8: np.ndarray | None = None):
     """Bright-candidate mask relative to local peaks (``method="local_peak"``).
 
     The diffuse background is the grey opening of the luma by a square of side ``background_px``
@@ -929,7 +929,17 @@ def local_peak_mask(gray: np.ndarray, full_scale: float, *, peak_rel: float = 0.
     # image reduced so that the square is ~16 px (area averaging), then back to full size.
     f = max(1, side // 16)
     whole = f > 1 and h % f == 0 and w % f == 0  # whole blocks: the reductions by 2 x 2 steps
-    if whole:
+    src8 = gray if gray.dtype == np.uint8 else _gray8
+    if whole and src8 is not None and f % 2 == 0:
+        # an 8-bit frame's first 2 x 2 means by one compiled pass over its bytes (OpenCV's
+        # values: integer sums times 0.25 are exact in float32), not OpenCV's pass over the
+        # float32 copy (0.35 ms on 1350 x 1080 px), then the rest of the chain
+        first = np.empty((h // 2, w // 2), np.float32)
+        _dk.half_means_uint8(src8, first)
+        if _half is not None and not _half:
+            _half.append(first)
+        small = _area_reduced(first, f // 2)
+    elif whole:
         # (``_half``: the means of g's 2 x 2 blocks, the chain's first step, for the scope border
         # and the verifier)
         small = _area_reduced(g, f, _half)
@@ -1095,9 +1105,11 @@ def detect_specularities(
         # gray frame not smoothed: the same values as each converting its own copy)
         gray32 = gray.astype(np.float32, copy=False)
         halves: list = []
+        # (``_gray8``: the 8-bit frame gray32 is the exact copy of, for its compiled 2 x 2 means)
         mask, background = local_peak_mask(gray32, fs, peak_rel=peak_rel,
                                            contrast_min_rel=contrast_min_rel, background_px=side,
-                                           _hit_rows_only=True, _half=halves)
+                                           _hit_rows_only=True, _half=halves,
+                                           _gray8=gray if gray.dtype == np.uint8 else None)
         half = halves[0] if halves else None
         thr = contrast_min_rel * fs
         levels = background
