@@ -410,26 +410,60 @@ def test_the_dark_corner_components_by_flood_fill_are_the_labellings(seed, shape
 
 
 def test_detection_hands_over_its_smoothing_and_the_pipeline_smooths_the_unrounded_luma():
-    """One smoothing per frame: Detection.smoothed is the frame's gray smoothed once (read-only);
-    the pipeline contours many ROIs in the luma smoothed once: detection's for a gray frame, the
-    unrounded luma for a colour one (OpenCV's 8-bit gray is rounded). None when not smoothed."""
+    """One smoothing per frame: Detection.smoothed is the frame's luma smoothed once (read-only):
+    for a colour frame its unrounded float32 luma (handed over as Detection.luma32, which the
+    pipeline reads as its own), not OpenCV's gray rounded to whole levels; for a gray frame the
+    gray itself. The pipeline contours many ROIs in that smoothing without a second blur. None
+    when not smoothed."""
+    from unittest import mock
+
     import cv2
 
+    from simtest.reconstruct import pipeline
     from simtest.reconstruct.detect import luma
     from simtest.reconstruct.pipeline import _frame_luma_smoothing
 
     rng = np.random.default_rng(5)
     img = rng.integers(0, 256, (40, 60, 3), dtype=np.uint8)
     det = detect_specularities(img, smooth_sigma_px=1.5, method="local_peak")
-    gray = cv2.cvtColor(img, cv2.COLOR_RGB2GRAY).astype(np.float32)
-    assert det.smoothed.dtype == np.float32 and not det.smoothed.flags.writeable
-    assert np.array_equal(det.smoothed, cv2.GaussianBlur(gray, (0, 0), 1.5, borderType=cv2.BORDER_REFLECT))
     want = cv2.GaussianBlur(luma(img).astype(np.float32), (0, 0), 1.5, borderType=cv2.BORDER_REFLECT)
-    assert np.array_equal(_frame_luma_smoothing(img, det.smoothed, 1.5), want)
+    assert det.smoothed.dtype == np.float32 and not det.smoothed.flags.writeable
+    assert np.array_equal(det.smoothed, want)
+    assert np.array_equal(det.luma32, luma(img).astype(np.float32)) and not det.luma32.flags.writeable
+    assert np.array_equal(_frame_luma_smoothing(img, det.smoothed, 1.5, det.luma32), want)
     grey = np.repeat(img[:, :, :1], 3, axis=2)
     det = detect_specularities(grey, smooth_sigma_px=1.5, method="local_peak")
+    assert det.luma32 is None
     assert _frame_luma_smoothing(grey, det.smoothed, 1.5) is det.smoothed
     assert detect_specularities(img, smooth_sigma_px=0.0).smoothed is None
+    # a whole colour frame with many highlights, smoothed at full resolution (the banner's
+    # path): one full-frame blur in all, detection's, and the pipeline contours in it
+    from simtest.bench import banner_frame
+
+    got = banner_frame()
+    if got is None:
+        return
+    frame, K = got
+    blurs = []
+    real_blur = cv2.GaussianBlur
+
+    def counting(src, *a, **k):
+        if src.shape[:2] == frame.shape[:2]:
+            blurs.append(src.dtype)
+        return real_blur(src, *a, **k)
+
+    seen = {}
+    real_with = pipeline._Frame.with_detection_smoothing
+
+    def spy(self, smoothed):
+        seen["smoothed"] = smoothed
+        return real_with(self, smoothed)
+
+    with mock.patch.object(cv2, "GaussianBlur", counting), \
+            mock.patch.object(pipeline._Frame, "with_detection_smoothing", spy):
+        pipeline.reconstruct(frame, K)
+    assert blurs == [np.float32]
+    assert seen["smoothed"] is not None and not seen["smoothed"].flags.writeable
 
 
 def test_a_smoothed_frame_detected_at_half_resolution_has_the_full_resolutions_candidates(monkeypatch):

@@ -1395,7 +1395,9 @@ def reconstruct(
         # (detection's answer where it asked, on the whole frame)
         grey = img.ndim == 3 and img.shape[2] >= 3 and (
             det.grey if det.grey is not None and sub.shape == img.shape else bool(_is_gray(img)))
-        frame = replace(frame, luma32=None if grey else _colour_luma32(img, False), grey=grey)
+        # (detection's own where it smoothed this frame's luma: the same values)
+        frame = replace(frame, luma32=None if grey else det.luma32 if (det.luma32 is not None and sub.shape == img.shape)
+                        else _colour_luma32(img, False), grey=grey)
     if not many and sub.shape == img.shape and frame.smooth_sigma_px > 0:
         # few ROIs, each smoothed alone: in float32 from the frame's luma where it is at hand
         # (the colour frame's float32 luma, a gray frame's channel, a single-channel 8- or 16-bit
@@ -1421,8 +1423,9 @@ def reconstruct(
         # many ROIs: contoured in one smoothing of the frame's luma (detection's own where it is
         # the luma: a gray, single-channel or float frame), not each smoothed for itself
         if sliced:
-            frame = frame.with_detection_smoothing(_frame_luma_smoothing(img, det.smoothed, frame.smooth_sigma_px,
-                                                                         frame.luma32))
+            frame = frame.with_detection_smoothing(
+                det.smoothed if frame.luma32 is not None and frame.luma32 is det.luma32
+                else _frame_luma_smoothing(img, det.smoothed, frame.smooth_sigma_px, frame.luma32))
         else:
             frame = frame.for_many_highlights()
     shift = np.array([r.col0, r.row0], dtype=np.float64)
