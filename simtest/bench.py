@@ -43,9 +43,12 @@ from __future__ import annotations
 
 import importlib
 import inspect
+import json
 import os
 import resource
 import statistics
+import subprocess
+import sys
 import tempfile
 import time
 from collections import Counter
@@ -723,35 +726,56 @@ def video_first_frame():
     return np.ascontiguousarray(cv2.cvtColor(bgr, cv2.COLOR_BGR2RGB)), K
 
 
-def _bench_video(n_frames: int = VIDEO_FRAMES) -> list[BenchResult]:
-    """``simtest reconstruct``'s path on a video (:func:`bench_video_file`): decoding in this
-    process, frames reconstructed in :data:`VIDEO_WORKERS` worker processes, estimates.jsonl
-    written in frame order (:func:`~simtest.reconstruct.frames.reconstruct_frames`,
-    :func:`~simtest.reconstruct.frames.write_frames_jsonl`); wall ms per frame, the pool's start
-    included, one run (a video is many frames)."""
-    name = (f"video: 1350x1080 MJPG, {n_frames} frames of banner_mosaic panning {VIDEO_STEP_PX} px a "
-            f"frame, decode + reconstruct + estimates.jsonl on {VIDEO_WORKERS} worker processes, wall per frame")
-    workers = min(VIDEO_WORKERS, os.cpu_count() or 1)
+def _video_run(n_frames: int, workers: int) -> dict | None:
+    """One run of the bench video (:func:`bench_video_file`) through ``simtest reconstruct``'s
+    video path in this process: decoding here, frames reconstructed in ``workers`` worker
+    processes, estimates.jsonl written in frame order. Returns ``{"n", "wall_s", "arrived_s"
+    (each frame's arrival from the start), "examined" (candidates a frame), "cpu_s" (this process
+    and its workers)}``, or None without the source tree or an MJPG writer."""
+    single_core()
     with tempfile.TemporaryDirectory() as tmp:
         made = bench_video_file(tmp, n_frames)
         if made is None:
-            return [BenchResult("reconstruct", name + " (no banner or no MJPG writer)", float("nan"), "ms",
-                                VIDEO_TARGET_MS_PER_FRAME)]
+            return None
         path, K = made
         examined, arrived = [], []
-
-        def on_frame(rec):
-            arrived.append(time.perf_counter())
-            examined.append(rec["detection"]["examined"])
-
         cpu0 = _cpu_s_with_workers()
         t0 = time.perf_counter()
-        with _every_core():  # the row is the 2-core VM's, also under `taskset -c 0 simtest bench`
-            _, n, _ = write_frames_jsonl(Path(tmp) / "estimates.jsonl",
-                                         reconstruct_frames(open_frames(path), K, workers=workers, encoded=True),
-                                         on_frame=on_frame)
+
+        def on_frame(rec):
+            arrived.append(time.perf_counter() - t0)
+            examined.append(rec["detection"]["examined"])
+
+        _, n, _ = write_frames_jsonl(Path(tmp) / "estimates.jsonl",
+                                     reconstruct_frames(open_frames(path), K, workers=workers, encoded=True),
+                                     on_frame=on_frame)
         wall = time.perf_counter() - t0
         cpu = _cpu_s_with_workers() - cpu0
+    return {"n": n, "wall_s": wall, "arrived_s": arrived, "examined": examined, "cpu_s": cpu}
+
+
+def _bench_video(n_frames: int = VIDEO_FRAMES) -> list[BenchResult]:
+    """``simtest reconstruct``'s path on a video (:func:`_video_run`), in a fresh interpreter on
+    every core: its workers start as a user's do, loading the compiled kernels from numba's cache
+    (0.35 s each on the 2-core VM), which workers forked from this process, warm from the rows
+    before, would not; wall ms per frame, the pool's start included, one run (a video is many
+    frames)."""
+    name = (f"video: 1350x1080 MJPG, {n_frames} frames of banner_mosaic panning {VIDEO_STEP_PX} px a "
+            f"frame, decode + reconstruct + estimates.jsonl on {VIDEO_WORKERS} worker processes, wall per frame "
+            "(a fresh process)")
+    workers = min(VIDEO_WORKERS, os.cpu_count() or 1)
+    code = ("import json, sys; from simtest.bench import _video_run; "
+            f"json.dump(_video_run({int(n_frames)}, {int(workers)}), sys.stdout)")
+    with _every_core():  # the row is the 2-core VM's, also under `taskset -c 0 simtest bench`
+        proc = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
+                              env={**os.environ, **SINGLE_THREAD_ENV})
+    got = json.loads(proc.stdout) if proc.returncode == 0 and proc.stdout.strip() else None
+    if got is None:
+        said = (proc.stderr.strip().splitlines() or [""])[-1] if proc.returncode else ""
+        return [BenchResult("reconstruct", name + (f" (failed: {said})" if said else
+                                                   " (no banner or no MJPG writer)"), float("nan"), "ms",
+                            VIDEO_TARGET_MS_PER_FRAME)]
+    n, wall, arrived, examined = got["n"], got["wall_s"], got["arrived_s"], got["examined"]
     per = wall / max(n, 1) * 1e3
     # the rate once the pool runs: from the first frame written to the last (a long video's rate;
     # the workers' start and the first frame's latency left out)
@@ -761,8 +785,8 @@ def _bench_video(n_frames: int = VIDEO_FRAMES) -> list[BenchResult]:
                         f"{n / wall:.1f} frames/s from the start (target >= 20 on 2 cores), {steady}"
                         f"{workers} workers, {n} frames of "
                         f"{statistics.median(examined) if examined else 0:.0f} candidates (median; MJPG's "
-                        f"blocks add bright components); CPU {cpu / max(n, 1) * 1e3:.0f} ms a frame, this "
-                        f"process and its workers")]
+                        f"blocks add bright components); CPU {got['cpu_s'] / max(n, 1) * 1e3:.0f} ms a frame, "
+                        f"the process and its workers")]
 
 
 @contextmanager
