@@ -300,7 +300,8 @@ def fit_cones(points_list, frames) -> list[ConeFit | Failure]:
         return out
     gframes = [frames[i] for i in good.tolist()]
     C = np.stack([fits[i].conic for i in good.tolist()])
-    if len(camera_of) == 1:
+    one_frame = len(camera_of) == 1
+    if one_frame:
         # one frame object for all (a pinhole's image plane): its K once, broadcast (the same products)
         Kg = frames[0].K
         cf = Kg.T @ C @ Kg
@@ -312,7 +313,7 @@ def fit_cones(points_list, frames) -> list[ConeFit | Failure]:
     formed = np.isfinite(norm) & (norm > 0)
     c = cf / np.where(formed, norm, 1.0)[:, None, None]
     # the cone in the camera frame, R^T c R, where the fit plane is not the image plane
-    on_image = np.full(len(gframes), bool(gframes[0].on_image_plane)) if Kg.ndim == 2 else \
+    on_image = np.full(len(gframes), bool(frames[0].on_image_plane)) if one_frame else \
         np.array([f.on_image_plane for f in gframes], dtype=bool)
     cone = c.copy()
     if not on_image.all():

@@ -389,6 +389,18 @@ def luma(image: np.ndarray, *, dtype=np.float64) -> np.ndarray:
     return (image.astype(dtype, copy=False) @ _LUMA.astype(dtype)).astype(dtype, copy=False)
 
 
+def colour_luma32(image: np.ndarray, grey: bool) -> np.ndarray | None:
+    """The unrounded luma of a colour 8- or 16-bit RGB frame in float32 (H, W), read-only
+    (:func:`compiled_luma`); None for any other frame (single-channel, gray (R = G = B), float,
+    RGBA). ``grey``: whether R = G = B (the caller's answer: detection's, or the pipeline's
+    test). Detection smooths it and the pipeline contours in it, so both take it from here."""
+    if grey or image.ndim != 3 or image.shape[2] != 3 or image.dtype.type not in (np.uint8, np.uint16):
+        return None
+    out = compiled_luma(image, np.float32)
+    out.setflags(write=False)
+    return out
+
+
 def compiled_luma(image: np.ndarray, dtype) -> np.ndarray:
     """The Rec. 601 luma (H, W) of an (H, W, 3) image in float64 or float32, by the compiled
     kernels: :func:`~simtest.reconstruct._kernels.luma_rows` where its pixels are packed along
@@ -1098,12 +1110,10 @@ def detect_specularities(
             return replace(det, grey=grey)
     luma32 = None
     if smooth_sigma_px > 0:
-        if grey is False and img.ndim == 3 and img.shape[2] == 3 and img.dtype.type in (np.uint8, np.uint16):
-            # a colour frame's unrounded luma, which the pipeline contours: smoothed once for
-            # both (OpenCV's gray, rounded to whole levels, was a second full-frame blur: 2.8 ms
-            # of the banner's)
-            luma32 = compiled_luma(img, np.float32)
-            luma32.setflags(write=False)
+        # a colour frame's unrounded luma, which the pipeline contours: smoothed once for both
+        # (OpenCV's gray, rounded to whole levels, was a second full-frame blur: 2.8 ms of the
+        # banner's); a frame detection did not ask about is left to the pipeline
+        luma32 = colour_luma32(img, grey is not False)
         gray = cv2.GaussianBlur(gray.astype(np.float32) if luma32 is None else luma32, (0, 0),
                                 float(smooth_sigma_px), borderType=cv2.BORDER_REFLECT)
     h, w = gray.shape
@@ -1567,11 +1577,9 @@ def _candidates_compiled(frame: _DetectFrame, mask: np.ndarray,
                 codes[k] = code
             if code == _dk.NOT_ELLIPTICAL:
                 words[k] = f"ellipticity {text} {bounds}"  # _rejection_detail's words
-        elif code == _dk.MERGED:
-            words[k] = f"{n_plateaus} saturated plateaus"
         else:
-            words[k] = _rejection_detail(_STATUS[code], frame, areas[k],
-                                         Roi(ys[k], ys[k] + bhs[k], xs[k], xs[k] + bws[k]))
+            words[k] = _kernel_detail(code, _STATUS[code], frame, areas[k],
+                                      Roi(ys[k], ys[k] + bhs[k], xs[k], xs[k] + bws[k]), "", n_plateaus)
     codes = codes.tolist()
     # every candidate built from the columns at once (map: no Python loop), the accepted and the
     # too small (most of a real frame's thousands) with their words; a too small one's words

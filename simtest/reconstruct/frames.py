@@ -222,7 +222,7 @@ class _FrameRing:
     current: _FrameRing | None = None
 
     def __init__(self, first: np.ndarray, n_slots: int):
-        self.shape, self.dtype, self.n_slots = first.shape, first.dtype, n_slots
+        self.shape, self.dtype = first.shape, first.dtype
         self.buffer = mmap.mmap(-1, max(first.nbytes, 1) * n_slots)
         self.slots = np.frombuffer(self.buffer, dtype=first.dtype,
                                    count=first.size * n_slots).reshape((n_slots, *first.shape))

@@ -82,6 +82,7 @@ from simtest.reconstruct._pixels import Roi, image_size_wh, rc_to_uv
 from simtest.reconstruct.cone_fit import FitFrame, fit_cones, fit_frame, fit_frames, to_camera, to_fit_frame
 from simtest.reconstruct.detect import (
     background_side_px,
+    colour_luma32,
     compiled_luma,
     connected_components,
     default_full_scale,
@@ -1029,14 +1030,13 @@ def _is_gray(img: np.ndarray) -> bool:
 def _colour_luma32(img: np.ndarray, grey: bool | None = None) -> np.ndarray | None:
     """The luma of a colour 8- or 16-bit RGB frame in float32 (H, W), read-only
     (:func:`simtest.reconstruct._kernels.luma_rgb32`); None for any other frame (single-channel,
-    gray (R = G = B), float, RGBA). ``grey``: whether R = G = B, where the caller knows."""
-    if img.ndim != 3 or img.shape[2] != 3 or img.dtype.type not in (np.uint8, np.uint16):
-        return None
-    if grey if grey is not None else _is_gray(img):
-        return None
-    out = _luma32(img)
-    out.setflags(write=False)
-    return out
+    gray (R = G = B), float, RGBA). ``grey``: whether R = G = B, where the caller knows (else
+    tested here, for a frame :func:`~simtest.reconstruct.detect.colour_luma32` could take)."""
+    if grey is None:
+        if img.ndim != 3 or img.shape[2] != 3 or img.dtype.type not in (np.uint8, np.uint16):
+            return None
+        grey = _is_gray(img)
+    return colour_luma32(img, grey)
 
 
 def _luma32(img: np.ndarray) -> np.ndarray:
@@ -1046,12 +1046,16 @@ def _luma32(img: np.ndarray) -> np.ndarray:
 
 
 def _frame_luma_smoothing(img: np.ndarray, detection_smoothed: np.ndarray, sigma: float,
-                          luma32: np.ndarray | None = None) -> np.ndarray:
+                          luma32: np.ndarray | None = None,
+                          detection_luma32: np.ndarray | None = None) -> np.ndarray:
     """The whole frame's luma smoothed once (float32, read-only): detection's smoothing where
-    detection smoothed the luma itself (a single-channel, gray (R = G = B) or float image), else
-    the unrounded luma (:func:`simtest.reconstruct._kernels.luma_rgb32`; ``luma32`` where the
-    caller has it, :func:`_colour_luma32`) smoothed as detection smooths (an 8-bit frame's OpenCV
-    gray is rounded to whole levels, which moves contours)."""
+    detection smoothed the luma itself (a single-channel, gray (R = G = B) or float image, or a
+    colour frame's unrounded luma, ``detection_luma32``: ``Detection.luma32``, which ``luma32``
+    then is), else the unrounded luma (:func:`simtest.reconstruct._kernels.luma_rgb32`;
+    ``luma32`` where the caller has it, :func:`_colour_luma32`) smoothed as detection smooths
+    (an 8-bit frame's OpenCV gray is rounded to whole levels, which moves contours)."""
+    if luma32 is not None and luma32 is detection_luma32:
+        return detection_smoothed
     if luma32 is not None:
         src = luma32
     elif img.ndim == 2 or img.dtype.kind == "f" or _is_gray(img):
@@ -1423,9 +1427,8 @@ def reconstruct(
         # many ROIs: contoured in one smoothing of the frame's luma (detection's own where it is
         # the luma: a gray, single-channel or float frame), not each smoothed for itself
         if sliced:
-            frame = frame.with_detection_smoothing(
-                det.smoothed if frame.luma32 is not None and frame.luma32 is det.luma32
-                else _frame_luma_smoothing(img, det.smoothed, frame.smooth_sigma_px, frame.luma32))
+            frame = frame.with_detection_smoothing(_frame_luma_smoothing(
+                img, det.smoothed, frame.smooth_sigma_px, frame.luma32, det.luma32))
         else:
             frame = frame.for_many_highlights()
     shift = np.array([r.col0, r.row0], dtype=np.float64)
