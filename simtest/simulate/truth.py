@@ -515,7 +515,8 @@ def cylinder_highlight(center: np.ndarray, axis: np.ndarray, radius: float, leng
     -------
     HighlightTruth or None
         None when the BP of the infinite cylinder lies beyond the finite length, when the light
-        is inside the cylinder and the camera outside (the side the camera sees is then unlit), or
+        lies within the radius of the axis (inside the tube, or beyond its end) and the camera
+        outside (no point of the outside is lit), or
         when the segment from the camera to the light crosses the cylinder (no point faces both).
 
     Raises
@@ -531,12 +532,16 @@ def cylinder_highlight(center: np.ndarray, axis: np.ndarray, radius: float, leng
     a = unit(axis, axis=-1)
     L = np.asarray(light, dtype=np.float64)
 
-    def inside(x):
+    def within_radius(x):
         xc = x - c
-        return bool(np.linalg.norm(xc - np.dot(xc, a) * a) <= radius and abs(np.dot(xc, a)) <= 0.5 * length)
+        return bool(np.linalg.norm(xc - np.dot(xc, a) * a) <= radius)
 
-    if inside(L) and not inside(np.zeros(3)):
-        return None  # light inside the tube, camera outside: the side the camera sees is unlit
+    if within_radius(L) and not within_radius(np.zeros(3)):
+        # the light within the tube's radius of its axis, the camera outside: every point of the
+        # outside has the light behind its tangent plane (n . (L - p) <= |L - c|_radial - R <= 0),
+        # wherever the light lies along the axis, beyond the tube's end too (that case reached the
+        # cross-section's reflection, which needs both points outside the circle, and failed)
+        return None
     what = f"cylinder (axis through {np.round(c, 4).tolist()} mm, R {radius:g} mm)"
     q = c - np.dot(c, a) * a  # foot of the perpendicular from the camera centre to the axis
     if not np.linalg.norm(q) > radius:
