@@ -8,7 +8,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from simtest.reconstruct.lightaware.solve import CLUSTER_PX, _cluster_covariance, _covariance
+from simtest.reconstruct.lightaware.solve import (CLUSTER_PX, MIN_CLUSTERS, _cluster_covariance, _covariance,
+                                                 cluster_blocks)
 
 BLOCK = CLUSTER_PX[0]
 
@@ -66,3 +67,45 @@ def test_the_cluster_covariance_needs_two_blocks_and_a_full_rank_jacobian():
     assert _cluster_covariance(J[:10], r[:10], sel[:10], (SIZE, SIZE)) is None  # one block
     Js = np.column_stack([J[:, 0], J[:, 0]])  # two equal columns: J^T J singular
     assert _cluster_covariance(Js, r, sel, (SIZE, SIZE)) is None
+
+
+def test_the_sensor_sigma_reaches_a_correlation_wider_than_a_macroblock():
+    # a residual correlated over 32 px blocks (a texture's blotches on a single channel): the
+    # jackknife over 8 and 16 px blocks (the old CLUSTER_PX) sees a fraction of the fits' spread,
+    # the largest over cluster_blocks' sides (8, 16, 32 on a 128 px ROI: 64 would leave 4 blocks)
+    # covers it. 200 draws: the empirical variance is known to +-10 % (sqrt(2 / 200)); the
+    # largest of three noisy estimates lies above their common value (with 16 blocks of 32 px,
+    # a few of which hold the bump, one estimate's relative standard error is 0.4 or more):
+    # measured 1.2 to 1.7 in variance; the bound 2 keeps the sigma within sqrt(2) of the spread
+    size, side = 128, 32
+    assert cluster_blocks((size, size)) == (8, 16, 32)
+    v, u = np.mgrid[0:size, 0:size].astype(float)
+    g = np.exp(-((u - 60) ** 2 + (v - 70) ** 2) / (2 * 24.0 ** 2))
+    J = np.column_stack([g.ravel(), (g * (u - 60) / 24).ravel(), (g * (v - 70) / 24).ravel()])
+    sel = np.arange(size * size)
+    rng = np.random.default_rng(3)
+    fits, small, wide = [], [], []
+    for _ in range(200):
+        off = rng.normal(0.0, 2.0, (size // side, size // side))
+        e = rng.normal(0.0, 1.0, size * size) + np.kron(off, np.ones((side, side))).ravel()
+        p = np.linalg.lstsq(J, e, rcond=None)[0]
+        r = e - J @ p
+        fits.append(p)
+        var = {b: np.diag(_cluster_covariance(J, r, sel, (size, size), b)) for b in cluster_blocks((size, size))}
+        small.append(np.maximum(var[8], var[16]))
+        wide.append(np.max(np.array(list(var.values())), axis=0))
+    emp = np.array(fits).var(axis=0)
+    assert np.all(np.mean(small, axis=0) / emp < 0.6), np.mean(small, axis=0) / emp
+    ratio = np.mean(wide, axis=0) / emp
+    assert np.all((ratio > 0.8) & (ratio < 2.0)), ratio
+
+
+def test_cluster_blocks_keep_enough_blocks():
+    assert cluster_blocks((406, 406)) == CLUSTER_PX  # 64 px: 7 x 7 blocks
+    assert cluster_blocks((100, 100)) == (8, 16, 32)  # 64 px: 2 x 2
+    assert cluster_blocks((20, 20)) == (8,)  # 3 x 3 blocks of 8: the smallest side stays
+    for shape in [(1, 1), (33, 500), (64, 64), (256, 90)]:
+        for b in cluster_blocks(shape)[1:]:
+            assert -(-shape[0] // b) * -(-shape[1] // b) >= MIN_CLUSTERS
+    # a projected fit's residual has lost the texture: the block and the macroblock only
+    assert cluster_blocks((406, 406), texture=False) == (8, 16)

@@ -32,10 +32,10 @@ from simtest.reconstruct.lightaware.model import (
     specular_image,
 )
 from simtest.reconstruct.lightaware.solve import (
-    CLUSTER_PX,
     _ROUGHNESS_RANGE,
     _cluster_covariance,
     _correlated,
+    cluster_blocks,
     _correlation_area,
     _curvature_score,
     _finish,
@@ -805,11 +805,12 @@ def photometric_fit(values, origin_uv, bp_uv, camera, rig: LightRig, *,
         if correlated:
             est = with_sandwich(est, r0)
         if est.normal_sigma_deg and jackknife:
-            # at least the cluster jackknife's (the larger over CLUSTER_PX's blocks): the
-            # depth's sigma grows with the normal's by the same factor
+            # at least the cluster jackknife's (the largest over the blocks the ROI holds enough
+            # of, wider where one channel keeps the texture): the depth's sigma grows with the
+            # normal's by the same factor
             J = at_solution(np.concatenate([[0.0, 0.0, np.log(h_hat)], x[3:]]), n_hat,
                             *plane_basis(n_hat))[1]
-            for block in CLUSTER_PX:
+            for block in cluster_blocks(keep.shape, texture=how in (None, "darkest_channel")):
                 cov = _cluster_covariance(J, r0, sel, keep.shape, block)
                 if cov is None:
                     continue

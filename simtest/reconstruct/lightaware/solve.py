@@ -450,14 +450,42 @@ def _hac_covariance(J, r, sel, shape, step: int) -> tuple[np.ndarray | None, int
 
 
 #: Sides (px of the ROI) of the square clusters of :func:`_cluster_covariance` that the sensor
-#: path's sigmas take the larger of: a JPEG block (and about the scale of the mucosa's vessels
-#: and of what the body-colour projection leaves of them) and a JPEG 4:2:0 macroblock (its
-#: chroma's block). A cluster estimate is consistent for blocks at least the residual's
-#: correlation scale, which is not known; larger blocks than that only lose degrees of freedom.
-#: On the endoscope suite's flat mucosa (3 seeds per setting) 8 px alone left 2 sigma short of
-#: the error at guide offset 1 mm (4 of 6) and at JPEG quality 75 and 50 (the darkest channel's
-#: texture bias, 3 and 3 of 3), 16 px alone at film alpha 0.05 (1 of 3).
-CLUSTER_PX = (8, 16)
+#: path's sigmas take the largest of (:func:`cluster_blocks`): a JPEG block, a JPEG 4:2:0
+#: macroblock (its chroma's block), and, where the fit runs on one channel, two and four
+#: macroblocks, the scale of the mucosa's vessels and albedo blotches that one channel's residual
+#: keeps. A cluster estimate is consistent for blocks at least the residual's correlation scale,
+#: which is not known; larger blocks than that only lose degrees of freedom. On the endoscope
+#: suite's flat mucosa (3 seeds per setting) 8 px alone left 2 sigma short of the error at guide
+#: offset 1 mm (4 of 6) and at JPEG quality 75 and 50 (the darkest channel's texture bias, 3 and 3
+#: of 3), 16 px alone at film alpha 0.05 (1 of 3). With (8, 16) the JPEG frames' errors (quality
+#: 75 and 25, 15 seeds each, ROIs of 406 x 406 px, one channel) were 1.4 to 2 times the stated
+#: sigma (within twice it on 21 of 30): the jackknife's sigma grew with the block, 0.2 deg at 8 px,
+#: 0.25 at 16, 0.5 to 0.8 at 48 and 64, the size of the errors; with 32 and 64 px, 29 of 30.
+CLUSTER_PX = (8, 16, 32, 64)
+
+#: A block side counts towards the sigma only where the ROI's grid holds at least this many
+#: blocks (:func:`cluster_blocks`): the jackknife's variance has G - 1 degrees of freedom, and
+#: with 16 blocks its relative standard error is about sqrt(2 / 15) = 0.37 (its square root's,
+#: the sigma's, 0.18), where a 100 x 100 px ROI at 64 px would hold 4.
+MIN_CLUSTERS = 16
+
+
+def cluster_blocks(shape, texture: bool = True) -> tuple[int, ...]:
+    """The block sides of :data:`CLUSTER_PX` whose grid over an ROI of ``shape`` (H, W) px holds
+    at least :data:`MIN_CLUSTERS` blocks (the smallest side always: a small ROI keeps one).
+
+    ``texture``: the fit's residual keeps the tissue's albedo texture (one channel of a sensor
+    frame). Where the body colours were projected out (``False``) the texture left is correlated
+    over a few pixels, and the sides are the JPEG block's and the macroblock's only: the wider
+    blocks there add their noise to the sigma and withdraw depths the projection measured (the
+    endoscope suite's flat mucosa at 2 % read noise: 2 of 15 projected fits lost their depth, and
+    the darkest channel that stood in erred by 0.9 and 1.2 deg where they had erred by 0.39 and
+    0.14).
+    """
+    h, w = int(shape[0]), int(shape[1])
+    sides = CLUSTER_PX if texture else CLUSTER_PX[:2]
+    ok = tuple(b for b in sides if (-(-h // b)) * (-(-w // b)) >= MIN_CLUSTERS)
+    return ok or CLUSTER_PX[:1]
 
 
 def _cluster_covariance(J, r, sel, shape, block: int = CLUSTER_PX[0]) -> np.ndarray | None:
