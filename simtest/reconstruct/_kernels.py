@@ -2571,47 +2571,45 @@ def flat_map(g, thr, out):
     and rounded to float32, then the flat test; the mask and its count (``verify._panels``' two
     blurs, square and test in one pass). The sums are exact for the luma of 8- and 16-bit frames
     (their values and squares span fewer than 53 bits), so their order is free;
-    ``tests/test_verify.py`` compares the mask with OpenCV's."""
+    ``tests/test_verify.py`` compares the mask with OpenCV's.
+
+    Row by row: each row's 5-wide sums (of the values and of their squares) are taken from its
+    float32 values and added to the column sums in the same loop, the row leaving the window
+    subtracted first (each column sum sees the same operations in the same order as when the
+    row's float64 copies, its sums and the column update were separate passes over the row: the
+    same bits; 3.5 -> 2.7 ms on the banner's 2240 x 840 luma, a third of the memory traffic)."""
     H, W = g.shape
     scale = 1.0 / 25.0
     zero = np.float32(0.0)
-    cols = np.empty(W + 4, np.int64)
-    for j in range(W + 4):
-        cols[j] = _reflect101(j - 2, W)
-    s1 = np.empty((5, W))  # the row sums of the window's 5 rows, a ring
-    s2 = np.empty((5, W))
-    pad1 = np.empty(W + 4)
-    pad2 = np.empty(W + 4)
+    s1 = np.zeros((5, W))  # the row sums of the window's 5 rows, a ring
+    s2 = np.zeros((5, W))
+    pad = np.empty(W + 4, np.float32)  # the row with the two reflected pixels on each side
     a1 = np.zeros(W)
     a2 = np.zeros(W)
     n = 0
     for i in range(-2, H + 2):
-        ri = _reflect101(i, H)
-        grow = g[ri]
-        # the row's own pixels read in order (vectorised), the two reflected on each side by
-        # their indices: the same values
+        grow = g[_reflect101(i, H)]
         for j in range(W):
-            v = grow[j]
-            pad1[j + 2] = np.float64(v)
-            pad2[j + 2] = np.float64(v * v)
+            pad[j + 2] = grow[j]
         for j in (0, 1, W + 2, W + 3):
-            v = grow[cols[j]]
-            pad1[j] = np.float64(v)
-            pad2[j] = np.float64(v * v)
+            pad[j] = grow[_reflect101(j - 2, W)]
         slot = (i + 2) % 5
         o1 = s1[slot]
         o2 = s2[slot]
-        if i >= 3:  # the row leaving the window
+        if i >= 3:  # the row leaving the window subtracted, then the new one added
             for j in range(W):
-                a1[j] -= o1[j]
-                a2[j] -= o2[j]
-        for j in range(W):
-            b1 = (((pad1[j] + pad1[j + 1]) + pad1[j + 2]) + pad1[j + 3]) + pad1[j + 4]
-            b2 = (((pad2[j] + pad2[j + 1]) + pad2[j + 2]) + pad2[j + 3]) + pad2[j + 4]
-            o1[j] = b1
-            o2[j] = b2
-            a1[j] += b1
-            a2[j] += b2
+                b1, b2 = _five_sums(pad, j)
+                a1[j] = (a1[j] - o1[j]) + b1
+                a2[j] = (a2[j] - o2[j]) + b2
+                o1[j] = b1
+                o2[j] = b2
+        else:
+            for j in range(W):
+                b1, b2 = _five_sums(pad, j)
+                a1[j] += b1
+                a2[j] += b2
+                o1[j] = b1
+                o2[j] = b2
         r = i - 2  # the output row whose window is complete
         if r >= 0:
             orow = out[r]
@@ -2623,6 +2621,16 @@ def flat_map(g, thr, out):
             for j in range(W):
                 n += orow[j]
     return n
+
+
+@numba.njit(cache=True, nogil=True, inline="always")
+def _five_sums(pad, j):
+    """The float64 sums of ``pad[j : j + 5]`` and of their float32 squares, left to right."""
+    v0, v1, v2, v3, v4 = pad[j], pad[j + 1], pad[j + 2], pad[j + 3], pad[j + 4]
+    b1 = (((np.float64(v0) + np.float64(v1)) + np.float64(v2)) + np.float64(v3)) + np.float64(v4)
+    b2 = ((((np.float64(v0 * v0) + np.float64(v1 * v1)) + np.float64(v2 * v2)) + np.float64(v3 * v3))
+          + np.float64(v4 * v4))
+    return b1, b2
 
 
 @numba.njit(cache=True, nogil=True)
