@@ -1807,41 +1807,46 @@ def maybe_flat(x, r0, r1, c0, c1, thr2, slack, out):
     rows ``r0:r1`` and columns ``c0:c1``; ``out`` (r1 - r0, c1 - c0) uint8 gets 1 where the 5 x 5
     variance (the crop's edges reflected as BORDER_REFLECT_101: the frame's where the crop
     reaches it; elsewhere the crop holds the 2 px the means read) is below ``thr2 + slack *
-    m2`` (m2 the mean square). The sums are running sums along the rows, then down the columns,
-    in float64: exact for integer levels, and otherwise within about 1e-15 of the mean square,
-    far inside ``slack``. Returns the count of ones, or -1 when the crop holds a non-finite
-    value."""
+    m2`` (m2 the mean square). The sums are 5-wide sums along the rows (each row's five values
+    added left to right, vectorised: a running sum's chain of additions was most of the time),
+    then running sums down the columns, in float64: exact for integer levels, and otherwise within
+    about 1e-15 of the mean square, far inside ``slack`` (the marks stay a superset of the flat
+    pixels). Returns the count of ones, or -1 when the crop holds a non-finite value."""
     H, W = x.shape
     h, w = r1 - r0, c1 - c0
     q0, q1 = r0 - 2, r1 + 2  # the rows the window's means read (reflected into the crop)
     s1 = np.empty((q1 - q0, w))
     s2 = np.empty((q1 - q0, w))
     pad = np.empty(w + 4)
+    sq = np.empty(w + 4)
     cols = np.empty(w + 4, np.int64)  # the reflected columns, once
     for j in range(w + 4):
         cols[j] = _reflect101(c0 - 2 + j, W)
+    inside = c0 - 2 >= 0 and c1 + 2 <= W  # no column reflected: each row read in order
     for i in range(q0, q1):
         ri = _reflect101(i, H)
         finite = True
-        for j in range(w + 4):
-            v = np.float64(np.float32(x[ri, cols[j]]))
-            finite &= np.isfinite(v)
-            pad[j] = v
+        if inside:
+            row = x[ri, c0 - 2 : c1 + 2]
+            for j in range(w + 4):
+                v = np.float64(np.float32(row[j]))
+                finite &= np.isfinite(v)
+                pad[j] = v
+                sq[j] = v * v
+        else:
+            for j in range(w + 4):
+                v = np.float64(np.float32(x[ri, cols[j]]))
+                finite &= np.isfinite(v)
+                pad[j] = v
+                sq[j] = v * v
         if not finite:
             return -1
-        a = 0.0
-        b = 0.0
-        for j in range(5):
-            a += pad[j]
-            b += pad[j] * pad[j]
         k = i - q0
+        r1s = s1[k]
+        r2s = s2[k]
         for j in range(w):
-            s1[k, j] = a
-            s2[k, j] = b
-            if j + 5 < w + 4:
-                u, v = pad[j + 5], pad[j]
-                a += u - v
-                b += u * u - v * v
+            r1s[j] = (((pad[j] + pad[j + 1]) + pad[j + 2]) + pad[j + 3]) + pad[j + 4]
+            r2s[j] = (((sq[j] + sq[j + 1]) + sq[j + 2]) + sq[j + 3]) + sq[j + 4]
     a1 = np.zeros(w)
     a2 = np.zeros(w)
     for k in range(5):
@@ -1849,13 +1854,15 @@ def maybe_flat(x, r0, r1, c0, c1, thr2, slack, out):
             a1[j] += s1[k, j]
             a2[j] += s2[k, j]
     n = 0
+    inv = 1.0 / 25.0  # (a product, not a quotient: within an ulp, far inside the slack)
     for i in range(h):
+        o = out[i]
         for j in range(w):
-            m1 = a1[j] / 25.0
-            m2 = a2[j] / 25.0
-            f = (m2 - m1 * m1) < thr2 + slack * m2
-            out[i, j] = 1 if f else 0
-            n += 1 if f else 0
+            m1 = a1[j] * inv
+            m2 = a2[j] * inv
+            o[j] = 1 if (m2 - m1 * m1) < thr2 + slack * m2 else 0
+        for j in range(w):
+            n += o[j]
         if i + 5 < h + 4:
             for j in range(w):
                 a1[j] += s1[i + 5, j] - s1[i, j]
