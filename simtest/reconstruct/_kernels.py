@@ -2225,15 +2225,31 @@ def _y_row(img, r, c0, step, m, w0, w1, w2, out):
             out[j] = np.float32(img[r, c, 0]) * w0 + np.float32(img[r, c, 1]) * w1 + np.float32(img[r, c, 2]) * w2
 
 
+@numba.njit(cache=True, nogil=True, fastmath={"reassoc"})
+def _abs_diff_sum_any_order(a, b, m):
+    """``sum(abs(b[:m] - a[:m]))`` (float32 differences, a float64 sum) in whatever order the
+    compiler vectorises it: :func:`luma_diff_means`' row sums where every order gives the same
+    sum (its ``any_order``)."""
+    acc = 0.0
+    for j in range(m):
+        acc += abs(b[j] - a[j])
+    return acc
+
+
 @numba.njit(cache=True, nogil=True)
-def luma_diff_means(img, step, across_columns, w0, w1, w2):
+def luma_diff_means(img, step, across_columns, w0, w1, w2, any_order=False):
     """The mean absolute luma difference between neighbouring columns over every ``step``-th row
     (``across_columns``; shape (W - 1,)), or between neighbouring rows over every ``step``-th
     column (shape (H - 1,)), float64: ``np.abs(np.diff(Y, axis=1)).mean(axis=0)`` of
     :func:`simtest.reconstruct.jpeg._blockiness` on ``Y = luma_y(img[::step])`` (or of
     ``luma_y(img[:, ::step]).T``) without the sampled luma's copy (numpy's gather of every
     step-th column of an RGB frame cost 0.6 ms). ``img`` is (H, W, C), C = 1 or 3, any
-    strides; the luma float32 as ``luma_y``'s (to its rounding), the sums float64."""
+    strides; the luma float32 as ``luma_y``'s (to its rounding), the sums float64.
+
+    ``any_order``: the caller knows that every float64 sum of a row's differences is exact
+    (``jpeg._sums_in_any_order``), so that the sums across the rows (``across_columns`` False)
+    may be taken in any order, vectorised: the same values (0.22 -> 0.15 ms on the noisy
+    1350 x 1080 bench frame's gray, one core)."""
     H, W = img.shape[0], img.shape[1]
     w0 = np.float32(w0)
     w1 = np.float32(w1)
@@ -2255,10 +2271,13 @@ def luma_diff_means(img, step, across_columns, w0, w1, w2):
         _y_row(img, 0, 0, step, m, w0, w1, w2, a)
         for r in range(1, H):
             _y_row(img, r, 0, step, m, w0, w1, w2, b)
-            acc = 0.0
-            for j in range(m):
-                acc += abs(b[j] - a[j])
-            out[r - 1] = acc
+            if any_order:
+                out[r - 1] = _abs_diff_sum_any_order(a, b, m)
+            else:
+                acc = 0.0
+                for j in range(m):
+                    acc += abs(b[j] - a[j])
+                out[r - 1] = acc
             a, b = b, a
         n = m
     if n > 0:
