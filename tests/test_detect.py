@@ -134,6 +134,12 @@ def test_clipped_mask_is_every_channel_at_or_above_the_level(dtype, shape, level
         want = np.all((im >= level).reshape(*im.shape[:2], -1), axis=2)
         got = clipped_mask(im, level, _gray_native(im))
         assert got.dtype == np.uint8 and np.array_equal(got, want.view(np.uint8))
+    # a gray frame (R = G = B) whose gray the caller knows is the channel: the gray's mask
+    if img.ndim == 3 and img.shape[2] == 3:
+        grey = np.repeat(sparse[:, :, :1], 3, axis=2)
+        want = np.all((grey >= level).reshape(*grey.shape[:2], -1), axis=2)
+        got = clipped_mask(grey, level, np.ascontiguousarray(grey[:, :, 0]), grey=True)
+        assert got.dtype == np.uint8 and np.array_equal(got, want.view(np.uint8))
 
 
 @settings(max_examples=40, deadline=None)

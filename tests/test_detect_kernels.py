@@ -349,11 +349,12 @@ def test_every_kernel_branch_is_reached_by_the_random_masks():
     assert 0.9 * fallbacks["clipped"] < in_kernel <= fallbacks["clipped"]
 
 
-@given(st.integers(0, 2**32 - 1), st.integers(1, 40), st.integers(1, 40), st.sampled_from([3, 5, 7]))
+@given(st.integers(0, 2**32 - 1), st.integers(1, 40), st.integers(1, 40), st.sampled_from([3, 5, 7, 11, 15, 41]))
 @settings(max_examples=200, deadline=None)
 def test_clipped_plateaus_written_out_are_opencvs(seed, h, w, k):
     # the closing and the labelling of the clipped plateaus (_dk.close_binary, _dk.plateau_pieces)
-    # against the OpenCV calls of _examine_numpy they replace: the closed pixels, the count of
+    # against the OpenCV calls of _examine_numpy they replace: the closed pixels (squares up to
+    # wider than the image: the windows' counts clipped at its sides), the count of
     # pieces of at least a size, and the centroid of the first largest piece in OpenCV's order
     # (random sparse and dense masks: pieces of equal area whose order decides)
     rng = np.random.default_rng(seed)

@@ -234,6 +234,31 @@ def test_image_blockiness_is_that_of_the_sampled_luma(seed, h, w, step, grey):
     np.testing.assert_allclose(J._image_blockiness(img, step, False), cols, rtol=1e-5, atol=1e-6)
 
 
+@settings(max_examples=40, deadline=None)
+@given(st.integers(0, 2**32 - 1), st.integers(2, 40), st.integers(1, 600), st.integers(1, 12),
+       st.sampled_from([np.uint8, np.uint16]), st.booleans())
+def test_row_phase_sums_in_any_order_are_the_sums_in_order(seed, h, w, step, dtype, grey):
+    """Where _sums_in_any_order allows it (8- and 16-bit images, few enough columns sampled),
+    the row phases' differences summed in the compiler's vectorised order are the in-order sums
+    to the bit (values over the whole range: the largest luma and its smallest nonzero, 1 in the
+    blue channel, side by side); float images are never summed out of order."""
+    from simtest.reconstruct import _kernels
+
+    rng = np.random.default_rng(seed)
+    top = np.iinfo(dtype).max
+    img = rng.choice(np.array([0, 1, 2, top - 1, top], dtype), size=(h, w) if grey else (h, w, 3))
+    img[rng.random(img.shape) < 0.5] = rng.integers(0, top + 1, dtype=dtype)
+    x = img if img.ndim == 3 else img[:, :, None]
+    m = -(-w // step)
+    allowed = J._sums_in_any_order(x.dtype, m)
+    assert allowed == (m <= (2**17 if dtype == np.uint8 else 2**9))
+    if allowed:
+        want = _kernels.luma_diff_means(x, step, False, *J._Y_WEIGHTS, False)
+        got = _kernels.luma_diff_means(x, step, False, *J._Y_WEIGHTS, True)
+        assert np.array_equal(got, want)
+    assert not J._sums_in_any_order(np.float32, 2) and not J._sums_in_any_order(np.float64, 2)
+
+
 @settings(max_examples=30, deadline=None)
 @given(st.integers(0, 2**32 - 1), st.integers(1, 300), st.sampled_from([256, 1024]),
        st.sampled_from([np.float32, np.float64]))

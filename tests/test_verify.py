@@ -588,3 +588,27 @@ def test_the_flat_map_in_one_pass_is_opencvs_blurs(seed, h, w, kind, thr):
     m1, m2 = win.mean(axis=(2, 3)), (win * win).mean(axis=(2, 3))
     near = np.abs((m2 - m1 * m1) - float(t) ** 2) <= 8 * 2.0**-23 * m2
     assert np.array_equal(got[~near], want[~near])
+
+
+@settings(max_examples=40, deadline=None)
+@given(st.integers(0, 2**32 - 1), st.integers(1, 16), st.integers(1, 12), st.integers(1, 12))
+def test_an_rgb_frames_block_means_in_one_pass_are_numpys_and_opencvs(seed, f, hb, wb):
+    """_detect_kernels.packed_block_means_uint8 (verify._block_means of an 8-bit RGB frame) gives
+    the bits of the numpy and OpenCV form it replaced: each block's rows summed in uint16, times
+    float32(1 / f), then cv2.resize's INTER_AREA along the rows; for every factor it takes (1 is
+    left to the caller), on frames with saturated and dark pixels."""
+    from simtest.reconstruct import _detect_kernels, verify
+
+    rng = np.random.default_rng(seed)
+    h, w = f * hb, f * wb
+    img = rng.integers(0, 256, (h, w, 3), dtype=np.uint8)
+    img[rng.random((h, w)) < 0.3] = 255
+    img[rng.random((h, w)) < 0.2] = 0
+    rows = img.reshape(h // f, f, w * 3).sum(axis=1, dtype=np.uint16).astype(np.float32)
+    rows *= np.float32(1.0 / f)
+    want = cv2.resize(rows.reshape(h // f, w, 3), (w // f, h // f), interpolation=cv2.INTER_AREA)
+    got = np.empty((h // f, w // f, 3), np.float32)
+    _detect_kernels.packed_block_means_uint8(img, f, got)
+    assert np.array_equal(got, want)
+    if f > 1:
+        assert np.array_equal(verify._block_means(img, f), want)

@@ -244,9 +244,41 @@ def _image_blockiness(image: np.ndarray, step: int, across_columns: bool) -> np.
     or of ``luma_y(image[:, ::step]).T`` (the row phases), the differences' means taken by one
     compiled pass over the image (:func:`~simtest.reconstruct._kernels.luma_diff_means`; the
     sampled luma's copies cost 0.9 of the 1.4 ms of :func:`quantisation_sigma` on a frame that
-    is not JPEG)."""
+    is not JPEG). The row phases' sums are taken in any order (vectorised) where every order
+    gives the same sums (:func:`_sums_in_any_order`)."""
     img = image if image.ndim == 3 else image[:, :, None]
-    return _phase_blockiness(_kernels.luma_diff_means(img, step, across_columns, *_Y_WEIGHTS))
+    any_order = not across_columns and _sums_in_any_order(img.dtype, -(-img.shape[1] // step))
+    return _phase_blockiness(_kernels.luma_diff_means(img, step, across_columns, *_Y_WEIGHTS, any_order))
+
+
+def _sums_in_any_order(dtype, m: int) -> bool:
+    """Whether every float64 sum of ``m`` absolute differences of two rows of the float32 JFIF luma
+    (:data:`_Y_WEIGHTS`, as :func:`~simtest.reconstruct._kernels.luma_diff_means` computes it) of
+    an image of ``dtype`` is exact, whatever the order of the additions.
+
+    Parameters
+    ----------
+    dtype : numpy dtype
+        The image's.
+    m : int
+        The number of differences summed (columns sampled).
+
+    Returns
+    -------
+    bool
+        True for 8- and 16-bit images with ``m 2^(b + 1) <= 2^26`` (b bits a channel): a
+        channel times a weight of at least 2^-4 (the smallest, 0.114), rounded to float32, is 0
+        or a multiple of 2^-27, and so are their float32 sum (the luma: 0, or at least 2^-4,
+        rounded to a grid at least that coarse) and the float32 difference of two lumas (below
+        2^-4 it has fewer than 24 significant bits: exact). Each term is then a multiple of
+        2^-27 below 2^(b + 1) (the weights sum to 1), and so is every partial sum of ``m`` of
+        them, below m 2^(b + 1): exact in float64's 53 bits while m 2^(b + 1) 2^27 <= 2^53.
+        A grey image read as one channel (integer values) is covered a fortiori. False otherwise.
+    """
+    if min(_Y_WEIGHTS) < 2.0 ** -4:
+        return False
+    bits = {np.dtype(np.uint8): 8, np.dtype(np.uint16): 16}.get(np.dtype(dtype))
+    return bits is not None and m * 2 ** (bits + 1) <= 2 ** 26
 
 
 def _phase_blockiness(d: np.ndarray) -> np.ndarray:
