@@ -140,10 +140,12 @@ def bisector(p: np.ndarray, light: np.ndarray) -> np.ndarray:
     -------
     ndarray of shape (..., 3), float64
         Unit bisectors, camera frame. NaN where ``p`` is the camera centre or the light, or where
-        the two directions are opposite.
+        the two directions are opposite (without numpy's warning: a root search that steps onto
+        the segment from the camera to a light behind the body reads the NaN and steps back).
     """
     p = np.asarray(p, dtype=np.float64)
-    return unit(unit(-p, axis=-1) + unit(np.asarray(light, dtype=np.float64) - p, axis=-1), axis=-1)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        return unit(unit(-p, axis=-1) + unit(np.asarray(light, dtype=np.float64) - p, axis=-1), axis=-1)
 
 
 def pixel_in_frame(uv: np.ndarray, size: tuple[int, int]) -> bool:
