@@ -168,3 +168,37 @@ def test_the_flat_mucosa_shows_each_median_with_its_standard_error():
 def test_the_flat_mucosa_judges_planes_under_a_rig_at_epsilon_over_d_0_1_to_0_3_only(eps, family):
     case = _plane_rig_case(0, 3.0, None, eps=eps, family=family)
     assert "flat_rig_median" not in {v["id"] for v in evaluate_claims({"cases": [case], "sweeps": []})}
+
+
+# --- the depth's own coverage (reported beside the verdict) ------------------------------------
+
+
+def _with_depth(depth, dsig, light_depths=None, src_depth=None):
+    """An estimate whose recommendation (from photometric_fit) gives ``depth`` (or per light),
+    its source fit stating ``dsig`` for its depth ``src_depth`` (default ``depth``)."""
+    src = SimpleNamespace(depth_mm=depth if src_depth is None else src_depth, depth_sigma_mm=dsig,
+                          light_depths_mm=None, depth_rel_sigma=None)
+    rec = SimpleNamespace(normal_from="photometric_fit", depth_mm=depth, light_depths_mm=light_depths)
+    return SimpleNamespace(recommended=rec, light_aware={"photometric_fit": src})
+
+
+_H = SimpleNamespace(bp_mm=np.array([0.0, 0.0, 20.0]), light=0)
+_RIG = SimpleNamespace(lights=[SimpleNamespace(position_mm=np.array([4.0, 0.0, 0.0]))])
+
+
+@given(err=st.floats(-8.0, 8.0), dsig=st.floats(0.01, 5.0))
+def test_a_depth_is_covered_exactly_when_it_errs_by_at_most_twice_its_sigma(err, dsig):
+    from simtest.harness.protocols import _depth_errors
+    got = _depth_errors(_with_depth(20.0 + err, dsig), _H, _RIG)["recommended_depth_within_2sigma"]
+    assert got == (1.0 if abs(err) <= 2.0 * dsig else 0.0)
+
+
+def test_a_lights_depth_takes_its_fits_relative_sigma_and_no_sigma_is_no_sample():
+    from simtest.harness.protocols import _depth_errors
+    # the patch's depth 10 mm +- 1 (10 %); this light's depth 21 mm: its sigma 2.1, error 1
+    est = _with_depth(10.0, 1.0, light_depths=np.array([21.0, 19.0]))
+    assert _depth_errors(est, _H, _RIG)["recommended_depth_within_2sigma"] == 1.0
+    est = _with_depth(10.0, 0.1, light_depths=np.array([21.0, 19.0]))  # 0.21: 1 mm is beyond
+    assert _depth_errors(est, _H, _RIG)["recommended_depth_within_2sigma"] == 0.0
+    assert math.isnan(_depth_errors(_with_depth(21.0, None), _H, _RIG)["recommended_depth_within_2sigma"])
+    assert math.isnan(_depth_errors(_with_depth(None, 1.0), _H, _RIG)["recommended_depth_within_2sigma"])

@@ -558,6 +558,12 @@ def _claim_sigma_coverage(results):
     text = (f"share within twice the sigma {pooled:.3g} over {stated} highlights with a stated sigma "
             f"in {len(cs)} cases; lowest cases: "
             + ", ".join(f"{cid} {share:.2g} of {n}" for share, cid, n in worst))
+    ds = _counted(_unique([c for c in results["cases"] if c["protocol"] == "rendered"]),
+                  "recommended_depth_within_2sigma")
+    with_depth = sum(n for _, _, n in ds)
+    if with_depth:  # the depths' own coverage, beside (not part of the verdict)
+        text += (f". Depths: {sum(share * n for _, share, n in ds) / with_depth:.3g} of "
+                 f"{with_depth} recommended depths with a stated sigma within twice it")
     return (pooled >= bound, text,
             f"rendered cases, pooled (each case's share weighted by its count); bound {bound:g}")
 

@@ -589,7 +589,9 @@ def _depth_errors(est, h, rig) -> dict:
     observable); ``cubic_patch_fit_ok_share`` (1 where its status is ``ok``),
     ``cubic_patch_fit_misfit_share`` (1 where it is ``patch_misfit``) and
     ``recommended_bp_ray_share`` (1 where the recommendation fell back to the BP ray), whose
-    case means are the shares.
+    case means are the shares; ``recommended_depth_within_2sigma``: 1 where the recommended
+    depth errs by at most twice the 1-sigma its source fit states (``depth_sigma_mm``, relative
+    to its depth where the depth is a light's), 0 where more, NaN without a depth or a sigma.
     """
     nan = float("nan")
     true = float(np.linalg.norm(np.asarray(h.bp_mm, dtype=np.float64)))
@@ -615,8 +617,16 @@ def _depth_errors(est, h, rig) -> dict:
     rec = est.recommended
     out["recommended_bp_ray_share"] = float(rec.normal_from == "bp_ray")
     depth = _light_depth(rec, light)
+    out["recommended_depth_within_2sigma"] = nan
     if depth is not None:
         out["recommended_depth_err_pct"] = 100.0 * abs(depth / true - 1.0)
+        # the depth's stated sigma is its source fit's (relative, so that a per-light depth of
+        # the patch takes the patch's): the share within twice it says whether it is honest
+        src = (getattr(est, "light_aware", None) or {}).get(rec.normal_from)
+        dsig, d0 = getattr(src, "depth_sigma_mm", None), getattr(src, "depth_mm", None)
+        if dsig is not None and d0:
+            out["recommended_depth_within_2sigma"] = float(
+                abs(depth - true) <= 2.0 * float(dsig) * abs(depth / d0))
     return out
 
 

@@ -50,6 +50,8 @@ _DIAG_TEXT = {
                                 "the BP ray",
     "recommended_within_2sigma": "share of the highlights with a stated sigma whose recommended "
                                  "normal's error is at most twice it",
+    "recommended_depth_within_2sigma": "share of the highlights with a recommended depth and a "
+                                       "stated depth sigma whose depth errs by at most twice it",
     "recommended_beyond_bp_ray": "share of the highlights with a stated sigma whose recommended "
                                  "normal errs by more than the BP ray's error plus that sigma",
     "cubic_patch_fit_ok_share": "share of the highlights where cubic_patch_fit's status is ok",
