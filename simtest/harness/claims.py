@@ -562,8 +562,9 @@ def _claim_sigma_coverage(results):
                   "recommended_depth_within_2sigma")
     with_depth = sum(n for _, _, n in ds)
     if with_depth:  # the depths' own coverage, beside (not part of the verdict)
-        text += (f". Depths: {sum(share * n for _, share, n in ds) / with_depth:.3g} of "
-                 f"{with_depth} recommended depths with a stated sigma within twice it")
+        text += (f". Depths (not part of the verdict): share within twice their sigma "
+                 f"{sum(share * n for _, share, n in ds) / with_depth:.3g} over {with_depth} "
+                 "recommended depths with a stated sigma")
     return (pooled >= bound, text,
             f"rendered cases, pooled (each case's share weighted by its count); bound {bound:g}")
 
