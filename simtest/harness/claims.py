@@ -547,8 +547,8 @@ def _claim_sigma_coverage(results):
     """Issue 39's coverage must-hold, pooled over a suite's rendered cases: the share of the
     highlights with a stated sigma whose recommended normal errs by at most twice it (each case's
     ``recommended_within_2sigma`` weighted by its count); None where no case states a sigma."""
-    cs = _counted(_unique([c for c in results["cases"] if c["protocol"] == "rendered"]),
-                  "recommended_within_2sigma")
+    rendered = _unique([c for c in results["cases"] if c["protocol"] == "rendered"])
+    cs = _counted(rendered, "recommended_within_2sigma")
     stated = sum(n for _, _, n in cs)
     if not stated:
         return None
@@ -558,8 +558,7 @@ def _claim_sigma_coverage(results):
     text = (f"share within twice the sigma {pooled:.3g} over {stated} highlights with a stated sigma "
             f"in {len(cs)} cases; lowest cases: "
             + ", ".join(f"{cid} {share:.2g} of {n}" for share, cid, n in worst))
-    ds = _counted(_unique([c for c in results["cases"] if c["protocol"] == "rendered"]),
-                  "recommended_depth_within_2sigma")
+    ds = _counted(rendered, "recommended_depth_within_2sigma")
     with_depth = sum(n for _, _, n in ds)
     if with_depth:  # the depths' own coverage, beside (not part of the verdict)
         text += (f". Depths (not part of the verdict): share within twice their sigma "

@@ -35,7 +35,6 @@ from simtest.reconstruct.lightaware.solve import (
     _ROUGHNESS_RANGE,
     _cluster_covariance,
     _correlated,
-    cluster_blocks,
     _correlation_area,
     _curvature_score,
     _finish,
@@ -44,6 +43,7 @@ from simtest.reconstruct.lightaware.solve import (
     _misfit,
     _solve,
     _start,
+    cluster_blocks,
 )
 
 
