@@ -220,6 +220,37 @@ def test_two_light_merged_highlight_photometric_fit():
     # from the mean alone, but the two lights' spread fixes the scale
     Xm, dm = specular_point(N, 30.0, (0.0, 0.0, 0.0))
     assert est.depth_mm is not None and abs(est.depth_mm / dm - 1) < TOL.exact_image_depth_rel
+    # and each light's specular point, which is what a highlight of that light is scored against
+    for L, d in zip(rig.lights, est.light_depths_mm, strict=True):
+        assert abs(d / specular_point(N, 30.0, L.position_mm)[1] - 1) < TOL.exact_image_depth_rel
+
+
+@pytest.mark.parametrize("offset,tilt", [(3.0, 0.0), (3.0, 15.0), (3.0, 30.0), (8.0, 0.0)])
+def test_photometric_fit_gives_each_lights_depth_at_large_offsets(offset, tilt):
+    # separate highlights of two guides +-offset mm beside the lens, plane at 20 mm: each light's
+    # specular point lies 0.2 to 2 % farther than the mean light's (on the plane's foot here), a
+    # difference the exact-image tolerance (0.1 %) sees. At 8 mm the mean light's start (the BP
+    # ray, 11 deg off) ran off to h -> 0; the fit starts from the light whose start fits best
+    rig = LightRig((Light((offset, 0.0, 0.0)), Light((-offset, 0.0, 0.0))))
+    img, K, N, depth, bp = plane_case(20.0, tilt, rig, size=320)
+    roi, origin = roi_around(img, bp, 40)
+    est = la.photometric_fit(roi, origin, bp, K, rig)
+    assert est.ok, (est.status, est.detail)
+    assert angle_between_deg(est.normal, N) < TOL.exact_image_normal_deg
+    assert abs(est.light_depths_mm[0] / depth - 1) < TOL.exact_image_depth_rel
+    assert abs(est.light_depths_mm[1] / specular_point(N, 20.0, rig.lights[1].position_mm)[1] - 1) \
+        < TOL.exact_image_depth_rel
+    assert abs(est.depth_mm / specular_point(N, 20.0, (0.0, 0.0, 0.0))[1] - 1) < TOL.exact_image_depth_rel
+    # a withdrawn depth withdraws every light's
+    gone = est.without_depth("plane_misfit", "test")
+    assert gone.depth_mm is None and gone.light_depths_mm is None and gone.distance_mm is None
+    assert gone.normal is est.normal and gone.status == "plane_misfit"
+
+
+def test_photometric_fit_under_one_light_has_no_per_light_depths():
+    img, K, N, depth, bp = plane_case(25.0, 20.0, one_light(3.0))
+    est = la.photometric_fit(*roi_around(img, bp, 60), bp, K, one_light(3.0))
+    assert est.ok and est.light_depths_mm is None
 
 
 # --- epsilon = 0 -----------------------------------------------------------------------------------

@@ -252,15 +252,22 @@ def test_a_textured_plane_on_the_sensor_path_passes_with_a_sigma_that_covers_it(
     r = la.photometric_fit(y, (0, 0), bp, K, RIG, diffuse=True, floor_level=0.0)
     assert r.status == "ok", r
     assert angle_between_deg(r.normal, N) < 2.0 * r.normal_sigma_deg
-    # the depth: within 4 % on these seeds; its stated sigma covers it at 2 sigma
-    assert abs(r.depth_mm - depth) < 2.0 * r.depth_sigma_mm
+    # the depth of the highlight's light (the first): within 4 % on these seeds; its stated
+    # sigma (relative, as the harness reads it) covers it at 2 sigma
+    d0 = r.light_depths_mm[0]
+    assert abs(d0 - depth) < 2.0 * r.depth_sigma_mm * d0 / r.depth_mm
 
 
 def test_a_textured_plane_fit_far_off_still_misfits():
-    # seed 2's fit ends 3.5 deg off (a local minimum): the score test sees the pattern it leaves
+    # seed 2's fit from the mean light's bisector (here the BP ray) ends 3.5 deg off, a local
+    # minimum: the score test sees the pattern it leaves. From the start of the light that fits
+    # best (the fit's own, for a rig of several lights) it ends within twice its sigma
     y, K, N, depth, bp = _textured_plane(2)
-    r = la.photometric_fit(y, (0, 0), bp, K, RIG, diffuse=True, floor_level=0.0)
+    ray = unit(np.linalg.solve(K, [bp[0], bp[1], 1.0]))
+    r = la.photometric_fit(y, (0, 0), bp, K, RIG, diffuse=True, floor_level=0.0, start_normal=-ray)
     assert r.status == "plane_misfit" and "curved patch" in r.detail, r
+    r = la.photometric_fit(y, (0, 0), bp, K, RIG, diffuse=True, floor_level=0.0)
+    assert r.ok and angle_between_deg(r.normal, N) < 2.0 * r.normal_sigma_deg, r
 
 
 @pytest.mark.parametrize("seed", [0, 4])

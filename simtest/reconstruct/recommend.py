@@ -567,10 +567,8 @@ def depth_within_ceiling(r: LightAwareEstimate) -> LightAwareEstimate:
     if rel <= DEPTH_REL_SIGMA_CEILING:
         return r
     detail = f"relative depth sigma {rel:.3g} > ceiling {DEPTH_REL_SIGMA_CEILING}"
-    return dataclasses.replace(
-        r, status="depth_not_observable" if r.ok else r.status,
-        detail=f"{r.detail}; {detail}" if r.detail else detail,
-        depth_mm=None, depth_sigma_mm=None, distance_mm=None, light_depths_mm=None)
+    return r.without_depth("depth_not_observable" if r.ok else r.status,
+                           f"{r.detail}; {detail}" if r.detail else detail)
 
 
 def bp_ray_error_deg(ray, depth_mm: float, rig: LightRig) -> float:

@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
@@ -68,8 +68,10 @@ class LightAwareEstimate:
         each of the rig's J lights (where it bisects the directions to the camera and to that
         light), OpenCV camera frame, facing the camera; None when the depth is not observable.
     light_depths_mm : ndarray of shape (J,) or None
-        :func:`cubic_patch_fit` only: the distance from the camera centre to each light's
-        specular point on the fitted patch, mm; None when the depth is not observable.
+        The distance from the camera centre to each of the rig's J lights' specular points on the
+        fitted surface, mm (:func:`photometric_fit`'s plane and :func:`cubic_patch_fit`'s patch,
+        under a rig of several lights; ``depth_mm`` is then the mean light's); None under one light
+        and when the depth is not observable.
     depth_rel_sigma : float or None
         :func:`quadric_fit` and :func:`cubic_patch_fit`: the relative 1-sigma of the fitted depth
         with the residual variance floored at ``TOL.photometric_noise_rel`` (the quantity the
@@ -129,6 +131,21 @@ class LightAwareEstimate:
     def ok(self) -> bool:
         """True when the status is ``"ok"`` (normal and depth given)."""
         return self.status == OK
+
+    def without_depth(self, status: str, detail: str) -> "LightAwareEstimate":
+        """This estimate with its depth withdrawn (``depth_mm``, ``depth_sigma_mm``,
+        ``distance_mm`` and ``light_depths_mm`` None), its normal kept for the record.
+
+        Parameters
+        ----------
+        status : str
+            The new status, a key of :data:`STATUSES` (``"plane_misfit"``,
+            ``"depth_not_observable"``, ...).
+        detail : str
+            Why the depth is withdrawn.
+        """
+        return replace(self, status=status, detail=detail, depth_mm=None, depth_sigma_mm=None,
+                       distance_mm=None, light_depths_mm=None)
 
     @property
     def has_normal(self) -> bool:

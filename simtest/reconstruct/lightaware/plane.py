@@ -42,6 +42,7 @@ from simtest.reconstruct.lightaware.solve import (
     _implausible,
     _misfit,
     _solve,
+    _light_start,
     _start,
     cluster_blocks,
 )
@@ -587,12 +588,27 @@ def photometric_fit(values, origin_uv, bp_uv, camera, rig: LightRig, *,
                 break
         return float(np.exp(log_n))
 
+    def screened(starts):
+        """The start (n, h) of least cost before any refinement (at its start roughness)."""
+        def cost(nh):
+            e1_, e2_ = plane_basis(nh[0])
+            p0_ = np.array([0.0, 0.0, np.log(nh[1]), np.log(start_for(*nh))])
+            r_ = resjac_at(p0_, nh[0], e1_, e2_, grad=False)[0]
+            return float(r_ @ r_) if np.isfinite(r_).all() else np.inf
+        return min(starts, key=cost)
+
     # Starts: the given one (or the bisector at the nominal depth), the nominal bisector too when
     # a start was given, and n_start_depths planes along the BP's constraint (each the bisector
     # at a depth from nominal/8 to nominal*8, its distance such that the specular point is the
     # BP). Each is refined; the solution of least cost is kept. A near plane with a rough lobe can
     # mimic a far one with a smooth lobe (a local minimum), which one start may fall into.
     cands = [(n0, h0)]
+    if start_normal is None and len(rig_arr[0]) > 1:
+        # a highlight is one light's: beside the mean light's bisector, each light's at the
+        # nominal depth (the BP that light's specular point), the start of least cost kept. Under
+        # guides +-8 mm at 20 mm the mean light's start (the BP ray) is 11 deg off, and from it
+        # the fit of an exact plane ran off to h -> 0
+        cands = [screened(cands + [_light_start(d_bp, L, nominal_depth_mm) for L in rig_arr[0]])]
     if np.abs(rig_arr[0]).max() > 0:
         Lm = _mean_light(rig)
         depths = (list(nominal_depth_mm * np.geomspace(1 / 8, 8, n_start_depths))
@@ -738,8 +754,7 @@ def photometric_fit(values, origin_uv, bp_uv, camera, rig: LightRig, *,
         if not _correlated(r0, sel, keep.shape, step):
             curved = curvature(r0)
             if curved:
-                return replace(est, status="plane_misfit", depth_mm=None, depth_sigma_mm=None,
-                               distance_mm=None, detail=curved)
+                return est.without_depth("plane_misfit", curved)
             est = _misfit(est, r0, sel, keep.shape, step)
             return counted(est, r0, False, jackknife=False) if est.status in ("ok", "depth_not_observable") else est
         return _misfit(with_sandwich(est, r0), r0, sel, keep.shape, step)
@@ -774,8 +789,7 @@ def photometric_fit(values, origin_uv, bp_uv, camera, rig: LightRig, *,
         """
         curved = curvature(r0, hac=True)
         if curved:
-            return replace(est, status="plane_misfit", depth_mm=None, depth_sigma_mm=None,
-                           distance_mm=None, detail=curved)
+            return est.without_depth("plane_misfit", curved)
         correlated = _correlated(r0, sel, keep.shape, step)
         if curved is False:
             return _misfit(with_sandwich(est, r0), r0, sel, keep.shape, step) if correlated else est
@@ -821,10 +835,10 @@ def photometric_fit(values, origin_uv, bp_uv, camera, rig: LightRig, *,
         if est.depth_sigma_mm is not None:
             dsig = est.depth_sigma_mm * scale
             if est.depth_mm and dsig > TOL.depth_rel_sigma_max * abs(est.depth_mm):
-                return replace(est, status="depth_not_observable", depth_mm=None,
-                               depth_sigma_mm=None, distance_mm=None,
-                               detail=f"relative depth sigma {dsig / abs(est.depth_mm):.3g} with the "
-                                      f"residual's correlation > {TOL.depth_rel_sigma_max}")
+                return est.without_depth(
+                    "depth_not_observable",
+                    f"relative depth sigma {dsig / abs(est.depth_mm):.3g} with the "
+                    f"residual's correlation > {TOL.depth_rel_sigma_max}")
             est = replace(est, depth_sigma_mm=dsig)
         return est
 
@@ -850,9 +864,8 @@ def photometric_fit(values, origin_uv, bp_uv, camera, rig: LightRig, *,
                                max_nfev=max_nfev, lobe=lobe, floor_level=floor_in,
                                floor_refit=floor_refit, floor_step=floor_step, exclude=exclude)
         if chan.status == "plane_misfit":
-            est = replace(est, status="plane_misfit", depth_mm=None, depth_sigma_mm=None,
-                          distance_mm=None, detail=f"channel {c}'s fit misfits ({chan.detail}); "
-                                                   f"{est.detail}")
+            est = est.without_depth("plane_misfit",
+                                    f"channel {c}'s fit misfits ({chan.detail}); {est.detail}")
     return est
 
 

@@ -26,6 +26,7 @@ from simtest.reconstruct.lightaware.model import (
     _log_depth_gradient,
     _mean_light,
     _rays,
+    _rig_arrays,
     phong_of_ggx_alpha,
     specular_point_depth,
 )
@@ -45,6 +46,15 @@ def _start(bp_uv, camera, rig, nominal_depth_mm, start_normal):
     if h0 is None or not np.isfinite(h0):
         h0 = float(-(n0 @ (nominal_depth_mm * d_bp)))
     return d_bp, n0, max(h0, 1e-3)
+
+
+def _light_start(d_bp, light_mm, nominal_depth_mm):
+    """The start (n, h) that makes the point at ``nominal_depth_mm`` along the BP ray ``d_bp``
+    (unit, camera frame) the specular point of the light at ``light_mm``: n bisects the directions
+    from that point to the camera and to the light, and the plane passes through it."""
+    X = nominal_depth_mm * np.asarray(d_bp, dtype=np.float64)
+    n = unit(unit(-X) + unit(np.asarray(light_mm, dtype=np.float64) - X))
+    return n, max(float(-(n @ X)), 1e-3)
 
 
 def _covariance(jac: np.ndarray, resid_var: float) -> np.ndarray | None:
@@ -242,10 +252,14 @@ def _finish(name, resjac_at, n_hat, h_hat, rig, extra_params, resid_floor, n_eva
     depth_sigma = None
     if observable and cov is not None:
         depth_sigma = depth * math.sqrt(max(resid_var * gcg, 0.0))
+    lights = _rig_arrays(rig)[0]
+    light_depths = (np.array([specular_point_depth(n_hat, h_hat, L) for L in lights])
+                    if observable and len(lights) > 1 else None)
     est = LightAwareEstimate(
         name, status, detail, n_hat,
         depth if observable else None, sigma_deg, depth_sigma,
         h_hat if observable else None, roughness, taus, n_eval, math.sqrt(rr / m),
+        light_depths_mm=light_depths,
     )
     return est if post is None else post(est, r0)
 
@@ -387,8 +401,7 @@ def _misfit(est: LightAwareEstimate, r, sel, shape, step: int) -> LightAwareEsti
         return est
     correlated = _correlated(r, sel, shape, step)
     if correlated:
-        return replace(est, status="plane_misfit", depth_mm=None, depth_sigma_mm=None,
-                       distance_mm=None, detail=correlated)
+        return est.without_depth("plane_misfit", correlated)
     return est
 
 
