@@ -225,15 +225,20 @@ def test_two_light_merged_highlight_photometric_fit():
         assert abs(d / specular_point(N, 30.0, L.position_mm)[1] - 1) < TOL.exact_image_depth_rel
 
 
-@pytest.mark.parametrize("offset,tilt", [(3.0, 0.0), (3.0, 15.0), (3.0, 30.0), (8.0, 0.0)])
-def test_photometric_fit_gives_each_lights_depth_at_large_offsets(offset, tilt):
+@pytest.mark.parametrize("half", [25, 40, 60])
+@pytest.mark.parametrize("tilt", [0.0, 15.0, 30.0])
+@pytest.mark.parametrize("offset", [3.0, 5.0, 8.0])
+def test_photometric_fit_gives_each_lights_depth_at_large_offsets(offset, tilt, half):
     # separate highlights of two guides +-offset mm beside the lens, plane at 20 mm: each light's
     # specular point lies 0.2 to 2 % farther than the mean light's (on the plane's foot here), a
     # difference the exact-image tolerance (0.1 %) sees. At 8 mm the mean light's start (the BP
-    # ray, 11 deg off) ran off to h -> 0; the fit starts from the light whose start fits best
+    # ray, 11 deg off) ran off to h -> 0; the fit starts from the light whose start fits best.
+    # Where the other light's lobe enters the ROI the start roughness ran to n ~ 1 and the fit to
+    # h 50 to 67 mm (11 of these 27 failed); the grid's start roughness, where it halves the
+    # start's cost, mends them
     rig = LightRig((Light((offset, 0.0, 0.0)), Light((-offset, 0.0, 0.0))))
     img, K, N, depth, bp = plane_case(20.0, tilt, rig, size=320)
-    roi, origin = roi_around(img, bp, 40)
+    roi, origin = roi_around(img, bp, half)
     est = la.photometric_fit(roi, origin, bp, K, rig)
     assert est.ok, (est.status, est.detail)
     assert angle_between_deg(est.normal, N) < TOL.exact_image_normal_deg

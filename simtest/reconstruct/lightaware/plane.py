@@ -60,6 +60,16 @@ _NOT_FINITE_RESIDUAL = 1e6
 _ROUGHNESS_START_STEPS = 3
 
 
+#: Phong roughnesses among which the start of a fit under several lights is chosen by its cost
+#: (``photometric_fit``'s start roughness): a factor of 4 apart, from a lobe as broad as a
+#: diffuse one to the smoothest film's range.
+_START_ROUGHNESS_GRID = (4.0, 16.0, 64.0, 256.0, 1024.0, 4096.0)
+
+#: The factor by which the grid's start roughness must lower the start plane's cost to replace
+#: the regression's (``photometric_fit``'s start under several lights).
+_START_ROUGHNESS_GAIN = 0.5
+
+
 #: Starts along the BP's constraint of ``photometric_fit``'s second try on the sensor path
 #: (``n_start_depths`` None): depths nominal/8 to nominal*8 at factors of 4, the range of a
 #: colonoscope's working distances (5 to 50 mm about a nominal 20).
@@ -568,24 +578,48 @@ def photometric_fit(values, origin_uv, bp_uv, camera, rig: LightRig, *,
             if np.isfinite(slope) and slope > 1:
                 log_n = np.log(min(slope, _ROUGHNESS_RANGE[1]))
         QT, yt = basis(None)
-        for _ in range(_ROUGHNESS_START_STEPS):
-            rough = float(np.exp(log_n))
-            S, parts = _rig_value(dT, rl, n, h, rig_arr, rough)
-            S, dS = box(S), box(sum(pt[3] * pt[2] for pt in parts) * rough)  # dS / d log n
-            St, da = S - (QT @ S) @ QT, dS - (QT @ dS) @ QT
-            aa = float(St @ St)
-            if not aa > 0:
-                break
-            g = float(St @ yt) / aa
-            r = g * St - yt
-            J = g * (da - St * (float(St @ da) / aa)) - St * (float(r @ da) / aa)
-            jj = float(J @ J)
-            step = -float(J @ r) / jj if jj > 0 else 0.0
-            if not np.isfinite(step):
-                break
-            log_n = float(np.clip(log_n + np.clip(step, -1.0, 1.0), *np.log(_ROUGHNESS_RANGE)))
-            if abs(step) < 1e-3:
-                break
+
+        def steps(log_n):
+            """Gauss-Newton on log n from ``log_n``, the start plane held."""
+            for _ in range(_ROUGHNESS_START_STEPS):
+                rough = float(np.exp(log_n))
+                S, parts = _rig_value(dT, rl, n, h, rig_arr, rough)
+                S, dS = box(S), box(sum(pt[3] * pt[2] for pt in parts) * rough)  # dS / d log n
+                St, da = S - (QT @ S) @ QT, dS - (QT @ dS) @ QT
+                aa = float(St @ St)
+                if not aa > 0:
+                    break
+                g = float(St @ yt) / aa
+                r = g * St - yt
+                J = g * (da - St * (float(St @ da) / aa)) - St * (float(r @ da) / aa)
+                jj = float(J @ J)
+                step = -float(J @ r) / jj if jj > 0 else 0.0
+                if not np.isfinite(step):
+                    break
+                log_n = float(np.clip(log_n + np.clip(step, -1.0, 1.0), *np.log(_ROUGHNESS_RANGE)))
+                if abs(step) < 1e-3:
+                    break
+            return log_n
+
+        def cost(ln):
+            """The start plane's variable-projection cost at roughness exp(ln)."""
+            S_ = box(_rig_value(dT, rl, n, h, rig_arr, float(np.exp(ln)))[0])
+            St_ = S_ - (QT @ S_) @ QT
+            aa_ = float(St_ @ St_)
+            return float(yt @ yt - (St_ @ yt) ** 2 / aa_) if aa_ > 0 else np.inf
+
+        log_n = steps(log_n)
+        if len(rig_arr[0]) > 1:
+            # several lights: the ratio above is no lobe's cos beta, and where a second light's
+            # lobe enters the ROI the steps ran to a broad lobe over both (n -> 1), from where the
+            # fit of an exact plane ran off (h 20 -> 65 mm, guides +-5 mm): the steps again from
+            # the least cost of a grid over the range (one evaluation each). That start replaces
+            # the first only where it at least halves the start plane's cost (it found the lobe);
+            # a lower cost by a few per cent on a flat cost curve says nothing of the basin, and
+            # taking it sent a sensor-path fit of an exact plane into a local minimum
+            other = steps(min(np.log(_START_ROUGHNESS_GRID), key=cost))
+            if cost(other) < _START_ROUGHNESS_GAIN * cost(log_n):
+                log_n = other
         return float(np.exp(log_n))
 
     def screened(starts):
