@@ -355,3 +355,22 @@ def test_the_darkest_channels_fit_leaves_the_vessels_out():
     assert a.status == b.status and np.allclose(a.normal, b.normal, atol=1e-12)
     with pytest.raises(ValueError, match="exclude"):
         la.photometric_fit(img, (0, 0), bp, K, RIG, exclude=lines[1:])
+
+
+@settings(max_examples=50, deadline=None)
+@given(st.integers(0, 2**32 - 1))
+def test_curvature_shift_is_the_linearised_patchs_step_in_the_plane(seed):
+    # A residual that the plane's columns and the curvature columns explain exactly, r = -A beta:
+    # the shift is beta's tilt (a, b: radians in the normal's tangent plane) in degrees and its
+    # log-distance step, whatever the linear columns after the first four and the curvatures
+    from simtest.reconstruct.lightaware.solve import _curvature_shift
+
+    rng = np.random.default_rng(seed)
+    m, k = 200, 4 + int(rng.integers(1, 4))
+    span, cols = rng.normal(size=(m, k)), rng.normal(size=(m, 3))
+    beta = rng.normal(scale=0.1, size=k + 3)
+    dn, dlh = _curvature_shift(cols, span, -np.column_stack([span, cols]) @ beta)
+    assert dn == pytest.approx(np.degrees(np.hypot(beta[0], beta[1])), rel=1e-9, abs=1e-12)
+    assert dlh == pytest.approx(abs(beta[2]), rel=1e-9, abs=1e-12)
+    # degenerate columns give no shift
+    assert _curvature_shift(np.column_stack([span[:, :1]] * 3), span, span @ beta[:k]) is None

@@ -438,7 +438,7 @@ def light_aware_estimates(image, est, camera, rig: LightRig, *, nominal_depth_mm
                 lf, detail=f"{lf.detail}; {why}" if lf.detail else why)
     pf = out["photometric_fit"]
     if colour and ((not pf.ok and pf.projection == "least_fluctuation")
-                   or (pf.projection == "body_colours"
+                   or (pf.projection == "body_colours" and pf.curvature_shift_deg is None
                        and pf.status in ("depth_not_observable", "not_converged"))):
         # a fit on the least-fluctuation projection is kept only with its depth within the
         # ceiling (photometric_fit's ``projection``): on the endoscope suite's colon wall one
@@ -448,7 +448,9 @@ def light_aware_estimates(image, est, camera, rig: LightRig, *, nominal_depth_mm
         # depth: their plane, measured on the border through the sensor's noise, leaves some
         # texture too (the colon wall without relief: two such fits 17.4 and 17.6 deg off with
         # sigmas of 3.6 deg were recommended over a BP ray 2.3 deg off); a misfit of theirs
-        # stands (rule 4 may confirm its normal)
+        # stands (rule 4 may confirm its normal), and so does a fit kept with a curved patch's
+        # pattern (curvature_shift_deg: a micro-relief's), whose depth that pattern took and
+        # whose normal's sigma carries the shift (rule 3 weighs it)
         why = f"the {pf.projection.replace('_', ' ')} projection's fit: {pf.status}"
         chan = depth_within_ceiling(fitted("darkest_channel"))
         out["photometric_fit"] = dataclasses.replace(

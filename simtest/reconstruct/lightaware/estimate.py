@@ -103,6 +103,10 @@ class LightAwareEstimate:
         ``"least_fluctuation"`` (white kept, the leading body colour removed, the least of the
         ROI's texture and noise let through) or ``"darkest_channel"``; None for a one-channel
         input and elsewhere.
+    curvature_shift_deg : float or None
+        :func:`photometric_fit`: where its residual holds a curved patch's pattern that moves the
+        normal by no more than its sigma (a micro-relief's curvatures), the fit is kept and this
+        is that shift, degrees (already added to ``normal_sigma_deg``); None elsewhere.
     """
 
     estimator: str
@@ -126,6 +130,7 @@ class LightAwareEstimate:
     light_normal_sigmas_deg: np.ndarray | None = None
     depth_range_mm: tuple[float, float] | None = None
     projection: str | None = None
+    curvature_shift_deg: float | None = None
 
     @property
     def ok(self) -> bool:

@@ -37,6 +37,7 @@ from simtest.reconstruct.lightaware.solve import (
     _correlated,
     _correlation_area,
     _curvature_score,
+    _curvature_shift,
     _finish,
     _hac_covariance,
     _implausible,
@@ -254,7 +255,12 @@ def photometric_fit(values, origin_uv, bp_uv, camera, rig: LightRig, *,
         exact plane, which that test tells from a curvature. On both paths the sigmas of a fit
         that passes count the residual's correlation area (an integer image's rounding of a
         smooth lobe correlates its residual too), on the sensor path also the cluster
-        jackknife's (``counted`` in the source).
+        jackknife's (``counted`` in the source). A curved patch's pattern that would move the
+        normal by no more than that sigma (a micro-relief's random curvatures over the lobe,
+        which the score test sees on thousands of pixels) does not make a misfit: the fit is
+        kept with its sigmas grown by the shift, which ``curvature_shift_deg`` gives
+        (:func:`~simtest.reconstruct.lightaware.solve._curvature_shift`); ``lobe="auto"`` then
+        tries the GGX lobe too, and prefers a lobe whose residual holds no such pattern.
 
     Raises
     ------
@@ -347,7 +353,8 @@ def photometric_fit(values, origin_uv, bp_uv, camera, rig: LightRig, *,
                   projection=projection, exclude=exclude)
         pho = photometric_fit(values, origin_uv, bp_uv, camera, rig, start_normal=start_normal,
                               start_roughness=start_roughness, lobe="phong", **kw)
-        if pho.ok or pho.status in ("depth_not_observable", "too_few_points"):
+        if ((pho.ok or pho.status in ("depth_not_observable", "too_few_points"))
+                and pho.curvature_shift_deg is None):
             return replace(pho, detail=f"{pho.detail}; phong lobe fits" if pho.detail else "phong lobe fits")
         ggx = photometric_fit(values, origin_uv, bp_uv, camera, rig,
                               start_normal=pho.normal if pho.has_normal else start_normal,
@@ -750,13 +757,16 @@ def photometric_fit(values, origin_uv, bp_uv, camera, rig: LightRig, *,
         plane's specular point of the mean light with zero curvature is the plane; its image's
         derivatives in the three curvatures
         (:func:`~simtest.reconstruct.lightaware.model._curvature_columns`) are the columns the
-        residual is tested against."""
+        residual is tested against. Returns ``(verdict, shift)``: the test's (a misfit's
+        detail, None where it passes, False where it cannot be made) and, for a misfit, how far
+        the pattern would move the plane
+        (:func:`~simtest.reconstruct.lightaware.solve._curvature_shift`)."""
         Lm = _mean_light(rig)
         c = float(n_hat @ Lm) + h_hat
         Lp = Lm - 2.0 * c * n_hat  # the mean light's mirror image in the plane
         den = -float(n_hat @ Lp)
         if not (c > 0 and den > 0):
-            return False
+            return False, None
         Xs = Lp * (h_hat / den)
         cols = box(_curvature_columns(dT, rl, n_hat, h_hat, rig_arr, rough_hat, Xs)).T
         J = at_solution(np.concatenate([[0.0, 0.0, np.log(h_hat)], x[3:]]), n_hat,
@@ -770,7 +780,8 @@ def photometric_fit(values, origin_uv, bp_uv, camera, rig: LightRig, *,
             s_n = 1.4826 * float(np.median(np.abs(r0[above]))) if np.any(above) else 0.0
             rows = yn + r0 > float(floor_level) / yscale + _FLOOR_MARGIN * s_n
             cols, span, r0, sel_ = cols[rows], span[rows], r0[rows], sel[rows]
-        return _curvature_score(cols, span, r0, (sel_, keep.shape, step) if hac else None)
+        verdict = _curvature_score(cols, span, r0, (sel_, keep.shape, step) if hac else None)
+        return verdict, (_curvature_shift(cols, span, r0) if verdict else None)
 
     def post(est, r0):
         """The misfit test, and where neighbouring residuals correlate, the sandwich sigmas.
@@ -786,9 +797,10 @@ def photometric_fit(values, origin_uv, bp_uv, camera, rig: LightRig, *,
         if general:
             return sensor_verdict(est, r0)
         if not _correlated(r0, sel, keep.shape, step):
-            curved = curvature(r0)
+            curved, shift = curvature(r0)
             if curved:
-                return est.without_depth("plane_misfit", curved)
+                kept = immaterial(est, r0, curved, shift, False, False)
+                return kept if kept is not None else est.without_depth("plane_misfit", curved)
             est = _misfit(est, r0, sel, keep.shape, step)
             return counted(est, r0, False, jackknife=False) if est.status in ("ok", "depth_not_observable") else est
         return _misfit(with_sandwich(est, r0), r0, sel, keep.shape, step)
@@ -821,13 +833,51 @@ def photometric_fit(values, origin_uv, bp_uv, camera, rig: LightRig, *,
         light on the plane, a degenerate pattern) the neighbours' correlation decides, as on the
         plain path.
         """
-        curved = curvature(r0, hac=True)
-        if curved:
-            return est.without_depth("plane_misfit", curved)
+        curved, shift = curvature(r0, hac=True)
         correlated = _correlated(r0, sel, keep.shape, step)
+        if curved:
+            kept = immaterial(est, r0, curved, shift, correlated, True)
+            return kept if kept is not None else est.without_depth("plane_misfit", curved)
         if curved is False:
             return _misfit(with_sandwich(est, r0), r0, sel, keep.shape, step) if correlated else est
         return counted(est, r0, correlated)
+
+    def immaterial(est, r0, curved, shift, correlated, jackknife):
+        """A fit whose residual holds a curved patch's pattern (``curved``, the score test's
+        detail) that moves the plane less than its noise does, or None.
+
+        The score test asks whether the patch is curved at all; under a micro-relief it is, its
+        curvatures random over the lobe, and with thousands of pixels the test sees them. What
+        the recommendation needs is whether that curvature moves the normal: ``shift`` (the
+        normal's shift in degrees and the distance's relative shift, the quadric patch's
+        linearised step from the plane,
+        :func:`~simtest.reconstruct.lightaware.solve._curvature_shift`). Where the normal's shift
+        is at most its sigma (the residual's correlation and, on the sensor path, the cluster
+        jackknife counted: ``counted``), the fit is kept with its sigmas grown by the shifts
+        (the normal's sigma plus its shift; the depth's plus its relative shift times the
+        depth, withdrawn above ``TOL.depth_rel_sigma_max``) and the detail saying so. On the
+        noisy spheres and a local minimum's leftover pattern the shift is 9 to 16 times the
+        sigma, and the fit stays ``plane_misfit``.
+        """
+        if shift is None:
+            return None
+        kept = counted(est, r0, correlated, jackknife=jackknife)
+        sig = kept.normal_sigma_deg
+        if kept.status not in ("ok", "depth_not_observable") or sig is None or not shift[0] <= sig:
+            return None
+        note = (f"{curved}, which moves the normal {shift[0]:.2g} deg, within its sigma: "
+                "kept, its sigmas grown by the shift")
+        kept = replace(kept, normal_sigma_deg=sig + shift[0], curvature_shift_deg=shift[0],
+                       detail=f"{kept.detail}; {note}" if kept.detail else note)
+        if kept.depth_sigma_mm is not None and kept.depth_mm:
+            dsig = kept.depth_sigma_mm + shift[1] * abs(kept.depth_mm)
+            if dsig > TOL.depth_rel_sigma_max * abs(kept.depth_mm):
+                return kept.without_depth(
+                    "depth_not_observable",
+                    f"{kept.detail}; relative depth sigma {dsig / abs(kept.depth_mm):.3g} > "
+                    f"{TOL.depth_rel_sigma_max}")
+            kept = replace(kept, depth_sigma_mm=dsig)
+        return kept
 
     def counted(est, r0, correlated, jackknife=True):
         """``est`` with sigmas that count the residual's correlation: ``s^2 (J^T J)^-1`` times
@@ -959,8 +1009,14 @@ def _choose_lobe(pho: LightAwareEstimate, ggx: LightAwareEstimate) -> LightAware
     def rank(e):
         failed = e.status == "not_converged" or not e.has_normal
         misfit = e.status == "plane_misfit"
-        # two misfits: Phong (their likelihoods do not rank them); else the lower BIC
-        return (failed, misfit, 0.0 if misfit and e is pho else (1.0 if misfit else _bic(e)))
+        # a fit whose residual holds a curved patch's pattern (a misfit, or a fit kept with it:
+        # curvature_shift_deg) after one whose residual holds none; of two such fits Phong
+        # (neither lobe is the image's model, and their likelihoods do not rank them: on the
+        # endoscope suite's flat mucosa under a 0.002 mm relief a GGX fit kept with it erred
+        # 0.62 deg with a sigma of 0.24, where Phong's misfit was 0.21 deg off); else the
+        # lower BIC
+        flawed = misfit or e.curvature_shift_deg is not None
+        return (failed, flawed, 0.0 if flawed and e is pho else (1.0 if flawed else _bic(e)))
 
     best, other = (pho, ggx) if rank(pho) <= rank(ggx) else (ggx, pho)
     if best is ggx and pho.status == "plane_misfit" and _bic(ggx) > _bic(pho):

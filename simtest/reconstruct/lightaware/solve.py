@@ -387,6 +387,31 @@ def _curvature_score(cols, span, r, grid=None) -> str | None:
     return None
 
 
+def _curvature_shift(cols, span, r) -> tuple[float, float] | None:
+    """How far the curvature pattern in a plane fit's residual would move the plane: the normal's
+    shift, degrees, and the distance's relative shift.
+
+    The plane fit's residual r (M,) is orthogonal to ``span`` (M, k: its Jacobian in
+    (a, b, log h, log n) first, then its linear columns). Fitted beside the curvature columns
+    ``cols`` (M, 3; :func:`_curvature_score`'s), the linearised patch ``[span, cols] beta = -r``
+    moves the plane's parameters by ``beta[:k]`` (a Gauss-Newton step of the quadric patch from
+    the plane at zero curvature): ``hypot(beta_a, beta_b)`` radians of the normal (a and b tilt it
+    in its tangent plane) and ``beta_log_h`` of the distance. A curved patch that the plane fit
+    absorbed (a sphere: 20 to 43 deg on the noisy spheres of ``tests/test_lightaware_coverage.py``)
+    or a local minimum's leftover pattern (3.9 deg, 3.5 deg off) moves it far beyond the fit's
+    sigma; a micro-relief's random curvatures over the lobe (the endoscope suite's flat mucosa at
+    0.002 mm RMS: 0.04 to 0.14 deg against sigmas of 0.14 to 0.26) move it less than the
+    noise does. Returns None where the columns are not finite or the system is degenerate.
+    """
+    A = np.column_stack([span, cols])
+    if len(r) <= A.shape[1] or not np.isfinite(A).all():
+        return None
+    beta, _, rank, _ = np.linalg.lstsq(A, -np.asarray(r, dtype=np.float64), rcond=None)
+    if rank < A.shape[1] or not np.isfinite(beta[:3]).all():
+        return None
+    return math.degrees(math.hypot(float(beta[0]), float(beta[1]))), abs(float(beta[2]))
+
+
 def _misfit(est: LightAwareEstimate, r, sel, shape, step: int) -> LightAwareEstimate:
     """``est`` with status ``plane_misfit`` when the residuals are spatially correlated.
 
