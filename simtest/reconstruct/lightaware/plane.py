@@ -870,13 +870,9 @@ def photometric_fit(values, origin_uv, bp_uv, camera, rig: LightRig, *,
         kept = replace(kept, normal_sigma_deg=sig + shift[0], curvature_shift_deg=shift[0],
                        detail=f"{kept.detail}; {note}" if kept.detail else note)
         if kept.depth_sigma_mm is not None and kept.depth_mm:
-            dsig = kept.depth_sigma_mm + shift[1] * abs(kept.depth_mm)
-            if dsig > TOL.depth_rel_sigma_max * abs(kept.depth_mm):
-                return kept.without_depth(
-                    "depth_not_observable",
-                    f"{kept.detail}; relative depth sigma {dsig / abs(kept.depth_mm):.3g} > "
-                    f"{TOL.depth_rel_sigma_max}")
-            kept = replace(kept, depth_sigma_mm=dsig)
+            return _with_depth_sigma(kept, kept.depth_sigma_mm + shift[1] * abs(kept.depth_mm),
+                                     lambda rel: f"{kept.detail}; relative depth sigma {rel:.3g} > "
+                                                 f"{TOL.depth_rel_sigma_max}")
         return kept
 
     def counted(est, r0, correlated, jackknife=True):
@@ -917,13 +913,9 @@ def photometric_fit(values, origin_uv, bp_uv, camera, rig: LightRig, *,
                     scale *= csig / est.normal_sigma_deg
                     est = replace(est, normal_sigma_deg=csig)
         if est.depth_sigma_mm is not None:
-            dsig = est.depth_sigma_mm * scale
-            if est.depth_mm and dsig > TOL.depth_rel_sigma_max * abs(est.depth_mm):
-                return est.without_depth(
-                    "depth_not_observable",
-                    f"relative depth sigma {dsig / abs(est.depth_mm):.3g} with the "
-                    f"residual's correlation > {TOL.depth_rel_sigma_max}")
-            est = replace(est, depth_sigma_mm=dsig)
+            return _with_depth_sigma(est, est.depth_sigma_mm * scale,
+                                     lambda rel: f"relative depth sigma {rel:.3g} with the residual's "
+                                                 f"correlation > {TOL.depth_rel_sigma_max}")
         return est
 
     est = _finish(name, at_solution, n_hat, h_hat, rig, x[3:],
@@ -1001,6 +993,15 @@ def _bic(est: LightAwareEstimate) -> float:
     if not est.has_normal or est.residual_rms is None or not est.n_residuals:
         return math.inf
     return est.n_residuals * math.log(max(est.residual_rms, 1e-300) ** 2)
+
+
+def _with_depth_sigma(est: LightAwareEstimate, dsig: float, why) -> LightAwareEstimate:
+    """``est`` with the depth's 1-sigma ``dsig`` (mm), or without its depth
+    (``depth_not_observable``, its detail ``why(rel)`` of the relative sigma) where ``dsig``
+    exceeds ``TOL.depth_rel_sigma_max`` of a nonzero depth."""
+    if est.depth_mm and dsig > TOL.depth_rel_sigma_max * abs(est.depth_mm):
+        return est.without_depth("depth_not_observable", why(dsig / abs(est.depth_mm)))
+    return replace(est, depth_sigma_mm=dsig)
 
 
 def _choose_lobe(pho: LightAwareEstimate, ggx: LightAwareEstimate) -> LightAwareEstimate:
