@@ -4,7 +4,8 @@ On a real frame's glints the plane fit often runs off and the quadric then misfi
 misfit's depth valley (six refits with the depth fixed) took most of the frame's light-aware time
 (9.1 of 17.2 s on the bench's Hyper-Kvasir tile with an assumed rig), for a sigma that no rule of
 the recommendation uses unless the plane misfits (rule 4 compares the plane's normal with the
-quadric's within its sigma)."""
+quadric's within its sigma), and there only where its local sigma (the covariances', which the
+valley only widens) is below what rule 4 could take."""
 
 from __future__ import annotations
 
@@ -19,7 +20,7 @@ from simtest.geometry.lights import Light, LightRig
 from simtest.reconstruct.lightaware import LightAwareEstimate, cubic_patch_fit, quadric_fit
 from simtest.reconstruct.lightaware.patch import MISFIT_SIGMA_NOTE
 from simtest.reconstruct.pipeline import reconstruct
-from simtest.reconstruct.recommend import SIGMA_MARGIN, recommend
+from simtest.reconstruct.recommend import SIGMA_MARGIN, _bp_ray_error_beside, recommend
 from simtest.reconstruct.settings import ReconSettings
 from test_lightaware import plane_case
 
@@ -49,6 +50,30 @@ def test_a_misfit_states_no_sigma_where_asked_and_is_otherwise_the_same_fit():
         np.testing.assert_array_equal(quick.normal, full.normal)
         assert quick.detail.startswith(full.detail)
         assert quick.n_evaluations == full.n_evaluations
+
+
+def test_a_misfit_reads_its_valley_only_below_a_bound_on_its_local_sigma(monkeypatch):
+    # the bound is the misfit's local sigma (the covariances' alone, read before any valley)
+    # plus or minus a hair: below it the valley is read and the sigma is the full one, which is
+    # at least the local one (the valley only widens it: the rule that makes the bound exact)
+    from simtest.reconstruct.lightaware import patch
+
+    values, K, bp = _striped_roi()
+    readings = []
+    original = patch._sigma_deg
+    monkeypatch.setattr(patch, "_sigma_deg", lambda G, covs: readings.append(original(G, covs)) or readings[-1])
+    full = quadric_fit(values, (0.0, 0.0), bp, K, TWO_LIGHTS)
+    monkeypatch.setattr(patch, "_sigma_deg", original)
+    assert full.status == "patch_misfit" and full.normal_sigma_deg is not None
+    local = readings[0]
+    assert full.normal_sigma_deg >= local
+    above = quadric_fit(values, (0.0, 0.0), bp, K, TWO_LIGHTS, misfit_sigma=local * 1.000001)
+    assert above.normal_sigma_deg == full.normal_sigma_deg and above.detail == full.detail
+    below = quadric_fit(values, (0.0, 0.0), bp, K, TWO_LIGHTS, misfit_sigma=local * 0.999999)
+    assert below.normal_sigma_deg is None and MISFIT_SIGMA_NOTE in below.detail
+    assert "its local sigma" in below.detail
+    np.testing.assert_array_equal(below.normal, full.normal)
+    assert below.n_evaluations == full.n_evaluations
 
 
 @functools.lru_cache(maxsize=1)
@@ -100,3 +125,9 @@ def test_the_recommendation_reads_a_misfit_patchs_sigma_only_beside_a_plane_misf
     # the test can fail: beside a plane misfit the quadric's sigma decides (rule 4)
     elif gap_deg <= quad_sigma and SIGMA_MARGIN * (gap_deg + quad_sigma) < 2.0:
         assert a.normal_from == "photometric_fit" and b.normal_from == "bp_ray"
+    if plane == "plane_misfit" and not quad_sigma < min(90.0, _bp_ray_error_beside(est, pho) / SIGMA_MARGIN):
+        # a quadric whose sigma is at least light_aware_estimates' bound (where it does not read
+        # the valley) decides nothing: its sigma dropped, the same recommendation
+        assert a.normal_from == b.normal_from
+        np.testing.assert_array_equal(a.normal, b.normal)
+        assert a.normal_sigma_deg == b.normal_sigma_deg

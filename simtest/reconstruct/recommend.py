@@ -461,17 +461,25 @@ def light_aware_estimates(image, est, camera, rig: LightRig, *, nominal_depth_mm
     # where the plane misfits (rule 4): elsewhere its sigma, whose depth valley takes most of
     # the fit's time, is not read (on a real frame's glints the plane fit often runs off and
     # the quadric misfits: seconds a highlight)
-    plane_misfit = out["photometric_fit"].status == "plane_misfit"
+    # There, only a sigma below what rule 4 could take is read: the valley only widens the
+    # quadric's local sigma, and rule 4 takes a stated sigma s_q below 90 deg with
+    # SIGMA_MARGIN (g + s_q) below the BP ray's error beside the plane (a real frame's glint: a
+    # local sigma of 126 deg, its valley 5 s of one core, read for nothing)
+    ray = _la.model._rays(camera, np.asarray(est.bp_px, dtype=np.float64)[None])[0]
+    misfit_sigma: bool | float = bool(quadric)
+    if out["photometric_fit"].status == "plane_misfit" and not quadric:
+        pm = depth_within_ceiling(out["photometric_fit"])  # as rule 4 reads it (the loop below)
+        pm = dataclasses.replace(pm, bp_ray_error_deg=bp_ray_error_deg(
+            ray, bp_error_depth_mm(pm, nominal_depth_mm), rig))
+        misfit_sigma = min(90.0, _bp_ray_error_beside(est, pm) / SIGMA_MARGIN)
     if quadric or (quadric is None and curved):
         out["quadric_fit"] = _guarded(
             "quadric_fit", quadric_fit, gray[near.slices], (near.col0, near.row0), est.bp_px, camera, rig,
-            clip_level=saturation_level, nominal_depth_mm=nominal_depth_mm,
-            misfit_sigma=plane_misfit or bool(quadric))
+            clip_level=saturation_level, nominal_depth_mm=nominal_depth_mm, misfit_sigma=misfit_sigma)
     if cubic or (cubic is None and curved and _several_lights(rig)):
         out["cubic_patch_fit"] = _guarded(
             "cubic_patch_fit", cubic_patch_fit, gray[near.slices], (near.col0, near.row0), est.bp_px, camera, rig,
             clip_level=saturation_level, nominal_depth_mm=nominal_depth_mm, misfit_sigma=bool(cubic))
-    ray = _la.model._rays(camera, np.asarray(est.bp_px, dtype=np.float64)[None])[0]
     for name, r in out.items():
         r = depth_within_ceiling(r)
         out[name] = dataclasses.replace(

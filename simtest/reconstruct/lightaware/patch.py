@@ -164,7 +164,7 @@ def quadric_fit(values, origin_uv, bp_uv, camera, rig: LightRig, *,
                 clip_level: float | None = None, nominal_depth_mm: float = 20.0,
                 start_depths_mm=None, start_roughness: float | None = None,
                 max_pixels: int | None = 800, max_nfev: int = 100,
-                misfit_sigma: bool = True) -> LightAwareEstimate:
+                misfit_sigma: bool | float = True) -> LightAwareEstimate:
     """Fit the ROI with the image of a curved (quadric) patch lit by the rig.
 
     The patch is second-order about its apex: the apex X0 at depth s on a ray near the BP's
@@ -240,11 +240,13 @@ def quadric_fit(values, origin_uv, bp_uv, camera, rig: LightRig, *,
     max_nfev : int
         Evaluation budget per start, in Jacobian evaluations (scipy's ``max_nfev`` for ``lm`` with
         a finite-difference Jacobian counts each of its 8 residual evaluations).
-    misfit_sigma : bool
+    misfit_sigma : bool or float
         State a sigma for a fit that misfits (``patch_misfit``): read its depth valley as for the
         others. False: a misfit states none (``normal_sigma_deg`` None) and its valley, six
         refits with the depth fixed and most of the fit's time, is not read
-        (:data:`MISFIT_SIGMA_NOTE`). The misfit verdict does not depend on it.
+        (:data:`MISFIT_SIGMA_NOTE`). A number, degrees: read only where the local sigma (the
+        covariances' alone) is below it; the valley only widens a sigma, so a misfit whose local
+        sigma already reaches the bound states none. The misfit verdict does not depend on it.
 
     Returns
     -------
@@ -539,11 +541,20 @@ MISFIT_SIGMA_NOTE = "no sigma stated (a misfit's depth valley not read)"
 def _patch_sigma(status, detail, misfit_sigma, S, x, cost0, resid_var, covs, max_nfev, G):
     """A patch fit's normal sigma from its depth valley (:func:`_depth_valley`,
     :func:`_valley_sigma_deg`; ``G`` (3, k) the normal's derivative), or none for a misfit when
-    ``misfit_sigma`` is False (its valley not read). Returns ``(sigma_deg, valley, excess,
-    detail)``: the valley's direction (None where not read) and excess variance of log depth,
-    and the detail, for an ``ok`` fit how its cost rises at the valley's nearest steps."""
-    if status == "patch_misfit" and not misfit_sigma:
-        return None, None, 0.0, f"{detail}; {MISFIT_SIGMA_NOTE}"
+    ``misfit_sigma`` is False (its valley not read), or a number of degrees that the local sigma
+    (:func:`_sigma_deg` of ``covs``, which the valley only widens) is not below. Returns
+    ``(sigma_deg, valley, excess, detail)``: the valley's direction (None where not read) and
+    excess variance of log depth, and the detail, for an ``ok`` fit how its cost rises at the
+    valley's nearest steps."""
+    if status == "patch_misfit":
+        if not misfit_sigma:
+            return None, None, 0.0, f"{detail}; {MISFIT_SIGMA_NOTE}"
+        if misfit_sigma is not True:
+            local = _sigma_deg(G, covs)
+            if local is None or not local < float(misfit_sigma):
+                said = "none" if local is None else f"{local:.3g} deg"
+                return None, None, 0.0, (f"{detail}; {MISFIT_SIGMA_NOTE}: its local sigma, {said}, is not "
+                                         f"below {float(misfit_sigma):.3g} deg")
     valley, excess, rises = _depth_valley(S, x, cost0, resid_var, covs, max_nfev)
     if status == "ok":
         detail = (f"the fit's cost rises by {rises[0]:.3g} and {rises[1]:.3g} residual variances at "
