@@ -84,7 +84,7 @@ def test_clipped_channels_are_censored_or_left_out():
     rgb, s, K, N, depth, bp = _colour_plane(0)
     clip = np.percentile(rgb.reshape(-1, 3), 98, axis=0)
     y = np.minimum(rgb, clip)
-    values, lower, missing, w = lam.specular_image(y, clip)
+    values, lower, missing, w = lam.specular_image(y, clip, two_channels=False)
     clipped = y >= clip
     assert np.array_equal(missing, (clipped & (w < 0)).any(axis=2))
     assert np.array_equal(lower, clipped.any(axis=2) & ~missing)
@@ -94,7 +94,8 @@ def test_clipped_channels_are_censored_or_left_out():
     assert np.all(values[lower] <= s[lower] + 1e-4 * s.max())
     free = ~lower & ~missing
     np.testing.assert_allclose(values[free], s[free], atol=1e-4 * s.max())
-    r = la.photometric_fit(y, (0, 0), bp, K, RIG, clip_level=clip, diffuse=True, censor=True, lobe="phong")
+    r = la.photometric_fit(y, (0, 0), bp, K, RIG, clip_level=clip, diffuse=True, censor=True, lobe="phong",
+                           two_channels=False)
     assert r.ok, r
     assert angle_between_deg(r.normal, N) < 1e-3
     assert r.distance_mm == pytest.approx(20.0, rel=1e-3)
