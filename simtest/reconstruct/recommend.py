@@ -466,12 +466,17 @@ def light_aware_estimates(image, est, camera, rig: LightRig, *, nominal_depth_mm
     # SIGMA_MARGIN (g + s_q) below the BP ray's error beside the plane (a real frame's glint: a
     # local sigma of 126 deg, its valley 5 s of one core, read for nothing)
     ray = _la.model._rays(camera, np.asarray(est.bp_px, dtype=np.float64)[None])[0]
+
+    def released(r: LightAwareEstimate) -> LightAwareEstimate:
+        """``r`` as returned: its depth within the ceiling, the BP ray's error beside it set."""
+        r = depth_within_ceiling(r)
+        return dataclasses.replace(
+            r, bp_ray_error_deg=bp_ray_error_deg(ray, bp_error_depth_mm(r, nominal_depth_mm), rig))
+
     misfit_sigma: bool | float = bool(quadric)
     if out["photometric_fit"].status == "plane_misfit" and not quadric:
-        pm = depth_within_ceiling(out["photometric_fit"])  # as rule 4 reads it (the loop below)
-        pm = dataclasses.replace(pm, bp_ray_error_deg=bp_ray_error_deg(
-            ray, bp_error_depth_mm(pm, nominal_depth_mm), rig))
-        misfit_sigma = min(90.0, _bp_ray_error_beside(est, pm) / SIGMA_MARGIN)
+        # the plane as rule 4 reads it
+        misfit_sigma = min(90.0, _bp_ray_error_beside(est, released(out["photometric_fit"])) / SIGMA_MARGIN)
     if quadric or (quadric is None and curved):
         out["quadric_fit"] = _guarded(
             "quadric_fit", quadric_fit, gray[near.slices], (near.col0, near.row0), est.bp_px, camera, rig,
@@ -481,9 +486,7 @@ def light_aware_estimates(image, est, camera, rig: LightRig, *, nominal_depth_mm
             "cubic_patch_fit", cubic_patch_fit, gray[near.slices], (near.col0, near.row0), est.bp_px, camera, rig,
             clip_level=saturation_level, nominal_depth_mm=nominal_depth_mm, misfit_sigma=bool(cubic))
     for name, r in out.items():
-        r = depth_within_ceiling(r)
-        out[name] = dataclasses.replace(
-            r, bp_ray_error_deg=bp_ray_error_deg(ray, bp_error_depth_mm(r, nominal_depth_mm), rig))
+        out[name] = released(r)
     return out
 
 

@@ -833,9 +833,9 @@ def specular_image(rgb, clip_level=None, *, ring=None, fluctuation: bool = True,
         clipped and its ``w_c < 0`` the value of the two others (:func:`_from_two_channels`);
         ``lower`` (H, W) bool where a pixel's value is a lower bound (clipped channels, each with
         ``w_c >= 0``: censored data); ``missing`` (H, W) bool where several channels are clipped
-        and one of them has ``w_c < 0`` (no bound: left out); ``w`` (3,). None where neither the border's two body colours nor (with ``fluctuation``)
-        the least-fluctuation weights give a projection within the gain's bound, or the border
-        has fewer than 3 unclipped pixels.
+        and one of them has ``w_c < 0`` (no bound: left out); ``w`` (3,). None where neither the
+        border's two body colours nor (with ``fluctuation``) the least-fluctuation weights give a
+        projection within the gain's bound, or the border has fewer than 3 unclipped pixels.
 
     Raises
     ------
@@ -892,7 +892,6 @@ def specular_image(rgb, clip_level=None, *, ring=None, fluctuation: bool = True,
     if two_channels and neg.any():
         _from_two_channels(v, clipped, neg, anyc, values, edge[keep])
     return values, anyc & ~neg, neg, w
-
 
 
 def _from_two_channels(v, clipped, neg, anyc, values, colours) -> None:

@@ -7,7 +7,7 @@ from dataclasses import replace
 
 import numpy as np
 
-from simtest.geometry.angles import unit
+from simtest.geometry.angles import angle_between_deg, unit
 from simtest.geometry.conics import plane_basis
 from simtest.geometry.lights import LightRig
 from simtest.tolerances import TOL
@@ -339,10 +339,9 @@ def photometric_fit(values, origin_uv, bp_uv, camera, rig: LightRig, *,
                 return plain  # (the other is kept only beside an ok fit without them, on a projection)
             # refined from the plain fit, on its projection: the two are compared, and a fit
             # from further starts that agrees no better costs their time
-            both = photometric_fit(values, origin_uv, bp_uv, camera, rig,
-                                   projection="border" if plain.projection == "body_colours" else plain.projection,
-                                   two_channels=True, **{**kw, "start_normal": plain.normal,
-                                                         "start_roughness": plain.roughness})
+            same = "border" if plain.projection == "body_colours" else plain.projection
+            both = photometric_fit(values, origin_uv, bp_uv, camera, rig, projection=same, two_channels=True,
+                                   **{**kw, "start_normal": plain.normal, "start_roughness": plain.roughness})
             return _two_channel_choice(both, plain)
         kw["two_channels"] = two_channels
         first = photometric_fit(values, origin_uv, bp_uv, camera, rig, n_start_depths=0,
@@ -1059,7 +1058,7 @@ def _two_channel_choice(both: LightAwareEstimate, plain: LightAwareEstimate) -> 
     dp, db = plain.depth_sigma_mm, both.depth_sigma_mm
     if None in (sp, sb, dp, db, plain.depth_mm, both.depth_mm) or not sb < sp:
         return plain  # (no more precise: nothing gained)
-    gap = math.degrees(math.acos(min(1.0, max(-1.0, float(np.dot(unit(both.normal), unit(plain.normal)))))))
+    gap = float(angle_between_deg(both.normal, plain.normal))
     room = TWO_CHANNEL_Z * math.sqrt(max(sp * sp - sb * sb, 0.0))
     dgap = abs(float(both.depth_mm) - float(plain.depth_mm))
     droom = TWO_CHANNEL_Z * math.sqrt(max(dp * dp - db * db, 0.0))
