@@ -2,7 +2,8 @@
 least 0.95 against the rendered targets and find at least 0.9 of them (pooled).
 
 The committed report (``reports/detection/<date>-endoscope``, ``simtest evaluate detection
-endoscope``) scores every realisation of every setting (189 renders). This test scores one
+endoscope``) scores every realisation of every setting the suite had when it ran (225 renders, 5
+a setting; the flat-mucosa sweeps have since grown to 60 realisations). This test scores one
 realisation of each setting of the six sweeps the must-hold was set on (27 renders at the seeds
 ``validate`` gives them): guide offset and working distance on the flat mucosa; micro-relief, film
 roughness, read noise and JPEG quality on the colon wall. The flat-mucosa sweeps of relief, film
