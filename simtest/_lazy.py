@@ -30,8 +30,8 @@ BACKENDS: dict[str, str | None] = {
     "drjit": None,
     "dask": "dask",
     "distributed": "dask",
-    "pyvista": None,
-    "vtkmodules": None,  # VTK, which pyvista brings: its logger is silenced for the 3D views
+    "pyvista": "view",
+    "vtkmodules": "view",  # VTK, which pyvista brings: its logger is silenced for the 3D views
     "torch": "torch",
 }
 

@@ -66,7 +66,7 @@ from rich.table import Table
 from threadpoolctl import threadpool_limits
 
 from simtest.constants import SINGLE_THREAD_ENV
-from simtest.resources import data_root, real_banner_path
+from simtest.resources import real_banner_path, real_dir
 from simtest.geometry.camera import pixel_to_ray, project_points
 from simtest.geometry.conics import normalised_conic
 from simtest.reconstruct.estimators import estimate_from_conic
@@ -561,7 +561,7 @@ def _bench_real_tile_rig() -> list[BenchResult]:
     renders); no target (issue 39's 2 s is the rendered frame's row)."""
     name = ("per real frame with an assumed rig: Hyper-Kvasir tile 280x280, two guides +-4 mm, sRGB; "
             "reconstruct + light-aware fits, one run")
-    got = _real_frame(data_root() / "tests" / "data" / "real" / REAL_TILE)
+    got = _real_frame(real_dir() / REAL_TILE)
     if got is None:
         return [BenchResult("reconstruct", name + " (source tree not found)", float("nan"), "ms", None)]
     img, K = got

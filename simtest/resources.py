@@ -24,6 +24,7 @@ __all__ = [
     "bundled_scene_path",
     "data_root",
     "real_banner_path",
+    "real_dir",
     "scenes_dir",
 ]
 
@@ -112,17 +113,34 @@ def bundled_scene_path(name: str) -> Path:
     return path
 
 
-def real_banner_path() -> Path:
-    """Path of the real-frame banner of the tests: 24 Hyper-Kvasir frames side by side.
+def real_dir() -> Path:
+    """The folder of the bundled real frames: Hyper-Kvasir frames (CC BY 4.0, Borgli et al. 2020,
+    doi:10.1038/s41597-020-00622-y), their hand labels and an assumed camera file.
 
-    ``tests/data/real/hyperkvasir_banner.jpg`` (2240 x 840 JPEG, CC BY 4.0, Borgli et al. 2020,
-    doi:10.1038/s41597-020-00622-y; attribution in ``tests/data/real/README.md``), the default real
-    frames of ``simtest simreal`` and the frame of the real-image benchmark. It lives in the source
-    tree only (a wheel does not ship the tests), so the file may be missing.
+    A clone keeps them in ``tests/data/real`` (attribution in its ``README.md``); a wheel ships the
+    same files as ``simtest/_data/real``.
 
     Returns
     -------
     Path
-        The path under :func:`data_root`.
+        ``<data_root>/real`` from an installed wheel, ``<clone>/tests/data/real`` from a clone.
     """
-    return data_root() / "tests" / "data" / "real" / "hyperkvasir_banner.jpg"
+    shipped = data_root() / "real"
+    if shipped.is_dir():
+        return shipped
+    return data_root() / "tests" / "data" / "real"
+
+
+def real_banner_path() -> Path:
+    """Path of the real-frame banner: 24 Hyper-Kvasir frames side by side.
+
+    ``hyperkvasir_banner.jpg`` in :func:`real_dir` (2240 x 840 JPEG, CC BY 4.0, Borgli et al. 2020,
+    doi:10.1038/s41597-020-00622-y), the default real frames of ``simtest simreal`` and the frame
+    of the real-image benchmark; a clone and a wheel both carry it.
+
+    Returns
+    -------
+    Path
+        The path under :func:`real_dir`.
+    """
+    return real_dir() / "hyperkvasir_banner.jpg"

@@ -31,7 +31,8 @@ def _source() -> str:
 
 @pytest.mark.parametrize("requirement", PYPROJECT["project"]["dependencies"]
                          + PYPROJECT["project"]["optional-dependencies"]["dask"]
-                         + PYPROJECT["project"]["optional-dependencies"]["torch"])
+                         + PYPROJECT["project"]["optional-dependencies"]["torch"]
+                         + PYPROJECT["project"]["optional-dependencies"]["view"])
 def test_every_declared_dependency_is_used(requirement):
     name = _name(requirement)
     if name in INDIRECT:
@@ -46,17 +47,17 @@ def test_every_backend_extra_is_declared():
     for package, extra in _lazy.BACKENDS.items():
         if extra is not None:
             assert extra in extras, f"{package}: extra [{extra}] is not in pyproject.toml"
-            assert any(_name(r) in {package, "dask"} for r in extras[extra])
+            assert any(_name(r) in {package, "dask", "pyvista"} for r in extras[extra])
 
 
 def test_the_optional_backends_are_not_core_dependencies():
     core = {_name(r) for r in PYPROJECT["project"]["dependencies"]}
-    assert not core & {"dask", "distributed", "torch", "pyarrow"}
+    assert not core & {"dask", "distributed", "torch", "pyarrow", "pyvista", "vtk"}
 
 
 def test_the_test_extra_brings_every_optional_backend():
     test = {_name(r) for r in PYPROJECT["project"]["optional-dependencies"]["test"]}
-    assert {"torch", "dask"} <= test
+    assert {"torch", "dask", "pyvista"} <= test
 
 
 #: modules imported that a declared dependency brings under another name: the reason
@@ -73,7 +74,8 @@ def test_every_imported_package_is_declared():
     declared = {IMPORT_NAME.get(_name(r), _name(r)).replace("-", "_")
                 for r in PYPROJECT["project"]["dependencies"]
                 + PYPROJECT["project"]["optional-dependencies"]["dask"]
-                + PYPROJECT["project"]["optional-dependencies"]["torch"]}
+                + PYPROJECT["project"]["optional-dependencies"]["torch"]
+                + PYPROJECT["project"]["optional-dependencies"]["view"]}
     declared |= {"dask", "distributed", "drjit", "mitsuba", "simtest"} | set(BROUGHT_BY)
     undeclared = set()
     for path in (ROOT / "simtest").rglob("*.py"):

@@ -77,17 +77,35 @@ def _copy_of_the_clone(tmp: Path) -> Path:
     return repo
 
 
-@pytest.mark.slow
-def test_every_readme_example_runs(tmp_path):
-    repo = _copy_of_the_clone(tmp_path)
+def _user_env(tmp_path: Path) -> dict:
+    """The environment of a user of this interpreter: ``simtest`` and ``python`` on PATH run
+    ``sys.executable`` (inside a venv, the venv's), with this checkout's code."""
     env = dict(os.environ, MPLBACKEND="Agg", PYTHONPATH=str(ROOT))
-    # the `simtest` of the README is this checkout's code, run from the copy
     shim = tmp_path / "bin"
     shim.mkdir()
     (shim / "simtest").write_text(f"#!/bin/sh\nexec {sys.executable} -m simtest.cli \"$@\"\n")
     (shim / "simtest").chmod(0o755)
-    (shim / "python").symlink_to(sys.executable)
+    # a script, not a symlink: Python started through a symlink outside a venv finds no
+    # pyvenv.cfg beside it and runs as the base interpreter, without the venv's packages
+    (shim / "python").write_text(f"#!/bin/sh\nexec {sys.executable} \"$@\"\n")
+    (shim / "python").chmod(0o755)
     env["PATH"] = f"{shim}{os.pathsep}{env['PATH']}"
+    return env
+
+
+def test_the_examples_python_is_the_users_interpreter(tmp_path):
+    """`python` in an example runs with the test's own prefix (a venv's packages, not the base's)."""
+    env = _user_env(tmp_path)
+    r = subprocess.run(["bash", "-c", "python -c 'import sys; print(sys.prefix)'"], env=env,
+                       capture_output=True, text=True, timeout=60)
+    assert r.returncode == 0, r.stderr
+    assert r.stdout.strip() == sys.prefix
+
+
+@pytest.mark.slow
+def test_every_readme_example_runs(tmp_path):
+    repo = _copy_of_the_clone(tmp_path)
+    env = _user_env(tmp_path)
     for line in _run_lines():
         r = subprocess.run(["bash", "-e", "-c", line], cwd=repo, env=env, capture_output=True,
                            text=True, timeout=300)

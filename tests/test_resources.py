@@ -73,6 +73,11 @@ def test_from_an_installed_wheel_the_data_are_inside_the_package(tmp_path):
         "assert spec.geometry.path.startswith(SITE) and r.Path(spec.geometry.path).is_file()\n"
         "load_suite('quick')\n"
         "assert default_baseline_path().is_file()\n"
+        "assert r.real_dir() == r.data_root() / 'real', r.real_dir()\n"
+        "assert r.real_banner_path().is_file()\n"
+        "assert (r.real_dir() / 'structures_labelled.json').is_file()\n"
+        "assert (r.real_dir() / 'labels' / 'structures_labelmap.png').is_file()\n"
+        "assert (r.real_dir() / 'intrinsics_assumed_f140.json').is_file()\n"
     )
     env = {"PATH": "/usr/bin:/bin", "PYTHONPATH": str(site), "HOME": str(tmp_path)}
     subprocess.run([sys.executable, "-c", f"SITE = {str(site)!r}\n" + code], check=True,

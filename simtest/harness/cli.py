@@ -247,8 +247,8 @@ def _covers(section: dict, names, where: str) -> None:
 
 
 def nightly_command(
-    quick: bool = typer.Option(False, "--quick", help="Run the quick suite (about a minute on 2 "
-                                                      "cores) instead of the nightly one."),
+    quick: bool = typer.Option(False, "--quick", help="Run the quick suite instead of the nightly "
+                                                      "one."),
     update_baseline: bool = typer.Option(False, "--update-baseline",
                                          help="Accept this code as the new baseline: run the "
                                               "suite --repeats times with seeds seed, seed + 1, "
