@@ -71,7 +71,8 @@ def _copy_of_the_clone(tmp: Path) -> Path:
     repo = tmp / "clone"
     (repo / "tests" / "data").mkdir(parents=True)
     shutil.copytree(ROOT / "scenes", repo / "scenes")
-    shutil.copytree(ROOT / "tests" / "data" / "real", repo / "tests" / "data" / "real")
+    for data in ("real", "external"):
+        shutil.copytree(ROOT / "tests" / "data" / data, repo / "tests" / "data" / data)
     for name in ("pyproject.toml", "README.md"):
         shutil.copy2(ROOT / name, repo / name)
     return repo

@@ -68,6 +68,8 @@ from rich.text import Text
 from simtest import __version__
 import numpy as np
 
+from simtest import _dask
+from simtest._dask import SchedulerError, connect
 from simtest._io import atomic_write, atomic_write_text
 from simtest._lazy import require
 from simtest.dataset.config import DatasetConfig, load_config
@@ -100,9 +102,8 @@ __all__ = ["GenerateReport", "Interrupted", "SampleError", "DatasetWriteError", 
 #: Folder of the dataset that keeps finished samples of incomplete shards (see the module notes).
 SPOOL_DIR = "spool"
 
-#: How long ``--scheduler`` waits for the Dask scheduler to answer (a reachable scheduler answers
-#: in milliseconds; a wrong address should fail within a few seconds).
-CONNECT_TIMEOUT = "3s"
+#: How long ``--scheduler`` waits for the Dask scheduler (:data:`simtest._dask.CONNECT_TIMEOUT`).
+CONNECT_TIMEOUT = _dask.CONNECT_TIMEOUT
 
 #: errno values that mean "the dataset folder cannot be written" (reported as one line).
 _WRITE_ERRNOS = frozenset({errno.ENOSPC, errno.EDQUOT, errno.EROFS, errno.EACCES, errno.EPERM,
@@ -566,45 +567,14 @@ class _Pool:
         self.ex.shutdown(wait=True)
 
 
-def _check_address(address: str) -> None:
-    """Refuse a scheduler address that cannot work before trying to connect (one line each).
-
-    Raises
-    ------
-    DatasetError
-        If the address has no known protocol or port, or its host name does not resolve.
-    """
-    addressing = require("distributed.comm.addressing", purpose="--scheduler")
-    parse_address, parse_host_port = addressing.parse_address, addressing.parse_host_port
-    where = f"--scheduler {address!r}"
-    if "://" not in address:
-        raise DatasetError(f"{where}: not a scheduler address (expected tcp://HOST:PORT, e.g. "
-                           "tcp://127.0.0.1:8786)")
-    try:
-        proto, loc = parse_address(address, strict=True)
-        if proto not in ("tcp", "tls", "ucx", "ws", "wss", "inproc"):
-            raise ValueError(f"unknown protocol {proto!r}")
-        host, port = parse_host_port(loc) if proto != "inproc" else (None, None)
-    except (ValueError, TypeError) as exc:
-        raise DatasetError(f"{where}: not a scheduler address: {exc}") from None
-    if host is not None:
-        try:
-            socket.getaddrinfo(host, port)
-        except (OSError, UnicodeError) as exc:
-            raise DatasetError(f"{where}: host {host!r} does not resolve: {exc}") from None
-
-
 class _Dask:
     """An existing Dask distributed cluster, reached through its scheduler address."""
 
     def __init__(self, sample_fn, config, address: str):
-        Client = require("distributed", purpose="--scheduler").Client
-        _check_address(address)
         try:
-            self.client = Client(address, timeout=CONNECT_TIMEOUT, set_as_default=False)
-        except (OSError, TimeoutError, ValueError) as exc:
-            raise DatasetError(f"--scheduler {address}: cannot connect within {CONNECT_TIMEOUT}: "
-                               f"{exc}") from None
+            self.client = connect(address, CONNECT_TIMEOUT)
+        except SchedulerError as exc:
+            raise DatasetError(str(exc)) from None
         as_completed = require("distributed").as_completed
         self.sample_fn, self.config = sample_fn, config
         self.prefix = f"simtest-dataset-{config.fingerprint()[:12]}"

@@ -20,6 +20,7 @@ import typer
 from rich.console import Console
 from rich.table import Table
 
+from simtest._dask import SchedulerError
 from simtest._exit import BAD_BASELINE, BAD_INPUT, CANNOT_WRITE, CHECK_FAILED, fail, safe_name, \
     writable_dir
 from simtest.harness.nightly import (
@@ -40,6 +41,7 @@ from simtest.harness.nightly import (
     undetectable_doublings,
     update_baseline as write_baseline,
 )
+from simtest.harness.external import ExternalError
 from simtest.harness.report import build_results, make_run_id, write_report_files
 from simtest.harness.runner import run_suite
 from simtest.harness.suite import MAX_TOTAL_REALISATIONS, SuiteError, load_suite
@@ -118,6 +120,19 @@ def load_checked_suite(name: str, seed: int | None = None, realisations: int | N
     return s
 
 
+def _run(s, *, workers, progress, console, scheduler):
+    """:func:`run_suite`, a bad or silent ``--scheduler`` as one line (exit 2) before any work."""
+    try:
+        return run_suite(s, workers=workers, progress=progress, console=console, scheduler=scheduler)
+    except SchedulerError as e:
+        fail(e, BAD_INPUT)
+
+
+#: ``--scheduler``, as ``dataset generate`` has it.
+SCHEDULER_HELP = ("Address of a Dask scheduler (tcp://HOST:8786) whose workers run the "
+                  "realisations instead of local processes (needs the dask extra); same results.")
+
+
 def _counts(s) -> str:
     """The one count of a suite used by the header, the progress bar and the report."""
     n, d = len(s.cases), len(s.distinct_cases)
@@ -186,6 +201,12 @@ def validate_command(
                                                                 "(default: <UTC time>-local, "
                                                                 "git-ignored)."),
     progress: bool = typer.Option(True, "--progress/--no-progress", help="Show progress."),
+    scheduler: Optional[str] = typer.Option(None, "--scheduler", help=SCHEDULER_HELP),  # noqa: UP045
+    estimator: Optional[list[str]] = typer.Option(  # noqa: UP045
+        None, "--estimator", metavar="[NAME=]MODULE:FUNCTION",
+        help="Also score your own method, function(frame, camera, rig, response) -> {'bp_px': "
+             "(N, 2), 'normal': (N, 3)}, beside the built-in estimators (repeatable; "
+             "importable in the workers)."),
 ) -> None:
     """Run a validation suite and write its report.
 
@@ -207,11 +228,16 @@ def validate_command(
     console = Console(stderr=True)
     check_workers(workers)
     s = load_checked_suite(suite, seed, realisations)
+    if estimator:
+        try:
+            s = s.with_external(estimator)
+        except ExternalError as e:
+            fail(e, BAD_INPUT)
     run_id = safe_name(run_id or make_run_id(), "--run-id")
     folder = out / s.name / run_id
     writable_dir(folder, "--out")
     console.print(f"[bold]simtest validate[/] {s.name}: {_counts(s)}, seed {s.seed}")
-    run = run_suite(s, workers=workers, progress=progress, console=console)
+    run = _run(s, workers=workers, progress=progress, console=console, scheduler=scheduler)
     results = build_results(run, run_id)
     folder = _write(results, folder)
     _summary(results, console)
@@ -272,6 +298,7 @@ def nightly_command(
     suite: Optional[str] = typer.Option(None, "--suite", help="Another suite (name or path)."),
     show_all: bool = typer.Option(False, "--all", help="List unchanged metrics too."),
     progress: bool = typer.Option(True, "--progress/--no-progress"),
+    scheduler: Optional[str] = typer.Option(None, "--scheduler", help=SCHEDULER_HELP),  # noqa: UP045
 ) -> None:
     """Run the nightly (or --quick) suite and gate it against the committed baseline.
 
@@ -309,15 +336,15 @@ def nightly_command(
             fail(f"--history: {hist_path} is a folder, not a file", CANNOT_WRITE)
         writable_dir(hist_path.parent, "--history")
         section = _baseline_section(path, s, quick)
-    run = run_suite(s, workers=workers, progress=progress, console=console)
+    run = _run(s, workers=workers, progress=progress, console=console, scheduler=scheduler)
     results = build_results(run, run_id)
     if update_baseline:
         runs = [results]
         for k in range(1, repeats):
             sk = s.with_overrides(seed=s.seed + k)
             console.print(f"repeat {k + 1} of {repeats}: seed {sk.seed}")
-            runs.append(build_results(run_suite(sk, workers=workers, progress=progress,
-                                                console=console), f"{run_id}-seed{sk.seed}"))
+            runs.append(build_results(_run(sk, workers=workers, progress=progress, console=console,
+                                           scheduler=scheduler), f"{run_id}-seed{sk.seed}"))
         try:
             write_baseline(path, runs)
         except ValueError as e:

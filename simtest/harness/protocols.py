@@ -28,7 +28,9 @@ from simtest.geometry.curvature import (
 )
 from simtest.geometry.lights import Light, LightRig
 from simtest.geometry.response import SensorResponse
+from simtest.geometry.cameras import PinholeCamera
 from simtest.harness.estimators import ORACLE_INPUTS, score
+from simtest.harness.external import score_external
 from simtest.harness.suite import LIGHT_AWARE_NAMES, MeshPose
 from simtest.reconstruct import reconstruct, reconstruct_rois
 from simtest.reconstruct.recommend import light_aware_estimates, with_light_aware
@@ -45,6 +47,10 @@ __all__ = ["make_runner", "PaperRunner", "RenderedRunner", "Row",
 #: Margin of the paper protocol's ROI around the noiseless highlight, px: 5 smoothing widths of
 #: the default 2 px, far beyond the contour noise (about 2 px RMS at sigma = 5 %).
 ROI_MARGIN_PX = 10
+
+#: How far an external estimator's BP may lie from the true one on a ``paper`` case, px: the ROI
+#: margin, beyond which the answer is outside the region the paper's method is given.
+PAPER_MATCH_PX = ROI_MARGIN_PX
 
 #: Extra per-row diagnostics carried into the results (means reported per case).
 EXTRA_KEYS = ("eigenvalue_gap", "residual_px", "bp_error_px", "k1_per_mm", "k2_per_mm",
@@ -186,12 +192,14 @@ class PaperRunner:
 
     protocol = "paper"
 
-    def __init__(self, case, estimators) -> None:
+    def __init__(self, case, estimators, external=()) -> None:
         self.settings = case.recon
         self.isovalues = case.recon.isovalues
         self.params = case.paper
         self.sim = PaperSimulator(self.params)
         self.estimators = tuple(estimators)
+        self.external = dict(external)
+        self.builtin = tuple(e for e in self.estimators if e not in self.external)
         # a fixed light: every realisation has the same noiseless image and BP, so the same ROI
         fixed = self.sim.fixed
         self._fixed = None if fixed is None else (fixed[0], self.roi(*fixed))
@@ -281,7 +289,7 @@ class PaperRunner:
                 except FloatingPointError:
                     truth.append(None)
                     continue
-                truth.append((s.normal, s.bp_px))
+                truth.append((s.normal, s.bp_px, self._external(s)))
                 yield s.image, s.K, s.bp_px, s.region
 
         ests = iter(reconstruct_rois(items(), settings=self.settings))
@@ -294,8 +302,18 @@ class PaperRunner:
                 out.append([self._score(*t, next(ests))])
         return out
 
-    def _score(self, normal, bp_px, est):
-        errs = score(est, normal, self.estimators)
+    def _external(self, s) -> dict:
+        """Each external estimator's (error, cause) on the sample's image (a pinhole, no rig)."""
+        if not self.external:
+            return {}
+        h, w = s.image.shape[:2]
+        camera = PinholeCamera(s.K, image_size=(w, h))
+        return {name: score_external(spec, s.image, camera, None, None, [(s.bp_px, s.normal)],
+                                     PAPER_MATCH_PX)[0] for name, spec in self.external.items()}
+
+    def _score(self, normal, bp_px, external, est):
+        errs = score(est, normal, self.builtin)
+        errs.update(external)
         extras = _extras(est)
         bp = getattr(est, "bp_px", None)
         extras["bp_error_px"] = (float(np.linalg.norm(np.asarray(bp, float) - bp_px))
@@ -355,7 +373,7 @@ class RenderedRunner:
 
     protocol = "rendered"
 
-    def __init__(self, case, estimators) -> None:
+    def __init__(self, case, estimators, external=()) -> None:
         self.settings = case.recon
         self.image_kind = case.scoring.image
         self.match_px = case.scoring.match_px
@@ -363,6 +381,8 @@ class RenderedRunner:
         spec = load_scene(case.scene)
         self.spec = with_overrides(spec, case.scene_setting.scene_overrides(mesh_pose_overrides))
         self.estimators = tuple(estimators)
+        self.external = dict(external)
+        self.builtin = tuple(e for e in self.estimators if e not in self.external)
         self.variant = None
 
     def run(self, seedseq: np.random.SeedSequence) -> list[dict]:
@@ -439,9 +459,11 @@ class RenderedRunner:
             for name, attr in ORACLE_INPUTS.items():
                 if name in self.estimators:
                     matched = fit_on_oracle_image(name, getattr(result, attr, None), matched, result.K, rig)
+        external = self._external(result, image, [(h.bp_px, h.normal) for h, _, _ in matched])
         rows = []
-        for h, best, dist in matched:
-            errs = score(best, h.normal, self.estimators, light=int(getattr(h, "light", 0)))
+        for i, (h, best, dist) in enumerate(matched):
+            errs = score(best, h.normal, self.builtin, light=int(getattr(h, "light", 0)))
+            errs.update({name: e[i] for name, e in external.items()})
             extras = _extras(best)
             extras["bp_error_px"] = dist if best is not None else float("nan")
             extras["k1_per_mm"] = float(getattr(h, "k1", float("nan")))
@@ -464,6 +486,23 @@ class RenderedRunner:
             extras["saturated_px"] = saturated
             rows.append(_row(errs, extras))
         return rows
+
+
+    def _external(self, result, image, truths) -> dict:
+        """Each external estimator's (error, cause) per true highlight, on what a user of
+        ``simtest reconstruct`` has: the frame the built-in fits see, the render's camera model,
+        light rig and the frame's sensor response (None for a linear frame)."""
+        if not self.external or not truths:
+            return {}
+        response = render_response(result)
+        light_aware = any(e in LIGHT_AWARE_NAMES for e in self.builtin)
+        if light_aware and response is not None:
+            frame = result.video
+        else:
+            frame, response = image, (response if image is getattr(result, "video", None) else None)
+        camera, rig = result.camera_model, render_rig(result)
+        return {name: score_external(spec, frame, camera, rig, response, truths, self.match_px)
+                for name, spec in self.external.items()}
 
 
 def fit_scored(image, matched: list, camera, rig: LightRig, **kwargs) -> list:
@@ -730,7 +769,7 @@ def mesh_pose_overrides(p: MeshPose) -> dict:
     return over
 
 
-def make_runner(case, estimators):
+def make_runner(case, estimators, external=()):
     """The runner of ``case.protocol``.
 
     Parameters
@@ -738,7 +777,10 @@ def make_runner(case, estimators):
     case : simtest.harness.suite.Case
         The case.
     estimators : sequence of str
-        Keys of :data:`simtest.harness.estimators.ESTIMATORS`.
+        Keys of :data:`simtest.harness.estimators.ESTIMATORS`, and the names of ``external``.
+    external : sequence of (str, str)
+        External estimators, ``(name, "package.module:function")``
+        (:mod:`simtest.harness.external`).
 
     Returns
     -------
@@ -750,7 +792,7 @@ def make_runner(case, estimators):
         If the protocol is neither ``"paper"`` nor ``"rendered"``.
     """
     if case.protocol == "paper":
-        return PaperRunner(case, estimators)
+        return PaperRunner(case, estimators, external)
     if case.protocol == "rendered":
-        return RenderedRunner(case, estimators)
+        return RenderedRunner(case, estimators, external)
     raise ValueError(f"unknown protocol {case.protocol!r}")

@@ -147,14 +147,12 @@ def section_text(reports: str | Path | None = None, repo: str | Path | None = No
     L += ["", "Median normal error in degrees over each family's highlights (n: highlights "
               "scored), from the committed runs", ", ".join(dates) + ".",
           "These score a fit given the highlight: `bp_ray`, the light-aware fits and `recommended` "
-          "on every true", "highlight the harness matched, whatever status `simtest reconstruct` "
-          "gives it (the isophote estimators only", "where it says ok); end to end, the command "
-          "line can give less.",
+          "on every matched true highlight,", "whatever status `simtest reconstruct` gives it (the "
+          "isophote estimators where it says ok); end to end a user can get less.",
           "In bold: a median below every other estimator's of its row (shown or not) by more than "
           "the 95 % confidence interval", "of the difference (the reports' rule); none where the "
-          "lowest cannot be told apart from another.",
-          "Other estimators count only where scored on at least "
-          f"{MIN_SHARE_OF_HIGHLIGHTS:.0%} of the row's highlights.",
+          "lowest cannot be told apart from another. Other estimators count where scored on at "
+          f"least {MIN_SHARE_OF_HIGHLIGHTS:.0%} of the row's highlights.",
           "¹ No recommended normal: suites of the paper's protocol (co-located light) score the "
           "estimators alone.",
           "", END]

@@ -33,6 +33,8 @@ from rich.progress import (
     TimeRemainingColumn,
 )
 
+from simtest._dask import connect
+from simtest._lazy import require
 from simtest._threads import one_thread_each
 from simtest.harness.protocols import Row, make_runner
 from simtest.harness.suite import Case, Suite, realisation_seed
@@ -135,11 +137,11 @@ class SuiteRun:
         return sorted({r.variant for r in self.results if r.variant})
 
 
-def _get_runner(case: Case, estimators: tuple):
-    key = (case.key, case.protocol, case.scene, estimators)
+def _get_runner(case: Case, estimators: tuple, external: tuple = ()):
+    key = (case.key, case.protocol, case.scene, estimators, external)
     r = _RUNNERS.get(key)
     if r is None:
-        r = make_runner(case, estimators)
+        r = make_runner(case, estimators, external)
         _RUNNERS[key] = r
         while len(_RUNNERS) > _RUNNERS_MAX:
             _RUNNERS.popitem(last=False)
@@ -179,7 +181,8 @@ class ChunkResult:
     messages: list[str]
 
 
-def run_case_chunk(case: Case, estimators: tuple, root_seed: int, start: int, stop: int):
+def run_case_chunk(case: Case, estimators: tuple, root_seed: int, start: int, stop: int,
+                   external: tuple = ()):
     """Run realisations ``start`` to ``stop - 1`` of one case (in a worker or in process).
 
     An exception in the set-up or in a realisation never propagates: those realisations fail
@@ -195,6 +198,8 @@ def run_case_chunk(case: Case, estimators: tuple, root_seed: int, start: int, st
         Suite root seed (0 is valid).
     start, stop : int
         Half-open range of realisation indices.
+    external : tuple of (str, str)
+        The suite's external estimators (:attr:`simtest.harness.suite.Suite.external`).
 
     Returns
     -------
@@ -204,7 +209,7 @@ def run_case_chunk(case: Case, estimators: tuple, root_seed: int, start: int, st
     messages: list[str] = []
     out = []
     try:
-        runner = _get_runner(case, estimators)
+        runner = _get_runner(case, estimators, external)
     except Exception as e:  # noqa: BLE001 - counted per realisation, never dropped
         messages.append(f"set-up: {type(e).__name__}: {e}")
         rows = _exception_rows(estimators, e)
@@ -264,30 +269,60 @@ def _assemble(case: Case, estimators: tuple, chunks: list[ChunkResult]) -> CaseR
                       exceptions=msgs, cpu_s=sum(ch.seconds for ch in chunks), variant=variant)
 
 
+def _run_on_cluster(address: str, tasks, estimators: tuple, root_seed: int, external: tuple,
+                    record) -> int:
+    """Run the chunks ``tasks`` on the Dask cluster at ``address``; ``record`` takes each result.
+
+    Each chunk is :func:`run_case_chunk` with the arguments a local worker gets, so its rows are
+    the same bit for bit (results are put back in realisation order afterwards). Returns the
+    cluster's number of worker threads. Chunks left on the cluster by an error or an interrupt
+    are cancelled.
+    """
+    client = connect(address)
+    futs = []
+    try:
+        futs = [client.submit(run_case_chunk, c, estimators, root_seed, s, e, external, pure=False)
+                for c, s, e in tasks]
+        for f in require("distributed").as_completed(futs, loop=client.loop):
+            record(f.result())
+        return sum(client.nthreads().values())
+    finally:
+        pending = [f for f in futs if not f.done()]
+        if pending:
+            client.cancel(pending)
+        client.close()
+
+
 def run_suite(suite: Suite, *, workers: int | None = None, progress: bool = True,
-              console=None) -> SuiteRun:
-    """Run every case of ``suite``.
+              console=None, scheduler: str | None = None) -> SuiteRun:
+    """Run every case of ``suite``, on local processes or on a Dask cluster.
 
     Parameters
     ----------
     suite : Suite
         A loaded suite.
     workers : int or None
-        Worker processes; None: the number of available cores; 1: in this process.
+        Worker processes; None: the number of available cores; 1: in this process. Ignored
+        with ``scheduler``.
     progress : bool
         Show a rich progress bar (on ``console`` or stderr).
     console : rich.console.Console or None
         Where the progress bar is drawn (default: a stderr console).
+    scheduler : str, optional
+        Address of a Dask distributed scheduler (``tcp://HOST:8786``) whose workers run the
+        chunks; its workers need simtest installed. Same seeding, same results.
 
     Returns
     -------
     SuiteRun
-        Identical errors and statistics for any ``workers``.
+        Identical errors and statistics for any ``workers`` and on a cluster.
 
     Raises
     ------
     ValueError
         If ``workers < 1``.
+    simtest._dask.SchedulerError
+        A bad scheduler address, or no answer from it.
     """
 
     workers = default_workers() if workers is None else int(workers)
@@ -322,18 +357,22 @@ def run_suite(suite: Suite, *, workers: int | None = None, progress: bool = True
         prog.update(bar, rate=f"{n / el:6.1f} real./s" if el > 0 else "")
 
     with prog:
-        bar = prog.add_task(f"{suite.name}: {len(unique)} distinct settings, {workers} "
-                            "worker(s), realisations", total=total, rate="")
-        if workers == 1:
+        where = f"the cluster at {scheduler}" if scheduler else f"{workers} worker(s)"
+        bar = prog.add_task(f"{suite.name}: {len(unique)} distinct settings, {where}, "
+                            "realisations", total=total, rate="")
+        if scheduler is not None:
+            workers = _run_on_cluster(scheduler, tasks, estimators, suite.seed, suite.external,
+                                      lambda r: record(r, bar))
+        elif workers == 1:
             for c, s, e in tasks:
-                record(run_case_chunk(c, estimators, suite.seed, s, e), bar)
+                record(run_case_chunk(c, estimators, suite.seed, s, e, suite.external), bar)
         else:
             with one_thread_each():
                 ctx = mp.get_context("spawn")  # no inherited Mitsuba/LLVM threads
                 with ProcessPoolExecutor(max_workers=workers, mp_context=ctx,
                                          initializer=_worker_init) as pool:
-                    futs = [pool.submit(run_case_chunk, c, estimators, suite.seed, s, e)
-                            for c, s, e in tasks]
+                    futs = [pool.submit(run_case_chunk, c, estimators, suite.seed, s, e,
+                                        suite.external) for c, s, e in tasks]
                     try:
                         for f in as_completed(futs):
                             record(f.result(), bar)

@@ -69,6 +69,7 @@ from simtest._checks import keyed_error
 from simtest._io import jsonable
 from simtest.harness.claims import PAPER_CHECKS
 from simtest.harness.estimators import LIGHT_AWARE_FITS, ORACLE_FITS
+from simtest.harness.external import external_estimators
 from simtest.reconstruct.settings import ReconSettings
 from simtest.resources import bundled
 from simtest.scene import SceneError, bundled_scene_path, load_scene, with_overrides
@@ -504,6 +505,9 @@ class Suite:
         sha256 of the suite file's bytes (empty for a suite built from a dict).
     raw : dict
         The document as read, used by :meth:`with_overrides`.
+    external : tuple of (str, str)
+        External estimators ``(name, "package.module:function")`` scored beside the built-in
+        ones (:mod:`simtest.harness.external`); their names end :attr:`estimators`.
     """
 
     name: str
@@ -515,6 +519,29 @@ class Suite:
     sweeps: tuple[Sweep, ...]
     sha256: str = ""
     raw: dict = field(default_factory=dict, compare=False, repr=False)
+    external: tuple[tuple[str, str], ...] = ()
+
+    def with_external(self, specs) -> Suite:
+        """A copy that also scores the external estimators ``specs``.
+
+        Parameters
+        ----------
+        specs : sequence of str
+            ``[name=]package.module:function`` each (:mod:`simtest.harness.external`).
+
+        Returns
+        -------
+        Suite
+            The same cases; :attr:`estimators` and :attr:`external` extended.
+
+        Raises
+        ------
+        simtest.harness.external.ExternalError
+            A spec that does not import, or a name already scored.
+        """
+        ext = external_estimators(list(specs), self.estimators)
+        return dataclasses.replace(self, estimators=self.estimators + tuple(n for n, _ in ext),
+                                   external=self.external + ext)
 
     @property
     def cases(self) -> list[Case]:
@@ -565,7 +592,11 @@ class Suite:
             d["suite"]["realisations"] = realisations
             d["sweep"] = [{k: v for k, v in s.items() if k != "realisations"}
                           for s in d.get("sweep", [])]
-        return suite_from_dict(d, source=self.source, sha256=self.sha256)
+        new = suite_from_dict(d, source=self.source, sha256=self.sha256)
+        if not self.external:
+            return new
+        return dataclasses.replace(new, estimators=new.estimators + tuple(n for n, _ in self.external),
+                                   external=self.external)
 
 
 def load_suite(name_or_path: str | Path) -> Suite:
