@@ -10,13 +10,21 @@ once and never import Mitsuba.
 from __future__ import annotations
 
 import importlib
+import os
+import sys
+import warnings
 
 import typer
 from typer.core import TyperCommand, TyperGroup
 
-from simtest._exit import BAD_INPUT, fail
+from simtest._exit import BAD_INPUT, INTERRUPTED, fail, one_line
 from simtest._lazy import MissingBackend
 from simtest._version import __version__
+
+# Click's exceptions, from the Click that Typer uses (its own copy from Typer 0.29, else Click):
+# typer.BadParameter is re-exported from that module in every version.
+_CLICK_EXC = sys.modules[typer.BadParameter.__module__]
+_ABORTS = tuple({typer.Abort, getattr(_CLICK_EXC, "Abort", typer.Abort)})
 
 #: name -> (module, attribute: a command function or a Typer app, one-line help for the listing)
 SUBCOMMANDS: dict[str, tuple[str, str, str]] = {
@@ -83,6 +91,31 @@ class _LazyGroup(TyperGroup):
         except MissingBackend as exc:
             fail(exc, BAD_INPUT)
 
+    def main(self, args=None, prog_name=None, complete_var=None, standalone_mode=True, **extra):
+        """Click's ``main`` with every usage error on one line: ``error: <command>: <what>``.
+
+        Click (and Typer's rich box) print a usage line, a hint and a boxed message, 5 to 6
+        lines; here a usage error (unknown flag or command, missing or bad value) prints one
+        line on standard error and exits 2, like every other failure (:mod:`simtest._exit`)."""
+        if not standalone_mode:
+            return super().main(args, prog_name, complete_var, standalone_mode, **extra)
+        try:
+            rv = super().main(args, prog_name, complete_var, False, **extra)
+        except _CLICK_EXC.ClickException as exc:
+            ctx = getattr(exc, "ctx", None)
+            if type(exc).__name__ == "NoArgsIsHelpError":  # its help is already printed
+                sys.exit(exc.exit_code)
+            where = f"{ctx.command_path}: " if ctx is not None else ""
+            hint = f"; see {ctx.command_path} --help" if ctx is not None else ""
+            what = one_line(exc.format_message()).rstrip(".")
+            typer.echo(f"error: {where}{what}{hint}", err=True)
+            sys.exit(BAD_INPUT)
+        except _ABORTS as exc:
+            ctrl_c = isinstance(exc.__cause__, KeyboardInterrupt)
+            typer.echo("error: interrupted" if ctrl_c else "error: aborted", err=True)
+            sys.exit(INTERRUPTED if ctrl_c else 1)
+        sys.exit(rv if isinstance(rv, int) else 0)
+
     def format_help(self, ctx, formatter):
         self._listing = True
         try:
@@ -122,8 +155,21 @@ def version_command() -> None:
     typer.echo(__version__)
 
 
+def quiet_warnings() -> None:
+    """Python warnings (NumPy's RuntimeWarnings, a library's DeprecationWarning) are not printed,
+    here and in worker processes, unless asked for with ``-W`` or ``PYTHONWARNINGS``.
+
+    Standard error carries progress and one ``error:`` line per failure; a condition that
+    matters is checked and reported by simtest itself (the pattern of the Python documentation,
+    "Overriding the default filter")."""
+    if not sys.warnoptions and "PYTHONWARNINGS" not in os.environ:
+        warnings.simplefilter("ignore")
+        os.environ["PYTHONWARNINGS"] = "ignore"  # worker processes (spawn) start with it
+
+
 def main() -> None:
     """Entry point of the ``simtest`` console script."""
+    quiet_warnings()
     app()
 
 

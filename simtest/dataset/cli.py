@@ -127,13 +127,16 @@ def show_command(
 ) -> None:
     """Write a contact sheet: image with BP markers and isophotes, normals, masks per sample.
 
-    Writes one PNG, OUT (default DIR/contact_sheet.png). Exit codes: 0 done, 2 bad input.
+    Writes one PNG, OUT (default DIR/contact_sheet.png). Exit codes: 0 done, 2 bad input, 4 OUT cannot be written (disk full, read-only; an earlier sheet is kept).
     """
 
     try:
         path = contact_sheet(root, out, count=count, start=start)
     except (DatasetError, ValueError) as exc:
         fail(exc, BAD_INPUT)
+    except OSError as exc:  # the sheet is written atomically: an earlier one is kept
+        fail(f"--out: cannot write {out or root / 'contact_sheet.png'}: {exc.strerror or exc}",
+             CANNOT_WRITE)
     typer.echo(f"{path}: contact sheet written")
 
 

@@ -3,8 +3,9 @@
 
 Mitsuba loads only when a render starts (:func:`simtest._lazy.require`). Errors are one line on stderr,
 ``error: <file>: <key>: <reason>``, never a traceback: exit code 2 for bad input (scene file,
-option), 4 when the output folder cannot be written (a file in the way, read-only, files that are
-not a render's inside; checked before rendering), 1 when Mitsuba cannot run here.
+option, or Mitsuba cannot run here: the line says why), 4 when the output folder cannot be
+written (a file in the way, read-only, files that are not a render's inside; checked before
+rendering).
 """
 
 from __future__ import annotations
@@ -19,7 +20,7 @@ import typer
 from PIL import Image
 from rich.console import Console
 
-from simtest._exit import CANNOT_WRITE, writable_dir
+from simtest._exit import BAD_INPUT, CANNOT_WRITE, writable_dir
 from simtest._io import atomic_write_set
 from simtest.constants import MAX_SEED
 from simtest.render.render import (
@@ -72,7 +73,7 @@ def render_command(
     OUT/ground_truth.npz (per-pixel normals, depth, distance, position, mask, the linear and
     specular images) and
     OUT/highlights.json (each highlight's brightest point, normal and curvatures). Exit status 2:
-    bad input; 4: OUT cannot be written; 1: Mitsuba cannot run here."""
+    bad input, or Mitsuba cannot run here; 4: OUT cannot be written."""
     if variant is not None and variant not in RENDER_VARIANTS:
         raise _fail(f"--variant: {variant!r} is not one of {', '.join(RENDER_VARIANTS)}")
     writable_dir(out, "--out")
@@ -89,7 +90,7 @@ def render_command(
         with console.status(f"rendering {spec.name} ..."):
             result = render_scene(spec, seed=seed, variant=variant)
     except RendererUnavailable as exc:
-        raise _fail(str(exc), code=1) from None
+        raise _fail(str(exc), BAD_INPUT) from None  # Mitsuba cannot run here
     except HighlightTruthError as exc:
         raise _fail(f"{spec.source or scene}: geometry: {exc}") from None
     except RenderInputError as exc:
@@ -188,7 +189,7 @@ def simreal_command(
     for the colonoscope on 2 cores), and OUT/fitted.toml (the fitted scene),
     OUT/frames.png (before and after beside real frames) are written too, with simreal.json and
     simreal.md holding every statistic before and after on the fitted and the held-out frames.
-    Exit status 2: bad input; 4: OUT cannot be written; 1: Mitsuba cannot run here."""
+    Exit status 2: bad input, or Mitsuba cannot run here; 4: OUT cannot be written."""
     if scene_arg is not None and scene_opt is not None and scene_arg != scene_opt:
         raise _fail(f"--scene: {scene_opt!r} and SCENE {scene_arg!r} disagree (give one)")
     scene = scene_opt or scene_arg or "colonoscope"
@@ -211,7 +212,7 @@ def simreal_command(
     except RenderInputError as exc:
         raise _fail(str(exc)) from None
     except RendererUnavailable as exc:
-        raise _fail(str(exc), code=1) from None
+        raise _fail(str(exc), BAD_INPUT) from None  # Mitsuba cannot run here
     frame = result.frame
     paths = real or [real_banner_path()]
     rows = sim_to_real_table(frame, frames)
@@ -242,7 +243,7 @@ def _simreal_fit(spec, frames: list, paths: list[Path], out: Path, renders: int,
     except RenderInputError as exc:
         raise _fail(str(exc)) from None
     except RendererUnavailable as exc:
-        raise _fail(str(exc), code=1) from None
+        raise _fail(str(exc), BAD_INPUT) from None  # Mitsuba cannot run here
     tables = {}
     for name, fr in (("fitted", fit_frames), ("held_out", held)):
         if fr:
