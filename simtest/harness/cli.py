@@ -147,24 +147,37 @@ def _json_safe(doc):
 
 
 def _summary(results: dict, console) -> None:
+    """The console table: one column per estimator where that fits the console's width, else
+    one row per sweep and estimator (a log file or CI at 80 columns: no name broken mid-word)."""
     ests = results["suite"]["estimators"]
-    t = Table(title=f"{results['suite']['name']}: median error (deg) per setting, lowest to "
-                    "highest over the sweep's settings, as in the report; (worst failure rate)")
-    # fold, never truncate: a number cut to "0.00099..." would be worse than none
-    t.add_column("sweep", overflow="fold")
-    for e in ests:
-        t.add_column(e, justify="right", overflow="fold")
     cases = {c["id"]: c for c in results["cases"]}
+    cells = {}
     for sw in results["sweeps"]:
-        row = [sw["name"]]
         for e in ests:
             ms = [cases[k]["metrics"]["estimators"][e] for k in sw["cases"]]
             meds = [m["median"] for m in ms if m["median"] is not None]
             fr = max(m["failure_rate"] for m in ms)
             cell = "-" if not meds else (f"{_fmt(min(meds))} to {_fmt(max(meds))}"
                                          if len(meds) > 1 else _fmt(meds[0]))
-            row.append(cell + (f" [red]({fr:.0%})[/]" if fr > 0 else ""))
-        t.add_row(*row)
+            cells[sw["name"], e] = cell + (f" [red]({fr:.0%})[/]" if fr > 0 else "")
+    title = (f"{results['suite']['name']}: median error (deg) per setting, lowest to highest over "
+             "the sweep's settings, as in the report; (worst failure rate)")
+    # fold, never truncate: a number cut to "0.00099..." would be worse than none
+    t = Table(title=title)
+    t.add_column("sweep", overflow="fold")
+    for e in ests:
+        t.add_column(e, justify="right", overflow="fold")
+    for sw in results["sweeps"]:
+        t.add_row(sw["name"], *(cells[sw["name"], e] for e in ests))
+    if console.measure(t, options=console.options.update(max_width=10**4)).maximum > console.width:
+        t = Table(title=title)
+        t.add_column("sweep", overflow="fold")
+        t.add_column("estimator", overflow="fold")
+        t.add_column("median error (deg)", justify="right", overflow="fold")
+        for sw in results["sweeps"]:
+            for k, e in enumerate(ests):
+                t.add_row(sw["name"] if k == 0 else "", e, cells[sw["name"], e],
+                          end_section=k == len(ests) - 1)
     console.print(t)
 
 
@@ -214,11 +227,12 @@ def validate_command(
     run = run_suite(s, workers=workers, progress=progress, console=console)
     results = build_results(run, run_id)
     folder = _write(results, folder)
-    _summary(results, console)
+    show = Console(soft_wrap=True)  # results on stdout (progress and errors on stderr)
+    _summary(results, show)
     for k, v in results["provenance"]["realisations_per_s"].items():
-        console.print(f"{k}: {v['realisations']} realisations, {v['per_s']} realisations/s "
-                      f"with {run.workers} worker(s)")
-    console.print(f"wall time {run.wall_s:.1f} s; report: {folder / 'report.html'}")
+        show.print(f"{k}: {v['realisations']} realisations, {v['per_s']} realisations/s "
+                   f"with {run.workers} worker(s)")
+    show.print(f"wall time {run.wall_s:.1f} s; report: {folder / 'report.html'}")
 
 
 def _baseline_section(path: Path, s, quick: bool):
@@ -328,10 +342,11 @@ def nightly_command(
         weak = undetectable_doublings(sec)
         noisy = noisy_headlines(sec)
         _write(results, folder)
-        console.print(f"report: {folder / 'report.html'}")
-        console.print(f"baseline for suite {s.name} written to {path} ({len(sec['metrics'])} "
-                      f"metrics from seeds {sec['seeds']}; {len(weak)} could double unnoticed: "
-                      "too noisy at this many realisations)")
+        show = Console(soft_wrap=True)  # results on stdout
+        show.print(f"report: {folder / 'report.html'}")
+        show.print(f"baseline for suite {s.name} written to {path} ({len(sec['metrics'])} "
+                   f"metrics from seeds {sec['seeds']}; {len(weak)} could double unnoticed: "
+                   "too noisy at this many realisations)")
         if noisy:
             console.print(f"[yellow]warning: {len(noisy)} headline metric(s) have seed noise "
                           f"(k_spread spreads) above their {CAPS['headline_deg']} deg cap and "
@@ -360,11 +375,12 @@ def nightly_command(
     _write(results, folder, history=read_history(hist_path),
            nightly={"verdict": "pass" if passed else "FAIL", "baseline": str(path),
                     "summary": summary, "problems": lines})
-    console.print(changes_table(changes, f"{s.name} vs baseline {path.name}", show_all))
-    console.print(summary)
-    console.print(f"report: {folder / 'report.html'}; history: {hist_path}")
+    show = Console(soft_wrap=True)  # results on stdout (progress and errors on stderr)
+    show.print(changes_table(changes, f"{s.name} vs baseline {path.name}", show_all))
+    show.print(summary)
+    show.print(f"report: {folder / 'report.html'}; history: {hist_path}")
     if not passed:
         for ln in lines:
             typer.echo(ln, err=True)
         raise typer.Exit(CHECK_FAILED)
-    console.print("[green]no regression[/]")
+    show.print("[green]no regression[/]")

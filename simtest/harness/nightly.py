@@ -667,8 +667,9 @@ def changes_table(changes: list[Change], title: str, show_all: bool = False):
     """
     t = Table(title=title, show_lines=False)
     for col in ("verdict", "metric", "baseline", "now", "delta", "tolerance"):
+        # at 80 columns only the metric's name folds: headers and numbers stay whole
         t.add_column(col, justify="right" if col in ("baseline", "now", "delta", "tolerance")
-                     else "left", overflow="fold")
+                     else "left", overflow="fold", no_wrap=col != "metric")
     style = {"regression": "bold red", "missing": "bold red", "invalid": "bold red",
              "improved": "green", "new": "cyan", "ok": "dim"}
     for c in changes:

@@ -102,6 +102,7 @@ def render_command(
     except OSError as exc:
         raise _fail(f"--out: cannot write the render to {out}: {exc.strerror or exc}", CANNOT_WRITE) from None
     H, W = result.linear.shape
+    console = Console(soft_wrap=True)  # the results on stdout; progress was on stderr
     console.print(f"{spec.name}: {W} x {H} px, {spec.render.spp} spp, seed {result.seed}, "
                   f"variant {result.variant}, {len(result.highlights)} highlight(s)", highlight=False)
     for h in result.highlights:
