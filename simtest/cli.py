@@ -62,10 +62,30 @@ def load_subcommand(name: str) -> TyperCommand | TyperGroup:
     if isinstance(obj, typer.Typer):
         group = typer.main.get_group(obj)
         group.name = name
-        return group
+        return _plain_help(group)
     single = typer.Typer(add_completion=False)
     single.command(name)(obj)
-    return typer.main.get_command(single)
+    return _plain_help(typer.main.get_command(single))
+
+
+def _plain_help(cmd):
+    """``cmd`` and its subcommands with Click's plain help, readable at 80 columns.
+
+    Typer's rich panels keep the docstring's line breaks (sentences break mid-line in a narrow
+    terminal), squeeze each option's help into a narrow column and cut defaults; Click's
+    formatter rewraps each paragraph to the terminal's width. Usage lines name arguments as
+    Click does (``IMAGE``, ``[SUITE]``), not Typer's ``{image}``."""
+    cmd.rich_markup_mode = None
+    if cmd.help and not cmd.short_help:  # a listing wraps its first paragraph, never cuts it
+        cmd.short_help = " ".join(cmd.help.split("\n\n")[0].split())
+    for param in getattr(cmd, "params", ()):
+        if getattr(param, "param_type_name", "") == "argument":
+            shown = (param.metavar or param.name).upper() + ("..." if param.nargs != 1 else "")
+            piece = shown if param.required or shown.startswith("[") else f"[{shown}]"
+            param.get_usage_pieces = lambda ctx, piece=piece: [piece]
+    for sub in getattr(cmd, "commands", {}).values():
+        _plain_help(sub)
+    return cmd
 
 
 class _LazyGroup(TyperGroup):
@@ -79,7 +99,8 @@ class _LazyGroup(TyperGroup):
     def get_command(self, ctx, name):
         if name in SUBCOMMANDS and name not in self.commands:
             if self._listing:  # the top-level --help needs only the name and the one-line help
-                return TyperCommand(name, help=SUBCOMMANDS[name][2])
+                return TyperCommand(name, help=SUBCOMMANDS[name][2], short_help=SUBCOMMANDS[name][2],
+                                    rich_markup_mode=None)
             self.add_command(load_subcommand(name), name)
         return super().get_command(ctx, name)
 
@@ -131,6 +152,7 @@ app = typer.Typer(
     no_args_is_help=True,
     add_completion=False,
     pretty_exceptions_enable=False,
+    rich_markup_mode=None,  # Click's plain help: see _plain_help
 )
 
 
@@ -170,7 +192,7 @@ def quiet_warnings() -> None:
 def main() -> None:
     """Entry point of the ``simtest`` console script."""
     quiet_warnings()
-    app()
+    app(prog_name="simtest")  # also under `python -m simtest.cli`
 
 
 if __name__ == "__main__":

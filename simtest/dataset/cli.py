@@ -28,8 +28,8 @@ dataset_app = typer.Typer(
 def generate_command(
     config: Path = typer.Argument(..., help="Dataset config (TOML), e.g. scenes/datasets/example.toml."),
     out: Path = typer.Option(..., "--out", "-o", help="Dataset folder (created, or resumed)."),
-    workers: int = typer.Option(None, "--workers", "-j", min=1,
-                                help="Local worker processes (default and most: the number of CPUs)."),
+    workers: int = typer.Option(None, "--workers", "-j", min=0, show_default=False,
+                                help="Local worker processes (0, the default: one per core; at most the number of CPUs)."),
     scheduler: str = typer.Option(None, "--scheduler",
                                   help="Dask scheduler address (tcp://host:8786) to run on instead."),
     progress: bool = typer.Option(True, "--progress/--no-progress", help="Show a progress bar."),
@@ -42,6 +42,7 @@ def generate_command(
     """
 
     cpus = os.cpu_count() or 1
+    workers = workers or None  # 0 and None: one per core
     if workers is not None and workers > cpus and scheduler is None:
         fail(f"--workers {workers}: more than the {cpus} CPUs here (each worker renders with its "
              f"own threads); use at most {cpus}, or --scheduler for a Dask cluster", BAD_INPUT)

@@ -61,7 +61,7 @@ def check_workers(workers: int | None) -> int | None:
     Parameters
     ----------
     workers : int or None
-        ``-j/--workers`` (None: the default, all available cores).
+        ``-j/--workers`` (0 or None, the default: one per core).
 
     Returns
     -------
@@ -184,9 +184,9 @@ def _summary(results: dict, console) -> None:
 def validate_command(
     suite: str = typer.Argument("default", help="Bundled suite name (scenes/suites/<name>.toml) "
                                                 "or a path to a suite TOML file."),
-    workers: Optional[int] = typer.Option(None, "--workers", "-j", min=1,
-                                          help="Worker processes (default: all cores; 1: in "
-                                               "process; at most the machine's CPUs)."),
+    workers: Optional[int] = typer.Option(None, "--workers", "-j", min=0, show_default=False,
+                                          help="Worker processes (0, the default: one per core; "
+                                               "1: in process; at most the machine's CPUs)."),
     seed: Optional[int] = typer.Option(None, "--seed", min=0, help="Root seed (default: the "
                                                                    "suite's)."),
     out: Path = typer.Option(Path("reports"), "--out", "-o",
@@ -218,7 +218,7 @@ def validate_command(
     """
 
     console = Console(stderr=True)
-    check_workers(workers)
+    workers = check_workers(workers) or None  # 0 and None: one per core
     s = load_checked_suite(suite, seed, realisations)
     run_id = safe_name(run_id or make_run_id(), "--run-id")
     folder = out / s.name / run_id
@@ -276,9 +276,9 @@ def nightly_command(
     history: Optional[Path] = typer.Option(None, "--history", help="History file, one JSON "
                                                                    "line per run (default: "
                                                                    "OUT/<suite>/history.jsonl)."),
-    workers: Optional[int] = typer.Option(None, "--workers", "-j", min=1,
-                                          help="Worker processes (default: all cores; 1: in "
-                                               "process; at most the machine's CPUs)."),
+    workers: Optional[int] = typer.Option(None, "--workers", "-j", min=0, show_default=False,
+                                          help="Worker processes (0, the default: one per core; "
+                                               "1: in process; at most the machine's CPUs)."),
     out: Path = typer.Option(Path("reports"), "--out", "-o",
                              help="Reports root folder; the run goes to OUT/<suite>/<run id>/."),
     run_id: Optional[str] = typer.Option(None, "--run-id", help="Run folder name, one plain name "
@@ -309,7 +309,7 @@ def nightly_command(
     console = Console(stderr=True)
     name = suite or ("quick" if quick else "nightly")
     path = baseline or default_baseline_path()
-    check_workers(workers)
+    workers = check_workers(workers) or None  # 0 and None: one per core
     s = load_checked_suite(name, seed)
     run_id = safe_name(run_id or make_run_id(), "--run-id")
     folder = out / s.name / run_id
