@@ -40,6 +40,7 @@ from simtest.render.simreal import (
     sim_to_real_figure,
     sim_to_real_table,
 )
+from simtest.reconstruct.images import quiet_stderr
 from simtest.simulate.truth import HighlightTruthError
 from simtest.resources import data_root, real_banner_path
 from simtest.scene.spec import RENDER_VARIANTS, SceneError, load_scene, scene_to_toml
@@ -136,7 +137,8 @@ def _read_frames(paths: list[Path], option: str) -> list:
             except ValueError as exc:
                 raise _fail(f"{option}: {exc}") from None
         else:
-            img = cv2.imread(str(p), cv2.IMREAD_COLOR)
+            with quiet_stderr():  # libpng's own lines (an iCCP profile, ...): ours names the file
+                img = cv2.imread(str(p), cv2.IMREAD_COLOR)
             if img is None:
                 raise _fail(f"{option}: {p}: not a readable image")
             frames.append(cv2.cvtColor(img, cv2.COLOR_BGR2RGB))
