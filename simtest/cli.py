@@ -10,13 +10,21 @@ once and never import Mitsuba.
 from __future__ import annotations
 
 import importlib
+import os
+import sys
+import warnings
 
 import typer
 from typer.core import TyperCommand, TyperGroup
 
-from simtest._exit import BAD_INPUT, fail
+from simtest._exit import BAD_INPUT, INTERRUPTED, fail, one_line
 from simtest._lazy import MissingBackend
 from simtest._version import __version__
+
+# Click's exceptions, from the Click that Typer uses (its own copy from Typer 0.29, else Click):
+# typer.BadParameter is re-exported from that module in every version.
+_CLICK_EXC = sys.modules[typer.BadParameter.__module__]
+_ABORTS = tuple({typer.Abort, getattr(_CLICK_EXC, "Abort", typer.Abort)})
 
 #: name -> (module, attribute: a command function or a Typer app, one-line help for the listing)
 SUBCOMMANDS: dict[str, tuple[str, str, str]] = {
@@ -54,10 +62,30 @@ def load_subcommand(name: str) -> TyperCommand | TyperGroup:
     if isinstance(obj, typer.Typer):
         group = typer.main.get_group(obj)
         group.name = name
-        return group
+        return _plain_help(group)
     single = typer.Typer(add_completion=False)
     single.command(name)(obj)
-    return typer.main.get_command(single)
+    return _plain_help(typer.main.get_command(single))
+
+
+def _plain_help(cmd):
+    """``cmd`` and its subcommands with Click's plain help, readable at 80 columns.
+
+    Typer's rich panels keep the docstring's line breaks (sentences break mid-line in a narrow
+    terminal), squeeze each option's help into a narrow column and cut defaults; Click's
+    formatter rewraps each paragraph to the terminal's width. Usage lines name arguments as
+    Click does (``IMAGE``, ``[SUITE]``), not Typer's ``{image}``."""
+    cmd.rich_markup_mode = None
+    if cmd.help and not cmd.short_help:  # a listing wraps its first paragraph, never cuts it
+        cmd.short_help = " ".join(cmd.help.split("\n\n")[0].split())
+    for param in getattr(cmd, "params", ()):
+        if getattr(param, "param_type_name", "") == "argument":
+            shown = (param.metavar or param.name).upper() + ("..." if param.nargs != 1 else "")
+            piece = shown if param.required or shown.startswith("[") else f"[{shown}]"
+            param.get_usage_pieces = lambda ctx, piece=piece: [piece]
+    for sub in getattr(cmd, "commands", {}).values():
+        _plain_help(sub)
+    return cmd
 
 
 class _LazyGroup(TyperGroup):
@@ -71,7 +99,8 @@ class _LazyGroup(TyperGroup):
     def get_command(self, ctx, name):
         if name in SUBCOMMANDS and name not in self.commands:
             if self._listing:  # the top-level --help needs only the name and the one-line help
-                return TyperCommand(name, help=SUBCOMMANDS[name][2])
+                return TyperCommand(name, help=SUBCOMMANDS[name][2], short_help=SUBCOMMANDS[name][2],
+                                    rich_markup_mode=None)
             self.add_command(load_subcommand(name), name)
         return super().get_command(ctx, name)
 
@@ -82,6 +111,31 @@ class _LazyGroup(TyperGroup):
             return super().invoke(ctx)
         except MissingBackend as exc:
             fail(exc, BAD_INPUT)
+
+    def main(self, args=None, prog_name=None, complete_var=None, standalone_mode=True, **extra):
+        """Click's ``main`` with every usage error on one line: ``error: <command>: <what>``.
+
+        Click (and Typer's rich box) print a usage line, a hint and a boxed message, 5 to 6
+        lines; here a usage error (unknown flag or command, missing or bad value) prints one
+        line on standard error and exits 2, like every other failure (:mod:`simtest._exit`)."""
+        if not standalone_mode:
+            return super().main(args, prog_name, complete_var, standalone_mode, **extra)
+        try:
+            rv = super().main(args, prog_name, complete_var, False, **extra)
+        except _CLICK_EXC.ClickException as exc:
+            ctx = getattr(exc, "ctx", None)
+            if type(exc).__name__ == "NoArgsIsHelpError":  # its help is already printed
+                sys.exit(exc.exit_code)
+            where = f"{ctx.command_path}: " if ctx is not None else ""
+            hint = f"; see {ctx.command_path} --help" if ctx is not None else ""
+            what = one_line(exc.format_message()).rstrip(".")
+            typer.echo(f"error: {where}{what}{hint}", err=True)
+            sys.exit(BAD_INPUT)
+        except _ABORTS as exc:
+            ctrl_c = isinstance(exc.__cause__, KeyboardInterrupt)
+            typer.echo("error: interrupted" if ctrl_c else "error: aborted", err=True)
+            sys.exit(INTERRUPTED if ctrl_c else 1)
+        sys.exit(rv if isinstance(rv, int) else 0)
 
     def format_help(self, ctx, formatter):
         self._listing = True
@@ -98,6 +152,7 @@ app = typer.Typer(
     no_args_is_help=True,
     add_completion=False,
     pretty_exceptions_enable=False,
+    rich_markup_mode=None,  # Click's plain help: see _plain_help
 )
 
 
@@ -122,9 +177,22 @@ def version_command() -> None:
     typer.echo(__version__)
 
 
+def quiet_warnings() -> None:
+    """Python warnings (NumPy's RuntimeWarnings, a library's DeprecationWarning) are not printed,
+    here and in worker processes, unless asked for with ``-W`` or ``PYTHONWARNINGS``.
+
+    Standard error carries progress and one ``error:`` line per failure; a condition that
+    matters is checked and reported by simtest itself (the pattern of the Python documentation,
+    "Overriding the default filter")."""
+    if not sys.warnoptions and "PYTHONWARNINGS" not in os.environ:
+        warnings.simplefilter("ignore")
+        os.environ["PYTHONWARNINGS"] = "ignore"  # worker processes (spawn) start with it
+
+
 def main() -> None:
     """Entry point of the ``simtest`` console script."""
-    app()
+    quiet_warnings()
+    app(prog_name="simtest")  # also under `python -m simtest.cli`
 
 
 if __name__ == "__main__":

@@ -169,6 +169,10 @@ SPOIL = {
     "NaN value": (lambda m: m[HEAD].update(value=float("nan")), "(NaN)"),
     "NaN tolerance": (lambda m: m[HEAD].update(tolerance=float("nan")), "tolerance NaN"),
     "negative": (lambda m: m[HEAD].update(tolerance=-1.0), "negative tolerance"),
+    # a tolerance of 0 fails on platform rounding alone: it cannot judge (3), it is no regression (1)
+    "zero": (lambda m: m[HEAD].update(tolerance=0.0), "below the floor"),
+    "zero rate": (lambda m: m["family:plane:bp_ray:failure_rate"].update(tolerance=0),
+                  "below the floor"),
     "rate inflated": (lambda m: m["family:plane:bp_ray:failure_rate"].update(tolerance=1.0),
                       "above the ceiling 0.1"),
     "case deleted": (lambda m: m.pop("case:paper_noise@0:cone_axis:median"),

@@ -28,8 +28,8 @@ dataset_app = typer.Typer(
 def generate_command(
     config: Path = typer.Argument(..., help="Dataset config (TOML), e.g. scenes/datasets/example.toml."),
     out: Path = typer.Option(..., "--out", "-o", help="Dataset folder (created, or resumed)."),
-    workers: int = typer.Option(None, "--workers", "-j", min=1,
-                                help="Local worker processes (default and most: the number of CPUs)."),
+    workers: int = typer.Option(None, "--workers", "-j", min=0, show_default=False,
+                                help="Local worker processes (0, the default: one per core; at most the number of CPUs)."),
     scheduler: str = typer.Option(None, "--scheduler",
                                   help="Dask scheduler address (tcp://host:8786) to run on instead."),
     progress: bool = typer.Option(True, "--progress/--no-progress", help="Show a progress bar."),
@@ -42,6 +42,7 @@ def generate_command(
     """
 
     cpus = os.cpu_count() or 1
+    workers = workers or None  # 0 and None: one per core
     if workers is not None and workers > cpus and scheduler is None:
         fail(f"--workers {workers}: more than the {cpus} CPUs here (each worker renders with its "
              f"own threads); use at most {cpus}, or --scheduler for a Dask cluster", BAD_INPUT)
@@ -127,13 +128,16 @@ def show_command(
 ) -> None:
     """Write a contact sheet: image with BP markers and isophotes, normals, masks per sample.
 
-    Writes one PNG, OUT (default DIR/contact_sheet.png). Exit codes: 0 done, 2 bad input.
+    Writes one PNG, OUT (default DIR/contact_sheet.png). Exit codes: 0 done, 2 bad input, 4 OUT cannot be written (disk full, read-only; an earlier sheet is kept).
     """
 
     try:
         path = contact_sheet(root, out, count=count, start=start)
     except (DatasetError, ValueError) as exc:
         fail(exc, BAD_INPUT)
+    except OSError as exc:  # the sheet is written atomically: an earlier one is kept
+        fail(f"--out: cannot write {out or root / 'contact_sheet.png'}: {exc.strerror or exc}",
+             CANNOT_WRITE)
     typer.echo(f"{path}: contact sheet written")
 
 

@@ -186,10 +186,10 @@ def export(root, fmt: str, out=None) -> Path:
     Raises
     ------
     DatasetError
-        Unknown format, incomplete dataset, manifest paths outside the folder, or an output
-        folder that holds something else.
+        Unknown format, incomplete dataset, manifest paths outside the folder.
     DatasetWriteError
-        The export cannot be written (disk full, read-only folder): one line; the temporary
+        A file or a folder of something else in the way of ``out``, or the export cannot be
+        written (disk full, read-only folder): one line; the temporary
         folder is removed and an earlier export at ``out`` is left as it was.
     """
     if fmt not in FORMATS:
@@ -197,7 +197,7 @@ def export(root, fmt: str, out=None) -> Path:
     root = Path(root)
     out = Path(out) if out is not None else root.with_name(f"{root.name}-{fmt}")
     if out.exists() and (not out.is_dir() or (any(out.iterdir()) and not (out / "export.json").is_file())):
-        raise DatasetError(f"{out}: exists and is not a simtest export: refusing to replace it")
+        raise DatasetWriteError(f"{out}: exists and is not a simtest export: refusing to replace it")
     ds = SimtestDataset(root, keys=("sensor_png", *_FIELDS), with_record=True)
     _remove_stale(out)
     tmp = out.with_name(f".{out.name}.{os.getpid()}.tmp")

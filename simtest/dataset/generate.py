@@ -300,7 +300,7 @@ def _prepare(config: DatasetConfig, out: Path) -> set[int]:
     """Check ``out``, write the card, clean partial shards; return the complete shards."""
     card_path = out / CARD_NAME
     if out.exists() and not out.is_dir():
-        raise DatasetError(f"{out}: exists and is not a folder")
+        raise DatasetWriteError(f"{out}: exists and is not a folder")
     if card_path.exists():
         card = read_card(out)
         if card.get("config_fingerprint") != config.fingerprint():
@@ -321,7 +321,7 @@ def _prepare(config: DatasetConfig, out: Path) -> set[int]:
                 f"{out}: the bundled mesh files changed since this dataset was started "
                 f"({card.get('meshes')} != {now}); finish it with the old meshes or use another --out")
     elif out.is_dir() and any(p.name != LOCK_NAME for p in out.iterdir()):
-        raise DatasetError(f"{out}: is not empty and has no {CARD_NAME}: refusing to write into it")
+        raise DatasetWriteError(f"{out}: is not empty and has no {CARD_NAME}: refusing to write into it")
     out.mkdir(parents=True, exist_ok=True)
     if not card_path.exists():  # first: a folder without a card holds nothing else of ours
         write_json(card_path, make_card(config, status="incomplete"))
@@ -654,9 +654,10 @@ def generate(
     DatasetConfigError
         Invalid config (nothing written).
     DatasetError
-        ``out_dir`` holds something else (another config's dataset, unrelated files).
+        ``out_dir`` holds another config's dataset.
     DatasetWriteError
-        The folder cannot be written (disk full, read-only); finished samples are kept.
+        A file or unrelated files in the way of ``out_dir``, or the folder cannot be written
+        (disk full, read-only); finished samples are kept.
     SampleError
         A sample failed; complete shards and the spooled samples are kept and a rerun resumes.
     Interrupted
@@ -678,10 +679,10 @@ def generate(
         raise ValueError(f"workers must be >= 1, got {workers}")
     out = Path(out_dir)
     if out.exists() and not out.is_dir():
-        raise DatasetError(f"{out}: exists and is not a folder")
+        raise DatasetWriteError(f"{out}: exists and is not a folder")
     if (out.is_dir() and not (out / CARD_NAME).exists() and not (out / LOCK_NAME).exists()
             and any(out.iterdir())):
-        raise DatasetError(f"{out}: is not empty and has no {CARD_NAME}: refusing to write into it")
+        raise DatasetWriteError(f"{out}: is not empty and has no {CARD_NAME}: refusing to write into it")
     # Connect to a cluster before writing anything: a wrong address leaves no folder behind.
     dask_ex = _Dask(sample_fn, config, scheduler) if scheduler is not None else None
     try:

@@ -13,6 +13,7 @@ read-only, files this command does not write inside) with exit status 4, before 
 from __future__ import annotations
 
 import json
+import os
 from pathlib import Path
 from typing import Optional
 
@@ -30,7 +31,7 @@ from simtest.geometry.camera_file import load_camera
 from simtest.geometry.response import ResponseError
 from simtest.harness.report.figures import figure_png
 from simtest._exit import BAD_INPUT, fail
-from simtest.reconstruct.cli import check_out_folder, write_out_folder
+from simtest.reconstruct.cli import check_out_folder, check_workers, write_out_folder
 from simtest.reconstruct.io import estimate_to_dict
 from simtest.reconstruct.pipeline import reconstruct
 from simtest.reconstruct.recommend import with_light_aware
@@ -66,6 +67,9 @@ def c3vd_command(
     max_frames: int = typer.Option(0, "--max-frames", help="Evaluate only the first N frames (0: all).", min=0),
     views: int = typer.Option(0, "--views", help="Also write OUT/view_NNNN.png, a 3D view (estimates beside the GT "
                               "surface from depth), for the first N frames with a reconstructed highlight.", min=0),
+    workers: int = typer.Option(0, "--workers", "-j", min=0, show_default=False,
+                                help="Worker processes for each frame's light-aware fits (0, the default: one "
+                                "per core; at most the CPU count)."),
 ) -> None:
     """Reconstruct every frame of SEQ_DIR and score every estimator against the ground truth:
     the normals, and with a light rig in the camera file ("lights") the light-aware fits' depth of
@@ -76,6 +80,7 @@ def c3vd_command(
     OUT/report.html (the report page) and with --views N OUT/view_NNNN.png (a 3D view of frame
     NNNN). Exit status 2: bad input; 4: OUT cannot be written."""
 
+    workers = check_workers(workers) or os.cpu_count() or 1
     target = check_out_folder(out, OUTPUT_FILES)
     try:
         camera_file = load_camera(intrinsics)
@@ -95,7 +100,8 @@ def c3vd_command(
                 ests = reconstruct(img, camera, settings=settings)
                 # the camera file's light rig and sensor response, as reconstruct uses them
                 try:
-                    ests = with_light_aware(img, ests, camera, camera_file.lights, response=camera_file.response)
+                    ests = with_light_aware(img, ests, camera, camera_file.lights, response=camera_file.response,
+                                            workers=workers)
                 except ResponseError as exc:  # a frame the response could not have written: name both
                     raise ResponseError(f"{intrinsics}: {exc} (frame {fr.index})") from None
                 n_cand += len(ests)

@@ -63,7 +63,7 @@ def check_workers(workers: int | None) -> int | None:
     Parameters
     ----------
     workers : int or None
-        ``-j/--workers`` (None: the default, all available cores).
+        ``-j/--workers`` (0 or None, the default: one per core).
 
     Returns
     -------
@@ -162,33 +162,46 @@ def _json_safe(doc):
 
 
 def _summary(results: dict, console) -> None:
+    """The console table: one column per estimator where that fits the console's width, else
+    one row per sweep and estimator (a log file or CI at 80 columns: no name broken mid-word)."""
     ests = results["suite"]["estimators"]
-    t = Table(title=f"{results['suite']['name']}: median error (deg) per setting, lowest to "
-                    "highest over the sweep's settings, as in the report; (worst failure rate)")
-    # fold, never truncate: a number cut to "0.00099..." would be worse than none
-    t.add_column("sweep", overflow="fold")
-    for e in ests:
-        t.add_column(e, justify="right", overflow="fold")
     cases = {c["id"]: c for c in results["cases"]}
+    cells = {}
     for sw in results["sweeps"]:
-        row = [sw["name"]]
         for e in ests:
             ms = [cases[k]["metrics"]["estimators"][e] for k in sw["cases"]]
             meds = [m["median"] for m in ms if m["median"] is not None]
             fr = max(m["failure_rate"] for m in ms)
             cell = "-" if not meds else (f"{_fmt(min(meds))} to {_fmt(max(meds))}"
                                          if len(meds) > 1 else _fmt(meds[0]))
-            row.append(cell + (f" [red]({fr:.0%})[/]" if fr > 0 else ""))
-        t.add_row(*row)
+            cells[sw["name"], e] = cell + (f" [red]({fr:.0%})[/]" if fr > 0 else "")
+    title = (f"{results['suite']['name']}: median error (deg) per setting, lowest to highest over "
+             "the sweep's settings, as in the report; (worst failure rate)")
+    # fold, never truncate: a number cut to "0.00099..." would be worse than none
+    t = Table(title=title)
+    t.add_column("sweep", overflow="fold")
+    for e in ests:
+        t.add_column(e, justify="right", overflow="fold")
+    for sw in results["sweeps"]:
+        t.add_row(sw["name"], *(cells[sw["name"], e] for e in ests))
+    if console.measure(t, options=console.options.update(max_width=10**4)).maximum > console.width:
+        t = Table(title=title)
+        t.add_column("sweep", overflow="fold")
+        t.add_column("estimator", overflow="fold")
+        t.add_column("median error (deg)", justify="right", overflow="fold")
+        for sw in results["sweeps"]:
+            for k, e in enumerate(ests):
+                t.add_row(sw["name"] if k == 0 else "", e, cells[sw["name"], e],
+                          end_section=k == len(ests) - 1)
     console.print(t)
 
 
 def validate_command(
     suite: str = typer.Argument("default", help="Bundled suite name (scenes/suites/<name>.toml) "
                                                 "or a path to a suite TOML file."),
-    workers: Optional[int] = typer.Option(None, "--workers", "-j", min=1,
-                                          help="Worker processes (default: all cores; 1: in "
-                                               "process; at most the machine's CPUs)."),
+    workers: Optional[int] = typer.Option(None, "--workers", "-j", min=0, show_default=False,
+                                          help="Worker processes (0, the default: one per core; "
+                                               "1: in process; at most the machine's CPUs)."),
     seed: Optional[int] = typer.Option(None, "--seed", min=0, help="Root seed (default: the "
                                                                    "suite's)."),
     out: Path = typer.Option(Path("reports"), "--out", "-o",
@@ -226,7 +239,7 @@ def validate_command(
     """
 
     console = Console(stderr=True)
-    check_workers(workers)
+    workers = check_workers(workers) or None  # 0 and None: one per core
     s = load_checked_suite(suite, seed, realisations)
     if estimator:
         try:
@@ -240,11 +253,12 @@ def validate_command(
     run = _run(s, workers=workers, progress=progress, console=console, scheduler=scheduler)
     results = build_results(run, run_id)
     folder = _write(results, folder)
-    _summary(results, console)
+    show = Console(soft_wrap=True)  # results on stdout (progress and errors on stderr)
+    _summary(results, show)
     for k, v in results["provenance"]["realisations_per_s"].items():
-        console.print(f"{k}: {v['realisations']} realisations, {v['per_s']} realisations/s "
-                      f"with {run.workers} worker(s)")
-    console.print(f"wall time {run.wall_s:.1f} s; report: {folder / 'report.html'}")
+        show.print(f"{k}: {v['realisations']} realisations, {v['per_s']} realisations/s "
+                   f"with {run.workers} worker(s)")
+    show.print(f"wall time {run.wall_s:.1f} s; report: {folder / 'report.html'}")
 
 
 def _baseline_section(path: Path, s, quick: bool):
@@ -288,9 +302,9 @@ def nightly_command(
     history: Optional[Path] = typer.Option(None, "--history", help="History file, one JSON "
                                                                    "line per run (default: "
                                                                    "OUT/<suite>/history.jsonl)."),
-    workers: Optional[int] = typer.Option(None, "--workers", "-j", min=1,
-                                          help="Worker processes (default: all cores; 1: in "
-                                               "process; at most the machine's CPUs)."),
+    workers: Optional[int] = typer.Option(None, "--workers", "-j", min=0, show_default=False,
+                                          help="Worker processes (0, the default: one per core; "
+                                               "1: in process; at most the machine's CPUs)."),
     out: Path = typer.Option(Path("reports"), "--out", "-o",
                              help="Reports root folder; the run goes to OUT/<suite>/<run id>/."),
     run_id: Optional[str] = typer.Option(None, "--run-id", help="Run folder name, one plain name "
@@ -322,7 +336,7 @@ def nightly_command(
     console = Console(stderr=True)
     name = suite or ("quick" if quick else "nightly")
     path = baseline or default_baseline_path()
-    check_workers(workers)
+    workers = check_workers(workers) or None  # 0 and None: one per core
     s = load_checked_suite(name, seed)
     run_id = safe_name(run_id or make_run_id(), "--run-id")
     folder = out / s.name / run_id
@@ -355,10 +369,11 @@ def nightly_command(
         weak = undetectable_doublings(sec)
         noisy = noisy_headlines(sec)
         _write(results, folder)
-        console.print(f"report: {folder / 'report.html'}")
-        console.print(f"baseline for suite {s.name} written to {path} ({len(sec['metrics'])} "
-                      f"metrics from seeds {sec['seeds']}; {len(weak)} could double unnoticed: "
-                      "too noisy at this many realisations)")
+        show = Console(soft_wrap=True)  # results on stdout
+        show.print(f"report: {folder / 'report.html'}")
+        show.print(f"baseline for suite {s.name} written to {path} ({len(sec['metrics'])} "
+                   f"metrics from seeds {sec['seeds']}; {len(weak)} could double unnoticed: "
+                   "too noisy at this many realisations)")
         if noisy:
             console.print(f"[yellow]warning: {len(noisy)} headline metric(s) have seed noise "
                           f"(k_spread spreads) above their {CAPS['headline_deg']} deg cap and "
@@ -387,11 +402,12 @@ def nightly_command(
     _write(results, folder, history=read_history(hist_path),
            nightly={"verdict": "pass" if passed else "FAIL", "baseline": str(path),
                     "summary": summary, "problems": lines})
-    console.print(changes_table(changes, f"{s.name} vs baseline {path.name}", show_all))
-    console.print(summary)
-    console.print(f"report: {folder / 'report.html'}; history: {hist_path}")
+    show = Console(soft_wrap=True)  # results on stdout (progress and errors on stderr)
+    show.print(changes_table(changes, f"{s.name} vs baseline {path.name}", show_all))
+    show.print(summary)
+    show.print(f"report: {folder / 'report.html'}; history: {hist_path}")
     if not passed:
         for ln in lines:
             typer.echo(ln, err=True)
         raise typer.Exit(CHECK_FAILED)
-    console.print("[green]no regression[/]")
+    show.print("[green]no regression[/]")

@@ -179,6 +179,7 @@ def crb_command(
         _write_set(out, rows, seed, realisations)
     except OSError as e:
         fail(f"--out: cannot write {out}: {e.strerror or e}", CANNOT_WRITE)
+    console = Console(soft_wrap=True)  # the results on stdout; progress was on stderr
     for r in rows:
         console.print(f"eps/d {r['eps_over_d']:.2f} sigma {100 * r['sigma']:.1f} %: normal "
                       f"{r['rms_normal_deg']:.3g} deg (bound {r['crb_normal_deg']:.3g}), depth "

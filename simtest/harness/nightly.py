@@ -43,7 +43,7 @@ catch a doubling.
 A baseline must cover the run. :func:`check_section` refuses (exit 3 in ``simtest nightly``) a
 baseline entry whose value is NaN, infinite or non-numeric, a null median where the estimator did
 succeed (its failure rate below 1), a null rate, and a tolerance that is missing, negative,
-non-finite or above its class's cap; :func:`uncovered` names the run's metrics that the baseline
+non-finite, below its unit's absolute floor (0 included) or above its class's cap; :func:`uncovered` names the run's metrics that the baseline
 lacks. A gate that cannot judge a metric is no pass.
 
 Bad numbers in the run are never silently compared: a NaN, infinite, non-numeric or missing
@@ -295,8 +295,9 @@ def check_section(section: dict, where: str) -> str | None:
         table; an entry without a ``value``; a NaN, infinite or non-numeric value; a null value
         other than the median of an estimator whose failure rate there is 1 (it never succeeded:
         nothing to compare); a tolerance that is missing, non-numeric, NaN, infinite, negative,
-        or above the cap of its class (:data:`CAPS`, :func:`metric_class`): a tolerance no
-        regression can exceed is no gate.
+        below the absolute floor of its unit (:data:`POLICY`, the least the writer gives: a
+        tolerance of 0 fails on platform rounding), or above the cap of its class (:data:`CAPS`,
+        :func:`metric_class`): a tolerance no regression can exceed is no gate.
     """
     metrics = section.get("metrics") if isinstance(section, dict) else None
     if not isinstance(metrics, dict) or not metrics:
@@ -320,6 +321,9 @@ def check_section(section: dict, where: str) -> str | None:
                 why = f"tolerance {_bad(t)}"
             elif t < 0:
                 why = f"negative tolerance {t:g}"
+            elif t < POLICY["abs_floor"][_unit(name)] * (1 - 1e-9):
+                why = (f"tolerance {t:g} below the floor {POLICY['abs_floor'][_unit(name)]:g} "
+                       "(platform rounding alone would fail it)")
             elif t > cap * (1 + 1e-9):
                 why = f"tolerance {t:g} above the ceiling {cap:g} of its class {metric_class(name)}"
         if why:
@@ -663,8 +667,9 @@ def changes_table(changes: list[Change], title: str, show_all: bool = False):
     """
     t = Table(title=title, show_lines=False)
     for col in ("verdict", "metric", "baseline", "now", "delta", "tolerance"):
+        # at 80 columns only the metric's name folds: headers and numbers stay whole
         t.add_column(col, justify="right" if col in ("baseline", "now", "delta", "tolerance")
-                     else "left", overflow="fold")
+                     else "left", overflow="fold", no_wrap=col != "metric")
     style = {"regression": "bold red", "missing": "bold red", "invalid": "bold red",
              "improved": "green", "new": "cyan", "ok": "dim"}
     for c in changes:

@@ -622,7 +622,7 @@ def load_suite(name_or_path: str | Path) -> Suite:
     try:
         raw = tomllib.loads(data.decode("utf-8"))
     except (tomllib.TOMLDecodeError, UnicodeDecodeError) as e:
-        raise _err(str(path), "<file>", f"not valid TOML: {e}") from None
+        raise SuiteError(f"{path}: not valid TOML: {e}") from None
     return suite_from_dict(raw, source=str(path), sha256=hashlib.sha256(data).hexdigest())
 
 

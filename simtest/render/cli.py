@@ -3,8 +3,9 @@
 
 Mitsuba loads only when a render starts (:func:`simtest._lazy.require`). Errors are one line on stderr,
 ``error: <file>: <key>: <reason>``, never a traceback: exit code 2 for bad input (scene file,
-option), 4 when the output folder cannot be written (a file in the way, read-only, files that are
-not a render's inside; checked before rendering), 1 when Mitsuba cannot run here.
+option, or Mitsuba cannot run here: the line says why), 4 when the output folder cannot be
+written (a file in the way, read-only, files that are not a render's inside; checked before
+rendering).
 """
 
 from __future__ import annotations
@@ -19,7 +20,7 @@ import typer
 from PIL import Image
 from rich.console import Console
 
-from simtest._exit import CANNOT_WRITE, writable_dir
+from simtest._exit import BAD_INPUT, CANNOT_WRITE, writable_dir
 from simtest._io import atomic_write_set
 from simtest.constants import MAX_SEED
 from simtest.render.render import (
@@ -39,6 +40,7 @@ from simtest.render.simreal import (
     sim_to_real_figure,
     sim_to_real_table,
 )
+from simtest.reconstruct.images import quiet_stderr
 from simtest.simulate.truth import HighlightTruthError
 from simtest.resources import data_root, real_banner_path
 from simtest.scene.spec import RENDER_VARIANTS, SceneError, load_scene, scene_to_toml
@@ -72,7 +74,7 @@ def render_command(
     OUT/ground_truth.npz (per-pixel normals, depth, distance, position, mask, the linear and
     specular images) and
     OUT/highlights.json (each highlight's brightest point, normal and curvatures). Exit status 2:
-    bad input; 4: OUT cannot be written; 1: Mitsuba cannot run here."""
+    bad input, or Mitsuba cannot run here; 4: OUT cannot be written."""
     if variant is not None and variant not in RENDER_VARIANTS:
         raise _fail(f"--variant: {variant!r} is not one of {', '.join(RENDER_VARIANTS)}")
     writable_dir(out, "--out")
@@ -89,7 +91,7 @@ def render_command(
         with console.status(f"rendering {spec.name} ..."):
             result = render_scene(spec, seed=seed, variant=variant)
     except RendererUnavailable as exc:
-        raise _fail(str(exc), code=1) from None
+        raise _fail(str(exc), BAD_INPUT) from None  # Mitsuba cannot run here
     except HighlightTruthError as exc:
         raise _fail(f"{spec.source or scene}: geometry: {exc}") from None
     except RenderInputError as exc:
@@ -101,6 +103,7 @@ def render_command(
     except OSError as exc:
         raise _fail(f"--out: cannot write the render to {out}: {exc.strerror or exc}", CANNOT_WRITE) from None
     H, W = result.linear.shape
+    console = Console(soft_wrap=True)  # the results on stdout; progress was on stderr
     console.print(f"{spec.name}: {W} x {H} px, {spec.render.spp} spp, seed {result.seed}, "
                   f"variant {result.variant}, {len(result.highlights)} highlight(s)", highlight=False)
     for h in result.highlights:
@@ -134,7 +137,8 @@ def _read_frames(paths: list[Path], option: str) -> list:
             except ValueError as exc:
                 raise _fail(f"{option}: {exc}") from None
         else:
-            img = cv2.imread(str(p), cv2.IMREAD_COLOR)
+            with quiet_stderr():  # libpng's own lines (an iCCP profile, ...): ours names the file
+                img = cv2.imread(str(p), cv2.IMREAD_COLOR)
             if img is None:
                 raise _fail(f"{option}: {p}: not a readable image")
             frames.append(cv2.cvtColor(img, cv2.COLOR_BGR2RGB))
@@ -188,7 +192,7 @@ def simreal_command(
     for the colonoscope on 2 cores), and OUT/fitted.toml (the fitted scene),
     OUT/frames.png (before and after beside real frames) are written too, with simreal.json and
     simreal.md holding every statistic before and after on the fitted and the held-out frames.
-    Exit status 2: bad input; 4: OUT cannot be written; 1: Mitsuba cannot run here."""
+    Exit status 2: bad input, or Mitsuba cannot run here; 4: OUT cannot be written."""
     if scene_arg is not None and scene_opt is not None and scene_arg != scene_opt:
         raise _fail(f"--scene: {scene_opt!r} and SCENE {scene_arg!r} disagree (give one)")
     scene = scene_opt or scene_arg or "colonoscope"
@@ -211,7 +215,7 @@ def simreal_command(
     except RenderInputError as exc:
         raise _fail(str(exc)) from None
     except RendererUnavailable as exc:
-        raise _fail(str(exc), code=1) from None
+        raise _fail(str(exc), BAD_INPUT) from None  # Mitsuba cannot run here
     frame = result.frame
     paths = real or [real_banner_path()]
     rows = sim_to_real_table(frame, frames)
@@ -242,7 +246,7 @@ def _simreal_fit(spec, frames: list, paths: list[Path], out: Path, renders: int,
     except RenderInputError as exc:
         raise _fail(str(exc)) from None
     except RendererUnavailable as exc:
-        raise _fail(str(exc), code=1) from None
+        raise _fail(str(exc), BAD_INPUT) from None  # Mitsuba cannot run here
     tables = {}
     for name, fr in (("fitted", fit_frames), ("held_out", held)):
         if fr:

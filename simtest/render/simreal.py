@@ -239,7 +239,10 @@ def banner_frames(path: str | Path, tile_px: int = 280) -> list[np.ndarray]:
     ValueError
         If the file cannot be read as an image.
     """
-    img = cv2.imread(str(path), cv2.IMREAD_COLOR)
+    from simtest.reconstruct.images import quiet_stderr
+
+    with quiet_stderr():  # the decoder's own lines (libpng, libjpeg): the error names the file
+        img = cv2.imread(str(path), cv2.IMREAD_COLOR)
     if img is None:
         raise ValueError(f"{path}: not a readable image")
     img = cv2.cvtColor(img, cv2.COLOR_BGR2RGB)

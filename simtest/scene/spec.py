@@ -901,10 +901,10 @@ def load_scene(path: str | Path) -> SceneSpec:
         try:
             p = bundled_scene_path(str(path))
         except KeyError as exc:
-            raise SceneError(f"{path}: <file>: no such file and no bundled scene of that name "
+            raise SceneError(f"{path}: no such file and no bundled scene of that name "
                              f"({exc.args[0]})") from None
     if not p.is_file():
-        raise SceneError(f"{p}: <file>: no such file")
+        raise SceneError(f"{p}: no such file")
     try:
         with open(p, "rb") as fh:
             data = tomllib.load(fh)
