@@ -19,17 +19,17 @@ from simtest.scene.meshes import MeshError, build_mesh, save_mesh
 
 meshes_app = typer.Typer(
     name="meshes",
-    help="Procedural meshes (colon, liver, liver_abdomen) with ground-truth normals and curvatures.",
+    help="Procedural meshes (colon, colon_haustral, liver, liver_abdomen) with ground-truth normals and curvatures.",
     no_args_is_help=True,
     add_completion=False,
 )
 
-_NAMES = ("colon", "liver", "liver_abdomen")
+_NAMES = ("colon", "colon_haustral", "liver", "liver_abdomen")
 
 
 @meshes_app.callback()
 def meshes_callback() -> None:
-    """Procedural meshes (colon, liver, liver_abdomen) with ground-truth normals and curvatures."""
+    """Procedural meshes (colon, colon_haustral, liver, liver_abdomen) with ground-truth normals and curvatures."""
 
 
 def _parse_overrides(items: list[str]) -> dict[str, dict[str, float]]:
@@ -53,12 +53,13 @@ def _parse_overrides(items: list[str]) -> dict[str, dict[str, float]]:
 
 @meshes_app.command("build")
 def build_command(
-    out: Annotated[Path, typer.Option("--out", "-o", help="Output folder: colon.ply, colon.json, liver.ply, "
-                                      "liver.json, liver_abdomen.ply, liver_abdomen.json (those of --only).")]
+    out: Annotated[Path, typer.Option("--out", "-o", help="Output folder: colon.ply, colon.json, colon_haustral.ply, "
+                                      "colon_haustral.json, liver.ply, liver.json, liver_abdomen.ply, liver_abdomen.json (those of --only).")]
     = Path("meshes"),
     seed: Annotated[int, typer.Option("--seed", min=0, help="Root seed of the generators.")] = 0,
     only: Annotated[
-        list[str] | None, typer.Option("--only", help="Build only this mesh (colon, liver or liver_abdomen); "
+        list[str] | None, typer.Option("--only", help="Build only this mesh (colon, colon_haustral, liver or "
+                                         "liver_abdomen); "
                                          "repeatable.")
     ] = None,
     set_: Annotated[
@@ -69,10 +70,11 @@ def build_command(
     """Build the procedural meshes with their ground truth.
 
     Writes, in the folder OUT (default meshes/ under the current folder; other files there are
-    kept): OUT/colon.ply, OUT/liver.ply and OUT/liver_abdomen.ply (the liver with the wall behind
-    it that scenes/laparoscope_liver.toml renders; the meshes with per-vertex normals and principal
-    curvatures k1, k2) and OUT/colon.json, OUT/liver.json and OUT/liver_abdomen.json (the
-    generator's parameters and seed); with --only, those of the meshes named. Exit status 2: bad
+    kept): OUT/colon.ply, OUT/colon_haustral.ply (the colon with semilunar folds, taeniae and
+    haustra that scenes/colonoscope_haustral*.toml render), OUT/liver.ply and
+    OUT/liver_abdomen.ply (the liver with the wall behind it that scenes/laparoscope_liver.toml
+    renders; the meshes with per-vertex normals and principal curvatures k1, k2) and a .json
+    beside each (the generator's parameters and seed); with --only, those of the meshes named. Exit status 2: bad
     option; 4: OUT cannot be written."""
 
     names = list(only) if only else list(_NAMES)

@@ -11,6 +11,10 @@ Two seeded generators build the anatomical surfaces the renderer places in its s
 - :func:`build_colon`: a tube of radius about 25 mm along a smooth, gently three-dimensional centre
   line, with haustral folds (ridges that narrow the lumen) of adjustable depth, spacing and
   sharpness, and three taeniae. Normals face the lumen. Open at both ends.
+- :func:`build_haustral_colon`: the colon as CT colonography measures it, with thin semilunar
+  folds pinched at three taeniae, haustra bulging between them, a varying diameter and a centre
+  line with a rotation-minimising frame; curvatures exact by automatic differentiation
+  (:mod:`~simtest.scene.meshes.haustral`, its sources in :class:`HaustralParams`).
 - :func:`build_liver`: a smooth, lobed, closed (watertight) surface about 180 mm across: an
   ellipsoid deformed radially by the exponential of a seeded polynomial of the direction (a
   spherical-harmonic-like expansion up to degree 4) with a deterministic wedge (a thick and a
@@ -97,19 +101,29 @@ from simtest.scene.meshes.curvature import (
     principal_curvatures,
 )
 from simtest.scene.meshes.files import load_mesh, save_mesh
+from simtest.scene.meshes.haustral import build_haustral_colon, haustral_pose
 from simtest.scene.meshes.liver import build_liver
-from simtest.scene.meshes.params import DEFAULT_SEED, ColonParams, LiverParams, MeshError
+from simtest.scene.meshes.params import (
+    DEFAULT_SEED,
+    ColonParams,
+    HaustralParams,
+    LiverParams,
+    MeshError,
+)
 
 __all__ = [
     "DEFAULT_SEED",
     "FD_STEP_MM",
     "ColonParams",
+    "HaustralParams",
     "LiverParams",
     "MeshError",
     "build_colon",
+    "build_haustral_colon",
     "build_liver",
     "build_mesh",
     "colon_centerline",
+    "haustral_pose",
     "implicit_curvature",
     "load_mesh",
     "parametric_curvature",
@@ -119,19 +133,21 @@ __all__ = [
 
 
 def build_mesh(name: str, seed: int, **params: Any) -> trimesh.Trimesh:
-    """Build ``"colon"``, ``"liver"`` or ``"liver_abdomen"`` (dispatch to :func:`build_colon`,
-    :func:`build_liver`, :func:`~simtest.scene.meshes.abdomen.build_liver_in_abdomen`).
+    """Build ``"colon"``, ``"colon_haustral"``, ``"liver"`` or ``"liver_abdomen"`` (dispatch to
+    :func:`build_colon`, :func:`build_haustral_colon`, :func:`build_liver`,
+    :func:`~simtest.scene.meshes.abdomen.build_liver_in_abdomen`).
 
     Parameters
     ----------
-    name : {"colon", "liver", "liver_abdomen"}
+    name : {"colon", "colon_haustral", "liver", "liver_abdomen"}
         The generator. ``"liver_abdomen"`` is the liver with the wall behind it of
         meshes/liver_abdomen.ply (the laparoscope scene's): its wall's axis defaults to
         :data:`~simtest.scene.meshes.abdomen.LAPAROSCOPE_WALL_AXIS`.
     seed : int
         Root seed (>= 0; 0 is valid).
     **params
-        Fields of :class:`ColonParams` or :class:`LiverParams` (lengths in mm); for
+        Fields of :class:`ColonParams`, :class:`HaustralParams` or :class:`LiverParams` (lengths
+        in mm); for
         ``"liver_abdomen"`` also the wall's keywords of ``build_liver_in_abdomen``.
 
     Returns
@@ -148,7 +164,8 @@ def build_mesh(name: str, seed: int, **params: Any) -> trimesh.Trimesh:
     def liver_abdomen(seed: int, **p: Any) -> trimesh.Trimesh:
         return build_liver_in_abdomen(seed, **{"wall_axis": LAPAROSCOPE_WALL_AXIS, **p})
 
-    builders = {"colon": build_colon, "liver": build_liver, "liver_abdomen": liver_abdomen}
+    builders = {"colon": build_colon, "colon_haustral": build_haustral_colon, "liver": build_liver,
+                "liver_abdomen": liver_abdomen}
     if name not in builders:
         raise MeshError(f"build_mesh: name: unknown mesh {name!r}; known: {sorted(builders)}")
     return builders[name](seed, **params)

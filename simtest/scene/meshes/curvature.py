@@ -77,6 +77,30 @@ def parametric_curvature(
     xuv = sum(wi * wj * surface(u + i * h_u, v + j * h_v) for i, wi in _D1 for j, wj in _D1) / (
         h_u * h_v
     )
+    n, k1, k2 = curvature_from_derivatives(xu, xv, xuu, xuv, xvv)
+    return x0, n, k1, k2
+
+
+def curvature_from_derivatives(
+    xu: np.ndarray, xv: np.ndarray, xuu: np.ndarray, xuv: np.ndarray, xvv: np.ndarray
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Unit normal and principal curvatures from a parametrisation's first and second derivatives.
+
+    Parameters
+    ----------
+    xu, xv, xuu, xuv, xvv : ndarray of shape S + (3,)
+        ``X_u, X_v, X_uu, X_uv, X_vv`` of a surface X(u, v).
+
+    Returns
+    -------
+    normal : ndarray of shape S + (3,)
+        ``X_u x X_v / |X_u x X_v|``.
+    k1, k2 : ndarray of shape S
+        Principal curvatures (k1 >= k2), positive where the surface bends away from ``normal``:
+        ``E, F, G = X_u.X_u, X_u.X_v, X_v.X_v``; ``L, M, N = -X_uu.n, -X_uv.n, -X_vv.n``;
+        ``K = (LN - M^2) / (EG - F^2)``, ``H = (EN - 2FM + GL) / (2 (EG - F^2))`` (do Carmo,
+        Differential Geometry of Curves and Surfaces, 1976, sec. 3-3).
+    """
     n = np.cross(xu, xv)
     n /= np.linalg.norm(n, axis=-1, keepdims=True)
     e = np.einsum("...i,...i", xu, xu)
@@ -89,7 +113,7 @@ def parametric_curvature(
     gauss = (ll * nn - mm * mm) / det
     mean = (e * nn - 2.0 * f * mm + g * ll) / (2.0 * det)
     k1, k2 = _principal_from_h_k(mean, gauss)
-    return x0, n, k1, k2
+    return n, k1, k2
 
 
 def implicit_curvature(

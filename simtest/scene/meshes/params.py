@@ -15,7 +15,7 @@ import numpy as np
 DEFAULT_SEED = 0
 
 #: Stable integer keys mixed with the root seed (np.random.SeedSequence([seed, key])).
-_SEED_KEYS = {"colon": 1001, "liver": 1002}
+_SEED_KEYS = {"colon": 1001, "liver": 1002, "colon_haustral": 1003}
 
 
 class MeshError(ValueError):
@@ -246,3 +246,157 @@ def _check_seed(seed: Any, where: str) -> int:
 
 def _rng(seed: int, name: str) -> np.random.Generator:
     return np.random.default_rng(np.random.SeedSequence([seed, _SEED_KEYS[name]]))
+
+
+@dataclasses.dataclass(frozen=True)
+class HaustralParams:
+    """Parameters of :func:`~simtest.scene.meshes.haustral.build_haustral_colon` (lengths in mm).
+
+    Defaults are those of a distended transverse-to-descending colon as CT colonography measures
+    it (approximate values; the sources are named per attribute and in
+    :mod:`~simtest.scene.meshes.haustral`):
+
+    - lumen diameter: the caecum usually under 9 cm, the transverse colon under 6 cm, the
+      descending and sigmoid colon slightly narrower (commonly quoted radiology values, e.g.
+      https://www.seekhealthz.com/health/normal-cross-sectional-imaging-appearance-of-the-colon/;
+      not checked against a primary study);
+    - haustral fold height: 14.6 +- 5.5 mm ascending, 9.5 +- 3.7 mm transverse, 6.5 +- 3.1 mm
+      descending, 2079 folds in 50 CT colonographies (A. C. Thompson et al., "Taller haustral
+      folds in the proximal colon", Journal of Colon and Rectal Cancer, 2016);
+    - taeniae coli: three bands about 1 cm wide, seen as slight longitudinal indentations,
+      semilunar folds crescent-shaped and "thin, delicate" between them, distended wall under
+      2 to 3 mm ("Normal anatomy of the colon and rectum", Thieme, doi:10.1055/b-0034-91855,
+      https://abdominalkey.com/normal-anatomy-of-the-colon-and-rectum/);
+    - fold spacing about 2 to 3 cm and fold thickness 3 to 5 mm: estimates from endoscopic and CT
+      images (two to three wall thicknesses for a fold), not measured statistics.
+
+    Attributes
+    ----------
+    length_mm : float
+        Range of the fold coordinate v (about the centre line's length; its parameter is z).
+    diameter_mm : float
+        Lumen diameter between folds, away from the taeniae, before the haustral bulge
+        (5 cm: the transverse colon's upper half of < 6 cm).
+    diameter_variation : float
+        Relative amplitude of the slow, seeded sinusoidal change of the diameter along the colon.
+    diameter_wavelength_mm : float
+        Wavelength of that change.
+    bend_mm, bend_wavelength_mm, bend_3d : float
+        Centre line ``(A (sin(w u + px) - sin px), A bend_3d (sin(0.7 w u + py) - sin py), u)``
+        with ``A = bend_mm``, ``w = 2 pi / bend_wavelength_mm``, seeded phases.
+    fold_spacing_mm : float
+        Mean distance between neighbouring folds along the centre line (about 2 to 3 cm).
+    fold_jitter : float
+        Relative variation of the local fold spacing, in [0, 0.5] (seeded phase).
+    fold_height_mm : float
+        Mean height of a fold crest above the wall midway between taeniae (8 mm: between the
+        transverse 9.5 and descending 6.5 mm of Thompson et al. 2016).
+    fold_height_variation : float
+        Relative amplitude of the slow, seeded change of the height from fold to fold.
+    fold_thickness_mm : float
+        Full width of a fold at half its height, along the centre line (at most that of a
+        Gaussian crest with ``fold_crest_radius_mm``; a wider request gets that width).
+    fold_crest_radius_mm : float
+        Radius of curvature of a fold's profile at its crest, along the centre line, for a fold
+        of the mean height: the sharpness (smaller is sharper).
+    fold_crescent_mm : float
+        How far a fold's crest bows along the centre line between two taeniae (the crescent).
+    fold_stagger_mm : float
+        Amplitude of the offset of the folds around the circumference, ``stagger sin(theta)``:
+        the three sectors' folds do not line up.
+    taenia_width_mm : float
+        Full width at half depth of each of the three taeniae (about 1 cm).
+    taenia_indent_mm : float
+        Inward pull of the wall on a taenia.
+    taenia_fold_relief : float
+        Fraction of the fold height lost on a taenia, in [0, 1] (folds are interrupted there).
+    haustra_bulge_mm : float
+        Outward bulge of the wall midway between folds and between taeniae (the haustra).
+    n_around : int
+        Vertices per ring.
+    n_along : int
+        Number of rings.
+    ring_curvature_weight_mm : float
+        Rings are equally spaced in wall length + this * turning angle of the wall profile, so
+        fold crests get denser rings.
+    """
+
+    length_mm: float = 160.0
+    diameter_mm: float = 50.0
+    diameter_variation: float = 0.08
+    diameter_wavelength_mm: float = 150.0
+    bend_mm: float = 20.0
+    bend_wavelength_mm: float = 300.0
+    bend_3d: float = 0.6
+    fold_spacing_mm: float = 25.0
+    fold_jitter: float = 0.15
+    fold_height_mm: float = 8.0
+    fold_height_variation: float = 0.25
+    fold_thickness_mm: float = 4.0
+    fold_crest_radius_mm: float = 1.5
+    fold_crescent_mm: float = 3.0
+    fold_stagger_mm: float = 4.0
+    taenia_width_mm: float = 10.0
+    taenia_indent_mm: float = 2.0
+    taenia_fold_relief: float = 0.85
+    haustra_bulge_mm: float = 3.0
+    n_around: int = 160
+    n_along: int = 400
+    ring_curvature_weight_mm: float = 6.0
+
+    def validate(self) -> None:
+        """Check every field against its range and the lumen against closing or folding.
+
+        Raises
+        ------
+        MeshError
+            Naming the parameter that is out of range and its value.
+        """
+        _check_params(
+            self,
+            {
+                "length_mm": (0.0, None, False),
+                "diameter_mm": (0.0, None, False),
+                "diameter_variation": (0.0, 0.5, True),
+                "diameter_wavelength_mm": (0.0, None, False),
+                "bend_mm": (0.0, None, True),
+                "bend_wavelength_mm": (0.0, None, False),
+                "bend_3d": (0.0, 2.0, True),
+                "fold_spacing_mm": (0.0, None, False),
+                "fold_jitter": (0.0, 0.5, True),
+                "fold_height_mm": (0.0, None, True),
+                "fold_height_variation": (0.0, 0.9, True),
+                "fold_thickness_mm": (0.0, None, False),
+                "fold_crest_radius_mm": (0.0, None, False),
+                "fold_crescent_mm": (0.0, None, True),
+                "fold_stagger_mm": (0.0, None, True),
+                "taenia_width_mm": (0.0, None, False),
+                "taenia_indent_mm": (0.0, None, True),
+                "taenia_fold_relief": (0.0, 1.0, True),
+                "haustra_bulge_mm": (0.0, None, True),
+                "n_around": (8, 4096, True),
+                "n_along": (4, 100000, True),
+                "ring_curvature_weight_mm": (0.0, None, True),
+            },
+        )
+        r0 = 0.5 * self.diameter_mm
+        r_min = (r0 * (1.0 - self.diameter_variation) - self.taenia_indent_mm
+                 - self.fold_height_mm * (1.0 + self.fold_height_variation))
+        if r_min <= 0.25 * r0:
+            raise MeshError(
+                f"HaustralParams: fold_height_mm: {self.fold_height_mm!r} closes the lumen (smallest "
+                f"wall distance {r_min:.3g} mm with diameter_mm={self.diameter_mm!r}); keep the wall "
+                f"at least a quarter of the radius from the centre line")
+        if self.fold_crescent_mm + self.fold_stagger_mm >= 0.4 * self.fold_spacing_mm:
+            raise MeshError(
+                f"HaustralParams: fold_crescent_mm + fold_stagger_mm = "
+                f"{self.fold_crescent_mm + self.fold_stagger_mm!r} must stay below 0.4 fold_spacing_mm "
+                f"({0.4 * self.fold_spacing_mm:.3g}): neighbouring folds would overlap")
+        w = 2.0 * math.pi / self.bend_wavelength_mm
+        kappa_max = self.bend_mm * w * w * (1.0 + self.bend_3d * 0.49)
+        r_max = r0 * (1.0 + self.diameter_variation) + self.haustra_bulge_mm
+        if kappa_max * r_max >= 0.8:
+            raise MeshError(
+                f"HaustralParams: bend_mm: the centre line bends too sharply for the tube (curvature "
+                f"up to {kappa_max:.3g} /mm times radius {r_max:.3g} mm >= 0.8 would fold the wall); "
+                f"lower bend_mm or raise bend_wavelength_mm")
