@@ -189,3 +189,31 @@ def test_a_float16_array_is_read(tmp_path):
     np.save(npy, _frame()[..., ::-1].astype(np.float16))
     res = _run(tmp_path, npy)
     assert res.returncode == 0, res.stderr[-2000:]
+
+
+# --- malformed detection labels --------------------------------------------------------------
+
+
+def _good_row():
+    return {"u": 20.0, "v": 21.0, "u_peak": 20, "v_peak": 21, "area_px": 6, "kind": "isolated"}
+
+
+@pytest.mark.parametrize("tiles, where", [
+    ([_good_row()], "key 'tiles'"),
+    ({"r0c0": {"u": 1}}, "tiles.r0c0"),
+    ({"r0c0": ["row"]}, "tiles.r0c0[0]"),
+    ({"x1": [_good_row()]}, "tile id 'x1'"),
+    ({"r5c0": [_good_row()]}, "tiles.r5c0"),
+    ({"r0c0": [_good_row() | {"area_px": 1e9}]}, "tiles.r0c0[0].area_px: 1000000000.0"),
+    ({"r0c0": [_good_row() | {"u_peak": 5000}]}, "tiles.r0c0[0].u_peak: 5000"),
+    ({"r0c0": [_good_row() | {"v_peak": "12"}]}, "tiles.r0c0[0].v_peak"),
+    ({"r0c0": [{k: v for k, v in _good_row().items() if k != "area_px"}]}, "tiles.r0c0[0].area_px"),
+])
+def test_malformed_or_impossible_detection_labels_are_one_line(tmp_path, tiles, where):
+    cv2.imwrite(str(tmp_path / "frame.png"), cv2.resize(_frame(), (64, 64)))
+    labels = tmp_path / "labels.json"
+    labels.write_text(json.dumps({"header": {"image": "frame.png", "tile_px": 64}, "tiles": tiles}))
+    env = dict(os.environ, PYTHONPATH=str(Path(__file__).resolve().parents[1]))
+    res = subprocess.run([*SIMTEST, "evaluate", "detection", str(labels), "-o", str(tmp_path / "out")],
+                         capture_output=True, text=True, env=env, timeout=600)
+    _refused(res, "labels.json", where)
