@@ -313,8 +313,9 @@ def labelled_real_frames(path, *, focal_px: float = 140.0) -> list[LabelledFrame
     Raises
     ------
     ValueError
-        A missing or unreadable file, key or image, or a kind not in :data:`KINDS`, in one line
-        naming the file and the key.
+        A missing or unreadable file, key or image, a tile outside the image, or a label row
+        with a kind not in :data:`KINDS`, a coordinate outside its tile or an area outside 1 px
+        to the tile's, in one line naming the file, the row and the key.
     """
     path = Path(path)
     try:
@@ -332,19 +333,49 @@ def labelled_real_frames(path, *, focal_px: float = 140.0) -> list[LabelledFrame
     f = float(focal_px)
     K = [[f, 0.0, side / 2 - 0.5], [0.0, f, side / 2 - 0.5], [0.0, 0.0, 1.0]]
     camera = PinholeCamera(K, image_size=(side, side))
+    if not isinstance(tiles, dict):
+        raise ValueError(f"{path}: key 'tiles' must be an object of tile id -> list of structures, "
+                         f"got {type(tiles).__name__}")
+    if not (isinstance(side, int) and 3 <= side <= min(image.shape[:2])):
+        raise ValueError(f"{path}: key 'tile_px': {side!r} is not a tile side within the image "
+                         f"({image.shape[1]} x {image.shape[0]} px)")
     out = []
     for tile, items in tiles.items():
-        r0, r1, c0, c1 = _tile_box(tile, side)
-        structs = []
-        for i, s in enumerate(items):
-            kind = s.get("kind")
-            if kind not in KINDS:
-                raise ValueError(f"{path}: tiles.{tile}[{i}].kind: {kind!r} is not one of {KINDS}")
-            # at its peak where the labels give one (a BP is a peak; a streak's centroid is not)
-            u, v = (s["u_peak"], s["v_peak"]) if "u_peak" in s else (s["u"], s["v"])
-            structs.append(Structure(float(u), float(v), float(s["area_px"]), kind))
+        try:
+            r0, r1, c0, c1 = _tile_box(tile, side)
+        except ValueError as exc:
+            raise ValueError(f"{path}: tiles: {exc}") from None
+        if r1 > image.shape[0] or c1 > image.shape[1]:
+            raise ValueError(f"{path}: tiles.{tile}: rows {r0}-{r1}, columns {c0}-{c1} lie outside the "
+                             f"{image.shape[1]} x {image.shape[0]} px image")
+        if not isinstance(items, list):
+            raise ValueError(f"{path}: tiles.{tile}: must be a list of structures, got {type(items).__name__}")
+        structs = [_labelled_structure(path, f"tiles.{tile}[{i}]", s, side) for i, s in enumerate(items)]
         out.append(LabelledFrame(tile, np.ascontiguousarray(image[r0:r1, c0:c1]), camera, structs))
     return out
+
+
+def _labelled_structure(path: Path, where: str, s, side: int) -> Structure:
+    """One label row as a :class:`Structure`, or a one-line ValueError naming the file, the row
+    and the key: a coordinate outside the tile (its pixel centres span -0.5 to side - 0.5), an
+    area outside 1 px to the tile's, a kind not in :data:`KINDS`, a missing or non-number value."""
+    if not isinstance(s, dict):
+        raise ValueError(f"{path}: {where}: must be an object with 'u', 'v', 'area_px' and 'kind', got {s!r}")
+    kind = s.get("kind")
+    if kind not in KINDS:
+        raise ValueError(f"{path}: {where}.kind: {kind!r} is not one of {KINDS}")
+    # at its peak where the labels give one (a BP is a peak; a streak's centroid is not)
+    keys = ("u_peak", "v_peak") if "u_peak" in s or "v_peak" in s else ("u", "v")
+    vals = {}
+    for key, lo, hi in ((keys[0], -0.5, side - 0.5), (keys[1], -0.5, side - 0.5), ("area_px", 1.0, float(side * side))):
+        x = s.get(key)
+        if isinstance(x, bool) or not isinstance(x, (int, float)) or not math.isfinite(x):
+            raise ValueError(f"{path}: {where}.{key}: must be a finite number, got {x!r}")
+        if not lo <= x <= hi:
+            what = "px within the tile" if key != "area_px" else "px^2, 1 px to the tile's area"
+            raise ValueError(f"{path}: {where}.{key}: {x!r} is outside [{lo:g}, {hi:g}] ({what})")
+        vals[key] = float(x)
+    return Structure(vals[keys[0]], vals[keys[1]], vals["area_px"], kind)
 
 
 def labeller_agreement(path) -> dict | None:

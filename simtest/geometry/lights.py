@@ -35,7 +35,8 @@ import numpy as np
 
 from simtest._checks import finite_number
 
-__all__ = ["FALLOFFS", "MAX_AHEAD_MM", "MAX_DISTANCE_MM", "MAX_INTENSITY", "MAX_LIGHTS", "MIN_INTENSITY",
+__all__ = ["FALLOFFS", "MAX_AHEAD_MM", "MAX_DISTANCE_MM", "MAX_INTENSITY", "MAX_LIGHTS", "MAX_PROFILE_EXPONENT",
+           "MIN_INTENSITY",
            "Light", "LightRig", "LightRigError", "check_scope_rig"]
 
 #: The falloff laws a light may have.
@@ -45,6 +46,12 @@ MAX_LIGHTS = 8
 #: Bounds of a light's intensity (a relative weight; module docstring, "Physical sense").
 MIN_INTENSITY = 1e-9
 MAX_INTENSITY = 1e9
+#: The largest emission-profile exponent m of a light (cos^m about +z), dimensionless. A light
+#: guide's fibres have a numerical aperture of 0.2 to 0.9 (half-power half-angles of 10 to 60
+#: deg, m = ln 0.5 / ln cos(theta) = 0.7 to 45); m = 1000 is a half-power half-angle of 2.1 deg,
+#: a laser pointer rather than a scope's light: beyond it a value is a slip, and m = 1e300 makes
+#: the profile 0 wherever it is not exactly on the axis.
+MAX_PROFILE_EXPONENT = 1000.0
 #: A scope's light lies less than this far ahead of the lens plane (z < 20 mm), mm.
 MAX_AHEAD_MM = 20.0
 #: A scope's light lies at most this far from the lens, mm.
@@ -78,7 +85,7 @@ class Light:
     ------
     LightRigError
         A non-finite or boolean position, an intensity outside [:data:`MIN_INTENSITY`,
-        :data:`MAX_INTENSITY`], an unknown falloff, or m < 0.
+        :data:`MAX_INTENSITY`], an unknown falloff, or m outside [0, :data:`MAX_PROFILE_EXPONENT`].
     """
 
     position_mm: tuple[float, float, float] = (0.0, 0.0, 0.0)
@@ -106,6 +113,9 @@ class Light:
         m = _number(self.profile_exponent, f"profile_exponent")
         if m < 0:
             raise LightRigError(f"profile_exponent: must be >= 0, got {self.profile_exponent!r}")
+        if m > MAX_PROFILE_EXPONENT:
+            raise LightRigError(f"profile_exponent: {self.profile_exponent!r} is over {MAX_PROFILE_EXPONENT:g} (the "
+                                f"cos^m of a 2.1 deg half-power beam; a light guide's is 0.7 to 45)")
         object.__setattr__(self, "profile_exponent", m)
 
     @property

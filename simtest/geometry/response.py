@@ -24,7 +24,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-__all__ = ["CURVES", "MAX_ABOVE_CLIP_SHARE", "ResponseError", "SensorResponse", "video_response"]
+__all__ = ["CURVES", "MAX_ABOVE_CLIP_SHARE", "MIN_FLOAT_PEAK_OF_CLIP", "RANGES", "ResponseError",
+           "SensorResponse", "video_response"]
 
 #: The tone curves a response may name.
 CURVES = ("linear", "srgb", "gamma")
@@ -34,6 +35,31 @@ _KEYS = ("curve", "gamma", "white_balance", "exposure", "clip")
 #: come from a decoder's overshoot near clipped areas, a few percent of a frame at most. A quarter
 #: is far above that and far below the share a clip in the wrong units leaves (nearly all).
 MAX_ABOVE_CLIP_SHARE = 0.25
+#: A float frame's brightest pixel must be above this fraction of a ``"clip"`` the camera file
+#: gives: one step of an 8-bit code (1/255, the coarsest quantisation a scope's video has). A float
+#: frame whose every pixel lies within one 8-bit step of black at that clip level holds nothing a sensor at
+#: that clip would tell from black: its values are in other units (a frame scaled to [0, 1] read
+#: with ``"clip": 255``, which linearises it 255 times too dark and biased the depth by 6 %).
+MIN_FLOAT_PEAK_OF_CLIP = 1.0 / 255.0
+
+#: The physical range of each number of a ``"response"`` object: key -> (least, most, unit,
+#: reason). A value outside is refused (one line naming the file, the key and the value).
+RANGES: dict[str, tuple[float, float, str, str]] = {
+    "gamma": (0.1, 10.0, "exponent g of s^(1/g)",
+              "cameras' and video standards' tone curves lie within 1 to 3 (sRGB 2.2, BT.709 1/0.45, "
+              "DCI 2.6); beyond 10 the 8-bit code 1 stands for 1e-24 of full scale, past any sensor's "
+              "dynamic range (1e-6 at 120 dB)"),
+    "white_balance": (0.01, 100.0, "gain per channel",
+                      "white-balance gains lie within 0.3 to 4 (daylight to tungsten); a factor of 100 "
+                      "is a unit slip"),
+    "exposure": (1e-6, 1e6, "relative linear scale",
+                 "shutter times of 1 us to 1 s and gains of 1 to 64 span 1e-6 to 64 in any unit; the "
+                 "fits' gain absorbs the scale, and beyond 1e6 either way the linear values leave "
+                 "float32's normal range (1e-38 to 3e38) after a few products"),
+    "clip": (1e-6, 2.0**32, "the file's pixel units",
+             "the largest integer code a sensor writes is 2^32 - 1 (32-bit); a float frame's full "
+             "scale below 1e-6 is under float32's step at 1"),
+}
 
 
 class ResponseError(ValueError):
@@ -78,8 +104,9 @@ class SensorResponse:
         ------
         ResponseError
             Not an object, an unknown key, an unknown curve, a ``"gamma"`` curve without
-            ``"gamma"``, a ``"gamma"`` key with another curve, a boolean or a non-positive or
-            non-finite number; the message is one line naming ``where`` and the key.
+            ``"gamma"``, a ``"gamma"`` key with another curve, a boolean, a non-positive or
+            non-finite number, or a number outside its physical range (:data:`RANGES`); the
+            message is one line naming ``where``, the key and the value.
         """
         if not isinstance(value, dict):
             raise ResponseError(f"{where}: must be an object with a 'curve', got {value!r}")
@@ -93,12 +120,13 @@ class SensorResponse:
             raise ResponseError(f"{where}.gamma: give it with curve 'gamma' and only then")
 
         def number(key, default):
-            return _positive(value.get(key, default), f"{where}.{key}")
+            return _in_range(_positive(value.get(key, default), f"{where}.{key}"), key, f"{where}.{key}")
 
         wb = value.get("white_balance", [1.0, 1.0, 1.0])
         if not (isinstance(wb, list) and len(wb) == 3):
             raise ResponseError(f"{where}.white_balance: must be a list of 3 numbers, got {wb!r}")
-        wbs = tuple(_positive(v, f"{where}.white_balance") for v in wb)
+        wbs = tuple(_in_range(_positive(v, f"{where}.white_balance"), "white_balance", f"{where}.white_balance")
+                    for v in wb)
         clip = value.get("clip")
         return cls(curve, number("gamma", 1.0) if curve == "gamma" else 1.0, wbs,
                    number("exposure", 1.0), None if clip is None else number("clip", clip))
@@ -127,6 +155,8 @@ class SensorResponse:
 
         - an integer frame whose dtype's maximum is below ``clip``: no pixel reaches the clip,
           so clipped pixels would not be censored;
+        - a float frame whose largest value is at most :data:`MIN_FLOAT_PEAK_OF_CLIP` of a given
+          ``clip``: the frame and the clip level are in different units;
         - more than :data:`MAX_ABOVE_CLIP_SHARE` of the pixel values (every channel) above
           ``clip``: the level is not in the file's units (1 for an 8-bit frame, a fraction
           where 255 was meant). A decoder's overshoot (a JPEG's ringing at the edge of a clipped
@@ -148,6 +178,12 @@ class SensorResponse:
         if img.dtype.kind in "ui" and fs > np.iinfo(img.dtype).max:
             raise ResponseError(f"response.clip: {fs:g} is above the largest value a {img.dtype} frame holds "
                                 f"({np.iinfo(img.dtype).max}): its clipped pixels would not be seen")
+        if img.dtype.kind == "f" and self.clip is not None and img.size:
+            peak = float(img.max())
+            if 0.0 < peak <= MIN_FLOAT_PEAK_OF_CLIP * fs:
+                raise ResponseError(f"response.clip: {fs:g} is 255 or more times the float frame's largest value "
+                                    f"({peak:g}): the frame's values are in other units than the clip level "
+                                    f"(a frame scaled to 1 wants \"clip\": 1)")
         sample = img[::4, ::4]  # every 16th pixel: a share, not a count
         share = float(np.count_nonzero(sample > fs)) / max(sample.size, 1)
         if share > MAX_ABOVE_CLIP_SHARE:
@@ -243,6 +279,13 @@ def video_response(sensor) -> SensorResponse:
         g = float(sensor.gamma)
         curve, gamma = ("linear", 1.0) if g == 1.0 else ("gamma", g)
     return SensorResponse(curve, gamma, tuple(float(v) for v in sensor.white_balance), 1.0, 255.0)
+
+
+def _in_range(v: float, key: str, where: str) -> float:
+    lo, hi, unit, why = RANGES[key]
+    if not lo <= v <= hi:
+        raise ResponseError(f"{where}: {v!r} is outside its physical range [{lo:g}, {hi:g}] ({unit})")
+    return v
 
 
 def _positive(v, where: str) -> float:

@@ -45,6 +45,12 @@ from simtest.reconstruct.settings import ReconSettings
 FRAME_SUFFIXES = (".png", ".jpg", ".jpeg", ".tif", ".tiff", ".bmp", ".npy")
 #: Suffixes read as video files.
 VIDEO_SUFFIXES = (".mp4", ".avi", ".mov", ".mkv", ".webm", ".m4v", ".mpg", ".mpeg")
+#: Containers that store no frame count (Matroska, WebM, MPEG program streams): OpenCV states
+#: their duration times their frame rate, rounded, which may be one frame more than they hold.
+ESTIMATED_COUNT_SUFFIXES = (".mkv", ".webm", ".mpg", ".mpeg")
+#: Frames a video of :data:`ESTIMATED_COUNT_SUFFIXES` may fall short of its stated count (the
+#: rounding above); every other container states its count, and a frame short is refused.
+ESTIMATED_COUNT_SLACK = 1
 
 
 @dataclass(frozen=True)
@@ -69,7 +75,16 @@ class FrameSource:
     files: tuple[Path, ...] = ()
 
     def __iter__(self) -> Iterator[tuple[int, str, np.ndarray]]:
-        """``(index, source name, RGB or gray image)`` for each frame, in order."""
+        """``(index, source name, RGB or gray image)`` for each frame, in order.
+
+        Raises
+        ------
+        InputError
+            A frame file :func:`~simtest.reconstruct.images.load_image` refuses, or a video whose
+            decoding stops before the frame count its container states (less
+            :data:`ESTIMATED_COUNT_SLACK` for :data:`ESTIMATED_COUNT_SUFFIXES`), naming the file
+            and the frame where it stopped.
+        """
         if self.kind == "folder":
             for i, f in enumerate(self.files):
                 yield i, f.name, load_image(f)
@@ -87,6 +102,10 @@ class FrameSource:
                 i += 1
         finally:
             cap.release()
+        slack = ESTIMATED_COUNT_SLACK if self.path.suffix.lower() in ESTIMATED_COUNT_SUFFIXES else 0
+        if self.n_frames is not None and i < self.n_frames - slack:
+            raise InputError(f"{self.path}: decoding stopped at frame {i} (video:{i}) of the "
+                             f"{self.n_frames} its container states: the file is truncated or damaged")
 
 
 def is_sequence(path) -> bool:

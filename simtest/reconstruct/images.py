@@ -3,6 +3,19 @@
 OpenCV's decoders (libpng, libjpeg, libtiff, FFmpeg) write their own complaints straight to file
 descriptor 2, below Python; :func:`quiet_stderr` captures them around each decoding call, so that a
 corrupt file gives the user exactly one line, ``error: ...``, with the library's words folded in.
+
+What is refused, before any fit:
+
+- a file whose header claims more than :data:`MAX_IMAGE_PIXELS` pixels (read from the header by
+  Pillow, which opens lazily, before anything is decoded);
+- a file the decoder complained about while decoding it (libjpeg's "Corrupt JPEG data", libtiff's
+  errors): the decoder hands back an image, but with damaged pixels (a JPEG whose scan was
+  overwritten decodes with most of its pixels wrong). Only libpng's warnings about ancillary
+  chunks (colour profiles, text; a lower-case first letter in the chunk's name, PNG spec 5.4)
+  are let through: they say nothing of the pixels;
+- a negative pixel value (a count of light: no sensor writes one).
+
+A float16 array is read as float32 (every float16 value is exact in float32).
 """
 
 from __future__ import annotations
@@ -11,6 +24,7 @@ import os
 import re
 import sys
 import tempfile
+import warnings
 from collections.abc import Iterator
 from contextlib import contextmanager
 from pathlib import Path
@@ -20,7 +34,13 @@ import numpy as np
 
 from simtest.reconstruct.detect import validate_image
 
-__all__ = ["InputError", "LibraryMessages", "load_image", "quiet_stderr"]
+__all__ = ["InputError", "LibraryMessages", "MAX_IMAGE_PIXELS", "decoder_damage", "load_image", "quiet_stderr"]
+
+#: The most pixels (W x H) of an image the reconstruction reads: 2^26 (67 Mpx). The largest
+#: endoscope sensors are 4K (3840 x 2160 = 8.3 Mpx), so this leaves eight times that; a header
+#: claiming more is damaged or a decompression bomb (a 250 KB PNG can claim 16000 x 16000, which
+#: decodes to 768 MB and grows to gigabytes in the float copies of the fits).
+MAX_IMAGE_PIXELS = 1 << 26
 
 # FFmpeg asks for its log level from this variable (OpenCV's videoio reads it when it loads the
 # FFmpeg backend): 8 = AV_LOG_FATAL, so a fake video file stays quiet in worker processes too.
@@ -80,6 +100,50 @@ def quiet_stderr() -> Iterator[LibraryMessages]:
             messages.text = sink.read(64 * 1024).decode("utf-8", "replace")
 
 
+#: libpng's warning about an ancillary chunk (lower-case first letter: PNG spec 5.4), e.g.
+#: "libpng warning: iCCP: known incorrect sRGB profile": metadata, not pixels
+_ANCILLARY_PNG_WARNING = re.compile(r"libpng warning: [a-z][A-Za-z]{3}:[^\n]*")
+#: OpenCV's log prefix, "[ERROR:0@4.086] global grfmt_tiff.cpp:117 ", left out of the message
+_CV_LOG_PREFIX = re.compile(r"\[\s*[A-Z]+:\d+@[\d.]+\]\s*(global\s+)?\S+:\d+\s*")
+
+
+def decoder_damage(said: str) -> str:
+    """What a decoder wrote while decoding, less libpng's warnings about ancillary chunks; an
+    empty string when nothing else was said (module docstring)."""
+    said = _CV_LOG_PREFIX.sub("", _ANCILLARY_PNG_WARNING.sub("", _ANSI.sub("", said)))
+    return " ".join(said.split())
+
+
+def _check_pixel_limit(h: int, w: int, path: Path, what: str) -> None:
+    if h * w > MAX_IMAGE_PIXELS:
+        raise InputError(f"{path}: {what} {w} x {h} px ({h * w / 1e6:.0f} Mpx), over the "
+                         f"{MAX_IMAGE_PIXELS / 1e6:.0f} Mpx an image may have (an endoscope's 4K "
+                         f"frame is 8.3 Mpx)")
+
+
+def _header_size(path: Path) -> None:
+    """Refuse ``path`` when its header claims more than :data:`MAX_IMAGE_PIXELS`, before decoding.
+
+    Pillow reads the header only (its ``open`` is lazy); a format Pillow does not know is left to
+    the decoder (OpenCV's own limit, 2^30 pixels, then applies, and the decoded size is checked).
+    """
+    from PIL import Image
+
+    try:
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", Image.DecompressionBombWarning)
+            with Image.open(path) as im:
+                w, h = im.size
+    except Image.DecompressionBombError as exc:  # over Pillow's own 2 x 89 Mpx: over ours too
+        n = re.search(r"\((\d+) pixels\)", str(exc))
+        claims = f"{int(n.group(1)) / 1e6:.0f} Mpx" if n else "more pixels than Pillow opens"
+        raise InputError(f"{path}: the header claims {claims}, over the {MAX_IMAGE_PIXELS / 1e6:.0f} Mpx "
+                         f"an image may have (an endoscope's 4K frame is 8.3 Mpx)") from None
+    except Exception:  # noqa: BLE001 - not Pillow's format or a damaged header: the decoder decides
+        return
+    _check_pixel_limit(int(h), int(w), path, "the header claims")
+
+
 _EXPECTED = ("expected an image: shape (H, W), (H, W, 1), (H, W, 3) or (H, W, 4), dtype uint8, "
              "uint16 or float16/32/64")
 
@@ -121,10 +185,19 @@ def _npy_header(path: Path):
 def _checked(img: np.ndarray, path: Path) -> np.ndarray:
     """``img`` unchanged if the reconstruction accepts it, else :class:`InputError` naming ``path``."""
     _check_layout(img.shape, img.dtype, path)
+    _check_pixel_limit(int(img.shape[0]), int(img.shape[1]), path, "holds")
+    if img.dtype == np.float16:  # exact in float32, which the compiled kernels take
+        img = img.astype(np.float32)
     try:
         validate_image(img, where=str(path))  # size and finiteness, in the pipeline's own words
     except ValueError as exc:
         raise InputError(str(exc)) from None
+    if img.dtype.kind == "f" and img.size and float(img.min()) < 0.0:
+        neg = img < 0
+        r, c = (int(v) for v in np.argwhere(neg)[0][:2])
+        value = float(img[r, c].min()) if img.ndim == 3 else float(img[r, c])
+        raise InputError(f"{path}: pixel (row {r}, col {c}) is {value:g}, below 0 ({int(neg.sum())} negative "
+                         f"values): a pixel counts light, no sensor writes a negative value")
     return img
 
 
@@ -140,15 +213,17 @@ def load_image(path) -> "np.ndarray":  # noqa: F821
     -------
     ndarray of shape (H, W), (H, W, 3) or as stored in the ``.npy``
         Gray or RGB (OpenCV's BGR/BGRA converted to RGB, alpha dropped); uint8, uint16 or float
-        as stored.
+        as stored (float16 as float32).
 
     Raises
     ------
     InputError
-        If the path is a folder, is missing, or cannot be read or decoded, or holds an array the
+        If the path is a folder, is missing, or cannot be read or decoded, the decoder reported
+        damage, the header claims more than :data:`MAX_IMAGE_PIXELS`, or it holds an array the
         reconstruction does not take (rank other than 2 or 3, a string, object or complex dtype,
-        smaller than 3 x 3, NaN pixels); the message names the file, its shape and dtype. Nothing
-        the decoding libraries print reaches standard error (:func:`quiet_stderr`).
+        smaller than 3 x 3, NaN or negative pixels); the message names the file, its shape and
+        dtype, or the pixel. Nothing the decoding libraries print reaches standard error
+        (:func:`quiet_stderr`).
     """
 
     path = Path(path)
@@ -160,22 +235,33 @@ def load_image(path) -> "np.ndarray":  # noqa: F821
         header = _npy_header(path)
         if header is not None:  # refused before loading: a 1-D, 0-D, string or object array
             _check_layout(*header, path)
+            if len(header[0]) >= 2:
+                _check_pixel_limit(int(header[0][0]), int(header[0][1]), path, "holds an array of")
         try:
             arr = np.load(path, allow_pickle=False)
         except (OSError, ValueError, EOFError) as exc:
             raise InputError(f"cannot read image {path}: {exc}") from None
         return _checked(arr, path)
 
+    _header_size(path)
     try:
         data = np.fromfile(path, dtype=np.uint8)
     except OSError as exc:
         raise InputError(f"cannot read image {path}: {exc}") from None
+    cv_said = ""
     with quiet_stderr() as lib:
-        img = cv2.imdecode(data, cv2.IMREAD_UNCHANGED) if data.size else None
+        try:
+            img = cv2.imdecode(data, cv2.IMREAD_UNCHANGED) if data.size else None
+        except cv2.error as exc:  # OpenCV's own size limit, an unsupported layout
+            img, cv_said = None, " ".join(str(exc).split("error:")[-1].split())
     if img is None:
-        said = lib.brief()
+        said = lib.brief() or cv_said
         raise InputError(f"cannot decode image {path} (empty, corrupt or not an image format"
                          + (f"; the decoder said: {said})" if said else ")"))
+    damage = decoder_damage(lib.text)
+    if damage:
+        raise InputError(f"{path}: damaged: the decoder reported "
+                         f"{damage if len(damage) <= 160 else damage[:157] + '...'}")
     if img.ndim == 3 and img.shape[2] == 3:
         img = cv2.cvtColor(img, cv2.COLOR_BGR2RGB)
     elif img.ndim == 3 and img.shape[2] == 4:

@@ -19,7 +19,10 @@ STATUSES: dict[str, str] = {
     "not_converged": "the least-squares fit stopped without meeting its tolerances",
     "too_few_points": "fewer isophote points or unclipped pixels than parameters",
     "multi_light_rig": "the isocurve model (eq. 2) holds for one light; use photometric_fit",
-    "light_behind_plane": "a light of the rig lies behind the fitted plane",
+    "light_behind_plane": "a light of the rig lies behind the fitted surface (the fitted plane, or the "
+                          "fitted patch's tangent plane at its specular point): no light there lights "
+                          "the side the camera sees; the normal is kept for the record, the depth "
+                          "withdrawn",
     "patch_misfit": "the quadric patch does not fit the ROI (spatially correlated residuals); "
                     "the normal is kept for the record, the depth withdrawn",
     "plane_misfit": "the plane model does not fit the ROI (its residuals are spatially correlated, "
@@ -156,3 +159,50 @@ class LightAwareEstimate:
     def has_normal(self) -> bool:
         """True when a normal is given (status ``ok`` or ``depth_not_observable``)."""
         return self.normal is not None
+
+
+#: A light within this distance of the fitted tangent plane, mm, is taken as on it, not behind
+#: it: the fitted point is placed on the BP's viewing ray (the specular point lies within a few
+#: pixels of the BP, which at 5 to 50 mm and 300 to 1000 px of focal length is below 0.1 mm).
+ON_PLANE_MM = 0.1
+
+
+def light_behind_surface(est: LightAwareEstimate, ray, lights_mm) -> LightAwareEstimate:
+    """``est``, or ``est`` refused (status ``light_behind_plane``) where its fitted surface puts a
+    light of the rig behind it.
+
+    The fitted point is ``P = depth_mm * ray`` and the tangent plane's normal is ``normal``; a light
+    L is behind the surface where ``(L - P) . n`` and ``(C - P) . n`` (C = 0, the camera centre)
+    have opposite signs, by more than :data:`ON_PLANE_MM`: that light lights the far side of the
+    surface, and no highlight the camera sees comes from it. A fit landing there (a rig given
+    behind the tissue, a fit run off to a wrong patch) explains the image with an impossible
+    scene, whatever its residual; the plane fits check their own plane already, this checks every
+    estimator alike, the curved patches' tangent plane at their specular point included.
+
+    Parameters
+    ----------
+    est : LightAwareEstimate
+        A fit; only one with a normal and a depth is checked.
+    ray : array_like of shape (3,)
+        Unit viewing ray of the highlight's BP, camera frame.
+    lights_mm : array_like of shape (J, 3)
+        The rig's light positions, mm, camera frame.
+
+    Returns
+    -------
+    LightAwareEstimate
+        ``est`` unchanged, or with status ``light_behind_plane``, the depth withdrawn and the
+        light named in ``detail``.
+    """
+    if est.normal is None or est.depth_mm is None:
+        return est
+    n = np.asarray(est.normal, dtype=np.float64)
+    P = float(est.depth_mm) * np.asarray(ray, dtype=np.float64)
+    cam = float(-P @ n)
+    for j, L in enumerate(np.asarray(lights_mm, dtype=np.float64).reshape(-1, 3)):
+        side = float((L - P) @ n)
+        if side * np.sign(cam) < -ON_PLANE_MM:
+            why = (f"light {j} at ({L[0]:.3g}, {L[1]:.3g}, {L[2]:.3g}) mm lies {abs(side):.3g} mm behind the "
+                   f"fitted surface at depth {est.depth_mm:.4g} mm (the camera {abs(cam):.3g} mm in front)")
+            return est.without_depth("light_behind_plane", f"{est.detail}; {why}" if est.detail else why)
+    return est
