@@ -1,5 +1,6 @@
 """The laparoscope scene: the liver in its abdomen fills the field (no void), the exposure is
-metered on tissue and clips under 2 % of the tissue pixels, the wall is its own tissue."""
+metered on tissue and clips under 2 % of the tissue pixels, the wall is its own tissue, and the
+wet liver capsule shines: white glints at the default exposure (issue 62)."""
 
 from __future__ import annotations
 
@@ -56,10 +57,11 @@ def test_laparoscope_fills_the_field_and_does_not_clip():
     f = res.frame
     clipped = (f >= 255).any(axis=-1) & stop
     assert clipped.sum() / stop.sum() < 0.02
-    # both tissues in view, told apart by their albedo (the wall's is paler: more green)
+    # both tissues in view, told apart by their albedo (the wall's is paler: more green; liver G/R
+    # 0.34, 0.21 on its vessels; the wall's 0.59, 0.35 on its vessels)
     alb = res.albedo[stop]
     ratio = alb[:, 1] / alb[:, 0]
-    assert (ratio < 0.25).mean() > 0.3 and (ratio > 0.45).mean() > 0.05
+    assert (ratio < 0.4).mean() > 0.3 and (ratio > 0.5).mean() > 0.05
     # metering on tissue: the field's mean luma is the target (every field pixel is tissue)
     assert not np.isnan(res.depth[stop]).any()
 
@@ -86,3 +88,47 @@ def test_meshes_build_makes_the_committed_abdomen_mesh(tmp_path):
     np.testing.assert_allclose(committed.vertices, fresh.vertices, rtol=1e-6, atol=1e-4)
     np.testing.assert_allclose(committed.vertex_normals, fresh.vertex_normals, atol=1e-6)
     assert MESH.stat().st_size < 2_000_000
+
+
+#: A white pixel of the 8-bit frame: every channel at least this (the definition of issue 62's
+#: glint statistics, made outside simtest: a highlight that clipped, or nearly, in all three).
+WHITE_LEVEL = 250
+#: At least this many white blobs (8-connected) on the liver: compact glints, not one sheen or
+#: none (issue 62's must-hold for laparoscope_liver).
+MIN_LIVER_GLINTS = 3
+#: Largest share of the tissue pixels clipped (255) in any one channel (the same must-hold).
+MAX_CLIPPED = 0.02
+
+
+@pytest.mark.render
+@pytest.mark.slow
+def test_laparoscope_liver_shines_at_its_default_exposure():
+    """At the scene's defaults (640 x 480, 16 spp: the count of glints depends on the pixel's
+    footprint on the capsule's relief, so the must-hold is checked at the size it is stated for)
+    the liver shows at least 3 white glints and under 2 % of the tissue pixels clip in any channel.
+    Before the narrow wet-film lobe and the realistic albedo, red clipped while green and blue
+    peaked at 216 and 211: no white pixel at all."""
+    from skimage.measure import label
+
+    from simtest.render.render import cam_to_texture_matrix, render_scene
+
+    spec = load_scene("laparoscope_liver")
+    res = render_scene(spec)
+    stop, f = res.field_stop, res.frame
+    tissue = stop & res.mask
+    # the liver: texture-frame points inside the wall's sphere (render.tissue_texture's rule)
+    m = cam_to_texture_matrix(spec)
+    q = np.nan_to_num(res.position.astype(np.float64)) @ m[:3, :3].T + m[:3, 3]
+    inside = np.linalg.norm(q - np.asarray(spec.material.wall_centre_mm), axis=-1) < spec.material.wall_radius_mm
+    liver = tissue & inside
+    assert 0.3 < liver.sum() / tissue.sum() < 0.9  # the liver and the wall both fill part of the view
+    white = (f >= WHITE_LEVEL).all(axis=-1) & stop
+    lab = label(white, connectivity=2)
+    on_liver = np.unique(lab[liver & white])
+    assert len(on_liver) >= MIN_LIVER_GLINTS
+    clipped = ((f >= 255) & tissue[..., None]).sum(axis=(0, 1)) / tissue.sum()
+    assert clipped.max() < MAX_CLIPPED, clipped
+    # the liver's diffuse colour is red-brown, not clipped red: its median pixel keeps headroom,
+    # and its R/G is near the real liver's 1.6 (issue 62: the former albedo gave 2.45, 1.5 times it)
+    med = np.median(f[liver & ~white], axis=0)
+    assert med[0] < 200 and 1.3 < med[0] / med[1] < 2.2, med

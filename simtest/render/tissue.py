@@ -56,9 +56,15 @@ __all__ = ["TISSUE_ALBEDO", "TISSUE_SEED_KEY", "N_WAVES", "N_RELIEF_WAVES", "REL
            "film_alpha", "specular_lobe"]
 
 #: Linear-RGB diffuse albedo of each tissue before variation. Mucosa: pink (sRGB about (225, 140,
-#: 125), the colour of a bowel wall under white light); liver: red-brown (sRGB about (150, 60, 45)).
-#: Assumed values chosen to match the colour of endoscopic frames, not measured reflectances.
-TISSUE_ALBEDO = {"mucosa": (0.75, 0.26, 0.20), "liver": (0.30, 0.045, 0.026),
+#: 125), the colour of a bowel wall under white light), assumed to match the colour of endoscopic
+#: frames. Liver: dark red-brown, (0.35, 0.12, 0.09), inside the range of published diffuse
+#: reflectance of liver averaged over the camera's bands (about 0.3 to 0.4 in red, 0.1 to 0.15 in
+#: green, 0.08 to 0.12 in blue): liver is rich in blood, whose haemoglobin absorbs green and blue
+#: strongly and red weakly, while its scattering is broadband (Jacques 2013, "Optical properties of
+#: biological tissues: a review", https://doi.org/10.1088/0031-9155/58/11/R37). Its median frame
+#: R/G in laparoscope_liver, 1.67, is near the real liver's (issue 62: 1/1.5 of the 2.5 that the
+#: former albedo, (0.30, 0.045, 0.026) with G and B about 3 times too dark, gave).
+TISSUE_ALBEDO = {"mucosa": (0.75, 0.26, 0.20), "liver": (0.35, 0.12, 0.09),
                  # peritoneum over fat (abdominal wall, omentum): pale yellow-pink, sRGB about
                  # (215, 170, 140); assumed like the others
                  "peritoneum": (0.68, 0.40, 0.26)}
