@@ -469,7 +469,7 @@ def light_aware_estimates(image, est, camera, rig: LightRig, *, nominal_depth_mm
 
     def released(r: LightAwareEstimate) -> LightAwareEstimate:
         """``r`` as returned: its depth within the ceiling, the BP ray's error beside it set."""
-        r = _la.estimate.light_behind_surface(depth_within_ceiling(r), ray, rig.positions)
+        r = depth_within_ceiling(_la.estimate.light_behind_surface(r, ray, rig.positions))
         return dataclasses.replace(
             r, bp_ray_error_deg=bp_ray_error_deg(ray, bp_error_depth_mm(r, nominal_depth_mm), rig))
 
