@@ -160,3 +160,4 @@ def safe_name(name: str, option: str) -> str:
         fail(f"{option}: {name!r} is not a plain folder name (letters, digits and . _ + -, "
              "not starting with . or -, at most 128 characters)", BAD_INPUT)
     return name
+

@@ -30,7 +30,7 @@ from simtest.geometry.camera_file import load_camera
 from simtest.geometry.response import ResponseError
 from simtest.harness.report.figures import figure_png
 from simtest._exit import BAD_INPUT, fail
-from simtest.reconstruct.cli import check_out_folder, write_out_folder
+from simtest._outdir import check_out_folder, write_out_folder
 from simtest.reconstruct.io import estimate_to_dict
 from simtest.reconstruct.pipeline import reconstruct
 from simtest.reconstruct.recommend import with_light_aware
@@ -125,7 +125,7 @@ def c3vd_command(
         for idx, specs, tp in view_inputs:
             render_view(folder / f"view_{idx}.png", specs, truth_points=tp)
 
-    write_out_folder(out, target, fill)
+    write_out_folder(out, target, fill, OUTPUT_FILES)
     med = results["estimators"]
     summary = ", ".join(f"{k} {v['median_deg']:.2f}" for k, v in med.items() if v["median_deg"] is not None)
     typer.echo(f"{len(frames)} frame(s), {results['n_highlights']} candidate(s), {results['n_ok']} ok, "
@@ -198,7 +198,7 @@ def detection_command(
         (folder / "detection.png").write_bytes(png)
         (folder / "reliability.png").write_bytes(png_rel)
 
-    write_out_folder(out, target, fill)
+    write_out_folder(out, target, fill, DETECTION_FILES)
     p = results["pooled"]
     typer.echo(f"{len(frames)} frame(s), {p['targets']} target(s): ok precision {_fmt(p['precision_ok'])}, "
                f"recall {_fmt(p['recall_ok'])}; candidates precision {_fmt(p['precision_candidates'])}, "
