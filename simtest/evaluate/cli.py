@@ -4,7 +4,7 @@ light rig of offset lights, the light-aware fits' depths against its depth maps.
 
 Writes ``OUT/results.json``, ``OUT/report.html`` (:mod:`simtest.evaluate.report`) and with
 ``--views N`` ``OUT/view_NNNN.png`` (:mod:`simtest.reconstruct.view3d`), replaced as one folder
-(:func:`~simtest.reconstruct.io.replace_output_folder`): a failure or a kill leaves the whole
+(:func:`~simtest._io.replace_output_folder`): a failure or a kill leaves the whole
 previous set or the whole new one. A bad sequence or camera file ends with exit status 2 and one
 line naming the file (no traceback); an ``OUT`` that cannot be written (a file in the way,
 read-only, files this command does not write inside) with exit status 4, before any work.

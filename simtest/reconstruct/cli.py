@@ -3,7 +3,7 @@
 ``reconstruct`` writes ``DIR/estimates.json`` (schema in :mod:`simtest.reconstruct.io`),
 ``DIR/overlay.png`` (:mod:`simtest.reconstruct.overlay`, unless ``--no-overlay``) and with ``--view``
 ``DIR/view.png`` (:mod:`simtest.reconstruct.view3d`); for a folder of frames or a video,
-``DIR/estimates.jsonl``. ``DIR`` is replaced as one folder (:func:`~simtest.reconstruct.io.
+``DIR/estimates.jsonl``. ``DIR`` is replaced as one folder (:func:`~simtest._io.
 replace_output_folder`): a failure or a kill at any point leaves either the whole previous set or
 the whole new one, never a new ``estimates.json`` beside an old ``overlay.png``; so ``DIR`` must be
 new, empty, or hold only a previous run's outputs. Exit status: 2 and one line ``error: ...`` on

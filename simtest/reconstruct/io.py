@@ -111,8 +111,7 @@ from pathlib import Path
 import numpy as np
 import orjson as _orjson  # a float64 array's JSON text in C: estimates.jsonl's cost on a video
 
-from simtest._io import (OutputFolderError, atomic_write_json, check_output_folder,  # noqa: F401
-                         recover_output_folder, replace_output_folder)
+from simtest._io import atomic_write_json
 from simtest._version import __version__
 
 SCHEMA_VERSION = 2
@@ -850,7 +849,7 @@ def read_estimates(path) -> dict:
 
 
 # ------------------------------------------------------------------------------------------------
-# an output folder replaced as a set
+# an output folder replaced as a set (simtest._outdir)
 
 
 #: What ``simtest reconstruct`` writes in its ``--out`` folder (and nothing else may be there).
