@@ -21,10 +21,15 @@ code   name                meaning
 
 from __future__ import annotations
 
+import contextlib
 import errno
 import os
 import re
+import signal
+import sys
 import tempfile
+import threading
+from collections.abc import Iterator
 from pathlib import Path
 from typing import NoReturn
 
@@ -42,6 +47,10 @@ __all__ = [
     "one_line",
     "writable_dir",
     "safe_name",
+    "SignalInterrupt",
+    "SignalState",
+    "exit_on_signal",
+    "signals_interrupt",
 ]
 
 OK = 0
@@ -160,3 +169,73 @@ def safe_name(name: str, option: str) -> str:
         fail(f"{option}: {name!r} is not a plain folder name (letters, digits and . _ + -, "
              "not starting with . or -, at most 128 characters)", BAD_INPUT)
     return name
+
+
+class SignalInterrupt(KeyboardInterrupt):
+    """Raised in the main thread by the first SIGINT or SIGTERM while a command runs.
+
+    A KeyboardInterrupt, so that every ``finally`` and ``except BaseException`` of the command
+    (temporary folders removed, worker pools stopped) runs for SIGTERM as for Ctrl-C.
+    """
+
+    def __init__(self, signum: int) -> None:
+        self.signum = signum
+        self.signame = signal.Signals(signum).name
+        super().__init__(self.signame)
+
+
+class SignalState:
+    """What :func:`signals_interrupt` saw: the first signal's name, or None."""
+
+    signame: str | None = None
+
+
+@contextlib.contextmanager
+def signals_interrupt() -> Iterator[SignalState]:
+    """Within the block, SIGINT and SIGTERM raise :class:`SignalInterrupt` in the main thread.
+
+    Only the first signal raises; later ones are ignored, so that the clean-up the first one
+    started (stopping workers, removing a temporary folder) is not cut short. The signal is also
+    recorded in the state yielded, for the caller to see it where a library swallowed the
+    exception or turned it into another one (an import inside Mitsuba turns it into a
+    SystemError). On leaving, the previous handlers return. Outside the main thread (where Python
+    cannot handle signals) the block runs unchanged.
+
+    Yields
+    ------
+    SignalState
+        Its ``signame`` is set (``"SIGTERM"``, ``"SIGINT"``) once a signal came.
+    """
+    state = SignalState()
+    if threading.current_thread() is not threading.main_thread():
+        yield state
+        return
+
+    def handler(signum, frame):
+        if state.signame is not None:
+            return
+        state.signame = signal.Signals(signum).name
+        raise SignalInterrupt(signum)
+
+    previous = {}
+    try:
+        for s in (signal.SIGINT, signal.SIGTERM):
+            previous[s] = signal.signal(s, handler)
+    except (ValueError, OSError):  # pragma: no cover - not the main interpreter
+        pass
+    try:
+        yield state
+    finally:
+        for s, h in previous.items():
+            signal.signal(s, h if h is not None else signal.SIG_DFL)
+
+
+def exit_on_signal(signum, frame) -> NoReturn:
+    """A signal handler for the moments around a command (start-up, shut-down): one line on
+    standard error and exit :data:`INTERRUPTED` at once (no clean-up is pending then)."""
+    for stream in (sys.stdout, sys.stderr):
+        with contextlib.suppress(Exception):
+            stream.flush()
+    with contextlib.suppress(OSError):
+        os.write(2, f"error: interrupted by {signal.Signals(signum).name}\n".encode())
+    os._exit(INTERRUPTED)

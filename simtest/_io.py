@@ -11,6 +11,7 @@ from __future__ import annotations
 import ctypes
 import errno
 import fcntl
+import fnmatch
 import json
 import os
 import shutil
@@ -21,9 +22,9 @@ from typing import Any
 
 import numpy as np
 
-__all__ = ["TMP_SUFFIX", "atomic_write", "atomic_write_bytes", "atomic_write_json", "atomic_write_set",
-           "atomic_write_text", "jsonable", "recover_output_folder",
-           "replace_output_folder"]
+__all__ = ["TMP_SUFFIX", "OutputFolderError", "atomic_write", "atomic_write_bytes", "atomic_write_json",
+           "atomic_write_set", "atomic_write_text", "check_output_folder", "jsonable",
+           "recover_output_folder", "replace_output_folder"]
 
 #: Suffix of every temporary file this module creates.
 TMP_SUFFIX = ".tmp"
@@ -190,6 +191,93 @@ def atomic_write_set(writers: dict) -> list[Path]:
     return [path for _, path in done]
 
 
+class OutputFolderError(ValueError):
+    """An output folder that cannot take a command's set of files (a file, foreign files)."""
+
+
+def _owned(rel: tuple[str, ...], is_dir: bool, owned) -> bool:
+    """Whether the entry at the relative path ``rel`` is one a command with ``owned`` writes: a
+    file whose path matches a pattern part by part, a folder that a pattern's path goes through."""
+    for pat in owned:
+        parts = tuple(pat.split("/"))
+        n = len(rel)
+        if len(parts) < n or (len(parts) == n and is_dir) or (len(parts) > n and not is_dir):
+            continue
+        if all(fnmatch.fnmatchcase(a, b) for a, b in zip(rel, parts)):
+            return True
+    return False
+
+
+def check_output_folder(out, owned, option: str = "--out") -> Path:
+    """Refuse an output folder that replacing it as a set would damage.
+
+    A command replaces its output folder as a whole (:func:`replace_output_folder`), so the
+    folder must be new, empty, or hold only what that command writes: a user's file inside would
+    be lost. "What it writes" is the list of names ``owned``, not a marker file: a marker would
+    vouch for a folder in which a user has since saved a file of their own.
+
+    Parameters
+    ----------
+    out : str or Path
+        The folder a command replaces as a whole.
+    owned : sequence of str
+        ``fnmatch`` patterns of the files the command writes there, relative to ``out`` with
+        ``/`` between folders (``"figures/*.png"`` owns the folder ``figures`` and its PNGs).
+    option : str
+        The option that named ``out``, for the messages.
+
+    Returns
+    -------
+    Path
+        ``out``.
+
+    Raises
+    ------
+    OutputFolderError
+        If ``out`` is a file, is the current folder or one of its ancestors (it cannot be swapped
+        from under the shell), or holds an entry no pattern of ``owned`` matches (it would be
+        lost): the message names the folder and up to three such entries.
+
+    Examples
+    --------
+    >>> import tempfile
+    >>> d = Path(tempfile.mkdtemp())
+    >>> _ = (d / "crb.json").write_text("{}")
+    >>> check_output_folder(d, ["crb.json", "crb.png"]) == d
+    True
+    >>> _ = (d / "thesis.tex").write_text("")
+    >>> check_output_folder(d, ["crb.json", "crb.png"])  # doctest: +ELLIPSIS
+    Traceback (most recent call last):
+    ...
+    simtest._io.OutputFolderError: --out: ... holds files this command does not write (thesis.tex); ...
+    """
+    out = Path(out)
+    if out.exists() and not out.is_dir():
+        raise OutputFolderError(f"{option}: {out} is a file, not a folder")
+    if not out.exists():
+        return out
+    here = Path.cwd().resolve()
+    full = out.resolve()
+    if full == here or full in here.parents:
+        raise OutputFolderError(f"{option}: {out} is the current folder or holds it; the outputs are "
+                                "replaced as one folder: give a new or empty folder")
+    other: list[str] = []
+    for root, dirs, files in os.walk(full):
+        base = Path(root).relative_to(full).parts
+        for name in sorted(dirs):
+            if os.path.islink(os.path.join(root, name)) or not _owned((*base, name), True, owned):
+                other.append("/".join((*base, name)))
+                dirs.remove(name)  # not looked into: it is not ours as a whole
+        other += ["/".join((*base, name)) for name in sorted(files)
+                  if not _owned((*base, name), False, owned)]
+    if other:
+        raise OutputFolderError(
+            f"{option}: {out} holds files this command does not write ({', '.join(other[:3])}"
+            f"{', ...' if len(other) > 3 else ''}); its outputs replace the folder as a whole: "
+            "give a new or empty folder")
+    return out
+
+
 #: The prefix of a previous set renamed aside by the fallback swap (``.<name>.old-*``).
 _OLD = ".old-"
 
@@ -271,7 +359,7 @@ def _swap_by_two_renames(tmp: Path, out: Path) -> None:
     shutil.rmtree(old, ignore_errors=True)
 
 
-def replace_output_folder(out, fill: Callable[[Path], None]) -> Path:
+def replace_output_folder(out, fill: Callable[[Path], None], owned=None) -> Path:
     """Write a folder as a set: ``fill(tmp)`` writes every file into a fresh folder beside ``out``,
     which then takes the place of ``out`` in one atomic step.
 
@@ -285,8 +373,9 @@ def replace_output_folder(out, fill: Callable[[Path], None]) -> Path:
       set aside, which the next call (:func:`recover_output_folder`) puts back before anything.
 
     Two processes writing the same folder are serialised by a lock on its parent folder (``flock``
-    on the folder itself, so no lock file is left behind). The caller checks ``out`` first
-    (:func:`simtest.reconstruct.io.check_output_folder`).
+    on the folder itself, so no lock file is left behind). The caller checks ``out`` before any
+    work (:func:`check_output_folder`); with ``owned`` the check is made again under the lock
+    just before the swap, so that a file put there during a long run is not lost either.
 
     Parameters
     ----------
@@ -294,6 +383,8 @@ def replace_output_folder(out, fill: Callable[[Path], None]) -> Path:
         The output folder (created; its parent too).
     fill : callable
         Writes the whole set into the folder it is given.
+    owned : sequence of str, optional
+        The patterns of :func:`check_output_folder`: what ``out`` may hold to be replaced.
 
     Returns
     -------
@@ -304,6 +395,8 @@ def replace_output_folder(out, fill: Callable[[Path], None]) -> Path:
     ------
     OSError
         From writing or renaming; ``out`` keeps its previous set.
+    OutputFolderError
+        With ``owned``: ``out`` holds what the command does not write; nothing was replaced.
     """
     out = Path(out)
     parent = out.parent
@@ -323,6 +416,8 @@ def replace_output_folder(out, fill: Callable[[Path], None]) -> Path:
                     with open(f, "rb+") as fh:
                         os.fsync(fh.fileno())
             _fsync_dir(tmp)
+            if owned is not None:
+                check_output_folder(out, owned)
         except BaseException:
             shutil.rmtree(tmp, ignore_errors=True)
             raise

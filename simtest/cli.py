@@ -11,14 +11,16 @@ from __future__ import annotations
 
 import importlib
 import os
+import signal
 import sys
 import warnings
 
 import typer
 from typer.core import TyperCommand, TyperGroup
 
-from simtest._exit import BAD_INPUT, INTERRUPTED, fail, one_line
+from simtest._exit import BAD_INPUT, INTERRUPTED, exit_on_signal, fail, one_line, signals_interrupt
 from simtest._lazy import MissingBackend
+from simtest._workers import stop_workers
 from simtest._version import __version__
 
 # Click's exceptions, from the Click that Typer uses (its own copy from Typer 0.29, else Click):
@@ -105,12 +107,29 @@ class _LazyGroup(TyperGroup):
         return super().get_command(ctx, name)
 
     def invoke(self, ctx):
-        # an optional back-end a subcommand needs and the machine lacks (Dask for --scheduler,
-        # PyTorch, ...): its one line, naming the extra to install, never a traceback
-        try:
-            return super().invoke(ctx)
-        except MissingBackend as exc:
-            fail(exc, BAD_INPUT)
+        # SIGTERM as Ctrl-C: KeyboardInterrupt, so that every command's clean-up runs; then the
+        # workers a pool left stopped and one line, exit 130 (Click would print "Aborted!", 1)
+        with signals_interrupt() as sig:
+            try:
+                rv = super().invoke(ctx)
+            except MissingBackend as exc:
+                # an optional back-end a subcommand needs and the machine lacks (Dask for
+                # --scheduler, PyTorch, ...): its one line, naming the extra to install
+                if sig.signame is None:
+                    fail(exc, BAD_INPUT)
+            except typer.Exit as exc:
+                if sig.signame is None or exc.exit_code == INTERRUPTED:
+                    raise  # a command's own line (dataset generate says how to resume)
+            except BaseException:
+                if sig.signame is None:
+                    raise
+                # the signal's exception, or what a library made of it (Mitsuba's import turns it
+                # into a SystemError): interrupted all the same
+            if sig.signame is None:
+                return rv
+            n = stop_workers()  # those a pool left running (its own block stops the rest)
+            fail(f"interrupted by {sig.signame}" + (f"; {n} worker(s) stopped" if n else "")
+                 + "; outputs written before are intact", INTERRUPTED)
 
     def main(self, args=None, prog_name=None, complete_var=None, standalone_mode=True, **extra):
         """Click's ``main`` with every usage error on one line: ``error: <command>: <what>``.
@@ -190,8 +209,15 @@ def quiet_warnings() -> None:
 
 
 def main() -> None:
-    """Entry point of the ``simtest`` console script."""
+    """Entry point of the ``simtest`` console script.
+
+    Around the command (while Python starts it, and while it shuts down after it), SIGINT and
+    SIGTERM end the process at once with exit status 130 and one line; during the command they
+    raise KeyboardInterrupt, so that its clean-up runs (:meth:`_LazyGroup.invoke`).
+    """
     quiet_warnings()
+    for s in (signal.SIGINT, signal.SIGTERM):
+        signal.signal(s, exit_on_signal)
     app(prog_name="simtest")  # also under `python -m simtest.cli`
 
 

@@ -139,7 +139,13 @@ def test_crb_bounds_out_and_default(tmp_path, monkeypatch):
     monkeypatch.chdir(tmp_path)
     old = tmp_path / "reports" / "crb"
     old.mkdir(parents=True)
-    (old / "stale.txt").write_text("old")
+    (old / "notes.txt").write_text("mine")
+    # a file crb does not write is a user's: the folder is refused before any fit, not replaced
+    r = _invoke("crb", "-n", 2)
+    assert r.exit_code == 4 and "notes.txt" in _one_error(r)
+    assert (old / "notes.txt").read_text() == "mine"
+    (old / "notes.txt").unlink()
+    (old / "crb.json").write_text("{}")  # a previous run's
     r = _invoke("crb", "-n", 2)
     assert r.exit_code == 0, r.output
     # the default is reports/crb under the current folder, replaced as a set

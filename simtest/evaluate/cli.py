@@ -4,7 +4,7 @@ light rig of offset lights, the light-aware fits' depths against its depth maps.
 
 Writes ``OUT/results.json``, ``OUT/report.html`` (:mod:`simtest.evaluate.report`) and with
 ``--views N`` ``OUT/view_NNNN.png`` (:mod:`simtest.reconstruct.view3d`), replaced as one folder
-(:func:`~simtest.reconstruct.io.replace_output_folder`): a failure or a kill leaves the whole
+(:func:`~simtest._io.replace_output_folder`): a failure or a kill leaves the whole
 previous set or the whole new one. A bad sequence or camera file ends with exit status 2 and one
 line naming the file (no traceback); an ``OUT`` that cannot be written (a file in the way,
 read-only, files this command does not write inside) with exit status 4, before any work.
@@ -31,7 +31,8 @@ from simtest.geometry.camera_file import load_camera
 from simtest.geometry.response import ResponseError
 from simtest.harness.report.figures import figure_png
 from simtest._exit import BAD_INPUT, fail
-from simtest.reconstruct.cli import check_out_folder, check_workers, write_out_folder
+from simtest._outdir import check_out_folder, write_out_folder
+from simtest.reconstruct.cli import check_workers
 from simtest.reconstruct.io import estimate_to_dict
 from simtest.reconstruct.pipeline import reconstruct
 from simtest.reconstruct.recommend import with_light_aware
@@ -131,7 +132,7 @@ def c3vd_command(
         for idx, specs, tp in view_inputs:
             render_view(folder / f"view_{idx}.png", specs, truth_points=tp)
 
-    write_out_folder(out, target, fill)
+    write_out_folder(out, target, fill, OUTPUT_FILES)
     med = results["estimators"]
     summary = ", ".join(f"{k} {v['median_deg']:.2f}" for k, v in med.items() if v["median_deg"] is not None)
     typer.echo(f"{len(frames)} frame(s), {results['n_highlights']} candidate(s), {results['n_ok']} ok, "
@@ -204,7 +205,7 @@ def detection_command(
         (folder / "detection.png").write_bytes(png)
         (folder / "reliability.png").write_bytes(png_rel)
 
-    write_out_folder(out, target, fill)
+    write_out_folder(out, target, fill, DETECTION_FILES)
     p = results["pooled"]
     typer.echo(f"{len(frames)} frame(s), {p['targets']} target(s): ok precision {_fmt(p['precision_ok'])}, "
                f"recall {_fmt(p['recall_ok'])}; candidates precision {_fmt(p['precision_candidates'])}, "

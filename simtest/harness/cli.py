@@ -5,7 +5,7 @@ Imported by :mod:`simtest.cli` only when one of these commands runs (``simtest -
 Everything that can be checked before the suite runs is checked first, so that minutes of work
 never end in a usage error: the suite file and its bounds (:data:`simtest.harness.suite.
 MAX_TOTAL_REALISATIONS`), ``-n``, ``-j`` (at most ``os.cpu_count()`` workers), ``--run-id`` (one
-plain folder name), the output folder (:func:`simtest._exit.writable_dir`) and, for ``nightly``,
+plain folder name), the output folder (:func:`simtest._outdir.check_out_folder`) and, for ``nightly``,
 the baseline (present, sound, covering the suite). Exit codes are :mod:`simtest._exit`'s.
 """
 
@@ -23,6 +23,8 @@ from rich.table import Table
 from simtest._dask import SchedulerError
 from simtest._exit import BAD_BASELINE, BAD_INPUT, CANNOT_WRITE, CHECK_FAILED, fail, safe_name, \
     writable_dir
+from simtest._io import OutputFolderError
+from simtest._outdir import check_out_folder
 from simtest.harness.nightly import (
     CAPS,
     append_history,
@@ -42,7 +44,7 @@ from simtest.harness.nightly import (
     update_baseline as write_baseline,
 )
 from simtest.harness.external import ExternalError
-from simtest.harness.report import build_results, make_run_id, write_report_files
+from simtest.harness.report import REPORT_FILES, build_results, make_run_id, write_report_files
 from simtest.harness.runner import run_suite
 from simtest.harness.suite import MAX_TOTAL_REALISATIONS, SuiteError, load_suite
 
@@ -145,6 +147,8 @@ def _write(results: dict, folder: Path, **kw) -> Path:
     """Write the report set, or exit 4 with one line (what was there before is kept)."""
     try:
         return write_report_files(results, folder, **kw)
+    except OutputFolderError as e:  # a file put there while the suite ran: kept, nothing written
+        fail(e, CANNOT_WRITE)
     except OSError as e:
         fail(f"--out: cannot write the report in {folder}: {e.strerror or e}", CANNOT_WRITE)
 
@@ -248,7 +252,7 @@ def validate_command(
             fail(e, BAD_INPUT)
     run_id = safe_name(run_id or make_run_id(), "--run-id")
     folder = out / s.name / run_id
-    writable_dir(folder, "--out")
+    check_out_folder(folder, REPORT_FILES)
     console.print(f"[bold]simtest validate[/] {s.name}: {_counts(s)}, seed {s.seed}")
     run = _run(s, workers=workers, progress=progress, console=console, scheduler=scheduler)
     results = build_results(run, run_id)
@@ -340,7 +344,7 @@ def nightly_command(
     s = load_checked_suite(name, seed)
     run_id = safe_name(run_id or make_run_id(), "--run-id")
     folder = out / s.name / run_id
-    writable_dir(folder, "--out")
+    check_out_folder(folder, REPORT_FILES)
     hist_path = history or (out / s.name / "history.jsonl")
     if update_baseline:
         writable_dir(path.parent, "--baseline")

@@ -25,8 +25,9 @@ matplotlib.use("Agg", force=False)
 
 import matplotlib.pyplot as plt  # noqa: E402 - after choosing the back-end
 
-from simtest._exit import BAD_INPUT, CANNOT_WRITE, fail, writable_dir
-from simtest._io import atomic_write_json, replace_output_folder
+from simtest._exit import BAD_INPUT, fail
+from simtest._outdir import check_out_folder, write_out_folder
+from simtest._io import atomic_write_json
 from simtest.geometry.angles import angle_between_deg
 from simtest.geometry.camera import project_points
 from simtest.geometry.lights import Light, LightRig
@@ -42,6 +43,8 @@ HALF_ROI = 32
 #: 15 settings x 10 000 fits are about two hours on one core; the study keeps only RMS values,
 #: so time, not memory, is the limit.
 MAX_REALISATIONS = 10_000
+#: What ``simtest crb`` writes in its output folder (and all that may be there: it is replaced).
+CRB_FILES = ("crb.json", "crb.png")
 
 
 def _case(eps_over_d, distance_mm, tilt_deg):
@@ -163,6 +166,7 @@ def crb_command(
 
     Writes OUT/crb.json (bound and achieved errors per light offset and noise level) and
     OUT/crb.png (the figure), replaced together: a run that fails leaves the previous pair.
+    OUT must be new, empty or hold only these two files.
 
     Exit codes: 0 done; 2 bad usage; 4 OUT cannot be written (checked before running); 130
     interrupted.
@@ -171,14 +175,11 @@ def crb_command(
         fail(f"-n/--realisations: {realisations:,} noisy images per setting exceed the maximum "
              f"of {MAX_REALISATIONS:,} (15 settings x {MAX_REALISATIONS:,} fits are already "
              "about two hours on one core)", BAD_INPUT)
-    writable_dir(out, "--out")
+    target = check_out_folder(out, CRB_FILES)
     console = Console(stderr=True)
     with console.status("fitting noisy analytic planes ..."):
         rows = crb_study(realisations=realisations, seed=seed)
-    try:
-        _write_set(out, rows, seed, realisations)
-    except OSError as e:
-        fail(f"--out: cannot write {out}: {e.strerror or e}", CANNOT_WRITE)
+    write_out_folder(out, target, lambda tmp: _fill(tmp, rows, seed, realisations), CRB_FILES)
     console = Console(soft_wrap=True)  # the results on stdout; progress was on stderr
     for r in rows:
         console.print(f"eps/d {r['eps_over_d']:.2f} sigma {100 * r['sigma']:.1f} %: normal "
@@ -188,12 +189,7 @@ def crb_command(
     console.print(f"wrote {out / 'crb.json'} and {out / 'crb.png'}", highlight=False)
 
 
-def _write_set(out: Path, rows: list[dict], seed: int, realisations: int) -> None:
-    """Write crb.json and crb.png into a temporary folder beside ``out``, then swap it in."""
-    out.parent.mkdir(parents=True, exist_ok=True)
-    def fill(tmp: Path) -> None:
-        atomic_write_json(tmp / "crb.json", {"rows": rows, "seed": seed,
-                                             "realisations": realisations})
-        plot_crb(rows, tmp / "crb.png")
-
-    replace_output_folder(out, fill)  # crb.json and crb.png as a set
+def _fill(tmp: Path, rows: list[dict], seed: int, realisations: int) -> None:
+    """Write crb.json and crb.png into ``tmp``, the folder swapped in for OUT as a pair."""
+    atomic_write_json(tmp / "crb.json", {"rows": rows, "seed": seed, "realisations": realisations})
+    plot_crb(rows, tmp / "crb.png")

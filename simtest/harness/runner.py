@@ -17,7 +17,7 @@ import os
 import time
 import traceback
 from collections import OrderedDict
-from concurrent.futures import ProcessPoolExecutor, as_completed
+from concurrent.futures import as_completed
 from dataclasses import dataclass, field
 from datetime import datetime, timezone
 
@@ -36,6 +36,7 @@ from rich.progress import (
 from simtest._dask import connect
 from simtest._lazy import require
 from simtest._threads import one_thread_each
+from simtest._workers import worker_pool
 from simtest.harness.protocols import Row, make_runner
 from simtest.harness.suite import Case, Suite, realisation_seed
 
@@ -369,17 +370,12 @@ def run_suite(suite: Suite, *, workers: int | None = None, progress: bool = True
         else:
             with one_thread_each():
                 ctx = mp.get_context("spawn")  # no inherited Mitsuba/LLVM threads
-                with ProcessPoolExecutor(max_workers=workers, mp_context=ctx,
-                                         initializer=_worker_init) as pool:
+                # an error or a signal stops the workers at once (simtest._workers)
+                with worker_pool(workers, mp_context=ctx, initializer=_worker_init) as pool:
                     futs = [pool.submit(run_case_chunk, c, estimators, suite.seed, s, e,
                                         suite.external) for c, s, e in tasks]
-                    try:
-                        for f in as_completed(futs):
-                            record(f.result(), bar)
-                    except BaseException:
-                        for f in futs:
-                            f.cancel()
-                        raise
+                    for f in as_completed(futs):
+                        record(f.result(), bar)
     wall = time.perf_counter() - t0
     results = [_assemble(c, estimators, by_key[(c.key, c.realisations)]) for c in cases]
     cpu, real = {}, {}

@@ -3,7 +3,7 @@
 ``reconstruct`` writes ``DIR/estimates.json`` (schema in :mod:`simtest.reconstruct.io`),
 ``DIR/overlay.png`` (:mod:`simtest.reconstruct.overlay`, unless ``--no-overlay``) and with ``--view``
 ``DIR/view.png`` (:mod:`simtest.reconstruct.view3d`); for a folder of frames or a video,
-``DIR/estimates.jsonl``. ``DIR`` is replaced as one folder (:func:`~simtest.reconstruct.io.
+``DIR/estimates.jsonl``. ``DIR`` is replaced as one folder (:func:`~simtest._io.
 replace_output_folder`): a failure or a kill at any point leaves either the whole previous set or
 the whole new one, never a new ``estimates.json`` beside an old ``overlay.png``; so ``DIR`` must be
 new, empty, or hold only a previous run's outputs. Exit status: 2 and one line ``error: ...`` on
@@ -38,6 +38,7 @@ import typer
 from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
 
 from simtest._exit import BAD_INPUT, CANNOT_WRITE, fail, writable_dir
+from simtest._outdir import check_out_folder, write_out_folder
 from simtest.evaluate.c3vd import DEPTH_RANGE_MM, U16, _read_tiff
 from simtest.geometry.camera_file import camera_from_dict, load_camera
 from simtest.geometry.cameras import PinholeCamera
@@ -47,11 +48,8 @@ from simtest.reconstruct.frames import is_sequence, open_frames, reconstruct_fra
 from simtest.reconstruct.images import InputError, load_image
 from simtest.reconstruct.io import (
     RECONSTRUCT_FILES,
-    OutputFolderError,
-    check_output_folder,
     estimates_document,
     read_estimates,
-    replace_output_folder,
 )
 from simtest.reconstruct.overlay import check_overlay_size, draw_overlay
 from simtest.reconstruct.pipeline import reconstruct
@@ -181,7 +179,7 @@ def reconstruct_command(
         if view:
             render_view(folder / "view.png", doc["specularities"])
 
-    write_out_folder(out, target, fill)
+    write_out_folder(out, target, fill, RECONSTRUCT_FILES)
     typer.echo(summary_line(estimates, [out / n for n in names], detection_rec))
 
 
@@ -198,58 +196,6 @@ def check_workers(workers: int, option: str = "--workers") -> int:
         fail(f"{option} {workers}: more than the {cpus} CPU(s) of this machine (0: one per CPU)",
              BAD_INPUT)
     return workers
-
-
-def check_out_folder(out: Path, owned, option: str = "--out") -> Path:
-    """Check an output folder that is replaced as a whole, before any work.
-
-    Parameters
-    ----------
-    out : Path
-        The folder as given.
-    owned : sequence of str
-        ``fnmatch`` patterns of the files the command writes there (nothing else may be there).
-    option : str
-        The option's name, for messages.
-
-    Returns
-    -------
-    Path
-        The folder's real path (symbolic links and ``..`` resolved): the one swapped.
-
-    Raises
-    ------
-    typer.Exit
-        With exit status 4 and one line saying why: a file in the way, a read-only or full
-        folder, files the command does not write inside, the current folder.
-    """
-    writable_dir(out, option)
-    try:
-        check_output_folder(out, owned, option)
-    except OutputFolderError as exc:
-        fail(exc, CANNOT_WRITE)
-    target = Path(os.path.realpath(out))
-    if target.exists():  # the swap renames OUT itself: its parent must take new entries too
-        writable_dir(target.parent, option)
-    return target
-
-
-def write_out_folder(out: Path, target: Path, fill) -> None:
-    """:func:`~simtest.reconstruct.io.replace_output_folder` with one-line errors.
-
-    Raises
-    ------
-    typer.Exit
-        2 for a bad input found while writing (ValueError, a missing pyvista), 4 for an OSError
-        (disk full, permissions); OUT keeps its previous set either way.
-    """
-    try:
-        replace_output_folder(target, fill)
-    except OSError as exc:
-        fail(f"--out: cannot write {out}: {exc.strerror or exc}"
-             + (f" ({exc.filename})" if getattr(exc, "filename", None) else ""), CANNOT_WRITE)
-    except (ValueError, ImportError) as exc:
-        fail(exc, BAD_INPUT)
 
 
 def _reconstruct_sequence(path, intrinsics, out, target, settings, *, points, workers, cubic=False) -> None:
@@ -292,7 +238,7 @@ def _reconstruct_sequence(path, intrinsics, out, target, settings, *, points, wo
             _, done["n"], done["wall"] = write_frames_jsonl(folder / "estimates.jsonl", records,
                                                             on_frame=on_frame)
 
-    write_out_folder(out, target, fill)
+    write_out_folder(out, target, fill, RECONSTRUCT_FILES)
     n, wall, jsonl = done["n"], done["wall"], out / "estimates.jsonl"
     n_cand = sum(counts.values())
     n_ok = counts.pop("ok", 0)
@@ -443,12 +389,20 @@ def view_command(
 ) -> None:
     """Render a 3D view of the estimated normals (off-screen: works without a display).
 
-    Writes one file, the PNG named by --out (replaced atomically). Exit status 2: bad input (an
-    unreadable estimates file, a camera or ground truth for another image size); 4: --out cannot
-    be written."""
+    Writes one file, the PNG named by --out (replaced atomically; a name ending in .png, and
+    an existing file there must be a PNG image). Exit status 2: bad input (an unreadable
+    estimates file, a camera or ground truth for another image size, a name not ending in .png);
+    4: --out cannot be written (a folder, a file that is not a PNG image, read-only)."""
 
     if out.is_dir():
         fail(f"--out: {out} is a folder; give the PNG file to write", CANNOT_WRITE)
+    # the view is a PNG: a name such as notes.txt is a slip, and a file there that is not a PNG
+    # image is a user's own, which the view would overwrite
+    if out.suffix.lower() != ".png":
+        fail(f"--out: {out}: the view is a PNG image; give a file name ending in .png", BAD_INPUT)
+    if out.exists() and not _is_png(out):
+        fail(f"--out: {out} exists and is not a PNG image; it is left as it is: give a new file "
+             "or a view written before", CANNOT_WRITE)
     writable_dir(out.parent, "--out")
     try:
         doc = read_estimates(estimates)
@@ -466,6 +420,15 @@ def view_command(
     except (ValueError, ImportError) as exc:  # no pyvista: simtest._lazy.MissingBackend
         fail(exc, BAD_INPUT)
     typer.echo(f"-> {out}")
+
+
+def _is_png(path: Path) -> bool:
+    """True if ``path`` starts with the PNG signature (a view written before, or another PNG)."""
+    try:
+        with open(path, "rb") as fh:
+            return fh.read(8) == b"\x89PNG\r\n\x1a\n"
+    except OSError:
+        return False
 
 
 def _is_write_error(exc: OSError, out: Path) -> bool:

@@ -24,7 +24,6 @@ import multiprocessing
 import os
 import time
 from collections.abc import Iterator
-from concurrent.futures import ProcessPoolExecutor
 from itertools import chain
 from dataclasses import dataclass
 from pathlib import Path
@@ -33,6 +32,7 @@ import cv2
 import numpy as np
 
 from simtest._threads import one_thread_each
+from simtest._workers import worker_pool
 from simtest.geometry.response import ResponseError
 from simtest.reconstruct._pixels import image_size_wh
 from simtest.reconstruct.images import InputError, load_image, quiet_stderr
@@ -369,8 +369,9 @@ def reconstruct_frames(source: FrameSource, K, settings: ReconSettings | None = 
     ring = _FrameRing(first[2], window) if "fork" in multiprocessing.get_all_start_methods() else None
     pool_args = {} if ring is None else {"mp_context": multiprocessing.get_context("fork"),
                                          "initializer": _FrameRing.attach, "initargs": (ring,)}
-    # one BLAS thread in each worker (and here): the pool is the parallelism (simtest._threads)
-    with one_thread_each(), ProcessPoolExecutor(max_workers=workers, **pool_args) as pool:
+    # one BLAS thread in each worker (and here): the pool is the parallelism (simtest._threads);
+    # an error, a signal or the generator closed early stops the workers at once (simtest._workers)
+    with one_thread_each(), worker_pool(workers, **pool_args) as pool:
         pending = []
         for n, job in enumerate(chain([first], jobs)):
             if len(pending) >= window:  # the oldest frame's record, and its slot free again
@@ -420,4 +421,7 @@ def write_frames_jsonl(path, records, *, on_frame=None) -> tuple[Path, int, floa
     finally:
         if tmp.exists():
             tmp.unlink()
+        close = getattr(records, "close", None)  # a generator's pool stops now, not when collected
+        if close is not None:
+            close()
     return path, n, time.perf_counter() - t0

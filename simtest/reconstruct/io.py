@@ -103,7 +103,6 @@ have an empty ``isophotes`` list and null normals except ``bp_ray``.
 
 from __future__ import annotations
 
-import fnmatch
 import json
 import os
 import re
@@ -112,7 +111,7 @@ from pathlib import Path
 import numpy as np
 import orjson as _orjson  # a float64 array's JSON text in C: estimates.jsonl's cost on a video
 
-from simtest._io import atomic_write_json, recover_output_folder, replace_output_folder
+from simtest._io import atomic_write_json
 from simtest._version import __version__
 
 SCHEMA_VERSION = 2
@@ -850,56 +849,8 @@ def read_estimates(path) -> dict:
 
 
 # ------------------------------------------------------------------------------------------------
-# an output folder replaced as a set
-
-
-class OutputFolderError(ValueError):
-    """An output folder that cannot take a command's set of files (a file, foreign files)."""
+# an output folder replaced as a set (simtest._outdir)
 
 
 #: What ``simtest reconstruct`` writes in its ``--out`` folder (and nothing else may be there).
 RECONSTRUCT_FILES = ("estimates.json", "overlay.png", "view.png", "estimates.jsonl")
-
-def check_output_folder(out, owned, option: str = "--out") -> Path:
-    """Refuse an output folder that a set swap would damage.
-
-    Parameters
-    ----------
-    out : str or Path
-        The folder a command replaces as a whole (:func:`replace_output_folder`).
-    owned : sequence of str
-        ``fnmatch`` patterns of the names the command writes there.
-    option : str
-        The option that named ``out``, for the messages.
-
-    Returns
-    -------
-    Path
-        ``out``.
-
-    Raises
-    ------
-    OutputFolderError
-        If ``out`` is a file, is the current folder or one of its ancestors (it cannot be swapped
-        from under the shell), or holds an entry no pattern of ``owned`` matches (it would be
-        lost): the message names the folder and up to three such entries.
-    """
-    out = Path(out)
-    if out.exists() and not out.is_dir():
-        raise OutputFolderError(f"{option}: {out} is a file, not a folder")
-    if not out.exists():
-        return out
-    here = Path.cwd().resolve()
-    full = out.resolve()
-    if full == here or full in here.parents:
-        raise OutputFolderError(f"{option}: {out} is the current folder or holds it; the outputs are "
-                                "replaced as one folder: give a new or empty folder")
-    other = sorted(p.name for p in full.iterdir() if not any(fnmatch.fnmatchcase(p.name, pat) for pat in owned))
-    if other:
-        raise OutputFolderError(
-            f"{option}: {out} holds files this command does not write ({', '.join(other[:3])}"
-            f"{', ...' if len(other) > 3 else ''}); its outputs replace the folder as a whole: "
-            "give a new or empty folder")
-    return out
-
-

@@ -173,12 +173,13 @@ from __future__ import annotations
 
 import dataclasses
 import math
-from concurrent.futures import ProcessPoolExecutor, as_completed
+from concurrent.futures import as_completed
 from dataclasses import dataclass
 
 import numpy as np
 
 from simtest._threads import one_thread_each
+from simtest._workers import worker_pool
 from simtest.geometry.lights import LightRig
 from simtest.reconstruct._pixels import Roi
 from simtest.reconstruct.detect import luma, noise_sigma
@@ -762,8 +763,8 @@ def with_light_aware(image, estimates, camera, rig: LightRig | None, *, on_highl
     # threads differs in its last bits, which a fit's iterations carry to its results
     with one_thread_each():
         if workers > 1 and len(todo) > 1:
-            with ProcessPoolExecutor(max_workers=min(workers, len(todo)), initializer=_fit_context,
-                                     initargs=(image, camera, rig, kwargs)) as pool:
+            with worker_pool(min(workers, len(todo)), initializer=_fit_context,
+                             initargs=(image, camera, rig, kwargs)) as pool:
                 futures = {pool.submit(_fits_in_context, out[i]): i for i in todo}
                 for done, fut in enumerate(as_completed(futures), 1):
                     i = futures[fut]

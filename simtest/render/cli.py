@@ -20,14 +20,14 @@ import typer
 from PIL import Image
 from rich.console import Console
 
-from simtest._exit import BAD_INPUT, CANNOT_WRITE, writable_dir
-from simtest._io import atomic_write_set
+from simtest._exit import BAD_INPUT, CANNOT_WRITE
+from simtest._io import OutputFolderError
+from simtest._outdir import check_out_folder, write_out_folder
 from simtest.constants import MAX_SEED
 from simtest.render.render import (
-    OutputFolderError,
+    RENDER_FILES,
     RendererUnavailable,
     RenderInputError,
-    check_output_folder,
     render_scene,
     write_render,
 )
@@ -45,7 +45,11 @@ from simtest.simulate.truth import HighlightTruthError
 from simtest.resources import data_root, real_banner_path
 from simtest.scene.spec import RENDER_VARIANTS, SceneError, load_scene, scene_to_toml
 
-__all__ = ["render_command", "simreal_command"]
+__all__ = ["render_command", "simreal_command", "SIMREAL_FILES"]
+
+#: What ``simtest simreal`` writes in its output folder (and all that may be there: it is replaced
+#: as a set, so that a kill never leaves a new simreal.json beside an old simreal.png).
+SIMREAL_FILES = ("simreal.json", "simreal.md", "simreal.png", "frames.png", "fitted.toml")
 
 
 def _fail(message: str, code: int = 2) -> typer.Exit:
@@ -77,11 +81,7 @@ def render_command(
     bad input, or Mitsuba cannot run here; 4: OUT cannot be written."""
     if variant is not None and variant not in RENDER_VARIANTS:
         raise _fail(f"--variant: {variant!r} is not one of {', '.join(RENDER_VARIANTS)}")
-    writable_dir(out, "--out")
-    try:
-        check_output_folder(out)
-    except OutputFolderError as exc:
-        raise _fail(f"--out: {exc}", CANNOT_WRITE) from None
+    check_out_folder(out, RENDER_FILES)
     try:
         spec = load_scene(scene)
     except SceneError as exc:
@@ -99,7 +99,7 @@ def render_command(
     try:
         paths = write_render(result, out)
     except OutputFolderError as exc:
-        raise _fail(f"--out: {exc}", CANNOT_WRITE) from None
+        raise _fail(exc, CANNOT_WRITE) from None
     except OSError as exc:
         raise _fail(f"--out: cannot write the render to {out}: {exc.strerror or exc}", CANNOT_WRITE) from None
     H, W = result.linear.shape
@@ -163,8 +163,8 @@ def simreal_command(
                                               help="Scene to render (a bundled name or a TOML file); "
                                               "default colonoscope."),
     out: Path = typer.Option(..., "--out", "-o", show_default=False,
-                             help="Output folder (created if needed): simreal.json, simreal.md, simreal.png "
-                             "(with --fit also fitted.toml and frames.png)."),
+                             help="Output folder, new, empty or a previous simreal's (replaced as a whole): "
+                             "simreal.json, simreal.md, simreal.png (with --fit also fitted.toml and frames.png)."),
     real: Optional[list[Path]] = typer.Option(
         None, "--real", help="Real frames: images, or a banner of 280 px tiles (*banner*). "
         "Default: the Hyper-Kvasir banner in tests/data/real."),
@@ -183,7 +183,7 @@ def simreal_command(
     """Render SCENE and compare its video frame with real frames: table (JSON, Markdown) and figure;
     with --fit, first fit the scene to real frames.
 
-    Writes, in the folder OUT (replaced as a set; other files there are kept): OUT/simreal.json
+    Writes, in the folder OUT (new, empty or a previous simreal's; replaced as a set): OUT/simreal.json
     (the table's rows, the scene, the seed and the real frames), OUT/simreal.md (the table in
     Markdown) and OUT/simreal.png (the figure). With --fit FRAMES: the scene's micro-relief
     (height, spectrum), film roughness, albedo, exposure, noise and tone are fitted to alternate
@@ -196,7 +196,7 @@ def simreal_command(
     if scene_arg is not None and scene_opt is not None and scene_arg != scene_opt:
         raise _fail(f"--scene: {scene_opt!r} and SCENE {scene_arg!r} disagree (give one)")
     scene = scene_opt or scene_arg or "colonoscope"
-    writable_dir(out, "--out")
+    target = check_out_folder(out, SIMREAL_FILES)
     if fit:
         if real:
             raise _fail("--real: not with --fit (the fit's held-out frames are its check)")
@@ -208,7 +208,8 @@ def simreal_command(
     except SceneError as exc:
         raise _fail(str(exc)) from None
     if fit:
-        _simreal_fit(spec, frames, list(fit), out, renders, polish, spec.render.seed if seed is None else seed)
+        _simreal_fit(spec, frames, list(fit), out, target, renders, polish,
+                     spec.render.seed if seed is None else seed)
         return
     try:
         result = render_scene(spec, seed=seed)
@@ -222,18 +223,17 @@ def simreal_command(
     fig = sim_to_real_figure(frame, frames, rows)
     doc = {"scene": spec.name, "seed": result.seed, "real": [_shown(p) for p in paths], "rows": rows}
     lines = _table_md(rows)
-    try:
-        atomic_write_set({
-            out / "simreal.json": lambda t: Path(t).write_text(json.dumps(doc, indent=1) + "\n", encoding="utf-8"),
-            out / "simreal.md": lambda t: Path(t).write_text("\n".join(lines) + "\n", encoding="utf-8"),
-            out / "simreal.png": lambda t: fig.savefig(t, format="png", dpi=110),
-        })
-    except OSError as exc:
-        raise _fail(f"--out: cannot write {out}: {exc.strerror or exc}", CANNOT_WRITE) from None
+    def fill(tmp: Path) -> None:
+        (tmp / "simreal.json").write_text(json.dumps(doc, indent=1) + "\n", encoding="utf-8")
+        (tmp / "simreal.md").write_text("\n".join(lines) + "\n", encoding="utf-8")
+        fig.savefig(tmp / "simreal.png", format="png", dpi=110)
+
+    write_out_folder(out, target, fill, SIMREAL_FILES)
     typer.echo("\n".join(lines))
 
 
-def _simreal_fit(spec, frames: list, paths: list[Path], out: Path, renders: int, polish: int, seed: int) -> None:
+def _simreal_fit(spec, frames: list, paths: list[Path], out: Path, target: Path, renders: int, polish: int,
+                 seed: int) -> None:
     """``simreal --fit``: fit, then write the fitted scene and the before/after report."""
 
     fit_frames, held = split_frames(frames)
@@ -271,16 +271,14 @@ def _simreal_fit(spec, frames: list, paths: list[Path], out: Path, renders: int,
     fig = fit_figure(res.before, res.after, fit_frames, held, tables)
     toml = scene_to_toml(res.spec, out, header)
     strip = _side_by_side(res.before, res.after, fit_frames, held)
-    try:
-        atomic_write_set({
-            out / "simreal.json": lambda t: Path(t).write_text(json.dumps(doc, indent=1) + "\n", encoding="utf-8"),
-            out / "simreal.md": lambda t: Path(t).write_text("\n".join(lines) + "\n", encoding="utf-8"),
-            out / "simreal.png": lambda t: fig.savefig(t, format="png", dpi=100),
-            out / "frames.png": lambda t: Image.fromarray(strip).save(t, format="PNG"),
-            out / "fitted.toml": lambda t: Path(t).write_text(toml, encoding="utf-8"),
-        })
-    except OSError as exc:
-        raise _fail(f"--out: cannot write {out}: {exc.strerror or exc}", CANNOT_WRITE) from None
+    def fill(tmp: Path) -> None:
+        (tmp / "simreal.json").write_text(json.dumps(doc, indent=1) + "\n", encoding="utf-8")
+        (tmp / "simreal.md").write_text("\n".join(lines) + "\n", encoding="utf-8")
+        fig.savefig(tmp / "simreal.png", format="png", dpi=100)
+        Image.fromarray(strip).save(tmp / "frames.png", format="PNG")
+        (tmp / "fitted.toml").write_text(toml, encoding="utf-8")
+
+    write_out_folder(out, target, fill, SIMREAL_FILES)
     typer.echo("\n".join(lines))
 
 

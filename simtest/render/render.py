@@ -18,12 +18,9 @@ through :func:`simtest._lazy.require`; the Mitsuba plugins (:mod:`simtest.render
 from __future__ import annotations
 
 import dataclasses
-import fcntl
 import json
 import os
 import resource
-import shutil
-import tempfile
 import threading
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -33,7 +30,8 @@ import numpy as np
 from PIL import Image
 
 from simtest import _llvm
-from simtest._io import atomic_write, atomic_write_text
+from simtest._io import OutputFolderError, atomic_write, atomic_write_text, replace_output_folder
+from simtest._io import check_output_folder as _check_output_folder
 from simtest._lazy import require
 from simtest.constants import MAX_SEED
 from simtest.geometry.camera import pixel_to_ray
@@ -1049,78 +1047,12 @@ RENDER_FILES = ("image.png", "intrinsics.json", "ground_truth.npz", "highlights.
                 "frame.png")
 
 
-class OutputFolderError(ValueError):
-    """``write_render`` refuses a folder that holds files other than a previous render's."""
-
-
-def check_output_folder(out: str | Path) -> None:
-    """Raise :class:`OutputFolderError` unless ``out`` is new, or a folder holding only a render.
-
-    ``simtest render`` replaces its output folder as a whole, so it must not hold other files.
+def check_output_folder(out: str | Path, option: str = "--out") -> None:
+    """Raise :class:`~simtest._io.OutputFolderError` unless ``out`` is new, empty, or a folder
+    holding only a render's files (:data:`RENDER_FILES`): ``simtest render`` replaces its output
+    folder as a whole, so anything else there would be lost.
     """
-    out = Path(out)
-    if not out.exists():
-        return
-    if not out.is_dir():
-        raise OutputFolderError(f"{out} is a file, not a folder")
-    other = sorted(p.name for p in out.iterdir() if p.name not in RENDER_FILES)
-    if other:
-        raise OutputFolderError(
-            f"{out} holds files that are not a render's ({', '.join(other[:3])}"
-            f"{', ...' if len(other) > 3 else ''}): give an empty or new folder")
-
-
-def _fsync_dir(path: Path) -> None:
-    fd = os.open(path, os.O_RDONLY)
-    try:
-        os.fsync(fd)
-    finally:
-        os.close(fd)
-
-
-def _replace_folder(out: Path, fill) -> None:
-    """Write a folder as a set: ``fill(tmp)`` writes every file into a fresh sibling folder, which
-    then replaces ``out`` by renames.
-
-    A failure while filling leaves ``out`` as it was (the previous complete set, or nothing); the
-    swap is two renames (``out`` aside, the new folder in), so a crash between them leaves no
-    ``out`` and the previous set under ``.<name>.old-*``, never a mix of old and new files. Two
-    processes writing the same folder are serialised by a lock on the folder that holds
-    it (``flock`` on the parent folder itself, so no lock file is left behind).
-    """
-    parent = out.parent
-    parent.mkdir(parents=True, exist_ok=True)
-    lock = os.open(parent, os.O_RDONLY)
-    try:
-        fcntl.flock(lock, fcntl.LOCK_EX)
-        check_output_folder(out)
-        tmp = Path(tempfile.mkdtemp(prefix=f".{out.name}.", suffix=".tmp", dir=parent))
-        old = None
-        try:
-            fill(tmp)
-            os.chmod(tmp, 0o777 & ~_umask())
-            _fsync_dir(tmp)
-            if out.exists():
-                old = Path(tempfile.mkdtemp(prefix=f".{out.name}.old-", dir=parent))
-                os.rmdir(old)
-                os.rename(out, old)
-            os.rename(tmp, out)
-            _fsync_dir(parent)
-        except BaseException:
-            shutil.rmtree(tmp, ignore_errors=True)
-            if old is not None and old.exists() and not out.exists():
-                os.rename(old, out)
-            raise
-        if old is not None:
-            shutil.rmtree(old, ignore_errors=True)
-    finally:
-        os.close(lock)
-
-
-def _umask() -> int:
-    mask = os.umask(0)
-    os.umask(mask)
-    return mask
+    _check_output_folder(out, RENDER_FILES, option)
 
 
 def _light_dict(light: Light) -> dict:
@@ -1152,8 +1084,9 @@ def write_render(result: RenderResult, out_dir: str | Path) -> dict[str, Path]:
     ``shading_normals`` (H, W, 3) and ``albedo`` (H, W, 3) to ``ground_truth.npz``.
 
     The files are written into a temporary sibling folder that then replaces ``out_dir`` by
-    renames (see :func:`_replace_folder`); ``out_dir`` may be new, empty or a previous render's
-    folder (:data:`RENDER_FILES`).
+    renames (:func:`simtest._io.replace_output_folder`, which first clears what a killed write
+    left beside it); ``out_dir`` may be new, empty or a previous render's folder
+    (:data:`RENDER_FILES`).
 
     Returns
     -------
@@ -1169,6 +1102,7 @@ def write_render(result: RenderResult, out_dir: str | Path) -> dict[str, Path]:
     """
 
     out = Path(out_dir).absolute()
+    check_output_folder(out)
     names = dict(zip(("image", "intrinsics", "ground_truth", "highlights", "camera", "frame"), RENDER_FILES))
     img = result.sensor
     if img.dtype == np.uint8:
@@ -1219,5 +1153,5 @@ def write_render(result: RenderResult, out_dir: str | Path) -> dict[str, Path]:
         frame = Image.fromarray(result.frame, mode="RGB")
         atomic_write(paths["frame"], lambda t: frame.save(t, format="PNG"))
 
-    _replace_folder(out, fill)
+    replace_output_folder(out, fill, owned=RENDER_FILES)
     return {k: out / v for k, v in names.items()}

@@ -27,7 +27,10 @@ from simtest.harness.report.figures import figure_png, make_figures
 from simtest.harness.report.provenance import make_run_id, provenance
 from simtest.harness.report.results import SCHEMA, SCHEMA_VERSION, build_results, results_csv
 
-__all__ = ["SCHEMA", "SCHEMA_VERSION", "PAPER_CHECKS", "CLAIMS", "build_results", "write_report",
+#: What a run folder holds (and all it may hold: it is replaced as a whole, never merged).
+REPORT_FILES = ("results.json", "results.csv", "report.md", "report.html", "figures/*.png")
+
+__all__ = ["SCHEMA", "SCHEMA_VERSION", "PAPER_CHECKS", "CLAIMS", "REPORT_FILES", "build_results", "write_report",
            "write_report_files", "provenance", "evaluate_paper_claim", "evaluate_claims",
            "make_run_id", "results_csv"]
 
@@ -41,7 +44,8 @@ def write_report_files(results: dict, folder: str | Path, plots: bool = True,
     results : dict
         A ``results.json`` document (as from :func:`build_results`, or read back from disk).
     folder : path
-        The run folder; an existing one is replaced.
+        The run folder; an existing one is replaced, if it holds only a report's files
+        (:data:`REPORT_FILES`).
     plots : bool
         Draw the figures (matplotlib, Agg).
     nightly : dict, optional
@@ -54,6 +58,11 @@ def write_report_files(results: dict, folder: str | Path, plots: bool = True,
     -------
     Path
         ``folder``.
+
+    Raises
+    ------
+    simtest._io.OutputFolderError
+        ``folder`` holds files that are not a report's (they are kept; nothing is written).
     """
     folder = Path(folder)
     # the figures and the text first (nothing written yet if one of them fails)
@@ -75,7 +84,8 @@ def write_report_files(results: dict, folder: str | Path, plots: bool = True,
         (tmp / "report.md").write_text(md, encoding="utf-8")
         (tmp / "report.html").write_text(html, encoding="utf-8")
 
-    replace_output_folder(folder, fill)  # as a set: a failure or a kill leaves the old one whole
+    # as a set: a failure or a kill leaves the old one whole; a user's file there is never lost
+    replace_output_folder(folder, fill, owned=REPORT_FILES)
     return folder
 
 
