@@ -293,7 +293,7 @@ def test_the_real_tile_row_counts_its_fits_and_names_the_missing_tile(monkeypatc
     # the same fits shared among a worker per core, and how much faster that was
     assert f"among {os.cpu_count() or 1} worker processes" in shared.name and shared.value > 0
     assert re.fullmatch(r"\d+\.\d\d times as fast as one process", shared.note), shared.note
-    monkeypatch.setattr(bench, "data_root", lambda: tmp_path)
+    monkeypatch.setattr(bench, "real_dir", lambda: tmp_path)
     (row,) = bench._bench_real_tile_rig()
     assert row.value != row.value and "source tree not found" in row.name
 

@@ -299,7 +299,8 @@ class PaperRunner:
                 errs = {k: (float("nan"), "bp_nonpositive") for k in self.estimators}
                 out.append([_row(errs, {k: float("nan") for k in EXTRA_KEYS})])
             else:
-                out.append([self._score(*t, next(ests))])
+                normal, bp_px, external = t
+                out.append([self._score(normal, bp_px, next(ests), external)])
         return out
 
     def _external(self, s) -> dict:
@@ -311,9 +312,9 @@ class PaperRunner:
         return {name: score_external(spec, s.image, camera, None, None, [(s.bp_px, s.normal)],
                                      PAPER_MATCH_PX)[0] for name, spec in self.external.items()}
 
-    def _score(self, normal, bp_px, external, est):
+    def _score(self, normal, bp_px, est, external=None):
         errs = score(est, normal, self.builtin)
-        errs.update(external)
+        errs.update(external or {})
         extras = _extras(est)
         bp = getattr(est, "bp_px", None)
         extras["bp_error_px"] = (float(np.linalg.norm(np.asarray(bp, float) - bp_px))

@@ -31,6 +31,7 @@ from pathlib import Path
 
 import cv2
 import numpy as np
+from PIL import Image
 
 from simtest.reconstruct.detect import validate_image
 
@@ -127,8 +128,6 @@ def _header_size(path: Path) -> None:
     Pillow reads the header only (its ``open`` is lazy); a format Pillow does not know is left to
     the decoder (OpenCV's own limit, 2^30 pixels, then applies, and the decoded size is checked).
     """
-    from PIL import Image
-
     try:
         with warnings.catch_warnings():
             warnings.simplefilter("ignore", Image.DecompressionBombWarning)

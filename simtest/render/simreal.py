@@ -45,6 +45,7 @@ from skimage.measure import label
 
 from simtest.constants import LUMA_BT601
 from simtest.reconstruct.detect import default_full_scale, detect_specularities, image_smooth_sigma_px
+from simtest.reconstruct.images import quiet_stderr
 from simtest.reconstruct.settings import ReconSettings
 
 matplotlib.use("Agg", force=False)
@@ -239,8 +240,6 @@ def banner_frames(path: str | Path, tile_px: int = 280) -> list[np.ndarray]:
     ValueError
         If the file cannot be read as an image.
     """
-    from simtest.reconstruct.images import quiet_stderr
-
     with quiet_stderr():  # the decoder's own lines (libpng, libjpeg): the error names the file
         img = cv2.imread(str(path), cv2.IMREAD_COLOR)
     if img is None:
