@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 
 from simtest.geometry.cameras import PinholeCamera
-from simtest.harness.external import ExternalError, external_estimators, score_external
+from simtest.harness.external import ExternalError, external_estimators, score_external, with_external
 from simtest.harness.suite import load_suite
 
 HERE = Path(__file__).resolve().parent
@@ -67,7 +67,7 @@ def test_a_bad_spec_is_refused_in_one_line(spec, why):
 
 def test_the_suite_keeps_its_external_estimators_through_overrides(monkeypatch):
     monkeypatch.syspath_prepend(str(EXAMPLE))
-    s = load_suite("quick").with_external(["mine=my_method:bp_ray_cv"])
+    s = with_external(load_suite("quick"), ["mine=my_method:bp_ray_cv"])
     t = s.with_overrides(seed=3, realisations=2)
     assert t.estimators[-1] == "mine" and t.external == (("mine", "my_method:bp_ray_cv"),)
 

@@ -43,7 +43,7 @@ from simtest.harness.nightly import (
     undetectable_doublings,
     update_baseline as write_baseline,
 )
-from simtest.harness.external import ExternalError
+from simtest.harness.external import ExternalError, with_external
 from simtest.harness.report import REPORT_FILES, build_results, make_run_id, write_report_files
 from simtest.harness.runner import run_suite
 from simtest.harness.suite import MAX_TOTAL_REALISATIONS, SuiteError, load_suite
@@ -247,7 +247,7 @@ def validate_command(
     s = load_checked_suite(suite, seed, realisations)
     if estimator:
         try:
-            s = s.with_external(estimator)
+            s = with_external(s, estimator)
         except ExternalError as e:
             fail(e, BAD_INPUT)
     run_id = safe_name(run_id or make_run_id(), "--run-id")

@@ -32,6 +32,7 @@ realisation with ``exception:<type>`` and its message is kept in the report.
 
 from __future__ import annotations
 
+import dataclasses
 import importlib
 import math
 import re
@@ -41,7 +42,7 @@ import numpy as np
 
 from simtest.geometry.angles import angle_between_deg
 
-__all__ = ["ExternalError", "external_estimators", "load_external", "score_external"]
+__all__ = ["ExternalError", "external_estimators", "load_external", "score_external", "with_external"]
 
 _SPEC = re.compile(r"(?:(?P<name>[A-Za-z_][A-Za-z0-9_]*)=)?"
                    r"(?P<module>[A-Za-z_][A-Za-z0-9_.]*):(?P<func>[A-Za-z_][A-Za-z0-9_]*)")
@@ -174,3 +175,29 @@ def score_external(spec: str, frame, camera, rig, response, truths: Sequence,
         else:
             out.append((float(angle_between_deg(normals[i], t_n)), None))
     return out
+
+
+def with_external(suite, specs):
+    """A copy of ``suite`` that also scores the external estimators ``specs``.
+
+    Parameters
+    ----------
+    suite : simtest.harness.suite.Suite
+        A loaded suite.
+    specs : sequence of str
+        ``[name=]package.module:function`` each.
+
+    Returns
+    -------
+    simtest.harness.suite.Suite
+        The same cases; ``estimators`` and ``external`` extended (``external`` survives
+        :meth:`~simtest.harness.suite.Suite.with_overrides`).
+
+    Raises
+    ------
+    ExternalError
+        A spec that does not import, or a name already scored.
+    """
+    ext = external_estimators(list(specs), suite.estimators)
+    return dataclasses.replace(suite, estimators=suite.estimators + tuple(n for n, _ in ext),
+                               external=suite.external + ext)

@@ -69,7 +69,6 @@ from simtest._checks import keyed_error
 from simtest._io import jsonable
 from simtest.harness.claims import PAPER_CHECKS
 from simtest.harness.estimators import LIGHT_AWARE_FITS, ORACLE_FITS
-from simtest.harness.external import external_estimators
 from simtest.reconstruct.settings import ReconSettings
 from simtest.resources import bundled
 from simtest.scene import SceneError, bundled_scene_path, load_scene, with_overrides
@@ -520,28 +519,6 @@ class Suite:
     sha256: str = ""
     raw: dict = field(default_factory=dict, compare=False, repr=False)
     external: tuple[tuple[str, str], ...] = ()
-
-    def with_external(self, specs) -> Suite:
-        """A copy that also scores the external estimators ``specs``.
-
-        Parameters
-        ----------
-        specs : sequence of str
-            ``[name=]package.module:function`` each (:mod:`simtest.harness.external`).
-
-        Returns
-        -------
-        Suite
-            The same cases; :attr:`estimators` and :attr:`external` extended.
-
-        Raises
-        ------
-        simtest.harness.external.ExternalError
-            A spec that does not import, or a name already scored.
-        """
-        ext = external_estimators(list(specs), self.estimators)
-        return dataclasses.replace(self, estimators=self.estimators + tuple(n for n, _ in ext),
-                                   external=self.external + ext)
 
     @property
     def cases(self) -> list[Case]:
