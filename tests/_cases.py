@@ -1,4 +1,4 @@
-"""Random test cases shared by several test files (exact geometry, seeded)."""
+"""Random test cases and checks shared by several test files (exact geometry, seeded)."""
 
 from __future__ import annotations
 
@@ -27,3 +27,14 @@ def random_circle_pose(seed: int, key: int = 1234):
     perp /= np.linalg.norm(perp)
     normal = -np.cos(tilt) * ray + np.sin(tilt) * perp
     return centre, normal, rng.uniform(3, 25), rng
+
+
+def assert_one_error_line(res, code: int, *words: str) -> None:
+    """A command-line result (typer's ``CliRunner``) that failed with ``code`` in one line
+    ``error: ...`` holding every one of ``words``, and no traceback."""
+    assert res.exit_code == code, res.output
+    lines = [ln for ln in res.output.splitlines() if ln.strip()]
+    assert len(lines) == 1 and lines[0].startswith("error: "), res.output
+    assert "Traceback" not in res.output
+    for w in words:
+        assert w in lines[0], lines[0]

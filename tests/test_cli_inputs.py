@@ -20,6 +20,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 import pytest
+from _cases import assert_one_error_line
 from typer.testing import CliRunner
 
 from simtest.cli import app
@@ -76,13 +77,7 @@ def files(tmp_path):
     return f
 
 
-def _one_line(res, code, *words):
-    assert res.exit_code == code, res.output
-    lines = [ln for ln in res.output.splitlines() if ln.strip()]
-    assert len(lines) == 1 and lines[0].startswith("error: "), res.output
-    assert "Traceback" not in res.output
-    for w in words:
-        assert w in lines[0], lines[0]
+_one_line = assert_one_error_line
 
 
 def test_npy_that_is_no_image_is_one_line_naming_file_shape_and_dtype(files, tmp_path):

@@ -12,6 +12,7 @@ from __future__ import annotations
 from pathlib import Path
 
 import pytest
+from _cases import assert_one_error_line
 from typer.testing import CliRunner
 
 from simtest._io import OutputFolderError, check_output_folder, replace_output_folder
@@ -20,13 +21,7 @@ from simtest.cli import app
 runner = CliRunner()
 
 
-def _one_line(res, code, *words):
-    assert res.exit_code == code, res.output
-    lines = [ln for ln in res.output.splitlines() if ln.strip()]
-    assert len(lines) == 1 and lines[0].startswith("error: "), res.output
-    assert "Traceback" not in res.output
-    for w in words:
-        assert w in lines[0], lines[0]
+_one_line = assert_one_error_line
 
 
 def _users_folder(path: Path) -> dict:

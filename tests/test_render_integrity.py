@@ -8,6 +8,7 @@ import math
 
 import numpy as np
 import pytest
+from _cases import assert_one_error_line
 from typer.testing import CliRunner
 
 from simtest.cli import app
@@ -21,13 +22,9 @@ _TINY = {"camera": {"width_px": 32, "height_px": 24, "focal_px": 32.0}, "render"
          "geometry": {"type": "plane", "tilt_deg": 10.0, "distance_mm": 20.0}}
 
 
+
 def _one_line(res, *words, code=2):
-    assert res.exit_code == code, res.output
-    lines = [ln for ln in res.output.splitlines() if ln.strip()]
-    assert len(lines) == 1 and lines[0].startswith("error: "), res.output
-    assert "Traceback" not in res.output
-    for w in words:
-        assert w in lines[0], lines[0]
+    assert_one_error_line(res, code, *words)
 
 
 def _bad_index_ply(path):
