@@ -116,7 +116,7 @@ def stop_workers(pool: ProcessPoolExecutor | None = None) -> int:
     Notes
     -----
     A pool keeps its processes in the private ``_processes`` (CPython 3.9 to 3.13; 3.14 adds
-    ``terminate_workers``), as :mod:`simtest.dataset.generate`'s pool reads them too.
+    ``terminate_workers``). :mod:`simtest.dataset.generate` stops its own pool with it too.
     """
     if pool is None:
         procs = multiprocessing.active_children()

@@ -72,6 +72,7 @@ from simtest import _dask
 from simtest._dask import SchedulerError, connect
 from simtest._io import atomic_write, atomic_write_text
 from simtest._lazy import require
+from simtest._workers import stop_workers
 from simtest.dataset.config import DatasetConfig, load_config
 from simtest.dataset.sample import CHANNELS, Sample, mesh_sha256, render_sample
 from simtest.dataset.shards import (
@@ -555,14 +556,7 @@ class _Pool:
 
     def close(self, cancel: bool = False):
         if cancel:  # an error or an interrupt: stop the workers now, not after their renders
-            procs = list((getattr(self.ex, "_processes", None) or {}).values())
-            for p in procs:
-                with contextlib.suppress(OSError, AttributeError, ValueError):
-                    p.terminate()
-            self.ex.shutdown(wait=True, cancel_futures=True)
-            for p in procs:
-                with contextlib.suppress(OSError, AttributeError, ValueError):
-                    p.join(5)
+            stop_workers(self.ex)
             return
         self.ex.shutdown(wait=True)
 
