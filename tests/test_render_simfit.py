@@ -25,9 +25,11 @@ PLANE = {
 }
 
 
-def test_split_holds_out_alternate_frames():
-    fit, held = split_frames(list(range(7)))
-    assert fit == [0, 2, 4, 6] and held == [1, 3, 5]
+def test_split_holds_out_frames_by_the_declared_table():
+    ids = ["hyperkvasir_banner.jpg:r0c1", "hyperkvasir_banner.jpg:r0c2", "hyperkvasir_banner.jpg:r2c7"]
+    assert split_frames(["a", "b", "c"], ids) == (["b"], ["a", "c"])  # even columns tune
+    fit, held = split_frames(list(range(7)))  # unlisted frames: a seeded half and half
+    assert sorted(fit + held) == list(range(7)) and len(fit) == 4 and (fit, held) == split_frames(list(range(7)))
     assert split_frames([9]) == ([9], [])
 
 
