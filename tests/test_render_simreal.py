@@ -182,13 +182,23 @@ def test_simreal_cli(tmp_path):
         "[material]\nmodel = 'tissue'\nalpha = 0.1\ndistribution = 'ggx'\n"
         "[geometry]\ntype = 'plane'\ntilt_deg = 10.0\ndistance_mm = 15.0\n"
         "[sensor]\noutput = 'video'\nexposure_mode = 'auto'\n[render]\nspp = 2\n")
-    real = tmp_path / "real.png"
+    real, other = tmp_path / "real.png", tmp_path / "other.png"
     cv2.imwrite(str(real), cv2.cvtColor(_frame([(20, 20, 3)]), cv2.COLOR_RGB2BGR))
-    res = CliRunner().invoke(app, ["simreal", str(scene), "--out", str(tmp_path / "o"), "--real", str(real)])
+    cv2.imwrite(str(other), cv2.cvtColor(_frame([(30, 30, 2), (60, 60, 4)]), cv2.COLOR_RGB2BGR))
+    res = CliRunner().invoke(app, ["simreal", str(scene), "--out", str(tmp_path / "o"), "--real", str(real),
+                                   "--real", str(other)])
     assert res.exit_code == 0, res.output
     data = json.loads((tmp_path / "o" / "simreal.json").read_text())
-    assert {r["statistic"] for r in data["rows"]} >= {"candidates_per_mp", "saturated_fraction", "tissue_r"}
-    assert (tmp_path / "o" / "simreal.png").stat().st_size > 10000
+    assert [r["statistic"] for r in data["rows"]] == list(ALL_STATISTICS)
+    # two unlisted frames: one to each part, and a verdict on each part for every statistic
+    assert sorted(data["split"]["tuning"] + data["split"]["held_out"]) == ["other.png", "real.png"]
+    assert len(data["split"]["tuning"]) == len(data["split"]["held_out"]) == 1
+    for part in ("tuning", "held_out"):
+        assert [r["statistic"] for r in data["tables"][part]] == list(ALL_STATISTICS)
+    md = (tmp_path / "o" / "simreal.md").read_text()
+    assert "held-out: ratio" in md and "white_blobs_per_mp (not fitted)" in md
+    for name in ("simreal.png", "frames.png", "glints.png"):
+        assert (tmp_path / "o" / name).stat().st_size > 10000, name
     res = CliRunner().invoke(app, ["simreal", str(scene), "--out", str(tmp_path / "o"), "--real",
                                    str(tmp_path / "missing.png")])
     assert res.exit_code == 2 and res.output.count("\n") == 1 and "missing.png" in res.output
