@@ -14,7 +14,6 @@ from simtest.render.simreal import (
     FACTOR_GOAL,
     GLINT_STATISTICS,
     REAL_SPLIT,
-    STATISTICS,
     banner_frames,
     banner_tiles,
     frame_stats,
