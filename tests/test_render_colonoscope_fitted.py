@@ -15,7 +15,7 @@ import pytest
 
 from simtest.resources import data_root, real_banner_path
 from simtest.render.simfit import split_frames
-from simtest.render.simreal import STATISTICS, banner_frames, sim_to_real_table
+from simtest.render.simreal import ALL_STATISTICS, STATISTICS, banner_tiles, sim_to_real_table
 from simtest.scene import load_scene, with_overrides
 
 REPORT = data_root() / "reports" / "simreal" / "2026-11-24-fit-seeds"
@@ -46,12 +46,15 @@ def test_a_cheap_render_stays_within_x2_of_the_real_frames():
     from simtest.render import render_scene
 
     frame = render_scene(small).frame
-    fit, held = split_frames(banner_frames(real_banner_path()))
+    tiles = banner_tiles(real_banner_path())
+    fit, held = split_frames([f for _, f in tiles], [k for k, _ in tiles])
     rows = {r["statistic"]: r for r in sim_to_real_table(frame, fit)}
-    assert set(rows) == set(STATISTICS)
-    off = {k: round(r["ratio"], 3) for k, r in rows.items() if k not in FILM_DEPENDENT and not r["within_goal"]}
+    assert set(rows) == set(ALL_STATISTICS)
+    # the fitted statistics (the glint population of issue 62 was not fitted: reported only)
+    off = {k: round(r["ratio"], 3) for k, r in rows.items()
+           if k in STATISTICS and k not in FILM_DEPENDENT and not r["within_goal"]}
     assert not off, f"fitted frames: statistics beyond x2 at half film: {off}"
     # held out: the saturated fraction is the one beyond x2 (2.2: the held-out frames saturate
     # 2.6 times less than the fitted ones), at full size too
-    held_rows = sim_to_real_table(frame, held)
+    held_rows = [r for r in sim_to_real_table(frame, held) if r["fitted"]]
     assert sum(r["within_goal"] for r in held_rows) >= len(STATISTICS) - 1 - len(FILM_DEPENDENT)

@@ -12,7 +12,7 @@ from typer.testing import CliRunner
 from simtest.cli import app
 from simtest.constants import MAX_SEED
 from simtest.render.simfit import RENDER_SEEDS, develop, fit_loss, render_seeds_of, split_frames
-from simtest.render.simreal import STATISTICS
+from simtest.render.simreal import ALL_STATISTICS, STATISTICS
 from simtest.scene.spec import load_scene, scene_from_dict, scene_to_toml, with_overrides
 
 PLANE = {
@@ -25,9 +25,11 @@ PLANE = {
 }
 
 
-def test_split_holds_out_alternate_frames():
-    fit, held = split_frames(list(range(7)))
-    assert fit == [0, 2, 4, 6] and held == [1, 3, 5]
+def test_split_holds_out_frames_by_the_declared_table():
+    ids = ["hyperkvasir_banner.jpg:r0c1", "hyperkvasir_banner.jpg:r0c2", "hyperkvasir_banner.jpg:r2c7"]
+    assert split_frames(["a", "b", "c"], ids) == (["b"], ["a", "c"])  # even columns tune
+    fit, held = split_frames(list(range(7)))  # unlisted frames: a seeded half and half
+    assert sorted(fit + held) == list(range(7)) and len(fit) == 4 and (fit, held) == split_frames(list(range(7)))
     assert split_frames([9]) == ([9], [])
 
 
@@ -141,10 +143,12 @@ def test_simreal_fit_cli(tmp_path):
     doc = json.loads((out / "simreal.json").read_text())
     assert doc["fit_frames"] == 1 and doc["held_out_frames"] == 1
     assert set(doc["tables"]) == {"fitted", "held_out"}
-    assert {r["statistic"] for r in doc["tables"]["fitted"]["after"]} == set(STATISTICS)
+    assert {r["statistic"] for r in doc["tables"]["fitted"]["after"]} == set(ALL_STATISTICS)
+    assert sorted(doc["split"]["tuning"] + doc["split"]["held_out"]) == ["r0.png", "r1.png"]
     fitted = load_scene(out / "fitted.toml")
     assert fitted.material.albedo is not None and fitted.material.relief_mm == pytest.approx(doc["params"]["relief_mm"])
     assert (out / "frames.png").stat().st_size > 1000 and (out / "simreal.png").stat().st_size > 10000
+    assert (out / "glints.png").stat().st_size > 10000
     # a missing frame: one line, exit 2, nothing written over the report
     res = CliRunner().invoke(app, ["simreal", "--fit", str(tmp_path / "missing.png"), "--scene", str(scene),
                                    "-o", str(out)])

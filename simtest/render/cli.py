@@ -35,10 +35,16 @@ from simtest.render.simfit import fit_scene, split_frames
 from simtest.render.simreal import (
     FACTOR_GOAL,
     at_height,
-    banner_frames,
+    REAL_SPLIT,
+    banner_tiles,
     fit_figure,
+    frames_figure,
+    glint_population,
+    glint_sheet,
     sim_to_real_figure,
     sim_to_real_table,
+    split_indices,
+    split_tables,
 )
 from simtest.reconstruct.images import quiet_stderr
 from simtest.simulate.truth import HighlightTruthError
@@ -49,7 +55,7 @@ __all__ = ["render_command", "simreal_command", "SIMREAL_FILES"]
 
 #: What ``simtest simreal`` writes in its output folder (and all that may be there: it is replaced
 #: as a set, so that a kill never leaves a new simreal.json beside an old simreal.png).
-SIMREAL_FILES = ("simreal.json", "simreal.md", "simreal.png", "frames.png", "fitted.toml")
+SIMREAL_FILES = ("simreal.json", "simreal.md", "simreal.png", "frames.png", "glints.png", "fitted.toml")
 
 
 def _fail(message: str, code: int = 2) -> typer.Exit:
@@ -124,38 +130,64 @@ def _shown(path: Path) -> str:
         return str(path)
 
 
-def _read_frames(paths: list[Path], option: str) -> list:
-    """RGB uint8 frames of image files (a banner of 280 px tiles, ``*banner*``, gives its tiles);
-    raises the one-line failure naming ``option`` and the file."""
-    frames = []
+def _read_frames(paths: list[Path], option: str) -> tuple[list, list[str]]:
+    """RGB uint8 frames of image files (a banner of 280 px tiles, ``*banner*``, gives its tiles)
+    and their ids (:func:`~simtest.render.simreal.banner_tiles`'s, else the file name); raises the
+    one-line failure naming ``option`` and the file."""
+    frames, ids = [], []
     for p in paths:
         if not p.is_file():
             raise _fail(f"{option}: {p}: no such file (give real frames with {option})")
         if "banner" in p.name:
             try:
-                frames += banner_frames(p)
+                tiles = banner_tiles(p)
             except ValueError as exc:
                 raise _fail(f"{option}: {exc}") from None
+            frames += [f for _, f in tiles]
+            ids += [k for k, _ in tiles]
         else:
             with quiet_stderr():  # libpng's own lines (an iCCP profile, ...): ours names the file
                 img = cv2.imread(str(p), cv2.IMREAD_COLOR)
             if img is None:
                 raise _fail(f"{option}: {p}: not a readable image")
             frames.append(cv2.cvtColor(img, cv2.COLOR_BGR2RGB))
+            ids.append(p.name)
     if len({f.shape[0] for f in frames}) != 1:
         raise _fail(f"{option}: the real frames must share one height")
-    return frames
+    return frames, ids
 
 
-def _table_md(rows: list[dict]) -> list[str]:
-    lines = ["| statistic | rendered | real | real IQR (per frame) | ratio | within x2 |",
-             "|---|---|---|---|---|---|"]
-    for r in rows:
+def _fmt(x: float) -> str:
+    return f"{x:.3g}" if np.isfinite(x) else "n/a"
+
+
+def _table_md(rows: list[dict], parts: dict[str, list[dict]] | None = None) -> list[str]:
+    """The table in Markdown; ``parts`` (name -> rows of the same statistics): a ratio and a
+    within-x2 column for each, after those of ``rows``."""
+    parts = parts or {}
+    head = "| statistic | rendered | real | real IQR (per frame) | ratio | within x2 |"
+    rule = "|---|---|---|---|---|---|"
+    for name in parts:
+        head += f" {name.replace('_', '-')}: ratio | within x2 |"
+        rule += "---|---|"
+    lines = [head, rule]
+    for i, r in enumerate(rows):
         real = f"{r['real']:.4g}" + (" (pooled)" if r.get("real_pooled") else "")
-        lines.append(f"| {r['statistic']} | {r['rendered']:.4g} | {real} | "
-                     f"{r['real_q25']:.3g} to {r['real_q75']:.3g} | {r['ratio']:.3g} | "
-                     f"{'yes' if r['within_goal'] else 'no'} |")
+        line = (f"| {r['statistic']}{'' if r.get('fitted', True) else ' (not fitted)'} | {r['rendered']:.4g} | "
+                f"{real} | {_fmt(r['real_q25'])} to {_fmt(r['real_q75'])} | {_fmt(r['ratio'])} | "
+                f"{'yes' if r['within_goal'] else 'no'} |")
+        for p in parts.values():
+            line += f" {_fmt(p[i]['ratio'])} | {'yes' if p[i]['within_goal'] else 'no'} |"
+        lines.append(line)
     return lines
+
+
+def _counts(rows: list[dict]) -> str:
+    fitted = [r for r in rows if r.get("fitted", True)]
+    glint = [r for r in rows if not r.get("fitted", True)]
+    return (f"{sum(r['within_goal'] for r in rows)} of {len(rows)} (fitted statistics "
+            f"{sum(r['within_goal'] for r in fitted)} of {len(fitted)}, glint population "
+            f"{sum(r['within_goal'] for r in glint)} of {len(glint)})")
 
 
 def simreal_command(
@@ -164,13 +196,14 @@ def simreal_command(
                                               "default colonoscope."),
     out: Path = typer.Option(..., "--out", "-o", show_default=False,
                              help="Output folder, new, empty or a previous simreal's (replaced as a whole): "
-                             "simreal.json, simreal.md, simreal.png (with --fit also fitted.toml and frames.png)."),
+                             "simreal.json, simreal.md, simreal.png, frames.png, glints.png (with --fit also "
+                             "fitted.toml)."),
     real: Optional[list[Path]] = typer.Option(
         None, "--real", help="Real frames: images, or a banner of 280 px tiles (*banner*). "
         "Default: the Hyper-Kvasir banner in tests/data/real."),
     fit: Optional[list[Path]] = typer.Option(
         None, "--fit", help="Fit the scene's appearance and sensor to these real frames (images or a "
-        "*banner* of 280 px tiles): alternate frames are fitted, the others held out."),
+        "*banner* of 280 px tiles): the tuning frames are fitted, the held-out ones judge."),
     scene_opt: Optional[str] = typer.Option(None, "--scene", help="The scene (same as SCENE)."),
     renders: int = typer.Option(14, "--renders", min=3, max=200,
                                 help="With --fit: renders of the search at half the film and 4 spp."),
@@ -184,14 +217,19 @@ def simreal_command(
     with --fit, first fit the scene to real frames.
 
     Writes, in the folder OUT (new, empty or a previous simreal's; replaced as a set): OUT/simreal.json
-    (the table's rows, the scene, the seed and the real frames), OUT/simreal.md (the table in
-    Markdown) and OUT/simreal.png (the figure). With --fit FRAMES: the scene's micro-relief
-    (height, spectrum), film roughness, albedo, exposure, noise and tone are fitted to alternate
+    (the table's rows, the scene, the seed, the real frames and their split), OUT/simreal.md (the
+    table in Markdown: each statistic against all the real frames, the tuning ones and the
+    held-out ones), OUT/simreal.png (the figure), OUT/frames.png (the frame beside tuning and
+    held-out real frames) and OUT/glints.png (crops around the largest white blobs of each).
+    The real frames are split by frame into tuning and held-out ones (the bundled banner's split
+    is declared in simtest.render.simreal.REAL_SPLIT; other frames: a seeded half and half).
+    With --fit FRAMES: the scene's micro-relief
+    (height, spectrum), film roughness, albedo, exposure, noise and tone are fitted to the tuning
     frames of FRAMES (scipy's Nelder-Mead on the log-ratios of the statistics; --renders renders
     at half the film and 4 spp, then --polish at the scene's own film and spp: about 10 minutes
-    for the colonoscope on 2 cores), and OUT/fitted.toml (the fitted scene),
-    OUT/frames.png (before and after beside real frames) are written too, with simreal.json and
-    simreal.md holding every statistic before and after on the fitted and the held-out frames.
+    for the colonoscope on 2 cores), OUT/fitted.toml (the fitted scene) is written too,
+    OUT/frames.png shows the frame before and after beside real frames, and simreal.json and
+    simreal.md hold every statistic before and after on the tuning and the held-out frames.
     Exit status 2: bad input, or Mitsuba cannot run here; 4: OUT cannot be written."""
     if scene_arg is not None and scene_opt is not None and scene_arg != scene_opt:
         raise _fail(f"--scene: {scene_opt!r} and SCENE {scene_arg!r} disagree (give one)")
@@ -200,15 +238,15 @@ def simreal_command(
     if fit:
         if real:
             raise _fail("--real: not with --fit (the fit's held-out frames are its check)")
-        frames = _read_frames(list(fit), "--fit")
+        frames, ids = _read_frames(list(fit), "--fit")
     else:
-        frames = _read_frames(list(real or [real_banner_path()]), "--real")
+        frames, ids = _read_frames(list(real or [real_banner_path()]), "--real")
     try:
         spec = load_scene(scene)
     except SceneError as exc:
         raise _fail(str(exc)) from None
     if fit:
-        _simreal_fit(spec, frames, list(fit), out, target, renders, polish,
+        _simreal_fit(spec, frames, ids, list(fit), out, target, renders, polish,
                      spec.render.seed if seed is None else seed)
         return
     try:
@@ -219,24 +257,56 @@ def simreal_command(
         raise _fail(str(exc), BAD_INPUT) from None  # Mitsuba cannot run here
     frame = result.frame
     paths = real or [real_banner_path()]
-    rows = sim_to_real_table(frame, frames)
+    tuning, held = split_indices(ids)
+    tables = split_tables(frame, frames, tuning, held)
+    rows = tables["all"]
+    parts = {k: v for k, v in tables.items() if k != "all"}
     fig = sim_to_real_figure(frame, frames, rows)
-    doc = {"scene": spec.name, "seed": result.seed, "real": [_shown(p) for p in paths], "rows": rows}
-    lines = _table_md(rows)
+    figs = {"frames.png": frames_figure(frame, frames, ids, tuning, held, title=spec.name),
+            "glints.png": glint_sheet(frame, frames, ids, tuning, held, title=spec.name)}
+    split = {"tuning": [ids[i] for i in tuning], "held_out": [ids[i] for i in held],
+             "rule": _split_rule(ids)}
+    doc = {"scene": spec.name, "seed": result.seed, "real": [_shown(p) for p in paths], "rows": rows,
+           "split": split, "tables": parts,
+           "within_goal": {name: sum(r["within_goal"] for r in t) for name, t in tables.items()}}
+    lines = [f"# simreal: {spec.name} (render seed {result.seed})", "",
+             f"Real frames: {', '.join(doc['real'])}: {len(frames)} frames, {len(tuning)} tuning, "
+             f"{len(held)} held out ({split['rule']}).", "",
+             f"Within x{FACTOR_GOAL:g}: " + "; ".join(f"{name.replace('_', '-')} frames {_counts(t)}"
+                                                     for name, t in tables.items()) + ".", ""]
+    native = glint_population(frame)[0]
+    doc["rendered_own_scale"] = native
+    lines += [f"The glint population of the rendered frame at its own {frame.shape[1]} x {frame.shape[0]} px (the "
+              f"table compares it at the real frames' height): "
+              + ", ".join(f"{k} {_fmt(v)}" for k, v in native.items()) + ".", ""]
+    lines += _table_md(rows, parts)
     def fill(tmp: Path) -> None:
         (tmp / "simreal.json").write_text(json.dumps(doc, indent=1) + "\n", encoding="utf-8")
         (tmp / "simreal.md").write_text("\n".join(lines) + "\n", encoding="utf-8")
         fig.savefig(tmp / "simreal.png", format="png", dpi=110)
+        for name, f in figs.items():
+            f.savefig(tmp / name, format="png", dpi=110)
 
     write_out_folder(out, target, fill, SIMREAL_FILES)
     typer.echo("\n".join(lines))
 
 
-def _simreal_fit(spec, frames: list, paths: list[Path], out: Path, target: Path, renders: int, polish: int,
-                 seed: int) -> None:
+def _split_rule(ids: list[str]) -> str:
+    listed = sum(k in REAL_SPLIT for k in ids)
+    rule = []
+    if listed:
+        rule.append(f"{listed} by the declared split, simtest.render.simreal.REAL_SPLIT")
+    if listed < len(ids):
+        rule.append(f"{len(ids) - listed} by a permutation drawn with SPLIT_SEED")
+    return "; ".join(rule)
+
+
+def _simreal_fit(spec, frames: list, ids: list[str], paths: list[Path], out: Path, target: Path, renders: int,
+                 polish: int, seed: int) -> None:
     """``simreal --fit``: fit, then write the fitted scene and the before/after report."""
 
-    fit_frames, held = split_frames(frames)
+    fit_frames, held = split_frames(frames, ids)
+    tuning_idx, held_idx = split_indices(ids)
     console = Console(stderr=True, soft_wrap=True)
     try:
         res = fit_scene(spec, fit_frames, seed=seed, outer_evals=renders, polish_evals=polish,
@@ -255,12 +325,15 @@ def _simreal_fit(spec, frames: list, paths: list[Path], out: Path, target: Path,
     n_stats = len(tables["fitted"]["after"])
     src = [_shown(p) for p in paths]
     header = (f"{spec.name}, fitted by `simtest simreal --fit` to {len(fit_frames)} real frames "
-              f"(alternate frames of {', '.join(src)}; {len(held)} held out), root seed {seed}.\n"
+              f"(the tuning frames of {', '.join(src)}; {len(held)} held out: {_split_rule(ids)}), "
+              f"root seed {seed}.\n"
               f"Within x{FACTOR_GOAL:g} of the real frames after the fit: "
               + "; ".join(f"{n.replace('_', '-')} {c['after']} of {n_stats}" for n, c in counts.items()) + ".\n"
               + "Fitted: " + ", ".join(f"{k} {v:.4g}" for k, v in res.params.items()))
     doc = {"scene": spec.name, "seed": seed, "real": src, "fit_frames": len(fit_frames),
-           "held_out_frames": len(held), "split": "alternate frames: even indices fitted, odd held out",
+           "held_out_frames": len(held),
+           "split": {"tuning": [ids[i] for i in tuning_idx], "held_out": [ids[i] for i in held_idx],
+                     "rule": _split_rule(ids)},
            "params": res.params, "renders": res.renders, "history": res.history, "within_goal": counts,
            "tables": tables, "rows": tables["fitted"]["after"]}
     lines = [f"# simreal --fit: {spec.name}", "", header.replace("\n", "\n\n"), ""]
@@ -271,7 +344,9 @@ def _simreal_fit(spec, frames: list, paths: list[Path], out: Path, target: Path,
     fig = fit_figure(res.before, res.after, fit_frames, held, tables)
     toml = scene_to_toml(res.spec, out, header)
     strip = _side_by_side(res.before, res.after, fit_frames, held)
+    sheet = glint_sheet(res.after, frames, ids, tuning_idx, held_idx, title="fitted")
     def fill(tmp: Path) -> None:
+        sheet.savefig(tmp / "glints.png", format="png", dpi=110)
         (tmp / "simreal.json").write_text(json.dumps(doc, indent=1) + "\n", encoding="utf-8")
         (tmp / "simreal.md").write_text("\n".join(lines) + "\n", encoding="utf-8")
         fig.savefig(tmp / "simreal.png", format="png", dpi=100)

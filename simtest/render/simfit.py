@@ -34,8 +34,9 @@ draws nothing); the last two develop searches add up the losses of renders at
 :func:`render_seeds_of`), so that the fitted scene holds at render seeds it was not developed
 on, not only for the one frame whose Monte Carlo and sensor noise it was fitted to.
 
-Hold-out: :func:`split_frames` gives alternate frames to the fit and to the check, so the fitted
-scene is also judged on frames it was not fitted to.
+Hold-out: :func:`split_frames` gives the tuning frames of the declared split
+(:data:`simtest.render.simreal.REAL_SPLIT`) to the fit and keeps the held-out ones for the check, so
+the fitted scene is also judged on frames it was not fitted to.
 """
 
 from __future__ import annotations
@@ -58,6 +59,7 @@ from simtest.render.simreal import (
     at_height,
     log_ratio,
     real_reference,
+    split_indices,
 )
 from simtest.render.tissue import TISSUE_ALBEDO
 from simtest.scene.spec import SceneSpec, with_overrides
@@ -88,12 +90,13 @@ RENDER_BOUNDS = {"relief_mm": (1e-5, 0.02), "alpha": (0.005, 0.5), "relief_hurst
 FILM_VARIATION_START = 0.7
 
 
-def split_frames(frames: list) -> tuple[list, list]:
-    """Alternate frames: (fit, held out) = (frames[0::2], frames[1::2]); all to the fit if there is
-    only one frame."""
-    if len(frames) < 2:
-        return list(frames), []
-    return list(frames[0::2]), list(frames[1::2])
+def split_frames(frames: list, ids: list[str] | None = None) -> tuple[list, list]:
+    """(tuning, held out) frames by :func:`simtest.render.simreal.split_indices`: the declared
+    :data:`~simtest.render.simreal.REAL_SPLIT` for the frames it lists (``ids``), a seeded half
+    and half for the others (``ids`` None: every frame unlisted)."""
+    names = list(ids) if ids is not None else [f"#{i}" for i in range(len(frames))]
+    tuning, held = split_indices(names)
+    return [frames[i] for i in tuning], [frames[i] for i in held]
 
 
 def fit_loss(stats: dict[str, float], reference: dict[str, float]) -> float:

@@ -16,7 +16,17 @@ module measures, on 8-bit RGB frames:
   **spread**: the interquartile range of R - G there (8-bit levels);
 - **intensity histogram**: the 10th, 50th and 90th percentiles of the lit field's luma;
 - **detector candidates per megapixel**: the bright components simtest's own detector finds with
-  its defaults for whole frames (what ``simtest reconstruct`` would examine).
+  its defaults for whole frames (what ``simtest reconstruct`` would examine);
+- **the glint population as an outside reviewer measures it** (:data:`GLINT_STATISTICS`, by the
+  definitions of issue 62, made outside simtest so that a render is judged as the field judges
+  it, :func:`glint_population`): white = every channel >= :data:`WHITE_CHANNEL_LEVEL`, inside the
+  lit field; white blobs (8-connected) per megapixel of lit field, their median and 90th-percentile
+  area, the largest blob's share of the white pixels, and the **sheen fraction**: lit pixels with
+  luma in :data:`SHEEN_LUMA` (bright but not clipped).
+
+The first twelve (:data:`STATISTICS`) are those :mod:`simtest.render.simfit` fits to; the glint
+population's (:data:`GLINT_STATISTICS`) are reported beside them and not fitted (the bundled
+calibrated scene predates them).
 
 The real frames' value of a glint-population statistic is pooled over the frames
 (:func:`real_reference`), of the others the median over the frames.
@@ -30,12 +40,18 @@ statistics partly see).
 
 The goal is a factor 2 on each statistic between the rendered frame and the real frames
 (:func:`sim_to_real_table`); :func:`sim_to_real_figure` shows the frames and the area
-distributions. :mod:`simtest.render.simfit` fits a scene to real frames on these statistics.
+distributions, :func:`frames_figure` the rendered frame beside tuning and held-out real frames and
+:func:`glint_sheet` crops around the largest white blobs of both. :mod:`simtest.render.simfit`
+fits a scene to real frames on these statistics.
+
+Tuning and held-out frames: :data:`REAL_SPLIT` declares, frame by frame, which of the bundled real
+frames a fit may see (tuning) and which only judge it (held out); :func:`split_indices` applies it
+(frames it does not list: a permutation drawn with :data:`SPLIT_SEED`, half to each part).
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import cv2
@@ -59,14 +75,26 @@ __all__ = [
     "RATIO_FLOOR",
     "STATISTICS",
     "POOLED",
+    "WHITE_CHANNEL_LEVEL",
+    "SHEEN_LUMA",
+    "GLINT_STATISTICS",
+    "ALL_STATISTICS",
+    "REAL_SPLIT",
+    "SPLIT_SEED",
     "FrameStats",
+    "glint_population",
+    "split_indices",
+    "split_tables",
     "banner_frames",
+    "banner_tiles",
     "log_ratio",
     "real_reference",
     "frame_stats",
     "sim_to_real_table",
     "sim_to_real_figure",
     "fit_figure",
+    "frames_figure",
+    "glint_sheet",
 ]
 
 #: Luma at or below which a pixel is outside the lit field (black border, field stop), 8-bit.
@@ -96,6 +124,29 @@ STATISTICS = {
     "detector_per_mp": "detector candidates per megapixel of lit field",
 }
 
+#: Issue 62's white (provenance: the definitions of the glint population in issue 62, made outside
+#: simtest): a pixel whose every channel is at or above this 8-bit level (scaled to the full scale
+#: of deeper frames, :func:`glint_population`). Every channel clipped, or nearly (JPEG's margin):
+#: the wet film reflects the light's white, while the tissue's diffuse light, red or pink, leaves
+#: green and blue far below full scale even where red clips.
+WHITE_CHANNEL_LEVEL = 250
+#: Issue 62's sheen (same provenance): lit pixels whose BT.601 luma lies in [lo, hi) (8-bit,
+#: scaled as above): bright but unclipped, the broad specular sheen around and between glints;
+#: ``hi`` is :data:`WHITE_CHANNEL_LEVEL` so that sheen and white do not overlap.
+SHEEN_LUMA = (200, 250)
+
+#: The glint population of :func:`glint_population` (issue 62's definitions), reported beside
+#: :data:`STATISTICS` and not fitted (:mod:`simtest.render.simfit` fits :data:`STATISTICS`).
+GLINT_STATISTICS = {
+    "white_blobs_per_mp": "white blobs (every channel >= 250) per megapixel of lit field",
+    "white_median_area_px": "px",
+    "white_p90_area_px": "px",
+    "white_largest_share": "fraction of the white pixels in the largest white blob",
+    "sheen_fraction": "fraction of the lit field with luma 200 to 250",
+}
+#: Every statistic of the table, in its order.
+ALL_STATISTICS = {**STATISTICS, **GLINT_STATISTICS}
+
 #: Floor added to both sides of a ratio in :func:`log_ratio` (the loss of the fit), per statistic:
 #: about the smallest difference that matters at a real frame's scale (one blob in a 280 px tile
 #: is 13 per megapixel, one pixel of area, one 8-bit level, a saturated fraction of 1e-5), so that
@@ -103,7 +154,8 @@ STATISTICS = {
 RATIO_FLOOR = {"saturated_fraction": 1e-5, "candidates_per_mp": 10.0, "median_area_px": 0.5,
                "p90_area_px": 0.5, "tissue_r": 1.0, "tissue_g": 1.0, "tissue_b": 1.0,
                "colour_spread": 1.0, "luma_p10": 1.0, "luma_p50": 1.0, "luma_p90": 1.0,
-               "detector_per_mp": 10.0}
+               "detector_per_mp": 10.0, "white_blobs_per_mp": 10.0, "white_median_area_px": 0.5,
+               "white_p90_area_px": 0.5, "white_largest_share": 0.01, "sheen_fraction": 1e-5}
 
 
 @dataclass(frozen=True)
@@ -121,16 +173,69 @@ class FrameStats:
     luma_p50: float = float("nan")
     luma_p90: float = float("nan")
     detector_per_mp: float = float("nan")
+    glints: dict = field(default_factory=dict)  # glint_population's statistics by name
+    white_areas: np.ndarray = field(default_factory=lambda: np.zeros(0))  # (m,) white blobs' areas
+    lit_px: int = 0  # pixels of the lit field
 
     def values(self) -> dict[str, float]:
-        """The scalar statistics by name, in the order of :data:`STATISTICS` (tissue colour as
+        """The scalar statistics by name, in the order of :data:`ALL_STATISTICS` (tissue colour as
         three entries)."""
         return {"saturated_fraction": self.saturated_fraction, "candidates_per_mp": self.candidates_per_mp,
                 "median_area_px": self.median_area_px, "p90_area_px": self.p90_area_px,
                 "tissue_r": self.tissue_rgb[0], "tissue_g": self.tissue_rgb[1],
                 "tissue_b": self.tissue_rgb[2], "colour_spread": self.colour_spread,
                 "luma_p10": self.luma_p10, "luma_p50": self.luma_p50, "luma_p90": self.luma_p90,
-                "detector_per_mp": self.detector_per_mp}
+                "detector_per_mp": self.detector_per_mp,
+                **{k: float(self.glints.get(k, float("nan"))) for k in GLINT_STATISTICS}}
+
+
+def glint_population(frame: np.ndarray) -> tuple[dict[str, float], np.ndarray, np.ndarray]:
+    """Issue 62's glint population of an RGB frame (8 or 16 bit), inside the lit field.
+
+    White: every channel >= :data:`WHITE_CHANNEL_LEVEL`; sheen: luma (BT.601) in
+    :data:`SHEEN_LUMA`; lit field: luma > :data:`DARK_LEVEL` (all three 8-bit levels, scaled by
+    ``full / 255`` for a deeper frame, ``full`` its dtype's maximum).
+
+    Parameters
+    ----------
+    frame : ndarray of shape (H, W, 3), uint8 or uint16
+
+    Returns
+    -------
+    stats : dict
+        :data:`GLINT_STATISTICS` by name: ``white_blobs_per_mp`` (8-connected white components,
+        OpenCV's ``connectedComponentsWithStats``, per megapixel of lit field), the median and
+        90th percentile of their areas (px; 0 without a blob), ``white_largest_share`` (the
+        largest blob's pixels over all white pixels; NaN without one) and ``sheen_fraction``.
+    areas : ndarray of shape (m,)
+        The white blobs' areas (px), in label order.
+    centroids : ndarray of shape (m, 2)
+        Their centroids (x, y), px.
+
+    Raises
+    ------
+    ValueError
+        If ``frame`` is not (H, W, 3) uint8 or uint16, or has no lit pixel.
+    """
+    f = np.asarray(frame)
+    if f.ndim != 3 or f.shape[2] != 3 or f.dtype not in (np.uint8, np.uint16):
+        raise ValueError(f"glint_population: expected an (H, W, 3) uint8 or uint16 frame, got {f.shape} {f.dtype}")
+    scale = np.iinfo(f.dtype).max / 255.0
+    lum = f.astype(np.float64) @ LUMA_BT601
+    lit = lum > DARK_LEVEL * scale
+    n_lit = int(lit.sum())
+    if n_lit == 0:
+        raise ValueError("glint_population: the frame has no lit pixel (all luma <= DARK_LEVEL)")
+    white = np.all(f >= WHITE_CHANNEL_LEVEL * scale, axis=2) & lit
+    _, _, st, cen = cv2.connectedComponentsWithStats(white.view(np.uint8), connectivity=8)
+    areas = st[1:, cv2.CC_STAT_AREA].astype(np.float64)
+    sheen = lit & (lum >= SHEEN_LUMA[0] * scale) & (lum < SHEEN_LUMA[1] * scale)
+    stats = {"white_blobs_per_mp": len(areas) / (n_lit / 1e6),
+             "white_median_area_px": float(np.median(areas)) if len(areas) else 0.0,
+             "white_p90_area_px": float(np.percentile(areas, 90)) if len(areas) else 0.0,
+             "white_largest_share": float(areas.max() / areas.sum()) if len(areas) else float("nan"),
+             "sheen_fraction": float(sheen.sum() / n_lit)}
+    return stats, areas, cen[1:].astype(np.float64)
 
 
 def _detector_count(frame: np.ndarray) -> int:
@@ -181,6 +286,7 @@ def frame_stats(frame: np.ndarray, *, detector: bool = True) -> FrameStats:
     else:
         rgb, spread = np.full(3, np.nan), float("nan")
     p10, p50, p90 = (float(x) for x in np.percentile(lum[lit], [10, 50, 90]))
+    glints, white_areas, _ = glint_population(f)
     return FrameStats(
         candidates_per_mp=len(areas) / mp,
         median_area_px=float(np.median(areas)) if len(areas) else 0.0,
@@ -190,21 +296,29 @@ def frame_stats(frame: np.ndarray, *, detector: bool = True) -> FrameStats:
         areas=areas,
         colour_spread=spread, luma_p10=p10, luma_p50=p50, luma_p90=p90,
         detector_per_mp=_detector_count(f) / mp if detector else float("nan"),
+        glints=glints, white_areas=white_areas, lit_px=int(lit.sum()),
     )
 
 
 #: Statistics of the glint population: the real frames' value is pooled over the frames (every
 #: frame's blobs and lit pixels together) rather than a median of per-frame values, which on real
 #: frames (many with no glint at all, a few with hundreds) swings by a factor of 30 between two
-#: halves of the Hyper-Kvasir banner. The others are medians over the frames.
-POOLED = ("saturated_fraction", "candidates_per_mp", "median_area_px", "p90_area_px", "detector_per_mp")
+#: halves of the Hyper-Kvasir banner. The others are medians over the frames; the largest white
+#: blob's share is a per-frame quantity (a median over the frames that have a white pixel).
+POOLED = ("saturated_fraction", "candidates_per_mp", "median_area_px", "p90_area_px", "detector_per_mp",
+          "white_blobs_per_mp", "white_median_area_px", "white_p90_area_px", "sheen_fraction")
+
+
+def _pooled_areas(areas: list[np.ndarray]) -> tuple[float, float]:
+    a = np.concatenate(areas) if areas else np.zeros(0)
+    return (float(np.median(a)), float(np.percentile(a, 90))) if len(a) else (0.0, 0.0)
 
 
 def real_reference(frames: list[np.ndarray], stats: list[FrameStats] | None = None) -> dict[str, float]:
-    """The real frames' value of each statistic (:data:`STATISTICS`): pooled over the frames for
-    the glint population (:data:`POOLED`: saturated pixels over lit pixels, blobs and detector
-    candidates per megapixel of all the frames' lit field, the median and 90th percentile of all
-    the blobs' areas), the median over the frames for the others.
+    """The real frames' value of each statistic (:data:`ALL_STATISTICS`): pooled over the frames
+    for the glint population (:data:`POOLED`: saturated and sheen pixels over lit pixels, blobs
+    and detector candidates per megapixel of all the frames' lit field, the median and 90th
+    percentile of all the blobs' areas), the median over the frames for the others.
 
     Parameters
     ----------
@@ -213,16 +327,20 @@ def real_reference(frames: list[np.ndarray], stats: list[FrameStats] | None = No
         Their :func:`frame_stats`, if already computed.
     """
     st = stats if stats is not None else [frame_stats(f) for f in frames]
-    lit_mp = np.array([float(((np.asarray(f, np.float64) @ LUMA_BT601) > DARK_LEVEL).sum()) / 1e6 for f in frames])
+    lit_mp = np.array([s.lit_px / 1e6 for s in st])
     vals = [s.values() for s in st]
-    out = {k: float(np.nanmedian([v[k] for v in vals])) for k in STATISTICS}
+    out = {}
+    for k in ALL_STATISTICS:
+        v = np.array([x[k] for x in vals], dtype=np.float64)
+        out[k] = float(np.nanmedian(v)) if np.isfinite(v).any() else float("nan")
     total = lit_mp.sum()
     out["saturated_fraction"] = float(sum(s.saturated_fraction * m for s, m in zip(st, lit_mp)) / total)
     out["candidates_per_mp"] = float(sum(len(s.areas) for s in st) / total)
     out["detector_per_mp"] = float(np.nansum([s.detector_per_mp * m for s, m in zip(st, lit_mp)]) / total)
-    areas = np.concatenate([s.areas for s in st]) if st else np.zeros(0)
-    out["median_area_px"] = float(np.median(areas)) if len(areas) else 0.0
-    out["p90_area_px"] = float(np.percentile(areas, 90)) if len(areas) else 0.0
+    out["median_area_px"], out["p90_area_px"] = _pooled_areas([s.areas for s in st])
+    out["white_blobs_per_mp"] = float(sum(len(s.white_areas) for s in st) / total)
+    out["white_median_area_px"], out["white_p90_area_px"] = _pooled_areas([s.white_areas for s in st])
+    out["sheen_fraction"] = float(sum(s.glints["sheen_fraction"] * m for s, m in zip(st, lit_mp)) / total)
     return out
 
 
@@ -232,8 +350,10 @@ def log_ratio(key: str, value: float, reference: float) -> float:
     return float(np.log((value + fl) / (reference + fl)))
 
 
-def banner_frames(path: str | Path, tile_px: int = 280) -> list[np.ndarray]:
-    """The frames of the Hyper-Kvasir banner: its ``tile_px`` x ``tile_px`` tiles, RGB uint8.
+def banner_tiles(path: str | Path, tile_px: int = 280) -> list[tuple[str, np.ndarray]]:
+    """The frames of a banner of ``tile_px`` x ``tile_px`` tiles (such as the Hyper-Kvasir one),
+    row by row, each with its id ``"<file name>:r<row>c<column>"`` (the keys of
+    :data:`REAL_SPLIT`), RGB uint8.
 
     Raises
     ------
@@ -246,8 +366,63 @@ def banner_frames(path: str | Path, tile_px: int = 280) -> list[np.ndarray]:
         raise ValueError(f"{path}: not a readable image")
     img = cv2.cvtColor(img, cv2.COLOR_BGR2RGB)
     H, W = img.shape[:2]
-    return [img[r:r + tile_px, c:c + tile_px].copy() for r in range(0, H - tile_px + 1, tile_px)
-            for c in range(0, W - tile_px + 1, tile_px)]
+    name = Path(path).name
+    return [(f"{name}:r{r // tile_px}c{c // tile_px}", img[r:r + tile_px, c:c + tile_px].copy())
+            for r in range(0, H - tile_px + 1, tile_px) for c in range(0, W - tile_px + 1, tile_px)]
+
+
+def banner_frames(path: str | Path, tile_px: int = 280) -> list[np.ndarray]:
+    """The frames of a banner: its ``tile_px`` x ``tile_px`` tiles, RGB uint8
+    (:func:`banner_tiles` without the ids).
+
+    Raises
+    ------
+    ValueError
+        If the file cannot be read as an image.
+    """
+    return [f for _, f in banner_tiles(path, tile_px)]
+
+
+def _banner_split(name: str, tuning_cols: tuple[int, ...], rows: int, cols: int) -> dict[str, str]:
+    return {f"{name}:r{r}c{c}": "tuning" if c in tuning_cols else "held_out" for r in range(rows)
+            for c in range(cols)}
+
+
+#: The declared split of the bundled real frames, frame by frame: ``"tuning"`` (a fit may see it)
+#: or ``"held_out"`` (it only judges). Each 280 px tile of the Hyper-Kvasir banner is one whole
+#: endoscopy frame (its own field stop, text and overlays: no frame spans two tiles; checked by eye
+#: on the 3 x 8 tiles), so a split by tile is a split by frame. The tuning part is the even
+#: columns (12 frames: 4 per row, stomach, colon with and without dye, polyps, oesophagus), the
+#: held-out part the odd ones (12): the split scenes/colonoscope_fitted.toml was fitted with, so
+#: that none of its held-out frames was seen by its fit. A new split would need that scene refitted.
+REAL_SPLIT: dict[str, str] = _banner_split("hyperkvasir_banner.jpg", (0, 2, 4, 6), 3, 8)
+#: Seed of the split of frames :data:`REAL_SPLIT` does not list (:func:`split_indices`).
+SPLIT_SEED = 62
+
+
+def split_indices(ids: list[str]) -> tuple[list[int], list[int]]:
+    """Indices of the tuning and the held-out frames among frames named ``ids``.
+
+    A frame :data:`REAL_SPLIT` lists goes where it says. The others (frames the project does not
+    bundle) are ordered by a permutation drawn from ``numpy.random.default_rng(SPLIT_SEED)`` and
+    split half and half (the odd one to tuning); a lone frame is tuning only.
+
+    Parameters
+    ----------
+    ids : list of str
+        One id a frame (:func:`banner_tiles`'s for a banner's tiles, else the file name).
+
+    Returns
+    -------
+    tuning, held_out : list of int
+        Indices into ``ids``, each in increasing order.
+    """
+    tuning = [i for i, k in enumerate(ids) if REAL_SPLIT.get(k) == "tuning"]
+    held = [i for i, k in enumerate(ids) if REAL_SPLIT.get(k) == "held_out"]
+    rest = [i for i, k in enumerate(ids) if k not in REAL_SPLIT]
+    order = [rest[j] for j in np.random.default_rng(SPLIT_SEED).permutation(len(rest))]
+    n = (len(order) + 1) // 2
+    return sorted(tuning + order[:n]), sorted(held + order[n:])
 
 
 def at_height(frame: np.ndarray, height_px: int) -> np.ndarray:
@@ -257,7 +432,8 @@ def at_height(frame: np.ndarray, height_px: int) -> np.ndarray:
     return cv2.resize(frame, (w, height_px), interpolation=cv2.INTER_AREA)
 
 
-def sim_to_real_table(rendered: np.ndarray, real: list[np.ndarray]) -> list[dict]:
+def sim_to_real_table(rendered: np.ndarray, real: list[np.ndarray], *, rendered_stats: FrameStats | None = None,
+                      real_stats: list[FrameStats] | None = None) -> list[dict]:
     """Compare a rendered frame with real frames, statistic by statistic.
 
     Parameters
@@ -266,19 +442,23 @@ def sim_to_real_table(rendered: np.ndarray, real: list[np.ndarray]) -> list[dict
         The rendered video frame (resized to the real frames' height first).
     real : list of ndarray of shape (h, w, 3), uint8
         Real frames (one height).
+    rendered_stats, real_stats : optional
+        :func:`frame_stats` of the resized rendered frame and of the real frames, if already
+        computed.
 
     Returns
     -------
     list of dict
-        One row per statistic (:data:`STATISTICS`): ``statistic``, ``rendered``, ``real`` (the real
-        frames' value, :func:`real_reference`: pooled for the glint population, else the median),
+        One row per statistic (:data:`ALL_STATISTICS`): ``statistic``, ``fitted`` (one of
+        :data:`STATISTICS`, which the fit matches), ``rendered``, ``real`` (the real frames'
+        value, :func:`real_reference`: pooled for the glint population, else the median),
         ``real_pooled`` (whether it is pooled), ``real_q25``, ``real_q75`` (quartiles of the
-        per-frame values), ``ratio`` (rendered / real; NaN if real is 0) and ``within_goal``
-        (ratio in [1 / FACTOR_GOAL, FACTOR_GOAL]).
+        per-frame values), ``ratio`` (rendered / real; NaN if real is 0 or either is NaN) and
+        ``within_goal`` (ratio in [1 / FACTOR_GOAL, FACTOR_GOAL]).
     """
     h = real[0].shape[0]
-    sim = frame_stats(at_height(rendered, h)).values()
-    real_st = [frame_stats(f) for f in real]
+    sim = (rendered_stats or frame_stats(at_height(rendered, h))).values()
+    real_st = real_stats if real_stats is not None else [frame_stats(f) for f in real]
     ref = real_reference(real, real_st)
     reals = [s.values() for s in real_st]
     rows = []
@@ -286,11 +466,33 @@ def sim_to_real_table(rendered: np.ndarray, real: list[np.ndarray]) -> list[dict
         vals = np.array([r[key] for r in reals], dtype=np.float64)
         med = ref[key]
         ratio = value / med if med > 0 else float("nan")
-        rows.append({"statistic": key, "rendered": float(value), "real": med, "real_pooled": key in POOLED,
-                     "real_q25": float(np.nanpercentile(vals, 25)),
-                     "real_q75": float(np.nanpercentile(vals, 75)), "ratio": ratio,
+        q25, q75 = np.nanpercentile(vals, [25, 75]) if np.isfinite(vals).any() else (np.nan, np.nan)
+        rows.append({"statistic": key, "fitted": key in STATISTICS, "rendered": float(value), "real": med,
+                     "real_pooled": key in POOLED, "real_q25": float(q25), "real_q75": float(q75),
+                     "ratio": ratio,
                      "within_goal": bool(np.isfinite(ratio) and 1 / FACTOR_GOAL <= ratio <= FACTOR_GOAL)})
     return rows
+
+
+def split_tables(rendered: np.ndarray, real: list[np.ndarray], tuning: list[int],
+                 held_out: list[int]) -> dict[str, list[dict]]:
+    """:func:`sim_to_real_table` against all the real frames, the tuning ones and the held-out
+    ones (indices of :func:`split_indices`), each statistic computed once.
+
+    Returns
+    -------
+    dict
+        ``{"all": rows, "tuning": rows, "held_out": rows}`` (a part without frames left out).
+    """
+    h = real[0].shape[0]
+    sim = frame_stats(at_height(rendered, h))
+    st = [frame_stats(f) for f in real]
+    out = {"all": sim_to_real_table(rendered, real, rendered_stats=sim, real_stats=st)}
+    for name, idx in (("tuning", tuning), ("held_out", held_out)):
+        if idx:
+            out[name] = sim_to_real_table(rendered, [real[i] for i in idx], rendered_stats=sim,
+                                          real_stats=[st[i] for i in idx])
+    return out
 
 
 def sim_to_real_figure(rendered: np.ndarray, real: list[np.ndarray], rows: list[dict]):
@@ -371,4 +573,76 @@ def fit_figure(before: np.ndarray, after: np.ndarray, fitted: list[np.ndarray], 
                     fontsize=10)
         b.set_ylabel("rendered / real")
         b.legend(fontsize=8)
+    return fig
+
+
+def frames_figure(rendered: np.ndarray, real: list[np.ndarray], ids: list[str], tuning: list[int],
+                  held_out: list[int], title: str = "rendered", per_part: int = 2):
+    """Figure: the rendered frame (at the real frames' height) beside the first ``per_part``
+    tuning and held-out real frames, each labelled with its part and id. Returns a matplotlib
+    Figure."""
+    h = real[0].shape[0]
+    shown = [(at_height(rendered, h), f"{title}\n({rendered.shape[1]} x {rendered.shape[0]} px, at {h} px high)")]
+    shown += [(real[i], f"tuning frame\n{ids[i]}") for i in tuning[:per_part]]
+    shown += [(real[i], f"held-out frame\n{ids[i]}") for i in held_out[:per_part]]
+    fig, axes = plt.subplots(1, len(shown), figsize=(2.9 * len(shown), 3.6), constrained_layout=True,
+                             squeeze=False)
+    for a, (f, t) in zip(axes[0], shown):
+        a.imshow(f)
+        a.set_title(t, fontsize=9)
+        a.axis("off")
+    return fig
+
+
+def _largest_blob_crops(frames: list[np.ndarray], names: list[str], n: int, crop_px: int) -> list[tuple]:
+    """``(crop, label)`` around the ``n`` largest white blobs of ``frames`` (each blob once,
+    largest first), ``crop_px`` square, centred on the blob's centroid (zero outside the frame)."""
+    blobs = []
+    for f, name in zip(frames, names):
+        _, areas, cen = glint_population(f)
+        blobs += [(a, name, f, c) for a, c in zip(areas, cen)]
+    blobs.sort(key=lambda b: -b[0])
+    half = crop_px // 2
+    out = []
+    for area, name, f, (x, y) in blobs[:n]:
+        pad = np.pad(f, ((half, half), (half, half), (0, 0)))
+        r, c = int(round(y)) + half, int(round(x)) + half
+        out.append((pad[r - half:r - half + crop_px, c - half:c - half + crop_px], f"{name}\n{area:.0f} px"))
+    return out
+
+
+def glint_sheet(rendered: np.ndarray, real: list[np.ndarray], ids: list[str], tuning: list[int],
+                held_out: list[int], title: str = "rendered", n: int = 16, crop_px: int = 24):
+    """Figure: crops around the ``n`` largest white blobs (:func:`glint_population`) of the
+    rendered frame (at the real frames' height, the scale the statistics are compared at), of the
+    tuning frames and of the held-out frames (each part's blobs pooled), ``crop_px`` square,
+    labelled with the frame and the blob's area. Returns a matplotlib Figure."""
+    h = real[0].shape[0]
+    short = [k.split(":")[-1] for k in ids]
+    parts = [(title, _largest_blob_crops([at_height(rendered, h)], [title], n, crop_px)),
+             ("tuning frames", _largest_blob_crops([real[i] for i in tuning], [short[i] for i in tuning],
+                                                   n, crop_px)),
+             ("held-out frames", _largest_blob_crops([real[i] for i in held_out], [short[i] for i in held_out],
+                                                     n, crop_px))]
+    cols = 8
+    per = max(1, -(-n // cols))
+    fig, axes = plt.subplots(per * len(parts), cols, figsize=(1.25 * cols, 1.45 * per * len(parts)),
+                             constrained_layout=True, squeeze=False)
+    for p, (name, crops) in enumerate(parts):
+        for j in range(per * cols):
+            a = axes[p * per + j // cols, j % cols]
+            a.set_xticks([])
+            a.set_yticks([])
+            if j < len(crops):
+                a.imshow(crops[j][0], interpolation="nearest")
+                a.set_title(crops[j][1], fontsize=6)
+            else:
+                a.axis("off")
+            if j == 0:
+                a.axis("on")
+                a.set_xticks([])
+                a.set_yticks([])
+                a.set_ylabel(name if crops else f"{name}:\nno white blob", fontsize=8)
+    fig.suptitle(f"{crop_px} px crops around the {n} largest white blobs (every channel >= "
+                 f"{WHITE_CHANNEL_LEVEL}), at the real frames' scale", fontsize=9)
     return fig
