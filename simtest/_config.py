@@ -1,0 +1,115 @@
+"""The pieces the config models share: strict field types and the one-line error of a bad key.
+
+Scene, suite and dataset files are validated by pydantic dataclasses (``CONFIG``: unknown keys
+refused, no NaN or infinity, frozen). A TOML value must already have the field's type: a float
+field takes an integer (``n = 80``), an integer field takes an integral float (``width_px = 400.0``),
+nothing else is coerced (no ``"80"``, no ``true`` for a number). :func:`validation_error` turns
+pydantic's report into the project's one line, ``"<file>: <key.path>: <reason>"``
+(:func:`simtest._checks.keyed_error`), naming the offending value and the allowed range.
+"""
+
+from __future__ import annotations
+
+from typing import Annotated, Any, Callable, TypeVar
+
+from pydantic import AfterValidator, BeforeValidator, ConfigDict, Strict, ValidationError
+
+__all__ = ["CONFIG", "Num", "Int", "Str", "Bool", "Vec2", "Vec3", "Floats", "validation_error"]
+
+E = TypeVar("E", bound=Exception)
+
+#: The config models' settings: unknown keys refused, NaN and infinities refused.
+CONFIG = ConfigDict(extra="forbid", allow_inf_nan=False)
+
+
+def _integral(v: Any) -> Any:
+    return int(v) if isinstance(v, float) and v.is_integer() else v
+
+
+def _list_of(n: int) -> Callable[[Any], Any]:
+    def check(v: Any) -> Any:
+        if not isinstance(v, (list, tuple)) or len(v) != n:
+            raise ValueError(f"expected a list of {n} numbers, got {v!r}")
+        return v
+    return check
+
+
+def _non_empty(v: Any) -> Any:
+    if not isinstance(v, (list, tuple)) or not v:
+        raise ValueError(f"expected a list of numbers, got {v!r}")
+    return v
+
+
+#: A finite number (an integer is taken as a float).
+Num = Annotated[float, Strict()]
+#: An integer (an integral float is taken).
+Int = Annotated[int, BeforeValidator(_integral), Strict()]
+Str = Annotated[str, Strict()]
+Bool = Annotated[bool, Strict()]
+Vec2 = Annotated[tuple[Num, Num], BeforeValidator(_list_of(2))]
+Vec3 = Annotated[tuple[Num, Num, Num], BeforeValidator(_list_of(3))]
+#: A non-empty list of numbers.
+Floats = Annotated[tuple[Num, ...], BeforeValidator(_non_empty), AfterValidator(tuple)]
+
+_BOUNDS = {"greater_than": ("gt", ">"), "greater_than_equal": ("ge", ">="),
+           "less_than": ("lt", "<"), "less_than_equal": ("le", "<=")}
+_EXPECTED = {"int_type": "an integer", "int_parsing": "an integer", "int_from_float": "an integer",
+             "float_type": "a number", "float_parsing": "a number", "bool_type": "true or false",
+             "bool_parsing": "true or false", "string_type": "a string",
+             "finite_number": "a finite number", "list_type": "a list", "tuple_type": "a list",
+             "dict_type": "a table", "dataclass_type": "a table", "model_type": "a table",
+             "dataclass_args_type": "a table"}
+
+
+def key_path(loc: tuple, prefix: str = "") -> str:
+    """A pydantic location as the dotted key a person writes: ``sweep[0].values[2]``."""
+    out = prefix
+    for part in loc:
+        out += f"[{part}]" if isinstance(part, int) else (f".{part}" if out else str(part))
+    return out or "<root>"
+
+
+def validation_error(error: type[E], source: str, exc: ValidationError, prefix: str = "",
+                     known: Callable[[tuple], str | None] | None = None) -> E:
+    """The one-line error of the first problem pydantic found.
+
+    Parameters
+    ----------
+    error : type
+        The validator's exception class (``SceneError``, ``SuiteError``, ...).
+    source : str
+        The file being validated (or ``"<dict>"``).
+    exc : pydantic.ValidationError
+        What the model refused.
+    prefix : str
+        Key path of the validated table inside the file (``"sweep.noise"``), "" for the root.
+    known : callable, optional
+        ``loc -> "a, b, c"``: the keys allowed where an unknown key was found, for the message.
+
+    Returns
+    -------
+    Exception
+        ``error("<source>: <key.path>: <reason>")``; the reason names the value and, for a value out
+        of range, the bound (``"-3.0 is out of range: must be > 0"``).
+    """
+    e = exc.errors(include_url=False)[0]
+    kind, loc, value, ctx = e["type"], tuple(e["loc"]), e.get("input"), e.get("ctx") or {}
+    if kind in ("extra_forbidden", "unexpected_keyword_argument"):
+        keys = known(loc[:-1]) if known is not None else None
+        reason = "unknown key" + (f" (known keys: {keys})" if keys else "")
+    elif kind == "missing":
+        reason = "missing"
+    elif kind in _BOUNDS:
+        name, op = _BOUNDS[kind]
+        reason = f"{value!r} is out of range: must be {op} {ctx[name]}"
+    elif kind == "literal_error" and not isinstance(value, str):  # every choice is a string
+        reason = f"expected a string, got {type(value).__name__} {value!r}"
+    elif kind == "literal_error":
+        reason = f"{value!r} is not one of {ctx['expected']}"
+    elif kind in _EXPECTED:
+        reason = f"expected {_EXPECTED[kind]}, got {type(value).__name__} {value!r}"
+    elif kind in ("value_error", "assertion_error"):
+        reason = str(ctx.get("error", e["msg"]))
+    else:
+        reason = f"{e['msg']} (got {value!r})"
+    return error(f"{source}: {key_path(loc, prefix)}: {reason}")
