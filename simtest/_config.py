@@ -10,11 +10,14 @@ pydantic's report into the project's one line, ``"<file>: <key.path>: <reason>"`
 
 from __future__ import annotations
 
+import functools
+import math
 from typing import Annotated, Any, Callable, TypeVar
 
-from pydantic import AfterValidator, BeforeValidator, ConfigDict, Strict, ValidationError
+from pydantic import AfterValidator, BeforeValidator, ConfigDict, Strict, TypeAdapter, ValidationError
 
-__all__ = ["CONFIG", "Num", "Int", "Str", "Bool", "Vec2", "Vec3", "Floats", "validation_error"]
+__all__ = ["CONFIG", "Num", "Int", "Str", "Bool", "Vec2", "Vec3", "Floats", "Number", "key_path",
+           "validated", "validation_error"]
 
 E = TypeVar("E", bound=Exception)
 
@@ -40,6 +43,14 @@ def _non_empty(v: Any) -> Any:
     return v
 
 
+def _number(v: Any) -> Any:
+    if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v):
+        raise ValueError(f"expected a number, got {type(v).__name__} {v!r}")
+    return v
+
+
+#: A finite number kept as given (an int stays an int: a suite's case key is its JSON).
+Number = Annotated[Any, AfterValidator(_number)]
 #: A finite number (an integer is taken as a float).
 Num = Annotated[float, Strict()]
 #: An integer (an integral float is taken).
@@ -69,8 +80,26 @@ def key_path(loc: tuple, prefix: str = "") -> str:
     return out or "<root>"
 
 
+def _num(v: Any) -> str:
+    return f"{v:g}" if isinstance(v, float) else str(v)
+
+
+def _interval(cls: Any, loc: tuple) -> str | None:
+    """The closed or open interval of the field at ``loc`` of ``cls`` when both ends are bounded."""
+    fields = getattr(cls, "__pydantic_fields__", None)
+    if not fields or not loc or loc[0] not in fields:
+        return None
+    if len(loc) > 1:
+        return _interval(fields[loc[0]].annotation, loc[1:])
+    b = {n: getattr(m, n) for m in fields[loc[0]].metadata for n in ("gt", "ge", "lt", "le")
+         if getattr(m, n, None) is not None}
+    lo = ("(", b["gt"]) if "gt" in b else ("[", b["ge"]) if "ge" in b else None
+    hi = (")", b["lt"]) if "lt" in b else ("]", b["le"]) if "le" in b else None
+    return None if lo is None or hi is None else f"{lo[0]}{_num(lo[1])}, {_num(hi[1])}{hi[0]}"
+
+
 def validation_error(error: type[E], source: str, exc: ValidationError, prefix: str = "",
-                     known: Callable[[tuple], str | None] | None = None) -> E:
+                     known: Callable[[tuple], str | None] | None = None, cls: Any = None) -> E:
     """The one-line error of the first problem pydantic found.
 
     Parameters
@@ -85,6 +114,8 @@ def validation_error(error: type[E], source: str, exc: ValidationError, prefix: 
         Key path of the validated table inside the file (``"sweep.noise"``), "" for the root.
     known : callable, optional
         ``loc -> "a, b, c"``: the keys allowed where an unknown key was found, for the message.
+    cls : type, optional
+        The model validated: a value out of a field's two-sided range names the whole interval.
 
     Returns
     -------
@@ -101,7 +132,9 @@ def validation_error(error: type[E], source: str, exc: ValidationError, prefix: 
         reason = "missing"
     elif kind in _BOUNDS:
         name, op = _BOUNDS[kind]
-        reason = f"{value!r} is out of range: must be {op} {ctx[name]}"
+        interval = _interval(cls, loc)
+        reason = f"{value!r} is out of range: must be " + (
+            f"in {interval}" if interval else f"{op} {_num(ctx[name])}")
     elif kind == "literal_error" and not isinstance(value, str):  # every choice is a string
         reason = f"expected a string, got {type(value).__name__} {value!r}"
     elif kind == "literal_error":
@@ -113,3 +146,37 @@ def validation_error(error: type[E], source: str, exc: ValidationError, prefix: 
     else:
         reason = f"{e['msg']} (got {value!r})"
     return error(f"{source}: {key_path(loc, prefix)}: {reason}")
+
+
+@functools.cache
+def _adapter(cls: Any) -> TypeAdapter:
+    return TypeAdapter(cls)
+
+
+def validated(cls: Any, data: Any, error: type[Exception], source: str, prefix: str = "",
+              known: Callable[[tuple], str | None] | None = None) -> Any:
+    """``data`` validated as ``cls`` (a pydantic dataclass or a type), or the one-line ``error``.
+
+    Parameters
+    ----------
+    cls : type
+        What ``data`` must be.
+    data : object
+        The table (or value) as read from the file.
+    error, source, prefix, known
+        As for :func:`validation_error`.
+
+    Returns
+    -------
+    object
+        The validated value.
+
+    Raises
+    ------
+    error
+        ``"<source>: <prefix.key>: <reason>"`` for the first problem found.
+    """
+    try:
+        return _adapter(cls).validate_python(data)
+    except ValidationError as exc:
+        raise validation_error(error, source, exc, prefix, known, cls) from None

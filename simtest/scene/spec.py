@@ -46,11 +46,11 @@ from pathlib import Path
 from typing import Any, ClassVar, Literal, Mapping, get_args
 
 import tomli_w
-from pydantic import Field, TypeAdapter, ValidationError
+from pydantic import Field
 from pydantic.dataclasses import dataclass
 
 from simtest._checks import keyed_error
-from simtest._config import CONFIG, Bool, Floats, Int, Num, Str, Vec2, Vec3, validation_error
+from simtest._config import CONFIG, Bool, Floats, Int, Num, Str, Vec2, Vec3, validated
 from simtest.constants import MAX_SEED
 from simtest.resources import bundled_scene_path, data_root
 
@@ -621,17 +621,9 @@ def _known_keys(loc: tuple) -> str | None:
     return None
 
 
-@functools.cache
-def _adapter(cls: Any) -> TypeAdapter:
-    return TypeAdapter(cls)
-
-
-def _validated(cls: type, data: Any, source: str, prefix: str = ""):
+def _validated(cls: Any, data: Any, source: str, prefix: str = ""):
     """``data`` validated as ``cls``; a refusal is the one-line :class:`SceneError`."""
-    try:
-        return _adapter(cls).validate_python(data)
-    except ValidationError as exc:
-        raise validation_error(SceneError, source, exc, prefix, _known_keys) from None
+    return validated(cls, data, SceneError, source, prefix, _known_keys)
 
 
 def _build_geometry(data: Any, source: str) -> GeometrySpec:
