@@ -5,16 +5,20 @@ refused, no NaN or infinity, frozen). A TOML value must already have the field's
 field takes an integer (``n = 80``), an integer field takes an integral float (``width_px = 400.0``),
 nothing else is coerced (no ``"80"``, no ``true`` for a number). :func:`validation_error` turns
 pydantic's report into the project's one line, ``"<file>: <key.path>: <reason>"``
-(:func:`simtest._checks.keyed_error`), naming the offending value and the allowed range.
+(:func:`simtest._checks.keyed_error`): the reason, the allowed range or choices, and the
+offending value as `` (got <value>)``.
 """
 
 from __future__ import annotations
 
 import functools
+import json
 import math
 from typing import Annotated, Any, Callable, TypeVar
 
 from pydantic import AfterValidator, BeforeValidator, ConfigDict, Strict, TypeAdapter, ValidationError
+
+from simtest._checks import keyed_error
 
 __all__ = ["CONFIG", "Num", "Int", "Str", "Bool", "Vec2", "Vec3", "Floats", "Number", "key_path",
            "validated", "validation_error"]
@@ -32,20 +36,20 @@ def _integral(v: Any) -> Any:
 def _list_of(n: int) -> Callable[[Any], Any]:
     def check(v: Any) -> Any:
         if not isinstance(v, (list, tuple)) or len(v) != n:
-            raise ValueError(f"expected a list of {n} numbers, got {v!r}")
+            raise ValueError(f"expected a list of {n} numbers")
         return v
     return check
 
 
 def _non_empty(v: Any) -> Any:
     if not isinstance(v, (list, tuple)) or not v:
-        raise ValueError(f"expected a list of numbers, got {v!r}")
+        raise ValueError("expected a list of numbers")
     return v
 
 
 def _number(v: Any) -> Any:
     if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v):
-        raise ValueError(f"expected a number, got {type(v).__name__} {v!r}")
+        raise ValueError("expected a number")
     return v
 
 
@@ -129,23 +133,31 @@ def validation_error(error: type[E], source: str, exc: ValidationError, prefix: 
         keys = known(loc[:-1]) if known is not None else None
         reason = "unknown key" + (f" (known keys: {keys})" if keys else "")
     elif kind == "missing":
-        reason = "missing"
+        return error(f"{source}: {key_path(loc, prefix)}: missing")
     elif kind in _BOUNDS:
         name, op = _BOUNDS[kind]
         interval = _interval(cls, loc)
-        reason = f"{value!r} is out of range: must be " + (
-            f"in {interval}" if interval else f"{op} {_num(ctx[name])}")
+        reason = "out of range: must be " + (f"in {interval}" if interval else f"{op} {_num(ctx[name])}")
     elif kind == "literal_error" and not isinstance(value, str):  # every choice is a string
-        reason = f"expected a string, got {type(value).__name__} {value!r}"
+        reason = "expected a string"
     elif kind == "literal_error":
-        reason = f"{value!r} is not one of {ctx['expected']}"
+        reason = f"must be one of {ctx['expected']}"
     elif kind in _EXPECTED:
-        reason = f"expected {_EXPECTED[kind]}, got {type(value).__name__} {value!r}"
+        reason = f"expected {_EXPECTED[kind]}"
     elif kind in ("value_error", "assertion_error"):
         reason = str(ctx.get("error", e["msg"]))
     else:
-        reason = f"{e['msg']} (got {value!r})"
-    return error(f"{source}: {key_path(loc, prefix)}: {reason}")
+        reason = e["msg"]
+    return keyed_error(error, source, key_path(loc, prefix), reason, _plain(value))
+
+
+def _plain(value: Any) -> Any:
+    """``value`` as :func:`simtest._checks.format_value` can show it (JSON, else its repr)."""
+    try:
+        json.dumps(value)
+        return value
+    except (TypeError, ValueError):
+        return repr(value)
 
 
 @functools.cache

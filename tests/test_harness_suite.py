@@ -54,7 +54,7 @@ BAD = [
     ('values = [0.0, 0.05]', 'values = [0.0, -0.05]', "sweep.noise.values[1].sigma", ">= 0"),
     ('values = [0.0, 0.05]', 'values = [0.0, "a"]', "sweep.noise.values[1]", "expected a number"),
     ('values = [0.0, 0.05]', 'values = [0.05, 0.05]', "sweep.noise.values", "duplicate"),
-    ('realisations = 3', 'realisations = 0', "suite.realisations", "0 is out of range: must be >= 1"),
+    ('realisations = 3', 'realisations = 0', "suite.realisations", "out of range: must be >= 1 (got 0)"),
     ('realisations = 3', 'realisations = 3\nprotocol = "magic"', "suite.protocol", "one of"),
     ('parameter = "sigma"', 'parameter = "isovalue"', "sweep.noise.values[0].isovalue",
      "in (0, 1)"),

@@ -165,7 +165,7 @@ class _CaseTable:
 
 def _non_zero(v):
     if v == 0:
-        raise ValueError(f"expected a non-zero number, got {v!r}")
+        raise ValueError("expected a non-zero number")
     return v
 
 

@@ -637,12 +637,12 @@ def _build_geometry(data: Any, source: str) -> GeometrySpec:
     kind = _validated(Str, data.get("type", "plane"), source, "geometry.type")
     if kind not in GEOMETRY_TYPES:
         opts = ", ".join(repr(c) for c in GEOMETRY_TYPES)
-        raise _err(source, "geometry.type", f"{kind!r} is not one of {opts}")
+        raise _err(source, "geometry.type", f"must be one of {opts}", kind)
     cls = GEOMETRY_TYPES[kind]
     for key in data:
         if key not in _GEOMETRY_KEY_ORDER:
             raise _err(source, f"geometry.{key}",
-                       f"unknown key (known keys: {', '.join(_GEOMETRY_KEY_ORDER)})")
+                       f"unknown key (known keys: {', '.join(_GEOMETRY_KEY_ORDER)})", data[key])
         if key != "type" and data[key] is not None and key not in cls.__dataclass_fields__:
             required, optional = GEOMETRY_KEYS[kind]
             raise _err(source, f"geometry.{key}",
@@ -780,7 +780,7 @@ def scene_from_dict(d: Mapping[str, Any], source: str = "<dict>",
     known = ("name", "description", *_SECTIONS)
     for key in d:
         if key not in known:
-            raise _err(source, key, f"unknown key (known keys: {', '.join(known)})")
+            raise _err(source, key, f"unknown key (known keys: {', '.join(known)})", d[key])
     if "geometry" not in d:
         raise _err(source, "geometry", "missing section [geometry] (it needs at least `type`)")
     data = {**d, "geometry": _build_geometry(d["geometry"], source), "source": source}
