@@ -14,13 +14,13 @@ from __future__ import annotations
 import functools
 import json
 import math
-from typing import Annotated, Any, Callable, TypeVar
+from typing import Annotated, Any, Callable, TypeVar, get_args, get_origin
 
 from pydantic import AfterValidator, BeforeValidator, ConfigDict, Strict, TypeAdapter, ValidationError
 
 from simtest._checks import keyed_error
 
-__all__ = ["CONFIG", "Num", "Int", "Str", "Bool", "Vec2", "Vec3", "Floats", "Number", "key_path",
+__all__ = ["CONFIG", "Num", "Int", "Str", "Bool", "Vec2", "Vec3", "Floats", "Number", "Scalar", "key_path",
            "validated", "validation_error"]
 
 E = TypeVar("E", bound=Exception)
@@ -53,6 +53,14 @@ def _number(v: Any) -> Any:
     return v
 
 
+def _scalar(v: Any) -> Any:
+    if isinstance(v, (dict, list, tuple)) or (isinstance(v, float) and not math.isfinite(v)):
+        raise ValueError("expected a finite scalar (a number, a string or true/false)")
+    return v
+
+
+#: One finite value: a number, a string, a boolean (a TOML date too).
+Scalar = Annotated[Any, AfterValidator(_scalar)]
 #: A finite number kept as given (an int stays an int: a suite's case key is its JSON).
 Number = Annotated[Any, AfterValidator(_number)]
 #: A finite number (an integer is taken as a float).
@@ -88,15 +96,28 @@ def _num(v: Any) -> str:
     return f"{v:g}" if isinstance(v, float) else str(v)
 
 
+def _bounds(items: Any) -> dict:
+    """The ``gt``/``ge``/``lt``/``le`` bounds among pydantic metadata (``Field`` or annotated-types)."""
+    b: dict = {}
+    for m in items:
+        b.update({n: getattr(m, n) for n in ("gt", "ge", "lt", "le") if getattr(m, n, None) is not None})
+        b.update(_bounds(getattr(m, "metadata", None) or ()))
+    return b
+
+
 def _interval(cls: Any, loc: tuple) -> str | None:
-    """The closed or open interval of the field at ``loc`` of ``cls`` when both ends are bounded."""
+    """The interval of the field (or list item) at ``loc`` of ``cls`` when both ends are bounded."""
     fields = getattr(cls, "__pydantic_fields__", None)
     if not fields or not loc or loc[0] not in fields:
         return None
-    if len(loc) > 1:
-        return _interval(fields[loc[0]].annotation, loc[1:])
-    b = {n: getattr(m, n) for m in fields[loc[0]].metadata for n in ("gt", "ge", "lt", "le")
-         if getattr(m, n, None) is not None}
+    f, rest = fields[loc[0]], loc[1:]
+    if len(rest) == 1 and isinstance(rest[0], int):  # an item of a list of bounded numbers
+        item = (get_args(f.annotation) or (None,))[0]
+        b = _bounds(get_args(item)[1:] if get_origin(item) is Annotated else ())
+    elif rest:
+        return _interval(f.annotation, rest)
+    else:
+        b = _bounds(f.metadata)
     lo = ("(", b["gt"]) if "gt" in b else ("[", b["ge"]) if "ge" in b else None
     hi = (")", b["lt"]) if "lt" in b else ("]", b["le"]) if "le" in b else None
     return None if lo is None or hi is None else f"{lo[0]}{_num(lo[1])}, {_num(hi[1])}{hi[0]}"
