@@ -43,15 +43,18 @@ import os
 import tomllib
 from dataclasses import field
 from pathlib import Path
-from typing import Any, ClassVar, Literal, Mapping, get_args
+from typing import Any, Literal, Mapping, get_args
 
 import tomli_w
 from pydantic import Field
 from pydantic.dataclasses import dataclass
 
 from simtest._checks import keyed_error
-from simtest._config import CONFIG, Bool, Floats, Int, Num, Str, Vec2, Vec3, validated
+from simtest._config import CONFIG, Floats, Int, Num, Str, Vec2, Vec3, validated
 from simtest.constants import MAX_SEED
+from simtest.scene.kinds import (GEOMETRY_KEY_ORDER, GEOMETRY_KEYS, GEOMETRY_TYPES, CylinderGeometry,
+                                 GeometrySpec, MeshGeometry, PlaneGeometry, SaddleGeometry,
+                                 SphereGeometry)
 from simtest.resources import bundled_scene_path, data_root
 
 __all__ = [
@@ -327,147 +330,6 @@ class MaterialSpec:
         return math.sqrt(2.0 / (4.0 * self.n + 2.0))
 
 
-#: Keys each geometry type accepts (besides ``type``) and which of them are required.
-GEOMETRY_KEYS: dict[str, tuple[tuple[str, ...], tuple[str, ...]]] = {
-    # type: (required, optional)
-    "plane": (("tilt_deg", "distance_mm"), ("azimuth_deg", "extent_mm")),
-    "sphere": (("center_mm", "radius_mm"), ()),
-    "cylinder": (("center_mm", "radius_mm"), ("axis", "length_mm")),
-    "saddle": (("distance_mm", "radius1_mm", "radius2_mm"), ("extent_mm", "resolution")),
-    "mesh": (("path",), ("translate_mm", "rotate_deg", "scale", "flip_normals")),
-}
-
-
-@_frozen
-class PlaneGeometry:
-    """An infinite (or ``extent_mm``-limited) plane, world frame.
-
-    Attributes
-    ----------
-    tilt_deg : float
-        Angle between the plane normal and the optical axis, [0, 90); required.
-    azimuth_deg : float or None
-        Direction of the tilt in the image; the camera-facing normal is
-        ``(sin t cos a, sin t sin a, -cos t)``, so with the default 90 the BP lies above the image
-        centre.
-    distance_mm : float
-        Distance from the camera centre to the plane (the paper's V_Z), > 0; required.
-    extent_mm : float or None
-        Half side of the square patch (default 100 x distance).
-    """
-
-    type: ClassVar[str] = "plane"
-    tilt_deg: Num | None = Field(None, ge=0.0, lt=90.0)
-    azimuth_deg: Num | None = None
-    distance_mm: Num | None = Field(None, gt=0.0)
-    extent_mm: Num | None = Field(None, gt=0.0)
-
-
-@_frozen
-class SphereGeometry:
-    """A sphere, world frame.
-
-    Attributes
-    ----------
-    center_mm : (3,) float
-        Centre; required.
-    radius_mm : float
-        Radius, > 0; required.
-    """
-
-    type: ClassVar[str] = "sphere"
-    center_mm: Vec3 | None = None
-    radius_mm: Num | None = Field(None, gt=0.0)
-
-
-@_frozen
-class CylinderGeometry:
-    """A finite cylinder, world frame.
-
-    Attributes
-    ----------
-    center_mm : (3,) float
-        A point on the axis, the centre of the cylinder; required.
-    radius_mm : float
-        Radius, > 0; required.
-    axis : (3,) float or None
-        Axis direction (not the zero vector); default (1, 0, 0).
-    length_mm : float or None
-        Length (default 20 x radius).
-    """
-
-    type: ClassVar[str] = "cylinder"
-    center_mm: Vec3 | None = None
-    radius_mm: Num | None = Field(None, gt=0.0)
-    axis: Vec3 | None = None
-    length_mm: Num | None = Field(None, gt=0.0)
-
-
-@_frozen
-class SaddleGeometry:
-    """The saddle ``z = d + x^2 / (2 r1) - y^2 / (2 r2)``, camera frame, ``|x|, |y| <= extent``.
-
-    Built as a grid mesh with analytic normals and curvatures
-    (:func:`simtest.simulate.truth.saddle_mesh`).
-
-    Attributes
-    ----------
-    distance_mm : float
-        Depth d of the apex on the optical axis, > 0; required.
-    extent_mm : float or None
-        Half side of the square patch (default: the distance).
-    radius1_mm, radius2_mm : float
-        r1 and r2, > 0; required.
-    resolution : int or None
-        Vertices per side of the grid mesh, 3 to 4096 (default 129).
-    """
-
-    type: ClassVar[str] = "saddle"
-    distance_mm: Num | None = Field(None, gt=0.0)
-    extent_mm: Num | None = Field(None, gt=0.0)
-    radius1_mm: Num | None = Field(None, gt=0.0)
-    radius2_mm: Num | None = Field(None, gt=0.0)
-    resolution: Int | None = Field(None, ge=3, le=4096)
-
-
-@_frozen
-class MeshGeometry:
-    """A triangle mesh file in its own world frame.
-
-    Attributes
-    ----------
-    path : str
-        PLY file written by ``simtest.scene.meshes.save_mesh``; relative paths are taken from the
-        scene file's folder, then from the bundled data (:func:`simtest.resources.data_root`: the
-        repository root, or the installed package's ``_data``); required.
-    translate_mm, rotate_deg, scale : (3,) float, (3,) float, float, or None
-        Mesh-to-world transform ``x -> R (scale x) + t``, with ``R = Rz Ry Rx`` from ``rotate_deg``
-        (degrees about the world axes, x first) and ``t = translate_mm``; defaults identity.
-    flip_normals : bool or None
-        Reverse the vertex normals and curvature signs.
-    """
-
-    type: ClassVar[str] = "mesh"
-    path: Str | None = None
-    translate_mm: Vec3 | None = None
-    rotate_deg: Vec3 | None = None
-    scale: Num | None = Field(None, gt=0.0)
-    flip_normals: Bool | None = None
-
-
-#: The one surface of a scene: a tagged union of small frozen dataclasses, told apart by their
-#: class attribute ``type`` (the scene file's ``geometry.type``); each holds only its own keys.
-GeometrySpec = PlaneGeometry | SphereGeometry | CylinderGeometry | SaddleGeometry | MeshGeometry
-
-#: The geometry class of each ``geometry.type``.
-GEOMETRY_TYPES: dict[str, type] = {cls.type: cls for cls in (
-    PlaneGeometry, SphereGeometry, CylinderGeometry, SaddleGeometry, MeshGeometry)}
-
-#: Every geometry key, in the order the files and messages list them (``type`` first).
-_GEOMETRY_KEY_ORDER = ("type", "tilt_deg", "azimuth_deg", "distance_mm", "extent_mm", "center_mm",
-                       "radius_mm", "axis", "length_mm", "radius1_mm", "radius2_mm", "resolution",
-                       "path", "translate_mm", "rotate_deg", "scale", "flip_normals")
-
 @_frozen
 class SensorSpec:
     """Sensor model applied to the linear image (see :func:`simtest.render.sensor.apply_sensor`).
@@ -640,9 +502,9 @@ def _build_geometry(data: Any, source: str) -> GeometrySpec:
         raise _err(source, "geometry.type", f"must be one of {opts}", kind)
     cls = GEOMETRY_TYPES[kind]
     for key in data:
-        if key not in _GEOMETRY_KEY_ORDER:
+        if key not in GEOMETRY_KEY_ORDER:
             raise _err(source, f"geometry.{key}",
-                       f"unknown key (known keys: {', '.join(_GEOMETRY_KEY_ORDER)})", data[key])
+                       f"unknown key (known keys: {', '.join(GEOMETRY_KEY_ORDER)})", data[key])
         if key != "type" and data[key] is not None and key not in cls.__dataclass_fields__:
             required, optional = GEOMETRY_KEYS[kind]
             raise _err(source, f"geometry.{key}",
