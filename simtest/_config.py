@@ -105,15 +105,25 @@ def _bounds(items: Any) -> dict:
     return b
 
 
+def _item_bounds(tp: Any) -> dict:
+    """The bounds of the first bounded type inside ``tp`` (``list[Annotated[float, Field(gt=0)]]``)."""
+    if get_origin(tp) is Annotated:
+        args = get_args(tp)
+        return _bounds(args[1:]) or _item_bounds(args[0])
+    for arg in get_args(tp):
+        if b := _item_bounds(arg):
+            return b
+    return {}
+
+
 def _interval(cls: Any, loc: tuple) -> str | None:
     """The interval of the field (or list item) at ``loc`` of ``cls`` when both ends are bounded."""
     fields = getattr(cls, "__pydantic_fields__", None)
     if not fields or not loc or loc[0] not in fields:
         return None
     f, rest = fields[loc[0]], loc[1:]
-    if len(rest) == 1 and isinstance(rest[0], int):  # an item of a list of bounded numbers
-        item = (get_args(f.annotation) or (None,))[0]
-        b = _bounds(get_args(item)[1:] if get_origin(item) is Annotated else ())
+    if len(rest) == 1 and isinstance(rest[0], int):  # an item of a list or tuple of bounded numbers
+        b = _item_bounds(f.annotation)
     elif rest:
         return _interval(f.annotation, rest)
     else:

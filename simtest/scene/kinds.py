@@ -180,6 +180,5 @@ GEOMETRY_TYPES: dict[str, type] = {cls.type: cls for cls in (
     PlaneGeometry, SphereGeometry, CylinderGeometry, SaddleGeometry, MeshGeometry)}
 
 #: Every geometry key, in the order the files and messages list them (``type`` first).
-GEOMETRY_KEY_ORDER = ("type", "tilt_deg", "azimuth_deg", "distance_mm", "extent_mm", "center_mm",
-                       "radius_mm", "axis", "length_mm", "radius1_mm", "radius2_mm", "resolution",
-                       "path", "translate_mm", "rotate_deg", "scale", "flip_normals")
+GEOMETRY_KEY_ORDER = tuple(dict.fromkeys(["type", *(f for cls in GEOMETRY_TYPES.values()
+                                                     for f in cls.__dataclass_fields__)]))

@@ -43,7 +43,7 @@ import os
 import tomllib
 from dataclasses import field
 from pathlib import Path
-from typing import Any, Literal, Mapping, get_args
+from typing import Annotated, Any, Literal, Mapping, get_args
 
 import tomli_w
 from pydantic import Field
@@ -94,6 +94,8 @@ RENDER_VARIANTS: tuple[str, ...] = get_args(Variant)
 
 #: The scene sections' model settings: frozen, unknown keys refused, NaN and infinity refused.
 _frozen = functools.partial(dataclass, frozen=True, config=CONFIG)
+_Channel = Annotated[Num, Field(gt=0.0, le=1.0)]  # a linear-RGB albedo: no black, no gain
+_Gain = Annotated[Num, Field(gt=0.0)]  # a white-balance gain: a channel never vanishes
 
 
 @_frozen
@@ -293,7 +295,7 @@ class MaterialSpec:
     relief_min_mm: Num | None = Field(None, ge=0.005, le=1.0)
     relief_hurst: Num = Field(0.8, ge=0.0, le=1.0)
     texture_seed: Int = Field(0, ge=0, le=MAX_SEED)
-    albedo: Vec3 | None = None
+    albedo: tuple[_Channel, _Channel, _Channel] | None = None
     film_variation: Num = Field(0.0, ge=0.0, le=3.0)
     film_scale_mm: Num = Field(2.0, ge=0.05, le=50.0)
     wall_tissue: Literal["mucosa", "liver", "peritoneum"] | None = None
@@ -398,7 +400,7 @@ class SensorSpec:
     auto_mean: Num = Field(0.25, gt=0.0, le=1.0)
     metering: Literal["field", "tissue"] = "field"
     auto_clip_percent: Num = Field(100.0, ge=0.0, le=100.0)
-    white_balance: Vec3 = (1.0, 1.0, 1.0)
+    white_balance: tuple[_Gain, _Gain, _Gain] = (1.0, 1.0, 1.0)
     tone: Literal["gamma", "srgb"] = "gamma"
     color_saturation: Num = Field(1.0, ge=0.0)
     vignetting: Num = Field(0.0, ge=0.0, lt=1.0)
@@ -573,10 +575,6 @@ def _validate(spec: SceneSpec, source: str, base_dirs: tuple[Path, ...]) -> Scen
     if any(w is not None for w in walls) and any(w is None for w in walls):
         raise _err(source, "material.wall_tissue", "material.wall_tissue, wall_centre_mm and wall_radius_mm go "
                    "together (give all three or none)")
-    if mat.albedo is not None and not all(0.0 < v <= 1.0 for v in mat.albedo):
-        raise _err(source, "material.albedo", f"each channel must be in (0, 1], got {list(mat.albedo)}")
-    if any(v <= 0 for v in spec.sensor.white_balance):
-        raise _err(source, "sensor.white_balance", f"gains must be > 0, got {list(spec.sensor.white_balance)}")
     if spec.sensor.output == "video" and spec.sensor.bit_depth != 8:
         raise _err(source, "sensor.bit_depth", "a video frame is 8-bit: set sensor.bit_depth = 8 with output = \"video\"")
     if mat.model == "microfacet" and mat.base == "conductor" and mat.diffuse_albedo > 0:
