@@ -116,6 +116,22 @@ def _item_bounds(tp: Any) -> dict:
     return {}
 
 
+def _model_of(tp: Any) -> Any:
+    """``tp`` itself or the first member of a union (``Model | None``) that is a model."""
+    return next((a for a in (tp, *get_args(tp)) if hasattr(a, "__pydantic_fields__")), None)
+
+
+def _keys_at(cls: Any, loc: tuple) -> str | None:
+    """The keys of the table at ``loc`` of ``cls``, for the message of an unknown key."""
+    for part in loc:
+        model = _model_of(cls)
+        if model is None or part not in model.__pydantic_fields__:
+            return None
+        cls = model.__pydantic_fields__[part].annotation
+    model = _model_of(cls)
+    return None if model is None else ", ".join(model.__pydantic_fields__)
+
+
 def _interval(cls: Any, loc: tuple) -> str | None:
     """The interval of the field (or list item) at ``loc`` of ``cls`` when both ends are bounded."""
     fields = getattr(cls, "__pydantic_fields__", None)
@@ -161,7 +177,7 @@ def validation_error(error: type[E], source: str, exc: ValidationError, prefix: 
     e = exc.errors(include_url=False)[0]
     kind, loc, value, ctx = e["type"], tuple(e["loc"]), e.get("input"), e.get("ctx") or {}
     if kind in ("extra_forbidden", "unexpected_keyword_argument"):
-        keys = known(loc[:-1]) if known is not None else None
+        keys = known(loc[:-1]) if known is not None else _keys_at(cls, loc[:-1])
         reason = "unknown key" + (f" (known keys: {keys})" if keys else "")
     elif kind == "missing":
         return error(f"{source}: {key_path(loc, prefix)}: missing")
@@ -173,6 +189,11 @@ def validation_error(error: type[E], source: str, exc: ValidationError, prefix: 
         reason = "expected a string"
     elif kind == "literal_error":
         reason = f"must be one of {ctx['expected']}"
+    elif kind in ("too_short", "too_long"):
+        n = ctx.get("min_length", ctx.get("max_length"))
+        reason = f"expected at {'least' if kind == 'too_short' else 'most'} {n} entr{'y' if n == 1 else 'ies'}"
+    elif kind == "string_too_short":
+        reason = "must not be empty"
     elif kind in _EXPECTED:
         reason = f"expected {_EXPECTED[kind]}"
     elif kind in ("value_error", "assertion_error"):

@@ -30,9 +30,10 @@ class _Model:
     count: Int = Field(1, ge=0, le=10)
     scale: Num = Field(1.0, gt=0.0)
     mode: Literal["a", "b"] = "a"
-    name: Str = "x"
+    name: Str = Field("x", min_length=1)
     where: Vec3 = (0.0, 0.0, 0.0)
-    levels: list[Annotated[Num, Field(gt=0.0, lt=1.0)]] = Field(default_factory=lambda: [0.5])
+    levels: list[Annotated[Num, Field(gt=0.0, lt=1.0)]] = Field(default_factory=lambda: [0.5],
+                                                                 min_length=1)
     inner: _Inner = _Inner()
     x: Number = 0
 
@@ -51,8 +52,12 @@ class _Model:
     ({"name": 3}, "name: expected a string (got 3)"),
     ({"where": [1, 2]}, "where: expected a list of 3 numbers (got [1, 2])"),
     ({"x": True}, "x: expected a number (got true)"),
-    ({"colour": "red"}, "colour: unknown key (got \"red\")"),
+    ({"colour": "red"}, "colour: unknown key (known keys: count, scale, mode, name, where, levels, "
+                        "inner, x) (got \"red\")"),
+    ({"inner": {"lvl": 1}}, "inner.lvl: unknown key (known keys: level) (got 1)"),
     ({"inner": 3}, "inner: expected a table (got 3)"),
+    ({"levels": []}, "levels: expected at least 1 entry (got [])"),
+    ({"name": ""}, "name: must not be empty (got \"\")"),
 ])
 def test_each_fault_reads_as_one_line_naming_key_reason_and_value(data, line):
     with pytest.raises(_Bad) as err:

@@ -71,9 +71,6 @@ __all__ = [
 #: Scene families, in the canonical order used for the seeded family draw.
 FAMILIES: tuple[str, ...] = ("planes", "spheres", "cylinders", "colon", "liver")
 
-_TOP_KEYS = ("count", "seed", "shard_size", "isovalues", "variant", "compress", "splits",
-             "auto_exposure", "families", "params")
-
 #: Default seeded split fractions (train, val, test).
 DEFAULT_SPLITS = (("train", 0.8), ("val", 0.1), ("test", 0.1))
 
@@ -643,8 +640,7 @@ def config_from_dict(d: dict, source: str = "<dict>") -> DatasetConfig:
     """
     if not isinstance(d, dict):
         raise _err(source, "<root>", "a config must be a table", d)
-    top = validated(_File, d, DatasetConfigError, source,
-                    known=lambda loc: ", ".join(_TOP_KEYS) if loc == () else None)
+    top = validated(_File, d, DatasetConfigError, source)
     iso = top.isovalues
     if len(set(iso)) != len(iso):
         raise _err(source, "isovalues", "isovalues must be distinct", d["isovalues"])

@@ -478,16 +478,9 @@ class SceneSpec:
 _err = functools.partial(keyed_error, SceneError)
 
 
-def _known_keys(loc: tuple) -> str | None:
-    """The keys allowed at ``loc`` (a section) of a scene, for the message of an unknown key."""
-    if len(loc) == 1 and loc[0] in _SECTIONS and loc[0] != "geometry":
-        return ", ".join(f.name for f in dataclasses.fields(_SECTIONS[loc[0]]))
-    return None
-
-
 def _validated(cls: Any, data: Any, source: str, prefix: str = ""):
     """``data`` validated as ``cls``; a refusal is the one-line :class:`SceneError`."""
-    return validated(cls, data, SceneError, source, prefix, _known_keys)
+    return validated(cls, data, SceneError, source, prefix)
 
 
 def _build_geometry(data: Any, source: str) -> GeometrySpec:
