@@ -181,4 +181,4 @@ GEOMETRY_TYPES: dict[str, type] = {cls.type: cls for cls in (
 
 #: Every geometry key, in the order the files and messages list them (``type`` first).
 GEOMETRY_KEY_ORDER = tuple(dict.fromkeys(["type", *(f for cls in GEOMETRY_TYPES.values()
-                                                     for f in cls.__dataclass_fields__)]))
+                                                     for f in cls.__pydantic_fields__)]))

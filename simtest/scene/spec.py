@@ -500,7 +500,7 @@ def _build_geometry(data: Any, source: str) -> GeometrySpec:
         if key not in GEOMETRY_KEY_ORDER:
             raise _err(source, f"geometry.{key}",
                        f"unknown key (known keys: {', '.join(GEOMETRY_KEY_ORDER)})", data[key])
-        if key != "type" and data[key] is not None and key not in cls.__dataclass_fields__:
+        if key != "type" and data[key] is not None and key not in cls.__pydantic_fields__:
             required, optional = GEOMETRY_KEYS[kind]
             raise _err(source, f"geometry.{key}",
                        f"not a key of geometry type {kind!r} (keys: {', '.join(required + optional)})")
