@@ -13,7 +13,7 @@ from simtest.dataset.config import MAX_COUNT, DatasetConfigError, config_from_di
 
 @pytest.mark.parametrize("count", [MAX_COUNT + 1, 10**12])
 def test_a_count_above_the_maximum_is_refused_at_config_load(count):
-    with pytest.raises(DatasetConfigError, match=rf"count: must be <= {MAX_COUNT}") as err:
+    with pytest.raises(DatasetConfigError, match=rf"count: out of range: must be in \[0, {MAX_COUNT}\]") as err:
         config_from_dict({"count": count, "seed": 1, "families": {"planes": 1.0}}, source="c.toml")
     assert "\n" not in str(err.value)
     config_from_dict({"count": MAX_COUNT, "seed": 1, "families": {"planes": 1.0}})  # the bound itself
@@ -24,7 +24,7 @@ def test_cli_refuses_a_huge_count_and_more_workers_than_cpus(tmp_path):
     cfg.write_text("count = 1000000000000\nseed = 1\n[families]\nplanes = 1\n")
     res = CliRunner().invoke(app, ["dataset", "generate", str(cfg), "-o", str(tmp_path / "ds"), "-j", "1"])
     assert res.exit_code == 2 and res.output.strip().splitlines() == [
-        f"error: {cfg}: count: must be <= {MAX_COUNT} (got 1000000000000)"]
+        f"error: {cfg}: count: out of range: must be in [0, {MAX_COUNT}] (got 1000000000000)"]
     cfg.write_text("count = 2\nseed = 1\n[families]\nplanes = 1\n")
     n = (os.cpu_count() or 1) + 1
     res = CliRunner().invoke(app, ["dataset", "generate", str(cfg), "-o", str(tmp_path / "ds"), "-j", str(n)])

@@ -49,7 +49,7 @@ def test_the_default_leaves_the_case_keys_and_the_seeds_as_they_were():
 
 
 @pytest.mark.parametrize("texture, scene, needle", [
-    ("each", "colonoscope_plane", "texture must be one of 'scene', 'per_realisation', got 'each'"),
+    ("each", "colonoscope_plane", "texture: must be one of 'scene' or 'per_realisation' (got \"each\")"),
     ("per_realisation", "sphere", "texture: needs a procedural tissue"),
 ])
 def test_a_bad_texture_is_named(texture, scene, needle):

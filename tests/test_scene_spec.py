@@ -71,10 +71,13 @@ def test_plane_58deg_field_of_view_shows_the_t01_isophote():
         ("[geometry]\ntype='plane'\ntilt_deg = 5\n", "geometry.distance_mm", "missing"),
         ("[geometry]\ntype='plane'\ntilt_deg = 5\ndistance_mm = 5\nradius_mm = 3\n", "geometry.radius_mm",
          "not a key of geometry type 'plane'"),
-        ("[geometry]\ntype='torus'\n", "geometry.type", "is not one of"),
+        ("[geometry]\ntype='torus'\n", "geometry.type", "must be one of"),
+        # a kind's class attributes (how it renders) are not keys of the file
+        ("[geometry]\ntype='plane'\ntilt_deg = 5\ndistance_mm = 5\nframe = 'world'\n", "geometry.frame",
+         "unknown key"),
         ("[geometry]\ntype='sphere'\ncenter_mm=[0,0]\nradius_mm=1\n", "geometry.center_mm", "list of 3"),
         ("[render]\nvariant='llvm_ad_mono'\n[geometry]\ntype='sphere'\ncenter_mm=[0,0,9]\nradius_mm=1\n",
-         "render.variant", "is not one of"),
+         "render.variant", "must be one of"),
         ("[light]\nfalloff = true\n[geometry]\ntype='sphere'\ncenter_mm=[0,0,9]\nradius_mm=1\n",
          "light.falloff", "expected a string"),
         ("[camera]\nfov_deg = 90\nfocal_px = 100\n[geometry]\ntype='sphere'\ncenter_mm=[0,0,9]\nradius_mm=1\n",
@@ -226,3 +229,10 @@ def test_switching_the_geometry_type_by_override_drops_the_old_keys():
                                  "geometry.type": "sphere", "geometry.center_mm": [0, 0, 90],
                                  "geometry.radius_mm": 20.0})
     assert old == sphere
+
+
+def test_each_kind_says_how_it_renders():
+    from simtest.scene.spec import GEOMETRY_TYPES
+
+    assert {k for k, c in GEOMETRY_TYPES.items() if c.triangulated} == {"mesh", "saddle"}
+    assert {k for k, c in GEOMETRY_TYPES.items() if c.frame == "camera"} == {"plane", "saddle"}

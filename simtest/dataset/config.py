@@ -45,13 +45,16 @@ import math
 import tomllib
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import Annotated, Any
 
 import numpy as np
+from pydantic import Field
+from pydantic.dataclasses import dataclass as pydantic_dataclass
 
 from simtest._checks import format_value, keyed_error
+from simtest._config import CONFIG, Bool, Int, Num, Scalar, Str, validated
 from simtest._io import jsonable
-from simtest.scene.spec import RENDER_VARIANTS
+from simtest.scene.spec import Variant
 
 __all__ = [
     "FAMILIES",
@@ -67,9 +70,6 @@ __all__ = [
 
 #: Scene families, in the canonical order used for the seeded family draw.
 FAMILIES: tuple[str, ...] = ("planes", "spheres", "cylinders", "colon", "liver")
-
-_TOP_KEYS = ("count", "seed", "shard_size", "isovalues", "variant", "compress", "splits",
-             "auto_exposure", "families", "params")
 
 #: Default seeded split fractions (train, val, test).
 DEFAULT_SPLITS = (("train", 0.8), ("val", 0.1), ("test", 0.1))
@@ -467,21 +467,85 @@ def _is_number(v) -> bool:
 #: ``_err(source, key, reason[, value])``: the one-line error of a bad key, `` (got <value>)``
 #: appended when the value is given (:func:`simtest._checks.keyed_error`).
 _err = functools.partial(keyed_error, DatasetConfigError)
+#: The config's tables: frozen pydantic dataclasses, unknown keys refused.
+_model = functools.partial(pydantic_dataclass, frozen=True, config=CONFIG)
+_Weight = Annotated[Num, Field(ge=0.0)]  # a relative weight: never negative
 
 
-def _int(d: dict, key: str, source: str, default=None, minimum: int = 0, maximum=None) -> int:
-    if key not in d:
-        if default is None:
-            raise _err(source, key, "required key is missing")
-        return default
-    v = d[key]
-    if not isinstance(v, int) or isinstance(v, bool):
-        raise _err(source, key, "must be an integer", v)
-    if v < minimum:
-        raise _err(source, key, f"must be >= {minimum}", v)
-    if maximum is not None and v > maximum:
-        raise _err(source, key, f"must be <= {maximum}", v)
-    return v
+@_model
+class _Uniform:
+    """``uniform`` or ``loguniform`` (``low > 0``) between ``low`` and ``high``."""
+
+    dist: Str
+    low: Num
+    high: Num
+
+
+@_model
+class _Normal:
+    """``normal``, clipped to ``[low, high]`` where given."""
+
+    dist: Str
+    mean: Num
+    std: Num = Field(ge=0.0)  # a spread: never negative
+    low: Num | None = None
+    high: Num | None = None
+
+
+@_model
+class _Choice:
+    """``choice`` among ``values`` (finite scalars), with ``weights`` (non-negative) or uniformly."""
+
+    dist: Str
+    values: list[Scalar] = Field(min_length=1)
+    weights: list[_Weight] | None = None
+
+
+@_model
+class _Constant:
+    """``constant``: always ``value``."""
+
+    dist: Str
+    value: Any
+
+
+_DIST_MODELS = {"constant": _Constant, "uniform": _Uniform, "loguniform": _Uniform,
+                "normal": _Normal, "choice": _Choice}
+
+
+@_model
+class _Exposure:
+    """``auto_exposure``: bring the ``percentile`` of the surface pixels to ``level`` of full scale."""
+
+    percentile: Num = Field(gt=0.0, le=100.0)  # a percentile, percent
+    level: Num = Field(gt=0.0, le=1.0)  # a fraction of full scale
+
+
+@_model
+class _Splits:
+    """``splits``: fractions of the samples in each split."""
+
+    train: Num = Field(ge=0.0, le=1.0)
+    val: Num = Field(ge=0.0, le=1.0)
+    test: Num = Field(ge=0.0, le=1.0)
+
+
+@_model
+class _File:
+    """The config file's top level (the families and parameters are checked by their names)."""
+
+    count: Int = Field(ge=0, le=MAX_COUNT)
+    seed: Int = Field(ge=0)
+    shard_size: Int = Field(256, ge=1, le=_MAX_SHARD)
+    # isophote levels t relative to the Phong peak: a closed isophote inside the highlight
+    isovalues: list[Annotated[Num, Field(gt=0.0, lt=1.0)]] = Field(default_factory=lambda: [0.1],
+                                                                    min_length=1)
+    variant: Variant = "auto"
+    compress: Bool = True
+    splits: _Splits = _Splits(**dict(DEFAULT_SPLITS))
+    auto_exposure: Any = None
+    families: dict[str, Any] = Field(default_factory=dict)
+    params: dict[str, Any] = Field(default_factory=dict)
 
 
 def _parse_dist(value, key: str, source: str) -> Dist:
@@ -489,66 +553,30 @@ def _parse_dist(value, key: str, source: str) -> Dist:
     if not isinstance(value, dict):
         if isinstance(value, list):
             raise _err(source, key, "a list is not a distribution; write {dist = \"choice\", values = [...]}", value)
-        if isinstance(value, float) and not math.isfinite(value):
-            raise _err(source, key, "must be finite", value)
-        return _const(value)
+        return _const(validated(Scalar, value, DatasetConfigError, source, key))
     if "dist" not in value:
         raise _err(source, key, "distribution table needs `dist` (one of " + ", ".join(_DIST_KEYS) + ")", value)
     kind = value["dist"]
     if kind not in _DIST_KEYS:
         raise _err(source, f"{key}.dist", "unknown distribution (known: " + ", ".join(_DIST_KEYS) + ")", kind)
-    allowed = _DIST_KEYS[kind]
-    for k in value:
-        if k != "dist" and k not in allowed:
-            raise _err(source, f"{key}.{k}", f"unknown key for a {kind} distribution (allowed: "
-                       + ", ".join(allowed) + ")", value[k])
-
-    def num(name: str, required: bool = True):
-        if name not in value:
-            if required:
-                raise _err(source, f"{key}.{name}", f"required by a {kind} distribution")
-            return None
-        v = value[name]
-        if not _is_number(v) or not math.isfinite(v):
-            raise _err(source, f"{key}.{name}", "must be a finite number", v)
-        return v
-
     if kind == "constant":
         if "value" not in value:
             raise _err(source, f"{key}.value", "required by a constant distribution")
         return _parse_dist(value["value"], key, source)
+    d = validated(_DIST_MODELS[kind], value, DatasetConfigError, source, key)
+    low, high = getattr(d, "low", None), getattr(d, "high", None)
+    if low is not None and high is not None and low > high:
+        raise _err(source, key, f"impossible range: low > high ({format_value(low)} > {format_value(high)})", value)
+    if kind == "loguniform" and low <= 0:
+        raise _err(source, f"{key}.low", "a loguniform distribution needs low > 0", low)
     if kind in ("uniform", "loguniform"):
-        lo, hi = num("low"), num("high")
-        if lo > hi:
-            raise _err(source, key, f"impossible range: low > high ({format_value(lo)} > {format_value(hi)})", value)
-        if kind == "loguniform" and lo <= 0:
-            raise _err(source, f"{key}.low", "a loguniform distribution needs low > 0", lo)
-        return Dist(kind, (lo, hi))
+        return Dist(kind, (low, high))
     if kind == "normal":
-        mean, std, lo, hi = num("mean"), num("std"), num("low", False), num("high", False)
-        if std < 0:
-            raise _err(source, f"{key}.std", "must be >= 0", std)
-        if lo is not None and hi is not None and lo > hi:
-            raise _err(source, key, f"impossible range: low > high ({format_value(lo)} > {format_value(hi)})", value)
-        return Dist(kind, (mean, std, lo, hi))
-    # choice
-    if "values" not in value:
-        raise _err(source, f"{key}.values", "required by a choice distribution")
-    values = value["values"]
-    if not isinstance(values, list) or not values:
-        raise _err(source, f"{key}.values", "must be a non-empty list", values)
-    for v in values:
-        if isinstance(v, dict | list) or (isinstance(v, float) and not math.isfinite(v)):
-            raise _err(source, f"{key}.values", "entries must be finite scalars", values)
-    weights = value.get("weights")
-    if weights is not None:
-        if (not isinstance(weights, list) or len(weights) != len(values)
-                or not all(_is_number(w) and math.isfinite(w) and w >= 0 for w in weights)
-                or sum(weights) <= 0):
-            raise _err(source, f"{key}.weights", f"must be {len(values)} non-negative numbers with a "
-                       "positive sum", weights)
-        weights = tuple(weights)
-    return Dist("choice", (tuple(values), weights))
+        return Dist(kind, (d.mean, d.std, low, high))
+    if d.weights is not None and (len(d.weights) != len(d.values) or sum(d.weights) <= 0):
+        raise _err(source, f"{key}.weights", f"must be {len(d.values)} non-negative numbers with a "
+                   "positive sum", value["weights"])
+    return Dist("choice", (tuple(value["values"]), None if d.weights is None else tuple(value["weights"])))
 
 
 def _check_domain(p: ParamDef, dist: Dist, key: str, source: str) -> None:
@@ -612,55 +640,17 @@ def config_from_dict(d: dict, source: str = "<dict>") -> DatasetConfig:
     """
     if not isinstance(d, dict):
         raise _err(source, "<root>", "a config must be a table", d)
-    for k in d:
-        if k not in _TOP_KEYS:
-            raise _err(source, k, "unknown key (allowed: " + ", ".join(_TOP_KEYS) + ")", d[k])
-    count = _int(d, "count", source, minimum=0, maximum=MAX_COUNT)
-    seed = _int(d, "seed", source, minimum=0)
-    shard_size = _int(d, "shard_size", source, default=256, minimum=1, maximum=_MAX_SHARD)
-
-    iso = d.get("isovalues", [0.1])
-    if not isinstance(iso, list) or not iso:
-        raise _err(source, "isovalues", "must be a non-empty list of numbers in (0, 1)", iso)
-    for t in iso:
-        if not _is_number(t) or not 0 < t < 1:
-            raise _err(source, "isovalues", "every isovalue must be a number in (0, 1)", t)
+    top = validated(_File, d, DatasetConfigError, source)
+    iso = top.isovalues
     if len(set(iso)) != len(iso):
-        raise _err(source, "isovalues", "isovalues must be distinct", iso)
-
-    variant = d.get("variant", "auto")
-    if variant not in RENDER_VARIANTS:
-        raise _err(source, "variant", "must be one of " + ", ".join(json.dumps(v) for v in RENDER_VARIANTS)
-                   + " (the renderer needs a Dr.Jit JIT variant with RGB channels)", variant)
-
-    compress = d.get("compress", True)
-    if not isinstance(compress, bool):
-        raise _err(source, "compress", "must be true or false", compress)
-
-    splits_in = d.get("splits", dict(DEFAULT_SPLITS))
+        raise _err(source, "isovalues", "isovalues must be distinct", d["isovalues"])
     names = tuple(n for n, _ in DEFAULT_SPLITS)
-    if not isinstance(splits_in, dict) or set(splits_in) != set(names):
-        raise _err(source, "splits", "must be a table with exactly train, val and test", splits_in)
-    for n in names:
-        v = splits_in[n]
-        if not _is_number(v) or not 0 <= v <= 1:
-            raise _err(source, f"splits.{n}", "must be a fraction in [0, 1]", v)
-    if abs(sum(splits_in[n] for n in names) - 1.0) > 1e-9:
-        raise _err(source, "splits", "fractions must sum to 1", splits_in)
-    splits = tuple((n, float(splits_in[n])) for n in names)
-
+    splits = tuple((n, float(getattr(top.splits, n))) for n in names)
+    if abs(sum(f for _, f in splits) - 1.0) > 1e-9:
+        raise _err(source, "splits", "fractions must sum to 1", d["splits"])
     ae = d.get("auto_exposure", {"percentile": DEFAULT_AUTO_EXPOSURE[0], "level": DEFAULT_AUTO_EXPOSURE[1]})
-    if ae is False:
-        auto_exposure = None
-    elif isinstance(ae, dict) and set(ae) == {"percentile", "level"}:
-        pct, level = ae["percentile"], ae["level"]
-        if not _is_number(pct) or not 0 < pct <= 100:
-            raise _err(source, "auto_exposure.percentile", "must be a number in (0, 100]", pct)
-        if not _is_number(level) or not 0 < level <= 1:
-            raise _err(source, "auto_exposure.level", "must be a fraction of full scale in (0, 1]", level)
-        auto_exposure = (float(pct), float(level))
-    else:
-        raise _err(source, "auto_exposure", "must be false or {percentile = P, level = L}", ae)
+    exposure = None if ae is False else validated(_Exposure, ae, DatasetConfigError, source, "auto_exposure")
+    auto_exposure = None if exposure is None else (exposure.percentile, exposure.level)
 
     fam = d.get("families")
     if not isinstance(fam, dict) or not fam:
@@ -670,16 +660,12 @@ def config_from_dict(d: dict, source: str = "<dict>") -> DatasetConfig:
     for name, w in fam.items():
         if name not in FAMILIES:
             raise _err(source, f"families.{name}", "unknown family (known: " + ", ".join(FAMILIES) + ")", name)
-        if not _is_number(w) or not math.isfinite(w) or w < 0:
-            raise _err(source, f"families.{name}", "weight must be a finite number >= 0", w)
-        weights[name] = float(w)
+        weights[name] = validated(_Weight, w, DatasetConfigError, source, f"families.{name}")
     if sum(weights.values()) <= 0:
         raise _err(source, "families", "at least one family needs a positive weight", fam)
     families = tuple((f, weights[f]) for f in FAMILIES if weights.get(f, 0) > 0)
 
-    params_in = d.get("params", {})
-    if not isinstance(params_in, dict):
-        raise _err(source, "params", "must be a table", params_in)
+    params_in = top.params
     common: dict[str, Dist] = {}
     per_family: dict[str, dict[str, Dist]] = {}
     for key, value in params_in.items():
@@ -716,12 +702,12 @@ def config_from_dict(d: dict, source: str = "<dict>") -> DatasetConfig:
                 continue
             resolved[f][p.name] = per_family.get(f, {}).get(p.name) or common.get(p.name) or p.default_for(f)
     return DatasetConfig(
-        count=count,
-        seed=seed,
-        shard_size=shard_size,
-        isovalues=tuple(float(t) for t in iso),
-        variant=variant,
-        compress=compress,
+        count=top.count,
+        seed=top.seed,
+        shard_size=top.shard_size,
+        isovalues=tuple(iso),
+        variant=top.variant,
+        compress=top.compress,
         families=families,
         params=resolved,
         source=source,

@@ -213,7 +213,7 @@ def mitsuba_scene_dict(
         "type": "simtest_gt",
         # A co-located light sees every point the camera sees; offset lights can cast shadows
         # only on meshes (see simtest.render.integrator).
-        "shadows": bool(spec.light.epsilon_mm > 0 and geo.type in ("mesh", "saddle")),
+        "shadows": bool(spec.light.epsilon_mm > 0 and geo.triangulated),
     }
     light = {
         "type": "point",

@@ -398,7 +398,7 @@ def _scene_pose(spec: SceneSpec) -> np.ndarray:
     Meshes are rendered in their world frame (a new camera pose then moves only the sensor);
     a saddle is defined in the camera frame (identity).
     """
-    if spec.geometry.type == "saddle":
+    if spec.geometry.frame == "camera":
         return np.eye(4)
     return cam_to_world_matrix(spec.camera)
 
@@ -413,7 +413,7 @@ def cam_to_texture_matrix(spec: SceneSpec) -> np.ndarray:
     is then their texture frame (identity).
     """
     geo = spec.geometry
-    if geo.type in ("plane", "saddle"):
+    if geo.frame == "camera":
         return np.eye(4)
     c2w = cam_to_world_matrix(spec.camera)
     if geo.type != "mesh":
@@ -556,7 +556,7 @@ def _mitsuba_scene(spec: SceneSpec, light_pos: np.ndarray, variant: str):
     one: a render never depends on what the process rendered before.
     """
     geo = spec.geometry
-    if geo.type not in ("mesh", "saddle"):
+    if not geo.triangulated:
         key = (variant, spec.camera, spec.material, geo, spec.light.intensity,
                spec.light.falloff, tuple(np.round(light_pos, 12)), spec.render.spp,
                spec.render.sampler)
@@ -595,7 +595,7 @@ def _mitsuba_scene(spec: SceneSpec, light_pos: np.ndarray, variant: str):
         bsdf = scene.shapes()[0].bsdf()
         bsdf.set_params(mat.c, mat.n, mat.diffuse_albedo, light_scene)
     integ = scene.integrator()
-    integ.set_camera_pose(None if geo.type == "saddle" else pose)
+    integ.set_camera_pose(None if geo.frame == "camera" else pose)
     return scene, pose
 
 
@@ -807,7 +807,7 @@ def render_scene(spec: SceneSpec, *, seed: int | None = None,
         distance = np.sqrt(np.einsum("ijk,ijk->ij", position, position))  # |mean position|
 
         K = intrinsics_matrix(spec.camera)
-        if spec.geometry.type in ("mesh", "saddle"):
+        if spec.geometry.triangulated:
             res = {"normals_raw": np.where(mask[..., None], normals, 0.0),
                    "position_raw": np.where(mask[..., None], position, 0.0), "mask": mask}
         else:
@@ -841,7 +841,7 @@ def _render_endoscope(spec: SceneSpec, seed: int, variant: str) -> RenderResult:
     rig = light_rig(spec, seed)
     W, H = model.image_size
     geo = spec.geometry
-    mesh = _mesh_in_camera(spec) if geo.type in ("mesh", "saddle") else None
+    mesh = _mesh_in_camera(spec) if geo.triangulated else None
     key = (variant, "endoscope", spec.camera, spec.material, geo,
            os.path.getmtime(geo.path) if geo.type == "mesh" else None)
     scene = _SCENE_CACHE.get(key)
@@ -854,7 +854,7 @@ def _render_endoscope(spec: SceneSpec, seed: int, variant: str) -> RenderResult:
             surface["bsdf"]["cancel_falloff"] = False  # the rig's lights carry the falloff
         scene = _load_dict(spec, {"type": "scene", "surface": surface})
         _cache_put(_SCENE_CACHE, _SCENE_CACHE_SIZE, key, scene)
-    shadows = bool(geo.type in ("mesh", "saddle") and not rig.is_colocated)
+    shadows = bool(geo.triangulated and not rig.is_colocated)
     guide_r = guide_radius_mm(spec)
     mat = spec.material
     texture = tissue_texture(spec) if mat.model == "tissue" else None

@@ -38,18 +38,23 @@ from __future__ import annotations
 
 import dataclasses
 import functools
-import json
 import math
 import os
 import tomllib
-from dataclasses import dataclass, field
+from dataclasses import field
 from pathlib import Path
-from typing import Any, ClassVar, Mapping
+from typing import Annotated, Any, Literal, Mapping, get_args
 
-import numpy as np
+import tomli_w
+from pydantic import Field
+from pydantic.dataclasses import dataclass
 
 from simtest._checks import keyed_error
+from simtest._config import CONFIG, Floats, Int, Num, Str, Vec2, Vec3, validated
 from simtest.constants import MAX_SEED
+from simtest.scene.kinds import (GEOMETRY_KEY_ORDER, GEOMETRY_KEYS, GEOMETRY_TYPES, CylinderGeometry,
+                                 GeometrySpec, MeshGeometry, PlaneGeometry, SaddleGeometry,
+                                 SphereGeometry)
 from simtest.resources import bundled_scene_path, data_root
 
 __all__ = [
@@ -84,19 +89,16 @@ class SceneError(ValueError):
 #: Mitsuba variants the renderer accepts ("auto" picks cuda_ad_rgb when a GPU is usable, else
 #: llvm_ad_rgb). Only RGB variants: the renderer uses the colour channels to separate the
 #: specular-only image from the full image in a single render.
-RENDER_VARIANTS = ("auto", "llvm_ad_rgb", "cuda_ad_rgb")
+Variant = Literal["auto", "llvm_ad_rgb", "cuda_ad_rgb"]
+RENDER_VARIANTS: tuple[str, ...] = get_args(Variant)
+
+#: The scene sections' model settings: frozen, unknown keys refused, NaN and infinity refused.
+_frozen = functools.partial(dataclass, frozen=True, config=CONFIG)
+_Channel = Annotated[Num, Field(gt=0.0, le=1.0)]  # a linear-RGB albedo: no black, no gain
+_Gain = Annotated[Num, Field(gt=0.0)]  # a white-balance gain: a channel never vanishes
 
 
-def _meta(kind: str, *, lo=None, hi=None, lo_open=False, hi_open=False, choices=None) -> dict:
-    return {"kind": kind, "lo": lo, "hi": hi, "lo_open": lo_open, "hi_open": hi_open,
-            "choices": choices}
-
-
-def _fld(default, kind, **kw):
-    return field(default=default, metadata=_meta(kind, **kw))
-
-
-@dataclass(frozen=True)
+@_frozen
 class CameraSpec:
     """Pinhole camera.
 
@@ -131,18 +133,18 @@ class CameraSpec:
         ``light.rig = "file"``; relative paths as for ``geometry.path``.
     """
 
-    width_px: int = _fld(406, "int", lo=1, hi=16384)
-    height_px: int = _fld(406, "int", lo=1, hi=16384)
-    fov_deg: float | None = _fld(None, "float?", lo=0.0, hi=180.0, lo_open=True, hi_open=True)
-    focal_px: float | None = _fld(None, "float?", lo=0.0, lo_open=True)
-    principal_offset_px: tuple[float, float] = _fld((0.0, 0.0), "vec2")
-    position_mm: tuple[float, float, float] = _fld((0.0, 0.0, 0.0), "vec3")
-    look_at_mm: tuple[float, float, float] = _fld((0.0, 0.0, 1.0), "vec3")
-    up: tuple[float, float, float] = _fld((0.0, -1.0, 0.0), "vec3")
-    model: str = _fld("pinhole", "str", choices=("pinhole", "fisheye", "c3vd", "file"))
-    dist_coeffs: tuple[float, ...] | None = _fld(None, "floats?")
-    fisheye_d: tuple[float, ...] | None = _fld(None, "floats?")
-    file: str | None = _fld(None, "str?")
+    width_px: Int = Field(406, ge=1, le=16384)
+    height_px: Int = Field(406, ge=1, le=16384)
+    fov_deg: Num | None = Field(None, gt=0.0, lt=180.0)
+    focal_px: Num | None = Field(None, gt=0.0)
+    principal_offset_px: Vec2 = (0.0, 0.0)
+    position_mm: Vec3 = (0.0, 0.0, 0.0)
+    look_at_mm: Vec3 = (0.0, 0.0, 1.0)
+    up: Vec3 = (0.0, -1.0, 0.0)
+    model: Literal["pinhole", "fisheye", "c3vd", "file"] = "pinhole"
+    dist_coeffs: Floats | None = None
+    fisheye_d: Floats | None = None
+    file: Str | None = None
 
     @property
     def focal(self) -> float:
@@ -164,7 +166,7 @@ class CameraSpec:
         return math.degrees(2.0 * math.atan(0.5 * self.width_px / self.focal))
 
 
-@dataclass(frozen=True)
+@_frozen
 class LightSpec:
     """Point light carried by the camera.
 
@@ -206,19 +208,19 @@ class LightSpec:
         the presets' assumed 1 for a rig).
     """
 
-    epsilon_mm: float = _fld(0.0, "float", lo=0.0)
-    alpha_deg: float | None = _fld(None, "float?")
-    b: float | None = _fld(None, "float?")
-    intensity: float = _fld(1.0, "float", lo=0.0, lo_open=True)
-    falloff: str = _fld("cancel", "str", choices=("cancel", "keep"))
-    rig: str = _fld("single", "str", choices=("single", "colonoscope", "laparoscope", "file", "cf_h190"))
-    guide_offset_mm: float | None = _fld(None, "float?", lo=0.0, lo_open=True)
-    guide_diameter_mm: float | None = _fld(None, "float?", lo=0.0, hi=10.0)
-    guide_count: int | None = _fld(None, "int?", lo=6, hi=8)
-    profile_exponent: float | None = _fld(None, "float?", lo=0.0)
+    epsilon_mm: Num = Field(0.0, ge=0.0)
+    alpha_deg: Num | None = None
+    b: Num | None = None
+    intensity: Num = Field(1.0, gt=0.0)
+    falloff: Literal["cancel", "keep"] = "cancel"
+    rig: Literal["single", "colonoscope", "laparoscope", "file", "cf_h190"] = "single"
+    guide_offset_mm: Num | None = Field(None, gt=0.0)
+    guide_diameter_mm: Num | None = Field(None, ge=0.0, le=10.0)
+    guide_count: Int | None = Field(None, ge=6, le=8)
+    profile_exponent: Num | None = Field(None, ge=0.0)
 
 
-@dataclass(frozen=True)
+@_frozen
 class MaterialSpec:
     """Surface reflectance: a specular lobe plus an optional Lambertian part.
 
@@ -278,27 +280,27 @@ class MaterialSpec:
     wall_radius_mm : float or None
     """
 
-    model: str = _fld("phong", "str", choices=("phong", "microfacet", "tissue"))
-    c: float = _fld(1.0, "float", lo=0.0)
-    n: float = _fld(50.0, "float", lo=0.0, lo_open=True)
-    distribution: str = _fld("beckmann", "str", choices=("beckmann", "ggx", "phong"))
-    alpha: float | None = _fld(None, "float?", lo=0.0, hi=1.0, lo_open=True)
-    base: str = _fld("conductor", "str", choices=("conductor", "plastic"))
-    ior: float = _fld(1.5, "float", lo=1.0, lo_open=True)
-    diffuse_albedo: float = _fld(0.0, "float", lo=0.0, hi=1.0)
-    tissue: str = _fld("mucosa", "str", choices=("mucosa", "liver", "peritoneum"))
-    film_ior: float = _fld(1.38, "float", lo=1.3, hi=1.5)
-    relief_mm: float = _fld(0.0, "float", lo=0.0, hi=1.0)
-    relief_scale_mm: float = _fld(0.3, "float", lo=0.05, hi=5.0)
-    relief_min_mm: float | None = _fld(None, "float?", lo=0.005, hi=1.0)
-    relief_hurst: float = _fld(0.8, "float", lo=0.0, hi=1.0)
-    texture_seed: int = _fld(0, "int", lo=0, hi=MAX_SEED)
-    albedo: tuple[float, float, float] | None = _fld(None, "vec3?")
-    film_variation: float = _fld(0.0, "float", lo=0.0, hi=3.0)
-    film_scale_mm: float = _fld(2.0, "float", lo=0.05, hi=50.0)
-    wall_tissue: str | None = _fld(None, "str?", choices=("mucosa", "liver", "peritoneum"))
-    wall_centre_mm: tuple[float, float, float] | None = _fld(None, "vec3?")
-    wall_radius_mm: float | None = _fld(None, "float?", lo=0.0, lo_open=True)
+    model: Literal["phong", "microfacet", "tissue"] = "phong"
+    c: Num = Field(1.0, ge=0.0)
+    n: Num = Field(50.0, gt=0.0)
+    distribution: Literal["beckmann", "ggx", "phong"] = "beckmann"
+    alpha: Num | None = Field(None, gt=0.0, le=1.0)
+    base: Literal["conductor", "plastic"] = "conductor"
+    ior: Num = Field(1.5, gt=1.0)
+    diffuse_albedo: Num = Field(0.0, ge=0.0, le=1.0)
+    tissue: Literal["mucosa", "liver", "peritoneum"] = "mucosa"
+    film_ior: Num = Field(1.38, ge=1.3, le=1.5)
+    relief_mm: Num = Field(0.0, ge=0.0, le=1.0)
+    relief_scale_mm: Num = Field(0.3, ge=0.05, le=5.0)
+    relief_min_mm: Num | None = Field(None, ge=0.005, le=1.0)
+    relief_hurst: Num = Field(0.8, ge=0.0, le=1.0)
+    texture_seed: Int = Field(0, ge=0, le=MAX_SEED)
+    albedo: tuple[_Channel, _Channel, _Channel] | None = None
+    film_variation: Num = Field(0.0, ge=0.0, le=3.0)
+    film_scale_mm: Num = Field(2.0, ge=0.05, le=50.0)
+    wall_tissue: Literal["mucosa", "liver", "peritoneum"] | None = None
+    wall_centre_mm: Vec3 | None = None
+    wall_radius_mm: Num | None = Field(None, gt=0.0)
 
     @property
     def microfacet_alpha(self) -> float:
@@ -330,154 +332,7 @@ class MaterialSpec:
         return math.sqrt(2.0 / (4.0 * self.n + 2.0))
 
 
-#: Keys each geometry type accepts (besides ``type``) and which of them are required.
-GEOMETRY_KEYS: dict[str, tuple[tuple[str, ...], tuple[str, ...]]] = {
-    # type: (required, optional)
-    "plane": (("tilt_deg", "distance_mm"), ("azimuth_deg", "extent_mm")),
-    "sphere": (("center_mm", "radius_mm"), ()),
-    "cylinder": (("center_mm", "radius_mm"), ("axis", "length_mm")),
-    "saddle": (("distance_mm", "radius1_mm", "radius2_mm"), ("extent_mm", "resolution")),
-    "mesh": (("path",), ("translate_mm", "rotate_deg", "scale", "flip_normals")),
-}
-
-
-@dataclass(frozen=True)
-class PlaneGeometry:
-    """An infinite (or ``extent_mm``-limited) plane, world frame.
-
-    Attributes
-    ----------
-    tilt_deg : float
-        Angle between the plane normal and the optical axis, [0, 90); required.
-    azimuth_deg : float or None
-        Direction of the tilt in the image; the camera-facing normal is
-        ``(sin t cos a, sin t sin a, -cos t)``, so with the default 90 the BP lies above the image
-        centre.
-    distance_mm : float
-        Distance from the camera centre to the plane (the paper's V_Z), > 0; required.
-    extent_mm : float or None
-        Half side of the square patch (default 100 x distance).
-    """
-
-    type: ClassVar[str] = "plane"
-    tilt_deg: float | None = _fld(None, "float?", lo=0.0, hi=90.0, hi_open=True)
-    azimuth_deg: float | None = _fld(None, "float?")
-    distance_mm: float | None = _fld(None, "float?", lo=0.0, lo_open=True)
-    extent_mm: float | None = _fld(None, "float?", lo=0.0, lo_open=True)
-
-
-@dataclass(frozen=True)
-class SphereGeometry:
-    """A sphere, world frame.
-
-    Attributes
-    ----------
-    center_mm : (3,) float
-        Centre; required.
-    radius_mm : float
-        Radius, > 0; required.
-    """
-
-    type: ClassVar[str] = "sphere"
-    center_mm: tuple[float, float, float] | None = _fld(None, "vec3?")
-    radius_mm: float | None = _fld(None, "float?", lo=0.0, lo_open=True)
-
-
-@dataclass(frozen=True)
-class CylinderGeometry:
-    """A finite cylinder, world frame.
-
-    Attributes
-    ----------
-    center_mm : (3,) float
-        A point on the axis, the centre of the cylinder; required.
-    radius_mm : float
-        Radius, > 0; required.
-    axis : (3,) float or None
-        Axis direction (not the zero vector); default (1, 0, 0).
-    length_mm : float or None
-        Length (default 20 x radius).
-    """
-
-    type: ClassVar[str] = "cylinder"
-    center_mm: tuple[float, float, float] | None = _fld(None, "vec3?")
-    radius_mm: float | None = _fld(None, "float?", lo=0.0, lo_open=True)
-    axis: tuple[float, float, float] | None = _fld(None, "vec3?")
-    length_mm: float | None = _fld(None, "float?", lo=0.0, lo_open=True)
-
-
-@dataclass(frozen=True)
-class SaddleGeometry:
-    """The saddle ``z = d + x^2 / (2 r1) - y^2 / (2 r2)``, camera frame, ``|x|, |y| <= extent``.
-
-    Built as a grid mesh with analytic normals and curvatures
-    (:func:`simtest.simulate.truth.saddle_mesh`).
-
-    Attributes
-    ----------
-    distance_mm : float
-        Depth d of the apex on the optical axis, > 0; required.
-    extent_mm : float or None
-        Half side of the square patch (default: the distance).
-    radius1_mm, radius2_mm : float
-        r1 and r2, > 0; required.
-    resolution : int or None
-        Vertices per side of the grid mesh, 3 to 4096 (default 129).
-    """
-
-    type: ClassVar[str] = "saddle"
-    distance_mm: float | None = _fld(None, "float?", lo=0.0, lo_open=True)
-    extent_mm: float | None = _fld(None, "float?", lo=0.0, lo_open=True)
-    radius1_mm: float | None = _fld(None, "float?", lo=0.0, lo_open=True)
-    radius2_mm: float | None = _fld(None, "float?", lo=0.0, lo_open=True)
-    resolution: int | None = _fld(None, "int?", lo=3, hi=4096)
-
-
-@dataclass(frozen=True)
-class MeshGeometry:
-    """A triangle mesh file in its own world frame.
-
-    Attributes
-    ----------
-    path : str
-        PLY file written by ``simtest.scene.meshes.save_mesh``; relative paths are taken from the
-        scene file's folder, then from the bundled data (:func:`simtest.resources.data_root`: the
-        repository root, or the installed package's ``_data``); required.
-    translate_mm, rotate_deg, scale : (3,) float, (3,) float, float, or None
-        Mesh-to-world transform ``x -> R (scale x) + t``, with ``R = Rz Ry Rx`` from ``rotate_deg``
-        (degrees about the world axes, x first) and ``t = translate_mm``; defaults identity.
-    flip_normals : bool or None
-        Reverse the vertex normals and curvature signs.
-    """
-
-    type: ClassVar[str] = "mesh"
-    path: str | None = _fld(None, "str?")
-    translate_mm: tuple[float, float, float] | None = _fld(None, "vec3?")
-    rotate_deg: tuple[float, float, float] | None = _fld(None, "vec3?")
-    scale: float | None = _fld(None, "float?", lo=0.0, lo_open=True)
-    flip_normals: bool | None = _fld(None, "bool?")
-
-
-#: The one surface of a scene: a tagged union of small frozen dataclasses, told apart by their
-#: class attribute ``type`` (the scene file's ``geometry.type``); each holds only its own keys.
-GeometrySpec = PlaneGeometry | SphereGeometry | CylinderGeometry | SaddleGeometry | MeshGeometry
-
-#: The geometry class of each ``geometry.type``.
-GEOMETRY_TYPES: dict[str, type] = {cls.type: cls for cls in (
-    PlaneGeometry, SphereGeometry, CylinderGeometry, SaddleGeometry, MeshGeometry)}
-
-#: Every geometry key, in the order the files and messages list them (``type`` first).
-_GEOMETRY_KEY_ORDER = ("type", "tilt_deg", "azimuth_deg", "distance_mm", "extent_mm", "center_mm",
-                       "radius_mm", "axis", "length_mm", "radius1_mm", "radius2_mm", "resolution",
-                       "path", "translate_mm", "rotate_deg", "scale", "flip_normals")
-
-#: Field metadata (kind and range) of each geometry key; a key shared by several types has the
-#: same meaning and range in each.
-_GEOMETRY_META: dict[str, dict] = {f.name: f.metadata for cls in GEOMETRY_TYPES.values()
-                                   for f in dataclasses.fields(cls)}
-
-
-@dataclass(frozen=True)
+@_frozen
 class SensorSpec:
     """Sensor model applied to the linear image (see :func:`simtest.render.sensor.apply_sensor`).
 
@@ -534,27 +389,27 @@ class SensorSpec:
         Field-stop radius as a fraction of half the image width (octagon: its inscribed circle).
     """
 
-    exposure: float = _fld(1.0, "float", lo=0.0, lo_open=True)
-    saturation: float = _fld(1.0, "float", lo=0.0, hi=1.0, lo_open=True)
-    gamma: float = _fld(1.0, "float", lo=0.0, lo_open=True)
-    bit_depth: int = _fld(8, "int", lo=1, hi=16)
-    gaussian_sigma: float = _fld(0.0, "float", lo=0.0)
-    full_well_e: float = _fld(0.0, "float", lo=0.0)
-    output: str = _fld("grey", "str", choices=("grey", "video"))
-    exposure_mode: str = _fld("fixed", "str", choices=("fixed", "auto"))
-    auto_mean: float = _fld(0.25, "float", lo=0.0, hi=1.0, lo_open=True)
-    metering: str = _fld("field", "str", choices=("field", "tissue"))
-    auto_clip_percent: float = _fld(100.0, "float", lo=0.0, hi=100.0)
-    white_balance: tuple[float, float, float] = _fld((1.0, 1.0, 1.0), "vec3")
-    tone: str = _fld("gamma", "str", choices=("gamma", "srgb"))
-    color_saturation: float = _fld(1.0, "float", lo=0.0)
-    vignetting: float = _fld(0.0, "float", lo=0.0, hi=1.0, hi_open=True)
-    jpeg_quality: int = _fld(0, "int", lo=0, hi=100)
-    field_stop: str = _fld("none", "str", choices=("none", "circle", "octagon"))
-    field_stop_radius: float = _fld(1.0, "float", lo=0.0, lo_open=True)
+    exposure: Num = Field(1.0, gt=0.0)
+    saturation: Num = Field(1.0, gt=0.0, le=1.0)
+    gamma: Num = Field(1.0, gt=0.0)
+    bit_depth: Int = Field(8, ge=1, le=16)
+    gaussian_sigma: Num = Field(0.0, ge=0.0)
+    full_well_e: Num = Field(0.0, ge=0.0)
+    output: Literal["grey", "video"] = "grey"
+    exposure_mode: Literal["fixed", "auto"] = "fixed"
+    auto_mean: Num = Field(0.25, gt=0.0, le=1.0)
+    metering: Literal["field", "tissue"] = "field"
+    auto_clip_percent: Num = Field(100.0, ge=0.0, le=100.0)
+    white_balance: tuple[_Gain, _Gain, _Gain] = (1.0, 1.0, 1.0)
+    tone: Literal["gamma", "srgb"] = "gamma"
+    color_saturation: Num = Field(1.0, ge=0.0)
+    vignetting: Num = Field(0.0, ge=0.0, lt=1.0)
+    jpeg_quality: Int = Field(0, ge=0, le=100)
+    field_stop: Literal["none", "circle", "octagon"] = "none"
+    field_stop_radius: Num = Field(1.0, gt=0.0)
 
 
-@dataclass(frozen=True)
+@_frozen
 class RenderSpec:
     """Rendering settings. ``seed`` drives the sampler, the sensor noise and the light draw.
 
@@ -570,10 +425,10 @@ class RenderSpec:
         One of :data:`RENDER_VARIANTS`.
     """
 
-    spp: int = _fld(16, "int", lo=1, hi=1 << 20)
-    sampler: str = _fld("multijitter", "str", choices=("multijitter", "independent", "stratified"))
-    seed: int = _fld(0, "int", lo=0, hi=MAX_SEED)
-    variant: str = _fld("auto", "str", choices=RENDER_VARIANTS)
+    spp: Int = Field(16, ge=1, le=1 << 20)
+    sampler: Literal["multijitter", "independent", "stratified"] = "multijitter"
+    seed: Int = Field(0, ge=0, le=MAX_SEED)
+    variant: Variant = "auto"
 
 
 _SECTIONS: dict[str, type] = {
@@ -586,7 +441,7 @@ _SECTIONS: dict[str, type] = {
 }
 
 
-@dataclass(frozen=True)
+@_frozen
 class SceneSpec:
     """A whole scene: one camera with its light, one surface, a sensor and render settings.
 
@@ -604,8 +459,8 @@ class SceneSpec:
         File path or ``"<dict>"``, for messages; not serialised and not compared.
     """
 
-    name: str = "scene"
-    description: str = ""
+    name: Str = "scene"
+    description: Str = ""
     camera: CameraSpec = field(default_factory=CameraSpec)
     light: LightSpec = field(default_factory=LightSpec)
     material: MaterialSpec = field(default_factory=MaterialSpec)
@@ -623,77 +478,9 @@ class SceneSpec:
 _err = functools.partial(keyed_error, SceneError)
 
 
-def _tname(v: Any) -> str:
-    return type(v).__name__
-
-
-def _coerce(value: Any, kind: str, source: str, key: str) -> Any:
-    base = kind.rstrip("?")
-    if base == "float":
-        if isinstance(value, bool) or not isinstance(value, (int, float)):
-            raise _err(source, key, f"expected a number, got {_tname(value)} {value!r}")
-        v = float(value)
-        if not math.isfinite(v):
-            raise _err(source, key, f"expected a finite number, got {value!r}")
-        return v
-    if base == "int":
-        if isinstance(value, float) and value.is_integer():
-            value = int(value)
-        if isinstance(value, bool) or not isinstance(value, int):
-            raise _err(source, key, f"expected an integer, got {_tname(value)} {value!r}")
-        return int(value)
-    if base == "bool":
-        if not isinstance(value, bool):
-            raise _err(source, key, f"expected true or false, got {_tname(value)} {value!r}")
-        return value
-    if base == "str":
-        if not isinstance(value, str):
-            raise _err(source, key, f"expected a string, got {_tname(value)} {value!r}")
-        return value
-    if base == "floats":
-        if not isinstance(value, (list, tuple)) or not value:
-            raise _err(source, key, f"expected a list of numbers, got {value!r}")
-        return tuple(_coerce(x, "float", source, f"{key}[{i}]") for i, x in enumerate(value))
-    if base in ("vec2", "vec3"):
-        n = int(base[-1])
-        if not isinstance(value, (list, tuple)) or len(value) != n:
-            raise _err(source, key, f"expected a list of {n} numbers, got {value!r}")
-        return tuple(_coerce(x, "float", source, f"{key}[{i}]") for i, x in enumerate(value))
-    raise AssertionError(kind)  # pragma: no cover
-
-
-def _check_range(v: Any, meta: dict, source: str, key: str) -> None:
-    if meta["choices"] is not None and v not in meta["choices"]:
-        opts = ", ".join(repr(c) for c in meta["choices"])
-        raise _err(source, key, f"{v!r} is not one of {opts}")
-    lo, hi = meta["lo"], meta["hi"]
-    if lo is not None and (v < lo or (meta["lo_open"] and v == lo)):
-        op = ">" if meta["lo_open"] else ">="
-        raise _err(source, key, f"{v!r} is out of range: must be {op} {lo}")
-    if hi is not None and (v > hi or (meta["hi_open"] and v == hi)):
-        op = "<" if meta["hi_open"] else "<="
-        raise _err(source, key, f"{v!r} is out of range: must be {op} {hi}")
-
-
-def _build_section(cls: type, data: Any, source: str, section: str):
-    if not isinstance(data, Mapping):
-        raise _err(source, section, f"expected a table, got {_tname(data)} {data!r}")
-    fields = {f.name: f for f in dataclasses.fields(cls)}
-    kwargs = {}
-    for key, value in data.items():
-        dotted = f"{section}.{key}"
-        if key not in fields:
-            known = ", ".join(fields)
-            raise _err(source, dotted, f"unknown key (known keys: {known})")
-        meta = fields[key].metadata
-        if value is None and meta["kind"].endswith("?"):
-            kwargs[key] = None
-            continue
-        v = _coerce(value, meta["kind"], source, dotted)
-        if meta["kind"].rstrip("?") in ("float", "int", "str"):
-            _check_range(v, meta, source, dotted)
-        kwargs[key] = v
-    return cls(**kwargs)
+def _validated(cls: Any, data: Any, source: str, prefix: str = ""):
+    """``data`` validated as ``cls``; a refusal is the one-line :class:`SceneError`."""
+    return validated(cls, data, SceneError, source, prefix)
 
 
 def _build_geometry(data: Any, source: str) -> GeometrySpec:
@@ -703,33 +490,22 @@ def _build_geometry(data: Any, source: str) -> GeometrySpec:
     all; None leaves a key unset.
     """
     if not isinstance(data, Mapping):
-        raise _err(source, "geometry", f"expected a table, got {_tname(data)} {data!r}")
-    kind = data.get("type", "plane")
-    kind = _coerce(kind, "str", source, "geometry.type")
+        raise _err(source, "geometry", f"expected a table, got {type(data).__name__} {data!r}")
+    kind = _validated(Str, data.get("type", "plane"), source, "geometry.type")
     if kind not in GEOMETRY_TYPES:
         opts = ", ".join(repr(c) for c in GEOMETRY_TYPES)
-        raise _err(source, "geometry.type", f"{kind!r} is not one of {opts}")
+        raise _err(source, "geometry.type", f"must be one of {opts}", kind)
     cls = GEOMETRY_TYPES[kind]
-    own = {f.name for f in dataclasses.fields(cls)}
-    kwargs = {}
-    for key, value in data.items():
-        dotted = f"geometry.{key}"
-        if key == "type":
-            continue
-        if key not in _GEOMETRY_META:
-            raise _err(source, dotted, f"unknown key (known keys: {', '.join(_GEOMETRY_KEY_ORDER)})")
-        meta = _GEOMETRY_META[key]
-        if value is None:
-            continue
-        v = _coerce(value, meta["kind"], source, dotted)
-        if meta["kind"].rstrip("?") in ("float", "int", "str"):
-            _check_range(v, meta, source, dotted)
-        if key not in own:
+    for key in data:
+        if key not in GEOMETRY_KEY_ORDER:
+            raise _err(source, f"geometry.{key}",
+                       f"unknown key (known keys: {', '.join(GEOMETRY_KEY_ORDER)})", data[key])
+        if key != "type" and data[key] is not None and key not in cls.__pydantic_fields__:
             required, optional = GEOMETRY_KEYS[kind]
-            raise _err(source, dotted,
+            raise _err(source, f"geometry.{key}",
                        f"not a key of geometry type {kind!r} (keys: {', '.join(required + optional)})")
-        kwargs[key] = v
-    return cls(**kwargs)
+    own = {k: v for k, v in data.items() if k != "type" and v is not None}
+    return _validated(cls, own, source, "geometry")
 
 
 def _norm(v: tuple[float, float, float]) -> float:
@@ -792,10 +568,6 @@ def _validate(spec: SceneSpec, source: str, base_dirs: tuple[Path, ...]) -> Scen
     if any(w is not None for w in walls) and any(w is None for w in walls):
         raise _err(source, "material.wall_tissue", "material.wall_tissue, wall_centre_mm and wall_radius_mm go "
                    "together (give all three or none)")
-    if mat.albedo is not None and not all(0.0 < v <= 1.0 for v in mat.albedo):
-        raise _err(source, "material.albedo", f"each channel must be in (0, 1], got {list(mat.albedo)}")
-    if any(v <= 0 for v in spec.sensor.white_balance):
-        raise _err(source, "sensor.white_balance", f"gains must be > 0, got {list(spec.sensor.white_balance)}")
     if spec.sensor.output == "video" and spec.sensor.bit_depth != 8:
         raise _err(source, "sensor.bit_depth", "a video frame is 8-bit: set sensor.bit_depth = 8 with output = \"video\"")
     if mat.model == "microfacet" and mat.base == "conductor" and mat.diffuse_albedo > 0:
@@ -857,21 +629,15 @@ def scene_from_dict(d: Mapping[str, Any], source: str = "<dict>",
         mesh file that does not exist.
     """
     if not isinstance(d, Mapping):
-        raise _err(source, "<root>", f"expected a table, got {_tname(d)}")
-    kwargs: dict[str, Any] = {}
-    for key, value in d.items():
-        if key in ("name", "description"):
-            kwargs[key] = _coerce(value, "str", source, key)
-        elif key == "geometry":
-            kwargs[key] = _build_geometry(value, source)
-        elif key in _SECTIONS:
-            kwargs[key] = _build_section(_SECTIONS[key], value, source, key)
-        else:
-            known = ", ".join(["name", "description", *_SECTIONS])
-            raise _err(source, key, f"unknown key (known keys: {known})")
-    if "geometry" not in kwargs:
+        raise _err(source, "<root>", f"expected a table, got {type(d).__name__}")
+    known = ("name", "description", *_SECTIONS)
+    for key in d:
+        if key not in known:
+            raise _err(source, key, f"unknown key (known keys: {', '.join(known)})", d[key])
+    if "geometry" not in d:
         raise _err(source, "geometry", "missing section [geometry] (it needs at least `type`)")
-    spec = SceneSpec(**kwargs, source=source)
+    data = {**d, "geometry": _build_geometry(d["geometry"], source), "source": source}
+    spec = _validated(SceneSpec, data, source)
     dirs = [Path(base_dir)] if base_dir is not None else []
     dirs.append(data_root())
     return _validate(spec, source, tuple(dirs))
@@ -985,20 +751,6 @@ def with_overrides(spec: SceneSpec, overrides: Mapping[str, Any]) -> SceneSpec:
     return out
 
 
-def _toml_value(v: Any) -> str:
-    if isinstance(v, bool):
-        return "true" if v else "false"
-    if isinstance(v, (int, np.integer)):
-        return str(int(v))
-    if isinstance(v, (float, np.floating)):
-        return repr(float(v))
-    if isinstance(v, str):
-        return json.dumps(v)  # a TOML basic string is a JSON string
-    if isinstance(v, (list, tuple)):
-        return "[" + ", ".join(_toml_value(x) for x in v) + "]"
-    raise TypeError(f"no TOML form for {v!r}")
-
-
 def scene_to_toml(spec: SceneSpec, folder: str | Path | None = None, header: str = "") -> str:
     """The scene file (TOML text) of ``spec``: ``load_scene`` of it gives ``spec`` back.
 
@@ -1016,9 +768,5 @@ def scene_to_toml(spec: SceneSpec, folder: str | Path | None = None, header: str
         for section, key in (("geometry", "path"), ("camera", "file")):
             if key in d.get(section, {}):
                 d[section][key] = os.path.relpath(d[section][key], Path(folder).resolve())
-    lines = [f"# {x}" if x else "#" for x in header.splitlines()]
-    lines += [f"name = {_toml_value(d['name'])}", f"description = {_toml_value(d['description'])}"]
-    for section in _SECTIONS:
-        lines += ["", f"[{section}]"]
-        lines += [f"{k} = {_toml_value(v)}" for k, v in d[section].items()]
-    return "\n".join(lines) + "\n"
+    comments = "".join(f"# {x}\n" if x else "#\n" for x in header.splitlines())
+    return comments + tomli_w.dumps(d)
