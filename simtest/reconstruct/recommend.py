@@ -644,7 +644,8 @@ def with_light_aware(image, estimates, camera, rig: LightRig | None, *, on_highl
     (``docs/decisions/light-aware-recommendation.md``). With ``fit_rejected`` every candidate the
     paper's ellipse rejected is fitted too (the fits need no ellipse: a two-light rig's lobes that
     merge into one highlight, or the harness scoring the estimators on every rendered highlight it
-    matched), but never those whose status says they are no specular highlight of the tissue (:data:`NOT_FITTED`).
+    matched), but never those whose status says they are no specular highlight of the tissue
+    (:data:`NOT_FITTED`).
 
     Parameters
     ----------
