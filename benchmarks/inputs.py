@@ -135,10 +135,9 @@ def banner_mosaic(shift_px: int = 0):
     bench's video move by it), with the banner's assumed pinhole (f = 140 px, principal point at
     the centre); None if the source tree is not there.
 
-    No real 1350 x 1080 endoscopy frame ships with simtest (issue 41 speaks of a phantom frame with
-    5177 bright components): this one holds the banner's content at the target size (about 640
-    components with the defaults, every one examined; :func:`video_first_frame`, the same frame
-    through MJPG, has about 2900)."""
+    No real 1350 x 1080 endoscopy frame ships with simtest (``docs/decisions/benchmarks.md``): this
+    one holds the banner's content at the target size (about 640 components with the defaults,
+    every one examined; :func:`video_first_frame`, the same frame through MJPG, has about 2900)."""
     got = banner_frame()
     if got is None:
         return None
@@ -206,8 +205,8 @@ def video_first_frame():
     with the mosaic's pinhole; None without the source tree or an MJPG codec.
 
     The JPEG's blocks and ringing turn the mosaic's 641 bright components into about 2900, every
-    one examined: the bench's honest stand-in for issue 41's real 1350 x 1080 frame with about 5000
-    components (none ships with simtest); the row's note names the count."""
+    one examined: the bench's stand-in for a real 1350 x 1080 frame with thousands of components
+    (none ships with simtest); the row's note names the count."""
     with tempfile.TemporaryDirectory() as tmp:
         made = bench_video_file(tmp, 1)
         if made is None:

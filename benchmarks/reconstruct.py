@@ -247,9 +247,9 @@ def _video_run(n_frames: int, workers: int) -> dict | None:
 
 def _bench_video(n_frames: int = VIDEO_FRAMES) -> list[BenchResult]:
     """``simtest reconstruct``'s path on a video (:func:`_video_run`), in a fresh interpreter on
-    every core: its workers start as a user's do, loading the compiled kernels from numba's cache
-    (0.35 s each on the 2-core VM), which workers forked from this process, warm from the rows
-    before, would not; wall ms per frame, the pool's start included, one run (a video is many
+    every core: its workers start as a user's do (imports, compiled kernels loaded from their
+    cache), which workers forked from this process, warm from the rows before, would not
+    (``docs/decisions/benchmarks.md``); wall ms per frame, the pool's start included, one run (a video is many
     frames)."""
     name = (f"video: 1350x1080 MJPG, {n_frames} frames of banner_mosaic panning {VIDEO_STEP_PX} px a "
             f"frame, decode + reconstruct + estimates.jsonl on {VIDEO_WORKERS} worker processes, wall per frame "
@@ -314,7 +314,7 @@ def _candidate_frame_rows(name: str, missing: str, frame_camera, repeat: int, ta
     of its OpenCV calls replayed alone (:func:`_opencv_row`) and of its compiled kernels
     (:func:`_kernel_rows`): ``frame_camera`` is ``(image, K or camera model)``, or None (one NaN
     row named ``missing``). Each is timed over ``max(3, repeat // 10)`` runs (5 at the default
-    repeat): a frame takes a tenth of a second or more, and a median of two runs was the mean of
+    repeat): a frame takes a tenth of a second or more, and a median of two runs is the mean of
     a slow and a quick one on a machine whose speed moves."""
     if frame_camera is None:
         return [BenchResult("reconstruct", missing, float("nan"), "ms", target)]
