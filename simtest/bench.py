@@ -28,6 +28,7 @@ from rich.console import Console
 from rich.table import Table
 
 from simtest._exit import fail
+from simtest.scene.spec import RENDER_VARIANTS
 
 #: The folder that holds ``simtest/``: a clone's top, where ``benchmarks/`` lives (site-packages
 #: for a wheel, which has none).
@@ -155,8 +156,6 @@ def bench_command(
     figure, single core).
 
     Writes no file: the table goes to standard output."""
-    from simtest.scene.spec import RENDER_VARIANTS
-
     if variant is not None and variant not in RENDER_VARIANTS:
         fail(f"--variant {variant!r} is not one of {list(RENDER_VARIANTS)}")
     try:
