@@ -95,10 +95,15 @@ def resolve_section(name: str) -> SectionFn | str:
 def __getattr__(name: str):
     # Code written before the benchmarks left the package (``from simtest.bench import
     # noisy_frame``) gets the pinned inputs and the OpenCV recorder from benchmarks/.
-    for sub in ("inputs", "opencv_replay"):
-        mod = importlib.import_module(f"{load_benchmarks().__name__}.{sub}")
-        if hasattr(mod, name):
-            return getattr(mod, name)
+    if not name.startswith("__"):
+        try:
+            package = load_benchmarks().__name__
+        except LookupError as exc:
+            raise AttributeError(f"module {__name__!r} has no attribute {name!r} ({exc})") from None
+        for sub in ("inputs", "opencv_replay"):
+            mod = importlib.import_module(f"{package}.{sub}")
+            if hasattr(mod, name):
+                return getattr(mod, name)
     raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
 
 
