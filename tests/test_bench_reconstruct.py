@@ -58,7 +58,7 @@ def test_simtest_bench_runs_a_section_of_the_clone_from_the_command_line(tmp_pat
     # the console command, started away from the clone (cwd elsewhere): the package finds the
     # sections in the benchmarks/ beside it and prints the table's rows
     proc = subprocess.run([sys.executable, "-m", "simtest.cli", "bench", "--only", "reconstruct", "--repeat", "1"],
-                          cwd=tmp_path, capture_output=True, text=True, timeout=900,
+                          cwd=tmp_path, capture_output=True, text=True, timeout=1800,
                           env={**os.environ, "PYTHONPATH": str(ROOT), "COLUMNS": "250"})
     assert proc.returncode == 0, proc.stderr[-2000:]
     out = proc.stdout
@@ -85,6 +85,19 @@ def test_without_a_clone_the_bench_says_so_in_one_line(monkeypatch, tmp_path):
     assert res.exit_code == 2, res.output
     assert res.output.startswith("error: the benchmarks need a clone of simtest") and res.output.count("\n") == 1
     assert "Traceback" not in res.output
+
+
+def test_code_written_before_the_move_still_finds_the_inputs(monkeypatch, tmp_path):
+    # `from simtest.bench import noisy_frame` (tests of branches begun before the move) forwards
+    # to benchmarks/; without a clone the attribute is missing, and says why
+    from simtest.bench import noisy_frame, opencv_calls
+
+    assert noisy_frame is inputs.noisy_frame and opencv_calls is opencv_replay.opencv_calls
+    monkeypatch.setattr(bench, "CLONE_ROOT", tmp_path)
+    with pytest.raises(AttributeError, match="need a clone"):
+        bench.synthetic_frame  # noqa: B018
+    with pytest.raises(ImportError):
+        from simtest.bench import synthetic_frame  # noqa: F401
 
 
 def test_the_package_holds_the_runner_and_no_benchmark_bodies():
@@ -288,7 +301,7 @@ def test_the_video_row_tells_the_candidates_and_the_cpu_a_frame(monkeypatch):
     # both rates: from the start (the row's value) and once the pool runs (a long video's)
     rates = re.search(r"([\d.]+) frames/s from the start .*, ([\d.]+) frames/s after the first frame", row.note)
     assert rates and float(rates.group(2)) > 0, row.note
-    assert float(rates.group(1)) == pytest.approx(1e3 / row.value, rel=0.06)  # one decimal shown
+    assert float(rates.group(1)) == pytest.approx(1e3 / row.value, abs=0.051)  # one decimal shown
     assert int(got.group(1)) > 500  # the mosaic's ~640 components and MJPG's blocks
     assert 0 < int(got.group(2)) < 60_000
 
