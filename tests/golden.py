@@ -67,7 +67,7 @@ def _real_K() -> np.ndarray:
 
 def noisy_frame():
     """The bench's frame with 2 % read noise (seed 12)."""
-    from simtest.bench import noisy_frame as bench_noisy_frame
+    from benchmarks.inputs import noisy_frame as bench_noisy_frame
 
     return bench_noisy_frame()
 
@@ -93,7 +93,7 @@ def cases() -> dict[str, tuple]:
             out[f"render_{name}_defaults"] = (load, DEFAULTS, "reconstruct")
 
     def frame():
-        from simtest.bench import synthetic_frame
+        from benchmarks.inputs import synthetic_frame
 
         f, K, _ = synthetic_frame()
         return f, K, {}
@@ -107,7 +107,7 @@ def cases() -> dict[str, tuple]:
         return f, K, {"smooth_sigma_px": 2.0}
 
     def roi():
-        from simtest.bench import synthetic_roi_image
+        from benchmarks.inputs import synthetic_roi_image
 
         img, K, bp, _ = synthetic_roi_image()
         return img, K, {"bp_uv": bp}

@@ -201,7 +201,7 @@ def test_plane_isophote_labels_are_exact_on_the_rendered_image(tmp_path):
 
 
 def test_bench_measures_throughput_and_worker_memory():
-    from simtest.dataset.bench import measure
+    from benchmarks.dataset import measure
 
     m = measure("planes", count=6, workers=2, seed=5, resolution_px=24, spp=2)
     for label in ("cold", "warm"):
@@ -214,7 +214,7 @@ def test_bench_measures_throughput_and_worker_memory():
 def test_bench_stages_split_the_cost_and_restore_the_thread_count():
     import drjit as dr
 
-    from simtest.dataset.bench import stages
+    from benchmarks.dataset import stages
 
     before = dr.thread_count()
     st = stages("colon", count=2, seed=5, resolution_px=24, spp=2, warmup=1)

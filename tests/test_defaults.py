@@ -23,7 +23,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from simtest import bench
+from benchmarks import inputs as bench
 from simtest.geometry import angle_between_deg
 from simtest.reconstruct import reconstruct
 from simtest.render import render_scene

@@ -444,7 +444,7 @@ def test_detection_hands_over_its_smoothing_and_the_pipeline_smooths_the_unround
     assert detect_specularities(img, smooth_sigma_px=0.0).smoothed is None
     # a whole colour frame with many highlights, smoothed at full resolution (the banner's
     # path): one full-frame blur in all, detection's, and the pipeline contours in it
-    from simtest.bench import banner_frame
+    from benchmarks.inputs import banner_frame
 
     got = banner_frame()
     if got is None:
@@ -479,7 +479,7 @@ def test_a_smoothed_frame_detected_at_half_resolution_has_the_full_resolutions_c
     full-resolution detection, the BPs and peaks to float32 rounding of the smoothing, the areas
     within 1 %, the levels within 0.1 grey
     level (the background enlarged from the same blocks' means, to float32 rounding)."""
-    from simtest import bench
+    from benchmarks import inputs as bench
     from simtest.reconstruct import detect
 
     img, _, _ = bench.noisy_frame()
@@ -576,7 +576,7 @@ def test_detection_gives_the_native_grays_2x2_means_where_it_reduced_it_unsmooth
     """A frame detected at full resolution without smoothing hands the verifier the means of its
     gray's 2 x 2 blocks (``Detection.half``, from ``local_peak_mask``); a smoothed one does not
     (those would be the smoothed gray's)."""
-    from simtest.bench import synthetic_frame
+    from benchmarks.inputs import synthetic_frame
 
     img, _, _ = synthetic_frame()
     det = detect_specularities(img, method="local_peak", smooth_sigma_px=0.0)

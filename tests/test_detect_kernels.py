@@ -18,7 +18,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from simtest import bench
+from benchmarks import inputs as bench
 from simtest.reconstruct import _detect_kernels as _dk
 from simtest.reconstruct import detect, pipeline
 from simtest.reconstruct.detect import (

@@ -190,7 +190,7 @@ def test_the_scored_detections_fitted_alone_get_what_fitting_every_detection_giv
     # (protocols.fit_scored): on a frame of ten highlights lit 3 mm off the camera, two scored
     # (one of them matched twice) and one highlight not detected, their light-aware fits are
     # those of fitting all ten, and the unmatched ones are not fitted
-    from simtest.bench import synthetic_frame
+    from benchmarks.inputs import synthetic_frame
     from simtest.reconstruct import reconstruct
     from simtest.reconstruct.recommend import with_light_aware
     from simtest.geometry.lights import Light, LightRig
@@ -223,7 +223,7 @@ def test_the_harness_bench_rate_is_the_marginal_cost_of_a_realisation(monkeypatc
     # run would spread over its few realisations: the rate is the slope between n and 2 n
     from types import SimpleNamespace
 
-    from simtest.harness import bench as hbench
+    from benchmarks import harness as hbench
 
     fixed_s, each_s = 1.5, 0.003
     seen = []

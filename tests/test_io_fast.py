@@ -15,7 +15,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from simtest import bench
+from benchmarks import inputs as bench
 from simtest.reconstruct import io
 from simtest.reconstruct.pipeline import reconstruct
 from simtest.reconstruct.recommend import with_light_aware

@@ -14,7 +14,7 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 import simtest
-from simtest.bench import noisy_frame
+from benchmarks.inputs import noisy_frame
 from simtest.geometry import angle_between_deg, project_points
 from simtest.reconstruct import (
     REASONS,
@@ -583,7 +583,7 @@ def test_one_bp_ray_in_python_floats_is_the_batched_rays_bits(seed):
 def test_the_collector_is_left_as_the_caller_had_it(enabled):
     # reconstruct and reconstruct_rois pause the cyclic collector for their work (_gc_paused):
     # it is back as it was afterwards, after a bad input too
-    from simtest.bench import synthetic_roi_image
+    from benchmarks.inputs import synthetic_roi_image
 
     img, K, bp, _ = synthetic_roi_image()
     frame = np.repeat(np.clip(img / img.max() * 250, 0, 255).astype(np.uint8)[:, :, None], 3, axis=2)
@@ -608,7 +608,7 @@ def test_a_bp_without_a_viewing_ray_is_a_status_with_its_intensity(monkeypatch):
     # a BP the camera model gives no ray (outside a fisheye's field, say): no isophotes, status
     # non_finite_points, and the BP intensity as for any highlight: the largest of the BP's
     # 3 x 3 pixels of the (unsmoothed) luma
-    from simtest.bench import synthetic_roi_image
+    from benchmarks.inputs import synthetic_roi_image
 
     img, K, bp, _ = synthetic_roi_image()
     monkeypatch.setattr(pipeline._Frame, "bp_ray", lambda self, uv: np.full(3, np.nan))
@@ -649,7 +649,7 @@ def test_the_verified_estimates_are_copied_as_dataclasses_replace_copies_them():
     nor __slots__ for replace's __init__ to run."""
     import dataclasses
 
-    from simtest.bench import synthetic_frame
+    from benchmarks.inputs import synthetic_frame
     from simtest.reconstruct import pipeline
 
     assert not hasattr(pipeline.SpecularityEstimate, "__post_init__")
@@ -673,7 +673,7 @@ def test_a_frame_asks_the_c_library_to_keep_freed_whole_frame_arrays(monkeypatch
     import platform
     from unittest import mock
 
-    from simtest.bench import synthetic_frame
+    from benchmarks.inputs import synthetic_frame
     from simtest.reconstruct import pipeline
 
     frame, K, _ = synthetic_frame(n_highlights=1)
@@ -690,7 +690,7 @@ def test_the_verifier_reuses_detections_gray_and_noise_within_the_accuracy_toler
     a grey frame; its statuses and confidences are those of the verifier given the float64 luma
     and measuring the noise again (the same values here: the gray is the luma, its rows the
     same). (Colour frames: tests/golden.py --compare on the banner holds them to the tolerance.)"""
-    from simtest import bench
+    from benchmarks import inputs as bench
 
     img, K, _ = bench.noisy_frame()
     ests = pipeline.reconstruct(img, K)
@@ -709,7 +709,7 @@ def test_the_batched_initial_rois_are_each_candidates_own():
     """``_initial_rois`` (one batch of numpy calls for a frame's candidates) gives each candidate
     the ROI ``_initial_roi`` gives it alone: the real banner's candidates, with their own levels
     and with the frame's threshold (method full_scale), and under full-scale normalisation."""
-    from simtest import bench
+    from benchmarks import inputs as bench
     from simtest.reconstruct.detect import detect_specularities
     from simtest.reconstruct.pipeline import _Frame, _initial_roi, _initial_rois
     from simtest.reconstruct.settings import ReconSettings
@@ -764,7 +764,7 @@ def test_the_compiled_roi_growth_gives_the_python_loops_estimates(normalise, sig
     ``_estimate_one``'s loop gives it: the real banner smoothed once (sigma from its noise) and
     not smoothed (its float64 luma sliced), under each normalisation; the few candidates the
     call leaves (a cut only the extraction can tell) go through the loop."""
-    from simtest import bench
+    from benchmarks import inputs as bench
     from simtest.reconstruct import _kernels
 
     img, K = bench.banner_frame()

@@ -3,7 +3,7 @@
 406 x 406 px at 16 spp with the image and all ground truth, llvm, 2 threads, kernel cache warm
 (the first call compiles). Targets from the issue: >= 10 renders/s for the plane, >= 2 for the
 colon. Speed is reported, never asserted; the assertions check that each timed render did its
-whole job. ``simtest.render.bench.bench_render`` adds cold-cache and scene-rebuild figures.
+whole job. ``benchmarks.render.bench_render`` adds cold-cache and scene-rebuild figures.
 """
 
 from __future__ import annotations
@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 
 from simtest.render import render_scene
-from simtest.render.bench import _bench_spec, bench_render
+from benchmarks.render import _bench_spec, bench_render
 
 pytestmark = pytest.mark.render
 
@@ -44,7 +44,7 @@ def test_bench_render_function_reports_per_scene():
 def test_compare_variants_of_one_variant_finds_no_difference_and_names_a_missing_one():
     # the same variant twice in two processes: a render repeats bit for bit, so every measured
     # difference is exactly zero (the GPU's figures beside the CPU's come from this function)
-    from simtest.render.bench import compare_variants
+    from benchmarks.render import compare_variants
 
     out = compare_variants("plane_58deg", ("llvm_ad_rgb", "llvm_ad_rgb"))
     assert out["hit_differs_px"] == 0 and out["linear_max_rel"] == 0.0

@@ -291,7 +291,7 @@ def test_windowed_evidence_is_the_whole_frames_on_the_noisy_bench_frame_and_a_re
 
     import cv2
 
-    from simtest import bench
+    from benchmarks import inputs as bench
     img, Kb = bench.noisy_frame()[:2]
     whole, win = _both_paths(monkeypatch, img, Kb)
     assert whole == win and any(s == "ok" for s, _ in win)
@@ -461,7 +461,7 @@ def test_a_colour_frame_is_verified_in_the_luma_its_rois_are_smoothed_from():
     frame's smoothing and the verifier: no float32 copy of the RGB frame converted by OpenCV."""
     import cv2 as cv2_module
 
-    from simtest.bench import opencv_calls
+    from benchmarks.opencv_replay import opencv_calls
     img = _frame([(100, 100, 3.0, 150, WHITE), (40, 150, 2.0, 150, WHITE)])
     with opencv_calls() as calls:
         ests = reconstruct(img, K)

@@ -9,65 +9,39 @@ to each :class:`~simtest.reconstruct.pipeline.SpecularityEstimate` (``light_awar
 Recommendation rule
 -------------------
 Chosen from the harness' measurements on Mitsuba renders (``simtest validate rendered`` and the
-``lightaware`` suite), never from ground truth at run time:
+``lightaware``, ``lightaware-curved`` and ``endoscope`` suites), never from ground truth at run
+time; the measurements behind each rule are in ``docs/decisions/light-aware-recommendation.md``.
 
 1. With a rig whose lights are not all at the camera centre: ``photometric_fit`` when its status
    is ``ok``, else ``cubic_patch_fit`` when ``ok`` (run only with two or more lights at
    different places), else ``quadric_fit`` when ``ok``, else ``isocurve_fit`` when ``ok`` (and
    the plane does not misfit), else (rule 3) the fit whose depth is not observable but whose
-   normal's sigma beats the BP ray's expected error, else ``bp_ray``. On renders of
-   planes lit off the camera (the ``lightaware`` suite) the BP ray and every cone estimator err by
-   about 24 deg per unit epsilon/d (they estimate the direction of the BP, not the normal); the
-   photometric fit uses every unclipped pixel, the lobe's shape and its position, and errs by
-   about a tenth of a degree; the isocurve fit, which sees only the contour points, by several
-   times more. A fit whose depth is not observable is not used here: with the light off the camera the
-   tilt and the distance trade off, so an undetermined distance leaves the normal undetermined
-   too (on the curved scenes such fits missed by up to 12 deg) unless its normal's sigma, which
-   carries that trade, says otherwise (rule 3). On curved patches the plane
-   model trades the curvature for roughness and distance and misses the normal, by more than the
-   BP ray on the sphere, while its residual stays near the sensor's noise; its residuals are then
-   spatially correlated, which ``photometric_fit`` reports as ``plane_misfit`` (or its fit runs
-   off, ``not_converged``). A photometric fit that misfits or runs off (:data:`CURVED_FIT_AFTER`)
-   runs ``quadric_fit`` (a curved patch, exact on spheres), recommended when its status is
-   ``ok``; then ``isocurve_fit``, unless the plane misfits (the isocurve fit is the same plane model, seen through the contours); else
-   the BP ray. Under one light the quadric is never ``ok``: its depth is not observable (a single
-   highlight does not tell the depth from the surface's third-order shape, issue 10), so it is
-   withdrawn, and its normal's sigma spans the bisectors at the depths within
-   :data:`~simtest.reconstruct.lightaware.patch.ONE_LIGHT_DEPTH_FACTOR` of the fitted one
-   (``depth_range_mm``); rule 3 then compares it with the BP ray's error at the farthest of
-   those depths (:func:`bp_error_depth_mm`), and on the suite's one-light renders the BP ray is
-   kept (the one-light curved target of issue 10 is withdrawn: the quadric was right on the
-   spheres, cylinders and saddles, where the surface has little third-order shape, and 3.8 deg
-   off on the liver where the BP ray erred 2.9, its depth 57 % short with a relative sigma of
-   0.16). The quadric is fitted on the highlight's ROI grown 1.5 times, not the plane's
-   2.5: on the ``lightaware-curved`` renders the larger ROI took in more of the surface's
-   third-order shape, which the fit's depth trades with (``quadric_fit``, Notes), and its
-   misfit test passed more wrong patches (on the liver
-   mesh at epsilon/d 0.1 the quadric was recommended in 4 of 6 realisations, 3 of them worse
-   than the BP ray; with 1.5, in 1 of 6). There the quadric patch beats the BP ray on the
-   sphere, cylinder and saddle at epsilon/d 0.1 and 0.3 (medians below 1 deg); on the liver
-   mesh it mostly misfits or runs off (BP ray), and where it does not its depth is the one at
-   which the light's offset stands in for the surface's third-order shape; on the colon's fold
-   streaks it misfits or runs off (BP ray). With two lights at different places (a
-   colonoscope's guides either side of the lens) the lobes shift apart as the light offsets
-   over the depth say while the surface's shape acts on both alike, so the third-order patch
-   fitted to both (``cubic_patch_fit``) fixes the depth with the shape free; on the suite's
-   two-light liver renders (``liver_two_lights``, six realisations) its status was ``ok`` on
-   every highlight and its median error 0.30 deg at epsilon/d 0.1 per light and 0.09 at 0.3,
-   against 2.2 and 8.4 for the BP ray, where the quadric misfits and the plane fit does not
-   converge; on the suite's two-light spheres and cylinders (``sphere_two_lights``,
-   ``cylinder_two_lights``, epsilon/d 0.1 and 0.3 per light, 12 highlights each) 0.11, 0.11,
-   0.23 and 0.25 deg against 2.0, 8.3, 0.67 and 8.8, every error within twice its stated sigma
-   (:func:`_stated_sigma`); it
-   comes before the quadric, whose depth, with the third-order shape left out, is the one at
-   which the offsets stand in for it. With one light it is not run (nor recommended when run
-   on request): its depth is then not observable (on the exact sphere and the liver render the
-   depth profile is flat within 0.06 of the noise floor's variance; on the suite's one-light
-   curved renders its relative depth sigma was 1.8 to 31, against 0.008 to 0.07 on the
-   two-light liver), and a cubic patch whose depth is not observable is never used.
-   On the colon's fold streaks it misfits or does not converge, and the BP ray is kept. Its
-   normal is the apex's (the mean light's specular point); the normal at each light's specular
-   point (``light_normals``) is given beside it.
+   normal's sigma beats the BP ray's expected error, else ``bp_ray``. The BP ray and the cone
+   estimators estimate the direction of the BP, not the normal, when the light is off the
+   camera. A fit whose depth is not observable is not used by this rule: with the light off the
+   camera the tilt and the distance trade off, so an undetermined distance leaves the normal
+   undetermined too, unless its normal's sigma, which carries that trade, says otherwise (rule
+   3). On a curved patch the plane model trades the curvature for roughness and distance, and
+   its spatially correlated residuals make ``photometric_fit`` report ``plane_misfit`` (or run
+   off, ``not_converged``); such a fit (:data:`CURVED_FIT_AFTER`) runs ``quadric_fit`` (a
+   curved patch, exact on spheres), recommended when its status is ``ok``; then
+   ``isocurve_fit``, unless the plane misfits (the isocurve fit is the same plane model, seen
+   through the contours); else the BP ray. Under one light the quadric is never ``ok``: its
+   depth is not observable (a single highlight does not tell the depth from the surface's
+   third-order shape), so it is withdrawn, and its normal's sigma spans the bisectors at the
+   depths within :data:`~simtest.reconstruct.lightaware.patch.ONE_LIGHT_DEPTH_FACTOR` of the
+   fitted one (``depth_range_mm``); rule 3 then compares it with the BP ray's error at the
+   farthest of those depths (:func:`bp_error_depth_mm`). The quadric is fitted on the
+   highlight's ROI grown 1.5 times, not the plane's 2.5 (a larger ROI takes in more of the
+   surface's third-order shape, which the fit's depth trades with). With two lights at
+   different places (a colonoscope's guides either side of the lens) the lobes shift apart as
+   the light offsets over the depth say while the surface's shape acts on both alike, so the
+   third-order patch fitted to both (``cubic_patch_fit``) fixes the depth with the shape free;
+   it comes before the quadric, whose depth, with the third-order shape left out, is the one at
+   which the offsets stand in for it. With one light it is not run (nor recommended when run on
+   request): its depth is then not observable, and a cubic patch whose depth is not observable
+   is never used. Its normal is the apex's (the mean light's specular point); the normal at each
+   light's specular point (``light_normals``) is given beside it.
 2. Without a rig, or with every light at the camera centre: ``joint_cone_axis`` when at least two
    isophotes succeeded, else ``cone_axis``, else ``bp_ray``. Over the co-located rendered suite the
    joint cone axis has the lowest mean and median error (:func:`colocated_ranking` recomputes the
@@ -78,47 +52,29 @@ Chosen from the harness' measurements on Mitsuba renders (``simtest validate ren
    observable (``depth_not_observable``, the misfit tests passed, and the same exclusions as in
    1.; ``cubic_patch_fit`` only with its normal per light, i.e. two lights whose depth passed
    the noise floor's test and only the ceiling withdrew it: under one light its third-order
-   shape trades with the depth) is still
-   recommended, the one of least stated sigma (``normal_sigma_deg``, with a normal per light
-   the largest of theirs: :func:`_stated_sigma`), when twice that sigma
-   (:data:`SIGMA_MARGIN`: the fit's error at 95 %) is below the BP ray's expected error
-   (:func:`bp_ray_error_deg`: half the angle the rig's mean light subtends at the specular
-   point, at the nominal depth of 20 mm where the depth is unknown, or at the farthest depth the
-   fit cannot exclude where it states one: :func:`bp_error_depth_mm`); ``depth_mm`` is then None. Reasons: the BP is where the normal bisects the directions to the
-   camera and the light, so the BP ray errs by about that half angle whatever the surface, while
-   the fit's sigma comes from its covariance with the distance free, so the tilt that trades
-   with the undetermined distance is in it; a depth that is not observable leaves the normal
-   determined to within that sigma. Falling back to the BP ray there threw away the better
-   normal in 19 of 20 exact 8-bit planes (0.68 against 1.75 deg, issue 39); on 6 noise-free
-   8-bit planes at epsilon/d 0.004 to 0.017 every such fit is kept (0.01 to 0.11 deg, the BP
-   ray 0.10 to 0.26). Why twice the sigma, not once: with 2 % read noise the plane fit's sigma
-   is too small (its errors fall within 2 sigma in 70 % of 47 depth-unobservable planes at
-   epsilon/d 0.008 to 0.2, depths 20 to 60 mm, where the nominal 20 mm also overstates the BP
-   ray's error at 60 mm); keeping the fit when once its sigma beat the BP ray's error made the
-   median recommended error 1.69 deg against the BP ray's 1.08, with twice 1.08 (mean 1.35
-   against 1.52). With the sigma that counts the residual's correlation (the three rendered
-   suites' coverage verdicts hold) a margin of 1 was measured again and not taken: on 50 such
-   noisy 8-bit planes every error fell within 2 sigma and 1 beat 2 (median 0.57 against 0.64
-   deg); on the ``lightaware`` and ``lightaware-curved`` suites it moved 4 highlights from the
-   BP ray to a fit, 3 better (by 2.7 to 7.3 deg) and 1 worse (by 3.8 deg, liver); on the
-   ``endoscope`` suite it moved 2 highlights of the colon wall (micro-relief 0.002 mm), both
-   beyond the BP ray's error plus their sigma, which broke the curved verdict there (median
-   4.81 to 5.77 deg against the BP ray's 4.81). A curved patch's fit can pass its misfit tests
-   with a sigma that does not carry the patch's shape; twice the sigma keeps those out.
-   The BP ray's error compared with is also at least half the angle between the BP ray and the fit's normal: where
-   the two differ by more than 2 x ``SIGMA_MARGIN`` sigmas, the fit's own sigma says the BP ray
-   is the worse (on sensor frames the detected BP sits 3 px off the specular point, pulled by
-   the diffuse shading, and the BP ray errs by 2 deg where the guides' geometry says 0.7). A
+   shape trades with the depth) is still recommended, the one of least stated sigma
+   (``normal_sigma_deg``, with a normal per light the largest of theirs: :func:`_stated_sigma`),
+   when twice that sigma (:data:`SIGMA_MARGIN`: the fit's error at 95 %) is below the BP ray's
+   expected error (:func:`bp_ray_error_deg`: half the angle the rig's mean light subtends at the
+   specular point, at the nominal depth of 20 mm where the depth is unknown, or at the farthest
+   depth the fit cannot exclude where it states one: :func:`bp_error_depth_mm`); ``depth_mm`` is
+   then None. Reasons: the BP is where the normal bisects the directions to the camera and the
+   light, so the BP ray errs by about that half angle whatever the surface, while the fit's
+   sigma comes from its covariance with the distance free, so the tilt that trades with the
+   undetermined distance is in it; a depth that is not observable leaves the normal determined
+   to within that sigma. Twice the sigma, not once: a curved patch's fit can pass its misfit
+   tests with a sigma that does not carry the patch's shape. The BP ray's error compared with is
+   also at least half the angle between the BP ray and the fit's normal: where the two differ by
+   more than 2 x ``SIGMA_MARGIN`` sigmas, the fit's own sigma says the BP ray is the worse. A
    ``plane_misfit`` fit is not a candidate, although its sigma is then the sandwich's
    (:func:`~simtest.reconstruct.lightaware.solve._hac_covariance`, which counts correlated
-   residuals): a plane fit that ends in a wrong local minimum (an exact two-guide plane on a
-   100 px ROI: 4.4 deg off, sandwich sigma 0.19) misfits with a sigma that does not cover its
-   error. On a sensor frame (RGB, a response, no JPEG grid) the fit runs on the three linear
-   channels with the tissue's body colours projected out (``model.specular_image``), so that
-   the albedo's texture under the rig's diffuse light is not left in the residual; where the
-   lobe itself does not fit (micro-relief breaking it into sparkle, a film sharper than the
-   sensor resolves) the fit misfits, and rule 4 decides. The endoscope suite's report gives
-   the share of each.
+   residuals): a plane fit that ends in a wrong local minimum misfits with a sigma that does not
+   cover its error. On a sensor frame (RGB, a response, no JPEG grid) the fit runs on the three
+   linear channels with the tissue's body colours projected out (``model.specular_image``), so
+   that the albedo's texture under the rig's diffuse light is not left in the residual; where
+   the lobe itself does not fit (micro-relief breaking it into sparkle, a film sharper than the
+   sensor resolves) the fit misfits, and rule 4 decides. The endoscope suite's report gives the
+   share of each.
 
 4. Where rules 1 to 3 found nothing, a ``plane_misfit`` photometric fit whose normal the curved
    patch confirms: ``quadric_fit`` gives a normal with a stated sigma s_q, the plane's normal
@@ -127,14 +83,8 @@ Chosen from the harness' measurements on Mitsuba renders (``simtest validate ren
    plane's normal errs by at most g plus the quadric's error, so ``g + s_q`` states what the
    quadric's sigma covers. Why: micro-relief on flat mucosa (the shading normal leaving the
    plane's) leaves a residual that the curvature test reads as a curved patch, while the plane's
-   normal, averaged over the lobe, stays near the macro normal: on the endoscope suite's flat
-   mucosa with relief 0.002 to 0.01 mm the misfitting plane fits erred by 0.21 to 0.48 deg (the
-   quadric confirming them within 0.52 to 0.76 deg, s_q 0.95 to 1.15), where the BP ray erred by
-   4.9 to 12.9 deg. On a curved patch the plane trades curvature for distance and misses the
-   normal, and the quadric then disagrees: on the ``lightaware-curved`` one-light spheres the
-   plane missed by 2.9 to 17 deg with g 3.1 to 16 deg (never within s_q, 2 to 6.7 deg), and the
-   BP ray stayed. Rule 4 took 4 of the suite's one-light cylinder and saddle highlights, each
-   better than the BP ray (0.14 to 2.6 deg against 2.8 to 9.3) and within twice its stated sigma.
+   normal, averaged over the lobe, stays near the macro normal; on a curved patch the plane
+   trades curvature for distance and misses the normal, and the quadric then disagrees.
    A quadric whose sigma is not stated (180 deg: its depth not bounded along its valley) confirms
    nothing.
 
@@ -158,10 +108,8 @@ Isophotes of the isocurve fit
 BP's height above the median of the grown ROI's border, extracted from that ROI (the
 photometric fit's), not the command line's isovalues. The command line's defaults (0.7, 0.85)
 draw two small contours near the peak, where the lobe is nearly its quadratic approximation and
-says little about the distance: on 16 exact 8-bit off-axis planes (epsilon/d 0.07 to 0.27) the
-fit on them ran off (``not_converged``) on 9, had no observable depth on 2 and erred by 4.6 deg
-(median) on the rest; on contours at 0.3, 0.5 and 0.7 it was ``ok`` on all 16, median error
-0.1 deg. Lower levels reach into the tails, where the falloff the isocurve model leaves out and
+says little about the distance (measured: ``docs/decisions/light-aware-recommendation.md``).
+Lower levels reach into the tails, where the falloff the isocurve model leaves out and
 the background weigh more.
 
 ``depth_mm`` and ``normal_sigma_deg`` are those of the estimator recommended (None for the cone
@@ -337,13 +285,9 @@ def light_aware_estimates(image, est, camera, rig: LightRig, *, nominal_depth_mm
         ``"auto"``: GGX where Phong misfits and GGX does not). None (default): "auto" where the
         fit runs on the three channels (the film's own lobes, whose GGX shape Phong's misfits
         once the texture no longer hides it), else Phong. Phong on one channel: on sensor frames
-        ``"auto"`` has not yet changed a recommendation and costs CPU. On 40 highlights of a
-        rendered 1350 x 1080 colonoscope frame with its camera file it took 1.15 s a highlight
-        against Phong's 0.65 (one core), kept GGX on 5 (Phong not converged, GGX misfitting) and
-        recommended the BP ray on all 40, as Phong; on the endoscope suite's flat mucosa both
-        lobes misfit on every frame and Phong is kept. Where the image is the film's own (the
-        renderer's specular radiance) GGX fits it to the render's noise where Phong misfits.
-
+        ``"auto"`` has not been seen to change a recommendation and costs CPU (measured:
+        ``docs/decisions/light-aware-recommendation.md``). Where the image is the film's own
+        (the renderer's specular radiance) GGX fits it to the render's noise where Phong misfits.
     floor_refit : bool
         Refit the photometric fit without the pixels whose model lies within a few noise sigmas
         of an integer image's 0 (:func:`~simtest.reconstruct.lightaware.photometric_fit`'s
@@ -696,12 +640,12 @@ def with_light_aware(image, estimates, camera, rig: LightRig | None, *, on_highl
     the camera centre (the cone axes and the BP ray are then the estimators of choice, module
     docstring). By default only the accepted highlights (status ``ok``) are fitted: a rejected
     candidate keeps its status whatever its fits give, so its normal is not one to use, and on a
-    rendered 1350 x 1080 colonoscope frame the fits of its 270 rejected candidates took 130 s of
-    the frame's 133 s on one core, the 24 of them timed each ending ``plane_misfit`` or
-    ``not_converged``. With ``fit_rejected`` every candidate the paper's ellipse rejected is fitted
-    too (the fits need no ellipse: a two-light rig's lobes that merge into one highlight, or the
-    harness scoring the estimators on every rendered highlight it matched), but never those whose
-    status says they are no specular highlight of the tissue (:data:`NOT_FITTED`).
+    whole frame the rejected candidates' fits are most of its time and end in misfits
+    (``docs/decisions/light-aware-recommendation.md``). With ``fit_rejected`` every candidate the
+    paper's ellipse rejected is fitted too (the fits need no ellipse: a two-light rig's lobes that
+    merge into one highlight, or the harness scoring the estimators on every rendered highlight it
+    matched), but never those whose status says they are no specular highlight of the tissue
+    (:data:`NOT_FITTED`).
 
     Parameters
     ----------

@@ -31,6 +31,7 @@ from typing import Sequence
 
 import numpy as np
 
+from benchmarks.timing import clone_env
 from simtest._lazy import require
 from simtest.geometry import angle_between_deg
 from simtest.render import render as R
@@ -55,7 +56,7 @@ configure_llvm_env()
 import drjit as dr
 import mitsuba as mi
 from simtest.render import render_scene
-from simtest.render.bench import _bench_spec
+from benchmarks.render import _bench_spec
 t1 = time.perf_counter()
 args = json.loads(sys.argv[1])
 dr.set_thread_count(args["threads"])
@@ -169,7 +170,7 @@ def _cold(scene: str, size_px: int, spp: int, variant: str, threads: int) -> dic
     with tempfile.TemporaryDirectory(prefix="simtest-drjit-cold-") as cache:
         out, error = _run_script(_COLD_SCRIPT, {"scene": scene, "size_px": size_px, "spp": spp,
                                                 "variant": variant, "threads": threads},
-                                 env=dict(os.environ, DRJIT_CACHE_DIR=cache))
+                                 env=clone_env(DRJIT_CACHE_DIR=cache))
     if error is not None:
         return {"error": error}
     out["renders_per_s"] = 1.0 / out["first_render_s"]
@@ -323,5 +324,5 @@ def bench_endoscope(presets: Sequence[str] = ENDOSCOPE_PRESETS, *, repeats: int 
     return out
 
 
-if __name__ == "__main__":  # pragma: no cover - manual use: python -m simtest.render.bench
+if __name__ == "__main__":  # pragma: no cover - manual use: python -m benchmarks.render
     print(json.dumps(bench_render(sys.argv[1:] or ("plane_58deg", "colon")), indent=2))
