@@ -18,7 +18,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from simtest import bench
-from simtest.reconstruct import io
+from simtest.reconstruct import io, table
 from simtest.reconstruct.frames import write_frames_parquet
 from simtest.reconstruct.pipeline import reconstruct
 from simtest.reconstruct.recommend import with_light_aware
@@ -42,9 +42,14 @@ def _same_document(ests, tmp_path):
         assert json.loads(io.dumps(specs)) == want
         path = tmp_path / f"e{int(include_points)}.parquet"
         write_frames_parquet(path, [{"frame": 0, "source": "x.png", "specularities": specs}])
-        [rec] = io.read_frames(path)
+        [rec] = table.read_frames(path)
         assert rec["specularities"] == want
-        assert io.read_table(path).column("candidate").to_pylist() == list(range(len(ests)))
+        read = table.read_table(path)
+        assert read.column("candidate").to_pylist() == list(range(len(ests)))
+        # the video path's rows, made column by column from the estimates: the same table
+        batch = table.estimates_batch(0, "x.png", ests, include_points)
+        assert batch.equals(table.frame_batch({"frame": 0, "source": "x.png", "specularities": specs}))
+        assert read.equals(read.from_batches([batch]).replace_schema_metadata(read.schema.metadata))
 
 
 def test_real_tile_reads_back_as_written(tmp_path):
@@ -96,6 +101,8 @@ def test_a_value_that_is_not_finite_is_refused_naming_its_key(tmp_path):
         with pytest.raises(ValueError, match="not finite"):
             write_frames_parquet(tmp_path / "bad.parquet", [{"frame": 0, "source": "x", "specularities": specs}])
         assert not (tmp_path / "bad.parquet").exists()
+        with pytest.raises(ValueError, match="not finite"):
+            table.estimates_batch(0, "x", [bad])
     with pytest.raises(ValueError, match="not finite"):
         io.dumps({"K": np.array([[1.0, np.nan]])})
 

@@ -13,7 +13,8 @@ from typer.testing import CliRunner
 from simtest.cli import app
 from simtest.reconstruct import reconstruct
 from simtest.reconstruct.frames import _frame_record, open_frames
-from simtest.reconstruct.io import estimate_to_dict, read_frames, read_table
+from simtest.reconstruct.io import estimate_to_dict
+from simtest.reconstruct.table import read_frames, read_table
 from simtest.reconstruct.settings import ReconSettings
 from simtest.simulate.analytic import phong_plane_image
 

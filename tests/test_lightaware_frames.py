@@ -16,7 +16,8 @@ from simtest.geometry.cameras import PinholeCamera
 from simtest.geometry.lights import Light, LightRig
 from simtest.geometry.response import SensorResponse, video_response
 from simtest.reconstruct.frames import open_frames, reconstruct_frames
-from simtest.reconstruct.io import estimate_to_dict, read_frames
+from simtest.reconstruct.io import estimate_to_dict
+from simtest.reconstruct.table import read_frames
 from simtest.reconstruct.pipeline import reconstruct
 from simtest.reconstruct.recommend import with_light_aware
 from simtest.reconstruct.settings import ReconSettings

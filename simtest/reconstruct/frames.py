@@ -37,7 +37,8 @@ from simtest._workers import worker_pool
 from simtest.geometry.response import ResponseError
 from simtest.reconstruct._pixels import image_size_wh
 from simtest.reconstruct.images import InputError, load_image, quiet_stderr
-from simtest.reconstruct.io import ROW_GROUP_ROWS, dumps, estimate_to_dict, frame_batch, table_metadata, table_schema
+from simtest.reconstruct.io import dumps, estimate_to_dict
+from simtest.reconstruct.table import ROW_GROUP_ROWS, estimates_batch, frame_batch, table_metadata, table_schema
 from simtest.reconstruct.pipeline import reconstruct
 from simtest.reconstruct.recommend import with_light_aware
 from simtest.reconstruct.settings import ReconSettings
@@ -211,13 +212,14 @@ ENCODINGS = ("jsonl", "parquet")
 
 
 def _encoded_record(args, encoding: str) -> FrameRecord:
-    """:func:`_frame_record` as a :class:`FrameRecord` encoded as ``encoding``."""
-    rec = _frame_record(args)
-    out = FrameRecord({k: v for k, v in rec.items() if k != "specularities"})
+    """:func:`_frame_record` as a :class:`FrameRecord` encoded as ``encoding`` (its rows made
+    from the estimates column by column, :func:`~simtest.reconstruct.table.estimates_batch`)."""
+    head, ests, include_points = _frame_head(args)
+    out = FrameRecord(head)
     if encoding == "parquet":
-        out.batch = frame_batch(rec)
+        out.batch = estimates_batch(head["frame"], head["source"], ests, include_points)
     else:
-        out.line = dumps(rec)
+        out.line = dumps({**head, "specularities": [estimate_to_dict(e, include_points) for e in ests]})
     return out
 
 
