@@ -38,7 +38,7 @@ from simtest.geometry.response import ResponseError
 from simtest.reconstruct._pixels import image_size_wh
 from simtest.reconstruct.images import InputError, load_image, quiet_stderr
 from simtest.reconstruct.io import dumps, estimate_to_dict
-from simtest.reconstruct.table import ROW_GROUP_ROWS, estimates_batch, frame_batch, table_metadata, table_schema
+from simtest.reconstruct.table import ROW_GROUP_ROWS, arrow, estimates_batch, frame_batch, table_metadata, table_schema
 from simtest.reconstruct.pipeline import reconstruct
 from simtest.reconstruct.recommend import with_light_aware
 from simtest.reconstruct.settings import ReconSettings
@@ -435,9 +435,7 @@ def _jsonl_writer(tmp: Path):
 
 @contextmanager
 def _parquet_writer(tmp: Path):
-    import pyarrow as pa
-    import pyarrow.parquet as pq
-
+    pa, pq = arrow()
     heads, pending = [], []
     with pq.ParquetWriter(tmp, table_schema()) as out:
         def flush():

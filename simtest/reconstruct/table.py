@@ -17,6 +17,7 @@ from pathlib import Path
 import numpy as np
 import orjson
 
+from simtest._lazy import require
 from simtest._version import __version__
 from simtest.reconstruct.io import (
     LIGHT_AWARE_NORMALS,
@@ -27,6 +28,12 @@ from simtest.reconstruct.io import (
     _rows,
     dumps,
 )
+
+def arrow():
+    """``(pyarrow, pyarrow.parquet)``, imported when a table is first made or read (about a second
+    of imports on the 2-core VM that one image's ``simtest reconstruct`` does without)."""
+    return require("pyarrow", purpose="estimates.parquet"), require("pyarrow.parquet", purpose="estimates.parquet")
+
 
 #: The version of the table's columns (:func:`table_schema`); the file's ``simtest`` metadata.
 TABLE_SCHEMA_VERSION = 1
@@ -53,7 +60,7 @@ def table_schema():
         ``light_aware`` a struct with one nullable struct per light-aware estimator (null: not
         run), ``isophotes`` a list of structs (``points_px`` null unless written with the points).
     """
-    import pyarrow as pa
+    pa = arrow()[0]
 
     f64, text = pa.float64(), pa.string()
     v2, v3 = pa.list_(f64, 2), pa.list_(f64, 3)
@@ -119,7 +126,7 @@ def frame_batch(record: dict):
         A value that is not finite (as in JSON: a missing value is null, never NaN), or a
         light-aware estimator the schema has no column for.
     """
-    import pyarrow as pa
+    pa = arrow()[0]
 
     specs = record["specularities"]
     bad = _not_finite_at(specs, f"frame {record['source']}: specularities")
@@ -142,7 +149,7 @@ def _fixed(values: list, shape: tuple, where: str):
     """A column of float64 arrays of ``shape`` (fixed-size lists, nested for a matrix) from
     ``values`` (array-likes, or None: null), as :func:`_vec` / :func:`_mat` write each; a value
     that is not finite refused (as :func:`dumps`)."""
-    import pyarrow as pa
+    pa = arrow()[0]
 
     n, size = len(values), math.prod(shape)
     null = np.array([v is None for v in values], dtype=bool)
@@ -166,7 +173,7 @@ def _fixed(values: list, shape: tuple, where: str):
 
 def _floats(values: list, where: str):
     """A float64 column (None: null), as :func:`_num` writes each; not finite refused."""
-    import pyarrow as pa
+    pa = arrow()[0]
 
     null = np.array([v is None for v in values], dtype=bool)
     data = np.array([np.nan if v is None else float(v) for v in values], dtype=np.float64)
@@ -177,7 +184,7 @@ def _floats(values: list, where: str):
 
 
 def _ellipses(ells: list, where: str):
-    import pyarrow as pa
+    pa = arrow()[0]
 
     center = _fixed([None if e is None else e.center for e in ells], (2,), f"{where}.center_px")
     semi = _fixed([None if e is None else e.semi_axes for e in ells], (2,), f"{where}.semi_axes_px")
@@ -191,7 +198,7 @@ def _fit_columns(objs: list, indices: list, where: str) -> list:
     """The columns a specularity and an isophote share (:func:`table_schema`'s ``fit`` and
     ``paper``), from the estimates or the isophotes ``objs`` (``indices``: each one's
     ``paper_selected_index``)."""
-    import pyarrow as pa
+    pa = arrow()[0]
 
     return [_ellipses([o.ellipse for o in objs], f"{where}.ellipse"),
             _fixed([o.conic for o in objs], (3, 3), f"{where}.conic"),
@@ -211,7 +218,7 @@ _FIT_NAMES = ("ellipse", "conic", "fit_residual_px", "eigenvalue_gap", "normal_p
 def _isophotes(ests: list, include_points: bool, schema, where: str):
     """The ``isophotes`` column (a list of isophote structs per estimate) and the fit columns of
     each estimate's primary isophote (null where it has none), by name."""
-    import pyarrow as pa
+    pa = arrow()[0]
 
     isos = [iso for e in ests for iso in e.isophotes]
     counts = np.array([len(e.isophotes) for e in ests], dtype=np.int32)
@@ -271,7 +278,7 @@ def estimates_batch(frame: int, source: str, ests, include_points: bool = False)
         Naming the column and the row of a value that is not finite, or a light-aware estimator
         the schema has no column for.
     """
-    import pyarrow as pa
+    pa = arrow()[0]
 
     ests = list(ests)
     n, schema = len(ests), table_schema()
@@ -349,8 +356,7 @@ def read_table(path):
     ValueError
         Naming the file: not readable as Parquet, or not written by simtest.
     """
-    import pyarrow as pa
-    import pyarrow.parquet as pq
+    pa, pq = arrow()
 
     path = Path(path)
     try:
