@@ -84,7 +84,8 @@ def test_video_files_parquet_rows_are_frame_by_frame_calls(tmp_path):
     assert res.exit_code == 0, res.output
     # the table's rows, column by column, against reconstruct() called on each decoded frame
     table = read_table(out / "estimates.parquet")
-    calls = [[json.loads(json.dumps(estimate_to_dict(e))) for e in reconstruct(img, K, settings=ReconSettings.for_frames())]
+    settings = ReconSettings.for_frames()
+    calls = [[json.loads(json.dumps(estimate_to_dict(e))) for e in reconstruct(img, K, settings=settings)]
              for img in decoded]
     assert table.column("frame").to_pylist() == [i for i, c in enumerate(calls) for _ in c]
     assert table.column("source").to_pylist() == [f"video:{i}" for i, c in enumerate(calls) for _ in c]
@@ -105,6 +106,9 @@ def test_empty_folder_and_unreadable_video_are_one_line_errors(tmp_path):
     empty.mkdir()
     bad = tmp_path / "bad.mp4"
     bad.write_bytes(b"not a video")
+    res = CliRunner().invoke(app, ["reconstruct", str(empty), "-k", str(_write_k(tmp_path)),
+                                   "-o", str(tmp_path / "o"), "--format", "csv"])
+    assert res.exit_code == 2 and res.output.strip() == "error: --format csv: not one of parquet, jsonl"
     for path, words in ((empty, "holds no frame"), (bad, "cannot open")):
         res = CliRunner().invoke(app, ["reconstruct", str(path), "-k", str(_write_k(tmp_path)),
                                        "-o", str(tmp_path / "o")])

@@ -3,7 +3,8 @@
 ``reconstruct`` writes ``DIR/estimates.json`` (schema in :mod:`simtest.reconstruct.io`),
 ``DIR/overlay.png`` (:mod:`simtest.reconstruct.overlay`, unless ``--no-overlay``) and with ``--view``
 ``DIR/view.png`` (:mod:`simtest.reconstruct.view3d`); for a folder of frames or a video,
-``DIR/estimates.parquet`` (``--format jsonl``: ``DIR/estimates.jsonl``). ``DIR`` is replaced as one folder (:func:`~simtest._io.
+``DIR/estimates.parquet`` (:mod:`simtest.reconstruct.table`; ``--format jsonl``:
+``DIR/estimates.jsonl``). ``DIR`` is replaced as one folder (:func:`~simtest._io.
 replace_output_folder`): a failure or a kill at any point leaves either the whole previous set or
 the whole new one, never a new ``estimates.json`` beside an old ``overlay.png``; so ``DIR`` must be
 new, empty, or hold only a previous run's outputs. Exit status: 2 and one line ``error: ...`` on
@@ -219,8 +220,9 @@ SEQUENCE_FORMATS = {"parquet": ("estimates.parquet", write_frames_parquet),
 
 def _reconstruct_sequence(path, intrinsics, out, target, settings, *, points, workers, cubic=False,
                           output_format="parquet") -> None:
-    """Folder or video: estimates.parquet (or .jsonl) in frame order, a progress bar, frames per second; the
-    camera file's light rig runs the light-aware fits on every frame, as on a single image."""
+    """Folder or video: estimates.parquet (or .jsonl) in frame order, a progress bar, frames per
+    second; the camera file's light rig runs the light-aware fits on every frame, as on a single
+    image."""
     counts: dict[str, int] = {}
     left = {"components": 0, "not_examined": 0}
     try:

@@ -428,7 +428,9 @@ def _jsonl_writer(tmp: Path):
     # encode and scan for newlines again; each line ends in "\n" whatever the platform
     with open(tmp, "wb") as fh:
         def write(rec):
-            fh.write(rec.line if isinstance(rec, FrameRecord) and rec.line else dumps(rec))
+            if isinstance(rec, FrameRecord) and not rec.line:
+                raise ValueError(f"frame {rec['source']}: its record was encoded for Parquet, not JSON Lines")
+            fh.write(rec.line if isinstance(rec, FrameRecord) else dumps(rec))
             fh.write(b"\n")
         yield write
 
@@ -443,7 +445,9 @@ def _parquet_writer(tmp: Path):
             pending.clear()
 
         def write(rec):
-            batch = rec.batch if isinstance(rec, FrameRecord) and rec.batch is not None else frame_batch(rec)
+            if isinstance(rec, FrameRecord) and rec.batch is None:
+                raise ValueError(f"frame {rec['source']}: its record was encoded for JSON Lines, not Parquet")
+            batch = rec.batch if isinstance(rec, FrameRecord) else frame_batch(rec)
             heads.append({k: v for k, v in rec.items() if k != "specularities"})
             pending.append(batch)
             if sum(b.num_rows for b in pending) >= ROW_GROUP_ROWS:
