@@ -378,6 +378,8 @@ def reconstruct_frames(source: FrameSource, K, settings: ReconSettings | None = 
     # a bounded window of frames in flight, so that a long video is not decoded all at once;
     # this process decodes the next frames while the workers reconstruct the earlier ones
     window = 4 * workers
+    if encoded == "parquet":  # imported once here, before the fork, not once in every worker
+        arrow()
     # the frames reach forked workers through shared slots, one per frame in flight; where
     # processes are not forked (no fork on the platform), in their jobs
     ring = _FrameRing(first[2], window) if "fork" in multiprocessing.get_all_start_methods() else None
