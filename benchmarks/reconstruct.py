@@ -56,7 +56,7 @@ from simtest.geometry.lights import Light, LightRig
 from simtest.geometry.response import SensorResponse, video_response
 from simtest.reconstruct.estimators import estimate_from_conic
 from simtest.reconstruct.fit import fit_ellipse
-from simtest.reconstruct.frames import open_frames, reconstruct_frames, write_frames_jsonl
+from simtest.reconstruct.frames import open_frames, reconstruct_frames, write_frames_parquet
 from simtest.reconstruct.isophote import extract_isophote
 from simtest.reconstruct.lightaware import isocurve_fit, photometric_fit
 from simtest.reconstruct.pipeline import reconstruct, reconstruct_roi, reconstruct_rois
@@ -220,8 +220,8 @@ RIG_FRAME_TARGET_MS, RIG_FRAME_BAR_MS = 2000.0, 10000.0
 def _video_run(n_frames: int, workers: int) -> dict | None:
     """One run of the bench video (:func:`bench_video_file`) through ``simtest reconstruct``'s
     video path in this process: decoding here, frames reconstructed in ``workers`` worker
-    processes, estimates.jsonl written in frame order. Returns ``{"n", "wall_s", "arrived_s"
-    (each frame's arrival from the start), "examined" (candidates a frame), "cpu_s" (this process
+    processes, estimates.parquet (the default output) written in frame order. Returns ``{"n",
+    "wall_s", "arrived_s" (each frame's arrival from the start), "examined" (candidates a frame), "cpu_s" (this process
     and its workers)}``, or None without the source tree or an MJPG writer."""
     single_core()
     with tempfile.TemporaryDirectory() as tmp:
@@ -237,9 +237,10 @@ def _video_run(n_frames: int, workers: int) -> dict | None:
             arrived.append(time.perf_counter() - t0)
             examined.append(rec["detection"]["examined"])
 
-        _, n, _ = write_frames_jsonl(Path(tmp) / "estimates.jsonl",
-                                     reconstruct_frames(open_frames(path), K, workers=workers, encoded=True),
-                                     on_frame=on_frame)
+        _, n, _ = write_frames_parquet(Path(tmp) / "estimates.parquet",
+                                       reconstruct_frames(open_frames(path), K, workers=workers,
+                                                          encoded="parquet"),
+                                       on_frame=on_frame)
         wall = time.perf_counter() - t0
         cpu = cpu_s_with_workers() - cpu0
     return {"n": n, "wall_s": wall, "arrived_s": arrived, "examined": examined, "cpu_s": cpu}
@@ -252,7 +253,8 @@ def _bench_video(n_frames: int = VIDEO_FRAMES) -> list[BenchResult]:
     (``docs/decisions/benchmarks.md``); wall ms per frame, the pool's start included, one run (a video is many
     frames)."""
     name = (f"video: 1350x1080 MJPG, {n_frames} frames of banner_mosaic panning {VIDEO_STEP_PX} px a "
-            f"frame, decode + reconstruct + estimates.jsonl on {VIDEO_WORKERS} worker processes, wall per frame "
+            f"frame, decode + reconstruct + estimates.parquet on {VIDEO_WORKERS} worker processes, "
+            "wall per frame "
             "(a fresh process)")
     workers = min(VIDEO_WORKERS, os.cpu_count() or 1)
     code = ("import json, sys; from benchmarks.reconstruct import _video_run; "

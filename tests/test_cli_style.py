@@ -25,7 +25,7 @@ WRITES: dict[str, tuple[str, ...]] = {
     "validate": ("results.json", "results.csv", "report.md", "report.html", "figures/"),
     "nightly": ("results.json", "results.csv", "report.md", "report.html", "history.jsonl"),
     "crb": ("crb.json", "crb.png"),
-    "reconstruct": ("estimates.json", "overlay.png", "view.png", "estimates.jsonl"),
+    "reconstruct": ("estimates.json", "overlay.png", "view.png", "estimates.parquet", "estimates.jsonl"),
     "view": (),  # one PNG, the file --out names
     "render": ("image.png", "frame.png", "intrinsics.json", "camera.json", "ground_truth.npz",
                "highlights.json"),

@@ -52,7 +52,7 @@ def test_every_backend_extra_is_declared():
 
 def test_the_optional_backends_are_not_core_dependencies():
     core = {_name(r) for r in PYPROJECT["project"]["dependencies"]}
-    assert not core & {"dask", "distributed", "torch", "pyarrow", "pyvista", "vtk"}
+    assert not core & {"dask", "distributed", "torch", "pyvista", "vtk"}
 
 
 def test_the_test_extra_brings_every_optional_backend():

@@ -1,5 +1,6 @@
-"""`simtest reconstruct` on a folder of frames and on a video file: estimates.jsonl in frame
-order, the same records as frame-by-frame calls, whatever the number of workers."""
+"""`simtest reconstruct` on a folder of frames and on a video file: estimates.parquet (a row per
+candidate) or estimates.jsonl (a line per frame) in frame order, the same records as frame-by-frame
+calls, whatever the number of workers."""
 
 from __future__ import annotations
 
@@ -12,6 +13,8 @@ from typer.testing import CliRunner
 from simtest.cli import app
 from simtest.reconstruct import reconstruct
 from simtest.reconstruct.frames import _frame_record, open_frames
+from simtest.reconstruct.io import estimate_to_dict
+from simtest.reconstruct.table import read_frames, read_table
 from simtest.reconstruct.settings import ReconSettings
 from simtest.simulate.analytic import phong_plane_image
 
@@ -49,13 +52,14 @@ def test_folder_of_frames_matches_frame_by_frame_calls(tmp_path):
     for i, img in enumerate(images):
         cv2.imwrite(str(frames / f"f{i:03d}.png"), img)
     (frames / "notes.txt").write_text("not a frame")
-    for workers in ("1", "2"):
-        out = tmp_path / f"out{workers}"
+    for workers, fmt in (("1", "parquet"), ("2", "parquet"), ("2", "jsonl")):
+        out = tmp_path / f"out{workers}{fmt}"
         res = CliRunner().invoke(app, ["reconstruct", str(frames), "-k", str(_write_k(tmp_path)),
-                                       "-o", str(out), "-j", workers])
+                                       "-o", str(out), "-j", workers, "--format", fmt])
         assert res.exit_code == 0, res.output
         assert "5 frame(s)" in res.output and "frames/s" in res.output
-        lines = [json.loads(x) for x in (out / "estimates.jsonl").read_text().splitlines()]
+        assert sorted(p.name for p in out.iterdir()) == [f"estimates.{fmt}"]
+        lines = read_frames(out / f"estimates.{fmt}")
         assert [r["frame"] for r in lines] == list(range(5))
         assert [r["source"] for r in lines] == [f"f{i:03d}.png" for i in range(5)]
         assert [r["specularities"] for r in lines] == _expected(images)
@@ -64,25 +68,37 @@ def test_folder_of_frames_matches_frame_by_frame_calls(tmp_path):
         assert len({round(b[0]) for b in bps}) == 5
 
 
-def test_video_file_matches_frame_by_frame_calls(tmp_path):
+def test_video_files_parquet_rows_are_frame_by_frame_calls(tmp_path):
     video = tmp_path / "clip.avi"
     writer = cv2.VideoWriter(str(video), cv2.VideoWriter_fourcc(*"MJPG"), 25.0, (160, 120))
     assert writer.isOpened()
-    for img in _frames():
+    for img in _frames(3):
         writer.write(cv2.cvtColor(img, cv2.COLOR_GRAY2BGR))
     writer.release()
     # what OpenCV decodes is the input of both paths (MJPG is lossy)
     decoded = [img for _, _, img in open_frames(video)]
-    assert len(decoded) == 5
+    assert len(decoded) == 3
     out = tmp_path / "out"
     res = CliRunner().invoke(app, ["reconstruct", str(video), "-k", str(_write_k(tmp_path)),
                                    "-o", str(out), "-j", "2"])
     assert res.exit_code == 0, res.output
-    lines = [json.loads(x) for x in (out / "estimates.jsonl").read_text().splitlines()]
-    assert [r["source"] for r in lines] == [f"video:{i}" for i in range(5)]
-    assert [r["specularities"] for r in lines] == _expected(decoded)
-    assert sum(r["counts"].get("ok", 0) for r in lines) == sum(
-        e.ok for img in decoded for e in reconstruct(img, K))
+    # the table's rows, column by column, against reconstruct() called on each decoded frame
+    table = read_table(out / "estimates.parquet")
+    settings = ReconSettings.for_frames()
+    calls = [[json.loads(json.dumps(estimate_to_dict(e))) for e in reconstruct(img, K, settings=settings)]
+             for img in decoded]
+    assert table.column("frame").to_pylist() == [i for i, c in enumerate(calls) for _ in c]
+    assert table.column("source").to_pylist() == [f"video:{i}" for i, c in enumerate(calls) for _ in c]
+    assert table.column("candidate").to_pylist() == [k for c in calls for k in range(len(c))]
+    for column in ("status", "bp_px", "normal", "confidence", "depth_mm", "ellipse", "fit_residual_px"):
+        assert table.column(column).to_pylist() == [s[column] for c in calls for s in c], column
+    for name in ("paper_selected", "cone_axis", "bp_ray", "photometric_fit"):
+        assert table.column(f"normal_{name}").to_pylist() == [s["normals"][name] for c in calls for s in c]
+    # and every field, read back as the frames' records
+    lines = read_frames(out / "estimates.parquet")
+    assert [r["source"] for r in lines] == [f"video:{i}" for i in range(3)]
+    assert [r["specularities"] for r in lines] == calls == _expected(decoded)
+    assert sum(r["counts"].get("ok", 0) for r in lines) == sum(s["status"] == "ok" for c in calls for s in c) > 0
 
 
 def test_empty_folder_and_unreadable_video_are_one_line_errors(tmp_path):
@@ -90,6 +106,9 @@ def test_empty_folder_and_unreadable_video_are_one_line_errors(tmp_path):
     empty.mkdir()
     bad = tmp_path / "bad.mp4"
     bad.write_bytes(b"not a video")
+    res = CliRunner().invoke(app, ["reconstruct", str(empty), "-k", str(_write_k(tmp_path)),
+                                   "-o", str(tmp_path / "o"), "--format", "csv"])
+    assert res.exit_code == 2 and res.output.strip() == "error: --format csv: not one of parquet, jsonl"
     for path, words in ((empty, "holds no frame"), (bad, "cannot open")):
         res = CliRunner().invoke(app, ["reconstruct", str(path), "-k", str(_write_k(tmp_path)),
                                        "-o", str(tmp_path / "o")])
@@ -123,16 +142,17 @@ def test_a_folder_honours_the_camera_files_lights_as_a_single_image_does(tmp_pat
     res = CliRunner().invoke(app, ["reconstruct", str(frames), "-k", str(cam), "-o",
                                    str(tmp_path / "seq"), "-j", "1"])
     assert res.exit_code == 0, res.output
-    lines = [json.loads(x) for x in (tmp_path / "seq" / "estimates.jsonl").read_text().splitlines()]
+    lines = read_frames(tmp_path / "seq" / "estimates.parquet")
     assert len(lines) == 2
     for rec in lines:
         assert rec["specularities"] == single
 
 
 def test_records_encoded_in_the_workers_write_the_same_file(tmp_path):
-    """reconstruct_frames(encoded=True) (what simtest reconstruct runs: each frame's JSON line made
-    in its worker) writes the bytes of the plain records, in frame order."""
-    from simtest.reconstruct.frames import FrameRecord, reconstruct_frames, write_frames_jsonl
+    """reconstruct_frames(encoded="jsonl" or "parquet") (what simtest reconstruct runs: each
+    frame's JSON line or rows made in its worker) writes the file of the plain records, in frame
+    order."""
+    from simtest.reconstruct.frames import FrameRecord, reconstruct_frames, write_frames_jsonl, write_frames_parquet
 
     frames = tmp_path / "frames"
     frames.mkdir()
@@ -144,22 +164,46 @@ def test_records_encoded_in_the_workers_write_the_same_file(tmp_path):
     assert [r["frame"] for r in recs] == [0, 1, 2, 3]
     enc, _, _ = write_frames_jsonl(tmp_path / "enc.jsonl", recs)
     assert enc.read_bytes() == plain.read_bytes()
-    assert [json.loads(x)["specularities"] for x in enc.read_text().splitlines()] == _expected(
-        [img for _, _, img in open_frames(frames)])
+    expected = _expected([img for _, _, img in open_frames(frames)])
+    assert [r["specularities"] for r in read_frames(enc)] == expected
+    plain_pq, _, _ = write_frames_parquet(tmp_path / "plain.parquet", reconstruct_frames(open_frames(frames), K))
+    recs = list(reconstruct_frames(open_frames(frames), K, workers=2, encoded="parquet"))
+    assert all(isinstance(r, FrameRecord) and r.batch is not None for r in recs)
+    enc_pq, _, _ = write_frames_parquet(tmp_path / "enc.parquet", recs)
+    assert read_table(enc_pq).equals(read_table(plain_pq), check_metadata=True)
+    assert read_frames(enc_pq) == read_frames(enc)
 
 
-def test_estimates_jsonl_is_one_ascii_line_a_record_each_ending_in_a_newline(tmp_path):
-    """write_frames_jsonl writes bytes: each record's compact JSON (non-ASCII escaped, as json.dumps
-    writes it) and b"\\n", whatever the platform's newline; a FrameRecord as its line."""
+def test_estimates_jsonl_is_one_utf8_line_a_record_each_ending_in_a_newline(tmp_path):
+    """write_frames_jsonl writes bytes: each record's compact JSON (UTF-8) and b"\\n", whatever
+    the platform's newline; a FrameRecord as its line."""
     from simtest.reconstruct.frames import FrameRecord, write_frames_jsonl
 
     enc = FrameRecord({"frame": 1})
-    enc.line = '{"frame":1,"specularities":[]}'
+    enc.line = b'{"frame":1,"specularities":[]}'
     recs = [{"frame": 0, "source": "caf\u00e9.png", "x": [0.1, 1e-05]}, enc]
     path, n, _ = write_frames_jsonl(tmp_path / "estimates.jsonl", recs)
     assert n == 2
-    assert path.read_bytes() == (b'{"frame":0,"source":"caf\\u00e9.png","x":[0.1,1e-05]}\n'
-                                 b'{"frame":1,"specularities":[]}\n')
+    lines = path.read_bytes().split(b"\n")
+    assert lines[2:] == [b""] and lines[1] == enc.line
+    assert json.loads(lines[0].decode("utf-8")) == recs[0]
+    assert read_frames(path) == [recs[0], {"frame": 1, "specularities": []}]
+
+
+def test_a_frame_without_candidates_keeps_its_record_in_the_parquet_file(tmp_path):
+    from simtest.reconstruct.frames import reconstruct_frames, write_frames_parquet
+
+    frames = tmp_path / "frames"
+    frames.mkdir()
+    images = _frames(3)
+    images[1] = np.full_like(images[1], 20)  # nothing bright: no row
+    for i, img in enumerate(images):
+        cv2.imwrite(str(frames / f"f{i}.png"), img)
+    path, n, _ = write_frames_parquet(tmp_path / "e.parquet", reconstruct_frames(open_frames(frames), K))
+    recs = read_frames(path)
+    assert n == 3 and [r["source"] for r in recs] == ["f0.png", "f1.png", "f2.png"]
+    assert recs[1]["specularities"] == [] and recs[1]["image_shape"] == [120, 160]
+    assert 1 not in read_table(path).column("frame").to_pylist()
 
 
 def test_frames_through_the_shared_slots_give_frame_by_frame_records(tmp_path):
@@ -182,5 +226,5 @@ def test_frames_through_the_shared_slots_give_frame_by_frame_records(tmp_path):
     assert [r["frame"] for r in recs] == list(range(11))
     enc, _, _ = write_frames_jsonl(tmp_path / "enc.jsonl", recs)
     assert enc.read_bytes() == plain.read_bytes()
-    assert [json.loads(x)["specularities"] for x in enc.read_text().splitlines()] == _expected(
+    assert [r["specularities"] for r in read_frames(enc)] == _expected(
         [img for _, _, img in open_frames(frames)])

@@ -17,6 +17,7 @@ from simtest.geometry.lights import Light, LightRig
 from simtest.geometry.response import SensorResponse, video_response
 from simtest.reconstruct.frames import open_frames, reconstruct_frames
 from simtest.reconstruct.io import estimate_to_dict
+from simtest.reconstruct.table import read_frames
 from simtest.reconstruct.pipeline import reconstruct
 from simtest.reconstruct.recommend import with_light_aware
 from simtest.reconstruct.settings import ReconSettings
@@ -62,7 +63,7 @@ def test_a_folders_frames_are_fitted_on_the_camera_files_response(tmp_path):
     res = CliRunner().invoke(app, ["reconstruct", str(frames), "--intrinsics", str(cam_file), "-o",
                                    str(tmp_path / "out"), "-j", "1"])
     assert res.exit_code == 0, res.output
-    line = json.loads((tmp_path / "out" / "estimates.jsonl").read_text().splitlines()[0])
+    line = read_frames(tmp_path / "out" / "estimates.parquet")[0]
     rough = [s["light_aware"]["photometric_fit"]["roughness"] for s in line["specularities"]
              if s["status"] == "ok"]
     assert rough and rough[0] == pytest.approx(ROUGHNESS, rel=2e-3)

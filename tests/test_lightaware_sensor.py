@@ -110,7 +110,7 @@ def test_a_folder_refuses_a_clip_in_the_wrong_units_as_one_image_does(tmp_path, 
     assert res.exit_code == 2, res.output
     lines = [ln for ln in res.output.splitlines() if ln.strip()]
     assert len(lines) == 1 and lines[0].startswith("error: frame ") and "response.clip: 1 is below" in lines[0], res.output
-    assert not (tmp_path / "o" / "estimates.jsonl").exists()
+    assert not (tmp_path / "o" / "estimates.parquet").exists()
 
 
 def test_linearize_picks_the_darkest_channel():

@@ -16,7 +16,7 @@ from simtest.geometry import angle_between_deg
 from simtest.geometry.angles import unit
 from simtest.geometry.lights import Light, LightRig
 from simtest.reconstruct import read_estimates, write_estimates
-from simtest.reconstruct.io import estimate_to_dict, estimates_json
+from simtest.reconstruct.io import dumps, estimate_to_dict
 from simtest.reconstruct.pipeline import reconstruct
 from simtest.reconstruct.recommend import (
     DEPTH_REL_SIGMA_CEILING,
@@ -337,5 +337,5 @@ def test_a_rejected_candidate_under_an_offset_rig_gets_the_bp_ray():
     for e in (out[0], dataclasses.replace(out[0], isophotes=())):
         d = estimate_to_dict(e)
         assert d["normal_from"] == "bp_ray" and d["normal"] == list(e.bp_ray)
-    assert json.loads(estimates_json(out[:1]))[0]["normal_from"] == "bp_ray"
-    assert json.loads(estimates_json([out[0], out[0]]))[1]["normal"] == list(out[0].bp_ray)
+    assert json.loads(dumps([estimate_to_dict(e) for e in out[:1]]))[0]["normal_from"] == "bp_ray"
+    assert json.loads(dumps([estimate_to_dict(out[0])] * 2))[1]["normal"] == list(out[0].bp_ray)

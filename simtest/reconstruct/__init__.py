@@ -8,7 +8,8 @@ on real endoscopic images. Entry points:
   :func:`reconstruct_rois` (many, their fits batched),
 - :func:`detect_specularities`, :func:`extract_isophote`, :func:`fit_ellipse` and the estimators
   in :mod:`simtest.reconstruct.estimators`, for use step by step,
-- :func:`write_estimates` / :func:`read_estimates` for ``estimates.json``,
+- :func:`write_estimates` / :func:`read_estimates` for ``estimates.json``, :func:`read_frames` /
+  :func:`read_table` for a folder's or a video's ``estimates.parquet`` (or ``estimates.jsonl``),
 - :class:`ReconSettings`, every setting of the reconstruction in one frozen, validated value.
 
 The function is ``simtest.reconstruct.reconstruct`` (``from simtest.reconstruct import
@@ -38,6 +39,7 @@ from simtest.reconstruct.pipeline import (
     reconstruct_rois,
 )
 from simtest.reconstruct.settings import Normalisation, ReconSettings
+from simtest.reconstruct.table import read_frames, read_table
 
 __all__ = [
     "REASONS",
@@ -62,6 +64,8 @@ __all__ = [
     "joint_cone_axis",
     "rc_to_uv",
     "read_estimates",
+    "read_frames",
+    "read_table",
     "reconstruct",
     "reconstruct_roi",
     "reconstruct_rois",

@@ -3,7 +3,8 @@
 ``reconstruct`` writes ``DIR/estimates.json`` (schema in :mod:`simtest.reconstruct.io`),
 ``DIR/overlay.png`` (:mod:`simtest.reconstruct.overlay`, unless ``--no-overlay``) and with ``--view``
 ``DIR/view.png`` (:mod:`simtest.reconstruct.view3d`); for a folder of frames or a video,
-``DIR/estimates.jsonl``. ``DIR`` is replaced as one folder (:func:`~simtest._io.
+``DIR/estimates.parquet`` (:mod:`simtest.reconstruct.table`; ``--format jsonl``:
+``DIR/estimates.jsonl``). ``DIR`` is replaced as one folder (:func:`~simtest._io.
 replace_output_folder`): a failure or a kill at any point leaves either the whole previous set or
 the whole new one, never a new ``estimates.json`` beside an old ``overlay.png``; so ``DIR`` must be
 new, empty, or hold only a previous run's outputs. Exit status: 2 and one line ``error: ...`` on
@@ -19,7 +20,7 @@ or an OpenCV YAML/XML calibration; contour points are mapped to rays through the
 fit. A camera file's ``"lights"`` (the scope's light rig, camera frame, mm) switches on the
 light-aware estimators when a light is off the camera centre (:mod:`simtest.reconstruct.recommend`):
 ``estimates.json`` then gives their normals, the depth of each specular point and the recommended
-``normal``; so does every line of ``estimates.jsonl`` for a folder or a video (each frame gets the
+``normal``; so does every frame of ``estimates.parquet`` for a folder or a video (each frame gets the
 fits a single image gets). A rig without physical sense (a light 20 mm or more ahead of the lens,
 more than 200 mm from it, ``"lights": null``, an intensity outside 1e-9 to 1e9:
 :func:`~simtest.geometry.lights.check_scope_rig`) is bad input: exit 2, one line.
@@ -27,7 +28,6 @@ more than 200 mm from it, ``"lights": null``, an intensity outside 1e-9 to 1e9:
 
 from __future__ import annotations
 
-import json
 import os
 import time
 from pathlib import Path
@@ -44,10 +44,17 @@ from simtest.geometry.camera_file import camera_from_dict, load_camera
 from simtest.geometry.cameras import PinholeCamera
 from simtest.geometry.response import ResponseError
 from simtest.reconstruct._pixels import image_size_wh
-from simtest.reconstruct.frames import is_sequence, open_frames, reconstruct_frames, write_frames_jsonl
+from simtest.reconstruct.frames import (
+    is_sequence,
+    open_frames,
+    reconstruct_frames,
+    write_frames_jsonl,
+    write_frames_parquet,
+)
 from simtest.reconstruct.images import InputError, load_image
 from simtest.reconstruct.io import (
     RECONSTRUCT_FILES,
+    dumps,
     estimates_document,
     read_estimates,
 )
@@ -67,7 +74,12 @@ def reconstruct_command(
     out: Path = typer.Option(
         ..., "--out", "-o", show_default=False,
         help="Output folder, new, empty or a previous run's (replaced as a whole): estimates.json, "
-        "overlay.png, view.png (--view); estimates.jsonl for a folder or video.",
+        "overlay.png, view.png (--view); estimates.parquet (or .jsonl) for a folder or video.",
+    ),
+    output_format: str = typer.Option(
+        "parquet", "--format",
+        help="For a folder or video: parquet (estimates.parquet, a row per candidate with a frame "
+        "column) or jsonl (estimates.jsonl, a JSON line per frame).",
     ),
     isovalues: list[float] = typer.Option(
         [0.7, 0.85], "--isovalue", "-t",
@@ -109,7 +121,8 @@ def reconstruct_command(
     Writes, in the folder OUT (new, empty, or a previous run's; replaced as a whole, so a failure
     leaves the previous set): OUT/estimates.json (the normals, schema 2) and OUT/overlay.png (the
     image with the highlights marked; not with --no-overlay), and with --view OUT/view.png (a 3D
-    view); for a folder of frames or a video, OUT/estimates.jsonl (one line per frame) instead.
+    view); for a folder of frames or a video, OUT/estimates.parquet (a row per candidate) or with
+    --format jsonl OUT/estimates.jsonl (a line per frame) instead.
     Exit status 2: bad input or option; 4: OUT cannot be written."""
 
     try:
@@ -120,10 +133,12 @@ def reconstruct_command(
     except ValueError as exc:
         fail(exc, BAD_INPUT)
     check_workers(workers)
+    if output_format not in SEQUENCE_FORMATS:
+        fail(f"--format {output_format}: not one of {', '.join(SEQUENCE_FORMATS)}", BAD_INPUT)
     target = check_out_folder(out, RECONSTRUCT_FILES)
     if is_sequence(image):
         _reconstruct_sequence(image, intrinsics, out, target, settings, points=points, workers=workers,
-                              cubic=None if cubic_patch else False)
+                              cubic=None if cubic_patch else False, output_format=output_format)
         return
     try:
         img = load_image(image)
@@ -166,14 +181,14 @@ def reconstruct_command(
             normalise=settings.normalise.value, include_points=points, camera=camera, lights=rig,
             detection=detection_rec,
         )
-        text = json.dumps(doc, indent=1, allow_nan=False) + "\n"
+        text = dumps(doc, indent=True)
     except (ValueError, OSError, ImportError) as exc:  # IntrinsicsError, InputError: ValueErrors
         fail(exc, BAD_INPUT)
     names = ["estimates.json"] + (["overlay.png"] if overlay else []) + (["view.png"] if view else [])
 
     def fill(folder: Path) -> None:
         # the whole set is written into a fresh folder beside OUT, which then takes OUT's place
-        (folder / "estimates.json").write_text(text, encoding="utf-8")
+        (folder / "estimates.json").write_bytes(text)
         if overlay:
             draw_overlay(folder / "overlay.png", img, estimates, camera, show_rejected=overlay_all)
         if view:
@@ -198,9 +213,16 @@ def check_workers(workers: int, option: str = "--workers") -> int:
     return workers
 
 
-def _reconstruct_sequence(path, intrinsics, out, target, settings, *, points, workers, cubic=False) -> None:
-    """Folder or video: estimates.jsonl in frame order, a progress bar, frames per second; the
-    camera file's light rig runs the light-aware fits on every frame, as on a single image."""
+#: ``--format`` of a folder or video: the file written (:func:`_reconstruct_sequence`) and its writer.
+SEQUENCE_FORMATS = {"parquet": ("estimates.parquet", write_frames_parquet),
+                    "jsonl": ("estimates.jsonl", write_frames_jsonl)}
+
+
+def _reconstruct_sequence(path, intrinsics, out, target, settings, *, points, workers, cubic=False,
+                          output_format="parquet") -> None:
+    """Folder or video: estimates.parquet (or .jsonl) in frame order, a progress bar, frames per
+    second; the camera file's light rig runs the light-aware fits on every frame, as on a single
+    image."""
     counts: dict[str, int] = {}
     left = {"components": 0, "not_examined": 0}
     try:
@@ -216,10 +238,11 @@ def _reconstruct_sequence(path, intrinsics, out, target, settings, *, points, wo
         fail(exc, BAD_INPUT)
     n_workers = workers or os.cpu_count() or 1
     done: dict = {}
+    name, write = SEQUENCE_FORMATS[output_format]
 
     def fill(folder: Path) -> None:
         records = reconstruct_frames(source, camera, settings, workers=n_workers,
-                                     include_points=points, rig=rig, cubic=cubic, encoded=True,
+                                     include_points=points, rig=rig, cubic=cubic, encoded=output_format,
                                      response=camera_file.response)
         with Progress(TextColumn("reconstruct"), BarColumn(), MofNCompleteColumn(),
                       TextColumn("{task.fields[fps]:.1f} frames/s"), TimeElapsedColumn(),
@@ -235,11 +258,10 @@ def _reconstruct_sequence(path, intrinsics, out, target, settings, *, points, wo
                 n = rec["frame"] + 1
                 bar.update(task, completed=n, fps=n / max(time.perf_counter() - t0, 1e-9))
 
-            _, done["n"], done["wall"] = write_frames_jsonl(folder / "estimates.jsonl", records,
-                                                            on_frame=on_frame)
+            _, done["n"], done["wall"] = write(folder / name, records, on_frame=on_frame)
 
     write_out_folder(out, target, fill, RECONSTRUCT_FILES)
-    n, wall, jsonl = done["n"], done["wall"], out / "estimates.jsonl"
+    n, wall, written = done["n"], done["wall"], out / name
     n_cand = sum(counts.values())
     n_ok = counts.pop("ok", 0)
     rest = ", ".join(f"{k} {v}" for k, v in sorted(counts.items(), key=lambda kv: (-kv[1], kv[0])))
@@ -249,7 +271,7 @@ def _reconstruct_sequence(path, intrinsics, out, target, settings, *, points, wo
             f"(--max-candidates {settings.max_candidates}; 0 examines all)")
     typer.echo(f"{n} frame(s) in {wall:.2f} s ({n / max(wall, 1e-9):.1f} frames/s, {n_workers} "
                f"worker(s)): {n_cand} candidate(s), {n_ok} reconstructed"
-               + (f"; {rest}" if rest else "") + f" -> {jsonl}")
+               + (f"; {rest}" if rest else "") + f" -> {written}")
 
 
 def summary_line(estimates, paths, detection: dict | None = None) -> str:

@@ -3,8 +3,9 @@
 :func:`open_frames` lists the frames of a folder (image files sorted by name) or of a video file
 (read in order by OpenCV's ``VideoCapture``); :func:`reconstruct_frames` runs
 :func:`~simtest.reconstruct.pipeline.reconstruct` on each, in worker processes, and yields one
-record per frame in frame order; :func:`write_frames_jsonl` writes them to ``estimates.jsonl``
-(one JSON line per frame, written to a temporary file and renamed when complete). Each frame is
+record per frame in frame order; :func:`write_frames_parquet` writes them to ``estimates.parquet``
+(one row per candidate) and :func:`write_frames_jsonl` to ``estimates.jsonl`` (one JSON line per
+frame), each to a temporary file renamed when complete. Each frame is
 reconstructed on its own, so the records are those of frame-by-frame calls whatever the number of
 workers. Given the camera file's light rig (and its sensor response), each frame's highlights get
 the light-aware fits of :func:`~simtest.reconstruct.recommend.with_light_aware` as a single image
@@ -18,12 +19,12 @@ max_candidates}, "specularities": [estimate dicts, as in estimates.json]}``.
 
 from __future__ import annotations
 
-import json
 import mmap
 import multiprocessing
 import os
 import time
 from collections.abc import Iterator
+from contextlib import contextmanager
 from itertools import chain
 from dataclasses import dataclass
 from pathlib import Path
@@ -36,7 +37,8 @@ from simtest._workers import worker_pool
 from simtest.geometry.response import ResponseError
 from simtest.reconstruct._pixels import image_size_wh
 from simtest.reconstruct.images import InputError, load_image, quiet_stderr
-from simtest.reconstruct.io import estimate_to_dict, estimates_json
+from simtest.reconstruct.io import dumps, estimate_to_dict
+from simtest.reconstruct.table import ROW_GROUP_ROWS, arrow, estimates_batch, frame_batch, table_metadata, table_schema
 from simtest.reconstruct.pipeline import reconstruct
 from simtest.reconstruct.recommend import with_light_aware
 from simtest.reconstruct.settings import ReconSettings
@@ -195,30 +197,38 @@ def same_size_frames(source: FrameSource, camera=None) -> Iterator[tuple[int, st
 class FrameRecord(dict):
     """A frame's record encoded where it was made (:func:`reconstruct_frames` with ``encoded``):
     the dict holds the record's small keys (``frame``, ``source``, ``image_shape``, ``counts``,
-    ``detection``; not ``specularities``), ``line`` the whole record's JSON line as
-    :func:`write_frames_jsonl` writes it (ASCII bytes, or a str). A worker process sends its text
-    back (a copy of one buffer) instead of thousands of small objects to pickle, and its JSON
-    encoding runs on the worker's core, beside the other frames'."""
+    ``detection``; not ``specularities``); ``line`` the whole record's JSON line
+    (:func:`write_frames_jsonl`, ``encoded="jsonl"``) or ``batch`` its rows
+    (:func:`~simtest.reconstruct.io.frame_batch`, ``encoded="parquet"``). A worker process sends
+    one buffer back instead of thousands of small objects to pickle, and the encoding runs on the
+    worker's core, beside the other frames'."""
 
-    line: bytes | str = b""
-
-
-def _json_line(rec: dict) -> str:
-    """A record as one line of estimates.jsonl (no newline)."""
-    return json.dumps(rec, allow_nan=False, separators=(",", ":"))
+    line: bytes = b""
+    batch = None
 
 
-def _encoded_record(args) -> FrameRecord:
-    """:func:`_frame_record` as a :class:`FrameRecord`: its line is ``_json_line`` of the record,
-    character for character, with the specularities written by
-    :func:`~simtest.reconstruct.io.estimates_json` (no dicts: a third of the cost), as ASCII
-    bytes (a worker's bytes reach the parent by a copy; a str is decoded from UTF-8 there)."""
+#: The encodings of :func:`reconstruct_frames` (``True``: ``"jsonl"``, an older spelling).
+ENCODINGS = ("jsonl", "parquet")
+
+
+def _encoded_record(args, encoding: str) -> FrameRecord:
+    """:func:`_frame_record` as a :class:`FrameRecord` encoded as ``encoding`` (its rows made
+    from the estimates column by column, :func:`~simtest.reconstruct.table.estimates_batch`)."""
     head, ests, include_points = _frame_head(args)
     out = FrameRecord(head)
-    # the record's keys in order, specularities last: its JSON object, the closing brace
-    # replaced by the specularities
-    out.line = f'{_json_line(head)[:-1]},"specularities":{estimates_json(ests, include_points)}}}'.encode("ascii")
+    if encoding == "parquet":
+        out.batch = estimates_batch(head["frame"], head["source"], ests, include_points)
+    else:
+        out.line = dumps({**head, "specularities": [estimate_to_dict(e, include_points) for e in ests]})
     return out
+
+
+def _jsonl_record(args) -> FrameRecord:
+    return _encoded_record(args, "jsonl")
+
+
+def _parquet_record(args) -> FrameRecord:
+    return _encoded_record(args, "parquet")
 
 
 class _InRing:
@@ -301,7 +311,7 @@ def _frame_record(args) -> dict:
 def reconstruct_frames(source: FrameSource, K, settings: ReconSettings | None = None, *,
                        dist_coeffs=None, workers: int = 1,
                        include_points: bool = False, rig=None,
-                       cubic: bool | None = False, encoded: bool = False,
+                       cubic: bool | None = False, encoded: bool | str = False,
                        response=None) -> Iterator[dict]:
     """Reconstruct every frame of ``source``; yield one record per frame, in frame order.
 
@@ -330,10 +340,11 @@ def reconstruct_frames(source: FrameSource, K, settings: ReconSettings | None = 
     cubic : bool or None
         Passed to :func:`~simtest.reconstruct.recommend.with_light_aware` (``--cubic-patch``:
         None; default False).
-    encoded : bool
-        Yield :class:`FrameRecord` s, each encoded as its JSON line where it was made (a worker,
-        in parallel), for :func:`write_frames_jsonl` (the same bytes in the file); their dicts
-        hold the record's keys but ``specularities``.
+    encoded : bool or str
+        ``"jsonl"`` (or True) or ``"parquet"``: yield :class:`FrameRecord` s, each encoded where it
+        was made (a worker, in parallel) as its JSON line for :func:`write_frames_jsonl` or its
+        rows for :func:`write_frames_parquet` (the same file as from the plain records); their
+        dicts hold the record's keys but ``specularities``. False: plain records.
     response : SensorResponse, optional
         The sensor's response (the camera file's ``"response"``), passed to
         :func:`~simtest.reconstruct.recommend.with_light_aware` as a single image's: the fits run
@@ -353,7 +364,10 @@ def reconstruct_frames(source: FrameSource, K, settings: ReconSettings | None = 
     settings = ReconSettings.for_frames() if settings is None else settings
     jobs = ((i, name, img, K, settings, dist_coeffs, include_points, rig, cubic, response)
             for i, name, img in same_size_frames(source, K))
-    one = _encoded_record if encoded else _frame_record
+    encoded = "jsonl" if encoded is True else encoded
+    if encoded and encoded not in ENCODINGS:
+        raise ValueError(f"encoded: {encoded!r} is not one of {', '.join(ENCODINGS)}")
+    one = {"jsonl": _jsonl_record, "parquet": _parquet_record}.get(encoded, _frame_record)
     if workers <= 1:
         yield from map(one, jobs)
         return
@@ -364,6 +378,8 @@ def reconstruct_frames(source: FrameSource, K, settings: ReconSettings | None = 
     # a bounded window of frames in flight, so that a long video is not decoded all at once;
     # this process decodes the next frames while the workers reconstruct the earlier ones
     window = 4 * workers
+    if encoded == "parquet":  # imported once here, before the fork, not once in every worker
+        arrow()
     # the frames reach forked workers through shared slots, one per frame in flight; where
     # processes are not forked (no fork on the platform), in their jobs
     ring = _FrameRing(first[2], window) if "fork" in multiprocessing.get_all_start_methods() else None
@@ -383,6 +399,67 @@ def reconstruct_frames(source: FrameSource, K, settings: ReconSettings | None = 
             yield fut.result()
 
 
+def _write_records(path, records, on_frame, writer) -> tuple[Path, int, float]:
+    """Write ``records`` to ``path`` through ``writer`` (a context manager on the temporary file
+    ``path.tmp<pid>`` that gives a function taking each record), then rename it to ``path``: a
+    failure leaves any previous complete file in place."""
+    path = Path(path)
+    tmp = path.with_name(f"{path.name}.tmp{os.getpid()}")
+    t0 = time.perf_counter()
+    n = 0
+    try:
+        with writer(tmp) as write:
+            for rec in records:
+                write(rec)
+                n += 1
+                if on_frame is not None:
+                    on_frame(rec)
+        os.replace(tmp, path)
+    finally:
+        if tmp.exists():
+            tmp.unlink()
+        close = getattr(records, "close", None)  # a generator's pool stops now, not when collected
+        if close is not None:
+            close()
+    return path, n, time.perf_counter() - t0
+
+
+@contextmanager
+def _jsonl_writer(tmp: Path):
+    # bytes: a frame's line is megabytes (thousands of candidates), which a text file would
+    # encode and scan for newlines again; each line ends in "\n" whatever the platform
+    with open(tmp, "wb") as fh:
+        def write(rec):
+            if isinstance(rec, FrameRecord) and not rec.line:
+                raise ValueError(f"frame {rec['source']}: its record was encoded for Parquet, not JSON Lines")
+            fh.write(rec.line if isinstance(rec, FrameRecord) else dumps(rec))
+            fh.write(b"\n")
+        yield write
+
+
+@contextmanager
+def _parquet_writer(tmp: Path):
+    pa, pq = arrow()
+    heads, pending = [], []
+    with pq.ParquetWriter(tmp, table_schema()) as out:
+        def flush():
+            out.write_table(pa.Table.from_batches(pending, schema=out.schema), row_group_size=ROW_GROUP_ROWS)
+            pending.clear()
+
+        def write(rec):
+            if isinstance(rec, FrameRecord) and rec.batch is None:
+                raise ValueError(f"frame {rec['source']}: its record was encoded for JSON Lines, not Parquet")
+            batch = rec.batch if isinstance(rec, FrameRecord) else frame_batch(rec)
+            heads.append({k: v for k, v in rec.items() if k != "specularities"})
+            pending.append(batch)
+            if sum(b.num_rows for b in pending) >= ROW_GROUP_ROWS:
+                flush()
+        yield write
+        if pending:
+            flush()
+        out.add_key_value_metadata(table_metadata(heads))
+
+
 def write_frames_jsonl(path, records, *, on_frame=None) -> tuple[Path, int, float]:
     """Write records as ``estimates.jsonl`` (one line each), atomically.
 
@@ -400,28 +477,41 @@ def write_frames_jsonl(path, records, *, on_frame=None) -> tuple[Path, int, floa
     -------
     (Path, int, float)
         The file, the number of frames, and the wall time in s.
+
+    Raises
+    ------
+    ValueError
+        A value that is not finite (:func:`~simtest.reconstruct.io.dumps`); nothing is written.
     """
-    path = Path(path)
-    tmp = path.with_name(f"{path.name}.tmp{os.getpid()}")
-    t0 = time.perf_counter()
-    n = 0
-    try:
-        # bytes, not text: a frame's line is megabytes (thousands of candidates), which a text
-        # file encodes and scans for newlines again (1.5 ms a frame of the video's parent
-        # process); the JSON is ASCII (json.dumps' ensure_ascii), each line ends in "\n"
-        with open(tmp, "wb") as fh:
-            for rec in records:
-                line = rec.line if isinstance(rec, FrameRecord) else _json_line(rec)
-                fh.write(line if isinstance(line, bytes) else line.encode("ascii"))
-                fh.write(b"\n")
-                n += 1
-                if on_frame is not None:
-                    on_frame(rec)
-        os.replace(tmp, path)
-    finally:
-        if tmp.exists():
-            tmp.unlink()
-        close = getattr(records, "close", None)  # a generator's pool stops now, not when collected
-        if close is not None:
-            close()
-    return path, n, time.perf_counter() - t0
+    return _write_records(path, records, on_frame, _jsonl_writer)
+
+
+def write_frames_parquet(path, records, *, on_frame=None) -> tuple[Path, int, float]:
+    """Write records as ``estimates.parquet`` (one row per candidate), atomically.
+
+    Parameters
+    ----------
+    path : str or Path
+        Destination file; written as ``path.tmp<pid>`` then renamed, so that a failure leaves
+        any previous complete file in place.
+    records : iterable of dict
+        From :func:`reconstruct_frames` (a :class:`FrameRecord` is written as its ``batch``).
+    on_frame : callable, optional
+        Called with each record after it is written (progress).
+
+    Returns
+    -------
+    (Path, int, float)
+        The file, the number of frames, and the wall time in s. The rows are those of
+        :func:`~simtest.reconstruct.io.table_schema`, in frame order; each frame's record but its
+        specularities (a frame without candidates too) is in the file's metadata
+        (:func:`~simtest.reconstruct.io.table_metadata`, read by
+        :func:`~simtest.reconstruct.io.read_frames`).
+
+    Raises
+    ------
+    ValueError
+        A value that is not finite (:func:`~simtest.reconstruct.io.frame_batch`); nothing is
+        written.
+    """
+    return _write_records(path, records, on_frame, _parquet_writer)

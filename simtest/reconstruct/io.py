@@ -1,8 +1,13 @@
 """``estimates.json``: the versioned file format of reconstruction results.
 
-Written by ``simtest reconstruct`` and :func:`write_estimates`; read back by
-:func:`read_estimates`. Other tools (harness, notebooks) read it; the schema below is a contract.
-A change that removes or re-interprets a field bumps ``schema``; adding a field does not.
+Written by ``simtest reconstruct`` and :func:`write_estimates` (the document built as dicts, its
+text by orjson, indented two spaces); read back by :func:`read_estimates`. Other tools (harness,
+notebooks) read it; the schema below is a contract. A change that removes or re-interprets a
+field bumps ``schema``; adding a field does not.
+
+A folder of frames or a video gives ``estimates.parquet`` (one row per candidate, a ``frame``
+column: :mod:`simtest.reconstruct.table`) or, on request, ``estimates.jsonl`` (one line per frame,
+its ``specularities`` those below); :func:`~simtest.reconstruct.table.read_frames` reads either.
 
 Schema 2
 --------
@@ -103,15 +108,13 @@ have an empty ``isophotes`` list and null normals except ``bp_ray``.
 
 from __future__ import annotations
 
-import json
-import os
-import re
+import math
 from pathlib import Path
 
 import numpy as np
-import orjson as _orjson  # a float64 array's JSON text in C: estimates.jsonl's cost on a video
+import orjson as _orjson
 
-from simtest._io import atomic_write_json
+from simtest._io import atomic_write_bytes
 from simtest._version import __version__
 
 SCHEMA_VERSION = 2
@@ -260,457 +263,74 @@ def estimate_to_dict(est, include_points: bool = False) -> dict:
     }
 
 
+
 # ------------------------------------------------------------------------------------------------
-# the same JSON text, written directly (a video's estimates.jsonl: thousands of estimates a frame)
-
-#: json.dumps' string writer (``ensure_ascii``: the default), quotes included.
-_jstr = json.encoder.encode_basestring_ascii
-#: The compact writer of estimates.jsonl, for the parts written as dicts (light-aware results).
-_json = json.JSONEncoder(allow_nan=False, separators=(",", ":")).encode
-#: orjson's option for numpy arrays (:func:`_atxt`).
-_ORJSON_NUMPY = _orjson.OPT_SERIALIZE_NUMPY
+# JSON: the document as dicts and lists, its text written by orjson
 
 
-def _orjson_is_repr(t: str) -> bool:
-    """Whether orjson's text ``t`` of finite floats is the one json.dumps writes (float.__repr__):
-    it differs only in the notation of |x| < 1e-4 (positional: "0.0000...", or an exponent without
-    its sign's padding, "1e-7") and of |x| >= 1e16 (its exponent, "1e16"), and writes NaN and inf
-    as null ("n"); a text with none of these (or with ".0000" inside a number, harmlessly
-    refused) is repr's."""
-    return "e" not in t and "n" not in t and ".0000" not in t
-
-
-#: orjson's exponent of two digits or more after the padding :func:`_as_repr` adds to every one
-_EXP_LONG = re.compile(r"e-0(?=\d\d)")
-#: orjson's positional text of 1e-5 <= |x| < 1e-4 (its only positional |x| < 1e-4): "0.0000" and
-#: the digits (at the start of a number: :func:`_exp5` checks; a look-behind here would make
-#: the search ten times slower)
-_POSITIONAL = re.compile(r"0\.0000([1-9])(\d*)")
-
-
-def _exp5(m) -> str:
-    i = m.start()
-    if i and m.string[i - 1] in "0123456789.":  # inside a number, as 10.00001: repr's already
-        return m.group(0)
-    rest = m.group(2)
-    return f"{m.group(1)}.{rest}e-05" if rest else f"{m.group(1)}e-05"
-
-
-def _as_repr(t: str) -> str | None:
-    """orjson's text of float64s (an array's or a list's) as json.dumps writes them (repr's
-    notation): its shortest round-trip digits are repr's, only the notation differs; orjson writes
-    an exponent bare ("1e-7", "1.5e16": repr "1e-07", "1.5e+16"; orjson 3.10 and later write
-    "1.5e+16", which is first made bare) and 1e-5 <= |x| < 1e-4 positionally ("0.0000123": repr
-    "1.23e-05"). None where a value is not finite (orjson's null). A text of numbers only (no
-    strings), so every "e" is an exponent (``tests/test_io_fast.py`` compares it with repr over
-    the whole float64 range)."""
-    if "n" in t:
+def _not_finite_at(obj, where: str):
+    """The path of the first number in ``obj`` that is not finite, or None (NaN and infinity
+    have no JSON text: orjson would write them as null, a missing value they are not)."""
+    t = type(obj)
+    if t is dict:
+        for k, v in obj.items():
+            if type(v) in _SCALARS_OK:
+                continue
+            bad = _not_finite_at(v, f"{where}.{k}" if where else str(k))
+            if bad is not None:
+                return bad
         return None
-    if "e" in t:  # every exponent signed, at least two digits: "e-7" -> "e-07", "e16" -> "e+16"
-        t = t.replace("e+", "e")  # orjson's own sign, where its version writes one
-        t = _EXP_LONG.sub("e-", t.replace("e-", "E").replace("e", "e+").replace("E", "e-0"))
-    if ".0000" in t:
-        t = _POSITIONAL.sub(_exp5, t)
-    return t
+    if t is list or t is tuple:
+        for i, v in enumerate(obj):
+            if type(v) in _SCALARS_OK:
+                continue
+            bad = _not_finite_at(v, f"{where}[{i}]")
+            if bad is not None:
+                return bad
+        return None
+    if isinstance(obj, float | np.floating):
+        return None if math.isfinite(obj) else f"{where} = {float(obj)!r}"
+    if isinstance(obj, np.ndarray) and obj.dtype.kind in "fc" and not np.all(np.isfinite(obj)):
+        return f"{where} (an array with values that are not finite)"
+    return None
 
 
-#: np.degrees is x * (180 / pi) in float64 (the same bits for a Python float).
-_DEG = 180.0 / np.pi
+#: Types that need no look inside (a float is looked at: it may be NaN).
+_SCALARS_OK = frozenset({str, int, bool, type(None)})
+#: orjson's options: numpy arrays and scalars as their numbers (float64 written to round-trip).
+_ORJSON_OPTIONS = _orjson.OPT_SERIALIZE_NUMPY
 
 
-def _json_or_null(x) -> str:
-    return "null" if x is None else _json(x)
-
-
-def _not_finite(text: str) -> ValueError:
-    return ValueError(f"Out of range float values are not JSON compliant: {text}")
-
-
-def _ftxt(x) -> str:
-    """``float(x)`` as json.dumps writes it (float.__repr__), ``null`` for None."""
-    if x is None:
-        return "null"
-    t = _orjson.dumps(float(x)).decode()  # as _atxt: orjson's text in repr's notation
-    if _orjson_is_repr(t):
-        return t
-    t = repr(float(x))
-    if "n" in t:  # nan, inf, -inf: json.dumps(allow_nan=False) refuses them too
-        raise _not_finite(t)
-    return t
-
-
-def _atxt(x, flat: bool) -> str:
-    """An array as json.dumps writes its float64 ``tolist()`` (flattened if ``flat``); ``null``
-    for None. A list's repr of finite floats differs from compact JSON only by its spaces."""
-    if x is None:
-        return "null"
-    if type(x) is np.ndarray and x.dtype.char == "d" and (x.ndim == 1 or not flat):
-        if x.ndim <= 2 and x.flags.c_contiguous:
-            # orjson's shortest round-trip digits are float.__repr__'s, in repr's notation
-            # (_as_repr); an array that is not finite takes repr's path (tests/test_io_fast.py)
-            t = _as_repr(_orjson.dumps(x, option=_ORJSON_NUMPY).decode())
-            if t is not None:
-                return t
-        t = repr(x.tolist())  # float64 already: skip the conversions (the same Python floats)
-    else:
-        a = np.asarray(x, dtype=np.float64)
-        t = repr((a.ravel() if flat else a).tolist())
-    t = t.replace(" ", "")
-    if "n" in t:
-        raise _not_finite(t)
-    return t
-
-
-def _ellipse_txt(e) -> str:
-    if e is None:
-        return "null"
-    return (f'{{"center_px":{_atxt(e.center, True)},"semi_axes_px":{_atxt(e.semi_axes, True)},'
-            f'"angle_deg":{_ftxt(float(e.angle_rad) * _DEG)}}}')
-
-
-def _int_txt(x) -> str:
-    # an int (or None) as json.dumps writes it; anything else goes through json (which raises)
-    return "null" if x is None else repr(x) if type(x) is int else _json(x)
-
-
-def _isophote_json(iso, include_points: bool):
-    """The text of :func:`_isophote_dict` and the texts of the parts a specularity repeats from
-    its primary isophote: (ellipse, conic, fit_residual_px, eigenvalue_gap, paper,
-    paper_selected, paper_selected_index, cone_axis)."""
-    parts = (_ellipse_txt(iso.ellipse), _atxt(iso.conic, False), _ftxt(iso.fit_residual_px),
-             _ftxt(iso.eigenvalue_gap), _atxt(iso.normals_paper, False), _atxt(iso.paper_selected, True),
-             _int_txt(iso.paper_selected_index), _atxt(iso.cone_axis, True))
-    return _isophote_text(iso, _ftxt(iso.isovalue), parts, include_points), parts
-
-
-def _isophote_text(iso, isovalue: str, parts: tuple, include_points: bool) -> str:
-    """The text of :func:`_isophote_dict` from the isovalue's text and the texts of its parts
-    (:func:`_isophote_json`'s), one isophote at a time or a frame's at once alike."""
-    n_points = 0 if iso.points_uv is None else int(len(iso.points_uv))
-    text = (f'{{"isovalue":{isovalue},"status":{_jstr(iso.status)},"detail":{_jstr(iso.detail)},'
-            f'"closed":{"true" if iso.closed else "false"},"n_points":{n_points},"ellipse":{parts[0]},'
-            f'"conic":{parts[1]},"fit_residual_px":{parts[2]},"eigenvalue_gap":{parts[3]},'
-            f'"normals":{{"paper":{parts[4]},"paper_selected":{parts[5]},"paper_selected_index":{parts[6]},'
-            f'"cone_axis":{parts[7]}}}')
-    if include_points and iso.points_uv is not None:
-        text += f',"points_px":{_atxt(iso.points_uv, False)}'
-    return text + "}"
-
-
-def _roi_txt(roi) -> str:
-    # [int(v) for v in roi] as json writes it ("%d" truncates as int() does)
-    return "[%d,%d,%d,%d]" % tuple(roi) if len(roi) == 4 else _json([int(v) for v in roi])
-
-
-_NO_PRIMARY = ("null",) * 8
-_NO_LIGHT_AWARE_NORMALS = ",".join(f'"{name}":null' for name in LIGHT_AWARE_NORMALS)
-
-
-def estimate_json(est, include_points: bool = False) -> str:
-    """:func:`estimate_to_dict` as the compact JSON text estimates.jsonl holds, written directly.
-
-    The same text as ``json.dumps(estimate_to_dict(est, include_points), allow_nan=False,
-    separators=(",", ":"))``, character for character, at a fraction of its cost: no dicts, each
-    float formatted once where the dict repeats it (the primary isophote's fit at the top level,
-    the recommended normal), and a short path for a rejected candidate (no isophotes, no
-    light-aware results).
+def dumps(obj, *, indent: bool = False) -> bytes:
+    """``obj`` as JSON bytes (UTF-8), written by orjson; NaN and infinity refused.
 
     Parameters
     ----------
-    est : SpecularityEstimate
-        One estimate.
-    include_points : bool
-        Also write each isophote's contour points.
+    obj : dict or list
+        Made of dicts with str keys, lists, tuples, str, int, float, bool, None and numpy arrays
+        or scalars.
+    indent : bool
+        Two spaces per level and a final newline (``estimates.json``); else one compact line
+        without a newline (a line of ``estimates.jsonl``).
 
     Returns
     -------
-    str
-        One JSON object, no whitespace.
+    bytes
+        The JSON text. Numbers are written to round-trip (the shortest digits that read back as
+        the same float64).
 
     Raises
     ------
     ValueError
-        If a value is not finite (as json.dumps with ``allow_nan=False``).
+        Naming the first value that is not finite (its key path): JSON has no NaN, and a missing
+        value is written as None by the caller, never left as NaN.
     """
-    la = getattr(est, "light_aware", None) or {}
-    bp_ray = est.bp_ray
-    ray_txt = _atxt(bp_ray, True)
-    joint = getattr(est, "joint_cone_axis", None)
-    if not est.isophotes and not la and joint is None and bp_ray is not None:
-        # a rejected candidate: recommend() gives its BP ray (nothing else exists)
-        head = f'{{"normal":{ray_txt},"normal_from":"bp_ray","depth_mm":null,"normal_sigma_deg":null,' \
-               '"light_normals":null,"light_depths_mm":null,"light_aware":{}'
-        prim, isos, la_txt, joint_txt = _NO_PRIMARY, "", _NO_LIGHT_AWARE_NORMALS, "null"
-    else:
-        isos, prim = [], None
-        for iso in est.isophotes:
-            text, parts = _isophote_json(iso, include_points)
-            isos.append(text)
-            if prim is None:
-                prim = parts
-        isos = ",".join(isos)
-        prim = _NO_PRIMARY if prim is None else prim
-        joint_txt = _atxt(joint, True)
-        rec = est.recommended
-        n = rec.normal
-        # recommend() passes its source's array on (np.asarray): the same array, the same text
-        if n is bp_ray:
-            normal = ray_txt
-        elif n is joint:
-            normal = joint_txt
-        elif est.isophotes and n is est.isophotes[0].cone_axis:
-            normal = prim[7]
-        else:
-            normal = _atxt(n, True)
-        la_dict = _light_aware_dict(la)
-        head = (f'{{"normal":{normal},"normal_from":{_jstr(rec.normal_from)},"depth_mm":{_ftxt(rec.depth_mm)},'
-                f'"normal_sigma_deg":{_ftxt(rec.normal_sigma_deg)},'
-                f'"light_normals":{_json_or_null(_rows(getattr(rec, "light_normals", None)))},'
-                f'"light_depths_mm":{_json_or_null(_nums(getattr(rec, "light_depths_mm", None)))},'
-                f'"light_aware":{_json(la_dict) if la else "{}"}')
-        la_txt = (",".join(f'"{name}":{_atxt(la[name].normal, True) if name in la else "null"}'
-                           for name in LIGHT_AWARE_NORMALS) if la else _NO_LIGHT_AWARE_NORMALS)
-    return (f'{head},"bp_px":{_atxt(est.bp_px, True)},"bp_intensity":{_ftxt(est.bp_intensity)},'
-            f'"saturated":{"true" if est.saturated else "false"},'
-            f'"roi":{_roi_txt(est.roi)},"status":{_jstr(est.status)},'
-            f'"detail":{_jstr(est.detail)},"confidence":{_ftxt(getattr(est, "confidence", None))},'
-            f'"normals":{{"paper":{prim[4]},"paper_selected":{prim[5]},"paper_selected_index":{prim[6]},'
-            f'"cone_axis":{prim[7]},"joint_cone_axis":{joint_txt},"bp_ray":{ray_txt},{la_txt}}},'
-            f'"ellipse":{prim[0]},"conic":{prim[1]},"fit_residual_px":{prim[2]},"eigenvalue_gap":{prim[3]},'
-            f'"isophotes":[{isos}]}}')
-
-
-def estimates_json(estimates, include_points: bool = False) -> str:
-    """A list of estimates as the compact JSON array of their :func:`estimate_json` texts.
-
-    Parameters
-    ----------
-    estimates : iterable of SpecularityEstimate
-        One frame's estimates.
-    include_points : bool
-        Also write each isophote's contour points.
-
-    Returns
-    -------
-    str
-        ``json.dumps([estimate_to_dict(e, include_points) for e in estimates], allow_nan=False,
-        separators=(",", ":"))``, character for character.
-
-    Raises
-    ------
-    ValueError
-        If a value is not finite.
-    """
-    ests = list(estimates)
-    texts = _rejected_texts(ests)
-    _fitted_texts(ests, texts, include_points)
-    return "[" + ",".join([estimate_json(e, include_points) if t is None else t
-                           for e, t in zip(ests, texts)]) + "]"
-
-
-def _is_rejected(est) -> bool:
-    """Whether :func:`estimate_json` writes ``est`` by its short path (a rejected candidate: no
-    isophotes, no light-aware results, no joint axis, a BP ray)."""
-    return (not est.isophotes and not getattr(est, "light_aware", None)
-            and getattr(est, "joint_cone_axis", None) is None and est.bp_ray is not None)
-
-
-#: The constant parts of a rejected candidate's text (:func:`estimate_json`'s short path).
-_REJ_HEAD = '"normal_from":"bp_ray","depth_mm":null,"normal_sigma_deg":null,"light_normals":null,' \
-            '"light_depths_mm":null,"light_aware":{}'
-_REJ_NORMALS = '"normals":{"paper":null,"paper_selected":null,"paper_selected_index":null,"cone_axis":null,' \
-               '"joint_cone_axis":null,"bp_ray":'
-_REJ_TAIL = ('},"ellipse":null,"conic":null,"fit_residual_px":null,"eigenvalue_gap":null,"isophotes":[]}')
-
-
-def _rows_txt(a: np.ndarray) -> list[str] | None:
-    """The texts of the rows of a float64 array (n, k), as :func:`_atxt` writes each row, from
-    one orjson call; None where that text is not json.dumps' (see :func:`_atxt`)."""
-    t = _as_repr(_orjson.dumps(a, option=_ORJSON_NUMPY).decode())
-    if t is None:
-        return None
-    return t[2:-2].split("],[")
-
-
-def _rejected_texts(ests: list) -> list:
-    """Each estimate's :func:`estimate_json` text where it is a rejected candidate's (most of a
-    real frame's thousands), written for all of them at once: their BP rays, BPs and
-    intensities each in one orjson call, the text of each then one format. None for the
-    others, and for all where orjson's text is not json.dumps' (they take
-    :func:`estimate_json`). The same text, character for character (``tests/test_io_fast.py``)."""
-    out: list = [None] * len(ests)
-    rej = [k for k, e in enumerate(ests) if _is_rejected(e)]
-    if len(rej) < 2:
-        return out
-    try:
-        rays = np.array([ests[k].bp_ray for k in rej], dtype=np.float64)
-        bps = np.array([ests[k].bp_px for k in rej], dtype=np.float64)
-        heights = np.array([ests[k].bp_intensity for k in rej], dtype=np.float64)
-    except (TypeError, ValueError):  # ragged or odd values: one at a time
-        return out
-    if rays.shape != (len(rej), 3) or bps.shape != (len(rej), 2):
-        return out
-    ray_t, bp_t = _rows_txt(rays), _rows_txt(bps)
-    h_t = _as_repr(_orjson.dumps(heights, option=_ORJSON_NUMPY).decode())
-    if ray_t is None or bp_t is None or h_t is None:
-        return out
-    for k, ray, bp, h in zip(rej, ray_t, bp_t, h_t[1:-1].split(",")):
-        e = ests[k]
-        out[k] = (f'{{"normal":[{ray}],{_REJ_HEAD},"bp_px":[{bp}],"bp_intensity":{h},'
-                  f'"saturated":{"true" if e.saturated else "false"},"roi":{_roi_txt(e.roi)},'
-                  f'"status":{_jstr(e.status)},"detail":{_jstr(e.detail)},'
-                  f'"confidence":{_ftxt(getattr(e, "confidence", None))},{_REJ_NORMALS}[{ray}],'
-                  f'{_NO_LIGHT_AWARE_NORMALS}{_REJ_TAIL}')
-    return out
-
-
-def _array_texts(values: list, flat: bool) -> list:
-    """:func:`_atxt` of each value, all written together: one float64 stack (``np.array`` of them,
-    as :func:`_atxt` converts each), one orjson call, its text split at the items' brackets.
-    ``null`` for None; None for every other value where they do not stack (shapes that differ,
-    items that are not arrays of one or two dimensions, an empty one) or a value is not finite:
-    :func:`_atxt` writes each then (and raises its error)."""
-    out: list = ["null"] * len(values)
-    ks = [k for k, x in enumerate(values) if x is not None]
-    for k in ks:
-        out[k] = None
-    if len(ks) < 2:
-        return out
-    try:
-        stack = np.array([values[k] for k in ks], dtype=np.float64)
-    except (TypeError, ValueError):  # ragged, or not numbers
-        return out
-    if not stack.size or stack.ndim not in (2, 3) or (flat and stack.ndim == 3):
-        return out
-    t = _as_repr(_orjson.dumps(stack, option=_ORJSON_NUMPY).decode())
-    if t is None:
-        return out
-    if stack.ndim == 2:  # "[[a,b],[c,d]]": each item between "],["
-        for k, part in zip(ks, t[2:-2].split("],[")):
-            out[k] = f"[{part}]"
-    else:  # "[[[a,b],[c,d]],[[e,f],[g,h]]]": each item between "]],[["
-        for k, part in zip(ks, t[3:-3].split("]],[[")):
-            out[k] = f"[[{part}]]"
-    return out
-
-
-def _float_texts(values: list) -> list:
-    """:func:`_ftxt` of each value, written together (one orjson call, or one repr of the list
-    where orjson's text is not json.dumps'); None for all but the None values (``null``) where
-    a value is not a finite number (:func:`_ftxt` raises its error)."""
-    out: list = [None] * len(values)
-    ks, fs = [], []
-    try:
-        for k, x in enumerate(values):
-            if x is None:
-                out[k] = "null"
-            else:
-                fs.append(float(x))
-                ks.append(k)
-    except (TypeError, ValueError):
-        return out
-    if not fs:
-        return out
-    t = _as_repr(_orjson.dumps(fs).decode())
-    if t is None:
-        return [None if x is not None else "null" for x in values]
-    for k, part in zip(ks, t[1:-1].split(",")):
-        out[k] = part
-    return out
-
-
-def _filled(texts: list, values: list, fn) -> list:
-    """``texts`` with each None replaced by ``fn`` of its value (which raises as it would alone)."""
-    return [fn(v) if t is None else t for t, v in zip(texts, values)]
-
-
-def _fitted_texts(ests: list, out: list, include_points: bool) -> None:
-    """Write into ``out`` each :func:`estimate_json` text left None there (the fitted candidates,
-    with isophotes: a real frame's hundreds), the numbers of all of them written at once
-    (:func:`_array_texts`, :func:`_float_texts`): their isophotes' ellipses, conics, normals and
-    fit numbers, their BPs, BP rays and joint axes. The candidates with light-aware results, and
-    all where any value would raise, are left None (:func:`estimate_json` then writes them, or
-    raises its error). The same text, character for character (``tests/test_io_fast.py``)."""
-    sel = [k for k, t in enumerate(out) if t is None and not getattr(ests[k], "light_aware", None)
-           and not _is_rejected(ests[k])]
-    if len(sel) < 2:
-        return
-    es = [ests[k] for k in sel]
-    try:
-        isos = [iso for e in es for iso in e.isophotes]
-        ells = [iso.ellipse for iso in isos]
-        cen = _filled(_array_texts([None if el is None else el.center for el in ells], True),
-                      [None if el is None else el.center for el in ells], lambda v: _atxt(v, True))
-        semi = _filled(_array_texts([None if el is None else el.semi_axes for el in ells], True),
-                       [None if el is None else el.semi_axes for el in ells], lambda v: _atxt(v, True))
-        angles = [None if el is None else float(el.angle_rad) * _DEG for el in ells]
-        ang = _filled(_float_texts(angles), angles, _ftxt)
-        cols = []
-        for name, flat in (("conic", False), ("normals_paper", False), ("paper_selected", True),
-                           ("cone_axis", True)):
-            vals = [getattr(iso, name) for iso in isos]
-            cols.append(_filled(_array_texts(vals, flat), vals, lambda v, f=flat: _atxt(v, f)))
-        conic, paper, psel, cone = cols
-        nums = []
-        for name in ("isovalue", "fit_residual_px", "eigenvalue_gap"):
-            vals = [getattr(iso, name) for iso in isos]
-            nums.append(_filled(_float_texts(vals), vals, _ftxt))
-        isoval, resid, gap = nums
-        iso_txt, iso_parts = [], []
-        for j, iso in enumerate(isos):
-            ell = "null" if ells[j] is None else \
-                f'{{"center_px":{cen[j]},"semi_axes_px":{semi[j]},"angle_deg":{ang[j]}}}'
-            parts = (ell, conic[j], resid[j], gap[j], paper[j], psel[j], _int_txt(iso.paper_selected_index),
-                     cone[j])
-            iso_parts.append(parts)
-            iso_txt.append(_isophote_text(iso, isoval[j], parts, include_points))
-        rays = [e.bp_ray for e in es]
-        ray_t = _filled(_array_texts(rays, True), rays, lambda v: _atxt(v, True))
-        joints = [getattr(e, "joint_cone_axis", None) for e in es]
-        joint_t = _filled(_array_texts(joints, True), joints, lambda v: _atxt(v, True))
-        bps = [e.bp_px for e in es]
-        bp_t = _filled(_array_texts(bps, True), bps, lambda v: _atxt(v, True))
-        hs = [e.bp_intensity for e in es]
-        h_t = _filled(_float_texts(hs), hs, _ftxt)
-        confs = [getattr(e, "confidence", None) for e in es]
-        conf_t = _filled(_float_texts(confs), confs, _ftxt)
-        texts = []
-        j = 0
-        for i, est in enumerate(es):
-            n_iso = len(est.isophotes)
-            prim = iso_parts[j] if n_iso else _NO_PRIMARY
-            isos_txt = ",".join(iso_txt[j:j + n_iso])
-            j += n_iso
-            bp_ray, joint = est.bp_ray, joints[i]
-            rec = est.recommended
-            n = rec.normal
-            # as estimate_json: recommend() passes its source's array on
-            if n is bp_ray:
-                normal = ray_t[i]
-            elif n is joint:
-                normal = joint_t[i]
-            elif n_iso and n is est.isophotes[0].cone_axis:
-                normal = prim[7]
-            else:
-                normal = _atxt(n, True)
-            texts.append(
-                f'{{"normal":{normal},"normal_from":{_jstr(rec.normal_from)},"depth_mm":{_ftxt(rec.depth_mm)},'
-                f'"normal_sigma_deg":{_ftxt(rec.normal_sigma_deg)},'
-                f'"light_normals":{_json_or_null(_rows(getattr(rec, "light_normals", None)))},'
-                f'"light_depths_mm":{_json_or_null(_nums(getattr(rec, "light_depths_mm", None)))},'
-                f'"light_aware":{{}},"bp_px":{bp_t[i]},"bp_intensity":{h_t[i]},'
-                f'"saturated":{"true" if est.saturated else "false"},'
-                f'"roi":{_roi_txt(est.roi)},"status":{_jstr(est.status)},'
-                f'"detail":{_jstr(est.detail)},"confidence":{conf_t[i]},'
-                f'"normals":{{"paper":{prim[4]},"paper_selected":{prim[5]},"paper_selected_index":{prim[6]},'
-                f'"cone_axis":{prim[7]},"joint_cone_axis":{joint_t[i]},"bp_ray":{ray_t[i]},'
-                f'{_NO_LIGHT_AWARE_NORMALS}}},'
-                f'"ellipse":{prim[0]},"conic":{prim[1]},"fit_residual_px":{prim[2]},"eigenvalue_gap":{prim[3]},'
-                f'"isophotes":[{isos_txt}]}}')
-    except (TypeError, ValueError, AttributeError):
-        return  # a value one of them would raise on: estimate_json writes each, and raises
-    for k, t in zip(sel, texts):
-        out[k] = t
+    bad = _not_finite_at(obj, "")
+    if bad is not None:
+        raise ValueError(f"value not finite, JSON has no NaN or infinity: {bad}")
+    if indent:
+        return _orjson.dumps(obj, option=_ORJSON_OPTIONS | _orjson.OPT_INDENT_2) + b"\n"
+    return _orjson.dumps(obj, option=_ORJSON_OPTIONS)
 
 
 def estimates_document(estimates, *, K, image=None, image_shape=None, dist_coeffs=None,
@@ -800,14 +420,14 @@ def write_estimates(path, estimates, *, K, image=None, image_shape=None, dist_co
     Raises
     ------
     ValueError
-        If a value is not finite (JSON is written with ``allow_nan=False``); nothing is written.
+        Naming a value that is not finite (JSON has no NaN; :func:`dumps`); nothing is written.
     OSError
         If the folder is not writable.
     """
     doc = estimates_document(estimates, K=K, image=image, image_shape=image_shape,
                              dist_coeffs=dist_coeffs, isovalues=isovalues, normalise=normalise,
                              include_points=include_points, camera=camera, lights=lights)
-    return atomic_write_json(path, doc, allow_nan=False)
+    return atomic_write_bytes(path, dumps(doc, indent=True))
 
 
 def read_estimates(path) -> dict:
@@ -830,8 +450,8 @@ def read_estimates(path) -> dict:
     """
     path = Path(path)
     try:
-        doc = json.loads(path.read_text(encoding="utf-8"))
-    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
+        doc = _orjson.loads(path.read_bytes())
+    except (OSError, _orjson.JSONDecodeError) as exc:
         raise ValueError(f"{path}: cannot read estimates JSON ({exc})") from None
     if not isinstance(doc, dict):
         raise ValueError(f"{path}: top level is not a JSON object")
@@ -848,9 +468,5 @@ def read_estimates(path) -> dict:
     return doc
 
 
-# ------------------------------------------------------------------------------------------------
-# an output folder replaced as a set (simtest._outdir)
-
-
 #: What ``simtest reconstruct`` writes in its ``--out`` folder (and nothing else may be there).
-RECONSTRUCT_FILES = ("estimates.json", "overlay.png", "view.png", "estimates.jsonl")
+RECONSTRUCT_FILES = ("estimates.json", "overlay.png", "view.png", "estimates.parquet", "estimates.jsonl")
