@@ -16,7 +16,8 @@ PYPROJECT = tomllib.loads((ROOT / "pyproject.toml").read_text(encoding="utf-8"))
 
 #: distribution name -> the module it is imported as
 IMPORT_NAME = {"opencv-python-headless": "cv2", "scikit-image": "skimage", "pillow": "PIL",
-               "markdown-it-py": "markdown_it", "dask": "distributed"}
+               "markdown-it-py": "markdown_it", "dask": "distributed",
+               "tomli-w": "tomli_w"}
 #: declared but imported by a dependency, not by simtest: the reason
 INDIRECT = {"rtree": "trimesh.curvature's ball queries need an R-tree (trimesh does not declare it)"}
 
