@@ -14,7 +14,6 @@ from typer.testing import CliRunner
 
 from simtest.cli import app
 from simtest.render import vessels
-from simtest.render.tissue import TISSUE_SEED_KEY
 from simtest.render.vessels import VESSEL_LAYERS, coverage_map, grow_network, murray_radii, transmission_map
 
 #: Relative tolerance of Murray's law and of the growth step: float64 round-off over a few
@@ -23,7 +22,7 @@ REL_TOL = 1e-9
 
 
 def _layer_rng(seed: int, i: int) -> np.random.Generator:
-    return np.random.default_rng(np.random.SeedSequence([seed, TISSUE_SEED_KEY, vessels.VESSEL_SEED_KEY, i]))
+    return np.random.default_rng(np.random.SeedSequence([seed, vessels.VESSEL_SEED_KEY, i]))
 
 
 @pytest.fixture(scope="module")

@@ -53,6 +53,7 @@ import math
 from dataclasses import dataclass
 
 import numpy as np
+from scipy.ndimage import map_coordinates
 
 from simtest.render.vessels import TILE_MM, transmission_map
 
@@ -255,8 +256,6 @@ def _np_texture(tex: np.ndarray, s, r):
     """Bilinear lookup of ``tex`` (H, W, C) at texture coordinates ``(s, r)`` (the tile is [0, 1]^2,
     texel centres at ``(j + 0.5) / W``), repeated mirrored: Dr.Jit's ``Texture2f`` with linear
     filtering and ``WrapMode.Mirror``, in float64."""
-    from scipy.ndimage import map_coordinates
-
     h, w = tex.shape[:2]
     s, r = np.broadcast_arrays(np.asarray(s, dtype=np.float64), np.asarray(r, dtype=np.float64))
     coords = np.stack([r.ravel() * h - 0.5, s.ravel() * w - 0.5])

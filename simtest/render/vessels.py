@@ -42,12 +42,15 @@ from __future__ import annotations
 import functools
 from dataclasses import dataclass
 
+import cv2
 import numpy as np
+from scipy.spatial import cKDTree
 
 __all__ = ["VESSEL_LAYERS", "VESSEL_SEED_KEY", "TILE_MM", "TEXEL_MM", "SUPERSAMPLE", "BLUR_PER_DEPTH",
            "VesselLayer", "Network", "grow_network", "murray_radii", "coverage_map", "transmission_map"]
 
-#: Stable key of the vessel stream in ``SeedSequence([seed, TISSUE_SEED_KEY, VESSEL_SEED_KEY, layer])``.
+#: Stable key of the vessel stream: layer i grows from ``SeedSequence([seed, VESSEL_SEED_KEY, i])``,
+#: ``seed`` the tissue's texture seed.
 VESSEL_SEED_KEY = 0x7E55E1
 #: Width of the square tile the networks are grown on, mm: wider than the field of view of the
 #: scenes' well-lit tissue (about 40 mm at 20 mm through 140 deg), so the mirrored repeat is rarely seen.
@@ -125,8 +128,6 @@ def grow_network(rng: np.random.Generator, layer: VesselLayer, tile_mm: float = 
     -------
     Network
     """
-    from scipy.spatial import cKDTree
-
     area = tile_mm * tile_mm
     attr = rng.uniform(0.0, tile_mm, size=(rng.poisson(layer.attractors_per_mm2 * area), 2))
     roots = rng.uniform(0.0, tile_mm, size=(max(1, rng.poisson(layer.roots_per_mm2 * area)), 2))
@@ -209,8 +210,6 @@ def coverage_map(net: Network, radii: np.ndarray, tile_mm: float = TILE_MM, texe
         Coverage in [0, 1]; row ``i``, column ``j`` is the texel centred at
         ``(u, v) = ((j + 0.5) texel_mm, (i + 0.5) texel_mm)``.
     """
-    import cv2
-
     n_px = int(round(tile_mm / texel_mm))
     fine = np.zeros((n_px * SUPERSAMPLE, n_px * SUPERSAMPLE), np.uint8)
     scale = SUPERSAMPLE / texel_mm
@@ -235,7 +234,7 @@ def transmission_map(seed: int, layers: tuple[VesselLayer, ...] = VESSEL_LAYERS)
     ----------
     seed : int
         The tissue's texture seed; layer ``i`` grows from
-        ``SeedSequence([seed, TISSUE_SEED_KEY, VESSEL_SEED_KEY, i])``.
+        ``SeedSequence([seed, VESSEL_SEED_KEY, i])``.
     layers : tuple of VesselLayer
 
     Returns
@@ -243,11 +242,9 @@ def transmission_map(seed: int, layers: tuple[VesselLayer, ...] = VESSEL_LAYERS)
     ndarray of shape (H, W, 3), float32, read-only
         Per-channel transmission in [0, 1] over the tile (texels as :func:`coverage_map`).
     """
-    from simtest.render.tissue import TISSUE_SEED_KEY
-
     out = None
     for i, layer in enumerate(layers):
-        rng = np.random.default_rng(np.random.SeedSequence([int(seed), TISSUE_SEED_KEY, VESSEL_SEED_KEY, i]))
+        rng = np.random.default_rng(np.random.SeedSequence([int(seed), VESSEL_SEED_KEY, i]))
         net = grow_network(rng, layer)
         cov = coverage_map(net, murray_radii(net, layer.root_radius_mm), sigma_mm=layer.blur_sigma_mm)
         t = 1.0 - cov[..., None] * np.asarray(layer.absorb, dtype=np.float32)
