@@ -1,4 +1,4 @@
-"""Procedural tissue: seeded RGB albedo with vessel-like patterns, micro-relief and a wet specular film.
+"""Procedural tissue: seeded RGB albedo with branching vessels, micro-relief and a wet specular film.
 
 Everything here is a closed-form function of the surface point, written once for numpy and Dr.Jit
 alike (the ``xp`` argument: ``numpy`` or ``drjit``), so the renderer shades with it in Mitsuba's

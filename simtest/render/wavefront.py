@@ -297,21 +297,23 @@ def _light_at(light, p, offset=None):
     return lp, wo, weight
 
 
-#: Dr.Jit textures of the tissue's arrays, keyed by the array's id (the array is kept alive beside it).
-_TEXTURES: dict[int, tuple[np.ndarray, object]] = {}
+#: Dr.Jit textures of the tissue's arrays, keyed by the array's id and the Mitsuba variant (the
+#: array is kept alive beside its texture).
+_TEXTURES: dict[tuple[int, str], tuple[np.ndarray, object]] = {}
 
 
 def _texture(tex: np.ndarray):
     """``mi.Texture2f`` of ``tex`` (linear filter, mirrored repeat), cached for the last few arrays."""
     dr, mi = require("drjit"), require("mitsuba")
-    hit = _TEXTURES.get(id(tex))
+    key = (id(tex), mi.variant())
+    hit = _TEXTURES.get(key)
     if hit is not None and hit[0] is tex:
         return hit[1]
     t = mi.Texture2f(mi.TensorXf(np.ascontiguousarray(tex, dtype=np.float32)), filter_mode=dr.FilterMode.Linear,
                      wrap_mode=dr.WrapMode.Mirror)
     if len(_TEXTURES) >= 4:
         _TEXTURES.pop(next(iter(_TEXTURES)))
-    _TEXTURES[id(tex)] = (tex, t)
+    _TEXTURES[key] = (tex, t)
     return t
 
 
