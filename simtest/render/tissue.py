@@ -283,7 +283,7 @@ def surface_uv(xp, q, nq, t: TissueParams):
     if nq is None:
         return [(1.0, q[0], q[1])]
     w = [nq[i] * nq[i] * nq[i] * nq[i] for i in range(3)]
-    inv = 1.0 / (w[0] + w[1] + w[2])
+    inv = 1.0 / xp.maximum(w[0] + w[1] + w[2], 1e-30)  # a zero normal (a ray's miss): no vessels, not NaN
     (ax, ay), (bx, by), (cx, cy) = _TRIPLANAR_OFFSET_MM
     return [(w[0] * inv, q[1] + ax, q[2] + ay), (w[1] * inv, q[2] + bx, q[0] + by),
             (w[2] * inv, q[0] + cx, q[1] + cy)]

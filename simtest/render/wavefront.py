@@ -441,7 +441,7 @@ def shade_tissue(scene, d: np.ndarray, rig: LightRig, texture, material, *, shad
     n = dr.select(dr.dot(n, ray.d) > 0, -n, n)  # facing the camera
     p = (si.p.x, si.p.y, si.p.z)
     ns = tissue.relief_normal(xp, p, (n.x, n.y, n.z), texture)
-    alb = tissue.albedo(xp, p, texture, (n.x, n.y, n.z))
+    alb = [dr.select(valid, a, 0.0) for a in tissue.albedo(xp, p, texture, (n.x, n.y, n.z))]  # misses: 0, not NaN
     wi = -ray.d
     wi = (wi.x, wi.y, wi.z)
     rgb = [mi.Float(0.0), mi.Float(0.0), mi.Float(0.0)]
