@@ -10,6 +10,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from simtest.render import render_scene
+from simtest.render.render import tissue_texture
 from simtest.render.sensor import apply_sensor, field_stop_mask, frame_luma, peak_exposure, video_frame
 from simtest.render.tissue import (
     albedo,
@@ -159,7 +160,7 @@ def test_tissue_render_truth_and_diffuse_closed_form():
     r = render_scene(scene_from_dict(base), seed=0)
     assert r.rgb.shape == (48, 48, 3) and np.allclose(r.shading_normals, r.normals, atol=1e-6)
     p = r.position.reshape(-1, 3).astype(np.float64)
-    a = np.stack(albedo(np, tuple(p.T), tissue_params("mucosa", 0, 0.0, 0.3)), -1)
+    a = np.stack(albedo(np, tuple(p.T), tissue_texture(scene_from_dict(base))), -1)  # the plane's own axes
     e = np.zeros(len(p))
     for L in r.light_rig.positions:
         d = L - p

@@ -47,6 +47,7 @@ from simtest.render.mitsuba_dict import (
     mesh_to_world_matrix,
     mitsuba_scene_dict,
     plane_normal_cam,
+    rotation_from_z,
 )
 from simtest.render import wavefront
 from simtest.render.endoscope import camera_model, guide_radius_mm, light_rig, sample_positions, uses_endoscope
@@ -436,6 +437,8 @@ def tissue_texture(spec: SceneSpec):
         t = dataclasses.replace(t, wall_base=TISSUE_ALBEDO[mat.wall_tissue],
                                 wall_centre=tuple(float(x) for x in mat.wall_centre_mm),
                                 wall_radius=float(mat.wall_radius_mm))
+    if spec.geometry.type == "plane":  # the vessels in the plane's own axes (its texture frame: the camera's)
+        t = dataclasses.replace(t, uv_axes=rotation_from_z(plane_normal_cam(spec.geometry))[:, :2].T.copy())
     return in_camera(t, cam_to_texture_matrix(spec))
 
 
@@ -897,7 +900,7 @@ def _render_endoscope(spec: SceneSpec, seed: int, variant: str) -> RenderResult:
     res = {"normals_raw": np.where(mask[..., None], n, 0.0), "position_raw": np.where(mask[..., None], p, 0.0),
            "mask": mask}
     relief = wavefront.relief_normals(p, n, texture, defer=True) if texture is not None else None
-    alb = wavefront.albedo_map(p, texture, defer=True) if texture is not None else None
+    alb = wavefront.albedo_map(p, texture, n, defer=True) if texture is not None else None
     starts = [mesh_highlight_candidates(res["normals_raw"], res["position_raw"], mask, light.position)
               if mesh is not None else None for light in rig.lights]
     spec_img = np.zeros(n_pix, np.float32)

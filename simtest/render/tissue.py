@@ -1,4 +1,4 @@
-"""Procedural tissue: seeded RGB albedo with vessel-like patterns, micro-relief and a wet specular film.
+"""Procedural tissue: seeded RGB albedo with branching vessels, micro-relief and a wet specular film.
 
 Everything here is a closed-form function of the surface point, written once for numpy and Dr.Jit
 alike (the ``xp`` argument: ``numpy`` or ``drjit``), so the renderer shades with it in Mitsuba's
@@ -15,9 +15,12 @@ wavefront and the ground truth evaluates the very same function per pixel:
   kernels; so are the relief's amplitudes (its height and Hurst exponent) and the film's
   roughness, so that a fit or a sweep over them compiles once.
 - **Albedo** (diffuse RGB): a base colour per tissue (:data:`TISSUE_ALBEDO`) times a smooth
-  colour variation, darkened along vessel-like lines: the zero set of a smooth random field
-  ``g(q)`` (a sum of seeded plane waves), drawn as ``exp(-(g / w)^2)`` with a thin ``w``, which
-  gives branching, meandering curves like the submucosal vessels seen through mucosa.
+  colour variation, times the transmission of seeded vessel networks (:mod:`simtest.render.vessels`:
+  branching, tapering trees grown by space colonisation at two depths, blurred and greyer with
+  depth), a texture of the surface's own 2D coordinates ``(u, v)``, mm (:func:`surface_uv`): the
+  plane's own axes on a plane (:attr:`TissueParams.uv_axes`), elsewhere a triplanar projection of
+  the texture-frame point blended by its normal (Geiss 2007, "Generating complex procedural
+  terrains using the GPU", GPU Gems 3, ch. 1: weights ``|n_i|^4``).
 - **Micro-relief**: a height field ``h(q) = sum_j a_j sin(k_j . q + phi_j)``, a random-wave
   (Longuet-Higgins) sum of :data:`N_RELIEF_WAVES` plane waves with isotropic seeded directions,
   uniform phases and wavelengths drawn stratified log-uniformly between ``relief_min_mm`` and
@@ -50,9 +53,13 @@ import math
 from dataclasses import dataclass
 
 import numpy as np
+from scipy.ndimage import map_coordinates
+
+from simtest.render.vessels import TILE_MM, transmission_map
 
 __all__ = ["TISSUE_ALBEDO", "TISSUE_SEED_KEY", "N_WAVES", "N_RELIEF_WAVES", "RELIEF_HURST", "RELIEF_MIN_MM",
-           "TissueParams", "tissue_params", "in_camera", "albedo", "relief_height", "relief_normal",
+           "TissueParams", "tissue_params", "in_camera", "surface_uv", "vessel_transmission", "albedo",
+           "relief_height", "relief_normal",
            "film_alpha", "specular_lobe"]
 
 #: Linear-RGB diffuse albedo of each tissue before variation. Mucosa: pink (sRGB about (225, 140,
@@ -72,7 +79,7 @@ TISSUE_ALBEDO = {"mucosa": (0.75, 0.26, 0.20), "liver": (0.35, 0.12, 0.09),
 #: Stable key of the tissue texture stream in ``SeedSequence([seed, TISSUE_SEED_KEY])``.
 TISSUE_SEED_KEY = 0x7155E
 
-#: Plane waves in each albedo field (colour variation, vessels).
+#: Plane waves of the albedo's colour variation (and of the film's thickness field).
 N_WAVES = 12
 #: Plane waves of the micro-relief spectrum.
 N_RELIEF_WAVES = 40
@@ -92,9 +99,9 @@ class TissueParams:
     base: tuple[float, float, float]
     colour_k: np.ndarray  # (N, 3) wave vectors, rad/mm
     colour_phase: np.ndarray  # (N,)
-    vessel_k: np.ndarray
-    vessel_phase: np.ndarray
-    vessel_width: float
+    #: (H, W, 3) per-channel vessel transmission over a tile TILE_MM wide, repeated mirrored
+    #: (:func:`simtest.render.vessels.transmission_map`); None: no vessels.
+    vessel_map: np.ndarray | None
     relief_k: np.ndarray  # (M, 3)
     relief_phase: np.ndarray  # (M,)
     relief_amp: np.ndarray  # (M,) mm; the RMS of the sum is the relief's RMS height
@@ -111,6 +118,9 @@ class TissueParams:
     film_k: np.ndarray | None = None
     film_phase: np.ndarray | None = None
     film_variation: float = 0.0
+    #: (2, 3) orthonormal in-surface axes (texture frame) of a plane: ``(u, v) = (e1 . q, e2 . q)``;
+    #: None: the triplanar projection (:func:`surface_uv`).
+    uv_axes: np.ndarray | None = None
 
 
 def _directions(rng: np.random.Generator, n: int) -> np.ndarray:
@@ -158,7 +168,8 @@ def tissue_params(kind: str, seed: int, relief_mm: float, relief_scale_mm: float
     relief_scale_mm : float
         Longest wavelength of the micro-relief spectrum, mm.
     vessel_scale_mm : float
-        Typical spacing of the vessel pattern, mm.
+        A third of the colour variation's typical wavelength, mm. (The vessels are
+        :data:`simtest.render.vessels.VESSEL_LAYERS`, grown from ``seed``.)
     relief_min_mm : float, optional
         Shortest wavelength of the micro-relief, mm; default ``min(RELIEF_MIN_MM, relief_scale_mm)``.
     relief_hurst : float
@@ -182,12 +193,11 @@ def tissue_params(kind: str, seed: int, relief_mm: float, relief_scale_mm: float
         raise ValueError(f"relief_min_mm {lo} must be in (0, relief_scale_mm = {relief_scale_mm}]")
     rng = np.random.default_rng(np.random.SeedSequence([int(seed), TISSUE_SEED_KEY]))
     ck, cp = _waves(rng, 3.0 * vessel_scale_mm)
-    vk, vp = _waves(rng, vessel_scale_mm)
+    _waves(rng, vessel_scale_mm)  # the former vessel field's draw: keeps the relief's and film's streams
     rk, rp, amp = relief_spectrum(rng, relief_mm, lo, relief_scale_mm, relief_hurst)
-    width = 0.06 if kind == "mucosa" else 0.03
     fk, fp = _waves(rng, film_scale_mm)  # drawn last: the other fields do not depend on it
     colour = TISSUE_ALBEDO[kind] if base is None else tuple(float(x) for x in base)
-    return TissueParams(colour, ck, cp, vk, vp, width, rk, rp, amp, film_k=fk, film_phase=fp,
+    return TissueParams(colour, ck, cp, transmission_map(int(seed)), rk, rp, amp, film_k=fk, film_phase=fp,
                         film_variation=float(film_variation))
 
 
@@ -242,27 +252,82 @@ def _field(xp, p, k, phase):
     return s * math.sqrt(2.0 / len(phase))
 
 
-def albedo(xp, p, t: TissueParams):
+def _np_texture(tex: np.ndarray, s, r):
+    """Bilinear lookup of ``tex`` (H, W, C) at texture coordinates ``(s, r)`` (the tile is [0, 1]^2,
+    texel centres at ``(j + 0.5) / W``), repeated mirrored: Dr.Jit's ``Texture2f`` with linear
+    filtering and ``WrapMode.Mirror``, in float64."""
+    h, w = tex.shape[:2]
+    s, r = np.broadcast_arrays(np.asarray(s, dtype=np.float64), np.asarray(r, dtype=np.float64))
+    coords = np.stack([r.ravel() * h - 0.5, s.ravel() * w - 0.5])
+    return tuple(map_coordinates(tex[..., c].astype(np.float64), coords, order=1, mode="reflect").reshape(s.shape)
+                 for c in range(tex.shape[2]))
+
+
+#: Offsets (mm) of the triplanar projections' (u, v) in the tile, so the three views of a point
+#: show different parts of the network.
+_TRIPLANAR_OFFSET_MM = ((0.0, 0.0), (TILE_MM / 3.0, 2.0 * TILE_MM / 3.0), (2.0 * TILE_MM / 3.0, TILE_MM / 3.0))
+
+
+def surface_uv(xp, q, nq, t: TissueParams):
+    """The surface's 2D coordinates (u, v), mm, at texture-frame points ``q``, and their weights.
+
+    Returns a list of ``(weight, u, v)``: one term with weight 1 on a plane
+    (:attr:`TissueParams.uv_axes`) or where no normal is given (the texture frame's (x, y)); else
+    three, the projections along the texture frame's axes weighted by ``|n_i|^4 / sum_j |n_j|^4``
+    of the texture-frame normal ``nq`` (triplanar mapping, module notes).
+    """
+    if t.uv_axes is not None:
+        e = t.uv_axes
+        return [(1.0, q[0] * float(e[0, 0]) + q[1] * float(e[0, 1]) + q[2] * float(e[0, 2]),
+                 q[0] * float(e[1, 0]) + q[1] * float(e[1, 1]) + q[2] * float(e[1, 2]))]
+    if nq is None:
+        return [(1.0, q[0], q[1])]
+    w = [nq[i] * nq[i] * nq[i] * nq[i] for i in range(3)]
+    inv = 1.0 / xp.maximum(w[0] + w[1] + w[2], 1e-30)  # a zero normal (a ray's miss): no vessels, not NaN
+    (ax, ay), (bx, by), (cx, cy) = _TRIPLANAR_OFFSET_MM
+    return [(w[0] * inv, q[1] + ax, q[2] + ay), (w[1] * inv, q[2] + bx, q[0] + by),
+            (w[2] * inv, q[0] + cx, q[1] + cy)]
+
+
+def vessel_transmission(xp, q, nq, t: TissueParams):
+    """Per-channel transmission (R, G, B) of the vessel networks at texture-frame points ``q``
+    (normals ``nq`` or None; :func:`surface_uv`); 1 where :attr:`TissueParams.vessel_map` is None."""
+    if t.vessel_map is None:
+        return 1.0, 1.0, 1.0
+    look = getattr(xp, "texture", None) or _np_texture
+    out = None
+    for w, u, v in surface_uv(xp, q, nq, t):
+        # the tile centred on the origin of (u, v): its mirror lines sit TILE_MM / 2 away from it
+        rgb = look(t.vessel_map, u * (1.0 / TILE_MM) + 0.5, v * (1.0 / TILE_MM) + 0.5)
+        out = [w * x for x in rgb] if out is None else [o + w * x for o, x in zip(out, rgb)]
+    return tuple(out)
+
+
+def albedo(xp, p, t: TissueParams, n=None):
     """Diffuse RGB albedo at surface points ``p`` = (x, y, z) arrays, mm (the camera frame with
     :func:`in_camera`, else the texture frame); the wall's tissue (:attr:`TissueParams.wall_base`)
     where the point is at least ``wall_radius`` from ``wall_centre``.
 
+    ``n``: the surface normals at ``p`` (same frame), which the vessels' triplanar mapping weighs
+    (:func:`surface_uv`); None: the texture frame's (x, y) projection (a plane's own axes where
+    :attr:`TissueParams.uv_axes` is set, which need no normal).
+
     Returns a tuple of three arrays (R, G, B) in [0, 1].
     """
-    p, _ = _to_texture(xp, p, t)
-    var = _field(xp, p, t.colour_k, t.colour_phase)  # smooth, unit RMS
+    q, A = _to_texture(xp, p, t)
+    nq = n
+    if n is not None and A is not None:
+        nq = tuple(A[i][0] * n[0] + A[i][1] * n[1] + A[i][2] * n[2] for i in range(3))
+    var = _field(xp, q, t.colour_k, t.colour_phase)  # smooth, unit RMS
     wall = None
     if t.wall_base is not None:
-        d = [p[i] - float(t.wall_centre[i]) for i in range(3)]
+        d = [q[i] - float(t.wall_centre[i]) for i in range(3)]
         wall = (d[0] * d[0] + d[1] * d[1] + d[2] * d[2]) >= float(t.wall_radius) ** 2
-    g = _field(xp, p, t.vessel_k, t.vessel_phase)
-    vessel = xp.exp(-(g * g) / (t.vessel_width * t.vessel_width))
-    # Vessels absorb green and blue more than red (haemoglobin): darker and redder lines.
-    absorb = (0.25, 0.55, 0.45)
+    trans = vessel_transmission(xp, q, nq, t)
     out = []
     for c in range(3):
         base = t.base[c] if wall is None else xp.where(wall, t.wall_base[c], t.base[c])
-        a = base * (1.0 + 0.12 * var) * (1.0 - absorb[c] * vessel)
+        a = base * (1.0 + 0.12 * var) * trans[c]
         out.append(xp.minimum(xp.maximum(a, 0.0), 1.0))
     return tuple(out)
 

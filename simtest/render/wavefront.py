@@ -297,6 +297,26 @@ def _light_at(light, p, offset=None):
     return lp, wo, weight
 
 
+#: Dr.Jit textures of the tissue's arrays, keyed by the array's id and the Mitsuba variant (the
+#: array is kept alive beside its texture).
+_TEXTURES: dict[tuple[int, str], tuple[np.ndarray, object]] = {}
+
+
+def _texture(tex: np.ndarray):
+    """``mi.Texture2f`` of ``tex`` (linear filter, mirrored repeat), cached for the last few arrays."""
+    dr, mi = require("drjit"), require("mitsuba")
+    key = (id(tex), mi.variant())
+    hit = _TEXTURES.get(key)
+    if hit is not None and hit[0] is tex:
+        return hit[1]
+    t = mi.Texture2f(mi.TensorXf(np.ascontiguousarray(tex, dtype=np.float32)), filter_mode=dr.FilterMode.Linear,
+                     wrap_mode=dr.WrapMode.Mirror)
+    if len(_TEXTURES) >= 4:
+        _TEXTURES.pop(next(iter(_TEXTURES)))
+    _TEXTURES[key] = (tex, t)
+    return t
+
+
 def _dr_xp():
     """The numpy names :mod:`simtest.render.tissue` uses, on Dr.Jit arrays (a namespace)."""
     dr = require("drjit")
@@ -307,6 +327,12 @@ def _dr_xp():
         sin, cos, exp, sqrt = staticmethod(dr.sin), staticmethod(dr.cos), staticmethod(dr.exp), staticmethod(dr.sqrt)
         maximum, minimum, power = staticmethod(dr.maximum), staticmethod(dr.minimum), staticmethod(dr.power)
         where = staticmethod(dr.select)
+
+        @staticmethod
+        def texture(tex: np.ndarray, s, r):
+            """Bilinear, mirrored lookup of an (H, W, C) array at texture coordinates (s, r) in
+            [0, 1] over the tile (``mi.Texture2f``, uploaded once per array)."""
+            return _texture(tex).eval(mi.Point2f(s, r))
 
         @staticmethod
         def const(x: float):
@@ -343,7 +369,8 @@ def relief_normals(p: np.ndarray, n: np.ndarray, texture, *, defer: bool = False
     return pending if defer else pending.fetch()
 
 
-def albedo_map(p: np.ndarray, texture, *, defer: bool = False) -> np.ndarray | Pending:
+def albedo_map(p: np.ndarray, texture, n: np.ndarray | None = None, *,
+               defer: bool = False) -> np.ndarray | Pending:
     """Diffuse albedo of the tissue (:func:`simtest.render.tissue.albedo`) at surface points,
     evaluated in Dr.Jit (float32) as the renderer shades with it.
 
@@ -353,6 +380,9 @@ def albedo_map(p: np.ndarray, texture, *, defer: bool = False) -> np.ndarray | P
         Surface points, camera frame, mm (``texture`` in the camera frame,
         :func:`simtest.render.tissue.in_camera`).
     texture : simtest.render.tissue.TissueParams
+    n : ndarray of shape (..., 3), optional
+        Surface normals at ``p``, camera frame: the vessels' triplanar mapping weighs them, as the
+        renderer does (:func:`simtest.render.tissue.albedo`).
     defer : bool
         Queue the kernel and return a :class:`Pending` whose ``fetch()`` gives the result.
 
@@ -363,7 +393,9 @@ def albedo_map(p: np.ndarray, texture, *, defer: bool = False) -> np.ndarray | P
     """
     dr, mi = require("drjit"), require("mitsuba")
     p_dr = [mi.Float(np.ascontiguousarray(p[..., i].ravel(), dtype=np.float32)) for i in range(3)]
-    out = tuple(tissue.albedo(_dr_xp(), p_dr, texture))
+    n_dr = None if n is None else [mi.Float(np.ascontiguousarray(n[..., i].ravel(), dtype=np.float32))
+                                   for i in range(3)]
+    out = tuple(tissue.albedo(_dr_xp(), p_dr, texture, n_dr))
     dr.eval(*out)
     pending = Pending(out, lambda r, g, b: np.stack([r, g, b], axis=-1).reshape(p.shape))
     return pending if defer else pending.fetch()
@@ -409,7 +441,7 @@ def shade_tissue(scene, d: np.ndarray, rig: LightRig, texture, material, *, shad
     n = dr.select(dr.dot(n, ray.d) > 0, -n, n)  # facing the camera
     p = (si.p.x, si.p.y, si.p.z)
     ns = tissue.relief_normal(xp, p, (n.x, n.y, n.z), texture)
-    alb = tissue.albedo(xp, p, texture)
+    alb = [dr.select(valid, a, 0.0) for a in tissue.albedo(xp, p, texture, (n.x, n.y, n.z))]  # misses: 0, not NaN
     wi = -ray.d
     wi = (wi.x, wi.y, wi.z)
     rgb = [mi.Float(0.0), mi.Float(0.0), mi.Float(0.0)]
