@@ -217,7 +217,7 @@ def test_every_compiled_kernel_the_reconstruction_calls_is_timed():
     # the in-place row is the kernels' whole share only if the pipeline calls each of them as an
     # attribute of its module (a name imported from it would escape the timer)
     root = Path(bench.__file__).resolve().parent / "reconstruct"
-    alias = {"_kernels": "simtest.reconstruct._kernels", "_dk": "simtest.reconstruct._detect_kernels",
+    alias = {"_kernels": "simtest.reconstruct._kernels",
              "_fit_kernels": "simtest.reconstruct._fit_kernels",
              "_estimator_kernels": "simtest.reconstruct._estimator_kernels",
              "_lightaware_kernels": "simtest.reconstruct._lightaware_kernels"}
@@ -227,7 +227,7 @@ def test_every_compiled_kernel_the_reconstruction_calls_is_timed():
         if path.stem in {m.rsplit(".", 1)[1] for m in bench.KERNEL_MODULES}:
             continue
         text = path.read_text()
-        for a, name in re.findall(r"\b(_kernels|_dk|_fit_kernels|_estimator_kernels|_lightaware_kernels)\.([A-Za-z_]\w*)\(", text):
+        for a, name in re.findall(r"\b(_kernels|_fit_kernels|_estimator_kernels|_lightaware_kernels)\.([A-Za-z_]\w*)\(", text):
             called.add((alias[a], name))
         for mod, names in re.findall(r"from simtest\.reconstruct\.(_\w*kernels) import ([^\n]+)", text):
             imported = {n.split(" as ")[0].strip() for n in names.split(",")}
