@@ -11,9 +11,6 @@ from hypothesis import strategies as st
 from simtest.reconstruct.detect import (
     BACKGROUND_DIV,
     BACKGROUND_PLATEAU_FACTOR,
-    _gray_and_grey,
-    _median,
-    _gray_native,
     auto_smooth_sigma_px,
     background_side_px,
     clipped_mask,
@@ -24,6 +21,7 @@ from simtest.reconstruct.detect import (
     mask_components,
     validate_image,
 )
+from simtest.reconstruct.detect_pixels import _gray_and_grey, _gray_native, _median
 from simtest.reconstruct.pipeline import _is_gray
 
 
@@ -355,7 +353,7 @@ def test_the_noise_of_uint8_rows_by_counting_is_numpys_median(seed, h, w, kind):
     # the 8-bit path reads both medians off histograms of integers; the numpy form (two
     # np.median calls on the float32 differences) must give the same float, ties and even counts
     # included
-    from simtest.reconstruct.detect import _noise_sigma_of_rows
+    from simtest.reconstruct.detect_pixels import _noise_sigma_of_rows
 
     rng = np.random.default_rng(seed)
     if kind == "uniform":
@@ -378,7 +376,7 @@ def _dark_corner_components_by_labels(dark):
     reduced image (the reference of the corners' flood fills)."""
     import cv2
 
-    from simtest.reconstruct.detect import connected_components_boxes
+    from simtest.reconstruct.detect_pixels import connected_components_boxes
 
     n, lab, stats = connected_components_boxes(dark)
     if n <= 1:
@@ -400,7 +398,7 @@ def test_the_dark_corner_components_by_flood_fill_are_the_labellings(seed, shape
     # a lit disc (the field of view) of random size and centre on a dark mask, dark speckle
     # inside it and lit speckle outside (text on the border): the components holding the
     # corners, their areas (the 1 % to 60 % test) and the None cases must be the labelling's
-    from simtest.reconstruct.detect import _dark_corner_components
+    from simtest.reconstruct.detect_pixels import _dark_corner_components
 
     rng = np.random.default_rng(seed)
     h, w = shape
@@ -432,10 +430,12 @@ def test_detection_hands_over_its_smoothing_and_the_pipeline_smooths_the_unround
     rng = np.random.default_rng(5)
     img = rng.integers(0, 256, (40, 60, 3), dtype=np.uint8)
     det = detect_specularities(img, smooth_sigma_px=1.5, method="local_peak")
-    want = cv2.GaussianBlur(luma(img).astype(np.float32), (0, 0), 1.5, borderType=cv2.BORDER_REFLECT)
+    want = cv2.GaussianBlur(det.luma32, (0, 0), 1.5, borderType=cv2.BORDER_REFLECT)
     assert det.smoothed.dtype == np.float32 and not det.smoothed.flags.writeable
     assert np.array_equal(det.smoothed, want)
-    assert np.array_equal(det.luma32, luma(img).astype(np.float32)) and not det.luma32.flags.writeable
+    # the float32 luma (OpenCV's weighted sum in float32) is the float64 luma to float32 rounding
+    np.testing.assert_allclose(det.luma32, luma(img), rtol=2.0**-22, atol=0)
+    assert not det.luma32.flags.writeable
     assert np.array_equal(_frame_luma_smoothing(img, det.smoothed, 1.5, det.luma32), want)
     grey = np.repeat(img[:, :, :1], 3, axis=2)
     det = detect_specularities(grey, smooth_sigma_px=1.5, method="local_peak")
@@ -489,8 +489,8 @@ def test_a_smoothed_frame_detected_at_half_resolution_has_the_full_resolutions_c
     assert half.smoothed is None and full.smoothed is not None  # the path taken
     assert len(half.candidates) == len(full.candidates) == 10
     for a, b in zip(half.candidates, full.candidates):
-        # each window is smoothed by the compiled taps, in float32 like OpenCV's but summed in
-        # another order: the peaks within 1e-3 grey levels (a few float32 ulps of 255), the BPs
+        # each window is smoothed by OpenCV alone (its own taps and rounding against the
+        # frame's): the peaks within 1e-3 grey levels (a few float32 ulps of 255), the BPs
         # (parabola vertices of those values, or a plateau's centroid) within 0.01 px
         assert np.abs(a.bp_uv - b.bp_uv).max() < 0.01 and abs(a.peak - b.peak) < 1e-3
         assert a.saturated == b.saturated
@@ -558,7 +558,7 @@ def test_the_scope_border_from_the_frames_2x2_means_is_its_own(seed, h, w):
     """``_scope_border`` given the means of the gray's 2 x 2 blocks (``local_peak_mask``'s first
     reduction) reduces from them: the same border as from the gray itself, on frames with a dark
     ring and odd sides (the rows and columns no 4 x 4 block fills are left out alike)."""
-    from simtest.reconstruct.detect import _area_reduced, _scope_border
+    from simtest.reconstruct.detect_pixels import _area_reduced, _scope_border
 
     rng = np.random.default_rng(seed)
     h, w = 2 * h + int(rng.integers(0, 2)), 2 * w + int(rng.integers(0, 2))

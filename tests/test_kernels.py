@@ -13,8 +13,7 @@ import numpy as np
 from hypothesis import example, given, settings
 from hypothesis import strategies as st
 
-from simtest.geometry.conics import Ellipse
-from simtest.reconstruct import _kernels, pipeline, verify
+from simtest.reconstruct import _kernels
 from simtest.reconstruct.isophote import (Isophote, _cut_and_contour, _extract, _region, extract_isophote,
                                          isophote_cut_by_roi, polygon_contains)
 
@@ -190,40 +189,6 @@ def test_border_median_of_a_nan_is_nan():
     v[0, 2] = np.nan
     assert np.isnan(_kernels.border_median(v))
     assert np.isnan(np.median(np.concatenate([v[0], v[-1], v[1:-1, 0], v[1:-1, -1]])))
-
-
-@given(seed=st.integers(0, 2**32 - 1), dtype=st.sampled_from([np.uint8, np.uint16, np.float32, np.float64]),
-       strided=st.booleans())
-@settings(max_examples=60, deadline=None)
-def test_the_compiled_luma_is_the_blas_products_bits(seed, dtype, strided):
-    # luma_rgb replaces numpy's image @ weights (OpenBLAS); detect.luma and every ROI's luma use it
-    from simtest.reconstruct.detect import _LUMA, _LUMA_WEIGHTS, luma, packed_rows
-
-    rng = np.random.default_rng(seed)
-    # w >= 2: numpy's product of a one-column image, shape (h, 1, 3), is a stack of h 1 x 3
-    # products, which numpy computes without fused multiply-adds, not OpenBLAS's matrix-vector
-    # product (the last bit differs); the kernel gives a pixel the same bits whatever the width
-    # (checked below), and no ROI is one pixel wide
-    h, w = int(rng.integers(1, 80)), int(rng.integers(2, 80))
-    if np.issubdtype(dtype, np.integer):
-        img = rng.integers(0, np.iinfo(dtype).max, (h, w + 3, 3), dtype=dtype, endpoint=True)
-    else:
-        img = (rng.random((h, w + 3, 3)) * rng.choice([1.0, 255.0, 1e4])).astype(dtype)
-    img = img[:, 2 : 2 + w] if strided else img[:, :w].copy()
-    want = img.astype(np.float64) @ _LUMA
-    got = _kernels.luma_rgb(img, *_LUMA_WEIGHTS)
-    assert got.dtype == np.float64 and got.shape == (h, w)
-    assert got.tobytes() == want.tobytes()
-    assert luma(img).tobytes() == want.tobytes()
-    assert _kernels.luma_rgb(img[:, 1:2], *_LUMA_WEIGHTS).tobytes() == got[:, 1:2].copy().tobytes()
-    # luma_rows (the packed rows of a frame, or of a slice of one, as detect.luma and the
-    # pipeline's float32 luma read them): the same bits, in float64 and float32
-    rows = packed_rows(img)
-    assert rows is not None and packed_rows(img[:, :, [0, 1, 2, 0]]) is None
-    out = np.empty((h, w))
-    _kernels.luma_rows(rows, *_LUMA_WEIGHTS, out)
-    assert out.tobytes() == want.tobytes()
-    assert pipeline._luma32(img).tobytes() == _kernels.luma_rgb32(img, *_LUMA_WEIGHTS).tobytes()
 
 
 def _smooth_noise_region(rng):
@@ -407,7 +372,7 @@ def test_the_float32_luma_and_the_gray_test():
     assert np.array_equal(_kernels.luma_rgb32(img, *w), gray.astype(np.float32))
     img[3, 4, 1] += 1
     assert not _kernels.is_gray(img)
-    assert np.array_equal(_kernels.luma_rgb32(img, *w), _kernels.luma_rgb(img, *w).astype(np.float32))
+    assert np.array_equal(_kernels.luma_rgb32(img, *w), (img.astype(np.float64) @ np.array(w)).astype(np.float32))
 
 
 @settings(max_examples=40, deadline=None)
@@ -422,246 +387,6 @@ def test_count_enclosed_on_points_sorted_by_u_is_the_same_count(seed, n_points):
     for skip in (-1, *range(min(n_points, 3))):
         want = _kernels.count_enclosed(poly, pts, int(order[skip]) if skip >= 0 else -1)
         assert _kernels.count_enclosed_sorted(poly, srt, np.ascontiguousarray(srt[:, 0]), skip) == want
-
-
-def _other_peaks_loop(top, xs, ys, bps, ij, reach, height, noise, ellipses, todo):
-    """verify's neighbour count as it was before the compiled call: a k-d tree's ball around each
-    BP, then verify._other_peaks (OpenCV's labels) on each candidate that has peaks in it."""
-    from scipy.spatial import cKDTree
-
-    from simtest.reconstruct import verify
-
-    out = np.zeros(len(todo), np.int64)
-    tree = cKDTree(np.c_[xs, ys].astype(np.float64))
-    for i, (k, idx) in enumerate(zip(todo, tree.query_ball_point(bps[todo], reach[todo]))):
-        if idx:
-            out[i] = verify._other_peaks(top, xs[idx], ys[idx], ij[k], reach[k], height[k], noise,
-                                         None if ellipses is None else ellipses[k])
-    return out
-
-
-@given(seed=st.integers(0, 2**32 - 1), with_ellipses=st.booleans())
-@settings(max_examples=150, deadline=None)
-def test_other_peaks_counts_the_neighbours_verifys_loop_counted(seed, with_ellipses):
-    """The compiled neighbour count (verify._other_peaks_compiled) against the loop of
-    verify._other_peaks it replaced, on random top-hats of Gaussian lobes, plateaus and noise
-    (valleys above and below the level, peaks on the BP's own lobe and on others, BPs at the
-    frame's edges, below the level, and inside and outside their ellipses)."""
-    from simtest.geometry.conics import Ellipse
-    from simtest.reconstruct import verify
-
-    rng = np.random.default_rng(seed)
-    h, w = int(rng.integers(20, 90)), int(rng.integers(20, 90))
-    yy, xx = np.mgrid[0:h, 0:w]
-    top = rng.normal(0, 0.5, (h, w))
-    for _ in range(int(rng.integers(1, 12))):
-        cy, cx, s, a = rng.uniform(0, h), rng.uniform(0, w), rng.uniform(0.7, 6), rng.uniform(5, 60)
-        top += a * np.exp(-((yy - cy) ** 2 + (xx - cx) ** 2) / (2 * s * s))
-    top = np.maximum(np.round(top, int(rng.integers(0, 2))), 0.0).astype(np.float32)
-    ys, xs = np.nonzero((top >= np.maximum.reduce([np.roll(np.roll(top, dy, 0), dx, 1)
-                                                   for dy in (-1, 0, 1) for dx in (-1, 0, 1)])) & (top > 2))
-    xs, ys = xs.astype(np.int64), ys.astype(np.int64)
-    if not len(xs):
-        return
-    n = int(rng.integers(1, 15))
-    pick = rng.integers(0, len(xs), n)
-    bps = np.c_[xs[pick], ys[pick]] + rng.uniform(-0.6, 0.6, (n, 2))
-    bps[rng.random(n) < 0.2] = rng.uniform(0, [w, h], (1, 2))  # some BPs not on a peak
-    ij = np.clip(np.rint(bps).astype(np.int64), 0, [w - 1, h - 1])
-    reach = rng.uniform(1, 40, n)
-    reach[rng.random(n) < 0.2] = np.nan
-    height = top[ij[:, 1], ij[:, 0]]
-    ellipses = None
-    if with_ellipses:
-        ellipses = [None if rng.random() < 0.2 else
-                    Ellipse(center=bps[k] + rng.normal(0, 1, 2), semi_axes=np.sort(rng.uniform(0.5, 12, 2))[::-1],
-                            angle_rad=float(rng.uniform(-np.pi, np.pi))) for k in range(n)]
-    todo = np.flatnonzero(np.isfinite(reach))
-    if not len(todo):
-        return
-    noise = float(rng.uniform(0, 3))
-    args = (top, xs, ys, bps, ij, reach, height, noise, ellipses, todo)
-    np.testing.assert_array_equal(verify._other_peaks_compiled(*args), _other_peaks_loop(*args))
-
-
-def test_other_peaks_meets_each_case():
-    """A peak on the BP's own lobe, one beyond a valley, one too small, one on the background."""
-    from simtest.reconstruct import verify
-
-    top = np.zeros((30, 60), np.float32)
-    top[10:20, 5:15] = 100.0  # the candidate's lobe, 100 px
-    top[14, 12] = 101.0  # a peak on its own lobe: not a neighbour
-    top[10:20, 30:40] = 90.0  # another lobe beyond a valley: a neighbour
-    top[15, 50] = 95.0  # a one-pixel glint: under a tenth of the lobe's area
-    xs, ys = np.array([12, 35, 50], np.int64), np.array([14, 15, 15], np.int64)
-    bps = np.array([[12.0, 14.0]])
-    ij = bps.astype(np.int64)
-    args = (top, xs, ys, bps, ij, np.array([45.0]), np.array([100.0], np.float32), 1.0, None, np.array([0]))
-    assert verify._other_peaks_compiled(*args)[0] == 1 == _other_peaks_loop(*args)[0]
-
-
-@given(seed=st.integers(0, 2**32 - 1), h=st.integers(1, 30), w=st.integers(1, 30), plateau=st.booleans())
-@settings(max_examples=200, deadline=None)
-def test_top_hat_maxima_are_numpys_and_opencvs(seed, h, w, plateau):
-    """verify's top-hat and its 3 x 3 maxima above the floor, compiled, against the numpy and
-    OpenCV form they replace (np.maximum, cv2.dilate, np.flatnonzero), on quantised values
-    (plateaus: ties with neighbours), negative differences, and a floor rounded to float32."""
-    import cv2
-
-    rng = np.random.default_rng(seed)
-    g = rng.normal(10, 5, (h, w)).astype(np.float32)
-    if plateau:
-        g = np.round(g / 4) * 4
-    bg = rng.normal(8, 3, (h, w)).astype(np.float32)
-    floor = float(rng.uniform(0, 8)) + 1e-9  # not a float32: numpy rounds it to compare
-    want_top = np.maximum(g - bg, 0.0)
-    want = np.flatnonzero((want_top >= cv2.dilate(want_top, np.ones((3, 3), np.uint8))) & (want_top > floor))
-    top, mask = np.empty_like(g), np.empty((h, w), bool)
-    _kernels.top_hat_maxima(g, bg, np.float32(floor), top, mask)
-    assert top.tobytes() == want_top.tobytes()
-    np.testing.assert_array_equal(np.flatnonzero(mask), want)
-
-
-@given(seed=st.integers(0, 2**32 - 1), h=st.integers(1, 40), w=st.integers(1, 40))
-@settings(max_examples=200, deadline=None)
-def test_flat_pixels_are_numpys(seed, h, w):
-    """The flat mask of verify._panels, compiled, against its numpy form, on the 5 x 5 means of
-    a luma with flat, quantised and noisy parts (variances that round below zero included)."""
-    import cv2
-
-    rng = np.random.default_rng(seed)
-    g = np.round(rng.normal(100, rng.uniform(0, 3), (h, w)), int(rng.integers(0, 3))).astype(np.float32)
-    g[: h // 2] = np.float32(rng.uniform(0, 255))  # a flat part: m2 - m1^2 rounds about 0
-    m1, m2 = cv2.blur(g, (5, 5)), cv2.blur(g * g, (5, 5))
-    thr = float(rng.uniform(0, 1.5))
-    want = (np.sqrt(np.maximum(m2 - m1 * m1, 0.0)) < thr).astype(np.uint8)
-    out = np.empty((h, w), np.uint8)
-    n = _kernels.flat_pixels(m1, m2, np.float32(thr), out)
-    assert out.tobytes() == want.tobytes() and n == int(want.sum())
-
-
-@given(seed=st.integers(0, 2**32 - 1), h=st.integers(1, 40), w=st.integers(1, 40))
-@settings(max_examples=100, deadline=None)
-def test_label_areas_and_labels_in_are_numpys(seed, h, w):
-    """The label areas and the big labels' pixels of verify._panels, compiled, against
-    np.bincount and a table indexed by the labels."""
-    rng = np.random.default_rng(seed)
-    n = int(rng.integers(1, 12))
-    lab = rng.integers(0, n, (h, w)).astype(np.int32)
-    areas = _kernels.label_areas(lab, n)
-    np.testing.assert_array_equal(areas, np.bincount(lab.ravel(), minlength=n))
-    keep = (rng.random(n) < 0.5).astype(np.uint8)
-    out = np.empty((h, w), np.uint8)
-    _kernels.labels_in(lab, keep, out)
-    assert out.tobytes() == keep[lab].tobytes()
-
-
-@given(seed=st.integers(0, 2**32 - 1), h=st.integers(1, 20), w=st.integers(1, 20),
-       kind=st.sampled_from(["rgb8", "rgba8", "grey8", "rgb32nan", "grey64"]))
-@settings(max_examples=100, deadline=None)
-def test_rgb_gathers_are_numpys(seed, h, w, kind):
-    """_kernels.rgb_at_points and rgb_max9 (frame_evidence's colours at the maxima and the 3 x 3
-    maximum around each BP) against the numpy gathers they replaced: float32, a grey frame's
-    channel repeated, the window clipped at the sides, NaN propagated."""
-    rng = np.random.default_rng(seed)
-    c = {"rgb8": 3, "rgba8": 4, "grey8": 0, "rgb32nan": 3, "grey64": 0}[kind]
-    shape = (h, w, c) if c else (h, w)
-    if kind.endswith("8"):
-        img = rng.integers(0, 256, shape).astype(np.uint8)
-    else:
-        img = rng.normal(100.0, 30.0, shape).astype(np.float32 if "32" in kind else np.float64)
-        if "nan" in kind:
-            img[rng.random(shape) < 0.05] = np.nan
-    src = img[..., :3] if img.ndim == 3 else img  # frame_evidence's view (RGBA: not contiguous)
-    src3 = src if src.ndim == 3 else src[:, :, None]
-
-    def numpy_at(r, c):
-        v = src[r, c].astype(np.float32)
-        return v if src.ndim == 3 else np.repeat(v[..., None], 3, -1)
-    rows, cols = rng.integers(0, h, 25).astype(np.int64), rng.integers(0, w, 25).astype(np.int64)
-    np.testing.assert_array_equal(_kernels.rgb_at_points(src3, rows, cols), numpy_at(rows, cols))
-    dr, dc = np.repeat(np.arange(-1, 2), 3), np.tile(np.arange(-1, 2), 3)
-    want = numpy_at(np.clip(rows[:, None] + dr, 0, h - 1), np.clip(cols[:, None] + dc, 0, w - 1)).max(axis=1)
-    got = _kernels.rgb_max9(src3, rows, cols)
-    assert got.dtype == want.dtype and np.array_equal(got, want, equal_nan=True)
-
-
-@given(seed=st.integers(0, 2**32 - 1), h=st.integers(1, 30), w=st.integers(1, 30), n=st.integers(0, 5))
-@settings(max_examples=100, deadline=None)
-def test_in_windows_is_the_windows_coverage(seed, h, w, n):
-    """_kernels.in_windows (the maxima frame_evidence keeps on a frame measured whole) against
-    numpy's coverage of the windows, empty ones and none included."""
-    rng = np.random.default_rng(seed)
-    wins = np.array([(*sorted(rng.integers(0, h + 1, 2)), *sorted(rng.integers(0, w + 1, 2))) for _ in range(n)],
-                    np.int64).reshape(-1, 4)
-    cover = np.zeros((h, w), bool)
-    for r0, r1, c0, c1 in wins:
-        cover[r0:r1, c0:c1] = True
-    idx = rng.integers(0, h * w, 40).astype(np.int64)
-    assert _kernels.in_windows(idx, h, w, wins).tolist() == cover.ravel()[idx].tolist()
-
-
-@given(seed=st.integers(0, 2**32 - 1), h=st.integers(1, 40), w=st.integers(1, 40), fill=st.floats(0.02, 0.8),
-       min_area=st.integers(1, 40))
-@settings(max_examples=150, deadline=None)
-def test_big_component_counts_are_the_panel_maps_integral_sums(seed, h, w, fill, min_area):
-    """The panel pixels of each region counted from the mask's runs (_kernels.big_component_counts)
-    against what frame_evidence counted before: OpenCV's 8-connected labels, the components of
-    at least min_area px, their map summed over the region (regions clipped to the mask, empty
-    and reaching past its sides too)."""
-    from simtest.reconstruct.detect import connected_components
-    rng = np.random.default_rng(seed)
-    mask = (rng.random((h, w)) < fill).astype(np.uint8)
-    n, lab = connected_components(mask)
-    big = np.bincount(lab.ravel(), minlength=n) >= min_area
-    big[0] = False
-    panel = big[lab]
-    rr = np.sort(rng.integers(-3, max(h, w) + 3, (12, 4)), axis=1).astype(np.int64)
-    want = [int(panel[max(0, a):max(0, b), max(0, c):max(0, d)].sum()) for a, b, c, d in rr]
-    assert _kernels.big_component_counts(mask, float(min_area), rr).tolist() == want
-
-
-@given(seed=st.integers(0, 2**32 - 1), h=st.integers(1, 60), w=st.integers(1, 60), k=st.integers(1, 70),
-       quantised=st.booleans())
-@settings(max_examples=200, deadline=None)
-def test_the_compiled_opening_is_opencvs(seed, h, w, k, quantised):
-    """van Herk and Gil-Werman's running extremes give OpenCV's grey opening by a square, edges
-    replicated: the same values (minima and maxima are exact), squares wider than the array too."""
-    rng = np.random.default_rng(seed)
-    x = rng.normal(0.0, 10.0, (h, w)).astype(np.float32)
-    if quantised:  # ties
-        x = np.round(x / 5.0).astype(np.float32)
-    k |= 1
-    want = cv2.morphologyEx(x, cv2.MORPH_OPEN, np.ones((k, k), np.uint8), borderType=cv2.BORDER_REPLICATE)
-    got = _kernels.rect_opening(x, k)
-    # equal values (a tie of 0.0 and -0.0 may keep either sign, as OpenCV's SIMD min may)
-    assert got.dtype == np.float32 and np.array_equal(got, want)
-
-
-@given(seed=st.integers(0, 2**32 - 1), n=st.integers(1, 6), dtype=st.sampled_from([np.uint8, np.float32, np.float64]))
-@settings(max_examples=60, deadline=None)
-def test_the_surround_of_several_candidates_in_one_call_is_verifys_loop(seed, n, dtype):
-    """verify._surround_fractions (one compiled call) gives verify._surround_fraction's share of
-    each candidate, windows cut by the frame's edges included."""
-    rng = np.random.default_rng(seed)
-    h, w = 90, 120
-    yy, xx = np.mgrid[0:h, 0:w].astype(np.float64)
-    img = rng.uniform(0, 30, (h, w))
-    ells, ij, reach = [], [], []
-    for _ in range(n):
-        cu, cv = rng.uniform(0, w - 1), rng.uniform(0, h - 1)
-        s, q, ang = rng.uniform(1.5, 8.0), rng.uniform(0.4, 1.0), rng.uniform(0, np.pi)
-        c, si = np.cos(ang), np.sin(ang)
-        x, y = c * (xx - cu) + si * (yy - cv), -si * (xx - cu) + c * (yy - cv)
-        img += rng.uniform(50, 200) * np.exp(-0.5 * ((x / s) ** 2 + (y / (q * s)) ** 2))
-        r07 = np.sqrt(2 * np.log(1 / 0.7))
-        ells.append(Ellipse(np.array([cu, cv]), np.array([r07 * s, r07 * q * s]), ang))
-        ij.append([int(round(cu)), int(round(cv))])
-        reach.append(verify.NEIGHBOUR_REACH * r07 * s + verify.OWN_RADIUS_PX)
-    img = np.clip(img, 0, 255).astype(dtype)
-    ij, reach = np.array(ij), np.array(reach)
-    want = [verify._surround_fraction(img, e, b, r) for e, b, r in zip(ells, ij, reach)]
-    assert verify._surround_fractions(img, ells, ij, reach).tolist() == want
 
 
 @given(seed=st.integers(0, 2**32 - 1), coarse=st.booleans())
@@ -684,20 +409,6 @@ def test_the_counts_near_each_steps_multiples_are_numpys_reduceat(seed, coarse):
     want_later = np.array([windows[a + 1:b].max(axis=0) if b > a + 1 else np.zeros(hist.shape[1], np.int64)
                            for a, b in zip(mult_start, ends)])
     assert np.array_equal(later, want_later)
-
-
-@settings(max_examples=60, deadline=None)
-@given(st.integers(2, 20), st.integers(2, 20), st.integers(2, 8), st.sampled_from([1, 3]), st.integers(0, 2**31 - 1))
-def test_linear_at_points_is_opencvs_enlargement_read_at_those_pixels(sh, sw, f, channels, seed):
-    # the verifier reads the enlarged reduced opening at a few pixels only; the values are
-    # OpenCV's INTER_LINEAR ones, up to float32 rounding of values below 256 (2^-15 relative)
-    rng = np.random.default_rng(seed)
-    small = rng.uniform(0, 255, (sh, sw, channels)).astype(np.float32)
-    h, w = sh * f, sw * f
-    big = cv2.resize(small, (w, h), interpolation=cv2.INTER_LINEAR).reshape(h, w, channels)
-    rows, cols = rng.integers(0, h, 40), rng.integers(0, w, 40)
-    got = _kernels.linear_at_points(small, h, w, rows, cols)
-    assert np.allclose(got, big[rows, cols], rtol=0, atol=255 * 2.0 ** -15)
 
 
 @settings(max_examples=40, deadline=None)
@@ -752,9 +463,3 @@ def test_is_gray_packed_is_is_gray(seed, h, w, dtype, channel):
     from simtest.reconstruct.pipeline import _is_gray
 
     assert _is_gray(img) == want and _is_gray(img[:, ::-1]) == want  # packed, and not contiguous
-    # detection's test and copy of a gray frame's channel in one pass: the same answer, and where
-    # gray the R channel itself
-    out = np.zeros((h, w), dtype)
-    assert bool(_kernels.grey_channel_packed(img.reshape(h, -1), out)) == want
-    if want:
-        assert np.array_equal(out, img[..., 0])

@@ -352,17 +352,16 @@ def test_windowed_evidence_is_the_whole_frames_on_lobes_near_edges_and_corners(s
     kw = dict(full_scale=255.0, noise=NOISE, background_px=side, reach_px=np.array(reach), ellipses=ells)
     _same_evidence(frame_evidence(*args, **kw, windowed=False), frame_evidence(*args, **kw, windowed=True))
     # and the maxima inside the windows (read by the neighbour count only where a lobe is close)
-    from simtest.reconstruct import _kernels
-    from simtest.reconstruct.verify import _maxima_windows, _opening
+    from simtest.reconstruct import evidence_pixels as px
     g = gray.astype(np.float32)
-    bg = _opening(g, side)
+    bg_small, f = px.opening_small(g, side)
+    bg = cv2.resize(bg_small, (w, h), interpolation=cv2.INTER_LINEAR) if f > 1 else bg_small
     floor = np.float32(8.0 * NOISE)
-    top, is_max = np.empty_like(g), np.empty(g.shape, bool)
-    _kernels.top_hat_maxima(g, bg, floor, top, is_max)
+    top, is_max = px.top_hat_maxima(g, bg, floor)
     wins = [(int(rng.integers(0, h - 1)), int(rng.integers(1, h)), int(rng.integers(0, w - 1)), int(rng.integers(1, w)))
             for _ in range(3)]
     wins = [(min(a, b), max(a, b) + 1, min(c, d), max(c, d) + 1) for a, b, c, d in wins]
-    t_w, ys, xs = _maxima_windows(g, bg, floor, wins)
+    t_w, ys, xs = px.maxima_in_windows(g, bg_small, f, np.array(wins), floor)
     inside = np.zeros((h, w), bool)
     for r0, r1, c0, c1 in wins:
         inside[r0:r1, c0:c1] = True
@@ -470,43 +469,13 @@ def test_a_colour_frame_is_verified_in_the_luma_its_rois_are_smoothed_from():
     assert grays and all(c.args[0].dtype == np.uint8 for c in grays)  # detection's rounded gray only
 
 
-@settings(max_examples=60, deadline=None)
-@given(st.integers(0, 2**32 - 1), st.integers(3, 60), st.integers(3, 60), st.integers(0, 20),
-       st.sampled_from([np.uint8, np.uint16, np.float32, np.float64]), st.floats(0.05, 4.0))
-def test_maybe_flat_is_opencvs_blurred_variance_test(seed, h, w, margin, dtype, thr2):
-    """_kernels.maybe_flat (the running sums of _surely_no_panels) marks exactly the pixels that
-    the float64 5 x 5 blurs of OpenCV mark, on integer levels (where both sums are exact), on
-    windows at the frame's edges (reflected) and inside it."""
-    from simtest.reconstruct import _kernels
-
-    rng = np.random.default_rng(seed)
-    g = rng.integers(0, 6, (h, w)).astype(dtype)
-    g[rng.random((h, w)) < rng.random()] = 3  # flat patches
-    row0, col0 = int(rng.integers(0, h - 1)), int(rng.integers(0, w - 1))
-    row1, col1 = int(rng.integers(row0 + 1, h + 1)), int(rng.integers(col0 + 1, w + 1))
-    wr0, wr1, wc0, wc1 = max(0, row0 - margin), min(h, row1 + margin), max(0, col0 - margin), min(w, col1 + margin)
-    cr0, cr1, cc0, cc1 = max(0, wr0 - 2), min(h, wr1 + 2), max(0, wc0 - 2), min(w, wc1 + 2)
-    x = g[cr0:cr1, cc0:cc1].astype(np.float32).astype(np.float64)
-    m1 = cv2.blur(x, (5, 5), borderType=cv2.BORDER_REFLECT_101)[wr0 - cr0:wr1 - cr0, wc0 - cc0:wc1 - cc0]
-    m2 = cv2.blur(x * x, (5, 5), borderType=cv2.BORDER_REFLECT_101)[wr0 - cr0:wr1 - cr0, wc0 - cc0:wc1 - cc0]
-    want = ((m2 - m1 * m1) < thr2 + 1e-5 * m2).astype(np.uint8)
-    got = np.empty_like(want)
-    n = _kernels.maybe_flat(g[cr0:cr1, cc0:cc1], wr0 - cr0, wr1 - cr0, wc0 - cc0, wc1 - cc0, thr2, 1e-5, got)
-    assert np.array_equal(got, want)
-    assert n == int(want.sum())
-    g = g.astype(np.float64)
-    g[cr0, cc0] = np.nan
-    assert _kernels.maybe_flat(g[cr0:cr1, cc0:cc1], wr0 - cr0, wr1 - cr0, wc0 - cc0, wc1 - cc0, thr2, 1e-5, got) == -1
-
-
 @settings(max_examples=80, deadline=None)
 @given(st.integers(0, 2**32 - 1), st.integers(20, 120), st.integers(20, 120), st.integers(1, 6),
        st.sampled_from([np.uint8, np.float32]))
-def test_surely_no_panels_in_one_call_is_the_loops(seed, h, w, n_regions, dtype):
-    """verify._surely_no_panels (one compiled call: the windows' marks and a flood fill of their
-    components) proves what its loop of maybe_flat, OpenCV's labelling and numpy per region
-    (_surely_no_panels_loop, the reference) proves: flat patches of every size, cut by the windows
-    or not, at the frame's sides and inside it, and a non-finite pixel."""
+def test_surely_no_panels_is_proven_only_where_no_region_holds_a_panel(seed, h, w, n_regions, dtype):
+    """verify._surely_no_panels proves nothing false: where it answers True, the panel map over
+    the whole frame holds no pixel in any region (flat patches of every size, cut by the windows
+    or not, at the frame's sides and inside it); a non-finite pixel is never proven."""
     from simtest.reconstruct import verify
 
     rng = np.random.default_rng(seed)
@@ -521,11 +490,11 @@ def test_surely_no_panels_in_one_call_is_the_loops(seed, h, w, n_regions, dtype)
         rr.append((r0, int(rng.integers(r0 + 1, min(h, r0 + 30) + 1)), c0, int(rng.integers(c0 + 1, min(w, c0 + 30) + 1))))
     rr = np.array(rr, np.int64)
     noise = 3.0
-    assert verify._surely_no_panels(g, noise, rr) == verify._surely_no_panels_loop(g, noise, rr)
+    if verify._surely_no_panels(g, noise, rr):
+        assert not verify._panel_pixels_in(g.astype(np.float32), noise, rr).any()
     if dtype == np.float32:
         g[rr[0, 0], rr[0, 2]] = np.nan
         assert verify._surely_no_panels(g, noise, rr) is False
-        assert verify._surely_no_panels_loop(g, noise, rr) is False
 
 
 @settings(max_examples=20, deadline=None)
@@ -535,13 +504,12 @@ def test_the_opening_seeded_from_detections_half_means_is_the_grays(seed, shape)
     is _opening_small's of the gray to float32 rounding (the block means grouped otherwise: 1e-6
     relative leaves a margin of ~10), and frame_evidence reads it inside shared_passes; an odd
     block side is not seeded."""
-    from simtest.reconstruct import _detect_kernels, verify
+    from simtest.reconstruct import verify
     from simtest.reconstruct.detect import background_side_px
 
     rng = np.random.default_rng(seed)
     g = np.clip(rng.normal(60, 20, shape) + 150 * (rng.random(shape) < 0.01), 0, 255).astype(np.uint8)
-    half = np.empty((shape[0] // 2, shape[1] // 2), np.float32)
-    _detect_kernels.half_means_uint8(g, half)
+    half = cv2.resize(g.astype(np.float32), (shape[1] // 2, shape[0] // 2), interpolation=cv2.INTER_AREA)
     side = background_side_px(shape)
     want, f = verify._opening_small(g, side)
     with verify.shared_passes():
@@ -552,63 +520,19 @@ def test_the_opening_seeded_from_detections_half_means_is_the_grays(seed, shape)
     assert not verify.seed_opening(g, side, half)  # outside the block: nothing
 
 
-@settings(max_examples=30, deadline=None)
-@given(st.integers(0, 2**32 - 1), st.integers(1, 40), st.integers(1, 40), st.sampled_from(["gray8", "gray16", "luma"]),
-       st.floats(0.1, 30.0))
-def test_the_flat_map_in_one_pass_is_opencvs_blurs(seed, h, w, kind, thr):
-    """_kernels.flat_map (the 5 x 5 means of the luma and its square summed in float64) marks
-    the pixels that OpenCV's two float32 box filters and flat_pixels mark, on the gray of 8- and
-    16-bit frames (integer values: exact sums), with flat patches and at the frame's sides. On a
-    colour frame's unrounded float32 luma the sums of the squares span more than float64's 53
-    bits, so the two round them apart by an ulp: they may differ only where the exact variance
-    lies within a few float32 roundings of the mean square from the threshold (found by
-    hypothesis: a 2 x 14 luma at threshold 20, one pixel's variance 400 to 6e-3)."""
-    from simtest.reconstruct import _kernels
-    from simtest.reconstruct.pipeline import _luma32
-
-    rng = np.random.default_rng(seed)
-    if kind == "gray8":
-        g = rng.integers(0, 256, (h, w)).astype(np.float32)
-    elif kind == "gray16":
-        g = rng.integers(0, 65536, (h, w)).astype(np.float32)
-    else:
-        g = _luma32(rng.integers(0, 256, (h, w, 3), dtype=np.uint8))
-    g[rng.random((h, w)) < 0.4] = g.flat[0]  # flat patches
-    t = np.float32(thr if kind != "gray16" else 100 * thr)
-    want = np.empty((h, w), np.uint8)
-    n_want = _kernels.flat_pixels(cv2.blur(g, (5, 5)), cv2.blur(g * g, (5, 5)), t, want)
-    got = np.empty((h, w), np.uint8)
-    n_got = _kernels.flat_map(g, t, got)
-    if kind != "luma":
-        assert n_got == n_want and np.array_equal(got, want)
-        return
-    assert n_got == int(got.sum())
-    pad = np.pad(g.astype(np.float64), 2, mode="reflect")  # BORDER_REFLECT_101
-    win = np.lib.stride_tricks.sliding_window_view(pad, (5, 5))
-    m1, m2 = win.mean(axis=(2, 3)), (win * win).mean(axis=(2, 3))
-    near = np.abs((m2 - m1 * m1) - float(t) ** 2) <= 8 * 2.0**-23 * m2
-    assert np.array_equal(got[~near], want[~near])
-
-
 @settings(max_examples=40, deadline=None)
 @given(st.integers(0, 2**32 - 1), st.integers(1, 16), st.integers(1, 12), st.integers(1, 12))
-def test_an_rgb_frames_block_means_in_one_pass_are_numpys_and_opencvs(seed, f, hb, wb):
-    """_detect_kernels.packed_block_means_uint8 (verify._block_means of an 8-bit RGB frame) gives
-    the bits of the numpy and OpenCV form it replaced: each block's rows summed in uint16, times
-    float32(1 / f), then cv2.resize's INTER_AREA along the rows; for every factor it takes (1 is
-    left to the caller), on frames with saturated and dark pixels."""
-    from simtest.reconstruct import _detect_kernels, verify
+def test_an_rgb_frames_block_means_are_opencvs_area_reduction(seed, f, hb, wb):
+    """evidence_pixels.block_means of an 8-bit RGB frame (each block's rows summed in uint16,
+    then OpenCV's INTER_AREA along the rows) is OpenCV's INTER_AREA reduction of the float32
+    frame to float32 rounding (sums grouped otherwise: 1e-6 of 255), for every factor, on frames
+    with saturated and dark pixels."""
+    from simtest.reconstruct import evidence_pixels as px
 
     rng = np.random.default_rng(seed)
     h, w = f * hb, f * wb
     img = rng.integers(0, 256, (h, w, 3), dtype=np.uint8)
     img[rng.random((h, w)) < 0.3] = 255
     img[rng.random((h, w)) < 0.2] = 0
-    rows = img.reshape(h // f, f, w * 3).sum(axis=1, dtype=np.uint16).astype(np.float32)
-    rows *= np.float32(1.0 / f)
-    want = cv2.resize(rows.reshape(h // f, w, 3), (w // f, h // f), interpolation=cv2.INTER_AREA)
-    got = np.empty((h // f, w // f, 3), np.float32)
-    _detect_kernels.packed_block_means_uint8(img, f, got)
-    assert np.array_equal(got, want)
-    if f > 1:
-        assert np.array_equal(verify._block_means(img, f), want)
+    want = cv2.resize(img.astype(np.float32), (w // f, h // f), interpolation=cv2.INTER_AREA)
+    np.testing.assert_allclose(px.block_means(img, f), want, rtol=0, atol=255 * 1e-6)

@@ -58,9 +58,9 @@ from types import SimpleNamespace
 import cv2
 import numpy as np
 
-from simtest.reconstruct import _detect_kernels, _kernels
+from simtest.reconstruct import evidence_pixels as px
 from simtest.reconstruct._pixels import uv_to_rc
-from simtest.reconstruct.detect import background_side_px, connected_components, noise_sigma
+from simtest.reconstruct.detect import background_side_px, noise_sigma
 from simtest.reconstruct.fit import fit_ellipses
 from simtest.reconstruct.jpeg import quantisation_sigma
 
@@ -245,163 +245,36 @@ def _float32(img: np.ndarray) -> np.ndarray:
     return img.astype(np.float32, copy=False)
 
 
-def _opening(img: np.ndarray, side: int) -> np.ndarray:
-    """Grey opening by a square of ``side`` px on the image reduced so that the square is ~16 px
-    (as :func:`~simtest.reconstruct.detect.local_peak_mask`), back to full size; float32."""
-    h, w = img.shape[:2]
-    f = max(1, side // 16)
-    if f > 1 and h % f == 0 and w % f == 0:
-        small = _block_means(img, f)
-    else:
-        x = img.astype(np.float32, copy=False)
-        small = cv2.resize(x, (max(1, w // f), max(1, h // f)), interpolation=cv2.INTER_AREA) if f > 1 else x
-    k = max(3, side // f)
-    k += 1 - k % 2
-    bg = cv2.morphologyEx(small, cv2.MORPH_OPEN, cv2.getStructuringElement(cv2.MORPH_RECT, (k, k)),
-                          borderType=cv2.BORDER_REPLICATE)
-    return cv2.resize(bg, (w, h), interpolation=cv2.INTER_LINEAR) if f > 1 else bg
-
-
-def _block_means(img: np.ndarray, f: int) -> np.ndarray:
-    """Means of the f x f blocks of an image (H, W) or (H, W, C) whose sides are multiples of f,
-    float32 (H / f, W / f[, C]): ``cv2.resize``'s INTER_AREA reduction by f (to float32
-    rounding). An 8-bit image's f rows are summed in uint16 by numpy first (exact for f <= 16),
-    then reduced along the rows by OpenCV: no float32 copy of the frame (1.2 against 2.7 ms on
-    a 1350 x 1080 RGB frame, 0.33 against 0.63 ms on its gray); a C-contiguous 8-bit RGB frame
-    by one compiled pass with the same bits
-    (:func:`~simtest.reconstruct._detect_kernels.packed_block_means_uint8`). A single-channel image whose f
-    OpenCV reduces by its general area path (:func:`_compiled_means`) in one compiled pass
-    (:func:`~simtest.reconstruct._detect_kernels.block_means`; 0.49 -> 0.29 ms on the banner's
-    float32 luma reduced by 5)."""
-    h, w = img.shape[:2]
-    if img.ndim == 2 and _compiled_means(f):
-        return _means_of_blocks(img, f)
-    if img.dtype != np.uint8 or f > 16:
-        x = img.astype(np.float32, copy=False)
-        return cv2.resize(x, (w // f, h // f), interpolation=cv2.INTER_AREA)
-    c = img.shape[2] if img.ndim == 3 else 1
-    if c == 3 and img.ndim == 3 and f > 1 and img.flags.c_contiguous:
-        # an RGB frame: the same bits in one compiled pass (_detect_kernels.packed_block_means_uint8)
-        out = np.empty((h // f, w // f, c), np.float32)
-        _detect_kernels.packed_block_means_uint8(img, f, out)
-        return out
-    rows = np.ascontiguousarray(img).reshape(h // f, f, w * c).sum(axis=1, dtype=np.uint16).astype(np.float32)
-    rows *= np.float32(1.0 / f)
-    return cv2.resize(rows.reshape(h // f, w, c) if c > 1 else rows, (w // f, h // f), interpolation=cv2.INTER_AREA)
-
-
-def _compiled_means(f: int) -> bool:
-    """Whether :func:`_means_of_blocks` is faster than OpenCV's reduction by ``f``: for factors
-    other than 1, 2 and 4 (which OpenCV reduces by its vectorised paths)."""
-    return f > 2 and f != 4
-
-
-def _means_of_blocks(img: np.ndarray, f: int) -> np.ndarray:
-    """The means of the f x f blocks of a single-channel image (H, W), float32 (H // f, W // f),
-    by :func:`~simtest.reconstruct._detect_kernels.block_means` (OpenCV's INTER_AREA reduction to
-    float32 rounding)."""
-    h, w = img.shape
-    out = np.empty((h // f, w // f), np.float32)
-    _detect_kernels.block_means(img, f, out)
-    return out
-
-
-def _linear_points(small: np.ndarray, shape: tuple[int, int], rows: np.ndarray, cols: np.ndarray) -> np.ndarray:
-    """``cv2.resize(small, shape[::-1], interpolation=cv2.INTER_LINEAR)[rows, cols]`` at those
-    pixels only (OpenCV's sample positions and clamping at the sides; float32, to its rounding):
-    (P,) or (P, C), by one compiled call (:func:`~simtest.reconstruct._kernels.linear_at_points`;
-    numpy's gathers took 6 ms for the 77 000 maxima of the banner)."""
-    h, w = shape
-    src = small if small.ndim == 3 else small[:, :, None]
-    out = _kernels.linear_at_points(np.ascontiguousarray(src, dtype=np.float32), h, w,
-                                    np.asarray(rows, np.int64), np.asarray(cols, np.int64))
-    return out if small.ndim == 3 else out[:, 0]
-
-
 def _opening_small(img: np.ndarray, side: int):
-    """:func:`_opening` before its last step: ``(bg_small, f)``, the opening on the image reduced by
-    ``f`` (float32), when the frame's sides are multiples of ``f > 1`` (then :func:`_upsampled`
-    gives any window of the full-size opening); otherwise ``(the full-size opening, 1)``."""
-    h, w = img.shape[:2]
-    f = max(1, side // 16)
-    if f == 1 or h % f or w % f:
-        return _opening(img, side), 1
-    small = _block_means(img, f)
-    k = max(3, side // f)
-    k += 1 - k % 2
-    bg = cv2.morphologyEx(small, cv2.MORPH_OPEN, cv2.getStructuringElement(cv2.MORPH_RECT, (k, k)),
-                          borderType=cv2.BORDER_REPLICATE)
-    return bg, f
+    """:func:`simtest.reconstruct.evidence_pixels.opening_small` (shared in a block)."""
+    return px.opening_small(img, side)
 
 
 def seed_opening(gray: np.ndarray, side: int, half: np.ndarray) -> bool:
     """Inside :func:`shared_passes`, :func:`_opening_small` of ``gray`` (H, W) computed from the
-    means of its 2 x 2 blocks ``half`` (H // 2, W // 2, float32: detection's reduced frame) where
-    its block side f is even: the f x f means as the means of ``half``'s (f / 2) x (f / 2) blocks
-    (to float32 rounding, as OpenCV's reduction groups its sums; a fifth of the gray's own
-    reduction, 0.35 ms of the noisy bench frame). Returns whether it was seeded (nothing is
-    done outside the block, for an odd f, or sides that f does not divide)."""
+    means of its 2 x 2 blocks ``half`` (H // 2, W // 2, float32: detection's reduced frame)
+    where its block side f is even (the f x f means as the means of ``half``'s blocks, to
+    float32 rounding). Returns whether it was seeded (nothing is done outside the block, for an
+    odd f, or sides that f does not divide)."""
     memo = _SHARED.get()
     h, w = gray.shape
     f = max(1, side // 16)
     if memo is None or f % 2 or h % f or w % f or half.shape != (h // 2, w // 2):
         return False
-    if f == 2:
-        small = half
-    elif _compiled_means(f // 2):
-        small = _means_of_blocks(half, f // 2)
-    else:
-        small = cv2.resize(np.ascontiguousarray(half), (w // f, h // f), interpolation=cv2.INTER_AREA)
-    k = max(3, side // f)
-    k += 1 - k % 2
-    bg = cv2.morphologyEx(small, cv2.MORPH_OPEN, cv2.getStructuringElement(cv2.MORPH_RECT, (k, k)),
-                          borderType=cv2.BORDER_REPLICATE)
     key = (_opening_small.__name__, gray.__array_interface__["data"][0], gray.shape, gray.strides, gray.dtype.str,
            (side,))
-    memo[key] = (gray, (bg, f))
+    memo[key] = (gray, px.opening_small(gray, side, half))
     return True
 
 
-def _upsampled(bg: np.ndarray, f: int, shape: tuple[int, int], windows) -> np.ndarray:
-    """A frame-sized array (``shape`` (H, W), channels as ``bg``'s) holding :func:`_opening`'s
-    values inside the ``windows`` (row0, row1, col0, col1; unset elsewhere), from
-    :func:`_opening_small`'s ``(bg, f)``.
-
-    Each window is the bilinear enlargement (``cv2.resize``, INTER_LINEAR, by ``f``) of the
-    reduced opening's blocks under it and one more on each side (clipped to the frame): an
-    output pixel of block b interpolates blocks b - 1 to b + 1, and OpenCV's enlargement by an
-    integer factor of a crop that starts on a block is the frame's, to the bit
-    (``tests/test_verify.py`` checks it)."""
-    if f == 1:
-        return bg
-    h, w = shape
-    sh, sw = bg.shape[:2]
-    out = np.empty((h, w) + bg.shape[2:], np.float32)
-    for r0, r1, c0, c1 in windows:
-        if r1 <= r0 or c1 <= c0:
-            continue
-        s0, s1 = max(0, r0 // f - 1), min(sh, (r1 - 1) // f + 2)
-        t0, t1 = max(0, c0 // f - 1), min(sw, (c1 - 1) // f + 2)
-        up = cv2.resize(np.ascontiguousarray(bg[s0:s1, t0:t1]), ((t1 - t0) * f, (s1 - s0) * f),
-                        interpolation=cv2.INTER_LINEAR)
-        out[r0:r1, c0:c1] = up[r0 - s0 * f:r1 - s0 * f, c0 - t0 * f:c1 - t0 * f]
-    return out
-
-
 def _opening_at(img: np.ndarray, side: int, rows: np.ndarray, cols: np.ndarray) -> np.ndarray:
-    """:func:`_opening` of ``img`` (H, W, C) at the pixels (``rows``, ``cols``) only: float32 of
-    shape (P, C), to float32 rounding the whole frame's.
-
-    The reduced opening is computed on the whole reduced frame (:func:`_block_means`: a fifth of
-    a float32 copy of an 8-bit frame's cost), and enlarged at those pixels only
-    (:func:`_linear_points`). Frames whose sides are no multiple of f, or f = 1: the whole
-    frame's opening."""
+    """The grey opening (:func:`simtest.reconstruct.evidence_pixels.opening`) of ``img`` (H, W[,
+    C]) at the pixels (``rows``, ``cols``) only: the reduced opening (shared) enlarged there."""
     h, w = img.shape[:2]
-    f = max(1, side // 16)
-    if f == 1 or h % f or w % f:
-        return _opening(img.astype(np.float32, copy=False), side)[rows, cols]
-    bg, _ = _shared(_opening_small, img, side)
-    return _linear_points(bg, (h, w), rows, cols)
+    bg, f = _shared(_opening_small, img, side)
+    if f == 1:
+        return bg[rows, cols]
+    return px.linear_at_points(bg, (h, w), rows, cols)
 
 
 def _specular_colour(chroma: np.ndarray, chroma_tissue: np.ndarray) -> np.ndarray:
@@ -410,119 +283,14 @@ def _specular_colour(chroma: np.ndarray, chroma_tissue: np.ndarray) -> np.ndarra
     return (chroma <= PALENESS_MAX * chroma_tissue) | (chroma <= WHITE_CHROMA)
 
 
-def _chroma(rgb: np.ndarray) -> np.ndarray:
-    # channel by channel: the same values as max/min over the last axis, which numpy reduces
-    # slowly (0.1 s over a 1350 x 1080 frame, 20 ms over 80 000 pixels)
-    r, g, b = rgb[..., 0], rgb[..., 1], rgb[..., 2]
-    mx = np.maximum(np.maximum(r, g), b)
-    return 1.0 - np.minimum(np.minimum(r, g), b) / np.maximum(mx, 1e-9)
-
-
-def _flat_mask(gray: np.ndarray, noise: float, integer_source: bool = False) -> tuple[np.ndarray, int]:
-    """The flat pixels of :func:`_panels` (uint8 0/1, (H, W)) and their count: a 5 x 5 luma
-    standard deviation below :data:`PANEL_STD_REL` of the image noise. ``integer_source`` as
-    :func:`_panels`."""
-    g = gray.astype(np.float32, copy=False)
-    # flat = sqrt(max(m2 - m1 * m1, 0)) < PANEL_STD_REL * noise (numpy rounds the threshold to
-    # float32 to compare)
-    flat = np.empty(g.shape, np.uint8)
-    if integer_source:
-        n_flat = _kernels.flat_map(np.ascontiguousarray(g), np.float32(PANEL_STD_REL * noise), flat)
-    else:
-        m1 = cv2.blur(g, (5, 5))
-        m2 = cv2.blur(g * g, (5, 5))
-        n_flat = _kernels.flat_pixels(m1, m2, np.float32(PANEL_STD_REL * noise), flat)
-    return flat, int(n_flat)
-
-
-def _panels(gray: np.ndarray, noise: float, integer_source: bool = False) -> np.ndarray:
-    """Flat panels: 8-connected regions of pixels whose 5 x 5 luma standard deviation is below
-    :data:`PANEL_STD_REL` of the image noise, of at least :data:`PANEL_MIN_AREA` of the frame;
-    uint8 0/1 (none in a noise-free image). ``integer_source``: the luma is that of an 8- or 16-bit
-    frame (its 5 x 5 sums are exact in float64: the means, square and test in one compiled pass,
-    :func:`~simtest.reconstruct._kernels.flat_map`, the same mask)."""
-    if not noise > 0:
-        return np.zeros(gray.shape, np.uint8)
-    flat, n_flat = _flat_mask(gray, noise, integer_source)
-    min_area = PANEL_MIN_AREA * flat.size
-    if n_flat < min_area:  # too few flat pixels for any panel
-        return np.zeros_like(flat)
-    # labels alone and their areas (OpenCV's stats cost 9 ms on 1350 x 1080 px), and the big
-    # components' pixels, by compiled passes (np.bincount and a uint8 table indexed by the labels
-    # took 8 ms on the banner)
-    n, lab = connected_components(flat)
-    big = _kernels.label_areas(lab, n) >= min_area
-    big[0] = False
-    if not big.any():
-        return np.zeros_like(flat)
-    _kernels.labels_in(lab, big.view(np.uint8), flat)  # flat is no longer needed: the panels overwrite it
-    return flat
-
-
-def _panel_pixels_in(gray: np.ndarray, noise: float, integer_source: bool, rr: np.ndarray) -> np.ndarray:
-    """How many pixels of :func:`_panels` each region ``rr`` (rows of row0, row1, col0, col1)
-    holds, int64 (n,): the flat mask's big components' runs counted in the regions by one
-    compiled call (:func:`~simtest.reconstruct._kernels.big_component_counts`), without the
-    frame's labels, the panel map and its integral image (OpenCV's labelling, the label areas,
-    the map and the integral cost 3 ms of the banner's 5.5 ms of panels, these counts 0.5)."""
+def _panel_pixels_in(gray: np.ndarray, noise: float, rr: np.ndarray) -> np.ndarray:
+    """How many pixels of the flat panels each region ``rr`` (row0, row1, col0, col1) holds:
+    pixels whose 5 x 5 luma standard deviation is below :data:`PANEL_STD_REL` of the noise, in
+    8-connected regions of at least :data:`PANEL_MIN_AREA` of the frame (none in a noise-free
+    image)."""
     if not noise > 0:
         return np.zeros(len(rr), np.int64)
-    flat, n_flat = _flat_mask(gray, noise, integer_source)
-    min_area = PANEL_MIN_AREA * flat.size
-    if n_flat < min_area:  # too few flat pixels for any panel
-        return np.zeros(len(rr), np.int64)
-    return _kernels.big_component_counts(flat, float(min_area), np.ascontiguousarray(rr, dtype=np.int64).reshape(-1, 4))
-
-
-def _other_peaks(top: np.ndarray, xs: np.ndarray, ys: np.ndarray, bp_ij: np.ndarray, reach: float,
-                 height: float, noise: float, ellipse=None) -> int:
-    """Specular peaks (x, y) within ``reach`` of the BP, at least :data:`NEIGHBOUR_REL` of its
-    ``height``, that are not on the BP's own lobe: not joined to it by pixels whose top-hat is at
-    least :data:`VALLEY_REL` of its height less :data:`VALLEY_NOISE` times the ``noise`` (a
-    distinct glint is separated from it by a valley below that level; noise only ruffles a
-    lobe's flank), and that lie outside the highlight's own isophote ``ellipse`` (peaks it
-    encloses are the highlight's own structure: the specular points of guides that run together,
-    a clipped top broken by noise), and whose own region above that level is at least
-    :data:`NEIGHBOUR_AREA_REL` of the candidate's."""
-    h, w = top.shape
-    # a valley noise could have dug does not separate: the level sits VALLEY_NOISE sigma lower
-    level = VALLEY_REL * height - VALLEY_NOISE * noise
-    r0, r1 = max(0, int(bp_ij[1] - reach)), min(h, int(bp_ij[1] + reach) + 1)
-    c0, c1 = max(0, int(bp_ij[0] - reach)), min(w, int(bp_ij[0] + reach) + 1)
-    win = top[r0:r1, c0:c1]
-    sel = (top[ys, xs] >= NEIGHBOUR_REL * height) & (ys >= r0) & (ys < r1) & (xs >= c0) & (xs < c1)
-    if ellipse is not None and sel.any():
-        sel &= _ellipse_level(ellipse, xs, ys) > 1.0
-    if not sel.any():
-        return 0
-    _, lab, stats, _ = cv2.connectedComponentsWithStats((win >= level).astype(np.uint8), connectivity=8)
-    own = lab[int(bp_ij[1]) - r0, int(bp_ij[0]) - c0]
-    other = lab[ys[sel] - r0, xs[sel] - c0]
-    area = stats[:, cv2.CC_STAT_AREA]
-    # a glint of comparable size, not the sparkle of micro-relief on a broad lobe
-    big = area[other] >= NEIGHBOUR_AREA_REL * area[own] if own > 0 else np.ones(len(other), bool)
-    return int(np.count_nonzero(((other != own) | (own == 0)) & big))
-
-
-def _other_peaks_compiled(top, xs, ys, bps, ij, reach, height, noise, ellipses, todo) -> np.ndarray:
-    """:func:`_other_peaks` of the candidates ``todo`` over the peaks (``xs``, ``ys``, row-major)
-    within ``reach`` of their BPs, in one compiled call (:func:`~simtest.reconstruct._kernels.other_peaks`:
-    the same counts; the loop of calls cost 40 us a candidate)."""
-    height = height[todo]
-    has = np.zeros(len(todo), bool)
-    ell = np.ones((6, len(todo)))  # centre u, v, semi-axes a, b, angle
-    if ellipses is not None:
-        for i, k in enumerate(todo):
-            e = ellipses[k]
-            if e is not None:
-                has[i] = True
-                ell[:, i] = (e.center[0], e.center[1], e.semi_axes[0], e.semi_axes[1], e.angle_rad, 0.0)
-    # the same roundings as _other_peaks: float32 thresholds from the float32 height
-    min_top = NEIGHBOUR_REL * height
-    level = VALLEY_REL * height - VALLEY_NOISE * noise
-    return _kernels.other_peaks(top, ys, xs, bps[todo, 0].copy(), bps[todo, 1].copy(), ij[todo, 0].copy(),
-                       ij[todo, 1].copy(), reach[todo].copy(), min_top, level, has, ell[0], ell[1],
-                       ell[2], ell[3], np.cos(ell[4]), np.sin(ell[4]), NEIGHBOUR_AREA_REL)
+    return px.panel_pixels_in(gray, PANEL_STD_REL * noise, PANEL_MIN_AREA * gray.size, rr)
 
 
 #: The windowed path of :func:`frame_evidence` (top-hat and maxima only around the candidates
@@ -533,118 +301,21 @@ WINDOWED_AREA_MAX = 0.25
 #: component, px: one that stays inside it is too small for a panel.
 _PANEL_MARGIN_PX = 16
 #: Relative slack of :func:`_surely_no_panels`' flatness test: the float32 means and variance of
-#: :func:`_panels` (each rounded at most a few float32 ulps, 2^-24 relative) differ from the exact
-#: variance by at most about 6 x 2^-24 of the mean square; 1e-5 is 30 times that.
+#: the panels' flat test (each rounded at most a few float32 ulps, 2^-24 relative) differ from
+#: the exact variance by at most about 6 x 2^-24 of the mean square; 1e-5 is 30 times that.
 _FLAT_SLACK = 1e-5
 
 
-#: The luma dtypes :func:`_surely_no_panels` passes to its kernel as they are (one compilation
-#: each); others are converted to float64 first.
-_MAYBE_FLAT_DTYPES = (np.uint8, np.uint16, np.float32, np.float64)
-
-
-def _panel_proof_inputs(gray: np.ndarray, noise: float, rr: np.ndarray):
-    """What :func:`_surely_no_panels` and its reference loop read: the frame as the compiled
-    variance reads it, the regions (n, 4) int64, the flat threshold on the 5 x 5 variance with
-    its slack, the panel's least area (px) and the margin (px)."""
-    h, w = gray.shape
-    thr2 = (PANEL_STD_REL * noise) ** 2 * (1.0 + _FLAT_SLACK)
-    src = gray if gray.dtype.type in _MAYBE_FLAT_DTYPES else gray.astype(np.float64)
-    rr = np.ascontiguousarray(rr, dtype=np.int64).reshape(-1, 4)
-    return src, rr, thr2, PANEL_MIN_AREA * h * w, _PANEL_MARGIN_PX
-
-
 def _surely_no_panels(gray: np.ndarray, noise: float, rr: np.ndarray) -> bool:
-    """Whether no pixel of any region of interest ``rr`` (rows of row0, row1, col0, col1) can be
-    a panel pixel of :func:`_panels`, decided without the frame: True only when proven.
-
-    A panel pixel is flat, and its flat component holds at least :data:`PANEL_MIN_AREA` of the
-    frame. Around each region (with :data:`_PANEL_MARGIN_PX`), the pixels that could be flat
-    are those whose exact 5 x 5 variance (float64, the frame's reflected border;
-    :func:`~simtest.reconstruct._kernels.maybe_flat`) is below the
-    threshold plus :data:`_FLAT_SLACK`: a superset of :func:`_panels`' flat pixels. If every
-    component of that superset that reaches into a region is smaller than a panel and lies
-    inside the margin (not cut by the window's edge inside the frame), no flat component, a
-    subset of one of them, reaches into a region as a panel. Non-finite pixels: not proven."""
-    src, rr, thr2, min_area, m = _panel_proof_inputs(gray, noise, rr)
-    # every region's window, its possibly flat pixels and their components in one compiled call
-    # (-1, a non-finite pixel: not proven)
-    return _kernels.surely_no_panels(src, rr, m, thr2, _FLAT_SLACK, min_area) == 1
-
-
-def _surely_no_panels_loop(gray: np.ndarray, noise: float, rr: np.ndarray) -> bool:
-    """:func:`_surely_no_panels` by a loop of compiled calls, OpenCV's labelling and numpy per
-    region: the reference of its one compiled call (``tests/test_verify.py`` compares them)."""
-    h, w = gray.shape
-    src, rr, thr2, min_area, m = _panel_proof_inputs(gray, noise, rr)
-    start = 0
-    while True:
-        # the regions without a possibly flat pixel, skipped in one compiled call
-        q = _kernels.first_maybe_flat_region(src, rr, start, m, thr2, _FLAT_SLACK)
-        if q < 0:
-            return False  # a non-finite pixel
-        if q >= len(rr):
-            return True
-        start = q + 1
-        row0, row1, col0, col1 = (int(v) for v in rr[q])
-        # the window W and its 2 px of data for the 5 x 5 means (the frame's edges reflected)
-        wr0, wr1, wc0, wc1 = max(0, row0 - m), min(h, row1 + m), max(0, col0 - m), min(w, col1 + m)
-        cr0, cr1, cc0, cc1 = max(0, wr0 - 2), min(h, wr1 + 2), max(0, wc0 - 2), min(w, wc1 + 2)
-        # the window's possibly flat pixels in one compiled pass (the crop read as float32, then
-        # float64; OpenCV's two float64 blurs and numpy's test cost 0.13 ms a region)
-        x = gray[cr0:cr1, cc0:cc1]
-        maybe = np.empty((wr1 - wr0, wc1 - wc0), np.uint8)
-        if _kernels.maybe_flat(x if x.dtype.type in _MAYBE_FLAT_DTYPES else x.astype(np.float64), wr0 - cr0,
-                               wr1 - cr0, wc0 - cc0, wc1 - cc0, thr2, _FLAT_SLACK, maybe) < 0:
-            return False  # a non-finite pixel
-        roi = maybe[row0 - wr0:row1 - wr0, col0 - wc0:col1 - wc0]
-        if not roi.any():
-            continue
-        n, lab, stats, _ = cv2.connectedComponentsWithStats(maybe, connectivity=8)
-        # the labels present in the region (np.unique's hashing cost 0.25 ms a region)
-        ids = np.flatnonzero(np.bincount(lab[row0 - wr0:row1 - wr0, col0 - wc0:col1 - wc0].ravel(), minlength=n))
-        ids = ids[ids > 0]
-        st = stats[ids]
-        x0, y0 = st[:, cv2.CC_STAT_LEFT], st[:, cv2.CC_STAT_TOP]
-        x1, y1 = x0 + st[:, cv2.CC_STAT_WIDTH], y0 + st[:, cv2.CC_STAT_HEIGHT]
-        cut = (((x0 == 0) & (wc0 > 0)) | ((y0 == 0) & (wr0 > 0)) | ((x1 == wc1 - wc0) & (wc1 < w))
-               | ((y1 == wr1 - wr0) & (wr1 < h)))
-        if cut.any() or (st[:, cv2.CC_STAT_AREA] >= min_area).any():
-            return False
-
-
-def _maxima_windows(g: np.ndarray, bg: np.ndarray, floor: np.float32, windows) -> tuple:
-    """:func:`~simtest.reconstruct._kernels.top_hat_maxima` over the ``windows`` (row0, row1,
-    col0, col1) only: a frame-sized top-hat exact inside them (elsewhere unset) and the maxima
-    inside them above ``floor`` (rows, columns; row-major, each once; :func:`frame_evidence`
-    passes the smallest top-hat a neighbour count can select). Each window is measured with 1 px more
-    (clipped to the frame): the 3 x 3 maximum of a pixel reads only its neighbours in the frame,
-    so the values are the whole frame's."""
-    h, w = g.shape
-    top = np.empty((h, w), np.float32)
-    idx = []
-    for r0, r1, c0, c1 in windows:
-        if r1 <= r0 or c1 <= c0:
-            continue
-        e0, e1, f0, f1 = max(0, r0 - 1), min(h, r1 + 1), max(0, c0 - 1), min(w, c1 + 1)
-        t = np.empty((e1 - e0, f1 - f0), np.float32)
-        mk = np.empty(t.shape, bool)
-        _kernels.top_hat_maxima(np.ascontiguousarray(g[e0:e1, f0:f1], dtype=np.float32),
-                                np.ascontiguousarray(bg[e0:e1, f0:f1]),
-                                floor, t, mk)
-        top[r0:r1, c0:c1] = t[r0 - e0:r1 - e0, c0 - f0:c1 - f0]
-        yy, xx = np.nonzero(mk[r0 - e0:r1 - e0, c0 - f0:c1 - f0])
-        idx.append((yy + r0).astype(np.int64) * w + (xx + c0))
-    flat = np.sort(np.concatenate(idx)) if idx else np.zeros(0, np.int64)
-    flat = flat[np.r_[True, flat[1:] != flat[:-1]]] if len(flat) else flat  # each once (np.unique's)
-    ys, xs = np.divmod(flat, w)
-    return top, ys, xs
-
+    """Whether no pixel of any region of interest ``rr`` can be a panel pixel, proven without
+    the frame (:func:`simtest.reconstruct.evidence_pixels.surely_no_panels`)."""
+    thr2 = (PANEL_STD_REL * noise) ** 2 * (1.0 + _FLAT_SLACK)
+    return px.surely_no_panels(gray, rr, _PANEL_MARGIN_PX, thr2, _FLAT_SLACK, PANEL_MIN_AREA * gray.size)
 
 
 def _top_of(g_at: np.ndarray, bg_at: np.ndarray) -> np.ndarray:
-    """The top-hat ``max(g - bg, 0)`` (float32, NaN kept) of :func:`~simtest.reconstruct._kernels.top_hat_maxima`
-    of values read at some pixels (the luma ``g_at`` and its opening ``bg_at``)."""
+    """The top-hat ``max(g - bg, 0)`` (float32, NaN kept) of values read at some pixels (the
+    luma ``g_at`` and its opening ``bg_at``)."""
     d = g_at - bg_at
     return np.where((d >= 0) | np.isnan(d), d, np.float32(0.0)).astype(np.float32, copy=False)
 
@@ -680,7 +351,7 @@ def frame_evidence(image: np.ndarray, gray: np.ndarray, bps_uv: np.ndarray, rois
         Each candidate's primary isophote: peaks inside it are its own, not neighbours.
     windowed : bool, optional
         Measure only where the checks read (True): the luma's opening, top-hat and maxima in the
-        candidates' reach windows and at the BPs (:func:`_upsampled`, :func:`_maxima_windows`),
+        candidates' reach windows and at the BPs (:func:`~simtest.reconstruct.evidence_pixels.maxima_in_windows`),
         the RGB opening at the BPs and at the maxima a neighbour count can select
         (:func:`_opening_at`), and no panel map when :func:`_surely_no_panels` proves that no
         region of interest holds a panel pixel; or over the whole frame (False). The evidence is
@@ -707,7 +378,7 @@ def frame_evidence(image: np.ndarray, gray: np.ndarray, bps_uv: np.ndarray, rois
     todo = np.flatnonzero(np.isfinite(reach))
     rr = (np.asarray(rois, np.int64) if isinstance(rois, np.ndarray)
           else np.array([[r.row0, r.row1, r.col0, r.col1] for r in rois], np.int64)).reshape(-1, 4)
-    # the windows that _kernels.other_peaks reads (its rows r0:r1 and columns c0:c1 of the top-hat)
+    # the windows the neighbour count reads (its rows r0:r1 and columns c0:c1 of the top-hat)
     # (np.stack, not np.c_ and np.r_: their index machinery cost 12 us a call, a dozen calls a
     # frame)
     win = np.stack([np.maximum(0, (rows[todo] - reach[todo]).astype(np.int64)),
@@ -720,55 +391,26 @@ def frame_evidence(image: np.ndarray, gray: np.ndarray, bps_uv: np.ndarray, rois
         windowed = float(np.sum(spans * widths)) <= WINDOWED_AREA_MAX * h * w
     floor = np.float32(max(SIGNIFICANCE_MIN * noise, 1e-9))  # numpy rounds the floor to float32 to compare
     bg_small, f = _shared(_opening_small, gray, background_px)
-    # the luma's opening at the BPs: the reduced opening enlarged at those pixels only (one compiled
-    # call; on both paths, which so give the same values: a window per BP cost 5 ms on a real
-    # frame's 1400 BPs)
-    bg_bp = _linear_points(bg_small, (h, w), rows, cols) if f > 1 else bg_small[rows, cols]
-    # the luma as float32 (the checks' arithmetic): converted over the whole frame only where the
-    # whole frame is measured; the windowed path converts the pixels it reads (the same values;
-    # an 8-bit gray frame's conversion was 0.3 ms of the noisy bench frame's)
+    # the luma's opening at the BPs: the reduced opening enlarged at those pixels only
+    bg_bp = px.linear_at_points(bg_small, (h, w), rows, cols) if f > 1 else bg_small[rows, cols]
     g = _shared(_float32, gray) if not windowed else gray
     height = _top_of(g[rows, cols].astype(np.float32, copy=False), bg_bp)
     # only the maxima that some candidate's neighbour count can select (a top-hat of at least
-    # NEIGHBOUR_REL of its height, as _kernels.other_peaks compares) are read: the maxima are
-    # taken above the larger of the floor and that (t > floor and t >= s, as t > the float32
-    # below s; NaN or no count: none), not all of them (the banner's 77 000) then filtered
+    # NEIGHBOUR_REL of its height) are read: the maxima are taken above the larger of the floor
+    # and that (t > floor and t >= s, as t > the float32 below s; NaN or no count: none)
     if len(todo):
         s = np.float32(np.fmin.reduce(NEIGHBOUR_REL * height[todo]))  # NaN: none
         floor_max = np.float32(np.nan) if np.isnan(s) else max(floor, np.nextafter(s, np.float32(-np.inf)))
     else:
         floor_max = np.float32(np.inf)
-    if windowed:
-        if f > 1 and g.dtype.type in _MAYBE_FLAT_DTYPES:
-            # the enlargement, top-hat and maxima of every window in one compiled call
-            top = np.empty((h, w), np.float32)
-            ys, xs = np.divmod(_kernels.maxima_in_windows(g, bg_small, win, floor_max, top), w)
-        else:
-            # the opening only where read: in the reach windows (with the 1 px the maxima read
-            # beyond them) where the top-hat, its maxima and their colour are
-            wide = np.stack([np.maximum(win[:, 0] - 1, 0), np.minimum(win[:, 1] + 1, h),
-                             np.maximum(win[:, 2] - 1, 0), np.minimum(win[:, 3] + 1, w)], axis=1)
-            bg = _upsampled(bg_small, f, (h, w), wide)
-            top, ys, xs = _maxima_windows(g, bg, floor_max, win)
-    elif f > 1 and gray.dtype.type in _MAYBE_FLAT_DTYPES:
-        # the windowed path's compiled call over one window, the frame: the same arithmetic
-        # (cv2.resize's enlargement differs from it by a float32 ulp at some pixels, which on a
-        # flat plateau, a panel at the frame's edge, moved the 3 x 3 maxima's ties: 39 maxima in
-        # a window against the windowed path's 19, and a candidate's neighbour count with them)
-        top = np.empty((h, w), np.float32)
-        whole = np.array([[0, h, 0, w]], np.int64)
-        idx = _kernels.maxima_in_windows(gray, bg_small, whole, floor_max, top)
-        # only the maxima in some candidate's reach window, the only ones its neighbour count
-        # reads (as the windowed path finds them; their colours are read next: the banner's
-        # 52 000 maxima, 15 000 in its 417 windows)
-        ys, xs = np.divmod(idx[_kernels.in_windows(idx, h, w, win)], w)
-    else:
-        # _opening's values: its reduced opening enlarged
+    if windowed:  # the top-hat and its maxima in the reach windows only
+        top, ys, xs = px.maxima_in_windows(gray, bg_small, f, win, floor_max)
+    else:  # over the frame, the maxima in some candidate's reach window kept
         bg = cv2.resize(bg_small, (w, h), interpolation=cv2.INTER_LINEAR) if f > 1 else bg_small
-        # the top-hat and its 3 x 3 maxima above the floor, in one compiled call
-        top, is_max = np.empty_like(g), np.empty(g.shape, bool)
-        _kernels.top_hat_maxima(g, bg, floor_max, top, is_max)
-        ys, xs = np.divmod(np.flatnonzero(is_max), w)  # np.nonzero's, in half the time
+        top, is_max = px.top_hat_maxima(g, bg, floor_max)
+        ys, xs = np.divmod(np.flatnonzero(is_max), w)
+        keep = px.in_windows(ys, xs, (h, w), win)
+        ys, xs = ys[keep], xs[keep]
     # the colour: the frame's RGB and its opening at the BPs and the maxima only (the opening
     # reduced over the whole frame, enlarged at those pixels)
     src = image[..., :3] if image.ndim == 3 and not grey else gray
@@ -776,35 +418,29 @@ def frame_evidence(image: np.ndarray, gray: np.ndarray, bps_uv: np.ndarray, rois
     if src.ndim != 3:  # a grey frame: its three channels alike
         at = np.repeat(at[:, None], 3, 1)
     bg_rgb_bp, bg_rgb_pk = at[:n], at[n:]
-
-    # the RGB maximum over the 3 x 3 px around each BP (the window clipped to the frame), by one
-    # compiled call (numpy's gather of the nine pixels and their maximum: the same values; a grey
-    # frame's one channel read as the three)
+    # the RGB maximum over the 3 x 3 px around each BP (the window clipped to the frame)
     src3 = src if src.ndim == 3 else src[:, :, None]
-    peak_rgb = _kernels.rgb_max9(src3, np.asarray(rows, np.int64), np.asarray(cols, np.int64))
-    chroma_peak = _chroma(peak_rgb)
-    chroma_tissue = _chroma(bg_rgb_bp)
+    chroma_peak = px.chroma(px.rgb_max9(src3, rows, cols))
+    chroma_tissue = px.chroma(bg_rgb_bp)
     background = bg_bp
-    # flat panels: share in each ROI by an integral image (none where none can be: see
-    # _surely_no_panels)
+    # flat panels: share in each ROI (none where none can be: see _surely_no_panels)
     if not panels or (windowed and (not noise > 0 or _surely_no_panels(gray, noise, rr))):
         panel_fraction = np.zeros(n)
     else:
-        # (the panel pixels counted in each ROI from the flat mask's runs, not the panel map's
-        # integral image: the same counts)
-        inside = _panel_pixels_in(_shared(_float32, gray), noise, image.dtype.type in (np.uint8, np.uint16), rr)
+        inside = _panel_pixels_in(_shared(_float32, gray), noise, rr)
         area = np.maximum((rr[:, 1] - rr[:, 0]) * (rr[:, 3] - rr[:, 2]), 1)
         panel_fraction = inside / area
-    # specular peaks of the frame: the top-hat's local maxima that pass the colour check (the
-    # chromas read at those pixels only: a reduction over the frame's last axis costs ~0.1 s)
-    colour = _specular_colour(_chroma(_kernels.rgb_at_points(src3, np.asarray(ys, np.int64), np.asarray(xs, np.int64))),
-                              _chroma(bg_rgb_pk))
-    ys, xs = ys[colour], xs[colour]
-    xs, ys = xs.astype(np.int64), ys.astype(np.int64)
+    # specular peaks of the frame: the top-hat's local maxima that pass the colour check
+    colour = _specular_colour(px.chroma(px.rgb_at(src3, ys, xs)), px.chroma(bg_rgb_pk))
+    ys, xs = ys[colour].astype(np.int64), xs[colour].astype(np.int64)
     neighbours = np.zeros(n, np.int64)
     if len(xs) and len(todo):
-        neighbours[todo] = _other_peaks_compiled(top, xs, ys, np.asarray(bps_uv, np.float64).reshape(-1, 2),
-                                                 ij, reach, height, noise, ellipses, todo)
+        # the same roundings as before: float32 thresholds from the float32 height
+        ht = height[todo]
+        ells = None if ellipses is None else [ellipses[k] for k in todo]
+        neighbours[todo] = px.other_peaks(top, xs, ys, np.asarray(bps_uv, np.float64).reshape(-1, 2)[todo], ij[todo],
+                                          reach[todo], NEIGHBOUR_REL * ht, VALLEY_REL * ht - VALLEY_NOISE * noise,
+                                          ells, NEIGHBOUR_AREA_REL)
     # the significance's noise: the sensor's, and the error JPEG's quantisation added where the
     # frame carries a JPEG block grid (its flat blocks hide the sensor noise, and its ringing makes
     # peaks); an integer image's pixels carry at least the rounding's
@@ -870,55 +506,7 @@ def _surround_fraction(gray: np.ndarray, ell, bp_ij: np.ndarray, reach: float) -
     wide as the reach: it keeps light narrower than the reach (other glints, a streak) and drops
     the shading of surfaces broader than it (a lit fold beside the highlight, the dark surround
     of the field of view). 0 without a surround or a peak."""
-    h, w = gray.shape
-    R = int(np.ceil(reach))
-    bi, bj = int(bp_ij[1]), int(bp_ij[0])
-    r0, r1 = max(0, bi - R), min(h, bi + R + 1)
-    c0, c1 = max(0, bj - R), min(w, bj + R + 1)
-    # a column and a row of coordinates, broadcast (the same values as the full grids, per pixel)
-    yy = np.arange(r0, r1, dtype=np.float64)[:, None]
-    xx = np.arange(c0, c1, dtype=np.float64)[None, :]
-    ring = ((xx - bp_ij[0]) ** 2 + (yy - bp_ij[1]) ** 2 <= reach * reach) & (_ellipse_level(ell, xx, yy) > _OWN_LEVEL)
-    if not ring.any():
-        return 0.0
-    win = np.ascontiguousarray(gray[r0:r1, c0:c1], dtype=np.float32)
-    k = max(3, R | 1)  # odd, about the reach
-    top = win - cv2.morphologyEx(win, cv2.MORPH_OPEN, cv2.getStructuringElement(cv2.MORPH_RECT, (k, k)),
-                                 borderType=cv2.BORDER_REPLICATE)
-    peak = float(top[max(0, bi - 1 - r0):bi + 2 - r0, max(0, bj - 1 - c0):bj + 2 - c0].max())
-    if not peak > 0:
-        return 0.0
-    return float(np.count_nonzero((top >= SURROUND_REL * peak) & ring) / np.count_nonzero(ring))
-
-
-def _surround_fractions(gray: np.ndarray, ells, bp_ij: np.ndarray, reach: np.ndarray) -> np.ndarray:
-    """:func:`_surround_fraction` of several candidates (ellipses ``ells``, BP pixels ``bp_ij``
-    (n, 2), ``reach`` (n,)) in one compiled call (:func:`~simtest.reconstruct._kernels.surround_fractions`:
-    the opening by van Herk and Gil-Werman's running extremes, the same values as OpenCV's; the
-    loop of OpenCV calls cost 0.3 ms a candidate of the noisy bench frame and 50 us on the banner);
-    a window with a non-finite value is measured by :func:`_surround_fraction`."""
-    if not len(ells):
-        return np.zeros(0)
-    p = np.array([(e.center[0], e.center[1], e.semi_axes[0], e.semi_axes[1], e.angle_rad) for e in ells],
-                 np.float64).reshape(-1, 5)
-    bp_ij = np.asarray(bp_ij, np.int64).reshape(-1, 2)
-    src = gray if gray.dtype in (np.uint8, np.uint16, np.float32, np.float64) else gray.astype(np.float64)
-    out = _kernels.surround_fractions(src, np.ascontiguousarray(bp_ij[:, 0]), np.ascontiguousarray(bp_ij[:, 1]),
-                                      np.asarray(reach, np.float64), p[:, 0].copy(), p[:, 1].copy(),
-                                      p[:, 2].copy(), p[:, 3].copy(), np.cos(p[:, 4]), np.sin(p[:, 4]),
-                                      _OWN_LEVEL, SURROUND_REL)
-    for k in np.flatnonzero(np.isnan(out)):
-        out[k] = _surround_fraction(gray, ells[k], bp_ij[k], float(reach[k]))
-    return out
-
-
-def _ellipse_level(ell, u, v):
-    """``(x / a)^2 + (y / b)^2`` of points (u, v) px in the ellipse's own axes (centre,
-    semi-axes a >= b, angle): at most 1 inside it; arrays or scalars."""
-    c, s = np.cos(ell.angle_rad), np.sin(ell.angle_rad)
-    du, dv = u - ell.center[0], v - ell.center[1]
-    a, b = ell.semi_axes
-    return ((c * du + s * dv) / a) ** 2 + ((-s * du + c * dv) / b) ** 2
+    return px.surround_fraction(gray, ell, bp_ij, reach, _OWN_LEVEL, SURROUND_REL)
 
 
 def assess(image: np.ndarray, gray: np.ndarray, ests, *, full_scale: float, windowed: bool | None = None,
@@ -980,7 +568,7 @@ def assess(image: np.ndarray, gray: np.ndarray, ests, *, full_scale: float, wind
                                         dtype=np.float64).T
         minor[f] = b
         res[f] = r / np.maximum(b, 1e-9)
-        inside[f] = _ellipse_level(SimpleNamespace(center=(cu, cv), semi_axes=(a, b), angle_rad=ang),
+        inside[f] = px.ellipse_level(SimpleNamespace(center=(cu, cv), semi_axes=(a, b), angle_rad=ang),
                                    bps[f, 0], bps[f, 1]) <= 1.0
         reach[f] = np.where(ok[f], NEIGHBOUR_REACH * a + OWN_RADIUS_PX, np.nan)
     # no image outline at all: judged on the rest
@@ -998,8 +586,7 @@ def assess(image: np.ndarray, gray: np.ndarray, ests, *, full_scale: float, wind
     if passed.any():
         g = np.asarray(gray)  # _surround_fraction converts its window to float32 (the same values)
         ij = np.clip(np.rint(bps).astype(np.int64), 0, [gray.shape[1] - 1, gray.shape[0] - 1])
-        surround[passed] = _surround_fractions(g, [ells[k] for k in np.flatnonzero(passed)], ij[passed],
-                                               reach[passed])
+        surround[passed] = [_surround_fraction(g, ells[k], ij[k], float(reach[k])) for k in np.flatnonzero(passed)]
     return replace(ev, clipped=clipped, minor_px=minor, surround=surround), res, inside
 
 

@@ -1,0 +1,687 @@
+"""The pixel work of specularity detection: luma, noise, clipped pixels, the scope's border, the
+local-peak mask and the components of a mask, by OpenCV and numpy calls on whole frames.
+
+:mod:`simtest.reconstruct.detect` builds its candidates from these; the examination of the
+candidates is :mod:`simtest.reconstruct.candidates`.
+"""
+
+from __future__ import annotations
+
+import cv2
+import numpy as np
+
+from simtest.constants import LUMA_BT601
+
+_LUMA = np.array(LUMA_BT601)
+#: The luma weights as OpenCV's ``cv2.transform`` matrix (one output channel from R, G, B).
+_LUMA_ROW = np.array([LUMA_BT601], np.float64)
+
+
+def connected_components(mask: np.ndarray) -> tuple[int, np.ndarray]:
+    """8-connected components of a uint8 mask (count with the background, int32 labels), by
+    Grana's block-based algorithm: the default of the installed OpenCV (Spaghetti) took 57 ms on a
+    1350 x 1080 mask where this takes 3 ms; the components are the same."""
+    return cv2.connectedComponentsWithAlgorithm(mask, 8, cv2.CV_32S, cv2.CCL_GRANA)
+
+
+def connected_components_with_stats(mask: np.ndarray):
+    """As :func:`connected_components`, with the stats and centroids of
+    ``cv2.connectedComponentsWithStats``."""
+    return cv2.connectedComponentsWithStatsWithAlgorithm(mask, 8, cv2.CV_32S, cv2.CCL_GRANA)
+
+
+def connected_components_boxes(mask: np.ndarray) -> tuple[int, np.ndarray, np.ndarray]:
+    """:func:`connected_components_with_stats` without the centroids: ``(n, labels, stats)``."""
+    n, labels, stats, _ = connected_components_with_stats(mask)
+    return n, labels, stats
+
+
+def _bands(mask: np.ndarray) -> list[tuple[int, int]]:
+    """The runs of rows of ``mask`` that hold mask pixels, as half-open (row0, row1), row0 widened
+    to an even index (Grana's algorithm labels by 2 x 2 blocks: a band keeps the whole mask's
+    blocks, so its components come in the whole mask's order)."""
+    nz = np.flatnonzero(mask.max(axis=1))
+    if nz.size == 0:
+        return []
+    gaps = np.flatnonzero(np.diff(nz) > 1)
+    starts = np.concatenate([nz[:1], nz[gaps + 1]])
+    ends = np.concatenate([nz[gaps], nz[-1:]]) + 1
+    return [(r0 - r0 % 2, r1) for r0, r1 in zip(starts.tolist(), ends.tolist())]
+
+
+def _label_band(mask: np.ndarray, r0: int, r1: int):
+    """:func:`connected_components_boxes` of the band ``mask[r0:r1]`` cropped to the columns
+    that hold mask pixels, the first widened to an even index: ``(c0, n, labels, stats)``, the
+    labels and stats relative to (r0, c0)."""
+    band = mask[r0:r1]
+    cols = np.flatnonzero(band.max(axis=0))
+    c0, c1 = int(cols[0]), int(cols[-1]) + 1
+    c0 -= c0 % 2
+    n, lab, stats = connected_components_boxes(np.ascontiguousarray(band[:, c0:c1]))
+    return c0, n, lab, stats
+
+
+def mask_components(mask: np.ndarray) -> list[tuple[int, int, int, int, int, np.ndarray]]:
+    """The 8-connected components of a uint8 0/1 mask, each with its area and bounding box.
+
+    Parameters
+    ----------
+    mask : ndarray of shape (H, W), uint8
+
+    Returns
+    -------
+    list of (area, x, y, width, height, comp)
+        In the label order of :func:`connected_components_with_stats`; ``comp`` is the component's uint8 0/1 mask in its box (rows
+        ``y : y + height``, columns ``x : x + width`` of ``mask``).
+
+    Notes
+    -----
+    The mask is labelled band by band: a band is a run of rows that hold mask pixels, cropped to
+    the columns that do, both widened to start at an even index. No 8-connected component crosses
+    an empty row, so the components are those of one pass over the whole mask; Grana's algorithm
+    numbers them in the order of their first 2 x 2 block, and a band aligned to even rows and
+    columns has the whole mask's blocks, so the order is the same too. A sparse mask (a few
+    highlights in a 1350 x 1080 frame) costs a third of one pass.
+    """
+    out = []
+    for r0, r1 in _bands(mask):
+        c0, n, lab, stats = _label_band(mask, r0, r1)
+        for k in range(1, n):
+            x, y, bw, bh, area = (int(v) for v in stats[k])
+            out.append((area, x + c0, y + r0, bw, bh, (lab[y : y + bh, x : x + bw] == k).view(np.uint8)))
+    return out
+
+
+def mask_labels(mask: np.ndarray) -> tuple[int, np.ndarray, np.ndarray]:
+    """The 8-connected components of a uint8 0/1 mask as a label image, band by band.
+
+    Parameters
+    ----------
+    mask : ndarray of shape (H, W), uint8
+
+    Returns
+    -------
+    n : int
+        Number of components (background not counted).
+    labels : ndarray of shape (H, W), int32
+        0 for the background, ``k`` for the pixels of component ``k`` (1 to ``n``).
+    stats : ndarray of shape (n, 5), int32
+        Per component ``x, y, width, height, area``: the bounding box (columns ``x : x +
+        width``, rows ``y : y + height``) and the pixel count.
+
+    Notes
+    -----
+    The labels, boxes and order of :func:`connected_components_with_stats` over the whole mask
+    (and of :func:`mask_components`), from its bands (see there): a mask whose bright pixels fill
+    a few runs of rows is labelled in those alone, the label image outside them is never written
+    (1.3 ms against 3 ms for one pass over a 1350 x 1080 frame with ten highlights). Where the
+    bands hold more than half the rows, one pass over the whole mask is cheaper (3.9 ms against
+    5.3 ms on the bench's colonoscope frame) and is taken.
+    """
+    return _mask_labels(mask, np.zeros)
+
+
+def _mask_labels(mask: np.ndarray, alloc) -> tuple[int, np.ndarray, np.ndarray]:
+    """:func:`mask_labels`, the label image of several bands made by ``alloc(shape, dtype)``:
+    ``np.zeros`` gives the documented image; ``np.empty`` leaves the pixels outside the bands'
+    boxes (rows of a band, columns from its first to its last mask pixel, each box written whole
+    by ``paste_labels``) unwritten, for a caller that reads the labels inside the components'
+    bounding boxes only, which lie in those boxes (zeroing a 1350 x 1080 int32 image takes 0.3 ms,
+    a fiftieth of the noisy bench frame)."""
+    h, w = mask.shape
+    bands = _bands(mask)
+    if not bands:
+        return 0, np.zeros((h, w), np.int32), np.zeros((0, 5), np.int32)
+    alloc = np.zeros  # (the examination reads the label image band by band)
+    if 2 * sum(r1 - r0 for r0, r1 in bands) > h:
+        # bands over most rows: one pass costs less than theirs and the copies
+        n, labels, stats = connected_components_boxes(mask)
+        return n - 1, labels, stats[1:]
+    labels = None
+    parts = []
+    n = 0
+    for r0, r1 in bands:
+        c0, nb, lab, stats = _label_band(mask, r0, r1)
+        if lab.shape == (h, w):
+            labels = lab  # one band: the whole mask
+        else:
+            if labels is None:
+                labels = alloc((h, w), np.int32)
+            np.copyto(labels[r0:r1, c0 : c0 + lab.shape[1]], lab + n, where=lab > 0)
+        stats = stats[1:]
+        stats[:, cv2.CC_STAT_LEFT] += c0
+        stats[:, cv2.CC_STAT_TOP] += r0
+        parts.append(stats)
+        n += nb - 1
+    return n, labels, np.concatenate(parts)
+
+
+def luma(image: np.ndarray, *, dtype=np.float64) -> np.ndarray:
+    """Rec. 601 luma ``0.299 R + 0.587 G + 0.114 B`` of an RGB image.
+
+    Parameters
+    ----------
+    image : ndarray of shape (H, W) or (H, W, 3)
+        A validated image; a gray image is returned as is (cast).
+    dtype : numpy dtype
+        Output dtype (float64 by default).
+
+    Returns
+    -------
+    ndarray of shape (H, W)
+        Intensity in image units (no rescaling); each pixel's value depends on that pixel only,
+        so an ROI's luma is the frame's luma sliced.
+    """
+    if image.ndim == 2:
+        return image.astype(dtype, copy=False)
+    if np.dtype(dtype) in (np.float32, np.float64):
+        return compiled_luma(image, dtype)
+    return (image.astype(dtype, copy=False) @ _LUMA.astype(dtype)).astype(dtype, copy=False)
+
+
+def colour_luma32(image: np.ndarray, grey: bool) -> np.ndarray | None:
+    """The unrounded luma of a colour 8- or 16-bit RGB frame in float32 (H, W), read-only
+    (:func:`compiled_luma`); None for any other frame (single-channel, gray (R = G = B), float,
+    RGBA). ``grey``: whether R = G = B (the caller's answer: detection's, or the pipeline's
+    test). Detection smooths it and the pipeline contours in it, so both take it from here."""
+    if grey or image.ndim != 3 or image.shape[2] != 3 or image.dtype.type not in (np.uint8, np.uint16):
+        return None
+    out = compiled_luma(image, np.float32)
+    out.setflags(write=False)
+    return out
+
+
+def compiled_luma(image: np.ndarray, dtype) -> np.ndarray:
+    """The Rec. 601 luma (H, W) of an (H, W, 3) image in float64 or float32, by OpenCV's
+    ``cv2.transform`` (the weighted sum of the channels, in ``dtype``)."""
+    dt = np.dtype(dtype)
+    src = image if image.dtype == dt else image.astype(dt)
+    return cv2.transform(np.ascontiguousarray(src), _LUMA_ROW)
+
+
+def _gray_native(image: np.ndarray) -> np.ndarray:
+    """Fast luma for thresholding: OpenCV for uint8/uint16/float32 RGB, numpy otherwise."""
+    if image.ndim == 2:
+        return image
+    if image.dtype in (np.uint8, np.uint16, np.float32):
+        return cv2.cvtColor(np.ascontiguousarray(image), cv2.COLOR_RGB2GRAY)
+    return luma(image)
+
+
+def _gray_and_grey(image: np.ndarray) -> tuple[np.ndarray, bool | None]:
+    """:func:`_gray_native` of an image and whether its R, G and B are equal (None: not asked).
+    An 8-bit RGB frame is tested: a few spread rows first (a colour frame differs there), then
+    the frame against its gray made RGB again (OpenCV's gray of R = G = B is R)."""
+    if image.ndim == 3 and image.shape[2] == 3 and image.dtype == np.uint8:
+        rows = image[:: max(1, image.shape[0] // 16)]
+        if not (np.array_equal(rows[..., 0], rows[..., 1]) and np.array_equal(rows[..., 0], rows[..., 2])):
+            return _gray_native(image), False
+        gray = _gray_native(image)
+        back = cv2.cvtColor(gray, cv2.COLOR_GRAY2RGB)
+        return gray, bool(cv2.norm(np.ascontiguousarray(image), back, cv2.NORM_INF) == 0)
+    return _gray_native(image), None
+
+
+def _threshold_mask(gray: np.ndarray, thr: float) -> np.ndarray:
+    """uint8 mask (0/1) of ``gray >= thr``, by cv2.threshold where the dtype allows."""
+    if gray.dtype == np.uint8 or gray.dtype == np.uint16:
+        t = float(np.ceil(thr)) - 1.0  # integer x >= thr  <=>  x > ceil(thr) - 1
+        if t < 0:
+            return np.ones(gray.shape, np.uint8)
+        m = cv2.threshold(gray, t, 1, cv2.THRESH_BINARY)[1]
+        return m if m.dtype == np.uint8 else m.astype(np.uint8)
+    if gray.dtype == np.float32 or gray.dtype == np.float64:
+        t = float(np.nextafter(gray.dtype.type(thr), gray.dtype.type(-np.inf)))
+        return cv2.threshold(gray, t, 1, cv2.THRESH_BINARY)[1].astype(np.uint8)
+    return (gray >= thr).view(np.uint8)
+
+
+def noise_sigma(gray: np.ndarray) -> float:
+    """Robust standard deviation of the pixel noise of an image, image units.
+
+    The median absolute deviation of the difference between each pixel and the mean of its two
+    horizontal neighbours, ``d = x - (left + right) / 2`` (a smooth image has ``d ~ 0``; for white
+    noise of variance s^2, ``var d = 1.5 s^2``), scaled to a standard deviation:
+    ``s = 1.4826 MAD(d) / sqrt(1.5)``.
+
+    Parameters
+    ----------
+    gray : ndarray of shape (H, W)
+        Intensities (W >= 3).
+
+    Returns
+    -------
+    float
+        Estimated noise standard deviation (0 for a noise-free smooth or quantised-flat image).
+    """
+    return _noise_sigma_of_rows(_noise_rows(gray))
+
+
+def _noise_rows(image: np.ndarray) -> np.ndarray:
+    """The rows :func:`noise_sigma` reads: ~50 rows (tens of thousands of pixels) are plenty for
+    a median."""
+    return image[:: max(1, image.shape[0] // 48)]
+
+
+def _noise_sigma_of_rows(rows: np.ndarray) -> float:
+    """:func:`noise_sigma` of the rows it reads (h, W)."""
+    if rows.dtype == np.uint8 and rows.shape[1] >= 3 and rows.shape[0] >= 1:
+        mad = _mad_of_uint8_rows(rows)
+    else:
+        g = rows.astype(np.float32)
+        d = (g[:, 1:-1] - 0.5 * (g[:, :-2] + g[:, 2:])).ravel()
+        mad = _median(np.abs(d - _median(d)))  # float32, as its float32 data
+    return float(1.4826 * mad / np.sqrt(1.5))
+
+
+def _median(a: np.ndarray):
+    """``np.median`` of a 1-D float array, the same value, by one partition at the upper middle
+    index (the lower middle value is the largest below it): numpy's median partitions at both
+    middle indices at once, twice the time (2.6 -> 1.4 ms for the two medians of the banner's
+    noise estimate, 107 000 float32 values; ``tests/test_detect.py`` compares them)."""
+    n = a.size
+    if n == 0 or np.isnan(a).any():
+        return np.median(a)
+    k = n // 2
+    # middle order statistics at 0, where most values tie there (the differences of a JPEG or
+    # clean frame's flat rows): counted, not selected (a partition among that many ties took 2 of
+    # the 2.7 ms of the bench video frame's noise estimate); 0 (a -0.0 among them reads as 0.0)
+    below = np.count_nonzero(a < 0)
+    if below <= k - 1 + n % 2 and k < below + np.count_nonzero(a == 0):
+        return a.dtype.type(0)
+    p = np.partition(a, k)
+    if n % 2:
+        return p[k]
+    return (p[:k].max() + p[k]) / a.dtype.type(2)
+
+
+def _median_of_counts(hist: np.ndarray, n: int) -> float:
+    """The median (as ``np.median`` takes it: the mean of the two middle values for an even
+    count) of ``n`` integers given by their histogram over 0, 1, ..."""
+    cum = np.cumsum(hist)
+    hi = int(np.searchsorted(cum, n // 2 + 1))
+    if n % 2:
+        return float(hi)
+    lo = int(np.searchsorted(cum, n // 2))
+    return (lo + hi) / 2.0
+
+
+def _mad_of_uint8_rows(rows: np.ndarray) -> np.float32:
+    """``np.median(np.abs(d - np.median(d)))`` of :func:`_noise_sigma_of_rows` for uint8 rows,
+    by counting: for 8-bit intensities ``2 d = 2 x - (left + right)`` is an integer in
+    [-510, 510] and the medians are order statistics read off histograms (the same float32
+    value as numpy's partitions, exact in multiples of 1/4)."""
+    x = rows.astype(np.int32)
+    v = (2 * x[:, 1:-1] - x[:, :-2] - x[:, 2:]).ravel()  # 2 d
+    n = v.size
+    med2 = _median_of_counts(np.bincount(v + 510, minlength=1021), n) - 510  # 2 median(d)
+    dev4 = np.abs(2 * v - int(round(2 * med2)))  # 4 |d - median(d)|
+    return np.float32(_median_of_counts(np.bincount(dev4), n) / 4.0)
+
+
+def auto_smooth_sigma_px(gray: np.ndarray, full_scale: float) -> float:
+    """Gaussian smoothing for detection and contouring chosen from the image's noise.
+
+    0 (none) when the noise is below 0.5 % of full scale (renders, clean frames: 8-bit JPEG
+    ringing included), else ``min(2.5, 1 + noise / (1 % of full scale))`` px: 2 px for 1 %,
+    2.5 px from 1.5 % (a Gaussian of sigma s divides white noise by ``2 s sqrt(pi)``: 2 px cut it
+    sevenfold, enough to keep one highlight in one component; more blurs small highlights away).
+
+    Parameters
+    ----------
+    gray : ndarray of shape (H, W)
+    full_scale : float
+
+    Returns
+    -------
+    float
+        Sigma in px, >= 0.
+    """
+    return _sigma_for_noise(noise_sigma(gray) / full_scale)
+
+
+def image_smooth_sigma_px(image: np.ndarray, full_scale: float) -> float:
+    """:func:`auto_smooth_sigma_px` of a validated image's luma, computed on the rows the noise
+    estimate reads only (the luma is per pixel, so these are the same values as those rows of
+    the whole image's luma; a 1350 x 1080 RGB frame needs 49 rows of it, not 1080).
+
+    Parameters
+    ----------
+    image : ndarray of shape (H, W) or (H, W, 3)
+        A validated image (:func:`validate_image`).
+    full_scale : float
+
+    Returns
+    -------
+    float
+        Sigma in px, >= 0.
+    """
+    return _sigma_for_noise(image_noise_sigma(image) / full_scale)
+
+
+def image_noise_sigma(image: np.ndarray) -> float:
+    """:func:`noise_sigma` of a validated image's luma (OpenCV's gray of an RGB image), read on
+    the rows the estimate reads only (what :func:`image_smooth_sigma_px` measures).
+
+    Parameters
+    ----------
+    image : ndarray of shape (H, W) or (H, W, 3)
+        A validated image (:func:`validate_image`).
+
+    Returns
+    -------
+    float
+        Image units, >= 0.
+    """
+    return _noise_sigma_of_rows(_gray_native(_noise_rows(image)))
+
+
+def smooth_sigma_for_noise(noise: float, full_scale: float) -> float:
+    """:func:`auto_smooth_sigma_px`'s choice for a measured ``noise`` (image units), px."""
+    return _sigma_for_noise(noise / full_scale)
+
+
+def _sigma_for_noise(s: float) -> float:
+    return 0.0 if s < 0.005 else float(min(2.5, 1.0 + s / 0.01))
+
+
+def _area_reduced(img: np.ndarray, f: int, halves: list | None = None) -> np.ndarray:
+    """The means of the ``f`` x ``f`` blocks of a float32 image whose sides are multiples of f:
+    ``cv2.resize(img, (W // f, H // f), interpolation=cv2.INTER_AREA)``, as a chain of 2 x 2
+    reductions (OpenCV's vectorised path, a third of the general integer one's time on a 1350 x
+    1080 frame) and one by the odd rest; the same means to float32 rounding. ``halves``: the first 2 x 2 reduction is appended to it (for f even)."""
+    h, w = img.shape[:2]
+    while f % 2 == 0 and f > 1:
+        h, w, f = h // 2, w // 2, f // 2
+        img = cv2.resize(img, (w, h), interpolation=cv2.INTER_AREA)
+        if halves is not None and not halves:
+            halves.append(img)
+    if f > 1:  # the odd rest
+        img = cv2.resize(img, (w // f, h // f), interpolation=cv2.INTER_AREA)
+    return img
+
+
+def _scope_border(gray: np.ndarray, level: float, half: np.ndarray | None = None) -> np.ndarray | None:
+    """The endoscope's black border: pixels below ``level`` joined to at least two image corners,
+    when they cover 1 % to 60 % of the image (a dark scene, such as a render on black, is not a
+    scope border); closed (the text drawn on it) and dilated by about 5 px (the edge of the field
+    of view). Found on the image reduced 4 times (the mean of each 4 x 4 block; the last rows and
+    columns that fill no block are left out of the reduction, and the border mask is brought back
+    over the whole image): the border is large and its edge needs no finer place. None if there
+    is none. ``half``: the means of ``gray``'s 2 x 2 blocks (float32, (H // 2, W // 2)) where the
+    caller has them (:func:`local_peak_mask`'s): the reduction's first step, not made again
+    (0.4 ms of a 1350 x 1080 frame; the same blocks' means)."""
+    h, w = gray.shape
+    f = 4 if min(h, w) >= 64 else 1
+    if f > 1:
+        # the reduced image's corners (the corner blocks' means, as the reduction gives them):
+        # fewer than two dark, no border, without reducing the whole frame (0.5 ms of a clean
+        # 1350 x 1080 frame without a scope border)
+        hf, wf = h // f * f, w // f * f
+        dark = 0
+        for r, c in ((0, 0), (0, wf - f), (hf - f, 0), (hf - f, wf - f)):
+            block = np.ascontiguousarray(gray[r : r + f, c : c + f], dtype=np.float32)
+            dark += bool(cv2.resize(block, (1, 1), interpolation=cv2.INTER_AREA)[0, 0] < level)
+        if dark < 2:
+            return None
+    # whole f x f blocks (the last h mod f rows and w mod f columns left out): OpenCV's integer
+    # area reduction, a third of the time of the fractional one over the whole image
+    if f == 4 and half is not None and half.shape == (h // 2, w // 2):
+        small = _area_reduced(np.ascontiguousarray(half[: h // f * 2, : w // f * 2]), 2)
+    else:
+        small = _area_reduced(gray[: h // f * f, : w // f * f].astype(np.float32, copy=False), f) if f > 1 else gray
+    border = _dark_corner_components((small < level).astype(np.uint8))
+    if border is None:
+        return None
+    # the text drawn on the border: bright holes of the dark region (filled by closing)
+    close, grow = (15 // f) | 1, (11 // f) | 1
+    border = cv2.morphologyEx(border, cv2.MORPH_CLOSE, np.ones((close, close), np.uint8))
+    border = cv2.dilate(border, np.ones((grow, grow), np.uint8))
+    if f > 1:
+        border = cv2.resize(border, (w, h), interpolation=cv2.INTER_NEAREST)
+    return border.view(bool)
+
+
+def _dark_corner_components(dark: np.ndarray) -> np.ndarray | None:
+    """The dark 8-connected components that hold the corners of a uint8 0/1 mask (1 dark), as a
+    uint8 0/1 mask, when at least two corners are dark and those components cover 1 % to 60 % of
+    it; None otherwise. ``dark`` is written (the components become 2).
+
+    A scope's field of view is round or octagonal: its black border holds the image corners. The
+    components are flood-filled from the corners, each once: those of a labelling of the whole
+    mask and their areas, in about half its time (0.15 to 0.22 against 0.41 to 0.44 ms on the
+    noisy bench frame's reduced image, one dark region to its corners, minima of 200;
+    ``tests/test_detect.py`` compares the two on random masks).
+    """
+    hs, ws = dark.shape
+    corners = [(0, 0), (ws - 1, 0), (0, hs - 1), (ws - 1, hs - 1)]  # (x, y)
+    if sum(int(dark[y, x]) for x, y in corners) < 2:
+        return None
+    area = 0
+    for x, y in corners:
+        if dark[y, x] == 1:
+            area += cv2.floodFill(dark, None, (x, y), 2, 0, 0, 8)[0]
+    if not 0.01 <= area / dark.size <= 0.6:
+        return None
+    return (dark == 2).view(np.uint8)
+
+
+#: The background square of :func:`local_peak_mask` is ``min(H, W) / BACKGROUND_DIV`` px (>= 31).
+BACKGROUND_DIV = 10
+#: ... and at least this many times the extent of the widest clipped plateau (see
+#: :func:`background_side_px`).
+BACKGROUND_PLATEAU_FACTOR = 2
+
+
+def clipped_mask(image: np.ndarray, saturation_level: float | None,
+                 gray: np.ndarray | None = None, grey: bool = False) -> np.ndarray | None:
+    """Pixels clipped white (every channel >= ``saturation_level``), uint8 0/1; None without a
+    saturation level (float images).
+
+    Parameters
+    ----------
+    image : ndarray of shape (H, W) or (H, W, C)
+        A validated image (:func:`validate_image`).
+    saturation_level : float or None
+        Image units.
+    gray : ndarray of shape (H, W), optional
+        The image's luma as :func:`_gray_native` gives it (OpenCV's integer Rec. 601 weights, of
+        the same dtype as ``image``). Only the rows where it reaches the level are examined:
+        OpenCV's luma is a rounded weighted mean with positive weights summing to one, so a pixel
+        whose channels are all >= an integer level has a luma >= that level (the same mask;
+        ``tests/test_detect.py`` checks it against the definition).
+    grey : bool, optional
+        The caller knows that the image's R, G and B are equal and ``gray`` is their value (an
+        8-bit gray frame: :func:`_gray_and_grey`'s channel). The mask is then the gray's, every
+        channel reaching the level where it does: one ``cv2.threshold`` pass over the gray, the
+        channels not read (0.17 -> 0.09 ms on the noisy bench frame). Ignored for other dtypes.
+
+    Returns
+    -------
+    ndarray of shape (H, W), uint8, or None
+
+    Notes
+    -----
+    For uint8 and uint16 images this is one ``cv2.inRange`` pass (an integer pixel is >= the
+    level exactly when it is >= its ceiling): a twentieth of the time of numpy's comparison and
+    reduction over the channels on a 1350 x 1080 RGB frame; the mask is the same.
+    """
+    if saturation_level is None:
+        return None
+    if image.dtype in (np.uint8, np.uint16) and image.ndim in (2, 3):
+        top = int(np.iinfo(image.dtype).max)
+        lo = float(np.ceil(saturation_level))
+        if lo > top:
+            return np.zeros(image.shape[:2], np.uint8)
+        lo = int(max(lo, 0.0))
+        nch = 1 if image.ndim == 2 else image.shape[2]
+        if grey and gray is not None and image.ndim == 3 and image.dtype == np.uint8 and gray.dtype == np.uint8 \
+                and gray.shape == image.shape[:2]:
+            # (an integer x >= lo exactly when x > lo - 1; one pass, the 0/1 mask itself)
+            return cv2.threshold(np.ascontiguousarray(gray), lo - 1, 1, cv2.THRESH_BINARY)[1]
+        if gray is not None and image.ndim == 3 and lo > 0:
+            rows = np.flatnonzero(gray.max(axis=1) >= lo)
+            out = np.zeros(image.shape[:2], np.uint8)
+            if len(rows):
+                r0, r1 = int(rows[0]), int(rows[-1]) + 1
+                m = cv2.inRange(np.ascontiguousarray(image[r0:r1]), (lo,) * nch, (top,) * nch)
+                np.right_shift(m, 7, out=out[r0:r1])  # 255 -> 1
+            return out
+        m = cv2.inRange(np.ascontiguousarray(image), (lo,) * nch, (top,) * nch)
+        return np.right_shift(m, 7, out=m)  # 255 -> 1
+    sat = image >= saturation_level
+    if sat.ndim == 3:
+        sat = sat.all(axis=2)
+    return sat.view(np.uint8)
+
+
+def background_side_px(shape: tuple[int, int], clipped: np.ndarray | None = None) -> int:
+    """Side of the background square of :func:`local_peak_mask`, px.
+
+    ``max(31, min(H, W) // BACKGROUND_DIV)``, widened to ``BACKGROUND_PLATEAU_FACTOR`` times the
+    largest bounding-box side of the clipped plateaus (8-connected) plus one.
+
+    Parameters
+    ----------
+    shape : (H, W)
+    clipped : ndarray of shape (H, W), uint8, optional
+        Clipped pixels (:func:`clipped_mask`).
+
+    Returns
+    -------
+    int
+
+    Notes
+    -----
+    The grey opening by the square is the diffuse background only where the highlight is
+    narrower than the square: a highlight wider than it (a lobe close to the scope that the
+    auto-exposure clips together with the bright tissue around it, 70 px in a 406 px frame of
+    ``colonoscope_plane``, 90 px in ``laparoscope_liver``) is taken for background, its top-hat
+    is near 0 in its middle and the detector cuts its rim into pieces. A clipped plateau is part
+    of a highlight, so its extent bounds the highlight's size from below; twice it leaves room
+    for the unclipped flanks. The frames whose clipped plateaus are narrower than half the
+    default square (every real image of tests/data, the bench frames) keep the default.
+    """
+    h, w = shape
+    side = max(31, min(h, w) // BACKGROUND_DIV)
+    rows = np.flatnonzero(clipped.max(axis=1)) if clipped is not None else ()
+    if len(rows):
+        # The outer boundaries of the 8-connected plateaus bound them: their bounding boxes are
+        # the components' (a plateau in the hole of another lies within the other's box, so the
+        # largest side is the same); a tenth of the time of labelling the frame. Only the rows
+        # that hold clipped pixels are contoured (the same boxes; 0.33 against 0.14 ms on the
+        # noisy bench frame, whose plateaus span 50 of its 1080 rows).
+        band = clipped[rows[0] : rows[-1] + 1]
+        contours, _ = cv2.findContours(band, cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_SIMPLE)
+        ext = max(max(cv2.boundingRect(c)[2:]) for c in contours)
+        side = max(side, BACKGROUND_PLATEAU_FACTOR * ext + 1)
+    return side
+
+
+def local_peak_mask(gray: np.ndarray, full_scale: float, *, peak_rel: float = 0.6,
+                    contrast_min_rel: float = 0.08, background_px: int | None = None, _parts: list | None = None,
+                    _half: list | None = None):
+    """Bright-candidate mask relative to local peaks (``method="local_peak"``).
+
+    The diffuse background is the grey opening of the luma by a square of side ``background_px``
+    (it removes every bright structure narrower than that), computed on the image reduced by area
+    averaging so that the square is about 16 px, then brought back by bilinear interpolation (the
+    background is smooth at that scale; the opening at full size costs ten times more); the
+    top-hat ``T = gray - background`` is the specular part. A pixel is a candidate when ``T >= peak_rel * max(T over the same
+    square around it)`` (relative to its own local peak, not to full scale) and ``T >=
+    contrast_min_rel * full_scale`` (it stands out of the background).
+
+    Parameters
+    ----------
+    gray : ndarray of shape (H, W)
+        Luma (smoothed if the caller smooths).
+    full_scale : float
+        Intensity of white, image units.
+    peak_rel : float
+        Fraction of the local top-hat peak (0.5: the half-height core of each highlight).
+    contrast_min_rel : float
+        Smallest top-hat, fraction of full scale.
+    background_px : int, optional
+        Side of the square, px; default :func:`background_side_px` without clipped pixels
+        (``max(31, min(H, W) // BACKGROUND_DIV)``): wider than the highlights of endoscopic
+        frames (up to about 30 px in a 1350 x 1080 frame); a broader lobe keeps a smaller core
+        and its ROI grows in the pipeline.
+
+    Returns
+    -------
+    mask : ndarray of shape (H, W), uint8
+        1 for candidate pixels.
+    background : ndarray of shape (H, W), float32
+        The opening (image units).
+    """
+    g = gray.astype(np.float32, copy=False)
+    h, w = g.shape
+    side = int(background_px) if background_px else background_side_px((h, w))
+    # The background is smooth at the scale of the square: open (and take the local peaks) on the
+    # image reduced so that the square is ~16 px (area averaging), then back to full size.
+    f = max(1, side // 16)
+    whole = f > 1 and h % f == 0 and w % f == 0  # whole blocks: the reductions by 2 x 2 steps
+    if whole:
+        # (``_half``: the means of g's 2 x 2 blocks, the chain's first step, for the scope border
+        # and the verifier)
+        small = _area_reduced(g, f, _half)
+    else:
+        small = cv2.resize(g, (max(1, w // f), max(1, h // f)), interpolation=cv2.INTER_AREA) if f > 1 else g
+    k = max(3, side // f)
+    k += 1 - k % 2
+    kernel = cv2.getStructuringElement(cv2.MORPH_RECT, (k, k))
+    bg_small = cv2.morphologyEx(small, cv2.MORPH_OPEN, kernel, borderType=cv2.BORDER_REPLICATE)
+    # background = min(enlarged opening, g) (an opening never exceeds the image), top = g - background
+    background = cv2.resize(bg_small, (w, h), interpolation=cv2.INTER_LINEAR) if f > 1 else bg_small
+    background = cv2.min(background, g)
+    top = cv2.subtract(g, background)
+    if whole:
+        top_small = _area_reduced(top, f)
+    else:
+        top_small = cv2.resize(top, small.shape[::-1], interpolation=cv2.INTER_AREA) if f > 1 else top
+    peak_small = cv2.dilate(top_small, kernel, borderType=cv2.BORDER_REPLICATE)
+    # top >= peak_rel * max(local_peak, top) and top >= contrast_min_rel * full_scale: as top and
+    # the local peak are >= 0 and peak_rel < 1, the first is top >= peak_rel * local_peak (the
+    # scaling done on the reduced peaks: the enlargement is linear)
+    scaled = peak_small * np.float32(peak_rel)
+    near_level = cv2.resize(scaled, (w, h), interpolation=cv2.INTER_LINEAR) if f > 1 else scaled
+    thr = np.float32(contrast_min_rel * full_scale)
+    mask = cv2.bitwise_and(cv2.compare(top, near_level, cv2.CMP_GE), cv2.compare(top, float(thr), cv2.CMP_GE))
+    np.right_shift(mask, 7, out=mask)  # 255 -> 1
+    if _parts is not None:  # the reduced background and local peaks (_detect_half_resolution)
+        _parts.extend((bg_small, peak_small, f))
+    return mask, background
+
+
+def linear_at(small: np.ndarray, shape: tuple[int, int], r0: int, r1: int, c0: int, c1: int) -> np.ndarray:
+    """``cv2.resize(small, shape[::-1], interpolation=cv2.INTER_LINEAR)[r0:r1, c0:c1]`` computed in
+    that window only (OpenCV's sample positions and clamping at the sides; float32, to its
+    rounding)."""
+    sh, sw = small.shape
+    h, w = shape
+    if h % sh == 0 and w % sw == 0 and h // sh == w // sw and h // sh > 1:
+        # an integer factor f: the enlargement of the blocks under the window and one more on
+        # each side is the frame's there (as the verifier enlarges its windows)
+        f = h // sh
+        q0, q1 = max(0, r0 // f - 1), min(sh, (r1 - 1) // f + 2)
+        p0, p1 = max(0, c0 // f - 1), min(sw, (c1 - 1) // f + 2)
+        up = cv2.resize(np.ascontiguousarray(small[q0:q1, p0:p1]), ((p1 - p0) * f, (q1 - q0) * f),
+                        interpolation=cv2.INTER_LINEAR)
+        return up[r0 - q0 * f : r1 - q0 * f, c0 - p0 * f : c1 - p0 * f]
+
+    def axis(n0, n1, src, dst):
+        x = (np.arange(n0, n1, dtype=np.float64) + 0.5) * (src / dst) - 0.5
+        i0 = np.floor(x).astype(np.int64)
+        a = (x - i0).astype(np.float32)
+        a[i0 < 0] = 0.0
+        i0 = np.maximum(i0, 0)
+        a[i0 >= src - 1] = 0.0
+        i0 = np.minimum(i0, src - 1)
+        return i0, np.minimum(i0 + 1, src - 1), a
+
+    y0, y1, ay = axis(r0, r1, sh, h)
+    x0, x1, ax = axis(c0, c1, sw, w)
+    one = np.float32(1.0)
+    top = small[y0][:, x0] * (one - ax) + small[y0][:, x1] * ax
+    bot = small[y1][:, x0] * (one - ax) + small[y1][:, x1] * ax
+    return top * (one - ay)[:, None] + bot * ay[:, None]

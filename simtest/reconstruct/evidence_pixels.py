@@ -1,0 +1,337 @@
+"""The pixel work of the verifier (:mod:`simtest.reconstruct.verify`), by OpenCV and numpy calls.
+
+The grey opening (the diffuse background) on a reduced frame and its bilinear enlargement at
+some pixels or windows, the top-hat and its 3 x 3 local maxima, the colour at points, the flat
+panels (5 x 5 variance, components, counts per region), the other specular peaks near each
+candidate and the lit share of its surround. The decision numbers are the verifier's; they come
+in as arguments.
+"""
+
+from __future__ import annotations
+
+import cv2
+import numpy as np
+
+from simtest.reconstruct.detect_pixels import connected_components, connected_components_with_stats, linear_at
+
+#: A 3 x 3 square: the neighbourhood of a local maximum.
+_SQUARE3 = np.ones((3, 3), np.uint8)
+
+
+def block_means(img: np.ndarray, f: int) -> np.ndarray:
+    """Means of the f x f blocks of an image (H, W) or (H, W, C) whose sides are multiples of f,
+    float32 (H / f, W / f[, C]): ``cv2.resize``'s INTER_AREA reduction by f. An 8-bit image's f
+    rows are summed in uint16 by numpy first (exact for f <= 16), then reduced along the rows by
+    OpenCV: no float32 copy of the frame."""
+    h, w = img.shape[:2]
+    if img.dtype != np.uint8 or f > 16 or f == 1:
+        x = img.astype(np.float32, copy=False)
+        return cv2.resize(x, (w // f, h // f), interpolation=cv2.INTER_AREA) if f > 1 else x
+    c = img.shape[2] if img.ndim == 3 else 1
+    rows = np.ascontiguousarray(img).reshape(h // f, f, w * c).sum(axis=1, dtype=np.uint16).astype(np.float32)
+    rows *= np.float32(1.0 / f)
+    return cv2.resize(rows.reshape(h // f, w, c) if c > 1 else rows, (w // f, h // f), interpolation=cv2.INTER_AREA)
+
+
+def _open(small: np.ndarray, side: int, f: int) -> np.ndarray:
+    k = max(3, side // f)
+    k += 1 - k % 2
+    return cv2.morphologyEx(small, cv2.MORPH_OPEN, cv2.getStructuringElement(cv2.MORPH_RECT, (k, k)),
+                            borderType=cv2.BORDER_REPLICATE)
+
+
+def opening(img: np.ndarray, side: int) -> np.ndarray:
+    """Grey opening by a square of ``side`` px on the image reduced so that the square is ~16 px
+    (as :func:`~simtest.reconstruct.detect.local_peak_mask`), back to full size; float32."""
+    h, w = img.shape[:2]
+    f = max(1, side // 16)
+    if f > 1 and h % f == 0 and w % f == 0:
+        small = block_means(img, f)
+    else:
+        x = img.astype(np.float32, copy=False)
+        small = cv2.resize(x, (max(1, w // f), max(1, h // f)), interpolation=cv2.INTER_AREA) if f > 1 else x
+    bg = _open(small, side, f)
+    return cv2.resize(bg, (w, h), interpolation=cv2.INTER_LINEAR) if f > 1 else bg
+
+
+def opening_small(img: np.ndarray, side: int, half: np.ndarray | None = None):
+    """:func:`opening` before its last step: ``(bg_small, f)``, the opening on the image reduced
+    by ``f`` (float32), when the frame's sides are multiples of ``f > 1`` (then
+    :func:`upsampled` gives any window of the full-size opening); otherwise ``(the full-size
+    opening, 1)``. ``half``: the means of the image's 2 x 2 blocks where the caller has them
+    (detection's; used for an even f)."""
+    h, w = img.shape[:2]
+    f = max(1, side // 16)
+    if f == 1 or h % f or w % f:
+        return opening(img, side), 1
+    if half is not None and f % 2 == 0 and half.shape == (h // 2, w // 2):
+        small = half if f == 2 else cv2.resize(np.ascontiguousarray(half), (w // f, h // f),
+                                               interpolation=cv2.INTER_AREA)
+    else:
+        small = block_means(img, f)
+    return _open(small, side, f), f
+
+
+def linear_at_points(small: np.ndarray, shape: tuple[int, int], rows: np.ndarray, cols: np.ndarray) -> np.ndarray:
+    """``cv2.resize(small, shape[::-1], interpolation=cv2.INTER_LINEAR)[rows, cols]`` at those
+    pixels only (OpenCV's sample positions and clamping at the sides; float32): (P,) or (P, C)."""
+    sh, sw = small.shape[:2]
+    h, w = shape
+
+    def axis(i, src, dst):
+        x = (np.asarray(i, np.float64) + 0.5) * (src / dst) - 0.5
+        i0 = np.floor(x).astype(np.int64)
+        a = (x - i0).astype(np.float32)
+        a[i0 < 0] = 0.0
+        i0 = np.maximum(i0, 0)
+        a[i0 >= src - 1] = 0.0
+        i0 = np.minimum(i0, src - 1)
+        return i0, np.minimum(i0 + 1, src - 1), a
+
+    y0, y1, ay = axis(rows, sh, h)
+    x0, x1, ax = axis(cols, sw, w)
+    if small.ndim == 3:
+        ax, ay = ax[:, None], ay[:, None]
+    one = np.float32(1.0)
+    top = small[y0, x0] * (one - ax) + small[y0, x1] * ax
+    bot = small[y1, x0] * (one - ax) + small[y1, x1] * ax
+    return top * (one - ay) + bot * ay
+
+
+def upsampled(bg: np.ndarray, f: int, shape: tuple[int, int], windows) -> np.ndarray:
+    """A frame-sized array holding :func:`opening`'s values inside the ``windows`` (row0, row1,
+    col0, col1; unset elsewhere), from :func:`opening_small`'s ``(bg, f)``: each window the
+    enlargement of the reduced blocks under it (:func:`~simtest.reconstruct.detect_pixels.linear_at`,
+    the frame's to the bit)."""
+    if f == 1:
+        return bg
+    h, w = shape
+    out = np.empty((h, w) + bg.shape[2:], np.float32)
+    for r0, r1, c0, c1 in windows:
+        if r1 > r0 and c1 > c0:
+            out[r0:r1, c0:c1] = linear_at(bg, (h, w), r0, r1, c0, c1)
+    return out
+
+
+def top_hat_maxima(g: np.ndarray, bg: np.ndarray, floor: np.float32) -> tuple[np.ndarray, np.ndarray]:
+    """The top-hat ``max(g - bg, 0)`` (float32) and its 3 x 3 local maxima above ``floor``:
+    pixels at least each of their 8 neighbours inside the array (``cv2.dilate``, the sides
+    replicated) and ``> floor``; bool mask."""
+    top = np.subtract(g, bg, dtype=np.float32)
+    np.maximum(top, np.float32(0.0), out=top)
+    peak = cv2.dilate(top, _SQUARE3, borderType=cv2.BORDER_REPLICATE)
+    return top, (top >= peak) & (top > floor)
+
+
+def maxima_in_windows(g: np.ndarray, bg_small: np.ndarray, f: int, windows: np.ndarray,
+                      floor: np.float32) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """:func:`top_hat_maxima` of the luma ``g`` over its opening (``bg_small`` enlarged by
+    ``f``), in the ``windows`` (row0, row1, col0, col1) only: a frame-sized top-hat exact inside
+    them (elsewhere unset) and the maxima inside them (rows, columns; row-major, each once).
+    Each window is measured with 1 px more (clipped to the frame), so its maxima are the whole
+    frame's."""
+    h, w = g.shape
+    top = np.empty((h, w), np.float32)
+    idx = []
+    for r0, r1, c0, c1 in np.asarray(windows, np.int64).reshape(-1, 4).tolist():
+        if r1 <= r0 or c1 <= c0:
+            continue
+        e0, e1, f0, f1 = max(0, r0 - 1), min(h, r1 + 1), max(0, c0 - 1), min(w, c1 + 1)
+        bg = linear_at(bg_small, (h, w), e0, e1, f0, f1) if f > 1 else bg_small[e0:e1, f0:f1]
+        t, mk = top_hat_maxima(g[e0:e1, f0:f1], bg, floor)
+        top[r0:r1, c0:c1] = t[r0 - e0 : r1 - e0, c0 - f0 : c1 - f0]
+        yy, xx = np.nonzero(mk[r0 - e0 : r1 - e0, c0 - f0 : c1 - f0])
+        idx.append((yy + r0).astype(np.int64) * w + (xx + c0))
+    flat = np.unique(np.concatenate(idx)) if idx else np.zeros(0, np.int64)
+    ys, xs = np.divmod(flat, w)
+    return top, ys, xs
+
+
+def in_windows(ys: np.ndarray, xs: np.ndarray, shape: tuple[int, int], windows: np.ndarray) -> np.ndarray:
+    """Whether each pixel (``ys``, ``xs``) lies in one of the ``windows`` (row0, row1, col0,
+    col1); bool."""
+    marks = np.zeros(shape, np.uint8)
+    for r0, r1, c0, c1 in np.asarray(windows, np.int64).reshape(-1, 4).tolist():
+        marks[r0:r1, c0:c1] = 1
+    return marks[ys, xs] != 0
+
+
+def rgb_at(src3: np.ndarray, rows: np.ndarray, cols: np.ndarray) -> np.ndarray:
+    """The (P, 3) float64 colour at pixels of an (H, W, C) image (C = 1: the channel as three)."""
+    v = src3[rows, cols].astype(np.float64)
+    return np.repeat(v, 3, axis=1) if v.shape[1] == 1 else v[:, :3]
+
+
+def rgb_max9(src3: np.ndarray, rows: np.ndarray, cols: np.ndarray) -> np.ndarray:
+    """The channel-wise maximum over the 3 x 3 px around each pixel (clipped to the frame),
+    (P, 3) float64."""
+    h, w = src3.shape[:2]
+    out = None
+    for dr in (-1, 0, 1):
+        for dc in (-1, 0, 1):
+            v = rgb_at(src3, np.clip(rows + dr, 0, h - 1), np.clip(cols + dc, 0, w - 1))
+            out = v if out is None else np.maximum(out, v)
+    return out
+
+
+def chroma(rgb: np.ndarray) -> np.ndarray:
+    """``1 - min / max`` over the last axis (3 channels), the max floored at 1e-9."""
+    r, g, b = rgb[..., 0], rgb[..., 1], rgb[..., 2]
+    mx = np.maximum(np.maximum(r, g), b)
+    return 1.0 - np.minimum(np.minimum(r, g), b) / np.maximum(mx, 1e-9)
+
+
+def flat_mask(gray: np.ndarray, std_max: float) -> np.ndarray:
+    """Pixels whose 5 x 5 luma standard deviation (``cv2.blur`` of the luma and of its square,
+    float32) is below ``std_max``; uint8 0/1."""
+    g = gray.astype(np.float32, copy=False)
+    m1 = cv2.blur(g, (5, 5))
+    m2 = cv2.blur(g * g, (5, 5))
+    var = m2 - m1 * m1
+    np.maximum(var, np.float32(0.0), out=var)
+    return (np.sqrt(var) < np.float32(std_max)).view(np.uint8)
+
+
+def panels(gray: np.ndarray, std_max: float, min_area: float) -> np.ndarray:
+    """Flat panels: the 8-connected components of :func:`flat_mask` of at least ``min_area``
+    px; uint8 0/1."""
+    flat = flat_mask(gray, std_max)
+    if np.count_nonzero(flat) < min_area:
+        return np.zeros_like(flat)
+    # labels alone and their areas by counting (OpenCV's statistics cost more than its labels)
+    n, lab = connected_components(flat)
+    big = (np.bincount(lab.ravel(), minlength=n) >= min_area).astype(np.uint8)
+    big[0] = 0
+    if not big.any():
+        return np.zeros_like(flat)
+    return big[lab]
+
+
+def panel_pixels_in(gray: np.ndarray, std_max: float, min_area: float, rr: np.ndarray) -> np.ndarray:
+    """How many pixels of :func:`panels` each region ``rr`` (rows of row0, row1, col0, col1)
+    holds, int64 (n,), by the panel map's integral image."""
+    rr = np.asarray(rr, np.int64).reshape(-1, 4)
+    p = panels(gray, std_max, min_area)
+    if not p.any():
+        return np.zeros(len(rr), np.int64)
+    s = cv2.integral(p, sdepth=cv2.CV_32S).astype(np.int64)
+    r0, r1, c0, c1 = rr.T
+    return s[r1, c1] - s[r0, c1] - s[r1, c0] + s[r0, c0]
+
+
+def surely_no_panels(gray: np.ndarray, rr: np.ndarray, margin: int, thr2: float, slack: float,
+                     min_area: float) -> bool:
+    """Whether no pixel of any region ``rr`` (rows of row0, row1, col0, col1) can be a panel
+    pixel, decided without the frame: True only when proven. Around each region (with
+    ``margin`` px) the pixels that may be flat are those whose 5 x 5 variance (float64) is below
+    ``thr2 + slack * m2`` (m2 the mean square): a superset of the flat pixels. If every component
+    of that superset that reaches into a region is smaller than ``min_area`` and is not cut by
+    the window's edge inside the frame, no panel reaches into a region. Non-finite: not proven."""
+    h, w = gray.shape
+    for row0, row1, col0, col1 in np.asarray(rr, np.int64).reshape(-1, 4).tolist():
+        wr0, wr1, wc0, wc1 = max(0, row0 - margin), min(h, row1 + margin), max(0, col0 - margin), min(w, col1 + margin)
+        cr0, cr1, cc0, cc1 = max(0, wr0 - 2), min(h, wr1 + 2), max(0, wc0 - 2), min(w, wc1 + 2)
+        x = gray[cr0:cr1, cc0:cc1].astype(np.float32).astype(np.float64)
+        if not np.isfinite(x).all():
+            return False
+        m1 = cv2.blur(x, (5, 5))[wr0 - cr0 : wr1 - cr0, wc0 - cc0 : wc1 - cc0]
+        m2 = cv2.blur(x * x, (5, 5))[wr0 - cr0 : wr1 - cr0, wc0 - cc0 : wc1 - cc0]
+        maybe = ((m2 - m1 * m1) < thr2 + slack * m2).view(np.uint8)
+        roi = maybe[row0 - wr0 : row1 - wr0, col0 - wc0 : col1 - wc0]
+        if not roi.any():
+            continue
+        n, lab, stats, _ = connected_components_with_stats(np.ascontiguousarray(maybe))
+        ids = np.flatnonzero(np.bincount(lab[row0 - wr0 : row1 - wr0, col0 - wc0 : col1 - wc0].ravel(), minlength=n))
+        st = stats[ids[ids > 0]]
+        x0, y0 = st[:, cv2.CC_STAT_LEFT], st[:, cv2.CC_STAT_TOP]
+        x1, y1 = x0 + st[:, cv2.CC_STAT_WIDTH], y0 + st[:, cv2.CC_STAT_HEIGHT]
+        cut = (((x0 == 0) & (wc0 > 0)) | ((y0 == 0) & (wr0 > 0)) | ((x1 == wc1 - wc0) & (wc1 < w))
+               | ((y1 == wr1 - wr0) & (wr1 < h)))
+        if cut.any() or (st[:, cv2.CC_STAT_AREA] >= min_area).any():
+            return False
+    return True
+
+
+def ellipse_level(ell, u, v):
+    """``(x / a)^2 + (y / b)^2`` of points (u, v) px in the ellipse's own axes (centre,
+    semi-axes a >= b, angle): at most 1 inside it; arrays or scalars."""
+    c, s = np.cos(ell.angle_rad), np.sin(ell.angle_rad)
+    du, dv = u - ell.center[0], v - ell.center[1]
+    a, b = ell.semi_axes
+    return ((c * du + s * dv) / a) ** 2 + ((-s * du + c * dv) / b) ** 2
+
+
+def other_peaks(top: np.ndarray, xs: np.ndarray, ys: np.ndarray, bps: np.ndarray, ij: np.ndarray,
+                reach: np.ndarray, min_top: np.ndarray, level: np.ndarray, ellipses, area_rel: float) -> np.ndarray:
+    """Per candidate, the specular peaks (``xs``, ``ys``, row-major) within ``reach`` of its BP
+    (``bps`` (u, v), its pixel ``ij`` (column, row)) with a top-hat of at least ``min_top``,
+    outside its own isophote ``ellipses[k]`` (None: none), that are not on its lobe (not joined
+    to it by pixels of the top-hat at least ``level``) and whose own region above ``level`` is
+    at least ``area_rel`` of the candidate's. The peak-to-candidate pairs are found and filtered
+    at once (a search by rows in the sorted peaks); the valleys of the few candidates left are
+    labelled by OpenCV in their windows. int64 (n,)."""
+    h, w = top.shape
+    n = len(bps)
+    out = np.zeros(n, np.int64)
+    if not n or not len(xs):
+        return out
+    r0 = np.maximum(0, np.trunc(ij[:, 1] - reach).astype(np.int64))
+    r1 = np.minimum(h, np.trunc(ij[:, 1] + reach).astype(np.int64) + 1)
+    c0 = np.maximum(0, np.trunc(ij[:, 0] - reach).astype(np.int64))
+    c1 = np.minimum(w, np.trunc(ij[:, 0] + reach).astype(np.int64) + 1)
+    lo, hi = np.searchsorted(ys, r0), np.searchsorted(ys, r1)
+    cnt = np.maximum(hi - lo, 0)
+    cand = np.repeat(np.arange(n), cnt)
+    start = np.cumsum(cnt) - cnt
+    p = lo[cand] + np.arange(len(cand)) - start[cand]
+    px, py = xs[p], ys[p]
+    sel = (px >= c0[cand]) & (px < c1[cand]) & (top[py, px] >= min_top[cand])
+    sel &= (px - bps[cand, 0]) ** 2 + (py - bps[cand, 1]) ** 2 <= reach[cand] ** 2
+    has = np.array([e is not None for e in ellipses], bool) if ellipses is not None else np.zeros(n, bool)
+    if has.any():
+        e = [ellipses[k] if has[k] else None for k in range(n)]
+        prm = np.array([(q.center[0], q.center[1], q.semi_axes[0], q.semi_axes[1], q.angle_rad) if q is not None
+                        else (0.0, 0.0, 1.0, 1.0, 0.0) for q in e], np.float64)
+        c, s = np.cos(prm[cand, 4]), np.sin(prm[cand, 4])
+        du, dv = px - prm[cand, 0], py - prm[cand, 1]
+        lev = ((c * du + s * dv) / prm[cand, 2]) ** 2 + ((-s * du + c * dv) / prm[cand, 3]) ** 2
+        sel &= ~has[cand] | (lev > 1.0)
+    cand, px, py = cand[sel], px[sel], py[sel]
+    for k in np.unique(cand).tolist():
+        mine = cand == k
+        a0, a1, b0, b1 = int(r0[k]), int(r1[k]), int(c0[k]), int(c1[k])
+        win = top[a0:a1, b0:b1]
+        n_lab, lab = connected_components((win >= level[k]).view(np.uint8))
+        own = lab[int(ij[k, 1]) - a0, int(ij[k, 0]) - b0]
+        other = lab[py[mine] - a0, px[mine] - b0]
+        area = np.bincount(lab.ravel(), minlength=n_lab)
+        big = area[other] >= area_rel * area[own] if own > 0 else np.ones(len(other), bool)
+        out[k] = np.count_nonzero(((other != own) | (own == 0)) & big)
+    return out
+
+
+def surround_fraction(gray: np.ndarray, ell, bp_ij: np.ndarray, reach: float, own_level: float,
+                      rel: float) -> float:
+    """Share of the surround's pixels (within ``reach`` of the BP pixel ``bp_ij`` (column, row),
+    where :func:`ellipse_level` of the primary isophote ``ell`` exceeds ``own_level``) whose local
+    top-hat (the luma less its grey opening by a square about as wide as the reach) is at least
+    ``rel`` of the peak's (its maximum over the 3 x 3 px around the BP). 0 without a surround
+    or a peak."""
+    h, w = gray.shape
+    R = int(np.ceil(reach))
+    bi, bj = int(bp_ij[1]), int(bp_ij[0])
+    r0, r1 = max(0, bi - R), min(h, bi + R + 1)
+    c0, c1 = max(0, bj - R), min(w, bj + R + 1)
+    yy = np.arange(r0, r1, dtype=np.float64)[:, None]
+    xx = np.arange(c0, c1, dtype=np.float64)[None, :]
+    ring = ((xx - bp_ij[0]) ** 2 + (yy - bp_ij[1]) ** 2 <= reach * reach) & (ellipse_level(ell, xx, yy) > own_level)
+    if not ring.any():
+        return 0.0
+    win = np.ascontiguousarray(gray[r0:r1, c0:c1], dtype=np.float32)
+    k = max(3, R | 1)  # odd, about the reach
+    top = win - cv2.morphologyEx(win, cv2.MORPH_OPEN, cv2.getStructuringElement(cv2.MORPH_RECT, (k, k)),
+                                 borderType=cv2.BORDER_REPLICATE)
+    peak = float(top[max(0, bi - 1 - r0):bi + 2 - r0, max(0, bj - 1 - c0):bj + 2 - c0].max())
+    if not peak > 0:
+        return 0.0
+    return float(np.count_nonzero((top >= rel * peak) & ring) / np.count_nonzero(ring))
