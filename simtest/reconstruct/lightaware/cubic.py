@@ -255,6 +255,41 @@ def patch_depth_profile(values, origin_uv, bp_uv, camera, rig: LightRig, depths_
     return cost[np.searchsorted(grid, np.log(depths))]
 
 
+def _coarse_profile(S, depths, start_roughness, max_nfev):
+    """:func:`cubic_patch_fit`'s coarse profile: the patch fitted with its depth fixed at each of
+    ``depths``, swept up and down (each from a flat patch and its neighbour's solution), the least
+    cost of each kept. Returns ``(cost, sol, nfev)``."""
+    n0 = 50.0 if start_roughness is None else float(start_roughness)
+    flat = _flat_start(n0)
+    quad = [0, 1, 3, 4, 5, 6]
+    cost = np.full(depths.size, np.inf)
+    sol: list = [None] * depths.size
+    nfev = 0
+    for seq in (range(depths.size), range(depths.size - 1, -1, -1)):
+        prev = None
+        for i in seq:
+            starts = [flat] + ([prev] if prev is not None else [])
+            c, p, k = _fit_fixed_depth(S, np.log(depths[i]), quad, starts,
+                                       min(max_nfev, _PROFILE_NFEV), _PROFILE_TOL)
+            nfev += k
+            if c < cost[i]:
+                cost[i], sol[i] = c, p
+            prev = sol[i] if sol[i] is not None else p
+    return cost, sol, nfev
+
+
+def _apex_normal_gradient(b_ray, x, x_scale, Lm) -> np.ndarray:
+    """dN / dp (3, 11) of the cubic patch's apex normal, by central differences of
+    ``1e-6 x_scale``."""
+    G = np.empty((3, _CUBIC_PARAMS))
+    for i in range(_CUBIC_PARAMS):
+        dp = np.zeros(_CUBIC_PARAMS)
+        dp[i] = 1e-6 * x_scale[i]
+        G[:, i] = (_cubic_patch_geometry(b_ray[None], b_ray, x + dp, Lm)[3]
+                   - _cubic_patch_geometry(b_ray[None], b_ray, x - dp, Lm)[3]) / (2 * dp[i])
+    return G
+
+
 def cubic_patch_fit(values, origin_uv, bp_uv, camera, rig: LightRig, *,
                     clip_level: float | None = None, nominal_depth_mm: float = 20.0,
                     start_roughness: float | None = None, max_pixels: int | None = 800,
@@ -357,23 +392,8 @@ def cubic_patch_fit(values, origin_uv, bp_uv, camera, rig: LightRig, *,
     if S is None:
         return LightAwareEstimate(name, "too_few_points",
                                   f"fewer than {2 * _CUBIC_PARAMS} unclipped pixels")
-    n0 = 50.0 if start_roughness is None else float(start_roughness)
-    flat = _flat_start(n0)
     depths = float(nominal_depth_mm) * _PROFILE_FACTORS
-    quad = [0, 1, 3, 4, 5, 6]
-    cost = np.full(depths.size, np.inf)
-    sol: list = [None] * depths.size
-    nfev = 0
-    for seq in (range(depths.size), range(depths.size - 1, -1, -1)):
-        prev = None
-        for i in seq:
-            starts = [flat] + ([prev] if prev is not None else [])
-            c, p, k = _fit_fixed_depth(S, np.log(depths[i]), quad, starts,
-                                       min(max_nfev, _PROFILE_NFEV), _PROFILE_TOL)
-            nfev += k
-            if c < cost[i]:
-                cost[i], sol[i] = c, p
-            prev = sol[i] if sol[i] is not None else p
+    cost, sol, nfev = _coarse_profile(S, depths, start_roughness, max_nfev)
     if not np.isfinite(cost).any():
         return LightAwareEstimate(name, "not_converged", "no finite profile", n_evaluations=nfev)
     i0 = int(np.argmin(cost))
@@ -394,12 +414,7 @@ def cubic_patch_fit(values, origin_uv, bp_uv, camera, rig: LightRig, *,
     resid_var = float(r0 @ r0) / max(m_ - k_ - 4, 1)
     covs = _patch_covariances(J, r0, resid_var, S["sel"], S["shape"], S["step"])
     cov_floor = _covariance(J, max(resid_var, TOL.photometric_noise_rel**2))
-    G = np.empty((3, _CUBIC_PARAMS))  # dN / dp
-    for i in range(_CUBIC_PARAMS):
-        dp = np.zeros(_CUBIC_PARAMS)
-        dp[i] = 1e-6 * S["x_scale"][i]
-        G[:, i] = (_cubic_patch_geometry(b_ray[None], b_ray, x + dp, Lm)[3]
-                   - _cubic_patch_geometry(b_ray[None], b_ray, x - dp, Lm)[3]) / (2 * dp[i])
+    G = _apex_normal_gradient(b_ray, x, S["x_scale"], Lm)
     rel_floor = None if cov_floor is None else float(np.sqrt(max(cov_floor[2, 2], 0.0)))
     status, detail, observable, rms = _patch_verdict(
         rel_floor, r0, S["sel"], S["shape"], S["step"], "",

@@ -160,6 +160,43 @@ def _patch_problem(values, origin_uv, bp_uv, camera, rig, clip_level, max_pixels
                          step, keep.shape, px), len(y)
 
 
+def _quadric_starts(res, x_scale, nominal_depth_mm, start_depths_mm, start_roughness, max_nfev):
+    """:func:`quadric_fit`'s starts: a flat patch at each start depth (default 1, 3 and 0.5
+    times the nominal) in turn, fitted until one ends at a plausible solution. Returns the
+    least-squares result kept (None: none finite) and the evaluations spent."""
+    starts = (np.array([1.0, 3.0, 0.5]) * nominal_depth_mm if start_depths_mm is None
+              else np.asarray(start_depths_mm, dtype=np.float64).reshape(-1))
+    n0 = 50.0 if start_roughness is None else float(start_roughness)
+    best = None
+    nfev = 0
+    for s0 in starts:
+        p0 = np.array([0.0, 0.0, np.log(s0), 0.0, 0.0, 0.0, np.log(n0)])
+        with np.errstate(all="ignore"):
+            r = least_squares(res, p0, method="lm", max_nfev=max_nfev * 8, x_scale=x_scale,
+                              ftol=1e-6, xtol=1e-6)
+        nfev += r.nfev
+        if np.isfinite(r.cost) and (best is None or r.cost < best.cost):
+            best = r
+        if (np.isfinite(r.cost) and r.status > 0
+                and not _implausible(float(np.exp(r.x[2])), float(nominal_depth_mm),
+                                     float(np.exp(r.x[6])))):
+            best = r  # a plausible solution: the other starts are for a fit that ran off
+            break
+    return best, nfev
+
+
+def _apex_normal_gradient(d1, b_ray, x, x_scale, rig_arr, Lm) -> np.ndarray:
+    """dN / dp (3, 7) of the quadric patch's apex normal, by central differences of
+    ``1e-6 x_scale``."""
+    G = np.empty((3, 7))
+    for i in range(7):
+        dp = np.zeros(7)
+        dp[i] = 1e-6 * x_scale[i]
+        G[:, i] = (_quadric_image(d1, b_ray, x + dp, rig_arr, Lm)[1]
+                   - _quadric_image(d1, b_ray, x - dp, rig_arr, Lm)[1]) / (2 * dp[i])
+    return G
+
+
 def quadric_fit(values, origin_uv, bp_uv, camera, rig: LightRig, *,
                 clip_level: float | None = None, nominal_depth_mm: float = 20.0,
                 start_depths_mm=None, start_roughness: float | None = None,
@@ -269,26 +306,9 @@ def quadric_fit(values, origin_uv, bp_uv, camera, rig: LightRig, *,
     def res(p):
         return P.residual(_quadric_image(d, b_ray, p, rig_arr, Lm)[0])
 
-    starts = (np.array([1.0, 3.0, 0.5]) * nominal_depth_mm if start_depths_mm is None
-              else np.asarray(start_depths_mm, dtype=np.float64).reshape(-1))
-    n0 = 50.0 if start_roughness is None else float(start_roughness)
-    px = P.px_per_rad
-    x_scale = np.array([1.0 / px, 1.0 / px, 0.1, 0.1, 0.1, 0.1, 0.3])
-    best = None
-    nfev = 0
-    for s0 in starts:
-        p0 = np.array([0.0, 0.0, np.log(s0), 0.0, 0.0, 0.0, np.log(n0)])
-        with np.errstate(all="ignore"):
-            r = least_squares(res, p0, method="lm", max_nfev=max_nfev * 8, x_scale=x_scale,
-                              ftol=1e-6, xtol=1e-6)
-        nfev += r.nfev
-        if np.isfinite(r.cost) and (best is None or r.cost < best.cost):
-            best = r
-        if (np.isfinite(r.cost) and r.status > 0
-                and not _implausible(float(np.exp(r.x[2])), float(nominal_depth_mm),
-                                     float(np.exp(r.x[6])))):
-            best = r  # a plausible solution: the other starts are for a fit that ran off
-            break
+    x_scale = np.array([1.0 / P.px_per_rad, 1.0 / P.px_per_rad, 0.1, 0.1, 0.1, 0.1, 0.3])
+    best, nfev = _quadric_starts(res, x_scale, nominal_depth_mm, start_depths_mm, start_roughness,
+                                 max_nfev)
     if best is None:
         return LightAwareEstimate(name, "not_converged", "no finite solution", n_evaluations=nfev)
     x = best.x
@@ -304,12 +324,7 @@ def quadric_fit(values, origin_uv, bp_uv, camera, rig: LightRig, *,
     resid_var = float(r0 @ r0) / max(m_ - k_ - 4, 1)
     covs = _patch_covariances(J, r0, resid_var, sel, P.shape, step)
     cov_floor = _covariance(J, max(resid_var, TOL.photometric_noise_rel**2))
-    G = np.empty((3, 7))  # dN / dp
-    for i in range(7):
-        dp = np.zeros(7)
-        dp[i] = 1e-6 * x_scale[i]
-        G[:, i] = (_quadric_image(d[:1], b_ray, x + dp, rig_arr, Lm)[1]
-                   - _quadric_image(d[:1], b_ray, x - dp, rig_arr, Lm)[1]) / (2 * dp[i])
+    G = _apex_normal_gradient(d[:1], b_ray, x, x_scale, rig_arr, Lm)
     rel_floor = None if cov_floor is None else float(np.sqrt(max(cov_floor[2, 2], 0.0)))
     status, detail, observable, rms = _patch_verdict(
         rel_floor, r0, sel, P.shape, step, "",

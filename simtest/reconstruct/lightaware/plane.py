@@ -97,8 +97,8 @@ class FitSettings:
         sub-grid's (about k^2 times cheaper, its standard deviations k times larger).
     diffuse : bool
         Add the rig's Lambertian shading of the plane as a column of the model beside the lobes
-        and the background (its albedo a linear parameter; Notes): the image of tissue, whose
-        diffuse shading under a near light is no linear background. The lobe is then taken for
+        and the background (its albedo a linear parameter; :func:`photometric_fit`, Notes): the
+        image of tissue, whose diffuse shading under a near light is no linear background. The lobe is then taken for
         real only up to :data:`~simtest.reconstruct.lightaware.solve.ROUGHEST_FILM_ALPHA`
         (GGX alpha 0.5, Phong n 6): broader, it is as broad as the shading, the two columns
         trade one for the other, and the fit is ``not_converged`` (its detail names the
@@ -168,8 +168,8 @@ class FitSettings:
         :func:`~simtest.reconstruct.lightaware.model._rig_value_ggx`: roughness alpha, Fresnel
         at :data:`~simtest.reconstruct.lightaware.model.GGX_FILM_IOR`, Smith's shadowing), or
         both fitted and the one chosen by the Bayesian information criterion of the residual
-        (Notes). The estimate's ``lobe`` says which; its ``roughness`` is Phong's n, or for GGX
-        the Phong n of the same peak curvature (``2 / alpha^2 - 2``).
+        (:func:`photometric_fit`, Notes). The estimate's ``lobe`` says which; its ``roughness``
+        is Phong's n, or for GGX the Phong n of the same peak curvature (``2 / alpha^2 - 2``).
 
     Raises
     ------
@@ -270,7 +270,8 @@ def photometric_fit(values, origin_uv, bp_uv, camera, rig: LightRig, settings: F
     Raises
     ------
     ValueError
-        A values array that is not 2-D and finite.
+        A values array that is not 2-D and finite, or an option out of its range
+        (:class:`FitSettings`).
 
     Notes
     -----

@@ -159,7 +159,9 @@ class PlaneVerdict:
             kept = self.immaterial(est, r0, curved, shift, correlated, True)
             return kept if kept is not None else est.without_depth("plane_misfit", curved)
         if curved is False:
-            return _misfit(self.with_sandwich(est, r0), r0, m.sel, m.keep.shape, m.step) if correlated else est
+            if not correlated:
+                return est
+            return _misfit(self.with_sandwich(est, r0), r0, m.sel, m.keep.shape, m.step)
         return self.counted(est, r0, correlated)
 
     def immaterial(self, est, r0, curved, shift, correlated, jackknife):
