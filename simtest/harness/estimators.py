@@ -87,7 +87,7 @@ def _cause(est, name: str) -> str:
 def _light_normal(est, name: str, light: int) -> np.ndarray | None:
     """The normal of ``name`` at the specular point of light ``light``, where the estimator gives
     one per light (``light_normals``), else None."""
-    if name == "recommended":
+    if get(name).kind == "recommendation":
         r = getattr(est, "recommended", None)
     else:
         r = (getattr(est, "light_aware", None) or {}).get(name)
