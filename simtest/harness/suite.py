@@ -68,7 +68,7 @@ import numpy as np
 from simtest._checks import keyed_error
 from simtest._io import jsonable
 from simtest.harness.claims import PAPER_CHECKS
-from simtest.reconstruct.registry import get, names
+from simtest.reconstruct import registry
 from simtest.reconstruct.settings import ReconSettings
 from simtest.resources import bundled
 from simtest.scene import SceneError, bundled_scene_path, load_scene, with_overrides
@@ -99,10 +99,10 @@ __all__ = [
 PROTOCOLS = ("paper", "rendered")
 
 #: The estimators a suite that lists none scores side by side (:mod:`simtest.reconstruct.registry`).
-ESTIMATOR_NAMES = tuple(name for name in names() if get(name).default)
+ESTIMATOR_NAMES = tuple(name for name in registry.names() if registry.get(name).default)
 #: Estimators that use the scope's light rig (:mod:`simtest.reconstruct.recommend`); a suite lists
 #: them explicitly (``recommended`` is the normal that ``estimates.json`` recommends).
-LIGHT_AWARE_NAMES = names("light_aware", "recommendation", "oracle_input")
+LIGHT_AWARE_NAMES = registry.names("light_aware", "recommendation", "oracle_input")
 
 #: Most realisations one run may hold, over its distinct settings (a setting shared by several
 #: sweeps runs once). Why: every realisation keeps its scored rows (an error, a cause and the
@@ -794,9 +794,9 @@ def suite_from_dict(raw: Mapping[str, Any], source: str = "<dict>", sha256: str 
         raise _err(source, "suite.seed", f"expected an integer >= 0, got {seed!r}")
     estimators = head.get("estimators", list(ESTIMATOR_NAMES))
     if (not isinstance(estimators, list) or not estimators
-            or any(e not in names() for e in estimators)):
+            or any(e not in registry.names() for e in estimators)):
         raise _err(source, "suite.estimators",
-                   f"expected a non-empty list from {names()}, "
+                   f"expected a non-empty list from {registry.names()}, "
                    f"got {estimators!r}")
     base = raw.get("base", {})
     _check_keys(base, set(base) if isinstance(base, Mapping) else set(), source, "base")
@@ -897,7 +897,7 @@ def suite_from_dict(raw: Mapping[str, Any], source: str = "<dict>", sha256: str 
                 raise _err(source, f"{where}.paper.source",
                            f"expected 'paper' or 'prediction', got {paper.get('source')!r}")
             est = paper.get("estimator", "paper_oracle")
-            if est not in names():
+            if est not in registry.names():
                 raise _err(source, f"{where}.paper.estimator", f"unknown estimator {est!r}")
         cases = []
         xs = [x for x, _, _ in settings]
