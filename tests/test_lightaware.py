@@ -594,7 +594,7 @@ def test_cubic_patch_residual_stays_finite_where_a_fit_runs_off():
     # finite residual, not raise: on the colon render of lightaware-curved (colon_offset at
     # epsilon/d 0.1, realisations 3 and 4) an OverflowError there failed every estimator.
     img, rig, bp = sphere_rig_case([(5.0, 0.0, 0.0)])
-    S = la.patch._cubic_setup(img, (0, 0), bp, SPHERE_K, rig, None, 800)
+    S = la.cubic._cubic_setup(img, (0, 0), bp, SPHERE_K, rig, None, 800)
     for log_s in (800.0, -800.0):
         p = np.zeros(11)
         p[2], p[6], p[7] = log_s, np.log(40.0), 0.5

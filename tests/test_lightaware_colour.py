@@ -14,7 +14,7 @@ from simtest.geometry import angle_between_deg
 from simtest.geometry.angles import unit
 from simtest.geometry.response import SensorResponse
 from simtest.reconstruct import lightaware as la
-from simtest.reconstruct.lightaware import model as lam
+from simtest.reconstruct.lightaware import colour as lam
 from simtest.simulate.offset import rig_plane_image
 from test_lightaware import plane_case
 from test_lightaware_sensor import RIG, rig_diffuse_shading

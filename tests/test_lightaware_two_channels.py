@@ -1,5 +1,5 @@
 """Pixels clipped in one channel only (red, by the tissue's own reflection beside the lobe) are
-valued from their two other channels (``model._from_two_channels``), and the photometric fit
+valued from their two other channels (``colour._from_two_channels``), and the photometric fit
 with them is kept where the fit without them is ok and agrees with it within the sigma of their
 difference (``plane._two_channel_choice``, a Hausman test)."""
 
@@ -14,7 +14,7 @@ from simtest.geometry import angle_between_deg
 from simtest.geometry.angles import unit
 from simtest.geometry.response import SensorResponse
 from simtest.reconstruct import lightaware as la
-from simtest.reconstruct.lightaware import model as lam
+from simtest.reconstruct.lightaware import colour as lam
 from simtest.reconstruct.lightaware import plane as lap
 from simtest.reconstruct.lightaware.estimate import LightAwareEstimate
 from test_lightaware_colour import RIG, _colour_plane

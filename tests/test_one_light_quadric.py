@@ -17,7 +17,8 @@ from simtest.geometry import angle_between_deg
 from simtest.geometry.lights import Light, LightRig
 from simtest.reconstruct import lightaware as la
 from simtest.reconstruct.lightaware.model import _mean_light, _rays, _rig_arrays
-from simtest.reconstruct.lightaware.patch import ONE_LIGHT_DEPTH_FACTOR, _cubic_patch_image
+from simtest.reconstruct.lightaware.cubic import _cubic_patch_image
+from simtest.reconstruct.lightaware.patch import ONE_LIGHT_DEPTH_FACTOR
 from simtest.reconstruct.io import _light_aware_dict
 from simtest.reconstruct.recommend import bp_error_depth_mm, bp_ray_error_deg, recommend
 

@@ -22,9 +22,10 @@ Estimators (derivations in the Notes of :func:`simtest.geometry.conics.cone_axis
   of a rig of several lights, run there too.
 - ``recommended``: the normal ``estimates.json`` recommends (:mod:`simtest.reconstruct.recommend`).
 
-The registry is a plain dict so that a test can plant a known bias in one estimator
-(``monkeypatch.setitem(ESTIMATORS, "cone_axis", biased)``) and check that the nightly comparison
-catches it.
+The estimators are registered in :mod:`simtest.reconstruct.registry` (a new one is one function
+and one registration); :data:`ESTIMATORS` is the registry's dict of readers, a plain dict so that a
+test can plant a known bias in one estimator (``monkeypatch.setitem(ESTIMATORS, "cone_axis",
+biased)``) and check that the nightly comparison catches it.
 
 References
 ----------
@@ -44,101 +45,36 @@ from typing import Callable
 import numpy as np
 
 from simtest.geometry.angles import angle_between_deg
+from simtest.reconstruct.registry import NORMAL_READERS, get, names, unit_or_none
 
 __all__ = ["ESTIMATORS", "LIGHT_AWARE_FITS", "ORACLE_FITS", "ORACLE_INPUTS", "STATUS_FREE", "score",
            "unit_or_none"]
 
 
-def unit_or_none(v) -> np.ndarray | None:
-    """``v`` as a unit vector, or None if it cannot be one.
-
-    Parameters
-    ----------
-    v : array_like of 3 numbers, None or False
-        A direction (any length).
-
-    Returns
-    -------
-    ndarray of shape (3,) or None
-        float64 unit vector; None if ``v`` is None/False, not 3 numbers, non-finite or zero.
-    """
-    if v is None or v is False:
-        return None
-    try:
-        a = np.asarray(v, dtype=np.float64).reshape(3)
-    except (TypeError, ValueError):
-        return None
-    n = float(np.linalg.norm(a))
-    if not np.isfinite(n) or n == 0.0:
-        return None
-    return a / n
-
-
-def _paper_oracle(est, truth: np.ndarray) -> np.ndarray | None:
-    normals = getattr(est, "normals_paper", None)
-    if normals is None or normals is False:
-        return None
-    normals = np.asarray(normals, dtype=np.float64).reshape(-1, 3)
-    cands = [u for u in (unit_or_none(n) for n in normals) if u is not None]
-    if not cands:
-        return None
-    return max(cands, key=lambda u: float(np.dot(u, truth)))  # closest = largest cosine
-
-
-def _attr(name: str) -> Callable:
-    def get(est, truth):
-        return unit_or_none(getattr(est, name, None))
-
-    get.__name__ = f"_{name}"
-    return get
-
-
-def _light_aware(name: str) -> Callable:
-    def get(est, truth):
-        r = (getattr(est, "light_aware", None) or {}).get(name)
-        return None if r is None else unit_or_none(r.normal)
-
-    get.__name__ = f"_{name}"
-    return get
-
-
-def _recommended(est, truth) -> np.ndarray | None:
-    rec = getattr(est, "recommended", None)
-    return None if rec is None else unit_or_none(rec.normal)
-
-
 #: The light-aware fits of :func:`simtest.reconstruct.recommend.light_aware_estimates`, each read
 #: from a highlight's ``light_aware`` entry of its name.
-LIGHT_AWARE_FITS = ("isocurve_fit", "photometric_fit", "quadric_fit", "cubic_patch_fit")
+LIGHT_AWARE_FITS = names("light_aware")
 
-#: name -> f(estimate, truth) -> unit normal or None.
-ESTIMATORS: dict[str, Callable] = {
-    "paper_oracle": _paper_oracle,
-    "paper_selected": _attr("paper_selected"),
-    "cone_axis": _attr("cone_axis"),
-    "joint_cone_axis": _attr("joint_cone_axis"),
-    "bp_ray": _attr("bp_ray"),
-    **{name: _light_aware(name) for name in LIGHT_AWARE_FITS},
-    "recommended": _recommended,
-}
+#: name -> f(estimate, truth) -> unit normal or None: the registry's readers
+#: (:data:`simtest.reconstruct.registry.NORMAL_READERS`, the same dict).
+ESTIMATORS: dict[str, Callable] = NORMAL_READERS
 #: The photometric fit on images a real frame does not give (oracle inputs, as paper_oracle is an
 #: oracle choice; :func:`simtest.harness.protocols.fit_on_oracle_image`), each with the attribute of
 #: the render result it fits: the render's specular radiance alone, and its linear radiance
 #: (diffuse shading in; no tone curve, noise or clipping).
-ORACLE_INPUTS = {"photometric_fit_on_specular": "specular", "photometric_fit_on_radiance": "linear"}
+ORACLE_INPUTS = {name: get(name).oracle_input for name in names("oracle_input")}
 ORACLE_FITS = tuple(ORACLE_INPUTS)
-ESTIMATORS.update({name: _light_aware(name) for name in ORACLE_FITS})
 
 #: Estimators scored whatever the highlight's status (they do not rest on its isophote: the BP
 #: ray, and the photometric fit and the recommendation, which take a merged highlight too).
-STATUS_FREE = ("bp_ray", "photometric_fit", "quadric_fit", "cubic_patch_fit", "recommended") + ORACLE_FITS
+STATUS_FREE = tuple(name for name in names() if get(name).status_free)
 
 
 def _cause(est, name: str) -> str:
     status = getattr(est, "status", None)
     if status is not None and status != "ok":
         return str(status)
-    if name in LIGHT_AWARE_FITS + ORACLE_FITS:
+    if get(name).kind in ("light_aware", "oracle_input"):
         r = (getattr(est, "light_aware", None) or {}).get(name)
         return f"{name}_not_run" if r is None else str(r.status)
     if name == "joint_cone_axis":
@@ -151,7 +87,7 @@ def _cause(est, name: str) -> str:
 def _light_normal(est, name: str, light: int) -> np.ndarray | None:
     """The normal of ``name`` at the specular point of light ``light``, where the estimator gives
     one per light (``light_normals``), else None."""
-    if name == "recommended":
+    if get(name).kind == "recommendation":
         r = getattr(est, "recommended", None)
     else:
         r = (getattr(est, "light_aware", None) or {}).get(name)
@@ -203,7 +139,7 @@ def score(est, truth, names, light: int | None = None) -> dict[str, tuple[float,
             out[name] = (float("nan"), "no_ground_truth")
             continue
         status = getattr(est, "status", "ok")
-        if name not in STATUS_FREE and status is not None and status != "ok":
+        if not get(name).status_free and status is not None and status != "ok":
             # The reconstruction flagged this highlight (merged, cut contour, ...): its isophote
             # normals are not used, as a user of the pipeline would not use them.
             out[name] = (float("nan"), str(status))

@@ -19,6 +19,7 @@ from pathlib import Path
 from simtest._io import atomic_write_text
 from simtest.harness.claims import best_marks
 from simtest.harness.report.numbers import fmt
+from simtest.reconstruct.registry import get, names
 from simtest.resources import data_root
 
 __all__ = ["BEGIN", "END", "committed_runs", "section_text", "replace_section", "main"]
@@ -67,8 +68,7 @@ def _esc(t) -> str:
 
 
 #: estimators that are baselines or oracles, never "the best other" of a row
-_NOT_OTHERS = {"recommended", "bp_ray", "paper_oracle", "paper_selected", "photometric_fit_on_radiance",
-               "photometric_fit_on_specular"}
+_NOT_OTHERS = frozenset(name for name in names() if get(name).reference)
 
 
 #: The least share of a family's scored highlights (the most any estimator of the row was scored

@@ -75,6 +75,7 @@ from simtest.harness.estimators import LIGHT_AWARE_FITS, ORACLE_FITS
 from simtest.harness.cases import (MESH_POSE_KEYS, RECON_KEYS, RENDERED_KEYS, Case,
                                    MeshPose, ReconKeys, RenderedKeys, SceneSetting, Scoring, Sweep,
                                    harness_recon_settings, realisation_seed, stable_hash)
+from simtest.reconstruct import registry
 from simtest.resources import bundled
 from simtest.scene import SceneError, bundled_scene_path, load_scene, with_overrides
 from simtest.simulate.paper import PaperParams
@@ -103,11 +104,11 @@ __all__ = [
 
 PROTOCOLS = ("paper", "rendered")
 
-#: The estimators scored side by side (see :mod:`simtest.harness.estimators`).
-ESTIMATOR_NAMES = ("paper_oracle", "paper_selected", "cone_axis", "joint_cone_axis", "bp_ray")
+#: The estimators a suite that lists none scores side by side (:mod:`simtest.reconstruct.registry`).
+ESTIMATOR_NAMES = tuple(name for name in registry.names() if registry.get(name).default)
 #: Estimators that use the scope's light rig (:mod:`simtest.reconstruct.recommend`); a suite lists
 #: them explicitly (``recommended`` is the normal that ``estimates.json`` recommends).
-LIGHT_AWARE_NAMES = LIGHT_AWARE_FITS + ("recommended",) + ORACLE_FITS
+LIGHT_AWARE_NAMES = registry.names("light_aware", "recommendation", "oracle_input")
 
 #: Most realisations one run may hold, over its distinct settings (a setting shared by several
 #: sweeps runs once). Why: every realisation keeps its scored rows (an error, a cause and the
@@ -127,7 +128,19 @@ _err = functools.partial(keyed_error, SuiteError)
 #: The suite file's tables: frozen pydantic dataclasses, unknown keys refused.
 _model = functools.partial(pydantic_dataclass, frozen=True, config=CONFIG)
 _Protocol = Literal["paper", "rendered"]
-_Estimator = Literal[ESTIMATOR_NAMES + LIGHT_AWARE_NAMES]
+
+
+def _known_estimator(name: str) -> str:
+    """An estimator name the registry knows when the suite is read (one registered after import
+    counts too)."""
+    if name not in registry.names():
+        raise ValueError("must be one of " + ", ".join(repr(n) for n in registry.names()))
+    return name
+
+
+_Estimator = Annotated[Str, AfterValidator(_known_estimator)]
+
+
 @_model
 class _Head:
     """The ``[suite]`` table."""

@@ -61,8 +61,12 @@ from simtest.reconstruct.io import (
 from simtest.reconstruct.overlay import check_overlay_size, draw_overlay
 from simtest.reconstruct.pipeline import reconstruct
 from simtest.reconstruct.recommend import with_light_aware
+from simtest.reconstruct.registry import names
 from simtest.reconstruct.settings import MAX_CANDIDATES, ReconSettings
 from simtest.reconstruct.view3d import render_view, surface_from_depth
+
+#: The estimators whose normals ``estimates.json`` carries (:mod:`simtest.reconstruct.registry`).
+_DRAWN = names("isophote", "baseline", "light_aware")
 
 
 def reconstruct_command(
@@ -407,7 +411,8 @@ def view_command(
                              show_default=False),
     truth: Path = typer.Option(None, "--truth", help="Ground truth: a render's ground_truth.npz or a C3VD NNNN_depth.tiff."),
     intrinsics: Path = typer.Option(None, "--intrinsics", "-k", help="Camera file (default: the camera the estimates record)."),
-    estimator: str = typer.Option(None, "--estimator", help="Normal drawn (default: normal if present, else cone_axis)."),
+    estimator: str = typer.Option(None, "--estimator", help=f"Normal drawn: normal or one of {', '.join(_DRAWN)} "
+                                  "(default: normal if present, else cone_axis)."),
 ) -> None:
     """Render a 3D view of the estimated normals (off-screen: works without a display).
 

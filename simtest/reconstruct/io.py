@@ -116,10 +116,11 @@ import orjson as _orjson
 
 from simtest._io import atomic_write_bytes
 from simtest._version import __version__
+from simtest.reconstruct.registry import names
 
 SCHEMA_VERSION = 2
 #: The light-aware estimators whose normals ``normals`` carries (schema 2).
-LIGHT_AWARE_NORMALS = ("isocurve_fit", "photometric_fit", "quadric_fit", "cubic_patch_fit")
+LIGHT_AWARE_NORMALS = names("light_aware")
 #: The schemas :func:`read_estimates` reads.
 READABLE_SCHEMAS = (1, 2)
 

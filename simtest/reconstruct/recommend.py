@@ -70,7 +70,7 @@ time; the measurements behind each rule are in ``docs/decisions/light-aware-reco
    (:func:`~simtest.reconstruct.lightaware.solve._hac_covariance`, which counts correlated
    residuals): a plane fit that ends in a wrong local minimum misfits with a sigma that does not
    cover its error. On a sensor frame (RGB, a response, no JPEG grid) the fit runs on the three
-   linear channels with the tissue's body colours projected out (``model.specular_image``), so
+   linear channels with the tissue's body colours projected out (``colour.specular_image``), so
    that the albedo's texture under the rig's diffuse light is not left in the residual; where
    the lobe itself does not fit (micro-relief breaking it into sparkle, a film sharper than the
    sensor resolves) the fit misfits, and rule 4 decides. The endoscope suite's report gives the
@@ -134,6 +134,7 @@ from simtest.reconstruct.detect import luma, noise_sigma
 from simtest.reconstruct import lightaware as _la
 from simtest.reconstruct.isophote import extract_isophote
 from simtest.reconstruct.jpeg import jpeg_grid
+from simtest.reconstruct.registry import names
 from simtest.reconstruct.lightaware import (
     LightAwareEstimate,
     cubic_patch_fit,
@@ -149,7 +150,7 @@ __all__ = ["DEPTH_REL_SIGMA_CEILING", "ISOCURVE_ISOVALUES", "LIGHT_AWARE", "NOT_
            "recommend", "with_light_aware"]
 
 #: The light-aware estimators, in the order of preference of the recommendation rule.
-LIGHT_AWARE = ("photometric_fit", "cubic_patch_fit", "quadric_fit", "isocurve_fit")
+LIGHT_AWARE = names("light_aware", ranked=True)
 #: The photometric fit's statuses after which the curved-patch fits run by default (``quadric``,
 #: ``cubic`` None in :func:`light_aware_estimates`): those that say the plane is not the ROI's
 #: surface (its residual holds a curved patch's pattern, or the fit ran off). After the others
@@ -158,7 +159,7 @@ LIGHT_AWARE = ("photometric_fit", "cubic_patch_fit", "quadric_fit", "isocurve_fi
 #: patch's parameters too), ``light_behind_plane``.
 CURVED_FIT_AFTER = ("plane_misfit", "not_converged")
 #: Fallback order without a rig (or with a co-located one).
-COLOCATED_ORDER = ("joint_cone_axis", "cone_axis", "bp_ray")
+COLOCATED_ORDER = names("isophote", "baseline", ranked=True)
 #: The isovalues of the isophotes :func:`isocurve_fit` is given, relative to the BP's height above
 #: the grown ROI's border median, whatever the command line's isovalues (module docstring,
 #: "Isophotes of the isocurve fit").
@@ -437,7 +438,7 @@ def light_aware_estimates(image, est, camera, rig: LightRig, *, nominal_depth_mm
 
 def colour_fit_applies(image, response) -> bool:
     """Whether the photometric fit runs on a frame's three linear channels (the tissue's body
-    colours projected out, :func:`~simtest.reconstruct.lightaware.model.specular_image`): an RGB
+    colours projected out, :func:`~simtest.reconstruct.lightaware.colour.specular_image`): an RGB
     frame with a sensor response that shows no JPEG block grid
     (:func:`~simtest.reconstruct.jpeg.jpeg_grid`). A JPEG's chroma is subsampled (4:2:0) and
     blocky, and the projection is a colour difference: on the endoscope suite's colon wall at

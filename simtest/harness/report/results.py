@@ -39,6 +39,7 @@ import numpy as np
 from simtest.harness.claims import evaluate_claims, evaluate_paper_claim
 from simtest.harness.metrics import STAT_KEYS, case_metrics, summarise
 from simtest.harness.report.provenance import open_parameters, provenance, relative_to_repo
+from simtest.reconstruct.registry import describe, names
 from simtest.scene import load_scene
 
 __all__ = ["SCHEMA", "SCHEMA_VERSION", "SEEDING", "ESTIMATOR_TEXT", "build_results",
@@ -51,25 +52,9 @@ SEEDING = ("realisation i of a case draws from numpy SeedSequence([root_seed, "
            "int.from_bytes(sha256(case_key)[:8], 'little'), i]); rendered cases take the render "
            "seed as the first 31-bit word of that sequence")
 
-#: One line per estimator for the reports; an estimator without a line is listed by its name.
-ESTIMATOR_TEXT = {
-    "paper_oracle": "paper, closest of N+ and N- to the truth (oracle, as the paper reports)",
-    "paper_selected": "paper, N+ or N- chosen without the truth (the one closer to the BP ray)",
-    "cone_axis": "cone axis of C' (unique-sign eigenvector; as dam410/LightModel "
-                 "vanishing_line_paper_co)",
-    "joint_cone_axis": "joint cone axis of the nested isophotes",
-    "bp_ray": "minus the viewing ray of the BP (baseline)",
-    "isocurve_fit": "general isocurve (eq. 2) fitted with the calibrated light (light-aware)",
-    "photometric_fit": "ROI intensities fitted with a plane lit by the rig (light-aware)",
-    "quadric_fit": "ROI intensities fitted with a quadric patch lit by the rig (experimental)",
-    "cubic_patch_fit": "ROI intensities fitted with a third-order patch lit by every light of the rig",
-    "recommended": "the normal estimates.json recommends (simtest.reconstruct.recommend)",
-    "photometric_fit_on_specular": "photometric_fit on the renderer's specular image alone (oracle "
-                                   "input: no diffuse shading, tone curve, noise or clipping; not "
-                                   "available on a real frame)",
-    "photometric_fit_on_radiance": "photometric_fit on the renderer's linear radiance (oracle input: "
-                                   "the diffuse shading in; no tone curve, noise or clipping)",
-}
+#: One line per estimator for the reports (:mod:`simtest.reconstruct.registry`'s descriptions); an
+#: estimator without a line is listed by its name.
+ESTIMATOR_TEXT = {name: describe(name) for name in names()}
 
 _MESH_KEYS = {"colon_station": "colon", "liver_azimuth_deg": "liver"}
 
@@ -198,7 +183,7 @@ def build_results(run, run_id: str) -> dict:
                   "seed": suite.seed, "realisations": suite.realisations,
                   "estimators": list(suite.estimators)},
         "seeding": SEEDING,
-        "estimators": {k: ESTIMATOR_TEXT.get(k, k) for k in suite.estimators},
+        "estimators": {k: describe(k) for k in suite.estimators},
         "provenance": provenance(run),
         "open_parameters": open_parameters(suite),
         "families": _families(run, cases),

@@ -80,11 +80,14 @@ One module per job, so that each is found in one place:
 - :mod:`~simtest.reconstruct.lightaware.estimate`: :class:`LightAwareEstimate` and :data:`STATUSES`;
 - :mod:`~simtest.reconstruct.lightaware.model`: the image model (rays, the rig's lobes on a plane and
   their derivatives, the specular point's depth, the ROI's pixel grid);
+- :mod:`~simtest.reconstruct.lightaware.colour`: the specular image of a colour ROI (the tissue's
+  body colours projected out);
 - :mod:`~simtest.reconstruct.lightaware.solve`: the fitting machinery the fits share (start,
   Levenberg-Marquardt with a robust loss, covariance and the depth's observability, misfit tests);
 - :mod:`~simtest.reconstruct.lightaware.bisector`, :mod:`~simtest.reconstruct.lightaware.isocurve`,
-  :mod:`~simtest.reconstruct.lightaware.plane` (:func:`photometric_fit`) and
-  :mod:`~simtest.reconstruct.lightaware.patch` (:func:`quadric_fit`, :func:`cubic_patch_fit`):
+  :mod:`~simtest.reconstruct.lightaware.plane` (:func:`photometric_fit`, its stages in
+  ``plane_model``, ``plane_solve`` and ``plane_sigma``), :mod:`~simtest.reconstruct.lightaware.patch`
+  (:func:`quadric_fit`) and :mod:`~simtest.reconstruct.lightaware.cubic` (:func:`cubic_patch_fit`):
   the estimators;
 - :mod:`~simtest.reconstruct.lightaware.bound`: the Cramer-Rao bound of the plane model.
 
@@ -110,7 +113,8 @@ from simtest.reconstruct.lightaware.bound import CramerRaoBound, photometric_crb
 from simtest.reconstruct.lightaware.estimate import OK, STATUSES, LightAwareEstimate
 from simtest.reconstruct.lightaware.isocurve import isocurve_fit, refine_isophote_points
 from simtest.reconstruct.lightaware.model import plane_rig_intensity, specular_point_depth
-from simtest.reconstruct.lightaware.patch import cubic_patch_fit, patch_depth_profile, quadric_fit
+from simtest.reconstruct.lightaware.cubic import cubic_patch_fit, patch_depth_profile
+from simtest.reconstruct.lightaware.patch import quadric_fit
 from simtest.reconstruct.lightaware.plane import photometric_fit
 
 __all__ = [

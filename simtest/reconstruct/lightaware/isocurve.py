@@ -64,6 +64,43 @@ def refine_isophote_points(values, level: float, points_uv, origin_uv=(0.0, 0.0)
     return p + o
 
 
+def _taus_of(q, n_tau, log_t) -> np.ndarray:
+    """The isophotes' levels tau_k of the level parameters ``q``: tau itself (one isophote), or
+    ``q = (1/n, log s)`` with ``tau_k = exp((log t_k - log s) / n)``."""
+    if n_tau == 1:
+        return np.array([q[0]])
+    return np.exp((log_t - q[1]) * q[0])  # q = (1/n, log s)
+
+
+def _pixel_weights(dT_pm, rl_pm, L, n, h) -> np.ndarray:
+    """Pixel-unit weights: 1 / |grad_px cos beta| at a start (central differences, 0.5 px, of
+    the rays ``dT_pm`` 0.5 px either side in u and v)."""
+    cu, cu2, cv, cv2 = _terms(dT_pm, n, h, L, rl_pm)[0].reshape(4, -1)
+    grad = np.hypot(cu - cu2, cv - cv2)
+    k = len(grad) // 2  # the median, by partition (np.median's own overhead is 5x that)
+    part = np.partition(grad, [k - 1, k] if len(grad) % 2 == 0 else [k])
+    med = 0.5 * (part[k - 1] + part[k]) if len(grad) % 2 == 0 else part[k]
+    return 1.0 / np.maximum(grad, 1e-12 + 1e-6 * med)
+
+
+def _tau_start(cb0, kidx, n_members, log_t, n_tau, wts):
+    """Levels from the mean cos beta ``cb0`` of each point set at a start plane, and the start's
+    cost."""
+    tau0 = np.clip(np.bincount(kidx, weights=cb0, minlength=len(log_t)) / n_members, 1e-3,
+                   1 - 1e-9)  # the mean cos beta of each point set
+    if n_tau == 1:
+        q = tau0
+    else:  # fit log tau_k = (log t_k - log s) / n to the start levels (a least-squares line)
+        xc = log_t - log_t.mean()
+        lt = np.log(tau0)
+        inv_n = float(xc @ (lt - lt.mean())) / float(xc @ xc)
+        c = inv_n * log_t.mean() - lt.mean()
+        inv_n = inv_n if inv_n > 0 else 1.0 / 50.0
+        q = np.array([inv_n, c / inv_n])
+    r = (cb0 - _taus_of(q, n_tau, log_t)[kidx]) * wts
+    return q, float(r @ r)
+
+
 def isocurve_fit(points_uv, isovalues, bp_uv, camera, rig: LightRig, *,
                  nominal_depth_mm: float = 20.0, start_normal=None,
                  loss: str = "soft_l1", f_scale_px: float = 0.5,
@@ -150,21 +187,7 @@ def isocurve_fit(points_uv, isovalues, bp_uv, camera, rig: LightRig, *,
     log_t = np.log(ts)
     n_members = np.bincount(kidx, minlength=len(ts))
 
-    def taus_of(q):
-        if n_tau == 1:
-            return np.array([q[0]])
-        return np.exp((log_t - q[1]) * q[0])  # q = (1/n, log s)
-
-    # pixel-unit weights: 1 / |grad_px cos beta| at a start (central differences, 0.5 px)
-    def weights(n, h):
-        cu, cu2, cv, cv2 = _terms(dT_pm, n, h, L, rl_pm)[0].reshape(4, -1)
-        grad = np.hypot(cu - cu2, cv - cv2)
-        k = len(grad) // 2  # the median, by partition (np.median's own overhead is 5x that)
-        part = np.partition(grad, [k - 1, k] if len(grad) % 2 == 0 else [k])
-        med = 0.5 * (part[k - 1] + part[k]) if len(grad) % 2 == 0 else part[k]
-        return 1.0 / np.maximum(grad, 1e-12 + 1e-6 * med)
-
-    wts = weights(n0, h0)
+    wts = _pixel_weights(dT_pm, rl_pm, L, n0, h0)
 
     log_tk = log_t[kidx]  # per point
 
@@ -190,20 +213,7 @@ def isocurve_fit(points_uv, isovalues, bp_uv, camera, rig: LightRig, *,
 
     def tau_start(n, h):
         """Levels from the mean cos beta of each point set at (n, h), and the start's cost."""
-        cb0 = _terms(dT, n, h, L, rl)[0]
-        tau0 = np.clip(np.bincount(kidx, weights=cb0, minlength=len(ts)) / n_members, 1e-3,
-                       1 - 1e-9)  # the mean cos beta of each point set
-        if n_tau == 1:
-            q = tau0
-        else:  # fit log tau_k = (log t_k - log s) / n to the start levels (a least-squares line)
-            xc = log_t - log_t.mean()
-            lt = np.log(tau0)
-            inv_n = float(xc @ (lt - lt.mean())) / float(xc @ xc)
-            c = inv_n * log_t.mean() - lt.mean()
-            inv_n = inv_n if inv_n > 0 else 1.0 / 50.0
-            q = np.array([inv_n, c / inv_n])
-        r = (cb0 - taus_of(q)[kidx]) * wts
-        return q, float(r @ r)
+        return _tau_start(_terms(dT, n, h, L, rl)[0], kidx, n_members, log_t, n_tau, wts)
 
     # start: the given one and planes along the BP's constraint (as in photometric_fit)
     cands = [(n0, h0)]
@@ -215,7 +225,7 @@ def isocurve_fit(points_uv, isovalues, bp_uv, camera, rig: LightRig, *,
     q0, _, n0_c, h0_c = min((tau_start(n, h) + (n, h) for n, h in cands), key=lambda c: c[1])
     if n0_c is not n0:  # the weights and levels at the chosen start
         n0, h0 = n0_c, h0_c
-        wts = weights(n0, h0)
+        wts = _pixel_weights(dT_pm, rl_pm, L, n0, h0)
         q0 = tau_start(n0, h0)[0]
     e1, e2 = plane_basis(n0)
     p0 = np.concatenate([[0.0, 0.0, np.log(h0)], q0])
@@ -232,4 +242,4 @@ def isocurve_fit(points_uv, isovalues, bp_uv, camera, rig: LightRig, *,
         return LightAwareEstimate(name, "light_behind_plane", f"h = {h_hat:.4g} mm", n_evaluations=nfev)
     return _finish(name, resjac_at, n_hat, h_hat, rig, q, TOL.isophote_noise_px, nfev, conv,
                    roughness=None if n_tau == 1 else float(1.0 / q[0]),
-                   taus=taus_of(q), detail="" if conv else msg)
+                   taus=_taus_of(q, n_tau, log_t), detail="" if conv else msg)

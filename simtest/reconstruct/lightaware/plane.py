@@ -1,74 +1,33 @@
-"""The photometric plane fit: the ROI's intensities fitted with the image of a plane lit by the rig."""
+"""The photometric plane fit: the ROI's intensities fitted with the image of a plane lit by the rig.
+
+:func:`photometric_fit` runs in stages, each its own function or module: the choice among the
+colour projections, start depths and two-channel pixels (:func:`_fit_projections`), the choice
+of lobe (:func:`_fit_lobes`), and one fit (:func:`_fit_plane`): the projection of a colour ROI
+onto one image (:func:`_colour_values`), the lobe model on its pixels
+(:mod:`~simtest.reconstruct.lightaware.plane_model`), the starts and the solve
+(:mod:`~simtest.reconstruct.lightaware.plane_solve`), the covariance and the misfit tests
+(:mod:`~simtest.reconstruct.lightaware.plane_sigma`). Its options travel as one
+:class:`FitSettings`.
+"""
 
 from __future__ import annotations
 
 import math
-from dataclasses import replace
+from dataclasses import dataclass, replace
+from typing import Any
 
 import numpy as np
 
-from simtest.geometry.angles import angle_between_deg, unit
-from simtest.geometry.conics import plane_basis
+from simtest.geometry.angles import angle_between_deg
 from simtest.geometry.lights import LightRig
 from simtest.tolerances import TOL
 from simtest.reconstruct.lightaware.estimate import LightAwareEstimate
-from simtest.reconstruct.lightaware.model import (
-    _mean_light,
-    _normal_derivs,
-    _ray_light,
-    _rays,
-    _rig_arrays,
-    _curvature_columns,
-    _rig_diffuse,
-    _rig_diffuse_grad,
-    _rig_grad,
-    _rig_value,
-    _rig_value_ggx,
-    _rig_grad_ggx,
-    _roi_grid,
-    ggx_alpha_of_phong,
-    phong_of_ggx_alpha,
-    _roi_samples,
-    specular_image,
-)
-from simtest.reconstruct.lightaware.solve import (
-    _ROUGHNESS_RANGE,
-    _cluster_covariance,
-    _correlated,
-    _correlation_area,
-    _curvature_score,
-    _curvature_shift,
-    _finish,
-    _hac_covariance,
-    _implausible,
-    _misfit,
-    _solve,
-    _light_start,
-    _start,
-    cluster_blocks,
-)
-
-
-#: The residual of every pixel at a trial point where the model is not finite: far above any
-#: residual of the normalised values (at most a few units), so that Levenberg-Marquardt rejects
-#: the step and shortens it.
-_NOT_FINITE_RESIDUAL = 1e6
-
-
-#: Gauss-Newton steps on log n alone that refine the photometric fit's start roughness: on the
-#: bench's exact highlight (n = 150) three steps from n = 50, 86 or 258 (the regression's starts
-#: with cos beta with and without the falloff) end within 0.003 of log 150.
-_ROUGHNESS_START_STEPS = 3
-
-
-#: Phong roughnesses among which the start of a fit under several lights is chosen by its cost
-#: (``photometric_fit``'s start roughness): a factor of 4 apart, from a lobe as broad as a
-#: diffuse one to the smoothest film's range.
-_START_ROUGHNESS_GRID = (4.0, 16.0, 64.0, 256.0, 1024.0, 4096.0)
-
-#: The factor by which the grid's start roughness must lower the start plane's cost to replace
-#: the regression's (``photometric_fit``'s start under several lights).
-_START_ROUGHNESS_GAIN = 0.5
+from simtest.reconstruct.lightaware.colour import specular_image
+from simtest.reconstruct.lightaware.model import _normal_derivs, phong_of_ggx_alpha
+from simtest.reconstruct.lightaware.plane_model import PlaneModel
+from simtest.reconstruct.lightaware.plane_sigma import PlaneVerdict
+from simtest.reconstruct.lightaware.plane_solve import solve_plane, start_planes
+from simtest.reconstruct.lightaware.solve import _finish, _implausible, _start
 
 
 #: Starts along the BP's constraint of ``photometric_fit``'s second try on the sensor path
@@ -76,54 +35,19 @@ _START_ROUGHNESS_GAIN = 0.5
 #: colonoscope's working distances (5 to 50 mm about a nominal 20).
 RETRY_START_DEPTHS = 4
 
+#: The values of ``photometric_fit``'s ``projection``.
+PROJECTIONS = ("auto", "border", "least_fluctuation", "darkest_channel")
 
-#: Noise sigmas above the floor below which a fitted model's pixels are left out
-#: (``photometric_fit``'s ``floor_level``): a Gaussian clipped at 3 sigma below its mean is
-#: clipped in 0.13 % of draws, and its mean is raised by 0.0004 sigma.
-_FLOOR_MARGIN = 3.0
+#: The values of ``photometric_fit``'s ``lobe``.
+LOBES = ("phong", "ggx", "auto")
 
 
-def photometric_fit(values, origin_uv, bp_uv, camera, rig: LightRig, *,
-                    clip_level: float | None = None, nominal_depth_mm: float = 20.0,
-                    start_normal=None, start_roughness: float | None = None,
-                    loss: str = "linear", f_scale: float = 0.02, supersample: int = 1,
-                    n_start_depths: int | None = None, diffuse: bool = False, censor: bool = False,
-                    max_pixels: int | None = 16384, refine_all: bool = True, max_nfev: int = 200,
-                    lobe: str = "phong", floor_level: float | None = None,
-                    floor_refit: bool = False, floor_step: float = 0.0,
-                    projection: str = "auto", exclude=None,
-                    two_channels: bool | None = None) -> LightAwareEstimate:
-    """Fit the intensities of an ROI with the image of a plane lit by the whole rig.
+@dataclass(frozen=True, eq=False, kw_only=True)
+class FitSettings:
+    """The options of :func:`photometric_fit`, which travel together through its stages.
 
-    Model (package docstring): ``I = g sum_j w_j max(0, cos beta_j)^n f_j p_j + b0 + b1 du + b2 dv``
-    per pixel centre; the linear parameters (g, b0, b1, b2) are solved for each value of the
-    nonlinear ones (a, b, log h, log n) by linear least squares (variable projection, Notes), and
-    those four are fitted by Levenberg-Marquardt (MINPACK through
-    :func:`scipy.optimize.leastsq`, analytic Jacobian). Pixels at or above ``clip_level`` are left
-    out (a saturated plateau carries no shape). A two-light rig's merged highlight is one model.
-    The roughness starts from a log-log regression of the ROI's specular part on the start's
-    cos beta (``log(I - b) - log(f p) = log g + n log cos beta``), refined by a few Gauss-Newton
-    steps on log n alone with the start plane held, unless given.
-
-    Parameters
+    Attributes
     ----------
-    values : ndarray of shape (H, W) or (H, W, 3)
-        ROI intensities (float, any unit); or the ROI's linear RGB with the white balance undone
-        (the specular reflection white), which is fitted on its specular image: the tissue's
-        body colours, measured on the ROI's border, projected out
-        (:func:`~simtest.reconstruct.lightaware.model.specular_image`: the albedo's texture
-        leaves the fit), or where they are too near white, the channel where the tissue is
-        darkest. The estimate's detail says which. A projected fit that passes is checked on
-        the darkest channel too (started from its solution): where that fit misfits, so does
-        the estimate (a curved patch is curved in every channel).
-    origin_uv : array_like of shape (2,)
-        Pixel (u, v) of ``values[0, 0]`` in the image.
-    bp_uv : array_like of shape (2,)
-        Brightest point, undistorted px (for the start).
-    camera : array_like of shape (3, 3) or CameraModel
-        Intrinsics K, or a camera model with ``pixel_to_ray``.
-    rig : LightRig
-        The lights, camera frame, mm.
     clip_level : float or sequence of 3 floats, optional
         Pixels ``>= clip_level`` are left out (e.g. 255 for 8-bit); None keeps every pixel. For
         RGB values, one level or each channel's: a pixel with a clipped channel is censored where
@@ -173,8 +97,8 @@ def photometric_fit(values, origin_uv, bp_uv, camera, rig: LightRig, *,
         sub-grid's (about k^2 times cheaper, its standard deviations k times larger).
     diffuse : bool
         Add the rig's Lambertian shading of the plane as a column of the model beside the lobes
-        and the background (its albedo a linear parameter; Notes): the image of tissue, whose
-        diffuse shading under a near light is no linear background. The lobe is then taken for
+        and the background (its albedo a linear parameter; :func:`photometric_fit`, Notes): the
+        image of tissue, whose diffuse shading under a near light is no linear background. The lobe is then taken for
         real only up to :data:`~simtest.reconstruct.lightaware.solve.ROUGHEST_FILM_ALPHA`
         (GGX alpha 0.5, Phong n 6): broader, it is as broad as the shading, the two columns
         trade one for the other, and the fit is ``not_converged`` (its detail names the
@@ -207,10 +131,10 @@ def photometric_fit(values, origin_uv, bp_uv, camera, rig: LightRig, *,
         tails' information: plane_tilt_offset@40 0.024 to 0.072 deg mean).
     projection : {"auto", "border", "least_fluctuation", "darkest_channel"}
         For RGB values, the projection that removes the tissue's body colours
-        (:func:`~simtest.reconstruct.lightaware.model.specular_image`): ``"border"`` the one
+        (:func:`~simtest.reconstruct.lightaware.colour.specular_image`): ``"border"`` the one
         orthogonal to the two body colours measured on the ROI's border, or where the border
         tells no second one, the darkest channel; ``"least_fluctuation"`` the least-fluctuation
-        weights (``model._least_fluctuation_weights``: the body colours lost in read noise), or
+        weights (``colour._least_fluctuation_weights``: the body colours lost in read noise), or
         where they are beyond their bound, the darkest channel; ``"darkest_channel"`` that
         channel alone. ``"auto"`` (default): the border's body colours, and where their fit
         ends without a depth (``depth_not_observable``, ``not_converged``; a misfit stands), the
@@ -224,7 +148,7 @@ def photometric_fit(values, origin_uv, bp_uv, camera, rig: LightRig, *,
         not seen (at quality 95): its subsampled chroma leaves a pattern in the
         least-fluctuation projection's residual that the curvature test reads as a curved
         patch; on the endoscope suite's flat mucosa, before the border's body colours were told
-        there (``model._BODY_SECOND_SNR``), that fit misfit 0.3 deg off, and the recommendation
+        there (``colour._BODY_SECOND_SNR``), that fit misfit 0.3 deg off, and the recommendation
         fell back to the BP ray, 6 deg off, where the darkest channel's fit passes 0.6 deg off.
         On its colon wall one such fit passed with its depth not observable, 17.5 deg off with
         a sigma of 1.7 deg, and was recommended over the BP ray (2.3 deg).
@@ -234,7 +158,7 @@ def photometric_fit(values, origin_uv, bp_uv, camera, rig: LightRig, *,
     two_channels : bool or None
         For RGB values, the pixels clipped in one channel whose projection weight is negative
         (a red tissue's own reflection beside the lobe): True, valued from their two other
-        channels (:func:`~simtest.reconstruct.lightaware.model.specular_image`); False, left out.
+        channels (:func:`~simtest.reconstruct.lightaware.colour.specular_image`); False, left out.
         None (default): the fit without them, and where it is ``ok`` on a projection of the
         three channels and the ROI holds such pixels, the fit with them in its place where the
         two agree (:func:`_two_channel_choice`).
@@ -244,8 +168,81 @@ def photometric_fit(values, origin_uv, bp_uv, camera, rig: LightRig, *,
         :func:`~simtest.reconstruct.lightaware.model._rig_value_ggx`: roughness alpha, Fresnel
         at :data:`~simtest.reconstruct.lightaware.model.GGX_FILM_IOR`, Smith's shadowing), or
         both fitted and the one chosen by the Bayesian information criterion of the residual
-        (Notes). The estimate's ``lobe`` says which; its ``roughness`` is Phong's n, or for GGX
-        the Phong n of the same peak curvature (``2 / alpha^2 - 2``).
+        (:func:`photometric_fit`, Notes). The estimate's ``lobe`` says which; its ``roughness``
+        is Phong's n, or for GGX the Phong n of the same peak curvature (``2 / alpha^2 - 2``).
+
+    Raises
+    ------
+    ValueError
+        A ``lobe`` or ``projection`` not among :data:`LOBES` and :data:`PROJECTIONS`.
+    """
+
+    clip_level: Any = None
+    nominal_depth_mm: float = 20.0
+    start_normal: Any = None
+    start_roughness: float | None = None
+    loss: str = "linear"
+    f_scale: float = 0.02
+    supersample: int = 1
+    n_start_depths: int | None = None
+    diffuse: bool = False
+    censor: bool = False
+    max_pixels: int | None = 16384
+    refine_all: bool = True
+    max_nfev: int = 200
+    lobe: str = "phong"
+    floor_level: float | None = None
+    floor_refit: bool = False
+    floor_step: float = 0.0
+    projection: str = "auto"
+    exclude: Any = None
+    two_channels: bool | None = None
+
+    def __post_init__(self):
+        if self.lobe not in LOBES:
+            raise ValueError(f"lobe: {self.lobe!r} is not one of phong, ggx, auto")
+        if self.projection not in PROJECTIONS:
+            raise ValueError(f"projection: {self.projection!r} is not one of {', '.join(PROJECTIONS)}")
+
+
+def photometric_fit(values, origin_uv, bp_uv, camera, rig: LightRig, settings: FitSettings | None = None,
+                    **options) -> LightAwareEstimate:
+    """Fit the intensities of an ROI with the image of a plane lit by the whole rig.
+
+    Model (package docstring): ``I = g sum_j w_j max(0, cos beta_j)^n f_j p_j + b0 + b1 du + b2 dv``
+    per pixel centre; the linear parameters (g, b0, b1, b2) are solved for each value of the
+    nonlinear ones (a, b, log h, log n) by linear least squares (variable projection, Notes), and
+    those four are fitted by Levenberg-Marquardt (MINPACK through
+    :func:`scipy.optimize.leastsq`, analytic Jacobian). Pixels at or above ``clip_level`` are left
+    out (a saturated plateau carries no shape). A two-light rig's merged highlight is one model.
+    The roughness starts from a log-log regression of the ROI's specular part on the start's
+    cos beta (``log(I - b) - log(f p) = log g + n log cos beta``), refined by a few Gauss-Newton
+    steps on log n alone with the start plane held, unless given.
+
+    Parameters
+    ----------
+    values : ndarray of shape (H, W) or (H, W, 3)
+        ROI intensities (float, any unit); or the ROI's linear RGB with the white balance undone
+        (the specular reflection white), which is fitted on its specular image: the tissue's
+        body colours, measured on the ROI's border, projected out
+        (:func:`~simtest.reconstruct.lightaware.colour.specular_image`: the albedo's texture
+        leaves the fit), or where they are too near white, the channel where the tissue is
+        darkest. The estimate's detail says which. A projected fit that passes is checked on
+        the darkest channel too (started from its solution): where that fit misfits, so does
+        the estimate (a curved patch is curved in every channel).
+    origin_uv : array_like of shape (2,)
+        Pixel (u, v) of ``values[0, 0]`` in the image.
+    bp_uv : array_like of shape (2,)
+        Brightest point, undistorted px (for the start).
+    camera : array_like of shape (3, 3) or CameraModel
+        Intrinsics K, or a camera model with ``pixel_to_ray``.
+    rig : LightRig
+        The lights, camera frame, mm.
+    settings : FitSettings, optional
+        The fit's options (defaults: ``FitSettings()``).
+    **options
+        Any of :class:`FitSettings`' attributes by name (``clip_level``, ``lobe``, ``diffuse``,
+        ...), over ``settings``'.
 
     Returns
     -------
@@ -273,7 +270,8 @@ def photometric_fit(values, origin_uv, bp_uv, camera, rig: LightRig, *,
     Raises
     ------
     ValueError
-        A values array that is not 2-D and finite.
+        A values array that is not 2-D and finite, or an option out of its range
+        (:class:`FitSettings`).
 
     Notes
     -----
@@ -318,654 +316,132 @@ def photometric_fit(values, origin_uv, bp_uv, camera, rig: LightRig, *,
     .. [5] G. Schwarz, "Estimating the dimension of a model", Ann. Statist. 6(2), 1978.
            https://doi.org/10.1214/aos/1176344136
     """
-    if lobe not in ("phong", "ggx", "auto"):
-        raise ValueError(f"lobe: {lobe!r} is not one of phong, ggx, auto")
-    if projection not in PROJECTIONS:
-        raise ValueError(f"projection: {projection!r} is not one of {', '.join(PROJECTIONS)}")
-    if n_start_depths is None:
-        kw = dict(clip_level=clip_level, nominal_depth_mm=nominal_depth_mm, start_normal=start_normal,
-                  start_roughness=start_roughness, loss=loss, f_scale=f_scale, supersample=supersample,
-                  diffuse=diffuse, censor=censor, max_pixels=max_pixels, refine_all=refine_all,
-                  max_nfev=max_nfev, lobe=lobe, floor_level=floor_level, floor_refit=floor_refit,
-                  floor_step=floor_step, exclude=exclude)
-        if two_channels is None:
-            # without the pixels clipped in one channel, and where the ROI holds some, with them
-            # valued from two channels, kept where the two agree (_two_channel_choice)
-            plain = photometric_fit(values, origin_uv, bp_uv, camera, rig, projection=projection,
-                                    two_channels=False, **kw)
-            if (plain.status != "ok" or np.ndim(values) != 3
-                    or plain.projection not in ("body_colours", "least_fluctuation")
-                    or not _one_channel_clipped(values, clip_level)):
-                return plain  # (the other is kept only beside an ok fit without them, on a projection)
-            # refined from the plain fit, on its projection: the two are compared, and a fit
-            # from further starts that agrees no better costs their time
-            same = "border" if plain.projection == "body_colours" else plain.projection
-            both = photometric_fit(values, origin_uv, bp_uv, camera, rig, projection=same, two_channels=True,
-                                   **{**kw, "start_normal": plain.normal, "start_roughness": plain.roughness})
-            return _two_channel_choice(both, plain)
-        kw["two_channels"] = two_channels
-        first = photometric_fit(values, origin_uv, bp_uv, camera, rig, n_start_depths=0,
-                                projection=projection, **kw)
-        best = first
-        if np.ndim(values) == 3 and first.status in ("depth_not_observable", "not_converged"):
-            again = photometric_fit(values, origin_uv, bp_uv, camera, rig,
-                                    n_start_depths=RETRY_START_DEPTHS, projection=projection, **kw)
-            if again.has_normal and (not first.has_normal or first.residual_rms is None
-                                     or (again.residual_rms is not None
-                                         and again.residual_rms < first.residual_rms)):
-                best = again
-        if (np.ndim(values) == 3 and projection == "auto" and best.projection == "body_colours"
-                and best.status in ("depth_not_observable", "not_converged")):
-            # the body colours' fit found no depth (a misfit is the surface's shape, seen in every
-            # projection, and stands): the least-fluctuation weights' fit, kept where it is ok
-            lf = photometric_fit(values, origin_uv, bp_uv, camera, rig, projection="least_fluctuation",
-                                 **kw)
-            if lf.ok and lf.projection == "least_fluctuation":
-                why = f"the body colours' fit is not ok ({best.status}: {best.detail})"
-                return replace(lf, detail=f"{lf.detail}; {why}" if lf.detail else why)
-        if (np.ndim(values) == 3 and projection == "auto" and best.status != "ok"
-                and best.projection == "least_fluctuation"):
-            chan = photometric_fit(values, origin_uv, bp_uv, camera, rig, projection="darkest_channel", **kw)
-            why = f"the least-fluctuation projection's fit is not ok ({best.status}: {best.detail})"
-            return replace(chan, detail=f"{chan.detail}; {why}" if chan.detail else why)
-        return best
-    if lobe == "auto":
-        kw = dict(clip_level=clip_level, nominal_depth_mm=nominal_depth_mm, loss=loss, f_scale=f_scale,
-                  supersample=supersample, n_start_depths=n_start_depths, diffuse=diffuse, censor=censor,
-                  max_pixels=max_pixels, refine_all=refine_all, max_nfev=max_nfev,
-                  floor_level=floor_level, floor_refit=floor_refit, floor_step=floor_step,
-                  projection=projection, exclude=exclude, two_channels=two_channels)
-        pho = photometric_fit(values, origin_uv, bp_uv, camera, rig, start_normal=start_normal,
-                              start_roughness=start_roughness, lobe="phong", **kw)
-        if ((pho.ok or pho.status in ("depth_not_observable", "too_few_points"))
-                and pho.curvature_shift_deg is None):
-            return replace(pho, detail=f"{pho.detail}; phong lobe fits" if pho.detail else "phong lobe fits")
-        ggx = photometric_fit(values, origin_uv, bp_uv, camera, rig,
-                              start_normal=pho.normal if pho.has_normal else start_normal,
-                              start_roughness=pho.roughness if pho.has_normal else start_roughness,
-                              lobe="ggx", **kw)
-        return _choose_lobe(pho, ggx)
-    ggx = lobe == "ggx"
-    name = "photometric_fit"
-    lower = missing = None  # the colour path's per-pixel censoring (lower bounds) and gaps
-    colour_detail, how = "", None
-    rgb_in, floor_in, clip_in = values, floor_level, clip_level
+    s = FitSettings(**options) if settings is None else replace(settings, **options)
+    if s.n_start_depths is None:
+        return _fit_projections(values, origin_uv, bp_uv, camera, rig, s)
+    return _fit_lobes(values, origin_uv, bp_uv, camera, rig, s)
+
+
+def _note(est: LightAwareEstimate, why: str) -> LightAwareEstimate:
+    """``est`` with ``why`` appended to its detail."""
+    return replace(est, detail=f"{est.detail}; {why}" if est.detail else why)
+
+
+def _fit_projections(values, origin_uv, bp_uv, camera, rig, s: FitSettings) -> LightAwareEstimate:
+    """``photometric_fit`` with ``n_start_depths`` None: the two-channel pixels' choice, the
+    retry from further starts, and the colour projections' fallbacks (``FitSettings``'
+    ``two_channels``, ``n_start_depths`` and ``projection``)."""
+    fit = (values, origin_uv, bp_uv, camera, rig)
+    rgb = np.ndim(values) == 3
+    if s.two_channels is None:
+        # without the pixels clipped in one channel, and where the ROI holds some, with them
+        # valued from two channels, kept where the two agree (_two_channel_choice)
+        plain = _fit_projections(*fit, replace(s, two_channels=False))
+        if (plain.status != "ok" or not rgb
+                or plain.projection not in ("body_colours", "least_fluctuation")
+                or not _one_channel_clipped(values, s.clip_level)):
+            return plain  # (the other is kept only beside an ok fit without them, on a projection)
+        # refined from the plain fit, on its projection: the two are compared, and a fit
+        # from further starts that agrees no better costs their time
+        same = "border" if plain.projection == "body_colours" else plain.projection
+        both = _fit_projections(*fit, replace(s, projection=same, two_channels=True,
+                                              start_normal=plain.normal, start_roughness=plain.roughness))
+        return _two_channel_choice(both, plain)
+    first = _fit_lobes(*fit, replace(s, n_start_depths=0))
+    best = first
+    if rgb and first.status in ("depth_not_observable", "not_converged"):
+        again = _fit_lobes(*fit, replace(s, n_start_depths=RETRY_START_DEPTHS))
+        if again.has_normal and (not first.has_normal or first.residual_rms is None
+                                 or (again.residual_rms is not None
+                                     and again.residual_rms < first.residual_rms)):
+            best = again
+    if (rgb and s.projection == "auto" and best.projection == "body_colours"
+            and best.status in ("depth_not_observable", "not_converged")):
+        # the body colours' fit found no depth (a misfit is the surface's shape, seen in every
+        # projection, and stands): the least-fluctuation weights' fit, kept where it is ok
+        lf = _fit_projections(*fit, replace(s, projection="least_fluctuation"))
+        if lf.ok and lf.projection == "least_fluctuation":
+            return _note(lf, f"the body colours' fit is not ok ({best.status}: {best.detail})")
+    if (rgb and s.projection == "auto" and best.status != "ok"
+            and best.projection == "least_fluctuation"):
+        chan = _fit_projections(*fit, replace(s, projection="darkest_channel"))
+        return _note(chan, f"the least-fluctuation projection's fit is not ok ({best.status}: {best.detail})")
+    return best
+
+
+def _fit_lobes(values, origin_uv, bp_uv, camera, rig, s: FitSettings) -> LightAwareEstimate:
+    """One lobe's fit (:func:`_fit_plane`), or with ``lobe="auto"`` Phong's, and where it does
+    not fit, GGX's from its plane too, the one kept by :func:`_choose_lobe`."""
+    fit = (values, origin_uv, bp_uv, camera, rig)
+    if s.lobe != "auto":
+        return _fit_plane(*fit, s)
+    pho = _fit_plane(*fit, replace(s, lobe="phong"))
+    if ((pho.ok or pho.status in ("depth_not_observable", "too_few_points"))
+            and pho.curvature_shift_deg is None):
+        return _note(pho, "phong lobe fits")
+    ggx = _fit_plane(*fit, replace(s, start_normal=pho.normal if pho.has_normal else s.start_normal,
+                                   start_roughness=pho.roughness if pho.has_normal else s.start_roughness,
+                                   lobe="ggx"))
+    return _choose_lobe(pho, ggx)
+
+
+def _project(values, s: FitSettings):
+    """The projection stage: the single image of a colour ROI (:func:`_colour_values`), or
+    ``values`` itself. Returns ``(values, clip_level, lower, missing, detail, how, floor_level)``
+    (the colour path's per-pixel censoring and gaps, or None; no floor on a projection of three
+    channels)."""
+    lower = missing = None
+    detail, how = "", None
+    clip_level, floor_level = s.clip_level, s.floor_level
     if np.ndim(values) == 3:
-        values, clip_level, lower, missing, colour_detail, how = _colour_values(values, clip_level,
-                                                                                projection, bool(two_channels))
+        values, clip_level, lower, missing, detail, how = _colour_values(values, clip_level, s.projection,
+                                                                         bool(s.two_channels))
         if lower is not None:
             floor_level = None  # a projection of three channels has no floor of its own
-    censor = bool(censor and (clip_level is not None or lower is not None))
-    vals, camera, o, uu, vv, keep = _roi_grid(values, camera, origin_uv,
-                                              None if censor else clip_level)
-    if lower is not None:
-        keep &= ~missing if censor else ~(missing | lower)
-    if exclude is not None:
-        ex = np.asarray(exclude, dtype=bool)
-        if ex.shape != keep.shape:
-            raise ValueError(f"exclude: shape {ex.shape} is not the ROI's {keep.shape}")
-        keep &= ~ex
-    H, W = vals.shape
-    border = np.concatenate([vals[0], vals[-1], vals[:, 0], vals[:, -1]])
-    b_level = float(np.median(border))
-    ss = int(supersample)
-    if ss < 1:
-        raise ValueError(f"supersample: must be >= 1, got {supersample!r}")
-    offs = (np.arange(ss) + 0.5) / ss - 0.5
-    sub = np.array([(du_, dv_) for dv_ in offs for du_ in offs])  # (ss^2, 2)
-    rig_arr = _rig_arrays(rig)
-    bp = np.asarray(bp_uv, dtype=np.float64).reshape(2)
+    return values, clip_level, lower, missing, detail, how, floor_level
 
-    def samples(mp, keep_=keep):
-        """The pixels fitted (every one of ``keep_``, or a sub-grid beyond ``mp``) and what the
-        model needs of them: ``(sel, step, y, cens, general, dT, rl, yscale, yn, background,
-        clipn, design)``."""
-        sel_, step_, uv_, y_ = _roi_samples(vals, o, uu, vv, keep_, mp)
-        if not censor:
-            cens_ = np.zeros(len(y_), bool)
-        else:
-            cens_ = lower.ravel()[sel_] if lower is not None else y_ >= clip_level
-        dT_ = np.ascontiguousarray(_rays(camera, (uv_[:, None, :] + sub[None]).reshape(-1, 2)).T)
-        du_ = (uv_[:, 0] - bp[0]) / max(W, H)
-        dv_ = (uv_[:, 1] - bp[1]) / max(W, H)
-        yscale_ = max(float(np.abs(y_).max()), 1e-12)
-        background_ = np.column_stack([np.ones_like(du_), du_, dv_])
-        design_ = np.empty((len(y_), 5 if diffuse else 4))
-        design_[:, -3:] = background_
-        return (sel_, step_, y_, cens_, bool(diffuse or cens_.any() or ggx), dT_,
-                _ray_light(rig_arr[0], dT_), yscale_, y_ / yscale_, background_,
-                ((y_ / yscale_ if lower is not None else float(clip_level) / yscale_)
-                 if censor else np.inf), design_)
 
-    (sel, step, y, cens, general, dT, rl, yscale, yn, background, clipn,
-     design) = samples(max_pixels)
-    if np.count_nonzero(~cens) < 8 + 1 + int(diffuse):
-        return LightAwareEstimate(name, "too_few_points", f"{np.count_nonzero(~cens)} unclipped pixels")
-    d_bp, n0, h0 = _start(bp, camera, rig, nominal_depth_mm, start_normal)
-    proj = {}  # orthonormal basis of the (weighted) background columns, per weights
-
-    def basis(w):
-        """``QT`` (3, M), the background's orthonormal basis (rows), and the projected values."""
-        key = None if w is None else w.tobytes()
-        if proj.get("key") != key or "QT" not in proj:
-            B = background if w is None else background * w[:, None]
-            QT = np.ascontiguousarray(np.linalg.qr(B)[0].T)
-            yw = yn if w is None else yn * w
-            proj.update(key=key, QT=QT, yt=yw - (QT @ yw) @ QT)
-        return proj["QT"], proj["yt"]
-
-    def box(v):
-        """The mean of each pixel's sub-pixel samples (the last axis)."""
-        return v if ss == 1 else v.reshape(*v.shape[:-1], -1, ss * ss).mean(axis=-1)
-
-    state = {}
-
-    def resjac_general(p, nb, e1, e2, grad=True, w=None, kaufman=False):
-        """Residuals and Kaufman's Jacobian with the diffuse column and censored rows (Notes).
-
-        Censored rows where the model is at or above the clip level have residual 0 and a zero
-        Jacobian row; the others, the model minus the clip level.
-        """
-        key = (p.tobytes(), nb.tobytes(), None if w is None else w.tobytes(), "general")
-        if state.get("key") != key:
-            n, dns = _normal_derivs(p, nb, e1, e2)
-            h, rough = float(np.exp(p[2])), float(np.exp(p[3]))
-            if ggx:
-                S, parts = _rig_value_ggx(dT, rl, n, h, rig_arr, rough), None
-            else:
-                S, parts = _rig_value(dT, rl, n, h, rig_arr, rough)
-            design[:, 0] = box(S)
-            if diffuse:
-                design[:, 1] = box(_rig_diffuse(dT, rl, n, h, rig_arr))
-            target = np.where(cens, clipn, yn)
-            active = ~cens
-            coef = np.zeros(design.shape[1])
-            if not np.isfinite(design).all():
-                # a trial point where the model overflows (a plane seen edge-on, a lobe run off):
-                # residuals that MINPACK rejects, instead of a least squares that LAPACK
-                # refuses with a line of its own on stderr
-                r = np.full(len(yn), _NOT_FINITE_RESIDUAL)
-                state.update(key=key, n=n, dns=dns, h=h, rough=rough, parts=parts, coef=coef,
-                             active=active, r=r)
-                return (r, np.zeros((len(yn), 4))) if grad else (r, None)
-            for _ in range(3):  # the active set of the censored rows: two updates settle it
-                A, t = design[active], target[active]
-                if w is not None:
-                    A, t = A * w[active, None], t * w[active]
-                coef = np.linalg.lstsq(A, t, rcond=None)[0]
-                model = design @ coef
-                new_active = ~cens | (model < clipn)
-                if np.array_equal(new_active, active):
-                    break
-                active = new_active
-            r = np.where(active, model - target, 0.0)
-            state.update(key=key, n=n, dns=dns, h=h, rough=rough, parts=parts, coef=coef,
-                         active=active, r=r)
-        if not grad:
-            return state["r"], None
-        return state["r"], jac_general(p, nb, e1, e2, state["dns"], w)
-
-    def jac_general(p, nb, e1, e2, dns, w):
-        st = state
-        coef, active = st["coef"], st["active"]
-        if ggx:
-            G = coef[0] * ggx_grad(st, dns)
-        else:
-            G = coef[0] * box(_rig_grad(dT, st["parts"], st["n"], dns, st["h"], rig_arr, st["rough"]))
-        if diffuse:
-            G[:3] += coef[1] * box(_rig_diffuse_grad(dT, rl, p, nb, e1, e2, rig_arr))
-        JT = np.zeros_like(G)
-        A = design[active]
-        Ga = G[:, active]
-        if w is not None:
-            A, Ga = A * w[active, None], Ga * w[active]
-        Q = np.linalg.qr(A)[0]
-        Ja = Ga - (Ga @ Q) @ Q.T
-        JT[:, active] = Ja if w is None else Ja / w[active]
-        return JT.T
-
-    def ggx_grad(st, dns):
-        """The GGX lobe image's derivatives in (a, b, log h, log alpha) at the state ``st`` of
-        :func:`resjac_general` (:func:`~simtest.reconstruct.lightaware.model._rig_grad_ggx`,
-        analytic): (4, M)."""
-        return box(_rig_grad_ggx(dT, rl, st["n"], dns, st["h"], rig_arr, st["rough"]))
-
-    def resjac_at(p, nb, e1, e2, grad=True, w=None, kaufman=False):
-        if general:
-            return resjac_general(p, nb, e1, e2, grad, w, kaufman)
-        return resjac_plain(p, nb, e1, e2, grad, w, kaufman)
-
-    def resjac_plain(p, nb, e1, e2, grad=True, w=None, kaufman=False):
-        """Residuals of the variable projection (Notes) and their Jacobian in (a, b, log h, log n).
-
-        ``w``: row weights (a robust loss' reweighting): the linear part is solved with them and
-        the residual and Jacobian returned are the unweighted ones of that solution. ``kaufman``:
-        the Jacobian without its second-order term, ``P (g dS)`` (for the covariance).
-        """
-        QT, yt = basis(w)
-        key = (p.tobytes(), nb.tobytes(), None if w is None else w.tobytes())
-        if state.get("key") != key:
-            n, dns = _normal_derivs(p, nb, e1, e2)
-            h, rough = float(np.exp(p[2])), float(np.exp(p[3]))
-            S, parts = _rig_value(dT, rl, n, h, rig_arr, rough)
-            S = box(S)
-            Sw = S if w is None else S * w
-            St = Sw - (QT @ Sw) @ QT
-            aa = float(St @ St)
-            g = float(St @ yt) / aa if aa > 0 else 0.0
-            rw = g * St - yt
-            state.update(key=key, n=n, dns=dns, h=h, rough=rough, parts=parts, St=St, aa=aa, g=g,
-                         rw=rw, r=rw if w is None else rw / w)
-        if not grad:
-            return state["r"], None
-        return state["r"], jac_of(state["dns"], w, kaufman)
-
-    def jac_of(dns, w, kaufman):
-        """The Jacobian (M, 4) at the point of ``state``, the normal's derivatives ``dns``."""
-        st = state
-        QT = basis(w)[0]
-        dS = box(_rig_grad(dT, st["parts"], st["n"], dns, st["h"], rig_arr, st["rough"]))
-        if w is not None:
-            dS = dS * w
-        St, aa, g = st["St"], st["aa"], st["g"]
-        if not aa > 0:
-            return np.zeros((len(St), 4))
-        M = np.empty((4, 4))  # JT = g dS - M @ [QT; St]: the projections in one product
-        M[:, :3] = (g * dS) @ QT.T
-        M[:, 3] = dS @ St * (g / aa)
-        if not kaufman:
-            M[:, 3] += dS @ st["rw"] / aa
-        JT = g * dS - M @ np.vstack([QT, St])
-        return (JT if w is None else JT / w).T
-
-    def start_for(n, h):
-        """The start's roughness: Phong's n (:func:`phong_start`), or for GGX its alpha of the same
-        peak curvature."""
-        rough = phong_start(n, h)
-        return ggx_alpha_of_phong(rough) if ggx else rough
-
-    def phong_start(n, h):
-        """Start roughness: a log-log regression of the specular part on cos beta, then Gauss-Newton.
-
-        The regression's slope is sensitive to the start plane (log cos beta is small near the
-        peak); a few Gauss-Newton steps on log n alone (the plane held, the linear part projected
-        out as in the fit) bring it to the least-squares roughness of the start plane.
-        """
-        if start_roughness is not None:
-            return float(start_roughness)
-        # cos beta f p and f p (the lobe at n = 1 and n = 0): their ratio is cos beta (one light)
-        S1, parts = _rig_value(dT, rl, n, h, rig_arr, 1.0)  # 0 where a ray misses (cb < 0)
-        S0 = sum(pt[3] / pt[1] for pt in parts)  # val / cb
-        S1, S0 = box(S1), box(S0)
-        spec = y - b_level
-        selr = (spec > 0.05 * spec.max()) & (S1 > 0)
-        log_n = np.log(50.0)
-        if np.count_nonzero(selr) >= 3:
-            x = np.log(np.clip(S1[selr] / S0[selr], 1e-12, None))
-            z = np.log(spec[selr] / S0[selr])
-            xc = x - x.mean()
-            den = float(xc @ xc)
-            slope = float(xc @ (z - z.mean())) / den if den > 0 else np.nan  # least-squares line
-            if np.isfinite(slope) and slope > 1:
-                log_n = np.log(min(slope, _ROUGHNESS_RANGE[1]))
-        QT, yt = basis(None)
-
-        def steps(log_n):
-            """Gauss-Newton on log n from ``log_n``, the start plane held."""
-            for _ in range(_ROUGHNESS_START_STEPS):
-                rough = float(np.exp(log_n))
-                S, parts = _rig_value(dT, rl, n, h, rig_arr, rough)
-                S, dS = box(S), box(sum(pt[3] * pt[2] for pt in parts) * rough)  # dS / d log n
-                St, da = S - (QT @ S) @ QT, dS - (QT @ dS) @ QT
-                aa = float(St @ St)
-                if not aa > 0:
-                    break
-                g = float(St @ yt) / aa
-                r = g * St - yt
-                J = g * (da - St * (float(St @ da) / aa)) - St * (float(r @ da) / aa)
-                jj = float(J @ J)
-                step = -float(J @ r) / jj if jj > 0 else 0.0
-                if not np.isfinite(step):
-                    break
-                log_n = float(np.clip(log_n + np.clip(step, -1.0, 1.0), *np.log(_ROUGHNESS_RANGE)))
-                if abs(step) < 1e-3:
-                    break
-            return log_n
-
-        def cost(ln):
-            """The start plane's variable-projection cost at roughness exp(ln)."""
-            S_ = box(_rig_value(dT, rl, n, h, rig_arr, float(np.exp(ln)))[0])
-            St_ = S_ - (QT @ S_) @ QT
-            aa_ = float(St_ @ St_)
-            return float(yt @ yt - (St_ @ yt) ** 2 / aa_) if aa_ > 0 else np.inf
-
-        log_n = steps(log_n)
-        if len(rig_arr[0]) > 1:
-            # several lights: the ratio above is no lobe's cos beta, and where a second light's
-            # lobe enters the ROI the steps ran to a broad lobe over both (n -> 1), from where the
-            # fit of an exact plane ran off (h 20 -> 65 mm, guides +-5 mm): the steps again from
-            # the least cost of a grid over the range (one evaluation each). That start replaces
-            # the first only where it at least halves the start plane's cost (it found the lobe);
-            # a lower cost by a few per cent on a flat cost curve says nothing of the basin, and
-            # taking it sent a sensor-path fit of an exact plane into a local minimum
-            other = steps(min(np.log(_START_ROUGHNESS_GRID), key=cost))
-            if cost(other) < _START_ROUGHNESS_GAIN * cost(log_n):
-                log_n = other
-        return float(np.exp(log_n))
-
-    def screened(starts):
-        """The start (n, h) of least cost before any refinement (at its start roughness)."""
-        def cost(nh):
-            e1_, e2_ = plane_basis(nh[0])
-            p0_ = np.array([0.0, 0.0, np.log(nh[1]), np.log(start_for(*nh))])
-            r_ = resjac_at(p0_, nh[0], e1_, e2_, grad=False)[0]
-            return float(r_ @ r_) if np.isfinite(r_).all() else np.inf
-        return min(starts, key=cost)
-
-    # Starts: the given one (or the bisector at the nominal depth), the nominal bisector too when
-    # a start was given, and n_start_depths planes along the BP's constraint (each the bisector
-    # at a depth from nominal/8 to nominal*8, its distance such that the specular point is the
-    # BP). Each is refined; the solution of least cost is kept. A near plane with a rough lobe can
-    # mimic a far one with a smooth lobe (a local minimum), which one start may fall into.
-    cands = [(n0, h0)]
-    if start_normal is None and len(rig_arr[0]) > 1:
-        # a highlight is one light's: beside the mean light's bisector, each light's at the
-        # nominal depth (the BP that light's specular point), the start of least cost kept. Under
-        # guides +-8 mm at 20 mm the mean light's start (the BP ray) is 11 deg off, and from it
-        # the fit of an exact plane ran off to h -> 0
-        cands = [screened(cands + [_light_start(d_bp, L, nominal_depth_mm) for L in rig_arr[0]])]
-    if np.abs(rig_arr[0]).max() > 0:
-        Lm = _mean_light(rig)
-        depths = (list(nominal_depth_mm * np.geomspace(1 / 8, 8, n_start_depths))
-                  if n_start_depths else [])
-        if start_normal is not None:
-            depths.append(nominal_depth_mm)
-        for sdep in depths:
-            X = sdep * d_bp
-            nc = unit(unit(-X) + unit(Lm - X))
-            cands.append((nc, float(-(nc @ X))))
-    best = None
-    nfev_total = 0
-    for nc, hc in cands:
-        e1, e2 = plane_basis(nc)
-        p0 = np.array([0.0, 0.0, np.log(hc), np.log(start_for(nc, hc))])
-        free = np.ones(len(p0), bool)
-        free[2] = np.abs(rig_arr[0]).max() > 1e-9 * hc  # all lights at V: no dependence on h
-        x, nfev, conv, msg, r = _solve(resjac_at, p0, (nc, e1, e2), loss, f_scale, max_nfev, free,
-                                       lazy_jac=True, weighted=True)
-        nfev_total += nfev
-        cost = float(r @ r) if np.isfinite(r).all() else np.inf
-        if best is None or cost < best[0]:
-            best = (cost, x, nc, hc, e1, e2, conv, msg, r)
-    if not best[0] < 0.25 * _NOT_FINITE_RESIDUAL**2 * len(yn):
-        return LightAwareEstimate(name, "not_converged", "the model is not finite about the solution",
-                                  n_evaluations=nfev_total)
-    _, x, n0, h0, e1, e2, conv, msg, r = best
-    clipped_low = floor_level is not None and bool(np.any(y <= floor_level))
-    if step > 1 and refine_all and not clipped_low and not _correlated(r, sel, keep.shape, step):
-        # the starts were refined on a sub-grid: where the plane explains it (its residuals do
-        # not correlate, the error is the noise's) the best is refined on every kept pixel (the
-        # sub-grid's covariance is step^2 times the whole ROI's; the two solutions lie apart
-        # along the valley where the tilt and the distance trade off, which takes the second
-        # fit about as many evaluations as the first); where it misfits, the model's error
-        # dominates and more pixels of it would not help; where the ROI's noise is clipped at
-        # the floor, that clipping biases the fit (an error its sigma does not hold) and more
-        # pixels would only shrink the sigma about it
-        (sel, step, y, cens, general, dT, rl, yscale, yn, background, clipn,
-         design) = samples(None)
-        state.clear()
-        proj.clear()
-        free = np.ones(len(x), bool)
-        free[2] = np.abs(rig_arr[0]).max() > 1e-9 * h0
-        x2, nfev, conv2, msg2, r = _solve(resjac_at, x, (n0, e1, e2), loss, f_scale, max_nfev, free,
-                                          lazy_jac=True, weighted=True)
-        nfev_total += nfev
-        if np.isfinite(r).all() and float(r @ r) < 0.25 * _NOT_FINITE_RESIDUAL**2 * len(yn):
-            x, conv, msg = x2, conv2, msg2
-        else:
-            return LightAwareEstimate(name, "not_converged", "the model is not finite about the "
-                                      "solution on every pixel", n_evaluations=nfev_total)
-    if floor_refit and floor_level is not None and step == 1 and np.any(y <= floor_level):
-        # pixels clipped from below (an 8-bit image's 0 under read noise): where the model is
-        # within a few noise sigmas of the floor the data's mean is the clipped Gaussian's, above
-        # the model; those pixels, chosen by the model (not by their values, which would select
-        # their noise), are left out and the fit refined on the rest
-        r_ = resjac_at(x, n0, e1, e2, grad=False)[0]
-        model_n = yn + r_
-        low = y <= floor_level
-        s_n = 1.4826 * float(np.median(np.abs(r_[~low]))) if np.any(~low) else 0.0
-        drop = model_n <= float(floor_level) / yscale + _FLOOR_MARGIN * s_n
-        if (drop.any() and s_n * yscale > floor_step
-                and np.count_nonzero(~drop & ~cens) >= 8 + 1 + int(diffuse)):
-            keep2 = keep.copy()
-            keep2.flat[sel[drop]] = False
-            (sel, step, y, cens, general, dT, rl, yscale, yn, background, clipn,
-             design) = samples(None, keep2)
-            state.clear()
-            proj.clear()
-            free = np.ones(len(x), bool)
-            free[2] = np.abs(rig_arr[0]).max() > 1e-9 * h0
-            x2, nfev, conv2, msg2, r = _solve(resjac_at, x, (n0, e1, e2), loss, f_scale, max_nfev,
-                                              free, lazy_jac=True, weighted=True)
-            nfev_total += nfev
-            if not (np.isfinite(r).all() and float(r @ r) < 0.25 * _NOT_FINITE_RESIDUAL**2 * len(yn)):
-                return LightAwareEstimate(name, "not_converged", "the model is not finite about the "
-                                          "solution above the floor", n_evaluations=nfev_total)
-            x, conv, msg = x2, conv2, msg2
-    nfev = nfev_total
+def _fit_plane(values, origin_uv, bp_uv, camera, rig, s: FitSettings) -> LightAwareEstimate:
+    """One fit of one lobe (``s.lobe`` "phong" or "ggx") from ``s``'s starts: projection, lobe
+    model, starts, solve, covariance; a projected fit that passes, checked on the darkest
+    channel."""
+    name = "photometric_fit"
+    one, clip_level, lower, missing, colour_detail, how, floor_level = _project(values, s)
+    m = PlaneModel(one, origin_uv, bp_uv, camera, rig, s, clip_level, lower, missing, s.lobe == "ggx")
+    if np.count_nonzero(~m.cens) < 8 + 1 + int(s.diffuse):
+        return LightAwareEstimate(name, "too_few_points", f"{np.count_nonzero(~m.cens)} unclipped pixels")
+    d_bp, n0, h0 = _start(m.bp, m.camera, rig, s.nominal_depth_mm, s.start_normal)
+    solved = solve_plane(m, start_planes(m, rig, d_bp, n0, h0, s), s, floor_level)
+    if isinstance(solved, LightAwareEstimate):
+        return solved
+    x, n0, h0, e1, e2, conv, msg, nfev = solved
     n_hat = _normal_derivs(x, n0, e1, e2)[0]
     h_hat = float(np.exp(x[2]))
     with np.errstate(over="ignore"):  # a fit run off to an infinite roughness: implausible below
-        rough_hat = phong_of_ggx_alpha(float(np.exp(x[3]))) if ggx else float(np.exp(x[3]))
-    bad = _implausible(h_hat, h0, rough_hat, shaded=diffuse)
+        rough_hat = phong_of_ggx_alpha(float(np.exp(x[3]))) if m.ggx else float(np.exp(x[3]))
+    bad = _implausible(h_hat, h0, rough_hat, shaded=s.diffuse)
     if bad:
         return LightAwareEstimate(name, "not_converged", bad, n_evaluations=nfev)
-    if np.any(n_hat @ rig_arr[0].T + h_hat <= 0):
+    if np.any(n_hat @ m.rig_arr[0].T + h_hat <= 0):
         return LightAwareEstimate(name, "light_behind_plane", f"h = {h_hat:.4g} mm", n_evaluations=nfev)
-
-    def at_solution(p_hat, nb, e1_, e2_):
-        """Residuals and covariance Jacobian about (nb, e1_, e2_) at the solution x.
-
-        The plane and roughness are x's (``nb`` is x's normal): the model at x, most often the
-        solver's last evaluation, is reused and only the derivatives are taken about ``nb``.
-        """
-        resjac_at(x, n0, e1, e2, grad=False)
-        if general:  # the diffuse column's derivative by differences about (nb, e1_, e2_)
-            return state["r"], jac_general(p_hat, nb, e1_, e2_,
-                                           _normal_derivs(p_hat, nb, e1_, e2_)[1], None)
-        return state["r"], jac_of(_normal_derivs(p_hat, nb, e1_, e2_)[1], None, True)
-
-    def curvature(r0, hac=False):
-        """The score test for a curved patch (:func:`~simtest.reconstruct.lightaware.solve._curvature_score`):
-        the quadric patch of :func:`~simtest.reconstruct.lightaware.patch.quadric_fit` at the
-        plane's specular point of the mean light with zero curvature is the plane; its image's
-        derivatives in the three curvatures
-        (:func:`~simtest.reconstruct.lightaware.model._curvature_columns`) are the columns the
-        residual is tested against. Returns ``(verdict, shift)``: the test's (a misfit's
-        detail, None where it passes, False where it cannot be made) and, for a misfit, how far
-        the pattern would move the plane
-        (:func:`~simtest.reconstruct.lightaware.solve._curvature_shift`)."""
-        Lm = _mean_light(rig)
-        c = float(n_hat @ Lm) + h_hat
-        Lp = Lm - 2.0 * c * n_hat  # the mean light's mirror image in the plane
-        den = -float(n_hat @ Lp)
-        if not (c > 0 and den > 0):
-            return False, None
-        Xs = Lp * (h_hat / den)
-        cols = box(_curvature_columns(dT, rl, n_hat, h_hat, rig_arr, rough_hat, Xs)).T
-        J = at_solution(np.concatenate([[0.0, 0.0, np.log(h_hat)], x[3:]]), n_hat,
-                        *plane_basis(n_hat))[1]
-        span = np.column_stack([J, design] if general else [J, state["St"], background])
-        sel_ = sel
-        if floor_level is not None and np.any(y <= floor_level):
-            # the pixels near the floor hold clipped noise, a pattern of its own: the test reads
-            # the rest (chosen by the model, as the floor's refinement chooses them)
-            above = y > floor_level
-            s_n = 1.4826 * float(np.median(np.abs(r0[above]))) if np.any(above) else 0.0
-            rows = yn + r0 > float(floor_level) / yscale + _FLOOR_MARGIN * s_n
-            cols, span, r0, sel_ = cols[rows], span[rows], r0[rows], sel[rows]
-        verdict = _curvature_score(cols, span, r0, (sel_, keep.shape, step) if hac else None)
-        return verdict, (_curvature_shift(cols, span, r0) if verdict else None)
-
-    def post(est, r0):
-        """The misfit test, and where neighbouring residuals correlate, the sandwich sigmas.
-
-        Correlated residuals (a texture, a micro-relief, a lobe shape the model lacks, a curved
-        patch) make ``s^2 (J^T J)^-1`` too small: the normal's and the depth's sigmas are then
-        the larger of it and the sandwich's (:func:`~simtest.reconstruct.lightaware.solve._hac_covariance`).
-        The sensor path (the diffuse column, censored pixels or the GGX lobe) is judged by
-        :func:`sensor_verdict`.
-        """
-        if est.status not in ("ok", "depth_not_observable"):
-            return est
-        if general:
-            return sensor_verdict(est, r0)
-        if not _correlated(r0, sel, keep.shape, step):
-            curved, shift = curvature(r0)
-            if curved:
-                kept = immaterial(est, r0, curved, shift, False, False)
-                return kept if kept is not None else est.without_depth("plane_misfit", curved)
-            est = _misfit(est, r0, sel, keep.shape, step)
-            return counted(est, r0, False, jackknife=False) if est.status in ("ok", "depth_not_observable") else est
-        return _misfit(with_sandwich(est, r0), r0, sel, keep.shape, step)
-
-    def with_sandwich(est, r0):
-        """``est`` with the normal's sigma at least the sandwich's."""
-        J = at_solution(np.concatenate([[0.0, 0.0, np.log(h_hat)], x[3:]]), n_hat,
-                        *plane_basis(n_hat))[1]
-        cov, _ = _hac_covariance(J, r0, sel, keep.shape, step)
-        if cov is not None:
-            sig = math.degrees(math.sqrt(max(float(cov[0, 0] + cov[1, 1]), 0.0)))
-            est = replace(est, normal_sigma_deg=max(sig, est.normal_sigma_deg or 0.0))
-        return est
-
-    def sensor_verdict(est, r0):
-        """The misfit test and the sigmas of the sensor path.
-
-        On a sensor frame the tissue's albedo texture (vessels, mucosal pattern) under the rig's
-        diffuse light leaves residuals that correlate between neighbours on an exact plane, so
-        the neighbours' correlation says nothing of the surface's shape there. The test is the
-        curvature's score test with the residual's own correlated noise
-        (:func:`~simtest.reconstruct.lightaware.solve._curvature_score` with its grid): a
-        texture passes it, a curved patch does not (``plane_misfit``). One that passes has
-        sigmas that count the texture as the noise it is: ``s^2 (J^T J)^-1`` (``s^2`` the
-        residual's variance, the texture's included) times the residual's correlation area
-        (:func:`~simtest.reconstruct.lightaware.solve._correlation_area`: the fitted pixels per
-        independent one), the normal's at least the sandwich's where the residuals correlate;
-        a depth whose relative sigma is then above ``TOL.depth_rel_sigma_max`` is withdrawn
-        (``depth_not_observable``). Where the test cannot be made (no specular point of the mean
-        light on the plane, a degenerate pattern) the neighbours' correlation decides, as on the
-        plain path.
-        """
-        curved, shift = curvature(r0, hac=True)
-        correlated = _correlated(r0, sel, keep.shape, step)
-        if curved:
-            kept = immaterial(est, r0, curved, shift, correlated, True)
-            return kept if kept is not None else est.without_depth("plane_misfit", curved)
-        if curved is False:
-            return _misfit(with_sandwich(est, r0), r0, sel, keep.shape, step) if correlated else est
-        return counted(est, r0, correlated)
-
-    def immaterial(est, r0, curved, shift, correlated, jackknife):
-        """A fit whose residual holds a curved patch's pattern (``curved``, the score test's
-        detail) that moves the plane less than its noise does, or None.
-
-        The score test asks whether the patch is curved at all; under a micro-relief it is, its
-        curvatures random over the lobe, and with thousands of pixels the test sees them. What
-        the recommendation needs is whether that curvature moves the normal: ``shift`` (the
-        normal's shift in degrees and the distance's relative shift, the quadric patch's
-        linearised step from the plane,
-        :func:`~simtest.reconstruct.lightaware.solve._curvature_shift`). Where the normal's shift
-        is at most its sigma (the residual's correlation and, on the sensor path, the cluster
-        jackknife counted: ``counted``, over the wider blocks too, as the relief's pattern spans
-        the lobe: on the endoscope suite's flat mucosa under 0.005 and 0.01 mm of relief the
-        narrow blocks' sigmas covered 15 of 21 and 1 of 4 recommended normals at 2 sigma, the
-        wider ones' 20 of 24 and 6 of 6), the fit is kept with its sigmas grown by the shifts
-        (the normal's sigma plus its shift; the depth's plus its relative shift times the
-        depth, withdrawn above ``TOL.depth_rel_sigma_max``) and the detail saying so. On the
-        noisy spheres and a local minimum's leftover pattern the shift is 9 to 16 times the
-        sigma, and the fit stays ``plane_misfit``.
-        """
-        if shift is None:
-            return None
-        kept = counted(est, r0, correlated, jackknife=jackknife, wide=True)
-        sig = kept.normal_sigma_deg
-        if kept.status not in ("ok", "depth_not_observable") or sig is None or not shift[0] <= sig:
-            return None
-        note = (f"{curved}, which moves the normal {shift[0]:.2g} deg, within its sigma: "
-                "kept, its sigmas grown by the shift")
-        kept = replace(kept, normal_sigma_deg=sig + shift[0], curvature_shift_deg=shift[0],
-                       detail=f"{kept.detail}; {note}" if kept.detail else note)
-        if kept.depth_sigma_mm is not None and kept.depth_mm:
-            return _with_depth_sigma(kept, kept.depth_sigma_mm + shift[1] * abs(kept.depth_mm),
-                                     lambda rel: f"{kept.detail}; relative depth sigma {rel:.3g} > "
-                                                 f"{TOL.depth_rel_sigma_max}")
-        return kept
-
-    def counted(est, r0, correlated, jackknife=True, wide=False):
-        """``est`` with sigmas that count the residual's correlation: ``s^2 (J^T J)^-1`` times
-        the residual's correlation area (:func:`~simtest.reconstruct.lightaware.solve._correlation_area`:
-        the fitted pixels per independent one), the normal's at least the sandwich's where the
-        residuals correlate and, with ``jackknife``, at least the cluster jackknife's; the
-        depth's grown by the same factor; a depth whose relative sigma is then above
-        ``TOL.depth_rel_sigma_max`` is withdrawn (``depth_not_observable``).
-
-        On a sensor frame the residual holds the albedo's texture, weakly correlated over many
-        lags, which only the jackknife sees. On the plain path (no diffuse column, censoring or
-        GGX lobe) an integer image of a smooth lobe holds its rounding, which is not independent
-        from pixel to pixel where the lobe changes by less than a level a pixel: the
-        ``lightaware`` suite's 60 noise-free and noisy 8-bit planes at epsilon/d 0.05 to 0.5 had
-        40 errors within twice the white sigma (noise-free: 0.05 to 0.35 deg off, sigmas 0.03 to
-        0.09), 56 within twice the correlation area's. The jackknife is left out there: with 2 %
-        read noise it tripled sigmas that the Cramer-Rao bound already matched (59 of 60
-        covered, but the depth of every 2 % plane withdrawn).
-        """
-        scale = math.sqrt(_correlation_area(r0, sel, keep.shape, step))
-        sig = None if est.normal_sigma_deg is None else est.normal_sigma_deg * scale
-        est = replace(est, normal_sigma_deg=sig)
-        if correlated:
-            est = with_sandwich(est, r0)
-        if est.normal_sigma_deg and jackknife:
-            # at least the cluster jackknife's (the largest over the blocks the ROI holds enough
-            # of, wider where one channel keeps the texture): the depth's sigma grows with the
-            # normal's by the same factor
-            J = at_solution(np.concatenate([[0.0, 0.0, np.log(h_hat)], x[3:]]), n_hat,
-                            *plane_basis(n_hat))[1]
-            for block in cluster_blocks(keep.shape, texture=wide or how in (None, "darkest_channel")):
-                cov = _cluster_covariance(J, r0, sel, keep.shape, block)
-                if cov is None:
-                    continue
-                csig = math.degrees(math.sqrt(max(float(cov[0, 0] + cov[1, 1]), 0.0)))
-                if csig > est.normal_sigma_deg:
-                    scale *= csig / est.normal_sigma_deg
-                    est = replace(est, normal_sigma_deg=csig)
-        if est.depth_sigma_mm is not None:
-            return _with_depth_sigma(est, est.depth_sigma_mm * scale,
-                                     lambda rel: f"relative depth sigma {rel:.3g} with the residual's "
-                                                 f"correlation > {TOL.depth_rel_sigma_max}")
-        return est
-
-    est = _finish(name, at_solution, n_hat, h_hat, rig, x[3:],
+    verdict = PlaneVerdict(m, rig, x, n0, e1, e2, n_hat, h_hat, rough_hat, how, floor_level)
+    est = _finish(name, verdict.at_solution, n_hat, h_hat, rig, x[3:],
                   TOL.photometric_noise_rel, nfev, conv, roughness=rough_hat,
-                  detail="" if conv else msg, n_linear=design.shape[1] if general else 4,
-                  post=post)
+                  detail="" if conv else msg, n_linear=m.design.shape[1] if m.general else 4,
+                  post=verdict.post)
     if colour_detail:
-        est = replace(est, detail=f"{est.detail}; {colour_detail}" if est.detail else colour_detail)
-    est = replace(est, lobe="ggx" if ggx else "phong", n_residuals=int(len(yn)), projection=how)
+        est = _note(est, colour_detail)
+    est = replace(est, lobe="ggx" if m.ggx else "phong", n_residuals=int(len(m.yn)), projection=how)
     if lower is not None and est.status in ("ok", "depth_not_observable"):
         # the shape check on the darkest channel: a curved patch is curved in every channel, and
         # the projection's residual can hide it (a JPEG frame's chroma, subsampled and blocky,
         # correlates the projected residual over blocks, against which the score test weighs
         # the curvature's pattern: on the endoscope suite's colon wall every JPEG frame's
         # projected fit passed 6 to 15 deg off, where the darkest channel's misfits)
-        c, clip_c = _darkest(rgb_in, clip_in)
-        chan = photometric_fit(np.asarray(rgb_in, dtype=np.float64)[..., c], origin_uv, bp_uv, camera,
-                               rig, clip_level=clip_c, nominal_depth_mm=nominal_depth_mm,
-                               start_normal=est.normal, loss=loss, f_scale=f_scale,
-                               supersample=supersample, n_start_depths=0, diffuse=diffuse,
-                               censor=censor, max_pixels=max_pixels, refine_all=refine_all,
-                               max_nfev=max_nfev, lobe=lobe, floor_level=floor_in,
-                               floor_refit=floor_refit, floor_step=floor_step, exclude=exclude)
+        c, clip_c = _darkest(values, s.clip_level)
+        chan = _fit_lobes(np.asarray(values, dtype=np.float64)[..., c], origin_uv, bp_uv, m.camera, rig,
+                          replace(s, clip_level=clip_c, start_normal=est.normal, start_roughness=None,
+                                  n_start_depths=0, projection="auto", two_channels=None))
         if chan.status == "plane_misfit":
             est = est.without_depth("plane_misfit",
                                     f"channel {c}'s fit misfits ({chan.detail}); {est.detail}")
@@ -982,15 +458,15 @@ def _darkest(rgb, clip_level) -> tuple[int, float | None]:
     return c, clip
 
 
-#: The values of ``photometric_fit``'s ``projection``.
-PROJECTIONS = ("auto", "border", "least_fluctuation", "darkest_channel")
+
+
 
 
 def _colour_values(rgb, clip_level, projection: str = "auto", two_channels: bool = False):
     """The single image a colour ROI is fitted on (``photometric_fit``'s ``values`` (H, W, 3)).
 
     Returns ``(values, clip_level, lower, missing, detail, how)``: the body-colour projection of
-    :func:`~simtest.reconstruct.lightaware.model.specular_image` (no scalar clip level; its
+    :func:`~simtest.reconstruct.lightaware.colour.specular_image` (no scalar clip level; its
     censored and missing pixels), or, where it gives none (the border holds one body colour, or
     white lies too near them), the channel whose median is least (where the tissue is darkest)
     with that channel's clip level and no masks; ``how`` is the estimate's ``projection``
@@ -1030,7 +506,7 @@ TWO_CHANNEL_Z = 2.0
 
 def _two_channel_choice(both: LightAwareEstimate, plain: LightAwareEstimate) -> LightAwareEstimate:
     """The fit with the pixels clipped in one channel valued from the other two (``both``:
-    :func:`~simtest.reconstruct.lightaware.model.specular_image`'s ``two_channels``), or the fit
+    :func:`~simtest.reconstruct.lightaware.colour.specular_image`'s ``two_channels``), or the fit
     without them (``plain``), returned unchanged.
 
     ``both`` is kept where both fits are ``ok`` (``both`` on a projection of the three channels,
@@ -1076,14 +552,6 @@ def _bic(est: LightAwareEstimate) -> float:
         return math.inf
     return est.n_residuals * math.log(max(est.residual_rms, 1e-300) ** 2)
 
-
-def _with_depth_sigma(est: LightAwareEstimate, dsig: float, why) -> LightAwareEstimate:
-    """``est`` with the depth's 1-sigma ``dsig`` (mm), or without its depth
-    (``depth_not_observable``, its detail ``why(rel)`` of the relative sigma) where ``dsig``
-    exceeds ``TOL.depth_rel_sigma_max`` of a nonzero depth."""
-    if est.depth_mm and dsig > TOL.depth_rel_sigma_max * abs(est.depth_mm):
-        return est.without_depth("depth_not_observable", why(dsig / abs(est.depth_mm)))
-    return replace(est, depth_sigma_mm=dsig)
 
 
 def _choose_lobe(pho: LightAwareEstimate, ggx: LightAwareEstimate) -> LightAwareEstimate:

@@ -1,0 +1,338 @@
+"""The lobe stage of the photometric plane fit: the ROI's pixels, the image of a plane lit by the
+rig at a point (a, b, log h, log roughness), the variable projection's residual and Jacobian
+(:func:`~simtest.reconstruct.lightaware.plane.photometric_fit`, Notes), and the start roughness."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from simtest.reconstruct.lightaware.model import (
+    _normal_derivs,
+    _ray_light,
+    _rays,
+    _rig_arrays,
+    _rig_diffuse,
+    _rig_diffuse_grad,
+    _rig_grad,
+    _rig_grad_ggx,
+    _rig_value,
+    _rig_value_ggx,
+    _roi_grid,
+    _roi_samples,
+    ggx_alpha_of_phong,
+)
+from simtest.reconstruct.lightaware.solve import _ROUGHNESS_RANGE
+
+
+#: The residual of every pixel at a trial point where the model is not finite: far above any
+#: residual of the normalised values (at most a few units), so that Levenberg-Marquardt rejects
+#: the step and shortens it.
+_NOT_FINITE_RESIDUAL = 1e6
+
+
+#: Gauss-Newton steps on log n alone that refine the photometric fit's start roughness: on the
+#: bench's exact highlight (n = 150) three steps from n = 50, 86 or 258 (the regression's starts
+#: with cos beta with and without the falloff) end within 0.003 of log 150.
+_ROUGHNESS_START_STEPS = 3
+
+
+#: Phong roughnesses among which the start of a fit under several lights is chosen by its cost
+#: (``photometric_fit``'s start roughness): a factor of 4 apart, from a lobe as broad as a
+#: diffuse one to the smoothest film's range.
+_START_ROUGHNESS_GRID = (4.0, 16.0, 64.0, 256.0, 1024.0, 4096.0)
+
+#: The factor by which the grid's start roughness must lower the start plane's cost to replace
+#: the regression's (``photometric_fit``'s start under several lights).
+_START_ROUGHNESS_GAIN = 0.5
+
+
+class PlaneModel:
+    """The pixels of one photometric plane fit and the model's residuals on them.
+
+    Built from the single image fitted (after the colour projection) and the fit's settings
+    (:class:`~simtest.reconstruct.lightaware.plane.FitSettings`); :meth:`use` picks the pixels
+    fitted (all kept ones or a sub-grid) and sets the arrays the residuals read: ``sel, step, y,
+    cens, general, dT, rl, yscale, yn, background, clipn, design``. ``general`` is the sensor
+    path (a diffuse column, censored rows or the GGX lobe: :meth:`resjac_general`), else the
+    plain variable projection (:meth:`resjac_plain`). The last evaluation is cached in
+    ``state`` (keyed by the point and the weights), the background's basis in ``proj``.
+
+    Raises
+    ------
+    ValueError
+        A values array that is not 2-D and finite, an ``exclude`` mask of another shape, or a
+        supersampling below 1.
+    """
+
+    def __init__(self, values, origin_uv, bp_uv, camera, rig, s, clip_level, lower, missing, ggx):
+        self.censor = censor = bool(s.censor and (clip_level is not None or lower is not None))
+        vals, self.camera, self.o, self.uu, self.vv, keep = _roi_grid(values, camera, origin_uv,
+                                                                      None if censor else clip_level)
+        if lower is not None:
+            keep &= ~missing if censor else ~(missing | lower)
+        if s.exclude is not None:
+            ex = np.asarray(s.exclude, dtype=bool)
+            if ex.shape != keep.shape:
+                raise ValueError(f"exclude: shape {ex.shape} is not the ROI's {keep.shape}")
+            keep &= ~ex
+        self.vals, self.keep, self.lower, self.clip_level = vals, keep, lower, clip_level
+        self.diffuse, self.ggx = s.diffuse, ggx
+        self.H, self.W = vals.shape
+        border = np.concatenate([vals[0], vals[-1], vals[:, 0], vals[:, -1]])
+        self.b_level = float(np.median(border))
+        self.ss = ss = int(s.supersample)
+        if ss < 1:
+            raise ValueError(f"supersample: must be >= 1, got {s.supersample!r}")
+        offs = (np.arange(ss) + 0.5) / ss - 0.5
+        self.sub = np.array([(du_, dv_) for dv_ in offs for du_ in offs])  # (ss^2, 2)
+        self.rig_arr = _rig_arrays(rig)
+        self.bp = np.asarray(bp_uv, dtype=np.float64).reshape(2)
+        self.state = {}
+        self.proj = {}  # orthonormal basis of the (weighted) background columns, per weights
+        self.use(s.max_pixels)
+
+    def use(self, mp, keep_=None):
+        """Fit the pixels of ``keep_`` (default: every kept one), or a sub-grid of them beyond
+        ``mp``; the cached evaluation and basis are dropped."""
+        keep_ = self.keep if keep_ is None else keep_
+        lower, censor, clip_level = self.lower, self.censor, self.clip_level
+        sel_, step_, uv_, y_ = _roi_samples(self.vals, self.o, self.uu, self.vv, keep_, mp)
+        if not censor:
+            cens_ = np.zeros(len(y_), bool)
+        else:
+            cens_ = lower.ravel()[sel_] if lower is not None else y_ >= clip_level
+        dT_ = np.ascontiguousarray(_rays(self.camera, (uv_[:, None, :] + self.sub[None]).reshape(-1, 2)).T)
+        du_ = (uv_[:, 0] - self.bp[0]) / max(self.W, self.H)
+        dv_ = (uv_[:, 1] - self.bp[1]) / max(self.W, self.H)
+        yscale_ = max(float(np.abs(y_).max()), 1e-12)
+        background_ = np.column_stack([np.ones_like(du_), du_, dv_])
+        design_ = np.empty((len(y_), 5 if self.diffuse else 4))
+        design_[:, -3:] = background_
+        self.sel, self.step, self.y, self.cens = sel_, step_, y_, cens_
+        self.general = bool(self.diffuse or cens_.any() or self.ggx)
+        self.dT, self.rl, self.yscale, self.yn = dT_, _ray_light(self.rig_arr[0], dT_), yscale_, y_ / yscale_
+        self.background = background_
+        self.clipn = ((y_ / yscale_ if lower is not None else float(clip_level) / yscale_)
+                      if censor else np.inf)
+        self.design = design_
+        self.state.clear()
+        self.proj.clear()
+
+    def basis(self, w):
+        """``QT`` (3, M), the background's orthonormal basis (rows), and the projected values."""
+        proj = self.proj
+        key = None if w is None else w.tobytes()
+        if proj.get("key") != key or "QT" not in proj:
+            B = self.background if w is None else self.background * w[:, None]
+            QT = np.ascontiguousarray(np.linalg.qr(B)[0].T)
+            yw = self.yn if w is None else self.yn * w
+            proj.update(key=key, QT=QT, yt=yw - (QT @ yw) @ QT)
+        return proj["QT"], proj["yt"]
+
+    def box(self, v):
+        """The mean of each pixel's sub-pixel samples (the last axis)."""
+        ss = self.ss
+        return v if ss == 1 else v.reshape(*v.shape[:-1], -1, ss * ss).mean(axis=-1)
+
+    def resjac_at(self, p, nb, e1, e2, grad=True, w=None, kaufman=False):
+        """Residuals (M,) and Jacobian (M, 4) at ``p`` = (a, b, log h, log roughness) about the
+        normal ``nb`` and its basis (``e1``, ``e2``): :meth:`resjac_general` or
+        :meth:`resjac_plain`."""
+        if self.general:
+            return self.resjac_general(p, nb, e1, e2, grad, w, kaufman)
+        return self.resjac_plain(p, nb, e1, e2, grad, w, kaufman)
+
+    def resjac_general(self, p, nb, e1, e2, grad=True, w=None, kaufman=False):
+        """Residuals and Kaufman's Jacobian with the diffuse column and censored rows (Notes).
+
+        Censored rows where the model is at or above the clip level have residual 0 and a zero
+        Jacobian row; the others, the model minus the clip level.
+        """
+        state, design, yn, cens = self.state, self.design, self.yn, self.cens
+        dT, rl, rig_arr, box = self.dT, self.rl, self.rig_arr, self.box
+        key = (p.tobytes(), nb.tobytes(), None if w is None else w.tobytes(), "general")
+        if state.get("key") != key:
+            n, dns = _normal_derivs(p, nb, e1, e2)
+            h, rough = float(np.exp(p[2])), float(np.exp(p[3]))
+            if self.ggx:
+                S, parts = _rig_value_ggx(dT, rl, n, h, rig_arr, rough), None
+            else:
+                S, parts = _rig_value(dT, rl, n, h, rig_arr, rough)
+            design[:, 0] = box(S)
+            if self.diffuse:
+                design[:, 1] = box(_rig_diffuse(dT, rl, n, h, rig_arr))
+            target = np.where(cens, self.clipn, yn)
+            active = ~cens
+            coef = np.zeros(design.shape[1])
+            if not np.isfinite(design).all():
+                # a trial point where the model overflows (a plane seen edge-on, a lobe run off):
+                # residuals that MINPACK rejects, instead of a least squares that LAPACK
+                # refuses with a line of its own on stderr
+                r = np.full(len(yn), _NOT_FINITE_RESIDUAL)
+                state.update(key=key, n=n, dns=dns, h=h, rough=rough, parts=parts, coef=coef,
+                             active=active, r=r)
+                return (r, np.zeros((len(yn), 4))) if grad else (r, None)
+            for _ in range(3):  # the active set of the censored rows: two updates settle it
+                A, t = design[active], target[active]
+                if w is not None:
+                    A, t = A * w[active, None], t * w[active]
+                coef = np.linalg.lstsq(A, t, rcond=None)[0]
+                model = design @ coef
+                new_active = ~cens | (model < self.clipn)
+                if np.array_equal(new_active, active):
+                    break
+                active = new_active
+            r = np.where(active, model - target, 0.0)
+            state.update(key=key, n=n, dns=dns, h=h, rough=rough, parts=parts, coef=coef,
+                         active=active, r=r)
+        if not grad:
+            return state["r"], None
+        return state["r"], self.jac_general(p, nb, e1, e2, state["dns"], w)
+
+    def jac_general(self, p, nb, e1, e2, dns, w):
+        """Kaufman's Jacobian (M, 4) of :meth:`resjac_general` at its cached point."""
+        st = self.state
+        coef, active = st["coef"], st["active"]
+        if self.ggx:
+            G = coef[0] * self.box(_rig_grad_ggx(self.dT, self.rl, st["n"], dns, st["h"], self.rig_arr,
+                                                 st["rough"]))
+        else:
+            G = coef[0] * self.box(_rig_grad(self.dT, st["parts"], st["n"], dns, st["h"], self.rig_arr,
+                                             st["rough"]))
+        if self.diffuse:
+            G[:3] += coef[1] * self.box(_rig_diffuse_grad(self.dT, self.rl, p, nb, e1, e2, self.rig_arr))
+        JT = np.zeros_like(G)
+        A = self.design[active]
+        Ga = G[:, active]
+        if w is not None:
+            A, Ga = A * w[active, None], Ga * w[active]
+        Q = np.linalg.qr(A)[0]
+        Ja = Ga - (Ga @ Q) @ Q.T
+        JT[:, active] = Ja if w is None else Ja / w[active]
+        return JT.T
+
+    def resjac_plain(self, p, nb, e1, e2, grad=True, w=None, kaufman=False):
+        """Residuals of the variable projection (Notes) and their Jacobian in (a, b, log h, log n).
+
+        ``w``: row weights (a robust loss' reweighting): the linear part is solved with them and
+        the residual and Jacobian returned are the unweighted ones of that solution. ``kaufman``:
+        the Jacobian without its second-order term, ``P (g dS)`` (for the covariance).
+        """
+        state = self.state
+        QT, yt = self.basis(w)
+        key = (p.tobytes(), nb.tobytes(), None if w is None else w.tobytes())
+        if state.get("key") != key:
+            n, dns = _normal_derivs(p, nb, e1, e2)
+            h, rough = float(np.exp(p[2])), float(np.exp(p[3]))
+            S, parts = _rig_value(self.dT, self.rl, n, h, self.rig_arr, rough)
+            S = self.box(S)
+            Sw = S if w is None else S * w
+            St = Sw - (QT @ Sw) @ QT
+            aa = float(St @ St)
+            g = float(St @ yt) / aa if aa > 0 else 0.0
+            rw = g * St - yt
+            state.update(key=key, n=n, dns=dns, h=h, rough=rough, parts=parts, St=St, aa=aa, g=g,
+                         rw=rw, r=rw if w is None else rw / w)
+        if not grad:
+            return state["r"], None
+        return state["r"], self.jac_of(state["dns"], w, kaufman)
+
+    def jac_of(self, dns, w, kaufman):
+        """The Jacobian (M, 4) at the point of ``state``, the normal's derivatives ``dns``."""
+        st = self.state
+        QT = self.basis(w)[0]
+        dS = self.box(_rig_grad(self.dT, st["parts"], st["n"], dns, st["h"], self.rig_arr, st["rough"]))
+        if w is not None:
+            dS = dS * w
+        St, aa, g = st["St"], st["aa"], st["g"]
+        if not aa > 0:
+            return np.zeros((len(St), 4))
+        M = np.empty((4, 4))  # JT = g dS - M @ [QT; St]: the projections in one product
+        M[:, :3] = (g * dS) @ QT.T
+        M[:, 3] = dS @ St * (g / aa)
+        if not kaufman:
+            M[:, 3] += dS @ st["rw"] / aa
+        JT = g * dS - M @ np.vstack([QT, St])
+        return (JT if w is None else JT / w).T
+
+
+def start_roughness(m: PlaneModel, n, h, given=None) -> float:
+    """The start's roughness on the start plane (``n``, ``h``): ``given``, else Phong's n
+    (:func:`phong_start`), for GGX its alpha of the same peak curvature."""
+    rough = phong_start(m, n, h, given)
+    return ggx_alpha_of_phong(rough) if m.ggx else rough
+
+
+def _roughness_steps(m: PlaneModel, n, h, log_n, QT, yt):
+    """Gauss-Newton on log n from ``log_n``, the start plane held."""
+    dT, rl, rig_arr, box = m.dT, m.rl, m.rig_arr, m.box
+    for _ in range(_ROUGHNESS_START_STEPS):
+        rough = float(np.exp(log_n))
+        S, parts = _rig_value(dT, rl, n, h, rig_arr, rough)
+        S, dS = box(S), box(sum(pt[3] * pt[2] for pt in parts) * rough)  # dS / d log n
+        St, da = S - (QT @ S) @ QT, dS - (QT @ dS) @ QT
+        aa = float(St @ St)
+        if not aa > 0:
+            break
+        g = float(St @ yt) / aa
+        r = g * St - yt
+        J = g * (da - St * (float(St @ da) / aa)) - St * (float(r @ da) / aa)
+        jj = float(J @ J)
+        step = -float(J @ r) / jj if jj > 0 else 0.0
+        if not np.isfinite(step):
+            break
+        log_n = float(np.clip(log_n + np.clip(step, -1.0, 1.0), *np.log(_ROUGHNESS_RANGE)))
+        if abs(step) < 1e-3:
+            break
+    return log_n
+
+
+def _roughness_cost(m: PlaneModel, n, h, ln, QT, yt) -> float:
+    """The start plane's variable-projection cost at roughness exp(ln)."""
+    S_ = m.box(_rig_value(m.dT, m.rl, n, h, m.rig_arr, float(np.exp(ln)))[0])
+    St_ = S_ - (QT @ S_) @ QT
+    aa_ = float(St_ @ St_)
+    return float(yt @ yt - (St_ @ yt) ** 2 / aa_) if aa_ > 0 else np.inf
+
+
+def phong_start(m: PlaneModel, n, h, given=None) -> float:
+    """Start roughness: a log-log regression of the specular part on cos beta, then Gauss-Newton.
+
+    The regression's slope is sensitive to the start plane (log cos beta is small near the
+    peak); a few Gauss-Newton steps on log n alone (the plane held, the linear part projected
+    out as in the fit) bring it to the least-squares roughness of the start plane.
+    """
+    if given is not None:
+        return float(given)
+    # cos beta f p and f p (the lobe at n = 1 and n = 0): their ratio is cos beta (one light)
+    S1, parts = _rig_value(m.dT, m.rl, n, h, m.rig_arr, 1.0)  # 0 where a ray misses (cb < 0)
+    S0 = sum(pt[3] / pt[1] for pt in parts)  # val / cb
+    S1, S0 = m.box(S1), m.box(S0)
+    spec = m.y - m.b_level
+    selr = (spec > 0.05 * spec.max()) & (S1 > 0)
+    log_n = np.log(50.0)
+    if np.count_nonzero(selr) >= 3:
+        x = np.log(np.clip(S1[selr] / S0[selr], 1e-12, None))
+        z = np.log(spec[selr] / S0[selr])
+        xc = x - x.mean()
+        den = float(xc @ xc)
+        slope = float(xc @ (z - z.mean())) / den if den > 0 else np.nan  # least-squares line
+        if np.isfinite(slope) and slope > 1:
+            log_n = np.log(min(slope, _ROUGHNESS_RANGE[1]))
+    QT, yt = m.basis(None)
+    log_n = _roughness_steps(m, n, h, log_n, QT, yt)
+    if len(m.rig_arr[0]) > 1:
+        # several lights: the ratio above is no lobe's cos beta, and where a second light's
+        # lobe enters the ROI the steps ran to a broad lobe over both (n -> 1), from where the
+        # fit of an exact plane ran off (h 20 -> 65 mm, guides +-5 mm): the steps again from
+        # the least cost of a grid over the range (one evaluation each). That start replaces
+        # the first only where it at least halves the start plane's cost (it found the lobe);
+        # a lower cost by a few per cent on a flat cost curve says nothing of the basin, and
+        # taking it sent a sensor-path fit of an exact plane into a local minimum
+        other = _roughness_steps(m, n, h, min(np.log(_START_ROUGHNESS_GRID),
+                                              key=lambda ln: _roughness_cost(m, n, h, ln, QT, yt)),
+                                 QT, yt)
+        if (_roughness_cost(m, n, h, other, QT, yt)
+                < _START_ROUGHNESS_GAIN * _roughness_cost(m, n, h, log_n, QT, yt)):
+            log_n = other
+    return float(np.exp(log_n))

@@ -1,0 +1,140 @@
+"""The start and solve stages of the photometric plane fit: the start planes, each refined by
+Levenberg-Marquardt on the pixels of a :class:`~simtest.reconstruct.lightaware.plane_model.PlaneModel`,
+the best refined again on every pixel and above the floor
+(:func:`~simtest.reconstruct.lightaware.plane.photometric_fit`)."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from simtest.geometry.angles import unit
+from simtest.geometry.conics import plane_basis
+from simtest.reconstruct.lightaware.estimate import LightAwareEstimate
+from simtest.reconstruct.lightaware.model import _mean_light
+from simtest.reconstruct.lightaware.plane_model import _NOT_FINITE_RESIDUAL, PlaneModel, start_roughness
+from simtest.reconstruct.lightaware.solve import _correlated, _light_start, _solve
+
+#: Noise sigmas above the floor below which a fitted model's pixels are left out
+#: (``photometric_fit``'s ``floor_level``): a Gaussian clipped at 3 sigma below its mean is
+#: clipped in 0.13 % of draws, and its mean is raised by 0.0004 sigma.
+_FLOOR_MARGIN = 3.0
+
+_NAME = "photometric_fit"
+
+
+def _screened(m: PlaneModel, starts, given):
+    """The start (n, h) of least cost before any refinement (at its start roughness)."""
+    def cost(nh):
+        e1_, e2_ = plane_basis(nh[0])
+        p0_ = np.array([0.0, 0.0, np.log(nh[1]), np.log(start_roughness(m, *nh, given))])
+        r_ = m.resjac_at(p0_, nh[0], e1_, e2_, grad=False)[0]
+        return float(r_ @ r_) if np.isfinite(r_).all() else np.inf
+    return min(starts, key=cost)
+
+
+def start_planes(m: PlaneModel, rig, d_bp, n0, h0, s) -> list:
+    """The start planes (n, h) of a fit: the given start (or the bisector at the nominal depth),
+    the nominal bisector too when a start was given, and ``s.n_start_depths`` planes along the
+    BP's constraint (each the bisector at a depth from nominal/8 to nominal*8, its distance such
+    that the specular point is the BP). A near plane with a rough lobe can mimic a far one with
+    a smooth lobe (a local minimum), which one start may fall into."""
+    nominal_depth_mm, rig_arr = s.nominal_depth_mm, m.rig_arr
+    cands = [(n0, h0)]
+    if s.start_normal is None and len(rig_arr[0]) > 1:
+        # a highlight is one light's: beside the mean light's bisector, each light's at the
+        # nominal depth (the BP that light's specular point), the start of least cost kept. Under
+        # guides +-8 mm at 20 mm the mean light's start (the BP ray) is 11 deg off, and from it
+        # the fit of an exact plane ran off to h -> 0
+        cands = [_screened(m, cands + [_light_start(d_bp, L, nominal_depth_mm) for L in rig_arr[0]],
+                           s.start_roughness)]
+    if np.abs(rig_arr[0]).max() > 0:
+        Lm = _mean_light(rig)
+        depths = (list(nominal_depth_mm * np.geomspace(1 / 8, 8, s.n_start_depths))
+                  if s.n_start_depths else [])
+        if s.start_normal is not None:
+            depths.append(nominal_depth_mm)
+        for sdep in depths:
+            X = sdep * d_bp
+            nc = unit(unit(-X) + unit(Lm - X))
+            cands.append((nc, float(-(nc @ X))))
+    return cands
+
+
+def _finite(m: PlaneModel, r) -> bool:
+    """Whether the residuals ``r`` are those of a finite model (below the not-finite residual)."""
+    return bool(np.isfinite(r).all() and float(r @ r) < 0.25 * _NOT_FINITE_RESIDUAL**2 * len(m.yn))
+
+
+def _again(m: PlaneModel, x, n0, e1, e2, h0, s):
+    """``x`` refined on the pixels :meth:`PlaneModel.use` set last: ``(x, nfev, conv, msg, r)``."""
+    free = np.ones(len(x), bool)
+    free[2] = np.abs(m.rig_arr[0]).max() > 1e-9 * h0
+    return _solve(m.resjac_at, x, (n0, e1, e2), s.loss, s.f_scale, s.max_nfev, free,
+                  lazy_jac=True, weighted=True)
+
+
+def solve_plane(m: PlaneModel, cands, s, floor_level):
+    """Each start refined, the least cost kept and refined once more on every pixel and above
+    the floor (``photometric_fit``'s ``max_pixels``, ``refine_all``, ``floor_refit``).
+
+    Returns ``(x, n0, h0, e1, e2, conv, msg, nfev)`` (``x`` the point about the normal ``n0``,
+    its basis ``e1, e2``, ``h0`` its start distance), or a ``not_converged`` estimate where the
+    model is not finite about the solution.
+    """
+    best = None
+    nfev_total = 0
+    for nc, hc in cands:
+        e1, e2 = plane_basis(nc)
+        p0 = np.array([0.0, 0.0, np.log(hc), np.log(start_roughness(m, nc, hc, s.start_roughness))])
+        free = np.ones(len(p0), bool)
+        free[2] = np.abs(m.rig_arr[0]).max() > 1e-9 * hc  # all lights at V: no dependence on h
+        x, nfev, conv, msg, r = _solve(m.resjac_at, p0, (nc, e1, e2), s.loss, s.f_scale, s.max_nfev,
+                                       free, lazy_jac=True, weighted=True)
+        nfev_total += nfev
+        cost = float(r @ r) if np.isfinite(r).all() else np.inf
+        if best is None or cost < best[0]:
+            best = (cost, x, nc, hc, e1, e2, conv, msg, r)
+    if not best[0] < 0.25 * _NOT_FINITE_RESIDUAL**2 * len(m.yn):
+        return LightAwareEstimate(_NAME, "not_converged", "the model is not finite about the solution",
+                                  n_evaluations=nfev_total)
+    _, x, n0, h0, e1, e2, conv, msg, r = best
+    clipped_low = floor_level is not None and bool(np.any(m.y <= floor_level))
+    if m.step > 1 and s.refine_all and not clipped_low and not _correlated(r, m.sel, m.keep.shape, m.step):
+        # the starts were refined on a sub-grid: where the plane explains it (its residuals do
+        # not correlate, the error is the noise's) the best is refined on every kept pixel (the
+        # sub-grid's covariance is step^2 times the whole ROI's; the two solutions lie apart
+        # along the valley where the tilt and the distance trade off, which takes the second
+        # fit about as many evaluations as the first); where it misfits, the model's error
+        # dominates and more pixels of it would not help; where the ROI's noise is clipped at
+        # the floor, that clipping biases the fit (an error its sigma does not hold) and more
+        # pixels would only shrink the sigma about it
+        m.use(None)
+        x2, nfev, conv2, msg2, r = _again(m, x, n0, e1, e2, h0, s)
+        nfev_total += nfev
+        if _finite(m, r):
+            x, conv, msg = x2, conv2, msg2
+        else:
+            return LightAwareEstimate(_NAME, "not_converged", "the model is not finite about the "
+                                      "solution on every pixel", n_evaluations=nfev_total)
+    if s.floor_refit and floor_level is not None and m.step == 1 and np.any(m.y <= floor_level):
+        # pixels clipped from below (an 8-bit image's 0 under read noise): where the model is
+        # within a few noise sigmas of the floor the data's mean is the clipped Gaussian's, above
+        # the model; those pixels, chosen by the model (not by their values, which would select
+        # their noise), are left out and the fit refined on the rest
+        r_ = m.resjac_at(x, n0, e1, e2, grad=False)[0]
+        model_n = m.yn + r_
+        low = m.y <= floor_level
+        s_n = 1.4826 * float(np.median(np.abs(r_[~low]))) if np.any(~low) else 0.0
+        drop = model_n <= float(floor_level) / m.yscale + _FLOOR_MARGIN * s_n
+        if (drop.any() and s_n * m.yscale > s.floor_step
+                and np.count_nonzero(~drop & ~m.cens) >= 8 + 1 + int(s.diffuse)):
+            keep2 = m.keep.copy()
+            keep2.flat[m.sel[drop]] = False
+            m.use(None, keep2)
+            x2, nfev, conv2, msg2, r = _again(m, x, n0, e1, e2, h0, s)
+            nfev_total += nfev
+            if not _finite(m, r):
+                return LightAwareEstimate(_NAME, "not_converged", "the model is not finite about the "
+                                          "solution above the floor", n_evaluations=nfev_total)
+            x, conv, msg = x2, conv2, msg2
+    return x, n0, h0, e1, e2, conv, msg, nfev_total
