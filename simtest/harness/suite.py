@@ -71,7 +71,6 @@ from simtest._checks import keyed_error
 from simtest._config import CONFIG, Int, Number, Str, validated
 from simtest._io import jsonable
 from simtest.harness.claims import PAPER_CHECKS
-from simtest.harness.estimators import LIGHT_AWARE_FITS, ORACLE_FITS
 from simtest.harness.cases import (MESH_POSE_KEYS, RECON_KEYS, RENDERED_KEYS, Case,
                                    MeshPose, ReconKeys, RenderedKeys, SceneSetting, Scoring, Sweep,
                                    harness_recon_settings, realisation_seed, stable_hash)
