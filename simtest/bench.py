@@ -296,9 +296,7 @@ def replay_opencv_ms(calls: list[OpenCVCall], repeat: int) -> tuple[float, float
 
 
 #: The modules of the reconstruction's compiled (numba) kernels: those :func:`kernel_times` times.
-KERNEL_MODULES = ("simtest.reconstruct._kernels", "simtest.reconstruct._detect_kernels",
-                  "simtest.reconstruct._fit_kernels", "simtest.reconstruct._estimator_kernels",
-                  "simtest.reconstruct._lightaware_kernels")
+KERNEL_MODULES = ("simtest.reconstruct._kernels", "simtest.reconstruct._detect_kernels")
 
 
 def _dispatchers(module) -> list[str]:

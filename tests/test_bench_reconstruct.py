@@ -202,7 +202,7 @@ def test_kernel_times_sums_each_kernel_and_puts_the_modules_back():
     assert m == np.median(np.concatenate([vals[0], vals[-1], vals[1:-1, 0], vals[1:-1, -1]]))
     # each call went through its timer (the frame's own border medians among them), and the
     # frame's results are those of an untimed run
-    assert times["border_median"] > 0 and {"top_hat_rows", "peak_mask_rows", "fit_conics"} <= set(times)
+    assert times["border_median"] > 0 and {"top_hat_rows", "peak_mask_rows"} <= set(times)
     assert [estimate_to_dict(e, True) for e in got] == [estimate_to_dict(e, True) for e in want]
     assert _kernel_functions() == before
     with pytest.raises(RuntimeError, match="inside"):
@@ -217,17 +217,14 @@ def test_every_compiled_kernel_the_reconstruction_calls_is_timed():
     # the in-place row is the kernels' whole share only if the pipeline calls each of them as an
     # attribute of its module (a name imported from it would escape the timer)
     root = Path(bench.__file__).resolve().parent / "reconstruct"
-    alias = {"_kernels": "simtest.reconstruct._kernels", "_dk": "simtest.reconstruct._detect_kernels",
-             "_fit_kernels": "simtest.reconstruct._fit_kernels",
-             "_estimator_kernels": "simtest.reconstruct._estimator_kernels",
-             "_lightaware_kernels": "simtest.reconstruct._lightaware_kernels"}
+    alias = {"_kernels": "simtest.reconstruct._kernels", "_dk": "simtest.reconstruct._detect_kernels"}
     wrapped = {mod: set(bench._dispatchers(importlib.import_module(mod))) for mod in bench.KERNEL_MODULES}
     called = set()
     for path in root.glob("*.py"):
         if path.stem in {m.rsplit(".", 1)[1] for m in bench.KERNEL_MODULES}:
             continue
         text = path.read_text()
-        for a, name in re.findall(r"\b(_kernels|_dk|_fit_kernels|_estimator_kernels|_lightaware_kernels)\.([A-Za-z_]\w*)\(", text):
+        for a, name in re.findall(r"\b(_kernels|_dk)\.([A-Za-z_]\w*)\(", text):
             called.add((alias[a], name))
         for mod, names in re.findall(r"from simtest\.reconstruct\.(_\w*kernels) import ([^\n]+)", text):
             imported = {n.split(" as ")[0].strip() for n in names.split(",")}

@@ -51,10 +51,8 @@ import numpy as np
 from simtest._records import fast_init
 from simtest.geometry.angles import unit
 from simtest.geometry.camera import bp_ray_normal
-from simtest.geometry.conics import cone_poses, unit_symmetric_cones
-from simtest.reconstruct import _estimator_kernels
+from simtest.geometry.conics import cone_poses
 from simtest.reconstruct.failures import Failure
-from simtest.tolerances import TOL
 
 
 @fast_init
@@ -174,8 +172,7 @@ def estimate_from_conic(Cn: np.ndarray, bp_ray: np.ndarray) -> ConeEstimate | Fa
     return estimate_from_conics(Cn[None], np.asarray(bp_ray, dtype=np.float64).reshape(1, 3))[0]
 
 
-def estimate_from_conics(Cns: np.ndarray, bp_rays: np.ndarray, *,
-                         compiled: bool = True) -> list[ConeEstimate | Failure]:
+def estimate_from_conics(Cns: np.ndarray, bp_rays: np.ndarray) -> list[ConeEstimate | Failure]:
     """:func:`estimate_from_conic` of a stack of normalised conics, batched.
 
     Parameters
@@ -184,10 +181,6 @@ def estimate_from_conics(Cns: np.ndarray, bp_rays: np.ndarray, *,
         Normalised conics C' = K^T C K (any scale and sign).
     bp_rays : ndarray of shape (k, 3)
         Their BP-ray normals (unit, facing the camera), camera frame.
-    compiled : bool
-        Estimate with the compiled kernel (:func:`simtest.reconstruct._estimator_kernels.
-        cone_estimates`), the numpy form deciding the conics it hands over; False: the numpy form
-        only (the reference).
 
     Returns
     -------
@@ -197,39 +190,12 @@ def estimate_from_conics(Cns: np.ndarray, bp_rays: np.ndarray, *,
 
     Notes
     -----
-    The two forms give the same bits (they decompose the same unit cones with the same LAPACK
-    routine; :mod:`simtest.reconstruct._estimator_kernels`, ``tests/test_estimator_kernels.py``).
-    The numpy form runs one batched eigen-decomposition and circle pose for all conics
-    (:func:`simtest.geometry.conics.cone_poses`), some sixty numpy calls whatever the batch; the
-    kernel takes a few microseconds per conic, which a frame of ten highlights, or one highlight
-    alone, would otherwise spend on those calls' fixed cost. A conic the kernel hands over (every
-    failure) is estimated by the numpy form, whose failure, word for word, is the one reported.
-    Each conic's result depends on its own numbers only.
+    One batched eigen-decomposition and circle pose for all conics
+    (:func:`simtest.geometry.conics.cone_poses`). Each conic's result depends on its own numbers
+    only.
     """
     Cns = np.asarray(Cns, dtype=np.float64).reshape(-1, 3, 3)
     refs = np.asarray(bp_rays, dtype=np.float64).reshape(-1, 3)
-    if not compiled:
-        return _estimate_from_conics_numpy(Cns, refs)
-    with np.errstate(invalid="ignore", divide="ignore"):
-        unit_cones = unit_symmetric_cones(Cns)
-    status, paper, index, axis, gap = _estimator_kernels.cone_estimates(
-        np.ascontiguousarray(Cns), unit_cones, np.ascontiguousarray(refs), TOL.conic_degenerate_rel)
-    out: list = [None] * len(Cns)
-    selected = paper[np.arange(len(Cns)), index]
-    for j, (ok, p, sel, i, a, g) in enumerate(zip((status == _estimator_kernels.OK).tolist(), paper,
-                                                   selected, index.tolist(), axis, gap.tolist())):
-        if ok:
-            out[j] = ConeEstimate(p, sel, i, a, g)
-    redo = np.flatnonzero(status != _estimator_kernels.OK)
-    if len(redo):
-        for j, r in zip(redo.tolist(), _estimate_from_conics_numpy(Cns[redo], refs[redo])):
-            out[j] = r
-    return out
-
-
-def _estimate_from_conics_numpy(Cns: np.ndarray, refs: np.ndarray) -> list[ConeEstimate | Failure]:
-    """The numpy form of :func:`estimate_from_conics` (k, 3, 3), (k, 3): the reference, and the
-    judge of the conics the kernel hands over."""
     k = len(Cns)
     elliptic = _images_as_ellipse_many(Cns)
     pose = cone_poses(Cns if elliptic.all() else np.where(elliptic[:, None, None], Cns, np.diag([1.0, 1.0, -1.0])))
@@ -301,8 +267,7 @@ def joint_cone_axis(cns, bp_ray: np.ndarray) -> np.ndarray | Failure:
                            np.asarray(bp_ray, dtype=np.float64).reshape(1, 3))[0]
 
 
-def joint_cone_axes(cns: np.ndarray, group: np.ndarray, bp_rays: np.ndarray, *,
-                    compiled: bool = True) -> list[np.ndarray | Failure]:
+def joint_cone_axes(cns: np.ndarray, group: np.ndarray, bp_rays: np.ndarray) -> list[np.ndarray | Failure]:
     """:func:`joint_cone_axis` of several groups of conics at once.
 
     Parameters
@@ -313,10 +278,6 @@ def joint_cone_axes(cns: np.ndarray, group: np.ndarray, bp_rays: np.ndarray, *,
         Each conic's group 0 .. g-1, non-decreasing (the conics of a group consecutive).
     bp_rays : ndarray of shape (g, 3)
         Each group's BP-ray normal, to orient its axis toward the camera.
-    compiled : bool
-        Compute with the compiled kernel (:func:`simtest.reconstruct._estimator_kernels.
-        joint_axes`), the numpy form deciding the groups it hands over (every failure); False:
-        the numpy form only (the reference). The two give the same bits.
 
     Returns
     -------
@@ -327,34 +288,6 @@ def joint_cone_axes(cns: np.ndarray, group: np.ndarray, bp_rays: np.ndarray, *,
     cns = np.asarray(cns, dtype=np.float64).reshape(-1, 3, 3)
     group = np.asarray(group, dtype=int)
     refs = np.asarray(bp_rays, dtype=np.float64).reshape(-1, 3)
-    if not compiled:
-        return _joint_cone_axes_numpy(cns, group, refs)
-    status, axis = _estimator_kernels.joint_axes(np.ascontiguousarray(cns), group.astype(np.int64),
-                                                 np.ascontiguousarray(refs))
-    out: list = [axis[j] if s == _estimator_kernels.OK else None for j, s in enumerate(status.tolist())]
-    redo = np.flatnonzero(status != _estimator_kernels.OK)
-    if len(redo):
-        rows = np.isin(group, redo)  # the handed-over groups' conics, their groups renumbered
-        sub = _joint_cone_axes_numpy(cns[rows], np.searchsorted(redo, group[rows]), refs[redo])
-        for j, r in zip(redo.tolist(), sub):
-            out[j] = r
-    return out
-
-
-def _frobenius_norms(m: np.ndarray) -> np.ndarray:
-    """Frobenius norms of a stack of 3 x 3 matrices (k, 3, 3) -> (k,), the squares summed in
-    row-major order: the compiled kernel's order on any processor (``einsum`` sums in SIMD
-    lanes, whose order depends on the processor)."""
-    sq = (m * m).reshape(-1, 9)
-    acc = sq[:, 0]
-    for q in range(1, 9):
-        acc = acc + sq[:, q]
-    return np.sqrt(acc)
-
-
-def _joint_cone_axes_numpy(cns: np.ndarray, group: np.ndarray, refs: np.ndarray) -> list[np.ndarray | Failure]:
-    """The numpy form of :func:`joint_cone_axes`: the reference, and the judge of the groups the
-    kernel hands over."""
     g = len(refs)
     fail: list = [None] * g
     elliptic = _images_as_ellipse_many(cns)
@@ -368,7 +301,7 @@ def _joint_cone_axes_numpy(cns: np.ndarray, group: np.ndarray, refs: np.ndarray)
     w = np.where(flip[:, None], -w[:, ::-1], w)
     # w ascending: w[0] <= w[1] < 0 < w[2]; remove the isotropic part of the same-sign pair
     d = sym - 0.5 * (w[:, 0] + w[:, 1])[:, None, None] * np.eye(3)
-    nd = _frobenius_norms(d)
+    nd = np.sqrt(np.einsum("kij,kij->k", d, d))  # Frobenius norms
     isotropic = ~(nd > 0)
     for i in range(len(cns)):
         j = group[i]
