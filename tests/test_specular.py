@@ -119,11 +119,11 @@ def test_phong_intensity_is_the_vector_formula_bit_for_bit(seed, n, flat):
 
 @given(seed=st.integers(0, 2**32 - 1), on_plane=st.booleans())
 @settings(max_examples=60, deadline=None)
-def test_the_compiled_cos_beta_is_the_numpy_forms_bits(seed, on_plane):
+def test_cos_beta_of_plane_points_is_that_of_their_3d_form(seed, on_plane):
     # points on an integer grid, the viewer's and the light's feet among them: zero products and
-    # sums (signed zeros); a viewer on the plane gives a zero length at its foot (NaN in both)
-    from simtest.specular import _kernels
-    from simtest.specular.phong import _cos_beta_numpy, _mirror
+    # sums (signed zeros); (x, y) and (x, y, 0) give the same bits, and a viewer on the plane gives
+    # a zero length at its foot (NaN)
+    from simtest.specular.phong import _cos_beta, _mirror
 
     rng = np.random.default_rng(seed)
     P = rng.integers(-6, 7, size=(40, 2)).astype(np.float64)
@@ -134,8 +134,8 @@ def test_the_compiled_cos_beta_is_the_numpy_forms_bits(seed, on_plane):
     P[:2] = [V[:2], L[:2]]
     R = _mirror(L)
     with np.errstate(all="ignore"):
-        want = _cos_beta_numpy(P, V, R)
-    got = _kernels.plane_cos_beta(P, V, R)
+        want = _cos_beta(np.column_stack([P, np.zeros(len(P))]), V, R)
+        got = _cos_beta(P, V, R)
     assert np.array_equal(got, want, equal_nan=True)
     assert np.array_equal(np.signbit(got), np.signbit(want))
     assert np.isnan(got[0]) == on_plane

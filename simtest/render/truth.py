@@ -29,7 +29,6 @@ from skimage.feature import peak_local_max
 
 from simtest.geometry.angles import unit
 from simtest.reconstruct.detect import ellipticity
-from simtest.render._truth_kernels import bisector_cos
 from simtest.simulate.truth import HighlightTruth, bisector, pixel_in_frame
 
 __all__ = [
@@ -50,9 +49,8 @@ def bisector_cos_image(normals: np.ndarray, position: np.ndarray, mask: np.ndarr
     """Cosine between each pixel's normal and its bisector, ``n . h(p)``, in float32.
 
     The BP condition (the normal equals the bisector, :func:`bisector`) holds where this is 1; :func:`mesh_highlights` starts its
-    searches at its local maxima. Float32 like the render's AOVs. One compiled pass
-    (:func:`simtest.render._truth_kernels.bisector_cos`) with the bits of
-    :func:`bisector_cos_image_numpy`, its reference (tested).
+    searches at its local maxima. Float32 like the render's AOVs, computed on the masked pixels
+    only, one coordinate at a time (no (H, W, 3) temporaries).
 
     Parameters
     ----------
@@ -68,35 +66,37 @@ def bisector_cos_image(normals: np.ndarray, position: np.ndarray, mask: np.ndarr
     Returns
     -------
     ndarray of shape (H, W)
-        ``n . h`` in [-1, 1] (float32 round-off aside) inside ``mask``; -1 outside.
+        ``n . h`` in [-1, 1] (float32 round-off aside) inside ``mask``; -1 outside (NaN at a
+        masked pixel at the camera centre, whose directions are undefined).
     """
     mask = np.asarray(mask, dtype=bool)
     light32 = np.asarray(light, dtype=np.float32).reshape(3)
-    out = np.empty(mask.shape, dtype=np.float32)
-    bisector_cos(normals, position, mask, light32, not np.any(light32), out)
+    out = np.full(mask.shape, -1.0, dtype=np.float32)
+    flat = np.flatnonzero(mask)
+    p, n = (_masked_rows(a, flat) for a in (position, normals))
+    with np.errstate(divide="ignore", invalid="ignore"):
+        h = -p / np.sqrt(_dot_rows(p, p))  # toward the camera
+        if np.any(light32):
+            to_light = light32[:, None] - p
+            to_light /= np.sqrt(_dot_rows(to_light, to_light))
+            h += to_light
+        # co-located: to_light is h itself, and (h + h) / |h + h| is h / |h| bit for bit
+        h /= np.sqrt(_dot_rows(h, h))
+    out.reshape(-1)[flat] = _dot_rows(n, h)
     return out
 
 
-def bisector_cos_image_numpy(normals: np.ndarray, position: np.ndarray, mask: np.ndarray,
-                             light: np.ndarray) -> np.ndarray:
-    """:func:`bisector_cos_image` in whole-frame numpy passes: the compiled kernel's reference.
+def _masked_rows(a, flat: np.ndarray) -> np.ndarray:
+    """The (H, W, 3) array's values at the flat pixel indices ``flat``, float32, as (3, N) with
+    each coordinate's row contiguous (``take`` with indices: a boolean mask on (H, W, 3) is
+    several times slower)."""
+    rows = np.take(np.asarray(a).reshape(-1, 3), flat, axis=0).astype(np.float32, copy=False)
+    return np.ascontiguousarray(rows.T)
 
-    The co-located branch skips the light arithmetic and gives the general formula's bits (tested).
-    Parameters and result as :func:`bisector_cos_image`'s.
-    """
-    p = np.where(mask[..., None], position, 1.0).astype(np.float32)
-    to_cam = -p / np.sqrt(np.einsum("ijk,ijk->ij", p, p))[..., None]
-    if not np.any(np.asarray(light, dtype=np.float32)):
-        # Co-located: to_light equals to_cam bit for bit, and (to_cam + to_light) / |...| equals
-        # to_cam / |to_cam| bit for bit (scaling by 2 is exact in floating point).
-        h = to_cam / np.sqrt(np.einsum("ijk,ijk->ij", to_cam, to_cam))[..., None]
-    else:
-        to_light = np.asarray(light, dtype=np.float32) - p
-        to_light /= np.sqrt(np.einsum("ijk,ijk->ij", to_light, to_light))[..., None]
-        h = to_cam + to_light
-        h /= np.sqrt(np.einsum("ijk,ijk->ij", h, h))[..., None]
-    n = np.where(mask[..., None], normals, 0.0).astype(np.float32)
-    return np.where(mask, np.einsum("ijk,ijk->ij", n, h), -1.0)
+
+def _dot_rows(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """``sum_i a[i] b[i]`` of two (3, N) arrays, summed left to right: (N,)."""
+    return a[0] * b[0] + a[1] * b[1] + a[2] * b[2]
 
 
 def mesh_highlight_candidates(normals: np.ndarray, position: np.ndarray, mask: np.ndarray,

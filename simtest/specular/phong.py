@@ -20,8 +20,6 @@ from __future__ import annotations
 
 import numpy as np
 
-from simtest.specular import _kernels
-
 __all__ = [
     "endoscopic_isocurve",
     "general_isocurve",
@@ -65,7 +63,7 @@ def phong_intensity(P, V, L, n: float, c: float = 1.0, origin=None) -> np.ndarra
         Scale factor, > 0.
     origin : array_like of shape (2,), optional
         When given, ``P`` (..., 2) are offsets from this point of the plane: the intensity at
-        ``P + origin`` (the same bits as adding them first), without building those points.
+        ``P + origin``.
 
     Returns
     -------
@@ -85,18 +83,10 @@ def phong_intensity(P, V, L, n: float, c: float = 1.0, origin=None) -> np.ndarra
     if origin is not None:
         if P.shape[-1] != 2:
             raise ValueError(f"offsets from an origin must have shape (..., 2), got {P.shape}")
-        o = np.asarray(origin, dtype=np.float64).reshape(2)
-        pxy = np.ascontiguousarray(P).reshape(-1, 2)
-        cos_b = _kernels.plane_cos_beta_from(pxy, o, V, R).reshape(P.shape[:-1])
-    else:
-        if P.shape[-1] != 2:
-            P = _points(P)
-        if P.shape[-1] == 2 or not np.any(P[..., 2]):
-            # on the plane z = 0 (the usual case): one compiled pass, the bits of the numpy form
-            pxy = np.ascontiguousarray(P[..., :2]).reshape(-1, 2)
-            cos_b = _kernels.plane_cos_beta(pxy, V, R).reshape(P.shape[:-1])
-        else:
-            cos_b = _cos_beta_numpy(P, V, R)
+        P = P + np.asarray(origin, dtype=np.float64).reshape(2)
+    elif P.shape[-1] != 2:
+        P = _points(P)
+    cos_b = np.asarray(_cos_beta(P, V, R), dtype=np.float64)
     # c max(0, cos beta)^n in place in cos_b (its own array): numpy's in-place power takes the
     # same path as ``**``, so the same bits as the expression, without two temporaries
     out = np.maximum(cos_b, 0.0, out=cos_b)
@@ -105,10 +95,9 @@ def phong_intensity(P, V, L, n: float, c: float = 1.0, origin=None) -> np.ndarra
     return out[()] if out.ndim == 0 else out
 
 
-def _cos_beta_numpy(P: np.ndarray, V: np.ndarray, R: np.ndarray) -> np.ndarray:
-    """``cos beta`` of :func:`phong_intensity` by numpy (the reference of
-    :func:`simtest.specular._kernels.plane_cos_beta`, and the form for points off the plane):
-    ``P`` (..., 2) or (..., 3), ``V`` and the light's mirror image ``R`` (3,), float64."""
+def _cos_beta(P: np.ndarray, V: np.ndarray, R: np.ndarray) -> np.ndarray:
+    """``cos beta`` of :func:`phong_intensity`: ``P`` (..., 2) or (..., 3), ``V`` and the light's
+    mirror image ``R`` (3,), float64."""
     # cos beta = (V - P) . (P - R) / (|V - P| |P - R|), evaluated per coordinate plane: the same
     # products and the same left-to-right sums over the 3 coordinates as np.sum(..., axis=-1)
     # and np.linalg.norm(..., axis=-1) (so the same bits), without building (..., 3) arrays

@@ -1,10 +1,9 @@
 """The image model of a highlight lit by a rig: rays, the rig's lobes on a plane, their derivatives.
 
 Everything here is the forward model (the package docstring's "Model"): the viewing rays of a camera,
-the rig's arrays, cos beta of each light on a plane along each ray (:func:`_terms`, compiled in
-:mod:`simtest.reconstruct._lightaware_kernels`), the rig's specular image and its gradient in
-(a, b, log h, log n) (:func:`_rig_value`, :func:`_rig_grad`), the specular point's depth and its
-gradient, and the ROI's pixel grid the fits sample.
+the rig's arrays, cos beta of each light on a plane along each ray (:func:`_terms`), the rig's
+specular image and its gradient in (a, b, log h, log n) (:func:`_rig_value`, :func:`_rig_grad`),
+the specular point's depth and its gradient, and the ROI's pixel grid the fits sample.
 """
 
 from __future__ import annotations
@@ -16,7 +15,6 @@ from simtest.geometry.angles import unit
 from simtest.geometry.camera import validate_intrinsics
 from simtest.geometry.conics import plane_basis
 from simtest.geometry.lights import LightRig
-from simtest.reconstruct import _lightaware_kernels
 
 
 class _Kinv:
@@ -111,25 +109,6 @@ def _terms(dT, n, h, L, rl, P=None, dns=None):
     (dh = 0, d delta = -P): ``(2 delta dc - P (2 c + q s / delta)) / r``; for log h (dn = 0,
     dh = h, ds = s): ``(2 h delta - q s) / r``.
     """
-    Ld, K2 = rl
-    nd = (-n) @ dT
-    c = n @ L + h
-    N = nd.shape[0]
-    cb, delta, s, sl, ir = np.empty((5, N))  # one allocation, its rows the outputs
-    if dns is None:
-        _lightaware_kernels.cos_beta_terms(nd, h, c, Ld, K2, None, None, cb, delta, s, sl, ir, None)
-        return cb, delta, s, sl, ir, c, None
-    if P is None:
-        P = np.array(dns) @ dT
-    dcb = np.empty((3, N))
-    _lightaware_kernels.cos_beta_terms(nd, h, c, Ld, K2, P, np.array([dns[0] @ L, dns[1] @ L]),
-                                       cb, delta, s, sl, ir, dcb)
-    return cb, delta, s, sl, ir, c, dcb
-
-
-def _terms_numpy(dT, n, h, L, rl, P=None, dns=None):
-    """The numpy form of :func:`_terms`: the reference of its compiled pass
-    (:func:`simtest.reconstruct._lightaware_kernels.cos_beta_terms`, the same bits)."""
     Ld, K2 = rl
     delta = np.maximum((-n) @ dT, 1e-9)
     s = h / delta
@@ -555,15 +534,10 @@ def _rig_value_ggx(dT, rl, n, h, rig_arr, alpha, ior: float = GGX_FILM_IOR):
 
 
 def _ggx_lobe(delta, s, sl, ir, c, a2, ior):
-    """One light's film lobe along the rays, before falloff and profile, in one compiled pass
-    (:func:`simtest.reconstruct._lightaware_kernels.ggx_film_lobe`)."""
-    out = np.empty(delta.shape[0])
-    _lightaware_kernels.ggx_film_lobe(delta, s, sl, ir, float(c), a2, float(ior), out)
-    return out
-
-
-def _ggx_lobe_numpy(delta, s, sl, ir, c, a2, ior):
-    """The numpy form of :func:`_ggx_lobe`: the reference of its compiled pass (the same bits)."""
+    """One light's film lobe along the rays, before falloff and profile (Walter et al. 2007,
+    eqs. 25-34, doi:10.2312/EGWR/EGSR07/195-206, with Smith's G1 and the exact dielectric Fresnel
+    factor): ``F(v . m) D(m) G1(v) G1(l) / (4 n . v)``, 0 where the light or the camera is below
+    the plane. ``delta, s, sl, ir`` (N,) and ``c`` are :func:`_terms`' pieces."""
     cos_o = c * ir
     vl = sl * ir
     hv = np.sqrt(np.maximum(2.0 + 2.0 * vl, 1e-300))
@@ -578,11 +552,6 @@ def _ggx_lobe_numpy(delta, s, sl, ir, c, a2, ior):
     val = F * D * g1i * g1o / (4.0 * ci)
     val[(cos_o <= 0.0) | (delta <= 1e-9)] = 0.0
     return val
-
-
-def _rig_value_ggx_numpy(dT, rl, n, h, rig_arr, alpha, ior: float = GGX_FILM_IOR):
-    """:func:`_rig_value_ggx` with its lobes' numpy form (:func:`_ggx_lobe_numpy`, the reference)."""
-    return _ggx_sum(dT, rl, n, h, rig_arr, alpha, ior, _ggx_lobe_numpy)
 
 
 def _ggx_sum(dT, rl, n, h, rig_arr, alpha, ior, lobe):
@@ -602,7 +571,7 @@ def _ggx_sum(dT, rl, n, h, rig_arr, alpha, ior, lobe):
 
 def _fresnel_of_vl(vl, ior):
     """Fresnel's reflectance at the half-vector, ``F(v . m)`` with ``v . m = sqrt((1 + v . l) / 2)``,
-    as :func:`_ggx_lobe_numpy` forms it from ``vl = v . l``."""
+    as :func:`_ggx_lobe` forms it from ``vl = v . l``."""
     return _fresnel_dielectric(np.sqrt(np.clip(0.5 * (1.0 + vl), 0.0, 1.0)), ior)
 
 
@@ -641,7 +610,7 @@ def _rig_grad_ggx(dT, rl, n, dns, h, rig_arr, alpha, ior: float = GGX_FILM_IOR) 
     dS = np.zeros((4, N))
     for j in range(len(w)):
         _, delta, s, sl, ir, c, _ = _terms(dT, n, h, L[j], (rl[0][j], rl[1][j]))
-        val = _ggx_lobe_numpy(delta, s, sl, ir, c, a2, ior)
+        val = _ggx_lobe(delta, s, sl, ir, c, a2, ior)
         cos_o = c * ir
         vl = sl * ir
         hv2 = np.maximum(2.0 + 2.0 * vl, 1e-300)
