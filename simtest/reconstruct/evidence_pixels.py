@@ -186,10 +186,11 @@ def flat_mask(gray: np.ndarray, std_max: float) -> np.ndarray:
     float32) is below ``std_max``; uint8 0/1."""
     g = gray.astype(np.float32, copy=False)
     m1 = cv2.blur(g, (5, 5))
-    m2 = cv2.blur(g * g, (5, 5))
-    var = m2 - m1 * m1
+    var = cv2.blur(g * g, (5, 5))
+    # in place: each frame-sized temporary costs its page faults
+    np.subtract(var, np.multiply(m1, m1, out=m1), out=var)
     np.maximum(var, np.float32(0.0), out=var)
-    return (np.sqrt(var) < np.float32(std_max)).view(np.uint8)
+    return (np.sqrt(var, out=var) < np.float32(std_max)).view(np.uint8)
 
 
 def panels(gray: np.ndarray, std_max: float, min_area: float) -> np.ndarray:
@@ -204,7 +205,7 @@ def panels(gray: np.ndarray, std_max: float, min_area: float) -> np.ndarray:
     big[0] = 0
     if not big.any():
         return np.zeros_like(flat)
-    return big[lab]
+    return np.take(big, lab)
 
 
 def panel_pixels_in(gray: np.ndarray, std_max: float, min_area: float, rr: np.ndarray) -> np.ndarray:
