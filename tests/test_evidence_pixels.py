@@ -162,3 +162,27 @@ def test_the_candidates_come_by_decreasing_peak_and_the_luma_is_its_formula():
     cands = detect_specularities(np.clip(frame * 255, 0, 255).astype(np.uint8)).candidates
     peaks = [c.peak for c in cands]
     assert len(cands) == 4 and peaks == sorted(peaks, reverse=True)
+
+
+@settings(max_examples=40, deadline=None)
+@given(st.integers(0, 2**31 - 1))
+def test_the_batched_surround_is_the_one_by_one_surround(seed):
+    """:func:`surround_fractions` against :func:`surround_fraction` per candidate, to the bit:
+    glints near the frame's sides (clipped squares), reaches sharing a whole px and not."""
+    from simtest.geometry.conics import Ellipse
+
+    rng = np.random.default_rng(seed)
+    h, w = int(rng.integers(20, 90)), int(rng.integers(20, 90))
+    yy, xx = np.mgrid[0:h, 0:w].astype(np.float64)
+    gray = rng.uniform(0, 30, (h, w))
+    for _ in range(int(rng.integers(1, 6))):
+        cy, cx, s, a = rng.uniform(0, h), rng.uniform(0, w), rng.uniform(0.7, 6), rng.uniform(20, 200)
+        gray += a * np.exp(-((yy - cy) ** 2 + (xx - cx) ** 2) / (2 * s * s))
+    gray = gray.astype(np.float32) if rng.random() < 0.5 else gray
+    n = int(rng.integers(1, 12))
+    ij = np.c_[rng.integers(0, w, n), rng.integers(0, h, n)].astype(np.int64)
+    reach = np.where(rng.random(n) < 0.5, 6.5, rng.uniform(2, 30, n))
+    ells = [Ellipse(center=ij[k] + rng.normal(0, 1, 2), semi_axes=np.sort(rng.uniform(0.5, 8, 2))[::-1],
+                    angle_rad=float(rng.uniform(-np.pi, np.pi))) for k in range(n)]
+    want = [px.surround_fraction(gray, ells[k], ij[k], float(reach[k]), 2.0, 0.3) for k in range(n)]
+    np.testing.assert_array_equal(px.surround_fractions(gray, ells, ij, reach, 2.0, 0.3), want)

@@ -186,10 +186,11 @@ def flat_mask(gray: np.ndarray, std_max: float) -> np.ndarray:
     float32) is below ``std_max``; uint8 0/1."""
     g = gray.astype(np.float32, copy=False)
     m1 = cv2.blur(g, (5, 5))
-    m2 = cv2.blur(g * g, (5, 5))
-    var = m2 - m1 * m1
+    var = cv2.blur(g * g, (5, 5))
+    # in place: each frame-sized temporary costs its page faults
+    np.subtract(var, np.multiply(m1, m1, out=m1), out=var)
     np.maximum(var, np.float32(0.0), out=var)
-    return (np.sqrt(var) < np.float32(std_max)).view(np.uint8)
+    return (np.sqrt(var, out=var) < np.float32(std_max)).view(np.uint8)
 
 
 def panels(gray: np.ndarray, std_max: float, min_area: float) -> np.ndarray:
@@ -204,7 +205,7 @@ def panels(gray: np.ndarray, std_max: float, min_area: float) -> np.ndarray:
     big[0] = 0
     if not big.any():
         return np.zeros_like(flat)
-    return big[lab]
+    return np.take(big, lab)
 
 
 def panel_pixels_in(gray: np.ndarray, std_max: float, min_area: float, rr: np.ndarray) -> np.ndarray:
@@ -214,9 +215,10 @@ def panel_pixels_in(gray: np.ndarray, std_max: float, min_area: float, rr: np.nd
     p = panels(gray, std_max, min_area)
     if not p.any():
         return np.zeros(len(rr), np.int64)
-    s = cv2.integral(p, sdepth=cv2.CV_32S).astype(np.int64)
+    s = cv2.integral(p, sdepth=cv2.CV_32S)
     r0, r1, c0, c1 = rr.T
-    return s[r1, c1] - s[r0, c1] - s[r1, c0] + s[r0, c0]
+    # the corners read first, then widened (no int64 copy of the frame's sums)
+    return (s[r1, c1].astype(np.int64) - s[r0, c1] - s[r1, c0]) + s[r0, c0]
 
 
 def surely_no_panels(gray: np.ndarray, rr: np.ndarray, margin: int, thr2: float, slack: float,
@@ -297,16 +299,41 @@ def other_peaks(top: np.ndarray, xs: np.ndarray, ys: np.ndarray, bps: np.ndarray
         lev = ((c * du + s * dv) / prm[cand, 2]) ** 2 + ((-s * du + c * dv) / prm[cand, 3]) ** 2
         sel &= ~has[cand] | (lev > 1.0)
     cand, px, py = cand[sel], px[sel], py[sel]
-    for k in np.unique(cand).tolist():
-        mine = cand == k
+    ks = np.unique(cand)
+    if not len(ks):
+        return out
+    # every labelled window's valley mask in one mosaic (shelves of windows, a zero row and
+    # column between them, so no component joins two), labelled once: the same components as
+    # one labelling per window, looked up by each window's offset in the mosaic
+    hh, ww = (r1 - r0)[ks], (c1 - c0)[ks]
+    order = np.argsort(-hh, kind="stable")
+    width = max(2048, int(ww.max()) + 1)
+    oy, ox = np.zeros(len(ks), np.int64), np.zeros(len(ks), np.int64)
+    y = x = shelf = 0
+    for i in order.tolist():
+        if x + ww[i] + 1 > width:
+            y, x, shelf = y + shelf, 0, 0
+        oy[i], ox[i] = y, x
+        x += int(ww[i]) + 1
+        shelf = max(shelf, int(hh[i]) + 1)
+    mosaic = np.zeros((y + shelf, width), np.uint8)
+    fg = np.zeros(len(ks), np.int64)
+    for i, k in enumerate(ks.tolist()):
         a0, a1, b0, b1 = int(r0[k]), int(r1[k]), int(c0[k]), int(c1[k])
-        win = top[a0:a1, b0:b1]
-        n_lab, lab = connected_components((win >= level[k]).view(np.uint8))
-        own = lab[int(ij[k, 1]) - a0, int(ij[k, 0]) - b0]
-        other = lab[py[mine] - a0, px[mine] - b0]
-        area = np.bincount(lab.ravel(), minlength=n_lab)
-        big = area[other] >= area_rel * area[own] if own > 0 else np.ones(len(other), bool)
-        out[k] = np.count_nonzero(((other != own) | (own == 0)) & big)
+        m = mosaic[oy[i]:oy[i] + a1 - a0, ox[i]:ox[i] + b1 - b0]
+        np.greater_equal(top[a0:a1, b0:b1], level[k], out=m.view(bool))
+        fg[i] = np.count_nonzero(m)
+    lab = connected_components(mosaic)[1]
+    area = np.bincount(lab.ravel())
+    pos = np.searchsorted(ks, cand)  # each pair's window
+    own = lab[ij[ks, 1] - r0[ks] + oy, ij[ks, 0] - c0[ks] + ox]
+    other = lab[py - r0[cand] + oy[pos], px - c0[cand] + ox[pos]]
+    # a label's area; the background's (label 0) is its window's
+    a_other = np.where(other > 0, area[other], hh[pos] * ww[pos] - fg[pos])
+    a_own = np.where(own > 0, area[own], hh * ww - fg)
+    big = (a_other >= area_rel * a_own[pos]) | (own[pos] == 0)
+    counted = ((other != own[pos]) | (own[pos] == 0)) & big
+    out[ks] = np.bincount(pos, weights=counted, minlength=len(ks)).astype(np.int64)
     return out
 
 
@@ -335,3 +362,51 @@ def surround_fraction(gray: np.ndarray, ell, bp_ij: np.ndarray, reach: float, ow
     if not peak > 0:
         return 0.0
     return float(np.count_nonzero((top >= rel * peak) & ring) / np.count_nonzero(ring))
+
+
+def surround_fractions(gray: np.ndarray, ells, bps_ij: np.ndarray, reaches: np.ndarray, own_level: float,
+                       rel: float) -> np.ndarray:
+    """:func:`surround_fraction` of many candidates (``ells``, ``bps_ij`` (n, 2) (column, row),
+    ``reaches`` (n,)), the same numbers: the surrounds of the candidates of one whole reach in
+    px computed together on their unclipped squares (pixels outside the frame not counted), the
+    openings one window each. float64 (n,)."""
+    h, w = gray.shape
+    bps_ij = np.asarray(bps_ij, np.int64).reshape(-1, 2)
+    reaches = np.asarray(reaches, np.float64).reshape(-1)
+    n = len(reaches)
+    out = np.zeros(n)
+    if not n:
+        return out
+    R_all = np.ceil(reaches).astype(np.int64)
+    # each ellipse's numbers; its cosine and sine taken one by one (numpy's scalar path)
+    prm = np.array([(e.center[0], e.center[1], e.semi_axes[0], e.semi_axes[1]) for e in ells], np.float64)
+    cs = np.array([(np.cos(e.angle_rad), np.sin(e.angle_rad)) for e in ells], np.float64)
+    for R in np.unique(R_all).tolist():
+        idx = np.flatnonzero(R_all == R)
+        bj, bi = bps_ij[idx, 0], bps_ij[idx, 1]
+        off = np.arange(-R, R + 1, dtype=np.int64)
+        ry, rx = bi[:, None] + off, bj[:, None] + off  # (m, S) rows and columns
+        yy = ry.astype(np.float64)[:, :, None]
+        xx = rx.astype(np.float64)[:, None, :]
+        col = lambda a: a[:, None, None]  # noqa: E731
+        reach = reaches[idx]
+        c, s = col(cs[idx, 0]), col(cs[idx, 1])
+        du, dv = xx - col(prm[idx, 0]), yy - col(prm[idx, 1])
+        lev = ((c * du + s * dv) / col(prm[idx, 2])) ** 2 + ((-s * du + c * dv) / col(prm[idx, 3])) ** 2
+        ring = ((xx - col(bj)) ** 2 + (yy - col(bi)) ** 2 <= col(reach * reach)) & (lev > own_level)
+        ring &= ((ry >= 0) & (ry < h))[:, :, None] & ((rx >= 0) & (rx < w))[:, None, :]
+        n_ring = np.count_nonzero(ring, axis=(1, 2))
+        k = max(3, R | 1)  # odd, about the reach
+        se = cv2.getStructuringElement(cv2.MORPH_RECT, (k, k))
+        for m, q in enumerate(idx.tolist()):
+            if not n_ring[m]:
+                continue
+            i, j = int(bi[m]), int(bj[m])
+            r0, r1, c0, c1 = max(0, i - R), min(h, i + R + 1), max(0, j - R), min(w, j + R + 1)
+            win = np.ascontiguousarray(gray[r0:r1, c0:c1], dtype=np.float32)
+            top = win - cv2.morphologyEx(win, cv2.MORPH_OPEN, se, borderType=cv2.BORDER_REPLICATE)
+            peak = float(top[max(0, i - 1 - r0):i + 2 - r0, max(0, j - 1 - c0):j + 2 - c0].max())
+            if peak > 0:
+                lit = (top >= rel * peak) & ring[m, r0 - i + R:r1 - i + R, c0 - j + R:c1 - j + R]
+                out[q] = float(np.count_nonzero(lit) / int(n_ring[m]))
+    return out

@@ -586,7 +586,9 @@ def assess(image: np.ndarray, gray: np.ndarray, ests, *, full_scale: float, wind
     if passed.any():
         g = np.asarray(gray)  # _surround_fraction converts its window to float32 (the same values)
         ij = np.clip(np.rint(bps).astype(np.int64), 0, [gray.shape[1] - 1, gray.shape[0] - 1])
-        surround[passed] = [_surround_fraction(g, ells[k], ij[k], float(reach[k])) for k in np.flatnonzero(passed)]
+        sel = np.flatnonzero(passed)
+        surround[passed] = px.surround_fractions(g, [ells[k] for k in sel], ij[sel], reach[sel], _OWN_LEVEL,
+                                                 SURROUND_REL)
     return replace(ev, clipped=clipped, minor_px=minor, surround=surround), res, inside
 
 
