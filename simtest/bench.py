@@ -20,6 +20,7 @@ import sys
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
+from importlib.resources import files
 from types import ModuleType
 
 import numpy as np
@@ -32,7 +33,7 @@ from simtest.scene.spec import RENDER_VARIANTS
 
 #: The folder that holds ``simtest/``: a clone's top, where ``benchmarks/`` lives (site-packages
 #: for a wheel, which has none).
-CLONE_ROOT = Path(__file__).resolve().parents[1]
+CLONE_ROOT = Path(str(files("simtest"))).resolve().parent
 
 
 @dataclass(frozen=True)
@@ -75,8 +76,8 @@ def load_benchmarks() -> ModuleType:
     if str(CLONE_ROOT) not in sys.path:
         sys.path.insert(0, str(CLONE_ROOT))
     mod = importlib.import_module("benchmarks")
-    if Path(mod.__file__).resolve().parent != folder or not hasattr(mod, "SECTIONS"):
-        raise LookupError(f"`import benchmarks` finds {mod.__file__}, not the clone's {folder}")
+    if Path(inspect.getfile(mod)).resolve().parent != folder or not hasattr(mod, "SECTIONS"):
+        raise LookupError(f"`import benchmarks` finds {inspect.getfile(mod)}, not the clone's {folder}")
     return mod
 
 

@@ -217,12 +217,12 @@ def test_recording_a_frame_leaves_its_results_alone_and_sees_its_smoothing():
         got = reconstruct(frame, K)
     assert [estimate_to_dict(e, True) for e in got] == [estimate_to_dict(e, True) for e in want]
     # the noisy frame (sigma 2.5 px) is smoothed once whole at half resolution for detection
-    # (detect.MULTIRES_SIGMA_MIN_PX; each candidate's window at full resolution by a compiled
-    # kernel, _detect_kernels.window_component), then each ROI for itself (10 highlights: fewer
-    # than pipeline.LUMA_FRAME_MIN_HIGHLIGHTS, so no frame-wide smoothing for the contours)
+    # (detect.MULTIRES_SIGMA_MIN_PX), then each candidate's window at full resolution (OpenCV's
+    # GaussianBlur, one call a window), then each ROI for itself (10 highlights: fewer than
+    # pipeline.LUMA_FRAME_MIN_HIGHLIGHTS, so no frame-wide smoothing for the contours)
     blurs = [c for c in calls if c.name == "GaussianBlur"]
     assert blurs[0].args[0].shape == (frame.shape[0] // 2, frame.shape[1] // 2)
-    assert len(blurs) - 1 == len(want)
+    assert len(blurs) - 1 == 2 * len(want)
 
 
 def test_every_image_function_the_reconstruction_calls_is_recorded():

@@ -30,6 +30,7 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
+from simtest.reconstruct._pixels import uv_to_rc
 from simtest.reconstruct.detect_pixels import connected_components
 
 #: Status codes of :func:`examine` (column ``code``) and their names.
@@ -81,7 +82,7 @@ def roi_columns(bp_uv: np.ndarray, half: np.ndarray, shape: tuple[int, int]) -> 
     """:meth:`simtest.reconstruct._pixels.Roi.around` of many centres: (N, 4) row0, row1, col0,
     col1, clipped to ``shape`` (H, W)."""
     h, w = shape
-    r, c = bp_uv[:, 1], bp_uv[:, 0]
+    r, c = uv_to_rc(bp_uv).T
     out = np.empty((len(bp_uv), 4), np.int64)
     out[:, 0] = np.maximum(0, np.floor(r - half))
     out[:, 1] = np.minimum(h, np.ceil(r + half) + 1)
