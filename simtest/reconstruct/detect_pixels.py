@@ -653,6 +653,20 @@ def local_peak_mask(gray: np.ndarray, full_scale: float, *, peak_rel: float = 0.
     return mask, background
 
 
+def linear_taps(i, src: int, dst: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """OpenCV's ``INTER_LINEAR`` taps for output indices ``i`` of an axis enlarged from ``src`` to
+    ``dst`` samples: the two source indices and the float32 weight of the second (half-pixel
+    centres, clamped at the sides as ``cv2.resize`` clamps)."""
+    x = (np.asarray(i, np.float64) + 0.5) * (src / dst) - 0.5
+    i0 = np.floor(x).astype(np.int64)
+    a = (x - i0).astype(np.float32)
+    a[i0 < 0] = 0.0
+    i0 = np.maximum(i0, 0)
+    a[i0 >= src - 1] = 0.0
+    i0 = np.minimum(i0, src - 1)
+    return i0, np.minimum(i0 + 1, src - 1), a
+
+
 def linear_at(small: np.ndarray, shape: tuple[int, int], r0: int, r1: int, c0: int, c1: int) -> np.ndarray:
     """``cv2.resize(small, shape[::-1], interpolation=cv2.INTER_LINEAR)[r0:r1, c0:c1]`` computed in
     that window only (OpenCV's sample positions and clamping at the sides; float32, to its
@@ -669,18 +683,8 @@ def linear_at(small: np.ndarray, shape: tuple[int, int], r0: int, r1: int, c0: i
                         interpolation=cv2.INTER_LINEAR)
         return up[r0 - q0 * f : r1 - q0 * f, c0 - p0 * f : c1 - p0 * f]
 
-    def axis(n0, n1, src, dst):
-        x = (np.arange(n0, n1, dtype=np.float64) + 0.5) * (src / dst) - 0.5
-        i0 = np.floor(x).astype(np.int64)
-        a = (x - i0).astype(np.float32)
-        a[i0 < 0] = 0.0
-        i0 = np.maximum(i0, 0)
-        a[i0 >= src - 1] = 0.0
-        i0 = np.minimum(i0, src - 1)
-        return i0, np.minimum(i0 + 1, src - 1), a
-
-    y0, y1, ay = axis(r0, r1, sh, h)
-    x0, x1, ax = axis(c0, c1, sw, w)
+    y0, y1, ay = linear_taps(np.arange(r0, r1), sh, h)
+    x0, x1, ax = linear_taps(np.arange(c0, c1), sw, w)
     one = np.float32(1.0)
     top = small[y0][:, x0] * (one - ax) + small[y0][:, x1] * ax
     bot = small[y1][:, x0] * (one - ax) + small[y1][:, x1] * ax

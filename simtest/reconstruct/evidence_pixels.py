@@ -12,7 +12,8 @@ from __future__ import annotations
 import cv2
 import numpy as np
 
-from simtest.reconstruct.detect_pixels import connected_components, connected_components_with_stats, linear_at
+from simtest.reconstruct.detect_pixels import (connected_components, connected_components_with_stats, linear_at,
+                                              linear_taps)
 
 #: A 3 x 3 square: the neighbourhood of a local maximum.
 _SQUARE3 = np.ones((3, 3), np.uint8)
@@ -78,18 +79,8 @@ def linear_at_points(small: np.ndarray, shape: tuple[int, int], rows: np.ndarray
     sh, sw = small.shape[:2]
     h, w = shape
 
-    def axis(i, src, dst):
-        x = (np.asarray(i, np.float64) + 0.5) * (src / dst) - 0.5
-        i0 = np.floor(x).astype(np.int64)
-        a = (x - i0).astype(np.float32)
-        a[i0 < 0] = 0.0
-        i0 = np.maximum(i0, 0)
-        a[i0 >= src - 1] = 0.0
-        i0 = np.minimum(i0, src - 1)
-        return i0, np.minimum(i0 + 1, src - 1), a
-
-    y0, y1, ay = axis(rows, sh, h)
-    x0, x1, ax = axis(cols, sw, w)
+    y0, y1, ay = linear_taps(rows, sh, h)
+    x0, x1, ax = linear_taps(cols, sw, w)
     if small.ndim == 3:
         ax, ay = ax[:, None], ay[:, None]
     one = np.float32(1.0)
