@@ -77,6 +77,7 @@ import numpy as np
 from simtest._records import fast_init
 from simtest.constants import LUMA_BT601, gaussian_radius_px, smooth_block_px
 from simtest.geometry.cameras import CameraModel, PinholeCamera
+from simtest.decisions import ROI_GROWTH_FACTOR, ROI_MAX_GROWTHS
 from simtest.reconstruct import _kernels
 from simtest.reconstruct._pixels import Roi, image_size_wh, rc_to_uv
 from simtest.reconstruct.cone_fit import FitFrame, fit_cones, fit_frame, fit_frames, to_camera, to_fit_frame
@@ -123,9 +124,6 @@ SMOOTH_FRAME_MIN_ROI_PX = 160 * 160
 #: the Hyper-Kvasir banner (8.6 to 3.9 Mpx).
 SMOOTH_STRIP_ALIGN = smooth_block_px(np.dtype(np.float64).itemsize)
 
-#: ROI growth when the lowest isophote is cut by a ROI side inside the image.
-ROI_GROWTH_FACTOR = 2.0
-ROI_MAX_GROWTHS = 4
 
 
 @fast_init
