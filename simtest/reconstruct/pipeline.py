@@ -99,6 +99,7 @@ from simtest.reconstruct.estimators import estimate_from_conics, joint_cone_axes
 from simtest.reconstruct.failures import OK, Failure
 from simtest.reconstruct.isophote import MIN_CONTOUR_POINTS, Isophote, _cut_and_contour, _extract, _Region, _region
 from simtest.reconstruct.recommend import recommend
+from simtest.reconstruct.result import Reconstruction
 from simtest.reconstruct.settings import AUTO_LOCAL_BACKGROUND_REL, Normalisation, ReconSettings
 from simtest.reconstruct.verify import assess, bp_checks, confidence, seed_opening, shared_passes, verdict
 
@@ -1288,33 +1289,8 @@ def reconstruct_rois(items, isovalues: float | Sequence[float] | None = None, *,
     return _complete([_roi_draft(image, K, bp_uv, roi, None, settings, cameras) for image, K, bp_uv, roi in items])
 
 
-class Estimates(list):
-    """The estimates of one frame (a list, brightest first) and what detection left out.
-
-    Parameters
-    ----------
-    estimates : iterable of SpecularityEstimate
-        One per examined candidate.
-    n_components : int
-        Bright components detection found in the frame (or its ROI).
-    n_unexamined : int
-        Components not examined because of ``max_candidates`` (the smallest ones); they have no
-        estimate. 0 when every component was examined.
-    max_candidates : int or None
-        The cap in force (None: none).
-    """
-
-    def __init__(self, estimates=(), *, n_components: int = 0, n_unexamined: int = 0,
-                 max_candidates: int | None = None):
-        super().__init__(estimates)
-        self.n_components = int(n_components)
-        self.n_unexamined = int(n_unexamined)
-        self.max_candidates = max_candidates
-
-    def detection_record(self) -> dict:
-        """``{"components", "examined", "not_examined", "max_candidates"}`` for estimates.json."""
-        return {"components": self.n_components, "examined": self.n_components - self.n_unexamined,
-                "not_examined": self.n_unexamined, "max_candidates": self.max_candidates}
+#: The name this module gave :class:`~simtest.reconstruct.result.Reconstruction` first.
+Estimates = Reconstruction
 
 
 @_gc_paused()  # thousands of small objects, no cycles (see _gc_paused)
@@ -1328,7 +1304,7 @@ def reconstruct(
     roi=None,
     settings: ReconSettings | None = None,
     **options,
-) -> list[SpecularityEstimate]:
+) -> Reconstruction:
     """Detect every specular highlight of an image and estimate its normal.
 
     Parameters
@@ -1358,11 +1334,13 @@ def reconstruct(
 
     Returns
     -------
-    Estimates
+    Reconstruction
         A list of SpecularityEstimate, one per examined candidate highlight, accepted or rejected
         (with ``n_components`` and ``n_unexamined``: the components detection found and those
         ``max_candidates`` left out; rejected ones carry the detection
         reason as status and no isophotes), brightest first. Empty if there is no candidate.
+        Its tables: ``.bp_px``, ``.statuses``, ``.normals()`` (N x E x 3), ``.to_arrow()``,
+        ``.to_json()``.
 
     Raises
     ------
@@ -1499,8 +1477,10 @@ def reconstruct(
     done = _complete(out)
     if settings.verify and done:
         done = _verified(frame, done, verifier=verifier)
-    return Estimates(done, n_components=det.n_components,
-                     n_unexamined=det.n_unexamined, max_candidates=settings.max_candidates)
+    pinhole = frame.camera.K if isinstance(frame.camera, PinholeCamera) else None
+    return Reconstruction(done, n_components=det.n_components, n_unexamined=det.n_unexamined,
+                          max_candidates=settings.max_candidates, K=pinhole, image_shape=img.shape,
+                          isovalues=settings.isovalues, normalise=settings.normalise.value)
 
 
 def _verifier_inputs(frame: _Frame, native: np.ndarray | None = None,
