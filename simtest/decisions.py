@@ -367,6 +367,13 @@ CONFIDENCE_COEFFICIENTS = decision(
     "tests/test_verify.py refits them.", basis="tuned", stage=_V,
     chosen_on=("banner-labelled",), n="180 ok estimates of the 24 banner frames, 52 isolated")
 
+DEFAULT_MIN_CONFIDENCE = decision(
+    "DEFAULT_MIN_CONFIDENCE", 0.0, "confidence in [0, 1]",
+    "The default operating point keeps every fit that passes the specularity checks: the checks "
+    "are physical, the confidence only ranks what passes them; a user who wants fewer, surer "
+    "estimates sets another (--min-confidence), read off the precision-recall curve of "
+    "simtest evaluate detection.", basis="convention", stage=_V)
+
 # --- JPEG noise model (verification) -----------------------------------------------------------------
 
 JPEG_MIN_COEFFICIENTS = decision(

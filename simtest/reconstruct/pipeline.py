@@ -1521,9 +1521,12 @@ def _verified(frame: _Frame, ests: list[SpecularityEstimate], native: np.ndarray
     conf = confidence(ev, res).tolist()
     checks = verdict(ev, res, inside, only=[k for k, e in enumerate(fit) if e.ok])
     judged = {}
+    floor = frame.settings.min_confidence
     for k, e in enumerate(fit):
         status, detail = (checks[k] if e.ok else (e.status, e.detail))
         fitted = math.isfinite(res[k])  # a confidence for the fitted candidates only
+        if status == OK and fitted and conf[k] < floor:
+            status, detail = "low_confidence", f"confidence {conf[k]:.3f} < min_confidence {floor:g}"
         judged[id(e)] = _replaced(e, status=status, detail=detail, confidence=conf[k] if fitted else None)
     return [judged.get(id(e), e) for e in ests]
 
