@@ -1,12 +1,15 @@
 """Every numerical tolerance of simtest in one documented object.
 
 Tests and library code read their thresholds from :data:`TOL` so that a tolerance is chosen, and
-justified, once (the trimesh habit). Angles are in degrees, lengths in pixels unless named.
+justified, once (the trimesh habit). Angles are in degrees, lengths in pixels unless named. The
+light-aware fits' decision numbers among them are :mod:`simtest.decisions`' own.
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass
+
+from simtest import decisions
 
 
 @dataclass(frozen=True)
@@ -42,33 +45,20 @@ class Tolerances:
         ~1e-8 at the steps used) and rounding error ~eps |f| / h (~1e-10 relative); the inverse
         maps' Newton stop (1e-9 px) divided by the step adds at most ~1e-6 relative.
     isophote_noise_px : float
-        Floor of the localisation noise of a contour point, px, used only to decide whether a
-        light-aware fit observes the depth (a fit to exact points has zero residual and would call
-        anything observable): 0.05 px, the RMS error of marching squares' linear interpolation on a
-        smooth 8-bit highlight (1/255 of a lobe whose slope is ~0.1 per px gives ~0.04 px).
+        A decision of the light-aware fits, :data:`simtest.decisions.ISOPHOTE_NOISE_PX` (its unit, reason
+        and provenance there).
     photometric_noise_rel : float
-        Floor of the per-pixel noise of the photometric fit, relative to the ROI's maximum, for the
-        same decision: 0.002, about the RMS of 8-bit quantisation (1 / (255 sqrt 12) = 0.0011)
-        doubled for render noise.
+        A decision of the light-aware fits, :data:`simtest.decisions.PHOTOMETRIC_NOISE_REL` (its unit, reason
+        and provenance there).
     plane_misfit_rho : float
-        Correlation of neighbouring residuals of the photometric plane fit above which the plane
-        model is said not to fit (a curved patch): 0.3. Pixel noise is independent, so a model
-        that fits leaves uncorrelated neighbours; on the lightaware suite's rendered planes (8-bit,
-        16 spp, epsilon/d 0.05 to 0.5, tilts 0 to 40 deg) it measured 0.07 to 0.13 (the pixel's
-        box filter against the model's point sample) and below 0.02 with read noise, on its
-        sphere, cylinder, liver and colon 0.47 to 0.98.
+        A decision of the light-aware fits, :data:`simtest.decisions.PLANE_MISFIT_RHO` (its unit, reason
+        and provenance there).
     plane_misfit_rel : float
-        Smallest systematic residual (square root of the neighbours' residual covariance),
-        relative to the ROI's maximum, for the same decision: 2e-4, a fifth of 8-bit
-        quantisation's RMS; below it the residual is rounding (exact float images), whatever its
-        correlation.
+        A decision of the light-aware fits, :data:`simtest.decisions.PLANE_MISFIT_REL` (its unit, reason
+        and provenance there).
     patch_misfit_rms_rel : float
-        Residual RMS of the quadric patch fit, relative to the ROI's maximum, above which the
-        patch is said not to fit whatever the residuals' correlation: 0.01, five times
-        ``photometric_noise_rel``. On the lightaware-curved renders (six realisations per case,
-        the ROI 1.5 times the highlight's) the fits that ended within their ranges left 4e-4 to
-        1.7e-3 on the sphere, cylinder, saddle and liver, and 0.018 to 0.06 on the colon's fold
-        streaks, where the one that ended ``ok`` (0.018) had its depth at 0.45 of the truth.
+        A decision of the light-aware fits, :data:`simtest.decisions.PATCH_MISFIT_RMS_REL` (its unit, reason
+        and provenance there).
     exact_image_normal_deg : float
         Normal error allowed to a light-aware fit of an exact float image (no noise): 0.01 deg.
         What remains is the contour's spline interpolation (isophote points refined to ~1e-4 px)
@@ -77,11 +67,8 @@ class Tolerances:
     exact_image_depth_rel : float
         Relative depth error allowed in the same setting: 1e-3 (0.1 %; measured below 2e-6).
     depth_rel_sigma_max : float
-        Largest relative standard deviation of the depth (at the noise floors above) for which a
-        light-aware estimator reports it: 0.5 (the depth known to within a factor of about 1.5).
-        Beyond that the image hardly depends on the distance (epsilon/d too small) and a depth
-        would be a guess; at epsilon/d = 0.05 the isocurve fit's value is 0.2 to 0.3 on exact
-        images of 240 x 240 px, at epsilon = 0 it is infinite.
+        A decision of the light-aware fits, :data:`simtest.decisions.DEPTH_OBSERVABLE_REL_SIGMA` (its unit, reason
+        and provenance there).
     claim_bp_ray_colocated_deg : float
         Largest per-case median error of the BP ray on co-located renders for the report's claim
         "the BP ray is exact" to hold: the truth is exact by construction, so what remains is BP
@@ -133,14 +120,14 @@ class Tolerances:
     right_cone_gap: float = 1e-9
     camera_round_trip_px: float = 1e-6
     camera_jacobian_rel: float = 1e-5
-    isophote_noise_px: float = 0.05
-    photometric_noise_rel: float = 0.002
-    plane_misfit_rho: float = 0.3
-    plane_misfit_rel: float = 2e-4
-    patch_misfit_rms_rel: float = 0.01
+    isophote_noise_px: float = decisions.ISOPHOTE_NOISE_PX
+    photometric_noise_rel: float = decisions.PHOTOMETRIC_NOISE_REL
+    plane_misfit_rho: float = decisions.PLANE_MISFIT_RHO
+    plane_misfit_rel: float = decisions.PLANE_MISFIT_REL
+    patch_misfit_rms_rel: float = decisions.PATCH_MISFIT_RMS_REL
     exact_image_normal_deg: float = 0.01
     exact_image_depth_rel: float = 1e-3
-    depth_rel_sigma_max: float = 0.5
+    depth_rel_sigma_max: float = decisions.DEPTH_OBSERVABLE_REL_SIGMA
     claim_bp_ray_colocated_deg: float = 0.5
     claim_cone_axis_plane_deg: float = 0.05
     claim_rho_gap_abs: float = 0.02

@@ -113,14 +113,18 @@ def test_a_labelled_set_is_read_tile_by_tile(tmp_path):
         labelled_real_frames(tmp_path / "bad.json")
 
 
-def test_the_command_writes_its_four_files(tmp_path):
+def test_the_command_writes_its_five_files(tmp_path):
     res = CliRunner().invoke(app, ["evaluate", "detection", str(_labelled_set(tmp_path)),
                                    "-o", str(tmp_path / "out")])
     assert res.exit_code == 0, res.output
-    assert sorted(p.name for p in (tmp_path / "out").iterdir()) == ["detection.png", "reliability.png",
-                                                                     "report.md", "results.json"]
+    assert sorted(p.name for p in (tmp_path / "out").iterdir()) == [
+        "detection.png", "precision_recall.png", "reliability.png", "report.md", "results.json"]
     r = json.loads((tmp_path / "out" / "results.json").read_text())
     assert r["pooled"]["targets"] == 1 and len(r["frames"]) == 2
+    # the curve's default operating point (min confidence 0) is the run's own ok figures
+    first = r["precision_recall"][0]
+    assert first["min_confidence"] == 0.0 and first["kept"] == r["pooled"]["ok"]
+    assert first["recall"] == r["pooled"]["recall_ok"]
     res = CliRunner().invoke(app, ["evaluate", "detection", str(tmp_path / "nothere.json"),
                                    "-o", str(tmp_path / "o2")])
     assert res.exit_code == 2 and len(res.output.strip().splitlines()) == 1

@@ -57,7 +57,7 @@ import tifffile
 from simtest.geometry.cameras import CameraModel
 from simtest.reconstruct.images import quiet_stderr
 
-__all__ = ["C3VDError", "C3VDFrame", "GroundTruth", "load_frame", "scan_sequence", "write_frame"]
+__all__ = ["C3VDError", "C3VDFrame", "GroundTruth", "load_frame", "read_tiff", "scan_sequence", "write_frame"]
 
 _NAME = re.compile(r"^(\d{4,})_(color|normals|depth|occlusion)\.(png|tiff?)$")
 _EXT = {"color": ("png",), "occlusion": ("png",), "normals": ("tiff", "tif"), "depth": ("tiff", "tif")}
@@ -154,7 +154,8 @@ def scan_sequence(seq_dir) -> list[C3VDFrame]:
     return [C3VDFrame(i, k["color"], k["normals"], k.get("depth"), k.get("occlusion")) for i, k in sorted(found.items())]
 
 
-def _read_tiff(path: Path, what: str) -> np.ndarray:
+def read_tiff(path: Path, what: str) -> np.ndarray:
+    """A TIFF's array (tifffile), or a one-line :class:`C3VDError` naming the file and ``what``."""
     try:
         return tifffile.imread(path)
     except Exception as exc:  # tifffile raises many types for a corrupt file
@@ -203,7 +204,7 @@ def load_frame(frame: C3VDFrame, camera: CameraModel) -> tuple[np.ndarray, Groun
     if camera.image_size is not None and tuple(camera.image_size) != (W, H):
         cw, ch = camera.image_size
         raise C3VDError(f"{frame.color}: {W} x {H} px, but the camera file is for {cw} x {ch} px")
-    raw = _read_tiff(frame.normals, "normals")
+    raw = read_tiff(frame.normals, "normals")
     if raw.dtype != np.uint16 or raw.ndim != 3 or raw.shape[2] != 3:
         raise C3VDError(f"{frame.normals}: normals must be 16-bit with 3 channels, got {raw.dtype} of shape {raw.shape}")
     if raw.shape[:2] != (H, W):
@@ -226,7 +227,7 @@ def load_frame(frame: C3VDFrame, camera: CameraModel) -> tuple[np.ndarray, Groun
         invalid |= occ > 0
     depth = None
     if frame.depth is not None:
-        d = _read_tiff(frame.depth, "depth")
+        d = read_tiff(frame.depth, "depth")
         if d.dtype != np.uint16 or d.ndim != 2:
             raise C3VDError(f"{frame.depth}: depth must be 16-bit single-channel, got {d.dtype} of shape {d.shape}")
         if d.shape != (H, W):

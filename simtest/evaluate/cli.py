@@ -22,6 +22,7 @@ from rich.progress import Progress
 
 from simtest import __version__
 from simtest.evaluate.c3vd import load_frame, scan_sequence
+from simtest.evaluate.operating import precision_recall_figure
 from simtest.evaluate.detection import (cross_validated_report, detection_figure, evaluate_frames,
                                         groups, is_suite, labelled_real_frames, labeller_agreement,
                                         reliability_figure, rendered_frames, suite_frames)
@@ -144,7 +145,7 @@ def c3vd_command(
 
 
 #: What ``evaluate detection`` writes in OUT (nothing else may be there).
-DETECTION_FILES = ("results.json", "report.md", "detection.png", "reliability.png")
+DETECTION_FILES = ("results.json", "report.md", "detection.png", "reliability.png", "precision_recall.png")
 
 
 @evaluate_app.command("detection")
@@ -155,7 +156,8 @@ def detection_command(
                                  "every case's renders.", show_default=False),
     out: Path = typer.Option(..., "--out", "-o", show_default=False,
                              help="Output folder, new, empty or a previous run's (replaced as a whole): "
-                             "results.json, report.md, detection.png, reliability.png."),
+                             "results.json, report.md, detection.png, reliability.png, "
+                             "precision_recall.png."),
     seed: Optional[int] = typer.Option(None, "--seed", min=0, help="Render seed (a scene; default the scene's)."),  # noqa: UP045
     realisations: Optional[int] = typer.Option(  # noqa: UP045
         None, "--realisations", "-n", min=1, help="Renders per setting (a suite; default the suite's)."),
@@ -167,7 +169,9 @@ def detection_command(
     Writes, in the folder OUT (new, empty, or a previous run's; replaced as a whole): OUT/results.json
     (every frame's counts and scores, and where each candidate fell), OUT/report.md (the table)
     OUT/detection.png (each frame with its hits, false positives and misses) and
-    OUT/reliability.png (the confidence's reliability diagram). Exit status 2:
+    OUT/reliability.png (the confidence's reliability diagram) and OUT/precision_recall.png
+    (precision against recall of the ok estimates over --min-confidence, the default marked). Exit
+    status 2:
     bad input; 4: OUT cannot be written."""
     target = check_out_folder(out, DETECTION_FILES)
     kept: list = []  # each frame's estimates, for the confidence's cross-validation
@@ -196,6 +200,7 @@ def detection_command(
         fig = detection_figure(frames, results)
         png = figure_png(fig)
         png_rel = figure_png(reliability_figure(results))
+        png_pr = figure_png(precision_recall_figure(results["precision_recall"]))
     except (ValueError, OSError, ImportError) as exc:
         fail(exc, BAD_INPUT)
 
@@ -204,6 +209,7 @@ def detection_command(
         (folder / "report.md").write_text(md, encoding="utf-8")
         (folder / "detection.png").write_bytes(png)
         (folder / "reliability.png").write_bytes(png_rel)
+        (folder / "precision_recall.png").write_bytes(png_pr)
 
     write_out_folder(out, target, fill, DETECTION_FILES)
     p = results["pooled"]
@@ -269,5 +275,11 @@ def _detection_markdown(results: dict) -> str:
         for r in cv["reliability"]:
             L.append(f"| [{r['bin'][0]:.1f}, {r['bin'][1]:.1f}) | {r['n']} | {_fmt(r['mean_confidence'])} | "
                      f"{_fmt(r['fraction_true'])} |")
-    L += ["", "![reliability diagram](reliability.png)", ""]
+    L += ["", "![reliability diagram](reliability.png)", "", "## Operating point", "",
+          "Precision and recall of the ok estimates kept by `simtest reconstruct --min-confidence C` "
+          "(read off this run's matches; the default C is simtest.decisions.DEFAULT_MIN_CONFIDENCE).",
+          "", "| min confidence | ok kept | precision | recall |", "|---|---|---|---|"]
+    for r in results["precision_recall"][::2]:
+        L.append(f"| {r['min_confidence']:.1f} | {r['kept']} | {_fmt(r['precision'])} | {_fmt(r['recall'])} |")
+    L += ["", "![precision against recall](precision_recall.png)", ""]
     return "\n".join(L)

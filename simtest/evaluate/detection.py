@@ -53,6 +53,7 @@ import matplotlib.pyplot as plt  # noqa: E402 - after choosing the back-end
 from simtest.geometry.cameras import PinholeCamera  # noqa: E402
 from simtest.harness.protocols import mesh_pose_overrides, realisation_overrides  # noqa: E402
 from simtest.harness.suite import bundled_suite_names, load_suite, realisation_seed  # noqa: E402
+from simtest.evaluate.operating import precision_recall  # noqa: E402
 from simtest.reconstruct.detect import luma  # noqa: E402
 from simtest.reconstruct.images import load_image  # noqa: E402
 from simtest.reconstruct.io import estimate_to_dict  # noqa: E402
@@ -548,10 +549,13 @@ def evaluate_frames(frames: list[LabelledFrame], settings=None, *, keep: list | 
     conf = np.array([r["confidence"] for r in cand], dtype=np.float64)
     tp = np.array([r["tp"] for r in cand], dtype=bool)
     ok = np.array([r["status"] == "ok" for r in cand], dtype=bool)
+    tp_ok = np.array([r["tp_ok"] for r in cand], dtype=bool)
     statuses = Counter(r["status"] for f in frames_out for r in f["candidates_detail"])
-    return {"frames": frames_out, "pooled": pooled(scores).as_dict(), "settings": settings.to_dict(),
+    pool = pooled(scores).as_dict()
+    return {"frames": frames_out, "pooled": pool, "settings": settings.to_dict(),
             "statuses": dict(sorted(statuses.items())),
-            "reliability": {"candidates": reliability(conf, tp), "ok": reliability(conf[ok], tp[ok])}}
+            "reliability": {"candidates": reliability(conf, tp), "ok": reliability(conf[ok], tp[ok])},
+            "precision_recall": precision_recall(conf[ok], tp_ok[ok], pool["targets"])}
 
 
 def reliability_figure(results: dict):

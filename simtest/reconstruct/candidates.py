@@ -30,15 +30,13 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
+from simtest.decisions import ELLIPTICITY_MIN_AREA_PX
 from simtest.reconstruct._pixels import uv_to_rc
 from simtest.reconstruct.detect_pixels import connected_components
 
 #: Status codes of :func:`examine` (column ``code``) and their names.
 OK, TOO_SMALL, TOUCHES_BORDER, BLACK_BORDER, NOT_ELLIPTICAL, MERGED = range(6)
 STATUS_NAMES = ("ok", "too_small", "touches_border", "black_border", "not_elliptical", "merged")
-#: Components of at least this many px get the ellipticity check: a smaller one's second moments
-#: are too coarse (a 3 x 3 square and a plus sign differ by a pixel).
-ELLIPTICITY_MIN_AREA_PX = 12
 #: Boxes up to this side have their minimum gathered at once; larger ones one by one (a few a
 #: frame: small components dominate a real frame's thousands).
 _GATHER_SIDE = 8

@@ -39,7 +39,8 @@ from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, T
 
 from simtest._exit import BAD_INPUT, CANNOT_WRITE, fail, writable_dir
 from simtest._outdir import check_out_folder, write_out_folder
-from simtest.evaluate.c3vd import DEPTH_RANGE_MM, U16, _read_tiff
+from simtest.decisions import DEFAULT_MIN_CONFIDENCE
+from simtest.evaluate.c3vd import DEPTH_RANGE_MM, U16, read_tiff
 from simtest.geometry.camera_file import camera_from_dict, load_camera
 from simtest.geometry.cameras import PinholeCamera
 from simtest.geometry.response import ResponseError
@@ -113,6 +114,11 @@ def reconstruct_command(
         "(0: one per core; at most the CPU count).",
         show_default=False,
     ),
+    min_confidence: float = typer.Option(
+        DEFAULT_MIN_CONFIDENCE, "--min-confidence", min=0.0, max=1.0,
+        help="Fits that pass every check but have a lower confidence get the status low_confidence "
+        "(as a failed check); `simtest evaluate detection` draws precision against recall over it.",
+    ),
     max_candidates: int = typer.Option(
         MAX_CANDIDATES or 0, "--max-candidates", min=0,
         help="Bright components examined per frame, the largest first (0, the default: every one); "
@@ -133,7 +139,7 @@ def reconstruct_command(
         settings = ReconSettings.for_frames(
             isovalues=isovalues, normalise=normalise, allow_open=allow_open,
             smooth_sigma_px=smooth_sigma_px, detection=detection,
-            max_candidates=max_candidates or None)
+            max_candidates=max_candidates or None, min_confidence=min_confidence)
     except ValueError as exc:
         fail(exc, BAD_INPUT)
     check_workers(workers)
@@ -350,7 +356,7 @@ def load_truth_points(path: Path, camera) -> "np.ndarray":  # noqa: F821
             raise InputError(f"cannot read {path}: {exc}") from None
         raise InputError(f"{path}: no 'position' or 'depth' array")
     if path.suffix.lower() in (".tif", ".tiff"):
-        d = _read_tiff(path, "depth")
+        d = read_tiff(path, "depth")
         if d.dtype != np.uint16 or d.ndim != 2:
             raise InputError(f"{path}: a C3VD depth map is 16-bit single-channel, got {d.dtype} of shape {d.shape}")
         mm = np.where((d == 0) | (d == U16), np.nan, d.astype(np.float64) / U16 * DEPTH_RANGE_MM)

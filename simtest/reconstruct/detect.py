@@ -35,6 +35,7 @@ import numpy as np
 
 from simtest._records import fast_init
 from simtest.constants import gaussian_radius_px
+from simtest.decisions import MULTIRES_SIDE_MIN_PX, MULTIRES_SIGMA_MIN_PX
 from simtest.reconstruct._pixels import Roi, rc_to_uv
 from simtest.reconstruct.candidates import (
     MERGED,
@@ -492,15 +493,9 @@ def detect_specularities(
     return Detection(out, fs, thr, max(0, n_comps - len(out)), smoothed, native, grey, half=half, luma32=luma32)
 
 
-#: Detection relative to local peaks on a frame smoothed by at least this sigma, px, looks for
-#: its candidates on the frame reduced twice (:func:`_detect_half_resolution`): the Gaussian of
-#: 2 px leaves 0.6 % of the amplitude at the reduced frame's Nyquist frequency (a quarter cycle a
-#: pixel), so the reduced smoothed frame holds what the full one does.
-MULTIRES_SIGMA_MIN_PX = 2.0
-#: ... on frames whose sides are at least this many px (a small frame costs little), and with at
-#: most this many candidates (each is examined in a window at full resolution, about 0.3 ms; a
-#: frame with more is detected at full resolution).
-MULTIRES_SIDE_MIN_PX = 256
+#: Half-resolution detection (MULTIRES_SIGMA_MIN_PX, MULTIRES_SIDE_MIN_PX: simtest.decisions)
+#: takes frames with at most this many candidates (each is examined in a window at full
+#: resolution, about 0.3 ms; a frame with more is detected at full resolution): a cost bound.
 MULTIRES_CANDIDATES_MAX = 64
 
 

@@ -11,6 +11,7 @@ import cv2
 import numpy as np
 
 from simtest.constants import LUMA_BT601
+from simtest.decisions import BACKGROUND_DIV, BACKGROUND_PLATEAU_FACTOR
 
 _LUMA = np.array(LUMA_BT601)
 #: The luma weights as OpenCV's ``cv2.transform`` matrix (one output channel from R, G, B).
@@ -466,11 +467,6 @@ def _dark_corner_components(dark: np.ndarray) -> np.ndarray | None:
     return (dark == 2).view(np.uint8)
 
 
-#: The background square of :func:`local_peak_mask` is ``min(H, W) / BACKGROUND_DIV`` px (>= 31).
-BACKGROUND_DIV = 10
-#: ... and at least this many times the extent of the widest clipped plateau (see
-#: :func:`background_side_px`).
-BACKGROUND_PLATEAU_FACTOR = 2
 
 
 def clipped_mask(image: np.ndarray, saturation_level: float | None,

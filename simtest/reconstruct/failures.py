@@ -41,6 +41,7 @@ REASONS: dict[str, str] = {
     "not_specular": "the peak is not specular: not paler than the tissue, or not well above the diffuse level",
     "cluster": "another specular peak lies inside the candidate's isophote region (clustered glints)",
     "bad_fit": "the isophote is no ellipse around the BP: residual too large for its size, or BP outside",
+    "low_confidence": "the fit passes every check but its confidence is below min_confidence",
 }
 
 

@@ -36,6 +36,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from simtest._records import fast_init
+from simtest.decisions import MIN_FIT_POINTS, MAX_AXIS_TO_SPREAD
 from simtest.geometry.conics import Ellipse, _ellipses_of, conic_kind
 from simtest.reconstruct import _fit_kernels
 from simtest.reconstruct._fit_kernels import C1_INV as _C1_INV
@@ -44,16 +45,10 @@ from simtest.reconstruct._fit_kernels import S_INDEX as _S_INDEX
 from simtest.reconstruct.failures import Failure
 from simtest.tolerances import TOL
 
-#: An ellipse has 5 degrees of freedom; one more point gives a residual.
-MIN_FIT_POINTS = 6
 #: Reciprocal condition number of the (normalised) linear scatter S3 below which the points are
 #: called collinear: S3 of centred unit-RMS points has eigenvalues O(1) unless they are degenerate.
 _S3_RCOND = 1e-10
 
-#: A fitted semi-major axis longer than this many times the largest distance of a point from the
-#: points' mean is refused: the points (a line, parallel lines, a short flat arc) do not bound it.
-#: An arc of 60 degrees of a circle already gives a ratio under 4; 10 leaves room for short arcs.
-MAX_AXIS_TO_SPREAD = 10.0
 
 
 @fast_init

@@ -31,13 +31,12 @@ import numpy as np
 from skimage.measure import find_contours
 
 from simtest._records import fast_init
+from simtest.decisions import MIN_FIT_POINTS as MIN_CONTOUR_POINTS
 from simtest.reconstruct import _kernels
 from simtest.reconstruct._pixels import Roi, rc_to_uv, uv_to_rc
 from simtest.reconstruct.detect import connected_components
 from simtest.reconstruct.failures import Failure
 
-#: An ellipse has 5 degrees of freedom; one more point makes the fit over-determined (a residual).
-MIN_CONTOUR_POINTS = 6
 
 
 @fast_init

@@ -25,6 +25,15 @@ import numpy as np
 from scipy.special import ndtri
 
 from simtest.constants import LUMA_BT601
+from simtest.decisions import (
+    JPEG_MIN_COEFFICIENTS as MIN_COEFFICIENTS,
+    JPEG_PERIODICITY_MIN as PERIODICITY_MIN,
+    JPEG_CHANCE_SD as CHANCE_SD,
+    JPEG_MIN_STEP as MIN_STEP,
+    JPEG_UNIMODAL_SHARE as UNIMODAL_SHARE,
+    JPEG_MIN_QUANTISED as MIN_QUANTISED,
+    JPEG_BLOCKINESS_CLEAR as BLOCKINESS_CLEAR,
+)
 from simtest.reconstruct import _kernels
 
 __all__ = ["BLOCK", "GRID_BLOCKS", "BLOCKINESS_CLEAR", "MIN_COEFFICIENTS", "PERIODICITY_MIN",
@@ -33,33 +42,6 @@ __all__ = ["BLOCK", "GRID_BLOCKS", "BLOCKINESS_CLEAR", "MIN_COEFFICIENTS", "PERI
 
 #: Side of a JPEG block, px.
 BLOCK = 8
-#: A step is estimated from at least this many coefficients outside its zero bin (``|c| >= q / 2``).
-MIN_COEFFICIENTS = 40
-#: A candidate step ``q`` is the quantiser's when at least this share of its coefficients outside
-#: the zero bin lie within 1 of a nonzero multiple of ``q`` (rounded magnitudes ``n q - 1, n q,
-#: n q + 1``): the decoder's integer IDCT and its rounding of Y and of R, G, B to 8 bits move each
-#: coefficient by up to about 1.5 (measured with OpenCV's libjpeg: 84 % within +-1, 54 % within
-#: +-0.5 at quality 50, and biased towards 0 by ~0.3) ...
-PERIODICITY_MIN = 0.8
-#: ... and this many binomial standard deviations above the share ``3 / q`` that chance gives
-#: (``q + 1`` then passes for ``q`` too; the step is refined as the least-squares slope of the
-#: magnitudes on their multiples' indices). Steps 2 and 3 are not told from unquantised (their window
-#: covers every value); they add at most 0.75 grey levels^2 to a frequency's error.
-CHANCE_SD = 4.0
-#: Smallest identifiable step.
-MIN_STEP = 4
-#: A candidate step is kept only where the coefficients within 1 of its first multiple are at
-#: least this share of those near any later multiple (:func:`_steps_of`). Why a half: a true step's
-#: counts fall off from the first multiple (equal at most where the step is far below the
-#: coefficients' spread, then within the binomial scatter of a few tens of counts, which a half
-#: leaves room for); a divisor's first multiple lies between the step's and holds next to none.
-UNIMODAL_SHARE = 0.5
-#: A frame carries a JPEG grid when at least this many of its 64 frequencies show a step.
-MIN_QUANTISED = 4
-#: A phase whose blockiness (:func:`_blockiness`, 1 on average) is at least this on both axes is
-#: the grid without a search: JPEG at quality 75 or below makes 1.3 to 2.8 on the endoscope's
-#: renders and on textured noisy test images; noise and content leave every phase within 0.1 of 1.
-BLOCKINESS_CLEAR = 1.3
 #: Blocks read (a regular subsample beyond; a quarter of them per candidate where four are tried):
 #: 1000 blocks give each active frequency's histogram hundreds of coefficients outside the zero
 #: bin and keep a 1350 x 1080 frame (22 680 blocks) cheap.

@@ -77,6 +77,7 @@ import numpy as np
 from simtest._records import fast_init
 from simtest.constants import LUMA_BT601, gaussian_radius_px, smooth_block_px
 from simtest.geometry.cameras import CameraModel, PinholeCamera
+from simtest.decisions import ROI_GROWTH_FACTOR, ROI_MAX_GROWTHS
 from simtest.reconstruct import _kernels
 from simtest.reconstruct._pixels import Roi, image_size_wh, rc_to_uv
 from simtest.reconstruct.cone_fit import FitFrame, fit_cones, fit_frame, fit_frames, to_camera, to_fit_frame
@@ -98,6 +99,7 @@ from simtest.reconstruct.estimators import estimate_from_conics, joint_cone_axes
 from simtest.reconstruct.failures import OK, Failure
 from simtest.reconstruct.isophote import MIN_CONTOUR_POINTS, Isophote, _cut_and_contour, _extract, _Region, _region
 from simtest.reconstruct.recommend import recommend
+from simtest.reconstruct.result import Reconstruction
 from simtest.reconstruct.settings import AUTO_LOCAL_BACKGROUND_REL, Normalisation, ReconSettings
 from simtest.reconstruct.verify import assess, bp_checks, confidence, seed_opening, shared_passes, verdict
 
@@ -123,9 +125,6 @@ SMOOTH_FRAME_MIN_ROI_PX = 160 * 160
 #: the Hyper-Kvasir banner (8.6 to 3.9 Mpx).
 SMOOTH_STRIP_ALIGN = smooth_block_px(np.dtype(np.float64).itemsize)
 
-#: ROI growth when the lowest isophote is cut by a ROI side inside the image.
-ROI_GROWTH_FACTOR = 2.0
-ROI_MAX_GROWTHS = 4
 
 
 @fast_init
@@ -1290,33 +1289,8 @@ def reconstruct_rois(items, isovalues: float | Sequence[float] | None = None, *,
     return _complete([_roi_draft(image, K, bp_uv, roi, None, settings, cameras) for image, K, bp_uv, roi in items])
 
 
-class Estimates(list):
-    """The estimates of one frame (a list, brightest first) and what detection left out.
-
-    Parameters
-    ----------
-    estimates : iterable of SpecularityEstimate
-        One per examined candidate.
-    n_components : int
-        Bright components detection found in the frame (or its ROI).
-    n_unexamined : int
-        Components not examined because of ``max_candidates`` (the smallest ones); they have no
-        estimate. 0 when every component was examined.
-    max_candidates : int or None
-        The cap in force (None: none).
-    """
-
-    def __init__(self, estimates=(), *, n_components: int = 0, n_unexamined: int = 0,
-                 max_candidates: int | None = None):
-        super().__init__(estimates)
-        self.n_components = int(n_components)
-        self.n_unexamined = int(n_unexamined)
-        self.max_candidates = max_candidates
-
-    def detection_record(self) -> dict:
-        """``{"components", "examined", "not_examined", "max_candidates"}`` for estimates.json."""
-        return {"components": self.n_components, "examined": self.n_components - self.n_unexamined,
-                "not_examined": self.n_unexamined, "max_candidates": self.max_candidates}
+#: The name this module gave :class:`~simtest.reconstruct.result.Reconstruction` first.
+Estimates = Reconstruction
 
 
 @_gc_paused()  # thousands of small objects, no cycles (see _gc_paused)
@@ -1330,7 +1304,7 @@ def reconstruct(
     roi=None,
     settings: ReconSettings | None = None,
     **options,
-) -> list[SpecularityEstimate]:
+) -> Reconstruction:
     """Detect every specular highlight of an image and estimate its normal.
 
     Parameters
@@ -1360,11 +1334,13 @@ def reconstruct(
 
     Returns
     -------
-    Estimates
+    Reconstruction
         A list of SpecularityEstimate, one per examined candidate highlight, accepted or rejected
         (with ``n_components`` and ``n_unexamined``: the components detection found and those
         ``max_candidates`` left out; rejected ones carry the detection
         reason as status and no isophotes), brightest first. Empty if there is no candidate.
+        Its tables: ``.bp_px``, ``.statuses``, ``.normals()`` (N x E x 3), ``.to_arrow()``,
+        ``.to_json()``.
 
     Raises
     ------
@@ -1501,8 +1477,10 @@ def reconstruct(
     done = _complete(out)
     if settings.verify and done:
         done = _verified(frame, done, verifier=verifier)
-    return Estimates(done, n_components=det.n_components,
-                     n_unexamined=det.n_unexamined, max_candidates=settings.max_candidates)
+    pinhole = frame.camera.K if isinstance(frame.camera, PinholeCamera) else None
+    return Reconstruction(done, n_components=det.n_components, n_unexamined=det.n_unexamined,
+                          max_candidates=settings.max_candidates, K=pinhole, image_shape=img.shape,
+                          isovalues=settings.isovalues, normalise=settings.normalise.value)
 
 
 def _verifier_inputs(frame: _Frame, native: np.ndarray | None = None,
@@ -1543,9 +1521,12 @@ def _verified(frame: _Frame, ests: list[SpecularityEstimate], native: np.ndarray
     conf = confidence(ev, res).tolist()
     checks = verdict(ev, res, inside, only=[k for k, e in enumerate(fit) if e.ok])
     judged = {}
+    floor = frame.settings.min_confidence
     for k, e in enumerate(fit):
         status, detail = (checks[k] if e.ok else (e.status, e.detail))
         fitted = math.isfinite(res[k])  # a confidence for the fitted candidates only
+        if status == OK and fitted and conf[k] < floor:
+            status, detail = "low_confidence", f"confidence {conf[k]:.3f} < min_confidence {floor:g}"
         judged[id(e)] = _replaced(e, status=status, detail=detail, confidence=conf[k] if fitted else None)
     return [judged.get(id(e), e) for e in ests]
 

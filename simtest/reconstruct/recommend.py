@@ -128,6 +128,11 @@ import numpy as np
 
 from simtest._threads import one_thread_each
 from simtest._workers import worker_pool
+from simtest.decisions import (
+    ISOCURVE_ISOVALUES,
+    SIGMA_MARGIN,
+    DEPTH_RELEASE_REL_SIGMA as DEPTH_REL_SIGMA_CEILING,
+)
 from simtest.geometry.lights import LightRig
 from simtest.reconstruct._pixels import Roi
 from simtest.reconstruct.detect import luma, noise_sigma
@@ -160,20 +165,11 @@ LIGHT_AWARE = names("light_aware", ranked=True)
 CURVED_FIT_AFTER = ("plane_misfit", "not_converged")
 #: Fallback order without a rig (or with a co-located one).
 COLOCATED_ORDER = names("isophote", "baseline", ranked=True)
-#: The isovalues of the isophotes :func:`isocurve_fit` is given, relative to the BP's height above
-#: the grown ROI's border median, whatever the command line's isovalues (module docstring,
-#: "Isophotes of the isocurve fit").
-ISOCURVE_ISOVALUES = (0.3, 0.5, 0.7)
-#: Rule 3 keeps a normal whose depth is not observable when this many of its sigmas are below the
-#: BP ray's expected error (module docstring, rule 3).
-SIGMA_MARGIN = 2.0
 #: Candidate statuses that never get a light-aware fit, not even with ``fit_rejected`` of
 #: :func:`with_light_aware`: too small to fit, or judged no specular highlight of the tissue (the
 #: scope's black border, a burnt-in overlay, a peak that is not specular:
 #: :mod:`simtest.reconstruct.verify`).
 NOT_FITTED = ("too_small", "black_border", "overlay", "not_specular")
-#: Largest relative 1-sigma of a released depth (module docstring, "Depth ceiling").
-DEPTH_REL_SIGMA_CEILING = 0.2
 
 
 @dataclass(frozen=True)

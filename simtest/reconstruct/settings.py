@@ -19,6 +19,14 @@ from collections.abc import Sequence
 from dataclasses import dataclass
 
 import numpy as np
+from simtest.decisions import (
+    AUTO_LOCAL_BACKGROUND_REL,
+    BRIGHTNESS_REL,
+    DEFAULT_MIN_CONFIDENCE,
+    FRAME_ISOVALUES,
+    MIN_AREA_PX,
+    PEAK_REL,
+)
 
 __all__ = ["MAX_CANDIDATES", "Normalisation", "ReconSettings", "validate_isovalues"]
 
@@ -45,19 +53,8 @@ class Normalisation(enum.StrEnum):
     AUTO = "auto"
 
 
-#: ``Normalisation.AUTO`` uses LOCAL when the ROI border's median is at least this fraction of the
-#: BP intensity: a diffuse background a tenth of the BP moves the ``t I_bp`` isophote noticeably.
-AUTO_LOCAL_BACKGROUND_REL = 0.1
 #: Candidate detection methods (see :func:`simtest.reconstruct.detect.detect_specularities`).
 DETECTION_METHODS = ("local_peak", "full_scale")
-#: Isovalues of :meth:`ReconSettings.for_frames`: t relative to the highlight's height above its
-#: local background. 0.7 lies inside the core that detection cuts out (``peak_rel`` 0.6), away
-#: from neighbouring highlights and tissue texture; 0.85 adds a nested isophote for the joint
-#: cone axis. Chosen on the renders of every bundled scene, the bench frames (clean and 2 %
-#: noise) and the hand-labelled real images of tests/data (tests/test_defaults.py): lower
-#: primaries (0.5, 0.6) merge the lobes of the colon render's highlight and cut the isophotes of
-#: the stomach tile's highlights on bright folds.
-FRAME_ISOVALUES = (0.7, 0.85)
 
 
 def validate_isovalues(isovalues) -> tuple[float, ...]:
@@ -162,6 +159,10 @@ class ReconSettings:
         :mod:`simtest.reconstruct.verify` (colour, height, overlay, isolation, fit) and give each
         estimate a ``confidence``; a fit that fails a check gets the check's reason as status.
         On for whole frames, off for the paper's settings (a known highlight).
+    min_confidence : float
+        With ``verify``: a fit that passes every check but whose ``confidence`` is below this
+        gets the status ``low_confidence``, as a fit that fails a check (no light-aware fit); in
+        [0, 1], default :data:`simtest.decisions.DEFAULT_MIN_CONFIDENCE` (every fit that passes).
 
     Notes
     -----
@@ -194,12 +195,13 @@ class ReconSettings:
     allow_open: bool = False
     full_scale: float | None = None
     saturation_level: float | None = None
-    brightness_rel: float = 0.7
-    min_area_px: int = 4
+    brightness_rel: float = BRIGHTNESS_REL
+    min_area_px: int = MIN_AREA_PX
     detection: str = "full_scale"
-    peak_rel: float = 0.6
+    peak_rel: float = PEAK_REL
     max_candidates: int | None = MAX_CANDIDATES
     verify: bool = False
+    min_confidence: float = DEFAULT_MIN_CONFIDENCE
 
     def __post_init__(self) -> None:
         set_ = object.__setattr__
@@ -234,6 +236,13 @@ class ReconSettings:
         if not isinstance(self.verify, (bool, np.bool_)):
             raise ValueError(f"verify must be true or false, got {self.verify!r}")
         set_(self, "verify", bool(self.verify))
+        try:
+            conf = float(self.min_confidence)
+        except (TypeError, ValueError):
+            conf = float("nan")
+        if isinstance(self.min_confidence, bool) or not 0.0 <= conf <= 1.0:
+            raise ValueError(f"min_confidence must be in [0, 1], got {self.min_confidence!r}")
+        set_(self, "min_confidence", conf)
         set_(self, "full_scale", _positive_or_none("full_scale", self.full_scale))
         set_(self, "saturation_level", _positive_or_none("saturation_level", self.saturation_level))
         try:

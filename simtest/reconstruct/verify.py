@@ -58,6 +58,28 @@ from types import SimpleNamespace
 import cv2
 import numpy as np
 
+from simtest.decisions import (
+    PALENESS_MAX,
+    WHITE_CHROMA,
+    SIGNIFICANCE_MIN,
+    CONTRAST_MIN,
+    PANEL_STD_REL,
+    PANEL_MIN_AREA,
+    PANEL_FRACTION_MAX,
+    NEIGHBOUR_REL,
+    NEIGHBOUR_AREA_REL,
+    VALLEY_REL,
+    VALLEY_NOISE,
+    NEIGHBOUR_REACH,
+    OWN_RADIUS_PX,
+    SURROUND_REL,
+    OWN_REL,
+    SURROUND_FRACTION_MAX,
+    RESIDUAL_MAX_REL,
+    MINOR_AXIS_MIN_PX,
+    QUANTISATION_SIGMA_LSB,
+    CONFIDENCE_COEFFICIENTS as COEFFICIENTS,
+)
 from simtest.reconstruct import evidence_pixels as px
 from simtest.reconstruct._pixels import uv_to_rc
 from simtest.reconstruct.detect import background_side_px, noise_sigma
@@ -69,72 +91,7 @@ __all__ = ["bp_checks", "shared_passes", "PALENESS_MAX", "WHITE_CHROMA", "SIGNIF
            "SURROUND_FRACTION_MAX", "RESIDUAL_MAX_REL", "MINOR_AXIS_MIN_PX",
            "COEFFICIENTS", "Evidence", "frame_evidence", "assess", "confidence", "verdict"]
 
-#: Largest ratio of the peak's chroma to the tissue's for a specular peak.
-PALENESS_MAX = 0.6
-#: A peak whose chroma is below this is near-white, whatever the tissue's colour.
-WHITE_CHROMA = 0.08
-#: Smallest top-hat height at the BP, in units of the image noise's standard deviation.
-SIGNIFICANCE_MIN = 8.0
-#: Smallest top-hat height at the BP relative to the room the sensor leaves there (the background,
-#: or the headroom above it where smaller): a specular lobe fills most of it. The isolated lobes of
-#: the endoscope suite's renders fill 0.75 to 1; the tip of a broad sheen (GGX alpha 0.1 on the colon
-#: wall) 0.56 to 0.58; on the labelled real frames a bar at 0.6 rather than 0.5 refuses 11 ok
-#: estimates, one of them an isolated highlight.
-CONTRAST_MIN = 0.6
-#: A flat-panel pixel varies by less than this fraction of the image's noise (luma standard
-#: deviation over 5 x 5 px): it is flatter than the sensor could image it, so it was drawn. A
-#: noise-free image (a render without sensor noise) has no panels.
-PANEL_STD_REL = 0.5
-#: Smallest flat panel, fraction of the frame's pixels (a box or the surround, not a smooth patch).
-PANEL_MIN_AREA = 0.005
-#: Largest share of panel pixels in a candidate's isophote region.
-PANEL_FRACTION_MAX = 0.1
-#: A neighbouring specular peak counts toward ``cluster`` from this fraction of the peak's height.
-NEIGHBOUR_REL = 0.7
-#: ... at least this fraction of the candidate's own area above that valley level (a glint of
-#: comparable size; the micro-relief's sparkle on a broad lobe is not a cluster) ...
-NEIGHBOUR_AREA_REL = 0.1
-#: ... separated from the candidate's lobe by a valley below this fraction of its height ...
-VALLEY_REL = 0.5
-#: ... less this many noise standard deviations (a dip the noise could make is no valley).
-VALLEY_NOISE = 3.0
-#: ... within this many semi-major axes of the primary isophote (at t = 0.7 of a Phong lobe, the
-#: t = 0.1 isophote that bounds the region the method contours is about 2.8 times wider) ...
-NEIGHBOUR_REACH = 3.0
-#: ... plus this margin, px (the smoothing's blur).
-OWN_RADIUS_PX = 2.0
-#: The surround's light is counted from this fraction of the peak's height (top-hat) ...
-SURROUND_REL = 0.5
-#: ... in the surround: within the reach above (:data:`NEIGHBOUR_REACH`, :data:`OWN_RADIUS_PX`),
-#: outside where the highlight's own lobe stays above this fraction of its height (its primary
-#: isophote, at t = 0.7, scaled by sqrt(ln(1 / OWN_REL) / ln(1 / 0.7)), the ratio of a Gaussian
-#: lobe's radii at the two levels). It is well below SURROUND_REL because the Gaussian model
-#: places the flank only roughly: the isophote's t is relative to the ROI's border and the
-#: top-hat to the grey opening, and Phong and GGX lobes have heavier tails ...
-OWN_REL = 0.2
-#: ... and a highlight whose surround holds more than this fraction of such light is one of a
-#: cluster, or a glint on a sheen.
-SURROUND_FRACTION_MAX = 0.1
-#: Largest RMS isophote residual relative to the ellipse's semi-minor axis.
-RESIDUAL_MAX_REL = 0.3
-#: Smallest semi-minor axis of the primary isophote, px: an isophote narrower than one pixel is
-#: below what the pixel grid samples (its contour is traced between pixel centres), so its shape
-#: is the sampling's, not the highlight's.
-MINOR_AXIS_MIN_PX = 0.5
-#: Smallest noise an integer image's significance is judged against, in units of its least
-#: significant bit: the rounding error of quantisation, uniform over one step, has standard
-#: deviation 1 / sqrt(12). A compressed frame (JPEG removes the sensor noise in flat blocks) or a
-#: noise-free render otherwise measures a noise of 0 and every peak is infinitely significant.
-QUANTISATION_SIGMA_LSB = 1.0 / np.sqrt(12.0)
 
-#: Logistic coefficients of :func:`confidence`: intercept, then the weights of the features of
-#: ``_design`` (paleness, significance, surround, residual ratio, panel share). Fitted by
-#: :func:`simtest.evaluate.detection.fit_logistic` (penalty ``L2_PENALTY``) on the 180 ``ok``
-#: estimates of the 24 labelled banner frames (52 of them isolated highlights), as detected
-#: in the frames' unrounded luma smoothed once (refitted when detection stopped smoothing OpenCV's
-#: rounded gray: 179 estimates, intercept -9.215, weights within 0.03 of these).
-#: ``tests/test_verify.py`` refits them.
-COEFFICIENTS = np.array([-9.290, 0.532, -0.368, 2.277, -0.183, 0.001])
 
 
 @dataclass(frozen=True)

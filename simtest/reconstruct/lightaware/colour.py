@@ -7,16 +7,7 @@ from __future__ import annotations
 import numpy as np
 from scipy.ndimage import maximum_filter, minimum_filter, uniform_filter
 
-
-#: The largest noise gain ``|w|`` (``w . (1, 1, 1) = 1``) of a body-colour projection
-#: (:func:`specular_image`) that is used: beyond it the white of the specular reflection lies too
-#: near the tissue's body colours to be told from them, and the projection would multiply the
-#: sensor's noise more than the texture it removes is worth. Mucosa's two body colours (the
-#: renderer's base and vessel colours) give 2.8; a grey tissue (body colours near white) gives
-#: far more. 10 is where a 1 % read noise becomes 10 %, the size of the albedo texture the
-#: projection removes (about 10 % RMS on the endoscope's mucosa).
-BODY_PROJECTION_MAX_GAIN = 10.0
-
+from simtest.decisions import BODY_PROJECTION_MAX_GAIN, BODY_SECOND_SNR as _BODY_SECOND_SNR
 
 #: Passes of :func:`specular_image`'s trimming of the border: a border pixel whose projected
 #: (specular) value is above ``_BODY_TRIM_SHARE`` of the ROI's peak is left out and the body
@@ -25,20 +16,6 @@ BODY_PROJECTION_MAX_GAIN = 10.0
 #: body's variation; its projected value does, to the share it leaks.
 _BODY_TRIM_PASSES = 3
 _BODY_TRIM_SHARE = 0.02
-#: The least ratio of the border's second singular value to its third for a second body colour
-#: (the third is the noise's and what white remains). Where the noise swamps the second colour the
-#: ratio is about 1 (1.03 to 1.08 on the endoscope suite's flat mucosa at 1 to 2 % read noise,
-#: whose second singular value is 11 to 20 % of the first); a texture's second colour above a
-#: weaker noise gives 1.9 to 2.1 (the same mucosa in JPEG frames at quality 95 and 75: the
-#: encoder's rounding of the chroma is 0.5 to 0.6 grey levels RMS, the vessels' second colour
-#: 1.5 % of the first singular value) and 5 to 6 noise-free. The border then holds thousands of
-#: pixels (:func:`_border_band`), so that a ratio of 1.5 is far beyond the sampling scatter of
-#: two equal singular values (on average ``1 + 1.25 / sqrt(M)`` over M pixels). The bound was 3, which
-#: sent the JPEG frames to the least-fluctuation weights, whose fit misfit (JPEG's rounding in
-#: the fluctuations they are measured on), and on to the darkest channel: 0.59 to 0.63 deg off,
-#: depth 7.7 to 8.2 % short, where the border's body colours give 0.06 to 0.12 deg and 0.6 to
-#: 1.1 %.
-_BODY_SECOND_SNR = 1.5
 #: Width of :func:`specular_image`'s border band, px: the ROI's smaller side over this, between
 #: 1 and :data:`_BODY_BAND_MAX` (a 406 px ROI: 6 px, 9600 pixels; a 40 px one: 1 px).
 _BODY_BAND_DIVISOR = 64

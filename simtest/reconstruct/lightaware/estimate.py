@@ -5,6 +5,7 @@ from __future__ import annotations
 from dataclasses import dataclass, replace
 
 import numpy as np
+from simtest.decisions import ON_PLANE_MM
 
 
 OK = "ok"
@@ -161,10 +162,6 @@ class LightAwareEstimate:
         return self.normal is not None
 
 
-#: A light within this distance of the fitted tangent plane, mm, is taken as on it, not behind
-#: it: the fitted point is placed on the BP's viewing ray (the specular point lies within a few
-#: pixels of the BP, which at 5 to 50 mm and 300 to 1000 px of focal length is below 0.1 mm).
-ON_PLANE_MM = 0.1
 
 
 def light_behind_surface(est: LightAwareEstimate, ray, lights_mm) -> LightAwareEstimate:

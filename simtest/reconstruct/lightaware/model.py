@@ -11,6 +11,7 @@ from __future__ import annotations
 import numpy as np
 from scipy.ndimage import grey_closing, maximum_filter
 
+from simtest.decisions import ALBEDO_LINE_PX, ALBEDO_LINE_STEPS, GGX_FILM_IOR
 from simtest.geometry.angles import unit
 from simtest.geometry.camera import validate_intrinsics
 from simtest.geometry.conics import plane_basis
@@ -314,12 +315,6 @@ def _roi_samples(vals, o, uu, vv, keep, max_pixels):
     return sel, step, uv, y
 
 
-#: The albedo's thin dark lines that a fit on one channel leaves out (:func:`albedo_lines`): lines
-#: narrower than this disc's diameter, px...
-ALBEDO_LINE_PX = 7
-#: ... and darker than its closing by at least this many of the frame's quantisation steps (or
-#: three noise sigmas, the larger).
-ALBEDO_LINE_STEPS = 2.0
 
 
 def albedo_lines(luma_roi, step: float = 1.0, noise: float = 0.0) -> np.ndarray:
@@ -498,11 +493,6 @@ def _curvature_columns(dT, rl, n, h, rig_arr, rough, apex) -> np.ndarray:
     return out
 
 
-#: Refractive index of the wet film in the GGX lobe's Fresnel factor: mucus and water lie between
-#: 1.33 and 1.45 (the renderer's film, :mod:`simtest.render.tissue`), where Fresnel's reflectance
-#: changes by under 2 % across a highlight's lobe (incidence within 30 deg of the half-vector's):
-#: the lobe's gain absorbs the rest.
-GGX_FILM_IOR = 1.38
 
 
 def _fresnel_dielectric(cos_i, eta):

@@ -8,6 +8,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.optimize import least_squares
 
+from simtest.decisions import ONE_LIGHT_DEPTH_FACTOR
 from simtest.geometry.angles import unit
 from simtest.geometry.conics import plane_basis
 from simtest.geometry.lights import LightRig
@@ -349,13 +350,6 @@ def quadric_fit(values, origin_uv, bp_uv, camera, rig: LightRig, *,
                               depth_range_mm=depth_range)
 
 
-#: Under one light, the factor either way of the quadric's fitted depth within which the data
-#: cannot exclude the true depth (:func:`_one_light_band`). Why 2.5: with the four third-order
-#: terms free the one-light liver's cost changed by at most 1.3 % between half and twice the
-#: true depth (issue 10), i.e. the data exclude no depth there, and the quadric's depth was 0.4
-#: to 0.43 times the truth on the ``lightaware-curved`` liver at epsilon/d 0.1 (the truth 2.3 to
-#: 2.5 times the fitted depth).
-ONE_LIGHT_DEPTH_FACTOR = 2.5
 
 
 def _one_light_band(x, sigma_deg, d0, b_ray, rig_arr, Lm):

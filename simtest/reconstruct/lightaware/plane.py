@@ -18,6 +18,7 @@ from typing import Any
 
 import numpy as np
 
+from simtest.decisions import TWO_CHANNEL_Z
 from simtest.geometry.angles import angle_between_deg
 from simtest.geometry.lights import LightRig
 from simtest.tolerances import TOL
@@ -499,9 +500,6 @@ def _one_channel_clipped(rgb, clip_level) -> bool:
     return bool(np.any(np.count_nonzero(np.asarray(rgb) >= clip, axis=2) == 1))
 
 
-#: The number of sigmas of the difference between the fits with and without the pixels valued
-#: from two channels within which :func:`_two_channel_choice` keeps the former (2: about 95 %).
-TWO_CHANNEL_Z = 2.0
 
 
 def _two_channel_choice(both: LightAwareEstimate, plain: LightAwareEstimate) -> LightAwareEstimate:

@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from simtest.decisions import FLOOR_MARGIN as _FLOOR_MARGIN
 from simtest.geometry.angles import unit
 from simtest.geometry.conics import plane_basis
 from simtest.reconstruct.lightaware.estimate import LightAwareEstimate
@@ -14,10 +15,6 @@ from simtest.reconstruct.lightaware.model import _mean_light
 from simtest.reconstruct.lightaware.plane_model import _NOT_FINITE_RESIDUAL, PlaneModel, start_roughness
 from simtest.reconstruct.lightaware.solve import _correlated, _light_start, _solve
 
-#: Noise sigmas above the floor below which a fitted model's pixels are left out
-#: (``photometric_fit``'s ``floor_level``): a Gaussian clipped at 3 sigma below its mean is
-#: clipped in 0.13 % of draws, and its mean is raised by 0.0004 sigma.
-_FLOOR_MARGIN = 3.0
 
 _NAME = "photometric_fit"
 

@@ -17,6 +17,13 @@ from scipy.ndimage import convolve1d
 from scipy.optimize import leastsq
 from scipy.special import chdtri
 
+from simtest.decisions import (
+    SMOOTHEST_FILM_ALPHA,
+    ROUGHEST_FILM_ALPHA,
+    DISTANCE_FACTOR_MAX as _H_FACTOR,
+    SIGMA_CLUSTER_PX as CLUSTER_PX,
+    SIGMA_MIN_CLUSTERS as MIN_CLUSTERS,
+)
 from simtest.geometry.angles import unit
 from simtest.geometry.conics import plane_basis
 from simtest.tolerances import TOL
@@ -175,29 +182,8 @@ def _solve(resjac, p0, args, loss: str, f_scale: float, max_nfev: int, free=None
     return full(q), count[0], ok, msg, rj(q, grad=False)[0]
 
 
-#: Plausible fitted values: the distance within this factor of the start's, the roughness in
-#: this range. Outside, the plane model is explaining something else (a curved patch whose lobe
-#: the curvature compresses is fitted with a large n and h -> 0): reported as not converged.
-_H_FACTOR = 20.0
-
-#: The smoothest wet film the fits take for real: GGX alpha 0.015 (Phong n 8887 of the same peak
-#: curvature). The renderer's mucosa goes down to alpha 0.03 (n 2220: the endoscope suite's
-#: smoothest film); a bound at n 2000 turned its GGX fit, 0.02 deg off with its depth 0.1 % off,
-#: into ``not_converged``, and its highlights fell back to the BP ray (5.7 deg).
-SMOOTHEST_FILM_ALPHA = 0.015
-#: The roughest where the model holds the rig's diffuse shading beside the lobe (the sensor
-#: path): GGX alpha 0.5 (Phong n 6). A lobe that broad spreads the film's reflection over a cone
-#: as wide as the shading's, so that over the ROI the lobe's column and the shading's are nearly
-#: collinear and the fit trades one for the other: on the endoscope suite's colon wall (the
-#: texture drawn for each realisation) two fits ended below n 6 with the depth 84 % short (one,
-#: on the body colours, at n 1.1, 26 deg off with a sigma of 3.3 deg), and were recommended over
-#: the BP ray. The
-#: renderer's films go to alpha 0.3 (n 20); micro-relief 0.002 mm on the flat mucosa broadens
-#: the plane fit's lobe to n 24. Without a shading column a broad lobe stands alone beside the
-#: linear background, and the bound is n 1 (the curved patches fitted on the relief's smaller
-#: ROI end near n 5, and the recommendation reads their normals, rule 4).
-ROUGHEST_FILM_ALPHA = 0.5
-
+#: Plausible fitted values: the distance within DISTANCE_FACTOR_MAX of the start's, the roughness
+#: in this range (simtest.decisions); outside, reported as not converged.
 _ROUGHNESS_RANGE = (1.0, phong_of_ggx_alpha(SMOOTHEST_FILM_ALPHA))
 #: ... the range with the diffuse shading's column.
 _ROUGHNESS_RANGE_SHADED = (phong_of_ggx_alpha(ROUGHEST_FILM_ALPHA), _ROUGHNESS_RANGE[1])
@@ -487,25 +473,7 @@ def _hac_covariance(J, r, sel, shape, step: int) -> tuple[np.ndarray | None, int
     return unit_cov @ meat @ unit_cov, b
 
 
-#: Sides (px of the ROI) of the square clusters of :func:`_cluster_covariance` that the sensor
-#: path's sigmas take the largest of (:func:`cluster_blocks`): a JPEG block, a JPEG 4:2:0
-#: macroblock (its chroma's block), and, where the fit runs on one channel, two and four
-#: macroblocks, the scale of the mucosa's vessels and albedo blotches that one channel's residual
-#: keeps. A cluster estimate is consistent for blocks at least the residual's correlation scale,
-#: which is not known; larger blocks than that only lose degrees of freedom. On the endoscope
-#: suite's flat mucosa (3 seeds per setting) 8 px alone left 2 sigma short of the error at guide
-#: offset 1 mm (4 of 6) and at JPEG quality 75 and 50 (the darkest channel's texture bias, 3 and 3
-#: of 3), 16 px alone at film alpha 0.05 (1 of 3). With (8, 16) the JPEG frames' errors (quality
-#: 75 and 25, 15 seeds each, ROIs of 406 x 406 px, one channel) were 1.4 to 2 times the stated
-#: sigma (within twice it on 21 of 30): the jackknife's sigma grew with the block, 0.2 deg at 8 px,
-#: 0.25 at 16, 0.5 to 0.8 at 48 and 64, the size of the errors; with 32 and 64 px, 29 of 30.
-CLUSTER_PX = (8, 16, 32, 64)
 
-#: A block side counts towards the sigma only where the ROI's grid holds at least this many
-#: blocks (:func:`cluster_blocks`): the jackknife's variance has G - 1 degrees of freedom, and
-#: with 16 blocks its relative standard error is about sqrt(2 / 15) = 0.37 (its square root's,
-#: the sigma's, 0.18), where a 100 x 100 px ROI at 64 px would hold 4.
-MIN_CLUSTERS = 16
 
 
 def cluster_blocks(shape, texture: bool = True) -> tuple[int, ...]:

@@ -1,0 +1,527 @@
+"""Every decision number of the reconstruction, with its unit, its physical reason and its provenance.
+
+A decision number is one that decides what a user gets: which bright components become candidates,
+which candidates earn ``ok``, when a light-aware fit is believed, which normal is recommended.
+Each lives here once, as :func:`decision` ``(name, value, unit, why, basis, chosen_on, n)``; the
+modules that apply it import it by name (``simtest.reconstruct.verify.CONTRAST_MIN`` is this
+module's). Numerical settings that change no outcome (solver step sizes, block sizes for speed)
+stay beside the code they tune.
+
+Provenance
+----------
+``basis`` says where a value comes from:
+
+- ``"physics"``: derived from the image formation, the sensor or sampling theory (the reason says
+  how); it was chosen on no data.
+- ``"convention"``: a choice with no data behind it that a user may change (a default such as the
+  isovalues' spacing); the reason says why this one.
+- ``"tuned"``: chosen by looking at data, which ``chosen_on`` names (keys of :data:`DATA`) and
+  ``n`` counts. Every dataset named there is on the tuning side: a decision is never chosen on
+  data that judges it (``tests/test_decisions.py``).
+
+:data:`DATA` declares each dataset the project holds or makes and its side, ``"tuning"`` or
+``"held_out"``. Claims and the README's figures come from held-out data: renders at a root seed
+other than the tuning seeds (:data:`TUNING_ROOT_SEEDS`), and real frames of other scopes that the
+project does not hold. The project's only real frames (the Hyper-Kvasir banner and its tiles) are
+tuning data for every decision named below; the frame split of ``simtest simreal``
+(``simtest.render.simreal.REAL_SPLIT``) is a held-out half for the render calibration only.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+__all__ = ["DATA", "DECISIONS", "TUNING_ROOT_SEEDS", "DataSet", "Decision", "data_side", "decision"]
+
+
+@dataclass(frozen=True)
+class DataSet:
+    """A dataset decisions may be chosen on, or claims judged on.
+
+    Attributes
+    ----------
+    side : {"tuning", "held_out"}
+    what : str
+        What it is and where it lives.
+    """
+
+    side: str
+    what: str
+
+
+#: The datasets, by name. A decision's ``chosen_on`` names only tuning-side entries.
+DATA: dict[str, DataSet] = {
+    "banner-labelled": DataSet(
+        "tuning", "the 24 frames of the Hyper-Kvasir banner collage (tests/data/real/"
+        "hyperkvasir_banner.jpg, CC BY 4.0) with their hand labels (highlights_labelled.json, "
+        "structures_labelled.json), all 24 frames"),
+    "banner-tiles": DataSet(
+        "tuning", "the three 280 x 280 px tiles cut from the same banner (tests/data/real/*.png)"),
+    "bench-frames": DataSet(
+        "tuning", "the synthetic 1350 x 1080 bench frames of benchmarks/ (10 Phong highlights, "
+        "clean and with 2 % noise)"),
+    "bundled-renders": DataSet(
+        "tuning", "renders of the bundled scenes (scenes/*.toml) at render seed 0"),
+    "suite-lightaware": DataSet(
+        "tuning", "the lightaware suite (rendered planes under a light rig) at a tuning root seed"),
+    "suite-lightaware-curved": DataSet(
+        "tuning", "the lightaware-curved suite (sphere, cylinder, saddle, liver, colon) at a tuning "
+        "root seed"),
+    "suite-endoscope": DataSet(
+        "tuning", "the endoscope suite (flat mucosa and colon wall under the colonoscope's two "
+        "guides) at a tuning root seed"),
+    "exact-planes": DataSet(
+        "tuning", "closed-form 8-bit images of planes under an offset light (simtest.simulate), "
+        "made for a decision and not kept"),
+    "libjpeg-encodes": DataSet(
+        "tuning", "frames encoded and decoded by OpenCV's libjpeg at qualities 25 to 95 (the "
+        "endoscope suite's renders and textured noisy test images)"),
+    "suites-held-out-seeds": DataSet(
+        "held_out", "every bundled suite run at a root seed outside TUNING_ROOT_SEEDS: the same "
+        "scenes and settings, new noise, texture and relief draws"),
+    "real-other-scopes": DataSet(
+        "held_out", "real frames of scopes the project does not hold (colonoscopy phantom, in-vivo "
+        "colonoscopy, laparoscopic liver), judged by eye outside the project"),
+    "simreal-held-out-frames": DataSet(
+        "held_out", "the held-out banner frames of simtest.render.simreal.REAL_SPLIT, held out "
+        "for the render calibration only (the detection decisions saw every banner frame)"),
+}
+
+#: Root seeds of the suite runs that decisions were chosen on. A suite run at any other root seed
+#: is held-out data (``suites-held-out-seeds``).
+TUNING_ROOT_SEEDS = frozenset({0})
+
+
+def data_side(seed: int) -> str:
+    """Which side a suite run's figures come from.
+
+    Parameters
+    ----------
+    seed : int
+        The run's root seed.
+
+    Returns
+    -------
+    str
+        ``"tuning"`` for a root seed in :data:`TUNING_ROOT_SEEDS`, else ``"held_out"``.
+    """
+    return "tuning" if int(seed) in TUNING_ROOT_SEEDS else "held_out"
+
+
+@dataclass(frozen=True)
+class Decision:
+    """One decision number and where it comes from.
+
+    Attributes
+    ----------
+    value : float, int, tuple or ndarray
+    unit : str
+    why : str
+        The physical reason (or, for a tuned value, what it separates and what was seen).
+    basis : {"physics", "convention", "tuned"}
+    chosen_on : tuple of str
+        Keys of :data:`DATA` it was chosen on (empty unless tuned).
+    n : str
+        What was counted when it was chosen ("" unless tuned).
+    applies_in : str
+        The stage that applies it: detection, verification, light-aware or recommendation.
+    """
+
+    value: object
+    unit: str
+    why: str
+    basis: str
+    chosen_on: tuple[str, ...]
+    n: str
+    applies_in: str
+
+
+#: Every decision, by the name its modules import.
+DECISIONS: dict[str, Decision] = {}
+
+_BASES = ("physics", "convention", "tuned")
+_STAGES = ("detection", "verification", "light-aware", "recommendation")
+
+
+def decision(name: str, value, unit: str, why: str, *, basis: str, stage: str,
+             chosen_on: tuple[str, ...] = (), n: str = ""):
+    """Record a decision number and return its value.
+
+    Parameters
+    ----------
+    name : str
+        The module-level name it is bound to here (and imported by).
+    value : float, int, tuple or ndarray
+    unit : str
+    why : str
+    basis : {"physics", "convention", "tuned"}
+    stage : {"detection", "verification", "light-aware", "recommendation"}
+    chosen_on : tuple of str, optional
+        Keys of :data:`DATA`; required (and tuning-side only) when ``basis`` is ``"tuned"``.
+    n : str, optional
+        What was counted when it was chosen.
+
+    Returns
+    -------
+    object
+        ``value``, unchanged.
+
+    Raises
+    ------
+    ValueError
+        For a name recorded twice, an unknown basis, stage or dataset, a tuned decision without
+        data or with held-out data, or data named for an untuned one.
+    """
+    if name in DECISIONS:
+        raise ValueError(f"decision {name} recorded twice")
+    if basis not in _BASES or stage not in _STAGES:
+        raise ValueError(f"decision {name}: basis {basis!r} / stage {stage!r} unknown")
+    unknown = [d for d in chosen_on if d not in DATA]
+    if unknown:
+        raise ValueError(f"decision {name}: unknown dataset(s) {unknown}")
+    if (basis == "tuned") != bool(chosen_on):
+        raise ValueError(f"decision {name}: a tuned decision names its data, no other does")
+    held = [d for d in chosen_on if DATA[d].side != "tuning"]
+    if held:
+        raise ValueError(f"decision {name}: chosen on held-out data {held}")
+    DECISIONS[name] = Decision(value, unit, why, basis, tuple(chosen_on), n, stage)
+    return value
+
+
+_D = "detection"
+_V = "verification"
+_L = "light-aware"
+_R = "recommendation"
+
+# --- Detection -----------------------------------------------------------------------------------
+
+BRIGHTNESS_REL = decision(
+    "BRIGHTNESS_REL", 0.7, "fraction of full scale",
+    "Full-scale detection (the paper's synthetic protocol): a pixel is bright when its luma is at "
+    "least this fraction of full scale. The bar only separates highlights from the diffuse level: "
+    "each component gives its maximum (the BP), and the isophotes are grown beyond the component.",
+    basis="convention", stage=_D)
+MIN_AREA_PX = decision(
+    "MIN_AREA_PX", 4, "px",
+    "Bright components smaller than 2 x 2 px hold no isophote the pixel grid resolves "
+    "(``too_small``).", basis="physics", stage=_D)
+PEAK_REL = decision(
+    "PEAK_REL", 0.6, "fraction of the peak's height above its local background",
+    "Local-peak detection cuts each highlight's core at this fraction of its height: for a "
+    "Gaussian-like lobe the core's radius is 1.01 sigma (sqrt(2 ln(1 / 0.6))), outside the "
+    "primary isophote of FRAME_ISOVALUES (t = 0.7: 0.84 sigma).", basis="physics", stage=_D)
+FRAME_ISOVALUES = decision(
+    "FRAME_ISOVALUES", (0.7, 0.85), "isovalue t, relative to the height above the local background",
+    "0.7 lies inside the core that detection cuts out (PEAK_REL 0.6), away from neighbouring "
+    "highlights and tissue texture; 0.85 adds a nested isophote for the joint cone axis. Lower "
+    "primaries (0.5, 0.6) merged the lobes of the colon render's highlight and cut the isophotes "
+    "of the stomach tile's highlights on bright folds.", basis="tuned", stage=_D,
+    chosen_on=("bundled-renders", "bench-frames", "banner-labelled", "banner-tiles"),
+    n="every bundled scene at seed 0, 2 bench frames, 24 banner frames, 3 tiles")
+AUTO_LOCAL_BACKGROUND_REL = decision(
+    "AUTO_LOCAL_BACKGROUND_REL", 0.1, "fraction of the BP intensity",
+    "Normalisation 'auto' subtracts the ROI border's median when it is at least this fraction of "
+    "the BP intensity: a diffuse background of a tenth of the BP moves the t I_bp isophote by "
+    "more than the fit's noise (the isophote of t = 0.7 moves to t = 0.73).",
+    basis="physics", stage=_D)
+MIN_FIT_POINTS = decision(
+    "MIN_FIT_POINTS", 6, "contour points",
+    "An ellipse has 5 degrees of freedom; one more point gives a residual.",
+    basis="physics", stage=_D)
+MAX_AXIS_TO_SPREAD = decision(
+    "MAX_AXIS_TO_SPREAD", 10.0, "semi-major axis over the points' largest distance from their mean",
+    "A fitted ellipse this much longer than its points' spread is not bounded by them (a line, "
+    "parallel lines, a short flat arc); an arc of 60 deg of a circle already gives under 4.",
+    basis="physics", stage=_D)
+ELLIPTICITY_MIN_AREA_PX = decision(
+    "ELLIPTICITY_MIN_AREA_PX", 12, "px",
+    "Components of at least this area get the ellipticity check: a smaller one's second moments "
+    "are too coarse (a 3 x 3 square and a plus sign differ by one pixel).",
+    basis="physics", stage=_D)
+BACKGROUND_DIV = decision(
+    "BACKGROUND_DIV", 10, "frame's shorter side over the background square's side",
+    "The local background of local-peak detection is a grey opening over a square of min(H, W) / "
+    "10 px (at least 31): wider than any specular lobe of a frame (lobes are a few percent of the "
+    "field), narrower than the shading's variation over folds.", basis="physics", stage=_D)
+BACKGROUND_PLATEAU_FACTOR = decision(
+    "BACKGROUND_PLATEAU_FACTOR", 2, "times the widest clipped plateau",
+    "The background square is at least twice the widest clipped plateau, so that the opening "
+    "never fits inside a saturated highlight and takes it for background.",
+    basis="physics", stage=_D)
+MULTIRES_SIGMA_MIN_PX = decision(
+    "MULTIRES_SIGMA_MIN_PX", 2.0, "px (Gaussian sigma)",
+    "Frames smoothed by at least this sigma are searched at half resolution twice over: the "
+    "Gaussian of 2 px leaves 0.6 % of the amplitude at the reduced frame's Nyquist frequency.",
+    basis="physics", stage=_D)
+MULTIRES_SIDE_MIN_PX = decision(
+    "MULTIRES_SIDE_MIN_PX", 256, "px",
+    "... on frames whose sides are at least this long (a small frame costs little at full "
+    "resolution).", basis="convention", stage=_D)
+
+ROI_GROWTH_FACTOR = decision(
+    "ROI_GROWTH_FACTOR", 2.0, "factor of the ROI's side",
+    "An ROI whose lowest isophote is cut by a side inside the image grows by this factor (a lobe's "
+    "isophote radii scale with sqrt(ln(1 / t)), so doubling the side reaches the level t^4).",
+    basis="convention", stage=_D)
+ROI_MAX_GROWTHS = decision(
+    "ROI_MAX_GROWTHS", 4, "growths",
+    "... at most this many times (16 times the first side); an isophote still cut is reported "
+    "``contour_cut``.", basis="convention", stage=_D)
+
+# --- Verification ----------------------------------------------------------------------------------
+
+PALENESS_MAX = decision(
+    "PALENESS_MAX", 0.6, "peak chroma over the tissue's chroma",
+    "A dielectric reflects the illuminant's colour (the dichromatic model, Shafer 1985, "
+    "doi:10.1002/col.5080100409), so a specular peak is paler than the tissue around it:  adding white s to a tissue colour of largest channel M scales its chroma by "
+    "M / (M + s), at most 0.6 once s >= 2 M / 3.", basis="physics", stage=_V)
+WHITE_CHROMA = decision(
+    "WHITE_CHROMA", 0.08, "chroma 1 - min(RGB) / max(RGB)",
+    "A peak whose chroma is below this is near-white, whatever the tissue's colour: 8-bit "
+    "rounding and white balance leave a white reflection within a few percent of grey.",
+    basis="convention", stage=_V)
+SIGNIFICANCE_MIN = decision(
+    "SIGNIFICANCE_MIN", 8.0, "image noise standard deviations",
+    "Smallest top-hat height at the BP: the largest of a million Gaussian noise samples reaches "
+    "about 5 sigma, so 8 leaves a margin for noise that is not Gaussian (texture, JPEG).",
+    basis="physics", stage=_V)
+CONTRAST_MIN = decision(
+    "CONTRAST_MIN", 0.6, "fraction of the room the sensor leaves at the BP",
+    "A specular lobe multiplies the irradiance and fills most of the room (background, or the "
+    "headroom above it where smaller); a lighter patch of tissue adds tens of percent. The "
+    "isolated lobes of the endoscope suite's renders fill 0.75 to 1, the tip of a broad sheen "
+    "0.56 to 0.58; on the labelled banner a bar of 0.6 rather than 0.5 refuses 11 ok estimates.",
+    basis="tuned", stage=_V, chosen_on=("suite-endoscope", "banner-labelled"),
+    n="endoscope suite renders at seed 0; 180 ok estimates of 24 banner frames")
+PANEL_STD_REL = decision(
+    "PANEL_STD_REL", 0.5, "image noise standard deviations (luma std over 5 x 5 px)",
+    "A flat-panel pixel varies less than the sensor could image it, so it was drawn (an overlay); "
+    "a noise-free render has no panels.", basis="physics", stage=_V)
+PANEL_MIN_AREA = decision(
+    "PANEL_MIN_AREA", 0.005, "fraction of the frame's pixels",
+    "Smallest flat panel: a box or the scope's surround, not a smooth patch of tissue.",
+    basis="convention", stage=_V)
+PANEL_FRACTION_MAX = decision(
+    "PANEL_FRACTION_MAX", 0.1, "fraction of the isophote region's pixels",
+    "Largest share of panel pixels in a candidate's isophote region before it is an overlay.",
+    basis="convention", stage=_V)
+NEIGHBOUR_REL = decision(
+    "NEIGHBOUR_REL", 0.7, "fraction of the peak's top-hat height",
+    "A neighbouring specular peak counts toward 'cluster' from this fraction of the peak's "
+    "height: it then reaches into the primary isophote's level and bends its contour.",
+    basis="physics", stage=_V)
+NEIGHBOUR_AREA_REL = decision(
+    "NEIGHBOUR_AREA_REL", 0.1, "fraction of the candidate's own area",
+    "... with at least this much area above the valley level (a glint of comparable size; the "
+    "micro-relief's sparkle on a broad lobe is not a cluster).", basis="convention", stage=_V)
+VALLEY_REL = decision(
+    "VALLEY_REL", 0.5, "fraction of the peak's height",
+    "... separated from the candidate's lobe by a valley below this fraction of its height (one "
+    "lobe has no valley).", basis="physics", stage=_V)
+VALLEY_NOISE = decision(
+    "VALLEY_NOISE", 3.0, "noise standard deviations",
+    "... less this many noise sigmas: a dip the noise could make (0.13 % one-sided) is no valley.",
+    basis="physics", stage=_V)
+NEIGHBOUR_REACH = decision(
+    "NEIGHBOUR_REACH", 3.0, "semi-major axes of the primary isophote",
+    "... within this reach: at t = 0.7 of a Phong lobe the t = 0.1 isophote that bounds the "
+    "region the method contours is about 2.8 times wider.", basis="physics", stage=_V)
+OWN_RADIUS_PX = decision(
+    "OWN_RADIUS_PX", 2.0, "px", "... plus this margin, the smoothing's blur.",
+    basis="physics", stage=_V)
+SURROUND_REL = decision(
+    "SURROUND_REL", 0.5, "fraction of the peak's top-hat height",
+    "The surround's light is counted from this fraction of the peak's height.",
+    basis="convention", stage=_V)
+OWN_REL = decision(
+    "OWN_REL", 0.2, "fraction of the highlight's own height",
+    "The surround starts where the highlight's own lobe falls below this level (its primary "
+    "isophote scaled by the Gaussian lobe's ratio of radii); well below SURROUND_REL because "
+    "Phong and GGX lobes have heavier tails than the Gaussian model.", basis="physics", stage=_V)
+SURROUND_FRACTION_MAX = decision(
+    "SURROUND_FRACTION_MAX", 0.1, "fraction of the surround's pixels",
+    "A highlight whose surround holds more than this share of bright light is one of a cluster, "
+    "or a glint on a sheen.", basis="convention", stage=_V)
+RESIDUAL_MAX_REL = decision(
+    "RESIDUAL_MAX_REL", 0.3, "RMS isophote residual over the semi-minor axis",
+    "Nested ellipses: an isophote whose points stray by 30 % of its minor axis is no ellipse "
+    "(two lobes, a streak, texture).",
+    basis="physics", stage=_V)
+MINOR_AXIS_MIN_PX = decision(
+    "MINOR_AXIS_MIN_PX", 0.5, "px",
+    "An isophote narrower than one pixel is traced between pixel centres: its shape is the "
+    "sampling's, not the highlight's.", basis="physics", stage=_V)
+QUANTISATION_SIGMA_LSB = decision(
+    "QUANTISATION_SIGMA_LSB", 1.0 / np.sqrt(12.0), "least significant bits",
+    "The smallest noise an integer image is judged against: rounding, uniform over one step, has "
+    "standard deviation 1 / sqrt(12) (JPEG and noise-free renders would otherwise measure 0).",
+    basis="physics", stage=_V)
+CONFIDENCE_COEFFICIENTS = decision(
+    "CONFIDENCE_COEFFICIENTS", np.array([-9.290, 0.532, -0.368, 2.277, -0.183, 0.001]),
+    "logistic intercept, then weights of paleness, significance, surround, residual ratio, panel "
+    "share",
+    "The confidence's logistic model, fitted by simtest.evaluate.detection.fit_logistic (L2 "
+    "penalty chosen by frame-wise cross-validation) to the labels of the ok estimates; "
+    "tests/test_verify.py refits them.", basis="tuned", stage=_V,
+    chosen_on=("banner-labelled",), n="180 ok estimates of the 24 banner frames, 52 isolated")
+
+DEFAULT_MIN_CONFIDENCE = decision(
+    "DEFAULT_MIN_CONFIDENCE", 0.0, "confidence in [0, 1]",
+    "The default operating point keeps every fit that passes the specularity checks: the checks "
+    "are physical, the confidence only ranks what passes them; a user who wants fewer, surer "
+    "estimates sets another (--min-confidence), read off the precision-recall curve of "
+    "simtest evaluate detection.", basis="convention", stage=_V)
+
+# --- JPEG noise model (verification) -----------------------------------------------------------------
+
+JPEG_MIN_COEFFICIENTS = decision(
+    "JPEG_MIN_COEFFICIENTS", 40, "DCT coefficients outside the zero bin",
+    "A quantiser step is estimated from at least this many coefficients (the binomial scatter of "
+    "a 0.8 share over 40 draws is 0.06).", basis="physics", stage=_V)
+JPEG_PERIODICITY_MIN = decision(
+    "JPEG_PERIODICITY_MIN", 0.8, "share of coefficients within 1 of a multiple of the step",
+    "The decoder's integer IDCT and 8-bit rounding move each coefficient by up to about 1.5: "
+    "84 % stay within +-1 of a multiple at quality 50.", basis="tuned", stage=_V,
+    chosen_on=("libjpeg-encodes",), n="OpenCV's libjpeg at quality 50")
+JPEG_CHANCE_SD = decision(
+    "JPEG_CHANCE_SD", 4.0, "binomial standard deviations",
+    "... and this far above the share 3 / q that chance gives (a false step at 1 in 30 000).",
+    basis="physics", stage=_V)
+JPEG_MIN_STEP = decision(
+    "JPEG_MIN_STEP", 4, "grey levels",
+    "Smallest identifiable step: the +-1 window of steps 2 and 3 covers every value.",
+    basis="physics", stage=_V)
+JPEG_UNIMODAL_SHARE = decision(
+    "JPEG_UNIMODAL_SHARE", 0.5, "first multiple's count over the later multiples'",
+    "A true step's counts fall off from its first multiple; a divisor's first multiple lies "
+    "between the step's and holds next to none; a half leaves room for binomial scatter.",
+    basis="physics", stage=_V)
+JPEG_MIN_QUANTISED = decision(
+    "JPEG_MIN_QUANTISED", 4, "frequencies of 64",
+    "A frame carries a JPEG grid when at least this many frequencies show a step (one or two can "
+    "be texture's periodicity).", basis="convention", stage=_V)
+JPEG_BLOCKINESS_CLEAR = decision(
+    "JPEG_BLOCKINESS_CLEAR", 1.3, "blockiness (1 on average)",
+    "A phase this blocky on both axes is the grid without a search: JPEG at quality 75 or below "
+    "makes 1.3 to 2.8; noise and content leave every phase within 0.1 of 1.", basis="tuned",
+    stage=_V, chosen_on=("libjpeg-encodes", "suite-endoscope"), n="qualities 25 to 95")
+
+# --- Light-aware fits --------------------------------------------------------------------------------
+
+ISOPHOTE_NOISE_PX = decision(
+    "ISOPHOTE_NOISE_PX", 0.05, "px",
+    "Floor of a contour point's localisation noise, used only to judge whether a fit observes "
+    "the depth: marching squares' interpolation on a smooth 8-bit lobe (1/255 over a slope of "
+    "0.1 per px) errs by about 0.04 px.", basis="physics", stage=_L)
+PHOTOMETRIC_NOISE_REL = decision(
+    "PHOTOMETRIC_NOISE_REL", 0.002, "fraction of the ROI's maximum",
+    "Floor of the photometric fit's per-pixel noise for the same judgement: 8-bit quantisation's "
+    "RMS (1 / (255 sqrt 12) = 0.0011) doubled for render noise.", basis="physics", stage=_L)
+DEPTH_OBSERVABLE_REL_SIGMA = decision(
+    "DEPTH_OBSERVABLE_REL_SIGMA", 0.5, "relative 1-sigma of the depth at the noise floors",
+    "A light-aware fit reports a depth only when the image depends on it: beyond 0.5 (a factor "
+    "of about 1.5) epsilon/d is too small and a depth would be a guess.", basis="physics",
+    stage=_L)
+PLANE_MISFIT_RHO = decision(
+    "PLANE_MISFIT_RHO", 0.3, "correlation of neighbouring residuals",
+    "Pixel noise is independent, so a plane model that fits leaves uncorrelated neighbours; "
+    "rendered planes measured 0.07 to 0.13 (the pixel's box filter), curved patches 0.47 to 0.98.",
+    basis="tuned", stage=_L, chosen_on=("suite-lightaware", "suite-lightaware-curved"),
+    n="rendered planes, spheres, cylinders, liver and colon at seed 0")
+PLANE_MISFIT_REL = decision(
+    "PLANE_MISFIT_REL", 2e-4, "fraction of the ROI's maximum",
+    "Smallest systematic residual for the same judgement: a fifth of 8-bit quantisation's RMS; "
+    "below it the residual is rounding, whatever its correlation.", basis="physics", stage=_L)
+PATCH_MISFIT_RMS_REL = decision(
+    "PATCH_MISFIT_RMS_REL", 0.01, "fraction of the ROI's maximum",
+    "The quadric patch does not fit above this residual RMS, five times the photometric noise "
+    "floor; fits within range left 4e-4 to 1.7e-3, the colon's fold streaks 0.018 to 0.06.",
+    basis="tuned", stage=_L, chosen_on=("suite-lightaware-curved",), n="6 realisations per case")
+SMOOTHEST_FILM_ALPHA = decision(
+    "SMOOTHEST_FILM_ALPHA", 0.015, "GGX alpha",
+    "The smoothest wet film the fits take for real (Phong n 8887): half the renderer's smoothest "
+    "mucosa film (alpha 0.03), whose fit a bound at n 2000 refused.", basis="physics", stage=_L)
+ROUGHEST_FILM_ALPHA = decision(
+    "ROUGHEST_FILM_ALPHA", 0.5, "GGX alpha",
+    "The roughest lobe the model tells from the rig's diffuse shading (Phong n 6): broader, the "
+    "lobe's column and the shading's are nearly collinear over the ROI; two colon-wall fits "
+    "below n 6 ended 84 % short in depth.", basis="tuned", stage=_L,
+    chosen_on=("suite-endoscope",), n="the colon wall family at seed 0")
+DISTANCE_FACTOR_MAX = decision(
+    "DISTANCE_FACTOR_MAX", 20.0, "factor of the start's distance",
+    "A plane fit whose distance left this factor of its start explains something else (a curved "
+    "patch fitted with a large n and h -> 0): not converged.", basis="convention", stage=_L)
+FLOOR_MARGIN = decision(
+    "FLOOR_MARGIN", 3.0, "noise standard deviations above the floor",
+    "Pixels within 3 sigma of the floor are left out of the fit: a Gaussian clipped there is "
+    "clipped in 0.13 % of draws.", basis="physics", stage=_L)
+TWO_CHANNEL_Z = decision(
+    "TWO_CHANNEL_Z", 2.0, "standard deviations of a fit difference",
+    "The fit with pixels valued from two channels is kept while it agrees with the one without "
+    "within 2 sigma (about 95 %).", basis="physics", stage=_L)
+ON_PLANE_MM = decision(
+    "ON_PLANE_MM", 0.1, "mm",
+    "A light within this distance of the fitted tangent plane is on it: the specular point lies "
+    "within a few px of the BP, below 0.1 mm at 5 to 50 mm and f 300 to 1000 px.",
+    basis="physics", stage=_L)
+ONE_LIGHT_DEPTH_FACTOR = decision(
+    "ONE_LIGHT_DEPTH_FACTOR", 2.5, "factor either way of the fitted depth",
+    "Under one light the quadric's data exclude no depth within this factor: the cost changed by "
+    "1.3 % between half and twice the truth, and the fitted depth was 0.4 to 0.43 of it.",
+    basis="tuned", stage=_L, chosen_on=("suite-lightaware-curved",),
+    n="the one-light liver at epsilon/d 0.1")
+BODY_PROJECTION_MAX_GAIN = decision(
+    "BODY_PROJECTION_MAX_GAIN", 10.0, "noise gain |w| of the body-colour projection",
+    "Beyond it the specular white lies too near the tissue's body colours: a 1 % read noise "
+    "becomes 10 %, the albedo texture the projection removes.", basis="physics", stage=_L)
+BODY_SECOND_SNR = decision(
+    "BODY_SECOND_SNR", 1.5, "second singular value of the border over the third",
+    "A second body colour is believed above this ratio: noise alone gives 1 + 1.25 / sqrt(M) over "
+    "M pixels (thousands: under 1.03); JPEG mucosa measured 1.9 to 2.1, noisy mucosa 1.03 to 1.08.",
+    basis="tuned", stage=_L, chosen_on=("suite-endoscope",), n="flat mucosa, JPEG 95 and 75")
+GGX_FILM_IOR = decision(
+    "GGX_FILM_IOR", 1.38, "refractive index",
+    "Mucus and water lie between 1.33 and 1.45, where Fresnel's reflectance changes by under 2 % "
+    "across a lobe; the lobe's gain absorbs the rest.", basis="physics", stage=_L)
+SIGMA_CLUSTER_PX = decision(
+    "SIGMA_CLUSTER_PX", (8, 16, 32, 64), "px (block sides of the jackknife)",
+    "Residuals are correlated over the texture's scale; with blocks of 8 and 16 px alone the "
+    "JPEG frames' errors were 1.4 to 2 times the stated sigma, with 32 and 64 px added within "
+    "twice it on 29 of 30.", basis="tuned", stage=_L, chosen_on=("suite-endoscope",),
+    n="JPEG quality 75 and 25, 15 seeds each")
+SIGMA_MIN_CLUSTERS = decision(
+    "SIGMA_MIN_CLUSTERS", 16, "blocks",
+    "A block side counts where the ROI holds at least this many blocks: the jackknife's relative "
+    "standard error is sqrt(2 / 15) = 0.37 there.", basis="physics", stage=_L)
+
+ALBEDO_LINE_PX = decision(
+    "ALBEDO_LINE_PX", 7, "px (diameter of the closing's disc)",
+    "The albedo's thin dark lines (vessels) that a fit on one channel leaves out are narrower than "
+    "this disc: the mucosal vessels are under 0.2 mm wide, a few px at endoscopic distances; a "
+    "highlight's lobe is wider.", basis="physics", stage=_L)
+ALBEDO_LINE_STEPS = decision(
+    "ALBEDO_LINE_STEPS", 2.0, "quantisation steps (or three noise sigmas, the larger)",
+    "... and darker than its closing by at least this much: rounding alone moves a pixel by at "
+    "most one step.", basis="physics", stage=_L)
+
+# --- Recommendation ----------------------------------------------------------------------------------
+
+ISOCURVE_ISOVALUES = decision(
+    "ISOCURVE_ISOVALUES", (0.3, 0.5, 0.7), "isovalue t relative to the BP's height above the border",
+    "The isocurve fit's own isophotes, whatever the command line's: near the peak (0.7, 0.85) "
+    "the lobe is nearly its quadratic approximation and says little about the distance; the fit "
+    "ran off on 9 of 16 planes there and was ok on all 16 at (0.3, 0.5, 0.7), median 0.1 deg.",
+    basis="tuned", stage=_R, chosen_on=("exact-planes",),
+    n="16 off-axis planes, epsilon/d 0.07 to 0.27")
+SIGMA_MARGIN = decision(
+    "SIGMA_MARGIN", 2.0, "sigmas",
+    "A normal whose depth is not observable is kept when this many of its sigmas are below the "
+    "BP ray's expected error (for a Gaussian error, 98 % one-sided that it is the better).",
+    basis="physics", stage=_R)
+DEPTH_RELEASE_REL_SIGMA = decision(
+    "DEPTH_RELEASE_REL_SIGMA", 0.2, "relative 1-sigma of the depth",
+    "A depth is released only within it: the fits estimate log h, and at 0.2 exp(+-0.4) is "
+    "already -33 % / +49 %; a 1-sigma of 0.5 spans a factor 2.7 at 2 sigma, no measurement of "
+    "scale.", basis="physics", stage=_R)

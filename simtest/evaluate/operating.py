@@ -1,0 +1,93 @@
+"""Precision against recall over the confidence: where a user sets ``--min-confidence``.
+
+``simtest reconstruct --min-confidence c`` keeps as ``ok`` only the fits that pass every check with a
+confidence of at least c. On a labelled set (real frames labelled by hand, or renders whose targets
+are exact) each c gives a precision (the share of kept ``ok`` estimates on a labelled isolated
+highlight) and a recall (the share of those highlights with a kept ``ok`` estimate). The curve is
+read off the default run's matches (:func:`simtest.evaluate.detection.score_frame`): a target whose
+first ``ok`` match falls below c counts as missed, even where a second ``ok`` on it stays.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from simtest.decisions import DEFAULT_MIN_CONFIDENCE
+
+__all__ = ["THRESHOLDS", "precision_recall", "precision_recall_figure"]
+
+#: The confidences at which the curve is read.
+THRESHOLDS = tuple(np.round(np.arange(0.0, 1.0001, 0.05), 2))
+
+
+def precision_recall(confidence, tp_ok, targets: int, thresholds=THRESHOLDS) -> list[dict]:
+    """Precision and recall of the ``ok`` estimates kept at each minimum confidence.
+
+    Parameters
+    ----------
+    confidence : array_like of shape (N,)
+        The confidence of each ``ok`` estimate of the default run.
+    tp_ok : array_like of bool, shape (N,)
+        Whether it is a target's first ``ok`` match.
+    targets : int
+        Labelled targets (isolated highlights) in the frames.
+    thresholds : sequence of float
+        The minimum confidences.
+
+    Returns
+    -------
+    list of dict
+        Per threshold ``{"min_confidence", "kept", "precision", "recall"}`` (precision None where
+        nothing is kept, recall None without targets).
+
+    Raises
+    ------
+    ValueError
+        For arrays of different lengths.
+    """
+    conf = np.asarray(confidence, dtype=np.float64).reshape(-1)
+    tp = np.asarray(tp_ok, dtype=bool).reshape(-1)
+    if conf.shape != tp.shape:
+        raise ValueError(f"precision_recall: {conf.size} confidences but {tp.size} labels")
+    rows = []
+    for c in thresholds:
+        keep = conf >= c
+        kept, hits = int(keep.sum()), int(tp[keep].sum())
+        rows.append({"min_confidence": float(c), "kept": kept,
+                     "precision": hits / kept if kept else None,
+                     "recall": hits / targets if targets else None})
+    return rows
+
+
+def precision_recall_figure(rows: list[dict], title: str = "ok estimates over --min-confidence"):
+    """Precision against recall, one point per minimum confidence, the default marked.
+
+    Parameters
+    ----------
+    rows : list of dict
+        :func:`precision_recall`'s rows.
+    title : str
+
+    Returns
+    -------
+    matplotlib.figure.Figure
+    """
+    import matplotlib.pyplot as plt
+
+    fig, ax = plt.subplots(figsize=(5.2, 4.4), layout="constrained")
+    pts = [r for r in rows if r["precision"] is not None and r["recall"] is not None]
+    ax.plot([r["recall"] for r in pts], [r["precision"] for r in pts], "o-", color="#1f77b4", ms=3,
+            label="min confidence 0 to 1 (step 0.05)")
+    for r in pts[::4]:
+        ax.annotate(f"{r['min_confidence']:.2f}", (r["recall"], r["precision"]),
+                    textcoords="offset points", xytext=(4, 4), fontsize=7)
+    default = [r for r in pts if abs(r["min_confidence"] - DEFAULT_MIN_CONFIDENCE) < 1e-9]
+    if default:
+        d = default[0]
+        ax.plot([d["recall"]], [d["precision"]], "*", color="#d62728", ms=14,
+                label=f"default (--min-confidence {DEFAULT_MIN_CONFIDENCE:g}): "
+                      f"P {d['precision']:.2f}, R {d['recall']:.2f}")
+    ax.set(xlim=(0, 1), ylim=(0, 1.02), xlabel="recall (labelled isolated highlights found ok)",
+           ylabel="precision (ok estimates on one)", title=title)
+    ax.legend(fontsize=8, loc="lower left")
+    return fig
