@@ -16,6 +16,7 @@ from collections import Counter
 
 import numpy as np
 
+from simtest.harness.end_to_end import summarise_records
 __all__ = ["summarise", "case_metrics", "STAT_KEYS", "MEDIAN_SUFFIX", "MEDIAN_DIAGNOSTICS",
            "COUNTED_DIAGNOSTICS", "COUNT_SUFFIX"]
 
@@ -114,4 +115,5 @@ def case_metrics(result) -> dict:
             extras[k + MEDIAN_SUFFIX] = float(np.median(f)) if f.size else None
         if k.endswith(COUNTED_DIAGNOSTICS):
             extras[k + COUNT_SUFFIX] = int(f.size)
-    return {"estimators": est, "diagnostics": extras}
+    return {"end_to_end": summarise_records(getattr(result, "e2e", [])), "estimators": est,
+            "diagnostics": extras}

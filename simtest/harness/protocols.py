@@ -29,6 +29,7 @@ from simtest.geometry.curvature import (
 from simtest.geometry.lights import Light, LightRig
 from simtest.geometry.response import SensorResponse
 from simtest.geometry.cameras import PinholeCamera
+from simtest.harness.end_to_end import frame_records
 from simtest.harness.estimators import ORACLE_INPUTS, score
 from simtest.harness.external import score_external
 from simtest.harness.suite import LIGHT_AWARE_NAMES, MeshPose
@@ -165,11 +166,14 @@ class Row:
         ``exception:<type>``); None where it succeeded.
     extras : dict of str to float
         Diagnostics (:data:`EXTRA_KEYS`); a key missing counts as NaN.
+    e2e : dict or None
+        A rendered highlight's end-to-end record (:func:`simtest.harness.end_to_end.frame_records`).
     """
 
     errors: dict[str, float]
     causes: dict[str, str | None]
     extras: dict[str, float] = field(default_factory=dict)
+    e2e: dict | None = None
 
 
 def _row(errs: dict, extras: dict) -> Row:
@@ -486,6 +490,9 @@ class RenderedRunner:
             extras["false_positives"] = float(false_pos)
             extras["saturated_px"] = saturated
             rows.append(_row(errs, extras))
+        # what a user of `simtest render` + `simtest reconstruct` gets, per highlight (same order)
+        for row, rec in zip(rows, frame_records(result, _depth_errors)):
+            row.e2e = rec
         return rows
 
 
