@@ -85,3 +85,48 @@ def test_the_harness_end_to_end_figures_are_what_render_then_reconstruct_give(tm
         assert a[key] == b[key], key
     assert abs(a["median_ok_deg"] - b["median_ok_deg"]) <= ERROR_TOL_DEG
     assert a["n_ok"] >= 1  # the case really reconstructs (equal NaNs would prove nothing)
+
+
+def _rec(status, err, **kw):
+    return {"truth": True, "detected": status != "not_detected", "status": status,
+            "normal_from": None if status == "not_detected" else kw.get("src", "photometric_fit"),
+            "error_deg": err, "depth_err_pct": kw.get("depth", math.nan), **kw.get("frame", {})}
+
+
+def test_the_figures_count_every_true_highlight_and_the_median_only_the_accepted():
+    recs = [_rec("ok", 0.5, frame={"frame_false_ok": 2.0}), _rec("ok", 3.0, depth=1.0),
+            _rec("cluster", 0.8, src="bp_ray"), _rec("not_detected", math.nan),
+            {"truth": False, "frame_false_ok": 0.0}]  # a frame without an in-frame highlight
+    e = summarise_records(recs)
+    assert e["n"] == 4 and e["detected"] == 0.75 and e["ok"] == 0.5
+    # what the user gets, whatever the status: the cluster's fallback within 1 deg counts
+    assert e["within_1deg"] == 0.5 and e["within_5deg"] == 0.75
+    assert e["n_ok"] == 2 and e["median_ok_deg"] == 1.75 and e["median_ok_depth_err_pct"] == 1.0
+    assert e["false_ok_per_frame"] == 1.0  # two frames, two false ok
+    assert e["statuses"] == {"cluster": 1, "not_detected": 1, "ok": 2}
+    assert e["normal_from"] == {"bp_ray": 1, "none": 1, "photometric_fit": 2}
+    assert summarise_records([]) is None
+
+
+def test_the_report_and_the_readme_lead_with_the_end_to_end_figures(tmp_path):
+    from simtest.harness.readme import section_text
+    from simtest.harness.report.document import markdown_report
+
+    from test_harness_report import synthetic_results
+
+    doc = synthetic_results()
+    fam = next(k for k, f in doc["families"].items() if f["protocol"] == "rendered")
+    doc["families"][fam]["end_to_end"] = summarise_records([_rec("ok", 0.5), _rec("ok", 2.0),
+                                                            _rec("merged", 7.0, src="bp_ray")])
+    md = markdown_report(doc, [])
+    assert md.index("## End to end") < md.index("## Summary given the highlight")
+    e2e_row = next(ln for ln in md.splitlines() if ln.startswith(f"| {fam} | 3 |"))
+    assert "33.3 %" in e2e_row and "66.7 %" in e2e_row and "1.25 (n 2)" in e2e_row
+    run = tmp_path / "reports" / doc["suite"]["name"] / "run"
+    run.mkdir(parents=True)
+    (run / "results.json").write_text(json.dumps(doc))
+    text = section_text(tmp_path / "reports", repo=tmp_path)
+    header = next(ln for ln in text.splitlines() if ln.startswith("| report"))
+    assert header.index("end to end") < header.index("given the highlight")
+    row = next(ln for ln in text.splitlines() if f"| {fam} |" in ln)
+    assert "| 33.3 / 66.7 % (n 3) | 1.25 (n 2) |" in row

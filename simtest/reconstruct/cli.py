@@ -198,24 +198,11 @@ def reconstruct_command(
 
 
 def reconstruct_single(img, camera_file, settings: ReconSettings | None = None, *, cubic_patch: bool = False,
-                      workers: int = 1, on_highlight=None):
-    """What ``simtest reconstruct IMAGE`` computes for one loaded image (the harness's end-to-end
-    records call this too: the same call, not a copy).
-
-    Parameters
-    ----------
-    img : ndarray
-        The image as :func:`~simtest.reconstruct.images.load_image` returns it.
-    camera_file : simtest.geometry.camera_file.CameraFile
-        The camera model, its light rig (``"lights"``) and its sensor response.
-    settings : ReconSettings, optional
-        Default: the command's defaults, :meth:`ReconSettings.for_frames`.
-    cubic_patch : bool
-        ``--cubic-patch``.
-    workers : int
-        Processes for the light-aware fits (the estimates do not depend on it).
-    on_highlight : callable, optional
-        Progress, ``f(done, total)``.
+                       workers: int = 1, on_highlight=None):
+    """What ``simtest reconstruct IMAGE`` computes for a loaded image (``load_image``) and its
+    :class:`~simtest.geometry.camera_file.CameraFile` (model, rig, response); ``settings`` default
+    to the command's (:meth:`ReconSettings.for_frames`), ``workers`` (the fits' processes) changes
+    nothing but the time. The harness's end-to-end records call this too.
 
     Returns
     -------
