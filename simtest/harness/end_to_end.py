@@ -44,23 +44,11 @@ def user_camera_file(result):
 
 
 def frame_records(result, depth_errors) -> list[dict]:
-    """One end-to-end record per in-frame highlight of a render (module docstring).
-
-    Parameters
-    ----------
-    result : simtest.render.RenderResult
-        The render (its ``frame``, camera, rig, highlights).
-    depth_errors : callable
-        ``f(estimate, highlight, rig) -> dict`` with ``recommended_depth_err_pct``
-        (:func:`simtest.harness.protocols._depth_errors`).
-
-    Returns
-    -------
-    list of dict
-        Per in-frame highlight: ``detected``, ``distance_px``, ``status`` (``not_detected``
-        where none matched), ``normal_from``, ``error_deg``, ``depth_err_pct`` (NaN where none);
-        the first also holds ``frame_false_ok``. A frame without an in-frame highlight gives one
-        record with ``truth`` False and its ``frame_false_ok``.
+    """The end-to-end records of a render (``RenderResult``), one per in-frame highlight: ``detected``,
+    ``distance_px``, ``status`` (``not_detected`` where none matched), ``normal_from``,
+    ``error_deg``, ``depth_err_pct`` (``depth_errors(estimate, highlight, rig)``'s
+    ``recommended_depth_err_pct``; NaN where none); the first holds the frame's ``frame_false_ok``.
+    A frame without an in-frame highlight gives one record, ``truth`` False, with that count.
     """
     from simtest.harness.estimators import score
     from simtest.reconstruct.cli import reconstruct_single  # the command's call (numba: imported late)
