@@ -12,7 +12,7 @@ from typer.testing import CliRunner
 from simtest.cli import app
 from simtest.geometry.angles import angle_between_deg
 from simtest.harness.cases import realisation_seed
-from simtest.harness.end_to_end import MATCH_PX, summarise_records
+from simtest.harness.metrics import MATCH_PX, summarise_records
 from simtest.harness.protocols import make_runner, realisation_overrides
 from simtest.harness.suite import load_suite
 from simtest.reconstruct.settings import ReconSettings

@@ -37,9 +37,8 @@ import io
 
 import numpy as np
 
-from simtest.harness.end_to_end import summarise_records
 from simtest.harness.claims import evaluate_claims, evaluate_paper_claim
-from simtest.harness.metrics import STAT_KEYS, case_metrics, summarise
+from simtest.harness.metrics import STAT_KEYS, case_metrics, summarise, summarise_records
 from simtest.harness.report.provenance import open_parameters, provenance, relative_to_repo
 from simtest.reconstruct.registry import describe, names
 from simtest.scene import load_scene
