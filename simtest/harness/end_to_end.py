@@ -20,10 +20,10 @@ from pathlib import Path
 import numpy as np
 
 from simtest.geometry.camera_file import load_camera, save_camera
+from simtest.geometry.response import video_response
 from simtest.harness.estimators import score
 from simtest.harness.metrics import MATCH_PX
 from simtest.reconstruct.cli import reconstruct_single
-from simtest.render.render import video_response
 
 __all__ = ["user_camera_file", "frame_records"]
 

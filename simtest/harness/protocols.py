@@ -28,7 +28,7 @@ from simtest.geometry.curvature import (
     predicted_pose_error_deg,
 )
 from simtest.geometry.lights import Light, LightRig
-from simtest.geometry.response import SensorResponse
+from simtest.geometry.response import SensorResponse, video_response
 from simtest.geometry.cameras import PinholeCamera
 from simtest.harness.end_to_end import frame_records
 from simtest.harness.estimators import ORACLE_INPUTS, score
@@ -581,23 +581,10 @@ def render_rig(result) -> LightRig:
 
 
 def render_response(result) -> SensorResponse | None:
-    """The sensor response of a render's video frame (what ``simtest render`` writes into its
-    camera file's ``"response"``), or None where the sensor made no video frame.
-
-    The tone curve, the white balance and the clip level (8-bit full scale) are the scene's
-    sensor's; the exposure (automatic on the endoscope scenes) is left at 1: a scale of the
-    linear image that the fits' gains absorb. The sensor's colour saturation and vignetting are
-    not part of the response (both are off on the endoscope suite's scenes).
-    """
-    video = getattr(result, "video", None)
-    if video is None:
-        return None
-    sensor = result.spec.sensor
-    if sensor.tone == "srgb":
-        curve, gamma = "srgb", 1.0
-    else:
-        curve, gamma = ("linear", 1.0) if sensor.gamma == 1.0 else ("gamma", float(sensor.gamma))
-    return SensorResponse(curve, gamma, tuple(float(v) for v in sensor.white_balance), 1.0, 255.0)
+    """The sensor response of a render's video frame, what ``simtest render`` writes into its camera
+    file's ``"response"`` (:func:`~simtest.geometry.response.video_response`); None where the
+    sensor made no video frame."""
+    return None if getattr(result, "video", None) is None else video_response(result.spec.sensor)
 
 
 def _depth_errors(est, h, rig) -> dict:
