@@ -77,8 +77,14 @@ def test_a_committed_case_reproduces(suite_name, case_id):
     assert case.realisations == stored["realisations"]
     ests = tuple(committed["suite"]["estimators"])
     chunk = run_case_chunk(case, ests, suite.seed, 0, case.realisations)
-    got = case_metrics(_assemble(case, ests, [chunk]))["estimators"]
-    stale = []
+    metrics = case_metrics(_assemble(case, ests, [chunk]))
+    got, stale = metrics["estimators"], []
+    e_want, e_got = stored["metrics"].get("end_to_end"), metrics["end_to_end"]
+    if e_want:  # the end-to-end shares (the headline), each within its binomial error as a share
+        n = max(1, e_want["n"])
+        stale += [f"end_to_end.{k}: committed {e_want[k]!r}, now {e_got[k]!r}"
+                  for k in ("detected", "ok", "within_1deg", "within_5deg")
+                  if abs(e_got[k] - e_want[k]) > _count_tolerance({"n": n, "failure_rate": e_want[k]}) / n]
     for est, want in stored["metrics"]["estimators"].items():
         for stat, w in want.items():
             g = got[est][stat]

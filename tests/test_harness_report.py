@@ -217,11 +217,11 @@ def test_html_is_self_contained_and_uses_the_markdown_tables(tmp_path):
     folder = write_report_files(doc, tmp_path / "run")
     html = (folder / "report.html").read_text()
     md = (folder / "report.md").read_text()
-    assert "<table>" in html and "<h2>Summary</h2>" in html
+    assert "<table>" in html and "<h2>Summary given the highlight (not end to end)</h2>" in html
     imgs = re.findall(r'<img src="([^"]*)"', html)
     assert imgs and all(s.startswith("data:image/png;base64,") for s in imgs)
     assert len(imgs) == len(list((folder / "figures").glob("*.png")))
-    assert md.index("## Summary") < md.index("## Run") < md.index("## Sweep")
+    assert md.index("## Summary given the highlight") < md.index("## Run") < md.index("## Sweep")
     # a pipe inside a claim does not break its table row
     assert html.count("<tr>") == sum(1 for ln in md.splitlines() if ln.startswith("| ")
                                      and not set(ln) <= set("|- "))

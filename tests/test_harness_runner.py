@@ -41,6 +41,7 @@ def test_same_seed_any_worker_count_identical_numbers():
     # and the rendered case really ran (a render failure would hide behind equal NaNs)
     plane = next(c for c in r1["cases"] if c["sweep"] == "plane")
     assert plane["metrics"]["estimators"]["cone_axis"]["n_ok"] == 2
+    assert plane["metrics"]["end_to_end"]["n"] == 2  # and its end-to-end records, equal too
     assert r1["provenance"]["mitsuba_variants"]
 
 

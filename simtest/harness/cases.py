@@ -20,6 +20,7 @@ from pydantic import Field
 from pydantic.dataclasses import dataclass as pydantic_dataclass
 
 from simtest._config import CONFIG, Num
+from simtest.harness.metrics import MATCH_PX
 from simtest.reconstruct.settings import ReconSettings
 from simtest.simulate.paper import PaperParams
 
@@ -61,7 +62,7 @@ class RenderedKeys(ReconKeys):
     """The rendered protocol's case keys (:class:`Scoring`, :class:`MeshPose`, :class:`SceneSetting`)."""
 
     image: Literal["sensor", "linear"] = "sensor"
-    match_px: Num = Field(15.0, gt=0.0)  # px, a distance
+    match_px: Num = Field(MATCH_PX, gt=0.0)  # px, a distance (metrics.MATCH_PX says why)
     radius_over_distance: Num | None = Field(None, gt=0.0)  # a radius: positive
     distance_mm: Num | None = Field(None, gt=0.0)  # in front of the camera
     colon_station: Num | None = Field(None, ge=0.0, le=1.0)  # fraction of the centre line

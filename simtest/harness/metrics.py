@@ -16,7 +16,8 @@ from collections import Counter
 
 import numpy as np
 
-__all__ = ["summarise", "case_metrics", "STAT_KEYS", "MEDIAN_SUFFIX", "MEDIAN_DIAGNOSTICS",
+__all__ = ["summarise", "case_metrics", "summarise_records", "MATCH_PX", "WITHIN_DEG", "STAT_KEYS",
+           "MEDIAN_SUFFIX", "MEDIAN_DIAGNOSTICS",
            "COUNTED_DIAGNOSTICS", "COUNT_SUFFIX"]
 
 #: The statistics reported for each case and estimator (degrees, except failure_rate and counts).
@@ -38,6 +39,16 @@ COUNTED_DIAGNOSTICS = ("_within_2sigma", "_beyond_bp_ray")
 
 #: The suffix of a diagnostic's count (``recommended_within_2sigma_n``).
 COUNT_SUFFIX = "_n"
+
+
+#: How far a detection's BP may lie from a true highlight's BP to be that highlight's, px (the
+#: nearest one within it), also the default of a case's ``match_px`` (:mod:`simtest.harness.cases`)
+#: so that both sections match the same highlights; the two guides' highlights of the endoscope plane lie
+#: about 18 px apart (``reports/detection/2026-11-24-colonoscope_plane``), each nearer its own.
+MATCH_PX = 15.0
+
+#: Errors (deg) that count as a usable normal (issue 63's headline shares).
+WITHIN_DEG = (1.0, 5.0)
 
 
 def summarise(errors, causes) -> dict:
@@ -114,4 +125,39 @@ def case_metrics(result) -> dict:
             extras[k + MEDIAN_SUFFIX] = float(np.median(f)) if f.size else None
         if k.endswith(COUNTED_DIAGNOSTICS):
             extras[k + COUNT_SUFFIX] = int(f.size)
-    return {"estimators": est, "diagnostics": extras}
+    return {"end_to_end": summarise_records(getattr(result, "e2e", [])), "estimators": est,
+            "diagnostics": extras}
+
+
+def summarise_records(records) -> dict | None:
+    """The end-to-end figures of a case or a family (None without a record).
+
+    Returns
+    -------
+    dict or None
+        ``n`` (true highlights), ``detected`` and ``ok`` (shares), ``within_1deg`` and
+        ``within_5deg`` (shares of the true highlights whose recommended normal errs at most that
+        much, whatever its status: what a user gets), ``n_ok`` and ``median_ok_deg`` (over those
+        with status ok), ``median_ok_depth_err_pct``, ``false_ok_per_frame``, ``statuses`` and
+        ``normal_from`` (counts), ``match_px``.
+    """
+    records = list(records)
+    if not records:
+        return None
+    t = [r for r in records if r.get("truth")]
+    err = np.array([r["error_deg"] for r in t], dtype=np.float64)
+    ok = np.array([r["status"] == "ok" for r in t], dtype=bool)
+    fo = np.array([r["frame_false_ok"] for r in records if "frame_false_ok" in r], dtype=np.float64)
+    dep = np.array([r["depth_err_pct"] for r in t], dtype=np.float64)[ok] if t else np.zeros(0)
+    dep = dep[np.isfinite(dep)]
+    okerr = err[ok & np.isfinite(err)] if t else err
+    n = len(t)
+    share = (lambda m: float(np.mean(m)) if n else None)  # noqa: E731
+    return {"n": n, "detected": share([r["detected"] for r in t]), "ok": share(ok),
+            **{f"within_{d:g}deg": share(np.nan_to_num(err, nan=np.inf) <= d) for d in WITHIN_DEG},
+            "n_ok": int(okerr.size), "median_ok_deg": float(np.median(okerr)) if okerr.size else None,
+            "median_ok_depth_err_pct": float(np.median(dep)) if dep.size else None,
+            "false_ok_per_frame": float(np.mean(fo)) if fo.size else None,
+            "statuses": dict(sorted(Counter(r["status"] for r in t).items())),
+            "normal_from": dict(sorted(Counter(r["normal_from"] or "none" for r in t).items())),
+            "match_px": MATCH_PX}

@@ -8,7 +8,8 @@ rows (:class:`Row`: errors, causes and extras), one per scored specularity.
 ``paper``: one row per realisation (one specularity, reconstructed in a ROI around the known BP).
 ``rendered``: one row per in-frame ground-truth highlight; the whole image goes through
 detection (``simtest.reconstruct``) and each true BP is matched to the nearest detected BP within
-``match_px``, else every estimator fails with ``not_detected``.
+``match_px``, else every estimator fails with ``not_detected`` (scored given the highlight); each
+row also carries the highlight's end-to-end record (:mod:`simtest.harness.end_to_end`).
 """
 
 from __future__ import annotations
@@ -27,8 +28,9 @@ from simtest.geometry.curvature import (
     predicted_pose_error_deg,
 )
 from simtest.geometry.lights import Light, LightRig
-from simtest.geometry.response import SensorResponse
+from simtest.geometry.response import SensorResponse, video_response
 from simtest.geometry.cameras import PinholeCamera
+from simtest.harness.end_to_end import frame_records
 from simtest.harness.estimators import ORACLE_INPUTS, score
 from simtest.harness.external import score_external
 from simtest.harness.suite import LIGHT_AWARE_NAMES, MeshPose
@@ -59,31 +61,11 @@ EXTRA_KEYS = ("eigenvalue_gap", "residual_px", "bp_error_px", "k1_per_mm", "k2_p
 
 
 def reconstruct_image(image, K, settings: ReconSettings):
-    """Detect and reconstruct every specularity of a whole image (``reconstruct``).
-
-    Detection thresholds are relative to the brightest pixel of the image (``full_scale`` =
-    image maximum, set on ``settings`` here), not to the dtype's range: a rendered highlight need
-    not reach saturation (the sensor's exposure is a swept parameter). The settings of a rendered
-    case (:func:`simtest.harness.suite.harness_recon_settings`): the paper's, as the committed
-    reports were made with (not reconstruct's defaults for real frames): threshold at 0.7 of full
-    scale, t relative to the BP, no smoothing.
-
-    Parameters
-    ----------
-    image : ndarray of shape (H, W)
-        Linear float or 8-bit sensor image.
-    K : ndarray of shape (3, 3)
-        Intrinsics, pixels (integer pixel centres).
-    settings : ReconSettings
-        The case's settings (:attr:`simtest.harness.suite.Case.recon`); its ``full_scale`` is
-        replaced by the image maximum.
-
-    Returns
-    -------
-    list of simtest.reconstruct.SpecularityEstimate
-        One per detected specularity; empty for an all-dark image.
+    """Detect and reconstruct every specularity of a whole image with a case's settings
+    (:attr:`simtest.harness.suite.Case.recon`: the paper's, not ``simtest reconstruct``'s defaults,
+    which :mod:`simtest.harness.end_to_end` runs), ``full_scale`` set to the image maximum (a
+    rendered highlight need not saturate). Returns the estimates (empty for an all-dark image).
     """
-
     peak = float(np.max(image))
     if not peak > 0:
         return []
@@ -165,11 +147,14 @@ class Row:
         ``exception:<type>``); None where it succeeded.
     extras : dict of str to float
         Diagnostics (:data:`EXTRA_KEYS`); a key missing counts as NaN.
+    e2e : dict or None
+        A rendered highlight's end-to-end record (:func:`simtest.harness.end_to_end.frame_records`).
     """
 
     errors: dict[str, float]
     causes: dict[str, str | None]
     extras: dict[str, float] = field(default_factory=dict)
+    e2e: dict | None = None
 
 
 def _row(errs: dict, extras: dict) -> Row:
@@ -486,6 +471,9 @@ class RenderedRunner:
             extras["false_positives"] = float(false_pos)
             extras["saturated_px"] = saturated
             rows.append(_row(errs, extras))
+        # what a user of `simtest render` + `simtest reconstruct` gets, per highlight (same order)
+        for row, rec in zip(rows, frame_records(result, _depth_errors)):
+            row.e2e = rec
         return rows
 
 
@@ -507,13 +495,10 @@ class RenderedRunner:
 
 
 def fit_scored(image, matched: list, camera, rig: LightRig, **kwargs) -> list:
-    """The light-aware fits of the detections that ground-truth highlights are scored on.
-
-    A frame's detections are many (hundreds on a colonoscope frame) and the curved fits take up
-    to seconds each, but a row scores only the detection matched to its highlight. Each
-    detection's fits read the image in its own ROI only
-    (:func:`~simtest.reconstruct.recommend.light_aware_estimates`), so fitting the matched ones
-    gives them what fitting every detection gives (``tests/test_harness_runner.py``).
+    """The light-aware fits (:func:`~simtest.reconstruct.recommend.with_light_aware`, ``kwargs``
+    passed on) of the detections matched to the scored highlights, rejected ones too (scored given
+    the highlight). Each detection's fits read its own ROI only, so fitting the matched ones gives
+    them what fitting every detection gives (``tests/test_harness_runner.py``).
 
     Parameters
     ----------
@@ -523,14 +508,11 @@ def fit_scored(image, matched: list, camera, rig: LightRig, **kwargs) -> list:
         Each scored highlight, its matched detection (None: not detected) and their distance, px.
     camera : array_like of shape (3, 3) or CameraModel
     rig : LightRig
-    **kwargs
-        Passed to :func:`~simtest.reconstruct.recommend.with_light_aware`.
 
     Returns
     -------
     list of (highlight, SpecularityEstimate or None, float)
-        ``matched`` with each detection replaced by itself with its light-aware fits (a detection
-        matched twice is fitted once).
+        ``matched`` with each detection fitted (one matched twice is fitted once).
     """
     scored = list({id(b): b for _, b, _ in matched if b is not None}.values())
     fitted = dict(zip((id(b) for b in scored), with_light_aware(image, scored, camera, rig, fit_rejected=True,
@@ -599,23 +581,10 @@ def render_rig(result) -> LightRig:
 
 
 def render_response(result) -> SensorResponse | None:
-    """The sensor response of a render's video frame (what ``simtest render`` writes into its
-    camera file's ``"response"``), or None where the sensor made no video frame.
-
-    The tone curve, the white balance and the clip level (8-bit full scale) are the scene's
-    sensor's; the exposure (automatic on the endoscope scenes) is left at 1: a scale of the
-    linear image that the fits' gains absorb. The sensor's colour saturation and vignetting are
-    not part of the response (both are off on the endoscope suite's scenes).
-    """
-    video = getattr(result, "video", None)
-    if video is None:
-        return None
-    sensor = result.spec.sensor
-    if sensor.tone == "srgb":
-        curve, gamma = "srgb", 1.0
-    else:
-        curve, gamma = ("linear", 1.0) if sensor.gamma == 1.0 else ("gamma", float(sensor.gamma))
-    return SensorResponse(curve, gamma, tuple(float(v) for v in sensor.white_balance), 1.0, 255.0)
+    """The sensor response of a render's video frame, what ``simtest render`` writes into its camera
+    file's ``"response"`` (:func:`~simtest.geometry.response.video_response`); None where the
+    sensor made no video frame."""
+    return None if getattr(result, "video", None) is None else video_response(result.spec.sensor)
 
 
 def _depth_errors(est, h, rig) -> dict:

@@ -90,6 +90,8 @@ class CaseResult:
         Seconds spent in this case's realisations (summed over workers).
     variant : str or None
         Mitsuba variant used (rendered protocol).
+    e2e : list of dict
+        The rows' end-to-end records, in row order (rendered protocol; empty otherwise).
     """
 
     case: Case
@@ -100,6 +102,7 @@ class CaseResult:
     exceptions: list = field(default_factory=list)
     cpu_s: float = 0.0
     variant: str | None = None
+    e2e: list = field(default_factory=list)
 
 
 @dataclass
@@ -267,7 +270,8 @@ def _assemble(case: Case, estimators: tuple, chunks: list[ChunkResult]) -> CaseR
                       errors={k: np.asarray(v, dtype=np.float64) for k, v in errs.items()},
                       causes=causes,
                       extras={k: np.asarray(v, dtype=np.float64) for k, v in extras.items()},
-                      exceptions=msgs, cpu_s=sum(ch.seconds for ch in chunks), variant=variant)
+                      exceptions=msgs, cpu_s=sum(ch.seconds for ch in chunks), variant=variant,
+                      e2e=[row.e2e for _, rows in items for row in rows if row.e2e is not None])
 
 
 def _run_on_cluster(address: str, tasks, estimators: tuple, root_seed: int, external: tuple,

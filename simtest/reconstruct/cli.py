@@ -172,17 +172,12 @@ def reconstruct_command(
                 camera_file.response.check_frame(img)
             except ResponseError as exc:
                 raise InputError(f"{intrinsics}: {exc} (frame {image})") from None
-        estimates = reconstruct(img, camera, settings=settings)
-        detection_rec = estimates.detection_record()
-        # the scope's light rig from the camera file ("lights"; none: one light at the camera)
         rig = camera_file.lights
         with Progress(TextColumn("light-aware fits"), BarColumn(), MofNCompleteColumn(),
                       TimeElapsedColumn(), transient=True) as bar:
             task = bar.add_task("highlights", total=None)
-            # the highlights' fits shared among --workers processes (one per core by default)
-            estimates = with_light_aware(
-                img, estimates, camera, rig, cubic=None if cubic_patch else False,
-                response=camera_file.response, workers=workers or os.cpu_count() or 1,
+            estimates, detection_rec = reconstruct_single(
+                img, camera_file, settings, cubic_patch=cubic_patch, workers=workers or os.cpu_count() or 1,
                 on_highlight=lambda done, total: bar.update(task, completed=done, total=total))
         pinhole = isinstance(camera, PinholeCamera)
         doc = estimates_document(
@@ -206,6 +201,28 @@ def reconstruct_command(
 
     write_out_folder(out, target, fill, RECONSTRUCT_FILES)
     typer.echo(summary_line(estimates, [out / n for n in names], detection_rec))
+
+
+def reconstruct_single(img, camera_file, settings: ReconSettings | None = None, *, cubic_patch: bool = False,
+                       workers: int = 1, on_highlight=None):
+    """What ``simtest reconstruct IMAGE`` computes for a loaded image (``load_image``) and its
+    :class:`~simtest.geometry.camera_file.CameraFile` (model, rig, response); ``settings`` default
+    to the command's (:meth:`ReconSettings.for_frames`), ``workers`` (the fits' processes) changes
+    nothing but the time. The harness's end-to-end records call this too.
+
+    Returns
+    -------
+    estimates : list of SpecularityEstimate
+        With their light-aware fits and recommended normal.
+    detection : dict
+        :meth:`~simtest.reconstruct.pipeline.Estimates.detection_record`.
+    """
+    settings = ReconSettings.for_frames() if settings is None else settings
+    estimates = reconstruct(img, camera_file.model, settings=settings)
+    # the scope's light rig from the camera file ("lights"; none: one light at the camera)
+    return with_light_aware(img, estimates, camera_file.model, camera_file.lights,
+                            cubic=None if cubic_patch else False, response=camera_file.response,
+                            workers=workers, on_highlight=on_highlight), estimates.detection_record()
 
 
 def check_workers(workers: int, option: str = "--workers") -> int:

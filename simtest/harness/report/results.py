@@ -7,7 +7,7 @@
      "provenance": {"git_commit", "git_dirty", "git_dirty_files", "packages", "mitsuba_variants",
         "python", "machine", "workers", "started_utc", "wall_time_s", "realisations_per_s"},
      "open_parameters": {name: {"value", "why"}},
-     "families": {family: {"protocol", "colocated", "cases": [case ids], "images",
+     "families": {family: {"protocol", "colocated", "cases": [case ids], "images", "end_to_end",
                            "false_positives", "false_positives_per_image",
                            "estimators": {name: statistics pooled over its unique cases}}},
      "sweeps": [{"name", "protocol", "parameter", "label", "display_scale", "description",
@@ -15,7 +15,8 @@
      "claims": [{"id", "source", "claim", "holds", "measured", "scope"}],
      "cases": [{"id" (<sweep>@<x>), "key" (seeds the case), "sweep", "protocol", "scene",
                 "family", "colocated", "params", "x", "realisations", "samples",
-                "metrics": {"estimators": {name: {n, n_ok, failure_rate, failures, mean, std,
+                "metrics": {"end_to_end": {...} | null (:mod:`simtest.harness.end_to_end`),
+                            "estimators": {name: {n, n_ok, failure_rate, failures, mean, std,
                                                    median, p5, p95, min, max}},
                             "diagnostics": {name: mean or null}},
                 "exceptions": [...]}]}
@@ -37,7 +38,7 @@ import io
 import numpy as np
 
 from simtest.harness.claims import evaluate_claims, evaluate_paper_claim
-from simtest.harness.metrics import STAT_KEYS, case_metrics, summarise
+from simtest.harness.metrics import STAT_KEYS, case_metrics, summarise, summarise_records
 from simtest.harness.report.provenance import open_parameters, provenance, relative_to_repo
 from simtest.reconstruct.registry import describe, names
 from simtest.scene import load_scene
@@ -110,7 +111,7 @@ def _families(run, cases: list[dict]) -> dict:
     for r, d in zip(run.results, cases):
         f = fam.setdefault(d["family"], {"protocol": d["protocol"], "colocated": d["colocated"],
                                          "cases": [], "_err": {}, "_cause": {}, "_fp": [],
-                                         "images": 0})
+                                         "images": 0, "_e2e": []})
         f["cases"].append(d["id"])
         key = (r.case.key, r.case.realisations)
         if key in seen:  # a setting shared by two sweeps is pooled once
@@ -121,13 +122,14 @@ def _families(run, cases: list[dict]) -> dict:
             f["_cause"].setdefault(e, []).extend(r.causes[e])
         fp = np.asarray(r.extras.get("false_positives", []), dtype=np.float64)
         f["_fp"].append(fp[np.isfinite(fp)])
+        f["_e2e"] += getattr(r, "e2e", [])
         f["images"] += int(r.case.realisations)
     out = {}
     for name, f in fam.items():
         fp = np.concatenate(f["_fp"]) if f["_fp"] else np.zeros(0)
         out[name] = {
             "protocol": f["protocol"], "colocated": f["colocated"], "cases": f["cases"],
-            "images": f["images"],
+            "images": f["images"], "end_to_end": summarise_records(f["_e2e"]),
             # None where the protocol does not detect (the paper protocol knows its BP)
             "false_positives": int(fp.sum()) if fp.size else None,
             "false_positives_per_image": float(fp.mean()) if fp.size else None,
