@@ -17,6 +17,7 @@ import sys
 from pathlib import Path
 
 from simtest._io import atomic_write_text
+from simtest.decisions import data_side
 from simtest.harness.claims import best_marks
 from simtest.harness.report.numbers import fmt
 from simtest.reconstruct.registry import get, names
@@ -102,7 +103,9 @@ def _rows(folder: Path, rel: str) -> list[str]:
         e2e = ("- ¹ | - | -" if f.get("protocol") == "paper" else "- ² | - | -") if not e else (
             f"{100 * e['within_1deg']:.3g} / {100 * e['within_5deg']:.3g} % (n {e['n']}) | "
             f"{fmt(e['median_ok_deg']) if e['n_ok'] else '-'} (n {e['n_ok']}) | {fmt(e['false_ok_per_frame'])}")
-        out.append(f"| [{r['suite']['name']}]({rel}/report.md) | {_esc(fam)} | {e2e} | "
+        side = "held out" if data_side(r["suite"]["seed"]) == "held_out" else "tuning"
+        out.append(f"| [{r['suite']['name']}]({rel}/report.md), seed {r['suite']['seed']} ({side}) | "
+                   f"{_esc(fam)} | {e2e} | "
                    f"{cell('recommended') if 'recommended' in ests else '- ¹'}"
                    f" | {cell('bp_ray')} | "
                    + ("-" if best is None else f"`{best[1]}` {cell(best[1])}") + " |")
@@ -149,7 +152,8 @@ def section_text(reports: str | Path | None = None, repo: str | Path | None = No
             rel = folder.as_posix()
         L += _rows(folder, rel)
         dates.append(f"`{rel}`")
-    L += ["", "From the committed runs " + ", ".join(dates) + ".",
+    L += ["", "From the committed runs " + ", ".join(dates) + ". A run at a root seed the decisions were "
+          "chosen on is tuning data (`simtest/decisions.py`); claims stand on held-out seeds.",
           "End to end: `simtest render`, then `simtest reconstruct frame.png --intrinsics camera.json` "
           "with its defaults, per true highlight: the share whose recommended normal errs at most 1 / 5 "
           "deg, the median error over those ok, false ok per frame.", "Given the highlight (never what "

@@ -17,6 +17,7 @@ import json
 import numpy as np
 from markdown_it import MarkdownIt
 
+from simtest.decisions import data_side
 from simtest.harness.claims import ALARM_DEG, BEST_LEVEL, MIN_N_INTERVAL, best_marks, explanations
 from simtest.harness.report.figures import takeaways
 from simtest.harness.report.numbers import fmt
@@ -282,7 +283,8 @@ def markdown_report(results: dict, figures: list[str], nightly: dict | None = No
           "- speed: " + "; ".join(f"{k}: {v['realisations']} realisations, "
                                   f"{fmt(v['per_s'])} realisations/s"
                                   for k, v in p["realisations_per_s"].items()),
-          f"- root seed {s['seed']}; {results['seeding']}",
+          f"- root seed {s['seed']}: {data_side(s['seed']).replace('_', '-')} data (a seed the decisions "
+          f"of simtest/decisions.py were chosen on is tuning data); {results['seeding']}",
           "- errors: angle between the estimated and true normals, atan2(|a x b|, a . b), "
           "degrees; statistics over the realisations where the estimator succeeded, failures "
           "counted by cause; every statistic is in `results.json` and `results.csv`", ""]
