@@ -309,3 +309,19 @@ def test_default_colonoscope_mesh_curvature_matches_finite_differences() -> None
     for key, fd in (("k1", k1f), ("k2", k2f)):
         stored = np.asarray(mesh.vertex_attributes[key])[idx]
         np.testing.assert_allclose(stored, fd, rtol=1e-6, atol=FD_TOL)
+
+
+def test_endoscope_suite_colon_folds_poses_are_haustral_poses() -> None:
+    # scenes/suites/endoscope.toml's colon_folds cases: x = view angle, at these stations (mm);
+    # rounded to 1e-3 mm (1e-4 for the unit up vector) in the file
+    import tomllib
+
+    stations = {10: 40.0, 20: 90.0, 35: 70.0, 60: 60.0}
+    suite = tomllib.loads((REPO / "scenes" / "suites" / "endoscope.toml").read_text())
+    sweep = next(s for s in suite["sweep"] if s["name"] == "colon_folds")
+    mesh = M.load_mesh(REPO / "meshes" / "colon_haustral.ply")
+    assert sweep["scene"] == "colonoscope" and sorted(c["x"] for c in sweep["cases"]) == sorted(stations)
+    for case in sweep["cases"]:
+        pose = M.haustral_pose(mesh, stations[case["x"]], float(case["x"]))
+        for key, tol in (("position_mm", 6e-4), ("look_at_mm", 6e-4), ("up", 6e-5)):
+            np.testing.assert_allclose(case["set"][f"camera.{key}"], pose[key], atol=tol)
