@@ -154,16 +154,17 @@ def banner_mosaic(shift_px: int = 0):
 
 
 def colonoscope_render():
-    """The bundled ``colonoscope`` scene rendered at seed 0 (a RenderResult), or None where Mitsuba
-    cannot render."""
+    """The bundled ``colonoscope_tube`` scene (the default ``colonoscope`` until the haustral colon
+    replaced it: the reconstruct rows keep their input) rendered at seed 0 (a RenderResult), or
+    None where Mitsuba cannot render."""
     try:
-        return render_scene(load_scene("colonoscope"), seed=0)
+        return render_scene(load_scene("colonoscope_tube"), seed=0)
     except RendererUnavailable:
         return None
 
 
 def colonoscope_frame(res=None):
-    """The bundled ``colonoscope`` scene rendered at seed 0 (or ``res``, such a render): its 8-bit RGB
+    """The bundled ``colonoscope_tube`` scene rendered at seed 0 (or ``res``, such a render): its 8-bit RGB
     video frame (1080, 1350, 3) and its camera model (C3VD's omnidirectional calibration); None
     where Mitsuba cannot render."""
     res = colonoscope_render() if res is None else res

@@ -17,7 +17,7 @@ Rows (:func:`bench_reconstruct`), one core unless said:
   (every core, not one);
 - the light-aware fits per highlight (``isocurve_fit``, ``photometric_fit``) and on a real tile
   with an assumed rig;
-- ms for a rendered 1350 x 1080 colonoscope frame (the bundled ``colonoscope`` scene at seed 0,
+- ms for a rendered 1350 x 1080 colonoscope frame (the bundled ``colonoscope_tube`` scene at seed 0,
   through its own camera model), and for that frame with its camera file's lights and response,
   light-aware fits included, as ``simtest reconstruct -k camera.json`` runs it.
 
@@ -198,6 +198,8 @@ def bench_reconstruct(repeat: int = 50) -> list[BenchResult]:
     out += _bench_real_tile_rig()
     # Last: the render leaves Mitsuba's memory and threads in the process.
     res = colonoscope_render()
+    # "scene colonoscope": the row's name from before the rename; its input is colonoscope_tube,
+    # the same frame, so that the row compares with the commits before.
     out += _candidate_frame_rows("per rendered colonoscope frame: 1350x1080, scene colonoscope seed 0, "
                                  "defaults", "per rendered colonoscope frame (Mitsuba unavailable)",
                                  colonoscope_frame(res), repeat, BANNER_TARGET_MS, 150.0)

@@ -84,12 +84,12 @@ PINNED = {"colon", "cylinder", "liver", "plane_58deg", "plane_fronto", "saddle",
 #: size: at half size colonoscope_plane's two guide highlights, 8 px apart, are one cluster, the
 #: half-maximum region of
 #: colonoscope_pinhole's pair joins the sheen of the wall beside it (ellipticity 0.67: no
-#: target left to check), the colonoscope's pair is a streak of speckle about 20 px long whose
+#: target left to check), colonoscope_tube's pair is a streak of speckle about 20 px long whose
 #: brightest glint (the detected BP) lay 4.2 px from the envelope's peak, at 0.94 of it, and the
 #: detection of a fixed background square (a tenth of the frame) found laparoscope_liver's
 #: clipped highlight at half size (45 px wide) but not at full size (90 px), which is what this
 #: checks. 4 spp: the renders take seconds.
-ENDOSCOPE = {"colonoscope": (1.0, 4), "colonoscope_pinhole": (1.0, 4),
+ENDOSCOPE = {"colonoscope_tube": (1.0, 4), "colonoscope_pinhole": (1.0, 4),
              "colonoscope_plane": (1.0, 4), "laparoscope_liver": (1.0, 4)}
 #: An ok estimate reconstructs a target when its BP lies within this distance of the target's
 #: points (:meth:`~simtest.render.truth.HighlightTarget.distance_px`): the BP of an 8-bit frame
@@ -112,11 +112,11 @@ ENDOSCOPE_AXIS_DEG = 12.0
 #: linear specular image, before the sensor clips it (reports/simreal/README.md).
 CALIBRATED = {"colonoscope_fitted"}
 
-#: The haustral colon's scenes, whose truth is checked in tests/test_meshes_haustral.py: the
+#: The haustral colon's scenes (the default colonoscope and its wall pose), whose truth is checked in tests/test_meshes_haustral.py: the
 #: defaults do not yet reconstruct every isolated highlight there (at 4 spp, full size, one
 #: fold-crest highlight of each is ``merged`` with the glints beside it), so they are not held
 #: to it here; listed so that a new scene still has to be placed.
-ANATOMY = {"colonoscope_haustral", "colonoscope_haustral_wall"}
+ANATOMY = {"colonoscope", "colonoscope_wall"}
 
 
 def test_every_bundled_scene_is_checked():

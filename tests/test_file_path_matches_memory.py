@@ -82,6 +82,6 @@ def test_colonoscope_video_frame(tmp_path):
     # The virtual endoscope: two light guides, tissue, an 8-bit video frame, C3VD optics (scaled).
     # (a fifth of the frame's width: every candidate runs the light-aware fits twice, in memory
     # and through the files, which took 75 s at 270 x 216 px)
-    spec = with_overrides(load_scene(bundled_scene_path("colonoscope")),
+    spec = with_overrides(load_scene(bundled_scene_path("colonoscope_tube")),
                           {"camera.width_px": 135, "camera.height_px": 108, "render.spp": 4})
     _check_same(tmp_path, spec, min_candidates=1)

@@ -278,3 +278,50 @@ def test_cli_builds_the_haustral_colon(tmp_path: Path) -> None:
     bad = CliRunner().invoke(meshes_app, ["build", "--out", str(tmp_path), "--only", "colon_haustral",
                                           "--set", "colon_haustral.fold_height_mm=40"])
     assert bad.exit_code == 2 and "fold_height_mm" in bad.output
+
+
+def test_default_colonoscope_mesh_curvature_matches_finite_differences() -> None:
+    """The mesh the default ``colonoscope`` scene renders: its stored normals and principal
+    curvatures are the closed form's at each vertex, and agree with fourth-order finite
+    differences of the surface (:data:`FD_TOL`) at vertices of every kind, the 60 sharpest fold
+    crests (largest k1) among them. The stored values are float32: 1e-6 relative on top."""
+    from simtest.scene import load_scene
+
+    spec = load_scene("colonoscope")
+    path = Path(spec.geometry.path)
+    assert path.resolve() == (REPO / "meshes" / "colon_haustral.ply").resolve()
+    mesh = M.load_mesh(path)
+    gen = json.loads(path.with_suffix(".json").read_text())["generator"]
+    colon = HaustralColon(M.HaustralParams(**gen["params"]), gen["seed"])
+    n_around = colon.p.n_around
+    k1 = np.asarray(mesh.vertex_attributes["k1"])
+    rng = np.random.default_rng(0)
+    ring = np.arange(len(k1)) // n_around
+    inner = (ring > 0) & (ring < colon.p.n_along - 1)  # the end rings' FD stencil leaves the mesh
+    crests = np.argsort(np.where(inner, k1, -np.inf))[-60:]
+    idx = np.concatenate([rng.choice(np.flatnonzero(inner), 240, replace=False), crests])
+    assert k1[crests].min() > 0.3  # fold crests: radii of curvature under 3.3 mm
+    v = np.asarray(mesh.metadata["centerline"]["v"])[idx // n_around]
+    theta = (idx % n_around) * (2.0 * math.pi / n_around)
+    x0, nf, k1f, k2f = MC.parametric_curvature(colon.surface, v, theta, 1e-2, 1e-2 / 25.0)
+    np.testing.assert_allclose(mesh.vertices[idx], x0, rtol=1e-6, atol=1e-4)
+    np.testing.assert_allclose(mesh.vertex_normals[idx], nf, atol=FD_TOL + 1e-6)
+    for key, fd in (("k1", k1f), ("k2", k2f)):
+        stored = np.asarray(mesh.vertex_attributes[key])[idx]
+        np.testing.assert_allclose(stored, fd, rtol=1e-6, atol=FD_TOL)
+
+
+def test_endoscope_suite_colon_folds_poses_are_haustral_poses() -> None:
+    # scenes/suites/endoscope.toml's colon_folds cases: x = view angle, at these stations (mm);
+    # rounded to 1e-3 mm (1e-4 for the unit up vector) in the file
+    import tomllib
+
+    stations = {10: 40.0, 20: 90.0, 35: 70.0, 60: 60.0}
+    suite = tomllib.loads((REPO / "scenes" / "suites" / "endoscope.toml").read_text())
+    sweep = next(s for s in suite["sweep"] if s["name"] == "colon_folds")
+    mesh = M.load_mesh(REPO / "meshes" / "colon_haustral.ply")
+    assert sweep["scene"] == "colonoscope" and sorted(c["x"] for c in sweep["cases"]) == sorted(stations)
+    for case in sweep["cases"]:
+        pose = M.haustral_pose(mesh, stations[case["x"]], float(case["x"]))
+        for key, tol in (("position_mm", 6e-4), ("look_at_mm", 6e-4), ("up", 6e-5)):
+            np.testing.assert_allclose(case["set"][f"camera.{key}"], pose[key], atol=tol)

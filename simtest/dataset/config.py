@@ -332,6 +332,9 @@ PARAMS: tuple[ParamDef, ...] = (
              "ring of 8 lights of radius 4 mm. A rig moves with the camera, keeps the 1/d^2 falloff "
              "and ignores `light_offset_*` and `light_falloff`; `light_intensity` scales each light",
              _ALL, {"*": _const("point")}, choices=("point", "colonoscope", "laparoscope")),
+    ParamDef("colon_mesh", "bundled colon mesh: \"colon\" (smooth tube) or \"colon_haustral\" (semilunar "
+             "folds, taeniae, haustra: the `colonoscope` scene's)", ("colon",),
+             {"*": _const("colon")}, choices=("colon", "colon_haustral")),
 )
 
 _PARAM_BY_NAME = {p.name: p for p in PARAMS}

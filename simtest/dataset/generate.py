@@ -255,7 +255,8 @@ def make_card(config: DatasetConfig, *, status: str, counts: dict | None = None,
         table (dtype, shape, unit) and the conventions (OpenCV camera frame, pixel (u, v) with
         integer pixel centres, mm, degrees).
     """
-
+    cm = config.params.get("colon", {}).get("colon_mesh")  # the colon family's meshes: what it draws
+    meshes = [*(() if cm is None else cm.args[:1] if cm.kind == "constant" else cm.args[0]), *{"liver"} & config.params.keys()]
     return {
         "format": FORMAT,
         "format_version": FORMAT_VERSION,
@@ -271,8 +272,7 @@ def make_card(config: DatasetConfig, *, status: str, counts: dict | None = None,
         "config_as_given": config.raw,
         "counts": counts or {},
         "variants": variants or [],
-        "meshes": {f"meshes/{f}.ply": mesh_sha256(f) for f, _ in config.families
-                   if f in ("colon", "liver")},
+        "meshes": {f"meshes/{m}.ply": mesh_sha256(m) for m in meshes},
         "channels": CHANNELS,
         "image": ("per sample (record `color`): appearance \"phong\" gives one channel, the grey Phong "
                   "render (specular + diffuse) through the sensor model; appearance \"tissue\" gives "

@@ -287,7 +287,7 @@ def build_scene(config: DatasetConfig, params: dict):
       the optical axis, at ``azimuth_deg`` about it.
     - cylinders: axis through ``(0, 0, distance_mm + radius_mm)``, tilted ``view_angle_deg`` out
       of the image plane, at ``azimuth_deg`` in it.
-    - colon: the bundled ``meshes/colon.ply``; camera on its centre line at fraction ``station`` of
+    - colon: the bundled ``meshes/<colon_mesh>.ply``; camera on its centre line at fraction ``station`` of
       the arc length, moved ``radial_offset`` x radius off it, looking ``view_angle_deg`` off the
       tangent toward ``azimuth_deg`` (and moved to the opposite side), image rolled by ``roll_deg``.
     - liver: the bundled ``meshes/liver.ply``; camera ``distance_mm`` from the surface point in the
@@ -361,7 +361,7 @@ def build_scene(config: DatasetConfig, params: dict):
         if fam == "colon":
             pose = colon_pose(params["station"], params["view_angle_deg"],
                               azimuth_deg=params["azimuth_deg"], radial_offset=params["radial_offset"],
-                              roll_deg=params["roll_deg"])
+                              roll_deg=params["roll_deg"], mesh=params.get("colon_mesh", "colon"))
         else:
             pose = liver_surface_pose(params["azimuth_deg"], params["elevation_deg"],
                                       params["distance_mm"], params["view_angle_deg"], params["roll_deg"])
@@ -473,19 +473,19 @@ def _portable_scene(spec) -> dict:
 
 
 def mesh_sha256(family: str) -> str | None:
-    """sha256 of the bundled mesh file a family renders.
+    """sha256 of a bundled mesh file.
 
     Parameters
     ----------
     family : str
-        A name in :data:`simtest.dataset.config.FAMILIES`.
+        A mesh family samples render: ``"colon"``, ``"colon_haustral"`` or ``"liver"``.
 
     Returns
     -------
     str or None
         64 hex digits of ``meshes/<family>.ply``; None for analytic families or a missing file.
     """
-    if family not in ("colon", "liver"):
+    if family not in ("colon", "colon_haustral", "liver"):
         return None
     path = bundled_mesh_path(family)
     if not path.is_file():

@@ -29,7 +29,7 @@ import trimesh
 from simtest.geometry.angles import unit
 from simtest.geometry.conics import plane_basis
 from simtest.resources import bundled_mesh_path
-from simtest.scene.meshes import colon_centerline, load_mesh
+from simtest.scene.meshes import colon_centerline, haustral_pose, load_mesh
 
 __all__ = ["CameraPose", "MeshPlacement", "camera_up", "colon_pose", "liver_orbit_pose",
            "liver_surface_pose", "mesh_placement"]
@@ -101,7 +101,7 @@ def mesh_placement(name: str) -> MeshPlacement:
 
     Parameters
     ----------
-    name : {"colon", "liver"}
+    name : {"colon", "colon_haustral", "liver"}
         The bundled mesh (``meshes/<name>.ply``).
 
     Returns
@@ -122,12 +122,14 @@ def mesh_placement(name: str) -> MeshPlacement:
     centre = np.asarray(mesh.bounds, dtype=np.float64).mean(axis=0)
     radius = float(np.max(np.linalg.norm(np.asarray(mesh.vertices) - centre, axis=1)))
     arc = radius_min = None
-    if name == "colon":
+    if name in ("colon", "colon_haustral"):
         line = mesh.metadata.get("centerline")
-        if not isinstance(line, dict) or "arclength_mm" not in line:
+        if not isinstance(line, dict) or ("arclength_mm" if name == "colon" else "points") not in line:
             raise ValueError(f"{path}: metadata: no colon centre line ('centerline')")
-        arc = np.asarray(line["arclength_mm"], dtype=np.float64)
         radius_min = np.asarray(line["radius_min_mm"], dtype=np.float64)
+        # haustral: the polyline through the ring stations c(v_i), <= 0.4 mm apart (chord = arc to 1e-6 mm)
+        arc = (np.asarray(line["arclength_mm"], dtype=np.float64) if name == "colon" else np.concatenate(
+            [[0.0], np.cumsum(np.linalg.norm(np.diff(np.asarray(line["points"]), axis=0), axis=1))]))
     return MeshPlacement(str(path), mesh, centre, radius, arc, radius_min)
 
 
@@ -157,7 +159,8 @@ def camera_up(forward: np.ndarray, roll_deg: float | None = None) -> np.ndarray:
 
 
 def colon_pose(station: float, view_deg: float, *, azimuth_deg: float | None = None,
-               radial_offset: float = 0.3, roll_deg: float | None = None) -> CameraPose:
+               radial_offset: float = 0.3, roll_deg: float | None = None,
+               mesh: str = "colon") -> CameraPose:
     """Camera inside the bundled colon, on its centre line, looking off the tangent.
 
     At arc length ``s = s0 + station (s1 - s0)`` of the centre line, with tangent ``t`` and the
@@ -180,6 +183,8 @@ def colon_pose(station: float, view_deg: float, *, azimuth_deg: float | None = N
         Offset from the centre line, as a fraction of the ring's smallest wall distance.
     roll_deg : float or None
         Roll of the image about the viewing direction (:func:`camera_up`).
+    mesh : {"colon", "colon_haustral"}
+        The bundled colon: the smooth tube, or the haustral colon (:func:`_haustral_pose`).
 
     Returns
     -------
@@ -189,8 +194,12 @@ def colon_pose(station: float, view_deg: float, *, azimuth_deg: float | None = N
     Raises
     ------
     FileNotFoundError, ValueError
-        As :func:`mesh_placement`.
+        As :func:`mesh_placement`; ValueError also for another ``mesh``.
     """
+    if mesh == "colon_haustral":
+        return _haustral_pose(station, view_deg, azimuth_deg, radial_offset, roll_deg)
+    if mesh != "colon":
+        raise ValueError(f"colon_pose: mesh: {mesh!r} is not 'colon' or 'colon_haustral'")
     info = mesh_placement("colon")
     arc = info.arc
     s = float(arc[0] + station * (arc[-1] - arc[0]))
@@ -208,6 +217,26 @@ def colon_pose(station: float, view_deg: float, *, azimuth_deg: float | None = N
     r_min = float(np.interp(s, arc, info.radius_min))
     position = centre - radial_offset * r_min * radial
     return CameraPose(info.path, position, position + forward, camera_up(forward, roll_deg))
+
+
+def _haustral_pose(station: float, view_deg: float, azimuth_deg: float | None, radial_offset: float,
+                   roll_deg: float | None) -> CameraPose:
+    """:func:`colon_pose` in the haustral colon by :func:`~simtest.scene.meshes.haustral_pose`; the
+    offset's unit is the smallest wall distance of the rings within half a fold spacing (crests bow
+    and stagger along the centre line: the station's ring alone can miss the nearest)."""
+    info = mesh_placement("colon_haustral")
+    gen = info.mesh.metadata["generator"]
+    arc, line = info.arc, info.mesh.metadata["centerline"]
+    s = float(arc[0] + station * (arc[-1] - arc[0]))
+    v = float(np.interp(s, arc, np.asarray(line["v"], dtype=np.float64)))
+    near = np.abs(arc - s) <= 0.5 * float(gen["params"]["fold_spacing_mm"])
+    r_min = float(info.radius_min[near].min()) if near.any() else float(np.interp(s, arc, info.radius_min))
+    r0 = 0.5 * float(gen["params"]["diameter_mm"])
+    pose = haustral_pose(info.mesh, v, view_deg, 0.0 if azimuth_deg is None else azimuth_deg,
+                         radial_offset * r_min / r0, look_mm=1.0)
+    position, look_at = np.asarray(pose["position_mm"]), np.asarray(pose["look_at_mm"])
+    up = np.asarray(pose["up"]) if roll_deg is None else camera_up(look_at - position, roll_deg)
+    return CameraPose(info.path, position, look_at, up)
 
 
 def liver_orbit_pose(azimuth_deg: float, elevation_deg: float, distance_mm: float) -> CameraPose:
