@@ -1339,8 +1339,7 @@ def reconstruct(
         (with ``n_components`` and ``n_unexamined``: the components detection found and those
         ``max_candidates`` left out; rejected ones carry the detection
         reason as status and no isophotes), brightest first. Empty if there is no candidate.
-        Its tables: ``.bp_px``, ``.statuses``, ``.normals()`` (N x E x 3), ``.to_arrow()``,
-        ``.to_json()``.
+        Tables: ``.bp_px``, ``.statuses``, ``.normals()``, ``.to_arrow()``, ``.to_json()``.
 
     Raises
     ------
@@ -1477,10 +1476,7 @@ def reconstruct(
     done = _complete(out)
     if settings.verify and done:
         done = _verified(frame, done, verifier=verifier)
-    pinhole = frame.camera.K if isinstance(frame.camera, PinholeCamera) else None
-    return Reconstruction(done, n_components=det.n_components, n_unexamined=det.n_unexamined,
-                          max_candidates=settings.max_candidates, K=pinhole, image_shape=img.shape,
-                          isovalues=settings.isovalues, normalise=settings.normalise.value)
+    return Reconstruction.of_frame(done, det, settings, frame.camera, img.shape)
 
 
 def _verifier_inputs(frame: _Frame, native: np.ndarray | None = None,

@@ -66,6 +66,29 @@ class Reconstruction(list):
         self.isovalues = tuple(float(t) for t in isovalues)
         self.normalise = str(normalise)
 
+    @classmethod
+    def of_frame(cls, estimates, detection, settings, camera, image_shape) -> Reconstruction:
+        """The frame's Reconstruction from what ``reconstruct`` holds at its end.
+
+        Parameters
+        ----------
+        estimates : list of SpecularityEstimate
+        detection : Detection
+            Its ``n_components`` and ``n_unexamined`` are recorded.
+        settings : ReconSettings
+            Its ``max_candidates``, ``isovalues`` and ``normalise`` are recorded.
+        camera : CameraModel
+            Its K is recorded where it is a pinhole camera.
+        image_shape : tuple of int
+        """
+        from simtest.geometry.cameras import PinholeCamera
+
+        return cls(estimates, n_components=detection.n_components,
+                   n_unexamined=detection.n_unexamined, max_candidates=settings.max_candidates,
+                   K=camera.K if isinstance(camera, PinholeCamera) else None,
+                   image_shape=image_shape, isovalues=settings.isovalues,
+                   normalise=settings.normalise.value)
+
     def detection_record(self) -> dict:
         """``{"components", "examined", "not_examined", "max_candidates"}`` for estimates.json."""
         return {"components": self.n_components, "examined": self.n_components - self.n_unexamined,
