@@ -166,10 +166,10 @@ def reconstruct_command(
                 camera_file.response.check_frame(img)
             except ResponseError as exc:
                 raise InputError(f"{intrinsics}: {exc} (frame {image})") from None
-        estimates = reconstruct(img, camera, settings=settings)
-        detection_rec = estimates.detection_record()
         # the scope's light rig from the camera file ("lights"; none: one light at the camera)
         rig = camera_file.lights
+        estimates = reconstruct(img, camera, settings=settings, lights=rig)
+        detection_rec = estimates.detection_record()
         with Progress(TextColumn("light-aware fits"), BarColumn(), MofNCompleteColumn(),
                       TimeElapsedColumn(), transient=True) as bar:
             task = bar.add_task("highlights", total=None)
