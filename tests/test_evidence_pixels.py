@@ -17,7 +17,7 @@ from simtest.reconstruct import evidence_pixels as px
 def _neighbours_by_loop(top, xs, ys, bps, ij, reach, min_top, level, ellipses, area_rel):
     """The neighbour count as its definition reads: per candidate, the peaks in the ball of
     ``reach`` around the BP (``cKDTree``), in the window, high enough, outside the ellipse, then
-    OpenCV's labels of the window above the valley level."""
+    OpenCV's labels of the window above the valley level, one count per region."""
     from scipy.spatial import cKDTree
 
     h, w = top.shape
@@ -40,7 +40,9 @@ def _neighbours_by_loop(top, xs, ys, bps, ij, reach, min_top, level, ellipses, a
         other = lab[y[sel] - r0, x[sel] - c0]
         area = stats[:, cv2.CC_STAT_AREA]
         big = area[other] >= area_rel * area[own] if own > 0 else np.ones(len(other), bool)
-        out[k] = np.count_nonzero(((other != own) | (own == 0)) & big)
+        counted = ((other != own) | (own == 0)) & big
+        # a region above the level is one peak, however many maxima the noise breaks it into
+        out[k] = len(np.unique(other[counted & (other > 0)])) + np.count_nonzero(counted & (other == 0))
     return out
 
 

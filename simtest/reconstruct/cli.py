@@ -218,7 +218,7 @@ def reconstruct_single(img, camera_file, settings: ReconSettings | None = None, 
         :meth:`~simtest.reconstruct.pipeline.Estimates.detection_record`.
     """
     settings = ReconSettings.for_frames() if settings is None else settings
-    estimates = reconstruct(img, camera_file.model, settings=settings)
+    estimates = reconstruct(img, camera_file.model, settings=settings, lights=camera_file.lights)
     # the scope's light rig from the camera file ("lights"; none: one light at the camera)
     return with_light_aware(img, estimates, camera_file.model, camera_file.lights,
                             cubic=None if cubic_patch else False, response=camera_file.response,

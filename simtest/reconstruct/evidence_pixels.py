@@ -255,14 +255,19 @@ def ellipse_level(ell, u, v):
 
 
 def other_peaks(top: np.ndarray, xs: np.ndarray, ys: np.ndarray, bps: np.ndarray, ij: np.ndarray,
-                reach: np.ndarray, min_top: np.ndarray, level: np.ndarray, ellipses, area_rel: float) -> np.ndarray:
+                reach: np.ndarray, min_top: np.ndarray, level: np.ndarray, ellipses, area_rel: float,
+                expected=None, tol_px: float = 0.0) -> np.ndarray:
     """Per candidate, the specular peaks (``xs``, ``ys``, row-major) within ``reach`` of its BP
     (``bps`` (u, v), its pixel ``ij`` (column, row)) with a top-hat of at least ``min_top``,
     outside its own isophote ``ellipses[k]`` (None: none), that are not on its lobe (not joined
     to it by pixels of the top-hat at least ``level``) and whose own region above ``level`` is
-    at least ``area_rel`` of the candidate's. The peak-to-candidate pairs are found and filtered
-    at once (a search by rows in the sorted peaks); the valleys of the few candidates left are
-    labelled by OpenCV in their windows. int64 (n,)."""
+    at least ``area_rel`` of the candidate's. A peak is its region above ``level``: the maxima
+    of one region (a plateau the noise breaks into many) count once. ``expected`` (None, or per
+    candidate an (M, 2) array of (u, v) points: where another light guide's highlight can lie,
+    :func:`simtest.reconstruct.rig_pairs.other_guide_curves`) leaves out the regions that come
+    within ``tol_px`` of such a point. The peak-to-candidate pairs are found
+    and filtered at once (a search by rows in the sorted peaks); the valleys of the few
+    candidates left are labelled by OpenCV in their windows. int64 (n,)."""
     h, w = top.shape
     n = len(bps)
     out = np.zeros(n, np.int64)
@@ -324,7 +329,34 @@ def other_peaks(top: np.ndarray, xs: np.ndarray, ys: np.ndarray, bps: np.ndarray
     a_own = np.where(own > 0, area[own], hh * ww - fg)
     big = (a_other >= area_rel * a_own[pos]) | (own[pos] == 0)
     counted = ((other != own[pos]) | (own[pos] == 0)) & big
-    out[ks] = np.bincount(pos, weights=counted, minlength=len(ks)).astype(np.int64)
+    if expected is not None:
+        hit = _labels_near(lab, expected, ks, r0, r1, c0, c1, oy, ox, tol_px)
+        counted &= ~np.array([o in hit[q] for q, o in zip(pos.tolist(), other.tolist())], bool)
+    # one count per region (pos, label): the maxima of a noisy plateau are one peak
+    # (a maximum below the level, label 0, is a peak of its own)
+    region = counted & (other > 0)
+    key = np.unique(pos[region] * (int(lab.max()) + 1) + other[region])
+    out[ks] = (np.bincount(key // (int(lab.max()) + 1), minlength=len(ks))
+               + np.bincount(pos[counted & (other == 0)], minlength=len(ks))).astype(np.int64)
+    return out
+
+
+def _labels_near(lab: np.ndarray, expected, ks: np.ndarray, r0, r1, c0, c1, oy, ox, tol: float) -> list[set]:
+    """Per labelled window ``i`` (candidate ``ks[i]``), the labels of ``lab`` (the mosaic)
+    within ``tol`` px of the candidate's expected points (u, v) that fall in its window."""
+    R = int(np.floor(tol))
+    dy, dx = np.mgrid[-R:R + 1, -R:R + 1]
+    disk = np.column_stack([dx.ravel(), dy.ravel()])[(dx.ravel() ** 2 + dy.ravel() ** 2) <= tol * tol]
+    out = []
+    for i, k in enumerate(ks.tolist()):
+        pts = expected[k]
+        if pts is None or not len(pts):
+            out.append(set())
+            continue
+        q = (np.rint(np.asarray(pts, np.float64)).astype(np.int64)[:, None, :] + disk[None]).reshape(-1, 2)
+        inw = (q[:, 1] >= r0[k]) & (q[:, 1] < r1[k]) & (q[:, 0] >= c0[k]) & (q[:, 0] < c1[k])
+        q = q[inw]
+        out.append(set(lab[q[:, 1] - r0[k] + oy[i], q[:, 0] - c0[k] + ox[i]].tolist()) - {0})
     return out
 
 
@@ -355,12 +387,14 @@ def surround_fraction(gray: np.ndarray, ell, bp_ij: np.ndarray, reach: float, ow
     return float(np.count_nonzero((top >= rel * peak) & ring) / np.count_nonzero(ring))
 
 
-def surround_fractions(gray: np.ndarray, ells, bps_ij: np.ndarray, reaches: np.ndarray, own_level: float,
-                       rel: float) -> np.ndarray:
+def surround_fractions(gray: np.ndarray, ells, bps_ij: np.ndarray, reaches: np.ndarray, own_level,
+                       rel: float, paired=None) -> np.ndarray:
     """:func:`surround_fraction` of many candidates (``ells``, ``bps_ij`` (n, 2) (column, row),
     ``reaches`` (n,)), the same numbers: the surrounds of the candidates of one whole reach in
     px computed together on their unclipped squares (pixels outside the frame not counted), the
-    openings one window each. float64 (n,)."""
+    openings one window each; ``own_level`` a float or one per candidate. ``paired`` (None, or per candidate a list of (u, v)): the lobes of
+    another light guide there, each taken as the candidate's own lobe moved to that point (the
+    same patch and roughness), are left out of the surround too. float64 (n,)."""
     h, w = gray.shape
     bps_ij = np.asarray(bps_ij, np.int64).reshape(-1, 2)
     reaches = np.asarray(reaches, np.float64).reshape(-1)
@@ -384,7 +418,13 @@ def surround_fractions(gray: np.ndarray, ells, bps_ij: np.ndarray, reaches: np.n
         c, s = col(cs[idx, 0]), col(cs[idx, 1])
         du, dv = xx - col(prm[idx, 0]), yy - col(prm[idx, 1])
         lev = ((c * du + s * dv) / col(prm[idx, 2])) ** 2 + ((-s * du + c * dv) / col(prm[idx, 3])) ** 2
-        ring = ((xx - col(bj)) ** 2 + (yy - col(bi)) ** 2 <= col(reach * reach)) & (lev > own_level)
+        own = np.broadcast_to(np.asarray(own_level, np.float64), (n,))
+        ring = ((xx - col(bj)) ** 2 + (yy - col(bi)) ** 2 <= col(reach * reach)) & (lev > col(own[idx]))
+        for m, q in enumerate(idx.tolist()):
+            for pu, pv in (paired[q] if paired is not None else ()):
+                du, dv = xx[m] - (prm[q, 0] + pu - bj[m]), yy[m] - (prm[q, 1] + pv - bi[m])
+                lv = ((cs[q, 0] * du + cs[q, 1] * dv) / prm[q, 2]) ** 2 + ((-cs[q, 1] * du + cs[q, 0] * dv) / prm[q, 3]) ** 2
+                ring[m] &= lv > own[q]
         ring &= ((ry >= 0) & (ry < h))[:, :, None] & ((rx >= 0) & (rx < w))[:, None, :]
         n_ring = np.count_nonzero(ring, axis=(1, 2))
         k = max(3, R | 1)  # odd, about the reach

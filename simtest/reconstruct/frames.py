@@ -290,7 +290,7 @@ def _frame_head(args) -> tuple[dict, list, bool]:
             response.check_frame(image)
         except ResponseError as exc:
             raise InputError(f"frame {name}: the camera file's {exc}") from None
-    ests = reconstruct(image, K, dist_coeffs=dist_coeffs, settings=settings)
+    ests = reconstruct(image, K, dist_coeffs=dist_coeffs, settings=settings, lights=rig)
     detection = ests.detection_record()
     # the light-aware step of a single image (nothing runs without a rig or with a co-located one),
     # on the linear intensities of the camera file's response as a single image's (the frame

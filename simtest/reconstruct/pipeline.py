@@ -1303,6 +1303,7 @@ def reconstruct(
     dist_coeffs=None,
     roi=None,
     settings: ReconSettings | None = None,
+    lights=None,
     **options,
 ) -> Reconstruction:
     """Detect every specular highlight of an image and estimate its normal.
@@ -1325,6 +1326,8 @@ def reconstruct(
         The reconstruction settings; default :meth:`ReconSettings.for_frames` (the defaults for
         whole frames: detection relative to local peaks, smoothing chosen from the noise,
         ``normalise="auto"``). The paper's settings are ``ReconSettings()``.
+    lights : LightRig, optional
+        The scope's rig: another guide's highlight is expected, not a cluster (:mod:`~simtest.reconstruct.rig_pairs`).
     **options
         Fields of :class:`~simtest.reconstruct.settings.ReconSettings` to change: ``normalise``,
         ``allow_open``, ``smooth_sigma_px`` (applies to detection too; None: from the noise),
@@ -1370,17 +1373,15 @@ def reconstruct(
     sliced = many and det.smoothed is not None and det.smoothed.shape == img.shape[:2]
     if sliced or (settings.verify and not many):
         # the colour frame's float32 luma, for the frame's smoothing and the verifier (which reads
-        # for_many_highlights' float64 luma where that is computed)
-        # (detection's answer where it asked, on the whole frame)
+        # for_many_highlights' float64 luma where computed) (detection's answer where it asked)
         grey = img.ndim == 3 and img.shape[2] >= 3 and (
             det.grey if det.grey is not None and sub.shape == img.shape else bool(_is_gray(img)))
         # (detection's own where it smoothed this frame's luma: the same values)
         frame = replace(frame, luma32=None if grey else det.luma32 if (det.luma32 is not None and sub.shape == img.shape)
                         else _colour_luma32(img, False), grey=grey)
     if not many and sub.shape == img.shape and frame.smooth_sigma_px > 0:
-        # few ROIs, each smoothed alone: in float32 from the frame's luma where it is at hand
-        # (the colour frame's float32 luma, a gray frame's channel, a single-channel 8- or 16-bit
-        # frame itself)
+        # few ROIs, each smoothed alone: in float32 from the frame's luma where it is at hand (the
+        # colour frame's float32 luma, a gray frame's channel, a single-channel 8- or 16-bit frame)
         if frame.luma32 is not None:
             frame = replace(frame, roi_luma=frame.luma32)
         elif frame.grey and det.gray is not None and det.gray.dtype == np.uint8 and det.gray.shape == img.shape[:2]:
@@ -1410,8 +1411,7 @@ def reconstruct(
     # every candidate's BP in the image, in one addition (each estimate's BP is a row of it)
     bps_arr = np.array([c.bp_uv for c in det.candidates], dtype=np.float64).reshape(-1, 2) + shift
     bps = list(bps_arr)
-    # BPs another highlight's isophote must not enclose (``merged``): every candidate's but the
-    # too small ones (noise)
+    # BPs another highlight's isophote must not enclose (``merged``): all but the too small (noise)
     keep = np.array([c.status != "too_small" for c in det.candidates], dtype=bool)
     # sorted by u, so that each isophote tests only the BPs in its u range (count_enclosed_sorted)
     kept = np.flatnonzero(keep)
@@ -1475,7 +1475,7 @@ def reconstruct(
                                  fitf=frames_of.get(k), ring=rings_of.get(k)))
     done = _complete(out)
     if settings.verify and done:
-        done = _verified(frame, done, verifier=verifier)
+        done = _verified(frame, done, verifier=verifier, lights=lights)
     return Reconstruction.of_frame(done, det, settings, frame.camera, img.shape)
 
 
@@ -1500,12 +1500,12 @@ def _verifier_inputs(frame: _Frame, native: np.ndarray | None = None,
 
 
 def _verified(frame: _Frame, ests: list[SpecularityEstimate], native: np.ndarray | None = None,
-              noise: float | None = None, *, verifier: tuple | None = None) -> list[SpecularityEstimate]:
+              noise: float | None = None, *, verifier: tuple | None = None, lights=None) -> list[SpecularityEstimate]:
     """The estimates with their confidence, and the fitted ones that fail a specularity check
     of :mod:`simtest.reconstruct.verify` with its reason as status (the fit is kept).
 
     ``native`` and ``noise`` as for :func:`_verifier_inputs`, or ``verifier``: its result,
-    where the caller has it."""
+    where the caller has it; ``lights`` the scope's rig (:func:`~simtest.reconstruct.verify.assess`)."""
     gray, grey, noise = _verifier_inputs(frame, native, noise) if verifier is None else verifier
     # only the estimates with isophotes can have a fit (a confidence) or be ok (a verdict); the
     # others (detection's rejections, the BP checks', most of a real frame's thousands) are
@@ -1513,7 +1513,7 @@ def _verified(frame: _Frame, ests: list[SpecularityEstimate], native: np.ndarray
     fit = [e for e in ests if e.isophotes]
     if not fit:
         return list(ests)
-    ev, res, inside = assess(frame.img, gray, fit, full_scale=frame.full_scale, noise=noise, grey=grey)
+    ev, res, inside = assess(frame.img, gray, fit, full_scale=frame.full_scale, noise=noise, grey=grey, camera=frame.camera, lights=lights)
     conf = confidence(ev, res).tolist()
     checks = verdict(ev, res, inside, only=[k for k, e in enumerate(fit) if e.ok])
     judged = {}

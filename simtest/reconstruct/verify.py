@@ -85,6 +85,7 @@ from simtest.reconstruct._pixels import uv_to_rc
 from simtest.reconstruct.detect import background_side_px, noise_sigma
 from simtest.reconstruct.fit import fit_ellipses
 from simtest.reconstruct.jpeg import quantisation_sigma
+from simtest.reconstruct.rig_pairs import PAIR_TOL_PX, other_guide_curves, other_lobe_centres
 
 __all__ = ["bp_checks", "shared_passes", "PALENESS_MAX", "WHITE_CHROMA", "SIGNIFICANCE_MIN", "CONTRAST_MIN", "PANEL_STD_REL",
            "PANEL_FRACTION_MAX", "NEIGHBOUR_REL", "OWN_RADIUS_PX", "SURROUND_REL", "OWN_REL",
@@ -126,6 +127,10 @@ class Evidence:
         Fraction of the candidate's surround lit by other light (:func:`_surround_fraction`),
         measured by :func:`assess` for the candidates that pass the checks before it; 1 for the
         other fitted ones, NaN for the rest.
+    paired : list of list of (float, float), optional
+        Per candidate, the centres (u, v) px of the other light guides' lobes that
+        :func:`assess` leaves out of its surround
+        (:func:`simtest.reconstruct.rig_pairs.other_lobe_centres`); None without a rig.
     """
 
     chroma_peak: np.ndarray
@@ -139,6 +144,7 @@ class Evidence:
     full_scale: float = 255.0
     minor_px: np.ndarray | None = None
     surround: np.ndarray | None = None
+    paired: list | None = None
 
     @property
     def paleness(self) -> np.ndarray:
@@ -280,7 +286,7 @@ def _top_of(g_at: np.ndarray, bg_at: np.ndarray) -> np.ndarray:
 def frame_evidence(image: np.ndarray, gray: np.ndarray, bps_uv: np.ndarray, rois, *,
                    full_scale: float, noise: float, background_px: int,
                    reach_px: np.ndarray | None = None, ellipses=None, windowed: bool | None = None,
-                   grey: bool = False, panels: bool = True) -> Evidence:
+                   grey: bool = False, panels: bool = True, expected=None) -> Evidence:
     """Measure every candidate of a frame.
 
     Parameters
@@ -322,6 +328,11 @@ def frame_evidence(image: np.ndarray, gray: np.ndarray, bps_uv: np.ndarray, rois
     panels : bool
         Measure the flat panels' share in the regions of interest (False: 0 for every candidate,
         and no panel map: :func:`bp_checks` reads only the BPs).
+    expected : list of ndarray of shape (M, 2), optional
+        Per candidate, where another light guide's highlight can lie (u, v) px
+        (:func:`simtest.reconstruct.rig_pairs.other_guide_curves`): a peak whose region comes
+        within :data:`~simtest.reconstruct.rig_pairs.PAIR_TOL_PX` of them is that highlight, not a
+        neighbour. None: no rig.
 
     Returns
     -------
@@ -395,9 +406,10 @@ def frame_evidence(image: np.ndarray, gray: np.ndarray, bps_uv: np.ndarray, rois
         # the same roundings as before: float32 thresholds from the float32 height
         ht = height[todo]
         ells = None if ellipses is None else [ellipses[k] for k in todo]
+        exp_t = None if expected is None else [expected[k] for k in todo]
         neighbours[todo] = px.other_peaks(top, xs, ys, np.asarray(bps_uv, np.float64).reshape(-1, 2)[todo], ij[todo],
                                           reach[todo], NEIGHBOUR_REL * ht, VALLEY_REL * ht - VALLEY_NOISE * noise,
-                                          ells, NEIGHBOUR_AREA_REL)
+                                          ells, NEIGHBOUR_AREA_REL, exp_t, PAIR_TOL_PX)
     # the significance's noise: the sensor's, and the error JPEG's quantisation added where the
     # frame carries a JPEG block grid (its flat blocks hide the sensor noise, and its ringing makes
     # peaks); an integer image's pixels carry at least the rounding's
@@ -450,9 +462,27 @@ def bp_checks(image: np.ndarray, gray: np.ndarray, bps_uv: np.ndarray, clipped: 
     return [detail if status == "not_specular" else None for status, detail in checks]
 
 
-#: The own lobe's radius at :data:`OWN_REL` over its radius at t = 0.7, squared (a Gaussian
-#: lobe exp(-r^2 / 2 s^2) reaches level t at r = s sqrt(2 ln(1 / t))).
-_OWN_LEVEL = float(np.log(1.0 / OWN_REL) / np.log(1.0 / 0.7))
+#: The isovalue at which :data:`NEIGHBOUR_REACH` is stated (the default primary, t = 0.7):
+#: another primary isophote scales the reach to the same extent of the lobe
+#: (:func:`_reach_axes`). A reference of the constant, not a level any check reads.
+_REACH_T = 0.7
+
+
+def _own_level(t) -> np.ndarray:
+    """The own lobe's radius at :data:`OWN_REL` over its radius at the primary isovalue ``t``,
+    squared (a Gaussian lobe exp(-r^2 / 2 s^2) reaches level t at r = s sqrt(2 ln(1 / t))): the
+    user's isovalue, whatever it is, not the default's."""
+    return np.log(1.0 / OWN_REL) / np.log(1.0 / np.asarray(t, np.float64))
+
+
+def _reach_axes(t) -> np.ndarray:
+    """:data:`NEIGHBOUR_REACH` for a primary isophote at ``t``, in its semi-major axes: the same
+    outer extent of a Gaussian lobe (radius proportional to sqrt(ln(1 / t))) as at
+    :data:`_REACH_T`."""
+    return NEIGHBOUR_REACH * np.sqrt(np.log(1.0 / _REACH_T) / np.log(1.0 / np.asarray(t, np.float64)))
+
+
+_OWN_LEVEL = float(_own_level(_REACH_T))  # the default isovalue's (for _surround_fraction)
 
 
 def _surround_fraction(gray: np.ndarray, ell, bp_ij: np.ndarray, reach: float) -> float:
@@ -467,7 +497,7 @@ def _surround_fraction(gray: np.ndarray, ell, bp_ij: np.ndarray, reach: float) -
 
 
 def assess(image: np.ndarray, gray: np.ndarray, ests, *, full_scale: float, windowed: bool | None = None,
-           noise: float | None = None, grey: bool = False):
+           noise: float | None = None, grey: bool = False, camera=None, lights=None):
     """The evidence on a frame's estimates, with their fits' residual ratios and BP placement.
 
     Parameters
@@ -488,6 +518,15 @@ def assess(image: np.ndarray, gray: np.ndarray, ests, *, full_scale: float, wind
         OpenCV's gray); default :func:`~simtest.reconstruct.detect.noise_sigma` of ``gray``.
     grey : bool
         As for :func:`frame_evidence` (R = G = B and ``gray`` is their value).
+    camera : CameraModel, optional
+        The camera, with ``lights``.
+    lights : LightRig, optional
+        The scope's light rig (the camera file's ``"lights"``): with two or more lights apart, a
+        peak where another guide's highlight can lie (:mod:`simtest.reconstruct.rig_pairs`) is
+        neither a neighbour nor the surround's light (the other guide's lobe, found where the
+        rig puts it, is left out of the surround as the own lobe is:
+        :func:`~simtest.reconstruct.rig_pairs.other_lobe_centres`). None (or one light): no
+        pairing.
 
     Returns
     -------
@@ -509,6 +548,9 @@ def assess(image: np.ndarray, gray: np.ndarray, ests, *, full_scale: float, wind
     ells = [None if p is None else p.ellipse for p in prims]
     resid = [None if p is None else p.fit_residual_px for p in prims]
     ok = np.array([e.ok for e in ests], dtype=bool)
+    major = np.full(n, np.nan)
+    # each primary isophote's isovalue (the user's): the reach and the own lobe scale with it
+    t = np.array([_REACH_T if p is None else p.isovalue for p in prims], np.float64)
     # a camera model without image conics fits its isophote on the viewing rays, where it is a
     # conic; the image outline the lens distorts still gives the checks its size, reach and own
     # lobe (its residual is the lens's, not the fit's: taken as 0); all fitted in one batch
@@ -523,16 +565,22 @@ def assess(image: np.ndarray, gray: np.ndarray, ests, *, full_scale: float, wind
         cu, cv, a, b, ang, r = np.array([(ells[k].center[0], ells[k].center[1], ells[k].semi_axes[0],
                                           ells[k].semi_axes[1], ells[k].angle_rad, resid[k]) for k in f],
                                         dtype=np.float64).T
-        minor[f] = b
+        minor[f], major[f] = b, a
         res[f] = r / np.maximum(b, 1e-9)
         inside[f] = px.ellipse_level(SimpleNamespace(center=(cu, cv), semi_axes=(a, b), angle_rad=ang),
                                    bps[f, 0], bps[f, 1]) <= 1.0
-        reach[f] = np.where(ok[f], NEIGHBOUR_REACH * a + OWN_RADIUS_PX, np.nan)
+        reach[f] = np.where(ok[f], _reach_axes(t[f]) * a + OWN_RADIUS_PX, np.nan)
+    expected = None
+    if lights is not None and camera is not None and lights.has_separate_lights:
+        # out to the reach plus the own lobe's radius at OWN_REL: a lobe whose flank reaches the
+        # surround may have its centre beyond it
+        expected = other_guide_curves(camera, lights.positions, bps,
+                                      np.nan_to_num(reach + np.sqrt(_own_level(t)) * major, nan=-1.0))
     # no image outline at all: judged on the rest
     res[ok & ~fitted], inside[ok & ~fitted] = 0.0, True
     ev = frame_evidence(image, gray, bps, [e.roi for e in ests], full_scale=full_scale,
                         noise=noise_sigma(gray) if noise is None else float(noise), background_px=background_side_px(gray.shape),
-                        reach_px=reach, ellipses=ells, windowed=windowed, grey=grey)
+                        reach_px=reach, ellipses=ells, windowed=windowed, grey=grey, expected=expected)
     clipped = np.array([bool(e.saturated) for e in ests], dtype=bool)
     # the surround, for the candidates that pass every check before it (verdict's order); the
     # others' share counts as 1 (all lit) in their confidence
@@ -540,12 +588,15 @@ def assess(image: np.ndarray, gray: np.ndarray, ests, *, full_scale: float, wind
     passed = (np.isfinite(reach) & (ev.panel_fraction <= PANEL_FRACTION_MAX) & ev.specular_colour
               & (clipped | ((ev.significance >= SIGNIFICANCE_MIN) & (ev.contrast >= CONTRAST_MIN)))
               & (ev.neighbours == 0))
+    if expected is not None:  # the other guides' lobes, where the rig puts them
+        lit = ev.background + SURROUND_REL * ev.height
+        ev = replace(ev, paired=other_lobe_centres(gray, expected, ells, _own_level(t), lit))
     if passed.any():
         g = np.asarray(gray)  # _surround_fraction converts its window to float32 (the same values)
         ij = np.clip(np.rint(bps).astype(np.int64), 0, [gray.shape[1] - 1, gray.shape[0] - 1])
         sel = np.flatnonzero(passed)
-        surround[passed] = px.surround_fractions(g, [ells[k] for k in sel], ij[sel], reach[sel], _OWN_LEVEL,
-                                                 SURROUND_REL)
+        surround[passed] = px.surround_fractions(g, [ells[k] for k in sel], ij[sel], reach[sel], _own_level(t[sel]),
+                                                 SURROUND_REL, None if ev.paired is None else [ev.paired[k] for k in sel])
     return replace(ev, clipped=clipped, minor_px=minor, surround=surround), res, inside
 
 

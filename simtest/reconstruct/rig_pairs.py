@@ -1,0 +1,143 @@
+"""Where a scope's other light guides put their highlights, seen from one highlight's BP.
+
+A locally planar patch lit by several guides shows one highlight per guide; the verifier's
+isolation checks (:mod:`simtest.reconstruct.verify`, ``cluster``) must not take them for a cluster.
+
+Derivation (planar patch, camera frame, mm). The BP's unit ray ``r``; suppose it is guide ``i``'s
+specular point at depth ``d``: ``X = d r``. Reflection fixes the normal as the bisector
+``n = unit(unit(-X) + unit(L_i - X))`` and the plane ``n . Y = -h``, ``h = -n . X``. Guide ``j``'s
+specular point on it is where the segment to its mirror image ``L'_j = L_j - 2 (n . L_j + h) n``
+meets the plane, ``X_j = L'_j h / (-n . L'_j)`` (as :func:`simtest.simulate.offset.specular_point`),
+projected by the camera. The unknowns are the guide and the depth; sweeping ``d`` over the working
+range (:data:`DEPTH_MIN_MM` to :data:`DEPTH_MAX_MM`) draws, per ordered pair of guides, a curve
+from far out along the image direction of the baseline ``L_j - L_i`` (near tissue) to the BP (far
+tissue). Admissible depths: the patch faces the camera (``n . r < 0``) and lies beyond both guides
+(``n . L + h > 0``); the normal range is what reflection allows at those depths. A peak whose region
+comes within :data:`PAIR_TOL_PX` of a curve is another guide's highlight. A curved patch moves it
+off the curve; beyond the tolerance it still counts (conservative). Its lobe also lights the
+surround: :func:`other_lobe_centres` finds it as the brightest light on the curve outside the own
+lobe, and the verifier leaves the own lobe's shape moved there out of the surround (one patch, one
+roughness: the lobes are alike).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+__all__ = ["DEPTH_MIN_MM", "DEPTH_MAX_MM", "DEPTH_SAMPLES", "PAIR_TOL_PX", "other_guide_curves",
+           "other_lobe_centres"]
+
+#: Nearest tissue depth along the BP's ray, mm: white-light colonoscopes and gastroscopes focus
+#: from about 2 to 3 mm (near-focus models) to about 100 mm (their data sheets' depth of field);
+#: nearer, nothing is sharp. Provenance: the scopes' specifications, not chosen on any frame.
+DEPTH_MIN_MM = 2.0
+#: Farthest tissue depth, mm (that depth of field's far end; beyond it the other highlight lies
+#: within the own lobe). Provenance: as :data:`DEPTH_MIN_MM`.
+DEPTH_MAX_MM = 100.0
+#: Depths sampled, geometrically spaced (the curve's image step shrinks as 1 / d^2); the polyline
+#: is resampled every half pixel, so this sets only how closely it follows the curve (within
+#: 0.1 px on the bundled scopes' 140 deg fields).
+DEPTH_SAMPLES = 256
+#: Largest distance between a peak's region and a curve, px: the BP is found on the pixel grid
+#: after the detection's smoothing (half a pixel of rounding per axis and about a pixel of blur,
+#: as the verifier's ``OWN_RADIUS_PX``). Provenance: the pixel grid; not tuned on frames.
+PAIR_TOL_PX = 2.0
+
+
+def _unit(v: np.ndarray) -> np.ndarray:
+    return v / np.linalg.norm(v, axis=-1, keepdims=True)
+
+
+def _curve(ray, Li, Lj, depths) -> np.ndarray:
+    """Guide j's specular points (D, 3) for the BP as guide i's at each depth (NaN: inadmissible)."""
+    X = depths[:, None] * ray[None, :]
+    n = _unit(_unit(-X) + _unit(Li - X))
+    h = -np.einsum("ij,ij->i", n, X)
+    Lm = Lj - 2.0 * (n @ Lj + h)[:, None] * n
+    den = -np.einsum("ij,ij->i", n, Lm)
+    ok = (n @ ray < 0) & (h > 0) & (n @ Li + h > 0) & (n @ Lj + h > 0) & (den > 0)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        return np.where(ok[:, None], Lm * (h / den)[:, None], np.nan)
+
+
+def _resampled(uv: np.ndarray, step: float, centre: np.ndarray, radius: float) -> np.ndarray:
+    """The polyline through the finite rows of ``uv`` every ``step`` px, within ``radius`` of
+    ``centre`` (the vertices beyond dropped but for those of a segment crossing the circle)."""
+    uv = uv[np.isfinite(uv).all(axis=1)]
+    near = np.linalg.norm(uv - centre, axis=1) <= radius
+    uv = uv[near | np.r_[near[1:], False] | np.r_[False, near[:-1]]]
+    if len(uv) < 2:
+        return uv
+    s = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(uv, axis=0), axis=1))])
+    t = np.arange(0.0, s[-1] + step, step)
+    pts = np.column_stack([np.interp(t, s, uv[:, 0]), np.interp(t, s, uv[:, 1])])
+    return pts[np.linalg.norm(pts - centre, axis=1) <= radius]
+
+
+def other_guide_curves(camera, positions_mm, bps_uv, radius_px, step_px: float = 0.5) -> list[np.ndarray]:
+    """Where the other guides' specular points can lie, per candidate (module docstring).
+
+    Parameters
+    ----------
+    camera : CameraModel
+        The camera (``pixel_to_ray``, ``ray_to_pixel``).
+    positions_mm : array_like of shape (G, 3)
+        The guides' positions, camera frame, mm.
+    bps_uv : array_like of shape (N, 2)
+        The candidates' BPs (u, v), px.
+    radius_px : array_like of shape (N,)
+        Keep the points within this distance of each BP, px (negative or NaN: none).
+    step_px : float
+        Spacing of the points along each curve, px (half a pixel: a lookup dilated by
+        :data:`PAIR_TOL_PX` misses no pixel the curve crosses).
+
+    Returns
+    -------
+    list of ndarray of shape (M_k, 2)
+        Per candidate, the points (u, v) of every ordered pair of guides' curve.
+    """
+    L = np.asarray(positions_mm, np.float64).reshape(-1, 3)
+    bps = np.asarray(bps_uv, np.float64).reshape(-1, 2)
+    pairs = [(i, j) for i in range(len(L)) for j in range(len(L)) if np.linalg.norm(L[i] - L[j]) > 0]
+    radius = np.broadcast_to(np.asarray(radius_px, np.float64), (len(bps),))
+    depths = np.geomspace(DEPTH_MIN_MM, DEPTH_MAX_MM, DEPTH_SAMPLES)
+    out = []
+    for ray, bp, rad in zip(camera.pixel_to_ray(bps) if len(bps) else (), bps, radius):
+        pts = [np.zeros((0, 2))]
+        for i, j in pairs if np.isfinite(ray).all() and rad >= 0 else ():
+            Xj = _curve(_unit(ray), L[i], L[j], depths)
+            uv = np.full((len(Xj), 2), np.nan)
+            good = np.isfinite(Xj).all(axis=1)
+            uv[good] = camera.ray_to_pixel(Xj[good]) if good.any() else uv[good]
+            pts.append(_resampled(uv, step_px, bp, rad))
+        out.append(np.concatenate(pts))
+    return out
+
+
+def other_lobe_centres(gray: np.ndarray, expected, ellipses, own_level, lit_level) -> list[list[tuple[float, float]]]:
+    """Per candidate, the other guide's lobe centre on its curve: around the brightest pixel of
+    ``gray`` on ``expected[k]`` outside the own lobe (the primary isophote ``ellipses[k]`` scaled
+    to ``own_level[k]`` squared semi-axes), kept where at least ``lit_level[k]`` (image units: a
+    lobe, not tissue), the middle of the curve's pixels above half the way from that level to it
+    (a clipped or noisy top has no single maximum; a symmetric lobe is centred there); at most
+    one (u, v) per candidate, px."""
+    h, w = gray.shape
+    out: list = []
+    for k, pts in enumerate(expected):
+        ell, q = ellipses[k], np.unique(np.rint(pts).astype(np.int64), axis=0) if len(pts) else None
+        if ell is None or q is None:
+            out.append([])
+            continue
+        q = q[(q[:, 0] >= 0) & (q[:, 0] < w) & (q[:, 1] >= 0) & (q[:, 1] < h)]
+        c, s = np.cos(ell.angle_rad), np.sin(ell.angle_rad)
+        du, dv = q[:, 0] - ell.center[0], q[:, 1] - ell.center[1]
+        q = q[((c * du + s * dv) / ell.semi_axes[0]) ** 2 + ((-s * du + c * dv) / ell.semi_axes[1]) ** 2 > own_level[k]]
+        vals = gray[q[:, 1], q[:, 0]].astype(np.float64)
+        b = int(np.argmax(vals)) if len(q) else -1
+        if b < 0 or not vals[b] >= lit_level[k]:
+            out.append([])
+            continue
+        near = np.linalg.norm(q - q[b], axis=1) <= np.sqrt(own_level[k]) * ell.semi_axes[0]
+        top = q[near & (vals >= 0.5 * (vals[b] + lit_level[k]))]
+        out.append([(float(top[:, 0].mean()), float(top[:, 1].mean()))])
+    return out

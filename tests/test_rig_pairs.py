@@ -1,0 +1,215 @@
+"""A light rig's other guides' highlights are expected, not clusters (issue 63, item 2).
+
+End to end through ``simtest reconstruct`` on flat mucosa under the two-guide rig: sensor-like
+frames made here without the project's simulators (Blinn-Phong lobes, Lambertian shading in a
+tissue colour, sRGB, clipping, 8 bits, 1 % noise), and the endoscope suite's
+``colonoscope_plane`` rendered by ``simtest render`` (marked ``render``).
+"""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+from hypothesis import example, given, settings
+from hypothesis import strategies as st
+from PIL import Image
+from typer.testing import CliRunner
+
+from simtest.cli import app
+from simtest.geometry.cameras import PinholeCamera
+from simtest.reconstruct.rig_pairs import PAIR_TOL_PX, other_guide_curves
+from simtest.simulate.offset import specular_point
+
+GUIDES_MM = np.array([[-4.0, 0.0, 0.0], [4.0, 0.0, 0.0]])  # the colonoscope rig's two guides
+#: Largest distance from a true highlight at which an estimate is its (px): the BP is the
+#: brightest pixel of the smoothed frame, within a pixel or two of the specular point (a clipped
+#: plateau's BP lies within it).
+MATCH_PX = 3.0
+#: The must-hold (issue 63): at least this share of the true highlights get a light-aware
+#: recommended normal, with a median error at most MEDIAN_MAX_DEG.
+SHARE_MIN = 0.9
+MEDIAN_MAX_DEG = 0.5
+
+
+def _normal(tilt_deg, az_deg):
+    t, a = np.radians(tilt_deg), np.radians(az_deg)
+    return np.array([np.sin(t) * np.cos(a), np.sin(t) * np.sin(a), -np.cos(t)])
+
+
+@settings(max_examples=60, deadline=None)
+@given(tilt=st.floats(0.0, 60.0), az=st.floats(0.0, 360.0), h=st.floats(5.0, 60.0),
+       f=st.floats(60.0, 400.0), first=st.integers(0, 1))
+def test_the_other_guides_specular_point_lies_on_the_predicted_curve(tilt, az, h, f, first):
+    # an exact plane: each guide's specular point (an independent derivation,
+    # simtest.simulate.offset.specular_point); from the one guide's BP the curve passes within
+    # its half-pixel resampling step of the other's
+    N = _normal(tilt, az)
+    cam = PinholeCamera(np.array([[f, 0, 200.0], [0, f, 200.0], [0, 0, 1]]))
+    X0, _ = specular_point(N, h, GUIDES_MM[first])
+    X1, _ = specular_point(N, h, GUIDES_MM[1 - first])
+    uv0, uv1 = cam.ray_to_pixel(np.stack([X0, X1]))
+    gap = float(np.linalg.norm(uv1 - uv0))
+    (pts,) = other_guide_curves(cam, GUIDES_MM, uv0[None], [gap + 5.0])
+    assert len(pts)
+    # (the resampling step, 0.5 px, is the bound: well inside the pairing's tolerance)
+    assert np.min(np.linalg.norm(pts - uv1, axis=1)) <= 0.5 + 1e-6 < PAIR_TOL_PX
+
+
+def test_a_users_isovalue_reaches_the_isolation_check():
+    # Two white glints (sigma 1.5 px) 7 px apart: with the default primary t = 0.7 the first is
+    # ok (its neighbour lies beyond 3 semi-major axes of its t = 0.7 isophote plus 2 px). A
+    # user's t = 0.5 isophote is wider; the reach once counted 3 of its axes, a check built
+    # for another isophote, and called the same glint a cluster. The reach now covers the same
+    # extent of the lobe whatever the isovalue.
+    from test_verify import WHITE, K, _at, _frame
+
+    from simtest.reconstruct.pipeline import reconstruct
+
+    img = _frame([(100, 100, 1.5, 150, WHITE), (107, 100, 1.5, 140, WHITE)])
+    for t in ((0.7, 0.85), (0.5, 0.85), (0.6, 0.85)):
+        e = _at(reconstruct(img, K, isovalues=t), 100, 100)
+        assert e.status == "ok", (t, e.status, e.detail)
+
+
+# --- sensor-like frames made without the project's simulators -------------------------------------
+
+
+def _srgb(s):
+    return np.where(s <= 0.0031308, 12.92 * s, 1.055 * np.power(np.maximum(s, 0.0031308), 1 / 2.4) - 0.055)
+
+
+def sensor_plane(tilt_deg, depth_mm, seed, *, spec=3.0, size=320, f=160.0, shininess=800.0,
+                 tissue=(0.75, 0.32, 0.25), noise=0.01):
+    """An 8-bit sRGB frame of a plane under the two guides: Blinn-Phong lobes (exponent
+    ``shininess``) and Lambertian shading in the ``tissue`` colour, each guide's light falling
+    off with the inverse square, exposed so that the shading's median is 45 % of full scale and
+    the lobes clip, 1 % Gaussian noise before the curve. Returns the frame, K, the normal and the
+    true highlights' pixels (one per guide)."""
+    n = _normal(tilt_deg, 90.0)
+    h = depth_mm * np.cos(np.radians(tilt_deg))  # the plane n . X = -h, depth_mm on the axis
+    K = np.array([[f, 0, (size - 1) / 2], [0, f, (size - 1) / 2], [0, 0, 1.0]])
+    vv, uu = np.mgrid[0:size, 0:size].astype(float)
+    d = np.stack([(uu - K[0, 2]) / f, (vv - K[1, 2]) / f, np.ones_like(uu)], -1)
+    X = d * (-h / (d @ n))[..., None]
+    V = -X / np.linalg.norm(X, axis=-1, keepdims=True)
+    diffuse, lobes, truth = np.zeros((size, size)), np.zeros((size, size)), []
+    for L in GUIDES_MM:
+        Ld = L - X
+        r = np.linalg.norm(Ld, axis=-1)
+        Ld /= r[..., None]
+        E = (h / r) ** 2 * np.maximum(Ld @ n, 0.0)
+        H = Ld + V
+        H /= np.linalg.norm(H, axis=-1, keepdims=True)
+        diffuse += E
+        lobes += E * np.maximum(H @ n, 0.0) ** shininess
+        Lm = L - 2 * (n @ L + h) * n  # the guide's mirror image: its specular point on the plane
+        Xs = Lm * (h / -(n @ Lm))
+        truth.append((K @ Xs)[:2] / Xs[2])
+    rgb = diffuse[..., None] * np.asarray(tissue) + spec * lobes[..., None]
+    s = np.clip(0.45 / np.median(diffuse * max(tissue)) * rgb, 0, 1)
+    s = np.clip(s + np.random.default_rng(seed).normal(0, noise, s.shape), 0, 1)
+    return np.rint(_srgb(s) * 255).astype(np.uint8), K, n, truth
+
+
+def _write(folder, img, K, *, lights=True):
+    folder.mkdir(parents=True, exist_ok=True)
+    Image.fromarray(img).save(folder / "frame.png")
+    cam = {"model": "pinhole", "K": K.tolist(), "image_size": [img.shape[1], img.shape[0]],
+           "response": {"curve": "srgb", "white_balance": [1, 1, 1], "exposure": 1.0, "clip": 255.0}}
+    if lights:
+        cam["lights"] = [{"position_mm": L.tolist(), "intensity": 1.0, "falloff": "inverse_square"}
+                         for L in GUIDES_MM]
+    (folder / "camera.json").write_text(json.dumps(cam))
+
+
+def _reconstruct(folder):
+    res = CliRunner().invoke(app, ["reconstruct", str(folder / "frame.png"), "--intrinsics",
+                                   str(folder / "camera.json"), "-o", str(folder / "out"), "--no-overlay",
+                                   "--workers", "1"])
+    assert res.exit_code == 0, res.output
+    return json.loads((folder / "out" / "estimates.json").read_text())["specularities"]
+
+
+def _score(specs, truth, normal):
+    """Per true highlight: the matched estimate's status, and the light-aware recommended
+    normal's error (deg; None where the recommendation is the BP ray or the isophotes')."""
+    bps = np.array([s["bp_px"] for s in specs]).reshape(-1, 2)
+    rows = []
+    for uv in truth:
+        d = np.linalg.norm(bps - uv, axis=1) if len(bps) else np.array([np.inf])
+        k = int(np.argmin(d))
+        if d[k] > MATCH_PX:
+            rows.append(("undetected", None))
+            continue
+        s = specs[k]
+        aware = s["normal_from"] not in ("bp_ray", "isophote") and s["normal"] is not None
+        err = float(np.degrees(np.arccos(min(1.0, abs(np.dot(s["normal"], normal)))))) if aware else None
+        rows.append((s["status"], err))
+    return rows
+
+
+#: Flat mucosa as the sensor sees it: tilts 10 to 30 deg, depths 15 to 25 mm (the endoscope
+#: suite's working distances), specular strengths from lobes that just clip to clipped plateaus
+#: with noisy rims (0.03 to 0.13 % of the pixels white). Outside this range two known limits
+#: (not of the rig pairing) bite: brighter lobes farther away run into one clipped plateau (one
+#: candidate between the guides, ``merged``), and on steeper near planes the red channel clips
+#: over the near tissue, whose luma is then flatter than the frame's noise and reads as a drawn
+#: panel (``overlay``; test_a_red_clipped_near_tissue_reads_as_a_panel).
+@settings(max_examples=4, deadline=None, derandomize=True)
+@given(tilt=st.floats(10.0, 30.0), depth=st.floats(15.0, 25.0), spec=st.floats(1.5, 3.0),
+       seed=st.integers(0, 2**16))
+@example(tilt=30.0, depth=20.0, spec=4.0, seed=1)  # the issue's: 114 "other peaks", cluster, before
+def test_sensor_like_flat_mucosa_under_the_two_guides_gets_light_aware_normals(tmp_path_factory, tilt, depth,
+                                                                             spec, seed):
+    img, K, n, truth = sensor_plane(tilt, depth, seed, spec=spec)
+    folder = tmp_path_factory.mktemp("sensor")
+    _write(folder, img, K)
+    rows = _score(_reconstruct(folder), truth, n)
+    errs = [e for _, e in rows if e is not None]
+    assert len(errs) >= SHARE_MIN * len(rows), rows
+    assert np.median(errs) <= MEDIAN_MAX_DEG, rows
+
+
+@pytest.mark.xfail(strict=True, reason="known limit: the panel check reads the red-clipped near tissue "
+                                       "(luma flatter than the frame's noise) as a drawn panel")
+def test_a_red_clipped_near_tissue_reads_as_a_panel(tmp_path):
+    # tilt 35 deg at 15 mm: the near tissue's red channel clips over rows 0 to 88; both highlights
+    # are refused as overlay (their regions 30 % panel), not for the rig
+    img, K, n, truth = sensor_plane(35.0, 15.0, 6, spec=1.5)
+    _write(tmp_path, img, K)
+    rows = _score(_reconstruct(tmp_path), truth, n)
+    assert all(e is not None for _, e in rows), rows
+
+
+def test_without_a_rig_the_other_guides_lobe_still_counts(tmp_path):
+    # The same frame whose camera file names no lights (one light at the camera centre): nothing
+    # predicts a second highlight, and the isolation check stays as it was (a cluster)
+    img, K, n, truth = sensor_plane(30.0, 20.0, 1, spec=4.0)
+    _write(tmp_path, img, K, lights=False)
+    statuses = [s for s, _ in _score(_reconstruct(tmp_path), truth, n)]
+    assert statuses.count("cluster") >= 1, statuses
+
+
+# --- the endoscope suite's plane, rendered and reconstructed as a user runs them ----------------
+
+
+@pytest.mark.render
+@pytest.mark.slow
+@pytest.mark.parametrize("seed", [0, 1])
+def test_colonoscope_plane_end_to_end_gets_light_aware_normals_for_both_guides(tmp_path, seed):
+    # simtest render colonoscope_plane --seed k, then simtest reconstruct frame.png --intrinsics
+    # camera.json (the rig and the response): both guides' highlights get photometric_fit's
+    # normal (before: the second guide's was a cluster on every seed, its BP ray 6 deg off)
+    pytest.importorskip("mitsuba")
+    res = CliRunner().invoke(app, ["render", "colonoscope_plane", "--seed", str(seed), "-o", str(tmp_path)])
+    assert res.exit_code == 0, res.output
+    truth = json.loads((tmp_path / "highlights.json").read_text())["highlights"]
+    specs = _reconstruct(tmp_path)
+    rows = []
+    for hl in truth:
+        rows += _score(specs, [np.asarray(hl["bp_px"])], np.asarray(hl["normal"]))
+    errs = [e for _, e in rows if e is not None]
+    assert len(rows) == 2 and len(errs) >= SHARE_MIN * len(rows), rows
+    assert np.median(errs) <= MEDIAN_MAX_DEG, rows
