@@ -1,10 +1,11 @@
 """The one lazy-import helper, for the optional heavy back-ends.
 
 simtest imports its dependencies at the top of each module, so that the dependency graph is
-visible. Five back-ends are the exception, because they are heavy to import (seconds) or not
+visible. A few back-ends are the exception, because they are heavy to import (seconds) or not
 installed everywhere: Mitsuba 3 / Dr.Jit (rendering), Dask (a dataset on a cluster), PyTorch (the
-dataset reader as a ``torch.utils.data.Dataset``), PyVista (3D views) and pyarrow (a video's
-``estimates.parquet``). Code that needs one calls
+dataset reader as a ``torch.utils.data.Dataset``), PyVista (3D views), pyarrow (a video's
+``estimates.parquet``), and where ``simtest reconstruct`` may not need them, SciPy (the light-aware
+fits) and matplotlib (the overlay). Code that needs one calls
 :func:`require` where it is used; a missing back-end then gives one readable line naming what to
 install, instead of an ``ImportError`` traceback at ``import simtest``.
 
@@ -13,7 +14,7 @@ Examples
 >>> require("no_such_backend")
 Traceback (most recent call last):
 ...
-ValueError: simtest._lazy.require: 'no_such_backend' is not one of the optional back-ends (dask, distributed, drjit, mitsuba, pyarrow, pyvista, torch, vtkmodules)
+ValueError: simtest._lazy.require: 'no_such_backend' is not one of the optional back-ends (dask, distributed, drjit, matplotlib, mitsuba, pyarrow, pyvista, scipy, torch, vtkmodules)
 """
 
 from __future__ import annotations
@@ -35,6 +36,8 @@ BACKENDS: dict[str, str | None] = {
     "vtkmodules": "view",  # VTK, which pyvista brings: its logger is silenced for the 3D views
     "torch": "torch",
     "pyarrow": None,  # estimates.parquet only: about a second of imports one image does without
+    "scipy": None,  # the light-aware fits and the overlay's spacing: ~1 s a frame without a rig skips
+    "matplotlib": None,  # the overlay: ~1 s a video or --no-overlay skips
 }
 
 

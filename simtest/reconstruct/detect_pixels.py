@@ -642,7 +642,9 @@ def local_peak_mask(gray: np.ndarray, full_scale: float, *, peak_rel: float = 0.
     scaled = peak_small * np.float32(peak_rel)
     near_level = cv2.resize(scaled, (w, h), interpolation=cv2.INTER_LINEAR) if f > 1 else scaled
     thr = np.float32(contrast_min_rel * full_scale)
-    mask = cv2.bitwise_and(cv2.compare(top, near_level, cv2.CMP_GE), cv2.compare(top, float(thr), cv2.CMP_GE))
+    # top >= near_level and top >= thr: one comparison with their maximum (exact; two frame-sized
+    # passes fewer)
+    mask = cv2.compare(top, cv2.max(near_level, float(thr)), cv2.CMP_GE)
     np.right_shift(mask, 7, out=mask)  # 255 -> 1
     if _parts is not None:  # the reduced background and local peaks (_detect_half_resolution)
         _parts.extend((bg_small, peak_small, f))

@@ -290,7 +290,8 @@ def other_peaks(top: np.ndarray, xs: np.ndarray, ys: np.ndarray, bps: np.ndarray
         e = [ellipses[k] if has[k] else None for k in range(n)]
         prm = np.array([(q.center[0], q.center[1], q.semi_axes[0], q.semi_axes[1], q.angle_rad) if q is not None
                         else (0.0, 0.0, 1.0, 1.0, 0.0) for q in e], np.float64)
-        c, s = np.cos(prm[cand, 4]), np.sin(prm[cand, 4])
+        # each candidate's cosine and sine once, then read per pair (the same values: elementwise)
+        c, s = np.cos(prm[:, 4])[cand], np.sin(prm[:, 4])[cand]
         du, dv = px - prm[cand, 0], py - prm[cand, 1]
         lev = ((c * du + s * dv) / prm[cand, 2]) ** 2 + ((-s * du + c * dv) / prm[cand, 3]) ** 2
         sel &= ~has[cand] | (lev > 1.0)
@@ -417,9 +418,19 @@ def surround_fractions(gray: np.ndarray, ells, bps_ij: np.ndarray, reaches: np.n
         reach = reaches[idx]
         c, s = col(cs[idx, 0]), col(cs[idx, 1])
         du, dv = xx - col(prm[idx, 0]), yy - col(prm[idx, 1])
-        lev = ((c * du + s * dv) / col(prm[idx, 2])) ** 2 + ((-s * du + c * dv) / col(prm[idx, 3])) ** 2
+        # ellipse_level's terms in place (the same operations in the same order: the same bits),
+        # two (m, S, S) arrays where the expression made about ten
+        lev = np.add(c * du, s * dv)
+        lev /= col(prm[idx, 2])
+        np.multiply(lev, lev, out=lev)
+        t = np.add(-s * du, c * dv)
+        t /= col(prm[idx, 3])
+        np.multiply(t, t, out=t)
+        lev += t
         own = np.broadcast_to(np.asarray(own_level, np.float64), (n,))
-        ring = ((xx - col(bj)) ** 2 + (yy - col(bi)) ** 2 <= col(reach * reach)) & (lev > col(own[idx]))
+        ring = np.greater(lev, col(own[idx]))
+        # within the reach (whole numbers: exact in any order) and inside the frame
+        ring &= ((ry - bi[:, None]) ** 2)[:, :, None] + ((rx - bj[:, None]) ** 2)[:, None, :] <= col(reach * reach)
         for m, q in enumerate(idx.tolist()):
             for pu, pv in (paired[q] if paired is not None else ()):
                 du, dv = xx[m] - (prm[q, 0] + pu - bj[m]), yy[m] - (prm[q, 1] + pv - bi[m])

@@ -266,11 +266,11 @@ class _FrameRing:
         return _InRing(slot)
 
     def frame(self, slot: int) -> np.ndarray:
-        """The frame in ``slot``, a read-only view (the parent writes it only once this frame's
-        record has come back)."""
-        view = self.slots[slot]
-        view.setflags(write=False)
-        return view
+        """The frame in ``slot``, a view (the parent writes it only once this frame's record has
+        come back). Writeable, as a decoded frame is: numba types a read-only array apart, so a
+        read-only frame would compile (and cache) every image kernel a second time in each worker
+        (a fresh cache: minutes of CPU before the first frame)."""
+        return self.slots[slot]
 
     @staticmethod
     def attach(ring: _FrameRing) -> None:

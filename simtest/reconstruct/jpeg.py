@@ -22,8 +22,8 @@ References
 from __future__ import annotations
 
 import numpy as np
-from scipy.special import ndtri
 
+from simtest._lazy import require
 from simtest.constants import LUMA_BT601
 from simtest.decisions import (
     JPEG_MIN_COEFFICIENTS as MIN_COEFFICIENTS,
@@ -485,7 +485,7 @@ def _quiet_sd(c: np.ndarray, q: np.ndarray) -> np.ndarray:
     quiet = busy <= np.median(busy, axis=0)
     m = np.maximum(np.count_nonzero(quiet, axis=0), 1)
     out = np.maximum(np.count_nonzero(quiet & (idx > 0), axis=0), 0.5) / m
-    z = -ndtri(np.minimum(out, 0.5) / 2)
+    z = -require("scipy.special").ndtri(np.minimum(out, 0.5) / 2)  # imported for a JPEG only
     return np.where(out < 0.5, q / (2 * z), np.sqrt((c * c).mean(axis=0)))
 
 
@@ -501,7 +501,7 @@ def _sigma_of(coef: np.ndarray, steps: np.ndarray) -> float:
     # the original coefficients' standard deviation: from the share outside the zero bin,
     # 1 - P0 = 2 Phi(-q / 2 sd), where most fell in it; their own spread otherwise
     out = np.maximum(np.count_nonzero(c >= q / 2, axis=0), 0.5) / n
-    z = -ndtri(np.minimum(out, 0.5) / 2)  # >= 0.67
+    z = -require("scipy.special").ndtri(np.minimum(out, 0.5) / 2)  # >= 0.67
     sd = np.where(out < 0.5, q / (2 * z), np.sqrt((c * c).mean(axis=0)))
     var[known] = _gauss_error_var(q, sd)
     # dead frequencies lost their whole content, the sensor noise of every block and the texture

@@ -24,11 +24,8 @@ import zlib
 from pathlib import Path
 
 import numpy as np
-from matplotlib.collections import LineCollection
-from matplotlib.figure import Figure
-from matplotlib.lines import Line2D
-from scipy.spatial import cKDTree
 
+from simtest._lazy import require
 from simtest._io import atomic_write
 from simtest.reconstruct.io import estimate_to_dict
 
@@ -155,7 +152,9 @@ def needle_length_px(bps: np.ndarray, shape) -> float:
     bps = np.asarray(bps, dtype=np.float64).reshape(-1, 2)
     if len(bps) < 2:
         return hi
-    nn = cKDTree(bps).query(bps, k=2)[0][:, 1]  # distance to the nearest other BP
+    spatial = require("scipy.spatial")  # when first needed: scipy slows the start
+
+    nn = spatial.cKDTree(bps).query(bps, k=2)[0][:, 1]  # distance to the nearest other BP
     return float(np.clip(1.5 * np.median(nn), lo, hi))
 
 
@@ -209,6 +208,12 @@ def draw_overlay(path, image, estimates, K=None, *, estimators=None, show_reject
     ValueError
         If the overlay would not fit in memory (:func:`check_overlay_size`).
     """
+    # matplotlib when first drawn, not at import: about a second of the command line's start,
+    # spent on nothing by a video or --no-overlay
+    LineCollection = require("matplotlib.collections").LineCollection
+    Figure = require("matplotlib.figure").Figure
+    Line2D = require("matplotlib.lines").Line2D
+
     disp, kw = _display_image(image)
     check_overlay_size(disp.shape)
     h, w = disp.shape[:2]

@@ -5,7 +5,8 @@ least-fluctuation weights where the border tells no second body colour."""
 from __future__ import annotations
 
 import numpy as np
-from scipy.ndimage import maximum_filter, minimum_filter, uniform_filter
+
+from simtest._lazy import require
 
 from simtest.decisions import BODY_PROJECTION_MAX_GAIN, BODY_SECOND_SNR as _BODY_SECOND_SNR
 
@@ -235,11 +236,12 @@ def _least_fluctuation_weights(v, clipped) -> np.ndarray | None:
     .. [7] O. L. Frost, "An algorithm for linearly constrained adaptive array processing",
            Proc. IEEE 60(8), 926-935, 1972. https://doi.org/10.1109/PROC.1972.8817
     """
+    ndi = require("scipy.ndimage")  # when first needed: scipy slows the start
     k = _FLUCTUATION_BOX
     if min(v.shape[:2]) < 2 * k:
         return None
-    inside = minimum_filter((v > 0).any(axis=2), size=k) & ~maximum_filter(clipped, size=k)
-    smooth = np.stack([uniform_filter(v[..., c], k, mode="nearest") for c in range(3)], axis=-1)
+    inside = ndi.minimum_filter((v > 0).any(axis=2), size=k) & ~ndi.maximum_filter(clipped, size=k)
+    smooth = np.stack([ndi.uniform_filter(v[..., c], k, mode="nearest") for c in range(3)], axis=-1)
     fluct = v - smooth
     use = inside
     one = np.ones(3)

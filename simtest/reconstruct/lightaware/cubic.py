@@ -4,8 +4,8 @@
 from __future__ import annotations
 
 import numpy as np
-from scipy.optimize import least_squares
 
+from simtest._lazy import require
 from simtest.geometry.angles import unit
 from simtest.geometry.conics import plane_basis
 from simtest.geometry.lights import LightRig
@@ -120,6 +120,7 @@ def _patch_specular_points(b_ray, p, Lm, lights):
     (two equations in (u, v), solved by Levenberg-Marquardt from the apex's ray). NaN rows where
     the search fails (the ray misses the patch).
     """
+    opt = require("scipy.optimize")  # when first needed: scipy slows the start
     e1, e2 = plane_basis(b_ray)
     ray0 = np.array([p[0], p[1]], dtype=np.float64)
     normals = np.full((len(lights), 3), np.nan)
@@ -134,7 +135,7 @@ def _patch_specular_points(b_ray, p, Lm, lights):
             return np.array([c @ e1, c @ e2])
 
         with np.errstate(all="ignore"):
-            r = least_squares(f, ray0, method="lm", xtol=1e-14, ftol=1e-14, gtol=1e-14)
+            r = opt.least_squares(f, ray0, method="lm", xtol=1e-14, ftol=1e-14, gtol=1e-14)
         X, ns, ok, _, _, _ = _cubic_patch_geometry(unit(b_ray + r.x[0] * e1 + r.x[1] * e2)[None],
                                                    b_ray, p, Lm)
         if ok[0] and float(np.max(np.abs(r.fun))) < 1e-9:
@@ -387,6 +388,7 @@ def cubic_patch_fit(values, origin_uv, bp_uv, camera, rig: LightRig, *,
     .. [3] G. H. Golub, V. Pereyra, "The differentiation of pseudo-inverses and nonlinear least
            squares problems whose variables separate", SIAM J. Numer. Anal. 10(2), 1973.
     """
+    opt = require("scipy.optimize")  # when first needed: scipy slows the start
     name = "cubic_patch_fit"
     S = _cubic_setup(values, origin_uv, bp_uv, camera, rig, clip_level, max_pixels)
     if S is None:
@@ -398,7 +400,7 @@ def cubic_patch_fit(values, origin_uv, bp_uv, camera, rig: LightRig, *,
         return LightAwareEstimate(name, "not_converged", "no finite profile", n_evaluations=nfev)
     i0 = int(np.argmin(cost))
     with np.errstate(all="ignore"):
-        r = least_squares(S["res"], sol[i0], method="lm", x_scale=S["x_scale"],
+        r = opt.least_squares(S["res"], sol[i0], method="lm", x_scale=S["x_scale"],
                           max_nfev=max_nfev * (_CUBIC_PARAMS + 1), ftol=1e-8, xtol=1e-8)
     nfev += r.nfev
     x = r.x

@@ -3,8 +3,8 @@
 from __future__ import annotations
 
 import numpy as np
-from scipy.ndimage import map_coordinates, spline_filter
 
+from simtest._lazy import require
 from simtest.geometry.angles import unit
 from simtest.geometry.conics import plane_basis
 from simtest.geometry.lights import LightRig
@@ -44,13 +44,14 @@ def refine_isophote_points(values, level: float, points_uv, origin_uv=(0.0, 0.0)
     ndarray of shape (N, 2)
         Refined points (u, v), px.
     """
-    coef = spline_filter(np.asarray(values, dtype=np.float64), order=3, mode="mirror")
+    ndi = require("scipy.ndimage")  # when first needed: scipy slows the start
+    coef = ndi.spline_filter(np.asarray(values, dtype=np.float64), order=3, mode="mirror")
     o = np.asarray(origin_uv, dtype=np.float64)
     p = np.asarray(points_uv, dtype=np.float64).reshape(-1, 2) - o
     p0 = p.copy()
 
     def f(q):
-        return map_coordinates(coef, uv_to_rc(q).T, order=3, mode="mirror", prefilter=False)
+        return ndi.map_coordinates(coef, uv_to_rc(q).T, order=3, mode="mirror", prefilter=False)
 
     e = 0.25
     for _ in range(iterations):

@@ -9,8 +9,8 @@ the specular point's depth and its gradient, and the ROI's pixel grid the fits s
 from __future__ import annotations
 
 import numpy as np
-from scipy.ndimage import grey_closing, maximum_filter
 
+from simtest._lazy import require
 from simtest.decisions import ALBEDO_LINE_PX, ALBEDO_LINE_STEPS, GGX_FILM_IOR
 from simtest.geometry.angles import unit
 from simtest.geometry.camera import validate_intrinsics
@@ -346,6 +346,7 @@ def albedo_lines(luma_roi, step: float = 1.0, noise: float = 0.0) -> np.ndarray:
     ndarray of shape (H, W), bool
         True on the lines.
     """
+    ndi = require("scipy.ndimage")  # when first needed: scipy slows the start
     v = np.asarray(luma_roi, dtype=np.float32)
     lines = np.zeros(v.shape[:2], bool)
     h = ALBEDO_LINE_PX // 2
@@ -353,9 +354,9 @@ def albedo_lines(luma_roi, step: float = 1.0, noise: float = 0.0) -> np.ndarray:
         return lines
     yy, xx = np.mgrid[-h:h + 1, -h:h + 1]
     disc = xx * xx + yy * yy <= h * h + 0.5
-    top_hat = grey_closing(v, footprint=disc, mode="nearest") - v
+    top_hat = ndi.grey_closing(v, footprint=disc, mode="nearest") - v
     lines[h:-h, h:-h] = top_hat[h:-h, h:-h] >= max(ALBEDO_LINE_STEPS * float(step), 3.0 * float(noise))
-    return maximum_filter(lines, size=3, mode="nearest")
+    return ndi.maximum_filter(lines, size=3, mode="nearest")
 
 
 def _roi_grid(values, camera, origin_uv, clip_level):

@@ -6,8 +6,8 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.optimize import least_squares
 
+from simtest._lazy import require
 from simtest.decisions import ONE_LIGHT_DEPTH_FACTOR
 from simtest.geometry.angles import unit
 from simtest.geometry.conics import plane_basis
@@ -165,6 +165,7 @@ def _quadric_starts(res, x_scale, nominal_depth_mm, start_depths_mm, start_rough
     """:func:`quadric_fit`'s starts: a flat patch at each start depth (default 1, 3 and 0.5
     times the nominal) in turn, fitted until one ends at a plausible solution. Returns the
     least-squares result kept (None: none finite) and the evaluations spent."""
+    opt = require("scipy.optimize")  # when first needed: scipy slows the start
     starts = (np.array([1.0, 3.0, 0.5]) * nominal_depth_mm if start_depths_mm is None
               else np.asarray(start_depths_mm, dtype=np.float64).reshape(-1))
     n0 = 50.0 if start_roughness is None else float(start_roughness)
@@ -173,7 +174,7 @@ def _quadric_starts(res, x_scale, nominal_depth_mm, start_depths_mm, start_rough
     for s0 in starts:
         p0 = np.array([0.0, 0.0, np.log(s0), 0.0, 0.0, 0.0, np.log(n0)])
         with np.errstate(all="ignore"):
-            r = least_squares(res, p0, method="lm", max_nfev=max_nfev * 8, x_scale=x_scale,
+            r = opt.least_squares(res, p0, method="lm", max_nfev=max_nfev * 8, x_scale=x_scale,
                               ftol=1e-6, xtol=1e-6)
         nfev += r.nfev
         if np.isfinite(r.cost) and (best is None or r.cost < best.cost):
@@ -522,6 +523,7 @@ def _valley_sigma_deg(G, covs, Gv, excess) -> float | None:
 def _fit_fixed_depth(S, log_s, free, starts, max_nfev, tol=1e-8):
     """Least squares over the parameters ``free`` (indices) with log s fixed; the best of the
     starts (full 11-vectors). Returns ``(sum of squares, p (11,), nfev)``."""
+    opt = require("scipy.optimize")  # when first needed: scipy slows the start
     free = np.asarray(free)
     best, nfev = None, 0
     for p0 in starts:
@@ -534,7 +536,7 @@ def _fit_fixed_depth(S, log_s, free, starts, max_nfev, tol=1e-8):
             return S["res"](pp)
 
         with np.errstate(all="ignore"):
-            r = least_squares(fun, base[free], method="lm", x_scale=S["x_scale"][free],
+            r = opt.least_squares(fun, base[free], method="lm", x_scale=S["x_scale"][free],
                               max_nfev=max_nfev * (len(free) + 1), ftol=tol, xtol=tol)
         nfev += r.nfev
         if np.isfinite(r.cost) and (best is None or r.cost < best[0]):

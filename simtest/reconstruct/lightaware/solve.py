@@ -13,10 +13,8 @@ import warnings
 from dataclasses import replace
 
 import numpy as np
-from scipy.ndimage import convolve1d
-from scipy.optimize import leastsq
-from scipy.special import chdtri
 
+from simtest._lazy import require
 from simtest.decisions import (
     SMOOTHEST_FILM_ALPHA,
     ROUGHEST_FILM_ALPHA,
@@ -116,6 +114,7 @@ def _solve(resjac, p0, args, loss: str, f_scale: float, max_nfev: int, free=None
     wrapper that cost as much as the model on a few hundred isophote points. Returns (x,
     n_evaluations (the model evaluated at a new point), converged, message, residuals at x).
     """
+    opt = require("scipy.optimize")  # when first needed: scipy slows the start
     if loss not in ("linear", "soft_l1", "huber", "cauchy"):
         raise ValueError(f"loss: {loss!r} is not one of linear, soft_l1, huber, cauchy")
     p0 = np.asarray(p0, dtype=np.float64)
@@ -174,8 +173,8 @@ def _solve(resjac, p0, args, loss: str, f_scale: float, max_nfev: int, free=None
             warnings.simplefilter("always")
             # the first pass of a reweighted fit only sets the weights: looser tolerances
             tol = _LM_TOL if it or loss == "linear" else _LM_TOL_FIRST_PASS
-            q, ier = leastsq(fun, q, args=(w,), Dfun=jac, xtol=tol, ftol=tol, gtol=tol,
-                             maxfev=max_nfev)
+            q, ier = opt.leastsq(fun, q, args=(w,), Dfun=jac, xtol=tol, ftol=tol, gtol=tol,
+                                 maxfev=max_nfev)
         ok = ier in (1, 2, 3, 4) and bool(np.isfinite(q).all())
         msg = "" if ier in (1, 2, 3, 4) else (str(caught[-1].message) if caught
                                                else f"MINPACK info {ier}")
@@ -349,6 +348,7 @@ def _curvature_score(cols, span, r, grid=None) -> str | None:
     .. [2] C. R. Rao, "Large sample tests of statistical hypotheses concerning several parameters
            with applications to problems of estimation", Proc. Cambridge Philos. Soc. 44(1), 1948.
     """
+    special = require("scipy.special")  # when first needed: scipy slows the start
     m, k = span.shape
     if m <= k + 3 or not np.isfinite(cols).all():
         return False
@@ -367,9 +367,9 @@ def _curvature_score(cols, span, r, grid=None) -> str | None:
     if grid is not None:
         T /= _correlation_area(r - U @ z, *grid)
     rms = math.sqrt(zz / m)
-    if T > chdtri(U.shape[1], _CURVATURE_ALPHA) and rms > TOL.plane_misfit_rel:
+    if T > special.chdtri(U.shape[1], _CURVATURE_ALPHA) and rms > TOL.plane_misfit_rel:
         return (f"the residual holds a curved patch's pattern (score {T:.3g} > "
-                f"{chdtri(U.shape[1], _CURVATURE_ALPHA):.3g}; RMS {rms:.3g})")
+                f"{special.chdtri(U.shape[1], _CURVATURE_ALPHA):.3g}; RMS {rms:.3g})")
     return None
 
 
@@ -453,6 +453,7 @@ def _hac_covariance(J, r, sel, shape, step: int) -> tuple[np.ndarray | None, int
     .. [1] W. K. Newey, K. D. West, "A simple, positive semi-definite, heteroskedasticity and
            autocorrelation consistent covariance matrix", Econometrica 55(3), 1987.
     """
+    ndi = require("scipy.ndimage")  # when first needed: scipy slows the start
     unit_cov = _covariance(J, 1.0)
     if unit_cov is None:
         return None, 0
@@ -465,7 +466,7 @@ def _hac_covariance(J, r, sel, shape, step: int) -> tuple[np.ndarray | None, int
     G[:, rows // step, cols // step] = (J * r[:, None]).T
     if b > 0:
         w = 1.0 - np.abs(np.arange(-b, b + 1)) / (b + 1.0)
-        KG = convolve1d(convolve1d(G, w, axis=1, mode="constant"), w, axis=2, mode="constant")
+        KG = ndi.convolve1d(ndi.convolve1d(G, w, axis=1, mode="constant"), w, axis=2, mode="constant")
     else:
         KG = G
     meat = np.einsum("kij,lij->kl", G, KG)
