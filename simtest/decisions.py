@@ -374,6 +374,21 @@ DEFAULT_MIN_CONFIDENCE = decision(
     "estimates sets another (--min-confidence), read off the precision-recall curve of "
     "simtest evaluate detection.", basis="convention", stage=_V)
 
+PAIR_DEPTH_MIN_MM = decision(
+    "PAIR_DEPTH_MIN_MM", 2.0, "mm along the BP's ray",
+    "Nearest tissue depth over which another guide's specular point is predicted: white-light "
+    "colonoscopes and gastroscopes focus from about 2 to 3 mm (their data sheets' near focus); "
+    "nearer, nothing is sharp.", basis="physics", stage=_V)
+PAIR_DEPTH_MAX_MM = decision(
+    "PAIR_DEPTH_MAX_MM", 100.0, "mm along the BP's ray",
+    "Farthest depth (the data sheets' far end of the depth of field; beyond it the other guide's "
+    "highlight lies within the candidate's own lobe).", basis="physics", stage=_V)
+PAIR_TOL_PX = decision(
+    "PAIR_TOL_PX", 2.0, "px",
+    "Largest distance between a peak's region and the rig's predicted curve for it to be another "
+    "guide's highlight: half a pixel of BP rounding per axis and about a pixel of the detection's "
+    "blur (as OWN_RADIUS_PX).", basis="physics", stage=_V)
+
 # --- JPEG noise model (verification) -----------------------------------------------------------------
 
 JPEG_MIN_COEFFICIENTS = decision(

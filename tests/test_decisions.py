@@ -66,6 +66,8 @@ NOT_DECISIONS = {
     "verify.WINDOWED_AREA_MAX": _SPEED, "verify._PANEL_MARGIN_PX": _SPEED,
     "verify._FLAT_SLACK": "float32 rounding slack of an exact test (30 ulps)",
     "view3d.MAX_SURFACE_GRID": _GUARD,
+    "rig_pairs.DEPTH_SAMPLES": "a sampling density of a predicted curve (within 0.1 px of it)",
+    "verify._REACH_T": "the isovalue NEIGHBOUR_REACH is stated at: a unit of it, not a threshold",
 }
 
 

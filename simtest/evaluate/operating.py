@@ -10,6 +10,7 @@ first ``ok`` match falls below c counts as missed, even where a second ``ok`` on
 
 from __future__ import annotations
 
+import matplotlib.pyplot as plt
 import numpy as np
 
 from simtest.decisions import DEFAULT_MIN_CONFIDENCE
@@ -72,8 +73,6 @@ def precision_recall_figure(rows: list[dict], title: str = "ok estimates over --
     -------
     matplotlib.figure.Figure
     """
-    import matplotlib.pyplot as plt
-
     fig, ax = plt.subplots(figsize=(5.2, 4.4), layout="constrained")
     pts = [r for r in rows if r["precision"] is not None and r["recall"] is not None]
     ax.plot([r["recall"] for r in pts], [r["precision"] for r in pts], "o-", color="#1f77b4", ms=3,

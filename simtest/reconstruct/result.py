@@ -12,6 +12,10 @@ from __future__ import annotations
 
 import numpy as np
 
+from simtest.geometry.cameras import PinholeCamera
+from simtest.reconstruct.io import dumps, estimate_to_dict, estimates_document
+from simtest.reconstruct.table import arrow, estimates_batch
+
 __all__ = ["Reconstruction", "NORMAL_COLUMNS"]
 
 #: The normals of :meth:`Reconstruction.normals`, in order: the paper's selected normal, the cone
@@ -81,8 +85,6 @@ class Reconstruction(list):
             Its K is recorded where it is a pinhole camera.
         image_shape : tuple of int
         """
-        from simtest.geometry.cameras import PinholeCamera
-
         return cls(estimates, n_components=detection.n_components,
                    n_unexamined=detection.n_unexamined, max_candidates=settings.max_candidates,
                    K=camera.K if isinstance(camera, PinholeCamera) else None,
@@ -145,8 +147,6 @@ class Reconstruction(list):
 
     def rows(self, include_points: bool = False) -> list[dict]:
         """One dict per estimate, as in ``estimates.json`` (JSON-ready, None for missing values)."""
-        from simtest.reconstruct.io import estimate_to_dict
-
         return [estimate_to_dict(e, include_points) for e in self]
 
     def to_arrow(self, *, frame: int = 0, source: str = "", include_points: bool = False):
@@ -166,8 +166,6 @@ class Reconstruction(list):
         pyarrow.Table
             One row per estimate, the schema of :func:`~simtest.reconstruct.table.table_schema`.
         """
-        from simtest.reconstruct.table import arrow, estimates_batch
-
         return arrow()[0].Table.from_batches([estimates_batch(frame, source, self, include_points)])
 
     def to_json(self, *, indent: bool = False, include_points: bool = False, image=None) -> bytes:
@@ -191,8 +189,6 @@ class Reconstruction(list):
         ValueError
             A value that is not finite where the schema wants a number (its key path named).
         """
-        from simtest.reconstruct.io import dumps, estimates_document
-
         doc = estimates_document(self, K=self.K, image=image, image_shape=self.image_shape,
                                  isovalues=self.isovalues, normalise=self.normalise,
                                  include_points=include_points,

@@ -24,24 +24,17 @@ from __future__ import annotations
 
 import numpy as np
 
+from simtest.decisions import PAIR_DEPTH_MAX_MM as DEPTH_MAX_MM
+from simtest.decisions import PAIR_DEPTH_MIN_MM as DEPTH_MIN_MM
+from simtest.decisions import PAIR_TOL_PX
+
 __all__ = ["DEPTH_MIN_MM", "DEPTH_MAX_MM", "DEPTH_SAMPLES", "PAIR_TOL_PX", "other_guide_curves",
            "other_lobe_centres"]
 
-#: Nearest tissue depth along the BP's ray, mm: white-light colonoscopes and gastroscopes focus
-#: from about 2 to 3 mm (near-focus models) to about 100 mm (their data sheets' depth of field);
-#: nearer, nothing is sharp. Provenance: the scopes' specifications, not chosen on any frame.
-DEPTH_MIN_MM = 2.0
-#: Farthest tissue depth, mm (that depth of field's far end; beyond it the other highlight lies
-#: within the own lobe). Provenance: as :data:`DEPTH_MIN_MM`.
-DEPTH_MAX_MM = 100.0
 #: Depths sampled, geometrically spaced (the curve's image step shrinks as 1 / d^2); the polyline
 #: is resampled every half pixel, so this sets only how closely it follows the curve (within
 #: 0.1 px on the bundled scopes' 140 deg fields).
 DEPTH_SAMPLES = 256
-#: Largest distance between a peak's region and a curve, px: the BP is found on the pixel grid
-#: after the detection's smoothing (half a pixel of rounding per axis and about a pixel of blur,
-#: as the verifier's ``OWN_RADIUS_PX``). Provenance: the pixel grid; not tuned on frames.
-PAIR_TOL_PX = 2.0
 
 
 def _unit(v: np.ndarray) -> np.ndarray:
