@@ -21,3 +21,66 @@ from hypothesis import settings  # noqa: E402
 settings.register_profile("ci", derandomize=True, print_blob=True)
 if os.environ.get("CI", "").lower() in ("1", "true", "yes"):
     settings.load_profile("ci")
+
+
+def _compile_each_numba_kernel_once():
+    """One process compiles a cached numba kernel, the others wait and load it from the cache.
+
+    pytest-xdist's workers start together, and the first reconstruction in each compiled the same
+    kernels side by side (about 100 s of CPU each on the 2-core machine, with a cold cache, as on
+    a fresh clone). A file lock per kernel (``fcntl.flock``, released when the compile returns)
+    makes the second worker wait for the first's result in numba's on-disk cache, which numba's
+    own ``Dispatcher.compile`` reads before compiling. Kernels without ``cache=True`` compile as
+    before; so does every kernel where ``fcntl`` is missing (Windows) or numba changed its
+    dispatcher.
+    """
+    try:
+        import fcntl
+        import hashlib
+        import tempfile
+        import threading
+        from pathlib import Path
+
+        from numba.core import sigutils
+        from numba.core.caching import NullCache
+        from numba.core.dispatcher import Dispatcher
+    except ImportError:
+        return
+    if getattr(Dispatcher.compile, "_simtest_locked", False):
+        return
+    original = Dispatcher.compile
+    locks = Path(tempfile.gettempdir()) / f"simtest-numba-compile-{os.getuid()}"
+    held = threading.local()
+
+    def compile(self, sig):
+        cache = getattr(self, "_cache", None)
+        if cache is None or isinstance(cache, NullCache):
+            return original(self, sig)
+        try:
+            args, _ = sigutils.normalize_signature(sig)
+            if self.overloads.get(tuple(args)) is not None:
+                return original(self, sig)
+            func = self.py_func
+            key = hashlib.sha1(f"{func.__module__}.{func.__qualname__}:{args}".encode()).hexdigest()
+        except Exception:  # noqa: BLE001 - an unforeseen dispatcher: compile as numba would
+            return original(self, sig)
+        mine = getattr(held, "keys", None)
+        if mine is None:
+            mine = held.keys = set()
+        if key in mine:  # a recursive compile of the same kernel in this process
+            return original(self, sig)
+        locks.mkdir(exist_ok=True)
+        with open(locks / key, "a") as fh:
+            fcntl.flock(fh, fcntl.LOCK_EX)
+            mine.add(key)
+            try:
+                return original(self, sig)
+            finally:
+                mine.discard(key)
+                fcntl.flock(fh, fcntl.LOCK_UN)
+
+    compile._simtest_locked = True
+    Dispatcher.compile = compile
+
+
+_compile_each_numba_kernel_once()
