@@ -54,6 +54,7 @@ def test_bench_full_frame(benchmark):
     assert sum(e.saturated for e in ests) == 2
 
 
+@pytest.mark.slow
 def test_simtest_bench_runs_a_section_of_the_clone_from_the_command_line(tmp_path):
     # the console command, started away from the clone (cwd elsewhere): the package finds the
     # sections in the benchmarks/ beside it and prints the table's rows
