@@ -210,10 +210,21 @@ def _good_row():
     ({"r0c0": [{k: v for k, v in _good_row().items() if k != "area_px"}]}, "tiles.r0c0[0].area_px"),
 ])
 def test_malformed_or_impossible_detection_labels_are_one_line(tmp_path, tiles, where):
+    # the first case in a real process (what a user's shell sees, warnings and all); the others,
+    # the same command's same error path, through the command line's app in this process
     cv2.imwrite(str(tmp_path / "frame.png"), cv2.resize(_frame(), (64, 64)))
     labels = tmp_path / "labels.json"
     labels.write_text(json.dumps({"header": {"image": "frame.png", "tile_px": 64}, "tiles": tiles}))
-    env = dict(os.environ, PYTHONPATH=str(Path(__file__).resolve().parents[1]))
-    res = subprocess.run([*SIMTEST, "evaluate", "detection", str(labels), "-o", str(tmp_path / "out")],
-                         capture_output=True, text=True, env=env, timeout=600)
+    args = ["evaluate", "detection", str(labels), "-o", str(tmp_path / "out")]
+    if where == "key 'tiles'":
+        env = dict(os.environ, PYTHONPATH=str(Path(__file__).resolve().parents[1]))
+        res = subprocess.run([*SIMTEST, *args], capture_output=True, text=True, env=env, timeout=600)
+    else:
+        from typer.testing import CliRunner
+
+        from simtest.cli import app
+
+        out = CliRunner().invoke(app, args, prog_name="simtest")
+        assert out.exception is None or isinstance(out.exception, SystemExit), out.exception
+        res = SimpleNamespace(returncode=out.exit_code, stderr=out.stderr)
     _refused(res, "labels.json", where)
