@@ -4,6 +4,8 @@ from __future__ import annotations
 
 import os
 
+import pytest
+
 import matplotlib
 
 matplotlib.use("Agg")
@@ -97,3 +99,28 @@ def pytest_collection_modifyitems(config, items):
             if item.get_closest_marker("slow") is not None and getattr(item, "module", None) is not None}
     if slow:
         items.sort(key=lambda item: getattr(getattr(item, "module", None), "__name__", None) not in slow)
+
+
+@pytest.fixture(scope="session")
+def numba_kernels_compiled():
+    """The reconstruction's numba kernels compiled (or loaded from numba's cache) in this worker,
+    for a test that then starts ``simtest`` processes.
+
+    Those processes do not import this file, so they take no compile lock: on a cold cache (a
+    fresh clone) each compiled the kernels it needed beside the workers. Reconstructing a real
+    8-bit RGB tile and a float highlight here first, under the lock, leaves them to load what
+    the workers compiled once.
+    """
+    import cv2
+    import numpy as np
+
+    from benchmarks.inputs import synthetic_roi_image
+    from simtest.reconstruct import reconstruct, reconstruct_roi
+    from simtest.resources import data_root
+
+    tile = cv2.imread(str(data_root() / "tests" / "data" / "real" / "hyperkvasir_tile_r1c7_mucosa.png"))
+    K = np.array([[140.0, 0, 139.5], [0, 140.0, 139.5], [0, 0, 1]])
+    reconstruct(cv2.cvtColor(tile, cv2.COLOR_BGR2RGB), K)
+    img, K, bp, _ = synthetic_roi_image()
+    reconstruct(img, K, (0.1, 0.3, 0.5))
+    reconstruct_roi(img, K, 0.1, bp_uv=bp)
