@@ -25,6 +25,11 @@ if os.environ.get("CI", "").lower() in ("1", "true", "yes"):
     settings.load_profile("ci")
 
 
+#: The longest a process waits for another's compile of the same kernel, s: several times the
+#: whole set's cold compile (about 100 s in CI on the 2-core machine, a kernel's callees included).
+_COMPILE_WAIT_S = 600.0
+
+
 def _compile_each_numba_kernel_once():
     """One process compiles a cached numba kernel, the others wait and load it from the cache.
 
@@ -41,6 +46,7 @@ def _compile_each_numba_kernel_once():
         import hashlib
         import tempfile
         import threading
+        import time
         from pathlib import Path
 
         from numba.core import sigutils
@@ -73,7 +79,17 @@ def _compile_each_numba_kernel_once():
             return original(self, sig)
         locks.mkdir(exist_ok=True)
         with open(locks / key, "a") as fh:
-            fcntl.flock(fh, fcntl.LOCK_EX)
+            # wait for the other's compile, but never for ever (two kernels calling each other,
+            # compiled from both ends at once, would each hold the lock the other waits for)
+            deadline = time.monotonic() + _COMPILE_WAIT_S
+            while True:
+                try:
+                    fcntl.flock(fh, fcntl.LOCK_EX | fcntl.LOCK_NB)
+                    break
+                except BlockingIOError:
+                    if time.monotonic() > deadline:
+                        return original(self, sig)
+                    time.sleep(0.05)
             mine.add(key)
             try:
                 return original(self, sig)
