@@ -140,3 +140,16 @@ def numba_kernels_compiled():
     img, K, bp, _ = synthetic_roi_image()
     reconstruct(img, K, (0.1, 0.3, 0.5))
     reconstruct_roi(img, K, 0.1, bp_uv=bp)
+
+
+@pytest.fixture(autouse=True)
+def _kernels_before_a_slow_test(request):
+    """A test marked ``slow`` starts with the kernels compiled (:func:`numba_kernels_compiled`).
+
+    The modules holding one run first (:func:`pytest_collection_modifyitems`), on a cold cache
+    in a fresh clone, and several start ``simtest`` processes that take no compile lock; the
+    signal tests also bound how long a worker may take to end, which a kernel compile in
+    progress would stretch.
+    """
+    if request.node.get_closest_marker("slow") is not None:
+        request.getfixturevalue("numba_kernels_compiled")
