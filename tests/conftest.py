@@ -4,9 +4,8 @@ from __future__ import annotations
 
 import os
 
-import pytest
-
 import matplotlib
+import pytest
 
 matplotlib.use("Agg")
 
@@ -25,8 +24,8 @@ if os.environ.get("CI", "").lower() in ("1", "true", "yes"):
     settings.load_profile("ci")
 
 
-#: The longest a process waits for another's compile of the same kernel, s: several times the
-#: whole set's cold compile (about 100 s in CI on the 2-core machine, a kernel's callees included).
+#: The longest a process waits for another's compile of the same kernel, s: over three times the
+#: whole set's cold compile (176 s of CPU in one process on the 2-core machine under load).
 _COMPILE_WAIT_S = 600.0
 
 
@@ -34,8 +33,8 @@ def _compile_each_numba_kernel_once():
     """One process compiles a cached numba kernel, the others wait and load it from the cache.
 
     pytest-xdist's workers start together, and the first reconstruction in each compiled the same
-    kernels side by side (about 100 s of CPU each on the 2-core machine, with a cold cache, as on
-    a fresh clone). A file lock per kernel (``fcntl.flock``, released when the compile returns)
+    kernels side by side on a cold cache, as on a fresh clone (the reconstruction's set: 176 s of
+    CPU in one process on the 2-core machine; the first test of each worker took 30 to 118 s in CI). A file lock per kernel (``fcntl.flock``, released when the compile returns)
     makes the second worker wait for the first's result in numba's on-disk cache, which numba's
     own ``Dispatcher.compile`` reads before compiling. Kernels without ``cache=True`` compile as
     before; so does every kernel where ``fcntl`` is missing (Windows) or numba changed its
