@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import functools
+
 import numpy as np
 import pytest
 
@@ -174,15 +176,11 @@ def test_rendered_liver_under_two_lights_is_recommended_a_normal_within_the_medi
     assert all(a < b for a, b in zip(rec, bp)), rows
 
 
-def _liver_profile(sweep, eps_mm, factors, depth_scale=1.0):
-    """The cubic patch's depth profile on the suite's liver render (realisation 0) at the depths
-    ``factors`` times the true apex depth (times ``depth_scale``), in units of the noise floor's
-    variance above its value at the truth (the second factor must be 1)."""
+@functools.lru_cache(maxsize=None)
+def _liver_case(sweep, eps_mm):
+    """The suite's liver render (realisation 0) of one case, its rig and its matched estimate;
+    rendered once per module (two tests profile the same case)."""
     from simtest.constants import MAX_SEED
-    from simtest.reconstruct._pixels import Roi
-    from simtest.reconstruct.detect import luma
-    from simtest.reconstruct.lightaware import patch_depth_profile
-    from simtest.tolerances import TOL
 
     suite = load_suite("lightaware-curved")
     case = next(c for c in suite.cases if c.sweep == sweep and c.x == eps_mm)
@@ -192,6 +190,19 @@ def _liver_profile(sweep, eps_mm, factors, depth_scale=1.0):
     img, rig = np.asarray(res.sensor), render_rig(res)
     h = res.highlights[0]
     est = _matched(reconstruct_image(img, res.K, runner.settings), h.bp_px)
+    return res, img, rig, est
+
+
+def _liver_profile(sweep, eps_mm, factors, depth_scale=1.0):
+    """The cubic patch's depth profile on the suite's liver render (realisation 0) at the depths
+    ``factors`` times the true apex depth (times ``depth_scale``), in units of the noise floor's
+    variance above its value at the truth (the second factor must be 1)."""
+    from simtest.reconstruct._pixels import Roi
+    from simtest.reconstruct.detect import luma
+    from simtest.reconstruct.lightaware import patch_depth_profile
+    from simtest.tolerances import TOL
+
+    res, img, rig, est = _liver_case(sweep, eps_mm)
     roi = Roi(*(int(v) for v in est.roi))
     near = Roi.around(est.bp_px, 1.5 * max(roi.shape) / 2.0, img.shape)  # the recommendation's
     # the apex is the mean light's specular point; for the symmetric pair on this smooth patch
@@ -202,6 +213,7 @@ def _liver_profile(sweep, eps_mm, factors, depth_scale=1.0):
     return (cost - cost[1]) / TOL.photometric_noise_rel**2
 
 
+@pytest.mark.slow
 def test_rendered_liver_depth_is_observable_under_two_lights_and_not_under_one():
     # Where the must-hold breaks under one light, and what a second light changes. The cubic
     # patch refitted with the apex depth fixed at 0.71, 1 and 1.41 times the truth; rises in

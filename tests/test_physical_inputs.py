@@ -33,12 +33,30 @@ def _frame() -> np.ndarray:
     return cv2.GaussianBlur(img, (5, 5), 0)
 
 
-def _run(tmp_path: Path, image: Path, camera: dict | None = None):
+def _run(tmp_path: Path, image: Path, camera: dict | None = None, *, process: bool = True):
+    """``simtest reconstruct image --intrinsics cam.json`` in a real process (what a user's shell
+    sees: a C library's warnings on stderr too), or with ``process=False`` through the command
+    line's app in this process, where the check is Python's own (its return code and stderr)."""
     cam = tmp_path / "cam.json"
     cam.write_text(json.dumps(camera or {"model": "pinhole", "K": K}))
+    args = ["reconstruct", str(image), "--intrinsics", str(cam), "-o", str(tmp_path / "out")]
+    if not process:
+        return _run_here(args)
     env = dict(os.environ, PYTHONPATH=str(Path(__file__).resolve().parents[1]))
-    return subprocess.run([*SIMTEST, "reconstruct", str(image), "--intrinsics", str(cam), "-o",
-                           str(tmp_path / "out")], capture_output=True, text=True, env=env, timeout=600)
+    return subprocess.run([*SIMTEST, *args], capture_output=True, text=True, env=env, timeout=600)
+
+
+def _run_here(args):
+    """The command line ``simtest ARGS`` through its app's own main in this process (CliRunner):
+    its exit status and stderr, as a finished process's; an exception other than SystemExit (a
+    traceback in a shell) fails the test."""
+    from typer.testing import CliRunner
+
+    from simtest.cli import app
+
+    out = CliRunner().invoke(app, args, prog_name="simtest")
+    assert out.exception is None or isinstance(out.exception, SystemExit), out.exception
+    return SimpleNamespace(returncode=out.exit_code, stderr=out.stderr)
 
 
 def _refused(res, *words):
@@ -94,9 +112,10 @@ def test_a_tilted_patch_whose_tangent_plane_puts_one_guide_behind_it_is_refused(
     ("profile_exponent", {"lights": [{"position_mm": [3, 0, 0], "profile_exponent": 1e300}]}),
 ])
 def test_camera_values_outside_their_physical_range_are_one_line(tmp_path, key, camera):
+    # the first in a real process, the others (the same check of the camera file) in this one
     png = tmp_path / "f.png"
     cv2.imwrite(str(png), _frame())
-    res = _run(tmp_path, png, {"model": "pinhole", "K": K, **camera})
+    res = _run(tmp_path, png, {"model": "pinhole", "K": K, **camera}, process=key == "response.gamma")
     _refused(res, "cam.json", key, "e+")
 
 
@@ -106,7 +125,8 @@ def test_camera_values_outside_their_physical_range_are_one_line(tmp_path, key, 
 def test_a_float_frame_in_0_1_read_with_an_8_bit_clip_is_refused(tmp_path):
     npy = tmp_path / "f.npy"
     np.save(npy, _frame()[..., ::-1].astype(np.float32) / 255.0)
-    res = _run(tmp_path, npy, {"model": "pinhole", "K": K, "response": {"curve": "linear", "clip": 255}})
+    res = _run(tmp_path, npy, {"model": "pinhole", "K": K, "response": {"curve": "linear", "clip": 255}},
+               process=False)
     _refused(res, "cam.json", "response.clip", "255", "f.npy")
 
 
@@ -115,7 +135,7 @@ def test_a_negative_pixel_is_refused_naming_it(tmp_path):
     img[5, 7, 1] = -3.0
     npy = tmp_path / "neg.npy"
     np.save(npy, img)
-    _refused(_run(tmp_path, npy), "neg.npy", "row 5, col 7", "-3")
+    _refused(_run(tmp_path, npy, process=False), "neg.npy", "row 5, col 7", "-3")
 
 
 # --- corrupt media ----------------------------------------------------------------------------
@@ -210,10 +230,15 @@ def _good_row():
     ({"r0c0": [{k: v for k, v in _good_row().items() if k != "area_px"}]}, "tiles.r0c0[0].area_px"),
 ])
 def test_malformed_or_impossible_detection_labels_are_one_line(tmp_path, tiles, where):
+    # the first case in a real process (what a user's shell sees, warnings and all); the others,
+    # the same command's same error path, through the command line's app in this process
     cv2.imwrite(str(tmp_path / "frame.png"), cv2.resize(_frame(), (64, 64)))
     labels = tmp_path / "labels.json"
     labels.write_text(json.dumps({"header": {"image": "frame.png", "tile_px": 64}, "tiles": tiles}))
-    env = dict(os.environ, PYTHONPATH=str(Path(__file__).resolve().parents[1]))
-    res = subprocess.run([*SIMTEST, "evaluate", "detection", str(labels), "-o", str(tmp_path / "out")],
-                         capture_output=True, text=True, env=env, timeout=600)
+    args = ["evaluate", "detection", str(labels), "-o", str(tmp_path / "out")]
+    if where == "key 'tiles'":
+        env = dict(os.environ, PYTHONPATH=str(Path(__file__).resolve().parents[1]))
+        res = subprocess.run([*SIMTEST, *args], capture_output=True, text=True, env=env, timeout=600)
+    else:
+        res = _run_here(args)
     _refused(res, "labels.json", where)

@@ -104,7 +104,7 @@ def test_the_examples_python_is_the_users_interpreter(tmp_path):
 
 
 @pytest.mark.slow
-def test_every_readme_example_runs(tmp_path):
+def test_every_readme_example_runs(tmp_path, numba_kernels_compiled):
     repo = _copy_of_the_clone(tmp_path)
     env = _user_env(tmp_path)
     for line in _run_lines():

@@ -12,6 +12,7 @@ import numpy as np
 import pytest
 
 from simtest.render import render_scene
+from simtest.scene import with_overrides
 from benchmarks.render import _bench_spec, bench_render
 
 pytestmark = pytest.mark.render
@@ -31,7 +32,19 @@ def test_bench_render_406_16spp(benchmark, scene):
     assert len(result.highlights) >= 1
 
 
-def test_bench_render_function_reports_per_scene():
+def test_bench_render_function_reports_per_scene(monkeypatch):
+    # the endoscope part (bench_endoscope, every preset and the plain-Mitsuba comparison) runs on
+    # its presets shrunk to a tenth of their film at 1 spp: the runner is checked, not the speed
+    import benchmarks.render as brender
+
+    full = brender.load_scene
+
+    def tenth(name):
+        spec = full(name)
+        return with_overrides(spec, {"camera.width_px": round(spec.camera.width_px / 10),
+                                     "camera.height_px": round(spec.camera.height_px / 10), "render.spp": 1})
+
+    monkeypatch.setattr(brender, "load_scene", tenth)
     out = bench_render(["plane_fronto", "no_such_scene"], size_px=32, spp=1, repeats=1, cold=False)
     entry = out["scenes"]["plane_fronto"]
     assert entry["warm"]["renders_per_s"] > 0 and entry["warm_rebuild"]["median_s"] > 0
@@ -39,6 +52,14 @@ def test_bench_render_function_reports_per_scene():
     assert entry["highlights"] == 1
     assert "error" in out["scenes"]["no_such_scene"]
     assert out["config"]["threads"] == 2
+    endo = out["endoscope"]
+    assert sorted(endo["presets"]) == sorted(brender.ENDOSCOPE_PRESETS)
+    for name, row in endo["presets"].items():
+        assert row["renders_per_s"] > 0 and row["cpu_s"] > 0 and row["spp"] == 1, name
+        assert row["film_px"] < 150 * 150, name  # the shrunk film: the patched loader was used
+    plain = endo["colonoscope_vs_plain"]
+    assert plain["tissue_s"] > 0 and plain["plain_mitsuba_s"] > 0
+    assert plain["ratio"] == plain["tissue_s"] / plain["plain_mitsuba_s"]
 
 
 def test_compare_variants_of_one_variant_finds_no_difference_and_names_a_missing_one():
