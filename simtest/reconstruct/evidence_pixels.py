@@ -184,12 +184,34 @@ def flat_mask(gray: np.ndarray, std_max: float) -> np.ndarray:
     return (np.sqrt(var, out=var) < np.float32(std_max)).view(np.uint8)
 
 
-def panels(gray: np.ndarray, std_max: float, min_area: float) -> np.ndarray:
+def drop_clipped(flat: np.ndarray, rgb: np.ndarray, std_max: float, ceiling: float) -> np.ndarray:
+    """The flat pixels ``flat`` (uint8 0/1) less those whose 5 x 5 window holds a channel at the
+    sensor's ``ceiling`` unless every channel of ``rgb`` (H, W, C) is flat there (:func:`flat_mask`
+    of each): a clipped channel has no noise, the others still carry the sensor's."""
+    clip = np.ascontiguousarray((rgb >= ceiling).any(axis=-1)).view(np.uint8)
+    if not clip.any():
+        return flat
+    near = cv2.dilate(clip, np.ones((5, 5), np.uint8))
+    if not (flat & near).any():
+        return flat
+    every = flat.copy()
+    for c in range(rgb.shape[-1]):
+        every &= flat_mask(rgb[..., c], std_max)
+    return np.where(near != 0, every, flat).astype(np.uint8)
+
+
+def panels(gray: np.ndarray, std_max: float, min_area: float, rgb: np.ndarray | None = None,
+           ceiling: float | None = None) -> np.ndarray:
     """Flat panels: the 8-connected components of :func:`flat_mask` of at least ``min_area``
-    px; uint8 0/1."""
+    px; uint8 0/1. With the frame's ``rgb`` (H, W, C) and its sensor ``ceiling``, pixels next to
+    a clipped channel count only where every channel is flat (:func:`drop_clipped`)."""
     flat = flat_mask(gray, std_max)
     if np.count_nonzero(flat) < min_area:
         return np.zeros_like(flat)
+    if rgb is not None and ceiling is not None:
+        flat = drop_clipped(flat, rgb, std_max, ceiling)
+        if np.count_nonzero(flat) < min_area:
+            return np.zeros_like(flat)
     # labels alone and their areas by counting (OpenCV's statistics cost more than its labels)
     n, lab = connected_components(flat)
     big = (np.bincount(lab.ravel(), minlength=n) >= min_area).astype(np.uint8)
@@ -199,11 +221,12 @@ def panels(gray: np.ndarray, std_max: float, min_area: float) -> np.ndarray:
     return np.take(big, lab)
 
 
-def panel_pixels_in(gray: np.ndarray, std_max: float, min_area: float, rr: np.ndarray) -> np.ndarray:
-    """How many pixels of :func:`panels` each region ``rr`` (rows of row0, row1, col0, col1)
-    holds, int64 (n,), by the panel map's integral image."""
+def panel_pixels_in(gray: np.ndarray, std_max: float, min_area: float, rr: np.ndarray,
+                    rgb: np.ndarray | None = None, ceiling: float | None = None) -> np.ndarray:
+    """How many pixels of :func:`panels` (``rgb``, ``ceiling``: its) each region ``rr`` (rows of
+    row0, row1, col0, col1) holds, int64 (n,), by the panel map's integral image."""
     rr = np.asarray(rr, np.int64).reshape(-1, 4)
-    p = panels(gray, std_max, min_area)
+    p = panels(gray, std_max, min_area, rgb, ceiling)
     if not p.any():
         return np.zeros(len(rr), np.int64)
     s = cv2.integral(p, sdepth=cv2.CV_32S)

@@ -246,14 +246,18 @@ def _specular_colour(chroma: np.ndarray, chroma_tissue: np.ndarray) -> np.ndarra
     return (chroma <= PALENESS_MAX * chroma_tissue) | (chroma <= WHITE_CHROMA)
 
 
-def _panel_pixels_in(gray: np.ndarray, noise: float, rr: np.ndarray) -> np.ndarray:
+def _panel_pixels_in(gray: np.ndarray, noise: float, rr: np.ndarray, image: np.ndarray | None = None) -> np.ndarray:
     """How many pixels of the flat panels each region ``rr`` (row0, row1, col0, col1) holds:
     pixels whose 5 x 5 luma standard deviation is below :data:`PANEL_STD_REL` of the noise, in
     8-connected regions of at least :data:`PANEL_MIN_AREA` of the frame (none in a noise-free
-    image)."""
+    image). Next to a channel at an integer ``image``'s ceiling (its dtype's maximum, as
+    detection's clipping) every channel must be flat: a clipped channel carries no noise, and a
+    drawn panel is flat in all of them."""
     if not noise > 0:
         return np.zeros(len(rr), np.int64)
-    return px.panel_pixels_in(gray, PANEL_STD_REL * noise, PANEL_MIN_AREA * gray.size, rr)
+    rgb = image[..., :3] if image is not None and image.ndim == 3 and image.dtype.kind == "u" else None
+    ceiling = float(np.iinfo(rgb.dtype).max) if rgb is not None else None
+    return px.panel_pixels_in(gray, PANEL_STD_REL * noise, PANEL_MIN_AREA * gray.size, rr, rgb, ceiling)
 
 
 #: The windowed path of :func:`frame_evidence` (top-hat and maxima only around the candidates
@@ -395,7 +399,7 @@ def frame_evidence(image: np.ndarray, gray: np.ndarray, bps_uv: np.ndarray, rois
     if not panels or (windowed and (not noise > 0 or _surely_no_panels(gray, noise, rr))):
         panel_fraction = np.zeros(n)
     else:
-        inside = _panel_pixels_in(_shared(_float32, gray), noise, rr)
+        inside = _panel_pixels_in(_shared(_float32, gray), noise, rr, None if grey else image)
         area = np.maximum((rr[:, 1] - rr[:, 0]) * (rr[:, 3] - rr[:, 2]), 1)
         panel_fraction = inside / area
     # specular peaks of the frame: the top-hat's local maxima that pass the colour check
