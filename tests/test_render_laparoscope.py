@@ -1,6 +1,7 @@
-"""The laparoscope scene: the liver in its abdomen fills the field (no void), the exposure is
-metered on tissue and clips under 2 % of the tissue pixels, the wall is its own tissue, and the
-wet liver capsule shines: white glints at the default exposure (issue 62)."""
+"""The laparoscope scene: the liver, its gallbladder and the abdominal wall fill the field (no
+void), the exposure is metered on tissue and clips under 2 % of the tissue pixels, the wall and the
+gallbladder are their own tissues, and the wet liver capsule shines: white glints at the default
+exposure (issue 62)."""
 
 from __future__ import annotations
 
@@ -11,9 +12,10 @@ import pytest
 
 from simtest.resources import data_root
 from simtest.scene.meshes import load_mesh
-from simtest.scene.meshes.abdomen import wall_sphere
+from simtest.scene.meshes import FD_STEP_MM, implicit_curvature
+from simtest.scene.meshes.abdomen import ellipsoid_curvature, wall_sphere
 from simtest.scene.meshes.params import MeshError
-from simtest.scene.spec import load_scene, with_overrides
+from simtest.scene.spec import SceneError, load_scene, with_overrides
 
 MESH = data_root() / "meshes" / "liver_abdomen.ply"
 
@@ -37,33 +39,84 @@ def test_wall_sphere_holds_the_liver_with_its_gap():
         wall_sphere(pts, (0.0, -1.0, -1.0), 50.0, 15.0)
 
 
+def test_ellipsoid_curvature_is_exact():
+    """The gallbladder's closed forms agree with finite differences of the ellipsoid's implicit
+    function and with the textbook values at the ends of its axes (a / b^2, a / c^2 at x = a)."""
+    rng = np.random.default_rng(1)
+    a, c = np.array([40.0, 16.0, 12.0]), np.array([3.0, -5.0, 7.0])
+    w = rng.normal(size=(300, 3))
+    pts = c + a * w / np.linalg.norm(w, axis=1, keepdims=True)
+    n, k1, k2 = ellipsoid_curvature(pts, c, a)
+
+    def f(x):  # F in mm near the surface (a distance-like level set), so the FD step is in mm
+        return 12.0 * (np.linalg.norm((x - c) / a, axis=-1) - 1.0)
+
+    fn, fk1, fk2 = implicit_curvature(f, pts, FD_STEP_MM)
+    assert np.allclose(n, fn, atol=1e-8)
+    # 4th-order differences with a 0.01 mm step on a smooth quadric: round-off bound, ~1e-6 of k
+    np.testing.assert_allclose(np.c_[k1, k2], np.c_[fk1, fk2], rtol=1e-5, atol=1e-7)
+    tip = c + np.array([[a[0], 0.0, 0.0]])
+    _, t1, t2 = ellipsoid_curvature(tip, c, a)
+    assert t1[0] == pytest.approx(a[0] / a[2] ** 2, rel=1e-12) and t2[0] == pytest.approx(a[0] / a[1] ** 2, rel=1e-12)
+
+
 def test_committed_abdomen_mesh():
-    """The wall's vertices lie on its sphere with exact normals and curvatures; the liver is the
-    committed liver, every point of it at least the gap inside the sphere."""
+    """The wall's vertices lie on its sphere with exact normals and curvatures; the gallbladder's on
+    its ellipsoid with its closed-form normals and curvatures; the liver is the committed liver;
+    every point of the liver and the gallbladder at least the gap inside the sphere."""
     gen = json.loads(MESH.with_suffix(".json").read_text())["generator"]
     mesh = load_mesh(MESH)
     liver = load_mesh(data_root() / "meshes" / "liver.ply")
-    nl = len(liver.vertices)
+    nl, ng = len(liver.vertices), gen["gallbladder_vertices"]
+    assert gen["liver_vertices"] == nl
     v = np.asarray(mesh.vertices)
     assert np.array_equal(v[:nl], np.asarray(liver.vertices))
     c, R = np.array(gen["wall_centre_mm"]), gen["wall_radius_mm"]
     d = np.linalg.norm(v - c, axis=1)
+    w = nl + ng  # the wall's first vertex
     # float32 vertices 400 mm out: 3e-5 mm of round-off
-    assert np.allclose(d[nl:], R, atol=1e-4) and d[:nl].max() <= R - gen["gap_mm"] + 1e-4
-    n = np.asarray(mesh.vertex_normals)[nl:]
-    assert np.allclose(n, (c - v[nl:]) / R, atol=1e-5)  # toward the centre
-    assert np.allclose(mesh.vertex_attributes["k1"][nl:], -1.0 / R, rtol=1e-6)
+    assert np.allclose(d[w:], R, atol=1e-4) and d[:w].max() <= R - gen["gap_mm"] + 1e-4
+    n = np.asarray(mesh.vertex_normals)
+    assert np.allclose(n[w:], (c - v[w:]) / R, atol=1e-5)  # toward the centre
+    assert np.allclose(mesh.vertex_attributes["k1"][w:], -1.0 / R, rtol=1e-6)
+    # the gallbladder: on its ellipsoid (float32 round-off), closed-form truth (float32 storage)
+    gc, ga = np.array(gen["gallbladder_centre_mm"]), np.array(gen["gallbladder_axes_mm"])
+    g = v[nl:w]
+    assert np.allclose(np.linalg.norm((g - gc) / ga, axis=1), 1.0, atol=1e-5)
+    en, ek1, ek2 = ellipsoid_curvature(g, gc, ga)
+    assert np.allclose(n[nl:w], en, atol=1e-5)
+    # near the ellipsoid's umbilics (k1 = k2) the square root of H^2 - K amplifies the float32
+    # round-off of the vertices (1e-5 mm) to at most 5e-6 1/mm (measured); 1e-5 1/mm is 1e-4 of k
+    np.testing.assert_allclose(mesh.vertex_attributes["k1"][nl:w], ek1, rtol=1e-5, atol=1e-5)
+    np.testing.assert_allclose(mesh.vertex_attributes["k2"][nl:w], ek2, rtol=1e-5, atol=1e-5)
+    # the scene's texture gives the gallbladder's points its tissue: the same ellipsoid
+    mat = load_scene("laparoscope_liver").material
+    assert mat.organ_tissue == "gallbladder"
+    assert np.allclose(mat.organ_centre_mm, gc) and np.allclose(mat.organ_axes_mm, ga)
+    assert np.allclose(mat.wall_centre_mm, c, atol=1e-3)
 
 
-def _liver(spec, res) -> np.ndarray:
-    """The field's pixels on the liver: texture-frame points inside the wall's sphere
-    (render.tissue_texture's rule)."""
+def test_organ_keys_go_together():
+    with pytest.raises(SceneError, match="organ_tissue"):
+        with_overrides(load_scene("laparoscope_liver"), {"material.organ_axes_mm": None})
+
+
+def _regions(spec, res) -> tuple[np.ndarray, np.ndarray]:
+    """The field's pixels on the liver and on the gallbladder: texture-frame points inside the
+    wall's sphere and outside, or inside, the organ's ellipsoid (render.tissue_texture's rule)."""
     from simtest.render.render import cam_to_texture_matrix
 
     m = cam_to_texture_matrix(spec)
+    mat = spec.material
     q = np.nan_to_num(res.position.astype(np.float64)) @ m[:3, :3].T + m[:3, 3]
-    inside = np.linalg.norm(q - np.asarray(spec.material.wall_centre_mm), axis=-1) < spec.material.wall_radius_mm
-    return inside & res.mask & res.field_stop
+    inside = np.linalg.norm(q - np.asarray(mat.wall_centre_mm), axis=-1) < mat.wall_radius_mm
+    organ = np.linalg.norm((q - np.asarray(mat.organ_centre_mm)) / np.asarray(mat.organ_axes_mm), axis=-1) <= 1.001
+    field = res.mask & res.field_stop
+    return inside & ~organ & field, organ & field
+
+
+def _liver(spec, res) -> np.ndarray:
+    return _regions(spec, res)[0]
 
 
 @pytest.mark.render
@@ -82,15 +135,18 @@ def test_laparoscope_fills_the_field_and_does_not_clip():
     assert res.mask[stop].all()  # tissue at every pixel of the field: no void
     f = res.frame
     clipped = ((f >= 255) & stop[..., None]).sum(axis=(0, 1)) / stop.sum()
-    assert clipped.max() < MAX_CLIPPED, clipped  # measured 0.59 % (red), 0.17 %, 0.15 %
-    # and the capsule shines at this size too: white glints on the liver (measured 49 blobs)
+    assert clipped.max() < MAX_CLIPPED, clipped  # measured 0.28 % (red), 0.10 %, 0.07 %
+    # and the capsule shines at this size too: white glints on the liver (measured 34 blobs)
     white = (f >= WHITE_LEVEL).all(axis=-1) & stop
     assert len(np.unique(label(white & _liver(spec, res), connectivity=2))) - 1 >= MIN_LIVER_GLINTS
-    # both tissues in view, told apart by their albedo (the wall's is paler: more green; liver G/R
-    # 0.34, 0.21 on its vessels; the wall's 0.59, 0.35 on its vessels)
+    # the three tissues in view, told apart by their albedo (the wall's is paler: more green; liver
+    # G/R 0.34, 0.21 on its vessels; the wall's 0.59, 0.35 on its vessels; the gallbladder's 1.15)
     alb = res.albedo[stop]
     ratio = alb[:, 1] / alb[:, 0]
-    assert (ratio < 0.4).mean() > 0.3 and (ratio > 0.5).mean() > 0.05
+    assert (ratio < 0.4).mean() > 0.3 and (ratio > 0.5).mean() > 0.05 and (ratio > 1.0).mean() > 0.1
+    # the gallbladder fills part of the view beside the liver (measured: liver 61 %, gallbladder 17 %, wall 22 %)
+    liver, organ = _regions(spec, res)
+    assert 0.4 < liver.sum() / stop.sum() < 0.8 and 0.1 < organ.sum() / stop.sum() < 0.4
     # metering on tissue: the field's mean luma is the target (every field pixel is tissue)
     assert not np.isnan(res.depth[stop]).any()
 

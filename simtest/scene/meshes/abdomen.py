@@ -13,6 +13,14 @@ are exact, ``k1 = k2 = -1 / wall_radius_mm`` (the surface bends toward its norma
 the convention of :mod:`simtest.scene.meshes.curvature`). The wall's points are exactly at
 ``wall_radius_mm`` from the centre and the liver's are at most ``wall_radius_mm - gap_mm``: the
 tissue texture tells them apart by that distance (``material.wall_tissue``).
+
+A neighbouring organ may join them: the gallbladder, a closed ellipsoid (``gallbladder_centre_mm``,
+semi-axes ``gallbladder_axes_mm`` along the mesh axes; a gallbladder is 70 to 100 mm long and 30 to
+40 mm across, Standring, "Gray's Anatomy", 41st ed., ch. 68) lying against the liver's inferior
+surface, partly sunk into it as in its fossa. Its normals and principal curvatures are the
+ellipsoid's closed forms (:func:`ellipsoid_curvature`); the texture gives its points their own
+tissue (``material.organ_tissue``: the points inside that ellipsoid). Where it is sunk into the
+liver each surface hides the other's inside, so every visible point keeps its own surface's truth.
 """
 
 from __future__ import annotations
@@ -28,12 +36,19 @@ from simtest.scene.meshes.files import _assemble
 from simtest.scene.meshes.liver import _fibonacci_sphere, build_liver
 from simtest.scene.meshes.params import MeshError
 
-__all__ = ["LAPAROSCOPE_WALL_AXIS", "wall_sphere", "build_liver_in_abdomen"]
+__all__ = ["LAPAROSCOPE_WALL_AXIS", "LAPAROSCOPE_GALLBLADDER", "wall_sphere", "ellipsoid_curvature",
+           "build_liver_in_abdomen"]
 
 #: The wall's axis of meshes/liver_abdomen.ply (``simtest meshes build`` builds it with this): the
 #: unit direction from the liver's centre (the middle of its bounding box) toward the scope of
 #: scenes/laparoscope_liver.toml, so that the cap lies behind the liver as that scope sees it.
 LAPAROSCOPE_WALL_AXIS = (-0.5022907830486957, -0.5249903665151608, -0.6870873920620324)
+
+#: The gallbladder of meshes/liver_abdomen.ply: centre and semi-axes, mm, in the liver's frame.
+#: 80 x 32 x 32 mm (Gray's Anatomy's 70 to 100 by 30 to 40 mm), placed against the liver's right
+#: inferior edge as scenes/laparoscope_liver.toml sees it, so that it fills the lower right of
+#: the view in front of the wall.
+LAPAROSCOPE_GALLBLADDER = {"gallbladder_centre_mm": (0.3, -27.4, -67.8), "gallbladder_axes_mm": (40.0, 16.0, 16.0)}
 
 
 def wall_sphere(liver_vertices: np.ndarray, wall_axis, wall_radius_mm: float, gap_mm: float) -> tuple[np.ndarray, float]:
@@ -67,8 +82,47 @@ def wall_sphere(liver_vertices: np.ndarray, wall_axis, wall_radius_mm: float, ga
     return centre, float(wall_radius_mm)
 
 
+def ellipsoid_curvature(points: np.ndarray, centre, axes) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Outward unit normals and principal curvatures (k1 >= k2 > 0, 1/mm) of an ellipsoid.
+
+    ``points`` (N, 3) on the ellipsoid ``sum(((x - centre) / axes)^2) = 1`` (semi-axes along the
+    frame's axes, mm). Closed forms: the normal is ``grad`` of that quadric normalised; with
+    ``h^2 = sum(y_i^2 / a_i^4)`` (``y = x - centre``), the Gaussian curvature is
+    ``K = 1 / ((a b c)^2 h^4)`` and the mean curvature ``H = (a^2 + b^2 + c^2 - |y|^2) / (2 (a b c)^2 h^3)``
+    (Goldman 2005, doi:10.1016/j.cagd.2005.06.005, applied to the quadric), ``k = H +- sqrt(H^2 - K)``.
+    """
+    a = np.asarray(axes, dtype=np.float64)
+    y = np.asarray(points, dtype=np.float64) - np.asarray(centre, dtype=np.float64)
+    g = y / a**2
+    h = np.linalg.norm(g, axis=1)
+    abc2 = float(np.prod(a)) ** 2
+    K = 1.0 / (abc2 * h**4)
+    H = (float(np.sum(a * a)) - np.sum(y * y, axis=1)) / (2.0 * abc2 * h**3)
+    root = np.sqrt(np.maximum(H * H - K, 0.0))
+    return g / h[:, None], H + root, H - root
+
+
+def _gallbladder(centre, axes, spacing_mm: float) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Vertices, outward-wound faces, normals, k1, k2 of the closed ellipsoid (module notes)."""
+    a = np.asarray(axes, dtype=np.float64)
+    if a.shape != (3,) or not (a > 0).all():
+        raise MeshError(f"build_liver_in_abdomen: gallbladder_axes_mm must be three positive lengths, got {axes}")
+    p = (a[0] * a[1]) ** 1.6 + (a[0] * a[2]) ** 1.6 + (a[1] * a[2]) ** 1.6
+    area = 4.0 * math.pi * (p / 3.0) ** (1 / 1.6)  # Knud Thomsen's approximation, within 1.1 %
+    n = max(200, int(area / (0.5 * math.sqrt(3) * spacing_mm**2) / 2))
+    d = _fibonacci_sphere(n)
+    faces = ConvexHull(d).simplices.astype(np.int64)
+    tri = d[faces]
+    outward = np.einsum("ij,ij->i", np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0]), tri.sum(1))
+    faces[outward < 0] = faces[outward < 0][:, ::-1]  # a positive scaling keeps the winding outward
+    v = np.asarray(centre, dtype=np.float64) + a * d
+    nrm, k1, k2 = ellipsoid_curvature(v, centre, a)
+    return v, faces, nrm, k1, k2
+
+
 def build_liver_in_abdomen(seed: int, *, wall_axis=(-0.5, -0.5, -0.7), wall_radius_mm: float = 400.0,
                            gap_mm: float = 15.0, cap_deg: float = 80.0, wall_spacing_mm: float = 6.0,
+                           gallbladder_centre_mm=None, gallbladder_axes_mm=None, gallbladder_spacing_mm: float = 1.5,
                            **liver_params: Any) -> trimesh.Trimesh:
     """The liver (:func:`build_liver` with ``seed`` and ``liver_params``) and the wall behind it.
 
@@ -86,11 +140,15 @@ def build_liver_in_abdomen(seed: int, *, wall_axis=(-0.5, -0.5, -0.7), wall_radi
         Half-angle of the cap about ``-wall_axis`` seen from the sphere's centre, degrees.
     wall_spacing_mm : float
         Typical vertex spacing of the wall, mm.
+    gallbladder_centre_mm, gallbladder_axes_mm : (3,) array_like or None
+        The gallbladder's ellipsoid (module notes), mm in the liver's frame; None: no gallbladder.
+    gallbladder_spacing_mm : float
+        Typical vertex spacing of the gallbladder, mm.
 
     Returns
     -------
     trimesh.Trimesh
-        Liver faces first, then the wall's; ``vertex_normals`` unit (the liver's outward, the
+        Liver faces first, then the gallbladder's (if any), then the wall's; ``vertex_normals`` unit (the liver's outward, the
         wall's toward the sphere's centre), ``vertex_attributes["k1"]``, ``["k2"]`` (1/mm);
         ``metadata["generator"]`` with the wall's ``wall_centre_mm`` and ``wall_radius_mm``.
 
@@ -100,7 +158,13 @@ def build_liver_in_abdomen(seed: int, *, wall_axis=(-0.5, -0.5, -0.7), wall_radi
         Bad liver parameters, or a wall that would cut the liver.
     """
     liver = build_liver(seed, **liver_params)
-    centre, R = wall_sphere(liver.vertices, wall_axis, wall_radius_mm, gap_mm)
+    organ = None
+    if (gallbladder_centre_mm is None) != (gallbladder_axes_mm is None):
+        raise MeshError("build_liver_in_abdomen: gallbladder_centre_mm and gallbladder_axes_mm go together")
+    if gallbladder_centre_mm is not None:
+        organ = _gallbladder(gallbladder_centre_mm, gallbladder_axes_mm, gallbladder_spacing_mm)
+    inner = np.asarray(liver.vertices) if organ is None else np.vstack([liver.vertices, organ[0]])
+    centre, R = wall_sphere(inner, wall_axis, wall_radius_mm, gap_mm)
     u = np.asarray(wall_axis, dtype=np.float64)
     u /= np.linalg.norm(u)
     cap = math.radians(cap_deg)
@@ -122,17 +186,27 @@ def build_liver_in_abdomen(seed: int, *, wall_axis=(-0.5, -0.5, -0.7), wall_radi
     faces[outward > 0] = faces[outward > 0][:, ::-1]
     wall_v = centre + R * d
     k = np.full(len(d), -1.0 / R)
-    nl = len(liver.vertices)
-    mesh = _assemble(np.vstack([liver.vertices, wall_v]),
-                     np.vstack([np.asarray(liver.faces), faces + nl]),
-                     np.vstack([liver.vertex_normals, -d]),
-                     np.concatenate([liver.vertex_attributes["k1"], k]),
-                     np.concatenate([liver.vertex_attributes["k2"], k]))
+    parts = [(liver.vertices, np.asarray(liver.faces), liver.vertex_normals, liver.vertex_attributes["k1"],
+              liver.vertex_attributes["k2"])]
+    if organ is not None:
+        parts.append(organ)
+    parts.append((wall_v, faces, -d, k, k))
+    offsets = np.cumsum([0] + [len(pt[0]) for pt in parts])
+    mesh = _assemble(np.vstack([pt[0] for pt in parts]),
+                     np.vstack([pt[1] + off for pt, off in zip(parts, offsets)]),
+                     *(np.concatenate([pt[i] for pt in parts]) for i in (2, 3, 4)))
     gen = dict(liver.metadata["generator"])
     gen.update({"name": "liver_in_abdomen", "function": "simtest.scene.meshes.abdomen.build_liver_in_abdomen",
                 "liver_faces": int(len(liver.faces)), "wall_axis": [float(x) for x in u],
                 "wall_centre_mm": [float(x) for x in centre], "wall_radius_mm": R, "gap_mm": float(gap_mm),
                 "cap_deg": float(cap_deg), "wall_spacing_mm": float(wall_spacing_mm),
+                "liver_vertices": int(len(liver.vertices)),
                 "curvature": gen.get("curvature", "") + "; wall: exact, -1 / wall_radius_mm"})
+    if organ is not None:
+        gen.update({"gallbladder_centre_mm": [float(x) for x in gallbladder_centre_mm],
+                    "gallbladder_axes_mm": [float(x) for x in gallbladder_axes_mm],
+                    "gallbladder_spacing_mm": float(gallbladder_spacing_mm),
+                    "gallbladder_vertices": int(len(organ[0])), "gallbladder_faces": int(len(organ[1])),
+                    "curvature": gen["curvature"] + "; gallbladder: exact, the ellipsoid's closed forms"})
     mesh.metadata["generator"] = gen
     return mesh
