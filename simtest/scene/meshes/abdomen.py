@@ -21,6 +21,13 @@ surface, partly sunk into it as in its fossa. Its normals and principal curvatur
 ellipsoid's closed forms (:func:`ellipsoid_curvature`); the texture gives its points their own
 tissue (``material.organ_tissue``: the points inside that ellipsoid). Where it is sunk into the
 liver each surface hides the other's inside, so every visible point keeps its own surface's truth.
+
+A second lobe may join the liver with the thin inferior margin a laparoscope sees, where the
+liver's upper surface folds sharply onto its lower one: a wedge-shaped closed surface, an
+ellipsoid whose thickness shrinks toward one side (:func:`lobe_implicit`), also sunk into the
+liver, with normals and curvatures of its closed-form implicit function by the finite differences
+of :func:`~simtest.scene.meshes.curvature.implicit_curvature` (as the liver's). It is liver
+tissue (inside the wall's sphere, outside the gallbladder's ellipsoid).
 """
 
 from __future__ import annotations
@@ -32,11 +39,12 @@ import numpy as np
 import trimesh
 from scipy.spatial import ConvexHull
 
+from simtest.scene.meshes.curvature import FD_STEP_MM, implicit_curvature
 from simtest.scene.meshes.files import _assemble
 from simtest.scene.meshes.liver import _fibonacci_sphere, build_liver
 from simtest.scene.meshes.params import MeshError
 
-__all__ = ["LAPAROSCOPE_WALL_AXIS", "LAPAROSCOPE_GALLBLADDER", "wall_sphere", "ellipsoid_curvature",
+__all__ = ["LAPAROSCOPE_WALL_AXIS", "LAPAROSCOPE_ABDOMEN", "wall_sphere", "ellipsoid_curvature", "lobe_implicit",
            "build_liver_in_abdomen"]
 
 #: The wall's axis of meshes/liver_abdomen.ply (``simtest meshes build`` builds it with this): the
@@ -44,11 +52,18 @@ __all__ = ["LAPAROSCOPE_WALL_AXIS", "LAPAROSCOPE_GALLBLADDER", "wall_sphere", "e
 #: scenes/laparoscope_liver.toml, so that the cap lies behind the liver as that scope sees it.
 LAPAROSCOPE_WALL_AXIS = (-0.5022907830486957, -0.5249903665151608, -0.6870873920620324)
 
-#: The gallbladder of meshes/liver_abdomen.ply: centre and semi-axes, mm, in the liver's frame.
-#: 80 x 32 x 32 mm (Gray's Anatomy's 70 to 100 by 30 to 40 mm), placed against the liver's right
-#: inferior edge as scenes/laparoscope_liver.toml sees it, so that it fills the lower right of
-#: the view in front of the wall.
-LAPAROSCOPE_GALLBLADDER = {"gallbladder_centre_mm": (0.3, -27.4, -67.8), "gallbladder_axes_mm": (40.0, 16.0, 16.0)}
+#: The organs of meshes/liver_abdomen.ply beside the liver (mm and unit vectors in the liver's
+#: frame), placed for the view of scenes/laparoscope_liver.toml: the gallbladder, 80 x 32 x 32 mm
+#: (Gray's Anatomy's 70 to 100 by 30 to 40 mm), against the liver's right inferior edge, filling
+#: the lower right of the view; a lobe (100 x 60 mm, 28 mm thick at its middle, 15 mm at its thin
+#: inferior margin, whose rim bends with a radius of about 2 mm) over the upper right, its margin
+#: across the view above the gallbladder, its upper surface toward the scope. The wall's 8 mm
+#: spacing (a sphere of radius 400 mm: its interpolated normals stay within 0.3 deg) keeps the
+#: file under 2 MB.
+LAPAROSCOPE_ABDOMEN = {"gallbladder_centre_mm": (0.3, -27.4, -67.8), "gallbladder_axes_mm": (40.0, 16.0, 16.0),
+                       "lobe_centre_mm": (20.1, -64.2, -39.6), "lobe_normal": (-0.23, -0.92, -0.317),
+                       "lobe_edge": (-0.541, 0.391, -0.745), "lobe_axes_mm": (50.0, 30.0, 14.0), "lobe_wedge": 0.6,
+                       "wall_spacing_mm": 8.0}
 
 
 def wall_sphere(liver_vertices: np.ndarray, wall_axis, wall_radius_mm: float, gap_mm: float) -> tuple[np.ndarray, float]:
@@ -120,10 +135,55 @@ def _gallbladder(centre, axes, spacing_mm: float) -> tuple[np.ndarray, np.ndarra
     return v, faces, nrm, k1, k2
 
 
+def _lobe_frame(normal, edge) -> np.ndarray:
+    """(3, 3) rotation whose columns are the lobe's axes: x along its margin, y toward its thin
+    margin (``edge`` made orthogonal to ``normal``), z its ``normal`` (right-handed)."""
+    z = np.asarray(normal, dtype=np.float64)
+    z = z / np.linalg.norm(z)
+    y = np.asarray(edge, dtype=np.float64)
+    y = y - (y @ z) * z
+    if not np.linalg.norm(y) > 1e-9:
+        raise MeshError("build_liver_in_abdomen: lobe_edge must not be parallel to lobe_normal")
+    y = y / np.linalg.norm(y)
+    return np.stack([np.cross(y, z), y, z], axis=1)
+
+
+def lobe_implicit(x: np.ndarray, centre, frame: np.ndarray, axes, wedge: float) -> np.ndarray:
+    """The lobe's implicit function, mm (negative inside; module notes), at points ``x`` (..., 3).
+
+    In the lobe's frame ``(X, Y, Z) = frame^T (x - centre)``, ``F = c (|(X / a, Y / b, Z / (c
+    exp(-wedge Y / b)))| - 1)``: an ellipsoid whose half-thickness ``c`` shrinks by ``exp(-2
+    wedge)`` from its back (``Y = -b``) to its thin margin (``Y = +b``), scaled by ``c`` so that
+    F is about a distance in mm near the surface.
+    """
+    a, b, c = (float(v) for v in axes)
+    q = (np.asarray(x, dtype=np.float64) - np.asarray(centre, dtype=np.float64)) @ frame
+    t = c * np.exp(-wedge * q[..., 1] / b)
+    return c * (np.sqrt((q[..., 0] / a) ** 2 + (q[..., 1] / b) ** 2 + (q[..., 2] / t) ** 2) - 1.0)
+
+
+def _lobe(centre, normal, edge, axes, wedge: float, n: int):
+    """Vertices, outward-wound faces, normals, k1, k2 of the lobe: the unit sphere's points ``u``
+    mapped to ``centre + frame (a u_x, b u_y, c exp(-wedge u_y) u_z)``, exactly on F = 0
+    (:func:`lobe_implicit`); normals and curvatures from F (:func:`implicit_curvature`)."""
+    frame = _lobe_frame(normal, edge)
+    a, b, c = (float(v) for v in axes)
+    u = _fibonacci_sphere(n)
+    faces = ConvexHull(u).simplices.astype(np.int64)
+    tri = u[faces]
+    outward = np.einsum("ij,ij->i", np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0]), tri.sum(1))
+    faces[outward < 0] = faces[outward < 0][:, ::-1]  # the map's Jacobian is positive: winding kept
+    local = np.stack([a * u[:, 0], b * u[:, 1], c * np.exp(-wedge * u[:, 1]) * u[:, 2]], axis=1)
+    v = np.asarray(centre, dtype=np.float64) + local @ frame.T
+    nrm, k1, k2 = implicit_curvature(lambda x: lobe_implicit(x, centre, frame, axes, wedge), v, FD_STEP_MM)
+    return v, faces, nrm, k1, k2
+
+
 def build_liver_in_abdomen(seed: int, *, wall_axis=(-0.5, -0.5, -0.7), wall_radius_mm: float = 400.0,
                            gap_mm: float = 15.0, cap_deg: float = 80.0, wall_spacing_mm: float = 6.0,
                            gallbladder_centre_mm=None, gallbladder_axes_mm=None, gallbladder_spacing_mm: float = 1.5,
-                           **liver_params: Any) -> trimesh.Trimesh:
+                           lobe_centre_mm=None, lobe_normal=None, lobe_edge=None, lobe_axes_mm=None,
+                           lobe_wedge: float = 0.6, lobe_vertices: int = 3000, **liver_params: Any) -> trimesh.Trimesh:
     """The liver (:func:`build_liver` with ``seed`` and ``liver_params``) and the wall behind it.
 
     Parameters
@@ -144,11 +204,19 @@ def build_liver_in_abdomen(seed: int, *, wall_axis=(-0.5, -0.5, -0.7), wall_radi
         The gallbladder's ellipsoid (module notes), mm in the liver's frame; None: no gallbladder.
     gallbladder_spacing_mm : float
         Typical vertex spacing of the gallbladder, mm.
+    lobe_centre_mm, lobe_normal, lobe_edge, lobe_axes_mm : (3,) array_like or None
+        The lobe (module notes; :func:`lobe_implicit`): centre, mm; the normal of its upper surface
+        and the direction of its thin margin (unit vectors or not); semi-axes (along the margin,
+        toward it, half-thickness at the centre), mm. None: no lobe.
+    lobe_wedge : float
+        The lobe's thickness falls by ``exp(-2 lobe_wedge)`` from its back to its margin.
+    lobe_vertices : int
+        Vertices of the lobe.
 
     Returns
     -------
     trimesh.Trimesh
-        Liver faces first, then the gallbladder's (if any), then the wall's; ``vertex_normals`` unit (the liver's outward, the
+        Liver faces first, then the lobe's and the gallbladder's (if any), then the wall's; ``vertex_normals`` unit (the liver's outward, the
         wall's toward the sphere's centre), ``vertex_attributes["k1"]``, ``["k2"]`` (1/mm);
         ``metadata["generator"]`` with the wall's ``wall_centre_mm`` and ``wall_radius_mm``.
 
@@ -163,7 +231,10 @@ def build_liver_in_abdomen(seed: int, *, wall_axis=(-0.5, -0.5, -0.7), wall_radi
         raise MeshError("build_liver_in_abdomen: gallbladder_centre_mm and gallbladder_axes_mm go together")
     if gallbladder_centre_mm is not None:
         organ = _gallbladder(gallbladder_centre_mm, gallbladder_axes_mm, gallbladder_spacing_mm)
-    inner = np.asarray(liver.vertices) if organ is None else np.vstack([liver.vertices, organ[0]])
+    lobe = None
+    if lobe_centre_mm is not None:
+        lobe = _lobe(lobe_centre_mm, lobe_normal, lobe_edge, lobe_axes_mm, float(lobe_wedge), int(lobe_vertices))
+    inner = np.vstack([liver.vertices] + [pt[0] for pt in (lobe, organ) if pt is not None])
     centre, R = wall_sphere(inner, wall_axis, wall_radius_mm, gap_mm)
     u = np.asarray(wall_axis, dtype=np.float64)
     u /= np.linalg.norm(u)
@@ -188,8 +259,7 @@ def build_liver_in_abdomen(seed: int, *, wall_axis=(-0.5, -0.5, -0.7), wall_radi
     k = np.full(len(d), -1.0 / R)
     parts = [(liver.vertices, np.asarray(liver.faces), liver.vertex_normals, liver.vertex_attributes["k1"],
               liver.vertex_attributes["k2"])]
-    if organ is not None:
-        parts.append(organ)
+    parts += [pt for pt in (lobe, organ) if pt is not None]
     parts.append((wall_v, faces, -d, k, k))
     offsets = np.cumsum([0] + [len(pt[0]) for pt in parts])
     mesh = _assemble(np.vstack([pt[0] for pt in parts]),
@@ -202,6 +272,11 @@ def build_liver_in_abdomen(seed: int, *, wall_axis=(-0.5, -0.5, -0.7), wall_radi
                 "cap_deg": float(cap_deg), "wall_spacing_mm": float(wall_spacing_mm),
                 "liver_vertices": int(len(liver.vertices)),
                 "curvature": gen.get("curvature", "") + "; wall: exact, -1 / wall_radius_mm"})
+    if lobe is not None:
+        gen.update({"lobe_centre_mm": [float(x) for x in lobe_centre_mm], "lobe_normal": [float(x) for x in lobe_normal],
+                    "lobe_edge": [float(x) for x in lobe_edge], "lobe_axes_mm": [float(x) for x in lobe_axes_mm],
+                    "lobe_wedge": float(lobe_wedge), "lobe_vertices": int(len(lobe[0])),
+                    "curvature": gen["curvature"] + "; lobe: closed-form F, the same finite differences"})
     if organ is not None:
         gen.update({"gallbladder_centre_mm": [float(x) for x in gallbladder_centre_mm],
                     "gallbladder_axes_mm": [float(x) for x in gallbladder_axes_mm],
