@@ -224,6 +224,24 @@ def test_laparoscope_fills_the_field_and_does_not_clip():
     assert lobe.sum() / stop.sum() > 0.1 and margin.sum() / stop.sum() > 0.01, (lobe.mean(), margin.mean())
     # metering on tissue: the field's mean luma is the target (every field pixel is tissue)
     assert not np.isnan(res.depth[stop]).any()
+    # the truth on the new surfaces: each light's highlight normal is the bisector of the
+    # directions to its light and to the camera at its BP (the specular law; 0.01 deg: far
+    # above the truth's root-search tolerance, far below any wrong-surface error), its BP projects to its pixel, and every BP in the frame
+    # lies inside the field stop; the lobe and the gallbladder carry highlights too
+    h, w = stop.shape
+    on_lobe = on_organ = 0
+    for hl in res.highlights:
+        p = np.asarray(hl.bp_mm, dtype=np.float64)
+        lp = np.asarray(res.lights.lights[hl.light].position_mm, dtype=np.float64)
+        b = (lp - p) / np.linalg.norm(lp - p) - p / np.linalg.norm(p)
+        assert np.degrees(np.arccos(np.clip(b @ hl.normal / np.linalg.norm(b), -1, 1))) < 1e-2
+        assert np.allclose(res.camera.ray_to_pixel(p[None])[0], hl.bp_px, atol=1e-3)
+        if hl.in_frame:
+            u, v = np.round(hl.bp_px).astype(int)
+            assert stop[min(v, h - 1), min(u, w - 1)]
+            on_lobe += lobe[min(v, h - 1), min(u, w - 1)]
+            on_organ += organ[min(v, h - 1), min(u, w - 1)]
+    assert on_lobe >= 2 and on_organ >= 2, (on_lobe, on_organ)
 
 
 def test_meshes_build_makes_the_committed_abdomen_mesh(tmp_path):
