@@ -225,9 +225,10 @@ def test_laparoscope_fills_the_field_and_does_not_clip():
     # metering on tissue: the field's mean luma is the target (every field pixel is tissue)
     assert not np.isnan(res.depth[stop]).any()
     # the truth on the new surfaces: each light's highlight normal is the bisector of the
-    # directions to its light and to the camera at its BP (the specular law; 0.01 deg: far
-    # above the truth's root-search tolerance, far below any wrong-surface error), its BP projects to its pixel, and every BP in the frame
-    # lies inside the field stop; the lobe and the gallbladder carry highlights too
+    # directions to its light and to the camera at its BP (the specular law; 0.01 deg: far above
+    # the truth's root-search tolerance, far below any wrong-surface error), its BP projects to
+    # its pixel, every BP in the frame lies inside the field stop, and the lobe and the
+    # gallbladder carry highlights too
     h, w = stop.shape
     on_lobe = on_organ = 0
     for hl in res.highlights:
@@ -285,14 +286,15 @@ def test_laparoscope_liver_shines_at_its_default_exposure():
     res = render_scene(spec)
     stop, f = res.field_stop, res.frame
     tissue = stop & res.mask
-    liver = _liver(spec, res)
-    assert 0.3 < liver.sum() / tissue.sum() < 0.9  # the liver and the wall both fill part of the view
+    liver, organ = _regions(spec, res)
+    # the liver, the gallbladder and the wall fill the view (measured 72 %, 17 %, 10 %)
+    assert 0.4 < liver.sum() / tissue.sum() < 0.85 and 0.1 < organ.sum() / tissue.sum() < 0.4
     white = (f >= WHITE_LEVEL).all(axis=-1) & stop
     lab = label(white, connectivity=2)
     on_liver = np.unique(lab[liver & white])
-    assert len(on_liver) >= MIN_LIVER_GLINTS
+    assert len(on_liver) >= MIN_LIVER_GLINTS  # measured 59 (71 in all, 12 on the gallbladder)
     clipped = ((f >= 255) & tissue[..., None]).sum(axis=(0, 1)) / tissue.sum()
-    assert clipped.max() < MAX_CLIPPED, clipped
+    assert clipped.max() < MAX_CLIPPED, clipped  # measured 0.15 % (red), 0.03 %, 0.02 %
     # the liver's diffuse colour is red-brown, not clipped red: its median pixel keeps headroom,
     # and its R/G is near the real liver's 1.6 (issue 62: the former albedo gave 2.45, 1.5 times it)
     med = np.median(f[liver & ~white], axis=0)
