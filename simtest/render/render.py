@@ -52,7 +52,7 @@ from simtest.render.mitsuba_dict import (
 from simtest.render import wavefront
 from simtest.render.endoscope import camera_model, guide_radius_mm, light_rig, sample_positions, uses_endoscope
 from simtest.render.sensor import LUMA_WEIGHTS, apply_sensor, field_stop_mask, frame_luma, video_frame
-from simtest.render.tissue import TISSUE_ALBEDO, in_camera, relief_normal, tissue_params
+from simtest.render.tissue import in_camera, relief_normal, tissue_params, with_neighbours
 from simtest.render.truth import ReliefHighlight, mesh_highlight_candidates, mesh_highlights, relief_highlights
 from simtest.scene.meshes import MeshError, load_mesh
 from simtest.scene.spec import SceneSpec, scene_to_dict
@@ -433,10 +433,8 @@ def tissue_texture(spec: SceneSpec):
     t = tissue_params(mat.tissue, mat.texture_seed, mat.relief_mm, mat.relief_scale_mm,
                       relief_min_mm=mat.relief_min_mm, relief_hurst=mat.relief_hurst, base=mat.albedo,
                       film_variation=mat.film_variation, film_scale_mm=mat.film_scale_mm)
-    if mat.wall_tissue is not None:
-        t = dataclasses.replace(t, wall_base=TISSUE_ALBEDO[mat.wall_tissue],
-                                wall_centre=tuple(float(x) for x in mat.wall_centre_mm),
-                                wall_radius=float(mat.wall_radius_mm))
+    t = with_neighbours(t, (mat.wall_tissue, mat.wall_centre_mm, mat.wall_radius_mm),
+                        (mat.organ_tissue, mat.organ_centre_mm, mat.organ_axes_mm))
     if spec.geometry.type == "plane":  # the vessels in the plane's own axes (its texture frame: the camera's)
         t = dataclasses.replace(t, uv_axes=rotation_from_z(plane_normal_cam(spec.geometry))[:, :2].T.copy())
     return in_camera(t, cam_to_texture_matrix(spec))

@@ -58,7 +58,7 @@ from scipy.ndimage import map_coordinates
 from simtest.render.vessels import TILE_MM, transmission_map
 
 __all__ = ["TISSUE_ALBEDO", "TISSUE_SEED_KEY", "N_WAVES", "N_RELIEF_WAVES", "RELIEF_HURST", "RELIEF_MIN_MM",
-           "TissueParams", "tissue_params", "in_camera", "surface_uv", "vessel_transmission", "albedo",
+           "TissueParams", "tissue_params", "with_neighbours", "in_camera", "surface_uv", "vessel_transmission", "albedo",
            "relief_height", "relief_normal",
            "film_alpha", "specular_lobe"]
 
@@ -74,7 +74,16 @@ __all__ = ["TISSUE_ALBEDO", "TISSUE_SEED_KEY", "N_WAVES", "N_RELIEF_WAVES", "REL
 TISSUE_ALBEDO = {"mucosa": (0.75, 0.26, 0.20), "liver": (0.35, 0.12, 0.09),
                  # peritoneum over fat (abdominal wall, omentum): pale yellow-pink, sRGB about
                  # (215, 170, 140); assumed like the others
-                 "peritoneum": (0.68, 0.40, 0.26)}
+                 "peritoneum": (0.68, 0.40, 0.26),
+                 # gallbladder: the green-grey of bile seen through its thin wall, sRGB about
+                 # (140, 150, 105); assumed like the others
+                 "gallbladder": (0.26, 0.30, 0.14)}
+
+#: Relative margin of the organ's ellipsoid in :func:`albedo`: a point belongs to the organ where
+#: ``sum(((q - centre) / axes)^2) <= (1 + ORGAN_MARGIN)^2``. The organ's vertices lie on the
+#: ellipsoid to float32 round-off (1e-5 mm at 100 mm) and its flat faces inside it (chords of a
+#: convex surface); 1e-3 of a 16 mm semi-axis is 0.016 mm, far below a pixel's footprint.
+ORGAN_MARGIN = 1e-3
 
 #: Stable key of the tissue texture stream in ``SeedSequence([seed, TISSUE_SEED_KEY])``.
 TISSUE_SEED_KEY = 0x7155E
@@ -113,6 +122,12 @@ class TissueParams:
     wall_base: tuple[float, float, float] | None = None
     wall_centre: tuple[float, float, float] | None = None
     wall_radius: float = 0.0
+    #: Base albedo of a third tissue (a neighbouring organ), used at texture-frame points inside
+    #: the ellipsoid of centre ``organ_centre`` and semi-axes ``organ_axes`` along the texture
+    #: frame's axes (mm, :data:`ORGAN_MARGIN`); None: no organ. It takes precedence over the wall.
+    organ_base: tuple[float, float, float] | None = None
+    organ_centre: tuple[float, float, float] | None = None
+    organ_axes: tuple[float, float, float] | None = None
     #: Waves of the wet film's thickness field (unit RMS) and the standard deviation of the log of
     #: the film's roughness over it (0: a uniform film).
     film_k: np.ndarray | None = None
@@ -121,6 +136,22 @@ class TissueParams:
     #: (2, 3) orthonormal in-surface axes (texture frame) of a plane: ``(u, v) = (e1 . q, e2 . q)``;
     #: None: the triplanar projection (:func:`surface_uv`).
     uv_axes: np.ndarray | None = None
+
+
+def with_neighbours(t: TissueParams, wall=(None, None, None), organ=(None, None, None)) -> TissueParams:
+    """``t`` with a wall's tissue and a neighbouring organ's (their default albedos).
+
+    ``wall``: (tissue name, centre mm, radius mm), the second tissue at the points at least that
+    far from the centre; ``organ``: (tissue name, centre mm, semi-axes mm), the third tissue inside
+    that ellipsoid (:attr:`TissueParams.organ_base`). A name None leaves that part out.
+    """
+    if wall[0] is not None:
+        t = dataclasses.replace(t, wall_base=TISSUE_ALBEDO[wall[0]], wall_centre=tuple(float(x) for x in wall[1]),
+                                wall_radius=float(wall[2]))
+    if organ[0] is not None:
+        t = dataclasses.replace(t, organ_base=TISSUE_ALBEDO[organ[0]], organ_centre=tuple(float(x) for x in organ[1]),
+                                organ_axes=tuple(float(x) for x in organ[2]))
+    return t
 
 
 def _directions(rng: np.random.Generator, n: int) -> np.ndarray:
@@ -306,7 +337,8 @@ def vessel_transmission(xp, q, nq, t: TissueParams):
 def albedo(xp, p, t: TissueParams, n=None):
     """Diffuse RGB albedo at surface points ``p`` = (x, y, z) arrays, mm (the camera frame with
     :func:`in_camera`, else the texture frame); the wall's tissue (:attr:`TissueParams.wall_base`)
-    where the point is at least ``wall_radius`` from ``wall_centre``.
+    where the point is at least ``wall_radius`` from ``wall_centre``; the organ's
+    (:attr:`TissueParams.organ_base`) inside its ellipsoid.
 
     ``n``: the surface normals at ``p`` (same frame), which the vessels' triplanar mapping weighs
     (:func:`surface_uv`); None: the texture frame's (x, y) projection (a plane's own axes where
@@ -323,10 +355,16 @@ def albedo(xp, p, t: TissueParams, n=None):
     if t.wall_base is not None:
         d = [q[i] - float(t.wall_centre[i]) for i in range(3)]
         wall = (d[0] * d[0] + d[1] * d[1] + d[2] * d[2]) >= float(t.wall_radius) ** 2
+    organ = None
+    if t.organ_base is not None:
+        e = [(q[i] - float(t.organ_centre[i])) * (1.0 / float(t.organ_axes[i])) for i in range(3)]
+        organ = (e[0] * e[0] + e[1] * e[1] + e[2] * e[2]) <= (1.0 + ORGAN_MARGIN) ** 2
     trans = vessel_transmission(xp, q, nq, t)
     out = []
     for c in range(3):
         base = t.base[c] if wall is None else xp.where(wall, t.wall_base[c], t.base[c])
+        if organ is not None:
+            base = xp.where(organ, t.organ_base[c], base)
         a = base * (1.0 + 0.12 * var) * trans[c]
         out.append(xp.minimum(xp.maximum(a, 0.0), 1.0))
     return tuple(out)

@@ -72,7 +72,7 @@ def build_command(
     Writes, in the folder OUT (default meshes/ under the current folder; other files there are
     kept): OUT/colon.ply, OUT/colon_haustral.ply (the colon with semilunar folds, taeniae and
     haustra that scenes/colonoscope.toml and colonoscope_wall.toml render), OUT/liver.ply and
-    OUT/liver_abdomen.ply (the liver with the wall behind it that scenes/laparoscope_liver.toml
+    OUT/liver_abdomen.ply (the liver, its gallbladder and the wall behind them that scenes/laparoscope_liver.toml
     renders; the meshes with per-vertex normals and principal curvatures k1, k2) and a .json
     beside each (the generator's parameters and seed); with --only, those of the meshes named. Exit status 2: bad
     option; 4: OUT cannot be written."""

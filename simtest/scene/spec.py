@@ -96,6 +96,9 @@ RENDER_VARIANTS: tuple[str, ...] = get_args(Variant)
 _frozen = functools.partial(dataclass, frozen=True, config=CONFIG)
 _Channel = Annotated[Num, Field(gt=0.0, le=1.0)]  # a linear-RGB albedo: no black, no gain
 _Gain = Annotated[Num, Field(gt=0.0)]  # a white-balance gain: a channel never vanishes
+_Positive = Annotated[Num, Field(gt=0.0)]  # a length, mm
+#: The tissues of simtest.render.tissue.TISSUE_ALBEDO.
+_Tissue = Literal["mucosa", "liver", "peritoneum", "gallbladder"]
 
 
 @_frozen
@@ -244,7 +247,7 @@ class MaterialSpec:
     diffuse_albedo : float
         Lambertian albedo in [0, 1] (tissue), added to the specular lobe. Not with the conductor
         base (use "plastic"). Not used by "tissue" (its albedo is procedural).
-    tissue : {"mucosa", "liver"}
+    tissue : {"mucosa", "liver", "peritoneum", "gallbladder"}
         ``model = "tissue"``: procedural RGB tissue (:mod:`simtest.render.tissue`): seeded albedo
         with colour variation and vessel-like lines, micro-relief, and a wet dielectric film whose
         lobe is ``distribution`` ("beckmann", "ggx", or "phong": paper eq. 1 with exponent ``n``)
@@ -271,13 +274,20 @@ class MaterialSpec:
         uniform film; :func:`simtest.render.tissue.film_alpha`).
     film_scale_mm : float
         Typical wavelength of the film's thickness variation, mm.
-    wall_tissue : {"mucosa", "liver", "peritoneum"} or None
+    wall_tissue : {"mucosa", "liver", "peritoneum", "gallbladder"} or None
         A second tissue (its default albedo) at the surface points at least ``wall_radius_mm``
         from ``wall_centre_mm`` (the texture frame: a mesh's own axes), such as the wall of
         :func:`simtest.scene.meshes.abdomen.build_liver_in_abdomen` around its liver. The three
         keys go together.
     wall_centre_mm : (float, float, float) or None
     wall_radius_mm : float or None
+    organ_tissue : {"mucosa", "liver", "peritoneum", "gallbladder"} or None
+        A third tissue (its default albedo) at the surface points inside the ellipsoid of centre
+        ``organ_centre_mm`` and semi-axes ``organ_axes_mm`` along the texture frame's axes, such as
+        the gallbladder of :func:`simtest.scene.meshes.abdomen.build_liver_in_abdomen`. The three
+        keys go together.
+    organ_centre_mm : (float, float, float) or None
+    organ_axes_mm : (float, float, float) or None
     """
 
     model: Literal["phong", "microfacet", "tissue"] = "phong"
@@ -288,7 +298,7 @@ class MaterialSpec:
     base: Literal["conductor", "plastic"] = "conductor"
     ior: Num = Field(1.5, gt=1.0)
     diffuse_albedo: Num = Field(0.0, ge=0.0, le=1.0)
-    tissue: Literal["mucosa", "liver", "peritoneum"] = "mucosa"
+    tissue: _Tissue = "mucosa"
     film_ior: Num = Field(1.38, ge=1.3, le=1.5)
     relief_mm: Num = Field(0.0, ge=0.0, le=1.0)
     relief_scale_mm: Num = Field(0.3, ge=0.05, le=5.0)
@@ -298,9 +308,12 @@ class MaterialSpec:
     albedo: tuple[_Channel, _Channel, _Channel] | None = None
     film_variation: Num = Field(0.0, ge=0.0, le=3.0)
     film_scale_mm: Num = Field(2.0, ge=0.05, le=50.0)
-    wall_tissue: Literal["mucosa", "liver", "peritoneum"] | None = None
+    wall_tissue: _Tissue | None = None
     wall_centre_mm: Vec3 | None = None
     wall_radius_mm: Num | None = Field(None, gt=0.0)
+    organ_tissue: _Tissue | None = None
+    organ_centre_mm: Vec3 | None = None
+    organ_axes_mm: tuple[_Positive, _Positive, _Positive] | None = None
 
     @property
     def microfacet_alpha(self) -> float:
@@ -567,6 +580,10 @@ def _validate(spec: SceneSpec, source: str, base_dirs: tuple[Path, ...]) -> Scen
     walls = (mat.wall_tissue, mat.wall_centre_mm, mat.wall_radius_mm)
     if any(w is not None for w in walls) and any(w is None for w in walls):
         raise _err(source, "material.wall_tissue", "material.wall_tissue, wall_centre_mm and wall_radius_mm go "
+                   "together (give all three or none)")
+    organs = (mat.organ_tissue, mat.organ_centre_mm, mat.organ_axes_mm)
+    if any(w is not None for w in organs) and any(w is None for w in organs):
+        raise _err(source, "material.organ_tissue", "material.organ_tissue, organ_centre_mm and organ_axes_mm go "
                    "together (give all three or none)")
     if spec.sensor.output == "video" and spec.sensor.bit_depth != 8:
         raise _err(source, "sensor.bit_depth", "a video frame is 8-bit: set sensor.bit_depth = 8 with output = \"video\"")

@@ -92,7 +92,7 @@ from typing import Any
 
 import trimesh
 
-from simtest.scene.meshes.abdomen import LAPAROSCOPE_WALL_AXIS, build_liver_in_abdomen
+from simtest.scene.meshes.abdomen import LAPAROSCOPE_ABDOMEN, LAPAROSCOPE_WALL_AXIS, build_liver_in_abdomen
 from simtest.scene.meshes.colon import build_colon, colon_centerline
 from simtest.scene.meshes.curvature import (
     FD_STEP_MM,
@@ -141,8 +141,9 @@ def build_mesh(name: str, seed: int, **params: Any) -> trimesh.Trimesh:
     ----------
     name : {"colon", "colon_haustral", "liver", "liver_abdomen"}
         The generator. ``"liver_abdomen"`` is the liver with the wall behind it of
-        meshes/liver_abdomen.ply (the laparoscope scene's): its wall's axis defaults to
-        :data:`~simtest.scene.meshes.abdomen.LAPAROSCOPE_WALL_AXIS`.
+        meshes/liver_abdomen.ply (the laparoscope scene's): its wall's axis and its organs
+        default to :data:`~simtest.scene.meshes.abdomen.LAPAROSCOPE_WALL_AXIS` and
+        :data:`~simtest.scene.meshes.abdomen.LAPAROSCOPE_ABDOMEN`.
     seed : int
         Root seed (>= 0; 0 is valid).
     **params
@@ -162,7 +163,7 @@ def build_mesh(name: str, seed: int, **params: Any) -> trimesh.Trimesh:
         Unknown name, unknown or out-of-range parameter, or a bad seed.
     """
     def liver_abdomen(seed: int, **p: Any) -> trimesh.Trimesh:
-        return build_liver_in_abdomen(seed, **{"wall_axis": LAPAROSCOPE_WALL_AXIS, **p})
+        return build_liver_in_abdomen(seed, **{"wall_axis": LAPAROSCOPE_WALL_AXIS, **LAPAROSCOPE_ABDOMEN, **p})
 
     builders = {"colon": build_colon, "colon_haustral": build_haustral_colon, "liver": build_liver,
                 "liver_abdomen": liver_abdomen}

@@ -13,6 +13,21 @@ are exact, ``k1 = k2 = -1 / wall_radius_mm`` (the surface bends toward its norma
 the convention of :mod:`simtest.scene.meshes.curvature`). The wall's points are exactly at
 ``wall_radius_mm`` from the centre and the liver's are at most ``wall_radius_mm - gap_mm``: the
 tissue texture tells them apart by that distance (``material.wall_tissue``).
+
+A neighbouring organ may join them: the gallbladder, a closed ellipsoid (``gallbladder_centre_mm``,
+semi-axes ``gallbladder_axes_mm`` along the mesh axes; a gallbladder is 70 to 100 mm long and 30 to
+40 mm across, Standring, "Gray's Anatomy", 41st ed., ch. 68) lying against the liver's inferior
+surface, partly sunk into it as in its fossa. Its normals and principal curvatures are the
+ellipsoid's closed forms (:func:`ellipsoid_curvature`); the texture gives its points their own
+tissue (``material.organ_tissue``: the points inside that ellipsoid). Where it is sunk into the
+liver each surface hides the other's inside, so every visible point keeps its own surface's truth.
+
+A second lobe may join the liver with the thin inferior margin a laparoscope sees, where the
+liver's upper surface folds sharply onto its lower one: a wedge-shaped closed surface, an
+ellipsoid whose thickness shrinks toward one side (:func:`lobe_implicit`), also sunk into the
+liver, with normals and curvatures of its closed-form implicit function by the finite differences
+of :func:`~simtest.scene.meshes.curvature.implicit_curvature` (as the liver's). It is liver
+tissue (inside the wall's sphere, outside the gallbladder's ellipsoid).
 """
 
 from __future__ import annotations
@@ -24,16 +39,31 @@ import numpy as np
 import trimesh
 from scipy.spatial import ConvexHull
 
+from simtest.scene.meshes.curvature import FD_STEP_MM, implicit_curvature
 from simtest.scene.meshes.files import _assemble
 from simtest.scene.meshes.liver import _fibonacci_sphere, build_liver
 from simtest.scene.meshes.params import MeshError
 
-__all__ = ["LAPAROSCOPE_WALL_AXIS", "wall_sphere", "build_liver_in_abdomen"]
+__all__ = ["LAPAROSCOPE_WALL_AXIS", "LAPAROSCOPE_ABDOMEN", "wall_sphere", "ellipsoid_curvature", "lobe_implicit",
+           "build_liver_in_abdomen"]
 
 #: The wall's axis of meshes/liver_abdomen.ply (``simtest meshes build`` builds it with this): the
 #: unit direction from the liver's centre (the middle of its bounding box) toward the scope of
 #: scenes/laparoscope_liver.toml, so that the cap lies behind the liver as that scope sees it.
 LAPAROSCOPE_WALL_AXIS = (-0.5022907830486957, -0.5249903665151608, -0.6870873920620324)
+
+#: The organs of meshes/liver_abdomen.ply beside the liver (mm and unit vectors in the liver's
+#: frame), placed for the view of scenes/laparoscope_liver.toml: the gallbladder, 80 x 32 x 32 mm
+#: (Gray's Anatomy's 70 to 100 by 30 to 40 mm), against the liver's right inferior edge, filling
+#: the lower right of the view; a lobe (100 x 60 mm, 28 mm thick at its middle, 15 mm at its thin
+#: inferior margin, whose rim bends with a radius of about 2 mm) over the upper right, its margin
+#: across the view above the gallbladder, its upper surface toward the scope. The wall's 8 mm
+#: spacing (a sphere of radius 400 mm: its interpolated normals stay within 0.3 deg) keeps the
+#: file under 2 MB.
+LAPAROSCOPE_ABDOMEN = {"gallbladder_centre_mm": (0.3, -27.4, -67.8), "gallbladder_axes_mm": (40.0, 16.0, 16.0),
+                       "lobe_centre_mm": (20.1, -64.2, -39.6), "lobe_normal": (-0.23, -0.92, -0.317),
+                       "lobe_edge": (-0.541, 0.391, -0.745), "lobe_axes_mm": (50.0, 30.0, 14.0), "lobe_wedge": 0.6,
+                       "wall_spacing_mm": 8.0}
 
 
 def wall_sphere(liver_vertices: np.ndarray, wall_axis, wall_radius_mm: float, gap_mm: float) -> tuple[np.ndarray, float]:
@@ -67,9 +97,93 @@ def wall_sphere(liver_vertices: np.ndarray, wall_axis, wall_radius_mm: float, ga
     return centre, float(wall_radius_mm)
 
 
+def ellipsoid_curvature(points: np.ndarray, centre, axes) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Outward unit normals and principal curvatures (k1 >= k2 > 0, 1/mm) of an ellipsoid.
+
+    ``points`` (N, 3) on the ellipsoid ``sum(((x - centre) / axes)^2) = 1`` (semi-axes along the
+    frame's axes, mm). Closed forms: the normal is ``grad`` of that quadric normalised; with
+    ``h^2 = sum(y_i^2 / a_i^4)`` (``y = x - centre``), the Gaussian curvature is
+    ``K = 1 / ((a b c)^2 h^4)`` and the mean curvature ``H = (a^2 + b^2 + c^2 - |y|^2) / (2 (a b c)^2 h^3)``
+    (Goldman 2005, doi:10.1016/j.cagd.2005.06.005, applied to the quadric), ``k = H +- sqrt(H^2 - K)``.
+    """
+    a = np.asarray(axes, dtype=np.float64)
+    y = np.asarray(points, dtype=np.float64) - np.asarray(centre, dtype=np.float64)
+    g = y / a**2
+    h = np.linalg.norm(g, axis=1)
+    abc2 = float(np.prod(a)) ** 2
+    K = 1.0 / (abc2 * h**4)
+    H = (float(np.sum(a * a)) - np.sum(y * y, axis=1)) / (2.0 * abc2 * h**3)
+    root = np.sqrt(np.maximum(H * H - K, 0.0))
+    return g / h[:, None], H + root, H - root
+
+
+def _gallbladder(centre, axes, spacing_mm: float) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Vertices, outward-wound faces, normals, k1, k2 of the closed ellipsoid (module notes)."""
+    a = np.asarray(axes, dtype=np.float64)
+    if a.shape != (3,) or not (a > 0).all():
+        raise MeshError(f"build_liver_in_abdomen: gallbladder_axes_mm must be three positive lengths, got {axes}")
+    p = (a[0] * a[1]) ** 1.6 + (a[0] * a[2]) ** 1.6 + (a[1] * a[2]) ** 1.6
+    area = 4.0 * math.pi * (p / 3.0) ** (1 / 1.6)  # Knud Thomsen's approximation, within 1.1 %
+    n = max(200, int(area / (0.5 * math.sqrt(3) * spacing_mm**2) / 2))
+    d = _fibonacci_sphere(n)
+    faces = ConvexHull(d).simplices.astype(np.int64)
+    tri = d[faces]
+    outward = np.einsum("ij,ij->i", np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0]), tri.sum(1))
+    faces[outward < 0] = faces[outward < 0][:, ::-1]  # a positive scaling keeps the winding outward
+    v = np.asarray(centre, dtype=np.float64) + a * d
+    nrm, k1, k2 = ellipsoid_curvature(v, centre, a)
+    return v, faces, nrm, k1, k2
+
+
+def _lobe_frame(normal, edge) -> np.ndarray:
+    """(3, 3) rotation whose columns are the lobe's axes: x along its margin, y toward its thin
+    margin (``edge`` made orthogonal to ``normal``), z its ``normal`` (right-handed)."""
+    z = np.asarray(normal, dtype=np.float64)
+    z = z / np.linalg.norm(z)
+    y = np.asarray(edge, dtype=np.float64)
+    y = y - (y @ z) * z
+    if not np.linalg.norm(y) > 1e-9:
+        raise MeshError("build_liver_in_abdomen: lobe_edge must not be parallel to lobe_normal")
+    y = y / np.linalg.norm(y)
+    return np.stack([np.cross(y, z), y, z], axis=1)
+
+
+def lobe_implicit(x: np.ndarray, centre, frame: np.ndarray, axes, wedge: float) -> np.ndarray:
+    """The lobe's implicit function, mm (negative inside; module notes), at points ``x`` (..., 3).
+
+    In the lobe's frame ``(X, Y, Z) = frame^T (x - centre)``, ``F = c (|(X / a, Y / b, Z / (c
+    exp(-wedge Y / b)))| - 1)``: an ellipsoid whose half-thickness ``c`` shrinks by ``exp(-2
+    wedge)`` from its back (``Y = -b``) to its thin margin (``Y = +b``), scaled by ``c`` so that
+    F is about a distance in mm near the surface.
+    """
+    a, b, c = (float(v) for v in axes)
+    q = (np.asarray(x, dtype=np.float64) - np.asarray(centre, dtype=np.float64)) @ frame
+    t = c * np.exp(-wedge * q[..., 1] / b)
+    return c * (np.sqrt((q[..., 0] / a) ** 2 + (q[..., 1] / b) ** 2 + (q[..., 2] / t) ** 2) - 1.0)
+
+
+def _lobe(centre, normal, edge, axes, wedge: float, n: int):
+    """Vertices, outward-wound faces, normals, k1, k2 of the lobe: the unit sphere's points ``u``
+    mapped to ``centre + frame (a u_x, b u_y, c exp(-wedge u_y) u_z)``, exactly on F = 0
+    (:func:`lobe_implicit`); normals and curvatures from F (:func:`implicit_curvature`)."""
+    frame = _lobe_frame(normal, edge)
+    a, b, c = (float(v) for v in axes)
+    u = _fibonacci_sphere(n)
+    faces = ConvexHull(u).simplices.astype(np.int64)
+    tri = u[faces]
+    outward = np.einsum("ij,ij->i", np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0]), tri.sum(1))
+    faces[outward < 0] = faces[outward < 0][:, ::-1]  # the map's Jacobian is positive: winding kept
+    local = np.stack([a * u[:, 0], b * u[:, 1], c * np.exp(-wedge * u[:, 1]) * u[:, 2]], axis=1)
+    v = np.asarray(centre, dtype=np.float64) + local @ frame.T
+    nrm, k1, k2 = implicit_curvature(lambda x: lobe_implicit(x, centre, frame, axes, wedge), v, FD_STEP_MM)
+    return v, faces, nrm, k1, k2
+
+
 def build_liver_in_abdomen(seed: int, *, wall_axis=(-0.5, -0.5, -0.7), wall_radius_mm: float = 400.0,
                            gap_mm: float = 15.0, cap_deg: float = 80.0, wall_spacing_mm: float = 6.0,
-                           **liver_params: Any) -> trimesh.Trimesh:
+                           gallbladder_centre_mm=None, gallbladder_axes_mm=None, gallbladder_spacing_mm: float = 1.5,
+                           lobe_centre_mm=None, lobe_normal=None, lobe_edge=None, lobe_axes_mm=None,
+                           lobe_wedge: float = 0.6, lobe_vertices: int = 3000, **liver_params: Any) -> trimesh.Trimesh:
     """The liver (:func:`build_liver` with ``seed`` and ``liver_params``) and the wall behind it.
 
     Parameters
@@ -86,11 +200,23 @@ def build_liver_in_abdomen(seed: int, *, wall_axis=(-0.5, -0.5, -0.7), wall_radi
         Half-angle of the cap about ``-wall_axis`` seen from the sphere's centre, degrees.
     wall_spacing_mm : float
         Typical vertex spacing of the wall, mm.
+    gallbladder_centre_mm, gallbladder_axes_mm : (3,) array_like or None
+        The gallbladder's ellipsoid (module notes), mm in the liver's frame; None: no gallbladder.
+    gallbladder_spacing_mm : float
+        Typical vertex spacing of the gallbladder, mm.
+    lobe_centre_mm, lobe_normal, lobe_edge, lobe_axes_mm : (3,) array_like or None
+        The lobe (module notes; :func:`lobe_implicit`): centre, mm; the normal of its upper surface
+        and the direction of its thin margin (unit vectors or not); semi-axes (along the margin,
+        toward it, half-thickness at the centre), mm. None: no lobe.
+    lobe_wedge : float
+        The lobe's thickness falls by ``exp(-2 lobe_wedge)`` from its back to its margin.
+    lobe_vertices : int
+        Vertices of the lobe.
 
     Returns
     -------
     trimesh.Trimesh
-        Liver faces first, then the wall's; ``vertex_normals`` unit (the liver's outward, the
+        Liver faces first, then the lobe's and the gallbladder's (if any), then the wall's; ``vertex_normals`` unit (the liver's outward, the
         wall's toward the sphere's centre), ``vertex_attributes["k1"]``, ``["k2"]`` (1/mm);
         ``metadata["generator"]`` with the wall's ``wall_centre_mm`` and ``wall_radius_mm``.
 
@@ -100,7 +226,16 @@ def build_liver_in_abdomen(seed: int, *, wall_axis=(-0.5, -0.5, -0.7), wall_radi
         Bad liver parameters, or a wall that would cut the liver.
     """
     liver = build_liver(seed, **liver_params)
-    centre, R = wall_sphere(liver.vertices, wall_axis, wall_radius_mm, gap_mm)
+    organ = None
+    if (gallbladder_centre_mm is None) != (gallbladder_axes_mm is None):
+        raise MeshError("build_liver_in_abdomen: gallbladder_centre_mm and gallbladder_axes_mm go together")
+    if gallbladder_centre_mm is not None:
+        organ = _gallbladder(gallbladder_centre_mm, gallbladder_axes_mm, gallbladder_spacing_mm)
+    lobe = None
+    if lobe_centre_mm is not None:
+        lobe = _lobe(lobe_centre_mm, lobe_normal, lobe_edge, lobe_axes_mm, float(lobe_wedge), int(lobe_vertices))
+    inner = np.vstack([liver.vertices] + [pt[0] for pt in (lobe, organ) if pt is not None])
+    centre, R = wall_sphere(inner, wall_axis, wall_radius_mm, gap_mm)
     u = np.asarray(wall_axis, dtype=np.float64)
     u /= np.linalg.norm(u)
     cap = math.radians(cap_deg)
@@ -122,17 +257,31 @@ def build_liver_in_abdomen(seed: int, *, wall_axis=(-0.5, -0.5, -0.7), wall_radi
     faces[outward > 0] = faces[outward > 0][:, ::-1]
     wall_v = centre + R * d
     k = np.full(len(d), -1.0 / R)
-    nl = len(liver.vertices)
-    mesh = _assemble(np.vstack([liver.vertices, wall_v]),
-                     np.vstack([np.asarray(liver.faces), faces + nl]),
-                     np.vstack([liver.vertex_normals, -d]),
-                     np.concatenate([liver.vertex_attributes["k1"], k]),
-                     np.concatenate([liver.vertex_attributes["k2"], k]))
+    parts = [(liver.vertices, np.asarray(liver.faces), liver.vertex_normals, liver.vertex_attributes["k1"],
+              liver.vertex_attributes["k2"])]
+    parts += [pt for pt in (lobe, organ) if pt is not None]
+    parts.append((wall_v, faces, -d, k, k))
+    offsets = np.cumsum([0] + [len(pt[0]) for pt in parts])
+    mesh = _assemble(np.vstack([pt[0] for pt in parts]),
+                     np.vstack([pt[1] + off for pt, off in zip(parts, offsets)]),
+                     *(np.concatenate([pt[i] for pt in parts]) for i in (2, 3, 4)))
     gen = dict(liver.metadata["generator"])
     gen.update({"name": "liver_in_abdomen", "function": "simtest.scene.meshes.abdomen.build_liver_in_abdomen",
                 "liver_faces": int(len(liver.faces)), "wall_axis": [float(x) for x in u],
                 "wall_centre_mm": [float(x) for x in centre], "wall_radius_mm": R, "gap_mm": float(gap_mm),
                 "cap_deg": float(cap_deg), "wall_spacing_mm": float(wall_spacing_mm),
+                "liver_vertices": int(len(liver.vertices)),
                 "curvature": gen.get("curvature", "") + "; wall: exact, -1 / wall_radius_mm"})
+    if lobe is not None:
+        gen.update({"lobe_centre_mm": [float(x) for x in lobe_centre_mm], "lobe_normal": [float(x) for x in lobe_normal],
+                    "lobe_edge": [float(x) for x in lobe_edge], "lobe_axes_mm": [float(x) for x in lobe_axes_mm],
+                    "lobe_wedge": float(lobe_wedge), "lobe_vertices": int(len(lobe[0])),
+                    "curvature": gen["curvature"] + "; lobe: closed-form F, the same finite differences"})
+    if organ is not None:
+        gen.update({"gallbladder_centre_mm": [float(x) for x in gallbladder_centre_mm],
+                    "gallbladder_axes_mm": [float(x) for x in gallbladder_axes_mm],
+                    "gallbladder_spacing_mm": float(gallbladder_spacing_mm),
+                    "gallbladder_vertices": int(len(organ[0])), "gallbladder_faces": int(len(organ[1])),
+                    "curvature": gen["curvature"] + "; gallbladder: exact, the ellipsoid's closed forms"})
     mesh.metadata["generator"] = gen
     return mesh
