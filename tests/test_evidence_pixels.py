@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import cv2
 import numpy as np
+import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
@@ -188,3 +189,29 @@ def test_the_batched_surround_is_the_one_by_one_surround(seed):
                     angle_rad=float(rng.uniform(-np.pi, np.pi))) for k in range(n)]
     want = [px.surround_fraction(gray, ells[k], ij[k], float(reach[k]), 2.0, 0.3) for k in range(n)]
     np.testing.assert_array_equal(px.surround_fractions(gray, ells, ij, reach, 2.0, 0.3), want)
+
+
+def _drop_clipped_whole_frame(flat, rgb, std_max, ceiling):
+    """drop_clipped's rule written plainly over the whole frame (the reference)."""
+    clip = np.ascontiguousarray((rgb >= ceiling).any(axis=-1)).view(np.uint8)
+    near = cv2.dilate(clip, np.ones((5, 5), np.uint8))
+    every = flat.copy()
+    for c in range(rgb.shape[-1]):
+        every &= px.flat_mask(rgb[..., c], std_max)
+    return np.where(near != 0, every, flat).astype(np.uint8)
+
+
+@pytest.mark.parametrize("seed", range(8))
+def test_drop_clipped_in_its_window_equals_the_whole_frame_rule(seed):
+    # uint8 sums of 25 values and squares are exact in float32, so the windowed box filters give
+    # the whole frame's bits: equality, no tolerance
+    rng = np.random.default_rng(seed)
+    f = rng.integers(0, 256, (90, 130, 3)).astype(np.uint8)
+    f[rng.random((90, 130)) < 0.5] = rng.integers(0, 256, 3).astype(np.uint8)  # flat patches
+    f[rng.integers(0, 90, 6)[:, None], rng.integers(0, 130, 6)] = 255
+    f[:rng.integers(1, 20), :, int(rng.integers(0, 3))] = 255  # a clipped channel at the top edge
+    gray = cv2.cvtColor(f, cv2.COLOR_RGB2GRAY).astype(np.float32)
+    for std_max in (0.5, 3.0, 30.0):
+        flat = px.flat_mask(gray, std_max)
+        np.testing.assert_array_equal(px.drop_clipped(flat, f, std_max, 255.0),
+                                      _drop_clipped_whole_frame(flat, f, std_max, 255.0))
