@@ -215,7 +215,7 @@ def reconstruct_single(img, camera_file, settings: ReconSettings | None = None, 
     estimates : list of SpecularityEstimate
         With their light-aware fits and recommended normal.
     detection : dict
-        :meth:`~simtest.reconstruct.pipeline.Estimates.detection_record`.
+        :meth:`~simtest.reconstruct.result.Reconstruction.detection_record`.
     """
     settings = ReconSettings.for_frames() if settings is None else settings
     estimates = reconstruct(img, camera_file.model, settings=settings, lights=camera_file.lights)
@@ -311,7 +311,7 @@ def summary_line(estimates, paths, detection: dict | None = None) -> str:
     paths : list of Path
         The files written.
     detection : dict, optional
-        :meth:`~simtest.reconstruct.pipeline.Estimates.detection_record`; its ``not_examined``
+        :meth:`~simtest.reconstruct.result.Reconstruction.detection_record`; its ``not_examined``
         components are counted in the line whenever there are any (no silent cap).
     """
     counts: dict[str, int] = {}

@@ -440,6 +440,7 @@ def surround_fractions(gray: np.ndarray, ells, bps_ij: np.ndarray, reaches: np.n
     if not n:
         return out
     R_all = np.ceil(reaches).astype(np.int64)
+    own = np.broadcast_to(np.asarray(own_level, np.float64), (n,))
     # each ellipse's numbers; its cosine and sine taken one by one (numpy's scalar path)
     prm = np.array([(e.center[0], e.center[1], e.semi_axes[0], e.semi_axes[1]) for e in ells], np.float64)
     cs = np.array([(np.cos(e.angle_rad), np.sin(e.angle_rad)) for e in ells], np.float64)
@@ -463,7 +464,6 @@ def surround_fractions(gray: np.ndarray, ells, bps_ij: np.ndarray, reaches: np.n
         t /= col(prm[idx, 3])
         np.multiply(t, t, out=t)
         lev += t
-        own = np.broadcast_to(np.asarray(own_level, np.float64), (n,))
         ring = np.greater(lev, col(own[idx]))
         # within the reach (whole numbers: exact in any order) and inside the frame
         ring &= ((ry - bi[:, None]) ** 2)[:, :, None] + ((rx - bj[:, None]) ** 2)[:, None, :] <= col(reach * reach)

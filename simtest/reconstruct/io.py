@@ -363,7 +363,7 @@ def estimates_document(estimates, *, K, image=None, image_shape=None, dist_coeff
         The light rig the light-aware estimators used (written as the camera file's list).
     detection : dict, optional
         What detection examined: ``{"components", "examined", "not_examined",
-        "max_candidates"}`` (:meth:`~simtest.reconstruct.pipeline.Estimates.detection_record`);
+        "max_candidates"}`` (:meth:`~simtest.reconstruct.result.Reconstruction.detection_record`);
         default the record ``estimates`` carries, if it is an ``Estimates``, else null.
 
     Returns

@@ -28,6 +28,7 @@ from simtest.decisions import PAIR_DEPTH_MAX_MM as DEPTH_MAX_MM
 from simtest.decisions import PAIR_DEPTH_MIN_MM as DEPTH_MIN_MM
 from simtest.decisions import PAIR_TOL_PX
 from simtest.reconstruct._pixels import uv_to_rc
+from simtest.reconstruct.evidence_pixels import ellipse_level
 
 __all__ = ["DEPTH_MIN_MM", "DEPTH_MAX_MM", "DEPTH_SAMPLES", "PAIR_TOL_PX", "other_guide_curves",
            "other_lobe_centres"]
@@ -123,9 +124,7 @@ def other_lobe_centres(gray: np.ndarray, expected, ellipses, own_level, lit_leve
             out.append([])
             continue
         q = q[(q[:, 0] >= 0) & (q[:, 0] < w) & (q[:, 1] >= 0) & (q[:, 1] < h)]
-        c, s = np.cos(ell.angle_rad), np.sin(ell.angle_rad)
-        du, dv = q[:, 0] - ell.center[0], q[:, 1] - ell.center[1]
-        q = q[((c * du + s * dv) / ell.semi_axes[0]) ** 2 + ((-s * du + c * dv) / ell.semi_axes[1]) ** 2 > own_level[k]]
+        q = q[ellipse_level(ell, q[:, 0], q[:, 1]) > own_level[k]]
         vals = gray[tuple(uv_to_rc(q).astype(np.int64).T)].astype(np.float64)
         b = int(np.argmax(vals)) if len(q) else -1
         if b < 0 or not vals[b] >= lit_level[k]:
