@@ -142,7 +142,7 @@ def test_relief_spectrum_is_a_power_law(seed, rms, lo, ratio, hurst):
 def test_relief_keys_are_validated():
     spec = load_scene("colonoscope")
     with pytest.raises(SceneError, match="material.relief_min_mm"):
-        with_overrides(spec, {"material.relief_min_mm": 2.0})  # longer than relief_scale_mm = 1.0
+        with_overrides(spec, {"material.relief_scale_mm": 0.5, "material.relief_min_mm": 0.8})  # longer
     with pytest.raises(SceneError, match="material.relief_hurst"):
         with_overrides(spec, {"material.relief_hurst": 1.5})
 
