@@ -1,0 +1,190 @@
+"""Highlights of several light guides fused into one: one row per guide, from their joint fit.
+
+A scope's guides each make a highlight on a planar patch (:mod:`simtest.reconstruct.rig_pairs`).
+Where the patch is near and its film shiny, the guides' clipped lobes touch and the detector sees
+one bright region: either one plateau whose centroid lies between the guides' specular points
+(an ``ok`` candidate at neither), or a plateau broken into two or three by noise (``merged``). The
+light-aware photometric fit models every guide's lobe on one plane, so it needs no ellipse and
+explains such a region as it explains a lone lobe.
+
+Rule. A candidate under a rig off the camera centre whose photometric fit has a normal and a
+distance (plane ``n . X = -h``) predicts each guide's specular point: the plane's point on the
+segment from the camera to the guide's mirror image ``L' = L - 2 (n . L + h) n``, that is
+``X_s = L' h / (-n . L')``, projected by the camera. Every guide whose specular point lies in the
+candidate's bright region (the connected pixels above :data:`FUSED_LOBE_LEVEL` of the BP's
+intensity that hold the BP) is a highlight of this candidate. When two or more are, at least
+:data:`~simtest.decisions.PAIR_TOL_PX` apart and none of them is another candidate's BP, the
+candidate gives one row per such guide: its BP is the guide's specular point, its status ``ok``,
+its light-aware fits and recommended normal the joint fit's. ``merged`` candidates are fitted
+for this only (:func:`split_fused_lobes`); one that the rule does not split keeps its status and
+no fit, as any rejected candidate.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+
+import cv2
+import numpy as np
+
+from simtest.decisions import FUSED_LOBE_LEVEL, PAIR_TOL_PX
+from simtest.reconstruct._pixels import uv_to_rc
+from simtest.reconstruct.detect_pixels import luma
+from simtest.reconstruct.recommend import _offset_rig, colour_fit_applies, light_aware_estimates
+
+__all__ = ["FUSED_LOBE_LEVEL", "guide_specular_points", "split_fused_lobes"]
+
+#: Candidates whose statuses the rule may turn into rows of fused lobes.
+SPLIT_STATUSES = ("ok", "merged")
+
+
+def guide_specular_points(camera, rig, normal, distance_mm: float) -> np.ndarray:
+    """Image points of each guide's specular point on a plane.
+
+    Parameters
+    ----------
+    camera : array_like of shape (3, 3) or CameraModel
+        Intrinsics K, or a model with ``ray_to_pixel``.
+    rig : LightRig
+        The scope's lights, camera frame, mm.
+    normal : array_like of shape (3,)
+        Unit plane normal facing the camera (``n . X = -h`` on the plane), camera frame.
+    distance_mm : float
+        The plane's distance ``h`` from the camera centre, mm.
+
+    Returns
+    -------
+    ndarray of shape (J, 2)
+        (u, v) px per light, in the rig's order; NaN for a light behind the plane.
+
+    Notes
+    -----
+    Mirror image ``L' = L - 2 (n . L + h) n``; the specular point ``X_s = L' h / (-n . L')``
+    (module docstring; the same construction as :mod:`simtest.reconstruct.rig_pairs`).
+    """
+    n = np.asarray(normal, dtype=np.float64)
+    h = float(distance_mm)
+    L = np.array([lt.position_mm for lt in rig.lights], dtype=np.float64).reshape(-1, 3)
+    c = L @ n + h
+    Lm = L - 2.0 * c[:, None] * n
+    with np.errstate(divide="ignore", invalid="ignore"):
+        X = Lm * (h / -(Lm @ n))[:, None]
+    X[~(c > 0)] = np.nan
+    if hasattr(camera, "ray_to_pixel"):
+        rays = X / np.linalg.norm(X, axis=1, keepdims=True)
+        return np.asarray(camera.ray_to_pixel(rays), dtype=np.float64).reshape(-1, 2)
+    p = X @ np.asarray(camera, dtype=np.float64).T
+    return p[:, :2] / p[:, 2:3]
+
+
+def _bright_region(gray: np.ndarray, est) -> tuple[np.ndarray, int, int] | None:
+    """The connected pixels of the candidate's ROI above :data:`FUSED_LOBE_LEVEL` of its BP's
+    intensity that hold the BP: ``(mask, row0, col0)`` (the mask in ROI indices), or None when
+    the BP's pixel is not above the level (a BP off its own region: nothing to split)."""
+    r0, r1, c0, c1 = (int(v) for v in (est.roi.row0, est.roi.row1, est.roi.col0, est.roi.col1))
+    sub = gray[r0:r1, c0:c1]
+    above = (sub >= FUSED_LOBE_LEVEL * float(est.bp_intensity)).astype(np.uint8)
+    r, c = (int(v) for v in np.rint(uv_to_rc(np.asarray(est.bp_px, dtype=np.float64))))
+    r, c = r - r0, c - c0
+    if not (0 <= r < sub.shape[0] and 0 <= c < sub.shape[1]) or not above[r, c]:
+        return None
+    _, labels = cv2.connectedComponents(above, connectivity=8)
+    return labels == labels[r, c], r0, c0
+
+
+def _inside(mask_at, pts: np.ndarray) -> np.ndarray:
+    """Per point (u, v): whether it lies in the region (:func:`_bright_region`)."""
+    mask, r0, c0 = mask_at
+    ok = np.isfinite(pts).all(axis=1)
+    rc = np.full((len(pts), 2), -1, np.int64)
+    rc[ok] = np.rint(uv_to_rc(pts[ok])).astype(np.int64) - (r0, c0)
+    inside = ok & (rc[:, 0] >= 0) & (rc[:, 0] < mask.shape[0]) & (rc[:, 1] >= 0) & (rc[:, 1] < mask.shape[1])
+    inside[inside] = mask[rc[inside, 0], rc[inside, 1]]
+    return inside
+
+
+def _ray(camera, uv: np.ndarray) -> np.ndarray:
+    """The unit viewing ray of one pixel (3,)."""
+    if hasattr(camera, "pixel_to_ray"):
+        return np.asarray(camera.pixel_to_ray(uv[None]), dtype=np.float64)[0]
+    d = np.linalg.solve(np.asarray(camera, dtype=np.float64), np.array([uv[0], uv[1], 1.0]))
+    return d / np.linalg.norm(d)
+
+
+def _rows(est, camera, rig, gray, others: np.ndarray) -> list | None:
+    """The rows of one fitted candidate's fused lobes (module docstring), or None."""
+    fit = (est.light_aware or {}).get("photometric_fit")
+    if fit is None or not fit.has_normal or fit.distance_mm is None:
+        return None
+    pts = guide_specular_points(camera, rig, fit.normal, fit.distance_mm)
+    region = _bright_region(gray, est)
+    if region is None:
+        return None
+    k = np.flatnonzero(_inside(region, pts))
+    if len(k) < 2:
+        return None
+    p = pts[k]
+    gaps = np.linalg.norm(p[:, None] - p[None], axis=-1)[np.triu_indices(len(p), 1)]
+    if gaps.min() < PAIR_TOL_PX:
+        return None  # lobes the image does not tell apart: one highlight, the candidate's row
+    if len(others) and (np.linalg.norm(others[:, None] - p[None], axis=-1) < PAIR_TOL_PX).any():
+        return None  # a guide's highlight that is a candidate of its own already has its row
+    rows = []
+    for j, uv in zip(k.tolist(), p):
+        rows.append(dataclasses.replace(
+            est, bp_px=uv.copy(), bp_ray=-_ray(camera, uv), status="ok",
+            detail=(f"guide {j + 1}'s lobe of {len(k)} fused into one highlight ({est.status}"
+                    f"{': ' + est.detail if est.detail else ''}); BP at its specular point, normal "
+                    "from their joint photometric fit")))
+    return rows
+
+
+def _fit_arguments(image, kwargs: dict) -> dict:
+    """``kwargs`` with the linear image and the colour decision ``with_light_aware`` derives."""
+    if kwargs.get("response") is not None and "linear" not in kwargs:
+        kwargs = dict(kwargs, linear=kwargs["response"].linearize(np.asarray(image)))
+    if "colour" not in kwargs:
+        kwargs = dict(kwargs, colour=colour_fit_applies(image, kwargs.get("response")))
+    return kwargs
+
+
+def split_fused_lobes(image, estimates, camera, rig, **kwargs) -> list:
+    """The estimates with each candidate of fused guide lobes replaced by one row per guide.
+
+    Parameters
+    ----------
+    image : ndarray of shape (H, W) or (H, W, 3)
+        The frame the estimates were made on.
+    estimates : sequence of SpecularityEstimate
+        With their light-aware fits (:func:`~simtest.reconstruct.recommend.with_light_aware`).
+    camera : array_like of shape (3, 3) or CameraModel
+        Intrinsics K or a camera model.
+    rig : LightRig or None
+        The scope's lights (None, or every light at the camera centre: returned unchanged).
+    **kwargs
+        As :func:`~simtest.reconstruct.recommend.with_light_aware` got them (``response``,
+        ``cubic``, ...): the ``merged`` candidates are fitted with them (``workers`` and
+        ``on_highlight`` are ignored: few candidates are ``merged``).
+
+    Returns
+    -------
+    list of SpecularityEstimate
+        In the order of ``estimates``, a split candidate's rows in the rig's order in its place.
+    """
+    if not _offset_rig(rig):
+        return list(estimates)
+    gray = luma(np.asarray(image))
+    bps = np.array([e.bp_px for e in estimates], dtype=np.float64).reshape(-1, 2)
+    kwargs = {k: v for k, v in kwargs.items() if k not in ("workers", "on_highlight", "fit_rejected")}
+    out: list = []
+    for i, est in enumerate(estimates):
+        rows = None
+        if est.status in SPLIT_STATUSES:
+            fitted = est
+            if est.status == "merged":
+                kwargs = _fit_arguments(image, kwargs)
+                fitted = dataclasses.replace(est, light_aware=light_aware_estimates(image, est, camera, rig,
+                                                                                     **kwargs))
+            rows = _rows(fitted, camera, rig, gray, np.delete(bps, i, axis=0))
+        out.extend(rows if rows is not None else [est])
+    return out
