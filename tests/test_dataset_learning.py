@@ -12,7 +12,6 @@ import zipfile
 
 import numpy as np
 import pytest
-import torch
 from hypothesis import given, settings
 from hypothesis import strategies as st
 from PIL import Image
@@ -29,6 +28,8 @@ from simtest.dataset.shards import DEFLATED, DatasetError, decode_png, read_mani
 
 def crop8(item: dict) -> dict:
     """A transform (module level, so DataLoader workers can pickle it): the top-left 8 x 8 pixels."""
+    import torch  # here, not at the top: each xdist worker collects this module, few run it
+
     return {k: (v[..., :8, :8] if isinstance(v, torch.Tensor) and v.ndim >= 2 else v) for k, v in item.items()}
 
 
@@ -37,6 +38,8 @@ def test_dir_shows_open():
 
 
 def test_torch_view_through_a_dataloader_with_two_worker_processes(tmp_path):
+    import torch
+
     _, out, _ = _make(tmp_path)
     ds = simtest.dataset.open(out)
     view = ds.torch(keys=("sensor", "normals", "mask", "K"), transform=crop8)
@@ -194,6 +197,8 @@ def test_show_writes_a_contact_sheet_with_one_row_per_sample(tmp_path):
 
 
 def test_generate_then_read_a_dataset_of_fixed_size_with_the_default_torch_path(tmp_path):
+    import torch
+
     cfg = _cfg(count=6, shard_size=4)
 
     def fixed(config, index):  # every sample 8 x 8, as a single-resolution config gives
@@ -210,6 +215,8 @@ def test_generate_then_read_a_dataset_of_fixed_size_with_the_default_torch_path(
 
 def test_a_dataset_mixing_grey_and_rgb_samples_batches_with_three_channels(tmp_path):
     """Grey Phong and RGB tissue samples in one dataset: every split's sensor tensor is (3, H, W)."""
+    import torch
+
     from simtest.dataset.sample import _encode_png
 
     cfg = _cfg(count=6, shard_size=4)

@@ -3,8 +3,6 @@
 from __future__ import annotations
 
 import json
-import os
-import subprocess
 import sys
 from pathlib import Path
 
@@ -72,20 +70,19 @@ def test_the_suite_keeps_its_external_estimators_through_overrides(monkeypatch):
     assert t.estimators[-1] == "mine" and t.external == (("mine", "my_method:bp_ray_cv"),)
 
 
-@pytest.mark.slow
-def test_the_readme_example_runs_beside_the_built_in_estimators(tmp_path):
-    """`simtest validate quick --estimator my_method:bp_ray_cv`, as the README shows it: the
-    external column is reported beside the built-in ones, and an OpenCV BP ray errs as the
-    built-in BP ray does on the paper protocol's planes."""
-    env = dict(os.environ, PYTHONPATH=os.pathsep.join([str(EXAMPLE), os.environ.get("PYTHONPATH", "")]))
-    r = subprocess.run([sys.executable, "-m", "simtest.cli", "validate", "quick", "-j", "2",
-                        "--no-progress", "-n", "4", "-o", str(tmp_path), "--run-id", "ext",
-                        "--estimator", "my_method:bp_ray_cv"],
-                       env=env, capture_output=True, text=True, timeout=600)
-    assert r.returncode == 0, r.stderr[-2000:]
-    res = json.loads((tmp_path / "quick" / "ext" / "results.json").read_text())
+#: The README's line that runs the example (tests/test_readme_examples.py runs it and checks its
+#: run with :func:`check_external_run`: the suite runs once for both).
+README_LINE = ("PYTHONPATH=tests/data/external simtest validate quick --estimator my_method:bp_ray_cv "
+               "-o out/reports")
+
+
+def check_external_run(folder: Path) -> None:
+    """The run folder of ``simtest validate quick --estimator my_method:bp_ray_cv``, as the README
+    shows it: the external column is reported beside the built-in ones, and an OpenCV BP ray errs
+    as the built-in BP ray does on the paper protocol's planes."""
+    res = json.loads((folder / "results.json").read_text())
     assert res["suite"]["estimators"][-1] == "bp_ray_cv"
-    assert "bp_ray_cv" in (tmp_path / "quick" / "ext" / "report.md").read_text()
+    assert "bp_ray_cv" in (folder / "report.md").read_text()
     for case in res["cases"]:
         m = case["metrics"]["estimators"]
         assert m["bp_ray_cv"]["n_ok"] > 0, case["id"]
@@ -94,3 +91,12 @@ def test_the_readme_example_runs_beside_the_built_in_estimators(tmp_path):
             # peak: at f of hundreds of px, a pixel moves the ray by a fraction of a degree; 1 deg
             # is several pixels
             assert abs(m["bp_ray_cv"]["median"] - m["bp_ray"]["median"]) < 1.0, case["id"]
+
+
+def test_the_readme_runs_the_example_and_its_test_checks_the_run():
+    """The command line's run of the example is the README's own line (one run of the quick suite
+    in worker processes, each importing ``my_method``); the README examples' test runs it and
+    checks its folder with :func:`check_external_run`."""
+    assert README_LINE in README.read_text(encoding="utf-8").splitlines()
+    examples = (HERE / "test_readme_examples.py").read_text(encoding="utf-8")
+    assert "check_external_run(" in examples

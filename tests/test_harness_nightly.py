@@ -71,6 +71,14 @@ def made(tmp_path_factory):
     return path, d
 
 
+@pytest.fixture
+def no_reports(monkeypatch):
+    """The run's verdict without its report files: a test that reads the exit code and the
+    output only skips drawing them (seconds of matplotlib a run; the report of a nightly run is
+    checked by test_unchanged_code_passes_and_keeps_a_history and the README's example)."""
+    monkeypatch.setattr(hcli, "write_report_files", lambda results, folder, **kw: folder)
+
+
 def _edit(src, dst, fn):
     b = json.loads(src.read_text())
     fn(b["suites"]["quick"]["metrics"])
@@ -95,13 +103,13 @@ def test_unchanged_code_passes_and_keeps_a_history(made):
 
 
 @pytest.mark.parametrize("seed", [101, 202])
-def test_runs_with_other_seeds_pass(made, seed):
+def test_runs_with_other_seeds_pass(made, seed, no_reports):
     path, d = made
     r = _nightly("--baseline", path, "--out", d / "reports", "--seed", seed)
     assert r.exit_code == 0, r.output
 
 
-def test_committed_baseline_passes(tmp_path):
+def test_committed_baseline_passes(tmp_path, no_reports):
     r = _nightly("--out", tmp_path, "--seed", 7)
     assert r.exit_code == 0, r.output
 
@@ -111,7 +119,7 @@ def _colocated_cone_axis(name):
                                       or name.startswith("case:rendered_plane@"))
 
 
-def test_baseline_claiming_cone_axis_3x_better_fails(made, tmp_path):
+def test_baseline_claiming_cone_axis_3x_better_fails(made, tmp_path, no_reports):
     path, _ = made
 
     def better(metrics):
@@ -146,7 +154,7 @@ def test_baseline_with_one_bad_metric_fails_naming_it(made, tmp_path, value, why
     assert len(lines) == 1 and f"{name} ({why})" in lines[0], r.output
 
 
-def test_planted_regressions_per_estimator_family(made, tmp_path, monkeypatch):
+def test_planted_regressions_per_estimator_family(made, tmp_path, monkeypatch, no_reports):
     """Double one estimator at a time: exactly its detectable metrics regress, nothing else.
 
     The run repeats the baseline's seed, so every error of the planted estimator is exactly
@@ -158,8 +166,6 @@ def test_planted_regressions_per_estimator_family(made, tmp_path, monkeypatch):
     ests = sorted({k.split(":")[-2] for k in sec["metrics"]} - {"*"})
     assert {"paper_oracle", "paper_selected", "cone_axis", "joint_cone_axis", "bp_ray"} <= set(ests)
     real = dict(estimators.ESTIMATORS)
-    # the verdict is read from the output: skip drawing six reports (seconds of matplotlib each)
-    monkeypatch.setattr(hcli, "write_report_files", lambda results, folder, **kw: folder)
     for est in ests:
         monkeypatch.setitem(estimators.ESTIMATORS, est, _doubled(real[est]))
         r = _nightly("--baseline", path, "--out", tmp_path)

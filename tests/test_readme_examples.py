@@ -14,6 +14,7 @@ are not run here, and why:
 
 from __future__ import annotations
 
+import json
 import os
 import re
 import shlex
@@ -24,6 +25,7 @@ from pathlib import Path
 
 import pytest
 import typer
+from test_harness_external import check_external_run
 
 from simtest.cli import app
 from simtest.resources import data_root
@@ -111,6 +113,11 @@ def test_every_readme_example_runs(tmp_path, numba_kernels_compiled):
         r = subprocess.run(["bash", "-e", "-c", line], cwd=repo, env=env, capture_output=True,
                            text=True, timeout=300)
         assert r.returncode == 0, f"README example failed ({r.returncode}): {line}\n{r.stderr[-2000:]}"
+    # the external estimator's run (README_LINE): test_harness_external's checks, on this run
+    runs = [p.parent for p in (repo / "out" / "reports" / "quick").glob("*/results.json")
+            if "bp_ray_cv" in json.loads(p.read_text())["suite"]["estimators"]]
+    assert len(runs) == 1, runs
+    check_external_run(runs[0])
     for lang, block in BLOCKS:
         if lang == "python":
             r = subprocess.run([sys.executable, "-c", block], cwd=repo, env=env,
