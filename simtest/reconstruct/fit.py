@@ -47,8 +47,6 @@ _S3_RCOND = 1e-10
 #: Exponents (i, j) of the monomials x^i y^j whose sums make the scatter matrix S = D^T D of the
 #: design rows d = (x^2, xy, y^2, x, y, 1): every product d_a d_b is one of these 15.
 _MONOMIALS = [(i, s - i) for s in range(5) for i in range(s, -1, -1)]
-_MONO_I = np.array([i for i, _ in _MONOMIALS])
-_MONO_J = np.array([j for _, j in _MONOMIALS])
 _D_EXPONENTS = [(2, 0), (1, 1), (0, 2), (1, 0), (0, 1), (0, 0)]
 #: ``S[a, b]`` is the sum of monomial ``_S_INDEX[a, b]`` (6, 6).
 _S_INDEX = np.array([[_MONOMIALS.index((a[0] + b[0], a[1] + b[1])) for b in _D_EXPONENTS] for a in _D_EXPONENTS])
@@ -403,7 +401,10 @@ def _fit_stack(pts: np.ndarray, n: np.ndarray) -> list[EllipseFit | Failure]:
     np.multiply(pw[1], pw[1], out=pw[2])
     np.multiply(pw[2], pw[1], out=pw[3])
     np.multiply(pw[2], pw[2], out=pw[4])
-    sums = np.add.reduceat(pw[_MONO_I, 0] * pw[_MONO_J, 1], starts, axis=1).T  # (k, 15)
+    mono = np.empty((len(_MONOMIALS), len(pts)))
+    for q, (i, j) in enumerate(_MONOMIALS):
+        np.multiply(pw[i, 0], pw[j, 1], out=mono[q])
+    sums = np.add.reduceat(mono, starts, axis=1).T  # (k, 15)
     # the points scaled to unit RMS distance from their mean: x^i y^j sums over scale^(i + j)
     scale2 = (sums[:, _X2] + sums[:, _Y2]) / n
     scale = np.sqrt(scale2)
