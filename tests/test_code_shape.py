@@ -20,7 +20,7 @@ MAX_FUNCTION_LINES = 150
 #: decision registry, the rig's pairing, the harness's end-to-end records, the frame's tables,
 #: the operating point, the liver's lobe and gallbladder)
 TARGET_PACKAGE_LINES = 30_000
-PACKAGE_LINES_CEILING = 48_500
+PACKAGE_LINES_CEILING = 47_832
 
 #: module -> its lines today (to be split by job as the per-frame tables replace them)
 LONG_MODULES = {
@@ -39,7 +39,7 @@ LONG_FUNCTIONS = {
     ("reconstruct/recommend.py", "light_aware_estimates"): 219,
 }
 #: the modules that may import numba: issue 64 allows one small compiled module in the end
-NUMBA_MODULES = {"reconstruct/_kernels.py", "reconstruct/_fit_kernels.py", "reconstruct/_estimator_kernels.py"}
+NUMBA_MODULES = {"reconstruct/_kernels.py"}
 
 
 def _modules():

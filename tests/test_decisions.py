@@ -28,16 +28,12 @@ _SPEED = "a speed setting: results are the same either way"
 _SOLVER = "a numerical solver setting (start, step, stop), judged by the decisions after"
 _GUARD = "a memory or size guard with its own error message"
 NOT_DECISIONS = {
-    **{f"_estimator_kernels.{n}": _CODES for n in ("OK", "HANDED_OVER")},
-    **{f"_fit_kernels.{n}": _CODES for n in ("_D_EXPONENTS", "OK", "NON_FINITE", "COINCIDENT",
-                                            "SINGULAR_SCATTER", "NO_ELLIPSE", "SUSPECT",
-                                            "NON_FINITE_CONIC", "NOT_REAL_ELLIPSE", "UNBOUNDED",
-                                            "DECLINED")},
     **{f"_kernels.{n}": _CODES for n in ("_SEG_FROM", "_SEG_TO", "NOT_ABOVE", "CLOSED", "OPEN",
                                         "FALLBACK", "DECLINED", "CUT", "NOT_WALKED")},
     "candidates._GATHER_SIDE": _SPEED, "candidates._FEW": _SPEED,
     "detect.MULTIRES_CANDIDATES_MAX": _SPEED,
     "fit._S3_RCOND": _SOLVER,
+    **{f"fit.{n}": _CODES for n in ("_D_EXPONENTS", "_CONIC_OF", "_CONIC_HALVES", "_SAMPSON_TERMS")},
     "frames.ESTIMATED_COUNT_SLACK": _CODES,
     "images.MAX_IMAGE_PIXELS": _GUARD,
     "io.SCHEMA_VERSION": _CODES, "io.READABLE_SCHEMAS": _CODES,

@@ -183,3 +183,41 @@ def test_batched_estimators_are_bit_for_bit_those_of_each_cone_alone(seed, k):
             assert isinstance(got, Failure) and got.detail == alone.detail
         else:
             assert np.array_equal(got, alone)
+
+
+# ---- moved from the deleted compiled kernels' tests: the exact truths of the numpy forms --------
+
+@given(st.integers(0, 10_000), st.floats(-9.0, -2.0))
+@settings(max_examples=60, deadline=None)
+def test_a_near_right_cone_gives_its_circles_normal(seed, log_tilt):
+    # a circle seen almost head-on (its normal 1e-9 to 1e-2 rad from its centre's viewing ray):
+    # the same-sign eigenvalues nearly coincide, and one of N+ and N- is still the normal, the
+    # cone axis within the tilt, at any scale and sign of C'
+    centre, _, radius, rng = random_circle_pose(seed, key=131)
+    view = centre / np.linalg.norm(centre)
+    perp = np.cross(view, rng.normal(size=3))
+    tilt = 10.0 ** log_tilt
+    normal = -np.cos(tilt) * view + np.sin(tilt) * perp / np.linalg.norm(perp)
+    cn = normalised_conic(project_circle(centre, normal, radius, K), K)
+    cn = cn * rng.choice([-1.0, 1.0]) * 10.0 ** rng.uniform(-6.0, 6.0)
+    est = estimate_from_conic(cn, bp_ray_normal(project_points(centre, K), K))
+    assert est
+    # 1e-5 deg: the rounding of the projected conic, amplified near a right cone
+    assert min(angle_between_deg(est.paper[0], normal), angle_between_deg(est.paper[1], normal)) < 1e-5
+    assert angle_between_deg(est.cone_axis, normal) < np.degrees(tilt) + 1e-5
+
+
+def test_non_cones_fail_with_their_reason_in_a_batch_of_cones():
+    good = normalised_conic(project_circle(np.array([5.0, -3.0, 80.0]), np.array([0.2, 0.1, -1.0]) / np.sqrt(1.05),
+                                           6.0, K), K)
+    bad = [np.diag([1.0, -1.0, -1.0]), np.eye(3), np.diag([1.0, -1.0, 0.0]), np.zeros((3, 3)),
+           np.full((3, 3), np.nan), np.diag([np.inf, 1.0, -1.0])]
+    cns = np.stack([good, *bad, good])
+    refs = np.tile(np.array([0.0, 0.0, -1.0]), (len(cns), 1))
+    out = estimate_from_conics(cns, refs)
+    assert out[0] and out[-1] and np.array_equal(out[0].paper, out[-1].paper)
+    assert all(isinstance(f, Failure) and f.reason == "pose_failed" for f in out[1:-1])
+    axes = joint_cone_axes(cns, np.array([0, 1, 1, 2, 2, 2, 2, 3]), refs[:4])
+    assert not isinstance(axes[0], Failure) and not isinstance(axes[3], Failure)
+    assert isinstance(axes[1], Failure) and isinstance(axes[2], Failure)
+    assert np.array_equal(axes[0], axes[3])

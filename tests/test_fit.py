@@ -225,3 +225,79 @@ def test_batched_fit_refuses_as_the_single_fit_does():
     # the circle: centre and radius exact to rounding of its 40 samples
     assert np.allclose(got[-1].ellipse.center, [100, 50], atol=1e-9)
     assert np.allclose(got[-1].ellipse.semi_axes, [7, 7], atol=1e-9)
+
+
+# ---- the closed forms over the stack (fit.py's private helpers) against LAPACK --------------------
+# (moved from the deleted compiled kernels' tests: the same truths, now of the numpy forms)
+
+from simtest.reconstruct.fit import _cubic_roots, _eigh2, _ellipse_params, _null_vectors, _positive_definite
+
+
+@pytest.mark.parametrize("seed", range(5))
+def test_closed_form_eigenvectors_are_lapacks(seed):
+    # real matrices with three real, distinct eigenvalues (V diag(w) V^-1): each closed-form
+    # root is one of LAPACK's, its null vector LAPACK's eigenvector up to sign (to ~1e-12: a
+    # well separated spectrum, as the reduced scatter of an ellipse fit has)
+    rng = np.random.default_rng(seed)
+    w = np.sort(rng.uniform(-3, 3, (50, 3)), axis=1) + np.array([0.0, 0.5, 1.0])
+    V = rng.normal(size=(50, 3, 3))
+    m = V @ (w[:, :, None] * np.linalg.inv(V))
+    lam, ok = _cubic_roots(m)
+    vec, defined = _null_vectors(m[:, None] - lam[:, :, None, None] * np.eye(3))
+    assert ok.all() and defined.all()
+    assert np.allclose(np.sort(lam, axis=1), w, atol=1e-9)
+    Vn = V / np.linalg.norm(V, axis=1, keepdims=True)
+    for j in range(50):
+        for q in range(3):
+            col = Vn[j][:, np.argmin(np.abs(w[j] - lam[j, q]))]
+            assert abs(abs(vec[j, q] @ col) - 1.0) < 1e-9
+
+
+def test_closed_form_refusals():
+    # complex roots (a rotation), a repeated root (the identity) and NaN: declined, LAPACK decides
+    c, s = np.cos(0.3), np.sin(0.3)
+    rot = np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 2.0]])
+    with np.errstate(all="ignore"):
+        _, ok = _cubic_roots(np.stack([rot, np.eye(3), np.full((3, 3), np.nan)]))
+        _, defined = _null_vectors(np.zeros((1, 3, 3)))
+    assert not ok.any()
+    assert not defined.any()
+
+
+@pytest.mark.parametrize("seed", range(5))
+def test_closed_form_2x2_and_cholesky_checks_are_lapacks(seed):
+    rng = np.random.default_rng(seed)
+    a = rng.normal(size=(200, 2, 2)) * 10.0 ** rng.uniform(-6, 6, (200, 1, 1))
+    s = a @ np.swapaxes(a, 1, 2)
+    lo, hi, x, y = _eigh2(s[:, 0, 0], s[:, 0, 1], s[:, 1, 1])
+    w, v = np.linalg.eigh(s)
+    scale = np.abs(w).max(axis=1)
+    assert np.allclose(lo / scale, w[:, 0] / scale, atol=1e-14) and np.allclose(hi / scale, w[:, 1] / scale, atol=1e-14)
+    assert np.allclose(np.abs(x * v[:, 0, 0] + y * v[:, 1, 0]), 1.0, atol=1e-8)
+    # s - tau I factorises exactly where LAPACK's least eigenvalue is above tau (beyond rounding)
+    b = rng.normal(size=(300, 6, 6))
+    s6 = b @ np.swapaxes(b, 1, 2)
+    ev = np.linalg.eigvalsh(s6)
+    tau = ev[:, 0] * rng.uniform(0.5, 1.5, 300)
+    got = _positive_definite(s6, tau, np.ones(300, dtype=bool))
+    clear = np.abs(ev[:, 0] - tau) > 1e-9 * ev[:, -1]
+    assert np.array_equal(got[clear], (ev[:, 0] > tau)[clear])
+    assert not _positive_definite(s6, tau, np.zeros(300, dtype=bool)).any()
+
+
+@given(st.floats(-2, 2), st.floats(-2, 2), st.floats(0.5, 3), st.floats(0.05, 1.0), st.floats(-np.pi, np.pi))
+@settings(max_examples=100, deadline=None)
+def test_ellipse_parameters_of_a_known_conic(cu, cv, a, ratio, angle):
+    # a known ellipse's conic, of the size the fit hands in (the conic of points centred and
+    # scaled to unit RMS radius), gives back its centre, semi-axes and angle (mod pi); a
+    # hyperbola, an imaginary conic and a line pair are no real ellipses
+    C = ellipse_to_conic((cu, cv), (a, a * ratio), angle)
+    with np.errstate(all="ignore"):
+        centre, axes, ang, ok = _ellipse_params(np.stack([C, -3.0 * C, np.diag([1.0, -1.0, -1.0]), np.eye(3),
+                                                          np.diag([1.0, -1.0, 0.0])]))
+    assert ok.tolist() == [True, True, False, False, False]
+    for j in (0, 1):
+        assert np.allclose(centre[j], (cu, cv), atol=1e-9 * (1 + abs(cu) + abs(cv)) + 1e-9 * a)
+        assert np.allclose(axes[j], (a, a * ratio), rtol=1e-9)
+        if ratio < 0.99:
+            assert angle_diff_mod_pi(ang[j], angle) < 1e-7

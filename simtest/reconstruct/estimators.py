@@ -49,11 +49,9 @@ from dataclasses import dataclass
 import numpy as np
 
 from simtest._records import fast_init
-from simtest.geometry.angles import unit
 from simtest.geometry.camera import bp_ray_normal
-from simtest.geometry.conics import cone_poses, unit_symmetric_cones
-from simtest.reconstruct import _estimator_kernels
 from simtest.reconstruct.failures import Failure
+from simtest.reconstruct.fit import _THIRDS, _eigh2, _null_vectors
 from simtest.tolerances import TOL
 
 
@@ -84,6 +82,11 @@ class ConeEstimate:
 
     def __bool__(self) -> bool:
         return True
+
+
+#: A right circular cone (any real elliptic one): what stands in for a conic that is not one, so
+#: that the stack's arithmetic stays finite (its result is discarded).
+_RIGHT_CONE = np.diag([1.0, 1.0, -1.0])
 
 
 def face_reference(n: np.ndarray, ray: np.ndarray) -> np.ndarray:
@@ -174,8 +177,7 @@ def estimate_from_conic(Cn: np.ndarray, bp_ray: np.ndarray) -> ConeEstimate | Fa
     return estimate_from_conics(Cn[None], np.asarray(bp_ray, dtype=np.float64).reshape(1, 3))[0]
 
 
-def estimate_from_conics(Cns: np.ndarray, bp_rays: np.ndarray, *,
-                         compiled: bool = True) -> list[ConeEstimate | Failure]:
+def estimate_from_conics(Cns: np.ndarray, bp_rays: np.ndarray) -> list[ConeEstimate | Failure]:
     """:func:`estimate_from_conic` of a stack of normalised conics, batched.
 
     Parameters
@@ -184,10 +186,6 @@ def estimate_from_conics(Cns: np.ndarray, bp_rays: np.ndarray, *,
         Normalised conics C' = K^T C K (any scale and sign).
     bp_rays : ndarray of shape (k, 3)
         Their BP-ray normals (unit, facing the camera), camera frame.
-    compiled : bool
-        Estimate with the compiled kernel (:func:`simtest.reconstruct._estimator_kernels.
-        cone_estimates`), the numpy form deciding the conics it hands over; False: the numpy form
-        only (the reference).
 
     Returns
     -------
@@ -197,61 +195,131 @@ def estimate_from_conics(Cns: np.ndarray, bp_rays: np.ndarray, *,
 
     Notes
     -----
-    The two forms give the same bits (they decompose the same unit cones with the same LAPACK
-    routine; :mod:`simtest.reconstruct._estimator_kernels`, ``tests/test_estimator_kernels.py``).
-    The numpy form runs one batched eigen-decomposition and circle pose for all conics
-    (:func:`simtest.geometry.conics.cone_poses`), some sixty numpy calls whatever the batch; the
-    kernel takes a few microseconds per conic, which a frame of ten highlights, or one highlight
-    alone, would otherwise spend on those calls' fixed cost. A conic the kernel hands over (every
-    failure) is estimated by the numpy form, whose failure, word for word, is the one reported.
-    Each conic's result depends on its own numbers only.
+    All conics are decomposed at once, in closed form over the stack (a stacked LAPACK call
+    costs microseconds per 3 x 3 matrix): each cone scaled to unit Frobenius norm, its
+    eigenvalues from the characteristic cubic, the unique-sign eigenvalue's eigenvector (the
+    axis, well separated from the other two) as a null vector, then the same-sign pair from the
+    2 x 2 restriction to the plane orthogonal to the axis (exact for a near-right cone, whose
+    pair is nearly repeated), and the circle pose of :func:`simtest.geometry.conics.circle_pose`
+    from them. Each conic's result depends on its own numbers only.
     """
     Cns = np.asarray(Cns, dtype=np.float64).reshape(-1, 3, 3)
     refs = np.asarray(bp_rays, dtype=np.float64).reshape(-1, 3)
-    if not compiled:
-        return _estimate_from_conics_numpy(Cns, refs)
-    with np.errstate(invalid="ignore", divide="ignore"):
-        unit_cones = unit_symmetric_cones(Cns)
-    status, paper, index, axis, gap = _estimator_kernels.cone_estimates(
-        np.ascontiguousarray(Cns), unit_cones, np.ascontiguousarray(refs), TOL.conic_degenerate_rel)
-    out: list = [None] * len(Cns)
-    selected = paper[np.arange(len(Cns)), index]
-    for j, (ok, p, sel, i, a, g) in enumerate(zip((status == _estimator_kernels.OK).tolist(), paper,
-                                                   selected, index.tolist(), axis, gap.tolist())):
-        if ok:
-            out[j] = ConeEstimate(p, sel, i, a, g)
-    redo = np.flatnonzero(status != _estimator_kernels.OK)
-    if len(redo):
-        for j, r in zip(redo.tolist(), _estimate_from_conics_numpy(Cns[redo], refs[redo])):
-            out[j] = r
-    return out
+    with np.errstate(all="ignore"):
+        return _estimates(Cns, refs)
 
 
-def _estimate_from_conics_numpy(Cns: np.ndarray, refs: np.ndarray) -> list[ConeEstimate | Failure]:
-    """The numpy form of :func:`estimate_from_conics` (k, 3, 3), (k, 3): the reference, and the
-    judge of the conics the kernel hands over."""
-    k = len(Cns)
-    elliptic = _images_as_ellipse_many(Cns)
-    pose = cone_poses(Cns if elliptic.all() else np.where(elliptic[:, None, None], Cns, np.diag([1.0, 1.0, -1.0])))
-    with np.errstate(invalid="ignore", divide="ignore"):
-        paper = unit(pose["normals"], axis=-1)
-        axis = unit(pose["axis"], axis=-1)
+def _unique_sign_axes(s: np.ndarray):
+    """The sign-normalised decomposition of unit symmetric cones s (k, 3, 3) (``conics.
+    _cone_eigen_many``'s, l1 >= l2 > 0 > l3): the sign (k,) that makes the unique-sign eigenvalue
+    negative, l1, l2, l3 (k,) each, the eigenvectors e1 and e3 (k, 3), and which cones are real
+    and elliptic (signature (2, 1) beyond ``TOL.conic_degenerate_rel``) (k,) bool."""
+    eps = TOL.conic_degenerate_rel
+    lam = _symmetric_roots(s)  # descending
+    n_pos = (lam > eps).sum(axis=1)
+    n_neg = (lam < -eps).sum(axis=1)
+    flip = (n_pos == 1) & (n_neg == 2)
+    ok = flip | ((n_pos == 2) & (n_neg == 1))
+    sign = 1.0 - 2.0 * flip
+    s = s * sign[:, None, None]
+    l3 = np.where(flip, -lam[:, 0], lam[:, 2])
+    e3, defined = _null_vectors(s - l3[:, None, None] * np.eye(3))
+    # the same-sign pair: the cone restricted to the plane orthogonal to e3, basis (u, w)
+    u, w = _plane_basis(e3)
+    su, sw = (s @ u[:, :, None])[:, :, 0], (s @ w[:, :, None])[:, :, 0]
+    lo, hi, x, y = _eigh2((u * su).sum(axis=1), (u * sw).sum(axis=1), (w * sw).sum(axis=1))
+    e1 = -y[:, None] * u + x[:, None] * w  # the eigenvector of hi: (x, y) turned by 90 degrees
+    return s, hi, lo, l3, e1, e3, ok & defined
+
+
+def _symmetric_roots(s: np.ndarray) -> np.ndarray:
+    """The eigenvalues (k, 3), descending, of symmetric 3 x 3 matrices (k, 3, 3), from the
+    characteristic cubic (real: the cosine's argument clipped to [-1, 1] against rounding). A
+    nearly repeated pair comes out to about the square root of the rounding of the entries; the
+    third, set apart, to the rounding."""
+    sh = (s[:, 0, 0] + s[:, 1, 1] + s[:, 2, 2]) / 3.0
+    b = s - sh[:, None, None] * np.eye(3)
+    p = (b * b).sum(axis=2).sum(axis=1) / 6.0  # p / 3 of b's cubic mu^3 - p mu - q (b traceless, symmetric)
+    r = np.sqrt(p)
+    c = np.clip(np.linalg.det(b) / (2.0 * r * r * r), -1.0, 1.0)
+    c = np.where(p > 0, c, 1.0)
+    return sh[:, None] + (2.0 * r)[:, None] * np.cos((np.arccos(c) / 3.0)[:, None] - _THIRDS)
+
+
+def _plane_basis(n: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """An orthonormal basis (u, w) (k, 3) each of the planes orthogonal to unit n (k, 3): that of
+    ``conics.plane_basis``, u along n x e_x, or n x e_y when n is within 26 deg of e_x."""
+    x, y, z = n[:, 0], n[:, 1], n[:, 2]
+    near_x = np.abs(x) >= 0.9
+    u = np.empty_like(n)
+    u[:, 0] = np.where(near_x, -z, 0.0)
+    u[:, 1] = np.where(near_x, 0.0, z)
+    u[:, 2] = np.where(near_x, x, -y)
+    u /= np.sqrt((u * u).sum(axis=1))[:, None]
+    w = np.empty_like(n)
+    w[:, 0] = y * u[:, 2] - z * u[:, 1]
+    w[:, 1] = z * u[:, 0] - x * u[:, 2]
+    w[:, 2] = x * u[:, 1] - y * u[:, 0]
+    return u, w
+
+
+def _section_centres(q: np.ndarray, n: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """``conics._section_centres``: unit directions (k, 3) (z > 0) of the centres of the sections
+    of cones q (k, 3, 3) by the planes n . X = 1 (n (k, 3) unit), and which have one (k,) bool;
+    the plane's 2 x 2 system solved by Cramer's rule (singular: a zero determinant)."""
+    u, w = _plane_basis(n)
+    qu, qw = (q @ u[:, :, None])[:, :, 0], (q @ w[:, :, None])[:, :, 0]
+    m00, m01, m11 = (u * qu).sum(axis=1), (u * qw).sum(axis=1), (w * qw).sum(axis=1)
+    g0, g1 = (n * qu).sum(axis=1), (n * qw).sum(axis=1)
+    det = m00 * m11 - m01 * m01
+    a, b = (m11 * g0 - m01 * g1) / det, (m00 * g1 - m01 * g0) / det
+    x = n - a[:, None] * u - b[:, None] * w
+    x /= np.sqrt((x * x).sum(axis=1))[:, None]
+    return x * np.where(x[:, 2] < 0, -1.0, 1.0)[:, None], det != 0
+
+
+def _estimates(cns: np.ndarray, refs: np.ndarray) -> list[ConeEstimate | Failure]:
+    """:func:`estimate_from_conics` of (k, 3, 3), (k, 3), numpy's warnings off."""
+    k = len(cns)
+    elliptic = _images_as_ellipse_many(cns)
+    sym = cns + cns.transpose(0, 2, 1)
+    unit_cones = sym / np.sqrt((sym * sym).sum(axis=2).sum(axis=1))[:, None, None]
+    q, l1, l2, l3, e1, e3, real = _unique_sign_axes(np.where(elliptic[:, None, None], unit_cones, _RIGHT_CONE))
+    # circle pose [2]: N+- = +-sin(phi) e1 + cos(phi) e3, each facing the camera against the ray to
+    # its circle's centre (n_z < 0 is not the same test: a steep plane seen far off-axis faces
+    # the camera with n_z > 0)
+    sin_phi = np.sqrt(np.maximum(l1 - l2, 0.0) / (l1 - l3))
+    cos_phi = np.sqrt(np.maximum(l2 - l3, 0.0) / (l1 - l3))
+    n = (np.array([1.0, -1.0])[None, :, None] * (sin_phi[:, None] * e1)[:, None, :]
+         + (cos_phi[:, None] * e3)[:, None, :]).reshape(2 * k, 3)
+    n /= np.sqrt((n * n).sum(axis=1))[:, None]
+    centre, has_centre = _section_centres(np.repeat(q, 2, axis=0), n)
+    paper = (n * np.where((n * centre).sum(axis=1) > 0, -1.0, 1.0)[:, None]).reshape(k, 2, 3)
     ray = -refs
     paper = face_reference(paper, ray[:, None, :])
-    axis = face_reference(axis, ray)
-    finite = np.isfinite(paper).all(axis=(1, 2)) & np.isfinite(axis).all(axis=1)
+    axis = face_reference(e3 * np.where(e3[:, 2] > 0, -1.0, 1.0)[:, None], ray)
+    gap = ((l1 - l2) / (l1 - l3)).tolist()
     idx = select_paper_normal(paper, refs)
+    ok = elliptic & real & has_centre.reshape(k, 2).all(axis=1)
+    finite = np.isfinite(paper).all(axis=(1, 2)) & np.isfinite(axis).all(axis=1)
+    selected = paper[np.arange(k), idx]
+    if (ok & finite).all():
+        return [ConeEstimate(p, sel, i, a, g) for p, sel, i, a, g in zip(paper, selected, idx.tolist(), axis, gap)]
     out: list = []
     for j in range(k):
         if not elliptic[j]:
             out.append(Failure("pose_failed", "the normalised conic is not an ellipse (hyperbola, parabola)"))
-        elif not pose["ok"][j]:
-            out.append(Failure("pose_failed", pose["error"][j]))
+        elif not real[j]:
+            c = 0.5 * (cns[j] + cns[j].T)
+            out.append(Failure("pose_failed", f"C' is not a real elliptic cone: eigenvalues "
+                               f"{np.linalg.eigvalsh(c / np.linalg.norm(c)).tolist()} "
+                               "(need two of one sign and one of the other)"))
+        elif not ok[j]:
+            out.append(Failure("pose_failed", "Singular matrix"))
         elif not finite[j]:
             out.append(Failure("pose_failed", "non-finite normal"))
         else:
-            out.append(ConeEstimate(paper[j], paper[j, idx[j]], int(idx[j]), axis[j],
-                                    float(pose["eigenvalue_gap"][j])))
+            out.append(ConeEstimate(paper[j], selected[j], int(idx[j]), axis[j], gap[j]))
     return out
 
 
@@ -301,8 +369,7 @@ def joint_cone_axis(cns, bp_ray: np.ndarray) -> np.ndarray | Failure:
                            np.asarray(bp_ray, dtype=np.float64).reshape(1, 3))[0]
 
 
-def joint_cone_axes(cns: np.ndarray, group: np.ndarray, bp_rays: np.ndarray, *,
-                    compiled: bool = True) -> list[np.ndarray | Failure]:
+def joint_cone_axes(cns: np.ndarray, group: np.ndarray, bp_rays: np.ndarray) -> list[np.ndarray | Failure]:
     """:func:`joint_cone_axis` of several groups of conics at once.
 
     Parameters
@@ -310,91 +377,76 @@ def joint_cone_axes(cns: np.ndarray, group: np.ndarray, bp_rays: np.ndarray, *,
     cns : ndarray of shape (m, 3, 3)
         Normalised conics C'_i (any scale and sign), grouped by highlight.
     group : ndarray of shape (m,), int
-        Each conic's group 0 .. g-1, non-decreasing (the conics of a group consecutive).
+        Each conic's group 0 .. g-1.
     bp_rays : ndarray of shape (g, 3)
         Each group's BP-ray normal, to orient its axis toward the camera.
-    compiled : bool
-        Compute with the compiled kernel (:func:`simtest.reconstruct._estimator_kernels.
-        joint_axes`), the numpy form deciding the groups it hands over (every failure); False:
-        the numpy form only (the reference). The two give the same bits.
 
     Returns
     -------
     list of ndarray of shape (3,) or Failure
         Per group, its unit axis facing the camera, or ``Failure("pose_failed")`` (a conic is
         not a real elliptic cone, or the group is empty).
+
+    Notes
+    -----
+    Every conic's eigenvalues, and every group's leading eigenvector, in closed form over the
+    stack (the characteristic cubic; the leading eigenvector a null vector); each group's axis
+    depends on its own conics only.
     """
     cns = np.asarray(cns, dtype=np.float64).reshape(-1, 3, 3)
     group = np.asarray(group, dtype=int)
     refs = np.asarray(bp_rays, dtype=np.float64).reshape(-1, 3)
-    if not compiled:
-        return _joint_cone_axes_numpy(cns, group, refs)
-    status, axis = _estimator_kernels.joint_axes(np.ascontiguousarray(cns), group.astype(np.int64),
-                                                 np.ascontiguousarray(refs))
-    out: list = [axis[j] if s == _estimator_kernels.OK else None for j, s in enumerate(status.tolist())]
-    redo = np.flatnonzero(status != _estimator_kernels.OK)
-    if len(redo):
-        rows = np.isin(group, redo)  # the handed-over groups' conics, their groups renumbered
-        sub = _joint_cone_axes_numpy(cns[rows], np.searchsorted(redo, group[rows]), refs[redo])
-        for j, r in zip(redo.tolist(), sub):
-            out[j] = r
-    return out
+    with np.errstate(all="ignore"):
+        return _joint_axes(cns, group, refs)
 
 
-def _frobenius_norms(m: np.ndarray) -> np.ndarray:
-    """Frobenius norms of a stack of 3 x 3 matrices (k, 3, 3) -> (k,), the squares summed in
-    row-major order: the compiled kernel's order on any processor (``einsum`` sums in SIMD
-    lanes, whose order depends on the processor)."""
-    sq = (m * m).reshape(-1, 9)
-    acc = sq[:, 0]
-    for q in range(1, 9):
-        acc = acc + sq[:, q]
-    return np.sqrt(acc)
-
-
-def _joint_cone_axes_numpy(cns: np.ndarray, group: np.ndarray, refs: np.ndarray) -> list[np.ndarray | Failure]:
-    """The numpy form of :func:`joint_cone_axes`: the reference, and the judge of the groups the
-    kernel hands over."""
+def _joint_axes(cns: np.ndarray, group: np.ndarray, refs: np.ndarray) -> list[np.ndarray | Failure]:
+    """:func:`joint_cone_axes`, numpy's warnings off."""
     g = len(refs)
-    fail: list = [None] * g
     elliptic = _images_as_ellipse_many(cns)
-    sym = 0.5 * (cns + np.swapaxes(cns, 1, 2))
-    sym = np.where(elliptic[:, None, None], sym, np.diag([1.0, 1.0, -1.0]))
-    w, v = np.linalg.eigh(sym)
-    n_pos = np.sum(w > 0, axis=1)
+    sym = 0.5 * (cns + cns.transpose(0, 2, 1))
+    sym = np.where(elliptic[:, None, None], sym, _RIGHT_CONE)
+    w = _symmetric_roots(sym)  # descending
+    n_pos = (w > 0).sum(axis=1)
     flip = n_pos == 2  # make the unique-sign eigenvalue positive
-    real = flip | ((n_pos == 1) & ~np.any(w == 0, axis=1))
-    sym = np.where(flip[:, None, None], -sym, sym)
-    w = np.where(flip[:, None], -w[:, ::-1], w)
-    # w ascending: w[0] <= w[1] < 0 < w[2]; remove the isotropic part of the same-sign pair
-    d = sym - 0.5 * (w[:, 0] + w[:, 1])[:, None, None] * np.eye(3)
-    nd = _frobenius_norms(d)
+    real = flip | ((n_pos == 1) & ~(w == 0).any(axis=1))
+    # minus the isotropic part of the same-sign pair: half the trace less the unique eigenvalue
+    tr = sym[:, 0, 0] + sym[:, 1, 1] + sym[:, 2, 2]
+    sign = 1.0 - 2.0 * flip
+    half = 0.5 * sign * (tr - np.where(flip, w[:, 2], w[:, 0]))
+    d = sym * sign[:, None, None] - half[:, None, None] * np.eye(3)
+    nd = np.sqrt((d * d).sum(axis=2).sum(axis=1))
     isotropic = ~(nd > 0)
-    for i in range(len(cns)):
+    bad = ~elliptic | ~real | isotropic
+    acc = np.zeros((g, 3, 3))
+    np.add.at(acc, group, d / np.where(isotropic, 1.0, nd)[:, None, None])
+    used = np.bincount(group, minlength=g) > 0
+    failed = np.bincount(group, weights=bad, minlength=g) > 0
+    top = _symmetric_roots(acc)[:, 0]
+    axis, _ = _null_vectors(acc - top[:, None, None] * np.eye(3))
+    axis = face_reference(axis, -refs)
+    finite = np.isfinite(axis).all(axis=1)
+    if used.all() and not failed.any() and finite.all():
+        return list(axis)
+    fail: list = [None] * g
+    for i in np.flatnonzero(bad):  # the first bad conic of a group words its failure
         j = group[i]
         if fail[j] is not None:
             continue
         if not elliptic[i]:
             fail[j] = Failure("pose_failed", "a normalised conic is not an ellipse")
         elif not real[i]:
-            fail[j] = Failure("pose_failed", f"conic eigenvalues {w[i].tolist()} are not those of a real cone")
-        elif isotropic[i]:
+            fail[j] = Failure("pose_failed", f"conic eigenvalues {np.linalg.eigvalsh(sym[i]).tolist()} "
+                              "are not those of a real cone")
+        else:
             fail[j] = Failure("pose_failed", "a conic is isotropic")
-    acc = np.zeros((g, 3, 3))
-    np.add.at(acc, group, d / np.where(isotropic, 1.0, nd)[:, None, None])
-    used = np.bincount(group, minlength=g) > 0
-    acc = np.where((used & np.array([f is None for f in fail], dtype=bool))[:, None, None], acc, np.eye(3))
-    _, vv = np.linalg.eigh(acc)
-    with np.errstate(invalid="ignore", divide="ignore"):
-        axis = unit(vv[:, :, -1], axis=-1)
-    axis = face_reference(axis, -refs)
     out: list = []
     for j in range(g):
         if fail[j] is not None:
             out.append(fail[j])
         elif not used[j]:
             out.append(Failure("pose_failed", "no conic given"))
-        elif not np.isfinite(axis[j]).all():
+        elif not finite[j]:
             out.append(Failure("pose_failed", "non-finite joint axis"))
         else:
             out.append(axis[j])

@@ -37,18 +37,21 @@ import numpy as np
 
 from simtest._records import fast_init
 from simtest.decisions import MIN_FIT_POINTS, MAX_AXIS_TO_SPREAD
-from simtest.geometry.conics import Ellipse, _ellipses_of, conic_kind
-from simtest.reconstruct import _fit_kernels
-from simtest.reconstruct._fit_kernels import C1_INV as _C1_INV
-from simtest.reconstruct._fit_kernels import MONOMIALS as _MONOMIALS
-from simtest.reconstruct._fit_kernels import S_INDEX as _S_INDEX
+from simtest.geometry.conics import Ellipse, conic_kind
 from simtest.reconstruct.failures import Failure
 from simtest.tolerances import TOL
 
 #: Reciprocal condition number of the (normalised) linear scatter S3 below which the points are
 #: called collinear: S3 of centred unit-RMS points has eigenvalues O(1) unless they are degenerate.
 _S3_RCOND = 1e-10
-
+#: Exponents (i, j) of the monomials x^i y^j whose sums make the scatter matrix S = D^T D of the
+#: design rows d = (x^2, xy, y^2, x, y, 1): every product d_a d_b is one of these 15.
+_MONOMIALS = [(i, s - i) for s in range(5) for i in range(s, -1, -1)]
+_D_EXPONENTS = [(2, 0), (1, 1), (0, 2), (1, 0), (0, 1), (0, 0)]
+#: ``S[a, b]`` is the sum of monomial ``_S_INDEX[a, b]`` (6, 6).
+_S_INDEX = np.array([[_MONOMIALS.index((a[0] + b[0], a[1] + b[1])) for b in _D_EXPONENTS] for a in _D_EXPONENTS])
+#: Inverse of the constraint matrix C1 of 4ac - b^2 = 1 [eqn. 18 of 1].
+_C1_INV = np.linalg.inv(np.array([[0.0, 0.0, 2.0], [0.0, -1.0, 0.0], [2.0, 0.0, 0.0]]))
 
 
 @fast_init
@@ -105,11 +108,6 @@ def sampson_distance_px(conic: np.ndarray, points_uv: np.ndarray) -> np.ndarray:
     gv = c[..., 1, 0] * u + c[..., 1, 1] * v + c[..., 1, 2]
     f = gu * u + gv * v + c[..., 2, 0] * u + c[..., 2, 1] * v + c[..., 2, 2]
     return np.abs(f) / np.maximum(2.0 * np.hypot(gu, gv), np.finfo(float).tiny)
-
-
-def _segment_sums(values: np.ndarray, starts: np.ndarray) -> np.ndarray:
-    """Sums of ``values`` (M, ...) over the consecutive segments that begin at ``starts`` (k,)."""
-    return np.add.reduceat(values, starts, axis=0)
 
 
 def fit_ellipse(points_uv) -> EllipseFit | Failure:
@@ -198,12 +196,10 @@ def fit_ellipses(points_list) -> list[EllipseFit | Failure]:
     Each set is centred and scaled to unit RMS distance from its mean (Hartley-style
     conditioning). The scatter matrix S = D^T D of the design rows (x^2, xy, y^2, x, y, 1) [eqn.
     17 of 1] is assembled from the sums of the 15 monomials x^i y^j (i + j <= 4) of each set;
-    then come the reduced 3 x 3 eigenproblem [eqn. 28-29 of 1] and the checks. All sets run in
-    one compiled call (:func:`fit_stacked`), a few microseconds per set; the numpy form of the
-    same steps (``_fit_stack``, on the whole stack at once) is the reference and refits the sets
-    the compiled one refuses. A set's fit does not depend on the other sets of the batch (the
-    compiled call fits each set from its own points alone; the numpy form sums each set's own
-    rows and runs LAPACK on each matrix of a stack alone).
+    then come the reduced 3 x 3 eigenproblem [eqn. 28-29 of 1] and the checks. All sets are
+    fitted in one stacked numpy pass (:func:`fit_stacked`). A set's fit does not depend on the
+    other sets of the batch: its sums run over its own rows in order (``np.add.reduceat``) and
+    every later step is elementwise over the stack.
     """
     pts_all = point_sets(points_list)
     if not pts_all:
@@ -211,7 +207,7 @@ def fit_ellipses(points_list) -> list[EllipseFit | Failure]:
     return fit_stacked(np.concatenate(pts_all, axis=0), np.array([len(p) for p in pts_all], dtype=np.int64))
 
 
-def fit_stacked(pts: np.ndarray, counts: np.ndarray, *, compiled: bool = True) -> list[EllipseFit | Failure]:
+def fit_stacked(pts: np.ndarray, counts: np.ndarray) -> list[EllipseFit | Failure]:
     """:func:`fit_ellipses` of point sets given concatenated.
 
     Parameters
@@ -220,9 +216,6 @@ def fit_stacked(pts: np.ndarray, counts: np.ndarray, *, compiled: bool = True) -
         The point sets (u, v), px, one after the other.
     counts : ndarray of shape (k,), int
         Points per set (``counts.sum() == M``).
-    compiled : bool
-        Fit with the compiled kernel (:func:`simtest.reconstruct._fit_kernels.fit_conics`), the
-        numpy form refitting the sets it refuses; False: the numpy form only (the reference).
 
     Returns
     -------
@@ -231,56 +224,160 @@ def fit_stacked(pts: np.ndarray, counts: np.ndarray, *, compiled: bool = True) -
 
     Notes
     -----
-    The two forms take the same steps with the same LAPACK routines; they agree to rounding
-    (``tests/test_fit_kernels.py``). A set the kernel refuses, or hands over, is refitted by the
-    numpy form, whose failure (reason and detail, with its numbers) is the one reported: the
-    failures are those of the numpy form, word for word.
+    All sets are fitted together in numpy: sums over each set's rows by ``np.add.reduceat``,
+    the 3 x 3 algebra of every set at once in closed form (the reduced problem's eigenvectors
+    from the roots of its characteristic cubic, the eigenvalue checks by a Cholesky
+    factorisation of the stack), LAPACK on the few sets where a closed form declines (complex
+    or repeated eigenvalues, a check the factorisation cannot decide). The cost is a fixed
+    ~150 numpy calls per batch plus a few microseconds per set.
     """
     counts = np.asarray(counts, dtype=np.int64)
-    starts = np.concatenate([[0], np.cumsum(counts)[:-1]]).astype(np.int64)
-    out: list = [None] * len(counts)
-    todo = []
-    for i, m in enumerate(counts.tolist()):
-        if m < MIN_FIT_POINTS:
-            out[i] = Failure("too_few_points", f"{m} points < {MIN_FIT_POINTS}")
-        else:
-            todo.append(i)
-    if not todo:
-        return out
-    todo = np.array(todo)
-    redo = todo
-    if compiled:
-        pts = np.ascontiguousarray(pts, dtype=np.float64)
-        status, conic, ell, residual = _fit_kernels.fit_conics(
-            pts, starts[todo], counts[todo], _S3_RCOND, MAX_AXIS_TO_SPREAD, TOL.conic_degenerate_rel)
-        ok = status == _fit_kernels.OK
-        e_ok = ell[ok]
-        # each ellipse's centre and semi-axes rows of two arrays (views, made at once: not two
-        # arrays a fit, a real frame's 1500), float64 as before
-        centres, semi = list(np.ascontiguousarray(e_ok[:, :2])), list(np.ascontiguousarray(e_ok[:, 2:4]))
-        n_of = counts.tolist()
-        for i, c, cen, ax, ang, r in zip(todo[ok].tolist(), conic[ok], centres, semi, e_ok[:, 4].tolist(),
-                                         residual[ok].tolist()):
-            out[i] = EllipseFit(c, Ellipse(cen, ax, ang), r, n_of[i])
-        redo = todo[~ok]
-    if len(redo):
-        rows = np.concatenate([np.arange(starts[i], starts[i] + counts[i]) for i in redo])
-        n = counts[redo]
-        sub_starts = np.concatenate([[0], np.cumsum(n)[:-1]])
-        sub = pts[rows]
-        item = np.repeat(np.arange(len(redo)), n)
-        bad_rows = _segment_sums((~np.isfinite(sub)).any(axis=1).astype(np.int64), sub_starts)
+    pts = np.asarray(pts, dtype=np.float64)
+    few = counts < MIN_FIT_POINTS
+    if not few.any():
         with np.errstate(all="ignore"):
-            fits = _fit_stack(sub, n, sub_starts, item, bad_rows)
-        for i, f in zip(redo.tolist(), fits):
+            return _fit_stack(pts, counts) if len(counts) else []
+    out: list = [None] * len(counts)
+    for i in np.flatnonzero(few).tolist():
+        out[i] = Failure("too_few_points", f"{counts[i]} points < {MIN_FIT_POINTS}")
+    todo = np.flatnonzero(~few)
+    if len(todo):
+        with np.errstate(all="ignore"):
+            fits = _fit_stack(pts[np.repeat(~few, counts)], counts[todo])
+        for i, f in zip(todo.tolist(), fits):
             out[i] = f
     return out
 
 
-def _fit_stack(pts, n, starts, item, bad_rows):
-    """The fits of :func:`fit_ellipses` of the point sets concatenated in ``pts`` (M, 2): set j has
-    ``n[j]`` >= 6 points from row ``starts[j]``; ``item`` (M,) is each row's set."""
+#: Degree i + j of each monomial x^i y^j (:data:`_MONOMIALS`), and where x^2, y^2 are among them.
+_DEGREE = np.array([i + j for i, j in _MONOMIALS], dtype=float)
+_X2, _Y2 = _MONOMIALS.index((2, 0)), _MONOMIALS.index((0, 2))
+#: The monomials of the linear scatter S3's cofactors ``cof[i, j] = S3[i1, j1] S3[i2, j2] -
+#: S3[i1, j2] S3[i2, j1]`` (i1 = i + 1, i2 = i + 2 mod 3, likewise j), S3's entries being
+#: ``_S_INDEX[3 + i, 3 + j]``.
+_CYC1, _CYC2 = np.array([1, 2, 0]), np.array([2, 0, 1])
+_COF_A = _S_INDEX[3 + _CYC1[:, None], 3 + _CYC1[None, :]]
+_COF_B = _S_INDEX[3 + _CYC2[:, None], 3 + _CYC2[None, :]]
+_COF_C = _S_INDEX[3 + _CYC1[:, None], 3 + _CYC2[None, :]]
+_COF_D = _S_INDEX[3 + _CYC2[:, None], 3 + _CYC1[None, :]]
+#: The row pairs whose cross products :func:`_null_vectors` compares.
+_ROW_A, _ROW_B = np.array([0, 0, 1]), np.array([1, 2, 2])
+_EYE3 = np.eye(3)
+_THIRDS = 2.0 * np.pi / 3.0 * np.arange(3)
+_ZERO = np.zeros(1, dtype=np.int64)
+
+
+def _null_vectors(a: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Unit null vectors of a stack of 3 x 3 matrices of rank 2 (..., 3, 3): the largest cross
+    product of two rows (orthogonal to every row), sign arbitrary; and which are defined (...,)
+    bool (a nonzero finite cross product). The eigenvector of an eigenvalue lambda of ``m`` is
+    the null vector of ``m - lambda I``."""
+    ra, rb = a[..., _ROW_A, :], a[..., _ROW_B, :]
+    cr = ra[..., _CYC1] * rb[..., _CYC2] - ra[..., _CYC2] * rb[..., _CYC1]  # (..., 3 pairs, 3)
+    n2 = (cr * cr).sum(axis=-1)
+    flat = n2.reshape(-1, 3)
+    best = flat.argmax(axis=1) + np.arange(0, flat.size, 3)
+    nb = flat.reshape(-1)[best]
+    ok = (nb > 0) & (nb < np.inf)
+    v = cr.reshape(-1, 3)[best] / np.sqrt(nb)[:, None]
+    return v.reshape(a.shape[:-1]), ok.reshape(a.shape[:-2])
+
+
+def _cubic_roots(m: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The eigenvalues (k, 3) of 3 x 3 matrices (k, 3, 3) with three real distinct ones, from the
+    characteristic cubic by the trigonometric formula (Cardano's three real roots), and where
+    that holds (k,) bool (False for complex, repeated or non-finite roots)."""
+    sh = (m[:, 0, 0] + m[:, 1, 1] + m[:, 2, 2]) / 3.0
+    b = m - sh[:, None, None] * _EYE3
+    # b's cubic mu^3 - p mu - q = 0 (mu = lambda - tr/3): p = tr(b^2) / 2 (b is traceless), q = det b
+    p = (b * b.transpose(0, 2, 1)).sum(axis=2).sum(axis=1) / 6.0  # p / 3
+    r = np.sqrt(p)
+    c = np.linalg.det(b) / (2.0 * r * r * r)
+    ok = (p > 0) & (np.abs(c) < 1.0)  # False for NaN
+    lam = sh[:, None] + (2.0 * r)[:, None] * np.cos((np.arccos(c) / 3.0)[:, None] - _THIRDS)
+    return lam, ok
+
+
+def _eigh2(a, b, c):
+    """The eigenvalues (lo <= hi) of the symmetric 2 x 2 matrices [[a, b], [b, c]] (arrays) and
+    the unit eigenvector (x, y) of lo, in closed form (the smaller-magnitude eigenvalue as the
+    determinant over the larger: no cancellation; the vector's sign arbitrary; (1, 0) for a
+    multiple of the identity)."""
+    mid = 0.5 * (a + c)
+    half = np.hypot(0.5 * (a - c), b)
+    big = mid + np.copysign(half, mid)
+    small = (a * c - b * b) / big  # NaN where big == 0 (the zero matrix): handled by the caller
+    lo, hi = np.minimum(small, big), np.maximum(small, big)
+    # the eigenvector of lo: the longer of (b, lo - a) and (lo - c, b)
+    x, y, x1 = b, lo - a, lo - c
+    second = x1 * x1 > y * y
+    if second.any():
+        x, y = np.where(second, x1, x), np.where(second, b, y)
+    n = np.hypot(x, y)
+    if not (n > 0).all():
+        x, y, n = np.where(n > 0, x, 1.0), np.where(n > 0, y, 0.0), np.where(n > 0, n, 1.0)
+    return lo, hi, x / n, y / n
+
+
+def _positive_definite(s: np.ndarray, tau: np.ndarray, which: np.ndarray) -> np.ndarray:
+    """Where ``which`` (k,) bool: whether the symmetric ``s - tau I`` (k, n, n) has a Cholesky
+    factorisation, i.e. its least eigenvalue (as LAPACK computes it) is certainly above ``tau``
+    less ~1e-14 of ``s``'s trace [Higham, thm. 10.3]. One LAPACK call for the stack; where one
+    fails, the factorisation written out over the stack says which (False elsewhere)."""
+    n = s.shape[1]
+    shifted = s - tau[:, None, None] * np.eye(n)
+    if not which.all():
+        shifted[~which] = np.eye(n)
+    try:
+        np.linalg.cholesky(shifted)
+        return which
+    except np.linalg.LinAlgError:
+        pass
+    low = np.zeros_like(shifted)
+    ok = which.copy()
+    for j in range(n):
+        d = shifted[:, j, j] - (low[:, j, :j] ** 2).sum(axis=1)
+        ok &= d > 0
+        root = np.sqrt(np.where(ok, d, 1.0))
+        low[:, j, j] = root
+        low[:, j + 1:, j] = (shifted[:, j + 1:, j] - (low[:, j + 1:, :j] * low[:, j, None, :j]).sum(axis=2)) / root[:, None]
+    return ok
+
+
+def _ellipse_params(c: np.ndarray):
+    """Centres (k, 2), semi-axes (a >= b) (k, 2), angles (k,) rad and which are real ellipses
+    (k,) bool of symmetric finite conics (k, 3, 3), as ``conics._ellipses_of`` classifies and
+    measures them (in the frame centred on the conic's centre it reads diag-block (A2, f0)), in
+    closed form (the 2 x 2 quadratic part's eigen-decomposition and centre)."""
+    eps = TOL.conic_degenerate_rel
+    norm = np.sqrt((c * c).sum(axis=2).sum(axis=1))
+    # unit norm, the quadratic part made positive (trace >= 0)
+    cn = c / np.copysign(norm, c[:, 0, 0] + c[:, 1, 1])[:, None, None]
+    a, b, d, g, h = cn[:, 0, 0], cn[:, 0, 1], cn[:, 1, 1], cn[:, 0, 2], cn[:, 1, 2]
+    lo, hi, vx, vy = _eigh2(a, b, d)  # ascending: lo gives the major axis
+    lam_max = np.maximum(np.abs(lo), np.abs(hi))
+    centred = (lam_max > eps) & (np.abs(lo * hi) > eps * lam_max**2)  # else no centre (or NaN)
+    det = a * d - b * b
+    cu, cv = (b * h - d * g) / det, (b * g - a * h) / det
+    cross = cn[:, 2, 0] * cu + cn[:, 2, 1] * cv
+    f0 = cn[:, 2, 2] + cross
+    point = np.abs(f0) <= eps * np.maximum(lam_max, np.abs(cn[:, 2, 2]) + np.abs(cross))
+    ok = centred & ~point & (lo * hi > 0) & (f0 < 0)  # not a point, hyperbola or imaginary
+    angle = np.arctan2(vy, vx)
+    angle += np.pi * ((angle <= -np.pi / 2).astype(float) - (angle > np.pi / 2))
+    axes = np.sqrt(-f0[:, None] / np.column_stack([lo, hi]))
+    return np.column_stack([cu, cv]), axes, angle, ok
+
+
+def _fit_stack(pts: np.ndarray, n: np.ndarray) -> list[EllipseFit | Failure]:
+    """The fits of :func:`fit_stacked` of the point sets concatenated in ``pts`` (M, 2), set j
+    having ``n[j]`` >= 6 points (the method: :func:`fit_ellipses`' Notes)."""
     k = len(n)
+    if k == 1:
+        starts = _ZERO
+    else:
+        starts = np.zeros(k, dtype=np.int64)
+        np.cumsum(n[:-1], out=starts[1:])
     fail: list = [None] * k
     alive = np.ones(k, dtype=bool)  # no failure yet
 
@@ -291,105 +388,144 @@ def _fit_stack(pts, n, starts, item, bad_rows):
                 fail[j] = Failure(reason, detail(j))
             alive[mask] = False
 
-    refuse(bad_rows > 0, "non_finite_points", lambda j: f"{int(bad_rows[j])} of {int(n[j])} points")
-    clean = np.where(np.isfinite(pts), pts, 0.0)
-    mean = _segment_sums(clean, starts) / n[:, None]
-    centred = clean - mean[item]
-    scale = np.sqrt(_segment_sums((centred**2).sum(axis=1), starts) / n)
+    if not np.isfinite(pts).all():
+        finite = np.isfinite(pts)
+        bad_rows = np.add.reduceat((~finite.all(axis=1)).astype(np.int64), starts)
+        refuse(bad_rows > 0, "non_finite_points", lambda j: f"{int(bad_rows[j])} of {int(n[j])} points")
+        pts = np.where(finite, pts, 0.0)
+    mean = np.add.reduceat(pts, starts, axis=0) / n[:, None]
+    # powers x^i, y^i (i = 0..4) of the centred points (5, 2, M), each row contiguous
+    pw = np.empty((5, 2, len(pts)))
+    pw[0] = 1.0
+    np.subtract(pts.T, np.repeat(mean, n, axis=0).T, out=pw[1])
+    np.multiply(pw[1], pw[1], out=pw[2])
+    np.multiply(pw[2], pw[1], out=pw[3])
+    np.multiply(pw[2], pw[2], out=pw[4])
+    mono = np.empty((len(_MONOMIALS), len(pts)))
+    for q, (i, j) in enumerate(_MONOMIALS):
+        np.multiply(pw[i, 0], pw[j, 1], out=mono[q])
+    sums = np.add.reduceat(mono, starts, axis=1).T  # (k, 15)
+    # the points scaled to unit RMS distance from their mean: x^i y^j sums over scale^(i + j)
+    scale2 = (sums[:, _X2] + sums[:, _Y2]) / n
+    scale = np.sqrt(scale2)
     refuse(~(scale > 0.0), "degenerate_points", lambda j: "all points coincide")
-    safe_scale = np.where(scale > 0.0, scale, 1.0)
-    x = centred[:, 0] / safe_scale[item]
-    y = centred[:, 1] / safe_scale[item]
-
+    sums = sums / scale[:, None] ** _DEGREE
+    spread = np.sqrt(np.maximum.reduceat(pw[2, 0] + pw[2, 1], starts) / scale2)
     # Scatter matrix S = D^T D [eqn. 17] from [1], from the sums of the monomials x^i y^j
-    xp = [np.ones_like(x), x, x * x, x * x * x, (x * x) * (x * x)]
-    yp = [np.ones_like(y), y, y * y, y * y * y, (y * y) * (y * y)]
-    mono = np.stack([xp[i] * yp[j] for i, j in _MONOMIALS], axis=1)
-    s_full = _segment_sums(mono, starts)[:, _S_INDEX]  # (k, 6, 6)
+    s_full = sums[:, _S_INDEX]  # (k, 6, 6)
     s1, s2, s3 = s_full[:, :3, :3], s_full[:, :3, 3:], s_full[:, 3:, 3:]
-    if not alive.all():
-        s3 = np.where(alive[:, None, None], s3, np.eye(3))
-    ev3 = np.linalg.eigvalsh(s3)
-    refuse(~(ev3[:, 0] > _S3_RCOND * ev3[:, -1]), "degenerate_points",
-           lambda j: f"linear scatter is singular (eigenvalues {ev3[j].tolist()})")
-    if not alive.all():
-        s3 = np.where(alive[:, None, None], s3, np.eye(3))
-    # T = -S3^-1 S2^T, so that a2 = T a1 [eqn. 24] from [1]
-    t = -np.linalg.solve(s3, np.swapaxes(s2, 1, 2))
+    # Collinear points: the linear scatter's eigenvalues ev3[0] <= s3_rcond ev3[2]. S3 is a Gram
+    # matrix, so ev3[0] >= det / (tr / 2)^2 and ev3[2] <= tr: most sets pass by orders of
+    # magnitude on that bound (the margin covers the rounding of det); LAPACK decides the others.
+    cof = sums[:, _COF_A] * sums[:, _COF_B] - sums[:, _COF_C] * sums[:, _COF_D]  # S3's, symmetric
+    det = (s3[:, 0] * cof[:, 0]).sum(axis=1)
+    tr3 = s3[:, 0, 0] + s3[:, 1, 1] + s3[:, 2, 2]
+    unsure = ~(4.0 * det > (_S3_RCOND * (1 + 1e-9) + 2.1e-10) * tr3 * tr3 * tr3) & alive
+    if unsure.any():
+        ev3 = np.full((k, 3), np.nan)
+        ev3[unsure] = np.linalg.eigvalsh(s3[unsure])
+        refuse(unsure & ~(ev3[:, 0] > _S3_RCOND * ev3[:, -1]), "degenerate_points",
+               lambda j: f"linear scatter is singular (eigenvalues {ev3[j].tolist()})")
+    # T = -S3^-1 S2^T, so that a2 = T a1 [eqn. 24] from [1] (S3^-1: cofactors over determinant)
+    t = -(cof / det[:, None, None]) @ s2.transpose(0, 2, 1)
     # Reduced scatter matrix M = C1^-1 (S1 + S2 T) [eqn. 29] from [1]
     m = _C1_INV @ (s1 + s2 @ t)
     usable = alive & np.isfinite(m).all(axis=(1, 2))
     if not usable.all():
-        m = np.where(usable[:, None, None], m, np.eye(3))
-    # M a1 = lambda a1: eigenvectors of the reduced problem [eqn. 28] from [1]
-    eigvec = np.real(np.linalg.eig(m)[1])
+        m[~usable] = _EYE3
+    # M a1 = lambda a1: eigenvectors of the reduced problem [eqn. 28] from [1], as columns
+    lam, closed = _cubic_roots(m)
+    vec, defined = _null_vectors(m[:, None] - lam[:, :, None, None] * _EYE3)
+    eigvec = vec.transpose(0, 2, 1)
+    lapack = ~(closed & defined.all(axis=1)) & usable
+    if lapack.any():  # complex or repeated eigenvalues
+        eigvec[lapack] = np.real(np.linalg.eig(m[lapack])[1])
     # The ellipse solution satisfies the constraint a1^T C1 a1 = 4ac - b^2 > 0 [eqn. 14/30] from [1]
-    cond = 4.0 * eigvec[:, 0] * eigvec[:, 2] - eigvec[:, 1] ** 2  # (k, 3): one per eigenvector
-    valid = cond > 0
+    valid = 4.0 * eigvec[:, 0] * eigvec[:, 2] - eigvec[:, 1] * eigvec[:, 1] > 0  # (k, 3)
+    if not usable.all():
+        valid &= usable[:, None]
     refuse(~valid.any(axis=1), "not_an_ellipse", lambda j: "no eigenvector meets 4ac - b^2 > 0")
     # coefficient vectors (a, b, c, d, e, f) of the three eigenvectors [eqn. 19] from [1]
     cand = np.concatenate([eigvec, t @ eigvec], axis=1)  # (k, 6, 3)
     # normally one is valid; with rounding keep the smallest algebraic residual |D a|^2 = a^T S a
-    resid = np.einsum("kic,kij,kjc->kc", cand, s_full, cand)
-    best = np.argmin(np.where(valid, resid, np.inf), axis=1)
-    a_vec = cand[np.arange(k), :, best]  # (k, 6)
+    resid = (cand * (s_full @ cand)).sum(axis=1)
+    resid[~valid] = np.inf
+    best = resid.argmin(axis=1) + np.arange(0, 3 * k, 3)
+    a_vec = cand.transpose(0, 2, 1).reshape(-1, 6)[best]  # (k, 6)
+    _guard(s_full, a_vec, alive, refuse)
 
-    # Ellipse-specific fitting always returns an ellipse, even for points on a hyperbola or a line
-    # pair. Guard: the unconstrained algebraic fit (smallest eigenvector of S [eqn. 17] from [1])
-    # is the exact conic of noise-free data; if it is not an ellipse and explains the points
-    # clearly better (algebraic residual 4x smaller), the data are not an ellipse.
-    r_ellipse = np.einsum("ki,kij,kj->k", a_vec, s_full, a_vec) / np.einsum("ki,ki->k", a_vec, a_vec)
-    s_safe = s_full if alive.all() else np.where(alive[:, None, None], s_full, np.eye(6))
-    w_full = np.linalg.eigvalsh(s_safe)
-    suspect = alive & (r_ellipse > 1e-24) & (r_ellipse > 3.96 * np.maximum(w_full[:, 0] - 1e-12 * w_full[:, -1], 0.0))
-    for j in np.flatnonzero(suspect):  # eigh's own eigenvalue and vector where it matters
-        w_j, v_j = np.linalg.eigh(s_safe[j])
+    # Point conic in normalised coordinates, then back to pixels: C = T^T A T with x' = T x.
+    a_norm = np.ascontiguousarray(a_vec[:, _CONIC_OF]) * _CONIC_HALVES
+    tmat = np.zeros((k, 3, 3))
+    tmat[:, 0, 0] = tmat[:, 1, 1] = 1 / scale
+    tmat[:, :2, 2] = -mean / scale[:, None]
+    tmat[:, 2, 2] = 1.0
+    conic = tmat.transpose(0, 2, 1) @ a_norm @ tmat
+    conic = conic + conic.transpose(0, 2, 1)  # symmetric (the factor 1/2 goes in the norm)
+    norm = np.sqrt((conic * conic).sum(axis=2).sum(axis=1))
+    conic /= np.copysign(norm, conic[:, 0, 0] + conic[:, 1, 1])[:, None, None]
+    refuse(~np.isfinite(conic).all(axis=(1, 2)), "degenerate_points", lambda j: "non-finite conic")
+    # Ellipse parameters from the conic of the *normalised* points, then back to pixels: a unit-norm
+    # pixel conic of a few-px ellipse ~10^3 px from the origin has singular values down to ~1e-13,
+    # where a degeneracy test in pixel coordinates would misclassify it; the normalised conic is
+    # O(1)-conditioned for any ellipse.
+    centre, axes, angle, is_ellipse = _ellipse_params(a_norm)
+    refuse(~is_ellipse, "not_an_ellipse", lambda j: "the fitted conic is not a real ellipse")
+    # Points on a line or two parallel lines are fitted exactly by ever longer ellipses: an ellipse
+    # far larger than the points' spread is not determined by them.
+    refuse(axes[:, 0] > MAX_AXIS_TO_SPREAD * spread, "not_an_ellipse", lambda j: (
+        f"unbounded: semi-major axis {scale[j] * axes[j, 0]:.4g} px is more than "
+        f"{MAX_AXIS_TO_SPREAD:g} times the points' spread (a line or parallel lines)"))
+    # RMS Sampson distance of each set's points to its conic, px (sampson_distance_px, per row)
+    c = np.repeat(conic.reshape(k, 9)[:, _SAMPSON_TERMS].T, n, axis=1)  # c00 c01 c02 c11 c12 c22 (6, M)
+    u, v = pts.T
+    gu = c[0] * u + c[1] * v + c[2]
+    gv = c[1] * u + c[3] * v + c[4]
+    f = (gu + c[2]) * u + (gv + c[4]) * v + c[5]
+    dist2 = f * f / np.maximum(4.0 * (gu * gu + gv * gv), np.finfo(float).tiny)
+    residual = np.sqrt(np.add.reduceat(dist2, starts) / n).tolist()
+    # each ellipse's centre and semi-axes rows of two arrays (views, made at once: not two arrays
+    # a fit, a real frame's 1500)
+    centres = list(mean + scale[:, None] * centre)
+    semi = list(scale[:, None] * axes)
+    if alive.all():
+        return [EllipseFit(c_j, Ellipse(m_j, s_j, ang), r, nj) for c_j, m_j, s_j, ang, r, nj in
+                zip(conic, centres, semi, angle.tolist(), residual, n.tolist())]
+    return [fail[j] if fail[j] is not None else EllipseFit(conic[j], Ellipse(centres[j], semi[j], ang), residual[j], nj)
+            for j, (ang, nj) in enumerate(zip(angle.tolist(), n.tolist()))]
+
+
+#: The conic matrix (3, 3) of a coefficient vector (a, b, c, d, e, f): its entries' indices and halves.
+_CONIC_OF = np.array([[0, 1, 3], [1, 2, 4], [3, 4, 5]])
+_CONIC_HALVES = np.array([[1.0, 0.5, 0.5], [0.5, 1.0, 0.5], [0.5, 0.5, 1.0]])
+#: Flat indices of c00, c01, c02, c11, c12, c22 in a 3 x 3 conic.
+_SAMPSON_TERMS = np.array([0, 1, 2, 4, 5, 8])
+
+
+def _guard(s_full: np.ndarray, a_vec: np.ndarray, alive: np.ndarray, refuse) -> None:
+    """Ellipse-specific fitting always returns an ellipse, even for points on a hyperbola or a line
+    pair. Guard: the unconstrained algebraic fit (smallest eigenvector of S [eqn. 17] from [1]) is
+    the exact conic of noise-free data; if it is not an ellipse and explains the points clearly
+    better (algebraic residual 4x smaller), the data are not an ellipse. Most sets' S has its
+    least eigenvalue far above the ellipse's residual, which a Cholesky factorisation shows
+    without the eigenvalues."""
+    r_ellipse = (a_vec * (s_full @ a_vec[:, :, None])[:, :, 0]).sum(axis=1) / (a_vec * a_vec).sum(axis=1)
+    check = alive & (r_ellipse > 1e-24)
+    tr6 = (s_full[:, 0, 0] + s_full[:, 1, 1]) + (s_full[:, 2, 2] + s_full[:, 3, 3]) + (s_full[:, 4, 4] + s_full[:, 5, 5])
+    check &= ~_positive_definite(s_full, r_ellipse / 3.96 * (1 + 1e-9) + 2.1e-10 * tr6, check)
+    if not check.any():
+        return
+    idx = np.flatnonzero(check)
+    w_full = np.linalg.eigvalsh(s_full[idx])
+    for j, w in zip(idx.tolist(), w_full):
+        if not r_ellipse[j] > 3.96 * max(w[0] - 1e-12 * w[-1], 0.0):
+            continue
+        w_j, v_j = np.linalg.eigh(s_full[j])  # eigh's own eigenvalue and vector where it matters
         r_gen = max(float(w_j[0]), 0.0)
         if r_ellipse[j] > 4.0 * r_gen:
             g = v_j[:, 0]
             g_conic = np.array([[g[0], g[1] / 2, g[3] / 2], [g[1] / 2, g[2], g[4] / 2], [g[3] / 2, g[4] / 2, g[5]]])
             kind = conic_kind(g_conic)
             if kind != "ellipse":
-                refuse(np.arange(k) == j, "not_an_ellipse", lambda _: (
+                refuse(np.arange(len(alive)) == j, "not_an_ellipse", lambda _: (
                     f"the points fit a {kind} better (algebraic residual {r_gen:.3g} vs {r_ellipse[j]:.3g})"))
-
-    # Point conic in normalised coordinates, then back to pixels: C = T^T A T with x' = T x.
-    a, b, c, d, e, f = a_vec.T
-    a_norm = np.stack([np.stack([a, b / 2, d / 2], 1), np.stack([b / 2, c, e / 2], 1),
-                       np.stack([d / 2, e / 2, f], 1)], 1)
-    tmat = np.zeros((k, 3, 3))
-    tmat[:, 0, 0] = tmat[:, 1, 1] = 1 / safe_scale
-    tmat[:, 0, 2] = -mean[:, 0] / safe_scale
-    tmat[:, 1, 2] = -mean[:, 1] / safe_scale
-    tmat[:, 2, 2] = 1.0
-    conic = np.swapaxes(tmat, 1, 2) @ a_norm @ tmat
-    conic = 0.5 * (conic + np.swapaxes(conic, 1, 2))
-    conic = conic / np.sqrt(np.einsum("kij,kij->k", conic, conic))[:, None, None]
-    conic = np.where((conic[:, 0, 0] + conic[:, 1, 1] < 0)[:, None, None], -conic, conic)
-    refuse(~np.isfinite(conic).all(axis=(1, 2)), "degenerate_points", lambda j: "non-finite conic")
-    # Ellipse parameters from the conic of the *normalised* points, then back to pixels: a unit-norm
-    # pixel conic of a few-px ellipse ~10^3 px from the origin has singular values down to ~1e-13,
-    # where a degeneracy test in pixel coordinates would misclassify it; the normalised conic is
-    # O(1)-conditioned for any ellipse.
-    usable = alive & np.isfinite(a_norm).all(axis=(1, 2))
-    centre, axes, angle, is_ellipse = _ellipses_of(
-        a_norm if usable.all() else np.where(usable[:, None, None], a_norm, np.eye(3)))
-    refuse(~is_ellipse, "not_an_ellipse", lambda j: "the fitted conic is not a real ellipse")
-    # Points on a line or two parallel lines are fitted exactly by ever longer ellipses: an ellipse
-    # far larger than the points' spread is not determined by them.
-    spread = np.sqrt(np.maximum.reduceat(x * x + y * y, starts))
-    refuse(axes[:, 0] > MAX_AXIS_TO_SPREAD * spread, "not_an_ellipse", lambda j: (
-        f"unbounded: semi-major axis {scale[j] * axes[j, 0]:.4g} px is more than "
-        f"{MAX_AXIS_TO_SPREAD:g} times the points' spread (a line or parallel lines)"))
-    # RMS Sampson distance of each set's points to its conic, px
-    dist = sampson_distance_px(conic[item], clean)
-    residual = np.sqrt(_segment_sums(dist**2, starts) / n)
-    out = []
-    for j in range(k):
-        if fail[j] is not None:
-            out.append(fail[j])
-            continue
-        ellipse = Ellipse(center=mean[j] + scale[j] * centre[j], semi_axes=scale[j] * axes[j],
-                          angle_rad=float(angle[j]))
-        out.append(EllipseFit(conic[j], ellipse, float(residual[j]), int(n[j])))
-    return out
