@@ -14,19 +14,8 @@ from simtest.geometry.conics import plane_basis
 from simtest.geometry.lights import LightRig
 from simtest.tolerances import TOL
 from simtest.reconstruct.lightaware.estimate import LightAwareEstimate
-from simtest.reconstruct.lightaware.model import (
-    _mean_light,
-    _rays,
-    _rig_arrays,
-    _roi_grid,
-    _roi_samples,
-)
-from simtest.reconstruct.lightaware.solve import (
-    _covariance,
-    _hac_covariance,
-    _implausible,
-    _patch_verdict,
-)
+from simtest.reconstruct.lightaware.model import _mean_light, _rays, _rig_arrays, _roi_grid, _roi_samples
+from simtest.reconstruct.lightaware.solve import _covariance, _hac_covariance, _implausible, _patch_verdict
 
 
 
