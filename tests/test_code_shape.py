@@ -27,14 +27,12 @@ LONG_MODULES = {
     "reconstruct/_kernels.py": 1582,  # the isophote growth's compiled loop (branch s19-iso: 3-5x slower on libraries)
     "render/render.py": 1160,
     "dataset/generate.py": 830,
-    "reconstruct/recommend.py": 818,
 }
 #: (module, function) -> its lines today
 LONG_FUNCTIONS = {
     ("reconstruct/_kernels.py", "_contour_by_walk"): 151,
     ("reconstruct/_kernels.py", "grown_isophotes"): 155,
     ("render/simfit.py", "fit_scene"): 186,
-    ("reconstruct/recommend.py", "light_aware_estimates"): 219,
 }
 #: the modules that may import numba: issue 64 allows one small compiled module in the end
 NUMBA_MODULES = {"reconstruct/_kernels.py", "reconstruct/_fit_kernels.py", "reconstruct/_estimator_kernels.py"}
