@@ -50,7 +50,8 @@ import numpy as np
 from scipy.optimize import minimize
 
 from simtest.constants import MAX_SEED
-from simtest.render.render import TISSUE_COVERAGE, render_scene
+from simtest.render.outputs import TISSUE_COVERAGE
+from simtest.render.render import render_scene
 from simtest.render.sensor import video_frame
 
 from simtest.render.simreal import (
