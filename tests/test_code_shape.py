@@ -30,7 +30,6 @@ LONG_MODULES = {
 LONG_FUNCTIONS = {
     ("reconstruct/_kernels.py", "_contour_by_walk"): 151,
     ("reconstruct/_kernels.py", "grown_isophotes"): 155,
-    ("render/simfit.py", "fit_scene"): 186,
 }
 #: the modules that may import numba: issue 64 allows one small compiled module in the end
 NUMBA_MODULES = {"reconstruct/_kernels.py", "reconstruct/_fit_kernels.py", "reconstruct/_estimator_kernels.py"}
