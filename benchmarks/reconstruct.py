@@ -60,7 +60,7 @@ from simtest.reconstruct.frames import open_frames, reconstruct_frames, write_fr
 from simtest.reconstruct.isophote import extract_isophote
 from simtest.reconstruct.lightaware import isocurve_fit, photometric_fit
 from simtest.reconstruct.pipeline import reconstruct, reconstruct_roi, reconstruct_rois
-from simtest.reconstruct.recommend import with_light_aware
+from simtest.reconstruct.light_fits import with_light_aware
 from simtest.resources import real_dir
 
 #: Worker processes of the video row: the 2-core VM's cores.

@@ -25,18 +25,11 @@ PACKAGE_LINES_CEILING = 48_035
 #: module -> its lines today (to be split by job as the per-frame tables replace them)
 LONG_MODULES = {
     "reconstruct/_kernels.py": 1582,  # the isophote growth's compiled loop (branch s19-iso: 3-5x slower on libraries)
-    "reconstruct/pipeline.py": 1581,  # split by job on branch s19-iso, with the growth above
-    "render/render.py": 1160,
-    "dataset/generate.py": 830,
-    "reconstruct/recommend.py": 818,
 }
 #: (module, function) -> its lines today
 LONG_FUNCTIONS = {
     ("reconstruct/_kernels.py", "_contour_by_walk"): 151,
     ("reconstruct/_kernels.py", "grown_isophotes"): 155,
-    ("reconstruct/pipeline.py", "reconstruct"): 182,
-    ("render/simfit.py", "fit_scene"): 186,
-    ("reconstruct/recommend.py", "light_aware_estimates"): 219,
 }
 #: the modules that may import numba: issue 64 allows one small compiled module in the end
 NUMBA_MODULES = {"reconstruct/_kernels.py"}

@@ -174,7 +174,7 @@ def test_fit_frames_and_bp_rays_of_a_frame_are_those_of_each_highlight_alone(cam
     """reconstruct() maps every candidate's BP to its ray and fit frame in one call of the camera
     model; each must be, to the last bit, what one highlight gets alone (the model's inverse
     iterates point by point, the rotations are element-wise)."""
-    from simtest.reconstruct.pipeline import _bp_ray, _bp_rays
+    from simtest.reconstruct.frame_prep import _bp_ray, _bp_rays
 
     rng = np.random.default_rng(5)
     uv = np.column_stack([rng.uniform(0, 639, 40), rng.uniform(0, 479, 40)])

@@ -73,7 +73,7 @@ def test_the_gaussian_radius_is_that_of_opencvs_kernel(sigma, dtype):
 
 def test_the_smoothing_blocks_are_the_same_bytes_for_both_floats():
     # the pipeline's strips (float64) and the paper protocol's regions (float32) align to one width
-    from simtest.reconstruct.pipeline import SMOOTH_STRIP_ALIGN
+    from simtest.reconstruct.isophotes import SMOOTH_STRIP_ALIGN
     from simtest.simulate.paper import SMOOTH_ALIGN
 
     assert SMOOTH_STRIP_ALIGN * 8 == SMOOTH_ALIGN * 4 == constants.SMOOTH_BLOCK_BYTES

@@ -22,7 +22,7 @@ from simtest.reconstruct.detect import (
     validate_image,
 )
 from simtest.reconstruct.detect_pixels import _gray_and_grey, _gray_native, _median
-from simtest.reconstruct.pipeline import _is_gray
+from simtest.reconstruct.frame_prep import _is_gray
 
 
 def gaussian(shape, centre_uv, sigma, peak=1.0, aspect=1.0):
@@ -423,9 +423,9 @@ def test_detection_hands_over_its_smoothing_and_the_pipeline_smooths_the_unround
 
     import cv2
 
-    from simtest.reconstruct import pipeline
+    from simtest.reconstruct import frame_prep, pipeline
     from simtest.reconstruct.detect import luma
-    from simtest.reconstruct.pipeline import _frame_luma_smoothing
+    from simtest.reconstruct.frame_prep import _frame_luma_smoothing
 
     rng = np.random.default_rng(5)
     img = rng.integers(0, 256, (40, 60, 3), dtype=np.uint8)
@@ -459,14 +459,14 @@ def test_detection_hands_over_its_smoothing_and_the_pipeline_smooths_the_unround
         return real_blur(src, *a, **k)
 
     seen = {}
-    real_with = pipeline._Frame.with_detection_smoothing
+    real_with = frame_prep._Frame.with_detection_smoothing
 
     def spy(self, smoothed):
         seen["smoothed"] = smoothed
         return real_with(self, smoothed)
 
     with mock.patch.object(cv2, "GaussianBlur", counting), \
-            mock.patch.object(pipeline._Frame, "with_detection_smoothing", spy):
+            mock.patch.object(frame_prep._Frame, "with_detection_smoothing", spy):
         pipeline.reconstruct(frame, K)
     assert blurs == [np.float32]
     assert seen["smoothed"] is not None and not seen["smoothed"].flags.writeable

@@ -21,7 +21,7 @@ from benchmarks import inputs as bench
 from simtest.reconstruct import io, table
 from simtest.reconstruct.frames import write_frames_parquet
 from simtest.reconstruct.pipeline import reconstruct
-from simtest.reconstruct.recommend import with_light_aware
+from simtest.reconstruct.light_fits import with_light_aware
 from simtest.reconstruct.settings import ReconSettings
 from test_lightaware import one_light, plane_case
 

@@ -140,7 +140,7 @@ def test_ellipse_conic_in_pixels_through_K():
 def test_pipeline_hot_path_forms_agree_with_geometry(seed):
     # simtest.reconstruct.pipeline computes C' and the BP ray inline (K validated once per call);
     # they must equal simtest.geometry's functions to rounding.
-    from simtest.reconstruct.pipeline import _bp_ray, _normalised_conic
+    from simtest.reconstruct.frame_prep import _bp_ray, _normalised_conic
 
     centre, normal, radius, _ = random_circle_pose(seed, key=98)
     C = project_circle(centre, normal, radius, K)

@@ -20,7 +20,7 @@ from simtest.cli import app
 from simtest.geometry.response import video_response
 from simtest.reconstruct import reconstruct
 from simtest.reconstruct.io import estimates_document
-from simtest.reconstruct.recommend import with_light_aware
+from simtest.reconstruct.light_fits import with_light_aware
 from simtest.render import render_scene, write_render
 from simtest.resources import bundled_scene_path
 from simtest.scene import load_scene, scene_from_dict, with_overrides

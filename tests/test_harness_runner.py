@@ -193,7 +193,7 @@ def test_the_scored_detections_fitted_alone_get_what_fitting_every_detection_giv
     # those of fitting all ten, and the unmatched ones are not fitted
     from benchmarks.inputs import synthetic_frame
     from simtest.reconstruct import reconstruct
-    from simtest.reconstruct.recommend import with_light_aware
+    from simtest.reconstruct.light_fits import with_light_aware
     from simtest.geometry.lights import Light, LightRig
 
     frame, K, _ = synthetic_frame()

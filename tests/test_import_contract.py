@@ -188,7 +188,7 @@ def test_importing_every_module_of_geometry_specular_and_reconstruct_loads_no_mi
 
 
 #: Modules that may be imported inside a function: the Mitsuba plugins, which subclass Mitsuba's
-#: classes when imported (``simtest.render.render.choose_variant`` imports them once a variant is
+#: classes when imported (``simtest.render.scene_load.choose_variant`` imports them once a variant is
 #: set). The optional back-ends themselves go through ``simtest._lazy.require``, a call.
 LAZY_MODULES = {"simtest.render.integrator", "simtest.render.phong"}
 

@@ -348,7 +348,7 @@ def test_the_border_level_of_an_roi_smoothed_alone_from_its_ring(seed, channels,
     import cv2
 
     from simtest.reconstruct.detect import luma
-    from simtest.reconstruct.pipeline import _LUMA_W, _gaussian_kernel
+    from simtest.reconstruct.frame_prep import _LUMA_W, _gaussian_kernel
 
     rng = np.random.default_rng(seed)
     img = rng.uniform(0, 255, (50, 50, channels))
@@ -448,7 +448,7 @@ def test_smoothed_border_medians_are_each_rois_own():
 @given(st.integers(0, 2**32 - 1), st.integers(1, 12), st.integers(1, 12), st.sampled_from([np.uint8, np.uint16]),
        st.integers(-1, 2))
 def test_is_gray_packed_is_is_gray(seed, h, w, dtype, channel):
-    """The packed rows' test (pipeline._is_gray's) answers as the per-pixel one and as numpy, on
+    """The packed rows' test (frame_prep._is_gray's) answers as the per-pixel one and as numpy, on
     gray frames and on gray frames with one pixel's channel changed (anywhere: the row ends, the
     last pixel)."""
     rng = np.random.default_rng(seed)
@@ -460,6 +460,6 @@ def test_is_gray_packed_is_is_gray(seed, h, w, dtype, channel):
     want = bool((img[..., 0] == img[..., 1]).all() and (img[..., 0] == img[..., 2]).all())
     assert bool(_kernels.is_gray_packed(img.reshape(h, -1))) == want
     assert bool(_kernels.is_gray(img)) == want
-    from simtest.reconstruct.pipeline import _is_gray
+    from simtest.reconstruct.frame_prep import _is_gray
 
     assert _is_gray(img) == want and _is_gray(img[:, ::-1]) == want  # packed, and not contiguous

@@ -15,7 +15,8 @@ from simtest.reconstruct import reconstruct_roi
 from simtest.reconstruct import lightaware as la
 from simtest.reconstruct.isophote import extract_isophote
 from simtest.reconstruct.pipeline import reconstruct
-from simtest.reconstruct.recommend import recommend, with_light_aware
+from simtest.reconstruct.recommend import recommend
+from simtest.reconstruct.light_fits import with_light_aware
 from simtest.reconstruct.settings import ReconSettings
 from simtest.simulate.analytic import phong_plane_image, phong_sphere_image
 from simtest.simulate.offset import rig_plane_image, specular_point
@@ -574,7 +575,7 @@ def test_two_light_curved_highlight_is_recommended_the_cubic_patch_and_scored_pe
 def test_a_fit_the_solver_refuses_is_a_status_not_an_exception(monkeypatch):
     # scipy's least_squares raises ValueError when the residuals are not finite at the start;
     # one highlight's refusal must become its status, never abort the frame
-    from simtest.reconstruct import recommend as rec_mod
+    from simtest.reconstruct import light_fits as rec_mod
 
     def refuses(*args, **kwargs):
         raise ValueError("Residuals are not finite in the initial point.")

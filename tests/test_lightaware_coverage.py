@@ -9,7 +9,7 @@ from simtest.geometry import angle_between_deg, project_points
 from simtest.geometry.angles import unit
 from simtest.geometry.lights import Light, LightRig
 from simtest.reconstruct import lightaware as la
-from simtest.reconstruct.recommend import light_aware_estimates
+from simtest.reconstruct.light_fits import light_aware_estimates
 from simtest.reconstruct.pipeline import reconstruct
 from simtest.reconstruct.settings import ReconSettings
 from simtest.simulate.analytic import phong_sphere_image

@@ -19,7 +19,7 @@ from simtest.reconstruct.frames import open_frames, reconstruct_frames
 from simtest.reconstruct.io import estimate_to_dict
 from simtest.reconstruct.table import read_frames
 from simtest.reconstruct.pipeline import reconstruct
-from simtest.reconstruct.recommend import with_light_aware
+from simtest.reconstruct.light_fits import with_light_aware
 from simtest.reconstruct.settings import ReconSettings
 from test_lightaware import ROUGHNESS, plane_case
 

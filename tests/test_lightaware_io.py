@@ -16,7 +16,8 @@ from simtest.geometry.lights import Light, LightRig
 from simtest.reconstruct import read_estimates, write_estimates
 from simtest.reconstruct.lightaware.solve import _residual_correlation
 from simtest.reconstruct.pipeline import reconstruct
-from simtest.reconstruct.recommend import colocated_ranking, recommend, with_light_aware
+from simtest.reconstruct.recommend import colocated_ranking, recommend
+from simtest.reconstruct.light_fits import with_light_aware
 from simtest.reconstruct.settings import ReconSettings
 from simtest.tolerances import TOL
 from test_lightaware import one_light, plane_case

@@ -11,7 +11,8 @@ from simtest.geometry import angle_between_deg
 from simtest.geometry.lights import Light, LightRig
 from simtest.harness.protocols import RenderedRunner, reconstruct_image, render_rig
 from simtest.harness.suite import harness_recon_settings, load_suite, realisation_seed
-from simtest.reconstruct.recommend import recommend, with_light_aware
+from simtest.reconstruct.recommend import recommend
+from simtest.reconstruct.light_fits import with_light_aware
 from simtest.render import render_scene
 from simtest.scene import load_scene, with_overrides
 

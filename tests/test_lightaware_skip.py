@@ -10,7 +10,7 @@ import numpy as np
 
 from simtest.geometry.lights import Light, LightRig
 from simtest.reconstruct.pipeline import reconstruct
-from simtest.reconstruct.recommend import NOT_FITTED, with_light_aware
+from simtest.reconstruct.light_fits import NOT_FITTED, with_light_aware
 from simtest.reconstruct.settings import ReconSettings
 from test_lightaware import plane_case
 

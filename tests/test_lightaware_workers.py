@@ -13,7 +13,7 @@ import pytest
 from simtest.geometry.lights import Light, LightRig
 from simtest.geometry.response import SensorResponse
 from simtest.reconstruct.pipeline import reconstruct
-from simtest.reconstruct.recommend import with_light_aware
+from simtest.reconstruct.light_fits import with_light_aware
 from simtest.reconstruct.settings import ReconSettings
 from test_lightaware import plane_case
 

@@ -25,7 +25,7 @@ from simtest.reconstruct import (
     write_estimates,
 )
 from simtest.geometry.cameras import FisheyeCamera
-from simtest.reconstruct import pipeline
+from simtest.reconstruct import assemble, frame_prep, frame_verify, isophotes, pipeline
 from simtest.reconstruct._pixels import Roi
 from simtest.reconstruct.detect import luma
 from simtest.reconstruct.fit import fit_ellipse
@@ -384,7 +384,7 @@ def test_local_normalisation_recovers_highlights_on_a_bright_diffuse_background(
 @settings(max_examples=25, deadline=None)
 @given(st.integers(0, 2**32 - 1), st.sampled_from([np.uint8, np.uint16, np.float64]))
 def test_the_luma_of_a_roi_sliced_from_the_frame_is_the_luma_computed_for_the_roi(seed, dtype):
-    # the premise of the frame's luma (pipeline._Frame.luma): a pixel's luma does not depend on the
+    # the premise of the frame's luma (frame_prep._Frame.luma): a pixel's luma does not depend on the
     # extent of the array it is computed in, for ROIs at least 2 px wide, at any offset and width
     rng = np.random.default_rng(seed)
     h, w = (int(v) for v in rng.integers(8, 90, 2))
@@ -392,7 +392,7 @@ def test_the_luma_of_a_roi_sliced_from_the_frame_is_the_luma_computed_for_the_ro
         img = rng.random((h, w, 3)) * 300
     else:
         img = rng.integers(0, np.iinfo(dtype).max, (h, w, 3), dtype=dtype, endpoint=True)
-    frame = pipeline._Frame.make(img, intrinsics(100.0, w), None, ReconSettings()).for_many_highlights()
+    frame = frame_prep._Frame.make(img, intrinsics(100.0, w), None, ReconSettings()).for_many_highlights()
     assert not frame.luma_frame.flags.writeable
     for _ in range(40):
         r0, c0 = int(rng.integers(0, h - 1)), int(rng.integers(0, w - 2))
@@ -403,14 +403,14 @@ def test_the_luma_of_a_roi_sliced_from_the_frame_is_the_luma_computed_for_the_ro
 @settings(max_examples=30, deadline=None)
 @given(st.integers(0, 2**32 - 1), st.sampled_from([0.6, 1.0, 1.7, 2.5]), st.booleans())
 def test_an_roi_smoothed_from_the_smoothed_frame_is_the_roi_smoothed_for_itself(seed, sigma, rgb):
-    # the premise of the frame's smoothed luma (pipeline._patched_from_frame): away from the ROI's
+    # the premise of the frame's smoothed luma (isophotes._patched_from_frame): away from the ROI's
     # inner sides the frame's smoothing is the ROI's, and the bands along them are smoothed again
     # from strips, to the last bit, at any offset and size (sides on the image border included)
     rng = np.random.default_rng(seed)
     h, w = int(rng.integers(150, 400)), int(rng.integers(300, 600))
     base = cv2.GaussianBlur(rng.random((h, w)) * 200, (0, 0), 3.0) + rng.random((h, w)) * 40
     img = np.dstack([base, base * 0.8, base * 0.6]) if rgb else base
-    frame = pipeline._Frame.make(img, intrinsics(100.0, w), None,
+    frame = frame_prep._Frame.make(img, intrinsics(100.0, w), None,
                                  ReconSettings(smooth_sigma_px=sigma)).for_many_highlights()
     assert not frame.smooth_frame.flags.writeable
     pristine = frame.smooth_frame.copy()
@@ -422,42 +422,42 @@ def test_an_roi_smoothed_from_the_smoothed_frame_is_the_roi_smoothed_for_itself(
         c1 = int(rng.integers(c0 + 220, w + 1)) if rng.random() < 0.8 else w
         roi = Roi(r0, r1, c0, c1)
         lum = luma(img[roi.slices])
-        got = pipeline._patched_from_frame(frame.smooth_frame_rw, frame.luma(roi), roi, sigma)
+        got = isophotes._patched_from_frame(frame.smooth_frame_rw, frame.luma(roi), roi, sigma)
         if got is None:  # too narrow for the strips: smoothed for itself by the caller
             continue
         out, saved = got
         taken += 1
         assert not out.flags.writeable
-        assert np.array_equal(out, pipeline._smooth(lum, sigma)), (roi, sigma)
+        assert np.array_equal(out, frame_prep._smooth(lum, sigma)), (roi, sigma)
         # the bands go back: the frame is the frame again, to the bit
-        pipeline._put_back(saved)
+        isophotes._put_back(saved)
         assert np.array_equal(frame.smooth_frame, pristine), roi
     assert taken >= 10
 
 
 def test_a_large_rois_bands_leave_the_smoothed_frame_as_it_was():
     # the pipeline writes a large ROI's bands into the frame's smoothed luma for the time of the
-    # ROI's extraction (pipeline._patched_from_frame) and puts the frame's values back, after the
+    # ROI's extraction (isophotes._patched_from_frame) and puts the frame's values back, after the
     # extraction and when it raises
     from unittest import mock
 
     v, u = np.mgrid[0:600, 0:700].astype(float)
     img = 40.0 + 180.0 * np.exp(-((u - 350.3) ** 2 + (v - 290.6) ** 2) / (2 * 90.0**2))
-    frame = pipeline._Frame.make(img, intrinsics(500.0, 700), None,
+    frame = frame_prep._Frame.make(img, intrinsics(500.0, 700), None,
                                  ReconSettings(isovalues=(0.5,), smooth_sigma_px=1.5)).for_many_highlights()
     pristine = frame.smooth_frame.copy()
     # the isophote at t = 0.5 (radius 106 px) is cut by a 171 px ROI, which grows once: two ROIs
     # taken from the frame
     bp = np.array([350.3, 290.6])
     roi = Roi.around(bp, 85.0, img.shape)
-    assert roi.shape[0] * roi.shape[1] >= pipeline.SMOOTH_FRAME_MIN_ROI_PX
-    draft = pipeline._estimate_one(frame, bp, roi, saturated=False, grow=True)
-    assert draft.roi == Roi.around(bp, pipeline.ROI_GROWTH_FACTOR * max(roi.shape) / 2.0, img.shape)
+    assert roi.shape[0] * roi.shape[1] >= isophotes.SMOOTH_FRAME_MIN_ROI_PX
+    draft = isophotes._estimate_one(frame, bp, roi, saturated=False, grow=True)
+    assert draft.roi == Roi.around(bp, isophotes.ROI_GROWTH_FACTOR * max(roi.shape) / 2.0, img.shape)
     assert draft.results[0].__class__.__name__ == "_Pending"
     assert np.array_equal(frame.smooth_frame, pristine)
-    with mock.patch.object(pipeline._Levels, "of", side_effect=RuntimeError("stop")):
+    with mock.patch.object(isophotes._Levels, "of", side_effect=RuntimeError("stop")):
         with pytest.raises(RuntimeError, match="stop"):
-            pipeline._estimate_one(frame, bp, roi, saturated=False, grow=True)
+            isophotes._estimate_one(frame, bp, roi, saturated=False, grow=True)
     assert np.array_equal(frame.smooth_frame, pristine)
 
 
@@ -483,8 +483,8 @@ def test_a_frame_with_many_highlights_gives_the_same_estimates_with_the_frame_lu
     img = np.dstack([gray, (gray * 0.9).astype(np.uint8), (gray * 0.8).astype(np.uint8)])
 
     def run(threshold, sigma):
-        monkeypatch.setattr(pipeline, "LUMA_FRAME_MIN_HIGHLIGHTS", threshold)
-        monkeypatch.setattr(pipeline, "SMOOTH_FRAME_MIN_ROI_PX", 1)  # every ROI wide enough
+        monkeypatch.setattr(frame_prep, "LUMA_FRAME_MIN_HIGHLIGHTS", threshold)
+        monkeypatch.setattr(isophotes, "SMOOTH_FRAME_MIN_ROI_PX", 1)  # every ROI wide enough
         # verify=False: the lobes are tinted as their background (not specular by colour); this
         # compares the two paths of the fits
         return reconstruct(img, K, (0.3, 0.5), normalise="bp", detection="full_scale",
@@ -566,7 +566,7 @@ def test_one_bp_ray_in_python_floats_is_the_batched_rays_bits(seed):
     # _bp_ray's scalar path for a pinhole must give the bits of _bp_rays (numpy), which the
     # batched frame path uses: a highlight alone and in a frame get the same normals
     from simtest.geometry.cameras import PinholeCamera
-    from simtest.reconstruct.pipeline import _bp_ray, _bp_rays
+    from simtest.reconstruct.frame_prep import _bp_ray, _bp_rays
 
     rng = np.random.default_rng(seed)
     f = 10.0 ** rng.uniform(1, 4)
@@ -611,7 +611,7 @@ def test_a_bp_without_a_viewing_ray_is_a_status_with_its_intensity(monkeypatch):
     from benchmarks.inputs import synthetic_roi_image
 
     img, K, bp, _ = synthetic_roi_image()
-    monkeypatch.setattr(pipeline._Frame, "bp_ray", lambda self, uv: np.full(3, np.nan))
+    monkeypatch.setattr(frame_prep._Frame, "bp_ray", lambda self, uv: np.full(3, np.nan))
     est = pipeline.reconstruct_roi(img, K, 0.1, bp_uv=bp + (7.3, -4.6))
     assert est.status == "non_finite_points" and est.isophotes == () and est.bp_ray is None
     r, c = int(np.rint(bp[1] - 4.6)), int(np.rint(bp[0] + 7.3))
@@ -644,7 +644,7 @@ def test_reconstruct_pauses_the_cyclic_collector_and_restores_it(monkeypatch):
 
 
 def test_the_verified_estimates_are_copied_as_dataclasses_replace_copies_them():
-    """pipeline._replaced (the verifier's copy of each estimate with its status, detail and
+    """assemble._replaced (the verifier's copy of each estimate with its status, detail and
     confidence) gives what dataclasses.replace gives, as long as the class has no __post_init__
     nor __slots__ for replace's __init__ to run."""
     import dataclasses
@@ -657,7 +657,7 @@ def test_the_verified_estimates_are_copied_as_dataclasses_replace_copies_them():
     frame, K, _ = synthetic_frame(n_highlights=2)
     est = reconstruct(frame, K)[0]
     changes = {"status": "cluster", "detail": "2 other specular peak(s)", "confidence": 0.25}
-    got, want = pipeline._replaced(est, **changes), dataclasses.replace(est, **changes)
+    got, want = assemble._replaced(est, **changes), dataclasses.replace(est, **changes)
     assert type(got) is type(want) and got.__dict__.keys() == want.__dict__.keys()
     assert all(got.__dict__[k] is want.__dict__[k] or got.__dict__[k] == want.__dict__[k]
                for k in ("status", "detail", "confidence", "isophotes", "roi", "bp_px"))
@@ -694,14 +694,14 @@ def test_the_verifier_reuses_detections_gray_and_noise_within_the_accuracy_toler
 
     img, K, _ = bench.noisy_frame()
     ests = pipeline.reconstruct(img, K)
-    frame = pipeline._Frame.make(img, K, None, ReconSettings.make(None, None, frames=True))
+    frame = frame_prep._Frame.make(img, K, None, ReconSettings.make(None, None, frames=True))
     assert frame.noise is not None and frame.noise > 0
-    plain = [pipeline._replaced(e, status="ok" if e.fit_residual_px is not None and e.status != "merged"
+    plain = [assemble._replaced(e, status="ok" if e.fit_residual_px is not None and e.status != "merged"
                                 else e.status) for e in ests]
-    redo = pipeline._verified(frame, plain)  # no native gray, no noise: the float64 luma, measured
+    redo = frame_verify._verified(frame, plain)  # no native gray, no noise: the float64 luma, measured
     assert [e.status for e in redo] == [e.status for e in ests]
     assert [e.confidence for e in redo] == pytest.approx([e.confidence for e in ests], rel=1e-6)
-    got = pipeline._verifier_luma(frame, luma(img).astype(np.float32))
+    got = frame_verify._verifier_luma(frame, luma(img).astype(np.float32))
     assert got[1] is True  # R = G = B: measured on one channel
 
 
@@ -711,7 +711,8 @@ def test_the_batched_initial_rois_are_each_candidates_own():
     and with the frame's threshold (method full_scale), and under full-scale normalisation."""
     from benchmarks import inputs as bench
     from simtest.reconstruct.detect import detect_specularities
-    from simtest.reconstruct.pipeline import _Frame, _initial_roi, _initial_rois
+    from simtest.reconstruct.frame_prep import _Frame
+    from simtest.reconstruct.isophotes import _initial_roi, _initial_rois
     from simtest.reconstruct.settings import ReconSettings
     img, K = bench.banner_frame()
     for method, normalise in (("local_peak", "auto"), ("full_scale", "full_scale")):
@@ -740,16 +741,16 @@ def test_few_rois_smoothed_alone_in_float32_are_the_float64_results(kind, monkey
     elif kind == "single":
         frame = np.ascontiguousarray(frame[:, :, 0])
     seen = []
-    real = pipeline._roi_values
+    real = isophotes._roi_values
 
     def spy(fr, roi, sigma):
         seen.append(fr.roi_luma is not None)
         return real(fr, roi, sigma)
 
-    monkeypatch.setattr(pipeline, "_roi_values", spy)
+    monkeypatch.setattr(isophotes, "_roi_values", spy)
     got = reconstruct(frame, K)
     assert seen and all(seen)
-    monkeypatch.setattr(pipeline, "_roi_values", lambda fr, roi, sigma: real(replace(fr, roi_luma=None), roi, sigma))
+    monkeypatch.setattr(isophotes, "_roi_values", lambda fr, roi, sigma: real(replace(fr, roi_luma=None), roi, sigma))
     want = reconstruct(frame, K)
     assert [e.status for e in got] == [e.status for e in want] and sum(e.ok for e in got) >= 2
     for a, b in zip(got, want):
@@ -782,7 +783,7 @@ def test_the_compiled_roi_growth_gives_the_python_loops_estimates(normalise, sig
     monkeypatch.setattr(_kernels, "grown_isophotes", recorded)
     got = reconstruct(img, K, **options)
     assert len(done) == 1 and done[0] > 300  # the banner's fitted candidates, all but a few
-    monkeypatch.setattr(pipeline, "_grown_drafts", lambda *args, **kwargs: {})
+    monkeypatch.setattr(isophotes, "_grown_drafts", lambda *args, **kwargs: {})
     ref = reconstruct(img, K, **options)
     assert sum(e.ok for e in ref) > 50
     assert len(got) == len(ref)

@@ -111,7 +111,7 @@ def test_dataset_example_draws_the_haustral_colon():
     from pathlib import Path
 
     from simtest.dataset.config import load_config
-    from simtest.dataset.generate import make_card
+    from simtest.dataset.card import make_card
     from simtest.dataset.sample import build_scene, draw_parameters
 
     cfg = load_config(Path(__file__).resolve().parents[1] / "scenes" / "datasets" / "example.toml")

@@ -18,15 +18,8 @@ from simtest.geometry.lights import Light, LightRig
 from simtest.reconstruct import read_estimates, write_estimates
 from simtest.reconstruct.io import dumps, estimate_to_dict
 from simtest.reconstruct.pipeline import reconstruct
-from simtest.reconstruct.recommend import (
-    DEPTH_REL_SIGMA_CEILING,
-    SIGMA_MARGIN,
-    bp_ray_error_deg,
-    depth_within_ceiling,
-    light_aware_estimates,
-    recommend,
-    with_light_aware,
-)
+from simtest.reconstruct.recommend import DEPTH_REL_SIGMA_CEILING, SIGMA_MARGIN, bp_ray_error_deg, depth_within_ceiling, recommend
+from simtest.reconstruct.light_fits import light_aware_estimates, with_light_aware
 from simtest.reconstruct.settings import ReconSettings
 from simtest.simulate.offset import specular_point
 from test_lightaware import one_light, plane_case, tilted_normal
@@ -290,7 +283,7 @@ def test_the_patch_fits_run_only_where_the_plane_is_not_the_surface(monkeypatch,
     # quadric (and, with two lights apart, the cubic patch) run after a misfit or a fit that ran
     # off, never after a fit whose plane fits (a patch has more parameters to trade with the
     # depth) or one with too few pixels for the plane's parameters (fewer than a patch's)
-    import simtest.reconstruct.recommend as rec
+    import simtest.reconstruct.light_fits as rec
 
     img, K, N, _, _ = _plane8(30.0, 20.0, 2.0)
     rig = LightRig((Light((-2.0, 0.0, 0.0), 1.0, "inverse_square", 0.0),

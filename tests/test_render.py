@@ -237,7 +237,7 @@ def _same(a, b):
 def test_cached_mesh_scene_does_not_leak_between_specs():
     """A mesh scene is loaded once per structure and updated per render (camera pose, light,
     Phong c, n, albedo): rendering A, then B and C, then A again gives A's fresh bits."""
-    from simtest.render import render as R
+    from simtest.render import scene_load as R
 
     a = with_overrides(load_scene("colon"), {"camera.width_px": 64, "camera.height_px": 64,
                                              "render.spp": 4})
@@ -556,7 +556,7 @@ def test_an_old_llvm_loaded_by_drjit_itself_is_refused(monkeypatch):
     # bare Debian 12 is LLVM 15 and aborted the process at the first kernel (a bench run did).
     # The loaded version is faked: the machine running the test may well have LLVM 19 only.
     from simtest._llvm import LLVM_FIX
-    from simtest.render import render as render_mod
+    from simtest.render import scene_load as render_mod
 
     monkeypatch.setattr(render_mod._llvm, "configure_llvm_env", lambda: None)
     monkeypatch.setattr(render_mod, "_loaded_llvm_major", lambda dr: 15)

@@ -200,7 +200,7 @@ def test_an_endoscope_image_does_not_depend_on_the_wavefront_size(monkeypatch, s
     """Each sample draws its sub-pixel position from its own stream and each pixel's samples are
     summed in order, so cutting the frame into other runs of pixels gives the same bits (a square
     spp: jittered grid; another spp: Latin hypercube)."""
-    from simtest.render import render as render_mod
+    from simtest.render import rig_render as render_mod
 
     spec = _plane(**{"render.spp": spp, "material.model": "tissue", "geometry.tilt_deg": 25.0})
     whole = render_scene(spec, seed=3)

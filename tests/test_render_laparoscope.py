@@ -177,7 +177,7 @@ def test_organ_keys_go_together():
 def _regions(spec, res) -> tuple[np.ndarray, np.ndarray]:
     """The field's pixels on the liver and on the gallbladder: texture-frame points inside the
     wall's sphere and outside, or inside, the organ's ellipsoid (render.tissue_texture's rule)."""
-    from simtest.render.render import cam_to_texture_matrix
+    from simtest.render.scene_load import cam_to_texture_matrix
 
     m = cam_to_texture_matrix(spec)
     mat = spec.material
@@ -192,7 +192,7 @@ def _lobe_pixels(spec, res) -> tuple[np.ndarray, np.ndarray]:
     """The field's pixels on the lobe (within 0.5 mm of its implicit surface: flat faces over its
     2 mm rim stray up to about 0.3 mm from it) and those near its thin margin (the outer fifth
     toward it, Y > 0.8 b in the lobe's frame)."""
-    from simtest.render.render import cam_to_texture_matrix
+    from simtest.render.scene_load import cam_to_texture_matrix
     from simtest.scene.meshes.abdomen import _lobe_frame, lobe_implicit
 
     gen = json.loads(MESH.with_suffix(".json").read_text())["generator"]

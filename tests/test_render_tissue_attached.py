@@ -16,7 +16,7 @@ from hypothesis import strategies as st
 from scipy.spatial.transform import Rotation
 
 from simtest.render import render_scene, wavefront, write_render
-from simtest.render.render import cam_to_texture_matrix, tissue_texture
+from simtest.render.scene_load import cam_to_texture_matrix, tissue_texture
 from simtest.render.sensor import field_stop_mask
 from simtest.render.tissue import (
     N_RELIEF_WAVES,

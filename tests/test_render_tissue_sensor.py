@@ -10,7 +10,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from simtest.render import render_scene
-from simtest.render.render import tissue_texture
+from simtest.render.scene_load import tissue_texture
 from simtest.render.sensor import apply_sensor, field_stop_mask, frame_luma, peak_exposure, video_frame
 from simtest.render.tissue import (
     albedo,

@@ -260,8 +260,7 @@ def _same_evidence(a, b):
 def _both_paths(monkeypatch, img, K):
     """Statuses and confidences of reconstruct with the windowed and the whole-frame evidence,
     each assess call's two Evidences compared field by field."""
-    import simtest.reconstruct.pipeline as pipeline
-    from simtest.reconstruct import verify
+    from simtest.reconstruct import frame_verify, verify
     seen = []
 
     def both(*a, **k):
@@ -274,10 +273,10 @@ def _both_paths(monkeypatch, img, K):
 
     out = {}
     for mode in ("whole", "windowed"):
-        monkeypatch.setattr(pipeline, "assess",
+        monkeypatch.setattr(frame_verify, "assess",
                             lambda *a, m=mode, **k: verify.assess(*a, **k, windowed=m == "windowed"))
         out[mode] = [(e.status, e.confidence) for e in reconstruct(img, K)]
-    monkeypatch.setattr(pipeline, "assess", both)
+    monkeypatch.setattr(frame_verify, "assess", both)
     reconstruct(img, K)
     assert seen and seen[0] > 0
     return out["whole"], out["windowed"]
@@ -439,15 +438,14 @@ def test_a_verdict_on_some_candidates_is_the_whole_verdict_on_those():
 def test_the_verifier_measures_only_the_estimates_with_isophotes(monkeypatch):
     """Detection's rejections and the BP checks' have no fit to judge: the verifier's evidence is
     measured for the estimates with isophotes only, and the others come back as they were."""
-    import simtest.reconstruct.pipeline as pipeline
-    from simtest.reconstruct import verify
+    from simtest.reconstruct import frame_verify, verify
     seen = []
 
     def assess(image, gray, ests, **k):
         seen.append(len(ests))
         return verify.assess(image, gray, ests, **k)
 
-    monkeypatch.setattr(pipeline, "assess", assess)
+    monkeypatch.setattr(frame_verify, "assess", assess)
     img = _frame([(100, 100, 3.0, 0.5, TISSUE), (40, 150, 2.0, 150, WHITE), (150, 40, 0.6, 60, WHITE)])
     ests = reconstruct(img, K)
     with_isophotes = [e for e in ests if e.isophotes]

@@ -36,7 +36,7 @@ from simtest._outdir import check_out_folder, write_out_folder
 from simtest.reconstruct.cli import check_workers
 from simtest.reconstruct.io import estimate_to_dict
 from simtest.reconstruct.pipeline import reconstruct
-from simtest.reconstruct.recommend import with_light_aware
+from simtest.reconstruct.light_fits import with_light_aware
 from simtest.reconstruct.settings import ReconSettings
 
 #: ``simtest reconstruct``'s defaults for whole frames, which ``evaluate`` uses too

@@ -51,7 +51,7 @@ __all__ = ["ESTIMATORS", "LIGHT_AWARE_FITS", "ORACLE_FITS", "ORACLE_INPUTS", "ST
            "unit_or_none"]
 
 
-#: The light-aware fits of :func:`simtest.reconstruct.recommend.light_aware_estimates`, each read
+#: The light-aware fits of :func:`simtest.reconstruct.light_fits.light_aware_estimates`, each read
 #: from a highlight's ``light_aware`` entry of its name.
 LIGHT_AWARE_FITS = names("light_aware")
 

@@ -35,7 +35,7 @@ from simtest.harness.estimators import ORACLE_INPUTS, score
 from simtest.harness.external import score_external
 from simtest.harness.suite import LIGHT_AWARE_NAMES, MeshPose
 from simtest.reconstruct import reconstruct, reconstruct_rois
-from simtest.reconstruct.recommend import light_aware_estimates, with_light_aware
+from simtest.reconstruct.light_fits import light_aware_estimates, with_light_aware
 from simtest.reconstruct.settings import ReconSettings
 from simtest.render import render_scene
 from simtest.scene import load_scene, with_overrides
@@ -495,7 +495,7 @@ class RenderedRunner:
 
 
 def fit_scored(image, matched: list, camera, rig: LightRig, **kwargs) -> list:
-    """The light-aware fits (:func:`~simtest.reconstruct.recommend.with_light_aware`, ``kwargs``
+    """The light-aware fits (:func:`~simtest.reconstruct.light_fits.with_light_aware`, ``kwargs``
     passed on) of the detections matched to the scored highlights, rejected ones too (scored given
     the highlight). Each detection's fits read its own ROI only, so fitting the matched ones gives
     them what fitting every detection gives (``tests/test_harness_runner.py``).
@@ -526,7 +526,7 @@ def fit_on_oracle_image(name: str, image, matched: list, camera, rig: LightRig) 
     The image a tissue render's sensor sees holds, besides the specular lobes, the diffuse
     shading of a textured albedo, the sensor's tone curve, its noise and its clipping. Fitted
     with the same ROI and start as on the sensor image
-    (:func:`~simtest.reconstruct.recommend.light_aware_estimates`) on the render's specular
+    (:func:`~simtest.reconstruct.light_fits.light_aware_estimates`) on the render's specular
     radiance alone (``photometric_fit_on_specular``), the fit shows what the model and the
     geometry recover when nothing else is in the image; on its linear radiance
     (``photometric_fit_on_radiance``: the diffuse shading in, the sensor's steps out), what the

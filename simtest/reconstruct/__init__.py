@@ -19,25 +19,14 @@ reconstruct``); ``simtest.reconstruct`` is this package, not a callable.
 from __future__ import annotations
 
 from simtest.reconstruct._pixels import Roi, rc_to_uv, uv_to_rc
+from simtest.reconstruct.assemble import IsophoteEstimate, SpecularityEstimate
 from simtest.reconstruct.detect import Candidate, Detection, detect_specularities
-from simtest.reconstruct.estimators import (
-    ConeEstimate,
-    estimate_from_conic,
-    joint_cone_axis,
-    select_paper_normal,
-)
+from simtest.reconstruct.estimators import ConeEstimate, estimate_from_conic, joint_cone_axis, select_paper_normal
 from simtest.reconstruct.failures import REASONS, Failure
 from simtest.reconstruct.fit import EllipseFit, fit_ellipse, fit_ellipses
 from simtest.reconstruct.io import SCHEMA_VERSION, read_estimates, write_estimates
 from simtest.reconstruct.isophote import Isophote, extract_isophote
-from simtest.reconstruct.pipeline import (
-    Estimates,
-    IsophoteEstimate,
-    SpecularityEstimate,
-    reconstruct,
-    reconstruct_roi,
-    reconstruct_rois,
-)
+from simtest.reconstruct.pipeline import Estimates, reconstruct, reconstruct_roi, reconstruct_rois
 from simtest.reconstruct.settings import Normalisation, ReconSettings
 from simtest.reconstruct.table import read_frames, read_table
 

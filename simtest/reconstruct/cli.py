@@ -61,7 +61,7 @@ from simtest.reconstruct.io import (
 )
 from simtest.reconstruct.overlay import check_overlay_size, draw_overlay
 from simtest.reconstruct.pipeline import reconstruct
-from simtest.reconstruct.recommend import with_light_aware
+from simtest.reconstruct.light_fits import with_light_aware
 from simtest.reconstruct.rig_lobes import split_fused_lobes
 from simtest.reconstruct.registry import names
 from simtest.reconstruct.settings import MAX_CANDIDATES, ReconSettings

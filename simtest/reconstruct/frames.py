@@ -8,7 +8,7 @@ record per frame in frame order; :func:`write_frames_parquet` writes them to ``e
 frame), each to a temporary file renamed when complete. Each frame is
 reconstructed on its own, so the records are those of frame-by-frame calls whatever the number of
 workers. Given the camera file's light rig (and its sensor response), each frame's highlights get
-the light-aware fits of :func:`~simtest.reconstruct.recommend.with_light_aware` as a single image
+the light-aware fits of :func:`~simtest.reconstruct.light_fits.with_light_aware` as a single image
 does (``simtest reconstruct`` on one image): a record's ``specularities`` are then that image's
 ``estimates.json`` ``specularities``.
 
@@ -40,7 +40,7 @@ from simtest.reconstruct.images import InputError, load_image, quiet_stderr
 from simtest.reconstruct.io import dumps, estimate_to_dict
 from simtest.reconstruct.table import ROW_GROUP_ROWS, arrow, estimates_batch, frame_batch, table_metadata, table_schema
 from simtest.reconstruct.pipeline import reconstruct
-from simtest.reconstruct.recommend import with_light_aware
+from simtest.reconstruct.light_fits import with_light_aware
 from simtest.reconstruct.rig_lobes import split_fused_lobes
 from simtest.reconstruct.settings import ReconSettings
 
@@ -337,10 +337,10 @@ def reconstruct_frames(source: FrameSource, K, settings: ReconSettings | None = 
         Also write each isophote's contour points.
     rig : LightRig, optional
         The scope's lights (the camera file's ``"lights"``): each frame's highlights get
-        :func:`~simtest.reconstruct.recommend.with_light_aware`'s fits and recommended normal, as
+        :func:`~simtest.reconstruct.light_fits.with_light_aware`'s fits and recommended normal, as
         a single image's do. None, or every light at the camera centre: none are run.
     cubic : bool or None
-        Passed to :func:`~simtest.reconstruct.recommend.with_light_aware` (``--cubic-patch``:
+        Passed to :func:`~simtest.reconstruct.light_fits.with_light_aware` (``--cubic-patch``:
         None; default False).
     encoded : bool or str
         ``"jsonl"`` (or True) or ``"parquet"``: yield :class:`FrameRecord` s, each encoded where it
@@ -349,7 +349,7 @@ def reconstruct_frames(source: FrameSource, K, settings: ReconSettings | None = 
         dicts hold the record's keys but ``specularities``. False: plain records.
     response : SensorResponse, optional
         The sensor's response (the camera file's ``"response"``), passed to
-        :func:`~simtest.reconstruct.recommend.with_light_aware` as a single image's: the fits run
+        :func:`~simtest.reconstruct.light_fits.with_light_aware` as a single image's: the fits run
         on each frame's linear intensities, clipped pixels censored. None: linear.
 
     Yields

@@ -209,7 +209,7 @@ def _light_aware_dict(la: dict) -> dict:
 
 
 def estimate_to_dict(est, include_points: bool = False) -> dict:
-    """One :class:`~simtest.reconstruct.pipeline.SpecularityEstimate` as a schema-2 dict.
+    """One :class:`~simtest.reconstruct.assemble.SpecularityEstimate` as a schema-2 dict.
 
     Parameters
     ----------

@@ -14,7 +14,7 @@ Kinds (:data:`KINDS`):
   axis), which ``estimates.json`` carries;
 - ``baseline``: the BP ray;
 - ``light_aware``: a fit with the calibrated rig, read from the highlight's ``light_aware`` entry
-  of its name (:func:`simtest.reconstruct.recommend.light_aware_estimates`), run where a light is
+  of its name (:func:`simtest.reconstruct.light_fits.light_aware_estimates`), run where a light is
   off the camera centre;
 - ``oracle_input``: the photometric fit on an image a real frame does not give (the harness's
   oracle inputs);

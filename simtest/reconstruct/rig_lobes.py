@@ -30,7 +30,7 @@ import numpy as np
 from simtest.decisions import FUSED_LOBE_LEVEL, PAIR_TOL_PX
 from simtest.reconstruct._pixels import uv_to_rc
 from simtest.reconstruct.detect_pixels import luma
-from simtest.reconstruct.recommend import _offset_rig, colour_fit_applies, light_aware_estimates
+from simtest.reconstruct.light_fits import _offset_rig, colour_fit_applies, light_aware_estimates
 
 __all__ = ["FUSED_LOBE_LEVEL", "guide_specular_points", "split_fused_lobes"]
 
@@ -156,13 +156,13 @@ def split_fused_lobes(image, estimates, camera, rig, **kwargs) -> list:
     image : ndarray of shape (H, W) or (H, W, 3)
         The frame the estimates were made on.
     estimates : sequence of SpecularityEstimate
-        With their light-aware fits (:func:`~simtest.reconstruct.recommend.with_light_aware`).
+        With their light-aware fits (:func:`~simtest.reconstruct.light_fits.with_light_aware`).
     camera : array_like of shape (3, 3) or CameraModel
         Intrinsics K or a camera model.
     rig : LightRig or None
         The scope's lights (None, or every light at the camera centre: returned unchanged).
     **kwargs
-        As :func:`~simtest.reconstruct.recommend.with_light_aware` got them (``response``,
+        As :func:`~simtest.reconstruct.light_fits.with_light_aware` got them (``response``,
         ``cubic``, ...): the ``merged`` candidates are fitted with them (``workers`` and
         ``on_highlight`` are ignored: few candidates are ``merged``).
 

@@ -20,13 +20,7 @@ import orjson
 from simtest._lazy import require
 from simtest._version import __version__
 from simtest.reconstruct.io import (
-    LIGHT_AWARE_NORMALS,
-    SCHEMA_VERSION,
-    _light_aware_dict,
-    _not_finite_at,
-    _nums,
-    _rows,
-    dumps,
+    LIGHT_AWARE_NORMALS, SCHEMA_VERSION, _light_aware_dict, _not_finite_at, _nums, _rows, dumps,
 )
 
 def arrow():

@@ -16,13 +16,7 @@ Examples
 
 from __future__ import annotations
 
-from simtest.render.render import (
-    RendererUnavailable,
-    RenderResult,
-    choose_variant,
-    render_scene,
-    write_render,
-)
+from simtest.render.render import RendererUnavailable, RenderResult, choose_variant, render_scene, write_render
 from simtest.simulate.truth import HighlightTruth
 
 __all__ = [

@@ -8,7 +8,7 @@ world frame of the scene file is moved there with ``inv(cam_to_world)``.
 The dict returned by :func:`mitsuba_scene_dict` holds only plain Python / numpy values: 4 x 4
 transforms are ``numpy`` arrays under ``to_world`` keys, and meshes are
 ``{"type": "simtest_arrays", "vertices", "faces", "normals", "bsdf"}`` placeholders; the renderer
-turns these into Mitsuba objects (:func:`simtest.render.render.materialize`).
+turns these into Mitsuba objects (:func:`simtest.render.scene_load.materialize`).
 
 Mitsuba puts pixel centres at ``i + 0.5``; with the camera above, the intrinsics in the OpenCV
 convention (pixel centres at integers) are ``K = [[f, 0, W/2 - 0.5 + ox], [0, f, H/2 - 0.5 + oy],

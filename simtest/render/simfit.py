@@ -50,17 +50,11 @@ import numpy as np
 from scipy.optimize import minimize
 
 from simtest.constants import MAX_SEED
-from simtest.render.render import TISSUE_COVERAGE, render_scene
+from simtest.render.outputs import TISSUE_COVERAGE
+from simtest.render.render import render_scene
 from simtest.render.sensor import video_frame
 
-from simtest.render.simreal import (
-    FACTOR_GOAL,
-    STATISTICS,
-    at_height,
-    log_ratio,
-    real_reference,
-    split_indices,
-)
+from simtest.render.simreal import FACTOR_GOAL, STATISTICS, at_height, log_ratio, real_reference, split_indices
 from simtest.render.tissue import TISSUE_ALBEDO
 from simtest.scene.spec import SceneSpec, with_overrides
 
@@ -262,6 +256,64 @@ def _seed_loss(develop_one: Callable, res, draws: int, height: int, ref: dict) -
     return fit_loss(_pooled_stats(frs, height), ref)
 
 
+def _check_fit_inputs(spec: SceneSpec, frames: list, keep: tuple) -> None:
+    """The checks of :func:`fit_scene` (its ``Raises``)."""
+    if spec.material.model != "tissue" or spec.sensor.output != "video":
+        raise ValueError(f"{spec.source}: material.model: the fit needs a tissue scene with a video "
+                         f"sensor (material.model = \"tissue\", sensor.output = \"video\")")
+    if not frames:
+        raise ValueError("fit_scene: no real frame to fit to")
+    unknown = sorted(set(keep) - set(RENDER_BOUNDS))
+    if unknown:
+        raise ValueError(f"fit_scene: keep: {unknown} are no render parameters ({', '.join(RENDER_BOUNDS)})")
+
+
+def _starting_point(spec: SceneSpec, keep: tuple) -> tuple[tuple, dict, dict]:
+    """``(base, dev, rnd)`` of :func:`fit_scene`: the scene's albedo, and its develop and render
+    parameters within their bounds, where the searches start."""
+    mat = spec.material
+    base = tuple(mat.albedo) if mat.albedo is not None else TISSUE_ALBEDO[mat.tissue]
+    dev = {"albedo_r": base[0], "albedo_g": base[1], "albedo_b": base[2],
+           "auto_mean": spec.sensor.auto_mean if spec.sensor.exposure_mode == "auto" else 0.2,
+           "gaussian_sigma": max(spec.sensor.gaussian_sigma, 0.001),
+           "gamma": spec.sensor.gamma if spec.sensor.tone == "gamma" else 2.2}
+    dev = {k: min(max(v, DEVELOP_BOUNDS[k][0]), DEVELOP_BOUNDS[k][1]) for k, v in dev.items()}
+    rnd = {"relief_mm": max(mat.relief_mm, 1e-5), "alpha": mat.microfacet_alpha, "relief_hurst": mat.relief_hurst,
+           "film_variation": mat.film_variation if mat.film_variation > 0 else FILM_VARIATION_START}
+    rnd = {k: min(max(v, RENDER_BOUNDS[k][0]), RENDER_BOUNDS[k][1]) for k, v in rnd.items()}
+    if "film_variation" in keep:  # kept as it is, uniform too
+        rnd["film_variation"] = mat.film_variation
+    return base, dev, rnd
+
+
+def _fit_sensor(fitted: SceneSpec, d: dict, rseed: int, rseeds: list, draws: int, height: int, ref: dict,
+                inner_evals: int) -> tuple[np.ndarray, SceneSpec, dict, float, int]:
+    """Stage 3 of :func:`fit_scene`: the sensor on the fitted scene's own render (the albedo now in
+    it: developing again is exact), the own frame's loss added to the pooled one (the frame the
+    scene makes is the one judged): ``(frame, scene, d with the sensor's, loss, renders made)``."""
+    owns = [render_scene(fitted, seed=sd) for sd in rseeds]
+    own = owns[0]
+    alb = fitted.material.albedo
+    tissue = own.coverage >= TISSUE_COVERAGE
+    start = {k: d[k] for k in SENSOR_BOUNDS}
+
+    def f_sensor(x):
+        q = _from_unit(x, SENSOR_BOUNDS)
+
+        def dev(r, sd):
+            return develop(r.rgb, r.specular, alb, q, fitted, sd, r.coverage >= TISSUE_COVERAGE)[0]
+
+        own_frame = dev(own, rseed)
+        return (sum(_seed_loss(dev, r, draws, height, ref) for r in owns)
+                + fit_loss(_pooled_stats([own_frame], height), ref) + _penalty(x))
+
+    x = _nelder_mead(f_sensor, _to_unit(start, SENSOR_BOUNDS), max(10, inner_evals // 2), 0.1)
+    d = {**d, **_from_unit(x, SENSOR_BOUNDS)}
+    loss = f_sensor(x)
+    after, fitted = develop(own.rgb, own.specular, alb, d, fitted, rseed, tissue)
+    return after, fitted, d, loss, len(owns)
+
+
 def fit_scene(spec: SceneSpec, frames: list[np.ndarray], *, seed: int = 0, outer_evals: int = 14,
               inner_evals: int = 60, fit_scale: float = 0.5, fit_spp: int = 4, noise_draws: int = 3,
               polish_evals: int = 6, render_seeds: int = RENDER_SEEDS, keep: tuple[str, ...] = (),
@@ -310,30 +362,12 @@ def fit_scene(spec: SceneSpec, frames: list[np.ndarray], *, seed: int = 0, outer
     ValueError
         If the scene is not a tissue scene with a video sensor, or there is no frame.
     """
-    if spec.material.model != "tissue" or spec.sensor.output != "video":
-        raise ValueError(f"{spec.source}: material.model: the fit needs a tissue scene with a video "
-                         f"sensor (material.model = \"tissue\", sensor.output = \"video\")")
-    if not frames:
-        raise ValueError("fit_scene: no real frame to fit to")
-    unknown = sorted(set(keep) - set(RENDER_BOUNDS))
-    if unknown:
-        raise ValueError(f"fit_scene: keep: {unknown} are no render parameters ({', '.join(RENDER_BOUNDS)})")
+    _check_fit_inputs(spec, frames, keep)
     say = progress or (lambda _s: None)
     rseed = int(seed)
     height = frames[0].shape[0]
     ref = real_reference(frames)
-    mat = spec.material
-    base = tuple(mat.albedo) if mat.albedo is not None else TISSUE_ALBEDO[mat.tissue]
-    dev = {"albedo_r": base[0], "albedo_g": base[1], "albedo_b": base[2],
-           "auto_mean": spec.sensor.auto_mean if spec.sensor.exposure_mode == "auto" else 0.2,
-           "gaussian_sigma": max(spec.sensor.gaussian_sigma, 0.001),
-           "gamma": spec.sensor.gamma if spec.sensor.tone == "gamma" else 2.2}
-    dev = {k: min(max(v, DEVELOP_BOUNDS[k][0]), DEVELOP_BOUNDS[k][1]) for k, v in dev.items()}
-    rnd = {"relief_mm": max(mat.relief_mm, 1e-5), "alpha": mat.microfacet_alpha, "relief_hurst": mat.relief_hurst,
-           "film_variation": mat.film_variation if mat.film_variation > 0 else FILM_VARIATION_START}
-    rnd = {k: min(max(v, RENDER_BOUNDS[k][0]), RENDER_BOUNDS[k][1]) for k, v in rnd.items()}
-    if "film_variation" in keep:  # kept as it is, uniform too
-        rnd["film_variation"] = mat.film_variation
+    base, dev, rnd = _starting_point(spec, keep)
     free = {k: b for k, b in RENDER_BOUNDS.items() if k not in keep}
     kept = {k: v for k, v in rnd.items() if k in keep}
 
@@ -419,30 +453,9 @@ def fit_scene(spec: SceneSpec, frames: list[np.ndarray], *, seed: int = 0, outer
     res = fulls[0]
     _, fitted = develop(res.rgb, res.specular, base, d, full, res.seed, res.coverage >= TISSUE_COVERAGE)
     fitted = with_overrides(fitted, {"render.seed": rseed})
-    # 3. the sensor on the fitted scene's own render (the albedo now in the render: developing it
-    # again is exact), the loss of the scene's own frame (its seed's noise) added to the pooled
-    # one: the frame the scene makes is the one judged
-    owns = [render_scene(fitted, seed=sd) for sd in rseeds]
-    state["renders"] += len(owns)
-    own = owns[0]
-    alb = fitted.material.albedo
-    tissue = own.coverage >= TISSUE_COVERAGE
-    start = {k: d[k] for k in SENSOR_BOUNDS}
-
-    def f_sensor(x):
-        q = _from_unit(x, SENSOR_BOUNDS)
-
-        def dev(r, sd):
-            return develop(r.rgb, r.specular, alb, q, fitted, sd, r.coverage >= TISSUE_COVERAGE)[0]
-
-        own_frame = dev(own, rseed)
-        return (sum(_seed_loss(dev, r, draws, height, ref) for r in owns)
-                + fit_loss(_pooled_stats([own_frame], height), ref) + _penalty(x))
-
-    x = _nelder_mead(f_sensor, _to_unit(start, SENSOR_BOUNDS), max(10, inner_evals // 2), 0.1)
-    d = {**d, **_from_unit(x, SENSOR_BOUNDS)}
-    loss = f_sensor(x)
-    after, fitted = develop(own.rgb, own.specular, alb, d, fitted, rseed, tissue)
+    # 3. the sensor on the fitted scene's own render (_fit_sensor)
+    after, fitted, d, loss, n_own = _fit_sensor(fitted, d, rseed, rseeds, draws, height, ref, inner_evals)
+    state["renders"] += n_own
     fitted = dataclasses.replace(fitted, source=spec.source)
     say(f"at the scene's film ({W} x {H}, {spec.render.spp} spp): loss {loss:.4g} (render seeds "
         f"{', '.join(map(str, rseeds))}, each pooled over its noise draws, + the own frame)")

@@ -11,7 +11,7 @@ functions here:
 
 Rays start at the camera centre (the origin of the scene frame). Mitsuba and Dr.Jit load through
 :func:`simtest._lazy.require` when a function runs: call them after
-:func:`simtest.render.render.choose_variant`.
+:func:`simtest.render.scene_load.choose_variant`.
 """
 
 from __future__ import annotations

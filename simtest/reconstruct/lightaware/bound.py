@@ -10,13 +10,7 @@ from simtest.geometry.angles import unit
 from simtest.geometry.conics import plane_basis
 from simtest.geometry.lights import LightRig
 from simtest.reconstruct.lightaware.model import (
-    _camera,
-    _log_depth_gradient,
-    _mean_light,
-    _normal_derivs,
-    _rays,
-    _rig_arrays,
-    _rig_image,
+    _camera, _log_depth_gradient, _mean_light, _normal_derivs, _rays, _rig_arrays, _rig_image,
 )
 from simtest.reconstruct.lightaware.solve import _covariance
 

@@ -12,13 +12,7 @@ from simtest.geometry.lights import LightRig
 from simtest.tolerances import TOL
 from simtest.reconstruct.lightaware.estimate import LightAwareEstimate
 from simtest.reconstruct.lightaware.patch import (
-    _fit_fixed_depth,
-    _patch_covariances,
-    _patch_lobes,
-    _patch_problem,
-    _patch_sigma,
-    _quadric_root,
-    _valley_sigma_deg,
+    _fit_fixed_depth, _patch_covariances, _patch_lobes, _patch_problem, _patch_sigma, _quadric_root, _valley_sigma_deg,
 )
 from simtest.reconstruct.lightaware.solve import _covariance, _implausible, _patch_verdict
 

@@ -85,7 +85,7 @@ class LightAwareEstimate:
         The BP ray's expected error next to this fit, degrees: half the angle the rig's mean light
         subtends from the camera at the specular point (at this fit's depth, or at the nominal
         depth where the depth is not observable); set by
-        :func:`simtest.reconstruct.recommend.light_aware_estimates`, whose recommendation keeps a
+        :func:`simtest.reconstruct.light_fits.light_aware_estimates`, whose recommendation keeps a
         normal whose ``normal_sigma_deg`` is below it. None when not set.
     lobe : str or None
         :func:`photometric_fit`: the specular lobe of the model kept, ``"phong"`` or ``"ggx"``

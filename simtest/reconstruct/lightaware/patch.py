@@ -14,19 +14,8 @@ from simtest.geometry.conics import plane_basis
 from simtest.geometry.lights import LightRig
 from simtest.tolerances import TOL
 from simtest.reconstruct.lightaware.estimate import LightAwareEstimate
-from simtest.reconstruct.lightaware.model import (
-    _mean_light,
-    _rays,
-    _rig_arrays,
-    _roi_grid,
-    _roi_samples,
-)
-from simtest.reconstruct.lightaware.solve import (
-    _covariance,
-    _hac_covariance,
-    _implausible,
-    _patch_verdict,
-)
+from simtest.reconstruct.lightaware.model import _mean_light, _rays, _rig_arrays, _roi_grid, _roi_samples
+from simtest.reconstruct.lightaware.solve import _covariance, _hac_covariance, _implausible, _patch_verdict
 
 
 
@@ -256,7 +245,7 @@ def quadric_fit(values, origin_uv, bp_uv, camera, rig: LightRig, *,
     the truth on the liver mesh at epsilon/d 0.1, a lobe 12 mm long over which the curvature
     varies). On spheres, cylinders and saddles the quadric holds and the depth follows. A
     larger ROI brings in more of the surface's third-order shape: the recommendation fits an ROI
-    1.5 times the highlight's (:func:`~simtest.reconstruct.recommend.light_aware_estimates`).
+    1.5 times the highlight's (:func:`~simtest.reconstruct.light_fits.light_aware_estimates`).
     So under one light (every light of the rig at one place) the fit never gives a depth: its
     status is at best ``depth_not_observable``, ``depth_range_mm`` states the depths within
     :data:`ONE_LIGHT_DEPTH_FACTOR` of the fitted one, and ``normal_sigma_deg`` carries the
@@ -426,7 +415,7 @@ _VALLEY_STEP = 0.05
 _VALLEY_STEPS = (_VALLEY_STEP, 0.15, 0.4)
 
 #: The detail a patch fit's misfit ends with where it states no sigma (``misfit_sigma`` False:
-#: the recommendation has no use for it, :func:`~simtest.reconstruct.recommend.light_aware_estimates`).
+#: the recommendation has no use for it, :func:`~simtest.reconstruct.light_fits.light_aware_estimates`).
 MISFIT_SIGMA_NOTE = "no sigma stated (a misfit's depth valley not read)"
 
 

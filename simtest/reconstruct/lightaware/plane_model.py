@@ -7,19 +7,8 @@ from __future__ import annotations
 import numpy as np
 
 from simtest.reconstruct.lightaware.model import (
-    _normal_derivs,
-    _ray_light,
-    _rays,
-    _rig_arrays,
-    _rig_diffuse,
-    _rig_diffuse_grad,
-    _rig_grad,
-    _rig_grad_ggx,
-    _rig_value,
-    _rig_value_ggx,
-    _roi_grid,
-    _roi_samples,
-    ggx_alpha_of_phong,
+    _normal_derivs, _ray_light, _rays, _rig_arrays, _rig_diffuse, _rig_diffuse_grad, _rig_grad, _rig_grad_ggx,
+    _rig_value, _rig_value_ggx, _roi_grid, _roi_samples, ggx_alpha_of_phong,
 )
 from simtest.reconstruct.lightaware.solve import _ROUGHNESS_RANGE
 

@@ -16,13 +16,7 @@ from simtest.reconstruct.lightaware.model import _curvature_columns, _mean_light
 from simtest.reconstruct.lightaware.plane_model import PlaneModel
 from simtest.reconstruct.lightaware.plane_solve import _FLOOR_MARGIN
 from simtest.reconstruct.lightaware.solve import (
-    _cluster_covariance,
-    _correlated,
-    _correlation_area,
-    _curvature_score,
-    _curvature_shift,
-    _hac_covariance,
-    _misfit,
+    _cluster_covariance, _correlated, _correlation_area, _curvature_score, _curvature_shift, _hac_covariance, _misfit,
     cluster_blocks,
 )
 

@@ -16,10 +16,7 @@ import numpy as np
 
 from simtest._lazy import require
 from simtest.decisions import (
-    SMOOTHEST_FILM_ALPHA,
-    ROUGHEST_FILM_ALPHA,
-    DISTANCE_FACTOR_MAX as _H_FACTOR,
-    SIGMA_CLUSTER_PX as CLUSTER_PX,
+    SMOOTHEST_FILM_ALPHA, ROUGHEST_FILM_ALPHA, DISTANCE_FACTOR_MAX as _H_FACTOR, SIGMA_CLUSTER_PX as CLUSTER_PX,
     SIGMA_MIN_CLUSTERS as MIN_CLUSTERS,
 )
 from simtest.geometry.angles import unit
@@ -27,13 +24,7 @@ from simtest.geometry.conics import plane_basis
 from simtest.tolerances import TOL
 from simtest.reconstruct.lightaware.estimate import LightAwareEstimate, OK
 from simtest.reconstruct.lightaware.model import (
-    _distance_for_bp,
-    _log_depth_gradient,
-    _mean_light,
-    _rays,
-    _rig_arrays,
-    phong_of_ggx_alpha,
-    specular_point_depth,
+    _distance_for_bp, _log_depth_gradient, _mean_light, _rays, _rig_arrays, phong_of_ggx_alpha, specular_point_depth,
 )
 
 

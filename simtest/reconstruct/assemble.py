@@ -1,0 +1,339 @@
+"""The estimates (:class:`IsophoteEstimate`, :class:`SpecularityEstimate`) and their assembly from a
+frame's drafts (:func:`_complete`): the cone fits and estimators of every isophote in one batch each,
+the joint cone axes and the ``merged`` test."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from simtest._records import fast_init
+from simtest.reconstruct import _kernels
+from simtest.reconstruct._pixels import Roi
+from simtest.reconstruct.cone_fit import FitFrame, fit_cones, to_camera, to_fit_frame
+from simtest.reconstruct.estimators import estimate_from_conics, joint_cone_axes
+from simtest.reconstruct.failures import OK, Failure
+from simtest.reconstruct.recommend import recommend
+
+
+@fast_init
+@dataclass(frozen=True)
+class IsophoteEstimate:
+    """The result at one isovalue.
+
+    Attributes
+    ----------
+    isovalue : float
+        t in (0, 1), relative to the normalisation (the BP intensity by default).
+    status : str
+        ``"ok"`` or a reason from :data:`~simtest.reconstruct.failures.REASONS`.
+    detail : str
+        Numbers behind a failure.
+    points_uv : ndarray of shape (N, 2) or None
+        Contour points as found in the image (distorted pixel coordinates), px.
+    closed : bool
+        False if the contour is cut (then fitted only with ``allow_open=True``).
+    conic : ndarray of shape (3, 3) or None
+        Fitted point conic in undistorted pixel coordinates (unit Frobenius norm), for a pinhole
+        camera; None for a fisheye or omnidirectional camera, whose isophotes are no conics in
+        pixels (the fit is the cone ``normalised_conic``).
+    ellipse : simtest.geometry.conics.Ellipse or None
+        Its centre (u, v) px, semi-axes (a >= b) px and angle (rad); None as ``conic``.
+    fit_residual_px : float or None
+        RMS Sampson distance of the points to the conic on the fit plane, px
+        (:mod:`~simtest.reconstruct.cone_fit`).
+    normals_paper : ndarray of shape (2, 3) or None
+        N+ and N-.
+    paper_selected : ndarray of shape (3,) or None
+        The non-oracle choice among N+ and N- (closer to the BP ray).
+    paper_selected_index : int or None
+        0 if that is N+, 1 if N-.
+    cone_axis : ndarray of shape (3,) or None
+        Cone-axis normal.
+    eigenvalue_gap : float or None
+        0 for a right circular cone.
+    normalised_conic : ndarray of shape (3, 3) or None
+        The isophote cone C' in the camera frame (``r^T C' r = 0`` on its unit rays; K^T C K for
+        a pinhole), unit Frobenius norm.
+    """
+
+    isovalue: float
+    status: str
+    detail: str = ""
+    points_uv: np.ndarray | None = None
+    closed: bool = False
+    conic: np.ndarray | None = None
+    ellipse: object | None = None
+    fit_residual_px: float | None = None
+    normals_paper: np.ndarray | None = None
+    paper_selected: np.ndarray | None = None
+    paper_selected_index: int | None = None
+    cone_axis: np.ndarray | None = None
+    eigenvalue_gap: float | None = None
+    normalised_conic: np.ndarray | None = None
+
+    @property
+    def ok(self) -> bool:
+        """True if the status is ``"ok"``."""
+        return self.status == OK
+
+
+@fast_init
+@dataclass(frozen=True)
+class SpecularityEstimate:
+    """Everything estimated for one highlight.
+
+    Attributes
+    ----------
+    bp_px : ndarray of shape (2,)
+        Brightest point (u, v) as detected in the image, px.
+    bp_intensity : float
+        Intensity used for normalisation (image units).
+    saturated : bool
+        True if the BP is the centroid of a clipped plateau.
+    roi : Roi
+        Final region of interest (array indices, half-open).
+    status : str
+        ``"ok"`` or a reason: a detection rejection, the primary isophote's failure, or
+        ``merged`` (the primary isophote encloses another highlight's BP).
+    detail : str
+        Numbers behind the status.
+    bp_ray : ndarray of shape (3,) or None
+        BP-ray normal (minus the unit viewing ray of the BP through the camera model); None only
+        when the BP has no ray in the model (status ``non_finite_points``).
+    isophotes : tuple of IsophoteEstimate
+        One per isovalue, in the order given.
+    joint_cone_axis : ndarray of shape (3,) or None
+        Common axis of the nested isophotes, when at least two succeeded.
+    light_aware : dict or None
+        The light-aware estimates by name (:mod:`simtest.reconstruct.recommend`), when a light rig
+        off the camera centre is known; an empty dict where that rig is known but no fit ran (a
+        rejected candidate: its recommended normal is the BP ray's). None: no such rig.
+    confidence : float or None
+        In [0, 1]: how likely the candidate is an isolated specular highlight the isophote method
+        can use (:func:`simtest.reconstruct.verify.confidence`, calibrated on labelled real
+        frames); None where the frame was not verified (``ReconSettings.verify`` off).
+    """
+
+    bp_px: np.ndarray
+    bp_intensity: float
+    saturated: bool
+    roi: Roi
+    status: str
+    detail: str
+    bp_ray: np.ndarray
+    isophotes: tuple[IsophoteEstimate, ...]
+    joint_cone_axis: np.ndarray | None = None
+    light_aware: dict | None = None
+    confidence: float | None = None
+
+    @property
+    def ok(self) -> bool:
+        """True if the status is ``"ok"``."""
+        return self.status == OK
+
+    @property
+    def recommended(self):
+        """The recommended normal, its estimator, depth and uncertainty
+        (:func:`simtest.reconstruct.recommend.recommend`)."""
+        return recommend(self)
+
+    @property
+    def primary(self) -> IsophoteEstimate | None:
+        """The isophote at the first isovalue (None for a rejected detection)."""
+        return self.isophotes[0] if self.isophotes else None
+
+    def _p(self, name):
+        p = self.primary
+        return None if p is None else getattr(p, name)
+
+    @property
+    def points_uv(self):
+        """Primary isophote points (N, 2) px, or None."""
+        return self._p("points_uv")
+
+    @property
+    def conic(self):
+        """Primary fitted conic (3, 3), or None."""
+        return self._p("conic")
+
+    @property
+    def ellipse(self):
+        """Primary ellipse parameters, or None."""
+        return self._p("ellipse")
+
+    @property
+    def normals_paper(self):
+        """Primary N+ and N- (2, 3), or None."""
+        return self._p("normals_paper")
+
+    @property
+    def paper_selected(self):
+        """Primary non-oracle paper normal (3,), or None."""
+        return self._p("paper_selected")
+
+    @property
+    def cone_axis(self):
+        """Primary cone-axis normal (3,), or None."""
+        return self._p("cone_axis")
+
+    @property
+    def eigenvalue_gap(self):
+        """Primary eigenvalue gap, or None."""
+        return self._p("eigenvalue_gap")
+
+    @property
+    def fit_residual_px(self):
+        """Primary RMS Sampson residual, px, or None."""
+        return self._p("fit_residual_px")
+
+@fast_init
+@dataclass(frozen=True)
+class _Pending:
+    """An isophote extracted and waiting for its cone fit (done for a whole frame at once)."""
+
+    isovalue: float
+    iso: object  # simtest.reconstruct.isophote.Isophote
+
+@dataclass
+class _Draft:
+    """One highlight after its isophotes were extracted, before the frame's batched fits."""
+
+    bp_uv: np.ndarray
+    i_bp: float
+    saturated: bool
+    roi: Roi
+    bp_ray: np.ndarray
+    fitf: FitFrame
+    results: list
+    other_bps: object = ()
+    own_bp: int = -1  # this highlight's own row in other_bps (skipped), -1 if not there
+def _complete(drafts: list) -> list[SpecularityEstimate]:
+    """Fit the cones of every pending isophote of ``drafts`` in one batch, run the estimators in
+    one batch, and finish each highlight (``merged`` test, joint cone axis)."""
+    # the drafts among the estimates (a real frame's thousands of rejections are finished already)
+    dr = [d for d in drafts if type(d) is _Draft]
+    pend = [(d, i) for d in dr for i, r in enumerate(d.results) if type(r) is _Pending]
+    fits = fit_cones([d.results[i].iso.points_uv for d, i in pend], [d.fitf for d, _ in pend])
+    fitted = [k for k, f in enumerate(fits) if f]
+    ests = [] if not fitted else estimate_from_conics(
+        np.array([fits[k].cone_fit_frame for k in fitted]).reshape(-1, 3, 3),
+        np.array([to_fit_frame(pend[k][0].fitf, pend[k][0].bp_ray) for k in fitted]).reshape(-1, 3))
+    est_of = dict(zip(fitted, ests))
+    for k, ((d, i), fit) in enumerate(zip(pend, fits)):
+        p = d.results[i]
+        t, iso = p.isovalue, p.iso
+        if not fit:
+            d.results[i] = IsophoteEstimate(t, fit.reason, fit.detail, iso.points_uv, iso.closed)
+            continue
+        est = est_of[k]
+        # (IsophoteEstimate's fields given in order: no keyword dicts, 1500 isophotes a real frame)
+        if not est:
+            d.results[i] = IsophoteEstimate(t, est.reason, est.detail, iso.points_uv, iso.closed, fit.conic,
+                                            fit.ellipse, fit.residual_px, None, None, None, None, None, fit.cone)
+            continue
+        f = d.fitf  # the estimators ran in the fit frame (identity for a pinhole): rotate back
+        if f.on_image_plane:
+            paper, selected, axis = est.paper, est.paper_selected, est.cone_axis
+        else:
+            paper, selected, axis = to_camera(f, est.paper), to_camera(f, est.paper_selected), to_camera(f, est.cone_axis)
+        d.results[i] = IsophoteEstimate(
+            t, OK, "" if iso.closed else "open contour fitted (allow_open=True)", iso.points_uv, iso.closed,
+            fit.conic, fit.ellipse, fit.residual_px, paper, selected, est.paper_selected_index, axis,
+            est.eigenvalue_gap, fit.cone)
+    # joint cone axes of the highlights with two or more good isophotes, in one batch
+    multi = [d for d in dr if sum(r.status == OK for r in d.results) >= 2]
+    if not multi:
+        enclosed = _enclosed_counts(dr)
+        return [_finish(d, None, enclosed.get(id(d))) if type(d) is _Draft else d for d in drafts]
+    cones, group = [], []
+    for g, d in enumerate(multi):
+        for r in d.results:
+            if r.ok:
+                c = r.normalised_conic
+                cones.append(c if d.fitf.on_image_plane else d.fitf.R @ c @ d.fitf.R.T)
+                group.append(g)
+    axes = joint_cone_axes(np.array(cones).reshape(-1, 3, 3), np.array(group, dtype=int),
+                           np.array([to_fit_frame(d.fitf, d.bp_ray) for d in multi]).reshape(-1, 3))
+    joint_of = {id(d): (to_camera(d.fitf, j) if not isinstance(j, Failure) else None)
+                for d, j in zip(multi, axes)}
+    enclosed = _enclosed_counts(dr)
+    return [_finish(d, joint_of.get(id(d)), enclosed.get(id(d))) if type(d) is _Draft else d for d in drafts]
+def _enclosed_counts(drafts: list) -> dict:
+    """``id(draft) -> n``: how many other BPs the closed ok primary isophote of each draft whose
+    other BPs are a frame's sorted array (``_SortedBps``) encloses, in one compiled call
+    (:func:`simtest.reconstruct._kernels.count_enclosed_sorted_many`: the counts of
+    ``count_enclosed_sorted`` one draft at a time). The drafts not counted here are counted by
+    :func:`_finish` itself."""
+    todo = [d for d in drafts if isinstance(d.other_bps, _SortedBps) and d.results[0].status == OK
+            and d.results[0].closed and len(d.other_bps) > (d.own_bp >= 0)]
+    if not todo:
+        return {}
+    others = todo[0].other_bps
+    if any(d.other_bps is not others for d in todo):
+        return {}
+    polys = [d.results[0].points_uv for d in todo]
+    counts = np.array([len(p) for p in polys], dtype=np.int64)
+    starts = np.concatenate([[0], np.cumsum(counts)[:-1]]).astype(np.int64)
+    n_in = _kernels.count_enclosed_sorted_many(
+        np.ascontiguousarray(np.concatenate(polys, axis=0), dtype=np.float64), starts, counts, others.uv,
+        others.u, np.array([d.own_bp for d in todo], dtype=np.int64))
+    return dict(zip(map(id, todo), n_in.tolist()))
+
+
+class _SortedBps:
+    """A frame's BPs (k, 2) sorted by u, and their u (k,) contiguous, for the ``merged`` test."""
+
+    __slots__ = ("uv", "u")
+
+    def __init__(self, uv: np.ndarray):
+        self.uv = uv
+        self.u = np.ascontiguousarray(uv[:, 0])
+
+    def __len__(self) -> int:
+        return len(self.uv)
+
+
+def _merge_guard(det, bps_arr: np.ndarray) -> tuple[_SortedBps, np.ndarray, np.ndarray]:
+    """``(others, keep, row_in_others)``: the BPs an isophote must not enclose (``merged``: every
+    candidate's but the too small ones), sorted by u (``count_enclosed_sorted``); which candidates
+    are among them; and each one's row there, -1 if not there."""
+    keep = np.array([c.status != "too_small" for c in det.candidates], dtype=bool)
+    kept = np.flatnonzero(keep)
+    order = np.argsort(bps_arr[kept, 0], kind="stable")
+    others = _SortedBps(np.ascontiguousarray(bps_arr[kept][order]))
+    row_in_others = np.full(len(keep), -1, dtype=np.int64)
+    row_in_others[kept[order]] = np.arange(len(kept))
+    return others, keep, row_in_others
+
+
+def _finish(d: _Draft, joint, enclosed: int | None = None) -> SpecularityEstimate:
+    """The estimate of a completed draft: the primary isophote's status, ``merged`` when that
+    closed isophote encloses another candidate's BP (``enclosed``: how many, where
+    :func:`_enclosed_counts` counted them)."""
+    primary = d.results[0]
+    status, detail = primary.status, primary.detail
+    if status == OK and primary.closed and len(d.other_bps) > (d.own_bp >= 0):
+        # the other BPs in the isophote's bounding box, tested even-odd (polygon_contains)
+        if enclosed is not None:
+            n_in = enclosed
+        elif isinstance(d.other_bps, _SortedBps):
+            n_in = int(_kernels.count_enclosed_sorted(primary.points_uv, d.other_bps.uv, d.other_bps.u,
+                                                      d.own_bp))
+        else:
+            others = np.asarray(d.other_bps, dtype=np.float64).reshape(-1, 2)
+            n_in = int(_kernels.count_enclosed(primary.points_uv, others, d.own_bp))
+        if n_in:
+            status, detail = "merged", f"the isophote at t = {primary.isovalue} encloses {n_in} other BP(s)"
+    return SpecularityEstimate(d.bp_uv, d.i_bp, d.saturated, d.roi, status, detail, d.bp_ray,
+                               tuple(d.results), joint)
+
+def _replaced(est: SpecularityEstimate, **changes) -> SpecularityEstimate:
+    """``dataclasses.replace(est, **changes)`` for the fields of a :class:`SpecularityEstimate`
+    (which has no ``__post_init__``), by copying its ``__dict__``: a fifth of the time, for the
+    thousands of candidates of a real frame."""
+    new = object.__new__(SpecularityEstimate)
+    new.__dict__.update(est.__dict__)
+    new.__dict__.update(changes)
+    return new

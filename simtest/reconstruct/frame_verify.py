@@ -1,0 +1,106 @@
+"""The verifier's stage of a frame (:mod:`simtest.reconstruct.verify`): its checks of the BPs before any
+isophote (:func:`_early_checks`), and the confidences and verdicts of the fitted estimates (:func:`_verified`)."""
+
+from __future__ import annotations
+
+import math
+
+import cv2
+import numpy as np
+
+from simtest.reconstruct.assemble import SpecularityEstimate, _replaced
+from simtest.reconstruct.detect import background_side_px, luma, noise_sigma
+from simtest.reconstruct.failures import OK
+from simtest.reconstruct.frame_prep import _Frame, _is_gray
+from simtest.reconstruct.verify import assess, bp_checks, confidence, seed_opening, verdict
+
+
+def _early_checks(frame: _Frame, det, bps_arr: np.ndarray, fitted: np.ndarray,
+                  whole: bool) -> tuple[tuple | None, dict, np.ndarray]:
+    """``(verifier, early, fitted)``: the verifier's inputs (:func:`_verifier_inputs`; None without
+    ``verify``), its checks that read only the BP (colour, height) of the ``fitted`` candidates as
+    ``k -> detail`` of those that fail, and ``fitted`` without them (cleared in place): those are
+    ``not_specular`` whatever their fit, neither contoured nor fitted (issue 41)."""
+    if not frame.settings.verify:
+        return None, {}, fitted
+    verifier = _verifier_inputs(frame, det.gray if whole else None, frame.noise if whole else None)
+    gray_v, grey_v, noise_v = verifier
+    if whole and det.half is not None and gray_v is det.gray:
+        # the verifier's reduced opening from detection's 2 x 2 means of the same gray
+        seed_opening(gray_v, background_side_px(gray_v.shape), det.half)
+    fk = np.flatnonzero(fitted)
+    sat = np.array([det.candidates[k].saturated for k in fk.tolist()], dtype=bool)
+    early = {k: d for k, d in zip(fk.tolist(), bp_checks(frame.img, gray_v, bps_arr[fk], sat,
+                                                         full_scale=frame.full_scale, noise=noise_v,
+                                                         grey=grey_v)) if d is not None}
+    fitted[list(early)] = False
+    return verifier, early, fitted
+
+
+def _verifier_inputs(frame: _Frame, native: np.ndarray | None = None,
+                     noise: float | None = None) -> tuple[np.ndarray, bool, float]:
+    """``(gray, grey, noise)``: the luma the verifier measures in (:func:`_verifier_luma`), whether
+    it is the value of R, G and B alike, and its noise standard deviation.
+
+    ``native`` is detection's unsmoothed gray of the whole frame (``Detection.gray``) and
+    ``noise`` the noise measured on it (``_Frame.noise``), or None: measured again (also where
+    the verifier measures in another luma than ``native``)."""
+    # the frame's luma as the camera gave it (small glints beside a highlight survive no smoothing;
+    # the checks weigh heights against its noise): detection's gray where it is the luma itself
+    # (a single-channel frame, or R = G = B, where OpenCV's gray is the channel), else the float32
+    # luma (the checks measure in float32)
+    gray, grey = _verifier_luma(frame, native)
+    if gray is not native:
+        # a colour frame: OpenCV's gray, rounded to whole levels, carries the rounding's noise
+        # (0.6 against 0.29 levels on a small colonoscope_plane render): measured on the luma
+        noise = None
+    return gray, grey, noise_sigma(gray) if noise is None else float(noise)
+
+
+def _verified(frame: _Frame, ests: list[SpecularityEstimate], native: np.ndarray | None = None,
+              noise: float | None = None, *, verifier: tuple | None = None, lights=None) -> list[SpecularityEstimate]:
+    """The estimates with their confidence, and the fitted ones that fail a specularity check
+    of :mod:`simtest.reconstruct.verify` with its reason as status (the fit is kept).
+
+    ``native`` and ``noise`` as for :func:`_verifier_inputs`, or ``verifier``: its result,
+    where the caller has it; ``lights`` the scope's rig (:func:`~simtest.reconstruct.verify.assess`)."""
+    gray, grey, noise = _verifier_inputs(frame, native, noise) if verifier is None else verifier
+    # only the estimates with isophotes can have a fit (a confidence) or be ok (a verdict); the
+    # others (detection's rejections, the BP checks', most of a real frame's thousands) are
+    # returned as they are: each estimate's evidence is measured from its own BP and region only
+    fit = [e for e in ests if e.isophotes]
+    if not fit:
+        return list(ests)
+    ev, res, inside = assess(frame.img, gray, fit, full_scale=frame.full_scale, noise=noise, grey=grey, camera=frame.camera, lights=lights)
+    conf = confidence(ev, res).tolist()
+    checks = verdict(ev, res, inside, only=[k for k, e in enumerate(fit) if e.ok])
+    judged = {}
+    floor = frame.settings.min_confidence
+    for k, e in enumerate(fit):
+        status, detail = (checks[k] if e.ok else (e.status, e.detail))
+        fitted = math.isfinite(res[k])  # a confidence for the fitted candidates only
+        if status == OK and fitted and conf[k] < floor:
+            status, detail = "low_confidence", f"confidence {conf[k]:.3f} < min_confidence {floor:g}"
+        judged[id(e)] = _replaced(e, status=status, detail=detail, confidence=conf[k] if fitted else None)
+    return [judged.get(id(e), e) for e in ests]
+
+
+def _verifier_luma(frame: _Frame, native: np.ndarray | None) -> tuple[np.ndarray, bool]:
+    """The luma :func:`_verified` measures in (H, W), and whether it is the value of R, G and B
+    alike: ``native`` (detection's gray) where it is the luma's values (a single-channel image,
+    or an RGB one with R = G = B), the frame's luma where it was computed (float64, or a colour
+    frame's float32 ``luma32``), else OpenCV's float32 luma of the frame (the verifier's arithmetic is float32: within a float32 rounding of the
+    float64 luma, a third of its time)."""
+    img = frame.img
+    if native is not None and native.shape == img.shape[:2] and frame.luma32 is None:
+        if img.ndim == 2:
+            return native, False
+        if img.shape[2] >= 3 and (frame.grey if frame.grey is not None else _is_gray(img)):
+            return native, True
+    if frame.luma_frame is not None:
+        return frame.luma_frame, False
+    if frame.luma32 is not None:  # a colour frame's (not gray: is_gray was asked)
+        return frame.luma32, False
+    if img.ndim == 3 and img.shape[2] == 3 and img.dtype.type in (np.uint8, np.uint16, np.float32):
+        return cv2.cvtColor(img.astype(np.float32), cv2.COLOR_RGB2GRAY), False
+    return luma(img), False

@@ -1,0 +1,445 @@
+"""The isophotes of each highlight: its ROI's values and levels, the isophote at each isovalue, the ROI
+grown while the lowest is cut (:func:`_estimate_one`, :func:`_grown_drafts`), and a frame's drafts
+(:func:`_candidate_drafts`) for :func:`simtest.reconstruct.assemble._complete`."""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from simtest._records import fast_init
+from simtest.constants import gaussian_radius_px, smooth_block_px
+from simtest.decisions import ROI_GROWTH_FACTOR, ROI_MAX_GROWTHS
+from simtest.reconstruct import _kernels
+from simtest.reconstruct._pixels import Roi, rc_to_uv
+from simtest.reconstruct.assemble import IsophoteEstimate, SpecularityEstimate, _Draft, _Pending
+from simtest.reconstruct.cone_fit import FitFrame, fit_frame, fit_frames
+from simtest.reconstruct.detect import connected_components, luma, peak_uv
+from simtest.reconstruct.failures import OK
+from simtest.reconstruct.frame_prep import _LUMA_W, _Frame, _smooth
+from simtest.reconstruct.isophote import MIN_CONTOUR_POINTS, Isophote, _cut_and_contour, _extract, _Region, _region
+from simtest.reconstruct.settings import AUTO_LOCAL_BACKGROUND_REL, Normalisation
+
+_TINY = float(np.finfo(float).tiny)
+
+#: A frame prepared for many highlights (``_Frame.for_many_highlights``) smooths its luma once and
+#: takes an ROI of at least this many pixels from it (``_patched_from_frame``); a smaller ROI is
+#: smoothed for itself, which is cheaper there (the same bits either way). On the Hyper-Kvasir
+#: banner (sigma 1.7 px) the two took the same time at about 160 x 160 px (medians of six ROIs:
+#: 186 against 182 us; at 128 px 114 against 142 us, at 224 px 355 against 249 us).
+SMOOTH_FRAME_MIN_ROI_PX = 160 * 160
+#: Columns the strip re-smoothed at an ROI's right side starts on a multiple of, and more than
+#: it covers (:data:`simtest.constants.SMOOTH_BLOCK_BYTES` of float64): each column of the strip is
+#: computed in the same kind of block (SIMD, or a row's scalar last columns) as in the ROI, and the
+#: strip reaches past the frame's own scalar columns when the ROI ends on the image's right border.
+#: The strips cost in proportion to their width: 16 instead of 64 halved the re-smoothed pixels of
+#: the Hyper-Kvasir banner (8.6 to 3.9 Mpx).
+SMOOTH_STRIP_ALIGN = smooth_block_px(np.dtype(np.float64).itemsize)
+
+
+def _roi_values(frame: _Frame, roi: Roi, smooth_sigma_px: float) -> tuple[np.ndarray, list | None]:
+    """An ROI's intensities (h, w), float64 (read-only where they are a view): its luma, smoothed
+    with the ROI's borders reflected when ``smooth_sigma_px`` > 0 (for a large ROI of a frame
+    smoothed once, the frame's values with the ROI's bands written in: ``_patched_from_frame``,
+    the same bits), and what :func:`_put_back` needs to restore the frame afterwards (None when
+    nothing was written)."""
+    if frame.smoothed32 is not None and smooth_sigma_px > 0:
+        return frame.smoothed32[roi.slices], None  # float32, read-only: the kernels read it as it is
+    if frame.roi_luma is not None and smooth_sigma_px > 0:
+        # the ROI's luma smoothed alone in float32 (OpenCV's float32 blur, its borders reflected):
+        # the float64 luma and its float64 blur of the same ROI to float32 rounding (5e-8
+        # relative, as the frame's smoothing is; 0.65 -> 0.3 ms for the ten ROIs of the noisy
+        # bench frame)
+        return _smooth(frame.roi_luma[roi.slices].astype(np.float32), smooth_sigma_px), None
+    vals = frame.luma(roi)
+    if smooth_sigma_px <= 0:
+        return vals, None
+    if frame.smooth_frame_rw is not None and vals.size >= SMOOTH_FRAME_MIN_ROI_PX:
+        got = _patched_from_frame(frame.smooth_frame_rw, vals, roi, smooth_sigma_px)
+        if got is not None:
+            return got
+    return _smooth(vals, smooth_sigma_px), None
+
+
+def _patched_from_frame(smooth_frame: np.ndarray, vals: np.ndarray, roi: Roi,
+                        sigma: float) -> tuple[np.ndarray, list] | None:
+    """``_smooth(vals, sigma)`` of an ROI, as a view of the smoothed frame with the ROI's bands
+    written in, and the frame's values that were there (for :func:`_put_back`).
+
+    A pixel farther than the kernel's radius from the ROI's sides has the same neighbourhood in
+    the frame and in the ROI (a side on the image border reflects as the frame's does), and
+    OpenCV computes it with the same operations, but for the last columns of a row, which it
+    computes in scalar code where the rest is in SIMD blocks (:data:`SMOOTH_STRIP_ALIGN`). So the
+    bands along the ROI's top, bottom and left sides inside the image are smoothed again from
+    strips twice the radius wide (a strip's own far side does not reach the band), and the
+    ROI's last columns from a strip that starts on a multiple of the alignment (its blocks are
+    the ROI's) and is wider than the frame's scalar columns. Writing the bands into the frame
+    for the time of the ROI's extraction, instead of copying the ROI out of it, moves a fifth of
+    the bytes (the banner's large ROIs are 19 Mpx, ten times the frame).
+
+    Returns None (smooth the ROI itself) for an ROI too narrow for the strips. The bits equal
+    those of smoothing the ROI, and the frame is itself again after :func:`_put_back`:
+    ``tests/test_pipeline.py`` checks random ROIs.
+    """
+    r = gaussian_radius_px(sigma) + 1  # one more than OpenCV's kernel radius
+    h, w = vals.shape
+    H = smooth_frame.shape[0]
+    c = (w - SMOOTH_STRIP_ALIGN - 2 * r) // SMOOTH_STRIP_ALIGN * SMOOTH_STRIP_ALIGN
+    if h < 2 * r or c <= 2 * r:
+        return None
+    # The bands as (rows, columns) of the ROI and their values, in this order (a later band
+    # overwrites the corners of an earlier one). Two strips on opposite sides are smoothed in one
+    # OpenCV call, stacked or side by side (a call's fixed cost, and a narrow strip's cost per
+    # row, are most of a strip's time): a band reads its own strip only, within the kernel's
+    # radius, and each column (row) is computed as in a call of its own (the left strip's width,
+    # a multiple of the alignment, keeps the right one's SIMD blocks).
+    bands = []
+    top, bottom = vals[: 2 * r], vals[h - 2 * r :]
+    if roi.row0 > 0 and roi.row1 < H:
+        both = _smooth(np.concatenate([top, bottom]), sigma)
+        bands += [(slice(0, r), slice(0, w), both[:r]), (slice(h - r, h), slice(0, w), both[3 * r :])]
+    elif roi.row0 > 0:
+        bands.append((slice(0, r), slice(0, w), _smooth(top, sigma)[:r]))
+    elif roi.row1 < H:
+        bands.append((slice(h - r, h), slice(0, w), _smooth(bottom, sigma)[r:]))
+    right = slice(0, h), slice(c + r, w)
+    if roi.col0 > 0:
+        wl = -(-max(2 * r, SMOOTH_STRIP_ALIGN) // SMOOTH_STRIP_ALIGN) * SMOOTH_STRIP_ALIGN
+        both = _smooth(np.concatenate([vals[:, :wl], vals[:, c:]], axis=1), sigma)
+        bands += [(slice(0, h), slice(0, r), both[:, :r]), (*right, both[:, wl + r :])]
+    else:
+        bands.append((*right, _smooth(vals[:, c:], sigma)[:, r:]))
+    view = smooth_frame[roi.slices]
+    # each band's place in the frame and the frame's values there, all saved before any write
+    places = [view[rows, cols] for rows, cols, _ in bands]
+    saved = [(place, place.copy()) for place in places]
+    for place, (_, _, v) in zip(places, bands):
+        place[...] = v
+    out = view.view()
+    out.setflags(write=False)
+    return out, saved
+
+
+def _put_back(saved: list | None) -> None:
+    """Restore the smoothed frame's values that :func:`_patched_from_frame` overwrote (each
+    saved before any band was written, so the order does not matter)."""
+    for place, v in saved or ():
+        place[...] = v
+
+
+def _find_bp(img: np.ndarray, roi: Roi, saturation_level) -> tuple[np.ndarray, bool]:
+    """BP inside ROI: saturated plateau centroid when clipped, else the refined brightest pixel."""
+    vals = luma(img[roi.slices])
+    flat = int(np.argmax(vals))
+    r, c = divmod(flat, vals.shape[1])
+    if saturation_level is not None:
+        sub = img[roi.slices]
+        sat = sub >= saturation_level
+        if sat.ndim == 3:
+            sat = sat.all(axis=2)
+        if sat[r, c]:
+            _, lab = connected_components(sat.view(np.uint8))
+            rr, cc = np.nonzero(lab == lab[r, c])
+            return rc_to_uv([rr.mean(), cc.mean()], roi.row0, roi.col0), True
+    return peak_uv(vals, r, c) + (roi.col0, roi.row0), False
+
+
+def _border_median(vals: np.ndarray) -> float:
+    """Median of the pixels on the border of an ROI: the local diffuse level of ``normalise="local"``."""
+    return float(_kernels.border_median(vals))  # np.median of the ring's pixels (tested)
+
+
+@fast_init
+@dataclass(frozen=True)
+class _Levels:
+    """Contour level of isovalue t in one ROI: ``offset + t * scale`` (image units)."""
+
+    scale: float
+    offset: float = 0.0
+
+    @classmethod
+    def of(cls, frame: _Frame, vals: np.ndarray, i_bp: float, roi: Roi | None = None,
+           ring: float | None = None) -> _Levels:
+        """``ring``: the ROI's smoothed border median where the caller computed it
+        (:func:`_first_rings`)."""
+        mode = frame.settings.normalise
+        if ring is None and roi is not None and frame.smoothed32 is not None and \
+                mode in (Normalisation.AUTO, Normalisation.LOCAL):
+            # the ROI's values are the frame's smoothing; its background level is that of the ROI
+            # smoothed alone (_kernels.smoothed_border_median), as without the frame's
+            ring = float(_kernels.smoothed_border_median(frame.img3, *_LUMA_W, roi.row0, roi.row1,
+                                                         roi.col0, roi.col1, frame.kernel))
+        if mode == Normalisation.AUTO:
+            if ring is None:
+                ring = _border_median(vals)
+            local = ring >= AUTO_LOCAL_BACKGROUND_REL * i_bp
+            mode = Normalisation.LOCAL if local else Normalisation.BP
+        if mode == Normalisation.BP:
+            return cls(i_bp)
+        if mode == Normalisation.LOCAL:
+            offset = min(_border_median(vals) if ring is None else ring, i_bp)
+            return cls(i_bp - offset, offset)
+        return cls(frame.full_scale)
+
+    def level(self, t: float) -> float:
+        return self.offset + t * self.scale
+
+
+def _one_isophote(frame: _Frame, region, levels: _Levels, t, walked=None):
+    """Extract the isophote at ``t`` in an ROI's checked region (``isophote._region``):
+    ``(IsophoteEstimate of a failure, or _Pending, Isophote or None)``. ``walked``: the contour
+    the growth question traced at that level (``isophote._cut_and_contour``), or None."""
+    iso = _extract(region, levels.level(t), True, 0, walked)
+    if not iso:
+        return IsophoteEstimate(t, iso.reason, iso.detail), None
+    if iso.cut and not frame.settings.allow_open:
+        where = "image border" if iso.cut_by_image else "ROI border"
+        return IsophoteEstimate(t, "contour_cut", f"cut by the {where}", iso.points_uv, False), iso
+    if len(iso.points_uv) < MIN_CONTOUR_POINTS:
+        return IsophoteEstimate(t, "too_few_points", f"{len(iso.points_uv)} contour points < "
+                                f"{MIN_CONTOUR_POINTS}", iso.points_uv, iso.closed), iso
+    return _Pending(t, iso), iso
+
+def _estimate_one(frame: _Frame, bp_uv, roi: Roi, *, saturated: bool, grow: bool,
+                  other_bps=(), own_bp: int = -1, bp_ray=None, fitf: FitFrame | None = None,
+                  ring: float | None = None) -> _Draft | SpecularityEstimate:
+    """Extract one highlight's isophotes (growing the ROI): a draft for :func:`~simtest.reconstruct.assemble._complete`, or the
+    finished estimate of a BP without a viewing ray. ``other_bps`` (k, 2) are the BPs its isophote
+    must not enclose (``merged``), one frame's array shared by its highlights, whose own row
+    ``own_bp`` is skipped. ``bp_ray`` and ``fitf`` are the BP's ray and fit frame when the caller
+    computed them (for many highlights at once); ``ring`` the first ROI's smoothed border
+    median (:func:`_first_rings`), or None."""
+    isovalues = frame.settings.isovalues
+    sigma = frame.smooth_sigma_px
+    bp_uv = np.asarray(bp_uv, dtype=np.float64)
+    if bp_ray is None:
+        bp_ray = frame.bp_ray(bp_uv)
+    if not all(map(math.isfinite, bp_ray.tolist())):
+        i_bp = _region(frame.luma(roi), bp_uv, (roi.row0, roi.col0), frame.img.shape).near_bp
+        return SpecularityEstimate(bp_uv, i_bp, saturated, roi, "non_finite_points",
+                                   "the BP has no viewing ray in the camera model", None, ())
+    if fitf is None:
+        fitf = fit_frame(frame.camera, -bp_ray)
+    # Lowest isovalue first: the widest contour decides the ROI size.
+    order = sorted(range(len(isovalues)), key=lambda i: isovalues[i])
+    results: list = [None] * len(isovalues)
+    growths = 0
+    saved = None  # the frame's values under the current ROI's bands (_roi_values), put back after
+    # With the frame smoothed once (smoothed32), an ROI's values are the frame's: within the
+    # kernel's reach of an ROI side inside the image they are not the ROI's own smoothing (its
+    # sides reflected) but the frame's true neighbours' (issue 41: no longer looked at again
+    # smoothed alone; the contours that come that near a side move within the accuracy
+    # tolerance, and the banner takes 243 -> 185 ms). Its background level stays that of the ROI
+    # smoothed alone (_Levels.of).
+    fast = frame.smoothed32 is not None and sigma > 0
+    try:
+        while True:
+            _put_back(saved)
+            vals, saved = _roi_values(frame, roi, sigma)
+            region = _region(vals, bp_uv, (roi.row0, roi.col0), frame.img.shape)
+            i_bp = region.near_bp  # the largest of the BP's 3 x 3 pixels
+            levels = _Levels.of(frame, vals, i_bp, roi if fast else None, ring if fast and not growths else None)
+            i0 = order[0]
+            res = walked = None
+            cut = False
+            if grow and growths < ROI_MAX_GROWTHS:
+                new = Roi.around(bp_uv, ROI_GROWTH_FACTOR * max(roi.shape) / 2.0, frame.img.shape)
+                # an isophote cut by the ROI is discarded for the grown ROI's: ask only whether it
+                # is (the walk that answers traces the isophote: kept for the extraction when it
+                # is not)
+                if new != roi:
+                    cut, walked = _cut_and_contour(region, levels.level(isovalues[i0]))
+                if cut is None:  # only the extraction can tell
+                    res, iso = _one_isophote(frame, region, levels, isovalues[i0], walked)
+                    cut = iso is not None and iso.cut_by_roi
+                if cut:
+                    roi, growths = new, growths + 1
+                    continue
+            if not cut:
+                results[i0] = _one_isophote(frame, region, levels, isovalues[i0], walked)[0] if res is None else res
+                for i in order[1:]:
+                    results[i], _ = _one_isophote(frame, region, levels, isovalues[i])
+            break
+    finally:
+        _put_back(saved)
+    return _Draft(bp_uv, i_bp, saturated, roi, bp_ray, fitf, results, other_bps, own_bp)
+
+#: ``_Levels.of``'s normalisations as :func:`simtest.reconstruct._kernels.grown_isophotes` takes them.
+_NORM_CODES = {Normalisation.AUTO: _kernels.NORM_AUTO, Normalisation.LOCAL: _kernels.NORM_LOCAL,
+               Normalisation.BP: _kernels.NORM_BP, Normalisation.FULL_SCALE: _kernels.NORM_FULL_SCALE}
+
+
+_NO_TAPS = np.ones(1)
+
+
+def _grown_drafts(frame: _Frame, ks: list, bps: list, rois_of: dict, rings_of: dict, rays: np.ndarray,
+                  frames_of: dict, saturated: list, others, own_rows: list) -> dict:
+    """``k -> _Draft``: :func:`_estimate_one` (``grow=True``) of the candidates ``ks`` (their BPs
+    ``bps[k]``, first ROIs, rings, rays and fit frames by ``k``; ``saturated`` and ``own_rows``
+    in the order of ``ks``) of a frame smoothed once (``smoothed32``), by one compiled call for
+    their ROIs' growth, levels and contour walks
+    (:func:`simtest.reconstruct._kernels.grown_isophotes`, the same calls and arithmetic) and
+    the Python objects from its results: the same drafts, without the Python loop's 40 us a
+    candidate (a third of the banner's 448 fitted candidates' extraction). The ROIs' values are
+    slices of the frame's smoothing (``smoothed32``) or, where the frame is not smoothed, of its
+    float64 luma (``luma_frame``); on any other frame the result is empty, as it is for a
+    candidate the call leaves (a BP outside its ROI, a cut that only the extraction can tell)."""
+    if not ks:
+        return {}
+    if frame.smoothed32 is not None and frame.smooth_sigma_px > 0:
+        # the frame's smoothing; the first rings given, a grown ROI's computed
+        # (the rings only where the normalisation reads them: "auto" and "local")
+        sm, own_ring = frame.smoothed32, False
+        rings = [np.nan if rings_of[k] is None else rings_of[k] for k in ks]
+        if frame.settings.normalise in (Normalisation.AUTO, Normalisation.LOCAL) and any(
+                rings_of[k] is None for k in ks):
+            return {}
+    elif frame.luma_frame is not None and not frame.smooth_sigma_px > 0 and frame.luma_frame.dtype == np.float64:
+        # a frame not smoothed: its luma; every ring the region's own border median
+        sm, own_ring, rings = frame.luma_frame, True, [np.nan] * len(ks)  # (and no kernel read)
+    elif frame.luma_frame32 is not None and not frame.smooth_sigma_px > 0:
+        # a frame with few highlights, not smoothed: its float32 luma (the float64 luma of each ROI
+        # to float32 rounding, 6e-8 relative; the clean bench frame's ten _estimate_one calls
+        # cost 1.2 ms)
+        sm, own_ring, rings = frame.luma_frame32, True, [np.nan] * len(ks)
+    else:
+        return {}
+    isovalues = frame.settings.isovalues
+    order = sorted(range(len(isovalues)), key=lambda i: isovalues[i])
+    done, rr, near, scale, offset, code, inside, sides, start, count, pts = _kernels.grown_isophotes(
+        sm, frame.img3, *_LUMA_W, _NO_TAPS if own_ring else frame.kernel,
+        np.array([tuple(rois_of[k]) for k in ks], np.int64).reshape(-1, 4),
+        np.array([bps[k] for k in ks], np.float64).reshape(-1, 2), np.array(rings, np.float64), own_ring,
+        np.array([isovalues[i] for i in order], np.float64), _NORM_CODES[frame.settings.normalise],
+        float(AUTO_LOCAL_BACKGROUND_REL), float(frame.full_scale), ROI_MAX_GROWTHS, float(ROI_GROWTH_FACTOR))
+    shape = frame.img.shape
+    out = {}
+    rows = zip(ks, done.tolist(), rr.tolist(), near.tolist(), scale.tolist(), offset.tolist(), code.tolist(),
+               inside.tolist(), sides.tolist(), start.tolist(), count.tolist(), saturated, own_rows)
+    for k, ok, box, i_bp, sc, off, codes, ins, sds, st, cn, sat, own in rows:
+        if not ok:
+            continue
+        roi = Roi(*box)
+        bp_uv = bps[k]
+        levels = _Levels(sc, off)
+        region = None
+        results: list = [None] * len(isovalues)
+        for q, i in enumerate(order):
+            t = isovalues[i]
+            level = levels.level(t)
+            if codes[q] == _kernels.CLOSED and ins[q] and i_bp > level:
+                # a closed walk around the BP, above its level: the isophote _one_isophote makes
+                # of it (_extract's first case), without the region's checks (most of a real
+                # frame's 1500 isophotes)
+                uv = pts[st[q]:st[q] + cn[q]]
+                results[i] = _Pending(t, Isophote(uv, float(level), True, False, False)) \
+                    if len(uv) >= MIN_CONTOUR_POINTS else IsophoteEstimate(
+                        t, "too_few_points", f"{len(uv)} contour points < {MIN_CONTOUR_POINTS}", uv, True)
+                continue
+            if region is None:
+                region = _Region(sm[roi.row0:roi.row1, roi.col0:roi.col1], roi, shape, bp_uv,
+                                 int(round(float(bp_uv[1]) - roi.row0)), int(round(float(bp_uv[0]) - roi.col0)),
+                                 i_bp)
+            walked = None if codes[q] == _kernels.NOT_WALKED else \
+                (codes[q], pts[st[q]:st[q] + cn[q]], ins[q], tuple(sds[q]))
+            results[i] = _one_isophote(frame, region, levels, t, walked)[0]
+        out[k] = _Draft(bp_uv, i_bp, sat, roi, rays[k], frames_of[k], results, others, own)
+    return out
+def _initial_roi(cand, bp_uv, threshold, frame: _Frame) -> Roi:
+    """ROI expected to hold the lowest isophote, from the size of the bright component.
+
+    Model: a Gaussian-like lobe I = P exp(-r^2 / (2 s^2)) has radius ``s sqrt(2 ln(P / L))`` at
+    level L, so the isophote at level ``t P`` is ``sqrt(ln(1/t) / ln(P / threshold))`` times the
+    component (clamped to [1, 8]; a clipped highlight makes this an over-estimate). Too small an
+    ROI is grown by the pipeline; this only saves the retries.
+    """
+    t_min = min(frame.settings.isovalues)
+    if cand.level is not None:
+        threshold = cand.level  # this component's own detection level (detection="local_peak")
+    peak = max(cand.peak, threshold * (1 + 1e-6), _TINY)
+    full = frame.settings.normalise == Normalisation.FULL_SCALE
+    level = t_min * (frame.full_scale if full else peak)
+    num = np.log(peak / level) if level > 0 else 1.0
+    den = np.log(peak / threshold) if threshold > 0 else 1.0
+    ratio = min(max(float(np.sqrt(max(num, 0.0) / max(den, 1e-6))), 1.0), 8.0)
+    radius = max(cand.bbox.shape) / 2.0
+    return Roi.around(bp_uv, 1.2 * ratio * radius + 4.0, frame.img.shape)
+
+
+def _first_rings(frame: _Frame, rois: list[Roi]) -> list:
+    """Each ROI's smoothed border median (``_Levels.of``'s ring) in one compiled call
+    (:func:`simtest.reconstruct._kernels.smoothed_border_medians`: each ROI's
+    ``smoothed_border_median``), where the frame's ROIs read them (smoothed once, normalised
+    ``auto`` or ``local``); else None for each."""
+    if not rois or frame.smoothed32 is None or not frame.smooth_sigma_px > 0 or \
+            frame.settings.normalise not in (Normalisation.AUTO, Normalisation.LOCAL):
+        return [None] * len(rois)
+    rr = np.array(rois, dtype=np.int64).reshape(-1, 4)
+    return _kernels.smoothed_border_medians(frame.img3, *_LUMA_W, rr, frame.kernel).tolist()
+
+
+def _initial_rois(cands: list, bps_uv: np.ndarray, threshold, frame: _Frame) -> list[Roi]:
+    """:func:`_initial_roi` of many candidates (BPs ``bps_uv`` (k, 2)) in one batch of numpy
+    calls (the same formulas elementwise; a real frame has hundreds)."""
+    if not cands:
+        return []
+    t_min = min(frame.settings.isovalues)
+    thr = np.array([threshold if c.level is None else c.level for c in cands], dtype=np.float64)
+    peak = np.maximum(np.maximum(np.array([c.peak for c in cands], dtype=np.float64), thr * (1 + 1e-6)), _TINY)
+    full = frame.settings.normalise == Normalisation.FULL_SCALE
+    level = t_min * (frame.full_scale if full else peak)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        num = np.where(level > 0, np.log(peak / np.where(level > 0, level, 1.0)), 1.0)
+        den = np.where(thr > 0, np.log(peak / np.where(thr > 0, thr, 1.0)), 1.0)
+    ratio = np.minimum(np.maximum(np.sqrt(np.maximum(num, 0.0) / np.maximum(den, 1e-6)), 1.0), 8.0)
+    radius = np.array([max(c.bbox.row1 - c.bbox.row0, c.bbox.col1 - c.bbox.col0) for c in cands],
+                      dtype=np.float64) / 2.0
+    hs = 1.2 * ratio * radius + 4.0
+    h, w = frame.img.shape[:2]
+    u, v = bps_uv[:, 0], bps_uv[:, 1]  # Roi.around, elementwise
+    rows = np.stack([np.maximum(0, np.floor(v - hs)), np.minimum(h, np.ceil(v + hs) + 1),
+                     np.maximum(0, np.floor(u - hs)), np.minimum(w, np.ceil(u + hs) + 1)], axis=1).astype(np.int64)
+    return [Roi(*r) for r in rows.tolist()]
+
+
+def _candidate_drafts(frame: _Frame, det, r: Roi, bps_arr: np.ndarray, rays: np.ndarray, has_ray: np.ndarray,
+                      fitted: np.ndarray, early: dict, others, keep: np.ndarray, row_in_others: np.ndarray) -> list:
+    """One draft per candidate of ``det`` (region ``r``), in order: a ``_Draft`` of each ``fitted``
+    one (its isophotes extracted), else the finished estimate (detection's reason, ``not_specular``
+    with the ``early`` checks' detail, or no ray); ``others``, ``keep``, ``row_in_others``: the
+    ``merged`` test's BPs (:func:`~simtest.reconstruct.assemble._merge_guard`)."""
+    bps = list(bps_arr)
+    fk = np.flatnonzero(fitted)
+    frames_of = dict(zip(fk.tolist(), fit_frames(frame.camera, -rays[fitted])))
+    # the fitted candidates' first ROIs, in one batch of numpy calls
+    rois_of = dict(zip(fk.tolist(), _initial_rois([det.candidates[k] for k in fk.tolist()], bps_arr[fk],
+                                                  det.threshold, frame)))
+    rings_of = dict(zip(fk.tolist(), _first_rings(frame, [rois_of[k] for k in fk.tolist()])))
+    # a frame smoothed once: every fitted candidate's ROI growth, levels and contour walks in one
+    # compiled call (_grown_drafts); those it leaves go through _estimate_one
+    drafts = _grown_drafts(frame, fk.tolist(), bps, rois_of, rings_of, rays, frames_of,
+                           [det.candidates[k].saturated for k in fk.tolist()], others,
+                           [int(row_in_others[k]) if keep[k] else -1 for k in fk.tolist()])
+    out = []
+    # each candidate's ray a row of the rays (views made at once, as rays[k]), and whether it
+    # has one, as Python objects: the loop below reads them for a real frame's thousands
+    ray_rows, ray_ok = list(rays), has_ray.tolist()
+    for k, cand in enumerate(det.candidates):
+        bp = bps[k]
+        if k in drafts:
+            out.append(drafts[k])
+            continue
+        if cand.status != OK or k in early:
+            roi_k = cand.roi if not (r.row0 or r.col0) else Roi(
+                cand.roi.row0 + r.row0, cand.roi.row1 + r.row0, cand.roi.col0 + r.col0, cand.roi.col1 + r.col0)
+            status, detail = ("not_specular", early[k]) if k in early else (cand.status, cand.detail)
+            out.append(SpecularityEstimate(bp, cand.peak, cand.saturated, roi_k, status,
+                                           detail, ray_rows[k] if ray_ok[k] else None, ()))
+            continue
+        roi_k = rois_of[k] if k in rois_of else _initial_roi(cand, bp, det.threshold, frame)
+        out.append(_estimate_one(frame, bp, roi_k, saturated=cand.saturated, grow=True, other_bps=others,
+                                 own_bp=int(row_in_others[k]) if keep[k] else -1, bp_ray=rays[k],
+                                 fitf=frames_of.get(k), ring=rings_of.get(k)))
+    return out

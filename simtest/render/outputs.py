@@ -1,0 +1,263 @@
+"""What a render gives: :class:`RenderResult`, and its output folder (:func:`write_render`)."""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+from PIL import Image
+
+from simtest._io import atomic_write, atomic_write_text, replace_output_folder
+from simtest._io import check_output_folder as _check_output_folder
+from simtest.geometry.camera_file import save_camera, save_intrinsics
+from simtest.geometry.cameras import CameraModel, PinholeCamera
+from simtest.geometry.lights import Light, LightRig
+from simtest.geometry.response import video_response
+from simtest.render.endoscope import guide_radius_mm
+from simtest.render.sensor import video_frame
+from simtest.scene.spec import SceneSpec, scene_to_dict
+from simtest.simulate.truth import HighlightTruth
+
+
+#: Coverage from which a pixel counts as tissue for the "tissue" metering of the auto-exposure
+#: (``sensor.metering``): half the pixel or more on the surface.
+TISSUE_COVERAGE = 0.5
+
+
+@dataclass(frozen=True)
+class RenderResult:
+    """Everything one render produces. Images are (H, W[, 3]) arrays, camera frame, mm.
+
+    Attributes
+    ----------
+    linear : ndarray of shape (H, W), float32
+        Linear radiance (specular + diffuse). An endoscope render with a video sensor's field stop
+        is 0 outside the stop (so are ``rgb`` and ``specular``): no light reaches there.
+    sensor : ndarray of shape (H, W), uint8 or uint16
+        After exposure, noise, clipping, gamma and quantisation (:func:`apply_sensor`).
+    specular : ndarray of shape (H, W), float32
+        Specular-only linear radiance.
+    normals : ndarray of shape (H, W, 3), float32
+        Unit shading normals facing the camera; NaN outside ``mask``.
+    depth : ndarray of shape (H, W), float32
+        z-depth, mm; NaN outside ``mask``.
+    distance : ndarray of shape (H, W), float32
+        Distance from the camera centre to the pixel's mean surface point, mm; NaN outside
+        ``mask``.
+    position : ndarray of shape (H, W, 3), float32
+        Surface point, camera frame, mm; NaN outside ``mask``.
+    mask : ndarray of shape (H, W), bool
+        Pixels entirely covered by the surface (every sample hit it).
+    coverage : ndarray of shape (H, W), float32
+        Fraction of each pixel covered by the surface.
+    K : ndarray of shape (3, 3)
+        Intrinsics, pixel centres at integer coordinates.
+    cam_to_world : ndarray of shape (4, 4)
+        Camera pose in the scene's world frame.
+    light_pos : ndarray of shape (3,)
+        Point-light position, camera frame, mm.
+    highlights : list of HighlightTruth
+    variant : str
+        Mitsuba variant used.
+    seed : int
+    spec : SceneSpec
+    camera : CameraModel or None
+        The camera model of an endoscope render (rays traced from it); None for Mitsuba's
+        perspective sensor, whose model is the pinhole ``K``.
+    lights : LightRig or None
+        The light rig of an endoscope render; None for the one light at ``light_pos``.
+    rgb : ndarray of shape (H, W, 3), float32, or None
+        Linear RGB radiance of a tissue render (``material.model = "tissue"``); None when the
+        image is grey (``linear``).
+    shading_normals : ndarray of shape (H, W, 3), float32, or None
+        Unit shading normals with the tissue's micro-relief, facing the camera, NaN outside
+        ``mask`` (``normals`` is the macro normal of the surface); None without micro-relief.
+    video : ndarray of shape (H, W, 3), uint8, or None
+        The video frame when the sensor made one (``sensor.output = "video"``: ``sensor`` is its
+        luma); :attr:`frame` gives it, or develops it from the linear image otherwise.
+    field_stop : ndarray of shape (H, W), bool, or None
+        Pixels inside the scope's field stop (``sensor.field_stop`` with a video sensor); None when
+        the whole film sees the scene. Outside it there is no light and no truth: ``mask`` is
+        False and the per-pixel truth NaN there.
+    albedo : ndarray of shape (H, W, 3), float32, or None
+        Linear RGB diffuse albedo of the tissue at each pixel centre's surface point (the function
+        the renderer shades with), NaN outside ``mask``; None without tissue.
+    relief_highlights : list of ReliefHighlight
+        Specular points of the tissue's micro-relief (glints: the shading normal bisects camera
+        and light), in frame, lit and unoccluded, each with its light
+        (:func:`simtest.render.truth.relief_highlights`); ``highlights`` holds the macro surface's.
+    """
+
+    linear: np.ndarray
+    sensor: np.ndarray
+    specular: np.ndarray
+    normals: np.ndarray
+    depth: np.ndarray
+    distance: np.ndarray
+    position: np.ndarray
+    mask: np.ndarray
+    coverage: np.ndarray
+    K: np.ndarray
+    cam_to_world: np.ndarray
+    light_pos: np.ndarray
+    highlights: list[HighlightTruth]
+    variant: str
+    seed: int
+    spec: SceneSpec = field(repr=False)
+    camera: CameraModel | None = None
+    lights: LightRig | None = None
+    rgb: np.ndarray | None = None
+    shading_normals: np.ndarray | None = None
+    video: np.ndarray | None = field(default=None, repr=False)
+    field_stop: np.ndarray | None = field(default=None, repr=False)
+    albedo: np.ndarray | None = field(default=None, repr=False)
+    relief_highlights: list = field(default_factory=list)
+
+    @property
+    def frame(self) -> np.ndarray:
+        """The 8-bit RGB video frame (H, W, 3) of the scene's sensor (:func:`video_frame`)."""
+        if self.video is not None:
+            return self.video
+        return video_frame(self.rgb if self.rgb is not None else self.linear, self.spec.sensor, self.seed,
+                           tissue=self.coverage >= TISSUE_COVERAGE)
+
+    @property
+    def camera_model(self) -> CameraModel:
+        """The camera model of the film (a pinhole with ``K`` for a perspective render)."""
+        if self.camera is not None:
+            return self.camera
+        H, W = self.linear.shape[:2]
+        return PinholeCamera(self.K, image_size=(W, H))
+
+    @property
+    def light_rig(self) -> LightRig:
+        """The lights of the render, camera frame (one light at ``light_pos`` unless a rig)."""
+        if self.lights is not None:
+            return self.lights
+        falloff = "none" if self.spec.light.falloff == "cancel" else "inverse_square"
+        return LightRig((Light(tuple(float(x) for x in self.light_pos), self.spec.light.intensity,
+                               falloff),))
+
+    @property
+    def gray(self) -> np.ndarray:
+        """The linear image (already single-channel)."""
+        return self.linear
+
+
+#: File names of one render's output set (``write_render``); a folder holding anything else is not
+#: replaced.
+RENDER_FILES = ("image.png", "intrinsics.json", "ground_truth.npz", "highlights.json", "camera.json",
+                "frame.png")
+
+
+def check_output_folder(out: str | Path, option: str = "--out") -> None:
+    """Raise :class:`~simtest._io.OutputFolderError` unless ``out`` is new, empty, or a folder
+    holding only a render's files (:data:`RENDER_FILES`): ``simtest render`` replaces its output
+    folder as a whole, so anything else there would be lost.
+    """
+    _check_output_folder(out, RENDER_FILES, option)
+
+
+def _light_dict(light: Light) -> dict:
+    """JSON-ready form of one light of a rig (every field of :class:`Light`; tuples as lists)."""
+    out = {}
+    for f in dataclasses.fields(light):
+        v = getattr(light, f.name)
+        out[f.name] = [float(x) for x in v] if isinstance(v, (tuple, list, np.ndarray)) else v
+    return out
+
+
+def write_render(result: RenderResult, out_dir: str | Path) -> dict[str, Path]:
+    """Write a render to ``out_dir`` as one set: a failed write leaves the previous set or none.
+
+    Files: ``image.png`` (the sensor image, 8 or 16 bit grey), ``intrinsics.json``
+    (:func:`simtest.geometry.camera.save_intrinsics`), ``ground_truth.npz`` (``normals`` (H, W, 3),
+    ``depth``, ``distance`` (H, W) mm, ``position`` (H, W, 3), ``mask``, ``linear``, ``specular``,
+    ``coverage``, ``K``, ``cam_to_world``, ``light_pos`` (the first light, camera frame, mm),
+    ``light_positions`` (L, 3) (every light of the rig), ``field_stop`` (H, W) bool (the pixels
+    inside the scope's field stop; all True without one; outside it ``mask`` is False and the
+    truth NaN)), ``highlights.json`` (``highlights``: list of :meth:`HighlightTruth.to_dict` with
+    ``kind`` "macro"; ``relief_highlights``: the micro-relief's glints,
+    :meth:`simtest.render.truth.ReliefHighlight.to_dict`, ``kind`` "micro_relief"; ``lights``:
+    every light of the rig (``position_mm``, ``intensity``, ``falloff``, ``profile_exponent``,
+    camera frame); with the scene, seed and variant), ``camera.json`` (the camera model and its
+    light rig, :func:`simtest.geometry.camera_file.save_camera`; with a video sensor, its
+    ``"response"``, :func:`simtest.geometry.response.video_response`), ``frame.png`` (the 8-bit RGB
+    video frame, :attr:`RenderResult.frame`); tissue renders add ``rgb`` (H, W, 3),
+    ``shading_normals`` (H, W, 3) and ``albedo`` (H, W, 3) to ``ground_truth.npz``.
+
+    The files are written into a temporary sibling folder that then replaces ``out_dir`` by
+    renames (:func:`simtest._io.replace_output_folder`, which first clears what a killed write
+    left beside it); ``out_dir`` may be new, empty or a previous render's folder
+    (:data:`RENDER_FILES`).
+
+    Returns
+    -------
+    dict
+        File role -> path.
+
+    Raises
+    ------
+    OutputFolderError
+        If ``out_dir`` is a file or holds other files than a render's.
+    OSError
+        If writing fails (``out_dir`` then keeps its previous content, or does not exist).
+    """
+
+    out = Path(out_dir).absolute()
+    check_output_folder(out)
+    names = dict(zip(("image", "intrinsics", "ground_truth", "highlights", "camera", "frame"), RENDER_FILES))
+    img = result.sensor
+    if img.dtype == np.uint8:
+        pil = Image.fromarray(img, mode="L")
+    else:
+        pil = Image.fromarray(img.astype(np.uint16))
+    H, W = result.linear.shape[:2]
+    rig = result.light_rig
+    meta = {
+        "scene": result.spec.name,
+        "seed": result.seed,
+        "variant": result.variant,
+        "light_pos_mm": [float(x) for x in result.light_pos],
+        "lights": [{**_light_dict(light), "diameter_mm": 2.0 * guide_radius_mm(result.spec)}
+                   for light in rig.lights],
+        "image_size": [W, H],
+        "highlights": [{**h.to_dict(), "kind": "macro"} for h in result.highlights],
+        "relief_highlights": [h.to_dict() for h in result.relief_highlights],
+        "spec": scene_to_dict(result.spec),
+    }
+    stop = result.field_stop if result.field_stop is not None else np.ones((H, W), dtype=bool)
+    light_positions = np.array([light.position_mm for light in rig.lights], dtype=np.float64).reshape(-1, 3)
+
+    def fill(tmp: Path) -> None:
+        paths = {k: tmp / v for k, v in names.items()}
+        atomic_write(paths["image"], lambda t: pil.save(t, format="PNG"))
+        save_intrinsics(paths["intrinsics"], result.K, dist_coeffs=None, image_size=(W, H))
+
+        def write_npz(t):
+            with open(t, "wb") as fh:
+                np.savez_compressed(
+                    fh, normals=result.normals, depth=result.depth, distance=result.distance,
+                    position=result.position, mask=result.mask, linear=result.linear,
+                    specular=result.specular, coverage=result.coverage, K=result.K,
+                    cam_to_world=result.cam_to_world, light_pos=result.light_pos,
+                    light_positions=light_positions, field_stop=stop,
+                    **({"rgb": result.rgb} if result.rgb is not None else {}),
+                    **({"albedo": result.albedo} if result.albedo is not None else {}),
+                    **({"shading_normals": result.shading_normals}
+                       if result.shading_normals is not None else {}))
+
+        atomic_write(paths["ground_truth"], write_npz)
+        atomic_write_text(paths["highlights"], json.dumps(meta, indent=2))
+        # a video frame's camera file carries its sensor's response, so that the light-aware fits
+        # of `simtest reconstruct` run on the frame's linear intensities
+        save_camera(paths["camera"], result.camera_model, result.light_rig,
+                    video_response(result.spec.sensor) if result.video is not None else None)
+        frame = Image.fromarray(result.frame, mode="RGB")
+        atomic_write(paths["frame"], lambda t: frame.save(t, format="PNG"))
+
+    replace_output_folder(out, fill, owned=RENDER_FILES)
+    return {k: out / v for k, v in names.items()}
