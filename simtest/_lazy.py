@@ -37,7 +37,8 @@ BACKENDS: dict[str, str | None] = {
     "torch": "torch",
     "pyarrow": None,  # estimates.parquet only: about a second of imports one image does without
     "scipy": None,  # the light-aware fits and the overlay's spacing: ~1 s a frame without a rig skips
-    "matplotlib": None,  # the overlay: ~1 s a video or --no-overlay skips
+    "matplotlib": None,  # the report figures: ~1 s the command line's start skips
+    "tifffile": None,  # C3VD's TIFFs: 0.05 to 0.15 s of `simtest reconstruct IMAGE`'s start
 }
 
 

@@ -52,8 +52,8 @@ from pathlib import Path
 
 import cv2
 import numpy as np
-import tifffile
 
+from simtest._lazy import require
 from simtest.geometry.cameras import CameraModel
 from simtest.reconstruct.images import quiet_stderr
 
@@ -157,7 +157,7 @@ def scan_sequence(seq_dir) -> list[C3VDFrame]:
 def read_tiff(path: Path, what: str) -> np.ndarray:
     """A TIFF's array (tifffile), or a one-line :class:`C3VDError` naming the file and ``what``."""
     try:
-        return tifffile.imread(path)
+        return require("tifffile").imread(path)
     except Exception as exc:  # tifffile raises many types for a corrupt file
         raise C3VDError(f"{path}: cannot read the {what} TIFF ({type(exc).__name__}: {exc})") from None
 
@@ -291,6 +291,7 @@ def write_frame(seq_dir, index: int, color, normals, depth_mm, occlusion=None) -
     paths = [Path(f"{stem}_color.png"), Path(f"{stem}_normals.tiff"), Path(f"{stem}_depth.tiff")]
     if not cv2.imwrite(str(paths[0]), cv2.cvtColor(color, cv2.COLOR_RGB2BGR)):
         raise OSError(f"{paths[0]}: cannot write")
+    tifffile = require("tifffile")
     tifffile.imwrite(paths[1], nv.astype(np.uint16))
     tifffile.imwrite(paths[2], zv.astype(np.uint16))
     if occlusion is not None:

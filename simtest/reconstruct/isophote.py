@@ -259,6 +259,8 @@ def _region(values, bp_uv, origin_rc, image_shape) -> _Region:
     anything else becomes float64."""
     sub = values if isinstance(values, np.ndarray) and values.dtype == np.float32 else \
         np.asarray(values, dtype=np.float64)
+    sub = sub.view()
+    sub.flags.writeable = False  # read-only as the frame's smoothing: one compiled signature
     if sub.ndim != 2:
         raise ValueError(f"values must be a 2D array, got shape {sub.shape}")
     roi = Roi(origin_rc[0], origin_rc[0] + sub.shape[0], origin_rc[1], origin_rc[1] + sub.shape[1])

@@ -176,7 +176,7 @@ def _steps_of(coef: np.ndarray, tables=_FULL, fewest: int = 0) -> np.ndarray:
         return np.zeros(BLOCK * BLOCK, np.int64)
     nbin, qs, mult_idx, mult_start, zero_bin = tables
     c = coef if coef.dtype.type in (np.float32, np.float64) else coef.astype(np.float64)
-    hist = _kernels.magnitude_histogram(np.ascontiguousarray(c), nbin)  # (bins, 64)
+    hist = _magnitude_histogram(c, nbin)  # (bins, 64)
     active = hist[2:].sum(axis=0) >= MIN_COEFFICIENTS
     if np.count_nonzero(active) < fewest:
         return np.zeros(BLOCK * BLOCK, np.int64)
@@ -215,6 +215,17 @@ def _steps_of(coef: np.ndarray, tables=_FULL, fewest: int = 0) -> np.ndarray:
     return out
 
 
+def _magnitude_histogram(coef: np.ndarray, nbin: int) -> np.ndarray:
+    """Per frequency (column of ``coef``, (N, K)), the histogram of the coefficients' rounded
+    magnitudes ``min(rint(|c|), nbin - 1)`` (halves to even): int64 of shape (nbin, K), one
+    ``np.bincount`` of the bins offset by their frequency."""
+    n, k = coef.shape
+    m = np.rint(np.abs(coef))
+    np.minimum(m, nbin - 1, out=m)
+    idx = m.astype(np.int64) * k + np.arange(k)
+    return np.bincount(idx.ravel(), minlength=nbin * k).reshape(nbin, k)
+
+
 def _blockiness(y_rows: np.ndarray) -> np.ndarray:
     """Mean absolute difference across each of the 8 column phases (phase p: between columns
     ``8 j + p - 1`` and ``8 j + p``) over its mean across all phases; shape (8,)."""
@@ -223,44 +234,22 @@ def _blockiness(y_rows: np.ndarray) -> np.ndarray:
 
 def _image_blockiness(image: np.ndarray, step: int, across_columns: bool) -> np.ndarray:
     """:func:`_blockiness` of ``luma_y(image[::step])`` (``across_columns``: the column phases)
-    or of ``luma_y(image[:, ::step]).T`` (the row phases), the differences' means taken by one
-    compiled pass over the image (:func:`~simtest.reconstruct._kernels.luma_diff_means`; the
-    sampled luma's copies cost 0.9 of the 1.4 ms of :func:`quantisation_sigma` on a frame that
-    is not JPEG). The row phases' sums are taken in any order (vectorised) where every order
-    gives the same sums (:func:`_sums_in_any_order`)."""
+    or of ``luma_y(image[:, ::step]).T`` (the row phases), from the sampled rows or columns
+    only: the float32 luma summed channel by channel, the absolute differences' means in
+    float64, each summed in order (a C-contiguous sum along the first axis)."""
     img = image if image.ndim == 3 else image[:, :, None]
-    any_order = not across_columns and _sums_in_any_order(img.dtype, -(-img.shape[1] // step))
-    return _phase_blockiness(_kernels.luma_diff_means(img, step, across_columns, *_Y_WEIGHTS, any_order))
-
-
-def _sums_in_any_order(dtype, m: int) -> bool:
-    """Whether every float64 sum of ``m`` absolute differences of two rows of the float32 JFIF luma
-    (:data:`_Y_WEIGHTS`, as :func:`~simtest.reconstruct._kernels.luma_diff_means` computes it) of
-    an image of ``dtype`` is exact, whatever the order of the additions.
-
-    Parameters
-    ----------
-    dtype : numpy dtype
-        The image's.
-    m : int
-        The number of differences summed (columns sampled).
-
-    Returns
-    -------
-    bool
-        True for 8- and 16-bit images with ``m 2^(b + 1) <= 2^26`` (b bits a channel): a
-        channel times a weight of at least 2^-4 (the smallest, 0.114), rounded to float32, is 0
-        or a multiple of 2^-27, and so are their float32 sum (the luma: 0, or at least 2^-4,
-        rounded to a grid at least that coarse) and the float32 difference of two lumas (below
-        2^-4 it has fewer than 24 significant bits: exact). Each term is then a multiple of
-        2^-27 below 2^(b + 1) (the weights sum to 1), and so is every partial sum of ``m`` of
-        them, below m 2^(b + 1): exact in float64's 53 bits while m 2^(b + 1) 2^27 <= 2^53.
-        A grey image read as one channel (integer values) is covered a fortiori. False otherwise.
-    """
-    if min(_Y_WEIGHTS) < 2.0 ** -4:
-        return False
-    bits = {np.dtype(np.uint8): 8, np.dtype(np.uint16): 16}.get(np.dtype(dtype))
-    return bits is not None and m * 2 ** (bits + 1) <= 2 ** 26
+    sub = img[::step] if across_columns else img[:, ::step]
+    y = sub[:, :, 0].astype(np.float32)
+    if img.shape[2] > 1:
+        w = np.asarray(_Y_WEIGHTS, np.float32)
+        y *= w[0]
+        y += sub[:, :, 1].astype(np.float32) * w[1]
+        y += sub[:, :, 2].astype(np.float32) * w[2]
+    if not across_columns:
+        y = np.ascontiguousarray(y.T)
+    d = np.abs(np.diff(y, axis=1))
+    n = d.shape[0]
+    return _phase_blockiness(d.sum(axis=0, dtype=np.float64) / n if n else np.zeros(d.shape[1]))
 
 
 def _phase_blockiness(d: np.ndarray) -> np.ndarray:
@@ -270,10 +259,6 @@ def _phase_blockiness(d: np.ndarray) -> np.ndarray:
     # Phase k holds d[j] for (j + 1) % 8 == k, i.e. d[(k - 1) % 8 :: 8]; the phases of equal
     # length are stacked and their medians taken in one call (np.median along an axis: the same
     # values as one call per phase, in a tenth of the time)
-    if d.dtype == np.float64 and not np.isnan(d).any():
-        # the eight medians in one compiled call (np.median's values; tests/test_jpeg.py)
-        per = _kernels.phase_medians(np.ascontiguousarray(d), BLOCK)
-        return per / max(float(per.mean()), 1e-9)
     per = np.empty(BLOCK, d.dtype)  # np.median's dtype: d's
     starts = [(k - 1) % BLOCK for k in range(BLOCK)]
     sizes = [len(range(s, len(d), BLOCK)) for s in starts]

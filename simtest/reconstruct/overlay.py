@@ -13,8 +13,9 @@ adds the others as small red crosses, labelled with their reason when there are 
 isophote as a thin outline (where it was found in the image, whatever the lens), and a needle
 length set from the spacing of the highlights (:func:`needle_length_px`).
 
-Uses matplotlib's Agg canvas (no display). :func:`check_overlay_size` refuses, before anything is
-written, an image whose overlay would not fit in memory.
+Drawn with OpenCV on an 8-bit copy of the image (no matplotlib: its import and Agg canvas cost
+the command line over a second). :func:`check_overlay_size` refuses, before anything is written,
+an image whose overlay would not fit in memory.
 """
 
 from __future__ import annotations
@@ -23,6 +24,7 @@ import os
 import zlib
 from pathlib import Path
 
+import cv2
 import numpy as np
 
 from simtest._lazy import require
@@ -51,11 +53,11 @@ _EXTRA_COLOURS = ("#17becf", "#bcbd22", "#e377c2", "#9467bd", "#8c564b", "#7f7f7
 #: Estimators drawn by default, in legend order (those an estimate has).
 DEFAULT_ESTIMATORS = ("normal", "cone_axis", "joint_cone_axis", "paper_selected", "bp_ray")
 
-#: Memory an overlay costs per image pixel (bytes): the Agg canvas (RGBA, 4 B), the display copy of
-#: the image (float32 RGB, 12 B) and imshow's resampling buffers (float64 RGBA, 32 B), measured
-#: ~45 B/px with matplotlib 3.8 to 3.10; 48 leaves a little margin.
-OVERLAY_BYTES_PER_PIXEL = 48
-#: Largest image (pixels) an overlay is drawn for: 64 Mpx (8000 x 8000) is ~3 GB at
+#: Memory an overlay costs per image pixel (bytes): the float32 copy of a 16-bit or float RGB image
+#: (12 B), its 8-bit and BGR canvases (3 B each) and OpenCV's PNG buffer (up to 3 B plus a copy);
+#: peaks measured with tracemalloc on a 1350 x 1080 frame: 5 B/px (8-bit), 18 (16-bit), 27 (float64).
+OVERLAY_BYTES_PER_PIXEL = 32
+#: Largest image (pixels) an overlay is drawn for: 64 Mpx (8000 x 8000) is ~2 GB at
 #: :data:`OVERLAY_BYTES_PER_PIXEL`, what a laptop can spare; endoscope frames are 1 to 4 Mpx.
 MAX_OVERLAY_PIXELS = 64_000_000
 
@@ -71,7 +73,7 @@ def estimator_colour(name: str) -> str:
     Returns
     -------
     str
-        A matplotlib colour (hex).
+        A colour as ``#rrggbb`` (matplotlib reads it too).
     """
     if name in ESTIMATOR_COLOURS:
         return ESTIMATOR_COLOURS[name]
@@ -115,18 +117,26 @@ def check_overlay_size(shape) -> None:
         )
 
 
-def _display_image(image: np.ndarray) -> tuple[np.ndarray, dict]:
+def _display_image(image: np.ndarray) -> np.ndarray:
+    """The image as 8-bit BGR for drawing: an integer image scaled by its dtype's full scale, a
+    float image by its maximum; NaN black."""
     img = np.asarray(image)
     if img.ndim == 3:
         img = img[:, :, :3] if img.shape[2] >= 3 else img[:, :, 0]
-    if img.dtype.kind == "u":
-        disp = img.astype(np.float32) / np.iinfo(img.dtype).max
+    if img.dtype == np.uint8:
+        disp = img
     else:
-        disp = img.astype(np.float32)
-        hi = float(np.nanmax(disp)) if disp.size else 1.0
-        disp = disp / hi if hi > 0 else disp
-    disp = np.clip(np.nan_to_num(disp), 0.0, 1.0)
-    return disp, ({"cmap": "gray", "vmin": 0, "vmax": 1} if disp.ndim == 2 else {})
+        f = img.astype(np.float32)  # the one float copy, then worked on in place
+        if img.dtype.kind == "u":
+            f *= np.float32(255.0 / np.iinfo(img.dtype).max)
+        else:
+            np.nan_to_num(f, copy=False)
+            hi = float(f.max()) if f.size else 1.0
+            f *= np.float32(255.0 / hi) if hi > 0 else np.float32(255.0)
+        disp = np.rint(np.clip(f, 0.0, 255.0, out=f), out=f).astype(np.uint8)
+    if disp.ndim == 2:
+        return cv2.cvtColor(disp, cv2.COLOR_GRAY2BGR)
+    return np.ascontiguousarray(disp[:, :, ::-1])
 
 
 def needle_length_px(bps: np.ndarray, shape) -> float:
@@ -173,7 +183,7 @@ def _normals_of(est) -> dict[str, np.ndarray]:
 
 
 def draw_overlay(path, image, estimates, K=None, *, estimators=None, show_rejected: bool = False,
-                 needle_length: float | None = None, dpi: int = 100) -> Path:
+                 needle_length: float | None = None) -> Path:
     """Write the overlay PNG atomically.
 
     Parameters
@@ -194,9 +204,6 @@ def draw_overlay(path, image, estimates, K=None, *, estimators=None, show_reject
     needle_length : float, optional
         Needle length as a fraction of the larger image side; default from the highlights'
         spacing (:func:`needle_length_px`).
-    dpi : int
-        Output resolution; the figure has the image's pixel size at ``dpi`` (small images are
-        drawn larger so that the legend stays legible).
 
     Returns
     -------
@@ -207,14 +214,10 @@ def draw_overlay(path, image, estimates, K=None, *, estimators=None, show_reject
     ------
     ValueError
         If the overlay would not fit in memory (:func:`check_overlay_size`).
+    OSError
+        If OpenCV cannot encode the PNG.
     """
-    # matplotlib when first drawn, not at import: about a second of the command line's start,
-    # spent on nothing by a video or --no-overlay
-    LineCollection = require("matplotlib.collections").LineCollection
-    Figure = require("matplotlib.figure").Figure
-    Line2D = require("matplotlib.lines").Line2D
-
-    disp, kw = _display_image(image)
+    disp = _display_image(image)
     check_overlay_size(disp.shape)
     h, w = disp.shape[:2]
     ok = [e for e in estimates if e.ok]
@@ -229,48 +232,99 @@ def draw_overlay(path, image, estimates, K=None, *, estimators=None, show_reject
     length_px = needle_length * max(h, w) if needle_length is not None else needle_length_px(bps, disp.shape)
 
     scale = max(1.0, 700.0 / max(h, w))  # small images are drawn larger so labels stay legible
-    fig = Figure(figsize=(w * scale / dpi, h * scale / dpi), dpi=dpi)
-    ax = fig.add_axes([0, 0, 1, 1])
-    ax.imshow(disp, interpolation="nearest", **kw)
-    ax.set_xlim(-0.5, w - 0.5)
-    ax.set_ylim(h - 0.5, -0.5)
-    ax.axis("off")
+    if scale > 1.0:
+        disp = cv2.resize(disp, (round(w * scale), round(h * scale)), interpolation=cv2.INTER_NEAREST)
+    canvas = np.ascontiguousarray(disp)
+
+    def at(uv) -> np.ndarray:  # image px (centre of pixel 0 at 0) -> canvas fixed point
+        return np.round(((np.asarray(uv, dtype=np.float64) + 0.5) * scale - 0.5) * _ONE).astype(np.int32)
+
     for est in ok:
         p = est.primary
         if p is not None and p.points_uv is not None and len(p.points_uv):
-            c = np.vstack([p.points_uv, p.points_uv[:1]]) if p.closed else p.points_uv
-            ax.plot(c[:, 0], c[:, 1], "-", color="yellow", lw=0.7, alpha=0.9)
-    segs: dict[str, list] = {n: [] for n in present}
-    for est, d in zip(ok, normals):
-        base = np.asarray(est.bp_px, dtype=np.float64)
-        for name in present:
+            cv2.polylines(canvas, [at(p.points_uv)], bool(p.closed), _bgr("#ffff00"), 1, cv2.LINE_AA, _SHIFT)
+    # later estimators drawn thinner on top, 2 px apart: needles that coincide show as nested
+    # stripes, each a 1 px rim on either side of the next (at least 1 px: cv2's widths are whole)
+    for i, name in enumerate(present):
+        colour, thick = _bgr(estimator_colour(name)), round((2 * (len(present) - 1 - i) + 1) * scale)
+        for est, d in zip(ok, normals):
             if name in d:
-                tip = base + length_px * d[name][:2]
-                segs[name].append([base, tip])
-    # later estimators drawn thinner on top: needles that coincide show as nested stripes
-    widths = np.linspace(4.0, 1.2, len(present)) if len(present) > 1 else [1.6]
-    for name, width in zip(present, widths):
-        if segs[name]:
-            ax.add_collection(LineCollection(segs[name], colors=estimator_colour(name), linewidths=width,
-                                             linestyles="--" if name == "bp_ray" else "-", zorder=3))
-    if len(bps):
-        ax.plot(bps[:, 0], bps[:, 1], "o", ms=2.5, mfc="white", mec="black", mew=0.5, ls="none", zorder=4)
+                base = np.asarray(est.bp_px, dtype=np.float64)
+                _needle(canvas, at(base), at(base + length_px * d[name][:2]), colour, thick,
+                        dashed=name == "bp_ray")
+    r = max(2, round(2 * scale))
+    for b in at(bps):
+        cv2.circle(canvas, tuple(int(x) for x in b), r * _ONE, (255, 255, 255), -1, cv2.LINE_AA, _SHIFT)
+        cv2.circle(canvas, tuple(int(x) for x in b), r * _ONE, (0, 0, 0), 1, cv2.LINE_AA, _SHIFT)
     if show_rejected and rejected:
-        rb = np.array([e.bp_px for e in rejected])
-        ax.plot(rb[:, 0], rb[:, 1], "x", color="red", ms=4, mew=1.0, ls="none", zorder=4)
-        if len(rejected) <= 30:
-            for e in rejected:
-                ax.text(e.bp_px[0] + 3, e.bp_px[1] - 3, e.status, color="red", fontsize=7)
-    handles = [Line2D([], [], color=estimator_colour(n), lw=2.5, ls="--" if n == "bp_ray" else "-", label=n)
-               for n in present]
-    handles.append(Line2D([], [], color="yellow", lw=1, label="isophote (primary)"))
-    handles.append(Line2D([], [], marker="o", ms=5, mfc="white", mec="black", ls="none", label="BP"))
+        for e in rejected:
+            u, v = (int(x) >> _SHIFT for x in at(e.bp_px))
+            cv2.drawMarker(canvas, (u, v), (0, 0, 255), cv2.MARKER_TILTED_CROSS, max(6, round(6 * scale)), 1)
+            if len(rejected) <= 30:
+                cv2.putText(canvas, e.status, (u + 4, v - 4), _FONT, 0.4, (0, 0, 255), 1, cv2.LINE_AA)
+    entries = [(n, estimator_colour(n), "dash" if n == "bp_ray" else "line") for n in present]
+    entries.append(("isophote (primary)", "#ffff00", "thin"))
+    entries.append(("BP", "#ffffff", "dot"))
     if show_rejected and rejected:
-        handles.append(Line2D([], [], marker="x", color="red", ls="none", label="not reconstructed"))
+        entries.append(("not reconstructed", "#ff0000", "cross"))
     title = f"{len(ok)} of {len(estimates)} highlights reconstructed"
     if rejected and not show_rejected:
         title += f" ({len(rejected)} others not drawn)"
-    leg = ax.legend(handles=handles, loc="upper right", fontsize=9, title=title, title_fontsize=9,
-                    framealpha=0.75, facecolor="black", labelcolor="white", edgecolor="white")
-    leg.get_title().set_color("white")
-    return atomic_write(path, lambda tmp: fig.savefig(tmp, dpi=dpi, format="png"), suffix=".png")
+    _legend(canvas, title, entries)
+    ok_png, buf = cv2.imencode(".png", canvas)
+    if not ok_png:
+        raise OSError(f"overlay: OpenCV could not encode a {canvas.shape[1]} x {canvas.shape[0]} PNG")
+    return atomic_write(path, lambda tmp: Path(tmp).write_bytes(buf.tobytes()), suffix=".png")
+
+
+#: Fixed-point bits of the drawing coordinates (cv2's ``shift``): 1/16 px, smooth anti-aliased lines.
+_SHIFT = 4
+_ONE = 1 << _SHIFT
+_FONT = cv2.FONT_HERSHEY_SIMPLEX
+#: Dash and gap of a dashed needle (the BP ray), canvas px.
+_DASH_PX = 6.0
+
+
+def _bgr(hexcol: str) -> tuple[int, int, int]:
+    """A ``#rrggbb`` colour as OpenCV's (b, g, r)."""
+    return int(hexcol[5:7], 16), int(hexcol[3:5], 16), int(hexcol[1:3], 16)
+
+
+def _needle(canvas, a, b, colour, thick: int, *, dashed: bool = False) -> None:
+    """A line from ``a`` to ``b`` (fixed-point canvas px), dashed or solid."""
+    if not dashed:
+        cv2.line(canvas, tuple(int(x) for x in a), tuple(int(x) for x in b), colour, thick, cv2.LINE_AA, _SHIFT)
+        return
+    a, b = a.astype(np.float64), b.astype(np.float64)
+    n = max(1, int(np.hypot(*(b - a)) / _ONE / _DASH_PX))
+    for k in range(0, n, 2):  # every other piece: dash, gap, dash, ...
+        p, q = a + (b - a) * (k / n), a + (b - a) * (min(k + 1, n) / n)
+        cv2.line(canvas, (int(p[0]), int(p[1])), (int(q[0]), int(q[1])), colour, thick, cv2.LINE_AA, _SHIFT)
+
+
+def _legend(canvas, title: str, entries) -> None:
+    """The legend box in the upper right corner: ``title``, then a sample and a label per entry
+    (``entries``: label, colour, kind among line, dash, thin, dot, cross), white on 75 % black."""
+    scale, pad, row, sample = 0.45, 8, 18, 28
+    (tw, th), _ = cv2.getTextSize(title, _FONT, scale, 1)
+    label_w = max((cv2.getTextSize(e[0], _FONT, scale, 1)[0][0] for e in entries), default=0)
+    bw = min(canvas.shape[1], max(tw, sample + 6 + label_w) + 2 * pad)
+    bh = min(canvas.shape[0], pad + th + 6 + row * len(entries) + pad)
+    x0 = canvas.shape[1] - bw - 4 if canvas.shape[1] > bw + 4 else 0
+    box = canvas[4:4 + bh, x0:x0 + bw]
+    box[:] = (box.astype(np.uint16) // 4).astype(np.uint8)  # 75 % black over the image
+    cv2.rectangle(canvas, (x0, 4), (x0 + bw - 1, 3 + bh), (255, 255, 255), 1)
+    y = 4 + pad + th
+    cv2.putText(canvas, title, (x0 + pad, y), _FONT, scale, (255, 255, 255), 1, cv2.LINE_AA)
+    for label, hexcol, kind in entries:
+        y += row
+        c, mid, xs = _bgr(hexcol), y - th // 2, x0 + pad
+        if kind in ("line", "dash", "thin"):
+            a, b = np.array([xs, mid]) * _ONE, np.array([xs + sample, mid]) * _ONE
+            _needle(canvas, a, b, c, 1 if kind == "thin" else 3, dashed=kind == "dash")
+        elif kind == "dot":
+            cv2.circle(canvas, (xs + sample // 2, mid), 3, c, -1, cv2.LINE_AA)
+            cv2.circle(canvas, (xs + sample // 2, mid), 3, (0, 0, 0), 1, cv2.LINE_AA)
+        else:
+            cv2.drawMarker(canvas, (xs + sample // 2, mid), c, cv2.MARKER_TILTED_CROSS, 8, 1)
+        cv2.putText(canvas, label, (xs + sample + 6, y), _FONT, scale, (255, 255, 255), 1, cv2.LINE_AA)
