@@ -391,9 +391,9 @@ PAIR_TOL_PX = decision(
     "guide's highlight: half a pixel of BP rounding per axis and about a pixel of the detection's "
     "blur (as OWN_RADIUS_PX).", basis="physics", stage=_V)
 FUSED_LOBE_LEVEL = decision(
-    "FUSED_LOBE_LEVEL", 0.5, "share of the BP's intensity (image units)",
+    "FUSED_LOBE_LEVEL", 0.5, "share of the BP's height above the ROI border's median",
     "A guide's specular point belongs to a candidate's highlight when it lies in the connected "
-    "region above this share of the BP's intensity: two guides' lobes on one patch peak within a "
+    "region above this share of the BP's height over the diffuse shading: two guides' lobes on one patch peak within a "
     "factor of about two of each other (equal guides, inverse-square falloff over the few mm "
     "between their specular points, both clipped where they fuse), so a fused lobe's peak stays "
     "above half; a valley below half leaves two candidates, each with its own row.",

@@ -239,6 +239,16 @@ def test_guide_specular_points_match_the_reflection_law(tilt, az, h, f):
     assert np.allclose(guide_specular_points(cam, rig, N, h), got, atol=1e-7)
 
 
+def test_fused_lobes_across_the_rigs_baseline_are_not_the_rigs(tmp_path):
+    # the spec-4 frame turned by 90 deg (a square pinhole, so still a pinhole image) under the
+    # same horizontal guides: its two plateaus lie across the rig's curve, which no pair of the
+    # rig's guides makes; the candidate is not fitted as fused lobes and stays merged
+    img, K, n, truth = sensor_plane(15.0, 25.0, 0, spec=4.0)
+    _write(tmp_path, np.ascontiguousarray(np.rot90(img)), K)
+    specs = _reconstruct(tmp_path)
+    assert [s["status"] for s in specs] == ["merged"], [(s["status"], s["bp_px"]) for s in specs]
+
+
 def test_fused_lobes_without_a_rig_stay_one_candidate(tmp_path):
     # the spec-4 frame above whose camera file names no lights: nothing predicts a second
     # guide, the candidate stays `merged` and no row is added

@@ -12,12 +12,13 @@ distance (plane ``n . X = -h``) predicts each guide's specular point: the plane'
 segment from the camera to the guide's mirror image ``L' = L - 2 (n . L + h) n``, that is
 ``X_s = L' h / (-n . L')``, projected by the camera. Every guide whose specular point lies in the
 candidate's bright region (the connected pixels above :data:`FUSED_LOBE_LEVEL` of the BP's
-intensity that hold the BP) is a highlight of this candidate. When two or more are, at least
+height above the diffuse shading, the ROI border's median, that hold the BP) is a highlight of this candidate. When two or more are, at least
 :data:`~simtest.decisions.PAIR_TOL_PX` apart and none of them is another candidate's BP, the
 candidate gives one row per such guide: its BP is the guide's specular point, its status ``ok``,
-its light-aware fits and recommended normal the joint fit's. ``merged`` candidates are fitted
-for this only (:func:`split_fused_lobes`); one that the rule does not split keeps its status and
-no fit, as any rejected candidate.
+its light-aware fits and recommended normal the joint fit's. ``merged`` candidates whose region
+stretches along the rig's curve from the BP (:mod:`simtest.reconstruct.rig_pairs`) are fitted
+for this only, by the plane's fit (:func:`split_fused_lobes`); one that the rule does not split
+keeps its status and no fit, as any rejected candidate.
 """
 
 from __future__ import annotations
@@ -29,8 +30,10 @@ import numpy as np
 
 from simtest.decisions import FUSED_LOBE_LEVEL, PAIR_TOL_PX
 from simtest.reconstruct._pixels import uv_to_rc
+from simtest.geometry.cameras import PinholeCamera
 from simtest.reconstruct.detect_pixels import luma
 from simtest.reconstruct.light_fits import _offset_rig, colour_fit_applies, light_aware_estimates
+from simtest.reconstruct.rig_pairs import other_guide_curves
 
 __all__ = ["FUSED_LOBE_LEVEL", "guide_specular_points", "split_fused_lobes"]
 
@@ -79,11 +82,13 @@ def guide_specular_points(camera, rig, normal, distance_mm: float) -> np.ndarray
 
 def _bright_region(gray: np.ndarray, est) -> tuple[np.ndarray, int, int] | None:
     """The connected pixels of the candidate's ROI above :data:`FUSED_LOBE_LEVEL` of its BP's
-    intensity that hold the BP: ``(mask, row0, col0)`` (the mask in ROI indices), or None when
+    height above the ROI border's median (the diffuse shading) that hold the BP: ``(mask, row0, col0)`` (the mask in ROI indices), or None when
     the BP's pixel is not above the level (a BP off its own region: nothing to split)."""
     r0, r1, c0, c1 = (int(v) for v in (est.roi.row0, est.roi.row1, est.roi.col0, est.roi.col1))
     sub = gray[r0:r1, c0:c1]
-    above = (sub >= FUSED_LOBE_LEVEL * float(est.bp_intensity)).astype(np.uint8)
+    # the lobe's height above the diffuse shading: the ROI's border median (the isophotes' zero)
+    base = float(np.median(np.concatenate([sub[0], sub[-1], sub[1:-1, 0], sub[1:-1, -1]])))
+    above = (sub >= base + FUSED_LOBE_LEVEL * (float(est.bp_intensity) - base)).astype(np.uint8)
     r, c = (int(v) for v in np.rint(uv_to_rc(np.asarray(est.bp_px, dtype=np.float64))))
     r, c = r - r0, c - c0
     if not (0 <= r < sub.shape[0] and 0 <= c < sub.shape[1]) or not above[r, c]:
@@ -109,6 +114,31 @@ def _ray(camera, uv: np.ndarray) -> np.ndarray:
         return np.asarray(camera.pixel_to_ray(uv[None]), dtype=np.float64)[0]
     d = np.linalg.solve(np.asarray(camera, dtype=np.float64), np.array([uv[0], uv[1], 1.0]))
     return d / np.linalg.norm(d)
+
+
+def _along_the_rig(gray: np.ndarray, est, camera, rig) -> bool:
+    """Whether a ``merged`` candidate's region reaches along the rig's curve from its BP beyond
+    its own lobe (worth the plane's fit, module docstring): the region's extent from the BP along
+    the curve's direction (to the farthest curve point in the region) is at least twice its
+    half-width across it. One guide's lobe is about as wide as long; fused guides' lobes
+    stretch along the curve by their specular points' distance."""
+    region = _bright_region(gray, est)
+    if region is None:
+        return False
+    mask, r0, c0 = region
+    rr, cc = np.nonzero(mask)
+    d = np.column_stack([cc + c0, rr + r0]).astype(np.float64) - np.asarray(est.bp_px, np.float64)
+    reach = float(np.sqrt((d * d).sum(axis=1).max())) + 1.0
+    cam = camera if hasattr(camera, "pixel_to_ray") else PinholeCamera(np.asarray(camera, np.float64))
+    (curve,) = other_guide_curves(cam, rig.positions, np.asarray(est.bp_px, np.float64)[None], [reach])
+    curve = curve[_inside(region, curve)] - np.asarray(est.bp_px, np.float64)
+    if not len(curve):
+        return False
+    far = curve[np.argmax((curve * curve).sum(axis=1))]
+    if not np.hypot(*far) > PAIR_TOL_PX:
+        return False
+    t = far / np.hypot(*far)
+    return float((d @ t).max()) >= 2.0 * float(np.abs(d @ np.array([-t[1], t[0]])).max())
 
 
 def _rows(est, camera, rig, gray, others: np.ndarray) -> list | None:
@@ -182,9 +212,15 @@ def split_fused_lobes(image, estimates, camera, rig, **kwargs) -> list:
         if est.status in SPLIT_STATUSES:
             fitted = est
             if est.status == "merged":
+                if not _along_the_rig(gray, est, camera, rig):
+                    out.append(est)
+                    continue
                 kwargs = _fit_arguments(image, kwargs)
+                # the plane's fit only: the rule reads its normal and distance, and a curved
+                # patch's fits (seconds each) would serve a candidate the rule leaves merged
+                plane = dict(kwargs, quadric=False, cubic=False)
                 fitted = dataclasses.replace(est, light_aware=light_aware_estimates(image, est, camera, rig,
-                                                                                     **kwargs))
+                                                                                     **plane))
             rows = _rows(fitted, camera, rig, gray, np.delete(bps, i, axis=0))
         out.extend(rows if rows is not None else [est])
     return out
