@@ -35,6 +35,7 @@ from benchmarks.timing import clone_env
 from simtest._lazy import require
 from simtest.geometry import angle_between_deg
 from simtest.render import render as R
+from simtest.render.scene_load import clear_caches
 from simtest.render.mitsuba_dict import cam_to_world_matrix
 from simtest.render.render import choose_variant, render_scene
 from simtest.scene import load_scene, with_overrides
@@ -255,7 +256,7 @@ def bench_render(
             times, cpu = [], []
             for i in range(repeats):
                 if key == "warm_rebuild":
-                    R.clear_caches()
+                    clear_caches()
                 s = views[i] if key == "warm_new_view" else spec
                 t, c = time.perf_counter(), time.process_time()
                 render_scene(s, seed=1 + i, variant=variant)

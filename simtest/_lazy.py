@@ -14,7 +14,7 @@ Examples
 >>> require("no_such_backend")
 Traceback (most recent call last):
 ...
-ValueError: simtest._lazy.require: 'no_such_backend' is not one of the optional back-ends (dask, distributed, drjit, matplotlib, mitsuba, pyarrow, pyvista, scipy, torch, vtkmodules)
+ValueError: simtest._lazy.require: 'no_such_backend' is not one of the optional back-ends (dask, distributed, drjit, matplotlib, mitsuba, pyarrow, pyvista, scipy, tifffile, torch, vtkmodules)
 """
 
 from __future__ import annotations

@@ -234,7 +234,10 @@ def test_every_image_function_the_reconstruction_calls_is_recorded():
             used |= set(re.findall(r"cv2\.([A-Za-z_]\w*)\(", path.read_text()))
     io = {"VideoCapture", "VideoWriter", "VideoWriter_fourcc", "imdecode", "imencode", "imread", "imwrite",
           "FileStorage"}
-    assert used - io <= set(opencv_replay.OPENCV_FUNCTIONS), used - io - set(opencv_replay.OPENCV_FUNCTIONS)
+    # the overlay's drawing (overlay.png, after the reconstruction; not in the replayed rows)
+    draw = {"circle", "drawMarker", "getTextSize", "line", "polylines", "putText", "rectangle"}
+    allowed = set(opencv_replay.OPENCV_FUNCTIONS)
+    assert used - io - draw <= allowed, used - io - draw - allowed
 
 
 # ---- the compiled kernels' share of a frame: timed in place -------------------------------------
