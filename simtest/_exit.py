@@ -211,7 +211,11 @@ def signals_interrupt() -> Iterator[SignalState]:
         yield state
         return
 
+    owner = os.getpid()
+
     def handler(signum, frame):
+        if os.getpid() != owner:  # a forked worker before its own set-up (_workers): end quietly
+            os._exit(128 + signum)
         if state.signame is not None:
             return
         state.signame = signal.Signals(signum).name

@@ -58,9 +58,10 @@ def _die_with_parent(parent_pid: int) -> None:
 
 def _worker_start(parent_pid: int, initializer: Callable | None, initargs: tuple) -> None:
     """Each worker's initializer: the signal set-up of the module docstring, then the pool's own."""
-    _die_with_parent(parent_pid)
+    # the signals first: a SIGTERM from a pool being stopped ends the worker quietly
     signal.signal(signal.SIGINT, signal.SIG_IGN)
     signal.signal(signal.SIGTERM, signal.SIG_DFL)
+    _die_with_parent(parent_pid)
     if initializer is not None:
         initializer(*initargs)
 
