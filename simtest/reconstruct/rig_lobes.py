@@ -12,7 +12,8 @@ distance (plane ``n . X = -h``) predicts each guide's specular point: the plane'
 segment from the camera to the guide's mirror image ``L' = L - 2 (n . L + h) n``, that is
 ``X_s = L' h / (-n . L')``, projected by the camera. Every guide whose specular point lies in the
 candidate's bright region (the connected pixels above :data:`FUSED_LOBE_LEVEL` of the BP's
-height above the diffuse shading, the ROI border's median, that hold the BP) is a highlight of this candidate. When two or more are, at least
+height above the diffuse shading, the ROI border's median, that hold the BP) is a highlight of
+this candidate. When two or more are, at least
 :data:`~simtest.decisions.PAIR_TOL_PX` apart and none of them is another candidate's BP, the
 candidate gives one row per such guide: its BP is the guide's specular point, its status ``ok``,
 its light-aware fits and recommended normal the joint fit's. ``merged`` candidates whose region
@@ -67,23 +68,26 @@ def guide_specular_points(camera, rig, normal, distance_mm: float) -> np.ndarray
     """
     n = np.asarray(normal, dtype=np.float64)
     h = float(distance_mm)
-    L = np.array([lt.position_mm for lt in rig.lights], dtype=np.float64).reshape(-1, 3)
+    L = np.asarray(rig.positions, dtype=np.float64).reshape(-1, 3)
     c = L @ n + h
     Lm = L - 2.0 * c[:, None] * n
     with np.errstate(divide="ignore", invalid="ignore"):
         X = Lm * (h / -(Lm @ n))[:, None]
     X[~(c > 0)] = np.nan
-    if hasattr(camera, "ray_to_pixel"):
-        rays = X / np.linalg.norm(X, axis=1, keepdims=True)
-        return np.asarray(camera.ray_to_pixel(rays), dtype=np.float64).reshape(-1, 2)
-    p = X @ np.asarray(camera, dtype=np.float64).T
-    return p[:, :2] / p[:, 2:3]
+    rays = X / np.linalg.norm(X, axis=1, keepdims=True)
+    return np.asarray(_model(camera).ray_to_pixel(rays), dtype=np.float64).reshape(-1, 2)
+
+
+def _model(camera):
+    """``camera`` as a camera model: itself, or the pinhole of intrinsics K (3, 3)."""
+    return camera if hasattr(camera, "pixel_to_ray") else PinholeCamera(np.asarray(camera, np.float64))
 
 
 def _bright_region(gray: np.ndarray, est) -> tuple[np.ndarray, int, int] | None:
     """The connected pixels of the candidate's ROI above :data:`FUSED_LOBE_LEVEL` of its BP's
-    height above the ROI border's median (the diffuse shading) that hold the BP: ``(mask, row0, col0)`` (the mask in ROI indices), or None when
-    the BP's pixel is not above the level (a BP off its own region: nothing to split)."""
+    height above the ROI border's median (the diffuse shading) that hold the BP:
+    ``(mask, row0, col0)`` (the mask in ROI indices), or None when the BP's pixel is not above
+    the level (a BP off its own region: nothing to split)."""
     r0, r1, c0, c1 = (int(v) for v in (est.roi.row0, est.roi.row1, est.roi.col0, est.roi.col1))
     sub = gray[r0:r1, c0:c1]
     # the lobe's height above the diffuse shading: the ROI's border median (the isophotes' zero)
@@ -108,14 +112,6 @@ def _inside(mask_at, pts: np.ndarray) -> np.ndarray:
     return inside
 
 
-def _ray(camera, uv: np.ndarray) -> np.ndarray:
-    """The unit viewing ray of one pixel (3,)."""
-    if hasattr(camera, "pixel_to_ray"):
-        return np.asarray(camera.pixel_to_ray(uv[None]), dtype=np.float64)[0]
-    d = np.linalg.solve(np.asarray(camera, dtype=np.float64), np.array([uv[0], uv[1], 1.0]))
-    return d / np.linalg.norm(d)
-
-
 def _along_the_rig(gray: np.ndarray, est, camera, rig) -> bool:
     """Whether a ``merged`` candidate's region reaches along the rig's curve from its BP beyond
     its own lobe (worth the plane's fit, module docstring): the region's extent from the BP along
@@ -129,8 +125,7 @@ def _along_the_rig(gray: np.ndarray, est, camera, rig) -> bool:
     rr, cc = np.nonzero(mask)
     d = np.column_stack([cc + c0, rr + r0]).astype(np.float64) - np.asarray(est.bp_px, np.float64)
     reach = float(np.sqrt((d * d).sum(axis=1).max())) + 1.0
-    cam = camera if hasattr(camera, "pixel_to_ray") else PinholeCamera(np.asarray(camera, np.float64))
-    (curve,) = other_guide_curves(cam, rig.positions, np.asarray(est.bp_px, np.float64)[None], [reach])
+    (curve,) = other_guide_curves(_model(camera), rig.positions, np.asarray(est.bp_px, np.float64)[None], [reach])
     curve = curve[_inside(region, curve)] - np.asarray(est.bp_px, np.float64)
     if not len(curve):
         return False
@@ -162,7 +157,8 @@ def _rows(est, camera, rig, gray, others: np.ndarray) -> list | None:
     rows = []
     for j, uv in zip(k.tolist(), p):
         rows.append(dataclasses.replace(
-            est, bp_px=uv.copy(), bp_ray=-_ray(camera, uv), status="ok",
+            est, bp_px=uv.copy(), status="ok",
+            bp_ray=-np.asarray(_model(camera).pixel_to_ray(uv[None]), np.float64)[0],
             detail=(f"guide {j + 1}'s lobe of {len(k)} fused into one highlight ({est.status}"
                     f"{': ' + est.detail if est.detail else ''}); BP at its specular point, normal "
                     "from their joint photometric fit")))
