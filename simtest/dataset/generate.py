@@ -62,7 +62,7 @@ import numpy as np
 
 from simtest import _dask
 from simtest._dask import SchedulerError, connect
-from simtest._io import atomic_write, atomic_write_text
+from simtest._io import atomic_write, atomic_write_json, atomic_write_text
 from simtest._lazy import require
 from simtest._workers import stop_workers
 from simtest.dataset.card import _readme, make_card
@@ -70,7 +70,7 @@ from simtest.dataset.config import DatasetConfig, load_config
 from simtest.dataset.sample import Sample, render_sample
 from simtest.dataset.shards import (
     CARD_NAME, MANIFEST_NAME, SHARDS_DIR, TMP_SUFFIX, DatasetError, DatasetWriteError, ShardWriter, array_sha256,
-    card_sha256, check_shard, file_sha256, read_card, read_shard_rows, shard_json_path, shard_npz_path, write_json,
+    card_sha256, check_shard, file_sha256, read_card, read_shard_rows, shard_json_path, shard_npz_path,
     write_manifest,
 )
 
@@ -158,7 +158,7 @@ def _prepare(config: DatasetConfig, out: Path) -> set[int]:
             if _json_equal(card.get("config"), config.to_dict()):
                 # The card's fingerprint was damaged but its config is this one: rewrite the card
                 # (the shards are checked against the config's fingerprint below).
-                write_json(card_path, make_card(config, status="incomplete"))
+                atomic_write_json(card_path, make_card(config, status="incomplete"))
             else:
                 raise DatasetError(
                     f"{out}: holds a dataset made with a different config (its {CARD_NAME} names "
@@ -175,7 +175,7 @@ def _prepare(config: DatasetConfig, out: Path) -> set[int]:
         raise DatasetWriteError(f"{out}: is not empty and has no {CARD_NAME}: refusing to write into it")
     out.mkdir(parents=True, exist_ok=True)
     if not card_path.exists():  # first: a folder without a card holds nothing else of ours
-        write_json(card_path, make_card(config, status="incomplete"))
+        atomic_write_json(card_path, make_card(config, status="incomplete"))
     (out / SHARDS_DIR).mkdir(exist_ok=True)
 
     complete: set[int] = set()
@@ -245,7 +245,7 @@ def _finalise(config: DatasetConfig, out: Path) -> None:
     card = make_card(config, status="complete", counts=counts, variants=sorted(variants))
     card["manifest_sha256"] = file_sha256(out / MANIFEST_NAME)
     card["card_sha256"] = card_sha256(card)
-    write_json(out / CARD_NAME, card)
+    atomic_write_json(out / CARD_NAME, card)
     shutil.rmtree(out / SPOOL_DIR, ignore_errors=True)
 
 
