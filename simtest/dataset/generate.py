@@ -30,7 +30,6 @@ from __future__ import annotations
 
 import concurrent.futures as cf
 import contextlib
-import ctypes
 import dataclasses
 import errno
 import fcntl
@@ -42,7 +41,6 @@ import resource
 import shutil
 import signal
 import socket
-import sys
 import threading
 import time
 import zipfile
@@ -64,7 +62,7 @@ from simtest import _dask
 from simtest._dask import SchedulerError, connect
 from simtest._io import atomic_write, atomic_write_json, atomic_write_text
 from simtest._lazy import require
-from simtest._workers import stop_workers
+from simtest._workers import new_pool, stop_workers
 from simtest.dataset.card import _readme, make_card
 from simtest.dataset.config import DatasetConfig, load_config
 from simtest.dataset.sample import Sample, render_sample
@@ -338,32 +336,7 @@ def _run_task(sample_fn: Callable, config: DatasetConfig, index: int):
     return sample, f"{socket.gethostname()}:{os.getpid()}", rss_kib, time.process_time() - cpu0
 
 
-#: Linux prctl option: the signal the kernel sends this process when its parent dies.
-_PR_SET_PDEATHSIG = 1
-
-
-def _die_with_parent(parent_pid: int) -> None:
-    """Ask the kernel to SIGKILL this process when its parent dies (Linux; elsewhere a no-op).
-
-    Covers a SIGKILL of the parent, which no handler sees. If the parent died before the request
-    was made (the race the man page names), exit at once.
-    """
-    if not sys.platform.startswith("linux"):
-        return
-    try:
-        libc = ctypes.CDLL(None, use_errno=True)
-        libc.prctl(_PR_SET_PDEATHSIG, signal.SIGKILL, 0, 0, 0)
-    except (OSError, AttributeError):  # no prctl: the parent's SIGTERM handler still stops us
-        return
-    if os.getppid() != parent_pid:
-        os._exit(1)
-
-
-def _worker_init(threads: int, parent_pid: int | None = None) -> None:
-    if parent_pid is not None:
-        _die_with_parent(parent_pid)
-    # Ctrl-C reaches the whole process group: the parent stops the workers itself.
-    signal.signal(signal.SIGINT, signal.SIG_IGN)
+def _worker_init(threads: int) -> None:
     os.environ[THREADS_ENV] = str(threads)
 
 
@@ -393,9 +366,8 @@ class _Pool:
 
     def __init__(self, sample_fn, config, workers: int):
         threads = max(1, (os.cpu_count() or 1) // workers)
-        self.ex = cf.ProcessPoolExecutor(max_workers=workers,
-                                         mp_context=multiprocessing.get_context("spawn"),
-                                         initializer=_worker_init, initargs=(threads, os.getpid()))
+        self.ex = new_pool(workers, mp_context=multiprocessing.get_context("spawn"),
+                           initializer=_worker_init, initargs=(threads,))
         self.sample_fn, self.config = sample_fn, config
 
     def submit(self, index: int):
