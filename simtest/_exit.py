@@ -42,7 +42,6 @@ __all__ = [
     "BAD_BASELINE",
     "CANNOT_WRITE",
     "INTERRUPTED",
-    "EXIT_CODES",
     "fail",
     "one_line",
     "writable_dir",
@@ -59,16 +58,6 @@ BAD_INPUT = 2
 BAD_BASELINE = 3
 CANNOT_WRITE = 4
 INTERRUPTED = 130
-
-#: code -> meaning, for help texts and the README's table
-EXIT_CODES: dict[int, str] = {
-    OK: "done",
-    CHECK_FAILED: "a check found a fault (nightly regression, dataset verify found damage)",
-    BAD_INPUT: "bad usage or bad input (flag, file, key, value, pixel)",
-    BAD_BASELINE: "nightly: the baseline is missing, malformed or does not cover the run",
-    CANNOT_WRITE: "the output cannot be written (not a folder, read-only, disk full)",
-    INTERRUPTED: "interrupted (Ctrl-C, SIGTERM)",
-}
 
 
 def one_line(message: object) -> str:

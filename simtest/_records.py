@@ -1,10 +1,8 @@
 """A faster ``__init__`` for the frozen dataclasses a frame builds by the thousand.
 
 A frozen dataclass' generated ``__init__`` sets each field through ``object.__setattr__`` (its
-own ``__setattr__`` refuses). That costs about 0.2 us a field: a 14-field
-:class:`~simtest.reconstruct.assemble.IsophoteEstimate` took 4 us to build against 0.5 us for
-the same class unfrozen, and the Hyper-Kvasir banner builds 13 345 frozen records per frame
-(isophotes, fits, estimates, candidates). :func:`fast_init` gives such a class an ``__init__``
+own ``__setattr__`` refuses), several times the cost of an unfrozen one's.
+:func:`fast_init` gives such a class an ``__init__``
 that writes the fields straight into the instance's ``__dict__``: the same signature, the same
 attributes in the same order, ``__post_init__`` called as before, and the class stays frozen
 (assignment after construction raises ``dataclasses.FrozenInstanceError``).

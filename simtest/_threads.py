@@ -1,9 +1,8 @@
 """One thread per process for the numerical libraries, where processes are the parallelism.
 
 A process pool on every core already fills the machine; a BLAS library that starts its own
-threads in each worker then only adds threads that wait for work by spinning. OpenBLAS does so
-after each call: on the 2-core VM a frame's reconstruction took 240 ms of CPU for 135 ms of wall
-time, the difference spent spinning on the core that the other worker needed.
+threads in each worker then only adds threads that wait for work by spinning (OpenBLAS does so
+after each call), on the cores the other workers need.
 
 :func:`one_thread_each` covers both ways a worker starts: a forked worker inherits this process's
 BLAS settings (set at run time by threadpoolctl, as the environment is read only when the library

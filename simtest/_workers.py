@@ -28,7 +28,7 @@ import sys
 from collections.abc import Callable, Iterator
 from concurrent.futures import ProcessPoolExecutor
 
-__all__ = ["STOP_WAIT_S", "stop_workers", "worker_pool"]
+__all__ = ["STOP_WAIT_S", "new_pool", "stop_workers", "worker_pool"]
 
 #: Seconds a terminated worker is given to exit before it is killed (SIGKILL). A worker in a
 #: compiled kernel still ends on SIGTERM at once (its default action needs no Python); the wait
@@ -66,6 +66,20 @@ def _worker_start(parent_pid: int, initializer: Callable | None, initargs: tuple
         initializer(*initargs)
 
 
+def new_pool(max_workers: int, *, mp_context=None, initializer: Callable | None = None,
+             initargs: tuple = ()) -> ProcessPoolExecutor:
+    """The pool of :func:`worker_pool` (same parameters), for a caller that holds it beyond one block.
+
+    Returns
+    -------
+    ProcessPoolExecutor
+        Its workers set up as the module docstring says; the caller shuts it down, or stops it
+        with :func:`stop_workers`.
+    """
+    return ProcessPoolExecutor(max_workers=max_workers, mp_context=mp_context, initializer=_worker_start,
+                               initargs=(os.getpid(), initializer, initargs))
+
+
 @contextlib.contextmanager
 def worker_pool(max_workers: int, *, mp_context=None, initializer: Callable | None = None,
                 initargs: tuple = ()) -> Iterator[ProcessPoolExecutor]:
@@ -89,9 +103,7 @@ def worker_pool(max_workers: int, *, mp_context=None, initializer: Callable | No
         exception, its workers are stopped at once (:func:`stop_workers`) and the exception
         goes on.
     """
-    pool = ProcessPoolExecutor(max_workers=max_workers, mp_context=mp_context,
-                               initializer=_worker_start,
-                               initargs=(os.getpid(), initializer, initargs))
+    pool = new_pool(max_workers, mp_context=mp_context, initializer=initializer, initargs=initargs)
     try:
         yield pool
     except BaseException:

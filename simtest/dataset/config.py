@@ -245,7 +245,6 @@ class ParamDef:
 
 
 _ALL = FAMILIES
-_SURF = ("planes", "spheres", "cylinders")
 
 #: Every parameter a config may set, in the canonical draw order.
 PARAMS: tuple[ParamDef, ...] = (

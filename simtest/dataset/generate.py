@@ -30,7 +30,6 @@ from __future__ import annotations
 
 import concurrent.futures as cf
 import contextlib
-import ctypes
 import dataclasses
 import errno
 import fcntl
@@ -42,7 +41,6 @@ import resource
 import shutil
 import signal
 import socket
-import sys
 import threading
 import time
 import zipfile
@@ -62,15 +60,15 @@ import numpy as np
 
 from simtest import _dask
 from simtest._dask import SchedulerError, connect
-from simtest._io import atomic_write, atomic_write_text
+from simtest._io import atomic_write, atomic_write_json, atomic_write_text
 from simtest._lazy import require
-from simtest._workers import stop_workers
+from simtest._workers import new_pool, stop_workers
 from simtest.dataset.card import _readme, make_card
 from simtest.dataset.config import DatasetConfig, load_config
 from simtest.dataset.sample import Sample, render_sample
 from simtest.dataset.shards import (
     CARD_NAME, MANIFEST_NAME, SHARDS_DIR, TMP_SUFFIX, DatasetError, DatasetWriteError, ShardWriter, array_sha256,
-    card_sha256, check_shard, file_sha256, read_card, read_shard_rows, shard_json_path, shard_npz_path, write_json,
+    card_sha256, check_shard, file_sha256, read_card, read_shard_rows, shard_json_path, shard_npz_path,
     write_manifest,
 )
 
@@ -158,7 +156,7 @@ def _prepare(config: DatasetConfig, out: Path) -> set[int]:
             if _json_equal(card.get("config"), config.to_dict()):
                 # The card's fingerprint was damaged but its config is this one: rewrite the card
                 # (the shards are checked against the config's fingerprint below).
-                write_json(card_path, make_card(config, status="incomplete"))
+                atomic_write_json(card_path, make_card(config, status="incomplete"))
             else:
                 raise DatasetError(
                     f"{out}: holds a dataset made with a different config (its {CARD_NAME} names "
@@ -175,7 +173,7 @@ def _prepare(config: DatasetConfig, out: Path) -> set[int]:
         raise DatasetWriteError(f"{out}: is not empty and has no {CARD_NAME}: refusing to write into it")
     out.mkdir(parents=True, exist_ok=True)
     if not card_path.exists():  # first: a folder without a card holds nothing else of ours
-        write_json(card_path, make_card(config, status="incomplete"))
+        atomic_write_json(card_path, make_card(config, status="incomplete"))
     (out / SHARDS_DIR).mkdir(exist_ok=True)
 
     complete: set[int] = set()
@@ -245,7 +243,7 @@ def _finalise(config: DatasetConfig, out: Path) -> None:
     card = make_card(config, status="complete", counts=counts, variants=sorted(variants))
     card["manifest_sha256"] = file_sha256(out / MANIFEST_NAME)
     card["card_sha256"] = card_sha256(card)
-    write_json(out / CARD_NAME, card)
+    atomic_write_json(out / CARD_NAME, card)
     shutil.rmtree(out / SPOOL_DIR, ignore_errors=True)
 
 
@@ -338,32 +336,7 @@ def _run_task(sample_fn: Callable, config: DatasetConfig, index: int):
     return sample, f"{socket.gethostname()}:{os.getpid()}", rss_kib, time.process_time() - cpu0
 
 
-#: Linux prctl option: the signal the kernel sends this process when its parent dies.
-_PR_SET_PDEATHSIG = 1
-
-
-def _die_with_parent(parent_pid: int) -> None:
-    """Ask the kernel to SIGKILL this process when its parent dies (Linux; elsewhere a no-op).
-
-    Covers a SIGKILL of the parent, which no handler sees. If the parent died before the request
-    was made (the race the man page names), exit at once.
-    """
-    if not sys.platform.startswith("linux"):
-        return
-    try:
-        libc = ctypes.CDLL(None, use_errno=True)
-        libc.prctl(_PR_SET_PDEATHSIG, signal.SIGKILL, 0, 0, 0)
-    except (OSError, AttributeError):  # no prctl: the parent's SIGTERM handler still stops us
-        return
-    if os.getppid() != parent_pid:
-        os._exit(1)
-
-
-def _worker_init(threads: int, parent_pid: int | None = None) -> None:
-    if parent_pid is not None:
-        _die_with_parent(parent_pid)
-    # Ctrl-C reaches the whole process group: the parent stops the workers itself.
-    signal.signal(signal.SIGINT, signal.SIG_IGN)
+def _worker_init(threads: int) -> None:
     os.environ[THREADS_ENV] = str(threads)
 
 
@@ -393,9 +366,8 @@ class _Pool:
 
     def __init__(self, sample_fn, config, workers: int):
         threads = max(1, (os.cpu_count() or 1) // workers)
-        self.ex = cf.ProcessPoolExecutor(max_workers=workers,
-                                         mp_context=multiprocessing.get_context("spawn"),
-                                         initializer=_worker_init, initargs=(threads, os.getpid()))
+        self.ex = new_pool(workers, mp_context=multiprocessing.get_context("spawn"),
+                           initializer=_worker_init, initargs=(threads,))
         self.sample_fn, self.config = sample_fn, config
 
     def submit(self, index: int):

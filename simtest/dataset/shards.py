@@ -57,7 +57,7 @@ import re
 import zipfile
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Iterable
+from typing import Iterable
 
 import numpy as np
 from PIL import Image
@@ -83,7 +83,6 @@ __all__ = [
     "shard_json_path",
     "shard_npz_path",
     "shard_path_from_row",
-    "write_json",
 ]
 
 FORMAT = "simtest-dataset"
@@ -251,29 +250,6 @@ def shard_path_from_row(root: Path, row: dict) -> Path:
     return Path(root) / rel
 
 
-def write_json(path: Path, obj: Any) -> Path:
-    """Atomically write ``obj`` as indented JSON (temporary file, then ``os.replace``).
-
-    Parameters
-    ----------
-    path : Path
-        Destination file.
-    obj : Any
-        JSON-serialisable object.
-
-    Returns
-    -------
-    Path
-        ``path``.
-
-    Raises
-    ------
-    TypeError
-        If ``obj`` is not JSON-serialisable (nothing is written).
-    """
-    return atomic_write_json(path, obj)
-
-
 def shard_npz_path(root: Path, shard: int) -> Path:
     """Path of a shard's array file, ``root/shards/shard-XXXXX.npz`` (five-digit shard number)."""
     return Path(root) / SHARDS_DIR / f"shard-{shard:05d}.npz"
@@ -408,7 +384,7 @@ class ShardWriter:
             **self.meta,
             "samples": self._rows,
         }
-        write_json(shard_json_path(self.root, self.shard), doc)
+        atomic_write_json(shard_json_path(self.root, self.shard), doc)
 
     def abort(self) -> None:
         """Close and delete the partial file (a rerun redoes the shard); never raises OSError."""

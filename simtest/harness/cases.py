@@ -30,7 +30,6 @@ __all__ = [
     "RECON_KEYS",
     "RENDERED_KEYS",
     "MESH_POSE_KEYS",
-    "TEXTURES",
     "stable_hash",
     "realisation_seed",
     "Scoring",
@@ -81,10 +80,6 @@ RENDERED_KEYS: dict[str, Any] = {k: v for k, v in dataclasses.asdict(RenderedKey
 #: Keys of :class:`MeshPose` among :data:`RENDERED_KEYS`.
 MESH_POSE_KEYS = ("colon_station", "liver_azimuth_deg", "mesh_view_deg", "mesh_distance_mm",
                    "liver_elevation_deg")
-#: Values of the rendered key ``texture``: the scene's tissue texture in every realisation, or a
-#: texture drawn for each (:class:`SceneSetting`).
-TEXTURES = ("scene", "per_realisation")
-
 
 
 def stable_hash(key: str) -> int:

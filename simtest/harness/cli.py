@@ -50,9 +50,6 @@ from simtest.harness.suite import MAX_TOTAL_REALISATIONS, SuiteError, load_suite
 
 __all__ = ["validate_command", "nightly_command", "check_workers", "load_checked_suite"]
 
-_FILES = ("results.json (every statistic), results.csv (one row per case and estimator), "
-          "report.md, report.html (self-contained) and figures/*.png")
-
 
 def _fmt(deg: float) -> str:
     """Two significant digits, without exponents for errors of 10 deg and more."""

@@ -47,7 +47,7 @@ import numpy as np
 from simtest.geometry.angles import angle_between_deg
 from simtest.reconstruct.registry import NORMAL_READERS, get, names, unit_or_none
 
-__all__ = ["ESTIMATORS", "LIGHT_AWARE_FITS", "ORACLE_FITS", "ORACLE_INPUTS", "STATUS_FREE", "score",
+__all__ = ["ESTIMATORS", "LIGHT_AWARE_FITS", "ORACLE_INPUTS", "STATUS_FREE", "score",
            "unit_or_none"]
 
 
@@ -63,7 +63,6 @@ ESTIMATORS: dict[str, Callable] = NORMAL_READERS
 #: the render result it fits: the render's specular radiance alone, and its linear radiance
 #: (diffuse shading in; no tone curve, noise or clipping).
 ORACLE_INPUTS = {name: get(name).oracle_input for name in names("oracle_input")}
-ORACLE_FITS = tuple(ORACLE_INPUTS)
 
 #: Estimators scored whatever the highlight's status (they do not rest on its isophote: the BP
 #: ray, and the photometric fit and the recommendation, which take a merged highlight too).

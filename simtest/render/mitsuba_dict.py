@@ -25,7 +25,6 @@ import numpy as np
 from simtest.scene.spec import CameraSpec, LightSpec, MeshGeometry, PlaneGeometry, SceneSpec
 
 __all__ = [
-    "AOVS",
     "LIGHT_SEED_KEY",
     "intrinsics_matrix",
     "cam_to_world_matrix",
@@ -35,9 +34,6 @@ __all__ = [
     "mesh_to_world_matrix",
     "mitsuba_scene_dict",
 ]
-
-#: AOV channels written by the ``simtest_gt`` integrator after the RGBA image channels.
-AOVS = ("nn.X", "nn.Y", "nn.Z", "pp.X", "pp.Y", "pp.Z")
 
 #: Stable key of the light-offset draw in ``SeedSequence([seed, LIGHT_SEED_KEY])``.
 LIGHT_SEED_KEY = 0x11647

@@ -29,8 +29,7 @@ def _intersect(scene, ray):
     """``scene.ray_intersect`` of camera rays, traced as coherent rays.
 
     The rays of a wavefront leave the camera centre through neighbouring pixels: Embree's coherent
-    mode traces them about 2.8 times faster on the colon mesh, with the same hits to the bit
-    (tested).
+    mode traces them faster, with the same hits to the bit (tested).
     """
     mi = require("mitsuba")
     return scene.ray_intersect(ray, mi.RayFlags.All, True)

@@ -59,7 +59,7 @@ import numpy as np
 from simtest.constants import gaussian_radius_px, smooth_block_px
 from simtest.specular import phong_intensity
 
-__all__ = ["PaperParams", "PaperSample", "PaperSimulator", "simulate_paper", "paper_homography"]
+__all__ = ["PaperParams", "PaperSample", "PaperSimulator", "paper_homography"]
 
 
 @dataclass(frozen=True)
@@ -473,24 +473,3 @@ def _bilinear(image: np.ndarray, uv: np.ndarray) -> float:
     bot = (1 - fu) * image[r1, c0] + fu * image[r1, c1]
     return float((1 - fv) * top + fv * bot)
 
-
-def simulate_paper(params: PaperParams, rng: np.random.Generator) -> PaperSample:
-    """One realisation of the ``paper`` protocol (convenience wrapper of :class:`PaperSimulator`).
-
-    Parameters
-    ----------
-    params : PaperParams
-        Validated protocol parameters.
-    rng : numpy.random.Generator
-        The realisation's own generator (derive it from a SeedSequence).
-
-    Returns
-    -------
-    PaperSample
-
-    Raises
-    ------
-    FloatingPointError
-        If the smoothed intensity at the BP is not positive (cannot normalise).
-    """
-    return PaperSimulator(params).sample(rng)

@@ -40,10 +40,10 @@ import numpy as np
 from simtest.harness.claims import evaluate_claims, evaluate_paper_claim
 from simtest.harness.metrics import STAT_KEYS, case_metrics, summarise, summarise_records
 from simtest.harness.report.provenance import open_parameters, provenance, relative_to_repo
-from simtest.reconstruct.registry import describe, names
+from simtest.reconstruct.registry import describe
 from simtest.scene import load_scene
 
-__all__ = ["SCHEMA", "SCHEMA_VERSION", "SEEDING", "ESTIMATOR_TEXT", "build_results",
+__all__ = ["SCHEMA", "SCHEMA_VERSION", "SEEDING", "build_results",
            "case_family", "results_csv"]
 
 SCHEMA = "simtest.validation"
@@ -53,9 +53,6 @@ SEEDING = ("realisation i of a case draws from numpy SeedSequence([root_seed, "
            "int.from_bytes(sha256(case_key)[:8], 'little'), i]); rendered cases take the render "
            "seed as the first 31-bit word of that sequence")
 
-#: One line per estimator for the reports (:mod:`simtest.reconstruct.registry`'s descriptions); an
-#: estimator without a line is listed by its name.
-ESTIMATOR_TEXT = {name: describe(name) for name in names()}
 
 _MESH_KEYS = {"colon_station": "colon", "liver_azimuth_deg": "liver"}
 

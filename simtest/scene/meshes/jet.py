@@ -23,7 +23,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-__all__ = ["Jet", "variable", "constant", "compose", "jsum", "jcross", "jstack"]
+__all__ = ["Jet", "variable", "constant", "compose", "jstack"]
 
 _Fn = Callable[[np.ndarray], np.ndarray]
 
@@ -168,21 +168,8 @@ def compose(u: Jet, f0: np.ndarray, f1: np.ndarray, f2: np.ndarray) -> Jet:
                f2 * u.a * u.b + f1 * u.ab, f2 * u.b * u.b + f1 * u.bb)
 
 
-def jsum(x: Jet, axis: int = -1) -> Jet:
-    """Sum of a jet's components along ``axis`` (a linear operation)."""
-    return Jet(*(np.sum(p, axis=axis) for p in x._parts()))
-
-
 def jstack(items: list[Jet], axis: int = -1) -> Jet:
     """Stack scalar jets into a vector jet along ``axis``."""
     shape = np.broadcast_shapes(*(p.shape for j in items for p in j._parts()))
     parts = zip(*(j._parts() for j in items), strict=True)
     return Jet(*(np.stack([np.broadcast_to(p, shape) for p in ps], axis=axis) for ps in parts))
-
-
-def jcross(x: Jet, y: Jet) -> Jet:
-    """Cross product of two vector jets (last axis of length 3)."""
-    comps = []
-    for i, j in ((1, 2), (2, 0), (0, 1)):
-        comps.append(x[..., i] * y[..., j] - x[..., j] * y[..., i])
-    return jstack(comps)
