@@ -51,24 +51,10 @@ from simtest.geometry.lights import Light, LightRig
 from simtest.render.mitsuba_dict import intrinsics_matrix, light_position_cam
 from simtest.scene.spec import SceneSpec
 
-__all__ = [
-    "COLONOSCOPE_GUIDE_OFFSET_MM",
-    "LAPAROSCOPE_RING_RADIUS_MM",
-    "GUIDE_PROFILE_EXPONENT",
-    "RAY_SEED_KEY",
-    "camera_model",
-    "colonoscope_rig",
-    "cf_h190_rig",
-    "guide_radius_mm",
-    "CF_H190_GUIDE_OFFSET_MM",
-    "CF_H190_GUIDE_DIAMETER_MM",
-    "CF_H190_GAMMA",
-    "light_rig",
-    "uses_endoscope",
-    "laparoscope_rig",
-    "scaled_omnidirectional",
-    "sample_positions",
-]
+__all__ = ["COLONOSCOPE_GUIDE_OFFSET_MM", "LAPAROSCOPE_RING_RADIUS_MM", "GUIDE_PROFILE_EXPONENT", "RAY_SEED_KEY",
+           "camera_model", "colonoscope_rig", "cf_h190_rig", "guide_radius_mm", "CF_H190_GUIDE_OFFSET_MM",
+           "CF_H190_GUIDE_DIAMETER_MM", "CF_H190_GAMMA", "light_rig", "uses_endoscope", "laparoscope_rig",
+           "scaled_omnidirectional", "sample_positions"]
 
 #: Distance from the lens centre to each of the colonoscope's two light guides, mm. An assumption:
 #: a colonoscope tip 13 mm across (Olympus CF-HQ190L: 13.2 mm distal end, the scope of C3VD) carries

@@ -67,35 +67,11 @@ from simtest.reconstruct.settings import ReconSettings
 matplotlib.use("Agg", force=False)
 import matplotlib.pyplot as plt  # noqa: E402 - after choosing the back-end
 
-__all__ = [
-    "DARK_LEVEL",
-    "SATURATED_LEVEL",
-    "WHITE_LEVEL",
-    "FACTOR_GOAL",
-    "RATIO_FLOOR",
-    "STATISTICS",
-    "POOLED",
-    "WHITE_CHANNEL_LEVEL",
-    "SHEEN_LUMA",
-    "GLINT_STATISTICS",
-    "ALL_STATISTICS",
-    "REAL_SPLIT",
-    "SPLIT_SEED",
-    "FrameStats",
-    "glint_population",
-    "split_indices",
-    "split_tables",
-    "banner_frames",
-    "banner_tiles",
-    "log_ratio",
-    "real_reference",
-    "frame_stats",
-    "sim_to_real_table",
-    "sim_to_real_figure",
-    "fit_figure",
-    "frames_figure",
-    "glint_sheet",
-]
+__all__ = ["DARK_LEVEL", "SATURATED_LEVEL", "WHITE_LEVEL", "FACTOR_GOAL", "RATIO_FLOOR", "STATISTICS", "POOLED",
+           "WHITE_CHANNEL_LEVEL", "SHEEN_LUMA", "GLINT_STATISTICS", "ALL_STATISTICS", "REAL_SPLIT", "SPLIT_SEED",
+           "FrameStats", "glint_population", "split_indices", "split_tables", "banner_frames", "banner_tiles",
+           "log_ratio", "real_reference", "frame_stats", "sim_to_real_table", "sim_to_real_figure", "fit_figure",
+           "frames_figure", "glint_sheet"]
 
 #: Luma at or below which a pixel is outside the lit field (black border, field stop), 8-bit.
 DARK_LEVEL = 20

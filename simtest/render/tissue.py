@@ -136,6 +136,9 @@ class TissueParams:
     #: (2, 3) orthonormal in-surface axes (texture frame) of a plane: ``(u, v) = (e1 . q, e2 . q)``;
     #: None: the triplanar projection (:func:`surface_uv`).
     uv_axes: np.ndarray | None = None
+    #: (M,) weight of each relief wave's slope in the diffuse light's normal (:func:`tissue_params`'s
+    #: ``subsurface_mm``); None: the diffuse light takes the shading normal (every weight 1).
+    relief_diffuse: np.ndarray | None = None
 
 
 def with_neighbours(t: TissueParams, wall=(None, None, None), organ=(None, None, None)) -> TissueParams:
@@ -186,7 +189,8 @@ def tissue_params(kind: str, seed: int, relief_mm: float, relief_scale_mm: float
                   vessel_scale_mm: float = 4.0, *, relief_min_mm: float | None = None,
                   relief_hurst: float = RELIEF_HURST,
                   base: tuple[float, float, float] | None = None,
-                  film_variation: float = 0.0, film_scale_mm: float = 2.0) -> TissueParams:
+                  film_variation: float = 0.0, film_scale_mm: float = 2.0,
+                  subsurface_mm: float = 0.0) -> TissueParams:
     """Draw a tissue texture (texture frame) from ``SeedSequence([seed, TISSUE_SEED_KEY])``.
 
     Parameters
@@ -213,6 +217,12 @@ def tissue_params(kind: str, seed: int, relief_mm: float, relief_scale_mm: float
         :func:`film_alpha`).
     film_scale_mm : float
         Typical wavelength of the film's thickness field, mm.
+    subsurface_mm : float
+        Diffusion length ``l`` of the diffuse light, mm (0: it takes the shading normal). It leaves
+        the tissue after a lateral walk of about ``l``, which averages the irradiance a relief wave
+        of wavelength ``lambda`` modulates: the diffuse normal keeps ``1 / (1 + (2 pi l /
+        lambda)^2)`` of its slope (a Lorentzian point spread, the diffusion approximation's
+        low-pass; Cuccia et al. 2009, https://doi.org/10.1117/1.3088140).
 
     Raises
     ------
@@ -227,9 +237,10 @@ def tissue_params(kind: str, seed: int, relief_mm: float, relief_scale_mm: float
     _waves(rng, vessel_scale_mm)  # the former vessel field's draw: keeps the relief's and film's streams
     rk, rp, amp = relief_spectrum(rng, relief_mm, lo, relief_scale_mm, relief_hurst)
     fk, fp = _waves(rng, film_scale_mm)  # drawn last: the other fields do not depend on it
+    diffuse = 1.0 / (1.0 + (subsurface_mm * np.linalg.norm(rk, axis=1)) ** 2) if subsurface_mm > 0.0 else None
     colour = TISSUE_ALBEDO[kind] if base is None else tuple(float(x) for x in base)
     return TissueParams(colour, ck, cp, transmission_map(int(seed)), rk, rp, amp, film_k=fk, film_phase=fp,
-                        film_variation=float(film_variation))
+                        film_variation=float(film_variation), relief_diffuse=diffuse)
 
 
 def in_camera(t: TissueParams, cam_to_texture: np.ndarray) -> TissueParams:
@@ -382,29 +393,43 @@ def relief_height(xp, p, t: TissueParams):
     return h
 
 
-def relief_normal(xp, p, n, t: TissueParams):
+def _bumped(xp, n, g, A):
+    """``unit(n - (g - (g . n) n))`` for a texture-frame gradient ``g`` (turned back by ``A^T``)."""
+    if A is not None:  # the gradient back in the camera frame: grad_p h = A^T grad_q h
+        g = [A[0][i] * g[0] + A[1][i] * g[1] + A[2][i] * g[2] for i in range(3)]
+    gn = g[0] * n[0] + g[1] * n[1] + g[2] * n[2]
+    s = [n[i] - (g[i] - gn * n[i]) for i in range(3)]
+    inv = 1.0 / xp.sqrt(s[0] * s[0] + s[1] * s[1] + s[2] * s[2])
+    return s[0] * inv, s[1] * inv, s[2] * inv
+
+
+def relief_normal(xp, p, n, t: TissueParams, *, diffuse: bool = False):
     """Shading normal with micro-relief: ``unit(n - (grad h - (grad h . n) n))``.
 
     ``p`` and ``n`` are (x, y, z) tuples of arrays (the camera frame with :func:`in_camera`, else
     the texture frame; ``n`` the unit macro normal); returns the unit shading normal in the same
-    frame as a tuple, facing the same side as ``n``.
+    frame as a tuple, facing the same side as ``n``. With ``diffuse``: the pair (shading normal,
+    the diffuse light's normal: the same bump with each wave's slope weighted by
+    :attr:`TissueParams.relief_diffuse`; the shading normal itself where that is None).
     """
+    w = t.relief_diffuse if diffuse else None
     if not np.any(t.relief_amp):  # smooth: no waves to evaluate (the normal, normalised)
-        inv = 1.0 / xp.sqrt(n[0] * n[0] + n[1] * n[1] + n[2] * n[2])
-        return n[0] * inv, n[1] * inv, n[2] * inv
+        ns = _bumped(xp, n, (0.0, 0.0, 0.0), None)
+        return (ns, ns) if diffuse else ns
     p, A = _to_texture(xp, p, t)
-    gx = gy = gz = 0.0
+    g, gd = [0.0, 0.0, 0.0], [0.0, 0.0, 0.0]
     for j in range(len(t.relief_phase)):
         k = t.relief_k[j]
-        c = _const(xp, t.relief_amp[j]) * xp.cos(p[0] * float(k[0]) + p[1] * float(k[1]) + p[2] * float(k[2])
-                                                 + float(t.relief_phase[j]))
-        gx, gy, gz = gx + c * float(k[0]), gy + c * float(k[1]), gz + c * float(k[2])
-    if A is not None:  # the gradient back in the camera frame: grad_p h = A^T grad_q h
-        gx, gy, gz = (A[0][i] * gx + A[1][i] * gy + A[2][i] * gz for i in range(3))
-    gn = gx * n[0] + gy * n[1] + gz * n[2]
-    sx, sy, sz = n[0] - (gx - gn * n[0]), n[1] - (gy - gn * n[1]), n[2] - (gz - gn * n[2])
-    inv = 1.0 / xp.sqrt(sx * sx + sy * sy + sz * sz)
-    return sx * inv, sy * inv, sz * inv
+        cj = xp.cos(p[0] * float(k[0]) + p[1] * float(k[1]) + p[2] * float(k[2]) + float(t.relief_phase[j]))
+        c = _const(xp, t.relief_amp[j]) * cj
+        g = [g[i] + c * float(k[i]) for i in range(3)]
+        if w is not None:
+            cd = _const(xp, t.relief_amp[j] * w[j]) * cj
+            gd = [gd[i] + cd * float(k[i]) for i in range(3)]
+    ns = _bumped(xp, n, g, A)
+    if not diffuse:
+        return ns
+    return ns, (ns if w is None else _bumped(xp, n, gd, A))
 
 
 def film_alpha(xp, p, t: TissueParams, alpha: float):

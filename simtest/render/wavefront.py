@@ -425,7 +425,8 @@ def shade_tissue(scene, d: np.ndarray, rig: LightRig, texture, material, *, shad
     Returns
     -------
     rgb : ndarray of shape (N / spp, 3), float32
-        ``sum_i (albedo / pi + f_s) cos_o I_i max(0, w_z)^m_i / s_i^2`` with the shading normal.
+        ``sum_i (albedo / pi cos_d + f_s cos_o) I_i max(0, w_z)^m_i / s_i^2``, ``cos_o`` of the
+        shading normal, ``cos_d`` of the diffuse one (:func:`simtest.render.tissue.relief_normal`).
     specular : ndarray of shape (N / spp,), float32
         The specular part alone.
     coverage : ndarray of shape (N / spp,), float32
@@ -439,7 +440,7 @@ def shade_tissue(scene, d: np.ndarray, rig: LightRig, texture, material, *, shad
     n = si.sh_frame.n
     n = dr.select(dr.dot(n, ray.d) > 0, -n, n)  # facing the camera
     p = (si.p.x, si.p.y, si.p.z)
-    ns = tissue.relief_normal(xp, p, (n.x, n.y, n.z), texture)
+    ns, nd = tissue.relief_normal(xp, p, (n.x, n.y, n.z), texture, diffuse=True)
     alb = [dr.select(valid, a, 0.0) for a in tissue.albedo(xp, p, texture, (n.x, n.y, n.z))]  # misses: 0, not NaN
     wi = -ray.d
     wi = (wi.x, wi.y, wi.z)
@@ -459,9 +460,10 @@ def shade_tissue(scene, d: np.ndarray, rig: LightRig, texture, material, *, shad
         fs = tissue.specular_lobe(xp, ns, wi, w3, material.distribution, alpha,
                                   material.n, material.film_ior, material.c)
         e = dr.select(lit, cos_o * weight, 0.0)
+        ed = e if nd is ns else dr.select(lit, dr.maximum(dr.dot(mi.Vector3f(*nd), wo), 0.0) * weight, 0.0)
         spec += fs * e
         for c in range(3):
-            rgb[c] += (alb[c] / dr.pi + fs) * e
+            rgb[c] += alb[c] / dr.pi * ed + fs * e
     out = Pending(_per_pixel(spp, *rgb, spec, dr.select(valid, 1.0, 0.0)),
                   lambda r, g, b, sp, cov: (np.stack([r, g, b], axis=-1), sp, cov))
     return out if defer else out.fetch()

@@ -264,6 +264,9 @@ class MaterialSpec:
     relief_hurst : float
         Hurst exponent H of the micro-relief's self-affine spectrum (power spectral density
         ``~ q^-(2 + 2H)``, amplitudes ``~ wavelength^H``), 0 to 1; see :mod:`simtest.render.tissue`.
+    subsurface_mm : float or None
+        Diffusion length of the diffuse light, mm: relief waves shorter shade the film only
+        (:func:`simtest.render.tissue.tissue_params`); None or 0: both.
     texture_seed : int
         Seed of the tissue texture (albedo pattern and relief), independent of the render seed.
     albedo : (float, float, float) or None
@@ -304,6 +307,7 @@ class MaterialSpec:
     relief_scale_mm: Num = Field(0.3, ge=0.05, le=5.0)
     relief_min_mm: Num | None = Field(None, ge=0.005, le=1.0)
     relief_hurst: Num = Field(0.8, ge=0.0, le=1.0)
+    subsurface_mm: Num | None = Field(None, ge=0.0, le=10.0)
     texture_seed: Int = Field(0, ge=0, le=MAX_SEED)
     albedo: tuple[_Channel, _Channel, _Channel] | None = None
     film_variation: Num = Field(0.0, ge=0.0, le=3.0)
