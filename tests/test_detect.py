@@ -522,6 +522,27 @@ def test_gray_and_grey_is_opencvs_gray_and_the_gray_test(seed, colour_at):
     assert _gray_and_grey(img.astype(np.uint16))[1] is None  # not asked: 16-bit
 
 
+@given(seed=st.integers(0, 2**32 - 1), h=st.integers(1, 40), w=st.integers(1, 12),
+       dtype=st.sampled_from([np.uint8, np.uint16, np.float32]), channels=st.sampled_from([3, 4]),
+       channel=st.integers(-1, 2), flip=st.booleans())
+@settings(max_examples=80, deadline=None)
+def test_the_gray_test_is_r_g_and_b_equal_at_every_pixel(seed, h, w, dtype, channels, channel, flip):
+    # frame_prep._is_gray says gray exactly where R = G = B everywhere (the fourth channel aside):
+    # one pixel's channel changed anywhere (off the rows it samples first too) makes it colour;
+    # 8-, 16-bit and float frames, RGBA, a view that is not contiguous; a NaN is no match
+    rng = np.random.default_rng(seed)
+    top = np.iinfo(dtype).max if np.dtype(dtype).kind == "u" else 1.0
+    img = np.repeat(rng.integers(0, top, (h, w, 1), endpoint=True).astype(dtype), channels, axis=2)
+    if channels == 4:
+        img[..., 3] = rng.integers(0, top, (h, w), endpoint=True)
+    if channel >= 0:
+        r, c = int(rng.integers(0, h)), int(rng.integers(0, w))
+        img[r, c, channel] = img[r, c, channel] ^ 1 if np.dtype(dtype).kind == "u" else np.nan
+    want = channel < 0
+    assert _is_gray(img) is want
+    assert _is_gray(img[:, ::-1] if flip else img[::-1]) is want
+
+
 @given(seed=st.integers(0, 2**32 - 1), n=st.integers(1, 80), dtype=st.sampled_from([np.float32, np.float64]),
        rounded=st.booleans(), nan=st.booleans())
 @settings(max_examples=200, deadline=None)

@@ -249,6 +249,23 @@ def test_magnitude_histogram_is_the_bincount_of_rounded_magnitudes(seed, n, nbin
     assert np.array_equal(J._magnitude_histogram(c, nbin), want)
 
 
+@given(seed=st.integers(0, 2**32 - 1), coarse=st.booleans())
+@settings(max_examples=20, deadline=None)
+def test_the_counts_near_each_steps_multiples_are_counted_per_step(seed, coarse):
+    """_steps_of's counts, step by step from their definition: of each candidate step q, the
+    coefficients within 1 of its nonzero multiples below the last bin, its first multiple's
+    count, and the largest count at a later multiple (0 where q has one multiple)."""
+    nbin, qs, mult_idx, mult_start, _ = J._COARSE if coarse else J._FULL
+    rng = np.random.default_rng(seed)
+    hist = rng.integers(0, 50, (nbin, int(rng.integers(1, 65))))
+    at, first, later = J._multiple_counts(hist, mult_idx, mult_start)
+    for i, q in enumerate(qs.tolist()):
+        near = np.array([hist[b - 1:b + 2].sum(axis=0) for b in range(q, nbin - 1, q)])
+        assert np.array_equal(at[i], near.sum(axis=0)), q
+        assert np.array_equal(first[i], near[0]), q
+        assert np.array_equal(later[i], near[1:].max(axis=0) if len(near) > 1 else 0 * near[0]), q
+
+
 @given(st.integers(0, 2**32 - 1), st.integers(1, 300), st.booleans())
 @settings(max_examples=100, deadline=None)
 def test_the_phase_medians_are_one_np_median_per_phase(seed, n, rounded):

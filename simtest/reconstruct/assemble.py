@@ -9,7 +9,6 @@ from dataclasses import dataclass
 import numpy as np
 
 from simtest._records import fast_init
-from simtest.reconstruct import _kernels
 from simtest.reconstruct._pixels import Roi
 from simtest.reconstruct.cone_fit import FitFrame, fit_cones, to_camera, to_fit_frame
 from simtest.reconstruct.estimators import estimate_from_conics, joint_cone_axes
@@ -262,10 +261,8 @@ def _complete(drafts: list) -> list[SpecularityEstimate]:
     return [_finish(d, joint_of.get(id(d)), enclosed.get(id(d))) if type(d) is _Draft else d for d in drafts]
 def _enclosed_counts(drafts: list) -> dict:
     """``id(draft) -> n``: how many other BPs the closed ok primary isophote of each draft whose
-    other BPs are a frame's sorted array (``_SortedBps``) encloses, in one compiled call
-    (:func:`simtest.reconstruct._kernels.count_enclosed_sorted_many`: the counts of
-    ``count_enclosed_sorted`` one draft at a time). The drafts not counted here are counted by
-    :func:`_finish` itself."""
+    other BPs are a frame's sorted array (``_SortedBps``) encloses, in one batch
+    (:func:`count_enclosed`). The drafts not counted here are counted by :func:`_finish` itself."""
     todo = [d for d in drafts if isinstance(d.other_bps, _SortedBps) and d.results[0].status == OK
             and d.results[0].closed and len(d.other_bps) > (d.own_bp >= 0)]
     if not todo:
@@ -273,13 +270,75 @@ def _enclosed_counts(drafts: list) -> dict:
     others = todo[0].other_bps
     if any(d.other_bps is not others for d in todo):
         return {}
-    polys = [d.results[0].points_uv for d in todo]
-    counts = np.array([len(p) for p in polys], dtype=np.int64)
-    starts = np.concatenate([[0], np.cumsum(counts)[:-1]]).astype(np.int64)
-    n_in = _kernels.count_enclosed_sorted_many(
-        np.ascontiguousarray(np.concatenate(polys, axis=0), dtype=np.float64), starts, counts, others.uv,
-        others.u, np.array([d.own_bp for d in todo], dtype=np.int64))
+    n_in = count_enclosed([d.results[0].points_uv for d in todo], others.uv, [d.own_bp for d in todo], others.u)
     return dict(zip(map(id, todo), n_in.tolist()))
+
+
+def count_enclosed(polys: list, points, skips, us: np.ndarray | None = None) -> np.ndarray:
+    """How many points each closed polygon encloses (the ``merged`` test).
+
+    Parameters
+    ----------
+    polys : list of ndarray of shape (N_j, 2)
+        Closed polygons (u, v), N_j >= 1, without a repeated end point.
+    points : array_like of shape (k, 2)
+        The points (u, v): sorted by u where ``us`` is given.
+    skips : sequence of int
+        Per polygon, the row of ``points`` not counted (its own BP); -1 for none.
+    us : ndarray of shape (k,), optional
+        The points' u, where the caller sorted them by it (else they are sorted here).
+
+    Returns
+    -------
+    ndarray of int64, shape (len(polys),)
+        Per polygon, the points but its skipped one within its bounding box (bounds included)
+        that lie inside by the even-odd rule, in the comparisons and arithmetic of
+        :func:`~simtest.reconstruct.isophote.polygon_contains` (the same answers, on the polygon's
+        edges and vertices too). The box's u range
+        is two binary searches of the sorted u, so a frame of thousands of BPs costs n log n, and
+        every (polygon, point in its box, edge) triple is tested in one vectorised pass.
+    """
+    uv = np.asarray(points, dtype=np.float64).reshape(-1, 2)
+    skip = np.asarray(skips, dtype=np.int64).reshape(-1)
+    if us is None:
+        order = np.argsort(uv[:, 0], kind="stable")
+        rank = np.empty_like(order)
+        rank[order] = np.arange(len(order))
+        uv = uv[order]
+        skip = np.where(skip >= 0, rank[np.maximum(skip, 0)] if len(rank) else -1, -1)
+        us = uv[:, 0]
+    n_poly = len(polys)
+    if n_poly == 0 or len(uv) == 0:
+        return np.zeros(n_poly, np.int64)
+    n_vert = np.array([len(p) for p in polys], dtype=np.int64)
+    start = np.cumsum(n_vert) - n_vert
+    verts = np.concatenate(polys, axis=0, dtype=np.float64)
+    lo, hi = np.minimum.reduceat(verts, start, axis=0), np.maximum.reduceat(verts, start, axis=0)
+    # (polygon, point) pairs of the points whose u lies in the polygon's u range, then v's
+    first = np.searchsorted(us, lo[:, 0], "left")
+    n_near = np.searchsorted(us, hi[:, 0], "right") - first
+    pj = np.repeat(np.arange(n_poly), n_near)
+    pk = np.arange(len(pj)) - np.repeat(np.cumsum(n_near) - n_near - first, n_near)
+    pv = uv[pk, 1]
+    keep = (pk != skip[pj]) & (pv >= lo[pj, 1]) & (pv <= hi[pj, 1])
+    pj, pk = pj[keep], pk[keep]
+    if len(pj) == 0:
+        return np.zeros(n_poly, np.int64)
+    # each pair against each edge of its polygon, from vertex e to the next (cyclic); the crossing's
+    # u computed only where the edge straddles the point's v
+    nxt = np.arange(1, len(verts) + 1)
+    nxt[start + n_vert - 1] = start
+    y, y2 = verts[:, 1], verts[nxt, 1]
+    n_edge = n_vert[pj]
+    ends = np.cumsum(n_edge)
+    e = np.arange(ends[-1]) + np.repeat(start[pj] - (ends - n_edge), n_edge)
+    py = np.repeat(uv[pk, 1], n_edge)
+    s = np.flatnonzero((y[e] > py) != (y2[e] > py))
+    e, py, pair = e[s], py[s], np.searchsorted(ends, s, "right")
+    x, ye, x2, ye2 = verts[e, 0], y[e], verts[nxt[e], 0], y2[e]
+    crosses = uv[pk[pair], 0] < x + (py - ye) * (x2 - x) / (ye2 - ye)
+    inside = np.bincount(pair[crosses], minlength=len(pj)) % 2 == 1
+    return np.bincount(pj[inside], minlength=n_poly).astype(np.int64)
 
 
 class _SortedBps:
@@ -297,7 +356,7 @@ class _SortedBps:
 
 def _merge_guard(det, bps_arr: np.ndarray) -> tuple[_SortedBps, np.ndarray, np.ndarray]:
     """``(others, keep, row_in_others)``: the BPs an isophote must not enclose (``merged``: every
-    candidate's but the too small ones), sorted by u (``count_enclosed_sorted``); which candidates
+    candidate's but the too small ones), sorted by u (:func:`count_enclosed`); which candidates
     are among them; and each one's row there, -1 if not there."""
     keep = np.array([c.status != "too_small" for c in det.candidates], dtype=bool)
     kept = np.flatnonzero(keep)
@@ -319,11 +378,9 @@ def _finish(d: _Draft, joint, enclosed: int | None = None) -> SpecularityEstimat
         if enclosed is not None:
             n_in = enclosed
         elif isinstance(d.other_bps, _SortedBps):
-            n_in = int(_kernels.count_enclosed_sorted(primary.points_uv, d.other_bps.uv, d.other_bps.u,
-                                                      d.own_bp))
+            n_in = int(count_enclosed([primary.points_uv], d.other_bps.uv, [d.own_bp], d.other_bps.u)[0])
         else:
-            others = np.asarray(d.other_bps, dtype=np.float64).reshape(-1, 2)
-            n_in = int(_kernels.count_enclosed(primary.points_uv, others, d.own_bp))
+            n_in = int(count_enclosed([primary.points_uv], d.other_bps, [d.own_bp])[0])
         if n_in:
             status, detail = "merged", f"the isophote at t = {primary.isovalue} encloses {n_in} other BP(s)"
     return SpecularityEstimate(d.bp_uv, d.i_bp, d.saturated, d.roi, status, detail, d.bp_ray,

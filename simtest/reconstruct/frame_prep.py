@@ -12,7 +12,6 @@ import numpy as np
 
 from simtest.constants import LUMA_BT601, gaussian_radius_px
 from simtest.geometry.cameras import CameraModel, PinholeCamera
-from simtest.reconstruct import _kernels
 from simtest.reconstruct._pixels import Roi, image_size_wh
 from simtest.reconstruct.detect import (
     colour_luma32, compiled_luma, default_full_scale, image_noise_sigma, luma, smooth_sigma_for_noise, validate_image,
@@ -84,7 +83,7 @@ class _Frame:
     #: ``reconstruct`` computed it (:func:`_colour_luma32`): the verifier's luma, and the one the
     #: frame's ROIs are smoothed from.
     luma32: np.ndarray | None = None
-    #: Whether the image's R, G and B are equal (``_kernels.is_gray``), where it was asked.
+    #: Whether the image's R, G and B are equal (:func:`_is_gray`), where it was asked.
     grey: bool | None = None
     #: The frame's luma (H, W) each ROI of a frame with few highlights is smoothed from alone, in
     #: float32 (:func:`~simtest.reconstruct.isophotes._roi_values`), where ``reconstruct`` has it: a colour frame's ``luma32``, a
@@ -275,17 +274,23 @@ def _smooth(vals: np.ndarray, sigma: float) -> np.ndarray:
 
 
 def _is_gray(img: np.ndarray) -> bool:
-    """:func:`simtest.reconstruct._kernels.is_gray` of an (H, W, C >= 3) image, by
-    :func:`~simtest.reconstruct._kernels.is_gray_packed` where the image is a C-contiguous 8- or
-    16-bit RGB one (its rows packed, half the time)."""
-    if img.shape[2] == 3 and img.dtype.type in (np.uint8, np.uint16) and img.flags.c_contiguous:
-        return bool(_kernels.is_gray_packed(img.reshape(img.shape[0], -1)))
-    return bool(_kernels.is_gray(img))
+    """Whether R = G = B at every pixel of an (H, W, C >= 3) image (a NaN is no match): a few
+    spread rows first (a colour frame differs there), then an 8- or 16-bit RGB frame against its
+    R made RGB again by OpenCV (``cv2.norm`` of the difference), any other image by numpy, channel
+    against channel."""
+    rows = img[:: max(1, img.shape[0] // 16)]  # about 16 rows: speed only, the answer is the same
+    if not (np.array_equal(rows[..., 0], rows[..., 1]) and np.array_equal(rows[..., 0], rows[..., 2])):
+        return False
+    if img.shape[2] == 3 and img.size and img.dtype.type in (np.uint8, np.uint16):
+        img = np.ascontiguousarray(img)
+        back = cv2.cvtColor(cv2.extractChannel(img, 0), cv2.COLOR_GRAY2RGB)
+        return bool(cv2.norm(img, back, cv2.NORM_INF) == 0)
+    return bool(np.array_equal(img[..., 0], img[..., 1]) and np.array_equal(img[..., 0], img[..., 2]))
 
 
 def _colour_luma32(img: np.ndarray, grey: bool | None = None) -> np.ndarray | None:
     """The luma of a colour 8- or 16-bit RGB frame in float32 (H, W), read-only
-    (:func:`simtest.reconstruct._kernels.luma_rgb32`); None for any other frame (single-channel,
+    (:func:`~simtest.reconstruct.detect.compiled_luma`); None for any other frame (single-channel,
     gray (R = G = B), float, RGBA). ``grey``: whether R = G = B, where the caller knows (else
     tested here, for a frame :func:`~simtest.reconstruct.detect.colour_luma32` could take)."""
     if grey is None:
@@ -296,8 +301,7 @@ def _colour_luma32(img: np.ndarray, grey: bool | None = None) -> np.ndarray | No
 
 
 def _luma32(img: np.ndarray) -> np.ndarray:
-    """:func:`simtest.reconstruct._kernels.luma_rgb32` of an (H, W, 3) image
-    (:func:`~simtest.reconstruct.detect.compiled_luma` in float32)."""
+    """The float32 luma of an (H, W, 3) image (:func:`~simtest.reconstruct.detect.compiled_luma`)."""
     return compiled_luma(img, np.float32)
 
 
@@ -307,7 +311,7 @@ def _frame_luma_smoothing(img: np.ndarray, detection_smoothed: np.ndarray, sigma
     """The whole frame's luma smoothed once (float32, read-only): detection's smoothing where
     detection smoothed the luma itself (a single-channel, gray (R = G = B) or float image, or a
     colour frame's unrounded luma, ``detection_luma32``: ``Detection.luma32``, which ``luma32``
-    then is), else the unrounded luma (:func:`simtest.reconstruct._kernels.luma_rgb32`;
+    then is), else the unrounded luma (:func:`_luma32`;
     ``luma32`` where the caller has it, :func:`_colour_luma32`) smoothed as detection smooths
     (an 8-bit frame's OpenCV gray is rounded to whole levels, which moves contours)."""
     if luma32 is not None and luma32 is detection_luma32:

@@ -34,7 +34,6 @@ from simtest.decisions import (
     JPEG_MIN_QUANTISED as MIN_QUANTISED,
     JPEG_BLOCKINESS_CLEAR as BLOCKINESS_CLEAR,
 )
-from simtest.reconstruct import _kernels
 
 __all__ = ["BLOCK", "GRID_BLOCKS", "BLOCKINESS_CLEAR", "MIN_COEFFICIENTS", "PERIODICITY_MIN",
            "CHANCE_SD", "MIN_STEP", "MIN_QUANTISED", "UNIMODAL_SHARE", "luma_y", "dct_blocks", "jpeg_grid",
@@ -187,9 +186,7 @@ def _steps_of(coef: np.ndarray, tables=_FULL, fewest: int = 0) -> np.ndarray:
     coef = coef[:, active]
     below = np.cumsum(hist, axis=0)  # (bins, K)
     count = (n - below[zero_bin - 1]).astype(np.float64)  # (Q, K) outside the zero bin
-    # the counts within 1 of each step's multiples, in one compiled pass (numpy's three
-    # reduceat over gathered copies took 2 of the 3.7 ms of the full tables)
-    at, first, later = _kernels.multiple_counts(np.ascontiguousarray(hist), mult_idx, mult_start)
+    at, first, later = _multiple_counts(hist, mult_idx, mult_start)
     share = at / np.maximum(count, 1.0)
     chance = np.minimum(3.0 / qs[:, None], 1.0)
     spread = np.sqrt(chance * (1 - chance) / np.maximum(count, 1.0))  # binomial sd of the share
@@ -213,6 +210,22 @@ def _steps_of(coef: np.ndarray, tables=_FULL, fewest: int = 0) -> np.ndarray:
     # seeds had a 3 read as 4)
     out[active] = np.where(ok.any(axis=0) & (step >= MIN_STEP), step, 1)
     return out
+
+
+def _multiple_counts(hist: np.ndarray, mult_idx: np.ndarray, mult_start: np.ndarray):
+    """Per candidate step and frequency, of a histogram ``hist`` (bins, K) of rounded magnitudes
+    and the steps' nonzero multiples ``mult_idx`` (each step's run starting at ``mult_start``, none
+    empty; see :func:`_step_tables`): the coefficients within 1 of a multiple (summed over the
+    step's multiples), the first multiple's count, and the largest count at a later multiple (0
+    where the step has one multiple); each int64 (len(mult_start), K). One three-bin window sum
+    of the histogram, gathered at the multiples and reduced per step (``np.add.reduceat``,
+    ``np.maximum.reduceat``)."""
+    window = hist[:-2] + hist[1:-1] + hist[2:]  # row b - 1: bins b - 1, b and b + 1
+    at_mult = window[mult_idx - 1]  # (multiples, K), a copy
+    at = np.add.reduceat(at_mult, mult_start, axis=0)
+    first = at_mult[mult_start]
+    at_mult[mult_start] = 0  # counts are >= 0: a step with one multiple has 0 later
+    return at, first, np.maximum.reduceat(at_mult, mult_start, axis=0)
 
 
 def _magnitude_histogram(coef: np.ndarray, nbin: int) -> np.ndarray:
