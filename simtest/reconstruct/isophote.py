@@ -33,7 +33,6 @@ from skimage.measure import find_contours
 from simtest._records import fast_init
 from simtest.decisions import MIN_FIT_POINTS as MIN_CONTOUR_POINTS
 from simtest.reconstruct._pixels import Roi, rc_to_uv, uv_to_rc
-from simtest.reconstruct.detect import connected_components
 from simtest.reconstruct.failures import Failure
 
 
@@ -173,8 +172,9 @@ def extract_isophote(
     is local (each point interpolates between a pixel of the component and a 4-neighbour below
     the level), so it is found by contouring only that component's bounding box plus one pixel,
     with the pixels of other components lowered below the level (they touch the component at
-    most diagonally, where the "low" connectivity already separates them): the same points. If
-    none is closed, the open contours bordering the 4-connected component of pixels above
+    most diagonally, where the "low" connectivity already separates them): the same points. The
+    closed contours of the component's holes, which ``find_contours`` runs the other way round
+    (a negative signed area), are skipped. If none is closed, the open contours bordering the 4-connected component of pixels above
     ``level`` that holds the BP are taken, in marching-squares order. Where the BP's pixel is not
     above the level, the whole region is contoured and its closed contours that enclose the BP
     (even-odd, :func:`polygon_contains`) are the candidates.
@@ -271,8 +271,9 @@ def isophote_cut_by_roi(values: np.ndarray, level: float, bp_uv, *, origin_rc: t
         False where the extraction fails (``bp_below_isovalue``) or its isophote stays off the
         ROI sides inside the image; True where the component above the level that holds the BP
         reaches one of them (then no closed contour around the BP exists: the component's outer
-        boundary is open there, and its holes are raised); None when only the extraction can tell
-        (the BP's pixel is not above the level but a neighbour is, the whole-region path).
+        boundary is open there, and its holes' contours are skipped); None when only the
+        extraction can tell (the BP's pixel is not above the level but a neighbour is, the
+        whole-region path).
 
     Raises
     ------
@@ -317,8 +318,15 @@ def _contours(sub, level, roi, ri, ci, bp_uv, flood=None):
         pieces = []
         for rc in find_contours(box, level):
             if len(rc) >= 3 and rc[0, 0] == rc[-1, 0] and rc[0, 1] == rc[-1, 1]:
+                # find_contours runs a closed contour with the values above the level on one
+                # side: the component's outer boundary has a positive signed area in (col, row),
+                # each hole's (pixels below the level inside it) a negative one; a hole's contour
+                # is never the isophote (at most one closed contour is left)
+                r, c = rc[:, 0], rc[:, 1]
+                if not np.dot(c[:-1], r[1:]) > np.dot(r[:-1], c[1:]):
+                    continue
                 uv = rc_to_uv(rc[:-1], roi.row0 + dr, roi.col0 + dc)
-                if polygon_contains(uv, bp_uv):
+                if _encloses(uv, bp_uv):
                     closed_hits.append(uv)
             else:
                 pieces.append(rc + (dr, dc))
@@ -361,22 +369,23 @@ def _component_box(sub, level, ri, ci, flood=None):
     box = sub[r0:r1, c0:c1].astype(np.float64)  # find_contours' dtype (a copy)
     lab = mask[r0:r1, c0:c1]
     box[lab == 1] = level - 1.0  # pixels of other components (above the level, not joined)
-    outside = (lab != 2).view(np.uint8)
-    # Holes (pixels outside the component that no 8-path outside it joins to the box edge) are
-    # raised above the level: their closed contours never enclose the BP.
-    n, lab8 = connected_components(outside)
-    if n > 2 or (n == 2 and not _touches_edge(lab8, 1)):
-        edge = np.concatenate([lab8[0], lab8[-1], lab8[:, 0], lab8[:, -1]])
-        is_hole = np.ones(n, dtype=bool)  # per label: outside the component, off the box edge
-        is_hole[0] = False
-        is_hole[edge] = False
-        box[is_hole[lab8]] = level + 1.0
     return box, (r0, c0), sides
 
 
-def _touches_edge(labels, k) -> bool:
-    return bool((labels[0] == k).any() or (labels[-1] == k).any() or (labels[:, 0] == k).any()
-                or (labels[:, -1] == k).any())
+#: Where the BP lies farther than this from a closed contour, OpenCV's point-in-polygon test on
+#: the contour rounded to float32 decides whether it encloses the BP (px; the rounding moves a
+#: point by under 1e-3 px on an image under 16384 px); nearer, the even-odd test in float64
+#: (:func:`polygon_contains`) does.
+ENCLOSE_FLOAT32_MARGIN_PX = 0.01
+
+
+def _encloses(uv: np.ndarray, bp_uv: np.ndarray) -> bool:
+    """:func:`polygon_contains` of one point in a closed, simple contour, by
+    ``cv2.pointPolygonTest`` away from the contour (:data:`ENCLOSE_FLOAT32_MARGIN_PX`)."""
+    d = cv2.pointPolygonTest(uv.astype(np.float32), (float(bp_uv[0]), float(bp_uv[1])), True)
+    if abs(d) > ENCLOSE_FLOAT32_MARGIN_PX:
+        return d > 0
+    return bool(polygon_contains(uv, bp_uv))
 
 
 def _whole_region_contours(sub, level, roi, bp_uv):

@@ -149,7 +149,18 @@ def _find_bp(img: np.ndarray, roi: Roi, saturation_level) -> tuple[np.ndarray, b
 def _border_median(vals: np.ndarray) -> float:
     """Median of the pixels on the border of an ROI: the local diffuse level of ``normalise="local"``
     (float64; NaN if any is NaN; a single row or column counts twice)."""
-    return float(np.median(np.concatenate([vals[0], vals[-1], vals[1:-1, 0], vals[1:-1, -1]], dtype=np.float64)))
+    return _median(np.concatenate([vals[0], vals[-1], vals[1:-1, 0], vals[1:-1, -1]], dtype=np.float64))
+
+
+def _median(ring: np.ndarray) -> float:
+    """``np.median`` of a float64 vector (NaN if any is NaN) by one ``np.partition``, without
+    ``np.median``'s checks (a real frame asks it for each of its hundreds of ROIs)."""
+    n = len(ring)
+    k = n // 2
+    part = np.partition(ring, (k - 1, k, n - 1) if n % 2 == 0 else (k, n - 1))
+    if part[-1] != part[-1]:  # NaN sorts last
+        return float("nan")
+    return float(part[k]) if n % 2 else float((part[k - 1] + part[k]) / 2)
 
 
 def _reflected(p: np.ndarray, n: int) -> np.ndarray:
@@ -159,30 +170,29 @@ def _reflected(p: np.ndarray, n: int) -> np.ndarray:
     return np.where(m < n, m, 2 * n - 1 - m)
 
 
-def _smoothed_border_median(frame: _Frame, roi: Roi) -> float:
-    """:func:`_border_median` of an ROI's luma smoothed alone (``_smooth``: its sides reflected),
-    computed for its border pixels only (the cost of the perimeter times the kernel's radius, not
-    of the area: a grown ROI reaches a megapixel).
+def _smoothed_border_median(img: np.ndarray, kern: np.ndarray, roi: Roi) -> float:
+    """:func:`_border_median` of the luma of ``img[roi]`` smoothed alone with the Gaussian taps
+    ``kern`` (2 R + 1,) (``_smooth``: its sides reflected), computed for its border pixels only
+    (the cost of the perimeter times the kernel's radius, not of the area: a grown ROI reaches a
+    megapixel).
 
     A border pixel's smoothing across its side is a sum over the first R + 1 rows (columns) from
     that side with the taps folded by the reflection; that line is then smoothed along itself.
     The pipeline contours an ROI in the frame's smoothed luma and takes its local background
     level from here: the level of the ROI smoothed alone, as before the frame was smoothed once
     (the paper pose is sensitive to it). Equal to the median of the ring of
-    ``_smooth(frame.luma(roi))`` to rounding (``tests/test_isophote.py``)."""
-    kern = frame.kernel
+    ``_smooth(luma(img[roi]))`` to rounding (``tests/test_isophote.py``)."""
     R = len(kern) // 2
     h, w = roi.shape
     taps = np.arange(-R, R + 1)
     kr = np.bincount(_reflected(taps, h), weights=kern)  # (min(h, R + 1),)
     kc = np.bincount(_reflected(taps, w), weights=kern)
-    img = frame.img
     r0, r1, c0, c1 = roi
     rows = np.stack([kr @ luma(img[r0:r0 + len(kr), c0:c1]), kr @ luma(img[r1 - len(kr):r1, c0:c1])[::-1]])
     cols = np.stack([luma(img[r0:r1, c0:c0 + len(kc)]) @ kc, luma(img[r0:r1, c1 - len(kc):c1])[:, ::-1] @ kc])
     rows = sliding_window_view(rows[:, _reflected(np.arange(-R, w + R), w)], 2 * R + 1, axis=1) @ kern
     cols = sliding_window_view(cols[:, _reflected(np.arange(-R, h + R), h)], 2 * R + 1, axis=1) @ kern
-    return float(np.median(np.concatenate([rows.ravel(), cols[:, 1:-1].ravel()])))
+    return _median(np.concatenate([rows.ravel(), cols[:, 1:-1].ravel()]))
 
 
 @fast_init
@@ -203,7 +213,7 @@ class _Levels:
                 mode in (Normalisation.AUTO, Normalisation.LOCAL):
             # the ROI's values are the frame's smoothing; its background level is that of the ROI
             # smoothed alone (_smoothed_border_median), as without the frame's
-            ring = _smoothed_border_median(frame, roi)
+            ring = _smoothed_border_median(frame.img, frame.kernel, roi)
         if mode == Normalisation.AUTO:
             if ring is None:
                 ring = _border_median(vals)
@@ -374,7 +384,7 @@ def _first_rings(frame: _Frame, rois: list[Roi]) -> list:
     if not rois or frame.smoothed32 is None or not frame.smooth_sigma_px > 0 or \
             frame.settings.normalise not in (Normalisation.AUTO, Normalisation.LOCAL):
         return [None] * len(rois)
-    return [_smoothed_border_median(frame, roi) for roi in rois]
+    return [_smoothed_border_median(frame.img, frame.kernel, roi) for roi in rois]
 
 
 def _initial_rois(cands: list, bps_uv: np.ndarray, threshold, frame: _Frame) -> list[Roi]:
