@@ -4,11 +4,12 @@ grown while the lowest is cut (:func:`_estimate_one`, :func:`_grown_drafts`), an
 
 from __future__ import annotations
 
+import functools
 import math
 from dataclasses import dataclass
 
+import cv2
 import numpy as np
-from numpy.lib.stride_tricks import sliding_window_view
 
 from simtest._records import fast_init
 from simtest.constants import gaussian_radius_px, smooth_block_px
@@ -163,11 +164,17 @@ def _median(ring: np.ndarray) -> float:
     return float(part[k]) if n % 2 else float((part[k - 1] + part[k]) / 2)
 
 
-def _reflected(p: np.ndarray, n: int) -> np.ndarray:
-    """OpenCV's ``borderInterpolate`` for ``BORDER_REFLECT`` (``fedcba|abcdef|fedcba``) of the
-    indices ``p`` into a line of ``n``."""
-    m = np.mod(p, 2 * n)
-    return np.where(m < n, m, 2 * n - 1 - m)
+@functools.lru_cache(maxsize=256)
+def _folded_taps(kern: tuple, n: int) -> np.ndarray:
+    """The taps ``kern`` (2 R + 1,) folded by ``BORDER_REFLECT`` (``fedcba|abcdef|fedcba``) onto
+    the first ``min(n, R + 1)`` pixels from a side of a line of ``n``: the line's smoothed value at
+    that side is their dot product with those pixels."""
+    R = len(kern) // 2
+    m = np.mod(np.arange(-R, R + 1), 2 * n)
+    return np.bincount(np.where(m < n, m, 2 * n - 1 - m), weights=np.array(kern))
+
+
+_ONE_TAP = np.ones(1)
 
 
 def _smoothed_border_median(img: np.ndarray, kern: np.ndarray, roi: Roi) -> float:
@@ -177,21 +184,19 @@ def _smoothed_border_median(img: np.ndarray, kern: np.ndarray, roi: Roi) -> floa
     megapixel).
 
     A border pixel's smoothing across its side is a sum over the first R + 1 rows (columns) from
-    that side with the taps folded by the reflection; that line is then smoothed along itself.
-    The pipeline contours an ROI in the frame's smoothed luma and takes its local background
-    level from here: the level of the ROI smoothed alone, as before the frame was smoothed once
-    (the paper pose is sensitive to it). Equal to the median of the ring of
-    ``_smooth(luma(img[roi]))`` to rounding (``tests/test_isophote.py``)."""
-    R = len(kern) // 2
+    that side with the taps folded by the reflection; that line is then smoothed along itself
+    (``cv2.sepFilter2D``, its ends reflected). The pipeline contours an ROI in the frame's
+    smoothed luma and takes its local background level from here: the level of the ROI smoothed
+    alone, as before the frame was smoothed once (the paper pose is sensitive to it). Equal to
+    the median of the ring of ``_smooth(luma(img[roi]))`` to rounding (``tests/test_isophote.py``)."""
     h, w = roi.shape
-    taps = np.arange(-R, R + 1)
-    kr = np.bincount(_reflected(taps, h), weights=kern)  # (min(h, R + 1),)
-    kc = np.bincount(_reflected(taps, w), weights=kern)
+    taps = tuple(kern.tolist())
+    kr, kc = _folded_taps(taps, h), _folded_taps(taps, w)
     r0, r1, c0, c1 = roi
     rows = np.stack([kr @ luma(img[r0:r0 + len(kr), c0:c1]), kr @ luma(img[r1 - len(kr):r1, c0:c1])[::-1]])
     cols = np.stack([luma(img[r0:r1, c0:c0 + len(kc)]) @ kc, luma(img[r0:r1, c1 - len(kc):c1])[:, ::-1] @ kc])
-    rows = sliding_window_view(rows[:, _reflected(np.arange(-R, w + R), w)], 2 * R + 1, axis=1) @ kern
-    cols = sliding_window_view(cols[:, _reflected(np.arange(-R, h + R), h)], 2 * R + 1, axis=1) @ kern
+    rows = cv2.sepFilter2D(rows, cv2.CV_64F, kern, _ONE_TAP, borderType=cv2.BORDER_REFLECT)
+    cols = cv2.sepFilter2D(cols, cv2.CV_64F, kern, _ONE_TAP, borderType=cv2.BORDER_REFLECT)
     return _median(np.concatenate([rows.ravel(), cols[:, 1:-1].ravel()]))
 
 
