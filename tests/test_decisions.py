@@ -28,8 +28,7 @@ _SPEED = "a speed setting: results are the same either way"
 _SOLVER = "a numerical solver setting (start, step, stop), judged by the decisions after"
 _GUARD = "a memory or size guard with its own error message"
 NOT_DECISIONS = {
-    **{f"_kernels.{n}": _CODES for n in ("_SEG_FROM", "_SEG_TO", "NOT_ABOVE", "CLOSED", "OPEN",
-                                        "FALLBACK", "DECLINED", "CUT", "NOT_WALKED")},
+    "isophote.ENCLOSE_FLOAT32_MARGIN_PX": _SPEED,
     "candidates._GATHER_SIDE": _SPEED, "candidates._FEW": _SPEED,
     "detect.MULTIRES_CANDIDATES_MAX": _SPEED,
     "fit._S3_RCOND": _SOLVER,

@@ -142,71 +142,6 @@ def test_polygon_helpers():
     assert polygon_contains(square, [[1, 1], [9, 9], [3, 0.5]]).tolist() == [True, False, True]
 
 
-def _traced(img, level):
-    """The compiled tracer as ``(points, closed)``, or None where it declines."""
-    from simtest.reconstruct import _kernels
-
-    code, pts = _kernels.trace_contours(np.ascontiguousarray(img, dtype=np.float64), float(level))
-    return None if code == _kernels.FALLBACK else (pts, code == _kernels.CLOSED)
-
-
-@given(seed=st.integers(0, 2**32 - 1), h=st.integers(4, 40), w=st.integers(4, 40),
-       blur=st.floats(0.5, 3.0), q=st.floats(0.3, 0.97), edges=st.booleans())
-@settings(max_examples=150, deadline=None)
-def test_the_compiled_tracer_gives_find_contours_bit_for_bit(seed, h, w, blur, q, edges):
-    # A random smooth field reduced to one 4-connected component without holes (what
-    # extract_isophote contours), inside the box or (edges) free to reach its sides: the tracer
-    # must give find_contours' closed contour, or its open contours concatenated, with the same
-    # start, order and bits; anything else (a pixel at the level, several closed contours) it
-    # declines with None and extract_isophote uses find_contours.
-    import cv2
-    from scipy import ndimage
-    from skimage.measure import find_contours
-
-
-    rng = np.random.default_rng(seed)
-    img = cv2.GaussianBlur(rng.random((h, w)), (0, 0), blur)
-    level = float(np.quantile(img, q))
-    if not edges:
-        img[[0, -1]] = level - 1.0
-        img[:, [0, -1]] = level - 1.0
-    lab, n = ndimage.label(img > level)  # 4-connected
-    if n:
-        one = ndimage.binary_fill_holes(lab == 1)
-        img[(img > level) & ~one] = level - 1.0
-        img[one & ~(img > level)] = level + 1.0
-    want = find_contours(img, level)
-    got = _traced(img, level)
-    is_closed = [len(c) >= 3 and c[0].tolist() == c[-1].tolist() for c in want]
-    if got is None:
-        assert (img == level).any() or not want or (any(is_closed) and len(want) > 1)
-    elif got[1]:
-        assert len(want) == 1 and is_closed[0] and np.array_equal(got[0], want[0][:-1])
-    else:
-        assert want and not any(is_closed) and np.array_equal(got[0], np.concatenate(want))
-
-
-def test_the_tracer_gives_open_contours_in_order_and_declines_the_rest():
-    from skimage.measure import find_contours
-
-
-    img = np.zeros((10, 12))
-    img[3:6, 0:5] = 1.0  # reaches the left edge: one open contour
-    img[0:4, 8:12] = 1.0  # and the top right corner: a second one
-    pts, closed = _traced(img, 0.5)
-    want = find_contours(img, 0.5)
-    assert not closed and len(want) == 2 and np.array_equal(pts, np.concatenate(want))
-    img = np.zeros((10, 12))
-    img[2:5, 2:5] = img[2:5, 7:10] = 1.0  # two closed contours
-    assert _traced(img, 0.5) is None
-    img[0:2, 0:2] = 1.0  # and an open one
-    assert _traced(img, 0.5) is None
-    img = np.zeros((10, 10))
-    img[3:6, 3:6] = 1.0
-    img[4, 4] = 0.5  # a pixel exactly at the level
-    assert _traced(img, 0.5) is None
-
-
 @settings(max_examples=80, deadline=None)
 @given(st.integers(0, 2**32 - 1), st.booleans())
 def test_the_whole_regions_closed_hits_are_its_closed_contours_that_hold_the_bp(seed, on_vertex):
@@ -234,53 +169,212 @@ def test_the_whole_regions_closed_hits_are_its_closed_contours_that_hold_the_bp(
     assert len(got) == len(want) and all(np.array_equal(a, b) for a, b in zip(got, want))
 
 
-def _region_below_bp(rng):
-    """A smooth random region (many closed contours at its median-ish level, or quantised so
-    that pixels sit exactly at it), a level, a pixel not above the level and the BP within half a
-    pixel of it, or on a vertex of a closed contour, far from the image origin."""
+def _random_region(rng):
+    """A region with one elliptic lobe, noise or quantisation (pixels exactly at a level), a hole
+    (a ring) or none, a BP at the peak or anywhere, and a level from near 0 to the peak."""
+    h, w = (int(v) for v in rng.integers(5, 60, 2))
+    yy, xx = np.mgrid[0:h, 0:w]
+    cy, cx, s = rng.uniform(0, h - 1), rng.uniform(0, w - 1), rng.uniform(1, 15)
+    img = np.exp(-((yy - cy) ** 2 / (2 * s**2) + (xx - cx) ** 2 / (2 * (s * rng.uniform(0.5, 2)) ** 2)))
+    img += rng.normal(0, rng.choice([0.0, 0.01, 0.05, 0.2]), img.shape)
+    if rng.random() < 0.3:
+        img = np.round(img * 20) / 20
+    if rng.random() < 0.2:
+        img -= 0.8 * np.exp(-((yy - cy) ** 2 + (xx - cx) ** 2) / (2 * (s / 3) ** 2))
+    r, c = np.unravel_index(np.argmax(img), img.shape)
+    if rng.random() < 0.3:
+        r, c = rng.integers(0, h), rng.integers(0, w)
+    level = float(img[r, c] * rng.uniform(0.05, 1.0))
+    if rng.random() < 0.1:
+        level = float(np.round(img[r, c] * 10) / 20)
+    off = (int(rng.integers(0, 50)), int(rng.integers(0, 50)))
+    shape = (off[0] + h + int(rng.integers(0, 3)), off[1] + w + int(rng.integers(0, 3)))
+    bp = np.array([c + rng.uniform(-0.5, 0.5) + off[1], r + rng.uniform(-0.5, 0.5) + off[0]])
+    return img, level, bp, off, shape
+
+
+def _same(a, b) -> bool:
+    from simtest.reconstruct.isophote import Isophote
+
+    if type(a) is not type(b):
+        return False
+    if isinstance(a, Isophote):
+        return ((a.closed, a.cut_by_roi, a.cut_by_image, a.level) == (b.closed, b.cut_by_roi, b.cut_by_image, b.level)
+                and a.points_uv.shape == b.points_uv.shape
+                and a.points_uv.tobytes() == b.points_uv.tobytes())
+    return (a.reason, a.detail) == (b.reason, b.detail)
+
+
+@given(seed=st.integers(0, 2**32 - 1))
+@settings(max_examples=100, deadline=None)
+def test_a_region_read_in_place_from_a_wider_array_gives_the_same_isophote(seed):
+    # the pipeline hands the extraction views of the frame's luma (row stride of the frame) uncopied
+    from simtest.reconstruct.isophote import isophote_cut_by_roi
+
+    img, level, bp, off, shape = _random_region(np.random.default_rng(seed))
+    wide = np.zeros((img.shape[0], img.shape[1] + 7))
+    wide[:, 3 : 3 + img.shape[1]] = img
+    view = wide[:, 3 : 3 + img.shape[1]]
+    assert not view.flags.c_contiguous
+    kw = dict(origin_rc=off, image_shape=shape, allow_open=True, min_points=0)
+    try:
+        a, b = extract_isophote(img, level, bp, **kw), extract_isophote(view, level, bp, **kw)
+    except ValueError:
+        return
+    assert _same(a, b)
+    assert isophote_cut_by_roi(img, level, bp, origin_rc=off, image_shape=shape) == \
+        isophote_cut_by_roi(view, level, bp, origin_rc=off, image_shape=shape)
+
+
+@given(seed=st.integers(0, 2**32 - 1))
+@settings(max_examples=300, deadline=None)
+def test_the_growth_question_has_the_extractions_answer(seed):
+    # isophote_cut_by_roi answers what the pipeline asks before growing an ROI without contouring:
+    # the extraction's cut_by_roi (False where it fails), or None where only the extraction can tell
+    from simtest.reconstruct.isophote import Isophote, isophote_cut_by_roi
+
+    img, level, bp, off, shape = _random_region(np.random.default_rng(seed))
+    try:
+        iso = extract_isophote(img, level, bp, origin_rc=off, image_shape=shape, allow_open=True, min_points=0)
+    except ValueError:
+        return
+    cut = isophote_cut_by_roi(img, level, bp, origin_rc=off, image_shape=shape)
+    if cut is not None:
+        assert cut == (isinstance(iso, Isophote) and iso.cut_by_roi)
+
+
+def test_the_growth_question_meets_each_answer():
+    # the property test above means something only if the random regions give every answer
+    from simtest.reconstruct.isophote import isophote_cut_by_roi
+
+    rng = np.random.default_rng(1)
+    seen = set()
+    for _ in range(400):
+        img, level, bp, off, shape = _random_region(rng)
+        try:
+            seen.add(isophote_cut_by_roi(img, level, bp, origin_rc=off, image_shape=shape))
+        except ValueError:
+            pass
+    assert seen == {True, False, None}
+
+
+@given(seed=st.integers(0, 2**32 - 1))
+@settings(max_examples=300, deadline=None)
+def test_the_extraction_from_the_growth_questions_flood_fill_is_the_extraction(seed):
+    # isophote._extract given the flood fill the growth question made (_cut_and_contour) returns
+    # what it returns when it fills the component itself
+    from simtest.reconstruct.isophote import _cut_and_contour, _extract, _region, isophote_cut_by_roi
+
+    img, level, bp, off, shape = _random_region(np.random.default_rng(seed))
+    try:
+        region = _region(img, bp, off, shape)
+    except ValueError:
+        return
+    cut, flood = _cut_and_contour(region, level)
+    assert cut == isophote_cut_by_roi(img, level, bp, origin_rc=off, image_shape=shape)
+    assert _same(_extract(region, level, True, 0, flood), _extract(region, level, True, 0))
+
+
+def test_a_ring_a_neighbour_and_a_cut_highlight():
+    # the cases the component's box is for: another component lowered, a hole whose contour is
+    # not the isophote even where it encloses the BP, and a component reaching two sides of the
+    # region (open contours in find_contours' order)
     from skimage.measure import find_contours
 
-    h, w = (int(v) for v in rng.integers(2, 50, 2))
-    sub = cv2.GaussianBlur(rng.random((h, w)), (0, 0), float(rng.uniform(0.5, 3.0)))
-    if rng.random() < 0.2:
-        sub = np.round(sub * 30) / 30
-    level = float(np.quantile(sub, rng.uniform(0.05, 0.95)))
-    r0, c0 = (int(v) for v in rng.integers(0, 5000, 2))
-    below = np.argwhere(sub <= level)
-    ri, ci = (int(v) for v in below[rng.integers(len(below))])
-    bp = np.array([c0 + ci + rng.uniform(-0.5, 0.5), r0 + ri + rng.uniform(-0.5, 0.5)])
-    closed = [rc for rc in find_contours(sub, level) if len(rc) >= 3 and (rc[0] == rc[-1]).all()]
-    if closed and rng.random() < 0.2:
-        row, col = closed[0][int(rng.integers(len(closed[0]) - 1))]
-        if 0 <= round(row) < h and 0 <= round(col) < w and sub[round(row), round(col)] <= level:
-            bp = np.array([col + c0, row + r0])
-    return sub, level, Roi(r0, r0 + h, c0, c0 + w), bp
+    img = np.zeros((30, 40))
+    img[5:20, 5:20] = 1.0
+    img[10:14, 10:14] = 0.0  # a hole: its contour at 0.9 runs at row 13.9 below it
+    img[5:9, 21:25] = 1.0  # touches the highlight at a corner only: another component
+    for level, bp in ((0.5, (12.0, 7.0)), (0.9, (12.0, 13.6))):  # the second BP inside the hole's contour
+        iso = extract_isophote(img, level, bp, allow_open=True)
+        assert iso.closed and not iso.cut_by_roi
+        # the outer boundary of the 15 x 15 px square: (14 + 2 (1 - level))^2 px^2
+        assert polygon_area(iso.points_uv) == pytest.approx((14 + 2 * (1 - level)) ** 2 - 2 * (1 - level) ** 2)
+    img = np.zeros((30, 40))
+    img[0:12, 25:40] = 1.0
+    iso = extract_isophote(img, 0.5, (30.0, 5.0), allow_open=True)
+    assert not iso.closed and iso.cut_by_image
+    assert np.array_equal(iso.points_uv, rc_to_uv(np.concatenate(find_contours(img, 0.5))))
 
 
-@settings(max_examples=400, deadline=None)
-@given(st.integers(0, 2**32 - 1))
-def test_the_compiled_whole_region_verdict_is_find_contours_closed_hits(seed):
-    # region_encloses_bp decides, without find_contours, whether a closed contour of the region
-    # encloses a BP whose pixel is not above the level: 1 exactly where _whole_region_contours
-    # finds closed hits, 0 where it finds none; FALLBACK only with a pixel at the level
-    from simtest.reconstruct import _kernels, isophote
-
-    sub, level, roi, bp = _region_below_bp(np.random.default_rng(seed))
-    got = _kernels.region_encloses_bp(sub, level, roi.row0, roi.col0, float(bp[0]), float(bp[1]))
-    if got == _kernels.FALLBACK:
-        assert (sub == level).any()
-        return
-    hits, _ = isophote._whole_region_contours(sub, level, roi, bp)
-    assert got == (1 if hits else 0)
+def test_a_float32_region_is_compared_with_the_level_in_float64():
+    # the pipeline's ROIs are float32 views of the frame's smoothing: a pixel equal to the level
+    # rounded to float32, but above the level itself, belongs to the component (find_contours
+    # reads the region in float64)
+    img = np.zeros((9, 9), dtype=np.float32)
+    img[3:6, 3:6] = np.float32(0.1)
+    level = float(np.float32(0.1)) - 1e-12  # rounds to img's value in float32
+    iso = extract_isophote(img, level, (4.0, 4.0))
+    assert iso.closed and len(iso.points_uv) == 12
 
 
-def test_the_whole_region_verdicts_meet_each_answer():
-    # the property test above means something only if its regions give each answer
-    from simtest.reconstruct import _kernels
+@settings(max_examples=300, deadline=None)
+@given(seed=st.integers(0, 2**32 - 1), n=st.integers(3, 60), near=st.booleans())
+def test_the_enclosure_test_is_the_even_odd_test(seed, n, near):
+    # _encloses decides by OpenCV's point-in-polygon test on the contour in float32 away from it,
+    # by polygon_contains in float64 near it: polygon_contains' answer on star-shaped polygons far
+    # from the origin, for points anywhere, on a vertex and within 1e-9 px of an edge
+    from simtest.reconstruct.isophote import _encloses
 
-    rng = np.random.default_rng(0)
-    seen = set()
-    for _ in range(300):
-        sub, level, roi, bp = _region_below_bp(rng)
-        seen.add(_kernels.region_encloses_bp(sub, level, roi.row0, roi.col0, float(bp[0]), float(bp[1])))
-    assert seen == {0, 1, _kernels.FALLBACK}
+    rng = np.random.default_rng(seed)
+    ang = np.sort(rng.uniform(0, 2 * np.pi, n))
+    centre = rng.uniform(0, 4000, 2)
+    poly = centre + rng.uniform(1, 30, (n, 1)) * np.c_[np.cos(ang), np.sin(ang)]
+    if near:
+        k = int(rng.integers(n))
+        p = poly[k] + rng.uniform(0, 1) * (poly[(k + 1) % n] - poly[k]) + rng.normal(0, 1e-9, 2)
+    else:
+        p = centre + rng.uniform(-35, 35, 2)
+    assert _encloses(poly, p) == polygon_contains(poly, p)
+    assert _encloses(poly, poly[0]) == polygon_contains(poly, poly[0])
+
+
+@given(seed=st.integers(0, 2**32 - 1), h=st.integers(1, 40), w=st.integers(1, 40),
+       quantised=st.booleans(), layout=st.sampled_from(["C", "F", "view", "f32"]))
+@settings(max_examples=200, deadline=None)
+def test_border_median_is_numpys_median_of_the_ring(seed, h, w, quantised, layout):
+    from simtest.reconstruct.isophotes import _border_median
+
+    rng = np.random.default_rng(seed)
+    v = rng.normal(size=(h, w))
+    if quantised:  # repeated values: the even-count mean of two equal middles
+        v = np.round(v * 3)
+    if layout == "F":
+        v = np.asfortranarray(v)
+    elif layout == "view":
+        v = np.pad(v, 2)[2:-2, 2:-2]
+    elif layout == "f32":  # the frame's float32 smoothing: the median of its values in float64
+        v = v.astype(np.float32)
+    ring = np.concatenate([v[0], v[-1], v[1:-1, 0], v[1:-1, -1]]).astype(np.float64)
+    assert _border_median(v) == float(np.median(ring))
+
+
+def test_border_median_of_a_nan_is_nan():
+    from simtest.reconstruct.isophotes import _border_median
+
+    v = np.ones((5, 6))
+    v[0, 2] = np.nan
+    assert np.isnan(_border_median(v))
+
+
+@settings(max_examples=60, deadline=None)
+@given(seed=st.integers(0, 2**31), channels=st.sampled_from([1, 3]), sigma=st.sampled_from([0.8, 1.7, 2.5]),
+       dtype=st.sampled_from([np.uint8, np.float64]), r0=st.integers(0, 20), c0=st.integers(0, 20),
+       h=st.integers(1, 30), w=st.integers(1, 30))
+def test_the_border_level_of_an_roi_smoothed_alone_from_its_ring(seed, channels, sigma, dtype, r0, c0, h, w):
+    """_smoothed_border_median (the pipeline's local background level when the frame is smoothed
+    once) is the median of the ring of the ROI's luma smoothed alone by OpenCV, its sides
+    reflected, to rounding; ROIs down to one pixel (reflected more than once)."""
+    from simtest.reconstruct.detect import luma
+    from simtest.reconstruct.frame_prep import _gaussian_kernel
+    from simtest.reconstruct.isophotes import _border_median, _smoothed_border_median
+
+    rng = np.random.default_rng(seed)
+    img = rng.uniform(0, 255, (50, 50, channels))
+    img = img.astype(np.uint8) if dtype == np.uint8 else img
+    img = img if channels == 3 else img[:, :, 0]
+    roi = Roi(r0, min(r0 + h, 50), c0, min(c0 + w, 50))
+    want = _border_median(cv2.GaussianBlur(luma(img[roi.slices]), (0, 0), sigma, borderType=cv2.BORDER_REFLECT))
+    got = _smoothed_border_median(img, _gaussian_kernel(sigma), roi)
+    # the same sums in another order (OpenCV: the row pass first, over the ROI): float64 rounding
+    assert abs(got - want) <= 1e-9 * max(1.0, abs(want))

@@ -759,28 +759,27 @@ def test_few_rois_smoothed_alone_in_float32_are_the_float64_results(kind, monkey
 
 
 @pytest.mark.parametrize("normalise, sigma", [("auto", None), ("local", 0.0), ("bp", None), ("full_scale", 0.0)])
-def test_the_compiled_roi_growth_gives_the_python_loops_estimates(normalise, sigma, monkeypatch):
-    """``_grown_drafts`` (every fitted candidate's ROI growth, levels and contour walks in one
-    compiled call, ``_kernels.grown_isophotes``) gives each highlight, to the bit, what
-    ``_estimate_one``'s loop gives it: the real banner smoothed once (sigma from its noise) and
-    not smoothed (its float64 luma sliced), under each normalisation; the few candidates the
-    call leaves (a cut only the extraction can tell) go through the loop."""
+def test_the_growth_over_the_frames_array_gives_the_roi_loops_estimates(normalise, sigma, monkeypatch):
+    """``_grown_drafts`` (every fitted candidate's ROI growth, levels and contours with its values
+    sliced from one frame-wide array) gives each highlight, to the bit, what ``_estimate_one``'s
+    own loop (``_roi_values``) gives it: the real banner smoothed once (sigma from its noise) and
+    not smoothed (its float64 luma sliced), under each normalisation; the few candidates it
+    leaves (a cut only the extraction can tell) go through the loop."""
     from benchmarks import inputs as bench
-    from simtest.reconstruct import _kernels
 
     img, K = bench.banner_frame()
     options = {"normalise": normalise, "verify": False}
     if sigma is not None:
         options["smooth_sigma_px"] = sigma
-    grown = _kernels.grown_isophotes
+    grown = isophotes._grown_drafts
     done = []
 
     def recorded(*args):
         out = grown(*args)
-        done.append(int(out[0].sum()))
+        done.append(len(out))
         return out
 
-    monkeypatch.setattr(_kernels, "grown_isophotes", recorded)
+    monkeypatch.setattr(isophotes, "_grown_drafts", recorded)
     got = reconstruct(img, K, **options)
     assert len(done) == 1 and done[0] > 300  # the banner's fitted candidates, all but a few
     monkeypatch.setattr(isophotes, "_grown_drafts", lambda *args, **kwargs: {})

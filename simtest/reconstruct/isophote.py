@@ -32,9 +32,7 @@ from skimage.measure import find_contours
 
 from simtest._records import fast_init
 from simtest.decisions import MIN_FIT_POINTS as MIN_CONTOUR_POINTS
-from simtest.reconstruct import _kernels
 from simtest.reconstruct._pixels import Roi, rc_to_uv, uv_to_rc
-from simtest.reconstruct.detect import connected_components
 from simtest.reconstruct.failures import Failure
 
 
@@ -174,49 +172,26 @@ def extract_isophote(
     is local (each point interpolates between a pixel of the component and a 4-neighbour below
     the level), so it is found by contouring only that component's bounding box plus one pixel,
     with the pixels of other components lowered below the level (they touch the component at
-    most diagonally, where the "low" connectivity already separates them): the same points. If
-    none is closed, the open contours bordering the 4-connected component of pixels above
-    ``level`` that holds the BP are taken, in marching-squares order. These steps run in one
-    compiled call (:func:`simtest.reconstruct._kernels.component_contour`), which walks that
-    component's boundary from the BP (time proportional to the contour, not to the ROI and its
-    noise), orders the marching-squares segments as ``find_contours`` does and gives its
-    contours bit for bit; what it declines (a pixel exactly at the level, several closed
-    contours, the BP's pixel below the level) goes to ``find_contours`` itself
-    (``_contours_numpy``), but for a BP's pixel below the level that no closed contour of the
-    region encloses (:func:`simtest.reconstruct._kernels.region_encloses_bp` decides it in one
-    compiled pass, with ``find_contours``' points and ``polygon_contains``' test): its failure
-    (``no_contour``) comes without the contours.
+    most diagonally, where the "low" connectivity already separates them): the same points. The
+    closed contours of the component's holes, which ``find_contours`` runs the other way round
+    (a negative signed area), are skipped. If none is closed, the open contours bordering the 4-connected component of pixels above
+    ``level`` that holds the BP are taken, in marching-squares order. Where the BP's pixel is not
+    above the level, the whole region is contoured and its closed contours that enclose the BP
+    (even-odd, :func:`polygon_contains`) are the candidates.
     """
     return _extract(_region(values, bp_uv, origin_rc, image_shape), level, allow_open, min_points)
 
 
 def _extract(region: _Region, level: float, allow_open: bool, min_points: int,
-             walked: tuple | None = None) -> Isophote | Failure:
+             flood: tuple | None = None) -> Isophote | Failure:
     """:func:`extract_isophote` in a checked region (one per ROI, whatever the levels asked).
 
-    ``walked`` is :func:`simtest.reconstruct._kernels.component_contour`'s result at this level,
-    where :func:`_cut_and_contour` has just traced it (not traced again)."""
+    ``flood``: :func:`_flood`'s result at this level, where :func:`_cut_and_contour` has just
+    made it (not made again)."""
     sub, roi, image_shape, bp_uv, ri, ci, near_bp = region
     if not near_bp > level:
         return Failure("bp_below_isovalue", f"max near BP {near_bp:.6g} <= level {level:.6g}")
-
-    if walked is None:
-        code, pts, inside, sides = _kernels.component_contour(
-            sub, float(level), ri, ci, roi.row0, roi.col0, float(bp_uv[0]), float(bp_uv[1]))
-    else:
-        code, pts, inside, sides = walked
-    if code == _kernels.CLOSED:
-        closed_hits, pieces = ([pts] if inside else []), []
-    elif code == _kernels.OPEN:
-        closed_hits, pieces = [], [pts]
-    elif code == _kernels.NOT_ABOVE and _kernels.region_encloses_bp(
-            sub, float(level), roi.row0, roi.col0, float(bp_uv[0]), float(bp_uv[1])) == 0:
-        # the BP's pixel is below the level (one at it is FALLBACK) and no closed contour of the
-        # region encloses the BP: no pieces either, the pixel being in no component of the
-        # region at or above the level (what _contours_numpy finds, by find_contours)
-        closed_hits, pieces, sides = [], [], (False, False, False, False)
-    else:
-        closed_hits, pieces, sides = _contours_numpy(sub, level, roi, ri, ci, bp_uv)
+    closed_hits, pieces, sides = _contours(sub, level, roi, ri, ci, bp_uv, flood)
 
     if closed_hits:
         uv = min(closed_hits, key=polygon_area) if len(closed_hits) > 1 else closed_hits[0]
@@ -296,8 +271,9 @@ def isophote_cut_by_roi(values: np.ndarray, level: float, bp_uv, *, origin_rc: t
         False where the extraction fails (``bp_below_isovalue``) or its isophote stays off the
         ROI sides inside the image; True where the component above the level that holds the BP
         reaches one of them (then no closed contour around the BP exists: the component's outer
-        boundary is open there, and its holes are raised); None when only the extraction can tell
-        (the BP's pixel is not above the level but a neighbour is, the whole-region path).
+        boundary is open there, and its holes' contours are skipped); None when only the
+        extraction can tell (the BP's pixel is not above the level but a neighbour is, the
+        whole-region path).
 
     Raises
     ------
@@ -308,36 +284,32 @@ def isophote_cut_by_roi(values: np.ndarray, level: float, bp_uv, *, origin_rc: t
     -----
     The pipeline grows an ROI whose lowest isophote is cut by it and discards that isophote: on
     the Hyper-Kvasir banner a third of the extractions were such, on ROIs grown to a megapixel
-    around isophotes that leak into bright tissue.
-    :func:`simtest.reconstruct._kernels.component_reaches_contour` walks the component's boundary
-    (or flood-fills it, stopping at the first pixel on such a side, where the walk declines).
-    ``tests/test_kernels.py`` checks the answer against the extraction's.
+    around isophotes that leak into bright tissue. The answer is one flood fill of the BP's
+    component (:func:`_flood`): no contour is traced.
     """
     return _cut_and_contour(_region(values, bp_uv, origin_rc, image_shape), level)[0]
 
 
 def _cut_and_contour(region: _Region, level: float) -> tuple[bool | None, tuple | None]:
-    """:func:`isophote_cut_by_roi`'s answer in a checked region, and the contour its boundary
-    walk traced: ``component_contour``'s result at that level, for :func:`_extract` (the same
-    walk, not made twice where the ROI is not grown), or None where the walk did not trace it."""
-    sub, roi, image_shape, bp_uv, ri, ci, near_bp = region
+    """:func:`isophote_cut_by_roi`'s answer in a checked region, and the flood fill that answered
+    it (:func:`_flood`, for :func:`_extract` at the same level where the ROI is not grown), or
+    None where none was made."""
+    sub, roi, image_shape, _, ri, ci, near_bp = region
     if not near_bp > level:
         return False, None
-    inner = [not b for b in roi.touches_image_border(image_shape)]
-    got, *walked = _kernels.component_reaches_contour(
-        sub, float(level), ri, ci, roi.row0, roi.col0, float(bp_uv[0]), float(bp_uv[1]), *inner)
-    traced = walked[0] in (_kernels.NOT_ABOVE, _kernels.CLOSED, _kernels.OPEN)
-    return (None if got < 0 else bool(got)), (tuple(walked) if traced else None)
+    flood = _flood(sub, level, ri, ci)
+    if flood is None:  # the BP's pixel is not above the level: only the extraction can tell
+        return None, None
+    sides = flood[2]
+    return any(s and not b for s, b in zip(sides, roi.touches_image_border(image_shape))), flood
 
 
-def _contours_numpy(sub, level, roi, ri, ci, bp_uv):
+def _contours(sub, level, roi, ri, ci, bp_uv, flood=None):
     """The contours of :func:`extract_isophote` by numpy, OpenCV and scikit-image calls: the
     closed ones enclosing the BP as (u, v), the open pieces as (row, col) in ``sub``, and the sides
-    of ``sub`` the BP's component reaches. The reference of
-    :func:`simtest.reconstruct._kernels.component_contour` (the same bits, tested), and its
-    fallback for what that kernel leaves (a pixel exactly at the level, several closed contours,
-    the BP's pixel below the level)."""
-    comp = _component_box(sub, level, ri, ci)
+    of ``sub`` the BP's component reaches. ``flood``: :func:`_flood`'s result at ``level`` where
+    the caller has it."""
+    comp = _component_box(sub, level, ri, ci, flood)
     if comp is not None:
         # Only the 4-connected component above the level that holds the BP is contoured, in its
         # bounding box (see Notes): the contour found over the whole region, without the noise.
@@ -346,8 +318,15 @@ def _contours_numpy(sub, level, roi, ri, ci, bp_uv):
         pieces = []
         for rc in find_contours(box, level):
             if len(rc) >= 3 and rc[0, 0] == rc[-1, 0] and rc[0, 1] == rc[-1, 1]:
+                # find_contours runs a closed contour with the values above the level on one
+                # side: the component's outer boundary has a positive signed area in (col, row),
+                # each hole's (pixels below the level inside it) a negative one; a hole's contour
+                # is never the isophote (at most one closed contour is left)
+                r, c = rc[:, 0], rc[:, 1]
+                if not np.dot(c[:-1], r[1:]) > np.dot(r[:-1], c[1:]):
+                    continue
                 uv = rc_to_uv(rc[:-1], roi.row0 + dr, roi.col0 + dc)
-                if polygon_contains(uv, bp_uv):
+                if _encloses(uv, bp_uv):
                     closed_hits.append(uv)
             else:
                 pieces.append(rc + (dr, dc))
@@ -359,39 +338,54 @@ def _contours_numpy(sub, level, roi, ri, ci, bp_uv):
     return closed_hits, pieces, sides
 
 
-def _component_box(sub, level, ri, ci):
-    """The bounding box (plus one pixel inside ``sub``) of the 4-connected component of
-    ``sub > level`` holding pixel (ri, ci), with the other components' pixels lowered below the
-    level, its origin (row, col) in ``sub`` and which sides (top, bottom, left, right) of ``sub``
-    the component reaches; None if that pixel is not above the level."""
-    mask = (sub > level).astype(np.uint8)
-    if not mask[ri, ci]:
+def _flood(sub, level, ri, ci):
+    """The 4-connected component of ``sub > level`` holding pixel (ri, ci) by one flood fill:
+    the mask (uint8: 2 on the component, 1 on other pixels above the level, 0 elsewhere), the
+    component's bounding box (x, y, w, h) and which sides (top, bottom, left, right) of ``sub`` it
+    reaches; None if that pixel is not above the level."""
+    level = np.float64(level)  # a float32 region compares in float64, as find_contours reads it
+    if not sub[ri, ci] > level:
         return None
-    # flood fill (4-connected) from the BP: the component becomes 2, its bounding box comes back;
+    mask = (sub > level).view(np.uint8)  # a fresh array: filled in place
     # the cost is that of the component, not of the region
     _, _, _, (x, y, w, h) = cv2.floodFill(mask, None, (int(ci), int(ri)), 2, 0, 0, 4)
     H, W = sub.shape
-    sides = (y == 0, y + h == H, x == 0, x + w == W)
+    return mask, (x, y, w, h), (y == 0, y + h == H, x == 0, x + w == W)
+
+
+def _component_box(sub, level, ri, ci, flood=None):
+    """The bounding box (plus one pixel inside ``sub``) of the 4-connected component of
+    ``sub > level`` holding pixel (ri, ci), with the other components' pixels lowered below the
+    level, its origin (row, col) in ``sub`` and which sides (top, bottom, left, right) of ``sub``
+    the component reaches; None if that pixel is not above the level. ``flood``:
+    :func:`_flood`'s result where the caller has it."""
+    if flood is None:
+        flood = _flood(sub, level, ri, ci)
+        if flood is None:
+            return None
+    mask, (x, y, w, h), sides = flood
+    H, W = sub.shape
     r0, r1, c0, c1 = max(y - 1, 0), min(y + h + 1, H), max(x - 1, 0), min(x + w + 1, W)
-    box = sub[r0:r1, c0:c1].copy()
+    box = sub[r0:r1, c0:c1].astype(np.float64)  # find_contours' dtype (a copy)
     lab = mask[r0:r1, c0:c1]
     box[lab == 1] = level - 1.0  # pixels of other components (above the level, not joined)
-    outside = (lab != 2).view(np.uint8)
-    # Holes (pixels outside the component that no 8-path outside it joins to the box edge) are
-    # raised above the level: their closed contours never enclose the BP.
-    n, lab8 = connected_components(outside)
-    if n > 2 or (n == 2 and not _touches_edge(lab8, 1)):
-        edge = np.concatenate([lab8[0], lab8[-1], lab8[:, 0], lab8[:, -1]])
-        is_hole = np.ones(n, dtype=bool)  # per label: outside the component, off the box edge
-        is_hole[0] = False
-        is_hole[edge] = False
-        box[is_hole[lab8]] = level + 1.0
     return box, (r0, c0), sides
 
 
-def _touches_edge(labels, k) -> bool:
-    return bool((labels[0] == k).any() or (labels[-1] == k).any() or (labels[:, 0] == k).any()
-                or (labels[:, -1] == k).any())
+#: Where the BP lies farther than this from a closed contour, OpenCV's point-in-polygon test on
+#: the contour rounded to float32 decides whether it encloses the BP (px; the rounding moves a
+#: point by under 1e-3 px on an image under 16384 px); nearer, the even-odd test in float64
+#: (:func:`polygon_contains`) does.
+ENCLOSE_FLOAT32_MARGIN_PX = 0.01
+
+
+def _encloses(uv: np.ndarray, bp_uv: np.ndarray) -> bool:
+    """:func:`polygon_contains` of one point in a closed, simple contour, by
+    ``cv2.pointPolygonTest`` away from the contour (:data:`ENCLOSE_FLOAT32_MARGIN_PX`)."""
+    d = cv2.pointPolygonTest(uv.astype(np.float32), (float(bp_uv[0]), float(bp_uv[1])), True)
+    if abs(d) > ENCLOSE_FLOAT32_MARGIN_PX:
+        return d > 0
+    return bool(polygon_contains(uv, bp_uv))
 
 
 def _whole_region_contours(sub, level, roi, bp_uv):
@@ -419,7 +413,7 @@ def _whole_region_contours(sub, level, roi, bp_uv):
 def _open_pieces_around_bp(sub, level, ri, ci, open_contours):
     """Open contours bounding the 4-connected component of ``sub >= level`` holding (ri, ci), and
     which sides (top, bottom, left, right) of ``sub`` that component reaches."""
-    mask = (sub >= level).astype(np.uint8)
+    mask = (sub >= np.float64(level)).view(np.uint8)
     _, labels = cv2.connectedComponents(mask, connectivity=4)
     target = labels[ri, ci]
     if target == 0:

@@ -4,22 +4,23 @@ grown while the lowest is cut (:func:`_estimate_one`, :func:`_grown_drafts`), an
 
 from __future__ import annotations
 
+import functools
 import math
 from dataclasses import dataclass
 
+import cv2
 import numpy as np
 
 from simtest._records import fast_init
 from simtest.constants import gaussian_radius_px, smooth_block_px
 from simtest.decisions import ROI_GROWTH_FACTOR, ROI_MAX_GROWTHS
-from simtest.reconstruct import _kernels
 from simtest.reconstruct._pixels import Roi, rc_to_uv
 from simtest.reconstruct.assemble import IsophoteEstimate, SpecularityEstimate, _Draft, _Pending
 from simtest.reconstruct.cone_fit import FitFrame, fit_frame, fit_frames
 from simtest.reconstruct.detect import connected_components, luma, peak_uv
 from simtest.reconstruct.failures import OK
-from simtest.reconstruct.frame_prep import _LUMA_W, _Frame, _smooth
-from simtest.reconstruct.isophote import MIN_CONTOUR_POINTS, Isophote, _cut_and_contour, _extract, _Region, _region
+from simtest.reconstruct.frame_prep import _Frame, _smooth
+from simtest.reconstruct.isophote import MIN_CONTOUR_POINTS, _cut_and_contour, _extract, _region
 from simtest.reconstruct.settings import AUTO_LOCAL_BACKGROUND_REL, Normalisation
 
 _TINY = float(np.finfo(float).tiny)
@@ -147,8 +148,56 @@ def _find_bp(img: np.ndarray, roi: Roi, saturation_level) -> tuple[np.ndarray, b
 
 
 def _border_median(vals: np.ndarray) -> float:
-    """Median of the pixels on the border of an ROI: the local diffuse level of ``normalise="local"``."""
-    return float(_kernels.border_median(vals))  # np.median of the ring's pixels (tested)
+    """Median of the pixels on the border of an ROI: the local diffuse level of ``normalise="local"``
+    (float64; NaN if any is NaN; a single row or column counts twice)."""
+    return _median(np.concatenate([vals[0], vals[-1], vals[1:-1, 0], vals[1:-1, -1]], dtype=np.float64))
+
+
+def _median(ring: np.ndarray) -> float:
+    """``np.median`` of a float64 vector (NaN if any is NaN) by one ``np.partition``, without
+    ``np.median``'s checks (a real frame asks it for each of its hundreds of ROIs)."""
+    n = len(ring)
+    k = n // 2
+    part = np.partition(ring, (k - 1, k, n - 1) if n % 2 == 0 else (k, n - 1))
+    if part[-1] != part[-1]:  # NaN sorts last
+        return float("nan")
+    return float(part[k]) if n % 2 else float((part[k - 1] + part[k]) / 2)
+
+
+@functools.lru_cache(maxsize=256)
+def _folded_taps(kern: tuple, n: int) -> np.ndarray:
+    """The taps ``kern`` (2 R + 1,) folded by ``BORDER_REFLECT`` (``fedcba|abcdef|fedcba``) onto
+    the first ``min(n, R + 1)`` pixels from a side of a line of ``n``: the line's smoothed value at
+    that side is their dot product with those pixels."""
+    R = len(kern) // 2
+    m = np.mod(np.arange(-R, R + 1), 2 * n)
+    return np.bincount(np.where(m < n, m, 2 * n - 1 - m), weights=np.array(kern))
+
+
+_ONE_TAP = np.ones(1)
+
+
+def _smoothed_border_median(img: np.ndarray, kern: np.ndarray, roi: Roi) -> float:
+    """:func:`_border_median` of the luma of ``img[roi]`` smoothed alone with the Gaussian taps
+    ``kern`` (2 R + 1,) (``_smooth``: its sides reflected), computed for its border pixels only
+    (the cost of the perimeter times the kernel's radius, not of the area: a grown ROI reaches a
+    megapixel).
+
+    A border pixel's smoothing across its side is a sum over the first R + 1 rows (columns) from
+    that side with the taps folded by the reflection; that line is then smoothed along itself
+    (``cv2.sepFilter2D``, its ends reflected). The pipeline contours an ROI in the frame's
+    smoothed luma and takes its local background level from here: the level of the ROI smoothed
+    alone, as before the frame was smoothed once (the paper pose is sensitive to it). Equal to
+    the median of the ring of ``_smooth(luma(img[roi]))`` to rounding (``tests/test_isophote.py``)."""
+    h, w = roi.shape
+    taps = tuple(kern.tolist())
+    kr, kc = _folded_taps(taps, h), _folded_taps(taps, w)
+    r0, r1, c0, c1 = roi
+    rows = np.stack([kr @ luma(img[r0:r0 + len(kr), c0:c1]), kr @ luma(img[r1 - len(kr):r1, c0:c1])[::-1]])
+    cols = np.stack([luma(img[r0:r1, c0:c0 + len(kc)]) @ kc, luma(img[r0:r1, c1 - len(kc):c1])[:, ::-1] @ kc])
+    rows = cv2.sepFilter2D(rows, cv2.CV_64F, kern, _ONE_TAP, borderType=cv2.BORDER_REFLECT)
+    cols = cv2.sepFilter2D(cols, cv2.CV_64F, kern, _ONE_TAP, borderType=cv2.BORDER_REFLECT)
+    return _median(np.concatenate([rows.ravel(), cols[:, 1:-1].ravel()]))
 
 
 @fast_init
@@ -168,9 +217,8 @@ class _Levels:
         if ring is None and roi is not None and frame.smoothed32 is not None and \
                 mode in (Normalisation.AUTO, Normalisation.LOCAL):
             # the ROI's values are the frame's smoothing; its background level is that of the ROI
-            # smoothed alone (_kernels.smoothed_border_median), as without the frame's
-            ring = float(_kernels.smoothed_border_median(frame.img3, *_LUMA_W, roi.row0, roi.row1,
-                                                         roi.col0, roi.col1, frame.kernel))
+            # smoothed alone (_smoothed_border_median), as without the frame's
+            ring = _smoothed_border_median(frame.img, frame.kernel, roi)
         if mode == Normalisation.AUTO:
             if ring is None:
                 ring = _border_median(vals)
@@ -187,11 +235,11 @@ class _Levels:
         return self.offset + t * self.scale
 
 
-def _one_isophote(frame: _Frame, region, levels: _Levels, t, walked=None):
+def _one_isophote(frame: _Frame, region, levels: _Levels, t, flood=None):
     """Extract the isophote at ``t`` in an ROI's checked region (``isophote._region``):
-    ``(IsophoteEstimate of a failure, or _Pending, Isophote or None)``. ``walked``: the contour
-    the growth question traced at that level (``isophote._cut_and_contour``), or None."""
-    iso = _extract(region, levels.level(t), True, 0, walked)
+    ``(IsophoteEstimate of a failure, or _Pending, Isophote or None)``. ``flood``: the flood
+    fill the growth question made at that level (``isophote._cut_and_contour``), or None."""
+    iso = _extract(region, levels.level(t), True, 0, flood)
     if not iso:
         return IsophoteEstimate(t, iso.reason, iso.detail), None
     if iso.cut and not frame.settings.allow_open:
@@ -204,13 +252,16 @@ def _one_isophote(frame: _Frame, region, levels: _Levels, t, walked=None):
 
 def _estimate_one(frame: _Frame, bp_uv, roi: Roi, *, saturated: bool, grow: bool,
                   other_bps=(), own_bp: int = -1, bp_ray=None, fitf: FitFrame | None = None,
-                  ring: float | None = None) -> _Draft | SpecularityEstimate:
+                  ring: float | None = None, sm: np.ndarray | None = None) -> _Draft | SpecularityEstimate | None:
     """Extract one highlight's isophotes (growing the ROI): a draft for :func:`~simtest.reconstruct.assemble._complete`, or the
     finished estimate of a BP without a viewing ray. ``other_bps`` (k, 2) are the BPs its isophote
     must not enclose (``merged``), one frame's array shared by its highlights, whose own row
     ``own_bp`` is skipped. ``bp_ray`` and ``fitf`` are the BP's ray and fit frame when the caller
     computed them (for many highlights at once); ``ring`` the first ROI's smoothed border
-    median (:func:`_first_rings`), or None."""
+    median (:func:`_first_rings`), or None. ``sm``: the frame-wide array every ROI's values are
+    sliced from (:func:`_grown_drafts`), or None (:func:`_roi_values`); with it, None where only
+    the extraction can tell whether the lowest isophote is cut or the BP leaves its ROI (the
+    caller asks again without ``sm``)."""
     isovalues = frame.settings.isovalues
     sigma = frame.smooth_sigma_px
     bp_uv = np.asarray(bp_uv, dtype=np.float64)
@@ -237,28 +288,34 @@ def _estimate_one(frame: _Frame, bp_uv, roi: Roi, *, saturated: bool, grow: bool
     try:
         while True:
             _put_back(saved)
-            vals, saved = _roi_values(frame, roi, sigma)
-            region = _region(vals, bp_uv, (roi.row0, roi.col0), frame.img.shape)
+            vals, saved = (sm[roi.slices], None) if sm is not None else _roi_values(frame, roi, sigma)
+            try:
+                region = _region(vals, bp_uv, (roi.row0, roi.col0), frame.img.shape)
+            except ValueError:  # the BP outside its ROI
+                if sm is None:
+                    raise
+                return None
             i_bp = region.near_bp  # the largest of the BP's 3 x 3 pixels
             levels = _Levels.of(frame, vals, i_bp, roi if fast else None, ring if fast and not growths else None)
             i0 = order[0]
-            res = walked = None
+            res = flood = None
             cut = False
             if grow and growths < ROI_MAX_GROWTHS:
                 new = Roi.around(bp_uv, ROI_GROWTH_FACTOR * max(roi.shape) / 2.0, frame.img.shape)
                 # an isophote cut by the ROI is discarded for the grown ROI's: ask only whether it
-                # is (the walk that answers traces the isophote: kept for the extraction when it
-                # is not)
+                # is (the flood fill that answers is kept for the extraction when it is not)
                 if new != roi:
-                    cut, walked = _cut_and_contour(region, levels.level(isovalues[i0]))
+                    cut, flood = _cut_and_contour(region, levels.level(isovalues[i0]))
+                if cut is None and sm is not None:
+                    return None
                 if cut is None:  # only the extraction can tell
-                    res, iso = _one_isophote(frame, region, levels, isovalues[i0], walked)
+                    res, iso = _one_isophote(frame, region, levels, isovalues[i0], flood)
                     cut = iso is not None and iso.cut_by_roi
                 if cut:
                     roi, growths = new, growths + 1
                     continue
             if not cut:
-                results[i0] = _one_isophote(frame, region, levels, isovalues[i0], walked)[0] if res is None else res
+                results[i0] = _one_isophote(frame, region, levels, isovalues[i0], flood)[0] if res is None else res
                 for i in order[1:]:
                     results[i], _ = _one_isophote(frame, region, levels, isovalues[i])
             break
@@ -266,87 +323,44 @@ def _estimate_one(frame: _Frame, bp_uv, roi: Roi, *, saturated: bool, grow: bool
         _put_back(saved)
     return _Draft(bp_uv, i_bp, saturated, roi, bp_ray, fitf, results, other_bps, own_bp)
 
-#: ``_Levels.of``'s normalisations as :func:`simtest.reconstruct._kernels.grown_isophotes` takes them.
-_NORM_CODES = {Normalisation.AUTO: _kernels.NORM_AUTO, Normalisation.LOCAL: _kernels.NORM_LOCAL,
-               Normalisation.BP: _kernels.NORM_BP, Normalisation.FULL_SCALE: _kernels.NORM_FULL_SCALE}
-
-
-_NO_TAPS = np.ones(1)
-
 
 def _grown_drafts(frame: _Frame, ks: list, bps: list, rois_of: dict, rings_of: dict, rays: np.ndarray,
                   frames_of: dict, saturated: list, others, own_rows: list) -> dict:
     """``k -> _Draft``: :func:`_estimate_one` (``grow=True``) of the candidates ``ks`` (their BPs
     ``bps[k]``, first ROIs, rings, rays and fit frames by ``k``; ``saturated`` and ``own_rows``
-    in the order of ``ks``) of a frame smoothed once (``smoothed32``), by one compiled call for
-    their ROIs' growth, levels and contour walks
-    (:func:`simtest.reconstruct._kernels.grown_isophotes`, the same calls and arithmetic) and
-    the Python objects from its results: the same drafts, without the Python loop's 40 us a
-    candidate (a third of the banner's 448 fitted candidates' extraction). The ROIs' values are
-    slices of the frame's smoothing (``smoothed32``) or, where the frame is not smoothed, of its
-    float64 luma (``luma_frame``); on any other frame the result is empty, as it is for a
-    candidate the call leaves (a BP outside its ROI, a cut that only the extraction can tell)."""
+    in the order of ``ks``) whose ROIs' values are slices of one frame-wide array: the frame's
+    smoothing (``smoothed32``) or, where the frame is not smoothed, its float64 luma
+    (``luma_frame``) or float32 luma (``luma_frame32``). On any other frame the result is empty,
+    as it is for a candidate :func:`_estimate_one` leaves with that array (a BP outside its ROI,
+    a cut that only the extraction can tell): the caller asks again without it."""
     if not ks:
         return {}
     if frame.smoothed32 is not None and frame.smooth_sigma_px > 0:
         # the frame's smoothing; the first rings given, a grown ROI's computed
         # (the rings only where the normalisation reads them: "auto" and "local")
-        sm, own_ring = frame.smoothed32, False
-        rings = [np.nan if rings_of[k] is None else rings_of[k] for k in ks]
+        sm = frame.smoothed32
         if frame.settings.normalise in (Normalisation.AUTO, Normalisation.LOCAL) and any(
                 rings_of[k] is None for k in ks):
             return {}
     elif frame.luma_frame is not None and not frame.smooth_sigma_px > 0 and frame.luma_frame.dtype == np.float64:
         # a frame not smoothed: its luma; every ring the region's own border median
-        sm, own_ring, rings = frame.luma_frame, True, [np.nan] * len(ks)  # (and no kernel read)
+        sm = frame.luma_frame  # (every ring the region's own border median: _Levels.of)
     elif frame.luma_frame32 is not None and not frame.smooth_sigma_px > 0:
         # a frame with few highlights, not smoothed: its float32 luma (the float64 luma of each ROI
         # to float32 rounding, 6e-8 relative; the clean bench frame's ten _estimate_one calls
         # cost 1.2 ms)
-        sm, own_ring, rings = frame.luma_frame32, True, [np.nan] * len(ks)
+        sm = frame.luma_frame32
     else:
         return {}
-    isovalues = frame.settings.isovalues
-    order = sorted(range(len(isovalues)), key=lambda i: isovalues[i])
-    done, rr, near, scale, offset, code, inside, sides, start, count, pts = _kernels.grown_isophotes(
-        sm, frame.img3, *_LUMA_W, _NO_TAPS if own_ring else frame.kernel,
-        np.array([tuple(rois_of[k]) for k in ks], np.int64).reshape(-1, 4),
-        np.array([bps[k] for k in ks], np.float64).reshape(-1, 2), np.array(rings, np.float64), own_ring,
-        np.array([isovalues[i] for i in order], np.float64), _NORM_CODES[frame.settings.normalise],
-        float(AUTO_LOCAL_BACKGROUND_REL), float(frame.full_scale), ROI_MAX_GROWTHS, float(ROI_GROWTH_FACTOR))
-    shape = frame.img.shape
     out = {}
-    rows = zip(ks, done.tolist(), rr.tolist(), near.tolist(), scale.tolist(), offset.tolist(), code.tolist(),
-               inside.tolist(), sides.tolist(), start.tolist(), count.tolist(), saturated, own_rows)
-    for k, ok, box, i_bp, sc, off, codes, ins, sds, st, cn, sat, own in rows:
-        if not ok:
-            continue
-        roi = Roi(*box)
-        bp_uv = bps[k]
-        levels = _Levels(sc, off)
-        region = None
-        results: list = [None] * len(isovalues)
-        for q, i in enumerate(order):
-            t = isovalues[i]
-            level = levels.level(t)
-            if codes[q] == _kernels.CLOSED and ins[q] and i_bp > level:
-                # a closed walk around the BP, above its level: the isophote _one_isophote makes
-                # of it (_extract's first case), without the region's checks (most of a real
-                # frame's 1500 isophotes)
-                uv = pts[st[q]:st[q] + cn[q]]
-                results[i] = _Pending(t, Isophote(uv, float(level), True, False, False)) \
-                    if len(uv) >= MIN_CONTOUR_POINTS else IsophoteEstimate(
-                        t, "too_few_points", f"{len(uv)} contour points < {MIN_CONTOUR_POINTS}", uv, True)
-                continue
-            if region is None:
-                region = _Region(sm[roi.row0:roi.row1, roi.col0:roi.col1], roi, shape, bp_uv,
-                                 int(round(float(bp_uv[1]) - roi.row0)), int(round(float(bp_uv[0]) - roi.col0)),
-                                 i_bp)
-            walked = None if codes[q] == _kernels.NOT_WALKED else \
-                (codes[q], pts[st[q]:st[q] + cn[q]], ins[q], tuple(sds[q]))
-            results[i] = _one_isophote(frame, region, levels, t, walked)[0]
-        out[k] = _Draft(bp_uv, i_bp, sat, roi, rays[k], frames_of[k], results, others, own)
+    for k, sat, own in zip(ks, saturated, own_rows):
+        draft = _estimate_one(frame, bps[k], rois_of[k], saturated=sat, grow=True, other_bps=others, own_bp=own,
+                              bp_ray=rays[k], fitf=frames_of[k], ring=rings_of[k], sm=sm)
+        if draft is not None:
+            out[k] = draft
     return out
+
+
 def _initial_roi(cand, bp_uv, threshold, frame: _Frame) -> Roi:
     """ROI expected to hold the lowest isophote, from the size of the bright component.
 
@@ -369,15 +383,13 @@ def _initial_roi(cand, bp_uv, threshold, frame: _Frame) -> Roi:
 
 
 def _first_rings(frame: _Frame, rois: list[Roi]) -> list:
-    """Each ROI's smoothed border median (``_Levels.of``'s ring) in one compiled call
-    (:func:`simtest.reconstruct._kernels.smoothed_border_medians`: each ROI's
-    ``smoothed_border_median``), where the frame's ROIs read them (smoothed once, normalised
-    ``auto`` or ``local``); else None for each."""
+    """Each ROI's smoothed border median (``_Levels.of``'s ring, :func:`_smoothed_border_median`)
+    where the frame's ROIs read them (smoothed once, normalised ``auto`` or ``local``); else None
+    for each."""
     if not rois or frame.smoothed32 is None or not frame.smooth_sigma_px > 0 or \
             frame.settings.normalise not in (Normalisation.AUTO, Normalisation.LOCAL):
         return [None] * len(rois)
-    rr = np.array(rois, dtype=np.int64).reshape(-1, 4)
-    return _kernels.smoothed_border_medians(frame.img3, *_LUMA_W, rr, frame.kernel).tolist()
+    return [_smoothed_border_median(frame.img, frame.kernel, roi) for roi in rois]
 
 
 def _initial_rois(cands: list, bps_uv: np.ndarray, threshold, frame: _Frame) -> list[Roi]:
