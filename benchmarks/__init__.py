@@ -16,9 +16,7 @@ Modules
 - :mod:`benchmarks.inputs`: the pinned inputs (synthetic frames at seeds 0 and 12, the
   Hyper-Kvasir banner of ``tests/data/real``, its 1350 x 1080 mosaic, the MJPG video, the
   rendered colonoscope frame); tests read them too.
-- :mod:`benchmarks.opencv_replay` and :mod:`benchmarks.kernels`: the rows under a frame's, its
-  OpenCV calls replayed alone and its compiled kernels timed in place (none where the package
-  has no compiled kernels).
+- :mod:`benchmarks.opencv_replay`: the row under a frame's, its OpenCV calls replayed alone.
 - :mod:`benchmarks.render`, :mod:`benchmarks.harness`, :mod:`benchmarks.dataset`: the renderer,
   the harness's sweeps and dataset generation.
 

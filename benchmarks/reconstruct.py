@@ -22,9 +22,8 @@ Rows (:func:`bench_reconstruct`), one core unless said:
   light-aware fits included, as ``simtest reconstruct -k camera.json`` runs it.
 
 Under each frame's row, the frame's OpenCV calls replayed alone
-(:mod:`benchmarks.opencv_replay`: the library's share of its time), then its compiled kernels
-timed in place (:mod:`benchmarks.kernels`; no row where the package has none): the rest of the
-frame's time is Python and numpy's calls. The frame rows give the median CPU time of the process
+(:mod:`benchmarks.opencv_replay`: the library's share of its time): the rest of the frame's time
+is Python and numpy's calls. The frame rows give the median CPU time of the process
 in their note (the figure to read on a machine that others load). The targets and bars are the
 constants below (:data:`NOISY_FRAME_TARGET_MS` and those beside it).
 """
@@ -46,7 +45,6 @@ from benchmarks.inputs import (VIDEO_FRAMES, VIDEO_STEP_PX, banner_frame, banner
                                colonoscope_frame, colonoscope_render, noisy_frame, real_frame,
                                synthetic_frame, synthetic_offset_highlight, synthetic_roi_image,
                                video_first_frame)
-from benchmarks.kernels import kernel_ms
 from benchmarks.opencv_replay import opencv_calls, replay_opencv_ms
 from benchmarks.timing import clone_env, cpu_s_with_workers, every_core, single_core, time_ms, time_ms_cpu
 from simtest.bench import BenchResult
@@ -180,7 +178,6 @@ def bench_reconstruct(repeat: int = 50) -> list[BenchResult]:
                                f"bar {NOISY_FRAME_BAR_MS:g} ms; {len(ests)} candidates, "
                                f"{sum(e.ok for e in ests)} ok; CPU {cpu:.3g} ms"))
         out.append(_opencv_row(lambda: reconstruct(frame, Kf), n_frame))
-        out += _kernel_rows(lambda: reconstruct(frame, Kf), n_frame)
     out += _candidate_frame_rows("per real frame: Hyper-Kvasir banner 2240x840 JPEG, defaults",
                                  "per real frame: banner (source tree not found)", banner_frame(), repeat,
                                  BANNER_TARGET_MS, BANNER_BAR_MS)
@@ -250,8 +247,7 @@ def _video_run(n_frames: int, workers: int) -> dict | None:
 
 def _bench_video(n_frames: int = VIDEO_FRAMES) -> list[BenchResult]:
     """``simtest reconstruct``'s path on a video (:func:`_video_run`), in a fresh interpreter on
-    every core: its workers start as a user's do (imports, compiled kernels loaded from their
-    cache), which workers forked from this process, warm from the rows before, would not
+    every core: its workers start as a user's do (imports), which workers forked from this process, warm from the rows before, would not
     (``docs/decisions/benchmarks.md``); wall ms per frame, the pool's start included, one run (a video is many
     frames)."""
     name = (f"video: 1350x1080 MJPG, {n_frames} frames of banner_mosaic panning {VIDEO_STEP_PX} px a "
@@ -295,18 +291,6 @@ def _opencv_row(fn: Callable[[], object], repeat: int) -> BenchResult:
                        f"{len(calls)} calls; {_costliest(per)}")
 
 
-def _kernel_rows(fn: Callable[[], object], repeat: int) -> list[BenchResult]:
-    """The second row under a frame's: its compiled kernels timed in place (:func:`kernel_ms`);
-    none where ``fn`` calls no compiled kernel. With the OpenCV row it splits the frame's time:
-    what is left is Python and numpy's calls."""
-    got = kernel_ms(fn, repeat)
-    if got is None:
-        return []
-    med, best, per = got
-    return [BenchResult("reconstruct", "  of which its compiled kernels, timed in place", med, "ms", None, best,
-                        _costliest(per))]
-
-
 def _costliest(per: dict[str, float]) -> str:
     """The note of a split row: its three costliest functions (``per`` largest first) and their ms."""
     return ", ".join(f"{name} {t:.3g} ms" for name, t in list(per.items())[:3])
@@ -315,8 +299,7 @@ def _costliest(per: dict[str, float]) -> str:
 def _candidate_frame_rows(name: str, missing: str, frame_camera, repeat: int, target: float = 50.0,
                           bar: float = 150.0) -> list[BenchResult]:
     """The rows of a frame with hundreds of candidates, every one examined (``target`` and ``bar``, ms),
-    of its OpenCV calls replayed alone (:func:`_opencv_row`) and of its compiled kernels
-    (:func:`_kernel_rows`): ``frame_camera`` is ``(image, K or camera model)``, or None (one NaN
+    and of its OpenCV calls replayed alone (:func:`_opencv_row`): ``frame_camera`` is ``(image, K or camera model)``, or None (one NaN
     row named ``missing``). Each is timed over ``max(3, repeat // 10)`` runs (5 at the default
     repeat): a frame takes a tenth of a second or more, and a median of two runs is the mean of
     a slow and a quick one on a machine whose speed moves."""
@@ -329,7 +312,7 @@ def _candidate_frame_rows(name: str, missing: str, frame_camera, repeat: int, ta
     return [BenchResult("reconstruct", name, med, "ms", target, best,
                         f"bar {bar:g} ms; {len(ests)} of {ests.n_components} components examined, "
                         f"{sum(e.ok for e in ests)} ok; CPU {cpu:.4g} ms"),
-            _opencv_row(lambda: reconstruct(img, cam), n), *_kernel_rows(lambda: reconstruct(img, cam), n)]
+            _opencv_row(lambda: reconstruct(img, cam), n)]
 
 
 def _bench_light_aware(repeat: int) -> list[BenchResult]:

@@ -9,7 +9,6 @@ import os
 import re
 import subprocess
 import sys
-import types
 from pathlib import Path
 
 import cv2
@@ -18,7 +17,7 @@ import pytest
 from typer.testing import CliRunner
 
 import benchmarks
-from benchmarks import inputs, kernels, opencv_replay, timing
+from benchmarks import inputs, opencv_replay, timing
 from benchmarks import reconstruct as rbench
 from simtest import bench
 from simtest.cli import app
@@ -55,7 +54,7 @@ def test_bench_full_frame(benchmark):
 
 
 @pytest.mark.slow
-def test_simtest_bench_runs_a_section_of_the_clone_from_the_command_line(tmp_path, numba_kernels_compiled):
+def test_simtest_bench_runs_a_section_of_the_clone_from_the_command_line(tmp_path):
     # the console command, started away from the clone (cwd elsewhere): the package finds the
     # sections in the benchmarks/ beside it and prints the table's rows
     proc = subprocess.run([sys.executable, "-m", "simtest.cli", "bench", "--only", "reconstruct", "--repeat", "1"],
@@ -238,58 +237,6 @@ def test_every_image_function_the_reconstruction_calls_is_recorded():
     draw = {"circle", "drawMarker", "getTextSize", "line", "polylines", "putText", "rectangle"}
     allowed = set(opencv_replay.OPENCV_FUNCTIONS)
     assert used - io - draw <= allowed, used - io - draw - allowed
-
-
-# ---- the compiled kernels' share of a frame: timed in place -------------------------------------
-
-
-def _kernel_functions() -> dict:
-    return {(m.__name__, n): getattr(m, n) for m in kernels.kernel_modules() for n in kernels.dispatchers(m)}
-
-
-@pytest.fixture
-def jitted_module(monkeypatch):
-    """A loaded module of simtest holding one compiled kernel, ``twice`` (whatever kernels the
-    package itself still holds)."""
-    numba = pytest.importorskip("numba")
-    mod = types.ModuleType("simtest._bench_test_kernels")
-    mod.twice = numba.njit(lambda x: 2 * x)
-    monkeypatch.setitem(sys.modules, mod.__name__, mod)
-    return mod
-
-
-def test_kernel_times_sums_each_kernel_and_puts_the_modules_back(jitted_module):
-    mod = jitted_module
-    assert mod in kernels.kernel_modules() and kernels.dispatchers(mod) == ["twice"]
-    frame, K, _ = inputs.noisy_frame()
-    want = reconstruct(frame, K)
-    before = _kernel_functions()
-    with kernels.kernel_times() as times:
-        assert mod.twice(2) == 4 and mod.twice(3) == 6
-        got = reconstruct(frame, K)
-        # every compiled function a loaded module holds goes through a timer, also one another
-        # module imported by name (a call through either is timed)
-        assert all(getattr(sys.modules[m], n) is not f for (m, n), f in before.items())
-    # each call went through its timer, and the frame's results are those of an untimed run
-    assert times["twice"] > 0
-    assert [estimate_to_dict(e, True) for e in got] == [estimate_to_dict(e, True) for e in want]
-    assert _kernel_functions() == before
-    with pytest.raises(RuntimeError, match="inside"):
-        with kernels.kernel_times():
-            raise RuntimeError("inside")
-    assert _kernel_functions() == before
-    med, best, per = kernels.kernel_ms(lambda: mod.twice(1), 3)
-    assert list(per) == ["twice"] and 0 < best <= med
-
-
-def test_without_compiled_kernels_a_frame_has_no_kernel_row(monkeypatch, jitted_module):
-    # code that calls no compiled kernel, and a process where numba is not loaded at all, give
-    # no kernel row rather than a row of zeros or an error
-    assert kernels.kernel_ms(lambda: sum(range(10)), 2) is None
-    assert rbench._kernel_rows(lambda: sum(range(10)), 2) == []
-    assert len(rbench._kernel_rows(lambda: jitted_module.twice(1), 2)) == 1
-    monkeypatch.delitem(sys.modules, "numba")
-    assert kernels.kernel_modules() == [] and kernels.kernel_ms(lambda: jitted_module.twice(1), 2) is None
 
 
 def test_the_video_row_tells_the_candidates_and_the_cpu_a_frame(monkeypatch):

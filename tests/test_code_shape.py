@@ -32,7 +32,7 @@ LONG_FUNCTIONS = {
     ("reconstruct/_kernels.py", "grown_isophotes"): 155,
 }
 #: the modules that may import numba: issue 64 allows one small compiled module in the end
-NUMBA_MODULES = {"reconstruct/_kernels.py"}
+NUMBA_MODULES: set[str] = set()
 
 
 def _modules():

@@ -67,8 +67,7 @@ def test_ci_runs_the_set_up_commands():
 def _copy_of_the_clone(tmp: Path) -> Path:
     """The files the examples read by relative path (scenes, the real frames), in a fresh folder.
 
-    The code itself is this checkout's (``PYTHONPATH``), so that numba's cache of compiled
-    kernels, kept beside the code, serves every example instead of each recompiling it.
+    The code itself is this checkout's (``PYTHONPATH``): the examples run what the tests test.
     """
     repo = tmp / "clone"
     (repo / "tests" / "data").mkdir(parents=True)
@@ -106,7 +105,7 @@ def test_the_examples_python_is_the_users_interpreter(tmp_path):
 
 
 @pytest.mark.slow
-def test_every_readme_example_runs(tmp_path, numba_kernels_compiled):
+def test_every_readme_example_runs(tmp_path):
     repo = _copy_of_the_clone(tmp_path)
     env = _user_env(tmp_path)
     for line in _run_lines():
