@@ -26,8 +26,7 @@ def _rate(suite_dict: dict, workers: int):
     """``(ms per realisation of one worker, realisations/s with the workers, wall s, n)`` of a
     one-protocol suite: the marginal cost of a realisation, from two runs of ``n`` and ``2 n``
     realisations (the difference of the workers' summed seconds over the ``n`` more), so each
-    worker's first calls (its imports, numba's compiled kernels loaded from the cache: about a
-    second per worker) are left out as the pool's start-up is; a whole suite pays them once per
+    worker's first calls (its imports) are left out as the pool's start-up is; a whole suite pays them once per
     worker. The wall time and ``n`` are the larger run's."""
     n1 = suite_dict["suite"]["realisations"]
     twice = {**suite_dict, "suite": {**suite_dict["suite"], "realisations": 2 * n1}}

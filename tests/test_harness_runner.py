@@ -220,7 +220,7 @@ def test_the_scored_detections_fitted_alone_get_what_fitting_every_detection_giv
 
 
 def test_the_harness_bench_rate_is_the_marginal_cost_of_a_realisation(monkeypatch):
-    # each worker's first calls (imports, numba's kernels loaded) cost a fixed time that a short
+    # each worker's first calls (imports) cost a fixed time that a short
     # run would spread over its few realisations: the rate is the slope between n and 2 n
     from types import SimpleNamespace
 

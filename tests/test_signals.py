@@ -25,7 +25,7 @@ pytestmark = [pytest.mark.slow,
 ROOT = Path(__file__).resolve().parents[1]
 #: The bound on how long a worker may outlive the signal (the issue's "no worker alive 5 s after").
 GONE_WITHIN_S = 5.0
-#: How long a cold start may take before the workers run (imports, numba's cache on a busy VM).
+#: How long a cold start may take before the workers run (imports on a busy VM).
 START_S = 300.0
 
 

@@ -268,9 +268,7 @@ class _FrameRing:
 
     def frame(self, slot: int) -> np.ndarray:
         """The frame in ``slot``, a view (the parent writes it only once this frame's record has
-        come back). Writeable, as a decoded frame is: numba types a read-only array apart, so a
-        read-only frame would compile (and cache) every image kernel a second time in each worker
-        (a fresh cache: minutes of CPU before the first frame)."""
+        come back). Writeable, as a decoded frame is."""
         return self.slots[slot]
 
     @staticmethod

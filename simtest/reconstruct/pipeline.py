@@ -93,8 +93,8 @@ def _gc_paused():
 
     A frame with hundreds of highlights builds thousands of small result objects, none of them
     in a reference cycle; each allocation burst triggers collections, and every few of them is a
-    full one over every object the process holds (about 170 000 after importing simtest: numba,
-    OpenCV, scikit-image). On the Hyper-Kvasir banner these passes were about a tenth of the
+    full one over every object the process holds (about 170 000 after importing simtest: OpenCV,
+    scikit-image, scipy). On the Hyper-Kvasir banner these passes were about a tenth of the
     time. Nothing the pipeline allocates waits for the collector (no cycles), and a caller that
     had paused it keeps it paused.
     """
