@@ -9,6 +9,8 @@ in as arguments.
 
 from __future__ import annotations
 
+import functools
+
 import cv2
 import numpy as np
 
@@ -172,6 +174,22 @@ def chroma(rgb: np.ndarray) -> np.ndarray:
     return 1.0 - np.minimum(np.minimum(r, g), b) / np.maximum(mx, 1e-9)
 
 
+@functools.lru_cache(maxsize=64)
+def _variance_below(std_max: float) -> np.float32:
+    """The least float32 variance v >= 0 whose float32 square root is not below ``std_max``
+    (as float32): ``var < it`` is ``sqrt(max(var, 0)) < std_max`` for every float32, NaN
+    included (a binary search on the bits; the root is monotone and correctly rounded)."""
+    s = np.float32(std_max)
+    lo, hi = 0, int(np.array(np.inf, np.float32).view(np.uint32))  # sqrt(+inf) = +inf >= s
+    while lo < hi:
+        mid = (lo + hi) // 2
+        if np.sqrt(np.array(mid, np.uint32).view(np.float32)) >= s:
+            hi = mid
+        else:
+            lo = mid + 1
+    return np.array(lo, np.uint32).view(np.float32)[()]
+
+
 def flat_mask(gray: np.ndarray, std_max: float) -> np.ndarray:
     """Pixels whose 5 x 5 luma standard deviation (``cv2.blur`` of the luma and of its square,
     float32) is below ``std_max``; uint8 0/1."""
@@ -180,8 +198,10 @@ def flat_mask(gray: np.ndarray, std_max: float) -> np.ndarray:
     var = cv2.blur(g * g, (5, 5))
     # in place: each frame-sized temporary costs its page faults
     np.subtract(var, np.multiply(m1, m1, out=m1), out=var)
-    np.maximum(var, np.float32(0.0), out=var)
-    return (np.sqrt(var, out=var) < np.float32(std_max)).view(np.uint8)
+    if not np.float32(std_max) > 0:  # no standard deviation is below it
+        return np.zeros(var.shape, np.uint8)
+    # the variance against the square of std_max's bound: no root taken, the same pixels
+    return np.less(var, _variance_below(float(std_max))).view(np.uint8)
 
 
 #: Clipped-and-flat pixels within this many px of each other share one window of
