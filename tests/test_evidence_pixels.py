@@ -215,3 +215,19 @@ def test_drop_clipped_in_its_window_equals_the_whole_frame_rule(seed):
         flat = px.flat_mask(gray, std_max)
         np.testing.assert_array_equal(px.drop_clipped(flat, f, std_max, 255.0),
                                       _drop_clipped_whole_frame(flat, f, std_max, 255.0))
+
+
+@pytest.mark.parametrize("std_max", [1e-3, 0.5, 2.2, 3.0, 7.7, 30.0])
+def test_the_variance_bound_is_the_square_root_rule_at_every_float32(std_max):
+    # flat_mask compares the variance with _variance_below(std_max) instead of taking its root:
+    # the same pixels, checked at the 200 float32 values about the bound, specials and spread
+    t = px._variance_below(std_max)
+    around = (np.array([t], np.float32).view(np.uint32) + np.arange(-100, 100).astype(np.uint32)).view(np.float32)
+    v = np.concatenate([around, np.float32([np.nan, np.inf, -np.inf, -1.0, 0.0]),
+                        np.random.default_rng(1).random(10_000).astype(np.float32) * np.float32(4 * std_max ** 2)])
+    np.testing.assert_array_equal(v < t, np.sqrt(np.maximum(v, np.float32(0))) < np.float32(std_max))
+
+
+def test_no_standard_deviation_is_below_zero():
+    g = np.zeros((20, 20), np.float32)
+    assert not px.flat_mask(g, 0.0).any() and px.flat_mask(g, 0.5).all()

@@ -9,11 +9,13 @@ in as arguments.
 
 from __future__ import annotations
 
+import functools
+
 import cv2
 import numpy as np
 
-from simtest.reconstruct.detect_pixels import (connected_components, connected_components_with_stats, linear_at,
-                                              linear_taps)
+from simtest.reconstruct.detect_pixels import (connected_components, connected_components_boxes,
+                                              connected_components_with_stats, linear_at, linear_taps)
 
 #: A 3 x 3 square: the neighbourhood of a local maximum.
 _SQUARE3 = np.ones((3, 3), np.uint8)
@@ -172,6 +174,22 @@ def chroma(rgb: np.ndarray) -> np.ndarray:
     return 1.0 - np.minimum(np.minimum(r, g), b) / np.maximum(mx, 1e-9)
 
 
+@functools.lru_cache(maxsize=64)
+def _variance_below(std_max: float) -> np.float32:
+    """The least float32 variance v >= 0 whose float32 square root is not below ``std_max``
+    (as float32): ``var < it`` is ``sqrt(max(var, 0)) < std_max`` for every float32, NaN
+    included (a binary search on the bits; the root is monotone and correctly rounded)."""
+    s = np.float32(std_max)
+    lo, hi = 0, int(np.array(np.inf, np.float32).view(np.uint32))  # sqrt(+inf) = +inf >= s
+    while lo < hi:
+        mid = (lo + hi) // 2
+        if np.sqrt(np.array(mid, np.uint32).view(np.float32)) >= s:
+            hi = mid
+        else:
+            lo = mid + 1
+    return np.array(lo, np.uint32).view(np.float32)[()]
+
+
 def flat_mask(gray: np.ndarray, std_max: float) -> np.ndarray:
     """Pixels whose 5 x 5 luma standard deviation (``cv2.blur`` of the luma and of its square,
     float32) is below ``std_max``; uint8 0/1."""
@@ -180,8 +198,15 @@ def flat_mask(gray: np.ndarray, std_max: float) -> np.ndarray:
     var = cv2.blur(g * g, (5, 5))
     # in place: each frame-sized temporary costs its page faults
     np.subtract(var, np.multiply(m1, m1, out=m1), out=var)
-    np.maximum(var, np.float32(0.0), out=var)
-    return (np.sqrt(var, out=var) < np.float32(std_max)).view(np.uint8)
+    if not np.float32(std_max) > 0:  # no standard deviation is below it
+        return np.zeros(var.shape, np.uint8)
+    # the variance against the square of std_max's bound: no root taken, the same pixels
+    return np.less(var, _variance_below(float(std_max))).view(np.uint8)
+
+
+#: Clipped-and-flat pixels within this many px of each other share one window of
+#: :func:`drop_clipped` (px; speed only: the mask does not depend on it).
+_HIT_JOIN_PX = 8
 
 
 def drop_clipped(flat: np.ndarray, rgb: np.ndarray, std_max: float, ceiling: float) -> np.ndarray:
@@ -199,17 +224,19 @@ def drop_clipped(flat: np.ndarray, rgb: np.ndarray, std_max: float, ceiling: flo
     hit = flat & near
     if not hit.any():
         return flat
-    # the channels' flatness only around the pixels it decides (2 px of context for the 5 x 5
-    # windows; at the frame's edges the window's border is the frame's, as for the whole frame)
-    rows, cols = np.flatnonzero(hit.any(axis=1)), np.flatnonzero(hit.any(axis=0))
+    # the channels' flatness only around the pixels it decides, cluster by cluster (2 px of
+    # context for the 5 x 5 windows; at the frame's edges the window's border is the frame's, as
+    # for the whole frame)
     h, w = flat.shape
-    r0, r1, c0, c1 = max(0, rows[0] - 2), min(h, rows[-1] + 3), max(0, cols[0] - 2), min(w, cols[-1] + 3)
-    R0, R1, C0, C1 = max(0, r0 - 2), min(h, r1 + 2), max(0, c0 - 2), min(w, c1 + 2)
-    every = flat[r0:r1, c0:c1].copy()
-    for c in chans:
-        every &= flat_mask(c[R0:R1, C0:C1], std_max)[r0 - R0:r1 - R0, c0 - C0:c1 - C0]
     out = flat.copy()
-    out[r0:r1, c0:c1] = np.where(near[r0:r1, c0:c1] != 0, every, flat[r0:r1, c0:c1])
+    join = np.ones((2 * _HIT_JOIN_PX + 1,) * 2, np.uint8)
+    for x, y, bw, bh in connected_components_boxes(cv2.dilate(hit, join))[2][1:, :4].tolist():
+        r0, r1, c0, c1 = y, y + bh, x, x + bw
+        R0, R1, C0, C1 = max(0, r0 - 2), min(h, r1 + 2), max(0, c0 - 2), min(w, c1 + 2)
+        every = flat[r0:r1, c0:c1].copy()
+        for c in chans:
+            every &= flat_mask(c[R0:R1, C0:C1], std_max)[r0 - R0:r1 - R0, c0 - C0:c1 - C0]
+        np.copyto(out[r0:r1, c0:c1], every, where=hit[r0:r1, c0:c1] != 0)
     return out
 
 
