@@ -91,7 +91,7 @@ class _Frame:
     roi_luma: np.ndarray | None = None
     #: An unsmoothed frame's luma (H, W) in float32, read-only, where ``reconstruct`` made it for
     #: a frame with few highlights (detection's gray of a gray frame, a colour frame's ``luma32``):
-    #: the compiled contour walks (:func:`~simtest.reconstruct.isophotes._grown_drafts`) read their ROIs' values from it.
+    #: the contour walks (:func:`~simtest.reconstruct.isophotes._grown_drafts`) read their ROIs' values from it.
     luma_frame32: np.ndarray | None = None
 
     @classmethod
@@ -211,8 +211,8 @@ def as_camera(K, dist_coeffs=None) -> CameraModel:
 
 
 # Hot-path forms of simtest.geometry's normalised_conic and bp_ray_normal for a K validated once
-# per call (those re-validate K each time, ~30 us, 10 % of a highlight's budget); the tests check
-# that they agree with the geometry functions to rounding.
+# per call (those re-validate K each time); the tests check that they agree with the geometry
+# functions to rounding.
 
 
 def _normalised_conic(C: np.ndarray, K: np.ndarray) -> np.ndarray | None:
@@ -353,7 +353,7 @@ def _prepared(frame: _Frame, det, whole: bool) -> _Frame:
         elif img.ndim == 2 and img.dtype.type in (np.uint8, np.uint16):
             frame = replace(frame, roi_luma=img)
     elif not many and whole and not frame.smooth_sigma_px > 0:
-        # few ROIs of a frame not smoothed: contoured by the compiled walks in its float32 luma
+        # few ROIs of a frame not smoothed: contoured by the walks in its float32 luma
         # (isophotes._grown_drafts), at hand or one conversion of detection's gray away
         if frame.luma32 is not None:
             luma_frame32 = frame.luma32
