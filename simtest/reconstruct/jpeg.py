@@ -169,7 +169,7 @@ def _steps_of(coef: np.ndarray, tables=_FULL, fewest: int = 0) -> np.ndarray:
 
     ``fewest``: a caller that only counts the identified steps and needs at least this many gets
     zeros where fewer frequencies have enough coefficients to show one (the count is below it
-    either way; the search is skipped: 0.1 ms a grid candidate of a smooth frame never JPEG)."""
+    either way; the search is skipped)."""
     n = coef.shape[0]
     if n == 0:
         return np.zeros(BLOCK * BLOCK, np.int64)
