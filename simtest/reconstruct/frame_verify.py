@@ -20,7 +20,7 @@ def _early_checks(frame: _Frame, det, bps_arr: np.ndarray, fitted: np.ndarray,
     """``(verifier, early, fitted)``: the verifier's inputs (:func:`_verifier_inputs`; None without
     ``verify``), its checks that read only the BP (colour, height) of the ``fitted`` candidates as
     ``k -> detail`` of those that fail, and ``fitted`` without them (cleared in place): those are
-    ``not_specular`` whatever their fit, neither contoured nor fitted (issue 41)."""
+    ``not_specular`` whatever their fit, neither contoured nor fitted."""
     if not frame.settings.verify:
         return None, {}, fitted
     verifier = _verifier_inputs(frame, det.gray if whole else None, frame.noise if whole else None)

@@ -427,8 +427,7 @@ def bp_checks(image: np.ndarray, gray: np.ndarray, bps_uv: np.ndarray, clipped: 
               full_scale: float, noise: float, grey: bool = False) -> list[str | None]:
     """The checks of :func:`verdict` that read only a candidate's BP, before any fit: the colour
     and the height (``not_specular``). The pipeline runs them on detection's candidates and
-    extracts and fits the isophotes of those that pass only (issue 41: a real frame's candidates
-    are a third ``not_specular``; their isophotes were a third of its time).
+    extracts and fits the isophotes of those that pass only.
 
     Parameters
     ----------
@@ -653,7 +652,7 @@ def verdict(ev: Evidence, residual_rel: np.ndarray, bp_inside: np.ndarray,
         Whether the BP lies inside the primary isophote's ellipse.
     only : array_like of int, optional
         Judge only these candidates (the others get None): a frame's fitted ones, a few hundred
-        of its thousands (the details' formatting was a millisecond a thousand candidates).
+        of its thousands.
 
     Returns
     -------
