@@ -72,12 +72,6 @@ class FitFrame:
         rays = np.asarray(rays, dtype=np.float64).reshape(-1, 3)
         return _to_planes(rays, self.R[None], self.K[None], np.zeros(len(rays), dtype=np.intp))
 
-    def from_plane(self, pts: np.ndarray) -> np.ndarray:
-        """Unit camera-frame rays (N, 3) of fit-plane points (N, 2)."""
-        x = np.concatenate([pts, np.ones((len(pts), 1))], axis=1) @ np.linalg.inv(self.K).T
-        r = x @ self.R  # R^T x
-        return r / np.linalg.norm(r, axis=1, keepdims=True)
-
 
 @fast_init
 @dataclass(frozen=True)

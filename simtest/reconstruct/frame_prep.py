@@ -10,7 +10,7 @@ from dataclasses import dataclass, replace
 import cv2
 import numpy as np
 
-from simtest.constants import LUMA_BT601, gaussian_radius_px
+from simtest.constants import gaussian_radius_px
 from simtest.geometry.cameras import CameraModel, PinholeCamera
 from simtest.reconstruct._pixels import Roi, image_size_wh
 from simtest.reconstruct.detect import (
@@ -158,11 +158,6 @@ class _Frame:
         return replace(self, smoothed32=smoothed)
 
     @property
-    def img3(self) -> np.ndarray:
-        """The image as (H, W, C) (a view)."""
-        return self.img if self.img.ndim == 3 else self.img[:, :, None]
-
-    @property
     def kernel(self) -> np.ndarray:
         """OpenCV's Gaussian kernel of ``_smooth`` at this frame's sigma, float64 (2 R + 1,)."""
         return _gaussian_kernel(self.smooth_sigma_px)
@@ -254,9 +249,6 @@ def _bp_rays(bp_uv: np.ndarray, camera) -> np.ndarray:
     x = (bp_uv[:, 0] - K[0, 2] - K[0, 1] * y) / K[0, 0]
     ray = np.stack([x, y, np.ones_like(x)], axis=1)
     return -ray / np.linalg.norm(ray, axis=1, keepdims=True)
-
-
-_LUMA_W = tuple(float(w) for w in LUMA_BT601)
 
 
 @functools.lru_cache(maxsize=16)
