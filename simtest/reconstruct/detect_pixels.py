@@ -80,8 +80,7 @@ def mask_components(mask: np.ndarray) -> list[tuple[int, int, int, int, int, np.
     the columns that do, both widened to start at an even index. No 8-connected component crosses
     an empty row, so the components are those of one pass over the whole mask; Grana's algorithm
     numbers them in the order of their first 2 x 2 block, and a band aligned to even rows and
-    columns has the whole mask's blocks, so the order is the same too. A sparse mask (a few
-    highlights in a 1350 x 1080 frame) costs a third of one pass.
+    columns has the whole mask's blocks, so the order is the same too.
     """
     out = []
     for r0, r1 in _bands(mask):
@@ -385,8 +384,8 @@ def _sigma_for_noise(s: float) -> float:
 def _area_reduced(img: np.ndarray, f: int, halves: list | None = None) -> np.ndarray:
     """The means of the ``f`` x ``f`` blocks of a float32 image whose sides are multiples of f:
     ``cv2.resize(img, (W // f, H // f), interpolation=cv2.INTER_AREA)``, as a chain of 2 x 2
-    reductions (OpenCV's vectorised path, a third of the general integer one's time on a 1350 x
-    1080 frame) and one by the odd rest; the same means to float32 rounding. ``halves``: the first 2 x 2 reduction is appended to it (for f even)."""
+    reductions (OpenCV's vectorised path) and one by the odd rest; the same means to float32
+    rounding. ``halves``: the first 2 x 2 reduction is appended to it (for f even)."""
     h, w = img.shape[:2]
     while f % 2 == 0 and f > 1:
         h, w, f = h // 2, w // 2, f // 2

@@ -89,8 +89,8 @@ def _verifier_luma(frame: _Frame, native: np.ndarray | None) -> tuple[np.ndarray
     """The luma :func:`_verified` measures in (H, W), and whether it is the value of R, G and B
     alike: ``native`` (detection's gray) where it is the luma's values (a single-channel image,
     or an RGB one with R = G = B), the frame's luma where it was computed (float64, or a colour
-    frame's float32 ``luma32``), else OpenCV's float32 luma of the frame (the verifier's arithmetic is float32: within a float32 rounding of the
-    float64 luma, a third of its time)."""
+    frame's float32 ``luma32``), else OpenCV's float32 luma of the frame (the verifier's
+    arithmetic is float32: within a float32 rounding of the float64 luma)."""
     img = frame.img
     if native is not None and native.shape == img.shape[:2] and frame.luma32 is None:
         if img.ndim == 2:

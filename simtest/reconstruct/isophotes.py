@@ -77,7 +77,7 @@ def _patched_from_frame(smooth_frame: np.ndarray, vals: np.ndarray, roi: Roi,
     ROI's last columns from a strip that starts on a multiple of the alignment (its blocks are
     the ROI's) and is wider than the frame's scalar columns. Writing the bands into the frame
     for the time of the ROI's extraction, instead of copying the ROI out of it, moves a fifth of
-    the bytes (the banner's large ROIs are 19 Mpx, ten times the frame).
+    the bytes.
 
     Returns None (smooth the ROI itself) for an ROI too narrow for the strips. The bits equal
     those of smoothing the ROI, and the frame is itself again after :func:`_put_back`:
