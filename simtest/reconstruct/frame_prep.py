@@ -205,19 +205,8 @@ def as_camera(K, dist_coeffs=None) -> CameraModel:
 # rays, luma and smoothing
 
 
-# Hot-path forms of simtest.geometry's normalised_conic and bp_ray_normal for a K validated once
-# per call (those re-validate K each time); the tests check that they agree with the geometry
-# functions to rounding.
-
-
-def _normalised_conic(C: np.ndarray, K: np.ndarray) -> np.ndarray | None:
-    """C' = K^T C K (paper step 3), symmetrised, unit Frobenius norm; None if zero or non-finite."""
-    cn = K.T @ C @ K
-    cn = 0.5 * (cn + cn.T)
-    norm = float(np.linalg.norm(cn))
-    if not (np.isfinite(norm) and norm > 0):
-        return None
-    return cn / norm
+# A hot-path form of simtest.geometry's bp_ray_normal for a K validated once per call (that one
+# re-validates K each time); the tests check that they agree to rounding.
 
 
 def _bp_ray(bp_uv: np.ndarray, camera) -> np.ndarray:
