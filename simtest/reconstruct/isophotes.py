@@ -186,7 +186,7 @@ def _smoothed_border_median(img: np.ndarray, kern: np.ndarray, roi: Roi) -> floa
     that side with the taps folded by the reflection; that line is then smoothed along itself
     (``cv2.sepFilter2D``, its ends reflected). The pipeline contours an ROI in the frame's
     smoothed luma and takes its local background level from here: the level of the ROI smoothed
-    alone, as before the frame was smoothed once (the paper pose is sensitive to it). Equal to
+    alone (the paper pose is sensitive to it). Equal to
     the median of the ring of ``_smooth(luma(img[roi]))`` to rounding (``tests/test_isophote.py``)."""
     h, w = roi.shape
     taps = tuple(kern.tolist())
