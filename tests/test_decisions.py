@@ -60,6 +60,7 @@ NOT_DECISIONS = {
     "pipeline.MMAP_THRESHOLD_BYTES": _SPEED, "pipeline.TRIM_THRESHOLD_BYTES": _SPEED,
     "table.TABLE_SCHEMA_VERSION": _CODES, "table.ROW_GROUP_ROWS": _SPEED,
     "verify.WINDOWED_AREA_MAX": _SPEED, "verify._PANEL_MARGIN_PX": _SPEED,
+    "evidence_pixels._HIT_JOIN_PX": _SPEED,
     "verify._FLAT_SLACK": "float32 rounding slack of an exact test (30 ulps)",
     "view3d.MAX_SURFACE_GRID": _GUARD,
     "rig_pairs.DEPTH_SAMPLES": "a sampling density of a predicted curve (within 0.1 px of it)",

@@ -1,7 +1,7 @@
 """The accuracy tolerance: how far a change of the reconstruction may move its results.
 
-Speed work may change the method (detection on a reduced frame, one smoothing per frame, compiled
-glue), so results are no longer held bit for bit; they are held within :data:`ACCURACY`:
+Speed work may change the method (detection on a reduced frame, one smoothing per frame), so
+results are no longer held bit for bit; they are held within :data:`ACCURACY`:
 
 - "ok" statuses change on at most 1 % of the candidates (a candidate that appears or disappears,
   or turns from ok to rejected or back, is a change; a change between two rejection reasons is

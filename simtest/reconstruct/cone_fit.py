@@ -64,20 +64,6 @@ class FitFrame:
     K: np.ndarray
     on_image_plane: bool
 
-    def to_plane(self, rays: np.ndarray) -> np.ndarray:
-        """Central projection of camera-frame rays (N, 3) onto the fit plane, (N, 2) plane px.
-
-        Rays at or behind the plane's horizon (``(R r)_z <= 0``) give NaN rows.
-        """
-        rays = np.asarray(rays, dtype=np.float64).reshape(-1, 3)
-        return _to_planes(rays, self.R[None], self.K[None], np.zeros(len(rays), dtype=np.intp))
-
-    def from_plane(self, pts: np.ndarray) -> np.ndarray:
-        """Unit camera-frame rays (N, 3) of fit-plane points (N, 2)."""
-        x = np.concatenate([pts, np.ones((len(pts), 1))], axis=1) @ np.linalg.inv(self.K).T
-        r = x @ self.R  # R^T x
-        return r / np.linalg.norm(r, axis=1, keepdims=True)
-
 
 @fast_init
 @dataclass(frozen=True)
@@ -333,7 +319,7 @@ def fit_cones(points_list, frames) -> list[ConeFit | Failure]:
 
 
 def _to_planes(rays: np.ndarray, R: np.ndarray, K: np.ndarray, owner: np.ndarray) -> np.ndarray:
-    """Central projection of camera-frame rays onto their fit planes (:meth:`FitFrame.to_plane`).
+    """Central projection of camera-frame rays onto their fit planes (:class:`FitFrame`).
 
     Parameters
     ----------

@@ -444,9 +444,8 @@ def detect_specularities(
             return replace(det, grey=grey)
     luma32 = None
     if smooth_sigma_px > 0:
-        # a colour frame's unrounded luma, which the pipeline contours: smoothed once for both
-        # (OpenCV's gray, rounded to whole levels, was a second full-frame blur: 2.8 ms of the
-        # banner's); a frame detection did not ask about is left to the pipeline
+        # a colour frame's unrounded luma, which the pipeline contours: smoothed once for both;
+        # a frame detection did not ask about is left to the pipeline
         luma32 = colour_luma32(img, grey is not False)
         gray = cv2.GaussianBlur(gray.astype(np.float32) if luma32 is None else luma32, (0, 0),
                                 float(smooth_sigma_px), borderType=cv2.BORDER_REFLECT)
@@ -512,8 +511,7 @@ def _detect_half_resolution(img, native, fs, saturation_level, *, grey=False, mi
     and area are scaled back; its BP is the maximum of the full frame's smoothing within 2 px of
     the reduced one's, refined by :func:`refine_peak_uv` as at full resolution (that smoothing
     computed in a window around it only), a clipped plateau's centroid scaled back; its ROI is
-    proposed at full resolution. On the bench's noisy 1350 x 1080 frame: 9 -> 5.5 ms, the same
-    BPs and ROIs, areas within 3 px (:mod:`simtest.reconstruct.compare` holds the results to its
+    proposed at full resolution (:mod:`simtest.reconstruct.compare` holds the results to its
     tolerance). None (the caller detects at full resolution) where the reduced frame's block grid
     is not the full one's, or with more than :data:`MULTIRES_CANDIDATES_MAX` candidates.
     ``grey``: the frame's R, G and B are equal and ``native`` is their value (as

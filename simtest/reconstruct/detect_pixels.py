@@ -20,8 +20,7 @@ _LUMA_ROW = np.array([LUMA_BT601], np.float64)
 
 def connected_components(mask: np.ndarray) -> tuple[int, np.ndarray]:
     """8-connected components of a uint8 mask (count with the background, int32 labels), by
-    Grana's block-based algorithm: the default of the installed OpenCV (Spaghetti) took 57 ms on a
-    1350 x 1080 mask where this takes 3 ms; the components are the same."""
+    Grana's block-based algorithm (the same components as OpenCV's default, Spaghetti)."""
     return cv2.connectedComponentsWithAlgorithm(mask, 8, cv2.CV_32S, cv2.CCL_GRANA)
 
 
@@ -81,8 +80,7 @@ def mask_components(mask: np.ndarray) -> list[tuple[int, int, int, int, int, np.
     the columns that do, both widened to start at an even index. No 8-connected component crosses
     an empty row, so the components are those of one pass over the whole mask; Grana's algorithm
     numbers them in the order of their first 2 x 2 block, and a band aligned to even rows and
-    columns has the whole mask's blocks, so the order is the same too. A sparse mask (a few
-    highlights in a 1350 x 1080 frame) costs a third of one pass.
+    columns has the whole mask's blocks, so the order is the same too.
     """
     out = []
     for r0, r1 in _bands(mask):
@@ -114,10 +112,9 @@ def mask_labels(mask: np.ndarray) -> tuple[int, np.ndarray, np.ndarray]:
     -----
     The labels, boxes and order of :func:`connected_components_with_stats` over the whole mask
     (and of :func:`mask_components`), from its bands (see there): a mask whose bright pixels fill
-    a few runs of rows is labelled in those alone, the label image outside them is never written
-    (1.3 ms against 3 ms for one pass over a 1350 x 1080 frame with ten highlights). Where the
-    bands hold more than half the rows, one pass over the whole mask is cheaper (3.9 ms against
-    5.3 ms on the bench's colonoscope frame) and is taken.
+    a few runs of rows is labelled in those alone, the label image outside them is never written.
+    Where the bands hold more than half the rows, one pass over the whole mask is cheaper (3.9 ms
+    against 5.3 ms on the bench's colonoscope frame) and is taken.
     """
     return _mask_labels(mask, np.zeros)
 
@@ -127,8 +124,7 @@ def _mask_labels(mask: np.ndarray, alloc) -> tuple[int, np.ndarray, np.ndarray]:
     ``np.zeros`` gives the documented image; ``np.empty`` leaves the pixels outside the bands'
     boxes (rows of a band, columns from its first to its last mask pixel, each box written whole
     by ``paste_labels``) unwritten, for a caller that reads the labels inside the components'
-    bounding boxes only, which lie in those boxes (zeroing a 1350 x 1080 int32 image takes 0.3 ms,
-    a fiftieth of the noisy bench frame)."""
+    bounding boxes only, which lie in those boxes."""
     h, w = mask.shape
     bands = _bands(mask)
     if not bands:
@@ -278,15 +274,14 @@ def _noise_sigma_of_rows(rows: np.ndarray) -> float:
 def _median(a: np.ndarray):
     """``np.median`` of a 1-D float array, the same value, by one partition at the upper middle
     index (the lower middle value is the largest below it): numpy's median partitions at both
-    middle indices at once, twice the time (2.6 -> 1.4 ms for the two medians of the banner's
-    noise estimate, 107 000 float32 values; ``tests/test_detect.py`` compares them)."""
+    middle indices at once, twice the time (``tests/test_detect.py`` compares them)."""
     n = a.size
     if n == 0 or np.isnan(a).any():
         return np.median(a)
     k = n // 2
     # middle order statistics at 0, where most values tie there (the differences of a JPEG or
-    # clean frame's flat rows): counted, not selected (a partition among that many ties took 2 of
-    # the 2.7 ms of the bench video frame's noise estimate); 0 (a -0.0 among them reads as 0.0)
+    # clean frame's flat rows): counted, not selected (a partition among that many ties is
+    # slow); 0 (a -0.0 among them reads as 0.0)
     below = np.count_nonzero(a < 0)
     if below <= k - 1 + n % 2 and k < below + np.count_nonzero(a == 0):
         return a.dtype.type(0)
@@ -389,8 +384,8 @@ def _sigma_for_noise(s: float) -> float:
 def _area_reduced(img: np.ndarray, f: int, halves: list | None = None) -> np.ndarray:
     """The means of the ``f`` x ``f`` blocks of a float32 image whose sides are multiples of f:
     ``cv2.resize(img, (W // f, H // f), interpolation=cv2.INTER_AREA)``, as a chain of 2 x 2
-    reductions (OpenCV's vectorised path, a third of the general integer one's time on a 1350 x
-    1080 frame) and one by the odd rest; the same means to float32 rounding. ``halves``: the first 2 x 2 reduction is appended to it (for f even)."""
+    reductions (OpenCV's vectorised path) and one by the odd rest; the same means to float32
+    rounding. ``halves``: the first 2 x 2 reduction is appended to it (for f even)."""
     h, w = img.shape[:2]
     while f % 2 == 0 and f > 1:
         h, w, f = h // 2, w // 2, f // 2
@@ -410,14 +405,12 @@ def _scope_border(gray: np.ndarray, level: float, half: np.ndarray | None = None
     columns that fill no block are left out of the reduction, and the border mask is brought back
     over the whole image): the border is large and its edge needs no finer place. None if there
     is none. ``half``: the means of ``gray``'s 2 x 2 blocks (float32, (H // 2, W // 2)) where the
-    caller has them (:func:`local_peak_mask`'s): the reduction's first step, not made again
-    (0.4 ms of a 1350 x 1080 frame; the same blocks' means)."""
+    caller has them (:func:`local_peak_mask`'s): the reduction's first step, not made again."""
     h, w = gray.shape
     f = 4 if min(h, w) >= 64 else 1
     if f > 1:
         # the reduced image's corners (the corner blocks' means, as the reduction gives them):
-        # fewer than two dark, no border, without reducing the whole frame (0.5 ms of a clean
-        # 1350 x 1080 frame without a scope border)
+        # fewer than two dark, no border, without reducing the whole frame
         hf, wf = h // f * f, w // f * f
         dark = 0
         for r, c in ((0, 0), (0, wf - f), (hf - f, 0), (hf - f, wf - f)):
@@ -450,9 +443,8 @@ def _dark_corner_components(dark: np.ndarray) -> np.ndarray | None:
 
     A scope's field of view is round or octagonal: its black border holds the image corners. The
     components are flood-filled from the corners, each once: those of a labelling of the whole
-    mask and their areas, in about half its time (0.15 to 0.22 against 0.41 to 0.44 ms on the
-    noisy bench frame's reduced image, one dark region to its corners, minima of 200;
-    ``tests/test_detect.py`` compares the two on random masks).
+    mask and their areas, in about half its time (``tests/test_detect.py`` compares the two on
+    random masks).
     """
     hs, ws = dark.shape
     corners = [(0, 0), (ws - 1, 0), (0, hs - 1), (ws - 1, hs - 1)]  # (x, y)
@@ -490,7 +482,7 @@ def clipped_mask(image: np.ndarray, saturation_level: float | None,
         The caller knows that the image's R, G and B are equal and ``gray`` is their value (an
         8-bit gray frame: :func:`_gray_and_grey`'s channel). The mask is then the gray's, every
         channel reaching the level where it does: one ``cv2.threshold`` pass over the gray, the
-        channels not read (0.17 -> 0.09 ms on the noisy bench frame). Ignored for other dtypes.
+        channels not read. Ignored for other dtypes.
 
     Returns
     -------
@@ -565,8 +557,7 @@ def background_side_px(shape: tuple[int, int], clipped: np.ndarray | None = None
         # The outer boundaries of the 8-connected plateaus bound them: their bounding boxes are
         # the components' (a plateau in the hole of another lies within the other's box, so the
         # largest side is the same); a tenth of the time of labelling the frame. Only the rows
-        # that hold clipped pixels are contoured (the same boxes; 0.33 against 0.14 ms on the
-        # noisy bench frame, whose plateaus span 50 of its 1080 rows).
+        # that hold clipped pixels are contoured (the same boxes).
         band = clipped[rows[0] : rows[-1] + 1]
         contours, _ = cv2.findContours(band, cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_SIMPLE)
         ext = max(max(cv2.boundingRect(c)[2:]) for c in contours)

@@ -149,12 +149,6 @@ def _images_as_ellipse_many(cn: np.ndarray) -> np.ndarray:
     return finite & (scale > 0) & (a[:, 0, 0] * a[:, 1, 1] - a[:, 0, 1] * a[:, 1, 0] > 1e-12)
 
 
-def _images_as_ellipse(cn) -> bool:
-    """:func:`_images_as_ellipse_many` of one cone (any shape: False unless (3, 3))."""
-    cn = np.asarray(cn, dtype=np.float64)
-    return cn.shape == (3, 3) and bool(_images_as_ellipse_many(cn[None])[0])
-
-
 def estimate_from_conic(Cn: np.ndarray, bp_ray: np.ndarray) -> ConeEstimate | Failure:
     """The ``paper`` and ``cone_axis`` estimates from one normalised conic.
 

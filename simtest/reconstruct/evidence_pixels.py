@@ -60,7 +60,8 @@ def opening(img: np.ndarray, side: int) -> np.ndarray:
 def opening_small(img: np.ndarray, side: int, half: np.ndarray | None = None):
     """:func:`opening` before its last step: ``(bg_small, f)``, the opening on the image reduced
     by ``f`` (float32), when the frame's sides are multiples of ``f > 1`` (then
-    :func:`upsampled` gives any window of the full-size opening); otherwise ``(the full-size
+    :func:`~simtest.reconstruct.detect_pixels.linear_at` gives any window of the full-size
+    opening); otherwise ``(the full-size
     opening, 1)``. ``half``: the means of the image's 2 x 2 blocks where the caller has them
     (detection's; used for an even f)."""
     h, w = img.shape[:2]
@@ -90,20 +91,6 @@ def linear_at_points(small: np.ndarray, shape: tuple[int, int], rows: np.ndarray
     bot = small[y1, x0] * (one - ax) + small[y1, x1] * ax
     return top * (one - ay) + bot * ay
 
-
-def upsampled(bg: np.ndarray, f: int, shape: tuple[int, int], windows) -> np.ndarray:
-    """A frame-sized array holding :func:`opening`'s values inside the ``windows`` (row0, row1,
-    col0, col1; unset elsewhere), from :func:`opening_small`'s ``(bg, f)``: each window the
-    enlargement of the reduced blocks under it (:func:`~simtest.reconstruct.detect_pixels.linear_at`,
-    the frame's to the bit)."""
-    if f == 1:
-        return bg
-    h, w = shape
-    out = np.empty((h, w) + bg.shape[2:], np.float32)
-    for r0, r1, c0, c1 in windows:
-        if r1 > r0 and c1 > c0:
-            out[r0:r1, c0:c1] = linear_at(bg, (h, w), r0, r1, c0, c1)
-    return out
 
 
 def top_hat_maxima(g: np.ndarray, bg: np.ndarray, floor: np.float32) -> tuple[np.ndarray, np.ndarray]:

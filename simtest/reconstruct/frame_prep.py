@@ -10,7 +10,7 @@ from dataclasses import dataclass, replace
 import cv2
 import numpy as np
 
-from simtest.constants import LUMA_BT601, gaussian_radius_px
+from simtest.constants import gaussian_radius_px
 from simtest.geometry.cameras import CameraModel, PinholeCamera
 from simtest.reconstruct._pixels import Roi, image_size_wh
 from simtest.reconstruct.detect import (
@@ -91,7 +91,7 @@ class _Frame:
     roi_luma: np.ndarray | None = None
     #: An unsmoothed frame's luma (H, W) in float32, read-only, where ``reconstruct`` made it for
     #: a frame with few highlights (detection's gray of a gray frame, a colour frame's ``luma32``):
-    #: the compiled contour walks (:func:`~simtest.reconstruct.isophotes._grown_drafts`) read their ROIs' values from it.
+    #: the contour walks (:func:`~simtest.reconstruct.isophotes._grown_drafts`) read their ROIs' values from it.
     luma_frame32: np.ndarray | None = None
 
     @classmethod
@@ -158,11 +158,6 @@ class _Frame:
         return replace(self, smoothed32=smoothed)
 
     @property
-    def img3(self) -> np.ndarray:
-        """The image as (H, W, C) (a view)."""
-        return self.img if self.img.ndim == 3 else self.img[:, :, None]
-
-    @property
     def kernel(self) -> np.ndarray:
         """OpenCV's Gaussian kernel of ``_smooth`` at this frame's sigma, float64 (2 R + 1,)."""
         return _gaussian_kernel(self.smooth_sigma_px)
@@ -210,19 +205,8 @@ def as_camera(K, dist_coeffs=None) -> CameraModel:
 # rays, luma and smoothing
 
 
-# Hot-path forms of simtest.geometry's normalised_conic and bp_ray_normal for a K validated once
-# per call (those re-validate K each time, ~30 us, 10 % of a highlight's budget); the tests check
-# that they agree with the geometry functions to rounding.
-
-
-def _normalised_conic(C: np.ndarray, K: np.ndarray) -> np.ndarray | None:
-    """C' = K^T C K (paper step 3), symmetrised, unit Frobenius norm; None if zero or non-finite."""
-    cn = K.T @ C @ K
-    cn = 0.5 * (cn + cn.T)
-    norm = float(np.linalg.norm(cn))
-    if not (np.isfinite(norm) and norm > 0):
-        return None
-    return cn / norm
+# A hot-path form of simtest.geometry's bp_ray_normal for a K validated once per call (that one
+# re-validates K each time); the tests check that they agree to rounding.
 
 
 def _bp_ray(bp_uv: np.ndarray, camera) -> np.ndarray:
@@ -254,9 +238,6 @@ def _bp_rays(bp_uv: np.ndarray, camera) -> np.ndarray:
     x = (bp_uv[:, 0] - K[0, 2] - K[0, 1] * y) / K[0, 0]
     ray = np.stack([x, y, np.ones_like(x)], axis=1)
     return -ray / np.linalg.norm(ray, axis=1, keepdims=True)
-
-
-_LUMA_W = tuple(float(w) for w in LUMA_BT601)
 
 
 @functools.lru_cache(maxsize=16)
@@ -353,7 +334,7 @@ def _prepared(frame: _Frame, det, whole: bool) -> _Frame:
         elif img.ndim == 2 and img.dtype.type in (np.uint8, np.uint16):
             frame = replace(frame, roi_luma=img)
     elif not many and whole and not frame.smooth_sigma_px > 0:
-        # few ROIs of a frame not smoothed: contoured by the compiled walks in its float32 luma
+        # few ROIs of a frame not smoothed: contoured by the walks in its float32 luma
         # (isophotes._grown_drafts), at hand or one conversion of detection's gray away
         if frame.luma32 is not None:
             luma_frame32 = frame.luma32

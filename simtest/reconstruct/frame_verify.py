@@ -20,7 +20,7 @@ def _early_checks(frame: _Frame, det, bps_arr: np.ndarray, fitted: np.ndarray,
     """``(verifier, early, fitted)``: the verifier's inputs (:func:`_verifier_inputs`; None without
     ``verify``), its checks that read only the BP (colour, height) of the ``fitted`` candidates as
     ``k -> detail`` of those that fail, and ``fitted`` without them (cleared in place): those are
-    ``not_specular`` whatever their fit, neither contoured nor fitted (issue 41)."""
+    ``not_specular`` whatever their fit, neither contoured nor fitted."""
     if not frame.settings.verify:
         return None, {}, fitted
     verifier = _verifier_inputs(frame, det.gray if whole else None, frame.noise if whole else None)
@@ -89,8 +89,8 @@ def _verifier_luma(frame: _Frame, native: np.ndarray | None) -> tuple[np.ndarray
     """The luma :func:`_verified` measures in (H, W), and whether it is the value of R, G and B
     alike: ``native`` (detection's gray) where it is the luma's values (a single-channel image,
     or an RGB one with R = G = B), the frame's luma where it was computed (float64, or a colour
-    frame's float32 ``luma32``), else OpenCV's float32 luma of the frame (the verifier's arithmetic is float32: within a float32 rounding of the
-    float64 luma, a third of its time)."""
+    frame's float32 ``luma32``), else OpenCV's float32 luma of the frame (the verifier's
+    arithmetic is float32: within a float32 rounding of the float64 luma)."""
     img = frame.img
     if native is not None and native.shape == img.shape[:2] and frame.luma32 is None:
         if img.ndim == 2:

@@ -244,9 +244,8 @@ class _InRing:
 class _FrameRing:
     """Slots for the frames in flight, in memory that this process and the worker processes it
     forks share (an anonymous shared mapping): a frame is copied into a slot here and read there,
-    where a pickled frame (4.4 MB for 1350 x 1080 RGB) was written to a pipe, read from it and
-    unpickled (the parent's CPU on the bench video: 18.7 -> 16.7 ms a frame). Every slot holds
-    a frame of the first frame's shape and dtype; another frame travels in its job."""
+    not pickled through a pipe. Every slot holds a frame of the first frame's shape and dtype;
+    another frame travels in its job."""
 
     #: The worker's ring, set by :meth:`attach` in each worker process.
     current: _FrameRing | None = None

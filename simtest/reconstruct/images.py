@@ -185,7 +185,7 @@ def _checked(img: np.ndarray, path: Path) -> np.ndarray:
     """``img`` unchanged if the reconstruction accepts it, else :class:`InputError` naming ``path``."""
     _check_layout(img.shape, img.dtype, path)
     _check_pixel_limit(int(img.shape[0]), int(img.shape[1]), path, "holds")
-    if img.dtype == np.float16:  # exact in float32, which the compiled kernels take
+    if img.dtype == np.float16:  # exact in float32, which the pipeline takes
         img = img.astype(np.float32)
     try:
         validate_image(img, where=str(path))  # size and finiteness, in the pipeline's own words

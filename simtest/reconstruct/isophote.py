@@ -230,12 +230,12 @@ class _Region(NamedTuple):
 def _region(values, bp_uv, origin_rc, image_shape) -> _Region:
     """The :class:`_Region` of :func:`extract_isophote`'s arguments (ValueError as documented
     there). A float32 array is kept as it is (the pipeline's ROIs are views of the frame's
-    float32 smoothing: the kernels compare and interpolate its values in float64, no copy);
+    float32 smoothing: its values are compared and interpolated in float64, no copy);
     anything else becomes float64."""
     sub = values if isinstance(values, np.ndarray) and values.dtype == np.float32 else \
         np.asarray(values, dtype=np.float64)
     sub = sub.view()
-    sub.flags.writeable = False  # read-only as the frame's smoothing: one compiled signature
+    sub.flags.writeable = False  # read-only as the frame's smoothing
     if sub.ndim != 2:
         raise ValueError(f"values must be a 2D array, got shape {sub.shape}")
     roi = Roi(origin_rc[0], origin_rc[0] + sub.shape[0], origin_rc[1], origin_rc[1] + sub.shape[1])
@@ -282,10 +282,9 @@ def isophote_cut_by_roi(values: np.ndarray, level: float, bp_uv, *, origin_rc: t
 
     Notes
     -----
-    The pipeline grows an ROI whose lowest isophote is cut by it and discards that isophote: on
-    the Hyper-Kvasir banner a third of the extractions were such, on ROIs grown to a megapixel
-    around isophotes that leak into bright tissue. The answer is one flood fill of the BP's
-    component (:func:`_flood`): no contour is traced.
+    The pipeline grows an ROI whose lowest isophote is cut by it and discards that isophote
+    (often on ROIs grown to a megapixel around isophotes that leak into bright tissue). The
+    answer is one flood fill of the BP's component (:func:`_flood`): no contour is traced.
     """
     return _cut_and_contour(_region(values, bp_uv, origin_rc, image_shape), level)[0]
 

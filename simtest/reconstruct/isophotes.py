@@ -47,12 +47,11 @@ def _roi_values(frame: _Frame, roi: Roi, smooth_sigma_px: float) -> tuple[np.nda
     the same bits), and what :func:`_put_back` needs to restore the frame afterwards (None when
     nothing was written)."""
     if frame.smoothed32 is not None and smooth_sigma_px > 0:
-        return frame.smoothed32[roi.slices], None  # float32, read-only: the kernels read it as it is
+        return frame.smoothed32[roi.slices], None  # float32, read-only: read as it is
     if frame.roi_luma is not None and smooth_sigma_px > 0:
         # the ROI's luma smoothed alone in float32 (OpenCV's float32 blur, its borders reflected):
         # the float64 luma and its float64 blur of the same ROI to float32 rounding (5e-8
-        # relative, as the frame's smoothing is; 0.65 -> 0.3 ms for the ten ROIs of the noisy
-        # bench frame)
+        # relative, as the frame's smoothing is)
         return _smooth(frame.roi_luma[roi.slices].astype(np.float32), smooth_sigma_px), None
     vals = frame.luma(roi)
     if smooth_sigma_px <= 0:
@@ -78,7 +77,7 @@ def _patched_from_frame(smooth_frame: np.ndarray, vals: np.ndarray, roi: Roi,
     ROI's last columns from a strip that starts on a multiple of the alignment (its blocks are
     the ROI's) and is wider than the frame's scalar columns. Writing the bands into the frame
     for the time of the ROI's extraction, instead of copying the ROI out of it, moves a fifth of
-    the bytes (the banner's large ROIs are 19 Mpx, ten times the frame).
+    the bytes.
 
     Returns None (smooth the ROI itself) for an ROI too narrow for the strips. The bits equal
     those of smoothing the ROI, and the frame is itself again after :func:`_put_back`:
@@ -187,7 +186,7 @@ def _smoothed_border_median(img: np.ndarray, kern: np.ndarray, roi: Roi) -> floa
     that side with the taps folded by the reflection; that line is then smoothed along itself
     (``cv2.sepFilter2D``, its ends reflected). The pipeline contours an ROI in the frame's
     smoothed luma and takes its local background level from here: the level of the ROI smoothed
-    alone, as before the frame was smoothed once (the paper pose is sensitive to it). Equal to
+    alone (the paper pose is sensitive to it). Equal to
     the median of the ring of ``_smooth(luma(img[roi]))`` to rounding (``tests/test_isophote.py``)."""
     h, w = roi.shape
     taps = tuple(kern.tolist())
@@ -280,9 +279,8 @@ def _estimate_one(frame: _Frame, bp_uv, roi: Roi, *, saturated: bool, grow: bool
     saved = None  # the frame's values under the current ROI's bands (_roi_values), put back after
     # With the frame smoothed once (smoothed32), an ROI's values are the frame's: within the
     # kernel's reach of an ROI side inside the image they are not the ROI's own smoothing (its
-    # sides reflected) but the frame's true neighbours' (issue 41: no longer looked at again
-    # smoothed alone; the contours that come that near a side move within the accuracy
-    # tolerance, and the banner takes 243 -> 185 ms). Its background level stays that of the ROI
+    # sides reflected) but the frame's true neighbours' (the contours that come that near a
+    # side move within the accuracy tolerance). Its background level stays that of the ROI
     # smoothed alone (_Levels.of).
     fast = frame.smoothed32 is not None and sigma > 0
     try:
@@ -347,8 +345,7 @@ def _grown_drafts(frame: _Frame, ks: list, bps: list, rois_of: dict, rings_of: d
         sm = frame.luma_frame  # (every ring the region's own border median: _Levels.of)
     elif frame.luma_frame32 is not None and not frame.smooth_sigma_px > 0:
         # a frame with few highlights, not smoothed: its float32 luma (the float64 luma of each ROI
-        # to float32 rounding, 6e-8 relative; the clean bench frame's ten _estimate_one calls
-        # cost 1.2 ms)
+        # to float32 rounding, 6e-8 relative)
         sm = frame.luma_frame32
     else:
         return {}
@@ -429,8 +426,8 @@ def _candidate_drafts(frame: _Frame, det, r: Roi, bps_arr: np.ndarray, rays: np.
     rois_of = dict(zip(fk.tolist(), _initial_rois([det.candidates[k] for k in fk.tolist()], bps_arr[fk],
                                                   det.threshold, frame)))
     rings_of = dict(zip(fk.tolist(), _first_rings(frame, [rois_of[k] for k in fk.tolist()])))
-    # a frame smoothed once: every fitted candidate's ROI growth, levels and contour walks in one
-    # compiled call (_grown_drafts); those it leaves go through _estimate_one
+    # a frame smoothed once: every fitted candidate's ROI growth, levels and contour walks
+    # (_grown_drafts); those it leaves go through _estimate_one
     drafts = _grown_drafts(frame, fk.tolist(), bps, rois_of, rings_of, rays, frames_of,
                            [det.candidates[k].saturated for k in fk.tolist()], others,
                            [int(row_in_others[k]) if keep[k] else -1 for k in fk.tolist()])

@@ -149,8 +149,7 @@ def dct_blocks(blocks: np.ndarray) -> np.ndarray:
     """
     b = np.asarray(blocks, np.float32).reshape(-1, BLOCK * BLOCK) - np.float32(128.0)
     # D b D^T of each block as one product of the flattened blocks with D (x) D (row-major
-    # vec(D b D^T) = (D (x) D) vec(b)): one GEMM instead of numpy's batched 8 x 8 products (a
-    # tenth of the time for the grid search's 256 blocks)
+    # vec(D b D^T) = (D (x) D) vec(b)): one GEMM instead of numpy's batched 8 x 8 products
     return b @ _DD_T
 
 
@@ -169,7 +168,7 @@ def _steps_of(coef: np.ndarray, tables=_FULL, fewest: int = 0) -> np.ndarray:
 
     ``fewest``: a caller that only counts the identified steps and needs at least this many gets
     zeros where fewer frequencies have enough coefficients to show one (the count is below it
-    either way; the search is skipped: 0.1 ms a grid candidate of a smooth frame never JPEG)."""
+    either way; the search is skipped)."""
     n = coef.shape[0]
     if n == 0:
         return np.zeros(BLOCK * BLOCK, np.int64)
@@ -195,8 +194,7 @@ def _steps_of(coef: np.ndarray, tables=_FULL, fewest: int = 0) -> np.ndarray:
     # the coefficients, Laplacian for the AC ones): a candidate whose first multiple holds
     # fewer than UNIMODAL_SHARE of a later one's is a divisor of the step, passing the share
     # test on the step's own multiples where the step itself has too few coefficients outside
-    # its zero bin (39 at 22 to 24 against MIN_COEFFICIENTS: 6 read for 23, whose 1-sigma then
-    # set the dead frequencies' and took sigma from 5.4 to 1.9)
+    # its zero bin
     ok = (count >= MIN_COEFFICIENTS) & (share >= floor) & (first >= UNIMODAL_SHARE * later)
     largest = qs[(ok.shape[0] - 1) - np.argmax(ok[::-1], axis=0)].astype(np.float64)
     # the window of +-1 lets q + 1 pass for q: the step is the least-squares slope of the
@@ -271,7 +269,7 @@ def _phase_blockiness(d: np.ndarray) -> np.ndarray:
     # the median over each phase's columns: one strong edge of the content does not make a phase.
     # Phase k holds d[j] for (j + 1) % 8 == k, i.e. d[(k - 1) % 8 :: 8]; the phases of equal
     # length are stacked and their medians taken in one call (np.median along an axis: the same
-    # values as one call per phase, in a tenth of the time)
+    # values as one call per phase)
     per = np.empty(BLOCK, d.dtype)  # np.median's dtype: d's
     starts = [(k - 1) % BLOCK for k in range(BLOCK)]
     sizes = [len(range(s, len(d), BLOCK)) for s in starts]

@@ -29,9 +29,8 @@ Steps 1 and 2 run highlight by highlight (the ROI grows on what the isophote sho
 and 4 run once per call for every isophote of every highlight, batched
 (:func:`~simtest.reconstruct.cone_fit.fit_cones`,
 :func:`~simtest.reconstruct.estimators.estimate_from_conics`,
-:func:`~simtest.reconstruct.estimators.joint_cone_axes`, each one compiled call over the batch
-with numpy around it): a highlight gets the same bits as it would alone, and a frame of hundreds
-of highlights pays the fixed cost of the calls once.
+:func:`~simtest.reconstruct.estimators.joint_cone_axes`): a highlight gets the same bits as it
+would alone, and a frame of hundreds of highlights pays the fixed cost of the calls once.
 :func:`reconstruct_rois` does the same for many known highlights.
 This module calls the stages in order: :mod:`~simtest.reconstruct.frame_prep`,
 :mod:`~simtest.reconstruct.isophotes`, :mod:`~simtest.reconstruct.assemble`, :mod:`~simtest.reconstruct.frame_verify`.
@@ -94,9 +93,8 @@ def _gc_paused():
     A frame with hundreds of highlights builds thousands of small result objects, none of them
     in a reference cycle; each allocation burst triggers collections, and every few of them is a
     full one over every object the process holds (about 170 000 after importing simtest: OpenCV,
-    scikit-image, scipy). On the Hyper-Kvasir banner these passes were about a tenth of the
-    time. Nothing the pipeline allocates waits for the collector (no cycles), and a caller that
-    had paused it keeps it paused.
+    scikit-image, scipy). Nothing the pipeline allocates waits for the collector (no cycles),
+    and a caller that had paused it keeps it paused.
     """
     _keep_freed_memory()
     was_enabled = gc.isenabled()
@@ -125,12 +123,11 @@ def _keep_freed_memory() -> bool:
     A frame's reconstruction allocates dozens of whole-frame arrays (the luma, its smoothing, the
     opening, the top-hat, the verifier's masks), each a few MiB. glibc gives every block above
     its mmap threshold (128 KiB, raised as blocks are freed) its own mapping and returns it to
-    the kernel when freed, so that the next frame's arrays fault every page in afresh: on the
-    2-core VM that was 12 ms of the noisy 10-highlight frame's 42 (the verifier's arrays,
-    measured with the C library keeping them: 30 ms). With blocks up to
-    :data:`MMAP_THRESHOLD_BYTES` taken from the heap and up to :data:`TRIM_THRESHOLD_BYTES` of
-    free memory kept there, the pages stay mapped between frames; the process's resident memory
-    stays at its peak (a few hundred MiB for 1350 x 1080 frames) instead of falling between them.
+    the kernel when freed, so that the next frame's arrays fault every page in afresh. With
+    blocks up to :data:`MMAP_THRESHOLD_BYTES` taken from the heap and up to
+    :data:`TRIM_THRESHOLD_BYTES` of free memory kept there, the pages stay mapped between frames;
+    the process's resident memory stays at its peak (a few hundred MiB for 1350 x 1080 frames)
+    instead of falling between them.
     Elsewhere (macOS, musl) nothing is changed.
     """
     try:

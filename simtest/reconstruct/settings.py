@@ -321,6 +321,5 @@ class ReconSettings:
 @functools.cache
 def _default_settings(cls: type, frames: bool) -> ReconSettings:
     """``cls()`` or ``cls.for_frames()``, built and validated once: the settings are frozen, so
-    every call that takes the defaults can share them (a call of ``reconstruct_roi`` spent a tenth
-    of its time validating them afresh)."""
+    every call that takes the defaults can share them."""
     return cls.for_frames() if frames else cls()

@@ -324,8 +324,7 @@ def frame_evidence(image: np.ndarray, gray: np.ndarray, bps_uv: np.ndarray, rois
         region of interest holds a panel pixel; or over the whole frame (False). The evidence is
         the same, to the bit (``tests/test_verify.py`` compares them); the default takes the
         windows while they cover at most :data:`WINDOWED_AREA_MAX` of the frame (a few
-        candidates, where the frame-wide passes were most of the cost: 20 -> 14 ms of
-        :func:`assess` on the noisy 10-highlight bench frame, one core).
+        candidates, where the frame-wide passes were most of the cost).
     grey : bool
         The caller knows that the image's R, G and B are equal and ``gray`` is their value:
         the colour's opening is then the gray's (one channel reduced instead of three).
@@ -351,8 +350,7 @@ def frame_evidence(image: np.ndarray, gray: np.ndarray, bps_uv: np.ndarray, rois
     rr = (np.asarray(rois, np.int64) if isinstance(rois, np.ndarray)
           else np.array([[r.row0, r.row1, r.col0, r.col1] for r in rois], np.int64)).reshape(-1, 4)
     # the windows the neighbour count reads (its rows r0:r1 and columns c0:c1 of the top-hat)
-    # (np.stack, not np.c_ and np.r_: their index machinery cost 12 us a call, a dozen calls a
-    # frame)
+    # (np.stack, not np.c_ and np.r_: their index machinery is slow)
     win = np.stack([np.maximum(0, (rows[todo] - reach[todo]).astype(np.int64)),
                     np.minimum(h, (rows[todo] + reach[todo]).astype(np.int64) + 1),
                     np.maximum(0, (cols[todo] - reach[todo]).astype(np.int64)),
@@ -429,8 +427,7 @@ def bp_checks(image: np.ndarray, gray: np.ndarray, bps_uv: np.ndarray, clipped: 
               full_scale: float, noise: float, grey: bool = False) -> list[str | None]:
     """The checks of :func:`verdict` that read only a candidate's BP, before any fit: the colour
     and the height (``not_specular``). The pipeline runs them on detection's candidates and
-    extracts and fits the isophotes of those that pass only (issue 41: a real frame's candidates
-    are a third ``not_specular``; their isophotes were a third of its time).
+    extracts and fits the isophotes of those that pass only.
 
     Parameters
     ----------
@@ -558,7 +555,6 @@ def assess(image: np.ndarray, gray: np.ndarray, ests, *, full_scale: float, wind
     # a camera model without image conics fits its isophote on the viewing rays, where it is a
     # conic; the image outline the lens distorts still gives the checks its size, reach and own
     # lobe (its residual is the lens's, not the fit's: taken as 0); all fitted in one batch
-    # (fit_ellipses: 300 fits of the colonoscope frame, 7 ms one by one)
     refit = [k for k in np.flatnonzero(ok) if ells[k] is None and ests[k].points_uv is not None]
     for k, fit in zip(refit, fit_ellipses([ests[k].points_uv for k in refit]) if refit else ()):
         if fit:
@@ -656,7 +652,7 @@ def verdict(ev: Evidence, residual_rel: np.ndarray, bp_inside: np.ndarray,
         Whether the BP lies inside the primary isophote's ellipse.
     only : array_like of int, optional
         Judge only these candidates (the others get None): a frame's fitted ones, a few hundred
-        of its thousands (the details' formatting was a millisecond a thousand candidates).
+        of its thousands.
 
     Returns
     -------
