@@ -382,19 +382,28 @@ def _roi_grid(values, camera, origin_uv, clip_level):
     return vals, camera, o, uu, vv, keep
 
 
-def _rig_diffuse(dT, rl, n, h, rig_arr) -> np.ndarray:
+def _light_terms(dT, rl, n, h, rig_arr) -> list:
+    """:func:`_terms` of each light of the rig (its ``(cb, delta, s, sl, ir, c)``) on the plane (n, h)."""
+    L = rig_arr[0]
+    return [_terms(dT, n, h, L[j], (rl[0][j], rl[1][j]))[:6] for j in range(len(L))]
+
+
+def _rig_diffuse(dT, rl, n, h, rig_arr, terms=None) -> np.ndarray:
     """The rig's Lambertian shading of the plane (n, h) along unit rays ``dT`` (3, N): (N,).
 
     ``D = sum_j w_j max(0, n . l_j) f_j p_j`` with ``l_j`` the unit direction from the plane point
     to light j, ``f_j = (h / r_j)^2`` for an inverse-square light (1 otherwise) and ``p_j`` its
     ``cos^m`` profile about +z, the same falloff and profile as the specular lobes of
     :func:`_rig_value` (unit albedo; the fit's linear part scales it). From the pieces of
-    :func:`_terms`: ``n . (L - X) = c`` so ``n . l = c / r``.
+    :func:`_terms`: ``n . (L - X) = c`` so ``n . l = c / r``. ``terms``: those pieces per light
+    (:func:`_light_terms`, or the first six of :func:`_rig_value`'s parts' fields by name) when
+    already at hand.
     """
     L, w, inv_sq, m = rig_arr
+    terms = _light_terms(dT, rl, n, h, rig_arr) if terms is None else terms
     D = np.zeros(dT.shape[1])
     for j in range(len(w)):
-        _, _, s, _, ir, c, _ = _terms(dT, n, h, L[j], (rl[0][j], rl[1][j]))
+        _, _, s, _, ir, c = terms[j]
         val = max(c, 0.0) * ir
         if inv_sq[j]:
             hir = h * ir
@@ -405,9 +414,15 @@ def _rig_diffuse(dT, rl, n, h, rig_arr) -> np.ndarray:
     return D
 
 
-def _rig_diffuse_grad(dT, rl, p, nb, e1, e2, rig_arr) -> np.ndarray:
+def _part_terms(parts) -> list:
+    """The :func:`_terms` pieces ``(cb, delta, s, sl, ir, c)`` of each light from :func:`_rig_value`'s parts."""
+    return [(pt[0], pt[4], pt[5], pt[6], pt[7], pt[8]) for pt in parts]
+
+
+def _rig_diffuse_grad(dT, rl, p, nb, e1, e2, rig_arr, at=None) -> np.ndarray:
     """The derivatives of :func:`_rig_diffuse` in (a, b, log h) about ``p`` (the plane
-    ``unit(nb + a e1 + b e2)`` at ``h = exp(p[2])``): (3, N).
+    ``unit(nb + a e1 + b e2)`` at ``h = exp(p[2])``): (3, N). ``at``: ``(n, dns, terms)``, the
+    plane's normal, its derivatives and :func:`_light_terms`, when already at hand.
 
     Notes
     -----
@@ -420,12 +435,16 @@ def _rig_diffuse_grad(dT, rl, p, nb, e1, e2, rig_arr) -> np.ndarray:
     the photometric fit's time on a sensor frame's highlight.
     """
     L, w, inv_sq, m = rig_arr
-    n, dns = _normal_derivs(np.asarray(p, dtype=np.float64), nb, e1, e2)
     h = float(np.exp(p[2]))
+    if at is None:
+        n, dns = _normal_derivs(np.asarray(p, dtype=np.float64), nb, e1, e2)
+        terms = _light_terms(dT, rl, n, h, rig_arr)
+    else:
+        n, dns, terms = at
     P = np.array(dns) @ dT
     out = np.zeros((3, dT.shape[1]))
     for j in range(len(w)):
-        _, delta, s, sl, ir, c, _ = _terms(dT, n, h, L[j], (rl[0][j], rl[1][j]))
+        _, delta, s, sl, ir, c = terms[j]
         if not c > 0:
             continue  # the light behind the plane: no shading, none to change (max(c, 0))
         val = c * ir

@@ -7,8 +7,8 @@ from __future__ import annotations
 import numpy as np
 
 from simtest.reconstruct.lightaware.model import (
-    _normal_derivs, _ray_light, _rays, _rig_arrays, _rig_diffuse, _rig_diffuse_grad, _rig_grad, _rig_grad_ggx,
-    _rig_value, _rig_value_ggx, _roi_grid, _roi_samples, ggx_alpha_of_phong,
+    _light_terms, _normal_derivs, _part_terms, _ray_light, _rays, _rig_arrays, _rig_diffuse, _rig_diffuse_grad,
+    _rig_grad, _rig_grad_ggx, _rig_value, _rig_value_ggx, _roi_grid, _roi_samples, ggx_alpha_of_phong,
 )
 from simtest.reconstruct.lightaware.solve import _ROUGHNESS_RANGE
 
@@ -104,8 +104,10 @@ class PlaneModel:
         self.clipn = ((y_ / yscale_ if lower is not None else float(clip_level) / yscale_)
                       if censor else np.inf)
         self.design = design_
+        self.any_cens = bool(cens_.any())
         self.state.clear()
         self.proj.clear()
+        self.lin = {}  # the background's basis on the active rows (resjac_general)
 
     def basis(self, w):
         """``QT`` (3, M), the background's orthonormal basis (rows), and the projected values."""
@@ -148,35 +150,67 @@ class PlaneModel:
             else:
                 S, parts = _rig_value(dT, rl, n, h, rig_arr, rough)
             design[:, 0] = box(S)
+            terms = None
             if self.diffuse:
-                design[:, 1] = box(_rig_diffuse(dT, rl, n, h, rig_arr))
-            target = np.where(cens, self.clipn, yn)
+                terms = _part_terms(parts) if parts is not None else _light_terms(dT, rl, n, h, rig_arr)
+                design[:, 1] = box(_rig_diffuse(dT, rl, n, h, rig_arr, terms))
             active = ~cens
-            coef = np.zeros(design.shape[1])
+            coef, Q = np.zeros(design.shape[1]), None
             if not np.isfinite(design).all():
                 # a trial point where the model overflows (a plane seen edge-on, a lobe run off):
                 # residuals that MINPACK rejects, instead of a least squares that LAPACK
                 # refuses with a line of its own on stderr
                 r = np.full(len(yn), _NOT_FINITE_RESIDUAL)
-                state.update(key=key, n=n, dns=dns, h=h, rough=rough, parts=parts, coef=coef,
-                             active=active, r=r)
+                state.update(key=key, n=n, dns=dns, h=h, rough=rough, parts=parts, terms=terms, coef=coef,
+                             active=active, r=r, Q=None)
                 return (r, np.zeros((len(yn), 4))) if grad else (r, None)
+            target = np.where(cens, self.clipn, yn) if self.any_cens else yn
             for _ in range(3):  # the active set of the censored rows: two updates settle it
-                A, t = design[active], target[active]
-                if w is not None:
-                    A, t = A * w[active, None], t * w[active]
-                coef = np.linalg.lstsq(A, t, rcond=None)[0]
+                coef, Q = self._linear_part(active, target, w)
                 model = design @ coef
+                if not self.any_cens:
+                    break
                 new_active = ~cens | (model < self.clipn)
                 if np.array_equal(new_active, active):
                     break
-                active = new_active
-            r = np.where(active, model - target, 0.0)
-            state.update(key=key, n=n, dns=dns, h=h, rough=rough, parts=parts, coef=coef,
-                         active=active, r=r)
+                active, Q = new_active, None  # (Q: the basis of the active set before)
+            r = np.where(active, model - target, 0.0) if self.any_cens else model - target
+            state.update(key=key, n=n, dns=dns, h=h, rough=rough, parts=parts, terms=terms, coef=coef,
+                         active=active, r=r, Q=Q, w=w)
         if not grad:
             return state["r"], None
         return state["r"], self.jac_general(p, nb, e1, e2, state["dns"], w)
+
+    def _background_basis(self, active, w):
+        """``(QT, R)`` of the QR factorisation of the (weighted) background columns on the active
+        rows, kept while the active set and the weights stay (most of a fit's evaluations)."""
+        c = self.lin
+        if not (c and c["w"] is w and np.array_equal(c["active"], active)):
+            B = self.background[active]
+            if w is not None:
+                B = B * w[active, None]
+            Q, R = np.linalg.qr(B)
+            c.update(w=w, active=active, QT=np.ascontiguousarray(Q.T), R=R)
+        return c["QT"], c["R"]
+
+    def _linear_part(self, active, target, w):
+        """The linear parameters (k,) of the columns on the active rows, weighted by ``w``, and an
+        orthonormal basis of those columns (``(QT, QkT)``; None where it fell back): the
+        background's basis kept (:meth:`_background_basis`), the columns that depend on p projected
+        off it and factorised, where ``np.linalg.lstsq`` factorised every column at every
+        evaluation (its minimum-norm solution where a column is (nearly) in the others' span)."""
+        design = self.design
+        A, t = (design, target) if active.all() else (design[active], target[active])
+        if w is not None:
+            A, t = A * w[active, None], t * w[active]
+        QT, R = self._background_basis(active, w)
+        k = design.shape[1] - 3
+        Qk, Rk = np.linalg.qr(A[:, :k] - QT.T @ (QT @ A[:, :k]))
+        d = np.abs(np.concatenate([np.diag(R), np.diag(Rk)]))
+        if not d.min() > 1e-10 * d.max():
+            return np.linalg.lstsq(A, t, rcond=None)[0], None
+        g = np.linalg.solve(Rk, Qk.T @ t)
+        return np.concatenate([g, np.linalg.solve(R, QT @ (t - A[:, :k] @ g))]), (QT, np.ascontiguousarray(Qk.T))
 
     def jac_general(self, p, nb, e1, e2, dns, w):
         """Kaufman's Jacobian (M, 4) of :meth:`resjac_general` at its cached point."""
@@ -189,15 +223,25 @@ class PlaneModel:
             G = coef[0] * self.box(_rig_grad(self.dT, st["parts"], st["n"], dns, st["h"], self.rig_arr,
                                              st["rough"]))
         if self.diffuse:
-            G[:3] += coef[1] * self.box(_rig_diffuse_grad(self.dT, self.rl, p, nb, e1, e2, self.rig_arr))
-        JT = np.zeros_like(G)
-        A = self.design[active]
-        Ga = G[:, active]
+            G[:3] += coef[1] * self.box(_rig_diffuse_grad(self.dT, self.rl, p, nb, e1, e2, self.rig_arr,
+                                                          at=(st["n"], dns, st["terms"])))
+        every = active.all()
+        wa = None if w is None else (w if every else w[active])
+        Ga = G if every else G[:, active]
         if w is not None:
-            A, Ga = A * w[active, None], Ga * w[active]
-        Q = np.linalg.qr(A)[0]
-        Ja = Ga - (Ga @ Q) @ Q.T
-        JT[:, active] = Ja if w is None else Ja / w[active]
+            Ga = Ga * wa
+        if st.get("Q") is not None and st.get("w") is w:
+            QT, Qk = st["Q"]  # the basis of the active columns (_linear_part)
+            Ja = Ga - (Ga @ QT.T) @ QT - (Ga @ Qk.T) @ Qk
+        else:
+            A = self.design[active] if w is None else self.design[active] * wa[:, None]
+            Q = np.linalg.qr(A)[0]
+            Ja = Ga - (Ga @ Q) @ Q.T
+        Ja = Ja if w is None else Ja / wa
+        if every:
+            return Ja.T
+        JT = np.zeros_like(G)
+        JT[:, active] = Ja
         return JT.T
 
     def resjac_plain(self, p, nb, e1, e2, grad=True, w=None, kaufman=False):
