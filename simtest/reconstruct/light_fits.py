@@ -20,6 +20,7 @@ from concurrent.futures import as_completed
 
 import numpy as np
 
+from simtest._lazy import require
 from simtest._threads import one_thread_each
 from simtest._workers import worker_pool
 from simtest.decisions import ISOCURVE_ISOVALUES, SIGMA_MARGIN
@@ -164,7 +165,8 @@ def light_aware_estimates(image, est, camera, rig: LightRig, *, nominal_depth_mm
     half = roi_scale * max(roi.shape) / 2.0
     big = Roi.around(est.bp_px, half, img.shape)
     start_n = None
-    pts, ts = _isocurve_isophotes(gray, big, est.bp_px)
+    # (a rig of several lights: isocurve_fit refuses it, its isophotes are not refined for it)
+    pts, ts = _isocurve_isophotes(gray, big, est.bp_px, refine=len(rig.lights) == 1)
     if pts:
         iso_est = _guarded("isocurve_fit", isocurve_fit, pts, ts, est.bp_px,
                            camera, rig, nominal_depth_mm=nominal_depth_mm)
@@ -315,11 +317,11 @@ def colour_fit_applies(image, response) -> bool:
         return False
     return img.dtype != np.uint8 or jpeg_grid(img) is None
 
-def _isocurve_isophotes(gray, big: Roi, bp_uv) -> tuple[list[np.ndarray], list[float]]:
+def _isocurve_isophotes(gray, big: Roi, bp_uv, refine: bool = True) -> tuple[list[np.ndarray], list[float]]:
     """The isophotes :func:`isocurve_fit` is given (module docstring, "Isophotes of the isocurve
     fit"): at each of :data:`ISOCURVE_ISOVALUES` of the BP's height above the median of the
     ROI's border, the closed contour about the BP, its points refined onto the image's cubic
-    spline; levels whose contour is cut or too short are left out.
+    spline (as ``refine`` says); levels whose contour is cut or too short are left out.
 
     Returns
     -------
@@ -340,7 +342,7 @@ def _isocurve_isophotes(gray, big: Roi, bp_uv) -> tuple[list[np.ndarray], list[f
         iso = extract_isophote(vals, level, bp_uv, origin_rc=(big.row0, big.col0), image_shape=gray.shape)
         if not iso or iso.points_uv is None or len(iso.points_uv) < 6:
             continue
-        pts.append(refine_isophote_points(vals, level, iso.points_uv, origin))
+        pts.append(refine_isophote_points(vals, level, iso.points_uv, origin) if refine else iso.points_uv)
         ts.append(t)
     return pts, ts
 
@@ -431,6 +433,8 @@ def with_light_aware(image, estimates, camera, rig: LightRig | None, *, on_highl
     # threads differs in its last bits, which a fit's iterations carry to its results
     with one_thread_each():
         if workers > 1 and len(todo) > 1:
+            for name in ("scipy.optimize", "scipy.ndimage"):  # imported once here, not in each worker
+                require(name)
             with worker_pool(min(workers, len(todo)), initializer=_fit_context,
                              initargs=(image, camera, rig, kwargs)) as pool:
                 futures = {pool.submit(_fits_in_context, out[i]): i for i in todo}

@@ -108,6 +108,7 @@ class PlaneModel:
         self.state.clear()
         self.proj.clear()
         self.lin = {}  # the background's basis on the active rows (resjac_general)
+        self.starts = {}  # start_roughness per start plane
 
     def basis(self, w):
         """``QT`` (3, M), the background's orthonormal basis (rows), and the projected values."""
@@ -291,9 +292,13 @@ class PlaneModel:
 
 def start_roughness(m: PlaneModel, n, h, given=None) -> float:
     """The start's roughness on the start plane (``n``, ``h``): ``given``, else Phong's n
-    (:func:`phong_start`), for GGX its alpha of the same peak curvature."""
-    rough = phong_start(m, n, h, given)
-    return ggx_alpha_of_phong(rough) if m.ggx else rough
+    (:func:`phong_start`), for GGX its alpha of the same peak curvature; kept per plane until
+    :meth:`PlaneModel.use` (the screened start is refined from the same)."""
+    key = (np.asarray(n).tobytes(), float(h), given)
+    if key not in m.starts:
+        rough = phong_start(m, n, h, given)
+        m.starts[key] = ggx_alpha_of_phong(rough) if m.ggx else rough
+    return m.starts[key]
 
 
 def _roughness_steps(m: PlaneModel, n, h, log_n, QT, yt):
