@@ -67,7 +67,7 @@ def _again(m: PlaneModel, x, n0, e1, e2, h0, s):
     free = np.ones(len(x), bool)
     free[2] = np.abs(m.rig_arr[0]).max() > 1e-9 * h0
     return _solve(m.resjac_at, x, (n0, e1, e2), s.loss, s.f_scale, s.max_nfev, free,
-                  lazy_jac=True, weighted=True)
+                  lazy_jac=True, weighted=True, newton=True)
 
 
 def solve_plane(m: PlaneModel, cands, s, floor_level):
@@ -86,7 +86,7 @@ def solve_plane(m: PlaneModel, cands, s, floor_level):
         free = np.ones(len(p0), bool)
         free[2] = np.abs(m.rig_arr[0]).max() > 1e-9 * hc  # all lights at V: no dependence on h
         x, nfev, conv, msg, r = _solve(m.resjac_at, p0, (nc, e1, e2), s.loss, s.f_scale, s.max_nfev,
-                                       free, lazy_jac=True, weighted=True)
+                                       free, lazy_jac=True, weighted=True, newton=True)
         nfev_total += nfev
         cost = float(r @ r) if np.isfinite(r).all() else np.inf
         if best is None or cost < best[0]:
