@@ -143,8 +143,6 @@ def _normal_derivs(p, n0, e1, e2):
 #: Below this cos beta a lobe is taken as 0 (``cb^n`` < 1e-200 for n >= 1): its derivative
 #: ``n cb^(n-1)`` is then formed without dividing by a denormal.
 _CB_FLOOR = 1e-200
-#: The least argument of exp whose value is a normal double (exp(-708) = 3.3e-308).
-_EXP_FLOOR = -708.0
 
 
 def _rig_value(dT, rl, n, h, rig_arr, rough):
@@ -161,11 +159,9 @@ def _rig_value(dT, rl, n, h, rig_arr, rough):
         pos = cb > _CB_FLOOR
         cbp = np.where(pos, cb, 1.0)
         lcb = np.log(cbp)
-        arg = rough * lcb
-        # 0 below exp(-708) (the lobe's value underflows): exp's slow path for a subnormal
-        # result took 4x the time, on most of a smooth lobe's ROI
+        arg = rough * lcb  # 0 below exp(-708) = 3e-308: exp's slow path for a subnormal takes 4x
         val = np.zeros_like(arg)
-        np.exp(arg, out=val, where=pos & (arg > _EXP_FLOOR))
+        np.exp(arg, out=val, where=pos & (arg > -708.0))
         if inv_sq[j]:
             hir = h * ir
             val *= hir * hir
@@ -320,8 +316,6 @@ def _roi_samples(vals, o, uu, vv, keep, max_pixels):
     return sel, step, uv, y
 
 
-
-
 def albedo_lines(luma_roi, step: float = 1.0, noise: float = 0.0) -> np.ndarray:
     """The pixels of the tissue albedo's thin dark lines (vessels) in an ROI of a frame's luma.
 
@@ -388,9 +382,8 @@ def _roi_grid(values, camera, origin_uv, clip_level):
 
 
 def _light_terms(dT, rl, n, h, rig_arr) -> list:
-    """:func:`_terms` of each light of the rig (its ``(cb, delta, s, sl, ir, c)``) on the plane (n, h)."""
-    L = rig_arr[0]
-    return [_terms(dT, n, h, L[j], (rl[0][j], rl[1][j]))[:6] for j in range(len(L))]
+    """``(cb, delta, s, sl, ir, c)`` of :func:`_terms` for each light of the rig on the plane (n, h)."""
+    return [_terms(dT, n, h, L, (rl[0][j], rl[1][j]))[:6] for j, L in enumerate(rig_arr[0])]
 
 
 def _rig_diffuse(dT, rl, n, h, rig_arr, terms=None) -> np.ndarray:
@@ -400,9 +393,7 @@ def _rig_diffuse(dT, rl, n, h, rig_arr, terms=None) -> np.ndarray:
     to light j, ``f_j = (h / r_j)^2`` for an inverse-square light (1 otherwise) and ``p_j`` its
     ``cos^m`` profile about +z, the same falloff and profile as the specular lobes of
     :func:`_rig_value` (unit albedo; the fit's linear part scales it). From the pieces of
-    :func:`_terms`: ``n . (L - X) = c`` so ``n . l = c / r``. ``terms``: those pieces per light
-    (:func:`_light_terms`, or the first six of :func:`_rig_value`'s parts' fields by name) when
-    already at hand.
+    :func:`_terms`: ``n . (L - X) = c`` so ``n . l = c / r``; ``terms``: :func:`_light_terms` if at hand.
     """
     L, w, inv_sq, m = rig_arr
     terms = _light_terms(dT, rl, n, h, rig_arr) if terms is None else terms
@@ -419,15 +410,9 @@ def _rig_diffuse(dT, rl, n, h, rig_arr, terms=None) -> np.ndarray:
     return D
 
 
-def _part_terms(parts) -> list:
-    """The :func:`_terms` pieces ``(cb, delta, s, sl, ir, c)`` of each light from :func:`_rig_value`'s parts."""
-    return [(pt[0], pt[4], pt[5], pt[6], pt[7], pt[8]) for pt in parts]
-
-
 def _rig_diffuse_grad(dT, rl, p, nb, e1, e2, rig_arr, at=None) -> np.ndarray:
     """The derivatives of :func:`_rig_diffuse` in (a, b, log h) about ``p`` (the plane
-    ``unit(nb + a e1 + b e2)`` at ``h = exp(p[2])``): (3, N). ``at``: ``(n, dns, terms)``, the
-    plane's normal, its derivatives and :func:`_light_terms`, when already at hand.
+    ``unit(nb + a e1 + b e2)`` at ``h = exp(p[2])``): (3, N); ``at``: its ``(n, dns, terms)`` if at hand.
 
     Notes
     -----
@@ -516,8 +501,6 @@ def _curvature_columns(dT, rl, n, h, rig_arr, rough, apex) -> np.ndarray:
             dcb = 2.0 * delta * (al * tL1 + be * tL2 - s * dnd) * ir - 2.0 * c * ir * dnd
             out[i] += val * (k * dcb + g_ds * ds)
     return out
-
-
 
 
 def _fresnel_dielectric(cos_i, eta):

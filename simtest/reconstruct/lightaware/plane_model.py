@@ -7,7 +7,7 @@ from __future__ import annotations
 import numpy as np
 
 from simtest.reconstruct.lightaware.model import (
-    _light_terms, _normal_derivs, _part_terms, _ray_light, _rays, _rig_arrays, _rig_diffuse, _rig_diffuse_grad,
+    _light_terms, _normal_derivs, _ray_light, _rays, _rig_arrays, _rig_diffuse, _rig_diffuse_grad,
     _rig_grad, _rig_grad_ggx, _rig_value, _rig_value_ggx, _roi_grid, _roi_samples, ggx_alpha_of_phong,
 )
 from simtest.reconstruct.lightaware.solve import _ROUGHNESS_RANGE
@@ -104,7 +104,6 @@ class PlaneModel:
         self.clipn = ((y_ / yscale_ if lower is not None else float(clip_level) / yscale_)
                       if censor else np.inf)
         self.design = design_
-        self.any_cens = bool(cens_.any())
         self.state.clear()
         self.proj.clear()
         self.lin = {}  # the background's basis on the active rows (resjac_general)
@@ -146,14 +145,11 @@ class PlaneModel:
         if state.get("key") != key:
             n, dns = _normal_derivs(p, nb, e1, e2)
             h, rough = float(np.exp(p[2])), float(np.exp(p[3]))
-            if self.ggx:
-                S, parts = _rig_value_ggx(dT, rl, n, h, rig_arr, rough), None
-            else:
-                S, parts = _rig_value(dT, rl, n, h, rig_arr, rough)
-            design[:, 0] = box(S)
-            terms = None
+            S, parts = (_rig_value_ggx(dT, rl, n, h, rig_arr, rough), None) if self.ggx else _rig_value(
+                dT, rl, n, h, rig_arr, rough)
+            design[:, 0], terms = box(S), None
             if self.diffuse:
-                terms = _part_terms(parts) if parts is not None else _light_terms(dT, rl, n, h, rig_arr)
+                terms = [pt[:1] + pt[4:9] for pt in parts] if parts else _light_terms(dT, rl, n, h, rig_arr)
                 design[:, 1] = box(_rig_diffuse(dT, rl, n, h, rig_arr, terms))
             active = ~cens
             coef, Q = np.zeros(design.shape[1]), None
@@ -165,17 +161,15 @@ class PlaneModel:
                 state.update(key=key, n=n, dns=dns, h=h, rough=rough, parts=parts, terms=terms, coef=coef,
                              active=active, r=r, Q=None)
                 return (r, np.zeros((len(yn), 4))) if grad else (r, None)
-            target = np.where(cens, self.clipn, yn) if self.any_cens else yn
+            target = np.where(cens, self.clipn, yn)
             for _ in range(3):  # the active set of the censored rows: two updates settle it
                 coef, Q = self._linear_part(active, target, w)
                 model = design @ coef
-                if not self.any_cens:
-                    break
                 new_active = ~cens | (model < self.clipn)
                 if np.array_equal(new_active, active):
                     break
                 active, Q = new_active, None  # (Q: the basis of the active set before)
-            r = np.where(active, model - target, 0.0) if self.any_cens else model - target
+            r = np.where(active, model - target, 0.0)
             state.update(key=key, n=n, dns=dns, h=h, rough=rough, parts=parts, terms=terms, coef=coef,
                          active=active, r=r, Q=Q, w=w)
         if not grad:
@@ -183,8 +177,7 @@ class PlaneModel:
         return state["r"], self.jac_general(p, nb, e1, e2, state["dns"], w)
 
     def _background_basis(self, active, w):
-        """``(QT, R)`` of the QR factorisation of the (weighted) background columns on the active
-        rows, kept while the active set and the weights stay (most of a fit's evaluations)."""
+        """``(QT, R)`` of the (weighted) background's QR on the active rows, kept while they stay."""
         c = self.lin
         if not (c and c["w"] is w and np.array_equal(c["active"], active)):
             B = self.background[active]
@@ -195,13 +188,12 @@ class PlaneModel:
         return c["QT"], c["R"]
 
     def _linear_part(self, active, target, w):
-        """The linear parameters (k,) of the columns on the active rows, weighted by ``w``, and an
-        orthonormal basis of those columns (``(QT, QkT)``; None where it fell back): the
-        background's basis kept (:meth:`_background_basis`), the columns that depend on p projected
-        off it and factorised, where ``np.linalg.lstsq`` factorised every column at every
-        evaluation (its minimum-norm solution where a column is (nearly) in the others' span)."""
+        """The linear parameters of the columns on the active rows, weighted by ``w``, and their
+        orthonormal basis ``(QT, QkT)``: the columns that depend on p projected off the kept
+        background basis and factorised (``lstsq``'s minimum norm, no basis, where a column is
+        (nearly) in the others' span)."""
         design = self.design
-        A, t = (design, target) if active.all() else (design[active], target[active])
+        A, t = design[active], target[active]
         if w is not None:
             A, t = A * w[active, None], t * w[active]
         QT, R = self._background_basis(active, w)
@@ -217,32 +209,20 @@ class PlaneModel:
         """Kaufman's Jacobian (M, 4) of :meth:`resjac_general` at its cached point."""
         st = self.state
         coef, active = st["coef"], st["active"]
-        if self.ggx:
-            G = coef[0] * self.box(_rig_grad_ggx(self.dT, self.rl, st["n"], dns, st["h"], self.rig_arr,
-                                                 st["rough"]))
-        else:
-            G = coef[0] * self.box(_rig_grad(self.dT, st["parts"], st["n"], dns, st["h"], self.rig_arr,
-                                             st["rough"]))
+        lobe_grad, pieces = (_rig_grad_ggx, self.rl) if self.ggx else (_rig_grad, st["parts"])
+        G = coef[0] * self.box(lobe_grad(self.dT, pieces, st["n"], dns, st["h"], self.rig_arr, st["rough"]))
         if self.diffuse:
             G[:3] += coef[1] * self.box(_rig_diffuse_grad(self.dT, self.rl, p, nb, e1, e2, self.rig_arr,
                                                           at=(st["n"], dns, st["terms"])))
-        every = active.all()
-        wa = None if w is None else (w if every else w[active])
-        Ga = G if every else G[:, active]
-        if w is not None:
-            Ga = Ga * wa
+        Ga = G[:, active] if w is None else G[:, active] * w[active]
         if st.get("Q") is not None and st.get("w") is w:
-            QT, Qk = st["Q"]  # the basis of the active columns (_linear_part)
+            QT, Qk = st["Q"]  # the active columns' basis (_linear_part)
             Ja = Ga - (Ga @ QT.T) @ QT - (Ga @ Qk.T) @ Qk
         else:
-            A = self.design[active] if w is None else self.design[active] * wa[:, None]
-            Q = np.linalg.qr(A)[0]
+            Q = np.linalg.qr(self.design[active] if w is None else self.design[active] * w[active, None])[0]
             Ja = Ga - (Ga @ Q) @ Q.T
-        Ja = Ja if w is None else Ja / wa
-        if every:
-            return Ja.T
         JT = np.zeros_like(G)
-        JT[:, active] = Ja
+        JT[:, active] = Ja if w is None else Ja / w[active]
         return JT.T
 
     def resjac_plain(self, p, nb, e1, e2, grad=True, w=None, kaufman=False):

@@ -39,9 +39,8 @@ def start_planes(m: PlaneModel, rig, d_bp, n0, h0, s) -> list:
     cands = [(n0, h0)]
     if s.start_normal is None and len(rig_arr[0]) > 1:
         # a highlight is one light's: beside the mean light's bisector, each light's at the
-        # nominal depth (the BP that light's specular point), the start of least cost kept. Under
-        # guides +-8 mm at 20 mm the mean light's start (the BP ray) is 11 deg off, and from it
-        # the fit of an exact plane ran off to h -> 0
+        # nominal depth (the BP that light's specular point), the start of least cost kept (under
+        # guides +-8 mm at 20 mm the mean light's is 11 deg off, and an exact plane's fit ran off)
         cands = [_screened(m, cands + [_light_start(d_bp, L, nominal_depth_mm) for L in rig_arr[0]],
                            s.start_roughness)]
     if np.abs(rig_arr[0]).max() > 0:

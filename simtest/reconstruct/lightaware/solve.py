@@ -84,6 +84,8 @@ _LM_TOL = 1e-8
 #: second: the weights move with the residuals, a change at 1e-4 of the cost moves the final
 #: solution by a second-order amount (1e-9 of the depth on the bench's highlight).
 _LM_TOL_FIRST_PASS = 1e-4
+#: LM's tolerance before :func:`_newton`'s steps (``_solve``'s ``newton``).
+_LM_TOL_NEWTON = 1e-5
 
 
 def _solve(resjac, p0, args, loss: str, f_scale: float, max_nfev: int, free=None,
@@ -178,19 +180,12 @@ def _solve(resjac, p0, args, loss: str, f_scale: float, max_nfev: int, free=None
     return full(q), count[0], ok, msg, rj(q, grad=False)[0]
 
 
-#: LM's tolerance before :func:`_newton`'s steps (``_solve``'s ``newton``).
-_LM_TOL_NEWTON = 1e-5
-
-
 def _newton(fun, jac, q, w, tol: float, steps: int = 6):
-    """Newton's steps on ``|fun(q, w)|^2 / 2`` from ``q``: the Hessian once, by forward
-    differences of the gradient ``jac^T fun`` (exact for the variable projection's Kaufman
-    Jacobian: its dropped term lies in the linear columns' span, to which the residual is
-    orthogonal), the gradient at each step. Returns ``(q, converged)``: converged where a step
-    below ``tol`` of each parameter (LM's ``xtol``) is reached with the cost not raised, else the
-    last point that lowered it and False. Gauss-Newton (LM) converges linearly where the
-    residual is not small, along the valley of a depth that is hardly observable: 20 to 60 more
-    evaluations on a real frame's glints, where these take a few."""
+    """Newton's steps on ``|fun(q, w)|^2 / 2`` from ``q`` (where LM converges linearly: a large
+    residual along a hardly observable depth's valley), the Hessian once by forward differences
+    of the gradient ``jac^T fun`` (exact with Kaufman's Jacobian, whose dropped term is orthogonal
+    to the residual). ``(q, converged)``: converged at a step below ``tol`` of each parameter (LM's
+    ``xtol``) that did not raise the cost; else the last point that lowered it."""
     f0 = fun(q, w)
     g = jac(q, w).T @ f0
     eps = 1e-6 * np.maximum(np.abs(q), 1.0)
@@ -510,9 +505,6 @@ def _hac_covariance(J, r, sel, shape, step: int) -> tuple[np.ndarray | None, int
     return unit_cov @ meat @ unit_cov, b
 
 
-
-
-
 def cluster_blocks(shape, texture: bool = True) -> tuple[int, ...]:
     """The block sides of :data:`CLUSTER_PX` whose grid over an ROI of ``shape`` (H, W) px holds
     at least :data:`MIN_CLUSTERS` blocks (the smallest side always: a small ROI keeps one).
@@ -520,10 +512,8 @@ def cluster_blocks(shape, texture: bool = True) -> tuple[int, ...]:
     ``texture``: the fit's residual keeps the tissue's albedo texture (one channel of a sensor
     frame). Where the body colours were projected out (``False``) the texture left is correlated
     over a few pixels, and the sides are the JPEG block's and the macroblock's only: the wider
-    blocks there add their noise to the sigma and withdraw depths the projection measured (the
-    endoscope suite's flat mucosa at 2 % read noise: 2 of 15 projected fits lost their depth, and
-    the darkest channel that stood in erred by 0.9 and 1.2 deg where they had erred by 0.39 and
-    0.14).
+    blocks there add their noise to the sigma and withdraw depths the projection measured
+    (measured: ``docs/decisions/light-aware-recommendation.md``).
     """
     h, w = int(shape[0]), int(shape[1])
     sides = CLUSTER_PX if texture else CLUSTER_PX[:2]
