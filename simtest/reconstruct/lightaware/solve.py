@@ -166,14 +166,14 @@ def _solve(resjac, p0, args, loss: str, f_scale: float, max_nfev: int, free=None
             warnings.simplefilter("always")
             # the first pass of a reweighted fit only sets the weights: looser tolerances
             tol = _LM_TOL if it or loss == "linear" else _LM_TOL_FIRST_PASS
-            done = False
+            done, budget = False, max_nfev + count[0]
             if newton and (it or loss == "linear"):  # Newton's steps take LM's linear tail (_newton)
                 q, ier = opt.leastsq(fun, q, args=(w,), Dfun=jac, xtol=_LM_TOL_NEWTON, ftol=_LM_TOL_NEWTON,
                                      gtol=tol, maxfev=max_nfev)
                 q, done = _newton(fun, jac, q, w, tol)
-            if not done:
+            if not done:  # (the pass' evaluations within max_nfev)
                 q, ier = opt.leastsq(fun, q, args=(w,), Dfun=jac, xtol=tol, ftol=tol, gtol=tol,
-                                     maxfev=max_nfev)
+                                     maxfev=max(budget - count[0], 1))
         ok = ier in (1, 2, 3, 4) and bool(np.isfinite(q).all())
         msg = "" if ier in (1, 2, 3, 4) else (str(caught[-1].message) if caught
                                                else f"MINPACK info {ier}")
