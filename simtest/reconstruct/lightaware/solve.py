@@ -84,8 +84,8 @@ _LM_TOL = 1e-8
 #: second: the weights move with the residuals, a change at 1e-4 of the cost moves the final
 #: solution by a second-order amount (1e-9 of the depth on the bench's highlight).
 _LM_TOL_FIRST_PASS = 1e-4
-#: LM's tolerance before :func:`_newton`'s steps (``_solve``'s ``newton``).
-_LM_TOL_NEWTON = 1e-5
+#: LM's tolerance before :func:`_newton`'s steps, which run after more evaluations (a linear tail)
+_LM_TOL_NEWTON, _NEWTON_AFTER = 1e-5, 10
 
 
 def _solve(resjac, p0, args, loss: str, f_scale: float, max_nfev: int, free=None,
@@ -170,7 +170,7 @@ def _solve(resjac, p0, args, loss: str, f_scale: float, max_nfev: int, free=None
             if newton and (it or loss == "linear"):  # Newton's steps take LM's linear tail (_newton)
                 q, ier = opt.leastsq(fun, q, args=(w,), Dfun=jac, xtol=_LM_TOL_NEWTON, ftol=_LM_TOL_NEWTON,
                                      gtol=tol, maxfev=max_nfev)
-                q, done = _newton(fun, jac, q, w, tol)
+                q, done = _newton(fun, jac, q, w, tol) if count[0] + max_nfev - budget > _NEWTON_AFTER else (q, False)
             if not done:  # (the pass' evaluations within max_nfev)
                 q, ier = opt.leastsq(fun, q, args=(w,), Dfun=jac, xtol=tol, ftol=tol, gtol=tol,
                                      maxfev=max(budget - count[0], 1))
