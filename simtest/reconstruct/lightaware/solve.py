@@ -84,8 +84,8 @@ _LM_TOL = 1e-8
 #: second: the weights move with the residuals, a change at 1e-4 of the cost moves the final
 #: solution by a second-order amount (1e-9 of the depth on the bench's highlight).
 _LM_TOL_FIRST_PASS = 1e-4
-#: LM's tolerance before :func:`_newton`'s steps, which run after more evaluations (a linear tail)
-_LM_TOL_NEWTON, _NEWTON_AFTER = 1e-5, 10
+#: LM's tolerance before :func:`_newton`, the pass' evaluations after which it runs, its largest step (else LM)
+_LM_TOL_NEWTON, _NEWTON_AFTER, _NEWTON_STEP = 1e-5, 10, 0.1
 
 
 def _solve(resjac, p0, args, loss: str, f_scale: float, max_nfev: int, free=None,
@@ -200,8 +200,8 @@ def _newton(fun, jac, q, w, tol: float, steps: int = 6):
         return q, False
     for _ in range(steps):
         step = -Hinv @ g
-        if not (np.isfinite(step).all() and g @ step < 0):
-            return q, False  # not a descent (the Hessian is not positive definite there)
+        if not (np.isfinite(step).all() and g @ step < 0 and np.abs(step).max() <= _NEWTON_STEP):
+            return q, False  # not a descent (the Hessian is not positive definite there), or far
         f1 = fun(q + step, w)
         if not f1 @ f1 <= (f0 @ f0) * (1.0 + 1e-12):
             return q, False
