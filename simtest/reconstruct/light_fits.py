@@ -6,11 +6,8 @@ Isophotes of the isocurve fit
 -----------------------------
 :func:`isocurve_fit` takes its own isophotes, at :data:`ISOCURVE_ISOVALUES` (0.3, 0.5, 0.7) of the
 BP's height above the median of the grown ROI's border, extracted from that ROI (the
-photometric fit's), not the command line's isovalues. The command line's defaults (0.7, 0.85)
-draw two small contours near the peak, where the lobe is nearly its quadratic approximation and
-says little about the distance (measured: ``docs/decisions/light-aware-recommendation.md``).
-Lower levels reach into the tails, where the falloff the isocurve model leaves out and
-the background weigh more.
+photometric fit's), not the command line's isovalues, whose two contours near the peak say
+little about the distance (measured: ``docs/decisions/light-aware-recommendation.md``).
 """
 
 from __future__ import annotations
@@ -20,6 +17,7 @@ from concurrent.futures import as_completed
 
 import numpy as np
 
+from simtest._lazy import require
 from simtest._threads import one_thread_each
 from simtest._workers import worker_pool
 from simtest.decisions import ISOCURVE_ISOVALUES, SIGMA_MARGIN
@@ -126,24 +124,20 @@ def light_aware_estimates(image, est, camera, rig: LightRig, *, nominal_depth_mm
         The photometric fit's specular lobe (:func:`~simtest.reconstruct.lightaware.photometric_fit`;
         ``"auto"``: GGX where Phong misfits and GGX does not). None (default): "auto" where the
         fit runs on the three channels (the film's own lobes, whose GGX shape Phong's misfits
-        once the texture no longer hides it), else Phong. Phong on one channel: on sensor frames
-        ``"auto"`` has not been seen to change a recommendation and costs CPU (measured:
-        ``docs/decisions/light-aware-recommendation.md``). Where the image is the film's own
-        (the renderer's specular radiance) GGX fits it to the render's noise where Phong misfits.
+        once the texture no longer hides it), else Phong: on sensor frames ``"auto"`` has not
+        been seen to change a recommendation and costs CPU (``docs/decisions``' light-aware file).
     floor_refit : bool
         Refit the photometric fit without the pixels whose model lies within a few noise sigmas
         of an integer image's 0 (:func:`~simtest.reconstruct.lightaware.photometric_fit`'s
-        ``floor_refit``: read noise clipped at 0 biases the fit there; off by default, as on the
-        ``lightaware`` suite's renders it cost more accuracy than it removed bias). The floor
-        itself is always passed: the fit's curvature test reads only the pixels above it.
+        ``floor_refit``: read noise clipped at 0 biases the fit there). The floor itself is always
+        passed: the fit's curvature test reads only the pixels above it.
     colour : bool, optional
         Fit the photometric model on the ROI's three linear channels, the tissue's body colours
         projected out (:func:`colour_fit_applies`; None: decided here, :func:`with_light_aware`
         decides once per frame).
     linear : tuple, optional
         ``response.linearize(image)`` when already at hand (:func:`with_light_aware` computes it
-        once per frame: on a 1350 x 1080 RGB frame it takes 25 ms, which each highlight took
-        again).
+        once per frame: 25 ms on a 1350 x 1080 RGB frame).
 
     Returns
     -------
@@ -164,7 +158,7 @@ def light_aware_estimates(image, est, camera, rig: LightRig, *, nominal_depth_mm
     half = roi_scale * max(roi.shape) / 2.0
     big = Roi.around(est.bp_px, half, img.shape)
     start_n = None
-    pts, ts = _isocurve_isophotes(gray, big, est.bp_px)
+    pts, ts = _isocurve_isophotes(gray, big, est.bp_px, refine=len(rig.lights) == 1)  # (isocurve_fit: one light)
     if pts:
         iso_est = _guarded("isocurve_fit", isocurve_fit, pts, ts, est.bp_px,
                            camera, rig, nominal_depth_mm=nominal_depth_mm)
@@ -246,17 +240,10 @@ def _photometric(img, gray, big: Roi, est, camera, rig, response, colour: bool, 
     if colour and ((not pf.ok and pf.projection == "least_fluctuation")
                    or (pf.projection == "body_colours" and pf.curvature_shift_deg is None
                        and pf.status in ("depth_not_observable", "not_converged"))):
-        # a fit on the least-fluctuation projection is kept only with its depth within the
-        # ceiling (photometric_fit's ``projection``): on the endoscope suite's colon wall one
-        # passed the fit's own tests with a relative depth sigma of 0.37, 16 deg off with a sigma
-        # of 2.4, and was recommended over the BP ray (1.5 deg); the darkest channel's fit then
-        # stands in, as before the projection. So does it for the body colours' fit without its
-        # depth: their plane, measured on the border through the sensor's noise, leaves some
-        # texture too (the colon wall without relief: two such fits 17.4 and 17.6 deg off with
-        # sigmas of 3.6 deg were recommended over a BP ray 2.3 deg off); a misfit of theirs
-        # stands (rule 4 may confirm its normal), and so does a fit kept with a curved patch's
-        # pattern (curvature_shift_deg: a micro-relief's), whose depth that pattern took and
-        # whose normal's sigma carries the shift (rule 3 weighs it)
+        # the darkest channel's fit stands in for a least-fluctuation fit without its depth within
+        # the ceiling and for a body colours' fit without its depth; a misfit of theirs stands
+        # (rule 4 may confirm its normal), as does a fit kept with a curved patch's pattern
+        # (docs/decisions/light-aware-recommendation.md, "The projections' fallbacks")
         why = f"the {pf.projection.replace('_', ' ')} projection's fit: {pf.status}"
         chan = depth_within_ceiling(fitted("darkest_channel"))
         pf = dataclasses.replace(chan, detail=f"{chan.detail}; {why}" if chan.detail else why)
@@ -270,14 +257,9 @@ def _curved_fits(out: dict, gray, shape, est, roi: Roi, camera, rig, *, saturati
     within the ceiling, the BP ray's error beside it set."""
     near = Roi.around(est.bp_px, quadric_roi_scale * max(roi.shape) / 2.0, shape)
     curved = out["photometric_fit"].status in CURVED_FIT_AFTER
-    # a curved patch that misfits serves the recommendation only through the quadric's sigma
-    # where the plane misfits (rule 4): elsewhere its sigma, whose depth valley takes most of
-    # the fit's time, is not read (on a real frame's glints the plane fit often runs off and
-    # the quadric misfits: seconds a highlight)
-    # There, only a sigma below what rule 4 could take is read: the valley only widens the
-    # quadric's local sigma, and rule 4 takes a stated sigma s_q below 90 deg with
-    # SIGMA_MARGIN (g + s_q) below the BP ray's error beside the plane (a real frame's glint: a
-    # local sigma of 126 deg, its valley 5 s of one core, read for nothing)
+    # a misfitting curved patch's sigma is read only where the plane misfits (rule 4), and only
+    # below what rule 4 could take (docs/decisions/light-aware-recommendation.md, "The curved
+    # fits' sigma")
     ray = _la.model._rays(camera, np.asarray(est.bp_px, dtype=np.float64)[None])[0]
 
     def released(r: LightAwareEstimate) -> LightAwareEstimate:
@@ -315,11 +297,11 @@ def colour_fit_applies(image, response) -> bool:
         return False
     return img.dtype != np.uint8 or jpeg_grid(img) is None
 
-def _isocurve_isophotes(gray, big: Roi, bp_uv) -> tuple[list[np.ndarray], list[float]]:
+def _isocurve_isophotes(gray, big: Roi, bp_uv, refine: bool = True) -> tuple[list[np.ndarray], list[float]]:
     """The isophotes :func:`isocurve_fit` is given (module docstring, "Isophotes of the isocurve
     fit"): at each of :data:`ISOCURVE_ISOVALUES` of the BP's height above the median of the
     ROI's border, the closed contour about the BP, its points refined onto the image's cubic
-    spline; levels whose contour is cut or too short are left out.
+    spline (as ``refine`` says); levels whose contour is cut or too short are left out.
 
     Returns
     -------
@@ -340,7 +322,7 @@ def _isocurve_isophotes(gray, big: Roi, bp_uv) -> tuple[list[np.ndarray], list[f
         iso = extract_isophote(vals, level, bp_uv, origin_rc=(big.row0, big.col0), image_shape=gray.shape)
         if not iso or iso.points_uv is None or len(iso.points_uv) < 6:
             continue
-        pts.append(refine_isophote_points(vals, level, iso.points_uv, origin))
+        pts.append(refine_isophote_points(vals, level, iso.points_uv, origin) if refine else iso.points_uv)
         ts.append(t)
     return pts, ts
 
@@ -431,6 +413,8 @@ def with_light_aware(image, estimates, camera, rig: LightRig | None, *, on_highl
     # threads differs in its last bits, which a fit's iterations carry to its results
     with one_thread_each():
         if workers > 1 and len(todo) > 1:
+            for name in ("scipy.optimize", "scipy.ndimage"):  # imported once here, not in each worker
+                require(name)
             with worker_pool(min(workers, len(todo)), initializer=_fit_context,
                              initargs=(image, camera, rig, kwargs)) as pool:
                 futures = {pool.submit(_fits_in_context, out[i]): i for i in todo}

@@ -48,9 +48,8 @@ def specular_image(rgb, clip_level=None, *, ring=None, fluctuation: bool = True,
     weights ``w`` orthogonal to B with ``w . (1, 1, 1) = 1`` give ``w . I = S`` exactly at every
     pixel, whatever the texture: the photometric fit then sees the film's lobes (and what of the
     shading the projection leaves, which its diffuse column still takes) instead of the lobes
-    under a textured shading, whose texture the plane model cannot hold (on the endoscope suite's
-    flat mucosa at 20 mm it took the darkest channel's fit 9 % short in depth and 0.6 deg off in
-    normal, the same error on every frame of one texture).
+    under a textured shading, whose texture the plane model cannot hold (measured:
+    ``docs/decisions/light-aware-recommendation.md``).
 
     B is measured on a band along the ROI's edges (:func:`_border_band`: the lobe's faint tails,
     where the body reflection dominates): the two leading right singular vectors of its unclipped pixels' colours (about 0:
@@ -66,12 +65,11 @@ def specular_image(rgb, clip_level=None, *, ring=None, fluctuation: bool = True,
     lets through the least of the ROI's texture and noise together), and where they too are
     beyond the bound or not measurable, None is returned and the caller fits one channel. Not
     the leading colour alone, orthogonally: that leaves the texture's second colour in the values
-    (the vessels), and on the endoscope suite's colon wall in JPEG frames (whose subsampled
-    chroma hides the second colour on the border) such fits passed 6 to 7 deg off with their
-    depth half the true one. Why the border's colours are lost in read noise: the sensor's noise
-    is added to the linear channels and clipped at 0, and on the endoscope's mucosa the blue
-    channel's body reflection is 1 to 3 noise sigmas at 0.5 to 2 % read noise, where the
-    border's second singular value (1.5 % of the first, noise-free) is within the noise's.
+    (the vessels; measured: ``docs/decisions/light-aware-recommendation.md``). Why the border's
+    colours are lost in read noise: the sensor's noise is added to the linear channels and
+    clipped at 0, and on the endoscope's mucosa the blue channel's body reflection is 1 to 3
+    noise sigmas at 0.5 to 2 % read noise, where the border's second singular value (1.5 % of
+    the first, noise-free) is within the noise's.
 
     Parameters
     ----------
@@ -171,12 +169,10 @@ def _from_two_channels(v, clipped, neg, anyc, values, colours) -> None:
     ``u . (b1_o0, b1_o1) = 0`` give S, the second body colour's texture left in (the three
     channels remove both). Why: a red tissue lit near the guides clips its red channel by its
     body reflection alone, where the specular lobe's flanks lie; left out (``missing``), the fit
-    lost the flanks nearest the lobe's core (on the endoscope suite's flat mucosa under a 0.005 mm
-    relief, 1700 red-clipped pixels of a 406 x 406 frame; the normal 0.4 to 0.75 deg off, where
-    the render's specular image with those pixels left out erred alike and with them 0.02 to
-    0.06 deg). ``neg`` and ``anyc`` lose the pixels given a value. A channel pair whose weights'
-    noise gain ``|u|`` exceeds :data:`BODY_PROJECTION_MAX_GAIN` (white too near b1 in it)
-    leaves its pixels as they were."""
+    lost the flanks nearest the lobe's core (measured: ``docs/decisions/light-aware-recommendation.md``).
+    ``neg`` and ``anyc`` lose the pixels given a value. A channel pair whose weights' noise gain
+    ``|u|`` exceeds :data:`BODY_PROJECTION_MAX_GAIN` (white too near b1 in it) leaves its pixels
+    as they were."""
     b1 = np.linalg.svd(colours, full_matrices=False)[2][0]
     one = neg & (np.count_nonzero(clipped, axis=2) == 1)
     for c in range(3):
@@ -220,10 +216,8 @@ def _least_fluctuation_weights(v, clipped) -> np.ndarray | None:
     dominates, w is orthogonal to both body colours (the exact projection of
     :func:`specular_image`); where the noise does (a dark channel at 1 to 3 noise sigmas: the
     endoscope's mucosa at 0.5 % read noise and above), w trades the texture left in against the
-    noise gain, which no fixed projection does: on the endoscope suite's flat mucosa at 0.5 to
-    2 % read noise the exact projection's gain of 2.8 amplified a blue channel at one noise
-    sigma, the darkest channel's fit kept the texture (0.6 to 0.8 deg off, depth 8 to 9 %
-    short), and these weights gave 0.09 to 0.15 deg, depth within 2.3 %. ``a0``: the leading
+    noise gain, which no fixed projection does (measured: ``docs/decisions/light-aware-recommendation.md``).
+    ``a0``: the leading
     right singular vector of the box means. Measured on the pixels off the field stop's black
     (a channel above 0 in the whole box) and away from clipped pixels (none in the box), the
     lobes trimmed in passes as :func:`specular_image` trims the border (box means whose

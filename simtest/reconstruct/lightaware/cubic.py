@@ -137,7 +137,6 @@ def _patch_specular_points(b_ray, p, Lm, lights):
     return normals, depths
 
 
-
 def _light_normal_jacobian(b_ray, p, Lm, lights, x_scale) -> np.ndarray:
     """The derivative (J, 3, 11) of each light's specular-point normal on the cubic patch ``p``
     in its parameters, by central differences (steps of 1e-4 of ``x_scale``; NaN where a

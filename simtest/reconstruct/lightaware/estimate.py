@@ -162,8 +162,6 @@ class LightAwareEstimate:
         return self.normal is not None
 
 
-
-
 def light_behind_surface(est: LightAwareEstimate, ray, lights_mm) -> LightAwareEstimate:
     """``est``, or ``est`` refused (status ``light_behind_plane``) where its fitted surface puts a
     light of the rig behind it.

@@ -159,8 +159,9 @@ def _rig_value(dT, rl, n, h, rig_arr, rough):
         pos = cb > _CB_FLOOR
         cbp = np.where(pos, cb, 1.0)
         lcb = np.log(cbp)
-        val = np.exp(rough * lcb)
-        val[~pos] = 0.0
+        arg = rough * lcb  # 0 below exp(-708) = 3e-308: exp's slow path for a subnormal takes 4x
+        val = np.zeros_like(arg)
+        np.exp(arg, out=val, where=pos & (arg > -708.0))
         if inv_sq[j]:
             hir = h * ir
             val *= hir * hir
@@ -315,8 +316,6 @@ def _roi_samples(vals, o, uu, vv, keep, max_pixels):
     return sel, step, uv, y
 
 
-
-
 def albedo_lines(luma_roi, step: float = 1.0, noise: float = 0.0) -> np.ndarray:
     """The pixels of the tissue albedo's thin dark lines (vessels) in an ROI of a frame's luma.
 
@@ -382,19 +381,25 @@ def _roi_grid(values, camera, origin_uv, clip_level):
     return vals, camera, o, uu, vv, keep
 
 
-def _rig_diffuse(dT, rl, n, h, rig_arr) -> np.ndarray:
+def _light_terms(dT, rl, n, h, rig_arr) -> list:
+    """``(cb, delta, s, sl, ir, c)`` of :func:`_terms` for each light of the rig on the plane (n, h)."""
+    return [_terms(dT, n, h, L, (rl[0][j], rl[1][j]))[:6] for j, L in enumerate(rig_arr[0])]
+
+
+def _rig_diffuse(dT, rl, n, h, rig_arr, terms=None) -> np.ndarray:
     """The rig's Lambertian shading of the plane (n, h) along unit rays ``dT`` (3, N): (N,).
 
     ``D = sum_j w_j max(0, n . l_j) f_j p_j`` with ``l_j`` the unit direction from the plane point
     to light j, ``f_j = (h / r_j)^2`` for an inverse-square light (1 otherwise) and ``p_j`` its
     ``cos^m`` profile about +z, the same falloff and profile as the specular lobes of
     :func:`_rig_value` (unit albedo; the fit's linear part scales it). From the pieces of
-    :func:`_terms`: ``n . (L - X) = c`` so ``n . l = c / r``.
+    :func:`_terms`: ``n . (L - X) = c`` so ``n . l = c / r``; ``terms``: :func:`_light_terms` if at hand.
     """
     L, w, inv_sq, m = rig_arr
+    terms = _light_terms(dT, rl, n, h, rig_arr) if terms is None else terms
     D = np.zeros(dT.shape[1])
     for j in range(len(w)):
-        _, _, s, _, ir, c, _ = _terms(dT, n, h, L[j], (rl[0][j], rl[1][j]))
+        _, _, s, _, ir, c = terms[j]
         val = max(c, 0.0) * ir
         if inv_sq[j]:
             hir = h * ir
@@ -405,9 +410,9 @@ def _rig_diffuse(dT, rl, n, h, rig_arr) -> np.ndarray:
     return D
 
 
-def _rig_diffuse_grad(dT, rl, p, nb, e1, e2, rig_arr) -> np.ndarray:
+def _rig_diffuse_grad(dT, rl, p, nb, e1, e2, rig_arr, at=None) -> np.ndarray:
     """The derivatives of :func:`_rig_diffuse` in (a, b, log h) about ``p`` (the plane
-    ``unit(nb + a e1 + b e2)`` at ``h = exp(p[2])``): (3, N).
+    ``unit(nb + a e1 + b e2)`` at ``h = exp(p[2])``): (3, N); ``at``: its ``(n, dns, terms)`` if at hand.
 
     Notes
     -----
@@ -420,12 +425,16 @@ def _rig_diffuse_grad(dT, rl, p, nb, e1, e2, rig_arr) -> np.ndarray:
     the photometric fit's time on a sensor frame's highlight.
     """
     L, w, inv_sq, m = rig_arr
-    n, dns = _normal_derivs(np.asarray(p, dtype=np.float64), nb, e1, e2)
     h = float(np.exp(p[2]))
+    if at is None:
+        n, dns = _normal_derivs(np.asarray(p, dtype=np.float64), nb, e1, e2)
+        terms = _light_terms(dT, rl, n, h, rig_arr)
+    else:
+        n, dns, terms = at
     P = np.array(dns) @ dT
     out = np.zeros((3, dT.shape[1]))
     for j in range(len(w)):
-        _, delta, s, sl, ir, c, _ = _terms(dT, n, h, L[j], (rl[0][j], rl[1][j]))
+        _, delta, s, sl, ir, c = terms[j]
         if not c > 0:
             continue  # the light behind the plane: no shading, none to change (max(c, 0))
         val = c * ir
@@ -492,8 +501,6 @@ def _curvature_columns(dT, rl, n, h, rig_arr, rough, apex) -> np.ndarray:
             dcb = 2.0 * delta * (al * tL1 + be * tL2 - s * dnd) * ir - 2.0 * c * ir * dnd
             out[i] += val * (k * dcb + g_ds * ds)
     return out
-
-
 
 
 def _fresnel_dielectric(cos_i, eta):

@@ -18,7 +18,6 @@ from simtest.reconstruct.lightaware.model import _mean_light, _rays, _rig_arrays
 from simtest.reconstruct.lightaware.solve import _covariance, _hac_covariance, _implausible, _patch_verdict
 
 
-
 def _quadric_root(kxx, kxy, kyy, d, P0, t1, t2, N):
     """Where the rays ``t d`` (d (k, 3), camera frame) first meet the quadric patch
     ``z + (k_xx x^2 + 2 k_xy x y + k_yy y^2 + k_zz z^2) / 2 = 0`` in the frame (t1, t2, N) at P0,
@@ -340,8 +339,6 @@ def quadric_fit(values, origin_uv, bp_uv, camera, rig: LightRig, *,
                               depth_range_mm=depth_range)
 
 
-
-
 def _one_light_band(x, sigma_deg, d0, b_ray, rig_arr, Lm):
     """The quadric's normal sigma under one light with the third-order shape's spread added,
     and the depths (near, far) the data cannot exclude.
@@ -374,7 +371,6 @@ def _one_light_band(x, sigma_deg, d0, b_ray, rig_arr, Lm):
     if sigma_deg is None:
         return None, band
     return float(np.hypot(sigma_deg, 0.5 * spread)), band
-
 
 
 def _patch_covariances(J, r, resid_var, sel, shape, step) -> list:
@@ -459,9 +455,8 @@ def _depth_valley(S, x, cost0, resid_var, covs, max_nfev):
 
     Why: the patch's parameters trade along a curved valley (depth against curvature,
     third-order terms and roughness) that the Gauss-Newton covariance ``s^2 (J^T J)^-1``, a
-    quadratic fitted at one point, sees as much narrower than it is: on a noisy 8-bit two-light
-    sphere (60 px, epsilon/d 0.1) the local 1-sigma of the depth was 0.7 %, the profile's 9 %,
-    and the fit's depth 13 % off (its normals 0.37 deg off with a stated 0.03).
+    quadratic fitted at one point, sees as much narrower than it is (a noisy 8-bit two-light
+    sphere: the local depth sigma 0.7 %, the profile's 9 %, the depth 13 % off).
 
     ``S`` holds the fit's residual ``res(p)`` and ``x_scale``; the same reading serves
     :func:`quadric_fit` (7 parameters, log depth third as here).

@@ -71,8 +71,7 @@ class FitSettings:
         without a depth (``depth_not_observable``, ``not_converged``), once more with
         :data:`RETRY_START_DEPTHS` starts, the one of the lower residual kept: a sensor frame's
         clipped cores leave the lobes' flanks, on which a start at the nominal depth can end in a
-        local minimum (the endoscope suite's flat mucosa at 10 mm: 11.4 deg off, its depth's
-        relative sigma 4.7; from the further starts 0.16 deg, distance 1 % short).
+        local minimum (measured: ``docs/decisions/light-aware-recommendation.md``).
     supersample : int
         s x s point samples per pixel, averaged (a renderer's or sensor's box filter; 1: the
         value at the pixel centre, as the exact images of :mod:`simtest.simulate.offset`).
@@ -81,18 +80,11 @@ class FitSettings:
         k-th row and column; None: every pixel), and the best of them, with ``refine_all`` and
         where the plane explains the sub-grid (its residuals pass the misfit test), once more on
         every unclipped pixel. Where the plane misfits, the model's error, not the noise,
-        dominates and more pixels of it would not help: the sub-grid's fit is kept (on a
-        rendered colonoscope frame's sensor image, whose highlights misfit, the refinement
-        would take 40 to 440 thousand pixels per fit), and so is it where pixels lie at
-        ``floor_level`` (noise clipped there biases the fit, and more pixels would shrink its
-        sigma about that bias: an 8-bit plane with 1 % noise on black, epsilon/d 0.033, gave
-        its depth 52 % short with a sigma of 17 %, ok, where the sub-grid's sigma withheld it).
-        Every pixel of the lobe's
-        tails matters: the tilt and the distance trade off along the BP's constraint, and what
-        separates them is the lobe's shape down to its faint tails (a fit to the pixels above
-        2 % of the peak lost a factor of 3 to 5 in accuracy against the Cramer-Rao bound; on a
-        sub-grid of every second row and column the normal's error was 1.4 to 3.2 times the bound
-        with 2 % read noise, refined on every pixel 0.9 to 1.2 times).
+        dominates and more pixels of it would not help: the sub-grid's fit is kept, and so is
+        it where pixels lie at ``floor_level`` (noise clipped there biases the fit, and more
+        pixels would shrink its sigma about that bias). Every pixel of the lobe's tails matters:
+        the tilt and the distance trade off along the BP's constraint, and what separates them
+        is the lobe's shape down to its faint tails (measured: ``docs/decisions``' light-aware file).
     refine_all : bool
         Refine the sub-grid's solution on every unclipped pixel (above); False keeps the
         sub-grid's (about k^2 times cheaper, its standard deviations k times larger).
@@ -118,18 +110,13 @@ class FitSettings:
         curvature test (Returns) reads only the pixels above that margin. None: no floor.
     floor_refit : bool
         With ``floor_level``, refine the fit once more without the pixels within the margin
-        (where every pixel was fitted). On an exact 8-bit plane on a black background with 1 %
-        read noise (epsilon/d 0.033, 20 noise realisations) the normal was otherwise 0.39 deg
-        off on average in one direction, its spread 0.44, its sigma 0.31 (77 % of errors within
-        2 sigma); refined, 0.19 off, spread 0.51, sigma 0.62. Off by default: on the
-        ``lightaware`` suite's noisy renders it cost the tails' information (its
-        plane_noise_offset cases' photometric fit 0.21 to 0.31 deg mean at 1 % noise, 1.36 to
-        3.28 at 2 %); a censored likelihood (the clipped pixel's probability) would keep it.
+        (where every pixel was fitted): it halves the floor's bias, and is off by default as on
+        the ``lightaware`` suite's noisy renders it cost the tails' information (measured:
+        ``docs/decisions``' light-aware file); a censored likelihood would keep it.
     floor_step : float
         The image's quantisation step at the floor (1 for an 8-bit image): the refinement runs
         only where the noise sigma exceeds it (below, the floor's pixels are rounding's, not
-        clipped noise, and leaving out the levels near 0 of a noise-free 8-bit render took the
-        tails' information: plane_tilt_offset@40 0.024 to 0.072 deg mean).
+        clipped noise, whose levels near 0 carry the tails' information).
     projection : {"auto", "border", "least_fluctuation", "darkest_channel"}
         For RGB values, the projection that removes the tissue's body colours
         (:func:`~simtest.reconstruct.lightaware.colour.specular_image`): ``"border"`` the one
@@ -139,20 +126,14 @@ class FitSettings:
         where they are beyond their bound, the darkest channel; ``"darkest_channel"`` that
         channel alone. ``"auto"`` (default): the border's body colours, and where their fit
         ends without a depth (``depth_not_observable``, ``not_converged``; a misfit stands), the
-        least-fluctuation weights' fit in its place where that one is ``ok`` (on an exact 8-bit
-        plane of strongly absorbing vessels, one body colours' fit ended 5.4 deg off with its
-        depth not observable and a sigma of 0.39 deg); where the border tells no second body
-        colour, the least-fluctuation weights, and where the fit on those is not ``ok`` (a
-        misfit, a depth not observable), the darkest channel's fit in its place. The weights
-        trade the texture they leave in against the noise, and the fit cannot see what they
-        leave: it is kept only where it passes with its depth. A JPEG frame whose block grid is
-        not seen (at quality 95): its subsampled chroma leaves a pattern in the
-        least-fluctuation projection's residual that the curvature test reads as a curved
-        patch; on the endoscope suite's flat mucosa, before the border's body colours were told
-        there (``colour._BODY_SECOND_SNR``), that fit misfit 0.3 deg off, and the recommendation
-        fell back to the BP ray, 6 deg off, where the darkest channel's fit passes 0.6 deg off.
-        On its colon wall one such fit passed with its depth not observable, 17.5 deg off with
-        a sigma of 1.7 deg, and was recommended over the BP ray (2.3 deg).
+        least-fluctuation weights' fit in its place where that one is ``ok``; where the border
+        tells no second body colour, the least-fluctuation weights, and where the fit on those
+        is not ``ok`` (a misfit, a depth not observable), the darkest channel's fit in its place.
+        The weights trade the texture they leave in against the noise, and the fit cannot see
+        what they leave: it is kept only where it passes with its depth. A JPEG frame whose
+        block grid is not seen (at quality 95): its subsampled chroma leaves a pattern in the
+        least-fluctuation projection's residual that the curvature test reads as a curved patch
+        (measured: ``docs/decisions/light-aware-recommendation.md``).
     exclude : ndarray of shape (H, W) of bool, optional
         ROI pixels left out of the fit, as clipped pixels are without ``censor`` (the albedo's
         dark lines: :func:`~simtest.reconstruct.lightaware.model.albedo_lines`).
@@ -306,11 +287,8 @@ def photometric_fit(values, origin_uv, bp_uv, camera, rig: LightRig, settings: F
     its variance profiled out [5]_: both models have the same k parameters, the plane, the
     roughness and the same linear part, so it keeps the lower residual sum of squares); of two
     that misfit, Phong. Why not the BIC there too: when the residuals of both correlate,
-    neither lobe is the image's model and their likelihoods do not rank them. On the endoscope
-    suite's sensor frames of flat mucosa both misfit (the albedo's texture dominates the
-    residual of a whole-frame ROI, and the lobe inside the clipped core leaves only its contour),
-    and the GGX fit's residual sum of squares was the lower by 0.7 % where its normal erred by
-    1.03 deg against Phong's 0.58.
+    neither lobe is the image's model and their likelihoods do not rank them (measured:
+    ``docs/decisions/light-aware-recommendation.md``).
 
     References
     ----------
@@ -437,8 +415,7 @@ def _fit_plane(values, origin_uv, bp_uv, camera, rig, s: FitSettings) -> LightAw
         # the shape check on the darkest channel: a curved patch is curved in every channel, and
         # the projection's residual can hide it (a JPEG frame's chroma, subsampled and blocky,
         # correlates the projected residual over blocks, against which the score test weighs
-        # the curvature's pattern: on the endoscope suite's colon wall every JPEG frame's
-        # projected fit passed 6 to 15 deg off, where the darkest channel's misfits)
+        # the curvature's pattern: on the colon wall JPEG frames' projected fits passed 6-15 deg off)
         c, clip_c = _darkest(values, s.clip_level)
         chan = _fit_lobes(np.asarray(values, dtype=np.float64)[..., c], origin_uv, bp_uv, m.camera, rig,
                           replace(s, clip_level=clip_c, start_normal=est.normal, start_roughness=None,
@@ -457,10 +434,6 @@ def _darkest(rgb, clip_level) -> tuple[int, float | None]:
     clip = None if clip_level is None else float(np.broadcast_to(
         np.asarray(clip_level, dtype=np.float64).reshape(-1), (3,))[c])
     return c, clip
-
-
-
-
 
 
 def _colour_values(rgb, clip_level, projection: str = "auto", two_channels: bool = False):
@@ -500,8 +473,6 @@ def _one_channel_clipped(rgb, clip_level) -> bool:
     return bool(np.any(np.count_nonzero(np.asarray(rgb) >= clip, axis=2) == 1))
 
 
-
-
 def _two_channel_choice(both: LightAwareEstimate, plain: LightAwareEstimate) -> LightAwareEstimate:
     """The fit with the pixels clipped in one channel valued from the other two (``both``:
     :func:`~simtest.reconstruct.lightaware.colour.specular_image`'s ``two_channels``), or the fit
@@ -514,11 +485,8 @@ def _two_channel_choice(both: LightAwareEstimate, plain: LightAwareEstimate) -> 
     the plain one's less the other's; the normals' angle and the depths' difference within
     ``TWO_CHANNEL_Z`` of those sigmas. Why a test: those pixels hold the second body colour's
     texture, which their two channels cannot remove; where a plane is not the surface, the
-    fit with them can pass the curvature test with a smaller sigma and a wrong plane (on the
-    endoscope suite's colon wall, plane fits 4 to 5 deg off with depths 55 % short and sigmas
-    of 2 deg passed, where the plain fits' depths were not observable); on flat mucosa at 0.5 %
-    read noise, where the red channel clips by the tissue's own reflection beside the lobe,
-    the fits with them erred 0.02 to 0.1 deg where the plain ones erred 0.1 to 2 deg.
+    fit with them can pass the curvature test with a smaller sigma and a wrong plane
+    (measured: ``docs/decisions/light-aware-recommendation.md``).
 
     References
     ----------
@@ -551,7 +519,6 @@ def _bic(est: LightAwareEstimate) -> float:
     return est.n_residuals * math.log(max(est.residual_rms, 1e-300) ** 2)
 
 
-
 def _choose_lobe(pho: LightAwareEstimate, ggx: LightAwareEstimate) -> LightAwareEstimate:
     """The Phong or the GGX fit (``photometric_fit``'s Notes, ``lobe="auto"``); its detail names
     the other lobe's residual RMS."""
@@ -560,10 +527,8 @@ def _choose_lobe(pho: LightAwareEstimate, ggx: LightAwareEstimate) -> LightAware
         misfit = e.status == "plane_misfit"
         # a fit whose residual holds a curved patch's pattern (a misfit, or a fit kept with it:
         # curvature_shift_deg) after one whose residual holds none; of two such fits Phong
-        # (neither lobe is the image's model, and their likelihoods do not rank them: on the
-        # endoscope suite's flat mucosa under a 0.002 mm relief a GGX fit kept with it erred
-        # 0.62 deg with a sigma of 0.24, where Phong's misfit was 0.21 deg off); else the
-        # lower BIC
+        # (neither lobe is the image's model, and their likelihoods do not rank them: measured
+        # in docs/decisions); else the lower BIC
         flawed = misfit or e.curvature_shift_deg is not None
         return (failed, flawed, 0.0 if flawed and e is pho else (1.0 if flawed else _bic(e)))
 

@@ -7,8 +7,8 @@ from __future__ import annotations
 import numpy as np
 
 from simtest.reconstruct.lightaware.model import (
-    _normal_derivs, _ray_light, _rays, _rig_arrays, _rig_diffuse, _rig_diffuse_grad, _rig_grad, _rig_grad_ggx,
-    _rig_value, _rig_value_ggx, _roi_grid, _roi_samples, ggx_alpha_of_phong,
+    _light_terms, _normal_derivs, _ray_light, _rays, _rig_arrays, _rig_diffuse, _rig_diffuse_grad,
+    _rig_grad, _rig_grad_ggx, _rig_value, _rig_value_ggx, _roi_grid, _roi_samples, ggx_alpha_of_phong,
 )
 from simtest.reconstruct.lightaware.solve import _ROUGHNESS_RANGE
 
@@ -106,6 +106,8 @@ class PlaneModel:
         self.design = design_
         self.state.clear()
         self.proj.clear()
+        self.lin = {}  # the background's basis on the active rows (resjac_general)
+        self.starts = {}  # start_roughness per start plane
 
     def basis(self, w):
         """``QT`` (3, M), the background's orthonormal basis (rows), and the projected values."""
@@ -143,60 +145,83 @@ class PlaneModel:
         if state.get("key") != key:
             n, dns = _normal_derivs(p, nb, e1, e2)
             h, rough = float(np.exp(p[2])), float(np.exp(p[3]))
-            if self.ggx:
-                S, parts = _rig_value_ggx(dT, rl, n, h, rig_arr, rough), None
-            else:
-                S, parts = _rig_value(dT, rl, n, h, rig_arr, rough)
-            design[:, 0] = box(S)
+            S, parts = (_rig_value_ggx(dT, rl, n, h, rig_arr, rough), None) if self.ggx else _rig_value(
+                dT, rl, n, h, rig_arr, rough)
+            design[:, 0], terms = box(S), None
             if self.diffuse:
-                design[:, 1] = box(_rig_diffuse(dT, rl, n, h, rig_arr))
-            target = np.where(cens, self.clipn, yn)
+                terms = [pt[:1] + pt[4:9] for pt in parts] if parts else _light_terms(dT, rl, n, h, rig_arr)
+                design[:, 1] = box(_rig_diffuse(dT, rl, n, h, rig_arr, terms))
             active = ~cens
-            coef = np.zeros(design.shape[1])
+            coef, Q = np.zeros(design.shape[1]), None
             if not np.isfinite(design).all():
                 # a trial point where the model overflows (a plane seen edge-on, a lobe run off):
                 # residuals that MINPACK rejects, instead of a least squares that LAPACK
                 # refuses with a line of its own on stderr
                 r = np.full(len(yn), _NOT_FINITE_RESIDUAL)
-                state.update(key=key, n=n, dns=dns, h=h, rough=rough, parts=parts, coef=coef,
-                             active=active, r=r)
+                state.update(key=key, n=n, dns=dns, h=h, rough=rough, parts=parts, terms=terms, coef=coef,
+                             active=active, r=r, Q=None)
                 return (r, np.zeros((len(yn), 4))) if grad else (r, None)
+            target = np.where(cens, self.clipn, yn)
             for _ in range(3):  # the active set of the censored rows: two updates settle it
-                A, t = design[active], target[active]
-                if w is not None:
-                    A, t = A * w[active, None], t * w[active]
-                coef = np.linalg.lstsq(A, t, rcond=None)[0]
+                coef, Q = self._linear_part(active, target, w)
                 model = design @ coef
                 new_active = ~cens | (model < self.clipn)
                 if np.array_equal(new_active, active):
                     break
-                active = new_active
+                active, Q = new_active, None  # (Q: the basis of the active set before)
             r = np.where(active, model - target, 0.0)
-            state.update(key=key, n=n, dns=dns, h=h, rough=rough, parts=parts, coef=coef,
-                         active=active, r=r)
+            state.update(key=key, n=n, dns=dns, h=h, rough=rough, parts=parts, terms=terms, coef=coef,
+                         active=active, r=r, Q=Q, w=w)
         if not grad:
             return state["r"], None
         return state["r"], self.jac_general(p, nb, e1, e2, state["dns"], w)
+
+    def _background_basis(self, active, w):
+        """``(QT, R)`` of the (weighted) background's QR on the active rows, kept while they stay."""
+        c = self.lin
+        if not (c and c["w"] is w and np.array_equal(c["active"], active)):
+            B = self.background[active]
+            if w is not None:
+                B = B * w[active, None]
+            Q, R = np.linalg.qr(B)
+            c.update(w=w, active=active, QT=np.ascontiguousarray(Q.T), R=R)
+        return c["QT"], c["R"]
+
+    def _linear_part(self, active, target, w):
+        """The linear parameters of the columns on the active rows, weighted by ``w``, and their
+        orthonormal basis ``(QT, QkT)``: the columns that depend on p projected off the kept
+        background basis and factorised (``lstsq``'s minimum norm, no basis, where a column is
+        (nearly) in the others' span)."""
+        design = self.design
+        A, t = design[active], target[active]
+        if w is not None:
+            A, t = A * w[active, None], t * w[active]
+        QT, R = self._background_basis(active, w)
+        k = design.shape[1] - 3
+        Qk, Rk = np.linalg.qr(A[:, :k] - QT.T @ (QT @ A[:, :k]))
+        d = np.abs(np.concatenate([np.diag(R), np.diag(Rk)]))
+        if not d.min() > 1e-10 * d.max():
+            return np.linalg.lstsq(A, t, rcond=None)[0], None
+        g = np.linalg.solve(Rk, Qk.T @ t)
+        return np.concatenate([g, np.linalg.solve(R, QT @ (t - A[:, :k] @ g))]), (QT, np.ascontiguousarray(Qk.T))
 
     def jac_general(self, p, nb, e1, e2, dns, w):
         """Kaufman's Jacobian (M, 4) of :meth:`resjac_general` at its cached point."""
         st = self.state
         coef, active = st["coef"], st["active"]
-        if self.ggx:
-            G = coef[0] * self.box(_rig_grad_ggx(self.dT, self.rl, st["n"], dns, st["h"], self.rig_arr,
-                                                 st["rough"]))
-        else:
-            G = coef[0] * self.box(_rig_grad(self.dT, st["parts"], st["n"], dns, st["h"], self.rig_arr,
-                                             st["rough"]))
+        lobe_grad, pieces = (_rig_grad_ggx, self.rl) if self.ggx else (_rig_grad, st["parts"])
+        G = coef[0] * self.box(lobe_grad(self.dT, pieces, st["n"], dns, st["h"], self.rig_arr, st["rough"]))
         if self.diffuse:
-            G[:3] += coef[1] * self.box(_rig_diffuse_grad(self.dT, self.rl, p, nb, e1, e2, self.rig_arr))
+            G[:3] += coef[1] * self.box(_rig_diffuse_grad(self.dT, self.rl, p, nb, e1, e2, self.rig_arr,
+                                                          at=(st["n"], dns, st["terms"])))
+        Ga = G[:, active] if w is None else G[:, active] * w[active]
+        if st.get("Q") is not None and st.get("w") is w:
+            QT, Qk = st["Q"]  # the active columns' basis (_linear_part)
+            Ja = Ga - (Ga @ QT.T) @ QT - (Ga @ Qk.T) @ Qk
+        else:
+            Q = np.linalg.qr(self.design[active] if w is None else self.design[active] * w[active, None])[0]
+            Ja = Ga - (Ga @ Q) @ Q.T
         JT = np.zeros_like(G)
-        A = self.design[active]
-        Ga = G[:, active]
-        if w is not None:
-            A, Ga = A * w[active, None], Ga * w[active]
-        Q = np.linalg.qr(A)[0]
-        Ja = Ga - (Ga @ Q) @ Q.T
         JT[:, active] = Ja if w is None else Ja / w[active]
         return JT.T
 
@@ -247,9 +272,13 @@ class PlaneModel:
 
 def start_roughness(m: PlaneModel, n, h, given=None) -> float:
     """The start's roughness on the start plane (``n``, ``h``): ``given``, else Phong's n
-    (:func:`phong_start`), for GGX its alpha of the same peak curvature."""
-    rough = phong_start(m, n, h, given)
-    return ggx_alpha_of_phong(rough) if m.ggx else rough
+    (:func:`phong_start`), for GGX its alpha of the same peak curvature; kept per plane until
+    :meth:`PlaneModel.use` (the screened start is refined from the same)."""
+    key = (np.asarray(n).tobytes(), float(h), given)
+    if key not in m.starts:
+        rough = phong_start(m, n, h, given)
+        m.starts[key] = ggx_alpha_of_phong(rough) if m.ggx else rough
+    return m.starts[key]
 
 
 def _roughness_steps(m: PlaneModel, n, h, log_n, QT, yt):

@@ -170,13 +170,11 @@ class PlaneVerdict:
         :func:`~simtest.reconstruct.lightaware.solve._curvature_shift`). Where the normal's shift
         is at most its sigma (the residual's correlation and, on the sensor path, the cluster
         jackknife counted: :meth:`counted`, over the wider blocks too, as the relief's pattern
-        spans the lobe: on the endoscope suite's flat mucosa under 0.005 and 0.01 mm of relief
-        the narrow blocks' sigmas covered 15 of 21 and 1 of 4 recommended normals at 2 sigma,
-        the wider ones' 20 of 24 and 6 of 6), the fit is kept with its sigmas grown by the
-        shifts (the normal's sigma plus its shift; the depth's plus its relative shift times the
-        depth, withdrawn above ``TOL.depth_rel_sigma_max``) and the detail saying so. On the
-        noisy spheres and a local minimum's leftover pattern the shift is 9 to 16 times the
-        sigma, and the fit stays ``plane_misfit``.
+        spans the lobe; measured: ``docs/decisions/light-aware-recommendation.md``), the fit is
+        kept with its sigmas grown by the shifts (the normal's sigma plus its shift; the depth's
+        plus its relative shift times the depth, withdrawn above ``TOL.depth_rel_sigma_max``) and
+        the detail saying so. On the noisy spheres and a local minimum's leftover pattern the
+        shift is 9 to 16 times the sigma, and the fit stays ``plane_misfit``.
         """
         if shift is None:
             return None
@@ -205,12 +203,9 @@ class PlaneVerdict:
         On a sensor frame the residual holds the albedo's texture, weakly correlated over many
         lags, which only the jackknife sees. On the plain path (no diffuse column, censoring or
         GGX lobe) an integer image of a smooth lobe holds its rounding, which is not independent
-        from pixel to pixel where the lobe changes by less than a level a pixel: the
-        ``lightaware`` suite's 60 noise-free and noisy 8-bit planes at epsilon/d 0.05 to 0.5 had
-        40 errors within twice the white sigma (noise-free: 0.05 to 0.35 deg off, sigmas 0.03 to
-        0.09), 56 within twice the correlation area's. The jackknife is left out there: with 2 %
-        read noise it tripled sigmas that the Cramer-Rao bound already matched (59 of 60
-        covered, but the depth of every 2 % plane withdrawn).
+        from pixel to pixel where the lobe changes by less than a level a pixel. The jackknife
+        is left out there: it tripled sigmas that the Cramer-Rao bound already matched
+        (measured: ``docs/decisions/light-aware-recommendation.md``).
         """
         m = self.m
         scale = math.sqrt(_correlation_area(r0, m.sel, m.keep.shape, m.step))

@@ -39,9 +39,8 @@ def start_planes(m: PlaneModel, rig, d_bp, n0, h0, s) -> list:
     cands = [(n0, h0)]
     if s.start_normal is None and len(rig_arr[0]) > 1:
         # a highlight is one light's: beside the mean light's bisector, each light's at the
-        # nominal depth (the BP that light's specular point), the start of least cost kept. Under
-        # guides +-8 mm at 20 mm the mean light's start (the BP ray) is 11 deg off, and from it
-        # the fit of an exact plane ran off to h -> 0
+        # nominal depth (the BP that light's specular point), the start of least cost kept (under
+        # guides +-8 mm at 20 mm the mean light's is 11 deg off, and an exact plane's fit ran off)
         cands = [_screened(m, cands + [_light_start(d_bp, L, nominal_depth_mm) for L in rig_arr[0]],
                            s.start_roughness)]
     if np.abs(rig_arr[0]).max() > 0:
@@ -67,7 +66,7 @@ def _again(m: PlaneModel, x, n0, e1, e2, h0, s):
     free = np.ones(len(x), bool)
     free[2] = np.abs(m.rig_arr[0]).max() > 1e-9 * h0
     return _solve(m.resjac_at, x, (n0, e1, e2), s.loss, s.f_scale, s.max_nfev, free,
-                  lazy_jac=True, weighted=True)
+                  lazy_jac=True, weighted=True, newton=True)
 
 
 def solve_plane(m: PlaneModel, cands, s, floor_level):
@@ -86,7 +85,7 @@ def solve_plane(m: PlaneModel, cands, s, floor_level):
         free = np.ones(len(p0), bool)
         free[2] = np.abs(m.rig_arr[0]).max() > 1e-9 * hc  # all lights at V: no dependence on h
         x, nfev, conv, msg, r = _solve(m.resjac_at, p0, (nc, e1, e2), s.loss, s.f_scale, s.max_nfev,
-                                       free, lazy_jac=True, weighted=True)
+                                       free, lazy_jac=True, weighted=True, newton=True)
         nfev_total += nfev
         cost = float(r @ r) if np.isfinite(r).all() else np.inf
         if best is None or cost < best[0]:

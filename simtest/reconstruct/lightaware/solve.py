@@ -84,10 +84,12 @@ _LM_TOL = 1e-8
 #: second: the weights move with the residuals, a change at 1e-4 of the cost moves the final
 #: solution by a second-order amount (1e-9 of the depth on the bench's highlight).
 _LM_TOL_FIRST_PASS = 1e-4
+#: LM's tolerance before :func:`_newton`, the pass' evaluations after which it runs, its largest step (else LM)
+_LM_TOL_NEWTON, _NEWTON_AFTER, _NEWTON_STEP = 1e-5, 10, 0.1
 
 
 def _solve(resjac, p0, args, loss: str, f_scale: float, max_nfev: int, free=None,
-           lazy_jac: bool = False, weighted: bool = False):
+           lazy_jac: bool = False, weighted: bool = False, newton: bool = False):
     """Levenberg-Marquardt (MINPACK, analytic Jacobian), robust loss by reweighting.
 
     ``loss="linear"``: one LM solve. Otherwise (``soft_l1``, ``huber``, ``cauchy``): the LM solution
@@ -164,12 +166,50 @@ def _solve(resjac, p0, args, loss: str, f_scale: float, max_nfev: int, free=None
             warnings.simplefilter("always")
             # the first pass of a reweighted fit only sets the weights: looser tolerances
             tol = _LM_TOL if it or loss == "linear" else _LM_TOL_FIRST_PASS
-            q, ier = opt.leastsq(fun, q, args=(w,), Dfun=jac, xtol=tol, ftol=tol, gtol=tol,
-                                 maxfev=max_nfev)
+            done, budget = False, max_nfev + count[0]
+            if newton and (it or loss == "linear"):  # Newton's steps take LM's linear tail (_newton)
+                q, ier = opt.leastsq(fun, q, args=(w,), Dfun=jac, xtol=_LM_TOL_NEWTON, ftol=_LM_TOL_NEWTON,
+                                     gtol=tol, maxfev=max_nfev)
+                q, done = _newton(fun, jac, q, w, tol) if count[0] + max_nfev - budget > _NEWTON_AFTER else (q, False)
+            if not done:  # (the pass' evaluations within max_nfev)
+                q, ier = opt.leastsq(fun, q, args=(w,), Dfun=jac, xtol=tol, ftol=tol, gtol=tol,
+                                     maxfev=max(budget - count[0], 1))
         ok = ier in (1, 2, 3, 4) and bool(np.isfinite(q).all())
         msg = "" if ier in (1, 2, 3, 4) else (str(caught[-1].message) if caught
                                                else f"MINPACK info {ier}")
     return full(q), count[0], ok, msg, rj(q, grad=False)[0]
+
+
+def _newton(fun, jac, q, w, tol: float, steps: int = 6):
+    """Newton's steps on ``|fun(q, w)|^2 / 2`` from ``q`` (where LM converges linearly: a large
+    residual along a hardly observable depth's valley), the Hessian once by forward differences
+    of the gradient ``jac^T fun`` (exact with Kaufman's Jacobian, whose dropped term is orthogonal
+    to the residual). ``(q, converged)``: converged at a step below ``tol`` of each parameter (LM's
+    ``xtol``) that did not raise the cost; else the last point that lowered it."""
+    f0 = fun(q, w)
+    g = jac(q, w).T @ f0
+    eps = 1e-6 * np.maximum(np.abs(q), 1.0)
+    H = np.empty((len(q), len(q)))
+    for j in range(len(q)):
+        d = q.copy()
+        d[j] += eps[j]
+        H[:, j] = (jac(d, w).T @ fun(d, w) - g) / eps[j]
+    try:
+        Hinv = np.linalg.inv(0.5 * (H + H.T))
+    except np.linalg.LinAlgError:
+        return q, False
+    for _ in range(steps):
+        step = -Hinv @ g
+        if not (np.isfinite(step).all() and g @ step < 0 and np.abs(step).max() <= _NEWTON_STEP):
+            return q, False  # not a descent (the Hessian is not positive definite there), or far
+        f1 = fun(q + step, w)
+        if not f1 @ f1 <= (f0 @ f0) * (1.0 + 1e-12):
+            return q, False
+        q, f0 = q + step, f1
+        if np.all(np.abs(step) <= tol * (np.abs(q) + tol)):
+            return q, True
+        g = jac(q, w).T @ f0
+    return q, False
 
 
 #: Plausible fitted values: the distance within DISTANCE_FACTOR_MAX of the start's, the roughness
@@ -465,9 +505,6 @@ def _hac_covariance(J, r, sel, shape, step: int) -> tuple[np.ndarray | None, int
     return unit_cov @ meat @ unit_cov, b
 
 
-
-
-
 def cluster_blocks(shape, texture: bool = True) -> tuple[int, ...]:
     """The block sides of :data:`CLUSTER_PX` whose grid over an ROI of ``shape`` (H, W) px holds
     at least :data:`MIN_CLUSTERS` blocks (the smallest side always: a small ROI keeps one).
@@ -475,10 +512,8 @@ def cluster_blocks(shape, texture: bool = True) -> tuple[int, ...]:
     ``texture``: the fit's residual keeps the tissue's albedo texture (one channel of a sensor
     frame). Where the body colours were projected out (``False``) the texture left is correlated
     over a few pixels, and the sides are the JPEG block's and the macroblock's only: the wider
-    blocks there add their noise to the sigma and withdraw depths the projection measured (the
-    endoscope suite's flat mucosa at 2 % read noise: 2 of 15 projected fits lost their depth, and
-    the darkest channel that stood in erred by 0.9 and 1.2 deg where they had erred by 0.39 and
-    0.14).
+    blocks there add their noise to the sigma and withdraw depths the projection measured
+    (measured: ``docs/decisions/light-aware-recommendation.md``).
     """
     h, w = int(shape[0]), int(shape[1])
     sides = CLUSTER_PX if texture else CLUSTER_PX[:2]
