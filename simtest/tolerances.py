@@ -102,6 +102,14 @@ class Tolerances:
     claim_flat_rig_depth_pct : float
         Largest per-case median error of the recommended depth of the specular point on those
         planes, percent: 5 %, the issue's own bound.
+    claim_flat_rig_light_aware_share : float
+        Least share of the true highlights on those planes (end to end, both guides) whose
+        recommended normal comes from a light-aware fit, for issue 63's must-hold: 0.9, the
+        issue's own bound.
+    claim_flat_rig_relief_mm : float
+        Micro-relief RMS (mm) from which the flat-mucosa end-to-end claim leaves a plane case out:
+        0.005 mm, the issue's own bound; at and above it the relief breaks the highlight into
+        glints whose isophotes no longer hold the plane's depth.
     claim_sigma_coverage : float
         Least share of a suite's highlights with a stated sigma whose recommended normal errs by
         at most twice it, for that must-hold of issue 39 to hold: 0.9, the issue's own bound (an
@@ -135,6 +143,8 @@ class Tolerances:
     claim_curved_rig_median_deg: float = 0.5
     claim_flat_rig_median_deg: float = 0.5
     claim_flat_rig_depth_pct: float = 5.0
+    claim_flat_rig_light_aware_share: float = 0.9
+    claim_flat_rig_relief_mm: float = 0.005
     claim_sigma_coverage: float = 0.9
     small_isophote_gap_abs: float = 1e-4
 

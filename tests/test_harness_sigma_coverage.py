@@ -202,3 +202,45 @@ def test_a_lights_depth_takes_its_fits_relative_sigma_and_no_sigma_is_no_sample(
     assert _depth_errors(est, _H, _RIG)["recommended_depth_within_2sigma"] == 0.0
     assert math.isnan(_depth_errors(_with_depth(21.0, None), _H, _RIG)["recommended_depth_within_2sigma"])
     assert math.isnan(_depth_errors(_with_depth(None, 1.0), _H, _RIG)["recommended_depth_within_2sigma"])
+
+
+# --- the flat mucosa end to end (issue 63) --------------------------------------------------------
+
+
+def _e2e_case(i, aware, bp, none, median, relief=None, family="plane under a light rig, light offset"):
+    """A plane case with end-to-end records: ``aware`` highlights whose recommended normal came from
+    ``photometric_fit``, ``bp`` from the BP ray, ``none`` with none; ``median`` over ok (deg)."""
+    n = aware + bp + none
+    params = {} if relief is None else {"material.relief_mm": relief}
+    return {"id": f"plane_relief@{i}", "key": f"e{i}", "protocol": "rendered", "colocated": False,
+            "family": family, "params": params,
+            "metrics": {"estimators": {}, "diagnostics": {},
+                        "end_to_end": {"n": n, "median_ok_deg": median,
+                                       "normal_from": {"photometric_fit": aware, "bp_ray": bp, "none": none}}}}
+
+
+_E2E = st.tuples(st.integers(0, 16), st.integers(0, 16), st.integers(0, 4),
+                 st.one_of(st.none(), st.floats(0.0, 1.0)))
+
+
+@settings(max_examples=80, deadline=None)
+@given(st.lists(_E2E, min_size=1, max_size=6).filter(lambda rows: sum(a + b + c for a, b, c, _ in rows) > 0))
+def test_the_flat_mucosa_end_to_end_pools_the_light_aware_share_over_highlights(rows):
+    cases = [_e2e_case(i, *r) for i, r in enumerate(rows) if sum(r[:3])]
+    v = {v["id"]: v for v in evaluate_claims({"cases": cases, "sweeps": []})}["flat_rig_end_to_end"]
+    aware, n = sum(r[0] for r in rows), sum(sum(r[:3]) for r in rows)
+    medians_ok = all(r[3] is None or r[3] <= TOL.claim_flat_rig_median_deg for r in rows if sum(r[:3]))
+    assert v["holds"] is (aware / n >= TOL.claim_flat_rig_light_aware_share and medians_ok)
+    assert v["measured"].startswith(f"light-aware recommended normal for {aware} of {n} true highlights")
+
+
+def test_the_flat_mucosa_end_to_end_leaves_out_relief_the_image_does_not_resolve():
+    good = _e2e_case(0, 16, 0, 0, 0.1, relief=0.002)
+    rough = _e2e_case(1, 0, 16, 0, None, relief=TOL.claim_flat_rig_relief_mm)  # at the bound: out
+    one_light = _e2e_case(2, 0, 16, 0, None, family="plane, light offset")
+    v = {v["id"]: v for v in evaluate_claims({"cases": [good, rough, one_light], "sweeps": []})}
+    assert v["flat_rig_end_to_end"]["holds"] is True
+    assert "16 of 16 true highlights" in v["flat_rig_end_to_end"]["measured"]
+    # a BP-ray fallback is not light-aware, whatever its error
+    v = {v["id"]: v for v in evaluate_claims({"cases": [good, _e2e_case(3, 0, 3, 0, 0.1)], "sweeps": []})}
+    assert v["flat_rig_end_to_end"]["holds"] is False
