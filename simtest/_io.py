@@ -23,7 +23,7 @@ from typing import Any
 import numpy as np
 
 __all__ = ["TMP_SUFFIX", "OutputFolderError", "atomic_write", "atomic_write_bytes", "atomic_write_json",
-           "atomic_write_set", "atomic_write_text", "check_output_folder", "jsonable",
+           "atomic_write_text", "check_output_folder", "jsonable",
            "recover_output_folder", "replace_output_folder"]
 
 #: Suffix of every temporary file this module creates.
@@ -147,48 +147,6 @@ def atomic_write_json(path, obj, *, indent: int = 1, **dumps_kwargs) -> Path:
         From ``json.dumps`` (not serialisable, or NaN with ``allow_nan=False``); nothing is written.
     """
     return atomic_write_text(path, json.dumps(obj, indent=indent, **dumps_kwargs) + "\n")
-
-
-def atomic_write_set(writers: dict) -> list[Path]:
-    """Replace several files as a set: every new file is written before any old one is replaced.
-
-    Each ``writers[path](tmp_path)`` writes one file's whole content to a temporary file beside its
-    destination. Only when all of them succeeded are the temporaries renamed over the destinations
-    (``os.replace``, which does not fail for lack of space); if any writer fails, every temporary is
-    removed and every destination keeps its previous content, so a reader never finds new files
-    beside old ones (e.g. a new ``estimates.json`` beside an old ``overlay.png``).
-
-    Parameters
-    ----------
-    writers : dict of {str or Path: callable}
-        Destination -> function writing the content to the path it is given. The temporary keeps
-        the destination's suffix (for writers that infer the format from it).
-
-    Returns
-    -------
-    list of Path
-        The destinations, in the order given.
-    """
-    done: list[tuple[str, Path]] = []
-    try:
-        for path, write in writers.items():
-            path = Path(path)
-            path.parent.mkdir(parents=True, exist_ok=True)
-            fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=path.suffix + TMP_SUFFIX, dir=path.parent)
-            os.close(fd)
-            done.append((tmp, path))
-            write(tmp)
-            with open(tmp, "rb+") as fh:
-                os.fsync(fh.fileno())
-            os.chmod(tmp, _default_mode())
-    except BaseException:
-        for tmp, _ in done:
-            if os.path.exists(tmp):
-                os.unlink(tmp)
-        raise
-    for tmp, path in done:
-        os.replace(tmp, path)
-    return [path for _, path in done]
 
 
 class OutputFolderError(ValueError):

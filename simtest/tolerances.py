@@ -103,13 +103,11 @@ class Tolerances:
         Largest per-case median error of the recommended depth of the specular point on those
         planes, percent: 5 %, the issue's own bound.
     claim_flat_rig_light_aware_share : float
-        Least share of the true highlights on those planes (end to end, both guides) whose
-        recommended normal comes from a light-aware fit, for issue 63's must-hold: 0.9, the
-        issue's own bound.
+        Least share of the true highlights on those planes, end to end, whose recommended normal
+        is light-aware: 0.9, issue 63's own bound.
     claim_flat_rig_relief_mm : float
-        Micro-relief RMS (mm) from which the flat-mucosa end-to-end claim leaves a plane case out:
-        0.005 mm, the issue's own bound; at and above it the relief breaks the highlight into
-        glints whose isophotes no longer hold the plane's depth.
+        Micro-relief RMS (mm) from which that claim leaves a plane out: 0.005, issue 63's bound
+        (the relief breaks the highlight into glints that no longer hold the plane's depth).
     claim_sigma_coverage : float
         Least share of a suite's highlights with a stated sigma whose recommended normal errs by
         at most twice it, for that must-hold of issue 39 to hold: 0.9, the issue's own bound (an

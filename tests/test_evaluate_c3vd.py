@@ -12,7 +12,6 @@ import pytest
 import tifffile
 from typer.testing import CliRunner
 
-from simtest._io import atomic_write_set
 from simtest.cli import app
 from simtest.geometry import PinholeCamera, save_camera
 from simtest.simulate.analytic import phong_plane_image, phong_sphere_image
@@ -161,22 +160,6 @@ def test_outputs_replaced_as_a_set(sequence, tmp_path, monkeypatch):
     res = run(seq, cam, out, "--max-frames", "1")
     assert res.exit_code == 2 and "disk full" in res.output
     assert {p.name: p.read_bytes() for p in out.iterdir()} == before
-
-
-def test_atomic_write_set_keeps_the_old_set_when_a_writer_fails(tmp_path):
-    a, b = tmp_path / "a.json", tmp_path / "b.png"
-    a.write_text("old a")
-    b.write_text("old b")
-
-    def fail(tmp):
-        raise OSError("no space left on device")
-
-    with pytest.raises(OSError):
-        atomic_write_set({a: lambda tmp: open(tmp, "w").write("new a"), b: fail})
-    assert a.read_text() == "old a" and b.read_text() == "old b"
-    assert sorted(p.name for p in tmp_path.iterdir()) == ["a.json", "b.png"]  # no temporaries left
-    atomic_write_set({a: lambda tmp: open(tmp, "w").write("new a"), b: lambda tmp: open(tmp, "w").write("new b")})
-    assert a.read_text() == "new a" and b.read_text() == "new b"
 
 
 def test_a_miss_written_as_c3vd_writes_it_is_invalid(sequence, tmp_path):

@@ -10,7 +10,8 @@ import matplotlib.pyplot as plt
 import numpy as np
 import pytest
 
-from simtest.harness.claims import ALARM_DEG, evaluate_claims, explanations
+from simtest.harness.claims import ALARM_DEG, evaluate_claims
+from simtest.harness.explain import explanations
 from simtest.harness.report import results_csv, write_report_files
 from simtest.harness.report.document import html_report, markdown_report, summary_markdown
 from simtest.harness.report.figures import layout_problems, make_figures

@@ -482,7 +482,6 @@ def _classify_many(C: np.ndarray):
     diag-block (A2, f0): the test does not depend on where the curve lies in the image (a 1 px
     ellipse at (1300, 1000) is as good as one at the origin).
     """
-    k = len(C)
     eps = TOL.conic_degenerate_rel
     norm = np.sqrt(np.einsum("kij,kij->k", C, C))
     zero = norm == 0

@@ -10,8 +10,7 @@ Two kinds, both computed from a ``results.json`` document, never typed by hand:
   co-located planes, rho predicts the eigenvalue gap and the circle-pose error on curved patches.
 
 A claim that no case of the suite can decide is left out (a quick suite has no curved scene).
-:func:`explanations` gives, for each alarming cell of the summary (family median error above
-:data:`ALARM_DEG`), the measured reason, when one of its rules applies.
+The measured reasons behind alarming cells are in :mod:`simtest.harness.explain`.
 """
 
 from __future__ import annotations
@@ -24,14 +23,10 @@ from simtest.reconstruct.registry import names
 from simtest.tolerances import TOL
 
 __all__ = ["PAPER_CHECKS", "CLAIMS", "ALARM_DEG", "MIN_N_INTERVAL", "BEST_LEVEL",
-           "evaluate_paper_claim", "evaluate_claims", "explanations", "median_se", "best_marks"]
+           "evaluate_paper_claim", "evaluate_claims", "median_se", "best_marks"]
 
 #: A family's median error above this (degrees) is alarming: the report must say why.
 ALARM_DEG = 10.0
-
-#: A paper-protocol case at theta = 0 whose oracle error exceeds this many times its family's
-#: median is explained as the fronto-parallel breakdown.
-THETA0_FACTOR = 3.0
 
 #: Families of the rendered protocol whose geometry is an analytic quadric (exact curvature).
 ANALYTIC = ("plane", "sphere", "cylinder", "saddle")
@@ -532,48 +527,30 @@ def _claim_flat_rig(results):
                            f"{depth_bound:g} %")
 
 
-def _flat_rig_e2e_cases(results):
-    """The rendered plane cases under a light rig with end-to-end records whose micro-relief is
-    below ``TOL.claim_flat_rig_relief_mm`` (the scene's own relief where the case sets none)."""
-    out = []
-    for c in _rendered(results, colocated=False):
-        relief = c.get("params", {}).get("material.relief_mm") or 0.0
-        if (_base_family(c) == "plane" and _RIG_QUALIFIER in c.get("family", "")
-                and relief < TOL.claim_flat_rig_relief_mm and (c["metrics"].get("end_to_end") or {}).get("n")):
-            out.append(c)
-    return out
-
-
 def _claim_flat_rig_end_to_end(results):
-    """Issue 63's flat-mucosa must-hold, end to end through ``simtest reconstruct``: over the
-    plane cases under a light rig (micro-relief below ``TOL.claim_flat_rig_relief_mm``), the
-    share of true highlights whose recommended normal came from a light-aware fit is at least
-    ``TOL.claim_flat_rig_light_aware_share``, and each case's median error over the highlights
-    with status ok is at most ``TOL.claim_flat_rig_median_deg``. None where no such case ran."""
-    cs = sorted(_flat_rig_e2e_cases(results), key=lambda c: c["id"])
-    if not cs:
+    """Issue 63's flat-mucosa must-hold end to end (``TOL.claim_flat_rig_*``): the pooled share
+    of true highlights with a light-aware recommended normal, each case's median over ok; None
+    where no plane case under a rig with micro-relief below the bound ran."""
+    aware, bound = set(names("light_aware")), TOL.claim_flat_rig_median_deg
+    rows = []  # (case, light-aware count, true highlights, median over ok)
+    for c in sorted(_rendered(results, colocated=False), key=lambda c: c["id"]):
+        e = c["metrics"].get("end_to_end") or {}
+        if (_base_family(c) == "plane" and _RIG_QUALIFIER in c.get("family", "") and e.get("n")
+                and (c.get("params", {}).get("material.relief_mm") or 0.0) < TOL.claim_flat_rig_relief_mm):
+            la = sum(k for name, k in (e.get("normal_from") or {}).items() if name in aware)
+            rows.append((c, la, int(e["n"]), e.get("median_ok_deg")))
+    if not rows:
         return None
-    aware = set(names("light_aware"))
-    share_bound, bound = TOL.claim_flat_rig_light_aware_share, TOL.claim_flat_rig_median_deg
-    rows = []
-    for c in cs:
-        e = c["metrics"]["end_to_end"]
-        la = sum(k for name, k in (e.get("normal_from") or {}).items() if name in aware)
-        rows.append((c, la, int(e["n"]), e.get("median_ok_deg")))
-    n = sum(r[2] for r in rows)
-    la = sum(r[1] for r in rows)
-    share = la / n
-    worse = [(c, m) for c, _, _, m in rows if m is not None and m > bound]
+    la, n = sum(r[1] for r in rows), sum(r[2] for r in rows)
+    worse = [f"{c['id']} {m:.3g} deg" for c, _, _, m in rows if m is not None and m > bound]
     lowest = sorted(rows, key=lambda r: (r[1] / r[2], r[0]["id"]))[:4]
-    text = (f"light-aware recommended normal for {la} of {n} true highlights ({share:.1%}) in "
-            f"{len(cs)} cases; lowest: " + ", ".join(f"{c['id']} {k} of {m}" for c, k, m, _ in lowest)
-            + f"; case medians over ok within {bound:g} deg in {len(rows) - len(worse)} of {len(rows)}")
-    if worse:
-        text += " (over: " + ", ".join(f"{c['id']} {m:.3g} deg" for c, m in worse) + ")"
-    return (share >= share_bound and not worse, text,
+    text = (f"light-aware recommended normal for {la} of {n} true highlights ({la / n:.1%}) in "
+            f"{len(rows)} cases; lowest: " + ", ".join(f"{c['id']} {k} of {m}" for c, k, m, _ in lowest)
+            + f"; case medians over ok within {bound:g} deg in {len(rows) - len(worse)} of {len(rows)}"
+            + (f" (over: {', '.join(worse)})" if worse else ""))
+    return (la / n >= TOL.claim_flat_rig_light_aware_share and not worse, text,
             f"rendered planes under a light rig, micro-relief below {TOL.claim_flat_rig_relief_mm:g} mm, "
-            f"end-to-end records pooled over the cases; bounds {share_bound:g} of the highlights, "
-            f"{bound:g} deg per case")
+            f"end to end, pooled; bounds {TOL.claim_flat_rig_light_aware_share:g}, {bound:g} deg per case")
 
 
 def _counted(cases: list[dict], key: str) -> list[tuple[dict, float, int]]:
@@ -740,103 +717,4 @@ def evaluate_claims(results: dict) -> list[dict]:
         out.append({"id": cid, "source": "prediction", "claim": text,
                     "holds": None if holds is None else bool(holds), "measured": measured,
                     "scope": scope})
-    return out
-
-
-# ------------------------------------------------------------------------------------------------
-# explanations of alarming rows
-
-
-def _paper_theta_cases(results):
-    return _unique([c for c in results["cases"] if c["protocol"] == "paper"
-                    and c["params"].get("theta_deg") is not None])
-
-
-def _explain_paper(results, est):
-    cs = [c for c in _paper_theta_cases(results) if _stat(c, est, "mean") is not None]
-    if not cs:
-        return None
-    th = np.array([c["params"]["theta_deg"] for c in cs])
-    err = np.array([_stat(c, est, "mean") for c in cs])
-    if est == "paper_oracle":
-        z = [c for c in cs if c["params"]["theta_deg"] == 0 and _diag(c, "eigenvalue_gap")]
-        if not z:
-            return None
-        g = np.array([_diag(c, "eigenvalue_gap") for c in z])
-        pred = np.degrees(np.arcsin(np.sqrt(np.clip(g, 0, 1))))
-        return (f"at theta = 0 the isophote cone is nearly right circular (mean eigenvalue gap "
-                f"{_range(g)}), and N+- leave its axis by asin(sqrt(gap)) = {_range(pred)} deg; "
-                f"measured oracle error there {_range([_stat(c, est, 'mean') for c in z])} deg")
-    pos = th > 0
-    ratio = err[pos] / th[pos]
-    dev = np.abs(err - th)
-    txt = (f"the paper protocol's camera is slanted by theta and does not carry the light: mean "
-           f"error / theta = {_range(ratio)} over {int(pos.sum())} cases with theta > 0 "
-           f"(largest |error - theta| {dev.max():.3g} deg)")
-    if est == "paper_selected":
-        txt += ("; choosing between N+ and N- by closeness to the BP ray, itself theta off the "
-                "normal, picks the wrong one")
-    return txt
-
-
-def _explain_rendered(results, family, est):
-    cs = [c for c in _rendered(results, colocated=not family.endswith("light offset"))
-          if c.get("family") == family and _stat(c, est) is not None]
-    if not cs:
-        return None
-    if est in ("paper_oracle", "paper_selected"):
-        pc = [c for c in cs if _diag(c, "predicted_pose_deg") is not None]
-        if pc:
-            return (f"curvature anisotropy: asin(sqrt(1 - rho^2)) predicts "
-                    f"{_range([_diag(c, 'predicted_pose_deg') for c in pc])} deg on these cases "
-                    f"(measured mean {_range([_stat(c, est, 'mean') for c in pc])} deg)")
-    worst = max(cs, key=lambda c: _stat(c, est))
-    parts = [f"worst case {worst['id']}: median {_stat(worst, est):.3g} deg"]
-    sig = _diag(worst, f"{est}_depth_rel_sigma")
-    if sig is not None:  # a curved light-aware fit: whether its depth, hence its normal, is fixed
-        parts.append(f"its relative depth sigma {sig:.3g}"
-                     + (f" (above {TOL.depth_rel_sigma_max:g}: the depth, and with it the "
-                        f"normal, is not observable)" if sig > TOL.depth_rel_sigma_max else ""))
-    for key, lab in (("residual_px", "fit residual {:.3g} px"), ("rho", "rho {:.3g}"),
-                     ("eigenvalue_gap", "eigenvalue gap {:.3g}")):
-        v = _diag(worst, key)
-        if v is not None:
-            parts.append(lab.format(v))
-    return ", ".join(parts)
-
-
-def explanations(results: dict) -> list[dict]:
-    """The measured reason behind each alarming family x estimator cell, where a rule applies.
-
-    Parameters
-    ----------
-    results : dict
-        A ``results.json`` document with ``families``.
-
-    Returns
-    -------
-    list of dict
-        ``{"family", "estimator", "median", "text"}`` for every cell whose pooled median exceeds
-        :data:`ALARM_DEG`, and for the paper protocol's oracle at theta = 0 when it exceeds
-        :data:`THETA0_FACTOR` times its family median; ``text`` is None where no rule explains
-        it (the report says so).
-    """
-    out = []
-    for fam, f in results.get("families", {}).items():
-        for est, m in f["estimators"].items():
-            if m.get("median") is None or m["median"] <= ALARM_DEG:
-                continue
-            text = (_explain_paper(results, est) if f["protocol"] == "paper"
-                    else _explain_rendered(results, fam, est))
-            out.append({"family": fam, "estimator": est, "median": m["median"], "text": text})
-    # The paper protocol's fronto-parallel breakdown: the oracle's error at theta = 0 stands out
-    # of its family (THETA0_FACTOR x the family median) even when it stays below ALARM_DEG.
-    fam = results.get("families", {}).get("paper protocol", {})
-    fmed = (fam.get("estimators", {}).get("paper_oracle") or {}).get("median")
-    z = [c for c in _paper_theta_cases(results) if c["params"]["theta_deg"] == 0
-         and _stat(c, "paper_oracle", "mean") is not None]
-    if fmed and z and max(_stat(c, "paper_oracle", "mean") for c in z) > THETA0_FACTOR * fmed:
-        out.append({"family": "paper protocol at theta = 0", "estimator": "paper_oracle",
-                    "median": max(_stat(c, "paper_oracle") or 0.0 for c in z),
-                    "text": _explain_paper(results, "paper_oracle")})
     return out

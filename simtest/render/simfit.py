@@ -54,7 +54,7 @@ from simtest.render.outputs import TISSUE_COVERAGE
 from simtest.render.render import render_scene
 from simtest.render.sensor import video_frame
 
-from simtest.render.simreal import FACTOR_GOAL, STATISTICS, at_height, log_ratio, real_reference, split_indices
+from simtest.render.simreal import STATISTICS, at_height, log_ratio, real_reference, split_indices
 from simtest.render.tissue import TISSUE_ALBEDO
 from simtest.scene.spec import SceneSpec, with_overrides
 

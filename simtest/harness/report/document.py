@@ -14,11 +14,11 @@ import base64
 import html
 import json
 
-import numpy as np
 from markdown_it import MarkdownIt
 
 from simtest.decisions import data_side
-from simtest.harness.claims import ALARM_DEG, BEST_LEVEL, MIN_N_INTERVAL, best_marks, explanations
+from simtest.harness.claims import ALARM_DEG, BEST_LEVEL, MIN_N_INTERVAL, best_marks
+from simtest.harness.explain import explanations
 from simtest.harness.report.figures import takeaways
 from simtest.harness.report.numbers import fmt
 from simtest.tolerances import TOL

@@ -23,7 +23,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-__all__ = ["Jet", "variable", "constant", "compose", "jstack"]
+__all__ = ["Jet", "variable", "constant", "compose"]
 
 _Fn = Callable[[np.ndarray], np.ndarray]
 
@@ -166,10 +166,3 @@ def compose(u: Jet, f0: np.ndarray, f1: np.ndarray, f2: np.ndarray) -> Jet:
         u = u.vec()
     return Jet(f0, f1 * u.a, f1 * u.b, f2 * u.a * u.a + f1 * u.aa,
                f2 * u.a * u.b + f1 * u.ab, f2 * u.b * u.b + f1 * u.bb)
-
-
-def jstack(items: list[Jet], axis: int = -1) -> Jet:
-    """Stack scalar jets into a vector jet along ``axis``."""
-    shape = np.broadcast_shapes(*(p.shape for j in items for p in j._parts()))
-    parts = zip(*(j._parts() for j in items), strict=True)
-    return Jet(*(np.stack([np.broadcast_to(p, shape) for p in ps], axis=axis) for ps in parts))
