@@ -5,6 +5,8 @@ from __future__ import annotations
 import os
 
 import matplotlib
+import numpy as np
+import pytest
 
 matplotlib.use("Agg")
 
@@ -34,3 +36,33 @@ def pytest_collection_modifyitems(config, items):
             if item.get_closest_marker("slow") is not None and getattr(item, "module", None) is not None}
     if slow:
         items.sort(key=lambda item: getattr(getattr(item, "module", None), "__name__", None) not in slow)
+
+
+@pytest.fixture(scope="module")
+def shared_renders():
+    """The harness's renders made once per (scene, seed, options) in the module that asks for it.
+
+    For modules that run one suite many times to test what is done with its numbers (the nightly
+    gate: a dozen runs of the quick suite at its seed, each rendering the same ten frames), not
+    the renders themselves (tested by the render modules, determinism included). The harness
+    calls ``simtest.harness.protocols.render_scene``; here it returns the first render of each
+    key, its arrays made read-only so that a caller that wrote into one fails instead of changing
+    the next test's frame. Yields the cache (key -> RenderResult).
+    """
+    import simtest.harness.protocols as protocols
+
+    real, cache = protocols.render_scene, {}
+
+    def render_once(spec, **kwargs):
+        key = (spec, tuple(sorted(kwargs.items())))
+        if key not in cache:
+            res = real(spec, **kwargs)
+            for value in vars(res).values():
+                if isinstance(value, np.ndarray):
+                    value.setflags(write=False)
+            cache[key] = res
+        return cache[key]
+
+    with pytest.MonkeyPatch.context() as mp:
+        mp.setattr(protocols, "render_scene", render_once)
+        yield cache

@@ -9,6 +9,7 @@ import pytest
 
 from simtest.geometry import angle_between_deg
 from simtest.geometry.lights import Light, LightRig
+from simtest.harness import protocols
 from simtest.harness.protocols import RenderedRunner, reconstruct_image, render_rig
 from simtest.harness.suite import harness_recon_settings, load_suite, realisation_seed
 from simtest.reconstruct.recommend import recommend
@@ -119,6 +120,13 @@ def test_rendered_sphere_under_one_light_is_recommended_the_bp_ray():
     assert len(errs) >= 3 and float(np.median(errs)) <= CURVED_MEDIAN_DEG, errs
 
 
+@pytest.fixture(scope="module", autouse=True)
+def _renders_once(shared_renders):
+    """The suite's renders made once in this module (conftest's shared_renders): the liver tests
+    profile the very frames that the liver_two_lights sweep scores (:func:`_liver_case`)."""
+    yield
+
+
 def _curved_suite_errors(sweep, realisations=(0, 1)):
     """Errors (deg) of the recommended normal and of the BP ray on a ``lightaware-curved`` sweep,
     run as the harness runs it (the suite's scene settings and realisation seeds): a list of
@@ -187,7 +195,8 @@ def _liver_case(sweep, eps_mm):
     case = next(c for c in suite.cases if c.sweep == sweep and c.x == eps_mm)
     runner = RenderedRunner(case, ("bp_ray",))
     seed = int(realisation_seed(suite.seed, case.key, 0).generate_state(1, np.uint32)[0]) & MAX_SEED
-    res = render_scene(with_overrides(runner.spec, {"render.seed": seed}), seed=seed)
+    # through the harness's render_scene, as the runner renders it: one render per module
+    res = protocols.render_scene(with_overrides(runner.spec, {"render.seed": seed}), seed=seed)
     img, rig = np.asarray(res.sensor), render_rig(res)
     h = res.highlights[0]
     est = _matched(reconstruct_image(img, res.K, runner.settings), h.bp_px)

@@ -135,7 +135,6 @@ def reconstruct_command(
     view); for a folder of frames or a video, OUT/estimates.parquet (a row per candidate) or with
     --format jsonl OUT/estimates.jsonl (a line per frame) instead.
     Exit status 2: bad input or option; 4: OUT cannot be written."""
-
     try:
         settings = ReconSettings.for_frames(
             isovalues=isovalues, normalise=normalise, allow_open=allow_open,
@@ -332,7 +331,6 @@ def summary_line(estimates, paths, detection: dict | None = None) -> str:
 
 def _camera_of(doc: dict, intrinsics: Path | None):
     """The camera of an estimates document: ``--intrinsics`` if given, else the one it records."""
-
     if intrinsics is not None:
         return load_camera(intrinsics).model
     if doc.get("camera") is not None:
@@ -362,7 +360,6 @@ def load_truth_points(path: Path, camera) -> "np.ndarray":  # noqa: F821
     InputError
         Unreadable file or one without depth.
     """
-
     if not path.is_file():
         raise InputError(f"ground-truth file not found: {path}")
     if path.suffix.lower() == ".npz":
@@ -446,7 +443,6 @@ def view_command(
     an existing file there must be a PNG image). Exit status 2: bad input (an unreadable
     estimates file, a camera or ground truth for another image size, a name not ending in .png);
     4: --out cannot be written (a folder, a file that is not a PNG image, read-only)."""
-
     if out.is_dir():
         fail(f"--out: {out} is a folder; give the PNG file to write", CANNOT_WRITE)
     # the view is a PNG: a name such as notes.txt is a slip, and a file there that is not a PNG
