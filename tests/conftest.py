@@ -2,7 +2,10 @@
 
 from __future__ import annotations
 
+import compileall
 import os
+import sys
+from pathlib import Path
 
 import matplotlib
 import numpy as np
@@ -23,6 +26,16 @@ from hypothesis import settings  # noqa: E402
 settings.register_profile("ci", derandomize=True, print_blob=True)
 if os.environ.get("CI", "").lower() in ("1", "true", "yes"):
     settings.load_profile("ci")
+
+
+def pytest_configure(config):
+    """Compile the package's bytecode once, before any worker starts, where the environment
+    turns the cache off (``PYTHONDONTWRITEBYTECODE``, set on some CI images): else each of the
+    run's processes (xdist workers, the command-line tests' subprocesses, the reconstruction's
+    and the harness's worker pools) compiles every module it imports again, 0.3 to 0.7 s of CPU
+    each. ``compileall`` writes the caches whatever that setting; Python then reads them."""
+    if sys.flags.dont_write_bytecode and not hasattr(config, "workerinput"):
+        compileall.compile_dir(Path(__file__).resolve().parents[1] / "simtest", quiet=2)
 
 
 def pytest_collection_modifyitems(config, items):
