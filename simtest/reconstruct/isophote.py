@@ -28,6 +28,8 @@ from typing import NamedTuple
 
 import cv2
 import numpy as np
+from scipy.sparse import csr_matrix
+from scipy.sparse.csgraph import connected_components as connected_graph_components
 from skimage.measure import find_contours
 
 from simtest._records import fast_init
@@ -435,3 +437,105 @@ def _open_pieces_around_bp(sub, level, ri, ci, open_contours):
         if touches.mean() > 0.5:
             pieces.append(rc)
     return pieces, sides
+
+
+#: Marching squares' segments (``fully_connected="low"``) of each square case (bit 0 the upper
+#: left pixel above the level, 1 upper right, 2 lower left, 3 lower right) as (from, to) edges,
+#: 0 top, 1 bottom, 2 left, 3 right; -1 none: ``find_contours``' table, a saddle's two in its order.
+_SQUARE_SEGMENTS = np.full((16, 2, 2), -1, np.int64)
+for _case, _pairs in {1: [(0, 2)], 2: [(3, 0)], 3: [(3, 2)], 4: [(2, 1)], 5: [(0, 1)], 6: [(3, 0), (2, 1)],
+                      7: [(3, 1)], 8: [(1, 3)], 9: [(0, 2), (1, 3)], 10: [(1, 0)], 11: [(1, 2)],
+                      12: [(2, 3)], 13: [(0, 3)], 14: [(2, 0)]}.items():
+    _SQUARE_SEGMENTS[_case, : len(_pairs)] = _pairs
+
+
+def _outer_contours(boxes: list, levels: np.ndarray, origins: np.ndarray, bps: np.ndarray) -> list:
+    """The closed contours of many components at once, as :func:`_contours` finds them one by
+    one: for each box (:func:`_component_box` of a component off its region's sides, so its
+    border pixels are below its level), at ``levels[i]``, the outer boundary of the component as
+    (u, v) points (``origins[i]`` (row, col) the box's place in the image) when it encloses the
+    BP ``bps[i]`` (u, v) (even-odd, :func:`polygon_contains`), else an empty (0, 2) array; None
+    where marching squares meets a degenerate case (a crossing at a pixel centre: the caller
+    contours that box with ``find_contours``).
+
+    The points are ``find_contours``' bits and order: its fractions and sums elementwise, each
+    square's segments from its table in its scan order, linked edge to edge; a closed contour
+    starts where its assembly leaves it, after the last segment scanned."""
+    n = len(boxes)
+    h = np.array([b.shape[0] for b in boxes], np.int64)
+    w = np.array([b.shape[1] for b in boxes], np.int64)
+    base = np.zeros(n + 1, np.int64)
+    np.cumsum(h * w, out=base[1:])
+    m = int(base[-1])
+    flat = np.concatenate([b.ravel() for b in boxes])
+    above = np.zeros(m + int(w.max()) + 2, np.uint8)
+    above[:m] = flat > np.repeat(levels, h * w)
+    wpx = np.repeat(w, h * w)
+    p = np.arange(m)
+    case = above[:m] + 2 * above[1 : m + 1] + 4 * above[p + wpx] + 8 * above[p + wpx + 1]
+    sq = np.flatnonzero((case != 0) & (case != 15))  # each square's upper left pixel
+    b = np.searchsorted(base, sq, side="right") - 1
+    r, c = np.divmod(sq - base[b], w[b])
+    keep = (r < h[b] - 1) & (c < w[b] - 1)
+    sq, b, r, c = sq[keep], b[keep], r[keep], c[keep]
+    wb, lv = w[b], levels[b]
+    ul, ur, ll, lr = flat[sq], flat[sq + 1], flat[sq + wb], flat[sq + wb + 1]
+    with np.errstate(divide="ignore", invalid="ignore"):
+        frac = np.stack([(lv - ul) / (ur - ul), (lv - ll) / (lr - ll), (lv - ul) / (ll - ul),
+                         (lv - ur) / (lr - ur)], axis=1)
+    rf, cf = r.astype(np.float64), c.astype(np.float64)
+    pr = np.stack([rf, rf + 1.0, rf + frac[:, 2], rf + frac[:, 3]], axis=1)  # each edge's point
+    pc = np.stack([cf + frac[:, 0], cf + frac[:, 1], cf, cf + 1.0], axis=1)
+    key = np.stack([2 * sq, 2 * (sq + wb), 2 * sq + 1, 2 * sq + 3], axis=1)  # each edge's name
+    segs = _SQUARE_SEGMENTS[case[sq]]
+    si, sj = np.nonzero(segs[:, :, 0] >= 0)  # the segments in scan order
+    fe, te = segs[si, sj, 0], segs[si, sj, 1]
+    fkey, tkey, sb = key[si, fe], key[si, te], b[si]
+    fr, fc, tr, tc = pr[si, fe], pc[si, fe], pr[si, te], pc[si, te]
+    bad = np.zeros(n, bool)
+    f = frac[si, fe]
+    bad[sb[~((f > 0) & (f < 1))]] = True  # a point on a pixel centre (or NaN): find_contours decides
+    k = len(fkey)
+    order = np.argsort(fkey)
+    succ = order[np.minimum(np.searchsorted(fkey, tkey, sorter=order), k - 1)]
+    linked = fkey[succ] == tkey
+    bad[sb[~linked]] = True
+    succ = np.where(linked, succ, np.arange(k))
+    ncyc, cyc = connected_graph_components(csr_matrix((np.ones(k), (np.arange(k), succ)), shape=(k, k)),
+                                           directed=True, connection="strong")
+    # each box's cycle of largest signed area (find_contours' orientation): the outer boundary
+    area = np.bincount(cyc, weights=fc * tr - fr * tc, minlength=ncyc)
+    cyc_box = np.zeros(ncyc, np.int64)
+    cyc_box[cyc] = sb
+    o = np.lexsort((area, cyc_box))
+    top = o[np.r_[cyc_box[o][1:] != cyc_box[o][:-1], True]]
+    outer = np.full(n, -1)
+    outer[cyc_box[top]] = top
+    sel = np.flatnonzero(outer[sb] == cyc)
+    # even-odd test of each box's BP against its outer boundary, as polygon_contains
+    u0, v0 = origins[sb[sel], 1], origins[sb[sel], 0]
+    x, y, x2, y2 = fc[sel] + u0, fr[sel] + v0, tc[sel] + u0, tr[sel] + v0
+    px, py = bps[sb[sel], 0], bps[sb[sel], 1]
+    with np.errstate(divide="ignore", invalid="ignore"):
+        cross = ((y > py) != (y2 > py)) & (px < x + (py - y) * (x2 - x) / (y2 - y))
+    inside = np.bincount(sb[sel], weights=cross, minlength=n) % 2 == 1
+    # each outer cycle from the successor of its last segment scanned (where the assembly closes it)
+    last = np.zeros(ncyc, np.int64)
+    np.maximum.at(last, cyc[sel], sel)
+    nxt = succ.copy()
+    nxt[last[cyc[sel]]] = -1
+    dist = (nxt >= 0).astype(np.int64)
+    ptr = nxt
+    while (ptr[sel] >= 0).any():
+        on = sel[ptr[sel] >= 0]
+        dist[on] += dist[ptr[on]]
+        ptr = ptr.copy()
+        ptr[on] = ptr[ptr[on]]
+    length = np.bincount(sb[sel], minlength=n)
+    start = np.zeros(n + 1, np.int64)
+    np.cumsum(length, out=start[1:])
+    pts = np.empty((len(sel), 2))
+    at = start[sb[sel]] + length[sb[sel]] - 1 - dist[sel]
+    pts[at, 0], pts[at, 1] = x, y
+    empty = np.empty((0, 2))
+    return [None if bad[i] else pts[start[i]:start[i + 1]] if inside[i] else empty for i in range(n)]
