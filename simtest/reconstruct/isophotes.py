@@ -20,7 +20,8 @@ from simtest.reconstruct.cone_fit import FitFrame, fit_frame, fit_frames
 from simtest.reconstruct.detect import connected_components, luma, peak_uv
 from simtest.reconstruct.failures import OK
 from simtest.reconstruct.frame_prep import _Frame, _smooth
-from simtest.reconstruct.isophote import MIN_CONTOUR_POINTS, _cut_and_contour, _extract, _region
+from simtest.reconstruct.isophote import (MIN_CONTOUR_POINTS, Isophote, _component_box, _cut_and_contour, _extract,
+                                          _outer_contours, _region)
 from simtest.reconstruct.settings import AUTO_LOCAL_BACKGROUND_REL, Normalisation
 
 _TINY = float(np.finfo(float).tiny)
@@ -234,11 +235,19 @@ class _Levels:
         return self.offset + t * self.scale
 
 
-def _one_isophote(frame: _Frame, region, levels: _Levels, t, flood=None):
+def _one_isophote(frame: _Frame, region, levels: _Levels, t, flood=None, defer=None):
     """Extract the isophote at ``t`` in an ROI's checked region (``isophote._region``):
     ``(IsophoteEstimate of a failure, or _Pending, Isophote or None)``. ``flood``: the flood
-    fill the growth question made at that level (``isophote._cut_and_contour``), or None."""
-    iso = _extract(region, levels.level(t), True, 0, flood)
+    fill the growth question made at that level (``isophote._cut_and_contour``), or None.
+    ``defer``: a list, where a closed contour's marching squares wait for the frame's batch
+    (:func:`_resolve`): then ``(its index there, None)``."""
+    level = levels.level(t)
+    if defer is not None and region.near_bp > level:
+        comp = _component_box(region.sub, level, region.ri, region.ci, flood)
+        if comp is not None and not any(comp[2]):
+            defer.append((comp, level, region, levels, t))
+            return len(defer) - 1, None
+    iso = _extract(region, level, True, 0, flood)
     if not iso:
         return IsophoteEstimate(t, iso.reason, iso.detail), None
     if iso.cut and not frame.settings.allow_open:
@@ -251,7 +260,8 @@ def _one_isophote(frame: _Frame, region, levels: _Levels, t, flood=None):
 
 def _estimate_one(frame: _Frame, bp_uv, roi: Roi, *, saturated: bool, grow: bool,
                   other_bps=(), own_bp: int = -1, bp_ray=None, fitf: FitFrame | None = None,
-                  ring: float | None = None, sm: np.ndarray | None = None) -> _Draft | SpecularityEstimate | None:
+                  ring: float | None = None, sm: np.ndarray | None = None,
+                  defer: list | None = None) -> _Draft | SpecularityEstimate | None:
     """Extract one highlight's isophotes (growing the ROI): a draft for :func:`~simtest.reconstruct.assemble._complete`, or the
     finished estimate of a BP without a viewing ray. ``other_bps`` (k, 2) are the BPs its isophote
     must not enclose (``merged``), one frame's array shared by its highlights, whose own row
@@ -260,7 +270,7 @@ def _estimate_one(frame: _Frame, bp_uv, roi: Roi, *, saturated: bool, grow: bool
     median (:func:`_first_rings`), or None. ``sm``: the frame-wide array every ROI's values are
     sliced from (:func:`_grown_drafts`), or None (:func:`_roi_values`); with it, None where only
     the extraction can tell whether the lowest isophote is cut or the BP leaves its ROI (the
-    caller asks again without ``sm``)."""
+    caller asks again without ``sm``). ``defer``: :func:`_one_isophote`'s (a result an index there)."""
     isovalues = frame.settings.isovalues
     sigma = frame.smooth_sigma_px
     bp_uv = np.asarray(bp_uv, dtype=np.float64)
@@ -313,9 +323,10 @@ def _estimate_one(frame: _Frame, bp_uv, roi: Roi, *, saturated: bool, grow: bool
                     roi, growths = new, growths + 1
                     continue
             if not cut:
-                results[i0] = _one_isophote(frame, region, levels, isovalues[i0], flood)[0] if res is None else res
+                results[i0] = _one_isophote(frame, region, levels, isovalues[i0], flood, defer)[0] \
+                    if res is None else res
                 for i in order[1:]:
-                    results[i], _ = _one_isophote(frame, region, levels, isovalues[i])
+                    results[i], _ = _one_isophote(frame, region, levels, isovalues[i], None, defer)
             break
     finally:
         _put_back(saved)
@@ -349,13 +360,42 @@ def _grown_drafts(frame: _Frame, ks: list, bps: list, rois_of: dict, rings_of: d
         sm = frame.luma_frame32
     else:
         return {}
-    out = {}
+    out, defer = {}, []
     for k, sat, own in zip(ks, saturated, own_rows):
         draft = _estimate_one(frame, bps[k], rois_of[k], saturated=sat, grow=True, other_bps=others, own_bp=own,
-                              bp_ray=rays[k], fitf=frames_of[k], ring=rings_of[k], sm=sm)
+                              bp_ray=rays[k], fitf=frames_of[k], ring=rings_of[k], sm=sm, defer=defer)
         if draft is not None:
             out[k] = draft
-    return out
+    return _resolve(frame, out, defer)
+
+
+def _resolve(frame: _Frame, drafts: dict, defer: list) -> dict:
+    """``drafts`` with each result that is an index in ``defer`` (:func:`_one_isophote`) replaced
+    by its isophote: every closed contour contoured in one batch (:func:`isophote._outer_contours`,
+    the same points), a degenerate one alone."""
+    if not defer:
+        return drafts
+    origins = np.array([(g.roi.row0 + rc[0], g.roi.col0 + rc[1]) for (_, rc, _), _, g, _, _ in defer], np.float64)
+    uvs = _outer_contours([box for (box, _, _), *_ in defer], np.array([d[1] for d in defer], np.float64),
+                          origins, np.array([d[2].bp_uv for d in defer]))
+    got = []
+    for (_, level, region, levels, t), uv in zip(defer, uvs):
+        if uv is None:
+            got.append(_one_isophote(frame, region, levels, t)[0])
+        elif not len(uv):
+            got.append(IsophoteEstimate(t, "no_contour", f"no contour at level {level:.6g} around BP "
+                                        f"{region.bp_uv.tolist()}"))
+        elif len(uv) < MIN_CONTOUR_POINTS:
+            got.append(IsophoteEstimate(t, "too_few_points", f"{len(uv)} contour points < {MIN_CONTOUR_POINTS}",
+                                        uv, True))
+        else:
+            got.append(_Pending(t, Isophote(uv, float(level), True, False, False)))
+    for draft in drafts.values():
+        res = draft.results
+        for i, r in enumerate(res):
+            if type(r) is int:
+                res[i] = got[r]
+    return drafts
 
 
 def _initial_roi(cand, bp_uv, threshold, frame: _Frame) -> Roi:
