@@ -257,44 +257,13 @@ def _region(values, bp_uv, origin_rc, image_shape) -> _Region:
     return _Region(sub, roi, tuple(image_shape), bp_uv, ri, ci, near_bp)
 
 
-def isophote_cut_by_roi(values: np.ndarray, level: float, bp_uv, *, origin_rc: tuple[int, int],
-                        image_shape: tuple[int, ...]) -> bool | None:
-    """Whether :func:`extract_isophote` with ``allow_open=True`` would give an isophote cut by the
-    ROI border (``Isophote.cut_by_roi``), without tracing it.
-
-    Parameters
-    ----------
-    values, level, bp_uv, origin_rc, image_shape
-        As for :func:`extract_isophote`.
-
-    Returns
-    -------
-    bool or None
-        False where the extraction fails (``bp_below_isovalue``) or its isophote stays off the
-        ROI sides inside the image; True where the component above the level that holds the BP
-        reaches one of them (then no closed contour around the BP exists: the component's outer
-        boundary is open there, and its holes' contours are skipped); None when only the
-        extraction can tell (the BP's pixel is not above the level but a neighbour is, the
-        whole-region path).
-
-    Raises
-    ------
-    ValueError
-        As :func:`extract_isophote`.
-
-    Notes
-    -----
-    The pipeline grows an ROI whose lowest isophote is cut by it and discards that isophote
-    (often on ROIs grown to a megapixel around isophotes that leak into bright tissue). The
-    answer is one flood fill of the BP's component (:func:`_flood`): no contour is traced.
-    """
-    return _cut_and_contour(_region(values, bp_uv, origin_rc, image_shape), level)[0]
-
-
 def _cut_and_contour(region: _Region, level: float) -> tuple[bool | None, tuple | None]:
-    """:func:`isophote_cut_by_roi`'s answer in a checked region, and the flood fill that answered
-    it (:func:`_flood`, for :func:`_extract` at the same level where the ROI is not grown), or
-    None where none was made."""
+    """Whether :func:`_extract` (``allow_open``) in a checked region gives an isophote cut by the
+    ROI (``Isophote.cut_by_roi``), by one flood fill of the BP's component (:func:`_flood`), no
+    contour traced (the pipeline grows such an ROI and discards that isophote): False where it
+    fails (``bp_below_isovalue``) or the component stays off the ROI's sides inside the image,
+    None where only the extraction can tell (the BP's pixel not above the level, a neighbour
+    above it); and the flood fill (for :func:`_extract` at that level), or None where none was made."""
     sub, roi, image_shape, _, ri, ci, near_bp = region
     if not near_bp > level:
         return False, None
@@ -327,7 +296,7 @@ def _contours(sub, level, roi, ri, ci, bp_uv, flood=None):
                 if not np.dot(c[:-1], r[1:]) > np.dot(r[:-1], c[1:]):
                     continue
                 uv = rc_to_uv(rc[:-1], roi.row0 + dr, roi.col0 + dc)
-                if _encloses(uv, bp_uv):
+                if polygon_contains(uv, bp_uv):
                     closed_hits.append(uv)
             else:
                 pieces.append(rc + (dr, dc))
@@ -371,22 +340,6 @@ def _component_box(sub, level, ri, ci, flood=None):
     lab = mask[r0:r1, c0:c1]
     box[lab == 1] = level - 1.0  # pixels of other components (above the level, not joined)
     return box, (r0, c0), sides
-
-
-#: Where the BP lies farther than this from a closed contour, OpenCV's point-in-polygon test on
-#: the contour rounded to float32 decides whether it encloses the BP (px; the rounding moves a
-#: point by under 1e-3 px on an image under 16384 px); nearer, the even-odd test in float64
-#: (:func:`polygon_contains`) does.
-ENCLOSE_FLOAT32_MARGIN_PX = 0.01
-
-
-def _encloses(uv: np.ndarray, bp_uv: np.ndarray) -> bool:
-    """:func:`polygon_contains` of one point in a closed, simple contour, by
-    ``cv2.pointPolygonTest`` away from the contour (:data:`ENCLOSE_FLOAT32_MARGIN_PX`)."""
-    d = cv2.pointPolygonTest(uv.astype(np.float32), (float(bp_uv[0]), float(bp_uv[1])), True)
-    if abs(d) > ENCLOSE_FLOAT32_MARGIN_PX:
-        return d > 0
-    return bool(polygon_contains(uv, bp_uv))
 
 
 def _whole_region_contours(sub, level, roi, bp_uv):
@@ -439,9 +392,9 @@ def _open_pieces_around_bp(sub, level, ri, ci, open_contours):
     return pieces, sides
 
 
-#: Marching squares' segments (``fully_connected="low"``) of each square case (bit 0 the upper
-#: left pixel above the level, 1 upper right, 2 lower left, 3 lower right) as (from, to) edges,
-#: 0 top, 1 bottom, 2 left, 3 right; -1 none: ``find_contours``' table, a saddle's two in its order.
+#: Marching squares' segments (``fully_connected="low"``) by square case (bit 0 the upper left
+#: pixel above the level, 1 upper right, 2 lower left, 3 lower right) as (from, to) edges, 0 top,
+#: 1 bottom, 2 left, 3 right, -1 none: ``find_contours``' table, a saddle's two in its order.
 _SQUARE_SEGMENTS = np.full((16, 2, 2), -1, np.int64)
 for _case, _pairs in {1: [(0, 2)], 2: [(3, 0)], 3: [(3, 2)], 4: [(2, 1)], 5: [(0, 1)], 6: [(3, 0), (2, 1)],
                       7: [(3, 1)], 8: [(1, 3)], 9: [(0, 2), (1, 3)], 10: [(1, 0)], 11: [(1, 2)],
@@ -450,92 +403,73 @@ for _case, _pairs in {1: [(0, 2)], 2: [(3, 0)], 3: [(3, 2)], 4: [(2, 1)], 5: [(0
 
 
 def _outer_contours(boxes: list, levels: np.ndarray, origins: np.ndarray, bps: np.ndarray) -> list:
-    """The closed contours of many components at once, as :func:`_contours` finds them one by
-    one: for each box (:func:`_component_box` of a component off its region's sides, so its
-    border pixels are below its level), at ``levels[i]``, the outer boundary of the component as
-    (u, v) points (``origins[i]`` (row, col) the box's place in the image) when it encloses the
-    BP ``bps[i]`` (u, v) (even-odd, :func:`polygon_contains`), else an empty (0, 2) array; None
-    where marching squares meets a degenerate case (a crossing at a pixel centre: the caller
-    contours that box with ``find_contours``).
-
-    The points are ``find_contours``' bits and order: its fractions and sums elementwise, each
-    square's segments from its table in its scan order, linked edge to edge; a closed contour
-    starts where its assembly leaves it, after the last segment scanned."""
+    """:func:`_contours`' closed contour of many components at once: for each box
+    (:func:`_component_box` of a component off its region's sides, its border below its level) at
+    ``levels[i]``, the component's outer boundary as (u, v) (``origins[i]``: the box's first pixel
+    (u, v)) if it encloses the BP ``bps[i]`` (u, v) (even-odd, as :func:`polygon_contains`), else
+    a (0, 2) array; None where a crossing falls on a pixel centre (degenerate: the caller asks
+    ``find_contours``). ``find_contours``' bits and order: its fractions and sums elementwise, its
+    table's segments in its scan order linked edge to edge, a closed contour starting where its
+    assembly leaves it (after the last segment scanned)."""
     n = len(boxes)
-    h = np.array([b.shape[0] for b in boxes], np.int64)
-    w = np.array([b.shape[1] for b in boxes], np.int64)
-    base = np.zeros(n + 1, np.int64)
-    np.cumsum(h * w, out=base[1:])
-    m = int(base[-1])
+    h, w = np.array([b.shape for b in boxes], np.int64).T
+    base = np.concatenate([[0], np.cumsum(h * w)])
     flat = np.concatenate([b.ravel() for b in boxes])
-    above = np.zeros(m + int(w.max()) + 2, np.uint8)
-    above[:m] = flat > np.repeat(levels, h * w)
+    above = np.zeros(len(flat) + int(w.max()) + 2, np.uint8)
+    above[: len(flat)] = flat > np.repeat(levels, h * w)
+    p = np.arange(len(flat))
     wpx = np.repeat(w, h * w)
-    p = np.arange(m)
-    case = above[:m] + 2 * above[1 : m + 1] + 4 * above[p + wpx] + 8 * above[p + wpx + 1]
-    sq = np.flatnonzero((case != 0) & (case != 15))  # each square's upper left pixel
+    case = above[p] + 2 * above[p + 1] + 4 * above[p + wpx] + 8 * above[p + wpx + 1]
+    sq = np.flatnonzero((case != 0) & (case != 15))  # the squares by their upper left pixel
     b = np.searchsorted(base, sq, side="right") - 1
     r, c = np.divmod(sq - base[b], w[b])
     keep = (r < h[b] - 1) & (c < w[b] - 1)
-    sq, b, r, c = sq[keep], b[keep], r[keep], c[keep]
-    wb, lv = w[b], levels[b]
-    ul, ur, ll, lr = flat[sq], flat[sq + 1], flat[sq + wb], flat[sq + wb + 1]
+    sq, b, r, c, wb = sq[keep], b[keep], r[keep].astype(float), c[keep].astype(float), w[b[keep]]
+    lv, ul, ur, ll, lr = levels[b], flat[sq], flat[sq + 1], flat[sq + wb], flat[sq + wb + 1]
     with np.errstate(divide="ignore", invalid="ignore"):
-        frac = np.stack([(lv - ul) / (ur - ul), (lv - ll) / (lr - ll), (lv - ul) / (ll - ul),
-                         (lv - ur) / (lr - ur)], axis=1)
-    rf, cf = r.astype(np.float64), c.astype(np.float64)
-    pr = np.stack([rf, rf + 1.0, rf + frac[:, 2], rf + frac[:, 3]], axis=1)  # each edge's point
-    pc = np.stack([cf + frac[:, 0], cf + frac[:, 1], cf, cf + 1.0], axis=1)
-    key = np.stack([2 * sq, 2 * (sq + wb), 2 * sq + 1, 2 * sq + 3], axis=1)  # each edge's name
+        frac = np.stack([(lv - ul) / (ur - ul), (lv - ll) / (lr - ll), (lv - ul) / (ll - ul), (lv - ur) / (lr - ur)], 1)
+    pr = np.stack([r, r + 1.0, r + frac[:, 2], r + frac[:, 3]], 1)  # each edge's point and name
+    pc = np.stack([c + frac[:, 0], c + frac[:, 1], c, c + 1.0], 1)
+    key = np.stack([2 * sq, 2 * (sq + wb), 2 * sq + 1, 2 * sq + 3], 1)
     segs = _SQUARE_SEGMENTS[case[sq]]
     si, sj = np.nonzero(segs[:, :, 0] >= 0)  # the segments in scan order
-    fe, te = segs[si, sj, 0], segs[si, sj, 1]
-    fkey, tkey, sb = key[si, fe], key[si, te], b[si]
-    fr, fc, tr, tc = pr[si, fe], pc[si, fe], pr[si, te], pc[si, te]
-    bad = np.zeros(n, bool)
-    f = frac[si, fe]
-    bad[sb[~((f > 0) & (f < 1))]] = True  # a point on a pixel centre (or NaN): find_contours decides
+    fe, te, sb = segs[si, sj, 0], segs[si, sj, 1], b[si]
+    fkey, tkey, fr, fc, tr, tc = key[si, fe], key[si, te], pr[si, fe], pc[si, fe], pr[si, te], pc[si, te]
     k = len(fkey)
     order = np.argsort(fkey)
     succ = order[np.minimum(np.searchsorted(fkey, tkey, sorter=order), k - 1)]
     linked = fkey[succ] == tkey
-    bad[sb[~linked]] = True
+    bad = np.bincount(sb, ~((frac[si, fe] > 0) & (frac[si, fe] < 1)) | ~linked, n) > 0
     succ = np.where(linked, succ, np.arange(k))
-    ncyc, cyc = connected_graph_components(csr_matrix((np.ones(k), (np.arange(k), succ)), shape=(k, k)),
+    ncyc, cyc = connected_graph_components(csr_matrix((np.ones(k), (np.arange(k), succ)), (k, k)),
                                            directed=True, connection="strong")
-    # each box's cycle of largest signed area (find_contours' orientation): the outer boundary
-    area = np.bincount(cyc, weights=fc * tr - fr * tc, minlength=ncyc)
+    # each box's cycle of largest signed area (find_contours' orientation): its outer boundary
+    area = np.bincount(cyc, fc * tr - fr * tc, ncyc)
     cyc_box = np.zeros(ncyc, np.int64)
     cyc_box[cyc] = sb
     o = np.lexsort((area, cyc_box))
-    top = o[np.r_[cyc_box[o][1:] != cyc_box[o][:-1], True]]
+    top = o[np.append(cyc_box[o][1:] != cyc_box[o][:-1], True)]  # the last of each box's
     outer = np.full(n, -1)
     outer[cyc_box[top]] = top
     sel = np.flatnonzero(outer[sb] == cyc)
-    # even-odd test of each box's BP against its outer boundary, as polygon_contains
-    u0, v0 = origins[sb[sel], 1], origins[sb[sel], 0]
+    bs = sb[sel]
+    u0, v0 = origins[bs].T
     x, y, x2, y2 = fc[sel] + u0, fr[sel] + v0, tc[sel] + u0, tr[sel] + v0
-    px, py = bps[sb[sel], 0], bps[sb[sel], 1]
+    px, py = bps[bs].T
     with np.errstate(divide="ignore", invalid="ignore"):
         cross = ((y > py) != (y2 > py)) & (px < x + (py - y) * (x2 - x) / (y2 - y))
-    inside = np.bincount(sb[sel], weights=cross, minlength=n) % 2 == 1
-    # each outer cycle from the successor of its last segment scanned (where the assembly closes it)
+    inside = np.bincount(bs, cross, n) % 2 == 1
+    # each outer cycle cut after its last segment scanned; a segment's place is its distance to there
     last = np.zeros(ncyc, np.int64)
     np.maximum.at(last, cyc[sel], sel)
-    nxt = succ.copy()
-    nxt[last[cyc[sel]]] = -1
-    dist = (nxt >= 0).astype(np.int64)
-    ptr = nxt
-    while (ptr[sel] >= 0).any():
-        on = sel[ptr[sel] >= 0]
+    ptr = succ.copy()
+    ptr[last[cyc[sel]]] = -1
+    dist = (ptr >= 0).astype(np.int64)
+    while (on := sel[ptr[sel] >= 0]).size:
         dist[on] += dist[ptr[on]]
-        ptr = ptr.copy()
         ptr[on] = ptr[ptr[on]]
-    length = np.bincount(sb[sel], minlength=n)
-    start = np.zeros(n + 1, np.int64)
-    np.cumsum(length, out=start[1:])
+    length = np.bincount(bs, minlength=n)
+    start = np.concatenate([[0], np.cumsum(length)])
     pts = np.empty((len(sel), 2))
-    at = start[sb[sel]] + length[sb[sel]] - 1 - dist[sel]
-    pts[at, 0], pts[at, 1] = x, y
-    empty = np.empty((0, 2))
-    return [None if bad[i] else pts[start[i]:start[i + 1]] if inside[i] else empty for i in range(n)]
+    pts[start[bs] + length[bs] - 1 - dist[sel]] = np.stack([x, y], 1)
+    return [None if bad[i] else pts[start[i]:start[i + 1]] if inside[i] else pts[:0] for i in range(n)]

@@ -39,6 +39,11 @@ SMOOTH_FRAME_MIN_ROI_PX = 160 * 160
 #: The strips cost in proportion to their width: 16 instead of 64 halved the re-smoothed pixels of
 #: the Hyper-Kvasir banner (8.6 to 3.9 Mpx).
 SMOOTH_STRIP_ALIGN = smooth_block_px(np.dtype(np.float64).itemsize)
+#: Isophotes whose marching squares wait for one batch (:func:`_resolve`) in
+#: ``reconstruct_rois`` before it contours them: each holds its component's box and region
+#: (a 100 x 100 px ROI: 160 kB), so a long generator of highlights stays within ~40 MB, while
+#: the batch's fixed cost (~0.3 ms) is spread over many.
+RESOLVE_BATCH_ISOPHOTES = 256
 
 
 def _roi_values(frame: _Frame, roi: Roi, smooth_sigma_px: float) -> tuple[np.ndarray, list | None]:
@@ -245,7 +250,7 @@ def _one_isophote(frame: _Frame, region, levels: _Levels, t, flood=None, defer=N
     if defer is not None and region.near_bp > level:
         comp = _component_box(region.sub, level, region.ri, region.ci, flood)
         if comp is not None and not any(comp[2]):
-            defer.append((comp, level, region, levels, t))
+            defer.append((comp, level, region, levels, t, frame))
             return len(defer) - 1, None
     iso = _extract(region, level, True, 0, flood)
     if not iso:
@@ -366,20 +371,22 @@ def _grown_drafts(frame: _Frame, ks: list, bps: list, rois_of: dict, rings_of: d
                               bp_ray=rays[k], fitf=frames_of[k], ring=rings_of[k], sm=sm, defer=defer)
         if draft is not None:
             out[k] = draft
-    return _resolve(frame, out, defer)
+    _resolve(out.values(), defer)
+    return out
 
 
-def _resolve(frame: _Frame, drafts: dict, defer: list) -> dict:
-    """``drafts`` with each result that is an index in ``defer`` (:func:`_one_isophote`) replaced
-    by its isophote: every closed contour contoured in one batch (:func:`isophote._outer_contours`,
-    the same points), a degenerate one alone."""
+def _resolve(drafts, defer: list) -> None:
+    """Replace each result of ``drafts`` (any SpecularityEstimate among them is passed over) that
+    is an index in ``defer`` (:func:`_one_isophote`) by its isophote, and empty ``defer``: every
+    closed contour contoured in one batch (:func:`isophote._outer_contours`, the same points), a
+    degenerate one alone."""
     if not defer:
-        return drafts
-    origins = np.array([(g.roi.row0 + rc[0], g.roi.col0 + rc[1]) for (_, rc, _), _, g, _, _ in defer], np.float64)
+        return
+    origins = rc_to_uv([(g.roi.row0 + rc[0], g.roi.col0 + rc[1]) for (_, rc, _), _, g, *_ in defer])
     uvs = _outer_contours([box for (box, _, _), *_ in defer], np.array([d[1] for d in defer], np.float64),
                           origins, np.array([d[2].bp_uv for d in defer]))
     got = []
-    for (_, level, region, levels, t), uv in zip(defer, uvs):
+    for (_, level, region, levels, t, frame), uv in zip(defer, uvs):
         if uv is None:
             got.append(_one_isophote(frame, region, levels, t)[0])
         elif not len(uv):
@@ -390,12 +397,12 @@ def _resolve(frame: _Frame, drafts: dict, defer: list) -> dict:
                                         uv, True))
         else:
             got.append(_Pending(t, Isophote(uv, float(level), True, False, False)))
-    for draft in drafts.values():
-        res = draft.results
+    defer.clear()
+    for draft in drafts:
+        res = draft.results if isinstance(draft, _Draft) else ()
         for i, r in enumerate(res):
             if type(r) is int:
                 res[i] = got[r]
-    return drafts
 
 
 def _initial_roi(cand, bp_uv, threshold, frame: _Frame) -> Roi:
