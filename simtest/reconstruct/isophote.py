@@ -202,17 +202,22 @@ def _extract(region: _Region, level: float, allow_open: bool, min_points: int,
         return Isophote(uv, float(level), True, False, False)
     if not pieces and not any(sides):
         return Failure("no_contour", f"no contour at level {level:.6g} around BP {bp_uv.tolist()}")
-    rc = np.concatenate(pieces, axis=0) if pieces else np.empty((0, 2))
-    # Which borders the region above the level reaches: ROI sides inside the image, or the image.
-    on_image = [s and b for s, b in zip(sides, roi.touches_image_border(image_shape))]
-    on_roi = [s and not b for s, b in zip(sides, roi.touches_image_border(image_shape))]
-    iso = Isophote(rc_to_uv(rc, roi.row0, roi.col0), float(level), False, any(on_roi), any(on_image))
+    iso = _open_isophote(pieces, sides, roi, image_shape, level)
     if not allow_open:
         where = "image border" if iso.cut_by_image else "ROI border"
         return Failure("contour_cut", f"isophote at level {level:.6g} is cut by the {where}")
     if len(iso.points_uv) < min_points:
         return Failure("too_few_points", f"{len(iso.points_uv)} contour points < {min_points}")
     return iso
+
+
+def _open_isophote(pieces: list, sides, roi: Roi, image_shape: tuple, level: float) -> Isophote:
+    """The open isophote of the contour ``pieces`` (row, col) in an ROI whose component above
+    the level reaches its ``sides`` (top, bottom, left, right): ROI sides inside the image, or the image."""
+    rc = np.concatenate(pieces, axis=0) if pieces else np.empty((0, 2))
+    on_image = [s and b for s, b in zip(sides, roi.touches_image_border(image_shape))]
+    on_roi = [s and not b for s, b in zip(sides, roi.touches_image_border(image_shape))]
+    return Isophote(rc_to_uv(rc, roi.row0, roi.col0), float(level), False, any(on_roi), any(on_image))
 
 
 class _Region(NamedTuple):
@@ -402,56 +407,70 @@ for _case, _pairs in {1: [(0, 2)], 2: [(3, 0)], 3: [(3, 2)], 4: [(2, 1)], 5: [(0
     _SQUARE_SEGMENTS[_case, : len(_pairs)] = _pairs
 
 
-def _outer_contours(boxes: list, levels: np.ndarray, origins: np.ndarray, bps: np.ndarray) -> list:
-    """:func:`_contours`' closed contour of many components at once: for each box
-    (:func:`_component_box` of a component off its region's sides, its border below its level) at
-    ``levels[i]``, the component's outer boundary as (u, v) (``origins[i]``: the box's first pixel
-    (u, v)) if it encloses the BP ``bps[i]`` (u, v) (even-odd, as :func:`polygon_contains`), else
-    a (0, 2) array; None where a crossing falls on a pixel centre (degenerate: the caller asks
-    ``find_contours``). ``find_contours``' bits and order: its fractions and sums elementwise, its
-    table's segments in its scan order linked edge to edge, a closed contour starting where its
-    assembly leaves it (after the last segment scanned)."""
+def _batch_contours(boxes: list, levels: np.ndarray, origins: np.ndarray, bps: np.ndarray) -> list:
+    """:func:`_contours`' contours of many components at once, for each box (:func:`_component_box`)
+    at ``levels[i]``: of a component off its region's sides, its outer boundary as (u, v)
+    (``origins[i]``: the box's first pixel (u, v)) if it encloses the BP ``bps[i]`` (u, v)
+    (even-odd, as :func:`polygon_contains`), else a (0, 2) array; of one that reaches a side, a list
+    of its open contours (row, col) in the box; None where a crossing falls on a pixel (a
+    degenerate case: the caller asks ``find_contours``). ``find_contours``' bits and order: its
+    fractions and sums elementwise, its table's segments in its scan order linked edge to edge,
+    open contours in the order of their first segment, a closed one starting where the assembly
+    leaves it (after its last segment scanned)."""
     n = len(boxes)
     h, w = np.array([b.shape for b in boxes], np.int64).T
-    base = np.concatenate([[0], np.cumsum(h * w)])
-    flat = np.concatenate([b.ravel() for b in boxes])
-    above = np.zeros(len(flat) + int(w.max()) + 2, np.uint8)
-    above[: len(flat)] = flat > np.repeat(levels, h * w)
-    p = np.arange(len(flat))
-    wpx = np.repeat(w, h * w)
-    case = above[p] + 2 * above[p + 1] + 4 * above[p + wpx] + 8 * above[p + wpx + 1]
-    sq = np.flatnonzero((case != 0) & (case != 15))  # the squares by their upper left pixel
-    b = np.searchsorted(base, sq, side="right") - 1
-    r, c = np.divmod(sq - base[b], w[b])
-    keep = (r < h[b] - 1) & (c < w[b] - 1)
-    sq, b, r, c, wb = sq[keep], b[keep], r[keep].astype(float), c[keep].astype(float), w[b[keep]]
-    lv, ul, ur, ll, lr = levels[b], flat[sq], flat[sq + 1], flat[sq + wb], flat[sq + wb + 1]
+    # boxes of one width stacked in a column (border rows below the level keep them apart)
+    by_w = np.argsort(w, kind="stable")
+    widths, first = np.unique(w[by_w], return_index=True)
+    row0 = np.zeros(n, np.int64)  # each box's first row in its column
+    base, parts = 0, []
+    for wd, ks in zip(widths.tolist(), np.split(by_w, first[1:])):
+        col = np.concatenate([boxes[k] for k in ks.tolist()]) if len(ks) > 1 else boxes[ks[0]]
+        rows = np.concatenate([[0], np.cumsum(h[ks])])
+        row0[ks] = rows[:-1]
+        up = col > np.repeat(levels[ks], h[ks])[:, None]
+        case = up[:-1, :-1] + 2 * up[:-1, 1:].view(np.uint8) + 4 * up[1:, :-1].view(np.uint8) + \
+            8 * up[1:, 1:].view(np.uint8)
+        gr, gc = np.divmod(np.flatnonzero((case != 0) & (case != 15)), wd - 1)
+        b = ks[np.searchsorted(rows, gr, side="right") - 1]
+        keep = gr - row0[b] < h[b] - 1  # not a square across two boxes
+        gr, gc, b = gr[keep], gc[keep], b[keep]
+        parts.append((base + gr * wd + gc, b, gr - row0[b], gc, case[gr, gc], col[gr, gc], col[gr, gc + 1],
+                      col[gr + 1, gc], col[gr + 1, gc + 1], np.full(len(gr), wd)))
+        base += col.size
+    sq, b, r, c, case, ul, ur, ll, lr, wb = (np.concatenate(x) for x in zip(*parts))
+    o = np.argsort(b, kind="stable")  # each box's squares together, in scan order
+    sq, b, r, c, case, ul, ur, ll, lr, wb = sq[o], b[o], r[o], c[o], case[o], ul[o], ur[o], ll[o], lr[o], wb[o]
+    r, c, lv = r.astype(float), c.astype(float), levels[b]
     with np.errstate(divide="ignore", invalid="ignore"):
         frac = np.stack([(lv - ul) / (ur - ul), (lv - ll) / (lr - ll), (lv - ul) / (ll - ul), (lv - ur) / (lr - ur)], 1)
     pr = np.stack([r, r + 1.0, r + frac[:, 2], r + frac[:, 3]], 1)  # each edge's point and name
     pc = np.stack([c + frac[:, 0], c + frac[:, 1], c, c + 1.0], 1)
     key = np.stack([2 * sq, 2 * (sq + wb), 2 * sq + 1, 2 * sq + 3], 1)
-    segs = _SQUARE_SEGMENTS[case[sq]]
+    on = np.stack([(c < pc[:, 0]) & (pc[:, 0] < c + 1), (c < pc[:, 1]) & (pc[:, 1] < c + 1),
+                   (r < pr[:, 2]) & (pr[:, 2] < r + 1), (r < pr[:, 3]) & (pr[:, 3] < r + 1)], 1)
+    segs = _SQUARE_SEGMENTS[case]
     si, sj = np.nonzero(segs[:, :, 0] >= 0)  # the segments in scan order
     fe, te, sb = segs[si, sj, 0], segs[si, sj, 1], b[si]
     fkey, tkey, fr, fc, tr, tc = key[si, fe], key[si, te], pr[si, fe], pc[si, fe], pr[si, te], pc[si, te]
+    bad = np.bincount(sb, ~(on[si, fe] & on[si, te]), n) > 0  # a point off its edge's inside
     k = len(fkey)
     order = np.argsort(fkey)
     succ = order[np.minimum(np.searchsorted(fkey, tkey, sorter=order), k - 1)]
     linked = fkey[succ] == tkey
-    bad = np.bincount(sb, ~((frac[si, fe] > 0) & (frac[si, fe] < 1)) | ~linked, n) > 0
-    succ = np.where(linked, succ, np.arange(k))
-    ncyc, cyc = connected_graph_components(csr_matrix((np.ones(k), (np.arange(k), succ)), (k, k)),
-                                           directed=True, connection="strong")
-    # each box's cycle of largest signed area (find_contours' orientation): its outer boundary
-    area = np.bincount(cyc, fc * tr - fr * tc, ncyc)
-    cyc_box = np.zeros(ncyc, np.int64)
-    cyc_box[cyc] = sb
-    o = np.lexsort((area, cyc_box))
-    top = o[np.append(cyc_box[o][1:] != cyc_box[o][:-1], True)]  # the last of each box's
+    ncomp, comp = connected_graph_components(csr_matrix((np.ones(int(linked.sum())), (np.flatnonzero(linked),
+                                                        succ[linked])), (k, k)), directed=True, connection="weak")
+    is_open = np.bincount(comp, ~linked, ncomp) > 0
+    open_box = np.bincount(sb, is_open[comp], n) > 0
+    # of a closed box, its cycle of largest signed area (find_contours' orientation): the outer boundary
+    area = np.bincount(comp, fc * tr - fr * tc, ncomp)
+    comp_box = np.zeros(ncomp, np.int64)
+    comp_box[comp] = sb
+    o = np.lexsort((area, comp_box))
+    top = o[np.append(comp_box[o][1:] != comp_box[o][:-1], True)]  # the last of each box's
     outer = np.full(n, -1)
-    outer[cyc_box[top]] = top
-    sel = np.flatnonzero(outer[sb] == cyc)
+    outer[comp_box[top]] = top
+    sel = np.flatnonzero(np.where(open_box[sb], is_open[comp], outer[sb] == comp))
     bs = sb[sel]
     u0, v0 = origins[bs].T
     x, y, x2, y2 = fc[sel] + u0, fr[sel] + v0, tc[sel] + u0, tr[sel] + v0
@@ -459,17 +478,32 @@ def _outer_contours(boxes: list, levels: np.ndarray, origins: np.ndarray, bps: n
     with np.errstate(divide="ignore", invalid="ignore"):
         cross = ((y > py) != (y2 > py)) & (px < x + (py - y) * (x2 - x) / (y2 - y))
     inside = np.bincount(bs, cross, n) % 2 == 1
-    # each outer cycle cut after its last segment scanned; a segment's place is its distance to there
-    last = np.zeros(ncyc, np.int64)
-    np.maximum.at(last, cyc[sel], sel)
-    ptr = succ.copy()
-    ptr[last[cyc[sel]]] = -1
+    # each contour cut after its last segment (a cycle's last scanned); a segment's place: its distance to there
+    ptr = np.where(linked, succ, -1)
+    last = np.zeros(ncomp, np.int64)
+    np.maximum.at(last, comp[sel], sel)
+    ptr[last[comp[sel]][~is_open[comp[sel]]]] = -1
     dist = (ptr >= 0).astype(np.int64)
-    while (on := sel[ptr[sel] >= 0]).size:
-        dist[on] += dist[ptr[on]]
-        ptr[on] = ptr[ptr[on]]
+    while (at := sel[ptr[sel] >= 0]).size:
+        dist[at] += dist[ptr[at]]
+        ptr[at] = ptr[ptr[at]]
+    first = np.full(ncomp, k)
+    np.minimum.at(first, comp[sel], sel)
+    rank = np.lexsort((-dist[sel], first[comp[sel]], bs))  # by box, contour and place
     length = np.bincount(bs, minlength=n)
     start = np.concatenate([[0], np.cumsum(length)])
-    pts = np.empty((len(sel), 2))
-    pts[start[bs] + length[bs] - 1 - dist[sel]] = np.stack([x, y], 1)
-    return [None if bad[i] else pts[start[i]:start[i + 1]] if inside[i] else pts[:0] for i in range(n)]
+    pts = np.stack([x, y], 1)[rank]
+    rc = np.stack([fr[sel], fc[sel]], 1)[rank]
+    ends = np.flatnonzero(np.diff(np.append(comp[sel][rank], -1)))  # each contour's last segment
+    tail = np.stack([tr[sel], tc[sel]], 1)[rank][ends]  # its end point (an open contour's last)
+    out = []
+    for i in range(n):
+        if bad[i]:
+            out.append(None)
+        elif not open_box[i]:
+            out.append(pts[start[i]:start[i + 1]] if inside[i] else pts[:0])
+        else:  # each open contour, its end point appended
+            cut = ends[(ends >= start[i]) & (ends < start[i + 1])]
+            out.append([np.concatenate([rc[a:e + 1], tail[j : j + 1]]) for j, a, e in
+                        zip(np.searchsorted(ends, cut), np.append(start[i], cut[:-1] + 1), cut)])
+    return out

@@ -18,10 +18,10 @@ from simtest.reconstruct._pixels import Roi, rc_to_uv
 from simtest.reconstruct.assemble import IsophoteEstimate, SpecularityEstimate, _Draft, _Pending
 from simtest.reconstruct.cone_fit import FitFrame, fit_frame, fit_frames
 from simtest.reconstruct.detect import connected_components, luma, peak_uv
-from simtest.reconstruct.failures import OK
+from simtest.reconstruct.failures import OK, Failure
 from simtest.reconstruct.frame_prep import _Frame, _smooth
-from simtest.reconstruct.isophote import (MIN_CONTOUR_POINTS, Isophote, _component_box, _cut_and_contour, _extract,
-                                          _outer_contours, _region)
+from simtest.reconstruct.isophote import (MIN_CONTOUR_POINTS, Isophote, _batch_contours, _component_box,
+                                          _cut_and_contour, _extract, _open_isophote, _region)
 from simtest.reconstruct.settings import AUTO_LOCAL_BACKGROUND_REL, Normalisation
 
 _TINY = float(np.finfo(float).tiny)
@@ -244,15 +244,19 @@ def _one_isophote(frame: _Frame, region, levels: _Levels, t, flood=None, defer=N
     """Extract the isophote at ``t`` in an ROI's checked region (``isophote._region``):
     ``(IsophoteEstimate of a failure, or _Pending, Isophote or None)``. ``flood``: the flood
     fill the growth question made at that level (``isophote._cut_and_contour``), or None.
-    ``defer``: a list, where a closed contour's marching squares wait for the frame's batch
+    ``defer``: a list, where the BP's component's marching squares wait for a batch
     (:func:`_resolve`): then ``(its index there, None)``."""
     level = levels.level(t)
     if defer is not None and region.near_bp > level:
         comp = _component_box(region.sub, level, region.ri, region.ci, flood)
-        if comp is not None and not any(comp[2]):
+        if comp is not None:
             defer.append((comp, level, region, levels, t, frame))
             return len(defer) - 1, None
-    iso = _extract(region, level, True, 0, flood)
+    return _isophote_result(frame, t, _extract(region, level, True, 0, flood))
+
+
+def _isophote_result(frame: _Frame, t, iso):
+    """:func:`_one_isophote`'s answer for the extraction's ``iso`` (an Isophote or a Failure)."""
     if not iso:
         return IsophoteEstimate(t, iso.reason, iso.detail), None
     if iso.cut and not frame.settings.allow_open:
@@ -262,6 +266,7 @@ def _one_isophote(frame: _Frame, region, levels: _Levels, t, flood=None, defer=N
         return IsophoteEstimate(t, "too_few_points", f"{len(iso.points_uv)} contour points < "
                                 f"{MIN_CONTOUR_POINTS}", iso.points_uv, iso.closed), iso
     return _Pending(t, iso), iso
+
 
 def _estimate_one(frame: _Frame, bp_uv, roi: Roi, *, saturated: bool, grow: bool,
                   other_bps=(), own_bp: int = -1, bp_ray=None, fitf: FitFrame | None = None,
@@ -378,25 +383,24 @@ def _grown_drafts(frame: _Frame, ks: list, bps: list, rois_of: dict, rings_of: d
 def _resolve(drafts, defer: list) -> None:
     """Replace each result of ``drafts`` (any SpecularityEstimate among them is passed over) that
     is an index in ``defer`` (:func:`_one_isophote`) by its isophote, and empty ``defer``: every
-    closed contour contoured in one batch (:func:`isophote._outer_contours`, the same points), a
+    component contoured in one batch (:func:`isophote._batch_contours`, the same points), a
     degenerate one alone."""
     if not defer:
         return
     origins = rc_to_uv([(g.roi.row0 + rc[0], g.roi.col0 + rc[1]) for (_, rc, _), _, g, *_ in defer])
-    uvs = _outer_contours([box for (box, _, _), *_ in defer], np.array([d[1] for d in defer], np.float64),
-                          origins, np.array([d[2].bp_uv for d in defer]))
+    found = _batch_contours([box for (box, _, _), *_ in defer], np.array([d[1] for d in defer], np.float64),
+                            origins, np.array([d[2].bp_uv for d in defer]))
     got = []
-    for (_, level, region, levels, t, frame), uv in zip(defer, uvs):
+    for ((_, (dr, dc), sides), level, g, levels, t, frame), uv in zip(defer, found):
         if uv is None:
-            got.append(_one_isophote(frame, region, levels, t)[0])
-        elif not len(uv):
-            got.append(IsophoteEstimate(t, "no_contour", f"no contour at level {level:.6g} around BP "
-                                        f"{region.bp_uv.tolist()}"))
-        elif len(uv) < MIN_CONTOUR_POINTS:
-            got.append(IsophoteEstimate(t, "too_few_points", f"{len(uv)} contour points < {MIN_CONTOUR_POINTS}",
-                                        uv, True))
+            got.append(_one_isophote(frame, g, levels, t)[0])
+            continue
+        if isinstance(uv, list):  # the component reaches a side of its ROI
+            iso = _open_isophote([rc + (dr, dc) for rc in uv], sides, g.roi, g.image_shape, level)
         else:
-            got.append(_Pending(t, Isophote(uv, float(level), True, False, False)))
+            iso = Isophote(uv, float(level), True, False, False) if len(uv) else Failure(
+                "no_contour", f"no contour at level {level:.6g} around BP {g.bp_uv.tolist()}")
+        got.append(_isophote_result(frame, t, iso)[0])
     defer.clear()
     for draft in drafts:
         res = draft.results if isinstance(draft, _Draft) else ()
