@@ -289,28 +289,34 @@ def _contours(sub, level, roi, ri, ci, bp_uv, flood=None):
         # Only the 4-connected component above the level that holds the BP is contoured, in its
         # bounding box (see Notes): the contour found over the whole region, without the noise.
         box, (dr, dc), sides = comp
-        closed_hits = []
-        pieces = []
-        for rc in find_contours(box, level):
-            if len(rc) >= 3 and rc[0, 0] == rc[-1, 0] and rc[0, 1] == rc[-1, 1]:
-                # find_contours runs a closed contour with the values above the level on one
-                # side: the component's outer boundary has a positive signed area in (col, row),
-                # each hole's (pixels below the level inside it) a negative one; a hole's contour
-                # is never the isophote (at most one closed contour is left)
-                r, c = rc[:, 0], rc[:, 1]
-                if not np.dot(c[:-1], r[1:]) > np.dot(r[:-1], c[1:]):
-                    continue
-                uv = rc_to_uv(rc[:-1], roi.row0 + dr, roi.col0 + dc)
-                if polygon_contains(uv, bp_uv):
-                    closed_hits.append(uv)
-            else:
-                pieces.append(rc + (dr, dc))
-    else:  # the BP pixel itself is not above the level: every contour of the region
-        closed_hits, open_contours = _whole_region_contours(sub, level, roi, bp_uv)
-        pieces, sides = [], (False, False, False, False)
-        if not closed_hits:
-            pieces, sides = _open_pieces_around_bp(sub, level, ri, ci, open_contours)
+        got = _box_contours(box, level, rc_to_uv((roi.row0 + dr, roi.col0 + dc)), bp_uv)
+        if isinstance(got, list):
+            return [], [rc + (dr, dc) for rc in got], sides
+        return [got] if len(got) else [], [], sides
+    # the BP pixel itself is not above the level: every contour of the region
+    closed_hits, open_contours = _whole_region_contours(sub, level, roi, bp_uv)
+    pieces, sides = [], (False, False, False, False)
+    if not closed_hits:
+        pieces, sides = _open_pieces_around_bp(sub, level, ri, ci, open_contours)
     return closed_hits, pieces, sides
+
+
+def _box_contours(box, level, origin_uv, bp_uv):
+    """:func:`_batch_contours`' answer for one box by ``find_contours`` (degenerate cases too)."""
+    closed, pieces = [], []
+    for rc in find_contours(box, level):
+        if len(rc) >= 3 and rc[0, 0] == rc[-1, 0] and rc[0, 1] == rc[-1, 1]:
+            # find_contours runs a closed contour with the values above the level on one side: the
+            # component's outer boundary has a positive signed area in (col, row), each hole's
+            # (pixels below the level inside it) a negative one; a hole's is never the isophote
+            r, c = rc[:, 0], rc[:, 1]
+            if np.dot(c[:-1], r[1:]) > np.dot(r[:-1], c[1:]):
+                uv = rc_to_uv(rc[:-1]) + origin_uv
+                if polygon_contains(uv, bp_uv):
+                    closed.append(uv)
+        else:
+            pieces.append(rc)
+    return pieces if pieces else min(closed, key=polygon_area) if closed else np.empty((0, 2))
 
 
 def _flood(sub, level, ri, ci):
@@ -455,6 +461,8 @@ def _batch_contours(boxes: list, levels: np.ndarray, origins: np.ndarray, bps: n
     fkey, tkey, fr, fc, tr, tc = key[si, fe], key[si, te], pr[si, fe], pc[si, fe], pr[si, te], pc[si, te]
     bad = np.bincount(sb, ~(on[si, fe] & on[si, te]), n) > 0  # a point off its edge's inside
     k = len(fkey)
+    if not k:  # no crossing anywhere
+        return [np.empty((0, 2)) for _ in boxes]
     order = np.argsort(fkey)
     succ = order[np.minimum(np.searchsorted(fkey, tkey, sorter=order), k - 1)]
     linked = fkey[succ] == tkey

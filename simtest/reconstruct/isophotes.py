@@ -20,7 +20,7 @@ from simtest.reconstruct.cone_fit import FitFrame, fit_frame, fit_frames
 from simtest.reconstruct.detect import connected_components, luma, peak_uv
 from simtest.reconstruct.failures import OK, Failure
 from simtest.reconstruct.frame_prep import _Frame, _smooth
-from simtest.reconstruct.isophote import (MIN_CONTOUR_POINTS, Isophote, _batch_contours, _component_box,
+from simtest.reconstruct.isophote import (MIN_CONTOUR_POINTS, Isophote, _batch_contours, _box_contours, _component_box,
                                           _cut_and_contour, _extract, _open_isophote, _region)
 from simtest.reconstruct.settings import AUTO_LOCAL_BACKGROUND_REL, Normalisation
 
@@ -344,14 +344,15 @@ def _estimate_one(frame: _Frame, bp_uv, roi: Roi, *, saturated: bool, grow: bool
 
 
 def _grown_drafts(frame: _Frame, ks: list, bps: list, rois_of: dict, rings_of: dict, rays: np.ndarray,
-                  frames_of: dict, saturated: list, others, own_rows: list) -> dict:
+                  frames_of: dict, saturated: list, others, own_rows: list, defer: list) -> dict:
     """``k -> _Draft``: :func:`_estimate_one` (``grow=True``) of the candidates ``ks`` (their BPs
     ``bps[k]``, first ROIs, rings, rays and fit frames by ``k``; ``saturated`` and ``own_rows``
     in the order of ``ks``) whose ROIs' values are slices of one frame-wide array: the frame's
     smoothing (``smoothed32``) or, where the frame is not smoothed, its float64 luma
     (``luma_frame``) or float32 luma (``luma_frame32``). On any other frame the result is empty,
     as it is for a candidate :func:`_estimate_one` leaves with that array (a BP outside its ROI,
-    a cut that only the extraction can tell): the caller asks again without it."""
+    a cut that only the extraction can tell): the caller asks again without it. ``defer``: where
+    the contours wait (:func:`_one_isophote`; the caller's :func:`_resolve`)."""
     if not ks:
         return {}
     if frame.smoothed32 is not None and frame.smooth_sigma_px > 0:
@@ -370,13 +371,12 @@ def _grown_drafts(frame: _Frame, ks: list, bps: list, rois_of: dict, rings_of: d
         sm = frame.luma_frame32
     else:
         return {}
-    out, defer = {}, []
+    out = {}
     for k, sat, own in zip(ks, saturated, own_rows):
         draft = _estimate_one(frame, bps[k], rois_of[k], saturated=sat, grow=True, other_bps=others, own_bp=own,
                               bp_ray=rays[k], fitf=frames_of[k], ring=rings_of[k], sm=sm, defer=defer)
         if draft is not None:
             out[k] = draft
-    _resolve(out.values(), defer)
     return out
 
 
@@ -391,12 +391,12 @@ def _resolve(drafts, defer: list) -> None:
     found = _batch_contours([box for (box, _, _), *_ in defer], np.array([d[1] for d in defer], np.float64),
                             origins, np.array([d[2].bp_uv for d in defer]))
     got = []
-    for ((_, (dr, dc), sides), level, g, levels, t, frame), uv in zip(defer, found):
-        if uv is None:
-            got.append(_one_isophote(frame, g, levels, t)[0])
-            continue
-        if isinstance(uv, list):  # the component reaches a side of its ROI
-            iso = _open_isophote([rc + (dr, dc) for rc in uv], sides, g.roi, g.image_shape, level)
+    for ((box, (dr, dc), sides), level, g, _, t, frame), uv, origin in zip(defer, found, origins):
+        if uv is None:  # a degenerate case: find_contours
+            uv = _box_contours(box, level, origin, g.bp_uv)
+        if any(sides):  # the component reaches a side of its ROI: open (or no) contours
+            iso = _open_isophote([rc + (dr, dc) for rc in uv] if isinstance(uv, list) else [], sides, g.roi,
+                                 g.image_shape, level)
         else:
             iso = Isophote(uv, float(level), True, False, False) if len(uv) else Failure(
                 "no_contour", f"no contour at level {level:.6g} around BP {g.bp_uv.tolist()}")
@@ -479,9 +479,10 @@ def _candidate_drafts(frame: _Frame, det, r: Roi, bps_arr: np.ndarray, rays: np.
     rings_of = dict(zip(fk.tolist(), _first_rings(frame, [rois_of[k] for k in fk.tolist()])))
     # a frame smoothed once: every fitted candidate's ROI growth, levels and contour walks
     # (_grown_drafts); those it leaves go through _estimate_one
+    defer: list = []  # every draft's contours in one batch, at the end (_resolve)
     drafts = _grown_drafts(frame, fk.tolist(), bps, rois_of, rings_of, rays, frames_of,
                            [det.candidates[k].saturated for k in fk.tolist()], others,
-                           [int(row_in_others[k]) if keep[k] else -1 for k in fk.tolist()])
+                           [int(row_in_others[k]) if keep[k] else -1 for k in fk.tolist()], defer)
     out = []
     # each candidate's ray a row of the rays (views made at once, as rays[k]), and whether it
     # has one, as Python objects: the loop below reads them for a real frame's thousands
@@ -501,5 +502,6 @@ def _candidate_drafts(frame: _Frame, det, r: Roi, bps_arr: np.ndarray, rays: np.
         roi_k = rois_of[k] if k in rois_of else _initial_roi(cand, bp, det.threshold, frame)
         out.append(_estimate_one(frame, bp, roi_k, saturated=cand.saturated, grow=True, other_bps=others,
                                  own_bp=int(row_in_others[k]) if keep[k] else -1, bp_ray=rays[k],
-                                 fitf=frames_of.get(k), ring=rings_of.get(k)))
+                                 fitf=frames_of.get(k), ring=rings_of.get(k), defer=defer))
+    _resolve(out, defer)
     return out

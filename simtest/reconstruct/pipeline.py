@@ -194,7 +194,10 @@ def reconstruct_roi(
         Bad image, K, ROI, BP or dist_coeffs, or a bad or unknown setting.
     """
     settings = ReconSettings.make(settings, isovalues, **options)
-    return _complete([_roi_draft(image, K, bp_uv, roi, dist_coeffs, settings)])[0]
+    defer: list = []
+    drafts = [_roi_draft(image, K, bp_uv, roi, dist_coeffs, settings, None, defer)]
+    _resolve(drafts, defer)
+    return _complete(drafts)[0]
 
 
 def _roi_draft(image, K, bp_uv, roi, dist_coeffs, settings: ReconSettings, cameras: dict | None = None,
