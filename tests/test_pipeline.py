@@ -707,12 +707,12 @@ def test_the_verifier_reuses_detections_gray_and_noise_within_the_accuracy_toler
 
 def test_the_batched_initial_rois_are_each_candidates_own():
     """``_initial_rois`` (one batch of numpy calls for a frame's candidates) gives each candidate
-    the ROI ``_initial_roi`` gives it alone: the real banner's candidates, with their own levels
-    and with the frame's threshold (method full_scale), and under full-scale normalisation."""
+    the ROI it gives it alone: the real banner's candidates, with their own levels and with the
+    frame's threshold (method full_scale), and under full-scale normalisation."""
     from benchmarks import inputs as bench
     from simtest.reconstruct.detect import detect_specularities
     from simtest.reconstruct.frame_prep import _Frame
-    from simtest.reconstruct.isophotes import _initial_roi, _initial_rois
+    from simtest.reconstruct.isophotes import _initial_rois
     from simtest.reconstruct.settings import ReconSettings
     img, K = bench.banner_frame()
     for method, normalise in (("local_peak", "auto"), ("full_scale", "full_scale")):
@@ -723,7 +723,7 @@ def test_the_batched_initial_rois_are_each_candidates_own():
         assert len(cands) > 100
         bps = np.array([c.bp_uv for c in cands], dtype=np.float64)
         assert _initial_rois(cands, bps, det.threshold, frame) == [
-            _initial_roi(c, bp, det.threshold, frame) for c, bp in zip(cands, bps)]
+            _initial_rois([c], bp[None], det.threshold, frame)[0] for c, bp in zip(cands, bps)]
 
 
 @pytest.mark.parametrize("kind", ["grey", "colour", "single"])

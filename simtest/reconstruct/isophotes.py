@@ -409,27 +409,6 @@ def _resolve(drafts, defer: list) -> None:
                 res[i] = got[r]
 
 
-def _initial_roi(cand, bp_uv, threshold, frame: _Frame) -> Roi:
-    """ROI expected to hold the lowest isophote, from the size of the bright component.
-
-    Model: a Gaussian-like lobe I = P exp(-r^2 / (2 s^2)) has radius ``s sqrt(2 ln(P / L))`` at
-    level L, so the isophote at level ``t P`` is ``sqrt(ln(1/t) / ln(P / threshold))`` times the
-    component (clamped to [1, 8]; a clipped highlight makes this an over-estimate). Too small an
-    ROI is grown by the pipeline; this only saves the retries.
-    """
-    t_min = min(frame.settings.isovalues)
-    if cand.level is not None:
-        threshold = cand.level  # this component's own detection level (detection="local_peak")
-    peak = max(cand.peak, threshold * (1 + 1e-6), _TINY)
-    full = frame.settings.normalise == Normalisation.FULL_SCALE
-    level = t_min * (frame.full_scale if full else peak)
-    num = np.log(peak / level) if level > 0 else 1.0
-    den = np.log(peak / threshold) if threshold > 0 else 1.0
-    ratio = min(max(float(np.sqrt(max(num, 0.0) / max(den, 1e-6))), 1.0), 8.0)
-    radius = max(cand.bbox.shape) / 2.0
-    return Roi.around(bp_uv, 1.2 * ratio * radius + 4.0, frame.img.shape)
-
-
 def _first_rings(frame: _Frame, rois: list[Roi]) -> list:
     """Each ROI's smoothed border median (``_Levels.of``'s ring, :func:`_smoothed_border_median`)
     where the frame's ROIs read them (smoothed once, normalised ``auto`` or ``local``); else None
@@ -441,8 +420,15 @@ def _first_rings(frame: _Frame, rois: list[Roi]) -> list:
 
 
 def _initial_rois(cands: list, bps_uv: np.ndarray, threshold, frame: _Frame) -> list[Roi]:
-    """:func:`_initial_roi` of many candidates (BPs ``bps_uv`` (k, 2)) in one batch of numpy
-    calls (the same formulas elementwise; a real frame has hundreds)."""
+    """The ROIs expected to hold the lowest isophotes of candidates (BPs ``bps_uv`` (k, 2)), from
+    the size of each bright component, in one batch of numpy calls (elementwise: each candidate's
+    own ROI).
+
+    Model: a Gaussian-like lobe I = P exp(-r^2 / (2 s^2)) has radius ``s sqrt(2 ln(P / L))`` at
+    level L, so the isophote at level ``t P`` is ``sqrt(ln(1/t) / ln(P / threshold))`` times the
+    component (clamped to [1, 8]; a clipped highlight makes this an over-estimate; ``threshold``
+    a component's own detection level where it has one, ``local_peak``). Too small an ROI is grown
+    by the pipeline; this only saves the retries."""
     if not cands:
         return []
     t_min = min(frame.settings.isovalues)
@@ -499,7 +485,7 @@ def _candidate_drafts(frame: _Frame, det, r: Roi, bps_arr: np.ndarray, rays: np.
             out.append(SpecularityEstimate(bp, cand.peak, cand.saturated, roi_k, status,
                                            detail, ray_rows[k] if ray_ok[k] else None, ()))
             continue
-        roi_k = rois_of[k] if k in rois_of else _initial_roi(cand, bp, det.threshold, frame)
+        roi_k = rois_of[k] if k in rois_of else _initial_rois([cand], bp[None], det.threshold, frame)[0]
         out.append(_estimate_one(frame, bp, roi_k, saturated=cand.saturated, grow=True, other_bps=others,
                                  own_bp=int(row_in_others[k]) if keep[k] else -1, bp_ray=rays[k],
                                  fitf=frames_of.get(k), ring=rings_of.get(k), defer=defer))
