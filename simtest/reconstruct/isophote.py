@@ -413,6 +413,11 @@ for _case, _pairs in {1: [(0, 2)], 2: [(3, 0)], 3: [(3, 2)], 4: [(2, 1)], 5: [(0
     _SQUARE_SEGMENTS[_case, : len(_pairs)] = _pairs
 
 
+#: Each square edge's pixels (0 upper left, 1 upper right, 2 lower left, 3 lower right) from
+#: which and to which ``find_contours`` interpolates its crossing, by edge (top, bottom, left, right).
+_EDGE_ENDS = np.array([[0, 2, 0, 1], [1, 3, 2, 3]])
+
+
 def _batch_contours(boxes: list, levels: np.ndarray, origins: np.ndarray, bps: np.ndarray) -> list:
     """:func:`_contours`' contours of many components at once, for each box (:func:`_component_box`)
     at ``levels[i]``: of a component off its region's sides, its outer boundary as (u, v)
@@ -446,20 +451,25 @@ def _batch_contours(boxes: list, levels: np.ndarray, origins: np.ndarray, bps: n
         base += col.size
     sq, b, r, c, case, ul, ur, ll, lr, wb = (np.concatenate(x) for x in zip(*parts))
     o = np.argsort(b, kind="stable")  # each box's squares together, in scan order
-    sq, b, r, c, case, ul, ur, ll, lr, wb = sq[o], b[o], r[o], c[o], case[o], ul[o], ur[o], ll[o], lr[o], wb[o]
-    r, c, lv = r.astype(float), c.astype(float), levels[b]
-    with np.errstate(divide="ignore", invalid="ignore"):
-        frac = np.stack([(lv - ul) / (ur - ul), (lv - ll) / (lr - ll), (lv - ul) / (ll - ul), (lv - ur) / (lr - ur)], 1)
-    pr = np.stack([r, r + 1.0, r + frac[:, 2], r + frac[:, 3]], 1)  # each edge's point and name
-    pc = np.stack([c + frac[:, 0], c + frac[:, 1], c, c + 1.0], 1)
-    key = np.stack([2 * sq, 2 * (sq + wb), 2 * sq + 1, 2 * sq + 3], 1)
-    on = np.stack([(c < pc[:, 0]) & (pc[:, 0] < c + 1), (c < pc[:, 1]) & (pc[:, 1] < c + 1),
-                   (r < pr[:, 2]) & (pr[:, 2] < r + 1), (r < pr[:, 3]) & (pr[:, 3] < r + 1)], 1)
+    sq, b, r, c, case, wb = sq[o], b[o], r[o].astype(float), c[o].astype(float), case[o], wb[o]
+    corners = np.stack([ul[o], ur[o], ll[o], lr[o]], 1).ravel()
     segs = _SQUARE_SEGMENTS[case]
     si, sj = np.nonzero(segs[:, :, 0] >= 0)  # the segments in scan order
-    fe, te, sb = segs[si, sj, 0], segs[si, sj, 1], b[si]
-    fkey, tkey, fr, fc, tr, tc = key[si, fe], key[si, te], pr[si, fe], pc[si, fe], pr[si, te], pc[si, te]
-    bad = np.bincount(sb, ~(on[si, fe] & on[si, te]), n) > 0  # a point off its edge's inside
+    fe, te, sb, r, c = segs[si, sj, 0], segs[si, sj, 1], b[si], r[si], c[si]
+    lv = levels[sb]
+
+    def point(e):  # each segment's crossing on its square's edge e: (row, col), and off the edge's ends
+        a, z = corners[4 * si + _EDGE_ENDS[0, e]], corners[4 * si + _EDGE_ENDS[1, e]]
+        with np.errstate(divide="ignore", invalid="ignore"):
+            f = (lv - a) / (z - a)
+        side = e >= 2
+        pr, pc = np.where(side, r + f, r + (e == 1)), np.where(side, c + (e == 3), c + f)
+        return pr, pc, np.where(side, (r < pr) & (pr < r + 1), (c < pc) & (pc < c + 1))
+
+    fr, fc, fok = point(fe)
+    tr, tc, tok = point(te)
+    fkey, tkey = (2 * (sq[si] + np.where(e == 1, wb[si], e == 3)) + (e >= 2) for e in (fe, te))
+    bad = np.bincount(sb, ~(fok & tok), n) > 0  # a crossing on a pixel: find_contours decides
     k = len(fkey)
     if not k:  # no crossing anywhere
         return [np.empty((0, 2)) for _ in boxes]
