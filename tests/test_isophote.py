@@ -266,9 +266,9 @@ def test_the_growth_question_meets_each_answer():
 @given(seed=st.integers(0, 2**32 - 1))
 @settings(max_examples=300, deadline=None)
 def test_the_extraction_from_the_growth_questions_flood_fill_is_the_extraction(seed):
-    # isophote._extract given the flood fill the growth question made (_cut_and_contour) returns
-    # what it returns when it fills the component itself
-    from simtest.reconstruct.isophote import _cut_and_contour, _extract, _region
+    # the BP's component box from the flood fill the growth question made (_cut_and_contour), as
+    # the pipeline's contouring takes it, is the one it makes when it fills the component itself
+    from simtest.reconstruct.isophote import _component_box, _cut_and_contour, _region
 
     img, level, bp, off, shape = _random_region(np.random.default_rng(seed))
     try:
@@ -277,7 +277,10 @@ def test_the_extraction_from_the_growth_questions_flood_fill_is_the_extraction(s
         return
     cut, flood = _cut_and_contour(region, level)
     assert cut == _cut_by_roi(img, level, bp, origin_rc=off, image_shape=shape)
-    assert _same(_extract(region, level, True, 0, flood), _extract(region, level, True, 0))
+    if flood is not None:
+        (box, at, sides), (box2, at2, sides2) = (_component_box(region.sub, level, region.ri, region.ci, f)
+                                                 for f in (flood, None))
+        assert np.array_equal(box, box2) and at == at2 and sides == sides2
 
 
 def test_a_ring_a_neighbour_and_a_cut_highlight():
@@ -311,6 +314,27 @@ def test_a_float32_region_is_compared_with_the_level_in_float64():
     level = float(np.float32(0.1)) - 1e-12  # rounds to img's value in float32
     iso = extract_isophote(img, level, (4.0, 4.0))
     assert iso.closed and len(iso.points_uv) == 12
+
+
+@settings(max_examples=300, deadline=None)
+@given(seed=st.integers(0, 2**32 - 1), n=st.integers(3, 60), near=st.booleans())
+def test_the_enclosure_test_is_the_even_odd_test(seed, n, near):
+    # _encloses decides by OpenCV's point-in-polygon test on the contour in float32 away from it,
+    # by polygon_contains in float64 near it: polygon_contains' answer on star-shaped polygons far
+    # from the origin, for points anywhere, on a vertex and within 1e-9 px of an edge
+    from simtest.reconstruct.isophote import _encloses
+
+    rng = np.random.default_rng(seed)
+    ang = np.sort(rng.uniform(0, 2 * np.pi, n))
+    centre = rng.uniform(0, 4000, 2)
+    poly = centre + rng.uniform(1, 30, (n, 1)) * np.c_[np.cos(ang), np.sin(ang)]
+    if near:
+        k = int(rng.integers(n))
+        p = poly[k] + rng.uniform(0, 1) * (poly[(k + 1) % n] - poly[k]) + rng.normal(0, 1e-9, 2)
+    else:
+        p = centre + rng.uniform(-35, 35, 2)
+    assert _encloses(poly, p) == polygon_contains(poly, p)
+    assert _encloses(poly, poly[0]) == polygon_contains(poly, poly[0])
 
 
 @given(seed=st.integers(0, 2**32 - 1), h=st.integers(1, 40), w=st.integers(1, 40),

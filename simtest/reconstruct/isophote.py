@@ -184,16 +184,12 @@ def extract_isophote(
     return _extract(_region(values, bp_uv, origin_rc, image_shape), level, allow_open, min_points)
 
 
-def _extract(region: _Region, level: float, allow_open: bool, min_points: int,
-             flood: tuple | None = None) -> Isophote | Failure:
-    """:func:`extract_isophote` in a checked region (one per ROI, whatever the levels asked).
-
-    ``flood``: :func:`_flood`'s result at this level, where :func:`_cut_and_contour` has just
-    made it (not made again)."""
+def _extract(region: _Region, level: float, allow_open: bool, min_points: int) -> Isophote | Failure:
+    """:func:`extract_isophote` in a checked region (one per ROI, whatever the levels asked)."""
     sub, roi, image_shape, bp_uv, ri, ci, near_bp = region
     if not near_bp > level:
         return Failure("bp_below_isovalue", f"max near BP {near_bp:.6g} <= level {level:.6g}")
-    closed_hits, pieces, sides = _contours(sub, level, roi, ri, ci, bp_uv, flood)
+    closed_hits, pieces, sides = _contours(sub, level, roi, ri, ci, bp_uv)
 
     if closed_hits:
         uv = min(closed_hits, key=polygon_area) if len(closed_hits) > 1 else closed_hits[0]
@@ -279,12 +275,11 @@ def _cut_and_contour(region: _Region, level: float) -> tuple[bool | None, tuple 
     return any(s and not b for s, b in zip(sides, roi.touches_image_border(image_shape))), flood
 
 
-def _contours(sub, level, roi, ri, ci, bp_uv, flood=None):
+def _contours(sub, level, roi, ri, ci, bp_uv):
     """The contours of :func:`extract_isophote` by numpy, OpenCV and scikit-image calls: the
     closed ones enclosing the BP as (u, v), the open pieces as (row, col) in ``sub``, and the sides
-    of ``sub`` the BP's component reaches. ``flood``: :func:`_flood`'s result at ``level`` where
-    the caller has it."""
-    comp = _component_box(sub, level, ri, ci, flood)
+    of ``sub`` the BP's component reaches."""
+    comp = _component_box(sub, level, ri, ci)
     if comp is not None:
         # Only the 4-connected component above the level that holds the BP is contoured, in its
         # bounding box (see Notes): the contour found over the whole region, without the noise.
@@ -301,18 +296,31 @@ def _contours(sub, level, roi, ri, ci, bp_uv, flood=None):
     return closed_hits, pieces, sides
 
 
+#: Where the BP lies farther than this from a closed contour, OpenCV's point-in-polygon test on
+#: the contour rounded to float32 decides whether it encloses the BP (px; the rounding moves a
+#: point by under 1e-3 px on an image under 16384 px); nearer, the even-odd test in float64
+#: (:func:`polygon_contains`) does.
+ENCLOSE_FLOAT32_MARGIN_PX = 0.01
+
+
+def _encloses(uv: np.ndarray, bp_uv: np.ndarray) -> bool:
+    """:func:`polygon_contains` of one point in a closed, simple contour, by
+    ``cv2.pointPolygonTest`` away from the contour (:data:`ENCLOSE_FLOAT32_MARGIN_PX`)."""
+    d = cv2.pointPolygonTest(uv.astype(np.float32), (float(bp_uv[0]), float(bp_uv[1])), True)
+    return d > 0 if abs(d) > ENCLOSE_FLOAT32_MARGIN_PX else bool(polygon_contains(uv, bp_uv))
+
+
 def _box_contours(box, level, origin_uv, bp_uv):
     """:func:`_batch_contours`' answer for one box by ``find_contours`` (degenerate cases too)."""
     closed, pieces = [], []
     for rc in find_contours(box, level):
         if len(rc) >= 3 and rc[0, 0] == rc[-1, 0] and rc[0, 1] == rc[-1, 1]:
-            # find_contours runs a closed contour with the values above the level on one side: the
-            # component's outer boundary has a positive signed area in (col, row), each hole's
-            # (pixels below the level inside it) a negative one; a hole's is never the isophote
+            # the component's outer boundary has a positive signed area in (col, row) (the values above the
+            # level on its left), each hole's a negative one; a hole's is never the isophote
             r, c = rc[:, 0], rc[:, 1]
             if np.dot(c[:-1], r[1:]) > np.dot(r[:-1], c[1:]):
                 uv = rc_to_uv(rc[:-1]) + origin_uv
-                if polygon_contains(uv, bp_uv):
+                if _encloses(uv, bp_uv):
                     closed.append(uv)
         else:
             pieces.append(rc)
@@ -357,19 +365,11 @@ def _whole_region_contours(sub, level, roi, bp_uv):
     """Closed contours of the whole region that enclose the BP (as (u, v)), and the open ones
     (as (row, col) in ``sub``)."""
     closed_hits, open_contours = [], []
-    u, v = float(bp_uv[0]), float(bp_uv[1])
-    row0, col0 = float(roi.row0), float(roi.col0)
     for rc in find_contours(sub, level):
         if len(rc) >= 3 and rc[0, 0] == rc[-1, 0] and rc[0, 1] == rc[-1, 1]:
-            body = rc[:-1]
-            (r_lo, c_lo), (r_hi, c_hi) = body.min(axis=0).tolist(), body.max(axis=0).tolist()
-            # the box of the points in (u, v) = (col + col0, row + row0): a rounded sum grows with
-            # its term, so the box of the shifted points is the shifted box, the same bits
-            # (rc_to_uv only for the few contours whose box holds the BP)
-            if c_lo + col0 <= u <= c_hi + col0 and r_lo + row0 <= v <= r_hi + row0:
-                uv = rc_to_uv(body, roi.row0, roi.col0)
-                if polygon_contains(uv, bp_uv):
-                    closed_hits.append(uv)
+            uv = rc_to_uv(rc[:-1], roi.row0, roi.col0)
+            if polygon_contains(uv, bp_uv):
+                closed_hits.append(uv)
         else:
             open_contours.append(rc)
     return closed_hits, open_contours
@@ -403,18 +403,14 @@ def _open_pieces_around_bp(sub, level, ri, ci, open_contours):
     return pieces, sides
 
 
-#: Marching squares' segments (``fully_connected="low"``) by square case (bit 0 the upper left
-#: pixel above the level, 1 upper right, 2 lower left, 3 lower right) as (from, to) edges, 0 top,
-#: 1 bottom, 2 left, 3 right, -1 none: ``find_contours``' table, a saddle's two in its order.
+#: ``find_contours``' segments (``fully_connected="low"``) by square case (bit 0 upper left above the level, 1 upper
+#: right, 2 lower left, 3 lower right) as (from, to) edges (0 top, 1 bottom, 2 left, 3 right; -1 none), in its order.
 _SQUARE_SEGMENTS = np.full((16, 2, 2), -1, np.int64)
 for _case, _pairs in {1: [(0, 2)], 2: [(3, 0)], 3: [(3, 2)], 4: [(2, 1)], 5: [(0, 1)], 6: [(3, 0), (2, 1)],
                       7: [(3, 1)], 8: [(1, 3)], 9: [(0, 2), (1, 3)], 10: [(1, 0)], 11: [(1, 2)],
                       12: [(2, 3)], 13: [(0, 3)], 14: [(2, 0)]}.items():
     _SQUARE_SEGMENTS[_case, : len(_pairs)] = _pairs
-
-
-#: Each square edge's pixels (0 upper left, 1 upper right, 2 lower left, 3 lower right) from
-#: which and to which ``find_contours`` interpolates its crossing, by edge (top, bottom, left, right).
+#: The pixels (0 upper left, 1 upper right, 2 lower left, 3 lower right) each edge's crossing is interpolated from, to.
 _EDGE_ENDS = np.array([[0, 2, 0, 1], [1, 3, 2, 3]])
 
 
@@ -428,8 +424,7 @@ def _batch_contours(boxes: list, levels: np.ndarray, origins: np.ndarray, bps: n
     fractions and sums elementwise, its table's segments in its scan order linked edge to edge,
     open contours in the order of their first segment, a closed one starting where the assembly
     leaves it (after its last segment scanned)."""
-    n = len(boxes)
-    h, w = np.array([b.shape for b in boxes], np.int64).T
+    n, (h, w) = len(boxes), np.array([b.shape for b in boxes], np.int64).T
     # boxes of one width stacked in a column (border rows below the level keep them apart)
     by_w = np.argsort(w, kind="stable")
     widths, first = np.unique(w[by_w], return_index=True)
@@ -482,8 +477,7 @@ def _batch_contours(boxes: list, levels: np.ndarray, origins: np.ndarray, bps: n
     open_box = np.bincount(sb, is_open[comp], n) > 0
     # of a closed box, its cycle of largest signed area (find_contours' orientation): the outer boundary
     area = np.bincount(comp, fc * tr - fr * tc, ncomp)
-    comp_box = np.zeros(ncomp, np.int64)
-    comp_box[comp] = sb
+    (comp_box := np.zeros(ncomp, np.int64))[comp] = sb
     o = np.lexsort((area, comp_box))
     top = o[np.append(comp_box[o][1:] != comp_box[o][:-1], True)]  # the last of each box's
     outer = np.full(n, -1)

@@ -39,10 +39,8 @@ SMOOTH_FRAME_MIN_ROI_PX = 160 * 160
 #: The strips cost in proportion to their width: 16 instead of 64 halved the re-smoothed pixels of
 #: the Hyper-Kvasir banner (8.6 to 3.9 Mpx).
 SMOOTH_STRIP_ALIGN = smooth_block_px(np.dtype(np.float64).itemsize)
-#: Isophotes whose marching squares wait for one batch (:func:`_resolve`) in
-#: ``reconstruct_rois`` before it contours them: each holds its component's box and region
-#: (a 100 x 100 px ROI: 160 kB), so a long generator of highlights stays within ~40 MB, while
-#: the batch's fixed cost (~0.3 ms) is spread over many.
+#: Isophotes ``reconstruct_rois`` contours in one batch (:func:`_resolve`): each holds its box and
+#: region (100 x 100 px: 160 kB) till then; the batch's fixed cost (~1 ms) is spread over many.
 RESOLVE_BATCH_ISOPHOTES = 256
 
 
@@ -252,7 +250,7 @@ def _one_isophote(frame: _Frame, region, levels: _Levels, t, flood=None, defer=N
         if comp is not None:
             defer.append((comp, level, region, levels, t, frame))
             return len(defer) - 1, None
-    return _isophote_result(frame, t, _extract(region, level, True, 0, flood))
+    return _isophote_result(frame, t, _extract(region, level, True, 0))  # (no flood: the BP's pixel below)
 
 
 def _isophote_result(frame: _Frame, t, iso):
@@ -351,8 +349,7 @@ def _grown_drafts(frame: _Frame, ks: list, bps: list, rois_of: dict, rings_of: d
     smoothing (``smoothed32``) or, where the frame is not smoothed, its float64 luma
     (``luma_frame``) or float32 luma (``luma_frame32``). On any other frame the result is empty,
     as it is for a candidate :func:`_estimate_one` leaves with that array (a BP outside its ROI,
-    a cut that only the extraction can tell): the caller asks again without it. ``defer``: where
-    the contours wait (:func:`_one_isophote`; the caller's :func:`_resolve`)."""
+    a cut that only the extraction can tell): the caller asks again without it. ``defer``: as :func:`_one_isophote`'s."""
     if not ks:
         return {}
     if frame.smoothed32 is not None and frame.smooth_sigma_px > 0:
@@ -381,10 +378,8 @@ def _grown_drafts(frame: _Frame, ks: list, bps: list, rois_of: dict, rings_of: d
 
 
 def _resolve(drafts, defer: list) -> None:
-    """Replace each result of ``drafts`` (any SpecularityEstimate among them is passed over) that
-    is an index in ``defer`` (:func:`_one_isophote`) by its isophote, and empty ``defer``: every
-    component contoured in one batch (:func:`isophote._batch_contours`, the same points), a
-    degenerate one alone."""
+    """Replace each result of ``drafts`` that is an index in ``defer`` (:func:`_one_isophote`) by its
+    isophote, all contoured in one batch (:func:`isophote._batch_contours`), and empty ``defer``."""
     if not defer:
         return
     origins = rc_to_uv([(g.roi.row0 + rc[0], g.roi.col0 + rc[1]) for (_, rc, _), _, g, *_ in defer])

@@ -194,10 +194,7 @@ def reconstruct_roi(
         Bad image, K, ROI, BP or dist_coeffs, or a bad or unknown setting.
     """
     settings = ReconSettings.make(settings, isovalues, **options)
-    defer: list = []
-    drafts = [_roi_draft(image, K, bp_uv, roi, dist_coeffs, settings, None, defer)]
-    _resolve(drafts, defer)
-    return _complete(drafts)[0]
+    return _complete([_roi_draft(image, K, bp_uv, roi, dist_coeffs, settings)])[0]
 
 
 def _roi_draft(image, K, bp_uv, roi, dist_coeffs, settings: ReconSettings, cameras: dict | None = None,
