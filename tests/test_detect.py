@@ -18,6 +18,7 @@ from simtest.reconstruct.detect import (
     detect_specularities,
     ellipticity,
     image_smooth_sigma_px,
+    mask_labels,
     validate_image,
 )
 from simtest.reconstruct.detect_pixels import _gray_and_grey, _gray_native, _median
@@ -137,6 +138,27 @@ def test_clipped_mask_is_every_channel_at_or_above_the_level(dtype, shape, level
         want = np.all((grey >= level).reshape(*grey.shape[:2], -1), axis=2)
         got = clipped_mask(grey, level, np.ascontiguousarray(grey[:, :, 0]), grey=True)
         assert got.dtype == np.uint8 and np.array_equal(got, want.view(np.uint8))
+
+
+@settings(max_examples=40, deadline=None)
+@given(st.integers(0, 2**32 - 1), st.floats(0.0, 0.6), st.booleans())
+def test_components_band_by_band_are_those_of_one_pass_over_the_mask(seed, fill, blobs):
+    # sparse blobs (empty rows between them: several bands) and dense speckle (one band), with
+    # components nested in the holes of others
+    rng = np.random.default_rng(seed)
+    mask = (rng.random((37, 53)) < fill).astype(np.uint8)
+    if blobs:
+        mask[:] = 0
+        for _ in range(rng.integers(1, 6)):
+            r, c = rng.integers(0, 34), rng.integers(0, 50)
+            mask[r : r + rng.integers(1, 4), c : c + rng.integers(1, 4)] = 1
+    mask[30:37, 40:47] = 1
+    mask[31:36, 41:46] = 0
+    mask[33, 43] = 1
+    n, lab, stats, _ = connected_components_with_stats(mask)
+    got_n, got_lab, got_stats = mask_labels(mask)
+    assert got_n == n - 1 and np.array_equal(got_lab, lab) and np.array_equal(got_stats, stats[1:])
+    assert mask_labels(np.zeros((5, 5), np.uint8))[0] == 0
 
 
 def test_the_background_square_is_set_by_the_widest_plateau_even_one_in_a_hole():

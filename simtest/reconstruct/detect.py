@@ -58,13 +58,13 @@ from simtest.reconstruct.detect_pixels import (  # noqa: F401  (the detection's 
     colour_luma32,
     compiled_luma,
     connected_components,
-    connected_components_boxes,
     connected_components_with_stats,
     image_noise_sigma,
     image_smooth_sigma_px,
     linear_at,
     local_peak_mask,
     luma,
+    mask_labels,
     noise_sigma,
     smooth_sigma_for_noise,
 )
@@ -394,8 +394,8 @@ def detect_specularities(
     method : {"full_scale", "local_peak"}
         ``"full_scale"``: bright pixels are >= ``brightness_rel * full_scale``, components found
         by their outer boundaries. ``"local_peak"``: bright pixels by :func:`local_peak_mask`
-        (``peak_rel``, ``contrast_min_rel``), components by one
-        ``cv2.connectedComponentsWithStats`` pass; candidates on the endoscope's black border
+        (``peak_rel``, ``contrast_min_rel``), components by :func:`mask_labels` (those
+        of one ``cv2.connectedComponentsWithStats`` pass); candidates on the endoscope's black border
         (burnt-in text) get ``black_border``; saturated plateaus are counted after a 3 x 3
         closing, from 3 px, so that noise does not split one clipped top into several.
     peak_rel, contrast_min_rel : float
@@ -714,11 +714,10 @@ def _candidates(frame: _DetectFrame, mask: np.ndarray, by_peak: bool = True) -> 
     examined at once (:func:`simtest.reconstruct.candidates.examine`). With ``by_peak`` they come
     by decreasing peak, ties largest first (``detect_specularities``' order)."""
     if frame.method == "local_peak":
-        n_comps, labels, stats = connected_components_boxes(mask)
-        n_comps -= 1  # the background not counted
+        n_comps, labels, stats = mask_labels(mask)
         table = np.empty((n_comps, 6), np.int64)
         table[:, 0] = np.arange(1, n_comps + 1)
-        table[:, 1:] = stats[1:]
+        table[:, 1:] = stats
     else:
         comps = _outer_components(mask)
         n_comps = len(comps)

@@ -36,6 +36,34 @@ def connected_components_boxes(mask: np.ndarray) -> tuple[int, np.ndarray, np.nd
     return n, labels, stats
 
 
+def mask_labels(mask: np.ndarray) -> tuple[int, np.ndarray, np.ndarray]:
+    """The 8-connected components of a uint8 0/1 mask: their number (background not counted),
+    the label image (H, W) int32 (0 the background, 1 to n) and per component ``x, y, width,
+    height, area`` (n, 5) int32: those of :func:`connected_components_with_stats` over the whole
+    mask, labelled band by band (runs of rows that hold mask pixels, cropped to the columns that
+    do, both from an even index: no component crosses an empty row, and Grana's algorithm numbers
+    components by their first 2 x 2 block, which an aligned band keeps). Where the bands hold
+    more than half the rows, one pass over the whole mask is cheaper (3.9 against 5.3 ms on the
+    bench's colonoscope frame) and is taken."""
+    h, w = mask.shape
+    nz = np.flatnonzero(mask.max(axis=1))
+    gaps = np.flatnonzero(np.diff(nz) > 1)
+    bands = [(r0 - r0 % 2, r1) for r0, r1 in zip(np.append(nz[:1], nz[gaps + 1]).tolist(),
+                                                  (np.append(nz[gaps], nz[-1:]) + 1).tolist())]
+    if not bands or 2 * sum(r1 - r0 for r0, r1 in bands) > h:
+        n, labels, stats = connected_components_boxes(mask)
+        return n - 1, labels, stats[1:]
+    labels, parts, n = np.zeros((h, w), np.int32), [], 0
+    for r0, r1 in bands:
+        cols = np.flatnonzero(mask[r0:r1].max(axis=0))
+        c0, c1 = int(cols[0]) - int(cols[0]) % 2, int(cols[-1]) + 1
+        nb, lab, stats = connected_components_boxes(np.ascontiguousarray(mask[r0:r1, c0:c1]))
+        np.copyto(labels[r0:r1, c0:c1], lab + n, where=lab > 0)
+        parts.append(stats[1:] + (c0, r0, 0, 0, 0))
+        n += nb - 1
+    return n, labels, np.concatenate(parts).astype(np.int32)
+
+
 def luma(image: np.ndarray, *, dtype=np.float64) -> np.ndarray:
     """Rec. 601 luma ``0.299 R + 0.587 G + 0.114 B`` of an RGB image.
 

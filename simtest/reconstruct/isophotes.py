@@ -42,6 +42,9 @@ SMOOTH_STRIP_ALIGN = smooth_block_px(np.dtype(np.float64).itemsize)
 #: Isophotes ``reconstruct_rois`` contours in one batch (:func:`_resolve`): each holds its box and
 #: region (100 x 100 px: 160 kB) till then; the batch's fixed cost (~1 ms) is spread over many.
 RESOLVE_BATCH_ISOPHOTES = 256
+#: Fewer isophotes than this are contoured one by one (``find_contours``, the same points): the
+#: batch's fixed cost exceeds theirs (20 on the bench's 10-highlight frame: 3.6 against 3.0 ms).
+RESOLVE_BATCH_MIN = 32
 
 
 def _roi_values(frame: _Frame, roi: Roi, smooth_sigma_px: float) -> tuple[np.ndarray, list | None]:
@@ -250,7 +253,7 @@ def _one_isophote(frame: _Frame, region, levels: _Levels, t, flood=None, defer=N
         if comp is not None:
             defer.append((comp, level, region, levels, t, frame))
             return len(defer) - 1, None
-    return _isophote_result(frame, t, _extract(region, level, True, 0))  # (no flood: the BP's pixel below)
+    return _isophote_result(frame, t, _extract(region, level, True, 0))
 
 
 def _isophote_result(frame: _Frame, t, iso):
@@ -383,11 +386,11 @@ def _resolve(drafts, defer: list) -> None:
     if not defer:
         return
     origins = rc_to_uv([(g.roi.row0 + rc[0], g.roi.col0 + rc[1]) for (_, rc, _), _, g, *_ in defer])
-    found = _batch_contours([box for (box, _, _), *_ in defer], np.array([d[1] for d in defer], np.float64),
-                            origins, np.array([d[2].bp_uv for d in defer]))
+    found = [None] * len(defer) if len(defer) < RESOLVE_BATCH_MIN else _batch_contours(
+        [box for (box, _, _), *_ in defer], np.array([d[1] for d in defer]), origins, np.array([d[2].bp_uv for d in defer]))
     got = []
     for ((box, (dr, dc), sides), level, g, _, t, frame), uv, origin in zip(defer, found, origins):
-        if uv is None:  # a degenerate case: find_contours
+        if uv is None:  # one by one, or a degenerate case: find_contours
             uv = _box_contours(box, level, origin, g.bp_uv)
         if any(sides):  # the component reaches a side of its ROI: open (or no) contours
             iso = _open_isophote([rc + (dr, dc) for rc in uv] if isinstance(uv, list) else [], sides, g.roi,
