@@ -208,8 +208,7 @@ def _extract(region: _Region, level: float, allow_open: bool, min_points: int) -
 
 
 def _open_isophote(pieces: list, sides, roi: Roi, image_shape: tuple, level: float) -> Isophote:
-    """The open isophote of the contour ``pieces`` (row, col) in an ROI whose component above
-    the level reaches its ``sides`` (top, bottom, left, right): ROI sides inside the image, or the image."""
+    """The open isophote of ``pieces`` (row, col) in an ROI whose component reaches its ``sides``."""
     rc = np.concatenate(pieces, axis=0) if pieces else np.empty((0, 2))
     on_image = [s and b for s, b in zip(sides, roi.touches_image_border(image_shape))]
     on_roi = [s and not b for s, b in zip(sides, roi.touches_image_border(image_shape))]
@@ -259,12 +258,10 @@ def _region(values, bp_uv, origin_rc, image_shape) -> _Region:
 
 
 def _cut_and_contour(region: _Region, level: float) -> tuple[bool | None, tuple | None]:
-    """Whether :func:`_extract` (``allow_open``) in a checked region gives an isophote cut by the
-    ROI (``Isophote.cut_by_roi``), by one flood fill of the BP's component (:func:`_flood`), no
-    contour traced (the pipeline grows such an ROI and discards that isophote): False where it
-    fails (``bp_below_isovalue``) or the component stays off the ROI's sides inside the image,
-    None where only the extraction can tell (the BP's pixel not above the level, a neighbour
-    above it); and the flood fill (for :func:`_extract` at that level), or None where none was made."""
+    """Whether :func:`_extract` (``allow_open``) gives an isophote cut by the ROI (``cut_by_roi``: the
+    pipeline grows that ROI), by one flood fill of the BP's component (:func:`_flood`): False where it
+    fails or the component stays off the ROI's sides inside the image, None where only the extraction
+    can tell (the BP's pixel not above the level); and the flood fill, or None where none was made."""
     sub, roi, image_shape, _, ri, ci, near_bp = region
     if not near_bp > level:
         return False, None
@@ -418,12 +415,11 @@ def _batch_contours(boxes: list, levels: np.ndarray, origins: np.ndarray, bps: n
     """:func:`_contours`' contours of many components at once, for each box (:func:`_component_box`)
     at ``levels[i]``: of a component off its region's sides, its outer boundary as (u, v)
     (``origins[i]``: the box's first pixel (u, v)) if it encloses the BP ``bps[i]`` (u, v)
-    (even-odd, as :func:`polygon_contains`), else a (0, 2) array; of one that reaches a side, a list
-    of its open contours (row, col) in the box; None where a crossing falls on a pixel (a
-    degenerate case: the caller asks ``find_contours``). ``find_contours``' bits and order: its
-    fractions and sums elementwise, its table's segments in its scan order linked edge to edge,
-    open contours in the order of their first segment, a closed one starting where the assembly
-    leaves it (after its last segment scanned)."""
+    (even-odd, as :func:`polygon_contains`), else a (0, 2) array; of one that reaches a side, its
+    open contours (row, col) in the box; None where a crossing falls on a pixel (the caller asks
+    ``find_contours``). ``find_contours``' bits and order: its fractions elementwise, its segments
+    in scan order linked edge to edge, open contours by their first segment, a closed one from
+    the segment after its last scanned (where the assembly closes it)."""
     n, (h, w) = len(boxes), np.array([b.shape for b in boxes], np.int64).T
     # boxes of one width stacked in a column (border rows below the level keep them apart)
     by_w = np.argsort(w, kind="stable")
