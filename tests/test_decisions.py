@@ -28,7 +28,7 @@ _SPEED = "a speed setting: results are the same either way"
 _SOLVER = "a numerical solver setting (start, step, stop), judged by the decisions after"
 _GUARD = "a memory or size guard with its own error message"
 NOT_DECISIONS = {
-    "isophote.ENCLOSE_FLOAT32_MARGIN_PX": _SPEED,
+    "isophote.ENCLOSE_FLOAT32_MARGIN_PX": _SPEED, "isophote._EDGE_ENDS": _CODES,
     "candidates._GATHER_SIDE": _SPEED, "candidates._FEW": _SPEED,
     "detect.MULTIRES_CANDIDATES_MAX": _SPEED,
     "fit._S3_RCOND": _SOLVER,
@@ -57,6 +57,7 @@ NOT_DECISIONS = {
     "overlay.OVERLAY_BYTES_PER_PIXEL": _GUARD, "overlay.MAX_OVERLAY_PIXELS": _GUARD,
     **{f"overlay.{n}": "how the overlay is drawn, no result" for n in ("_SHIFT", "_DASH_PX")},
     "frame_prep.LUMA_FRAME_MIN_HIGHLIGHTS": _SPEED, "isophotes.SMOOTH_FRAME_MIN_ROI_PX": _SPEED,
+    "isophotes.RESOLVE_BATCH_ISOPHOTES": _SPEED, "isophotes.RESOLVE_BATCH_MIN": _SPEED,
     "pipeline.MMAP_THRESHOLD_BYTES": _SPEED, "pipeline.TRIM_THRESHOLD_BYTES": _SPEED,
     "table.TABLE_SCHEMA_VERSION": _CODES, "table.ROW_GROUP_ROWS": _SPEED,
     "verify.WINDOWED_AREA_MAX": _SPEED, "verify._PANEL_MARGIN_PX": _SPEED,

@@ -205,11 +205,17 @@ def _same(a, b) -> bool:
     return (a.reason, a.detail) == (b.reason, b.detail)
 
 
+def _cut_by_roi(values, level, bp_uv, *, origin_rc, image_shape):
+    """The growth question in a region (isophote._cut_and_contour's answer)."""
+    from simtest.reconstruct.isophote import _cut_and_contour, _region
+
+    return _cut_and_contour(_region(values, bp_uv, origin_rc, image_shape), level)[0]
+
+
 @given(seed=st.integers(0, 2**32 - 1))
 @settings(max_examples=100, deadline=None)
 def test_a_region_read_in_place_from_a_wider_array_gives_the_same_isophote(seed):
     # the pipeline hands the extraction views of the frame's luma (row stride of the frame) uncopied
-    from simtest.reconstruct.isophote import isophote_cut_by_roi
 
     img, level, bp, off, shape = _random_region(np.random.default_rng(seed))
     wide = np.zeros((img.shape[0], img.shape[1] + 7))
@@ -222,37 +228,36 @@ def test_a_region_read_in_place_from_a_wider_array_gives_the_same_isophote(seed)
     except ValueError:
         return
     assert _same(a, b)
-    assert isophote_cut_by_roi(img, level, bp, origin_rc=off, image_shape=shape) == \
-        isophote_cut_by_roi(view, level, bp, origin_rc=off, image_shape=shape)
+    assert _cut_by_roi(img, level, bp, origin_rc=off, image_shape=shape) == \
+        _cut_by_roi(view, level, bp, origin_rc=off, image_shape=shape)
 
 
 @given(seed=st.integers(0, 2**32 - 1))
 @settings(max_examples=300, deadline=None)
 def test_the_growth_question_has_the_extractions_answer(seed):
-    # isophote_cut_by_roi answers what the pipeline asks before growing an ROI without contouring:
+    # _cut_and_contour answers what the pipeline asks before growing an ROI without contouring:
     # the extraction's cut_by_roi (False where it fails), or None where only the extraction can tell
-    from simtest.reconstruct.isophote import Isophote, isophote_cut_by_roi
+    from simtest.reconstruct.isophote import Isophote
 
     img, level, bp, off, shape = _random_region(np.random.default_rng(seed))
     try:
         iso = extract_isophote(img, level, bp, origin_rc=off, image_shape=shape, allow_open=True, min_points=0)
     except ValueError:
         return
-    cut = isophote_cut_by_roi(img, level, bp, origin_rc=off, image_shape=shape)
+    cut = _cut_by_roi(img, level, bp, origin_rc=off, image_shape=shape)
     if cut is not None:
         assert cut == (isinstance(iso, Isophote) and iso.cut_by_roi)
 
 
 def test_the_growth_question_meets_each_answer():
     # the property test above means something only if the random regions give every answer
-    from simtest.reconstruct.isophote import isophote_cut_by_roi
 
     rng = np.random.default_rng(1)
     seen = set()
     for _ in range(400):
         img, level, bp, off, shape = _random_region(rng)
         try:
-            seen.add(isophote_cut_by_roi(img, level, bp, origin_rc=off, image_shape=shape))
+            seen.add(_cut_by_roi(img, level, bp, origin_rc=off, image_shape=shape))
         except ValueError:
             pass
     assert seen == {True, False, None}
@@ -261,9 +266,9 @@ def test_the_growth_question_meets_each_answer():
 @given(seed=st.integers(0, 2**32 - 1))
 @settings(max_examples=300, deadline=None)
 def test_the_extraction_from_the_growth_questions_flood_fill_is_the_extraction(seed):
-    # isophote._extract given the flood fill the growth question made (_cut_and_contour) returns
-    # what it returns when it fills the component itself
-    from simtest.reconstruct.isophote import _cut_and_contour, _extract, _region, isophote_cut_by_roi
+    # the BP's component box from the flood fill the growth question made (_cut_and_contour), as
+    # the pipeline's contouring takes it, is the one it makes when it fills the component itself
+    from simtest.reconstruct.isophote import _component_box, _cut_and_contour, _region
 
     img, level, bp, off, shape = _random_region(np.random.default_rng(seed))
     try:
@@ -271,8 +276,11 @@ def test_the_extraction_from_the_growth_questions_flood_fill_is_the_extraction(s
     except ValueError:
         return
     cut, flood = _cut_and_contour(region, level)
-    assert cut == isophote_cut_by_roi(img, level, bp, origin_rc=off, image_shape=shape)
-    assert _same(_extract(region, level, True, 0, flood), _extract(region, level, True, 0))
+    assert cut == _cut_by_roi(img, level, bp, origin_rc=off, image_shape=shape)
+    if flood is not None:
+        (box, at, sides), (box2, at2, sides2) = (_component_box(region.sub, level, region.ri, region.ci, f)
+                                                 for f in (flood, None))
+        assert np.array_equal(box, box2) and at == at2 and sides == sides2
 
 
 def test_a_ring_a_neighbour_and_a_cut_highlight():
@@ -378,3 +386,54 @@ def test_the_border_level_of_an_roi_smoothed_alone_from_its_ring(seed, channels,
     got = _smoothed_border_median(img, _gaussian_kernel(sigma), roi)
     # the same sums in another order (OpenCV: the row pass first, over the ROI): float64 rounding
     assert abs(got - want) <= 1e-9 * max(1.0, abs(want))
+
+
+def _batch_and_one_by_one(rng, n):
+    """:func:`isophote._batch_contours` of ``n`` random regions' BP components in one batch, and
+    each one's by :func:`isophote._contours` alone (its closed contours, or its open pieces)."""
+    from simtest.reconstruct.isophote import _batch_contours, _component_box, _contours, _region
+
+    jobs = []
+    for _ in range(n):
+        img, level, bp, off, shape = _random_region(rng)
+        try:
+            g = _region(img, bp, off, shape)
+        except ValueError:
+            continue
+        comp = _component_box(g.sub, level, g.ri, g.ci) if g.near_bp > level else None
+        if comp is not None:
+            jobs.append((g, level, comp))
+    origins = np.array([(g.roi.col0 + c0, g.roi.row0 + r0) for g, _, (_, (r0, c0), _) in jobs], np.float64)
+    got = _batch_contours([box for _, _, (box, _, _) in jobs], np.array([lv for _, lv, _ in jobs]), origins,
+                          np.array([g.bp_uv for g, _, _ in jobs]))
+    want = []
+    for g, lv, (_, (r0, c0), sides) in jobs:
+        closed, pieces, _ = _contours(g.sub, lv, g.roi, g.ri, g.ci, g.bp_uv)
+        want.append(pieces if any(sides) else closed)
+    # an open contour's points in the region, as the pipeline shifts them
+    got = [[rc + box_rc for rc in g] if isinstance(g, list) else g for g, (_, _, (_, box_rc, _)) in zip(got, jobs)]
+    return got, want, [any(sides) for _, _, (_, _, sides) in jobs]
+
+
+@given(seed=st.integers(0, 2**32 - 1))
+@settings(max_examples=100, deadline=None)
+def test_a_frames_batch_of_contours_is_find_contours_one_by_one(seed):
+    # the pipeline contours a frame's components in one batch of numpy calls: the points, their
+    # order and bits are those find_contours gives each component alone (None: a degenerate
+    # case the batch leaves to it)
+    got, want, cut = _batch_and_one_by_one(np.random.default_rng(seed), 12)
+    for g, w, open_ in zip(got, want, cut):
+        if g is None:
+            continue
+        if open_:
+            assert len(g) == len(w) and all(a.shape == b.shape and np.array_equal(a, b) for a, b in zip(g, w))
+        else:
+            assert len(w) <= 1
+            assert np.array_equal(g, w[0] if w else np.empty((0, 2))) and g.shape == (w[0].shape if w else (0, 2))
+
+
+def test_the_batch_of_contours_meets_each_answer():
+    # the property test above means something only if its random regions give every answer
+    got, _, cut = _batch_and_one_by_one(np.random.default_rng(2), 400)
+    assert {None if g is None else "open" if c else bool(len(g)) for g, c in zip(got, cut)} == \
+        {None, True, False, "open"}

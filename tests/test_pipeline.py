@@ -412,8 +412,7 @@ def test_an_roi_smoothed_from_the_smoothed_frame_is_the_roi_smoothed_for_itself(
     img = np.dstack([base, base * 0.8, base * 0.6]) if rgb else base
     frame = frame_prep._Frame.make(img, intrinsics(100.0, w), None,
                                  ReconSettings(smooth_sigma_px=sigma)).for_many_highlights()
-    assert not frame.smooth_frame.flags.writeable
-    pristine = frame.smooth_frame.copy()
+    pristine = frame.smooth_frame_rw.copy()
     taken = 0
     for _ in range(30):
         r0 = int(rng.integers(0, h - 40)) if rng.random() < 0.8 else 0
@@ -431,7 +430,7 @@ def test_an_roi_smoothed_from_the_smoothed_frame_is_the_roi_smoothed_for_itself(
         assert np.array_equal(out, frame_prep._smooth(lum, sigma)), (roi, sigma)
         # the bands go back: the frame is the frame again, to the bit
         isophotes._put_back(saved)
-        assert np.array_equal(frame.smooth_frame, pristine), roi
+        assert np.array_equal(frame.smooth_frame_rw, pristine), roi
     assert taken >= 10
 
 
@@ -445,7 +444,7 @@ def test_a_large_rois_bands_leave_the_smoothed_frame_as_it_was():
     img = 40.0 + 180.0 * np.exp(-((u - 350.3) ** 2 + (v - 290.6) ** 2) / (2 * 90.0**2))
     frame = frame_prep._Frame.make(img, intrinsics(500.0, 700), None,
                                  ReconSettings(isovalues=(0.5,), smooth_sigma_px=1.5)).for_many_highlights()
-    pristine = frame.smooth_frame.copy()
+    pristine = frame.smooth_frame_rw.copy()
     # the isophote at t = 0.5 (radius 106 px) is cut by a 171 px ROI, which grows once: two ROIs
     # taken from the frame
     bp = np.array([350.3, 290.6])
@@ -454,11 +453,11 @@ def test_a_large_rois_bands_leave_the_smoothed_frame_as_it_was():
     draft = isophotes._estimate_one(frame, bp, roi, saturated=False, grow=True)
     assert draft.roi == Roi.around(bp, isophotes.ROI_GROWTH_FACTOR * max(roi.shape) / 2.0, img.shape)
     assert draft.results[0].__class__.__name__ == "_Pending"
-    assert np.array_equal(frame.smooth_frame, pristine)
+    assert np.array_equal(frame.smooth_frame_rw, pristine)
     with mock.patch.object(isophotes._Levels, "of", side_effect=RuntimeError("stop")):
         with pytest.raises(RuntimeError, match="stop"):
             isophotes._estimate_one(frame, bp, roi, saturated=False, grow=True)
-    assert np.array_equal(frame.smooth_frame, pristine)
+    assert np.array_equal(frame.smooth_frame_rw, pristine)
 
 
 def _lobe_grid(size, n, *, cols, start, step):
@@ -707,12 +706,12 @@ def test_the_verifier_reuses_detections_gray_and_noise_within_the_accuracy_toler
 
 def test_the_batched_initial_rois_are_each_candidates_own():
     """``_initial_rois`` (one batch of numpy calls for a frame's candidates) gives each candidate
-    the ROI ``_initial_roi`` gives it alone: the real banner's candidates, with their own levels
-    and with the frame's threshold (method full_scale), and under full-scale normalisation."""
+    the ROI it gives it alone: the real banner's candidates, with their own levels and with the
+    frame's threshold (method full_scale), and under full-scale normalisation."""
     from benchmarks import inputs as bench
     from simtest.reconstruct.detect import detect_specularities
     from simtest.reconstruct.frame_prep import _Frame
-    from simtest.reconstruct.isophotes import _initial_roi, _initial_rois
+    from simtest.reconstruct.isophotes import _initial_rois
     from simtest.reconstruct.settings import ReconSettings
     img, K = bench.banner_frame()
     for method, normalise in (("local_peak", "auto"), ("full_scale", "full_scale")):
@@ -723,7 +722,7 @@ def test_the_batched_initial_rois_are_each_candidates_own():
         assert len(cands) > 100
         bps = np.array([c.bp_uv for c in cands], dtype=np.float64)
         assert _initial_rois(cands, bps, det.threshold, frame) == [
-            _initial_roi(c, bp, det.threshold, frame) for c, bp in zip(cands, bps)]
+            _initial_rois([c], bp[None], det.threshold, frame)[0] for c, bp in zip(cands, bps)]
 
 
 @pytest.mark.parametrize("kind", ["grey", "colour", "single"])

@@ -64,7 +64,6 @@ from simtest.reconstruct.detect_pixels import (  # noqa: F401  (the detection's 
     linear_at,
     local_peak_mask,
     luma,
-    mask_components,
     mask_labels,
     noise_sigma,
     smooth_sigma_for_noise,
@@ -395,7 +394,7 @@ def detect_specularities(
     method : {"full_scale", "local_peak"}
         ``"full_scale"``: bright pixels are >= ``brightness_rel * full_scale``, components found
         by their outer boundaries. ``"local_peak"``: bright pixels by :func:`local_peak_mask`
-        (``peak_rel``, ``contrast_min_rel``), components by :func:`mask_components` (those
+        (``peak_rel``, ``contrast_min_rel``), components by :func:`mask_labels` (those
         of one ``cv2.connectedComponentsWithStats`` pass); candidates on the endoscope's black border
         (burnt-in text) get ``black_border``; saturated plateaus are counted after a 3 x 3
         closing, from 3 px, so that noise does not split one clipped top into several.
@@ -692,7 +691,7 @@ def _outer_components(mask: np.ndarray) -> list[tuple[int, int, int, int, int, n
     components of a uint8 0/1 mask (OpenCV ``findContours``, a raster scan: much faster than
     ``connectedComponentsWithStats`` on a sparse 1.5 Mpx mask), each filled in its bounding box
     and cut by the mask, so that a component in the hole of another is counted with it; as
-    (area, x, y, width, height, comp) like :func:`mask_components`, in ``findContours``' order."""
+    (area, x, y, width, height, comp) (``comp``: its uint8 0/1 mask in its box), in ``findContours``' order."""
     contours, _ = cv2.findContours(mask, cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_SIMPLE)
     comps = []
     for cnt in contours:

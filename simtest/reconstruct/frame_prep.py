@@ -120,16 +120,6 @@ class _Frame:
         """BP-ray normals of pixels (k, 2): (k, 3), the same bits as one by one."""
         return _bp_rays(np.asarray(bp_uv, dtype=np.float64).reshape(-1, 2), self.camera)
 
-    @property
-    def smooth_frame(self) -> np.ndarray | None:
-        """The frame's smoothed luma (H, W), float64, as a read-only view of
-        ``smooth_frame_rw``; None when it was not computed."""
-        if self.smooth_frame_rw is None:
-            return None
-        view = self.smooth_frame_rw.view()
-        view.setflags(write=False)
-        return view
-
     def for_many_highlights(self) -> _Frame:
         """This frame with the luma of the whole image computed once (read-only), and smoothed
         once when the frame is smoothed (a large ROI's bands are written into it for the time of

@@ -28,6 +28,8 @@ from typing import NamedTuple
 
 import cv2
 import numpy as np
+from scipy.sparse import csr_matrix
+from scipy.sparse.csgraph import connected_components as connected_graph_components
 from skimage.measure import find_contours
 
 from simtest._records import fast_init
@@ -182,16 +184,12 @@ def extract_isophote(
     return _extract(_region(values, bp_uv, origin_rc, image_shape), level, allow_open, min_points)
 
 
-def _extract(region: _Region, level: float, allow_open: bool, min_points: int,
-             flood: tuple | None = None) -> Isophote | Failure:
-    """:func:`extract_isophote` in a checked region (one per ROI, whatever the levels asked).
-
-    ``flood``: :func:`_flood`'s result at this level, where :func:`_cut_and_contour` has just
-    made it (not made again)."""
+def _extract(region: _Region, level: float, allow_open: bool, min_points: int) -> Isophote | Failure:
+    """:func:`extract_isophote` in a checked region (one per ROI, whatever the levels asked)."""
     sub, roi, image_shape, bp_uv, ri, ci, near_bp = region
     if not near_bp > level:
         return Failure("bp_below_isovalue", f"max near BP {near_bp:.6g} <= level {level:.6g}")
-    closed_hits, pieces, sides = _contours(sub, level, roi, ri, ci, bp_uv, flood)
+    closed_hits, pieces, sides = _contours(sub, level, roi, ri, ci, bp_uv)
 
     if closed_hits:
         uv = min(closed_hits, key=polygon_area) if len(closed_hits) > 1 else closed_hits[0]
@@ -200,17 +198,21 @@ def _extract(region: _Region, level: float, allow_open: bool, min_points: int,
         return Isophote(uv, float(level), True, False, False)
     if not pieces and not any(sides):
         return Failure("no_contour", f"no contour at level {level:.6g} around BP {bp_uv.tolist()}")
-    rc = np.concatenate(pieces, axis=0) if pieces else np.empty((0, 2))
-    # Which borders the region above the level reaches: ROI sides inside the image, or the image.
-    on_image = [s and b for s, b in zip(sides, roi.touches_image_border(image_shape))]
-    on_roi = [s and not b for s, b in zip(sides, roi.touches_image_border(image_shape))]
-    iso = Isophote(rc_to_uv(rc, roi.row0, roi.col0), float(level), False, any(on_roi), any(on_image))
+    iso = _open_isophote(pieces, sides, roi, image_shape, level)
     if not allow_open:
         where = "image border" if iso.cut_by_image else "ROI border"
         return Failure("contour_cut", f"isophote at level {level:.6g} is cut by the {where}")
     if len(iso.points_uv) < min_points:
         return Failure("too_few_points", f"{len(iso.points_uv)} contour points < {min_points}")
     return iso
+
+
+def _open_isophote(pieces: list, sides, roi: Roi, image_shape: tuple, level: float) -> Isophote:
+    """The open isophote of ``pieces`` (row, col) in an ROI whose component reaches its ``sides``."""
+    rc = np.concatenate(pieces, axis=0) if pieces else np.empty((0, 2))
+    on_image = [s and b for s, b in zip(sides, roi.touches_image_border(image_shape))]
+    on_roi = [s and not b for s, b in zip(sides, roi.touches_image_border(image_shape))]
+    return Isophote(rc_to_uv(rc, roi.row0, roi.col0), float(level), False, any(on_roi), any(on_image))
 
 
 class _Region(NamedTuple):
@@ -255,44 +257,11 @@ def _region(values, bp_uv, origin_rc, image_shape) -> _Region:
     return _Region(sub, roi, tuple(image_shape), bp_uv, ri, ci, near_bp)
 
 
-def isophote_cut_by_roi(values: np.ndarray, level: float, bp_uv, *, origin_rc: tuple[int, int],
-                        image_shape: tuple[int, ...]) -> bool | None:
-    """Whether :func:`extract_isophote` with ``allow_open=True`` would give an isophote cut by the
-    ROI border (``Isophote.cut_by_roi``), without tracing it.
-
-    Parameters
-    ----------
-    values, level, bp_uv, origin_rc, image_shape
-        As for :func:`extract_isophote`.
-
-    Returns
-    -------
-    bool or None
-        False where the extraction fails (``bp_below_isovalue``) or its isophote stays off the
-        ROI sides inside the image; True where the component above the level that holds the BP
-        reaches one of them (then no closed contour around the BP exists: the component's outer
-        boundary is open there, and its holes' contours are skipped); None when only the
-        extraction can tell (the BP's pixel is not above the level but a neighbour is, the
-        whole-region path).
-
-    Raises
-    ------
-    ValueError
-        As :func:`extract_isophote`.
-
-    Notes
-    -----
-    The pipeline grows an ROI whose lowest isophote is cut by it and discards that isophote
-    (often on ROIs grown to a megapixel around isophotes that leak into bright tissue). The
-    answer is one flood fill of the BP's component (:func:`_flood`): no contour is traced.
-    """
-    return _cut_and_contour(_region(values, bp_uv, origin_rc, image_shape), level)[0]
-
-
 def _cut_and_contour(region: _Region, level: float) -> tuple[bool | None, tuple | None]:
-    """:func:`isophote_cut_by_roi`'s answer in a checked region, and the flood fill that answered
-    it (:func:`_flood`, for :func:`_extract` at the same level where the ROI is not grown), or
-    None where none was made."""
+    """Whether :func:`_extract` (``allow_open``) gives an isophote cut by the ROI (``cut_by_roi``: the
+    pipeline grows that ROI), by one flood fill of the BP's component (:func:`_flood`): False where it
+    fails or the component stays off the ROI's sides inside the image, None where only the extraction
+    can tell (the BP's pixel not above the level); and the flood fill, or None where none was made."""
     sub, roi, image_shape, _, ri, ci, near_bp = region
     if not near_bp > level:
         return False, None
@@ -303,38 +272,56 @@ def _cut_and_contour(region: _Region, level: float) -> tuple[bool | None, tuple 
     return any(s and not b for s, b in zip(sides, roi.touches_image_border(image_shape))), flood
 
 
-def _contours(sub, level, roi, ri, ci, bp_uv, flood=None):
+def _contours(sub, level, roi, ri, ci, bp_uv):
     """The contours of :func:`extract_isophote` by numpy, OpenCV and scikit-image calls: the
     closed ones enclosing the BP as (u, v), the open pieces as (row, col) in ``sub``, and the sides
-    of ``sub`` the BP's component reaches. ``flood``: :func:`_flood`'s result at ``level`` where
-    the caller has it."""
-    comp = _component_box(sub, level, ri, ci, flood)
+    of ``sub`` the BP's component reaches."""
+    comp = _component_box(sub, level, ri, ci)
     if comp is not None:
         # Only the 4-connected component above the level that holds the BP is contoured, in its
         # bounding box (see Notes): the contour found over the whole region, without the noise.
         box, (dr, dc), sides = comp
-        closed_hits = []
-        pieces = []
-        for rc in find_contours(box, level):
-            if len(rc) >= 3 and rc[0, 0] == rc[-1, 0] and rc[0, 1] == rc[-1, 1]:
-                # find_contours runs a closed contour with the values above the level on one
-                # side: the component's outer boundary has a positive signed area in (col, row),
-                # each hole's (pixels below the level inside it) a negative one; a hole's contour
-                # is never the isophote (at most one closed contour is left)
-                r, c = rc[:, 0], rc[:, 1]
-                if not np.dot(c[:-1], r[1:]) > np.dot(r[:-1], c[1:]):
-                    continue
-                uv = rc_to_uv(rc[:-1], roi.row0 + dr, roi.col0 + dc)
-                if _encloses(uv, bp_uv):
-                    closed_hits.append(uv)
-            else:
-                pieces.append(rc + (dr, dc))
-    else:  # the BP pixel itself is not above the level: every contour of the region
-        closed_hits, open_contours = _whole_region_contours(sub, level, roi, bp_uv)
-        pieces, sides = [], (False, False, False, False)
-        if not closed_hits:
-            pieces, sides = _open_pieces_around_bp(sub, level, ri, ci, open_contours)
+        got = _box_contours(box, level, rc_to_uv((roi.row0 + dr, roi.col0 + dc)), bp_uv)
+        if isinstance(got, list):
+            return [], [rc + (dr, dc) for rc in got], sides
+        return [got] if len(got) else [], [], sides
+    # the BP pixel itself is not above the level: every contour of the region
+    closed_hits, open_contours = _whole_region_contours(sub, level, roi, bp_uv)
+    pieces, sides = [], (False, False, False, False)
+    if not closed_hits:
+        pieces, sides = _open_pieces_around_bp(sub, level, ri, ci, open_contours)
     return closed_hits, pieces, sides
+
+
+#: Where the BP lies farther than this from a closed contour, OpenCV's point-in-polygon test on
+#: the contour rounded to float32 decides whether it encloses the BP (px; the rounding moves a
+#: point by under 1e-3 px on an image under 16384 px); nearer, the even-odd test in float64
+#: (:func:`polygon_contains`) does.
+ENCLOSE_FLOAT32_MARGIN_PX = 0.01
+
+
+def _encloses(uv: np.ndarray, bp_uv: np.ndarray) -> bool:
+    """:func:`polygon_contains` of one point in a closed, simple contour, by
+    ``cv2.pointPolygonTest`` away from the contour (:data:`ENCLOSE_FLOAT32_MARGIN_PX`)."""
+    d = cv2.pointPolygonTest(uv.astype(np.float32), (float(bp_uv[0]), float(bp_uv[1])), True)
+    return d > 0 if abs(d) > ENCLOSE_FLOAT32_MARGIN_PX else bool(polygon_contains(uv, bp_uv))
+
+
+def _box_contours(box, level, origin_uv, bp_uv):
+    """:func:`_batch_contours`' answer for one box by ``find_contours`` (degenerate cases too)."""
+    closed, pieces = [], []
+    for rc in find_contours(box, level):
+        if len(rc) >= 3 and rc[0, 0] == rc[-1, 0] and rc[0, 1] == rc[-1, 1]:
+            # the component's outer boundary has a positive signed area in (col, row) (the values above the
+            # level on its left), each hole's a negative one; a hole's is never the isophote
+            r, c = rc[:, 0], rc[:, 1]
+            if np.dot(c[:-1], r[1:]) > np.dot(r[:-1], c[1:]):
+                uv = rc_to_uv(rc[:-1]) + origin_uv
+                if _encloses(uv, bp_uv):
+                    closed.append(uv)
+        else:
+            pieces.append(rc)
+    return pieces if pieces else min(closed, key=polygon_area) if closed else np.empty((0, 2))
 
 
 def _flood(sub, level, ri, ci):
@@ -371,39 +358,15 @@ def _component_box(sub, level, ri, ci, flood=None):
     return box, (r0, c0), sides
 
 
-#: Where the BP lies farther than this from a closed contour, OpenCV's point-in-polygon test on
-#: the contour rounded to float32 decides whether it encloses the BP (px; the rounding moves a
-#: point by under 1e-3 px on an image under 16384 px); nearer, the even-odd test in float64
-#: (:func:`polygon_contains`) does.
-ENCLOSE_FLOAT32_MARGIN_PX = 0.01
-
-
-def _encloses(uv: np.ndarray, bp_uv: np.ndarray) -> bool:
-    """:func:`polygon_contains` of one point in a closed, simple contour, by
-    ``cv2.pointPolygonTest`` away from the contour (:data:`ENCLOSE_FLOAT32_MARGIN_PX`)."""
-    d = cv2.pointPolygonTest(uv.astype(np.float32), (float(bp_uv[0]), float(bp_uv[1])), True)
-    if abs(d) > ENCLOSE_FLOAT32_MARGIN_PX:
-        return d > 0
-    return bool(polygon_contains(uv, bp_uv))
-
-
 def _whole_region_contours(sub, level, roi, bp_uv):
     """Closed contours of the whole region that enclose the BP (as (u, v)), and the open ones
     (as (row, col) in ``sub``)."""
     closed_hits, open_contours = [], []
-    u, v = float(bp_uv[0]), float(bp_uv[1])
-    row0, col0 = float(roi.row0), float(roi.col0)
     for rc in find_contours(sub, level):
         if len(rc) >= 3 and rc[0, 0] == rc[-1, 0] and rc[0, 1] == rc[-1, 1]:
-            body = rc[:-1]
-            (r_lo, c_lo), (r_hi, c_hi) = body.min(axis=0).tolist(), body.max(axis=0).tolist()
-            # the box of the points in (u, v) = (col + col0, row + row0): a rounded sum grows with
-            # its term, so the box of the shifted points is the shifted box, the same bits
-            # (rc_to_uv only for the few contours whose box holds the BP)
-            if c_lo + col0 <= u <= c_hi + col0 and r_lo + row0 <= v <= r_hi + row0:
-                uv = rc_to_uv(body, roi.row0, roi.col0)
-                if polygon_contains(uv, bp_uv):
-                    closed_hits.append(uv)
+            uv = rc_to_uv(rc[:-1], roi.row0, roi.col0)
+            if polygon_contains(uv, bp_uv):
+                closed_hits.append(uv)
         else:
             open_contours.append(rc)
     return closed_hits, open_contours
@@ -435,3 +398,120 @@ def _open_pieces_around_bp(sub, level, ri, ci, open_contours):
         if touches.mean() > 0.5:
             pieces.append(rc)
     return pieces, sides
+
+
+#: ``find_contours``' segments (``fully_connected="low"``) by square case (bit 0 upper left above the level, 1 upper
+#: right, 2 lower left, 3 lower right) as (from, to) edges (0 top, 1 bottom, 2 left, 3 right; -1 none), in its order.
+_SQUARE_SEGMENTS = np.full((16, 2, 2), -1, np.int64)
+for _case, _pairs in {1: [(0, 2)], 2: [(3, 0)], 3: [(3, 2)], 4: [(2, 1)], 5: [(0, 1)], 6: [(3, 0), (2, 1)],
+                      7: [(3, 1)], 8: [(1, 3)], 9: [(0, 2), (1, 3)], 10: [(1, 0)], 11: [(1, 2)],
+                      12: [(2, 3)], 13: [(0, 3)], 14: [(2, 0)]}.items():
+    _SQUARE_SEGMENTS[_case, : len(_pairs)] = _pairs
+#: The pixels (0 upper left, 1 upper right, 2 lower left, 3 lower right) each edge's crossing is interpolated from, to.
+_EDGE_ENDS = np.array([[0, 2, 0, 1], [1, 3, 2, 3]])
+
+
+def _batch_contours(boxes: list, levels: np.ndarray, origins: np.ndarray, bps: np.ndarray) -> list:
+    """:func:`_contours`' contours of many components at once, for each box (:func:`_component_box`)
+    at ``levels[i]``: of a component off its region's sides, its outer boundary as (u, v)
+    (``origins[i]``: the box's first pixel (u, v)) if it encloses the BP ``bps[i]`` (u, v)
+    (even-odd, as :func:`polygon_contains`), else a (0, 2) array; of one that reaches a side, its
+    open contours (row, col) in the box; None where a crossing falls on a pixel (the caller asks
+    ``find_contours``). ``find_contours``' bits and order: its fractions elementwise, its segments
+    in scan order linked edge to edge, open contours by their first segment, a closed one from
+    the segment after its last scanned (where the assembly closes it)."""
+    n, (h, w) = len(boxes), np.array([b.shape for b in boxes], np.int64).T
+    # boxes of one width stacked in a column (border rows below the level keep them apart)
+    by_w = np.argsort(w, kind="stable")
+    widths, first = np.unique(w[by_w], return_index=True)
+    row0 = np.zeros(n, np.int64)  # each box's first row in its column
+    base, parts = 0, []
+    for wd, ks in zip(widths.tolist(), np.split(by_w, first[1:])):
+        col = np.concatenate([boxes[k] for k in ks.tolist()]) if len(ks) > 1 else boxes[ks[0]]
+        rows = np.concatenate([[0], np.cumsum(h[ks])])
+        row0[ks] = rows[:-1]
+        up = col > np.repeat(levels[ks], h[ks])[:, None]
+        case = up[:-1, :-1] + 2 * up[:-1, 1:].view(np.uint8) + 4 * up[1:, :-1].view(np.uint8) + \
+            8 * up[1:, 1:].view(np.uint8)
+        gr, gc = np.divmod(np.flatnonzero((case != 0) & (case != 15)), wd - 1)
+        b = ks[np.searchsorted(rows, gr, side="right") - 1]
+        keep = gr - row0[b] < h[b] - 1  # not a square across two boxes
+        gr, gc, b = gr[keep], gc[keep], b[keep]
+        parts.append((base + gr * wd + gc, b, gr - row0[b], gc, case[gr, gc], col[gr, gc], col[gr, gc + 1],
+                      col[gr + 1, gc], col[gr + 1, gc + 1], np.full(len(gr), wd)))
+        base += col.size
+    sq, b, r, c, case, ul, ur, ll, lr, wb = (np.concatenate(x) for x in zip(*parts))
+    o = np.argsort(b, kind="stable")  # each box's squares together, in scan order
+    sq, b, r, c, case, wb = sq[o], b[o], r[o].astype(float), c[o].astype(float), case[o], wb[o]
+    corners = np.stack([ul[o], ur[o], ll[o], lr[o]], 1).ravel()
+    segs = _SQUARE_SEGMENTS[case]
+    si, sj = np.nonzero(segs[:, :, 0] >= 0)  # the segments in scan order
+    fe, te, sb, r, c = segs[si, sj, 0], segs[si, sj, 1], b[si], r[si], c[si]
+    lv = levels[sb]
+
+    def point(e):  # each segment's crossing on its square's edge e: (row, col), and off the edge's ends
+        a, z = corners[4 * si + _EDGE_ENDS[0, e]], corners[4 * si + _EDGE_ENDS[1, e]]
+        with np.errstate(divide="ignore", invalid="ignore"):
+            f = (lv - a) / (z - a)
+        side = e >= 2
+        pr, pc = np.where(side, r + f, r + (e == 1)), np.where(side, c + (e == 3), c + f)
+        return pr, pc, np.where(side, (r < pr) & (pr < r + 1), (c < pc) & (pc < c + 1))
+
+    fr, fc, fok = point(fe)
+    tr, tc, tok = point(te)
+    fkey, tkey = (2 * (sq[si] + np.where(e == 1, wb[si], e == 3)) + (e >= 2) for e in (fe, te))
+    bad = np.bincount(sb, ~(fok & tok), n) > 0  # a crossing on a pixel: find_contours decides
+    k = len(fkey)
+    if not k:  # no crossing anywhere
+        return [np.empty((0, 2)) for _ in boxes]
+    order = np.argsort(fkey)
+    succ = order[np.minimum(np.searchsorted(fkey, tkey, sorter=order), k - 1)]
+    linked = fkey[succ] == tkey
+    ncomp, comp = connected_graph_components(csr_matrix((np.ones(int(linked.sum())), (np.flatnonzero(linked),
+                                                        succ[linked])), (k, k)), directed=True, connection="weak")
+    is_open = np.bincount(comp, ~linked, ncomp) > 0
+    open_box = np.bincount(sb, is_open[comp], n) > 0
+    # of a closed box, its cycle of largest signed area (find_contours' orientation): the outer boundary
+    area = np.bincount(comp, fc * tr - fr * tc, ncomp)
+    (comp_box := np.zeros(ncomp, np.int64))[comp] = sb
+    o = np.lexsort((area, comp_box))
+    top = o[np.append(comp_box[o][1:] != comp_box[o][:-1], True)]  # the last of each box's
+    outer = np.full(n, -1)
+    outer[comp_box[top]] = top
+    sel = np.flatnonzero(np.where(open_box[sb], is_open[comp], outer[sb] == comp))
+    bs = sb[sel]
+    u0, v0 = origins[bs].T
+    x, y, x2, y2 = fc[sel] + u0, fr[sel] + v0, tc[sel] + u0, tr[sel] + v0
+    px, py = bps[bs].T
+    with np.errstate(divide="ignore", invalid="ignore"):
+        cross = ((y > py) != (y2 > py)) & (px < x + (py - y) * (x2 - x) / (y2 - y))
+    inside = np.bincount(bs, cross, n) % 2 == 1
+    # each contour cut after its last segment (a cycle's last scanned); a segment's place: its distance to there
+    ptr = np.where(linked, succ, -1)
+    last = np.zeros(ncomp, np.int64)
+    np.maximum.at(last, comp[sel], sel)
+    ptr[last[comp[sel]][~is_open[comp[sel]]]] = -1
+    dist = (ptr >= 0).astype(np.int64)
+    while (at := sel[ptr[sel] >= 0]).size:
+        dist[at] += dist[ptr[at]]
+        ptr[at] = ptr[ptr[at]]
+    first = np.full(ncomp, k)
+    np.minimum.at(first, comp[sel], sel)
+    rank = np.lexsort((-dist[sel], first[comp[sel]], bs))  # by box, contour and place
+    length = np.bincount(bs, minlength=n)
+    start = np.concatenate([[0], np.cumsum(length)])
+    pts = np.stack([x, y], 1)[rank]
+    rc = np.stack([fr[sel], fc[sel]], 1)[rank]
+    ends = np.flatnonzero(np.diff(np.append(comp[sel][rank], -1)))  # each contour's last segment
+    tail = np.stack([tr[sel], tc[sel]], 1)[rank][ends]  # its end point (an open contour's last)
+    out = []
+    for i in range(n):
+        if bad[i]:
+            out.append(None)
+        elif not open_box[i]:
+            out.append(pts[start[i]:start[i + 1]] if inside[i] else pts[:0])
+        else:  # each open contour, its end point appended
+            cut = ends[(ends >= start[i]) & (ends < start[i + 1])]
+            out.append([np.concatenate([rc[a:e + 1], tail[j : j + 1]]) for j, a, e in
+                        zip(np.searchsorted(ends, cut), np.append(start[i], cut[:-1] + 1), cut)])
+    return out

@@ -79,7 +79,7 @@ from simtest.reconstruct.detect import detect_specularities, validate_image
 from simtest.reconstruct.failures import OK
 from simtest.reconstruct.frame_prep import _Frame, _prepared, as_camera
 from simtest.reconstruct.frame_verify import _early_checks, _verified
-from simtest.reconstruct.isophotes import _candidate_drafts, _estimate_one, _find_bp
+from simtest.reconstruct.isophotes import RESOLVE_BATCH_ISOPHOTES, _candidate_drafts, _estimate_one, _find_bp, _resolve
 from simtest.reconstruct.result import Reconstruction
 from simtest.reconstruct.settings import ReconSettings
 from simtest.reconstruct.verify import shared_passes
@@ -197,7 +197,8 @@ def reconstruct_roi(
     return _complete([_roi_draft(image, K, bp_uv, roi, dist_coeffs, settings)])[0]
 
 
-def _roi_draft(image, K, bp_uv, roi, dist_coeffs, settings: ReconSettings, cameras: dict | None = None):
+def _roi_draft(image, K, bp_uv, roi, dist_coeffs, settings: ReconSettings, cameras: dict | None = None,
+               defer: list | None = None):
     """Phase one of :func:`reconstruct_roi` (checks, BP, isophotes) for :func:`_complete`.
 
     ``cameras``: pinhole cameras already built, by the bytes of their K (a batch whose items share
@@ -222,7 +223,7 @@ def _roi_draft(image, K, bp_uv, roi, dist_coeffs, settings: ReconSettings, camer
         if not (roi.row0 <= r < roi.row1 and roi.col0 <= c < roi.col1):
             raise ValueError(f"bp_uv = {bp.tolist()} lies outside the ROI {tuple(roi)}")
         saturated = False
-    return _estimate_one(frame, bp, roi, saturated=saturated, grow=False)
+    return _estimate_one(frame, bp, roi, saturated=saturated, grow=False, defer=defer)
 
 
 @_gc_paused()  # thousands of small objects, no cycles (see _gc_paused)
@@ -235,8 +236,9 @@ def reconstruct_rois(items, isovalues: float | Sequence[float] | None = None, *,
     items : iterable of tuple
         ``(image, K, bp_uv, roi)`` per highlight, each as the arguments of :func:`reconstruct_roi`
         of those names (``bp_uv`` and ``roi`` may be None). Consumed one at a time: an image is
-        released once its isophotes are extracted, so a generator of simulated images keeps
-        memory flat.
+        released once its isophotes are contoured (in batches of
+        :data:`~simtest.reconstruct.isophotes.RESOLVE_BATCH_ISOPHOTES`), so a generator of
+        simulated images keeps memory flat.
     isovalues : float or sequence of float, optional
         Isovalue(s) t in (0, 1); the first is the primary. Default those of ``settings``.
     settings : ReconSettings, optional
@@ -266,7 +268,14 @@ def reconstruct_rois(items, isovalues: float | Sequence[float] | None = None, *,
     """
     settings = ReconSettings.make(settings, isovalues, **options)
     cameras: dict = {}
-    return _complete([_roi_draft(image, K, bp_uv, roi, None, settings, cameras) for image, K, bp_uv, roi in items])
+    drafts, defer, done = [], [], 0
+    for image, K, bp_uv, roi in items:
+        drafts.append(_roi_draft(image, K, bp_uv, roi, None, settings, cameras, defer))
+        if len(defer) >= RESOLVE_BATCH_ISOPHOTES:  # the contours of the items since the last batch
+            _resolve(drafts[done:], defer)
+            done = len(drafts)
+    _resolve(drafts[done:], defer)
+    return _complete(drafts)
 
 
 #: The name this module gave :class:`~simtest.reconstruct.result.Reconstruction` first.
