@@ -9,7 +9,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 import trimesh
-from hypothesis import given, settings
+from hypothesis import assume, given, settings
 from hypothesis import strategies as st
 from scipy.spatial import cKDTree
 
@@ -194,7 +194,12 @@ def test_fold_crests_are_more_curved_than_the_haustra(params, seed) -> None:
     # about fold_crest_radius_mm (its height varies by +-25 % from fold to fold, and its curvature
     # with it: measured 0.43 to 0.92 of 1 / fold_crest_radius_mm over 15 draws); the haustrum midway
     # between folds is concave (k1 <= 0.004 /mm measured) and gentler: its largest |k| was 0.13 to
-    # 0.72 of the crest's.
+    # 0.72 of the crest's. Gentler only where the bulge is: a bulge of height b between folds s
+    # apart curves the haustrum by about b (2 pi / s)^2 (a sine's peak; 0.34 /mm predicted, 0.36
+    # measured, at b = 3.4 mm, s = 20 mm), as much as a 2.6 mm crest at its lowest (0.63 / r). So
+    # the draws keep that curvature under the crests' least measured 0.43 / r.
+    assume(params["haustra_bulge_mm"] * (2.0 * math.pi / params["fold_spacing_mm"]) ** 2
+           < 0.43 / params["fold_crest_radius_mm"])
     colon = HaustralColon(M.HaustralParams(**params), seed)
     v = np.linspace(colon.p.fold_spacing_mm, colon.p.length_mm - colon.p.fold_spacing_mm, 3001)
     theta = np.full_like(v, colon.taenia_phase + math.pi / 3.0)
