@@ -56,7 +56,7 @@ from simtest.reconstruct.detect_pixels import (  # noqa: F401  (the detection's 
     background_side_px,
     clipped_mask,
     colour_luma32,
-    compiled_luma,
+    luma_cv2,
     connected_components,
     connected_components_with_stats,
     image_noise_sigma,
@@ -145,7 +145,7 @@ class Detection:
         verifier reduces its opening's blocks from them).
     luma32 : ndarray of shape (H, W), float32, or None
         The unrounded luma of a colour 8-bit or 16-bit RGB frame
-        (:func:`compiled_luma` in float32, read-only), where detection smoothed it at full
+        (:func:`luma_cv2` in float32, read-only), where detection smoothed it at full
         resolution (``smoothed`` is its smoothing): the pipeline's own float32 luma, which it
         then neither computes nor smooths again.
     """
@@ -165,15 +165,6 @@ class Detection:
         """Bright components found: the examined candidates and those left out."""
         return len(self.candidates) + self.n_unexamined
 
-    @property
-    def accepted(self) -> list[Candidate]:
-        """Candidates with status ``"ok"``."""
-        return [c for c in self.candidates if c.status == "ok"]
-
-    @property
-    def rejected(self) -> list[Candidate]:
-        """Candidates with a rejection reason."""
-        return [c for c in self.candidates if c.status != "ok"]
 
 
 def validate_image(image, where: str = "image") -> np.ndarray:

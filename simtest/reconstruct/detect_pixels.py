@@ -83,23 +83,23 @@ def luma(image: np.ndarray, *, dtype=np.float64) -> np.ndarray:
     if image.ndim == 2:
         return image.astype(dtype, copy=False)
     if np.dtype(dtype) in (np.float32, np.float64):
-        return compiled_luma(image, dtype)
+        return luma_cv2(image, dtype)
     return (image.astype(dtype, copy=False) @ _LUMA.astype(dtype)).astype(dtype, copy=False)
 
 
 def colour_luma32(image: np.ndarray, grey: bool) -> np.ndarray | None:
     """The unrounded luma of a colour 8- or 16-bit RGB frame in float32 (H, W), read-only
-    (:func:`compiled_luma`); None for any other frame (single-channel, gray (R = G = B), float,
+    (:func:`luma_cv2`); None for any other frame (single-channel, gray (R = G = B), float,
     RGBA). ``grey``: whether R = G = B (the caller's answer: detection's, or the pipeline's
     test). Detection smooths it and the pipeline contours in it, so both take it from here."""
     if grey or image.ndim != 3 or image.shape[2] != 3 or image.dtype.type not in (np.uint8, np.uint16):
         return None
-    out = compiled_luma(image, np.float32)
+    out = luma_cv2(image, np.float32)
     out.setflags(write=False)
     return out
 
 
-def compiled_luma(image: np.ndarray, dtype) -> np.ndarray:
+def luma_cv2(image: np.ndarray, dtype) -> np.ndarray:
     """The Rec. 601 luma (H, W) of an (H, W, 3) image in float64 or float32, by OpenCV's
     ``cv2.transform`` (the weighted sum of the channels, in ``dtype``)."""
     dt = np.dtype(dtype)

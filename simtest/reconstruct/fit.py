@@ -82,34 +82,6 @@ class EllipseFit:
         return True
 
 
-def sampson_distance_px(conic: np.ndarray, points_uv: np.ndarray) -> np.ndarray:
-    """Sampson distance of each point to a point conic [3].
-
-    The first-order geometric distance ``|x^T C x| / ||grad_(u,v) (x^T C x)||`` with
-    ``x = (u, v, 1)``.
-
-    Parameters
-    ----------
-    conic : ndarray of shape (3, 3) or (N, 3, 3)
-        Symmetric point conic in pixel coordinates (any scale: the ratio is scale-free), or one
-        per point.
-    points_uv : ndarray of shape (N, 2)
-        Points (u, v), px, pixel centres at integer coordinates.
-
-    Returns
-    -------
-    ndarray of shape (N,)
-        Distances in px (>= 0); a point where the gradient vanishes (the conic's centre) gets
-        ``|x^T C x| / tiny``, a very large value rather than a division by zero.
-    """
-    c = np.asarray(conic, dtype=np.float64)
-    u, v = points_uv[:, 0], points_uv[:, 1]
-    gu = c[..., 0, 0] * u + c[..., 0, 1] * v + c[..., 0, 2]  # half the gradient of x^T C x
-    gv = c[..., 1, 0] * u + c[..., 1, 1] * v + c[..., 1, 2]
-    f = gu * u + gv * v + c[..., 2, 0] * u + c[..., 2, 1] * v + c[..., 2, 2]
-    return np.abs(f) / np.maximum(2.0 * np.hypot(gu, gv), np.finfo(float).tiny)
-
-
 def fit_ellipse(points_uv) -> EllipseFit | Failure:
     """Fit an ellipse to 2D points by direct least squares (Fitzgibbon; Halir-Flusser form).
 
@@ -476,7 +448,7 @@ def _fit_stack(pts: np.ndarray, n: np.ndarray) -> list[EllipseFit | Failure]:
     refuse(axes[:, 0] > MAX_AXIS_TO_SPREAD * spread, "not_an_ellipse", lambda j: (
         f"unbounded: semi-major axis {scale[j] * axes[j, 0]:.4g} px is more than "
         f"{MAX_AXIS_TO_SPREAD:g} times the points' spread (a line or parallel lines)"))
-    # RMS Sampson distance of each set's points to its conic, px (sampson_distance_px, per row)
+    # RMS Sampson distance of each set's points to its conic, px: |x^T C x| / ||grad (x^T C x)||
     c = np.repeat(conic.reshape(k, 9)[:, _SAMPSON_TERMS].T, n, axis=1)  # c00 c01 c02 c11 c12 c22 (6, M)
     u, v = pts.T
     gu = c[0] * u + c[1] * v + c[2]

@@ -14,7 +14,7 @@ from simtest.constants import gaussian_radius_px
 from simtest.geometry.cameras import CameraModel, PinholeCamera
 from simtest.reconstruct._pixels import Roi, image_size_wh
 from simtest.reconstruct.detect import (
-    colour_luma32, compiled_luma, default_full_scale, image_noise_sigma, luma, smooth_sigma_for_noise, validate_image,
+    colour_luma32, luma_cv2, default_full_scale, image_noise_sigma, luma, smooth_sigma_for_noise, validate_image,
 )
 from simtest.reconstruct.failures import OK
 from simtest.reconstruct.settings import ReconSettings
@@ -261,7 +261,7 @@ def _is_gray(img: np.ndarray) -> bool:
 
 def _colour_luma32(img: np.ndarray, grey: bool | None = None) -> np.ndarray | None:
     """The luma of a colour 8- or 16-bit RGB frame in float32 (H, W), read-only
-    (:func:`~simtest.reconstruct.detect.compiled_luma`); None for any other frame (single-channel,
+    (:func:`~simtest.reconstruct.detect.luma_cv2`); None for any other frame (single-channel,
     gray (R = G = B), float, RGBA). ``grey``: whether R = G = B, where the caller knows (else
     tested here, for a frame :func:`~simtest.reconstruct.detect.colour_luma32` could take)."""
     if grey is None:
@@ -272,8 +272,8 @@ def _colour_luma32(img: np.ndarray, grey: bool | None = None) -> np.ndarray | No
 
 
 def _luma32(img: np.ndarray) -> np.ndarray:
-    """The float32 luma of an (H, W, 3) image (:func:`~simtest.reconstruct.detect.compiled_luma`)."""
-    return compiled_luma(img, np.float32)
+    """The float32 luma of an (H, W, 3) image (:func:`~simtest.reconstruct.detect.luma_cv2`)."""
+    return luma_cv2(img, np.float32)
 
 
 def _frame_luma_smoothing(img: np.ndarray, detection_smoothed: np.ndarray, sigma: float,
