@@ -19,7 +19,11 @@ candidate gives one row per such guide: its BP is the guide's specular point, it
 its light-aware fits and recommended normal the joint fit's. ``merged`` candidates whose region
 stretches along the rig's curve from the BP (:mod:`simtest.reconstruct.rig_pairs`) are fitted
 for this only, by the plane's fit (:func:`split_fused_lobes`); one that the rule does not split
-keeps its status and no fit, as any rejected candidate.
+keeps its status and no fit, as any rejected candidate. So are ``bad_fit`` candidates (specular
+by every check of :mod:`simtest.reconstruct.verify`) whose region the rig's curve crosses: two
+lobes fused into one region have no elliptical isophote (the waist between the guides'
+specular points leaves the ellipse's residual large or its BP outside it), while the plane's
+fit models both lobes and needs no ellipse.
 """
 
 from __future__ import annotations
@@ -38,8 +42,12 @@ from simtest.reconstruct.rig_pairs import other_guide_curves
 
 __all__ = ["FUSED_LOBE_LEVEL", "guide_specular_points", "split_fused_lobes"]
 
-#: Candidates whose statuses the rule may turn into rows of fused lobes.
-SPLIT_STATUSES = ("ok", "merged")
+#: Candidates whose statuses the rule may turn into rows of fused lobes: ``ok`` ones (their fit
+#: ran), and the rejections that two fused lobes earn (module docstring), fitted for the rule
+#: only where their region reaches along the rig's curve (:func:`_along_the_rig`). Not
+#: ``not_elliptical``: that check runs before the verifier's specularity checks, so texture
+#: and vessels earn it too, each a plane fit of up to a minute (a ``bad_fit`` passed them).
+SPLIT_STATUSES = ("ok", "merged", "bad_fit")
 
 
 def guide_specular_points(camera, rig, normal, distance_mm: float) -> np.ndarray:
@@ -112,12 +120,16 @@ def _inside(mask_at, pts: np.ndarray) -> np.ndarray:
     return inside
 
 
-def _along_the_rig(gray: np.ndarray, est, camera, rig) -> bool:
-    """Whether a ``merged`` candidate's region reaches along the rig's curve from its BP beyond
-    its own lobe (worth the plane's fit, module docstring): the region's extent from the BP along
-    the curve's direction (to the farthest curve point in the region) is at least twice its
-    half-width across it. One guide's lobe is about as wide as long; fused guides' lobes
-    stretch along the curve by their specular points' distance."""
+def _along_the_rig(gray: np.ndarray, est, camera, rig, stretched: bool = True) -> bool:
+    """Whether a candidate's region reaches along the rig's curve from its BP beyond its own
+    lobe (worth the plane's fit, module docstring): the curve (where another guide's specular
+    point can lie) runs in the region farther than :data:`PAIR_TOL_PX` from the BP, and with
+    ``stretched`` (a ``merged`` candidate) the region's extent from the BP along the curve's
+    direction (to the farthest curve point in the region) is at least twice its half-width
+    across it. One guide's lobe is about as wide as long; fused guides' lobes stretch along the
+    curve by their specular points' distance. A ``bad_fit`` candidate needs only the first (``stretched`` False): broad lobes fused (JPEG's blur, a rougher film)
+    make a region as wide as it is long, yet their waist leaves no ellipse, and the rule's own
+    test (both specular points in the region) is the one that decides."""
     region = _bright_region(gray, est)
     if region is None:
         return False
@@ -132,6 +144,8 @@ def _along_the_rig(gray: np.ndarray, est, camera, rig) -> bool:
     far = curve[np.argmax((curve * curve).sum(axis=1))]
     if not np.hypot(*far) > PAIR_TOL_PX:
         return False
+    if not stretched:
+        return True
     t = far / np.hypot(*far)
     return float((d @ t).max()) >= 2.0 * float(np.abs(d @ np.array([-t[1], t[0]])).max())
 
@@ -207,8 +221,8 @@ def split_fused_lobes(image, estimates, camera, rig, **kwargs) -> list:
         rows = None
         if est.status in SPLIT_STATUSES:
             fitted = est
-            if est.status == "merged":
-                if not _along_the_rig(gray, est, camera, rig):
+            if est.status != "ok":
+                if not _along_the_rig(gray, est, camera, rig, stretched=est.status == "merged"):
                     out.append(est)
                     continue
                 kwargs = _fit_arguments(image, kwargs)
