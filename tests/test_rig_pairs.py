@@ -220,7 +220,7 @@ def test_fused_clipped_lobes_give_two_highlights(tmp_path, spec, was):
 
 def _jpeg(img, quality):
     """``img`` (RGB) encoded and decoded by OpenCV's libjpeg at ``quality``, as a video frame."""
-    ok, buf = cv2.imencode(".jpg", np.ascontiguousarray(img[..., ::-1]), [cv2.IMWRITE_JPEG_QUALITY, quality])
+    _, buf = cv2.imencode(".jpg", np.ascontiguousarray(img[..., ::-1]), [cv2.IMWRITE_JPEG_QUALITY, quality])
     return np.ascontiguousarray(cv2.imdecode(buf, cv2.IMREAD_COLOR)[..., ::-1])
 
 
