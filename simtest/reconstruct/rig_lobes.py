@@ -17,9 +17,10 @@ this candidate. When two or more are, at least
 :data:`~simtest.decisions.PAIR_TOL_PX` apart and none of them is another candidate's BP, the
 candidate gives one row per such guide: its BP is the guide's specular point, its status ``ok``,
 its light-aware fits and recommended normal the joint fit's. ``merged`` candidates whose region
-stretches along the rig's curve from the BP (:mod:`simtest.reconstruct.rig_pairs`) are fitted
-for this only, by the plane's fit (:func:`split_fused_lobes`); one that the rule does not split
-keeps its status and no fit, as any rejected candidate.
+stretches along the rig's curve (:mod:`simtest.reconstruct.rig_pairs`), and ``bad_fit`` ones
+(specular by every check of :mod:`simtest.reconstruct.verify`; the waist between fused lobes
+leaves no ellipse) whose region it crosses, are fitted for this only, by the plane's fit
+(:func:`split_fused_lobes`); one the rule does not split keeps its status and no fit.
 """
 
 from __future__ import annotations
@@ -38,8 +39,9 @@ from simtest.reconstruct.rig_pairs import other_guide_curves
 
 __all__ = ["FUSED_LOBE_LEVEL", "guide_specular_points", "split_fused_lobes"]
 
-#: Candidates whose statuses the rule may turn into rows of fused lobes.
-SPLIT_STATUSES = ("ok", "merged")
+#: Candidates whose statuses the rule may turn into rows of fused lobes (not ``not_elliptical``:
+#: texture earns it before the specularity checks, each a plane fit of up to a minute).
+SPLIT_STATUSES = ("ok", "merged", "bad_fit")
 
 
 def guide_specular_points(camera, rig, normal, distance_mm: float) -> np.ndarray:
@@ -112,12 +114,12 @@ def _inside(mask_at, pts: np.ndarray) -> np.ndarray:
     return inside
 
 
-def _along_the_rig(gray: np.ndarray, est, camera, rig) -> bool:
-    """Whether a ``merged`` candidate's region reaches along the rig's curve from its BP beyond
-    its own lobe (worth the plane's fit, module docstring): the region's extent from the BP along
-    the curve's direction (to the farthest curve point in the region) is at least twice its
-    half-width across it. One guide's lobe is about as wide as long; fused guides' lobes
-    stretch along the curve by their specular points' distance."""
+def _along_the_rig(gray: np.ndarray, est, camera, rig, stretched: bool = True) -> bool:
+    """Whether a candidate's region reaches along the rig's curve from its BP beyond its own lobe
+    (worth the plane's fit): the curve runs in it beyond :data:`PAIR_TOL_PX`, and ``stretched``
+    (``merged``), its extent from the BP along the curve is at least twice its half-width across
+    (one guide's lobe is about as wide as long; fused lobes stretch by their specular points'
+    distance; broad ones, ``bad_fit``, may not: the rule's own test decides)."""
     region = _bright_region(gray, est)
     if region is None:
         return False
@@ -130,8 +132,8 @@ def _along_the_rig(gray: np.ndarray, est, camera, rig) -> bool:
     if not len(curve):
         return False
     far = curve[np.argmax((curve * curve).sum(axis=1))]
-    if not np.hypot(*far) > PAIR_TOL_PX:
-        return False
+    if not (np.hypot(*far) > PAIR_TOL_PX and stretched):
+        return bool(np.hypot(*far) > PAIR_TOL_PX)
     t = far / np.hypot(*far)
     return float((d @ t).max()) >= 2.0 * float(np.abs(d @ np.array([-t[1], t[0]])).max())
 
@@ -207,16 +209,14 @@ def split_fused_lobes(image, estimates, camera, rig, **kwargs) -> list:
         rows = None
         if est.status in SPLIT_STATUSES:
             fitted = est
-            if est.status == "merged":
-                if not _along_the_rig(gray, est, camera, rig):
+            if est.status != "ok":
+                if not _along_the_rig(gray, est, camera, rig, est.status == "merged"):
                     out.append(est)
                     continue
                 kwargs = _fit_arguments(image, kwargs)
-                # the plane's fit only: the rule reads its normal and distance, and a curved
-                # patch's fits (seconds each) would serve a candidate the rule leaves merged
-                plane = dict(kwargs, quadric=False, cubic=False)
-                fitted = dataclasses.replace(est, light_aware=light_aware_estimates(image, est, camera, rig,
-                                                                                     **plane))
+                # the plane's fit only (the rule reads its normal and distance; a patch's take seconds)
+                fitted = dataclasses.replace(est, light_aware=light_aware_estimates(
+                    image, est, camera, rig, **dict(kwargs, quadric=False, cubic=False)))
             rows = _rows(fitted, camera, rig, gray, np.delete(bps, i, axis=0))
         out.extend(rows if rows is not None else [est])
     return out
