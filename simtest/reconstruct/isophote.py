@@ -189,8 +189,13 @@ def _extract(region: _Region, level: float, allow_open: bool, min_points: int) -
     sub, roi, image_shape, bp_uv, ri, ci, near_bp = region
     if not near_bp > level:
         return Failure("bp_below_isovalue", f"max near BP {near_bp:.6g} <= level {level:.6g}")
-    closed_hits, pieces, sides = _contours(sub, level, roi, ri, ci, bp_uv)
+    return _isophote_of(*_contours(sub, level, roi, ri, ci, bp_uv), region, level, allow_open, min_points)
 
+
+def _isophote_of(closed_hits: list, pieces: list, sides, region: _Region, level: float, allow_open: bool,
+                 min_points: int) -> Isophote | Failure:
+    """:func:`_extract`'s isophote from the contours at ``level`` (:func:`_contours`' three answers)."""
+    roi, image_shape, bp_uv = region.roi, region.image_shape, region.bp_uv
     if closed_hits:
         uv = min(closed_hits, key=polygon_area) if len(closed_hits) > 1 else closed_hits[0]
         if len(uv) < min_points:
@@ -198,21 +203,17 @@ def _extract(region: _Region, level: float, allow_open: bool, min_points: int) -
         return Isophote(uv, float(level), True, False, False)
     if not pieces and not any(sides):
         return Failure("no_contour", f"no contour at level {level:.6g} around BP {bp_uv.tolist()}")
-    iso = _open_isophote(pieces, sides, roi, image_shape, level)
+    rc = np.concatenate(pieces, axis=0) if pieces else np.empty((0, 2))
+    # which borders the component above the level reaches: ROI sides inside the image, or the image
+    on_image = [s and b for s, b in zip(sides, roi.touches_image_border(image_shape))]
+    on_roi = [s and not b for s, b in zip(sides, roi.touches_image_border(image_shape))]
+    iso = Isophote(rc_to_uv(rc, roi.row0, roi.col0), float(level), False, any(on_roi), any(on_image))
     if not allow_open:
         where = "image border" if iso.cut_by_image else "ROI border"
         return Failure("contour_cut", f"isophote at level {level:.6g} is cut by the {where}")
     if len(iso.points_uv) < min_points:
         return Failure("too_few_points", f"{len(iso.points_uv)} contour points < {min_points}")
     return iso
-
-
-def _open_isophote(pieces: list, sides, roi: Roi, image_shape: tuple, level: float) -> Isophote:
-    """The open isophote of ``pieces`` (row, col) in an ROI whose component reaches its ``sides``."""
-    rc = np.concatenate(pieces, axis=0) if pieces else np.empty((0, 2))
-    on_image = [s and b for s, b in zip(sides, roi.touches_image_border(image_shape))]
-    on_roi = [s and not b for s, b in zip(sides, roi.touches_image_border(image_shape))]
-    return Isophote(rc_to_uv(rc, roi.row0, roi.col0), float(level), False, any(on_roi), any(on_image))
 
 
 class _Region(NamedTuple):
@@ -281,10 +282,7 @@ def _contours(sub, level, roi, ri, ci, bp_uv):
         # Only the 4-connected component above the level that holds the BP is contoured, in its
         # bounding box (see Notes): the contour found over the whole region, without the noise.
         box, (dr, dc), sides = comp
-        got = _box_contours(box, level, rc_to_uv((roi.row0 + dr, roi.col0 + dc)), bp_uv)
-        if isinstance(got, list):
-            return [], [rc + (dr, dc) for rc in got], sides
-        return [got] if len(got) else [], [], sides
+        return _box_answer(_box_contours(box, level, rc_to_uv((roi.row0 + dr, roi.col0 + dc)), bp_uv), dr, dc, sides)
     # the BP pixel itself is not above the level: every contour of the region
     closed_hits, open_contours = _whole_region_contours(sub, level, roi, bp_uv)
     pieces, sides = [], (False, False, False, False)
@@ -322,6 +320,14 @@ def _box_contours(box, level, origin_uv, bp_uv):
         else:
             pieces.append(rc)
     return pieces if pieces else min(closed, key=polygon_area) if closed else np.empty((0, 2))
+
+
+def _box_answer(got, dr: int, dc: int, sides) -> tuple[list, list, tuple]:
+    """:func:`_contours`' three answers from a box's contours (:func:`_box_contours` or
+    :func:`_batch_contours`: open pieces in the box, or the closed outer boundary as (u, v))."""
+    if isinstance(got, list):
+        return [], [rc + (dr, dc) for rc in got], sides
+    return [got] if len(got) else [], [], sides
 
 
 def _flood(sub, level, ri, ci):

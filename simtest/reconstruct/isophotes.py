@@ -18,10 +18,10 @@ from simtest.reconstruct._pixels import Roi, rc_to_uv
 from simtest.reconstruct.assemble import IsophoteEstimate, SpecularityEstimate, _Draft, _Pending
 from simtest.reconstruct.cone_fit import FitFrame, fit_frame, fit_frames
 from simtest.reconstruct.detect import connected_components, luma, peak_uv
-from simtest.reconstruct.failures import OK, Failure
+from simtest.reconstruct.failures import OK
 from simtest.reconstruct.frame_prep import _Frame, _smooth
-from simtest.reconstruct.isophote import (MIN_CONTOUR_POINTS, Isophote, _batch_contours, _box_contours, _component_box,
-                                          _cut_and_contour, _extract, _open_isophote, _region)
+from simtest.reconstruct.isophote import (MIN_CONTOUR_POINTS, _batch_contours, _box_answer, _box_contours,
+                                          _component_box, _cut_and_contour, _extract, _isophote_of, _region)
 from simtest.reconstruct.settings import AUTO_LOCAL_BACKGROUND_REL, Normalisation
 
 _TINY = float(np.finfo(float).tiny)
@@ -392,13 +392,7 @@ def _resolve(drafts, defer: list) -> None:
     for ((box, (dr, dc), sides), level, g, _, t, frame), uv, origin in zip(defer, found, origins):
         if uv is None:  # one by one, or a degenerate case: find_contours
             uv = _box_contours(box, level, origin, g.bp_uv)
-        if any(sides):  # the component reaches a side of its ROI: open (or no) contours
-            iso = _open_isophote([rc + (dr, dc) for rc in uv] if isinstance(uv, list) else [], sides, g.roi,
-                                 g.image_shape, level)
-        else:
-            iso = Isophote(uv, float(level), True, False, False) if len(uv) else Failure(
-                "no_contour", f"no contour at level {level:.6g} around BP {g.bp_uv.tolist()}")
-        got.append(_isophote_result(frame, t, iso)[0])
+        got.append(_isophote_result(frame, t, _isophote_of(*_box_answer(uv, dr, dc, sides), g, level, True, 0))[0])
     defer.clear()
     for draft in drafts:
         res = draft.results if isinstance(draft, _Draft) else ()
