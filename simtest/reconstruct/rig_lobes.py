@@ -129,12 +129,11 @@ def _along_the_rig(gray: np.ndarray, est, camera, rig, stretched: bool = True) -
     reach = float(np.sqrt((d * d).sum(axis=1).max())) + 1.0
     (curve,) = other_guide_curves(_model(camera), rig.positions, np.asarray(est.bp_px, np.float64)[None], [reach])
     curve = curve[_inside(region, curve)] - np.asarray(est.bp_px, np.float64)
-    if not len(curve):
-        return False
-    far = curve[np.argmax((curve * curve).sum(axis=1))]
-    if not (np.hypot(*far) > PAIR_TOL_PX and stretched):
-        return bool(np.hypot(*far) > PAIR_TOL_PX)
-    t = far / np.hypot(*far)
+    far = curve[np.argmax((curve * curve).sum(axis=1))] if len(curve) else np.zeros(2)  # none: no reach
+    along = float(np.hypot(*far))
+    if not stretched or not along > PAIR_TOL_PX:
+        return along > PAIR_TOL_PX
+    t = far / along
     return float((d @ t).max()) >= 2.0 * float(np.abs(d @ np.array([-t[1], t[0]])).max())
 
 
