@@ -54,7 +54,7 @@ from simtest.geometry.lights import Light, LightRig
 from simtest.geometry.response import SensorResponse, video_response
 from simtest.reconstruct.estimators import estimate_from_conic
 from simtest.reconstruct.fit import fit_ellipse
-from simtest.reconstruct.frames import open_frames, reconstruct_frames, write_frames_parquet
+from simtest.reconstruct.frames import open_frames, reconstruct_frames, write_frames
 from simtest.reconstruct.isophote import extract_isophote
 from simtest.reconstruct.lightaware import isocurve_fit, photometric_fit
 from simtest.reconstruct.pipeline import reconstruct, reconstruct_roi, reconstruct_rois
@@ -251,7 +251,7 @@ def _video_run(n_frames: int, workers: int) -> dict | None:
             arrived.append(time.perf_counter() - t0)
             examined.append(rec["detection"]["examined"])
 
-        _, n, _ = write_frames_parquet(Path(tmp) / "estimates.parquet",
+        _, n, _ = write_frames(Path(tmp) / "estimates.parquet",
                                        reconstruct_frames(open_frames(path), K, workers=workers,
                                                           encoded="parquet"),
                                        on_frame=on_frame)

@@ -19,7 +19,7 @@ from hypothesis import strategies as st
 
 from benchmarks import inputs as bench
 from simtest.reconstruct import io, table
-from simtest.reconstruct.frames import write_frames_parquet
+from simtest.reconstruct.frames import write_frames
 from simtest.reconstruct.pipeline import reconstruct
 from simtest.reconstruct.light_fits import with_light_aware
 from simtest.reconstruct.settings import ReconSettings
@@ -41,7 +41,7 @@ def _same_document(ests, tmp_path):
         assert json.loads(io.dumps(specs, indent=True)) == want
         assert json.loads(io.dumps(specs)) == want
         path = tmp_path / f"e{int(include_points)}.parquet"
-        write_frames_parquet(path, [{"frame": 0, "source": "x.png", "specularities": specs}])
+        write_frames(path, [{"frame": 0, "source": "x.png", "specularities": specs}])
         [rec] = table.read_frames(path)
         assert rec["specularities"] == want
         read = table.read_table(path)
@@ -99,7 +99,7 @@ def test_a_value_that_is_not_finite_is_refused_naming_its_key(tmp_path):
         with pytest.raises(ValueError, match=re.escape(where)):
             io.dumps(specs)
         with pytest.raises(ValueError, match="not finite"):
-            write_frames_parquet(tmp_path / "bad.parquet", [{"frame": 0, "source": "x", "specularities": specs}])
+            write_frames(tmp_path / "bad.parquet", [{"frame": 0, "source": "x", "specularities": specs}])
         assert not (tmp_path / "bad.parquet").exists()
         with pytest.raises(ValueError, match="not finite"):
             table.estimates_batch(0, "x", [bad])

@@ -8,6 +8,7 @@ import json
 
 import cv2
 import numpy as np
+import pytest
 from typer.testing import CliRunner
 
 from simtest.cli import app
@@ -152,37 +153,37 @@ def test_records_encoded_in_the_workers_write_the_same_file(tmp_path):
     """reconstruct_frames(encoded="jsonl" or "parquet") (what simtest reconstruct runs: each
     frame's JSON line or rows made in its worker) writes the file of the plain records, in frame
     order."""
-    from simtest.reconstruct.frames import FrameRecord, reconstruct_frames, write_frames_jsonl, write_frames_parquet
+    from simtest.reconstruct.frames import FrameRecord, reconstruct_frames, write_frames
 
     frames = tmp_path / "frames"
     frames.mkdir()
     for i, img in enumerate(_frames(4)):
         cv2.imwrite(str(frames / f"f{i:03d}.png"), img)
-    plain, _, _ = write_frames_jsonl(tmp_path / "plain.jsonl", reconstruct_frames(open_frames(frames), K))
+    plain, _, _ = write_frames(tmp_path / "plain.jsonl", reconstruct_frames(open_frames(frames), K), fmt="jsonl")
     recs = list(reconstruct_frames(open_frames(frames), K, workers=2, encoded=True))
     assert all(isinstance(r, FrameRecord) and "specularities" not in r for r in recs)
     assert [r["frame"] for r in recs] == [0, 1, 2, 3]
-    enc, _, _ = write_frames_jsonl(tmp_path / "enc.jsonl", recs)
+    enc, _, _ = write_frames(tmp_path / "enc.jsonl", recs, fmt="jsonl")
     assert enc.read_bytes() == plain.read_bytes()
     expected = _expected([img for _, _, img in open_frames(frames)])
     assert [r["specularities"] for r in read_frames(enc)] == expected
-    plain_pq, _, _ = write_frames_parquet(tmp_path / "plain.parquet", reconstruct_frames(open_frames(frames), K))
+    plain_pq, _, _ = write_frames(tmp_path / "plain.parquet", reconstruct_frames(open_frames(frames), K))
     recs = list(reconstruct_frames(open_frames(frames), K, workers=2, encoded="parquet"))
     assert all(isinstance(r, FrameRecord) and r.batch is not None for r in recs)
-    enc_pq, _, _ = write_frames_parquet(tmp_path / "enc.parquet", recs)
+    enc_pq, _, _ = write_frames(tmp_path / "enc.parquet", recs)
     assert read_table(enc_pq).equals(read_table(plain_pq), check_metadata=True)
     assert read_frames(enc_pq) == read_frames(enc)
 
 
 def test_estimates_jsonl_is_one_utf8_line_a_record_each_ending_in_a_newline(tmp_path):
-    """write_frames_jsonl writes bytes: each record's compact JSON (UTF-8) and b"\\n", whatever
+    """write_frames writes bytes: each record's compact JSON (UTF-8) and b"\\n", whatever
     the platform's newline; a FrameRecord as its line."""
-    from simtest.reconstruct.frames import FrameRecord, write_frames_jsonl
+    from simtest.reconstruct.frames import FrameRecord, write_frames
 
     enc = FrameRecord({"frame": 1})
     enc.line = b'{"frame":1,"specularities":[]}'
     recs = [{"frame": 0, "source": "caf\u00e9.png", "x": [0.1, 1e-05]}, enc]
-    path, n, _ = write_frames_jsonl(tmp_path / "estimates.jsonl", recs)
+    path, n, _ = write_frames(tmp_path / "estimates.jsonl", recs, fmt="jsonl")
     assert n == 2
     lines = path.read_bytes().split(b"\n")
     assert lines[2:] == [b""] and lines[1] == enc.line
@@ -191,7 +192,7 @@ def test_estimates_jsonl_is_one_utf8_line_a_record_each_ending_in_a_newline(tmp_
 
 
 def test_a_frame_without_candidates_keeps_its_record_in_the_parquet_file(tmp_path):
-    from simtest.reconstruct.frames import reconstruct_frames, write_frames_parquet
+    from simtest.reconstruct.frames import reconstruct_frames, write_frames
 
     frames = tmp_path / "frames"
     frames.mkdir()
@@ -199,11 +200,14 @@ def test_a_frame_without_candidates_keeps_its_record_in_the_parquet_file(tmp_pat
     images[1] = np.full_like(images[1], 20)  # nothing bright: no row
     for i, img in enumerate(images):
         cv2.imwrite(str(frames / f"f{i}.png"), img)
-    path, n, _ = write_frames_parquet(tmp_path / "e.parquet", reconstruct_frames(open_frames(frames), K))
+    path, n, _ = write_frames(tmp_path / "e.parquet", reconstruct_frames(open_frames(frames), K))
     recs = read_frames(path)
     assert n == 3 and [r["source"] for r in recs] == ["f0.png", "f1.png", "f2.png"]
     assert recs[1]["specularities"] == [] and recs[1]["image_shape"] == [120, 160]
     assert 1 not in read_table(path).column("frame").to_pylist()
+    with pytest.raises(ValueError, match="fmt 'csv'"):  # nothing written, no temporary left
+        write_frames(tmp_path / "e.csv", [], fmt="csv")
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["e.parquet", "frames"]
 
 
 def test_frames_through_the_shared_slots_give_frame_by_frame_records(tmp_path):
@@ -211,7 +215,7 @@ def test_frames_through_the_shared_slots_give_frame_by_frame_records(tmp_path):
     slots (one per frame in flight, reused: 11 frames through 8 slots) and any other frame in its
     job (a colour frame among gray ones, same size); every record is still that of a frame-by-frame
     call, in order."""
-    from simtest.reconstruct.frames import FrameRecord, reconstruct_frames, write_frames_jsonl
+    from simtest.reconstruct.frames import FrameRecord, reconstruct_frames, write_frames
 
     frames = tmp_path / "frames"
     frames.mkdir()
@@ -220,11 +224,11 @@ def test_frames_through_the_shared_slots_give_frame_by_frame_records(tmp_path):
     images[4][..., 0] //= 2  # tinted, so that its record is its own
     for i, img in enumerate(images):
         cv2.imwrite(str(frames / f"f{i:03d}.png"), img[..., ::-1] if img.ndim == 3 else img)
-    plain, _, _ = write_frames_jsonl(tmp_path / "plain.jsonl", reconstruct_frames(open_frames(frames), K))
+    plain, _, _ = write_frames(tmp_path / "plain.jsonl", reconstruct_frames(open_frames(frames), K), fmt="jsonl")
     recs = list(reconstruct_frames(open_frames(frames), K, workers=2, encoded=True))
     assert all(isinstance(r, FrameRecord) and isinstance(r.line, bytes) for r in recs)
     assert [r["frame"] for r in recs] == list(range(11))
-    enc, _, _ = write_frames_jsonl(tmp_path / "enc.jsonl", recs)
+    enc, _, _ = write_frames(tmp_path / "enc.jsonl", recs, fmt="jsonl")
     assert enc.read_bytes() == plain.read_bytes()
     assert [r["specularities"] for r in read_frames(enc)] == _expected(
         [img for _, _, img in open_frames(frames)])

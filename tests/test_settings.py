@@ -21,7 +21,6 @@ outside = st.one_of(st.floats(max_value=0.0), st.floats(min_value=1.0), st.just(
 def test_isovalues_inside_the_open_interval_are_kept_in_order(ts):
     s = ReconSettings(isovalues=ts)
     assert s.isovalues == tuple(ts)
-    assert s.primary_isovalue == ts[0]
     assert ReconSettings(isovalues=np.asarray(ts)).isovalues == tuple(ts)
 
 

@@ -30,6 +30,7 @@ from __future__ import annotations
 
 import os
 import time
+from functools import partial
 from pathlib import Path
 from typing import Optional
 
@@ -45,13 +46,7 @@ from simtest.geometry.camera_file import camera_from_dict, load_camera
 from simtest.geometry.cameras import PinholeCamera
 from simtest.geometry.response import ResponseError
 from simtest.reconstruct._pixels import image_size_wh
-from simtest.reconstruct.frames import (
-    is_sequence,
-    open_frames,
-    reconstruct_frames,
-    write_frames_jsonl,
-    write_frames_parquet,
-)
+from simtest.reconstruct.frames import is_sequence, open_frames, reconstruct_frames, write_frames
 from simtest.reconstruct.images import InputError, load_image
 from simtest.reconstruct.io import (
     RECONSTRUCT_FILES,
@@ -243,8 +238,8 @@ def check_workers(workers: int, option: str = "--workers") -> int:
 
 
 #: ``--format`` of a folder or video: the file written (:func:`_reconstruct_sequence`) and its writer.
-SEQUENCE_FORMATS = {"parquet": ("estimates.parquet", write_frames_parquet),
-                    "jsonl": ("estimates.jsonl", write_frames_jsonl)}
+SEQUENCE_FORMATS = {"parquet": ("estimates.parquet", partial(write_frames, fmt="parquet")),
+                    "jsonl": ("estimates.jsonl", partial(write_frames, fmt="jsonl"))}
 
 
 def _reconstruct_sequence(path, intrinsics, out, target, settings, *, points, workers, cubic=False,

@@ -3,10 +3,9 @@
 :func:`open_frames` lists the frames of a folder (image files sorted by name) or of a video file
 (read in order by OpenCV's ``VideoCapture``); :func:`reconstruct_frames` runs
 :func:`~simtest.reconstruct.pipeline.reconstruct` on each, in worker processes, and yields one
-record per frame in frame order; :func:`write_frames_parquet` writes them to ``estimates.parquet``
-(one row per candidate) and :func:`write_frames_jsonl` to ``estimates.jsonl`` (one JSON line per
-frame), each to a temporary file renamed when complete. Each frame is
-reconstructed on its own, so the records are those of frame-by-frame calls whatever the number of
+record per frame in frame order; :func:`write_frames` writes them to ``estimates.parquet``
+(one row per candidate) or ``estimates.jsonl`` (one JSON line per frame), each to a temporary
+file renamed when complete. Each frame is reconstructed on its own, so the records are those of frame-by-frame calls whatever the number of
 workers. Given the camera file's light rig (and its sensor response), each frame's highlights get
 the light-aware fits of :func:`~simtest.reconstruct.light_fits.with_light_aware` as a single image
 does (``simtest reconstruct`` on one image): a record's ``specularities`` are then that image's
@@ -199,7 +198,7 @@ class FrameRecord(dict):
     """A frame's record encoded where it was made (:func:`reconstruct_frames` with ``encoded``):
     the dict holds the record's small keys (``frame``, ``source``, ``image_shape``, ``counts``,
     ``detection``; not ``specularities``); ``line`` the whole record's JSON line
-    (:func:`write_frames_jsonl`, ``encoded="jsonl"``) or ``batch`` its rows
+    (:func:`write_frames`, ``encoded="jsonl"``) or ``batch`` its rows
     (:func:`~simtest.reconstruct.io.frame_batch`, ``encoded="parquet"``). A worker process sends
     one buffer back instead of thousands of small objects to pickle, and the encoding runs on the
     worker's core, beside the other frames'."""
@@ -341,9 +340,8 @@ def reconstruct_frames(source: FrameSource, K, settings: ReconSettings | None = 
         None; default False).
     encoded : bool or str
         ``"jsonl"`` (or True) or ``"parquet"``: yield :class:`FrameRecord` s, each encoded where it
-        was made (a worker, in parallel) as its JSON line for :func:`write_frames_jsonl` or its
-        rows for :func:`write_frames_parquet` (the same file as from the plain records); their
-        dicts hold the record's keys but ``specularities``. False: plain records.
+        was made (a worker, in parallel) as its JSON line or its rows for :func:`write_frames`
+        (the same file as from the plain records); their dicts hold the record's keys but ``specularities``. False: plain records.
     response : SensorResponse, optional
         The sensor's response (the camera file's ``"response"``), passed to
         :func:`~simtest.reconstruct.light_fits.with_light_aware` as a single image's: the fits run
@@ -459,8 +457,9 @@ def _parquet_writer(tmp: Path):
         out.add_key_value_metadata(table_metadata(heads))
 
 
-def write_frames_jsonl(path, records, *, on_frame=None) -> tuple[Path, int, float]:
-    """Write records as ``estimates.jsonl`` (one line each), atomically.
+def write_frames(path, records, *, fmt="parquet", on_frame=None) -> tuple[Path, int, float]:
+    """Write records as ``estimates.parquet`` (a row per candidate) or ``estimates.jsonl`` (a JSON
+    line per frame), atomically.
 
     Parameters
     ----------
@@ -468,7 +467,13 @@ def write_frames_jsonl(path, records, *, on_frame=None) -> tuple[Path, int, floa
         Destination file; written as ``path.tmp<pid>`` then renamed, so that a failure leaves
         any previous complete file in place.
     records : iterable of dict
-        From :func:`reconstruct_frames` (a :class:`FrameRecord` is written as its ``line``).
+        From :func:`reconstruct_frames` (a :class:`FrameRecord` is written as its ``batch`` or
+        its ``line``).
+    fmt : {"parquet", "jsonl"}
+        Parquet: the rows of :func:`~simtest.reconstruct.io.table_schema`, in frame order; each
+        frame's record but its specularities (a frame without candidates too) is in the file's
+        metadata (:func:`~simtest.reconstruct.io.table_metadata`, read by
+        :func:`~simtest.reconstruct.io.read_frames`). JSON Lines: each record's compact JSON.
     on_frame : callable, optional
         Called with each record after it is written (progress).
 
@@ -480,37 +485,9 @@ def write_frames_jsonl(path, records, *, on_frame=None) -> tuple[Path, int, floa
     Raises
     ------
     ValueError
-        A value that is not finite (:func:`~simtest.reconstruct.io.dumps`); nothing is written.
+        An unknown ``fmt``, a value not finite, a record encoded for the other format; no file.
     """
-    return _write_records(path, records, on_frame, _jsonl_writer)
-
-
-def write_frames_parquet(path, records, *, on_frame=None) -> tuple[Path, int, float]:
-    """Write records as ``estimates.parquet`` (one row per candidate), atomically.
-
-    Parameters
-    ----------
-    path : str or Path
-        Destination file; written as ``path.tmp<pid>`` then renamed, so that a failure leaves
-        any previous complete file in place.
-    records : iterable of dict
-        From :func:`reconstruct_frames` (a :class:`FrameRecord` is written as its ``batch``).
-    on_frame : callable, optional
-        Called with each record after it is written (progress).
-
-    Returns
-    -------
-    (Path, int, float)
-        The file, the number of frames, and the wall time in s. The rows are those of
-        :func:`~simtest.reconstruct.io.table_schema`, in frame order; each frame's record but its
-        specularities (a frame without candidates too) is in the file's metadata
-        (:func:`~simtest.reconstruct.io.table_metadata`, read by
-        :func:`~simtest.reconstruct.io.read_frames`).
-
-    Raises
-    ------
-    ValueError
-        A value that is not finite (:func:`~simtest.reconstruct.io.frame_batch`); nothing is
-        written.
-    """
-    return _write_records(path, records, on_frame, _parquet_writer)
+    writers = {"parquet": _parquet_writer, "jsonl": _jsonl_writer}
+    if fmt not in writers:
+        raise ValueError(f"fmt {fmt!r}: not one of {', '.join(writers)}")
+    return _write_records(path, records, on_frame, writers[fmt])

@@ -237,14 +237,9 @@ def _magnitude_histogram(coef: np.ndarray, nbin: int) -> np.ndarray:
     return np.bincount(idx.ravel(), minlength=nbin * k).reshape(nbin, k)
 
 
-def _blockiness(y_rows: np.ndarray) -> np.ndarray:
-    """Mean absolute difference across each of the 8 column phases (phase p: between columns
-    ``8 j + p - 1`` and ``8 j + p``) over its mean across all phases; shape (8,)."""
-    return _phase_blockiness(np.abs(np.diff(y_rows, axis=1)).mean(axis=0))
-
-
 def _image_blockiness(image: np.ndarray, step: int, across_columns: bool) -> np.ndarray:
-    """:func:`_blockiness` of ``luma_y(image[::step])`` (``across_columns``: the column phases)
+    """The blockiness (:func:`_phase_blockiness` of the mean absolute differences across columns)
+    of ``luma_y(image[::step])`` (``across_columns``: the column phases)
     or of ``luma_y(image[:, ::step]).T`` (the row phases), from the sampled rows or columns
     only: the float32 luma summed channel by channel, the absolute differences' means in
     float64, each summed in order (a C-contiguous sum along the first axis)."""
@@ -264,7 +259,7 @@ def _image_blockiness(image: np.ndarray, step: int, across_columns: bool) -> np.
 
 
 def _phase_blockiness(d: np.ndarray) -> np.ndarray:
-    """:func:`_blockiness` from the mean absolute differences ``d`` (d[j] between columns j and
+    """The blockiness from the mean absolute differences ``d`` (d[j] between columns j and
     j + 1)."""
     # the median over each phase's columns: one strong edge of the content does not make a phase.
     # Phase k holds d[j] for (j + 1) % 8 == k, i.e. d[(k - 1) % 8 :: 8]; the phases of equal

@@ -273,11 +273,6 @@ class ReconSettings:
                    detection="local_peak", verify=True)
         return base.replace(**changes) if changes else base
 
-    @property
-    def primary_isovalue(self) -> float:
-        """The first isovalue, whose isophote gives the estimate's conic, normals and status."""
-        return self.isovalues[0]
-
     def replace(self, **changes) -> ReconSettings:
         """A copy with some fields changed, validated again.
 
