@@ -389,9 +389,10 @@ def test_the_border_level_of_an_roi_smoothed_alone_from_its_ring(seed, channels,
 
 
 def _batch_and_one_by_one(rng, n):
-    """:func:`isophote._batch_contours` of ``n`` random regions' BP components in one batch, and
+    """:func:`marching.batch_contours` of ``n`` random regions' BP components in one batch, and
     each one's by :func:`isophote._contours` alone (its closed contours, or its open pieces)."""
-    from simtest.reconstruct.isophote import _batch_contours, _component_box, _contours, _region
+    from simtest.reconstruct.isophote import _component_box, _contours, _region
+    from simtest.reconstruct.marching import batch_contours
 
     jobs = []
     for _ in range(n):
@@ -404,7 +405,7 @@ def _batch_and_one_by_one(rng, n):
         if comp is not None:
             jobs.append((g, level, comp))
     origins = np.array([(g.roi.col0 + c0, g.roi.row0 + r0) for g, _, (_, (r0, c0), _) in jobs], np.float64)
-    got = _batch_contours([box for _, _, (box, _, _) in jobs], np.array([lv for _, lv, _ in jobs]), origins,
+    got = batch_contours([box for _, _, (box, _, _) in jobs], np.array([lv for _, lv, _ in jobs]), origins,
                           np.array([g.bp_uv for g, _, _ in jobs]))
     want = []
     for g, lv, (_, (r0, c0), sides) in jobs:

@@ -28,15 +28,12 @@ from typing import NamedTuple
 
 import cv2
 import numpy as np
-from scipy.sparse import csr_matrix
-from scipy.sparse.csgraph import connected_components as connected_graph_components
 from skimage.measure import find_contours
 
 from simtest._records import fast_init
 from simtest.decisions import MIN_FIT_POINTS as MIN_CONTOUR_POINTS
 from simtest.reconstruct._pixels import Roi, rc_to_uv, uv_to_rc
 from simtest.reconstruct.failures import Failure
-
 
 
 @fast_init
@@ -167,19 +164,14 @@ def extract_isophote(
     Notes
     -----
     Marching squares [2] joins the pixels above ``level`` 4-connectedly
-    (``fully_connected="low"``), so two highlights touching at a corner stay apart. Among
-    closed contours enclosing the BP the one with the smallest area is kept (a bright ring
-    around the highlight would give a second, outer one). That contour is the outer boundary of
-    the 4-connected component of pixels above ``level`` that holds the BP, and marching squares
-    is local (each point interpolates between a pixel of the component and a 4-neighbour below
-    the level), so it is found by contouring only that component's bounding box plus one pixel,
-    with the pixels of other components lowered below the level (they touch the component at
-    most diagonally, where the "low" connectivity already separates them): the same points. The
-    closed contours of the component's holes, which ``find_contours`` runs the other way round
-    (a negative signed area), are skipped. If none is closed, the open contours bordering the 4-connected component of pixels above
-    ``level`` that holds the BP are taken, in marching-squares order. Where the BP's pixel is not
-    above the level, the whole region is contoured and its closed contours that enclose the BP
-    (even-odd, :func:`polygon_contains`) are the candidates.
+    (``fully_connected="low"``), so two highlights touching at a corner stay apart. Of the closed
+    contours enclosing the BP the smallest is kept (a bright ring would give an outer one): the
+    outer boundary of the 4-connected component above ``level`` that holds the BP, found by
+    contouring only that component's box plus one pixel, other components lowered below the level
+    (marching squares is local: the same points); its holes' contours are skipped. If none is
+    closed, the open contours bordering that component are taken, in marching-squares order. Where
+    the BP's pixel is not above the level, the whole region is contoured and its closed contours
+    enclosing the BP (even-odd, :func:`polygon_contains`) are the candidates.
     """
     return _extract(_region(values, bp_uv, origin_rc, image_shape), level, allow_open, min_points)
 
@@ -404,120 +396,3 @@ def _open_pieces_around_bp(sub, level, ri, ci, open_contours):
         if touches.mean() > 0.5:
             pieces.append(rc)
     return pieces, sides
-
-
-#: ``find_contours``' segments (``fully_connected="low"``) by square case (bit 0 upper left above the level, 1 upper
-#: right, 2 lower left, 3 lower right) as (from, to) edges (0 top, 1 bottom, 2 left, 3 right; -1 none), in its order.
-_SQUARE_SEGMENTS = np.full((16, 2, 2), -1, np.int64)
-for _case, _pairs in {1: [(0, 2)], 2: [(3, 0)], 3: [(3, 2)], 4: [(2, 1)], 5: [(0, 1)], 6: [(3, 0), (2, 1)],
-                      7: [(3, 1)], 8: [(1, 3)], 9: [(0, 2), (1, 3)], 10: [(1, 0)], 11: [(1, 2)],
-                      12: [(2, 3)], 13: [(0, 3)], 14: [(2, 0)]}.items():
-    _SQUARE_SEGMENTS[_case, : len(_pairs)] = _pairs
-#: The pixels (0 upper left, 1 upper right, 2 lower left, 3 lower right) each edge's crossing is interpolated from, to.
-_EDGE_ENDS = np.array([[0, 2, 0, 1], [1, 3, 2, 3]])
-
-
-def _batch_contours(boxes: list, levels: np.ndarray, origins: np.ndarray, bps: np.ndarray) -> list:
-    """:func:`_contours`' contours of many components at once, for each box (:func:`_component_box`)
-    at ``levels[i]``: of a component off its region's sides, its outer boundary as (u, v)
-    (``origins[i]``: the box's first pixel (u, v)) if it encloses the BP ``bps[i]`` (u, v)
-    (even-odd, as :func:`polygon_contains`), else a (0, 2) array; of one that reaches a side, its
-    open contours (row, col) in the box; None where a crossing falls on a pixel (the caller asks
-    ``find_contours``). ``find_contours``' bits and order: its fractions elementwise, its segments
-    in scan order linked edge to edge, open contours by their first segment, a closed one from
-    the segment after its last scanned (where the assembly closes it)."""
-    n, (h, w) = len(boxes), np.array([b.shape for b in boxes], np.int64).T
-    # boxes of one width stacked in a column (border rows below the level keep them apart)
-    by_w = np.argsort(w, kind="stable")
-    widths, first = np.unique(w[by_w], return_index=True)
-    row0 = np.zeros(n, np.int64)  # each box's first row in its column
-    base, parts = 0, []
-    for wd, ks in zip(widths.tolist(), np.split(by_w, first[1:])):
-        col = np.concatenate([boxes[k] for k in ks.tolist()]) if len(ks) > 1 else boxes[ks[0]]
-        rows = np.concatenate([[0], np.cumsum(h[ks])])
-        row0[ks] = rows[:-1]
-        up = col > np.repeat(levels[ks], h[ks])[:, None]
-        case = up[:-1, :-1] + 2 * up[:-1, 1:].view(np.uint8) + 4 * up[1:, :-1].view(np.uint8) + \
-            8 * up[1:, 1:].view(np.uint8)
-        gr, gc = np.divmod(np.flatnonzero((case != 0) & (case != 15)), wd - 1)
-        b = ks[np.searchsorted(rows, gr, side="right") - 1]
-        keep = gr - row0[b] < h[b] - 1  # not a square across two boxes
-        gr, gc, b = gr[keep], gc[keep], b[keep]
-        parts.append((base + gr * wd + gc, b, gr - row0[b], gc, case[gr, gc], col[gr, gc], col[gr, gc + 1],
-                      col[gr + 1, gc], col[gr + 1, gc + 1], np.full(len(gr), wd)))
-        base += col.size
-    sq, b, r, c, case, ul, ur, ll, lr, wb = (np.concatenate(x) for x in zip(*parts))
-    o = np.argsort(b, kind="stable")  # each box's squares together, in scan order
-    sq, b, r, c, case, wb = sq[o], b[o], r[o].astype(float), c[o].astype(float), case[o], wb[o]
-    corners = np.stack([ul[o], ur[o], ll[o], lr[o]], 1).ravel()
-    segs = _SQUARE_SEGMENTS[case]
-    si, sj = np.nonzero(segs[:, :, 0] >= 0)  # the segments in scan order
-    fe, te, sb, r, c = segs[si, sj, 0], segs[si, sj, 1], b[si], r[si], c[si]
-    lv = levels[sb]
-
-    def point(e):  # each segment's crossing on its square's edge e: (row, col), and off the edge's ends
-        a, z = corners[4 * si + _EDGE_ENDS[0, e]], corners[4 * si + _EDGE_ENDS[1, e]]
-        with np.errstate(divide="ignore", invalid="ignore"):
-            f = (lv - a) / (z - a)
-        side = e >= 2
-        pr, pc = np.where(side, r + f, r + (e == 1)), np.where(side, c + (e == 3), c + f)
-        return pr, pc, np.where(side, (r < pr) & (pr < r + 1), (c < pc) & (pc < c + 1))
-
-    fr, fc, fok = point(fe)
-    tr, tc, tok = point(te)
-    fkey, tkey = (2 * (sq[si] + np.where(e == 1, wb[si], e == 3)) + (e >= 2) for e in (fe, te))
-    bad = np.bincount(sb, ~(fok & tok), n) > 0  # a crossing on a pixel: find_contours decides
-    k = len(fkey)
-    if not k:  # no crossing anywhere
-        return [np.empty((0, 2)) for _ in boxes]
-    order = np.argsort(fkey)
-    succ = order[np.minimum(np.searchsorted(fkey, tkey, sorter=order), k - 1)]
-    linked = fkey[succ] == tkey
-    ncomp, comp = connected_graph_components(csr_matrix((np.ones(int(linked.sum())), (np.flatnonzero(linked),
-                                                        succ[linked])), (k, k)), directed=True, connection="weak")
-    is_open = np.bincount(comp, ~linked, ncomp) > 0
-    open_box = np.bincount(sb, is_open[comp], n) > 0
-    # of a closed box, its cycle of largest signed area (find_contours' orientation): the outer boundary
-    area = np.bincount(comp, fc * tr - fr * tc, ncomp)
-    (comp_box := np.zeros(ncomp, np.int64))[comp] = sb
-    o = np.lexsort((area, comp_box))
-    top = o[np.append(comp_box[o][1:] != comp_box[o][:-1], True)]  # the last of each box's
-    outer = np.full(n, -1)
-    outer[comp_box[top]] = top
-    sel = np.flatnonzero(np.where(open_box[sb], is_open[comp], outer[sb] == comp))
-    bs = sb[sel]
-    u0, v0 = origins[bs].T
-    x, y, x2, y2 = fc[sel] + u0, fr[sel] + v0, tc[sel] + u0, tr[sel] + v0
-    px, py = bps[bs].T
-    with np.errstate(divide="ignore", invalid="ignore"):
-        cross = ((y > py) != (y2 > py)) & (px < x + (py - y) * (x2 - x) / (y2 - y))
-    inside = np.bincount(bs, cross, n) % 2 == 1
-    # each contour cut after its last segment (a cycle's last scanned); a segment's place: its distance to there
-    ptr = np.where(linked, succ, -1)
-    last = np.zeros(ncomp, np.int64)
-    np.maximum.at(last, comp[sel], sel)
-    ptr[last[comp[sel]][~is_open[comp[sel]]]] = -1
-    dist = (ptr >= 0).astype(np.int64)
-    while (at := sel[ptr[sel] >= 0]).size:
-        dist[at] += dist[ptr[at]]
-        ptr[at] = ptr[ptr[at]]
-    first = np.full(ncomp, k)
-    np.minimum.at(first, comp[sel], sel)
-    rank = np.lexsort((-dist[sel], first[comp[sel]], bs))  # by box, contour and place
-    length = np.bincount(bs, minlength=n)
-    start = np.concatenate([[0], np.cumsum(length)])
-    pts = np.stack([x, y], 1)[rank]
-    rc = np.stack([fr[sel], fc[sel]], 1)[rank]
-    ends = np.flatnonzero(np.diff(np.append(comp[sel][rank], -1)))  # each contour's last segment
-    tail = np.stack([tr[sel], tc[sel]], 1)[rank][ends]  # its end point (an open contour's last)
-    out = []
-    for i in range(n):
-        if bad[i]:
-            out.append(None)
-        elif not open_box[i]:
-            out.append(pts[start[i]:start[i + 1]] if inside[i] else pts[:0])
-        else:  # each open contour, its end point appended
-            cut = ends[(ends >= start[i]) & (ends < start[i + 1])]
-            out.append([np.concatenate([rc[a:e + 1], tail[j : j + 1]]) for j, a, e in
-                        zip(np.searchsorted(ends, cut), np.append(start[i], cut[:-1] + 1), cut)])
-    return out

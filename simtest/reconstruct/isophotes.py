@@ -20,8 +20,9 @@ from simtest.reconstruct.cone_fit import FitFrame, fit_frame, fit_frames
 from simtest.reconstruct.detect import connected_components, luma, peak_uv
 from simtest.reconstruct.failures import OK
 from simtest.reconstruct.frame_prep import _Frame, _smooth
-from simtest.reconstruct.isophote import (MIN_CONTOUR_POINTS, _batch_contours, _box_answer, _box_contours,
+from simtest.reconstruct.isophote import (MIN_CONTOUR_POINTS, _box_answer, _box_contours,
                                           _component_box, _cut_and_contour, _extract, _isophote_of, _region)
+from simtest.reconstruct.marching import batch_contours
 from simtest.reconstruct.settings import AUTO_LOCAL_BACKGROUND_REL, Normalisation
 
 _TINY = float(np.finfo(float).tiny)
@@ -382,11 +383,11 @@ def _grown_drafts(frame: _Frame, ks: list, bps: list, rois_of: dict, rings_of: d
 
 def _resolve(drafts, defer: list) -> None:
     """Replace each result of ``drafts`` that is an index in ``defer`` (:func:`_one_isophote`) by its
-    isophote, all contoured in one batch (:func:`isophote._batch_contours`), and empty ``defer``."""
+    isophote, all contoured in one batch (:func:`~simtest.reconstruct.marching.batch_contours`), and empty ``defer``."""
     if not defer:
         return
     origins = rc_to_uv([(g.roi.row0 + rc[0], g.roi.col0 + rc[1]) for (_, rc, _), _, g, *_ in defer])
-    found = [None] * len(defer) if len(defer) < RESOLVE_BATCH_MIN else _batch_contours(
+    found = [None] * len(defer) if len(defer) < RESOLVE_BATCH_MIN else batch_contours(
         [box for (box, _, _), *_ in defer], np.array([d[1] for d in defer]), origins, np.array([d[2].bp_uv for d in defer]))
     got = []
     for ((box, (dr, dc), sides), level, g, _, t, frame), uv, origin in zip(defer, found, origins):
