@@ -260,7 +260,7 @@ def test_poses_stay_in_the_lumen_and_look_where_asked() -> None:
     ({"fold_crescent_mm": 9.0}, "overlap"),
     ({"bend_mm": 400.0}, "bend_mm"),
     ({"taenia_fold_relief": 1.5}, "taenia_fold_relief"),
-    ({"nope": 1.0}, "unknown parameter"),
+    ({"nope": 1.0}, "nope: unknown key"),
 ])
 def test_bad_parameters_name_the_problem(params, match) -> None:
     with pytest.raises(M.MeshError, match=match):

@@ -2,14 +2,15 @@
 
 from __future__ import annotations
 
-import dataclasses
 import math
 from collections.abc import Mapping
-from typing import Any
+from typing import Annotated, Any
 
 import numpy as np
+from pydantic import BeforeValidator, Field
+from pydantic.dataclasses import dataclass as pydantic_dataclass
 
-
+from simtest._config import CONFIG, Int, Num, validated
 
 #: Seed of the committed meshes (``simtest meshes build`` default).
 DEFAULT_SEED = 0
@@ -25,27 +26,16 @@ class MeshError(ValueError):
     """
 
 
-def _check_params(obj: Any, rules: Mapping[str, tuple[float | None, float | None, bool]]) -> None:
-    """Raise MeshError naming the first field outside its range (lo, hi, lo inclusive)."""
-    name = type(obj).__name__
-    for field in dataclasses.fields(obj):
-        value = getattr(obj, field.name)
-        want_int = field.type in ("int", int)
-        if isinstance(value, bool) or not isinstance(value, int | float):
-            raise MeshError(f"{name}: {field.name}: expected a number, got {value!r}")
-        if want_int and not float(value).is_integer():
-            raise MeshError(f"{name}: {field.name}: expected an integer, got {value!r}")
-        if not math.isfinite(value):
-            raise MeshError(f"{name}: {field.name}: must be finite, got {value!r}")
-        lo, hi, lo_incl = rules.get(field.name, (None, None, True))
-        if lo is not None and (value < lo or (value == lo and not lo_incl)):
-            op = ">=" if lo_incl else ">"
-            raise MeshError(f"{name}: {field.name}: must be {op} {lo}, got {value!r}")
-        if hi is not None and value > hi:
-            raise MeshError(f"{name}: {field.name}: must be <= {hi}, got {value!r}")
+def _python_scalar(v: Any) -> Any:
+    return v.item() if isinstance(v, np.generic) else v
 
 
-@dataclasses.dataclass(frozen=True)
+#: A finite float field (an int, or a numpy scalar, is taken); an integer field likewise.
+MeshNum = Annotated[Num, BeforeValidator(_python_scalar)]
+MeshInt = Annotated[Int, BeforeValidator(_python_scalar)]
+
+
+@pydantic_dataclass(frozen=True, config=CONFIG)
 class ColonParams:
     """Parameters of :func:`build_colon` (lengths in mm).
 
@@ -85,50 +75,30 @@ class ColonParams:
         the mean wall profile, so folds get denser rings (0: equal wall length).
     """
 
-    length_mm: float = 240.0
-    radius_mm: float = 25.0
-    bend_mm: float = 18.0
-    bend_wavelength_mm: float = 260.0
-    bend_3d: float = 0.5
-    fold_depth_mm: float = 5.0
-    fold_spacing_mm: float = 32.0
-    fold_sharpness: float = 1.5
-    fold_jitter: float = 0.2
-    taenia_count: int = 3
-    taenia_relief: float = 0.6
-    taenia_indent: float = 0.04
-    n_around: int = 96
-    n_along: int = 300
-    ring_curvature_weight_mm: float = 40.0
+    length_mm: Annotated[MeshNum, Field(gt=0.0)] = 240.0
+    radius_mm: Annotated[MeshNum, Field(gt=0.0)] = 25.0
+    bend_mm: Annotated[MeshNum, Field(ge=0.0)] = 18.0
+    bend_wavelength_mm: Annotated[MeshNum, Field(gt=0.0)] = 260.0
+    bend_3d: Annotated[MeshNum, Field(ge=0.0)] = 0.5
+    fold_depth_mm: Annotated[MeshNum, Field(ge=0.0)] = 5.0
+    fold_spacing_mm: Annotated[MeshNum, Field(gt=0.0)] = 32.0
+    fold_sharpness: Annotated[MeshNum, Field(gt=0.0)] = 1.5
+    fold_jitter: Annotated[MeshNum, Field(ge=0.0, le=0.9)] = 0.2
+    taenia_count: Annotated[MeshInt, Field(ge=1, le=12)] = 3
+    taenia_relief: Annotated[MeshNum, Field(ge=0.0, le=1.0)] = 0.6
+    taenia_indent: Annotated[MeshNum, Field(ge=0.0, le=0.5)] = 0.04
+    n_around: Annotated[MeshInt, Field(ge=8, le=4096)] = 96
+    n_along: Annotated[MeshInt, Field(ge=4, le=100000)] = 300
+    ring_curvature_weight_mm: Annotated[MeshNum, Field(ge=0.0)] = 40.0
 
     def validate(self) -> None:
-        """Check every field against its range.
+        """Check that the lumen neither closes nor folds (the fields' ranges are their types').
 
         Raises
         ------
         MeshError
-            Naming the parameter that is out of range and its value.
+            Naming the parameter at fault and its value.
         """
-        _check_params(
-            self,
-            {
-                "length_mm": (0.0, None, False),
-                "radius_mm": (0.0, None, False),
-                "bend_mm": (0.0, None, True),
-                "bend_wavelength_mm": (0.0, None, False),
-                "bend_3d": (0.0, None, True),
-                "fold_depth_mm": (0.0, None, True),
-                "fold_spacing_mm": (0.0, None, False),
-                "fold_sharpness": (0.0, None, False),
-                "fold_jitter": (0.0, 0.9, True),
-                "taenia_count": (1, 12, True),
-                "taenia_relief": (0.0, 1.0, True),
-                "taenia_indent": (0.0, 0.5, True),
-                "n_around": (8, 4096, True),
-                "n_along": (4, 100000, True),
-                "ring_curvature_weight_mm": (0.0, None, True),
-            },
-        )
         r_min = self.radius_mm * (1.0 - self.taenia_indent) - self.fold_depth_mm
         limit = self.radius_mm * (0.9 - self.taenia_indent)
         if r_min <= 0.1 * self.radius_mm:
@@ -148,7 +118,7 @@ class ColonParams:
             )
 
 
-@dataclasses.dataclass(frozen=True)
+@pydantic_dataclass(frozen=True, config=CONFIG)
 class LiverParams:
     """Parameters of :func:`build_liver`.
 
@@ -180,61 +150,25 @@ class LiverParams:
         proportional to its Gaussian curvature).
     """
 
-    extent_mm: float = 180.0
-    axis_y: float = 0.72
-    axis_z: float = 0.45
-    lobe_amplitude: float = 0.2
-    lobe_degree: int = 4
-    taper: float = 0.25
-    wedge: float = 0.8
-    bulge: float = 0.3
-    n_vertices: int = 16000
-    density_exponent: float = 0.0
+    extent_mm: Annotated[MeshNum, Field(gt=0.0)] = 180.0
+    axis_y: Annotated[MeshNum, Field(ge=0.05, le=20.0)] = 0.72
+    axis_z: Annotated[MeshNum, Field(ge=0.05, le=20.0)] = 0.45
+    lobe_amplitude: Annotated[MeshNum, Field(ge=0.0, le=0.5)] = 0.2
+    lobe_degree: Annotated[MeshInt, Field(ge=0, le=8)] = 4
+    taper: Annotated[MeshNum, Field(ge=-1.0, le=1.0)] = 0.25
+    wedge: Annotated[MeshNum, Field(ge=-2.0, le=2.0)] = 0.8
+    bulge: Annotated[MeshNum, Field(ge=-1.0, le=1.0)] = 0.3
+    n_vertices: Annotated[MeshInt, Field(ge=12, le=2000000)] = 16000
+    density_exponent: Annotated[MeshNum, Field(ge=0.0, le=1.0)] = 0.0
 
-    def validate(self) -> None:
-        """Check every field against its range.
-
-        Raises
-        ------
-        MeshError
-            Naming the parameter that is out of range and its value.
-        """
-        _check_params(
-            self,
-            {
-                "extent_mm": (0.0, None, False),
-                "axis_y": (0.05, 20.0, True),
-                "axis_z": (0.05, 20.0, True),
-                "lobe_amplitude": (0.0, 0.5, True),
-                "lobe_degree": (0, 8, True),
-                "taper": (-1.0, 1.0, True),
-                "wedge": (-2.0, 2.0, True),
-                "bulge": (-1.0, 1.0, True),
-                "n_vertices": (12, 2_000_000, True),
-                "density_exponent": (0.0, 1.0, True),
-            },
-        )
 
 
 def _make_params(cls: type, params: Mapping[str, Any], where: str) -> Any:
-    known = {f.name for f in dataclasses.fields(cls)}
-    unknown = sorted(set(params) - known)
-    if unknown:
-        raise MeshError(f"{where}: unknown parameter(s) {unknown}; known: {sorted(known)}")
-    coerced = {}
-    for field in dataclasses.fields(cls):
-        if field.name not in params:
-            continue
-        value = params[field.name]
-        is_number = isinstance(value, int | float | np.integer | np.floating)
-        if is_number and not isinstance(value, bool):
-            if field.type in ("int", int) and float(value).is_integer():
-                value = int(value)
-            elif field.type in ("float", float):
-                value = float(value)
-        coerced[field.name] = value
-    obj = cls(**coerced)
-    obj.validate()
+    """``cls`` from ``params``, each field's type and range checked (pydantic), then the shape's
+    own checks (``validate``); MeshError ``"<where>: <field>: <reason>"`` otherwise."""
+    obj = validated(cls, dict(params), MeshError, where)
+    if hasattr(obj, "validate"):
+        obj.validate()
     return obj
 
 
@@ -248,7 +182,7 @@ def _rng(seed: int, name: str) -> np.random.Generator:
     return np.random.default_rng(np.random.SeedSequence([seed, _SEED_KEYS[name]]))
 
 
-@dataclasses.dataclass(frozen=True)
+@pydantic_dataclass(frozen=True, config=CONFIG)
 class HaustralParams:
     """Parameters of :func:`~simtest.scene.meshes.haustral.build_haustral_colon` (lengths in mm).
 
@@ -321,64 +255,37 @@ class HaustralParams:
         fold crests get denser rings.
     """
 
-    length_mm: float = 160.0
-    diameter_mm: float = 50.0
-    diameter_variation: float = 0.08
-    diameter_wavelength_mm: float = 150.0
-    bend_mm: float = 20.0
-    bend_wavelength_mm: float = 300.0
-    bend_3d: float = 0.6
-    fold_spacing_mm: float = 25.0
-    fold_jitter: float = 0.15
-    fold_height_mm: float = 8.0
-    fold_height_variation: float = 0.25
-    fold_thickness_mm: float = 4.0
-    fold_crest_radius_mm: float = 1.5
-    fold_crescent_mm: float = 3.0
-    fold_stagger_mm: float = 4.0
-    taenia_width_mm: float = 10.0
-    taenia_indent_mm: float = 2.0
-    taenia_fold_relief: float = 0.85
-    haustra_bulge_mm: float = 3.0
-    n_around: int = 160
-    n_along: int = 400
-    ring_curvature_weight_mm: float = 6.0
+    length_mm: Annotated[MeshNum, Field(gt=0.0)] = 160.0
+    diameter_mm: Annotated[MeshNum, Field(gt=0.0)] = 50.0
+    diameter_variation: Annotated[MeshNum, Field(ge=0.0, le=0.5)] = 0.08
+    diameter_wavelength_mm: Annotated[MeshNum, Field(gt=0.0)] = 150.0
+    bend_mm: Annotated[MeshNum, Field(ge=0.0)] = 20.0
+    bend_wavelength_mm: Annotated[MeshNum, Field(gt=0.0)] = 300.0
+    bend_3d: Annotated[MeshNum, Field(ge=0.0, le=2.0)] = 0.6
+    fold_spacing_mm: Annotated[MeshNum, Field(gt=0.0)] = 25.0
+    fold_jitter: Annotated[MeshNum, Field(ge=0.0, le=0.5)] = 0.15
+    fold_height_mm: Annotated[MeshNum, Field(ge=0.0)] = 8.0
+    fold_height_variation: Annotated[MeshNum, Field(ge=0.0, le=0.9)] = 0.25
+    fold_thickness_mm: Annotated[MeshNum, Field(gt=0.0)] = 4.0
+    fold_crest_radius_mm: Annotated[MeshNum, Field(gt=0.0)] = 1.5
+    fold_crescent_mm: Annotated[MeshNum, Field(ge=0.0)] = 3.0
+    fold_stagger_mm: Annotated[MeshNum, Field(ge=0.0)] = 4.0
+    taenia_width_mm: Annotated[MeshNum, Field(gt=0.0)] = 10.0
+    taenia_indent_mm: Annotated[MeshNum, Field(ge=0.0)] = 2.0
+    taenia_fold_relief: Annotated[MeshNum, Field(ge=0.0, le=1.0)] = 0.85
+    haustra_bulge_mm: Annotated[MeshNum, Field(ge=0.0)] = 3.0
+    n_around: Annotated[MeshInt, Field(ge=8, le=4096)] = 160
+    n_along: Annotated[MeshInt, Field(ge=4, le=100000)] = 400
+    ring_curvature_weight_mm: Annotated[MeshNum, Field(ge=0.0)] = 6.0
 
     def validate(self) -> None:
-        """Check every field against its range and the lumen against closing or folding.
+        """Check the lumen against closing or folding (the fields' ranges are their types').
 
         Raises
         ------
         MeshError
             Naming the parameter that is out of range and its value.
         """
-        _check_params(
-            self,
-            {
-                "length_mm": (0.0, None, False),
-                "diameter_mm": (0.0, None, False),
-                "diameter_variation": (0.0, 0.5, True),
-                "diameter_wavelength_mm": (0.0, None, False),
-                "bend_mm": (0.0, None, True),
-                "bend_wavelength_mm": (0.0, None, False),
-                "bend_3d": (0.0, 2.0, True),
-                "fold_spacing_mm": (0.0, None, False),
-                "fold_jitter": (0.0, 0.5, True),
-                "fold_height_mm": (0.0, None, True),
-                "fold_height_variation": (0.0, 0.9, True),
-                "fold_thickness_mm": (0.0, None, False),
-                "fold_crest_radius_mm": (0.0, None, False),
-                "fold_crescent_mm": (0.0, None, True),
-                "fold_stagger_mm": (0.0, None, True),
-                "taenia_width_mm": (0.0, None, False),
-                "taenia_indent_mm": (0.0, None, True),
-                "taenia_fold_relief": (0.0, 1.0, True),
-                "haustra_bulge_mm": (0.0, None, True),
-                "n_around": (8, 4096, True),
-                "n_along": (4, 100000, True),
-                "ring_curvature_weight_mm": (0.0, None, True),
-            },
-        )
         r0 = 0.5 * self.diameter_mm
         r_min = (r0 * (1.0 - self.diameter_variation) - self.taenia_indent_mm
                  - self.fold_height_mm * (1.0 + self.fold_height_variation))
