@@ -137,8 +137,9 @@ def test_fronto_noiseless_gives_zero_error():
 @pytest.mark.parametrize("field,value", [("sigma", -0.1), ("theta_deg", 90.0), ("n", 0.0),
                                          ("image_px", 4), ("window_at_bp", 1)])
 def test_bad_params_name_the_field(field, value):
-    with pytest.raises(ValueError, match=f"PaperParams.{field}"):
+    with pytest.raises(ValueError) as e:  # pydantic's ValidationError, located at the field
         PaperParams(**{field: value})
+    assert e.value.errors()[0]["loc"] == (field,)
 
 
 def test_a_batch_of_realisations_scores_as_each_one_alone():

@@ -401,16 +401,7 @@ def _keyed(params: Mapping, cls: type, source: str, where: str, protocol: str,
 
 def _resolve_paper(params: Mapping, source: str, where: str) -> dict:
     recon, sim = _keyed(params, ReconKeys, source, where, "paper", set(PaperParams.field_names()))
-    # Types as PaperParams wants them (TOML ints for float fields are fine; floats for ints are not).
-    fields = {f.name: f for f in dataclasses.fields(PaperParams)}
-    for k, v in list(sim.items()):
-        if fields[k].type in ("float", "float | None") and isinstance(v, int) and not isinstance(v, bool):
-            sim[k] = float(v)
-    try:
-        pp = PaperParams(**sim)
-    except (ValueError, TypeError) as e:
-        bad = next((k for k in sim if f"PaperParams.{k}:" in str(e)), "?")
-        raise _err(source, f"{where}.{bad}", str(e).split(": ", 1)[-1]) from None
+    pp = validated(PaperParams, sim, SuiteError, source, where)
     return {**dataclasses.asdict(pp), **dataclasses.asdict(recon)}
 
 

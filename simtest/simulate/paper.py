@@ -52,17 +52,21 @@ from __future__ import annotations
 import dataclasses
 import math
 from dataclasses import dataclass, field
+from typing import Annotated
 
 import cv2
 import numpy as np
+from pydantic import Field
+from pydantic.dataclasses import dataclass as pydantic_dataclass
 
+from simtest._config import CONFIG, Bool, Int, Num
 from simtest.constants import gaussian_radius_px, smooth_block_px
 from simtest.specular import phong_intensity
 
 __all__ = ["PaperParams", "PaperSample", "PaperSimulator", "paper_homography"]
 
 
-@dataclass(frozen=True)
+@pydantic_dataclass(frozen=True, config=CONFIG)
 class PaperParams:
     """Parameters of the ``paper`` protocol; the defaults are the paper's (its figure 3).
 
@@ -99,48 +103,23 @@ class PaperParams:
 
     Raises
     ------
-    ValueError
-        On construction, if a value is out of its range; the message names
-        ``PaperParams.<field>`` and the value.
+    pydantic.ValidationError
+        On construction (a ValueError), if a value is not of its field's type or out of its range;
+        its first error's location is the field.
     """
 
-    image_px: int = 406
-    viewer_height_px: float = 1000.0
-    n: float = 50.0
-    c: float = 1.0
-    sigma: float = 0.05
-    theta_deg: float = 58.0
-    epsilon_px: float = 0.0
-    smoothing_px: float = 2.0
-    focal_px: float | None = None
-    camera_distance_px: float | None = None
-    texture_px: int | None = None
-    window_at_bp: bool = True
-
-    def __post_init__(self) -> None:
-        checks = [
-            ("image_px", self.image_px, isinstance(self.image_px, int) and 8 <= self.image_px <= 8192,
-             "an integer in [8, 8192]"),
-            ("viewer_height_px", self.viewer_height_px, _pos(self.viewer_height_px), "> 0"),
-            ("n", self.n, _pos(self.n), "> 0"),
-            ("c", self.c, _pos(self.c), "> 0"),
-            ("sigma", self.sigma, _finite(self.sigma) and self.sigma >= 0, ">= 0"),
-            ("theta_deg", self.theta_deg, _finite(self.theta_deg) and 0 <= self.theta_deg < 90,
-             "in [0, 90)"),
-            ("epsilon_px", self.epsilon_px, _finite(self.epsilon_px) and self.epsilon_px >= 0, ">= 0"),
-            ("smoothing_px", self.smoothing_px,
-             _finite(self.smoothing_px) and self.smoothing_px >= 0, ">= 0"),
-            ("focal_px", self.focal_px, self.focal_px is None or _pos(self.focal_px), "> 0 or None"),
-            ("camera_distance_px", self.camera_distance_px,
-             self.camera_distance_px is None or _pos(self.camera_distance_px), "> 0 or None"),
-            ("texture_px", self.texture_px,
-             self.texture_px is None or (isinstance(self.texture_px, int) and self.texture_px >= 8),
-             "an integer >= 8 or None"),
-            ("window_at_bp", self.window_at_bp, isinstance(self.window_at_bp, bool), "a bool"),
-        ]
-        for name, value, ok, what in checks:
-            if not ok:
-                raise ValueError(f"PaperParams.{name}: must be {what}, got {value!r}")
+    image_px: Annotated[Int, Field(ge=8, le=8192)] = 406
+    viewer_height_px: Annotated[Num, Field(gt=0)] = 1000.0
+    n: Annotated[Num, Field(gt=0)] = 50.0
+    c: Annotated[Num, Field(gt=0)] = 1.0
+    sigma: Annotated[Num, Field(ge=0)] = 0.05
+    theta_deg: Annotated[Num, Field(ge=0, lt=90)] = 58.0
+    epsilon_px: Annotated[Num, Field(ge=0)] = 0.0
+    smoothing_px: Annotated[Num, Field(ge=0)] = 2.0
+    focal_px: Annotated[Num, Field(gt=0)] | None = None
+    camera_distance_px: Annotated[Num, Field(gt=0)] | None = None
+    texture_px: Annotated[Int, Field(ge=8)] | None = None
+    window_at_bp: Bool = True
 
     @property
     def focal(self) -> float:
@@ -168,14 +147,6 @@ class PaperParams:
             The dataclass field names, in declaration order.
         """
         return tuple(f.name for f in dataclasses.fields(cls))
-
-
-def _finite(x) -> bool:
-    return isinstance(x, (int, float)) and not isinstance(x, bool) and math.isfinite(x)
-
-
-def _pos(x) -> bool:
-    return _finite(x) and x > 0
 
 
 @dataclass(frozen=True)
