@@ -62,11 +62,6 @@ class Isophote:
     cut_by_roi: bool
     cut_by_image: bool
 
-    @property
-    def cut(self) -> bool:
-        """True if the contour is open (cut by the ROI or the image border)."""
-        return not self.closed
-
 
 def polygon_contains(polygon_uv: np.ndarray, points_uv) -> np.ndarray | bool:
     """Even-odd test: which of ``points_uv`` lie inside the closed polygon ``polygon_uv`` (N, 2)?

@@ -19,7 +19,7 @@ from simtest.reconstruct.assemble import IsophoteEstimate, SpecularityEstimate, 
 from simtest.reconstruct.cone_fit import FitFrame, fit_frame, fit_frames
 from simtest.reconstruct.detect import connected_components, luma, peak_uv
 from simtest.reconstruct.failures import OK
-from simtest.reconstruct.frame_prep import _Frame, _smooth
+from simtest.reconstruct.frame_prep import LUMA_FRAME_MIN_HIGHLIGHTS, _Frame, _smooth
 from simtest.reconstruct.isophote import (MIN_CONTOUR_POINTS, _box_answer, _box_contours,
                                           _component_box, _cut_and_contour, _extract, _isophote_of, _region)
 from simtest.reconstruct.marching import batch_contours
@@ -184,7 +184,7 @@ def _folded_taps(kern: tuple, n: int) -> np.ndarray:
 _ONE_TAP = np.ones(1)
 
 
-def _smoothed_border_median(img: np.ndarray, kern: np.ndarray, roi: Roi) -> float:
+def _smoothed_border_median(img: np.ndarray, kern: np.ndarray, roi: Roi, full: np.ndarray | None = None) -> float:
     """:func:`_border_median` of the luma of ``img[roi]`` smoothed alone with the Gaussian taps
     ``kern`` (2 R + 1,) (``_smooth``: its sides reflected), computed for its border pixels only
     (the cost of the perimeter times the kernel's radius, not of the area: a grown ROI reaches a
@@ -195,13 +195,15 @@ def _smoothed_border_median(img: np.ndarray, kern: np.ndarray, roi: Roi) -> floa
     (``cv2.sepFilter2D``, its ends reflected). The pipeline contours an ROI in the frame's
     smoothed luma and takes its local background level from here: the level of the ROI smoothed
     alone (the paper pose is sensitive to it). Equal to
-    the median of the ring of ``_smooth(luma(img[roi]))`` to rounding (``tests/test_isophote.py``)."""
+    the median of the ring of ``_smooth(luma(img[roi]))`` to rounding (``tests/test_isophote.py``).
+    ``full``: ``luma(img)`` where the caller has it, whose slices are the same bits."""
     h, w = roi.shape
     taps = tuple(kern.tolist())
     kr, kc = _folded_taps(taps, h), _folded_taps(taps, w)
     r0, r1, c0, c1 = roi
-    rows = np.stack([kr @ luma(img[r0:r0 + len(kr), c0:c1]), kr @ luma(img[r1 - len(kr):r1, c0:c1])[::-1]])
-    cols = np.stack([luma(img[r0:r1, c0:c0 + len(kc)]) @ kc, luma(img[r0:r1, c1 - len(kc):c1])[:, ::-1] @ kc])
+    lum = (lambda sl: luma(img[sl])) if full is None else full.__getitem__
+    rows = np.stack([kr @ lum(np.s_[r0:r0 + len(kr), c0:c1]), kr @ lum(np.s_[r1 - len(kr):r1, c0:c1])[::-1]])
+    cols = np.stack([lum(np.s_[r0:r1, c0:c0 + len(kc)]) @ kc, lum(np.s_[r0:r1, c1 - len(kc):c1])[:, ::-1] @ kc])
     rows = cv2.sepFilter2D(rows, cv2.CV_64F, kern, _ONE_TAP, borderType=cv2.BORDER_REFLECT)
     cols = cv2.sepFilter2D(cols, cv2.CV_64F, kern, _ONE_TAP, borderType=cv2.BORDER_REFLECT)
     return _median(np.concatenate([rows.ravel(), cols[:, 1:-1].ravel()]))
@@ -261,7 +263,7 @@ def _isophote_result(frame: _Frame, t, iso):
     """:func:`_one_isophote`'s answer for the extraction's ``iso`` (an Isophote or a Failure)."""
     if not iso:
         return IsophoteEstimate(t, iso.reason, iso.detail), None
-    if iso.cut and not frame.settings.allow_open:
+    if not iso.closed and not frame.settings.allow_open:
         where = "image border" if iso.cut_by_image else "ROI border"
         return IsophoteEstimate(t, "contour_cut", f"cut by the {where}", iso.points_uv, False), iso
     if len(iso.points_uv) < MIN_CONTOUR_POINTS:
@@ -409,7 +411,10 @@ def _first_rings(frame: _Frame, rois: list[Roi]) -> list:
     if not rois or frame.smoothed32 is None or not frame.smooth_sigma_px > 0 or \
             frame.settings.normalise not in (Normalisation.AUTO, Normalisation.LOCAL):
         return [None] * len(rois)
-    return [_smoothed_border_median(frame.img, frame.kernel, roi) for roi in rois]
+    full = frame.luma_frame  # the frame's luma once for many ROIs: its slices are the strips' own bits
+    if full is None and len(rois) >= LUMA_FRAME_MIN_HIGHLIGHTS:
+        full = luma(frame.img)
+    return [_smoothed_border_median(frame.img, frame.kernel, roi, full) for roi in rois]
 
 
 def _initial_rois(cands: list, bps_uv: np.ndarray, threshold, frame: _Frame) -> list[Roi]:
