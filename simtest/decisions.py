@@ -545,6 +545,11 @@ SIGMA_MARGIN = decision(
     "A normal whose depth is not observable is kept when this many of its sigmas are below the "
     "BP ray's expected error (for a Gaussian error, 98 % one-sided that it is the better).",
     basis="physics", stage=_R)
+FUSED_SEPARATION_MAX = decision(
+    "FUSED_SEPARATION_MAX", 2.0, "lobe sigmas (the lobe's Gaussian sigma, px)",
+    "A rig's lobes whose specular points lie at most this far apart are one lobe with one maximum "
+    "(rule 5: the centroid light's bisector): two equal Gaussian lobes have one maximum up to a "
+    "separation of 2 sigma (unequal ones beyond).", basis="physics", stage=_R)
 DEPTH_RELEASE_REL_SIGMA = decision(
     "DEPTH_RELEASE_REL_SIGMA", 0.2, "relative 1-sigma of the depth",
     "A depth is released only within it: the fits estimate log h, and at 0.2 exp(+-0.4) is "

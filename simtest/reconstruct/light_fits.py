@@ -147,7 +147,8 @@ def light_aware_estimates(image, est, camera, rig: LightRig, *, nominal_depth_mm
         ``"quadric_fit"`` and ``"cubic_patch_fit"`` as ``quadric`` and ``cubic`` say. Each has
         its depth within :data:`DEPTH_REL_SIGMA_CEILING` (:func:`depth_within_ceiling`) and its
         ``bp_ray_error_deg`` set (:func:`bp_ray_error_deg` at its depth, or at
-        ``nominal_depth_mm``).
+        ``nominal_depth_mm``); ``"rig_centroid"`` where the highlight is one fused lobe of the
+        rig's lights (:func:`~simtest.reconstruct.rig_centroid.rig_centroid`).
     """
     img = np.asarray(image)
     gray, saturation_level, censor, floor, floor_step = _fit_intensities(img, response, linear, saturation_level)
@@ -176,7 +177,9 @@ def light_aware_estimates(image, est, camera, rig: LightRig, *, nominal_depth_mm
     _curved_fits(out, gray, img.shape, est, roi, camera, rig, saturation_level=saturation_level,
                  nominal_depth_mm=nominal_depth_mm, quadric_roi_scale=quadric_roi_scale, quadric=quadric,
                  cubic=cubic)
-    return out
+    from simtest.reconstruct.rig_centroid import rig_centroid  # (it imports rig_lobes, which imports this)
+    fused = rig_centroid(img, est, camera, rig, out, nominal_depth_mm)
+    return out if fused is None else {**out, "rig_centroid": fused}
 
 
 def _fit_intensities(img: np.ndarray, response, linear, saturation_level):

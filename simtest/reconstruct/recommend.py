@@ -338,6 +338,9 @@ def recommend(est) -> Recommendation:
         confirmed = _confirmed_plane(est, pho, la.get("quadric_fit"))
         if confirmed is not None:
             return Recommendation(np.asarray(pho.normal), "photometric_fit", None, confirmed)
+        fused = la.get("rig_centroid")  # rule 5
+        if fused is not None and SIGMA_MARGIN * fused.normal_sigma_deg < fused.bp_ray_error_deg:
+            return Recommendation(np.asarray(fused.normal), "rig_centroid", None, fused.normal_sigma_deg)
         return Recommendation(np.asarray(est.bp_ray), "bp_ray")
     for name in COLOCATED_ORDER:
         n = getattr(est, name, None)
