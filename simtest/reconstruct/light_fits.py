@@ -64,9 +64,7 @@ def light_aware_estimates(image, est, camera, rig: LightRig, *, nominal_depth_mm
         The image the highlight (``est``, a SpecularityEstimate) was detected in.
     est : SpecularityEstimate
     camera : array_like of shape (3, 3) or CameraModel
-        Intrinsics K, or a camera model with ``pixel_to_ray``.
     rig : LightRig
-        The scope's lights, camera frame, mm.
     nominal_depth_mm : float
         Depth assumed for the fits' start, mm.
     saturation_level : float, optional
@@ -111,38 +109,31 @@ def light_aware_estimates(image, est, camera, rig: LightRig, *, nominal_depth_mm
     """
     img = np.asarray(image)
     gray, saturation_level, censor, floor, floor_step = _fit_intensities(img, response, linear, saturation_level)
-    if diffuse is None:
-        diffuse = response is not None
+    diffuse = response is not None if diffuse is None else diffuse
     out: dict[str, LightAwareEstimate] = {}
     roi = Roi(*(int(v) for v in est.roi))
-    half = roi_scale * max(roi.shape) / 2.0
-    big = Roi.around(est.bp_px, half, img.shape)
+    big = Roi.around(est.bp_px, roi_scale * max(roi.shape) / 2.0, img.shape)
     start_n = None
     pts, ts = _isocurve_isophotes(gray, big, est.bp_px, refine=len(rig.lights) == 1)  # (isocurve_fit: one light)
     if pts:
-        iso_est = _guarded("isocurve_fit", isocurve_fit, pts, ts, est.bp_px,
-                           camera, rig, nominal_depth_mm=nominal_depth_mm)
+        iso_est = _guarded("isocurve_fit", isocurve_fit, pts, ts, est.bp_px, camera, rig,
+                           nominal_depth_mm=nominal_depth_mm)
         out["isocurve_fit"] = iso_est
         if iso_est.has_normal:
             start_n = iso_est.normal
-    if colour is None:
-        colour = colour_fit_applies(img, response)
-    if lobe is None:
-        lobe = "auto" if colour else "phong"
-    pkw = dict(nominal_depth_mm=nominal_depth_mm,
-               start_normal=start_n, supersample=supersample, diffuse=diffuse, censor=censor,
-               lobe=lobe, floor_level=floor, floor_refit=floor_refit, floor_step=floor_step)
+    colour = colour_fit_applies(img, response) if colour is None else colour
+    lobe = ("auto" if colour else "phong") if lobe is None else lobe
+    pkw = dict(nominal_depth_mm=nominal_depth_mm, start_normal=start_n, supersample=supersample, diffuse=diffuse,
+               censor=censor, lobe=lobe, floor_level=floor, floor_refit=floor_refit, floor_step=floor_step)
     out["photometric_fit"] = _photometric(img, gray, big, est, camera, rig, response, colour, saturation_level, pkw)
-    _curved_fits(out, gray, img.shape, est, roi, camera, rig, saturation_level=saturation_level,
-                 nominal_depth_mm=nominal_depth_mm, quadric_roi_scale=quadric_roi_scale, quadric=quadric,
-                 cubic=cubic)
+    _curved_fits(out, gray, img.shape, est, roi, camera, rig, saturation_level=saturation_level, cubic=cubic,
+                 nominal_depth_mm=nominal_depth_mm, quadric_roi_scale=quadric_roi_scale, quadric=quadric)
     return out
 
 
 def _fit_intensities(img: np.ndarray, response, linear, saturation_level):
-    """``(gray, saturation_level, censor, floor, floor_step)`` of :func:`light_aware_estimates`:
-    the values the fits read (a sensor frame's linear channel, else the luma), their clip level,
-    whether clipped pixels are censored, and an integer image's floor and its step."""
+    """``(gray, saturation_level, censor, floor, floor_step)``: the values the fits read (a sensor
+    frame's linear channel, else the luma), their clip level, censoring, an integer image's floor and step."""
     censor = False
     # an unsigned integer image's 0 is a floor its read noise is clipped at (0 in the linear image
     # too), its quantisation step 1 (in the linear image, the linear value of 1)
@@ -205,9 +196,8 @@ def _photometric(img, gray, big: Roi, est, camera, rig, response, colour: bool, 
 
 def _curved_fits(out: dict, gray, shape, est, roi: Roi, camera, rig, *, saturation_level, nominal_depth_mm,
                  quadric_roi_scale, quadric, cubic) -> None:
-    """The curved-patch fits of :func:`light_aware_estimates` added to ``out`` (which holds the
-    photometric fit) as ``quadric`` and ``cubic`` say, and every fit of ``out`` released: its depth
-    within the ceiling, the BP ray's error beside it set."""
+    """The curved-patch fits added to ``out`` (the photometric fit's) as ``quadric`` and ``cubic``
+    say, and every fit released: its depth within the ceiling, the BP ray's error beside it set."""
     near = Roi.around(est.bp_px, quadric_roi_scale * max(roi.shape) / 2.0, shape)
     curved = out["photometric_fit"].status in CURVED_FIT_AFTER
     # a misfitting patch's sigma only where the plane misfits, below what rule 4 could take
@@ -274,9 +264,7 @@ def _isocurve_isophotes(gray, big: Roi, bp_uv, refine: bool = True) -> tuple[lis
 
 def _guarded(name: str, fit, *args, **kwargs) -> LightAwareEstimate:
     """``fit(*args, **kwargs)``, or a ``not_converged`` estimate named ``name`` when the solver
-    refuses the highlight (scipy raises ValueError for residuals that are not finite at the
-    start; a singular or overflowing model raises LinAlgError or an ArithmeticError): one
-    highlight's failure is a status, never the frame's."""
+    refuses the highlight (ValueError, LinAlgError, ArithmeticError): a status, not the frame's."""
     try:
         return fit(*args, **kwargs)
     # ArithmeticError: FloatingPointError, OverflowError and a ZeroDivisionError of a fit run off

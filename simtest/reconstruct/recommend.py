@@ -11,31 +11,26 @@ Chosen on the harness' tuning renders (``simtest validate rendered``, the ``ligh
 measurements behind each rule are in ``docs/decisions/light-aware-recommendation.md``.
 
 1. With a rig whose lights are not all at the camera centre, the first fit whose status is ``ok``
-   of ``photometric_fit``, ``cubic_patch_fit`` (two or more lights at different places),
-   ``quadric_fit``, ``isocurve_fit`` (unless the plane misfits); else rules 3 to 5; else
-   ``bp_ray``. With the light off the camera the BP ray and the cone axes estimate the direction
-   of the BP, not the normal; and the tilt trades with the distance, so a fit whose depth is not
-   observable is used only as rule 3 says. On a curved patch the plane trades the curvature for
-   roughness and distance and reports ``plane_misfit`` or ``not_converged``
-   (:data:`~simtest.reconstruct.light_fits.CURVED_FIT_AFTER`); then ``quadric_fit`` runs (exact on
-   spheres; on the ROI grown 1.5 times, not 2.5, as more third-order shape would trade with its
-   depth). Under one light its depth is not observable, its sigma spans the bisectors over
-   ``depth_range_mm`` (:data:`~simtest.reconstruct.lightaware.patch.ONE_LIGHT_DEPTH_FACTOR`).
-   With two lights at different places the lobes shift apart as the offsets over the depth say
-   while the shape acts on both alike, so ``cubic_patch_fit`` fixes the depth with the shape free
-   (never with one light); its normal is the apex's, each light's beside it (``light_normals``).
+   of ``photometric_fit``, ``cubic_patch_fit`` (two lights at different places), ``quadric_fit``,
+   ``isocurve_fit`` (unless the plane misfits); else rules 3 to 5; else ``bp_ray`` (off the camera
+   the BP ray and the cone axes give the BP's direction, not the normal). On a curved patch the
+   plane reports ``plane_misfit`` or ``not_converged``
+   (:data:`~simtest.reconstruct.light_fits.CURVED_FIT_AFTER`), and ``quadric_fit`` runs (on the ROI
+   grown 1.5 times, not 2.5: more third-order shape would trade with its depth); under one light
+   its sigma spans the bisectors over ``depth_range_mm``. With two lights at different places the
+   lobes shift apart as the offsets over the depth say while the shape acts on both alike, so
+   ``cubic_patch_fit`` fixes the depth, the shape free; its normal is the apex's, each light's
+   beside it (``light_normals``).
 2. Without a rig or with every light at the camera centre: ``joint_cone_axis`` (two isophotes),
    else ``cone_axis``, else ``bp_ray`` (the co-located suite's ranking: :func:`colocated_ranking`).
-3. A fit whose depth is not observable (``depth_not_observable``, its misfit tests passed, the
-   exclusions of 1.; ``cubic_patch_fit`` only with a normal per light), the one of least stated
-   sigma (:func:`_stated_sigma`), when :data:`SIGMA_MARGIN` times it is below the BP ray's
-   expected error (:func:`bp_ray_error_deg`, at the nominal 20 mm or the farthest depth the fit
-   cannot exclude, :func:`bp_error_depth_mm`; and at least half the angle between the BP ray and
-   the fit's normal); ``depth_mm`` is then None. The BP ray errs by about the half angle between
-   camera and light whatever the surface, while the fit's sigma, from its covariance with the
-   distance free, carries the tilt that trades with it. Not a ``plane_misfit`` fit: one that
-   ended in a wrong minimum misfits with a sigma that does not cover its error. On a sensor frame
-   the fit runs on the linear channels, the body colours projected out (``colour.specular_image``).
+3. The fit of least stated sigma (:func:`_stated_sigma`) whose depth is not observable (its misfit
+   tests passed, the exclusions of 1.; ``cubic_patch_fit`` only with a normal per light), where
+   :data:`SIGMA_MARGIN` times it is below the BP ray's expected error (:func:`bp_ray_error_deg` at
+   the nominal 20 mm or the farthest depth the fit cannot exclude, :func:`bp_error_depth_mm`; at
+   least half the angle between the BP ray and the fit's normal); ``depth_mm`` None. The fit's
+   sigma, the distance free, carries the tilt that trades with it; a ``plane_misfit`` fit's (a
+   wrong minimum's) does not cover its error. On a sensor frame the fit runs on the linear
+   channels, the body colours projected out (``colour.specular_image``).
 4. A ``plane_misfit`` photometric fit whose normal the quadric confirms: the plane's normal within
    the quadric's stated sigma s_q (angle g <= s_q, s_q < 90 deg), and :data:`SIGMA_MARGIN` times
    ``g + s_q`` below the BP ray's expected error (as in 3.); ``depth_mm`` None. Micro-relief on
@@ -121,12 +116,7 @@ def bp_error_depth_mm(r: LightAwareEstimate, nominal_depth_mm: float) -> float:
     return float(nominal_depth_mm)
 
 def depth_within_ceiling(r: LightAwareEstimate) -> LightAwareEstimate:
-    """``r`` with its depth withdrawn when its relative 1-sigma exceeds the ceiling.
-
-    Parameters
-    ----------
-    r : LightAwareEstimate
-        A fit's result.
+    """``r`` (a fit's result) with its depth withdrawn when its relative 1-sigma exceeds the ceiling.
 
     Returns
     -------
@@ -138,8 +128,7 @@ def depth_within_ceiling(r: LightAwareEstimate) -> LightAwareEstimate:
     """
     if r.depth_mm is None:
         return r
-    rel = (r.depth_sigma_mm / r.depth_mm if r.depth_sigma_mm is not None and r.depth_mm > 0
-           else math.inf)
+    rel = r.depth_sigma_mm / r.depth_mm if r.depth_sigma_mm is not None and r.depth_mm > 0 else math.inf
     if r.depth_rel_sigma is not None:
         rel = max(rel, r.depth_rel_sigma)
     if rel <= DEPTH_REL_SIGMA_CEILING:
@@ -163,7 +152,6 @@ def bp_ray_error_deg(ray, depth_mm: float, rig: LightRig) -> float:
     depth_mm : float
         Distance of the specular point along the ray, mm, > 0.
     rig : LightRig
-        The lights (their intensities weight the mean).
 
     Returns
     -------
@@ -187,8 +175,7 @@ def bp_ray_error_deg(ray, depth_mm: float, rig: LightRig) -> float:
 def _stated_sigma(r: LightAwareEstimate) -> float | None:
     """The ``normal_sigma_deg`` a recommendation drawn from ``r`` states: the fit's own, or with
     a normal per light the largest of it and theirs (each covers every normal it gives)."""
-    sig = r.normal_sigma_deg
-    ls = r.light_normal_sigmas_deg
+    sig, ls = r.normal_sigma_deg, r.light_normal_sigmas_deg
     if sig is None or r.light_normals is None or ls is None:
         return sig
     ls = np.asarray(ls, dtype=np.float64)
@@ -206,10 +193,8 @@ def _confirmed_plane(est, pho: LightAwareEstimate | None, quad: LightAwareEstima
     if s_q is None or not s_q < 90.0:
         return None
     gap = _angle_deg(pho.normal, quad.normal)
-    if gap > s_q:
-        return None
     sigma = gap + s_q
-    return sigma if SIGMA_MARGIN * sigma < _bp_ray_error_beside(est, pho) else None
+    return sigma if gap <= s_q and SIGMA_MARGIN * sigma < _bp_ray_error_beside(est, pho) else None
 
 
 def _bp_ray_error_beside(est, r: LightAwareEstimate) -> float:
@@ -234,7 +219,7 @@ def recommend(est) -> Recommendation:
     Parameters
     ----------
     est : SpecularityEstimate
-        With ``light_aware`` attached by :func:`~simtest.reconstruct.light_fits.with_light_aware` when a rig is known.
+        With ``light_aware`` attached (:func:`~simtest.reconstruct.light_fits.with_light_aware`).
 
     Returns
     -------

@@ -54,12 +54,9 @@ class Estimator:
         One line for the reports.
     outputs : tuple of str
         What it gives, of :data:`OUTPUTS`.
-    status_free : bool
-        Scored whatever the highlight's status (it does not rest on the highlight's isophote).
-    default : bool
-        Scored by a suite that lists no estimators.
-    reference : bool
-        Never the best "other" estimator of a report's row (baselines, oracles, the recommendation).
+    status_free, default, reference : bool
+        Scored whatever the highlight's status (it does not rest on its isophote); scored by a suite
+        that lists none; never the best "other" estimator of a report's row.
     rank : int or None
         The recommendation's preference among the light-aware fits (lower first) and among the
         co-located estimators; None: not in that order (rule 5 reads ``rig_centroid`` by name).

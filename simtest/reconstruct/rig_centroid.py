@@ -1,29 +1,28 @@
 """A rig's lobes fused into one highlight: the normal bisecting the camera and the centroid light.
 
-Where the lights' lobes lie closer than their width they add up to one lobe with one maximum, and
-no fit sees the depth. Lobes of one shape at the lights' specular points p_j (px) with amplitudes
-a_j (each light's irradiance there), A = sum a_j, peak at m = sum a_j p_j / A plus
-``y = -sum_j a_j |e_j|^2 e_j / (2 A s^2)`` (e_j = p_j - m; a Gaussian lobe of sigma s): the first
-order vanishes (sum a_j e_j = 0), and the second too (the lobe is symmetric). m is the specular
-point of the centroid light C = sum a_j L_j / A to second order in the lights' offsets over the
-depth; so the normal at the BP bisects the directions to the camera and to C: the BP ray where C
-is the camera centre (guides either side of the lens), else a normal that depends on the depth.
+Lobes closer than their width make one lobe with one maximum. Lobes of one shape at the lights'
+specular points p_j (px), amplitudes a_j (each light's irradiance there), A = sum a_j, peak at
+m = sum a_j p_j / A plus ``y = -sum_j a_j |e_j|^2 e_j / (2 A s^2)`` (e_j = p_j - m; Gaussian lobes
+of sigma s): the first and second orders vanish (sum a_j e_j = 0; a symmetric lobe). m is the
+specular point of the centroid light C = sum a_j L_j / A to second order in the lights' offsets over
+the depth, so the normal at the BP bisects the directions to the camera and to C: the BP ray where
+C is the camera centre (guides either side of the lens), else a normal that depends on the depth.
 
 Its sigma: the largest angle between the normal at the depth used and at the ends of its range (a
-fit's released depth +- its 1-sigma; a fit's ``depth_range_mm``; else the nominal depth over the
-working range, :data:`~simtest.decisions.PAIR_DEPTH_MIN_MM` to ``PAIR_DEPTH_MAX_MM``), plus the
-fusion bias: the angle the BP's ray turns through when moved by ``m - c + y`` (c, the centroid's
-specular point, is the BP), the angle the normal turns through (exactly when co-located); plus the
-BP's own place, :data:`~simtest.decisions.BP_PLACE_SIGMA_PX` per axis, turned into an angle alike.
+fit's released depth +- its 1-sigma; a fit's ``depth_range_mm``; else the nominal depth over
+:data:`~simtest.decisions.PAIR_DEPTH_MIN_MM` to ``PAIR_DEPTH_MAX_MM``); plus the angle the BP's ray
+turns through when moved by the fusion bias ``m - c + y`` (c, the centroid's specular point, is the
+BP), which the normal turns through too (exactly when co-located), and by the BP's own error
+(:data:`~simtest.decisions.BP_PLACE_SIGMA_PX` per axis).
 
 One fused lobe: the lights' specular points predicted for the plane of this normal and depth
 (:func:`~simtest.reconstruct.rig_lobes.guide_specular_points`) lie in the highlight's bright region
 (:data:`~simtest.decisions.FUSED_LOBE_LEVEL`), at most :data:`~simtest.decisions.FUSED_SEPARATION_MAX`
-lobe sigmas apart, and the centroid of the light above the region's edge lies within a quarter of
-their separation of the BP along it (half of it for a BP at one light's lobe; clipping widens the
-region, so the width alone would take two clipped lobes for one). s comes from the region's width
-across: a Gaussian's region above the level q of its peak is a disc of radius ``s sqrt(-2 ln q)``,
-of coordinate variance a quarter of that radius squared.
+lobe sigmas apart (s from the region's width across: a Gaussian's region above the level q of its
+peak is a disc of radius ``s sqrt(-2 ln q)``, of coordinate variance a quarter of its square), and
+the centroid of the light above the region's edge lies within a quarter of their separation of the
+BP along it (half of it for a BP at one light's lobe: clipping widens the region, and the width
+alone would take two clipped lobes for one).
 """
 
 from __future__ import annotations
@@ -96,14 +95,12 @@ def rig_centroid(image, estimates, camera, rig: LightRig | None, nominal_depth_m
     Parameters
     ----------
     image : ndarray of shape (H, W) or (H, W, 3)
-        The frame.
     estimates : sequence of SpecularityEstimate
         With their light-aware fits (:func:`~simtest.reconstruct.rig_lobes.split_fused_lobes`'s).
     camera : array_like of shape (3, 3) or CameraModel
     rig : LightRig or None
         The scope's lights (without two at different places: returned unchanged).
     nominal_depth_mm : float
-        The depth used where no fit gives one, mm.
 
     Returns
     -------
