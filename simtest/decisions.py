@@ -545,6 +545,15 @@ SIGMA_MARGIN = decision(
     "A normal whose depth is not observable is kept when this many of its sigmas are below the "
     "BP ray's expected error (for a Gaussian error, 98 % one-sided that it is the better).",
     basis="physics", stage=_R)
+FUSED_SEPARATION_MAX = decision(
+    "FUSED_SEPARATION_MAX", 2.0, "lobe sigmas (the lobe's Gaussian sigma, px)",
+    "A rig's lobes whose specular points lie at most this far apart are one lobe with one maximum "
+    "(rule 5): two equal Gaussian lobes have one up to 2 sigma apart.", basis="physics", stage=_R)
+BP_PLACE_SIGMA_PX = decision(
+    "BP_PLACE_SIGMA_PX", 0.29, "px per image axis (1-sigma)",
+    "The BP's own error where rule 5 states a sigma: a BP on the pixel grid errs uniformly within "
+    "+-0.5 px per axis, an RMS of 1 / sqrt(12); a plateau's centroid does better.",
+    basis="physics", stage=_R)
 DEPTH_RELEASE_REL_SIGMA = decision(
     "DEPTH_RELEASE_REL_SIGMA", 0.2, "relative 1-sigma of the depth",
     "A depth is released only within it: the fits estimate log h, and at 0.2 exp(+-0.4) is "

@@ -57,6 +57,7 @@ from simtest.reconstruct.io import (
 from simtest.reconstruct.overlay import check_overlay_size, draw_overlay
 from simtest.reconstruct.pipeline import reconstruct
 from simtest.reconstruct.light_fits import with_light_aware
+from simtest.reconstruct.rig_centroid import rig_centroid
 from simtest.reconstruct.rig_lobes import split_fused_lobes
 from simtest.reconstruct.registry import names
 from simtest.reconstruct.settings import MAX_CANDIDATES, ReconSettings
@@ -218,8 +219,10 @@ def reconstruct_single(img, camera_file, settings: ReconSettings | None = None, 
     kw = dict(cubic=None if cubic_patch else False, response=camera_file.response)
     fitted = with_light_aware(img, estimates, camera_file.model, camera_file.lights, workers=workers,
                               on_highlight=on_highlight, **kw)
-    # a rig's guides whose lobes fused into one candidate: one row per guide (rig_lobes)
-    return split_fused_lobes(img, fitted, camera_file.model, camera_file.lights, **kw), estimates.detection_record()
+    # a rig's guides whose lobes fused into one candidate: one row per guide (rig_lobes), or where
+    # the image does not tell them apart one highlight with the centroid light's normal (rig_centroid)
+    split = split_fused_lobes(img, fitted, camera_file.model, camera_file.lights, **kw)
+    return rig_centroid(img, split, camera_file.model, camera_file.lights), estimates.detection_record()
 
 
 def check_workers(workers: int, option: str = "--workers") -> int:

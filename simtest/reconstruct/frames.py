@@ -40,6 +40,7 @@ from simtest.reconstruct.io import dumps, estimate_to_dict
 from simtest.reconstruct.table import ROW_GROUP_ROWS, arrow, estimates_batch, frame_batch, table_metadata, table_schema
 from simtest.reconstruct.pipeline import reconstruct
 from simtest.reconstruct.light_fits import with_light_aware
+from simtest.reconstruct.rig_centroid import rig_centroid
 from simtest.reconstruct.rig_lobes import split_fused_lobes
 from simtest.reconstruct.settings import ReconSettings
 
@@ -293,7 +294,7 @@ def _frame_head(args) -> tuple[dict, list, bool]:
     # on the linear intensities of the camera file's response as a single image's (the frame
     # checked against it above)
     ests = with_light_aware(image, ests, K, rig, cubic=cubic, response=response)
-    ests = split_fused_lobes(image, ests, K, rig, cubic=cubic, response=response)
+    ests = rig_centroid(image, split_fused_lobes(image, ests, K, rig, cubic=cubic, response=response), K, rig)
     counts: dict[str, int] = {}
     for e in ests:
         counts[e.status] = counts.get(e.status, 0) + 1

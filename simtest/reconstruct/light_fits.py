@@ -1,13 +1,9 @@
 """The light-aware fits run on detected highlights, given the scope's light rig (:func:`with_light_aware`),
-attached to each estimate (``light_aware``) for :func:`~simtest.reconstruct.recommend.recommend`, whose
-module docstring gives the rules.
+attached to each estimate (``light_aware``) for :func:`~simtest.reconstruct.recommend.recommend`.
 
-Isophotes of the isocurve fit
------------------------------
-:func:`isocurve_fit` takes its own isophotes, at :data:`ISOCURVE_ISOVALUES` (0.3, 0.5, 0.7) of the
-BP's height above the median of the grown ROI's border, extracted from that ROI (the
-photometric fit's), not the command line's isovalues, whose two contours near the peak say
-little about the distance (measured: ``docs/decisions/light-aware-recommendation.md``).
+:func:`isocurve_fit` takes its own isophotes, at :data:`ISOCURVE_ISOVALUES` of the BP's height above
+the median of the grown ROI's border, not the command line's isovalues (whose contours near the
+peak say little about the distance).
 """
 
 from __future__ import annotations
@@ -32,17 +28,12 @@ from simtest.reconstruct.lightaware import (LightAwareEstimate, cubic_patch_fit,
 from simtest.reconstruct.recommend import (_bp_ray_error_beside, bp_error_depth_mm, bp_ray_error_deg,
                                            depth_within_ceiling)
 
-#: The photometric fit's statuses after which the curved-patch fits run by default (``quadric``,
-#: ``cubic`` None in :func:`light_aware_estimates`): those that say the plane is not the ROI's
-#: surface (its residual holds a curved patch's pattern, or the fit ran off). After the others
-#: a patch fit cannot do better and takes seconds: ``depth_not_observable`` (the plane fits; a
-#: patch has more parameters to trade with the depth), ``too_few_points`` (fewer pixels than a
-#: patch's parameters too), ``light_behind_plane``.
+#: The photometric fit's statuses after which the curved-patch fits run by default: those that say
+#: the plane is not the ROI's surface (after the others a patch, with more parameters to trade
+#: with the depth, cannot do better, and takes seconds).
 CURVED_FIT_AFTER = ("plane_misfit", "not_converged")
-#: Candidate statuses that never get a light-aware fit, not even with ``fit_rejected`` of
-#: :func:`with_light_aware`: too small to fit, or judged no specular highlight of the tissue (the
-#: scope's black border, a burnt-in overlay, a peak that is not specular:
-#: :mod:`simtest.reconstruct.verify`).
+#: Candidate statuses never fitted, not even with ``fit_rejected``: too small to fit, or no
+#: specular highlight of the tissue (:mod:`simtest.reconstruct.verify`).
 NOT_FITTED = ("too_small", "black_border", "overlay", "not_specular")
 
 
@@ -55,138 +46,97 @@ def _several_lights(rig) -> bool:
     return rig is not None and rig.has_separate_lights
 
 def light_aware_estimates(image, est, camera, rig: LightRig, *, nominal_depth_mm: float = 20.0,
-                          saturation_level: float | None = None,
-                          roi_scale: float = 2.5, quadric_roi_scale: float = 1.5,
-                          supersample: int = 1,
-                          quadric: bool | None = None,
-                          cubic: bool | None = False, response=None,
-                          diffuse: bool | None = None,
+                          saturation_level: float | None = None, roi_scale: float = 2.5,
+                          quadric_roi_scale: float = 1.5, supersample: int = 1, quadric: bool | None = None,
+                          cubic: bool | None = False, response=None, diffuse: bool | None = None,
                           lobe: str | None = None, linear=None, colour: bool | None = None,
                           floor_refit: bool = False) -> dict[str, LightAwareEstimate]:
     """Run the light-aware estimators on one detected highlight.
 
-    ``isocurve_fit`` takes its own isophotes, at :data:`ISOCURVE_ISOVALUES` of the BP's height above
-    the grown ROI's border median (refined onto the cubic spline of the image,
-    :func:`~simtest.reconstruct.lightaware.refine_isophote_points`; module docstring, "Isophotes
-    of the isocurve fit"), whatever isovalues the highlight was detected with; ``photometric_fit`` takes the highlight's
-    ROI grown ``roi_scale`` times about the BP (the lobe's tails carry the distance), clipped pixels
-    left out, refined from two starts (the bisector at the nominal depth and the isocurve fit's
-    normal when it has one) and the better kept, so that one fit's local minimum does not become
-    the other's answer.
+    ``isocurve_fit`` takes its own isophotes (module docstring); ``photometric_fit`` the ROI grown
+    ``roi_scale`` times about the BP (the lobe's tails carry the distance), clipped pixels left
+    out, refined from the bisector at the nominal depth and from the isocurve fit's normal, the
+    better kept.
 
     Parameters
     ----------
     image : ndarray of shape (H, W) or (H, W, 3)
-        The image the highlight was detected in.
+        The image the highlight (``est``, a SpecularityEstimate) was detected in.
     est : SpecularityEstimate
-        From :func:`~simtest.reconstruct.reconstruct` or ``reconstruct_roi``.
     camera : array_like of shape (3, 3) or CameraModel
-        Intrinsics K, or a camera model with ``pixel_to_ray``.
     rig : LightRig
-        The scope's lights, camera frame, mm.
     nominal_depth_mm : float
         Depth assumed for the fits' start, mm.
     saturation_level : float, optional
         Clip level (default: the dtype's maximum for integer images; none for float images).
-    roi_scale : float
-        Growth of the highlight's ROI for the photometric fit.
-    quadric_roi_scale : float
-        Growth of the highlight's ROI for the curved-patch fit: smaller than the plane's, as a
-        quadric holds over a smaller part of a curved surface than the lobe's faint tails span
-        (:mod:`~simtest.reconstruct.recommend`, "Recommendation rule").
+    roi_scale, quadric_roi_scale : float
+        Growth of the highlight's ROI for the photometric fit, and for the curved-patch fits.
     supersample : int
         Sub-pixel samples per pixel side of the photometric model (its box filter).
     quadric : bool or None
-        Run the curved-patch fit :func:`~simtest.reconstruct.lightaware.quadric_fit` (on the
-        highlight's ROI grown ``quadric_roi_scale`` times about the BP): True always, None
-        (default) when the photometric fit's status is in :data:`CURVED_FIT_AFTER` (a plane
-        misfit, or a plane fit that ran off on a curved patch: the recommendation then needs
-        it), False never (the harness' oracle inputs keep the plane fit only).
+        Run :func:`~simtest.reconstruct.lightaware.quadric_fit` (on the ROI grown
+        ``quadric_roi_scale`` times): True always, False never (the harness' oracle inputs),
+        None (default) when the photometric fit's status is in :data:`CURVED_FIT_AFTER`.
     cubic : bool or None
-        Run the third-order patch fit
-        :func:`~simtest.reconstruct.lightaware.cubic_patch_fit` on the same ROI as the quadric's:
-        True always, False (default: it takes about 1 to 5 s per highlight, against a few ms
-        for the others) never, None when the photometric fit's status is in
-        :data:`CURVED_FIT_AFTER` and the rig has at least two lights at different places (with
-        one light its depth, and with it the normal, is not observable: :mod:`~simtest.reconstruct.recommend`);
-        ``simtest reconstruct --cubic-patch`` asks for None.
+        Run :func:`~simtest.reconstruct.lightaware.cubic_patch_fit` (1 to 5 s a highlight) on the
+        quadric's ROI: True always, False (default) never, None as the quadric where the rig has
+        two lights at different places (``simtest reconstruct --cubic-patch``).
     response : SensorResponse, optional
-        The sensor's response (:class:`~simtest.geometry.response.SensorResponse`, a camera
-        file's ``"response"``): the fits then run on the linear intensities of the channel where
-        the tissue is darkest (:meth:`~simtest.geometry.response.SensorResponse.linearize`), its
-        clipped pixels censored (the radiance is at least the clip level), with the rig's diffuse
-        shading in the photometric model; ``saturation_level`` is then the response's.
+        The camera file's sensor response: the fits then run on the linear intensities of the
+        channel where the tissue is darkest, clipped pixels censored, the rig's diffuse shading
+        in the model; ``saturation_level`` is the response's.
     diffuse : bool or None
-        The rig's Lambertian shading as a column of the photometric model
-        (:func:`~simtest.reconstruct.lightaware.photometric_fit`'s ``diffuse``); None (default):
-        with a ``response`` (a sensor frame of tissue), not without.
+        The rig's Lambertian shading in the photometric model (None: with a ``response``).
     lobe : {"phong", "ggx", "auto"} or None
-        The photometric fit's specular lobe (:func:`~simtest.reconstruct.lightaware.photometric_fit`;
-        ``"auto"``: GGX where Phong misfits and GGX does not). None (default): "auto" where the
-        fit runs on the three channels (the film's own lobes, whose GGX shape Phong's misfits
-        once the texture no longer hides it), else Phong: on sensor frames ``"auto"`` has not
-        been seen to change a recommendation and costs CPU (``docs/decisions``' light-aware file).
+        The photometric fit's lobe (``"auto"``: GGX where Phong misfits and GGX does not); None:
+        "auto" on three channels (the film's own lobes), else Phong (``docs/decisions``).
     floor_refit : bool
-        Refit the photometric fit without the pixels whose model lies within a few noise sigmas
-        of an integer image's 0 (:func:`~simtest.reconstruct.lightaware.photometric_fit`'s
-        ``floor_refit``: read noise clipped at 0 biases the fit there). The floor itself is always
-        passed: the fit's curvature test reads only the pixels above it.
+        Refit without the pixels whose model lies within a few noise sigmas of an integer
+        image's 0 (:func:`~simtest.reconstruct.lightaware.photometric_fit`'s ``floor_refit``).
     colour : bool, optional
-        Fit the photometric model on the ROI's three linear channels, the tissue's body colours
-        projected out (:func:`colour_fit_applies`; None: decided here, :func:`with_light_aware`
-        decides once per frame).
+        Fit on the ROI's three linear channels, the body colours projected out (None:
+        :func:`colour_fit_applies`).
     linear : tuple, optional
-        ``response.linearize(image)`` when already at hand (:func:`with_light_aware` computes it
-        once per frame: 25 ms on a 1350 x 1080 RGB frame).
+        ``response.linearize(image)`` when at hand (:func:`with_light_aware`: once per frame).
 
     Returns
     -------
     dict
-        ``{"isocurve_fit": LightAwareEstimate, "photometric_fit": LightAwareEstimate}`` (the
-        isocurve fit is absent when none of its isophotes closes in the grown ROI),
-        ``"quadric_fit"`` and ``"cubic_patch_fit"`` as ``quadric`` and ``cubic`` say. Each has
-        its depth within :data:`DEPTH_REL_SIGMA_CEILING` (:func:`depth_within_ceiling`) and its
-        ``bp_ray_error_deg`` set (:func:`bp_ray_error_deg` at its depth, or at
-        ``nominal_depth_mm``).
+        ``"photometric_fit"``; ``"isocurve_fit"`` where an isophote closes in the grown ROI;
+        ``"quadric_fit"``, ``"cubic_patch_fit"`` as ``quadric`` and ``cubic`` say; each with its
+        depth within the ceiling (:func:`depth_within_ceiling`) and ``bp_ray_error_deg`` set (at
+        its depth, or ``nominal_depth_mm``).
     """
     img = np.asarray(image)
     gray, saturation_level, censor, floor, floor_step = _fit_intensities(img, response, linear, saturation_level)
-    if diffuse is None:
-        diffuse = response is not None
+    diffuse = response is not None if diffuse is None else diffuse
     out: dict[str, LightAwareEstimate] = {}
     roi = Roi(*(int(v) for v in est.roi))
-    half = roi_scale * max(roi.shape) / 2.0
-    big = Roi.around(est.bp_px, half, img.shape)
+    big = Roi.around(est.bp_px, roi_scale * max(roi.shape) / 2.0, img.shape)
     start_n = None
     pts, ts = _isocurve_isophotes(gray, big, est.bp_px, refine=len(rig.lights) == 1)  # (isocurve_fit: one light)
     if pts:
-        iso_est = _guarded("isocurve_fit", isocurve_fit, pts, ts, est.bp_px,
-                           camera, rig, nominal_depth_mm=nominal_depth_mm)
+        iso_est = _guarded("isocurve_fit", isocurve_fit, pts, ts, est.bp_px, camera, rig,
+                           nominal_depth_mm=nominal_depth_mm)
         out["isocurve_fit"] = iso_est
         if iso_est.has_normal:
             start_n = iso_est.normal
-    if colour is None:
-        colour = colour_fit_applies(img, response)
-    if lobe is None:
-        lobe = "auto" if colour else "phong"
-    pkw = dict(nominal_depth_mm=nominal_depth_mm,
-               start_normal=start_n, supersample=supersample, diffuse=diffuse, censor=censor,
-               lobe=lobe, floor_level=floor, floor_refit=floor_refit, floor_step=floor_step)
+    colour = colour_fit_applies(img, response) if colour is None else colour
+    lobe = ("auto" if colour else "phong") if lobe is None else lobe
+    pkw = dict(nominal_depth_mm=nominal_depth_mm, start_normal=start_n, supersample=supersample, diffuse=diffuse,
+               censor=censor, lobe=lobe, floor_level=floor, floor_refit=floor_refit, floor_step=floor_step)
     out["photometric_fit"] = _photometric(img, gray, big, est, camera, rig, response, colour, saturation_level, pkw)
-    _curved_fits(out, gray, img.shape, est, roi, camera, rig, saturation_level=saturation_level,
-                 nominal_depth_mm=nominal_depth_mm, quadric_roi_scale=quadric_roi_scale, quadric=quadric,
-                 cubic=cubic)
+    _curved_fits(out, gray, img.shape, est, roi, camera, rig, saturation_level=saturation_level, cubic=cubic,
+                 nominal_depth_mm=nominal_depth_mm, quadric_roi_scale=quadric_roi_scale, quadric=quadric)
     return out
 
 
 def _fit_intensities(img: np.ndarray, response, linear, saturation_level):
-    """``(gray, saturation_level, censor, floor, floor_step)`` of :func:`light_aware_estimates`:
-    the values the fits read (a sensor frame's linear channel, else the luma), their clip level,
-    whether clipped pixels are censored, and an integer image's floor and its step."""
+    """``(gray, saturation_level, censor, floor, floor_step)``: the values the fits read (a sensor
+    frame's linear channel, else the luma), their clip level, censoring, an integer image's floor and step."""
     censor = False
-    # an unsigned integer image's 0 is a floor its read noise is clipped at (0 in the linear
-    # image too: every response curve maps 0 to 0), its quantisation step 1 (in the linear
-    # image, the linear value of 1)
+    # an unsigned integer image's 0 is a floor its read noise is clipped at (0 in the linear image
+    # too), its quantisation step 1 (in the linear image, the linear value of 1)
     floor = 0.0 if img.dtype.kind == "u" else None
     floor_step = 1.0
     if response is not None:
@@ -204,20 +154,17 @@ def _fit_intensities(img: np.ndarray, response, linear, saturation_level):
 def _photometric(img, gray, big: Roi, est, camera, rig, response, colour: bool, saturation_level,
                  pkw: dict) -> LightAwareEstimate:
     """The photometric fit of :func:`light_aware_estimates` on the ROI ``big``, its depth within
-    the ceiling: on the three linear channels where ``colour`` (the least-fluctuation projection's
-    or the darkest channel's fit standing in where the body colours' cannot), else on ``gray``."""
+    the ceiling: on the three linear channels where ``colour``, else on ``gray``."""
     fit_values, fit_clip = gray[big.slices], saturation_level
     if colour:
-        # the ROI's three linear channels: the fit projects the tissue's body colours out
-        # (photometric_fit's values (H, W, 3)), which takes the albedo's texture with them
+        # the ROI's three linear channels: the fit projects the body colours (and texture) out
         fs = response.full_scale(img)
         sub = img[big.slices]
         fit_values = np.stack([response.linear(sub[..., c], c, fs) for c in range(3)], axis=-1)
         fit_clip = [float(response.linear(fs, c, fs)) for c in range(3)]
     pkw = dict(clip_level=fit_clip, **pkw)
     if response is not None and not colour and img.ndim == 3:
-        # one channel of a sensor frame whose colours cannot be projected out (a JPEG grid):
-        # the albedo's dark lines (vessels) are left out of the fit (model.albedo_lines)
+        # one channel of a sensor frame (a JPEG grid): the albedo's dark lines are left out
         y = luma(img[big.slices])
         pkw["exclude"] = _la.model.albedo_lines(y, 1.0 if img.dtype.kind in "ui" else 0.0,
                                                 noise_sigma(y) if min(y.shape) >= 3 else 0.0)
@@ -231,8 +178,7 @@ def _photometric(img, gray, big: Roi, est, camera, rig, response, colour: bool, 
     # its depth within the ceiling before the curved fits' turn is decided by its status
     pf = depth_within_ceiling(first)
     if colour and first.ok and not pf.ok and first.projection == "body_colours":
-        # the body colours' depth above the ceiling: the least-fluctuation weights' fit where it
-        # is ok within it (as photometric_fit's "auto" projection does for a fit without depth)
+        # the body colours' depth above the ceiling: the least-fluctuation weights' fit if ok
         lf = depth_within_ceiling(fitted("least_fluctuation"))
         if lf.ok and lf.projection == "least_fluctuation":
             why = "the body colours' depth is above the ceiling"
@@ -240,10 +186,8 @@ def _photometric(img, gray, big: Roi, est, camera, rig, response, colour: bool, 
     if colour and ((not pf.ok and pf.projection == "least_fluctuation")
                    or (pf.projection == "body_colours" and pf.curvature_shift_deg is None
                        and pf.status in ("depth_not_observable", "not_converged"))):
-        # the darkest channel's fit stands in for a least-fluctuation fit without its depth within
-        # the ceiling and for a body colours' fit without its depth; a misfit of theirs stands
-        # (rule 4 may confirm its normal), as does a fit kept with a curved patch's pattern
-        # (docs/decisions/light-aware-recommendation.md, "The projections' fallbacks")
+        # the darkest channel's fit stands in for a projection's fit without its depth (a misfit
+        # stands: docs/decisions/light-aware-recommendation.md, "The projections' fallbacks")
         why = f"the {pf.projection.replace('_', ' ')} projection's fit: {pf.status}"
         chan = depth_within_ceiling(fitted("darkest_channel"))
         pf = dataclasses.replace(chan, detail=f"{chan.detail}; {why}" if chan.detail else why)
@@ -252,14 +196,11 @@ def _photometric(img, gray, big: Roi, est, camera, rig, response, colour: bool, 
 
 def _curved_fits(out: dict, gray, shape, est, roi: Roi, camera, rig, *, saturation_level, nominal_depth_mm,
                  quadric_roi_scale, quadric, cubic) -> None:
-    """The curved-patch fits of :func:`light_aware_estimates` added to ``out`` (which holds the
-    photometric fit) as ``quadric`` and ``cubic`` say, and every fit of ``out`` released: its depth
-    within the ceiling, the BP ray's error beside it set."""
+    """The curved-patch fits added to ``out`` (the photometric fit's) as ``quadric`` and ``cubic``
+    say, and every fit released: its depth within the ceiling, the BP ray's error beside it set."""
     near = Roi.around(est.bp_px, quadric_roi_scale * max(roi.shape) / 2.0, shape)
     curved = out["photometric_fit"].status in CURVED_FIT_AFTER
-    # a misfitting curved patch's sigma is read only where the plane misfits (rule 4), and only
-    # below what rule 4 could take (docs/decisions/light-aware-recommendation.md, "The curved
-    # fits' sigma")
+    # a misfitting patch's sigma only where the plane misfits, below what rule 4 could take
     ray = _la.model._rays(camera, np.asarray(est.bp_px, dtype=np.float64)[None])[0]
 
     def released(r: LightAwareEstimate) -> LightAwareEstimate:
@@ -285,21 +226,16 @@ def _curved_fits(out: dict, gray, shape, est, roi: Roi, camera, rig, *, saturati
 
 
 def colour_fit_applies(image, response) -> bool:
-    """Whether the photometric fit runs on a frame's three linear channels (the tissue's body
-    colours projected out, :func:`~simtest.reconstruct.lightaware.colour.specular_image`): an RGB
-    frame with a sensor response that shows no JPEG block grid
-    (:func:`~simtest.reconstruct.jpeg.jpeg_grid`). A JPEG's chroma is subsampled (4:2:0) and
-    blocky, and the projection is a colour difference: on the endoscope suite's colon wall at
-    JPEG quality 50 to 75 the projected fits passed 6 to 17 deg off, where the darkest channel's
-    misfit and the BP ray stood."""
+    """Whether the photometric fit runs on a frame's three linear channels, the body colours
+    projected out: an RGB frame with a sensor response and no JPEG block grid (a JPEG's chroma
+    is subsampled and blocky; projected fits passed 6 to 17 deg off at quality 50 to 75)."""
     img = np.asarray(image)
     if response is None or img.ndim != 3:
         return False
     return img.dtype != np.uint8 or jpeg_grid(img) is None
 
 def _isocurve_isophotes(gray, big: Roi, bp_uv, refine: bool = True) -> tuple[list[np.ndarray], list[float]]:
-    """The isophotes :func:`isocurve_fit` is given (module docstring, "Isophotes of the isocurve
-    fit"): at each of :data:`ISOCURVE_ISOVALUES` of the BP's height above the median of the
+    """The isophotes :func:`isocurve_fit` is given (module docstring): at each of :data:`ISOCURVE_ISOVALUES` of the BP's height above the median of the
     ROI's border, the closed contour about the BP, its points refined onto the image's cubic
     spline (as ``refine`` says); levels whose contour is cut or too short are left out.
 
@@ -328,9 +264,7 @@ def _isocurve_isophotes(gray, big: Roi, bp_uv, refine: bool = True) -> tuple[lis
 
 def _guarded(name: str, fit, *args, **kwargs) -> LightAwareEstimate:
     """``fit(*args, **kwargs)``, or a ``not_converged`` estimate named ``name`` when the solver
-    refuses the highlight (scipy raises ValueError for residuals that are not finite at the
-    start; a singular or overflowing model raises LinAlgError or an ArithmeticError): one
-    highlight's failure is a status, never the frame's."""
+    refuses the highlight (ValueError, LinAlgError, ArithmeticError): a status, not the frame's."""
     try:
         return fit(*args, **kwargs)
     # ArithmeticError: FloatingPointError, OverflowError and a ZeroDivisionError of a fit run off
@@ -342,16 +276,11 @@ def with_light_aware(image, estimates, camera, rig: LightRig | None, *, on_highl
                      fit_rejected: bool = False, workers: int = 1, **kwargs) -> list:
     """The estimates with their light-aware results attached (``light_aware``).
 
-    Nothing is run, and the estimates are returned unchanged, without a rig or with every light at
-    the camera centre (the cone axes and the BP ray are then the estimators of choice,
-    :mod:`~simtest.reconstruct.recommend`). By default only the accepted highlights (status ``ok``) are fitted: a rejected
-    candidate keeps its status whatever its fits give, so its normal is not one to use, and on a
-    whole frame the rejected candidates' fits are most of its time and end in misfits
-    (``docs/decisions/light-aware-recommendation.md``). With ``fit_rejected`` every candidate the
-    paper's ellipse rejected is fitted too (the fits need no ellipse: a two-light rig's lobes that
-    merge into one highlight, or the harness scoring the estimators on every rendered highlight it
-    matched), but never those whose status says they are no specular highlight of the tissue
-    (:data:`NOT_FITTED`).
+    Nothing runs without a rig or with every light at the camera centre. By default only the
+    accepted highlights (``ok``) are fitted: a rejected candidate keeps its status whatever its
+    fits give, and on a whole frame its fits are most of the time and end in misfits. With
+    ``fit_rejected`` the candidates rejected for a reason other than :data:`NOT_FITTED` are
+    fitted too (the fits need no ellipse).
 
     Parameters
     ----------
@@ -364,18 +293,13 @@ def with_light_aware(image, estimates, camera, rig: LightRig | None, *, on_highl
     rig : LightRig or None
         The scope's lights.
     on_highlight : callable, optional
-        Called as ``on_highlight(done, total)`` after each highlight's fits (the command line's
-        progress bar: the curved fits take up to seconds per highlight).
+        Called as ``on_highlight(done, total)`` after each highlight's fits (a progress bar).
     fit_rejected : bool, optional
-        Fit also the candidates rejected for a reason other than :data:`NOT_FITTED` (default: the
-        accepted ones only).
+        Fit the rejected candidates too (above).
     workers : int
-        Worker processes the highlights' fits are shared among (1: in this process). Each
-        highlight's fits read the image in its own ROI only, so the results are the same, bit for
-        bit, whatever the number (``tests/test_lightaware_workers.py``); the image, camera, rig
-        and arguments go to each worker once, the highlights one by one. This process and the
-        workers run BLAS on one thread each (:func:`simtest._threads.one_thread_each`), with one
-        worker too.
+        Worker processes the highlights' fits are shared among (1: in this process); the results
+        are the same bit for bit whatever the number (each fit reads its own ROI; BLAS on one
+        thread each, :func:`simtest._threads.one_thread_each`).
     **kwargs
         Passed to :func:`light_aware_estimates`.
 
@@ -403,14 +327,12 @@ def with_light_aware(image, estimates, camera, rig: LightRig | None, *, on_highl
     out = list(estimates)
     todo = [i for i, est in enumerate(out) if fitted(est)]
     # the others are marked with no fits ({}): under a rig off the camera centre the co-located
-    # estimators' normals are not recommended (rule 1: the BP ray), as for a fitted highlight
-    # whose fits all fail (a rejected candidate with a joint cone axis would otherwise get it)
+    # estimators' normals are not recommended (rule 1: the BP ray)
     skipped = set(range(len(out))).difference(todo)
     for i in sorted(skipped):
         if out[i].light_aware is None:
             out[i] = dataclasses.replace(out[i], light_aware={})
-    # one BLAS thread here as in the workers: a product summed over many pixels on several
-    # threads differs in its last bits, which a fit's iterations carry to its results
+    # one BLAS thread here as in the workers: several threads' sums differ in their last bits
     with one_thread_each():
         if workers > 1 and len(todo) > 1:
             for name in ("scipy.optimize", "scipy.ndimage"):  # imported once here, not in each worker

@@ -6,19 +6,11 @@ A new estimator is one function and one :func:`register` call; the places that l
 the recommendation's order, the command line's choices) read them from here with :func:`names`
 and :func:`get`.
 
-Kinds (:data:`KINDS`):
-
-- ``oracle``: the circle pose's N+- closest to the truth (the paper's reporting), which a real
-  frame cannot give;
-- ``isophote``: a normal of the highlight's isophotes (the circle pose's chosen N+-, the cone
-  axis), which ``estimates.json`` carries;
-- ``baseline``: the BP ray;
-- ``light_aware``: a fit with the calibrated rig, read from the highlight's ``light_aware`` entry
-  of its name (:func:`simtest.reconstruct.light_fits.light_aware_estimates`), run where a light is
-  off the camera centre;
-- ``oracle_input``: the photometric fit on an image a real frame does not give (the harness's
-  oracle inputs);
-- ``recommendation``: the normal ``estimates.json`` recommends.
+Kinds (:data:`KINDS`): ``oracle`` (the circle pose's N+- closest to the truth, as the paper
+reports), ``isophote`` (a normal of the highlight's isophotes), ``baseline`` (the BP ray),
+``light_aware`` (with the calibrated rig: the highlight's ``light_aware`` entry of its name,
+:func:`simtest.reconstruct.light_fits.light_aware_estimates`), ``oracle_input`` (the photometric
+fit on an image a real frame does not give), ``recommendation`` (the normal recommended).
 
 Examples
 --------
@@ -55,24 +47,19 @@ class Estimator:
     name : str
         Its name, the key of its column in every table.
     normal : callable
-        ``normal(estimate, truth) -> array_like of shape (3,) or None``: its normal of one
-        highlight's ``SpecularityEstimate`` (camera frame; ``truth`` is read by an oracle only).
+        ``normal(estimate, truth) -> array_like of shape (3,) or None`` (``truth``: oracles only).
     kind : str
         One of :data:`KINDS`.
     description : str
         One line for the reports.
     outputs : tuple of str
         What it gives, of :data:`OUTPUTS`.
-    status_free : bool
-        Scored whatever the highlight's status (it does not rest on the highlight's isophote).
-    default : bool
-        Scored by a suite that lists no estimators.
-    reference : bool
-        A baseline, an oracle or the recommendation: never the best "other" estimator of a
-        report's row.
+    status_free, default, reference : bool
+        Scored whatever the highlight's status (it does not rest on its isophote); scored by a suite
+        that lists none; never the best "other" estimator of a report's row.
     rank : int or None
         The recommendation's preference among the light-aware fits (lower first) and among the
-        co-located estimators; None: not a candidate.
+        co-located estimators; None: not in that order (rule 5 reads ``rig_centroid`` by name).
     oracle_input : str or None
         For ``oracle_input``: the attribute of the render result it fits.
     """
@@ -249,6 +236,8 @@ register("quadric_fit", _light_aware("quadric_fit"), kind="light_aware", outputs
 register("cubic_patch_fit", _light_aware("cubic_patch_fit"), kind="light_aware",
          outputs=_FIT + ("light_normals",), status_free=True, rank=1,
          description="ROI intensities fitted with a third-order patch lit by every light of the rig")
+register("rig_centroid", _light_aware("rig_centroid"), kind="light_aware", outputs=("normal", "sigma"),
+         status_free=True, description="the bisector for the rig's centroid light, where its lobes fuse into one")
 register("recommended", _recommended, kind="recommendation", outputs=_FIT + ("light_normals",),
          status_free=True, reference=True,
          description="the normal estimates.json recommends (simtest.reconstruct.recommend)")

@@ -1,0 +1,157 @@
+"""A rig's lobes fused into one highlight: the normal bisecting the camera and the centroid light.
+
+Lobes closer than their width make one lobe with one maximum. Lobes of one shape at the lights'
+specular points p_j (px), amplitudes a_j (each light's irradiance there), A = sum a_j, peak at
+m = sum a_j p_j / A plus ``y = -sum_j a_j |e_j|^2 e_j / (2 A s^2)`` (e_j = p_j - m; Gaussian lobes
+of sigma s): the first and second orders vanish (sum a_j e_j = 0; a symmetric lobe). m is the
+specular point of the centroid light C = sum a_j L_j / A to second order in the lights' offsets over
+the depth, so the normal at the BP bisects the directions to the camera and to C: the BP ray where
+C is the camera centre (guides either side of the lens), else a normal that depends on the depth.
+
+Its sigma: the largest angle between the normal at the depth used and at the ends of its range (a
+fit's released depth +- its 1-sigma; a fit's ``depth_range_mm``; else the nominal depth over
+:data:`~simtest.decisions.PAIR_DEPTH_MIN_MM` to ``PAIR_DEPTH_MAX_MM``); plus the angle the BP's ray
+turns through when moved by the fusion bias ``m - c + y`` (c, the centroid's specular point, is the
+BP), which the normal turns through too (exactly when co-located), and by the BP's own error
+(:data:`~simtest.decisions.BP_PLACE_SIGMA_PX` per axis).
+
+One fused lobe: the lights' specular points predicted for the plane of this normal and depth
+(:func:`~simtest.reconstruct.rig_lobes.guide_specular_points`) lie in the highlight's bright region
+(:data:`~simtest.decisions.FUSED_LOBE_LEVEL`), at most :data:`~simtest.decisions.FUSED_SEPARATION_MAX`
+lobe sigmas apart (s from the region's width across: a Gaussian's region above the level q of its
+peak is a disc of radius ``s sqrt(-2 ln q)``, of coordinate variance a quarter of its square), and
+the centroid of the light above the region's edge lies within a quarter of their separation of the
+BP along it (half of it for a BP at one light's lobe: clipping widens the region, and the width
+alone would take two clipped lobes for one).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+
+import numpy as np
+
+from simtest.decisions import (BP_PLACE_SIGMA_PX, FUSED_LOBE_LEVEL, FUSED_SEPARATION_MAX, PAIR_DEPTH_MAX_MM,
+                               PAIR_DEPTH_MIN_MM)
+from simtest.geometry.lights import Light, LightRig
+from simtest.reconstruct.detect_pixels import luma
+from simtest.reconstruct.lightaware import LightAwareEstimate, bisector
+from simtest.reconstruct.lightaware.model import _rays, _rig_arrays
+from simtest.reconstruct.recommend import LIGHT_AWARE, _angle_deg, bp_error_depth_mm, bp_ray_error_deg
+from simtest.reconstruct.rig_lobes import _bright_region, _inside, guide_specular_points
+
+__all__ = ["centroid_normal", "rig_centroid"]
+
+
+def centroid_normal(bp_uv, camera, rig: LightRig, depth_mm: float) -> np.ndarray:
+    """The normal bisecting the directions to the camera and to the rig's centroid light (the
+    lights weighted by the irradiance each gives there) at ``depth_mm`` along the BP's ray.
+
+    Parameters
+    ----------
+    bp_uv : array_like of shape (2,)
+        The BP (u, v), px.
+    camera : array_like of shape (3, 3) or CameraModel
+    rig : LightRig
+    depth_mm : float
+        Depth of the specular point along the BP's ray, mm (> 0).
+
+    Returns
+    -------
+    ndarray of shape (3,)
+        Unit normal facing the camera, camera frame.
+    """
+    X = depth_mm * _rays(camera, np.asarray(bp_uv, np.float64)[None])[0]
+    a = _amplitudes(rig, X)
+    c = a @ rig.positions / a.sum()
+    return bisector(bp_uv, camera, LightRig((Light(tuple(c.tolist())),)), depth_mm).normal
+
+
+def _amplitudes(rig: LightRig, X: np.ndarray) -> np.ndarray:
+    """The irradiance each light gives at the point ``X`` (mm, camera frame), relative."""
+    L, w, inv_sq, m = _rig_arrays(rig)
+    r = np.linalg.norm(X - L, axis=1)
+    return w * np.clip((X[2] - L[:, 2]) / r, 0.0, None) ** m / np.where(inv_sq, r * r, 1.0)
+
+
+def _depth_span(fits: dict, nominal_depth_mm: float) -> tuple[float, float, float, float]:
+    """``(depth, near, far, depth of the BP ray's error)``, mm (module docstring)."""
+    for r in (fits.get(name) for name in LIGHT_AWARE):
+        if r is not None and r.depth_mm is not None and r.depth_sigma_mm is not None:
+            d, s = float(r.depth_mm), float(r.depth_sigma_mm)
+            return d, max(d - s, 1e-3 * d), d + s, d
+    for r in (fits.get(name) for name in LIGHT_AWARE):
+        if r is not None and r.depth_range_mm is not None:
+            near, far = (float(v) for v in r.depth_range_mm)
+            return math.sqrt(near * far), near, far, bp_error_depth_mm(r, nominal_depth_mm)
+    return nominal_depth_mm, PAIR_DEPTH_MIN_MM, PAIR_DEPTH_MAX_MM, nominal_depth_mm
+
+
+def rig_centroid(image, estimates, camera, rig: LightRig | None, nominal_depth_mm: float = 20.0) -> list:
+    """The estimates with ``"rig_centroid"`` among the light-aware results of each fitted highlight
+    that is one fused lobe of the rig's lights (module docstring).
+
+    Parameters
+    ----------
+    image : ndarray of shape (H, W) or (H, W, 3)
+    estimates : sequence of SpecularityEstimate
+        With their light-aware fits (:func:`~simtest.reconstruct.rig_lobes.split_fused_lobes`'s).
+    camera : array_like of shape (3, 3) or CameraModel
+    rig : LightRig or None
+        The scope's lights (without two at different places: returned unchanged).
+    nominal_depth_mm : float
+
+    Returns
+    -------
+    list of SpecularityEstimate
+        ``"rig_centroid"``: status ``depth_not_observable`` (it estimates no depth), its normal
+        (:func:`centroid_normal`), ``normal_sigma_deg`` and ``bp_ray_error_deg`` (the BP ray's
+        error where the lobes do not fuse, :func:`~simtest.reconstruct.recommend.bp_ray_error_deg`).
+    """
+    if rig is None or not rig.has_separate_lights:
+        return list(estimates)
+    gray = luma(np.asarray(image))
+    out = []
+    for est in estimates:
+        r = _fused_lobe(gray, est, camera, rig, est.light_aware, nominal_depth_mm) if est.light_aware else None
+        out.append(est if r is None else dataclasses.replace(est, light_aware={**est.light_aware, "rig_centroid": r}))
+    return out
+
+
+def _fused_lobe(gray, est, camera, rig: LightRig, fits: dict, nominal_depth_mm: float) -> LightAwareEstimate | None:
+    """:func:`rig_centroid`'s estimate of one highlight, or None where it is not one fused lobe."""
+    depth, near, far, at = _depth_span(fits, nominal_depth_mm)
+    bp = np.asarray(est.bp_px, dtype=np.float64)
+    ray = _rays(camera, bp[None])[0]
+    n = centroid_normal(bp, camera, rig, depth)
+    pts = guide_specular_points(camera, rig, n, -float(n @ (depth * ray)))
+    region = _bright_region(gray, est)
+    if region is None or not _inside(region, pts).all() or region[0].sum() < 3:
+        return None
+    rr, cc = np.nonzero(region[0])  # the lobe's sigma from the region's width across (docstring)
+    across = float(np.linalg.eigvalsh(np.cov(np.vstack([cc, rr]).astype(np.float64)))[0])
+    s = 2.0 * math.sqrt(max(across, 1.0 / 12.0)) / math.sqrt(-2.0 * math.log(FUSED_LOBE_LEVEL))
+    gaps = np.linalg.norm(pts[:, None] - pts[None], axis=-1)
+    i, j = np.unravel_index(int(np.argmax(gaps)), gaps.shape)
+    apart = float(gaps[i, j])
+    t = (pts[j] - pts[i]) / apart if apart > 0 else np.zeros(2)
+    w = gray[rr + region[1], cc + region[2]].astype(np.float64)
+    w -= w.min()  # the light above the region's edge (module docstring)
+    centre = np.array([w @ cc, w @ rr]) / max(w.sum(), 1e-300) + (region[2], region[1])
+    off = float((centre - bp) @ t)
+    if apart > FUSED_SEPARATION_MAX * s or abs(off) > apart / 4.0:
+        return None  # two lobes, or the BP at one light's lobe (the region off it by half the gap)
+    a = _amplitudes(rig, depth * ray)
+    e = pts - (m := a @ pts / a.sum())
+    y = -(a * (e * e).sum(axis=1)) @ e / (2.0 * a.sum() * s * s)
+    bias = _angle_deg(ray, _rays(camera, (m + y)[None])[0])  # the BP moved by m - c + y, c = the BP
+    spread_deg = max(_angle_deg(n, centroid_normal(bp, camera, rig, d)) for d in (near, far))
+    place = math.hypot(*(_angle_deg(ray, _rays(camera, (bp + step)[None])[0])
+                         for step in np.eye(2) * BP_PLACE_SIGMA_PX))
+    return LightAwareEstimate(
+        "rig_centroid", "depth_not_observable",
+        f"one fused lobe: specular points {apart:.3g} px apart, lobe sigma {s:.3g} px, centred {off:.2g} px "
+        f"off the BP; depth {depth:.3g} mm ({near:.3g} to {far:.3g}: {spread_deg:.3g} deg), fusion bias "
+        f"{bias:.3g} deg, BP {place:.3g} deg", n, normal_sigma_deg=spread_deg + bias + place,
+        bp_ray_error_deg=bp_ray_error_deg(ray, at, rig))
