@@ -36,6 +36,34 @@ def pytest_configure(config):
     each. ``compileall`` writes the caches whatever that setting; Python then reads them."""
     if sys.flags.dont_write_bytecode and not hasattr(config, "workerinput"):
         compileall.compile_dir(Path(__file__).resolve().parents[1] / "simtest", quiet=2)
+    if hasattr(config, "workerinput"):
+        _one_library_thread_per_worker()
+
+
+#: The xdist worker's thread limits (threadpoolctl's handle; kept for the process's life).
+_WORKER_LIMITS = []
+
+
+def _one_library_thread_per_worker():
+    """One BLAS/OpenMP, one OpenCV and one Dr.Jit thread in each xdist worker (``-n auto``: a
+    worker per core).
+
+    Each library otherwise starts a thread per core in every worker: on the 2-core CI machine two
+    busy workers run four threads of each, whose spinning and switching cost CPU the tests need.
+    Measured on the 2-core machine under a load of 5 to 9 (noisy): tests/test_lightaware.py and
+    test_harness_runner.py, -n 0, user CPU 77.0 and 89.7 s with two BLAS threads, 71.6 and 71.1 s
+    with one; three colonoscope renders, 41.3 s CPU with two Dr.Jit threads, 34.0 s with one (the
+    same image). Results do not depend on the thread count (test_render_tissue_sensor,
+    test_dataset_generate and test_threads hold that); the processes a test starts (command lines,
+    worker pools) keep their own settings, and ``-n 0`` runs keep the libraries' defaults.
+    """
+    import cv2
+    import drjit as dr
+    from threadpoolctl import threadpool_limits
+
+    _WORKER_LIMITS.append(threadpool_limits(limits=1))
+    cv2.setNumThreads(1)
+    dr.set_thread_count(1)
 
 
 def pytest_collection_modifyitems(config, items):

@@ -217,8 +217,12 @@ def test_bench_stages_split_the_cost_and_restore_the_thread_count():
     from benchmarks.dataset import stages
 
     before = dr.thread_count()
-    st = stages("colon", count=2, seed=5, resolution_px=24, spp=2, warmup=1)
-    assert dr.thread_count() == before
+    dr.set_thread_count(2)  # not the one thread the stages run on (nor an xdist worker's: conftest)
+    try:
+        st = stages("colon", count=2, seed=5, resolution_px=24, spp=2, warmup=1)
+        assert dr.thread_count() == 2
+    finally:
+        dr.set_thread_count(before)
     parts = [st[k] for k in ("render", "truth", "encode", "write")]
     assert all(p > 0 for p in parts), st  # each stage was reached and timed
     assert st["total"] == pytest.approx(sum(parts))

@@ -6,7 +6,7 @@ import os
 
 import numpy as np  # noqa: F401  (loads the BLAS whose threads are limited)
 import pytest
-from threadpoolctl import threadpool_info
+from threadpoolctl import threadpool_info, threadpool_limits
 
 from simtest._threads import one_thread_each
 from simtest.constants import SINGLE_THREAD_ENV
@@ -23,11 +23,13 @@ def _in_worker(_):
 def test_limits_this_process_and_restores(monkeypatch):
     monkeypatch.setenv("OPENBLAS_NUM_THREADS", "7")
     monkeypatch.delenv("OMP_NUM_THREADS", raising=False)
-    before = _blas_threads()
-    with one_thread_each():
-        assert all(n == 1 for n in _blas_threads())
-        assert {k: os.environ[k] for k in SINGLE_THREAD_ENV} == SINGLE_THREAD_ENV
-    assert _blas_threads() == before
+    # two threads before (an xdist worker runs one, conftest), so that a limit left behind shows
+    with threadpool_limits(limits=2):
+        before = _blas_threads()
+        with one_thread_each():
+            assert all(n == 1 for n in _blas_threads())
+            assert {k: os.environ[k] for k in SINGLE_THREAD_ENV} == SINGLE_THREAD_ENV
+        assert _blas_threads() == before
     assert os.environ["OPENBLAS_NUM_THREADS"] == "7"  # put back, not dropped
     assert "OMP_NUM_THREADS" not in os.environ  # dropped, as it was absent
 
@@ -35,7 +37,8 @@ def test_limits_this_process_and_restores(monkeypatch):
 @pytest.mark.parametrize("method", ["fork", "spawn"])
 def test_workers_started_within_get_one_thread(method):
     # a forked worker inherits the run-time limit, a spawned one reads the environment
-    with one_thread_each(), mp.get_context(method).Pool(1) as pool:
+    # two threads outside: in an xdist worker (one thread, conftest) a fork would get one anyway
+    with threadpool_limits(limits=2), one_thread_each(), mp.get_context(method).Pool(1) as pool:
         threads, env = pool.map(_in_worker, [0])[0]
     assert all(n == 1 for n in threads)
     assert env == SINGLE_THREAD_ENV
