@@ -283,9 +283,9 @@ WHITE_CHROMA = decision(
     "rounding and white balance leave a white reflection within a few percent of grey.",
     basis="convention", stage=_V)
 SIGNIFICANCE_MIN = decision(
-    "SIGNIFICANCE_MIN", 8.0, "image noise standard deviations",
-    "Smallest top-hat height at the BP: the largest of a million Gaussian noise samples reaches "
-    "about 5 sigma, so 8 leaves a margin for noise that is not Gaussian (texture, JPEG).",
+    "SIGNIFICANCE_MIN", 8.0, "single-pixel noise standard deviations at the background's level",
+    "Smallest top-hat height at the BP pixel (unsmoothed): the largest of a million Gaussian pixel "
+    "noises reaches about 5 sigma, so 8 leaves a margin for noise that is not Gaussian (texture, JPEG).",
     basis="physics", stage=_V)
 CONTRAST_MIN = decision(
     "CONTRAST_MIN", 0.6, "fraction of the room the sensor leaves at the BP",
@@ -360,14 +360,26 @@ QUANTISATION_SIGMA_LSB = decision(
     "The smallest noise an integer image is judged against: rounding, uniform over one step, has "
     "standard deviation 1 / sqrt(12) (JPEG and noise-free renders would otherwise measure 0).",
     basis="physics", stage=_V)
+NOISE_LEVEL_BINS = decision(
+    "NOISE_LEVEL_BINS", 16, "intensity bins over full scale",
+    "Significance and panels use the noise at the pixel's level, from the frame's noise level "
+    "function: sRGB amplifies the dark's (read noise 2 % of full scale: 9 levels over a dark "
+    "8-bit frame, 3 at a lobe's 175 background). Bins of 1/16 hold the sRGB slope within 30 % "
+    "above 40 levels; a bin takes the largest of itself and its two neighbours, so that a drawn "
+    "panel of one level (its own bins' noise near 0) cannot lower the bar that finds it.",
+    basis="physics", stage=_V)
+NOISE_LEVEL_MIN_SAMPLES = decision(
+    "NOISE_LEVEL_MIN_SAMPLES", 500, "pixels",
+    "A bin's noise from at least this many pixels (the MAD's standard error about 5 %).",
+    basis="physics", stage=_V)
 CONFIDENCE_COEFFICIENTS = decision(
-    "CONFIDENCE_COEFFICIENTS", np.array([-9.290, 0.532, -0.368, 2.277, -0.183, 0.001]),
+    "CONFIDENCE_COEFFICIENTS", np.array([-10.060, 0.534, -0.209, 2.268, -0.165, 0.002]),
     "logistic intercept, then weights of paleness, significance, surround, residual ratio, panel "
     "share",
     "The confidence's logistic model, fitted by simtest.evaluate.detection.fit_logistic (L2 "
     "penalty chosen by frame-wise cross-validation) to the labels of the ok estimates; "
     "tests/test_verify.py refits them.", basis="tuned", stage=_V,
-    chosen_on=("banner-labelled",), n="180 ok estimates of the 24 banner frames, 52 isolated")
+    chosen_on=("banner-labelled",), n="181 ok estimates of the 24 banner frames, 52 isolated")
 
 DEFAULT_MIN_CONFIDENCE = decision(
     "DEFAULT_MIN_CONFIDENCE", 0.0, "confidence in [0, 1]",

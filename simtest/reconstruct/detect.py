@@ -1,29 +1,21 @@
 """Specularity detection on a whole image: candidate highlights, their BP, ROI, or a reason.
 
-A candidate highlight is an 8-connected component of bright pixels (``gray >= brightness_rel *
-full_scale``; outer boundaries by OpenCV ``findContours``, each filled in its bounding box: faster
-than ``connectedComponentsWithStats`` on a sparse frame; a component inside the hole of another is
-counted with it). For each candidate the detector finds the
-brightest point (BP): the centroid of the saturated plateau when the highlight is clipped, else
-the brightest pixel refined to sub-pixel by a separable parabola through its 3x3 neighbourhood
-(or the centroid of its flat top when quantisation makes several pixels equal to the maximum).
-It gives a square region of interest around the BP, large enough to hold the low isophotes, and a
-status: ``"ok"`` or the reason the candidate is rejected:
-- ``too_small``: fewer than ``min_area_px`` pixels (noise, glints of a few pixels).
-- ``touches_border``: the component reaches the image border, so its isophotes are cut.
-- ``merged``: several separate saturated plateaus (two highlights run together).
-- ``not_elliptical``: the filled area is far from that of the ellipse with the same second
-  moments (``area / (4 pi sqrt(det Sigma))`` outside [``ellipticity_min``, 1 /
-  ``ellipticity_min``]; it is 1 for a filled ellipse, 0.83 for an equilateral triangle and lower
-  for rings, crescents and L shapes).
+A candidate is an 8-connected component of bright pixels (``gray >= brightness_rel * full_scale``;
+outer boundaries by OpenCV ``findContours``, each filled in its bounding box; a component inside
+another's hole counts with it). Its brightest point (BP) is the centroid of the saturated plateau
+when clipped, else the brightest pixel refined by a separable parabola through its 3x3
+neighbourhood (or the centroid of a flat top that quantisation made). It gets a square region of
+interest around the BP, large enough for the low isophotes, and a status, ``"ok"`` or a reason:
+``too_small`` (fewer than ``min_area_px`` pixels), ``touches_border`` (its isophotes are cut),
+``merged`` (several separate saturated plateaus), ``not_elliptical`` (``area / (4 pi sqrt(det
+Sigma))`` of its second moments outside [``ellipticity_min``, 1 / ``ellipticity_min``]: 1 for a
+filled ellipse, 0.83 for an equilateral triangle, lower for rings, crescents and L shapes).
 
-Image types: (H, W) gray, (H, W, 1), (H, W, 3) RGB or (H, W, 4) RGBA (alpha ignored); dtype uint8,
-uint16 or floating. Full scale is the dtype maximum for integers and ``max(1, max(image))`` for
-floats unless given. The intensity used everywhere is the Rec. 601 luma
-``0.299 R + 0.587 G + 0.114 B``; a pixel is saturated (clipped white, as a specular highlight is)
-when every channel is at ``saturation_level`` (default: the integer dtype maximum; none for float
-images). A single clipped channel does not count: the red channel of tissue clips over broad
-diffuse areas in endoscopy.
+Images: (H, W), (H, W, 1), (H, W, 3) RGB or (H, W, 4) RGBA (alpha ignored); uint8, uint16 or
+floating. Full scale is the dtype maximum for integers and ``max(1, max(image))`` for floats
+unless given. The intensity is the Rec. 601 luma ``0.299 R + 0.587 G + 0.114 B``; a pixel is
+saturated when every channel is at ``saturation_level`` (default: the integer dtype maximum; none
+for floats): the red channel of tissue alone clips over broad diffuse areas in endoscopy.
 """
 
 from __future__ import annotations

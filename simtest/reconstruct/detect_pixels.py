@@ -11,7 +11,7 @@ import cv2
 import numpy as np
 
 from simtest.constants import LUMA_BT601
-from simtest.decisions import BACKGROUND_DIV, BACKGROUND_PLATEAU_FACTOR
+from simtest.decisions import BACKGROUND_DIV, BACKGROUND_PLATEAU_FACTOR, NOISE_LEVEL_BINS, NOISE_LEVEL_MIN_SAMPLES
 
 _LUMA = np.array(LUMA_BT601)
 #: The luma weights as OpenCV's ``cv2.transform`` matrix (one output channel from R, G, B).
@@ -196,6 +196,33 @@ def _noise_sigma_of_rows(rows: np.ndarray) -> float:
         d = (g[:, 1:-1] - 0.5 * (g[:, :-2] + g[:, 2:])).ravel()
         mad = _median(np.abs(d - _median(d)))  # float32, as its float32 data
     return float(1.4826 * mad / np.sqrt(1.5))
+
+
+def noise_level_table(gray: np.ndarray, full_scale: float, fallback: float) -> np.ndarray:
+    """The pixel noise's standard deviation per intensity bin (the noise level function; the
+    response curve reshapes a sensor's noise), image units: :func:`noise_sigma` over the pixels whose
+    three-pixel mean (uncorrelated with ``d``) is in the bin. A bin too sparse or without noise (a
+    panel's, a plateau's) takes its nearest measured bin's value (``fallback`` where none is or it is
+    0), then the largest of its and its neighbours' (:data:`~simtest.decisions.NOISE_LEVEL_BINS`)."""
+    g = gray[:: max(1, gray.shape[0] // 192)].astype(np.float32)  # ~200 rows: a few bins' share each
+    d = (g[:, 1:-1] - 0.5 * (g[:, :-2] + g[:, 2:])).ravel()
+    k = _level_bin((g[:, 1:-1] + g[:, :-2] + g[:, 2:]).ravel() / 3.0, full_scale).astype(np.uint8)
+    d, ends = d[np.argsort(k, kind="stable")], np.cumsum(np.bincount(k, minlength=NOISE_LEVEL_BINS))  # radix sort
+    out = np.full(NOISE_LEVEL_BINS, np.nan)
+    for b in np.flatnonzero(np.diff(ends, prepend=0) >= NOISE_LEVEL_MIN_SAMPLES):
+        db = d[ends[b] - np.diff(ends, prepend=0)[b]:ends[b]]
+        out[b] = 1.4826 * float(np.median(np.abs(db - np.median(db)))) / np.sqrt(1.5)
+    full = np.flatnonzero(out > 0)  # 0: most of the bin has no noise (clipped, drawn, rendered)
+    if not len(full) or not fallback > 0:  # a frame whose noise reads 0 (JPEG's flat blocks): none
+        return np.full(NOISE_LEVEL_BINS, float(fallback))
+    t = np.pad(out[full[np.abs(np.arange(NOISE_LEVEL_BINS)[:, None] - full[None, :]).argmin(1)]], 1, mode="edge")
+    return np.maximum(np.maximum(t[:-2], t[1:-1]), t[2:])  # a flat panel's own bins do not lower it
+
+
+def _level_bin(levels, full_scale: float) -> np.ndarray:
+    """The bin of :func:`noise_level_table` that each intensity falls in (int64)."""
+    x = np.nan_to_num(np.asarray(levels, np.float64) * (NOISE_LEVEL_BINS / full_scale))
+    return np.clip(x, 0, NOISE_LEVEL_BINS - 1).astype(np.int64)
 
 
 def _median(a: np.ndarray):

@@ -177,18 +177,20 @@ def _variance_below(std_max: float) -> np.float32:
     return np.array(lo, np.uint32).view(np.float32)[()]
 
 
-def flat_mask(gray: np.ndarray, std_max: float) -> np.ndarray:
+def flat_mask(gray: np.ndarray, std_max, full_scale: float | None = None) -> np.ndarray:
     """Pixels whose 5 x 5 luma standard deviation (``cv2.blur`` of the luma and of its square,
-    float32) is below ``std_max``; uint8 0/1."""
+    float32) is below ``std_max``, uint8 0/1: a number, or with ``full_scale`` a table over the
+    bins of :func:`~simtest.reconstruct.detect_pixels.noise_level_table`, read at each pixel's mean."""
     g = gray.astype(np.float32, copy=False)
     m1 = cv2.blur(g, (5, 5))
     var = cv2.blur(g * g, (5, 5))
+    # the variance against the square of std_max's bound (none below one not positive): no root
+    bound = np.float32([_variance_below(float(v)) if np.float32(v) > 0 else -np.inf for v in np.atleast_1d(std_max)])
+    if full_scale is not None:  # each pixel's bin (the floor of its scaled mean), its bound
+        bound = np.take(bound, np.minimum((m1 * np.float32(len(bound) / full_scale)).astype(np.uint8), len(bound) - 1))
     # in place: each frame-sized temporary costs its page faults
     np.subtract(var, np.multiply(m1, m1, out=m1), out=var)
-    if not np.float32(std_max) > 0:  # no standard deviation is below it
-        return np.zeros(var.shape, np.uint8)
-    # the variance against the square of std_max's bound: no root taken, the same pixels
-    return np.less(var, _variance_below(float(std_max))).view(np.uint8)
+    return np.less(var, bound if full_scale is not None else bound[0]).view(np.uint8)
 
 
 #: Clipped-and-flat pixels within this many px of each other share one window of
@@ -196,7 +198,7 @@ def flat_mask(gray: np.ndarray, std_max: float) -> np.ndarray:
 _HIT_JOIN_PX = 8
 
 
-def drop_clipped(flat: np.ndarray, rgb: np.ndarray, std_max: float, ceiling: float) -> np.ndarray:
+def drop_clipped(flat: np.ndarray, rgb: np.ndarray, std_max, ceiling: float, full_scale: float | None = None) -> np.ndarray:
     """The flat pixels ``flat`` (uint8 0/1) less those whose 5 x 5 window holds a channel at the
     sensor's ``ceiling`` unless every channel of ``rgb`` (H, W, C) is flat there (:func:`flat_mask`
     of each): a clipped channel has no noise, the others still carry the sensor's."""
@@ -222,21 +224,21 @@ def drop_clipped(flat: np.ndarray, rgb: np.ndarray, std_max: float, ceiling: flo
         R0, R1, C0, C1 = max(0, r0 - 2), min(h, r1 + 2), max(0, c0 - 2), min(w, c1 + 2)
         every = flat[r0:r1, c0:c1].copy()
         for c in chans:
-            every &= flat_mask(c[R0:R1, C0:C1], std_max)[r0 - R0:r1 - R0, c0 - C0:c1 - C0]
+            every &= flat_mask(c[R0:R1, C0:C1], std_max, full_scale)[r0 - R0:r1 - R0, c0 - C0:c1 - C0]
         np.copyto(out[r0:r1, c0:c1], every, where=hit[r0:r1, c0:c1] != 0)
     return out
 
 
-def panels(gray: np.ndarray, std_max: float, min_area: float, rgb: np.ndarray | None = None,
-           ceiling: float | None = None) -> np.ndarray:
+def panels(gray: np.ndarray, std_max, min_area: float, rgb: np.ndarray | None = None,
+           ceiling: float | None = None, full_scale: float | None = None) -> np.ndarray:
     """Flat panels: the 8-connected components of :func:`flat_mask` of at least ``min_area``
     px; uint8 0/1. With the frame's ``rgb`` (H, W, C) and its sensor ``ceiling``, pixels next to
     a clipped channel count only where every channel is flat (:func:`drop_clipped`)."""
-    flat = flat_mask(gray, std_max)
+    flat = flat_mask(gray, std_max, full_scale)
     if np.count_nonzero(flat) < min_area:
         return np.zeros_like(flat)
     if rgb is not None and ceiling is not None:
-        flat = drop_clipped(flat, rgb, std_max, ceiling)
+        flat = drop_clipped(flat, rgb, std_max, ceiling, full_scale)
         if np.count_nonzero(flat) < min_area:
             return np.zeros_like(flat)
     # labels alone and their areas by counting (OpenCV's statistics cost more than its labels)
@@ -248,12 +250,12 @@ def panels(gray: np.ndarray, std_max: float, min_area: float, rgb: np.ndarray | 
     return np.take(big, lab)
 
 
-def panel_pixels_in(gray: np.ndarray, std_max: float, min_area: float, rr: np.ndarray,
-                    rgb: np.ndarray | None = None, ceiling: float | None = None) -> np.ndarray:
-    """How many pixels of :func:`panels` (``rgb``, ``ceiling``: its) each region ``rr`` (rows of
-    row0, row1, col0, col1) holds, int64 (n,), by the panel map's integral image."""
+def panel_pixels_in(gray: np.ndarray, std_max, min_area: float, rr: np.ndarray, rgb: np.ndarray | None = None,
+                    ceiling: float | None = None, full_scale: float | None = None) -> np.ndarray:
+    """How many pixels of :func:`panels` (``rgb``, ``ceiling``, ``full_scale``: its) each region
+    ``rr`` (rows of row0, row1, col0, col1) holds, int64 (n,), by the panel map's integral image."""
     rr = np.asarray(rr, np.int64).reshape(-1, 4)
-    p = panels(gray, std_max, min_area, rgb, ceiling)
+    p = panels(gray, std_max, min_area, rgb, ceiling, full_scale)
     if not p.any():
         return np.zeros(len(rr), np.int64)
     s = cv2.integral(p, sdepth=cv2.CV_32S)

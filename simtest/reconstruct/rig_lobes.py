@@ -1,26 +1,21 @@
 """Highlights of several light guides fused into one: one row per guide, from their joint fit.
 
 A scope's guides each make a highlight on a planar patch (:mod:`simtest.reconstruct.rig_pairs`).
-Where the patch is near and its film shiny, the guides' clipped lobes touch and the detector sees
-one bright region: either one plateau whose centroid lies between the guides' specular points
-(an ``ok`` candidate at neither), or a plateau broken into two or three by noise (``merged``). The
-light-aware photometric fit models every guide's lobe on one plane, so it needs no ellipse and
-explains such a region as it explains a lone lobe.
+Where the patch is near and its film shiny, the guides' lobes touch and the detector sees one
+bright region: one plateau whose centroid lies between the guides' specular points (``ok`` at
+neither), a plateau broken into several by noise (``merged``), or an oval with a waist or too
+long for one ellipse (``bad_fit``, ``not_elliptical``). The light-aware photometric fit models
+every guide's lobe on one plane and needs no ellipse.
 
-Rule. A candidate under a rig off the camera centre whose photometric fit has a normal and a
-distance (plane ``n . X = -h``) predicts each guide's specular point: the plane's point on the
-segment from the camera to the guide's mirror image ``L' = L - 2 (n . L + h) n``, that is
-``X_s = L' h / (-n . L')``, projected by the camera. Every guide whose specular point lies in the
-candidate's bright region (the connected pixels above :data:`FUSED_LOBE_LEVEL` of the BP's
-height above the diffuse shading, the ROI border's median, that hold the BP) is a highlight of
-this candidate. When two or more are, at least
-:data:`~simtest.decisions.PAIR_TOL_PX` apart and none of them is another candidate's BP, the
-candidate gives one row per such guide: its BP is the guide's specular point, its status ``ok``,
-its light-aware fits and recommended normal the joint fit's. ``merged`` candidates whose region
-stretches along the rig's curve (:mod:`simtest.reconstruct.rig_pairs`), and ``bad_fit`` ones
-(specular by every check of :mod:`simtest.reconstruct.verify`; the waist between fused lobes
-leaves no ellipse) whose region it crosses, are fitted for this only, by the plane's fit
-(:func:`split_fused_lobes`); one the rule does not split keeps its status and no fit.
+Rule. A candidate's plane fit (``n . X = -h``) predicts each guide's specular point, the plane's
+point on the segment from the camera to the guide's mirror image ``L' = L - 2 (n . L + h) n``:
+``X_s = L' h / (-n . L')``, projected. Every guide whose specular point lies in the candidate's
+bright region (the connected pixels above :data:`FUSED_LOBE_LEVEL` of the BP's height above the
+ROI border's median, holding the BP) is a highlight of it. When two or more are, at least
+:data:`~simtest.decisions.PAIR_TOL_PX` apart and none is another candidate's BP, the candidate
+gives one row per guide: BP at its specular point, status ``ok``, the joint fit's normal. A
+rejected candidate is fitted for this only where the rig's curve runs in its region (``merged``:
+stretched along it); one the rule does not split keeps its status and no fit.
 """
 
 from __future__ import annotations
@@ -39,9 +34,8 @@ from simtest.reconstruct.rig_pairs import other_guide_curves
 
 __all__ = ["FUSED_LOBE_LEVEL", "guide_specular_points", "split_fused_lobes"]
 
-#: Candidates whose statuses the rule may turn into rows of fused lobes (not ``not_elliptical``:
-#: texture earns it before the specularity checks, each a plane fit of up to a minute).
-SPLIT_STATUSES = ("ok", "merged", "bad_fit")
+#: Candidates whose statuses the rule may turn into rows of fused lobes (module docstring).
+SPLIT_STATUSES = ("ok", "merged", "bad_fit", "not_elliptical")
 
 
 def guide_specular_points(camera, rig, normal, distance_mm: float) -> np.ndarray:
@@ -189,9 +183,8 @@ def split_fused_lobes(image, estimates, camera, rig, **kwargs) -> list:
     rig : LightRig or None
         The scope's lights (None, or every light at the camera centre: returned unchanged).
     **kwargs
-        As :func:`~simtest.reconstruct.light_fits.with_light_aware` got them (``response``,
-        ``cubic``, ...): the ``merged`` candidates are fitted with them (``workers`` and
-        ``on_highlight`` are ignored: few candidates are ``merged``).
+        As :func:`~simtest.reconstruct.light_fits.with_light_aware` got them: the rejected
+        candidates are fitted with them (less ``workers`` and ``on_highlight``).
 
     Returns
     -------

@@ -1,23 +1,19 @@
 """Where a scope's other light guides put their highlights, seen from one highlight's BP.
 
-A locally planar patch lit by several guides shows one highlight per guide; the verifier's
-isolation checks (:mod:`simtest.reconstruct.verify`, ``cluster``) must not take them for a cluster.
+A planar patch lit by several guides shows one highlight per guide; the isolation checks
+(:mod:`simtest.reconstruct.verify`, ``cluster``) must not take them for a cluster.
 
-Derivation (planar patch, camera frame, mm). The BP's unit ray ``r``; suppose it is guide ``i``'s
-specular point at depth ``d``: ``X = d r``. Reflection fixes the normal as the bisector
-``n = unit(unit(-X) + unit(L_i - X))`` and the plane ``n . Y = -h``, ``h = -n . X``. Guide ``j``'s
-specular point on it is where the segment to its mirror image ``L'_j = L_j - 2 (n . L_j + h) n``
-meets the plane, ``X_j = L'_j h / (-n . L'_j)`` (as :func:`simtest.simulate.offset.specular_point`),
-projected by the camera. The unknowns are the guide and the depth; sweeping ``d`` over the working
-range (:data:`DEPTH_MIN_MM` to :data:`DEPTH_MAX_MM`) draws, per ordered pair of guides, a curve
-from far out along the image direction of the baseline ``L_j - L_i`` (near tissue) to the BP (far
-tissue). Admissible depths: the patch faces the camera (``n . r < 0``) and lies beyond both guides
-(``n . L + h > 0``); the normal range is what reflection allows at those depths. A peak whose region
-comes within :data:`PAIR_TOL_PX` of a curve is another guide's highlight. A curved patch moves it
-off the curve; beyond the tolerance it still counts (conservative). Its lobe also lights the
-surround: :func:`other_lobe_centres` finds it as the brightest light on the curve outside the own
-lobe, and the verifier leaves the own lobe's shape moved there out of the surround (one patch, one
-roughness: the lobes are alike).
+Derivation (planar patch, camera frame, mm). Suppose the BP's unit ray ``r`` is guide ``i``'s
+specular point at depth ``d``, ``X = d r``: the normal is the bisector ``n = unit(unit(-X) +
+unit(L_i - X))``, the plane ``n . Y = -h``, ``h = -n . X``, and guide ``j``'s specular point is
+``X_j = L'_j h / (-n . L'_j)`` with the mirror image ``L'_j = L_j - 2 (n . L_j + h) n``, projected.
+Sweeping ``d`` over :data:`DEPTH_MIN_MM` to :data:`DEPTH_MAX_MM` (the patch facing the camera and
+beyond both guides) draws, per ordered pair of guides, a curve from far along the baseline's
+image direction (near tissue) to the BP (far tissue). A peak whose region comes within
+:data:`PAIR_TOL_PX` of a curve is another guide's highlight (a curved patch moves it off; beyond
+the tolerance it still counts). Its lobe also lights the surround: :func:`other_lobe_centres`
+finds it as the brightest light on the curve outside the own lobe, and the verifier leaves the own
+lobe's shape moved there out of the surround (one patch, one roughness: the lobes are alike).
 """
 
 from __future__ import annotations

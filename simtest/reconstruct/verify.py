@@ -1,49 +1,35 @@
 """Is a fitted candidate a specular highlight the isophote method can use? Checks and a confidence.
 
-Detection keeps every bright peak of a frame and the isophote fits succeed on most of them, on
-diffuse texture and fold rims, clustered glints and burnt-in text alike. This module decides which
-fitted candidates earn the status ``ok``, from what makes a highlight specular and usable:
+Detection keeps every bright peak (diffuse texture, fold rims, glint clusters, burnt-in text), and
+the isophote fits succeed on most. A candidate earns ``ok`` from what makes a highlight specular
+and usable (the numbers, their units and reasons: :mod:`simtest.decisions`):
 
-- **Specular colour** (``not_specular``). A dielectric surface reflects the illuminant's colour
-  (neutral Fresnel reflectance over the visible band, the dichromatic model: Shafer, *Color Res.
-  Appl.* 10, 1985, doi:10.1002/col.5080100409), white after the camera's white balance, while the
-  diffuse light carries the tissue's colour. So the peak is paler than the tissue around it: its
-  chroma ``1 - min(RGB) / max(RGB)`` is at most :data:`PALENESS_MAX` times the tissue's (the
-  background's chroma, from the grey opening of each channel), or it is itself near-white
-  (chroma below :data:`WHITE_CHROMA`: on grey or pale tissue the ratio tells nothing).
-- **A compact peak well above the diffuse level** (``not_specular``). Its height above the local
-  background (the luma top-hat) is at least :data:`SIGNIFICANCE_MIN` times the image noise (the
-  sensor's, and on a JPEG-compressed frame the error its quantisation added, which hides the
-  sensor noise in flat blocks and rings near edges) and at
-  least :data:`CONTRAST_MIN` times the room the sensor leaves (the background, or the headroom
-  above it where that is smaller: a specular lobe multiplies the irradiance many-fold and fills the
-  headroom; a lighter patch of tissue adds a few tens of percent), unless its peak is clipped
-  in every channel (then the height is only a lower bound: a lobe clipped on bright tissue near
-  the sensor's ceiling has little headroom left; the colour check still applies).
-- **Not a burnt-in overlay** (``overlay``). Overlays are drawn on flat panels: the black surround of
-  the field of view and coloured boxes. A panel is found from the image as a large region whose
-  pixels vary over 5 x 5 px by less than :data:`PANEL_STD_REL` of the image's noise; a candidate whose
-  isophote region holds more than :data:`PANEL_FRACTION_MAX` of panel pixels is an overlay.
-- **Isolated** (``cluster``). The isophote method contours the highlight out to its region of
-  interest; another specular peak inside that region (a local maximum of the top-hat, itself
-  specular by the colour check, at least :data:`NEIGHBOUR_REL` of this peak's height, beyond
-  :data:`OWN_RADIUS_PX` of its BP) breaks the assumption of one lobe on a locally planar patch.
+- **Specular colour** (``not_specular``). A dielectric reflects the illuminant's colour (the
+  dichromatic model, Shafer 1985, doi:10.1002/col.5080100409), the diffuse light the tissue's: the
+  peak's chroma ``1 - min(RGB) / max(RGB)`` is at most :data:`PALENESS_MAX` times the tissue's
+  (the background's, from each channel's grey opening), or below :data:`WHITE_CHROMA`.
+- **A peak well above the diffuse level** (``not_specular``). Its top-hat height is at least
+  :data:`SIGNIFICANCE_MIN` times the noise at the background's level (the sensor's, read off the
+  frame's noise level function, and JPEG's quantisation error) and :data:`CONTRAST_MIN` of the room
+  the sensor leaves (the background, or the headroom above it), unless its peak is clipped in
+  every channel (the height is then a lower bound).
+- **Not a burnt-in overlay** (``overlay``). A flat panel is a large region whose pixels vary over
+  5 x 5 px by less than :data:`PANEL_STD_REL` of the noise at their level; a candidate whose
+  region holds more than :data:`PANEL_FRACTION_MAX` of panel pixels is an overlay.
+- **Isolated** (``cluster``). Another specular peak in the region the method contours (a top-hat
+  maximum, specular by colour, at least :data:`NEIGHBOUR_REL` of this peak's height, beyond
+  :data:`OWN_RADIUS_PX` of its BP; not another guide's, :mod:`simtest.reconstruct.rig_pairs`)
+  breaks the one-lobe-on-a-plane assumption.
 - **Nested ellipses** (``bad_fit``). The primary isophote's RMS residual is at most
-  :data:`RESIDUAL_MAX_REL` of its semi-minor axis, the BP lies inside it, and it is resolved by
-  the pixel grid (semi-minor axis at least :data:`MINOR_AXIS_MIN_PX`).
+  :data:`RESIDUAL_MAX_REL` of its semi-minor axis, the BP lies inside it, and its semi-minor axis
+  is at least :data:`MINOR_AXIS_MIN_PX`.
 
-The ``confidence`` of a fitted estimate is a logistic function of the same quantities
-(:func:`confidence`), whose coefficients were fitted on the ``ok`` estimates of the hand-labelled
-real frames of ``tests/data/real/structures_labelled.json``, with the L2 penalty that predicts
-held-out frames best (:func:`simtest.evaluate.detection.select_penalty`): of the ``ok`` estimates
-given confidence about c, about a fraction c were labelled isolated specular highlights there.
-The quantities separate isolated highlights from clusters and texture only weakly on those
-labels (``simtest evaluate detection`` prints the leave-one-frame-out ranking AUC and reliability),
-so the confidences stay near the labels' base rate. A rejected estimate carries the confidence it
-would have had, but for one that fails the colour or the height check: those read only its BP, so
-the pipeline runs them first (:func:`bp_checks`) and neither contours nor fits such a candidate
-(``not_specular`` without isophotes or confidence). It is a ranking with that calibration, not a probability on other scopes;
-candidates without a fit have none.
+The ``confidence`` is a logistic function of the same quantities (:func:`confidence`), fitted on
+the ``ok`` estimates of the hand-labelled real frames (``tests/data/real/structures_labelled.json``)
+with the L2 penalty that predicts held-out frames best: a ranking calibrated there, not a
+probability on other scopes. The colour and height checks read only the BP, so the pipeline runs
+them first (:func:`bp_checks`) and neither contours nor fits a candidate that fails them
+(``not_specular`` without isophotes or confidence); candidates without a fit have none.
 """
 
 from __future__ import annotations
@@ -83,6 +69,7 @@ from simtest.decisions import (
 from simtest.reconstruct import evidence_pixels as px
 from simtest.reconstruct._pixels import uv_to_rc
 from simtest.reconstruct.detect import background_side_px, noise_sigma
+from simtest.reconstruct.detect_pixels import _level_bin, noise_level_table
 from simtest.reconstruct.fit import fit_ellipses
 from simtest.reconstruct.jpeg import quantisation_sigma
 from simtest.reconstruct.rig_pairs import PAIR_TOL_PX, other_guide_curves, other_lobe_centres
@@ -145,6 +132,7 @@ class Evidence:
     minor_px: np.ndarray | None = None
     surround: np.ndarray | None = None
     paired: list | None = None
+    noise_bg: np.ndarray | None = None
 
     @property
     def paleness(self) -> np.ndarray:
@@ -158,8 +146,8 @@ class Evidence:
 
     @property
     def significance(self) -> np.ndarray:
-        """Height over the noise."""
-        return self.height / max(self.noise, 1e-9)
+        """Height over the noise at the background's level (``noise_bg``; else ``noise``)."""
+        return self.height / np.maximum(self.noise if self.noise_bg is None else self.noise_bg, 1e-9)
 
     @property
     def contrast(self) -> np.ndarray:
@@ -180,10 +168,9 @@ def shared_passes() -> Iterator[None]:
     the luma and the colour, the JPEG quantisation's noise) are computed once per array and
     argument and reused by later calls (a context manager, and a decorator).
 
-    The pipeline measures a frame's candidates twice, at their BPs before the fits
-    (:func:`bp_checks`) and all of them after; the arrays must not change inside the block (the
-    results are keyed by the array's memory, shape, strides and dtype, and hold the array).
-    Per context (thread or task): a nested block starts empty and ends with its own."""
+    The pipeline measures a frame's candidates at their BPs before the fits (:func:`bp_checks`)
+    and all after; the arrays must not change inside the block (keyed by memory, shape, strides
+    and dtype). Per context (thread or task): a nested block starts empty and ends with its own."""
     token = _SHARED.set({})
     try:
         yield
@@ -246,18 +233,18 @@ def _specular_colour(chroma: np.ndarray, chroma_tissue: np.ndarray) -> np.ndarra
     return (chroma <= PALENESS_MAX * chroma_tissue) | (chroma <= WHITE_CHROMA)
 
 
-def _panel_pixels_in(gray: np.ndarray, noise: float, rr: np.ndarray, image: np.ndarray | None = None) -> np.ndarray:
-    """How many pixels of the flat panels each region ``rr`` (row0, row1, col0, col1) holds:
-    pixels whose 5 x 5 luma standard deviation is below :data:`PANEL_STD_REL` of the noise, in
-    8-connected regions of at least :data:`PANEL_MIN_AREA` of the frame (none in a noise-free
-    image). Next to a channel at an integer ``image``'s ceiling (its dtype's maximum, as
-    detection's clipping) every channel must be flat: a clipped channel carries no noise, and a
-    drawn panel is flat in all of them."""
-    if not noise > 0:
+def _panel_pixels_in(gray: np.ndarray, noise: np.ndarray, rr: np.ndarray, image: np.ndarray | None = None,
+                     full_scale: float | None = None) -> np.ndarray:
+    """How many flat-panel pixels each region ``rr`` (row0, row1, col0, col1) holds: 5 x 5 luma
+    standard deviation below :data:`PANEL_STD_REL` of the noise at their level (``noise``: a
+    :func:`~simtest.reconstruct.detect_pixels.noise_level_table`), in 8-connected regions of at
+    least :data:`PANEL_MIN_AREA` of the frame; next to a channel at an integer ``image``'s ceiling,
+    flat in every channel (a clipped channel carries no noise; a drawn panel is flat in all)."""
+    if not np.max(noise) > 0:
         return np.zeros(len(rr), np.int64)
     rgb = image[..., :3] if image is not None and image.ndim == 3 and image.dtype.kind == "u" else None
     ceiling = float(np.iinfo(rgb.dtype).max) if rgb is not None else None
-    return px.panel_pixels_in(gray, PANEL_STD_REL * noise, PANEL_MIN_AREA * gray.size, rr, rgb, ceiling)
+    return px.panel_pixels_in(gray, PANEL_STD_REL * noise, PANEL_MIN_AREA * gray.size, rr, rgb, ceiling, full_scale)
 
 
 #: The windowed path of :func:`frame_evidence` (top-hat and maxima only around the candidates
@@ -317,20 +304,14 @@ def frame_evidence(image: np.ndarray, gray: np.ndarray, bps_uv: np.ndarray, rois
     ellipses : sequence of Ellipse or None, optional
         Each candidate's primary isophote: peaks inside it are its own, not neighbours.
     windowed : bool, optional
-        Measure only where the checks read (True): the luma's opening, top-hat and maxima in the
-        candidates' reach windows and at the BPs (:func:`~simtest.reconstruct.evidence_pixels.maxima_in_windows`),
-        the RGB opening at the BPs and at the maxima a neighbour count can select
-        (:func:`_opening_at`), and no panel map when :func:`_surely_no_panels` proves that no
-        region of interest holds a panel pixel; or over the whole frame (False). The evidence is
-        the same, to the bit (``tests/test_verify.py`` compares them); the default takes the
-        windows while they cover at most :data:`WINDOWED_AREA_MAX` of the frame (a few
-        candidates, where the frame-wide passes were most of the cost).
+        Measure only where the checks read (True: in the reach windows and at the BPs and maxima,
+        no panel map where :func:`_surely_no_panels` proves none) or over the frame (False): the
+        same evidence to the bit (``tests/test_verify.py``); default: the windows while they cover
+        at most :data:`WINDOWED_AREA_MAX` of the frame.
     grey : bool
-        The caller knows that the image's R, G and B are equal and ``gray`` is their value:
-        the colour's opening is then the gray's (one channel reduced instead of three).
+        R, G and B are equal and ``gray`` is their value (the colour's opening is the gray's).
     panels : bool
-        Measure the flat panels' share in the regions of interest (False: 0 for every candidate,
-        and no panel map: :func:`bp_checks` reads only the BPs).
+        Measure the flat panels' share in the regions of interest (False: 0 for all).
     expected : list of ndarray of shape (M, 2), optional
         Per candidate, where another light guide's highlight can lie (u, v) px
         (:func:`simtest.reconstruct.rig_pairs.other_guide_curves`): a peak whose region comes
@@ -394,10 +375,11 @@ def frame_evidence(image: np.ndarray, gray: np.ndarray, bps_uv: np.ndarray, rois
     chroma_tissue = px.chroma(bg_rgb_bp)
     background = bg_bp
     # flat panels: share in each ROI (none where none can be: see _surely_no_panels)
-    if not panels or (windowed and (not noise > 0 or _surely_no_panels(gray, noise, rr))):
+    table = _shared(noise_level_table, gray, float(full_scale), float(noise))  # the noise at each level
+    if not panels or (windowed and (not noise > 0 or _surely_no_panels(gray, float(table.max()), rr))):
         panel_fraction = np.zeros(n)
     else:
-        inside = _panel_pixels_in(_shared(_float32, gray), noise, rr, None if grey else image)
+        inside = _panel_pixels_in(_shared(_float32, gray), table, rr, None if grey else image, float(full_scale))
         area = np.maximum((rr[:, 1] - rr[:, 0]) * (rr[:, 3] - rr[:, 2]), 1)
         panel_fraction = inside / area
     # specular peaks of the frame: the top-hat's local maxima that pass the colour check
@@ -412,15 +394,14 @@ def frame_evidence(image: np.ndarray, gray: np.ndarray, bps_uv: np.ndarray, rois
         neighbours[todo] = px.other_peaks(top, xs, ys, np.asarray(bps_uv, np.float64).reshape(-1, 2)[todo], ij[todo],
                                           reach[todo], NEIGHBOUR_REL * ht, VALLEY_REL * ht - VALLEY_NOISE * noise,
                                           ells, NEIGHBOUR_AREA_REL, exp_t, PAIR_TOL_PX)
-    # the significance's noise: the sensor's, and the error JPEG's quantisation added where the
-    # frame carries a JPEG block grid (its flat blocks hide the sensor noise, and its ringing makes
-    # peaks); an integer image's pixels carry at least the rounding's
+    # the significance's noise: the sensor's at the background's level, and JPEG's quantisation
+    # error where the frame carries a block grid; an integer image's at least the rounding's
     q_sig = _shared(quantisation_sigma, gray if grey and gray.dtype == image.dtype else image) * float(full_scale) / 255.0
-    noise_sig = float(np.hypot(noise, q_sig))
-    if np.issubdtype(image.dtype, np.integer):
-        noise_sig = max(noise_sig, QUANTISATION_SIGMA_LSB)
+    lsb = QUANTISATION_SIGMA_LSB if np.issubdtype(image.dtype, np.integer) else 0.0
+    noise_sig = max(float(np.hypot(noise, q_sig)), lsb)
+    noise_bg = np.maximum(np.hypot(table[_level_bin(background, float(full_scale))], q_sig), lsb)
     return Evidence(chroma_peak, chroma_tissue, height, background, noise_sig, panel_fraction,
-                    neighbours, full_scale=float(full_scale))
+                    neighbours, full_scale=float(full_scale), noise_bg=noise_bg)
 
 
 def bp_checks(image: np.ndarray, gray: np.ndarray, bps_uv: np.ndarray, clipped: np.ndarray, *,
@@ -441,10 +422,8 @@ def bp_checks(image: np.ndarray, gray: np.ndarray, bps_uv: np.ndarray, clipped: 
     Returns
     -------
     list of str or None
-        Per candidate: None where it passes, else the detail of its ``not_specular`` status,
-        the words and numbers :func:`verdict` gives it (the measurements are the same:
-        :func:`frame_evidence`'s at the BP, which neither the fit nor the region of interest
-        changes).
+        Per candidate: None where it passes, else its ``not_specular`` detail as :func:`verdict`
+        gives it (the same measurements at the BP, which the fit and the ROI do not change).
     """
     n = len(bps_uv)
     if not n:
