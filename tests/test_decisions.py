@@ -28,7 +28,7 @@ _SPEED = "a speed setting: results are the same either way"
 _SOLVER = "a numerical solver setting (start, step, stop), judged by the decisions after"
 _GUARD = "a memory or size guard with its own error message"
 NOT_DECISIONS = {
-    "isophote.ENCLOSE_FLOAT32_MARGIN_PX": _SPEED, "isophote._EDGE_ENDS": _CODES,
+    "isophote.ENCLOSE_FLOAT32_MARGIN_PX": _SPEED, "marching._EDGE_ENDS": _CODES,
     "candidates._GATHER_SIDE": _SPEED, "candidates._FEW": _SPEED,
     "detect.MULTIRES_CANDIDATES_MAX": _SPEED,
     "fit._S3_RCOND": _SOLVER,

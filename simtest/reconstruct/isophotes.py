@@ -411,9 +411,8 @@ def _first_rings(frame: _Frame, rois: list[Roi]) -> list:
     if not rois or frame.smoothed32 is None or not frame.smooth_sigma_px > 0 or \
             frame.settings.normalise not in (Normalisation.AUTO, Normalisation.LOCAL):
         return [None] * len(rois)
-    full = frame.luma_frame  # the frame's luma once for many ROIs: its slices are the strips' own bits
-    if full is None and len(rois) >= LUMA_FRAME_MIN_HIGHLIGHTS:
-        full = luma(frame.img)
+    full = frame.luma_frame if frame.luma_frame is not None or len(rois) < LUMA_FRAME_MIN_HIGHLIGHTS else \
+        luma(frame.img)  # the frame's luma once for many ROIs: its slices are the strips' own bits
     return [_smoothed_border_median(frame.img, frame.kernel, roi, full) for roi in rois]
 
 
