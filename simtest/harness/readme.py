@@ -152,8 +152,8 @@ def section_text(reports: str | Path | None = None, repo: str | Path | None = No
             rel = folder.as_posix()
         L += _rows(folder, rel)
         dates.append(f"`{rel}`")
-    L += ["", "From the committed runs " + ", ".join(dates) + ". Seeds: tuning or held out "
-          "(`simtest/decisions.py`).",
+    L += ["", f"From the {len(dates)} committed runs linked in the rows (`reports/<suite>/<run>/`). Seeds: tuning "
+          "or held out (`simtest/decisions.py`).",
           "End to end: `simtest render`, then `simtest reconstruct frame.png --intrinsics camera.json` "
           "with its defaults, per true highlight: the share whose recommended normal errs at most 1 / 5 "
           "deg, the median error over those ok, false ok per frame.", "Given the highlight (never what "
