@@ -56,9 +56,7 @@ from simtest.reconstruct.io import (
 )
 from simtest.reconstruct.overlay import check_overlay_size, draw_overlay
 from simtest.reconstruct.pipeline import reconstruct
-from simtest.reconstruct.light_fits import with_light_aware
-from simtest.reconstruct.rig_centroid import rig_centroid
-from simtest.reconstruct.rig_lobes import split_fused_lobes
+from simtest.reconstruct.rig_centroid import light_aware_with_rig
 from simtest.reconstruct.registry import names
 from simtest.reconstruct.settings import MAX_CANDIDATES, ReconSettings
 from simtest.reconstruct.view3d import render_view, surface_from_depth
@@ -217,12 +215,8 @@ def reconstruct_single(img, camera_file, settings: ReconSettings | None = None, 
     estimates = reconstruct(img, camera_file.model, settings=settings, lights=camera_file.lights)
     # the scope's light rig from the camera file ("lights"; none: one light at the camera)
     kw = dict(cubic=None if cubic_patch else False, response=camera_file.response)
-    fitted = with_light_aware(img, estimates, camera_file.model, camera_file.lights, workers=workers,
-                              on_highlight=on_highlight, **kw)
-    # a rig's guides whose lobes fused into one candidate: one row per guide (rig_lobes), or where
-    # the image does not tell them apart one highlight with the centroid light's normal (rig_centroid)
-    split = split_fused_lobes(img, fitted, camera_file.model, camera_file.lights, **kw)
-    return rig_centroid(img, split, camera_file.model, camera_file.lights), estimates.detection_record()
+    return (light_aware_with_rig(img, estimates, camera_file.model, camera_file.lights, workers=workers,
+                                 on_highlight=on_highlight, **kw), estimates.detection_record())
 
 
 def check_workers(workers: int, option: str = "--workers") -> int:

@@ -39,9 +39,7 @@ from simtest.reconstruct.images import InputError, load_image, quiet_stderr
 from simtest.reconstruct.io import dumps, estimate_to_dict
 from simtest.reconstruct.table import ROW_GROUP_ROWS, arrow, estimates_batch, frame_batch, table_metadata, table_schema
 from simtest.reconstruct.pipeline import reconstruct
-from simtest.reconstruct.light_fits import with_light_aware
-from simtest.reconstruct.rig_centroid import rig_centroid
-from simtest.reconstruct.rig_lobes import split_fused_lobes
+from simtest.reconstruct.rig_centroid import light_aware_with_rig
 from simtest.reconstruct.settings import ReconSettings
 
 #: Image files a folder of frames may hold (by suffix, case-insensitive).
@@ -290,11 +288,8 @@ def _frame_head(args) -> tuple[dict, list, bool]:
             raise InputError(f"frame {name}: the camera file's {exc}") from None
     ests = reconstruct(image, K, dist_coeffs=dist_coeffs, settings=settings, lights=rig)
     detection = ests.detection_record()
-    # the light-aware step of a single image (nothing runs without a rig or with a co-located one),
-    # on the linear intensities of the camera file's response as a single image's (the frame
-    # checked against it above)
-    ests = with_light_aware(image, ests, K, rig, cubic=cubic, response=response)
-    ests = rig_centroid(image, split_fused_lobes(image, ests, K, rig, cubic=cubic, response=response), K, rig)
+    # a single image's light-aware step (none without a rig off the camera), on the response's linear light
+    ests = light_aware_with_rig(image, ests, K, rig, cubic=cubic, response=response)
     counts: dict[str, int] = {}
     for e in ests:
         counts[e.status] = counts.get(e.status, 0) + 1

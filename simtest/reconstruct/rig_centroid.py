@@ -36,12 +36,13 @@ from simtest.decisions import (BP_PLACE_SIGMA_PX, FUSED_LOBE_LEVEL, FUSED_SEPARA
                                PAIR_DEPTH_MIN_MM)
 from simtest.geometry.lights import Light, LightRig
 from simtest.reconstruct.detect_pixels import luma
+from simtest.reconstruct.light_fits import with_light_aware
 from simtest.reconstruct.lightaware import LightAwareEstimate, bisector
 from simtest.reconstruct.lightaware.model import _rays, _rig_arrays
 from simtest.reconstruct.recommend import LIGHT_AWARE, _angle_deg, bp_error_depth_mm, bp_ray_error_deg
-from simtest.reconstruct.rig_lobes import _bright_region, _inside, guide_specular_points
+from simtest.reconstruct.rig_lobes import _bright_region, _inside, guide_specular_points, split_fused_lobes
 
-__all__ = ["centroid_normal", "rig_centroid"]
+__all__ = ["centroid_normal", "light_aware_with_rig", "rig_centroid"]
 
 
 def centroid_normal(bp_uv, camera, rig: LightRig, depth_mm: float) -> np.ndarray:
@@ -155,3 +156,13 @@ def _fused_lobe(gray, est, camera, rig: LightRig, fits: dict, nominal_depth_mm: 
         f"off the BP; depth {depth:.3g} mm ({near:.3g} to {far:.3g}: {spread_deg:.3g} deg), fusion bias "
         f"{bias:.3g} deg, BP {place:.3g} deg", n, normal_sigma_deg=spread_deg + bias + place,
         bp_ray_error_deg=bp_ray_error_deg(ray, at, rig))
+
+
+def light_aware_with_rig(image, estimates, camera, rig: LightRig | None, *, workers: int = 1, on_highlight=None,
+                         **kwargs) -> list:
+    """The light-aware step of one image or a folder's frame, as ``simtest reconstruct`` runs it:
+    :func:`~simtest.reconstruct.light_fits.with_light_aware` (its ``kwargs``, ``workers``,
+    ``on_highlight``), then the rig's fused lobes split (:func:`~simtest.reconstruct.rig_lobes.split_fused_lobes`)
+    or given their centroid light's normal (:func:`rig_centroid`); a list of SpecularityEstimate."""
+    fitted = with_light_aware(image, estimates, camera, rig, workers=workers, on_highlight=on_highlight, **kwargs)
+    return rig_centroid(image, split_fused_lobes(image, fitted, camera, rig, **kwargs), camera, rig)
