@@ -128,8 +128,8 @@ def stop_workers(pool: ProcessPoolExecutor | None = None) -> int:
 
     Notes
     -----
-    A pool keeps its processes in the private ``_processes`` (CPython 3.9 to 3.13; 3.14 adds
-    ``terminate_workers``). :mod:`simtest.dataset.generate` stops its own pool with it too.
+    A pool keeps its processes in the private ``_processes`` and its result pipe in
+    ``_result_queue`` (CPython 3.9 to 3.13; 3.14 adds ``terminate_workers``). :mod:`simtest.dataset.generate` stops its own pool with it too.
     """
     if pool is None:
         procs = multiprocessing.active_children()
@@ -145,5 +145,14 @@ def stop_workers(pool: ProcessPoolExecutor | None = None) -> int:
                 p.kill()
                 p.join(STOP_WAIT_S)
     if pool is not None:
+        # A worker stopped while it sent a result leaves the pool's manager thread reading the
+        # rest of that message, which never comes: this process holds the result pipe's other
+        # write end, so the read sees no end of file, and ``shutdown`` would wait for that
+        # thread forever. With every worker gone, closing it ends the read; the pool marks
+        # itself broken and shuts down.
+        writer = getattr(getattr(pool, "_result_queue", None), "_writer", None)
+        if writer is not None:
+            with contextlib.suppress(OSError):
+                writer.close()
         pool.shutdown(wait=True, cancel_futures=True)
     return len(procs)
