@@ -18,7 +18,6 @@ from simtest.cli import app
 from simtest.render.tissue import (
     LEVELLING_MM,
     _field,
-    film_height,
     relief_height,
     relief_normal,
     tissue_params,
@@ -26,7 +25,7 @@ from simtest.render.tissue import (
 from simtest.scene import SceneError, load_scene, with_overrides
 
 #: The default colonoscope's relief (scenes/colonoscope.toml): 30 um RMS, waves 0.5 to 4 mm.
-RELIEF = dict(relief_mm=0.03, relief_scale_mm=4.0, relief_min_mm=0.5, film_variation=0.5)
+RELIEF = {"relief_mm": 0.03, "relief_scale_mm": 4.0, "relief_min_mm": 0.5, "film_variation": 0.5}
 
 
 def _texture(**over):
@@ -67,7 +66,7 @@ def test_no_film_is_todays_relief_bit_for_bit(spread, subsurface):
         assert np.array_equal(got, want)
     for got, want in zip(nd, _today(p, n, t, t.relief_diffuse)):
         assert np.array_equal(got, want)
-    assert np.array_equal(film_height(np, p, n, t), relief_height(np, p, t))
+    assert np.array_equal(relief_height(np, p, t, n), relief_height(np, p, t))
 
 
 def test_a_thick_film_keeps_exp_minus_kl4_of_each_wave():
@@ -83,7 +82,7 @@ def test_a_thick_film_keeps_exp_minus_kl4_of_each_wave():
     p, n = (xy[0], xy[1], np.zeros(6000)), (np.zeros(6000), np.zeros(6000), np.ones(6000))
     arg = [p[0] * k[0] + p[1] * k[1] + ph for k, ph in zip(t.relief_k, t.relief_phase)]
     basis = np.stack([np.sin(a) for a in arg] + [np.cos(a) for a in arg], axis=1)
-    coef = np.linalg.lstsq(basis, film_height(np, p, n, t), rcond=None)[0]
+    coef = np.linalg.lstsq(basis, relief_height(np, p, t, n), rcond=None)[0]
     kt = np.linalg.norm(t.relief_k[:, :2], axis=1)
     kept = np.exp(-(kt * L) ** 4)
     assert np.allclose(coef[:len(kt)], t.relief_amp * kept, rtol=0, atol=1e-9 * t.relief_amp.max())

@@ -279,7 +279,7 @@ class MaterialSpec:
         Typical wavelength of the film's thickness variation, mm.
     film_thickness_mm, film_thickness_spread : float
         Median thickness (mm, 0 to 1; 0: none) and log standard deviation (0 to 1.5) of the wet
-        film that levels the micro-relief (:func:`simtest.render.tissue.film_height`).
+        film that levels the micro-relief (:mod:`simtest.render.tissue`).
     wall_tissue : {"mucosa", "liver", "peritoneum", "gallbladder"} or None
         A second tissue (its default albedo) at the surface points at least ``wall_radius_mm``
         from ``wall_centre_mm`` (the texture frame: a mesh's own axes), such as the wall of
