@@ -14,7 +14,10 @@ film's lobe) 10 to 14 white blobs per MP, the largest holding 0.54 to 0.58 of th
 4 mm, scenes/colonoscope.toml) 32 to 48 per MP, the largest 0.07 to 0.15 (4 spp, seeds 0 to 2; 2
 spp: 39.6 and 0.088; 16 spp: 39.6 and 0.090); with the diffuse light no longer shaded by the
 relief (subsurface_mm = 1.0) 35.6 to 42.8, the largest 0.080 to 0.085 (2 spp, seeds 0 to 2; 16
-spp: 42.0 and 0.087; reports/simreal/2026-11-26-subsurface/).
+spp: 42.0 and 0.087; reports/simreal/2026-11-26-subsurface/); with the wet film levelling the
+relief's short waves (film_thickness_mm = 0.03) 29.3 to 30.9, the largest 0.214 to 0.226 (2 spp,
+seeds 0 to 2; 16 spp: 29.3 and 0.213; reports/simreal/2026-11-26-film/): a 0.05 mm film or
+thicker merges a crest's glints into one top holding 0.42 to 0.61.
 """
 
 from __future__ import annotations

@@ -14,7 +14,6 @@ from simtest.render.simreal import (
     FACTOR_GOAL,
     GLINT_STATISTICS,
     REAL_SPLIT,
-    banner_frames,
     banner_tiles,
     frame_stats,
     glint_population,
@@ -166,7 +165,7 @@ def test_banner_tiles(tmp_path):
     img = np.zeros((560, 840, 3), np.uint8)
     img[280:, 560:] = (0, 0, 255)  # BGR red in the last tile
     cv2.imwrite(str(tmp_path / "b.png"), img)
-    tiles = banner_frames(tmp_path / "b.png")
+    tiles = [f for _, f in banner_tiles(tmp_path / "b.png")]
     assert len(tiles) == 6 and tiles[-1][0, 0].tolist() == [255, 0, 0]
 
 

@@ -194,7 +194,8 @@ def tissue_texture(spec: SceneSpec):
     t = tissue_params(mat.tissue, mat.texture_seed, mat.relief_mm, mat.relief_scale_mm,
                       relief_min_mm=mat.relief_min_mm, relief_hurst=mat.relief_hurst, base=mat.albedo,
                       film_variation=mat.film_variation, film_scale_mm=mat.film_scale_mm,
-                      subsurface_mm=mat.subsurface_mm or 0.0)
+                      subsurface_mm=mat.subsurface_mm or 0.0, film_thickness_mm=mat.film_thickness_mm,
+                      film_thickness_spread=mat.film_thickness_spread)
     t = with_neighbours(t, (mat.wall_tissue, mat.wall_centre_mm, mat.wall_radius_mm),
                         (mat.organ_tissue, mat.organ_centre_mm, mat.organ_axes_mm))
     if spec.geometry.type == "plane":  # the vessels in the plane's own axes (its texture frame: the camera's)

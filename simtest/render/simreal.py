@@ -69,7 +69,7 @@ import matplotlib.pyplot as plt  # noqa: E402 - after choosing the back-end
 
 __all__ = ["DARK_LEVEL", "SATURATED_LEVEL", "WHITE_LEVEL", "FACTOR_GOAL", "RATIO_FLOOR", "STATISTICS", "POOLED",
            "WHITE_CHANNEL_LEVEL", "SHEEN_LUMA", "GLINT_STATISTICS", "ALL_STATISTICS", "REAL_SPLIT", "SPLIT_SEED",
-           "FrameStats", "glint_population", "split_indices", "split_tables", "banner_frames", "banner_tiles",
+           "FrameStats", "glint_population", "split_indices", "split_tables", "banner_tiles",
            "log_ratio", "real_reference", "frame_stats", "sim_to_real_table", "sim_to_real_figure", "fit_figure",
            "frames_figure", "glint_sheet"]
 
@@ -345,18 +345,6 @@ def banner_tiles(path: str | Path, tile_px: int = 280) -> list[tuple[str, np.nda
     name = Path(path).name
     return [(f"{name}:r{r // tile_px}c{c // tile_px}", img[r:r + tile_px, c:c + tile_px].copy())
             for r in range(0, H - tile_px + 1, tile_px) for c in range(0, W - tile_px + 1, tile_px)]
-
-
-def banner_frames(path: str | Path, tile_px: int = 280) -> list[np.ndarray]:
-    """The frames of a banner: its ``tile_px`` x ``tile_px`` tiles, RGB uint8
-    (:func:`banner_tiles` without the ids).
-
-    Raises
-    ------
-    ValueError
-        If the file cannot be read as an image.
-    """
-    return [f for _, f in banner_tiles(path, tile_px)]
 
 
 def _banner_split(name: str, tuning_cols: tuple[int, ...], rows: int, cols: int) -> dict[str, str]:

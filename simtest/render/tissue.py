@@ -36,9 +36,19 @@ wavefront and the ground truth evaluates the very same function per pixel:
   height tilts the shading normal: ``n_s = unit(n - (grad h - (grad h . n) n))`` (the bump mapping
   of Blinn 1978, https://doi.org/10.1145/965139.507101, on the tangent plane of the macro normal
   ``n``).
-- **Film thickness**: a smooth seeded field over the surface modulates the film's roughness
-  (:func:`film_alpha`, ``material.film_variation``): smooth mirror-like patches where the film
-  is thick, rough ones where it is thin.
+- **Film thickness**: a smooth seeded field ``f`` over the surface sets the film's roughness
+  (:func:`film_alpha`, ``material.film_variation``; thick and smooth, thin and rough) and, with
+  ``material.film_thickness_mm``, levels the relief: surface tension levels the wet film's free
+  surface. Linearised, the thin-film equation makes a wave of in-surface wavenumber ``k`` on a film
+  of thickness ``h`` decay as ``exp(-sigma h^3 k^4 t / (3 eta))`` (Orchard 1962, "On surface
+  levelling in viscous liquids and gels", Appl. Sci. Res. A 11, 451; Salez et al. 2012,
+  https://arxiv.org/abs/1210.5905), so the film keeps ``exp(-(k L)^4)`` of each relief wave, ``L^4 =
+  l_s h^3`` (:data:`LEVELLING_MM`), ``h = h_0 exp(-s f)`` (``s`` = ``film_thickness_spread``). Only
+  the specular normal is levelled. Ranges: ``h_0`` 0 to 1 mm (the human colon's adherent mucus 107
+  to 155 um on average, SD 48 to 68 um, Pullan et al. 1994, https://doi.org/10.1136/gut.35.3.353;
+  the rat colon's whole mucus about 0.83 mm, Atuma et al. 2001,
+  https://doi.org/10.1152/ajpgi.2001.280.5.G922), ``s`` 0 to 1.5 (Pullan's SD over mean 0.35 to
+  0.5).
 - **Specular film**: a dielectric interface (IOR 1.33 to 1.45, water to mucus) with Fresnel's
   reflectance over a rough microfacet lobe, Beckmann or GGX (Walter et al. 2007,
   https://doi.org/10.2312/EGWR/EGSR07/195-206), ``f_s = F(wi . m) D(m) G(wi, wo) / (4 cos_i
@@ -59,7 +69,7 @@ from simtest.render.vessels import TILE_MM, transmission_map
 
 __all__ = ["TISSUE_ALBEDO", "TISSUE_SEED_KEY", "N_WAVES", "N_RELIEF_WAVES", "RELIEF_HURST", "RELIEF_MIN_MM",
            "TissueParams", "tissue_params", "with_neighbours", "in_camera", "surface_uv", "vessel_transmission", "albedo",
-           "relief_height", "relief_normal",
+           "relief_height", "relief_normal", "LEVELLING_MM",
            "film_alpha", "specular_lobe"]
 
 #: Linear-RGB diffuse albedo of each tissue before variation. Mucosa: pink (sRGB about (225, 140,
@@ -97,6 +107,12 @@ RELIEF_HURST = 0.8
 #: Default shortest wavelength of the micro-relief, mm: the scale of the colonic crypt openings
 #: (about 0.05 to 0.1 mm apart); shorter waves are below a pixel's footprint at working distances.
 RELIEF_MIN_MM = 0.05
+#: Levelling length ``l_s = sigma t / (3 eta)``, mm: sigma 0.05 N/m (mucus or saline against gas,
+#: 0.03 to 0.07), eta 1 Pa s (loose mucus; human mucus spans 0.01 to 1000 Pa s over its shear
+#: rates, Lai et al. 2009, https://doi.org/10.1016/j.addr.2008.09.012), t 1 s (the film renewed
+#: by peristalsis, insufflation, the scope). Only ``l_s h^3`` is seen: an ``eta / t`` 100 times
+#: larger is the same film 4.6 times thinner.
+LEVELLING_MM = 16.7
 
 
 @dataclass(frozen=True)
@@ -139,6 +155,9 @@ class TissueParams:
     #: (M,) weight of each relief wave's slope in the diffuse light's normal (:func:`tissue_params`'s
     #: ``subsurface_mm``); None: the diffuse light takes the shading normal (every weight 1).
     relief_diffuse: np.ndarray | None = None
+    #: The film's ``L^4 = l_s h_0^3``, mm^4 (0: no levelling) and the log-SD of its thickness.
+    film_level4: float = 0.0
+    film_thickness_spread: float = 0.0
 
 
 def with_neighbours(t: TissueParams, wall=(None, None, None), organ=(None, None, None)) -> TissueParams:
@@ -190,7 +209,8 @@ def tissue_params(kind: str, seed: int, relief_mm: float, relief_scale_mm: float
                   relief_hurst: float = RELIEF_HURST,
                   base: tuple[float, float, float] | None = None,
                   film_variation: float = 0.0, film_scale_mm: float = 2.0,
-                  subsurface_mm: float = 0.0) -> TissueParams:
+                  subsurface_mm: float = 0.0, film_thickness_mm: float = 0.0, film_thickness_spread: float = 0.0,
+                  ) -> TissueParams:
     """Draw a tissue texture (texture frame) from ``SeedSequence([seed, TISSUE_SEED_KEY])``.
 
     Parameters
@@ -223,6 +243,8 @@ def tissue_params(kind: str, seed: int, relief_mm: float, relief_scale_mm: float
         of wavelength ``lambda`` modulates: the diffuse normal keeps ``1 / (1 + (2 pi l /
         lambda)^2)`` of its slope (a Lorentzian point spread, the diffusion approximation's
         low-pass; Cuccia et al. 2009, https://doi.org/10.1117/1.3088140).
+    film_thickness_mm, film_thickness_spread : float
+        Median thickness ``h_0`` (mm, 0: none) and log-SD of the film that levels the relief.
 
     Raises
     ------
@@ -240,7 +262,9 @@ def tissue_params(kind: str, seed: int, relief_mm: float, relief_scale_mm: float
     diffuse = 1.0 / (1.0 + (subsurface_mm * np.linalg.norm(rk, axis=1)) ** 2) if subsurface_mm > 0.0 else None
     colour = TISSUE_ALBEDO[kind] if base is None else tuple(float(x) for x in base)
     return TissueParams(colour, ck, cp, transmission_map(int(seed)), rk, rp, amp, film_k=fk, film_phase=fp,
-                        film_variation=float(film_variation), relief_diffuse=diffuse)
+                        film_variation=float(film_variation), relief_diffuse=diffuse,
+                        film_level4=LEVELLING_MM * float(film_thickness_mm) ** 3,
+                        film_thickness_spread=float(film_thickness_spread))
 
 
 def in_camera(t: TissueParams, cam_to_texture: np.ndarray) -> TissueParams:
@@ -381,15 +405,17 @@ def albedo(xp, p, t: TissueParams, n=None):
     return tuple(out)
 
 
-def relief_height(xp, p, t: TissueParams):
+def relief_height(xp, p, t: TissueParams, n=None):
     """Micro-relief height ``h(p) = sum_j a_j sin(k_j . p + phi_j)``, mm, at points ``p`` = (x, y, z)
-    (the camera frame with :func:`in_camera`)."""
-    p, _ = _to_texture(xp, p, t)
+    (the camera frame with :func:`in_camera`); given the unit normals ``n``, the wet film's surface:
+    each wave levelled (:attr:`TissueParams.film_level4`, module notes)."""
+    p, A = _to_texture(xp, p, t)
+    kept = _kept(xp, p, n, A, t)
     h = 0.0
     for j in range(len(t.relief_phase)):
         k = t.relief_k[j]
-        h = h + _const(xp, t.relief_amp[j]) * xp.sin(p[0] * float(k[0]) + p[1] * float(k[1]) + p[2] * float(k[2])
-                                                + float(t.relief_phase[j]))
+        a = _const(xp, t.relief_amp[j]) if kept is None else _const(xp, t.relief_amp[j]) * kept[j]
+        h = h + a * xp.sin(p[0] * float(k[0]) + p[1] * float(k[1]) + p[2] * float(k[2]) + float(t.relief_phase[j]))
     return h
 
 
@@ -403,26 +429,45 @@ def _bumped(xp, n, g, A):
     return s[0] * inv, s[1] * inv, s[2] * inv
 
 
+def _kept(xp, q, n, A, t: TissueParams):
+    """Each relief wave's share ``exp(-(k_t L)^4)`` in the film's surface at texture-frame points
+    ``q`` (module notes), ``k_t`` its wavenumber in the tangent plane of ``n``; None: no film."""
+    if t.film_level4 <= 0.0 or n is None:
+        return None
+    nq = n if A is None else [A[i][0] * n[0] + A[i][1] * n[1] + A[i][2] * n[2] for i in range(3)]
+    e = _const(xp, t.film_level4)
+    if t.film_thickness_spread > 0.0:
+        e = e * xp.exp(_const(xp, -3.0 * t.film_thickness_spread) * _field(xp, q, t.film_k, t.film_phase))
+    kt2 = [float(k @ k) - (nq[0] * float(k[0]) + nq[1] * float(k[1]) + nq[2] * float(k[2])) ** 2 for k in t.relief_k]
+    return [xp.exp(-(x * x) * e) for x in kt2]
+
+
 def relief_normal(xp, p, n, t: TissueParams, *, diffuse: bool = False):
     """Shading normal with micro-relief: ``unit(n - (grad h - (grad h . n) n))``.
 
     ``p`` and ``n`` are (x, y, z) tuples of arrays (the camera frame with :func:`in_camera`, else
     the texture frame; ``n`` the unit macro normal); returns the unit shading normal in the same
-    frame as a tuple, facing the same side as ``n``. With ``diffuse``: the pair (shading normal,
-    the diffuse light's normal: the same bump with each wave's slope weighted by
-    :attr:`TissueParams.relief_diffuse`; the shading normal itself where that is None).
+    frame as a tuple, facing the same side as ``n``: that of the wet film's surface
+    (:func:`relief_height` given ``n``). With ``diffuse``: the pair (shading
+    normal, the diffuse light's normal: the tissue's own relief, unlevelled, with each wave's
+    slope weighted by :attr:`TissueParams.relief_diffuse`; the shading normal itself where there
+    is neither a weight nor a film).
     """
     w = t.relief_diffuse if diffuse else None
     if not np.any(t.relief_amp):  # smooth: no waves to evaluate (the normal, normalised)
         ns = _bumped(xp, n, (0.0, 0.0, 0.0), None)
         return (ns, ns) if diffuse else ns
     p, A = _to_texture(xp, p, t)
+    kept = _kept(xp, p, n, A, t)
+    if diffuse and w is None and kept is not None:
+        w = np.ones(len(t.relief_phase))  # the diffuse light: the tissue's relief, not the film's
     g, gd = [0.0, 0.0, 0.0], [0.0, 0.0, 0.0]
     for j in range(len(t.relief_phase)):
         k = t.relief_k[j]
         cj = xp.cos(p[0] * float(k[0]) + p[1] * float(k[1]) + p[2] * float(k[2]) + float(t.relief_phase[j]))
         c = _const(xp, t.relief_amp[j]) * cj
-        g = [g[i] + c * float(k[i]) for i in range(3)]
+        cf = c if kept is None else c * kept[j]
+        g = [g[i] + cf * float(k[i]) for i in range(3)]
         if w is not None:
             cd = _const(xp, t.relief_amp[j] * w[j]) * cj
             gd = [gd[i] + cd * float(k[i]) for i in range(3)]

@@ -277,6 +277,9 @@ class MaterialSpec:
         uniform film; :func:`simtest.render.tissue.film_alpha`).
     film_scale_mm : float
         Typical wavelength of the film's thickness variation, mm.
+    film_thickness_mm, film_thickness_spread : float
+        Median thickness (mm, 0 to 1; 0: none) and log standard deviation (0 to 1.5) of the wet
+        film that levels the micro-relief (:mod:`simtest.render.tissue`).
     wall_tissue : {"mucosa", "liver", "peritoneum", "gallbladder"} or None
         A second tissue (its default albedo) at the surface points at least ``wall_radius_mm``
         from ``wall_centre_mm`` (the texture frame: a mesh's own axes), such as the wall of
@@ -312,6 +315,8 @@ class MaterialSpec:
     albedo: tuple[_Channel, _Channel, _Channel] | None = None
     film_variation: Num = Field(0.0, ge=0.0, le=3.0)
     film_scale_mm: Num = Field(2.0, ge=0.05, le=50.0)
+    film_thickness_mm: Num = Field(0.0, ge=0.0, le=1.0)
+    film_thickness_spread: Num = Field(0.0, ge=0.0, le=1.5)
     wall_tissue: _Tissue | None = None
     wall_centre_mm: Vec3 | None = None
     wall_radius_mm: Num | None = Field(None, gt=0.0)
