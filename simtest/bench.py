@@ -93,21 +93,6 @@ def resolve_section(name: str) -> SectionFn | str:
         return f"not available: {exc}"
 
 
-def __getattr__(name: str):
-    # Code written before the benchmarks left the package (``from simtest.bench import
-    # noisy_frame``) gets the pinned inputs and the OpenCV recorder from benchmarks/.
-    if not name.startswith("__"):
-        try:
-            package = load_benchmarks().__name__
-        except LookupError as exc:
-            raise AttributeError(f"module {__name__!r} has no attribute {name!r} ({exc})") from None
-        for sub in ("inputs", "opencv_replay"):
-            mod = importlib.import_module(f"{package}.{sub}")
-            if hasattr(mod, name):
-                return getattr(mod, name)
-    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
-
-
 def _unit_of(key: str) -> str:
     for suffix, unit in (("_per_s", "1/s"), ("_ms", "ms"), ("_s", "s"), ("_mib", "MiB"), ("_mb", "MB")):
         if key.endswith(suffix):

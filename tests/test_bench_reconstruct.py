@@ -90,19 +90,6 @@ def test_without_a_clone_the_bench_says_so_in_one_line(monkeypatch, tmp_path):
     assert "Traceback" not in res.output
 
 
-def test_code_written_before_the_move_still_finds_the_inputs(monkeypatch, tmp_path):
-    # `from simtest.bench import noisy_frame` (tests of branches begun before the move) forwards
-    # to benchmarks/; without a clone the attribute is missing, and says why
-    from simtest.bench import noisy_frame, opencv_calls
-
-    assert noisy_frame is inputs.noisy_frame and opencv_calls is opencv_replay.opencv_calls
-    monkeypatch.setattr(bench, "CLONE_ROOT", tmp_path)
-    with pytest.raises(AttributeError, match="need a clone"):
-        bench.synthetic_frame  # noqa: B018
-    with pytest.raises(ImportError):
-        from simtest.bench import synthetic_frame  # noqa: F401
-
-
 def test_the_package_holds_the_runner_and_no_benchmark_bodies():
     # the sections, their inputs and their machinery live in benchmarks/; the package's runner is
     # short and loads no compiled kernels of its own
