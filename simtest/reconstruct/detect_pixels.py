@@ -207,11 +207,11 @@ def noise_level_table(gray: np.ndarray, full_scale: float, fallback: float) -> n
     g = gray[:: max(1, gray.shape[0] // 192)].astype(np.float32)  # ~200 rows: a few bins' share each
     d = (g[:, 1:-1] - 0.5 * (g[:, :-2] + g[:, 2:])).ravel()
     k = _level_bin((g[:, 1:-1] + g[:, :-2] + g[:, 2:]).ravel() / 3.0, full_scale).astype(np.uint8)
-    d, ends = d[np.argsort(k, kind="stable")], np.cumsum(np.bincount(k, minlength=NOISE_LEVEL_BINS))  # radix sort
     out = np.full(NOISE_LEVEL_BINS, np.nan)
-    for b in np.flatnonzero(np.diff(ends, prepend=0) >= NOISE_LEVEL_MIN_SAMPLES):
-        db = d[ends[b] - np.diff(ends, prepend=0)[b]:ends[b]]
-        out[b] = 1.4826 * float(np.median(np.abs(db - np.median(db)))) / np.sqrt(1.5)
+    # each bin's samples by a mask (no sort: a median selects), its medians by one partition each
+    for b in np.flatnonzero(np.bincount(k, minlength=NOISE_LEVEL_BINS) >= NOISE_LEVEL_MIN_SAMPLES).tolist():
+        db = d[k == b]
+        out[b] = 1.4826 * float(_median(np.abs(db - _median(db)))) / np.sqrt(1.5)
     full = np.flatnonzero(out > 0)  # 0: most of the bin has no noise (clipped, drawn, rendered)
     if not len(full) or not fallback > 0:  # a frame whose noise reads 0 (JPEG's flat blocks): none
         return np.full(NOISE_LEVEL_BINS, float(fallback))
