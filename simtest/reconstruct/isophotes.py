@@ -44,8 +44,12 @@ SMOOTH_STRIP_ALIGN = smooth_block_px(np.dtype(np.float64).itemsize)
 #: region (100 x 100 px: 160 kB) till then; the batch's fixed cost (~1 ms) is spread over many.
 RESOLVE_BATCH_ISOPHOTES = 256
 #: Fewer isophotes than this are contoured one by one (``find_contours``, the same points): the
-#: batch's fixed cost exceeds theirs (20 on the bench's 10-highlight frame: 3.6 against 3.0 ms).
+#: batch's fixed cost exceeds theirs (20 on the bench's 10-highlight frame: 3.6 against 3.0 ms)...
 RESOLVE_BATCH_MIN = 32
+#: ... unless their boxes hold this many pixels or more (``find_contours`` links each segment in
+#: Python: the rendered colonoscope frame's 30 boxes of 83,000 px took 11 to 18 ms one by one, 6 ms
+#: in a batch; the 10-highlight frame's 20 boxes hold 24,000 px).
+RESOLVE_BATCH_MIN_PX = 50_000
 
 
 def _roi_values(frame: _Frame, roi: Roi, smooth_sigma_px: float) -> tuple[np.ndarray, list | None]:
@@ -389,7 +393,8 @@ def _resolve(drafts, defer: list) -> None:
     if not defer:
         return
     origins = rc_to_uv([(g.roi.row0 + rc[0], g.roi.col0 + rc[1]) for (_, rc, _), _, g, *_ in defer])
-    found = [None] * len(defer) if len(defer) < RESOLVE_BATCH_MIN else batch_contours(
+    few = len(defer) < RESOLVE_BATCH_MIN and sum(d[0][0].size for d in defer) < RESOLVE_BATCH_MIN_PX
+    found = [None] * len(defer) if few else batch_contours(
         [box for (box, _, _), *_ in defer], np.array([d[1] for d in defer]), origins, np.array([d[2].bp_uv for d in defer]))
     got = []
     for ((box, (dr, dc), sides), level, g, _, t, frame), uv, origin in zip(defer, found, origins):
