@@ -93,6 +93,10 @@ class _Frame:
     #: a frame with few highlights (detection's gray of a gray frame, a colour frame's ``luma32``):
     #: the contour walks (:func:`~simtest.reconstruct.isophotes._grown_drafts`) read their ROIs' values from it.
     luma_frame32: np.ndarray | None = None
+    #: The frame's float64 luma where the first rings of many ROIs were read from it
+    #: (:func:`~simtest.reconstruct.isophotes._first_rings`): a grown ROI's ring is read from it
+    #: too (its slices are the same bits as the ROI's own luma).
+    ring_luma: np.ndarray | None = None
 
     @classmethod
     def make(cls, image, K, dist_coeffs, settings: ReconSettings, noise_roi: Roi | None = None) -> _Frame:

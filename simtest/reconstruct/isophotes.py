@@ -6,7 +6,7 @@ from __future__ import annotations
 
 import functools
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import cv2
 import numpy as np
@@ -206,10 +206,20 @@ def _smoothed_border_median(img: np.ndarray, kern: np.ndarray, roi: Roi, full: n
     kr, kc = _folded_taps(taps, h), _folded_taps(taps, w)
     r0, r1, c0, c1 = roi
     lum = (lambda sl: luma(img[sl])) if full is None else full.__getitem__
-    rows = np.stack([kr @ lum(np.s_[r0:r0 + len(kr), c0:c1]), kr @ lum(np.s_[r1 - len(kr):r1, c0:c1])[::-1]])
-    cols = np.stack([lum(np.s_[r0:r1, c0:c0 + len(kc)]) @ kc, lum(np.s_[r0:r1, c1 - len(kc):c1])[:, ::-1] @ kc])
-    rows = cv2.sepFilter2D(rows, cv2.CV_64F, kern, _ONE_TAP, borderType=cv2.BORDER_REFLECT)
-    cols = cv2.sepFilter2D(cols, cv2.CV_64F, kern, _ONE_TAP, borderType=cv2.BORDER_REFLECT)
+    # the top and bottom lines, then the left and right ones: one array for a square ROI (each
+    # line is filtered alone in either shape, the same bits), else two
+    lines = np.empty((4, w)) if h == w else None
+    rows, cols = (lines[:2], lines[2:]) if h == w else (np.empty((2, w)), np.empty((2, h)))
+    np.matmul(kr, lum(np.s_[r0:r0 + len(kr), c0:c1]), out=rows[0])
+    np.matmul(kr, lum(np.s_[r1 - len(kr):r1, c0:c1])[::-1], out=rows[1])
+    np.matmul(lum(np.s_[r0:r1, c0:c0 + len(kc)]), kc, out=cols[0])
+    np.matmul(lum(np.s_[r0:r1, c1 - len(kc):c1])[:, ::-1], kc, out=cols[1])
+    if h == w:
+        lines = cv2.sepFilter2D(lines, cv2.CV_64F, kern, _ONE_TAP, borderType=cv2.BORDER_REFLECT)
+        rows, cols = lines[:2], lines[2:]
+    else:
+        rows = cv2.sepFilter2D(rows, cv2.CV_64F, kern, _ONE_TAP, borderType=cv2.BORDER_REFLECT)
+        cols = cv2.sepFilter2D(cols, cv2.CV_64F, kern, _ONE_TAP, borderType=cv2.BORDER_REFLECT)
     return _median(np.concatenate([rows.ravel(), cols[:, 1:-1].ravel()]))
 
 
@@ -231,7 +241,7 @@ class _Levels:
                 mode in (Normalisation.AUTO, Normalisation.LOCAL):
             # the ROI's values are the frame's smoothing; its background level is that of the ROI
             # smoothed alone (_smoothed_border_median), as without the frame's
-            ring = _smoothed_border_median(frame.img, frame.kernel, roi)
+            ring = _smoothed_border_median(frame.img, frame.kernel, roi, frame.ring_luma)
         if mode == Normalisation.AUTO:
             if ring is None:
                 ring = _border_median(vals)
@@ -409,16 +419,16 @@ def _resolve(drafts, defer: list) -> None:
                 res[i] = got[r]
 
 
-def _first_rings(frame: _Frame, rois: list[Roi]) -> list:
+def _first_rings(frame: _Frame, rois: list[Roi]) -> tuple[list, np.ndarray | None]:
     """Each ROI's smoothed border median (``_Levels.of``'s ring, :func:`_smoothed_border_median`)
-    where the frame's ROIs read them (smoothed once, normalised ``auto`` or ``local``); else None
-    for each."""
+    where the frame's ROIs read them (smoothed once, normalised ``auto`` or ``local``), else None
+    for each; and the frame's float64 luma where they were read from it (else None)."""
     if not rois or frame.smoothed32 is None or not frame.smooth_sigma_px > 0 or \
             frame.settings.normalise not in (Normalisation.AUTO, Normalisation.LOCAL):
-        return [None] * len(rois)
+        return [None] * len(rois), None
     full = frame.luma_frame if frame.luma_frame is not None or len(rois) < LUMA_FRAME_MIN_HIGHLIGHTS else \
         luma(frame.img)  # the frame's luma once for many ROIs: its slices are the strips' own bits
-    return [_smoothed_border_median(frame.img, frame.kernel, roi, full) for roi in rois]
+    return [_smoothed_border_median(frame.img, frame.kernel, roi, full) for roi in rois], full
 
 
 def _initial_rois(cands: list, bps_uv: np.ndarray, threshold, frame: _Frame) -> list[Roi]:
@@ -464,7 +474,10 @@ def _candidate_drafts(frame: _Frame, det, r: Roi, bps_arr: np.ndarray, rays: np.
     # the fitted candidates' first ROIs, in one batch of numpy calls
     rois_of = dict(zip(fk.tolist(), _initial_rois([det.candidates[k] for k in fk.tolist()], bps_arr[fk],
                                                   det.threshold, frame)))
-    rings_of = dict(zip(fk.tolist(), _first_rings(frame, [rois_of[k] for k in fk.tolist()])))
+    rings, full = _first_rings(frame, [rois_of[k] for k in fk.tolist()])
+    rings_of = dict(zip(fk.tolist(), rings))
+    if full is not None and frame.ring_luma is None:  # a grown ROI's ring read from it too
+        frame = replace(frame, ring_luma=full)
     # a frame smoothed once: every fitted candidate's ROI growth, levels and contour walks
     # (_grown_drafts); those it leaves go through _estimate_one
     defer: list = []  # every draft's contours in one batch, at the end (_resolve)
