@@ -373,9 +373,9 @@ def _dark_corner_components_by_labels(dark):
     reduced image (the reference of the corners' flood fills)."""
     import cv2
 
-    from simtest.reconstruct.detect_pixels import connected_components_boxes
+    from simtest.reconstruct.detect_pixels import connected_components_with_stats
 
-    n, lab, stats = connected_components_boxes(dark)
+    n, lab, stats = connected_components_with_stats(dark)[:3]
     if n <= 1:
         return None
     corners = np.array([lab[0, 0], lab[0, -1], lab[-1, 0], lab[-1, -1]])

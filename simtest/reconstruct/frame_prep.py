@@ -93,9 +93,7 @@ class _Frame:
     #: a frame with few highlights (detection's gray of a gray frame, a colour frame's ``luma32``):
     #: the contour walks (:func:`~simtest.reconstruct.isophotes._grown_drafts`) read their ROIs' values from it.
     luma_frame32: np.ndarray | None = None
-    #: The frame's float64 luma where the first rings of many ROIs were read from it
-    #: (:func:`~simtest.reconstruct.isophotes._first_rings`): a grown ROI's ring is read from it
-    #: too (its slices are the same bits as the ROI's own luma).
+    #: The float64 luma that ``isophotes._first_rings`` read many ROIs' rings from (a grown ROI's too).
     ring_luma: np.ndarray | None = None
 
     @classmethod

@@ -200,8 +200,7 @@ def split_fused_lobes(image, estimates, camera, rig, **kwargs) -> list:
     for i, est in enumerate(estimates):
         rows = None
         if est.status in SPLIT_STATUSES:
-            gray = luma(np.asarray(image)) if gray is None else gray
-            fitted = est
+            fitted, gray = est, luma(np.asarray(image)) if gray is None else gray
             if est.status != "ok":
                 if not _along_the_rig(gray, est, camera, rig, est.status == "merged"):
                     out.append(est)
