@@ -373,9 +373,9 @@ def _dark_corner_components_by_labels(dark):
     reduced image (the reference of the corners' flood fills)."""
     import cv2
 
-    from simtest.reconstruct.detect_pixels import connected_components_boxes
+    from simtest.reconstruct.detect_pixels import connected_components_with_stats
 
-    n, lab, stats = connected_components_boxes(dark)
+    n, lab, stats = connected_components_with_stats(dark)[:3]
     if n <= 1:
         return None
     corners = np.array([lab[0, 0], lab[0, -1], lab[-1, 0], lab[-1, -1]])
@@ -603,3 +603,38 @@ def test_detection_gives_the_native_grays_2x2_means_where_it_reduced_it_unsmooth
     assert det.half is not None and not det.half.flags.writeable
     np.testing.assert_array_equal(det.half, ref)
     assert detect_specularities(img, method="local_peak", smooth_sigma_px=1.0).half is None
+
+
+@settings(max_examples=30, deadline=None)
+@given(seed=st.integers(0, 2**32 - 1), h=st.integers(3, 400), w=st.integers(8, 120),
+       kind=st.sampled_from(["uint8", "float32", "float64", "flat"]))
+def test_noise_level_table_is_its_definition(seed, h, w, kind):
+    """``noise_level_table`` (bins selected by masks, medians by ``_median``) equals its
+    definition: each bin's samples gathered by a stable sort and ``np.median``'s MAD, on integer
+    (ties), float and partly flat frames."""
+    from simtest.decisions import NOISE_LEVEL_BINS, NOISE_LEVEL_MIN_SAMPLES
+    from simtest.reconstruct.detect_pixels import _level_bin, noise_level_table
+
+    rng = np.random.default_rng(seed)
+    gray = rng.normal(128.0, 20.0, (h, w)) + np.linspace(-120, 120, w)[None]
+    if kind == "flat":
+        gray[:, : w // 2] = 40.0
+    gray = np.clip(np.round(gray) if kind in ("uint8", "flat") else gray, 0, 255).astype(
+        np.float64 if kind == "float64" else np.float32)
+    g = gray[:: max(1, h // 192)].astype(np.float32)
+    d = (g[:, 1:-1] - 0.5 * (g[:, :-2] + g[:, 2:])).ravel()
+    k = _level_bin((g[:, 1:-1] + g[:, :-2] + g[:, 2:]).ravel() / 3.0, 255.0)
+    d = d[np.argsort(k, kind="stable")]
+    ends = np.cumsum(np.bincount(k, minlength=NOISE_LEVEL_BINS))
+    want = np.full(NOISE_LEVEL_BINS, np.nan)
+    for b in range(NOISE_LEVEL_BINS):
+        db = d[ends[b] - np.bincount(k, minlength=NOISE_LEVEL_BINS)[b]:ends[b]]
+        if len(db) >= NOISE_LEVEL_MIN_SAMPLES:
+            want[b] = 1.4826 * float(np.median(np.abs(db - np.median(db)))) / np.sqrt(1.5)
+    got = noise_level_table(gray, 255.0, 1.5)
+    full = np.flatnonzero(want > 0)
+    if not len(full):
+        assert np.array_equal(got, np.full(NOISE_LEVEL_BINS, 1.5))
+        return
+    t = np.pad(want[full[np.abs(np.arange(NOISE_LEVEL_BINS)[:, None] - full[None, :]).argmin(1)]], 1, mode="edge")
+    assert np.array_equal(got, np.maximum(np.maximum(t[:-2], t[1:-1]), t[2:]))

@@ -145,3 +145,18 @@ def test_a_sigma_above_the_bp_rays_error_has_no_claim():
     r, out = _fused(img, _highlight(img, (60.0, 60.0)), rig)
     assert r is not None and SIGMA_MARGIN * r.normal_sigma_deg > r.bp_ray_error_deg
     assert out.recommended.normal_from == "bp_ray"
+
+
+def test_a_frame_without_fits_makes_no_luma(monkeypatch):
+    # the frame's luma is made for the first fitted highlight only: a frame whose highlights have
+    # no light-aware fits (most of a video's) reads no pixel
+    import simtest.reconstruct.rig_centroid as rc
+
+    def refuse(_):
+        raise AssertionError("luma made for a frame without fits")
+
+    img = _frame(LOBES, sigma=6.0)
+    est = _highlight(img, (60.0, 60.0), fits={})
+    monkeypatch.setattr(rc, "luma", refuse)
+    (out,) = rig_centroid(img, [est], K, SYMMETRIC)
+    assert out is est

@@ -30,12 +30,6 @@ def connected_components_with_stats(mask: np.ndarray):
     return cv2.connectedComponentsWithStatsWithAlgorithm(mask, 8, cv2.CV_32S, cv2.CCL_GRANA)
 
 
-def connected_components_boxes(mask: np.ndarray) -> tuple[int, np.ndarray, np.ndarray]:
-    """:func:`connected_components_with_stats` without the centroids: ``(n, labels, stats)``."""
-    n, labels, stats, _ = connected_components_with_stats(mask)
-    return n, labels, stats
-
-
 def mask_labels(mask: np.ndarray) -> tuple[int, np.ndarray, np.ndarray]:
     """The 8-connected components of a mask, labelled band by band.
 
@@ -67,13 +61,13 @@ def mask_labels(mask: np.ndarray) -> tuple[int, np.ndarray, np.ndarray]:
     bands = [(r0 - r0 % 2, r1) for r0, r1 in zip(np.append(nz[:1], nz[gaps + 1]).tolist(),
                                                   (np.append(nz[gaps], nz[-1:]) + 1).tolist())]
     if not bands or 2 * sum(r1 - r0 for r0, r1 in bands) > h:
-        n, labels, stats = connected_components_boxes(mask)
+        n, labels, stats = connected_components_with_stats(mask)[:3]
         return n - 1, labels, stats[1:]
     labels, parts, n = np.zeros((h, w), np.int32), [], 0
     for r0, r1 in bands:
         cols = np.flatnonzero(mask[r0:r1].max(axis=0))
         c0, c1 = int(cols[0]) - int(cols[0]) % 2, int(cols[-1]) + 1
-        nb, lab, stats = connected_components_boxes(np.ascontiguousarray(mask[r0:r1, c0:c1]))
+        nb, lab, stats = connected_components_with_stats(np.ascontiguousarray(mask[r0:r1, c0:c1]))[:3]
         np.copyto(labels[r0:r1, c0:c1], lab + n, where=lab > 0)
         parts.append(stats[1:] + (c0, r0, 0, 0, 0))
         n += nb - 1
@@ -207,11 +201,10 @@ def noise_level_table(gray: np.ndarray, full_scale: float, fallback: float) -> n
     g = gray[:: max(1, gray.shape[0] // 192)].astype(np.float32)  # ~200 rows: a few bins' share each
     d = (g[:, 1:-1] - 0.5 * (g[:, :-2] + g[:, 2:])).ravel()
     k = _level_bin((g[:, 1:-1] + g[:, :-2] + g[:, 2:]).ravel() / 3.0, full_scale).astype(np.uint8)
-    d, ends = d[np.argsort(k, kind="stable")], np.cumsum(np.bincount(k, minlength=NOISE_LEVEL_BINS))  # radix sort
     out = np.full(NOISE_LEVEL_BINS, np.nan)
-    for b in np.flatnonzero(np.diff(ends, prepend=0) >= NOISE_LEVEL_MIN_SAMPLES):
-        db = d[ends[b] - np.diff(ends, prepend=0)[b]:ends[b]]
-        out[b] = 1.4826 * float(np.median(np.abs(db - np.median(db)))) / np.sqrt(1.5)
+    for b in np.flatnonzero(np.bincount(k, minlength=NOISE_LEVEL_BINS) >= NOISE_LEVEL_MIN_SAMPLES).tolist():
+        db = d[k == b]
+        out[b] = 1.4826 * float(_median(np.abs(db - _median(db)))) / np.sqrt(1.5)
     full = np.flatnonzero(out > 0)  # 0: most of the bin has no noise (clipped, drawn, rendered)
     if not len(full) or not fallback > 0:  # a frame whose noise reads 0 (JPEG's flat blocks): none
         return np.full(NOISE_LEVEL_BINS, float(fallback))

@@ -14,8 +14,8 @@ import functools
 import cv2
 import numpy as np
 
-from simtest.reconstruct.detect_pixels import (connected_components, connected_components_boxes,
-                                              connected_components_with_stats, linear_at, linear_taps)
+from simtest.reconstruct.detect_pixels import (connected_components, connected_components_with_stats, linear_at,
+                                              linear_taps, mask_labels)
 
 #: A 3 x 3 square: the neighbourhood of a local maximum.
 _SQUARE3 = np.ones((3, 3), np.uint8)
@@ -186,8 +186,9 @@ def flat_mask(gray: np.ndarray, std_max, full_scale: float | None = None) -> np.
     var = cv2.blur(g * g, (5, 5))
     # the variance against the square of std_max's bound (none below one not positive): no root
     bound = np.float32([_variance_below(float(v)) if np.float32(v) > 0 else -np.inf for v in np.atleast_1d(std_max)])
-    if full_scale is not None:  # each pixel's bin (the floor of its scaled mean), its bound
-        bound = np.take(bound, np.minimum((m1 * np.float32(len(bound) / full_scale)).astype(np.uint8), len(bound) - 1))
+    if full_scale is not None:  # each pixel's bin (the floor of its scaled mean, the last past it), its bound
+        lut = np.concatenate([bound, np.full(256 - len(bound), bound[-1], np.float32)])  # cv2.LUT: 4x numpy's take
+        bound = cv2.LUT((m1 * np.float32(len(bound) / full_scale)).astype(np.uint8), lut)
     # in place: each frame-sized temporary costs its page faults
     np.subtract(var, np.multiply(m1, m1, out=m1), out=var)
     return np.less(var, bound if full_scale is not None else bound[0]).view(np.uint8)
@@ -213,13 +214,13 @@ def drop_clipped(flat: np.ndarray, rgb: np.ndarray, std_max, ceiling: float, ful
     hit = flat & near
     if not hit.any():
         return flat
-    # the channels' flatness only around the pixels it decides, cluster by cluster (2 px of
-    # context for the 5 x 5 windows; at the frame's edges the window's border is the frame's, as
-    # for the whole frame)
+    # the channels' flatness only around the pixels it decides, cluster by cluster (boxes by
+    # mask_labels: the frame's, in order; 2 px of context for the 5 x 5 windows; at the frame's
+    # edges the window's border is the frame's, as for the whole frame)
     h, w = flat.shape
     out = flat.copy()
     join = np.ones((2 * _HIT_JOIN_PX + 1,) * 2, np.uint8)
-    for x, y, bw, bh in connected_components_boxes(cv2.dilate(hit, join))[2][1:, :4].tolist():
+    for x, y, bw, bh in mask_labels(cv2.dilate(hit, join))[2][:, :4].tolist():
         r0, r1, c0, c1 = y, y + bh, x, x + bw
         R0, R1, C0, C1 = max(0, r0 - 2), min(h, r1 + 2), max(0, c0 - 2), min(w, c1 + 2)
         every = flat[r0:r1, c0:c1].copy()

@@ -6,7 +6,7 @@ from __future__ import annotations
 
 import functools
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import cv2
 import numpy as np
@@ -25,27 +25,26 @@ from simtest.reconstruct.isophote import (MIN_CONTOUR_POINTS, _box_answer, _box_
 from simtest.reconstruct.marching import batch_contours
 from simtest.reconstruct.settings import AUTO_LOCAL_BACKGROUND_REL, Normalisation
 
-_TINY = float(np.finfo(float).tiny)
+_TINY, _ONE_TAP = float(np.finfo(float).tiny), np.ones(1)
 
 #: A frame prepared for many highlights (``_Frame.for_many_highlights``) smooths its luma once and
 #: takes an ROI of at least this many pixels from it (``_patched_from_frame``); a smaller ROI is
-#: smoothed for itself, which is cheaper there (the same bits either way). On the Hyper-Kvasir
-#: banner (sigma 1.7 px) the two took the same time at about 160 x 160 px (medians of six ROIs:
-#: 186 against 182 us; at 128 px 114 against 142 us, at 224 px 355 against 249 us).
+#: smoothed for itself, which is cheaper there (the same bits either way; the same time at about
+#: 160 x 160 px on the Hyper-Kvasir banner, sigma 1.7 px).
 SMOOTH_FRAME_MIN_ROI_PX = 160 * 160
 #: Columns the strip re-smoothed at an ROI's right side starts on a multiple of, and more than
 #: it covers (:data:`simtest.constants.SMOOTH_BLOCK_BYTES` of float64): each column of the strip is
 #: computed in the same kind of block (SIMD, or a row's scalar last columns) as in the ROI, and the
 #: strip reaches past the frame's own scalar columns when the ROI ends on the image's right border.
-#: The strips cost in proportion to their width: 16 instead of 64 halved the re-smoothed pixels of
-#: the Hyper-Kvasir banner (8.6 to 3.9 Mpx).
 SMOOTH_STRIP_ALIGN = smooth_block_px(np.dtype(np.float64).itemsize)
 #: Isophotes ``reconstruct_rois`` contours in one batch (:func:`_resolve`): each holds its box and
 #: region (100 x 100 px: 160 kB) till then; the batch's fixed cost (~1 ms) is spread over many.
 RESOLVE_BATCH_ISOPHOTES = 256
-#: Fewer isophotes than this are contoured one by one (``find_contours``, the same points): the
-#: batch's fixed cost exceeds theirs (20 on the bench's 10-highlight frame: 3.6 against 3.0 ms).
+#: Fewer isophotes than this, in boxes of fewer px than the next, are contoured one by one
+#: (``find_contours``, the same points): the batch's fixed cost exceeds theirs (the 10-highlight
+#: frame's 20, 24,000 px); ``find_contours`` links in Python (the colonoscope's 30, 83,000 px).
 RESOLVE_BATCH_MIN = 32
+RESOLVE_BATCH_MIN_PX = 50_000
 
 
 def _roi_values(frame: _Frame, roi: Roi, smooth_sigma_px: float) -> tuple[np.ndarray, list | None]:
@@ -181,9 +180,6 @@ def _folded_taps(kern: tuple, n: int) -> np.ndarray:
     return np.bincount(np.where(m < n, m, 2 * n - 1 - m), weights=np.array(kern))
 
 
-_ONE_TAP = np.ones(1)
-
-
 def _smoothed_border_median(img: np.ndarray, kern: np.ndarray, roi: Roi, full: np.ndarray | None = None) -> float:
     """:func:`_border_median` of the luma of ``img[roi]`` smoothed alone with the Gaussian taps
     ``kern`` (2 R + 1,) (``_smooth``: its sides reflected), computed for its border pixels only
@@ -202,10 +198,14 @@ def _smoothed_border_median(img: np.ndarray, kern: np.ndarray, roi: Roi, full: n
     kr, kc = _folded_taps(taps, h), _folded_taps(taps, w)
     r0, r1, c0, c1 = roi
     lum = (lambda sl: luma(img[sl])) if full is None else full.__getitem__
-    rows = np.stack([kr @ lum(np.s_[r0:r0 + len(kr), c0:c1]), kr @ lum(np.s_[r1 - len(kr):r1, c0:c1])[::-1]])
-    cols = np.stack([lum(np.s_[r0:r1, c0:c0 + len(kc)]) @ kc, lum(np.s_[r0:r1, c1 - len(kc):c1])[:, ::-1] @ kc])
-    rows = cv2.sepFilter2D(rows, cv2.CV_64F, kern, _ONE_TAP, borderType=cv2.BORDER_REFLECT)
-    cols = cv2.sepFilter2D(cols, cv2.CV_64F, kern, _ONE_TAP, borderType=cv2.BORDER_REFLECT)
+    sq = np.empty((4, w)) if h == w else None  # a square ROI's four lines, smoothed in one call (each alone)
+    rows, cols = (sq[:2], sq[2:]) if h == w else (np.empty((2, w)), np.empty((2, h)))
+    np.matmul(kr, lum(np.s_[r0:r0 + len(kr), c0:c1]), out=rows[0])
+    np.matmul(kr, lum(np.s_[r1 - len(kr):r1, c0:c1])[::-1], out=rows[1])
+    np.matmul(lum(np.s_[r0:r1, c0:c0 + len(kc)]), kc, out=cols[0])
+    np.matmul(lum(np.s_[r0:r1, c1 - len(kc):c1])[:, ::-1], kc, out=cols[1])
+    smooth = lambda a: cv2.sepFilter2D(a, cv2.CV_64F, kern, _ONE_TAP, borderType=cv2.BORDER_REFLECT)
+    rows, cols = smooth(sq).reshape(2, 2, w) if h == w else (smooth(rows), smooth(cols))
     return _median(np.concatenate([rows.ravel(), cols[:, 1:-1].ravel()]))
 
 
@@ -227,7 +227,7 @@ class _Levels:
                 mode in (Normalisation.AUTO, Normalisation.LOCAL):
             # the ROI's values are the frame's smoothing; its background level is that of the ROI
             # smoothed alone (_smoothed_border_median), as without the frame's
-            ring = _smoothed_border_median(frame.img, frame.kernel, roi)
+            ring = _smoothed_border_median(frame.img, frame.kernel, roi, frame.ring_luma)
         if mode == Normalisation.AUTO:
             if ring is None:
                 ring = _border_median(vals)
@@ -389,7 +389,8 @@ def _resolve(drafts, defer: list) -> None:
     if not defer:
         return
     origins = rc_to_uv([(g.roi.row0 + rc[0], g.roi.col0 + rc[1]) for (_, rc, _), _, g, *_ in defer])
-    found = [None] * len(defer) if len(defer) < RESOLVE_BATCH_MIN else batch_contours(
+    few = len(defer) < RESOLVE_BATCH_MIN and sum(d[0][0].size for d in defer) < RESOLVE_BATCH_MIN_PX
+    found = [None] * len(defer) if few else batch_contours(
         [box for (box, _, _), *_ in defer], np.array([d[1] for d in defer]), origins, np.array([d[2].bp_uv for d in defer]))
     got = []
     for ((box, (dr, dc), sides), level, g, _, t, frame), uv, origin in zip(defer, found, origins):
@@ -404,16 +405,16 @@ def _resolve(drafts, defer: list) -> None:
                 res[i] = got[r]
 
 
-def _first_rings(frame: _Frame, rois: list[Roi]) -> list:
+def _first_rings(frame: _Frame, rois: list[Roi]) -> tuple[list, np.ndarray | None]:
     """Each ROI's smoothed border median (``_Levels.of``'s ring, :func:`_smoothed_border_median`)
-    where the frame's ROIs read them (smoothed once, normalised ``auto`` or ``local``); else None
-    for each."""
+    where the frame's ROIs read them (smoothed once, normalised ``auto`` or ``local``), else None
+    for each; and the frame's float64 luma they were read from (else None)."""
     if not rois or frame.smoothed32 is None or not frame.smooth_sigma_px > 0 or \
             frame.settings.normalise not in (Normalisation.AUTO, Normalisation.LOCAL):
-        return [None] * len(rois)
+        return [None] * len(rois), None
     full = frame.luma_frame if frame.luma_frame is not None or len(rois) < LUMA_FRAME_MIN_HIGHLIGHTS else \
         luma(frame.img)  # the frame's luma once for many ROIs: its slices are the strips' own bits
-    return [_smoothed_border_median(frame.img, frame.kernel, roi, full) for roi in rois]
+    return [_smoothed_border_median(frame.img, frame.kernel, roi, full) for roi in rois], full
 
 
 def _initial_rois(cands: list, bps_uv: np.ndarray, threshold, frame: _Frame) -> list[Roi]:
@@ -459,7 +460,9 @@ def _candidate_drafts(frame: _Frame, det, r: Roi, bps_arr: np.ndarray, rays: np.
     # the fitted candidates' first ROIs, in one batch of numpy calls
     rois_of = dict(zip(fk.tolist(), _initial_rois([det.candidates[k] for k in fk.tolist()], bps_arr[fk],
                                                   det.threshold, frame)))
-    rings_of = dict(zip(fk.tolist(), _first_rings(frame, [rois_of[k] for k in fk.tolist()])))
+    rings, full = _first_rings(frame, [rois_of[k] for k in fk.tolist()])
+    frame = frame if full is None else replace(frame, ring_luma=full)  # a grown ROI's ring read from it too
+    rings_of = dict(zip(fk.tolist(), rings))
     # a frame smoothed once: every fitted candidate's ROI growth, levels and contour walks
     # (_grown_drafts); those it leaves go through _estimate_one
     defer: list = []  # every draft's contours in one batch, at the end (_resolve)

@@ -112,9 +112,10 @@ def rig_centroid(image, estimates, camera, rig: LightRig | None, nominal_depth_m
     """
     if rig is None or not rig.has_separate_lights:
         return list(estimates)
-    gray = luma(np.asarray(image))
+    gray = None  # the frame's luma, made for the first highlight with fits (most frames have none)
     out = []
     for est in estimates:
+        gray = luma(np.asarray(image)) if gray is None and est.light_aware else gray
         r = _fused_lobe(gray, est, camera, rig, est.light_aware, nominal_depth_mm) if est.light_aware else None
         out.append(est if r is None else dataclasses.replace(est, light_aware={**est.light_aware, "rig_centroid": r}))
     return out

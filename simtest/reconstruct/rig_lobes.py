@@ -193,14 +193,14 @@ def split_fused_lobes(image, estimates, camera, rig, **kwargs) -> list:
     """
     if not _offset_rig(rig):
         return list(estimates)
-    gray = luma(np.asarray(image))
+    gray = None  # the frame's luma, made for the first candidate that a split may concern
     bps = np.array([e.bp_px for e in estimates], dtype=np.float64).reshape(-1, 2)
     kwargs = {k: v for k, v in kwargs.items() if k not in ("workers", "on_highlight", "fit_rejected")}
     out: list = []
     for i, est in enumerate(estimates):
         rows = None
         if est.status in SPLIT_STATUSES:
-            fitted = est
+            fitted, gray = est, luma(np.asarray(image)) if gray is None else gray
             if est.status != "ok":
                 if not _along_the_rig(gray, est, camera, rig, est.status == "merged"):
                     out.append(est)
