@@ -33,7 +33,6 @@ import contextlib
 import dataclasses
 import errno
 import fcntl
-import hashlib
 import json
 import multiprocessing
 import os
@@ -68,8 +67,8 @@ from simtest.dataset.config import DatasetConfig, load_config
 from simtest.dataset.sample import Sample, render_sample
 from simtest.dataset.shards import (
     CARD_NAME, MANIFEST_NAME, SHARDS_DIR, TMP_SUFFIX, DatasetError, DatasetWriteError, ShardWriter, array_sha256,
-    card_sha256, check_shard, file_sha256, read_card, read_shard_rows, shard_json_path, shard_npz_path,
-    write_manifest,
+    card_sha256, check_shard, file_sha256, json_sha256, read_card, read_shard_rows, shard_json_path,
+    shard_npz_path, write_manifest,
 )
 
 __all__ = ["GenerateReport", "Interrupted", "SampleError", "DatasetWriteError", "SPOOL_DIR", "generate"]
@@ -259,7 +258,7 @@ def spool_path(out: Path, index: int) -> Path:
 def _spool_write(out: Path, sample: Sample, fingerprint: str) -> None:
     """Keep one finished sample (arrays, record, their sha256) in the spool, atomically."""
     meta = {"config_fingerprint": fingerprint, "index": int(sample.index), "record": sample.record,
-            "record_sha256": _record_sha256(sample.record),
+            "record_sha256": json_sha256(sample.record),
             "sha256": {k: array_sha256(np.asarray(a)) for k, a in sample.arrays.items()},
             "order": list(sample.arrays)}
 
@@ -269,10 +268,6 @@ def _spool_write(out: Path, sample: Sample, fingerprint: str) -> None:
                      **{f"a_{k}": np.asarray(a) for k, a in sample.arrays.items()})
 
     atomic_write(spool_path(out, sample.index), write)
-
-
-def _record_sha256(record: dict) -> str:
-    return hashlib.sha256(json.dumps(record, sort_keys=True, separators=(",", ":")).encode()).hexdigest()
 
 
 def _spool_read(path: Path, fingerprint: str, index: int) -> Sample | None:
@@ -287,7 +282,7 @@ def _spool_read(path: Path, fingerprint: str, index: int) -> Sample | None:
         return None
     if any(array_sha256(a) != meta["sha256"].get(k) for k, a in arrays.items()):
         return None
-    if _record_sha256(meta["record"]) != meta.get("record_sha256"):
+    if json_sha256(meta["record"]) != meta.get("record_sha256"):
         return None
     return Sample(index=index, arrays=arrays, record=meta["record"])
 
