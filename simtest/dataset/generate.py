@@ -38,9 +38,7 @@ import multiprocessing
 import os
 import resource
 import shutil
-import signal
 import socket
-import threading
 import time
 import zipfile
 from collections import deque
@@ -59,6 +57,7 @@ import numpy as np
 
 from simtest import _dask
 from simtest._dask import SchedulerError, connect
+from simtest._exit import signals_interrupt
 from simtest._io import atomic_write, atomic_write_json, atomic_write_text
 from simtest._lazy import require
 from simtest._workers import new_pool, stop_workers
@@ -497,7 +496,7 @@ def generate(
     # Connect to a cluster before writing anything: a wrong address leaves no folder behind.
     dask_ex = _Dask(sample_fn, config, scheduler) if scheduler is not None else None
     try:
-        with _locked(out), _sigterm_as_interrupt():
+        with _locked(out), signals_interrupt():
             return _generate(config, out, dask_ex, workers, sample_fn, progress, window)
     except KeyboardInterrupt:
         raise Interrupted(f"{out}: interrupted; finished samples are kept (shards and spool): rerun "
@@ -513,27 +512,6 @@ def generate(
     finally:
         if dask_ex is not None:
             dask_ex.close()
-
-
-@contextlib.contextmanager
-def _sigterm_as_interrupt():
-    """While generating, SIGTERM raises KeyboardInterrupt in the main thread (cleanup runs)."""
-    if threading.current_thread() is not threading.main_thread():
-        yield
-        return
-
-    def handler(signum, frame):
-        raise KeyboardInterrupt
-
-    try:
-        previous = signal.signal(signal.SIGTERM, handler)
-    except (ValueError, OSError):
-        yield
-        return
-    try:
-        yield
-    finally:
-        signal.signal(signal.SIGTERM, previous)
 
 
 @contextlib.contextmanager
