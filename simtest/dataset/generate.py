@@ -308,12 +308,6 @@ def _spool_load(config: DatasetConfig, out: Path, todo: list[int]) -> dict[int, 
     return got
 
 
-def _spool_drop(out: Path, indices) -> None:
-    """Delete the spool files of ``indices`` (their shard is complete)."""
-    for i in indices:
-        spool_path(out, i).unlink(missing_ok=True)
-
-
 # ------------------------------------------------------------------------------------------------
 # execution
 
@@ -564,7 +558,8 @@ def _generate(config, out, dask_ex, workers, sample_fn, progress, window) -> Gen
         shard = sample.index // config.shard_size
         if writers[shard].add(sample):
             del writers[shard]
-            _spool_drop(out, config.shard_range(shard))
+            for i in config.shard_range(shard):  # the shard is complete: its spool files go
+                spool_path(out, i).unlink(missing_ok=True)
         elif spool:
             _spool_write(out, sample, fp)
 
