@@ -74,7 +74,7 @@ def test_crb_study_and_figure(tmp_path):
     assert np.isfinite(r["crb_normal_deg"]) and np.isfinite(r["crb_depth_pct"])
     assert r["rms_normal_deg"] is not None
     png = plot_crb(rows, tmp_path / "crb.png")
-    assert png.stat().st_size > 1000 and not list(tmp_path.glob("*.tmp.png"))
+    assert png.stat().st_size > 1000 and [p.name for p in tmp_path.iterdir()] == ["crb.png"]
 
 
 #: Read noise of the must-hold (issue 39): 2 % of the lobe's peak, white, per pixel.

@@ -589,14 +589,13 @@ def _check_domain(p: ParamDef, dist: Dist, key: str, source: str) -> None:
         values = list(dist.args[0])
     else:
         values = None
+    show = dist.args[0] if dist.kind == "constant" else dist.as_dict()
     if p.choices is not None:
         if values is None or any(v not in p.choices for v in values):
-            show = dist.args[0] if dist.kind == "constant" else dist.as_dict()
             raise _err(source, key, "must be one of " + ", ".join(json.dumps(c) for c in p.choices)
                        + " (constant or choice)", show)
         return
     if values is not None and not all(_is_number(v) for v in values):
-        show = dist.args[0] if dist.kind == "constant" else dist.as_dict()
         raise _err(source, key, "must be a number", show)
     if p.integer:
         if dist.kind == "loguniform":
@@ -604,7 +603,6 @@ def _check_domain(p: ParamDef, dist: Dist, key: str, source: str) -> None:
                        dist.as_dict())
         check = values if values is not None else list(dist.args[:2]) if dist.kind == "uniform" else []
         if any(float(v) != int(v) for v in check):
-            show = dist.args[0] if dist.kind == "constant" else dist.as_dict()
             raise _err(source, key, "must be an integer", show)
     lo, hi = p.domain
     a, b = dist.support()
@@ -616,7 +614,6 @@ def _check_domain(p: ParamDef, dist: Dist, key: str, source: str) -> None:
         reason = f"draws can leave the domain {lb}{format_value(lo)}, {format_value(hi)}{rb}"
         if dist.kind == "normal":
             reason += " (give low/high to clip a normal distribution)"
-        show = dist.args[0] if dist.kind == "constant" else dist.as_dict()
         raise _err(source, key, reason, show)
 
 

@@ -26,12 +26,12 @@ HDF5 (BlenderProc's layout)
 read with ``h5py`` alone (:data:`READ_HDF5`).
 
 Both exports hold ``export.json`` (source card's config fingerprint, format, count) and are
-written to a temporary folder renamed into place, so an interrupted export leaves nothing half
-written. Each HDF5 file is built in memory and written with plain file I/O, so a full disk is an
+written to a temporary folder swapped into place (:func:`~simtest._io.replace_output_folder`), so
+an interrupted export leaves nothing half written. Each HDF5 file is built in memory and written with plain file I/O, so a full disk is an
 ordinary ``OSError`` (no HDF5 library error stack, no crash inside the library); any failure to
 write removes the temporary folder, leaves an earlier export in place and raises
 :class:`~simtest.dataset.shards.DatasetWriteError` (one line). Temporary folders of exports whose
-process died (``.<out>.<pid>.tmp`` of a pid no longer running) are removed by the next export.
+process died (``.<out>.*.tmp``) are removed by the next export.
 """
 
 from __future__ import annotations
@@ -39,16 +39,13 @@ from __future__ import annotations
 import errno
 import io
 import json
-import os
-import re
-import shutil
 import tarfile
 from pathlib import Path
 
 import h5py
 import numpy as np
 
-from simtest._io import atomic_write_json
+from simtest._io import atomic_write_json, replace_output_folder
 from simtest.dataset.reader import SimtestDataset
 from simtest.dataset.shards import DatasetError, DatasetWriteError, decode_png
 
@@ -144,27 +141,6 @@ def _hdf5(ds: SimtestDataset, tmp: Path) -> int:
     return len(ds)
 
 
-def _pid_alive(pid: int) -> bool:
-    try:
-        os.kill(pid, 0)
-    except ProcessLookupError:
-        return False
-    except PermissionError:
-        return True
-    return True
-
-
-def _remove_stale(out: Path) -> None:
-    """Remove ``.<out>.<pid>.tmp`` / ``.old`` folders left by exports whose process is gone."""
-    pat = re.compile(re.escape(f".{out.name}.") + r"(\d+)\.(tmp|old)")
-    if not out.parent.is_dir():
-        return
-    for p in out.parent.iterdir():
-        m = pat.fullmatch(p.name)
-        if m and p.is_dir() and (int(m.group(1)) == os.getpid() or not _pid_alive(int(m.group(1)))):
-            shutil.rmtree(p, ignore_errors=True)
-
-
 def export(root, fmt: str, out=None) -> Path:
     """Export a dataset folder to WebDataset tar shards or BlenderProc-style HDF5 files.
 
@@ -199,33 +175,24 @@ def export(root, fmt: str, out=None) -> Path:
     if out.exists() and (not out.is_dir() or (any(out.iterdir()) and not (out / "export.json").is_file())):
         raise DatasetWriteError(f"{out}: exists and is not a simtest export: refusing to replace it")
     ds = SimtestDataset(root, keys=("sensor_png", *_FIELDS), with_record=True)
-    _remove_stale(out)
-    tmp = out.with_name(f".{out.name}.{os.getpid()}.tmp")
-    old = out.with_name(f".{out.name}.{os.getpid()}.old")
-    try:
-        tmp.mkdir(parents=True)
-    except OSError as exc:
-        ds.close()
-        raise _write_error(exc, out) from None
-    try:
-        files = _webdataset(ds, tmp) if fmt == "webdataset" else _hdf5(ds, tmp)
-        atomic_write_json(tmp / "export.json", {
+    tmp = None
+
+    def fill(folder: Path) -> None:
+        nonlocal tmp
+        tmp = folder
+        files = _webdataset(ds, folder) if fmt == "webdataset" else _hdf5(ds, folder)
+        atomic_write_json(folder / "export.json", {
             "format": fmt, "source": str(root), "samples": len(ds), "files": files,
             "config_fingerprint": ds.card.get("config_fingerprint"),
             "reading": READ_WEBDATASET if fmt == "webdataset" else READ_HDF5,
         })
-        if out.exists():
-            out.rename(old)
-        tmp.rename(out)
-        shutil.rmtree(old, ignore_errors=True)
+
+    try:
+        replace_output_folder(out, fill)
     except OSError as exc:
-        shutil.rmtree(tmp, ignore_errors=True)
-        if exc.errno in _WRITE_ERRNOS or str(exc.filename or "").startswith(str(tmp)):
+        if exc.errno in _WRITE_ERRNOS or tmp is None or str(exc.filename or "").startswith(str(tmp)):
             raise _write_error(exc, out) from None
         raise DatasetError(f"{exc.filename or root}: cannot read: {exc.strerror or exc}") from None
-    except BaseException:
-        shutil.rmtree(tmp, ignore_errors=True)
-        raise
     finally:
         ds.close()
     return out

@@ -33,15 +33,12 @@ import contextlib
 import dataclasses
 import errno
 import fcntl
-import hashlib
 import json
 import multiprocessing
 import os
 import resource
 import shutil
-import signal
 import socket
-import threading
 import time
 import zipfile
 from collections import deque
@@ -60,6 +57,7 @@ import numpy as np
 
 from simtest import _dask
 from simtest._dask import SchedulerError, connect
+from simtest._exit import signals_interrupt
 from simtest._io import atomic_write, atomic_write_json, atomic_write_text
 from simtest._lazy import require
 from simtest._workers import new_pool, stop_workers
@@ -68,8 +66,8 @@ from simtest.dataset.config import DatasetConfig, load_config
 from simtest.dataset.sample import Sample, render_sample
 from simtest.dataset.shards import (
     CARD_NAME, MANIFEST_NAME, SHARDS_DIR, TMP_SUFFIX, DatasetError, DatasetWriteError, ShardWriter, array_sha256,
-    card_sha256, check_shard, file_sha256, read_card, read_shard_rows, shard_json_path, shard_npz_path,
-    write_manifest,
+    card_sha256, check_shard, file_sha256, json_sha256, read_card, read_shard_rows, shard_json_path,
+    shard_npz_path, write_manifest,
 )
 
 __all__ = ["GenerateReport", "Interrupted", "SampleError", "DatasetWriteError", "SPOOL_DIR", "generate"]
@@ -259,7 +257,7 @@ def spool_path(out: Path, index: int) -> Path:
 def _spool_write(out: Path, sample: Sample, fingerprint: str) -> None:
     """Keep one finished sample (arrays, record, their sha256) in the spool, atomically."""
     meta = {"config_fingerprint": fingerprint, "index": int(sample.index), "record": sample.record,
-            "record_sha256": _record_sha256(sample.record),
+            "record_sha256": json_sha256(sample.record),
             "sha256": {k: array_sha256(np.asarray(a)) for k, a in sample.arrays.items()},
             "order": list(sample.arrays)}
 
@@ -269,10 +267,6 @@ def _spool_write(out: Path, sample: Sample, fingerprint: str) -> None:
                      **{f"a_{k}": np.asarray(a) for k, a in sample.arrays.items()})
 
     atomic_write(spool_path(out, sample.index), write)
-
-
-def _record_sha256(record: dict) -> str:
-    return hashlib.sha256(json.dumps(record, sort_keys=True, separators=(",", ":")).encode()).hexdigest()
 
 
 def _spool_read(path: Path, fingerprint: str, index: int) -> Sample | None:
@@ -287,7 +281,7 @@ def _spool_read(path: Path, fingerprint: str, index: int) -> Sample | None:
         return None
     if any(array_sha256(a) != meta["sha256"].get(k) for k, a in arrays.items()):
         return None
-    if _record_sha256(meta["record"]) != meta.get("record_sha256"):
+    if json_sha256(meta["record"]) != meta.get("record_sha256"):
         return None
     return Sample(index=index, arrays=arrays, record=meta["record"])
 
@@ -312,12 +306,6 @@ def _spool_load(config: DatasetConfig, out: Path, todo: list[int]) -> dict[int, 
         else:
             got[sample.index] = sample
     return got
-
-
-def _spool_drop(out: Path, indices) -> None:
-    """Delete the spool files of ``indices`` (their shard is complete)."""
-    for i in indices:
-        spool_path(out, i).unlink(missing_ok=True)
 
 
 # ------------------------------------------------------------------------------------------------
@@ -502,7 +490,7 @@ def generate(
     # Connect to a cluster before writing anything: a wrong address leaves no folder behind.
     dask_ex = _Dask(sample_fn, config, scheduler) if scheduler is not None else None
     try:
-        with _locked(out), _sigterm_as_interrupt():
+        with _locked(out), signals_interrupt():
             return _generate(config, out, dask_ex, workers, sample_fn, progress, window)
     except KeyboardInterrupt:
         raise Interrupted(f"{out}: interrupted; finished samples are kept (shards and spool): rerun "
@@ -518,27 +506,6 @@ def generate(
     finally:
         if dask_ex is not None:
             dask_ex.close()
-
-
-@contextlib.contextmanager
-def _sigterm_as_interrupt():
-    """While generating, SIGTERM raises KeyboardInterrupt in the main thread (cleanup runs)."""
-    if threading.current_thread() is not threading.main_thread():
-        yield
-        return
-
-    def handler(signum, frame):
-        raise KeyboardInterrupt
-
-    try:
-        previous = signal.signal(signal.SIGTERM, handler)
-    except (ValueError, OSError):
-        yield
-        return
-    try:
-        yield
-    finally:
-        signal.signal(signal.SIGTERM, previous)
 
 
 @contextlib.contextmanager
@@ -591,7 +558,8 @@ def _generate(config, out, dask_ex, workers, sample_fn, progress, window) -> Gen
         shard = sample.index // config.shard_size
         if writers[shard].add(sample):
             del writers[shard]
-            _spool_drop(out, config.shard_range(shard))
+            for i in config.shard_range(shard):  # the shard is complete: its spool files go
+                spool_path(out, i).unlink(missing_ok=True)
         elif spool:
             _spool_write(out, sample, fp)
 

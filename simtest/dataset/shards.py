@@ -75,6 +75,7 @@ __all__ = [
     "array_sha256",
     "card_sha256",
     "file_sha256",
+    "json_sha256",
     "labels_sha256",
     "read_card",
     "read_manifest",
@@ -130,15 +131,13 @@ def array_sha256(a: np.ndarray) -> str:
     return hashlib.sha256(np.ascontiguousarray(a).tobytes()).hexdigest()
 
 
-def file_sha256(path: Path, chunk: int = 1 << 22) -> str:
-    """sha256 of a file, read in chunks.
+def file_sha256(path: Path) -> str:
+    """sha256 of a file (:func:`hashlib.file_digest`, read in chunks).
 
     Parameters
     ----------
     path : Path
         File to hash.
-    chunk : int
-        Bytes read at a time (4 MiB by default).
 
     Returns
     -------
@@ -150,11 +149,13 @@ def file_sha256(path: Path, chunk: int = 1 << 22) -> str:
     OSError
         If the file cannot be opened or read.
     """
-    h = hashlib.sha256()
     with open(path, "rb") as fh:
-        while block := fh.read(chunk):
-            h.update(block)
-    return h.hexdigest()
+        return hashlib.file_digest(fh, "sha256").hexdigest()
+
+
+def json_sha256(obj) -> str:
+    """64 hex digits of ``sha256(json.dumps(obj, sort_keys=True, separators=(",", ":")))``."""
+    return hashlib.sha256(json.dumps(obj, sort_keys=True, separators=(",", ":")).encode()).hexdigest()
 
 
 def labels_sha256(row: dict) -> str:
@@ -171,8 +172,7 @@ def labels_sha256(row: dict) -> str:
         64 hex digits of ``sha256(json.dumps(row, sort_keys=True, separators=(",", ":")))``; JSON
         floats round-trip exactly, so a row read back from disk hashes as it was written.
     """
-    body = {k: v for k, v in row.items() if k not in ("labels_sha256", "npz")}
-    return hashlib.sha256(json.dumps(body, sort_keys=True, separators=(",", ":")).encode()).hexdigest()
+    return json_sha256({k: v for k, v in row.items() if k not in ("labels_sha256", "npz")})
 
 
 def card_sha256(card: dict) -> str:
@@ -189,8 +189,7 @@ def card_sha256(card: dict) -> str:
         64 hex digits of ``sha256(json.dumps(card, sort_keys=True, separators=(",", ":")))``
         over every key but ``card_sha256``.
     """
-    body = {k: v for k, v in card.items() if k != "card_sha256"}
-    return hashlib.sha256(json.dumps(body, sort_keys=True, separators=(",", ":")).encode()).hexdigest()
+    return json_sha256({k: v for k, v in card.items() if k != "card_sha256"})
 
 
 def shard_comment(shard: int, fingerprint: str, label_hashes: Iterable[str]) -> bytes:

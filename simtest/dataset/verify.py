@@ -2,8 +2,6 @@
 
 from __future__ import annotations
 
-import hashlib
-import json
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -11,8 +9,8 @@ import numpy as np
 
 from simtest.dataset.shards import (
     CARD_NAME, MANIFEST_NAME, SHARDS_DIR, TMP_SUFFIX, DatasetError, array_sha256, card_sha256, check_shard,
-    decode_png, entry_name, file_sha256, labels_sha256, read_card, read_manifest, read_shard_rows, shard_json_path,
-    shard_npz_path, shard_path_from_row,
+    decode_png, entry_name, file_sha256, json_sha256, labels_sha256, read_card, read_manifest, read_shard_rows,
+    shard_json_path, shard_npz_path, shard_path_from_row,
 )
 
 __all__ = ["UNIT_NORMAL_TOL", "VerifyReport", "verify"]
@@ -294,8 +292,7 @@ def _shard_fingerprint(add, root: Path, card: dict, fp: str, n_shards: int) -> s
     """
     card_path = root / CARD_NAME
     try:
-        text = json.dumps(card.get("config"), sort_keys=True, separators=(",", ":"))
-        of_config = hashlib.sha256(text.encode()).hexdigest()
+        of_config = json_sha256(card.get("config"))
     except (TypeError, ValueError):
         of_config = None
     if of_config is not None and of_config != fp:

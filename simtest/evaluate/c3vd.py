@@ -169,13 +169,8 @@ def read_color(path: Path) -> np.ndarray:
         img = cv2.imdecode(data, cv2.IMREAD_UNCHANGED) if data.size else None
     if img is None:
         raise C3VDError(f"{path}: cannot decode the colour frame")
-    if img.ndim == 2:
-        img = np.repeat(img[:, :, None], 3, axis=2)
-    elif img.shape[2] == 4:
-        img = cv2.cvtColor(img, cv2.COLOR_BGRA2RGB)
-    else:
-        img = cv2.cvtColor(img, cv2.COLOR_BGR2RGB)
-    return img
+    channels = 1 if img.ndim == 2 else img.shape[2]
+    return cv2.cvtColor(img, {1: cv2.COLOR_GRAY2RGB, 4: cv2.COLOR_BGRA2RGB}.get(channels, cv2.COLOR_BGR2RGB))
 
 
 def load_frame(frame: C3VDFrame, camera: CameraModel) -> tuple[np.ndarray, GroundTruth]:

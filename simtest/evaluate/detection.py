@@ -542,7 +542,7 @@ def evaluate_frames(frames: list[LabelledFrame], settings=None, *, keep: list | 
         sc, rows = score_frame(fr.name, [estimate_to_dict(e) for e in ests], fr.structures)
         scores.append(sc)
         missed = [[s.u, s.v] for j, s in enumerate(fr.structures) if s.kind == TARGET_KIND
-                  and not any(r["tp_ok"] and _on(r, s) for r in rows)]
+                  and not any(r["tp_ok"] and s.distance_px(r["bp_px"]) <= s.reach_px for r in rows)]
         frames_out.append(sc.as_dict() | {"not_examined": ests.n_unexamined, "candidates_detail": rows,
                                           "missed_targets_ok": missed})
     cand = [r for f in frames_out for r in f["candidates_detail"] if r["confidence"] is not None]
@@ -576,10 +576,6 @@ def reliability_figure(results: dict):
            ylabel="fraction that are labelled targets", title="Reliability of the confidence")
     ax.legend(fontsize=8, loc="upper left")
     return fig
-
-
-def _on(row: dict, s: Structure) -> bool:
-    return s.distance_px(row["bp_px"]) <= s.reach_px
 
 
 #: Most frames :func:`detection_figure` draws.

@@ -129,23 +129,21 @@ def figures(results: dict) -> dict[str, bytes]:
     return figs
 
 
-def _table(stats: dict) -> str:
-    head = "<tr><th>estimator</th><th>n</th><th>median (deg)</th><th>mean (deg)</th><th>p95 (deg)</th></tr>"
+def _table(stats: dict, columns: dict, cell) -> str:
+    """One row per estimator: its name, ``n``, then ``cell(value)`` of each ``columns`` key."""
+    head = "".join(f"<th>{h}</th>" for h in ("estimator", "n", *columns.values()))
     body = []
     for name, s in stats.items():
-        cells = [html.escape(name), str(s["n"])] + ["-" if s[k] is None else f"{s[k]:.2f}" for k in ("median_deg", "mean_deg", "p95_deg")]
+        cells = [html.escape(name), str(s["n"])] + [cell(s[k]) for k in columns]
         body.append("<tr>" + "".join(f"<td>{c}</td>" for c in cells) + "</tr>")
-    return f"<table>{head}{''.join(body)}</table>"
+    return f"<table><tr>{head}</tr>{''.join(body)}</table>"
 
 
-def _depth_table(stats: dict) -> str:
-    head = ("<tr><th>estimator</th><th>n</th><th>median |error| (%)</th><th>median error (%)</th>"
-            "<th>p95 |error| (%)</th></tr>")
-    body = []
-    for name, s in stats.items():
-        cells = [html.escape(name), str(s["n"])] + [f"{100 * s[k]:.1f}" for k in ("median_abs", "median", "p95_abs")]
-        body.append("<tr>" + "".join(f"<td>{c}</td>" for c in cells) + "</tr>")
-    return f"<table>{head}{''.join(body)}</table>"
+#: The columns (statistic -> header) and cell format of the normals' tables and of the depth's.
+_DEG = ({"median_deg": "median (deg)", "mean_deg": "mean (deg)", "p95_deg": "p95 (deg)"},
+        lambda v: "-" if v is None else f"{v:.2f}")
+_DEPTH = ({"median_abs": "median |error| (%)", "median": "median error (%)", "p95_abs": "p95 |error| (%)"},
+          lambda v: f"{100 * v:.1f}")
 
 
 def render_html(results: dict) -> str:
@@ -171,13 +169,13 @@ def render_html(results: dict) -> str:
         f"<p>{s['n_frames']} frame(s), {s['n_highlights']} highlight candidate(s), {s['n_ok']} reconstructed, "
         f"{s['n_scored']} scored (ground truth valid at the BP). Camera model: "
         f"{html.escape(s['camera']['model'])}. Settings: {html.escape(str(s['settings']))}.</p>",
-        "<h2>Against the ground-truth normal at the BP</h2>", _table(s["estimators"]),
+        "<h2>Against the ground-truth normal at the BP</h2>", _table(s["estimators"], *_DEG),
         "<h2>Against the ground-truth normal averaged over the isophote's footprint</h2>",
-        _table(s["estimators_footprint"]),
+        _table(s["estimators_footprint"], *_DEG),
     ]
     if s.get("depth") is not None:
         parts += ["<h2>Depth of the specular point along its ray, relative to the ground truth</h2>",
-                  _depth_table(s["depth"]) if s["depth"] else
+                  _table(s["depth"], *_DEPTH) if s["depth"] else
                   "<p>No estimator gave a depth (a camera file without a light rig of offset lights, or "
                   "no depth observable).</p>"]
     for title, png in figs.items():

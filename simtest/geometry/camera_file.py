@@ -123,11 +123,6 @@ def _has_bool(value) -> bool:
     return False
 
 
-def _check_numbers(data: dict, key: str, where: str) -> None:
-    if key in data and _has_bool(data[key]):
-        raise CameraFileError(f"{where}: key '{key}' must hold numbers, got a boolean in {data[key]!r}")
-
-
 def _model_from_dict(data: dict, where: str) -> CameraModel:
     """Build the model of a parsed JSON camera object; ``where`` names the file in errors."""
     name = data.get("model", "pinhole")
@@ -144,7 +139,8 @@ def _model_from_dict(data: dict, where: str) -> CameraModel:
             f"{where}: unknown key '{unknown[0]}' for model '{name}' (allowed: {', '.join(sorted(allowed))})"
         )
     for k in (*keys["required"], *keys["optional"], "image_size"):
-        _check_numbers(data, k, where)
+        if k in data and _has_bool(data[k]):
+            raise CameraFileError(f"{where}: key '{k}' must hold numbers, got a boolean in {data[k]!r}")
     size = data.get("image_size")
     if size is not None and not (
         isinstance(size, list) and len(size) == 2 and all(isinstance(s, int) and s > 0 for s in size)

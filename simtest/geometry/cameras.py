@@ -113,6 +113,14 @@ def _affine_rows(uv: np.ndarray, Kinv: np.ndarray) -> np.ndarray:
     return np.stack([Kinv[0, 0] * u + Kinv[0, 1] * v + Kinv[0, 2],
                      Kinv[1, 0] * u + Kinv[1, 1] * v + Kinv[1, 2]], axis=1)
 
+def _inv(M: np.ndarray) -> np.ndarray:
+    """Inverses of the (N, 3, 3) matrices ``M``; NaN where a matrix is not finite."""
+    out = np.full(M.shape, np.nan)
+    ok = np.all(np.isfinite(M), axis=(1, 2))
+    out[ok] = np.linalg.inv(M[ok])
+    return out
+
+
 class CameraModel(ABC):
     """A central camera: pixels <-> unit viewing rays through the camera centre.
 
@@ -185,12 +193,7 @@ class CameraModel(ABC):
         uv = _as_uv(uv)
         d = self.pixel_to_ray(uv)
         JP = self._ray_to_pixel_jacobian_unit(d)
-        M = np.concatenate([JP, d[:, None, :]], axis=1)  # (N, 3, 3) = [J_P; d^T]
-        out = np.full((len(uv), 3, 2), np.nan)
-        ok = np.all(np.isfinite(M), axis=(1, 2))
-        if ok.any():
-            out[ok] = np.linalg.inv(M[ok])[:, :, :2]
-        return out
+        return _inv(np.concatenate([JP, d[:, None, :]], axis=1))[:, :, :2]  # inverse of [J_P; d^T]
 
     def ray_to_pixel_jacobian(self, rays) -> np.ndarray:
         """d(u, v)/d(ray) at rays.
@@ -214,12 +217,7 @@ class CameraModel(ABC):
         """d(pixel)/d(ray) at unit rays d (N, 3); default from :meth:`pixel_to_ray_jacobian`."""
         uv = self.ray_to_pixel(d)
         JR = self._pixel_to_ray_jacobian_direct(uv)
-        M = np.concatenate([JR, d[:, :, None]], axis=2)  # (N, 3, 3) = [J_R | d]
-        out = np.full((len(d), 2, 3), np.nan)
-        ok = np.all(np.isfinite(M), axis=(1, 2))
-        if ok.any():
-            out[ok] = np.linalg.inv(M[ok])[:, :2, :]
-        return out
+        return _inv(np.concatenate([JR, d[:, :, None]], axis=2))[:, :2, :]  # inverse of [J_R | d]
 
     def _pixel_to_ray_jacobian_direct(self, uv: np.ndarray) -> np.ndarray:  # pragma: no cover
         raise NotImplementedError

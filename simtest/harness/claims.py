@@ -299,10 +299,6 @@ def _range(vals) -> str:
     return f"{v.min():.3g}" if v.min() == v.max() else f"{v.min():.3g} to {v.max():.3g}"
 
 
-def _families_of(cases) -> str:
-    return ", ".join(sorted({_base_family(c) for c in cases}))
-
-
 def _clean_sensor(c: dict) -> bool:
     """No clipping or read noise set by the case: exposure <= 1, saturation 1, noise 0."""
     p = c["params"]
@@ -321,7 +317,7 @@ def _claim_bp_ray_exact(results):
     worst = cs[int(np.argmax(med))]
     bpe = [_diag(c, "bp_error_px") for c in cs if _diag(c, "bp_error_px") is not None]
     return (max(med) <= TOL.claim_bp_ray_colocated_deg,
-            f"bp_ray median {_range(med)} deg over {len(cs)} cases ({_families_of(cs)}); worst "
+            f"bp_ray median {_range(med)} deg over {len(cs)} cases ({', '.join(sorted({_base_family(c) for c in cs}))}); worst "
             f"{worst['id']}" + (f"; BP localisation error {_range(bpe)} px (case means)"
                                 if bpe else ""),
             f"co-located rendered cases, {_CLEAN}; bound {TOL.claim_bp_ray_colocated_deg:g} deg")

@@ -13,7 +13,6 @@ photometric fit achieves over seeded realisations (``SeedSequence([seed, i, j, k
 
 from __future__ import annotations
 
-import os
 from pathlib import Path
 
 import matplotlib
@@ -27,7 +26,7 @@ import matplotlib.pyplot as plt  # noqa: E402 - after choosing the back-end
 
 from simtest._exit import BAD_INPUT, fail
 from simtest._outdir import check_out_folder, write_out_folder
-from simtest._io import atomic_write_json
+from simtest._io import atomic_write, atomic_write_json
 from simtest.geometry.angles import angle_between_deg
 from simtest.geometry.camera import project_points
 from simtest.geometry.lights import Light, LightRig
@@ -146,10 +145,8 @@ def plot_crb(rows: list[dict], path) -> Path:
     axes[0].legend(fontsize=7)
     fig.suptitle("Photometric fit against its Cramer-Rao bound (analytic planes at 20 mm; unknown: "
                  "normal, distance, roughness, gain, background)", fontsize=9)
-    tmp = path.with_name(path.name + ".tmp.png")
-    fig.savefig(tmp, dpi=120)
+    atomic_write(path, lambda tmp: fig.savefig(tmp, dpi=120, format="png"))
     plt.close(fig)
-    os.replace(tmp, path)
     return path
 
 

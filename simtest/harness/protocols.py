@@ -604,12 +604,11 @@ def _depth_errors(est, h, rig) -> dict:
     """
     nan = float("nan")
     true = float(np.linalg.norm(np.asarray(h.bp_mm, dtype=np.float64)))
-    eps_over_d = max(float(np.linalg.norm(lt.position_mm)) for lt in rig.lights) / true if true > 0 else nan
     out = {"isocurve_fit_depth_err_pct": nan, "photometric_fit_depth_err_pct": nan,
            "recommended_depth_err_pct": nan, "eps_over_d": nan}
     if not true > 0:
         return out
-    out["eps_over_d"] = eps_over_d
+    out["eps_over_d"] = max(float(np.linalg.norm(lt.position_mm)) for lt in rig.lights) / true
     if est is None:
         return out
     light = int(getattr(h, "light", 0))

@@ -10,7 +10,7 @@ from pathlib import Path
 import numpy as np
 from PIL import Image
 
-from simtest._io import atomic_write, atomic_write_text, replace_output_folder
+from simtest._io import replace_output_folder
 from simtest._io import check_output_folder as _check_output_folder
 from simtest.geometry.camera_file import save_camera, save_intrinsics
 from simtest.geometry.cameras import CameraModel, PinholeCamera
@@ -234,30 +234,26 @@ def write_render(result: RenderResult, out_dir: str | Path) -> dict[str, Path]:
 
     def fill(tmp: Path) -> None:
         paths = {k: tmp / v for k, v in names.items()}
-        atomic_write(paths["image"], lambda t: pil.save(t, format="PNG"))
+        # plain writes: replace_output_folder fsyncs them and swaps the whole folder in
+        pil.save(paths["image"], format="PNG")
         save_intrinsics(paths["intrinsics"], result.K, dist_coeffs=None, image_size=(W, H))
-
-        def write_npz(t):
-            with open(t, "wb") as fh:
-                np.savez_compressed(
-                    fh, normals=result.normals, depth=result.depth, distance=result.distance,
-                    position=result.position, mask=result.mask, linear=result.linear,
-                    specular=result.specular, coverage=result.coverage, K=result.K,
-                    cam_to_world=result.cam_to_world, light_pos=result.light_pos,
-                    light_positions=light_positions, field_stop=stop,
-                    **({"rgb": result.rgb} if result.rgb is not None else {}),
-                    **({"albedo": result.albedo} if result.albedo is not None else {}),
-                    **({"shading_normals": result.shading_normals}
-                       if result.shading_normals is not None else {}))
-
-        atomic_write(paths["ground_truth"], write_npz)
-        atomic_write_text(paths["highlights"], json.dumps(meta, indent=2))
+        np.savez_compressed(
+            paths["ground_truth"], normals=result.normals, depth=result.depth, distance=result.distance,
+            position=result.position, mask=result.mask, linear=result.linear,
+            specular=result.specular, coverage=result.coverage, K=result.K,
+            cam_to_world=result.cam_to_world, light_pos=result.light_pos,
+            light_positions=light_positions, field_stop=stop,
+            **({"rgb": result.rgb} if result.rgb is not None else {}),
+            **({"albedo": result.albedo} if result.albedo is not None else {}),
+            **({"shading_normals": result.shading_normals}
+               if result.shading_normals is not None else {}))
+        paths["highlights"].write_text(json.dumps(meta, indent=2), encoding="utf-8")
         # a video frame's camera file carries its sensor's response, so that the light-aware fits
         # of `simtest reconstruct` run on the frame's linear intensities
         save_camera(paths["camera"], result.camera_model, result.light_rig,
                     video_response(result.spec.sensor) if result.video is not None else None)
         frame = Image.fromarray(result.frame, mode="RGB")
-        atomic_write(paths["frame"], lambda t: frame.save(t, format="PNG"))
+        frame.save(paths["frame"], format="PNG")
 
     replace_output_folder(out, fill, owned=RENDER_FILES)
     return {k: out / v for k, v in names.items()}

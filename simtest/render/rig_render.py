@@ -133,7 +133,8 @@ def _render_endoscope(spec: SceneSpec, seed: int, variant: str) -> RenderResult:
         hit["n"] = np.stack(relief_normal(np, tuple(pq), tuple(nq), texture), axis=-1)
         return hit
 
-    K = _stand_in_K(model)
+    # K of a pinhole or fisheye model; the pinhole stand-in's K (f = a0) of an omnidirectional
+    K = np.asarray(model.K if hasattr(model, "K") else model.pinhole_stand_in().K, dtype=np.float64)
     highlights: list[HighlightTruth] = []
     for i, light in enumerate(rig.lights):
         found = _highlights(spec, res, light.position, K, None, None, cast=cast_uv, candidates=starts[i])
@@ -209,13 +210,6 @@ def _pixel_rays(model) -> np.ndarray:
         rays.flags.writeable = False
         _cache_put(_PIXEL_RAYS, 2, key, rays)
     return rays
-
-
-def _stand_in_K(model) -> np.ndarray:
-    """K of a pinhole or fisheye model; the pinhole stand-in's K (f = a0) of an omnidirectional."""
-    if hasattr(model, "K"):
-        return np.asarray(model.K, dtype=np.float64)
-    return np.asarray(model.pinhole_stand_in().K, dtype=np.float64)
 
 
 #: Relative depth difference above which a highlight's point counts as hidden behind another surface.

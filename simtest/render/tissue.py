@@ -79,8 +79,7 @@ __all__ = ["TISSUE_ALBEDO", "TISSUE_SEED_KEY", "N_WAVES", "N_RELIEF_WAVES", "REL
 #: green, 0.08 to 0.12 in blue): liver is rich in blood, whose haemoglobin absorbs green and blue
 #: strongly and red weakly, while its scattering is broadband (Jacques 2013, "Optical properties of
 #: biological tissues: a review", https://doi.org/10.1088/0031-9155/58/11/R37). Its median frame
-#: R/G in laparoscope_liver, 1.67, is near the real liver's (issue 62: 1/1.5 of the 2.5 that the
-#: former albedo, (0.30, 0.045, 0.026) with G and B about 3 times too dark, gave).
+#: R/G in laparoscope_liver, 1.67, is near the real liver's.
 TISSUE_ALBEDO = {"mucosa": (0.75, 0.26, 0.20), "liver": (0.35, 0.12, 0.09),
                  # peritoneum over fat (abdominal wall, omentum): pale yellow-pink, sRGB about
                  # (215, 170, 140); assumed like the others

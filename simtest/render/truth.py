@@ -562,10 +562,5 @@ def highlight_targets(highlights: list[HighlightTruth], specular: np.ndarray, va
     return [HighlightTarget(np.array([m.bp_px for m in g["members"]], dtype=np.float64),
                             tuple(int(m.light) for m in g["members"]), tuple(g["members"]),
                             g["peak"], int(g["region"].sum()))
-            for g in groups if g["fair"] and _one_bp_per_light(g["members"])]
-
-
-def _one_bp_per_light(members) -> bool:
-    """Whether no light has two of these BPs (:func:`highlight_targets`, rule 3)."""
-    lights = [int(m.light) for m in members]
-    return len(set(lights)) == len(lights)
+            for g in groups  # rule 3: no light has two of a target's BPs
+            if g["fair"] and len({int(m.light) for m in g["members"]}) == len(g["members"])]

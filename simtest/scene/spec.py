@@ -530,22 +530,18 @@ def _build_geometry(data: Any, source: str) -> GeometrySpec:
     return _validated(cls, own, source, "geometry")
 
 
-def _norm(v: tuple[float, float, float]) -> float:
-    return math.sqrt(sum(x * x for x in v))
-
-
 def _validate(spec: SceneSpec, source: str, base_dirs: tuple[Path, ...]) -> SceneSpec:
     cam, geo, mat = spec.camera, spec.geometry, spec.material
     if cam.fov_deg is not None and cam.focal_px is not None:
         raise _err(source, "camera.focal_px", "give either camera.fov_deg or camera.focal_px, not both")
     fwd = tuple(b - a for a, b in zip(cam.position_mm, cam.look_at_mm))
-    if _norm(fwd) == 0.0:
+    if math.hypot(*fwd) == 0.0:
         raise _err(source, "camera.look_at_mm", "equals camera.position_mm")
-    if _norm(cam.up) == 0.0:
+    if math.hypot(*cam.up) == 0.0:
         raise _err(source, "camera.up", "is the zero vector")
     cross = (fwd[1] * cam.up[2] - fwd[2] * cam.up[1], fwd[2] * cam.up[0] - fwd[0] * cam.up[2],
              fwd[0] * cam.up[1] - fwd[1] * cam.up[0])
-    if _norm(cross) <= 1e-9 * _norm(fwd) * _norm(cam.up):
+    if math.hypot(*cross) <= 1e-9 * math.hypot(*fwd) * math.hypot(*cam.up):
         raise _err(source, "camera.up", "is parallel to the viewing direction")
     lt = spec.light
     if cam.model == "fisheye" and (cam.fisheye_d is None or len(cam.fisheye_d) != 4):
@@ -586,14 +582,11 @@ def _validate(spec: SceneSpec, source: str, base_dirs: tuple[Path, ...]) -> Scen
     if mat.relief_min_mm is not None and mat.relief_min_mm > mat.relief_scale_mm:
         raise _err(source, "material.relief_min_mm", f"the shortest wavelength {mat.relief_min_mm} mm exceeds "
                    f"the longest, material.relief_scale_mm = {mat.relief_scale_mm} mm")
-    walls = (mat.wall_tissue, mat.wall_centre_mm, mat.wall_radius_mm)
-    if any(w is not None for w in walls) and any(w is None for w in walls):
-        raise _err(source, "material.wall_tissue", "material.wall_tissue, wall_centre_mm and wall_radius_mm go "
-                   "together (give all three or none)")
-    organs = (mat.organ_tissue, mat.organ_centre_mm, mat.organ_axes_mm)
-    if any(w is not None for w in organs) and any(w is None for w in organs):
-        raise _err(source, "material.organ_tissue", "material.organ_tissue, organ_centre_mm and organ_axes_mm go "
-                   "together (give all three or none)")
+    for keys in (("wall_tissue", "wall_centre_mm", "wall_radius_mm"), ("organ_tissue", "organ_centre_mm", "organ_axes_mm")):
+        given = [getattr(mat, k) is not None for k in keys]
+        if any(given) and not all(given):
+            raise _err(source, f"material.{keys[0]}", f"material.{keys[0]}, {keys[1]} and {keys[2]} go together "
+                       "(give all three or none)")
     if spec.sensor.output == "video" and spec.sensor.bit_depth != 8:
         raise _err(source, "sensor.bit_depth", "a video frame is 8-bit: set sensor.bit_depth = 8 with output = \"video\"")
     if mat.model == "microfacet" and mat.base == "conductor" and mat.diffuse_albedo > 0:
@@ -604,7 +597,7 @@ def _validate(spec: SceneSpec, source: str, base_dirs: tuple[Path, ...]) -> Scen
     for f in dataclasses.fields(geo):
         if f.name in required and getattr(geo, f.name) is None:
             raise _err(source, f"geometry.{f.name}", f"missing (required for type {geo.type!r})")
-    if geo.type == "cylinder" and geo.axis is not None and _norm(geo.axis) == 0.0:
+    if geo.type == "cylinder" and geo.axis is not None and math.hypot(*geo.axis) == 0.0:
         raise _err(source, "geometry.axis", "is the zero vector")
     if geo.type == "mesh":
         assert geo.path is not None

@@ -244,12 +244,8 @@ def build_liver_in_abdomen(seed: int, *, wall_axis=(-0.5, -0.5, -0.7), wall_radi
     d = _fibonacci_sphere(n)
     faces = ConvexHull(d).simplices.astype(np.int64)
     inside = (d @ -u) >= math.cos(cap)
-    keep = inside[faces].all(axis=1)
-    faces = faces[keep]
-    used = np.unique(faces)
-    remap = -np.ones(len(d), dtype=np.int64)
-    remap[used] = np.arange(len(used))
-    faces = remap[faces]
+    used, faces = np.unique(faces[inside[faces].all(axis=1)], return_inverse=True)  # the cap's vertices only
+    faces = faces.reshape(-1, 3)
     d = d[used]
     tri = d[faces]
     # wound so that the face normal points to the centre (inward), as the vertex normals

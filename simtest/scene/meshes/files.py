@@ -112,7 +112,6 @@ def save_mesh(mesh: trimesh.Trimesh, path: str | os.PathLike[str]) -> Path:
         + "".join(f"property float {name}\n" for name in _PLY_FIELDS)
         + f"element face {len(faces)}\nproperty list uchar int vertex_indices\nend_header\n"
     )
-    path.parent.mkdir(parents=True, exist_ok=True)
     atomic_write_bytes(path, header.encode("ascii") + data.tobytes() + face_rec.tobytes())
     side = {
         key: mesh.metadata[key] for key in ("generator", "centerline") if key in mesh.metadata
