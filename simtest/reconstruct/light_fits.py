@@ -16,7 +16,7 @@ import numpy as np
 from simtest._lazy import require
 from simtest._threads import one_thread_each
 from simtest._workers import worker_pool
-from simtest.decisions import ISOCURVE_ISOVALUES, SIGMA_MARGIN
+from simtest.decisions import BROAD_LOBE_PHONG_N, ISOCURVE_ISOVALUES, SIGMA_MARGIN
 from simtest.geometry.lights import LightRig
 from simtest.reconstruct import lightaware as _la
 from simtest.reconstruct._pixels import Roi
@@ -169,12 +169,16 @@ def _photometric(img, gray, big: Roi, est, camera, rig, response, colour: bool, 
         pkw["exclude"] = _la.model.albedo_lines(y, 1.0 if img.dtype.kind in "ui" else 0.0,
                                                 noise_sigma(y) if min(y.shape) >= 3 else 0.0)
 
-    def fitted(projection: str) -> LightAwareEstimate:
+    def fitted(projection: str, **extra) -> LightAwareEstimate:
         """The photometric fit on ``projection``, guarded, before the depth ceiling."""
         return _guarded("photometric_fit", photometric_fit, fit_values, (big.col0, big.row0), est.bp_px,
-                        camera, rig, projection=projection, **pkw)
+                        camera, rig, projection=projection, **dict(pkw, **extra))
 
     first = fitted("auto")
+    if pkw.get("lobe") == "phong" and _broad_phong(first):
+        # a broad lobe's tails tell Phong from GGX: the GGX fit from Phong's plane, the better kept
+        ggx = fitted("auto", lobe="ggx", start_normal=first.normal, start_roughness=first.roughness)
+        first = _la.plane._choose_lobe(first, ggx)
     # its depth within the ceiling before the curved fits' turn is decided by its status
     pf = depth_within_ceiling(first)
     if colour and first.ok and not pf.ok and first.projection == "body_colours":
@@ -192,6 +196,14 @@ def _photometric(img, gray, big: Roi, est, camera, rig, response, colour: bool, 
         chan = depth_within_ceiling(fitted("darkest_channel"))
         pf = dataclasses.replace(chan, detail=f"{chan.detail}; {why}" if chan.detail else why)
     return pf
+
+
+def _broad_phong(fit: LightAwareEstimate) -> bool:
+    """Whether a Phong fit passed with a lobe as broad as :data:`~simtest.decisions.BROAD_LOBE_PHONG_N`
+    or broader (its normal kept, no curved patch's pattern in its residual)."""
+    return (fit.has_normal and fit.lobe == "phong" and fit.roughness is not None
+            and fit.roughness <= BROAD_LOBE_PHONG_N and fit.curvature_shift_deg is None
+            and (fit.ok or fit.status == "depth_not_observable"))
 
 
 def _curved_fits(out: dict, gray, shape, est, roi: Roi, camera, rig, *, saturation_level, nominal_depth_mm,
