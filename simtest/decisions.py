@@ -533,6 +533,18 @@ BROAD_LOBE_PHONG_N = decision(
     basis="tuned", stage=_L, chosen_on=("suite-endoscope",),
     n="endoscope-flat (the endoscope suite's flat mucosa) seed 0: film roughness 0.1 and 0.2, "
       "JPEG 25, 8 realisations each, 36 highlights")
+LOBE_EDGE_REL = decision(
+    "LOBE_EDGE_REL", 0.01, "fraction of the fitted lobe's peak",
+    "The photometric fit's ROI reaches where the fitted lobe falls to this share of its peak: "
+    "below it an unclipped 8-bit lobe of at most a hundred levels adds under one level, the "
+    "quantisation step, and the ROI's further pixels add texture and shading, not the lobe.",
+    basis="physics", stage=_L)
+LOBE_ROI_MISMATCH = decision(
+    "LOBE_ROI_MISMATCH", 1.5, "ratio of half-widths",
+    "The photometric fit is run again on the lobe's own ROI (LOBE_EDGE_REL) where the detection's "
+    "ROI, grown, is narrower or wider than it by more than this: a broad faint lobe's detected "
+    "region is its noisy top (its tails cut) or its merge with the shading (the frame's texture "
+    "and falloff in the fit).", basis="physics", stage=_L)
 SIGMA_CLUSTER_PX = decision(
     "SIGMA_CLUSTER_PX", (8, 16, 32, 64), "px (block sides of the jackknife)",
     "Residuals are correlated over the texture's scale; with blocks of 8 and 16 px alone the "

@@ -16,7 +16,7 @@ import numpy as np
 from simtest._lazy import require
 from simtest._threads import one_thread_each
 from simtest._workers import worker_pool
-from simtest.decisions import BROAD_LOBE_PHONG_N, ISOCURVE_ISOVALUES, SIGMA_MARGIN
+from simtest.decisions import BROAD_LOBE_PHONG_N, ISOCURVE_ISOVALUES, LOBE_EDGE_REL, LOBE_ROI_MISMATCH, SIGMA_MARGIN
 from simtest.geometry.lights import LightRig
 from simtest.reconstruct import lightaware as _la
 from simtest.reconstruct._pixels import Roi
@@ -35,6 +35,9 @@ CURVED_FIT_AFTER = ("plane_misfit", "not_converged")
 #: Candidate statuses never fitted, not even with ``fit_rejected``: too small to fit, or no
 #: specular highlight of the tissue (:mod:`simtest.reconstruct.verify`).
 NOT_FITTED = ("too_small", "black_border", "overlay", "not_specular")
+#: Points a side of the grid on which :func:`_lobe_roi` evaluates the fitted lobe (a numerical
+#: setting: the lobe's edge is found to one grid step, which it adds).
+LOBE_GRID = 129
 
 
 def _offset_rig(rig) -> bool:
@@ -125,7 +128,15 @@ def light_aware_estimates(image, est, camera, rig: LightRig, *, nominal_depth_mm
     lobe = ("auto" if colour else "phong") if lobe is None else lobe
     pkw = dict(nominal_depth_mm=nominal_depth_mm, start_normal=start_n, supersample=supersample, diffuse=diffuse,
                censor=censor, lobe=lobe, floor_level=floor, floor_refit=floor_refit, floor_step=floor_step)
-    out["photometric_fit"] = _photometric(img, gray, big, est, camera, rig, response, colour, saturation_level, pkw)
+    pf = _photometric(img, gray, big, est, camera, rig, response, colour, saturation_level, pkw)
+    lobe_roi = _lobe_roi(pf, est.bp_px, camera, rig, img.shape, big)
+    if lobe_roi is not None:
+        # the ROI the fitted lobe spans, where the detection's region cut it or drowned it
+        refit = _photometric(img, gray, lobe_roi, est, camera, rig, response, colour, saturation_level, pkw)
+        if refit.ok:
+            why = f"refitted on the lobe's ROI ({lobe_roi.shape[1]} x {lobe_roi.shape[0]} px)"
+            pf = dataclasses.replace(refit, detail=f"{refit.detail}; {why}" if refit.detail else why)
+    out["photometric_fit"] = pf
     _curved_fits(out, gray, img.shape, est, roi, camera, rig, saturation_level=saturation_level, cubic=cubic,
                  nominal_depth_mm=nominal_depth_mm, quadric_roi_scale=quadric_roi_scale, quadric=quadric)
     return out
@@ -204,6 +215,29 @@ def _broad_phong(fit: LightAwareEstimate) -> bool:
     return (fit.has_normal and fit.lobe == "phong" and fit.roughness is not None
             and fit.roughness <= BROAD_LOBE_PHONG_N and fit.curvature_shift_deg is None
             and (fit.ok or fit.status == "depth_not_observable"))
+
+
+def _lobe_roi(fit: LightAwareEstimate, bp_uv, camera, rig, shape, roi: Roi) -> Roi | None:
+    """The square ROI about the BP that the fitted plane's lobes span down to
+    :data:`~simtest.decisions.LOBE_EDGE_REL` of their peak (the rig's Phong image of the fit's
+    plane and roughness, on a grid of :data:`LOBE_GRID` points a side over the frame), where
+    ``roi``'s half-width is off it by more than :data:`~simtest.decisions.LOBE_ROI_MISMATCH`
+    either way; else None (and None for a fit without normal, distance or roughness)."""
+    if not fit.has_normal or fit.distance_mm is None or fit.roughness is None or not fit.roughness > 0:
+        return None
+    h, w = shape[:2]
+    u, v = np.meshgrid(np.linspace(0.0, w - 1.0, LOBE_GRID), np.linspace(0.0, h - 1.0, LOBE_GRID))
+    uv = np.column_stack([u.ravel(), v.ravel()])
+    s = _la.model.plane_rig_intensity(_la.model._rays(camera, uv), fit.normal, fit.distance_mm, rig,
+                                      fit.roughness)
+    if not np.isfinite(s).all() or not s.max() > 0:
+        return None
+    r = float(np.max(np.hypot(*(uv[s >= LOBE_EDGE_REL * s.max()] - np.asarray(bp_uv, float)).T)))
+    r += max(w, h) / (LOBE_GRID - 1)  # the grid's step: the edge lies within one of the last point
+    half = max(roi.shape) / 2.0
+    if r / LOBE_ROI_MISMATCH <= half <= r * LOBE_ROI_MISMATCH:
+        return None
+    return Roi.around(bp_uv, r, shape)
 
 
 def _curved_fits(out: dict, gray, shape, est, roi: Roi, camera, rig, *, saturation_level, nominal_depth_mm,
