@@ -523,28 +523,19 @@ GGX_FILM_IOR = decision(
     "Mucus and water lie between 1.33 and 1.45, where Fresnel's reflectance changes by under 2 % "
     "across a lobe; the lobe's gain absorbs the rest.", basis="physics", stage=_L)
 BROAD_LOBE_PHONG_N = decision(
-    "BROAD_LOBE_PHONG_N", 100.0, "Phong exponent n (GGX alpha = sqrt(2 / (n + 2)): 0.14)",
-    "A one-channel Phong fit this broad or broader is refitted with the GGX lobe and the better kept "
-    "(photometric_fit's lobe choice): a broad lobe's tails lie above the noise in the ROI, where "
-    "Phong's cos^n falls faster than a microfacet lobe's, so a Phong fit that passes its misfit "
-    "test still trades its normal for the tails. A narrow lobe's tails are below the noise and "
-    "Phong fits as GGX does, at half the cost. Phong fits of the 0.1 film on the darkest channel "
-    "gave n 47 to 77 (true 198), of the 0.2 film 11 to 24; GGX cut their errors.",
-    basis="tuned", stage=_L, chosen_on=("suite-endoscope",),
-    n="endoscope-flat (the endoscope suite's flat mucosa) seed 0: film roughness 0.1 and 0.2, "
-      "JPEG 25, 8 realisations each, 36 highlights")
+    "BROAD_LOBE_PHONG_N", 100.0, "Phong n (GGX alpha sqrt(2 / (n + 2)) = 0.14)",
+    "A one-channel Phong fit this broad is refitted with GGX, the better kept: a broad lobe's tails lie above "
+    "the noise, where cos^n falls faster than a microfacet lobe, so a Phong fit that passes still trades its "
+    "normal for them (the 0.1 film fitted n 47 to 77, true 198).", basis="tuned", stage=_L,
+    chosen_on=("suite-endoscope",), n="endoscope-flat seed 0: film roughness 0.1, 0.2, JPEG 25; 8 realisations each")
 LOBE_EDGE_REL = decision(
-    "LOBE_EDGE_REL", 0.01, "fraction of the fitted lobe's peak",
-    "The photometric fit's ROI reaches where the fitted lobe falls to this share of its peak: "
-    "below it an unclipped 8-bit lobe of at most a hundred levels adds under one level, the "
-    "quantisation step, and the ROI's further pixels add texture and shading, not the lobe.",
-    basis="physics", stage=_L)
+    "LOBE_EDGE_REL", 0.01, "of the fitted lobe's peak", "The photometric ROI reaches where the fitted lobe falls "
+    "to this: below it a 100-level 8-bit lobe adds under the quantisation step, further pixels add texture and "
+    "shading.", basis="physics", stage=_L)
 LOBE_ROI_MISMATCH = decision(
-    "LOBE_ROI_MISMATCH", 1.5, "ratio of half-widths",
-    "The photometric fit is run again on the lobe's own ROI (LOBE_EDGE_REL) where the detection's "
-    "ROI, grown, is narrower or wider than it by more than this: a broad faint lobe's detected "
-    "region is its noisy top (its tails cut) or its merge with the shading (the frame's texture "
-    "and falloff in the fit).", basis="physics", stage=_L)
+    "LOBE_ROI_MISMATCH", 1.5, "ratio of half-widths", "Refit on the lobe's ROI where the detection's is off it by "
+    "more than this either way: a faint broad lobe's region is its noisy top (tails cut) or its merge with the "
+    "shading.", basis="physics", stage=_L)
 SIGMA_CLUSTER_PX = decision(
     "SIGMA_CLUSTER_PX", (8, 16, 32, 64), "px (block sides of the jackknife)",
     "Residuals are correlated over the texture's scale; with blocks of 8 and 16 px alone the "
