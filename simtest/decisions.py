@@ -529,13 +529,13 @@ BROAD_LOBE_PHONG_N = decision(
     "normal for them (the 0.1 film fitted n 47 to 77, true 198).", basis="tuned", stage=_L,
     chosen_on=("suite-endoscope",), n="endoscope-flat seed 0: film roughness 0.1, 0.2, JPEG 25; 8 realisations each")
 LOBE_EDGE_REL = decision(
-    "LOBE_EDGE_REL", 0.01, "of the fitted lobe's peak", "The photometric ROI reaches where the fitted lobe falls "
-    "to this: below it a 100-level 8-bit lobe adds under the quantisation step, further pixels add texture and "
-    "shading.", basis="physics", stage=_L)
+    "LOBE_EDGE_REL", 0.001, "of the fitted lobe's peak", "The lobe's radius r, where the fit's lobe falls to "
+    "this: a ring of a few hundred pixels there still sums above an 8-bit lobe's noise.", basis="physics", stage=_L)
 LOBE_ROI_MISMATCH = decision(
-    "LOBE_ROI_MISMATCH", 1.5, "ratio of half-widths", "Refit on the lobe's ROI where the detection's is off it by "
-    "more than this either way: a faint broad lobe's region is its noisy top (tails cut) or its merge with the "
-    "shading.", basis="physics", stage=_L)
+    "LOBE_ROI_MISMATCH", 1.5, "lobe radii r", "A ROI narrower than r over this cuts the lobe's tails (a faint "
+    "broad lobe's detected region is its noisy top): refit on r. Not the other way: a ROI wider than the lobe "
+    "gives the body colours' border room (the 0.1 film's fits on 2 r erred more than on 2.9 r).",
+    basis="physics", stage=_L)
 SIGMA_CLUSTER_PX = decision(
     "SIGMA_CLUSTER_PX", (8, 16, 32, 64), "px (block sides of the jackknife)",
     "Residuals are correlated over the texture's scale; with blocks of 8 and 16 px alone the "

@@ -52,8 +52,8 @@ def light_aware_estimates(image, est, camera, rig: LightRig, *, nominal_depth_mm
     ``isocurve_fit`` takes its own isophotes (module docstring); ``photometric_fit`` the ROI grown
     ``roi_scale`` times about the BP (the lobe's tails carry the distance), clipped pixels left
     out, refined from the bisector at the nominal depth and from the isocurve fit's normal, the
-    better kept; it is refitted on the ROI its lobe spans (:func:`_lobe_roi`) where that is
-    :data:`~simtest.decisions.LOBE_ROI_MISMATCH` times wider or narrower, and kept if ok.
+    better kept; refitted on the ROI its lobe spans where the grown ROI cuts it (:func:`_lobe_roi`),
+    kept if ok.
 
     Parameters
     ----------
@@ -211,8 +211,8 @@ def _broad_phong(fit: LightAwareEstimate) -> bool:
 
 
 def _lobe_roi(fit: LightAwareEstimate, bp_uv, camera, rig, shape, roi: Roi) -> Roi | None:
-    """The square ROI about the BP where the fit's Phong image of the rig exceeds ``LOBE_EDGE_REL``
-    of its peak, where ``roi``'s half-width is off it by over ``LOBE_ROI_MISMATCH``; else None."""
+    """The square ROI about the BP where the fit's Phong image of the rig exceeds ``LOBE_EDGE_REL`` of
+    its peak (radius r), where ``roi`` cuts it (half-width below r / ``LOBE_ROI_MISMATCH``); else None."""
     if not fit.has_normal or fit.distance_mm is None or fit.roughness is None or not fit.roughness > 0:
         return None
     (h, w), grid = shape[:2], 129  # grid points a side: the lobe's edge found to one step, added below
@@ -224,8 +224,7 @@ def _lobe_roi(fit: LightAwareEstimate, bp_uv, camera, rig, shape, roi: Roi) -> R
         return None
     r = float(np.max(np.hypot(*(uv[s >= LOBE_EDGE_REL * s.max()] - np.asarray(bp_uv, float)).T)))
     r += max(w, h) / (grid - 1)
-    fits = r / LOBE_ROI_MISMATCH <= max(roi.shape) / 2.0 <= r * LOBE_ROI_MISMATCH
-    return None if fits else Roi.around(bp_uv, r, shape)
+    return Roi.around(bp_uv, r, shape) if max(roi.shape) / 2.0 < r / LOBE_ROI_MISMATCH else None
 
 
 def _curved_fits(out: dict, gray, shape, est, roi: Roi, camera, rig, *, saturation_level, nominal_depth_mm,
