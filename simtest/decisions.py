@@ -522,6 +522,20 @@ GGX_FILM_IOR = decision(
     "GGX_FILM_IOR", 1.38, "refractive index",
     "Mucus and water lie between 1.33 and 1.45, where Fresnel's reflectance changes by under 2 % "
     "across a lobe; the lobe's gain absorbs the rest.", basis="physics", stage=_L)
+BROAD_LOBE_PHONG_N = decision(
+    "BROAD_LOBE_PHONG_N", 100.0, "Phong n (GGX alpha sqrt(2 / (n + 2)) = 0.14)",
+    "A one-channel Phong fit this broad is refitted with GGX, the better kept: a broad lobe's tails lie above "
+    "the noise, where cos^n falls faster than a microfacet lobe, so a Phong fit that passes still trades its "
+    "normal for them (the 0.1 film fitted n 47 to 77, true 198).", basis="tuned", stage=_L,
+    chosen_on=("suite-endoscope",), n="endoscope-flat seed 0: film roughness 0.1, 0.2, JPEG 25; 8 realisations each")
+LOBE_EDGE_REL = decision(
+    "LOBE_EDGE_REL", 0.001, "of the fitted lobe's peak", "The lobe's radius r, where the fit's lobe falls to "
+    "this: a ring of a few hundred pixels there still sums above an 8-bit lobe's noise.", basis="physics", stage=_L)
+LOBE_ROI_MISMATCH = decision(
+    "LOBE_ROI_MISMATCH", 1.5, "lobe radii r", "A ROI narrower than r over this cuts the lobe's tails (a faint "
+    "broad lobe's detected region is its noisy top): refit on r. Not the other way: a ROI wider than the lobe "
+    "gives the body colours' border room (the 0.1 film's fits on 2 r erred more than on 2.9 r).",
+    basis="physics", stage=_L)
 SIGMA_CLUSTER_PX = decision(
     "SIGMA_CLUSTER_PX", (8, 16, 32, 64), "px (block sides of the jackknife)",
     "Residuals are correlated over the texture's scale; with blocks of 8 and 16 px alone the "

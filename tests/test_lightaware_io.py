@@ -16,7 +16,7 @@ from simtest.geometry.lights import Light, LightRig
 from simtest.reconstruct import read_estimates, write_estimates
 from simtest.reconstruct.lightaware.solve import _residual_correlation
 from simtest.reconstruct.pipeline import reconstruct
-from simtest.reconstruct.recommend import colocated_ranking, recommend
+from simtest.reconstruct.recommend import recommend
 from simtest.reconstruct.light_fits import with_light_aware
 from simtest.reconstruct.settings import ReconSettings
 from simtest.tolerances import TOL
@@ -122,23 +122,6 @@ def test_cli_reads_the_rig_from_the_camera_file(tmp_path):
     assert spec["normal_from"] == "photometric_fit"
     assert angle_between_deg(spec["normal"], N) < TOL.exact_image_normal_deg
     assert abs(spec["depth_mm"] / depth - 1) < TOL.exact_image_depth_rel
-
-
-def test_colocated_ranking_reads_a_results_document():
-    results = {"suite": {"estimators": ["cone_axis", "bp_ray", "joint_cone_axis"]},
-               "sweeps": [{"name": "light_offset", "cases": ["c3"]}],
-               "cases": [{"id": "c1", "metrics": {"estimators": {"cone_axis": {"mean": 1.0},
-                                                                 "bp_ray": {"mean": 0.5},
-                                                                 "joint_cone_axis": {"mean": 0.2}}}},
-                         {"id": "c2", "metrics": {"estimators": {"cone_axis": {"mean": 0.1},
-                                                                 "bp_ray": {"mean": 0.3},
-                                                                 "joint_cone_axis": {"mean": 0.1}}}},
-                         {"id": "c3", "metrics": {"estimators": {"cone_axis": {"mean": 0.0},
-                                                                 "bp_ray": {"mean": 0.0},
-                                                                 "joint_cone_axis": {"mean": 9.0}}}}]}
-    ranking = colocated_ranking(results)
-    assert [r[0] for r in ranking] == ["joint_cone_axis", "bp_ray", "cone_axis"]
-    assert np.isclose(ranking[0][1], 0.15)
 
 
 def test_estimates_json_carries_the_per_light_normals_of_a_two_light_patch(tmp_path):

@@ -16,7 +16,7 @@ import numpy as np
 from simtest._lazy import require
 from simtest._threads import one_thread_each
 from simtest._workers import worker_pool
-from simtest.decisions import ISOCURVE_ISOVALUES, SIGMA_MARGIN
+from simtest.decisions import BROAD_LOBE_PHONG_N, ISOCURVE_ISOVALUES, LOBE_EDGE_REL, LOBE_ROI_MISMATCH, SIGMA_MARGIN
 from simtest.geometry.lights import LightRig
 from simtest.reconstruct import lightaware as _la
 from simtest.reconstruct._pixels import Roi
@@ -41,10 +41,6 @@ def _offset_rig(rig) -> bool:
     return rig is not None and not rig.is_colocated
 
 
-def _several_lights(rig) -> bool:
-    """Whether the rig has at least two lights at different places (their lobes can differ)."""
-    return rig is not None and rig.has_separate_lights
-
 def light_aware_estimates(image, est, camera, rig: LightRig, *, nominal_depth_mm: float = 20.0,
                           saturation_level: float | None = None, roi_scale: float = 2.5,
                           quadric_roi_scale: float = 1.5, supersample: int = 1, quadric: bool | None = None,
@@ -56,7 +52,8 @@ def light_aware_estimates(image, est, camera, rig: LightRig, *, nominal_depth_mm
     ``isocurve_fit`` takes its own isophotes (module docstring); ``photometric_fit`` the ROI grown
     ``roi_scale`` times about the BP (the lobe's tails carry the distance), clipped pixels left
     out, refined from the bisector at the nominal depth and from the isocurve fit's normal, the
-    better kept.
+    better kept; refitted on the ROI its lobe spans where the grown ROI cuts it (:func:`_lobe_roi`),
+    kept if ok.
 
     Parameters
     ----------
@@ -89,7 +86,8 @@ def light_aware_estimates(image, est, camera, rig: LightRig, *, nominal_depth_mm
         The rig's Lambertian shading in the photometric model (None: with a ``response``).
     lobe : {"phong", "ggx", "auto"} or None
         The photometric fit's lobe (``"auto"``: GGX where Phong misfits and GGX does not); None:
-        "auto" on three channels (the film's own lobes), else Phong (``docs/decisions``).
+        "auto" on three channels (the film's own lobes), else Phong, and GGX beside it where its
+        lobe is broad (``BROAD_LOBE_PHONG_N``), the better kept (``docs/decisions``).
     floor_refit : bool
         Refit without the pixels whose model lies within a few noise sigmas of an integer
         image's 0 (:func:`~simtest.reconstruct.lightaware.photometric_fit`'s ``floor_refit``).
@@ -125,7 +123,14 @@ def light_aware_estimates(image, est, camera, rig: LightRig, *, nominal_depth_mm
     lobe = ("auto" if colour else "phong") if lobe is None else lobe
     pkw = dict(nominal_depth_mm=nominal_depth_mm, start_normal=start_n, supersample=supersample, diffuse=diffuse,
                censor=censor, lobe=lobe, floor_level=floor, floor_refit=floor_refit, floor_step=floor_step)
-    out["photometric_fit"] = _photometric(img, gray, big, est, camera, rig, response, colour, saturation_level, pkw)
+    pf = _photometric(img, gray, big, est, camera, rig, response, colour, saturation_level, pkw)
+    lobe_roi = _lobe_roi(pf, est.bp_px, camera, rig, img.shape, big)
+    if lobe_roi is not None:
+        # the ROI the fitted lobe spans, where the detection's region cut it or drowned it
+        refit = _photometric(img, gray, lobe_roi, est, camera, rig, response, colour, saturation_level, pkw)
+        if refit.ok:
+            pf = _la.plane._note(refit, f"refitted on the lobe's ROI ({lobe_roi.shape[1]} x {lobe_roi.shape[0]} px)")
+    out["photometric_fit"] = pf
     _curved_fits(out, gray, img.shape, est, roi, camera, rig, saturation_level=saturation_level, cubic=cubic,
                  nominal_depth_mm=nominal_depth_mm, quadric_roi_scale=quadric_roi_scale, quadric=quadric)
     return out
@@ -169,12 +174,16 @@ def _photometric(img, gray, big: Roi, est, camera, rig, response, colour: bool, 
         pkw["exclude"] = _la.model.albedo_lines(y, 1.0 if img.dtype.kind in "ui" else 0.0,
                                                 noise_sigma(y) if min(y.shape) >= 3 else 0.0)
 
-    def fitted(projection: str) -> LightAwareEstimate:
+    def fitted(projection: str, **extra) -> LightAwareEstimate:
         """The photometric fit on ``projection``, guarded, before the depth ceiling."""
         return _guarded("photometric_fit", photometric_fit, fit_values, (big.col0, big.row0), est.bp_px,
-                        camera, rig, projection=projection, **pkw)
+                        camera, rig, projection=projection, **dict(pkw, **extra))
 
     first = fitted("auto")
+    if pkw.get("lobe") == "phong" and _broad_phong(first):
+        # a broad lobe's tails tell Phong from GGX: the GGX fit from Phong's plane, the better kept
+        first = _la.plane._choose_lobe(first, fitted("auto", lobe="ggx", start_normal=first.normal,
+                                                     start_roughness=first.roughness))
     # its depth within the ceiling before the curved fits' turn is decided by its status
     pf = depth_within_ceiling(first)
     if colour and first.ok and not pf.ok and first.projection == "body_colours":
@@ -192,6 +201,30 @@ def _photometric(img, gray, big: Roi, est, camera, rig, response, colour: bool, 
         chan = depth_within_ceiling(fitted("darkest_channel"))
         pf = dataclasses.replace(chan, detail=f"{chan.detail}; {why}" if chan.detail else why)
     return pf
+
+
+def _broad_phong(fit: LightAwareEstimate) -> bool:
+    """Whether a Phong fit passed (no curved patch's pattern) with n at most ``BROAD_LOBE_PHONG_N``."""
+    return (fit.has_normal and fit.lobe == "phong" and fit.roughness is not None
+            and fit.roughness <= BROAD_LOBE_PHONG_N and fit.curvature_shift_deg is None
+            and (fit.ok or fit.status == "depth_not_observable"))
+
+
+def _lobe_roi(fit: LightAwareEstimate, bp_uv, camera, rig, shape, roi: Roi) -> Roi | None:
+    """The square ROI about the BP where the fit's Phong image of the rig exceeds ``LOBE_EDGE_REL`` of
+    its peak (radius r), where ``roi`` cuts it (half-width below r / ``LOBE_ROI_MISMATCH``); else None."""
+    if not fit.has_normal or fit.distance_mm is None or fit.roughness is None or not fit.roughness > 0:
+        return None
+    (h, w), grid = shape[:2], 129  # grid points a side: the lobe's edge found to one step, added below
+    u, v = np.meshgrid(np.linspace(0.0, w - 1.0, grid), np.linspace(0.0, h - 1.0, grid))
+    uv = np.column_stack([u.ravel(), v.ravel()])
+    s = _la.model.plane_rig_intensity(_la.model._rays(camera, uv), fit.normal, fit.distance_mm, rig,
+                                      fit.roughness)
+    if not np.isfinite(s).all() or not s.max() > 0:
+        return None
+    r = float(np.max(np.hypot(*(uv[s >= LOBE_EDGE_REL * s.max()] - np.asarray(bp_uv, float)).T)))
+    r += max(w, h) / (grid - 1)
+    return Roi.around(bp_uv, r, shape) if max(roi.shape) / 2.0 < r / LOBE_ROI_MISMATCH else None
 
 
 def _curved_fits(out: dict, gray, shape, est, roi: Roi, camera, rig, *, saturation_level, nominal_depth_mm,
@@ -217,7 +250,7 @@ def _curved_fits(out: dict, gray, shape, est, roi: Roi, camera, rig, *, saturati
         out["quadric_fit"] = _guarded(
             "quadric_fit", quadric_fit, gray[near.slices], (near.col0, near.row0), est.bp_px, camera, rig,
             clip_level=saturation_level, nominal_depth_mm=nominal_depth_mm, misfit_sigma=misfit_sigma)
-    if cubic or (cubic is None and curved and _several_lights(rig)):
+    if cubic or (cubic is None and curved and rig.has_separate_lights):  # two lobes that can differ
         out["cubic_patch_fit"] = _guarded(
             "cubic_patch_fit", cubic_patch_fit, gray[near.slices], (near.col0, near.row0), est.bp_px, camera, rig,
             clip_level=saturation_level, nominal_depth_mm=nominal_depth_mm, misfit_sigma=bool(cubic))
@@ -233,6 +266,13 @@ def colour_fit_applies(image, response) -> bool:
     if response is None or img.ndim != 3:
         return False
     return img.dtype != np.uint8 or jpeg_grid(img) is None
+
+def fit_arguments(image, kwargs: dict) -> dict:
+    """``kwargs`` with the frame's linear image and :func:`colour_fit_applies`' decision, once a frame."""
+    if kwargs.get("response") is not None and "linear" not in kwargs:
+        kwargs = dict(kwargs, linear=kwargs["response"].linearize(np.asarray(image)))
+    return kwargs if "colour" in kwargs else dict(kwargs, colour=colour_fit_applies(image, kwargs.get("response")))
+
 
 def _isocurve_isophotes(gray, big: Roi, bp_uv, refine: bool = True) -> tuple[list[np.ndarray], list[float]]:
     """The isophotes :func:`isocurve_fit` is given (module docstring): at each of :data:`ISOCURVE_ISOVALUES` of the BP's height above the median of the
@@ -317,15 +357,9 @@ def with_light_aware(image, estimates, camera, rig: LightRig | None, *, on_highl
         raise ValueError(f"workers must be at least 1, got {workers}")
     if not _offset_rig(rig):
         return list(estimates)
-    def fitted(est) -> bool:
-        return est.ok or (fit_rejected and est.status not in NOT_FITTED)
-
-    if kwargs.get("response") is not None and "linear" not in kwargs:
-        kwargs = dict(kwargs, linear=kwargs["response"].linearize(np.asarray(image)))
-    if "colour" not in kwargs:
-        kwargs = dict(kwargs, colour=colour_fit_applies(image, kwargs.get("response")))
+    kwargs = fit_arguments(image, kwargs)
     out = list(estimates)
-    todo = [i for i, est in enumerate(out) if fitted(est)]
+    todo = [i for i, est in enumerate(out) if est.ok or (fit_rejected and est.status not in NOT_FITTED)]
     # the others are marked with no fits ({}): under a rig off the camera centre the co-located
     # estimators' normals are not recommended (rule 1: the BP ray)
     skipped = set(range(len(out))).difference(todo)

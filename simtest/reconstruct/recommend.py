@@ -22,7 +22,7 @@ measurements behind each rule are in ``docs/decisions/light-aware-recommendation
    ``cubic_patch_fit`` fixes the depth, the shape free; its normal is the apex's, each light's
    beside it (``light_normals``).
 2. Without a rig or with every light at the camera centre: ``joint_cone_axis`` (two isophotes),
-   else ``cone_axis``, else ``bp_ray`` (the co-located suite's ranking: :func:`colocated_ranking`).
+   else ``cone_axis``, else ``bp_ray`` (the co-located suite's ranking).
 3. The fit of least stated sigma (:func:`_stated_sigma`) whose depth is not observable (its misfit
    tests passed, the exclusions of 1.; ``cubic_patch_fit`` only with a normal per light), where
    :data:`SIGMA_MARGIN` times it is below the BP ray's expected error (:func:`bp_ray_error_deg` at
@@ -69,7 +69,7 @@ from simtest.reconstruct.lightaware import LightAwareEstimate
 from simtest.reconstruct.registry import names
 
 __all__ = ["DEPTH_REL_SIGMA_CEILING", "ISOCURVE_ISOVALUES", "LIGHT_AWARE", "SIGMA_MARGIN", "Recommendation",
-           "bp_error_depth_mm", "bp_ray_error_deg", "colocated_ranking", "depth_within_ceiling", "recommend"]
+           "bp_error_depth_mm", "bp_ray_error_deg", "depth_within_ceiling", "recommend"]
 
 #: The light-aware estimators, in the order of preference of the recommendation rule.
 LIGHT_AWARE = names("light_aware", ranked=True)
@@ -263,32 +263,3 @@ def recommend(est) -> Recommendation:
         if n is not None:
             return Recommendation(np.asarray(n), name)
     return Recommendation(np.asarray(est.bp_ray), "bp_ray")
-
-
-def colocated_ranking(results: dict, exclude_sweeps=("light_offset",)) -> list[tuple[str, float, float]]:
-    """Rank today's estimators by their errors over a rendered suite's co-located cases.
-
-    Parameters
-    ----------
-    results : dict
-        A harness ``results.json`` document.
-    exclude_sweeps : sequence of str
-        Sweeps left out (the light offset is not co-located).
-
-    Returns
-    -------
-    list of (name, mean of case means, median of case means)
-        Best first (by the mean), over the cases where every estimator has a mean.
-    """
-    ests = [e for e in results["suite"]["estimators"] if e in COLOCATED_ORDER]
-    skip = {k for sw in results["sweeps"] if sw["name"] in exclude_sweeps for k in sw["cases"]}
-    vals: dict[str, list[float]] = {e: [] for e in ests}
-    for case in results["cases"]:
-        if case["id"] in skip:
-            continue
-        m = case["metrics"]["estimators"]
-        if all(m.get(e, {}).get("mean") is not None for e in ests):
-            for e in ests:
-                vals[e].append(float(m[e]["mean"]))
-    rows = [(e, float(np.mean(v)), float(np.median(v))) for e, v in vals.items() if v]
-    return sorted(rows, key=lambda r: r[1])

@@ -29,7 +29,7 @@ from simtest.decisions import FUSED_LOBE_LEVEL, PAIR_TOL_PX
 from simtest.reconstruct._pixels import uv_to_rc
 from simtest.geometry.cameras import PinholeCamera
 from simtest.reconstruct.detect_pixels import luma
-from simtest.reconstruct.light_fits import _offset_rig, colour_fit_applies, light_aware_estimates
+from simtest.reconstruct.light_fits import _offset_rig, fit_arguments, light_aware_estimates
 from simtest.reconstruct.rig_pairs import other_guide_curves
 
 __all__ = ["FUSED_LOBE_LEVEL", "guide_specular_points", "split_fused_lobes"]
@@ -160,15 +160,6 @@ def _rows(est, camera, rig, gray, others: np.ndarray) -> list | None:
     return rows
 
 
-def _fit_arguments(image, kwargs: dict) -> dict:
-    """``kwargs`` with the linear image and the colour decision ``with_light_aware`` derives."""
-    if kwargs.get("response") is not None and "linear" not in kwargs:
-        kwargs = dict(kwargs, linear=kwargs["response"].linearize(np.asarray(image)))
-    if "colour" not in kwargs:
-        kwargs = dict(kwargs, colour=colour_fit_applies(image, kwargs.get("response")))
-    return kwargs
-
-
 def split_fused_lobes(image, estimates, camera, rig, **kwargs) -> list:
     """The estimates with each candidate of fused guide lobes replaced by one row per guide.
 
@@ -205,7 +196,7 @@ def split_fused_lobes(image, estimates, camera, rig, **kwargs) -> list:
                 if not _along_the_rig(gray, est, camera, rig, est.status == "merged"):
                     out.append(est)
                     continue
-                kwargs = _fit_arguments(image, kwargs)
+                kwargs = fit_arguments(image, kwargs)
                 # the plane's fit only (the rule reads its normal and distance; a patch's take seconds)
                 fitted = dataclasses.replace(est, light_aware=light_aware_estimates(
                     image, est, camera, rig, **dict(kwargs, quadric=False, cubic=False)))

@@ -117,19 +117,6 @@ from simtest.reconstruct.lightaware.cubic import cubic_patch_fit, patch_depth_pr
 from simtest.reconstruct.lightaware.patch import quadric_fit
 from simtest.reconstruct.lightaware.plane import photometric_fit
 
-__all__ = [
-    "OK",
-    "STATUSES",
-    "LightAwareEstimate",
-    "CramerRaoBound",
-    "bisector",
-    "cubic_patch_fit",
-    "isocurve_fit",
-    "patch_depth_profile",
-    "photometric_crb",
-    "photometric_fit",
-    "plane_rig_intensity",
-    "quadric_fit",
-    "refine_isophote_points",
-    "specular_point_depth",
-]
+__all__ = ["OK", "STATUSES", "LightAwareEstimate", "CramerRaoBound", "bisector", "cubic_patch_fit", "isocurve_fit",
+           "patch_depth_profile", "photometric_crb", "photometric_fit", "plane_rig_intensity", "quadric_fit",
+           "refine_isophote_points", "specular_point_depth"]

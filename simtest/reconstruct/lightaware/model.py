@@ -541,7 +541,8 @@ def _ggx_lobe(delta, s, sl, ir, c, a2, ior):
     hv = np.sqrt(np.maximum(2.0 + 2.0 * vl, 1e-300))
     cos_h = np.clip((delta + cos_o) / hv, 1e-6, 1.0)
     c2 = cos_h * cos_h
-    D = a2 / (np.pi * (c2 * (a2 - 1.0) + 1.0) ** 2)
+    with np.errstate(over="ignore", invalid="ignore"):  # a trial alpha run off: D 0 or NaN, which the fit rejects
+        D = a2 / (np.pi * (c2 * (a2 - 1.0) + 1.0) ** 2)
     ci = np.maximum(delta, 1e-6)
     co = np.maximum(cos_o, 1e-6)
     g1i = 2.0 / (1.0 + np.sqrt(1.0 + a2 * (1.0 - ci * ci) / (ci * ci)))
