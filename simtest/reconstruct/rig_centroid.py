@@ -36,7 +36,7 @@ from simtest.decisions import (BP_PLACE_SIGMA_PX, FUSED_LOBE_LEVEL, FUSED_SEPARA
                                PAIR_DEPTH_MIN_MM)
 from simtest.geometry.lights import Light, LightRig
 from simtest.reconstruct.detect_pixels import luma
-from simtest.reconstruct.light_fits import with_light_aware
+from simtest.reconstruct.light_fits import _offset_rig, fit_arguments, with_light_aware
 from simtest.reconstruct.lightaware import LightAwareEstimate, bisector
 from simtest.reconstruct.lightaware.model import _rays, _rig_arrays
 from simtest.reconstruct.recommend import LIGHT_AWARE, _angle_deg, bp_error_depth_mm, bp_ray_error_deg
@@ -165,5 +165,6 @@ def light_aware_with_rig(image, estimates, camera, rig: LightRig | None, *, work
     :func:`~simtest.reconstruct.light_fits.with_light_aware` (its ``kwargs``, ``workers``,
     ``on_highlight``), then the rig's fused lobes split (:func:`~simtest.reconstruct.rig_lobes.split_fused_lobes`)
     or given their centroid light's normal (:func:`rig_centroid`); a list of SpecularityEstimate."""
+    kwargs = fit_arguments(image, kwargs) if _offset_rig(rig) else kwargs  # made once for both steps
     fitted = with_light_aware(image, estimates, camera, rig, workers=workers, on_highlight=on_highlight, **kwargs)
     return rig_centroid(image, split_fused_lobes(image, fitted, camera, rig, **kwargs), camera, rig)
