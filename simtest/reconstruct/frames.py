@@ -22,6 +22,7 @@ import mmap
 import multiprocessing
 import os
 import time
+from collections import Counter
 from collections.abc import Iterator
 from contextlib import contextmanager
 from itertools import chain
@@ -290,9 +291,7 @@ def _frame_head(args) -> tuple[dict, list, bool]:
     detection = ests.detection_record()
     # a single image's light-aware step (none without a rig off the camera), on the response's linear light
     ests = light_aware_with_rig(image, ests, K, rig, cubic=cubic, response=response)
-    counts: dict[str, int] = {}
-    for e in ests:
-        counts[e.status] = counts.get(e.status, 0) + 1
+    counts = dict(Counter(e.status for e in ests))  # in the order statuses first appear
     return ({"frame": index, "source": name, "image_shape": [int(v) for v in image.shape[:2]],
              "counts": counts, "detection": detection}, ests, include_points)
 
