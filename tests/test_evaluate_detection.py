@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+from collections import Counter
 
 import numpy as np
 import pytest
@@ -86,6 +87,20 @@ def test_a_rendered_target_of_two_guides_is_reached_from_either_lobe(sep, along,
     one = Structure(float(b[0]), float(b[1]), area, "isolated",
                     HighlightTarget(b[None], (1,), (), b, int(area)))
     assert one.distance_px(q) == pytest.approx(np.hypot(*(q - b)))
+
+
+@pytest.mark.parametrize("lights", [1, 2, 3])
+def test_a_target_of_k_lights_takes_k_ok_estimates_and_is_found_once(lights):
+    # a rig's pairing gives each guide's lobe its own estimate: on a target gathering k lights'
+    # highlights, the first k ok estimates are true highlights, a (k+1)-th a duplicate; recall
+    # counts the target once
+    bps = np.array([[100.0 + 6 * i, 50.0] for i in range(lights)])
+    s = Structure(100.0, 50.0, 200.0, "isolated", HighlightTarget(bps, tuple(range(lights)), (), bps[0], 200))
+    ests = [_spec(u, v) for u, v in bps] + [_spec(101.0, 50.0)]
+    sc, rows = score_frame("rig", ests, [s])
+    assert (sc.ok, sc.ok_tp, sc.targets_found_ok, sc.candidates_tp) == (lights + 1, lights, 1, lights)
+    assert [r["on"] for r in rows] == ["isolated"] * lights + ["duplicate"]
+    assert sc.ok_on == Counter({"isolated": lights, "duplicate": 1})
 
 
 def _labelled_set(tmp_path):

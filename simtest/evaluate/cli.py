@@ -226,7 +226,9 @@ def _detection_markdown(results: dict) -> str:
     p = results["pooled"]
     L = [f"# Highlight detection: {results['source']}", "",
          "Targets are the labelled isolated specular highlights; a candidate or an ok estimate is a "
-         "true positive when it is the first to fall on a target (see simtest.evaluate.detection).",
+         "true positive when it is the first to fall on a target (a rendered target that gathers k "
+         "lights' highlights: one of the first k; see simtest.evaluate.detection). Renders are "
+         "reconstructed with their camera file's light rig, as simtest reconstruct runs them.",
          ""]
     head = ["| {} | targets | candidates | precision | recall | ok | ok precision | ok recall | ok F1 | "
             "not examined |", "|---|---|---|---|---|---|---|---|---|---|"]
