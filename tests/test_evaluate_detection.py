@@ -248,3 +248,12 @@ def test_the_cross_validation_takes_the_estimates_the_scoring_made():
     assert [e.bp_px.tolist() for e in kept[2]] == [e.bp_px.tolist() for e in reconstruct(frames[2].image,
                                                                                           frames[2].camera)]
     assert cross_validated_report(frames, verified=kept) == cross_validated_report(frames)
+
+
+def test_recall_over_the_confidence_counts_a_k_light_target_once():
+    # two ok estimates on one two-light target and one on a one-light target: precision counts
+    # all three, recall the two targets
+    from simtest.evaluate.operating import precision_recall
+    rows = precision_recall([0.9, 0.8, 0.2], [True, True, True], 2, thresholds=(0.0, 0.5),
+                            target_ids=[("f", 0), ("f", 0), ("f", 1)])
+    assert [(r["kept"], r["precision"], r["recall"]) for r in rows] == [(3, 1.0, 1.0), (2, 1.0, 0.5)]

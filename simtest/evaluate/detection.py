@@ -214,9 +214,8 @@ def score_frame(name: str, specularities: list[dict], structures: list[Structure
     -------
     (FrameScore, list of dict)
         The scores, and per candidate ``{"bp_px", "status", "on": kind | "duplicate" |
-        "unlabelled", "tp": bool}`` (for the figure and the results). A rendered target that
-        gathers k lights' highlights (``Structure.target.bp_px``, k rows) takes k matches as true
-        positives (one estimate a guide's lobe); it is found (recall) once.
+        "unlabelled", "tp": bool}``. A rendered target of k lights' highlights takes k matches as
+        true positives (one a guide's lobe); it is found (recall) once.
     """
     bps = [s["bp_px"] for s in specularities]
     hit = match_candidates(bps, structures)
@@ -230,8 +229,7 @@ def score_frame(name: str, specularities: list[dict], structures: list[Structure
         on = "unlabelled" if j is None else structures[j].kind
         tp = tp_ok = False
         if on == TARGET_KIND:
-            # a rendered target that gathers k lights' highlights holds k true highlights: the
-            # first k matches are each a light's (a rig's pairing gives one estimate a guide)
+            # a target of k lights' highlights holds k true ones (one estimate a guide's lobe)
             lobes = 1 if structures[j].target is None else len(structures[j].target.bp_px)
             if found[j] >= lobes:
                 on = "duplicate"
@@ -247,8 +245,8 @@ def score_frame(name: str, specularities: list[dict], structures: list[Structure
             sc.ok_tp += tp_ok
             sc.ok_on["isolated" if tp_ok else ("duplicate" if on == TARGET_KIND else on)] += 1
         rows.append({"bp_px": [float(v) for v in s["bp_px"]], "status": s["status"], "on": on,
-                     "tp": tp, "tp_ok": tp_ok, "confidence": s.get("confidence")})
-    sc.targets_found, sc.targets_found_ok = len(found), len(found_ok)  # (Counter keys: targets)
+                     "tp": tp, "tp_ok": tp_ok, "confidence": s.get("confidence"), "target": j})
+    sc.targets_found, sc.targets_found_ok = len(found), len(found_ok)
     return sc, rows
 
 
@@ -282,9 +280,7 @@ class LabelledFrame:
     structures : list of Structure
         Its labels.
     lights : LightRig or None
-        The scope's light rig where it is known (a render's camera file): ``reconstruct`` then
-        pairs the guides' highlights as ``simtest reconstruct`` does with that file; None for the
-        real frames, whose rig is not known.
+        A render's light rig (``reconstruct`` pairs its guides' highlights); None: unknown.
     """
 
     name: str
@@ -345,8 +341,7 @@ def labelled_real_frames(path, *, focal_px: float = 140.0) -> list[LabelledFrame
     K = [[f, 0.0, side / 2 - 0.5], [0.0, f, side / 2 - 0.5], [0.0, 0.0, 1.0]]
     camera = PinholeCamera(K, image_size=(side, side))
     if not isinstance(tiles, dict):
-        raise ValueError(f"{path}: key 'tiles' must be an object of tile id -> list of structures, "
-                         f"got {type(tiles).__name__}")
+        raise ValueError(f"{path}: key 'tiles' must be an object of tile id -> list of structures")
     if not (isinstance(side, int) and 3 <= side <= min(image.shape[:2])):
         raise ValueError(f"{path}: key 'tile_px': {side!r} is not a tile side within the image "
                          f"({image.shape[1]} x {image.shape[0]} px)")
@@ -357,8 +352,7 @@ def labelled_real_frames(path, *, focal_px: float = 140.0) -> list[LabelledFrame
         except ValueError as exc:
             raise ValueError(f"{path}: tiles: {exc}") from None
         if r1 > image.shape[0] or c1 > image.shape[1]:
-            raise ValueError(f"{path}: tiles.{tile}: rows {r0}-{r1}, columns {c0}-{c1} lie outside the "
-                             f"{image.shape[1]} x {image.shape[0]} px image")
+            raise ValueError(f"{path}: tiles.{tile}: outside the {image.shape[1]} x {image.shape[0]} px image")
         if not isinstance(items, list):
             raise ValueError(f"{path}: tiles.{tile}: must be a list of structures, got {type(items).__name__}")
         structs = [_labelled_structure(path, f"tiles.{tile}[{i}]", s, side) for i, s in enumerate(items)]
@@ -555,17 +549,18 @@ def evaluate_frames(frames: list[LabelledFrame], settings=None, *, keep: list | 
                   and not any(r["tp_ok"] and s.distance_px(r["bp_px"]) <= s.reach_px for r in rows)]
         frames_out.append(sc.as_dict() | {"not_examined": ests.n_unexamined, "candidates_detail": rows,
                                           "missed_targets_ok": missed})
-    cand = [r for f in frames_out for r in f["candidates_detail"] if r["confidence"] is not None]
-    conf = np.array([r["confidence"] for r in cand], dtype=np.float64)
-    tp = np.array([r["tp"] for r in cand], dtype=bool)
-    ok = np.array([r["status"] == "ok" for r in cand], dtype=bool)
-    tp_ok = np.array([r["tp_ok"] for r in cand], dtype=bool)
+    cand = [(f["name"], r) for f in frames_out for r in f["candidates_detail"] if r["confidence"] is not None]
+    conf = np.array([r["confidence"] for _, r in cand], dtype=np.float64)
+    tp, ok, tp_ok = (np.array([r[k] if k != "ok" else r["status"] == "ok" for _, r in cand], dtype=bool)
+                     for k in ("tp", "ok", "tp_ok"))
+    found = [(name, r["target"]) for name, r in cand]  # the target a true positive is on
     statuses = Counter(r["status"] for f in frames_out for r in f["candidates_detail"])
     pool = pooled(scores).as_dict()
     return {"frames": frames_out, "pooled": pool, "settings": settings.to_dict(),
             "statuses": dict(sorted(statuses.items())),
             "reliability": {"candidates": reliability(conf, tp), "ok": reliability(conf[ok], tp[ok])},
-            "precision_recall": precision_recall(conf[ok], tp_ok[ok], pool["targets"])}
+            "precision_recall": precision_recall(conf[ok], tp_ok[ok], pool["targets"],
+                                                 target_ids=[t for t, k in zip(found, ok) if k])}
 
 
 def reliability_figure(results: dict):

@@ -21,7 +21,7 @@ __all__ = ["THRESHOLDS", "precision_recall", "precision_recall_figure"]
 THRESHOLDS = tuple(np.round(np.arange(0.0, 1.0001, 0.05), 2))
 
 
-def precision_recall(confidence, tp_ok, targets: int, thresholds=THRESHOLDS) -> list[dict]:
+def precision_recall(confidence, tp_ok, targets: int, thresholds=THRESHOLDS, target_ids=None) -> list[dict]:
     """Precision and recall of the ``ok`` estimates kept at each minimum confidence.
 
     Parameters
@@ -34,6 +34,9 @@ def precision_recall(confidence, tp_ok, targets: int, thresholds=THRESHOLDS) -> 
         Labelled targets (isolated highlights) in the frames.
     thresholds : sequence of float
         The minimum confidences.
+    target_ids : sequence, optional
+        The target each estimate is a true positive on (a rendered target of k lights takes k):
+        recall counts distinct targets; default one target an estimate.
 
     Returns
     -------
@@ -50,13 +53,14 @@ def precision_recall(confidence, tp_ok, targets: int, thresholds=THRESHOLDS) -> 
     tp = np.asarray(tp_ok, dtype=bool).reshape(-1)
     if conf.shape != tp.shape:
         raise ValueError(f"precision_recall: {conf.size} confidences but {tp.size} labels")
+    ids = list(range(conf.size)) if target_ids is None else list(target_ids)
     rows = []
     for c in thresholds:
         keep = conf >= c
-        kept, hits = int(keep.sum()), int(tp[keep].sum())
+        kept, hits, found = int(keep.sum()), int(tp[keep].sum()), len({ids[i] for i in np.flatnonzero(keep & tp)})
         rows.append({"min_confidence": float(c), "kept": kept,
                      "precision": hits / kept if kept else None,
-                     "recall": hits / targets if targets else None})
+                     "recall": found / targets if targets else None})
     return rows
 
 
