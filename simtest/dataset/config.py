@@ -56,17 +56,8 @@ from simtest._config import CONFIG, Bool, Int, Num, Scalar, Str, validated
 from simtest._io import jsonable
 from simtest.scene.spec import Variant
 
-__all__ = [
-    "FAMILIES",
-    "MAX_COUNT",
-    "PARAMS",
-    "DatasetConfig",
-    "DatasetConfigError",
-    "Dist",
-    "ParamDef",
-    "config_from_dict",
-    "load_config",
-]
+__all__ = ["FAMILIES", "MAX_COUNT", "PARAMS", "DatasetConfig", "DatasetConfigError", "Dist", "ParamDef",
+           "config_from_dict", "load_config"]
 
 #: Scene families, in the canonical order used for the seeded family draw.
 FAMILIES: tuple[str, ...] = ("planes", "spheres", "cylinders", "colon", "liver")

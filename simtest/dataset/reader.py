@@ -42,9 +42,8 @@ from typing import Callable, Iterator, Sequence
 import numpy as np
 
 from simtest._lazy import require
-from simtest.dataset.shards import (
-    MANIFEST_NAME, DatasetError, decode_png, entry_name, labels_sha256, read_card, read_manifest, shard_path_from_row,
-)
+from simtest.dataset.shards import (MANIFEST_NAME, DatasetError, decode_png, entry_name, labels_sha256,
+                                    read_card, read_manifest, shard_path_from_row)
 
 __all__ = ["SPLITS", "SimtestDataset", "TorchView", "collate", "open_dataset"]
 

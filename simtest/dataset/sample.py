@@ -67,17 +67,8 @@ from simtest.scene.spec import scene_from_dict, scene_to_dict
 from simtest.simulate.truth import HighlightTruthError, cylinder_highlight, sphere_highlight
 from simtest.specular import isophote_radius
 
-__all__ = [
-    "CHANNELS",
-    "Sample",
-    "build_scene",
-    "draw_parameters",
-    "MAX_REDRAWS",
-    "isophote_record",
-    "render_sample",
-    "sample_rng",
-    "truth_problem",
-]
+__all__ = ["CHANNELS", "Sample", "build_scene", "draw_parameters", "MAX_REDRAWS", "isophote_record",
+           "render_sample", "sample_rng", "truth_problem"]
 
 #: Most redraws of one sample (see the module notes): a family whose poses need more than that
 #: has a config that rarely gives a defined truth, reported as an error naming the family.

@@ -50,16 +50,8 @@ from simtest.geometry.cameras import CameraModel, FisheyeCamera, Omnidirectional
 from simtest.geometry.lights import Light, LightRig, LightRigError, check_scope_rig
 from simtest.geometry.response import ResponseError, SensorResponse
 
-__all__ = [
-    "CameraFile",
-    "CameraFileError",
-    "Intrinsics",
-    "camera_from_dict",
-    "load_camera",
-    "load_intrinsics",
-    "save_camera",
-    "save_intrinsics",
-]
+__all__ = ["CameraFile", "CameraFileError", "Intrinsics", "camera_from_dict", "load_camera",
+           "load_intrinsics", "save_camera", "save_intrinsics"]
 
 _MODEL_KEYS = {
     "pinhole": {"required": ("K",), "optional": ("dist_coeffs",)},

@@ -52,14 +52,8 @@ import numpy as np
 from simtest._checks import finite_number
 from simtest.geometry.camera import IntrinsicsError, validate_intrinsics
 
-__all__ = [
-    "CameraModel",
-    "FisheyeCamera",
-    "OmnidirectionalCamera",
-    "PinholeCamera",
-    "as_camera_model",
-    "c3vd_camera",
-]
+__all__ = ["CameraModel", "FisheyeCamera", "OmnidirectionalCamera", "PinholeCamera", "as_camera_model",
+           "c3vd_camera"]
 
 #: Newton iterations stop when the pixel residual is below this (px); the round trip is then exact
 #: to far better than the 1e-6 px the tests ask.

@@ -40,22 +40,9 @@ from simtest.geometry.angles import cross3
 from simtest.geometry.camera import validate_intrinsics
 from simtest.tolerances import TOL
 
-__all__ = [
-    "CirclePose",
-    "ConeAxis",
-    "Ellipse",
-    "circle_pose",
-    "conic_kind",
-    "conic_to_ellipse",
-    "cone_axis",
-    "cone_pose",
-    "cone_poses",
-    "ellipse_to_conic",
-    "normalised_conic",
-    "plane_basis",
-    "project_circle",
-    "sample_ellipse",
-]
+__all__ = ["CirclePose", "ConeAxis", "Ellipse", "circle_pose", "conic_kind", "conic_to_ellipse",
+           "cone_axis", "cone_pose", "cone_poses", "ellipse_to_conic", "normalised_conic", "plane_basis",
+           "project_circle", "sample_ellipse"]
 
 
 @fast_init

@@ -25,24 +25,10 @@ from simtest._exit import BAD_BASELINE, BAD_INPUT, CANNOT_WRITE, CHECK_FAILED, f
     writable_dir
 from simtest._io import OutputFolderError
 from simtest._outdir import check_out_folder
-from simtest.harness.nightly import (
-    CAPS,
-    append_history,
-    changes_table,
-    check_section,
-    compare,
-    default_baseline_path,
-    expected_metrics,
-    gate_summary,
-    history_line,
-    load_baseline,
-    metrics_of,
-    noisy_headlines,
-    read_history,
-    uncovered,
-    undetectable_doublings,
-    update_baseline as write_baseline,
-)
+from simtest.harness.nightly import (CAPS, append_history, changes_table, check_section, compare,
+                                     default_baseline_path, expected_metrics, gate_summary, history_line,
+                                     load_baseline, metrics_of, noisy_headlines, read_history, uncovered,
+                                     undetectable_doublings, update_baseline as write_baseline)
 from simtest.harness.external import ExternalError, with_external
 from simtest.harness.report import REPORT_FILES, build_results, make_run_id, write_report_files
 from simtest.harness.runner import run_suite

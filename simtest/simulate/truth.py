@@ -49,18 +49,9 @@ from simtest.geometry.angles import unit
 from simtest.geometry.camera import project_points
 from simtest.simulate.analytic import plane_bp
 
-__all__ = [
-    "HighlightTruth",
-    "HighlightTruthError",
-    "STATIONARY_RESIDUAL_TOL",
-    "bisector",
-    "circle_reflection",
-    "pixel_in_frame",
-    "plane_highlight",
-    "sphere_highlight",
-    "cylinder_highlight",
-    "saddle_mesh",
-]
+__all__ = ["HighlightTruth", "HighlightTruthError", "STATIONARY_RESIDUAL_TOL", "bisector",
+           "circle_reflection", "pixel_in_frame", "plane_highlight", "sphere_highlight",
+           "cylinder_highlight", "saddle_mesh"]
 
 
 class HighlightTruthError(RuntimeError):
