@@ -127,9 +127,7 @@ class Dist:
             hi = high if high is not None else (math.inf if std > 0 else mean)
             return (lo, hi)
         values = self.args[0]
-        if all(_is_number(v) for v in values):
-            return (min(values), max(values))
-        return None
+        return (min(values), max(values)) if all(_is_number(v) for v in values) else None
 
     def draw(self, rng: np.random.Generator, integer: bool = False):
         """Draw one value with ``rng`` (constants draw nothing from the stream).
@@ -163,9 +161,7 @@ class Dist:
             v = values[int(rng.choice(len(values), p=p))]
         if integer:
             return int(round(v))
-        if isinstance(v, bool | str):
-            return v
-        return float(v)
+        return v if isinstance(v, bool | str) else float(v)
 
     def as_dict(self) -> dict:
         """JSON/TOML-ready form (the inverse of the config syntax)."""

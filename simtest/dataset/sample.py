@@ -467,9 +467,7 @@ def mesh_sha256(family: str) -> str | None:
     if family not in ("colon", "colon_haustral", "liver"):
         return None
     path = bundled_mesh_path(family)
-    if not path.is_file():
-        return None
-    return hashlib.sha256(path.read_bytes()).hexdigest()
+    return hashlib.sha256(path.read_bytes()).hexdigest() if path.is_file() else None
 
 
 def camera_file(result) -> dict:

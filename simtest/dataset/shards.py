@@ -428,9 +428,7 @@ def read_shard_comment(npz: Path) -> dict:
     with zipfile.ZipFile(npz) as z:
         text = z.comment.decode("ascii", errors="replace")
     head, _, rest = text.partition(" ")
-    if head != FORMAT:
-        return {}
-    return dict(kv.split("=", 1) for kv in rest.split() if "=" in kv)
+    return {} if head != FORMAT else dict(kv.split("=", 1) for kv in rest.split() if "=" in kv)
 
 
 def check_shard(root: Path, shard: int, fingerprint: str, indices: range) -> list[str]:

@@ -110,9 +110,7 @@ class Intrinsics:
 def _has_bool(value) -> bool:
     if isinstance(value, bool):
         return True
-    if isinstance(value, (list, tuple)):
-        return any(_has_bool(v) for v in value)
-    return False
+    return isinstance(value, (list, tuple)) and any(_has_bool(v) for v in value)
 
 
 def _model_from_dict(data: dict, where: str) -> CameraModel:

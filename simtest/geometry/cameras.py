@@ -634,9 +634,7 @@ class OmnidirectionalCamera(CameraModel):
     def _z(self, r, deriv: bool = False):
         a0, a1, a2, a3, a4 = self.a
         z = a0 + r * (a1 + r * (a2 + r * (a3 + r * a4)))
-        if not deriv:
-            return z
-        return z, a1 + r * (2 * a2 + r * (3 * a3 + r * 4 * a4))
+        return (z, a1 + r * (2 * a2 + r * (3 * a3 + r * 4 * a4))) if deriv else z
 
     @property
     def principal_point(self) -> np.ndarray:
@@ -767,6 +765,4 @@ def as_camera_model(camera, image_size=None) -> CameraModel:
     -------
     CameraModel
     """
-    if isinstance(camera, CameraModel):
-        return camera
-    return PinholeCamera(camera, image_size=image_size)
+    return camera if isinstance(camera, CameraModel) else PinholeCamera(camera, image_size=image_size)

@@ -218,9 +218,7 @@ def conic_to_ellipse(C) -> Ellipse | None:
         If C is not 3x3 or has non-finite entries.
     """
     centre, axes, angle, ok = _ellipses_of(_check_conic(C)[None])
-    if not ok[0]:
-        return None
-    return Ellipse(center=centre[0], semi_axes=axes[0], angle_rad=float(angle[0]))
+    return Ellipse(center=centre[0], semi_axes=axes[0], angle_rad=float(angle[0])) if ok[0] else None
 
 
 def sample_ellipse(ellipse: Ellipse, n: int, *, rng=None, noise_px: float = 0.0) -> np.ndarray:

@@ -203,9 +203,7 @@ def _bad(v) -> str | None:
         return f"non-numeric {v!r}"
     if math.isnan(v):
         return "NaN"
-    if math.isinf(v):
-        return "infinite"
-    return None
+    return "infinite" if math.isinf(v) else None
 
 
 def baseline_section(runs: list[dict], policy: dict | None = None) -> dict:
