@@ -347,7 +347,7 @@ class _Inline:
         pass
 
 
-class _Pool:
+class _Pool(_Inline):
     """A pool of local processes (spawned, so no Mitsuba state is forked)."""
 
     def __init__(self, sample_fn, config, workers: int):
@@ -358,9 +358,6 @@ class _Pool:
 
     def submit(self, index: int):
         return self.ex.submit(_run_task, self.sample_fn, self.config, index)
-
-    def wait(self, futures):
-        return cf.wait(futures, return_when=cf.FIRST_COMPLETED).done
 
     def close(self, cancel: bool = False):
         if cancel:  # an error or an interrupt: stop the workers now, not after their renders

@@ -400,8 +400,7 @@ class RenderedRunner:
             image = result.sensor
         image = np.asarray(image)
         ests = reconstruct_image(image, result.K, self.settings)
-        ok_bps = [(e, np.asarray(e.bp_px, float)) for e in ests
-                  if getattr(e, "bp_px", None) is not None]
+        ok_bps = [(e, np.asarray(e.bp_px, float)) for e in ests if getattr(e, "bp_px", None) is not None]
         # Clipping: pixels at the sensor's full scale (0 for a linear float image).
         saturated = (float(np.sum(image >= np.iinfo(image.dtype).max))
                      if np.issubdtype(image.dtype, np.integer) else 0.0)

@@ -448,8 +448,7 @@ def _typed(protocol: str, params: Mapping, source: str, where: str) -> dict:
 
 
 def _case_key(protocol: str, scene_name: str | None, params: Mapping) -> str:
-    return f"{protocol}|{scene_name or '-'}|" + json.dumps(params, sort_keys=True,
-                                                           separators=(",", ":"))
+    return f"{protocol}|{scene_name or '-'}|" + json.dumps(params, sort_keys=True, separators=(",", ":"))
 
 
 def suite_from_dict(raw: Mapping[str, Any], source: str = "<dict>", sha256: str = "") -> Suite:
