@@ -78,11 +78,8 @@ def _as_rays(rays) -> np.ndarray:
 def _image_size(size, where: str) -> tuple[int, int] | None:
     if size is None:
         return None
-    if (
-        len(size) != 2
-        or any(isinstance(s, bool) or not isinstance(s, (int, np.integer)) for s in size)
-        or min(size) <= 0
-    ):
+    if len(size) != 2 or any(isinstance(s, bool) or not isinstance(s, (int, np.integer)) for s in size) \
+            or min(size) <= 0:
         raise IntrinsicsError(f"{where}: image_size must be [W, H] positive integers, got {list(size)!r}")
     return int(size[0]), int(size[1])
 
@@ -319,11 +316,8 @@ class PinholeCamera(CameraModel):
             self.dist_coeffs = self.dist_coeffs.copy()
             self.dist_coeffs.setflags(write=False)
         self.image_size = _image_size(image_size, "PinholeCamera")
-        d = np.zeros(12)
-        if self.dist_coeffs is not None:
-            n = min(12, self.dist_coeffs.size)
-            d[:n] = self.dist_coeffs[:n]
-        self._k = d  # k1 k2 p1 p2 k3 k4 k5 k6 s1 s2 s3 s4
+        dc = np.zeros(0) if self.dist_coeffs is None else self.dist_coeffs[:12]
+        self._k = np.pad(dc, (0, 12 - dc.size))  # k1 k2 p1 p2 k3 k4 k5 k6 s1 s2 s3 s4
         self._Kinv = np.linalg.inv(self.K)
 
     @property
@@ -331,10 +325,8 @@ class PinholeCamera(CameraModel):
         return self.K[:2, 2].copy()
 
     def params(self) -> dict:
-        return {
-            "K": self.K.tolist(),
-            "dist_coeffs": None if self.dist_coeffs is None else [float(x) for x in self.dist_coeffs],
-        }
+        return {"K": self.K.tolist(),
+                "dist_coeffs": None if self.dist_coeffs is None else [float(x) for x in self.dist_coeffs]}
 
     def _distort(self, x: np.ndarray, y: np.ndarray, jac: bool = False):
         k1, k2, p1, p2, k3, k4, k5, k6, s1, s2, s3, s4 = self._k
@@ -641,10 +633,8 @@ class OmnidirectionalCamera(CameraModel):
         return np.array([self.cx, self.cy])
 
     def params(self) -> dict:
-        out = {"cx": self.cx, "cy": self.cy}
-        out.update({f"a{i}": float(v) for i, v in enumerate(self.a)})
-        out.update({"c": self.c, "d": self.d, "e": self.e})
-        return out
+        return {"cx": self.cx, "cy": self.cy, **{f"a{i}": float(v) for i, v in enumerate(self.a)},
+                "c": self.c, "d": self.d, "e": self.e}
 
     def pinhole_stand_in(self) -> PinholeCamera:
         """The pinhole a user without this model would use: f = a0, same centre and size.
