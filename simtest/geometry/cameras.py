@@ -403,10 +403,8 @@ class PinholeCamera(CameraModel):
 def _check_monotone(theta: np.ndarray, radius: np.ndarray, what: str) -> None:
     if not np.all(np.diff(radius) > 0):
         i = int(np.argmax(np.diff(radius) <= 0))
-        raise IntrinsicsError(
-            f"{what}: not invertible over the frame (image radius stops growing at "
-            f"{np.degrees(theta[i]):.1f} deg off the axis)"
-        )
+        raise IntrinsicsError(f"{what}: not invertible over the frame (image radius stops growing at "
+                              f"{np.degrees(theta[i]):.1f} deg off the axis)")
 
 
 class FisheyeCamera(CameraModel):
@@ -466,11 +464,10 @@ class FisheyeCamera(CameraModel):
             xy = (np.concatenate([corners, np.ones((4, 1))], axis=1) @ self._Kinv.T)[:, :2]
             rmax = np.linalg.norm(xy, axis=1).max()
             if rmax > self._table_td[-1]:
-                raise IntrinsicsError(
-                    f"D: not invertible over the frame (its corners are {rmax:.3g} focal lengths off the "
-                    f"centre; the image radius stops growing at {self._table_td[-1]:.3g}, "
-                    f"{np.degrees(self._table_theta[-1]):.1f} deg off the axis)"
-                )
+                raise IntrinsicsError(f"D: not invertible over the frame (its corners are {rmax:.3g} focal "
+                                      f"lengths off the centre; the image radius stops growing at "
+                                      f"{self._table_td[-1]:.3g}, {np.degrees(self._table_theta[-1]):.1f} "
+                                      "deg off the axis)")
 
     def _theta_d(self, theta, deriv: bool = False):
         k1, k2, k3, k4 = self.D
@@ -731,14 +728,9 @@ def c3vd_camera() -> OmnidirectionalCamera:
     True
     """
     return OmnidirectionalCamera(
-        cx=678.544839263292,
-        cy=542.975887548343,
+        cx=678.544839263292, cy=542.975887548343,
         a=(769.243600037458, 0.0, -0.000812770624150226, 6.25674244578925e-07, -1.1966218214428e-09),
-        c=0.99998688224999,
-        d=0.00288273829525059,
-        e=-0.00296316513429569,
-        image_size=(1350, 1080),
-    )
+        c=0.99998688224999, d=0.00288273829525059, e=-0.00296316513429569, image_size=(1350, 1080))
 
 
 def as_camera_model(camera, image_size=None) -> CameraModel:
