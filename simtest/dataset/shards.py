@@ -341,10 +341,7 @@ class ShardWriter:
             with self._zip.open(info, "w", force_zip64=True) as fh:
                 np.lib.format.write_array(fh, np.ascontiguousarray(a), allow_pickle=False)
             arrays[name] = array_info(a)
-        row = dict(sample.record)
-        row["index"] = int(sample.index)
-        row["shard"] = int(self.shard)
-        row["arrays"] = arrays
+        row = {**sample.record, "index": int(sample.index), "shard": int(self.shard), "arrays": arrays}
         row["labels_sha256"] = labels_sha256(row)
         self._rows.append(row)
 
@@ -357,15 +354,9 @@ class ShardWriter:
         with open(self.tmp_path, "rb+") as fh:
             os.fsync(fh.fileno())
         os.replace(self.tmp_path, self.npz_path)
-        doc = {
-            "shard": self.shard,
-            "npz": self.npz_path.name,
-            "npz_sha256": file_sha256(self.npz_path),
-            "npz_bytes": self.npz_path.stat().st_size,
-            "indices": [self.indices.start, self.indices.stop],
-            **self.meta,
-            "samples": self._rows,
-        }
+        doc = {"shard": self.shard, "npz": self.npz_path.name, "npz_sha256": file_sha256(self.npz_path),
+               "npz_bytes": self.npz_path.stat().st_size, "indices": [self.indices.start, self.indices.stop],
+               **self.meta, "samples": self._rows}
         atomic_write_json(shard_json_path(self.root, self.shard), doc)
 
     def abort(self) -> None:
