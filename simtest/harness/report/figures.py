@@ -293,11 +293,8 @@ def _rho_cases(results: dict) -> list[dict]:
     cs = [c for c in results["cases"] if c["protocol"] == "rendered"
           and c["metrics"]["diagnostics"].get("predicted_gap") is not None
           and not c.get("family", "").startswith("plane")]
-    seen, cases = set(), []
-    for c in cs:
-        if c["key"] not in seen:
-            seen.add(c["key"])
-            cases.append(c)
+    first: dict = {}
+    cases = [first.setdefault(c["key"], c) for c in cs if c["key"] not in first]
     measured = any(np.isfinite(_val(c["metrics"]["diagnostics"], "eigenvalue_gap"))
                    or any(np.isfinite(_val(c["metrics"]["estimators"].get(e, {}), "mean"))
                           for e in RHO_ESTIMATOR_MARKERS)
