@@ -64,9 +64,7 @@ def jsonable(obj: Any, *, default: Callable[[Any], Any] | None = None) -> Any:
         return jsonable(obj.tolist(), default=default)
     if isinstance(obj, np.generic):
         return obj.item()
-    if default is None or obj is None or isinstance(obj, str | int | float):
-        return obj
-    return default(obj)
+    return obj if default is None or obj is None or isinstance(obj, str | int | float) else default(obj)
 
 
 def _default_mode() -> int:

@@ -15,18 +15,11 @@ import re
 MIN_LLVM_MAJOR = 16
 
 #: What to tell a user whose machine lacks a suitable LLVM.
-LLVM_FIX = (
-    "install LLVM 16 or newer, e.g. `apt-get install libllvm19` on Debian, or set "
-    "DRJIT_LIBLLVM_PATH to a libLLVM-16+ shared library"
-)
+LLVM_FIX = ("install LLVM 16 or newer, e.g. `apt-get install libllvm19` on Debian, or set "
+            "DRJIT_LIBLLVM_PATH to a libLLVM-16+ shared library")
 
-_SEARCH = (
-    "/usr/lib/x86_64-linux-gnu/libLLVM-*.so*",
-    "/usr/lib/aarch64-linux-gnu/libLLVM-*.so*",
-    "/usr/lib/llvm-*/lib/libLLVM*.so*",
-    "/usr/lib/libLLVM-*.so*",
-    "/usr/local/lib/libLLVM*.so*",
-)
+_SEARCH = ("/usr/lib/x86_64-linux-gnu/libLLVM-*.so*", "/usr/lib/aarch64-linux-gnu/libLLVM-*.so*",
+           "/usr/lib/llvm-*/lib/libLLVM*.so*", "/usr/lib/libLLVM-*.so*", "/usr/local/lib/libLLVM*.so*")
 
 
 def _major(path: str) -> int | None:

@@ -94,10 +94,8 @@ def resolve_section(name: str) -> SectionFn | str:
 
 
 def _unit_of(key: str) -> str:
-    for suffix, unit in (("_per_s", "1/s"), ("_ms", "ms"), ("_s", "s"), ("_mib", "MiB"), ("_mb", "MB")):
-        if key.endswith(suffix):
-            return unit
-    return ""
+    units = (("_per_s", "1/s"), ("_ms", "ms"), ("_s", "s"), ("_mib", "MiB"), ("_mb", "MB"))
+    return next((unit for suffix, unit in units if key.endswith(suffix)), "")
 
 
 def _flatten(section_name: str, obj, prefix: str = "") -> list[BenchResult]:
@@ -128,12 +126,7 @@ def run_section(name: str, fn: SectionFn, repeat: int, variant: str | None = Non
         params = inspect.signature(fn).parameters
     except (TypeError, ValueError):
         params = {"repeat": None}
-    kwargs: dict = {}
-    if "repeat" in params:
-        kwargs["repeat"] = repeat
-    if variant is not None and "variant" in params:
-        kwargs["variant"] = variant
-    res = fn(**kwargs)
+    res = fn(**{k: v for k, v in (("repeat", repeat), ("variant", variant)) if k in params and v is not None})
     return _flatten(name, res) if isinstance(res, dict) else list(res)
 
 

@@ -15,13 +15,9 @@ from simtest.dataset.shards import DatasetError, DatasetWriteError
 from simtest.dataset.show import contact_sheet
 from simtest.dataset.verify import verify
 
-dataset_app = typer.Typer(
-    name="dataset",
-    help="Rendered datasets for learning: generate (resumable, local or Dask), verify, show, export.",
-    no_args_is_help=True,
-    add_completion=False,
-    pretty_exceptions_enable=False,
-)
+dataset_app = typer.Typer(name="dataset", no_args_is_help=True, add_completion=False,
+                          pretty_exceptions_enable=False, help="Rendered datasets for learning: generate "
+                          "(resumable, local or Dask), verify, show, export.")
 
 
 @dataset_app.command("generate")

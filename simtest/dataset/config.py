@@ -56,17 +56,8 @@ from simtest._config import CONFIG, Bool, Int, Num, Scalar, Str, validated
 from simtest._io import jsonable
 from simtest.scene.spec import Variant
 
-__all__ = [
-    "FAMILIES",
-    "MAX_COUNT",
-    "PARAMS",
-    "DatasetConfig",
-    "DatasetConfigError",
-    "Dist",
-    "ParamDef",
-    "config_from_dict",
-    "load_config",
-]
+__all__ = ["FAMILIES", "MAX_COUNT", "PARAMS", "DatasetConfig", "DatasetConfigError", "Dist", "ParamDef",
+           "config_from_dict", "load_config"]
 
 #: Scene families, in the canonical order used for the seeded family draw.
 FAMILIES: tuple[str, ...] = ("planes", "spheres", "cylinders", "colon", "liver")
@@ -136,9 +127,7 @@ class Dist:
             hi = high if high is not None else (math.inf if std > 0 else mean)
             return (lo, hi)
         values = self.args[0]
-        if all(_is_number(v) for v in values):
-            return (min(values), max(values))
-        return None
+        return (min(values), max(values)) if all(_is_number(v) for v in values) else None
 
     def draw(self, rng: np.random.Generator, integer: bool = False):
         """Draw one value with ``rng`` (constants draw nothing from the stream).
@@ -172,9 +161,7 @@ class Dist:
             v = values[int(rng.choice(len(values), p=p))]
         if integer:
             return int(round(v))
-        if isinstance(v, bool | str):
-            return v
-        return float(v)
+        return v if isinstance(v, bool | str) else float(v)
 
     def as_dict(self) -> dict:
         """JSON/TOML-ready form (the inverse of the config syntax)."""
@@ -437,12 +424,8 @@ class DatasetConfig:
         """Canonical, complete JSON-ready form (defaults filled in); ``config_from_dict`` reads it."""
         used = {f for f, _ in self.families}
         return {
-            "count": self.count,
-            "seed": self.seed,
-            "shard_size": self.shard_size,
-            "isovalues": list(self.isovalues),
-            "variant": self.variant,
-            "compress": self.compress,
+            "count": self.count, "seed": self.seed, "shard_size": self.shard_size,
+            "isovalues": list(self.isovalues), "variant": self.variant, "compress": self.compress,
             "splits": dict(self.splits),
             "auto_exposure": (None if self.auto_exposure is None else
                               {"percentile": self.auto_exposure[0], "level": self.auto_exposure[1]}),
@@ -583,12 +566,7 @@ def _parse_dist(value, key: str, source: str) -> Dist:
 
 def _check_domain(p: ParamDef, dist: Dist, key: str, source: str) -> None:
     """Refuse a distribution whose draws can leave the parameter's domain."""
-    if dist.kind == "constant":
-        values = [dist.args[0]]
-    elif dist.kind == "choice":
-        values = list(dist.args[0])
-    else:
-        values = None
+    values = {"constant": dist.args[:1], "choice": dist.args[0]}.get(dist.kind)
     show = dist.args[0] if dist.kind == "constant" else dist.as_dict()
     if p.choices is not None:
         if values is None or any(v not in p.choices for v in values):
@@ -609,9 +587,8 @@ def _check_domain(p: ParamDef, dist: Dist, key: str, source: str) -> None:
     bad_low = a < lo or (p.open_low and a <= lo)
     bad_high = b > hi or (p.open_high and b >= hi)
     if bad_low or bad_high:
-        lb = "(" if p.open_low else "["
-        rb = ")" if p.open_high else "]"
-        reason = f"draws can leave the domain {lb}{format_value(lo)}, {format_value(hi)}{rb}"
+        reason = (f"draws can leave the domain {'(' if p.open_low else '['}{format_value(lo)}, "
+                  f"{format_value(hi)}{')' if p.open_high else ']'}")
         if dist.kind == "normal":
             reason += " (give low/high to clip a normal distribution)"
         raise _err(source, key, reason, show)
@@ -664,10 +641,14 @@ def config_from_dict(d: dict, source: str = "<dict>") -> DatasetConfig:
         raise _err(source, "families", "at least one family needs a positive weight", fam)
     families = tuple((f, weights[f]) for f in FAMILIES if weights.get(f, 0) > 0)
 
-    params_in = top.params
+    def dist_of(p: ParamDef, value, where: str) -> Dist:
+        dist = _parse_dist(value, where, source)
+        _check_domain(p, dist, where, source)
+        return dist
+
     common: dict[str, Dist] = {}
     per_family: dict[str, dict[str, Dist]] = {}
-    for key, value in params_in.items():
+    for key, value in top.params.items():
         if key in FAMILIES:
             if not isinstance(value, dict):
                 raise _err(source, f"params.{key}", "must be a table of parameter distributions", value)
@@ -680,40 +661,19 @@ def config_from_dict(d: dict, source: str = "<dict>") -> DatasetConfig:
                 if key not in p.families:
                     raise _err(source, where, f"parameter not used by family {key} (used by: "
                                + ", ".join(p.families) + ")", pv)
-                dist = _parse_dist(pv, where, source)
-                _check_domain(p, dist, where, source)
-                per_family[key][pk] = dist
+                per_family[key][pk] = dist_of(p, pv, where)
             continue
-        where = f"params.{key}"
-        p = _PARAM_BY_NAME.get(key)
-        if p is None:
-            raise _err(source, where, "unknown parameter or family (parameters: " + ", ".join(_PARAM_BY_NAME)
-                       + "; families: " + ", ".join(FAMILIES) + ")", value)
-        dist = _parse_dist(value, where, source)
-        _check_domain(p, dist, where, source)
-        common[key] = dist
+        if key not in _PARAM_BY_NAME:
+            raise _err(source, f"params.{key}", "unknown parameter or family (parameters: "
+                       + ", ".join(_PARAM_BY_NAME) + "; families: " + ", ".join(FAMILIES) + ")", value)
+        common[key] = dist_of(_PARAM_BY_NAME[key], value, f"params.{key}")
 
-    resolved: dict[str, dict[str, Dist]] = {}
-    for f, _ in families:
-        resolved[f] = {}
-        for p in PARAMS:
-            if f not in p.families:
-                continue
-            resolved[f][p.name] = per_family.get(f, {}).get(p.name) or common.get(p.name) or p.default_for(f)
-    return DatasetConfig(
-        count=top.count,
-        seed=top.seed,
-        shard_size=top.shard_size,
-        isovalues=tuple(iso),
-        variant=top.variant,
-        compress=top.compress,
-        families=families,
-        params=resolved,
-        source=source,
-        raw=jsonable(d, default=str),
-        splits=splits,
-        auto_exposure=auto_exposure,
-    )
+    resolved = {f: {p.name: per_family.get(f, {}).get(p.name) or common.get(p.name) or p.default_for(f)
+                    for p in PARAMS if f in p.families} for f, _ in families}
+    return DatasetConfig(count=top.count, seed=top.seed, shard_size=top.shard_size, isovalues=tuple(iso),
+                         variant=top.variant, compress=top.compress, families=families, params=resolved,
+                         source=source, raw=jsonable(d, default=str), splits=splits,
+                         auto_exposure=auto_exposure)
 
 
 def load_config(path) -> DatasetConfig:

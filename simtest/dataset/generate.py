@@ -48,9 +48,8 @@ from datetime import datetime, timezone
 from pathlib import Path
 from typing import Callable
 
-from rich.progress import (
-    BarColumn, MofNCompleteColumn, Progress, ProgressColumn, TextColumn, TimeElapsedColumn, TimeRemainingColumn,
-)
+from rich.progress import (BarColumn, MofNCompleteColumn, Progress, ProgressColumn, TextColumn,
+                           TimeElapsedColumn, TimeRemainingColumn)
 from rich.text import Text
 
 import numpy as np
@@ -64,11 +63,10 @@ from simtest._workers import new_pool, stop_workers
 from simtest.dataset.card import _readme, make_card
 from simtest.dataset.config import DatasetConfig, load_config
 from simtest.dataset.sample import Sample, render_sample
-from simtest.dataset.shards import (
-    CARD_NAME, MANIFEST_NAME, SHARDS_DIR, TMP_SUFFIX, DatasetError, DatasetWriteError, ShardWriter, array_sha256,
-    card_sha256, check_shard, file_sha256, json_sha256, read_card, read_shard_rows, shard_json_path,
-    shard_npz_path, write_manifest,
-)
+from simtest.dataset.shards import (CARD_NAME, MANIFEST_NAME, SHARDS_DIR, TMP_SUFFIX, DatasetError,
+                                    DatasetWriteError, ShardWriter, array_sha256, card_sha256,
+                                    check_shard, file_sha256, json_sha256, read_card, read_shard_rows,
+                                    shard_json_path, shard_npz_path, write_manifest)
 
 __all__ = ["GenerateReport", "Interrupted", "SampleError", "DatasetWriteError", "SPOOL_DIR", "generate"]
 
@@ -349,7 +347,7 @@ class _Inline:
         pass
 
 
-class _Pool:
+class _Pool(_Inline):
     """A pool of local processes (spawned, so no Mitsuba state is forked)."""
 
     def __init__(self, sample_fn, config, workers: int):
@@ -360,9 +358,6 @@ class _Pool:
 
     def submit(self, index: int):
         return self.ex.submit(_run_task, self.sample_fn, self.config, index)
-
-    def wait(self, futures):
-        return cf.wait(futures, return_when=cf.FIRST_COMPLETED).done
 
     def close(self, cancel: bool = False):
         if cancel:  # an error or an interrupt: stop the workers now, not after their renders

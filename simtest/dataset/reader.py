@@ -42,9 +42,8 @@ from typing import Callable, Iterator, Sequence
 import numpy as np
 
 from simtest._lazy import require
-from simtest.dataset.shards import (
-    MANIFEST_NAME, DatasetError, decode_png, entry_name, labels_sha256, read_card, read_manifest, shard_path_from_row,
-)
+from simtest.dataset.shards import (MANIFEST_NAME, DatasetError, decode_png, entry_name, labels_sha256,
+                                    read_card, read_manifest, shard_path_from_row)
 
 __all__ = ["SPLITS", "SimtestDataset", "TorchView", "collate", "open_dataset"]
 
@@ -113,11 +112,8 @@ class SimtestDataset:
         if split is not None:
             keep = [k for k, r in enumerate(rows) if r.get("split") == split]
             rows, self._paths = [rows[k] for k in keep], [self._paths[k] for k in keep]
-        self.rows = rows
-        self.split = split
-        self.keys = keys
-        self.with_record = with_record
-        self.max_open = max_open
+        self.rows, self.split, self.keys = rows, split, keys
+        self.with_record, self.max_open = with_record, max_open
         self._open: OrderedDict = OrderedDict()
         self._checked: set[int] = set()
 
@@ -268,9 +264,7 @@ class TorchView:
         arrays = tuple(k for k in keys if k in _ARRAYS)
         self.dataset = SimtestDataset(dataset.root, keys=arrays, with_record=True, split=dataset.split,
                                       max_open=dataset.max_open)
-        self.keys = keys
-        self.transform = transform
-        self.with_record = with_record
+        self.keys, self.transform, self.with_record = keys, transform, with_record
         #: Channels of the ``"sensor"`` tensor: 3 if any sample of the dataset (any split) is RGB
         #: (record ``color``), else 1: every split of one dataset gives the same shape.
         self.sensor_channels = 3 if dataset.has_rgb else 1

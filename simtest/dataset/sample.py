@@ -67,17 +67,8 @@ from simtest.scene.spec import scene_from_dict, scene_to_dict
 from simtest.simulate.truth import HighlightTruthError, cylinder_highlight, sphere_highlight
 from simtest.specular import isophote_radius
 
-__all__ = [
-    "CHANNELS",
-    "Sample",
-    "build_scene",
-    "draw_parameters",
-    "MAX_REDRAWS",
-    "isophote_record",
-    "render_sample",
-    "sample_rng",
-    "truth_problem",
-]
+__all__ = ["CHANNELS", "Sample", "build_scene", "draw_parameters", "MAX_REDRAWS", "isophote_record",
+           "render_sample", "sample_rng", "truth_problem"]
 
 #: Most redraws of one sample (see the module notes): a family whose poses need more than that
 #: has a config that rarely gives a defined truth, reported as an error naming the family.
@@ -87,40 +78,28 @@ _RADIANCE_UNIT = "linear radiance (light_intensity x BRDF, / d^2 in mm when the 
 
 #: Arrays stored per sample: name -> (dtype, shape as text, unit, description).
 CHANNELS: dict[str, dict[str, str]] = {
-    "sensor_png": {
-        "dtype": "uint8", "shape": "(nbytes,)", "unit": "PNG file bytes",
-        "description": "the sensor image as an endoscope outputs it (8-bit PNG; auto-exposure (record "
-                       "`exposure_applied`), clipping, noise and quantisation applied): gray (H, W) for "
-                       "appearance \"phong\", an sRGB video frame (H, W, 3) for appearance \"tissue\" "
-                       "(record `color`); decode with PIL.Image.open(io.BytesIO(a.tobytes()))",
-    },
-    "linear": {
-        "dtype": "float32", "shape": "(H, W)", "unit": _RADIANCE_UNIT,
-        "description": "linear image before the sensor model (specular + diffuse; for appearance "
-                       "\"tissue\" the BT.601 luma of the linear RGB render)",
-    },
-    "specular": {
-        "dtype": "float32", "shape": "(H, W)", "unit": _RADIANCE_UNIT,
-        "description": "specular-only linear image",
-    },
-    "normals": {
-        "dtype": "float32", "shape": "(H, W, 3)", "unit": "unit vector",
-        "description": "ground-truth surface normal, OpenCV camera frame (x right, y down, z "
-                       "forward), facing the camera; 0 outside `mask`",
-    },
-    "depth": {
-        "dtype": "float32", "shape": "(H, W)", "unit": "mm",
-        "description": "z-depth along the optical axis (camera frame); 0 outside `mask`",
-    },
-    "mask": {
-        "dtype": "bool", "shape": "(H, W)", "unit": "-",
-        "description": "pixel covered by the surface (silhouette pixels excluded)",
-    },
-    "highlight_mask": {
-        "dtype": "bool", "shape": "(H, W)", "unit": "-",
-        "description": "specular-only radiance >= min(isovalues) x the image's maximum specular "
-                       "radiance (the region inside the outermost labelled isophote)",
-    },
+    "sensor_png": {"dtype": "uint8", "shape": "(nbytes,)", "unit": "PNG file bytes",
+                   "description": "the sensor image as an endoscope outputs it (8-bit PNG; "
+                                  "auto-exposure (record `exposure_applied`), clipping, noise and "
+                                  "quantisation applied): gray (H, W) for appearance \"phong\", an sRGB "
+                                  "video frame (H, W, 3) for appearance \"tissue\" (record `color`); "
+                                  "decode with PIL.Image.open(io.BytesIO(a.tobytes()))"},
+    "linear": {"dtype": "float32", "shape": "(H, W)", "unit": _RADIANCE_UNIT,
+               "description": "linear image before the sensor model (specular + diffuse; for appearance "
+                              "\"tissue\" the BT.601 luma of the linear RGB render)"},
+    "specular": {"dtype": "float32", "shape": "(H, W)", "unit": _RADIANCE_UNIT,
+                 "description": "specular-only linear image"},
+    "normals": {"dtype": "float32", "shape": "(H, W, 3)", "unit": "unit vector",
+                "description": "ground-truth surface normal, OpenCV camera frame (x right, y down, z "
+                               "forward), facing the camera; 0 outside `mask`"},
+    "depth": {"dtype": "float32", "shape": "(H, W)", "unit": "mm",
+              "description": "z-depth along the optical axis (camera frame); 0 outside `mask`"},
+    "mask": {"dtype": "bool", "shape": "(H, W)", "unit": "-",
+             "description": "pixel covered by the surface (silhouette pixels excluded)"},
+    "highlight_mask": {"dtype": "bool", "shape": "(H, W)", "unit": "-",
+                       "description": "specular-only radiance >= min(isovalues) x the image's maximum "
+                                      "specular radiance (the region inside the outermost labelled "
+                                      "isophote)"},
 }
 
 
@@ -488,9 +467,7 @@ def mesh_sha256(family: str) -> str | None:
     if family not in ("colon", "colon_haustral", "liver"):
         return None
     path = bundled_mesh_path(family)
-    if not path.is_file():
-        return None
-    return hashlib.sha256(path.read_bytes()).hexdigest()
+    return hashlib.sha256(path.read_bytes()).hexdigest() if path.is_file() else None
 
 
 def camera_file(result) -> dict:
@@ -570,32 +547,18 @@ def sample_from_render(config: DatasetConfig, index: int, params: dict, result) 
         "highlight_mask": np.ascontiguousarray(hmask, dtype=bool),
     }
     K = np.asarray(result.K, dtype=np.float64)
-    highlights = []
-    for h in result.highlights:
-        rec = {
-            "bp_px": jsonable(np.asarray(h.bp_px, np.float64)),
-            "bp_mm": jsonable(np.asarray(h.bp_mm, np.float64)),
-            "normal": jsonable(np.asarray(h.normal, np.float64)),
-            "k1": float(h.k1),
-            "k2": float(h.k2),
-            "in_frame": bool(h.in_frame),
-        }
-        rec["isophotes"] = isophote_record(h.bp_mm, h.normal, K, config.isovalues, params["phong_n"])
-        highlights.append(rec)
+    f64 = lambda a: jsonable(np.asarray(a, np.float64))  # noqa: E731
+    highlights = [{"bp_px": f64(h.bp_px), "bp_mm": f64(h.bp_mm), "normal": f64(h.normal), "k1": float(h.k1),
+                   "k2": float(h.k2), "in_frame": bool(h.in_frame),
+                   "isophotes": isophote_record(h.bp_mm, h.normal, K, config.isovalues, params["phong_n"])}
+                  for h in result.highlights]
     record = {
-        "index": int(index),
-        "family": params["family"],
-        "params": jsonable(params),
-        "render_seed": int(params["render_seed"]),
-        "K": K.tolist(),
+        "index": int(index), "family": params["family"], "params": jsonable(params),
+        "render_seed": int(params["render_seed"]), "K": K.tolist(),
         "cam_to_world": np.asarray(result.cam_to_world, np.float64).tolist(),
-        "image_size": [int(mask.shape[1]), int(mask.shape[0])],
-        "variant": str(result.variant),
-        "exposure_applied": exposure,
-        "color": "rgb" if sensor.ndim == 3 else "grey",
-        "highlights": highlights,
-        "camera": camera_file(result),
-        "scene": _portable_scene(result.spec),
+        "image_size": [int(mask.shape[1]), int(mask.shape[0])], "variant": str(result.variant),
+        "exposure_applied": exposure, "color": "rgb" if sensor.ndim == 3 else "grey",
+        "highlights": highlights, "camera": camera_file(result), "scene": _portable_scene(result.spec),
     }
     return Sample(index=int(index), arrays=arrays, record=record)
 

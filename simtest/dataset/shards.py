@@ -64,27 +64,10 @@ from PIL import Image
 
 from simtest._io import atomic_write_json, atomic_write_text
 
-__all__ = [
-    "CARD_NAME",
-    "FORMAT",
-    "FORMAT_VERSION",
-    "MANIFEST_NAME",
-    "DatasetError",
-    "DatasetWriteError",
-    "ShardWriter",
-    "array_sha256",
-    "card_sha256",
-    "file_sha256",
-    "json_sha256",
-    "labels_sha256",
-    "read_card",
-    "read_manifest",
-    "read_shard_rows",
-    "shard_comment",
-    "shard_json_path",
-    "shard_npz_path",
-    "shard_path_from_row",
-]
+__all__ = ["CARD_NAME", "FORMAT", "FORMAT_VERSION", "MANIFEST_NAME", "DatasetError", "DatasetWriteError",
+           "ShardWriter", "array_sha256", "card_sha256", "file_sha256", "json_sha256", "labels_sha256",
+           "read_card", "read_manifest", "read_shard_rows", "shard_comment", "shard_json_path",
+           "shard_npz_path", "shard_path_from_row"]
 
 FORMAT = "simtest-dataset"
 FORMAT_VERSION = 1
@@ -358,10 +341,7 @@ class ShardWriter:
             with self._zip.open(info, "w", force_zip64=True) as fh:
                 np.lib.format.write_array(fh, np.ascontiguousarray(a), allow_pickle=False)
             arrays[name] = array_info(a)
-        row = dict(sample.record)
-        row["index"] = int(sample.index)
-        row["shard"] = int(self.shard)
-        row["arrays"] = arrays
+        row = {**sample.record, "index": int(sample.index), "shard": int(self.shard), "arrays": arrays}
         row["labels_sha256"] = labels_sha256(row)
         self._rows.append(row)
 
@@ -374,15 +354,9 @@ class ShardWriter:
         with open(self.tmp_path, "rb+") as fh:
             os.fsync(fh.fileno())
         os.replace(self.tmp_path, self.npz_path)
-        doc = {
-            "shard": self.shard,
-            "npz": self.npz_path.name,
-            "npz_sha256": file_sha256(self.npz_path),
-            "npz_bytes": self.npz_path.stat().st_size,
-            "indices": [self.indices.start, self.indices.stop],
-            **self.meta,
-            "samples": self._rows,
-        }
+        doc = {"shard": self.shard, "npz": self.npz_path.name, "npz_sha256": file_sha256(self.npz_path),
+               "npz_bytes": self.npz_path.stat().st_size, "indices": [self.indices.start, self.indices.stop],
+               **self.meta, "samples": self._rows}
         atomic_write_json(shard_json_path(self.root, self.shard), doc)
 
     def abort(self) -> None:
@@ -445,9 +419,7 @@ def read_shard_comment(npz: Path) -> dict:
     with zipfile.ZipFile(npz) as z:
         text = z.comment.decode("ascii", errors="replace")
     head, _, rest = text.partition(" ")
-    if head != FORMAT:
-        return {}
-    return dict(kv.split("=", 1) for kv in rest.split() if "=" in kv)
+    return {} if head != FORMAT else dict(kv.split("=", 1) for kv in rest.split() if "=" in kv)
 
 
 def check_shard(root: Path, shard: int, fingerprint: str, indices: range) -> list[str]:

@@ -7,11 +7,10 @@ from pathlib import Path
 
 import numpy as np
 
-from simtest.dataset.shards import (
-    CARD_NAME, MANIFEST_NAME, SHARDS_DIR, TMP_SUFFIX, DatasetError, array_sha256, card_sha256, check_shard,
-    decode_png, entry_name, file_sha256, json_sha256, labels_sha256, read_card, read_manifest, read_shard_rows,
-    shard_json_path, shard_npz_path, shard_path_from_row,
-)
+from simtest.dataset.shards import (CARD_NAME, MANIFEST_NAME, SHARDS_DIR, TMP_SUFFIX, DatasetError,
+                                    array_sha256, card_sha256, check_shard, decode_png, entry_name,
+                                    file_sha256, json_sha256, labels_sha256, read_card, read_manifest,
+                                    read_shard_rows, shard_json_path, shard_npz_path, shard_path_from_row)
 
 __all__ = ["UNIT_NORMAL_TOL", "VerifyReport", "verify"]
 

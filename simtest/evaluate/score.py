@@ -220,9 +220,8 @@ def score_highlights(frame_id: str, estimates, truth, camera: CameraModel) -> li
         row["scored"] = True
         for name, n in estimator_normals(spec).items():
             row["errors_bp_deg"][name] = None if n is None else float(angle_between_deg(n, n_bp))
-            row["errors_footprint_deg"][name] = (
-                None if n is None or n_fp is None else float(angle_between_deg(n, n_fp))
-            )
+            row["errors_footprint_deg"][name] = (None if n is None or n_fp is None
+                                                 else float(angle_between_deg(n, n_fp)))
     return rows
 
 

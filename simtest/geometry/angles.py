@@ -84,9 +84,7 @@ def unit(v, axis: int | None = None) -> np.ndarray:
         The unit vector(s); NaN (with a numpy warning) where ``v`` is zero.
     """
     v = np.asarray(v, dtype=np.float64)
-    if axis is None:
-        return v / np.linalg.norm(v)
-    return v / np.linalg.norm(v, axis=axis, keepdims=True)
+    return v / np.linalg.norm(v) if axis is None else v / np.linalg.norm(v, axis=axis, keepdims=True)
 
 
 def face_camera(normal, ray) -> np.ndarray:

@@ -18,15 +18,8 @@ from __future__ import annotations
 import cv2
 import numpy as np
 
-__all__ = [
-    "IntrinsicsError",
-    "bp_ray_normal",
-    "look_at",
-    "pixel_to_ray",
-    "project_points",
-    "undistort_points",
-    "validate_intrinsics",
-]
+__all__ = ["IntrinsicsError", "bp_ray_normal", "look_at", "pixel_to_ray", "project_points",
+           "undistort_points", "validate_intrinsics"]
 
 
 class IntrinsicsError(ValueError):

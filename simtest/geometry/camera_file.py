@@ -50,16 +50,8 @@ from simtest.geometry.cameras import CameraModel, FisheyeCamera, Omnidirectional
 from simtest.geometry.lights import Light, LightRig, LightRigError, check_scope_rig
 from simtest.geometry.response import ResponseError, SensorResponse
 
-__all__ = [
-    "CameraFile",
-    "CameraFileError",
-    "Intrinsics",
-    "camera_from_dict",
-    "load_camera",
-    "load_intrinsics",
-    "save_camera",
-    "save_intrinsics",
-]
+__all__ = ["CameraFile", "CameraFileError", "Intrinsics", "camera_from_dict", "load_camera",
+           "load_intrinsics", "save_camera", "save_intrinsics"]
 
 _MODEL_KEYS = {
     "pinhole": {"required": ("K",), "optional": ("dist_coeffs",)},
@@ -118,9 +110,7 @@ class Intrinsics:
 def _has_bool(value) -> bool:
     if isinstance(value, bool):
         return True
-    if isinstance(value, (list, tuple)):
-        return any(_has_bool(v) for v in value)
-    return False
+    return isinstance(value, (list, tuple)) and any(_has_bool(v) for v in value)
 
 
 def _model_from_dict(data: dict, where: str) -> CameraModel:
@@ -135,16 +125,14 @@ def _model_from_dict(data: dict, where: str) -> CameraModel:
         raise CameraFileError(f"{where}: missing key '{missing[0]}' for model '{name}'")
     unknown = sorted(set(data) - allowed)
     if unknown:
-        raise CameraFileError(
-            f"{where}: unknown key '{unknown[0]}' for model '{name}' (allowed: {', '.join(sorted(allowed))})"
-        )
+        raise CameraFileError(f"{where}: unknown key '{unknown[0]}' for model '{name}' "
+                              f"(allowed: {', '.join(sorted(allowed))})")
     for k in (*keys["required"], *keys["optional"], "image_size"):
         if k in data and _has_bool(data[k]):
             raise CameraFileError(f"{where}: key '{k}' must hold numbers, got a boolean in {data[k]!r}")
     size = data.get("image_size")
-    if size is not None and not (
-        isinstance(size, list) and len(size) == 2 and all(isinstance(s, int) and s > 0 for s in size)
-    ):
+    if size is not None and not (isinstance(size, list) and len(size) == 2
+                                 and all(isinstance(s, int) and s > 0 for s in size)):
         raise CameraFileError(f"{where}: key 'image_size' must be [W, H] positive integers, got {size!r}")
     try:
         if name == "pinhole":
@@ -153,9 +141,8 @@ def _model_from_dict(data: dict, where: str) -> CameraModel:
         if name == "fisheye":
             K = validate_intrinsics(data["K"], where=f"{where}: key 'K'")
             return FisheyeCamera(K, data["D"], size)
-        return OmnidirectionalCamera(
-            data["cx"], data["cy"], [data[f"a{i}"] for i in range(5)], data["c"], data["d"], data["e"], size
-        )
+        return OmnidirectionalCamera(data["cx"], data["cy"], [data[f"a{i}"] for i in range(5)], data["c"],
+                                     data["d"], data["e"], size)
     except CameraFileError:
         raise
     except IntrinsicsError as exc:

@@ -52,14 +52,8 @@ import numpy as np
 from simtest._checks import finite_number
 from simtest.geometry.camera import IntrinsicsError, validate_intrinsics
 
-__all__ = [
-    "CameraModel",
-    "FisheyeCamera",
-    "OmnidirectionalCamera",
-    "PinholeCamera",
-    "as_camera_model",
-    "c3vd_camera",
-]
+__all__ = ["CameraModel", "FisheyeCamera", "OmnidirectionalCamera", "PinholeCamera", "as_camera_model",
+           "c3vd_camera"]
 
 #: Newton iterations stop when the pixel residual is below this (px); the round trip is then exact
 #: to far better than the 1e-6 px the tests ask.
@@ -84,11 +78,8 @@ def _as_rays(rays) -> np.ndarray:
 def _image_size(size, where: str) -> tuple[int, int] | None:
     if size is None:
         return None
-    if (
-        len(size) != 2
-        or any(isinstance(s, bool) or not isinstance(s, (int, np.integer)) for s in size)
-        or min(size) <= 0
-    ):
+    if len(size) != 2 or any(isinstance(s, bool) or not isinstance(s, (int, np.integer)) for s in size) \
+            or min(size) <= 0:
         raise IntrinsicsError(f"{where}: image_size must be [W, H] positive integers, got {list(size)!r}")
     return int(size[0]), int(size[1])
 
@@ -325,11 +316,8 @@ class PinholeCamera(CameraModel):
             self.dist_coeffs = self.dist_coeffs.copy()
             self.dist_coeffs.setflags(write=False)
         self.image_size = _image_size(image_size, "PinholeCamera")
-        d = np.zeros(12)
-        if self.dist_coeffs is not None:
-            n = min(12, self.dist_coeffs.size)
-            d[:n] = self.dist_coeffs[:n]
-        self._k = d  # k1 k2 p1 p2 k3 k4 k5 k6 s1 s2 s3 s4
+        dc = np.zeros(0) if self.dist_coeffs is None else self.dist_coeffs[:12]
+        self._k = np.pad(dc, (0, 12 - dc.size))  # k1 k2 p1 p2 k3 k4 k5 k6 s1 s2 s3 s4
         self._Kinv = np.linalg.inv(self.K)
 
     @property
@@ -337,10 +325,8 @@ class PinholeCamera(CameraModel):
         return self.K[:2, 2].copy()
 
     def params(self) -> dict:
-        return {
-            "K": self.K.tolist(),
-            "dist_coeffs": None if self.dist_coeffs is None else [float(x) for x in self.dist_coeffs],
-        }
+        return {"K": self.K.tolist(),
+                "dist_coeffs": None if self.dist_coeffs is None else [float(x) for x in self.dist_coeffs]}
 
     def _distort(self, x: np.ndarray, y: np.ndarray, jac: bool = False):
         k1, k2, p1, p2, k3, k4, k5, k6, s1, s2, s3, s4 = self._k
@@ -417,10 +403,8 @@ class PinholeCamera(CameraModel):
 def _check_monotone(theta: np.ndarray, radius: np.ndarray, what: str) -> None:
     if not np.all(np.diff(radius) > 0):
         i = int(np.argmax(np.diff(radius) <= 0))
-        raise IntrinsicsError(
-            f"{what}: not invertible over the frame (image radius stops growing at "
-            f"{np.degrees(theta[i]):.1f} deg off the axis)"
-        )
+        raise IntrinsicsError(f"{what}: not invertible over the frame (image radius stops growing at "
+                              f"{np.degrees(theta[i]):.1f} deg off the axis)")
 
 
 class FisheyeCamera(CameraModel):
@@ -480,11 +464,10 @@ class FisheyeCamera(CameraModel):
             xy = (np.concatenate([corners, np.ones((4, 1))], axis=1) @ self._Kinv.T)[:, :2]
             rmax = np.linalg.norm(xy, axis=1).max()
             if rmax > self._table_td[-1]:
-                raise IntrinsicsError(
-                    f"D: not invertible over the frame (its corners are {rmax:.3g} focal lengths off the "
-                    f"centre; the image radius stops growing at {self._table_td[-1]:.3g}, "
-                    f"{np.degrees(self._table_theta[-1]):.1f} deg off the axis)"
-                )
+                raise IntrinsicsError(f"D: not invertible over the frame (its corners are {rmax:.3g} focal "
+                                      f"lengths off the centre; the image radius stops growing at "
+                                      f"{self._table_td[-1]:.3g}, {np.degrees(self._table_theta[-1]):.1f} "
+                                      "deg off the axis)")
 
     def _theta_d(self, theta, deriv: bool = False):
         k1, k2, k3, k4 = self.D
@@ -640,19 +623,15 @@ class OmnidirectionalCamera(CameraModel):
     def _z(self, r, deriv: bool = False):
         a0, a1, a2, a3, a4 = self.a
         z = a0 + r * (a1 + r * (a2 + r * (a3 + r * a4)))
-        if not deriv:
-            return z
-        return z, a1 + r * (2 * a2 + r * (3 * a3 + r * 4 * a4))
+        return (z, a1 + r * (2 * a2 + r * (3 * a3 + r * 4 * a4))) if deriv else z
 
     @property
     def principal_point(self) -> np.ndarray:
         return np.array([self.cx, self.cy])
 
     def params(self) -> dict:
-        out = {"cx": self.cx, "cy": self.cy}
-        out.update({f"a{i}": float(v) for i, v in enumerate(self.a)})
-        out.update({"c": self.c, "d": self.d, "e": self.e})
-        return out
+        return {"cx": self.cx, "cy": self.cy, **{f"a{i}": float(v) for i, v in enumerate(self.a)},
+                "c": self.c, "d": self.d, "e": self.e}
 
     def pinhole_stand_in(self) -> PinholeCamera:
         """The pinhole a user without this model would use: f = a0, same centre and size.
@@ -749,14 +728,9 @@ def c3vd_camera() -> OmnidirectionalCamera:
     True
     """
     return OmnidirectionalCamera(
-        cx=678.544839263292,
-        cy=542.975887548343,
+        cx=678.544839263292, cy=542.975887548343,
         a=(769.243600037458, 0.0, -0.000812770624150226, 6.25674244578925e-07, -1.1966218214428e-09),
-        c=0.99998688224999,
-        d=0.00288273829525059,
-        e=-0.00296316513429569,
-        image_size=(1350, 1080),
-    )
+        c=0.99998688224999, d=0.00288273829525059, e=-0.00296316513429569, image_size=(1350, 1080))
 
 
 def as_camera_model(camera, image_size=None) -> CameraModel:
@@ -773,6 +747,4 @@ def as_camera_model(camera, image_size=None) -> CameraModel:
     -------
     CameraModel
     """
-    if isinstance(camera, CameraModel):
-        return camera
-    return PinholeCamera(camera, image_size=image_size)
+    return camera if isinstance(camera, CameraModel) else PinholeCamera(camera, image_size=image_size)

@@ -40,22 +40,9 @@ from simtest.geometry.angles import cross3
 from simtest.geometry.camera import validate_intrinsics
 from simtest.tolerances import TOL
 
-__all__ = [
-    "CirclePose",
-    "ConeAxis",
-    "Ellipse",
-    "circle_pose",
-    "conic_kind",
-    "conic_to_ellipse",
-    "cone_axis",
-    "cone_pose",
-    "cone_poses",
-    "ellipse_to_conic",
-    "normalised_conic",
-    "plane_basis",
-    "project_circle",
-    "sample_ellipse",
-]
+__all__ = ["CirclePose", "ConeAxis", "Ellipse", "circle_pose", "conic_kind", "conic_to_ellipse",
+           "cone_axis", "cone_pose", "cone_poses", "ellipse_to_conic", "normalised_conic", "plane_basis",
+           "project_circle", "sample_ellipse"]
 
 
 @fast_init
@@ -231,9 +218,7 @@ def conic_to_ellipse(C) -> Ellipse | None:
         If C is not 3x3 or has non-finite entries.
     """
     centre, axes, angle, ok = _ellipses_of(_check_conic(C)[None])
-    if not ok[0]:
-        return None
-    return Ellipse(center=centre[0], semi_axes=axes[0], angle_rad=float(angle[0]))
+    return Ellipse(center=centre[0], semi_axes=axes[0], angle_rad=float(angle[0])) if ok[0] else None
 
 
 def sample_ellipse(ellipse: Ellipse, n: int, *, rng=None, noise_px: float = 0.0) -> np.ndarray:

@@ -24,21 +24,9 @@ from simtest.harness.metrics import MATCH_PX
 from simtest.reconstruct.settings import ReconSettings
 from simtest.simulate.paper import PaperParams
 
-__all__ = [
-    "ReconKeys",
-    "RenderedKeys",
-    "RECON_KEYS",
-    "RENDERED_KEYS",
-    "MESH_POSE_KEYS",
-    "stable_hash",
-    "realisation_seed",
-    "Scoring",
-    "MeshPose",
-    "SceneSetting",
-    "harness_recon_settings",
-    "Case",
-    "Sweep",
-]
+__all__ = ["ReconKeys", "RenderedKeys", "RECON_KEYS", "RENDERED_KEYS", "MESH_POSE_KEYS", "stable_hash",
+           "realisation_seed", "Scoring", "MeshPose", "SceneSetting", "harness_recon_settings", "Case",
+           "Sweep"]
 
 #: A case's keys: frozen pydantic dataclasses, unknown keys refused.
 _model = functools.partial(pydantic_dataclass, frozen=True, config=CONFIG)

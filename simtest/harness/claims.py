@@ -128,14 +128,9 @@ def best_marks(stats: dict[str, dict | None], level: float = BEST_LEVEL) -> dict
 
 
 def _series(sweep_cases: list[dict], estimator: str, stat: str = "mean"):
-    xs, ys = [], []
-    for c in sweep_cases:
-        m = c["metrics"]["estimators"].get(estimator, {})
-        v = m.get(stat)
-        if v is not None:
-            xs.append(c["x"])
-            ys.append(v)
-    return np.asarray(xs, float), np.asarray(ys, float)
+    xy = [(c["x"], c["metrics"]["estimators"].get(estimator, {}).get(stat)) for c in sweep_cases]
+    xy = np.asarray([p for p in xy if p[1] is not None], float).reshape(-1, 2)
+    return xy[:, 0], xy[:, 1]
 
 
 def _chk_max_mean_below(cases, est, value):

@@ -25,24 +25,10 @@ from simtest._exit import BAD_BASELINE, BAD_INPUT, CANNOT_WRITE, CHECK_FAILED, f
     writable_dir
 from simtest._io import OutputFolderError
 from simtest._outdir import check_out_folder
-from simtest.harness.nightly import (
-    CAPS,
-    append_history,
-    changes_table,
-    check_section,
-    compare,
-    default_baseline_path,
-    expected_metrics,
-    gate_summary,
-    history_line,
-    load_baseline,
-    metrics_of,
-    noisy_headlines,
-    read_history,
-    uncovered,
-    undetectable_doublings,
-    update_baseline as write_baseline,
-)
+from simtest.harness.nightly import (CAPS, append_history, changes_table, check_section, compare,
+                                     default_baseline_path, expected_metrics, gate_summary, history_line,
+                                     load_baseline, metrics_of, noisy_headlines, read_history, uncovered,
+                                     undetectable_doublings, update_baseline as write_baseline)
 from simtest.harness.external import ExternalError, with_external
 from simtest.harness.report import REPORT_FILES, build_results, make_run_id, write_report_files
 from simtest.harness.runner import run_suite
@@ -157,9 +143,7 @@ def _json_safe(doc):
         return {k: _json_safe(v) for k, v in doc.items()}
     if isinstance(doc, list):
         return [_json_safe(v) for v in doc]
-    if isinstance(doc, float) and not math.isfinite(doc):
-        return None
-    return doc
+    return None if isinstance(doc, float) and not math.isfinite(doc) else doc
 
 
 def _summary(results: dict, console) -> None:
@@ -203,8 +187,7 @@ def validate_command(
     workers: Optional[int] = typer.Option(None, "--workers", "-j", min=0, show_default=False,
                                           help="Worker processes (0, the default: one per core; "
                                                "1: in process; at most the machine's CPUs)."),
-    seed: Optional[int] = typer.Option(None, "--seed", min=0, help="Root seed (default: the "
-                                                                   "suite's)."),
+    seed: Optional[int] = typer.Option(None, "--seed", min=0, help="Root seed (default: the suite's)."),
     out: Path = typer.Option(Path("reports"), "--out", "-o",
                              help="Reports root folder; the run goes to OUT/<suite>/<run id>/."),
     realisations: Optional[int] = typer.Option(
@@ -212,8 +195,7 @@ def validate_command(
         help=f"Realisations per case (default: the suite's; at most "
              f"{MAX_TOTAL_REALISATIONS:,} in all per run)."),
     run_id: Optional[str] = typer.Option(None, "--run-id", help="Run folder name, one plain name "
-                                                                "(default: <UTC time>-local, "
-                                                                "git-ignored)."),
+                                         "(default: <UTC time>-local, git-ignored)."),
     progress: bool = typer.Option(True, "--progress/--no-progress", help="Show progress."),
     scheduler: Optional[str] = typer.Option(None, "--scheduler", help=SCHEDULER_HELP),  # noqa: UP045
     estimator: Optional[list[str]] = typer.Option(  # noqa: UP045
@@ -288,28 +270,26 @@ def _covers(section: dict, names, where: str) -> None:
 
 
 def nightly_command(
-    quick: bool = typer.Option(False, "--quick", help="Run the quick suite instead of the nightly "
-                                                      "one."),
+    quick: bool = typer.Option(False, "--quick", help="Run the quick suite instead of the nightly one."),
     update_baseline: bool = typer.Option(False, "--update-baseline",
                                          help="Accept this code as the new baseline: run the "
                                               "suite --repeats times with seeds seed, seed + 1, "
                                               "... and store values, spreads and tolerances."),
-    repeats: int = typer.Option(4, "--repeats", min=1, help="Seed-varied runs that measure the "
-                                                            "spread (with --update-baseline)."),
-    seed: Optional[int] = typer.Option(None, "--seed", min=0, help="Root seed of this run "
-                                                                   "(default: the suite's)."),
+    repeats: int = typer.Option(4, "--repeats", min=1, help="Seed-varied runs that measure the spread "
+                                "(with --update-baseline)."),
+    seed: Optional[int] = typer.Option(None, "--seed", min=0, help="Root seed of this run (default: the "
+                                       "suite's)."),
     baseline: Optional[Path] = typer.Option(None, "--baseline", help="Baseline file (default: "
-                                                                     "reports/baseline.json)."),
-    history: Optional[Path] = typer.Option(None, "--history", help="History file, one JSON "
-                                                                   "line per run (default: "
-                                                                   "OUT/<suite>/history.jsonl)."),
+                                            "reports/baseline.json)."),
+    history: Optional[Path] = typer.Option(None, "--history", help="History file, one JSON line per run "
+                                           "(default: OUT/<suite>/history.jsonl)."),
     workers: Optional[int] = typer.Option(None, "--workers", "-j", min=0, show_default=False,
                                           help="Worker processes (0, the default: one per core; "
                                                "1: in process; at most the machine's CPUs)."),
     out: Path = typer.Option(Path("reports"), "--out", "-o",
                              help="Reports root folder; the run goes to OUT/<suite>/<run id>/."),
     run_id: Optional[str] = typer.Option(None, "--run-id", help="Run folder name, one plain name "
-                                                                "(default: <UTC time>-local)."),
+                                         "(default: <UTC time>-local)."),
     suite: Optional[str] = typer.Option(None, "--suite", help="Another suite (name or path)."),
     show_all: bool = typer.Option(False, "--all", help="List unchanged metrics too."),
     progress: bool = typer.Option(True, "--progress/--no-progress"),

@@ -47,8 +47,7 @@ import numpy as np
 from simtest.geometry.angles import angle_between_deg
 from simtest.reconstruct.registry import NORMAL_READERS, get, names, unit_or_none
 
-__all__ = ["ESTIMATORS", "LIGHT_AWARE_FITS", "ORACLE_INPUTS", "STATUS_FREE", "score",
-           "unit_or_none"]
+__all__ = ["ESTIMATORS", "LIGHT_AWARE_FITS", "ORACLE_INPUTS", "STATUS_FREE", "score", "unit_or_none"]
 
 
 #: The light-aware fits of :func:`simtest.reconstruct.light_fits.light_aware_estimates`, each read

@@ -17,8 +17,7 @@ from collections import Counter
 import numpy as np
 
 __all__ = ["summarise", "case_metrics", "summarise_records", "MATCH_PX", "WITHIN_DEG", "STAT_KEYS",
-           "MEDIAN_SUFFIX", "MEDIAN_DIAGNOSTICS",
-           "COUNTED_DIAGNOSTICS", "COUNT_SUFFIX"]
+           "MEDIAN_SUFFIX", "MEDIAN_DIAGNOSTICS", "COUNTED_DIAGNOSTICS", "COUNT_SUFFIX"]
 
 #: The statistics reported for each case and estimator (degrees, except failure_rate and counts).
 STAT_KEYS = ("mean", "std", "median", "p5", "p95", "min", "max")

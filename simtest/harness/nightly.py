@@ -203,9 +203,7 @@ def _bad(v) -> str | None:
         return f"non-numeric {v!r}"
     if math.isnan(v):
         return "NaN"
-    if math.isinf(v):
-        return "infinite"
-    return None
+    return "infinite" if math.isinf(v) else None
 
 
 def baseline_section(runs: list[dict], policy: dict | None = None) -> dict:
@@ -252,8 +250,7 @@ def baseline_section(runs: list[dict], policy: dict | None = None) -> dict:
         cap = pol.get("cap", CAPS)[metric_class(name)]
         tol = None if v is None else min(pol["k_spread"] * spread + pol["rel_floor"] * abs(v)
                                          + pol["abs_floor"][_unit(name)], cap)
-        metrics[name] = {"value": None if v is None else float(v), "spread": spread,
-                         "tolerance": tol}
+        metrics[name] = {"value": None if v is None else float(v), "spread": spread, "tolerance": tol}
     prov = runs[0].get("provenance", {})
     mach = prov.get("machine", {})
     return {"created_utc": runs[0].get("created_utc"), "git_commit": prov.get("git_commit"),

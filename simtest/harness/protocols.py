@@ -22,11 +22,8 @@ import numpy as np
 
 from simtest.constants import MAX_SEED
 from simtest.geometry.angles import angle_between_deg
-from simtest.geometry.curvature import (
-    curvature_ratio,
-    predicted_eigenvalue_gap,
-    predicted_pose_error_deg,
-)
+from simtest.geometry.curvature import (curvature_ratio, predicted_eigenvalue_gap,
+                                        predicted_pose_error_deg)
 from simtest.geometry.lights import Light, LightRig
 from simtest.geometry.response import SensorResponse, video_response
 from simtest.geometry.cameras import PinholeCamera
@@ -42,9 +39,8 @@ from simtest.scene import load_scene, with_overrides
 from simtest.scene.poses import colon_pose, liver_orbit_pose
 from simtest.simulate.paper import PaperSimulator
 
-__all__ = ["make_runner", "PaperRunner", "RenderedRunner", "Row",
-           "reconstruct_image", "render_rig", "mesh_pose_overrides", "curvature_between_lights",
-           "fit_scored", "realisation_overrides"]
+__all__ = ["make_runner", "PaperRunner", "RenderedRunner", "Row", "reconstruct_image", "render_rig",
+           "mesh_pose_overrides", "curvature_between_lights", "fit_scored", "realisation_overrides"]
 
 #: Margin of the paper protocol's ROI around the noiseless highlight, px: 5 smoothing widths of
 #: the default 2 px, far beyond the contour noise (about 2 px RMS at sigma = 5 %).
@@ -404,8 +400,7 @@ class RenderedRunner:
             image = result.sensor
         image = np.asarray(image)
         ests = reconstruct_image(image, result.K, self.settings)
-        ok_bps = [(e, np.asarray(e.bp_px, float)) for e in ests
-                  if getattr(e, "bp_px", None) is not None]
+        ok_bps = [(e, np.asarray(e.bp_px, float)) for e in ests if getattr(e, "bp_px", None) is not None]
         # Clipping: pixels at the sensor's full scale (0 for a linear float image).
         saturated = (float(np.sum(image >= np.iinfo(image.dtype).max))
                      if np.issubdtype(image.dtype, np.integer) else 0.0)

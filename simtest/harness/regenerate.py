@@ -92,9 +92,7 @@ def main(argv: list[str] | None = None) -> int:
     if a.baseline:
         for name, reps in BASELINE_REPEATS.items():
             _baseline(name, reps, a.baseline_path or default_baseline_path(), a.workers, console)
-    if not a.no_readme:
-        return readme.main(["--readme", str(a.readme), "--reports", str(a.out)])
-    return 0
+    return 0 if a.no_readme else readme.main(["--readme", str(a.readme), "--reports", str(a.out)])
 
 
 if __name__ == "__main__":

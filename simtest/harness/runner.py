@@ -24,14 +24,8 @@ from datetime import datetime, timezone
 import cv2
 import numpy as np
 from rich.console import Console
-from rich.progress import (
-    BarColumn,
-    MofNCompleteColumn,
-    Progress,
-    TextColumn,
-    TimeElapsedColumn,
-    TimeRemainingColumn,
-)
+from rich.progress import (BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn,
+                           TimeRemainingColumn)
 
 from simtest._dask import connect
 from simtest._lazy import require
@@ -339,11 +333,9 @@ def run_suite(suite: Suite, *, workers: int | None = None, progress: bool = True
     # Identical settings (same key, e.g. the default point of several sweeps) run once: the
     # progress bar counts what runs, as the console header and the report do.
     unique = suite.distinct_cases
-    tasks = []
-    for c in unique:
-        step = CHUNK.get(c.protocol, 50)
-        for s in range(0, c.realisations, step):
-            tasks.append((c, s, min(c.realisations, s + step)))
+    steps = {c.key: CHUNK.get(c.protocol, 50) for c in unique}
+    tasks = [(c, s, min(c.realisations, s + steps[c.key])) for c in unique
+             for s in range(0, c.realisations, steps[c.key])]
     total = sum(c.realisations for c in unique)
     by_key: dict[tuple, list[ChunkResult]] = {(c.key, c.realisations): [] for c in unique}
     started = datetime.now(timezone.utc).strftime("%Y-%m-%dT%H:%M:%SZ")

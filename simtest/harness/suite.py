@@ -79,27 +79,10 @@ from simtest.resources import bundled
 from simtest.scene import SceneError, bundled_scene_path, load_scene, with_overrides
 from simtest.simulate.paper import PaperParams
 
-__all__ = [
-    "SuiteError",
-    "Case",
-    "Sweep",
-    "Suite",
-    "PROTOCOLS",
-    "ESTIMATOR_NAMES",
-    "RECON_KEYS",
-    "load_suite",
-    "suite_from_dict",
-    "suites_dir",
-    "bundled_suite_names",
-    "resolve_suite_path",
-    "stable_hash",
-    "realisation_seed",
-    "Scoring",
-    "MeshPose",
-    "SceneSetting",
-    "harness_recon_settings",
-    "MAX_TOTAL_REALISATIONS",
-]
+__all__ = ["SuiteError", "Case", "Sweep", "Suite", "PROTOCOLS", "ESTIMATOR_NAMES", "RECON_KEYS",
+           "load_suite", "suite_from_dict", "suites_dir", "bundled_suite_names", "resolve_suite_path",
+           "stable_hash", "realisation_seed", "Scoring", "MeshPose", "SceneSetting",
+           "harness_recon_settings", "MAX_TOTAL_REALISATIONS"]
 
 PROTOCOLS = ("paper", "rendered")
 
@@ -465,8 +448,7 @@ def _typed(protocol: str, params: Mapping, source: str, where: str) -> dict:
 
 
 def _case_key(protocol: str, scene_name: str | None, params: Mapping) -> str:
-    return f"{protocol}|{scene_name or '-'}|" + json.dumps(params, sort_keys=True,
-                                                           separators=(",", ":"))
+    return f"{protocol}|{scene_name or '-'}|" + json.dumps(params, sort_keys=True, separators=(",", ":"))
 
 
 def suite_from_dict(raw: Mapping[str, Any], source: str = "<dict>", sha256: str = "") -> Suite:

@@ -18,14 +18,8 @@ import numpy as np
 from simtest.geometry.camera import validate_intrinsics
 from simtest.geometry.cameras import CameraModel
 
-__all__ = [
-    "cylinder_bp",
-    "phong_cylinder_image",
-    "phong_plane_image",
-    "phong_sphere_image",
-    "plane_bp",
-    "sphere_bp",
-]
+__all__ = ["cylinder_bp", "phong_cylinder_image", "phong_plane_image", "phong_sphere_image", "plane_bp",
+           "sphere_bp"]
 
 
 def _plane(normal, distance_mm: float) -> np.ndarray:

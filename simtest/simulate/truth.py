@@ -49,18 +49,9 @@ from simtest.geometry.angles import unit
 from simtest.geometry.camera import project_points
 from simtest.simulate.analytic import plane_bp
 
-__all__ = [
-    "HighlightTruth",
-    "HighlightTruthError",
-    "STATIONARY_RESIDUAL_TOL",
-    "bisector",
-    "circle_reflection",
-    "pixel_in_frame",
-    "plane_highlight",
-    "sphere_highlight",
-    "cylinder_highlight",
-    "saddle_mesh",
-]
+__all__ = ["HighlightTruth", "HighlightTruthError", "STATIONARY_RESIDUAL_TOL", "bisector",
+           "circle_reflection", "pixel_in_frame", "plane_highlight", "sphere_highlight",
+           "cylinder_highlight", "saddle_mesh"]
 
 
 class HighlightTruthError(RuntimeError):
@@ -578,9 +569,7 @@ def cylinder_highlight(center: np.ndarray, axis: np.ndarray, radius: float, leng
         s = float(np.dot(p - c, a))
     else:
         p, n, s = q + radius * n0, n0, s0
-    if abs(s) > 0.5 * length:
-        return None
-    return _highlight(p, n, 1.0 / radius, 0.0, K, size)
+    return None if abs(s) > 0.5 * length else _highlight(p, n, 1.0 / radius, 0.0, K, size)
 
 
 def saddle_mesh(distance_mm: float, radius1_mm: float, radius2_mm: float, extent_mm: float,

@@ -224,8 +224,7 @@ def _curves(sw: dict, sc: list[dict], ests: list[str]):
                  "at it", fontsize=9)
     bottom = axf if axf is not None else ax
     if axf is not None:
-        n_all = [int(c["metrics"]["estimators"].get(e, {}).get("n", 0) or 0)
-                 for c in sc for e in ests]
+        n_all = [int(c["metrics"]["estimators"].get(e, {}).get("n", 0) or 0) for c in sc for e in ests]
         axf.set_ylabel(f"failures\n(% of {_n_text(n_all)})")
         axf.set_ylim(-5, 105)
         ax.tick_params(axis="x", labelbottom=False)
@@ -257,8 +256,7 @@ def _bars(sw: dict, sc: list[dict], ests: list[str]):
             ax.set_visible(False)
             continue
         ms = [c["metrics"]["estimators"].get(e, {}) for c in sc]
-        mean, std, mn, mx = (np.array([_val(m, k) for m in ms]) for k in ("mean", "std", "min",
-                                                                           "max"))
+        mean, std, mn, mx = (np.array([_val(m, k) for m in ms]) for k in ("mean", "std", "min", "max"))
         n_ok = np.array([int(m.get("n_ok", 0) or 0) if m else 0 for m in ms])
         ok = np.isfinite(mean)
         bar = ok & (n_ok >= MIN_N_INTERVAL)
@@ -295,11 +293,8 @@ def _rho_cases(results: dict) -> list[dict]:
     cs = [c for c in results["cases"] if c["protocol"] == "rendered"
           and c["metrics"]["diagnostics"].get("predicted_gap") is not None
           and not c.get("family", "").startswith("plane")]
-    seen, cases = set(), []
-    for c in cs:
-        if c["key"] not in seen:
-            seen.add(c["key"])
-            cases.append(c)
+    first: dict = {}
+    cases = [first.setdefault(c["key"], c) for c in cs if c["key"] not in first]
     measured = any(np.isfinite(_val(c["metrics"]["diagnostics"], "eigenvalue_gap"))
                    or any(np.isfinite(_val(c["metrics"]["estimators"].get(e, {}), "mean"))
                           for e in RHO_ESTIMATOR_MARKERS)
@@ -346,8 +341,7 @@ def _rho_figure(results: dict):
             ln.set_gid(f"gap:{fam}:{shape}")
         for e in ests:
             me = np.array([_val(c["metrics"]["estimators"].get(e, {}), "mean") for c in fc])
-            (ln,) = a2.plot(pp, me, ls="none", color=f"C{i}", alpha=0.9,
-                            **RHO_ESTIMATOR_MARKERS[e])
+            (ln,) = a2.plot(pp, me, ls="none", color=f"C{i}", alpha=0.9, **RHO_ESTIMATOR_MARKERS[e])
             ln.set_gid(f"pose:{fam}:{e}")
     a1.plot([0, 1], [0, 1], "k--", lw=1, label="measured = predicted")
     a1.set_xlim(-0.03, 1.03)
@@ -368,8 +362,7 @@ def _rho_figure(results: dict):
         n_ok = {e: [int(m.get("n_ok", 0) or 0) for c in cases
                     for m in [c["metrics"]["estimators"].get(e, {})]
                     if np.isfinite(_val(m, "mean"))] for e in ests}
-        handles = [plt.Line2D([], [], ls="none", color="k", **RHO_ESTIMATOR_MARKERS[e])
-                   for e in ests]
+        handles = [plt.Line2D([], [], ls="none", color="k", **RHO_ESTIMATOR_MARKERS[e]) for e in ests]
         # upper left: above the diagonal, where a mean error would exceed its prediction
         a2.legend(handles, [f"{e} ({_n_text(n_ok[e])} per case)" for e in ests],
                   loc="upper left", fontsize=8, title="estimator", title_fontsize=8)
@@ -432,8 +425,7 @@ def trend_figure(history: list[dict]):
             if lab not in labs:
                 handles.append(h)
                 labs.append(lab)
-    fig.legend(handles, labs, loc="outside lower center", ncols=min(len(labs), 5) or 1,
-               fontsize=8)
+    fig.legend(handles, labs, loc="outside lower center", ncols=min(len(labs), 5) or 1, fontsize=8)
     fig.suptitle("Nightly trend: median error per scene family", fontsize=10)
     return fig
 

@@ -28,6 +28,4 @@ def fmt(v, nd: int = 3) -> str:
     if isinstance(v, int):
         return str(v)
     v = float(v)
-    if not np.isfinite(v):
-        return "-"
-    return f"{v:.{nd}g}"
+    return f"{v:.{nd}g}" if np.isfinite(v) else "-"

@@ -43,8 +43,7 @@ from simtest.harness.report.provenance import open_parameters, provenance, relat
 from simtest.reconstruct.registry import describe
 from simtest.scene import load_scene
 
-__all__ = ["SCHEMA", "SCHEMA_VERSION", "SEEDING", "build_results",
-           "case_family", "results_csv"]
+__all__ = ["SCHEMA", "SCHEMA_VERSION", "SEEDING", "build_results", "case_family", "results_csv"]
 
 SCHEMA = "simtest.validation"
 SCHEMA_VERSION = 2
@@ -211,8 +210,7 @@ def results_csv(results: dict) -> str:
     scale = {sw["name"]: sw["display_scale"] for sw in results["sweeps"]}
     buf = io.StringIO()
     w = csv.writer(buf, lineterminator="\n")
-    w.writerow(["case", "sweep", "family", "x", "estimator", "n", "n_ok", "failure_rate",
-                *STAT_KEYS])
+    w.writerow(["case", "sweep", "family", "x", "estimator", "n", "n_ok", "failure_rate", *STAT_KEYS])
     for c in results["cases"]:
         for e, m in c["metrics"]["estimators"].items():
             w.writerow([c["id"], c["sweep"], c.get("family", ""),
