@@ -201,10 +201,10 @@ def noise_level_table(gray: np.ndarray, full_scale: float, fallback: float) -> n
     g = gray[:: max(1, gray.shape[0] // 192)].astype(np.float32)  # ~200 rows: a few bins' share each
     d = (g[:, 1:-1] - 0.5 * (g[:, :-2] + g[:, 2:])).ravel()
     k = _level_bin((g[:, 1:-1] + g[:, :-2] + g[:, 2:]).ravel() / 3.0, full_scale).astype(np.uint8)
-    out = np.full(NOISE_LEVEL_BINS, np.nan)
-    for b in np.flatnonzero(np.bincount(k, minlength=NOISE_LEVEL_BINS) >= NOISE_LEVEL_MIN_SAMPLES).tolist():
-        db = d[k == b]
-        out[b] = 1.4826 * float(_median(np.abs(db - _median(db)))) / np.sqrt(1.5)
+    out, ends = np.full(NOISE_LEVEL_BINS, np.nan), np.cumsum(np.bincount(k, minlength=NOISE_LEVEL_BINS))
+    for b, db in enumerate(np.split(d[np.argsort(k, kind="stable")], ends[:-1])):  # one radix sort: bins in order
+        if len(db) >= NOISE_LEVEL_MIN_SAMPLES:
+            out[b] = 1.4826 * float(_median(np.abs(db - _median(db)))) / np.sqrt(1.5)
     full = np.flatnonzero(out > 0)  # 0: most of the bin has no noise (clipped, drawn, rendered)
     if not len(full) or not fallback > 0:  # a frame whose noise reads 0 (JPEG's flat blocks): none
         return np.full(NOISE_LEVEL_BINS, float(fallback))
@@ -213,9 +213,9 @@ def noise_level_table(gray: np.ndarray, full_scale: float, fallback: float) -> n
 
 
 def _level_bin(levels, full_scale: float) -> np.ndarray:
-    """The bin of :func:`noise_level_table` that each intensity falls in (int64)."""
-    x = np.nan_to_num(np.asarray(levels, np.float64) * (NOISE_LEVEL_BINS / full_scale))
-    return np.clip(x, 0, NOISE_LEVEL_BINS - 1).astype(np.int64)
+    """The bin of :func:`noise_level_table` that each intensity falls in (int64; NaN in the first)."""
+    x = np.multiply(levels, NOISE_LEVEL_BINS / full_scale, dtype=np.float64)
+    return np.fmin(np.fmax(x, 0.0, out=x), NOISE_LEVEL_BINS - 1, out=x).astype(np.int64)
 
 
 def _median(a: np.ndarray):

@@ -93,7 +93,7 @@ class _Frame:
     #: a frame with few highlights (detection's gray of a gray frame, a colour frame's ``luma32``):
     #: the contour walks (:func:`~simtest.reconstruct.isophotes._grown_drafts`) read their ROIs' values from it.
     luma_frame32: np.ndarray | None = None
-    #: The float64 luma that ``isophotes._first_rings`` read many ROIs' rings from (a grown ROI's too).
+    #: The luma that ``isophotes._first_rings`` read many ROIs' rings from (a grown ROI's too).
     ring_luma: np.ndarray | None = None
 
     @classmethod

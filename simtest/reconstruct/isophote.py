@@ -256,8 +256,7 @@ def _cut_and_contour(region: _Region, level: float) -> tuple[bool | None, tuple 
     flood = _flood(sub, level, ri, ci)
     if flood is None:  # the BP's pixel is not above the level: only the extraction can tell
         return None, None
-    sides = flood[2]
-    return any(s and not b for s, b in zip(sides, roi.touches_image_border(image_shape))), flood
+    return any(s and not b for s, b in zip(flood[2], roi.touches_image_border(image_shape))), flood
 
 
 def _contours(sub, level, roi, ri, ci, bp_uv):
@@ -325,11 +324,12 @@ def _flood(sub, level, ri, ci):
     level = np.float64(level)  # a float32 region compares in float64, as find_contours reads it
     if not sub[ri, ci] > level:
         return None
+    if sub.dtype == np.float32 and abs(level) < 3e38:  # float32's largest not above it: the same pixels, 2x faster
+        level = np.float32(level) if np.float32(level) <= level else np.nextafter(np.float32(level), np.float32(-1e38))
     mask = (sub > level).view(np.uint8)  # a fresh array: filled in place
     # the cost is that of the component, not of the region
     _, _, _, (x, y, w, h) = cv2.floodFill(mask, None, (int(ci), int(ri)), 2, 0, 0, 4)
-    H, W = sub.shape
-    return mask, (x, y, w, h), (y == 0, y + h == H, x == 0, x + w == W)
+    return mask, (x, y, w, h), (y == 0, y + h == sub.shape[0], x == 0, x + w == sub.shape[1])
 
 
 def _component_box(sub, level, ri, ci, flood=None):

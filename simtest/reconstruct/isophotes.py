@@ -192,7 +192,7 @@ def _smoothed_border_median(img: np.ndarray, kern: np.ndarray, roi: Roi, full: n
     smoothed luma and takes its local background level from here: the level of the ROI smoothed
     alone (the paper pose is sensitive to it). Equal to
     the median of the ring of ``_smooth(luma(img[roi]))`` to rounding (``tests/test_isophote.py``).
-    ``full``: ``luma(img)`` where the caller has it, whose slices are the same bits."""
+    ``full``: the frame's luma where the caller has it (``luma(img)``, the same bits, or float32)."""
     h, w = roi.shape
     taps = tuple(kern.tolist())
     kr, kc = _folded_taps(taps, h), _folded_taps(taps, w)
@@ -408,12 +408,12 @@ def _resolve(drafts, defer: list) -> None:
 def _first_rings(frame: _Frame, rois: list[Roi]) -> tuple[list, np.ndarray | None]:
     """Each ROI's smoothed border median (``_Levels.of``'s ring, :func:`_smoothed_border_median`)
     where the frame's ROIs read them (smoothed once, normalised ``auto`` or ``local``), else None
-    for each; and the frame's float64 luma they were read from (else None)."""
+    for each; and the frame's luma they were read from (else None; a colour frame's ``luma32``)."""
     if not rois or frame.smoothed32 is None or not frame.smooth_sigma_px > 0 or \
             frame.settings.normalise not in (Normalisation.AUTO, Normalisation.LOCAL):
         return [None] * len(rois), None
     full = frame.luma_frame if frame.luma_frame is not None or len(rois) < LUMA_FRAME_MIN_HIGHLIGHTS else \
-        luma(frame.img)  # the frame's luma once for many ROIs: its slices are the strips' own bits
+        frame.luma32 if frame.luma32 is not None else luma(frame.img)
     return [_smoothed_border_median(frame.img, frame.kernel, roi, full) for roi in rois], full
 
 

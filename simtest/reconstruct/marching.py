@@ -62,15 +62,16 @@ def batch_contours(boxes: list, levels: np.ndarray, origins: np.ndarray, bps: np
         up = col > np.repeat(levels[ks], h[ks])[:, None]
         case = up[:-1, :-1] + 2 * up[:-1, 1:].view(np.uint8) + 4 * up[1:, :-1].view(np.uint8) + \
             8 * up[1:, 1:].view(np.uint8)
-        gr, gc = np.divmod(np.flatnonzero((case != 0) & (case != 15)), wd - 1)
+        gr, gc = np.divmod(q := np.flatnonzero((case != 0) & (case != 15)), wd - 1)
         b = ks[np.searchsorted(rows, gr, side="right") - 1]
         keep = gr - row0[b] < h[b] - 1  # not a square across two boxes
-        gr, gc, b = gr[keep], gc[keep], b[keep]
-        parts.append((base + gr * wd + gc, b, gr - row0[b], gc, case[gr, gc], col[gr, gc], col[gr, gc + 1],
-                      col[gr + 1, gc], col[gr + 1, gc + 1], np.full(len(gr), wd)))
+        q, gr, gc, b = q[keep], gr[keep], gc[keep], b[keep]
+        fi, cf = gr * wd + gc, col.ravel()  # each square's upper left pixel, flat
+        parts.append((base + fi, b, gr - row0[b], gc, case.ravel()[q], cf[fi], cf[fi + 1], cf[fi + wd], cf[fi + wd + 1],
+                      np.full(len(gr), wd)))
         base += col.size
     sq, b, r, c, case, ul, ur, ll, lr, wb = (np.concatenate(x) for x in zip(*parts))
-    o = np.argsort(b, kind="stable")  # each box's squares together, in scan order
+    o = np.argsort(b.astype(np.uint16) if n <= 1 << 16 else b, kind="stable")  # each box's squares in scan order
     sq, b, r, c, case, wb = sq[o], b[o], r[o].astype(float), c[o].astype(float), case[o], wb[o]
     corners = np.stack([ul[o], ur[o], ll[o], lr[o]], 1).ravel()
     segs = _SQUARE_SEGMENTS[case]
@@ -96,8 +97,8 @@ def batch_contours(boxes: list, levels: np.ndarray, origins: np.ndarray, bps: np
     order = np.argsort(fkey)
     succ = order[np.minimum(np.searchsorted(fkey, tkey, sorter=order), k - 1)]
     linked = fkey[succ] == tkey
-    edges = require("scipy.sparse").csr_matrix(  # imported here: 0.2 to 0.5 s of a command's start
-        (np.ones(int(linked.sum())), (np.flatnonzero(linked), succ[linked])), (k, k))
+    csr = require("scipy.sparse").csr_matrix  # imported here: 0.2 to 0.5 s of a command's start
+    edges = csr((np.ones(int(linked.sum())), succ[linked], np.concatenate([[0], np.cumsum(linked)])), (k, k))
     ncomp, comp = require("scipy.sparse.csgraph").connected_components(edges, directed=True, connection="weak")
     is_open = np.bincount(comp, ~linked, ncomp) > 0
     open_box = np.bincount(sb, is_open[comp], n) > 0
@@ -106,8 +107,7 @@ def batch_contours(boxes: list, levels: np.ndarray, origins: np.ndarray, bps: np
     (comp_box := np.zeros(ncomp, np.int64))[comp] = sb
     o = np.lexsort((area, comp_box))
     top = o[np.append(comp_box[o][1:] != comp_box[o][:-1], True)]  # the last of each box's
-    outer = np.full(n, -1)
-    outer[comp_box[top]] = top
+    (outer := np.full(n, -1))[comp_box[top]] = top
     sel = np.flatnonzero(np.where(open_box[sb], is_open[comp], outer[sb] == comp))
     bs = sb[sel]
     u0, v0 = origins[bs].T
@@ -116,24 +116,24 @@ def batch_contours(boxes: list, levels: np.ndarray, origins: np.ndarray, bps: np
     with np.errstate(divide="ignore", invalid="ignore"):
         cross = ((y > py) != (y2 > py)) & (px < x + (py - y) * (x2 - x) / (y2 - y))
     inside = np.bincount(bs, cross, n) % 2 == 1
-    # each contour cut after its last segment (a cycle's last scanned); a segment's place: its distance to there
+    # each contour cut after its last segment (a cycle's last scanned), walked from its start by one depth-first
+    # search from a root (node k) whose edges lead to the starts in the order of their contours' first segments
     ptr = np.where(linked, succ, -1)
-    last = np.zeros(ncomp, np.int64)
+    last, first = np.zeros(ncomp, np.int64), np.full(ncomp, k)
     np.maximum.at(last, comp[sel], sel)
-    ptr[last[comp[sel]][~is_open[comp[sel]]]] = -1
-    dist = (ptr >= 0).astype(np.int64)
-    while (at := sel[ptr[sel] >= 0]).size:
-        dist[at] += dist[ptr[at]]
-        ptr[at] = ptr[ptr[at]]
-    first = np.full(ncomp, k)
     np.minimum.at(first, comp[sel], sel)
-    rank = np.lexsort((-dist[sel], first[comp[sel]], bs))  # by box, contour and place
-    length = np.bincount(bs, minlength=n)
-    start = np.concatenate([[0], np.cumsum(length)])
-    pts = np.stack([x, y], 1)[rank]
-    rc = np.stack([fr[sel], fc[sel]], 1)[rank]
-    ends = np.flatnonzero(np.diff(np.append(comp[sel][rank], -1)))  # each contour's last segment
-    tail = np.stack([tr[sel], tc[sel]], 1)[rank][ends]  # its end point (an open contour's last)
+    ptr[last[comp[sel]][~is_open[comp[sel]]]] = -1
+    (pred := np.zeros(k, bool))[ptr[src := sel[ptr[sel] >= 0]]] = True
+    starts = sel[~pred[sel]][np.argsort(first[comp[sel[~pred[sel]]]])]
+    walk = csr((np.ones(len(src) + len(starts)), np.concatenate([ptr[src], starts]), np.concatenate(
+        [[0], np.cumsum(np.bincount(src, minlength=k)), [len(src) + len(starts)]])), (k + 1, k + 1))
+    seg = require("scipy.sparse.csgraph").depth_first_order(walk, k, return_predecessors=False)[1:]
+    start = np.concatenate([[0], np.cumsum(np.bincount(bs, minlength=n))])
+    (at := np.zeros(k, np.int64))[sel] = np.arange(len(sel))  # a segment's place in sel
+    pts = np.stack([x, y], 1)[at[seg]]
+    rc = np.stack([fr[seg], fc[seg]], 1)
+    ends = np.flatnonzero(np.diff(np.append(comp[seg], -1)))  # each contour's last segment
+    tail = np.stack([tr[seg[ends]], tc[seg[ends]]], 1)  # its end point (an open contour's last)
     out = []
     for i in range(n):
         if bad[i]:
