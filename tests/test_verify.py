@@ -193,6 +193,13 @@ def test_a_quantised_noise_free_frame_is_judged_against_its_rounding_noise():
     assert ev_f.noise == 0.0
 
 
+def _surround_fraction(gray, ell, bp_ij, reach):
+    """The surround's share of other light as the verifier measures it at the default isovalue."""
+    from simtest.reconstruct.evidence_pixels import surround_fraction
+    from simtest.reconstruct.verify import _REACH_T, SURROUND_REL, _own_level
+    return surround_fraction(gray, ell, bp_ij, reach, float(_own_level(_REACH_T)), SURROUND_REL)
+
+
 @settings(max_examples=40, deadline=None)
 @given(st.floats(1.0, 8.0), st.floats(0.4, 1.0), st.floats(0.0, np.pi), st.floats(0.0, 100.0))
 def test_a_lone_gaussian_lobe_has_no_other_light_in_its_surround(s, q, angle, tissue):
@@ -200,7 +207,7 @@ def test_a_lone_gaussian_lobe_has_no_other_light_in_its_surround(s, q, angle, ti
     t = 0.7 isophote of an elliptical Gaussian lobe, scaled to that level), whatever the level of
     the tissue under it; a second lobe as bright just beyond that is other light."""
     from simtest.geometry.conics import Ellipse
-    from simtest.reconstruct.verify import NEIGHBOUR_REACH, OWN_RADIUS_PX, _surround_fraction
+    from simtest.reconstruct.verify import NEIGHBOUR_REACH, OWN_RADIUS_PX
     c, si = np.cos(angle), np.sin(angle)
     yy, xx = np.mgrid[0:121, 0:121].astype(np.float64)
     x, y = c * (xx - 60) + si * (yy - 60), -si * (xx - 60) + c * (yy - 60)
@@ -219,7 +226,7 @@ def test_a_glint_beside_a_streak_is_a_cluster_and_beside_a_lit_fold_is_not():
     toward cluster; the shading of a surface broader than it (a lit fold over half the surround,
     as bright) does not."""
     from simtest.geometry.conics import Ellipse
-    from simtest.reconstruct.verify import SURROUND_FRACTION_MAX, _surround_fraction
+    from simtest.reconstruct.verify import SURROUND_FRACTION_MAX
     yy, xx = np.mgrid[0:61, 0:61].astype(np.float64)
     lobe = 100.0 * np.exp(-0.5 * ((xx - 30) ** 2 + (yy - 30) ** 2) / 4.0)
     r07 = np.sqrt(2 * np.log(1 / 0.7))
@@ -483,11 +490,13 @@ def test_a_colour_frame_is_verified_in_the_luma_its_rois_are_smoothed_from():
 
 @settings(max_examples=80, deadline=None)
 @given(st.integers(0, 2**32 - 1), st.integers(20, 120), st.integers(20, 120), st.integers(1, 6),
-       st.sampled_from([np.uint8, np.float32]))
-def test_surely_no_panels_is_proven_only_where_no_region_holds_a_panel(seed, h, w, n_regions, dtype):
+       st.sampled_from([np.uint8, np.float32]), st.booleans())
+def test_surely_no_panels_is_proven_only_where_no_region_holds_a_panel(seed, h, w, n_regions, dtype, levels):
     """verify._surely_no_panels proves nothing false: where it answers True, the panel map over
     the whole frame holds no pixel in any region (flat patches of every size, cut by the windows
-    or not, at the frame's sides and inside it); a non-finite pixel is never proven."""
+    or not, at the frame's sides and inside it), with one noise or a noise level table (``levels``:
+    16 bins of 0.3 to 6 levels, the map reading each pixel's bin); a non-finite pixel is never
+    proven."""
     from simtest.reconstruct import verify
 
     rng = np.random.default_rng(seed)
@@ -501,12 +510,12 @@ def test_surely_no_panels_is_proven_only_where_no_region_holds_a_panel(seed, h, 
         r0, c0 = int(rng.integers(0, h - 1)), int(rng.integers(0, w - 1))
         rr.append((r0, int(rng.integers(r0 + 1, min(h, r0 + 30) + 1)), c0, int(rng.integers(c0 + 1, min(w, c0 + 30) + 1))))
     rr = np.array(rr, np.int64)
-    noise = 3.0
-    if verify._surely_no_panels(g, noise, rr):
-        assert not verify._panel_pixels_in(g.astype(np.float32), noise, rr).any()
+    noise, fs = (rng.uniform(0.3, 6.0, 16), 255.0) if levels else (3.0, None)
+    if verify._surely_no_panels(g, noise, rr, fs):
+        assert not verify._panel_pixels_in(g.astype(np.float32), np.atleast_1d(noise), rr, None, fs).any()
     if dtype == np.float32:
         g[rr[0, 0], rr[0, 2]] = np.nan
-        assert verify._surely_no_panels(g, noise, rr) is False
+        assert verify._surely_no_panels(g, noise, rr, fs) is False
 
 
 @settings(max_examples=20, deadline=None)

@@ -13,6 +13,7 @@ import functools
 
 import cv2
 import numpy as np
+from scipy import ndimage
 
 from simtest.reconstruct.detect_pixels import (connected_components, connected_components_with_stats, linear_at,
                                               linear_taps, mask_labels)
@@ -265,15 +266,18 @@ def panel_pixels_in(gray: np.ndarray, std_max, min_area: float, rr: np.ndarray, 
     return (s[r1, c1].astype(np.int64) - s[r0, c1] - s[r1, c0]) + s[r0, c0]
 
 
-def surely_no_panels(gray: np.ndarray, rr: np.ndarray, margin: int, thr2: float, slack: float,
-                     min_area: float) -> bool:
+def surely_no_panels(gray: np.ndarray, rr: np.ndarray, margin: int, thr2, slack: float,
+                     min_area: float, full_scale: float | None = None) -> bool:
     """Whether no pixel of any region ``rr`` (rows of row0, row1, col0, col1) can be a panel
     pixel, decided without the frame: True only when proven. Around each region (with
     ``margin`` px) the pixels that may be flat are those whose 5 x 5 variance (float64) is below
-    ``thr2 + slack * m2`` (m2 the mean square): a superset of the flat pixels. If every component
-    of that superset that reaches into a region is smaller than ``min_area`` and is not cut by
-    the window's edge inside the frame, no panel reaches into a region. Non-finite: not proven."""
+    ``thr2 + slack * m2`` (m2 the mean square): a superset of the flat pixels (``thr2`` a number,
+    or with ``full_scale`` one per bin of :func:`flat_mask`'s table, a pixel taking the largest of
+    its mean's bin and the two beside it: the map's float32 mean may cross a bin's edge). If every
+    component of that superset that reaches into a region is smaller than ``min_area`` and is not
+    cut by the window's edge inside the frame, no panel reaches into a region. Non-finite: not proven."""
     h, w = gray.shape
+    t2 = ndimage.maximum_filter1d(np.atleast_1d(np.asarray(thr2, np.float64)), 3, mode="nearest")
     for row0, row1, col0, col1 in np.asarray(rr, np.int64).reshape(-1, 4).tolist():
         wr0, wr1, wc0, wc1 = max(0, row0 - margin), min(h, row1 + margin), max(0, col0 - margin), min(w, col1 + margin)
         cr0, cr1, cc0, cc1 = max(0, wr0 - 2), min(h, wr1 + 2), max(0, wc0 - 2), min(w, wc1 + 2)
@@ -282,7 +286,8 @@ def surely_no_panels(gray: np.ndarray, rr: np.ndarray, margin: int, thr2: float,
             return False
         m1 = cv2.blur(x, (5, 5))[wr0 - cr0 : wr1 - cr0, wc0 - cc0 : wc1 - cc0]
         m2 = cv2.blur(x * x, (5, 5))[wr0 - cr0 : wr1 - cr0, wc0 - cc0 : wc1 - cc0]
-        maybe = ((m2 - m1 * m1) < thr2 + slack * m2).view(np.uint8)
+        bound = t2[0] if full_scale is None else t2[np.clip((m1 * (len(t2) / full_scale)).astype(np.int64), 0, len(t2) - 1)]
+        maybe = ((m2 - m1 * m1) < bound + slack * m2).view(np.uint8)
         roi = maybe[row0 - wr0 : row1 - wr0, col0 - wc0 : col1 - wc0]
         if not roi.any():
             continue

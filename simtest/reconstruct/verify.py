@@ -111,7 +111,7 @@ class Evidence:
     minor_px : ndarray, optional
         Semi-minor axis of each candidate's primary isophote, px (NaN without a fit).
     surround : ndarray, optional
-        Fraction of the candidate's surround lit by other light (:func:`_surround_fraction`),
+        Fraction of the candidate's surround lit by other light (:func:`~simtest.reconstruct.evidence_pixels.surround_fraction`),
         measured by :func:`assess` for the candidates that pass the checks before it; 1 for the
         other fitted ones, NaN for the rest.
     paired : list of list of (float, float), optional
@@ -260,11 +260,11 @@ _PANEL_MARGIN_PX = 16
 _FLAT_SLACK = 1e-5
 
 
-def _surely_no_panels(gray: np.ndarray, noise: float, rr: np.ndarray) -> bool:
-    """Whether no pixel of any region of interest ``rr`` can be a panel pixel, proven without
-    the frame (:func:`simtest.reconstruct.evidence_pixels.surely_no_panels`)."""
-    thr2 = (PANEL_STD_REL * noise) ** 2 * (1.0 + _FLAT_SLACK)
-    return px.surely_no_panels(gray, rr, _PANEL_MARGIN_PX, thr2, _FLAT_SLACK, PANEL_MIN_AREA * gray.size)
+def _surely_no_panels(gray: np.ndarray, noise, rr: np.ndarray, full_scale: float | None = None) -> bool:
+    """Whether no pixel of any region of interest ``rr`` can be a panel pixel, proven without the frame
+    (:func:`~simtest.reconstruct.evidence_pixels.surely_no_panels`; ``noise`` with ``full_scale``: a level table)."""
+    thr2 = (PANEL_STD_REL * np.asarray(noise, np.float64)) ** 2 * (1.0 + _FLAT_SLACK)
+    return px.surely_no_panels(gray, rr, _PANEL_MARGIN_PX, thr2, _FLAT_SLACK, PANEL_MIN_AREA * gray.size, full_scale)
 
 
 def _top_of(g_at: np.ndarray, bg_at: np.ndarray) -> np.ndarray:
@@ -376,7 +376,7 @@ def frame_evidence(image: np.ndarray, gray: np.ndarray, bps_uv: np.ndarray, rois
     background = bg_bp
     # flat panels: share in each ROI (none where none can be: see _surely_no_panels)
     table = _shared(noise_level_table, gray, float(full_scale), float(noise))  # the noise at each level
-    if not panels or (windowed and (not noise > 0 or _surely_no_panels(gray, float(table.max()), rr))):
+    if not panels or (windowed and (not noise > 0 or _surely_no_panels(gray, table, rr, float(full_scale)))):
         panel_fraction = np.zeros(n)
     else:
         inside = _panel_pixels_in(_shared(_float32, gray), table, rr, None if grey else image, float(full_scale))
@@ -460,20 +460,6 @@ def _reach_axes(t) -> np.ndarray:
     outer extent of a Gaussian lobe (radius proportional to sqrt(ln(1 / t))) as at
     :data:`_REACH_T`."""
     return NEIGHBOUR_REACH * np.sqrt(np.log(1.0 / _REACH_T) / np.log(1.0 / np.asarray(t, np.float64)))
-
-
-_OWN_LEVEL = float(_own_level(_REACH_T))  # the default isovalue's (for _surround_fraction)
-
-
-def _surround_fraction(gray: np.ndarray, ell, bp_ij: np.ndarray, reach: float) -> float:
-    """Share of the surround's pixels (within ``reach`` of the BP, outside the own lobe's
-    :data:`OWN_REL` level: the primary isophote ``ell`` scaled by :data:`_OWN_LEVEL`) whose
-    local top-hat is at least :data:`SURROUND_REL` of the peak's (the luma's maximum over the
-    3 x 3 px around the BP). The local top-hat is the luma less its grey opening by a square as
-    wide as the reach: it keeps light narrower than the reach (other glints, a streak) and drops
-    the shading of surfaces broader than it (a lit fold beside the highlight, the dark surround
-    of the field of view). 0 without a surround or a peak."""
-    return px.surround_fraction(gray, ell, bp_ij, reach, _OWN_LEVEL, SURROUND_REL)
 
 
 def assess(image: np.ndarray, gray: np.ndarray, ests, *, full_scale: float, windowed: bool | None = None,
@@ -571,7 +557,7 @@ def assess(image: np.ndarray, gray: np.ndarray, ests, *, full_scale: float, wind
         lit = ev.background + SURROUND_REL * ev.height
         ev = replace(ev, paired=other_lobe_centres(gray, expected, ells, _own_level(t), lit))
     if passed.any():
-        g = np.asarray(gray)  # _surround_fraction converts its window to float32 (the same values)
+        g = np.asarray(gray)  # surround_fractions converts its windows to float32 (the same values)
         ij = np.clip(np.rint(bps).astype(np.int64), 0, [gray.shape[1] - 1, gray.shape[0] - 1])
         sel = np.flatnonzero(passed)
         surround[passed] = px.surround_fractions(g, [ells[k] for k in sel], ij[sel], reach[sel], _own_level(t[sel]),
@@ -581,7 +567,7 @@ def assess(image: np.ndarray, gray: np.ndarray, ests, *, full_scale: float, wind
 
 def _design(ev: Evidence, residual_rel: np.ndarray) -> np.ndarray:
     """The features of :func:`confidence`, (N, 5): minus log paleness, log significance (each
-    clipped), minus log of the surround's share of other light (:func:`_surround_fraction`; 1
+    clipped), minus log of the surround's share of other light (``px.surround_fractions``; 1
     where not measured, a share under 1 % taken as 1 %: the ring's resolution), minus log
     residual ratio (clipped), minus the panel share."""
     surround = np.ones(len(ev.height)) if ev.surround is None else np.nan_to_num(ev.surround, nan=1.0)
@@ -654,11 +640,10 @@ def verdict(ev: Evidence, residual_rel: np.ndarray, bp_inside: np.ndarray,
     inside = np.asarray(bp_inside, bool).tolist()
     for k in (range(n) if only is None else np.asarray(only, np.int64).tolist()):
         if panel[k] > PANEL_FRACTION_MAX:
-            out[k] = ("overlay", f"{panel[k]:.0%} of its region is a flat panel "
-                                 f"(> {PANEL_FRACTION_MAX:.0%})")
+            out[k] = ("overlay", f"{panel[k]:.0%} of its region is a flat panel (> {PANEL_FRACTION_MAX:.0%})")
         elif not colour[k]:
-            out[k] = ("not_specular", f"peak chroma {cpeak[k]:.2f} is {pal[k]:.2f} of the "
-                                      f"tissue's {ctissue[k]:.2f} (> {PALENESS_MAX})")
+            out[k] = ("not_specular", f"peak chroma {cpeak[k]:.2f} is {pal[k]:.2f} of the tissue's {ctissue[k]:.2f} "
+                                      f"(> {PALENESS_MAX})")
         elif not clipped[k] and (sig[k] < SIGNIFICANCE_MIN or con[k] < CONTRAST_MIN):
             out[k] = ("not_specular", f"height {height[k]:.3g} is {sig[k]:.1f} noise sigma and "
                                       f"{con[k]:.2f} of the background (need {SIGNIFICANCE_MIN:g} "
@@ -666,8 +651,8 @@ def verdict(ev: Evidence, residual_rel: np.ndarray, bp_inside: np.ndarray,
         elif neighbours[k] > 0:
             out[k] = ("cluster", f"{neighbours[k]} other specular peak(s) in its region")
         elif surround[k] > SURROUND_FRACTION_MAX:
-            out[k] = ("cluster", f"{surround[k]:.0%} of its surround is other light at {SURROUND_REL:g} of its "
-                                 f"height (> {SURROUND_FRACTION_MAX:.0%})")
+            out[k] = ("cluster", f"{surround[k]:.0%} of its surround is other light at {SURROUND_REL:g} of its height "
+                                 f"(> {SURROUND_FRACTION_MAX:.0%})")
         elif not (res[k] <= RESIDUAL_MAX_REL) or not inside[k]:
             why = "the BP lies outside its isophote" if not inside[k] else (
                 f"isophote residual {res[k]:.2f} of its semi-minor axis (> {RESIDUAL_MAX_REL})")
