@@ -49,6 +49,7 @@ from benchmarks.opencv_replay import opencv_calls, replay_opencv_ms
 from benchmarks.timing import clone_env, cpu_s_with_workers, every_core, single_core, time_ms, time_ms_cpu
 from simtest.bench import BenchResult
 from simtest.constants import SINGLE_THREAD_ENV
+from simtest.geometry.camera_file import CameraFile
 from simtest.geometry.conics import normalised_conic
 from simtest.geometry.lights import Light, LightRig
 from simtest.geometry.response import SensorResponse, video_response
@@ -58,8 +59,11 @@ from simtest.reconstruct.frames import open_frames, reconstruct_frames, write_fr
 from simtest.reconstruct.isophote import extract_isophote
 from simtest.reconstruct.lightaware import isocurve_fit, photometric_fit
 from simtest.reconstruct.pipeline import reconstruct, reconstruct_roi, reconstruct_rois
+from simtest.reconstruct.cli import reconstruct_single
 from simtest.reconstruct.light_fits import with_light_aware
+from simtest.render import render_scene
 from simtest.resources import real_dir
+from simtest.scene import load_scene
 
 #: Worker processes of the video row: the 2-core VM's cores.
 VIDEO_WORKERS = 2
@@ -86,6 +90,32 @@ def _bench_colonoscope_rig(res, repeat: int) -> list[BenchResult]:
     return [BenchResult("reconstruct", name, med, "ms", RIG_FRAME_TARGET_MS, best,
                         f"bar {RIG_FRAME_BAR_MS:g} ms; {len(ests)} candidates, {fitted} fitted with "
                         f"{len(rig.lights)} lights; CPU {cpu:.4g} ms")]
+
+
+def _bench_default_colonoscope_rig(repeat: int) -> list[BenchResult]:
+    """What a user of the README gets: ``simtest render colonoscope`` (the default haustral scene,
+    seed 0, 1350 x 1080 at its own spp), then ``simtest reconstruct frame.png --intrinsics
+    camera.json`` on every core (:func:`simtest.reconstruct.cli.reconstruct_single`, its light-aware
+    fits in 2 worker processes). One run, only with ``repeat`` of 5 or more (a minute or more of
+    CPU: the fits of every ok glint); wall and CPU of the process and its workers."""
+    name = ("per rendered default colonoscope frame (haustral, seed 0) with its camera file: "
+            "`simtest reconstruct` on every core, light-aware fits of every ok glint, one run")
+    if repeat < 5:
+        return []
+    try:
+        res = render_scene(load_scene("colonoscope"), seed=0)
+    except Exception as exc:  # Mitsuba unavailable
+        return [BenchResult("reconstruct", name + f" ({type(exc).__name__})", float("nan"), "ms", RIG_FRAME_TARGET_MS)]
+    cf = CameraFile(res.camera_model, res.light_rig, video_response(res.spec.sensor))
+    workers = min(VIDEO_WORKERS, os.cpu_count() or 1)
+    with every_core():
+        cpu0, t0 = cpu_s_with_workers(), time.perf_counter()
+        ests, _ = reconstruct_single(res.frame, cf, workers=workers)
+        wall, cpu = time.perf_counter() - t0, cpu_s_with_workers() - cpu0
+    fitted = sum(bool(getattr(e, "light_aware", None)) for e in ests)
+    return [BenchResult("reconstruct", name, wall * 1e3, "ms", RIG_FRAME_TARGET_MS, None,
+                        f"bar {RIG_FRAME_BAR_MS:g} ms; {len(ests)} rows, {fitted} fitted with {len(cf.lights.lights)} "
+                        f"lights on {workers} workers; CPU {cpu * 1e3:.4g} ms (process and workers)")]
 
 
 #: The real tile of :func:`_bench_real_tile_rig`: a Hyper-Kvasir frame's crop with several glints.
@@ -216,6 +246,7 @@ def bench_reconstruct(repeat: int = 50) -> list[BenchResult]:
                                  "defaults", "per rendered colonoscope frame (Mitsuba unavailable)",
                                  colonoscope_frame(res), repeat, BANNER_TARGET_MS, 150.0)
     out += _bench_colonoscope_rig(res, repeat)
+    out += _bench_default_colonoscope_rig(repeat)
     return out
 
 
