@@ -22,7 +22,8 @@ def _quadric_root(kxx, kxy, kyy, d, P0, t1, t2, N):
     """Where the rays ``t d`` (d (k, 3), camera frame) first meet the quadric patch
     ``z + (k_xx x^2 + 2 k_xy x y + k_yy y^2 + k_zz z^2) / 2 = 0`` in the frame (t1, t2, N) at P0,
     with ``k_zz = (k_xx + k_yy) / 2`` (exact for a sphere): A t^2 + B t + C = 0, the root near
-    -C/B in the cancellation-free form.
+    -C/B in the cancellation-free form. For K patches at once: the curvatures (K, 1), the frame's
+    vectors (K, 3), each array returned (K, k).
 
     Returns
     -------
@@ -34,8 +35,9 @@ def _quadric_root(kxx, kxy, kyy, d, P0, t1, t2, N):
         A real, positive, finite root.
     """
     kzz = 0.5 * (kxx + kyy)
-    ax, ay, az = d @ t1, d @ t2, d @ N
-    bx, by, bz = -(P0 @ t1), -(P0 @ t2), -(P0 @ N)
+    one = P0.ndim == 1  # else each patch's products as its own (the same bits)
+    ax, ay, az = (d @ v if one else np.array([d @ u for u in v]) for v in (t1, t2, N))
+    bx, by, bz = (-(P0 @ v) if one else -np.array([[a @ u] for a, u in zip(P0, v)]) for v in (t1, t2, N))
     A = 0.5 * (kxx * ax * ax + 2 * kxy * ax * ay + kyy * ay * ay + kzz * az * az)
     B = az + (kxx * ax * bx + kxy * (ax * by + ay * bx) + kyy * ay * by + kzz * az * bz)
     C = bz + 0.5 * (kxx * bx * bx + 2 * kxy * bx * by + kyy * by * by + kzz * bz * bz)
@@ -51,50 +53,57 @@ def _patch_lobes(d, X, ns, ok, s, rough, rig_arr):
     """The rig's Phong lobes (N,) seen along rays d (N, 3) on a curved patch: surface points X
     (N, 3), unit normals ns (N, 3), ``ok`` (N,) where the ray meets it, apex depth s (mm, the
     inverse-square falloff's reference) and roughness n; 0 where the ray misses or the patch faces
-    away (the image of :func:`_quadric_image` and :func:`_cubic_patch_image`)."""
+    away (the image of :func:`_quadric_image` and :func:`_cubic_patch_image`). For K patches at
+    once: X and ns (K, N, 3), ``ok`` (K, N), s and n (K, 1), the images (K, N)."""
     L, w, inv_sq, m = rig_arr
-    nv = -np.einsum("ij,ij->i", ns, d)
-    out = np.zeros(len(d))
+    nv = -np.einsum("...ij,...ij->...i", ns, d)
+    out = np.zeros(nv.shape)
     for j in range(len(w)):
         tl = L[j] - X
-        r = np.sqrt(np.einsum("ij,ij->i", tl, tl))
-        cb = (2.0 * np.einsum("ij,ij->i", ns, tl) * nv + np.einsum("ij,ij->i", tl, d)) / r
+        r = np.sqrt(np.einsum("...ij,...ij->...i", tl, tl))
+        cb = (2.0 * np.einsum("...ij,...ij->...i", ns, tl) * nv + np.einsum("...ij,...ij->...i", tl, d)) / r
         pos = cb > 0
         val = np.where(pos, np.exp(rough * np.log(np.where(pos, cb, 1.0))), 0.0)
         if inv_sq[j]:
             val = val * (s / r) ** 2
         if m[j] > 0:
-            val = val * np.maximum((X[:, 2] - L[j, 2]) / r, 0.0) ** m[j]
+            val = val * np.maximum((X[..., 2] - L[j, 2]) / r, 0.0) ** m[j]
         out += w[j] * val
     return np.where(ok & (nv > 0), out, 0.0)
 
 
+def _quadric_frame(e1, e2, b_ray, p, Lm):
+    """The apex depth s, apex P0 and frame (N, t1, t2) of the quadric patch ``p`` (e1, e2: b_ray's basis)."""
+    s = np.exp(p[2])
+    P0 = s * unit(b_ray + p[0] * e1 + p[1] * e2)
+    N = unit(unit(-P0) + unit(Lm - P0))
+    return (s, P0, N, *plane_basis(N))
+
+
 def _quadric_image(d, b_ray, p, rig_arr, Lm):
-    """Specular image (N,) of the quadric patch ``p`` along rays d (see :func:`quadric_fit`).
+    """Specular image (N,) of the quadric patch ``p`` along rays d (see :func:`quadric_fit`), and
+    its apex normal (3,); for K patches ``p`` (K, 7) at once, the images (K, N) (each bit for bit
+    its patch's alone) and normals (K, 3).
 
     ``p = (a, b, log s, kappa_xx, kappa_xy, kappa_yy, log n)``: the apex is at depth s on the ray
     ``unit(b_ray + a e1 + b e2)``, its normal the bisector there for the light Lm, the shape
     operator ``kappa / s`` in the apex's tangent basis. Rays that miss the patch give 0.
     """
-    e1, e2 = plane_basis(b_ray)
-    ray0 = unit(b_ray + p[0] * e1 + p[1] * e2)
-    s = np.exp(p[2])
-    P0 = s * ray0
-    N = unit(unit(-P0) + unit(Lm - P0))
-    t1, t2 = plane_basis(N)
-    kxx, kxy, kyy = p[3] / s, p[4] / s, p[5] / s
-    rough = np.exp(p[6])
+    basis = plane_basis(b_ray)  # each patch's apex and frame its own (the same bits)
+    frames = [_quadric_frame(*basis, b_ray, pk, Lm) for pk in np.atleast_2d(p)]
+    s, P0, N, t1, t2 = frames[0] if np.ndim(p) == 1 else (np.array(v) for v in zip(*frames))
+    s = s if np.ndim(p) == 1 else s[:, None]
+    kxx, kxy, kyy = p[..., 3:4] / s, p[..., 4:5] / s, p[..., 5:6] / s
     # F = z + (k_xx x^2 + 2 k_xy x y + k_yy y^2) / 2 = 0 along the ray X = t d
     kzz = 0.5 * (kxx + kyy)  # the z^2 term: exact for a sphere
     ax, ay, az, bx, by, bz, t, ok = _quadric_root(kxx, kxy, kyy, d, P0, t1, t2, N)
     t = np.where(ok, t, s)
-    X = d * t[:, None]
     x, y = ax * t + bx, ay * t + by
     z = az * t + bz
-    ns = ((1.0 + kzz * z)[:, None] * N[None, :] + (kxx * x + kxy * y)[:, None] * t1
-          + (kxy * x + kyy * y)[:, None] * t2)
-    ns /= np.sqrt(np.einsum("ij,ij->i", ns, ns))[:, None]
-    return _patch_lobes(d, X, ns, ok, s, rough, rig_arr), N
+    ns = ((1.0 + kzz * z)[..., None] * N[..., None, :] + (kxx * x + kxy * y)[..., None] * t1[..., None, :]
+          + (kxy * x + kyy * y)[..., None] * t2[..., None, :])
+    ns /= np.sqrt(np.einsum("...ij,...ij->...i", ns, ns))[..., None]
+    return _patch_lobes(d, d * t[..., None], ns, ok, s, np.exp(p[..., 6:7]), rig_arr), N
 
 
 @dataclass
@@ -119,8 +128,11 @@ class _PatchProblem:
     px_per_rad: float
 
     def residual(self, image) -> np.ndarray:
-        """The residual (m,) of the patch image (m,) (or a scalar) with the linear part fitted
-        by its normal equations (least squares where they are singular): variable projection."""
+        """The residual (m,) of the patch image (m,) (or a scalar), or (K, m) of K images (K, m),
+        with the linear part fitted by its normal equations (least squares where they are
+        singular): variable projection."""
+        if np.ndim(image) == 2:
+            return np.array([self.residual(im) for im in image])
         A, y = self.A, self.y
         A[:, 0] = image
         try:
@@ -157,19 +169,19 @@ def _quadric_starts(res, x_scale, nominal_depth_mm, start_depths_mm, start_rough
     starts = (np.array([1.0, 3.0, 0.5]) * nominal_depth_mm if start_depths_mm is None
               else np.asarray(start_depths_mm, dtype=np.float64).reshape(-1))
     n0 = 50.0 if start_roughness is None else float(start_roughness)
-    best = None
-    nfev = 0
+    best, nfev = None, 0
     for s0 in starts:
         p0 = np.array([0.0, 0.0, np.log(s0), 0.0, 0.0, 0.0, np.log(n0)])
         with np.errstate(all="ignore"):
-            r = opt.least_squares(res, p0, method="lm", max_nfev=max_nfev * 8, x_scale=x_scale,
-                              ftol=1e-6, xtol=1e-6)
+            # workers: the finite differences' points (each f's argument) imaged as one batch by
+            # res, each row bit for bit res of its point alone (_quadric_image)
+            r = opt.least_squares(res, p0, method="lm", max_nfev=max_nfev * 8, x_scale=x_scale, ftol=1e-6,
+                                  xtol=1e-6, workers=lambda f, xs: list(res(np.array(list(xs)))))
         nfev += r.nfev
         if np.isfinite(r.cost) and (best is None or r.cost < best.cost):
             best = r
         if (np.isfinite(r.cost) and r.status > 0
-                and not _implausible(float(np.exp(r.x[2])), float(nominal_depth_mm),
-                                     float(np.exp(r.x[6])))):
+                and not _implausible(float(np.exp(r.x[2])), float(nominal_depth_mm), float(np.exp(r.x[6])))):
             best = r  # a plausible solution: the other starts are for a fit that ran off
             break
     return best, nfev
@@ -178,13 +190,9 @@ def _quadric_starts(res, x_scale, nominal_depth_mm, start_depths_mm, start_rough
 def _apex_normal_gradient(d1, b_ray, x, x_scale, rig_arr, Lm) -> np.ndarray:
     """dN / dp (3, 7) of the quadric patch's apex normal, by central differences of
     ``1e-6 x_scale``."""
-    G = np.empty((3, 7))
-    for i in range(7):
-        dp = np.zeros(7)
-        dp[i] = 1e-6 * x_scale[i]
-        G[:, i] = (_quadric_image(d1, b_ray, x + dp, rig_arr, Lm)[1]
-                   - _quadric_image(d1, b_ray, x - dp, rig_arr, Lm)[1]) / (2 * dp[i])
-    return G
+    dp = np.diag(1e-6 * x_scale)
+    N = _quadric_image(d1, b_ray, np.vstack([x + dp, x - dp]), rig_arr, Lm)[1]
+    return ((N[:7] - N[7:]) / (2 * np.diag(dp))[:, None]).T
 
 
 def quadric_fit(values, origin_uv, bp_uv, camera, rig: LightRig, *,
@@ -297,31 +305,26 @@ def quadric_fit(values, origin_uv, bp_uv, camera, rig: LightRig, *,
         return P.residual(_quadric_image(d, b_ray, p, rig_arr, Lm)[0])
 
     x_scale = np.array([1.0 / P.px_per_rad, 1.0 / P.px_per_rad, 0.1, 0.1, 0.1, 0.1, 0.3])
-    best, nfev = _quadric_starts(res, x_scale, nominal_depth_mm, start_depths_mm, start_roughness,
-                                 max_nfev)
+    best, nfev = _quadric_starts(res, x_scale, nominal_depth_mm, start_depths_mm, start_roughness, max_nfev)
     if best is None:
         return LightAwareEstimate(name, "not_converged", "no finite solution", n_evaluations=nfev)
     x = best.x
     n_hat = _quadric_image(d[:1], b_ray, x, rig_arr, Lm)[1]
-    s_hat = float(np.exp(x[2]))
-    rough = float(np.exp(x[6]))
+    s_hat, rough = float(np.exp(x[2])), float(np.exp(x[6]))
     bad = _implausible(s_hat, float(nominal_depth_mm), rough)
     if best.status <= 0 or bad:
         return LightAwareEstimate(name, "not_converged", bad or best.message, n_evaluations=nfev)
-    r0 = best.fun
-    J = best.jac
-    m_, k_ = J.shape
-    resid_var = float(r0 @ r0) / max(m_ - k_ - 4, 1)
+    r0, J = best.fun, best.jac
+    resid_var = float(r0 @ r0) / max(J.shape[0] - J.shape[1] - 4, 1)
     covs = _patch_covariances(J, r0, resid_var, sel, P.shape, step)
     cov_floor = _covariance(J, max(resid_var, TOL.photometric_noise_rel**2))
     G = _apex_normal_gradient(d[:1], b_ray, x, x_scale, rig_arr, Lm)
     rel_floor = None if cov_floor is None else float(np.sqrt(max(cov_floor[2, 2], 0.0)))
     status, detail, observable, rms = _patch_verdict(
-        rel_floor, r0, sel, P.shape, step, "",
-        "the ROI is not one patch's lobe (streaks along folds, several lobes)")
-    sigma_deg, _, excess, detail = _patch_sigma(status, detail, misfit_sigma,
-                                                {"res": res, "x_scale": x_scale}, x, float(r0 @ r0),
-                                                resid_var, covs, max_nfev, G)
+        rel_floor, r0, sel, P.shape, step, "", "the ROI is not one patch's lobe (streaks along folds, several lobes)")
+    sigma_deg, _, excess, detail = _patch_sigma(status, detail, misfit_sigma, {"res": res, "x_scale": x_scale,
+                                                                               "batched": True},
+                                                x, float(r0 @ r0), resid_var, covs, max_nfev, G)
     depth_sigma = (float(s_hat * np.sqrt(max(max(c[2, 2] for c in covs), 0.0) + excess))
                    if observable and covs else None)
     depth_range = None
@@ -334,9 +337,8 @@ def quadric_fit(values, origin_uv, bp_uv, camera, rig: LightRig, *,
                       f"{depth_range[0]:.3g} to {depth_range[1]:.3g} mm not excluded")
         observable = False
     return LightAwareEstimate(name, status, detail, n_hat, s_hat if observable else None, sigma_deg,
-                              depth_sigma if observable else None, s_hat if observable else None,
-                              rough, None, nfev, rms, depth_rel_sigma=rel_floor,
-                              depth_range_mm=depth_range)
+                              depth_sigma if observable else None, s_hat if observable else None, rough, None,
+                              nfev, rms, depth_rel_sigma=rel_floor, depth_range_mm=depth_range)
 
 
 def _one_light_band(x, sigma_deg, d0, b_ray, rig_arr, Lm):
@@ -359,13 +361,10 @@ def _one_light_band(x, sigma_deg, d0, b_ray, rig_arr, Lm):
     (float or None, (float, float))
         The widened sigma (None where ``sigma_deg`` is), degrees; the near and far depths, mm.
     """
-    n0 = _quadric_image(d0, b_ray, x, rig_arr, Lm)[1]
-    spread = 0.0
-    for sgn in (1.0, -1.0):
-        xe = x.copy()
-        xe[2] += sgn * np.log(ONE_LIGHT_DEPTH_FACTOR)
-        ne = _quadric_image(d0, b_ray, xe, rig_arr, Lm)[1]
-        spread = max(spread, float(np.degrees(np.arccos(np.clip(n0 @ ne, -1.0, 1.0)))))
+    xe = np.repeat(x[None], 3, axis=0)
+    xe[1:, 2] += np.array([1.0, -1.0]) * np.log(ONE_LIGHT_DEPTH_FACTOR)
+    n0, *ne = _quadric_image(d0, b_ray, xe, rig_arr, Lm)[1]
+    spread = max([0.0] + [float(np.degrees(np.arccos(np.clip(n0 @ n, -1.0, 1.0)))) for n in ne])
     s_hat = float(np.exp(x[2]))
     band = (s_hat / ONE_LIGHT_DEPTH_FACTOR, s_hat * ONE_LIGHT_DEPTH_FACTOR)
     if sigma_deg is None:
@@ -515,18 +514,18 @@ def _fit_fixed_depth(S, log_s, free, starts, max_nfev, tol=1e-8):
         base[2] = log_s
 
         def fun(q, base=base):
-            pp = base.copy()
-            pp[free] = q
-            return S["res"](pp)
+            pp = np.repeat(base[None], len(np.atleast_2d(q)), axis=0)
+            pp[:, free] = q
+            return S["res"](pp if np.ndim(q) == 2 else pp[0])
 
         with np.errstate(all="ignore"):
             r = opt.least_squares(fun, base[free], method="lm", x_scale=S["x_scale"][free],
-                              max_nfev=max_nfev * (len(free) + 1), ftol=tol, xtol=tol)
+                                  max_nfev=max_nfev * (len(free) + 1), ftol=tol, xtol=tol,
+                                  workers=(lambda f, xs: list(fun(np.array(list(xs))))) if S.get("batched")
+                                  else None)  # (as _quadric_starts': S's res takes a batch)
         nfev += r.nfev
         if np.isfinite(r.cost) and (best is None or r.cost < best[0]):
             pp = base.copy()
             pp[free] = r.x
             best = (2.0 * float(r.cost), pp)
-    if best is None:
-        return float("inf"), np.array(starts[0], dtype=np.float64), nfev
-    return best[0], best[1], nfev
+    return (float("inf"), np.array(starts[0], dtype=np.float64), nfev) if best is None else (*best, nfev)
