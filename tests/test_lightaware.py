@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import functools
+
 import numpy as np
 import pytest
 from hypothesis import given, settings
@@ -463,6 +465,26 @@ def sphere_rig_case(lights):
     return img, rig, bp
 
 
+#: The two-light sphere of the whole-chain tests: lights 15 mm either side of the lens.
+TWO_LIGHTS_15 = ((-15.0, 0.0, 0.0), (15.0, 0.0, 0.0))
+
+
+@functools.lru_cache(maxsize=None)
+def two_light_sphere_cubic_fits():
+    """``(img, rig, ests)``: the exact sphere under :data:`TWO_LIGHTS_15` reconstructed at
+    isovalues 0.3, 0.5, 0.7 and fitted light-aware with ``cubic=None`` (run where the plane fit
+    fails and the rig has two lights apart: what `simtest reconstruct --cubic-patch` asks for;
+    the default leaves the slow fit out) and ``fit_rejected`` (the two lobes merge, status
+    merged: fitted all the same). Made once per process: the recommendation here and the
+    estimates.json of tests/test_lightaware_io.py check the same fits (their image read-only)."""
+    img, rig, _ = sphere_rig_case(TWO_LIGHTS_15)
+    img.setflags(write=False)
+    ests = reconstruct(img, SPHERE_K, settings=ReconSettings(isovalues=(0.3, 0.5, 0.7)))
+    ests = with_light_aware(img, ests, SPHERE_K, rig, nominal_depth_mm=20.0, cubic=None,
+                            fit_rejected=True)
+    return img, rig, tuple(ests)
+
+
 @pytest.mark.parametrize("eps", [5.0, 15.0])  # epsilon/d 0.1 and 0.3 for each light
 def test_cubic_patch_fit_is_exact_on_a_sphere_under_two_lights(eps):
     lights = [(-eps, 0.0, 0.0), (eps, 0.0, 0.0)]
@@ -535,14 +557,8 @@ def test_two_light_curved_highlight_is_recommended_the_cubic_patch_and_scored_pe
     # highlight with that light's normal. With one light it is not run.
     from simtest.harness.estimators import score
 
-    lights = [(-15.0, 0.0, 0.0), (15.0, 0.0, 0.0)]
-    img, rig, _ = sphere_rig_case(lights)
-    ests = reconstruct(img, SPHERE_K, settings=ReconSettings(isovalues=(0.3, 0.5, 0.7)))
-    # cubic=None: run where the plane fit fails and the rig has two lights apart (what
-    # `simtest reconstruct --cubic-patch` asks for; the default leaves the slow fit out). The two
-    # lobes merge (status merged): fit_rejected fits them all the same
-    ests = with_light_aware(img, ests, SPHERE_K, rig, nominal_depth_mm=20.0, cubic=None,
-                            fit_rejected=True)
+    lights = list(TWO_LIGHTS_15)
+    img, rig, ests = two_light_sphere_cubic_fits()
     assert len(ests) >= 1
     for j, L in enumerate(lights):
         X, n = sphere_specular_point(L)

@@ -127,13 +127,12 @@ def test_cli_reads_the_rig_from_the_camera_file(tmp_path):
 def test_estimates_json_carries_the_per_light_normals_of_a_two_light_patch(tmp_path):
     # A two-light exact sphere (tests/test_lightaware.py): the recommended cubic patch's normal
     # and depth at each light's specular point are written, in the rig's order, and read back.
-    from test_lightaware import SPHERE_K, sphere_rig_case, sphere_specular_point
+    # (the fits, cubic=None and fit_rejected: the two lobes merge, are those that
+    # test_lightaware's whole-chain test checks; made once per process)
+    from test_lightaware import SPHERE_K, TWO_LIGHTS_15, sphere_specular_point, two_light_sphere_cubic_fits
 
-    lights = [(-15.0, 0.0, 0.0), (15.0, 0.0, 0.0)]
-    img, rig, _ = sphere_rig_case(lights)
-    ests = with_light_aware(img, reconstruct(img, SPHERE_K, settings=ReconSettings(
-        isovalues=(0.3, 0.5, 0.7))), SPHERE_K, rig, nominal_depth_mm=20.0, cubic=None,
-                            fit_rejected=True)  # the two lobes merge
+    lights = list(TWO_LIGHTS_15)
+    img, rig, ests = two_light_sphere_cubic_fits()
     path = tmp_path / "estimates.json"
     write_estimates(path, ests, K=SPHERE_K, image_shape=img.shape, isovalues=(0.3, 0.5, 0.7),
                     lights=rig)

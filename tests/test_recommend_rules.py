@@ -48,12 +48,20 @@ def _highlight(img, K):
 # --- item: isovalues that suit isocurve_fit, chosen by it ---------------------------------------------
 
 
-def test_isocurve_fit_succeeds_with_the_command_lines_default_isovalues():
+def test_isocurve_fit_succeeds_with_the_command_lines_default_isovalues(monkeypatch):
     # On the contours at the command line's 0.7 and 0.85 the fit ran off or lost the depth on 11
     # of 12 exact 8-bit planes (0 of 160 in issue 39's count); on its own isophotes (0.3, 0.5,
     # 0.7) it is ok on all 8 planes here (16 of 16 over tilts 15 and 35 deg, epsilon/d 0.07 to
     # 0.27, measured), median error 0.1 deg. Bounds: at least 7 of 8 ok, median within 0.5 deg
     # (8-bit quantisation of the contours; the largest single error measured was 1.3 deg).
+    # Only isocurve_fit's result is read: the photometric fit (fitted after it, from its normal,
+    # 98 % of the CPU here) is stood in for; isocurve_fit's estimates are the same to the bit
+    # with it (checked on these 8 planes when it was stood in).
+    from simtest.reconstruct import light_fits
+    from simtest.reconstruct.lightaware import LightAwareEstimate
+
+    monkeypatch.setattr(light_fits, "_photometric",
+                        lambda *a: LightAwareEstimate("photometric_fit", "not_converged", "stood in"))
     errs, ok = [], 0
     for h in (15.0, 30.0):
         for tilt in (15.0, 35.0):

@@ -95,17 +95,24 @@ def test_a_moved_scope_sees_the_same_tissue_at_the_same_points():
         assert _corr(a.shading_normals[a.mask][:, c] - n[:, c], ns_b[:, c] - n[:, c]) >= MIN_CORRELATION
 
 
+#: Texture seeds of the property tests: a few, so that their vessel maps (0.4 s of CPU each,
+#: grown from the seed) come from transmission_map's cache (4 maps) after the first examples,
+#: while hypothesis varies everything else (the points, the motion, the relief's parameters).
+#: No property here depends on the vessel map's pattern; each seed draws its own waves.
+TEXTURE_SEEDS = st.integers(0, 3)
+
+
 @settings(max_examples=25, deadline=None)
-@given(seed=st.integers(0, 2**31 - 1), rot=st.tuples(*[st.floats(-math.pi, math.pi)] * 3),
+@given(seed=TEXTURE_SEEDS, points=st.integers(0, 2**31 - 1), rot=st.tuples(*[st.floats(-math.pi, math.pi)] * 3),
        shift=st.tuples(*[st.floats(-80.0, 80.0)] * 3))
-def test_in_camera_is_the_texture_at_the_moved_point(seed, rot, shift):
+def test_in_camera_is_the_texture_at_the_moved_point(seed, points, rot, shift):
     """``in_camera(t, M)`` at camera points ``p`` is ``t`` at ``q = M p``: albedo, height, and the
     shading normal turned by ``M``'s rotation (float64, to round-off)."""
     t = tissue_params("mucosa", seed, 0.005, 0.8)
     M = np.eye(4)
     M[:3, :3] = Rotation.from_euler("xyz", rot).as_matrix()
     M[:3, 3] = shift
-    rng = np.random.default_rng(seed)
+    rng = np.random.default_rng(points)
     p = rng.uniform(-30, 30, size=(50, 3))
     n = rng.normal(size=(50, 3))
     n /= np.linalg.norm(n, axis=1, keepdims=True)
@@ -120,7 +127,7 @@ def test_in_camera_is_the_texture_at_the_moved_point(seed, rot, shift):
 
 
 @settings(max_examples=30, deadline=None)
-@given(seed=st.integers(0, 2**31 - 1), rms=st.floats(1e-4, 0.05), lo=st.floats(0.01, 0.2),
+@given(seed=TEXTURE_SEEDS, rms=st.floats(1e-4, 0.05), lo=st.floats(0.01, 0.2),
        ratio=st.floats(1.0, 50.0), hurst=st.floats(0.0, 1.0))
 def test_relief_spectrum_is_a_power_law(seed, rms, lo, ratio, hurst):
     """Wavelengths one per equal share of log-wavelength in [min, max], amplitudes ~ lambda^H

@@ -28,10 +28,13 @@ def _unit(v):
 
 
 @settings(max_examples=20, deadline=None)
-@given(seed=st.integers(0, 2**31 - 1), amp=st.floats(0.005, 0.1), scale=st.floats(0.05, 1.0))
-def test_relief_normal_is_the_bump_of_its_height_field(seed, amp, scale):
+# a few texture seeds (their vessel maps, 0.4 s of CPU each, then come from transmission_map's
+# cache of 4; the relief's waves differ per seed and with amp and scale); the points drawn apart
+@given(seed=st.integers(0, 3), points=st.integers(0, 2**31 - 1), amp=st.floats(0.005, 0.1),
+       scale=st.floats(0.05, 1.0))
+def test_relief_normal_is_the_bump_of_its_height_field(seed, points, amp, scale):
     t = tissue_params("mucosa", seed, amp, scale)
-    rng = np.random.default_rng(seed)
+    rng = np.random.default_rng(points)
     p = rng.normal(size=(50, 3)) * 10.0
     n = _unit(rng.normal(size=(50, 3)))
     ns = np.stack(relief_normal(np, tuple(p.T), tuple(n.T), t), axis=-1)

@@ -238,14 +238,14 @@ def patch_depth_profile(values, origin_uv, bp_uv, camera, rig: LightRig, depths_
     grid = np.union1d(np.log(depths), np.linspace(lo, hi, int(np.ceil((hi - lo) / np.log(_PROFILE_STEP))) + 1))
     cost = np.full(grid.size, np.inf)
     sol: dict[int, np.ndarray] = {}
-    for seq in (range(grid.size), range(grid.size - 1, -1, -1)):
+    for down, seq in enumerate((range(grid.size), range(grid.size - 1, -1, -1))):
         prev = None
-        for i in seq:
-            starts = flats + ([prev] if prev is not None else [])
-            c, p, _ = _fit_fixed_depth(S, grid[i], free, starts, max_nfev)
+        for i in seq:  # the flat starts going up only: going down they would give the same fits again
+            starts = ([] if down else flats) + ([prev] if prev is not None else [])
+            c, p, _ = _fit_fixed_depth(S, grid[i], free, starts, max_nfev) if starts else (np.inf, None, 0)
             if c < cost[i]:
                 cost[i], sol[i] = c, p
-            prev = sol.get(i, p)
+            prev = sol.get(i, flats[0])  # flats[0]: what a depth without a finite fit gave
     return cost[np.searchsorted(grid, np.log(depths))]
 
 
