@@ -153,12 +153,12 @@ def banner_mosaic(shift_px: int = 0):
     return frame, K
 
 
-def colonoscope_render():
-    """The bundled ``colonoscope_tube`` scene (the default ``colonoscope`` until the haustral colon
-    replaced it: the reconstruct rows keep their input) rendered at seed 0 (a RenderResult), or
-    None where Mitsuba cannot render."""
+def colonoscope_render(scene: str = "colonoscope_tube"):
+    """A bundled endoscope scene rendered at seed 0 (a RenderResult), or None where Mitsuba cannot
+    render; by default ``colonoscope_tube`` (the default ``colonoscope`` until the haustral colon
+    replaced it: the reconstruct rows keep their input)."""
     try:
-        return render_scene(load_scene("colonoscope_tube"), seed=0)
+        return render_scene(load_scene(scene), seed=0)
     except RendererUnavailable:
         return None
 

@@ -61,9 +61,7 @@ from simtest.reconstruct.lightaware import isocurve_fit, photometric_fit
 from simtest.reconstruct.pipeline import reconstruct, reconstruct_roi, reconstruct_rois
 from simtest.reconstruct.cli import reconstruct_single
 from simtest.reconstruct.light_fits import with_light_aware
-from simtest.render import render_scene
 from simtest.resources import real_dir
-from simtest.scene import load_scene
 
 #: Worker processes of the video row: the 2-core VM's cores.
 VIDEO_WORKERS = 2
@@ -102,10 +100,9 @@ def _bench_default_colonoscope_rig(repeat: int) -> list[BenchResult]:
             "`simtest reconstruct` on every core, light-aware fits of every ok glint, one run")
     if repeat < 5:
         return []
-    try:
-        res = render_scene(load_scene("colonoscope"), seed=0)
-    except Exception as exc:  # Mitsuba unavailable
-        return [BenchResult("reconstruct", name + f" ({type(exc).__name__})", float("nan"), "ms", RIG_FRAME_TARGET_MS)]
+    res = colonoscope_render("colonoscope")
+    if res is None:
+        return [BenchResult("reconstruct", name + " (Mitsuba unavailable)", float("nan"), "ms", RIG_FRAME_TARGET_MS)]
     cf = CameraFile(res.camera_model, res.light_rig, video_response(res.spec.sensor))
     workers = min(VIDEO_WORKERS, os.cpu_count() or 1)
     with every_core():

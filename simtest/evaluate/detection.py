@@ -341,7 +341,8 @@ def labelled_real_frames(path, *, focal_px: float = 140.0) -> list[LabelledFrame
     K = [[f, 0.0, side / 2 - 0.5], [0.0, f, side / 2 - 0.5], [0.0, 0.0, 1.0]]
     camera = PinholeCamera(K, image_size=(side, side))
     if not isinstance(tiles, dict):
-        raise ValueError(f"{path}: key 'tiles' must be an object of tile id -> list of structures")
+        raise ValueError(f"{path}: key 'tiles' must be an object of tile id -> list of structures, "
+                         f"got {type(tiles).__name__}")
     if not (isinstance(side, int) and 3 <= side <= min(image.shape[:2])):
         raise ValueError(f"{path}: key 'tile_px': {side!r} is not a tile side within the image "
                          f"({image.shape[1]} x {image.shape[0]} px)")
@@ -352,7 +353,8 @@ def labelled_real_frames(path, *, focal_px: float = 140.0) -> list[LabelledFrame
         except ValueError as exc:
             raise ValueError(f"{path}: tiles: {exc}") from None
         if r1 > image.shape[0] or c1 > image.shape[1]:
-            raise ValueError(f"{path}: tiles.{tile}: outside the {image.shape[1]} x {image.shape[0]} px image")
+            raise ValueError(f"{path}: tiles.{tile}: rows {r0}-{r1}, columns {c0}-{c1} lie outside the "
+                             f"{image.shape[1]} x {image.shape[0]} px image")
         if not isinstance(items, list):
             raise ValueError(f"{path}: tiles.{tile}: must be a list of structures, got {type(items).__name__}")
         structs = [_labelled_structure(path, f"tiles.{tile}[{i}]", s, side) for i, s in enumerate(items)]
@@ -551,16 +553,16 @@ def evaluate_frames(frames: list[LabelledFrame], settings=None, *, keep: list | 
                                           "missed_targets_ok": missed})
     cand = [(f["name"], r) for f in frames_out for r in f["candidates_detail"] if r["confidence"] is not None]
     conf = np.array([r["confidence"] for _, r in cand], dtype=np.float64)
-    tp, ok, tp_ok = (np.array([r[k] if k != "ok" else r["status"] == "ok" for _, r in cand], dtype=bool)
-                     for k in ("tp", "ok", "tp_ok"))
-    found = [(name, r["target"]) for name, r in cand]  # the target a true positive is on
+    tp = np.array([r["tp"] for _, r in cand], dtype=bool)
+    ok = np.array([r["status"] == "ok" for _, r in cand], dtype=bool)
+    tp_ok = np.array([r["tp_ok"] for _, r in cand], dtype=bool)
     statuses = Counter(r["status"] for f in frames_out for r in f["candidates_detail"])
     pool = pooled(scores).as_dict()
     return {"frames": frames_out, "pooled": pool, "settings": settings.to_dict(),
             "statuses": dict(sorted(statuses.items())),
             "reliability": {"candidates": reliability(conf, tp), "ok": reliability(conf[ok], tp[ok])},
-            "precision_recall": precision_recall(conf[ok], tp_ok[ok], pool["targets"],
-                                                 target_ids=[t for t, k in zip(found, ok) if k])}
+            "precision_recall": precision_recall(conf[ok], tp_ok[ok], pool["targets"], target_ids=[
+                (name, r["target"]) for name, r in cand if r["status"] == "ok"])}  # a target is a frame's
 
 
 def reliability_figure(results: dict):
@@ -674,8 +676,8 @@ def confidence_rows(frames: list[LabelledFrame], settings=None, *,
             continue
         ev, res, _ = assess(fr.image, luma(fr.image), fits, full_scale=255.0 if fr.image.dtype == np.uint8
                             else float(fr.image.max()), camera=fr.camera, lights=fr.lights)
-        ests = reconstruct(fr.image, fr.camera, settings=settings.replace(verify=True), lights=fr.lights) if verified is None \
-            else verified[g]
+        ests = verified[g] if verified is not None else reconstruct(
+            fr.image, fr.camera, settings=settings.replace(verify=True), lights=fr.lights)
         _, rows = score_frame(fr.name, [estimate_to_dict(e) for e in ests], fr.structures)
         fitted = np.array([e.ok for e in ests])
         X = _design(ev, np.where(np.isfinite(res), res, RESIDUAL_MAX_REL))
