@@ -28,10 +28,11 @@ from simtest.reconstruct.lightaware import (LightAwareEstimate, cubic_patch_fit,
 from simtest.reconstruct.recommend import (_bp_ray_error_beside, bp_error_depth_mm, bp_ray_error_deg,
                                            depth_within_ceiling)
 
-#: The photometric fit's statuses after which the curved-patch fits run by default: those that say
-#: the plane is not the ROI's surface (after the others a patch, with more parameters to trade
-#: with the depth, cannot do better, and takes seconds).
-CURVED_FIT_AFTER = ("plane_misfit", "not_converged")
+#: The photometric fit's statuses after which the curved-patch fits run by default: the plane
+#: converged and misfits (after the others a patch cannot do better, and takes seconds; after a
+#: plane that ran off, ``not_converged``, the quadric ran off or misfit on every tuning render:
+#: docs/decisions/light-aware-recommendation.md).
+CURVED_FIT_AFTER = ("plane_misfit",)
 #: Candidate statuses never fitted, not even with ``fit_rejected``: too small to fit, or no
 #: specular highlight of the tissue (:mod:`simtest.reconstruct.verify`).
 NOT_FITTED = ("too_small", "black_border", "overlay", "not_specular")
