@@ -56,7 +56,7 @@ NOT_DECISIONS = {
                                                  "_CURVATURE_ALPHA", "_HAC_MAX_LAG")},
     "overlay.OVERLAY_BYTES_PER_PIXEL": _GUARD, "overlay.MAX_OVERLAY_PIXELS": _GUARD,
     **{f"overlay.{n}": "how the overlay is drawn, no result" for n in ("_SHIFT", "_DASH_PX")},
-    "frame_prep.LUMA_FRAME_MIN_HIGHLIGHTS": _SPEED, "isophotes.SMOOTH_FRAME_MIN_ROI_PX": _SPEED,
+    "frame_prep.LUMA_FRAME_MIN_HIGHLIGHTS": _SPEED,
     "isophotes.RESOLVE_BATCH_ISOPHOTES": _SPEED, "isophotes.RESOLVE_BATCH_MIN": _SPEED,
     "isophotes.RESOLVE_BATCH_MIN_PX": _SPEED,
     "pipeline.MMAP_THRESHOLD_BYTES": _SPEED, "pipeline.TRIM_THRESHOLD_BYTES": _SPEED,

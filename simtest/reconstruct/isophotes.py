@@ -12,7 +12,6 @@ import cv2
 import numpy as np
 
 from simtest._records import fast_init
-from simtest.constants import gaussian_radius_px, smooth_block_px
 from simtest.decisions import ROI_GROWTH_FACTOR, ROI_MAX_GROWTHS
 from simtest.reconstruct._pixels import Roi, rc_to_uv
 from simtest.reconstruct.assemble import IsophoteEstimate, SpecularityEstimate, _Draft, _Pending
@@ -27,16 +26,6 @@ from simtest.reconstruct.settings import AUTO_LOCAL_BACKGROUND_REL, Normalisatio
 
 _TINY, _ONE_TAP = float(np.finfo(float).tiny), np.ones(1)
 
-#: A frame prepared for many highlights (``_Frame.for_many_highlights``) smooths its luma once and
-#: takes an ROI of at least this many pixels from it (``_patched_from_frame``); a smaller ROI is
-#: smoothed for itself, which is cheaper there (the same bits either way; the same time at about
-#: 160 x 160 px on the Hyper-Kvasir banner, sigma 1.7 px).
-SMOOTH_FRAME_MIN_ROI_PX = 160 * 160
-#: Columns the strip re-smoothed at an ROI's right side starts on a multiple of, and more than
-#: it covers (:data:`simtest.constants.SMOOTH_BLOCK_BYTES` of float64): each column of the strip is
-#: computed in the same kind of block (SIMD, or a row's scalar last columns) as in the ROI, and the
-#: strip reaches past the frame's own scalar columns when the ROI ends on the image's right border.
-SMOOTH_STRIP_ALIGN = smooth_block_px(np.dtype(np.float64).itemsize)
 #: Isophotes ``reconstruct_rois`` contours in one batch (:func:`_resolve`): each holds its box and
 #: region (100 x 100 px: 160 kB) till then; the batch's fixed cost (~1 ms) is spread over many.
 RESOLVE_BATCH_ISOPHOTES = 256
@@ -47,93 +36,19 @@ RESOLVE_BATCH_MIN = 32
 RESOLVE_BATCH_MIN_PX = 50_000
 
 
-def _roi_values(frame: _Frame, roi: Roi, smooth_sigma_px: float) -> tuple[np.ndarray, list | None]:
+def _roi_values(frame: _Frame, roi: Roi, smooth_sigma_px: float) -> np.ndarray:
     """An ROI's intensities (h, w), float64 (read-only where they are a view): its luma, smoothed
-    with the ROI's borders reflected when ``smooth_sigma_px`` > 0 (for a large ROI of a frame
-    smoothed once, the frame's values with the ROI's bands written in: ``_patched_from_frame``,
-    the same bits), and what :func:`_put_back` needs to restore the frame afterwards (None when
-    nothing was written)."""
+    with the ROI's borders reflected when ``smooth_sigma_px`` > 0 (float32 where the frame's
+    smoothing or luma32 is sliced)."""
     if frame.smoothed32 is not None and smooth_sigma_px > 0:
-        return frame.smoothed32[roi.slices], None  # float32, read-only: read as it is
+        return frame.smoothed32[roi.slices]  # float32, read-only: read as it is
     if frame.roi_luma is not None and smooth_sigma_px > 0:
         # the ROI's luma smoothed alone in float32 (OpenCV's float32 blur, its borders reflected):
         # the float64 luma and its float64 blur of the same ROI to float32 rounding (5e-8
         # relative, as the frame's smoothing is)
-        return _smooth(frame.roi_luma[roi.slices].astype(np.float32), smooth_sigma_px), None
+        return _smooth(frame.roi_luma[roi.slices].astype(np.float32), smooth_sigma_px)
     vals = frame.luma(roi)
-    if smooth_sigma_px <= 0:
-        return vals, None
-    if frame.smooth_frame_rw is not None and vals.size >= SMOOTH_FRAME_MIN_ROI_PX:
-        got = _patched_from_frame(frame.smooth_frame_rw, vals, roi, smooth_sigma_px)
-        if got is not None:
-            return got
-    return _smooth(vals, smooth_sigma_px), None
-
-
-def _patched_from_frame(smooth_frame: np.ndarray, vals: np.ndarray, roi: Roi,
-                        sigma: float) -> tuple[np.ndarray, list] | None:
-    """``_smooth(vals, sigma)`` of an ROI, as a view of the smoothed frame with the ROI's bands
-    written in, and the frame's values that were there (for :func:`_put_back`).
-
-    A pixel farther than the kernel's radius from the ROI's sides has the same neighbourhood in
-    the frame and in the ROI (a side on the image border reflects as the frame's does), and
-    OpenCV computes it with the same operations, but for the last columns of a row, which it
-    computes in scalar code where the rest is in SIMD blocks (:data:`SMOOTH_STRIP_ALIGN`). So the
-    bands along the ROI's top, bottom and left sides inside the image are smoothed again from
-    strips twice the radius wide (a strip's own far side does not reach the band), and the
-    ROI's last columns from a strip that starts on a multiple of the alignment (its blocks are
-    the ROI's) and is wider than the frame's scalar columns. Writing the bands into the frame
-    for the time of the ROI's extraction, instead of copying the ROI out of it, moves a fifth of
-    the bytes.
-
-    Returns None (smooth the ROI itself) for an ROI too narrow for the strips. The bits equal
-    those of smoothing the ROI, and the frame is itself again after :func:`_put_back`:
-    ``tests/test_pipeline.py`` checks random ROIs.
-    """
-    r = gaussian_radius_px(sigma) + 1  # one more than OpenCV's kernel radius
-    h, w = vals.shape
-    H = smooth_frame.shape[0]
-    c = (w - SMOOTH_STRIP_ALIGN - 2 * r) // SMOOTH_STRIP_ALIGN * SMOOTH_STRIP_ALIGN
-    if h < 2 * r or c <= 2 * r:
-        return None
-    # The bands as (rows, columns) of the ROI and their values, in this order (a later band
-    # overwrites the corners of an earlier one). Two strips on opposite sides are smoothed in one
-    # OpenCV call, stacked or side by side (a call's fixed cost, and a narrow strip's cost per
-    # row, are most of a strip's time): a band reads its own strip only, within the kernel's
-    # radius, and each column (row) is computed as in a call of its own (the left strip's width,
-    # a multiple of the alignment, keeps the right one's SIMD blocks).
-    bands = []
-    top, bottom = vals[: 2 * r], vals[h - 2 * r :]
-    if roi.row0 > 0 and roi.row1 < H:
-        both = _smooth(np.concatenate([top, bottom]), sigma)
-        bands += [(slice(0, r), slice(0, w), both[:r]), (slice(h - r, h), slice(0, w), both[3 * r :])]
-    elif roi.row0 > 0:
-        bands.append((slice(0, r), slice(0, w), _smooth(top, sigma)[:r]))
-    elif roi.row1 < H:
-        bands.append((slice(h - r, h), slice(0, w), _smooth(bottom, sigma)[r:]))
-    right = slice(0, h), slice(c + r, w)
-    if roi.col0 > 0:
-        wl = -(-max(2 * r, SMOOTH_STRIP_ALIGN) // SMOOTH_STRIP_ALIGN) * SMOOTH_STRIP_ALIGN
-        both = _smooth(np.concatenate([vals[:, :wl], vals[:, c:]], axis=1), sigma)
-        bands += [(slice(0, h), slice(0, r), both[:, :r]), (*right, both[:, wl + r :])]
-    else:
-        bands.append((*right, _smooth(vals[:, c:], sigma)[:, r:]))
-    view = smooth_frame[roi.slices]
-    # each band's place in the frame and the frame's values there, all saved before any write
-    places = [view[rows, cols] for rows, cols, _ in bands]
-    saved = [(place, place.copy()) for place in places]
-    for place, (_, _, v) in zip(places, bands):
-        place[...] = v
-    out = view.view()
-    out.setflags(write=False)
-    return out, saved
-
-
-def _put_back(saved: list | None) -> None:
-    """Restore the smoothed frame's values that :func:`_patched_from_frame` overwrote (each
-    saved before any band was written, so the order does not matter)."""
-    for place, v in saved or ():
-        place[...] = v
+    return vals if smooth_sigma_px <= 0 else _smooth(vals, smooth_sigma_px)
 
 
 def _find_bp(img: np.ndarray, roi: Roi, saturation_level) -> tuple[np.ndarray, bool]:
@@ -300,50 +215,45 @@ def _estimate_one(frame: _Frame, bp_uv, roi: Roi, *, saturated: bool, grow: bool
     order = sorted(range(len(isovalues)), key=lambda i: isovalues[i])
     results: list = [None] * len(isovalues)
     growths = 0
-    saved = None  # the frame's values under the current ROI's bands (_roi_values), put back after
     # With the frame smoothed once (smoothed32), an ROI's values are the frame's: within the
     # kernel's reach of an ROI side inside the image they are not the ROI's own smoothing (its
     # sides reflected) but the frame's true neighbours' (the contours that come that near a
     # side move within the accuracy tolerance). Its background level stays that of the ROI
     # smoothed alone (_Levels.of).
     fast = frame.smoothed32 is not None and sigma > 0
-    try:
-        while True:
-            _put_back(saved)
-            vals, saved = (sm[roi.slices], None) if sm is not None else _roi_values(frame, roi, sigma)
-            try:
-                region = _region(vals, bp_uv, (roi.row0, roi.col0), frame.img.shape)
-            except ValueError:  # the BP outside its ROI
-                if sm is None:
-                    raise
+    while True:
+        vals = sm[roi.slices] if sm is not None else _roi_values(frame, roi, sigma)
+        try:
+            region = _region(vals, bp_uv, (roi.row0, roi.col0), frame.img.shape)
+        except ValueError:  # the BP outside its ROI
+            if sm is None:
+                raise
+            return None
+        i_bp = region.near_bp  # the largest of the BP's 3 x 3 pixels
+        levels = _Levels.of(frame, vals, i_bp, roi if fast else None, ring if fast and not growths else None)
+        i0 = order[0]
+        res = flood = None
+        cut = False
+        if grow and growths < ROI_MAX_GROWTHS:
+            new = Roi.around(bp_uv, ROI_GROWTH_FACTOR * max(roi.shape) / 2.0, frame.img.shape)
+            # an isophote cut by the ROI is discarded for the grown ROI's: ask only whether it
+            # is (the flood fill that answers is kept for the extraction when it is not)
+            if new != roi:
+                cut, flood = _cut_and_contour(region, levels.level(isovalues[i0]))
+            if cut is None and sm is not None:
                 return None
-            i_bp = region.near_bp  # the largest of the BP's 3 x 3 pixels
-            levels = _Levels.of(frame, vals, i_bp, roi if fast else None, ring if fast and not growths else None)
-            i0 = order[0]
-            res = flood = None
-            cut = False
-            if grow and growths < ROI_MAX_GROWTHS:
-                new = Roi.around(bp_uv, ROI_GROWTH_FACTOR * max(roi.shape) / 2.0, frame.img.shape)
-                # an isophote cut by the ROI is discarded for the grown ROI's: ask only whether it
-                # is (the flood fill that answers is kept for the extraction when it is not)
-                if new != roi:
-                    cut, flood = _cut_and_contour(region, levels.level(isovalues[i0]))
-                if cut is None and sm is not None:
-                    return None
-                if cut is None:  # only the extraction can tell
-                    res, iso = _one_isophote(frame, region, levels, isovalues[i0], flood)
-                    cut = iso is not None and iso.cut_by_roi
-                if cut:
-                    roi, growths = new, growths + 1
-                    continue
-            if not cut:
-                results[i0] = _one_isophote(frame, region, levels, isovalues[i0], flood, defer)[0] \
-                    if res is None else res
-                for i in order[1:]:
-                    results[i], _ = _one_isophote(frame, region, levels, isovalues[i], None, defer)
-            break
-    finally:
-        _put_back(saved)
+            if cut is None:  # only the extraction can tell
+                res, iso = _one_isophote(frame, region, levels, isovalues[i0], flood)
+                cut = iso is not None and iso.cut_by_roi
+            if cut:
+                roi, growths = new, growths + 1
+                continue
+        if not cut:
+            results[i0] = _one_isophote(frame, region, levels, isovalues[i0], flood, defer)[0] \
+                if res is None else res
+            for i in order[1:]:
+                results[i], _ = _one_isophote(frame, region, levels, isovalues[i], None, defer)
+        break
     return _Draft(bp_uv, i_bp, saturated, roi, bp_ray, fitf, results, other_bps, own_bp)
 
 
