@@ -20,7 +20,7 @@ from simtest.reconstruct.detect import connected_components, luma, peak_uv
 from simtest.reconstruct.failures import OK
 from simtest.reconstruct.frame_prep import LUMA_FRAME_MIN_HIGHLIGHTS, _Frame, _smooth
 from simtest.reconstruct.isophote import (MIN_CONTOUR_POINTS, _box_answer, _box_contours,
-                                          _component_box, _cut_and_contour, _extract, _isophote_of, _region)
+                                          _component_box, _cut_and_contour, _extract, _isophote_of, _region, _Region)
 from simtest.reconstruct.marching import batch_contours
 from simtest.reconstruct.settings import AUTO_LOCAL_BACKGROUND_REL, Normalisation
 
@@ -285,11 +285,95 @@ def _grown_drafts(frame: _Frame, ks: list, bps: list, rois_of: dict, rings_of: d
     else:
         return {}
     out = {}
+    isovalues = frame.settings.isovalues
+    first = _first_components(frame, ks, bps, rois_of, rings_of, sm)
     for k, sat, own in zip(ks, saturated, own_rows):
+        if k in first:  # _estimate_one's draft of an ROI that does not grow, from the batch's components
+            region, levels, comps = first[k]
+            results = [None] * len(isovalues)
+            for i in sorted(range(len(isovalues)), key=lambda i: isovalues[i]):
+                if comps[i] is None:
+                    results[i] = _one_isophote(frame, region, levels, isovalues[i], None, defer)[0]
+                else:
+                    defer.append((comps[i], levels.level(isovalues[i]), region, levels, isovalues[i], frame))
+                    results[i] = len(defer) - 1
+            out[k] = _Draft(region.bp_uv, region.near_bp, sat, region.roi, rays[k], frames_of[k], results, others, own)
+            continue
         draft = _estimate_one(frame, bps[k], rois_of[k], saturated=sat, grow=True, other_bps=others, own_bp=own,
                               bp_ray=rays[k], fitf=frames_of[k], ring=rings_of[k], sm=sm, defer=defer)
         if draft is not None:
             out[k] = draft
+    return out
+
+
+#: :func:`_first_components` batches the ROIs of at most this side (px).
+FIRST_BATCH_SIDE_PX = 32
+
+
+def _first_components(frame: _Frame, ks: list, bps: list, rois_of: dict, rings_of: dict, sm: np.ndarray) -> dict:
+    """``k -> (region, levels, comps)`` of :func:`_grown_drafts`' candidates (``auto``) whose small first ROI does not
+    grow, as :func:`_estimate_one` finds them (``_region``, ``_Levels.of``, ``_flood``, ``_component_box``) in
+    whole-table calls: the ROIs on one canvas, apart by -inf; BP pixels, 3 x 3 maxima and border medians gathered;
+    each isovalue's 4-connected components labelled at once. ``comps[i]``: ``_component_box``'s answer, None where
+    the BP's pixel is not above that level. Any other candidate is left to :func:`_estimate_one` (the same bits)."""
+    if frame.settings.normalise != Normalisation.AUTO or not ks:
+        return {}
+    rr = np.array([rois_of[k] for k in ks], np.int64).reshape(-1, 4)
+    h, w = rr[:, 1] - rr[:, 0], rr[:, 3] - rr[:, 2]
+    bp = np.array([bps[k] for k in ks], np.float64).reshape(-1, 2)
+    ri, ci = np.rint(bp[:, 1] - rr[:, 0]).astype(np.int64), np.rint(bp[:, 0] - rr[:, 2]).astype(np.int64)
+    sel = np.flatnonzero((np.maximum(h, w) <= FIRST_BATCH_SIDE_PX) & (np.minimum(h, w) >= 3) & (ri >= 0) & (ri < h)
+                         & (ci >= 0) & (ci < w))
+    if not len(sel):
+        return {}
+    rr, h, w, ri, ci, n = rr[sel], h[sel], w[sel], ri[sel], ci[sel], len(sel)
+    x0, y0 = np.cumsum(w + 1) - w, np.ones(n, np.int64)  # the ROIs in a row, -inf between and around
+    canvas = np.full((int(h.max()) + 2, int(x0[-1] + w[-1]) + 1), -np.inf)
+    owner = np.full(canvas.shape, n, np.int64)
+    for j, (r0, r1, c0, c1), y, x in zip(range(n), rr.tolist(), y0.tolist(), x0.tolist()):
+        canvas[y:y + r1 - r0, x:x + c1 - c0] = sm[r0:r1, c0:c1]
+        owner[y:y + r1 - r0, x:x + c1 - c0] = j
+    by, bx = y0 + ri, x0 + ci  # the BPs' pixels on the canvas
+    near = canvas[by[:, None] + np.repeat([-1, 0, 1], 3), bx[:, None] + np.tile([-1, 0, 1], 3)].max(axis=1)
+    if frame.smoothed32 is not None and frame.smooth_sigma_px > 0:
+        ring = np.array([rings_of[k] for k in np.asarray(ks)[sel].tolist()], np.float64)
+    else:  # _border_median: each ring (top, bottom, left, right) padded by as many -inf as +inf
+        p, hh, ww, top = np.arange(int(2 * (h + w).max() - 4))[None, :], h[:, None], w[:, None], 2 * (h + w)[:, None] - 4
+        r = np.where(p < ww, 0, np.where(p < 2 * ww, hh - 1, np.where(p < 2 * ww + hh - 2, p - 2 * ww + 1, p - 2 * ww - hh + 3)))
+        c = np.where(p < ww, p, np.where(p < 2 * ww, p - ww, np.where(p < 2 * ww + hh - 2, 0, ww - 1)))
+        vals = np.where(p < top, canvas[np.minimum(y0[:, None] + r, canvas.shape[0] - 1), np.minimum(
+            x0[:, None] + c, canvas.shape[1] - 1)], np.where(p < (top + p.shape[1]) // 2, -np.inf, np.inf))
+        part = np.partition(vals, ((m := p.shape[1] // 2) - 1, m, p.shape[1] - 1), axis=1)
+        ring = np.where(np.isnan(part[:, -1]), np.nan, (part[:, m - 1] + part[:, m]) / 2)
+    local = ring >= AUTO_LOCAL_BACKGROUND_REL * near  # _Levels.of
+    offset = np.where(local, np.where(near < ring, near, ring), 0.0)
+    scale, keep = np.where(local, near - offset, near), np.isfinite(ring) & np.isfinite(near)
+    isovalues = frame.settings.isovalues
+    order, comps = sorted(range(len(isovalues)), key=lambda i: isovalues[i]), []
+    for i in order:
+        lv = (lvc := np.append(offset + isovalues[i] * scale, np.inf)[owner])[by, bx]
+        _, lab, st, _ = cv2.connectedComponentsWithStats((canvas > lvc).view(np.uint8), connectivity=4, ltype=cv2.CV_32S)
+        own = np.append(np.where(up := canvas[by, bx] > lv, lab[by, bx], -1), -1)
+        np.copyto(lvc, canvas, where=~(other := (lab != 0) & (lab != own[owner])))  # _component_box's values
+        np.subtract(lvc, 1.0, out=lvc, where=other)
+        x, y, x1, y1 = st[own[:-1], 0] - x0, st[own[:-1], 1] - y0, st[own[:-1], 0] - x0 + st[own[:-1], 2], \
+            st[own[:-1], 1] - y0 + st[own[:-1], 3]
+        sides = np.stack([y == 0, y1 == h, x == 0, x1 == w], 1)
+        if i == order[0]:  # the lowest isophote cut by an ROI side inside the frame: the ROI grows
+            keep &= up & ~(sides & ~np.stack([rr[:, 0] <= 0, rr[:, 1] >= sm.shape[0], rr[:, 2] <= 0,
+                                               rr[:, 3] >= sm.shape[1]], 1)).any(axis=1)
+        box = np.stack([np.maximum(y - 1, 0), np.minimum(y1 + 1, h), np.maximum(x - 1, 0), np.minimum(x1 + 1, w)], 1)
+        comps.append((up.tolist(), lvc, (box + np.stack([y0, y0, x0, x0], 1)).tolist(), box.tolist(), sides.tolist()))
+    out, shape = {}, tuple(frame.img.shape)
+    for j in np.flatnonzero(keep).tolist():
+        k = ks[sel[j]]
+        (sub := sm[rois_of[k].slices]).flags.writeable = False
+        got = [None] * len(isovalues)
+        for i, (up, low, at, box, sides) in zip(order, comps):
+            if up[j]:
+                got[i] = (low[at[j][0]:at[j][1], at[j][2]:at[j][3]], (box[j][0], box[j][2]), tuple(sides[j]))
+        out[k] = (_Region(sub, rois_of[k], shape, bps[k], int(ri[j]), int(ci[j]), float(near[j])),
+                  _Levels(float(scale[j]), float(offset[j])), got)
     return out
 
 
