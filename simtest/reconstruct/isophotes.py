@@ -329,10 +329,10 @@ def _first_components(frame: _Frame, ks: list, bps: list, rois_of: dict, rings_o
     rr, h, w, ri, ci, n = rr[sel], h[sel], w[sel], ri[sel], ci[sel], len(sel)
     x0, y0 = np.cumsum(w + 1) - w, np.ones(n, np.int64)  # the ROIs in a row, -inf between and around
     canvas = np.full((int(h.max()) + 2, int(x0[-1] + w[-1]) + 1), -np.inf)
-    owner = np.full(canvas.shape, n, np.int64)
-    for j, (r0, r1, c0, c1), y, x in zip(range(n), rr.tolist(), y0.tolist(), x0.tolist()):
-        canvas[y:y + r1 - r0, x:x + c1 - c0] = sm[r0:r1, c0:c1]
-        owner[y:y + r1 - r0, x:x + c1 - c0] = j
+    owner = np.full(canvas.shape[1], n, np.int64)  # each column's ROI (n: none)
+    for j, (r0, r1, c0, c1), x in zip(range(n), rr.tolist(), x0.tolist()):
+        canvas[1:1 + r1 - r0, x:x + c1 - c0] = sm[r0:r1, c0:c1]
+        owner[x:x + c1 - c0] = j
     by, bx = y0 + ri, x0 + ci  # the BPs' pixels on the canvas
     near = canvas[by[:, None] + np.repeat([-1, 0, 1], 3), bx[:, None] + np.tile([-1, 0, 1], 3)].max(axis=1)
     if frame.smoothed32 is not None and frame.smooth_sigma_px > 0:
@@ -351,19 +351,22 @@ def _first_components(frame: _Frame, ks: list, bps: list, rois_of: dict, rings_o
     isovalues = frame.settings.isovalues
     order, comps = sorted(range(len(isovalues)), key=lambda i: isovalues[i]), []
     for i in order:
-        lv = (lvc := np.append(offset + isovalues[i] * scale, np.inf)[owner])[by, bx]
-        _, lab, st, _ = cv2.connectedComponentsWithStats((canvas > lvc).view(np.uint8), connectivity=4, ltype=cv2.CV_32S)
-        own = np.append(np.where(up := canvas[by, bx] > lv, lab[by, bx], -1), -1)
-        np.copyto(lvc, canvas, where=~(other := (lab != 0) & (lab != own[owner])))  # _component_box's values
-        np.subtract(lvc, 1.0, out=lvc, where=other)
-        x, y, x1, y1 = st[own[:-1], 0] - x0, st[own[:-1], 1] - y0, st[own[:-1], 0] - x0 + st[own[:-1], 2], \
-            st[own[:-1], 1] - y0 + st[own[:-1], 3]
+        lvc = np.append(offset + isovalues[i] * scale, np.inf)[owner]  # each column's level
+        lab = cv2.connectedComponentsWithAlgorithm((canvas > lvc).view(np.uint8), 4, cv2.CV_32S, cv2.CCL_WU)[1]
+        own = np.where(up := canvas[by, bx] > lvc[bx], lab[by, bx], -1)
+        yy, xx = np.divmod(q := np.flatnonzero(lab), canvas.shape[1])
+        mine = lab.ravel()[q] == own[jq := owner[xx]]
+        (low := canvas.copy()).ravel()[q[~mine]] = lvc[xx[~mine]] - 1.0  # _component_box's values
+        x, y, x1, y1 = np.full(n, canvas.shape[1]), np.full(n, canvas.shape[0]), np.zeros(n, np.int64), np.zeros(n, np.int64)
+        for a, v, fn in ((x, xx, np.minimum), (y, yy, np.minimum), (x1, xx + 1, np.maximum), (y1, yy + 1, np.maximum)):
+            fn.at(a, jq[mine], v[mine])  # the bounding box of each BP's component
+        x, y, x1, y1 = x - x0, y - y0, x1 - x0, y1 - y0
         sides = np.stack([y == 0, y1 == h, x == 0, x1 == w], 1)
         if i == order[0]:  # the lowest isophote cut by an ROI side inside the frame: the ROI grows
             keep &= up & ~(sides & ~np.stack([rr[:, 0] <= 0, rr[:, 1] >= sm.shape[0], rr[:, 2] <= 0,
                                                rr[:, 3] >= sm.shape[1]], 1)).any(axis=1)
         box = np.stack([np.maximum(y - 1, 0), np.minimum(y1 + 1, h), np.maximum(x - 1, 0), np.minimum(x1 + 1, w)], 1)
-        comps.append((up.tolist(), lvc, (box + np.stack([y0, y0, x0, x0], 1)).tolist(), box.tolist(), sides.tolist()))
+        comps.append((up.tolist(), low, (box + np.stack([y0, y0, x0, x0], 1)).tolist(), box.tolist(), sides.tolist()))
     out, shape = {}, tuple(frame.img.shape)
     for j in np.flatnonzero(keep).tolist():
         k = ks[sel[j]]
