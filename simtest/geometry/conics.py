@@ -41,7 +41,7 @@ from simtest.geometry.camera import validate_intrinsics
 from simtest.tolerances import TOL
 
 __all__ = ["CirclePose", "ConeAxis", "Ellipse", "circle_pose", "conic_kind", "conic_to_ellipse",
-           "cone_axis", "cone_pose", "cone_poses", "ellipse_to_conic", "normalised_conic", "plane_basis",
+           "cone_axis", "ellipse_to_conic", "normalised_conic", "plane_basis",
            "project_circle", "sample_ellipse"]
 
 
@@ -382,29 +382,6 @@ def circle_pose(Cn) -> CirclePose:
     return _circle_pose_of(*_cone_eigen(Cn))
 
 
-def cone_pose(Cn) -> tuple[CirclePose, ConeAxis]:
-    """:func:`circle_pose` and :func:`cone_axis` of one cone from one eigen-decomposition.
-
-    Parameters
-    ----------
-    Cn : array_like of shape (3, 3)
-        Normalised conic C' = K^T C K (any scale or sign).
-
-    Returns
-    -------
-    (CirclePose, ConeAxis)
-        The same as ``(circle_pose(Cn), cone_axis(Cn))``, bit for bit (the per-highlight path
-        of the pipeline calls both).
-
-    Raises
-    ------
-    ValueError
-        If C' is not a real elliptic cone.
-    """
-    w, V = _cone_eigen(Cn)
-    return _circle_pose_of(w, V), _cone_axis_of(w, V)
-
-
 def plane_basis(normal, axes: tuple[int, int] = (0, 1)) -> tuple[np.ndarray, np.ndarray]:
     """An orthonormal basis (u, w) of the plane perpendicular to ``normal``.
 
@@ -534,7 +511,8 @@ def _ellipses_of(C: np.ndarray):
 
 def unit_symmetric_cones(Cn: np.ndarray) -> np.ndarray:
     """The symmetric parts of a stack of cones, each scaled to unit Frobenius norm: what
-    :func:`cone_poses` decomposes (the compiled estimators start from the same matrices).
+    :func:`circle_pose` and :func:`cone_axis` decompose (the compiled estimators start from the
+    same matrices).
 
     Parameters
     ----------
@@ -636,45 +614,6 @@ def _circle_pose_of(w: np.ndarray, V: np.ndarray) -> CirclePose:
     if not ok[0]:
         raise np.linalg.LinAlgError("Singular matrix")
     return CirclePose(normals=normals[0], centres=centres[0], eigenvalues=w)
-
-
-def cone_poses(Cn) -> dict:
-    """:func:`circle_pose` and :func:`cone_axis` of a stack of cones at once.
-
-    Parameters
-    ----------
-    Cn : array_like of shape (k, 3, 3)
-        Normalised conics C' = K^T C K (any scale or sign), finite.
-
-    Returns
-    -------
-    dict of ndarray
-        ``normals`` (k, 2, 3): N+ and N- facing the camera; ``centres`` (k, 2, 3); ``axis`` (k, 3):
-        the cone axis facing the camera (n_z < 0); ``eigenvalue_gap`` (k,); ``eigenvalues`` (k, 3):
-        (l1, l2, l3); ``ok`` (k,) bool: False where C' is not a real elliptic cone or its circle
-        pose is undefined (then the other entries of that cone are meaningless), and
-        ``error`` (list of str): why, per cone ("" where ok).
-
-    Notes
-    -----
-    The same arithmetic as the one-cone functions, which call this one: one eigen-decomposition
-    per cone, batched in numpy (a highlight's pose costs a few microseconds in a batch of
-    hundreds).
-    """
-    Cn = np.asarray(Cn, dtype=np.float64).reshape(-1, 3, 3)
-    with np.errstate(invalid="ignore", divide="ignore"):
-        w, V, ok = _cone_eigen_many(Cn)
-        normals, centres, pose_ok = _circle_poses_of(w, V)
-        axis, gap = _cone_axes_of(w, V)
-    error = [""] * len(Cn)
-    for i in np.flatnonzero(~ok) if not ok.all() else ():
-        c = 0.5 * (Cn[i] + Cn[i].T)
-        error[i] = (_eigen_error(np.linalg.eigvalsh(c / np.linalg.norm(c))) if np.isfinite(c).all()
-                    else f"C' has non-finite entries: {Cn[i].tolist()}")
-    for i in np.flatnonzero(ok & ~pose_ok):
-        error[i] = "Singular matrix"
-    return dict(normals=normals, centres=centres, axis=axis, eigenvalue_gap=gap, eigenvalues=w,
-                ok=ok & pose_ok, error=error)
 
 
 def _section_centres(Q: np.ndarray, n: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
