@@ -18,7 +18,7 @@ from hypothesis import strategies as st
 from simtest.geometry import angle_between_deg, pixel_to_ray
 from simtest.render import RendererUnavailable, choose_variant, render_scene, write_render
 from simtest.render.mitsuba_dict import plane_normal_cam
-from simtest.render.truth import bisector_cos_image, highlight_complete
+from simtest.render.truth import bisector_cos_image
 from simtest.simulate.truth import bisector
 from simtest.scene import (
     bundled_scene_names,
@@ -356,6 +356,18 @@ def test_saddle_highlight_at_apex():
     assert math.isclose(h.k1, 1.0 / g.radius1_mm, rel_tol=1e-3)
     assert math.isclose(h.k2, -1.0 / g.radius2_mm, rel_tol=1e-3)
     assert angle_between_deg(h.normal, [0.0, 0.0, -1.0]) < 1e-3
+
+
+def highlight_complete(specular, bp_px, t=0.1) -> bool:
+    """Whether the region ``specular >= t * specular[BP]`` holding the BP pixel (inside the
+    image, lit) stays off the image border: the highlight and its isophote t are in frame."""
+    H, W = specular.shape
+    u, v = int(round(bp_px[0])), int(round(bp_px[1]))
+    if not (0 <= u < W and 0 <= v < H) or specular[v, u] <= 0:
+        return False
+    labels, _ = ndimage.label(specular >= t * specular[v, u])
+    region = labels == labels[v, u]
+    return not (region[0].any() or region[-1].any() or region[:, 0].any() or region[:, -1].any())
 
 
 def test_bundled_scenes_show_a_complete_highlight():
