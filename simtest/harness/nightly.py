@@ -67,6 +67,7 @@ from __future__ import annotations
 import fcntl
 import json
 import math
+from collections import Counter
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -261,10 +262,13 @@ def baseline_section(runs: list[dict], policy: dict | None = None) -> dict:
             "realisations": runs[0]["suite"]["realisations"], "policy": pol, "metrics": metrics}
 
 
-def _name_list(bad: dict, limit: int = 8) -> str:
-    items = [f"{k} ({why})" for k, why in sorted(bad.items())]
-    more = f" and {len(items) - limit} more" if len(items) > limit else ""
-    return f"{len(items)} bad metric(s): " + ", ".join(items[:limit]) + more
+def _listed(names: list[str], limit: int = 8) -> str:
+    """The first ``limit`` names, comma-separated, and how many more there are."""
+    return ", ".join(names[:limit]) + (f" and {len(names) - limit} more" if len(names) > limit else "")
+
+
+def _name_list(bad: dict) -> str:
+    return f"{len(bad)} bad metric(s): " + _listed([f"{k} ({why})" for k, why in sorted(bad.items())])
 
 
 def _never_succeeded(metrics: dict, name: str) -> bool:
@@ -460,25 +464,15 @@ def gate_summary(changes: list[Change]) -> tuple[bool, list[str], dict]:
         run, one ``MISSING:`` line naming the metrics the run lacks, one ``UNCOVERED:`` line
         naming the run's metrics the baseline lacks); counts per verdict.
     """
-    counts: dict[str, int] = {}
-    for c in changes:
-        counts[c.verdict] = counts.get(c.verdict, 0) + 1
     lines = [f"REGRESSION: {c.metric}: {_f(c.baseline)} -> {_f(c.now)} (tolerance "
              f"{_f(c.tolerance)})" for c in changes if c.verdict == "regression"]
-    inv = [c.metric for c in changes if c.verdict == "invalid"]
-    if inv:
-        lines.append(f"INVALID: {len(inv)} NaN, infinite or non-numeric metric(s) in this run: "
-                     + ", ".join(inv[:8]) + (f" and {len(inv) - 8} more" if len(inv) > 8 else ""))
-    miss = [c.metric for c in changes if c.verdict == "missing"]
-    if miss:
-        lines.append(f"MISSING: {len(miss)} metric(s) of the baseline absent from this run: "
-                     + ", ".join(miss[:8]) + (f" and {len(miss) - 8} more" if len(miss) > 8
-                                              else ""))
-    new = [c.metric for c in changes if c.verdict == "new"]
-    if new:
-        lines.append(f"UNCOVERED: {len(new)} metric(s) of this run absent from the baseline: "
-                     + ", ".join(new[:8]) + (f" and {len(new) - 8} more" if len(new) > 8 else ""))
-    return not lines, lines, counts
+    for verdict, what in (("invalid", "INVALID: {} NaN, infinite or non-numeric metric(s) in this run"),
+                          ("missing", "MISSING: {} metric(s) of the baseline absent from this run"),
+                          ("new", "UNCOVERED: {} metric(s) of this run absent from the baseline")):
+        names = [c.metric for c in changes if c.verdict == verdict]
+        if names:
+            lines.append(what.format(len(names)) + ": " + _listed(names))
+    return not lines, lines, dict(Counter(c.verdict for c in changes))
 
 
 def _f(v) -> str:
