@@ -3,14 +3,12 @@
 What is compared. Every *metric* of a run, named ``<scope>:<name>:<estimator>:<statistic>``:
 
 - ``family:<family>:<estimator>:median|failure_rate`` and
-  ``family:<family>:*:false_positives_per_image``: the summary table of the report (the headline
-  metrics: many realisations pooled, so seed noise is small against them);
+  ``family:<family>:*:false_positives_per_image``: the summary table of the report (its family
+  medians are every estimator's *headline* metrics: many realisations pooled, so seed noise is
+  small against them);
 - ``case:<case id>:<estimator>:median|failure_rate``: every setting of every sweep.
 
 Errors are in degrees, rates are fractions; all are "lower is better".
-
-Headline metrics. The family medians (``family:<family>:<estimator>:median``) are every
-estimator's headline metrics: the numbers of the report's summary table.
 
 Tolerances from measured spread, capped. The baseline is made from ``repeats`` runs of the suite
 with the root seeds ``seed, seed + 1, ...``: its value is the run with the suite's own seed (so
@@ -24,11 +22,8 @@ abs_floor, cap)`` (the policy is stored in the baseline). The caps (:data:`CAPS`
   run at *another* seed: :func:`noisy_headlines` lists them, ``--update-baseline`` prints them,
   and the remedy is more realisations for their sweeps, never a larger cap. The gate itself runs
   at the baseline's seed (CI does), where a good run repeats the baseline's numbers up to
-  platform rounding, so seed noise does not enter its verdict. The quick suite has no noisy
-  headline metric; the nightly suite has two, measured over 3 seeds at 100 renders per light
-  offset (``plane, light offset``: ``paper_selected`` 0.28 deg and ``bp_ray`` 0.18 deg, one
-  standard deviation; the paper's normals and the BP ray err by 1.4 to 8 deg there, render to
-  render), which a run at another seed may fail;
+  platform rounding, so seed noise does not enter its verdict (which suites have noisy headline
+  metrics, measured: ``docs/decisions/nightly-gate.md``);
 - ``deg`` 10 deg on the per-case medians (a few realisations each; doubling any error above
   10 deg still fails);
 - ``rate`` 0.1 on failure rates and false positives per image (five failures more in 50).
