@@ -14,7 +14,8 @@ from typer.testing import CliRunner
 
 from simtest.cli import app
 from simtest.geometry import PinholeCamera, save_camera
-from simtest.simulate.analytic import phong_plane_image, phong_sphere_image
+from _quadrics import phong_sphere_image
+from simtest.simulate.analytic import phong_plane_image
 
 SIZE = 160
 K = np.array([[180.0, 0, (SIZE - 1) / 2], [0, 180.0, (SIZE - 1) / 2], [0, 0, 1]])
