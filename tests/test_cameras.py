@@ -16,7 +16,6 @@ from simtest.geometry.cameras import (
     FisheyeCamera,
     OmnidirectionalCamera,
     PinholeCamera,
-    as_camera_model,
     c3vd_camera,
 )
 from simtest.tolerances import TOL
@@ -229,14 +228,6 @@ def test_bad_parameters_are_one_line_errors(build, msg):
     with pytest.raises(IntrinsicsError, match=msg) as info:
         build()
     assert "\n" not in str(info.value)
-
-
-def test_as_camera_model_keeps_a_k_working():
-    K = np.array([[100.0, 0, 50], [0, 100, 40], [0, 0, 1]])
-    cam = as_camera_model(K, (101, 81))
-    assert isinstance(cam, PinholeCamera) and cam.image_size == (101, 81)
-    np.testing.assert_allclose(cam.ray_to_pixel(np.array([[0.1, 0.2, 1.0]])), [[60.0, 60.0]])
-    assert as_camera_model(cam) is cam
 
 
 def test_a_camera_model_leaves_the_callers_arrays_writable_and_keeps_its_own():

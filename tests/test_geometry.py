@@ -18,7 +18,6 @@ from simtest.geometry import (
     conic_to_ellipse,
     cone_axis,
     ellipse_to_conic,
-    face_camera,
     load_intrinsics,
     look_at,
     normalised_conic,
@@ -145,12 +144,6 @@ def test_angle_between_resolves_tiny_angles():
     assert np.isnan(angle_between_deg(a, np.zeros(3)))
     out = angle_between_deg(np.tile(a, (4, 1)), b)
     assert out.shape == (4,)
-
-
-def test_face_camera_flips_only_back_facing():
-    ray = np.array([0.0, 0.0, 1.0])
-    np.testing.assert_allclose(face_camera([0, 0, 2.0], ray), [0, 0, -1])
-    np.testing.assert_allclose(face_camera([0, 0, -1.0], ray), [0, 0, -1])
 
 
 def test_projection_and_rays_are_inverse_with_integer_pixel_centres():
