@@ -38,3 +38,26 @@ def assert_one_error_line(res, code: int, *words: str) -> None:
     assert "Traceback" not in res.output
     for w in words:
         assert w in lines[0], lines[0]
+
+
+def sample_ellipse(ellipse, n: int, *, rng=None, noise_px: float = 0.0) -> np.ndarray:
+    """``n`` points (u, v) on an :class:`~simtest.geometry.conics.Ellipse`, evenly spaced in the
+    eccentric anomaly from a random phase when ``rng`` is given, plus Gaussian noise of
+    ``noise_px`` per coordinate (drawn with ``rng``)."""
+    phase = rng.uniform(0, 2 * np.pi) if rng is not None else 0.0
+    t = phase + np.linspace(0.0, 2 * np.pi, n, endpoint=False)
+    a, b = ellipse.semi_axes
+    c, s = np.cos(ellipse.angle_rad), np.sin(ellipse.angle_rad)
+    x, y = a * np.cos(t), b * np.sin(t)
+    pts = np.stack([ellipse.center[0] + c * x - s * y, ellipse.center[1] + s * x + c * y], axis=1)
+    return pts + rng.normal(0.0, noise_px, size=pts.shape) if noise_px > 0 else pts
+
+
+def frame_pixels(camera, step: float = 1.0) -> np.ndarray:
+    """(M, 2) pixel centres on a grid of spacing ``step`` px over a camera model's whole frame
+    (``camera.image_size``), its last row and column included."""
+    W, H = camera.image_size
+    us = np.unique(np.append(np.arange(0.0, W - 1, step), W - 1.0))
+    vs = np.unique(np.append(np.arange(0.0, H - 1, step), H - 1.0))
+    uu, vv = np.meshgrid(us, vs)
+    return np.stack([uu.ravel(), vv.ravel()], axis=1)

@@ -21,6 +21,8 @@ from simtest.geometry import (
     save_camera,
 )
 
+from _cases import frame_pixels
+
 K = np.array([[400.0, 0.0, 202.5], [0.0, 410.0, 190.5], [0.0, 0.0, 1.0]])
 
 
@@ -39,7 +41,7 @@ def test_every_model_round_trips_through_the_file(tmp_path, model):
     p = save_camera(tmp_path / "cam.json", model, rig)
     cf = load_camera(p)
     assert cf.model == model and cf.lights == rig
-    uv = model.frame_pixels(50.0)
+    uv = frame_pixels(model, 50.0)
     np.testing.assert_array_equal(cf.model.pixel_to_ray(uv), model.pixel_to_ray(uv))
     assert load_camera(save_camera(tmp_path / "nolights.json", model)).lights == LightRig.colocated()
 

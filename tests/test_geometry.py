@@ -24,14 +24,13 @@ from simtest.geometry import (
     pixel_to_ray,
     project_circle,
     project_points,
-    sample_ellipse,
     save_intrinsics,
     undistort_points,
     validate_intrinsics,
 )
 from simtest.tolerances import TOL
 
-from _cases import random_circle_pose
+from _cases import random_circle_pose, sample_ellipse
 
 K = np.array([[320.0, 0.0, 202.5], [0.0, 300.0, 190.5], [0.0, 0.0, 1.0]])
 

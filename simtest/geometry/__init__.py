@@ -12,7 +12,7 @@ from simtest.geometry.cameras import (CameraModel, FisheyeCamera, Omnidirectiona
                                       c3vd_camera)
 from simtest.geometry.conics import (CirclePose, ConeAxis, Ellipse, circle_pose, conic_kind,
                                      conic_to_ellipse, cone_axis, ellipse_to_conic, normalised_conic,
-                                     project_circle, sample_ellipse)
+                                     project_circle)
 from simtest.geometry.lights import Light, LightRig, LightRigError
 
 __all__ = ["CameraFile", "CameraFileError", "CameraModel", "CirclePose", "ConeAxis", "Ellipse",
@@ -20,5 +20,5 @@ __all__ = ["CameraFile", "CameraFileError", "CameraModel", "CirclePose", "ConeAx
            "OmnidirectionalCamera", "PinholeCamera", "angle_between_deg",
            "bp_ray_normal", "c3vd_camera", "circle_pose", "conic_kind", "conic_to_ellipse", "cone_axis",
            "ellipse_to_conic", "load_camera", "load_intrinsics", "look_at",
-           "normalised_conic", "pixel_to_ray", "project_circle", "project_points", "sample_ellipse",
+           "normalised_conic", "pixel_to_ray", "project_circle", "project_points",
            "save_camera", "save_intrinsics", "undistort_points", "validate_intrinsics"]

@@ -219,31 +219,6 @@ class CameraModel(ABC):
         d["image_size"] = None if self.image_size is None else [int(s) for s in self.image_size]
         return d
 
-    def frame_pixels(self, step: float = 1.0) -> np.ndarray:
-        """Pixel centres on a grid over the whole frame, corners included.
-
-        Parameters
-        ----------
-        step : float
-            Grid spacing in pixels.
-
-        Returns
-        -------
-        ndarray of shape (M, 2)
-
-        Raises
-        ------
-        ValueError
-            If the model has no image size.
-        """
-        if self.image_size is None:
-            raise ValueError("camera model has no image_size")
-        W, H = self.image_size
-        us = np.unique(np.append(np.arange(0.0, W - 1, step), W - 1.0))
-        vs = np.unique(np.append(np.arange(0.0, H - 1, step), H - 1.0))
-        uu, vv = np.meshgrid(us, vs)
-        return np.stack([uu.ravel(), vv.ravel()], axis=1)
-
     def __eq__(self, other) -> bool:
         if type(self) is not type(other):
             return NotImplemented

@@ -42,7 +42,7 @@ from simtest.tolerances import TOL
 
 __all__ = ["CirclePose", "ConeAxis", "Ellipse", "circle_pose", "conic_kind", "conic_to_ellipse",
            "cone_axis", "ellipse_to_conic", "normalised_conic", "plane_basis",
-           "project_circle", "sample_ellipse"]
+           "project_circle"]
 
 
 @fast_init
@@ -219,46 +219,6 @@ def conic_to_ellipse(C) -> Ellipse | None:
     """
     centre, axes, angle, ok = _ellipses_of(_check_conic(C)[None])
     return Ellipse(center=centre[0], semi_axes=axes[0], angle_rad=float(angle[0])) if ok[0] else None
-
-
-def sample_ellipse(ellipse: Ellipse, n: int, *, rng=None, noise_px: float = 0.0) -> np.ndarray:
-    """Points on an ellipse, evenly spaced in the eccentric anomaly, optionally with noise.
-
-    Parameters
-    ----------
-    ellipse : Ellipse
-        The ellipse in pixels.
-    n : int
-        Number of points (> 0).
-    rng : numpy.random.Generator, optional
-        Required when ``noise_px > 0``; also draws a random phase when given.
-    noise_px : float
-        Standard deviation of isotropic Gaussian noise added to each coordinate, pixels.
-
-    Returns
-    -------
-    ndarray of shape (n, 2)
-        Points (u, v) in pixels.
-
-    Raises
-    ------
-    ValueError
-        If ``n < 1``, or noise is asked for without a generator.
-    """
-    if n < 1:
-        raise ValueError(f"n must be >= 1, got {n}")
-    if noise_px > 0 and rng is None:
-        raise ValueError("noise_px > 0 needs an explicit numpy Generator (rng)")
-    phase = rng.uniform(0, 2 * np.pi) if rng is not None else 0.0
-    t = phase + np.linspace(0.0, 2 * np.pi, n, endpoint=False)
-    a, b = ellipse.semi_axes
-    c, s = np.cos(ellipse.angle_rad), np.sin(ellipse.angle_rad)
-    x = a * np.cos(t)
-    y = b * np.sin(t)
-    pts = np.stack([ellipse.center[0] + c * x - s * y, ellipse.center[1] + s * x + c * y], axis=1)
-    if noise_px > 0:
-        pts = pts + rng.normal(0.0, noise_px, size=pts.shape)
-    return pts
 
 
 def normalised_conic(C, K) -> np.ndarray:
