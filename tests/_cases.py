@@ -61,3 +61,35 @@ def frame_pixels(camera, step: float = 1.0) -> np.ndarray:
     vs = np.unique(np.append(np.arange(0.0, H - 1, step), H - 1.0))
     uu, vv = np.meshgrid(us, vs)
     return np.stack([uu.ravel(), vv.ravel()], axis=1)
+
+
+def ellipse_to_conic(center_uv, semi_axes, angle_rad: float) -> np.ndarray:
+    """Point conic (3, 3) of the ellipse of centre (u, v), semi-axes (a, b) px (``a`` at
+    ``angle_rad`` from +u toward +v): ``x^T C x = 0`` on it, negative inside, not normalised
+    (Hartley and Zisserman, Multiple View Geometry, sec. 2.2.3)."""
+    cx, cy = (float(x) for x in center_uv)
+    a, b = (float(x) for x in semi_axes)
+    c, s = np.cos(angle_rad), np.sin(angle_rad)
+    # (u', v') = R^T (x - centre); u'^2/a^2 + v'^2/b^2 - 1 = 0
+    A = c * c / a**2 + s * s / b**2
+    B = 2.0 * c * s * (1.0 / a**2 - 1.0 / b**2)
+    Cc = s * s / a**2 + c * c / b**2
+    D = -2.0 * A * cx - B * cy
+    E = -B * cx - 2.0 * Cc * cy
+    F = A * cx * cx + B * cx * cy + Cc * cy * cy - 1.0
+    return np.array([[A, B / 2, D / 2], [B / 2, Cc, E / 2], [D / 2, E / 2, F]])
+
+
+def undistort_points(uv, K, dist_coeffs) -> np.ndarray:
+    """Pixel points (N, 2) with OpenCV's lens distortion removed under the same K
+    (``cv2.undistortPoints`` iterated to convergence); None or zero coefficients: a copy."""
+    import cv2
+
+    uv = np.asarray(uv, dtype=np.float64)
+    if dist_coeffs is None or not np.any(np.asarray(dist_coeffs, dtype=np.float64)):
+        return uv.copy()
+    K = np.asarray(K, dtype=np.float64)
+    criteria = (cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 200, 1e-12)
+    out = cv2.undistortPoints(uv.reshape(-1, 1, 2), K, np.asarray(dist_coeffs, dtype=np.float64).reshape(-1),
+                              R=None, P=K, criteria=criteria)
+    return out.reshape(-1, 2)

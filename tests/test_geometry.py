@@ -17,7 +17,6 @@ from simtest.geometry import (
     conic_kind,
     conic_to_ellipse,
     cone_axis,
-    ellipse_to_conic,
     load_intrinsics,
     look_at,
     normalised_conic,
@@ -25,12 +24,11 @@ from simtest.geometry import (
     project_circle,
     project_points,
     save_intrinsics,
-    undistort_points,
     validate_intrinsics,
 )
 from simtest.tolerances import TOL
 
-from _cases import random_circle_pose, sample_ellipse
+from _cases import ellipse_to_conic, random_circle_pose, sample_ellipse, undistort_points
 
 K = np.array([[320.0, 0.0, 202.5], [0.0, 300.0, 190.5], [0.0, 0.0, 1.0]])
 

@@ -41,7 +41,7 @@ from simtest.geometry.camera import validate_intrinsics
 from simtest.tolerances import TOL
 
 __all__ = ["CirclePose", "ConeAxis", "Ellipse", "circle_pose", "conic_kind", "conic_to_ellipse",
-           "cone_axis", "ellipse_to_conic", "normalised_conic", "plane_basis",
+           "cone_axis", "normalised_conic", "plane_basis",
            "project_circle"]
 
 
@@ -128,44 +128,6 @@ def _check_conic(C, name: str = "C") -> np.ndarray:
     if not np.all(np.isfinite(C)):
         raise ValueError(f"{name} has non-finite entries: {C.tolist()}")
     return 0.5 * (C + C.T)
-
-
-def ellipse_to_conic(center_uv, semi_axes, angle_rad: float) -> np.ndarray:
-    """Point conic of an ellipse given by its centre, semi-axes and orientation.
-
-    Parameters
-    ----------
-    center_uv : array_like of shape (2,)
-        Centre (u, v) in pixels.
-    semi_axes : array_like of shape (2,)
-        Semi-axes (a, b) in pixels, both > 0; ``a`` lies along ``angle_rad``.
-    angle_rad : float
-        Orientation of the ``a`` axis from +u toward +v, radians.
-
-    Returns
-    -------
-    ndarray of shape (3, 3)
-        Symmetric C with ``x^T C x = 0`` on the ellipse, negative inside, with ``C[2, 2]`` the value
-        at the origin (not normalised).
-
-    Raises
-    ------
-    ValueError
-        If a semi-axis is not positive and finite.
-    """
-    cx, cy = (float(x) for x in center_uv)
-    a, b = (float(x) for x in semi_axes)
-    if not (np.isfinite(a) and np.isfinite(b) and a > 0 and b > 0):
-        raise ValueError(f"semi-axes must be positive and finite, got ({a}, {b})")
-    c, s = np.cos(angle_rad), np.sin(angle_rad)
-    # (u', v') = R^T (x - centre); u'^2/a^2 + v'^2/b^2 - 1 = 0  [3, sec. 2.2.3]
-    A = c * c / a**2 + s * s / b**2
-    B = 2.0 * c * s * (1.0 / a**2 - 1.0 / b**2)
-    Cc = s * s / a**2 + c * c / b**2
-    D = -2.0 * A * cx - B * cy
-    E = -B * cx - 2.0 * Cc * cy
-    F = A * cx * cx + B * cx * cy + Cc * cy * cy - 1.0
-    return np.array([[A, B / 2, D / 2], [B / 2, Cc, E / 2], [D / 2, E / 2, F]])
 
 
 def conic_kind(C) -> str:
