@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import io
 import itertools
+from collections import Counter
 
 import matplotlib
 import numpy as np
@@ -477,12 +478,9 @@ def _curves_takeaway(sw: dict, sc: list[dict], ests: list[str]) -> str:
     x = _sweep_x(sw, sc)
     order = np.argsort(x, kind="stable")
     x, sc = x[order], [sc[i] for i in order]
-    clear: dict[str, int] = {}
-    for c in sc:
-        marks = best_marks({e: c["metrics"]["estimators"].get(e) for e in ests})
-        for e, m in marks.items():
-            if m == "best":
-                clear[e] = clear.get(e, 0) + 1
+    # settings at which each estimator is the lowest beyond the interval
+    clear = Counter(e for c in sc for e, m in best_marks({e: c["metrics"]["estimators"].get(e) for e in ests}).items()
+                    if m == "best")
     meds = {e: np.array([_val(c["metrics"]["estimators"].get(e, {}), "median") for c in sc])
             for e in ests}
     drawn = {e: v for e, v in meds.items() if np.isfinite(v).any()}
