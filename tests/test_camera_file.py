@@ -17,7 +17,6 @@ from simtest.geometry import (
     PinholeCamera,
     c3vd_camera,
     load_camera,
-    load_intrinsics,
     save_camera,
 )
 
@@ -62,7 +61,7 @@ def test_legacy_intrinsics_file_reads_as_pinhole(tmp_path):
     cf = load_camera(p)
     assert isinstance(cf.model, PinholeCamera) and cf.model.dist_coeffs is None
     assert cf.lights.is_colocated
-    np.testing.assert_array_equal(load_intrinsics(p).K, K)
+    np.testing.assert_array_equal(load_camera(p).model.K, K)
 
 
 def write(tmp_path, name, obj):

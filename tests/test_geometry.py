@@ -17,7 +17,7 @@ from simtest.geometry import (
     conic_kind,
     conic_to_ellipse,
     cone_axis,
-    load_intrinsics,
+    load_camera,
     look_at,
     normalised_conic,
     pixel_to_ray,
@@ -175,7 +175,7 @@ def test_intrinsics_json_and_opencv_yaml_round_trip(tmp_path):
 
     dist = np.array([-0.2, 0.05, 0.001, -0.002, 0.0])
     p = save_intrinsics(tmp_path / "k.json", K, dist_coeffs=dist, image_size=(406, 381))
-    intr = load_intrinsics(p)
+    intr = load_camera(p).model
     np.testing.assert_array_equal(intr.K, K)
     np.testing.assert_array_equal(intr.dist_coeffs, dist)
     assert intr.image_size == (406, 381)
@@ -186,7 +186,7 @@ def test_intrinsics_json_and_opencv_yaml_round_trip(tmp_path):
     fs.write("image_width", 406)
     fs.write("image_height", 381)
     fs.release()
-    intr2 = load_intrinsics(y)
+    intr2 = load_camera(y).model
     np.testing.assert_allclose(intr2.K, K)
     np.testing.assert_allclose(intr2.dist_coeffs, dist)
     assert intr2.image_size == (406, 381)
@@ -194,23 +194,23 @@ def test_intrinsics_json_and_opencv_yaml_round_trip(tmp_path):
 
 def test_intrinsics_file_errors_name_file_and_key(tmp_path):
     with pytest.raises(IntrinsicsError, match="not found"):
-        load_intrinsics(tmp_path / "missing.json")
+        load_camera(tmp_path / "missing.json").model
     bad = tmp_path / "bad.json"
     bad.write_text("{not json")
     with pytest.raises(IntrinsicsError, match="bad.json: not valid JSON"):
-        load_intrinsics(bad)
+        load_camera(bad).model
     nok = tmp_path / "nok.json"
     nok.write_text(json.dumps({"k": 1}))
     with pytest.raises(IntrinsicsError, match="missing key 'K'"):
-        load_intrinsics(nok)
+        load_camera(nok).model
     neg = tmp_path / "neg.json"
     neg.write_text(json.dumps({"K": [[-1, 0, 0], [0, 1, 0], [0, 0, 1]]}))
     with pytest.raises(IntrinsicsError, match="neg.json: key 'K': focal"):
-        load_intrinsics(neg)
+        load_camera(neg).model
     dist = tmp_path / "dist.json"
     dist.write_text(json.dumps({"K": K.tolist(), "dist_coeffs": [1, 2, 3]}))
     with pytest.raises(IntrinsicsError, match="dist_coeffs"):
-        load_intrinsics(dist)
+        load_camera(dist).model
 
 
 def test_undistort_inverts_opencv_distortion():

@@ -398,7 +398,7 @@ def test_microfacet_channels_and_specular_image():
 def test_write_render_files(tmp_path):
     from PIL import Image
 
-    from simtest.geometry.camera_file import load_intrinsics
+    from simtest.geometry.camera_file import load_camera
 
     spec = with_overrides(load_scene("plane_fronto"), {
         "camera.width_px": 64, "camera.height_px": 48, "camera.focal_px": 64.0, "render.spp": 2})
@@ -406,7 +406,7 @@ def test_write_render_files(tmp_path):
     paths = write_render(r, tmp_path / "out")
     img = np.asarray(Image.open(paths["image"]))
     assert img.shape == (48, 64) and np.array_equal(img, r.sensor)
-    intr = load_intrinsics(paths["intrinsics"])
+    intr = load_camera(paths["intrinsics"]).model
     assert np.array_equal(intr.K, r.K) and tuple(intr.image_size) == (64, 48)
     gt = np.load(paths["ground_truth"])
     assert gt["normals"].shape == (48, 64, 3) and gt["normals"].dtype == np.float32

@@ -6,8 +6,8 @@ Nothing here imports Mitsuba or any renderer: the reconstruction core runs on re
 from simtest.geometry.angles import angle_between_deg
 from simtest.geometry.camera import (IntrinsicsError, bp_ray_normal, look_at, pixel_to_ray,
                                      project_points, validate_intrinsics)
-from simtest.geometry.camera_file import (CameraFile, CameraFileError, Intrinsics, load_camera,
-                                          load_intrinsics, save_camera, save_intrinsics)
+from simtest.geometry.camera_file import (CameraFile, CameraFileError, load_camera, save_camera,
+                                          save_intrinsics)
 from simtest.geometry.cameras import (CameraModel, FisheyeCamera, OmnidirectionalCamera, PinholeCamera,
                                       c3vd_camera)
 from simtest.geometry.conics import (CirclePose, ConeAxis, Ellipse, circle_pose, conic_kind,
@@ -16,9 +16,9 @@ from simtest.geometry.conics import (CirclePose, ConeAxis, Ellipse, circle_pose,
 from simtest.geometry.lights import Light, LightRig, LightRigError
 
 __all__ = ["CameraFile", "CameraFileError", "CameraModel", "CirclePose", "ConeAxis", "Ellipse",
-           "FisheyeCamera", "Intrinsics", "IntrinsicsError", "Light", "LightRig", "LightRigError",
+           "FisheyeCamera", "IntrinsicsError", "Light", "LightRig", "LightRigError",
            "OmnidirectionalCamera", "PinholeCamera", "angle_between_deg",
            "bp_ray_normal", "c3vd_camera", "circle_pose", "conic_kind", "conic_to_ellipse", "cone_axis",
-           "load_camera", "load_intrinsics", "look_at",
+           "load_camera", "look_at",
            "normalised_conic", "pixel_to_ray", "project_circle", "project_points",
            "save_camera", "save_intrinsics", "validate_intrinsics"]
