@@ -87,13 +87,10 @@ class ConeAxis:
         other, after normalising signs so that l1, l2 > 0 > l3. Zero for a right circular cone; it is
         also ``sin^2`` of the angle between either circle-pose normal and the axis, so it measures
         the model violation (curvature anisotropy, light offset) in the units of the estimate.
-    eigenvalues : ndarray of shape (3,)
-        (l1, l2, l3) of the sign-normalised, unit-Frobenius C'.
     """
 
     axis: np.ndarray
     eigenvalue_gap: float
-    eigenvalues: np.ndarray
 
     @property
     def circle_pose_tilt_deg(self) -> float:
@@ -112,13 +109,10 @@ class CirclePose:
     centres : ndarray of shape (2, 3)
         Unit viewing directions (z > 0) of the 3D circle centre for each solution. The distance is
         not recoverable without the circle radius.
-    eigenvalues : ndarray of shape (3,)
-        (l1, l2, l3) as in :class:`ConeAxis`.
     """
 
     normals: np.ndarray
     centres: np.ndarray
-    eigenvalues: np.ndarray
 
 
 def _check_conic(C, name: str = "C") -> np.ndarray:
@@ -507,7 +501,7 @@ def _cone_axes_of(w: np.ndarray, V: np.ndarray) -> tuple[np.ndarray, np.ndarray]
 
 def _cone_axis_of(w: np.ndarray, V: np.ndarray) -> ConeAxis:
     axis, gap = _cone_axes_of(w[None], V[None])
-    return ConeAxis(axis=axis[0], eigenvalue_gap=float(gap[0]), eigenvalues=w)
+    return ConeAxis(axis=axis[0], eigenvalue_gap=float(gap[0]))
 
 
 def _circle_poses_of(w: np.ndarray, V: np.ndarray):
@@ -535,7 +529,7 @@ def _circle_pose_of(w: np.ndarray, V: np.ndarray) -> CirclePose:
     normals, centres, ok = _circle_poses_of(w[None], V[None])
     if not ok[0]:
         raise np.linalg.LinAlgError("Singular matrix")
-    return CirclePose(normals=normals[0], centres=centres[0], eigenvalues=w)
+    return CirclePose(normals=normals[0], centres=centres[0])
 
 
 def _section_centres(Q: np.ndarray, n: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
