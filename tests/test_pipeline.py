@@ -30,8 +30,9 @@ from simtest.reconstruct._pixels import Roi
 from simtest.reconstruct.detect import luma
 from simtest.reconstruct.fit import fit_ellipse
 from simtest.reconstruct.settings import ReconSettings
-from simtest.geometry.camera import undistort_points
 from simtest.simulate.analytic import phong_plane_image, plane_bp
+
+from _cases import undistort_points
 
 DATA = Path(__file__).parent / "data" / "real"
 
