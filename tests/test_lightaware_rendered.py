@@ -120,7 +120,7 @@ def test_rendered_sphere_under_one_light_is_recommended_the_bp_ray():
     assert len(errs) >= 3 and float(np.median(errs)) <= CURVED_MEDIAN_DEG, errs
 
 
-@pytest.fixture(autouse=True)
+@pytest.fixture(scope="module", autouse=True)
 def _scored_fits_only(without_end_to_end):
     """The suite runs here are asserted on their scored rows (the harness's fits of the matched
     detections); the frames' end-to-end records (every candidate fitted again) are tested
