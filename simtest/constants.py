@@ -34,8 +34,8 @@ SINGLE_THREAD_ENV = {"OMP_NUM_THREADS": "1", "OPENBLAS_NUM_THREADS": "1", "MKL_N
 #: Bytes of the column blocks of OpenCV's smoothing of a float image. OpenCV computes a row in SIMD
 #: blocks from its first column and the last few columns in scalar code, and the two may round a
 #: sum differently (a fused multiply-add). A region smoothed apart from its image (the paper
-#: protocol's region of a realisation, the pipeline's strips along a large ROI's sides) has the
-#: image's bits in a column when the column is computed in the same kind of block: its columns
+#: protocol's region of a realisation) has the image's bits in a column when the column is
+#: computed in the same kind of block: its columns
 #: start on a multiple of :func:`smooth_block_px` columns, and it reaches that far past the columns
 #: it keeps (or to the image's side). 128 bytes is twice the widest SIMD register (AVX-512, 64
 #: bytes): 32 float32 or 16 float64 columns. On this project's machines (AVX-512 CPUs) a quarter

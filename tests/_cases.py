@@ -38,3 +38,58 @@ def assert_one_error_line(res, code: int, *words: str) -> None:
     assert "Traceback" not in res.output
     for w in words:
         assert w in lines[0], lines[0]
+
+
+def sample_ellipse(ellipse, n: int, *, rng=None, noise_px: float = 0.0) -> np.ndarray:
+    """``n`` points (u, v) on an :class:`~simtest.geometry.conics.Ellipse`, evenly spaced in the
+    eccentric anomaly from a random phase when ``rng`` is given, plus Gaussian noise of
+    ``noise_px`` per coordinate (drawn with ``rng``)."""
+    phase = rng.uniform(0, 2 * np.pi) if rng is not None else 0.0
+    t = phase + np.linspace(0.0, 2 * np.pi, n, endpoint=False)
+    a, b = ellipse.semi_axes
+    c, s = np.cos(ellipse.angle_rad), np.sin(ellipse.angle_rad)
+    x, y = a * np.cos(t), b * np.sin(t)
+    pts = np.stack([ellipse.center[0] + c * x - s * y, ellipse.center[1] + s * x + c * y], axis=1)
+    return pts + rng.normal(0.0, noise_px, size=pts.shape) if noise_px > 0 else pts
+
+
+def frame_pixels(camera, step: float = 1.0) -> np.ndarray:
+    """(M, 2) pixel centres on a grid of spacing ``step`` px over a camera model's whole frame
+    (``camera.image_size``), its last row and column included."""
+    W, H = camera.image_size
+    us = np.unique(np.append(np.arange(0.0, W - 1, step), W - 1.0))
+    vs = np.unique(np.append(np.arange(0.0, H - 1, step), H - 1.0))
+    uu, vv = np.meshgrid(us, vs)
+    return np.stack([uu.ravel(), vv.ravel()], axis=1)
+
+
+def ellipse_to_conic(center_uv, semi_axes, angle_rad: float) -> np.ndarray:
+    """Point conic (3, 3) of the ellipse of centre (u, v), semi-axes (a, b) px (``a`` at
+    ``angle_rad`` from +u toward +v): ``x^T C x = 0`` on it, negative inside, not normalised
+    (Hartley and Zisserman, Multiple View Geometry, sec. 2.2.3)."""
+    cx, cy = (float(x) for x in center_uv)
+    a, b = (float(x) for x in semi_axes)
+    c, s = np.cos(angle_rad), np.sin(angle_rad)
+    # (u', v') = R^T (x - centre); u'^2/a^2 + v'^2/b^2 - 1 = 0
+    A = c * c / a**2 + s * s / b**2
+    B = 2.0 * c * s * (1.0 / a**2 - 1.0 / b**2)
+    Cc = s * s / a**2 + c * c / b**2
+    D = -2.0 * A * cx - B * cy
+    E = -B * cx - 2.0 * Cc * cy
+    F = A * cx * cx + B * cx * cy + Cc * cy * cy - 1.0
+    return np.array([[A, B / 2, D / 2], [B / 2, Cc, E / 2], [D / 2, E / 2, F]])
+
+
+def undistort_points(uv, K, dist_coeffs) -> np.ndarray:
+    """Pixel points (N, 2) with OpenCV's lens distortion removed under the same K
+    (``cv2.undistortPoints`` iterated to convergence); None or zero coefficients: a copy."""
+    import cv2
+
+    uv = np.asarray(uv, dtype=np.float64)
+    if dist_coeffs is None or not np.any(np.asarray(dist_coeffs, dtype=np.float64)):
+        return uv.copy()
+    K = np.asarray(K, dtype=np.float64)
+    criteria = (cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 200, 1e-12)
+    out = cv2.undistortPoints(uv.reshape(-1, 1, 2), K, np.asarray(dist_coeffs, dtype=np.float64).reshape(-1),
+                              R=None, P=K, criteria=criteria)
+    return out.reshape(-1, 2)

@@ -107,3 +107,21 @@ def shared_renders():
     with pytest.MonkeyPatch.context() as mp:
         mp.setattr(protocols, "render_scene", render_once)
         yield cache
+
+
+@pytest.fixture(scope="module")
+def without_end_to_end():
+    """The rendered runner's rows without their end-to-end records (``row.e2e`` stays None).
+
+    ``RenderedRunner.run`` scores the detections matched to the true highlights (their fits alone:
+    ``protocols.fit_scored``), then runs the whole frame again as ``simtest reconstruct`` would
+    (``end_to_end.frame_records``: light-aware fits of every candidate, 80 to 90 % of a run on the
+    endoscope suite's frames). For tests that assert on the rows' errors and extras only; the
+    records are tested in test_harness_end_to_end (against the command line) and by the
+    end-to-end tests of test_rig_pairs and test_harness_dask. Module-scoped: the module's
+    fixtures that run suites get the same runner."""
+    import simtest.harness.protocols as protocols
+
+    with pytest.MonkeyPatch.context() as mp:
+        mp.setattr(protocols, "frame_records", lambda result, depth_errors: [])
+        yield

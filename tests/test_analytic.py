@@ -97,7 +97,7 @@ def test_supersampling_and_falloff():
 
 
 def test_sphere_and_cylinder_peak_at_their_bp():
-    from simtest.simulate.analytic import cylinder_bp, phong_cylinder_image, phong_sphere_image, sphere_bp
+    from _quadrics import cylinder_bp, phong_cylinder_image, phong_sphere_image, sphere_bp
 
     K = np.array([[150.0, 0, 150.5], [0, 150.0, 150.5], [0, 0, 1]])
 
@@ -126,7 +126,7 @@ def test_sphere_and_cylinder_peak_at_their_bp():
 
 
 def test_large_sphere_tends_to_its_tangent_plane():
-    from simtest.simulate.analytic import phong_sphere_image, sphere_bp
+    from _quadrics import phong_sphere_image, sphere_bp
 
     K = np.array([[100.0, 0, 31.5], [0, 100.0, 31.5], [0, 0, 1]])
     S = np.array([0.0, 0.0, 50.0 + 1e6])

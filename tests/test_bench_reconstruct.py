@@ -67,7 +67,7 @@ def test_simtest_bench_runs_a_section_of_the_clone_from_the_command_line(tmp_pat
     assert "colonoscope" in out  # the rendered scope frame (Mitsuba is a dependency)
     assert "of which its OpenCV calls, replayed alone" in out
     # the real tile's light-aware fits, in one process and shared among the workers: at --repeat
-    # 1 a quick look at its first accepted highlights (the whole tile's fits take minutes)
+    # 1 a quick look at its smallest accepted highlights (the whole tile's fits take minutes)
     assert "assumed rig" in out and "a quick look" in out and "worker processes" in out
     assert "Traceback" not in proc.stderr
 

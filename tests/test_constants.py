@@ -69,11 +69,3 @@ def test_the_gaussian_radius_is_that_of_opencvs_kernel(sigma, dtype):
     cols = np.flatnonzero(out[40])
     r = constants.gaussian_radius_px(sigma)
     assert cols.tolist() == list(range(40 - r, 40 + r + 1)), (sigma, cols.tolist())
-
-
-def test_the_smoothing_blocks_are_the_same_bytes_for_both_floats():
-    # the pipeline's strips (float64) and the paper protocol's regions (float32) align to one width
-    from simtest.reconstruct.isophotes import SMOOTH_STRIP_ALIGN
-    from simtest.simulate.paper import SMOOTH_ALIGN
-
-    assert SMOOTH_STRIP_ALIGN * 8 == SMOOTH_ALIGN * 4 == constants.SMOOTH_BLOCK_BYTES

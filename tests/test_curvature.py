@@ -17,7 +17,7 @@ from simtest.geometry.angles import angle_between_deg
 from simtest.geometry.curvature import (curvature_ratio, predicted_eigenvalue_gap,
                                         predicted_pose_error_deg)
 from simtest.reconstruct import reconstruct
-from simtest.simulate.analytic import _quadric_image, phong_cylinder_image, phong_sphere_image
+from _quadrics import _quadric_image, phong_cylinder_image, phong_sphere_image
 
 F, SIZE = 300.0, 241
 K = np.array([[F, 0, (SIZE - 1) / 2], [0, F, (SIZE - 1) / 2], [0, 0, 1.0]])

@@ -24,7 +24,9 @@ from simtest.dataset.generate import generate
 from simtest.dataset.sample import draw_parameters, render_sample
 from simtest.dataset.shards import array_sha256, read_manifest, shard_json_path
 from simtest.dataset.verify import verify
-from simtest.geometry.conics import conic_to_ellipse, sample_ellipse
+from simtest.geometry.conics import conic_to_ellipse
+
+from _cases import sample_ellipse
 
 CONFIG_TOML = """\
 count = 12

@@ -10,7 +10,6 @@ from hypothesis import strategies as st
 from simtest.geometry import (
     angle_between_deg,
     bp_ray_normal,
-    ellipse_to_conic,
     normalised_conic,
     project_circle,
     project_points,
@@ -25,7 +24,7 @@ from simtest.reconstruct.estimators import (
 from simtest.reconstruct.failures import Failure
 from simtest.tolerances import TOL
 
-from _cases import random_circle_pose
+from _cases import ellipse_to_conic, random_circle_pose
 
 K = np.array([[320.0, 0.0, 202.5], [0.0, 300.0, 190.5], [0.0, 0.0, 1.0]])
 

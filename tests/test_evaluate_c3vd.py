@@ -14,7 +14,8 @@ from typer.testing import CliRunner
 
 from simtest.cli import app
 from simtest.geometry import PinholeCamera, save_camera
-from simtest.simulate.analytic import phong_plane_image, phong_sphere_image
+from _quadrics import phong_sphere_image
+from simtest.simulate.analytic import phong_plane_image
 
 SIZE = 160
 K = np.array([[180.0, 0, (SIZE - 1) / 2], [0, 180.0, (SIZE - 1) / 2], [0, 0, 1]])
@@ -67,6 +68,18 @@ def write_frame(seq, idx, img, n, z, occlusion=True):
         tifffile.imwrite(seq / f"{idx}_depth.tiff", encode_depth(z))
     if occlusion:
         cv2.imwrite(str(seq / f"{idx}_occlusion.png"), np.zeros((SIZE, SIZE), np.uint8))
+
+
+def write_c3vd(seq, index, color, normals, depth_mm):
+    """One frame as C3VD's ground-truth renderer writes it (``simtest.evaluate.c3vd``'s module
+    docstring): RGB uint8 ``color``; NaN normals and depths (no surface) written as 0."""
+    seq.mkdir(parents=True, exist_ok=True)
+    n, z = np.asarray(normals, np.float64), np.asarray(depth_mm, np.float64)
+    nv = np.where(np.isfinite(n).all(axis=-1, keepdims=True), np.round(65535 * np.clip((n + 1) / 2, 0, 1)), 0)
+    zv = np.where(np.isfinite(z), np.round(65535 * np.clip(np.nan_to_num(z) / 100.0, 0, 1)), 0)
+    assert cv2.imwrite(str(seq / f"{index:04d}_color.png"), cv2.cvtColor(color, cv2.COLOR_RGB2BGR))
+    tifffile.imwrite(seq / f"{index:04d}_normals.tiff", nv.astype(np.uint16))
+    tifffile.imwrite(seq / f"{index:04d}_depth.tiff", zv.astype(np.uint16))
 
 
 @pytest.fixture
@@ -185,7 +198,6 @@ def test_depth_of_the_light_aware_fits_is_scored_with_a_rig_in_the_camera_file(t
     """An exact Phong plane lit by a guide 4 mm off the lens: the photometric fit's depth of the
     specular point within 2 % of the truth (8-bit frame, 16-bit depth: about 0.5 % here); the same
     sequence with the bare intrinsics has no estimator with a depth."""
-    from simtest.evaluate.c3vd import write_frame as write_c3vd
     from simtest.geometry.lights import Light, LightRig
     seq = tmp_path / "seq"
     light = (4.0, 0.0, 0.0)
@@ -217,7 +229,6 @@ def test_a_rendered_sequence_in_c3vds_layout_is_scored_against_the_renders_own_t
     reader recovers along each BP's ray is the renderer's own ray distance (16-bit z-depth, 1.5 um
     steps, and the bilinear read between pixel centres: well within 1 %), and the normals the
     reader decodes are the renderer's."""
-    from simtest.evaluate.c3vd import write_frame as write_c3vd
     from simtest.render.render import render_scene
     from simtest.scene import load_scene, with_overrides
     # full size: at half size the two guides' highlights, 8 px apart, are one cluster

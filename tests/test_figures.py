@@ -13,13 +13,14 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 from matplotlib.container import ErrorbarContainer
 from matplotlib.patches import Rectangle
+from _figure_layout import layout_problems
 from test_harness_report import ESTS, HISTORY, synthetic_results
 
 from simtest.harness.claims import MIN_N_INTERVAL, best_marks, median_se
 from simtest.harness.metrics import summarise
 from simtest.harness.readme import _rows
 from simtest.harness.report.document import fmt, html_report, markdown_report, summary_markdown
-from simtest.harness.report.figures import (RHO_ESTIMATOR_MARKERS, layout_problems, make_figures,
+from simtest.harness.report.figures import (RHO_ESTIMATOR_MARKERS, make_figures,
                                             takeaways, x_scale)
 
 

@@ -13,15 +13,13 @@ from simtest.geometry import (
     angle_between_deg,
     circle_pose,
     conic_to_ellipse,
-    ellipse_to_conic,
     normalised_conic,
     project_circle,
-    sample_ellipse,
 )
 from simtest.reconstruct.fit import fit_ellipse, fit_ellipses
 from simtest.tolerances import TOL
 
-from _cases import random_circle_pose
+from _cases import ellipse_to_conic, random_circle_pose, sample_ellipse
 
 K = np.array([[320.0, 0.0, 202.5], [0.0, 300.0, 190.5], [0.0, 0.0, 1.0]])
 

@@ -9,12 +9,13 @@ import re
 import matplotlib.pyplot as plt
 import numpy as np
 import pytest
+from _figure_layout import layout_problems
 
 from simtest.harness.claims import ALARM_DEG, evaluate_claims
 from simtest.harness.explain import explanations
 from simtest.harness.report import results_csv, write_report_files
 from simtest.harness.report.document import html_report, markdown_report, summary_markdown
-from simtest.harness.report.figures import layout_problems, make_figures
+from simtest.harness.report.figures import make_figures
 from simtest.tolerances import TOL
 
 ESTS = ["paper_oracle", "paper_selected", "cone_axis", "joint_cone_axis", "bp_ray"]

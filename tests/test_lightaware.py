@@ -20,7 +20,8 @@ from simtest.reconstruct.pipeline import reconstruct
 from simtest.reconstruct.recommend import recommend
 from simtest.reconstruct.light_fits import with_light_aware
 from simtest.reconstruct.settings import ReconSettings
-from simtest.simulate.analytic import phong_plane_image, phong_sphere_image
+from _quadrics import phong_sphere_image
+from simtest.simulate.analytic import phong_plane_image
 from simtest.simulate.offset import rig_plane_image, specular_point
 from simtest.tolerances import TOL
 

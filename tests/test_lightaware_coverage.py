@@ -12,7 +12,7 @@ from simtest.reconstruct import lightaware as la
 from simtest.reconstruct.light_fits import light_aware_estimates
 from simtest.reconstruct.pipeline import reconstruct
 from simtest.reconstruct.settings import ReconSettings
-from simtest.simulate.analytic import phong_sphere_image
+from _quadrics import phong_sphere_image
 from test_recommend_rules import _highlight, _plane8
 
 #: The issue's coverage: the fraction of errors below twice the stated sigma. An honest sigma of a

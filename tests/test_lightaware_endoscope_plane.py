@@ -20,6 +20,14 @@ from simtest.harness.runner import make_runner
 from simtest.harness.suite import load_suite, realisation_seed
 from test_harness_texture import one_texture_endoscope
 
+@pytest.fixture(scope="module", autouse=True)
+def _scored_fits_only(without_end_to_end):
+    """These tests assert on the scored rows (the harness's fits of the matched detections); the
+    frame's end-to-end records (every candidate fitted again, 90 % of a run's CPU here) are
+    tested elsewhere (conftest's ``without_end_to_end``)."""
+    yield
+
+
 #: issue 39's must-hold on the flat mucosa: recommended normal and depth of the specular point
 MAX_NORMAL_DEG = 0.5
 MAX_DEPTH_PCT = 5.0

@@ -121,6 +121,14 @@ def test_rendered_sphere_under_one_light_is_recommended_the_bp_ray():
 
 
 @pytest.fixture(scope="module", autouse=True)
+def _scored_fits_only(without_end_to_end):
+    """The suite runs here are asserted on their scored rows (the harness's fits of the matched
+    detections); the frames' end-to-end records (every candidate fitted again) are tested
+    elsewhere (conftest's ``without_end_to_end``)."""
+    yield
+
+
+@pytest.fixture(scope="module", autouse=True)
 def _renders_once(shared_renders):
     """The suite's renders made once in this module (conftest's shared_renders): the liver tests
     profile the very frames that the liver_two_lights sweep scores (:func:`_liver_case`)."""

@@ -11,6 +11,7 @@ import pytest
 import trimesh
 from hypothesis import assume, given, settings
 from hypothesis import strategies as st
+from _mesh_curvature import principal_curvatures
 from scipy.spatial import cKDTree
 
 from simtest.scene import meshes as M
@@ -162,7 +163,7 @@ def _ball_averaged_truth(mesh: trimesh.Trimesh, idx: np.ndarray, ball: float):
 
 
 def test_curvature_matches_the_mesh_estimate(short: trimesh.Trimesh) -> None:
-    # trimesh's curvature measures over a 2 mm ball (the estimator of M.principal_curvatures)
+    # trimesh's curvature measures over a 2 mm ball (the estimator of _mesh_curvature.principal_curvatures)
     # against the exact H and K averaged over the same ball. Edges are 0.2 mm across a crest to
     # 1 mm around the wall, so a ball holds 10 to 40 vertices; fold crests have radii of about
     # 0.7 to 1.5 mm, smaller than the ball, where the two averaging kernels (the normal cycle's
@@ -172,7 +173,7 @@ def test_curvature_matches_the_mesh_estimate(short: trimesh.Trimesh) -> None:
     # stays 5x below the wall's 1/R = 0.04 /mm that a k1/k2 swap or a sign error would cost on
     # most vertices, the p95 bound 14x below the crests' ~0.7 /mm.
     idx = np.arange(0, len(short.vertices), 7)
-    k1e, k2e = M.principal_curvatures(short, 2.0, idx)
+    k1e, k2e = principal_curvatures(short, 2.0, idx)
     ok = np.isfinite(k1e)
     assert ok.sum() > 0.9 * len(idx)
     mean, gauss = _ball_averaged_truth(short, idx, 2.0)

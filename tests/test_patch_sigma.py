@@ -19,7 +19,7 @@ from simtest.reconstruct import lightaware as la
 from simtest.reconstruct.lightaware.estimate import LightAwareEstimate
 from simtest.reconstruct.lightaware.patch import _patch_covariances
 from simtest.reconstruct.recommend import recommend
-from simtest.simulate.analytic import phong_sphere_image
+from _quadrics import phong_sphere_image
 
 #: Sphere of radius 20 mm whose nearest point is 50.1 mm away, Phong n = 40; f = 125 px, 60 px.
 C, R = np.array([3.0, -2.0, 70.0]), 20.0

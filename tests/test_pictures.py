@@ -17,7 +17,8 @@ from simtest.reconstruct import reconstruct
 from simtest.reconstruct import overlay as overlay_mod
 from simtest.reconstruct.io import estimate_to_dict
 from simtest.reconstruct.overlay import draw_overlay, estimator_colour, needle_length_px
-from simtest.simulate.analytic import phong_plane_image, phong_sphere_image
+from _quadrics import phong_sphere_image
+from simtest.simulate.analytic import phong_plane_image
 
 runner = CliRunner()
 

@@ -18,7 +18,7 @@ from hypothesis import strategies as st
 from simtest.geometry import angle_between_deg, pixel_to_ray
 from simtest.render import RendererUnavailable, choose_variant, render_scene, write_render
 from simtest.render.mitsuba_dict import plane_normal_cam
-from simtest.render.truth import bisector_cos_image, highlight_complete
+from simtest.render.truth import bisector_cos_image
 from simtest.simulate.truth import bisector
 from simtest.scene import (
     bundled_scene_names,
@@ -358,6 +358,18 @@ def test_saddle_highlight_at_apex():
     assert angle_between_deg(h.normal, [0.0, 0.0, -1.0]) < 1e-3
 
 
+def highlight_complete(specular, bp_px, t=0.1) -> bool:
+    """Whether the region ``specular >= t * specular[BP]`` holding the BP pixel (inside the
+    image, lit) stays off the image border: the highlight and its isophote t are in frame."""
+    H, W = specular.shape
+    u, v = int(round(bp_px[0])), int(round(bp_px[1]))
+    if not (0 <= u < W and 0 <= v < H) or specular[v, u] <= 0:
+        return False
+    labels, _ = ndimage.label(specular >= t * specular[v, u])
+    region = labels == labels[v, u]
+    return not (region[0].any() or region[-1].any() or region[:, 0].any() or region[:, -1].any())
+
+
 def test_bundled_scenes_show_a_complete_highlight():
     for name in bundled_scene_names():
         spec = load_scene(name)
@@ -386,7 +398,7 @@ def test_microfacet_channels_and_specular_image():
 def test_write_render_files(tmp_path):
     from PIL import Image
 
-    from simtest.geometry.camera_file import load_intrinsics
+    from simtest.geometry.camera_file import load_camera
 
     spec = with_overrides(load_scene("plane_fronto"), {
         "camera.width_px": 64, "camera.height_px": 48, "camera.focal_px": 64.0, "render.spp": 2})
@@ -394,7 +406,7 @@ def test_write_render_files(tmp_path):
     paths = write_render(r, tmp_path / "out")
     img = np.asarray(Image.open(paths["image"]))
     assert img.shape == (48, 64) and np.array_equal(img, r.sensor)
-    intr = load_intrinsics(paths["intrinsics"])
+    intr = load_camera(paths["intrinsics"]).model
     assert np.array_equal(intr.K, r.K) and tuple(intr.image_size) == (64, 48)
     gt = np.load(paths["ground_truth"])
     assert gt["normals"].shape == (48, 64, 3) and gt["normals"].dtype == np.float32

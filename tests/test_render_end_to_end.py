@@ -9,7 +9,7 @@ import pytest
 from PIL import Image
 
 from simtest.geometry import angle_between_deg
-from simtest.geometry.camera_file import load_intrinsics
+from simtest.geometry.camera_file import load_camera
 from simtest.reconstruct import reconstruct
 from simtest.render import render_scene, write_render
 from simtest.scene import scene_from_dict
@@ -29,7 +29,7 @@ def test_cone_axis_of_rendered_plane_gives_the_normal(tmp_path, tilt_deg, fov_de
     })
     paths = write_render(render_scene(spec, seed=0), tmp_path)
     image = np.asarray(Image.open(paths["image"]))
-    K = load_intrinsics(paths["intrinsics"]).K
+    K = load_camera(paths["intrinsics"]).model.K
     (truth,) = json.loads(paths["highlights"].read_text())["highlights"]
 
     estimates = [e for e in reconstruct(image, K, 0.1) if e.ok]

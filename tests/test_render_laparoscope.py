@@ -126,7 +126,7 @@ def _ball_h_error(part, ball: float, where) -> np.ndarray:
     ``where`` holds (1/mm)."""
     from scipy.spatial import cKDTree
 
-    from simtest.scene.meshes import principal_curvatures
+    from _mesh_curvature import principal_curvatures
 
     v = np.asarray(part.vertices)
     idx = np.arange(0, len(v), 7)

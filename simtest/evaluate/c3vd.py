@@ -57,7 +57,7 @@ from simtest._lazy import require
 from simtest.geometry.cameras import CameraModel
 from simtest.reconstruct.images import quiet_stderr
 
-__all__ = ["C3VDError", "C3VDFrame", "GroundTruth", "load_frame", "read_tiff", "scan_sequence", "write_frame"]
+__all__ = ["C3VDError", "C3VDFrame", "GroundTruth", "load_frame", "read_tiff", "scan_sequence"]
 
 _NAME = re.compile(r"^(\d{4,})_(color|normals|depth|occlusion)\.(png|tiff?)$")
 _EXT = {"color": ("png",), "occlusion": ("png",), "normals": ("tiff", "tif"), "depth": ("tiff", "tif")}
@@ -237,60 +237,3 @@ def load_frame(frame: C3VDFrame, camera: CameraModel) -> tuple[np.ndarray, Groun
     n[flip] = -n[flip]
     n[invalid] = np.nan
     return img, GroundTruth(n, depth)
-
-
-def write_frame(seq_dir, index: int, color, normals, depth_mm, occlusion=None) -> list[Path]:
-    """Write one frame in C3VD's layout, encoded as the dataset's renderer encodes it (module
-    docstring): a rendered sequence that ``simtest evaluate c3vd`` reads as it reads C3VD.
-
-    Parameters
-    ----------
-    seq_dir : str or Path
-        The sequence folder (created if missing).
-    index : int
-        Frame number, written with four digits (``NNNN``).
-    color : ndarray of shape (H, W, 3), uint8
-        The RGB frame.
-    normals : ndarray of shape (H, W, 3)
-        Unit normals, OpenCV camera frame; NaN where there is no surface (written as C3VD writes
-        a miss: zeros).
-    depth_mm : ndarray of shape (H, W)
-        z-depth, mm; NaN where there is no surface (written as 0). Beyond 100 mm it clamps to
-        65535, which the reader treats as invalid, as C3VD's.
-    occlusion : ndarray of shape (H, W), bool, optional
-        Written as ``NNNN_occlusion.png`` (255 where occluded) when given.
-
-    Returns
-    -------
-    list of Path
-        The files written.
-
-    Raises
-    ------
-    ValueError
-        Arrays of the wrong shape or kind, or an index below 0.
-    """
-    color = np.asarray(color)
-    n = np.asarray(normals, dtype=np.float64)
-    z = np.asarray(depth_mm, dtype=np.float64)
-    if index < 0 or color.dtype != np.uint8 or color.ndim != 3 or color.shape[2] != 3:
-        raise ValueError(f"write_frame: need an index >= 0 and an (H, W, 3) uint8 frame, got {index} and "
-                         f"{color.dtype} {color.shape}")
-    if n.shape != color.shape or z.shape != color.shape[:2]:
-        raise ValueError(f"write_frame: normals {n.shape} and depth {z.shape} must match the frame {color.shape}")
-    seq = Path(seq_dir)
-    seq.mkdir(parents=True, exist_ok=True)
-    stem = seq / f"{index:04d}"
-    nv = np.where(np.isfinite(n).all(axis=-1, keepdims=True), np.round(U16 * np.clip((n + 1) / 2, 0, 1)), 0)
-    zv = np.where(np.isfinite(z), np.round(U16 * np.clip(np.nan_to_num(z) / DEPTH_RANGE_MM, 0, 1)), 0)
-    paths = [Path(f"{stem}_color.png"), Path(f"{stem}_normals.tiff"), Path(f"{stem}_depth.tiff")]
-    if not cv2.imwrite(str(paths[0]), cv2.cvtColor(color, cv2.COLOR_RGB2BGR)):
-        raise OSError(f"{paths[0]}: cannot write")
-    tifffile = require("tifffile")
-    tifffile.imwrite(paths[1], nv.astype(np.uint16))
-    tifffile.imwrite(paths[2], zv.astype(np.uint16))
-    if occlusion is not None:
-        paths.append(Path(f"{stem}_occlusion.png"))
-        if not cv2.imwrite(str(paths[-1]), np.where(np.asarray(occlusion, bool), 255, 0).astype(np.uint8)):
-            raise OSError(f"{paths[-1]}: cannot write")
-    return paths

@@ -117,10 +117,8 @@ def _ray_distance(depth_mm, camera: CameraModel, bp_uv) -> float | None:
 def _footprint(points_uv: np.ndarray, shape) -> tuple[np.ndarray, np.ndarray]:
     """Row and column indices of the pixels inside a closed contour."""
     pts = np.asarray(points_uv, dtype=np.float64)
-    lo = np.floor(pts.min(axis=0)).astype(int)
-    hi = np.ceil(pts.max(axis=0)).astype(int)
-    lo = np.maximum(lo, 0)
-    hi = np.minimum(hi, [shape[1] - 1, shape[0] - 1])
+    lo = np.maximum(np.floor(pts.min(axis=0)).astype(int), 0)
+    hi = np.minimum(np.ceil(pts.max(axis=0)).astype(int), [shape[1] - 1, shape[0] - 1])
     if np.any(hi < lo):
         return np.zeros(0, int), np.zeros(0, int)
     mask = np.zeros((hi[1] - lo[1] + 1, hi[0] - lo[0] + 1), np.uint8)
@@ -241,12 +239,7 @@ def summarise(rows: list[dict], key: str = "errors_bp_deg") -> dict[str, dict]:
         ``{name: {"n", "median_deg", "mean_deg", "p95_deg"}}`` (None statistics when n = 0),
         estimators in a fixed order (``normal`` first when present, ``bp_ray`` last).
     """
-    names: list[str] = []
-    for r in rows:
-        for name in r[key]:
-            if name not in names:
-                names.append(name)
-    names.sort(key=lambda s: (s != "normal", s == "bp_ray", s))
+    names = sorted({name for r in rows for name in r[key]}, key=lambda s: (s != "normal", s == "bp_ray", s))
     out = {}
     for name in names:
         vals = np.array([r[key][name] for r in rows if r["scored"] and r[key].get(name) is not None], dtype=np.float64)
@@ -273,12 +266,7 @@ def summarise_depth(rows: list[dict]) -> dict[str, dict]:
         the median signed one (the bias) and the 95th percentile of the absolute one (fractions,
         not percent); ``normal`` (the recommended depth) first.
     """
-    names: list[str] = []
-    for r in rows:
-        for name in r.get("depth_rel_error", {}):
-            if name not in names:
-                names.append(name)
-    names.sort(key=lambda s: (s != "normal", s))
+    names = sorted({name for r in rows for name in r.get("depth_rel_error", {})}, key=lambda s: (s != "normal", s))
     out = {}
     for name in names:
         e = np.array([r["depth_rel_error"][name] for r in rows

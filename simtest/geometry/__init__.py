@@ -3,22 +3,22 @@
 Nothing here imports Mitsuba or any renderer: the reconstruction core runs on real images too.
 """
 
-from simtest.geometry.angles import angle_between_deg, face_camera
+from simtest.geometry.angles import angle_between_deg
 from simtest.geometry.camera import (IntrinsicsError, bp_ray_normal, look_at, pixel_to_ray,
-                                     project_points, undistort_points, validate_intrinsics)
-from simtest.geometry.camera_file import (CameraFile, CameraFileError, Intrinsics, load_camera,
-                                          load_intrinsics, save_camera, save_intrinsics)
+                                     project_points, validate_intrinsics)
+from simtest.geometry.camera_file import (CameraFile, CameraFileError, load_camera, save_camera,
+                                          save_intrinsics)
 from simtest.geometry.cameras import (CameraModel, FisheyeCamera, OmnidirectionalCamera, PinholeCamera,
-                                      as_camera_model, c3vd_camera)
+                                      c3vd_camera)
 from simtest.geometry.conics import (CirclePose, ConeAxis, Ellipse, circle_pose, conic_kind,
-                                     conic_to_ellipse, cone_axis, ellipse_to_conic, normalised_conic,
-                                     project_circle, sample_ellipse)
+                                     conic_to_ellipse, cone_axis, normalised_conic,
+                                     project_circle)
 from simtest.geometry.lights import Light, LightRig, LightRigError
 
 __all__ = ["CameraFile", "CameraFileError", "CameraModel", "CirclePose", "ConeAxis", "Ellipse",
-           "FisheyeCamera", "Intrinsics", "IntrinsicsError", "Light", "LightRig", "LightRigError",
-           "OmnidirectionalCamera", "PinholeCamera", "angle_between_deg", "as_camera_model",
+           "FisheyeCamera", "IntrinsicsError", "Light", "LightRig", "LightRigError",
+           "OmnidirectionalCamera", "PinholeCamera", "angle_between_deg",
            "bp_ray_normal", "c3vd_camera", "circle_pose", "conic_kind", "conic_to_ellipse", "cone_axis",
-           "ellipse_to_conic", "face_camera", "load_camera", "load_intrinsics", "look_at",
-           "normalised_conic", "pixel_to_ray", "project_circle", "project_points", "sample_ellipse",
-           "save_camera", "save_intrinsics", "undistort_points", "validate_intrinsics"]
+           "load_camera", "look_at",
+           "normalised_conic", "pixel_to_ray", "project_circle", "project_points",
+           "save_camera", "save_intrinsics", "validate_intrinsics"]

@@ -85,25 +85,3 @@ def unit(v, axis: int | None = None) -> np.ndarray:
     """
     v = np.asarray(v, dtype=np.float64)
     return v / np.linalg.norm(v) if axis is None else v / np.linalg.norm(v, axis=axis, keepdims=True)
-
-
-def face_camera(normal, ray) -> np.ndarray:
-    """Flip normals so that they face the camera: ``n . ray < 0``.
-
-    Parameters
-    ----------
-    normal : array_like of shape (..., 3)
-        Normals in the camera frame (OpenCV: x right, y down, z forward).
-    ray : array_like of shape (..., 3)
-        Viewing directions from the camera centre toward the surface point.
-
-    Returns
-    -------
-    ndarray of shape (..., 3)
-        Unit normals facing the camera.
-    """
-    n = np.asarray(normal, dtype=np.float64)
-    r = np.asarray(ray, dtype=np.float64)
-    n = n / np.linalg.norm(n, axis=-1, keepdims=True)
-    sign = np.where(np.sum(n * r, axis=-1, keepdims=True) > 0, -1.0, 1.0)
-    return n * sign

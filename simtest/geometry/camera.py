@@ -1,4 +1,4 @@
-"""Pinhole intrinsics K: validation, rays, projection and distortion.
+"""Pinhole intrinsics K: validation, rays and projection.
 
 Convention
 ----------
@@ -15,11 +15,9 @@ Camera models beyond a distortion-free pinhole (OpenCV distortion, fisheye, omni
 
 from __future__ import annotations
 
-import cv2
 import numpy as np
 
-__all__ = ["IntrinsicsError", "bp_ray_normal", "look_at", "pixel_to_ray", "project_points",
-           "undistort_points", "validate_intrinsics"]
+__all__ = ["IntrinsicsError", "bp_ray_normal", "look_at", "pixel_to_ray", "project_points", "validate_intrinsics"]
 
 
 class IntrinsicsError(ValueError):
@@ -132,35 +130,6 @@ def bp_ray_normal(bp_uv, K) -> np.ndarray:
         Unit normal facing the camera, camera frame.
     """
     return -pixel_to_ray(np.asarray(bp_uv, dtype=np.float64).reshape(2), K)
-
-
-def undistort_points(uv, K, dist_coeffs) -> np.ndarray:
-    """Remove lens distortion from pixel points, keeping the same K (OpenCV model).
-
-    Parameters
-    ----------
-    uv : array_like of shape (N, 2)
-        Distorted pixel coordinates.
-    K : array_like of shape (3, 3)
-        Intrinsics.
-    dist_coeffs : array_like of shape (4,), (5,), (8,), (12,) or (14,), or None
-        OpenCV distortion coefficients; None or all zeros returns ``uv`` unchanged.
-
-    Returns
-    -------
-    ndarray of shape (N, 2)
-        Undistorted pixel coordinates under the pinhole K.
-    """
-    uv = np.asarray(uv, dtype=np.float64)
-    if dist_coeffs is None or not np.any(np.asarray(dist_coeffs, dtype=np.float64)):
-        return uv.copy()
-
-    K = validate_intrinsics(K)
-    d = np.asarray(dist_coeffs, dtype=np.float64).reshape(-1)
-    # The default 5 iterations leave ~1e-2 px at corner-of-view distortion; iterate to convergence.
-    criteria = (cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 200, 1e-12)
-    out = cv2.undistortPoints(uv.reshape(-1, 1, 2), K, d, R=None, P=K, criteria=criteria)
-    return out.reshape(-1, 2)
 
 
 def look_at(eye, target, up=(0.0, -1.0, 0.0)) -> np.ndarray:

@@ -50,8 +50,8 @@ from simtest.geometry.cameras import CameraModel, FisheyeCamera, Omnidirectional
 from simtest.geometry.lights import Light, LightRig, LightRigError, check_scope_rig
 from simtest.geometry.response import ResponseError, SensorResponse
 
-__all__ = ["CameraFile", "CameraFileError", "Intrinsics", "camera_from_dict", "load_camera",
-           "load_intrinsics", "save_camera", "save_intrinsics"]
+__all__ = ["CameraFile", "CameraFileError", "camera_from_dict", "load_camera", "save_camera",
+           "save_intrinsics"]
 
 _MODEL_KEYS = {
     "pinhole": {"required": ("K",), "optional": ("dist_coeffs",)},
@@ -86,25 +86,6 @@ class CameraFile:
     model: CameraModel
     lights: LightRig
     response: SensorResponse | None = None
-
-
-@dataclass(frozen=True)
-class Intrinsics:
-    """A pinhole camera as the older intrinsics API returns it.
-
-    Attributes
-    ----------
-    K : ndarray of shape (3, 3)
-        Pinhole matrix, pixel centres at integer coordinates.
-    dist_coeffs : ndarray of shape (k,) or None
-        OpenCV distortion coefficients, None when the file gives none.
-    image_size : tuple of int (W, H) or None
-        Image size in pixels, when the file gives it.
-    """
-
-    K: np.ndarray
-    dist_coeffs: np.ndarray | None = None
-    image_size: tuple[int, int] | None = None
 
 
 def _has_bool(value) -> bool:
@@ -332,29 +313,6 @@ def save_camera(path, model: CameraModel, lights: LightRig | None = None,
     if response is not None:
         d["response"] = response.to_json()
     return atomic_write_json(path, d, indent=2)
-
-
-def load_intrinsics(path) -> Intrinsics:
-    """Read a pinhole camera file (:func:`load_camera` restricted to ``"model": "pinhole"``).
-
-    Parameters
-    ----------
-    path : str or Path
-        Camera file.
-
-    Returns
-    -------
-    Intrinsics
-
-    Raises
-    ------
-    CameraFileError
-        As :func:`load_camera`, or when the model is not a pinhole.
-    """
-    cam = load_camera(path).model
-    if not isinstance(cam, PinholeCamera):
-        raise CameraFileError(f"{path}: key 'model' is '{cam.model}'; a pinhole K is needed here")
-    return Intrinsics(K=cam.K.copy(), dist_coeffs=None if cam.dist_coeffs is None else cam.dist_coeffs.copy(), image_size=cam.image_size)
 
 
 def save_intrinsics(path, K, dist_coeffs=None, image_size=None) -> Path:

@@ -52,7 +52,7 @@ import numpy as np
 from simtest._checks import finite_number
 from simtest.geometry.camera import IntrinsicsError, validate_intrinsics
 
-__all__ = ["CameraModel", "FisheyeCamera", "OmnidirectionalCamera", "PinholeCamera", "as_camera_model",
+__all__ = ["CameraModel", "FisheyeCamera", "OmnidirectionalCamera", "PinholeCamera",
            "c3vd_camera"]
 
 #: Newton iterations stop when the pixel residual is below this (px); the round trip is then exact
@@ -218,31 +218,6 @@ class CameraModel(ABC):
         d = {"model": self.model, **self.params()}
         d["image_size"] = None if self.image_size is None else [int(s) for s in self.image_size]
         return d
-
-    def frame_pixels(self, step: float = 1.0) -> np.ndarray:
-        """Pixel centres on a grid over the whole frame, corners included.
-
-        Parameters
-        ----------
-        step : float
-            Grid spacing in pixels.
-
-        Returns
-        -------
-        ndarray of shape (M, 2)
-
-        Raises
-        ------
-        ValueError
-            If the model has no image size.
-        """
-        if self.image_size is None:
-            raise ValueError("camera model has no image_size")
-        W, H = self.image_size
-        us = np.unique(np.append(np.arange(0.0, W - 1, step), W - 1.0))
-        vs = np.unique(np.append(np.arange(0.0, H - 1, step), H - 1.0))
-        uu, vv = np.meshgrid(us, vs)
-        return np.stack([uu.ravel(), vv.ravel()], axis=1)
 
     def __eq__(self, other) -> bool:
         if type(self) is not type(other):
@@ -731,20 +706,3 @@ def c3vd_camera() -> OmnidirectionalCamera:
         cx=678.544839263292, cy=542.975887548343,
         a=(769.243600037458, 0.0, -0.000812770624150226, 6.25674244578925e-07, -1.1966218214428e-09),
         c=0.99998688224999, d=0.00288273829525059, e=-0.00296316513429569, image_size=(1350, 1080))
-
-
-def as_camera_model(camera, image_size=None) -> CameraModel:
-    """A :class:`CameraModel` from a model or a pinhole K.
-
-    Parameters
-    ----------
-    camera : CameraModel or array_like of shape (3, 3)
-        A model is returned unchanged; a K becomes a distortion-free :class:`PinholeCamera`.
-    image_size : (W, H) or None
-        Size given to a pinhole made from K.
-
-    Returns
-    -------
-    CameraModel
-    """
-    return camera if isinstance(camera, CameraModel) else PinholeCamera(camera, image_size=image_size)

@@ -41,8 +41,8 @@ from simtest.geometry.camera import validate_intrinsics
 from simtest.tolerances import TOL
 
 __all__ = ["CirclePose", "ConeAxis", "Ellipse", "circle_pose", "conic_kind", "conic_to_ellipse",
-           "cone_axis", "cone_pose", "cone_poses", "ellipse_to_conic", "normalised_conic", "plane_basis",
-           "project_circle", "sample_ellipse"]
+           "cone_axis", "normalised_conic", "plane_basis",
+           "project_circle"]
 
 
 @fast_init
@@ -87,13 +87,10 @@ class ConeAxis:
         other, after normalising signs so that l1, l2 > 0 > l3. Zero for a right circular cone; it is
         also ``sin^2`` of the angle between either circle-pose normal and the axis, so it measures
         the model violation (curvature anisotropy, light offset) in the units of the estimate.
-    eigenvalues : ndarray of shape (3,)
-        (l1, l2, l3) of the sign-normalised, unit-Frobenius C'.
     """
 
     axis: np.ndarray
     eigenvalue_gap: float
-    eigenvalues: np.ndarray
 
     @property
     def circle_pose_tilt_deg(self) -> float:
@@ -112,13 +109,10 @@ class CirclePose:
     centres : ndarray of shape (2, 3)
         Unit viewing directions (z > 0) of the 3D circle centre for each solution. The distance is
         not recoverable without the circle radius.
-    eigenvalues : ndarray of shape (3,)
-        (l1, l2, l3) as in :class:`ConeAxis`.
     """
 
     normals: np.ndarray
     centres: np.ndarray
-    eigenvalues: np.ndarray
 
 
 def _check_conic(C, name: str = "C") -> np.ndarray:
@@ -128,44 +122,6 @@ def _check_conic(C, name: str = "C") -> np.ndarray:
     if not np.all(np.isfinite(C)):
         raise ValueError(f"{name} has non-finite entries: {C.tolist()}")
     return 0.5 * (C + C.T)
-
-
-def ellipse_to_conic(center_uv, semi_axes, angle_rad: float) -> np.ndarray:
-    """Point conic of an ellipse given by its centre, semi-axes and orientation.
-
-    Parameters
-    ----------
-    center_uv : array_like of shape (2,)
-        Centre (u, v) in pixels.
-    semi_axes : array_like of shape (2,)
-        Semi-axes (a, b) in pixels, both > 0; ``a`` lies along ``angle_rad``.
-    angle_rad : float
-        Orientation of the ``a`` axis from +u toward +v, radians.
-
-    Returns
-    -------
-    ndarray of shape (3, 3)
-        Symmetric C with ``x^T C x = 0`` on the ellipse, negative inside, with ``C[2, 2]`` the value
-        at the origin (not normalised).
-
-    Raises
-    ------
-    ValueError
-        If a semi-axis is not positive and finite.
-    """
-    cx, cy = (float(x) for x in center_uv)
-    a, b = (float(x) for x in semi_axes)
-    if not (np.isfinite(a) and np.isfinite(b) and a > 0 and b > 0):
-        raise ValueError(f"semi-axes must be positive and finite, got ({a}, {b})")
-    c, s = np.cos(angle_rad), np.sin(angle_rad)
-    # (u', v') = R^T (x - centre); u'^2/a^2 + v'^2/b^2 - 1 = 0  [3, sec. 2.2.3]
-    A = c * c / a**2 + s * s / b**2
-    B = 2.0 * c * s * (1.0 / a**2 - 1.0 / b**2)
-    Cc = s * s / a**2 + c * c / b**2
-    D = -2.0 * A * cx - B * cy
-    E = -B * cx - 2.0 * Cc * cy
-    F = A * cx * cx + B * cx * cy + Cc * cy * cy - 1.0
-    return np.array([[A, B / 2, D / 2], [B / 2, Cc, E / 2], [D / 2, E / 2, F]])
 
 
 def conic_kind(C) -> str:
@@ -219,46 +175,6 @@ def conic_to_ellipse(C) -> Ellipse | None:
     """
     centre, axes, angle, ok = _ellipses_of(_check_conic(C)[None])
     return Ellipse(center=centre[0], semi_axes=axes[0], angle_rad=float(angle[0])) if ok[0] else None
-
-
-def sample_ellipse(ellipse: Ellipse, n: int, *, rng=None, noise_px: float = 0.0) -> np.ndarray:
-    """Points on an ellipse, evenly spaced in the eccentric anomaly, optionally with noise.
-
-    Parameters
-    ----------
-    ellipse : Ellipse
-        The ellipse in pixels.
-    n : int
-        Number of points (> 0).
-    rng : numpy.random.Generator, optional
-        Required when ``noise_px > 0``; also draws a random phase when given.
-    noise_px : float
-        Standard deviation of isotropic Gaussian noise added to each coordinate, pixels.
-
-    Returns
-    -------
-    ndarray of shape (n, 2)
-        Points (u, v) in pixels.
-
-    Raises
-    ------
-    ValueError
-        If ``n < 1``, or noise is asked for without a generator.
-    """
-    if n < 1:
-        raise ValueError(f"n must be >= 1, got {n}")
-    if noise_px > 0 and rng is None:
-        raise ValueError("noise_px > 0 needs an explicit numpy Generator (rng)")
-    phase = rng.uniform(0, 2 * np.pi) if rng is not None else 0.0
-    t = phase + np.linspace(0.0, 2 * np.pi, n, endpoint=False)
-    a, b = ellipse.semi_axes
-    c, s = np.cos(ellipse.angle_rad), np.sin(ellipse.angle_rad)
-    x = a * np.cos(t)
-    y = b * np.sin(t)
-    pts = np.stack([ellipse.center[0] + c * x - s * y, ellipse.center[1] + s * x + c * y], axis=1)
-    if noise_px > 0:
-        pts = pts + rng.normal(0.0, noise_px, size=pts.shape)
-    return pts
 
 
 def normalised_conic(C, K) -> np.ndarray:
@@ -380,29 +296,6 @@ def circle_pose(Cn) -> CirclePose:
     then N+ and N- err by ``acos(rho)`` whatever the fit.
     """
     return _circle_pose_of(*_cone_eigen(Cn))
-
-
-def cone_pose(Cn) -> tuple[CirclePose, ConeAxis]:
-    """:func:`circle_pose` and :func:`cone_axis` of one cone from one eigen-decomposition.
-
-    Parameters
-    ----------
-    Cn : array_like of shape (3, 3)
-        Normalised conic C' = K^T C K (any scale or sign).
-
-    Returns
-    -------
-    (CirclePose, ConeAxis)
-        The same as ``(circle_pose(Cn), cone_axis(Cn))``, bit for bit (the per-highlight path
-        of the pipeline calls both).
-
-    Raises
-    ------
-    ValueError
-        If C' is not a real elliptic cone.
-    """
-    w, V = _cone_eigen(Cn)
-    return _circle_pose_of(w, V), _cone_axis_of(w, V)
 
 
 def plane_basis(normal, axes: tuple[int, int] = (0, 1)) -> tuple[np.ndarray, np.ndarray]:
@@ -534,7 +427,8 @@ def _ellipses_of(C: np.ndarray):
 
 def unit_symmetric_cones(Cn: np.ndarray) -> np.ndarray:
     """The symmetric parts of a stack of cones, each scaled to unit Frobenius norm: what
-    :func:`cone_poses` decomposes (the compiled estimators start from the same matrices).
+    :func:`circle_pose` and :func:`cone_axis` decompose (the compiled estimators start from the
+    same matrices).
 
     Parameters
     ----------
@@ -607,7 +501,7 @@ def _cone_axes_of(w: np.ndarray, V: np.ndarray) -> tuple[np.ndarray, np.ndarray]
 
 def _cone_axis_of(w: np.ndarray, V: np.ndarray) -> ConeAxis:
     axis, gap = _cone_axes_of(w[None], V[None])
-    return ConeAxis(axis=axis[0], eigenvalue_gap=float(gap[0]), eigenvalues=w)
+    return ConeAxis(axis=axis[0], eigenvalue_gap=float(gap[0]))
 
 
 def _circle_poses_of(w: np.ndarray, V: np.ndarray):
@@ -635,46 +529,7 @@ def _circle_pose_of(w: np.ndarray, V: np.ndarray) -> CirclePose:
     normals, centres, ok = _circle_poses_of(w[None], V[None])
     if not ok[0]:
         raise np.linalg.LinAlgError("Singular matrix")
-    return CirclePose(normals=normals[0], centres=centres[0], eigenvalues=w)
-
-
-def cone_poses(Cn) -> dict:
-    """:func:`circle_pose` and :func:`cone_axis` of a stack of cones at once.
-
-    Parameters
-    ----------
-    Cn : array_like of shape (k, 3, 3)
-        Normalised conics C' = K^T C K (any scale or sign), finite.
-
-    Returns
-    -------
-    dict of ndarray
-        ``normals`` (k, 2, 3): N+ and N- facing the camera; ``centres`` (k, 2, 3); ``axis`` (k, 3):
-        the cone axis facing the camera (n_z < 0); ``eigenvalue_gap`` (k,); ``eigenvalues`` (k, 3):
-        (l1, l2, l3); ``ok`` (k,) bool: False where C' is not a real elliptic cone or its circle
-        pose is undefined (then the other entries of that cone are meaningless), and
-        ``error`` (list of str): why, per cone ("" where ok).
-
-    Notes
-    -----
-    The same arithmetic as the one-cone functions, which call this one: one eigen-decomposition
-    per cone, batched in numpy (a highlight's pose costs a few microseconds in a batch of
-    hundreds).
-    """
-    Cn = np.asarray(Cn, dtype=np.float64).reshape(-1, 3, 3)
-    with np.errstate(invalid="ignore", divide="ignore"):
-        w, V, ok = _cone_eigen_many(Cn)
-        normals, centres, pose_ok = _circle_poses_of(w, V)
-        axis, gap = _cone_axes_of(w, V)
-    error = [""] * len(Cn)
-    for i in np.flatnonzero(~ok) if not ok.all() else ():
-        c = 0.5 * (Cn[i] + Cn[i].T)
-        error[i] = (_eigen_error(np.linalg.eigvalsh(c / np.linalg.norm(c))) if np.isfinite(c).all()
-                    else f"C' has non-finite entries: {Cn[i].tolist()}")
-    for i in np.flatnonzero(ok & ~pose_ok):
-        error[i] = "Singular matrix"
-    return dict(normals=normals, centres=centres, axis=axis, eigenvalue_gap=gap, eigenvalues=w,
-                ok=ok & pose_ok, error=error)
+    return CirclePose(normals=normals[0], centres=centres[0])
 
 
 def _section_centres(Q: np.ndarray, n: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

@@ -19,7 +19,7 @@ from pathlib import Path
 from simtest._io import atomic_write_text
 from simtest.decisions import data_side
 from simtest.harness.claims import best_marks
-from simtest.harness.report.numbers import fmt
+from simtest.harness.report.numbers import esc, fmt
 from simtest.reconstruct.registry import get, names
 from simtest.resources import data_root
 
@@ -64,10 +64,6 @@ def _is_suite_run(folder: Path) -> bool:
         return False
 
 
-def _esc(t) -> str:
-    return str(t).replace("|", "\\|").replace("\n", " ")
-
-
 #: estimators that are baselines or oracles, never "the best other" of a row
 _NOT_OTHERS = frozenset(name for name in names() if get(name).reference)
 
@@ -105,7 +101,7 @@ def _rows(folder: Path, rel: str) -> list[str]:
             f"{fmt(e['median_ok_deg']) if e['n_ok'] else '-'} (n {e['n_ok']}) | {fmt(e['false_ok_per_frame'])}")
         side = "held out" if data_side(r["suite"]["seed"]) == "held_out" else "tuning"
         out.append(f"| [{r['suite']['name']}]({rel}/report.md), seed {r['suite']['seed']} ({side}) | "
-                   f"{_esc(fam)} | {e2e} | "
+                   f"{esc(fam)} | {e2e} | "
                    f"{cell('recommended') if 'recommended' in ests else '- ¹'}"
                    f" | {cell('bp_ray')} | "
                    + ("-" if best is None else f"`{best[1]}` {cell(best[1])}") + " |")

@@ -69,9 +69,6 @@ class _Frame:
     saturation_level: float | None
     smooth_sigma_px: float
     luma_frame: np.ndarray | None = None
-    #: The frame's smoothed luma (``for_many_highlights``), into which a large ROI's bands are
-    #: written for the time of its extraction (``_patched_from_frame``), then put back.
-    smooth_frame_rw: np.ndarray | None = None
     #: The whole frame's smoothed luma as detection computed it (float32, read-only; see
     #: ``with_detection_smoothing``): every ROI's values are slices of it.
     smoothed32: np.ndarray | None = None
@@ -123,19 +120,14 @@ class _Frame:
         return _bp_rays(np.asarray(bp_uv, dtype=np.float64).reshape(-1, 2), self.camera)
 
     def for_many_highlights(self) -> _Frame:
-        """This frame with the luma of the whole image computed once (read-only), and smoothed
-        once when the frame is smoothed (a large ROI's bands are written into it for the time of
-        the ROI's extraction, then put back), for calls that look at many ROIs
-        (:data:`LUMA_FRAME_MIN_HIGHLIGHTS`): an ROI's values are then slices of them, the same bits
-        (``luma``, ``_roi_values``)."""
+        """This frame with the luma of the whole image computed once (read-only), for calls that
+        look at many ROIs (:data:`LUMA_FRAME_MIN_HIGHLIGHTS`): an ROI's luma is then a slice of
+        it, the same bits (``luma``, ``_roi_values``)."""
         full = self.luma_frame
         if full is None and self.img.ndim == 3:
             full = luma(self.img)
             full.setflags(write=False)
-        smooth = self.smooth_frame_rw
-        if smooth is None and self.smooth_sigma_px > 0:
-            smooth = _smooth(luma(self.img) if full is None else full, self.smooth_sigma_px)
-        return replace(self, luma_frame=full, smooth_frame_rw=smooth)
+        return replace(self, luma_frame=full)
 
     def with_detection_smoothing(self, smoothed: np.ndarray) -> _Frame:
         """This frame with its ROIs' values sliced from detection's smoothed luma (H, W) of the

@@ -12,7 +12,6 @@ import cv2
 import numpy as np
 
 from simtest._records import fast_init
-from simtest.constants import gaussian_radius_px, smooth_block_px
 from simtest.decisions import ROI_GROWTH_FACTOR, ROI_MAX_GROWTHS
 from simtest.reconstruct._pixels import Roi, rc_to_uv
 from simtest.reconstruct.assemble import IsophoteEstimate, SpecularityEstimate, _Draft, _Pending
@@ -21,22 +20,12 @@ from simtest.reconstruct.detect import connected_components, luma, peak_uv
 from simtest.reconstruct.failures import OK
 from simtest.reconstruct.frame_prep import LUMA_FRAME_MIN_HIGHLIGHTS, _Frame, _smooth
 from simtest.reconstruct.isophote import (MIN_CONTOUR_POINTS, _box_answer, _box_contours,
-                                          _component_box, _cut_and_contour, _extract, _isophote_of, _region)
+                                          _component_box, _cut_and_contour, _extract, _isophote_of, _region, _Region)
 from simtest.reconstruct.marching import batch_contours
 from simtest.reconstruct.settings import AUTO_LOCAL_BACKGROUND_REL, Normalisation
 
 _TINY, _ONE_TAP = float(np.finfo(float).tiny), np.ones(1)
 
-#: A frame prepared for many highlights (``_Frame.for_many_highlights``) smooths its luma once and
-#: takes an ROI of at least this many pixels from it (``_patched_from_frame``); a smaller ROI is
-#: smoothed for itself, which is cheaper there (the same bits either way; the same time at about
-#: 160 x 160 px on the Hyper-Kvasir banner, sigma 1.7 px).
-SMOOTH_FRAME_MIN_ROI_PX = 160 * 160
-#: Columns the strip re-smoothed at an ROI's right side starts on a multiple of, and more than
-#: it covers (:data:`simtest.constants.SMOOTH_BLOCK_BYTES` of float64): each column of the strip is
-#: computed in the same kind of block (SIMD, or a row's scalar last columns) as in the ROI, and the
-#: strip reaches past the frame's own scalar columns when the ROI ends on the image's right border.
-SMOOTH_STRIP_ALIGN = smooth_block_px(np.dtype(np.float64).itemsize)
 #: Isophotes ``reconstruct_rois`` contours in one batch (:func:`_resolve`): each holds its box and
 #: region (100 x 100 px: 160 kB) till then; the batch's fixed cost (~1 ms) is spread over many.
 RESOLVE_BATCH_ISOPHOTES = 256
@@ -47,93 +36,19 @@ RESOLVE_BATCH_MIN = 32
 RESOLVE_BATCH_MIN_PX = 50_000
 
 
-def _roi_values(frame: _Frame, roi: Roi, smooth_sigma_px: float) -> tuple[np.ndarray, list | None]:
+def _roi_values(frame: _Frame, roi: Roi, smooth_sigma_px: float) -> np.ndarray:
     """An ROI's intensities (h, w), float64 (read-only where they are a view): its luma, smoothed
-    with the ROI's borders reflected when ``smooth_sigma_px`` > 0 (for a large ROI of a frame
-    smoothed once, the frame's values with the ROI's bands written in: ``_patched_from_frame``,
-    the same bits), and what :func:`_put_back` needs to restore the frame afterwards (None when
-    nothing was written)."""
+    with the ROI's borders reflected when ``smooth_sigma_px`` > 0 (float32 where the frame's
+    smoothing or luma32 is sliced)."""
     if frame.smoothed32 is not None and smooth_sigma_px > 0:
-        return frame.smoothed32[roi.slices], None  # float32, read-only: read as it is
+        return frame.smoothed32[roi.slices]  # float32, read-only: read as it is
     if frame.roi_luma is not None and smooth_sigma_px > 0:
         # the ROI's luma smoothed alone in float32 (OpenCV's float32 blur, its borders reflected):
         # the float64 luma and its float64 blur of the same ROI to float32 rounding (5e-8
         # relative, as the frame's smoothing is)
-        return _smooth(frame.roi_luma[roi.slices].astype(np.float32), smooth_sigma_px), None
+        return _smooth(frame.roi_luma[roi.slices].astype(np.float32), smooth_sigma_px)
     vals = frame.luma(roi)
-    if smooth_sigma_px <= 0:
-        return vals, None
-    if frame.smooth_frame_rw is not None and vals.size >= SMOOTH_FRAME_MIN_ROI_PX:
-        got = _patched_from_frame(frame.smooth_frame_rw, vals, roi, smooth_sigma_px)
-        if got is not None:
-            return got
-    return _smooth(vals, smooth_sigma_px), None
-
-
-def _patched_from_frame(smooth_frame: np.ndarray, vals: np.ndarray, roi: Roi,
-                        sigma: float) -> tuple[np.ndarray, list] | None:
-    """``_smooth(vals, sigma)`` of an ROI, as a view of the smoothed frame with the ROI's bands
-    written in, and the frame's values that were there (for :func:`_put_back`).
-
-    A pixel farther than the kernel's radius from the ROI's sides has the same neighbourhood in
-    the frame and in the ROI (a side on the image border reflects as the frame's does), and
-    OpenCV computes it with the same operations, but for the last columns of a row, which it
-    computes in scalar code where the rest is in SIMD blocks (:data:`SMOOTH_STRIP_ALIGN`). So the
-    bands along the ROI's top, bottom and left sides inside the image are smoothed again from
-    strips twice the radius wide (a strip's own far side does not reach the band), and the
-    ROI's last columns from a strip that starts on a multiple of the alignment (its blocks are
-    the ROI's) and is wider than the frame's scalar columns. Writing the bands into the frame
-    for the time of the ROI's extraction, instead of copying the ROI out of it, moves a fifth of
-    the bytes.
-
-    Returns None (smooth the ROI itself) for an ROI too narrow for the strips. The bits equal
-    those of smoothing the ROI, and the frame is itself again after :func:`_put_back`:
-    ``tests/test_pipeline.py`` checks random ROIs.
-    """
-    r = gaussian_radius_px(sigma) + 1  # one more than OpenCV's kernel radius
-    h, w = vals.shape
-    H = smooth_frame.shape[0]
-    c = (w - SMOOTH_STRIP_ALIGN - 2 * r) // SMOOTH_STRIP_ALIGN * SMOOTH_STRIP_ALIGN
-    if h < 2 * r or c <= 2 * r:
-        return None
-    # The bands as (rows, columns) of the ROI and their values, in this order (a later band
-    # overwrites the corners of an earlier one). Two strips on opposite sides are smoothed in one
-    # OpenCV call, stacked or side by side (a call's fixed cost, and a narrow strip's cost per
-    # row, are most of a strip's time): a band reads its own strip only, within the kernel's
-    # radius, and each column (row) is computed as in a call of its own (the left strip's width,
-    # a multiple of the alignment, keeps the right one's SIMD blocks).
-    bands = []
-    top, bottom = vals[: 2 * r], vals[h - 2 * r :]
-    if roi.row0 > 0 and roi.row1 < H:
-        both = _smooth(np.concatenate([top, bottom]), sigma)
-        bands += [(slice(0, r), slice(0, w), both[:r]), (slice(h - r, h), slice(0, w), both[3 * r :])]
-    elif roi.row0 > 0:
-        bands.append((slice(0, r), slice(0, w), _smooth(top, sigma)[:r]))
-    elif roi.row1 < H:
-        bands.append((slice(h - r, h), slice(0, w), _smooth(bottom, sigma)[r:]))
-    right = slice(0, h), slice(c + r, w)
-    if roi.col0 > 0:
-        wl = -(-max(2 * r, SMOOTH_STRIP_ALIGN) // SMOOTH_STRIP_ALIGN) * SMOOTH_STRIP_ALIGN
-        both = _smooth(np.concatenate([vals[:, :wl], vals[:, c:]], axis=1), sigma)
-        bands += [(slice(0, h), slice(0, r), both[:, :r]), (*right, both[:, wl + r :])]
-    else:
-        bands.append((*right, _smooth(vals[:, c:], sigma)[:, r:]))
-    view = smooth_frame[roi.slices]
-    # each band's place in the frame and the frame's values there, all saved before any write
-    places = [view[rows, cols] for rows, cols, _ in bands]
-    saved = [(place, place.copy()) for place in places]
-    for place, (_, _, v) in zip(places, bands):
-        place[...] = v
-    out = view.view()
-    out.setflags(write=False)
-    return out, saved
-
-
-def _put_back(saved: list | None) -> None:
-    """Restore the smoothed frame's values that :func:`_patched_from_frame` overwrote (each
-    saved before any band was written, so the order does not matter)."""
-    for place, v in saved or ():
-        place[...] = v
+    return vals if smooth_sigma_px <= 0 else _smooth(vals, smooth_sigma_px)
 
 
 def _find_bp(img: np.ndarray, roi: Roi, saturation_level) -> tuple[np.ndarray, bool]:
@@ -300,50 +215,45 @@ def _estimate_one(frame: _Frame, bp_uv, roi: Roi, *, saturated: bool, grow: bool
     order = sorted(range(len(isovalues)), key=lambda i: isovalues[i])
     results: list = [None] * len(isovalues)
     growths = 0
-    saved = None  # the frame's values under the current ROI's bands (_roi_values), put back after
     # With the frame smoothed once (smoothed32), an ROI's values are the frame's: within the
     # kernel's reach of an ROI side inside the image they are not the ROI's own smoothing (its
     # sides reflected) but the frame's true neighbours' (the contours that come that near a
     # side move within the accuracy tolerance). Its background level stays that of the ROI
     # smoothed alone (_Levels.of).
     fast = frame.smoothed32 is not None and sigma > 0
-    try:
-        while True:
-            _put_back(saved)
-            vals, saved = (sm[roi.slices], None) if sm is not None else _roi_values(frame, roi, sigma)
-            try:
-                region = _region(vals, bp_uv, (roi.row0, roi.col0), frame.img.shape)
-            except ValueError:  # the BP outside its ROI
-                if sm is None:
-                    raise
+    while True:
+        vals = sm[roi.slices] if sm is not None else _roi_values(frame, roi, sigma)
+        try:
+            region = _region(vals, bp_uv, (roi.row0, roi.col0), frame.img.shape)
+        except ValueError:  # the BP outside its ROI
+            if sm is None:
+                raise
+            return None
+        i_bp = region.near_bp  # the largest of the BP's 3 x 3 pixels
+        levels = _Levels.of(frame, vals, i_bp, roi if fast else None, ring if fast and not growths else None)
+        i0 = order[0]
+        res = flood = None
+        cut = False
+        if grow and growths < ROI_MAX_GROWTHS:
+            new = Roi.around(bp_uv, ROI_GROWTH_FACTOR * max(roi.shape) / 2.0, frame.img.shape)
+            # an isophote cut by the ROI is discarded for the grown ROI's: ask only whether it
+            # is (the flood fill that answers is kept for the extraction when it is not)
+            if new != roi:
+                cut, flood = _cut_and_contour(region, levels.level(isovalues[i0]))
+            if cut is None and sm is not None:
                 return None
-            i_bp = region.near_bp  # the largest of the BP's 3 x 3 pixels
-            levels = _Levels.of(frame, vals, i_bp, roi if fast else None, ring if fast and not growths else None)
-            i0 = order[0]
-            res = flood = None
-            cut = False
-            if grow and growths < ROI_MAX_GROWTHS:
-                new = Roi.around(bp_uv, ROI_GROWTH_FACTOR * max(roi.shape) / 2.0, frame.img.shape)
-                # an isophote cut by the ROI is discarded for the grown ROI's: ask only whether it
-                # is (the flood fill that answers is kept for the extraction when it is not)
-                if new != roi:
-                    cut, flood = _cut_and_contour(region, levels.level(isovalues[i0]))
-                if cut is None and sm is not None:
-                    return None
-                if cut is None:  # only the extraction can tell
-                    res, iso = _one_isophote(frame, region, levels, isovalues[i0], flood)
-                    cut = iso is not None and iso.cut_by_roi
-                if cut:
-                    roi, growths = new, growths + 1
-                    continue
-            if not cut:
-                results[i0] = _one_isophote(frame, region, levels, isovalues[i0], flood, defer)[0] \
-                    if res is None else res
-                for i in order[1:]:
-                    results[i], _ = _one_isophote(frame, region, levels, isovalues[i], None, defer)
-            break
-    finally:
-        _put_back(saved)
+            if cut is None:  # only the extraction can tell
+                res, iso = _one_isophote(frame, region, levels, isovalues[i0], flood)
+                cut = iso is not None and iso.cut_by_roi
+            if cut:
+                roi, growths = new, growths + 1
+                continue
+        if not cut:
+            results[i0] = _one_isophote(frame, region, levels, isovalues[i0], flood, defer)[0] \
+                if res is None else res
+            for i in order[1:]:
+                results[i], _ = _one_isophote(frame, region, levels, isovalues[i], None, defer)
+        break
     return _Draft(bp_uv, i_bp, saturated, roi, bp_ray, fitf, results, other_bps, own_bp)
 
 
@@ -375,11 +285,98 @@ def _grown_drafts(frame: _Frame, ks: list, bps: list, rois_of: dict, rings_of: d
     else:
         return {}
     out = {}
+    isovalues = frame.settings.isovalues
+    first = _first_components(frame, ks, bps, rois_of, rings_of, sm)
     for k, sat, own in zip(ks, saturated, own_rows):
+        if k in first:  # _estimate_one's draft of an ROI that does not grow, from the batch's components
+            region, levels, comps = first[k]
+            results = [None] * len(isovalues)
+            for i in sorted(range(len(isovalues)), key=lambda i: isovalues[i]):
+                if comps[i] is None:
+                    results[i] = _one_isophote(frame, region, levels, isovalues[i], None, defer)[0]
+                else:
+                    defer.append((comps[i], levels.level(isovalues[i]), region, levels, isovalues[i], frame))
+                    results[i] = len(defer) - 1
+            out[k] = _Draft(region.bp_uv, region.near_bp, sat, region.roi, rays[k], frames_of[k], results, others, own)
+            continue
         draft = _estimate_one(frame, bps[k], rois_of[k], saturated=sat, grow=True, other_bps=others, own_bp=own,
                               bp_ray=rays[k], fitf=frames_of[k], ring=rings_of[k], sm=sm, defer=defer)
         if draft is not None:
             out[k] = draft
+    return out
+
+
+#: :func:`_first_components` batches the ROIs of at most this side (px).
+FIRST_BATCH_SIDE_PX = 32
+
+
+def _first_components(frame: _Frame, ks: list, bps: list, rois_of: dict, rings_of: dict, sm: np.ndarray) -> dict:
+    """``k -> (region, levels, comps)`` of :func:`_grown_drafts`' candidates (``auto``) whose small first ROI does not
+    grow, as :func:`_estimate_one` finds them (``_region``, ``_Levels.of``, ``_flood``, ``_component_box``) in
+    whole-table calls: the ROIs on one canvas, apart by -inf; BP pixels, 3 x 3 maxima and border medians gathered;
+    each isovalue's 4-connected components labelled at once. ``comps[i]``: ``_component_box``'s answer, None where
+    the BP's pixel is not above that level. Any other candidate is left to :func:`_estimate_one` (the same bits)."""
+    if frame.settings.normalise != Normalisation.AUTO or not ks:
+        return {}
+    rr = np.array([rois_of[k] for k in ks], np.int64).reshape(-1, 4)
+    h, w = rr[:, 1] - rr[:, 0], rr[:, 3] - rr[:, 2]
+    bp = np.array([bps[k] for k in ks], np.float64).reshape(-1, 2)
+    ri, ci = np.rint(bp[:, 1] - rr[:, 0]).astype(np.int64), np.rint(bp[:, 0] - rr[:, 2]).astype(np.int64)
+    sel = np.flatnonzero((np.maximum(h, w) <= FIRST_BATCH_SIDE_PX) & (np.minimum(h, w) >= 3) & (ri >= 0) & (ri < h)
+                         & (ci >= 0) & (ci < w))
+    if not len(sel):
+        return {}
+    rr, h, w, ri, ci, n = rr[sel], h[sel], w[sel], ri[sel], ci[sel], len(sel)
+    x0, y0 = np.cumsum(w + 1) - w, np.ones(n, np.int64)  # the ROIs in a row, -inf between and around
+    canvas = np.full((int(h.max()) + 2, int(x0[-1] + w[-1]) + 1), -np.inf)
+    owner = np.full(canvas.shape[1], n, np.int64)  # each column's ROI (n: none)
+    for j, (r0, r1, c0, c1), x in zip(range(n), rr.tolist(), x0.tolist()):
+        canvas[1:1 + r1 - r0, x:x + c1 - c0] = sm[r0:r1, c0:c1]
+        owner[x:x + c1 - c0] = j
+    by, bx = y0 + ri, x0 + ci  # the BPs' pixels on the canvas
+    near = canvas[by[:, None] + np.repeat([-1, 0, 1], 3), bx[:, None] + np.tile([-1, 0, 1], 3)].max(axis=1)
+    if frame.smoothed32 is not None and frame.smooth_sigma_px > 0:
+        ring = np.array([rings_of[k] for k in np.asarray(ks)[sel].tolist()], np.float64)
+    else:  # _border_median: each ring (top, bottom, left, right) padded by as many -inf as +inf
+        p, hh, ww, top = np.arange(int(2 * (h + w).max() - 4))[None, :], h[:, None], w[:, None], 2 * (h + w)[:, None] - 4
+        r = np.where(p < ww, 0, np.where(p < 2 * ww, hh - 1, np.where(p < 2 * ww + hh - 2, p - 2 * ww + 1, p - 2 * ww - hh + 3)))
+        c = np.where(p < ww, p, np.where(p < 2 * ww, p - ww, np.where(p < 2 * ww + hh - 2, 0, ww - 1)))
+        vals = np.where(p < top, canvas[np.minimum(y0[:, None] + r, canvas.shape[0] - 1), np.minimum(
+            x0[:, None] + c, canvas.shape[1] - 1)], np.where(p < (top + p.shape[1]) // 2, -np.inf, np.inf))
+        part = np.partition(vals, ((m := p.shape[1] // 2) - 1, m, p.shape[1] - 1), axis=1)
+        ring = np.where(np.isnan(part[:, -1]), np.nan, (part[:, m - 1] + part[:, m]) / 2)
+    local = ring >= AUTO_LOCAL_BACKGROUND_REL * near  # _Levels.of
+    offset = np.where(local, np.where(near < ring, near, ring), 0.0)
+    scale, keep = np.where(local, near - offset, near), np.isfinite(ring) & np.isfinite(near)
+    isovalues = frame.settings.isovalues
+    order, comps = sorted(range(len(isovalues)), key=lambda i: isovalues[i]), []
+    for i in order:
+        lvc = np.append(offset + isovalues[i] * scale, np.inf)[owner]  # each column's level
+        lab = cv2.connectedComponentsWithAlgorithm((canvas > lvc).view(np.uint8), 4, cv2.CV_32S, cv2.CCL_WU)[1]
+        own = np.where(up := canvas[by, bx] > lvc[bx], lab[by, bx], -1)
+        yy, xx = np.divmod(q := np.flatnonzero(lab), canvas.shape[1])
+        mine = lab.ravel()[q] == own[jq := owner[xx]]
+        (low := canvas.copy()).ravel()[q[~mine]] = lvc[xx[~mine]] - 1.0  # _component_box's values
+        x, y, x1, y1 = np.full(n, canvas.shape[1]), np.full(n, canvas.shape[0]), np.zeros(n, np.int64), np.zeros(n, np.int64)
+        for a, v, fn in ((x, xx, np.minimum), (y, yy, np.minimum), (x1, xx + 1, np.maximum), (y1, yy + 1, np.maximum)):
+            fn.at(a, jq[mine], v[mine])  # the bounding box of each BP's component
+        x, y, x1, y1 = x - x0, y - y0, x1 - x0, y1 - y0
+        sides = np.stack([y == 0, y1 == h, x == 0, x1 == w], 1)
+        if i == order[0]:  # the lowest isophote cut by an ROI side inside the frame: the ROI grows
+            keep &= up & ~(sides & ~np.stack([rr[:, 0] <= 0, rr[:, 1] >= sm.shape[0], rr[:, 2] <= 0,
+                                               rr[:, 3] >= sm.shape[1]], 1)).any(axis=1)
+        box = np.stack([np.maximum(y - 1, 0), np.minimum(y1 + 1, h), np.maximum(x - 1, 0), np.minimum(x1 + 1, w)], 1)
+        comps.append((up.tolist(), low, (box + np.stack([y0, y0, x0, x0], 1)).tolist(), box.tolist(), sides.tolist()))
+    out, shape = {}, tuple(frame.img.shape)
+    for j in np.flatnonzero(keep).tolist():
+        k = ks[sel[j]]
+        (sub := sm[rois_of[k].slices]).flags.writeable = False
+        got = [None] * len(isovalues)
+        for i, (up, low, at, box, sides) in zip(order, comps):
+            if up[j]:
+                got[i] = (low[at[j][0]:at[j][1], at[j][2]:at[j][3]], (box[j][0], box[j][2]), tuple(sides[j]))
+        out[k] = (_Region(sub, rois_of[k], shape, bps[k], int(ri[j]), int(ci[j]), float(near[j])),
+                  _Levels(float(scale[j]), float(offset[j])), got)
     return out
 
 

@@ -8,7 +8,6 @@ surface:
 - Meshes: candidate pixels where the rendered ground-truth normals nearly bisect, refined by ray
   casting through sub-pixel grids (the normal is the barycentric interpolation of the vertex
   normals, as Mitsuba shades it); k1 and k2 are the barycentric interpolation of the vertex values.
-- Whether a highlight and its isophote lie inside the image (:func:`highlight_complete`).
 - The highlights a person sees as isolated elliptical highlights in a render, each with the
   ground-truth BPs it gathers (:func:`highlight_targets`).
 
@@ -38,7 +37,6 @@ __all__ = [
     "mesh_highlights",
     "ReliefHighlight",
     "relief_highlights",
-    "highlight_complete",
     "HighlightTarget",
     "highlight_targets",
 ]
@@ -352,37 +350,6 @@ def relief_highlights(cast: Caster, shading_normals: np.ndarray, position: np.nd
            for i in keep]
     out.sort(key=lambda h: (h.bp_px[1], h.bp_px[0]))
     return out
-
-
-def highlight_complete(specular: np.ndarray, bp_px: np.ndarray, t: float = 0.1) -> bool:
-    """Whether the highlight at ``bp_px`` and its isophote at level ``t`` lie inside the image.
-
-    The region is the connected component of ``specular >= t * specular[BP]`` holding the BP
-    pixel; the highlight is complete when that region does not touch the image border.
-
-    Parameters
-    ----------
-    specular : ndarray of shape (H, W)
-        Specular-only linear image.
-    bp_px : ndarray of shape (2,)
-        [u, v].
-    t : float
-        Isovalue as a fraction of the BP's intensity.
-
-    Returns
-    -------
-    bool
-        False also when the BP pixel is outside the image or dark (``specular <= 0``).
-    """
-
-    H, W = specular.shape
-    u, v = int(round(bp_px[0])), int(round(bp_px[1]))
-    if not (0 <= u < W and 0 <= v < H) or specular[v, u] <= 0:
-        return False
-    labels, _ = ndimage.label(specular >= t * specular[v, u])
-    region = labels == labels[v, u]
-    border = region[0, :].any() or region[-1, :].any() or region[:, 0].any() or region[:, -1].any()
-    return not border
 
 
 #: :func:`highlight_targets`: Gaussian sigma, px, of the specular image before its regions are

@@ -20,7 +20,7 @@ from simtest.decisions import data_side
 from simtest.harness.claims import ALARM_DEG, BEST_LEVEL, MIN_N_INTERVAL, best_marks
 from simtest.harness.explain import explanations
 from simtest.harness.report.figures import takeaways
-from simtest.harness.report.numbers import fmt
+from simtest.harness.report.numbers import esc, fmt
 from simtest.tolerances import TOL
 
 __all__ = ["markdown_report", "html_report", "fmt", "cell", "summary_markdown", "end_to_end_markdown"]
@@ -110,11 +110,6 @@ def cell(m: dict | None, show_fail: bool = True) -> str:
             f"(n {m.get('n_ok', m.get('n', 0))}){ftxt}")
 
 
-def _esc(text: str) -> str:
-    """Text safe inside a Markdown table cell (pipes escaped, no line breaks)."""
-    return str(text).replace("|", "\\|").replace("\n", " ")
-
-
 _VERDICT = {True: "holds", False: "**does not hold**", None: "undecided"}
 
 #: How the summary marks the lowest median (:func:`simtest.harness.claims.best_marks`).
@@ -145,9 +140,9 @@ def end_to_end_markdown(results: dict) -> list[str]:
         pct = {k: "-" if e[k] is None else f"{100 * e[k]:.3g} %"
                for k in ("detected", "ok", "within_1deg", "within_5deg")}
         src = ", ".join(f"{k} {v}" for k, v in e["normal_from"].items())
-        L.append(f"| {_esc(name)} | {e['n']} | {pct['detected']} | {pct['ok']} | {pct['within_1deg']} "
+        L.append(f"| {esc(name)} | {e['n']} | {pct['detected']} | {pct['ok']} | {pct['within_1deg']} "
                  f"| {pct['within_5deg']} | {fmt(e['median_ok_deg'])} (n {e['n_ok']}) "
-                 f"| {fmt(e['false_ok_per_frame'])} | {_esc(src)} |")
+                 f"| {fmt(e['false_ok_per_frame'])} | {esc(src)} |")
     return L + [""]
 
 
@@ -191,7 +186,7 @@ def summary_markdown(results: dict) -> list[str]:
             fp = ("n/a" if f.get("false_positives") is None else
                   f"{f['false_positives']} ({fmt(f['false_positives_per_image'])} per image)")
             col = "" if f.get("colocated") else " (light not at the camera)"
-            L.append(f"| {_esc(name)}{col} | {f['images']} | {fp} | " + " | ".join(cells) + " |")
+            L.append(f"| {esc(name)}{col} | {f['images']} | {fp} | " + " | ".join(cells) + " |")
         L.append("")
     claims = results.get("claims", [])
     if claims:
@@ -200,8 +195,8 @@ def summary_markdown(results: dict) -> list[str]:
               "predictions of ours from the geometry of a co-located light).", "",
               "| claim | source | verdict | measured | scope |", "|---|---|---|---|---|"]
         for c in claims:
-            L.append(f"| {_esc(c['claim'])} | {c['source']} | {_VERDICT[c['holds']]} | "
-                     f"{_esc(c['measured'])} | {_esc(c['scope'])} |")
+            L.append(f"| {esc(c['claim'])} | {c['source']} | {_VERDICT[c['holds']]} | "
+                     f"{esc(c['measured'])} | {esc(c['scope'])} |")
         L.append("")
     expl = explanations(results)
     if expl:
@@ -219,7 +214,7 @@ def _figure(name: str, notes: dict[str, str]) -> list[str]:
     """A figure's Markdown lines: the image, then its takeaway sentence when it has one."""
     L = [f"![{name}](figures/{name})", ""]
     if notes.get(name):
-        L += [f"Takeaway: {_esc(notes[name])}", ""]
+        L += [f"Takeaway: {esc(notes[name])}", ""]
     return L
 
 
@@ -228,7 +223,7 @@ def _nightly_markdown(nightly: dict, figures: list[str], notes: dict[str, str]) 
          f"Verdict: **{nightly['verdict']}** against `{nightly.get('baseline', '')}` "
          f"({nightly.get('summary', '')}).", ""]
     if nightly.get("problems"):
-        L += [f"- {_esc(p)}" for p in nightly["problems"]] + [""]
+        L += [f"- {esc(p)}" for p in nightly["problems"]] + [""]
     if "nightly_trend.png" in figures:
         L += _figure("nightly_trend.png", notes)
     return L
@@ -298,8 +293,8 @@ def markdown_report(results: dict, figures: list[str], nightly: dict | None = No
             holds = ", ".join({True: "yes", False: "no", None: "n/a"}[c["holds"]]
                               for c in sw["comparison"]) or "-"
             L.append(f"| {sw['name']} | {sw['paper'].get('source', 'paper')} | "
-                     f"{_esc(sw['paper'].get('claim', ''))} | {_esc(ours)} | {holds} | "
-                     f"{_esc(sw['paper'].get('note', ''))} |")
+                     f"{esc(sw['paper'].get('claim', ''))} | {esc(ours)} | {holds} | "
+                     f"{esc(sw['paper'].get('note', ''))} |")
         L.append("")
     if "curvature_rho.png" in figures:
         L += ["## Curvature: what rho predicts", "",
@@ -323,7 +318,7 @@ def markdown_report(results: dict, figures: list[str], nightly: dict | None = No
             L += [sw["description"], ""]
         L.append("Median error (deg) [p5, p95] (n successes); failures by cause.")
         L.append("")
-        L.append(f"| {_esc(sw['label'])} | " + " | ".join(ests) + " | failures |")
+        L.append(f"| {esc(sw['label'])} | " + " | ".join(ests) + " | failures |")
         L.append("|---" * (len(ests) + 2) + "|")
         for key in sw["cases"]:
             c = cases[key]
@@ -347,7 +342,7 @@ def markdown_report(results: dict, figures: list[str], nightly: dict | None = No
             L.append("Diagnostics (means over the scored highlights): "
                      + "; ".join(f"`{k}`: {_diag_text(k)}" for k in keys) + ".")
             L.append("")
-            L.append(f"| {_esc(sw['label'])} | " + " | ".join(keys) + " |")
+            L.append(f"| {esc(sw['label'])} | " + " | ".join(keys) + " |")
             L.append("|---" * (len(keys) + 1) + "|")
             for key, d in zip(sw["cases"], diag):
                 L.append(f"| {cases[key]['x'] * sw['display_scale']:g} | "

@@ -7,14 +7,15 @@ that coincide stay apart by marker, size, fill and transparency); the categorica
 figure-3 bars space the settings evenly (one bar each, as in the paper), with a tick at every bar's
 centre. Every drawn statistic names its n (legend or title), and no interval is drawn from
 fewer than :data:`MIN_N_INTERVAL` values. :func:`takeaways` gives one sentence per figure,
-computed from the results. :func:`layout_problems` checks a drawn figure: no two text boxes
-overlap and none leaves the figure (the report tests run it on every figure).
+computed from the results. The report tests check every drawn figure: no two text boxes overlap
+and none leaves the figure.
 """
 
 from __future__ import annotations
 
 import io
 import itertools
+from collections import Counter
 
 import matplotlib
 import numpy as np
@@ -22,13 +23,12 @@ import numpy as np
 matplotlib.use("Agg", force=False)
 
 import matplotlib.pyplot as plt  # noqa: E402 - after choosing the back-end
-from matplotlib.text import Text  # noqa: E402
 from matplotlib.ticker import FixedLocator, NullFormatter  # noqa: E402
 
 from simtest.harness.claims import BEST_LEVEL, MIN_N_INTERVAL, best_marks  # noqa: E402
 from simtest.harness.report.numbers import fmt  # noqa: E402
 
-__all__ = ["make_figures", "figure_png", "layout_problems", "style", "trend_figure", "takeaways",
+__all__ = ["make_figures", "figure_png", "style", "trend_figure", "takeaways",
            "x_scale", "MIN_N_INTERVAL"]
 
 _STYLE = {"paper_oracle": ("#1f77b4", "o"), "paper_selected": ("#9467bd", "s"),
@@ -478,12 +478,9 @@ def _curves_takeaway(sw: dict, sc: list[dict], ests: list[str]) -> str:
     x = _sweep_x(sw, sc)
     order = np.argsort(x, kind="stable")
     x, sc = x[order], [sc[i] for i in order]
-    clear: dict[str, int] = {}
-    for c in sc:
-        marks = best_marks({e: c["metrics"]["estimators"].get(e) for e in ests})
-        for e, m in marks.items():
-            if m == "best":
-                clear[e] = clear.get(e, 0) + 1
+    # settings at which each estimator is the lowest beyond the interval
+    clear = Counter(e for c in sc for e, m in best_marks({e: c["metrics"]["estimators"].get(e) for e in ests}).items()
+                    if m == "best")
     meds = {e: np.array([_val(c["metrics"]["estimators"].get(e, {}), "median") for c in sc])
             for e in ests}
     drawn = {e: v for e, v in meds.items() if np.isfinite(v).any()}
@@ -594,64 +591,3 @@ def takeaways(results: dict, history: list[dict] | None = None) -> dict[str, str
         ``{figure file name: sentence}`` for the same names :func:`make_figures` draws.
     """
     return {name: say(*args) for name, _, say, args in _figure_plan(results, history)}
-
-
-def _drawn_texts(fig) -> list:
-    """Text artists that are drawn: visible, non-empty, tick labels inside the view limits."""
-    out = []
-    skip = set()
-    for ax in fig.axes:
-        leg = ax.get_legend()
-        if leg is not None:
-            skip.update(id(t) for t in leg.findobj(Text))
-        for axis, lim in ((ax.xaxis, ax.get_xlim()), (ax.yaxis, ax.get_ylim())):
-            lo, hi = min(lim), max(lim)
-            for tick in axis.get_major_ticks() + axis.get_minor_ticks():
-                for lab in (tick.label1, tick.label2):
-                    if not (lo - 1e-9 * abs(hi - lo) <= tick.get_loc() <= hi + 1e-9 * abs(hi - lo)):
-                        skip.add(id(lab))
-    for leg in fig.legends:
-        skip.update(id(t) for t in leg.findobj(Text))
-    for t in fig.findobj(Text):
-        if id(t) in skip or not t.get_visible() or not t.get_text().strip():
-            continue
-        if t.axes is not None and not t.axes.get_visible():
-            continue
-        out.append(t)
-    return out
-
-
-def layout_problems(fig, tol_px: float = 0.5) -> list[str]:
-    """Overlapping or clipped text in a figure (after drawing it).
-
-    Parameters
-    ----------
-    fig : matplotlib.figure.Figure
-        The figure, as it will be saved (its size and dpi).
-    tol_px : float
-        Overlap or overhang allowed, pixels (half a pixel: anti-aliasing, not a collision).
-
-    Returns
-    -------
-    list of str
-        One line per problem: ``"'A' overlaps 'B'"`` or ``"'A' leaves the figure"``; legends
-        count as one box each. Empty when the layout is clean.
-    """
-    fig.canvas.draw()
-    r = fig.canvas.get_renderer()
-    W, H = fig.bbox.width, fig.bbox.height
-    boxes = [(repr(t.get_text()), t.get_window_extent(r)) for t in _drawn_texts(fig)]
-    legends = list(fig.legends) + [ax.get_legend() for ax in fig.axes
-                                   if ax.get_legend() is not None and ax.get_visible()]
-    boxes += [(f"legend {i}", leg.get_window_extent(r)) for i, leg in enumerate(legends)]
-    out = []
-    for name, b in boxes:
-        if b.x0 < -tol_px or b.y0 < -tol_px or b.x1 > W + tol_px or b.y1 > H + tol_px:
-            out.append(f"{name} leaves the figure ({b.x0:.0f}, {b.y0:.0f}, {b.x1:.0f}, "
-                       f"{b.y1:.0f} in {W:.0f} x {H:.0f} px)")
-    for (na, a), (nb, b) in itertools.combinations(boxes, 2):
-        w = min(a.x1, b.x1) - max(a.x0, b.x0)
-        h = min(a.y1, b.y1) - max(a.y0, b.y0)
-        if w > tol_px and h > tol_px:
-            out.append(f"{na} overlaps {nb}")
-    return out

@@ -1,10 +1,11 @@
-"""How the reports write a number (one rule for the tables, the figures and the README)."""
+"""How the reports write a number or a table cell (one rule for the tables, the figures and the
+README)."""
 
 from __future__ import annotations
 
 import numpy as np
 
-__all__ = ["fmt"]
+__all__ = ["esc", "fmt"]
 
 
 def fmt(v, nd: int = 3) -> str:
@@ -23,9 +24,12 @@ def fmt(v, nd: int = 3) -> str:
     """
     if v is None:
         return "-"
-    if isinstance(v, bool):
-        return str(v)
-    if isinstance(v, int):
+    if isinstance(v, int):  # bool too: "True", "False"
         return str(v)
     v = float(v)
     return f"{v:.{nd}g}" if np.isfinite(v) else "-"
+
+
+def esc(text) -> str:
+    """Text safe inside a Markdown table cell (pipes escaped, no line breaks)."""
+    return str(text).replace("|", "\\|").replace("\n", " ")

@@ -1,7 +1,7 @@
 """Procedural meshes with ground-truth normals and principal curvatures: a colon and a liver.
 
 The package, one module a job: :mod:`~simtest.scene.meshes.curvature` (principal curvatures of
-closed-form surfaces by finite differences, and of triangles by trimesh),
+closed-form surfaces by finite differences and exact derivatives),
 :mod:`~simtest.scene.meshes.params` (the generators' parameters, their checks and seeds),
 :mod:`~simtest.scene.meshes.colon` and :mod:`~simtest.scene.meshes.liver` (the generators),
 :mod:`~simtest.scene.meshes.files` (PLY and JSON sidecar files). Everything public is importable
@@ -35,9 +35,9 @@ of radius R seen from inside (normals toward the axis, as in the colon) has ``k1
 camera (a fold crest, the liver) and negative concave toward the camera (the colon wall between
 folds). For a parametrised surface X(u, v) this is ``II_ij = -X_ij . N``; for an implicit surface
 F = 0 with ``N = grad F / |grad F|`` it is ``P Hess(F) P / |grad F|`` restricted to the tangent
-plane (P the tangent projector). The trimesh estimator (:func:`principal_curvatures`) agrees: its
-mean curvature is positive across convex edges of the face winding, and both generators wind their
-faces so that face normals agree with the vertex normals.
+plane (P the tangent projector). Trimesh's discrete curvature measures (the tests' independent
+check) agree: their mean curvature is positive across convex edges of the face winding, and both
+generators wind their faces so that face normals agree with the vertex normals.
 
 How the ground truth is computed
 --------------------------------
@@ -81,9 +81,6 @@ References
        forms, :func:`parametric_curvature`).
 .. [2] R. Goldman, "Curvature formulas for implicit curves and surfaces", CAGD 22, 2005
        (:func:`implicit_curvature`).
-.. [3] D. Cohen-Steiner, J.-M. Morvan, "Restricted Delaunay triangulations and normal cycle",
-       SoCG 2003. https://doi.org/10.1145/777792.777839 (the discrete curvature measures
-       integrated over a ball that trimesh implements, :func:`principal_curvatures`).
 """
 
 from __future__ import annotations
@@ -98,7 +95,6 @@ from simtest.scene.meshes.curvature import (
     FD_STEP_MM,
     implicit_curvature,
     parametric_curvature,
-    principal_curvatures,
 )
 from simtest.scene.meshes.files import load_mesh, save_mesh
 from simtest.scene.meshes.haustral import build_haustral_colon, haustral_pose
@@ -127,7 +123,6 @@ __all__ = [
     "implicit_curvature",
     "load_mesh",
     "parametric_curvature",
-    "principal_curvatures",
     "save_mesh",
 ]
 
