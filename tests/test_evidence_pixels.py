@@ -12,6 +12,8 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
+from _surround import surround_fraction
+
 from simtest.reconstruct import evidence_pixels as px
 
 
@@ -170,7 +172,7 @@ def test_the_candidates_come_by_decreasing_peak_and_the_luma_is_its_formula():
 @settings(max_examples=40, deadline=None)
 @given(st.integers(0, 2**31 - 1))
 def test_the_batched_surround_is_the_one_by_one_surround(seed):
-    """:func:`surround_fractions` against :func:`surround_fraction` per candidate, to the bit:
+    """:func:`surround_fractions` against the one-by-one reference (tests/_surround.py), to the bit:
     glints near the frame's sides (clipped squares), reaches sharing a whole px and not."""
     from simtest.geometry.conics import Ellipse
 
@@ -187,7 +189,7 @@ def test_the_batched_surround_is_the_one_by_one_surround(seed):
     reach = np.where(rng.random(n) < 0.5, 6.5, rng.uniform(2, 30, n))
     ells = [Ellipse(center=ij[k] + rng.normal(0, 1, 2), semi_axes=np.sort(rng.uniform(0.5, 8, 2))[::-1],
                     angle_rad=float(rng.uniform(-np.pi, np.pi))) for k in range(n)]
-    want = [px.surround_fraction(gray, ells[k], ij[k], float(reach[k]), 2.0, 0.3) for k in range(n)]
+    want = [surround_fraction(gray, ells[k], ij[k], float(reach[k]), 2.0, 0.3) for k in range(n)]
     np.testing.assert_array_equal(px.surround_fractions(gray, ells, ij, reach, 2.0, 0.3), want)
 
 

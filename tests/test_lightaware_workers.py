@@ -61,3 +61,28 @@ def test_workers_must_be_at_least_one():
     rgb, K = _frame()
     with pytest.raises(ValueError, match="workers must be at least 1, got 0"):
         with_light_aware(rgb, [], K, TWO_GUIDES, workers=0)
+
+
+def test_fused_lobes_are_fitted_in_the_workers_bit_for_bit():
+    # The rejected candidates whose region runs along the rig (two guides' lobes fused into one)
+    # are fitted with the plane only, in the accepted highlights' workers (light_aware_with_rig),
+    # and split into one row per guide: the rows on two workers are those of one process, bit
+    # for bit, and a rejected row that is not split carries no fits.
+    from test_rig_pairs import GUIDES_MM, sensor_plane
+
+    from simtest.reconstruct.rig_centroid import light_aware_with_rig
+    from simtest.reconstruct.rig_lobes import fused_lobe_candidates
+    img, K, _, _ = sensor_plane(15.0, 25.0, 0, spec=4.0)  # the fused plateau broken by noise: `merged`
+    rig = LightRig(tuple(Light(tuple(L), 1.0, "inverse_square") for L in GUIDES_MM))
+    response = SensorResponse("srgb", clip=255.0)
+    ests = reconstruct(img, K, settings=ReconSettings.for_frames())
+    assert fused_lobe_candidates(img, ests, K, rig), [e.status for e in ests]  # else nothing is tested
+    one = light_aware_with_rig(img, ests, K, rig, workers=1, response=response)
+    two = light_aware_with_rig(img, ests, K, rig, workers=2, response=response)
+    assert [(e.status, e.detail) for e in two] == [(e.status, e.detail) for e in one]
+    assert sum("fused into one highlight" in e.detail for e in two) == 2
+    assert _light_aware_bytes(two) == _light_aware_bytes(one)
+    assert all(e.ok or not e.light_aware for e in two)
+    for a, b in zip(one, two):
+        np.testing.assert_array_equal(a.bp_px, b.bp_px)
+        np.testing.assert_array_equal(a.recommended.normal, b.recommended.normal)

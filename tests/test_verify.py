@@ -195,7 +195,7 @@ def test_a_quantised_noise_free_frame_is_judged_against_its_rounding_noise():
 
 def _surround_fraction(gray, ell, bp_ij, reach):
     """The surround's share of other light as the verifier measures it at the default isovalue."""
-    from simtest.reconstruct.evidence_pixels import surround_fraction
+    from _surround import surround_fraction
     from simtest.reconstruct.verify import _REACH_T, SURROUND_REL, _own_level
     return surround_fraction(gray, ell, bp_ij, reach, float(_own_level(_REACH_T)), SURROUND_REL)
 

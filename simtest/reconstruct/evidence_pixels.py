@@ -419,37 +419,14 @@ def _labels_near(lab: np.ndarray, expected, ks: np.ndarray, r0, r1, c0, c1, oy, 
     return out
 
 
-def surround_fraction(gray: np.ndarray, ell, bp_ij: np.ndarray, reach: float, own_level: float,
-                      rel: float) -> float:
-    """Share of the surround's pixels (within ``reach`` of the BP pixel ``bp_ij`` (column, row),
-    where :func:`ellipse_level` of the primary isophote ``ell`` exceeds ``own_level``) whose local
-    top-hat (the luma less its grey opening by a square about as wide as the reach) is at least
-    ``rel`` of the peak's (its maximum over the 3 x 3 px around the BP). 0 without a surround
-    or a peak."""
-    h, w = gray.shape
-    R = int(np.ceil(reach))
-    bi, bj = int(bp_ij[1]), int(bp_ij[0])
-    r0, r1 = max(0, bi - R), min(h, bi + R + 1)
-    c0, c1 = max(0, bj - R), min(w, bj + R + 1)
-    yy = np.arange(r0, r1, dtype=np.float64)[:, None]
-    xx = np.arange(c0, c1, dtype=np.float64)[None, :]
-    ring = ((xx - bp_ij[0]) ** 2 + (yy - bp_ij[1]) ** 2 <= reach * reach) & (ellipse_level(ell, xx, yy) > own_level)
-    if not ring.any():
-        return 0.0
-    win = np.ascontiguousarray(gray[r0:r1, c0:c1], dtype=np.float32)
-    k = max(3, R | 1)  # odd, about the reach
-    top = win - cv2.morphologyEx(win, cv2.MORPH_OPEN, cv2.getStructuringElement(cv2.MORPH_RECT, (k, k)),
-                                 borderType=cv2.BORDER_REPLICATE)
-    peak = float(top[max(0, bi - 1 - r0):bi + 2 - r0, max(0, bj - 1 - c0):bj + 2 - c0].max())
-    if not peak > 0:
-        return 0.0
-    return float(np.count_nonzero((top >= rel * peak) & ring) / np.count_nonzero(ring))
-
-
 def surround_fractions(gray: np.ndarray, ells, bps_ij: np.ndarray, reaches: np.ndarray, own_level,
                        rel: float, paired=None) -> np.ndarray:
-    """:func:`surround_fraction` of many candidates (``ells``, ``bps_ij`` (n, 2) (column, row),
-    ``reaches`` (n,)), the same numbers: the surrounds of the candidates of one whole reach in
+    """Per candidate (``ells``, ``bps_ij`` (n, 2) (column, row), ``reaches`` (n,)): the share of the
+    surround's pixels (within the reach of the BP pixel, where :func:`ellipse_level` of the primary
+    isophote exceeds ``own_level``) whose local top-hat (the luma less its grey opening by a square
+    about as wide as the reach) is at least ``rel`` of the peak's (its maximum over the 3 x 3 px
+    around the BP), 0 without a surround or a peak (tests/_surround.py has it one candidate at a
+    time): the surrounds of the candidates of one whole reach in
     px computed together on their unclipped squares (pixels outside the frame not counted), the
     openings one window each; ``own_level`` a float or one per candidate. ``paired`` (None, or per candidate a list of (u, v)): the lobes of
     another light guide there, each taken as the candidate's own lobe moved to that point (the

@@ -28,13 +28,17 @@ from simtest.reconstruct.lightaware import (LightAwareEstimate, cubic_patch_fit,
 from simtest.reconstruct.recommend import (_bp_ray_error_beside, bp_error_depth_mm, bp_ray_error_deg,
                                            depth_within_ceiling)
 
-#: The photometric fit's statuses after which the curved-patch fits run by default: those that say
-#: the plane is not the ROI's surface (after the others a patch, with more parameters to trade
-#: with the depth, cannot do better, and takes seconds).
-CURVED_FIT_AFTER = ("plane_misfit", "not_converged")
+#: The photometric fit's statuses after which the curved-patch fits run by default: the plane
+#: converged and misfits (after the others a patch cannot do better, and takes seconds; after a
+#: plane that ran off, ``not_converged``, the quadric ran off or misfit on every tuning render:
+#: docs/decisions/light-aware-recommendation.md).
+CURVED_FIT_AFTER = ("plane_misfit",)
 #: Candidate statuses never fitted, not even with ``fit_rejected``: too small to fit, or no
 #: specular highlight of the tissue (:mod:`simtest.reconstruct.verify`).
 NOT_FITTED = ("too_small", "black_border", "overlay", "not_specular")
+#: The light-aware arguments of a rejected candidate fitted for its fused lobes: the plane's fit
+#: only (:mod:`simtest.reconstruct.rig_lobes` reads its normal and distance; a patch's take seconds).
+PLANE_ONLY = {"quadric": False, "cubic": False}
 
 
 def _offset_rig(rig) -> bool:
@@ -313,7 +317,7 @@ def _guarded(name: str, fit, *args, **kwargs) -> LightAwareEstimate:
 
 
 def with_light_aware(image, estimates, camera, rig: LightRig | None, *, on_highlight=None,
-                     fit_rejected: bool = False, workers: int = 1, **kwargs) -> list:
+                     fit_rejected: bool = False, workers: int = 1, plane_only=(), **kwargs) -> list:
     """The estimates with their light-aware results attached (``light_aware``).
 
     Nothing runs without a rig or with every light at the camera centre. By default only the
@@ -340,6 +344,9 @@ def with_light_aware(image, estimates, camera, rig: LightRig | None, *, on_highl
         Worker processes the highlights' fits are shared among (1: in this process); the results
         are the same bit for bit whatever the number (each fit reads its own ROI; BLAS on one
         thread each, :func:`simtest._threads.one_thread_each`).
+    plane_only : collection of int
+        Indexes of rejected candidates fitted too, with :data:`PLANE_ONLY`, in the same workers
+        (:func:`~simtest.reconstruct.rig_lobes.fused_lobe_candidates`).
     **kwargs
         Passed to :func:`light_aware_estimates`.
 
@@ -360,6 +367,8 @@ def with_light_aware(image, estimates, camera, rig: LightRig | None, *, on_highl
     kwargs = fit_arguments(image, kwargs)
     out = list(estimates)
     todo = [i for i, est in enumerate(out) if est.ok or (fit_rejected and est.status not in NOT_FITTED)]
+    jobs = {i: {} for i in todo} | {i: PLANE_ONLY for i in plane_only if i not in todo}
+    todo = sorted(jobs)
     # the others are marked with no fits ({}): under a rig off the camera centre the co-located
     # estimators' normals are not recommended (rule 1: the BP ray)
     skipped = set(range(len(out))).difference(todo)
@@ -373,7 +382,7 @@ def with_light_aware(image, estimates, camera, rig: LightRig | None, *, on_highl
                 require(name)
             with worker_pool(min(workers, len(todo)), initializer=_fit_context,
                              initargs=(image, camera, rig, kwargs)) as pool:
-                futures = {pool.submit(_fits_in_context, out[i]): i for i in todo}
+                futures = {pool.submit(_fits_in_context, out[i], jobs[i]): i for i in todo}
                 for done, fut in enumerate(as_completed(futures), 1):
                     i = futures[fut]
                     out[i] = dataclasses.replace(out[i], light_aware=fut.result())
@@ -382,7 +391,7 @@ def with_light_aware(image, estimates, camera, rig: LightRig | None, *, on_highl
             return out
         for done, i in enumerate(todo, 1):
             out[i] = dataclasses.replace(out[i], light_aware=light_aware_estimates(image, out[i], camera,
-                                                                                  rig, **kwargs))
+                                                                                  rig, **(kwargs | jobs[i])))
             if on_highlight is not None:
                 on_highlight(done, len(todo))
     return out
@@ -397,7 +406,8 @@ def _fit_context(image, camera, rig, kwargs) -> None:
     _CONTEXT.update(image=image, camera=camera, rig=rig, kwargs=kwargs)
 
 
-def _fits_in_context(est) -> dict[str, LightAwareEstimate]:
-    """:func:`light_aware_estimates` of one highlight in a worker (:func:`_fit_context`)."""
+def _fits_in_context(est, extra: dict) -> dict[str, LightAwareEstimate]:
+    """:func:`light_aware_estimates` of one highlight in a worker (:func:`_fit_context`), with
+    ``extra`` arguments over the shared ones."""
     c = _CONTEXT
-    return light_aware_estimates(c["image"], est, c["camera"], c["rig"], **c["kwargs"])
+    return light_aware_estimates(c["image"], est, c["camera"], c["rig"], **(c["kwargs"] | extra))

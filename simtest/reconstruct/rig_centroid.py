@@ -40,7 +40,8 @@ from simtest.reconstruct.light_fits import _offset_rig, fit_arguments, with_ligh
 from simtest.reconstruct.lightaware import LightAwareEstimate, bisector
 from simtest.reconstruct.lightaware.model import _rays, _rig_arrays
 from simtest.reconstruct.recommend import LIGHT_AWARE, _angle_deg, bp_error_depth_mm, bp_ray_error_deg
-from simtest.reconstruct.rig_lobes import _bright_region, _inside, guide_specular_points, split_fused_lobes
+from simtest.reconstruct.rig_lobes import (_bright_region, _inside, fused_lobe_candidates, guide_specular_points,
+                                           split_fused_lobes)
 
 __all__ = ["centroid_normal", "light_aware_with_rig", "rig_centroid"]
 
@@ -166,5 +167,7 @@ def light_aware_with_rig(image, estimates, camera, rig: LightRig | None, *, work
     ``on_highlight``), then the rig's fused lobes split (:func:`~simtest.reconstruct.rig_lobes.split_fused_lobes`)
     or given their centroid light's normal (:func:`rig_centroid`); a list of SpecularityEstimate."""
     kwargs = fit_arguments(image, kwargs) if _offset_rig(rig) else kwargs  # made once for both steps
-    fitted = with_light_aware(image, estimates, camera, rig, workers=workers, on_highlight=on_highlight, **kwargs)
-    return rig_centroid(image, split_fused_lobes(image, fitted, camera, rig, **kwargs), camera, rig)
+    split = fused_lobe_candidates(image, estimates, camera, rig)  # fitted in the same workers
+    fitted = with_light_aware(image, estimates, camera, rig, workers=workers, on_highlight=on_highlight,
+                              plane_only=split, **kwargs)
+    return rig_centroid(image, split_fused_lobes(image, fitted, camera, rig, prefitted=set(split)), camera, rig)

@@ -29,10 +29,10 @@ from simtest.decisions import FUSED_LOBE_LEVEL, PAIR_TOL_PX
 from simtest.reconstruct._pixels import uv_to_rc
 from simtest.geometry.cameras import PinholeCamera
 from simtest.reconstruct.detect_pixels import luma
-from simtest.reconstruct.light_fits import _offset_rig, fit_arguments, light_aware_estimates
+from simtest.reconstruct.light_fits import _offset_rig
 from simtest.reconstruct.rig_pairs import other_guide_curves
 
-__all__ = ["FUSED_LOBE_LEVEL", "guide_specular_points", "split_fused_lobes"]
+__all__ = ["FUSED_LOBE_LEVEL", "fused_lobe_candidates", "guide_specular_points", "split_fused_lobes"]
 
 #: Candidates whose statuses the rule may turn into rows of fused lobes (module docstring).
 SPLIT_STATUSES = ("ok", "merged", "bad_fit", "not_elliptical")
@@ -160,7 +160,19 @@ def _rows(est, camera, rig, gray, others: np.ndarray) -> list | None:
     return rows
 
 
-def split_fused_lobes(image, estimates, camera, rig, **kwargs) -> list:
+def fused_lobe_candidates(image, estimates, camera, rig) -> list[int]:
+    """The indexes of the rejected candidates that may be fused guide lobes, to be fitted with
+    :data:`~simtest.reconstruct.light_fits.PLANE_ONLY` (``with_light_aware``'s ``plane_only``) and
+    split (:func:`split_fused_lobes`): those in :data:`SPLIT_STATUSES` whose region reaches along
+    the rig's curve beyond their own lobe; empty without a rig off the camera centre."""
+    todo = [i for i, e in enumerate(estimates) if e.status in SPLIT_STATUSES and e.status != "ok"]
+    if not todo or not _offset_rig(rig):
+        return []
+    gray = luma(np.asarray(image))
+    return [i for i in todo if _along_the_rig(gray, estimates[i], camera, rig, estimates[i].status == "merged")]
+
+
+def split_fused_lobes(image, estimates, camera, rig, *, prefitted=()) -> list:
     """The estimates with each candidate of fused guide lobes replaced by one row per guide.
 
     Parameters
@@ -173,9 +185,9 @@ def split_fused_lobes(image, estimates, camera, rig, **kwargs) -> list:
         Intrinsics K or a camera model.
     rig : LightRig or None
         The scope's lights (None, or every light at the camera centre: returned unchanged).
-    **kwargs
-        As :func:`~simtest.reconstruct.light_fits.with_light_aware` got them: the rejected
-        candidates are fitted with them (less ``workers`` and ``on_highlight``).
+    prefitted : collection of int
+        The rejected candidates to split, fitted with the plane only (:func:`fused_lobe_candidates`;
+        ``with_light_aware``'s ``plane_only``); those not split keep their row, without fits.
 
     Returns
     -------
@@ -186,20 +198,12 @@ def split_fused_lobes(image, estimates, camera, rig, **kwargs) -> list:
         return list(estimates)
     gray = None  # the frame's luma, made for the first candidate that a split may concern
     bps = np.array([e.bp_px for e in estimates], dtype=np.float64).reshape(-1, 2)
-    kwargs = {k: v for k, v in kwargs.items() if k not in ("workers", "on_highlight", "fit_rejected")}
     out: list = []
     for i, est in enumerate(estimates):
         rows = None
-        if est.status in SPLIT_STATUSES:
-            fitted, gray = est, luma(np.asarray(image)) if gray is None else gray
-            if est.status != "ok":
-                if not _along_the_rig(gray, est, camera, rig, est.status == "merged"):
-                    out.append(est)
-                    continue
-                kwargs = fit_arguments(image, kwargs)
-                # the plane's fit only (the rule reads its normal and distance; a patch's take seconds)
-                fitted = dataclasses.replace(est, light_aware=light_aware_estimates(
-                    image, est, camera, rig, **dict(kwargs, quadric=False, cubic=False)))
-            rows = _rows(fitted, camera, rig, gray, np.delete(bps, i, axis=0))
+        if est.status == "ok" or i in prefitted:
+            gray = luma(np.asarray(image)) if gray is None else gray
+            rows = _rows(est, camera, rig, gray, np.delete(bps, i, axis=0))
+            est = est if est.ok else dataclasses.replace(est, light_aware={})  # a rejected row: no fits
         out.extend(rows if rows is not None else [est])
     return out

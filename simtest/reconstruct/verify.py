@@ -111,7 +111,7 @@ class Evidence:
     minor_px : ndarray, optional
         Semi-minor axis of each candidate's primary isophote, px (NaN without a fit).
     surround : ndarray, optional
-        Fraction of the candidate's surround lit by other light (:func:`~simtest.reconstruct.evidence_pixels.surround_fraction`),
+        Fraction of the candidate's surround lit by other light (:func:`~simtest.reconstruct.evidence_pixels.surround_fractions`),
         measured by :func:`assess` for the candidates that pass the checks before it; 1 for the
         other fitted ones, NaN for the rest.
     paired : list of list of (float, float), optional
