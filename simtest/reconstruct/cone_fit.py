@@ -36,7 +36,7 @@ import numpy as np
 from simtest._records import fast_init
 from simtest.geometry.cameras import CameraModel, PinholeCamera
 from simtest.reconstruct.failures import Failure
-from simtest.reconstruct.fit import EllipseFit, fit_stacked, point_sets
+from simtest.reconstruct.fit import fit_stacked, point_sets
 
 __all__ = ["ConeFit", "FitFrame", "fit_cones", "fit_frame", "fit_frames", "rotations_to_z", "to_camera", "to_fit_frame"]
 
@@ -82,8 +82,6 @@ class ConeFit:
         plane (pinhole); None otherwise (a wide-angle isophote is no conic in its pixels).
     ellipse : simtest.geometry.conics.Ellipse or None
         That conic's centre (u, v) px, semi-axes px and angle; None as ``conic``.
-    plane_fit : EllipseFit
-        The ellipse fit on the fit plane (its ``conic`` in plane pixels).
     residual_px : float
         RMS Sampson distance on the fit plane, px (image px for a pinhole, virtual px otherwise).
     n_points : int
@@ -94,7 +92,6 @@ class ConeFit:
     cone_fit_frame: np.ndarray
     conic: np.ndarray | None
     ellipse: object | None
-    plane_fit: EllipseFit
     residual_px: float
     n_points: int
 
@@ -264,14 +261,14 @@ def fit_cones(points_list, frames) -> list[ConeFit | Failure]:
         Rg = np.stack([f.R for f, img in zip(gframes, on_image.tolist()) if not img])
         rot = np.swapaxes(Rg, 1, 2) @ c[~on_image] @ Rg
         cone[~on_image] = 0.5 * (rot + np.swapaxes(rot, 1, 2))
-    # (ConeFit's fields in order: cone, cone_fit_frame, conic, ellipse, plane_fit, residual_px,
+    # (ConeFit's fields in order: cone, cone_fit_frame, conic, ellipse, residual_px,
     # n_points; no keyword dicts, a real frame's 1500 fits)
     for j, i, is_formed, img in zip(range(len(good)), good.tolist(), formed.tolist(), on_image.tolist()):
         if not is_formed:
             out[i] = Failure("pose_failed", "C' = K^T C K is zero or not finite")
             continue
         fit = fits[i]
-        out[i] = ConeFit(cone[j], c[j], fit.conic if img else None, fit.ellipse if img else None, fit,
+        out[i] = ConeFit(cone[j], c[j], fit.conic if img else None, fit.ellipse if img else None,
                          fit.residual_px, fit.n_points)
     return out
 
