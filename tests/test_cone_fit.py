@@ -21,7 +21,7 @@ from simtest.geometry import (
 )
 from simtest.geometry.conics import circle_pose, plane_basis
 from simtest.reconstruct import reconstruct_roi
-from simtest.reconstruct.cone_fit import fit_cone, fit_frame, fit_frames, rotation_to_z
+from simtest.reconstruct.cone_fit import fit_cones, fit_frame, fit_frames, rotations_to_z
 from simtest.simulate.analytic import phong_plane_image
 from simtest.tolerances import TOL
 
@@ -63,7 +63,7 @@ def test_circle_through_any_model_gives_its_plane_normal(cam_i, off_axis, azimut
     uv = cam.ray_to_pixel(X)
     assert np.isfinite(uv).all()
     bp_ray = cam.pixel_to_ray(cam.ray_to_pixel(centre[None]))[0]
-    fit = fit_cone(uv, fit_frame(cam, bp_ray))
+    fit = fit_cones([uv], [fit_frame(cam, bp_ray)])[0]
     assert fit
     # the cone holds the rays exactly
     rays = X / np.linalg.norm(X, axis=1, keepdims=True)
@@ -74,10 +74,10 @@ def test_circle_through_any_model_gives_its_plane_normal(cam_i, off_axis, azimut
     assert err < 10 * TOL.fitted_normal_deg
 
 
-def test_rotation_to_z():
+def test_rotations_to_z():
     rng = np.random.default_rng(4)
-    for d in rng.normal(size=(20, 3)):
-        R = rotation_to_z(d)
+    ds = rng.normal(size=(20, 3))
+    for d, R in zip(ds, rotations_to_z(ds)):
         np.testing.assert_allclose(R @ R.T, np.eye(3), atol=1e-14)
         assert np.isclose(np.linalg.det(R), 1.0)
         np.testing.assert_allclose(R @ (d / np.linalg.norm(d)), [0, 0, 1], atol=1e-14)

@@ -46,6 +46,22 @@ def jpeg(rgb: np.ndarray, quality: int) -> np.ndarray:
     return cv2.imdecode(buf, cv2.IMREAD_COLOR)[..., ::-1].copy()
 
 
+def luma_y(image: np.ndarray) -> np.ndarray:
+    """JFIF luma ``Y = 0.299 R + 0.587 G + 0.114 B`` of an 8-bit RGB (or grey) image, float32, one
+    product per pixel: the plain reference of the module's sampled blockiness."""
+    image = J._check(image)
+    if image.ndim == 2:
+        return image.astype(np.float32)
+    return image.astype(np.float32) @ np.array(J._Y_WEIGHTS, np.float32)
+
+
+def quantisation_steps(image: np.ndarray) -> np.ndarray | None:
+    """The luma quantisation table (8, 8) (row: vertical frequency; 1: unquantised, 0: not
+    identifiable) the module reads on the image's grid, None without a grid."""
+    g = J._grid(J._check(image))
+    return None if g is None else g[3].reshape(J.BLOCK, J.BLOCK)
+
+
 def y_rms(a: np.ndarray, b: np.ndarray) -> float:
     w = np.array(J._Y_WEIGHTS)
     return float(np.sqrt(np.mean((a.astype(float) @ w - b.astype(float) @ w) ** 2)))
@@ -68,7 +84,7 @@ def test_steps_are_the_encoders_table(quality, seed):
     are not told from unquantised; the high frequencies of a heavily quantised frame are dead)."""
     d = jpeg(textured(seed), quality)
     assert J.jpeg_grid(d) == (0, 0)
-    steps = J.quantisation_steps(d)
+    steps = quantisation_steps(d)
     true = ijg_table(quality)
     found = steps >= J.MIN_STEP
     found[0, 0] = False  # the DC: see below
@@ -234,8 +250,8 @@ def test_image_blockiness_is_that_of_the_sampled_luma(seed, h, w, step, grey):
     float64 where numpy's were float32: 1e-5 relative is a hundred float32 ulps)."""
     rng = np.random.default_rng(seed)
     img = rng.integers(0, 256, (h, w) if grey else (h, w, 3), dtype=np.uint8)
-    rows = _blockiness(J.luma_y(img[::step]))
-    cols = _blockiness(J.luma_y(img[:, ::step]).T)
+    rows = _blockiness(luma_y(img[::step]))
+    cols = _blockiness(luma_y(img[:, ::step]).T)
     np.testing.assert_allclose(J._image_blockiness(img, step, True), rows, rtol=1e-5, atol=1e-6)
     np.testing.assert_allclose(J._image_blockiness(img, step, False), cols, rtol=1e-5, atol=1e-6)
 

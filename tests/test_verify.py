@@ -475,7 +475,7 @@ def test_the_verifier_measures_only_the_estimates_with_isophotes(monkeypatch):
 
 
 def test_a_colour_frame_is_verified_in_the_luma_its_rois_are_smoothed_from():
-    """A colour 8-bit frame's float32 luma is computed once (``frame_prep._luma32``) and read by both the
+    """A colour 8-bit frame's float32 luma is computed once (``luma_cv2`` in float32) and read by both the
     frame's smoothing and the verifier: no float32 copy of the RGB frame converted by OpenCV."""
     import cv2 as cv2_module
 

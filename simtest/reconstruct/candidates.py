@@ -199,8 +199,7 @@ def _parabola(a: np.ndarray, b: np.ndarray, d: np.ndarray, ok: np.ndarray) -> np
 
 def examine(gray: np.ndarray, labels: np.ndarray, table: np.ndarray, rules: Rules, *,
             clipped: np.ndarray | None = None, scope: np.ndarray | None = None,
-            levels: np.ndarray | None = None, origin: tuple[int, int] = (0, 0),
-            frame_shape: tuple[int, int] | None = None) -> Examined:
+            levels: np.ndarray | None = None) -> Examined:
     """Brightest point, peak, status, ROI and level of every component of a table.
 
     Parameters
@@ -218,10 +217,6 @@ def examine(gray: np.ndarray, labels: np.ndarray, table: np.ndarray, rules: Rule
         The endoscope's black border.
     levels : ndarray of shape (H, W), float32, optional
         The local background (``"local_peak"``).
-    origin : (row, col)
-        The frame position of ``gray``'s first pixel (a window's corner; 0, 0 for a frame).
-    frame_shape : (H, W), optional
-        The frame's shape (default ``gray``'s): the sides of ``touches_border`` and the ROI.
 
     Returns
     -------
@@ -229,8 +224,6 @@ def examine(gray: np.ndarray, labels: np.ndarray, table: np.ndarray, rules: Rule
     """
     n = len(table)
     h, w = gray.shape
-    fh, fw = frame_shape if frame_shape is not None else (h, w)
-    r0, c0 = origin
     cid, x, y, bw, bh, area = (table[:, j].astype(np.int64) for j in range(6))
     idx, k = _pixels(labels, table)
     flat = gray.ravel()
@@ -308,16 +301,15 @@ def examine(gray: np.ndarray, labels: np.ndarray, table: np.ndarray, rules: Rule
     if scope is not None:
         integral = cv2.integral(scope.view(np.uint8))
         code[_box_sums(integral, x, y, bw, bh) > 0] = BLACK_BORDER
-    gx, gy = x + c0, y + r0
-    code[(gx == 0) | (gy == 0) | (gx + bw >= fw) | (gy + bh >= fh)] = TOUCHES_BORDER
+    code[(x == 0) | (y == 0) | (x + bw >= w) | (y + bh >= h)] = TOUCHES_BORDER
     code[area < rules.min_area_px] = TOO_SMALL
 
     bp = np.empty((n, 2))
-    bp[:, 0] = col + c0
-    bp[:, 1] = row + r0
+    bp[:, 0] = col
+    bp[:, 1] = row
     half = rules.roi_scale * np.maximum(bw, bh) / 2.0 + rules.roi_margin_px
     level = None
     if levels is not None:
         b = levels[pr, pc].astype(np.float64)
         level = b + rules.peak_rel * (peak - b)
-    return Examined(bp, peak, code, saturated, n_plateaus, ell, roi_columns(bp, half, (fh, fw)), level)
+    return Examined(bp, peak, code, saturated, n_plateaus, ell, roi_columns(bp, half, (h, w)), level)

@@ -27,6 +27,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from simtest.geometry.angles import angle_between_deg
+
 __all__ = ["ACCURACY", "AccuracyTolerance", "Comparison", "compare_estimates", "pooled_comparison"]
 
 
@@ -103,13 +105,6 @@ class Comparison:
         return not self.problems(tol)
 
 
-def _angle_deg(a, b) -> float:
-    a, b = np.asarray(a, float), np.asarray(b, float)
-    c = np.dot(a, b) / (np.linalg.norm(a) * np.linalg.norm(b))
-    s = np.linalg.norm(np.cross(a, b)) / (np.linalg.norm(a) * np.linalg.norm(b))
-    return float(np.degrees(np.arctan2(s, c)))  # atan2: exact for tiny angles, unlike acos
-
-
 def _pairs(before: list[dict], after: list[dict], match_px: float):
     """One-to-one pairs of candidates by BP distance (greedy, nearest first)."""
     if not before or not after:
@@ -170,7 +165,7 @@ def compare_estimates(before: list[dict], after: list[dict], *, name: str = "",
             if nb is None or na is None or np.asarray(nb, float).shape != (3,) \
                     or np.asarray(na, float).shape != (3,):
                 continue
-            cmp.moves_deg.setdefault(k, []).append(_angle_deg(nb, na))
+            cmp.moves_deg.setdefault(k, []).append(angle_between_deg(nb, na))
     return cmp
 
 

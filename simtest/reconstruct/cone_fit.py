@@ -36,9 +36,9 @@ import numpy as np
 from simtest._records import fast_init
 from simtest.geometry.cameras import CameraModel, PinholeCamera
 from simtest.reconstruct.failures import Failure
-from simtest.reconstruct.fit import EllipseFit, fit_stacked, point_sets
+from simtest.reconstruct.fit import fit_stacked, point_sets
 
-__all__ = ["ConeFit", "FitFrame", "fit_cone", "fit_cones", "fit_frame", "fit_frames", "rotation_to_z", "rotations_to_z", "to_camera", "to_fit_frame"]
+__all__ = ["ConeFit", "FitFrame", "fit_cones", "fit_frame", "fit_frames", "rotations_to_z", "to_camera", "to_fit_frame"]
 
 
 @dataclass(frozen=True)
@@ -82,8 +82,6 @@ class ConeFit:
         plane (pinhole); None otherwise (a wide-angle isophote is no conic in its pixels).
     ellipse : simtest.geometry.conics.Ellipse or None
         That conic's centre (u, v) px, semi-axes px and angle; None as ``conic``.
-    plane_fit : EllipseFit
-        The ellipse fit on the fit plane (its ``conic`` in plane pixels).
     residual_px : float
         RMS Sampson distance on the fit plane, px (image px for a pinhole, virtual px otherwise).
     n_points : int
@@ -94,7 +92,6 @@ class ConeFit:
     cone_fit_frame: np.ndarray
     conic: np.ndarray | None
     ellipse: object | None
-    plane_fit: EllipseFit
     residual_px: float
     n_points: int
 
@@ -102,25 +99,8 @@ class ConeFit:
         return True
 
 
-def rotation_to_z(d) -> np.ndarray:
-    """A rotation R with ``R d = |d| e_z``.
-
-    Parameters
-    ----------
-    d : array_like of shape (3,)
-        Non-zero direction.
-
-    Returns
-    -------
-    ndarray of shape (3, 3)
-        Proper rotation (det +1); rows are the fit frame's axes in camera coordinates, the image
-        x axis kept as close to the camera's x as possible (so plane pixels read like image pixels).
-    """
-    return rotations_to_z(np.asarray(d, dtype=np.float64).reshape(1, 3))[0]
-
-
 def rotations_to_z(d: np.ndarray) -> np.ndarray:
-    """:func:`rotation_to_z` of several directions at once.
+    """Rotations R with ``R d = |d| e_z``, one per direction.
 
     Parameters
     ----------
@@ -130,8 +110,9 @@ def rotations_to_z(d: np.ndarray) -> np.ndarray:
     Returns
     -------
     ndarray of shape (k, 3, 3)
-        Proper rotations with ``R[i] d[i] = |d[i]| e_z``, element by element (each from its own
-        direction only, the same bits as one at a time).
+        Proper rotations (det +1), each from its own direction only; rows are the fit frame's
+        axes in camera coordinates, the image x axis kept as close to the camera's x as possible
+        (so plane pixels read like image pixels).
     """
     z = d / np.linalg.norm(d, axis=1, keepdims=True)
     ref = np.where(np.abs(z[:, :1]) < 0.9, np.array([1.0, 0.0, 0.0]), np.array([0.0, 1.0, 0.0]))
@@ -194,40 +175,8 @@ def fit_frames(camera: CameraModel, bp_rays: np.ndarray) -> list[FitFrame]:
     return [FitFrame(camera, R[i], np.diag([f[i], f[i], 1.0]), False) for i in range(len(d))]
 
 
-def fit_cone(points_uv, frame: FitFrame) -> ConeFit | Failure:
-    """Fit the isophote cone to contour points through their viewing rays.
-
-    Parameters
-    ----------
-    points_uv : array_like of shape (N, 2)
-        Contour points as found in the image (distorted pixels), px.
-    frame : FitFrame
-        The camera and fit plane (:func:`fit_frame`).
-
-    Returns
-    -------
-    ConeFit or Failure
-        Failures of :func:`~simtest.reconstruct.fit.fit_ellipse`; ``non_finite_points`` also when a
-        point has no ray in the camera model or lies past the fit plane's horizon (more than 90 deg
-        from the BP ray); ``pose_failed`` if the cone is zero or non-finite.
-
-    Raises
-    ------
-    ValueError
-        If ``points_uv`` is not of shape (N, 2).
-
-    Notes
-    -----
-    With plane pixels x = K (R r) / (R r)_z and the fitted conic C (``x^T C x = 0``), a ray r lies
-    on the cone iff ``(K R r)^T C (K R r) = 0``, so ``C' = R^T K^T C K R`` (paper step 3 for R = I).
-    For a distortion-free pinhole the plane pixels are the contour points themselves. One call of
-    :func:`fit_cones`.
-    """
-    return fit_cones([points_uv], [frame])[0]
-
-
 def fit_cones(points_list, frames) -> list[ConeFit | Failure]:
-    """:func:`fit_cone` of several highlights' contours at once.
+    """Fit the isophote cone of each of several highlights' contours through their viewing rays.
 
     Parameters
     ----------
@@ -239,7 +188,10 @@ def fit_cones(points_list, frames) -> list[ConeFit | Failure]:
     Returns
     -------
     list of ConeFit or Failure
-        One per contour, in order (see :func:`fit_cone`).
+        One per contour, in order. Failures of :func:`~simtest.reconstruct.fit.fit_ellipse`;
+        ``non_finite_points`` also when a point has no ray in the camera model or lies past the
+        fit plane's horizon (more than 90 deg from the BP ray); ``pose_failed`` if the cone is
+        zero or non-finite.
 
     Raises
     ------
@@ -248,6 +200,9 @@ def fit_cones(points_list, frames) -> list[ConeFit | Failure]:
 
     Notes
     -----
+    With plane pixels x = K (R r) / (R r)_z and the fitted conic C (``x^T C x = 0``), a ray r lies
+    on the cone iff ``(K R r)^T C (K R r) = 0``, so ``C' = R^T K^T C K R`` (paper step 3 for R = I).
+    For a distortion-free pinhole the plane pixels are the contour points themselves.
     The contours of one camera are mapped to rays in one call of its model and onto their fit
     planes in one batched projection, the ellipses fitted in one batch
     (:func:`~simtest.reconstruct.fit.fit_stacked`) and the cones formed in stacked matrix
@@ -306,14 +261,14 @@ def fit_cones(points_list, frames) -> list[ConeFit | Failure]:
         Rg = np.stack([f.R for f, img in zip(gframes, on_image.tolist()) if not img])
         rot = np.swapaxes(Rg, 1, 2) @ c[~on_image] @ Rg
         cone[~on_image] = 0.5 * (rot + np.swapaxes(rot, 1, 2))
-    # (ConeFit's fields in order: cone, cone_fit_frame, conic, ellipse, plane_fit, residual_px,
+    # (ConeFit's fields in order: cone, cone_fit_frame, conic, ellipse, residual_px,
     # n_points; no keyword dicts, a real frame's 1500 fits)
     for j, i, is_formed, img in zip(range(len(good)), good.tolist(), formed.tolist(), on_image.tolist()):
         if not is_formed:
             out[i] = Failure("pose_failed", "C' = K^T C K is zero or not finite")
             continue
         fit = fits[i]
-        out[i] = ConeFit(cone[j], c[j], fit.conic if img else None, fit.ellipse if img else None, fit,
+        out[i] = ConeFit(cone[j], c[j], fit.conic if img else None, fit.ellipse if img else None,
                          fit.residual_px, fit.n_points)
     return out
 

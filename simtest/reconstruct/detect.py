@@ -564,7 +564,7 @@ def _detect_half_resolution(img, native, fs, saturation_level, *, grey=False, mi
         for c, got in zip(found, _built(full, ex, table)):
             if c.status == "black_border":  # the scope's border, found on the reduced frame
                 got = Candidate(got.bp_uv, got.peak, got.saturated, got.area_px, got.bbox, got.roi, c.status,
-                                _rejection_detail(c.status, full, got.area_px, got.bbox), got.level)
+                                _rejection_detail(c.status, got.bbox), got.level)
             out.append(got)
     out.sort(key=lambda c: -c.peak)
     half.setflags(write=False)
@@ -729,7 +729,7 @@ def _built(frame: _DetectFrame, ex: Examined, table: np.ndarray) -> list[Candida
     _, xs, ys, bws, bhs, areas = table.T.tolist()
     codes = ex.code.tolist()
     details = [""] * len(codes)
-    bounds = _ellipticity_bounds_words(frame)
+    bounds = f"outside [{frame.ellipticity_min}, {1 / frame.ellipticity_min:.3f}]"
     for k in np.flatnonzero(ex.code != 0).tolist():
         code = codes[k]
         if code == MERGED:
@@ -739,8 +739,7 @@ def _built(frame: _DetectFrame, ex: Examined, table: np.ndarray) -> list[Candida
         elif code == TOO_SMALL:
             details[k] = f"{areas[k]} px < {frame.min_area_px}"
         else:
-            details[k] = _rejection_detail(STATUS_NAMES[code], frame, areas[k],
-                                           Roi(ys[k], ys[k] + bhs[k], xs[k], xs[k] + bws[k]))
+            details[k] = _rejection_detail(STATUS_NAMES[code], Roi(ys[k], ys[k] + bhs[k], xs[k], xs[k] + bws[k]))
     new_roi = tuple.__new__  # Roi(...) without its generated __new__'s call (thousands a frame)
     bboxes = [new_roi(Roi, (y, y + bh, x, x + bw)) for x, y, bw, bh in zip(xs, ys, bws, bhs)]
     rois = [new_roi(Roi, r) for r in map(tuple, ex.roi.tolist())]
@@ -749,23 +748,13 @@ def _built(frame: _DetectFrame, ex: Examined, table: np.ndarray) -> list[Candida
                     [STATUS_NAMES[c] for c in codes], details, levels))
 
 
-def _rejection_detail(status: str, frame: _DetectFrame, area: int, bbox: Roi,
-                      ellipticity_text: str = "") -> str:
-    """The numbers behind a candidate's rejection ``status`` (empty for ``"ok"``): its area, its
-    box, or its ellipticity as ``ellipticity_text`` (formatted by the caller, which knows it)."""
-    if status == "too_small":
-        return f"{area} px < {frame.min_area_px}"
+def _rejection_detail(status: str, bbox: Roi) -> str:
+    """The numbers behind a ``touches_border`` or ``black_border`` rejection: the box; empty for
+    any other status (:func:`_built` writes the area's, plateaus' and ellipticity's)."""
     if status == "touches_border":
         return f"bbox (row0, row1, col0, col1) = {tuple(bbox)}"
     if status == "black_border":
         return "on or within 5 px of the endoscope's black border"
-    if status == "not_elliptical":
-        return f"ellipticity {ellipticity_text} {_ellipticity_bounds_words(frame)}"
     return ""
-
-
-def _ellipticity_bounds_words(frame: _DetectFrame) -> str:
-    """The bounds in a ``not_elliptical`` candidate's detail (:func:`_rejection_detail`)."""
-    return f"outside [{frame.ellipticity_min}, {1 / frame.ellipticity_min:.3f}]"
 
 

@@ -5,7 +5,8 @@
 - ``cone_axis``: the eigenvector of C' = K^T C K whose eigenvalue has the unique sign, with the
   eigenvalue gap as a model-violation diagnostic (prior art: dam410/LightModel,
   ``vanishing_line_paper_co``).
-- ``bp_ray``: minus the unit viewing ray through the brightest point (the baseline).
+- ``bp_ray``: minus the unit viewing ray through the brightest point (the baseline,
+  :func:`simtest.geometry.camera.bp_ray_normal`).
 - ``joint_cone_axis``: the axis shared by the cones of several nested isophotes.
 
 All normals are unit vectors in the OpenCV camera frame, facing the camera (n . ray < 0).
@@ -49,7 +50,6 @@ from dataclasses import dataclass
 import numpy as np
 
 from simtest._records import fast_init
-from simtest.geometry.camera import bp_ray_normal
 from simtest.reconstruct.failures import Failure
 from simtest.reconstruct.fit import _THIRDS, _eigh2, _null_vectors
 from simtest.tolerances import TOL
@@ -315,27 +315,6 @@ def _estimates(cns: np.ndarray, refs: np.ndarray) -> list[ConeEstimate | Failure
         else:
             out.append(ConeEstimate(paper[j], selected[j], int(idx[j]), axis[j], gap[j]))
     return out
-
-
-def bp_ray(bp_uv, K) -> np.ndarray:
-    """The ``bp_ray`` estimator: minus the unit viewing ray through the BP.
-
-    Same as :func:`simtest.geometry.camera.bp_ray_normal`; pass the *undistorted* BP.
-
-    Parameters
-    ----------
-    bp_uv : array_like of shape (2,)
-        Brightest point (u, v), px, pixel centres at integer coordinates.
-    K : ndarray of shape (3, 3)
-        Intrinsics, px.
-
-    Returns
-    -------
-    ndarray of shape (3,)
-        ``-K^{-1} (u, v, 1) / ||K^{-1} (u, v, 1)||``: unit, OpenCV camera frame, facing the camera.
-    """
-
-    return bp_ray_normal(bp_uv, K)
 
 
 def joint_cone_axis(cns, bp_ray: np.ndarray) -> np.ndarray | Failure:

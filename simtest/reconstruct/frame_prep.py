@@ -265,18 +265,13 @@ def _colour_luma32(img: np.ndarray, grey: bool | None = None) -> np.ndarray | No
     return colour_luma32(img, grey)
 
 
-def _luma32(img: np.ndarray) -> np.ndarray:
-    """The float32 luma of an (H, W, 3) image (:func:`~simtest.reconstruct.detect.luma_cv2`)."""
-    return luma_cv2(img, np.float32)
-
-
 def _frame_luma_smoothing(img: np.ndarray, detection_smoothed: np.ndarray, sigma: float,
                           luma32: np.ndarray | None = None,
                           detection_luma32: np.ndarray | None = None) -> np.ndarray:
     """The whole frame's luma smoothed once (float32, read-only): detection's smoothing where
     detection smoothed the luma itself (a single-channel, gray (R = G = B) or float image, or a
     colour frame's unrounded luma, ``detection_luma32``: ``Detection.luma32``, which ``luma32``
-    then is), else the unrounded luma (:func:`_luma32`;
+    then is), else the unrounded luma (:func:`~simtest.reconstruct.detect.luma_cv2` in float32;
     ``luma32`` where the caller has it, :func:`_colour_luma32`) smoothed as detection smooths
     (an 8-bit frame's OpenCV gray is rounded to whole levels, which moves contours)."""
     if luma32 is not None and luma32 is detection_luma32:
@@ -286,7 +281,7 @@ def _frame_luma_smoothing(img: np.ndarray, detection_smoothed: np.ndarray, sigma
     elif img.ndim == 2 or img.dtype.kind == "f" or _is_gray(img):
         return detection_smoothed
     else:
-        src = _luma32(img) if img.dtype.type in (np.uint8, np.uint16) else \
+        src = luma_cv2(img, np.float32) if img.dtype.type in (np.uint8, np.uint16) else \
             luma(img).astype(np.float32)
     out = cv2.GaussianBlur(src, (0, 0), float(sigma), borderType=cv2.BORDER_REFLECT)
     out.setflags(write=False)

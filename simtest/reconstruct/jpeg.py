@@ -36,8 +36,8 @@ from simtest.decisions import (
 )
 
 __all__ = ["BLOCK", "GRID_BLOCKS", "BLOCKINESS_CLEAR", "MIN_COEFFICIENTS", "PERIODICITY_MIN",
-           "CHANCE_SD", "MIN_STEP", "MIN_QUANTISED", "UNIMODAL_SHARE", "luma_y", "dct_blocks", "jpeg_grid",
-           "quantisation_steps", "quantisation_sigma"]
+           "CHANCE_SD", "MIN_STEP", "MIN_QUANTISED", "UNIMODAL_SHARE", "dct_blocks", "jpeg_grid",
+           "quantisation_sigma"]
 
 #: Side of a JPEG block, px.
 BLOCK = 8
@@ -91,27 +91,6 @@ def _check(image: np.ndarray) -> np.ndarray:
     if image.ndim == 3 and image.shape[2] == 1:
         image = image[..., 0]
     return image
-
-
-def luma_y(image: np.ndarray) -> np.ndarray:
-    """JFIF luma ``Y = 0.299 R + 0.587 G + 0.114 B`` of an 8-bit RGB image, float32.
-
-    Parameters
-    ----------
-    image : ndarray of shape (H, W, 3) or (H, W), uint8
-        RGB (channel order R, G, B) or grey.
-
-    Returns
-    -------
-    ndarray of shape (H, W), float32
-        Grey levels (0..255). JPEG's colour transform is linear and exactly inverted by the
-        decoder, so this is the decoded Y plane up to the decoder's rounding of R, G and B to
-        integers (about 0.2 grey levels rms) and clipping.
-    """
-    image = _check(image)
-    if image.ndim == 2:
-        return image.astype(np.float32)
-    return image.astype(np.float32) @ np.array(_Y_WEIGHTS, np.float32)
 
 
 def _blocks(image: np.ndarray, dy: int, dx: int, max_blocks: int) -> np.ndarray:
@@ -239,8 +218,8 @@ def _magnitude_histogram(coef: np.ndarray, nbin: int) -> np.ndarray:
 
 def _image_blockiness(image: np.ndarray, step: int, across_columns: bool) -> np.ndarray:
     """The blockiness (:func:`_phase_blockiness` of the mean absolute differences across columns)
-    of ``luma_y(image[::step])`` (``across_columns``: the column phases)
-    or of ``luma_y(image[:, ::step]).T`` (the row phases), from the sampled rows or columns
+    of the JFIF luma Y of ``image[::step]`` (``across_columns``: the column phases)
+    or of ``image[:, ::step]``, transposed (the row phases), from the sampled rows or columns
     only: the float32 luma summed channel by channel, the absolute differences' means in
     float64, each summed in order (a C-contiguous sum along the first axis)."""
     img = image if image.ndim == 3 else image[:, :, None]
@@ -323,7 +302,7 @@ def jpeg_grid(image: np.ndarray) -> tuple[int, int] | None:
     phase's boundaries over that across all phases, [1]_) proposes the grid: the blockiest phase
     per axis where it is clear on both (:data:`BLOCKINESS_CLEAR`), else the four offsets of the
     two blockiest phases per axis. Each candidate is confirmed by the quantisation it reveals
-    (the steps of :func:`quantisation_steps` on :data:`GRID_BLOCKS` of its blocks): the grid is
+    (the steps its DCT coefficients on :data:`GRID_BLOCKS` of its blocks cluster at): the grid is
     the candidate with the most frequencies with an identified step (>= :data:`MIN_STEP`), if at
     least :data:`MIN_QUANTISED` (or one, read on every block, where the blockiness is clear). An
     image that was never JPEG (sensor noise, smooth synthetic content, a PNG render) has DCT
@@ -351,35 +330,6 @@ def jpeg_grid(image: np.ndarray) -> tuple[int, int] | None:
     """
     g = _grid(_check(image))
     return None if g is None else (g[0], g[1])
-
-
-def quantisation_steps(image: np.ndarray, grid: tuple[int, int] | None = None) -> np.ndarray | None:
-    """The luma quantisation table a decoded JPEG was compressed with, estimated from the image.
-
-    On the grid (:func:`jpeg_grid`, or ``grid``), the DCT coefficients of up to
-    :data:`GRID_BLOCKS` blocks (those without a clipped value) are histogrammed per frequency; the
-    step is the largest ``q`` whose multiples the coefficients outside the zero bin cluster at
-    (:data:`PERIODICITY_MIN` of them round to its multiples, [1]_).
-
-    Parameters
-    ----------
-    image : ndarray of shape (H, W, 3) or (H, W), uint8
-        RGB or grey.
-    grid : (int, int), optional
-        The grid offset ``(dy, dx)``; found if not given.
-
-    Returns
-    -------
-    ndarray of shape (8, 8), int64, or None
-        Step per frequency (row: vertical frequency, column: horizontal; JPEG's natural order,
-        not zig-zag); 1: unquantised; 0: not identifiable (every coefficient in the zero bin).
-        None if the image has no JPEG grid.
-    """
-    image = _check(image)
-    if grid is None:
-        g = _grid(image)
-        return None if g is None else g[3].reshape(BLOCK, BLOCK)
-    return _steps_of(dct_blocks(_blocks(image, grid[0], grid[1], GRID_BLOCKS))).reshape(BLOCK, BLOCK)
 
 
 def _gauss_error_var(q: np.ndarray, sd: np.ndarray) -> np.ndarray:
@@ -411,7 +361,7 @@ def quantisation_sigma(image: np.ndarray) -> float:
     """Standard deviation of the error JPEG's luma quantisation added, grey levels per pixel.
 
     On the image's JPEG grid (:func:`jpeg_grid`), each frequency's step ``q_k`` is estimated
-    (:func:`quantisation_steps`) and its error variance taken from a zero-mean Gaussian model of
+    ([1]_) and its error variance taken from a zero-mean Gaussian model of
     the original coefficients, of standard deviation ``s_k`` from the share of coefficients
     outside the zero bin (``1 - P0 = 2 Phi(-q / 2 s)``) where most fell into it, or their own
     spread otherwise: a frequency whose coefficients spread over many steps has the uniform

@@ -23,6 +23,7 @@ import numpy as np
 from simtest.decisions import PAIR_DEPTH_MAX_MM as DEPTH_MAX_MM
 from simtest.decisions import PAIR_DEPTH_MIN_MM as DEPTH_MIN_MM
 from simtest.decisions import PAIR_TOL_PX
+from simtest.geometry.angles import unit
 from simtest.reconstruct._pixels import uv_to_rc
 from simtest.reconstruct.evidence_pixels import ellipse_level
 
@@ -35,14 +36,10 @@ __all__ = ["DEPTH_MIN_MM", "DEPTH_MAX_MM", "DEPTH_SAMPLES", "PAIR_TOL_PX", "othe
 DEPTH_SAMPLES = 256
 
 
-def _unit(v: np.ndarray) -> np.ndarray:
-    return v / np.linalg.norm(v, axis=-1, keepdims=True)
-
-
 def _curve(ray, Li, Lj, depths) -> np.ndarray:
     """Guide j's specular points (D, 3) for the BP as guide i's at each depth (NaN: inadmissible)."""
     X = depths[:, None] * ray[None, :]
-    n = _unit(_unit(-X) + _unit(Li - X))
+    n = unit(unit(-X, -1) + unit(Li - X, -1), -1)
     h = -np.einsum("ij,ij->i", n, X)
     Lm = Lj - 2.0 * (n @ Lj + h)[:, None] * n
     den = -np.einsum("ij,ij->i", n, Lm)
@@ -96,7 +93,7 @@ def other_guide_curves(camera, positions_mm, bps_uv, radius_px, step_px: float =
     for ray, bp, rad in zip(camera.pixel_to_ray(bps) if len(bps) else (), bps, radius):
         pts = [np.zeros((0, 2))]
         for i, j in pairs if np.isfinite(ray).all() and rad >= 0 else ():
-            Xj = _curve(_unit(ray), L[i], L[j], depths)
+            Xj = _curve(unit(ray, -1), L[i], L[j], depths)
             uv = np.full((len(Xj), 2), np.nan)
             good = np.isfinite(Xj).all(axis=1)
             uv[good] = camera.ray_to_pixel(Xj[good]) if good.any() else uv[good]
