@@ -28,11 +28,11 @@ from simtest.reconstruct.lightaware import (LightAwareEstimate, cubic_patch_fit,
 from simtest.reconstruct.recommend import (_bp_ray_error_beside, bp_error_depth_mm, bp_ray_error_deg,
                                            depth_within_ceiling)
 
-#: The photometric fit's statuses after which the curved-patch fits run by default: the plane
-#: converged and misfits (after the others a patch cannot do better, and takes seconds; after a
-#: plane that ran off, ``not_converged``, the quadric ran off or misfit on every tuning render:
-#: docs/decisions/light-aware-recommendation.md).
-CURVED_FIT_AFTER = ("plane_misfit",)
+#: The photometric fit's statuses after which the curved-patch fits run by default: those that say
+#: the plane is not the ROI's surface (after the others a patch cannot do better, and takes
+#: seconds); the quadric's only after ``plane_misfit`` (after a plane that ran off it ran off or
+#: misfit on every tuning render: docs/decisions/light-aware-recommendation.md).
+CURVED_FIT_AFTER, QUADRIC_AFTER = ("plane_misfit", "not_converged"), ("plane_misfit",)
 #: Candidate statuses never fitted, not even with ``fit_rejected``: too small to fit, or no
 #: specular highlight of the tissue (:mod:`simtest.reconstruct.verify`).
 NOT_FITTED = ("too_small", "black_border", "overlay", "not_specular")
@@ -77,7 +77,7 @@ def light_aware_estimates(image, est, camera, rig: LightRig, *, nominal_depth_mm
     quadric : bool or None
         Run :func:`~simtest.reconstruct.lightaware.quadric_fit` (on the ROI grown
         ``quadric_roi_scale`` times): True always, False never (the harness' oracle inputs),
-        None (default) when the photometric fit's status is in :data:`CURVED_FIT_AFTER`.
+        None (default) when the photometric fit's status is in :data:`QUADRIC_AFTER`.
     cubic : bool or None
         Run :func:`~simtest.reconstruct.lightaware.cubic_patch_fit` (1 to 5 s a highlight) on the
         quadric's ROI: True always, False (default) never, None as the quadric where the rig has
@@ -250,7 +250,7 @@ def _curved_fits(out: dict, gray, shape, est, roi: Roi, camera, rig, *, saturati
     if out["photometric_fit"].status == "plane_misfit" and not quadric:
         # the plane as rule 4 reads it
         misfit_sigma = min(90.0, _bp_ray_error_beside(est, released(out["photometric_fit"])) / SIGMA_MARGIN)
-    if quadric or (quadric is None and curved):
+    if quadric or (quadric is None and out["photometric_fit"].status in QUADRIC_AFTER):
         out["quadric_fit"] = _guarded(
             "quadric_fit", quadric_fit, gray[near.slices], (near.col0, near.row0), est.bp_px, camera, rig,
             clip_level=saturation_level, nominal_depth_mm=nominal_depth_mm, misfit_sigma=misfit_sigma)

@@ -14,8 +14,8 @@ measurements behind each rule are in ``docs/decisions/light-aware-recommendation
    of ``photometric_fit``, ``cubic_patch_fit`` (two lights at different places), ``quadric_fit``,
    ``isocurve_fit`` (unless the plane misfits); else rules 3 to 5; else ``bp_ray`` (off the camera
    the BP ray and the cone axes give the BP's direction, not the normal). On a curved patch the
-   plane reports ``plane_misfit`` (or runs off, after which the quadric did too)
-   (:data:`~simtest.reconstruct.light_fits.CURVED_FIT_AFTER`), and ``quadric_fit`` runs (on the ROI
+   plane reports ``plane_misfit`` (or runs off: the cubic patch's turn too)
+   (:data:`~simtest.reconstruct.light_fits.QUADRIC_AFTER`), and ``quadric_fit`` runs (on the ROI
    grown 1.5 times, not 2.5: more third-order shape would trade with its depth); under one light
    its sigma spans the bisectors over ``depth_range_mm``. With two lights at different places the
    lobes shift apart as the offsets over the depth say while the shape acts on both alike, so
