@@ -71,12 +71,13 @@ def test_fused_lobes_are_fitted_in_the_workers_bit_for_bit():
     from test_rig_pairs import GUIDES_MM, sensor_plane
 
     from simtest.reconstruct.rig_centroid import light_aware_with_rig
+    from simtest.reconstruct.detect_pixels import luma
     from simtest.reconstruct.rig_lobes import fused_lobe_candidates
     img, K, _, _ = sensor_plane(15.0, 25.0, 0, spec=4.0)  # the fused plateau broken by noise: `merged`
     rig = LightRig(tuple(Light(tuple(L), 1.0, "inverse_square") for L in GUIDES_MM))
     response = SensorResponse("srgb", clip=255.0)
     ests = reconstruct(img, K, settings=ReconSettings.for_frames())
-    assert fused_lobe_candidates(img, ests, K, rig), [e.status for e in ests]  # else nothing is tested
+    assert fused_lobe_candidates(luma(img), ests, K, rig), [e.status for e in ests]  # else nothing is tested
     one = light_aware_with_rig(img, ests, K, rig, workers=1, response=response)
     two = light_aware_with_rig(img, ests, K, rig, workers=2, response=response)
     assert [(e.status, e.detail) for e in two] == [(e.status, e.detail) for e in one]

@@ -236,7 +236,7 @@ def _curved_fits(out: dict, gray, shape, est, roi: Roi, camera, rig, *, saturati
     """The curved-patch fits added to ``out`` (the photometric fit's) as ``quadric`` and ``cubic``
     say, and every fit released: its depth within the ceiling, the BP ray's error beside it set."""
     near = Roi.around(est.bp_px, quadric_roi_scale * max(roi.shape) / 2.0, shape)
-    curved = out["photometric_fit"].status in CURVED_FIT_AFTER
+    status = out["photometric_fit"].status  # the plane's: which curved fits run by default
     # a misfitting patch's sigma only where the plane misfits, below what rule 4 could take
     ray = _la.model._rays(camera, np.asarray(est.bp_px, dtype=np.float64)[None])[0]
 
@@ -247,14 +247,14 @@ def _curved_fits(out: dict, gray, shape, est, roi: Roi, camera, rig, *, saturati
             r, bp_ray_error_deg=bp_ray_error_deg(ray, bp_error_depth_mm(r, nominal_depth_mm), rig))
 
     misfit_sigma: bool | float = bool(quadric)
-    if out["photometric_fit"].status == "plane_misfit" and not quadric:
+    if status == "plane_misfit" and not quadric:
         # the plane as rule 4 reads it
         misfit_sigma = min(90.0, _bp_ray_error_beside(est, released(out["photometric_fit"])) / SIGMA_MARGIN)
-    if quadric or (quadric is None and out["photometric_fit"].status in QUADRIC_AFTER):
+    if quadric or (quadric is None and status in QUADRIC_AFTER):
         out["quadric_fit"] = _guarded(
             "quadric_fit", quadric_fit, gray[near.slices], (near.col0, near.row0), est.bp_px, camera, rig,
             clip_level=saturation_level, nominal_depth_mm=nominal_depth_mm, misfit_sigma=misfit_sigma)
-    if cubic or (cubic is None and curved and rig.has_separate_lights):  # two lobes that can differ
+    if cubic or (cubic is None and status in CURVED_FIT_AFTER and rig.has_separate_lights):  # two lobes apart
         out["cubic_patch_fit"] = _guarded(
             "cubic_patch_fit", cubic_patch_fit, gray[near.slices], (near.col0, near.row0), est.bp_px, camera, rig,
             clip_level=saturation_level, nominal_depth_mm=nominal_depth_mm, misfit_sigma=bool(cubic))

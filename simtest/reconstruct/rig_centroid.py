@@ -40,8 +40,8 @@ from simtest.reconstruct.light_fits import _offset_rig, fit_arguments, with_ligh
 from simtest.reconstruct.lightaware import LightAwareEstimate, bisector
 from simtest.reconstruct.lightaware.model import _rays, _rig_arrays
 from simtest.reconstruct.recommend import LIGHT_AWARE, _angle_deg, bp_error_depth_mm, bp_ray_error_deg
-from simtest.reconstruct.rig_lobes import (_bright_region, _inside, fused_lobe_candidates, guide_specular_points,
-                                           split_fused_lobes)
+from simtest.reconstruct.rig_lobes import (SPLIT_STATUSES, _bright_region, _inside, fused_lobe_candidates,
+                                           guide_specular_points, split_fused_lobes)
 
 __all__ = ["centroid_normal", "light_aware_with_rig", "rig_centroid"]
 
@@ -90,7 +90,8 @@ def _depth_span(fits: dict, nominal_depth_mm: float) -> tuple[float, float, floa
     return nominal_depth_mm, PAIR_DEPTH_MIN_MM, PAIR_DEPTH_MAX_MM, nominal_depth_mm
 
 
-def rig_centroid(image, estimates, camera, rig: LightRig | None, nominal_depth_mm: float = 20.0) -> list:
+def rig_centroid(image, estimates, camera, rig: LightRig | None, nominal_depth_mm: float = 20.0, *,
+                 gray=None) -> list:
     """The estimates with ``"rig_centroid"`` among the light-aware results of each fitted highlight
     that is one fused lobe of the rig's lights (module docstring).
 
@@ -103,6 +104,8 @@ def rig_centroid(image, estimates, camera, rig: LightRig | None, nominal_depth_m
     rig : LightRig or None
         The scope's lights (without two at different places: returned unchanged).
     nominal_depth_mm : float
+    gray : ndarray of shape (H, W), optional
+        The frame's luma (:func:`~simtest.reconstruct.detect_pixels.luma`) when at hand.
 
     Returns
     -------
@@ -113,8 +116,7 @@ def rig_centroid(image, estimates, camera, rig: LightRig | None, nominal_depth_m
     """
     if rig is None or not rig.has_separate_lights:
         return list(estimates)
-    gray = None  # the frame's luma, made for the first highlight with fits (most frames have none)
-    out = []
+    out = []  # the frame's luma, made for the first highlight with fits if not given (most frames have none)
     for est in estimates:
         gray = luma(np.asarray(image)) if gray is None and est.light_aware else gray
         r = _fused_lobe(gray, est, camera, rig, est.light_aware, nominal_depth_mm) if est.light_aware else None
@@ -167,7 +169,10 @@ def light_aware_with_rig(image, estimates, camera, rig: LightRig | None, *, work
     ``on_highlight``), then the rig's fused lobes split (:func:`~simtest.reconstruct.rig_lobes.split_fused_lobes`)
     or given their centroid light's normal (:func:`rig_centroid`); a list of SpecularityEstimate."""
     kwargs = fit_arguments(image, kwargs) if _offset_rig(rig) else kwargs  # made once for both steps
-    split = fused_lobe_candidates(image, estimates, camera, rig)  # fitted in the same workers
+    # the frame's luma once for the three steps, where a highlight or a split may read it
+    gray = luma(np.asarray(image)) if _offset_rig(rig) and any(e.status in SPLIT_STATUSES for e in estimates) else None
+    split = fused_lobe_candidates(gray, estimates, camera, rig) if gray is not None else []  # fitted in the workers
     fitted = with_light_aware(image, estimates, camera, rig, workers=workers, on_highlight=on_highlight,
                               plane_only=split, **kwargs)
-    return rig_centroid(image, split_fused_lobes(image, fitted, camera, rig, prefitted=set(split)), camera, rig)
+    return rig_centroid(image, split_fused_lobes(image, fitted, camera, rig, prefitted=set(split), gray=gray),
+                        camera, rig, gray=gray)

@@ -160,19 +160,19 @@ def _rows(est, camera, rig, gray, others: np.ndarray) -> list | None:
     return rows
 
 
-def fused_lobe_candidates(image, estimates, camera, rig) -> list[int]:
+def fused_lobe_candidates(gray, estimates, camera, rig) -> list[int]:
     """The indexes of the rejected candidates that may be fused guide lobes, to be fitted with
     :data:`~simtest.reconstruct.light_fits.PLANE_ONLY` (``with_light_aware``'s ``plane_only``) and
     split (:func:`split_fused_lobes`): those in :data:`SPLIT_STATUSES` whose region reaches along
-    the rig's curve beyond their own lobe; empty without a rig off the camera centre."""
-    todo = [i for i, e in enumerate(estimates) if e.status in SPLIT_STATUSES and e.status != "ok"]
-    if not todo or not _offset_rig(rig):
+    the rig's curve beyond their own lobe (``gray`` (H, W) the frame's luma,
+    :func:`~simtest.reconstruct.detect_pixels.luma`); empty without a rig off the camera centre."""
+    if not _offset_rig(rig):
         return []
-    gray = luma(np.asarray(image))
-    return [i for i in todo if _along_the_rig(gray, estimates[i], camera, rig, estimates[i].status == "merged")]
+    return [i for i, e in enumerate(estimates) if e.status in SPLIT_STATUSES and not e.ok
+            and _along_the_rig(gray, e, camera, rig, e.status == "merged")]
 
 
-def split_fused_lobes(image, estimates, camera, rig, *, prefitted=()) -> list:
+def split_fused_lobes(image, estimates, camera, rig, *, prefitted=(), gray=None) -> list:
     """The estimates with each candidate of fused guide lobes replaced by one row per guide.
 
     Parameters
@@ -188,6 +188,8 @@ def split_fused_lobes(image, estimates, camera, rig, *, prefitted=()) -> list:
     prefitted : collection of int
         The rejected candidates to split, fitted with the plane only (:func:`fused_lobe_candidates`;
         ``with_light_aware``'s ``plane_only``); those not split keep their row, without fits.
+    gray : ndarray of shape (H, W), optional
+        The frame's luma (:func:`~simtest.reconstruct.detect_pixels.luma`) when at hand.
 
     Returns
     -------
@@ -196,12 +198,12 @@ def split_fused_lobes(image, estimates, camera, rig, *, prefitted=()) -> list:
     """
     if not _offset_rig(rig):
         return list(estimates)
-    gray = None  # the frame's luma, made for the first candidate that a split may concern
+    # the frame's luma, made for the first candidate that a split may concern if not given
     bps = np.array([e.bp_px for e in estimates], dtype=np.float64).reshape(-1, 2)
     out: list = []
     for i, est in enumerate(estimates):
         rows = None
-        if est.status == "ok" or i in prefitted:
+        if est.ok or i in prefitted:
             gray = luma(np.asarray(image)) if gray is None else gray
             rows = _rows(est, camera, rig, gray, np.delete(bps, i, axis=0))
             est = est if est.ok else dataclasses.replace(est, light_aware={})  # a rejected row: no fits
