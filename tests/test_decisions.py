@@ -34,7 +34,7 @@ NOT_DECISIONS = {
     "fit._S3_RCOND": _SOLVER,
     **{f"fit.{n}": _CODES for n in ("_D_EXPONENTS", "_CONIC_OF", "_CONIC_HALVES", "_SAMPSON_TERMS")},
     "frames.ESTIMATED_COUNT_SLACK": _CODES,
-    "images.MAX_IMAGE_PIXELS": _GUARD,
+    "images.MAX_IMAGE_PIXELS": _GUARD, "images.C3VD_DEPTH_RANGE_MM": "C3VD's file format: 65535 is 100 mm",
     "io.SCHEMA_VERSION": _CODES, "io.READABLE_SCHEMAS": _CODES,
     "jpeg.BLOCK": "the JPEG standard's block side, 8 px", "jpeg.GRID_BLOCKS": _SPEED,
     "jpeg.MAX_STEP": "the baseline JPEG's largest 8-bit quantiser step",

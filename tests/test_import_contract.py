@@ -14,7 +14,10 @@ Rules (the README's Architecture section says why):
   itself and the base modules: the renderer imports its truths, never the reverse;
 - ``simtest.reconstruct`` imports no ``simtest.render``, ``simtest.scene``, ``simtest.harness``,
   ``simtest.dataset``, Mitsuba or Dr.Jit, anywhere in a file: it runs on real images without the
-  renderer.
+  renderer;
+- every package imports only the packages above it in :data:`LAYERS` (the README's "Where things
+  live" order), the base modules and ``simtest.cli``/``simtest.bench`` never;
+- no package imports another package's private name (``_name``) or private module.
 """
 
 from __future__ import annotations
@@ -242,3 +245,57 @@ def test_simtest_help_lists_every_subcommand_without_importing_the_science():
     for name in SUBCOMMANDS:
         assert name in out
         assert load_subcommand(name).name == name
+
+
+#: The packages in the README's order: each may import those before it, never those after.
+LAYERS = ("specular", "geometry", "reconstruct", "simulate", "scene", "render", "harness", "dataset", "evaluate")
+#: Modules directly under simtest/ that no package imports: the command line sits on top.
+TOP = {"simtest.cli", "simtest.bench"}
+
+
+def layer_violations(source: str, module: str, is_package: bool = False) -> list[str]:
+    """Imports of ``source`` (the module ``module``) of a package after its own in :data:`LAYERS`,
+    of :data:`TOP`, or of another package's private name or module (a part after the package's
+    name that starts with one underscore)."""
+    parts = module.split(".")
+    room = parts[1] if len(parts) > 1 and parts[1] in LAYERS else None
+    if room is None:
+        return []
+    bad, seen = [], set()
+    for line, name in imported_names(source, module, is_package):
+        q = name.split(".")
+        if q[0] != "simtest" or len(q) < 2 or q[1] == room or line in seen:
+            continue  # `from a.b import c` yields a.b and a.b.c: one report per statement
+        n_bad = len(bad)
+        if any(_under(name, t) for t in TOP):
+            bad.append(f"{module}:{line} imports {name} (the command line's)")
+        elif q[1] in LAYERS and LAYERS.index(q[1]) > LAYERS.index(room):
+            bad.append(f"{module}:{line} imports {name} ({q[1]} lies below {room})")
+        elif q[1] in LAYERS and any(p.startswith("_") and not p.startswith("__") for p in q[2:]):
+            bad.append(f"{module}:{line} imports {name} (private to {q[1]})")
+        if len(bad) > n_bad:
+            seen.add(line)
+    return bad
+
+
+def test_every_package_imports_only_those_above_it_and_their_public_names():
+    bad = []
+    for path in sorted(PACKAGE.rglob("*.py")):
+        bad += layer_violations(path.read_text(encoding="utf-8"), module_name(path), path.name == "__init__.py")
+    assert bad == []
+
+
+@pytest.mark.parametrize("module, planted, culprit", [
+    ("simtest.reconstruct.cli", "from simtest.evaluate.c3vd import load_frame\n", "lies below"),
+    ("simtest.scene.spec", "def f():\n    from simtest.render import render_scene\n", "lies below"),
+    ("simtest.evaluate.detection", "from simtest.reconstruct.verify import _shared\n", "private"),
+    ("simtest.harness.suite", "from simtest.reconstruct._pixels import uv_to_rc\n", "private"),
+    ("simtest.dataset.generate", "from simtest.cli import app\n", "command line"),
+    ("simtest.evaluate.detection", "from simtest.reconstruct.verify import assess\n", None),
+    ("simtest.render.render", "from simtest._lazy import require\n", None),
+    ("simtest.reconstruct.verify", "from ._pixels import uv_to_rc\n", None),
+])
+def test_a_planted_import_from_below_or_of_a_private_name_is_caught(module, planted, culprit):
+    found = layer_violations(planted, module)
+    assert (found == []) if culprit is None else (len(found) == 1 and culprit in found[0]), found
+

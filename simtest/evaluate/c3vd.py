@@ -53,17 +53,16 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from simtest._lazy import require
 from simtest.geometry.cameras import CameraModel
-from simtest.reconstruct.images import quiet_stderr
+from simtest.reconstruct.images import c3vd_depth_mm, quiet_stderr, read_tiff
 
-__all__ = ["C3VDError", "C3VDFrame", "GroundTruth", "load_frame", "read_tiff", "scan_sequence"]
+__all__ = ["C3VDError", "C3VDFrame", "GroundTruth", "load_frame", "scan_sequence"]
 
 _NAME = re.compile(r"^(\d{4,})_(color|normals|depth|occlusion)\.(png|tiff?)$")
 _EXT = {"color": ("png",), "occlusion": ("png",), "normals": ("tiff", "tif"), "depth": ("tiff", "tif")}
-#: Largest 16-bit value; C3VD's depth is ``v / 65535 * 100`` mm.
+#: Largest 16-bit value: C3VD's normals are ``2 v / 65535 - 1`` (its depth:
+#: :func:`~simtest.reconstruct.images.c3vd_depth_mm`).
 U16 = 65535
-DEPTH_RANGE_MM = 100.0
 
 
 class C3VDError(ValueError):
@@ -154,14 +153,6 @@ def scan_sequence(seq_dir) -> list[C3VDFrame]:
     return [C3VDFrame(i, k["color"], k["normals"], k.get("depth"), k.get("occlusion")) for i, k in sorted(found.items())]
 
 
-def read_tiff(path: Path, what: str) -> np.ndarray:
-    """A TIFF's array (tifffile), or a one-line :class:`C3VDError` naming the file and ``what``."""
-    try:
-        return require("tifffile").imread(path)
-    except Exception as exc:  # tifffile raises many types for a corrupt file
-        raise C3VDError(f"{path}: cannot read the {what} TIFF ({type(exc).__name__}: {exc})") from None
-
-
 def read_color(path: Path) -> np.ndarray:
     """The 8-bit RGB frame (H, W, 3) uint8; one-line C3VDError when unreadable."""
     data = np.fromfile(path, dtype=np.uint8)
@@ -199,7 +190,7 @@ def load_frame(frame: C3VDFrame, camera: CameraModel) -> tuple[np.ndarray, Groun
     if camera.image_size is not None and tuple(camera.image_size) != (W, H):
         cw, ch = camera.image_size
         raise C3VDError(f"{frame.color}: {W} x {H} px, but the camera file is for {cw} x {ch} px")
-    raw = read_tiff(frame.normals, "normals")
+    raw = read_tiff(frame.normals, "normals", C3VDError)
     if raw.dtype != np.uint16 or raw.ndim != 3 or raw.shape[2] != 3:
         raise C3VDError(f"{frame.normals}: normals must be 16-bit with 3 channels, got {raw.dtype} of shape {raw.shape}")
     if raw.shape[:2] != (H, W):
@@ -222,12 +213,12 @@ def load_frame(frame: C3VDFrame, camera: CameraModel) -> tuple[np.ndarray, Groun
         invalid |= occ > 0
     depth = None
     if frame.depth is not None:
-        d = read_tiff(frame.depth, "depth")
+        d = read_tiff(frame.depth, "depth", C3VDError)
         if d.dtype != np.uint16 or d.ndim != 2:
             raise C3VDError(f"{frame.depth}: depth must be 16-bit single-channel, got {d.dtype} of shape {d.shape}")
         if d.shape != (H, W):
             raise C3VDError(f"{frame.depth}: {d.shape[1]} x {d.shape[0]} px, but {frame.color.name} is {W} x {H} px")
-        depth = np.where((d == 0) | (d == U16), np.nan, d.astype(np.float64) / U16 * DEPTH_RANGE_MM)
+        depth = c3vd_depth_mm(d)
         if frame.occlusion is not None:
             depth[invalid & ~np.isnan(depth)] = np.nan
     # orient toward the camera along each pixel's ray

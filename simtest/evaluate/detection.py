@@ -59,7 +59,7 @@ from simtest.reconstruct.images import load_image  # noqa: E402
 from simtest.reconstruct.io import estimate_to_dict  # noqa: E402
 from simtest.reconstruct.pipeline import reconstruct  # noqa: E402
 from simtest.reconstruct.settings import ReconSettings  # noqa: E402
-from simtest.reconstruct.verify import RESIDUAL_MAX_REL, _design, assess  # noqa: E402
+from simtest.reconstruct.verify import RESIDUAL_MAX_REL, assess, confidence_features  # noqa: E402
 from simtest.render.render import render_scene  # noqa: E402
 from simtest.render.sensor import field_stop_mask  # noqa: E402
 from simtest.render.truth import HighlightTarget, highlight_targets  # noqa: E402
@@ -662,7 +662,7 @@ def confidence_rows(frames: list[LabelledFrame], settings=None, *,
     Returns
     -------
     X : ndarray of shape (N, 5)
-        Features (``verify._design``), one row per ``ok`` estimate.
+        Features (:func:`~simtest.reconstruct.verify.confidence_features`), one row per ``ok`` estimate.
     y : ndarray of bool, shape (N,)
         True where the candidate is a target's first match (an isolated highlight).
     group : ndarray of int, shape (N,)
@@ -680,7 +680,7 @@ def confidence_rows(frames: list[LabelledFrame], settings=None, *,
             fr.image, fr.camera, settings=settings.replace(verify=True), lights=fr.lights)
         _, rows = score_frame(fr.name, [estimate_to_dict(e) for e in ests], fr.structures)
         fitted = np.array([e.ok for e in ests])
-        X = _design(ev, np.where(np.isfinite(res), res, RESIDUAL_MAX_REL))
+        X = confidence_features(ev, np.where(np.isfinite(res), res, RESIDUAL_MAX_REL))
         xs.append(X[fitted])
         ys.append(np.array([r["tp"] for r in rows], dtype=bool)[fitted])
         gs.append(np.full(int(fitted.sum()), g))

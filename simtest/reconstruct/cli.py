@@ -41,13 +41,12 @@ from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, T
 from simtest._exit import BAD_INPUT, CANNOT_WRITE, fail, writable_dir
 from simtest._outdir import check_out_folder, write_out_folder
 from simtest.decisions import DEFAULT_MIN_CONFIDENCE
-from simtest.evaluate.c3vd import DEPTH_RANGE_MM, U16, read_tiff
 from simtest.geometry.camera_file import camera_from_dict, load_camera
 from simtest.geometry.cameras import PinholeCamera
 from simtest.geometry.response import ResponseError
 from simtest.reconstruct._pixels import image_size_wh
 from simtest.reconstruct.frames import is_sequence, open_frames, reconstruct_frames, write_frames
-from simtest.reconstruct.images import InputError, load_image
+from simtest.reconstruct.images import InputError, c3vd_depth_mm, load_image, read_tiff
 from simtest.reconstruct.io import (
     RECONSTRUCT_FILES,
     dumps,
@@ -365,11 +364,10 @@ def load_truth_points(path: Path, camera) -> "np.ndarray":  # noqa: F821
             raise InputError(f"cannot read {path}: {exc}") from None
         raise InputError(f"{path}: no 'position' or 'depth' array")
     if path.suffix.lower() in (".tif", ".tiff"):
-        d = read_tiff(path, "depth")
+        d = read_tiff(path, "depth", InputError)
         if d.dtype != np.uint16 or d.ndim != 2:
             raise InputError(f"{path}: a C3VD depth map is 16-bit single-channel, got {d.dtype} of shape {d.shape}")
-        mm = np.where((d == 0) | (d == U16), np.nan, d.astype(np.float64) / U16 * DEPTH_RANGE_MM)
-        return surface_from_depth(mm, camera)
+        return surface_from_depth(c3vd_depth_mm(d), camera)
     raise InputError(f"{path}: ground truth must be a .npz (simtest render) or a .tiff depth map (C3VD)")
 
 

@@ -33,9 +33,11 @@ import cv2
 import numpy as np
 from PIL import Image
 
+from simtest._lazy import require
 from simtest.reconstruct.detect import validate_image
 
-__all__ = ["InputError", "LibraryMessages", "MAX_IMAGE_PIXELS", "decoder_damage", "load_image", "quiet_stderr"]
+__all__ = ["C3VD_DEPTH_RANGE_MM", "InputError", "LibraryMessages", "MAX_IMAGE_PIXELS", "c3vd_depth_mm", "decoder_damage",
+           "load_image", "quiet_stderr", "read_tiff"]
 
 #: The most pixels (W x H) of an image the reconstruction reads: 2^26 (67 Mpx). The largest
 #: endoscope sensors are 4K (3840 x 2160 = 8.3 Mpx), so this leaves eight times that; a header
@@ -266,3 +268,32 @@ def load_image(path) -> "np.ndarray":  # noqa: F821
     elif img.ndim == 3 and img.shape[2] == 4:
         img = cv2.cvtColor(img, cv2.COLOR_BGRA2RGB)
     return _checked(img, path)
+
+
+#: C3VD's 16-bit depth maps hold ``v / 65535 * 100`` mm; 0 and 65535 hold no depth.
+C3VD_DEPTH_RANGE_MM = 100.0
+
+
+def read_tiff(path, what: str, error: type[Exception] = ValueError) -> np.ndarray:
+    """A TIFF file's array as tifffile reads it (any bit depth and channel count).
+
+    Parameters
+    ----------
+    path : str or Path
+    what : str
+        What the file holds ("depth", "normals"), for the message.
+    error : type of Exception
+        Raised, with one line naming the file, ``what`` and tifffile's reason, when it cannot be read.
+    """
+    try:
+        return require("tifffile").imread(path)
+    except Exception as exc:  # tifffile raises many types for a corrupt file
+        raise error(f"{path}: cannot read the {what} TIFF ({type(exc).__name__}: {exc})") from None
+
+
+def c3vd_depth_mm(raw: np.ndarray) -> np.ndarray:
+    """A C3VD depth map (uint16, (H, W), ``v / 65535 * 100`` mm; Bobrow et al. 2023, Med. Image
+    Anal. 90:102956) as depth along the optical axis, mm, float64; NaN where it holds 0 or 65535
+    (no surface)."""
+    full = np.iinfo(np.uint16).max
+    return np.where((raw == 0) | (raw == full), np.nan, raw.astype(np.float64) / full * C3VD_DEPTH_RANGE_MM)

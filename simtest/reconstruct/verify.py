@@ -77,7 +77,7 @@ from simtest.reconstruct.rig_pairs import PAIR_TOL_PX, other_guide_curves, other
 __all__ = ["bp_checks", "shared_passes", "PALENESS_MAX", "WHITE_CHROMA", "SIGNIFICANCE_MIN", "CONTRAST_MIN", "PANEL_STD_REL",
            "PANEL_FRACTION_MAX", "NEIGHBOUR_REL", "OWN_RADIUS_PX", "SURROUND_REL", "OWN_REL",
            "SURROUND_FRACTION_MAX", "RESIDUAL_MAX_REL", "MINOR_AXIS_MIN_PX",
-           "COEFFICIENTS", "Evidence", "frame_evidence", "assess", "confidence", "verdict"]
+           "COEFFICIENTS", "Evidence", "frame_evidence", "assess", "confidence", "confidence_features", "verdict"]
 
 
 
@@ -565,11 +565,24 @@ def assess(image: np.ndarray, gray: np.ndarray, ests, *, full_scale: float, wind
     return replace(ev, clipped=clipped, minor_px=minor, surround=surround), res, inside
 
 
-def _design(ev: Evidence, residual_rel: np.ndarray) -> np.ndarray:
-    """The features of :func:`confidence`, (N, 5): minus log paleness, log significance (each
-    clipped), minus log of the surround's share of other light (``px.surround_fractions``; 1
-    where not measured, a share under 1 % taken as 1 %: the ring's resolution), minus log
-    residual ratio (clipped), minus the panel share."""
+def confidence_features(ev: Evidence, residual_rel: np.ndarray) -> np.ndarray:
+    """The features :func:`confidence` weighs, one row per candidate.
+
+    Parameters
+    ----------
+    ev : Evidence
+        The frame's evidence (N candidates).
+    residual_rel : ndarray of shape (N,)
+        As for :func:`confidence` (finite here: the caller puts :data:`RESIDUAL_MAX_REL` for a
+        missing fit).
+
+    Returns
+    -------
+    ndarray of shape (N, 5)
+        Minus log paleness and log significance (each clipped), minus log of the surround's share
+        of other light (``px.surround_fractions``; 1 where not measured, a share under 1 % taken
+        as 1 %: the ring's resolution), minus log residual ratio (clipped), minus the panel share.
+    """
     surround = np.ones(len(ev.height)) if ev.surround is None else np.nan_to_num(ev.surround, nan=1.0)
     return np.stack([
         -np.log(np.clip(ev.paleness, 0.05, 5.0)),
@@ -600,7 +613,7 @@ def confidence(ev: Evidence, residual_rel: np.ndarray, coefficients: np.ndarray 
     """
     c = COEFFICIENTS if coefficients is None else np.asarray(coefficients, np.float64)
     r = np.where(np.isfinite(residual_rel), residual_rel, RESIDUAL_MAX_REL)
-    z = c[0] + _design(ev, r) @ c[1:]
+    z = c[0] + confidence_features(ev, r) @ c[1:]
     return 1.0 / (1.0 + np.exp(-z))
 
 
