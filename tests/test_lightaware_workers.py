@@ -68,12 +68,14 @@ def test_fused_lobes_are_fitted_in_the_workers_bit_for_bit():
     # are fitted with the plane only, in the accepted highlights' workers (light_aware_with_rig),
     # and split into one row per guide: the rows on two workers are those of one process, bit
     # for bit, and a rejected row that is not split carries no fits.
-    from test_rig_pairs import GUIDES_MM, sensor_plane
+    from test_rig_pairs import GUIDES_MM, _jpeg, sensor_plane
 
     from simtest.reconstruct.rig_centroid import light_aware_with_rig
     from simtest.reconstruct.detect_pixels import luma
     from simtest.reconstruct.rig_lobes import fused_lobe_candidates
-    img, K, _, _ = sensor_plane(15.0, 25.0, 0, spec=4.0)  # the fused plateau broken by noise: `merged`
+    # broad lobes through JPEG q25: their clipped tops stay two plateaus, the candidate `merged`
+    img, K, _, _ = sensor_plane(20.0, 30.0, 0, spec=1.5, shininess=600.0)
+    img = _jpeg(img, 25)
     rig = LightRig(tuple(Light(tuple(L), 1.0, "inverse_square") for L in GUIDES_MM))
     response = SensorResponse("srgb", clip=255.0)
     ests = reconstruct(img, K, settings=ReconSettings.for_frames())

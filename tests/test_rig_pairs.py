@@ -170,6 +170,20 @@ def test_sensor_like_flat_mucosa_under_the_two_guides_gets_light_aware_normals(t
     assert np.median(errs) <= MEDIAN_MAX_DEG, rows
 
 
+@pytest.mark.parametrize("quality", [60, 90])
+def test_jpeg_compressed_flat_mucosa_keeps_each_guides_clipped_highlight_whole(tmp_path, quality):
+    # JPEG leaves 2 to 28 % of a clipped top at 255 in every channel (CLIP_MARGIN_REL): counted
+    # there alone, the issue's example frame fell into "3 saturated plateaus" (merged) or a BP on
+    # the largest piece, 6 px off the specular point, at both qualities
+    img, K, n, truth = sensor_plane(30.0, 20.0, 1, spec=4.0)
+    ok, buf = cv2.imencode(".jpg", np.ascontiguousarray(img[..., ::-1]), [cv2.IMWRITE_JPEG_QUALITY, quality])
+    img = np.ascontiguousarray(cv2.imdecode(buf, cv2.IMREAD_COLOR)[..., ::-1])
+    _write(tmp_path, img, K)
+    rows = _score(_reconstruct(tmp_path), truth, n)
+    assert [s for s, _ in rows] == ["ok", "ok"], rows
+    assert max(e for _, e in rows) <= MEDIAN_MAX_DEG, rows
+
+
 def test_a_red_clipped_near_tissue_is_not_a_panel(tmp_path):
     # tilt 35 deg at 15 mm: the near tissue's red channel clips over rows 0 to 88, and its luma
     # is flatter than the frame's noise; both highlights were refused as overlay (their regions
@@ -218,11 +232,13 @@ def test_read_noise_on_a_dark_frame_keeps_unclipped_lobes(tmp_path, median, was)
     assert max(e for _, e in rows) <= MEDIAN_MAX_DEG, rows
 
 
-@pytest.mark.parametrize("spec, was", [(4.0, "merged"), (8.0, "ok")])
+@pytest.mark.parametrize("spec, was", [(4.0, "ok"), (8.0, "ok")])
 def test_fused_clipped_lobes_give_two_highlights(tmp_path, spec, was):
-    # tilt 15 deg at 25 mm: the two guides' clipped lobes touch. spec 4: the plateau is broken by
-    # noise into 3 (the candidate was `merged`, BP at one guide); spec 8: one plateau whose
-    # centroid lies between the guides (the candidate was `ok`, no BP within MATCH_PX of either).
+    # tilt 15 deg at 25 mm: the two guides' clipped lobes touch, their saddle within the noise of
+    # the ceiling: one plateau whose centroid lies between the guides (the candidate is `ok`, no
+    # BP within MATCH_PX of either; at spec 4 the noise breaks the plateau's pixels at 255 into 3
+    # pieces, which the pixels near the ceiling join: CLIP_MARGIN_REL; the two-plateau pathway is
+    # test_fused_lobes_without_an_ellipse_give_two_highlights' JPEG q25 case).
     # Their joint photometric fit predicts each guide's specular point: one row per guide, BP
     # there, its normal (the same plane's) within the must-hold's median bound.
     img, K, n, truth = sensor_plane(15.0, 25.0, 0, spec=spec)
@@ -252,7 +268,10 @@ def test_fused_lobes_without_an_ellipse_give_two_highlights(tmp_path, quality, t
     rows = _score(specs, truth, n)
     assert [s for s, _ in rows] == ["ok", "ok"], rows
     assert max(e for _, e in rows) <= MEDIAN_MAX_DEG, rows
-    assert all("(bad_fit" in s["detail"] for s in specs if s["status"] == "ok"), [s["detail"] for s in specs]
+    # the q25 frame's clipped tops stay apart as two plateaus (`merged`) once JPEG's pieces are
+    # joined (CLIP_MARGIN_REL); the q50 frame's fused region is one, whose isophote misfits
+    assert all("(bad_fit" in s["detail"] or "(merged" in s["detail"] for s in specs if s["status"] == "ok"), \
+        [s["detail"] for s in specs]
 
 
 @settings(max_examples=60, deadline=None)
@@ -278,21 +297,21 @@ def test_guide_specular_points_match_the_reflection_law(tilt, az, h, f):
 
 def test_fused_lobes_across_the_rigs_baseline_are_not_the_rigs(tmp_path):
     # the spec-4 frame turned by 90 deg (a square pinhole, so still a pinhole image) under the
-    # same horizontal guides: its two plateaus lie across the rig's curve, which no pair of the
-    # rig's guides makes; the candidate is not fitted as fused lobes and stays merged
+    # same horizontal guides: its fused lobes lie across the rig's curve, which no pair of the
+    # rig's guides makes; the candidate is not fitted as fused lobes (one row, no guide's)
     img, K, n, truth = sensor_plane(15.0, 25.0, 0, spec=4.0)
     _write(tmp_path, np.ascontiguousarray(np.rot90(img)), K)
     specs = _reconstruct(tmp_path)
-    assert [s["status"] for s in specs] == ["merged"], [(s["status"], s["bp_px"]) for s in specs]
+    assert len(specs) == 1 and "fused" not in specs[0]["detail"], [(s["status"], s["detail"]) for s in specs]
 
 
 def test_fused_lobes_without_a_rig_stay_one_candidate(tmp_path):
     # the spec-4 frame above whose camera file names no lights: nothing predicts a second
-    # guide, the candidate stays `merged` and no row is added
+    # guide, the fused lobes stay one candidate (one plateau) and no row is added
     img, K, n, truth = sensor_plane(15.0, 25.0, 0, spec=4.0)
     _write(tmp_path, img, K, lights=False)
     specs = _reconstruct(tmp_path)
-    assert [s["status"] for s in specs] == ["merged"], [(s["status"], s["bp_px"]) for s in specs]
+    assert len(specs) == 1 and "fused" not in specs[0]["detail"], [(s["status"], s["detail"]) for s in specs]
 
 
 def test_without_a_rig_the_other_guides_lobe_still_counts(tmp_path):

@@ -162,13 +162,20 @@ def _flat_tops(gray, flat_rows, idx, k, peak, pix):
 
 
 def _plateaus(clipped: np.ndarray, labels: np.ndarray, cid: int, x: int, y: int, bw: int, bh: int,
-              rules: Rules) -> tuple[int, float, float]:
+              rules: Rules, near: np.ndarray | None = None) -> tuple[int, float, float]:
     """The clipped plateaus of one candidate: ``(n, row, col)``, the count of plateaus of the
-    plateau size and the centroid of the largest (frame). ``"local_peak"``: the clipped pixels
-    closed 3 x 3 and cut by the component (plateaus from 3 px), or closed by ``k_close`` where
-    that makes one plateau of two or more."""
+    plateau size and the centroid of the largest (frame). The clipped pixels are grown into the
+    ``near`` ones joined to them (:data:`~simtest.decisions.CLIP_MARGIN_REL`). ``"local_peak"``: then closed 3 x 3
+    and cut by the component (plateaus from 3 px), or closed by ``k_close`` where that makes one
+    plateau of two or more."""
     comp = (labels[y : y + bh, x : x + bw] == cid).view(np.uint8)
     raw = clipped[y : y + bh, x : x + bw] & comp
+    if near is not None:  # the near-ceiling pieces joined to a clipped pixel
+        n_low, low = cv2.connectedComponents(near[y : y + bh, x : x + bw] & comp, connectivity=8)
+        joined = np.zeros(n_low, bool)
+        joined[low[raw.view(bool)]] = True
+        joined[0] = False
+        raw = joined[low].view(np.uint8)
     sat = raw
     min_plateau = rules.min_plateau_px
     if rules.local_peak:
@@ -198,8 +205,8 @@ def _parabola(a: np.ndarray, b: np.ndarray, d: np.ndarray, ok: np.ndarray) -> np
 
 
 def examine(gray: np.ndarray, labels: np.ndarray, table: np.ndarray, rules: Rules, *,
-            clipped: np.ndarray | None = None, scope: np.ndarray | None = None,
-            levels: np.ndarray | None = None) -> Examined:
+            clipped: np.ndarray | None = None, near: np.ndarray | None = None,
+            scope: np.ndarray | None = None, levels: np.ndarray | None = None) -> Examined:
     """Brightest point, peak, status, ROI and level of every component of a table.
 
     Parameters
@@ -213,6 +220,9 @@ def examine(gray: np.ndarray, labels: np.ndarray, table: np.ndarray, rules: Rule
     rules : Rules
     clipped : ndarray of shape (H, W), uint8, optional
         Clipped pixels (0/1).
+    near : ndarray of shape (H, W), uint8, optional
+        Pixels within :data:`~simtest.decisions.CLIP_MARGIN_REL` of the ceiling (0/1): a clipped plateau grows
+        into those joined to it.
     scope : ndarray of shape (H, W), bool, optional
         The endoscope's black border.
     levels : ndarray of shape (H, W), float32, optional
@@ -273,7 +283,7 @@ def examine(gray: np.ndarray, labels: np.ndarray, table: np.ndarray, rules: Rule
         saturated = hits > 0
         for i in np.flatnonzero(saturated).tolist():
             n_plateaus[i], row[i], col[i] = _plateaus(clipped, labels, int(cid[i]), int(x[i]), int(y[i]),
-                                                      int(bw[i]), int(bh[i]), rules)
+                                                      int(bw[i]), int(bh[i]), rules, near)
 
     code = np.full(n, OK, np.int64)
     code[n_plateaus > 1] = MERGED

@@ -57,6 +57,7 @@ from simtest.reconstruct.detect_pixels import (  # noqa: F401  (the detection's 
     local_peak_mask,
     luma,
     mask_labels,
+    near_ceiling_mask,
     noise_sigma,
     smooth_sigma_for_noise,
 )
@@ -433,11 +434,12 @@ def detect_specularities(
                                 float(smooth_sigma_px), borderType=cv2.BORDER_REFLECT)
     h, w = gray.shape
     levels = gray32 = half = None
-    clipped = None  # whole-frame clipped mask, when the method computes it
+    clipped = near = None  # whole-frame clipped and near-ceiling masks, when the method computes them
     if method == "local_peak":
         if not 0.0 < peak_rel < 1.0:
             raise ValueError(f"peak_rel must be in (0, 1), got {peak_rel!r}")
         clipped = clipped_mask(img, saturation_level, native, grey=grey is True)
+        near = near_ceiling_mask(img, saturation_level, native, grey=grey is True)
         side = background_side_px((h, w), clipped)
         # the float32 intensities of the mask and of the scope border, converted once (an 8-bit
         # gray frame not smoothed: the same values as each converting its own copy)
@@ -461,7 +463,7 @@ def detect_specularities(
         saturation_level=saturation_level, min_area_px=min_area_px,
         ellipticity_min=ellipticity_min, min_plateau_px=min_plateau_px, roi_scale=roi_scale,
         roi_margin_px=roi_margin_px, max_candidates=max_candidates, peak_rel=peak_rel,
-        k_close=k_close, half=half,
+        k_close=k_close, half=half, near=near,
     )
     out, n_comps = _candidates(frame, mask)  # by peak
     smoothed = None
@@ -502,6 +504,7 @@ def _detect_half_resolution(img, native, fs, saturation_level, *, grey=False, mi
     h, w = native.shape
     h2, w2 = h // 2, w // 2
     clipped = clipped_mask(img, saturation_level, native, grey=grey)
+    near = near_ceiling_mask(img, saturation_level, native, grey=grey)
     side = background_side_px((h, w), clipped)
     half = cv2.resize(native[: 2 * h2, : 2 * w2].astype(np.float32, copy=False), (w2, h2),
                       interpolation=cv2.INTER_AREA)
@@ -560,7 +563,7 @@ def _detect_half_resolution(img, native, fs, saturation_level, *, grey=False, mi
         found.append(c)
     if rows:
         table = np.array(rows, np.int64)
-        ex = examine(gray, labels, table, _rules(full), clipped=clipped, levels=levels)
+        ex = examine(gray, labels, table, _rules(full), clipped=clipped, near=near, levels=levels)
         for c, got in zip(found, _built(full, ex, table)):
             if c.status == "black_border":  # the scope's border, found on the reduced frame
                 got = Candidate(got.bp_uv, got.peak, got.saturated, got.area_px, got.bbox, got.roi, c.status,
@@ -660,6 +663,8 @@ class _DetectFrame:
     #: The means of ``gray32``'s 2 x 2 blocks where :func:`local_peak_mask` computed them (the
     #: scope border's reduction starts from them), else None.
     half: np.ndarray | None = None
+    #: Pixels near the ceiling (:func:`near_ceiling_mask`) where ``clipped`` is given, else None.
+    near: np.ndarray | None = None
 
     def scope(self) -> np.ndarray | None:
         """The endoscope's black border (``"local_peak"`` only), see :func:`_scope_border`."""
@@ -712,10 +717,11 @@ def _candidates(frame: _DetectFrame, mask: np.ndarray, by_peak: bool = True) -> 
     if n_comps == 0:
         return [], 0
     table = table[np.argsort(-table[:, 5], kind="stable")[: frame.max_candidates]]
-    clipped = frame.clipped
+    clipped, near = frame.clipped, frame.near
     if clipped is None and frame.saturation_level is not None:
         clipped = clipped_mask(frame.img, frame.saturation_level)
-    ex = examine(frame.gray, labels, table, _rules(frame), clipped=clipped, scope=frame.scope(),
+        near = near_ceiling_mask(frame.img, frame.saturation_level)
+    ex = examine(frame.gray, labels, table, _rules(frame), clipped=clipped, near=near, scope=frame.scope(),
                  levels=frame.levels)
     if by_peak:
         order = np.argsort(-ex.peak, kind="stable")

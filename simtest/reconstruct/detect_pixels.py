@@ -11,7 +11,9 @@ import cv2
 import numpy as np
 
 from simtest.constants import LUMA_BT601
-from simtest.decisions import BACKGROUND_DIV, BACKGROUND_PLATEAU_FACTOR, NOISE_LEVEL_BINS, NOISE_LEVEL_MIN_SAMPLES
+from simtest.decisions import (
+    BACKGROUND_DIV, BACKGROUND_PLATEAU_FACTOR, CLIP_MARGIN_REL, NOISE_LEVEL_BINS, NOISE_LEVEL_MIN_SAMPLES,
+)
 
 _LUMA = np.array(LUMA_BT601)
 #: The luma weights as OpenCV's ``cv2.transform`` matrix (one output channel from R, G, B).
@@ -406,6 +408,29 @@ def _dark_corner_components(dark: np.ndarray) -> np.ndarray | None:
     return (dark == 2).view(np.uint8)
 
 
+
+
+def near_ceiling_mask(image: np.ndarray, saturation_level: float | None,
+                      gray: np.ndarray | None = None, grey: bool = False) -> np.ndarray | None:
+    """Pixels of an integer frame whose every channel lies within
+    :data:`~simtest.decisions.CLIP_MARGIN_REL` of full scale below ``saturation_level``: where a
+    lossy codec leaves a clipped top (a clipped plateau grows into those joined to it,
+    :func:`~simtest.reconstruct.candidates.examine`).
+
+    Parameters
+    ----------
+    image, saturation_level, gray, grey
+        As for :func:`clipped_mask`.
+
+    Returns
+    -------
+    ndarray of shape (H, W), uint8 (0/1), or None
+        None for a float image (no codec's ceiling) or without a saturation level.
+    """
+    if saturation_level is None or image.dtype not in (np.uint8, np.uint16):
+        return None
+    margin = CLIP_MARGIN_REL * float(np.iinfo(image.dtype).max)
+    return clipped_mask(image, saturation_level - margin, gray, grey)
 
 
 def clipped_mask(image: np.ndarray, saturation_level: float | None,
