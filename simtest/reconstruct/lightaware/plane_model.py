@@ -190,9 +190,9 @@ class PlaneModel:
 
     def _linear_part(self, active, target, w):
         """The linear parameters of the columns on the active rows, weighted by ``w``, and their
-        orthonormal basis ``(QT, QkT)``: the columns that depend on p projected off the kept
-        background basis and factorised (``lstsq``'s minimum norm, no basis, where a column is
-        (nearly) in the others' span)."""
+        orthonormal basis (rows, the background's first): the columns that depend on p projected
+        off the kept background basis and factorised (``lstsq``'s minimum norm, no basis, where a
+        column is (nearly) in the others' span)."""
         design = self.design
         A, t = (design, target) if active.all() else (design[active], target[active])
         if w is not None:
@@ -204,7 +204,7 @@ class PlaneModel:
         if not d.min() > 1e-10 * d.max():
             return np.linalg.lstsq(A, t, rcond=None)[0], None
         g = np.linalg.solve(Rk, Qk.T @ t)
-        return np.concatenate([g, np.linalg.solve(R, QT @ (t - A[:, :k] @ g))]), (QT, np.ascontiguousarray(Qk.T))
+        return np.concatenate([g, np.linalg.solve(R, QT @ (t - A[:, :k] @ g))]), np.vstack([QT, Qk.T])
 
     def jac_general(self, p, nb, e1, e2, dns, w):
         """Kaufman's Jacobian (M, 4) of :meth:`resjac_general` at its cached point."""
@@ -216,13 +216,16 @@ class PlaneModel:
         if self.diffuse:
             G[:3] += coef[1] * self.box(_rig_diffuse_grad(self.dT, self.rl, p, nb, e1, e2, self.rig_arr,
                                                           at=(st["n"], dns, *st["terms"])))
-        Ga = G[:, active] if w is None else G[:, active] * w[active]
+        every = bool(active.all())
+        Ga = (G if every else G[:, active]) if w is None else G[:, active] * w[active]
         if st.get("Q") is not None and st.get("w") is w:
-            QT, Qk = st["Q"]  # the active columns' basis (_linear_part)
-            Ja = Ga - (Ga @ QT.T) @ QT - (Ga @ Qk.T) @ Qk
+            QA = st["Q"]  # the active columns' basis (_linear_part)
+            Ja = Ga - (Ga @ QA.T) @ QA
         else:
             Q = np.linalg.qr(self.design[active] if w is None else self.design[active] * w[active, None])[0]
             Ja = Ga - (Ga @ Q) @ Q.T
+        if every:
+            return (Ja if w is None else Ja / w).T
         JT = np.zeros_like(G)
         JT[:, active] = Ja if w is None else Ja / w[active]
         return JT.T
