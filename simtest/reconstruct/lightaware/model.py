@@ -88,15 +88,15 @@ def _ray_light(L, dT):
     return Ld, np.maximum((LL if np.ndim(LL) == 0 else LL[:, None]) - Ld * Ld, 0.0)
 
 
-def _terms(dT, n, h, L, rl, P=None, dns=None):
+def _terms(dT, n, h, L, rl, P=None, dns=None, ds=None):
     """cos beta of one light on the plane (n, h) along unit rays, and its derivatives.
 
     The rays are given transposed, ``dT`` (3, N) (each operation then runs along N), with
     ``rl = (Ld, K2)`` of :func:`_ray_light` (they depend on the rays only). Returns
     ``cb (N,)``, the pieces ``delta = -d . n``, ``s = |X|``, ``sl = s - Ld``, ``ir = 1 / r`` with
     ``r = |L - X|`` (each (N,)), ``c = n . L + h``, and, when the normal's derivatives ``dns``
-    (two (3,) vectors) are given, ``dcb (3, N)`` with respect to (a, b, log h)
-    (``P = [dn_a, dn_b] @ dT`` (2, N) may be given too); else None.
+    (two (3,) vectors) are given, ``dcb (3, N)`` with respect to (a, b, log h) (``P = [dn_a,
+    dn_b] @ dT`` (2, N) may be given too); else None. ``ds``: the plane's ``(delta, s)`` if at hand.
 
     Notes
     -----
@@ -111,8 +111,8 @@ def _terms(dT, n, h, L, rl, P=None, dns=None):
     dh = h, ds = s): ``(2 h delta - q s) / r``.
     """
     Ld, K2 = rl
-    delta = np.maximum((-n) @ dT, 1e-9)
-    s = h / delta
+    delta = np.maximum((-n) @ dT, 1e-9) if ds is None else ds[0]
+    s = h / delta if ds is None else ds[1]
     sl = s - Ld
     with np.errstate(over="ignore"):  # a plane seen edge-on (delta at its floor): s^2 overflows, 1 / r = 0
         ir = 1.0 / np.sqrt(np.maximum(sl * sl + K2, 1e-300))
@@ -145,34 +145,46 @@ def _normal_derivs(p, n0, e1, e2):
 _CB_FLOOR = 1e-200
 
 
-def _rig_value(dT, rl, n, h, rig_arr, rough):
+def _rig_geometry(dT, rl, n, h, rig_arr) -> list:
+    """Per light, the pieces of :func:`_rig_value` that do not depend on the roughness (one
+    plane at several roughnesses): ``(cb, cbp, lcb, pos, delta, s, sl, ir, c, cp, raw, f, p)``,
+    ``raw`` the profile's cos theta before its floor, ``f`` the falloff ``(h / r)^2`` and ``p`` the
+    profile ``cp^m`` (None where the light has none)."""
+    L, w, inv_sq, m = rig_arr
+    geo = []
+    for j in range(len(w)):
+        cb, delta, s, sl, ir, c, _ = _terms(dT, n, h, L[j], (rl[0][j], rl[1][j]), ds=geo[0][4:6] if geo else None)
+        pos, hir = cb > _CB_FLOOR, h * ir
+        cbp = np.where(pos, cb, 1.0)
+        raw = (s * dT[2] - L[j, 2]) * ir if m[j] > 0 else None
+        cp = None if raw is None else np.maximum(raw, 1e-12)
+        geo.append((cb, cbp, np.log(cbp), pos, delta, s, sl, ir, c, cp, raw, hir * hir if inv_sq[j] else None,
+                    None if cp is None else cp ** m[j]))
+    return geo
+
+
+def _rig_value(dT, rl, n, h, rig_arr, rough, geo=None):
     """``S = sum_j w_j max(0, cb_j)^n f_j p_j`` (N,) and the per-light pieces its gradient needs.
 
     ``dT`` (3, N) the unit rays transposed, ``rl`` the :func:`_ray_light` of the rig's lights
-    (each (J, N)). See :func:`_rig_grad` for the derivatives.
+    (each (J, N)); ``geo``: :func:`_rig_geometry` if at hand. See :func:`_rig_grad` for the derivatives.
     """
-    L, w, inv_sq, m = rig_arr
+    w = rig_arr[1]
     S = np.zeros(dT.shape[1])
     parts = []
-    for j in range(len(w)):
-        cb, delta, s, sl, ir, c, _ = _terms(dT, n, h, L[j], (rl[0][j], rl[1][j]))
-        pos = cb > _CB_FLOOR
-        cbp = np.where(pos, cb, 1.0)
-        lcb = np.log(cbp)
+    for j, (cb, cbp, lcb, pos, delta, s, sl, ir, c, cp, raw, f, p) in enumerate(
+            _rig_geometry(dT, rl, n, h, rig_arr) if geo is None else geo):
         arg = rough * lcb  # 0 below exp(-708) = 3e-308: exp's slow path for a subnormal takes 4x
         val = np.zeros_like(arg)
         np.exp(arg, out=val, where=pos & (arg > -708.0))
-        if inv_sq[j]:
-            hir = h * ir
-            val *= hir * hir
-        cp = None
-        if m[j] > 0:
-            cp = np.maximum((s * dT[2] - L[j, 2]) * ir, 1e-12)
-            val *= cp ** m[j]
+        if f is not None:
+            val *= f
+        if p is not None:
+            val *= p
         if w[j] != 1.0:
             val *= w[j]
         S += val
-        parts.append((cb, cbp, lcb, val, delta, s, sl, ir, c, cp))
+        parts.append((cb, cbp, lcb, val, delta, s, sl, ir, c, cp, raw, f))
     return S, parts
 
 
@@ -191,7 +203,7 @@ def _rig_grad(dT, parts, n, dns, h, rig_arr, rough):
     L, w, inv_sq, m = rig_arr
     P = np.array(dns) @ dT
     dS = np.zeros((4, dT.shape[1]))
-    for j, (cb, cbp, lcb, val, delta, s, sl, ir, c, cp) in enumerate(parts):
+    for j, (cb, cbp, lcb, val, delta, s, sl, ir, c, cp, *_) in enumerate(parts):
         slr = sl * ir  # dr / ds
         k = (rough * ir) / cbp  # n / (r cb): d log(lobe) = k (2 (dc delta + c d delta) - q ds)
         C = -k * (1.0 + cb * slr)  # coefficient of ds
@@ -221,12 +233,6 @@ def _rig_image(d, n, dns, h, rig_arr, rough, grad=True):
     return S, (_rig_grad(dT, parts, n, dns, h, rig_arr, rough).T if grad else None)
 
 
-def _intensity(d, n, h, rig_arr, rough):
-    dT = np.ascontiguousarray(np.asarray(d, dtype=np.float64).T)
-    hit = -(n @ dT) > 1e-9
-    return np.where(hit, _rig_value(dT, _ray_light(rig_arr[0], dT), n, h, rig_arr, rough)[0], 0.0)
-
-
 def plane_rig_intensity(rays: np.ndarray, normal, distance_mm: float, rig: LightRig,
                         roughness: float) -> np.ndarray:
     """Specular image of a plane lit by a rig, along given rays (unit gain, no background).
@@ -252,8 +258,10 @@ def plane_rig_intensity(rays: np.ndarray, normal, distance_mm: float, rig: Light
     ndarray of shape (N,)
         Intensity; 0 for rays that miss the plane.
     """
-    return _intensity(np.asarray(rays, dtype=np.float64), unit(np.asarray(normal, dtype=np.float64)),
-                      float(distance_mm), _rig_arrays(rig), float(roughness))
+    dT = np.ascontiguousarray(np.asarray(rays, dtype=np.float64).T)
+    n, rig_arr = unit(np.asarray(normal, dtype=np.float64)), _rig_arrays(rig)
+    S = _rig_value(dT, _ray_light(rig_arr[0], dT), n, float(distance_mm), rig_arr, float(roughness))[0]
+    return np.where(-(n @ dT) > 1e-9, S, 0.0)
 
 
 def _distance_for_bp(ray: np.ndarray, n: np.ndarray, L: np.ndarray) -> float | None:
@@ -381,38 +389,35 @@ def _roi_grid(values, camera, origin_uv, clip_level):
     return vals, camera, o, uu, vv, keep
 
 
-def _light_terms(dT, rl, n, h, rig_arr) -> list:
-    """``(cb, delta, s, sl, ir, c)`` of :func:`_terms` for each light of the rig on the plane (n, h)."""
-    return [_terms(dT, n, h, L, (rl[0][j], rl[1][j]))[:6] for j, L in enumerate(rig_arr[0])]
-
-
-def _rig_diffuse(dT, rl, n, h, rig_arr, terms=None) -> np.ndarray:
+def _rig_diffuse(dT, rl, n, h, rig_arr, terms=None, keep=None) -> np.ndarray:
     """The rig's Lambertian shading of the plane (n, h) along unit rays ``dT`` (3, N): (N,).
 
     ``D = sum_j w_j max(0, n . l_j) f_j p_j`` with ``l_j`` the unit direction from the plane point
     to light j, ``f_j = (h / r_j)^2`` for an inverse-square light (1 otherwise) and ``p_j`` its
     ``cos^m`` profile about +z, the same falloff and profile as the specular lobes of
     :func:`_rig_value` (unit albedo; the fit's linear part scales it). From the pieces of
-    :func:`_terms`: ``n . (L - X) = c`` so ``n . l = c / r``; ``terms``: :func:`_light_terms` if at hand.
+    :func:`_terms`: ``n . (L - X) = c`` so ``n . l = c / r``; ``terms``: each light's ``_terms[:6]``
+    if at hand (and :func:`_rig_geometry`'s ``raw, f``); ``keep``: a list given each light's term
+    of D and ``cos theta`` (or None).
     """
     L, w, inv_sq, m = rig_arr
-    terms = _light_terms(dT, rl, n, h, rig_arr) if terms is None else terms
+    terms = [_terms(dT, n, h, L_, (rl[0][j], rl[1][j]))[:6] for j, L_ in enumerate(L)] if terms is None else terms
     D = np.zeros(dT.shape[1])
     for j in range(len(w)):
-        _, _, s, _, ir, c = terms[j]
-        val = max(c, 0.0) * ir
-        if inv_sq[j]:
-            hir = h * ir
-            val = val * (hir * hir)
-        if m[j] > 0:
-            val = val * np.maximum((s * dT[2] - L[j, 2]) * ir, 0.0) ** m[j]
-        D += w[j] * val
+        _, _, s, _, ir, c, *pre = terms[j]
+        cp, f = pre or ((s * dT[2] - L[j, 2]) * ir if m[j] > 0 else None, (h * ir) * (h * ir) if inv_sq[j] else None)
+        val = max(c, 0.0) * ir if f is None else max(c, 0.0) * ir * f
+        val = w[j] * (val if cp is None else val * np.maximum(cp, 0.0) ** m[j])
+        D += val
+        if keep is not None:
+            keep.append((val, cp))
     return D
 
 
 def _rig_diffuse_grad(dT, rl, p, nb, e1, e2, rig_arr, at=None) -> np.ndarray:
     """The derivatives of :func:`_rig_diffuse` in (a, b, log h) about ``p`` (the plane
-    ``unit(nb + a e1 + b e2)`` at ``h = exp(p[2])``): (3, N); ``at``: its ``(n, dns, terms)`` if at hand.
+    ``unit(nb + a e1 + b e2)`` at ``h = exp(p[2])``): (3, N); ``at``: its ``(n, dns, terms)`` if at hand,
+    or ``(n, dns, terms, keep)`` with the shading's ``keep`` list.
 
     Notes
     -----
@@ -420,39 +425,26 @@ def _rig_diffuse_grad(dT, rl, p, nb, e1, e2, rig_arr, at=None) -> np.ndarray:
     only) with ``c = n . L + h`` one number per plane, so
     ``d log val = dc / c - (1 + 2) dr / r + 2 dh / h + m (ds d_z / (r cp) - dr / r)``, and with the
     pieces of :func:`_terms`: ``dr / r = ds (s - Ld) / r^2``, ``ds = s P / delta`` for a and b
-    (``P = dn . d``, ``dc = dn . L``) and ``ds = s`` for log h (``dc = dh = h``). Analytic: the
-    central differences it replaces took six evaluations of the shading per Jacobian, a third of
-    the photometric fit's time on a sensor frame's highlight.
+    (``P = dn . d``, ``dc = dn . L``) and ``ds = s`` for log h (``dc = dh = h``).
     """
     L, w, inv_sq, m = rig_arr
     h = float(np.exp(p[2]))
     if at is None:
         n, dns = _normal_derivs(np.asarray(p, dtype=np.float64), nb, e1, e2)
-        terms = _light_terms(dT, rl, n, h, rig_arr)
-    else:
-        n, dns, terms = at
+        at = (n, dns, [_terms(dT, n, h, L_, (rl[0][j], rl[1][j]))[:6] for j, L_ in enumerate(L)])
+    n, dns, terms, keep = at if len(at) == 4 else (*at, [])
+    if not keep:
+        _rig_diffuse(dT, rl, n, h, rig_arr, terms, keep)
     P = np.array(dns) @ dT
     out = np.zeros((3, dT.shape[1]))
     for j in range(len(w)):
-        _, delta, s, sl, ir, c = terms[j]
+        _, delta, s, sl, ir, c, *_ = terms[j]
         if not c > 0:
             continue  # the light behind the plane: no shading, none to change (max(c, 0))
-        val = c * ir
-        k = 1.0  # dr / r's coefficient in d log val
-        if inv_sq[j]:
-            hir = h * ir
-            val = val * (hir * hir)
-            k = 3.0
-        slr2 = sl * ir * ir  # dr / r per ds
-        zc = None
-        if m[j] > 0:
-            cp = (s * dT[2] - L[j, 2]) * ir
-            pos = cp > 0
-            val = val * np.where(pos, cp, 0.0) ** m[j]
-            zc = m[j] * dT[2] * ir / np.where(pos, cp, 1.0)  # d log p per ds, beside -m dr / r
-            k = k + m[j]
-        val = w[j] * val
-        per_ds = -k * slr2 + (0.0 if zc is None else zc)  # d log val per ds
+        val, cp = keep[j]  # (val: the light's term of the shading)
+        k = (3.0 if inv_sq[j] else 1.0) + max(m[j], 0.0)  # dr / r's coefficient in d log val
+        zc = m[j] * dT[2] * ir / np.where(cp > 0, cp, 1.0) if m[j] > 0 else 0.0  # d log p per ds, and -m dr / r
+        per_ds = -k * (sl * ir * ir) + zc  # d log val per ds (sl / r^2: dr / r per ds)
         sd = s / delta
         for i in range(2):
             out[i] += val * (float(dns[i] @ L[j]) / c + per_ds * sd * P[i])
@@ -483,7 +475,7 @@ def _curvature_columns(dT, rl, n, h, rig_arr, rough, apex) -> np.ndarray:
     A1, A2 = t1 @ dT, t2 @ dT
     out = np.zeros((3, dT.shape[1]))
     S, parts = _rig_value(dT, rl, n, h, rig_arr, rough)
-    for j, (cb, cbp, lcb, val, delta, s, sl, ir, c, cp) in enumerate(parts):
+    for j, (cb, cbp, lcb, val, delta, s, sl, ir, c, cp, *_) in enumerate(parts):
         x = s * A1 - float(apex @ t1)
         y = s * A2 - float(apex @ t2)
         k = rough / cbp
@@ -512,7 +504,7 @@ def _fresnel_dielectric(cos_i, eta):
     return 0.5 * (rs * rs + rp * rp)
 
 
-def _rig_value_ggx(dT, rl, n, h, rig_arr, alpha, ior: float = GGX_FILM_IOR):
+def _rig_value_ggx(dT, rl, n, h, rig_arr, alpha, ior: float = GGX_FILM_IOR, parts=None):
     """The rig's GGX lobes under a dielectric film on the plane (n, h) along unit rays ``dT`` (3, N).
 
     ``S = sum_j w_j F(v . m) D(m) G1(v) G1(l_j) / (4 n . v) f_j p_j``: the radiance of the
@@ -522,20 +514,22 @@ def _rig_value_ggx(dT, rl, n, h, rig_arr, alpha, ior: float = GGX_FILM_IOR):
     half-vector ``m = unit(v + l_j)``, v the direction to the camera. From the pieces of
     :func:`_terms`: ``n . v = delta``, ``n . l = c / r``, ``v . l = (s - Ld) / r``, so
     ``n . m = (delta + c / r) / sqrt(2 + 2 v . l)`` and ``v . m = sqrt((1 + v . l) / 2)``.
+    ``parts``: a list given each light's pieces, for :func:`_rig_grad_ggx`.
 
     Returns
     -------
     ndarray of shape (N,)
         0 where the light or the camera is below the plane.
     """
-    return _ggx_sum(dT, rl, n, h, rig_arr, alpha, ior, _ggx_lobe)
+    return _ggx_sum(dT, rl, n, h, rig_arr, alpha, ior, _ggx_lobe, parts)
 
 
-def _ggx_lobe(delta, s, sl, ir, c, a2, ior):
+def _ggx_lobe(delta, s, sl, ir, c, a2, ior, F=None):
     """One light's film lobe along the rays, before falloff and profile (Walter et al. 2007,
     eqs. 25-34, doi:10.2312/EGWR/EGSR07/195-206, with Smith's G1 and the exact dielectric Fresnel
     factor): ``F(v . m) D(m) G1(v) G1(l) / (4 n . v)``, 0 where the light or the camera is below
-    the plane. ``delta, s, sl, ir`` (N,) and ``c`` are :func:`_terms`' pieces."""
+    the plane. ``delta, s, sl, ir`` (N,) and ``c`` are :func:`_terms`' pieces; ``F`` Fresnel's
+    factor (:func:`_fresnel_of_vl`) if at hand."""
     cos_o = c * ir
     vl = sl * ir
     hv = np.sqrt(np.maximum(2.0 + 2.0 * vl, 1e-300))
@@ -547,15 +541,15 @@ def _ggx_lobe(delta, s, sl, ir, c, a2, ior):
     co = np.maximum(cos_o, 1e-6)
     g1i = 2.0 / (1.0 + np.sqrt(1.0 + a2 * (1.0 - ci * ci) / (ci * ci)))
     g1o = 2.0 / (1.0 + np.sqrt(1.0 + a2 * (1.0 - co * co) / (co * co)))
-    F = _fresnel_dielectric(np.sqrt(np.clip(0.5 * (1.0 + vl), 0.0, 1.0)), ior)
+    F = _fresnel_of_vl(vl, ior) if F is None else F
     val = F * D * g1i * g1o / (4.0 * ci)
     val[(cos_o <= 0.0) | (delta <= 1e-9)] = 0.0
     return val
 
 
-def _ggx_sum(dT, rl, n, h, rig_arr, alpha, ior, lobe):
+def _ggx_sum(dT, rl, n, h, rig_arr, alpha, ior, lobe, parts=None):
     """The sum over the rig's lights of ``lobe``'s values times each light's falloff and
-    profile (:func:`_rig_value_ggx`)."""
+    profile (:func:`_rig_value_ggx`; ``parts`` its list of each light's pieces)."""
     L, w, inv_sq, m = rig_arr
     # a product, not ``** 2``: a fit's trial roughness that runs off (a lobe broader than the
     # ROI) overflows to inf, which the fits reject as a non-finite model, where ``** 2`` raises
@@ -564,7 +558,12 @@ def _ggx_sum(dT, rl, n, h, rig_arr, alpha, ior, lobe):
     for j in range(len(w)):
         _, delta, s, sl, ir, c, _ = _terms(dT, n, h, L[j], (rl[0][j], rl[1][j]))
         cp = np.maximum((s * dT[2] - L[j, 2]) * ir, 1e-12) if m[j] > 0 else None
-        S += w[j] * _lobe_scale(lobe(delta, s, sl, ir, c, a2, ior), h, ir, inv_sq[j], cp, m[j])
+        F = _fresnel_of_vl(sl * ir, ior)
+        val = lobe(delta, s, sl, ir, c, a2, ior, F)
+        scaled = w[j] * _lobe_scale(val, h, ir, inv_sq[j], cp, m[j])
+        S += scaled
+        if parts is not None:
+            parts.append((delta, s, sl, ir, c, val, F, scaled))
     return S
 
 
@@ -579,8 +578,8 @@ def _fresnel_of_vl(vl, ior):
 _FRESNEL_STEP = 1e-6
 
 
-def _rig_grad_ggx(dT, rl, n, dns, h, rig_arr, alpha, ior: float = GGX_FILM_IOR) -> np.ndarray:
-    """``dS`` (4, N) of :func:`_rig_value_ggx` with respect to (a, b, log h, log alpha).
+def _rig_grad_ggx(dT, rl, n, dns, h, rig_arr, alpha, ior: float = GGX_FILM_IOR, parts=None) -> np.ndarray:
+    """``dS`` (4, N) of :func:`_rig_value_ggx` in (a, b, log h, log alpha); ``parts``: its ``parts`` if at hand.
 
     Notes
     -----
@@ -605,11 +604,12 @@ def _rig_grad_ggx(dT, rl, n, dns, h, rig_arr, alpha, ior: float = GGX_FILM_IOR) 
     am1 = a2 - 1.0
     # dn . d per ray, term by term (no BLAS call: the same bits on any number of threads)
     P = [dn[0] * dT[0] + dn[1] * dT[1] + dn[2] * dT[2] for dn in dns]
-    N = dT.shape[1]
-    dS = np.zeros((4, N))
+    dS = np.zeros((4, dT.shape[1]))
+    if parts is None:
+        parts = []
+        _ggx_sum(dT, rl, n, h, rig_arr, alpha, ior, _ggx_lobe, parts)
     for j in range(len(w)):
-        _, delta, s, sl, ir, c, _ = _terms(dT, n, h, L[j], (rl[0][j], rl[1][j]))
-        val = _ggx_lobe(delta, s, sl, ir, c, a2, ior)
+        delta, s, sl, ir, c, val, F, scaled = parts[j]  # (scaled: this light's term of S)
         cos_o = c * ir
         vl = sl * ir
         hv2 = np.maximum(2.0 + 2.0 * vl, 1e-300)
@@ -623,7 +623,6 @@ def _rig_grad_ggx(dT, rl, n, dns, h, rig_arr, alpha, ior: float = GGX_FILM_IOR) 
         co = np.maximum(cos_o, 1e-6)
         ui = np.sqrt(1.0 + a2 * (1.0 - ci * ci) / (ci * ci))
         uo = np.sqrt(1.0 + a2 * (1.0 - co * co) / (co * co))
-        F = _fresnel_of_vl(vl, ior)
         dF = (_fresnel_of_vl(vl + _FRESNEL_STEP, ior) - _fresnel_of_vl(vl - _FRESNEL_STEP, ior)) \
             / (2.0 * _FRESNEL_STEP)
         with np.errstate(divide="ignore", invalid="ignore"):
@@ -633,17 +632,15 @@ def _rig_grad_ggx(dT, rl, n, dns, h, rig_arr, alpha, ior: float = GGX_FILM_IOR) 
         # d log G1(v) / d delta, and d log (1 / (4 n . v)) / d delta = -1 / delta
         kGi = np.where(delta > 1e-6, a2 / ((1.0 + ui) * ui * ci ** 3) - 1.0 / ci, 0.0)
         kGo = np.where(cos_o > 1e-6, a2 / ((1.0 + uo) * uo * co ** 3), 0.0)  # d log G1(l) / d cos_o
-        cp = None
-        if m[j] > 0:
-            raw_cp = (s * dT[2] - L[j, 2]) * ir
-            cp = np.maximum(raw_cp, 1e-12)
-        scaled = w[j] * _lobe_scale(val, h, ir, inv_sq[j], cp, m[j])  # this light's term of S
+        irs, sz, f2 = -(ir ** 3) * sl, s * dT[2] - L[j, 2], 2.0 * (ir * ir) * sl  # (per ds, sz * ir: cos theta)
+        raw_cp = sz * ir
+        cp, live = (np.maximum(raw_cp, 1e-12), raw_cp > 1e-12) if m[j] > 0 else (None, None)
         for k in range(3):
             if k < 2:
                 dd, ds, dc = -P[k], s * P[k] / delta, float(dns[k] @ L[j])
             else:
                 dd, ds, dc = 0.0, s, h
-            dir_ = -(ir ** 3) * sl * ds
+            dir_ = irs * ds
             dco = dc * ir + c * dir_
             dvl = ds * ir + sl * dir_
             dhv = dvl / hv
@@ -651,10 +648,10 @@ def _rig_grad_ggx(dT, rl, n, dns, h, rig_arr, alpha, ior: float = GGX_FILM_IOR) 
             g = kD * dch + kGi * dd + kGo * dco + dlogF * dvl
             if inv_sq[j]:
                 # d log f = 2 d log h + 2 d log r^-1, d log r^-1 = -r^-2 (s - Ld) ds
-                g = g - 2.0 * (ir * ir) * sl * ds + (2.0 if k == 2 else 0.0)
+                g = g - f2 * ds + (2.0 if k == 2 else 0.0)
             if cp is not None:
-                dcp = ds * dT[2] * ir + (s * dT[2] - L[j, 2]) * dir_
-                g = g + np.where(raw_cp > 1e-12, m[j] * dcp / cp, 0.0)
+                dcp = ds * dT[2] * ir + sz * dir_
+                g = g + np.where(live, m[j] * dcp / cp, 0.0)
             dS[k] += scaled * g
         # log alpha: through a2 in D and both G1, times d a2 / d log alpha = 2 a2 (written out,
         # so that an alpha run off to 0 gives 0, not a division by it)

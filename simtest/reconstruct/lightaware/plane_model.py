@@ -7,8 +7,8 @@ from __future__ import annotations
 import numpy as np
 
 from simtest.reconstruct.lightaware.model import (
-    _light_terms, _normal_derivs, _ray_light, _rays, _rig_arrays, _rig_diffuse, _rig_diffuse_grad,
-    _rig_grad, _rig_grad_ggx, _rig_value, _rig_value_ggx, _roi_grid, _roi_samples, ggx_alpha_of_phong,
+    _normal_derivs, _ray_light, _rays, _rig_arrays, _rig_diffuse, _rig_diffuse_grad,
+    _rig_geometry, _rig_grad, _rig_grad_ggx, _rig_value, _rig_value_ggx, _roi_grid, _roi_samples, ggx_alpha_of_phong,
 )
 from simtest.reconstruct.lightaware.solve import _ROUGHNESS_RANGE
 
@@ -145,12 +145,13 @@ class PlaneModel:
         if state.get("key") != key:
             n, dns = _normal_derivs(p, nb, e1, e2)
             h, rough = float(np.exp(p[2])), float(np.exp(p[3]))
-            S, parts = (_rig_value_ggx(dT, rl, n, h, rig_arr, rough), None) if self.ggx else _rig_value(
-                dT, rl, n, h, rig_arr, rough)
+            S, parts = (_rig_value_ggx(dT, rl, n, h, rig_arr, rough, parts=(parts := [])), parts) if self.ggx \
+                else _rig_value(dT, rl, n, h, rig_arr, rough)
             design[:, 0], terms = box(S), None
-            if self.diffuse:
-                terms = [pt[:1] + pt[4:9] for pt in parts] if parts else _light_terms(dT, rl, n, h, rig_arr)
-                design[:, 1] = box(_rig_diffuse(dT, rl, n, h, rig_arr, terms))
+            if self.diffuse:  # (cb, delta, s, sl, ir, c[, raw, f]) of each light, cb unused
+                terms = [(None,) + pt[:5] for pt in parts] if self.ggx else [pt[:1] + pt[4:9] + pt[10:] for pt in parts]
+                terms = (terms, [])  # (and each light's shading, for jac_general)
+                design[:, 1] = box(_rig_diffuse(dT, rl, n, h, rig_arr, *terms))
             active = ~cens
             coef, Q = np.zeros(design.shape[1]), None
             if not np.isfinite(design).all():
@@ -180,7 +181,7 @@ class PlaneModel:
         """``(QT, R)`` of the (weighted) background's QR on the active rows, kept while they stay."""
         c = self.lin
         if not (c and c["w"] is w and np.array_equal(c["active"], active)):
-            B = self.background[active]
+            B = self.background if active.all() else self.background[active]
             if w is not None:
                 B = B * w[active, None]
             Q, R = np.linalg.qr(B)
@@ -189,11 +190,11 @@ class PlaneModel:
 
     def _linear_part(self, active, target, w):
         """The linear parameters of the columns on the active rows, weighted by ``w``, and their
-        orthonormal basis ``(QT, QkT)``: the columns that depend on p projected off the kept
-        background basis and factorised (``lstsq``'s minimum norm, no basis, where a column is
-        (nearly) in the others' span)."""
+        orthonormal basis (rows, the background's first): the columns that depend on p projected
+        off the kept background basis and factorised (``lstsq``'s minimum norm, no basis, where a
+        column is (nearly) in the others' span)."""
         design = self.design
-        A, t = design[active], target[active]
+        A, t = (design, target) if active.all() else (design[active], target[active])
         if w is not None:
             A, t = A * w[active, None], t * w[active]
         QT, R = self._background_basis(active, w)
@@ -203,24 +204,28 @@ class PlaneModel:
         if not d.min() > 1e-10 * d.max():
             return np.linalg.lstsq(A, t, rcond=None)[0], None
         g = np.linalg.solve(Rk, Qk.T @ t)
-        return np.concatenate([g, np.linalg.solve(R, QT @ (t - A[:, :k] @ g))]), (QT, np.ascontiguousarray(Qk.T))
+        return np.concatenate([g, np.linalg.solve(R, QT @ (t - A[:, :k] @ g))]), np.vstack([QT, Qk.T])
 
     def jac_general(self, p, nb, e1, e2, dns, w):
         """Kaufman's Jacobian (M, 4) of :meth:`resjac_general` at its cached point."""
         st = self.state
         coef, active = st["coef"], st["active"]
-        lobe_grad, pieces = (_rig_grad_ggx, self.rl) if self.ggx else (_rig_grad, st["parts"])
-        G = coef[0] * self.box(lobe_grad(self.dT, pieces, st["n"], dns, st["h"], self.rig_arr, st["rough"]))
+        G = coef[0] * self.box(_rig_grad_ggx(self.dT, self.rl, st["n"], dns, st["h"], self.rig_arr, st["rough"],
+                                             parts=st["parts"]) if self.ggx
+                               else _rig_grad(self.dT, st["parts"], st["n"], dns, st["h"], self.rig_arr, st["rough"]))
         if self.diffuse:
             G[:3] += coef[1] * self.box(_rig_diffuse_grad(self.dT, self.rl, p, nb, e1, e2, self.rig_arr,
-                                                          at=(st["n"], dns, st["terms"])))
-        Ga = G[:, active] if w is None else G[:, active] * w[active]
+                                                          at=(st["n"], dns, *st["terms"])))
+        every = bool(active.all())
+        Ga = (G if every else G[:, active]) if w is None else G[:, active] * w[active]
         if st.get("Q") is not None and st.get("w") is w:
-            QT, Qk = st["Q"]  # the active columns' basis (_linear_part)
-            Ja = Ga - (Ga @ QT.T) @ QT - (Ga @ Qk.T) @ Qk
+            QA = st["Q"]  # the active columns' basis (_linear_part)
+            Ja = Ga - (Ga @ QA.T) @ QA
         else:
             Q = np.linalg.qr(self.design[active] if w is None else self.design[active] * w[active, None])[0]
             Ja = Ga - (Ga @ Q) @ Q.T
+        if every:
+            return (Ja if w is None else Ja / w).T
         JT = np.zeros_like(G)
         JT[:, active] = Ja if w is None else Ja / w[active]
         return JT.T
@@ -281,12 +286,12 @@ def start_roughness(m: PlaneModel, n, h, given=None) -> float:
     return m.starts[key]
 
 
-def _roughness_steps(m: PlaneModel, n, h, log_n, QT, yt):
-    """Gauss-Newton on log n from ``log_n``, the start plane held."""
+def _roughness_steps(m: PlaneModel, geo, log_n, QT, yt):
+    """Gauss-Newton on log n from ``log_n``, the start plane held (its :func:`_rig_geometry` ``geo``)."""
     dT, rl, rig_arr, box = m.dT, m.rl, m.rig_arr, m.box
     for _ in range(_ROUGHNESS_START_STEPS):
         rough = float(np.exp(log_n))
-        S, parts = _rig_value(dT, rl, n, h, rig_arr, rough)
+        S, parts = _rig_value(dT, rl, None, None, rig_arr, rough, geo)
         S, dS = box(S), box(sum(pt[3] * pt[2] for pt in parts) * rough)  # dS / d log n
         St, da = S - (QT @ S) @ QT, dS - (QT @ dS) @ QT
         aa = float(St @ St)
@@ -305,9 +310,9 @@ def _roughness_steps(m: PlaneModel, n, h, log_n, QT, yt):
     return log_n
 
 
-def _roughness_cost(m: PlaneModel, n, h, ln, QT, yt) -> float:
-    """The start plane's variable-projection cost at roughness exp(ln)."""
-    S_ = m.box(_rig_value(m.dT, m.rl, n, h, m.rig_arr, float(np.exp(ln)))[0])
+def _roughness_cost(m: PlaneModel, geo, ln, QT, yt) -> float:
+    """The start plane's variable-projection cost at roughness exp(ln) (its :func:`_rig_geometry` ``geo``)."""
+    S_ = m.box(_rig_value(m.dT, m.rl, None, None, m.rig_arr, float(np.exp(ln)), geo)[0])
     St_ = S_ - (QT @ S_) @ QT
     aa_ = float(St_ @ St_)
     return float(yt @ yt - (St_ @ yt) ** 2 / aa_) if aa_ > 0 else np.inf
@@ -323,7 +328,8 @@ def phong_start(m: PlaneModel, n, h, given=None) -> float:
     if given is not None:
         return float(given)
     # cos beta f p and f p (the lobe at n = 1 and n = 0): their ratio is cos beta (one light)
-    S1, parts = _rig_value(m.dT, m.rl, n, h, m.rig_arr, 1.0)  # 0 where a ray misses (cb < 0)
+    geo = _rig_geometry(m.dT, m.rl, n, h, m.rig_arr)  # the plane's pieces, for each roughness below
+    S1, parts = _rig_value(m.dT, m.rl, n, h, m.rig_arr, 1.0, geo)  # 0 where a ray misses (cb < 0)
     S0 = sum(pt[3] / pt[1] for pt in parts)  # val / cb
     S1, S0 = m.box(S1), m.box(S0)
     spec = m.y - m.b_level
@@ -338,7 +344,7 @@ def phong_start(m: PlaneModel, n, h, given=None) -> float:
         if np.isfinite(slope) and slope > 1:
             log_n = np.log(min(slope, _ROUGHNESS_RANGE[1]))
     QT, yt = m.basis(None)
-    log_n = _roughness_steps(m, n, h, log_n, QT, yt)
+    log_n = _roughness_steps(m, geo, log_n, QT, yt)
     if len(m.rig_arr[0]) > 1:
         # several lights: the ratio above is no lobe's cos beta, and where a second light's
         # lobe enters the ROI the steps ran to a broad lobe over both (n -> 1), from where the
@@ -347,10 +353,9 @@ def phong_start(m: PlaneModel, n, h, given=None) -> float:
         # the first only where it at least halves the start plane's cost (it found the lobe);
         # a lower cost by a few per cent on a flat cost curve says nothing of the basin, and
         # taking it sent a sensor-path fit of an exact plane into a local minimum
-        other = _roughness_steps(m, n, h, min(np.log(_START_ROUGHNESS_GRID),
-                                              key=lambda ln: _roughness_cost(m, n, h, ln, QT, yt)),
-                                 QT, yt)
-        if (_roughness_cost(m, n, h, other, QT, yt)
-                < _START_ROUGHNESS_GAIN * _roughness_cost(m, n, h, log_n, QT, yt)):
+        other = _roughness_steps(m, geo, min(np.log(_START_ROUGHNESS_GRID),
+                                             key=lambda ln: _roughness_cost(m, geo, ln, QT, yt)), QT, yt)
+        if (_roughness_cost(m, geo, other, QT, yt)
+                < _START_ROUGHNESS_GAIN * _roughness_cost(m, geo, log_n, QT, yt)):
             log_n = other
     return float(np.exp(log_n))

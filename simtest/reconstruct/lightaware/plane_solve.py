@@ -64,7 +64,7 @@ def _finite(m: PlaneModel, r) -> bool:
 def _again(m: PlaneModel, x, n0, e1, e2, h0, s):
     """``x`` refined on the pixels :meth:`PlaneModel.use` set last: ``(x, nfev, conv, msg, r)``."""
     free = np.ones(len(x), bool)
-    free[2] = np.abs(m.rig_arr[0]).max() > 1e-9 * h0
+    free[2] = np.abs(m.rig_arr[0]).max() > 1e-9 * h0  # all lights at V: no dependence on h
     return _solve(m.resjac_at, x, (n0, e1, e2), s.loss, s.f_scale, s.max_nfev, free,
                   lazy_jac=True, weighted=True, newton=True)
 
@@ -82,10 +82,7 @@ def solve_plane(m: PlaneModel, cands, s, floor_level):
     for nc, hc in cands:
         e1, e2 = plane_basis(nc)
         p0 = np.array([0.0, 0.0, np.log(hc), np.log(start_roughness(m, nc, hc, s.start_roughness))])
-        free = np.ones(len(p0), bool)
-        free[2] = np.abs(m.rig_arr[0]).max() > 1e-9 * hc  # all lights at V: no dependence on h
-        x, nfev, conv, msg, r = _solve(m.resjac_at, p0, (nc, e1, e2), s.loss, s.f_scale, s.max_nfev,
-                                       free, lazy_jac=True, weighted=True, newton=True)
+        x, nfev, conv, msg, r = _again(m, p0, nc, e1, e2, hc, s)
         nfev_total += nfev
         cost = float(r @ r) if np.isfinite(r).all() else np.inf
         if best is None or cost < best[0]:
