@@ -94,6 +94,7 @@ def test_reference_dataset_verifies_with_every_family(reference, config_path):
             assert h["k1"] >= h["k2"]
 
 
+@pytest.mark.slow
 def test_two_workers_and_a_dask_cluster_give_identical_datasets(reference, config_path, tmp_path):
     from distributed import LocalCluster
 
@@ -110,6 +111,7 @@ def test_two_workers_and_a_dask_cluster_give_identical_datasets(reference, confi
     assert _files(dask_out) == ref
 
 
+@pytest.mark.slow
 def test_sigkill_mid_run_then_rerun_gives_the_uninterrupted_dataset(reference, config_path, tmp_path):
     out = tmp_path / "killed"
     cmd = [sys.executable, "-m", "simtest.cli", "dataset", "generate", str(config_path),
