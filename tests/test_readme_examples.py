@@ -117,7 +117,7 @@ def _run_line(line: str, repo: Path, env: dict, monkeypatch) -> tuple[int, str]:
     on ``sys.path``, where this process's imports look), the environment restored after it. Any
     other line with ``bash -e`` in the user's environment ``env``."""
     words = shlex.split(line)
-    sets = [w for w in words[:next((i for i, w in enumerate(words) if "=" not in w), len(words))]]
+    sets = words[:next((i for i, w in enumerate(words) if "=" not in w), len(words))]
     rest = words[len(sets):]
     if rest[:1] != ["simtest"] or any(c in line for c in "|;&<>$`()"):
         r = subprocess.run(["bash", "-e", "-c", line], cwd=repo, env=env, capture_output=True,
@@ -132,7 +132,7 @@ def _run_line(line: str, repo: Path, env: dict, monkeypatch) -> tuple[int, str]:
                 if name == "PYTHONPATH":
                     mp.syspath_prepend(str(repo / value))
             res = CliRunner().invoke(app, rest[1:], prog_name="simtest")
-    finally:  # a command may set variables for its workers (dataset generate's threads)
+    finally:  # what a command leaves in os.environ reaches neither the next line nor test
         os.environ.clear()
         os.environ.update(saved)
     return res.exit_code, res.output + (repr(res.exception) if res.exception else "")
