@@ -67,16 +67,44 @@ def _one_library_thread_per_worker():
 
 
 def pytest_collection_modifyitems(config, items):
-    """Modules holding a test marked ``slow`` run first, each module's tests kept together.
+    """Modules holding a test marked ``slow`` run first in each worker's share, each module's tests
+    kept together.
 
-    Under ``--dist worksteal`` (pyproject's addopts) each worker starts on a contiguous half of
-    this order and takes tests from the other when it runs out: a long test left for the end
-    would keep one core busy while the other idles, whereas cheap tests at the end even out.
+    Under ``--dist worksteal`` (pyproject's addopts) each of the N workers starts on a contiguous
+    N-th of this order and takes tests from the end of another's when it runs out. The slow
+    modules are dealt among the N shares (the module with the most slow tests to the share with
+    the fewest so far) and each share starts with its own: every worker begins on long tests and
+    ends on cheap ones, so that what is taken at the end, and the last test to run, is cheap. A
+    long test left for the end would keep one core busy while the others idle.
     """
-    slow = {item.module.__name__ for item in items
-            if item.get_closest_marker("slow") is not None and getattr(item, "module", None) is not None}
-    if slow:
-        items.sort(key=lambda item: getattr(getattr(item, "module", None), "__name__", None) not in slow)
+    order = _worker_share_order([getattr(getattr(item, "module", None), "__name__", None) for item in items],
+                                [item.get_closest_marker("slow") is not None for item in items],
+                                getattr(config, "workerinput", {}).get("workercount", 1))
+    items[:] = [items[i] for i in order]
+
+
+def _worker_share_order(modules, slow, workers):
+    """The order of the items (indices) from their modules and slow marks, for ``workers`` shares
+    of sizes as xdist's worksteal first sends them (the remaining count over the workers left)."""
+    groups = {}
+    for i, m in enumerate(modules):
+        groups.setdefault(m, []).append(i)
+    slow_mods = [m for m, idx in groups.items() if m is not None and any(slow[i] for i in idx)]
+    cheap = [i for m, idx in groups.items() if m not in slow_mods for i in idx]
+    weight = [0] * workers
+    dealt = [[] for _ in range(workers)]
+    for m in sorted(slow_mods, key=lambda m: -sum(slow[i] for i in groups[m])):  # stable: ties keep order
+        k = weight.index(min(weight))
+        dealt[k] += groups[m]
+        weight[k] += sum(slow[i] for i in groups[m])
+    order, left = [], len(modules)
+    for k in range(workers):
+        size = left // (workers - k)
+        fill = max(0, size - len(dealt[k]))
+        order += dealt[k] + cheap[:fill]
+        cheap = cheap[fill:]
+        left -= len(dealt[k]) + fill
+    return order + cheap
 
 
 @pytest.fixture(scope="module")

@@ -160,6 +160,7 @@ def _small_render(name):
 
 @pytest.mark.render
 @pytest.mark.parametrize("name", sorted(ENDOSCOPE))
+@pytest.mark.slow
 def test_defaults_reconstruct_every_visible_highlight_of_the_endoscope_scenes(name):
     res = _small_render(name)
     sensor = res.spec.sensor

@@ -51,6 +51,7 @@ def _without_plane_sweeps(path):
 
 
 @pytest.mark.render
+@pytest.mark.slow
 def test_ok_estimates_on_the_endoscope_suite_meet_the_rendered_bars(tmp_path):
     full = one_texture_endoscope(tmp_path)
     cases = load_suite(str(full)).with_overrides(realisations=1).distinct_cases

@@ -17,6 +17,17 @@ from simtest.evaluate.detection import (TOLERANCE_PX, Structure, labelled_real_f
 from simtest.render.truth import HighlightTarget
 
 
+@pytest.fixture(autouse=True)
+def _figures_closed():
+    """``simtest evaluate detection`` writes its three figures and leaves them open in pyplot
+    (nothing in its own process); closed after each test here, so that an xdist worker that runs
+    many modules does not gather them (matplotlib warns past 20 open figures)."""
+    yield
+    import matplotlib.pyplot as plt
+
+    plt.close("all")
+
+
 def _spec(u, v, status="ok"):
     return {"bp_px": [u, v], "status": status}
 

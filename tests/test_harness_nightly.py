@@ -93,6 +93,7 @@ def _edit(src, dst, fn):
     return dst
 
 
+@pytest.mark.slow
 def test_unchanged_code_passes_and_keeps_a_history(made):
     path, d = made
     b = json.loads(path.read_text())
@@ -161,6 +162,7 @@ def test_baseline_with_one_bad_metric_fails_naming_it(made, tmp_path, value, why
     assert len(lines) == 1 and f"{name} ({why})" in lines[0], r.output
 
 
+@pytest.mark.slow
 def test_planted_regressions_per_estimator_family(made, tmp_path, monkeypatch, no_reports):
     """Double one estimator at a time: exactly its detectable metrics regress, nothing else.
 

@@ -522,6 +522,7 @@ def test_cubic_patch_fit_depth_is_not_observable_under_one_light(eps):
     ([(-5.0, 0.0, 0.0), (5.0, 0.0, 0.0)], True),  # two lights, the pair closest together
     ([(15.0, 0.0, 0.0)], False),  # one light, the farthest from the camera
 ])
+@pytest.mark.slow
 def test_depth_profile_rises_under_two_lights_and_stays_flat_under_one(lights, fixes_depth):
     # The cubic patch refitted with its apex depth fixed at half, once and twice the truth.
     # In units of the noise floor's variance (TOL.photometric_noise_rel^2 per pixel, summed
@@ -552,6 +553,7 @@ def test_patch_depth_profile_names_bad_depths():
         la.patch_depth_profile(np.full((3, 3), np.nan), (0, 0), bp, SPHERE_K, rig, [10.0])
 
 
+@pytest.mark.slow
 def test_two_light_curved_highlight_is_recommended_the_cubic_patch_and_scored_per_light():
     # The whole chain on the exact two-light sphere: the plane fit misfits, the cubic patch is
     # run because the rig has two lights apart, recommended, and the harness scores each light's

@@ -80,6 +80,7 @@ def test_flat_mucosa_in_a_jpeg_frame_at_quality_95_meets_the_must_hold(realisati
 
 
 @pytest.mark.parametrize("relief, realisation", [(0.0, 0), (0.002, 1)])
+@pytest.mark.slow
 def test_on_the_colon_wall_a_projected_fit_without_its_depth_is_not_recommended(relief, realisation, tmp_path):
     # The colon wall (curved) of the suite's micro_relief sweep. A fit on a projection passed its
     # own tests with its depth not observable or above the recommendation's ceiling, and was
@@ -97,6 +98,7 @@ def test_on_the_colon_wall_a_projected_fit_without_its_depth_is_not_recommended(
 
 
 @pytest.mark.parametrize("realisation", [pytest.param(4, marks=VESSELS_62), 7])
+@pytest.mark.slow
 def test_flat_mucosa_under_a_micro_relief_keeps_the_plane_fit_within_its_sigma(realisation):
     # The suite's flat mucosa under a 0.002 mm RMS micro-relief, its texture drawn for each
     # realisation as `validate` draws it: the relief's random curvatures over the lobe put a

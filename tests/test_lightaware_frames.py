@@ -34,6 +34,7 @@ def _gamma_frame():
             SensorResponse("gamma", 2.2, (1.0, 1.0, 1.0), 1.0, 255.0))
 
 
+@pytest.mark.slow
 def test_a_folders_frames_are_fitted_on_the_camera_files_response(tmp_path):
     # A folder's frames dropped the response (the fits ran on the gamma-encoded values: a Phong
     # lobe s^(1/2.2) fitted as n = 27 instead of 60). With it passed on, every frame's record is

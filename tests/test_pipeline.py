@@ -699,6 +699,7 @@ def test_few_rois_smoothed_alone_in_float32_are_the_float64_results(kind, monkey
 
 @pytest.mark.parametrize("normalise, sigma", [("auto", None), ("auto", 0.0), ("local", 0.0), ("bp", None),
                                              ("full_scale", 0.0)])
+@pytest.mark.slow
 def test_the_growth_over_the_frames_array_gives_the_roi_loops_estimates(normalise, sigma, monkeypatch):
     """``_grown_drafts`` (every fitted candidate's ROI growth, levels and contours with its values
     sliced from one frame-wide array) gives each highlight, to the bit, what ``_estimate_one``'s

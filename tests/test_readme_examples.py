@@ -1,9 +1,13 @@
 """Every example of the README runs as written, in order, from the root of a copy of the clone.
 
-The README is a user's document: its shell blocks (```bash) are run one line at a time with
-``bash -e`` from a temporary copy of the repository (so ``out/`` and the reports they write land
-there), then its Python blocks (```python) are executed in the same folder. Two kinds of lines
-are not run here, and why:
+The README is a user's document: its shell blocks (```bash) are run one line at a time from a
+temporary copy of the repository (so ``out/`` and the reports they write land there), then its
+Python blocks (```python) are executed in the same folder. A ``simtest ...`` line (after its
+``NAME=value`` assignments, if any) goes through the command line's app in this process, from that
+folder, with those variables set (CliRunner, as the command-line tests run it: a Python start
+and the package's imports, 1 to 2.5 s of CPU a line, saved; the console script itself is tested by
+the tests that run it in a real process); every other line runs with ``bash -e``. Two kinds of
+lines are not run here, and why:
 
 - the two set-up commands (``apt-get ... && pip install ...``): they install the system; CI runs
   them, and ``test_ci_runs_the_set_up_commands`` checks that ``.ci/run`` runs both;
@@ -26,6 +30,7 @@ from pathlib import Path
 import pytest
 import typer
 from test_harness_external import check_external_run
+from typer.testing import CliRunner
 
 from simtest.cli import app
 from simtest.resources import data_root
@@ -104,14 +109,42 @@ def test_the_examples_python_is_the_users_interpreter(tmp_path):
     assert r.stdout.strip() == sys.prefix
 
 
+def _run_line(line: str, repo: Path, env: dict, monkeypatch) -> tuple[int, str]:
+    """One README line from ``repo``: its exit status and what it printed on error.
+
+    ``[NAME=value ...] simtest ARGS`` (no other shell syntax) through the command line's app in
+    this process: the assignments set in the environment for the line (a ``PYTHONPATH`` one also
+    on ``sys.path``, where this process's imports look), the environment restored after it. Any
+    other line with ``bash -e`` in the user's environment ``env``."""
+    words = shlex.split(line)
+    sets = words[:next((i for i, w in enumerate(words) if "=" not in w), len(words))]
+    rest = words[len(sets):]
+    if rest[:1] != ["simtest"] or any(c in line for c in "|;&<>$`()"):
+        r = subprocess.run(["bash", "-e", "-c", line], cwd=repo, env=env, capture_output=True,
+                           text=True, timeout=300)
+        return r.returncode, r.stderr
+    saved = dict(os.environ)
+    try:
+        with monkeypatch.context() as mp:
+            mp.chdir(repo)
+            for name, value in (w.split("=", 1) for w in sets):
+                mp.setenv(name, value)
+                if name == "PYTHONPATH":
+                    mp.syspath_prepend(str(repo / value))
+            res = CliRunner().invoke(app, rest[1:], prog_name="simtest")
+    finally:  # what a command leaves in os.environ reaches neither the next line nor test
+        os.environ.clear()
+        os.environ.update(saved)
+    return res.exit_code, res.output + (repr(res.exception) if res.exception else "")
+
+
 @pytest.mark.slow
-def test_every_readme_example_runs(tmp_path):
+def test_every_readme_example_runs(tmp_path, monkeypatch):
     repo = _copy_of_the_clone(tmp_path)
     env = _user_env(tmp_path)
     for line in _run_lines():
-        r = subprocess.run(["bash", "-e", "-c", line], cwd=repo, env=env, capture_output=True,
-                           text=True, timeout=300)
-        assert r.returncode == 0, f"README example failed ({r.returncode}): {line}\n{r.stderr[-2000:]}"
+        code, err = _run_line(line, repo, env, monkeypatch)
+        assert code == 0, f"README example failed ({code}): {line}\n{err[-2000:]}"
     # the external estimator's run (README_LINE): test_harness_external's checks, on this run
     runs = [p.parent for p in (repo / "out" / "reports" / "quick").glob("*/results.json")
             if "bp_ray_cv" in json.loads(p.read_text())["suite"]["estimators"]]

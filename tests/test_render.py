@@ -370,6 +370,7 @@ def highlight_complete(specular, bp_px, t=0.1) -> bool:
     return not (region[0].any() or region[-1].any() or region[:, 0].any() or region[:, -1].any())
 
 
+@pytest.mark.slow
 def test_bundled_scenes_show_a_complete_highlight():
     for name in bundled_scene_names():
         spec = load_scene(name)

@@ -32,6 +32,7 @@ def test_bench_render_406_16spp(benchmark, scene):
     assert len(result.highlights) >= 1
 
 
+@pytest.mark.slow
 def test_bench_render_function_reports_per_scene(monkeypatch):
     # the endoscope part (bench_endoscope, every preset and the plain-Mitsuba comparison) runs on
     # its presets shrunk to a tenth of their film at 1 spp: the runner is checked, not the speed

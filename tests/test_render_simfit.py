@@ -126,6 +126,7 @@ def test_fit_shows_the_frame_the_fitted_scene_renders_and_judges_several_render_
 
 
 @pytest.mark.render
+@pytest.mark.slow
 def test_simreal_fit_cli(tmp_path):
     import cv2
 
