@@ -18,8 +18,6 @@ from __future__ import annotations
 import json
 from pathlib import Path
 
-import matplotlib.pyplot as plt
-
 from simtest._io import replace_output_folder
 from simtest.harness.claims import CLAIMS, PAPER_CHECKS, evaluate_claims, evaluate_paper_claim
 from simtest.harness.report.document import html_report, markdown_report
@@ -70,7 +68,6 @@ def write_report_files(results: dict, folder: str | Path, plots: bool = True,
     if plots:
         for name, fig in make_figures(results, history).items():
             pngs[name] = figure_png(fig)
-            plt.close(fig)
     md = markdown_report(results, sorted(pngs), nightly=nightly, history=history)
     html = html_report(md, pngs, title=f"simtest report: {results['suite']['name']}")
 

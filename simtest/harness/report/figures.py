@@ -67,7 +67,8 @@ def style(estimator: str, order: list[str] | None = None) -> tuple[str, str]:
 
 
 def figure_png(fig) -> bytes:
-    """PNG bytes of a figure as laid out (no tight-bbox cropping: what is checked is saved).
+    """PNG bytes of a figure as laid out (no tight-bbox cropping: what is checked is saved); the
+    figure is closed (pyplot keeps every open figure).
 
     Parameters
     ----------
@@ -79,6 +80,7 @@ def figure_png(fig) -> bytes:
     """
     buf = io.BytesIO()
     fig.savefig(buf, format="png", dpi=100)
+    plt.close(fig)
     return buf.getvalue()
 
 
