@@ -61,7 +61,11 @@ def test_cos_beta_and_its_derivatives_are_those_of_the_vectors(seed):
     want = 2.0 * (n @ l) * (n @ v) - np.einsum("in,in->n", l, v)
     scale = np.abs(want) + 1.0
     assert np.all(np.abs(cb - want)[off | ~np.any(L)] <= REL * scale[off | ~np.any(L)])
-    assert np.allclose(delta, (-n) @ dT, rtol=1e-15) and np.allclose(s * delta, h, rtol=1e-14)
+    # a ray that meets the plane behind the camera or edge-on (1 in ~1000 of the seeds' rays)
+    # sits at the model's floor of delta, 1e-9
+    front = (-n) @ dT > 1e-9
+    assert np.allclose(delta[front], ((-n) @ dT)[front], rtol=1e-15) and np.all(delta[~front] == 1e-9)
+    assert np.allclose(s * delta, h, rtol=1e-14)
     assert np.allclose(1.0 / ir, np.linalg.norm(L[:, None] - s * dT, axis=0), rtol=1e-12)
     # derivatives in (a, b, log h): central differences, step 1e-5 (truncation ~1e-10, rounding
     # ~1e-11 of a cos beta of order 1): agree to 1e-6
