@@ -258,6 +258,12 @@ CLIP_MARGIN_REL = decision(
     "pixels joined to a clipped top.",
     basis="tuned", stage=_D, chosen_on=("libjpeg-encodes",),
     n="48 frames of tests/test_rig_pairs.sensor_plane, 8 per quality")
+CLIP_GROWTH_PX = decision(
+    "CLIP_GROWTH_PX", 2, "px",
+    "... within this distance of a pixel at the ceiling: JPEG's 4:2:0 chroma is one value per 2 x 2 "
+    "px and its luma rings within a block, so a clipped top's broken edge lies within 2 px of what "
+    "stays at the ceiling; farther near-ceiling pixels are the sheen around the top, not the top.",
+    basis="physics", stage=_D)
 BACKGROUND_PLATEAU_FACTOR = decision(
     "BACKGROUND_PLATEAU_FACTOR", 2, "times the widest clipped plateau",
     "The background square is at least twice the widest clipped plateau, so that the opening "
@@ -386,7 +392,7 @@ NOISE_LEVEL_MIN_SAMPLES = decision(
     "A bin's noise from at least this many pixels (the MAD's standard error about 5 %).",
     basis="physics", stage=_V)
 CONFIDENCE_COEFFICIENTS = decision(
-    "CONFIDENCE_COEFFICIENTS", np.array([-9.238, 0.583, -0.112, 1.938, -0.109, 0.002]),
+    "CONFIDENCE_COEFFICIENTS", np.array([-9.136, 0.578, -0.100, 1.901, -0.105, 0.003]),
     "logistic intercept, then weights of paleness, significance, surround, residual ratio, panel "
     "share",
     "The confidence's logistic model, fitted by simtest.evaluate.detection.fit_logistic (L2 "

@@ -30,7 +30,7 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
-from simtest.decisions import ELLIPTICITY_MIN_AREA_PX
+from simtest.decisions import CLIP_GROWTH_PX, ELLIPTICITY_MIN_AREA_PX
 from simtest.reconstruct._pixels import uv_to_rc
 from simtest.reconstruct.detect_pixels import connected_components
 
@@ -161,21 +161,22 @@ def _flat_tops(gray, flat_rows, idx, k, peak, pix):
     return sr[at] / cnt[at], sc[at] / cnt[at]
 
 
+def _grown(clipped: np.ndarray, near: np.ndarray) -> np.ndarray:
+    """``clipped`` grown into the pixels of ``near`` within :data:`~simtest.decisions.CLIP_GROWTH_PX`
+    of it: a clipped top as a lossy codec leaves it (:data:`~simtest.decisions.CLIP_MARGIN_REL`),
+    not the sheen around it."""
+    side = 2 * CLIP_GROWTH_PX + 1
+    return near & cv2.dilate(clipped, np.ones((side, side), np.uint8))
+
+
 def _plateaus(clipped: np.ndarray, labels: np.ndarray, cid: int, x: int, y: int, bw: int, bh: int,
-              rules: Rules, near: np.ndarray | None = None) -> tuple[int, float, float]:
+              rules: Rules) -> tuple[int, float, float]:
     """The clipped plateaus of one candidate: ``(n, row, col)``, the count of plateaus of the
-    plateau size and the centroid of the largest (frame). The clipped pixels are grown into the
-    ``near`` ones joined to them (:data:`~simtest.decisions.CLIP_MARGIN_REL`). ``"local_peak"``: then closed 3 x 3
-    and cut by the component (plateaus from 3 px), or closed by ``k_close`` where that makes one
-    plateau of two or more."""
+    plateau size and the centroid of the largest (frame). ``"local_peak"``: the clipped pixels
+    closed 3 x 3 and cut by the component (plateaus from 3 px), or closed by ``k_close`` where
+    that makes one plateau of two or more."""
     comp = (labels[y : y + bh, x : x + bw] == cid).view(np.uint8)
     raw = clipped[y : y + bh, x : x + bw] & comp
-    if near is not None:  # the near-ceiling pieces joined to a clipped pixel
-        n_low, low = cv2.connectedComponents(near[y : y + bh, x : x + bw] & comp, connectivity=8)
-        joined = np.zeros(n_low, bool)
-        joined[low[raw.view(bool)]] = True
-        joined[0] = False
-        raw = joined[low].view(np.uint8)
     sat = raw
     min_plateau = rules.min_plateau_px
     if rules.local_peak:
@@ -281,9 +282,10 @@ def examine(gray: np.ndarray, labels: np.ndarray, table: np.ndarray, rules: Rule
     if clipped is not None:
         hits = np.bincount(k[clipped.ravel()[idx] != 0], minlength=n)
         saturated = hits > 0
+        tops = clipped if near is None or not saturated.any() else _grown(clipped, near)
         for i in np.flatnonzero(saturated).tolist():
-            n_plateaus[i], row[i], col[i] = _plateaus(clipped, labels, int(cid[i]), int(x[i]), int(y[i]),
-                                                      int(bw[i]), int(bh[i]), rules, near)
+            n_plateaus[i], row[i], col[i] = _plateaus(tops, labels, int(cid[i]), int(x[i]), int(y[i]),
+                                                      int(bw[i]), int(bh[i]), rules)
 
     code = np.full(n, OK, np.int64)
     code[n_plateaus > 1] = MERGED
