@@ -170,13 +170,23 @@ def _grown(clipped: np.ndarray, near: np.ndarray) -> np.ndarray:
 
 
 def _plateaus(clipped: np.ndarray, labels: np.ndarray, cid: int, x: int, y: int, bw: int, bh: int,
-              rules: Rules) -> tuple[int, float, float]:
+              rules: Rules, grown: np.ndarray | None = None) -> tuple[int, float, float]:
     """The clipped plateaus of one candidate: ``(n, row, col)``, the count of plateaus of the
     plateau size and the centroid of the largest (frame). ``"local_peak"``: the clipped pixels
     closed 3 x 3 and cut by the component (plateaus from 3 px), or closed by ``k_close`` where
-    that makes one plateau of two or more."""
+    that makes one plateau of two or more. A top whose clipped pixels lie in more than one piece
+    is read again on ``grown`` (:func:`_grown`): a codec's broken top is one plateau; a whole one
+    keeps its own centroid."""
     comp = (labels[y : y + bh, x : x + bw] == cid).view(np.uint8)
-    raw = clipped[y : y + bh, x : x + bw] & comp
+    n_big, row, col, pieces = _plateau_count(clipped[y : y + bh, x : x + bw] & comp, comp, rules)
+    if grown is not None and pieces > 1:
+        n_big, row, col, _ = _plateau_count(grown[y : y + bh, x : x + bw] & comp, comp, rules)
+    return n_big, row + y, col + x
+
+
+def _plateau_count(raw: np.ndarray, comp: np.ndarray, rules: Rules) -> tuple[int, float, float, int]:
+    """:func:`_plateaus` of one mask in the candidate's box: ``(n, row, col, pieces)`` with
+    ``pieces`` the closed mask's components of any size (box coordinates)."""
     sat = raw
     min_plateau = rules.min_plateau_px
     if rules.local_peak:
@@ -184,6 +194,7 @@ def _plateaus(clipped: np.ndarray, labels: np.ndarray, cid: int, x: int, y: int,
         min_plateau = max(min_plateau, 3)
     _, _, stats, cent = cv2.connectedComponentsWithStats(sat, connectivity=8)
     areas = stats[1:, cv2.CC_STAT_AREA]
+    pieces = len(areas)
     n_big = int(np.sum(areas >= min_plateau))
     if rules.local_peak and rules.k_close > 3 and n_big > 1:
         wide = cv2.morphologyEx(raw, cv2.MORPH_CLOSE, np.ones((rules.k_close,) * 2, np.uint8)) & comp
@@ -192,7 +203,7 @@ def _plateaus(clipped: np.ndarray, labels: np.ndarray, cid: int, x: int, y: int,
             stats, cent, n_big = wstats, wcent, 1
             areas = stats[1:, cv2.CC_STAT_AREA]
     cx, cy = cent[1 + int(np.argmax(areas))]
-    return n_big, float(cy) + y, float(cx) + x
+    return n_big, float(cy), float(cx), pieces
 
 
 def _parabola(a: np.ndarray, b: np.ndarray, d: np.ndarray, ok: np.ndarray) -> np.ndarray:
@@ -282,10 +293,10 @@ def examine(gray: np.ndarray, labels: np.ndarray, table: np.ndarray, rules: Rule
     if clipped is not None:
         hits = np.bincount(k[clipped.ravel()[idx] != 0], minlength=n)
         saturated = hits > 0
-        tops = clipped if near is None or not saturated.any() else _grown(clipped, near)
+        grown = None if near is None or not saturated.any() else _grown(clipped, near)
         for i in np.flatnonzero(saturated).tolist():
-            n_plateaus[i], row[i], col[i] = _plateaus(tops, labels, int(cid[i]), int(x[i]), int(y[i]),
-                                                      int(bw[i]), int(bh[i]), rules)
+            n_plateaus[i], row[i], col[i] = _plateaus(clipped, labels, int(cid[i]), int(x[i]), int(y[i]),
+                                                      int(bw[i]), int(bh[i]), rules, grown)
 
     code = np.full(n, OK, np.int64)
     code[n_plateaus > 1] = MERGED
