@@ -392,13 +392,13 @@ NOISE_LEVEL_MIN_SAMPLES = decision(
     "A bin's noise from at least this many pixels (the MAD's standard error about 5 %).",
     basis="physics", stage=_V)
 CONFIDENCE_COEFFICIENTS = decision(
-    "CONFIDENCE_COEFFICIENTS", np.array([-9.136, 0.578, -0.100, 1.901, -0.105, 0.003]),
+    "CONFIDENCE_COEFFICIENTS", np.array([-10.060, 0.534, -0.209, 2.268, -0.165, 0.002]),
     "logistic intercept, then weights of paleness, significance, surround, residual ratio, panel "
     "share",
     "The confidence's logistic model, fitted by simtest.evaluate.detection.fit_logistic (L2 "
     "penalty chosen by frame-wise cross-validation) to the labels of the ok estimates; "
     "tests/test_verify.py refits them.", basis="tuned", stage=_V,
-    chosen_on=("banner-labelled",), n="182 ok estimates of the 24 banner frames, 53 isolated")
+    chosen_on=("banner-labelled",), n="181 ok estimates of the 24 banner frames, 52 isolated")
 
 DEFAULT_MIN_CONFIDENCE = decision(
     "DEFAULT_MIN_CONFIDENCE", 0.0, "confidence in [0, 1]",

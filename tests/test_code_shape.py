@@ -20,7 +20,7 @@ MAX_FUNCTION_LINES = 150
 #: decision registry, the rig's pairing, the harness's end-to-end records, the frame's tables,
 #: the operating point, the liver's lobe and gallbladder)
 TARGET_PACKAGE_LINES = 30_000
-PACKAGE_LINES_CEILING = 45_117
+PACKAGE_LINES_CEILING = 45_112
 
 #: module -> its lines today (to be split by job as the per-frame tables replace them)
 LONG_MODULES: dict[str, int] = {}

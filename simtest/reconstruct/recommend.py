@@ -21,9 +21,6 @@ measurements behind each rule are in ``docs/decisions/light-aware-recommendation
    lobes shift apart as the offsets over the depth say while the shape acts on both alike, so
    ``cubic_patch_fit`` fixes the depth, the shape free; its normal is the apex's, each light's
    beside it (``light_normals``).
-   A ``merged`` candidate (two clipped plateaus, or its isophote encloses another BP: two
-   lobes) keeps the BP ray: each light-aware fit models one lobe per light; fused lobes of one
-   rig get a row per guide of their own (:mod:`simtest.reconstruct.rig_lobes`).
 2. Without a rig or with every light at the camera centre: ``joint_cone_axis`` (two isophotes),
    else ``cone_axis``, else ``bp_ray`` (the co-located suite's ranking).
 3. The fit of least stated sigma (:func:`_stated_sigma`) whose depth is not observable (its misfit
@@ -229,8 +226,6 @@ def recommend(est) -> Recommendation:
     Recommendation
     """
     la = getattr(est, "light_aware", None)
-    if la is not None and est.status == "merged":  # two lobes: no one-lobe fit speaks for them
-        return Recommendation(np.asarray(est.bp_ray), "bp_ray")
     if la is not None:  # a rig off the camera centre is known ({}: no fit ran, the BP ray's)
         pho = la.get("photometric_fit")
         plane_fits = pho is None or pho.status != "plane_misfit"
