@@ -247,15 +247,14 @@ BACKGROUND_DIV = decision(
     "field), narrower than the shading's variation over folds.", basis="physics", stage=_D)
 CLIP_MARGIN_REL = decision(
     "CLIP_MARGIN_REL", 0.04, "fraction of an integer frame's full scale",
-    "A clipped plateau is its pixels at the ceiling in every channel grown into the pixels joined "
-    "to them whose every channel lies within this margin of it: a lossy codec breaks a clipped top "
+    "A clipped top whose pixels at the ceiling (every channel) lie in pieces is read with the pixels "
+    "near them (CLIP_GROWTH_PX) whose every channel lies within this margin of it: a lossy codec breaks a clipped top "
     "(JPEG's luma quantisation rings, its 4:2:0 chroma bleeds the tissue's colour into the top's "
     "edge), so that counted at the ceiling alone it falls into pieces ('merged') and its centroid, "
     "the BP, into the largest piece's. Measured with OpenCV's libjpeg on 48 sensor-like plane frames "
     "(two guides, sRGB, 1 % noise): of the pixels clipped before encoding, 2 to 28 % stay at 255 "
     "in every channel at qualities 40 to 98, and 87, 95, 98, 99.8, 99.9, 100 % within 10 levels "
-    "(4 % of 255) at 40, 60, 75, 90, 95, 98. A lossless frame is unchanged but for the shoulder "
-    "pixels joined to a clipped top.",
+    "(4 % of 255) at 40, 60, 75, 90, 95, 98. A whole top keeps its own plateau and centroid.",
     basis="tuned", stage=_D, chosen_on=("libjpeg-encodes",),
     n="48 frames of tests/test_rig_pairs.sensor_plane, 8 per quality")
 CLIP_GROWTH_PX = decision(

@@ -233,8 +233,9 @@ def examine(gray: np.ndarray, labels: np.ndarray, table: np.ndarray, rules: Rule
     clipped : ndarray of shape (H, W), uint8, optional
         Clipped pixels (0/1).
     near : ndarray of shape (H, W), uint8, optional
-        Pixels within :data:`~simtest.decisions.CLIP_MARGIN_REL` of the ceiling (0/1): a clipped plateau grows
-        into those joined to it.
+        Pixels within :data:`~simtest.decisions.CLIP_MARGIN_REL` of the ceiling (0/1): a top whose
+        clipped pixels lie in pieces is read with those within
+        :data:`~simtest.decisions.CLIP_GROWTH_PX` of them (:func:`_plateaus`).
     scope : ndarray of shape (H, W), bool, optional
         The endoscope's black border.
     levels : ndarray of shape (H, W), float32, optional
