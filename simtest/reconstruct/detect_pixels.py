@@ -414,8 +414,8 @@ def near_ceiling_mask(image: np.ndarray, saturation_level: float | None,
                       gray: np.ndarray | None = None, grey: bool = False) -> np.ndarray | None:
     """Pixels of an integer frame whose every channel lies within
     :data:`~simtest.decisions.CLIP_MARGIN_REL` of full scale below ``saturation_level``: where a
-    lossy codec leaves a clipped top (a clipped plateau grows into those joined to it,
-    :func:`~simtest.reconstruct.candidates.examine`).
+    lossy codec leaves a clipped top (a top whose clipped pixels lie in pieces is read with those
+    within :data:`~simtest.decisions.CLIP_GROWTH_PX` of them, :func:`~simtest.reconstruct.candidates.examine`).
 
     Parameters
     ----------
