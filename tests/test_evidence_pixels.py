@@ -233,3 +233,35 @@ def test_the_variance_bound_is_the_square_root_rule_at_every_float32(std_max):
 def test_no_standard_deviation_is_below_zero():
     g = np.zeros((20, 20), np.float32)
     assert not px.flat_mask(g, 0.0).any() and px.flat_mask(g, 0.5).all()
+
+
+@settings(max_examples=200, deadline=None)
+@given(st.tuples(st.floats(0.05, 1.0), st.floats(0.05, 1.0), st.floats(0.05, 1.0)), st.floats(0.0, 2.0),
+       st.floats(0.0, 2.0))
+def test_the_white_share_splits_tissue_colour_from_white_exactly(t, a, s):
+    # the dichromatic model's excess a t + s (1, 1, 1) gives back s over its brightest channel's
+    # a t_max + s, whatever the tissue's colour (one pale enough for colour not to tell: 1)
+    from simtest.decisions import WHITE_CHROMA
+    t = np.array(t)
+    got = float(px.white_share(a * t + s, t))
+    if 1.0 - t.min() / t.max() < WHITE_CHROMA:
+        assert got == 1.0
+    elif a * t.max() + s > 1e-3:  # (a vanishing excess: the share is noise)
+        # the solve's rounding over the channels' difference (>= WHITE_CHROMA of t_max)
+        assert got == pytest.approx(s / (a * t.max() + s), abs=1e-9)
+
+
+def test_texture_is_no_white_light_and_a_glint_is():
+    from simtest.geometry.response import srgb_inverse
+
+    # a window of tissue (sRGB 190, 90, 70) with a bump of the tissue's own colour (+30 % in
+    # linear light) and a bump of white light: the shares at the two peaks
+    lin = np.broadcast_to(srgb_inverse(np.array([190, 90, 70]) / 255.0), (41, 41, 3)).copy()
+    yy, xx = np.mgrid[0:41, 0:41]
+    bump = lambda u, v: np.exp(-((xx - u) ** 2 + (yy - v) ** 2) / 4.0)[..., None]  # noqa: E731
+    lin = lin * (1 + 0.3 * bump(10, 20)) + 0.3 * bump(30, 20)
+    srgb = np.where(lin <= 0.0031308, 12.92 * lin, 1.055 * np.maximum(lin, 0.0031308) ** (1 / 2.4) - 0.055)
+    img = np.rint(np.clip(srgb, 0, 1) * 255)
+    share = px.white_share_in(img, cv2.getStructuringElement(cv2.MORPH_RECT, (15, 15)), (20, 20), 255.0)
+    # 8-bit rounding of a 30 % bump moves the split by a few hundredths
+    assert abs(share[20, 10]) < 0.1 and share[20, 30] > 0.9

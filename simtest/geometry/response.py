@@ -66,7 +66,7 @@ class ResponseError(ValueError):
     """A ``"response"`` object is unusable; the one-line message names the key."""
 
 
-def _srgb_inverse(v: np.ndarray) -> np.ndarray:
+def srgb_inverse(v: np.ndarray) -> np.ndarray:
     """The inverse sRGB transfer curve (IEC 61966-2-1) of ``v`` in [0, 1]."""
     return np.where(v <= 0.04045, v / 12.92, ((np.maximum(v, 0.04045) + 0.055) / 1.055) ** 2.4)
 
@@ -200,7 +200,7 @@ class SensorResponse:
         """
         v = np.clip(np.asarray(values, dtype=np.float64) / full_scale, 0.0, 1.0)
         if self.curve == "srgb":
-            v = _srgb_inverse(v)
+            v = srgb_inverse(v)
         elif self.curve == "gamma":
             v = v ** self.gamma
         wb = float(np.mean(self.white_balance)) if channel is None else self.white_balance[channel]

@@ -14,6 +14,8 @@ import functools
 import cv2
 import numpy as np
 from scipy import ndimage
+from simtest.decisions import WHITE_CHROMA, WHITE_SHARE_MIN
+from simtest.geometry.response import srgb_inverse
 
 from simtest.reconstruct.detect_pixels import (connected_components, connected_components_with_stats, linear_at,
                                               linear_taps, mask_labels)
@@ -419,8 +421,40 @@ def _labels_near(lab: np.ndarray, expected, ks: np.ndarray, r0, r1, c0, c1, oy, 
     return out
 
 
+def white_share(excess: np.ndarray, tissue: np.ndarray) -> np.ndarray:
+    """The share of light above the background that is the illuminant's, shape ``excess[..., 0]``.
+
+    The dichromatic model (Shafer 1985, doi:10.1002/col.5080100409): a pixel's excess over the
+    diffuse background, in linear light, is ``a t + s (1, 1, 1)``, the tissue's colour ``t``
+    (``tissue``, linear, (..., 3) or (3,)) brightened plus the illuminant's white. Solved on
+    ``t``'s brightest and darkest channels, the share is ``s`` over the excess in the brightest
+    (1 for white light, 0 for tissue brightening in its own colour, above 1 where the brightest
+    channel clipped). 1 where ``t`` is too pale for colour to tell (``1 - t_min / t_max`` below
+    :data:`~simtest.decisions.WHITE_CHROMA`: a grey frame)."""
+    ex = np.asarray(excess, np.float64)
+    t = np.broadcast_to(np.asarray(tissue, np.float64), ex.shape)
+    hi, lo = np.argmax(t, axis=-1)[..., None], np.argmin(t, axis=-1)[..., None]
+    t_hi, t_lo = np.take_along_axis(t, hi, -1)[..., 0], np.take_along_axis(t, lo, -1)[..., 0]
+    e_hi, e_lo = np.take_along_axis(ex, hi, -1)[..., 0], np.take_along_axis(ex, lo, -1)[..., 0]
+    pale = ~(t_hi > 0) | (1.0 - t_lo / np.where(t_hi > 0, t_hi, 1.0) < WHITE_CHROMA)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        s = (e_lo * t_hi - e_hi * t_lo) / (t_hi - t_lo)
+        share = s / np.maximum(e_hi, 1e-6)
+    return np.where(pale, 1.0, share)
+
+
+def white_share_in(win_rgb: np.ndarray, se: np.ndarray, bp_rc: tuple[int, int], full_scale: float) -> np.ndarray:
+    """:func:`white_share` of each pixel of a display-encoded window (rows, cols, 3) (``full_scale``
+    its white; linearised by the inverse sRGB curve) over its channels' grey openings by ``se``,
+    the tissue's colour read at ``bp_rc`` (row, column). (rows, cols) float64."""
+    lin = srgb_inverse(np.clip(np.asarray(win_rgb, np.float32) / np.float32(full_scale), 0, 1)).astype(np.float32)
+    base = cv2.morphologyEx(lin, cv2.MORPH_OPEN, se, borderType=cv2.BORDER_REPLICATE)
+    return white_share(lin - base, base[bp_rc])
+
+
 def surround_fractions(gray: np.ndarray, ells, bps_ij: np.ndarray, reaches: np.ndarray, own_level,
-                       rel: float, paired=None) -> np.ndarray:
+                       rel: float, paired=None, rgb: np.ndarray | None = None,
+                       full_scale: float = 255.0) -> np.ndarray:
     """Per candidate (``ells``, ``bps_ij`` (n, 2) (column, row), ``reaches`` (n,)): the share of the
     surround's pixels (within the reach of the BP pixel, where :func:`ellipse_level` of the primary
     isophote exceeds ``own_level``) whose local top-hat (the luma less its grey opening by a square
@@ -430,7 +464,10 @@ def surround_fractions(gray: np.ndarray, ells, bps_ij: np.ndarray, reaches: np.n
     px computed together on their unclipped squares (pixels outside the frame not counted), the
     openings one window each; ``own_level`` a float or one per candidate. ``paired`` (None, or per candidate a list of (u, v)): the lobes of
     another light guide there, each taken as the candidate's own lobe moved to that point (the
-    same patch and roughness), are left out of the surround too. float64 (n,)."""
+    same patch and roughness), are left out of the surround too. ``rgb`` (the frame's colour
+    channels, display-encoded, ``full_scale`` its white), where given: a pixel counts only where
+    its excess is mostly the illuminant's (:func:`white_share_in` at least
+    :data:`~simtest.decisions.WHITE_SHARE_MIN`): tissue texture brightens in the tissue's colour. float64 (n,)."""
     h, w = gray.shape
     bps_ij = np.asarray(bps_ij, np.int64).reshape(-1, 2)
     reaches = np.asarray(reaches, np.float64).reshape(-1)
@@ -485,5 +522,7 @@ def surround_fractions(gray: np.ndarray, ells, bps_ij: np.ndarray, reaches: np.n
             peak = float(top[max(0, i - 1 - r0):i + 2 - r0, max(0, j - 1 - c0):j + 2 - c0].max())
             if peak > 0:
                 lit = (top >= rel * peak) & ring[m, r0 - i + R:r1 - i + R, c0 - j + R:c1 - j + R]
+                if rgb is not None and lit.any():
+                    lit &= white_share_in(rgb[r0:r1, c0:c1], se, (i - r0, j - c0), full_scale) >= WHITE_SHARE_MIN
                 out[q] = float(np.count_nonzero(lit) / int(n_ring[m]))
     return out

@@ -7,7 +7,10 @@ and usable (the numbers, their units and reasons: :mod:`simtest.decisions`):
 - **Specular colour** (``not_specular``). A dielectric reflects the illuminant's colour (the
   dichromatic model, Shafer 1985, doi:10.1002/col.5080100409), the diffuse light the tissue's: the
   peak's chroma ``1 - min(RGB) / max(RGB)`` is at most :data:`PALENESS_MAX` times the tissue's
-  (the background's, from each channel's grey opening), or below :data:`WHITE_CHROMA`.
+  (the background's, from each channel's grey opening), or below :data:`WHITE_CHROMA`; and in
+  linear light at least :data:`WHITE_SHARE_MIN` of its excess over the background is white
+  (:func:`~simtest.reconstruct.evidence_pixels.white_share`), where texture brightens in the
+  tissue's own colour.
 - **A peak well above the diffuse level** (``not_specular``). Its top-hat height is at least
   :data:`SIGNIFICANCE_MIN` times the noise at the background's level (the sensor's, read off the
   frame's noise level function, and JPEG's quantisation error) and :data:`CONTRAST_MIN` of the room
@@ -19,7 +22,8 @@ and usable (the numbers, their units and reasons: :mod:`simtest.decisions`):
 - **Isolated** (``cluster``). Another specular peak in the region the method contours (a top-hat
   maximum, specular by colour, at least :data:`NEIGHBOUR_REL` of this peak's height, beyond
   :data:`OWN_RADIUS_PX` of its BP; not another guide's, :mod:`simtest.reconstruct.rig_pairs`)
-  breaks the one-lobe-on-a-plane assumption.
+  breaks the one-lobe-on-a-plane assumption; so does a surround of which more than
+  :data:`SURROUND_FRACTION_MAX` is other light, mostly white by the same measure.
 - **Nested ellipses** (``bad_fit``). The primary isophote's RMS residual is at most
   :data:`RESIDUAL_MAX_REL` of its semi-minor axis, the BP lies inside it, and its semi-minor axis
   is at least :data:`MINOR_AXIS_MIN_PX`.
@@ -47,6 +51,7 @@ import numpy as np
 from simtest.decisions import (
     PALENESS_MAX,
     WHITE_CHROMA,
+    WHITE_SHARE_MIN,
     SIGNIFICANCE_MIN,
     CONTRAST_MIN,
     PANEL_STD_REL,
@@ -66,6 +71,7 @@ from simtest.decisions import (
     QUANTISATION_SIGMA_LSB,
     CONFIDENCE_COEFFICIENTS as COEFFICIENTS,
 )
+from simtest.geometry.response import srgb_inverse
 from simtest.reconstruct import evidence_pixels as px
 from simtest.reconstruct._pixels import uv_to_rc
 from simtest.reconstruct.detect import background_side_px, noise_sigma
@@ -133,6 +139,8 @@ class Evidence:
     surround: np.ndarray | None = None
     paired: list | None = None
     noise_bg: np.ndarray | None = None
+    white_share: np.ndarray | None = None
+    surround_white: np.ndarray | None = None
 
     @property
     def paleness(self) -> np.ndarray:
@@ -142,7 +150,7 @@ class Evidence:
     @property
     def specular_colour(self) -> np.ndarray:
         """The colour check (:func:`_specular_colour`) at each BP."""
-        return _specular_colour(self.chroma_peak, self.chroma_tissue)
+        return _specular_colour(self.chroma_peak, self.chroma_tissue, self.white_share)
 
     @property
     def significance(self) -> np.ndarray:
@@ -227,10 +235,21 @@ def _opening_at(img: np.ndarray, side: int, rows: np.ndarray, cols: np.ndarray) 
     return px.linear_at_points(bg, (h, w), rows, cols)
 
 
-def _specular_colour(chroma: np.ndarray, chroma_tissue: np.ndarray) -> np.ndarray:
+def _white_share(peak_rgb: np.ndarray, tissue_rgb: np.ndarray, full_scale: float) -> np.ndarray:
+    """:func:`~simtest.reconstruct.evidence_pixels.white_share` of peaks (P, 3) over their
+    backgrounds (P, 3), display-encoded (``full_scale`` white), in linear light."""
+    fs = np.float32(full_scale)
+    peak, tissue = (srgb_inverse(np.clip(v / fs, 0, 1)) for v in (peak_rgb, tissue_rgb))
+    return px.white_share(peak - tissue, tissue)
+
+
+def _specular_colour(chroma: np.ndarray, chroma_tissue: np.ndarray, share: np.ndarray | None = None) -> np.ndarray:
     """The colour check: a chroma at most :data:`PALENESS_MAX` of the tissue's, or near-white
-    (at most :data:`WHITE_CHROMA`); arrays of any one shape."""
-    return (chroma <= PALENESS_MAX * chroma_tissue) | (chroma <= WHITE_CHROMA)
+    (at most :data:`WHITE_CHROMA`), and where ``share`` (the peak's excess's white share,
+    :func:`~simtest.reconstruct.evidence_pixels.white_share`) is given, at least
+    :data:`WHITE_SHARE_MIN`; arrays of any one shape."""
+    pale = (chroma <= PALENESS_MAX * chroma_tissue) | (chroma <= WHITE_CHROMA)
+    return pale if share is None else pale & (share >= WHITE_SHARE_MIN)
 
 
 def _panel_pixels_in(gray: np.ndarray, noise: np.ndarray, rr: np.ndarray, image: np.ndarray | None = None,
@@ -371,8 +390,10 @@ def frame_evidence(image: np.ndarray, gray: np.ndarray, bps_uv: np.ndarray, rois
     bg_rgb_bp, bg_rgb_pk = at[:n], at[n:]
     # the RGB maximum over the 3 x 3 px around each BP (the window clipped to the frame)
     src3 = src if src.ndim == 3 else src[:, :, None]
-    chroma_peak = px.chroma(px.rgb_max9(src3, rows, cols))
+    peak_rgb = px.rgb_max9(src3, rows, cols)
+    chroma_peak = px.chroma(peak_rgb)
     chroma_tissue = px.chroma(bg_rgb_bp)
+    share = _white_share(peak_rgb, bg_rgb_bp, full_scale)
     background = bg_bp
     # flat panels: share in each ROI (none where none can be: see _surely_no_panels)
     table = _shared(noise_level_table, gray, float(full_scale), float(noise))  # the noise at each level
@@ -401,7 +422,7 @@ def frame_evidence(image: np.ndarray, gray: np.ndarray, bps_uv: np.ndarray, rois
     noise_sig = max(float(np.hypot(noise, q_sig)), lsb)
     noise_bg = np.maximum(np.hypot(table[_level_bin(background, float(full_scale))], q_sig), lsb)
     return Evidence(chroma_peak, chroma_tissue, height, background, noise_sig, panel_fraction,
-                    neighbours, full_scale=float(full_scale), noise_bg=noise_bg)
+                    neighbours, full_scale=float(full_scale), noise_bg=noise_bg, white_share=share)
 
 
 def bp_checks(image: np.ndarray, gray: np.ndarray, bps_uv: np.ndarray, clipped: np.ndarray, *,
@@ -550,6 +571,7 @@ def assess(image: np.ndarray, gray: np.ndarray, ests, *, full_scale: float, wind
     # the surround, for the candidates that pass every check before it (verdict's order); the
     # others' share counts as 1 (all lit) in their confidence
     surround = np.where(np.isfinite(reach), 1.0, np.nan)
+    white = None
     passed = (np.isfinite(reach) & (ev.panel_fraction <= PANEL_FRACTION_MAX) & ev.specular_colour
               & (clipped | ((ev.significance >= SIGNIFICANCE_MIN) & (ev.contrast >= CONTRAST_MIN)))
               & (ev.neighbours == 0))
@@ -560,9 +582,13 @@ def assess(image: np.ndarray, gray: np.ndarray, ests, *, full_scale: float, wind
         g = np.asarray(gray)  # surround_fractions converts its windows to float32 (the same values)
         ij = np.clip(np.rint(bps).astype(np.int64), 0, [gray.shape[1] - 1, gray.shape[0] - 1])
         sel = np.flatnonzero(passed)
-        surround[passed] = px.surround_fractions(g, [ells[k] for k in sel], ij[sel], reach[sel], _own_level(t[sel]),
-                                                 SURROUND_REL, None if ev.paired is None else [ev.paired[k] for k in sel])
-    return replace(ev, clipped=clipped, minor_px=minor, surround=surround), res, inside
+        args = (g, [ells[k] for k in sel], ij[sel], reach[sel], _own_level(t[sel]), SURROUND_REL,
+                None if ev.paired is None else [ev.paired[k] for k in sel])
+        surround[passed] = px.surround_fractions(*args)
+        if not grey and image.ndim == 3:  # the cluster check's: white light only
+            white = surround.copy()
+            white[passed] = px.surround_fractions(*args, rgb=image[..., :3], full_scale=float(full_scale))
+    return replace(ev, clipped=clipped, minor_px=minor, surround=surround, surround_white=white), res, inside
 
 
 def confidence_features(ev: Evidence, residual_rel: np.ndarray) -> np.ndarray:
@@ -579,13 +605,16 @@ def confidence_features(ev: Evidence, residual_rel: np.ndarray) -> np.ndarray:
     Returns
     -------
     ndarray of shape (N, 5)
-        Minus log paleness and log significance (each clipped), minus log of the surround's share
-        of other light (``px.surround_fractions``; 1 where not measured, a share under 1 % taken
-        as 1 %: the ring's resolution), minus log residual ratio (clipped), minus the panel share.
+        Log of the peak's white share (clipped to 0.1 to 10; 1 where not measured: a grey frame)
+        and log significance (clipped), minus log of the surround's share of bright light
+        (``px.surround_fractions`` of the luma, whatever its colour; 1 where not measured, a share
+        under 1 % taken as 1 %: the ring's resolution), minus log residual ratio (clipped), minus
+        the panel share.
     """
     surround = np.ones(len(ev.height)) if ev.surround is None else np.nan_to_num(ev.surround, nan=1.0)
+    share = np.ones(len(ev.height)) if ev.white_share is None else np.nan_to_num(ev.white_share, nan=1.0)
     return np.stack([
-        -np.log(np.clip(ev.paleness, 0.05, 5.0)),
+        np.log(np.clip(share, 0.1, 10.0)),
         np.log(np.clip(ev.significance, 1.0, 1e4)),
         -np.log(surround + 0.01),
         -np.log(np.clip(residual_rel, 0.01, 10.0)),
@@ -645,15 +674,20 @@ def verdict(ev: Evidence, residual_rel: np.ndarray, bp_inside: np.ndarray,
     colour = ev.specular_colour.tolist()
     clipped = [False] * n if ev.clipped is None else np.asarray(ev.clipped, bool).tolist()
     minor = [math.nan] * n if ev.minor_px is None else np.asarray(ev.minor_px, np.float64).tolist()
-    surround = [math.nan] * n if ev.surround is None else np.asarray(ev.surround, np.float64).tolist()
+    sur = ev.surround if ev.surround_white is None else ev.surround_white
+    surround = [math.nan] * n if sur is None else np.asarray(sur, np.float64).tolist()
     panel = np.asarray(ev.panel_fraction, np.float64).tolist()
     neighbours = np.asarray(ev.neighbours).tolist()
     height, cpeak, ctissue = ev.height.tolist(), ev.chroma_peak.tolist(), ev.chroma_tissue.tolist()
+    share = [1.0] * n if ev.white_share is None else np.asarray(ev.white_share, np.float64).tolist()
     res = np.asarray(residual_rel, np.float64).tolist()
     inside = np.asarray(bp_inside, bool).tolist()
     for k in (range(n) if only is None else np.asarray(only, np.int64).tolist()):
         if panel[k] > PANEL_FRACTION_MAX:
             out[k] = ("overlay", f"{panel[k]:.0%} of its region is a flat panel (> {PANEL_FRACTION_MAX:.0%})")
+        elif not colour[k] and not share[k] >= WHITE_SHARE_MIN:
+            out[k] = ("not_specular", f"white is {share[k]:.2f} of the peak's light above the tissue "
+                                      f"(< {WHITE_SHARE_MIN})")
         elif not colour[k]:
             out[k] = ("not_specular", f"peak chroma {cpeak[k]:.2f} is {pal[k]:.2f} of the tissue's {ctissue[k]:.2f} "
                                       f"(> {PALENESS_MAX})")
