@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from simtest._lazy import require
 from simtest.reconstruct.lightaware.model import (
     _normal_derivs, _ray_light, _rays, _rig_arrays, _rig_diffuse, _rig_diffuse_grad,
     _rig_geometry, _rig_grad, _rig_grad_ggx, _rig_value, _rig_value_ggx, _roi_grid, _roi_samples, ggx_alpha_of_phong,
@@ -33,6 +34,15 @@ _START_ROUGHNESS_GRID = (4.0, 16.0, 64.0, 256.0, 1024.0, 4096.0)
 #: The factor by which the grid's start roughness must lower the start plane's cost to replace
 #: the regression's (``photometric_fit``'s start under several lights).
 _START_ROUGHNESS_GAIN = 0.5
+
+
+def _qr_rows(AT, scratch: bool):
+    """``(QT (k, M), R)``: the reduced QR of the matrix whose columns are ``AT``'s rows (k, M), by
+    LAPACK on their memory (``numpy.linalg.qr`` copies it); ``scratch``: ``AT`` may be overwritten."""
+    lapack = require("scipy.linalg").lapack
+    qr, tau = lapack.dgeqrf(AT.T, overwrite_a=scratch)[:2]
+    R = np.triu(qr[:len(AT)])
+    return lapack.dorgqr(qr, tau, overwrite_a=True)[0].T, R
 
 
 class PlaneModel:
@@ -95,7 +105,7 @@ class PlaneModel:
         dv_ = (uv_[:, 1] - self.bp[1]) / max(self.W, self.H)
         yscale_ = max(float(np.abs(y_).max()), 1e-12)
         background_ = np.column_stack([np.ones_like(du_), du_, dv_])
-        design_ = np.empty((len(y_), 5 if self.diffuse else 4))
+        design_ = np.empty((5 if self.diffuse else 4, len(y_))).T  # (each column contiguous: _qr_rows)
         design_[:, -3:] = background_
         self.sel, self.step, self.y, self.cens = sel_, step_, y_, cens_
         self.general = bool(self.diffuse or cens_.any() or self.ggx)
@@ -178,33 +188,29 @@ class PlaneModel:
         return state["r"], self.jac_general(p, nb, e1, e2, state["dns"], w)
 
     def _background_basis(self, active, w):
-        """``(QT, R)`` of the (weighted) background's QR on the active rows, kept while they stay."""
+        """``(QT, R, om)``: the rows' weights ``om`` (``w`` on the active rows, 0 on the others; None: all 1)
+        and the QR of the background so weighted (``QT`` (3, M)), kept while the active rows stay."""
         c = self.lin
         if not (c and c["w"] is w and np.array_equal(c["active"], active)):
-            B = self.background if active.all() else self.background[active]
-            if w is not None:
-                B = B * w[active, None]
-            Q, R = np.linalg.qr(B)
-            c.update(w=w, active=active, QT=np.ascontiguousarray(Q.T), R=R)
-        return c["QT"], c["R"]
+            om = None if w is None and active.all() else np.where(active, 1.0 if w is None else w, 0.0)
+            QT, R = _qr_rows(self.design.T[-3:] if om is None else self.design.T[-3:] * om, om is not None)
+            c.update(w=w, active=active, QT=QT, R=R, om=om)
+        return c["QT"], c["R"], c["om"]
 
     def _linear_part(self, active, target, w):
         """The linear parameters of the columns on the active rows, weighted by ``w``, and their
-        orthonormal basis (rows, the background's first): the columns that depend on p projected
-        off the kept background basis and factorised (``lstsq``'s minimum norm, no basis, where a
-        column is (nearly) in the others' span)."""
-        design = self.design
-        A, t = (design, target) if active.all() else (design[active], target[active])
-        if w is not None:
-            A, t = A * w[active, None], t * w[active]
-        QT, R = self._background_basis(active, w)
-        k = design.shape[1] - 3
-        Qk, Rk = np.linalg.qr(A[:, :k] - QT.T @ (QT @ A[:, :k]))
+        orthonormal basis (rows, the background's first): the columns that depend on p projected off
+        the kept background basis and factorised (``lstsq``'s minimum norm, no basis, where a column
+        is (nearly) in the others' span). Inactive rows weigh 0 (copied out, they cost as much again)."""
+        QT, R, om = self._background_basis(active, w)
+        k = self.design.shape[1] - 3
+        A, t = (self.design.T[:k], target) if om is None else (self.design.T[:k] * om, target * om)
+        QkT, Rk = _qr_rows(A - (A @ QT.T) @ QT, True)
         d = np.abs(np.concatenate([np.diag(R), np.diag(Rk)]))
         if not d.min() > 1e-10 * d.max():
-            return np.linalg.lstsq(A, t, rcond=None)[0], None
-        g = np.linalg.solve(Rk, Qk.T @ t)
-        return np.concatenate([g, np.linalg.solve(R, QT @ (t - A[:, :k] @ g))]), np.vstack([QT, Qk.T])
+            return np.linalg.lstsq(self.design if om is None else self.design * om[:, None], t, rcond=None)[0], None
+        g = np.linalg.solve(Rk, QkT @ t)
+        return np.concatenate([g, np.linalg.solve(R, QT @ (t - g @ A))]), np.vstack([QT, QkT])
 
     def jac_general(self, p, nb, e1, e2, dns, w):
         """Kaufman's Jacobian (M, 4) of :meth:`resjac_general` at its cached point."""
@@ -216,19 +222,13 @@ class PlaneModel:
         if self.diffuse:
             G[:3] += coef[1] * self.box(_rig_diffuse_grad(self.dT, self.rl, p, nb, e1, e2, self.rig_arr,
                                                           at=(st["n"], dns, *st["terms"])))
-        every = bool(active.all())
-        Ga = (G if every else G[:, active]) if w is None else G[:, active] * w[active]
-        if st.get("Q") is not None and st.get("w") is w:
-            QA = st["Q"]  # the active columns' basis (_linear_part)
-            Ja = Ga - (Ga @ QA.T) @ QA
-        else:
-            Q = np.linalg.qr(self.design[active] if w is None else self.design[active] * w[active, None])[0]
-            Ja = Ga - (Ga @ Q) @ Q.T
-        if every:
-            return (Ja if w is None else Ja / w).T
-        JT = np.zeros_like(G)
-        JT[:, active] = Ja if w is None else Ja / w[active]
-        return JT.T
+        om = self._background_basis(active, w)[2]
+        Ga = G if om is None else G * om
+        QA = st.get("Q") if st.get("w") is w else None  # the active columns' basis (_linear_part)
+        if QA is None:
+            QA = _qr_rows(self.design.T if om is None else self.design.T * om, om is not None)[0]
+        Ja = Ga - (Ga @ QA.T) @ QA
+        return (Ja if w is None else Ja / w).T
 
     def resjac_plain(self, p, nb, e1, e2, grad=True, w=None, kaufman=False):
         """Residuals of the variable projection (Notes) and their Jacobian in (a, b, log h, log n).
