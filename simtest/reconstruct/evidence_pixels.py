@@ -443,18 +443,31 @@ def white_share(excess: np.ndarray, tissue: np.ndarray) -> np.ndarray:
     return np.where(pale, 1.0, share)
 
 
+#: The inverse sRGB curve at each 8-bit code (float32).
+_SRGB_8BIT = srgb_inverse(np.arange(256) / 255.0).astype(np.float32)
+
+
 def white_share_in(win_rgb: np.ndarray, se: np.ndarray, bp_rc: tuple[int, int], full_scale: float) -> np.ndarray:
     """:func:`white_share` of each pixel of a display-encoded window (rows, cols, 3) (``full_scale``
     its white; linearised by the inverse sRGB curve) over its channels' grey openings by ``se``,
-    the tissue's colour read at ``bp_rc`` (row, column). (rows, cols) float64."""
-    lin = srgb_inverse(np.clip(np.asarray(win_rgb, np.float32) / np.float32(full_scale), 0, 1)).astype(np.float32)
+    the tissue's colour read at ``bp_rc`` (row, column). (rows, cols), float32 arithmetic."""
+    if win_rgb.dtype == np.uint8 and full_scale == 255.0:
+        lin = _SRGB_8BIT[win_rgb]
+    else:
+        lin = srgb_inverse(np.clip(np.asarray(win_rgb, np.float32) / np.float32(full_scale), 0, 1)).astype(np.float32)
     base = cv2.morphologyEx(lin, cv2.MORPH_OPEN, se, borderType=cv2.BORDER_REPLICATE)
-    return white_share(lin - base, base[bp_rc])
+    t = base[bp_rc]
+    hi, lo = int(np.argmax(t)), int(np.argmin(t))
+    if not t[hi] > 0 or 1.0 - t[lo] / t[hi] < WHITE_CHROMA:
+        return np.ones(lin.shape[:2], np.float32)
+    e_hi, e_lo = lin[..., hi] - base[..., hi], lin[..., lo] - base[..., lo]
+    s = (e_lo * t[hi] - e_hi * t[lo]) / (t[hi] - t[lo])  # white_share's split, the tissue one colour
+    return s / np.maximum(e_hi, np.float32(1e-6))
 
 
 def surround_fractions(gray: np.ndarray, ells, bps_ij: np.ndarray, reaches: np.ndarray, own_level,
                        rel: float, paired=None, rgb: np.ndarray | None = None,
-                       full_scale: float = 255.0) -> np.ndarray:
+                       full_scale: float = 255.0):
     """Per candidate (``ells``, ``bps_ij`` (n, 2) (column, row), ``reaches`` (n,)): the share of the
     surround's pixels (within the reach of the BP pixel, where :func:`ellipse_level` of the primary
     isophote exceeds ``own_level``) whose local top-hat (the luma less its grey opening by a square
@@ -464,17 +477,17 @@ def surround_fractions(gray: np.ndarray, ells, bps_ij: np.ndarray, reaches: np.n
     px computed together on their unclipped squares (pixels outside the frame not counted), the
     openings one window each; ``own_level`` a float or one per candidate. ``paired`` (None, or per candidate a list of (u, v)): the lobes of
     another light guide there, each taken as the candidate's own lobe moved to that point (the
-    same patch and roughness), are left out of the surround too. ``rgb`` (the frame's colour
-    channels, display-encoded, ``full_scale`` its white), where given: a pixel counts only where
-    its excess is mostly the illuminant's (:func:`white_share_in` at least
-    :data:`~simtest.decisions.WHITE_SHARE_MIN`): tissue texture brightens in the tissue's colour. float64 (n,)."""
+    same patch and roughness), are left out of the surround too. float64 (n,); with ``rgb`` (the
+    frame's colour channels, display-encoded, ``full_scale`` its white) a pair of them, the second
+    counting a pixel only where its excess is mostly the illuminant's (:func:`white_share_in` at
+    least :data:`~simtest.decisions.WHITE_SHARE_MIN`): tissue texture brightens in its colour."""
     h, w = gray.shape
     bps_ij = np.asarray(bps_ij, np.int64).reshape(-1, 2)
     reaches = np.asarray(reaches, np.float64).reshape(-1)
     n = len(reaches)
-    out = np.zeros(n)
+    out, white = np.zeros(n), np.zeros(n)
     if not n:
-        return out
+        return out if rgb is None else (out, white)
     R_all = np.ceil(reaches).astype(np.int64)
     own = np.broadcast_to(np.asarray(own_level, np.float64), (n,))
     # each ellipse's numbers; its cosine and sine taken one by one (numpy's scalar path)
@@ -522,7 +535,8 @@ def surround_fractions(gray: np.ndarray, ells, bps_ij: np.ndarray, reaches: np.n
             peak = float(top[max(0, i - 1 - r0):i + 2 - r0, max(0, j - 1 - c0):j + 2 - c0].max())
             if peak > 0:
                 lit = (top >= rel * peak) & ring[m, r0 - i + R:r1 - i + R, c0 - j + R:c1 - j + R]
-                if rgb is not None and lit.any():
-                    lit &= white_share_in(rgb[r0:r1, c0:c1], se, (i - r0, j - c0), full_scale) >= WHITE_SHARE_MIN
                 out[q] = float(np.count_nonzero(lit) / int(n_ring[m]))
-    return out
+                if rgb is not None and out[q] > 0:
+                    lit &= white_share_in(rgb[r0:r1, c0:c1], se, (i - r0, j - c0), full_scale) >= WHITE_SHARE_MIN
+                    white[q] = float(np.count_nonzero(lit) / int(n_ring[m]))
+    return out if rgb is None else (out, white)

@@ -584,10 +584,12 @@ def assess(image: np.ndarray, gray: np.ndarray, ests, *, full_scale: float, wind
         sel = np.flatnonzero(passed)
         args = (g, [ells[k] for k in sel], ij[sel], reach[sel], _own_level(t[sel]), SURROUND_REL,
                 None if ev.paired is None else [ev.paired[k] for k in sel])
-        surround[passed] = px.surround_fractions(*args)
-        if not grey and image.ndim == 3:  # the cluster check's: white light only
+        if not grey and image.ndim == 3:  # and the cluster check's: white light only
             white = surround.copy()
-            white[passed] = px.surround_fractions(*args, rgb=image[..., :3], full_scale=float(full_scale))
+            surround[passed], white[passed] = px.surround_fractions(*args, rgb=image[..., :3],
+                                                                    full_scale=float(full_scale))
+        else:
+            surround[passed] = px.surround_fractions(*args)
     return replace(ev, clipped=clipped, minor_px=minor, surround=surround, surround_white=white), res, inside
 
 
