@@ -124,6 +124,10 @@ class Evidence:
         Per candidate, the centres (u, v) px of the other light guides' lobes that
         :func:`assess` leaves out of its surround
         (:func:`simtest.reconstruct.rig_pairs.other_lobe_centres`); None without a rig.
+    white_share : ndarray, optional
+        The peak's white share (:func:`~simtest.reconstruct.evidence_pixels.white_share`).
+    surround_white : ndarray, optional
+        As ``surround``, white light only: the cluster check's (None on a grey frame).
     """
 
     chroma_peak: np.ndarray
