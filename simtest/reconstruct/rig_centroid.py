@@ -35,10 +35,12 @@ import numpy as np
 from simtest.decisions import (BP_PLACE_SIGMA_PX, FUSED_LOBE_LEVEL, FUSED_SEPARATION_MAX, PAIR_DEPTH_MAX_MM,
                                PAIR_DEPTH_MIN_MM)
 from simtest.geometry.lights import Light, LightRig
+from simtest.reconstruct.detect import default_full_scale
 from simtest.reconstruct.detect_pixels import luma
 from simtest.reconstruct.light_fits import _offset_rig, fit_arguments, with_light_aware
 from simtest.reconstruct.lightaware import LightAwareEstimate, bisector
 from simtest.reconstruct.lightaware.model import _rays, _rig_arrays
+from simtest.reconstruct.verify import specular_colour_at
 from simtest.reconstruct.recommend import LIGHT_AWARE, _angle_deg, bp_error_depth_mm, bp_ray_error_deg
 from simtest.reconstruct.rig_lobes import (SPLIT_STATUSES, _bright_region, _inside, fused_lobe_candidates,
                                            guide_specular_points, split_fused_lobes)
@@ -172,6 +174,10 @@ def light_aware_with_rig(image, estimates, camera, rig: LightRig | None, *, work
     # the frame's luma once for the three steps, where a highlight or a split may read it
     gray = luma(np.asarray(image)) if _offset_rig(rig) and any(e.status in SPLIT_STATUSES for e in estimates) else None
     split = fused_lobe_candidates(gray, estimates, camera, rig) if gray is not None else []  # fitted in the workers
+    if split:  # two guides' lobes are the illuminant's light: a candidate of the tissue's colour is no pair
+        white = specular_colour_at(np.asarray(image), gray, [estimates[i].bp_px for i in split],
+                                   full_scale=default_full_scale(np.asarray(image)))
+        split = [i for i, w in zip(split, white) if w]
     fitted = with_light_aware(image, estimates, camera, rig, workers=workers, on_highlight=on_highlight,
                               plane_only=split, **kwargs)
     return rig_centroid(image, split_fused_lobes(image, fitted, camera, rig, prefitted=set(split), gray=gray),

@@ -429,6 +429,20 @@ def frame_evidence(image: np.ndarray, gray: np.ndarray, bps_uv: np.ndarray, rois
                     neighbours, full_scale=float(full_scale), noise_bg=noise_bg, white_share=share)
 
 
+def specular_colour_at(image: np.ndarray, gray: np.ndarray, bps_uv: np.ndarray, *, full_scale: float) -> np.ndarray:
+    """The colour check of ``not_specular`` alone (:func:`_specular_colour`, with the white share)
+    at the BPs ``bps_uv`` (N, 2) (u, v) px of ``image`` (H, W, 3) (``gray`` its luma, for the
+    background's square): bool (N,); all True for a grey frame (no colour to tell)."""
+    bps = np.asarray(bps_uv, np.float64).reshape(-1, 2)
+    if image.ndim != 3 or not len(bps):
+        return np.ones(len(bps), bool)
+    ij = np.clip(np.rint(bps).astype(np.int64), 0, [gray.shape[1] - 1, gray.shape[0] - 1])
+    src = image[..., :3]
+    bg = _opening_at(src, background_side_px(gray.shape), ij[:, 1], ij[:, 0])
+    peak = px.rgb_max9(src, ij[:, 1], ij[:, 0])
+    return _specular_colour(px.chroma(peak), px.chroma(bg), _white_share(peak, bg, full_scale))
+
+
 def bp_checks(image: np.ndarray, gray: np.ndarray, bps_uv: np.ndarray, clipped: np.ndarray, *,
               full_scale: float, noise: float, grey: bool = False) -> list[str | None]:
     """The checks of :func:`verdict` that read only a candidate's BP, before any fit: the colour
