@@ -430,7 +430,14 @@ def white_share(excess: np.ndarray, tissue: np.ndarray) -> np.ndarray:
     ``t``'s brightest and darkest channels, the share is ``s`` over the excess in the brightest
     (1 for white light, 0 for tissue brightening in its own colour, above 1 where the brightest
     channel clipped). 1 where ``t`` is too pale for colour to tell (``1 - t_min / t_max`` below
-    :data:`~simtest.decisions.WHITE_CHROMA`: a grey frame)."""
+    :data:`~simtest.decisions.WHITE_CHROMA`: a grey frame). One colour (3,): ``excess``'s precision."""
+    if np.ndim(tissue) == 1:  # one tissue colour: its channels picked once, not per pixel
+        ex, t = np.asarray(excess), np.asarray(tissue)
+        hi, lo = int(np.argmax(t)), int(np.argmin(t))
+        if not t[hi] > 0 or 1.0 - t[lo] / t[hi] < WHITE_CHROMA:
+            return np.ones(ex.shape[:-1], ex.dtype)
+        s = (ex[..., lo] * t[hi] - ex[..., hi] * t[lo]) / (t[hi] - t[lo])
+        return s / np.maximum(ex[..., hi], ex.dtype.type(1e-6))
     ex = np.asarray(excess, np.float64)
     t = np.broadcast_to(np.asarray(tissue, np.float64), ex.shape)
     hi, lo = np.argmax(t, axis=-1)[..., None], np.argmin(t, axis=-1)[..., None]
@@ -451,18 +458,10 @@ def white_share_in(win_rgb: np.ndarray, se: np.ndarray, bp_rc: tuple[int, int], 
     """:func:`white_share` of each pixel of a display-encoded window (rows, cols, 3) (``full_scale``
     its white; linearised by the inverse sRGB curve) over its channels' grey openings by ``se``,
     the tissue's colour read at ``bp_rc`` (row, column). (rows, cols), float32 arithmetic."""
-    if win_rgb.dtype == np.uint8 and full_scale == 255.0:
-        lin = _SRGB_8BIT[win_rgb]
-    else:
-        lin = srgb_inverse(np.clip(np.asarray(win_rgb, np.float32) / np.float32(full_scale), 0, 1)).astype(np.float32)
+    lin = (_SRGB_8BIT[win_rgb] if win_rgb.dtype == np.uint8 and full_scale == 255.0 else
+           srgb_inverse(np.clip(np.asarray(win_rgb, np.float32) / np.float32(full_scale), 0, 1)).astype(np.float32))
     base = cv2.morphologyEx(lin, cv2.MORPH_OPEN, se, borderType=cv2.BORDER_REPLICATE)
-    t = base[bp_rc]
-    hi, lo = int(np.argmax(t)), int(np.argmin(t))
-    if not t[hi] > 0 or 1.0 - t[lo] / t[hi] < WHITE_CHROMA:
-        return np.ones(lin.shape[:2], np.float32)
-    e_hi, e_lo = lin[..., hi] - base[..., hi], lin[..., lo] - base[..., lo]
-    s = (e_lo * t[hi] - e_hi * t[lo]) / (t[hi] - t[lo])  # white_share's split, the tissue one colour
-    return s / np.maximum(e_hi, np.float32(1e-6))
+    return white_share(lin - base, base[bp_rc])
 
 
 def surround_fractions(gray: np.ndarray, ells, bps_ij: np.ndarray, reaches: np.ndarray, own_level,
