@@ -372,7 +372,14 @@ def test_windowed_evidence_is_the_whole_frames_on_lobes_near_edges_and_corners(s
     gray = luma(img)
     args = (gray if grey else img, gray, np.array(bps), rois)  # a grey frame: its luma as the image
     kw = dict(full_scale=255.0, noise=NOISE, background_px=side, reach_px=np.array(reach), ellipses=ells)
-    _same_evidence(frame_evidence(*args, **kw, windowed=False), frame_evidence(*args, **kw, windowed=True))
+    whole = frame_evidence(*args, **kw, windowed=False)
+    _same_evidence(whole, frame_evidence(*args, **kw, windowed=True))
+    # the panel share of the candidates marked (those the verdict judges), the others' 0, on
+    # either path
+    marked = rng.random(n_lobes) < 0.5
+    for windowed in (False, True):
+        part = frame_evidence(*args, **kw, windowed=windowed, panels=marked)
+        assert np.array_equal(part.panel_fraction, np.where(marked, whole.panel_fraction, 0.0))
     # and the maxima inside the windows (read by the neighbour count only where a lobe is close)
     from simtest.reconstruct import evidence_pixels as px
     g = gray.astype(np.float32)

@@ -333,8 +333,9 @@ def frame_evidence(image: np.ndarray, gray: np.ndarray, bps_uv: np.ndarray, rois
         at most :data:`WINDOWED_AREA_MAX` of the frame.
     grey : bool
         R, G and B are equal and ``gray`` is their value (the colour's opening is the gray's).
-    panels : bool
-        Measure the flat panels' share in the regions of interest (False: 0 for all).
+    panels : bool or ndarray of bool, shape (N,)
+        Measure the flat panels' share in the regions of interest (False: 0 for all), or in
+        those of the candidates marked (the others 0: the verdict judges only some).
     expected : list of ndarray of shape (M, 2), optional
         Per candidate, where another light guide's highlight can lie (u, v) px
         (:func:`simtest.reconstruct.rig_pairs.other_guide_curves`): a peak whose region comes
@@ -359,9 +360,11 @@ def frame_evidence(image: np.ndarray, gray: np.ndarray, bps_uv: np.ndarray, rois
                     np.minimum(h, (rows[todo] + reach[todo]).astype(np.int64) + 1),
                     np.maximum(0, (cols[todo] - reach[todo]).astype(np.int64)),
                     np.minimum(w, (cols[todo] + reach[todo]).astype(np.int64) + 1)], axis=1).reshape(-1, 4)
+    measured = np.broadcast_to(np.asarray(panels, bool), (n,))  # the regions whose panel share is read
+    rp = rr[measured]
     if windowed is None:
-        spans = np.maximum(np.concatenate([win[:, 1] - win[:, 0] + 2, rr[:, 1] - rr[:, 0] + 2 * _PANEL_MARGIN_PX]), 0)
-        widths = np.maximum(np.concatenate([win[:, 3] - win[:, 2] + 2, rr[:, 3] - rr[:, 2] + 2 * _PANEL_MARGIN_PX]), 0)
+        spans = np.maximum(np.concatenate([win[:, 1] - win[:, 0] + 2, rp[:, 1] - rp[:, 0] + 2 * _PANEL_MARGIN_PX]), 0)
+        widths = np.maximum(np.concatenate([win[:, 3] - win[:, 2] + 2, rp[:, 3] - rp[:, 2] + 2 * _PANEL_MARGIN_PX]), 0)
         windowed = float(np.sum(spans * widths)) <= WINDOWED_AREA_MAX * h * w
     floor = np.float32(max(SIGNIFICANCE_MIN * noise, 1e-9))  # numpy rounds the floor to float32 to compare
     bg_small, f = _shared(_opening_small, gray, background_px)
@@ -401,12 +404,10 @@ def frame_evidence(image: np.ndarray, gray: np.ndarray, bps_uv: np.ndarray, rois
     background = bg_bp
     # flat panels: share in each ROI (none where none can be: see _surely_no_panels)
     table = _shared(noise_level_table, gray, float(full_scale), float(noise))  # the noise at each level
-    if not panels or (windowed and (not noise > 0 or _surely_no_panels(gray, table, rr, float(full_scale)))):
-        panel_fraction = np.zeros(n)
-    else:
-        inside = _panel_pixels_in(_shared(_float32, gray), table, rr, None if grey else image, float(full_scale))
-        area = np.maximum((rr[:, 1] - rr[:, 0]) * (rr[:, 3] - rr[:, 2]), 1)
-        panel_fraction = inside / area
+    panel_fraction = np.zeros(n)
+    if measured.any() and not (windowed and (not noise > 0 or _surely_no_panels(gray, table, rp, float(full_scale)))):
+        inside = _panel_pixels_in(_shared(_float32, gray), table, rp, None if grey else image, float(full_scale))
+        panel_fraction[measured] = inside / np.maximum((rp[:, 1] - rp[:, 0]) * (rp[:, 3] - rp[:, 2]), 1)
     # specular peaks of the frame: the top-hat's local maxima that pass the colour check
     colour = _specular_colour(px.chroma(px.rgb_at(src3, ys, xs)), px.chroma(bg_rgb_pk))
     ys, xs = ys[colour].astype(np.int64), xs[colour].astype(np.int64)
@@ -584,7 +585,8 @@ def assess(image: np.ndarray, gray: np.ndarray, ests, *, full_scale: float, wind
     res[ok & ~fitted], inside[ok & ~fitted] = 0.0, True
     ev = frame_evidence(image, gray, bps, [e.roi for e in ests], full_scale=full_scale,
                         noise=noise_sigma(gray) if noise is None else float(noise), background_px=background_side_px(gray.shape),
-                        reach_px=reach, ellipses=ells, windowed=windowed, grey=grey, expected=expected)
+                        reach_px=reach, ellipses=ells, windowed=windowed, grey=grey, expected=expected,
+                        panels=ok)
     clipped = np.array([bool(e.saturated) for e in ests], dtype=bool)
     # the surround, for the candidates that pass every check before it (verdict's order); the
     # others' share counts as 1 (all lit) in their confidence
@@ -629,7 +631,7 @@ def confidence_features(ev: Evidence, residual_rel: np.ndarray) -> np.ndarray:
         and log significance (clipped), minus log of the surround's share of bright light
         (``px.surround_fractions`` of the luma, whatever its colour; 1 where not measured, a share
         under 1 % taken as 1 %: the ring's resolution), minus log residual ratio (clipped), minus
-        the panel share.
+        the panel share (0 where not measured: a candidate already rejected, :func:`assess`).
     """
     surround = np.ones(len(ev.height)) if ev.surround is None else np.nan_to_num(ev.surround, nan=1.0)
     share = np.ones(len(ev.height)) if ev.white_share is None else np.nan_to_num(ev.white_share, nan=1.0)
