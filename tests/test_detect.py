@@ -638,3 +638,32 @@ def test_noise_level_table_is_its_definition(seed, h, w, kind):
         return
     t = np.pad(want[full[np.abs(np.arange(NOISE_LEVEL_BINS)[:, None] - full[None, :]).argmin(1)]], 1, mode="edge")
     assert np.array_equal(got, np.maximum(np.maximum(t[:-2], t[1:-1]), t[2:]))
+
+
+@settings(max_examples=60, deadline=None)
+@given(st.integers(0, 2**32 - 1), st.floats(0.2, 0.7), st.floats(0.0, 0.2))
+def test_a_broken_tops_pieces_are_the_masks_pieces_joined_to_the_ceiling(seed, p_mask, p_seed):
+    # candidates._joined is morphological reconstruction by dilation (8-connected) of the ceiling
+    # pixels under the near-ceiling mask: scikit-image's, on random masks, exactly
+    from skimage.morphology import reconstruction
+
+    from simtest.reconstruct.candidates import _joined
+
+    rng = np.random.default_rng(seed)
+    mask = (rng.random((23, 31)) < p_mask).astype(np.uint8)
+    seed_px = mask & (rng.random(mask.shape) < p_seed).astype(np.uint8)
+    want = reconstruction(seed_px, mask, method="dilation", footprint=np.ones((3, 3)))
+    assert np.array_equal(_joined(seed_px, mask), want.astype(np.uint8))
+
+
+def test_near_ceiling_pixels_need_the_luma_near_the_ceiling_too():
+    # CLIP_LUMA_MARGIN_REL: every channel within 4 % of the ceiling is not enough where the luma
+    # falls more than 1 % below it (a sheen), and a grey frame's luma is its channels
+    from simtest.decisions import CLIP_LUMA_MARGIN_REL, CLIP_MARGIN_REL
+    from simtest.reconstruct.detect_pixels import near_ceiling_mask
+
+    low = int(np.ceil(255 * (1 - CLIP_MARGIN_REL)))       # every channel just within the margin
+    edge = int(np.ceil(255 * (1 - CLIP_LUMA_MARGIN_REL)))  # the luma's bar
+    img = np.array([[[255, 255, 255], [low, low, low], [edge, edge, edge], [255, 255, low]]], np.uint8)
+    assert near_ceiling_mask(img, 255.0).tolist() == [[1, 0, 1, 1]]
+    assert near_ceiling_mask(img, 255.0, grey=True, gray=img[..., 0].copy()).tolist() == [[1, 1, 1, 1]]

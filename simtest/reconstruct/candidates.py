@@ -30,7 +30,7 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
-from simtest.decisions import CLIP_GROWTH_PX, ELLIPTICITY_MIN_AREA_PX
+from simtest.decisions import ELLIPTICITY_MIN_AREA_PX
 from simtest.reconstruct._pixels import uv_to_rc
 from simtest.reconstruct.detect_pixels import connected_components
 
@@ -161,27 +161,30 @@ def _flat_tops(gray, flat_rows, idx, k, peak, pix):
     return sr[at] / cnt[at], sc[at] / cnt[at]
 
 
-def _grown(clipped: np.ndarray, near: np.ndarray) -> np.ndarray:
-    """``clipped`` grown into the pixels of ``near`` within :data:`~simtest.decisions.CLIP_GROWTH_PX`
-    of it: a clipped top as a lossy codec leaves it (:data:`~simtest.decisions.CLIP_MARGIN_REL`),
-    not the sheen around it."""
-    side = 2 * CLIP_GROWTH_PX + 1
-    return near & cv2.dilate(clipped, np.ones((side, side), np.uint8))
-
-
 def _plateaus(clipped: np.ndarray, labels: np.ndarray, cid: int, x: int, y: int, bw: int, bh: int,
-              rules: Rules, grown: np.ndarray | None = None) -> tuple[int, float, float]:
+              rules: Rules, near: np.ndarray | None = None) -> tuple[int, float, float]:
     """The clipped plateaus of one candidate: ``(n, row, col)``, the count of plateaus of the
     plateau size and the centroid of the largest (frame). ``"local_peak"``: the clipped pixels
     closed 3 x 3 and cut by the component (plateaus from 3 px), or closed by ``k_close`` where
     that makes one plateau of two or more. A top whose clipped pixels lie in more than one piece
-    is read again on ``grown`` (:func:`_grown`): a codec's broken top is one plateau; a whole one
-    keeps its own centroid."""
+    is read again on the pixels of ``near`` joined to them in the component: a codec's broken top
+    is one plateau; a whole one keeps its own centroid."""
     comp = (labels[y : y + bh, x : x + bw] == cid).view(np.uint8)
-    n_big, row, col, pieces = _plateau_count(clipped[y : y + bh, x : x + bw] & comp, comp, rules)
-    if grown is not None and pieces > 1:
-        n_big, row, col, _ = _plateau_count(grown[y : y + bh, x : x + bw] & comp, comp, rules)
+    raw = clipped[y : y + bh, x : x + bw] & comp
+    n_big, row, col, pieces = _plateau_count(raw, comp, rules)
+    if near is not None and pieces > 1:
+        n_big, row, col, _ = _plateau_count(_joined(raw, near[y : y + bh, x : x + bw] & comp), comp, rules)
     return n_big, row + y, col + x
+
+
+def _joined(seed: np.ndarray, mask: np.ndarray) -> np.ndarray:
+    """The pieces of ``mask`` (0/1, 8-connected) that hold a pixel of ``seed`` (0/1, within
+    ``mask``'s): a clipped top as a lossy codec leaves it, read from what stays at the ceiling."""
+    _, lab = cv2.connectedComponents(mask | seed, connectivity=8)
+    keep = np.zeros(int(lab.max()) + 1, bool)
+    keep[lab[seed != 0]] = True
+    keep[0] = False
+    return keep[lab].view(np.uint8)
 
 
 def _plateau_count(raw: np.ndarray, comp: np.ndarray, rules: Rules) -> tuple[int, float, float, int]:
@@ -233,9 +236,8 @@ def examine(gray: np.ndarray, labels: np.ndarray, table: np.ndarray, rules: Rule
     clipped : ndarray of shape (H, W), uint8, optional
         Clipped pixels (0/1).
     near : ndarray of shape (H, W), uint8, optional
-        Pixels within :data:`~simtest.decisions.CLIP_MARGIN_REL` of the ceiling (0/1): a top whose
-        clipped pixels lie in pieces is read with those within
-        :data:`~simtest.decisions.CLIP_GROWTH_PX` of them (:func:`_plateaus`).
+        Pixels near the ceiling (0/1, :func:`~simtest.reconstruct.detect_pixels.near_ceiling_mask`):
+        a top whose clipped pixels lie in pieces is read with those joined to them (:func:`_plateaus`).
     scope : ndarray of shape (H, W), bool, optional
         The endoscope's black border.
     levels : ndarray of shape (H, W), float32, optional
@@ -294,10 +296,9 @@ def examine(gray: np.ndarray, labels: np.ndarray, table: np.ndarray, rules: Rule
     if clipped is not None:
         hits = np.bincount(k[clipped.ravel()[idx] != 0], minlength=n)
         saturated = hits > 0
-        grown = None if near is None or not saturated.any() else _grown(clipped, near)
         for i in np.flatnonzero(saturated).tolist():
             n_plateaus[i], row[i], col[i] = _plateaus(clipped, labels, int(cid[i]), int(x[i]), int(y[i]),
-                                                      int(bw[i]), int(bh[i]), rules, grown)
+                                                      int(bw[i]), int(bh[i]), rules, near)
 
     code = np.full(n, OK, np.int64)
     code[n_plateaus > 1] = MERGED

@@ -12,7 +12,7 @@ import numpy as np
 
 from simtest.constants import LUMA_BT601
 from simtest.decisions import (
-    BACKGROUND_DIV, BACKGROUND_PLATEAU_FACTOR, CLIP_MARGIN_REL, NOISE_LEVEL_BINS, NOISE_LEVEL_MIN_SAMPLES,
+    BACKGROUND_DIV, BACKGROUND_PLATEAU_FACTOR, CLIP_LUMA_MARGIN_REL, CLIP_MARGIN_REL, NOISE_LEVEL_BINS, NOISE_LEVEL_MIN_SAMPLES,
 )
 
 _LUMA = np.array(LUMA_BT601)
@@ -412,15 +412,16 @@ def _dark_corner_components(dark: np.ndarray) -> np.ndarray | None:
 
 def near_ceiling_mask(image: np.ndarray, saturation_level: float | None,
                       gray: np.ndarray | None = None, grey: bool = False) -> np.ndarray | None:
-    """Pixels of an integer frame whose every channel lies within
-    :data:`~simtest.decisions.CLIP_MARGIN_REL` of full scale below ``saturation_level``: where a
-    lossy codec leaves a clipped top (a top whose clipped pixels lie in pieces is read with those
-    within :data:`~simtest.decisions.CLIP_GROWTH_PX` of them, :func:`~simtest.reconstruct.candidates.examine`).
+    """Pixels of an integer frame near its ceiling, where a lossy codec leaves a clipped top:
+    every channel within :data:`~simtest.decisions.CLIP_MARGIN_REL` of full scale below
+    ``saturation_level`` and the luma within :data:`~simtest.decisions.CLIP_LUMA_MARGIN_REL` of
+    it (a top whose clipped pixels lie in pieces is read with those joined to them,
+    :func:`~simtest.reconstruct.candidates.examine`).
 
     Parameters
     ----------
     image, saturation_level, gray, grey
-        As for :func:`clipped_mask`.
+        As for :func:`clipped_mask`; without ``gray`` the luma is OpenCV's of ``image``.
 
     Returns
     -------
@@ -429,8 +430,14 @@ def near_ceiling_mask(image: np.ndarray, saturation_level: float | None,
     """
     if saturation_level is None or image.dtype not in (np.uint8, np.uint16):
         return None
-    margin = CLIP_MARGIN_REL * float(np.iinfo(image.dtype).max)
-    return clipped_mask(image, saturation_level - margin, gray, grey)
+    top = float(np.iinfo(image.dtype).max)
+    near = clipped_mask(image, saturation_level - CLIP_MARGIN_REL * top, gray, grey)
+    if gray is None:
+        gray = cv2.cvtColor(image, cv2.COLOR_RGB2GRAY) if image.ndim == 3 and image.shape[2] == 3 else image
+    if gray.ndim == 2 and not grey:  # a grey frame's luma is its channels, already within the margin
+        lo = float(np.ceil(saturation_level - CLIP_LUMA_MARGIN_REL * top))
+        near &= (gray >= lo).view(np.uint8)
+    return near
 
 
 def clipped_mask(image: np.ndarray, saturation_level: float | None,

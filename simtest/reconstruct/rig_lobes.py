@@ -25,7 +25,7 @@ import dataclasses
 import cv2
 import numpy as np
 
-from simtest.decisions import FUSED_LOBE_LEVEL, PAIR_TOL_PX
+from simtest.decisions import CLIP_LUMA_MARGIN_REL, FUSED_LOBE_LEVEL, PAIR_TOL_PX
 from simtest.reconstruct._pixels import uv_to_rc
 from simtest.geometry.cameras import PinholeCamera
 from simtest.reconstruct.detect_pixels import luma
@@ -111,9 +111,11 @@ def _inside(mask_at, pts: np.ndarray) -> np.ndarray:
 def _along_the_rig(gray: np.ndarray, est, camera, rig, stretched: bool = True) -> bool:
     """Whether a candidate's region reaches along the rig's curve from its BP beyond its own lobe
     (worth the plane's fit): the curve runs in it beyond :data:`PAIR_TOL_PX`, and ``stretched``
-    (``merged``), its extent from the BP along the curve is at least twice its half-width across
-    (one guide's lobe is about as wide as long; fused lobes stretch by their specular points'
-    distance; broad ones, ``bad_fit``, may not: the rule's own test decides)."""
+    (``merged``), the extent of its clipped tops (the region's pixels whose luma lies within
+    :data:`~simtest.decisions.CLIP_LUMA_MARGIN_REL` of the BP's) from the BP along the curve is at
+    least twice their half-width across (one guide's lobe is about as wide as long; fused lobes
+    stretch by their specular points' distance; broad ones, ``bad_fit``, may not: the rule's own
+    test decides)."""
     region = _bright_region(gray, est)
     if region is None:
         return False
@@ -128,6 +130,10 @@ def _along_the_rig(gray: np.ndarray, est, camera, rig, stretched: bool = True) -
     if not stretched or not along > PAIR_TOL_PX:
         return along > PAIR_TOL_PX
     t = far / along
+    # a merged candidate's stretch is its clipped tops' (near the ceiling in luma): the region
+    # also takes in whatever tissue beside them is brighter than half the clipped height
+    top = gray[rr + r0, cc + c0] >= (1.0 - CLIP_LUMA_MARGIN_REL) * float(est.bp_intensity)
+    d = d[top] if top.any() else d
     return float((d @ t).max()) >= 2.0 * float(np.abs(d @ np.array([-t[1], t[0]])).max())
 
 
@@ -148,7 +154,7 @@ def _rows(est, camera, rig, gray, others: np.ndarray) -> list | None:
     if gaps.min() < PAIR_TOL_PX:
         return None  # lobes the image does not tell apart: one highlight, the candidate's row
     if len(others) and (np.linalg.norm(others[:, None] - p[None], axis=-1) < PAIR_TOL_PX).any():
-        return None  # a guide's highlight that is a candidate of its own already has its row
+        return None  # a guide's highlight that is an ok candidate of its own already has its row
     rows = []
     for j, uv in zip(k.tolist(), p):
         rows.append(dataclasses.replace(
@@ -200,12 +206,19 @@ def split_fused_lobes(image, estimates, camera, rig, *, prefitted=(), gray=None)
         return list(estimates)
     # the frame's luma, made for the first candidate that a split may concern if not given
     bps = np.array([e.bp_px for e in estimates], dtype=np.float64).reshape(-1, 2)
+    ok = np.array([e.ok for e in estimates], bool)
     out: list = []
+    split_bps: list = []
     for i, est in enumerate(estimates):
         rows = None
         if est.ok or i in prefitted:
             gray = luma(np.asarray(image)) if gray is None else gray
-            rows = _rows(est, camera, rig, gray, np.delete(bps, i, axis=0))
+            rows = _rows(est, camera, rig, gray, bps[ok & (np.arange(len(bps)) != i)])
             est = est if est.ok else dataclasses.replace(est, light_aware={})  # a rejected row: no fits
         out.extend(rows if rows is not None else [est])
-    return out
+        split_bps.extend(r.bp_px for r in rows or ())
+    if not split_bps:
+        return out
+    # a rejected candidate on a guide's specular point that a split gave its row is that row
+    sp = np.asarray(split_bps, np.float64).reshape(-1, 2)
+    return [e for e in out if e.ok or not (np.linalg.norm(sp - np.asarray(e.bp_px, np.float64), axis=1) < PAIR_TOL_PX).any()]
