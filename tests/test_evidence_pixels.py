@@ -265,3 +265,22 @@ def test_texture_is_no_white_light_and_a_glint_is():
     share = px.white_share_in(img, cv2.getStructuringElement(cv2.MORPH_RECT, (15, 15)), (20, 20), 255.0)
     # 8-bit rounding of a 30 % bump moves the split by a few hundredths
     assert abs(share[20, 10]) < 0.1 and share[20, 30] > 0.9
+
+
+@pytest.mark.parametrize("curve, gamma", [("linear", 1.0), ("gamma", 1.8)])
+def test_the_white_share_undoes_the_camera_files_curve(curve, gamma):
+    # the window of the test above through a camera file's other curves: with its response
+    # given, texture stays tissue light and the glint white light; read as sRGB, the glint's
+    # white share was 0.25 (linear) and 0.73 (gamma 1.8), the linear one under WHITE_SHARE_MIN
+    from simtest.geometry.response import SensorResponse
+
+    lin = np.broadcast_to(np.array([0.5, 0.1, 0.06]), (41, 41, 3)).copy()
+    yy, xx = np.mgrid[0:41, 0:41]
+    bump = lambda u, v: np.exp(-((xx - u) ** 2 + (yy - v) ** 2) / 4.0)[..., None]  # noqa: E731
+    lin = lin * (1 + 0.3 * bump(10, 20)) + 0.3 * bump(30, 20)
+    img = np.rint(np.clip(lin, 0, 1) ** (1.0 / gamma) * 255).astype(np.uint8)
+    se = cv2.getStructuringElement(cv2.MORPH_RECT, (15, 15))
+    share = px.white_share_in(img, se, (20, 20), 255.0, SensorResponse(curve=curve, gamma=gamma))
+    # 8-bit rounding of a 30 % bump moves the split by a few hundredths
+    assert abs(share[20, 10]) < 0.1 and share[20, 30] > 0.9
+    assert px.white_share_in(img, se, (20, 20), 255.0)[20, 30] < 0.8

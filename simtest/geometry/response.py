@@ -71,6 +71,14 @@ def srgb_inverse(v: np.ndarray) -> np.ndarray:
     return np.where(v <= 0.04045, v / 12.92, ((np.maximum(v, 0.04045) + 0.055) / 1.055) ** 2.4)
 
 
+def srgb_encode(s: np.ndarray) -> np.ndarray:
+    """The sRGB transfer curve (IEC 61966-2-1) of linear ``s`` in [0, 1], in ``s``'s float type."""
+    s = np.asarray(s)
+    c = s.dtype.type if s.dtype.kind == "f" else np.float64
+    return np.where(s <= c(0.0031308), c(12.92) * s,
+                    c(1.055) * np.power(np.maximum(s, c(0.0031308)), c(1 / 2.4)) - c(0.055))
+
+
 @dataclass(frozen=True)
 class SensorResponse:
     """A sensor's tone curve, white balance, exposure and clip level (module docstring).
@@ -192,17 +200,27 @@ class SensorResponse:
                                 f"(largest {float(sample.max()):g}): the clip level is in the file's units, "
                                 f"255 for an 8-bit frame")
 
+    def decode(self, v) -> np.ndarray:
+        """The inverse tone curve alone of display values ``v`` (full scale 1, clipped to [0, 1]):
+        light in the frame's own channels (its white balance and exposure kept: the illuminant
+        stays white), linear, 1 at full scale; float64."""
+        v = np.clip(np.asarray(v, dtype=np.float64), 0.0, 1.0)
+        if self.curve == "srgb":
+            return srgb_inverse(v)
+        return v ** self.gamma if self.curve == "gamma" else v
+
+    def as_srgb(self, values, full_scale: float = 1.0) -> np.ndarray:
+        """The values an sRGB sensor would have written for the light of ``values`` (``full_scale``
+        white): :meth:`decode`, then the sRGB curve; float64, same full scale."""
+        return srgb_encode(self.decode(np.asarray(values, np.float64) / full_scale)) * full_scale
+
     def linear(self, values, channel: int | None = None, full_scale: float = 1.0) -> np.ndarray:
         """Linear radiance (up to the exposure's unit) of pixel values, float64.
 
         ``values / full_scale`` through the inverse curve, over ``exposure`` and over the white
         balance of ``channel`` (the mean of the three for a grey image, ``channel`` None).
         """
-        v = np.clip(np.asarray(values, dtype=np.float64) / full_scale, 0.0, 1.0)
-        if self.curve == "srgb":
-            v = srgb_inverse(v)
-        elif self.curve == "gamma":
-            v = v ** self.gamma
+        v = self.decode(np.asarray(values, dtype=np.float64) / full_scale)
         wb = float(np.mean(self.white_balance)) if channel is None else self.white_balance[channel]
         return v / (self.exposure * wb)
 

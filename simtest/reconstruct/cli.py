@@ -211,7 +211,8 @@ def reconstruct_single(img, camera_file, settings: ReconSettings | None = None, 
         :meth:`~simtest.reconstruct.result.Reconstruction.detection_record`.
     """
     settings = ReconSettings.for_frames() if settings is None else settings
-    estimates = reconstruct(img, camera_file.model, settings=settings, lights=camera_file.lights)
+    estimates = reconstruct(img, camera_file.model, settings=settings, lights=camera_file.lights,
+                            response=camera_file.response)
     # the scope's light rig from the camera file ("lights"; none: one light at the camera)
     kw = dict(cubic=None if cubic_patch else False, response=camera_file.response)
     return (light_aware_with_rig(img, estimates, camera_file.model, camera_file.lights, workers=workers,

@@ -454,19 +454,25 @@ def white_share(excess: np.ndarray, tissue: np.ndarray) -> np.ndarray:
 _SRGB_8BIT = srgb_inverse(np.arange(256) / 255.0).astype(np.float32)
 
 
-def white_share_in(win_rgb: np.ndarray, se: np.ndarray, bp_rc: tuple[int, int], full_scale: float) -> np.ndarray:
+def white_share_in(win_rgb: np.ndarray, se: np.ndarray, bp_rc: tuple[int, int], full_scale: float,
+                   response=None) -> np.ndarray:
     """:func:`white_share` of each pixel of a display-encoded window (rows, cols, 3) (``full_scale``
-    its white; linearised by the inverse sRGB curve) over its channels' grey openings by ``se``,
-    the tissue's colour read at ``bp_rc`` (row, column). (rows, cols), float32 arithmetic."""
-    lin = (_SRGB_8BIT[win_rgb] if win_rgb.dtype == np.uint8 and full_scale == 255.0 else
-           srgb_inverse(np.clip(np.asarray(win_rgb, np.float32) / np.float32(full_scale), 0, 1)).astype(np.float32))
+    its white; linearised by ``response``'s inverse tone curve, a
+    :class:`~simtest.geometry.response.SensorResponse`, or None: sRGB's) over its channels' grey
+    openings by ``se``, the tissue's colour read at ``bp_rc`` (row, column). (rows, cols), float32
+    arithmetic."""
+    if response is not None and response.curve != "srgb":
+        lin = response.decode(np.asarray(win_rgb, np.float64) / float(full_scale)).astype(np.float32)
+    else:
+        lin = (_SRGB_8BIT[win_rgb] if win_rgb.dtype == np.uint8 and full_scale == 255.0 else
+               srgb_inverse(np.clip(np.asarray(win_rgb, np.float32) / np.float32(full_scale), 0, 1)).astype(np.float32))
     base = cv2.morphologyEx(lin, cv2.MORPH_OPEN, se, borderType=cv2.BORDER_REPLICATE)
     return white_share(lin - base, base[bp_rc])
 
 
 def surround_fractions(gray: np.ndarray, ells, bps_ij: np.ndarray, reaches: np.ndarray, own_level,
                        rel: float, paired=None, rgb: np.ndarray | None = None,
-                       full_scale: float = 255.0):
+                       full_scale: float = 255.0, response=None):
     """Per candidate (``ells``, ``bps_ij`` (n, 2) (column, row), ``reaches`` (n,)): the share of the
     surround's pixels (within the reach of the BP pixel, where :func:`ellipse_level` of the primary
     isophote exceeds ``own_level``) whose local top-hat (the luma less its grey opening by a square
@@ -479,7 +485,8 @@ def surround_fractions(gray: np.ndarray, ells, bps_ij: np.ndarray, reaches: np.n
     same patch and roughness), are left out of the surround too. float64 (n,); with ``rgb`` (the
     frame's colour channels, display-encoded, ``full_scale`` its white) a pair of them, the second
     counting a pixel only where its excess is mostly the illuminant's (:func:`white_share_in` at
-    least :data:`~simtest.decisions.WHITE_SHARE_MIN`): tissue texture brightens in its colour."""
+    least :data:`~simtest.decisions.WHITE_SHARE_MIN`, decoded by ``response``'s curve, None:
+    sRGB's): tissue texture brightens in its colour."""
     h, w = gray.shape
     bps_ij = np.asarray(bps_ij, np.int64).reshape(-1, 2)
     reaches = np.asarray(reaches, np.float64).reshape(-1)
@@ -536,6 +543,7 @@ def surround_fractions(gray: np.ndarray, ells, bps_ij: np.ndarray, reaches: np.n
                 lit = (top >= rel * peak) & ring[m, r0 - i + R:r1 - i + R, c0 - j + R:c1 - j + R]
                 out[q] = float(np.count_nonzero(lit) / int(n_ring[m]))
                 if rgb is not None and out[q] > 0:
-                    lit &= white_share_in(rgb[r0:r1, c0:c1], se, (i - r0, j - c0), full_scale) >= WHITE_SHARE_MIN
+                    lit &= white_share_in(rgb[r0:r1, c0:c1], se, (i - r0, j - c0), full_scale,
+                                          response) >= WHITE_SHARE_MIN
                     white[q] = float(np.count_nonzero(lit) / int(n_ring[m]))
     return out if rgb is None else (out, white)

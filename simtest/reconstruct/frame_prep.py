@@ -92,6 +92,9 @@ class _Frame:
     luma_frame32: np.ndarray | None = None
     #: The luma that ``isophotes._first_rings`` read many ROIs' rings from (a grown ROI's too).
     ring_luma: np.ndarray | None = None
+    #: The frame's tone curve (a camera file's ``"response"``, a SensorResponse) that the colour
+    #: checks undo; None: a display-encoded (sRGB) frame.
+    response: object | None = None
 
     @classmethod
     def make(cls, image, K, dist_coeffs, settings: ReconSettings, noise_roi: Roi | None = None) -> _Frame:

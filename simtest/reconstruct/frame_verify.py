@@ -32,7 +32,7 @@ def _early_checks(frame: _Frame, det, bps_arr: np.ndarray, fitted: np.ndarray,
     sat = np.array([det.candidates[k].saturated for k in fk.tolist()], dtype=bool)
     early = {k: d for k, d in zip(fk.tolist(), bp_checks(frame.img, gray_v, bps_arr[fk], sat,
                                                          full_scale=frame.full_scale, noise=noise_v,
-                                                         grey=grey_v)) if d is not None}
+                                                         grey=grey_v, response=frame.response)) if d is not None}
     fitted[list(early)] = False
     return verifier, early, fitted
 
@@ -71,7 +71,8 @@ def _verified(frame: _Frame, ests: list[SpecularityEstimate], native: np.ndarray
     fit = [e for e in ests if e.isophotes]
     if not fit:
         return list(ests)
-    ev, res, inside = assess(frame.img, gray, fit, full_scale=frame.full_scale, noise=noise, grey=grey, camera=frame.camera, lights=lights)
+    ev, res, inside = assess(frame.img, gray, fit, full_scale=frame.full_scale, noise=noise, grey=grey,
+                             camera=frame.camera, lights=lights, response=frame.response)
     conf = confidence(ev, res).tolist()
     checks = verdict(ev, res, inside, only=[k for k, e in enumerate(fit) if e.ok])
     judged = {}

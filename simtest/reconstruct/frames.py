@@ -287,7 +287,7 @@ def _frame_head(args) -> tuple[dict, list, bool]:
             response.check_frame(image)
         except ResponseError as exc:
             raise InputError(f"frame {name}: the camera file's {exc}") from None
-    ests = reconstruct(image, K, dist_coeffs=dist_coeffs, settings=settings, lights=rig)
+    ests = reconstruct(image, K, dist_coeffs=dist_coeffs, settings=settings, lights=rig, response=response)
     detection = ests.detection_record()
     # a single image's light-aware step (none without a rig off the camera), on the response's linear light
     ests = light_aware_with_rig(image, ests, K, rig, cubic=cubic, response=response)

@@ -64,6 +64,8 @@ References
 
 from __future__ import annotations
 
+import dataclasses
+
 import ctypes
 import functools
 import gc
@@ -293,6 +295,7 @@ def reconstruct(
     roi=None,
     settings: ReconSettings | None = None,
     lights=None,
+    response=None,
     **options,
 ) -> Reconstruction:
     """Detect every specular highlight of an image and estimate its normal.
@@ -317,6 +320,9 @@ def reconstruct(
         ``normalise="auto"``). The paper's settings are ``ReconSettings()``.
     lights : LightRig, optional
         The scope's rig: another guide's highlight is expected, not a cluster (:mod:`~simtest.reconstruct.rig_pairs`).
+    response : SensorResponse, optional
+        The frame's tone curve (a camera file's ``"response"``), which the colour checks undo
+        (:func:`~simtest.reconstruct.verify.frame_evidence`); None: a display-encoded (sRGB) frame.
     **options
         Fields of :class:`~simtest.reconstruct.settings.ReconSettings` to change: ``normalise``,
         ``allow_open``, ``smooth_sigma_px`` (applies to detection too; None: from the noise),
@@ -351,6 +357,7 @@ def reconstruct(
     img = validate_image(image)
     r = Roi(0, img.shape[0], 0, img.shape[1]) if roi is None else Roi.coerce(roi, img.shape)
     frame = _Frame.make(img, K, dist_coeffs, settings, noise_roi=r)
+    frame = frame if response is None else dataclasses.replace(frame, response=response)
     sub = img[r.slices]
     det = detect_specularities(
         sub, brightness_rel=settings.brightness_rel, full_scale=frame.full_scale,

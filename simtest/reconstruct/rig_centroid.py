@@ -175,9 +175,11 @@ def light_aware_with_rig(image, estimates, camera, rig: LightRig | None, *, work
     gray = luma(np.asarray(image)) if _offset_rig(rig) and any(e.status in SPLIT_STATUSES for e in estimates) else None
     split = fused_lobe_candidates(gray, estimates, camera, rig) if gray is not None else []  # fitted in the workers
     if split:  # two guides' lobes are the illuminant's light: a candidate of the tissue's colour is no pair
+        # (a top clipped in every channel is white whatever the colour at its BP, which the
+        # centroid of two joined tops puts in the valley between them)
         white = specular_colour_at(np.asarray(image), gray, [estimates[i].bp_px for i in split],
-                                   full_scale=default_full_scale(np.asarray(image)))
-        split = [i for i, w in zip(split, white) if w]
+                                   full_scale=default_full_scale(np.asarray(image)), response=kwargs.get("response"))
+        split = [i for i, w in zip(split, white) if w or estimates[i].saturated]
     fitted = with_light_aware(image, estimates, camera, rig, workers=workers, on_highlight=on_highlight,
                               plane_only=split, **kwargs)
     return rig_centroid(image, split_fused_lobes(image, fitted, camera, rig, prefitted=set(split), gray=gray),

@@ -111,11 +111,11 @@ def _inside(mask_at, pts: np.ndarray) -> np.ndarray:
 def _along_the_rig(gray: np.ndarray, est, camera, rig, stretched: bool = True) -> bool:
     """Whether a candidate's region reaches along the rig's curve from its BP beyond its own lobe
     (worth the plane's fit): the curve runs in it beyond :data:`PAIR_TOL_PX`, and ``stretched``
-    (``merged``), the extent of its clipped tops (the region's pixels whose luma lies within
-    :data:`~simtest.decisions.CLIP_LUMA_MARGIN_REL` of the BP's) from the BP along the curve is at
-    least twice their half-width across (one guide's lobe is about as wide as long; fused lobes
-    stretch by their specular points' distance; broad ones, ``bad_fit``, may not: the rule's own
-    test decides)."""
+    (``merged``), its tops (the region's pixels whose luma lies within
+    :data:`~simtest.decisions.CLIP_LUMA_MARGIN_REL` of its peak) are at least 1.5 times as long
+    along the curve as they are wide across (one guide's top is about as wide as long, 2 r; two
+    guides' tops s apart are s + 2 r long: longer by half from s = r, where they begin to fuse;
+    broad lobes, ``bad_fit``, may not stretch: the rule's own test decides)."""
     region = _bright_region(gray, est)
     if region is None:
         return False
@@ -130,11 +130,12 @@ def _along_the_rig(gray: np.ndarray, est, camera, rig, stretched: bool = True) -
     if not stretched or not along > PAIR_TOL_PX:
         return along > PAIR_TOL_PX
     t = far / along
-    # a merged candidate's stretch is its clipped tops' (near the ceiling in luma): the region
-    # also takes in whatever tissue beside them is brighter than half the clipped height
-    top = gray[rr + r0, cc + c0] >= (1.0 - CLIP_LUMA_MARGIN_REL) * float(est.bp_intensity)
-    d = d[top] if top.any() else d
-    return float((d @ t).max()) >= 2.0 * float(np.abs(d @ np.array([-t[1], t[0]])).max())
+    # a merged candidate's stretch is its tops' (near its peak in luma): the region also takes in
+    # whatever tissue beside them is brighter than half the clipped height, and the BP of two
+    # joined tops lies in the valley between them
+    v = gray[rr + r0, cc + c0]
+    d = d[v >= (1.0 - CLIP_LUMA_MARGIN_REL) * float(v.max())]
+    return float(np.ptp(d @ t)) >= 1.5 * float(np.ptp(d @ np.array([-t[1], t[0]])))
 
 
 def _rows(est, camera, rig, gray, others: np.ndarray) -> list | None:
@@ -213,7 +214,9 @@ def split_fused_lobes(image, estimates, camera, rig, *, prefitted=(), gray=None)
         rows = None
         if est.ok or i in prefitted:
             gray = luma(np.asarray(image)) if gray is None else gray
-            rows = _rows(est, camera, rig, gray, bps[ok & (np.arange(len(bps)) != i)])
+            # the ok candidates' BPs and the guide lobes split so far already have their rows
+            others = np.concatenate([bps[ok & (np.arange(len(bps)) != i)], np.reshape(split_bps, (-1, 2))])
+            rows = _rows(est, camera, rig, gray, others)
             est = est if est.ok else dataclasses.replace(est, light_aware={})  # a rejected row: no fits
         out.extend(rows if rows is not None else [est])
         split_bps.extend(r.bp_px for r in rows or ())

@@ -247,6 +247,17 @@ def _white_share(peak_rgb: np.ndarray, tissue_rgb: np.ndarray, full_scale: float
     return px.white_share(peak - tissue, tissue)
 
 
+def _as_srgb(values: np.ndarray, full_scale: float, response) -> np.ndarray:
+    """RGB samples as an sRGB sensor would have written the same light (``response``, a
+    :class:`~simtest.geometry.response.SensorResponse`: the frame's tone curve), where the frame
+    has another curve: the colour checks' numbers are stated on display-encoded (sRGB) frames.
+    The samples as they are without a response or with an sRGB one (per channel and monotone, the
+    curve commutes with the openings and maxima the samples come from)."""
+    if response is None or response.curve == "srgb":
+        return values
+    return response.as_srgb(values, float(full_scale))
+
+
 def _specular_colour(chroma: np.ndarray, chroma_tissue: np.ndarray, share: np.ndarray | None = None) -> np.ndarray:
     """The colour check: a chroma at most :data:`PALENESS_MAX` of the tissue's, or near-white
     (at most :data:`WHITE_CHROMA`), and where ``share`` (the peak's excess's white share,
@@ -300,7 +311,7 @@ def _top_of(g_at: np.ndarray, bg_at: np.ndarray) -> np.ndarray:
 def frame_evidence(image: np.ndarray, gray: np.ndarray, bps_uv: np.ndarray, rois, *,
                    full_scale: float, noise: float, background_px: int,
                    reach_px: np.ndarray | None = None, ellipses=None, windowed: bool | None = None,
-                   grey: bool = False, panels: bool = True, expected=None) -> Evidence:
+                   grey: bool = False, panels: bool = True, expected=None, response=None) -> Evidence:
     """Measure every candidate of a frame.
 
     Parameters
@@ -341,6 +352,9 @@ def frame_evidence(image: np.ndarray, gray: np.ndarray, bps_uv: np.ndarray, rois
         (:func:`simtest.reconstruct.rig_pairs.other_guide_curves`): a peak whose region comes
         within :data:`~simtest.reconstruct.rig_pairs.PAIR_TOL_PX` of them is that highlight, not a
         neighbour. None: no rig.
+    response : SensorResponse, optional
+        The frame's tone curve (a camera file's ``"response"``): the colour is read as an sRGB
+        frame would hold the same light (:func:`_as_srgb`); None: a display-encoded (sRGB) frame.
 
     Returns
     -------
@@ -394,10 +408,11 @@ def frame_evidence(image: np.ndarray, gray: np.ndarray, bps_uv: np.ndarray, rois
     at = _opening_at(src, background_px, np.concatenate([rows, ys]), np.concatenate([cols, xs]))
     if src.ndim != 3:  # a grey frame: its three channels alike
         at = np.repeat(at[:, None], 3, 1)
+    at = _as_srgb(at, full_scale, response)  # the colour as an sRGB frame holds it
     bg_rgb_bp, bg_rgb_pk = at[:n], at[n:]
     # the RGB maximum over the 3 x 3 px around each BP (the window clipped to the frame)
     src3 = src if src.ndim == 3 else src[:, :, None]
-    peak_rgb = px.rgb_max9(src3, rows, cols)
+    peak_rgb = _as_srgb(px.rgb_max9(src3, rows, cols), full_scale, response)
     chroma_peak = px.chroma(peak_rgb)
     chroma_tissue = px.chroma(bg_rgb_bp)
     share = _white_share(peak_rgb, bg_rgb_bp, full_scale)
@@ -409,7 +424,7 @@ def frame_evidence(image: np.ndarray, gray: np.ndarray, bps_uv: np.ndarray, rois
         inside = _panel_pixels_in(_shared(_float32, gray), table, rp, None if grey else image, float(full_scale))
         panel_fraction[measured] = inside / np.maximum((rp[:, 1] - rp[:, 0]) * (rp[:, 3] - rp[:, 2]), 1)
     # specular peaks of the frame: the top-hat's local maxima that pass the colour check
-    colour = _specular_colour(px.chroma(px.rgb_at(src3, ys, xs)), px.chroma(bg_rgb_pk))
+    colour = _specular_colour(px.chroma(_as_srgb(px.rgb_at(src3, ys, xs), full_scale, response)), px.chroma(bg_rgb_pk))
     ys, xs = ys[colour].astype(np.int64), xs[colour].astype(np.int64)
     neighbours = np.zeros(n, np.int64)
     if len(xs) and len(todo):
@@ -430,10 +445,12 @@ def frame_evidence(image: np.ndarray, gray: np.ndarray, bps_uv: np.ndarray, rois
                     neighbours, full_scale=float(full_scale), noise_bg=noise_bg, white_share=share)
 
 
-def specular_colour_at(image: np.ndarray, gray: np.ndarray, bps_uv: np.ndarray, *, full_scale: float) -> np.ndarray:
-    """The colour check of ``not_specular`` alone (:func:`_specular_colour`, with the white share)
-    at the BPs ``bps_uv`` (N, 2) (u, v) px of ``image`` (H, W, 3) (``gray`` its luma, for the
-    background's square): bool (N,); all True for a grey frame (no colour to tell)."""
+def specular_colour_at(image: np.ndarray, gray: np.ndarray, bps_uv: np.ndarray, *, full_scale: float,
+                       response=None) -> np.ndarray:
+    """The colour check of ``not_specular`` alone (:func:`_specular_colour`, with the white share
+    through ``response``'s curve, as :func:`frame_evidence`) at the BPs ``bps_uv`` (N, 2) (u, v) px
+    of ``image`` (H, W, 3) (``gray`` its luma, for the background's square): bool (N,); all True
+    for a grey frame (no colour to tell)."""
     bps = np.asarray(bps_uv, np.float64).reshape(-1, 2)
     if image.ndim != 3 or not len(bps):
         return np.ones(len(bps), bool)
@@ -441,18 +458,19 @@ def specular_colour_at(image: np.ndarray, gray: np.ndarray, bps_uv: np.ndarray, 
     src = image[..., :3]
     bg = _opening_at(src, background_side_px(gray.shape), ij[:, 1], ij[:, 0])
     peak = px.rgb_max9(src, ij[:, 1], ij[:, 0])
+    bg, peak = _as_srgb(bg, full_scale, response), _as_srgb(peak, full_scale, response)
     return _specular_colour(px.chroma(peak), px.chroma(bg), _white_share(peak, bg, full_scale))
 
 
 def bp_checks(image: np.ndarray, gray: np.ndarray, bps_uv: np.ndarray, clipped: np.ndarray, *,
-              full_scale: float, noise: float, grey: bool = False) -> list[str | None]:
+              full_scale: float, noise: float, grey: bool = False, response=None) -> list[str | None]:
     """The checks of :func:`verdict` that read only a candidate's BP, before any fit: the colour
     and the height (``not_specular``). The pipeline runs them on detection's candidates and
     extracts and fits the isophotes of those that pass only.
 
     Parameters
     ----------
-    image, gray, full_scale, noise, grey
+    image, gray, full_scale, noise, grey, response
         As for :func:`frame_evidence` (``noise``: the luma's, as :func:`assess` takes it).
     bps_uv : ndarray of shape (N, 2)
         The candidates' BPs (u, v), px.
@@ -476,7 +494,8 @@ def bp_checks(image: np.ndarray, gray: np.ndarray, bps_uv: np.ndarray, clipped: 
     rows, cols = rc[:, 0], rc[:, 1]
     rois = np.stack([rows, rows + 1, cols, cols + 1], axis=1)
     ev = frame_evidence(image, gray, bps, rois, full_scale=full_scale, noise=noise,
-                        background_px=background_side_px(gray.shape), windowed=True, grey=grey, panels=False)
+                        background_px=background_side_px(gray.shape), windowed=True, grey=grey, panels=False,
+                        response=response)
     ev = replace(ev, clipped=np.asarray(clipped, bool).reshape(-1))
     checks = verdict(ev, np.full(n, np.nan), np.zeros(n, bool))
     return [detail if status == "not_specular" else None for status, detail in checks]
@@ -503,7 +522,7 @@ def _reach_axes(t) -> np.ndarray:
 
 
 def assess(image: np.ndarray, gray: np.ndarray, ests, *, full_scale: float, windowed: bool | None = None,
-           noise: float | None = None, grey: bool = False, camera=None, lights=None):
+           noise: float | None = None, grey: bool = False, camera=None, lights=None, response=None):
     """The evidence on a frame's estimates, with their fits' residual ratios and BP placement.
 
     Parameters
@@ -533,6 +552,8 @@ def assess(image: np.ndarray, gray: np.ndarray, ests, *, full_scale: float, wind
         rig puts it, is left out of the surround as the own lobe is:
         :func:`~simtest.reconstruct.rig_pairs.other_lobe_centres`). None (or one light): no
         pairing.
+    response : SensorResponse, optional
+        As for :func:`frame_evidence`.
 
     Returns
     -------
@@ -586,7 +607,7 @@ def assess(image: np.ndarray, gray: np.ndarray, ests, *, full_scale: float, wind
     ev = frame_evidence(image, gray, bps, [e.roi for e in ests], full_scale=full_scale,
                         noise=noise_sigma(gray) if noise is None else float(noise), background_px=background_side_px(gray.shape),
                         reach_px=reach, ellipses=ells, windowed=windowed, grey=grey, expected=expected,
-                        panels=ok)
+                        panels=ok, response=response)
     clipped = np.array([bool(e.saturated) for e in ests], dtype=bool)
     # the surround, for the candidates that pass every check before it (verdict's order); the
     # others' share counts as 1 (all lit) in their confidence
@@ -607,7 +628,7 @@ def assess(image: np.ndarray, gray: np.ndarray, ests, *, full_scale: float, wind
         if not grey and image.ndim == 3:  # and the cluster check's: white light only
             white = surround.copy()
             surround[passed], white[passed] = px.surround_fractions(*args, rgb=image[..., :3],
-                                                                    full_scale=float(full_scale))
+                                                                    full_scale=float(full_scale), response=response)
         else:
             surround[passed] = px.surround_fractions(*args)
     return replace(ev, clipped=clipped, minor_px=minor, surround=surround, surround_white=white), res, inside

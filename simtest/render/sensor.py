@@ -16,6 +16,7 @@ import numpy as np
 from PIL import Image
 
 from simtest.constants import LUMA_BT601
+from simtest.geometry.response import srgb_encode
 from simtest.scene.spec import SensorSpec
 
 __all__ = ["LUMA_WEIGHTS", "SENSOR_SEED_KEY", "VIDEO_BANDS", "apply_sensor", "field_stop_mask", "frame_luma",
@@ -102,13 +103,6 @@ def _field_stop(shape: tuple[int, int], kind: str, radius: float) -> np.ndarray:
             out = (ax <= R) & (ay <= R) & ((ax + ay) / np.sqrt(2.0) <= R)
     out.flags.writeable = False
     return out
-
-
-def _srgb(s: np.ndarray) -> np.ndarray:
-    """The sRGB transfer curve (IEC 61966-2-1) of ``s`` in [0, 1], in ``s``'s float type."""
-    c = s.dtype.type
-    return np.where(s <= c(0.0031308), c(12.92) * s,
-                    c(1.055) * np.power(np.maximum(s, c(0.0031308)), c(1 / 2.4)) - c(0.055))
 
 
 #: Row bands of a video frame, each developed with its own noise stream
@@ -223,7 +217,7 @@ def video_frame(rgb: np.ndarray, sensor: SensorSpec, seed: int, *, threads: int 
             y = (s @ luma_w)[..., None]
             s = np.clip(y + sensor.color_saturation * (s - y), 0.0, 1.0)
         # sRGB in float32: its error (1e-7 relative) is far below the 8-bit step.
-        s = _srgb(s.astype(np.float32)) if sensor.tone == "srgb" else s ** (1.0 / sensor.gamma)
+        s = srgb_encode(s.astype(np.float32)) if sensor.tone == "srgb" else s ** (1.0 / sensor.gamma)
         band = np.rint(s * 255.0).astype(np.uint8)
         band[~stop[r0:r1]] = 0
         frame[r0:r1] = band
