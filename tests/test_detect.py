@@ -658,7 +658,7 @@ def test_a_broken_tops_pieces_are_the_masks_pieces_joined_to_the_ceiling(seed, p
 
 def test_near_ceiling_pixels_need_the_luma_near_the_ceiling_too():
     # CLIP_LUMA_MARGIN_REL: every channel within 4 % of the ceiling is not enough where the luma
-    # falls more than 1 % below it (a sheen), and a grey frame's luma is its channels
+    # falls more than 1 % below it (a sheen); a grey frame's luma is its value, the same bar
     from simtest.decisions import CLIP_LUMA_MARGIN_REL, CLIP_MARGIN_REL
     from simtest.reconstruct.detect_pixels import near_ceiling_mask
 
@@ -666,4 +666,4 @@ def test_near_ceiling_pixels_need_the_luma_near_the_ceiling_too():
     edge = int(np.ceil(255 * (1 - CLIP_LUMA_MARGIN_REL)))  # the luma's bar
     img = np.array([[[255, 255, 255], [low, low, low], [edge, edge, edge], [255, 255, low]]], np.uint8)
     assert near_ceiling_mask(img, 255.0).tolist() == [[1, 0, 1, 1]]
-    assert near_ceiling_mask(img, 255.0, grey=True, gray=img[..., 0].copy()).tolist() == [[1, 1, 1, 1]]
+    assert near_ceiling_mask(img, 255.0, grey=True, gray=img[..., 0].copy()).tolist() == [[1, 0, 1, 1]]

@@ -434,9 +434,8 @@ def near_ceiling_mask(image: np.ndarray, saturation_level: float | None,
     near = clipped_mask(image, saturation_level - CLIP_MARGIN_REL * top, gray, grey)
     if gray is None:
         gray = cv2.cvtColor(image, cv2.COLOR_RGB2GRAY) if image.ndim == 3 and image.shape[2] == 3 else image
-    if gray.ndim == 2 and not grey:  # a grey frame's luma is its channels, already within the margin
-        lo = float(np.ceil(saturation_level - CLIP_LUMA_MARGIN_REL * top))
-        near &= (gray >= lo).view(np.uint8)
+    if gray.ndim == 2:  # (a grey frame's luma is its value: the luma's margin, the narrower, decides)
+        near &= (gray >= float(np.ceil(saturation_level - CLIP_LUMA_MARGIN_REL * top))).view(np.uint8)
     return near
 
 

@@ -224,4 +224,5 @@ def split_fused_lobes(image, estimates, camera, rig, *, prefitted=(), gray=None)
         return out
     # a rejected candidate on a guide's specular point that a split gave its row is that row
     sp = np.asarray(split_bps, np.float64).reshape(-1, 2)
-    return [e for e in out if e.ok or not (np.linalg.norm(sp - np.asarray(e.bp_px, np.float64), axis=1) < PAIR_TOL_PX).any()]
+    near = [bool((np.linalg.norm(sp - np.asarray(e.bp_px, np.float64), axis=1) < PAIR_TOL_PX).any()) for e in out]
+    return [e for e, at in zip(out, near) if e.ok or not at]
