@@ -166,13 +166,13 @@ def _plateaus(clipped: np.ndarray, labels: np.ndarray, cid: int, x: int, y: int,
     """The clipped plateaus of one candidate: ``(n, row, col)``, the count of plateaus of the
     plateau size and the centroid of the largest (frame). ``"local_peak"``: the clipped pixels
     closed 3 x 3 and cut by the component (plateaus from 3 px), or closed by ``k_close`` where
-    that makes one plateau of two or more. A top whose clipped pixels lie in more than one piece
-    is read again on the pixels of ``near`` joined to them in the component: a codec's broken top
-    is one plateau; a whole one keeps its own centroid."""
+    that makes one plateau of two or more, read on the pixels of ``near`` joined to them in the
+    component: a codec's broken top (in pieces, or one pixel left at the ceiling) is one plateau;
+    a whole one gains only its rim within the margins."""
     comp = (labels[y : y + bh, x : x + bw] == cid).view(np.uint8)
     raw = clipped[y : y + bh, x : x + bw] & comp
     n_big, row, col, pieces = _plateau_count(raw, comp, rules)
-    if near is not None and pieces > 1:
+    if near is not None:
         n_big, row, col, _ = _plateau_count(_joined(raw, near[y : y + bh, x : x + bw] & comp), comp, rules)
     return n_big, row + y, col + x
 
@@ -237,7 +237,7 @@ def examine(gray: np.ndarray, labels: np.ndarray, table: np.ndarray, rules: Rule
         Clipped pixels (0/1).
     near : ndarray of shape (H, W), uint8, optional
         Pixels near the ceiling (0/1, :func:`~simtest.reconstruct.detect_pixels.near_ceiling_mask`):
-        a top whose clipped pixels lie in pieces is read with those joined to them (:func:`_plateaus`).
+        a clipped top is read with those joined to its clipped pixels (:func:`_plateaus`).
     scope : ndarray of shape (H, W), bool, optional
         The endoscope's black border.
     levels : ndarray of shape (H, W), float32, optional

@@ -415,7 +415,7 @@ def near_ceiling_mask(image: np.ndarray, saturation_level: float | None,
     """Pixels of an integer frame near its ceiling, where a lossy codec leaves a clipped top:
     every channel within :data:`~simtest.decisions.CLIP_MARGIN_REL` of full scale below
     ``saturation_level`` and the luma within :data:`~simtest.decisions.CLIP_LUMA_MARGIN_REL` of
-    it (a top whose clipped pixels lie in pieces is read with those joined to them,
+    it (a clipped top is read with those joined to its clipped pixels,
     :func:`~simtest.reconstruct.candidates.examine`).
 
     Parameters
