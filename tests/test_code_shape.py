@@ -23,7 +23,7 @@ MAX_FUNCTION_LINES = 150
 #: then by 31 for the codec-broken clipped tops read whole, the same frames through JPEG, and by
 #: 58 for the camera file's tone curve in the colour checks and the rig split's fixes)
 TARGET_PACKAGE_LINES = 30_000
-PACKAGE_LINES_CEILING = 45_322
+PACKAGE_LINES_CEILING = 45_320
 
 #: module -> its lines today (to be split by job as the per-frame tables replace them)
 LONG_MODULES: dict[str, int] = {}

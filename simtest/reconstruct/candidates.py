@@ -170,10 +170,10 @@ def _plateaus(clipped: np.ndarray, labels: np.ndarray, cid: int, x: int, y: int,
     component: a codec's broken top (in pieces, or one pixel left at the ceiling) is one plateau;
     a whole one gains only its rim within the margins."""
     comp = (labels[y : y + bh, x : x + bw] == cid).view(np.uint8)
-    raw = clipped[y : y + bh, x : x + bw] & comp
-    n_big, row, col, pieces = _plateau_count(raw, comp, rules)
+    top = clipped[y : y + bh, x : x + bw] & comp
     if near is not None:
-        n_big, row, col, _ = _plateau_count(_joined(raw, near[y : y + bh, x : x + bw] & comp), comp, rules)
+        top = _joined(top, near[y : y + bh, x : x + bw] & comp)
+    n_big, row, col = _plateau_count(top, comp, rules)
     return n_big, row + y, col + x
 
 
@@ -187,9 +187,8 @@ def _joined(seed: np.ndarray, mask: np.ndarray) -> np.ndarray:
     return keep[lab].view(np.uint8)
 
 
-def _plateau_count(raw: np.ndarray, comp: np.ndarray, rules: Rules) -> tuple[int, float, float, int]:
-    """:func:`_plateaus` of one mask in the candidate's box: ``(n, row, col, pieces)`` with
-    ``pieces`` the closed mask's components of any size (box coordinates)."""
+def _plateau_count(raw: np.ndarray, comp: np.ndarray, rules: Rules) -> tuple[int, float, float]:
+    """:func:`_plateaus` of one mask in the candidate's box: ``(n, row, col)`` (box coordinates)."""
     sat = raw
     min_plateau = rules.min_plateau_px
     if rules.local_peak:
@@ -197,7 +196,6 @@ def _plateau_count(raw: np.ndarray, comp: np.ndarray, rules: Rules) -> tuple[int
         min_plateau = max(min_plateau, 3)
     _, _, stats, cent = cv2.connectedComponentsWithStats(sat, connectivity=8)
     areas = stats[1:, cv2.CC_STAT_AREA]
-    pieces = len(areas)
     n_big = int(np.sum(areas >= min_plateau))
     if rules.local_peak and rules.k_close > 3 and n_big > 1:
         wide = cv2.morphologyEx(raw, cv2.MORPH_CLOSE, np.ones((rules.k_close,) * 2, np.uint8)) & comp
@@ -206,7 +204,7 @@ def _plateau_count(raw: np.ndarray, comp: np.ndarray, rules: Rules) -> tuple[int
             stats, cent, n_big = wstats, wcent, 1
             areas = stats[1:, cv2.CC_STAT_AREA]
     cx, cy = cent[1 + int(np.argmax(areas))]
-    return n_big, float(cy), float(cx), pieces
+    return n_big, float(cy), float(cx)
 
 
 def _parabola(a: np.ndarray, b: np.ndarray, d: np.ndarray, ok: np.ndarray) -> np.ndarray:
