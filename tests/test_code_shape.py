@@ -21,9 +21,10 @@ MAX_FUNCTION_LINES = 150
 #: the operating point, the liver's lobe and gallbladder; and on 2026-11-27 by 121 for the
 #: dichromatic white share that tells texture from white light, issue 63's sensor-like frames;
 #: then by 31 for the codec-broken clipped tops read whole, the same frames through JPEG, and by
-#: 58 for the camera file's tone curve in the colour checks and the rig split's fixes)
+#: 58 for the camera file's tone curve in the colour checks and the rig split's fixes; 45,322
+#: again after the BP colour reading was made one helper for the verifier and the rig)
 TARGET_PACKAGE_LINES = 30_000
-PACKAGE_LINES_CEILING = 45_320
+PACKAGE_LINES_CEILING = 45_322
 
 #: module -> its lines today (to be split by job as the per-frame tables replace them)
 LONG_MODULES: dict[str, int] = {}

@@ -258,6 +258,13 @@ def _as_srgb(values: np.ndarray, full_scale: float, response) -> np.ndarray:
     return response.as_srgb(values, float(full_scale))
 
 
+def _bp_colour(src3, rows, cols, tissue_rgb, full_scale, response) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """``(chroma_peak, chroma_tissue, white_share)`` at BP pixels (``rows``, ``cols``) of channels
+    ``src3`` (H, W, C): the peak the RGB maximum of the 3 x 3 px, ``tissue_rgb`` (P, 3) as sRGB."""
+    peak = _as_srgb(px.rgb_max9(src3, rows, cols), full_scale, response)
+    return px.chroma(peak), px.chroma(tissue_rgb), _white_share(peak, tissue_rgb, full_scale)
+
+
 def _specular_colour(chroma: np.ndarray, chroma_tissue: np.ndarray, share: np.ndarray | None = None) -> np.ndarray:
     """The colour check: a chroma at most :data:`PALENESS_MAX` of the tissue's, or near-white
     (at most :data:`WHITE_CHROMA`), and where ``share`` (the peak's excess's white share,
@@ -412,10 +419,7 @@ def frame_evidence(image: np.ndarray, gray: np.ndarray, bps_uv: np.ndarray, rois
     bg_rgb_bp, bg_rgb_pk = at[:n], at[n:]
     # the RGB maximum over the 3 x 3 px around each BP (the window clipped to the frame)
     src3 = src if src.ndim == 3 else src[:, :, None]
-    peak_rgb = _as_srgb(px.rgb_max9(src3, rows, cols), full_scale, response)
-    chroma_peak = px.chroma(peak_rgb)
-    chroma_tissue = px.chroma(bg_rgb_bp)
-    share = _white_share(peak_rgb, bg_rgb_bp, full_scale)
+    chroma_peak, chroma_tissue, share = _bp_colour(src3, rows, cols, bg_rgb_bp, full_scale, response)
     background = bg_bp
     # flat panels: share in each ROI (none where none can be: see _surely_no_panels)
     table = _shared(noise_level_table, gray, float(full_scale), float(noise))  # the noise at each level
@@ -456,10 +460,8 @@ def specular_colour_at(image: np.ndarray, gray: np.ndarray, bps_uv: np.ndarray, 
         return np.ones(len(bps), bool)
     ij = np.clip(np.rint(bps).astype(np.int64), 0, [gray.shape[1] - 1, gray.shape[0] - 1])
     src = image[..., :3]
-    bg = _opening_at(src, background_side_px(gray.shape), ij[:, 1], ij[:, 0])
-    peak = px.rgb_max9(src, ij[:, 1], ij[:, 0])
-    bg, peak = _as_srgb(bg, full_scale, response), _as_srgb(peak, full_scale, response)
-    return _specular_colour(px.chroma(peak), px.chroma(bg), _white_share(peak, bg, full_scale))
+    bg = _as_srgb(_opening_at(src, background_side_px(gray.shape), ij[:, 1], ij[:, 0]), full_scale, response)
+    return _specular_colour(*_bp_colour(src, ij[:, 1], ij[:, 0], bg, full_scale, response))
 
 
 def bp_checks(image: np.ndarray, gray: np.ndarray, bps_uv: np.ndarray, clipped: np.ndarray, *,
