@@ -212,6 +212,20 @@ PEAK_REL = decision(
     "Local-peak detection cuts each highlight's core at this fraction of its height: for a "
     "Gaussian-like lobe the core's radius is 1.01 sigma (sqrt(2 ln(1 / 0.6))), outside the "
     "primary isophote of FRAME_ISOVALUES (t = 0.7: 0.84 sigma).", basis="physics", stage=_D)
+TOPHAT_MIN_REL = decision(
+    "TOPHAT_MIN_REL", 0.08, "fraction of full scale",
+    "Local-peak detection takes a pixel only where it stands this far above the diffuse background "
+    "(the grey opening): below, the pale texture of tissue, 8-bit quantisation and JPEG's ringing "
+    "about bright folds give components by the hundred on a real frame. Chosen with the "
+    "local-peak detection itself, on the real frames and renders then at hand (e2b9f46).",
+    basis="tuned", stage=_D, chosen_on=("banner-labelled", "banner-tiles", "bundled-renders"),
+    n="24 banner frames, 3 tiles, every bundled scene at seed 0")
+SCOPE_BORDER_LEVEL_REL = decision(
+    "SCOPE_BORDER_LEVEL_REL", 0.08, "fraction of full scale",
+    "The endoscope's black border (the mask outside its field stop) lies below this luma: the "
+    "mask is unlit, so it shows the sensor's black level, read noise and JPEG's ringing only, a "
+    "few percent; lit tissue at the field's edge, vignetted, stays above it.", basis="tuned", stage=_D,
+    chosen_on=("banner-labelled",), n="the 24 banner frames' borders and their burnt-in text")
 FRAME_ISOVALUES = decision(
     "FRAME_ISOVALUES", (0.7, 0.85), "isovalue t, relative to the height above the local background",
     "0.7 lies inside the core that detection cuts out (PEAK_REL 0.6), away from neighbouring "

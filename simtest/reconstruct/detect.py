@@ -27,7 +27,7 @@ import numpy as np
 
 from simtest._records import fast_init
 from simtest.constants import gaussian_radius_px
-from simtest.decisions import MULTIRES_SIDE_MIN_PX, MULTIRES_SIGMA_MIN_PX
+from simtest.decisions import MULTIRES_SIDE_MIN_PX, MULTIRES_SIGMA_MIN_PX, SCOPE_BORDER_LEVEL_REL, TOPHAT_MIN_REL
 from simtest.reconstruct._pixels import Roi, rc_to_uv
 from simtest.reconstruct.candidates import (
     MERGED,
@@ -342,7 +342,7 @@ def detect_specularities(
     smooth_sigma_px: float | None = 0.0,
     method: str = "full_scale",
     peak_rel: float = 0.6,
-    contrast_min_rel: float = 0.08,
+    contrast_min_rel: float = TOPHAT_MIN_REL,
 ) -> Detection:
     """Find candidate specular highlights in a whole image.
 
@@ -670,7 +670,7 @@ class _DetectFrame:
         """The endoscope's black border (``"local_peak"`` only), see :func:`_scope_border`."""
         if self.method != "local_peak":
             return None
-        return _scope_border(self.gray if self.gray32 is None else self.gray32, 0.08 * self.full_scale,
+        return _scope_border(self.gray if self.gray32 is None else self.gray32, SCOPE_BORDER_LEVEL_REL * self.full_scale,
                              self.half if self.gray32 is not None else None)
 
 

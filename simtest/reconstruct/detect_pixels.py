@@ -13,6 +13,7 @@ import numpy as np
 from simtest.constants import LUMA_BT601
 from simtest.decisions import (
     BACKGROUND_DIV, BACKGROUND_PLATEAU_FACTOR, CLIP_LUMA_MARGIN_REL, CLIP_MARGIN_REL, NOISE_LEVEL_BINS, NOISE_LEVEL_MIN_SAMPLES,
+    TOPHAT_MIN_REL,
 )
 
 _LUMA = np.array(LUMA_BT601)
@@ -544,7 +545,7 @@ def background_side_px(shape: tuple[int, int], clipped: np.ndarray | None = None
 
 
 def local_peak_mask(gray: np.ndarray, full_scale: float, *, peak_rel: float = 0.6,
-                    contrast_min_rel: float = 0.08, background_px: int | None = None, _parts: list | None = None,
+                    contrast_min_rel: float = TOPHAT_MIN_REL, background_px: int | None = None, _parts: list | None = None,
                     _half: list | None = None):
     """Bright-candidate mask relative to local peaks (``method="local_peak"``).
 
