@@ -9,13 +9,15 @@ every guide's lobe on one plane and needs no ellipse.
 
 Rule. A candidate's plane fit (``n . X = -h``) predicts each guide's specular point, the plane's
 point on the segment from the camera to the guide's mirror image ``L' = L - 2 (n . L + h) n``:
-``X_s = L' h / (-n . L')``, projected. Every guide whose specular point lies in the candidate's
-bright region (the connected pixels above :data:`FUSED_LOBE_LEVEL` of the BP's height above the
-ROI border's median, holding the BP) is a highlight of it. When two or more are, at least
+``X_s = L' h / (-n . L')``, projected (a fit with the normal but not the distance: the h that
+centres them on the candidate's clipped tops, :func:`_on_the_tops`). Every guide whose specular
+point lies in the candidate's bright region (the connected pixels above :data:`FUSED_LOBE_LEVEL`
+of the BP's height above the ROI border's median, holding the BP) is a highlight of it. When two or more are, at least
 :data:`~simtest.decisions.PAIR_TOL_PX` apart and none is another candidate's BP, the candidate
 gives one row per guide: BP at its specular point, status ``ok``, the joint fit's normal. A
-rejected candidate is fitted for this only where the rig's curve runs in its region (``merged``:
-stretched along it); one the rule does not split keeps its status and no fit.
+rejected candidate is fitted for this only where the rig's curve runs in its region (``merged``
+and ``cluster``, whose other peak may be the other guide's top: stretched along it); one the rule
+does not split keeps its status and no fit.
 """
 
 from __future__ import annotations
@@ -35,7 +37,7 @@ from simtest.reconstruct.rig_pairs import other_guide_curves
 __all__ = ["FUSED_LOBE_LEVEL", "fused_lobe_candidates", "guide_specular_points", "split_fused_lobes"]
 
 #: Candidates whose statuses the rule may turn into rows of fused lobes (module docstring).
-SPLIT_STATUSES = ("ok", "merged", "bad_fit", "not_elliptical")
+SPLIT_STATUSES = ("ok", "merged", "bad_fit", "not_elliptical", "cluster")
 
 
 def guide_specular_points(camera, rig, normal, distance_mm: float) -> np.ndarray:
@@ -62,16 +64,21 @@ def guide_specular_points(camera, rig, normal, distance_mm: float) -> np.ndarray
     Mirror image ``L' = L - 2 (n . L + h) n``; the specular point ``X_s = L' h / (-n . L')``
     (module docstring; the same construction as :mod:`simtest.reconstruct.rig_pairs`).
     """
+    return _specular_points(camera, rig, normal, np.array([float(distance_mm)]))[0]
+
+
+def _specular_points(camera, rig, normal, h: np.ndarray) -> np.ndarray:
+    """:func:`guide_specular_points` at each distance of ``h`` (M,): (M, J, 2)."""
     n = np.asarray(normal, dtype=np.float64)
-    h = float(distance_mm)
     L = np.asarray(rig.positions, dtype=np.float64).reshape(-1, 3)
-    c = L @ n + h
-    Lm = L - 2.0 * c[:, None] * n
+    h = np.asarray(h, dtype=np.float64)[:, None]
+    c = L @ n + h  # (M, J)
+    Lm = L - 2.0 * c[..., None] * n
     with np.errstate(divide="ignore", invalid="ignore"):
-        X = Lm * (h / -(Lm @ n))[:, None]
+        X = Lm * (h / -(Lm @ n))[..., None]
     X[~(c > 0)] = np.nan
-    rays = X / np.linalg.norm(X, axis=1, keepdims=True)
-    return np.asarray(_model(camera).ray_to_pixel(rays), dtype=np.float64).reshape(-1, 2)
+    rays = (X / np.linalg.norm(X, axis=-1, keepdims=True)).reshape(-1, 3)
+    return np.asarray(_model(camera).ray_to_pixel(rays), dtype=np.float64).reshape(len(h), -1, 2)
 
 
 def _model(camera):
@@ -111,7 +118,7 @@ def _inside(mask_at, pts: np.ndarray) -> np.ndarray:
 def _along_the_rig(gray: np.ndarray, est, camera, rig, stretched: bool = True) -> bool:
     """Whether a candidate's region reaches along the rig's curve from its BP beyond its own lobe
     (worth the plane's fit): the curve runs in it beyond :data:`PAIR_TOL_PX`, and ``stretched``
-    (``merged``), its tops (the region's pixels whose luma lies within
+    (``merged``, ``cluster``), its tops (the region's pixels whose luma lies within
     :data:`~simtest.decisions.CLIP_LUMA_MARGIN_REL` of its peak) are at least 1.5 times as long
     along the curve as they are wide across (one guide's top is about as wide as long, 2 r; two
     guides' tops s apart are s + 2 r long: longer by half from s = r, where they begin to fuse;
@@ -138,14 +145,64 @@ def _along_the_rig(gray: np.ndarray, est, camera, rig, stretched: bool = True) -
     return float(np.ptp(d @ t)) >= 1.5 * float(np.ptp(d @ np.array([-t[1], t[0]])))
 
 
+#: The plane distances h (mm) :func:`_on_the_tops` tries: 1 to 500 mm, 1 % apart (a numerical grid:
+#: 1 % of h moves a specular point 25 px from the image centre by a quarter of a pixel).
+_TOPS_H_GRID = np.geomspace(1.0, 500.0, 625)
+
+
+def _tops_depth(gray: np.ndarray, region) -> np.ndarray:
+    """Each pixel's distance (px) to the edge of the region's tops, 0 off them: the tops are the
+    region's pixels whose luma lies within :data:`~simtest.decisions.CLIP_LUMA_MARGIN_REL` of its
+    peak (``cv2.distanceTransform``; ROI indices, as the region's mask)."""
+    mask, r0, c0 = region
+    sub = gray[r0:r0 + mask.shape[0], c0:c0 + mask.shape[1]]
+    tops = (mask & (sub >= (1.0 - CLIP_LUMA_MARGIN_REL) * float(sub[mask].max()))).astype(np.uint8)
+    return cv2.distanceTransform(np.pad(tops, 1), cv2.DIST_L2, 5)[1:-1, 1:-1]
+
+
+def _on_the_tops(depth: np.ndarray, region, camera, rig, normal) -> np.ndarray | None:
+    """The guides' specular points (J, 2) on the plane of ``normal`` at the distance that centres
+    them on the region's clipped tops (``depth``: :func:`_tops_depth`); None where the tops hold
+    no two.
+
+    Fused clipped tops, each guide's about its specular point (the lobe falls off alike on every
+    side of it). Along the plane's one free parameter h the specular points slide along the
+    rig's curve, apart as h shrinks; the h kept puts the points deepest in the tops (the largest
+    sum of their distances to the tops' edge; the middle of a run of equal sums), every point
+    inside the tops. The tops' edge lies closer to each specular point on the side of the other
+    guide's lobe, whose tail lifts it there: the points come out a little inward, by about a
+    pixel on sensor-like planes whose fits' h put them nearer."""
+    _, r0, c0 = region
+    pts = _specular_points(camera, rig, normal, _TOPS_H_GRID)  # (M, J, 2)
+    rc = np.rint(uv_to_rc(np.nan_to_num(pts.reshape(-1, 2), nan=-1.0))).astype(np.int64) - (r0, c0)
+    inside = ((rc >= 0) & (rc < depth.shape)).all(axis=1)
+    d = np.zeros(len(rc))
+    d[inside] = depth[rc[inside, 0], rc[inside, 1]]
+    d = d.reshape(pts.shape[:2])
+    score = np.where((d > 0).all(axis=1), d.sum(axis=1), -1.0)
+    if not score.max() > 0:
+        return None
+    best = np.flatnonzero(score == score.max())
+    return pts[int(best[len(best) // 2])]
+
+
 def _rows(est, camera, rig, gray, others: np.ndarray) -> list | None:
     """The rows of one fitted candidate's fused lobes (module docstring), or None."""
     fit = (est.light_aware or {}).get("photometric_fit")
-    if fit is None or not fit.has_normal or fit.distance_mm is None:
+    if fit is None or not fit.has_normal:
         return None
-    pts = guide_specular_points(camera, rig, fit.normal, fit.distance_mm)
     region = _bright_region(gray, est)
     if region is None:
+        return None
+    if fit.distance_mm is not None:
+        pts = guide_specular_points(camera, rig, fit.normal, fit.distance_mm)
+    elif fit.status == "depth_not_observable" and est.saturated and len(rig.positions) > 1:
+        # the fit holds the normal but not the distance: the h that centres the specular points on
+        # the clipped tops (where the fit's h is known, its points lie nearer: _on_the_tops)
+        pts = _on_the_tops(_tops_depth(gray, region), region, camera, rig, fit.normal)
+        if pts is None:
+            return None
+    else:
         return None
     k = np.flatnonzero(_inside(region, pts))
     if len(k) < 2:
@@ -176,7 +233,7 @@ def fused_lobe_candidates(gray, estimates, camera, rig) -> list[int]:
     if not _offset_rig(rig):
         return []
     return [i for i, e in enumerate(estimates) if e.status in SPLIT_STATUSES and not e.ok
-            and _along_the_rig(gray, e, camera, rig, e.status == "merged")]
+            and _along_the_rig(gray, e, camera, rig, e.status in ("merged", "cluster"))]
 
 
 def split_fused_lobes(image, estimates, camera, rig, *, prefitted=(), gray=None) -> list:

@@ -1,0 +1,145 @@
+"""Two guides' clipped tops fused into one bright region give one row per guide (issue 63).
+
+Frames made here, apart from ``test_rig_pairs.sensor_plane``: GGX microfacet lobes with Schlick's
+Fresnel, Lambertian tissue of a random colour under a random albedo texture, each guide a cos^m
+profile falling off with the inverse square, shot and read noise before the clip, sRGB or a gamma
+2.2 curve, JPEG at random qualities; the camera file states the rig (its profile too). The cases
+are the over-exposed ones of the probe this was first seen on (root seed 4): the guides' lobes
+fuse into one clipped region over bright tissue, which the detector's background square did not
+cover, which came out ``cluster`` or ``not_elliptical``, or whose joint fit held the normal but
+not the distance.
+"""
+
+from __future__ import annotations
+
+import json
+
+import cv2
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+from PIL import Image
+from typer.testing import CliRunner
+
+from simtest.cli import app
+from simtest.geometry.lights import Light, LightRig
+from simtest.reconstruct.rig_lobes import _on_the_tops, _tops_depth, guide_specular_points
+from simtest.geometry.response import srgb_encode
+
+#: As test_rig_pairs: an estimate within this distance of a true highlight is its (px).
+MATCH_PX = 3.0
+#: As test_rig_pairs: the must-hold's bound on the light-aware normal's error, deg.
+MEDIAN_MAX_DEG = 0.5
+SIZE, FOCAL = 360, 170.0
+
+
+def ggx_plane(rng: np.random.Generator):
+    """One frame of a random plane under two guides (module docstring): ``(frame, camera file,
+    normal, true highlights (2, 2))``."""
+    tilt, az = rng.uniform(8, 32), rng.uniform(0, 360)
+    n = np.array([np.sin(np.radians(tilt)) * np.cos(np.radians(az)),
+                  np.sin(np.radians(tilt)) * np.sin(np.radians(az)), -np.cos(np.radians(tilt))])
+    h = rng.uniform(14, 30) * np.cos(np.radians(tilt))
+    b = rng.uniform(3, 5)
+    guides = np.array([[-b, 0, 0], [b, 0, 0]])
+    alpha, m = rng.uniform(0.03, 0.08), rng.uniform(0, 3)
+    tissue = np.array([rng.uniform(0.6, 0.9), rng.uniform(0.2, 0.4), rng.uniform(0.12, 0.3)])
+    K = np.array([[FOCAL, 0, (SIZE - 1) / 2], [0, FOCAL, (SIZE - 1) / 2], [0, 0, 1.0]])
+    vv, uu = np.mgrid[0:SIZE, 0:SIZE].astype(float)
+    d = np.stack([(uu - K[0, 2]) / FOCAL, (vv - K[1, 2]) / FOCAL, np.ones_like(uu)], -1)
+    X = d * (-h / (d @ n))[..., None]
+    V = -X / np.linalg.norm(X, axis=-1, keepdims=True)
+    diffuse, spec, truth = np.zeros((SIZE, SIZE)), np.zeros((SIZE, SIZE)), []
+    for L in guides:
+        Ld = L - X
+        r = np.linalg.norm(Ld, axis=-1)
+        Ld /= r[..., None]
+        E = np.maximum(-Ld[..., 2], 0) ** m * np.maximum(Ld @ n, 0) / r**2  # the guide looks along +z
+        H = Ld + V
+        H /= np.linalg.norm(H, axis=-1, keepdims=True)
+        c, a2 = np.clip(H @ n, 0, 1), alpha**2
+        D = a2 / (np.pi * (c * c * (a2 - 1) + 1) ** 2)
+        F = 0.02 + 0.98 * (1 - np.clip((Ld * H).sum(-1), 0, 1)) ** 5
+        spec += E * F * D / 4
+        diffuse += E
+        Lm = L - 2 * (n @ L + h) * n  # the mirror image: the specular point on the plane
+        Xs = Lm * (h / -(n @ Lm))
+        truth.append((K @ Xs)[:2] / Xs[2])
+    amp, corr = rng.uniform(0, 0.3), rng.uniform(2, 6)
+    field = cv2.GaussianBlur(rng.normal(0, 1, (SIZE, SIZE)), (0, 0), corr)
+    albedo = np.clip(1 + amp * field / field.std(), 0.3, None)
+    s = (diffuse * albedo)[..., None] * tissue / np.pi + spec[..., None]
+    s *= rng.uniform(0.35, 0.55) / np.median(diffuse * tissue.max() / np.pi)
+    s = np.clip(s + rng.normal(0, 1, s.shape) * np.sqrt(0.0004 * np.maximum(s, 0) + 0.005**2), 0, 1)
+    gamma = None if rng.random() < 0.6 else 2.2
+    img = np.rint((srgb_encode(s) if gamma is None else s ** (1 / gamma)) * 255).astype(np.uint8)
+    q = [None, None, 70, 80, 90, 95][rng.integers(0, 6)]
+    if q:
+        _, buf = cv2.imencode(".jpg", np.ascontiguousarray(img[..., ::-1]), [cv2.IMWRITE_JPEG_QUALITY, int(q)])
+        img = np.ascontiguousarray(cv2.imdecode(buf, cv2.IMREAD_COLOR)[..., ::-1])
+    curve = {"curve": "srgb"} if gamma is None else {"curve": "gamma", "gamma": gamma}
+    cam = {"model": "pinhole", "K": K.tolist(), "image_size": [SIZE, SIZE],
+           "response": {**curve, "white_balance": [1, 1, 1], "exposure": 1.0, "clip": 255.0},
+           "lights": [{"position_mm": L.tolist(), "intensity": 1.0, "falloff": "inverse_square",
+                       "profile_exponent": float(m)} for L in guides]}
+    return img, cam, n, np.array(truth)
+
+
+def _frame(seed: int, index: int):
+    rng = np.random.default_rng(seed)
+    for _ in range(index):
+        ggx_plane(rng)
+    return ggx_plane(rng)
+
+
+@pytest.mark.parametrize("index, was, aware", [
+    (0, "ok between the guides, the joint fit's depth not observable", True),
+    (6, "cluster: the other guide's top its 'other peak'", True),
+    # the plane-only fit of a rejected candidate's whole region: its normal is within 0.05 deg
+    # but its stated sigma (2.3 deg) does not beat the BP ray's error, which the recommendation
+    # then keeps, at each guide's specular point
+    (12, "not_elliptical, the joint fit's depth not observable", False),
+])
+def test_fused_tops_over_bright_tissue_give_both_guides(tmp_path, index, was, aware):
+    img, cam, n, truth = _frame(4, index)
+    Image.fromarray(img).save(tmp_path / "frame.png")
+    (tmp_path / "camera.json").write_text(json.dumps(cam))
+    res = CliRunner().invoke(app, ["reconstruct", str(tmp_path / "frame.png"), "-k", str(tmp_path / "camera.json"),
+                                   "-o", str(tmp_path / "out"), "--no-overlay", "--workers", "1"])
+    assert res.exit_code == 0, res.output
+    specs = json.loads((tmp_path / "out" / "estimates.json").read_text())["specularities"]
+    bps = np.array([s["bp_px"] for s in specs]).reshape(-1, 2)
+    for uv in truth:
+        d = np.linalg.norm(bps - uv, axis=1)
+        s = specs[int(np.argmin(d))]
+        assert d.min() <= MATCH_PX and "fused" in s["detail"], (was, uv, d.min(), s["status"], s["detail"])
+        if not aware:
+            continue
+        assert s["normal_from"] == "photometric_fit", (was, s["normal_from"])
+        err = np.degrees(np.arccos(min(1.0, abs(float(np.dot(s["normal"], n))))))
+        assert err <= MEDIAN_MAX_DEG, (was, err)
+
+
+@settings(max_examples=40, deadline=None)
+@given(tilt=st.floats(0.0, 35.0), az=st.floats(0.0, 360.0), h=st.floats(12.0, 40.0),
+       baseline=st.floats(3.0, 5.0), radius=st.floats(4.0, 9.0))
+def test_the_tops_distance_centres_each_guides_specular_point(tilt, az, h, baseline, radius):
+    # Two clipped discs, each centred on a guide's specular point of a plane (n, h): with the
+    # normal given, the distance found from the tops puts the points back on the centres. The
+    # centres are found to the distance transform's resolution: its maximum over a disc drawn
+    # on the pixel grid is flat within a pixel of the centre, and the h grid steps 1 %
+    # (a quarter of a pixel at 25 px from the image centre): 1.5 px.
+    t, a = np.radians(tilt), np.radians(az)
+    n = np.array([np.sin(t) * np.cos(a), np.sin(t) * np.sin(a), -np.cos(t)])
+    K = np.array([[FOCAL, 0, 179.5], [0, FOCAL, 179.5], [0, 0, 1.0]])
+    rig = LightRig((Light((-baseline, 0.0, 0.0)), Light((baseline, 0.0, 0.0))))
+    pts = guide_specular_points(K, rig, n, h)
+    vv, uu = np.mgrid[0:SIZE, 0:SIZE]
+    tops = np.zeros((SIZE, SIZE), bool)
+    for u, v in pts:
+        tops |= (uu - u) ** 2 + (vv - v) ** 2 <= radius**2
+    gray = np.where(tops, 255.0, 200.0)
+    got = _on_the_tops(_tops_depth(gray, (tops, 0, 0)), (tops, 0, 0), K, rig, n)
+    assert got is not None
+    assert np.abs(got - pts).max() <= 1.5, (got, pts)
