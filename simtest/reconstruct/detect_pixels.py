@@ -502,11 +502,14 @@ def clipped_mask(image: np.ndarray, saturation_level: float | None,
     return sat.view(np.uint8)
 
 
+_CLOSE_3 = np.ones((3, 3), np.uint8)
+
+
 def background_side_px(shape: tuple[int, int], clipped: np.ndarray | None = None) -> int:
     """Side of the background square of :func:`local_peak_mask`, px.
 
     ``max(31, min(H, W) // BACKGROUND_DIV)``, widened to ``BACKGROUND_PLATEAU_FACTOR`` times the
-    largest bounding-box side of the clipped plateaus (8-connected) plus one.
+    largest bounding-box side of the clipped plateaus (8-connected after a 3 x 3 closing) plus one.
 
     Parameters
     ----------
@@ -537,7 +540,11 @@ def background_side_px(shape: tuple[int, int], clipped: np.ndarray | None = None
         # the components' (a plateau in the hole of another lies within the other's box, so the
         # largest side is the same); a tenth of the time of labelling the frame. Only the rows
         # that hold clipped pixels are contoured (the same boxes).
-        band = clipped[rows[0] : rows[-1] + 1]
+        # pieces one pixel apart are one plateau, as detection counts them (a 3 x 3 closing, the
+        # frame's edge neutral; two rows either side of the band, so that its edges are the
+        # frame's where they are and empty rows elsewhere): noise breaks a broad clipped top
+        # into pieces each narrower than the top
+        band = cv2.morphologyEx(clipped[max(rows[0] - 2, 0) : rows[-1] + 3], cv2.MORPH_CLOSE, _CLOSE_3)
         contours, _ = cv2.findContours(band, cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_SIMPLE)
         ext = max(max(cv2.boundingRect(c)[2:]) for c in contours)
         side = max(side, BACKGROUND_PLATEAU_FACTOR * ext + 1)
