@@ -619,3 +619,20 @@ def test_cubic_patch_residual_stays_finite_where_a_fit_runs_off():
         p = np.zeros(11)
         p[2], p[6], p[7] = log_s, np.log(40.0), 0.5
         assert np.all(np.isfinite(S["res"](p)))
+
+
+def test_a_megapixel_roi_is_refined_on_a_bounded_sub_grid():
+    # a broad lobe's ROI on a large frame (640 x 640 px, 1.6 times REFINE_MAX_PIXELS): the
+    # refinement on every kept pixel takes a regular sub-grid of at most that many (its cost
+    # bound), and an exact image's fit stays exact (the tolerances of the exact-plane test)
+    from simtest.reconstruct.lightaware.plane_solve import REFINE_MAX_PIXELS
+
+    rig = one_light(3.0, "inverse_square")
+    img, K, N, depth, bp = plane_case(20.0, 20.0, rig, f=900.0, size=640)
+    assert img.size > REFINE_MAX_PIXELS
+    est = la.photometric_fit(img, (0, 0), bp, K, rig)
+    assert est.ok, (est.status, est.detail)
+    assert est.n_residuals <= REFINE_MAX_PIXELS
+    assert est.n_residuals > REFINE_MAX_PIXELS // 4  # the refinement ran (the starts take 16384)
+    assert angle_between_deg(est.normal, N) < TOL.exact_image_normal_deg
+    assert abs(est.depth_mm / depth - 1) < TOL.exact_image_depth_rel

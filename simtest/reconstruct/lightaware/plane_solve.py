@@ -18,6 +18,12 @@ from simtest.reconstruct.lightaware.solve import _correlated, _light_start, _sol
 
 _NAME = "photometric_fit"
 
+#: The most pixels the refinement "on every kept pixel" takes (beyond, a regular sub-grid): a
+#: bound on its cost, which grows with the ROI (a broad lobe's on a megapixel frame spans most of
+#: it, 10 s a fit). 512 x 512 px: above every ROI of a 360 px frame, where the bound changes no
+#: fit; a larger ROI's sub-grid of step k has k^2 times fewer pixels, its sigma k times the whole ROI's.
+REFINE_MAX_PIXELS = 262_144
+
 
 def _screened(m: PlaneModel, starts, given):
     """The start (n, h) of least cost before any refinement (at its start roughness)."""
@@ -101,7 +107,7 @@ def solve_plane(m: PlaneModel, cands, s, floor_level):
         # dominates and more pixels of it would not help; where the ROI's noise is clipped at
         # the floor, that clipping biases the fit (an error its sigma does not hold) and more
         # pixels would only shrink the sigma about it
-        m.use(None)
+        m.use(REFINE_MAX_PIXELS)
         x2, nfev, conv2, msg2, r = _again(m, x, n0, e1, e2, h0, s)
         nfev_total += nfev
         if _finite(m, r):
