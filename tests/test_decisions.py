@@ -48,6 +48,8 @@ NOT_DECISIONS = {
     "lightaware.model._CB_FLOOR": _SOLVER, "lightaware.model._FRESNEL_STEP": _SOLVER,
     "lightaware.patch._VALLEY_STEP": _SOLVER,
     "lightaware.plane.RETRY_START_DEPTHS": _SOLVER,
+    "lightaware.plane_solve.REFINE_MAX_PIXELS": "a cost bound: a larger ROI's refinement takes a sub-grid, "
+                                                "its fit judged by the decisions after",
     **{f"lightaware.plane_model.{n}": _SOLVER for n in ("_NOT_FINITE_RESIDUAL",
                                                        "_ROUGHNESS_START_STEPS",
                                                        "_START_ROUGHNESS_GRID",
