@@ -236,6 +236,21 @@ def fused_lobe_candidates(gray, estimates, camera, rig) -> list[int]:
             and _along_the_rig(gray, e, camera, rig, e.status in ("merged", "cluster"))]
 
 
+def _one_split_per_pair(parts: list, splits: list) -> None:
+    """Two candidates split into rows for the same guides' lobes (each guide's points nearer than
+    half the pair's spacing): the split whose joint fit states the smaller normal sigma keeps its
+    rows, the other candidate its own unsplit row (``parts`` edited in place)."""
+    for a in range(len(splits)):
+        for b in range(a + 1, len(splits)):
+            (ka, pa, sa, ea), (kb, pb, sb, eb) = splits[a], splits[b]
+            if len(pa) != len(pb) or len(parts[ka]) == 1 or len(parts[kb]) == 1:
+                continue
+            spacing = min(float(np.linalg.norm(pa[0] - pa[-1])), float(np.linalg.norm(pb[0] - pb[-1])))
+            if np.all(np.linalg.norm(pa - pb, axis=1) < spacing / 2.0):
+                k, est = (kb, eb) if sa <= sb else (ka, ea)
+                parts[k] = [est]
+
+
 def split_fused_lobes(image, estimates, camera, rig, *, prefitted=(), gray=None) -> list:
     """The estimates with each candidate of fused guide lobes replaced by one row per guide.
 
@@ -265,7 +280,8 @@ def split_fused_lobes(image, estimates, camera, rig, *, prefitted=(), gray=None)
     # the frame's luma, made for the first candidate that a split may concern if not given
     bps = np.array([e.bp_px for e in estimates], dtype=np.float64).reshape(-1, 2)
     ok = np.array([e.ok for e in estimates], bool)
-    out: list = []
+    parts: list = []  # each candidate's rows
+    splits: list = []  # (part index, its rows' BPs, the joint fit's normal sigma, the unsplit row)
     split_bps: list = []
     for i, est in enumerate(estimates):
         rows = None
@@ -275,11 +291,16 @@ def split_fused_lobes(image, estimates, camera, rig, *, prefitted=(), gray=None)
             others = np.concatenate([bps[ok & (np.arange(len(bps)) != i)], np.reshape(split_bps, (-1, 2))])
             rows = _rows(est, camera, rig, gray, others)
             est = est if est.ok else dataclasses.replace(est, light_aware={})  # a rejected row: no fits
-        out.extend(rows if rows is not None else [est])
-        split_bps.extend(r.bp_px for r in rows or ())
+        if rows is not None:
+            sigma = rows[0].light_aware["photometric_fit"].normal_sigma_deg
+            splits.append((len(parts), np.array([r.bp_px for r in rows]), np.inf if sigma is None else sigma, est))
+            split_bps.extend(r.bp_px for r in rows)
+        parts.append(rows if rows is not None else [est])
     if not split_bps:
-        return out
+        return [e for part in parts for e in part]
+    _one_split_per_pair(parts, splits)
+    out = [e for part in parts for e in part]
     # a rejected candidate on a guide's specular point that a split gave its row is that row
-    sp = np.asarray(split_bps, np.float64).reshape(-1, 2)
+    sp = np.asarray([p for k, pts, _, _ in splits if len(parts[k]) > 1 for p in pts], np.float64).reshape(-1, 2)
     near = [bool((np.linalg.norm(sp - np.asarray(e.bp_px, np.float64), axis=1) < PAIR_TOL_PX).any()) for e in out]
     return [e for e, at in zip(out, near) if e.ok or not at]
