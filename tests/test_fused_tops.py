@@ -20,17 +20,11 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 from PIL import Image
-from typer.testing import CliRunner
 
-from simtest.cli import app
 from simtest.geometry.lights import Light, LightRig
-from simtest.reconstruct.rig_lobes import _on_the_tops, _tops_depth, guide_specular_points
 from simtest.geometry.response import srgb_encode
-
-#: As test_rig_pairs: an estimate within this distance of a true highlight is its (px).
-MATCH_PX = 3.0
-#: As test_rig_pairs: the must-hold's bound on the light-aware normal's error, deg.
-MEDIAN_MAX_DEG = 0.5
+from simtest.reconstruct.rig_lobes import _on_the_tops, _tops_depth, guide_specular_points
+from test_rig_pairs import MATCH_PX, MEDIAN_MAX_DEG, _reconstruct  # the match radius, the must-hold's bound
 SIZE, FOCAL = 360, 170.0
 
 
@@ -93,6 +87,13 @@ def _frame(seed: int, index: int):
     return ggx_plane(rng)
 
 
+def _reconstructed(folder, img, cam) -> list:
+    """``simtest reconstruct`` of the frame with its camera file, as test_rig_pairs runs it."""
+    Image.fromarray(img).save(folder / "frame.png")
+    (folder / "camera.json").write_text(json.dumps(cam))
+    return _reconstruct(folder)
+
+
 @pytest.mark.parametrize("index, was, aware", [
     (0, "ok between the guides, the joint fit's depth not observable", True),
     (6, "cluster: the other guide's top its 'other peak'", True),
@@ -103,12 +104,7 @@ def _frame(seed: int, index: int):
 ])
 def test_fused_tops_over_bright_tissue_give_both_guides(tmp_path, index, was, aware):
     img, cam, n, truth = _frame(4, index)
-    Image.fromarray(img).save(tmp_path / "frame.png")
-    (tmp_path / "camera.json").write_text(json.dumps(cam))
-    res = CliRunner().invoke(app, ["reconstruct", str(tmp_path / "frame.png"), "-k", str(tmp_path / "camera.json"),
-                                   "-o", str(tmp_path / "out"), "--no-overlay", "--workers", "1"])
-    assert res.exit_code == 0, res.output
-    specs = json.loads((tmp_path / "out" / "estimates.json").read_text())["specularities"]
+    specs = _reconstructed(tmp_path, img, cam)
     bps = np.array([s["bp_px"] for s in specs]).reshape(-1, 2)
     for uv in truth:
         d = np.linalg.norm(bps - uv, axis=1)
@@ -151,12 +147,7 @@ def test_two_splits_of_one_pair_keep_the_surer_fit(tmp_path):
     # 3.6 px off with a normal 2 deg off, the other's (Phong, sigma 0.32 deg) 2.1 and 0.3 px off,
     # 0.37 deg: four rows for two highlights. The split of the smaller stated sigma keeps its rows.
     img, cam, n, truth = _frame(2, 1)
-    Image.fromarray(img).save(tmp_path / "frame.png")
-    (tmp_path / "camera.json").write_text(json.dumps(cam))
-    res = CliRunner().invoke(app, ["reconstruct", str(tmp_path / "frame.png"), "-k", str(tmp_path / "camera.json"),
-                                   "-o", str(tmp_path / "out"), "--no-overlay", "--workers", "1"])
-    assert res.exit_code == 0, res.output
-    specs = json.loads((tmp_path / "out" / "estimates.json").read_text())["specularities"]
+    specs = _reconstructed(tmp_path, img, cam)
     fused = [s for s in specs if "fused" in s["detail"]]
     assert len(fused) == 2, [(s["bp_px"], s["detail"][:40]) for s in fused]
     for uv in truth:

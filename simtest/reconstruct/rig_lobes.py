@@ -140,8 +140,7 @@ def _along_the_rig(gray: np.ndarray, est, camera, rig, stretched: bool = True) -
     # a merged candidate's stretch is its tops' (near its peak in luma): the region also takes in
     # whatever tissue beside them is brighter than half the clipped height, and the BP of two
     # joined tops lies in the valley between them
-    v = gray[rr + r0, cc + c0]
-    d = d[v >= (1.0 - CLIP_LUMA_MARGIN_REL) * float(v.max())]
+    d = d[_tops(gray, region)[rr, cc]]
     return float(np.ptp(d @ t)) >= 1.5 * float(np.ptp(d @ np.array([-t[1], t[0]])))
 
 
@@ -150,14 +149,17 @@ def _along_the_rig(gray: np.ndarray, est, camera, rig, stretched: bool = True) -
 _TOPS_H_GRID = np.geomspace(1.0, 500.0, 625)
 
 
-def _tops_depth(gray: np.ndarray, region) -> np.ndarray:
-    """Each pixel's distance (px) to the edge of the region's tops, 0 off them: the tops are the
-    region's pixels whose luma lies within :data:`~simtest.decisions.CLIP_LUMA_MARGIN_REL` of its
-    peak (``cv2.distanceTransform``; ROI indices, as the region's mask)."""
+def _tops(gray: np.ndarray, region) -> np.ndarray:
+    """The region's tops (bool, ROI indices as its mask): its pixels whose luma lies within
+    :data:`~simtest.decisions.CLIP_LUMA_MARGIN_REL` of its peak."""
     mask, r0, c0 = region
     sub = gray[r0:r0 + mask.shape[0], c0:c0 + mask.shape[1]]
-    tops = (mask & (sub >= (1.0 - CLIP_LUMA_MARGIN_REL) * float(sub[mask].max()))).astype(np.uint8)
-    return cv2.distanceTransform(np.pad(tops, 1), cv2.DIST_L2, 5)[1:-1, 1:-1]
+    return mask & (sub >= (1.0 - CLIP_LUMA_MARGIN_REL) * float(sub[mask].max()))
+
+
+def _tops_depth(gray: np.ndarray, region) -> np.ndarray:
+    """Each pixel's distance (px) to the edge of the region's tops (:func:`_tops`), 0 off them."""
+    return cv2.distanceTransform(np.pad(_tops(gray, region).astype(np.uint8), 1), cv2.DIST_L2, 5)[1:-1, 1:-1]
 
 
 def _on_the_tops(depth: np.ndarray, region, camera, rig, normal) -> np.ndarray | None:
@@ -282,21 +284,19 @@ def split_fused_lobes(image, estimates, camera, rig, *, prefitted=(), gray=None)
     ok = np.array([e.ok for e in estimates], bool)
     parts: list = []  # each candidate's rows
     splits: list = []  # (part index, its rows' BPs, the joint fit's normal sigma, the unsplit row)
-    split_bps: list = []
     for i, est in enumerate(estimates):
         rows = None
         if est.ok or i in prefitted:
             gray = luma(np.asarray(image)) if gray is None else gray
             # the ok candidates' BPs and the guide lobes split so far already have their rows
-            others = np.concatenate([bps[ok & (np.arange(len(bps)) != i)], np.reshape(split_bps, (-1, 2))])
+            others = np.concatenate([bps[ok & (np.arange(len(bps)) != i)], *(pts for _, pts, _, _ in splits)])
             rows = _rows(est, camera, rig, gray, others)
             est = est if est.ok else dataclasses.replace(est, light_aware={})  # a rejected row: no fits
         if rows is not None:
             sigma = rows[0].light_aware["photometric_fit"].normal_sigma_deg
             splits.append((len(parts), np.array([r.bp_px for r in rows]), np.inf if sigma is None else sigma, est))
-            split_bps.extend(r.bp_px for r in rows)
         parts.append(rows if rows is not None else [est])
-    if not split_bps:
+    if not splits:
         return [e for part in parts for e in part]
     _one_split_per_pair(parts, splits)
     out = [e for part in parts for e in part]
