@@ -422,9 +422,9 @@ NOISE_LEVEL_MIN_SAMPLES = decision(
     "A bin's noise from at least this many pixels (the MAD's standard error about 5 %).",
     basis="physics", stage=_V)
 CONFIDENCE_COEFFICIENTS = decision(
-    "CONFIDENCE_COEFFICIENTS", np.array([-9.373, 1.368, 0.212, 1.729, 0.082, 0.001]),
-    "logistic intercept, then weights of white share, significance, surround, residual ratio, "
-    "panel share",
+    "CONFIDENCE_COEFFICIENTS", np.array([-11.158, 1.564, 0.403, 1.844, 0.166, 0.001]),
+    "logistic intercept, then weights of white share, significance, white surround, residual "
+    "ratio, panel share",
     "The confidence's logistic model, fitted by simtest.evaluate.detection.fit_logistic (L2 "
     "penalty chosen by frame-wise cross-validation) to the labels of the ok estimates; "
     "tests/test_verify.py refits them.", basis="tuned", stage=_V,

@@ -651,12 +651,16 @@ def confidence_features(ev: Evidence, residual_rel: np.ndarray) -> np.ndarray:
     -------
     ndarray of shape (N, 5)
         Log of the peak's white share (clipped to 0.1 to 10; 1 where not measured: a grey frame)
-        and log significance (clipped), minus log of the surround's share of bright light
-        (``px.surround_fractions`` of the luma, whatever its colour; 1 where not measured, a share
-        under 1 % taken as 1 %: the ring's resolution), minus log residual ratio (clipped), minus
-        the panel share (0 where not measured: a candidate already rejected, :func:`assess`).
+        and log significance (clipped), minus log of the surround's share of other specular light
+        (``ev.surround_white``, the cluster check's: light off a wet film keeps the illuminant's
+        colour, so a tissue-coloured shoulder of the candidate's own clipped lobe or bright tissue
+        is not another glint; the luma's ``ev.surround`` on a grey frame, where colour cannot
+        tell; 1 where not measured, a share under 1 % taken as 1 %: the ring's resolution), minus
+        log residual ratio (clipped), minus the panel share (0 where not measured: a candidate
+        already rejected, :func:`assess`).
     """
-    surround = np.ones(len(ev.height)) if ev.surround is None else np.nan_to_num(ev.surround, nan=1.0)
+    sur = ev.surround if ev.surround_white is None else ev.surround_white
+    surround = np.ones(len(ev.height)) if sur is None else np.nan_to_num(sur, nan=1.0)
     share = np.ones(len(ev.height)) if ev.white_share is None else np.nan_to_num(ev.white_share, nan=1.0)
     return np.stack([
         np.log(np.clip(share, 0.1, 10.0)),
