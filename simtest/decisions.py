@@ -425,17 +425,32 @@ CONFIDENCE_COEFFICIENTS = decision(
     "CONFIDENCE_COEFFICIENTS", np.array([-11.158, 1.564, 0.403, 1.844, 0.166, 0.001]),
     "logistic intercept, then weights of white share, significance, white surround, residual "
     "ratio, panel share",
-    "The confidence's logistic model, fitted by simtest.evaluate.detection.fit_logistic (L2 "
+    "The confidence's logistic model, fitted by simtest.evaluate.calibration.fit_logistic (L2 "
     "penalty chosen by frame-wise cross-validation) to the labels of the ok estimates; "
     "tests/test_verify.py refits them.", basis="tuned", stage=_V,
     chosen_on=("banner-labelled",), n="176 ok estimates of the 24 banner frames, 51 isolated")
 
 DEFAULT_MIN_CONFIDENCE = decision(
-    "DEFAULT_MIN_CONFIDENCE", 0.0, "confidence in [0, 1]",
-    "The default operating point keeps every fit that passes the specularity checks: the checks "
-    "are physical, the confidence only ranks what passes them; a user who wants fewer, surer "
-    "estimates sets another (--min-confidence), read off the precision-recall curve of "
-    "simtest evaluate detection.", basis="convention", stage=_V)
+    "DEFAULT_MIN_CONFIDENCE", 0.15, "confidence in [0, 1]",
+    "The default operating point of a colour frame without a rig of separate lights (no camera "
+    "file, or one light), the kind of frame the confidence's model was fitted on: a fit that "
+    "passes the checks but ranks below it is low_confidence. Of the thresholds (0 to 0.5 by "
+    "0.05) whose F1 of the fits' leave-one-frame-out confidences is within 0.01 of the largest (0.462 at 0.3; "
+    "the F1's standard error with 51 targets is about 0.04), the lowest: recall first, which "
+    "the isolated highlights a user needs found ask for. There: precision 0.29 -> 0.42, recall "
+    "0.52 -> 0.50 (0.3: 0.53, 0.41).",
+    basis="tuned", stage=_V, chosen_on=("banner-labelled",),
+    n="176 ok estimates of the 24 banner frames, 51 isolated, confidences of each frame from the other 23")
+MIN_CONFIDENCE_UNMODELLED = decision(
+    "MIN_CONFIDENCE_UNMODELLED", 0.0, "confidence in [0, 1]",
+    "The default operating point where the confidence's model does not describe the frame: every "
+    "fit that passes the checks. Under a rig of separate lights (a camera file's guides) each guide "
+    "lights its own lobe, so a highlight's partner lies in its surround and two fused lobes make one "
+    "candidate whose isophotes are no ellipse, which the model (fitted on frames of one light) reads "
+    "as a cluster; the rig's own checks (pairing, joint fits) judge those. On a grey frame the "
+    "model's colour feature is not measured (the frames it was fitted on are colour, where it "
+    "weighs most), and its surround counts light of any colour: clear highlights of grey renders "
+    "get 0.02 to 0.7.", basis="physics", stage=_V)
 
 PAIR_DEPTH_MIN_MM = decision(
     "PAIR_DEPTH_MIN_MM", 2.0, "mm along the BP's ray",

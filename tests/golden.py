@@ -44,11 +44,13 @@ REAL = DATA / "real"
 #: the BP, detection at 0.7 x full scale.
 PAPER = {"isovalue": [0.1], "normalise": "bp", "detection": "full_scale", "smooth_sigma_px": 0.0}
 #: The README's settings for real tissue.
-LOCAL = {"isovalue": [0.5, 0.7], "normalise": "local", "detection": "full_scale", "smooth_sigma_px": 0.0}
+LOCAL = {"isovalue": [0.5, 0.7], "normalise": "local", "detection": "full_scale", "smooth_sigma_px": 0.0,
+         "min_confidence": 0.0}
 #: reconstruct's defaults for whole frames (local peaks, auto normalisation and smoothing), as
 #: of the commit that introduced them; spelled out so that a later change of the defaults does
-#: not change the case.
-DEFAULTS = {"isovalue": [0.7, 0.85], "normalise": "auto", "detection": "local_peak", "smooth_sigma_px": None}
+#: not change the case (the minimum confidence of their day: 0, every fit that passes the checks).
+DEFAULTS = {"isovalue": [0.7, 0.85], "normalise": "auto", "detection": "local_peak", "smooth_sigma_px": None,
+            "min_confidence": 0.0}
 NESTED = {"isovalue": [0.1, 0.3, 0.5], "normalise": "bp", "detection": "full_scale", "smooth_sigma_px": 0.0}
 
 

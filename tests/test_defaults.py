@@ -25,6 +25,7 @@ import pytest
 
 from benchmarks import inputs as bench
 from simtest.geometry import angle_between_deg
+from simtest.harness.end_to_end import user_camera_file
 from simtest.reconstruct import reconstruct
 from simtest.render import render_scene
 from simtest.render.sensor import field_stop_mask
@@ -168,8 +169,10 @@ def test_defaults_reconstruct_every_visible_highlight_of_the_endoscope_scenes(na
     targets = highlight_targets(res.highlights, res.specular, valid)
     assert targets, f"{name}: the render shows no isolated highlight"
     # what `simtest render` then `simtest reconstruct frame.png --intrinsics camera.json` gets
-    # (the file path gives the same estimates: tests/test_file_path_matches_memory.py)
-    ests = reconstruct(res.frame, res.camera)
+    # before its light-aware fits: the camera file's model, rig and response (the file path
+    # gives the same estimates: tests/test_file_path_matches_memory.py)
+    cam = user_camera_file(res)
+    ests = reconstruct(res.frame, cam.model, lights=cam.lights, response=cam.response)
     missed = []
     for t in targets:
         near = [e for e in ests if e.ok and t.distance_px(e.bp_px) <= TARGET_TOL_PX]

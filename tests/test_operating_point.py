@@ -50,28 +50,52 @@ def _statuses(out):
     return [(s["status"], s["confidence"]) for s in doc["specularities"]]
 
 
+def _run(tmp_path, name, image, camera, *extra):
+    out = tmp_path / name
+    res = CliRunner().invoke(app, ["reconstruct", str(image), "-k", str(camera), "-o", str(out), "--no-overlay",
+                                   *extra])
+    assert res.exit_code == 0, res.output
+    return _statuses(out)
+
+
 def test_the_command_line_minimum_turns_less_confident_oks_into_low_confidence(tmp_path):
-    runner = CliRunner()
-    base = tmp_path / "default"
-    res = runner.invoke(app, ["reconstruct", str(TILE), "-k", str(K_FILE), "-o", str(base), "--no-overlay"])
-    assert res.exit_code == 0, res.output
-    default = _statuses(base)
-    oks = sorted(c for s, c in default if s == "ok")
-    assert len(oks) >= 3, default  # the tile holds many isolated highlights
-    assert DEFAULT_MIN_CONFIDENCE == 0.0 and not any(s == "low_confidence" for s, _ in default)
+    every = _run(tmp_path, "zero", TILE, K_FILE, "--min-confidence", "0")
+    assert not any(s == "low_confidence" for s, _ in every)
+    oks = sorted(c for s, c in every if s == "ok")
+    assert len(oks) >= 3, every  # the tile holds many isolated highlights
+    # a colour frame without a rig: the default minimum applies
+    default = _run(tmp_path, "default", TILE, K_FILE)
     cut = float(np.median(oks))
-    high = tmp_path / "high"
-    res = runner.invoke(app, ["reconstruct", str(TILE), "-k", str(K_FILE), "-o", str(high), "--no-overlay",
-                              "--min-confidence", f"{cut}"])
-    assert res.exit_code == 0, res.output
-    raised = _statuses(high)
-    assert len(raised) == len(default)
-    for (s0, c0), (s1, c1) in zip(default, raised):
-        assert c1 == c0  # the confidence itself does not change
-        if s0 == "ok":
-            assert s1 == ("ok" if c0 >= cut else "low_confidence")
-        else:
-            assert s1 == s0
+    raised = _run(tmp_path, "high", TILE, K_FILE, "--min-confidence", f"{cut}")
+    for run, floor in ((default, DEFAULT_MIN_CONFIDENCE), (raised, cut)):
+        assert len(run) == len(every)
+        for (s0, c0), (s1, c1) in zip(every, run):
+            assert c1 == c0  # the confidence itself does not change
+            if s0 == "ok":
+                assert s1 == ("ok" if c0 >= floor else "low_confidence")
+            else:
+                assert s1 == s0
+    assert any(s == "low_confidence" for s, _ in default)  # the tile has oks below it
+
+
+def test_the_default_minimum_holds_only_where_the_confidence_models_the_frame(tmp_path):
+    """Under a camera file's rig of separate lights, and on a grey frame, the default keeps every
+    fit that passes the checks (simtest.decisions.MIN_CONFIDENCE_UNMODELLED)."""
+    import json
+
+    from PIL import Image
+
+    every = _run(tmp_path, "zero", TILE, K_FILE, "--min-confidence", "0")
+    low = {i for i, (s, c) in enumerate(every) if s == "ok" and c < DEFAULT_MIN_CONFIDENCE}
+    assert low  # the default would turn these low_confidence on the colour frame alone
+    cam = json.loads(K_FILE.read_text())
+    cam["lights"] = [{"position_mm": [x, 0.0, 0.0]} for x in (-4.0, 4.0)]
+    (tmp_path / "rig.json").write_text(json.dumps(cam))
+    rigged = _run(tmp_path, "rig", TILE, tmp_path / "rig.json")
+    assert not any(s == "low_confidence" for s, _ in rigged)
+    grey = np.asarray(Image.open(TILE).convert("L"))
+    Image.fromarray(np.repeat(grey[..., None], 3, axis=2)).save(tmp_path / "grey.png")
+    assert not any(s == "low_confidence" for s, _ in _run(tmp_path, "grey", tmp_path / "grey.png", K_FILE))
 
 
 def test_a_minimum_outside_zero_to_one_is_refused_in_one_line(tmp_path):

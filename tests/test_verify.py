@@ -153,8 +153,8 @@ def _labelled_path():
 
 
 def test_refitting_the_confidence_gives_the_shipped_coefficients():
-    from simtest.evaluate.detection import (L2_PENALTY, confidence_rows, fit_logistic, labelled_real_frames,
-                                            select_penalty)
+    from simtest.evaluate.calibration import L2_PENALTY, fit_logistic, select_penalty
+    from simtest.evaluate.detection import confidence_rows, labelled_real_frames
 
     X, y, group = confidence_rows(labelled_real_frames(_labelled_path()))
     # the shipped penalty is the one that predicts held-out frames best
@@ -164,7 +164,7 @@ def test_refitting_the_confidence_gives_the_shipped_coefficients():
     # the fraction of isolated highlights is within 0.1 of the bin's mean confidence, or within
     # two binomial standard errors of it where the bin is too small to tell 0.1 (the 0.7 to 0.9
     # bin holds 6 estimates: one of them moves the fraction by 0.17)
-    from simtest.evaluate.detection import cross_validated_confidence, reliability
+    from simtest.evaluate.calibration import cross_validated_confidence, reliability
     rows = [r for r in reliability(cross_validated_confidence(X, y, group), y) if r["bin"][0] >= 0.5 and r["n"]]
     assert rows  # the confidence does reach 0.5 on held-out frames
     for r in rows:

@@ -200,7 +200,8 @@ def detection_command(
         fig = detection_figure(frames, results)
         png = figure_png(fig)
         png_rel = figure_png(reliability_figure(results))
-        png_pr = figure_png(precision_recall_figure(results["precision_recall"]))
+        png_pr = figure_png(precision_recall_figure(results["precision_recall"],
+                                                    default=results.get("default_min_confidence")))
     except (ValueError, OSError, ImportError) as exc:
         fail(exc, BAD_INPUT)
 
@@ -271,15 +272,17 @@ def _detection_markdown(results: dict) -> str:
                      f"{_fmt(r['fraction_true'])} |")
     cv = results.get("confidence_cross_validated")
     if cv:
-        L += ["", f"Leave one frame out (the confidence a new frame can expect, on the {cv['n']} ok "
-              f"estimates): ranking AUC {_fmt(cv['auc'])} (0.5: no better than chance).", "",
+        L += ["", f"Leave one frame out (the confidence a new frame can expect, on the {cv['n']} fits "
+              f"that pass the checks): ranking AUC {_fmt(cv['auc'])} (0.5: no better than chance).", "",
               "| bin | n | mean confidence | fraction targets |", "|---|---|---|---|"]
         for r in cv["reliability"]:
             L.append(f"| [{r['bin'][0]:.1f}, {r['bin'][1]:.1f}) | {r['n']} | {_fmt(r['mean_confidence'])} | "
                      f"{_fmt(r['fraction_true'])} |")
     L += ["", "![reliability diagram](reliability.png)", "", "## Operating point", "",
-          "Precision and recall of the ok estimates kept by `simtest reconstruct --min-confidence C` "
-          "(read off this run's matches; the default C is simtest.decisions.DEFAULT_MIN_CONFIDENCE).",
+          "Precision and recall of the fits that pass the checks kept by `simtest reconstruct "
+          "--min-confidence C` (read off this run's matches; this run's default C: "
+          f"{_fmt(results.get('default_min_confidence'))}, simtest.decisions.DEFAULT_MIN_CONFIDENCE "
+          "without a rig of separate lights, MIN_CONFIDENCE_UNMODELLED under one).",
           "", "| min confidence | ok kept | precision | recall |", "|---|---|---|---|"]
     for r in results["precision_recall"][::2]:
         L.append(f"| {r['min_confidence']:.1f} | {r['kept']} | {_fmt(r['precision'])} | {_fmt(r['recall'])} |")

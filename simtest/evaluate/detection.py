@@ -42,19 +42,18 @@ from pathlib import Path
 
 import matplotlib
 import numpy as np
-from scipy.optimize import minimize
-from scipy.special import expit
-from scipy.stats import mannwhitneyu
 
 matplotlib.use("Agg", force=False)
 
 import matplotlib.pyplot as plt  # noqa: E402 - after choosing the back-end
 
+from simtest.evaluate.calibration import cross_validated_confidence, ranking_auc, reliability  # noqa: E402
 from simtest.geometry.cameras import PinholeCamera  # noqa: E402
 from simtest.harness.protocols import mesh_pose_overrides, realisation_overrides  # noqa: E402
 from simtest.harness.suite import bundled_suite_names, load_suite, realisation_seed  # noqa: E402
 from simtest.evaluate.operating import precision_recall  # noqa: E402
 from simtest.reconstruct.detect import luma  # noqa: E402
+from simtest.reconstruct.frame_verify import default_min_confidence  # noqa: E402
 from simtest.reconstruct.images import load_image  # noqa: E402
 from simtest.reconstruct.io import estimate_to_dict  # noqa: E402
 from simtest.reconstruct.pipeline import reconstruct  # noqa: E402
@@ -66,14 +65,17 @@ from simtest.render.truth import HighlightTarget, highlight_targets  # noqa: E40
 from simtest.scene import with_overrides  # noqa: E402
 from simtest.scene.spec import load_scene  # noqa: E402
 
-__all__ = ["KINDS", "TARGET_KIND", "TOLERANCE_PX", "Structure", "FrameScore", "LabelledFrame",
-           "match_candidates", "score_frame", "pooled", "groups", "is_suite", "labelled_real_frames", "rendered_frames", "suite_frames",
-           "evaluate_frames", "detection_figure", "labeller_agreement", "CONFIDENCE_BINS", "confidence_rows", "fit_logistic",
-           "reliability", "cross_validated_confidence", "cross_validated_report", "ranking_auc", "select_penalty", "reliability_figure"]
+__all__ = ["KINDS", "TARGET_KIND", "PASSING", "TOLERANCE_PX", "Structure", "FrameScore", "LabelledFrame",
+           "match_candidates", "score_frame", "pooled", "groups", "is_suite", "labelled_real_frames", "rendered_frames",
+           "suite_frames", "evaluate_frames", "detection_figure", "labeller_agreement", "confidence_rows",
+           "cross_validated_report", "reliability_figure"]
 
 #: The kinds of labelled bright structure; ``isolated`` is the target.
 KINDS = ("isolated", "cluster", "streak", "instrument", "overlay", "border", "texture")
 TARGET_KIND = "isolated"
+#: The statuses of a fit that passes every specularity check: ``ok``, and ``low_confidence`` where
+#: its confidence ranks below the run's ``--min-confidence``.
+PASSING = ("ok", "low_confidence")
 
 #: Slack added to a structure's radius when matching a candidate's BP, px: a BP is a sub-pixel
 #: point inside a blob a labeller marked by its centroid; 2 px covers the centroid's offset from
@@ -214,7 +216,9 @@ def score_frame(name: str, specularities: list[dict], structures: list[Structure
     -------
     (FrameScore, list of dict)
         The scores, and per candidate ``{"bp_px", "status", "on": kind | "duplicate" |
-        "unlabelled", "tp": bool}``. A rendered target of k lights' highlights takes k matches as
+        "unlabelled", "tp": bool, "tp_ok": bool, "tp_pass": bool, "confidence", "target"}``
+        (``tp_pass``: a target's first match among the fits that pass the checks, ``ok`` or
+        ``low_confidence``: the set ``--min-confidence`` chooses from). A rendered target of k lights' highlights takes k matches as
         true positives (one a guide's lobe); it is found (recall) once.
     """
     bps = [s["bp_px"] for s in specularities]
@@ -223,11 +227,13 @@ def score_frame(name: str, specularities: list[dict], structures: list[Structure
                     candidates=len(specularities))
     found: Counter = Counter()
     found_ok: Counter = Counter()
+    found_pass: Counter = Counter()
     rows = []
     for s, j in zip(specularities, hit):
         ok = s["status"] == "ok"
+        passes = s["status"] in PASSING
         on = "unlabelled" if j is None else structures[j].kind
-        tp = tp_ok = False
+        tp = tp_ok = tp_pass = False
         if on == TARGET_KIND:
             # a target of k lights' highlights holds k true ones (one estimate a guide's lobe)
             lobes = 1 if structures[j].target is None else len(structures[j].target.bp_px)
@@ -239,13 +245,17 @@ def score_frame(name: str, specularities: list[dict], structures: list[Structure
             if ok and found_ok[j] < lobes:
                 found_ok[j] += 1
                 tp_ok = True
+            if passes and found_pass[j] < lobes:
+                found_pass[j] += 1
+                tp_pass = True
         sc.candidates_tp += tp
         if ok:
             sc.ok += 1
             sc.ok_tp += tp_ok
             sc.ok_on["isolated" if tp_ok else ("duplicate" if on == TARGET_KIND else on)] += 1
         rows.append({"bp_px": [float(v) for v in s["bp_px"]], "status": s["status"], "on": on,
-                     "tp": tp, "tp_ok": tp_ok, "confidence": s.get("confidence"), "target": j})
+                     "tp": tp, "tp_ok": tp_ok, "tp_pass": tp_pass, "confidence": s.get("confidence"),
+                     "target": j})
     sc.targets_found, sc.targets_found_ok = len(found), len(found_ok)
     return sc, rows
 
@@ -520,6 +530,14 @@ def groups(frames_out: list[dict]) -> list[dict]:
     return [pooled(v).as_dict() | {"name": g, "frames": len(v)} for g, v in by.items()]
 
 
+def _default_floor(frames: list[LabelledFrame], settings) -> float | None:
+    """The ``--min-confidence`` the run's frames got (None where it differs among them)."""
+    if settings.min_confidence is not None:
+        return settings.min_confidence
+    floors = {default_min_confidence(fr.image, fr.lights) for fr in frames}
+    return floors.pop() if len(floors) == 1 else None
+
+
 def evaluate_frames(frames: list[LabelledFrame], settings=None, *, keep: list | None = None) -> dict:
     """Reconstruct every frame with ``settings`` (default: ``reconstruct``'s) and score it.
 
@@ -554,15 +572,17 @@ def evaluate_frames(frames: list[LabelledFrame], settings=None, *, keep: list | 
     cand = [(f["name"], r) for f in frames_out for r in f["candidates_detail"] if r["confidence"] is not None]
     conf = np.array([r["confidence"] for _, r in cand], dtype=np.float64)
     tp = np.array([r["tp"] for _, r in cand], dtype=bool)
-    ok = np.array([r["status"] == "ok" for _, r in cand], dtype=bool)
-    tp_ok = np.array([r["tp_ok"] for _, r in cand], dtype=bool)
+    # the confidence's analyses read every fit that passes the checks, whatever the default C
+    ok = np.array([r["status"] in PASSING for _, r in cand], dtype=bool)
+    tp_ok = np.array([r["tp_pass"] for _, r in cand], dtype=bool)
     statuses = Counter(r["status"] for f in frames_out for r in f["candidates_detail"])
     pool = pooled(scores).as_dict()
     return {"frames": frames_out, "pooled": pool, "settings": settings.to_dict(),
             "statuses": dict(sorted(statuses.items())),
             "reliability": {"candidates": reliability(conf, tp), "ok": reliability(conf[ok], tp[ok])},
             "precision_recall": precision_recall(conf[ok], tp_ok[ok], pool["targets"], target_ids=[
-                (name, r["target"]) for name, r in cand if r["status"] == "ok"])}  # a target is a frame's
+                (name, r["target"]) for name, r in cand if r["status"] in PASSING]),  # a target is a frame's
+            "default_min_confidence": _default_floor(frames, settings)}
 
 
 def reliability_figure(results: dict):
@@ -638,22 +658,11 @@ def detection_figure(frames: list[LabelledFrame], results: dict, *, columns: int
 # ---------------------------------------------------------------------------------------------
 # the confidence's calibration
 
-#: Confidence bins of the reliability diagram (the issue's: [0.5, 0.7), [0.7, 0.9), [0.9, 1]).
-CONFIDENCE_BINS = (0.0, 0.3, 0.5, 0.7, 0.9, 1.0)
-#: L2 penalty of the logistic fit on its weights (not the intercept): the grid value of
-#: :data:`PENALTY_GRID` with the smallest leave-one-frame-out log-loss on the labelled banner
-#: frames (:func:`select_penalty`; ``tests/test_verify.py`` checks it). A weaker penalty lets the
-#: weights follow frame-specific accidents, and new frames then get over-confident values.
-L2_PENALTY = 1.0
-#: Penalties :func:`select_penalty` tries.
-PENALTY_GRID = (0.01, 0.1, 1.0, 10.0, 100.0, 1000.0)
-
-
 def confidence_rows(frames: list[LabelledFrame], settings=None, *,
                     verified: list | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """The features of :func:`simtest.reconstruct.verify.confidence` for every ``ok`` estimate of
-    the frames (the fits that pass the specularity checks: the estimates a user takes), with its
-    label.
+    """The features of :func:`simtest.reconstruct.verify.confidence` for every fit of the frames
+    that passes the specularity checks (``ok`` or ``low_confidence``: what ``--min-confidence``
+    chooses from), with its label.
 
     ``verified``: each frame's estimates with the checks (``settings`` with ``verify=True``)
     where the caller has them (:func:`evaluate_frames`' ``keep``), one per frame; else each
@@ -662,7 +671,7 @@ def confidence_rows(frames: list[LabelledFrame], settings=None, *,
     Returns
     -------
     X : ndarray of shape (N, 5)
-        Features (:func:`~simtest.reconstruct.verify.confidence_features`), one row per ``ok`` estimate.
+        Features (:func:`~simtest.reconstruct.verify.confidence_features`), one row per such fit.
     y : ndarray of bool, shape (N,)
         True where the candidate is a target's first match (an isolated highlight).
     group : ndarray of int, shape (N,)
@@ -679,7 +688,7 @@ def confidence_rows(frames: list[LabelledFrame], settings=None, *,
         ests = verified[g] if verified is not None else reconstruct(
             fr.image, fr.camera, settings=settings.replace(verify=True), lights=fr.lights)
         _, rows = score_frame(fr.name, [estimate_to_dict(e) for e in ests], fr.structures)
-        fitted = np.array([e.ok for e in ests])
+        fitted = np.array([e.status in PASSING for e in ests])
         X = confidence_features(ev, np.where(np.isfinite(res), res, RESIDUAL_MAX_REL))
         xs.append(X[fitted])
         ys.append(np.array([r["tp"] for r in rows], dtype=bool)[fitted])
@@ -687,79 +696,10 @@ def confidence_rows(frames: list[LabelledFrame], settings=None, *,
     return np.concatenate(xs), np.concatenate(ys), np.concatenate(gs)
 
 
-def fit_logistic(X: np.ndarray, y: np.ndarray, penalty: float = L2_PENALTY) -> np.ndarray:
-    """L2-penalised logistic regression by ``scipy.optimize.minimize`` (BFGS).
-
-    Returns
-    -------
-    ndarray of shape (1 + X.shape[1],)
-        Intercept, then weights.
-    """
-    A = np.c_[np.ones(len(X)), X]
-    t = y.astype(np.float64)
-
-    def loss(c):
-        z = A @ c
-        nll = np.sum(np.logaddexp(0.0, z) - t * z)
-        return nll + 0.5 * penalty * np.sum(c[1:] ** 2), A.T @ (expit(z) - t) \
-            + penalty * np.r_[0.0, c[1:]]
-
-    return minimize(loss, np.zeros(A.shape[1]), jac=True, method="BFGS").x
-
-
-def reliability(conf: np.ndarray, y: np.ndarray, bins=CONFIDENCE_BINS) -> list[dict]:
-    """Per confidence bin: count, mean confidence and the fraction of true highlights."""
-    out = []
-    for lo, hi in zip(bins[:-1], bins[1:]):
-        m = (conf >= lo) & ((conf < hi) if hi < 1.0 else (conf <= hi))
-        out.append({"bin": [lo, hi], "n": int(m.sum()),
-                    "mean_confidence": float(conf[m].mean()) if m.any() else None,
-                    "fraction_true": float(y[m].mean()) if m.any() else None})
-    return out
-
-
-def cross_validated_confidence(X: np.ndarray, y: np.ndarray, group: np.ndarray,
-                               penalty: float = L2_PENALTY) -> np.ndarray:
-    """Each candidate's confidence from the logistic fitted on the other frames (leave one frame
-    out): the calibration a new frame can expect.
-
-    Parameters
-    ----------
-    X : ndarray of shape (N, F)
-        Features (:func:`confidence_rows`).
-    y : ndarray of bool, shape (N,)
-        Labels.
-    group : ndarray of int, shape (N,)
-        Frame of each row.
-    penalty : float
-        L2 penalty of :func:`fit_logistic`.
-
-    Returns
-    -------
-    ndarray of shape (N,)
-    """
-    out = np.empty(len(y))
-    for g in np.unique(group):
-        m = group == g
-        c = fit_logistic(X[~m], y[~m], penalty)
-        out[m] = 1.0 / (1.0 + np.exp(-(c[0] + X[m] @ c[1:])))
-    return out
-
-
-def ranking_auc(conf: np.ndarray, y: np.ndarray) -> float | None:
-    """The probability that a true highlight gets a higher confidence than a false one (ties
-    count a half): the area under the ROC curve, by the Mann-Whitney U statistic; None without
-    both classes."""
-    y = np.asarray(y, bool)
-    if y.all() or not y.any():
-        return None
-    return float(mannwhitneyu(conf[y], conf[~y]).statistic / (y.sum() * (~y).sum()))
-
-
 def cross_validated_report(frames: list[LabelledFrame], *, verified: list | None = None) -> dict:
-    """The confidence a new frame can expect: leave-one-frame-out confidences of the ``ok``
-    estimates (:func:`cross_validated_confidence`, penalty :data:`L2_PENALTY`), their ranking
-    AUC (:func:`ranking_auc`) and reliability per bin. ``verified``: as for
+    """The confidence a new frame can expect: leave-one-frame-out confidences of the fits that
+    pass the checks (:func:`~simtest.evaluate.calibration.cross_validated_confidence`), their
+    ranking AUC and reliability per bin. ``verified``: as for
     :func:`confidence_rows` (the frames' estimates with the default settings).
 
     Returns
@@ -770,21 +710,3 @@ def cross_validated_report(frames: list[LabelledFrame], *, verified: list | None
     X, y, group = confidence_rows(frames, verified=verified)
     cv = cross_validated_confidence(X, y, group)
     return {"n": int(len(y)), "auc": ranking_auc(cv, y), "reliability": reliability(cv, y)}
-
-
-def select_penalty(X: np.ndarray, y: np.ndarray, group: np.ndarray, grid=PENALTY_GRID) -> float:
-    """The L2 penalty of ``grid`` whose leave-one-frame-out confidences
-    (:func:`cross_validated_confidence`) have the smallest mean log-loss (ties: the larger
-    penalty).
-
-    Returns
-    -------
-    float
-    """
-    best, best_loss = None, np.inf
-    for pen in sorted(grid, reverse=True):
-        p = np.clip(cross_validated_confidence(X, y, group, pen), 1e-12, 1 - 1e-12)
-        loss = -float(np.mean(np.where(y, np.log(p), np.log1p(-p))))
-        if loss < best_loss - 1e-12:
-            best, best_loss = float(pen), loss
-    return best

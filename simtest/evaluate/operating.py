@@ -22,14 +22,14 @@ THRESHOLDS = tuple(np.round(np.arange(0.0, 1.0001, 0.05), 2))
 
 
 def precision_recall(confidence, tp_ok, targets: int, thresholds=THRESHOLDS, target_ids=None) -> list[dict]:
-    """Precision and recall of the ``ok`` estimates kept at each minimum confidence.
+    """Precision and recall of the fits that pass the checks kept at each minimum confidence.
 
     Parameters
     ----------
     confidence : array_like of shape (N,)
-        The confidence of each ``ok`` estimate of the default run.
+        The confidence of each fit that passes the checks (``ok`` at a minimum confidence of 0).
     tp_ok : array_like of bool, shape (N,)
-        Whether it is a target's first ``ok`` match.
+        Whether it is a target's first such match.
     targets : int
         Labelled targets (isolated highlights) in the frames.
     thresholds : sequence of float
@@ -64,7 +64,8 @@ def precision_recall(confidence, tp_ok, targets: int, thresholds=THRESHOLDS, tar
     return rows
 
 
-def precision_recall_figure(rows: list[dict], title: str = "ok estimates over --min-confidence"):
+def precision_recall_figure(rows: list[dict], title: str = "fits that pass the checks over --min-confidence",
+                            default: float | None = DEFAULT_MIN_CONFIDENCE):
     """Precision against recall, one point per minimum confidence, the default marked.
 
     Parameters
@@ -72,6 +73,8 @@ def precision_recall_figure(rows: list[dict], title: str = "ok estimates over --
     rows : list of dict
         :func:`precision_recall`'s rows.
     title : str
+    default : float or None
+        The run's default minimum confidence, marked (None: not marked, frames of both kinds).
 
     Returns
     -------
@@ -84,11 +87,11 @@ def precision_recall_figure(rows: list[dict], title: str = "ok estimates over --
     for r in pts[::4]:
         ax.annotate(f"{r['min_confidence']:.2f}", (r["recall"], r["precision"]),
                     textcoords="offset points", xytext=(4, 4), fontsize=7)
-    default = [r for r in pts if abs(r["min_confidence"] - DEFAULT_MIN_CONFIDENCE) < 1e-9]
-    if default:
-        d = default[0]
+    marked = [r for r in pts if default is not None and abs(r["min_confidence"] - default) < 1e-9]
+    if marked:
+        d = marked[0]
         ax.plot([d["recall"]], [d["precision"]], "*", color="#d62728", ms=14,
-                label=f"default (--min-confidence {DEFAULT_MIN_CONFIDENCE:g}): "
+                label=f"default (--min-confidence {default:g}): "
                       f"P {d['precision']:.2f}, R {d['recall']:.2f}")
     ax.set(xlim=(0, 1), ylim=(0, 1.02), xlabel="recall (labelled isolated highlights found ok)",
            ylabel="precision (ok estimates on one)", title=title)

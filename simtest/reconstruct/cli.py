@@ -40,7 +40,7 @@ from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, T
 
 from simtest._exit import BAD_INPUT, CANNOT_WRITE, fail, writable_dir
 from simtest._outdir import check_out_folder, write_out_folder
-from simtest.decisions import DEFAULT_MIN_CONFIDENCE
+from simtest.decisions import DEFAULT_MIN_CONFIDENCE, MIN_CONFIDENCE_UNMODELLED
 from simtest.geometry.camera_file import camera_from_dict, load_camera
 from simtest.geometry.cameras import PinholeCamera
 from simtest.geometry.response import ResponseError
@@ -108,10 +108,13 @@ def reconstruct_command(
         "(0: one per core; at most the CPU count).",
         show_default=False,
     ),
-    min_confidence: float = typer.Option(
-        DEFAULT_MIN_CONFIDENCE, "--min-confidence", min=0.0, max=1.0,
+    min_confidence: Optional[float] = typer.Option(  # noqa: UP045 (typer reads Optional)
+        None, "--min-confidence", min=0.0, max=1.0,
         help="Fits that pass every check but have a lower confidence get the status low_confidence "
-        "(as a failed check); `simtest evaluate detection` draws precision against recall over it.",
+        f"(as a failed check). Default {DEFAULT_MIN_CONFIDENCE:g} without a camera file's rig of separate "
+        f"lights, {MIN_CONFIDENCE_UNMODELLED:g} under one; `simtest evaluate detection` draws precision "
+        "against recall over it.",
+        show_default=False,
     ),
     max_candidates: int = typer.Option(
         MAX_CANDIDATES or 0, "--max-candidates", min=0,

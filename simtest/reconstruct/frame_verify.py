@@ -8,6 +8,7 @@ import math
 import cv2
 import numpy as np
 
+from simtest.decisions import DEFAULT_MIN_CONFIDENCE, MIN_CONFIDENCE_UNMODELLED
 from simtest.reconstruct.assemble import SpecularityEstimate, _replaced
 from simtest.reconstruct.detect import background_side_px, luma, noise_sigma
 from simtest.reconstruct.failures import OK
@@ -77,6 +78,7 @@ def _verified(frame: _Frame, ests: list[SpecularityEstimate], native: np.ndarray
     checks = verdict(ev, res, inside, only=[k for k, e in enumerate(fit) if e.ok])
     judged = {}
     floor = frame.settings.min_confidence
+    floor = default_min_confidence(frame.img, lights, grey) if floor is None else floor
     for k, e in enumerate(fit):
         status, detail = (checks[k] if e.ok else (e.status, e.detail))
         fitted = math.isfinite(res[k])  # a confidence for the fitted candidates only
@@ -84,6 +86,18 @@ def _verified(frame: _Frame, ests: list[SpecularityEstimate], native: np.ndarray
             status, detail = "low_confidence", f"confidence {conf[k]:.3f} < min_confidence {floor:g}"
         judged[id(e)] = _replaced(e, status=status, detail=detail, confidence=conf[k] if fitted else None)
     return [judged.get(id(e), e) for e in ests]
+
+
+def default_min_confidence(image: np.ndarray, lights=None, grey: bool | None = None) -> float:
+    """The ``--min-confidence`` a frame gets by default: :data:`~simtest.decisions.DEFAULT_MIN_CONFIDENCE`
+    on a colour frame (its white share measured) without a rig of separate lights, the frames the
+    confidence's model was fitted on; :data:`~simtest.decisions.MIN_CONFIDENCE_UNMODELLED` on any
+    other. ``image`` (H, W) or (H, W, C); ``lights`` a LightRig or None; ``grey``: whether R = G = B
+    (None: looked at)."""
+    img = np.asarray(image)
+    colour = img.ndim == 3 and img.shape[2] >= 3 and not (_is_gray(img) if grey is None else grey)
+    rig = lights is not None and lights.has_separate_lights
+    return DEFAULT_MIN_CONFIDENCE if colour and not rig else MIN_CONFIDENCE_UNMODELLED
 
 
 def _verifier_luma(frame: _Frame, native: np.ndarray | None) -> tuple[np.ndarray, bool]:

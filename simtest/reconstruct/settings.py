@@ -22,7 +22,6 @@ import numpy as np
 from simtest.decisions import (
     AUTO_LOCAL_BACKGROUND_REL,
     BRIGHTNESS_REL,
-    DEFAULT_MIN_CONFIDENCE,
     FRAME_ISOVALUES,
     MIN_AREA_PX,
     PEAK_REL,
@@ -159,10 +158,11 @@ class ReconSettings:
         :mod:`simtest.reconstruct.verify` (colour, height, overlay, isolation, fit) and give each
         estimate a ``confidence``; a fit that fails a check gets the check's reason as status.
         On for whole frames, off for the paper's settings (a known highlight).
-    min_confidence : float
+    min_confidence : float or None
         With ``verify``: a fit that passes every check but whose ``confidence`` is below this
         gets the status ``low_confidence``, as a fit that fails a check (no light-aware fit); in
-        [0, 1], default :data:`simtest.decisions.DEFAULT_MIN_CONFIDENCE` (every fit that passes).
+        [0, 1]. None (default): by the frame's rig, :data:`simtest.decisions.DEFAULT_MIN_CONFIDENCE`
+        without a rig of separate lights, :data:`simtest.decisions.MIN_CONFIDENCE_UNMODELLED` under one.
 
     Notes
     -----
@@ -201,7 +201,7 @@ class ReconSettings:
     peak_rel: float = PEAK_REL
     max_candidates: int | None = MAX_CANDIDATES
     verify: bool = False
-    min_confidence: float = DEFAULT_MIN_CONFIDENCE
+    min_confidence: float | None = None
 
     def __post_init__(self) -> None:
         set_ = object.__setattr__
@@ -236,13 +236,14 @@ class ReconSettings:
         if not isinstance(self.verify, (bool, np.bool_)):
             raise ValueError(f"verify must be true or false, got {self.verify!r}")
         set_(self, "verify", bool(self.verify))
-        try:
-            conf = float(self.min_confidence)
-        except (TypeError, ValueError):
-            conf = float("nan")
-        if isinstance(self.min_confidence, bool) or not 0.0 <= conf <= 1.0:
-            raise ValueError(f"min_confidence must be in [0, 1], got {self.min_confidence!r}")
-        set_(self, "min_confidence", conf)
+        if self.min_confidence is not None:
+            try:
+                conf = float(self.min_confidence)
+            except (TypeError, ValueError):
+                conf = float("nan")
+            if isinstance(self.min_confidence, bool) or not 0.0 <= conf <= 1.0:
+                raise ValueError(f"min_confidence must be in [0, 1] or None, got {self.min_confidence!r}")
+            set_(self, "min_confidence", conf)
         set_(self, "full_scale", _positive_or_none("full_scale", self.full_scale))
         set_(self, "saturation_level", _positive_or_none("saturation_level", self.saturation_level))
         try:
