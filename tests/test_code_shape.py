@@ -29,9 +29,10 @@ MAX_FUNCTION_LINES = 150
 #: the bound on a photometric fit's refinement over a megapixel ROI, and by 21 for one split per
 #: pair of fused lobes; then by 76 for the default operating point of real colour frames, the
 #: fits that pass the checks scored apart from the oks, and the confidence's calibration
-#: statistics in a module of their own)
+#: statistics in a module of their own, and by 3 for the fused tops' stretch ratio moved into
+#: simtest.decisions)
 TARGET_PACKAGE_LINES = 30_000
-PACKAGE_LINES_CEILING = 45_504
+PACKAGE_LINES_CEILING = 45_507
 
 #: module -> its lines today (to be split by job as the per-frame tables replace them)
 LONG_MODULES: dict[str, int] = {}

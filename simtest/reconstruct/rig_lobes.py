@@ -27,7 +27,7 @@ import dataclasses
 import cv2
 import numpy as np
 
-from simtest.decisions import CLIP_LUMA_MARGIN_REL, FUSED_LOBE_LEVEL, PAIR_TOL_PX
+from simtest.decisions import CLIP_LUMA_MARGIN_REL, FUSED_LOBE_LEVEL, FUSED_TOPS_STRETCH, PAIR_TOL_PX
 from simtest.reconstruct._pixels import uv_to_rc
 from simtest.geometry.cameras import PinholeCamera
 from simtest.reconstruct.detect_pixels import luma
@@ -119,10 +119,9 @@ def _along_the_rig(gray: np.ndarray, est, camera, rig, stretched: bool = True) -
     """Whether a candidate's region reaches along the rig's curve from its BP beyond its own lobe
     (worth the plane's fit): the curve runs in it beyond :data:`PAIR_TOL_PX`, and ``stretched``
     (``merged``, ``cluster``), its tops (the region's pixels whose luma lies within
-    :data:`~simtest.decisions.CLIP_LUMA_MARGIN_REL` of its peak) are at least 1.5 times as long
-    along the curve as they are wide across (one guide's top is about as wide as long, 2 r; two
-    guides' tops s apart are s + 2 r long: longer by half from s = r, where they begin to fuse;
-    broad lobes, ``bad_fit``, may not stretch: the rule's own test decides)."""
+    :data:`~simtest.decisions.CLIP_LUMA_MARGIN_REL` of its peak) are at least
+    :data:`~simtest.decisions.FUSED_TOPS_STRETCH` times as long along the curve as they are wide
+    across (broad lobes, ``bad_fit``, may not stretch: the rule's own test decides)."""
     region = _bright_region(gray, est)
     if region is None:
         return False
@@ -141,7 +140,7 @@ def _along_the_rig(gray: np.ndarray, est, camera, rig, stretched: bool = True) -
     # whatever tissue beside them is brighter than half the clipped height, and the BP of two
     # joined tops lies in the valley between them
     d = d[_tops(gray, region)[rr, cc]]
-    return float(np.ptp(d @ t)) >= 1.5 * float(np.ptp(d @ np.array([-t[1], t[0]])))
+    return float(np.ptp(d @ t)) >= FUSED_TOPS_STRETCH * float(np.ptp(d @ np.array([-t[1], t[0]])))
 
 
 #: The plane distances h (mm) :func:`_on_the_tops` tries: 1 to 500 mm, 1 % apart (a numerical grid:
