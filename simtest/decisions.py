@@ -426,21 +426,20 @@ CONFIDENCE_COEFFICIENTS = decision(
     "logistic intercept, then weights of white share, significance, white surround, residual "
     "ratio, panel share",
     "The confidence's logistic model, fitted by simtest.evaluate.calibration.fit_logistic (L2 "
-    "penalty chosen by frame-wise cross-validation) to the labels of the ok estimates; "
+    "penalty chosen by frame-wise cross-validation) to the labels of the fits that pass the checks; "
     "tests/test_verify.py refits them.", basis="tuned", stage=_V,
-    chosen_on=("banner-labelled",), n="176 ok estimates of the 24 banner frames, 51 isolated")
+    chosen_on=("banner-labelled",), n="176 fits that pass the checks on the 24 banner frames, 51 isolated")
 
 DEFAULT_MIN_CONFIDENCE = decision(
     "DEFAULT_MIN_CONFIDENCE", 0.15, "confidence in [0, 1]",
     "The default operating point of a colour frame without a rig of separate lights (no camera "
     "file, or one light), the kind of frame the confidence's model was fitted on: a fit that "
     "passes the checks but ranks below it is low_confidence. Of the thresholds (0 to 0.5 by "
-    "0.05) whose F1 of the fits' leave-one-frame-out confidences is within 0.01 of the largest (0.462 at 0.3; "
-    "the F1's standard error with 51 targets is about 0.04), the lowest: recall first, which "
-    "the isolated highlights a user needs found ask for. There: precision 0.29 -> 0.42, recall "
-    "0.52 -> 0.50 (0.3: 0.53, 0.41).",
+    "0.05) whose F1 of the fits' leave-one-frame-out confidences is within 0.01 of the largest "
+    "(0.462 at 0.3; the F1's standard error with 51 targets is about 0.04), the lowest: recall "
+    "first. There: precision 0.29 -> 0.42, recall 0.52 -> 0.50 (at 0.3: 0.53, 0.41).",
     basis="tuned", stage=_V, chosen_on=("banner-labelled",),
-    n="176 ok estimates of the 24 banner frames, 51 isolated, confidences of each frame from the other 23")
+    n="176 fits that pass the checks on the 24 banner frames, 51 isolated, leave one frame out")
 MIN_CONFIDENCE_UNMODELLED = decision(
     "MIN_CONFIDENCE_UNMODELLED", 0.0, "confidence in [0, 1]",
     "The default operating point where the confidence's model does not describe the frame: every "
@@ -476,8 +475,9 @@ FUSED_LOBE_LEVEL = decision(
     basis="physics", stage=_L)
 FUSED_TOPS_STRETCH = decision(
     "FUSED_TOPS_STRETCH", 1.5, "length along the rig's curve over width across it",
-    "Clipped tops this much longer along the rig's curve than wide hold two guides' lobes: one top is 2 r each way, "
-    "two tops s apart are s + 2 r long, longer by half from s = r, where they begin to fuse.", basis="physics", stage=_L)
+    "Clipped tops this much longer along the rig's curve than wide hold two guides' lobes: one "
+    "top is 2 r each way, two tops s apart are s + 2 r long, longer by half from s = r, where "
+    "they begin to fuse.", basis="physics", stage=_L)
 
 # --- JPEG noise model (verification) -----------------------------------------------------------------
 
