@@ -111,9 +111,9 @@ def reconstruct_command(
     min_confidence: Optional[float] = typer.Option(  # noqa: UP045 (typer reads Optional)
         None, "--min-confidence", min=0.0, max=1.0,
         help="Fits that pass every check but have a lower confidence get the status low_confidence "
-        f"(as a failed check). Default {DEFAULT_MIN_CONFIDENCE:g} without a camera file's rig of separate "
-        f"lights, {MIN_CONFIDENCE_UNMODELLED:g} under one; `simtest evaluate detection` draws precision "
-        "against recall over it.",
+        f"(as a failed check). Default {DEFAULT_MIN_CONFIDENCE:g} on a colour frame without a camera file's "
+        f"rig of separate lights, {MIN_CONFIDENCE_UNMODELLED:g} on a grey frame or under such a rig; "
+        "`simtest evaluate detection` draws precision against recall over it.",
         show_default=False,
     ),
     max_candidates: int = typer.Option(

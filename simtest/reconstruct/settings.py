@@ -161,8 +161,8 @@ class ReconSettings:
     min_confidence : float or None
         With ``verify``: a fit that passes every check but whose ``confidence`` is below this
         gets the status ``low_confidence``, as a fit that fails a check (no light-aware fit); in
-        [0, 1]. None (default): by the frame's rig, :data:`simtest.decisions.DEFAULT_MIN_CONFIDENCE`
-        without a rig of separate lights, :data:`simtest.decisions.MIN_CONFIDENCE_UNMODELLED` under one.
+        [0, 1]. None (default): the frame's, :func:`~simtest.reconstruct.frame_verify.default_min_confidence`
+        (the confidence's threshold where its model describes the frame, else every fit).
 
     Notes
     -----
