@@ -104,3 +104,25 @@ def test_a_minimum_outside_zero_to_one_is_refused_in_one_line(tmp_path):
     assert res.exit_code == 2 and "min-confidence" in res.output
     with pytest.raises(ValueError, match="min_confidence must be in"):
         ReconSettings(min_confidence=-0.1)
+
+
+@settings(max_examples=30, deadline=None)
+@given(st.integers(0, 2**32 - 1), st.sampled_from(["grey", "single", "colour"]), st.sampled_from([None, 1, 2]))
+def test_the_default_minimum_by_frame_kind_and_rig(seed, kind, lights):
+    """The threshold applies on colour frames (a white share measured) without a rig of separate
+    lights only; a one-light rig at the lens is no rig of separate lights."""
+    from simtest.decisions import MIN_CONFIDENCE_UNMODELLED
+    from simtest.geometry.lights import Light, LightRig
+    from simtest.reconstruct.frame_verify import default_min_confidence
+
+    rng = np.random.default_rng(seed)
+    img = rng.integers(0, 256, (8, 8, 3), dtype=np.uint8)
+    if kind == "grey":
+        img[..., 1] = img[..., 2] = img[..., 0]
+    elif kind == "single":
+        img = img[..., 0]
+    elif np.array_equal(img[..., 0], img[..., 1]) and np.array_equal(img[..., 0], img[..., 2]):
+        img[0, 0, 1] ^= 1  # a colour frame differs somewhere
+    rig = None if lights is None else LightRig(tuple(Light((4.0 * k, 0.0, 0.0)) for k in range(lights)))
+    modelled = kind == "colour" and (rig is None or not rig.has_separate_lights)
+    assert default_min_confidence(img, rig) == (DEFAULT_MIN_CONFIDENCE if modelled else MIN_CONFIDENCE_UNMODELLED)
