@@ -282,9 +282,12 @@ def _detection_markdown(results: dict) -> str:
           "Precision and recall of the fits that pass the checks kept by `simtest reconstruct "
           "--min-confidence C` (read off this run's matches; this run's default C: "
           f"{_fmt(results.get('default_min_confidence'))}, simtest.decisions.DEFAULT_MIN_CONFIDENCE "
-          "without a rig of separate lights, MIN_CONFIDENCE_UNMODELLED under one).",
+          "on a colour frame without a rig of separate lights, else MIN_CONFIDENCE_UNMODELLED).",
           "", "| min confidence | ok kept | precision | recall |", "|---|---|---|---|"]
-    for r in results["precision_recall"][::2]:
-        L.append(f"| {r['min_confidence']:.1f} | {r['kept']} | {_fmt(r['precision'])} | {_fmt(r['recall'])} |")
+    d = results.get("default_min_confidence")
+    for i, r in enumerate(results["precision_recall"]):  # every other row, and the default's
+        mark = " (default)" if d is not None and abs(r["min_confidence"] - d) < 1e-9 else ""
+        if i % 2 == 0 or mark:
+            L.append(f"| {r['min_confidence']:.2f}{mark} | {r['kept']} | {_fmt(r['precision'])} | {_fmt(r['recall'])} |")
     L += ["", "![precision against recall](precision_recall.png)", ""]
     return "\n".join(L)
