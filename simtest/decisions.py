@@ -282,7 +282,8 @@ CLIP_LUMA_MARGIN_REL = decision(
     "frames of random poses (tilt 10 to 35 deg, 14 to 28 mm, every other one with a +-30 % albedo "
     "texture; seeds 1000 to 1007, none a test's): 84 to 100 % of the pixels clipped before "
     "encoding keep a luma of at least 253 (1 % of 255), and at most 8 pixels a frame farther than "
-    "2 px from the clipped top do.",
+    "2 px from the clipped top do. A top clipped in its main channels only (red and green) is as "
+    "flat there: its BP is the centroid of its pixels within the margin.",
     basis="tuned", stage=_D, chosen_on=("libjpeg-encodes",),
     n="24 encodes of 8 tests/test_rig_pairs.sensor_plane frames")
 BACKGROUND_PLATEAU_FACTOR = decision(

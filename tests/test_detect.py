@@ -689,3 +689,28 @@ def test_a_top_the_codec_left_one_pixel_of_is_read_whole(method):
     (cand,) = [c for c in detect_specularities(img, method=method).candidates if c.saturated]
     # the disc's centroid on the pixel grid (symmetric about (50, 40))
     assert np.hypot(cand.bp_uv[0] - 50.0, cand.bp_uv[1] - 40.0) < 0.5, cand.bp_uv
+
+
+@given(seed=st.integers(0, 2**32 - 1), radius=st.integers(3, 9))
+@settings(max_examples=30, deadline=None)
+def test_a_near_clipped_top_gives_the_centroid_of_its_pixels_over_the_limit(seed, radius):
+    """``_near_top``: whichever pixel of a top over the limit is its brightest (noise decides on
+    a flat top), the BP is the centroid of the top's pixels connected to it; a top of one pixel
+    keeps the BP given."""
+    from simtest.reconstruct.candidates import _near_top
+
+    rng = np.random.default_rng(seed)
+    h = w = 2 * radius + 9
+    yy, xx = np.mgrid[0:h, 0:w]
+    cy, cx = rng.uniform(radius + 3, h - radius - 4, 2)
+    disc = (yy - cy) ** 2 + (xx - cx) ** 2 <= radius**2
+    gray = np.where(disc, 253.0 + rng.uniform(0, 1, (h, w)), 200.0)
+    gray[0, 0] = 254.5  # over the limit but not connected to the top: left out
+    labels = np.ones((h, w), np.int32)
+    pr, pc = np.unravel_index(int(np.argmax(np.where(disc, gray, -1))), gray.shape)
+    row, col = _near_top(gray, labels, 1, 0, 0, w, h, 252.45, int(pr), int(pc), -1.0, -1.0)
+    rr, cc = np.nonzero(disc)
+    assert (row, col) == pytest.approx((rr.mean(), cc.mean()), abs=1e-12)
+    one = np.full((h, w), 200.0)
+    one[5, 5] = 254.0
+    assert _near_top(one, labels, 1, 0, 0, w, h, 252.45, 5, 5, 5.2, 4.9) == (5.2, 4.9)

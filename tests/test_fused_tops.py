@@ -155,3 +155,21 @@ def test_two_splits_of_one_pair_keep_the_surer_fit(tmp_path):
         assert min(d) <= MATCH_PX, d
         s = fused[int(np.argmin(d))]
         assert np.degrees(np.arccos(min(1.0, abs(float(np.dot(s["normal"], n)))))) <= MEDIAN_MAX_DEG
+
+
+def test_a_top_clipped_in_red_and_green_gives_its_centre_as_the_bp(tmp_path):
+    """Seed 4, frame 5 (gamma 2.2, JPEG q80, a broad GGX lobe over red tissue): the second guide's
+    lobe clips in red and green but not in blue, so it is no clipped plateau, and its luma is flat
+    within 1 to 2 levels over about 60 px. The BP is the centroid of that top within
+    CLIP_LUMA_MARGIN_REL of the ceiling, within a pixel of the specular point (the brightest
+    pixel of the smoothed luma lay at the top's edge, 3.6 px off); both guides then get their
+    photometric normal."""
+    img, cam, n, truth = _frame(4, 5)
+    specs = _reconstructed(tmp_path, img, cam)
+    bps = np.array([s["bp_px"] for s in specs]).reshape(-1, 2)
+    for uv in truth:
+        d = np.linalg.norm(bps - uv, axis=1)
+        s = specs[int(np.argmin(d))]
+        assert d.min() <= 1.0, (uv, d.min(), s["status"])
+        err = np.degrees(np.arccos(min(1.0, abs(float(np.dot(s["normal"], n))))))
+        assert s["normal_from"] == "photometric_fit" and err <= MEDIAN_MAX_DEG, (s["normal_from"], err)

@@ -12,7 +12,10 @@ parabola needs.
 The rules (the module docstring of :mod:`simtest.reconstruct.detect` names the statuses):
 
 - brightest pixel: the first maximum of the component in raster order;
-- BP: the centroid of the largest clipped plateau of a clipped candidate, else the centroid of
+- BP: the centroid of the largest clipped plateau of a clipped candidate, else, where the peak
+  lies within :data:`~simtest.decisions.CLIP_LUMA_MARGIN_REL` of an integer frame's ceiling (a
+  top clipped in red and green only), the centroid of its pixels over that limit 8-connected to
+  the brightest pixel, else the centroid of
   the 8-connected flat top through the brightest pixel where another pixel of its 3 x 3
   neighbourhood in the component has the same value, else the separable parabola through the
   3 x 3 neighbourhood (pixels of the box outside the component count at the box minimum; an axis
@@ -30,7 +33,7 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
-from simtest.decisions import ELLIPTICITY_MIN_AREA_PX
+from simtest.decisions import CLIP_LUMA_MARGIN_REL, ELLIPTICITY_MIN_AREA_PX
 from simtest.reconstruct._pixels import uv_to_rc
 from simtest.reconstruct.detect_pixels import connected_components
 
@@ -60,6 +63,8 @@ class Rules:
     peak_rel: float
     k_close: int
     local_peak: bool
+    #: An integer frame's ceiling (its saturation level), image units; None: no ceiling (floats).
+    ceiling: float | None = None
 
 
 @dataclass
@@ -175,6 +180,17 @@ def _plateaus(clipped: np.ndarray, labels: np.ndarray, cid: int, x: int, y: int,
         top = _joined(top, near[y : y + bh, x : x + bw] & comp)
     n_big, row, col = _plateau_count(top, comp, rules)
     return n_big, row + y, col + x
+
+
+def _near_top(gray, labels, cid: int, x: int, y: int, bw: int, bh: int, lim: float, pr: int, pc: int,
+              row: float, col: float) -> tuple[float, float]:
+    """The centroid (row, col) of a candidate's pixels at or above ``lim`` that are 8-connected to
+    its brightest pixel (``pr``, ``pc``), frame coordinates; ``(row, col)`` as given where that
+    top is the pixel alone."""
+    top = ((gray[y : y + bh, x : x + bw] >= lim) & (labels[y : y + bh, x : x + bw] == cid)).view(np.uint8)
+    _, lab = cv2.connectedComponents(top, connectivity=8)
+    rr, cc = np.nonzero(lab == lab[pr - y, pc - x])
+    return (row, col) if len(rr) < 2 else (float(rr.mean()) + y, float(cc.mean()) + x)
 
 
 def _joined(seed: np.ndarray, mask: np.ndarray) -> np.ndarray:
@@ -297,6 +313,11 @@ def examine(gray: np.ndarray, labels: np.ndarray, table: np.ndarray, rules: Rule
         for i in np.flatnonzero(saturated).tolist():
             n_plateaus[i], row[i], col[i] = _plateaus(clipped, labels, int(cid[i]), int(x[i]), int(y[i]),
                                                       int(bw[i]), int(bh[i]), rules, near)
+    if rules.ceiling is not None:  # a top flat to blue's few levels: noise places its maximum anywhere
+        lim = rules.ceiling * (1.0 - CLIP_LUMA_MARGIN_REL)
+        for i in np.flatnonzero(~saturated & (peak >= lim)).tolist():
+            row[i], col[i] = _near_top(gray, labels, int(cid[i]), int(x[i]), int(y[i]), int(bw[i]), int(bh[i]),
+                                       lim, int(pr[i]), int(pc[i]), float(row[i]), float(col[i]))
 
     code = np.full(n, OK, np.int64)
     code[n_plateaus > 1] = MERGED

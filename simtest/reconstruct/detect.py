@@ -3,7 +3,8 @@
 A candidate is an 8-connected component of bright pixels (``gray >= brightness_rel * full_scale``;
 outer boundaries by OpenCV ``findContours``, each filled in its bounding box; a component inside
 another's hole counts with it). Its brightest point (BP) is the centroid of the saturated plateau
-when clipped, else the brightest pixel refined by a separable parabola through its 3x3
+when clipped (or of the top near the ceiling, :mod:`simtest.reconstruct.candidates`), else the
+brightest pixel refined by a separable parabola through its 3x3
 neighbourhood (or the centroid of a flat top that quantisation made). It gets a square region of
 interest around the BP, large enough for the low isophotes, and a status, ``"ok"`` or a reason:
 ``too_small`` (fewer than ``min_area_px`` pixels), ``touches_border`` (its isophotes are cut),
@@ -693,7 +694,8 @@ def _outer_components(mask: np.ndarray) -> list[tuple[int, int, int, int, int, n
 
 def _rules(frame: _DetectFrame) -> Rules:
     return Rules(frame.min_area_px, frame.ellipticity_min, frame.min_plateau_px, frame.roi_scale,
-                 frame.roi_margin_px, frame.peak_rel, frame.k_close, frame.method == "local_peak")
+                 frame.roi_margin_px, frame.peak_rel, frame.k_close, frame.method == "local_peak",
+                 frame.saturation_level)
 
 
 def _candidates(frame: _DetectFrame, mask: np.ndarray, by_peak: bool = True) -> tuple[list[Candidate], int]:
