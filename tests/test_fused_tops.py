@@ -87,6 +87,19 @@ def _frame(seed: int, index: int):
     return ggx_plane(rng)
 
 
+def _nearest_rows(specs, truth):
+    """Per true highlight (u, v): its distance (px) to the nearest row's BP, and that row."""
+    bps = np.array([s["bp_px"] for s in specs]).reshape(-1, 2)
+    for uv in truth:
+        d = np.linalg.norm(bps - uv, axis=1)
+        yield uv, float(d.min()), specs[int(np.argmin(d))]
+
+
+def _error_deg(row, n) -> float:
+    """The angle (deg) between a row's recommended normal and the true normal ``n``."""
+    return float(np.degrees(np.arccos(min(1.0, abs(float(np.dot(row["normal"], n)))))))
+
+
 def _reconstructed(folder, img, cam) -> list:
     """``simtest reconstruct`` of the frame with its camera file, as test_rig_pairs runs it."""
     Image.fromarray(img).save(folder / "frame.png")
@@ -104,17 +117,12 @@ def _reconstructed(folder, img, cam) -> list:
 ])
 def test_fused_tops_over_bright_tissue_give_both_guides(tmp_path, index, was, aware):
     img, cam, n, truth = _frame(4, index)
-    specs = _reconstructed(tmp_path, img, cam)
-    bps = np.array([s["bp_px"] for s in specs]).reshape(-1, 2)
-    for uv in truth:
-        d = np.linalg.norm(bps - uv, axis=1)
-        s = specs[int(np.argmin(d))]
-        assert d.min() <= MATCH_PX and "fused" in s["detail"], (was, uv, d.min(), s["status"], s["detail"])
+    for uv, d, s in _nearest_rows(_reconstructed(tmp_path, img, cam), truth):
+        assert d <= MATCH_PX and "fused" in s["detail"], (was, uv, d, s["status"], s["detail"])
         if not aware:
             continue
         assert s["normal_from"] == "photometric_fit", (was, s["normal_from"])
-        err = np.degrees(np.arccos(min(1.0, abs(float(np.dot(s["normal"], n))))))
-        assert err <= MEDIAN_MAX_DEG, (was, err)
+        assert _error_deg(s, n) <= MEDIAN_MAX_DEG, (was, _error_deg(s, n))
 
 
 @settings(max_examples=40, deadline=None)
@@ -165,11 +173,6 @@ def test_a_top_clipped_in_red_and_green_gives_its_centre_as_the_bp(tmp_path):
     pixel of the smoothed luma lay at the top's edge, 3.6 px off); both guides then get their
     photometric normal."""
     img, cam, n, truth = _frame(4, 5)
-    specs = _reconstructed(tmp_path, img, cam)
-    bps = np.array([s["bp_px"] for s in specs]).reshape(-1, 2)
-    for uv in truth:
-        d = np.linalg.norm(bps - uv, axis=1)
-        s = specs[int(np.argmin(d))]
-        assert d.min() <= 1.0, (uv, d.min(), s["status"])
-        err = np.degrees(np.arccos(min(1.0, abs(float(np.dot(s["normal"], n))))))
-        assert s["normal_from"] == "photometric_fit" and err <= MEDIAN_MAX_DEG, (s["normal_from"], err)
+    for uv, d, s in _nearest_rows(_reconstructed(tmp_path, img, cam), truth):
+        assert d <= 1.0, (uv, d, s["status"])
+        assert s["normal_from"] == "photometric_fit" and _error_deg(s, n) <= MEDIAN_MAX_DEG, s["normal_from"]

@@ -578,14 +578,10 @@ def test_a_clipped_lobes_tissue_coloured_shoulder_is_not_another_glint(tmp_path)
     light, so each keeps a confidence of at least 0.3, the lower edge of the banner's
     leave-one-frame-out bin where isolated highlights are 44 % of the oks (11 % below it).
     Counting the shoulder's luma as other light gave 0.07 and 0.06."""
-    from test_fused_tops import _frame, _reconstructed
+    from test_fused_tops import _frame, _nearest_rows, _reconstructed
     from test_rig_pairs import MATCH_PX
 
     img, cam, _, truth = _frame(1, 10)
-    specs = _reconstructed(tmp_path, img, cam)
-    bps = np.array([s["bp_px"] for s in specs]).reshape(-1, 2)
-    for uv in truth:
-        d = np.linalg.norm(bps - uv, axis=1)
-        s = specs[int(np.argmin(d))]
-        assert d.min() <= MATCH_PX and s["status"] == "ok", (uv, d.min(), s["status"])
+    for uv, d, s in _nearest_rows(_reconstructed(tmp_path, img, cam), truth):
+        assert d <= MATCH_PX and s["status"] == "ok", (uv, d, s["status"])
         assert s["confidence"] >= 0.3, (uv, s["confidence"])
