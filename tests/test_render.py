@@ -548,7 +548,8 @@ def test_failed_stationary_solve_is_an_error(monkeypatch):
         m.setattr(scipy.optimize, "root", stalled_root)
         # the fallback (the light-path minimiser) must fail too for the error to be raised
         m.setattr(truth, "circle_reflection", lambda a, b, r: np.array([0.6, 0.8]))
-        with pytest.raises(truth.HighlightTruthError, match=r"sphere .*residual .* > 1e-12.*status 5"):
+        with pytest.raises(truth.HighlightTruthError,
+                           match=rf"sphere .*residual .* > {truth.STATIONARY_RESIDUAL_TOL:g}.*status 5"):
             truth.sphere_highlight(c, 20.0, L, K, (128, 128))
         with pytest.raises(truth.HighlightTruthError, match=r"cylinder .*status 5"):
             truth.cylinder_highlight(c, [1.0, 0.3, 0.2], 15.0, 1000.0, L, K, (128, 128))

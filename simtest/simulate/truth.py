@@ -196,11 +196,10 @@ def plane_highlight(normal: np.ndarray, distance_mm: float, light: np.ndarray, K
     return _highlight(plane_bp(normal, distance_mm, light), n, 0.0, 0.0, K, size)
 
 
-#: Largest accepted residual of the stationarity solve (tangential part of the unit bisector, i.e.
-#: the sine of the angle between the normal and the bisector). Converged solves measure <= 1.2e-14
-#: (6000 random spheres and cylinders, offset lights up to 20 mm), up to 8e-11 with the camera
-#: 0.2 mm from a 179 mm sphere (its coordinates 900 times the distances that set the bisector);
-#: failed ones 1e-2 to 0.9. 1e-9 rad (6e-8 deg) is far below any angle a test or a user resolves.
+#: Largest accepted residual of the stationarity solve (the sine of the angle between the normal and
+#: the bisector). Converged solves measure <= 1.2e-14 (6000 random spheres and cylinders, lights up to
+#: 20 mm off), 8e-11 with the camera 0.2 mm from a 179 mm sphere; failed ones 1e-2 to 0.9. 1e-9 rad
+#: (6e-8 deg) is far below any angle a test or a user resolves.
 STATIONARY_RESIDUAL_TOL = 1e-9
 
 
