@@ -573,14 +573,14 @@ def evaluate_frames(frames: list[LabelledFrame], settings=None, *, keep: list | 
     conf = np.array([r["confidence"] for _, r in cand], dtype=np.float64)
     tp = np.array([r["tp"] for _, r in cand], dtype=bool)
     # the confidence's analyses read every fit that passes the checks, whatever the default C
-    ok = np.array([r["status"] in PASSING for _, r in cand], dtype=bool)
-    tp_ok = np.array([r["tp_pass"] for _, r in cand], dtype=bool)
+    passing = np.array([r["status"] in PASSING for _, r in cand], dtype=bool)
+    tp_pass = np.array([r["tp_pass"] for _, r in cand], dtype=bool)
     statuses = Counter(r["status"] for f in frames_out for r in f["candidates_detail"])
     pool = pooled(scores).as_dict()
     return {"frames": frames_out, "pooled": pool, "settings": settings.to_dict(),
             "statuses": dict(sorted(statuses.items())),
-            "reliability": {"candidates": reliability(conf, tp), "ok": reliability(conf[ok], tp[ok])},
-            "precision_recall": precision_recall(conf[ok], tp_ok[ok], pool["targets"], target_ids=[
+            "reliability": {"candidates": reliability(conf, tp), "ok": reliability(conf[passing], tp[passing])},
+            "precision_recall": precision_recall(conf[passing], tp_pass[passing], pool["targets"], target_ids=[
                 (name, r["target"]) for name, r in cand if r["status"] in PASSING]),  # a target is a frame's
             "default_min_confidence": _default_floor(frames, settings)}
 
