@@ -135,3 +135,38 @@ def test_write_estimates_is_indented_json_that_read_estimates_reads(tmp_path):
                                                        isovalues=(0.7, 0.85)), allow_nan=False))
     assert doc["image"] == "caf\u00e9.png"
     assert np.array_equal(doc.pop("K"), K) and {k: v for k, v in want.items() if k != "K"} == doc
+
+
+def _key_names(node, out: set) -> set:
+    """Every dict key anywhere in a JSON document."""
+    if isinstance(node, dict):
+        for k, v in node.items():
+            out.add(k)
+            _key_names(v, out)
+    elif isinstance(node, list):
+        for v in node:
+            _key_names(v, out)
+    return out
+
+
+def test_every_field_the_command_line_writes_is_in_the_format_page(tmp_path):
+    # docs/estimates-format.md is the file's contract for other tools: a field written through
+    # `simtest reconstruct --points` (a sensor-like frame under a two-guide rig: isophotes with
+    # their points, light-aware fits) that the page does not name fails here
+    from typer.testing import CliRunner
+
+    from simtest.cli import app
+    from test_rig_pairs import _write, sensor_plane
+
+    img, K, _, _ = sensor_plane(20.0, 20.0, 7)
+    _write(tmp_path, img, K)
+    res = CliRunner().invoke(app, ["reconstruct", str(tmp_path / "frame.png"), "-k", str(tmp_path / "camera.json"),
+                                   "-o", str(tmp_path / "out"), "--no-overlay", "--points", "--workers", "1"])
+    assert res.exit_code == 0, res.output
+    doc = json.loads((tmp_path / "out" / "estimates.json").read_text())
+    assert any(s["light_aware"] for s in doc["specularities"])  # the rig's fits ran
+    assert any(i.get("points_px") for s in doc["specularities"] for i in s["isophotes"])
+    page = (Path(__file__).resolve().parents[1] / "docs" / "estimates-format.md").read_text()
+    keys = _key_names({k: v for k, v in doc.items() if k not in ("camera", "lights")}, set())
+    missing = sorted(k for k in keys if f'"{k}"' not in page)
+    assert not missing, f"fields written but not in docs/estimates-format.md: {missing}"

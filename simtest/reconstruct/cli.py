@@ -1,6 +1,6 @@
 """``simtest reconstruct IMAGE --intrinsics K.json --out DIR [--isovalue T ...]`` and ``simtest view``.
 
-``reconstruct`` writes ``DIR/estimates.json`` (schema in :mod:`simtest.reconstruct.io`),
+``reconstruct`` writes ``DIR/estimates.json`` (schema: ``docs/estimates-format.md``),
 ``DIR/overlay.png`` (:mod:`simtest.reconstruct.overlay`, unless ``--no-overlay``) and with ``--view``
 ``DIR/view.png`` (:mod:`simtest.reconstruct.view3d`); for a folder of frames or a video,
 ``DIR/estimates.parquet`` (:mod:`simtest.reconstruct.table`; ``--format jsonl``:

@@ -1,109 +1,14 @@
 """``estimates.json``: the versioned file format of reconstruction results.
 
 Written by ``simtest reconstruct`` and :func:`write_estimates` (the document built as dicts, its
-text by orjson, indented two spaces); read back by :func:`read_estimates`. Other tools (harness,
-notebooks) read it; the schema below is a contract. A change that removes or re-interprets a
-field bumps ``schema``; adding a field does not.
+text by orjson, indented two spaces); read back by :func:`read_estimates` (schemas 1 and 2). The
+schema, field by field, is ``docs/estimates-format.md``: a contract for the tools that read the
+file. A change that removes or re-interprets a field bumps :data:`SCHEMA_VERSION`; adding a field
+does not (and adds it to that page: ``tests/test_estimates_io.py``).
 
 A folder of frames or a video gives ``estimates.parquet`` (one row per candidate, a ``frame``
 column: :mod:`simtest.reconstruct.table`) or, on request, ``estimates.jsonl`` (one line per frame,
-its ``specularities`` those below); :func:`~simtest.reconstruct.table.read_frames` reads either.
-
-Schema 2
---------
-Schema 2 is schema 1 plus, per specularity, the normal recommended to a user and the light-aware
-estimators (:mod:`simtest.reconstruct.recommend`, whose docstring states the recommendation rule)::
-
-    "normal": [x, y, z],               # the recommended normal (never null: bp_ray at worst)
-    "normal_from": "photometric_fit" | "cubic_patch_fit" | "quadric_fit" | "isocurve_fit"
-                   | "joint_cone_axis" | "cone_axis" | "bp_ray",
-    "depth_mm": float or null,         # depth of the specular point along its ray, mm; null when
-                                       # not observable (no rig, a co-located one, epsilon/d small)
-    "normal_sigma_deg": float or null, # 1-sigma angle of the recommended normal, degrees
-    "normals": {..., "isocurve_fit": [x, y, z] or null, "photometric_fit": [x, y, z] or null,
-                "quadric_fit": [x, y, z] or null, "cubic_patch_fit": [x, y, z] or null},
-                                       # each light-aware estimator's normal (null: not run or
-                                       # no normal); quadric_fit and cubic_patch_fit were added
-                                       # later in schema 2 (absent from older files)
-    "light_normals": [[x, y, z], ...] or null,  # the recommended estimator's normal at each
-                                       # light's specular point (cubic_patch_fit), rig order
-    "light_depths_mm": [float, ...] or null,   # the depth of each light's specular point, mm
-    "light_aware": {name: {"status": str, "detail": str, "depth_mm": float or null,
-                           "normal_sigma_deg": float or null, "depth_sigma_mm": float or null,
-                           "distance_mm": float or null, "roughness": float or null,
-                           "lobe": "phong" | "ggx" | null,   # photometric_fit's lobe
-                           "projection": "body_colours" | "least_fluctuation" |
-                                         "darkest_channel" | null,  # photometric_fit on RGB:
-                                       # the single image fitted (null: one channel)
-                           "light_normals": [[x, y, z], ...] or null,
-                           "light_depths_mm": [float, ...] or null,
-                           "light_normal_sigmas_deg": [float, ...] or null,  # 1-sigma of each
-                                       # of light_normals, degrees (cubic_patch_fit)
-                           "depth_range_mm": [near, far] or null}}  # one-light quadric_fit:
-                                       # the depths the data cannot exclude, mm (depth_mm null)
-
-and at the top level ``"lights"``: the rig used (the camera file's list), or null, and
-``"detection"``: ``{"components": bright components found, "examined": those with an entry in
-``specularities``, "not_examined": those left out by the cap, "max_candidates": the cap or null}``
-(null in files written before it). Every field of schema 1 keeps its meaning; :func:`read_estimates`
-reads both.
-
-Schema 1
---------
-Conventions for every field: camera frame OpenCV (x right, y down, z forward); normals are unit
-3-vectors in that frame facing the camera (n . ray < 0); pixels (u, v) = (column, row) with pixel
-centres at integer coordinates; angles in degrees; ``null`` where a value does not exist (a failed
-step), never NaN.
-
-.. code-block:: text
-
-    {
-      "schema": 1,                       # int, this format's version
-      "simtest_version": "0.1.0",        # str, package version that wrote the file
-      "image": "path/to/image.png",      # str or null, the image as given
-      "image_shape": [H, W],             # [int, int]
-      "K": [[fx, 0, cx], [0, fy, cy], [0, 0, 1]] or null,   # pinhole K; null for other models
-      "dist_coeffs": [k1, k2, p1, p2, k3] or null,   # OpenCV order; points undistorted if given
-      "camera": {"model": ..., ...} or null,   # the camera file's model object (optional field)
-      "isovalues": [t1, t2, ...],        # each in (0, 1); t1 is the primary isovalue
-      "normalise": "bp",                 # "bp": t relative to the BP intensity; "full_scale"; or
-                                         # "local": relative to the BP above the ROI-border median
-      "conventions": {...},              # the conventions above, as text
-      "specularities": [                 # one per candidate highlight, brightest first
-        {
-          "bp_px": [u, v],               # brightest point as detected (distorted image), px
-          "bp_intensity": float,         # normalising intensity, image units
-          "saturated": bool,             # BP is the centroid of a clipped plateau
-          "roi": [row0, row1, col0, col1],   # array indices, half-open
-          "status": "ok" | reason,       # reason: a key of simtest.reconstruct.failures.REASONS
-          "detail": str,                 # numbers behind a failure ("" when ok)
-          "normals": {
-            "paper": [[x, y, z], [x, y, z]] or null,   # N+ and N- (circle pose), primary
-            "paper_selected": [x, y, z] or null,       # non-oracle choice: closer to bp_ray
-            "paper_selected_index": 0 | 1 | null,      # 0: N+, 1: N-
-            "cone_axis": [x, y, z] or null,            # primary cone axis
-            "joint_cone_axis": [x, y, z] or null,      # nested isophotes (>= 2 succeeded)
-            "bp_ray": [x, y, z]                        # minus the unit ray through the BP
-          },
-          "ellipse": {"center_px": [u, v], "semi_axes_px": [a, b], "angle_deg": float} or null,
-          "conic": [[...], [...], [...]] or null,      # point conic, undistorted px, |C|_F = 1
-                                                       # (null for fisheye/omnidirectional models)
-          "fit_residual_px": float or null,            # RMS Sampson distance
-          "eigenvalue_gap": float or null,             # 0 for a right circular cone
-          "isophotes": [                 # one per isovalue, same order as "isovalues"
-            {"isovalue": t, "status": ..., "detail": ..., "closed": bool, "n_points": int,
-             "ellipse": ..., "conic": ..., "fit_residual_px": ..., "eigenvalue_gap": ...,
-             "normals": {"paper": ..., "paper_selected": ..., "cone_axis": ...},
-             "points_px": [[u, v], ...]}      # only when written with include_points=True
-          ]
-        }
-      ]
-    }
-
-The status and every normal of a specularity are those of its primary isophote (the first
-isovalue), except ``status == "merged"`` (the primary isophote encloses another highlight's BP) and
-detection rejections (``too_small``, ``touches_border``, ``not_elliptical``, ``merged``), which
-have an empty ``isophotes`` list and null normals except ``bp_ray``.
+its ``specularities`` as in this file); :func:`~simtest.reconstruct.table.read_frames` reads either.
 """
 
 from __future__ import annotations
