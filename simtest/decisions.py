@@ -217,7 +217,8 @@ TOPHAT_MIN_REL = decision(
     "Local-peak detection takes a pixel only where it stands this far above the diffuse background "
     "(the grey opening): below, the pale texture of tissue, 8-bit quantisation and JPEG's ringing "
     "about bright folds give components by the hundred on a real frame. Chosen with the "
-    "local-peak detection itself, on the real frames and renders then at hand (e2b9f46).",
+    "local-peak detection itself, on the real frames and renders then at hand (e2b9f46). Pixels "
+    "clipped white are exempt: the ceiling cuts their height (local_peak_mask's censored).",
     basis="tuned", stage=_D, chosen_on=("banner-labelled", "banner-tiles", "bundled-renders"),
     n="24 banner frames, 3 tiles, every bundled scene at seed 0")
 SCOPE_BORDER_LEVEL_REL = decision(

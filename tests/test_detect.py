@@ -714,3 +714,21 @@ def test_a_near_clipped_top_gives_the_centroid_of_its_pixels_over_the_limit(seed
     one = np.full((h, w), 200.0)
     one[5, 5] = 254.0
     assert _near_top(one, labels, 1, 0, 0, w, h, 252.45, 5, 5, 5.2, 4.9) == (5.2, 4.9)
+
+
+def test_clipped_tops_on_a_sheen_near_the_ceiling_are_candidates():
+    # two small tops clipped at 255 on a broad sheen at 240: they stand 15 levels above the
+    # background square's opening, under TOPHAT_MIN_REL (0.08 of 255: 20.4), so the contrast rule
+    # alone drops them; given as clipped (the ceiling cut their height), they are the mask
+    from simtest.reconstruct.detect_pixels import local_peak_mask
+
+    g = np.full((120, 160), 120.0, np.float32)
+    yy, xx = np.mgrid[0:120, 0:160]
+    g[np.hypot(yy - 60, xx - 80) < 45] = 240.0
+    tops = (np.hypot(yy - 60, xx - 65) < 4) | (np.hypot(yy - 60, xx - 95) < 4)
+    g[tops] = 255.0
+    plain, _ = local_peak_mask(g, 255.0, background_px=31)
+    censored, _ = local_peak_mask(g, 255.0, background_px=31, censored=tops.astype(np.uint8))
+    # (the sheen's rim is in both: the reduced opening, enlarged, smears its 120-level edge)
+    assert not plain[tops].any()
+    assert np.array_equal(censored.astype(bool), plain.astype(bool) | tops)

@@ -176,3 +176,16 @@ def test_a_top_clipped_in_red_and_green_gives_its_centre_as_the_bp(tmp_path):
     for uv, d, s in _nearest_rows(_reconstructed(tmp_path, img, cam), truth):
         assert d <= 1.0, (uv, d, s["status"])
         assert s["normal_from"] == "photometric_fit" and _error_deg(s, n) <= MEDIAN_MAX_DEG, s["normal_from"]
+
+
+def test_clipped_tops_on_a_near_white_sheen_are_found(tmp_path):
+    """Seed 22, frame 11 (guides of profile exponent 2.9, a broad GGX lobe over pale tissue): red
+    clips over most of the lit field and the sheen around the two clipped tops reaches luma 235
+    to 250, so the tops stand 19.5 levels above the background square's opening, under
+    TOPHAT_MIN_REL (20.4): the ceiling cut their height, and the frame had no candidate at all.
+    Pixels clipped white are candidates wherever they are local peaks above the background."""
+    img, cam, n, truth = _frame(22, 11)
+    for uv, d, s in _nearest_rows(_reconstructed(tmp_path, img, cam), truth):
+        assert d <= MATCH_PX, (uv, d)
+        assert s["normal_from"] == "photometric_fit" and _error_deg(s, n) <= MEDIAN_MAX_DEG, (s["status"], s["normal_from"])
+

@@ -446,8 +446,8 @@ def detect_specularities(
         # gray frame not smoothed: the same values as each converting its own copy)
         gray32 = gray.astype(np.float32, copy=False)
         halves: list = []
-        mask, background = local_peak_mask(gray32, fs, peak_rel=peak_rel,
-                                           contrast_min_rel=contrast_min_rel, background_px=side, _half=halves)
+        mask, background = local_peak_mask(gray32, fs, peak_rel=peak_rel, contrast_min_rel=contrast_min_rel,
+                                           background_px=side, censored=clipped, _half=halves)
         half = halves[0] if halves else None
         thr = contrast_min_rel * fs
         levels = background
@@ -516,7 +516,7 @@ def _detect_half_resolution(img, native, fs, saturation_level, *, grey=False, mi
         clipped2 = cv2.resize(clipped[: 2 * h2, : 2 * w2], (w2, h2), interpolation=cv2.INTER_AREA)
     parts: list = []
     mask2, background2 = local_peak_mask(gray2, fs, peak_rel=peak_rel, contrast_min_rel=contrast_min_rel,
-                                         background_px=max(3, side // 2), _parts=parts)
+                                         background_px=max(3, side // 2), censored=clipped2, _parts=parts)
     bg_small, peak_small, f2 = parts
     if max(1, side // 16) != 2 * f2 or bg_small.shape != (h // (2 * f2), w // (2 * f2)):
         return None  # the reduced grids differ: the caller detects at full resolution

@@ -552,8 +552,8 @@ def background_side_px(shape: tuple[int, int], clipped: np.ndarray | None = None
 
 
 def local_peak_mask(gray: np.ndarray, full_scale: float, *, peak_rel: float = 0.6,
-                    contrast_min_rel: float = TOPHAT_MIN_REL, background_px: int | None = None, _parts: list | None = None,
-                    _half: list | None = None):
+                    contrast_min_rel: float = TOPHAT_MIN_REL, background_px: int | None = None,
+                    censored: np.ndarray | None = None, _parts: list | None = None, _half: list | None = None):
     """Bright-candidate mask relative to local peaks (``method="local_peak"``).
 
     The diffuse background is the grey opening of the luma by a square of side ``background_px``
@@ -579,6 +579,11 @@ def local_peak_mask(gray: np.ndarray, full_scale: float, *, peak_rel: float = 0.
         (``max(31, min(H, W) // BACKGROUND_DIV)``): wider than the highlights of endoscopic
         frames (up to about 30 px in a 1350 x 1080 frame); a broader lobe keeps a smaller core
         and its ROI grows in the pipeline.
+    censored : ndarray of shape (H, W), uint8, optional
+        Pixels clipped white (:func:`clipped_mask`, 0/1): the ceiling cuts their top-hat, so
+        that a clipped top on a surround near the ceiling (a bright sheen around it) stands out
+        by less than ``contrast_min_rel`` however bright the highlight is. They are candidates
+        wherever they meet the local-peak rule and stand above the background at all.
 
     Returns
     -------
@@ -622,6 +627,9 @@ def local_peak_mask(gray: np.ndarray, full_scale: float, *, peak_rel: float = 0.
     # top >= near_level and top >= thr: one comparison with their maximum (exact; two frame-sized
     # passes fewer)
     mask = cv2.compare(top, cv2.max(near_level, float(thr)), cv2.CMP_GE)
+    if censored is not None:  # clipped tops: the local-peak rule and any height above the background
+        core = cv2.bitwise_and(cv2.compare(top, near_level, cv2.CMP_GE), cv2.compare(top, 0.0, cv2.CMP_GT))
+        cv2.bitwise_or(mask, cv2.bitwise_and(core, core, mask=censored), dst=mask)
     np.right_shift(mask, 7, out=mask)  # 255 -> 1
     if _parts is not None:  # the reduced background and local peaks (_detect_half_resolution)
         _parts.extend((bg_small, peak_small, f))
