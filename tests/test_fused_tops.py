@@ -189,3 +189,14 @@ def test_clipped_tops_on_a_near_white_sheen_are_found(tmp_path):
         assert d <= MATCH_PX, (uv, d)
         assert s["normal_from"] == "photometric_fit" and _error_deg(s, n) <= MEDIAN_MAX_DEG, (s["status"], s["normal_from"])
 
+
+def test_fused_tops_whose_isophote_leaves_the_frame_give_both_guides(tmp_path):
+    """Seed 25, frame 14 (tilt 29 deg, guides of profile exponent 2.5, gamma 2.2, JPEG q70): the
+    two lobes fuse over a bright sheen that reaches the frame's left side, so the fused
+    candidate's isophote runs out of the frame (``contour_cut``) and its one row lay between the
+    guides, 19 px from each specular point. The joint plane fit needs no isophote: the candidate
+    is split as the other fused statuses are (rig_lobes.SPLIT_STATUSES)."""
+    img, cam, n, truth = _frame(25, 14)
+    for uv, d, s in _nearest_rows(_reconstructed(tmp_path, img, cam), truth):
+        assert d <= MATCH_PX, (uv, d, s["status"])
+        assert s["normal_from"] == "photometric_fit" and _error_deg(s, n) <= MEDIAN_MAX_DEG, (s["status"], s["normal_from"])

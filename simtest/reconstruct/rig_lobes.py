@@ -3,9 +3,10 @@
 A scope's guides each make a highlight on a planar patch (:mod:`simtest.reconstruct.rig_pairs`).
 Where the patch is near and its film shiny, the guides' lobes touch and the detector sees one
 bright region: one plateau whose centroid lies between the guides' specular points (``ok`` at
-neither), a plateau broken into several by noise (``merged``), or an oval with a waist or too
-long for one ellipse (``bad_fit``, ``not_elliptical``). The light-aware photometric fit models
-every guide's lobe on one plane and needs no ellipse.
+neither), a plateau broken into several by noise (``merged``), an oval with a waist or too
+long for one ellipse (``bad_fit``, ``not_elliptical``), or over a bright sheen an isophote that
+runs out of the frame (``contour_cut``). The light-aware photometric fit models every guide's
+lobe on one plane and needs no ellipse.
 
 Rule. A candidate's plane fit (``n . X = -h``) predicts each guide's specular point, the plane's
 point on the segment from the camera to the guide's mirror image ``L' = L - 2 (n . L + h) n``:
@@ -37,7 +38,7 @@ from simtest.reconstruct.rig_pairs import other_guide_curves
 __all__ = ["FUSED_LOBE_LEVEL", "fused_lobe_candidates", "guide_specular_points", "split_fused_lobes"]
 
 #: Candidates whose statuses the rule may turn into rows of fused lobes (module docstring).
-SPLIT_STATUSES = ("ok", "merged", "bad_fit", "not_elliptical", "cluster")
+SPLIT_STATUSES = ("ok", "merged", "bad_fit", "not_elliptical", "cluster", "contour_cut")
 
 
 def guide_specular_points(camera, rig, normal, distance_mm: float) -> np.ndarray:
