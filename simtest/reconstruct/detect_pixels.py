@@ -629,7 +629,7 @@ def local_peak_mask(gray: np.ndarray, full_scale: float, *, peak_rel: float = 0.
     mask = cv2.compare(top, cv2.max(near_level, float(thr)), cv2.CMP_GE)
     if censored is not None:  # clipped tops: the local-peak rule and any height above the background
         core = cv2.bitwise_and(cv2.compare(top, near_level, cv2.CMP_GE), cv2.compare(top, 0.0, cv2.CMP_GT))
-        cv2.bitwise_or(mask, cv2.bitwise_and(core, core, mask=censored), dst=mask)
+        cv2.max(mask, cv2.bitwise_and(core, core, mask=censored), dst=mask)  # 0 or 255: an or
     np.right_shift(mask, 7, out=mask)  # 255 -> 1
     if _parts is not None:  # the reduced background and local peaks (_detect_half_resolution)
         _parts.extend((bg_small, peak_small, f))
