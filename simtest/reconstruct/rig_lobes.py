@@ -15,7 +15,8 @@ centres them on the candidate's clipped tops, :func:`_on_the_tops`). Every guide
 point lies in the candidate's bright region (the connected pixels above :data:`FUSED_LOBE_LEVEL`
 of the BP's height above the ROI border's median, holding the BP) is a highlight of it. When two or more are, at least
 :data:`~simtest.decisions.PAIR_TOL_PX` apart and none is another candidate's BP, the candidate
-gives one row per guide: BP at its specular point, status ``ok``, the joint fit's normal. A
+gives one row per guide: BP at its specular point, status ``ok``, the joint fit's normal; a
+clipped candidate's points must lie within ``PAIR_TOL_PX`` of its clipped tops. A
 rejected candidate is fitted for this only where the rig's curve runs in its region (``merged``
 and ``cluster``, whose other peak may be the other guide's top: stretched along it); one the rule
 does not split keeps its status and no fit.
@@ -215,6 +216,14 @@ def _rows(est, camera, rig, gray, others: np.ndarray) -> list | None:
         return None  # lobes the image does not tell apart: one highlight, the candidate's row
     if len(others) and (np.linalg.norm(others[:, None] - p[None], axis=-1) < PAIR_TOL_PX).any():
         return None  # a guide's highlight that is an ok candidate of its own already has its row
+    if est.saturated:
+        # clipped lobes clip about each guide's specular point: a plane that puts one farther than
+        # PAIR_TOL_PX from the region's tops fitted something else (the sheen, texture on it)
+        off = cv2.distanceTransform(np.pad((~_tops(gray, region)).astype(np.uint8), 1, constant_values=1),
+                                    cv2.DIST_L2, 5)[1:-1, 1:-1]
+        rc = np.rint(uv_to_rc(p)).astype(np.int64) - (region[1], region[2])
+        if (off[rc[:, 0], rc[:, 1]] > PAIR_TOL_PX).any():
+            return None
     rows = []
     for j, uv in zip(k.tolist(), p):
         rows.append(dataclasses.replace(
