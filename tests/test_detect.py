@@ -694,10 +694,10 @@ def test_a_top_the_codec_left_one_pixel_of_is_read_whole(method):
 @given(seed=st.integers(0, 2**32 - 1), radius=st.integers(3, 9))
 @settings(max_examples=30, deadline=None)
 def test_a_near_clipped_top_gives_the_centroid_of_its_pixels_over_the_limit(seed, radius):
-    """``_near_top``: whichever pixel of a top over the limit is its brightest (noise decides on
-    a flat top), the BP is the centroid of the top's pixels connected to it; a top of one pixel
-    keeps the BP given."""
-    from simtest.reconstruct.candidates import _near_top
+    """``_top_centroids``: whichever pixel of a top over the limit is its brightest (noise decides
+    on a flat top), the BP is the centroid of the top's pixels connected to it; a top of one
+    pixel keeps the BP given."""
+    from simtest.reconstruct.candidates import _top_centroids
 
     rng = np.random.default_rng(seed)
     h = w = 2 * radius + 9
@@ -706,14 +706,16 @@ def test_a_near_clipped_top_gives_the_centroid_of_its_pixels_over_the_limit(seed
     disc = (yy - cy) ** 2 + (xx - cx) ** 2 <= radius**2
     gray = np.where(disc, 253.0 + rng.uniform(0, 1, (h, w)), 200.0)
     gray[0, 0] = 254.5  # over the limit but not connected to the top: left out
-    labels = np.ones((h, w), np.int32)
-    pr, pc = np.unravel_index(int(np.argmax(np.where(disc, gray, -1))), gray.shape)
-    row, col = _near_top(gray, labels, 1, 0, 0, w, h, 252.45, int(pr), int(pc), -1.0, -1.0)
+    idx, k = np.arange(h * w), np.zeros(h * w, np.int64)  # one candidate: the whole box
+    rows, level, given = np.array([0]), np.array([252.45]), np.array([-1.0])
+    pix = np.array([int(np.argmax(np.where(disc, gray, -1)))])
+    row, col = _top_centroids(gray, rows, idx, k, level, pix, given, given)
     rr, cc = np.nonzero(disc)
-    assert (row, col) == pytest.approx((rr.mean(), cc.mean()), abs=1e-12)
+    assert (row[0], col[0]) == pytest.approx((rr.mean(), cc.mean()), abs=1e-12)
     one = np.full((h, w), 200.0)
     one[5, 5] = 254.0
-    assert _near_top(one, labels, 1, 0, 0, w, h, 252.45, 5, 5, 5.2, 4.9) == (5.2, 4.9)
+    got = _top_centroids(one, rows, idx, k, level, np.array([5 * w + 5]), np.array([5.2]), np.array([4.9]))
+    assert (got[0][0], got[1][0]) == (5.2, 4.9)
 
 
 def test_clipped_tops_on_a_sheen_near_the_ceiling_are_candidates():

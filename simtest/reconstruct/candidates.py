@@ -143,14 +143,16 @@ def _pixels(labels: np.ndarray, table: np.ndarray):
     return idx, k
 
 
-def _flat_tops(gray, flat_rows, idx, k, peak, pix):
-    """The centroid (row, col) of the 8-connected flat top (pixels of the component at its
-    peak) through each brightest pixel ``pix`` of the rows ``flat_rows``: the tops labelled by
-    runs of rows (OpenCV, Grana's algorithm), their centroids by counting."""
-    is_flat = np.zeros(len(peak), bool)
-    is_flat[flat_rows] = True
-    sel = is_flat[k]
-    on = idx[sel][gray.ravel()[idx[sel]] == peak[k[sel]]]
+def _top_centroids(gray, rows, idx, k, level, pix, row, col):
+    """The centroid (row, col) of each candidate's top, for the candidates ``rows``: the
+    8-connected pixels of its component at or above its ``level`` (a flat top: its peak; a top
+    near the ceiling: the limit below which noise no longer places the maximum) through its
+    brightest pixel ``pix``; ``(row, col)`` as given where that top is the pixel alone. The tops
+    labelled by runs of rows (OpenCV, Grana's algorithm), their centroids by counting."""
+    is_top = np.zeros(len(level), bool)
+    is_top[rows] = True
+    sel = is_top[k]
+    on = idx[sel][gray.ravel()[idx[sel]] >= level[k[sel]]]
     w = gray.shape[1]
     r0, r1 = int(on.min()) // w, int(on.max()) // w + 1
     on = on - r0 * w
@@ -158,12 +160,14 @@ def _flat_tops(gray, flat_rows, idx, k, peak, pix):
     top.ravel()[on] = 1
     n, plab = connected_components(top)
     pl = plab.ravel()[on]
-    rows, cols = np.divmod(on, w)
+    rr, cc = np.divmod(on, w)
     cnt = np.bincount(pl, minlength=n)
-    sr = np.bincount(pl, weights=rows, minlength=n) + r0 * cnt
-    sc = np.bincount(pl, weights=cols, minlength=n)
-    at = plab.ravel()[pix[flat_rows] - r0 * w]
-    return sr[at] / cnt[at], sc[at] / cnt[at]
+    sr = np.bincount(pl, weights=rr, minlength=n) + r0 * cnt
+    sc = np.bincount(pl, weights=cc, minlength=n)
+    at = plab.ravel()[pix[rows] - r0 * w]
+    alone = cnt[at] < 2
+    return (np.where(alone, row[rows], sr[at] / np.maximum(cnt[at], 1)),
+            np.where(alone, col[rows], sc[at] / np.maximum(cnt[at], 1)))
 
 
 def _plateaus(clipped: np.ndarray, labels: np.ndarray, cid: int, x: int, y: int, bw: int, bh: int,
@@ -180,17 +184,6 @@ def _plateaus(clipped: np.ndarray, labels: np.ndarray, cid: int, x: int, y: int,
         top = _joined(top, near[y : y + bh, x : x + bw] & comp)
     n_big, row, col = _plateau_count(top, comp, rules)
     return n_big, row + y, col + x
-
-
-def _near_top(gray, labels, cid: int, x: int, y: int, bw: int, bh: int, lim: float, pr: int, pc: int,
-              row: float, col: float) -> tuple[float, float]:
-    """The centroid (row, col) of a candidate's pixels at or above ``lim`` that are 8-connected to
-    its brightest pixel (``pr``, ``pc``), frame coordinates; ``(row, col)`` as given where that
-    top is the pixel alone."""
-    top = ((gray[y : y + bh, x : x + bw] >= lim) & (labels[y : y + bh, x : x + bw] == cid)).view(np.uint8)
-    _, lab = cv2.connectedComponents(top, connectivity=8)
-    rr, cc = np.nonzero(lab == lab[pr - y, pc - x])
-    return (row, col) if len(rr) < 2 else (float(rr.mean()) + y, float(cc.mean()) + x)
 
 
 def _joined(seed: np.ndarray, mask: np.ndarray) -> np.ndarray:
@@ -300,9 +293,6 @@ def examine(gray: np.ndarray, labels: np.ndarray, table: np.ndarray, rules: Rule
     dr = _parabola(v4[0], peak, v4[1], (pr > y) & (pr < y + bh - 1))
     dc = _parabola(v4[2], peak, v4[3], (pc > x) & (pc < x + bw - 1))
     row, col = pr + dr, pc + dc
-    flat_rows = np.flatnonzero(n_top > 1)
-    if len(flat_rows):
-        row[flat_rows], col[flat_rows] = _flat_tops(gray, flat_rows, idx, k, peak, pix)
 
     # clipped candidates: their plateaus, one by one
     saturated = np.zeros(n, bool)
@@ -313,11 +303,15 @@ def examine(gray: np.ndarray, labels: np.ndarray, table: np.ndarray, rules: Rule
         for i in np.flatnonzero(saturated).tolist():
             n_plateaus[i], row[i], col[i] = _plateaus(clipped, labels, int(cid[i]), int(x[i]), int(y[i]),
                                                       int(bw[i]), int(bh[i]), rules, near)
-    if rules.ceiling is not None:  # a top flat to blue's few levels: noise places its maximum anywhere
+    # unclipped tops: a flat one (pixels at its peak) and one near the ceiling, flat to blue's few
+    # levels where noise places its maximum anywhere, at the centroid of their pixels
+    level = np.where((n_top > 1) & ~saturated, peak, np.inf)
+    if rules.ceiling is not None:
         lim = rules.ceiling * (1.0 - CLIP_LUMA_MARGIN_REL)
-        for i in np.flatnonzero(~saturated & (peak >= lim)).tolist():
-            row[i], col[i] = _near_top(gray, labels, int(cid[i]), int(x[i]), int(y[i]), int(bw[i]), int(bh[i]),
-                                       lim, int(pr[i]), int(pc[i]), float(row[i]), float(col[i]))
+        level[~saturated & (peak >= lim)] = lim
+    top_rows = np.flatnonzero(np.isfinite(level))
+    if len(top_rows):
+        row[top_rows], col[top_rows] = _top_centroids(gray, top_rows, idx, k, level, pix, row, col)
 
     code = np.full(n, OK, np.int64)
     code[n_plateaus > 1] = MERGED
