@@ -16,7 +16,9 @@ import numpy as np
 from simtest._lazy import require
 from simtest._threads import one_thread_each
 from simtest._workers import worker_pool
-from simtest.decisions import BROAD_LOBE_PHONG_N, ISOCURVE_ISOVALUES, LOBE_EDGE_REL, LOBE_ROI_MISMATCH, SIGMA_MARGIN
+from simtest.decisions import (BROAD_LOBE_PHONG_N, ISOCURVE_ISOVALUES, LOBE_EDGE_REL, LOBE_ROI_MISMATCH, PAIR_TOL_PX,
+                               SIGMA_MARGIN)
+from simtest.geometry.cameras import PinholeCamera
 from simtest.geometry.lights import LightRig
 from simtest.reconstruct import lightaware as _la
 from simtest.reconstruct._pixels import Roi
@@ -27,6 +29,7 @@ from simtest.reconstruct.lightaware import (LightAwareEstimate, cubic_patch_fit,
                                             quadric_fit, refine_isophote_points)
 from simtest.reconstruct.recommend import (_bp_ray_error_beside, bp_error_depth_mm, bp_ray_error_deg,
                                            depth_within_ceiling)
+from simtest.reconstruct.rig_pairs import pair_misfit_px, pair_starts
 
 #: The photometric fit's statuses after which the curved-patch fits run by default: those that say
 #: the plane is not the ROI's surface (after the others a patch cannot do better, and takes
@@ -50,7 +53,7 @@ def light_aware_estimates(image, est, camera, rig: LightRig, *, nominal_depth_mm
                           quadric_roi_scale: float = 1.5, supersample: int = 1, quadric: bool | None = None,
                           cubic: bool | None = False, response=None, diffuse: bool | None = None,
                           lobe: str | None = None, linear=None, colour: bool | None = None,
-                          floor_refit: bool = False) -> dict[str, LightAwareEstimate]:
+                          floor_refit: bool = False, pair_starts=()) -> dict[str, LightAwareEstimate]:
     """Run the light-aware estimators on one detected highlight.
 
     ``isocurve_fit`` takes its own isophotes (module docstring); ``photometric_fit`` the ROI grown
@@ -95,6 +98,13 @@ def light_aware_estimates(image, est, camera, rig: LightRig, *, nominal_depth_mm
     floor_refit : bool
         Refit without the pixels whose model lies within a few noise sigmas of an integer
         image's 0 (:func:`~simtest.reconstruct.lightaware.photometric_fit`'s ``floor_refit``).
+    pair_starts : tuple of (int, int, float)
+        The guides and depth at which the rig puts another guide's highlight on another
+        highlight (:func:`~simtest.reconstruct.rig_pairs.pair_starts`): a photometric fit whose
+        normal the recommendation could take, and whose plane puts that highlight beyond
+        ``PAIR_TOL_PX`` of it (or has no depth), is refitted from there too
+        (:class:`~simtest.reconstruct.lightaware.plane.FitSettings`), the refit kept where it is
+        ok and puts it within.
     colour : bool, optional
         Fit on the ROI's three linear channels, the body colours projected out (None:
         :func:`colour_fit_applies`).
@@ -134,10 +144,38 @@ def light_aware_estimates(image, est, camera, rig: LightRig, *, nominal_depth_mm
         refit = _photometric(img, gray, lobe_roi, est, camera, rig, response, colour, saturation_level, pkw)
         if refit.ok:
             pf = _la.plane._note(refit, f"refitted on the lobe's ROI ({lobe_roi.shape[1]} x {lobe_roi.shape[0]} px)")
+    if (pair_starts and _recommendable(pf, est, camera, rig, nominal_depth_mm)
+            and not _fits_the_pair(pf, est.bp_px, camera, rig, pair_starts)):
+        # the other guide's highlight is data the ROI's fit did not see: a plane that misplaces it
+        # stopped at another depth (from a start at the nominal one); refitted from the depth the
+        # pair gives too, kept where it places the pair
+        alt = _photometric(img, gray, big, est, camera, rig, response, colour, saturation_level,
+                           dict(pkw, pair_starts=tuple(pair_starts)))
+        if alt.ok and _fits_the_pair(alt, est.bp_px, camera, rig, pair_starts):
+            pf = _la.plane._note(alt, "refitted from the depth its pair with another guide's highlight gives")
     out["photometric_fit"] = pf
     _curved_fits(out, gray, img.shape, est, roi, camera, rig, saturation_level=saturation_level, cubic=cubic,
                  nominal_depth_mm=nominal_depth_mm, quadric_roi_scale=quadric_roi_scale, quadric=quadric)
     return out
+
+
+def _recommendable(fit: LightAwareEstimate, est, camera, rig, nominal_depth_mm: float) -> bool:
+    """Whether the recommendation could take the fit's normal: ok, or without its depth where
+    its stated sigma beats the BP ray's error (:func:`~simtest.reconstruct.recommend.recommend`'s
+    rule 3)."""
+    if fit.ok or fit.status != "depth_not_observable" or fit.normal_sigma_deg is None:
+        return fit.ok
+    ray = _la.model._rays(camera, np.asarray(est.bp_px, dtype=np.float64)[None])[0]
+    beside = dataclasses.replace(fit, bp_ray_error_deg=bp_ray_error_deg(
+        ray, bp_error_depth_mm(fit, nominal_depth_mm), rig))
+    return SIGMA_MARGIN * fit.normal_sigma_deg < _bp_ray_error_beside(est, beside)
+
+
+def _fits_the_pair(fit: LightAwareEstimate, bp_uv, camera, rig, starts) -> bool:
+    """Whether a fit with a depth puts the pair's other highlight within ``PAIR_TOL_PX`` of it
+    (:func:`~simtest.reconstruct.rig_pairs.pair_misfit_px`)."""
+    return (fit.has_normal and fit.distance_mm is not None
+            and pair_misfit_px(camera, rig, bp_uv, starts, fit.normal, fit.distance_mm) <= PAIR_TOL_PX)
 
 
 def _fit_intensities(img: np.ndarray, response, linear, saturation_level):
@@ -369,6 +407,13 @@ def with_light_aware(image, estimates, camera, rig: LightRig | None, *, on_highl
     todo = [i for i, est in enumerate(out) if est.ok or (fit_rejected and est.status not in NOT_FITTED)]
     jobs = {i: {} for i in todo} | {i: PLANE_ONLY for i in plane_only if i not in todo}
     todo = sorted(jobs)
+    # the guide and depth at which another fitted highlight lies where the rig puts another
+    # guide's: further starts
+    model = camera if hasattr(camera, "pixel_to_ray") else PinholeCamera(np.asarray(camera, np.float64))
+    bps = np.array([out[i].bp_px for i in todo], np.float64).reshape(-1, 2)
+    for i, starts in zip(todo, pair_starts(model, rig.positions, bps, bps)):
+        if starts:
+            jobs[i] = dict(jobs[i], pair_starts=starts)
     # the others are marked with no fits ({}): under a rig off the camera centre the co-located
     # estimators' normals are not recommended (rule 1: the BP ray)
     skipped = set(range(len(out))).difference(todo)

@@ -31,61 +31,14 @@ import numpy as np
 
 from simtest.decisions import CLIP_LUMA_MARGIN_REL, FUSED_LOBE_LEVEL, FUSED_TOPS_STRETCH, PAIR_TOL_PX
 from simtest.reconstruct._pixels import uv_to_rc
-from simtest.geometry.cameras import PinholeCamera
 from simtest.reconstruct.detect_pixels import luma
 from simtest.reconstruct.light_fits import _offset_rig
-from simtest.reconstruct.rig_pairs import other_guide_curves
+from simtest.reconstruct.rig_pairs import _model, _specular_points, guide_specular_points, other_guide_curves
 
 __all__ = ["FUSED_LOBE_LEVEL", "fused_lobe_candidates", "guide_specular_points", "split_fused_lobes"]
 
 #: Candidates whose statuses the rule may turn into rows of fused lobes (module docstring).
 SPLIT_STATUSES = ("ok", "merged", "bad_fit", "not_elliptical", "cluster", "contour_cut")
-
-
-def guide_specular_points(camera, rig, normal, distance_mm: float) -> np.ndarray:
-    """Image points of each guide's specular point on a plane.
-
-    Parameters
-    ----------
-    camera : array_like of shape (3, 3) or CameraModel
-        Intrinsics K, or a model with ``ray_to_pixel``.
-    rig : LightRig
-        The scope's lights, camera frame, mm.
-    normal : array_like of shape (3,)
-        Unit plane normal facing the camera (``n . X = -h`` on the plane), camera frame.
-    distance_mm : float
-        The plane's distance ``h`` from the camera centre, mm.
-
-    Returns
-    -------
-    ndarray of shape (J, 2)
-        (u, v) px per light, in the rig's order; NaN for a light behind the plane.
-
-    Notes
-    -----
-    Mirror image ``L' = L - 2 (n . L + h) n``; the specular point ``X_s = L' h / (-n . L')``
-    (module docstring; the same construction as :mod:`simtest.reconstruct.rig_pairs`).
-    """
-    return _specular_points(camera, rig, normal, np.array([float(distance_mm)]))[0]
-
-
-def _specular_points(camera, rig, normal, h: np.ndarray) -> np.ndarray:
-    """:func:`guide_specular_points` at each distance of ``h`` (M,): (M, J, 2)."""
-    n = np.asarray(normal, dtype=np.float64)
-    L = np.asarray(rig.positions, dtype=np.float64).reshape(-1, 3)
-    h = np.asarray(h, dtype=np.float64)[:, None]
-    c = L @ n + h  # (M, J)
-    Lm = L - 2.0 * c[..., None] * n
-    with np.errstate(divide="ignore", invalid="ignore"):
-        X = Lm * (h / -(Lm @ n))[..., None]
-    X[~(c > 0)] = np.nan
-    rays = (X / np.linalg.norm(X, axis=-1, keepdims=True)).reshape(-1, 3)
-    return np.asarray(_model(camera).ray_to_pixel(rays), dtype=np.float64).reshape(len(h), -1, 2)
-
-
-def _model(camera):
-    """``camera`` as a camera model: itself, or the pinhole of intrinsics K (3, 3)."""
-    return camera if hasattr(camera, "pixel_to_ray") else PinholeCamera(np.asarray(camera, np.float64))
 
 
 def _bright_region(gray: np.ndarray, est) -> tuple[np.ndarray, int, int] | None:

@@ -24,11 +24,12 @@ from simtest.decisions import PAIR_DEPTH_MAX_MM as DEPTH_MAX_MM
 from simtest.decisions import PAIR_DEPTH_MIN_MM as DEPTH_MIN_MM
 from simtest.decisions import PAIR_TOL_PX
 from simtest.geometry.angles import unit
+from simtest.geometry.cameras import PinholeCamera
 from simtest.reconstruct._pixels import uv_to_rc
 from simtest.reconstruct.evidence_pixels import ellipse_level
 
 __all__ = ["DEPTH_MIN_MM", "DEPTH_MAX_MM", "DEPTH_SAMPLES", "PAIR_TOL_PX", "other_guide_curves",
-           "other_lobe_centres"]
+           "guide_specular_points", "other_lobe_centres", "pair_starts"]
 
 #: Depths sampled, geometrically spaced (the curve's image step shrinks as 1 / d^2); the polyline
 #: is resampled every half pixel, so this sets only how closely it follows the curve (within
@@ -100,6 +101,135 @@ def other_guide_curves(camera, positions_mm, bps_uv, radius_px, step_px: float =
             pts.append(_resampled(uv, step_px, bp, rad))
         out.append(np.concatenate(pts))
     return out
+
+
+def pair_starts(camera, positions_mm, bps_uv, partners_uv) -> list[tuple[tuple[int, int, float], ...]]:
+    """The guides and depths at which the BP as one guide's specular point puts another's on a partner.
+
+    Per candidate, ordered pair of guides (i, j) and partner (another highlight's BP, beyond
+    :data:`PAIR_TOL_PX` of its own): where guide j's curve (the BP as guide i's specular point at
+    depth d, module docstring) passes within :data:`PAIR_TOL_PX` of the partner, the depth of its
+    nearest point, geometric between the curve's samples, with i and j; none where several partners lie on the
+    curves (a field of glints: which is the other guide's, the rig does not tell). On a plane the
+    pair's separation fixes the depth, as a stereo baseline would: a start of the photometric fit
+    (``FitSettings``' ``pair_starts``), whose start at the nominal depth alone can stop at
+    another minimum.
+
+    Parameters
+    ----------
+    camera : CameraModel
+        The camera (``pixel_to_ray``, ``ray_to_pixel``).
+    positions_mm : array_like of shape (G, 3)
+        The guides' positions, camera frame, mm.
+    bps_uv : array_like of shape (N, 2)
+        The candidates' BPs (u, v), px.
+    partners_uv : array_like of shape (P, 2)
+        The BPs of the highlights that may be another guide's, px.
+
+    Returns
+    -------
+    list of tuple of (int, int, float)
+        Per candidate, (i, j, d): the BP as guide i's specular point at depth d (mm along its ray,
+        within :data:`DEPTH_MIN_MM` to :data:`DEPTH_MAX_MM`) puts guide j's on the partner;
+        sorted; empty where no partner, or more than one, lies on a curve.
+    """
+    L = np.asarray(positions_mm, np.float64).reshape(-1, 3)
+    bps = np.asarray(bps_uv, np.float64).reshape(-1, 2)
+    partners = np.asarray(partners_uv, np.float64).reshape(-1, 2)
+    pairs = [(i, j) for i in range(len(L)) for j in range(len(L)) if np.linalg.norm(L[i] - L[j]) > 0]
+    depths = np.geomspace(DEPTH_MIN_MM, DEPTH_MAX_MM, DEPTH_SAMPLES)
+    out: list[tuple[float, ...]] = []
+    rays = camera.pixel_to_ray(bps) if len(bps) else np.zeros((0, 3))
+    for ray, bp in zip(rays, bps):
+        near = partners[np.linalg.norm(partners - bp, axis=1) > PAIR_TOL_PX]
+        found: dict[int, set[tuple[int, int, float]]] = {}  # partner -> (i, j, depth)
+        for i, j in pairs if len(near) and np.isfinite(ray).all() else ():
+            Xj = _curve(unit(ray, -1), L[i], L[j], depths)
+            good = np.isfinite(Xj).all(axis=1)
+            uv = np.full((len(Xj), 2), np.nan)
+            uv[good] = camera.ray_to_pixel(Xj[good]) if good.any() else uv[good]
+            # each partner's nearest point on the polyline's segments (consecutive admissible
+            # samples), its depth interpolated geometrically along the segment
+            a, ab = uv[:-1], np.diff(uv, axis=0)
+            seg = np.isfinite(ab).all(axis=1)
+            a, ab, d0, d1 = a[seg], ab[seg], depths[:-1][seg], depths[1:][seg]
+            if not len(a):
+                continue
+            ap = near[None] - a[:, None]  # (segments, partners, 2)
+            t = np.clip((ap @ ab[..., None])[..., 0] / np.maximum((ab * ab).sum(axis=1), 1e-12)[:, None], 0, 1)
+            dist = np.linalg.norm(ap - t[..., None] * ab[:, None], axis=-1)
+            best = dist.argmin(axis=0)
+            cols = np.arange(len(near))
+            hit = dist[best, cols] <= PAIR_TOL_PX
+            tb = t[best, cols]
+            for c, d in zip(cols[hit], (d0[best] ** (1.0 - tb) * d1[best] ** tb)[hit]):
+                found.setdefault(int(c), set()).add((i, j, float(d)))
+        out.append(tuple(sorted(next(iter(found.values())))) if len(found) == 1 else ())
+    return out
+
+
+def pair_misfit_px(camera, rig, bp_uv, starts, normal, distance_mm: float) -> float:
+    """How far a fitted plane puts the pair's other highlight from where it is: over ``starts``
+    (:func:`pair_starts`' (i, j, d) of one candidate), the least image distance (px) between guide
+    j's specular point on the plane (``normal``, ``distance_mm`` as in
+    :func:`guide_specular_points`) and the partner (guide j's on the curve at d); inf without
+    starts or where guide j lies behind the plane."""
+    cam = _model(camera)
+    ray = unit(np.asarray(cam.pixel_to_ray(np.asarray(bp_uv, np.float64).reshape(1, 2)), np.float64)[0])
+    L = np.asarray(rig.positions, np.float64).reshape(-1, 3)
+    on_plane = guide_specular_points(cam, rig, normal, distance_mm)
+    best = np.inf
+    for i, j, d in starts:
+        partner = cam.ray_to_pixel(_curve(ray, L[i], L[j], np.array([d])))[0]
+        gap = float(np.linalg.norm(on_plane[j] - partner))
+        best = min(best, gap)  # (NaN: guide j behind the plane, never the least)
+    return best
+
+
+def guide_specular_points(camera, rig, normal, distance_mm: float) -> np.ndarray:
+    """Image points of each guide's specular point on a plane.
+
+    Parameters
+    ----------
+    camera : array_like of shape (3, 3) or CameraModel
+        Intrinsics K, or a model with ``ray_to_pixel``.
+    rig : LightRig
+        The scope's lights, camera frame, mm.
+    normal : array_like of shape (3,)
+        Unit plane normal facing the camera (``n . X = -h`` on the plane), camera frame.
+    distance_mm : float
+        The plane's distance ``h`` from the camera centre, mm.
+
+    Returns
+    -------
+    ndarray of shape (J, 2)
+        (u, v) px per light, in the rig's order; NaN for a light behind the plane.
+
+    Notes
+    -----
+    Mirror image ``L' = L - 2 (n . L + h) n``; the specular point ``X_s = L' h / (-n . L')``
+    (module docstring).
+    """
+    return _specular_points(camera, rig, normal, np.array([float(distance_mm)]))[0]
+
+
+def _specular_points(camera, rig, normal, h: np.ndarray) -> np.ndarray:
+    """:func:`guide_specular_points` at each distance of ``h`` (M,): (M, J, 2)."""
+    n = np.asarray(normal, dtype=np.float64)
+    L = np.asarray(rig.positions, dtype=np.float64).reshape(-1, 3)
+    h = np.asarray(h, dtype=np.float64)[:, None]
+    c = L @ n + h  # (M, J)
+    Lm = L - 2.0 * c[..., None] * n
+    with np.errstate(divide="ignore", invalid="ignore"):
+        X = Lm * (h / -(Lm @ n))[..., None]
+    X[~(c > 0)] = np.nan
+    rays = (X / np.linalg.norm(X, axis=-1, keepdims=True)).reshape(-1, 3)
+    return np.asarray(_model(camera).ray_to_pixel(rays), dtype=np.float64).reshape(len(h), -1, 2)
+
+
+def _model(camera):
+    """``camera`` as a camera model: itself, or the pinhole of intrinsics K (3, 3)."""
+    return camera if hasattr(camera, "pixel_to_ray") else PinholeCamera(np.asarray(camera, np.float64))
 
 
 def other_lobe_centres(gray: np.ndarray, expected, ellipses, own_level, lit_level) -> list[list[tuple[float, float]]]:

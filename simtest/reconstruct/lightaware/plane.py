@@ -60,6 +60,11 @@ class FitSettings:
         Start normal (e.g. from :func:`isocurve_fit`).
     start_roughness : float, optional
         Start Phong n.
+    pair_starts : tuple of (int, int, float)
+        (i, j, d): the BP as light i's specular point at depth d (mm along its ray) puts light j's
+        where another highlight lies (:func:`~simtest.reconstruct.rig_pairs.pair_starts`):
+        without a start normal, light i's start at d is refined beside the start at the nominal
+        depth, the solution of least cost kept.
     loss : str
         ``linear`` (Gaussian sensor noise), or ``soft_l1``, ``huber``, ``cauchy`` (reweighted).
     f_scale : float
@@ -163,6 +168,7 @@ class FitSettings:
     nominal_depth_mm: float = 20.0
     start_normal: Any = None
     start_roughness: float | None = None
+    pair_starts: tuple = ()
     loss: str = "linear"
     f_scale: float = 0.02
     supersample: int = 1

@@ -36,19 +36,24 @@ def _screened(m: PlaneModel, starts, given):
 
 
 def start_planes(m: PlaneModel, rig, d_bp, n0, h0, s) -> list:
-    """The start planes (n, h) of a fit: the given start (or the bisector at the nominal depth),
-    the nominal bisector too when a start was given, and ``s.n_start_depths`` planes along the
-    BP's constraint (each the bisector at a depth from nominal/8 to nominal*8, its distance such
-    that the specular point is the BP). A near plane with a rough lobe can mimic a far one with
-    a smooth lobe (a local minimum), which one start may fall into."""
+    """The start planes (n, h) of a fit: the given start (or the bisector at the nominal depth, and
+    the pair's, ``s.pair_starts``), the nominal bisector too when a start was given, and
+    ``s.n_start_depths`` planes along the BP's constraint (each the bisector at a depth from
+    nominal/8 to nominal*8, its distance such that the specular point is the BP). A near plane
+    with a rough lobe can mimic a far one with a smooth lobe (a local minimum), which one start
+    may fall into."""
     nominal_depth_mm, rig_arr = s.nominal_depth_mm, m.rig_arr
     cands = [(n0, h0)]
     if s.start_normal is None and len(rig_arr[0]) > 1:
         # a highlight is one light's: beside the mean light's bisector, each light's at the
         # nominal depth (the BP that light's specular point), the start of least cost kept (under
-        # guides +-8 mm at 20 mm the mean light's is 11 deg off, and an exact plane's fit ran off)
+        # guides +-8 mm at 20 mm the mean light's is 11 deg off, and an exact plane's fit ran off);
+        # beside it, each refined too, the light's at the depth where the rig puts another light's
+        # on another highlight (a pair's separation fixes the depth, whose minimum a start at the
+        # nominal one can miss; a start's cost does not tell the basin: both refined, the least kept)
         cands = [_screened(m, cands + [_light_start(d_bp, L, nominal_depth_mm) for L in rig_arr[0]],
                            s.start_roughness)]
+        cands += [_light_start(d_bp, rig_arr[0][i], d) for i, _, d in s.pair_starts]
     if np.abs(rig_arr[0]).max() > 0:
         Lm = _mean_light(rig)
         depths = (list(nominal_depth_mm * np.geomspace(1 / 8, 8, s.n_start_depths))
