@@ -49,6 +49,19 @@ def _curve(ray, Li, Lj, depths) -> np.ndarray:
         return np.where(ok[:, None], Lm * (h / den)[:, None], np.nan)
 
 
+def _imaged_curves(camera, L: np.ndarray, ray, depths: np.ndarray):
+    """Per ordered pair (i, j) of guides at different places: ``(i, j, uv)``, guide j's specular
+    points (D, 2) imaged for the BP's unit ``ray`` as guide i's at ``depths`` (NaN: inadmissible)."""
+    for i in range(len(L)):
+        for j in range(len(L)):
+            if np.linalg.norm(L[i] - L[j]) > 0:
+                Xj = _curve(unit(ray, -1), L[i], L[j], depths)
+                uv = np.full((len(Xj), 2), np.nan)
+                good = np.isfinite(Xj).all(axis=1)
+                uv[good] = camera.ray_to_pixel(Xj[good]) if good.any() else uv[good]
+                yield i, j, uv
+
+
 def _resampled(uv: np.ndarray, step: float, centre: np.ndarray, radius: float) -> np.ndarray:
     """The polyline through the finite rows of ``uv`` every ``step`` px, within ``radius`` of
     ``centre`` (the vertices beyond dropped but for those of a segment crossing the circle)."""
@@ -87,17 +100,12 @@ def other_guide_curves(camera, positions_mm, bps_uv, radius_px, step_px: float =
     """
     L = np.asarray(positions_mm, np.float64).reshape(-1, 3)
     bps = np.asarray(bps_uv, np.float64).reshape(-1, 2)
-    pairs = [(i, j) for i in range(len(L)) for j in range(len(L)) if np.linalg.norm(L[i] - L[j]) > 0]
     radius = np.broadcast_to(np.asarray(radius_px, np.float64), (len(bps),))
     depths = np.geomspace(DEPTH_MIN_MM, DEPTH_MAX_MM, DEPTH_SAMPLES)
     out = []
     for ray, bp, rad in zip(camera.pixel_to_ray(bps) if len(bps) else (), bps, radius):
         pts = [np.zeros((0, 2))]
-        for i, j in pairs if np.isfinite(ray).all() and rad >= 0 else ():
-            Xj = _curve(unit(ray, -1), L[i], L[j], depths)
-            uv = np.full((len(Xj), 2), np.nan)
-            good = np.isfinite(Xj).all(axis=1)
-            uv[good] = camera.ray_to_pixel(Xj[good]) if good.any() else uv[good]
+        for _, _, uv in _imaged_curves(camera, L, ray, depths) if np.isfinite(ray).all() and rad >= 0 else ():
             pts.append(_resampled(uv, step_px, bp, rad))
         out.append(np.concatenate(pts))
     return out
@@ -109,8 +117,9 @@ def pair_starts(camera, positions_mm, bps_uv, partners_uv) -> list[tuple[tuple[i
     Per candidate, ordered pair of guides (i, j) and partner (another highlight's BP, beyond
     :data:`PAIR_TOL_PX` of its own): where guide j's curve (the BP as guide i's specular point at
     depth d, module docstring) passes within :data:`PAIR_TOL_PX` of the partner, the depth of its
-    nearest point, geometric between the curve's samples, with i and j; none where several partners lie on the
-    curves (a field of glints: which is the other guide's, the rig does not tell). On a plane the
+    nearest point (geometric between the curve's samples), with i and j; none where several
+    partners lie on the curves (a field of glints: which is the other guide's, the rig does not
+    tell). On a plane the
     pair's separation fixes the depth, as a stereo baseline would: a start of the photometric fit
     (``FitSettings``' ``pair_starts``), whose start at the nominal depth alone can stop at
     another minimum.
@@ -136,18 +145,13 @@ def pair_starts(camera, positions_mm, bps_uv, partners_uv) -> list[tuple[tuple[i
     L = np.asarray(positions_mm, np.float64).reshape(-1, 3)
     bps = np.asarray(bps_uv, np.float64).reshape(-1, 2)
     partners = np.asarray(partners_uv, np.float64).reshape(-1, 2)
-    pairs = [(i, j) for i in range(len(L)) for j in range(len(L)) if np.linalg.norm(L[i] - L[j]) > 0]
     depths = np.geomspace(DEPTH_MIN_MM, DEPTH_MAX_MM, DEPTH_SAMPLES)
-    out: list[tuple[float, ...]] = []
+    out: list = []
     rays = camera.pixel_to_ray(bps) if len(bps) else np.zeros((0, 3))
     for ray, bp in zip(rays, bps):
         near = partners[np.linalg.norm(partners - bp, axis=1) > PAIR_TOL_PX]
         found: dict[int, set[tuple[int, int, float]]] = {}  # partner -> (i, j, depth)
-        for i, j in pairs if len(near) and np.isfinite(ray).all() else ():
-            Xj = _curve(unit(ray, -1), L[i], L[j], depths)
-            good = np.isfinite(Xj).all(axis=1)
-            uv = np.full((len(Xj), 2), np.nan)
-            uv[good] = camera.ray_to_pixel(Xj[good]) if good.any() else uv[good]
+        for i, j, uv in _imaged_curves(camera, L, ray, depths) if len(near) and np.isfinite(ray).all() else ():
             # each partner's nearest point on the polyline's segments (consecutive admissible
             # samples), its depth interpolated geometrically along the segment
             a, ab = uv[:-1], np.diff(uv, axis=0)
