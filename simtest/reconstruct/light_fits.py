@@ -18,7 +18,6 @@ from simtest._threads import one_thread_each
 from simtest._workers import worker_pool
 from simtest.decisions import (BROAD_LOBE_PHONG_N, ISOCURVE_ISOVALUES, LOBE_EDGE_REL, LOBE_ROI_MISMATCH, PAIR_TOL_PX,
                                SIGMA_MARGIN)
-from simtest.geometry.cameras import PinholeCamera
 from simtest.geometry.lights import LightRig
 from simtest.reconstruct import lightaware as _la
 from simtest.reconstruct._pixels import Roi
@@ -409,9 +408,8 @@ def with_light_aware(image, estimates, camera, rig: LightRig | None, *, on_highl
     todo = sorted(jobs)
     # the guide and depth at which another fitted highlight lies where the rig puts another
     # guide's: further starts
-    model = camera if hasattr(camera, "pixel_to_ray") else PinholeCamera(np.asarray(camera, np.float64))
     bps = np.array([out[i].bp_px for i in todo], np.float64).reshape(-1, 2)
-    for i, starts in zip(todo, pair_starts(model, rig.positions, bps, bps)):
+    for i, starts in zip(todo, pair_starts(camera, rig.positions, bps, bps)):
         if starts:
             jobs[i] = dict(jobs[i], pair_starts=starts)
     # the others are marked with no fits ({}): under a rig off the camera centre the co-located

@@ -119,15 +119,14 @@ def pair_starts(camera, positions_mm, bps_uv, partners_uv) -> list[tuple[tuple[i
     depth d, module docstring) passes within :data:`PAIR_TOL_PX` of the partner, the depth of its
     nearest point (geometric between the curve's samples), with i and j; none where several
     partners lie on the curves (a field of glints: which is the other guide's, the rig does not
-    tell). On a plane the
-    pair's separation fixes the depth, as a stereo baseline would: a start of the photometric fit
-    (``FitSettings``' ``pair_starts``), whose start at the nominal depth alone can stop at
-    another minimum.
+    tell). On a plane the pair's separation fixes the depth, as a stereo baseline would: a start
+    of the photometric fit (``FitSettings``' ``pair_starts``), whose start at the nominal depth
+    alone can stop at another minimum.
 
     Parameters
     ----------
-    camera : CameraModel
-        The camera (``pixel_to_ray``, ``ray_to_pixel``).
+    camera : array_like of shape (3, 3) or CameraModel
+        Intrinsics K, or a model with ``pixel_to_ray`` and ``ray_to_pixel``.
     positions_mm : array_like of shape (G, 3)
         The guides' positions, camera frame, mm.
     bps_uv : array_like of shape (N, 2)
@@ -142,6 +141,7 @@ def pair_starts(camera, positions_mm, bps_uv, partners_uv) -> list[tuple[tuple[i
         within :data:`DEPTH_MIN_MM` to :data:`DEPTH_MAX_MM`) puts guide j's on the partner;
         sorted; empty where no partner, or more than one, lies on a curve.
     """
+    camera = _model(camera)
     L = np.asarray(positions_mm, np.float64).reshape(-1, 3)
     bps = np.asarray(bps_uv, np.float64).reshape(-1, 2)
     partners = np.asarray(partners_uv, np.float64).reshape(-1, 2)
