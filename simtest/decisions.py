@@ -650,6 +650,12 @@ BP_PLACE_SIGMA_PX = decision(
     "The BP's own error where rule 5 states a sigma: a BP on the pixel grid errs uniformly within "
     "+-0.5 px per axis, an RMS of 1 / sqrt(12); a plateau's centroid does better.",
     basis="physics", stage=_R)
+TOPS_PLACE_SIGMA_PX = decision(
+    "TOPS_PLACE_SIGMA_PX", 1.0, "px per image axis (1-sigma)",
+    "How far a clipped top's centroid may lie from its guide's specular point where two guides' "
+    "lobes fuse (rig_pair's stated sigma): the other lobe's tail lifts the top's inner edge, "
+    "moving its centroid inward by up to about a pixel (the two lobes' sum, each symmetric about "
+    "its own specular point).", basis="physics", stage=_R)
 DEPTH_RELEASE_REL_SIGMA = decision(
     "DEPTH_RELEASE_REL_SIGMA", 0.2, "relative 1-sigma of the depth",
     "A depth is released only within it: the fits estimate log h, and at 0.2 exp(+-0.4) is "

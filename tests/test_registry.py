@@ -37,11 +37,11 @@ def test_the_lists_are_the_registry_s():
     assert hsuite.ESTIMATOR_NAMES == ("paper_oracle", "paper_selected", "cone_axis", "joint_cone_axis",
                                       "bp_ray")
     assert hest.LIGHT_AWARE_FITS == rio.LIGHT_AWARE_NORMALS == (
-        "isocurve_fit", "photometric_fit", "quadric_fit", "cubic_patch_fit", "rig_centroid")
+        "isocurve_fit", "photometric_fit", "quadric_fit", "cubic_patch_fit", "rig_centroid", "rig_pair")
     assert recommend.LIGHT_AWARE == ("photometric_fit", "cubic_patch_fit", "quadric_fit", "isocurve_fit")
     assert recommend.COLOCATED_ORDER == ("joint_cone_axis", "cone_axis", "bp_ray")
     assert set(hest.STATUS_FREE) == {"bp_ray", "photometric_fit", "quadric_fit", "cubic_patch_fit",
-                                     "rig_centroid", "recommended", "photometric_fit_on_specular",
+                                     "rig_centroid", "rig_pair", "recommended", "photometric_fit_on_specular",
                                      "photometric_fit_on_radiance"}
     assert hest.ORACLE_INPUTS == {"photometric_fit_on_specular": "specular",
                                   "photometric_fit_on_radiance": "linear"}

@@ -20,7 +20,7 @@ from typer.testing import CliRunner
 
 from simtest.cli import app
 from simtest.geometry.cameras import PinholeCamera
-from simtest.reconstruct.rig_pairs import PAIR_TOL_PX, other_guide_curves, pair_starts
+from simtest.reconstruct.rig_pairs import PAIR_TOL_PX, other_guide_curves, pair_plane, pair_starts
 from simtest.simulate.offset import specular_point
 
 GUIDES_MM = np.array([[-4.0, 0.0, 0.0], [4.0, 0.0, 0.0]])  # the colonoscope rig's two guides
@@ -82,6 +82,34 @@ def test_a_pairs_separation_gives_the_bps_depth(tilt, az, h, f, first):
     far = pts[(np.linalg.norm(pts - uv[1], axis=1) > 3 * PAIR_TOL_PX) & (np.linalg.norm(pts - uv[0], axis=1) > 2 * PAIR_TOL_PX)]
     assume(len(far))
     assert pair_starts(cam, GUIDES_MM, uv[:1], np.vstack([uv, far[:1]])) == [()]
+
+
+@settings(max_examples=60, deadline=None)
+@given(tilt=st.floats(0.0, 45.0), az=st.floats(0.0, 360.0), h=st.floats(5.0, 45.0),
+       f=st.floats(60.0, 400.0), first=st.integers(0, 1), push=st.floats(3.0, 6.0))
+def test_two_guides_specular_points_give_their_plane(tilt, az, h, f, first, push):
+    # an exact plane: each guide's specular point (simtest.simulate.offset, an independent
+    # derivation) as the two highlights; the pair fixes the plane as a stereo pair does
+    N = _normal(tilt, az)
+    cam = PinholeCamera(np.array([[f, 0, 200.0], [0, f, 200.0], [0, 0, 1]]))
+    X = np.stack([specular_point(N, h, GUIDES_MM[k])[0] for k in (first, 1 - first)])
+    uv = cam.ray_to_pixel(X)
+    assume(np.linalg.norm(uv[1] - uv[0]) > PAIR_TOL_PX)  # nearer, the two are one highlight
+    got = pair_plane(cam, GUIDES_MM, uv[0], uv[1])
+    assert got is not None
+    normal, depths, guides, misclosure = got
+    assert guides == (first, 1 - first)
+    # the depth refined to 1e-6 in log depth by the bounded solver: the normal within 1e-3 deg,
+    # each depth within 1e-5 (the pixel round trip of the pinhole adds nothing at that size)
+    assert np.degrees(np.arccos(min(1.0, float(normal @ N)))) < 1e-3
+    assert np.allclose(depths, np.linalg.norm(X, axis=1), rtol=1e-5)
+    assert misclosure < 1e-3
+    # the second highlight pushed across the rig's curve, beyond the tolerance: no pair
+    along = (uv[1] - uv[0]) / np.linalg.norm(uv[1] - uv[0])
+    off = uv[1] + push * np.array([-along[1], along[0]])
+    (pts,) = other_guide_curves(cam, GUIDES_MM, uv[:1], [float(np.linalg.norm(off - uv[0])) + 10.0])
+    assume(np.min(np.linalg.norm(pts - off, axis=1)) > PAIR_TOL_PX + 0.5)  # (0.5: the curve's step)
+    assert pair_plane(cam, GUIDES_MM, uv[0], off) is None
 
 
 def test_a_users_isovalue_reaches_the_isolation_check():

@@ -10,6 +10,11 @@ Chosen on the harness' tuning renders (``simtest validate rendered``, the ``ligh
 ``lightaware-curved`` and ``endoscope`` suites), never from ground truth at run time; the
 measurements behind each rule are in ``docs/decisions/light-aware-recommendation.md``.
 
+0. A row of two guides' clipped tops fused into one highlight where their joint fit placed no
+   specular point on each (:mod:`~simtest.reconstruct.rig_lobes`): ``rig_pair``, the plane the two
+   tops fix as a stereo pair whose baseline is the guides' (:func:`~simtest.reconstruct.rig_pairs.pair_plane`).
+   Clipped tops hold their specular points to about a pixel where the lobe's shape, censored,
+   hardly tells the depth from the roughness.
 1. With a rig whose lights are not all at the camera centre, the first fit whose status is ``ok``
    of ``photometric_fit``, ``cubic_patch_fit`` (two lights at different places), ``quadric_fit``,
    ``isocurve_fit`` (unless the plane misfits); else rules 3 to 5; else ``bp_ray`` (off the camera
@@ -227,6 +232,9 @@ def recommend(est) -> Recommendation:
     """
     la = getattr(est, "light_aware", None)
     if la is not None:  # a rig off the camera centre is known ({}: no fit ran, the BP ray's)
+        pair = la.get("rig_pair")  # rule 0
+        if pair is not None and pair.has_normal:
+            return Recommendation(np.asarray(pair.normal), "rig_pair", pair.depth_mm, pair.normal_sigma_deg)
         pho = la.get("photometric_fit")
         plane_fits = pho is None or pho.status != "plane_misfit"
         candidates = []

@@ -20,6 +20,12 @@ clipped candidate's points must lie within ``PAIR_TOL_PX`` of its clipped tops. 
 rejected candidate is fitted for this only where the rig's curve runs in its region (``merged``
 and ``cluster``, whose other peak may be the other guide's top: stretched along it); one the rule
 does not split keeps its status and no fit.
+
+Fallback. A clipped candidate whose joint fit gives no rows, or places no specular point on each
+of the region's two largest clipped tops where the rig pairs them, gives one row per top at its
+centroid with the plane the two fix as a stereo pair (``rig_pair``,
+:func:`~simtest.reconstruct.rig_pairs.pair_plane`): the tops hold their specular points where the
+censored lobe's shoulders hardly tell the depth from the roughness.
 """
 
 from __future__ import annotations
@@ -29,11 +35,14 @@ import dataclasses
 import cv2
 import numpy as np
 
-from simtest.decisions import CLIP_LUMA_MARGIN_REL, FUSED_LOBE_LEVEL, FUSED_TOPS_STRETCH, PAIR_TOL_PX
+from simtest.decisions import (CLIP_LUMA_MARGIN_REL, DEPTH_RELEASE_REL_SIGMA, FUSED_LOBE_LEVEL, FUSED_TOPS_STRETCH,
+                               PAIR_TOL_PX, TOPS_PLACE_SIGMA_PX)
 from simtest.reconstruct._pixels import uv_to_rc
 from simtest.reconstruct.detect_pixels import luma
 from simtest.reconstruct.light_fits import _offset_rig
-from simtest.reconstruct.rig_pairs import _model, _specular_points, guide_specular_points, other_guide_curves
+from simtest.reconstruct.lightaware import LightAwareEstimate
+from simtest.reconstruct.rig_pairs import (_model, _specular_points, guide_specular_points, other_guide_curves,
+                                           pair_plane)
 
 __all__ = ["FUSED_LOBE_LEVEL", "fused_lobe_candidates", "guide_specular_points", "split_fused_lobes"]
 
@@ -177,6 +186,9 @@ def _rows(est, camera, rig, gray, others: np.ndarray) -> list | None:
         rc = np.rint(uv_to_rc(p)).astype(np.int64) - (region[1], region[2])
         if (off[rc[:, 0], rc[:, 1]] > PAIR_TOL_PX).any():
             return None
+        pair = _tops_pair(gray, region, camera, rig)
+        if pair is not None and not _on_each_top(p, pair[1], pair[2], region[1:]):
+            return None  # two tops the rig pairs, the plane's points not one on each: it misplaced them
     rows = []
     for j, uv in zip(k.tolist(), p):
         rows.append(dataclasses.replace(
@@ -185,6 +197,101 @@ def _rows(est, camera, rig, gray, others: np.ndarray) -> list | None:
             detail=(f"guide {j + 1}'s lobe of {len(k)} fused into one highlight ({est.status}"
                     f"{': ' + est.detail if est.detail else ''}); BP at its specular point, normal "
                     "from their joint photometric fit")))
+    return rows
+
+
+def _tops_pair(gray: np.ndarray, region, camera, rig):
+    """The region's two largest clipped tops where the rig pairs them (neither cut by the ROI), their
+    centroids two guides' specular points (:func:`~simtest.reconstruct.rig_pairs.pair_plane`): ``(centroids (2, 2) u, v,
+    the tops' labels (ROI indices), the two tops' labels, pair_plane's result)``, or None."""
+    mask, r0, c0 = region
+    n, labels, stats, centroids = cv2.connectedComponentsWithStats(_tops(gray, region).astype(np.uint8),
+                                                                   connectivity=8)
+    if n < 3:
+        return None
+    two = 1 + np.argsort(-stats[1:, cv2.CC_STAT_AREA], kind="stable")[:2]
+    x, y, w, h = (stats[two, k] for k in (cv2.CC_STAT_LEFT, cv2.CC_STAT_TOP, cv2.CC_STAT_WIDTH, cv2.CC_STAT_HEIGHT))
+    if (x == 0).any() or (y == 0).any() or (x + w == mask.shape[1]).any() or (y + h == mask.shape[0]).any():
+        return None  # a top the ROI cuts: its centroid is not its guide's specular point
+    pts = centroids[two] + (c0, r0)
+    plane = pair_plane(camera, rig.positions, pts[0], pts[1])
+    return None if plane is None else (pts, labels, two.tolist(), plane)
+
+
+def _on_each_top(uv: np.ndarray, labels: np.ndarray, two, origin, any_top: bool = False) -> bool:
+    """Whether the points (k, 2) put one on each of the two tops (labels ``two`` of ``labels``, ROI
+    indices from ``origin`` (row0, col0)); with ``any_top``, whether any lies on either."""
+    uv = np.asarray(uv, np.float64).reshape(-1, 2)
+    uv = uv[np.isfinite(uv).all(axis=1)]
+    rc = np.rint(uv_to_rc(uv)).astype(np.int64) - np.asarray(origin, np.int64) if len(uv) else np.zeros((0, 2), int)
+    inside = ((rc >= 0) & (rc < labels.shape)).all(axis=1)
+    on = labels[rc[inside, 0], rc[inside, 1]].tolist()
+    return any(t in on for t in two) if any_top else sorted(t for t in on if t in two) == sorted(two)
+
+
+def _pair_estimates(camera, rig, pts: np.ndarray, plane) -> list:
+    """The ``rig_pair`` estimate of each of the two tops (their centroids ``pts``, ``plane`` as
+    :func:`~simtest.reconstruct.rig_pairs.pair_plane` gives it): the pair's normal, its sigma from
+    each centroid moved by :data:`~simtest.decisions.TOPS_PLACE_SIGMA_PX` per axis (root sum of
+    squares) plus half the misclosure, each top's depth where its relative sigma is within the
+    ceiling (:data:`~simtest.reconstruct.recommend.DEPTH_REL_SIGMA_CEILING`)."""
+    normal, depths, guides, misclosure = plane
+    turns, rel = [], []
+    for k in range(2):
+        for axis in range(2):
+            moved = pts.copy()
+            moved[k, axis] += TOPS_PLACE_SIGMA_PX
+            got = pair_plane(camera, rig.positions, moved[0], moved[1])
+            if got is None:  # the moved pair off the curves: no sigma to state
+                return []
+            turns.append(np.degrees(np.arccos(np.clip(got[0] @ normal, -1.0, 1.0))))
+            rel.append(np.abs(np.log(got[1] / depths)))
+    sigma = float(np.sqrt(np.sum(np.square(turns)))) + 0.5 * misclosure
+    rel_sigma = np.sqrt(np.sum(np.square(rel), axis=0))  # per top
+    out = []
+    for k in range(2):
+        released = bool(rel_sigma[k] <= DEPTH_RELEASE_REL_SIGMA)
+        detail = (f"guides {guides[0] + 1} and {guides[1] + 1}'s clipped tops {np.linalg.norm(pts[0] - pts[1]):.3g} "
+                  f"px apart: depths {depths[0]:.4g} and {depths[1]:.4g} mm (relative sigma {rel_sigma[k]:.2g}), "
+                  f"misclosure {misclosure:.2g} deg")
+        out.append(LightAwareEstimate(
+            "rig_pair", "ok" if released else "depth_not_observable", detail, normal.copy(),
+            depth_mm=float(depths[k]) if released else None, normal_sigma_deg=sigma,
+            depth_sigma_mm=float(rel_sigma[k] * depths[k]) if released else None))
+    return out
+
+
+def _pair_rows(est, camera, rig, gray, others: np.ndarray) -> list | None:
+    """The rows of a clipped candidate's two fused tops that the rig pairs, where its joint fit
+    gave none (:func:`_rows`): one per guide, BP at its top's centroid, normal from the pair's
+    geometry (``rig_pair``), or None."""
+    if not est.saturated or len(rig.positions) < 2:
+        return None
+    region = _bright_region(gray, est)
+    got = None if region is None else _tops_pair(gray, region, camera, rig)
+    if got is None:
+        return None
+    pts, labels, two, plane = got
+    if _on_each_top(others, labels, two, region[1:], any_top=True):
+        return None  # a top that holds an ok candidate's BP already has its row
+    fit = (est.light_aware or {}).get("photometric_fit")
+    if (fit is not None and fit.ok and fit.distance_mm is not None
+            and _on_each_top(guide_specular_points(camera, rig, fit.normal, fit.distance_mm), labels, two, region[1:])):
+        return None  # the candidate's own fit places the pair: its rows (or its one row) stand
+    ests = _pair_estimates(camera, rig, pts, plane)
+    if not ests:
+        return None
+    guides = plane[2]
+    rows = []
+    for k in np.argsort(guides):
+        uv = pts[k]
+        rows.append(dataclasses.replace(
+            est, bp_px=uv.copy(), status="ok",
+            bp_ray=-np.asarray(_model(camera).pixel_to_ray(uv[None]), np.float64)[0],
+            light_aware=dict(est.light_aware or {}, rig_pair=ests[k]),
+            detail=(f"guide {guides[k] + 1}'s clipped top of 2 fused into one highlight ({est.status}"
+                    f"{': ' + est.detail if est.detail else ''}); BP at its centroid, normal from the "
+                    "pair's geometry (rig_pair)")))
     return rows
 
 
@@ -253,9 +360,12 @@ def split_fused_lobes(image, estimates, camera, rig, *, prefitted=(), gray=None)
             # the ok candidates' BPs and the guide lobes split so far already have their rows
             others = np.concatenate([bps[ok & (np.arange(len(bps)) != i)], *(pts for _, pts, _, _ in splits)])
             rows = _rows(est, camera, rig, gray, others)
+            if rows is None:
+                rows = _pair_rows(est, camera, rig, gray, others)
             est = est if est.ok else dataclasses.replace(est, light_aware={})  # a rejected row: no fits
         if rows is not None:
-            sigma = rows[0].light_aware["photometric_fit"].normal_sigma_deg
+            la = rows[0].light_aware
+            sigma = (la.get("rig_pair") or la["photometric_fit"]).normal_sigma_deg
             splits.append((len(parts), np.array([r.bp_px for r in rows]), np.inf if sigma is None else sigma, est))
         parts.append(rows if rows is not None else [est])
     if not splits:

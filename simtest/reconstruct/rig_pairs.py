@@ -20,6 +20,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from simtest._lazy import require
 from simtest.decisions import PAIR_DEPTH_MAX_MM as DEPTH_MAX_MM
 from simtest.decisions import PAIR_DEPTH_MIN_MM as DEPTH_MIN_MM
 from simtest.decisions import PAIR_TOL_PX
@@ -29,7 +30,7 @@ from simtest.reconstruct._pixels import uv_to_rc
 from simtest.reconstruct.evidence_pixels import ellipse_level
 
 __all__ = ["DEPTH_MIN_MM", "DEPTH_MAX_MM", "DEPTH_SAMPLES", "PAIR_TOL_PX", "other_guide_curves",
-           "guide_specular_points", "other_lobe_centres", "pair_starts"]
+           "guide_specular_points", "other_lobe_centres", "pair_plane", "pair_starts"]
 
 #: Depths sampled, geometrically spaced (the curve's image step shrinks as 1 / d^2); the polyline
 #: is resampled every half pixel, so this sets only how closely it follows the curve (within
@@ -170,6 +171,66 @@ def pair_starts(camera, positions_mm, bps_uv, partners_uv) -> list[tuple[tuple[i
                 found.setdefault(int(c), set()).add((i, j, float(d)))
         out.append(tuple(sorted(next(iter(found.values())))) if len(found) == 1 else ())
     return out
+
+
+def _pair_depth(camera, ray, Li, Lj, d0: float, partner) -> float:
+    """The depth (mm along the unit ``ray``) near ``d0`` at which the BP as guide i's specular point
+    images guide j's on ``partner``, refined from :func:`pair_starts`' sampled ``d0`` (bounded,
+    log depth within the samples' spacing either side)."""
+    opt = require("scipy.optimize")
+    half = np.log(DEPTH_MAX_MM / DEPTH_MIN_MM) / (DEPTH_SAMPLES - 1)
+
+    def gap(logd):
+        X = _curve(ray, Li, Lj, np.exp(np.atleast_1d(logd)))
+        if not np.isfinite(X).all():
+            return np.inf
+        return float(np.linalg.norm(camera.ray_to_pixel(X)[0] - partner))
+
+    got = opt.minimize_scalar(gap, bounds=(np.log(d0) - half, np.log(d0) + half), method="bounded",
+                              options={"xatol": 1e-6})
+    return float(np.exp(got.x)) if np.isfinite(got.fun) else d0
+
+
+def pair_plane(camera, positions_mm, a_uv, b_uv):
+    """The plane of two highlights that are two guides' specular points on it.
+
+    Each point's ray and guide fix the plane at the depth where the rig puts the other guide's
+    specular point on the other highlight (module docstring): a stereo pair whose baseline is the
+    guides'. Both ways are solved (a as guide i's, b as guide j's, and back) and their normals
+    averaged; their angle is the pair's misclosure (zero on an exact plane).
+
+    Parameters
+    ----------
+    camera : array_like of shape (3, 3) or CameraModel
+        Intrinsics K or a camera model.
+    positions_mm : array_like of shape (G, 3)
+        The guides' positions, camera frame, mm.
+    a_uv, b_uv : array_like of shape (2,)
+        The two highlights' specular points (u, v), px.
+
+    Returns
+    -------
+    tuple of (ndarray of shape (3,), ndarray of shape (2,), tuple of int, float) or None
+        The unit normal (OpenCV camera frame, facing the camera), each point's depth along its ray
+        (mm), the guides (i, j) of a and b, and the misclosure (deg); None where the curves from a
+        or from b hold the other point for no guide pair or for several, or the two ways name
+        different guides.
+    """
+    cam = _model(camera)
+    L = np.asarray(positions_mm, np.float64).reshape(-1, 3)
+    a, b = np.asarray(a_uv, np.float64).reshape(2), np.asarray(b_uv, np.float64).reshape(2)
+    (sa,), (sb,) = pair_starts(cam, L, a[None], b[None]), pair_starts(cam, L, b[None], a[None])
+    if len(sa) != 1 or len(sb) != 1 or sa[0][:2] != sb[0][1::-1]:
+        return None
+    normals, depths = [], []
+    for (i, j, d0), p, q in ((sa[0], a, b), (sb[0], b, a)):
+        ray = unit(np.asarray(cam.pixel_to_ray(p[None]), np.float64)[0])
+        d = _pair_depth(cam, ray, L[i], L[j], d0, q)
+        X = d * ray
+        normals.append(unit(unit(-X) + unit(L[i] - X)))
+        depths.append(d)
+    misclosure = float(np.degrees(np.arccos(np.clip(normals[0] @ normals[1], -1.0, 1.0))))
+    return unit(normals[0] + normals[1]), np.array(depths), (sa[0][0], sa[0][1]), misclosure
 
 
 def pair_misfit_px(camera, rig, bp_uv, starts, normal, distance_mm: float) -> float:
