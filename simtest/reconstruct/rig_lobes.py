@@ -187,8 +187,8 @@ def _rows(est, camera, rig, gray, others: np.ndarray) -> list | None:
         if (off[rc[:, 0], rc[:, 1]] > PAIR_TOL_PX).any():
             return None
         pair = _tops_pair(gray, region, camera, rig)
-        if pair is not None and not _on_each_top(p, pair[1], pair[2], region[1:]):
-            return None  # two tops the rig pairs, the plane's points not one on each: it misplaced them
+        if pair is not None and not _at_each_centre(p, pair[0]):
+            return None  # two tops the rig pairs, the plane's points not at their centres: it misplaced them
     rows = []
     for j, uv in zip(k.tolist(), p):
         rows.append(dataclasses.replace(
@@ -218,15 +218,23 @@ def _tops_pair(gray: np.ndarray, region, camera, rig):
     return None if plane is None else (pts, labels, two.tolist(), plane)
 
 
-def _on_each_top(uv: np.ndarray, labels: np.ndarray, two, origin, any_top: bool = False) -> bool:
-    """Whether the points (k, 2) put one on each of the two tops (labels ``two`` of ``labels``, ROI
-    indices from ``origin`` (row0, col0)); with ``any_top``, whether any lies on either."""
+def _on_a_top(uv: np.ndarray, labels: np.ndarray, two, origin) -> bool:
+    """Whether any of the points (k, 2) lies on either of the two tops (labels ``two`` of
+    ``labels``, ROI indices from ``origin`` (row0, col0))."""
     uv = np.asarray(uv, np.float64).reshape(-1, 2)
     uv = uv[np.isfinite(uv).all(axis=1)]
     rc = np.rint(uv_to_rc(uv)).astype(np.int64) - np.asarray(origin, np.int64) if len(uv) else np.zeros((0, 2), int)
     inside = ((rc >= 0) & (rc < labels.shape)).all(axis=1)
-    on = labels[rc[inside, 0], rc[inside, 1]].tolist()
-    return any(t in on for t in two) if any_top else sorted(t for t in on if t in two) == sorted(two)
+    return bool(np.isin(labels[rc[inside, 0], rc[inside, 1]], two).any())
+
+
+def _at_each_centre(uv: np.ndarray, centres: np.ndarray) -> bool:
+    """Whether each of the tops' centres (2, 2) has one of the points (k, 2) within
+    :data:`~simtest.decisions.PAIR_TOL_PX` (a clipped disc's centroid lies within about a pixel of
+    its specular point: a plane that puts a guide's point at the top's edge misplaces it)."""
+    uv = np.asarray(uv, np.float64).reshape(-1, 2)
+    gaps = np.linalg.norm(centres[:, None] - uv[None], axis=-1)
+    return bool(len(uv) and (np.nan_to_num(gaps, nan=np.inf).min(axis=1) <= PAIR_TOL_PX).all())
 
 
 def _pair_estimates(camera, rig, pts: np.ndarray, plane) -> list:
@@ -237,15 +245,14 @@ def _pair_estimates(camera, rig, pts: np.ndarray, plane) -> list:
     ceiling (:data:`~simtest.reconstruct.recommend.DEPTH_REL_SIGMA_CEILING`)."""
     normal, depths, guides, misclosure = plane
     turns, rel = [], []
-    for k in range(2):
-        for axis in range(2):
-            moved = pts.copy()
-            moved[k, axis] += TOPS_PLACE_SIGMA_PX
-            got = pair_plane(camera, rig.positions, moved[0], moved[1])
-            if got is None:  # the moved pair off the curves: no sigma to state
-                return []
-            turns.append(np.degrees(np.arccos(np.clip(got[0] @ normal, -1.0, 1.0))))
-            rel.append(np.abs(np.log(got[1] / depths)))
+    for k, axis in np.ndindex(2, 2):
+        moved = pts.copy()
+        moved[k, axis] += TOPS_PLACE_SIGMA_PX
+        got = pair_plane(camera, rig.positions, moved[0], moved[1])
+        if got is None:  # the moved pair off the curves: no sigma to state
+            return []
+        turns.append(np.degrees(np.arccos(np.clip(got[0] @ normal, -1.0, 1.0))))
+        rel.append(np.abs(np.log(got[1] / depths)))
     sigma = float(np.sqrt(np.sum(np.square(turns)))) + 0.5 * misclosure
     rel_sigma = np.sqrt(np.sum(np.square(rel), axis=0))  # per top
     out = []
@@ -272,27 +279,19 @@ def _pair_rows(est, camera, rig, gray, others: np.ndarray) -> list | None:
     if got is None:
         return None
     pts, labels, two, plane = got
-    if _on_each_top(others, labels, two, region[1:], any_top=True):
+    if _on_a_top(others, labels, two, region[1:]):
         return None  # a top that holds an ok candidate's BP already has its row
     fit = (est.light_aware or {}).get("photometric_fit")
     if (fit is not None and fit.ok and fit.distance_mm is not None
-            and _on_each_top(guide_specular_points(camera, rig, fit.normal, fit.distance_mm), labels, two, region[1:])):
+            and _at_each_centre(guide_specular_points(camera, rig, fit.normal, fit.distance_mm), pts)):
         return None  # the candidate's own fit places the pair: its rows (or its one row) stand
-    ests = _pair_estimates(camera, rig, pts, plane)
-    if not ests:
-        return None
-    guides = plane[2]
-    rows = []
-    for k in np.argsort(guides):
-        uv = pts[k]
-        rows.append(dataclasses.replace(
-            est, bp_px=uv.copy(), status="ok",
-            bp_ray=-np.asarray(_model(camera).pixel_to_ray(uv[None]), np.float64)[0],
-            light_aware=dict(est.light_aware or {}, rig_pair=ests[k]),
-            detail=(f"guide {guides[k] + 1}'s clipped top of 2 fused into one highlight ({est.status}"
-                    f"{': ' + est.detail if est.detail else ''}); BP at its centroid, normal from the "
-                    "pair's geometry (rig_pair)")))
-    return rows
+    ests, guides = _pair_estimates(camera, rig, pts, plane), plane[2]
+    return [dataclasses.replace(
+        est, bp_px=pts[k].copy(), status="ok", light_aware=dict(est.light_aware or {}, rig_pair=ests[k]),
+        bp_ray=-np.asarray(_model(camera).pixel_to_ray(pts[k][None]), np.float64)[0],
+        detail=(f"guide {guides[k] + 1}'s clipped top of 2 fused into one highlight ({est.status}"
+                f"{': ' + est.detail if est.detail else ''}); BP at its centroid, normal from the "
+                "pair's geometry (rig_pair)")) for k in np.argsort(guides)] if ests else None
 
 
 def fused_lobe_candidates(gray, estimates, camera, rig) -> list[int]:
