@@ -218,17 +218,10 @@ def test_fused_clipped_tops_whose_joint_fit_misses_them_give_the_pairs_plane(tmp
         assert _error_deg(s, n) <= min(MEDIAN_MAX_DEG, 2.0 * s["normal_sigma_deg"]), (_error_deg(s, n), s["normal_sigma_deg"])
 
 
-def test_a_joint_fit_that_misplaces_two_clipped_tops_gives_way_to_their_pair():
-    # exact geometry: two guides' clipped lobes (Gaussian, sigma 10 px, 4 times the clip level
-    # at their peaks) at a plane's specular points, joined above half their height; the
-    # candidate's joint fit holds a plane three times too far, whose specular points fall in the
-    # valley between the tops. Its split is refused, and the rows come from the tops, with the
-    # plane they fix (rule 0)
-    from simtest.reconstruct._pixels import Roi
-    from simtest.reconstruct.assemble import SpecularityEstimate
-    from simtest.reconstruct.lightaware import LightAwareEstimate
-    from simtest.reconstruct.rig_lobes import split_fused_lobes
-
+def _two_clipped_tops():
+    """Two guides' clipped lobes (Gaussian, sigma 10 px, 4 times the clip level at their peaks)
+    at the specular points of a plane (tilt 15 deg, 25 mm), joined above half their height:
+    ``(image, K, rig, normal, h, specular points (2, 2))``."""
     size, f, h = 240, 300.0, 25.0
     rig = LightRig(tuple(Light((x, 0.0, 0.0), 1.0, "inverse_square", 1.0) for x in (-4.0, 4.0)))
     t, a = np.radians(15.0), np.radians(30.0)
@@ -238,12 +231,30 @@ def test_a_joint_fit_that_misplaces_two_clipped_tops_gives_way_to_their_pair():
     truth = guide_specular_points(K, rig, N, h)
     v, u = np.mgrid[0:size, 0:size].astype(float)
     img = np.clip(0.3 + sum(4.0 * np.exp(-((u - p[0]) ** 2 + (v - p[1]) ** 2) / 200.0) for p in truth), 0, 1)
-    bp = truth[0]
+    return img, K, rig, N, h, truth
+
+
+def _candidate(K, bp, roi, status, fit):
+    """A clipped candidate at ``bp`` with its ROI (row0, row1, col0, col1) and photometric fit."""
+    from simtest.reconstruct._pixels import Roi
+    from simtest.reconstruct.assemble import SpecularityEstimate
+
     ray = np.linalg.solve(K, [bp[0], bp[1], 1.0])
+    return SpecularityEstimate(np.asarray(bp, float), 1.0, True, Roi(*roi), status, "", -ray / np.linalg.norm(ray), (),
+                               light_aware={"photometric_fit": fit})
+
+
+def test_a_joint_fit_that_misplaces_two_clipped_tops_gives_way_to_their_pair():
+    # the candidate's joint fit holds a plane three times too far, whose specular points fall at
+    # the tops' inner edges: its split is refused, and the rows come from the tops, with the
+    # plane they fix (rule 0)
+    from simtest.reconstruct.lightaware import LightAwareEstimate
+    from simtest.reconstruct.rig_lobes import split_fused_lobes
+
+    img, K, rig, N, h, truth = _two_clipped_tops()
     lo, hi = np.floor(truth.min(axis=0)).astype(int) - 40, np.ceil(truth.max(axis=0)).astype(int) + 40
     far = LightAwareEstimate("photometric_fit", "ok", "", N, depth_mm=3 * h, normal_sigma_deg=0.1, distance_mm=3 * h)
-    est = SpecularityEstimate(bp, 1.0, True, Roi(lo[1], hi[1], lo[0], hi[0]), "merged", "2 saturated plateaus",
-                              -ray / np.linalg.norm(ray), (), light_aware={"photometric_fit": far})
+    est = _candidate(K, truth[0], (lo[1], hi[1], lo[0], hi[0]), "merged", far)
     rows = split_fused_lobes(img, [est], K, rig, prefitted={0})
     assert len(rows) == 2, [r.detail for r in rows]
     for row, p in zip(rows, truth):
@@ -261,3 +272,26 @@ def test_a_joint_fit_that_misplaces_two_clipped_tops_gives_way_to_their_pair():
         r = np.linalg.solve(K, [p[0], p[1], 1.0])
         depth = np.linalg.norm(r * (-h / float(N @ r)))
         assert abs(row.light_aware["rig_pair"].depth_mm / depth - 1.0) < 1e-2
+
+
+def test_a_split_replaces_an_ok_row_that_has_only_the_bp_ray():
+    # second generator, seed 103 frame 1, in exact geometry: one top is an ok candidate (a small
+    # ROI about its own lobe) whose fit misfits, so its row has the BP ray; the other is a
+    # rejected candidate (not_elliptical) whose ROI holds both tops and whose joint fit places
+    # both guides' points at their centres. The split's rows replace the BP ray's row: one row
+    # per highlight, each with the fit's normal
+    from simtest.reconstruct.lightaware import LightAwareEstimate
+    from simtest.reconstruct.rig_lobes import split_fused_lobes
+
+    img, K, rig, N, h, truth = _two_clipped_tops()
+    lo, hi = np.floor(truth.min(axis=0)).astype(int) - 40, np.ceil(truth.max(axis=0)).astype(int) + 40
+    fits = LightAwareEstimate("photometric_fit", "ok", "", N, depth_mm=h, normal_sigma_deg=0.1, distance_mm=h)
+    misfit = LightAwareEstimate("photometric_fit", "plane_misfit", "", N, normal_sigma_deg=5.0)
+    (u, v), r = np.rint(truth[1]).astype(int), 20
+    own = _candidate(K, truth[1], (v - r, v + r + 1, u - r, u + r + 1), "ok", misfit)
+    both = _candidate(K, truth[0], (lo[1], hi[1], lo[0], hi[0]), "not_elliptical", fits)
+    assert own.recommended.normal_from == "bp_ray"
+    rows = split_fused_lobes(img, [own, both], K, rig, prefitted={1})
+    assert len(rows) == 2, [(r.bp_px, r.status, r.detail[:40]) for r in rows]
+    for row, p in zip(sorted(rows, key=lambda r: r.bp_px[0]), truth[np.argsort(truth[:, 0])]):
+        assert np.linalg.norm(row.bp_px - p) < 1e-6 and row.recommended.normal_from == "photometric_fit"

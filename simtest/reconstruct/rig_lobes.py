@@ -187,8 +187,8 @@ def _rows(est, camera, rig, gray, others: np.ndarray) -> list | None:
         if (off[rc[:, 0], rc[:, 1]] > PAIR_TOL_PX).any():
             return None
         pair = _tops_pair(gray, region, camera, rig)
-        if pair is not None and not _at_each_centre(p, pair[0]):
-            return None  # two tops the rig pairs, the plane's points not at their centres: it misplaced them
+        if pair is not None and not all(_on_a_top(p, pair[1], [t], region[1:]) for t in pair[2]):
+            return None  # two tops the rig pairs, the plane's points not one on each: it misplaced them
     rows = []
     for j, uv in zip(k.tolist(), p):
         rows.append(dataclasses.replace(
@@ -268,10 +268,10 @@ def _pair_estimates(camera, rig, pts: np.ndarray, plane) -> list:
     return out
 
 
-def _pair_rows(est, camera, rig, gray, others: np.ndarray) -> list | None:
-    """The rows of a clipped candidate's two fused tops that the rig pairs, where its joint fit
-    gave none (:func:`_rows`): one per guide, BP at its top's centroid, normal from the pair's
-    geometry (``rig_pair``), or None."""
+def _pair_rows(est, camera, rig, gray, others: np.ndarray, split: list | None) -> list | None:
+    """The rows of a clipped candidate's two fused tops that the rig pairs, where its joint fit's
+    ``split`` (:func:`_rows`) puts no BP at each top's centre (:func:`_at_each_centre`): one per
+    guide, BP at its top's centroid, normal from the pair's geometry (``rig_pair``), or None."""
     if not est.saturated or len(rig.positions) < 2:
         return None
     region = _bright_region(gray, est)
@@ -281,10 +281,8 @@ def _pair_rows(est, camera, rig, gray, others: np.ndarray) -> list | None:
     pts, labels, two, plane = got
     if _on_a_top(others, labels, two, region[1:]):
         return None  # a top that holds an ok candidate's BP already has its row
-    fit = (est.light_aware or {}).get("photometric_fit")
-    if (fit is not None and fit.ok and fit.distance_mm is not None
-            and _at_each_centre(guide_specular_points(camera, rig, fit.normal, fit.distance_mm), pts)):
-        return None  # the candidate's own fit places the pair: its rows (or its one row) stand
+    if split is not None and _at_each_centre(np.array([r.bp_px for r in split]), pts):
+        return None  # the candidate's fit places the pair: its split stands
     ests, guides = _pair_estimates(camera, rig, pts, plane), plane[2]
     return [dataclasses.replace(
         est, bp_px=pts[k].copy(), status="ok", light_aware=dict(est.light_aware or {}, rig_pair=ests[k]),
@@ -349,18 +347,19 @@ def split_fused_lobes(image, estimates, camera, rig, *, prefitted=(), gray=None)
         return list(estimates)
     # the frame's luma, made for the first candidate that a split may concern if not given
     bps = np.array([e.bp_px for e in estimates], dtype=np.float64).reshape(-1, 2)
-    ok = np.array([e.ok for e in estimates], bool)
+    # an ok candidate whose recommendation is the BP ray has no light-aware row a split would repeat
+    aware = np.array([e.ok and e.recommended.normal_from != "bp_ray" for e in estimates], bool)
     parts: list = []  # each candidate's rows
     splits: list = []  # (part index, its rows' BPs, the joint fit's normal sigma, the unsplit row)
     for i, est in enumerate(estimates):
         rows = None
         if est.ok or i in prefitted:
             gray = luma(np.asarray(image)) if gray is None else gray
-            # the ok candidates' BPs and the guide lobes split so far already have their rows
-            others = np.concatenate([bps[ok & (np.arange(len(bps)) != i)], *(pts for _, pts, _, _ in splits)])
+            # the light-aware ok candidates' BPs and the guide lobes split so far have their rows
+            others = np.concatenate([bps[aware & (np.arange(len(bps)) != i)], *(pts for _, pts, _, _ in splits)])
+            # the fit's split if at each paired top's centre, else the pair's rows, else the split
             rows = _rows(est, camera, rig, gray, others)
-            if rows is None:
-                rows = _pair_rows(est, camera, rig, gray, others)
+            rows = _pair_rows(est, camera, rig, gray, others, rows) or rows
             est = est if est.ok else dataclasses.replace(est, light_aware={})  # a rejected row: no fits
         if rows is not None:
             la = rows[0].light_aware
@@ -371,7 +370,9 @@ def split_fused_lobes(image, estimates, camera, rig, *, prefitted=(), gray=None)
         return [e for part in parts for e in part]
     _one_split_per_pair(parts, splits)
     out = [e for part in parts for e in part]
-    # a rejected candidate on a guide's specular point that a split gave its row is that row
+    # a rejected candidate, or an ok one with only the BP ray, on a split's specular point is that row
     sp = np.asarray([p for k, pts, _, _ in splits if len(parts[k]) > 1 for p in pts], np.float64).reshape(-1, 2)
+    split_rows = {id(r) for k, _, _, _ in splits if len(parts[k]) > 1 for r in parts[k]}
     near = [bool((np.linalg.norm(sp - np.asarray(e.bp_px, np.float64), axis=1) < PAIR_TOL_PX).any()) for e in out]
-    return [e for e, at in zip(out, near) if e.ok or not at]
+    return [e for e, at in zip(out, near)
+            if not at or id(e) in split_rows or (e.ok and e.recommended.normal_from != "bp_ray")]
