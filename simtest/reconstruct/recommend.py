@@ -11,7 +11,7 @@ Chosen on the harness' tuning renders (``simtest validate rendered``, the ``ligh
 measurements behind each rule are in ``docs/decisions/light-aware-recommendation.md``.
 
 0. A row of two guides' clipped tops fused into one highlight where their joint fit placed no
-   specular point on each (:mod:`~simtest.reconstruct.rig_lobes`): ``rig_pair``, the plane the two
+   specular point at each top's centre (:mod:`~simtest.reconstruct.rig_lobes`): ``rig_pair``, the plane the two
    tops fix as a stereo pair whose baseline is the guides' (:func:`~simtest.reconstruct.rig_pairs.pair_plane`).
    Clipped tops hold their specular points to about a pixel where the lobe's shape, censored,
    hardly tells the depth from the roughness.

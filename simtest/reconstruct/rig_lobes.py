@@ -21,9 +21,9 @@ rejected candidate is fitted for this only where the rig's curve runs in its reg
 and ``cluster``, whose other peak may be the other guide's top: stretched along it); one the rule
 does not split keeps its status and no fit.
 
-Fallback. A clipped candidate whose joint fit gives no rows, or places no specular point on each
-of the region's two largest clipped tops where the rig pairs them, gives one row per top at its
-centroid with the plane the two fix as a stereo pair (``rig_pair``,
+Pair. A clipped candidate whose joint fit gives no rows, or none within ``PAIR_TOL_PX`` of each
+of the region's two largest clipped tops' centroids where the rig pairs them, gives one row per
+top at its centroid with the plane the two fix as a stereo pair (``rig_pair``,
 :func:`~simtest.reconstruct.rig_pairs.pair_plane`): the tops hold their specular points where the
 censored lobe's shoulders hardly tell the depth from the roughness.
 """
