@@ -39,6 +39,16 @@ def _normal(tilt_deg, az_deg):
     return np.array([np.sin(t) * np.cos(a), np.sin(t) * np.sin(a), -np.cos(t)])
 
 
+def _exact_pair(tilt, az, h, f, first):
+    """An exact plane (tilt, azimuth deg, distance h mm) seen by a pinhole of focal f px: its
+    normal, the camera, and guide ``first``'s then the other guide's specular point (an
+    independent derivation, simtest.simulate.offset.specular_point), in 3-D (2, 3) and imaged (2, 2)."""
+    N = _normal(tilt, az)
+    cam = PinholeCamera(np.array([[f, 0, 200.0], [0, f, 200.0], [0, 0, 1]]))
+    X = np.stack([specular_point(N, h, GUIDES_MM[k])[0] for k in (first, 1 - first)])
+    return N, cam, X, cam.ray_to_pixel(X)
+
+
 @settings(max_examples=60, deadline=None)
 @given(tilt=st.floats(0.0, 60.0), az=st.floats(0.0, 360.0), h=st.floats(5.0, 60.0),
        f=st.floats(60.0, 400.0), first=st.integers(0, 1))
@@ -46,11 +56,7 @@ def test_the_other_guides_specular_point_lies_on_the_predicted_curve(tilt, az, h
     # an exact plane: each guide's specular point (an independent derivation,
     # simtest.simulate.offset.specular_point); from the one guide's BP the curve passes within
     # its half-pixel resampling step of the other's
-    N = _normal(tilt, az)
-    cam = PinholeCamera(np.array([[f, 0, 200.0], [0, f, 200.0], [0, 0, 1]]))
-    X0, _ = specular_point(N, h, GUIDES_MM[first])
-    X1, _ = specular_point(N, h, GUIDES_MM[1 - first])
-    uv0, uv1 = cam.ray_to_pixel(np.stack([X0, X1]))
+    _, cam, _, (uv0, uv1) = _exact_pair(tilt, az, h, f, first)
     gap = float(np.linalg.norm(uv1 - uv0))
     (pts,) = other_guide_curves(cam, GUIDES_MM, uv0[None], [gap + 5.0])
     assert len(pts)
@@ -66,11 +72,7 @@ def test_a_pairs_separation_gives_the_bps_depth(tilt, az, h, f, first):
     # derivation); from one guide's BP, the depth at which the rig puts the other guide's
     # highlight on its BP is the BP's own depth along its ray (one of the depths returned: the
     # BP taken as the other guide's may also meet it)
-    N = _normal(tilt, az)
-    cam = PinholeCamera(np.array([[f, 0, 200.0], [0, f, 200.0], [0, 0, 1]]))
-    X0, _ = specular_point(N, h, GUIDES_MM[first])
-    X1, _ = specular_point(N, h, GUIDES_MM[1 - first])
-    uv = cam.ray_to_pixel(np.stack([X0, X1]))
+    _, cam, (X0, _), uv = _exact_pair(tilt, az, h, f, first)
     assume(np.linalg.norm(uv[1] - uv[0]) > PAIR_TOL_PX)  # nearer, the two are one highlight
     (starts,) = pair_starts(cam, GUIDES_MM, uv[:1], uv)
     depths = [d for i, j, d in starts if (i, j) == (first, 1 - first)]
@@ -90,10 +92,7 @@ def test_a_pairs_separation_gives_the_bps_depth(tilt, az, h, f, first):
 def test_two_guides_specular_points_give_their_plane(tilt, az, h, f, first, push):
     # an exact plane: each guide's specular point (simtest.simulate.offset, an independent
     # derivation) as the two highlights; the pair fixes the plane as a stereo pair does
-    N = _normal(tilt, az)
-    cam = PinholeCamera(np.array([[f, 0, 200.0], [0, f, 200.0], [0, 0, 1]]))
-    X = np.stack([specular_point(N, h, GUIDES_MM[k])[0] for k in (first, 1 - first)])
-    uv = cam.ray_to_pixel(X)
+    N, cam, X, uv = _exact_pair(tilt, az, h, f, first)
     assume(np.linalg.norm(uv[1] - uv[0]) > PAIR_TOL_PX)  # nearer, the two are one highlight
     got = pair_plane(cam, GUIDES_MM, uv[0], uv[1])
     assert got is not None

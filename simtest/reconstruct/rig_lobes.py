@@ -151,13 +151,11 @@ def _on_the_tops(depth: np.ndarray, region, camera, rig, normal) -> np.ndarray |
     return pts[int(best[len(best) // 2])]
 
 
-def _rows(est, camera, rig, gray, others: np.ndarray) -> list | None:
-    """The rows of one fitted candidate's fused lobes (module docstring), or None."""
+def _rows(est, camera, rig, gray, region, pair, others: np.ndarray) -> list | None:
+    """The rows of one fitted candidate's fused lobes (module docstring), or None; ``region`` its
+    bright region (:func:`_bright_region`), ``pair`` its tops' pair (:func:`_tops_pair`)."""
     fit = (est.light_aware or {}).get("photometric_fit")
-    if fit is None or not fit.has_normal:
-        return None
-    region = _bright_region(gray, est)
-    if region is None:
+    if fit is None or not fit.has_normal or region is None:
         return None
     if fit.distance_mm is not None:
         pts = guide_specular_points(camera, rig, fit.normal, fit.distance_mm)
@@ -186,7 +184,6 @@ def _rows(est, camera, rig, gray, others: np.ndarray) -> list | None:
         rc = np.rint(uv_to_rc(p)).astype(np.int64) - (region[1], region[2])
         if (off[rc[:, 0], rc[:, 1]] > PAIR_TOL_PX).any():
             return None
-        pair = _tops_pair(gray, region, camera, rig)
         if pair is not None and not all(_on_a_top(p, pair[1], [t], region[1:]) for t in pair[2]):
             return None  # two tops the rig pairs, the plane's points not one on each: it misplaced them
     rows = []
@@ -268,17 +265,14 @@ def _pair_estimates(camera, rig, pts: np.ndarray, plane) -> list:
     return out
 
 
-def _pair_rows(est, camera, rig, gray, others: np.ndarray, split: list | None) -> list | None:
-    """The rows of a clipped candidate's two fused tops that the rig pairs, where its joint fit's
-    ``split`` (:func:`_rows`) puts no BP at each top's centre (:func:`_at_each_centre`): one per
-    guide, BP at its top's centroid, normal from the pair's geometry (``rig_pair``), or None."""
-    if not est.saturated or len(rig.positions) < 2:
+def _pair_rows(est, camera, rig, region, pair, others: np.ndarray, split: list | None) -> list | None:
+    """The rows of a clipped candidate's two fused tops that the rig pairs (``pair``:
+    :func:`_tops_pair` of its bright ``region``), where its joint fit's ``split`` (:func:`_rows`)
+    puts no BP at each top's centre (:func:`_at_each_centre`): one per guide, BP at its top's
+    centroid, normal from the pair's geometry (``rig_pair``), or None."""
+    if pair is None:
         return None
-    region = _bright_region(gray, est)
-    got = None if region is None else _tops_pair(gray, region, camera, rig)
-    if got is None:
-        return None
-    pts, labels, two, plane = got
+    pts, labels, two, plane = pair
     if _on_a_top(others, labels, two, region[1:]):
         return None  # a top that holds an ok candidate's BP already has its row
     if split is not None and _at_each_centre(np.array([r.bp_px for r in split]), pts):
@@ -358,8 +352,11 @@ def split_fused_lobes(image, estimates, camera, rig, *, prefitted=(), gray=None)
             # the light-aware ok candidates' BPs and the guide lobes split so far have their rows
             others = np.concatenate([bps[aware & (np.arange(len(bps)) != i)], *(pts for _, pts, _, _ in splits)])
             # the fit's split if at each paired top's centre, else the pair's rows, else the split
-            rows = _rows(est, camera, rig, gray, others)
-            rows = _pair_rows(est, camera, rig, gray, others, rows) or rows
+            region = _bright_region(gray, est)
+            # the clipped tops' pair, once for both (the rig's pair of one guide is none)
+            pair = _tops_pair(gray, region, camera, rig) if est.saturated and region is not None else None
+            rows = _rows(est, camera, rig, gray, region, pair, others)
+            rows = _pair_rows(est, camera, rig, region, pair, others, rows) or rows
             est = est if est.ok else dataclasses.replace(est, light_aware={})  # a rejected row: no fits
         if rows is not None:
             la = rows[0].light_aware
