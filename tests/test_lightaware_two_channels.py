@@ -142,7 +142,9 @@ def test_red_clipped_pixels_valued_from_green_and_blue_take_the_fit_out_of_its_l
     kw = dict(diffuse=True, lobe="phong", clip_level=[1.0] * 3, censor=True, start_normal=-ray,
               projection="border")
     without = la.photometric_fit(lin, (0, 0), bp, K, RIG, two_channels=False, **kw)
-    assert without.status == "depth_not_observable" and angle_between_deg(without.normal, N) > 1.0
+    # (or, its starts stopped where they ran off past RUN_OFF_FACTOR, not converged: not ok either way)
+    assert without.status in ("depth_not_observable", "not_converged")
+    assert not without.has_normal or angle_between_deg(without.normal, N) > 1.0
     with_ = la.photometric_fit(lin, (0, 0), bp, K, RIG, two_channels=True, **kw)
     assert with_.ok and with_.projection == "body_colours", with_
     assert angle_between_deg(with_.normal, N) < 0.01
@@ -150,4 +152,4 @@ def test_red_clipped_pixels_valued_from_green_and_blue_take_the_fit_out_of_its_l
     # the default keeps the fit without them there: it is not ok, so nothing vouches for the
     # other (a curved patch's plane can pass with those pixels, _two_channel_choice)
     auto = la.photometric_fit(lin, (0, 0), bp, K, RIG, **kw)
-    assert auto.status == without.status and np.array_equal(auto.normal, without.normal)
+    assert auto.status == without.status and auto.detail == without.detail

@@ -397,8 +397,8 @@ def _fit_plane(values, origin_uv, bp_uv, camera, rig, s: FitSettings) -> LightAw
         return LightAwareEstimate(name, "too_few_points", f"{np.count_nonzero(~m.cens)} unclipped pixels")
     d_bp, n0, h0 = _start(m.bp, m.camera, rig, s.nominal_depth_mm, s.start_normal)
     solved = solve_plane(m, start_planes(m, rig, d_bp, n0, h0, s), s, floor_level)
-    if isinstance(solved, LightAwareEstimate):
-        return solved
+    if isinstance(solved, LightAwareEstimate):  # (its projection, for the fallbacks that read it)
+        return replace(solved, projection=how)
     x, n0, h0, e1, e2, conv, msg, nfev = solved
     n_hat = _normal_derivs(x, n0, e1, e2)[0]
     h_hat = float(np.exp(x[2]))
@@ -406,7 +406,7 @@ def _fit_plane(values, origin_uv, bp_uv, camera, rig, s: FitSettings) -> LightAw
         rough_hat = phong_of_ggx_alpha(float(np.exp(x[3]))) if m.ggx else float(np.exp(x[3]))
     bad = _implausible(h_hat, h0, rough_hat, shaded=s.diffuse)
     if bad:
-        return LightAwareEstimate(name, "not_converged", bad, n_evaluations=nfev)
+        return LightAwareEstimate(name, "not_converged", bad, n_evaluations=nfev, projection=how)
     if np.any(n_hat @ m.rig_arr[0].T + h_hat <= 0):
         return LightAwareEstimate(name, "light_behind_plane", f"h = {h_hat:.4g} mm", n_evaluations=nfev)
     verdict = PlaneVerdict(m, rig, x, n0, e1, e2, n_hat, h_hat, rough_hat, how, floor_level)

@@ -7,13 +7,13 @@ from __future__ import annotations
 
 import numpy as np
 
-from simtest.decisions import FLOOR_MARGIN as _FLOOR_MARGIN
+from simtest.decisions import FLOOR_MARGIN as _FLOOR_MARGIN, RUN_OFF_FACTOR
 from simtest.geometry.angles import unit
 from simtest.geometry.conics import plane_basis
 from simtest.reconstruct.lightaware.estimate import LightAwareEstimate
-from simtest.reconstruct.lightaware.model import _mean_light
+from simtest.reconstruct.lightaware.model import _mean_light, phong_of_ggx_alpha
 from simtest.reconstruct.lightaware.plane_model import _NOT_FINITE_RESIDUAL, PlaneModel, start_roughness
-from simtest.reconstruct.lightaware.solve import _correlated, _light_start, _solve
+from simtest.reconstruct.lightaware.solve import _correlated, _implausible, _light_start, _solve
 
 
 _NAME = "photometric_fit"
@@ -76,8 +76,15 @@ def _again(m: PlaneModel, x, n0, e1, e2, h0, s):
     """``x`` refined on the pixels :meth:`PlaneModel.use` set last: ``(x, nfev, conv, msg, r)``."""
     free = np.ones(len(x), bool)
     free[2] = np.abs(m.rig_arr[0]).max() > 1e-9 * h0  # all lights at V: no dependence on h
+
+    def stop(p) -> str:
+        """Why LM's iterate ``p`` is past saving (an overflow is too)."""
+        with np.errstate(over="ignore"):
+            rough = phong_of_ggx_alpha(float(np.exp(p[3]))) if m.ggx else float(np.exp(p[3]))
+            return _implausible(float(np.exp(p[2])), h0, rough, s.diffuse, widen=RUN_OFF_FACTOR)
+
     return _solve(m.resjac_at, x, (n0, e1, e2), s.loss, s.f_scale, s.max_nfev, free,
-                  lazy_jac=True, weighted=True, newton=True)
+                  lazy_jac=True, weighted=True, newton=True, stop=stop)
 
 
 def solve_plane(m: PlaneModel, cands, s, floor_level):

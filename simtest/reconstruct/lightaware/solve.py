@@ -87,8 +87,12 @@ _LM_TOL_FIRST_PASS = 1e-4
 _LM_TOL_NEWTON, _NEWTON_AFTER, _NEWTON_STEP = 1e-5, 10, 0.1
 
 
+class _RanOff(Exception):
+    """Raised in :func:`_solve`'s model where ``stop`` says the iterate ran off."""
+
+
 def _solve(resjac, p0, args, loss: str, f_scale: float, max_nfev: int, free=None,
-           lazy_jac: bool = False, weighted: bool = False, newton: bool = False):
+           lazy_jac: bool = False, weighted: bool = False, newton: bool = False, stop=None):
     """Levenberg-Marquardt (MINPACK, analytic Jacobian), robust loss by reweighting.
 
     ``loss="linear"``: one LM solve. Otherwise (``soft_l1``, ``huber``, ``cauchy``): the LM solution
@@ -103,7 +107,9 @@ def _solve(resjac, p0, args, loss: str, f_scale: float, max_nfev: int, free=None
     itself with them (the photometric fit's linear parameters); it returns the unweighted
     residuals and Jacobian of that solution. MINPACK's lmder is called through
     :func:`scipy.optimize.leastsq`: ``least_squares(method="lm")`` is the same solver behind a
-    wrapper that cost as much as the model on a few hundred isophote points. Returns (x,
+    wrapper that cost as much as the model on a few hundred isophote points. ``stop(p)``, when
+    given, is asked at each new point (all parameters); where it returns a reason (a non-empty
+    string) the solve ends there, not converged, with that reason as its message. Returns (x,
     n_evaluations (the model evaluated at a new point), converged, message, residuals at x).
     """
     opt = require("scipy.optimize")  # when first needed: scipy slows the start
@@ -127,9 +133,13 @@ def _solve(resjac, p0, args, loss: str, f_scale: float, max_nfev: int, free=None
         if cache.get("key") != key or (grad and cache.get("J") is None):
             kw = {"w": model_w[0]} if weighted and model_w[0] is not None else {}
             r, J = resjac(full(q), *args, grad=grad, **kw)
-            if cache.get("key") != key:
-                count[0] += 1
+            new = cache.get("key") != key
             cache.update(key=key, r=r, J=J if J is None or all_free else J[:, free])
+            if new:
+                count[0] += 1
+                why = stop(full(q)) if stop is not None else ""
+                if why:
+                    raise _RanOff(q.copy(), why)
         return cache["r"], cache["J"]
 
     def fun(q, w):
@@ -146,36 +156,40 @@ def _solve(resjac, p0, args, loss: str, f_scale: float, max_nfev: int, free=None
     q = p0[free]
     w = None  # unit weights
     ok, msg = True, ""
-    for it in range(1 if loss == "linear" else 2):
-        if it:
-            z = (rj(q, grad=False)[0] / f_scale) ** 2
-            if loss == "soft_l1":
-                w = (1.0 + z) ** -0.25
-            elif loss == "huber":
-                w = np.where(z <= 1.0, 1.0, z ** -0.25)
-            else:
-                w = (1.0 + z) ** -0.5
-            if weighted:
-                model_w[0] = w
-                cache.clear()
-        # MINPACK's lmder through leastsq (least_squares' method="lm" is the same solver behind
-        # a heavier wrapper); without full_output it skips a covariance we do not use and warns
-        # with its message when it stops short
-        with np.errstate(all="ignore"), warnings.catch_warnings(record=True) as caught:
-            warnings.simplefilter("always")
-            # the first pass of a reweighted fit only sets the weights: looser tolerances
-            tol = _LM_TOL if it or loss == "linear" else _LM_TOL_FIRST_PASS
-            done, budget = False, max_nfev + count[0]
-            if newton and (it or loss == "linear"):  # Newton's steps take LM's linear tail (_newton)
-                q, ier = opt.leastsq(fun, q, args=(w,), Dfun=jac, xtol=_LM_TOL_NEWTON, ftol=_LM_TOL_NEWTON,
-                                     gtol=tol, maxfev=max_nfev)
-                q, done = _newton(fun, jac, q, w, tol) if count[0] + max_nfev - budget > _NEWTON_AFTER else (q, False)
-            if not done:  # (the pass' evaluations within max_nfev)
-                q, ier = opt.leastsq(fun, q, args=(w,), Dfun=jac, xtol=tol, ftol=tol, gtol=tol,
-                                     maxfev=max(budget - count[0], 1))
-        ok = ier in (1, 2, 3, 4) and bool(np.isfinite(q).all())
-        msg = "" if ier in (1, 2, 3, 4) else (str(caught[-1].message) if caught
-                                               else f"MINPACK info {ier}")
+    try:
+        for it in range(1 if loss == "linear" else 2):
+            if it:
+                z = (rj(q, grad=False)[0] / f_scale) ** 2
+                if loss == "soft_l1":
+                    w = (1.0 + z) ** -0.25
+                elif loss == "huber":
+                    w = np.where(z <= 1.0, 1.0, z ** -0.25)
+                else:
+                    w = (1.0 + z) ** -0.5
+                if weighted:
+                    model_w[0] = w
+                    cache.clear()
+            # MINPACK's lmder through leastsq (least_squares' method="lm" is the same solver behind
+            # a heavier wrapper); without full_output it skips a covariance we do not use and warns
+            # with its message when it stops short
+            with np.errstate(all="ignore"), warnings.catch_warnings(record=True) as caught:
+                warnings.simplefilter("always")
+                # the first pass of a reweighted fit only sets the weights: looser tolerances
+                tol = _LM_TOL if it or loss == "linear" else _LM_TOL_FIRST_PASS
+                done, budget = False, max_nfev + count[0]
+                if newton and (it or loss == "linear"):  # Newton's steps take LM's linear tail (_newton)
+                    q, ier = opt.leastsq(fun, q, args=(w,), Dfun=jac, xtol=_LM_TOL_NEWTON, ftol=_LM_TOL_NEWTON,
+                                         gtol=tol, maxfev=max_nfev)
+                    late = count[0] + max_nfev - budget > _NEWTON_AFTER
+                    q, done = _newton(fun, jac, q, w, tol) if late else (q, False)
+                if not done:  # (the pass' evaluations within max_nfev)
+                    q, ier = opt.leastsq(fun, q, args=(w,), Dfun=jac, xtol=tol, ftol=tol, gtol=tol,
+                                         maxfev=max(budget - count[0], 1))
+            ok = ier in (1, 2, 3, 4) and bool(np.isfinite(q).all())
+            msg = "" if ier in (1, 2, 3, 4) else (str(caught[-1].message) if caught
+                                                   else f"MINPACK info {ier}")
+    except _RanOff as off:  # (the residuals at its point are the cache's last)
+        return full(off.args[0]), count[0], False, off.args[1], cache["r"]
     return full(q), count[0], ok, msg, rj(q, grad=False)[0]
 
 
@@ -218,12 +232,15 @@ _ROUGHNESS_RANGE = (1.0, phong_of_ggx_alpha(SMOOTHEST_FILM_ALPHA))
 _ROUGHNESS_RANGE_SHADED = (phong_of_ggx_alpha(ROUGHEST_FILM_ALPHA), _ROUGHNESS_RANGE[1])
 
 
-def _implausible(h_hat: float, h0: float, roughness: float | None, shaded: bool = False) -> str:
+def _implausible(h_hat: float, h0: float, roughness: float | None, shaded: bool = False, widen: float = 1.0) -> str:
     """Why a fit's solution is implausible ("" when it is not); ``shaded``: the model holds the
-    diffuse shading's column (:data:`ROUGHEST_FILM_ALPHA`)."""
-    if not (np.isfinite(h_hat) and h0 / _H_FACTOR <= h_hat <= h0 * _H_FACTOR):
-        return f"fitted distance {h_hat:.4g} mm is not within a factor {_H_FACTOR:g} of the start's {h0:.4g} mm"
+    diffuse shading's column (:data:`ROUGHEST_FILM_ALPHA`); ``widen``: each range that much wider
+    (:data:`~simtest.decisions.RUN_OFF_FACTOR`: where an iterate is past saving)."""
+    f = _H_FACTOR * widen
+    if not (np.isfinite(h_hat) and h0 / f <= h_hat <= h0 * f):
+        return f"fitted distance {h_hat:.4g} mm is not within a factor {f:g} of the start's {h0:.4g} mm"
     lo, hi = _ROUGHNESS_RANGE_SHADED if shaded else _ROUGHNESS_RANGE
+    lo, hi = lo / widen, hi * widen
     if roughness is not None and not (np.isfinite(roughness) and lo <= roughness <= hi):
         return (f"fitted roughness {roughness:.4g} outside ({lo:.4g}, {hi:.4g})"
                 + (": a lobe as broad as the diffuse shading" if shaded and roughness < lo else ""))
