@@ -160,14 +160,19 @@ def pair_starts(camera, positions_mm, bps_uv, partners_uv) -> list[tuple[tuple[i
             a, ab, d0, d1 = a[seg], ab[seg], depths[:-1][seg], depths[1:][seg]
             if not len(a):
                 continue
-            ap = near[None] - a[:, None]  # (segments, partners, 2)
+            # (a partner beyond the tolerance of the curve's bounding box is beyond it of the curve)
+            ends = np.concatenate([a, a + ab])
+            box = np.all(np.abs(near - (ends.min(0) + ends.max(0)) / 2) <= np.ptp(ends, 0) / 2 + PAIR_TOL_PX, axis=1)
+            if not box.any():
+                continue
+            ap = near[box][None] - a[:, None]  # (segments, partners in the box, 2)
             t = np.clip((ap @ ab[..., None])[..., 0] / np.maximum((ab * ab).sum(axis=1), 1e-12)[:, None], 0, 1)
             dist = np.linalg.norm(ap - t[..., None] * ab[:, None], axis=-1)
             best = dist.argmin(axis=0)
-            cols = np.arange(len(near))
+            cols = np.arange(int(np.count_nonzero(box)))
             hit = dist[best, cols] <= PAIR_TOL_PX
             tb = t[best, cols]
-            for c, d in zip(cols[hit], (d0[best] ** (1.0 - tb) * d1[best] ** tb)[hit]):
+            for c, d in zip(np.flatnonzero(box)[hit], (d0[best] ** (1.0 - tb) * d1[best] ** tb)[hit]):
                 found.setdefault(int(c), set()).add((i, j, float(d)))
         out.append(tuple(sorted(next(iter(found.values())))) if len(found) == 1 else ())
     return out
