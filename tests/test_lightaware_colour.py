@@ -250,3 +250,42 @@ def test_a_body_colours_fit_without_a_depth_gives_way_to_the_least_fluctuation_w
     assert "the body colours' fit is not ok" in r.detail
     assert angle_between_deg(r.normal, N) < 0.05
     assert r.distance_mm == pytest.approx(20.0, rel=0.01)
+
+
+@given(st.floats(0.002, 0.03), st.integers(0, 2**16))
+@settings(max_examples=20, deadline=None)
+def test_the_clip_margin_is_clip_margin_noise_sigmas_of_the_unclipped_pixels(sigma, seed):
+    # a smooth ramp clipped over a third of the ROI, white noise of sigma: the margin is
+    # CLIP_MARGIN sigma (the MAD's spread over about 2,600 neighbour differences: under 5 % at
+    # 3 of its standard deviations); per channel for RGB; 0 without noise
+    from simtest.decisions import CLIP_MARGIN
+    from simtest.reconstruct.light_fits import _clip_margin
+
+    rng = np.random.default_rng(seed)
+    ramp = np.tile(np.linspace(0.3, 1.4, 90), (45, 1))
+    assert _clip_margin(np.minimum(ramp, 1.0), 1.0) == 0.0
+    noisy = np.minimum(ramp + rng.normal(0.0, sigma, ramp.shape), 1.0)
+    assert _clip_margin(noisy, 1.0) == pytest.approx(CLIP_MARGIN * sigma, rel=0.15)
+    rgb = np.stack([noisy, np.minimum(ramp + rng.normal(0.0, 2 * sigma, ramp.shape), 1.0), np.minimum(ramp, 1.0)], -1)
+    got = _clip_margin(rgb, [1.0, 1.0, 1.0])
+    assert got[0] == pytest.approx(CLIP_MARGIN * sigma, rel=0.15)
+    assert got[1] == pytest.approx(2 * CLIP_MARGIN * sigma, rel=0.15) and got[2] == 0.0
+
+
+def test_a_channel_within_the_censor_margin_is_censored_at_its_level():
+    # exact: a pixel whose red lies within the margin below the clip is censored (a lower bound),
+    # its bound the projection of the red at the level, not of its value; the body colours are
+    # measured as without the margin
+    rng = np.random.default_rng(0)
+    body = np.array([[0.6, 0.3, 0.2], [0.5, 0.35, 0.3]])
+    a = rng.uniform(0.4, 1.0, (30, 30, 2))
+    rgb = a @ body
+    rgb[15, 15] = [0.97, 0.5, 0.45]
+    plain = la.colour.specular_image(rgb, 1.0)
+    got = la.colour.specular_image(rgb, 1.0, censor_margin=[0.05, 0.05, 0.05])
+    np.testing.assert_array_equal(plain[3], got[3])
+    w = got[3]
+    assert np.all(w > 0)  # (every weight positive here: a censored pixel is a lower bound)
+    assert not plain[1][15, 15] and got[1][15, 15] and not got[2][15, 15]
+    assert got[0][15, 15] == pytest.approx(np.array([0.95, 0.5, 0.45]) @ w, rel=1e-12)
+    np.testing.assert_array_equal(got[1] | got[2], (rgb >= 0.95).any(axis=2))  # (each within the margin)

@@ -46,12 +46,14 @@ def _rows(directory, sweep: str, value: float, realisation: int = 0):
 #: transmission about 0.95 to 0.97 per channel, was about 0.98). Two cases miss their bounds on
 #: the new texture: read noise 0.02, depth 5.32 % against 5 % (normal 0.076 deg); micro-relief
 #: realisation 4, 1.03 deg against 0.5. Kept as strict expected failures, so that the fit that
-#: meets them again is seen; the flat-mucosa must-hold is re-judged end to end (issue 63).
+#: meets them again is seen; the flat-mucosa must-hold is re-judged end to end (issue 63). The
+#: read-noise case meets them again since the fits censor within CLIP_MARGIN of the clip (depth
+#: 4.45 %, normal 0.036 deg).
 VESSELS_62 = pytest.mark.xfail(strict=True, reason="issue 62's vessel texture: the must-hold is missed "
                                                    "on this pinned frame (see VESSELS_62)")
 
 
-@pytest.mark.parametrize("noise", [pytest.param(0.02, marks=VESSELS_62)])
+@pytest.mark.parametrize("noise", [0.02])
 def test_flat_mucosa_in_read_noise_meets_the_must_hold(noise, tmp_path):
     rows = _rows(tmp_path, "plane_read_noise", noise)
     assert rows

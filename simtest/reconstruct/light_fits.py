@@ -16,8 +16,8 @@ import numpy as np
 from simtest._lazy import require
 from simtest._threads import one_thread_each
 from simtest._workers import worker_pool
-from simtest.decisions import (BROAD_LOBE_PHONG_N, ISOCURVE_ISOVALUES, LOBE_EDGE_REL, LOBE_ROI_MISMATCH, PAIR_TOL_PX,
-                               SIGMA_MARGIN)
+from simtest.decisions import (BROAD_LOBE_PHONG_N, CLIP_MARGIN, ISOCURVE_ISOVALUES, LOBE_EDGE_REL, LOBE_ROI_MISMATCH,
+                               PAIR_TOL_PX, SIGMA_MARGIN)
 from simtest.geometry.lights import LightRig
 from simtest.reconstruct import lightaware as _la
 from simtest.reconstruct._pixels import Roi
@@ -208,7 +208,9 @@ def _photometric(img, gray, big: Roi, est, camera, rig, response, colour: bool, 
         sub = img[big.slices]
         fit_values = np.stack([response.linear(sub[..., c], c, fs) for c in range(3)], axis=-1)
         fit_clip = [float(response.linear(fs, c, fs)) for c in range(3)]
-    pkw = dict(clip_level=fit_clip, **pkw)
+    margin = _clip_margin(fit_values, fit_clip)  # (the projections measure the body colours on what the clip left)
+    pkw = dict(pkw, **({"clip_level": fit_clip, "clip_margin": margin} if colour or margin is None
+                       else {"clip_level": fit_clip - margin}))
     if response is not None and not colour and img.ndim == 3:
         # one channel of a sensor frame (a JPEG grid): the albedo's dark lines are left out
         y = luma(img[big.slices])
@@ -242,6 +244,23 @@ def _photometric(img, gray, big: Roi, est, camera, rig, response, colour: bool, 
         chan = depth_within_ceiling(fitted("darkest_channel"))
         pf = dataclasses.replace(chan, detail=f"{chan.detail}; {why}" if chan.detail else why)
     return pf
+
+
+def _clip_margin(values: np.ndarray, clip):
+    """How far below ``clip`` (one level, or each channel's of ``values`` (H, W, 3); None: none)
+    the fits censor: ``CLIP_MARGIN`` times the noise of the ROI's unclipped pixels (the robust
+    spread of a pixel's difference from its two horizontal neighbours, as
+    :func:`~simtest.reconstruct.detect_pixels.noise_sigma`'s), each channel's; 0 without noise."""
+    if clip is None:
+        return None
+    chans = [values[..., c] for c in range(values.shape[-1])] if np.ndim(clip) else [values]
+    out = []
+    for v, cl in zip(chans, np.ravel(clip)):
+        v = np.asarray(v, np.float64)
+        d = (v[:, 1:-1] - 0.5 * (v[:, :-2] + v[:, 2:]))[(v[:, :-2] < cl) & (v[:, 1:-1] < cl) & (v[:, 2:] < cl)]
+        out.append(CLIP_MARGIN * 1.4826 * float(np.median(np.abs(d - np.median(d)))) / np.sqrt(1.5)
+                   if d.size >= 3 else 0.0)
+    return out if np.ndim(clip) else out[0]
 
 
 def _broad_phong(fit: LightAwareEstimate) -> bool:

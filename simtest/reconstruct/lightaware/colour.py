@@ -36,7 +36,7 @@ def _border_band(shape) -> np.ndarray:
 
 
 def specular_image(rgb, clip_level=None, *, ring=None, fluctuation: bool = True, border: bool = True,
-                   two_channels: bool = True):
+                   two_channels: bool = True, censor_margin=None):
     """The specular reflection of a linear RGB ROI, the tissue's body colours projected out.
 
     Dichromatic reflection [6]_: a pixel's linear radiance is ``I = S (1, 1, 1) + D a(x)``, the
@@ -90,6 +90,10 @@ def specular_image(rgb, clip_level=None, *, ring=None, fluctuation: bool = True,
     two_channels : bool
         Value a pixel clipped in one channel whose weight is negative from its two other channels
         (:func:`_from_two_channels`; default); False: leave it out (``missing``).
+    censor_margin : float or array_like of 3 floats, optional
+        A channel within this of its clip level counts as clipped in the masks returned (the
+        noise clips it often: :data:`~simtest.decisions.CLIP_MARGIN`); the body colours are
+        measured on the pixels the clip itself left. None: 0.
 
     Returns
     -------
@@ -152,6 +156,12 @@ def specular_image(rgb, clip_level=None, *, ring=None, fluctuation: bool = True,
     if w is None:
         return None
     values = v @ w
+    if censor_margin is not None:
+        # a channel censored at its level below the clip holds at least that level: the bound
+        # its projection gives is that of the level, not of its noisy value
+        level = clip - np.broadcast_to(np.asarray(censor_margin, dtype=np.float64).reshape(-1), (3,))
+        clipped = v >= level
+        values = np.minimum(v, level) @ w
     anyc = clipped.any(axis=2)
     neg = (clipped & (w < 0)).any(axis=2)
     if two_channels and neg.any():

@@ -54,6 +54,10 @@ class FitSettings:
         RGB values, one level or each channel's: a pixel with a clipped channel is censored where
         the projection's weights of its clipped channels are all >= 0 (its projected value is
         then a lower bound), else left out.
+    clip_margin : float or sequence of 3 floats, optional
+        RGB values: a channel within this of its clip level counts as clipped too, as
+        ``clip_level``'s units (the body colours are measured on what the clip itself left;
+        :func:`~simtest.reconstruct.lightaware.colour.specular_image`'s ``censor_margin``). None: 0.
     nominal_depth_mm : float
         Depth of the BP assumed for the start's bisector, mm.
     start_normal : array_like of shape (3,), optional
@@ -165,6 +169,7 @@ class FitSettings:
     """
 
     clip_level: Any = None
+    clip_margin: Any = None
     nominal_depth_mm: float = 20.0
     start_normal: Any = None
     start_roughness: float | None = None
@@ -380,7 +385,7 @@ def _project(values, s: FitSettings):
     clip_level, floor_level = s.clip_level, s.floor_level
     if np.ndim(values) == 3:
         values, clip_level, lower, missing, detail, how = _colour_values(values, clip_level, s.projection,
-                                                                         bool(s.two_channels))
+                                                                         bool(s.two_channels), s.clip_margin)
         if lower is not None:
             floor_level = None  # a projection of three channels has no floor of its own
     return values, clip_level, lower, missing, detail, how, floor_level
@@ -422,9 +427,9 @@ def _fit_plane(values, origin_uv, bp_uv, camera, rig, s: FitSettings) -> LightAw
         # the projection's residual can hide it (a JPEG frame's chroma, subsampled and blocky,
         # correlates the projected residual over blocks, against which the score test weighs
         # the curvature's pattern: on the colon wall JPEG frames' projected fits passed 6-15 deg off)
-        c, clip_c = _darkest(values, s.clip_level)
+        c, clip_c = _darkest(values, s.clip_level, s.clip_margin)
         chan = _fit_lobes(np.asarray(values, dtype=np.float64)[..., c], origin_uv, bp_uv, m.camera, rig,
-                          replace(s, clip_level=clip_c, start_normal=est.normal, start_roughness=None,
+                          replace(s, clip_level=clip_c, clip_margin=None, start_normal=est.normal, start_roughness=None,
                                   n_start_depths=0, projection="auto", two_channels=None))
         if chan.status == "plane_misfit":
             est = est.without_depth("plane_misfit",
@@ -432,17 +437,20 @@ def _fit_plane(values, origin_uv, bp_uv, camera, rig, s: FitSettings) -> LightAw
     return est
 
 
-def _darkest(rgb, clip_level) -> tuple[int, float | None]:
-    """The channel of an RGB ROI whose median is least (where the tissue is darkest) and its
-    clip level (``clip_level`` one number or each channel's; None)."""
+def _darkest(rgb, clip_level, margin=None) -> tuple[int, float | None]:
+    """The channel of an RGB ROI whose median is least (where the tissue is darkest) and the
+    level it is censored at: its clip level (``clip_level`` one number or each channel's; None)
+    less its ``margin`` (``FitSettings.clip_margin``)."""
     rgb = np.asarray(rgb, dtype=np.float64)
     c = int(np.argmin(np.median(rgb.reshape(-1, 3), axis=0)))
     clip = None if clip_level is None else float(np.broadcast_to(
         np.asarray(clip_level, dtype=np.float64).reshape(-1), (3,))[c])
+    if clip is not None and margin is not None:
+        clip -= float(np.broadcast_to(np.asarray(margin, dtype=np.float64).reshape(-1), (3,))[c])
     return c, clip
 
 
-def _colour_values(rgb, clip_level, projection: str = "auto", two_channels: bool = False):
+def _colour_values(rgb, clip_level, projection: str = "auto", two_channels: bool = False, margin=None):
     """The single image a colour ROI is fitted on (``photometric_fit``'s ``values`` (H, W, 3)).
 
     Returns ``(values, clip_level, lower, missing, detail, how)``: the body-colour projection of
@@ -455,16 +463,18 @@ def _colour_values(rgb, clip_level, projection: str = "auto", two_channels: bool
     rgb = np.asarray(rgb, dtype=np.float64)
     out, how = None, None
     if projection in ("auto", "border"):
-        out, how = specular_image(rgb, clip_level, fluctuation=False, two_channels=two_channels), "body_colours"
+        out, how = specular_image(rgb, clip_level, fluctuation=False, two_channels=two_channels,
+                                  censor_margin=margin), "body_colours"
     if out is None and projection in ("auto", "least_fluctuation"):
-        out, how = specular_image(rgb, clip_level, border=False, two_channels=two_channels), "least_fluctuation"
+        out, how = specular_image(rgb, clip_level, border=False, two_channels=two_channels,
+                                  censor_margin=margin), "least_fluctuation"
     if out is not None:
         values, lower, missing, w = out
         text = ("body colours projected out" if how == "body_colours"
                 else "body colours projected out by the least-fluctuation weights")
         weights = ", ".join(f"{x:.3g}" for x in w)
         return values, None, lower, missing, f"{text} (w = {weights})", how
-    c, clip = _darkest(rgb, clip_level)
+    c, clip = _darkest(rgb, clip_level, margin)
     why = (f"channel {c} (no two body colours to project out: the border holds one, or white lies "
            "too near them)")
     return rgb[..., c], clip, None, None, why, "darkest_channel"
