@@ -673,3 +673,17 @@ def test_an_iterate_is_past_saving_beyond_the_plausible_range_widened(log_h, log
     assert (_implausible(h, h0, n, shaded, widen=RUN_OFF_FACTOR) == "") == inside
     if not inside:
         assert _implausible(h, h0, n, shaded)
+
+
+def test_an_iterate_whose_ggx_alpha_overflows_is_stopped_not_an_error():
+    # a GGX fit's iterate run off to log alpha = 400: alpha^2 overflows a float, which raised
+    # OverflowError in the run-off check (a real tile's fit ended "not_converged: OverflowError");
+    # its Phong exponent is -2, outside every range: the iterate is stopped
+    from simtest.decisions import RUN_OFF_FACTOR
+    from simtest.reconstruct.lightaware.model import phong_of_ggx_alpha
+    from simtest.reconstruct.lightaware.solve import _implausible
+
+    n = phong_of_ggx_alpha(float(np.exp(400.0)))
+    assert n == -2.0
+    assert _implausible(20.0, 20.0, n, widen=RUN_OFF_FACTOR)
+    assert phong_of_ggx_alpha(la.model.ggx_alpha_of_phong(60.0)) == pytest.approx(60.0, rel=1e-12)

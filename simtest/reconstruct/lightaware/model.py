@@ -680,5 +680,7 @@ def ggx_alpha_of_phong(n: float) -> float:
 
 
 def phong_of_ggx_alpha(alpha: float) -> float:
-    """The Phong exponent of :func:`ggx_alpha_of_phong`'s correspondence, ``2 / alpha^2 - 2``."""
-    return float(2.0 / max(float(alpha) ** 2, 1e-300) - 2.0)
+    """The Phong exponent of :func:`ggx_alpha_of_phong`'s correspondence, ``2 / alpha^2 - 2``
+    (-2 for an alpha whose square overflows: a fit's iterate run off)."""
+    with np.errstate(over="ignore"):
+        return float(2.0 / max(np.float64(alpha) ** 2, 1e-300) - 2.0)
