@@ -187,11 +187,19 @@ def _noise_rows(image: np.ndarray) -> np.ndarray:
 def _noise_sigma_of_rows(rows: np.ndarray) -> float:
     """:func:`noise_sigma` of the rows it reads (h, W)."""
     if rows.dtype == np.uint8 and rows.shape[1] >= 3 and rows.shape[0] >= 1:
-        mad = _mad_of_uint8_rows(rows)
-    else:
-        g = rows.astype(np.float32)
-        d = (g[:, 1:-1] - 0.5 * (g[:, :-2] + g[:, 2:])).ravel()
-        mad = _median(np.abs(d - _median(d)))  # float32, as its float32 data
+        return _sigma_of_mad(_mad_of_uint8_rows(rows))
+    g = rows.astype(np.float32)  # (the MAD in float32, as its float32 data)
+    return noise_sigma_of_differences((g[:, 1:-1] - 0.5 * (g[:, :-2] + g[:, 2:])).ravel())
+
+
+def noise_sigma_of_differences(d: np.ndarray) -> float:
+    """:func:`noise_sigma` from its differences ``d = x - (left + right) / 2`` (1-D; any
+    selection of them, e.g. those of unclipped pixels): ``1.4826 MAD(d) / sqrt(1.5)``."""
+    return _sigma_of_mad(_median(np.abs(d - _median(d))))
+
+
+def _sigma_of_mad(mad) -> float:
+    """White noise's standard deviation from the MAD of :func:`noise_sigma`'s differences."""
     return float(1.4826 * mad / np.sqrt(1.5))
 
 

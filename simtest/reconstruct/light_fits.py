@@ -22,6 +22,7 @@ from simtest.geometry.lights import LightRig
 from simtest.reconstruct import lightaware as _la
 from simtest.reconstruct._pixels import Roi
 from simtest.reconstruct.detect import luma, noise_sigma
+from simtest.reconstruct.detect_pixels import noise_sigma_of_differences
 from simtest.reconstruct.isophote import extract_isophote
 from simtest.reconstruct.jpeg import jpeg_grid
 from simtest.reconstruct.lightaware import (LightAwareEstimate, cubic_patch_fit, isocurve_fit, photometric_fit,
@@ -208,9 +209,11 @@ def _photometric(img, gray, big: Roi, est, camera, rig, response, colour: bool, 
         sub = img[big.slices]
         fit_values = np.stack([response.linear(sub[..., c], c, fs) for c in range(3)], axis=-1)
         fit_clip = [float(response.linear(fs, c, fs)) for c in range(3)]
-    margin = _clip_margin(fit_values, fit_clip)  # (the projections measure the body colours on what the clip left)
-    pkw = dict(pkw, **({"clip_level": fit_clip, "clip_margin": margin} if colour or margin is None
-                       else {"clip_level": fit_clip - margin}))
+    margin = _clip_margin(fit_values, fit_clip)
+    if colour or margin is None:  # (the projections measure the body colours on what the clip left)
+        pkw = dict(pkw, clip_level=fit_clip, clip_margin=margin)
+    else:
+        pkw = dict(pkw, clip_level=fit_clip - margin)
     if response is not None and not colour and img.ndim == 3:
         # one channel of a sensor frame (a JPEG grid): the albedo's dark lines are left out
         y = luma(img[big.slices])
@@ -249,8 +252,9 @@ def _photometric(img, gray, big: Roi, est, camera, rig, response, colour: bool, 
 def _clip_margin(values: np.ndarray, clip):
     """How far below ``clip`` (one level, or each channel's of ``values`` (H, W, 3); None: none)
     the fits censor: ``CLIP_MARGIN`` times the noise of the ROI's unclipped pixels (the robust
-    spread of a pixel's difference from its two horizontal neighbours, as
-    :func:`~simtest.reconstruct.detect_pixels.noise_sigma`'s), each channel's; 0 without noise."""
+    spread of a pixel's difference from its two horizontal neighbours,
+    :func:`~simtest.reconstruct.detect_pixels.noise_sigma_of_differences`), each channel's; 0
+    without noise."""
     if clip is None:
         return None
     chans = [values[..., c] for c in range(values.shape[-1])] if np.ndim(clip) else [values]
@@ -258,8 +262,7 @@ def _clip_margin(values: np.ndarray, clip):
     for v, cl in zip(chans, np.ravel(clip)):
         v = np.asarray(v, np.float64)
         d = (v[:, 1:-1] - 0.5 * (v[:, :-2] + v[:, 2:]))[(v[:, :-2] < cl) & (v[:, 1:-1] < cl) & (v[:, 2:] < cl)]
-        out.append(CLIP_MARGIN * 1.4826 * float(np.median(np.abs(d - np.median(d)))) / np.sqrt(1.5)
-                   if d.size >= 3 else 0.0)
+        out.append(CLIP_MARGIN * noise_sigma_of_differences(d) if d.size >= 3 else 0.0)
     return out if np.ndim(clip) else out[0]
 
 

@@ -35,6 +35,11 @@ def _border_band(shape) -> np.ndarray:
     return ring
 
 
+def per_channel(level) -> np.ndarray:
+    """One level, or each channel's, as the three channels' (3,) float64 (a view: read-only)."""
+    return np.broadcast_to(np.asarray(level, dtype=np.float64).reshape(-1), (3,))
+
+
 def specular_image(rgb, clip_level=None, *, ring=None, fluctuation: bool = True, border: bool = True,
                    two_channels: bool = True, censor_margin=None):
     """The specular reflection of a linear RGB ROI, the tissue's body colours projected out.
@@ -122,8 +127,7 @@ def specular_image(rgb, clip_level=None, *, ring=None, fluctuation: bool = True,
     if clip_level is None:
         clip = np.full(3, np.inf)
     else:
-        clip = np.broadcast_to(np.asarray(clip_level, dtype=np.float64).reshape(-1), (3,)).copy() \
-            if np.size(clip_level) in (1, 3) else None
+        clip = per_channel(clip_level).copy() if np.size(clip_level) in (1, 3) else None
         if clip is None:
             raise ValueError(f"clip_level: need 1 or 3 numbers, got {clip_level!r}")
     clipped = v >= clip  # (H, W, 3)
@@ -159,7 +163,7 @@ def specular_image(rgb, clip_level=None, *, ring=None, fluctuation: bool = True,
     if censor_margin is not None:
         # a channel censored at its level below the clip holds at least that level: the bound
         # its projection gives is that of the level, not of its noisy value
-        level = clip - np.broadcast_to(np.asarray(censor_margin, dtype=np.float64).reshape(-1), (3,))
+        level = clip - per_channel(censor_margin)
         clipped = v >= level
         values = np.minimum(v, level) @ w
     anyc = clipped.any(axis=2)

@@ -23,7 +23,7 @@ from simtest.geometry.angles import angle_between_deg
 from simtest.geometry.lights import LightRig
 from simtest.tolerances import TOL
 from simtest.reconstruct.lightaware.estimate import LightAwareEstimate
-from simtest.reconstruct.lightaware.colour import specular_image
+from simtest.reconstruct.lightaware.colour import per_channel, specular_image
 from simtest.reconstruct.lightaware.model import _normal_derivs, phong_of_ggx_alpha
 from simtest.reconstruct.lightaware.plane_model import PlaneModel
 from simtest.reconstruct.lightaware.plane_sigma import PlaneVerdict
@@ -443,10 +443,9 @@ def _darkest(rgb, clip_level, margin=None) -> tuple[int, float | None]:
     less its ``margin`` (``FitSettings.clip_margin``)."""
     rgb = np.asarray(rgb, dtype=np.float64)
     c = int(np.argmin(np.median(rgb.reshape(-1, 3), axis=0)))
-    clip = None if clip_level is None else float(np.broadcast_to(
-        np.asarray(clip_level, dtype=np.float64).reshape(-1), (3,))[c])
+    clip = None if clip_level is None else float(per_channel(clip_level)[c])
     if clip is not None and margin is not None:
-        clip -= float(np.broadcast_to(np.asarray(margin, dtype=np.float64).reshape(-1), (3,))[c])
+        clip -= float(per_channel(margin)[c])
     return c, clip
 
 
@@ -485,8 +484,7 @@ def _one_channel_clipped(rgb, clip_level) -> bool:
     number or each channel's; None: nothing is clipped)."""
     if clip_level is None:
         return False
-    clip = np.broadcast_to(np.asarray(clip_level, dtype=np.float64).reshape(-1), (3,))
-    return bool(np.any(np.count_nonzero(np.asarray(rgb) >= clip, axis=2) == 1))
+    return bool(np.any(np.count_nonzero(np.asarray(rgb) >= per_channel(clip_level), axis=2) == 1))
 
 
 def _two_channel_choice(both: LightAwareEstimate, plain: LightAwareEstimate) -> LightAwareEstimate:
