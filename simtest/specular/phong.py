@@ -20,15 +20,8 @@ from __future__ import annotations
 
 import numpy as np
 
-__all__ = [
-    "endoscopic_isocurve",
-    "general_isocurve",
-    "isocurve_radii",
-    "isophote_radius",
-    "kappa_from_isovalue",
-    "phong_intensity",
-    "tau_from_isovalue",
-]
+__all__ = ["endoscopic_isocurve", "general_isocurve", "isocurve_radii", "isophote_radius", "kappa_from_isovalue",
+           "phong_intensity", "tau_from_isovalue"]
 
 
 def _points(P) -> np.ndarray:
@@ -87,8 +80,7 @@ def phong_intensity(P, V, L, n: float, c: float = 1.0, origin=None) -> np.ndarra
     elif P.shape[-1] != 2:
         P = _points(P)
     cos_b = np.asarray(_cos_beta(P, V, R), dtype=np.float64)
-    # c max(0, cos beta)^n in place in cos_b (its own array): numpy's in-place power takes the
-    # same path as ``**``, so the same bits as the expression, without two temporaries
+    # c max(0, cos beta)^n in place (the same bits as the expression)
     out = np.maximum(cos_b, 0.0, out=cos_b)
     out **= n
     out *= c
@@ -96,11 +88,10 @@ def phong_intensity(P, V, L, n: float, c: float = 1.0, origin=None) -> np.ndarra
 
 
 def _cos_beta(P: np.ndarray, V: np.ndarray, R: np.ndarray) -> np.ndarray:
-    """``cos beta`` of :func:`phong_intensity`: ``P`` (..., 2) or (..., 3), ``V`` and the light's
-    mirror image ``R`` (3,), float64."""
-    # cos beta = (V - P) . (P - R) / (|V - P| |P - R|), evaluated per coordinate plane: the same
-    # products and the same left-to-right sums over the 3 coordinates as np.sum(..., axis=-1)
-    # and np.linalg.norm(..., axis=-1) (so the same bits), without building (..., 3) arrays.
+    """``cos beta = (V - P) . (P - R) / (|V - P| |P - R|)`` of :func:`phong_intensity`, per coordinate.
+
+    The same bits as ``np.sum`` and ``np.linalg.norm`` over the last axis, without (..., 3) arrays.
+    """
     px, py = P[..., 0], P[..., 1]
     pz = P[..., 2] if P.shape[-1] == 3 else 0.0
     if not np.any(pz):
@@ -155,8 +146,7 @@ def general_isocurve(P, V, L, tau: float) -> np.ndarray:
     P = _points(P)
     V = np.asarray(V, dtype=np.float64).reshape(3)
     R = _mirror(L)
-    a = R - P
-    b = V - P
+    a, b = R - P, V - P
     return np.sum(a * b, axis=-1) ** 2 - tau**2 * np.sum(a * a, axis=-1) * np.sum(b * b, axis=-1)
 
 
@@ -214,29 +204,14 @@ def isocurve_radii(kappa, V_Z):
         raise ValueError(f"kappa must be in (0, 1], got {kappa}")
     k = (2.0 - kappa) / kappa
     root = np.sqrt(k * k - 1.0)
-    r_plus = abs(V_Z) * np.sqrt(k + root)
     # k - root = 1 / (k + root): the stable form of the small root.
-    r_minus = abs(V_Z) / np.sqrt(k + root)
-    return r_plus, r_minus
+    return abs(V_Z) * np.sqrt(k + root), abs(V_Z) / np.sqrt(k + root)
 
 
 def isophote_radius(t, n: float, V_Z, c: float = 1.0):
     """Radius of the endoscopic specular isophote of isovalue t: r- of Prop. 1 (paper Prop. 2).
 
-    Parameters
-    ----------
-    t : float or ndarray
-        Isovalue in (0, c).
-    n : float
-        Phong roughness.
-    V_Z : float
-        Camera-to-plane distance, mm.
-    c : float
-        Scale (peak intensity).
-
-    Returns
-    -------
-    float or ndarray
-        Radius in mm of the isophote circle centred on the foot of the perpendicular from the camera.
+    ``t`` in (0, c), roughness ``n``, camera-to-plane distance ``V_Z`` (mm), peak ``c``; the circle
+    is centred on the foot of the perpendicular from the camera, radius in the unit of V_Z.
     """
     return isocurve_radii(kappa_from_isovalue(t, n, c), V_Z)[1]
