@@ -121,10 +121,6 @@ class GenerateReport:
     worker_cpu_s: float = 0.0
 
 
-# ------------------------------------------------------------------------------------------------
-# output folder
-
-
 def _prepare(config: DatasetConfig, out: Path) -> set[int]:
     """Check ``out``, write the card, clean partial shards; return the complete shards."""
     card_path = out / CARD_NAME
@@ -227,10 +223,6 @@ def _finalise(config: DatasetConfig, out: Path) -> None:
     shutil.rmtree(out / SPOOL_DIR, ignore_errors=True)
 
 
-# ------------------------------------------------------------------------------------------------
-# spool: finished samples of incomplete shards
-
-
 def spool_path(out: Path, index: int) -> Path:
     """The spool file of sample ``index``: ``out/spool/<index:08d>.npz``."""
     return Path(out) / SPOOL_DIR / f"{int(index):08d}.npz"
@@ -285,10 +277,6 @@ def _spool_load(config: DatasetConfig, out: Path, todo: list[int]) -> dict[int, 
         else:
             got[sample.index] = sample
     return got
-
-
-# ------------------------------------------------------------------------------------------------
-# execution
 
 
 def _run_task(sample_fn: Callable, config: DatasetConfig, index: int):

@@ -192,10 +192,6 @@ def truth_problem(config: DatasetConfig, params: dict) -> str | None:
     return None
 
 
-# ------------------------------------------------------------------------------------------------
-# scene building
-
-
 def build_scene(config: DatasetConfig, params: dict):
     """The scene spec of a sample from its drawn parameters (pure; no rendering).
 
@@ -270,10 +266,6 @@ def build_scene(config: DatasetConfig, params: dict):
     d = {"name": f"dataset-{fam}", "camera": camera, "light": light, "material": material,
          "geometry": geometry, "sensor": sensor, "render": render}
     return scene_from_dict(d, source=f"{config.source}: sample")
-
-
-# ------------------------------------------------------------------------------------------------
-# labels
 
 
 def isophote_record(bp_mm, normal, K, isovalues, phong_n: float) -> list[dict]:

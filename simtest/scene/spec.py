@@ -379,14 +379,8 @@ class RenderSpec:
     variant: Variant = "auto"
 
 
-_SECTIONS: dict[str, type] = {
-    "camera": CameraSpec,
-    "light": LightSpec,
-    "material": MaterialSpec,
-    "geometry": GeometrySpec,
-    "sensor": SensorSpec,
-    "render": RenderSpec,
-}
+_SECTIONS: dict[str, type] = {"camera": CameraSpec, "light": LightSpec, "material": MaterialSpec,
+                              "geometry": GeometrySpec, "sensor": SensorSpec, "render": RenderSpec}
 
 
 @_frozen
@@ -406,10 +400,6 @@ class SceneSpec:
     sensor: SensorSpec = field(default_factory=SensorSpec)
     render: RenderSpec = field(default_factory=RenderSpec)
     source: str = field(default="<dict>", compare=False)
-
-
-# ------------------------------------------------------------------------------------------------
-# validation
 
 
 #: ``_err(source, key, reason)``: the one-line error of a bad key (:func:`simtest._checks.keyed_error`).

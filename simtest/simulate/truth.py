@@ -316,12 +316,8 @@ def sphere_highlight(center: np.ndarray, radius: float, light: np.ndarray, K: np
         Sphere centre, camera frame, mm.
     radius : float
         Radius R, mm.
-    light : array_like of shape (3,)
-        Point-light position, camera frame, mm.
-    K : ndarray of shape (3, 3)
-        Intrinsics.
-    size : tuple of int
-        Image size (W, H) in pixels, for ``in_frame``.
+    light, K, size
+        As in :func:`plane_highlight`.
 
     Returns
     -------
@@ -394,12 +390,8 @@ def cylinder_highlight(center: np.ndarray, axis: np.ndarray, radius: float, leng
         Radius R, mm.
     length : float
         Length along the axis, mm, centred on ``center``.
-    light : array_like of shape (3,)
-        Point-light position, camera frame, mm.
-    K : ndarray of shape (3, 3)
-        Intrinsics.
-    size : tuple of int
-        Image size (W, H) in pixels, for ``in_frame``.
+    light, K, size
+        As in :func:`plane_highlight`.
 
     Returns
     -------

@@ -1,11 +1,9 @@
 """Phong's specular model on a plane and its isocurves (Makki and Bartoli, section 2).
 
-Frame: the paper's *scene-plane frame*: the plane is z = 0, points ``P = (x, y, 0)``, the viewer
-``V`` and light ``L`` are 3D points (any unit of length, mm in simtest), and ``R = (L_X, L_Y, -L_Z)``
-is the mirror image of the light. In the endoscopic setup ``L = V``.
-
-Symbols: roughness ``n > 0``; scale ``c > 0`` (albedo x light x camera gain); isovalue ``t`` in
-(0, c]; ``tau = (t / c)^(1/n)`` the cosine at the isophote; ``kappa = 1 - tau^2``.
+Scene-plane frame: the plane is z = 0, points ``P = (x, y, 0)``; viewer ``V`` and light ``L`` are
+3D points (mm in simtest), ``R = (L_X, L_Y, -L_Z)`` the light's mirror image; endoscopic: ``L = V``.
+Roughness ``n > 0``, scale ``c > 0``, isovalue ``t`` in (0, c], ``tau = (t / c)^(1/n)``,
+``kappa = 1 - tau^2``.
 
 References
 ----------
@@ -106,10 +104,7 @@ def _cos_beta(P: np.ndarray, V: np.ndarray, R: np.ndarray) -> np.ndarray:
 def tau_from_isovalue(t, n: float, c: float = 1.0):
     """``tau = (t / c)^(1/n)``, the cosine of beta on the isophote of isovalue t (paper sec. 2.1).
 
-    Raises
-    ------
-    ValueError
-        If t is not in (0, c] or n, c are not positive.
+    Raises ValueError if t is not in (0, c] or n, c are not positive.
     """
     t = np.asarray(t, dtype=np.float64)
     if not n > 0 or not c > 0:
@@ -125,23 +120,11 @@ def kappa_from_isovalue(t, n: float, c: float = 1.0):
 
 
 def general_isocurve(P, V, L, tau: float) -> np.ndarray:
-    """The general specular isocurve Q(p) (paper eq. 2), a quartic in (x, y).
+    """The general specular isocurve Q(p) (paper eq. 2), a quartic in (x, y), at points P (..., 2 or 3).
 
-    ``Q(p) = ((R - P)^T (V - P))^2 - tau^2 ||R - P||^2 ||V - P||^2``; the isophote I = t is a subset
-    of Q = 0 (both cos beta = +tau and -tau satisfy it).
-
-    Parameters
-    ----------
-    P : array_like of shape (..., 2) or (..., 3)
-        Points on the plane z = 0.
-    V, L : array_like of shape (3,)
-        Viewer and light positions.
-    tau : float
-        Cosine level, in (0, 1].
-
-    Returns
-    -------
-    ndarray of shape (...)
+    ``Q(p) = ((R - P)^T (V - P))^2 - tau^2 ||R - P||^2 ||V - P||^2`` for viewer ``V`` and light ``L``
+    (3,), ``tau`` in (0, 1]; the isophote I = t is a subset of Q = 0 (cos beta = +tau or -tau).
+    Returns an ndarray of shape (...).
     """
     P = _points(P)
     V = np.asarray(V, dtype=np.float64).reshape(3)
@@ -151,24 +134,10 @@ def general_isocurve(P, V, L, tau: float) -> np.ndarray:
 
 
 def endoscopic_isocurve(P, V, kappa: float) -> np.ndarray:
-    """The endoscopic specular isocurve E(p) (paper eq. 3), Q with L = V.
+    """The endoscopic specular isocurve E(p) (paper eq. 3), Q with L = V, at points P (..., 2 or 3).
 
-    ``E(p) = kappa s^2 + 2 V_Z^2 (kappa - 2) s + kappa V_Z^4`` with
-    ``s = (x - V_X)^2 + (y - V_Y)^2``. It factorises as ``E = kappa q+ q-`` with
-    ``q+- = s - r+-^2`` (Prop. 1; the paper writes E = q+ q-, up to the factor kappa).
-
-    Parameters
-    ----------
-    P : array_like of shape (..., 2) or (..., 3)
-        Points on the plane z = 0.
-    V : array_like of shape (3,)
-        Viewer (and light) position.
-    kappa : float
-        ``1 - tau^2``.
-
-    Returns
-    -------
-    ndarray of shape (...)
+    ``E(p) = kappa s^2 + 2 V_Z^2 (kappa - 2) s + kappa V_Z^4``, ``s = (x - V_X)^2 + (y - V_Y)^2``;
+    ``E = kappa q+ q-`` with ``q+- = s - r+-^2`` (Prop. 1, up to the factor kappa). Returns shape (...).
     """
     P = _points(P)
     V = np.asarray(V, dtype=np.float64).reshape(3)
@@ -177,27 +146,10 @@ def endoscopic_isocurve(P, V, kappa: float) -> np.ndarray:
 
 
 def isocurve_radii(kappa, V_Z):
-    """Radii (r+, r-) of the two concentric circles of E(p) = 0 (paper Prop. 1).
+    """Radii (r+, r-) of the two concentric circles of E(p) = 0 (paper Prop. 1), in the unit of V_Z.
 
-    ``r+- = |V_Z| sqrt(k +- sqrt(k^2 - 1))`` with ``k = (2 - kappa) / kappa``; for kappa in (0, 1),
-    ``r+ > |V_Z| > r- > 0`` and ``r+ r- = V_Z^2``.
-
-    Parameters
-    ----------
-    kappa : float or ndarray
-        In (0, 1].
-    V_Z : float
-        Distance from the viewer to the plane (mm).
-
-    Returns
-    -------
-    tuple of float or ndarray
-        (r_plus, r_minus), in the unit of V_Z.
-
-    Raises
-    ------
-    ValueError
-        If kappa is outside (0, 1].
+    ``r+- = |V_Z| sqrt(k +- sqrt(k^2 - 1))``, ``k = (2 - kappa) / kappa``; for kappa in (0, 1),
+    ``r+ > |V_Z| > r- > 0`` and ``r+ r- = V_Z^2``. Raises ValueError if kappa is outside (0, 1].
     """
     kappa = np.asarray(kappa, dtype=np.float64)
     if np.any(~((kappa > 0) & (kappa <= 1))):
