@@ -281,19 +281,15 @@ class DatasetConfig:
 
     Attributes
     ----------
-    count : int
-        Number of samples, 0 .. :data:`MAX_COUNT`.
-    seed : int
-        Root seed; sample i draws from ``SeedSequence([seed, i])``.
-    shard_size : int
-        Samples per shard.
+    count, seed, shard_size : int
+        Number of samples (0 .. :data:`MAX_COUNT`), root seed (sample i draws from
+        ``SeedSequence([seed, i])``), samples per shard.
     isovalues : tuple of float
         Isophote levels t in (0, 1), relative to the Phong peak c.
     variant : str
         Mitsuba variant or ``"auto"``.
     compress : bool
-        Deflate the arrays that compress well (masks, specular image; see
-        :data:`simtest.dataset.shards.DEFLATED`) in the shard files (default True).
+        Deflate :data:`simtest.dataset.shards.DEFLATED` in the shard files (default True).
     families : tuple of (str, float)
         Families with positive weight, in canonical order.
     params : dict
@@ -303,8 +299,7 @@ class DatasetConfig:
     raw : dict
         The config as given (JSON-ready), kept in the dataset card.
     splits : tuple of (str, float)
-        Fractions of ``train``, ``val`` and ``test`` (summing to 1); sample i's split is a pure
-        function of ``(seed, i)`` (:meth:`split_of`).
+        Fractions of ``train``, ``val`` and ``test`` (summing to 1); see :meth:`split_of`.
     auto_exposure : (float, float) or None
         ``(percentile, level)``: scale each linear image so that this percentile of its surface
         pixels reaches ``level`` x full scale before the sensor model; None: exposure as drawn.

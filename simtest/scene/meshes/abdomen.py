@@ -48,13 +48,7 @@ LAPAROSCOPE_ABDOMEN = {"gallbladder_centre_mm": (0.3, -27.4, -67.8), "gallbladde
 
 
 def wall_sphere(liver_vertices: np.ndarray, wall_axis, wall_radius_mm: float, gap_mm: float) -> tuple[np.ndarray, float]:
-    """Centre (3,) and radius of the wall's sphere for a liver's vertices (module notes).
-
-    Raises
-    ------
-    MeshError
-        If the axis is zero or the radius does not exceed the liver's reach plus the gap.
-    """
+    """Centre (3,) and radius of the wall's sphere for a liver's vertices (module notes); MeshError if impossible."""
     u = np.asarray(wall_axis, dtype=np.float64)
     if not np.linalg.norm(u) > 0:
         raise MeshError("build_liver_in_abdomen: wall_axis must be a non-zero vector")
@@ -167,22 +161,17 @@ def build_liver_in_abdomen(seed: int, *, wall_axis=(-0.5, -0.5, -0.7), wall_radi
         Root seed of the liver.
     wall_axis : (3,) array_like
         Direction from the liver toward the scope, mesh frame (need not be unit).
-    wall_radius_mm : float
-        Radius of the wall's sphere, mm.
-    gap_mm : float
-        Least distance between the liver and the wall's sphere, mm.
+    wall_radius_mm, gap_mm : float
+        Radius of the wall's sphere and least distance between it and the liver, mm.
     cap_deg : float
         Half-angle of the cap about ``-wall_axis`` seen from the sphere's centre, degrees.
-    wall_spacing_mm : float
-        Typical vertex spacing of the wall, mm.
+    wall_spacing_mm, gallbladder_spacing_mm : float
+        Typical vertex spacing of the wall and of the gallbladder, mm.
     gallbladder_centre_mm, gallbladder_axes_mm : (3,) array_like or None
-        The gallbladder's ellipsoid (module notes), mm in the liver's frame; None: no gallbladder.
-    gallbladder_spacing_mm : float
-        Typical vertex spacing of the gallbladder, mm.
+        The gallbladder's ellipsoid, mm in the liver's frame; None: no gallbladder.
     lobe_centre_mm, lobe_normal, lobe_edge, lobe_axes_mm : (3,) array_like or None
-        The lobe (module notes; :func:`lobe_implicit`): centre, mm; the normal of its upper surface
-        and the direction of its thin margin (unit vectors or not); semi-axes (along the margin,
-        toward it, half-thickness at the centre), mm. None: no lobe.
+        The lobe (:func:`lobe_implicit`): centre (mm), upper-surface normal, direction of its thin
+        margin, semi-axes (along the margin, toward it, half-thickness), mm. None: no lobe.
     lobe_wedge : float
         The lobe's thickness falls by ``exp(-2 lobe_wedge)`` from its back to its margin.
     lobe_vertices : int
@@ -191,9 +180,9 @@ def build_liver_in_abdomen(seed: int, *, wall_axis=(-0.5, -0.5, -0.7), wall_radi
     Returns
     -------
     trimesh.Trimesh
-        Liver faces first, then the lobe's and the gallbladder's (if any), then the wall's; ``vertex_normals`` unit (the liver's outward, the
-        wall's toward the sphere's centre), ``vertex_attributes["k1"]``, ``["k2"]`` (1/mm);
-        ``metadata["generator"]`` with the wall's ``wall_centre_mm`` and ``wall_radius_mm``.
+        Liver faces first, then the lobe's and the gallbladder's (if any), then the wall's; unit
+        ``vertex_normals``, ``vertex_attributes["k1"]``, ``["k2"]`` (1/mm); ``metadata["generator"]``
+        with ``wall_centre_mm`` and ``wall_radius_mm``.
 
     Raises
     ------
