@@ -1,39 +1,17 @@
 """Dataset configuration: a TOML file naming scene families and the distributions to draw from.
 
-A dataset config is parsed and fully validated here, before any file is written. Every error is a
-:class:`DatasetConfigError` whose message names the file, the key and the offending value.
+A config is parsed and fully validated before any file is written; every error is a
+:class:`DatasetConfigError` naming the file, the key and the value. Top-level keys: ``count``
+(0 .. :data:`MAX_COUNT`), ``seed``, ``shard_size``, ``isovalues`` (t in (0, 1)), ``variant``,
+``compress``, ``splits``, ``auto_exposure``; tables ``[families]`` (relative weights) and
+``[params]`` (shared distributions) with ``[params.<family>]`` overrides. See
+``scenes/datasets/example.toml``.
 
-Format
-------
-.. code-block:: toml
-
-    count = 1000            # number of samples (0 .. MAX_COUNT = 10 million)
-    seed = 2026             # root seed (any integer >= 0; 0 is valid)
-    shard_size = 250        # samples per shard file
-    isovalues = [0.1, 0.3]  # isophote levels t in (0, 1) (relative to the Phong peak c)
-    variant = "auto"        # "auto", "llvm_ad_rgb" or "cuda_ad_rgb" (pin it on mixed machines)
-    compress = true         # deflate the masks and specular image in the shards (default)
-    splits = { train = 0.8, val = 0.1, test = 0.1 }   # seeded split of each sample (default)
-    auto_exposure = { percentile = 99.9, level = 0.9 }  # or false (default shown)
-
-    [families]              # weight of each scene family (relative; 0 disables)
-    planes = 1.0
-    colon = 2.0
-
-    [params]                # distributions shared by every family that uses the parameter
-    resolution_px = 256                                   # a bare value is a constant
-    spp = { dist = "choice", values = [16, 32] }
-    phong_n = { dist = "uniform", low = 30, high = 120 }
-    noise_sigma = { dist = "normal", mean = 0.01, std = 0.005, low = 0.0, high = 0.05 }
-
-    [params.colon]          # per-family distributions (override [params] for that family)
-    station = { dist = "uniform", low = 0.1, high = 0.9 }
-
-Distributions: ``constant`` (``value``), ``uniform`` (``low``, ``high``; integers inclusive for
-integer parameters), ``loguniform`` (``low > 0``, ``high``), ``normal`` (``mean``, ``std``, optional
-``low``/``high`` to which draws are clipped; required on a side where the parameter's domain is
-bounded) and ``choice`` (``values``, optional ``weights``). The parameters, their units, domains and
-defaults are in :data:`PARAMS`; ``simtest dataset params`` prints them.
+Distributions: a bare value (constant), ``constant`` (``value``), ``uniform`` (``low``, ``high``;
+inclusive for integer parameters), ``loguniform`` (``low > 0``, ``high``), ``normal`` (``mean``,
+``std``, optional ``low``/``high`` clipping, required where the domain is bounded) and ``choice``
+(``values``, optional ``weights``). The parameters, units, domains and defaults are in
+:data:`PARAMS` (``simtest dataset params``).
 """
 
 from __future__ import annotations

@@ -21,6 +21,7 @@ falloff cancelled; the first-order model the method assumes on curved surfaces.
 from __future__ import annotations
 
 import dataclasses
+import functools
 import hashlib
 import io
 import math
@@ -399,29 +400,22 @@ def sample_from_render(config: DatasetConfig, index: int, params: dict, result) 
     peak = float(np.max(specular)) if specular.size else 0.0
     t_min = min(config.isovalues)
     hmask = (specular >= t_min * peak) if peak > 0 else np.zeros_like(mask)
-    arrays = {
-        "sensor_png": _encode_png(np.ascontiguousarray(sensor)),
-        "linear": np.ascontiguousarray(linear, dtype=np.float32),
-        "specular": np.ascontiguousarray(specular, dtype=np.float32),
-        "normals": np.ascontiguousarray(normals, dtype=np.float32),
-        "depth": np.ascontiguousarray(depth, dtype=np.float32),
-        "mask": np.ascontiguousarray(mask),
-        "highlight_mask": np.ascontiguousarray(hmask, dtype=bool),
-    }
+    f32 = functools.partial(np.ascontiguousarray, dtype=np.float32)
+    arrays = {"sensor_png": _encode_png(np.ascontiguousarray(sensor)), "linear": f32(linear), "specular": f32(specular),
+              "normals": f32(normals), "depth": f32(depth), "mask": np.ascontiguousarray(mask),
+              "highlight_mask": np.ascontiguousarray(hmask, dtype=bool)}
     K = np.asarray(result.K, dtype=np.float64)
     f64 = lambda a: jsonable(np.asarray(a, np.float64))  # noqa: E731
     highlights = [{"bp_px": f64(h.bp_px), "bp_mm": f64(h.bp_mm), "normal": f64(h.normal), "k1": float(h.k1),
                    "k2": float(h.k2), "in_frame": bool(h.in_frame),
                    "isophotes": isophote_record(h.bp_mm, h.normal, K, config.isovalues, params["phong_n"])}
                   for h in result.highlights]
-    record = {
-        "index": int(index), "family": params["family"], "params": jsonable(params),
-        "render_seed": int(params["render_seed"]), "K": K.tolist(),
-        "cam_to_world": np.asarray(result.cam_to_world, np.float64).tolist(),
-        "image_size": [int(mask.shape[1]), int(mask.shape[0])], "variant": str(result.variant),
-        "exposure_applied": exposure, "color": "rgb" if sensor.ndim == 3 else "grey",
-        "highlights": highlights, "camera": camera_file(result), "scene": _portable_scene(result.spec),
-    }
+    record = {"index": int(index), "family": params["family"], "params": jsonable(params),
+              "render_seed": int(params["render_seed"]), "K": K.tolist(),
+              "cam_to_world": np.asarray(result.cam_to_world, np.float64).tolist(),
+              "image_size": [int(mask.shape[1]), int(mask.shape[0])], "variant": str(result.variant),
+              "exposure_applied": exposure, "color": "rgb" if sensor.ndim == 3 else "grey",
+              "highlights": highlights, "camera": camera_file(result), "scene": _portable_scene(result.spec)}
     return Sample(index=int(index), arrays=arrays, record=record)
 
 

@@ -79,10 +79,8 @@ def phong_plane_image(K, shape: tuple[int, int], normal, distance_mm: float, n: 
         Plane normal facing the camera, camera frame.
     distance_mm : float
         Camera-to-plane distance, mm.
-    n : float
-        Phong roughness, > 0.
-    c : float
-        Peak intensity.
+    n, c : float
+        Phong roughness (> 0) and peak intensity.
     light_mm : array_like of shape (3,)
         Point light position, camera frame (origin: co-located).
     falloff : bool

@@ -48,10 +48,8 @@ def phong_intensity(P, V, L, n: float, c: float = 1.0, origin=None) -> np.ndarra
         Points on the plane (z = 0 is assumed or must be given), scene-plane frame, mm.
     V, L : array_like of shape (3,)
         Viewer and light positions, mm, on the same side of the plane (z > 0).
-    n : float
-        Phong roughness exponent, > 0.
-    c : float
-        Scale factor, > 0.
+    n, c : float
+        Phong roughness exponent and scale factor, > 0.
     origin : array_like of shape (2,), optional
         When given, ``P`` (..., 2) are offsets from this point of the plane: the intensity at
         ``P + origin``.

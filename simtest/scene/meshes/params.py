@@ -186,10 +186,8 @@ class HaustralParams:
     diameter_mm : float
         Lumen diameter between folds, away from the taeniae, before the haustral bulge
         (5 cm: the transverse colon's upper half of < 6 cm).
-    diameter_variation : float
-        Relative amplitude of the slow, seeded sinusoidal change of the diameter along the colon.
-    diameter_wavelength_mm : float
-        Wavelength of that change.
+    diameter_variation, diameter_wavelength_mm : float
+        Relative amplitude and wavelength of the slow, seeded sinusoidal change of the diameter.
     bend_mm, bend_wavelength_mm, bend_3d : float
         Centre line ``(A (sin(w u + px) - sin px), A bend_3d (sin(0.7 w u + py) - sin py), u)``
         with ``A = bend_mm``, ``w = 2 pi / bend_wavelength_mm``, seeded phases.
@@ -208,15 +206,11 @@ class HaustralParams:
     fold_crest_radius_mm : float
         Radius of curvature of a fold's profile at its crest, along the centre line, for a fold
         of the mean height: the sharpness (smaller is sharper).
-    fold_crescent_mm : float
-        How far a fold's crest bows along the centre line between two taeniae (the crescent).
-    fold_stagger_mm : float
-        Amplitude of the offset of the folds around the circumference, ``stagger sin(theta)``:
-        the three sectors' folds do not line up.
-    taenia_width_mm : float
-        Full width at half depth of each of the three taeniae (about 1 cm).
-    taenia_indent_mm : float
-        Inward pull of the wall on a taenia.
+    fold_crescent_mm, fold_stagger_mm : float
+        How far a crest bows along the centre line between two taeniae; amplitude of the folds'
+        offset around the circumference, ``stagger sin(theta)`` (the sectors' folds do not line up).
+    taenia_width_mm, taenia_indent_mm : float
+        Full width at half depth of each of the three taeniae (about 1 cm); inward pull of the wall there.
     taenia_fold_relief : float
         Fraction of the fold height lost on a taenia, in [0, 1] (folds are interrupted there).
     haustra_bulge_mm : float
@@ -257,20 +251,17 @@ class HaustralParams:
         r_min = (r0 * (1.0 - self.diameter_variation) - self.taenia_indent_mm
                  - self.fold_height_mm * (1.0 + self.fold_height_variation))
         if r_min <= 0.25 * r0:
-            raise MeshError(
-                f"HaustralParams: fold_height_mm: {self.fold_height_mm!r} closes the lumen (smallest "
-                f"wall distance {r_min:.3g} mm with diameter_mm={self.diameter_mm!r}); keep the wall "
-                f"at least a quarter of the radius from the centre line")
+            raise MeshError(f"HaustralParams: fold_height_mm: {self.fold_height_mm!r} closes the lumen (smallest "
+                            f"wall distance {r_min:.3g} mm with diameter_mm={self.diameter_mm!r}); keep the wall "
+                            f"at least a quarter of the radius from the centre line")
         if self.fold_crescent_mm + self.fold_stagger_mm >= 0.4 * self.fold_spacing_mm:
-            raise MeshError(
-                f"HaustralParams: fold_crescent_mm + fold_stagger_mm = "
-                f"{self.fold_crescent_mm + self.fold_stagger_mm!r} must stay below 0.4 fold_spacing_mm "
-                f"({0.4 * self.fold_spacing_mm:.3g}): neighbouring folds would overlap")
+            raise MeshError(f"HaustralParams: fold_crescent_mm + fold_stagger_mm = "
+                            f"{self.fold_crescent_mm + self.fold_stagger_mm!r} must stay below 0.4 fold_spacing_mm "
+                            f"({0.4 * self.fold_spacing_mm:.3g}): neighbouring folds would overlap")
         w = 2.0 * math.pi / self.bend_wavelength_mm
         kappa_max = self.bend_mm * w * w * (1.0 + self.bend_3d * 0.49)
         r_max = r0 * (1.0 + self.diameter_variation) + self.haustra_bulge_mm
         if kappa_max * r_max >= 0.8:
-            raise MeshError(
-                f"HaustralParams: bend_mm: the centre line bends too sharply for the tube (curvature "
-                f"up to {kappa_max:.3g} /mm times radius {r_max:.3g} mm >= 0.8 would fold the wall); "
-                f"lower bend_mm or raise bend_wavelength_mm")
+            raise MeshError(f"HaustralParams: bend_mm: the centre line bends too sharply for the tube (curvature "
+                            f"up to {kappa_max:.3g} /mm times radius {r_max:.3g} mm >= 0.8 would fold the wall); "
+                            f"lower bend_mm or raise bend_wavelength_mm")
