@@ -30,7 +30,7 @@ import shutil
 import socket
 import time
 import zipfile
-from collections import deque
+from collections import Counter, deque
 from concurrent.futures.process import BrokenProcessPool
 from dataclasses import dataclass, field
 from datetime import datetime, timezone
@@ -200,14 +200,10 @@ def _finalise(config: DatasetConfig, out: Path) -> None:
         npz = shard_npz_path(out, s).name
         for row in doc["samples"]:
             rows.append({"npz": f"{SHARDS_DIR}/{npz}", **row})
-    by_family: dict[str, int] = {}
-    n_hl = n_in = 0
-    variants: set[str] = set()
-    for r in rows:
-        by_family[r["family"]] = by_family.get(r["family"], 0) + 1
-        n_hl += len(r.get("highlights", []))
-        n_in += sum(1 for h in r.get("highlights", []) if h.get("in_frame"))
-        variants.add(str(r.get("variant")))
+    by_family = Counter(r["family"] for r in rows)
+    n_hl = sum(len(r.get("highlights", [])) for r in rows)
+    n_in = sum(1 for r in rows for h in r.get("highlights", []) if h.get("in_frame"))
+    variants = {str(r.get("variant")) for r in rows}
     write_manifest(out, rows)
     atomic_write_text(out / "README.md", _readme(config, len(rows)))
     shard_bytes = sum(shard_npz_path(out, s).stat().st_size for s in range(config.n_shards))
