@@ -196,17 +196,9 @@ def _to_tensor(torch, key: str, a, sensor_channels: int = 1):
 
 
 class TorchView:
-    """Items of a :class:`SimtestDataset` as dicts of PyTorch tensors (map-style dataset).
+    """Items of a :class:`SimtestDataset` (its ``split`` applies) as dicts of PyTorch tensors; ``keys``,
+    ``transform``, ``with_record`` as in :meth:`SimtestDataset.torch`.
 
-    Parameters
-    ----------
-    dataset : SimtestDataset
-        The dataset to read (its ``split`` applies).
-    keys, transform, with_record
-        See :meth:`SimtestDataset.torch`.
-
-    Notes
-    -----
     ``"sensor"`` is float32 (C, H, W) in [0, 1], C = 3 if any sample of the dataset is RGB (a grey
     one repeated), else 1; ``"normals"`` float32 (3, H, W); other arrays as in
     :class:`SimtestDataset`; ``"K"`` float32 (3, 3), ``"cam_to_world"`` float32 (4, 4).
@@ -265,24 +257,9 @@ def collate(batch: list[dict]) -> dict:
 
 def open_dataset(root, keys: Sequence[str] | None = None, with_record: bool = True,
                  split: str | None = None) -> SimtestDataset:
-    """Open a dataset folder lazily (``simtest.dataset.open``); see :class:`SimtestDataset`.
+    """Open a dataset folder lazily (``simtest.dataset.open``): ``SimtestDataset(root, keys, with_record, split)``.
 
-    Parameters
-    ----------
-    root : path
-        Dataset folder (written by ``simtest dataset generate``).
-    keys : sequence of str, optional
-        Arrays to load per sample (default: all).
-    with_record : bool
-        Include the manifest row under ``"record"``.
-    split : str, optional
-        ``"train"``, ``"val"`` or ``"test"``: only that split's samples.
-
-    Raises
-    ------
-    DatasetError
-        If ``root`` is not a complete dataset, or the manifest names a shard file outside it.
-    KeyError
-        If ``keys`` names an unknown array.
+    Raises DatasetError if ``root`` is not a complete dataset or the manifest names a shard file
+    outside it, KeyError if ``keys`` names an unknown array.
     """
     return SimtestDataset(root, keys=keys, with_record=with_record, split=split)

@@ -1,10 +1,8 @@
-"""The kinds of surface a scene holds: one frozen class per ``geometry.type``.
+"""The kinds of surface a scene holds: one frozen pydantic class per ``geometry.type`` (its own keys only).
 
-Each kind is a pydantic dataclass holding only its own keys (unknown keys refused, ranges as
-``Field`` bounds), with class attributes saying how the renderer treats it: ``type`` (its name in
-the scene file), ``frame`` (``"world"``, or ``"camera"`` for a surface placed relative to the
-camera) and ``triangulated`` (rendered as a triangle mesh with per-vertex normals and curvatures,
-so that it can shadow itself). :data:`GEOMETRY_TYPES` is the registry keyed by the type name.
+Class attributes tell the renderer how to treat a kind: ``type`` (its name in the scene file),
+``frame`` (``"world"``, or ``"camera"`` when placed relative to the camera) and ``triangulated``
+(rendered as a mesh with per-vertex normals and curvatures). :data:`GEOMETRY_TYPES` is the registry.
 """
 
 from __future__ import annotations

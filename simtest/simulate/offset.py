@@ -38,34 +38,13 @@ def specular_point(normal, distance_mm: float, light_mm) -> tuple[np.ndarray, fl
 
 def rig_plane_image(K, shape: tuple[int, int], normal, distance_mm: float, rig: LightRig,
                     n: float, c: float = 1.0, supersample: int = 1) -> np.ndarray:
-    """Exact float image of a Phong plane lit by a rig, through a pinhole (module docstring).
+    """Exact float image (H, W) of a Phong plane lit by ``rig`` through a pinhole (module docstring).
 
-    Parameters
-    ----------
-    K : array_like of shape (3, 3)
-        Intrinsics, pixel centres at integer coordinates.
-    shape : (H, W)
-        Image size, px.
-    normal : array_like of shape (3,)
-        Plane normal facing the camera (camera frame).
-    distance_mm : float
-        Camera-to-plane distance, mm, > 0.
-    rig : LightRig
-        The lights (camera frame, mm), each on the camera's side of the plane.
-    n, c : float
-        Phong roughness and scale, > 0.
-    supersample : int
-        s x s point samples per pixel, box-averaged (1: the pixel centre).
-
-    Returns
-    -------
-    ndarray of shape (H, W), float64
-        Intensity; 0 where the pixel ray misses the plane.
-
-    Raises
-    ------
-    ValueError
-        Invalid K, shape, normal, distance, n, c, supersample, or a light behind the plane.
+    ``K`` (pinhole intrinsics), ``shape``, ``normal``, ``distance_mm``, ``n``, ``c`` and
+    ``supersample`` are as in :func:`simtest.simulate.analytic.phong_plane_image`; ``rig`` holds the
+    lights (camera frame, mm), each on the camera's side of the plane. The image is 0 where the pixel
+    ray misses the plane. Raises ValueError on invalid K, shape, normal, distance, n, c, supersample,
+    or a light behind the plane.
     """
     K = validate_intrinsics(K)
     N = unit(np.asarray(normal, dtype=np.float64).reshape(3))
