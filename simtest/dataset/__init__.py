@@ -1,18 +1,11 @@
 """Datasets for learning: rendered samples with exact labels, in shards readable without simtest.
 
-``simtest dataset generate CONFIG --out DIR`` renders the samples a TOML config describes
-(:mod:`simtest.dataset.config`), each a pure function of (root seed, index)
-(:mod:`simtest.dataset.sample`), into shards with a manifest and a card
-(:mod:`simtest.dataset.shards`), locally or on a Dask cluster (:mod:`simtest.dataset.generate`);
-``simtest dataset verify DIR`` checks it (:mod:`simtest.dataset.verify`),
-``simtest dataset show DIR`` draws a contact sheet (:mod:`simtest.dataset.show`),
-``simtest dataset export DIR --format webdataset|hdf5`` converts it (:mod:`simtest.dataset.export`)
-and ``simtest.dataset.open(DIR)`` reads it lazily, ``.torch(...)`` for a PyTorch ``DataLoader``
-(:mod:`simtest.dataset.reader`).
-
-Functions: ``simtest.dataset.generate.generate``, ``simtest.dataset.verify.verify``,
-``simtest.dataset.open``, ``simtest.dataset.collate``. Attributes are imported on first use so that ``import simtest.dataset`` stays cheap; ``dir()``
-lists them.
+``simtest dataset generate CONFIG --out DIR`` renders the samples of a TOML config
+(:mod:`~simtest.dataset.config`, :mod:`~simtest.dataset.sample`) into shards with a manifest and a
+card (:mod:`~simtest.dataset.shards`, :mod:`~simtest.dataset.generate`); ``verify``, ``show`` and
+``export`` check, draw and convert it; ``simtest.dataset.open(DIR)`` reads it lazily
+(:mod:`~simtest.dataset.reader`). Attributes are imported on first use, so ``import
+simtest.dataset`` stays cheap.
 """
 
 from __future__ import annotations

@@ -36,7 +36,6 @@ def generate_command(
 
     Exit codes: 0 done, 2 bad config, folder or --workers, 4 OUT cannot be written, 130 interrupted (SIGTERM or Ctrl-C; workers stopped; rerun to resume).
     """
-
     cpus = os.cpu_count() or 1
     workers = workers or None  # 0 and None: one per core
     if workers is not None and workers > cpus and scheduler is None:
@@ -73,7 +72,6 @@ def verify_command(
 
     Writes nothing; prints one line per problem, then a summary. Exit codes: 0 sound, 1 damage found, 2 DIR is not a folder.
     """
-
     if not root.is_dir():
         fail(f"{root}: not a folder (give a dataset folder made by `simtest dataset generate`)",
              BAD_INPUT)
@@ -99,7 +97,6 @@ def export_command(
 
     Exit codes: 0 done, 2 bad input, 4 OUT cannot be written (disk full: nothing left behind, an earlier export unchanged).
     """
-
     target = out if out is not None else root.with_name(f"{root.name}-{fmt}")
     try:
         if not root.is_dir():
@@ -126,7 +123,6 @@ def show_command(
 
     Writes one PNG, OUT (default DIR/contact_sheet.png). Exit codes: 0 done, 2 bad input, 4 OUT cannot be written (disk full, read-only; an earlier sheet is kept).
     """
-
     try:
         path = contact_sheet(root, out, count=count, start=start)
     except (DatasetError, ValueError) as exc:
@@ -140,7 +136,6 @@ def show_command(
 @dataset_app.command("params")
 def params_command() -> None:
     """List the parameters a dataset config may draw, with units, families and defaults (writes nothing)."""
-
     for p in PARAMS:
         defaults = "; ".join(f"{k}: {d.as_dict()}" for k, d in p.default.items())
         typer.echo(f"{p.name}  [{', '.join(p.families)}]\n    {p.doc}\n    default {defaults}")

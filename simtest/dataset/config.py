@@ -1,39 +1,17 @@
 """Dataset configuration: a TOML file naming scene families and the distributions to draw from.
 
-A dataset config is parsed and fully validated here, before any file is written. Every error is a
-:class:`DatasetConfigError` whose message names the file, the key and the offending value.
+A config is parsed and fully validated before any file is written; every error is a
+:class:`DatasetConfigError` naming the file, the key and the value. Top-level keys: ``count``
+(0 .. :data:`MAX_COUNT`), ``seed``, ``shard_size``, ``isovalues`` (t in (0, 1)), ``variant``,
+``compress``, ``splits``, ``auto_exposure``; tables ``[families]`` (relative weights) and
+``[params]`` (shared distributions) with ``[params.<family>]`` overrides. See
+``scenes/datasets/example.toml``.
 
-Format
-------
-.. code-block:: toml
-
-    count = 1000            # number of samples (0 .. MAX_COUNT = 10 million)
-    seed = 2026             # root seed (any integer >= 0; 0 is valid)
-    shard_size = 250        # samples per shard file
-    isovalues = [0.1, 0.3]  # isophote levels t in (0, 1) (relative to the Phong peak c)
-    variant = "auto"        # "auto", "llvm_ad_rgb" or "cuda_ad_rgb" (pin it on mixed machines)
-    compress = true         # deflate the masks and specular image in the shards (default)
-    splits = { train = 0.8, val = 0.1, test = 0.1 }   # seeded split of each sample (default)
-    auto_exposure = { percentile = 99.9, level = 0.9 }  # or false (default shown)
-
-    [families]              # weight of each scene family (relative; 0 disables)
-    planes = 1.0
-    colon = 2.0
-
-    [params]                # distributions shared by every family that uses the parameter
-    resolution_px = 256                                   # a bare value is a constant
-    spp = { dist = "choice", values = [16, 32] }
-    phong_n = { dist = "uniform", low = 30, high = 120 }
-    noise_sigma = { dist = "normal", mean = 0.01, std = 0.005, low = 0.0, high = 0.05 }
-
-    [params.colon]          # per-family distributions (override [params] for that family)
-    station = { dist = "uniform", low = 0.1, high = 0.9 }
-
-Distributions: ``constant`` (``value``), ``uniform`` (``low``, ``high``; integers inclusive for
-integer parameters), ``loguniform`` (``low > 0``, ``high``), ``normal`` (``mean``, ``std``, optional
-``low``/``high`` to which draws are clipped; required on a side where the parameter's domain is
-bounded) and ``choice`` (``values``, optional ``weights``). The parameters, their units, domains and
-defaults are in :data:`PARAMS`; ``simtest dataset params`` prints them.
+Distributions: a bare value (constant), ``constant`` (``value``), ``uniform`` (``low``, ``high``;
+inclusive for integer parameters), ``loguniform`` (``low > 0``, ``high``), ``normal`` (``mean``,
+``std``, optional ``low``/``high`` clipping, required where the domain is bounded) and ``choice``
+(``values``, optional ``weights``). The parameters, units, domains and defaults are in
+:data:`PARAMS` (``simtest dataset params``).
 """
 
 from __future__ import annotations
@@ -66,11 +44,8 @@ FAMILIES: tuple[str, ...] = ("planes", "spheres", "cylinders", "colon", "liver")
 DEFAULT_SPLITS = (("train", 0.8), ("val", 0.1), ("test", 0.1))
 
 #: Default auto-exposure: the ``percentile`` of the linear image inside the mask is brought to
-#: ``level`` of full scale before the sensor model (the ``exposure`` parameter multiplies on top).
-#: 99.9 puts the top of a dim tissue image (its highlights) near the top of the 8-bit range and
-#: lets at most the brightest 0.1 % of surface pixels saturate: a lower percentile (99.5 was tried)
-#: fell outside small highlights on pure-specular surfaces and saturated their isophotes at
-#: t > 0.12 (gain x8); 0.9 keeps headroom for the noise.
+#: ``level`` of full scale before the sensor model (``exposure`` multiplies on top). 99.9 lets at most
+#: 0.1 % of surface pixels saturate (99.5 saturated small highlights' isophotes); 0.9 leaves headroom.
 DEFAULT_AUTO_EXPOSURE = (99.9, 0.9)
 _DIST_KEYS = {
     "constant": ("value",),
@@ -80,10 +55,8 @@ _DIST_KEYS = {
     "choice": ("values", "weights"),
 }
 _MAX_SHARD = 100_000
-#: Most samples a config may ask for. The manifest holds one JSON row (~4 KB with isophote
-#: labels) per sample and is read whole by ``generate``'s last step, ``verify`` and the reader, so
-#: 10 million samples mean ~40 GB of rows in memory and, at 256 x 256 px (~1.7 MB a sample),
-#: ~17 TB of shards: a larger count is a typo, refused before anything is written.
+#: Most samples a config may ask for: the manifest (~4 KB a row) is read whole, so 10 million rows
+#: are ~40 GB in memory (and ~17 TB of shards); a larger count is a typo.
 MAX_COUNT = 10_000_000
 
 
@@ -95,27 +68,16 @@ class DatasetConfigError(ValueError):
 class Dist:
     """One distribution of a scalar parameter.
 
-    Attributes
-    ----------
-    kind : str
-        ``"constant"``, ``"uniform"``, ``"loguniform"``, ``"normal"`` or ``"choice"``.
-    args : tuple
-        ``(value,)``, ``(low, high)``, ``(low, high)``, ``(mean, std, low, high)`` (low/high may
-        be None) or ``(values, weights)`` (weights may be None) respectively.
+    ``kind`` is ``"constant"``, ``"uniform"``, ``"loguniform"``, ``"normal"`` or ``"choice"``, with
+    ``args`` ``(value,)``, ``(low, high)``, ``(low, high)``, ``(mean, std, low, high)`` or
+    ``(values, weights)`` respectively (low, high, weights may be None).
     """
 
     kind: str
     args: tuple
 
     def support(self) -> tuple[float, float] | None:
-        """Closed interval that holds every draw.
-
-        Returns
-        -------
-        (float, float) or None
-            ``(low, high)`` in the parameter's unit (``-inf``/``inf`` for an unclipped normal);
-            None for a constant or choice that is not numeric.
-        """
+        """Closed interval ``(low, high)`` holding every draw (``inf`` for an unclipped normal); None if not numeric."""
         if self.kind == "constant":
             v = self.args[0]
             return (v, v) if _is_number(v) else None
@@ -130,19 +92,9 @@ class Dist:
         return (min(values), max(values)) if all(_is_number(v) for v in values) else None
 
     def draw(self, rng: np.random.Generator, integer: bool = False):
-        """Draw one value with ``rng`` (constants draw nothing from the stream).
+        """Draw one plain Python scalar with ``rng`` (constants draw nothing from the stream).
 
-        Parameters
-        ----------
-        rng : numpy.random.Generator
-            The sample's generator.
-        integer : bool
-            Draw an integer (uniform: inclusive bounds; normal: rounded after clipping).
-
-        Returns
-        -------
-        float, int, str or bool
-            A plain Python scalar (JSON-ready).
+        ``integer``: uniform bounds inclusive, normal rounded after clipping.
         """
         kind, a = self.kind, self.args
         if kind == "constant":
@@ -185,23 +137,10 @@ def _uni(lo, hi) -> Dist:
 class ParamDef:
     """A parameter a dataset config may draw.
 
-    Attributes
-    ----------
-    name : str
-        Config key (unit suffix in the name where a unit could be mistaken).
-    doc : str
-        Meaning, unit and frame.
-    families : tuple of str
-        Families that use it.
-    default : dict
-        Default distribution per family (key ``"*"`` for all families).
-    domain : (float, float)
-        Closed interval every draw must lie in (``-inf``/``inf`` for unbounded sides);
-        ``open_low``/``open_high`` make an end exclusive.
-    integer : bool
-        Integer-valued parameter.
-    choices : tuple of str, optional
-        Allowed values of a string parameter.
+    ``name`` is the config key, ``doc`` its meaning, unit and frame, ``families`` those that use it,
+    ``default`` the default :class:`Dist` per family (``"*"``: all), ``domain`` the closed interval
+    every draw must lie in (``open_low``/``open_high`` make an end exclusive), ``integer`` and
+    ``choices`` (allowed strings) its kind.
     """
 
     name: str
@@ -215,19 +154,7 @@ class ParamDef:
     choices: tuple[str, ...] | None = None
 
     def default_for(self, family: str) -> Dist:
-        """Default distribution of this parameter for one family.
-
-        Parameters
-        ----------
-        family : str
-            A name in :data:`FAMILIES`.
-
-        Returns
-        -------
-        Dist or None
-            The family's own default if there is one, else the ``"*"`` default, else None
-            (the parameter is not used by that family).
-        """
+        """Default :class:`Dist` for ``family``: its own, else the ``"*"`` one, else None (not used by it)."""
         return self.default.get(family, self.default.get("*"))
 
 
@@ -332,19 +259,15 @@ class DatasetConfig:
 
     Attributes
     ----------
-    count : int
-        Number of samples, 0 .. :data:`MAX_COUNT`.
-    seed : int
-        Root seed; sample i draws from ``SeedSequence([seed, i])``.
-    shard_size : int
-        Samples per shard.
+    count, seed, shard_size : int
+        Number of samples (0 .. :data:`MAX_COUNT`), root seed (sample i draws from
+        ``SeedSequence([seed, i])``), samples per shard.
     isovalues : tuple of float
         Isophote levels t in (0, 1), relative to the Phong peak c.
     variant : str
         Mitsuba variant or ``"auto"``.
     compress : bool
-        Deflate the arrays that compress well (masks, specular image; see
-        :data:`simtest.dataset.shards.DEFLATED`) in the shard files (default True).
+        Deflate :data:`simtest.dataset.shards.DEFLATED` in the shard files (default True).
     families : tuple of (str, float)
         Families with positive weight, in canonical order.
     params : dict
@@ -354,8 +277,7 @@ class DatasetConfig:
     raw : dict
         The config as given (JSON-ready), kept in the dataset card.
     splits : tuple of (str, float)
-        Fractions of ``train``, ``val`` and ``test`` (summing to 1); sample i's split is a pure
-        function of ``(seed, i)`` (:meth:`split_of`).
+        Fractions of ``train``, ``val`` and ``test`` (summing to 1); see :meth:`split_of`.
     auto_exposure : (float, float) or None
         ``(percentile, level)``: scale each linear image so that this percentile of its surface
         pixels reaches ``level`` x full scale before the sensor model; None: exposure as drawn.
@@ -380,36 +302,15 @@ class DatasetConfig:
         return -(-self.count // self.shard_size)
 
     def shard_range(self, shard: int) -> range:
-        """Sample indices held by ``shard``.
-
-        Parameters
-        ----------
-        shard : int
-            Shard number in ``[0, n_shards)``.
-
-        Returns
-        -------
-        range
-            ``shard * shard_size`` up to ``min(count, (shard + 1) * shard_size)`` (exclusive);
-            empty for a shard number past the end.
-        """
+        """Sample indices of ``shard``: ``shard * shard_size`` up to ``min(count, (shard + 1) * shard_size)``."""
         start = shard * self.shard_size
         return range(start, min(self.count, start + self.shard_size))
 
     def split_of(self, index: int) -> str:
-        """The split of sample ``index``: a pure function of ``(seed, index)``.
+        """The split (``"train"``, ``"val"`` or ``"test"``) of sample ``index``, a pure function of ``(seed, index)``.
 
-        Parameters
-        ----------
-        index : int
-            Sample index.
-
-        Returns
-        -------
-        str
-            ``"train"``, ``"val"`` or ``"test"``: ``u = sha256("<seed>:<index>")`` read as a fraction
-            in [0, 1) picks the first split whose cumulative fraction exceeds it, so a sample keeps
-            its split when ``count`` grows (and the realised fractions tend to :attr:`splits`).
+        ``sha256("simtest-split:<seed>:<index>")`` read as a fraction in [0, 1) picks the first split whose
+        cumulative fraction exceeds it, so a sample keeps its split when ``count`` grows.
         """
         digest = hashlib.sha256(f"simtest-split:{self.seed}:{int(index)}".encode()).digest()
         u = int.from_bytes(digest[:8], "big") / 2.0**64
@@ -423,24 +324,16 @@ class DatasetConfig:
     def to_dict(self) -> dict:
         """Canonical, complete JSON-ready form (defaults filled in); ``config_from_dict`` reads it."""
         used = {f for f, _ in self.families}
-        return {
-            "count": self.count, "seed": self.seed, "shard_size": self.shard_size,
-            "isovalues": list(self.isovalues), "variant": self.variant, "compress": self.compress,
-            "splits": dict(self.splits),
-            "auto_exposure": (None if self.auto_exposure is None else
-                              {"percentile": self.auto_exposure[0], "level": self.auto_exposure[1]}),
-            "families": {f: w for f, w in self.families},
-            "params": {f: {k: d.as_dict() for k, d in self.params[f].items()} for f in FAMILIES if f in used},
-        }
+        return {"count": self.count, "seed": self.seed, "shard_size": self.shard_size,
+                "isovalues": list(self.isovalues), "variant": self.variant, "compress": self.compress,
+                "splits": dict(self.splits),
+                "auto_exposure": (None if self.auto_exposure is None else
+                                  {"percentile": self.auto_exposure[0], "level": self.auto_exposure[1]}),
+                "families": {f: w for f, w in self.families},
+                "params": {f: {k: d.as_dict() for k, d in self.params[f].items()} for f in FAMILIES if f in used}}
 
     def fingerprint(self) -> str:
-        """sha256 of the canonical form: two configs that draw the same samples share it.
-
-        Returns
-        -------
-        str
-            64 hex digits of ``sha256(json.dumps(to_dict(), sort_keys=True))`` (compact separators).
-        """
+        """sha256 of the canonical :meth:`to_dict` (sorted keys): configs that draw the same samples share it."""
         text = json.dumps(self.to_dict(), sort_keys=True, separators=(",", ":"))
         return hashlib.sha256(text.encode()).hexdigest()
 
@@ -449,8 +342,7 @@ def _is_number(v) -> bool:
     return isinstance(v, int | float) and not isinstance(v, bool)
 
 
-#: ``_err(source, key, reason[, value])``: the one-line error of a bad key, `` (got <value>)``
-#: appended when the value is given (:func:`simtest._checks.keyed_error`).
+#: ``_err(source, key, reason[, value])``: the one-line error of a bad key (:func:`simtest._checks.keyed_error`).
 _err = functools.partial(keyed_error, DatasetConfigError)
 #: The config's tables: frozen pydantic dataclasses, unknown keys refused.
 _model = functools.partial(pydantic_dataclass, frozen=True, config=CONFIG)
@@ -597,22 +489,9 @@ def _check_domain(p: ParamDef, dist: Dist, key: str, source: str) -> None:
 def config_from_dict(d: dict, source: str = "<dict>") -> DatasetConfig:
     """Validate a config mapping (as read from TOML) into a :class:`DatasetConfig`.
 
-    Parameters
-    ----------
-    d : dict
-        The parsed TOML document.
-    source : str
-        Name used in error messages (the file path).
-
-    Returns
-    -------
-    DatasetConfig
-
-    Raises
-    ------
-    DatasetConfigError
-        Unknown key or family, negative count, impossible range, value outside a parameter's
-        domain, wrong type; the message names ``source``, the key and the value.
+    ``source`` names the file in messages. Raises :class:`DatasetConfigError` (naming ``source``, the
+    key and the value) on an unknown key or family, a negative count, an impossible range, a value
+    outside a parameter's domain or a wrong type.
     """
     if not isinstance(d, dict):
         raise _err(source, "<root>", "a config must be a table", d)
@@ -679,19 +558,7 @@ def config_from_dict(d: dict, source: str = "<dict>") -> DatasetConfig:
 def load_config(path) -> DatasetConfig:
     """Read and validate a dataset config TOML file.
 
-    Parameters
-    ----------
-    path : str or Path
-        The TOML file.
-
-    Returns
-    -------
-    DatasetConfig
-
-    Raises
-    ------
-    DatasetConfigError
-        Missing file, TOML syntax error, or any validation failure (naming the file and key).
+    Raises :class:`DatasetConfigError` on a missing file, a TOML syntax error or any validation failure.
     """
     path = Path(path)
     try:

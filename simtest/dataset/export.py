@@ -19,19 +19,16 @@ time, owner and mode, so the same dataset exports to the same bytes.
 
 HDF5 (BlenderProc's layout)
 ---------------------------
-``OUT/<index>.hdf5``, one file per sample as BlenderProc writes them, with the datasets
-``colors`` (uint8 (H, W), or (H, W, 3) for an RGB sample, the sensor image), ``normals``, ``depth``, ``linear``, ``specular``,
-``mask``, ``highlight_mask`` (gzip-compressed), ``record`` (the manifest row as JSON text) and
-``camera`` (the camera file as JSON text);
-read with ``h5py`` alone (:data:`READ_HDF5`).
+``OUT/<index>.hdf5``, one file per sample, with the datasets ``colors`` (uint8 (H, W) or
+(H, W, 3), the sensor image), ``normals``, ``depth``, ``linear``, ``specular``, ``mask``,
+``highlight_mask`` (gzip), ``record`` and ``camera`` (JSON text); read with ``h5py`` alone
+(:data:`READ_HDF5`).
 
-Both exports hold ``export.json`` (source card's config fingerprint, format, count) and are
-written to a temporary folder swapped into place (:func:`~simtest._io.replace_output_folder`), so
-an interrupted export leaves nothing half written. Each HDF5 file is built in memory and written with plain file I/O, so a full disk is an
-ordinary ``OSError`` (no HDF5 library error stack, no crash inside the library); any failure to
-write removes the temporary folder, leaves an earlier export in place and raises
-:class:`~simtest.dataset.shards.DatasetWriteError` (one line). Temporary folders of exports whose
-process died (``.<out>.*.tmp``) are removed by the next export.
+Both exports hold ``export.json`` (config fingerprint, format, count) and are written to a
+temporary folder swapped into place (:func:`~simtest._io.replace_output_folder`). HDF5 files are
+built in memory and written with plain file I/O, so a full disk is an ordinary ``OSError``; any
+write failure removes the temporary folder, keeps an earlier export and raises
+:class:`~simtest.dataset.shards.DatasetWriteError`.
 """
 
 from __future__ import annotations
@@ -94,9 +91,7 @@ def _npy(a: np.ndarray) -> bytes:
 
 def _add(tar: tarfile.TarFile, name: str, data: bytes) -> None:
     info = tarfile.TarInfo(name)
-    info.size = len(data)
-    info.mtime = 0
-    info.mode = 0o644
+    info.size, info.mtime, info.mode = len(data), 0, 0o644
     info.uid = info.gid = 0
     info.uname = info.gname = ""
     tar.addfile(info, io.BytesIO(data))
@@ -164,9 +159,8 @@ def export(root, fmt: str, out=None) -> Path:
     DatasetError
         Unknown format, incomplete dataset, manifest paths outside the folder.
     DatasetWriteError
-        A file or a folder of something else in the way of ``out``, or the export cannot be
-        written (disk full, read-only folder): one line; the temporary
-        folder is removed and an earlier export at ``out`` is left as it was.
+        Something else in the way of ``out``, or the export cannot be written; an earlier
+        export at ``out`` is left as it was.
     """
     if fmt not in FORMATS:
         raise DatasetError(f"--format {fmt!r}: not one of {', '.join(FORMATS)}")

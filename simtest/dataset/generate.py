@@ -1,29 +1,18 @@
 """Generate a dataset: local processes by default, or an existing Dask cluster.
 
-Work is one task per sample, submitted in index order with a bounded window of tasks in flight;
-the calling process receives the samples and writes the shards (:class:`ShardWriter`), so the
-output folder only needs to exist where :func:`generate` runs. Each sample is a pure function of
-``(config.seed, index)`` (:func:`simtest.dataset.sample.render_sample`), which makes the dataset
-independent of the scheduler and the number of workers.
+One task per sample, submitted in index order with a bounded window in flight; this process
+receives the samples and writes the shards (:class:`ShardWriter`). Each sample is a pure function
+of ``(config.seed, index)``, so the dataset does not depend on the scheduler or the worker count.
 
-Work kept as it arrives
------------------------
-Every sample whose shard is not yet complete is kept at once in the spool,
-``DIR/spool/<index:08d>.npz`` (its arrays, its record and their sha256; written to a temporary
-file and renamed), so a failure, a kill or a full disk loses at most the samples in flight, never
-more than one sample's render time (well under 30 s) of finished work. A rerun feeds the spooled
-samples of incomplete shards to the shard writer before rendering the rest; the shards it writes
-are byte-identical to an uninterrupted run's (the writer gets the same arrays and records, in
-index order). A shard's spool files are deleted once the shard is renamed into place, and the
-spool folder once the manifest is written. A spool file that does not read back or whose arrays
-no longer match their hashes is deleted and its sample rendered again.
+Every finished sample of an incomplete shard is kept at once in ``DIR/spool/<index:08d>.npz``
+(arrays, record and their sha256, written atomically), so a failure or kill loses only the samples
+in flight; a rerun feeds them to the shard writer first, giving byte-identical shards. Spool files
+go once their shard is in place (the folder once the manifest is written); one that does not read
+back unchanged is deleted and re-rendered.
 
-Interrupts
-----------
-SIGTERM is handled like Ctrl-C: the partial shard files are removed (the spool is kept), the
-local workers are stopped, and :class:`Interrupted` is raised (the command line exits 130). Local
-workers ask the kernel to kill them when their parent dies (Linux ``PR_SET_PDEATHSIG``), so even a
-SIGKILL of the parent leaves no worker running.
+SIGTERM is handled like Ctrl-C: partial shard files are removed (the spool is kept), local workers
+stopped and :class:`Interrupted` raised (exit 130). Local workers die with their parent
+(``PR_SET_PDEATHSIG``).
 """
 
 from __future__ import annotations
@@ -41,7 +30,7 @@ import shutil
 import socket
 import time
 import zipfile
-from collections import deque
+from collections import Counter, deque
 from concurrent.futures.process import BrokenProcessPool
 from dataclasses import dataclass, field
 from datetime import datetime, timezone
@@ -106,23 +95,18 @@ class GenerateReport:
         The dataset folder.
     count : int
         Samples in the dataset.
-    written : int
-        Samples rendered and written by this call.
-    skipped : int
-        Samples in shards that were already complete.
-    resumed : int
-        Samples of incomplete shards taken from the spool instead of rendered again.
+    written, skipped, resumed : int
+        Samples rendered by this call, in shards already complete, and taken from the spool.
     seconds : float
         Wall time of the rendering phase.
     samples_per_s : float
         ``written / seconds`` (0 when nothing was written).
     worker_peak_rss_mb : dict
-        Peak resident memory (MiB) of each worker that ran a sample, keyed by ``host:pid``.
+        Peak resident memory (MiB) of each worker, keyed by ``host:pid``.
     completed_at_s : list of float
-        Seconds from the start of the rendering phase at which each sample arrived (in arrival
-        order), for throughput measurements.
+        Seconds from the start of rendering at which each sample arrived, in arrival order.
     worker_cpu_s : float
-        CPU seconds (all threads) the workers spent in the sample function, summed over samples.
+        CPU seconds the workers spent in the sample function, summed over samples.
     """
 
     out_dir: Path
@@ -137,10 +121,6 @@ class GenerateReport:
     worker_cpu_s: float = 0.0
 
 
-# ------------------------------------------------------------------------------------------------
-# output folder
-
-
 def _prepare(config: DatasetConfig, out: Path) -> set[int]:
     """Check ``out``, write the card, clean partial shards; return the complete shards."""
     card_path = out / CARD_NAME
@@ -150,8 +130,7 @@ def _prepare(config: DatasetConfig, out: Path) -> set[int]:
         card = read_card(out)
         if card.get("config_fingerprint") != config.fingerprint():
             if _json_equal(card.get("config"), config.to_dict()):
-                # The card's fingerprint was damaged but its config is this one: rewrite the card
-                # (the shards are checked against the config's fingerprint below).
+                # a damaged fingerprint over this very config: rewrite the card
                 atomic_write_json(card_path, make_card(config, status="incomplete"))
             else:
                 raise DatasetError(
@@ -187,10 +166,7 @@ def _prepare(config: DatasetConfig, out: Path) -> set[int]:
         stem = p.name.split(".")[0]
         num = stem.removeprefix("shard-")
         if p.name.endswith(TMP_SUFFIX) or not num.isdigit() or int(num) >= config.n_shards:
-            if p.is_dir():
-                shutil.rmtree(p)
-            else:
-                p.unlink()
+            _remove(p)
     for p in out.iterdir():
         if p.name.endswith(TMP_SUFFIX):
             p.unlink()
@@ -200,6 +176,10 @@ def _prepare(config: DatasetConfig, out: Path) -> set[int]:
             if p.name.endswith(TMP_SUFFIX):
                 p.unlink()
     return complete
+
+
+def _remove(p: Path) -> None:
+    shutil.rmtree(p) if p.is_dir() else p.unlink()
 
 
 def _json_equal(a, b) -> bool:
@@ -220,14 +200,10 @@ def _finalise(config: DatasetConfig, out: Path) -> None:
         npz = shard_npz_path(out, s).name
         for row in doc["samples"]:
             rows.append({"npz": f"{SHARDS_DIR}/{npz}", **row})
-    by_family: dict[str, int] = {}
-    n_hl = n_in = 0
-    variants: set[str] = set()
-    for r in rows:
-        by_family[r["family"]] = by_family.get(r["family"], 0) + 1
-        n_hl += len(r.get("highlights", []))
-        n_in += sum(1 for h in r.get("highlights", []) if h.get("in_frame"))
-        variants.add(str(r.get("variant")))
+    by_family = Counter(r["family"] for r in rows)
+    n_hl = sum(len(r.get("highlights", [])) for r in rows)
+    n_in = sum(1 for r in rows for h in r.get("highlights", []) if h.get("in_frame"))
+    variants = {str(r.get("variant")) for r in rows}
     write_manifest(out, rows)
     atomic_write_text(out / "README.md", _readme(config, len(rows)))
     shard_bytes = sum(shard_npz_path(out, s).stat().st_size for s in range(config.n_shards))
@@ -241,10 +217,6 @@ def _finalise(config: DatasetConfig, out: Path) -> None:
     card["card_sha256"] = card_sha256(card)
     atomic_write_json(out / CARD_NAME, card)
     shutil.rmtree(out / SPOOL_DIR, ignore_errors=True)
-
-
-# ------------------------------------------------------------------------------------------------
-# spool: finished samples of incomplete shards
 
 
 def spool_path(out: Path, index: int) -> Path:
@@ -297,22 +269,14 @@ def _spool_load(config: DatasetConfig, out: Path, todo: list[int]) -> dict[int, 
         keep = p.is_file() and p.name.endswith(".npz") and stem.isdigit() and int(stem) in wanted
         sample = _spool_read(p, fp, int(stem)) if keep else None
         if sample is None:
-            if p.is_dir():
-                shutil.rmtree(p)
-            else:
-                p.unlink()
+            _remove(p)
         else:
             got[sample.index] = sample
     return got
 
 
-# ------------------------------------------------------------------------------------------------
-# execution
-
-
 def _run_task(sample_fn: Callable, config: DatasetConfig, index: int):
     """Worker side: one sample, the worker's identity, its peak RSS (KiB) and the CPU seconds."""
-
     cpu0 = time.process_time()
     try:
         sample = sample_fn(config, index)
@@ -412,16 +376,9 @@ def _progress(enabled: bool, total: int, done: int):
     return prog, task
 
 
-def generate(
-    config: DatasetConfig | str | os.PathLike,
-    out_dir: str | os.PathLike,
-    *,
-    workers: int | None = None,
-    scheduler: str | None = None,
-    sample_fn: Callable | None = None,
-    progress: bool = True,
-    window: int | None = None,
-) -> GenerateReport:
+def generate(config: DatasetConfig | str | os.PathLike, out_dir: str | os.PathLike, *, workers: int | None = None,
+             scheduler: str | None = None, sample_fn: Callable | None = None, progress: bool = True,
+             window: int | None = None) -> GenerateReport:
     """Render the samples of ``config`` that ``out_dir`` lacks and write them as shards.
 
     Parameters
@@ -434,19 +391,15 @@ def generate(
         Local processes (default: the number of CPUs; 1 runs in this process). Ignored with
         ``scheduler``.
     scheduler : str, optional
-        Address of a Dask distributed scheduler (``tcp://host:8786``); its workers need simtest
-        (and the bundled meshes) installed. The result is identical to a local run.
+        Address of a Dask distributed scheduler (``tcp://host:8786``); its workers need simtest and
+        the bundled meshes. The result is identical to a local run.
     sample_fn : callable, optional
-        ``sample_fn(config, index) -> Sample``; default :func:`simtest.dataset.sample.render_sample`.
-        Must be picklable (a module-level function) for process pools and Dask.
+        Picklable ``sample_fn(config, index) -> Sample``; default
+        :func:`simtest.dataset.sample.render_sample`.
     progress : bool
-        Show a rich progress bar (samples/s and time left) on stderr.
+        Show a rich progress bar on stderr.
     window : int, optional
         Tasks in flight (default 2 x workers + 2); bounds memory.
-
-    Returns
-    -------
-    GenerateReport
 
     Raises
     ------
@@ -455,20 +408,18 @@ def generate(
     DatasetError
         ``out_dir`` holds another config's dataset.
     DatasetWriteError
-        A file or unrelated files in the way of ``out_dir``, or the folder cannot be written
-        (disk full, read-only); finished samples are kept.
+        Something in the way of ``out_dir``, or it cannot be written; finished samples are kept.
     SampleError
-        A sample failed; complete shards and the spooled samples are kept and a rerun resumes.
+        A sample failed; complete shards and spooled samples are kept for a rerun.
     Interrupted
-        SIGTERM or Ctrl-C; workers stopped, finished samples kept, a rerun resumes.
+        SIGTERM or Ctrl-C; workers stopped, finished samples kept for a rerun.
     ValueError
         If ``workers < 1``.
 
     Notes
     -----
-    Local workers are started with the ``spawn`` method (no Mitsuba state is forked), so a script
-    calling this with ``workers > 1`` must guard its entry point with
-    ``if __name__ == "__main__":``.
+    Local workers are spawned, so a script calling this with ``workers > 1`` needs the
+    ``if __name__ == "__main__":`` guard.
     """
     if not isinstance(config, DatasetConfig):
         config = load_config(config)
@@ -505,13 +456,7 @@ def generate(
 
 @contextlib.contextmanager
 def _locked(out: Path):
-    """Hold an exclusive lock on the dataset folder ``out`` (created if missing).
-
-    Raises
-    ------
-    DatasetError
-        At once, if another process holds the lock; the message names it (pid, host, start).
-    """
+    """Hold an exclusive lock on ``out`` (created if missing); DatasetError naming the holder if taken."""
     out.mkdir(parents=True, exist_ok=True)
     path = out / LOCK_NAME
     fd = os.open(path, os.O_RDWR | os.O_CREAT, 0o644)

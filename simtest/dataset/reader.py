@@ -1,36 +1,14 @@
-"""Read a dataset lazily: ``simtest.dataset.open(DIR)``, and feed it to PyTorch.
+"""Read a dataset lazily (``simtest.dataset.open(DIR)``) and feed it to PyTorch.
 
-The returned :class:`SimtestDataset` is a map-style sequence: ``len(ds)``, ``ds[i]`` (a dict of
-numpy arrays plus the manifest row under ``"record"``) and iteration. Shard files are opened on
-first use and kept open (a few per process), so reading is lazy and cheap. ``split="train"``
-(``"val"``, ``"test"``) keeps the samples of one seeded split.
+:class:`SimtestDataset` is a map-style sequence (``len(ds)``, ``ds[i]``, iteration); shard files
+are opened on first use and a few kept open. ``ds.torch(keys=..., transform=...)`` gives a view for
+``torch.utils.data.DataLoader`` whose items are dicts of tensors; manifest rows, which differ between
+families, stay out of the batch (``view.record(index)``, or ``with_record=True`` with
+``collate_fn=simtest.dataset.collate``)::
 
-PyTorch
--------
-``ds.torch(keys=..., transform=...)`` gives a view for ``torch.utils.data.DataLoader``: each item is
-a dict of tensors (and the integer ``"index"``), so the default collate stacks a batch; labels that
-differ between families (the manifest rows) stay out of the batch and are looked up with
-``view.record(index)``, or kept per item with ``with_record=True`` and
-``collate_fn=simtest.dataset.collate``::
-
-    import torch, simtest.dataset
     view = simtest.dataset.open("DIR", split="train").torch(keys=("sensor", "normals", "mask"))
     loader = torch.utils.data.DataLoader(view, batch_size=8, shuffle=True, num_workers=2)
     batch = next(iter(loader))   # batch["sensor"]: (8, 1, H, W) float32 in [0, 1]
-
-Without simtest (numpy and PIL alone)
--------------------------------------
-.. code-block:: python
-
-    import io, json, numpy as np
-    from PIL import Image
-    rows = [json.loads(line) for line in open("DIR/manifest.jsonl")]
-    row = rows[0]
-    z = np.load("DIR/" + row["npz"])                  # DIR/shards/shard-00000.npz
-    key = f"{row['index']:08d}/"
-    image = np.asarray(Image.open(io.BytesIO(z[key + "sensor_png"].tobytes())))  # (H, W) uint8
-    normals = z[key + "normals"]                       # (H, W, 3) float32, camera frame
-    bp_px = row["highlights"][0]["bp_px"]              # [u, v]
 """
 
 from __future__ import annotations
@@ -69,29 +47,25 @@ class SimtestDataset:
     with_record : bool
         Include the manifest row (labels, parameters, K, pose, highlights) under ``"record"``.
     split : str, optional
-        Keep only the samples of one split (``"train"``, ``"val"`` or ``"test"``); positions then
-        run over that split, ``ds[k]["index"]`` is the sample's index in the dataset.
+        Keep only one split (``"train"``, ``"val"`` or ``"test"``); positions then run over that
+        split, ``ds[k]["index"]`` is the sample's index in the dataset.
     max_open : int
         Shard files kept open at once.
 
     Raises
     ------
     DatasetError
-        If ``root`` is not a complete dataset, or a manifest row names a shard file outside
-        ``root/shards`` (an absolute path or ``..``); and from ``ds[i]`` when the sample's labels
-        (its manifest row) no longer match their ``labels_sha256`` (the message names the shard
-        and the sample; run ``simtest dataset verify DIR``).
+        If ``root`` is not a complete dataset or a manifest row names a shard file outside
+        ``root/shards``; from ``ds[i]`` when the row no longer matches its ``labels_sha256``.
     KeyError
         If ``keys`` names an unknown array, or ``split`` an unknown split.
 
     Notes
     -----
-    ``ds[i]`` returns ``{"index": i, <key>: ndarray, ..., "record": dict}``. Shapes for an image
-    of H x W pixels (rows = v, columns = u): ``sensor`` uint8 (H, W); ``linear``, ``specular`` and
-    ``depth`` (mm) float32 (H, W); ``normals`` float32 (H, W, 3), unit vectors in the OpenCV
-    camera frame facing the camera, zero outside ``mask``; ``mask`` and ``highlight_mask`` bool
-    (H, W). Negative indices count from the end; an out-of-range index raises IndexError and a
-    non-integer one TypeError.
+    ``ds[i]`` returns ``{"index": i, <key>: ndarray, ..., "record": dict}``, for H x W pixels (rows =
+    v): ``sensor`` uint8 (H, W); ``linear``, ``specular``, ``depth`` (mm) float32 (H, W); ``normals``
+    float32 (H, W, 3), unit, OpenCV camera frame, zero outside ``mask``; ``mask`` and
+    ``highlight_mask`` bool (H, W). Negative indices count from the end.
     """
 
     def __init__(self, root, keys: Sequence[str] | None = None, with_record: bool = True,
@@ -194,33 +168,22 @@ class SimtestDataset:
             Arrays (as in :class:`SimtestDataset`) and row labels ``"K"`` (3, 3) and
             ``"cam_to_world"`` (4, 4) to return as tensors.
         transform : callable, optional
-            ``transform(item) -> item`` applied to each item's dict of tensors (augmentation,
-            resizing); must be picklable (a module-level function) for ``num_workers > 0``.
+            ``transform(item) -> item`` on each item's dict of tensors; picklable for ``num_workers > 0``.
         with_record : bool
-            Also return the manifest row under ``"record"``; batch such items with
-            ``collate_fn=simtest.dataset.collate`` (rows differ between families, so the default
-            collate cannot stack them).
-
-        Returns
-        -------
-        TorchView
+            Also return the manifest row under ``"record"`` (batch with ``simtest.dataset.collate``).
 
         Raises
         ------
         KeyError
             If ``keys`` names an unknown array or label.
         simtest._lazy.MissingBackend
-            If PyTorch is not installed (one line: ``pip install "simtest[torch]"``).
+            If PyTorch is not installed.
         """
         return TorchView(self, keys=keys, transform=transform, with_record=with_record)
 
 
 def _to_tensor(torch, key: str, a, sensor_channels: int = 1):
-    """numpy -> tensor in the layout learning code expects (images channel-first, float in [0, 1]).
-
-    A grey sensor image is repeated to ``sensor_channels`` channels (3 in a dataset that mixes grey
-    and RGB samples, so that every item of a batch has the same shape).
-    """
+    """numpy -> tensor: images channel-first, the sensor as float in [0, 1] with ``sensor_channels`` channels."""
     a = np.asarray(a)
     if key == "sensor":  # (H, W) or (H, W, 3) uint8 -> (C, H, W) float32 in [0, 1]
         a = np.repeat(a[None], sensor_channels, axis=0) if a.ndim == 2 else np.moveaxis(a, -1, 0)
@@ -233,30 +196,17 @@ def _to_tensor(torch, key: str, a, sensor_channels: int = 1):
 
 
 class TorchView:
-    """Items of a :class:`SimtestDataset` as dicts of PyTorch tensors (map-style dataset).
+    """Items of a :class:`SimtestDataset` (its ``split`` applies) as dicts of PyTorch tensors; ``keys``,
+    ``transform``, ``with_record`` as in :meth:`SimtestDataset.torch`.
 
-    Parameters
-    ----------
-    dataset : SimtestDataset
-        The dataset to read (its ``split`` applies).
-    keys, transform, with_record
-        See :meth:`SimtestDataset.torch`.
-
-    Notes
-    -----
-    Item layout: ``"index"`` (int, the sample's index in the dataset); ``"sensor"`` float32
-    (C, H, W) in [0, 1] (the 8-bit image / 255), C = 1 when every sample of the dataset is grey,
-    else 3 (RGB tissue samples; a grey sample's channel repeated); ``"normals"`` float32 (3, H, W)
-    in the OpenCV camera frame; ``"linear"``, ``"specular"``, ``"depth"`` (mm) float32 (H, W);
-    ``"mask"``, ``"highlight_mask"`` bool (H, W); ``"K"`` float32 (3, 3) in pixels with integer
-    pixel centres; ``"cam_to_world"`` float32 (4, 4). Samples of one batch must share a size (the
-    default config has a single resolution).
+    ``"sensor"`` is float32 (C, H, W) in [0, 1], C = 3 if any sample of the dataset is RGB (a grey
+    one repeated), else 1; ``"normals"`` float32 (3, H, W); other arrays as in
+    :class:`SimtestDataset`; ``"K"`` float32 (3, 3), ``"cam_to_world"`` float32 (4, 4).
     """
 
     def __init__(self, dataset: SimtestDataset, keys: Sequence[str] = ("sensor", "normals", "mask"),
                  transform: Callable[[dict], dict] | None = None, with_record: bool = False):
         require("torch", purpose="simtest.dataset.open(DIR).torch()")  # here, not in a worker
-
         keys = tuple(keys)
         bad = [k for k in keys if k not in (*_ARRAYS, *_ROW_TENSORS)]
         if bad:
@@ -265,23 +215,14 @@ class TorchView:
         self.dataset = SimtestDataset(dataset.root, keys=arrays, with_record=True, split=dataset.split,
                                       max_open=dataset.max_open)
         self.keys, self.transform, self.with_record = keys, transform, with_record
-        #: Channels of the ``"sensor"`` tensor: 3 if any sample of the dataset (any split) is RGB
-        #: (record ``color``), else 1: every split of one dataset gives the same shape.
+        #: Channels of the ``"sensor"`` tensor, the same for every split of one dataset.
         self.sensor_channels = 3 if dataset.has_rgb else 1
 
     def __len__(self) -> int:
         return len(self.dataset)
 
     def record(self, index: int) -> dict:
-        """The manifest row (labels, parameters, highlights) of the sample with dataset ``index``.
-
-        Raises
-        ------
-        DatasetError
-            If the row's labels no longer match their ``labels_sha256``.
-        IndexError
-            If no sample of this view has that index.
-        """
+        """The manifest row of the sample with dataset ``index`` (DatasetError if edited, IndexError if absent)."""
         for k, r in enumerate(self.dataset.rows):
             if r["index"] == index:
                 return self.dataset._row(k)
@@ -304,16 +245,7 @@ class TorchView:
 def collate(batch: list[dict]) -> dict:
     """Batch items of a :class:`TorchView` made with ``with_record=True``.
 
-    Parameters
-    ----------
-    batch : list of dict
-        Items; tensors of one key must share a shape.
-
-    Returns
-    -------
-    dict
-        ``torch.utils.data.default_collate`` of everything but ``"record"``, and ``"record"`` as a
-        list of the rows (their keys differ between families).
+    ``torch.utils.data.default_collate`` of everything but ``"record"``, which is kept as a list of rows.
     """
     default_collate = require("torch.utils.data", purpose="simtest.dataset.collate").default_collate
     rest = [{k: v for k, v in b.items() if k != "record"} for b in batch]
@@ -325,30 +257,9 @@ def collate(batch: list[dict]) -> dict:
 
 def open_dataset(root, keys: Sequence[str] | None = None, with_record: bool = True,
                  split: str | None = None) -> SimtestDataset:
-    """Open a dataset folder lazily (``simtest.dataset.open``).
+    """Open a dataset folder lazily (``simtest.dataset.open``): ``SimtestDataset(root, keys, with_record, split)``.
 
-    Parameters
-    ----------
-    root : path
-        Dataset folder (written by ``simtest dataset generate``).
-    keys : sequence of str, optional
-        Arrays to load per sample (default: all); see :class:`SimtestDataset`.
-    with_record : bool
-        Include the manifest row under ``"record"``.
-    split : str, optional
-        ``"train"``, ``"val"`` or ``"test"``: only that split's samples.
-
-    Returns
-    -------
-    SimtestDataset
-        ``.torch(keys=..., transform=...)`` gives the PyTorch view.
-
-    Raises
-    ------
-    DatasetError
-        If ``root`` is not a complete dataset (card or manifest missing or unreadable), or the
-        manifest names a shard file outside the folder.
-    KeyError
-        If ``keys`` names an unknown array.
+    Raises DatasetError if ``root`` is not a complete dataset or the manifest names a shard file
+    outside it, KeyError if ``keys`` names an unknown array.
     """
     return SimtestDataset(root, keys=keys, with_record=with_record, split=split)

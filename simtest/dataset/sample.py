@@ -1,44 +1,27 @@
 """One dataset sample: a pure function of (root seed, index).
 
-Sample ``i`` of a dataset draws its parameters with
-``np.random.default_rng(np.random.SeedSequence([config.seed, i]))``, builds a scene spec
-(:func:`build_scene`), renders it with :func:`simtest.render.render_scene` and collects the arrays
-and the highlight records (:func:`render_sample`). Nothing depends on the worker that runs it or on
-the other samples, so any sample can be regenerated alone and every scheduler gives the same bits.
+Sample ``i`` draws its parameters from ``default_rng(SeedSequence([config.seed, i]))``, builds a
+scene spec (:func:`build_scene`), renders it and collects arrays and highlight records
+(:func:`render_sample`); nothing depends on the worker or the other samples.
 
-Poses without a defined truth (the redraw rule)
------------------------------------------------
-A drawn pose of an analytic family whose brightest point is undefined for some light is
-redrawn: today that is a cylinder whose drawn pose puts the camera inside the tube (its axis
-passes ``(distance_mm + radius_mm) cos(view_angle_deg)`` from the camera, less than the radius
-for a wide tube at a steep tilt); the camera then sees only the inside, which the one-sided
-surface leaves black, so the sample would have neither an image nor a label
-(:func:`truth_problem`). The family keeps its draw; every other parameter and the render seed are
-drawn again, in the same order, from child ``k`` of the sample's SeedSequence,
-``default_rng(SeedSequence([seed, i], spawn_key=(k - 1,)))``, for k = 1, 2, ... until the pose
-has a defined truth (at most :data:`MAX_REDRAWS` times), and the parameters record ``redraw = k``.
-A sample that needed no redraw is unchanged, and the rule is a pure function of ``(config, i)``,
-so workers and Dask agree. Where the truth is defined but holds no highlight (the BP beyond the
-cylinder's length, behind the camera, or the light inside the surface) the sample is kept with an
-empty ``highlights`` list, as before.
+Redraw rule: an analytic pose whose brightest point is undefined for some light (a camera inside a
+cylinder, :func:`truth_problem`) keeps its family and redraws every other parameter, in the same
+order, from child ``k`` of the sample's SeedSequence (``spawn_key=(k - 1,)``), k = 1, 2, ... up to
+:data:`MAX_REDRAWS`; the parameters record ``redraw = k``. A defined truth without a highlight keeps
+the sample with an empty ``highlights`` list.
 
-Ground-truth isophote conics (tangent-plane model)
---------------------------------------------------
-For every highlight and configured isovalue ``t`` the record holds the image conic of the
-isophote predicted by the tangent plane at the BP: with ``N`` the ground-truth normal at the BP
-(camera frame, facing the camera) and ``X_bp`` the BP, the tangent plane ``N . X = N . X_bp`` lies at
-distance ``V_Z = -N . X_bp`` from the camera centre; the isophote of level ``t`` (relative to the
-Phong peak, so ``c = 1``) is the circle of radius ``r_-`` (paper Prop. 2,
-:func:`simtest.specular.isophote_radius`) centred on the foot of the perpendicular from the camera
-centre, ``F = (N . X_bp) N``, and its image is :func:`simtest.geometry.conics.project_circle`.
-This is exact for a plane lit by a co-located light with the 1/d^2 falloff cancelled (Notes of
-:func:`simtest.geometry.conics.cone_axis`; then ``F = X_bp``). On curved surfaces it is the first-order (osculating-plane) model the method
-under test assumes; with a light offset or the falloff kept it is only an approximation.
+Isophote labels (tangent-plane model): for each highlight and isovalue ``t`` the record holds the
+image conic of the circle of radius ``r_-`` (paper Prop. 2, :func:`simtest.specular.isophote_radius`,
+``c = 1``) in the tangent plane at the BP, centred on the foot ``F = (N . X_bp) N`` of the
+perpendicular from the camera centre, at distance ``V_Z = -N . X_bp``
+(:func:`simtest.geometry.conics.project_circle`). Exact for a plane with a co-located light and the
+falloff cancelled; the first-order model the method assumes on curved surfaces.
 """
 
 from __future__ import annotations
 
 import dataclasses
+import functools
 import hashlib
 import io
 import math
@@ -70,8 +53,7 @@ from simtest.specular import isophote_radius
 __all__ = ["CHANNELS", "Sample", "build_scene", "draw_parameters", "MAX_REDRAWS", "isophote_record",
            "render_sample", "sample_rng", "truth_problem"]
 
-#: Most redraws of one sample (see the module notes): a family whose poses need more than that
-#: has a config that rarely gives a defined truth, reported as an error naming the family.
+#: Most redraws of one sample (the module's redraw rule); more is an error naming the family.
 MAX_REDRAWS = 100
 
 _RADIANCE_UNIT = "linear radiance (light_intensity x BRDF, / d^2 in mm when the falloff is kept)"
@@ -115,11 +97,9 @@ class Sample:
         The arrays of :data:`CHANNELS`, in that order.
     record : dict
         JSON-ready labels and provenance: ``index``, ``family``, ``params`` (every drawn value),
-        ``K`` (3, 3), ``cam_to_world`` (4, 4), ``highlights`` (list of dicts with ``bp_px``,
-        ``bp_mm``, ``normal``, ``k1``, ``k2``, ``in_frame``, ``isophotes``), ``camera`` (the
-        camera file: model, image size, light rig; :func:`camera_file`), ``scene`` (the scene
-        spec as a dict), ``variant``, ``render_seed``, ``exposure_applied``, ``color`` ("grey" or
-        "rgb": the sensor image's channels).
+        ``K`` (3, 3), ``cam_to_world`` (4, 4), ``highlights`` (dicts with ``bp_px``, ``bp_mm``,
+        ``normal``, ``k1``, ``k2``, ``in_frame``, ``isophotes``), ``camera`` (:func:`camera_file`),
+        ``scene``, ``variant``, ``render_seed``, ``exposure_applied``, ``color`` ("grey" or "rgb").
     """
 
     index: int
@@ -128,52 +108,28 @@ class Sample:
 
 
 def sample_rng(seed: int, index: int) -> np.random.Generator:
-    """The generator of sample ``index``: ``default_rng(SeedSequence([seed, index]))``.
-
-    Parameters
-    ----------
-    seed : int
-        Root seed of the dataset (0 is valid).
-    index : int
-        Sample index.
-
-    Returns
-    -------
-    numpy.random.Generator
-        A fresh generator; the same ``(seed, index)`` gives the same stream in any process.
-    """
+    """The generator of sample ``index``: ``default_rng(SeedSequence([seed, index]))``, the same in any process."""
     return np.random.default_rng(np.random.SeedSequence([int(seed), int(index)]))
 
 
 def draw_parameters(config: DatasetConfig, index: int) -> dict[str, Any]:
     """Draw the parameters of sample ``index`` (pure function of ``(config, index)``).
 
-    The draw order is fixed: the family (weighted), then each parameter the family uses in the
-    order of :data:`simtest.dataset.config.PARAMS`, then the render seed. A pose without a
-    defined brightest point is redrawn from a child of the sample's SeedSequence (module notes,
-    "the redraw rule"; :func:`truth_problem`).
-
-    Parameters
-    ----------
-    config : DatasetConfig
-        The validated config.
-    index : int
-        Sample index, 0 <= index < config.count.
+    Order: the family (weighted), each parameter it uses in the order of
+    :data:`simtest.dataset.config.PARAMS`, then the render seed; redrawn by the module's redraw rule.
 
     Returns
     -------
     dict
-        ``{"family": str, <param>: value, ..., "render_seed": int}``, JSON-ready; units as in
-        the parameter names (``_mm``, ``_deg``, ``_px``); plus ``"redraw": k`` (k >= 1) when
-        the pose was redrawn k times.
+        ``{"family": str, <param>: value, ..., "render_seed": int}``, JSON-ready, units as in the
+        names; plus ``"redraw": k`` when the pose was redrawn k times.
 
     Raises
     ------
     IndexError
         If ``index`` is outside ``0 .. config.count - 1``.
     ValueError
-        If :data:`MAX_REDRAWS` redraws in a row have no defined truth (the config's family
-        almost never gives one).
+        If :data:`MAX_REDRAWS` redraws in a row have no defined truth.
     """
     if not 0 <= index < max(config.count, 1):
         raise IndexError(f"sample index {index} is outside 0..{config.count - 1}")
@@ -212,30 +168,15 @@ def _draw_family(config: DatasetConfig, family: str, rng: np.random.Generator) -
 def truth_problem(config: DatasetConfig, params: dict) -> str | None:
     """Why a drawn pose has no defined brightest point, or None when it has one (no rendering).
 
-    Runs the analytic truth (:func:`simtest.simulate.truth.sphere_highlight`,
-    :func:`~simtest.simulate.truth.cylinder_highlight`) of the sample's scene for every light of
-    its rig, as the renderer will; mesh families and planes always have a defined truth (a plane's
-    BP is closed form; a mesh's BPs are searched in the render).
-
-    Parameters
-    ----------
-    config : DatasetConfig
-        The validated config.
-    params : dict
-        Drawn parameters (:func:`draw_parameters`).
-
-    Returns
-    -------
-    str or None
-        The :class:`~simtest.simulate.truth.HighlightTruthError` message (e.g. the camera inside a
-        cylinder), or None.
+    Runs the analytic truth (:func:`simtest.simulate.truth.sphere_highlight`, ``cylinder_highlight``)
+    for every light of the rig; planes and mesh families always return None. The string is the
+    :class:`~simtest.simulate.truth.HighlightTruthError` message.
     """
     if params["family"] not in ("spheres", "cylinders"):
         return None
     spec = build_scene(config, params)
     geo = spec.geometry
-    # Analytic families are built in the camera frame (build_scene sets no camera pose), and
-    # whether a BP exists does not depend on the intrinsics (they only place its pixel).
+    # Camera frame (no pose); the intrinsics only place the BP's pixel.
     K, size = np.eye(3), (1, 1)
     c = np.asarray(geo.center_mm, dtype=np.float64)
     try:
@@ -252,44 +193,20 @@ def truth_problem(config: DatasetConfig, params: dict) -> str | None:
     return None
 
 
-# ------------------------------------------------------------------------------------------------
-# scene building
-
-
 def build_scene(config: DatasetConfig, params: dict):
     """The scene spec of a sample from its drawn parameters (pure; no rendering).
 
-    Analytic families are written in the camera frame (camera at the origin looking along +z):
-
-    - planes: ``tilt_deg = view_angle_deg``, ``azimuth_deg``, ``distance_mm``.
-    - spheres: centre at ``(distance_mm + radius_mm)`` along the direction ``view_angle_deg`` off
-      the optical axis, at ``azimuth_deg`` about it.
-    - cylinders: axis through ``(0, 0, distance_mm + radius_mm)``, tilted ``view_angle_deg`` out
-      of the image plane, at ``azimuth_deg`` in it.
-    - colon: the bundled ``meshes/<colon_mesh>.ply``; camera on its centre line at fraction ``station`` of
-      the arc length, moved ``radial_offset`` x radius off it, looking ``view_angle_deg`` off the
-      tangent toward ``azimuth_deg`` (and moved to the opposite side), image rolled by ``roll_deg``.
-    - liver: the bundled ``meshes/liver.ply``; camera ``distance_mm`` from the surface point in the
-      direction (``azimuth_deg``, ``elevation_deg``) from its centre, looking at it along a line
-      ``view_angle_deg`` off its normal (tilted toward ``roll_deg``).
-
-    Parameters
-    ----------
-    config : DatasetConfig
-        The validated config (its ``variant`` and ``source`` are used).
-    params : dict
-        Output of :func:`draw_parameters`.
-
-    Returns
-    -------
-    simtest.scene.SceneSpec
-        Lengths in mm, angles in degrees; the camera has an M x M film with
-        ``K = [[f, 0, M/2 - 0.5], [0, f, M/2 - 0.5], [0, 0, 1]]``.
+    Analytic families are in the camera frame: planes ``tilt_deg = view_angle_deg``; spheres centred
+    ``distance_mm + radius_mm`` away along ``view_angle_deg`` off the axis at ``azimuth_deg``; cylinders
+    with axis through ``(0, 0, distance_mm + radius_mm)`` tilted ``view_angle_deg`` out of the image
+    plane. Colon and liver place the camera on the bundled mesh (:func:`simtest.scene.poses.colon_pose`,
+    :func:`~simtest.scene.poses.liver_surface_pose`). The film is M x M with
+    ``K = [[f, 0, M/2 - 0.5], [0, f, M/2 - 0.5], [0, 0, 1]]``.
 
     Raises
     ------
     FileNotFoundError
-        If the bundled colon or liver mesh is missing (build it with ``simtest meshes build``).
+        If the bundled colon or liver mesh is missing (``simtest meshes build``).
     ValueError
         If the colon mesh carries no centre line in its metadata.
     simtest.scene.SceneError
@@ -313,8 +230,7 @@ def build_scene(config: DatasetConfig, params: dict):
                     "distribution": params["tissue_lobe"], "c": params["phong_c"],
                     "n": params["phong_n"], "relief_mm": params["relief_mm"],
                     "texture_seed": params["render_seed"]}
-        # The video frame is made from the RGB render in sample_from_render (auto-exposure);
-        # the render's own grey sensor image is its luma.
+        # sample_from_render makes the video frame from the RGB render (auto-exposure).
         sensor.update(output="video", tone="srgb")
     else:
         material = {"model": "phong", "c": params["phong_c"], "n": params["phong_n"],
@@ -353,10 +269,6 @@ def build_scene(config: DatasetConfig, params: dict):
     return scene_from_dict(d, source=f"{config.source}: sample")
 
 
-# ------------------------------------------------------------------------------------------------
-# labels
-
-
 def isophote_record(bp_mm, normal, K, isovalues, phong_n: float) -> list[dict]:
     """Tangent-plane isophote conics at a BP (see the module notes).
 
@@ -376,9 +288,8 @@ def isophote_record(bp_mm, normal, K, isovalues, phong_n: float) -> list[dict]:
     Returns
     -------
     list of dict
-        Per isovalue: ``t``, ``radius_mm``, ``centre_mm`` (foot of the perpendicular), ``conic``
-        (3 x 3 point conic, unit Frobenius norm, pixels with centres at integers), ``kind`` and
-        ``ellipse`` (``center_px``, ``semi_axes_px``, ``angle_deg``; None unless a real ellipse).
+        Per isovalue: ``t``, ``radius_mm``, ``centre_mm``, ``conic`` (3 x 3 point conic, unit
+        Frobenius norm, pixels), ``kind`` and ``ellipse`` (None unless a real ellipse).
     """
     X = np.asarray(bp_mm, dtype=np.float64)
     N = unit(normal)
@@ -413,8 +324,7 @@ def _encode_png(img: np.ndarray) -> np.ndarray:
 def _gray(a: np.ndarray) -> np.ndarray:
     a = np.asarray(a)
     if a.ndim == 3:
-        # Rec. 709 luminance (simtest.constants says why not Rec. 601); the renderer is monochrome
-        # in practice.
+        # Rec. 709 luminance (simtest.constants says why not Rec. 601)
         if a.dtype == np.uint8:
             return np.round(a[..., :3].astype(np.float64) @ LUMINANCE_BT709).astype(np.uint8)
         return (a[..., :3].astype(np.float64) @ LUMINANCE_BT709).astype(np.float32)
@@ -422,11 +332,9 @@ def _gray(a: np.ndarray) -> np.ndarray:
 
 
 def _auto_exposure(linear: np.ndarray, mask: np.ndarray, config: DatasetConfig) -> float:
-    """Exposure multiplier that brings a percentile of the surface's linear image to a level.
+    """``level / q``, ``q`` the ``config.auto_exposure`` percentile of grey ``linear`` in ``mask``.
 
-    Returns ``level / q`` with ``q`` the ``config.auto_exposure`` percentile of ``linear`` inside
-    ``mask`` (its gray values for an RGB image), or 1 when auto-exposure is off or ``q`` is not
-    positive (an empty or black frame).
+    1 when auto-exposure is off or ``q`` is not positive.
     """
     if config.auto_exposure is None or not mask.any():
         return 1.0
@@ -436,11 +344,7 @@ def _auto_exposure(linear: np.ndarray, mask: np.ndarray, config: DatasetConfig) 
 
 
 def _portable_scene(spec) -> dict:
-    """The scene spec as a dict, with a bundled mesh path written relative to the repository.
-
-    The absolute path differs between machines (a Dask worker's install), which would make the
-    records of the same sample differ; ``meshes/<name>.ply`` resolves on any install.
-    """
+    """The scene spec as a dict, a bundled mesh path written as ``meshes/<name>.ply`` (same on any machine)."""
     d = jsonable(scene_to_dict(spec))
     geo = d.get("geometry", {})
     if geo.get("type") == "mesh" and geo.get("path"):
@@ -452,18 +356,7 @@ def _portable_scene(spec) -> dict:
 
 
 def mesh_sha256(family: str) -> str | None:
-    """sha256 of a bundled mesh file.
-
-    Parameters
-    ----------
-    family : str
-        A mesh family samples render: ``"colon"``, ``"colon_haustral"`` or ``"liver"``.
-
-    Returns
-    -------
-    str or None
-        64 hex digits of ``meshes/<family>.ply``; None for analytic families or a missing file.
-    """
+    """sha256 of ``meshes/<family>.ply`` for a mesh family; None for analytic families or a missing file."""
     if family not in ("colon", "colon_haustral", "liver"):
         return None
     path = bundled_mesh_path(family)
@@ -471,22 +364,10 @@ def mesh_sha256(family: str) -> str | None:
 
 
 def camera_file(result) -> dict:
-    """The camera file (camera model, image size, light rig) of a render, as a JSON object.
+    """The camera file of a render (:func:`simtest.geometry.camera_file.save_camera` format) as a JSON object.
 
-    Parameters
-    ----------
-    result : simtest.render.RenderResult
-        A render.
-
-    Returns
-    -------
-    dict
-        ``{"model": "pinhole", "K", "dist_coeffs": None, "image_size": [W, H], "lights": [...]}``
-        in the format of :func:`simtest.geometry.camera_file.save_camera` (written to a ``.json``
-        file it loads with :func:`simtest.geometry.camera_file.load_camera`): the pinhole K of the
-        render (pixels, integer pixel centres) and its point light at ``result.light_pos`` (camera
-        frame, mm) with the render's intensity; falloff ``"none"`` when the dataset cancels the
-        1/d^2 falloff of the specular image, else ``"inverse_square"``.
+    ``{"model", "K", "dist_coeffs", "image_size": [W, H], "lights": [...]}``: the render's camera
+    model and light rig (camera frame, mm).
     """
     d = result.camera_model.to_json_dict()
     d["lights"] = result.light_rig.to_json_list()
@@ -494,29 +375,11 @@ def camera_file(result) -> dict:
 
 
 def sample_from_render(config: DatasetConfig, index: int, params: dict, result) -> Sample:
-    """Collect the arrays and records of a sample from a :class:`simtest.render.RenderResult`.
+    """Collect the arrays and record of a sample from a :class:`simtest.render.RenderResult`.
 
-    Parameters
-    ----------
-    config : DatasetConfig
-        The config (its isovalues set the highlight mask and the isophote labels).
-    index : int
-        Sample index.
-    params : dict
-        Output of :func:`draw_parameters`.
-    result : simtest.render.RenderResult
-        The render of :func:`build_scene` ``(config, params)``.
-
-    Returns
-    -------
-    Sample
-        Arrays as in :data:`CHANNELS` (normals zeroed and depth zeroed outside the mask) and
-        the JSON-ready record.
-
-    Raises
-    ------
-    ValueError
-        If the sensor image is not 8-bit.
+    ``result`` is the render of :func:`build_scene` ``(config, params)``; ``config.isovalues`` set the
+    highlight mask and the isophote labels. Arrays are those of :data:`CHANNELS` (normals and depth
+    zeroed outside the mask). Raises ValueError if the sensor image is not 8-bit.
     """
     mask = np.asarray(result.mask, dtype=bool)
     normals = np.where(mask[..., None], np.nan_to_num(np.asarray(result.normals, np.float32)), 0.0)
@@ -537,29 +400,22 @@ def sample_from_render(config: DatasetConfig, index: int, params: dict, result) 
     peak = float(np.max(specular)) if specular.size else 0.0
     t_min = min(config.isovalues)
     hmask = (specular >= t_min * peak) if peak > 0 else np.zeros_like(mask)
-    arrays = {
-        "sensor_png": _encode_png(np.ascontiguousarray(sensor)),
-        "linear": np.ascontiguousarray(linear, dtype=np.float32),
-        "specular": np.ascontiguousarray(specular, dtype=np.float32),
-        "normals": np.ascontiguousarray(normals, dtype=np.float32),
-        "depth": np.ascontiguousarray(depth, dtype=np.float32),
-        "mask": np.ascontiguousarray(mask),
-        "highlight_mask": np.ascontiguousarray(hmask, dtype=bool),
-    }
+    f32 = functools.partial(np.ascontiguousarray, dtype=np.float32)
+    arrays = {"sensor_png": _encode_png(np.ascontiguousarray(sensor)), "linear": f32(linear), "specular": f32(specular),
+              "normals": f32(normals), "depth": f32(depth), "mask": np.ascontiguousarray(mask),
+              "highlight_mask": np.ascontiguousarray(hmask, dtype=bool)}
     K = np.asarray(result.K, dtype=np.float64)
     f64 = lambda a: jsonable(np.asarray(a, np.float64))  # noqa: E731
     highlights = [{"bp_px": f64(h.bp_px), "bp_mm": f64(h.bp_mm), "normal": f64(h.normal), "k1": float(h.k1),
                    "k2": float(h.k2), "in_frame": bool(h.in_frame),
                    "isophotes": isophote_record(h.bp_mm, h.normal, K, config.isovalues, params["phong_n"])}
                   for h in result.highlights]
-    record = {
-        "index": int(index), "family": params["family"], "params": jsonable(params),
-        "render_seed": int(params["render_seed"]), "K": K.tolist(),
-        "cam_to_world": np.asarray(result.cam_to_world, np.float64).tolist(),
-        "image_size": [int(mask.shape[1]), int(mask.shape[0])], "variant": str(result.variant),
-        "exposure_applied": exposure, "color": "rgb" if sensor.ndim == 3 else "grey",
-        "highlights": highlights, "camera": camera_file(result), "scene": _portable_scene(result.spec),
-    }
+    record = {"index": int(index), "family": params["family"], "params": jsonable(params),
+              "render_seed": int(params["render_seed"]), "K": K.tolist(),
+              "cam_to_world": np.asarray(result.cam_to_world, np.float64).tolist(),
+              "image_size": [int(mask.shape[1]), int(mask.shape[0])], "variant": str(result.variant),
+              "exposure_applied": exposure, "color": "rgb" if sensor.ndim == 3 else "grey",
+              "highlights": highlights, "camera": camera_file(result), "scene": _portable_scene(result.spec)}
     return Sample(index=int(index), arrays=arrays, record=record)
 
 
@@ -583,30 +439,12 @@ def _configure_threads() -> None:
 def render_sample(config: DatasetConfig, index: int) -> Sample:
     """Draw, build, render and label sample ``index`` of ``config``.
 
-    Parameters
-    ----------
-    config : DatasetConfig
-        The validated config.
-    index : int
-        Sample index, 0 <= index < config.count.
-
-    Returns
-    -------
-    Sample
-        Identical (bit for bit) whenever called with the same config, index and Mitsuba variant,
-        in any process.
-
-    Raises
-    ------
-    IndexError
-        If ``index`` is out of range.
-    FileNotFoundError
-        If a bundled mesh the family needs is missing.
+    Bit-identical for the same config, index and Mitsuba variant, in any process. Raises IndexError
+    if ``index`` is out of range, FileNotFoundError if a bundled mesh the family needs is missing.
     """
     params = draw_parameters(config, index)
     spec = build_scene(config, params)
-    # One render at a time per process: Dask workers run tasks in threads, Mitsuba's variant
-    # set-up is not safe to race, and Dr.Jit already spreads one render over its own threads.
+    # One render at a time per process: Mitsuba's variant set-up is not safe to race across threads.
     with _RENDER_LOCK:
         _configure_threads()
         result = render_scene(spec, seed=params["render_seed"])

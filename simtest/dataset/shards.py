@@ -1,50 +1,22 @@
 """On-disk format of a dataset: shards, manifest and card.
 
-Layout
-------
 ::
     DIR/dataset.json                 the card: config, seed, version, counts, channels and units
     DIR/manifest.jsonl               one JSON row per sample (labels, shard, per-array sha256)
-    DIR/shards/shard-00000.npz       the arrays of samples 0 .. shard_size-1 (numpy .npz, lossless;
-                                     masks and specular image deflated)
+    DIR/shards/shard-00000.npz       the arrays of samples 0 .. shard_size-1 (lossless .npz)
     DIR/shards/shard-00000.json      the rows of those samples + the shard file's sha256
 
-A shard ``.npz`` holds one entry per (sample, array), named ``"<index:08d>/<array>"``; for
-example ``np.load("shards/shard-00000.npz")["00000003/normals"]``. The sensor image is stored as
-the bytes of its 8-bit PNG (``"<index>/sensor_png"``, uint8 of shape (nbytes,)); decode it with
-``PIL.Image.open(io.BytesIO(a.tobytes()))``. Entries are written with a fixed zip timestamp, so
-identical samples give byte-identical shard files.
+A shard ``.npz`` holds one entry per (sample, array), named ``"<index:08d>/<array>"``; the sensor
+image is stored as the bytes of its 8-bit PNG (``"<index>/sensor_png"``, :func:`decode_png`).
+Entries carry a fixed zip timestamp, so identical samples give byte-identical shards. A shard is
+written to ``.npz.tmp`` and renamed when complete; its ``.json``, written after the rename, marks it
+complete. The manifest and the card's final counts are written last.
 
-Safety
-------
-A shard is written to ``shard-XXXXX.npz.tmp`` and renamed (``os.replace``) when complete; its
-``.json`` row file, written the same way after the rename, marks it complete. A rerun keeps complete
-shards, deletes partial ones and leftovers, and redoes them, so no sample is ever duplicated. The
-manifest and the card's final counts are written last.
-
-Hashes
-------
-``sha256`` of an array is ``hashlib.sha256(np.ascontiguousarray(a).tobytes()).hexdigest()`` (C
-order; dtype and shape are recorded beside it). Each row also carries ``labels_sha256``, the sha256
-of the row's canonical JSON without that key (:func:`labels_sha256`), so an edited or corrupted
-label is caught like a corrupted array. The shard's zip comment names the shard number, the
-config fingerprint of the dataset it belongs to and the sha256 of its rows' label hashes
-(:func:`shard_comment`): a shard copied in from a dataset with another seed or config is refused
-by ``generate`` (which rewrites it) and by ``verify``.
-
-The card ``dataset.json`` of a complete dataset carries ``manifest_sha256`` (the manifest file's
-sha256) and ``card_sha256``, the sha256 of its own canonical JSON without that key
-(:func:`card_sha256`), so an edited value anywhere in the card or the manifest fails ``verify``.
-Cards written before these keys existed are refused by ``verify`` with the remedy (a rerun of
-``generate`` with the same config and ``--out`` rewrites the card without rendering); the readers
-do not need them.
-
-Paths
------
-Manifest rows name their shard exactly as ``shards/shard-XXXXX.npz`` with the row's shard number
-(five digits or more, as :func:`shard_npz_path` writes it); the reader and ``verify`` refuse any
-other form (an absolute path, ``..``, another spelling of the number), so a manifest can never
-point outside the dataset folder nor at a file the writer did not make (:func:`shard_path_from_row`).
+Each row carries ``labels_sha256`` (:func:`labels_sha256`); a shard's zip comment binds it to its
+shard number, config fingerprint and label hashes (:func:`shard_comment`); the card carries
+``manifest_sha256`` and ``card_sha256`` (:func:`card_sha256`). Manifest rows name their shard exactly
+as ``shards/shard-XXXXX.npz`` (:func:`shard_path_from_row`), so a manifest cannot point outside the
+dataset folder.
 """
 
 from __future__ import annotations
@@ -77,11 +49,8 @@ SHARDS_DIR = "shards"
 TMP_SUFFIX = ".tmp"
 _ZIP_TIME = (1980, 1, 1, 0, 0, 0)
 
-#: Arrays deflated when a shard is written with ``compress=True``: the masks (64 KiB -> < 1 KiB at
-#: 256 x 256) and the specular image (zero off the highlights, about -40 %), for ~4 ms of CPU per
-#: 256 x 256 sample. The other float32 arrays (normals, depth, the linear image) carry Monte Carlo
-#: noise in their low bits: deflating them saves 11-15 % of their size for ~35 ms of CPU per sample
-#: (more than a fifth of a render), so they are stored; the sensor image is already a PNG.
+#: Arrays deflated with ``compress=True`` (sparse masks and specular image); the float32 arrays carry
+#: Monte Carlo noise in their low bits and are stored; the sensor image is already a PNG.
 DEFLATED = frozenset({"mask", "highlight_mask", "specular"})
 #: The only form a manifest row's ``npz`` may take (relative, inside the dataset folder).
 _NPZ_REL = re.compile(r"shards/shard-([0-9]{5,})\.npz")
@@ -99,39 +68,12 @@ class DatasetWriteError(DatasetError):
 
 
 def array_sha256(a: np.ndarray) -> str:
-    """sha256 of the C-ordered bytes of an array.
-
-    Parameters
-    ----------
-    a : ndarray
-        Any shape and dtype (dtype and shape are not hashed; the manifest records them beside).
-
-    Returns
-    -------
-    str
-        64 hex digits.
-    """
+    """sha256 (64 hex digits) of the C-ordered bytes of an array; dtype and shape are not hashed."""
     return hashlib.sha256(np.ascontiguousarray(a).tobytes()).hexdigest()
 
 
 def file_sha256(path: Path) -> str:
-    """sha256 of a file (:func:`hashlib.file_digest`, read in chunks).
-
-    Parameters
-    ----------
-    path : Path
-        File to hash.
-
-    Returns
-    -------
-    str
-        64 hex digits.
-
-    Raises
-    ------
-    OSError
-        If the file cannot be opened or read.
-    """
+    """sha256 (64 hex digits) of a file, read in chunks. Raises OSError if it cannot be read."""
     with open(path, "rb") as fh:
         return hashlib.file_digest(fh, "sha256").hexdigest()
 
@@ -142,36 +84,15 @@ def json_sha256(obj) -> str:
 
 
 def labels_sha256(row: dict) -> str:
-    """sha256 of a sample's labels: its row as canonical JSON, without ``labels_sha256`` and ``npz``.
+    """sha256 of a sample's row as canonical JSON (:func:`json_sha256`), without ``labels_sha256`` and ``npz``.
 
-    Parameters
-    ----------
-    row : dict
-        A shard or manifest row (labels, parameters, pose, highlights, array hashes).
-
-    Returns
-    -------
-    str
-        64 hex digits of ``sha256(json.dumps(row, sort_keys=True, separators=(",", ":")))``; JSON
-        floats round-trip exactly, so a row read back from disk hashes as it was written.
+    JSON floats round-trip exactly, so a row read back from disk hashes as it was written.
     """
     return json_sha256({k: v for k, v in row.items() if k not in ("labels_sha256", "npz")})
 
 
 def card_sha256(card: dict) -> str:
-    """sha256 of a dataset card: its canonical JSON without the ``card_sha256`` key.
-
-    Parameters
-    ----------
-    card : dict
-        The card (``dataset.json``) as read or about to be written.
-
-    Returns
-    -------
-    str
-        64 hex digits of ``sha256(json.dumps(card, sort_keys=True, separators=(",", ":")))``
-        over every key but ``card_sha256``.
-    """
+    """sha256 of a dataset card: its canonical JSON (:func:`json_sha256`) without the ``card_sha256`` key."""
     return json_sha256({k: v for k, v in card.items() if k != "card_sha256"})
 
 
@@ -198,25 +119,13 @@ def shard_comment(shard: int, fingerprint: str, label_hashes: Iterable[str]) -> 
 
 
 def shard_path_from_row(root: Path, row: dict) -> Path:
-    """The shard file of a manifest row, refusing any path outside ``root/shards``.
-
-    Parameters
-    ----------
-    root : Path
-        Dataset folder.
-    row : dict
-        A manifest row; its ``npz`` must read ``shards/shard-XXXXX.npz`` with the row's ``shard``.
-
-    Returns
-    -------
-    Path
-        ``root / row["npz"]``.
+    """``root / row["npz"]``, the shard file of a manifest row.
 
     Raises
     ------
     DatasetError
-        If ``npz`` is absolute, climbs out with ``..``, has another form, or names another shard
-        than the row's ``shard`` (the message names the index and the path).
+        If ``npz`` is not exactly ``shards/shard-XXXXX.npz`` with the row's ``shard`` (absolute,
+        ``..``, another spelling); the message names the index and the path.
     """
     rel = row.get("npz")
     m = _NPZ_REL.fullmatch(rel) if isinstance(rel, str) else None
@@ -256,9 +165,7 @@ def array_info(a: np.ndarray) -> dict:
 class ShardWriter:
     """Writes the samples of one shard in index order, then renames the shard into place.
 
-    Samples may be added in any order; each is written as soon as all lower indices of the shard
-    are (out-of-order ones wait in memory). :meth:`add` returns True when the shard is complete
-    and renamed.
+    Samples may be added in any order; out-of-order ones wait in memory.
 
     Parameters
     ----------
@@ -296,23 +203,10 @@ class ShardWriter:
         return p.with_name(p.name + TMP_SUFFIX)
 
     def add(self, sample) -> bool:
-        """Queue one sample; write it and any queued successors that are now in order.
+        """Queue one sample (a :class:`~simtest.dataset.sample.Sample`); write it and any queued successors.
 
-        Parameters
-        ----------
-        sample : simtest.dataset.sample.Sample
-            A sample whose ``index`` lies in :attr:`indices`.
-
-        Returns
-        -------
-        bool
-            True once every sample of the shard is written, the ``.npz`` renamed into place and
-            its ``.json`` written; False while samples are missing.
-
-        Raises
-        ------
-        DatasetError
-            If the sample's index is outside the shard or was given before.
+        Returns True once the whole shard is written, renamed into place and its ``.json`` written.
+        Raises :class:`DatasetError` if the index is outside the shard or was given before.
         """
         if sample.index not in self.indices:
             raise DatasetError(f"sample {sample.index} does not belong to shard {self.shard}")
@@ -371,22 +265,7 @@ class ShardWriter:
 
 
 def read_shard_rows(root: Path, shard: int) -> dict | None:
-    """The JSON document of one shard.
-
-    Parameters
-    ----------
-    root : Path
-        Dataset folder.
-    shard : int
-        Shard number.
-
-    Returns
-    -------
-    dict or None
-        The shard's ``.json`` (keys ``shard``, ``npz``, ``npz_sha256``, ``npz_bytes``, ``indices``,
-        ``samples`` and the writer's meta), or None if it is missing or unreadable, which marks an
-        incomplete shard.
-    """
+    """The JSON document of one shard, or None if missing or unreadable (an incomplete shard)."""
     p = shard_json_path(root, shard)
     try:
         return json.loads(p.read_text(encoding="utf-8"))
@@ -395,26 +274,10 @@ def read_shard_rows(root: Path, shard: int) -> dict | None:
 
 
 def read_shard_comment(npz: Path) -> dict:
-    """The fields of a shard file's zip comment (see :func:`shard_comment`).
+    """The fields ``{"shard", "config_fingerprint", "labels_sha256"}`` of a shard's zip comment.
 
-    Parameters
-    ----------
-    npz : Path
-        A shard file.
-
-    Returns
-    -------
-    dict
-        ``{"shard", "config_fingerprint", "labels_sha256"}`` as strings; empty when the comment
-        is missing or not a simtest shard comment.
-
-    Raises
-    ------
-    OSError, zipfile.BadZipFile
-        If the file cannot be read or is not a zip file.
-    NotImplementedError
-        If its central directory asks for a zip version or compression Python cannot read (a
-        damaged header reads that way).
+    Empty when the comment is not a simtest shard comment. Raises OSError, zipfile.BadZipFile or
+    NotImplementedError (a damaged header) when the file cannot be read as a zip.
     """
     with zipfile.ZipFile(npz) as z:
         text = z.comment.decode("ascii", errors="replace")
@@ -425,26 +288,9 @@ def read_shard_comment(npz: Path) -> dict:
 def check_shard(root: Path, shard: int, fingerprint: str, indices: range) -> list[str]:
     """What is wrong with the files of one shard (hashes and provenance; arrays not decoded).
 
-    Checks that the row file reads, names this shard, this dataset's config ``fingerprint`` and
-    exactly ``indices``; that the ``.npz`` exists, hashes to the row file's ``npz_sha256``, and
-    that its zip comment names the same shard, fingerprint and label hashes; and that every row's
-    ``labels_sha256`` matches its content (:func:`labels_sha256`).
-
-    Parameters
-    ----------
-    root : Path
-        Dataset folder.
-    shard : int
-        Shard number.
-    fingerprint : str
-        Config fingerprint of the dataset (its card's, or the config being generated).
-    indices : range
-        Sample indices the shard must hold.
-
-    Returns
-    -------
-    list of str
-        One line per problem, each naming the file; empty when the shard is sound.
+    Checks the row file names this shard, ``fingerprint`` and exactly ``indices``; that the ``.npz``
+    hashes to its ``npz_sha256`` and its zip comment matches; and every row's ``labels_sha256``.
+    Returns one line per problem, each naming the file; empty when the shard is sound.
     """
     npz, js = shard_npz_path(root, shard), shard_json_path(root, shard)
     doc = read_shard_rows(root, shard)
@@ -485,20 +331,7 @@ def check_shard(root: Path, shard: int, fingerprint: str, indices: range) -> lis
 def read_card(root: Path) -> dict:
     """The dataset card ``root/dataset.json``.
 
-    Parameters
-    ----------
-    root : Path
-        Dataset folder.
-
-    Returns
-    -------
-    dict
-        The card (config, seed, version, counts, channels and units).
-
-    Raises
-    ------
-    DatasetError
-        If it is missing, unreadable or not a simtest dataset card.
+    Raises :class:`DatasetError` if it is missing, unreadable or not a simtest dataset card.
     """
     p = Path(root) / CARD_NAME
     try:
@@ -516,23 +349,9 @@ def read_card(root: Path) -> dict:
 
 
 def read_manifest(root: Path) -> list[dict]:
-    """Rows of ``root/manifest.jsonl``, in index order.
+    """Rows of ``root/manifest.jsonl`` in index order (blank lines skipped).
 
-    Parameters
-    ----------
-    root : Path
-        Dataset folder.
-
-    Returns
-    -------
-    list of dict
-        One row per sample (labels, ``index``, ``shard``, per-array ``sha256``/``dtype``/``shape``);
-        blank lines are skipped.
-
-    Raises
-    ------
-    DatasetError
-        If the manifest is missing (the dataset is incomplete) or a line is not JSON.
+    Raises :class:`DatasetError` if the manifest is missing (dataset incomplete) or a line is not JSON.
     """
     p = Path(root) / MANIFEST_NAME
     try:
@@ -558,23 +377,6 @@ def write_manifest(root: Path, rows: Iterable[dict]) -> Path:
 
 
 def decode_png(a: np.ndarray) -> np.ndarray:
-    """Decode the stored ``sensor_png`` bytes to the sensor image.
-
-    Parameters
-    ----------
-    a : ndarray of shape (nbytes,)
-        uint8 bytes of a PNG file.
-
-    Returns
-    -------
-    ndarray of shape (H, W) or (H, W, 3)
-        uint8 image, rows = v, columns = u.
-
-    Raises
-    ------
-    PIL.UnidentifiedImageError
-        If the bytes are not an image.
-    """
-
+    """Decode stored ``sensor_png`` bytes (uint8, shape (nbytes,)) to the uint8 sensor image (H, W[, 3])."""
     with Image.open(io.BytesIO(np.asarray(a, dtype=np.uint8).tobytes())) as im:
         return np.asarray(im)

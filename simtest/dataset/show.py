@@ -1,9 +1,7 @@
 """``simtest dataset show DIR``: a contact sheet to look at a dataset at a glance.
 
-One row per sample: the sensor image with the ground-truth brightest points (BP, red crosses) and
-the labelled isophote ellipses (tangent-plane model, cyan), the normals as colours, and the
-surface mask with the highlight mask over it; the row title names the index, family, split and
-the exposure applied.
+One row per sample: the sensor image with the ground-truth BPs (red crosses) and isophote ellipses
+(cyan), the normals as colours, and the surface mask with the highlight mask over it.
 """
 
 from __future__ import annotations
@@ -27,30 +25,11 @@ def _normals_rgb(n: np.ndarray, mask: np.ndarray) -> np.ndarray:
 
 
 def contact_sheet(root, out=None, count: int = 8, start: int = 0) -> Path:
-    """Write a contact sheet PNG of ``count`` samples of a dataset.
+    """Write a contact sheet PNG of ``count`` samples from position ``start`` of the dataset ``root``.
 
-    Parameters
-    ----------
-    root : path
-        A complete dataset folder.
-    out : path, optional
-        PNG file to write (default ``<root>/contact_sheet.png``), replaced atomically.
-    count : int
-        Samples shown (one row each), from position ``start`` on.
-    start : int
-        First sample shown.
-
-    Returns
-    -------
-    Path
-        The PNG written.
-
-    Raises
-    ------
-    DatasetError
-        If ``root`` is not a complete dataset.
-    ValueError
-        If ``count < 1`` or ``start`` is outside the dataset.
+    ``out`` defaults to ``<root>/contact_sheet.png`` and is replaced atomically; returns its path.
+    Raises DatasetError if ``root`` is not a complete dataset, ValueError if ``count < 1`` or ``start``
+    is outside the dataset.
     """
     ds = SimtestDataset(root, keys=("sensor", "normals", "mask", "highlight_mask"))
     if count < 1:

@@ -14,15 +14,12 @@ from simtest.dataset.shards import (CARD_NAME, MANIFEST_NAME, SHARDS_DIR, TMP_SU
 
 __all__ = ["UNIT_NORMAL_TOL", "VerifyReport", "verify"]
 
-#: |‖n‖ - 1| allowed for a stored normal: float32 renormalised vectors are unit to a few ulp
-#: (~1e-7); 1e-4 leaves room for any float32 rounding yet catches an unnormalised AOV average
-#: (silhouette pixels average to norms well below 0.999).
+#: |‖n‖ - 1| allowed for a stored normal: far above float32 rounding (~1e-7), far below an
+#: unnormalised silhouette average (< 0.999).
 UNIT_NORMAL_TOL = 1e-4
 
-#: Largest n . ray (unit ray through the pixel centre) accepted for a stored normal. A pixel's
-#: normal is the average over its footprint, which near a silhouette can lean up to a few degrees
-#: past the centre ray; 0.05 (about 3 deg past grazing) allows that and catches flipped normals
-#: (n . ray near +1) and a wrong frame.
+#: Largest n . ray (unit ray through the pixel centre) accepted for a stored normal: about 3 deg past
+#: grazing, as a silhouette pixel's footprint average may lean, yet catching flipped normals.
 FACING_TOL = 0.05
 
 _MAX_PROBLEMS = 50
@@ -30,18 +27,8 @@ _MAX_PROBLEMS = 50
 
 @dataclass
 class VerifyReport:
-    """Result of :func:`verify`.
-
-    Attributes
-    ----------
-    root : Path
-        The dataset folder checked.
-    samples : int
-        Samples checked.
-    shards : int
-        Shard files checked.
-    problems : list of str
-        One line per problem (``<path>: <what>``); empty when the dataset is sound.
+    """Result of :func:`verify`: the folder ``root``, the ``samples`` and ``shards`` checked, and
+    ``problems``, one line ``<path>: <what>`` each (empty when the dataset is sound).
     """
 
     root: Path
@@ -55,25 +42,12 @@ class VerifyReport:
         return not self.problems
 
     def add(self, msg: str) -> None:
-        """Record one problem.
-
-        Parameters
-        ----------
-        msg : str
-            One line, ``<path>: <what>``.
-        """
+        """Record one problem, one line ``<path>: <what>``."""
         self.problems.append(msg)
 
 
-_EXPECT = {
-    "sensor_png": ("uint8", 1),
-    "linear": ("float32", 2),
-    "specular": ("float32", 2),
-    "normals": ("float32", 3),
-    "depth": ("float32", 2),
-    "mask": ("bool", 2),
-    "highlight_mask": ("bool", 2),
-}
+_EXPECT = {"sensor_png": ("uint8", 1), "linear": ("float32", 2), "specular": ("float32", 2),
+           "normals": ("float32", 3), "depth": ("float32", 2), "mask": ("bool", 2), "highlight_mask": ("bool", 2)}
 
 
 def _check_sample(rep: VerifyReport, where: str, row: dict, arrays: dict) -> None:
@@ -131,38 +105,27 @@ def _check_sample(rep: VerifyReport, where: str, row: dict, arrays: dict) -> Non
 def verify(root, *, check_arrays: bool = True) -> VerifyReport:
     """Check a dataset folder.
 
-    Checks the card (its ``card_sha256`` over every value, its ``manifest_sha256`` against the
-    manifest file, its ``config_fingerprint`` against its config: a damaged fingerprint is one
-    problem of the card, not of every shard), that the manifest lists exactly samples 0 .. count-1
-    once each, each naming its shard exactly as ``shards/shard-XXXXX.npz`` (nothing outside the
-    folder, no other spelling of the number; shards counted as numbers, so any number of shards
-    verifies), that ``shards/`` holds no other file, that no spool is left; that every shard's row
-    file names this dataset's config fingerprint, every row's labels match their
-    ``labels_sha256``, every shard file's sha256 matches its row file and its zip comment names this
-    dataset (a shard from a dataset with another seed or config fails); that every array's sha256,
-    dtype and shape match the manifest, shapes agree with the image size, normals are unit and face
-    the camera inside the mask and zero outside, depth is positive inside the mask, the PNG decodes,
-    and that no temporary file is left.
+    The card (``card_sha256``, ``manifest_sha256``, ``config_fingerprint`` against its config: a damaged
+    fingerprint is one problem of the card); the manifest (samples 0 .. count-1 once each, each naming
+    its shard exactly as ``shards/shard-XXXXX.npz``); ``shards/`` holds nothing else and no spool or
+    temporary file is left; every shard's fingerprint, label hashes, sha256 and zip comment
+    (:func:`~simtest.dataset.shards.check_shard`); every array's sha256, dtype and shape against the
+    manifest; shapes against the image size; normals unit, facing the camera (``n . ray <= FACING_TOL``,
+    ray ``K^{-1} (u, v, 1)``) inside the mask and zero outside; depth positive inside the mask; the PNG
+    decodes.
 
     Parameters
     ----------
     root : path
         Dataset folder.
     check_arrays : bool
-        Load and check every array (default). False checks only files, counts and hashes of shards.
+        Load and check every array (default); False checks only files, counts and hashes.
 
     Returns
     -------
     VerifyReport
-        ``report.ok`` is True when nothing is wrong.
-
-    Notes
-    -----
-    Nothing is raised for a bad dataset: every problem (an unreadable card, manifest or shard, a
-    corrupt zip entry included) is a line of ``report.problems`` naming the file, and checking stops
-    after 50 of them. The facing test uses the OpenCV camera frame: the ray through pixel (u, v)
-    (integer pixel centres, u = column) is ``K^{-1} (u, v, 1)`` with the sample's recorded ``K``,
-    and a stored normal must satisfy ``n . ray <= FACING_TOL``.
+        ``report.ok`` is True when nothing is wrong. Nothing is raised for a bad dataset: every
+        problem is a line naming the file, and checking stops after 50.
     """
     root = Path(root)
     rep = VerifyReport(root=root)
@@ -244,8 +207,7 @@ def _verify(rep: VerifyReport, root: Path, card: dict, rows: list, check_arrays:
     for s in range(n_shards):
         rep.shards += 1
         want = range(s * shard_size, min(count, (s + 1) * shard_size))
-        problems = check_shard(root, s, fp, want)
-        for msg in problems:
+        for msg in check_shard(root, s, fp, want):
             add(msg)
         npz = shard_npz_path(root, s)
         doc = read_shard_rows(root, s)
@@ -283,11 +245,9 @@ def _ranges(nums: list) -> str:
 def _shard_fingerprint(add, root: Path, card: dict, fp: str, n_shards: int) -> str:
     """The config fingerprint the shards are checked against, reporting a damaged card once.
 
-    The card's ``config_fingerprint`` must be the sha256 of its ``config``
-    (:meth:`simtest.dataset.config.DatasetConfig.fingerprint`); if it is not, that is one problem
-    of the card and the shards are checked against the config's fingerprint. If two or more
-    shards all name one fingerprint that is not that one, the card does not belong to its shards:
-    one problem, and the shards are checked against their own.
+    The card's ``config_fingerprint`` must be its config's sha256, else one problem and the config's is
+    used; if two or more shards all name one other fingerprint, the card does not belong to them: one
+    problem, and theirs is used.
     """
     card_path = root / CARD_NAME
     try:

@@ -1,10 +1,8 @@
-"""The kinds of surface a scene holds: one frozen class per ``geometry.type``.
+"""The kinds of surface a scene holds: one frozen pydantic class per ``geometry.type`` (its own keys only).
 
-Each kind is a pydantic dataclass holding only its own keys (unknown keys refused, ranges as
-``Field`` bounds), with class attributes saying how the renderer treats it: ``type`` (its name in
-the scene file), ``frame`` (``"world"``, or ``"camera"`` for a surface placed relative to the
-camera) and ``triangulated`` (rendered as a triangle mesh with per-vertex normals and curvatures,
-so that it can shadow itself). :data:`GEOMETRY_TYPES` is the registry keyed by the type name.
+Class attributes tell the renderer how to treat a kind: ``type`` (its name in the scene file),
+``frame`` (``"world"``, or ``"camera"`` when placed relative to the camera) and ``triangulated``
+(rendered as a mesh with per-vertex normals and curvatures). :data:`GEOMETRY_TYPES` is the registry.
 """
 
 from __future__ import annotations
@@ -17,17 +15,8 @@ from pydantic.dataclasses import dataclass
 
 from simtest._config import CONFIG, Bool, Int, Num, Str, Vec3
 
-__all__ = [
-    "PlaneGeometry",
-    "SphereGeometry",
-    "CylinderGeometry",
-    "SaddleGeometry",
-    "MeshGeometry",
-    "GeometrySpec",
-    "GEOMETRY_TYPES",
-    "GEOMETRY_KEYS",
-    "GEOMETRY_KEY_ORDER",
-]
+__all__ = ["PlaneGeometry", "SphereGeometry", "CylinderGeometry", "SaddleGeometry", "MeshGeometry", "GeometrySpec",
+           "GEOMETRY_TYPES", "GEOMETRY_KEYS", "GEOMETRY_KEY_ORDER"]
 
 #: The kinds' model settings: frozen, unknown keys refused, NaN and infinity refused.
 _frozen = functools.partial(dataclass, frozen=True, config=CONFIG)
@@ -73,15 +62,7 @@ class PlaneGeometry:
 
 @_frozen
 class SphereGeometry:
-    """A sphere, world frame.
-
-    Attributes
-    ----------
-    center_mm : (3,) float
-        Centre; required.
-    radius_mm : float
-        Radius, > 0; required.
-    """
+    """A sphere, world frame: ``center_mm`` (3,) and ``radius_mm`` > 0, both required."""
 
     type: ClassVar[str] = "sphere"
     frame: ClassVar[str] = "world"
@@ -119,8 +100,7 @@ class CylinderGeometry:
 class SaddleGeometry:
     """The saddle ``z = d + x^2 / (2 r1) - y^2 / (2 r2)``, camera frame, ``|x|, |y| <= extent``.
 
-    Built as a grid mesh with analytic normals and curvatures
-    (:func:`simtest.simulate.truth.saddle_mesh`).
+    A grid mesh with analytic normals and curvatures (:func:`simtest.simulate.truth.saddle_mesh`).
 
     Attributes
     ----------
@@ -151,9 +131,8 @@ class MeshGeometry:
     Attributes
     ----------
     path : str
-        PLY file written by ``simtest.scene.meshes.save_mesh``; relative paths are taken from the
-        scene file's folder, then from the bundled data (:func:`simtest.resources.data_root`: the
-        repository root, or the installed package's ``_data``); required.
+        PLY file written by ``simtest.scene.meshes.save_mesh``, relative to the scene file's folder
+        or the bundled data (:func:`simtest.resources.data_root`); required.
     translate_mm, rotate_deg, scale : (3,) float, (3,) float, float, or None
         Mesh-to-world transform ``x -> R (scale x) + t``, with ``R = Rz Ry Rx`` from ``rotate_deg``
         (degrees about the world axes, x first) and ``t = translate_mm``; defaults identity.
@@ -171,8 +150,7 @@ class MeshGeometry:
     flip_normals: Bool | None = None
 
 
-#: The one surface of a scene: a tagged union of small frozen dataclasses, told apart by their
-#: class attribute ``type`` (the scene file's ``geometry.type``); each holds only its own keys.
+#: The one surface of a scene: a union of the kinds, told apart by their class attribute ``type``.
 GeometrySpec = PlaneGeometry | SphereGeometry | CylinderGeometry | SaddleGeometry | MeshGeometry
 
 #: The geometry class of each ``geometry.type``.

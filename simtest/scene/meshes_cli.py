@@ -17,12 +17,9 @@ from rich.table import Table
 from simtest._exit import BAD_INPUT, CANNOT_WRITE, fail, writable_dir
 from simtest.scene.meshes import MeshError, build_mesh, save_mesh
 
-meshes_app = typer.Typer(
-    name="meshes",
-    help="Procedural meshes (colon, colon_haustral, liver, liver_abdomen) with ground-truth normals and curvatures.",
-    no_args_is_help=True,
-    add_completion=False,
-)
+meshes_app = typer.Typer(name="meshes", no_args_is_help=True, add_completion=False,
+                         help="Procedural meshes (colon, colon_haustral, liver, liver_abdomen) with ground-truth "
+                         "normals and curvatures.")
 
 _NAMES = ("colon", "colon_haustral", "liver", "liver_abdomen")
 
@@ -39,10 +36,8 @@ def _parse_overrides(items: list[str]) -> dict[str, dict[str, float]]:
         key, sep, value = item.partition("=")
         name, dot, field = key.strip().partition(".")
         if not sep or not dot or name not in out or not field:
-            raise typer.BadParameter(
-                f"{item!r}: expected MESH.PARAM=VALUE with MESH one of {', '.join(_NAMES)}",
-                param_hint="--set",
-            )
+            raise typer.BadParameter(f"{item!r}: expected MESH.PARAM=VALUE with MESH one of {', '.join(_NAMES)}",
+                                     param_hint="--set")
         try:
             number = float(value)
         except ValueError:
@@ -57,15 +52,10 @@ def build_command(
                                       "colon_haustral.json, liver.ply, liver.json, liver_abdomen.ply, liver_abdomen.json (those of --only).")]
     = Path("meshes"),
     seed: Annotated[int, typer.Option("--seed", min=0, help="Root seed of the generators.")] = 0,
-    only: Annotated[
-        list[str] | None, typer.Option("--only", help="Build only this mesh (colon, colon_haustral, liver or "
-                                         "liver_abdomen); "
-                                         "repeatable.")
-    ] = None,
-    set_: Annotated[
-        list[str] | None,
-        typer.Option("--set", help="Override a generator parameter, e.g. colon.fold_depth_mm=8; repeatable."),
-    ] = None,
+    only: Annotated[list[str] | None, typer.Option("--only", help="Build only this mesh (colon, colon_haustral, liver "
+                                                   "or liver_abdomen); repeatable.")] = None,
+    set_: Annotated[list[str] | None, typer.Option("--set", help="Override a generator parameter, e.g. "
+                                                   "colon.fold_depth_mm=8; repeatable.")] = None,
 ) -> None:
     """Build the procedural meshes with their ground truth.
 
@@ -76,7 +66,6 @@ def build_command(
     renders; the meshes with per-vertex normals and principal curvatures k1, k2) and a .json
     beside each (the generator's parameters and seed); with --only, those of the meshes named. Exit status 2: bad
     option; 4: OUT cannot be written."""
-
     names = list(only) if only else list(_NAMES)
     for name in names:
         if name not in _NAMES:
@@ -106,15 +95,8 @@ def build_command(
             except OSError as exc:
                 fail(f"--out: cannot write {out / (name + '.ply')}: {exc.strerror or exc}", CANNOT_WRITE)
             k1, k2 = mesh.vertex_attributes["k1"], mesh.vertex_attributes["k2"]
-            table.add_row(
-                name,
-                str(len(mesh.vertices)),
-                str(len(mesh.faces)),
-                f"{path.stat().st_size / 1e6:.2f}",
-                f"{k1.min():.3f}..{k1.max():.3f}",
-                f"{k2.min():.3f}..{k2.max():.3f}",
-                f"{elapsed:.2f}",
-            )
+            table.add_row(name, str(len(mesh.vertices)), str(len(mesh.faces)), f"{path.stat().st_size / 1e6:.2f}",
+                          f"{k1.min():.3f}..{k1.max():.3f}", f"{k2.min():.3f}..{k2.max():.3f}", f"{elapsed:.2f}")
             progress.advance(task)
     console.print(table)
     console.print(f"wrote {', '.join(str(out / f'{n}.ply') for n in names)} (+ .json)")

@@ -1,20 +1,12 @@
-"""Camera poses in and around the bundled meshes: the one placement used by the harness and the dataset.
+"""Camera poses in and around the bundled meshes, shared by the harness and the dataset.
 
-The harness's rendered cases (``colon_station``, ``liver_azimuth_deg`` in a suite) and the dataset's
-colon and liver families place their cameras here. Three placements exist, each named for what it
-does:
+- :func:`colon_pose`: inside the colon, on its centre line.
+- :func:`liver_orbit_pose`: outside the liver, on a sphere about it, aimed at its centre (harness).
+- :func:`liver_surface_pose`: at a set distance from one liver surface point, tilted off its
+  normal (dataset).
 
-- :func:`colon_pose`: inside the colon, on its centre line. The harness uses it with the azimuth 0,
-  the offset 0.3 and no roll; the dataset draws all five numbers.
-- :func:`liver_orbit_pose`: outside the liver, on a sphere about its bounding box, aimed at the
-  box centre (the harness: a sweep over the azimuth sees the whole organ).
-- :func:`liver_surface_pose`: at a set distance from one surface point of the liver, looking at it
-  along a line tilted off its normal (the dataset: the view angle of the highlight is drawn).
-
-The two liver placements mean different things on purpose and are kept apart; each returns a
-:class:`CameraPose` in the world frame of the mesh (mm). The arithmetic is the one each caller had
-when it wrote its committed results, operation for operation: the harness's numbers and the
-dataset's fingerprints do not move.
+Each returns a :class:`CameraPose` in the mesh's world frame (mm); the arithmetic is each caller's
+original, operation for operation, so committed results and dataset fingerprints do not move.
 """
 
 from __future__ import annotations
@@ -62,8 +54,7 @@ class CameraPose:
 
     def camera_keys(self) -> dict[str, list[float]]:
         """The scene's camera keys: ``position_mm``, ``look_at_mm`` and ``up`` as lists of floats."""
-        return {"position_mm": [float(x) for x in self.position],
-                "look_at_mm": [float(x) for x in self.look_at],
+        return {"position_mm": [float(x) for x in self.position], "look_at_mm": [float(x) for x in self.look_at],
                 "up": [float(x) for x in self.up]}
 
 
@@ -81,10 +72,8 @@ class MeshPlacement:
         Centre of its axis-aligned bounding box, mm.
     bounding_radius : float
         Largest vertex distance from ``centre``, mm.
-    arc : ndarray of shape (R,) or None
-        colon: arc length of each centre-line ring, mm; None for other meshes.
-    radius_min : ndarray of shape (R,) or None
-        colon: smallest wall distance of each ring, mm; None for other meshes.
+    arc, radius_min : ndarray of shape (R,) or None
+        Colon only: arc length and smallest wall distance of each centre-line ring, mm.
     """
 
     path: str
@@ -97,23 +86,10 @@ class MeshPlacement:
 
 @functools.lru_cache(maxsize=4)
 def mesh_placement(name: str) -> MeshPlacement:
-    """Load the bundled mesh ``name`` and what the placements need of it (cached per process).
+    """Load the bundled mesh ``name`` ({"colon", "colon_haustral", "liver"}) and its placement data (cached).
 
-    Parameters
-    ----------
-    name : {"colon", "colon_haustral", "liver"}
-        The bundled mesh (``meshes/<name>.ply``).
-
-    Returns
-    -------
-    MeshPlacement
-
-    Raises
-    ------
-    FileNotFoundError
-        If the mesh file is missing (``simtest meshes build`` writes it).
-    ValueError
-        If the colon mesh carries no centre line in its metadata.
+    Raises FileNotFoundError if the mesh file is missing (``simtest meshes build`` writes it),
+    ValueError if a colon mesh carries no centre line in its metadata.
     """
     path = bundled_mesh_path(name)
     if not path.is_file():
@@ -134,22 +110,11 @@ def mesh_placement(name: str) -> MeshPlacement:
 
 
 def camera_up(forward: np.ndarray, roll_deg: float | None = None) -> np.ndarray:
-    """The image's up direction for a camera looking along ``forward``.
+    """The image's unit up direction for a camera looking along ``forward`` (3,).
 
-    Parameters
-    ----------
-    forward : ndarray of shape (3,)
-        Viewing direction (unit length, or nearly).
-    roll_deg : float or None
-        None: the first vector of ``plane_basis(forward)`` (z x forward, or x x forward near z),
-        as the harness places its cameras. A number: ``forward`` is first normalised, and the up
-        is that basis turned by ``roll_deg`` about it, as the dataset draws it; 0 gives the same
-        direction as None up to the last bits, which is why both are kept.
-
-    Returns
-    -------
-    ndarray of shape (3,)
-        Unit vector perpendicular to ``forward``.
+    ``roll_deg`` None: the first vector of ``plane_basis(forward)`` (the harness); a number: that basis
+    of the normalised ``forward`` turned by ``roll_deg`` about it (the dataset). 0 and None differ in
+    the last bits, which is why both are kept.
     """
     if roll_deg is None:
         return plane_basis(forward, axes=_AXES)[0]
@@ -163,12 +128,10 @@ def colon_pose(station: float, view_deg: float, *, azimuth_deg: float | None = N
                mesh: str = "colon") -> CameraPose:
     """Camera inside the bundled colon, on its centre line, looking off the tangent.
 
-    At arc length ``s = s0 + station (s1 - s0)`` of the centre line, with tangent ``t`` and the
-    basis ``(e1, e2)`` of the plane across it, the camera looks along
-    ``cos(view) t + sin(view) r`` with ``r = cos(azimuth) e1 + sin(azimuth) e2``, and stands at the
-    centre-line point moved by ``-radial_offset x r_min(s) x r``: off the line, on the side opposite
-    to where it looks, by a fraction of the smallest wall distance of that ring (so it stays in the
-    lumen).
+    At arc length ``s = s0 + station (s1 - s0)``, with tangent ``t`` and basis ``(e1, e2)`` across it,
+    the camera looks along ``cos(view) t + sin(view) r``, ``r = cos(azimuth) e1 + sin(azimuth) e2``, from
+    the centre-line point moved by ``-radial_offset x r_min(s) x r`` (``r_min``: the ring's smallest wall
+    distance).
 
     Parameters
     ----------
@@ -177,14 +140,13 @@ def colon_pose(station: float, view_deg: float, *, azimuth_deg: float | None = N
     view_deg : float
         Angle of the viewing direction off the tangent, degrees.
     azimuth_deg : float or None
-        Direction of the tilt about the tangent, degrees from ``e1``; None: ``r = e1`` exactly (the
-        harness's placement).
+        Direction of the tilt about the tangent, degrees from ``e1``; None: ``r = e1`` exactly.
     radial_offset : float
-        Offset from the centre line, as a fraction of the ring's smallest wall distance.
+        Offset from the centre line, fraction of the ring's smallest wall distance.
     roll_deg : float or None
         Roll of the image about the viewing direction (:func:`camera_up`).
     mesh : {"colon", "colon_haustral"}
-        The bundled colon: the smooth tube, or the haustral colon (:func:`_haustral_pose`).
+        The smooth tube, or the haustral colon (:func:`_haustral_pose`).
 
     Returns
     -------
@@ -221,9 +183,10 @@ def colon_pose(station: float, view_deg: float, *, azimuth_deg: float | None = N
 
 def _haustral_pose(station: float, view_deg: float, azimuth_deg: float | None, radial_offset: float,
                    roll_deg: float | None) -> CameraPose:
-    """:func:`colon_pose` in the haustral colon by :func:`~simtest.scene.meshes.haustral_pose`; the
-    offset's unit is the smallest wall distance of the rings within half a fold spacing (crests bow
-    and stagger along the centre line: the station's ring alone can miss the nearest)."""
+    """:func:`colon_pose` in the haustral colon (:func:`~simtest.scene.meshes.haustral_pose`).
+
+    The offset's unit is the smallest wall distance of the rings within half a fold spacing.
+    """
     info = mesh_placement("colon_haustral")
     gen = info.mesh.metadata["generator"]
     arc, line = info.arc, info.mesh.metadata["centerline"]
@@ -240,28 +203,12 @@ def _haustral_pose(station: float, view_deg: float, azimuth_deg: float | None, r
 
 
 def liver_orbit_pose(azimuth_deg: float, elevation_deg: float, distance_mm: float) -> CameraPose:
-    """Camera outside the bundled liver, on a sphere about it, aimed at its bounding-box centre.
+    """Camera at ``c + (R + distance_mm) d`` outside the bundled liver, looking along ``-d``.
 
-    The camera stands at ``c + (R + distance_mm) d``, with ``c`` the bounding-box centre, ``R`` the
-    bounding-sphere radius about it and ``d = (cos el cos az, cos el sin az, sin el)``, and looks
-    along ``-d``; up from :func:`camera_up` without roll.
-
-    Parameters
-    ----------
-    azimuth_deg, elevation_deg : float
-        Direction ``d`` of the camera from the centre, degrees.
-    distance_mm : float
-        Distance outside the bounding sphere, mm.
-
-    Returns
-    -------
-    CameraPose
-        ``look_at`` is one millimetre ahead of the camera.
-
-    Raises
-    ------
-    FileNotFoundError
-        As :func:`mesh_placement`.
+    ``c`` is the bounding-box centre, ``R`` the bounding radius about it and
+    ``d = (cos el cos az, cos el sin az, sin el)`` from ``azimuth_deg``, ``elevation_deg``; up from
+    :func:`camera_up` without roll, ``look_at`` one millimetre ahead. FileNotFoundError as
+    :func:`mesh_placement`.
     """
     info = mesh_placement("liver")
     az, el = math.radians(azimuth_deg), math.radians(elevation_deg)
@@ -273,34 +220,14 @@ def liver_orbit_pose(azimuth_deg: float, elevation_deg: float, distance_mm: floa
 
 def liver_surface_pose(azimuth_deg: float, elevation_deg: float, distance_mm: float,
                        view_deg: float, roll_deg: float) -> CameraPose:
-    """Camera looking at one surface point of the bundled liver from a set distance.
+    """Camera looking at one surface point ``p`` of the bundled liver from ``distance_mm``.
 
-    The point is the vertex whose direction from the bounding-box centre is closest to
-    ``d = (cos el cos az, cos el sin az, sin el)``; with ``n`` its outward normal and ``(e1, e2)``
-    the basis across it, the camera stands at ``p + distance_mm b`` with
-    ``b = cos(view) n + sin(view) (cos(roll) e1 + sin(roll) e2)`` and looks at ``p``.
-
-    Parameters
-    ----------
-    azimuth_deg, elevation_deg : float
-        Direction of the surface point from the centre, degrees.
-    distance_mm : float
-        Camera to surface point, mm.
-    view_deg : float
-        Tilt of the line of sight off the normal, degrees.
-    roll_deg : float
-        Direction of that tilt about the normal, degrees; the image's up is the tilt's side
-        direction made perpendicular to the line of sight (the side direction itself at no tilt).
-
-    Returns
-    -------
-    CameraPose
-        ``look_at`` is the surface point.
-
-    Raises
-    ------
-    FileNotFoundError
-        As :func:`mesh_placement`.
+    ``p`` is the vertex whose direction from the centre is closest to
+    ``d = (cos el cos az, cos el sin az, sin el)``; with ``n`` its outward normal and ``(e1, e2)`` the
+    basis across it, the camera stands at ``p + distance_mm b``,
+    ``b = cos(view) n + sin(view) (cos(roll) e1 + sin(roll) e2)``; the image's up is the tilt's side
+    direction made perpendicular to the line of sight. ``look_at`` is ``p``. FileNotFoundError as
+    :func:`mesh_placement`.
     """
     info = mesh_placement("liver")
     mesh = info.mesh

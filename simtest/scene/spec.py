@@ -1,17 +1,14 @@
 """Scene specifications: TOML files loaded into validated, frozen dataclasses.
 
-A scene file has six sections, ``[camera]``, ``[light]``, ``[material]``, ``[geometry]``,
-``[sensor]`` and ``[render]``, plus the top-level keys ``name`` and ``description``. Every key has
-a default except the geometry's shape parameters; unknown keys, wrong types and out-of-range values
+A scene file has the sections ``[camera]``, ``[light]``, ``[material]``, ``[geometry]``,
+``[sensor]``, ``[render]`` and the top-level keys ``name`` and ``description``. Every key has a
+default except the geometry's shape parameters; unknown keys, wrong types and out-of-range values
 raise :class:`SceneError` with the message ``"<file>: <section.key>: <reason>"``.
 
-Conventions
------------
-Lengths in millimetres, angles in degrees (suffixes ``_mm``, ``_deg``, ``_px``). Spheres, cylinders
-and meshes are given in the *world* frame, planes and saddles relative to the camera; the camera pose (``camera.position_mm``, ``look_at_mm``, ``up``) places an OpenCV
-camera (x right, y down, z forward) in it. With the default pose (at the origin, looking along +z,
-up = (0, -1, 0)) the world frame *is* the camera frame, which is how the bundled analytic scenes are
-written.
+Lengths in mm, angles in degrees (suffixes ``_mm``, ``_deg``, ``_px``). Spheres, cylinders and
+meshes are given in the world frame, planes and saddles relative to the camera; the camera pose
+places an OpenCV camera (x right, y down, z forward). With the default pose the world frame is
+the camera frame.
 
 Examples
 --------
@@ -25,13 +22,11 @@ Examples
 References
 ----------
 .. [1] K. Makki, A. Bartoli, "Normal Reconstruction from Specularity in the Endoscopic Setting",
-       eq. 1 (the Phong lobe) and section 3.1 (the light offset
-       ``L = V + epsilon (cos a, sin a, b)``).
+       eq. 1 (the Phong lobe) and section 3.1 (the light offset ``L = V + epsilon (cos a, sin a, b)``).
 .. [2] B. T. Phong, "Illumination for computer generated pictures", CACM 18(6), 1975.
        https://doi.org/10.1145/360825.360839
 .. [3] B. Walter, S. R. Marschner, H. Li, K. E. Torrance, "Microfacet models for refraction
        through rough surfaces", EGSR 2007. https://doi.org/10.2312/EGWR/EGSR07/195-206
-       (Beckmann and GGX distributions; the Phong-exponent to Beckmann-alpha conversion).
 """
 
 from __future__ import annotations
@@ -57,38 +52,18 @@ from simtest.scene.kinds import (GEOMETRY_KEY_ORDER, GEOMETRY_KEYS, GEOMETRY_TYP
                                  SphereGeometry)
 from simtest.resources import bundled_scene_path, data_root
 
-__all__ = [
-    "SceneError",
-    "CameraSpec",
-    "LightSpec",
-    "MaterialSpec",
-    "GeometrySpec",
-    "PlaneGeometry",
-    "SphereGeometry",
-    "CylinderGeometry",
-    "SaddleGeometry",
-    "MeshGeometry",
-    "GEOMETRY_TYPES",
-    "SensorSpec",
-    "RenderSpec",
-    "SceneSpec",
-    "load_scene",
-    "scene_from_dict",
-    "scene_to_dict",
-    "scene_to_toml",
-    "with_overrides",
-    "GEOMETRY_KEYS",
-    "RENDER_VARIANTS",
-]
+__all__ = ["SceneError", "CameraSpec", "LightSpec", "MaterialSpec", "GeometrySpec", "PlaneGeometry",
+           "SphereGeometry", "CylinderGeometry", "SaddleGeometry", "MeshGeometry", "GEOMETRY_TYPES",
+           "SensorSpec", "RenderSpec", "SceneSpec", "load_scene", "scene_from_dict", "scene_to_dict",
+           "scene_to_toml", "with_overrides", "GEOMETRY_KEYS", "RENDER_VARIANTS"]
 
 
 class SceneError(ValueError):
     """A scene file or dict is invalid. The message reads ``"<file>: <key>: <reason>"``."""
 
 
-#: Mitsuba variants the renderer accepts ("auto" picks cuda_ad_rgb when a GPU is usable, else
-#: llvm_ad_rgb). Only RGB variants: the renderer uses the colour channels to separate the
-#: specular-only image from the full image in a single render.
+#: Mitsuba variants the renderer accepts ("auto": cuda_ad_rgb when a GPU is usable, else llvm_ad_rgb);
+#: RGB only: the colour channels separate the specular-only image from the full image in one render.
 Variant = Literal["auto", "llvm_ad_rgb", "cuda_ad_rgb"]
 RENDER_VARIANTS: tuple[str, ...] = get_args(Variant)
 
@@ -112,28 +87,25 @@ class CameraSpec:
     fov_deg : float or None
         Horizontal field of view (full angle across the film width), degrees in (0, 180).
     focal_px : float or None
-        Focal length in pixels. Give at most one of ``fov_deg`` and ``focal_px``; with neither,
+        Focal length in pixels. At most one of ``fov_deg`` and ``focal_px``; with neither,
         ``focal_px = width_px`` (the paper's f = M).
     principal_offset_px : (2,) float
         Principal point minus the film centre ``(W/2 - 0.5, H/2 - 0.5)``, pixels.
     position_mm, look_at_mm, up : (3,) float
-        Camera pose in the world frame; ``up`` is the world direction shown at the top of the image
-        (OpenCV y points down, so the default up is (0, -1, 0)).
+        Camera pose in the world frame; ``up`` is shown at the top of the image (default (0, -1, 0)).
     model : {"pinhole", "fisheye", "c3vd", "file"}
-        Camera model of the film. "pinhole" without ``dist_coeffs`` is Mitsuba's perspective
-        sensor (the default, bit for bit as before); every other choice traces each pixel's rays
-        from the camera model (:mod:`simtest.render.endoscope`): "pinhole" with ``dist_coeffs``
-        (OpenCV's radial-tangential model), "fisheye" (OpenCV's Kannala-Brandt model with
-        ``fisheye_d``, K from the keys above), "c3vd" (C3VD's omnidirectional calibration of an
-        Olympus colonoscope, 1350 x 1080, scaled to ``width_px``; ``height_px`` must match), "file"
-        (the model of the camera file ``file``; the film size must match it).
+        "pinhole" without ``dist_coeffs`` is Mitsuba's perspective sensor; the others trace each
+        pixel's rays from the camera model (:mod:`simtest.render.endoscope`): "pinhole" with
+        ``dist_coeffs`` (OpenCV radial-tangential), "fisheye" (OpenCV Kannala-Brandt, ``fisheye_d``),
+        "c3vd" (C3VD's Olympus colonoscope calibration, 1350 x 1080, scaled to ``width_px``), "file"
+        (the model of ``file``; the film size must match).
     dist_coeffs : list of float or None
-        OpenCV distortion coefficients (k1, k2, p1, p2[, k3[, k4, k5, k6]]) of the "pinhole" model.
+        OpenCV distortion coefficients (k1, k2, p1, p2[, k3[, k4, k5, k6]]) of "pinhole".
     fisheye_d : (4,) float or None
-        Kannala-Brandt coefficients (k1, k2, k3, k4) of the "fisheye" model.
+        Kannala-Brandt coefficients (k1, k2, k3, k4) of "fisheye".
     file : str or None
-        Camera file (JSON: model, image size, optional lights) for ``model = "file"`` or
-        ``light.rig = "file"``; relative paths as for ``geometry.path``.
+        Camera file (JSON) for ``model = "file"`` or ``light.rig = "file"``; relative paths as for
+        ``geometry.path``.
     """
 
     width_px: Int = Field(406, ge=1, le=16384)
@@ -151,11 +123,10 @@ class CameraSpec:
 
     @property
     def focal(self) -> float:
-        """Focal length in pixels (from ``focal_px``, ``fov_deg`` or the default ``width_px``).
+        """Focal length f in pixels: ``focal_px``, else ``(W / 2) / tan(fov / 2)``, else ``width_px``.
 
-        With a field of view, ``f = (W / 2) / tan(fov / 2)``; the intrinsics are then
-        ``K = [[f, 0, W/2 - 0.5 + ox], [0, f, H/2 - 0.5 + oy], [0, 0, 1]]`` with
-        ``(ox, oy) = principal_offset_px`` (pixel centres at integer coordinates).
+        The intrinsics are ``K = [[f, 0, W/2 - 0.5 + ox], [0, f, H/2 - 0.5 + oy], [0, 0, 1]]``,
+        ``(ox, oy) = principal_offset_px``.
         """
         if self.focal_px is not None:
             return float(self.focal_px)
@@ -171,11 +142,11 @@ class CameraSpec:
 
 @_frozen
 class LightSpec:
-    """Point light carried by the camera.
+    """Point light carried by the camera, or a light rig.
 
-    The light sits at ``L = V + epsilon (cos a, sin a, b)`` in the camera frame (the paper's
-    parametrisation, section 3.1); ``a`` and ``b`` are drawn from the render seed (a uniform in
-    [0, 360) deg, b uniform in [-0.5, 0.5]) unless given.
+    The light sits at ``L = V + epsilon (cos a, sin a, b)`` in the camera frame (paper section 3.1);
+    ``a`` (uniform in [0, 360) deg) and ``b`` (uniform in [-0.5, 0.5]) are drawn from the render seed
+    unless given.
 
     Attributes
     ----------
@@ -184,31 +155,25 @@ class LightSpec:
     alpha_deg, b : float or None
         Offset direction parameters; None draws them from the seed.
     intensity : float
-        Radiant intensity (arbitrary units), > 0.
+        Radiant intensity (arbitrary units), > 0; scales each light of a rig.
     falloff : {"cancel", "keep"}
-        "keep": radiance falls as 1/d^2 with the light distance d (a real endoscope). "cancel":
-        the 1/d^2 is undone so that an exact-Phong surface shows ``intensity * c cos(beta)^n``
-        (paper eq. 1).
-    rig : {"single", "colonoscope", "laparoscope", "file"}
-        "single": the one light above (the default). A light rig (1 to 8 lights moving with the
-        camera, rendered by :mod:`simtest.render.endoscope`): "colonoscope" (two light guides on
-        opposite sides of the lens, ``guide_offset_mm`` from it along x), "laparoscope" (a ring of
-        ``guide_count`` lights of radius ``guide_offset_mm``), "file" (the lights of
-        ``camera.file``), "cf_h190" (an Olympus CF-H190 colonoscope: two disc guides 3.3 mm from
-        the lens, :func:`simtest.render.endoscope.cf_h190_rig`). A rig needs ``epsilon_mm = 0``
-        and ``falloff = "keep"``; ``intensity`` scales each of its lights.
+        "keep": radiance falls as 1/d^2 (a real endoscope). "cancel": undone, so that an exact-Phong
+        surface shows ``intensity * c cos(beta)^n`` (paper eq. 1).
+    rig : {"single", "colonoscope", "laparoscope", "file", "cf_h190"}
+        "single": the one light above. Rigs (:mod:`simtest.render.endoscope`): "colonoscope" (two
+        guides ``guide_offset_mm`` either side of the lens along x), "laparoscope" (a ring of
+        ``guide_count`` lights of radius ``guide_offset_mm``), "file" (the lights of ``camera.file``),
+        "cf_h190" (Olympus CF-H190, :func:`simtest.render.endoscope.cf_h190_rig`). A rig needs
+        ``epsilon_mm = 0`` and ``falloff = "keep"``.
     guide_offset_mm : float or None
-        Colonoscope: distance of each guide from the lens centre; laparoscope: ring radius
-        (default: the presets' assumed geometry, see :mod:`simtest.render.endoscope`).
+        Colonoscope: guide distance from the lens centre; laparoscope: ring radius (default: the preset's).
     guide_count : int or None
         Laparoscope: lights in the ring, 6 to 8 (default 8).
     guide_diameter_mm : float or None
-        Diameter of each light guide's output face, mm (0 to 10): a disc in the lens plane whose
-        points emit with the cos^m profile (:mod:`simtest.render.endoscope`); 0: point lights.
-        Default 0, and the preset's for "cf_h190".
+        Diameter of each guide's emitting disc, mm (0 to 10; 0: point lights). Default 0, the
+        preset's for "cf_h190".
     profile_exponent : float or None
-        m of each light's cos^m emission profile about the scope axis (default: 0 for "single",
-        the presets' assumed 1 for a rig).
+        m of each light's cos^m emission profile (default: 0 for "single", the presets' 1 for a rig).
     """
 
     epsilon_mm: Num = Field(0.0, ge=0.0)
@@ -229,15 +194,17 @@ class MaterialSpec:
 
     Attributes
     ----------
-    model : {"phong", "microfacet"}
-        "phong": exact paper eq. 1, ``c max(0, cos beta)^n`` (Python BSDF). "microfacet": Mitsuba's
-        ``roughconductor`` (base "conductor") or ``roughplastic`` (base "plastic").
+    model : {"phong", "microfacet", "tissue"}
+        "phong": exact paper eq. 1, ``c max(0, cos beta)^n``. "microfacet": Mitsuba's
+        ``roughconductor`` or ``roughplastic`` (``base``). "tissue": procedural RGB tissue
+        (:mod:`simtest.render.tissue`) with a wet dielectric film whose lobe is ``distribution``, with
+        Fresnel's reflectance at ``film_ior``, scaled by ``c``.
     c : float
         Specular scale (Phong c; microfacet specular reflectance), >= 0.
     n : float
-        Phong exponent, > 0. Also sets the default microfacet alpha = sqrt(2 / (4 n + 2)).
-    distribution : {"beckmann", "ggx"}
-        Microfacet normal distribution [3].
+        Phong exponent, > 0; also sets the default microfacet alpha (:attr:`microfacet_alpha`).
+    distribution : {"beckmann", "ggx", "phong"}
+        Microfacet normal distribution [3]; "phong" (eq. 1) only for "tissue".
     alpha : float or None
         Microfacet roughness in (0, 1]; None derives it from ``n``.
     base : {"conductor", "plastic"}
@@ -245,55 +212,36 @@ class MaterialSpec:
     ior : float
         Interior index of refraction of the plastic base, > 1.
     diffuse_albedo : float
-        Lambertian albedo in [0, 1] (tissue), added to the specular lobe. Not with the conductor
-        base (use "plastic"). Not used by "tissue" (its albedo is procedural).
+        Lambertian albedo in [0, 1], added to the specular lobe; not with the conductor base nor
+        "tissue".
     tissue : {"mucosa", "liver", "peritoneum", "gallbladder"}
-        ``model = "tissue"``: procedural RGB tissue (:mod:`simtest.render.tissue`): seeded albedo
-        with colour variation and vessel-like lines, micro-relief, and a wet dielectric film whose
-        lobe is ``distribution`` ("beckmann", "ggx", or "phong": paper eq. 1 with exponent ``n``)
-        with Fresnel's reflectance at ``film_ior``, scaled by ``c``.
+        The tissue of ``model = "tissue"``.
     film_ior : float
-        Index of refraction of the tissue's wet film, 1.3 to 1.5 (water 1.33, mucus up to 1.45).
-    relief_mm : float
-        RMS height of the tissue's micro-relief, mm (0: smooth).
-    relief_scale_mm : float
-        Longest wavelength of the micro-relief's spectrum, 0.05 to 5 mm.
-    relief_min_mm : float or None
-        Shortest wavelength of the micro-relief's spectrum, mm, at most ``relief_scale_mm``; None:
-        0.05 mm or ``relief_scale_mm`` if that is shorter.
-    relief_hurst : float
-        Hurst exponent H of the micro-relief's self-affine spectrum (power spectral density
-        ``~ q^-(2 + 2H)``, amplitudes ``~ wavelength^H``), 0 to 1; see :mod:`simtest.render.tissue`.
+        Index of refraction of the wet film, 1.3 to 1.5.
+    relief_mm, relief_scale_mm, relief_min_mm, relief_hurst : float
+        RMS height (mm, 0: smooth), longest and shortest wavelength (mm; None: 0.05 or
+        ``relief_scale_mm``) and Hurst exponent (0 to 1) of the tissue's self-affine micro-relief.
     subsurface_mm : float or None
-        Diffusion length of the diffuse light, mm: relief waves shorter shade the film only
+        Diffusion length of the diffuse light, mm: shorter relief waves shade the film only
         (:func:`simtest.render.tissue.tissue_params`); None or 0: both.
     texture_seed : int
-        Seed of the tissue texture (albedo pattern and relief), independent of the render seed.
+        Seed of the tissue texture, independent of the render seed.
     albedo : (float, float, float) or None
-        Linear-RGB base albedo of the tissue, each in (0, 1]; None: the tissue's default
-        (:data:`simtest.render.tissue.TISSUE_ALBEDO`). ``simtest simreal --fit`` sets it.
-    film_variation : float
-        Standard deviation of the log of the wet film's roughness over the surface, 0 to 3 (0: a
-        uniform film; :func:`simtest.render.tissue.film_alpha`).
-    film_scale_mm : float
-        Typical wavelength of the film's thickness variation, mm.
+        Linear-RGB base albedo, each in (0, 1]; None: the tissue's default. ``simtest simreal --fit``
+        sets it.
+    film_variation, film_scale_mm : float
+        Log standard deviation (0 to 3) and typical wavelength (mm) of the film's roughness variation
+        (:func:`simtest.render.tissue.film_alpha`).
     film_thickness_mm, film_thickness_spread : float
-        Median thickness (mm, 0 to 1; 0: none) and log standard deviation (0 to 1.5) of the wet
-        film that levels the micro-relief (:mod:`simtest.render.tissue`).
-    wall_tissue : {"mucosa", "liver", "peritoneum", "gallbladder"} or None
-        A second tissue (its default albedo) at the surface points at least ``wall_radius_mm``
-        from ``wall_centre_mm`` (the texture frame: a mesh's own axes), such as the wall of
-        :func:`simtest.scene.meshes.abdomen.build_liver_in_abdomen` around its liver. The three
-        keys go together.
-    wall_centre_mm : (float, float, float) or None
-    wall_radius_mm : float or None
-    organ_tissue : {"mucosa", "liver", "peritoneum", "gallbladder"} or None
-        A third tissue (its default albedo) at the surface points inside the ellipsoid of centre
-        ``organ_centre_mm`` and semi-axes ``organ_axes_mm`` along the texture frame's axes, such as
-        the gallbladder of :func:`simtest.scene.meshes.abdomen.build_liver_in_abdomen`. The three
-        keys go together.
-    organ_centre_mm : (float, float, float) or None
-    organ_axes_mm : (float, float, float) or None
+        Median thickness (mm, 0 to 1; 0: none) and log standard deviation (0 to 1.5) of the wet film
+        that levels the micro-relief.
+    wall_tissue, wall_centre_mm, wall_radius_mm
+        A second tissue at the surface points at least ``wall_radius_mm`` from ``wall_centre_mm`` (the
+        texture frame), e.g. the wall around :func:`simtest.scene.meshes.abdomen.build_liver_in_abdomen`.
+        The three keys go together.
+    organ_tissue, organ_centre_mm, organ_axes_mm
+        A third tissue inside the ellipsoid of that centre and semi-axes (texture frame), e.g. the
+        gallbladder. The three keys go together.
     """
 
     model: Literal["phong", "microfacet", "tissue"] = "phong"
@@ -328,26 +276,10 @@ class MaterialSpec:
     def microfacet_alpha(self) -> float:
         """``alpha`` or, if None, the Beckmann alpha matching Phong ``n``: sqrt(2 / (4 n + 2)).
 
-        Walter et al. [3] match a Blinn-Phong exponent ``n_h`` (of the half-vector angle) with
-        ``alpha = sqrt(2 / (n_h + 2))``; the paper's lobe is in the mirror-direction angle beta,
-        which near the peak is twice the half-vector angle, so ``n_h ~ 4 n``.
-
-        Notes
-        -----
-        *The microfacet mapping.* Let ``theta_h`` be the angle between the normal and the half
-        vector of the directions to the light and to the viewer. With a co-located light both
-        directions are the view direction, so the half vector is the view direction and the mirror
-        angle of Phong's lobe (paper eq. 1) is ``beta = 2 theta_h``. Near the peak
-        ``cos(2 theta_h)^n ~ exp(-2 n theta_h^2)`` and a Blinn lobe ``cos(theta_h)^m ~
-        exp(-m theta_h^2 / 2)``, so ``m = 4 n``; Walter et al.'s Blinn-to-Beckmann conversion
-        ``alpha = sqrt(2 / (m + 2))`` gives ``alpha = sqrt(2 / (4 n + 2))``. The rendered lobe
-        also carries Beckmann's ``1 / cos^4 theta_h``, the BSDF's ``1 / (4 cos theta_i cos
-        theta_o)`` and the foreshortening ``cos theta_i``, with ``theta_i = theta_o = theta_h``
-        here: a factor ``1 / cos^5 theta_h ~ exp(5 theta_h^2 / 2)``. So the lobe is
-        ``exp(-theta_h^2 (4 n + 2) / 2 + 5 theta_h^2 / 2) = exp(-2 (n - 0.75) theta_h^2)``: this
-        alpha matches a Phong exponent of ``n - 0.75`` to leading order, and
-        ``alpha^2 = 2 / (4 n + 5)`` would match ``n``. Keep the peak below the sensor's saturation when sweeping alpha (a
-        clipped peak measures the clipping, not the lobe).
+        With a co-located light the mirror angle is ``beta = 2 theta_h``, so a Blinn exponent ``4 n``
+        matches the paper's lobe near the peak; Walter et al.'s [3] Blinn-to-Beckmann conversion
+        ``sqrt(2 / (m + 2))`` then gives this alpha (it matches ``n - 0.75`` to leading order once the
+        BSDF's ``1 / cos^5 theta_h`` is included).
         """
         if self.alpha is not None:
             return float(self.alpha)
@@ -356,11 +288,11 @@ class MaterialSpec:
 
 @_frozen
 class SensorSpec:
-    """Sensor model applied to the linear image (see :func:`simtest.render.sensor.apply_sensor`).
+    """Sensor model applied to the linear image (:func:`simtest.render.sensor.apply_sensor`).
 
     ``s = exposure * L``; Poisson noise with ``full_well_e`` electrons at full scale (0: none);
-    Gaussian read noise of standard deviation ``gaussian_sigma`` (fraction of full scale); clip to
-    [0, saturation]; ``y = s^(1 / gamma)``; quantise to ``2^bit_depth - 1`` levels.
+    Gaussian read noise ``gaussian_sigma`` (fraction of full scale); clip to [0, saturation];
+    ``y = s^(1 / gamma)``; quantise to ``2^bit_depth - 1`` levels.
 
     Attributes
     ----------
@@ -371,44 +303,38 @@ class SensorSpec:
     gamma : float
         Output gamma, > 0 (1: linear).
     bit_depth : int
-        Bits per pixel of the sensor image, 1 to 16.
+        Bits per pixel, 1 to 16.
     gaussian_sigma : float
         Read-noise standard deviation, fraction of full scale, >= 0.
     full_well_e : float
         Electrons at full scale for Poisson shot noise, >= 0 (0: none).
     output : {"grey", "video"}
-        What the sensor image is: "grey" (the steps above on the linear image, the default) or
-        "video": the luma (ITU-R BT.601) of the 8-bit RGB video frame made by the keys below
-        (:func:`simtest.render.sensor.video_frame`, written as ``frame.png`` in either case).
+        "grey": the steps above; "video": the BT.601 luma of the 8-bit RGB video frame made by the
+        keys below (:func:`simtest.render.sensor.video_frame`).
     exposure_mode : {"fixed", "auto"}
-        Video frame: "fixed" multiplies by ``exposure``; "auto" sets the exposure so the mean luma
-        inside the field stop is ``auto_mean`` of full scale (a scope's auto-exposure).
+        Video: "fixed" multiplies by ``exposure``; "auto" brings the mean luma in the field stop to
+        ``auto_mean`` of full scale.
     auto_mean : float
         Target mean of the "auto" exposure, (0, 1].
     metering : {"field", "tissue"}
-        Pixels the "auto" exposure averages: the whole field stop, or only those on tissue (the
-        surface covers the pixel), so that background beyond the scene does not brighten it.
+        Pixels "auto" averages: the whole field stop, or only those on tissue.
     auto_clip_percent : float
-        Peak-protecting "auto" exposure, in [0, 100]: the exposure is at most the one at which
-        this percentage of the metered pixels clips in its brightest white-balanced channel (a
-        scope's video processor meters the peaks as well as the mean, so that the tissue nearest
-        the light guides is not burnt out; the few pixels allowed to clip are the specular
-        highlights'). 100 (default): the mean alone sets the exposure.
+        Peak-protecting "auto" exposure, [0, 100]: at most the exposure at which this percentage of
+        the metered pixels clips in its brightest white-balanced channel. 100: the mean alone.
     white_balance : (3,) float
-        Video frame: gains of R, G, B, > 0.
+        Video: gains of R, G, B, > 0.
     tone : {"gamma", "srgb"}
-        Video frame tone curve: ``s^(1 / gamma)`` or the sRGB curve (IEC 61966-2-1).
+        Video tone curve: ``s^(1 / gamma)`` or sRGB (IEC 61966-2-1).
     color_saturation : float
-        Video frame: colour saturation about the luma (1: unchanged, 0: grey), >= 0.
+        Video: colour saturation about the luma (1: unchanged, 0: grey), >= 0.
     vignetting : float
-        Video frame: relative illumination ``1 - v (r / r_max)^2`` (r from the image centre,
-        r_max the half diagonal), v in [0, 1).
+        Video: relative illumination ``1 - v (r / r_max)^2``, r_max the half diagonal, v in [0, 1).
     jpeg_quality : int
-        Video frame: JPEG quality 1 to 100 (encoded and decoded), 0: no compression.
+        Video: JPEG quality 1 to 100, 0: no compression.
     field_stop : {"none", "circle", "octagon"}
-        Video frame: the scope's field stop; pixels outside are black.
+        Video: the scope's field stop; pixels outside are black.
     field_stop_radius : float
-        Field-stop radius as a fraction of half the image width (octagon: its inscribed circle).
+        Field-stop radius, fraction of half the image width (octagon: its inscribed circle).
     """
 
     exposure: Num = Field(1.0, gt=0.0)
@@ -442,7 +368,7 @@ class RenderSpec:
     sampler : {"multijitter", "independent", "stratified"}
         Mitsuba sampler plugin.
     seed : int
-        Render seed in [0, 2^31 - 1] (0 is valid).
+        Render seed in [0, 2^31 - 1].
     variant : str
         One of :data:`RENDER_VARIANTS`.
     """
@@ -453,32 +379,16 @@ class RenderSpec:
     variant: Variant = "auto"
 
 
-_SECTIONS: dict[str, type] = {
-    "camera": CameraSpec,
-    "light": LightSpec,
-    "material": MaterialSpec,
-    "geometry": GeometrySpec,
-    "sensor": SensorSpec,
-    "render": RenderSpec,
-}
+_SECTIONS: dict[str, type] = {"camera": CameraSpec, "light": LightSpec, "material": MaterialSpec,
+                              "geometry": GeometrySpec, "sensor": SensorSpec, "render": RenderSpec}
 
 
 @_frozen
 class SceneSpec:
     """A whole scene: one camera with its light, one surface, a sensor and render settings.
 
-    Attributes
-    ----------
-    name, description : str
-        Free text (``name`` defaults to the file stem when loaded from a file).
-    camera : CameraSpec
-    light : LightSpec
-    material : MaterialSpec
-    geometry : GeometrySpec
-    sensor : SensorSpec
-    render : RenderSpec
-    source : str
-        File path or ``"<dict>"``, for messages; not serialised and not compared.
+    ``name`` defaults to the file stem when loaded; ``source`` (file path or ``"<dict>"``) is for
+    messages, not serialised nor compared.
     """
 
     name: Str = "scene"
@@ -492,10 +402,6 @@ class SceneSpec:
     source: str = field(default="<dict>", compare=False)
 
 
-# ------------------------------------------------------------------------------------------------
-# validation
-
-
 #: ``_err(source, key, reason)``: the one-line error of a bad key (:func:`simtest._checks.keyed_error`).
 _err = functools.partial(keyed_error, SceneError)
 
@@ -506,11 +412,7 @@ def _validated(cls: Any, data: Any, source: str, prefix: str = ""):
 
 
 def _build_geometry(data: Any, source: str) -> GeometrySpec:
-    """The geometry class of ``data["type"]`` (default "plane") built from the other keys.
-
-    A key of another geometry type is refused naming the type's keys; a key of none, naming them
-    all; None leaves a key unset.
-    """
+    """The geometry class of ``data["type"]`` (default "plane") built from the other keys (None: unset)."""
     if not isinstance(data, Mapping):
         raise _err(source, "geometry", f"expected a table, got {type(data).__name__} {data!r}")
     kind = _validated(Str, data.get("type", "plane"), source, "geometry.type")
@@ -608,8 +510,7 @@ def _validate(spec: SceneSpec, source: str, base_dirs: tuple[Path, ...]) -> Scen
 
 
 def _resolve_file(name: str, base_dirs: tuple[Path, ...], source: str, key: str, what: str) -> Path:
-    """An existing file named in a scene: absolute, or relative to the first of ``base_dirs``
-    holding it. Raises :class:`SceneError` naming ``key`` when there is none."""
+    """An existing file named in a scene: absolute, or relative to the first of ``base_dirs`` holding it."""
     path = Path(name).expanduser()
     if not path.is_absolute():
         candidates = [d / path for d in base_dirs]
@@ -634,18 +535,18 @@ def scene_from_dict(d: Mapping[str, Any], source: str = "<dict>",
     source : str
         Shown at the start of every error message (the file name).
     base_dir : path, optional
-        Folder relative mesh paths are resolved from (before the bundled data root).
+        Folder relative file paths are resolved from (before the bundled data root).
 
     Returns
     -------
     SceneSpec
-        Validated and frozen; a mesh path is made absolute.
+        Validated and frozen; file paths made absolute.
 
     Raises
     ------
     SceneError
         On an unknown key, a wrong type, an out-of-range value, a missing required geometry key or a
-        mesh file that does not exist.
+        missing file.
     """
     if not isinstance(d, Mapping):
         raise _err(source, "<root>", f"expected a table, got {type(d).__name__}")
@@ -663,23 +564,10 @@ def scene_from_dict(d: Mapping[str, Any], source: str = "<dict>",
 
 
 def load_scene(path: str | Path) -> SceneSpec:
-    """Load and validate a TOML scene file.
+    """Load and validate a TOML scene file, or the bundled scene of that name (e.g. ``"plane_58deg"``).
 
-    Parameters
-    ----------
-    path : str or Path
-        A ``.toml`` file, or the name of a bundled scene (e.g. ``"plane_58deg"``).
-
-    Returns
-    -------
-    SceneSpec
-        Validated; ``name`` defaults to the file stem and ``source`` is the file path.
-
-    Raises
-    ------
-    SceneError
-        If the file is missing, is not valid TOML, or fails validation (see
-        :func:`scene_from_dict`).
+    ``name`` defaults to the file stem. Raises :class:`SceneError` if the file is missing, is not
+    valid TOML or fails validation (:func:`scene_from_dict`).
     """
     p = Path(path)
     if not p.is_file() and p.suffix != ".toml" and "/" not in str(path):
@@ -702,20 +590,9 @@ def load_scene(path: str | Path) -> SceneSpec:
 
 
 def scene_to_dict(spec: SceneSpec) -> dict[str, Any]:
-    """Return the nested dict (TOML layout) of ``spec``; None values are left out.
+    """The nested dict (TOML layout, tuples as lists) of ``spec``; None values and ``source`` left out.
 
     ``scene_from_dict(scene_to_dict(s)) == s`` for a valid spec ``s``.
-
-    Parameters
-    ----------
-    spec : SceneSpec
-        A validated spec.
-
-    Returns
-    -------
-    dict
-        ``{"name", "description", "camera": {...}, ..., "render": {...}}`` with tuples as lists
-        (lengths in mm, angles in degrees, as in the file); ``source`` is not included.
     """
     out: dict[str, Any] = {"name": spec.name, "description": spec.description}
     for section in _SECTIONS:
@@ -731,22 +608,16 @@ def scene_to_dict(spec: SceneSpec) -> dict[str, Any]:
 
 
 def with_overrides(spec: SceneSpec, overrides: Mapping[str, Any]) -> SceneSpec:
-    """Return a copy of ``spec`` with dotted keys replaced, validated again.
+    """A copy of ``spec`` with dotted keys replaced, validated again.
 
     Parameters
     ----------
     spec : SceneSpec
-        The base spec.
+        The base spec (relative paths resolve from its folder).
     overrides : mapping
-        e.g. ``{"material.n": 80, "geometry.tilt_deg": 30, "render.seed": 3}``; ``name`` and
-        ``description`` may be given bare. None unsets an optional key. Overrides apply in order;
-        ``geometry.type`` set to another type starts the geometry afresh (the old type's keys are
-        dropped), so the keys of the new type follow it.
-
-    Returns
-    -------
-    SceneSpec
-        A new validated spec (relative mesh paths resolved from the base spec's folder).
+        e.g. ``{"material.n": 80, "geometry.tilt_deg": 30}``; ``name`` and ``description`` bare. None
+        unsets an optional key. Applied in order; ``geometry.type`` set to another type starts the
+        geometry afresh, so the new type's keys follow it.
 
     Raises
     ------
@@ -766,21 +637,14 @@ def with_overrides(spec: SceneSpec, overrides: Mapping[str, Any]) -> SceneSpec:
             d["geometry"] = {}  # another kind of surface: the old one's keys do not apply
         d[parts[0]][parts[1]] = list(value) if isinstance(value, tuple) else value
     base = Path(spec.source).resolve().parent if spec.source not in ("<dict>", "") else None
-    out = scene_from_dict(d, source=spec.source, base_dir=base)
-    return out
+    return scene_from_dict(d, source=spec.source, base_dir=base)
 
 
 def scene_to_toml(spec: SceneSpec, folder: str | Path | None = None, header: str = "") -> str:
     """The scene file (TOML text) of ``spec``: ``load_scene`` of it gives ``spec`` back.
 
-    Parameters
-    ----------
-    spec : SceneSpec
-    folder : str or Path, optional
-        The folder the file will be written to: file paths of the scene (``geometry.path``,
-        ``camera.file``) are written relative to it (absolute without).
-    header : str
-        Comment lines put first (each prefixed with ``# ``).
+    File paths (``geometry.path``, ``camera.file``) are written relative to ``folder`` when given;
+    ``header`` lines come first as ``# `` comments.
     """
     d = scene_to_dict(spec)
     if folder is not None:

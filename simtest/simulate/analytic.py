@@ -1,14 +1,9 @@
 """Closed-form Phong images of planes seen by a camera model (no renderer).
 
-Frame: OpenCV camera frame, camera centre at the origin, lengths in mm. The plane is
-``{X : normal . X = -distance_mm}`` with ``normal`` facing the camera, so the foot of the
-perpendicular from the camera is ``-distance_mm * normal``. The light is a point at ``light_mm``
-(the origin for the endoscopic, co-located setup).
-
-The intensity at the surface point X seen through a pixel is paper eq. 1,
-``c max(0, cos beta)^n``, with beta between the direction to the camera and the mirror direction
-of the light about the normal; optionally divided by the squared distance to the light relative to
-the distance of the plane (``falloff=True``, the 1/d^2 of a real point source).
+OpenCV camera frame, camera at the origin, mm. The plane is ``{X : normal . X = -distance_mm}``,
+``normal`` facing the camera; the light is a point at ``light_mm`` (the origin: co-located). The
+intensity is paper eq. 1, ``c max(0, cos beta)^n``, optionally times the 1/d^2 falloff relative to
+the plane's distance.
 """
 
 from __future__ import annotations
@@ -34,9 +29,6 @@ def _plane(normal, distance_mm: float) -> np.ndarray:
 def plane_bp(normal, distance_mm: float, light_mm=(0.0, 0.0, 0.0)) -> np.ndarray:
     """Brightest point of a Phong plane: where the normal bisects the directions to camera and light.
 
-    It is where the ray from the camera toward the mirror image of the light crosses the plane; for
-    a co-located light, the foot of the perpendicular ``-distance_mm * normal``.
-
     Parameters
     ----------
     normal : array_like of shape (3,)
@@ -58,17 +50,10 @@ def plane_bp(normal, distance_mm: float, light_mm=(0.0, 0.0, 0.0)) -> np.ndarray
 
     Notes
     -----
-    *Light-offset geometry.* Phong's lobe (paper eq. 1) peaks where the mirror direction of the
-    light points at the camera, i.e. where the normal bisects the unit directions to the camera and
-    to the light: ``N = unit(unit(-X) + unit(L - X))``. On the plane ``n . X = -h`` the mirror
-    image of the light is ``L' = L - 2 (n . L + h) n``; a ray from ``L'`` through X reflects at X
-    into the ray from X to L, so the BP is where the segment from the camera centre to ``L'`` meets
-    the plane: ``X = s L'`` with ``s = -h / (n . L')``. With ``L = 0`` this is the foot of the
-    perpendicular ``-h n`` and the BP ray is the normal. With an offset the BP ray leaves the normal
-    by about half the angle the offset subtends at the BP, ``~ |L_perp| / (2 d)`` rad for an offset
-    ``L_perp`` across the ray at distance ``d``; the cone axis follows the BP ray. Since the image
-    then depends on ``L / d``, a known offset makes the distance observable (paper eq. 2 is the
-    isocurve for any light and viewer).
+    Phong's lobe peaks where the normal equals ``unit(unit(-X) + unit(L - X))``. With the light's
+    mirror image ``L' = L - 2 (n . L + h) n`` in the plane ``n . X = -h``, the BP is where the segment
+    from the camera to ``L'`` meets the plane, ``X = s L'``, ``s = -h / (n . L')``; for ``L = 0`` the
+    foot ``-h n``. An offset turns the BP ray off the normal by about ``|L_perp| / (2 d)`` rad.
     """
     n = _plane(normal, distance_mm)
     L = np.asarray(light_mm, dtype=np.float64).reshape(3)
@@ -80,41 +65,28 @@ def plane_bp(normal, distance_mm: float, light_mm=(0.0, 0.0, 0.0)) -> np.ndarray
     return s * L_mirror
 
 
-def phong_plane_image(
-    K,
-    shape: tuple[int, int],
-    normal,
-    distance_mm: float,
-    n: float,
-    c: float = 1.0,
-    light_mm=(0.0, 0.0, 0.0),
-    falloff: bool = False,
-    supersample: int = 1,
-) -> np.ndarray:
+def phong_plane_image(K, shape: tuple[int, int], normal, distance_mm: float, n: float, c: float = 1.0,
+                      light_mm=(0.0, 0.0, 0.0), falloff: bool = False, supersample: int = 1) -> np.ndarray:
     """Closed-form Phong image of a plane (paper eq. 1), pixel centres at integer coordinates.
 
     Parameters
     ----------
     K : array_like of shape (3, 3) or CameraModel
-        Pinhole intrinsics, or any camera model (fisheye, omnidirectional: each pixel's ray is
-        the model's; pixels without a ray are 0).
+        Pinhole intrinsics, or any camera model (pixels without a ray are 0).
     shape : (H, W)
         Image size in pixels.
     normal : array_like of shape (3,)
         Plane normal facing the camera, camera frame.
     distance_mm : float
         Camera-to-plane distance, mm.
-    n : float
-        Phong roughness, > 0.
-    c : float
-        Peak intensity.
+    n, c : float
+        Phong roughness (> 0) and peak intensity.
     light_mm : array_like of shape (3,)
         Point light position, camera frame (origin: co-located).
     falloff : bool
-        Multiply by ``(distance_mm / |L - X|)^2`` (1/d^2 of a point source, 1 at the foot point for a
-        co-located light).
+        Multiply by ``(distance_mm / |L - X|)^2``.
     supersample : int
-        s x s samples per pixel, box-averaged (what a renderer with a box filter integrates).
+        s x s samples per pixel, box-averaged.
 
     Returns
     -------
@@ -141,9 +113,8 @@ def phong_plane_image(
 def _phong_image(K, shape, n, c, light_mm, supersample, intersect, falloff_ref_mm=None):
     """Eq. 1 through each pixel, box-averaged over s x s sub-pixel rays.
 
-    ``intersect(d)`` takes unit rays (H, W, 3) and returns (hit mask, ray length, unit normal at
-    the hit); normals are turned to face the camera here. With ``falloff_ref_mm`` the intensity is
-    multiplied by ``(falloff_ref_mm / |L - X|)^2``.
+    ``intersect(d)`` maps unit rays (H, W, 3) to (hit mask, ray length, unit normal); with
+    ``falloff_ref_mm`` the intensity is multiplied by ``(falloff_ref_mm / |L - X|)^2``.
     """
     camera = K if isinstance(K, CameraModel) else None
     K = None if camera is not None else validate_intrinsics(K)

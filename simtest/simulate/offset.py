@@ -1,25 +1,14 @@
 """Exact images of a Phong plane lit by a light rig off the camera centre (no renderer, no noise).
 
-Frame: OpenCV camera frame, camera centre at the origin, mm. The plane is
-``{X : normal . X = -distance_mm}``, ``normal`` facing the camera. Each light of the rig
-(:class:`simtest.geometry.lights.Light`) adds its own Phong lobe (paper eq. 1 with the general
-mirror direction of eq. 2: viewer V at the camera centre, light L anywhere on the camera's side),
-weighted by its intensity, its falloff and its emission profile:
+OpenCV camera frame, mm; the plane is ``{X : normal . X = -distance_mm}``, ``normal`` facing the
+camera. Each light j of the rig (:class:`simtest.geometry.lights.Light`) adds its own lobe (paper
+eqs. 1 and 2, viewer at the camera centre):
 
 ``I(X) = c sum_j w_j cos(beta_j(X))^n [ (distance_mm / |L_j - X|)^2 ] [ cos(theta_j)^m_j ]``
 
-with ``cos theta_j`` the cosine between +z and ``X - L_j`` (the light's axis is the camera's).
-The inverse-square factor is relative to the plane's distance so that intensities stay near c.
-
-The intensity on the plane is evaluated with :func:`simtest.specular.phong.phong_intensity` in the
-paper's scene-plane frame (plane z = 0, camera and light moved into that frame), an implementation
-independent of the estimators' own model in :mod:`simtest.reconstruct.lightaware`, so that the
-tests of those estimators compare two derivations.
-
-References
-----------
-.. [1] K. Makki, A. Bartoli, "Normal Reconstruction from Specularity in the Endoscopic Setting",
-       eqs. (1) and (2).
+with ``theta_j`` the angle between +z and ``X - L_j``. Evaluated with
+:func:`simtest.specular.phong.phong_intensity` in the scene-plane frame, independently of
+:mod:`simtest.reconstruct.lightaware`, so its tests compare two derivations.
 """
 
 from __future__ import annotations
@@ -37,32 +26,11 @@ __all__ = ["rig_plane_image", "specular_point"]
 
 
 def specular_point(normal, distance_mm: float, light_mm) -> tuple[np.ndarray, float]:
-    """The specular point of a plane for one light, and its depth along its ray.
+    """The specular point of a plane for one light (:func:`simtest.simulate.analytic.plane_bp`) and its depth.
 
-    Where the normal bisects the directions to the camera and to the light: the segment from the
-    camera centre to the mirror image ``L' = L - 2 (n.L + h) n`` meets the plane there
-    (:func:`simtest.simulate.analytic.plane_bp`).
-
-    Parameters
-    ----------
-    normal : array_like of shape (3,)
-        Plane normal facing the camera, camera frame.
-    distance_mm : float
-        Camera-to-plane distance h, > 0.
-    light_mm : array_like of shape (3,)
-        Light position, camera frame, on the camera's side of the plane.
-
-    Returns
-    -------
-    point_mm : ndarray of shape (3,)
-        The specular point, camera frame, mm.
-    depth_mm : float
-        Its distance from the camera centre (the depth along its viewing ray, as Mitsuba's depth).
-
-    Raises
-    ------
-    ValueError
-        If the light is not on the camera's side of the plane.
+    Returns ``(point_mm, depth_mm)``: the point in the camera frame and its distance from the camera
+    centre (the depth along its ray, as Mitsuba's). Raises ValueError if the light is not on the
+    camera's side of the plane.
     """
     X = plane_bp(normal, distance_mm, light_mm)
     return X, float(np.linalg.norm(X))
@@ -70,36 +38,13 @@ def specular_point(normal, distance_mm: float, light_mm) -> tuple[np.ndarray, fl
 
 def rig_plane_image(K, shape: tuple[int, int], normal, distance_mm: float, rig: LightRig,
                     n: float, c: float = 1.0, supersample: int = 1) -> np.ndarray:
-    """Exact float image of a Phong plane lit by a rig, through a pinhole (module docstring).
+    """Exact float image (H, W) of a Phong plane lit by ``rig`` through a pinhole (module docstring).
 
-    Parameters
-    ----------
-    K : array_like of shape (3, 3)
-        Intrinsics, pixel centres at integer coordinates.
-    shape : (H, W)
-        Image size, px.
-    normal : array_like of shape (3,)
-        Plane normal facing the camera (camera frame).
-    distance_mm : float
-        Camera-to-plane distance, mm, > 0.
-    rig : LightRig
-        The lights (camera frame, mm), each on the camera's side of the plane.
-    n : float
-        Phong roughness, > 0.
-    c : float
-        Scale, > 0.
-    supersample : int
-        s x s point samples per pixel, box-averaged (1: the value at the pixel centre).
-
-    Returns
-    -------
-    ndarray of shape (H, W), float64
-        Intensity; 0 where the pixel ray misses the plane.
-
-    Raises
-    ------
-    ValueError
-        Invalid K, shape, normal, distance, n, c, supersample, or a light behind the plane.
+    ``K`` (pinhole intrinsics), ``shape``, ``normal``, ``distance_mm``, ``n``, ``c`` and
+    ``supersample`` are as in :func:`simtest.simulate.analytic.phong_plane_image`; ``rig`` holds the
+    lights (camera frame, mm), each on the camera's side of the plane. The image is 0 where the pixel
+    ray misses the plane. Raises ValueError on invalid K, shape, normal, distance, n, c, supersample,
+    or a light behind the plane.
     """
     K = validate_intrinsics(K)
     N = unit(np.asarray(normal, dtype=np.float64).reshape(3))

@@ -1,41 +1,22 @@
 """The paper's synthetic protocol, ``paper`` (Makki and Bartoli, section 3.1 and figure 2).
 
-Stage 1 of the published pipeline, reproduced step by step:
-1. **Texture.** An ``T x T`` texture of the scene plane ``z = 0`` computed with eq. 1
-   (:func:`simtest.specular.phong_intensity`) for a viewer ``V = (0, 0, V_Z)`` straight above the
-   plane's origin and a light ``L = V + epsilon (cos a, sin a, b)``, ``a ~ U[0, 2 pi)``,
-   ``b ~ U[-0.5, 0.5]``. Plane lengths are in *texture pixels* (the paper gives ``V_Z = 1000`` and
-   ``epsilon`` "in number of pixels"). Texture pixel ``(u, v)`` is the plane point
-   ``(x0 + u - T/2, y0 - (v - T/2), 0)``: the window is centred on ``(x0, y0)``, the brightest
-   point (BP, the mirror point of the light seen from V) when ``window_at_bp`` (the paper does this
-   for its epsilon sweep; with ``epsilon = 0`` the BP is the plane origin anyway).
-2. **Homography.** A pinhole camera ``K = [[f, 0, M/2], [0, f, M/2], [0, 0, 1]]`` with ``f = M``
-   (paper) looks at the window centre from a distance ``D`` along a direction tilted by
-   ``theta`` from the plane normal (about the plane's x axis), so the BP stays at the image centre.
-   The image is ``cv2.warpPerspective(texture, H)`` with ``H = K [r1 r2 t] A`` (``A`` maps texture
-   pixels to plane points), bilinear, zero outside the texture. The paper calls ``V_Z`` "the
-   camera to scene plane distance", so we take ``D = V_Z``: at ``theta = 0`` the camera *is* the
-   viewer (a co-located view) and the image scale at the BP is ``f / V_Z`` = 0.406 px per texture
-   pixel, so the t = 0.1, n = 50 isophote (radius 152 texture px) is a circle of about 62 px
-   radius. (``D = f`` would make ``H`` the identity at ``theta = 0``, but its ellipses at
-   ``theta = 58`` deg leave the 406 px image for n = 30 or t = 0.02, which the paper's figure
-   does not show.)
-3. **Noise.** White Gaussian noise of standard deviation ``sigma`` (a fraction of the intensity
-   range ``c = 1``), no clipping, no quantisation (the paper states neither).
-4. **Smoothing and normalisation.** Gaussian smoothing of standard deviation ``smoothing_px``
-   (``cv2.GaussianBlur``, kernel of +-4 sigma for float images, reflected border; the paper does not
-   state the width), then division by the smoothed intensity at the BP pixel so that the BP is 1.
+1. **Texture.** A ``T x T`` texture of the plane ``z = 0`` by eq. 1
+   (:func:`simtest.specular.phong_intensity`) for a viewer ``V = (0, 0, V_Z)`` and a light
+   ``L = V + epsilon (cos a, sin a, b)``, ``a ~ U[0, 2 pi)``, ``b ~ U[-0.5, 0.5]``; lengths in
+   texture pixels. Texture pixel ``(u, v)`` is the plane point ``(x0 + u - T/2, y0 - (v - T/2), 0)``,
+   the window centred on the BP when ``window_at_bp``.
+2. **Homography.** A pinhole camera ``K = [[f, 0, M/2], [0, f, M/2], [0, 0, 1]]``, ``f = M``, looks
+   at the window centre from ``D = V_Z`` (the paper's "camera to scene plane distance") along a
+   direction tilted by ``theta`` about the plane's x axis; the image is
+   ``cv2.warpPerspective(texture, H)``, ``H = K [r1 r2 t] A`` [3], bilinear, zero outside.
+3. **Noise.** White Gaussian noise of standard deviation ``sigma`` (fraction of ``c = 1``), no
+   clipping, no quantisation.
+4. **Smoothing and normalisation.** ``cv2.GaussianBlur`` of standard deviation ``smoothing_px``
+   (reflected border), then division by the smoothed intensity at the BP pixel.
 
-The camera of step 2 is **not** the viewer of step 1 when ``theta != 0`` (a camera that
-carries its light would see the BP ``theta`` off its optical axis instead; 58 deg needs a field of
-view over 116 deg): this is the published protocol, kept for reproducing figure 3, not a co-located endoscope. The
-ground-truth normal is the plane normal in the frame of that slanted camera (OpenCV frame, facing
-the camera): ``(0, sin theta, -cos theta)``. One of the circle-pose normals N+- is exact for a
-noiseless isophote circle; the cone axis and the BP ray are not (the BP ray is off by ``theta``).
-
-Randomness: :meth:`PaperSimulator.sample` draws, in this order, ``a``, ``b`` (always, even for
-``epsilon = 0``, so streams are laid out the same in every case) then the noise image, from the
-numpy Generator it is given; nothing else is random.
+For ``theta != 0`` the camera is not the viewer (this is the published protocol, not a co-located
+endoscope). The ground-truth normal is ``(0, sin theta, -cos theta)`` in the slanted camera's
+OpenCV frame. :meth:`PaperSimulator.sample` draws ``a``, ``b`` (always) then the noise image.
 
 References
 ----------
@@ -43,8 +24,8 @@ References
        section 3.1 (synthetic data, steps 1-4), eq. 1, figures 2 and 3.
 .. [2] B. T. Phong, "Illumination for computer generated pictures", CACM 18(6), 1975.
        https://doi.org/10.1145/360825.360839
-.. [3] R. Hartley, A. Zisserman, Multiple View Geometry, 2nd ed., 2003, sec. 8.1 (the
-       homography ``K [r1 r2 t]`` of a world plane). https://doi.org/10.1017/CBO9780511811685
+.. [3] R. Hartley, A. Zisserman, Multiple View Geometry, 2nd ed., 2003, sec. 8.1.
+       https://doi.org/10.1017/CBO9780511811685
 """
 
 from __future__ import annotations
@@ -75,37 +56,33 @@ class PaperParams:
     image_px : int
         M, the side of the square image (and of the texture unless ``texture_px``). Paper: 406.
     viewer_height_px : float
-        V_Z, height of the viewer above the plane, in texture pixels. Paper: 1000.
+        V_Z, height of the viewer above the plane, texture pixels. Paper: 1000.
     n : float
         Phong roughness exponent (eq. 1). Paper: 50 (100 in the epsilon sweep).
     c : float
         Phong scale (eq. 1); the intensity range. 1.
     sigma : float
-        Noise standard deviation as a fraction of the intensity range. Paper: 0.05.
+        Noise standard deviation, fraction of the intensity range. Paper: 0.05.
     theta_deg : float
         Angle between the plane normal and the camera axis, degrees in [0, 90). Paper: 58.
     epsilon_px : float
         Light offset scale, texture pixels, >= 0. Paper: 0.
     smoothing_px : float
-        Standard deviation of the Gaussian smoothing, image pixels (0: none). Not stated in the
-        paper; 2 px is our choice (it takes the per-pixel noise of sigma = 5 % down about sevenfold
-        while moving a contour of radius 150 px by under 0.02 px).
+        Standard deviation of the Gaussian smoothing, image pixels (0: none); not stated in the
+        paper, 2 px is our choice.
     focal_px : float or None
-        f; None: ``image_px`` (paper: f = M).
+        f; None: ``image_px``.
     camera_distance_px : float or None
-        D, distance from the slanted camera to the window centre, texture pixels; None:
-        ``viewer_height_px`` (the paper's "camera to scene plane distance" V_Z).
+        D, slanted camera to window centre, texture pixels; None: ``viewer_height_px``.
     texture_px : int or None
-        T, side of the texture; None: ``image_px`` (paper: M x M).
+        T, side of the texture; None: ``image_px``.
     window_at_bp : bool
-        Centre the texture window (and so the image) at the BP. True reproduces the paper's
-        epsilon sweep; with epsilon = 0 it changes nothing.
+        Centre the texture window (and so the image) at the BP (the paper's epsilon sweep).
 
     Raises
     ------
     pydantic.ValidationError
-        On construction (a ValueError), if a value is not of its field's type or out of its range;
-        its first error's location is the field.
+        On construction, if a value is not of its field's type or out of its range.
     """
 
     image_px: Annotated[Int, Field(ge=8, le=8192)] = 406
@@ -139,13 +116,7 @@ class PaperParams:
 
     @classmethod
     def field_names(cls) -> tuple[str, ...]:
-        """Names of the parameters (the keys a sweep may vary).
-
-        Returns
-        -------
-        tuple of str
-            The dataclass field names, in declaration order.
-        """
+        """The dataclass field names in declaration order (the keys a sweep may vary)."""
         return tuple(f.name for f in dataclasses.fields(cls))
 
 
@@ -156,26 +127,22 @@ class PaperSample:
     Attributes
     ----------
     image : ndarray of shape (M, M), float32
-        Smoothed image normalised to 1 at the BP (the input of the reconstruction, step 5);
-        rows = v, columns = u.
+        Smoothed image normalised to 1 at the BP; rows = v, columns = u.
     K : ndarray of shape (3, 3)
-        Intrinsics of the slanted camera, px (pixel centres at integer coordinates, c = M/2).
+        Intrinsics of the slanted camera, px (principal point M/2).
     bp_px : ndarray of shape (2,)
         The true BP in the image, (u, v), px.
     normal : ndarray of shape (3,)
-        Ground-truth plane normal, OpenCV camera frame, unit, facing the camera:
-        ``(0, sin theta, -cos theta)``.
+        Ground-truth plane normal, OpenCV camera frame, unit, facing the camera.
     light_px : ndarray of shape (3,)
         Light position in the plane frame (texture pixels).
     bp_value : float
         The smoothed intensity at the BP that the image was divided by.
     clean : ndarray of shape (M, M), float32
-        The noiseless warped image (before noise, smoothing and normalisation); shared between
-        realisations when the light is fixed: do not modify.
+        The noiseless warped image, shared between realisations when the light is fixed: do not modify.
     region : tuple of int or None
-        ``(row0, row1, col0, col1)``: the region the sample was asked for
-        (:meth:`PaperSimulator.sample`; ``image`` is computed in the smallest box holding it and
-        the BP's 2 x 2 pixels, 0 elsewhere); None for the whole image.
+        ``(row0, row1, col0, col1)`` asked of :meth:`PaperSimulator.sample` (``image`` is 0 outside
+        the box holding it and the BP's 2 x 2 pixels); None for the whole image.
     """
 
     image: np.ndarray
@@ -200,26 +167,21 @@ def _camera_pose(theta_rad: float, centre: np.ndarray, distance: float):
 
 
 def paper_homography(params: PaperParams, window_centre=(0.0, 0.0)):
-    """Homography from texture pixels to image pixels, with the camera that defines it.
-
-    The camera looks at ``window_centre`` from distance ``params.distance`` along a direction
-    tilted by ``theta`` from the plane normal about the plane's x axis (module docstring, step 2);
-    ``H = K [r1 r2 t] A`` with ``A`` the texture-pixel to plane-point map [3].
+    """Homography from texture pixels to image pixels, with the camera that defines it (module step 2).
 
     Parameters
     ----------
     params : PaperParams
-        The protocol parameters (image size, focal, distance, theta, texture size).
+        The protocol parameters.
     window_centre : array_like of shape (2,)
         Plane point (x, y), texture pixels, at the texture centre; the camera looks at it.
 
     Returns
     -------
     H : ndarray of shape (3, 3)
-        Texture pixel (u, v, 1) -> image pixel (u, v, 1), ``H[2, 2] = 1`` (the matrix
-        ``cv2.warpPerspective`` takes).
+        Texture pixel (u, v, 1) -> image pixel (u, v, 1), ``H[2, 2] = 1``.
     K : ndarray of shape (3, 3)
-        ``[[f, 0, M/2], [0, f, M/2], [0, 0, 1]]``, px (the paper's principal point M/2).
+        ``[[f, 0, M/2], [0, f, M/2], [0, 0, 1]]``, px.
     R : ndarray of shape (3, 3)
         Plane-frame to camera-frame rotation (rows: the OpenCV camera axes in the plane frame).
     C : ndarray of shape (3,)
@@ -237,45 +199,25 @@ def paper_homography(params: PaperParams, window_centre=(0.0, 0.0)):
 
 
 def mirror_point(V, L) -> np.ndarray:
-    """The BP on the plane z = 0: where the mirror ray from the light reaches the viewer.
+    """The BP ``(x, y)`` on the plane z = 0 (beta = 0 in eq. 1) for viewer ``V`` and light ``L`` (plane frame).
 
-    Parameters
-    ----------
-    V : array_like of shape (3,)
-        Viewer position, plane frame (texture pixels), ``V_Z > 0``.
-    L : array_like of shape (3,)
-        Light position, plane frame, ``L_Z > 0``.
-
-    Returns
-    -------
-    ndarray of shape (2,)
-        ``(x, y)`` where beta = 0 in eq. 1, so ``I = c`` (the maximum); for ``L = V`` it is
-        ``(V_X, V_Y)``. Not checked: ``V_Z + L_Z = 0`` divides by zero.
+    ``V_Z, L_Z > 0``; for ``L = V`` it is ``(V_X, V_Y)``.
     """
     V = np.asarray(V, dtype=np.float64)
     L = np.asarray(L, dtype=np.float64)
-    # The mirror ray runs from R = (L_x, L_y, -L_z) to V; it meets z = 0 at the fraction
-    # s = L_z / (L_z + V_z) of the way (beta = 0 there, eq. 1).
+    # The mirror ray from (L_x, L_y, -L_z) to V meets z = 0 at the fraction s of the way.
     s = L[2] / (V[2] + L[2])
     return L[:2] + s * (V[:2] - L[:2])
 
 
-#: Columns the region a sample is smoothed in starts on a multiple of (:meth:`PaperSimulator.sample`
-#: with ``region``), and reaches past its box by, beyond the kernel's radius
-#: (:data:`simtest.constants.SMOOTH_BLOCK_BYTES` of float32): OpenCV then computes each column of
-#: the box in the same kind of block (SIMD or the row's scalar last columns) as over the whole image.
+#: Column alignment (and extra reach) of the region a sample is smoothed in, so that OpenCV computes
+#: each column in the same kind of block (SIMD or scalar) as over the whole image.
 SMOOTH_ALIGN = smooth_block_px(np.dtype(np.float32).itemsize)
 
 
 @dataclass
 class PaperSimulator:
-    """Draws realisations of the ``paper`` protocol; the noiseless image is computed once when the
-    light is fixed (``epsilon = 0``), so only noise, smoothing and normalisation run per sample.
-
-    Parameters
-    ----------
-    params : PaperParams
-        Validated protocol parameters.
+    """Draws realisations of the ``paper`` protocol (the noiseless image computed once if ``epsilon = 0``).
 
     Examples
     --------
@@ -304,8 +246,6 @@ class PaperSimulator:
         p = self.params
         bp_plane = mirror_point(self.V, L)
         centre = bp_plane if p.window_at_bp else np.zeros(2)
-        # at the plane points offsets + centre, added as the kernel reads the offsets (the same
-        # sums, without building the points)
         texture = phong_intensity(self._offsets, self.V, L, p.n, p.c, origin=centre[:2]).astype(np.float32)
         H, K, R, C = paper_homography(p, centre)
         M = p.image_px
@@ -319,28 +259,14 @@ class PaperSimulator:
         return image, (K, bp_px, normal)
 
     def light(self, rng: np.random.Generator) -> np.ndarray:
-        """Draw the light position ``L = V + epsilon (cos a, sin a, b)`` (paper section 3.1).
-
-        Parameters
-        ----------
-        rng : numpy.random.Generator
-            The realisation's generator; ``a ~ U[0, 2 pi)`` then ``b ~ U[-0.5, 0.5)`` are always
-            drawn, even for ``epsilon = 0``.
-
-        Returns
-        -------
-        ndarray of shape (3,)
-            L in the plane frame, texture pixels.
-        """
+        """Draw ``L = V + epsilon (cos a, sin a, b)`` (plane frame, texture px), a and b even if epsilon = 0."""
         a = rng.uniform(0.0, 2.0 * math.pi)
         b = rng.uniform(-0.5, 0.5)
         return self.V + self.params.epsilon_px * np.array([math.cos(a), math.sin(a), b])
 
     @property
     def fixed(self) -> tuple[np.ndarray, np.ndarray] | None:
-        """``(clean, bp_px)`` of every realisation when the light is fixed (``epsilon = 0``): the
-        noiseless image (M, M), float32 (do not modify) and the BP (u, v), px; None when the
-        light moves (a new noiseless image per realisation)."""
+        """``(clean, bp_px)`` when the light is fixed (``epsilon = 0``), None when it moves."""
         return None if self._clean is None else (self._clean, self._geom[1])
 
     def sample(self, rng: np.random.Generator, region=None) -> PaperSample:
@@ -349,29 +275,18 @@ class PaperSimulator:
         Parameters
         ----------
         rng : numpy.random.Generator
-            The realisation's own generator (derive it from a SeedSequence).
+            The realisation's own generator.
         region : callable, optional
-            ``region(clean, bp_px) -> (row0, row1, col0, col1)`` (half-open, px): the only pixels
-            the caller reads (the reconstruction's ROI). The noise is the whole image's random
-            stream in raster order, drawn through the last row that the smallest box holding
-            the region and the BP's 2 x 2 pixels (which the normalisation reads), grown by the
-            smoothing kernel's radius, reads; it is scaled, smoothed and normalised only in that
-            box: there the image is the same bits as without ``region`` (each smoothed pixel
-            reads the pixels within the radius, and OpenCV reflects at the image's own sides),
-            elsewhere it is 0. The generator is left after that row's noise (after the whole
-            image's without ``region``). Default: the whole image. The region asked is the
-            sample's ``region``.
-
-        Returns
-        -------
-        PaperSample
+            ``region(clean, bp_px) -> (row0, row1, col0, col1)`` (half-open, px): the only pixels the
+            caller reads. The image is then computed only in the box holding the region and the BP's
+            2 x 2 pixels, bit-identical there to the whole-image result and 0 elsewhere; the noise stream
+            is drawn only through the last row read.
 
         Raises
         ------
         FloatingPointError
-            If the smoothed intensity at the BP is not positive (cannot normalise).
+            If the smoothed intensity at the BP is not positive.
         """
-
         p = self.params
         L = self.light(rng)
         if self._clean is not None:
@@ -382,11 +297,7 @@ class PaperSimulator:
         asked = None if region is None else tuple(int(v) for v in region(clean, bp_px))
         box = (0, M, 0, M) if asked is None else _read_box(asked, bp_px, M)
         r0, r1, c0, c1 = box
-        # the noisy image is smoothed in the box grown by the kernel's radius; its columns start
-        # on a multiple of SMOOTH_ALIGN and reach that far past the radius, or to the image's
-        # side: OpenCV computes a row in SIMD blocks from its first column and its last columns
-        # in scalar code, which may round differently, so each column of the box is computed in
-        # the same kind of block as in the whole image
+        # smoothed in the box grown by the kernel's radius, columns aligned on SMOOTH_ALIGN
         o0, o1, q0, q1 = 0, M, 0, M
         if p.smoothing_px > 0:
             pad = gaussian_radius_px(p.smoothing_px) + 1
@@ -397,11 +308,7 @@ class PaperSimulator:
         elif box != (0, M, 0, M):
             o0, o1, q0, q1 = box
         if p.sigma > 0:
-            # clean + sigma * noise, in place in the noise's array (float32 throughout: the same
-            # products and sums, the same bits), where it is smoothed. The noise is the whole
-            # image's in raster order, drawn only through the last row read: the generator fills
-            # an array one normal after another, so those rows are the whole draw's values (the
-            # rows below, never read, are about a third of the figure-3 suite's draws)
+            # clean + sigma * noise in float32; the raster-order noise drawn through the last row read
             image = rng.standard_normal((o1, M), dtype=np.float32)[o0:o1, q0:q1]
             image *= np.float32(p.sigma)
             image += clean[o0:o1, q0:q1]
@@ -423,8 +330,7 @@ class PaperSimulator:
 
 
 def _read_box(region, bp_px: np.ndarray, M: int) -> tuple[int, int, int, int]:
-    """The smallest box (row0, row1, col0, col1) in the M x M image holding a region and the BP's
-    2 x 2 pixels, which the normalisation reads (:func:`_bilinear`)."""
+    """Smallest box (row0, row1, col0, col1) in the M x M image holding ``region`` and the BP's 2 x 2 pixels."""
     r0, r1, c0, c1 = (int(v) for v in region)
     u = min(max(float(bp_px[0]), 0.0), M - 1.0)
     v = min(max(float(bp_px[1]), 0.0), M - 1.0)

@@ -1,39 +1,21 @@
-"""Ground truth of the analytic surfaces: the brightest point (BP) of planes, spheres, cylinders, and the saddle.
+"""Ground truth of the analytic surfaces: the brightest point (BP) of planes, spheres, cylinders and the saddle.
 
-The BP is where the surface normal bisects the directions to the camera (at the origin) and to the
-light L (Phong's lobe peaks where the mirror direction of the light points at the camera; Notes of
-:func:`simtest.simulate.analytic.plane_bp`): ``n(p) = h(p) = unit(unit(-p) + unit(L - p))``. With a
-co-located light it is where the normal is parallel to the viewing ray.
+The BP is where the surface normal equals the bisector ``h(p) = unit(unit(-p) + unit(L - p))`` of
+the directions to the camera (at the origin) and to the light L (Notes of
+:func:`simtest.simulate.analytic.plane_bp`).
 
-- Plane: mirror the light in the plane; the BP is where the segment from the camera to the mirror
-  image crosses the plane (closed form).
-- Sphere, cylinder: closed form with a co-located light; otherwise the stationarity condition (the
-  tangential part of h vanishes) solved with :func:`scipy.optimize.root` from the co-located BP
-  and checked; where that solve does not land on the BP, the BP is found robustly as the
-  minimiser of the light path ``|X| + |L - X|`` over the surface (:func:`circle_reflection`),
-  which reduces to a bracketed 1-D root on a circle. :class:`HighlightTruthError` when the camera
-  is inside the surface (it then sees only the inside, which the one-sided BSDFs leave unlit) or
-  when even that solve fails; None (no highlight) when no point of the surface faces both the
-  camera and the light.
+- Plane: closed form (the light mirrored in the plane).
+- Sphere, cylinder: closed form with a co-located light; otherwise a root solve of the
+  stationarity condition from the co-located BP, falling back to the minimiser of the light path
+  ``|X| + |L - X|`` over the surface (Fermat: for camera and light outside a convex body the
+  minimiser is the unique point with n = h), which reduces to Alhazen's problem on a circle
+  (:func:`circle_reflection`).
+- Saddle: a grid mesh with analytic normals and curvatures (:func:`saddle_mesh`), whose BPs the
+  renderer finds as for any mesh.
 
-Why the path minimiser is the BP (camera and light outside a convex body, Fermat's principle):
-the gradient of ``f(X) = |X| + |L - X|`` is ``-2 cos(g/2) h(X)``, so a point of the surface where
-the outward normal equals h is stationary, and the ellipsoid ``f <= f(X)`` (foci camera and
-light) touches the tangent plane there from the outside; the body lies on the other side, so the
-point is the unique minimiser of f over the body. Conversely the minimiser over the body is on its
-surface (when the segment from the camera to the light misses the body) and has n = h. On a sphere
-it lies in the plane of the centre, the camera and the light; on a cylinder, unfolding along the
-axis leaves the circle of the cross-section: both are Alhazen's problem on a circle.
-- Saddle: the grid mesh of ``z = d + x^2 / (2 r1) - y^2 / (2 r2)`` with its analytic normals and
-  principal curvatures (:func:`saddle_mesh`); the renderer finds its BPs as for any mesh
-  (:func:`simtest.render.truth.mesh_highlights`).
-
-Numpy and scipy only: the renderer (:mod:`simtest.render`) imports these truths, never the reverse.
-
-Curvature sign convention (the same as :mod:`simtest.scene.meshes`): the eigenvalues of the
-Weingarten map dN of the camera-facing normal, so positive where the surface bends away from its
-normal (convex toward the camera). A sphere seen from outside has k1 = k2 = +1/R; a cylinder seen
-from outside k1 = +1/R, k2 = 0; a tube seen from inside k1 = 0, k2 = -1/R.
+Numpy and scipy only: :mod:`simtest.render` imports these truths, never the reverse. Curvature
+sign as in :mod:`simtest.scene.meshes`: positive where the surface bends away from its
+camera-facing normal (a sphere seen from outside has k1 = k2 = +1/R).
 """
 
 from __future__ import annotations
@@ -55,10 +37,8 @@ __all__ = ["HighlightTruth", "HighlightTruthError", "STATIONARY_RESIDUAL_TOL", "
 
 
 class HighlightTruthError(RuntimeError):
-    """The brightest point of an analytic surface could not be found (the root solve failed).
-
-    Raised rather than returning a point that does not satisfy the bisector condition: the message
-    names the surface, the light, the solver status and the residual.
+    """The brightest point of an analytic surface could not be found; the message names the surface,
+    the light, the solver status and the residual.
     """
 
 
@@ -92,47 +72,29 @@ class HighlightTruth:
     light: int = 0
 
     def to_dict(self) -> dict:
-        """JSON-ready form, as written to ``highlights.json``.
-
-        Returns
-        -------
-        dict
-            ``bp_px`` [u, v] px, ``bp_mm`` (the specular point) and ``normal`` [x, y, z] (camera
-            frame; mm, unit), ``depth_mm`` (z of the point), ``k1``, ``k2`` (1/mm), ``in_frame``
-            (bool), ``light`` (index in the light rig); lists of floats.
+        """JSON-ready form, as written to ``highlights.json``: ``light``, ``depth_mm``, ``bp_px``, ``bp_mm``,
+        ``normal``, ``k1``, ``k2``, ``in_frame`` (lists of floats, camera frame).
         """
-        return {
-            "light": int(self.light),
-            "depth_mm": float(self.bp_mm[2]),
-            "bp_px": [float(x) for x in self.bp_px],
-            "bp_mm": [float(x) for x in self.bp_mm],
-            "normal": [float(x) for x in self.normal],
-            "k1": float(self.k1),
-            "k2": float(self.k2),
-            "in_frame": bool(self.in_frame),
-        }
+        return {"light": int(self.light), "depth_mm": float(self.bp_mm[2]), "bp_px": [float(x) for x in self.bp_px],
+                "bp_mm": [float(x) for x in self.bp_mm], "normal": [float(x) for x in self.normal],
+                "k1": float(self.k1), "k2": float(self.k2), "in_frame": bool(self.in_frame)}
 
 
 def bisector(p: np.ndarray, light: np.ndarray) -> np.ndarray:
-    """Unit bisector of the directions from surface points to the camera and to the light.
-
-    ``h(p) = unit(unit(-p) + unit(L - p))``, the camera at the origin; a surface point is a BP when
-    its normal equals ``h`` (Notes of :func:`simtest.simulate.analytic.plane_bp`; with a co-located
-    light ``h = unit(-p)``).
+    """Unit bisector ``h(p) = unit(unit(-p) + unit(L - p))`` of the directions to the camera and the light.
 
     Parameters
     ----------
     p : array_like of shape (..., 3)
-        Surface points, camera frame (OpenCV), mm; not at the camera centre nor at the light.
+        Surface points, camera frame (OpenCV), mm.
     light : array_like of shape (3,) or (..., 3)
         Point-light position, camera frame, mm (broadcast against ``p``).
 
     Returns
     -------
     ndarray of shape (..., 3), float64
-        Unit bisectors, camera frame. NaN where ``p`` is the camera centre or the light, or where
-        the two directions are opposite (without numpy's warning: a root search that steps onto
-        the segment from the camera to a light behind the body reads the NaN and steps back).
+        Unit bisectors; NaN (without a warning) where ``p`` is the camera or the light, or the two
+        directions are opposite.
     """
     p = np.asarray(p, dtype=np.float64)
     with np.errstate(invalid="ignore", divide="ignore"):
@@ -140,19 +102,7 @@ def bisector(p: np.ndarray, light: np.ndarray) -> np.ndarray:
 
 
 def pixel_in_frame(uv: np.ndarray, size: tuple[int, int]) -> bool:
-    """Whether the pixel ``uv`` = [u, v] lies in a W x H image: ``-0.5 <= u < W - 0.5``, same for v.
-
-    Parameters
-    ----------
-    uv : ndarray of shape (2,)
-        Pixel coordinates (pixel centres at integers); NaN or infinite is outside.
-    size : tuple of int
-        (W, H) in pixels.
-
-    Returns
-    -------
-    bool
-    """
+    """Whether ``uv`` = [u, v] lies in a W x H image, ``size = (W, H)``: ``-0.5 <= u < W - 0.5``, same for v."""
     w, h = size
     return bool(np.all(np.isfinite(uv)) and -0.5 <= uv[0] < w - 0.5 and -0.5 <= uv[1] < h - 0.5)
 
@@ -167,10 +117,8 @@ def plane_highlight(normal: np.ndarray, distance_mm: float, light: np.ndarray, K
                     size: tuple[int, int]) -> HighlightTruth | None:
     """BP of the plane ``{X : normal . X = -distance_mm}`` (``normal`` faces the camera).
 
-    The BP is where the segment from the camera centre to the mirror image ``L'`` of the light
-    crosses the plane (closed form; there the normal bisects the directions to the camera and the
-    light): :func:`simtest.simulate.analytic.plane_bp`. With a co-located light
-    it is the foot of the perpendicular from the camera centre.
+    Closed form (:func:`simtest.simulate.analytic.plane_bp`); with a co-located light, the foot of
+    the perpendicular from the camera centre.
 
     Parameters
     ----------
@@ -188,7 +136,7 @@ def plane_highlight(normal: np.ndarray, distance_mm: float, light: np.ndarray, K
     Returns
     -------
     HighlightTruth or None
-        ``k1 = k2 = 0``; None if the light is on or behind the plane (no highlight).
+        ``k1 = k2 = 0``; None if the light is on or behind the plane.
     """
     n = unit(normal, axis=-1)
     if np.dot(n, np.asarray(light, dtype=np.float64)) + distance_mm <= 0:
@@ -196,10 +144,8 @@ def plane_highlight(normal: np.ndarray, distance_mm: float, light: np.ndarray, K
     return _highlight(plane_bp(normal, distance_mm, light), n, 0.0, 0.0, K, size)
 
 
-#: Largest accepted residual of the stationarity solve (the sine of the angle between the normal and
-#: the bisector). Converged solves measure <= 1.2e-14 (6000 random spheres and cylinders, lights up to
-#: 20 mm off), 8e-11 with the camera 0.2 mm from a 179 mm sphere; failed ones 1e-2 to 0.9. 1e-9 rad
-#: (6e-8 deg) is far below any angle a test or a user resolves.
+#: Largest accepted residual of the stationarity solve (sine of the angle between normal and
+#: bisector): converged solves measure <= 8e-11, failed ones 1e-2 to 0.9.
 STATIONARY_RESIDUAL_TOL = 1e-9
 
 
@@ -207,18 +153,9 @@ def _solve_stationary(surface: Callable[[np.ndarray], tuple[np.ndarray, np.ndarr
                       x0: np.ndarray, light: np.ndarray, what: str = "surface") -> np.ndarray:
     """Parameters x where the tangential part of the bisector vanishes on ``surface(x) -> (p, n)``.
 
-    The solve is accepted on its residual, not on ``sol.success``: with ``xtol = 1e-14`` MINPACK's
-    hybrd often stops at round-off with status 3 ("xtol too small") or 5 ("not making good
-    progress") although the residual is ~1e-16. The solution must also face the camera and the
-    light (``h . n > 0``, not the anti-bisector).
-
-    Raises
-    ------
-    HighlightTruthError
-        If the residual exceeds :data:`STATIONARY_RESIDUAL_TOL` or the point faces away, e.g. when
-        the camera or the light is inside a cylinder.
+    Accepted on the residual, not ``sol.success`` (hybrd often stops at round-off with status 3 or 5),
+    and only if ``h . n > 0``; else :class:`HighlightTruthError`.
     """
-
     f1 = np.array([1.0, 0.0, 0.0])
     _, n0 = surface(x0)
     if abs(n0[0]) > 0.9:
@@ -250,42 +187,35 @@ def _solve_stationary(surface: Callable[[np.ndarray], tuple[np.ndarray, np.ndarr
     return x
 
 
-#: Grid of start angles of :func:`circle_reflection`: the minimiser of the path length lies within
-#: one grid step of the grid's best point (the path length is unimodal on the arc facing both
-#: points, and the grid holds the direction of the first point itself, where a camera very near
-#: the circle puts the minimiser); 256 steps of 1.4 deg cost ~20 us.
+#: Grid of start angles of :func:`circle_reflection`: the path length is unimodal on the arc facing
+#: both points, so its minimiser lies within one step of the grid's best point.
 _CIRCLE_GRID = 256
 
 
 def circle_reflection(a: np.ndarray, b: np.ndarray, radius: float) -> np.ndarray | None:
-    """Alhazen's problem: the point of a circle where a ray from ``a`` reflects to ``b``.
+    """Alhazen's problem: the point of a circle (centre at the origin) where a ray from ``a`` reflects to ``b``.
 
-    The circle has its centre at the origin; the point returned minimises the path length
-    ``|P - a| + |P - b|`` over the circle, i.e. the point of the closed disk nearest to both in
-    that sense, where the outward normal bisects the directions to ``a`` and ``b`` (see the
-    module notes). Found by a grid of :data:`_CIRCLE_GRID` angles around the circle (from the
-    direction of ``a``) and :func:`scipy.optimize.brentq` on the derivative of the path length
-    between the best grid point's neighbours, so it never leaves the right basin.
+    It minimises the path length ``|P - a| + |P - b|`` over the circle: a grid of
+    :data:`_CIRCLE_GRID` angles, then :func:`scipy.optimize.brentq` on the derivative between the best
+    grid point's neighbours.
 
     Parameters
     ----------
     a, b : array_like of shape (2,)
-        The two points (camera and light), outside the circle, in the circle's plane (any
-        length unit, the same as ``radius``).
+        The two points (camera and light), outside the circle, same unit as ``radius``.
     radius : float
         Circle radius, > 0.
 
     Returns
     -------
     ndarray of shape (2,) or None
-        Unit direction ``w`` of the point ``radius * w`` from the centre; None when the segment
-        from ``a`` to ``b`` meets the closed disk (no point of the circle faces both).
+        Unit direction ``w`` of the point ``radius * w``; None when the segment from ``a`` to ``b``
+        meets the closed disk.
 
     Raises
     ------
     ValueError
-        If ``a`` or ``b`` is inside the circle or on it, or the bracket fails (not seen: it
-        would mean a non-unimodal path length near its minimum).
+        If ``a`` or ``b`` is not outside the circle, or the bracket fails.
     """
     a = np.asarray(a, dtype=np.float64)
     b = np.asarray(b, dtype=np.float64)
@@ -323,8 +253,7 @@ def circle_reflection(a: np.ndarray, b: np.ndarray, radius: float) -> np.ndarray
     elif ghi == 0.0:
         x = hi
     elif glo < 0.0 < ghi:
-        # xtol far below 1e-15: the root sits ~d/R from 0 for a camera d from a circle of radius
-        # R, and needs float64's relative precision there too.
+        # xtol far below 1e-15: the root sits ~d/R from 0 for a camera d from the circle.
         try:
             x = optimize.brentq(slope, lo, hi, xtol=1e-22, rtol=4.0 * np.finfo(float).eps, maxiter=400)
         except RuntimeError as exc:  # not converged within maxiter: not seen
@@ -342,13 +271,7 @@ def _facing(p: np.ndarray, n: np.ndarray, light: np.ndarray) -> tuple[float, flo
 
 
 def _bp(what: str, minimiser, surface, light: np.ndarray):
-    """The BP: the root solve from the co-located BP (parameters 0), else :func:`_robust_bp`.
-
-    Returns
-    -------
-    tuple of ndarray or None
-        ``(p, n)``, or None when no point faces both the camera and the light.
-    """
+    """``(p, n)`` from the root solve at the co-located BP, else :func:`_robust_bp`; None if nothing faces both."""
     try:
         return surface(_solve_stationary(surface, np.zeros(2), light, what=what))
     except HighlightTruthError as first:
@@ -356,22 +279,10 @@ def _bp(what: str, minimiser, surface, light: np.ndarray):
 
 
 def _robust_bp(what: str, solve, surface, light: np.ndarray, first: HighlightTruthError):
-    """The BP from the path-length minimiser after a failed root solve from the co-located BP.
+    """``(p, n)`` from the path-length minimiser ``solve()`` after a failed root solve, or None.
 
-    ``solve() -> x or None`` gives the minimiser's parameters in ``surface``'s parametrisation
-    (None: no point faces both). The point is polished by the root solve started there (a camera
-    a fraction of a millimetre from a large sphere amplifies the angle's round-off ~R/d times in
-    the residual); the candidate with the smaller residual is kept and checked like the root solve.
-
-    Returns
-    -------
-    tuple of ndarray or None
-        ``(p, n)``, or None when no point faces both the camera and the light.
-
-    Raises
-    ------
-    HighlightTruthError
-        Naming ``first`` (the failed root solve) and why the minimiser failed too.
+    The minimiser is polished by a root solve started there; the candidate with the smaller residual
+    is kept and checked, else :class:`HighlightTruthError` naming ``first``.
     """
     try:
         x = solve()
@@ -396,40 +307,28 @@ def sphere_highlight(center: np.ndarray, radius: float, light: np.ndarray, K: np
                      size: tuple[int, int]) -> HighlightTruth | None:
     """BP of a sphere seen from outside (normals outward, k1 = k2 = +1/R).
 
-    Co-located light (``light`` all zeros): the point of the sphere nearest the camera centre,
-    closed form. Otherwise the point where the outward normal bisects the directions to the camera
-    and the light (:func:`bisector`): solved with :func:`scipy.optimize.root` (hybr) in a tangent
-    parametrisation around the nearest point and checked (see :data:`STATIONARY_RESIDUAL_TOL`);
-    where that solve does not land on the BP, it is the minimiser of the light path in the plane of
-    the centre, the camera and the light (:func:`circle_reflection`; module notes), checked the
-    same way. Both give the same point where both succeed (the facing stationary point is unique).
+    Co-located light (``light`` all zeros): the point nearest the camera centre. Otherwise the root
+    solve, or the path minimiser in the plane of the centre, the camera and the light (module notes).
 
     Parameters
     ----------
     center : array_like of shape (3,)
-        Sphere centre, camera frame, mm; the camera is outside the sphere.
+        Sphere centre, camera frame, mm.
     radius : float
         Radius R, mm.
-    light : array_like of shape (3,)
-        Point-light position, camera frame, mm.
-    K : ndarray of shape (3, 3)
-        Intrinsics.
-    size : tuple of int
-        Image size (W, H) in pixels, for ``in_frame``.
+    light, K, size
+        As in :func:`plane_highlight`.
 
     Returns
     -------
     HighlightTruth or None
-        None when the light is inside the sphere (or on it) and the camera outside (the side the
-        camera sees is then unlit), or when the segment from the camera to the light crosses the
-        sphere (no point faces both).
+        None when the light is inside the sphere and the camera outside, or the segment from the
+        camera to the light crosses the sphere.
 
     Raises
     ------
     HighlightTruthError
-        If the camera is inside the sphere or on it (it sees only the inside, unlit by the
-        one-sided BSDFs), or if neither solve reaches a point whose normal bisects the two
-        directions (not seen over the property tests' draws).
+        If the camera is inside the sphere or on it, or neither solve reaches the BP.
     """
     c = np.asarray(center, dtype=np.float64)
     L = np.asarray(light, dtype=np.float64)
@@ -477,49 +376,34 @@ def cylinder_highlight(center: np.ndarray, axis: np.ndarray, radius: float, leng
                        light: np.ndarray, K: np.ndarray, size: tuple[int, int]) -> HighlightTruth | None:
     """BP of a finite cylinder seen from outside (k1 = +1/R, k2 = 0); None if off its length.
 
-    Co-located light: the point of the generator line nearest the camera centre, closed form.
-    Otherwise the point where the outward normal bisects the directions to the camera and the light
-    (:func:`bisector`): solved with :func:`scipy.optimize.root` over (position along the axis,
-    angle around it) from the co-located BP and checked (see :data:`STATIONARY_RESIDUAL_TOL`);
-    where that solve does not land on the BP, it is the minimiser of the light path: unfolded along
-    the axis, the angle solves Alhazen's problem on the cross-section's circle
-    (:func:`circle_reflection`) and the position along the axis divides the camera's and the
-    light's axial positions in the ratio of their distances to the point's generator line; checked
-    the same way.
+    Co-located light: the point of the generator line nearest the camera. Otherwise the root solve
+    over (position along the axis, angle), or the path minimiser: Alhazen's problem on the
+    cross-section, the axial position dividing the camera's and light's in the ratio of their distances.
 
     Parameters
     ----------
     center : array_like of shape (3,)
-        A point of the axis (the middle of the cylinder's length), camera frame, mm.
+        Middle of the axis, camera frame, mm.
     axis : array_like of shape (3,)
         Axis direction, camera frame (need not be unit).
     radius : float
-        Radius R, mm; the camera is outside the cylinder.
+        Radius R, mm.
     length : float
         Length along the axis, mm, centred on ``center``.
-    light : array_like of shape (3,)
-        Point-light position, camera frame, mm.
-    K : ndarray of shape (3, 3)
-        Intrinsics.
-    size : tuple of int
-        Image size (W, H) in pixels, for ``in_frame``.
+    light, K, size
+        As in :func:`plane_highlight`.
 
     Returns
     -------
     HighlightTruth or None
-        None when the BP of the infinite cylinder lies beyond the finite length, when the light
-        lies within the radius of the axis (inside the tube, or beyond its end) and the camera
-        outside (no point of the outside is lit), or
-        when the segment from the camera to the light crosses the cylinder (no point faces both).
+        None when the BP lies beyond the length, the light lies within the radius of the axis and the
+        camera outside, or the segment from the camera to the light crosses the cylinder.
 
     Raises
     ------
     HighlightTruthError
-        If the camera is inside the (infinite) cylinder or on it: it sees only the inside of the
-        tube, which the one-sided BSDFs leave unlit, so there is no brightest point (the dataset
-        sampler redraws such poses: :func:`simtest.dataset.sample.draw_parameters`); or if
-        neither solve reaches a point whose normal bisects the two directions (not seen over the
-        property tests' draws).
+        If the camera is inside the (infinite) cylinder or on it (the dataset sampler redraws such
+        poses), or neither solve reaches the BP.
     """
     c = np.asarray(center, dtype=np.float64)
     a = unit(axis, axis=-1)
@@ -530,10 +414,7 @@ def cylinder_highlight(center: np.ndarray, axis: np.ndarray, radius: float, leng
         return bool(np.linalg.norm(xc - np.dot(xc, a) * a) <= radius)
 
     if within_radius(L) and not within_radius(np.zeros(3)):
-        # the light within the tube's radius of its axis, the camera outside: every point of the
-        # outside has the light behind its tangent plane (n . (L - p) <= |L - c|_radial - R <= 0),
-        # wherever the light lies along the axis, beyond the tube's end too (that case reached the
-        # cross-section's reflection, which needs both points outside the circle, and failed)
+        # every point of the outside has the light behind its tangent plane
         return None
     what = f"cylinder (axis through {np.round(c, 4).tolist()} mm, R {radius:g} mm)"
     q = c - np.dot(c, a) * a  # foot of the perpendicular from the camera centre to the axis
@@ -576,13 +457,8 @@ def saddle_mesh(distance_mm: float, radius1_mm: float, radius2_mm: float, extent
                 resolution: int) -> dict[str, np.ndarray]:
     """Grid mesh of ``z = d + x^2 / (2 r1) - y^2 / (2 r2)`` in the camera frame, |x|, |y| <= e.
 
-    Returns
-    -------
-    dict
-        ``vertices`` (V, 3), ``faces`` (F, 3), ``normals`` (V, 3) facing the camera (-z side),
-        ``k1``, ``k2`` (V,) analytic principal curvatures (1/mm, positive where the surface bends
-        away from its normal, as in :mod:`simtest.scene.meshes`; at the apex k1 = 1/r1,
-        k2 = -1/r2).
+    Returns ``vertices`` (V, 3), ``faces`` (F, 3), ``normals`` (V, 3) facing the camera, and analytic
+    ``k1``, ``k2`` (V,) in 1/mm (at the apex k1 = 1/r1, k2 = -1/r2).
     """
     s = np.linspace(-extent_mm, extent_mm, resolution)
     x, y = np.meshgrid(s, s, indexing="xy")
@@ -602,10 +478,5 @@ def saddle_mesh(distance_mm: float, radius1_mm: float, radius2_mm: float, extent
     a, b, c, d = idx[:-1, :-1], idx[:-1, 1:], idx[1:, :-1], idx[1:, 1:]
     faces = np.concatenate([np.stack([a, b, d], -1).reshape(-1, 3),
                             np.stack([a, d, c], -1).reshape(-1, 3)])
-    return {
-        "vertices": np.stack([x, y, z], -1).reshape(-1, 3),
-        "faces": faces.astype(np.int64),
-        "normals": n.reshape(-1, 3),
-        "k1": (Hm + disc).ravel(),
-        "k2": (Hm - disc).ravel(),
-    }
+    return {"vertices": np.stack([x, y, z], -1).reshape(-1, 3), "faces": faces.astype(np.int64),
+            "normals": n.reshape(-1, 3), "k1": (Hm + disc).ravel(), "k2": (Hm - disc).ravel()}

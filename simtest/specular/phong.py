@@ -1,11 +1,9 @@
 """Phong's specular model on a plane and its isocurves (Makki and Bartoli, section 2).
 
-Frame: the paper's *scene-plane frame*: the plane is z = 0, points ``P = (x, y, 0)``, the viewer
-``V`` and light ``L`` are 3D points (any unit of length, mm in simtest), and ``R = (L_X, L_Y, -L_Z)``
-is the mirror image of the light. In the endoscopic setup ``L = V``.
-
-Symbols: roughness ``n > 0``; scale ``c > 0`` (albedo x light x camera gain); isovalue ``t`` in
-(0, c]; ``tau = (t / c)^(1/n)`` the cosine at the isophote; ``kappa = 1 - tau^2``.
+Scene-plane frame: the plane is z = 0, points ``P = (x, y, 0)``; viewer ``V`` and light ``L`` are
+3D points (mm in simtest), ``R = (L_X, L_Y, -L_Z)`` the light's mirror image; endoscopic: ``L = V``.
+Roughness ``n > 0``, scale ``c > 0``, isovalue ``t`` in (0, c], ``tau = (t / c)^(1/n)``,
+``kappa = 1 - tau^2``.
 
 References
 ----------
@@ -20,15 +18,8 @@ from __future__ import annotations
 
 import numpy as np
 
-__all__ = [
-    "endoscopic_isocurve",
-    "general_isocurve",
-    "isocurve_radii",
-    "isophote_radius",
-    "kappa_from_isovalue",
-    "phong_intensity",
-    "tau_from_isovalue",
-]
+__all__ = ["endoscopic_isocurve", "general_isocurve", "isocurve_radii", "isophote_radius", "kappa_from_isovalue",
+           "phong_intensity", "tau_from_isovalue"]
 
 
 def _points(P) -> np.ndarray:
@@ -57,10 +48,8 @@ def phong_intensity(P, V, L, n: float, c: float = 1.0, origin=None) -> np.ndarra
         Points on the plane (z = 0 is assumed or must be given), scene-plane frame, mm.
     V, L : array_like of shape (3,)
         Viewer and light positions, mm, on the same side of the plane (z > 0).
-    n : float
-        Phong roughness exponent, > 0.
-    c : float
-        Scale factor, > 0.
+    n, c : float
+        Phong roughness exponent and scale factor, > 0.
     origin : array_like of shape (2,), optional
         When given, ``P`` (..., 2) are offsets from this point of the plane: the intensity at
         ``P + origin``.
@@ -87,8 +76,7 @@ def phong_intensity(P, V, L, n: float, c: float = 1.0, origin=None) -> np.ndarra
     elif P.shape[-1] != 2:
         P = _points(P)
     cos_b = np.asarray(_cos_beta(P, V, R), dtype=np.float64)
-    # c max(0, cos beta)^n in place in cos_b (its own array): numpy's in-place power takes the
-    # same path as ``**``, so the same bits as the expression, without two temporaries
+    # c max(0, cos beta)^n in place (the same bits as the expression)
     out = np.maximum(cos_b, 0.0, out=cos_b)
     out **= n
     out *= c
@@ -96,11 +84,10 @@ def phong_intensity(P, V, L, n: float, c: float = 1.0, origin=None) -> np.ndarra
 
 
 def _cos_beta(P: np.ndarray, V: np.ndarray, R: np.ndarray) -> np.ndarray:
-    """``cos beta`` of :func:`phong_intensity`: ``P`` (..., 2) or (..., 3), ``V`` and the light's
-    mirror image ``R`` (3,), float64."""
-    # cos beta = (V - P) . (P - R) / (|V - P| |P - R|), evaluated per coordinate plane: the same
-    # products and the same left-to-right sums over the 3 coordinates as np.sum(..., axis=-1)
-    # and np.linalg.norm(..., axis=-1) (so the same bits), without building (..., 3) arrays.
+    """``cos beta = (V - P) . (P - R) / (|V - P| |P - R|)`` of :func:`phong_intensity`, per coordinate.
+
+    The same bits as ``np.sum`` and ``np.linalg.norm`` over the last axis, without (..., 3) arrays.
+    """
     px, py = P[..., 0], P[..., 1]
     pz = P[..., 2] if P.shape[-1] == 3 else 0.0
     if not np.any(pz):
@@ -115,10 +102,7 @@ def _cos_beta(P: np.ndarray, V: np.ndarray, R: np.ndarray) -> np.ndarray:
 def tau_from_isovalue(t, n: float, c: float = 1.0):
     """``tau = (t / c)^(1/n)``, the cosine of beta on the isophote of isovalue t (paper sec. 2.1).
 
-    Raises
-    ------
-    ValueError
-        If t is not in (0, c] or n, c are not positive.
+    Raises ValueError if t is not in (0, c] or n, c are not positive.
     """
     t = np.asarray(t, dtype=np.float64)
     if not n > 0 or not c > 0:
@@ -134,51 +118,24 @@ def kappa_from_isovalue(t, n: float, c: float = 1.0):
 
 
 def general_isocurve(P, V, L, tau: float) -> np.ndarray:
-    """The general specular isocurve Q(p) (paper eq. 2), a quartic in (x, y).
+    """The general specular isocurve Q(p) (paper eq. 2), a quartic in (x, y), at points P (..., 2 or 3).
 
-    ``Q(p) = ((R - P)^T (V - P))^2 - tau^2 ||R - P||^2 ||V - P||^2``; the isophote I = t is a subset
-    of Q = 0 (both cos beta = +tau and -tau satisfy it).
-
-    Parameters
-    ----------
-    P : array_like of shape (..., 2) or (..., 3)
-        Points on the plane z = 0.
-    V, L : array_like of shape (3,)
-        Viewer and light positions.
-    tau : float
-        Cosine level, in (0, 1].
-
-    Returns
-    -------
-    ndarray of shape (...)
+    ``Q(p) = ((R - P)^T (V - P))^2 - tau^2 ||R - P||^2 ||V - P||^2`` for viewer ``V`` and light ``L``
+    (3,), ``tau`` in (0, 1]; the isophote I = t is a subset of Q = 0 (cos beta = +tau or -tau).
+    Returns an ndarray of shape (...).
     """
     P = _points(P)
     V = np.asarray(V, dtype=np.float64).reshape(3)
     R = _mirror(L)
-    a = R - P
-    b = V - P
+    a, b = R - P, V - P
     return np.sum(a * b, axis=-1) ** 2 - tau**2 * np.sum(a * a, axis=-1) * np.sum(b * b, axis=-1)
 
 
 def endoscopic_isocurve(P, V, kappa: float) -> np.ndarray:
-    """The endoscopic specular isocurve E(p) (paper eq. 3), Q with L = V.
+    """The endoscopic specular isocurve E(p) (paper eq. 3), Q with L = V, at points P (..., 2 or 3).
 
-    ``E(p) = kappa s^2 + 2 V_Z^2 (kappa - 2) s + kappa V_Z^4`` with
-    ``s = (x - V_X)^2 + (y - V_Y)^2``. It factorises as ``E = kappa q+ q-`` with
-    ``q+- = s - r+-^2`` (Prop. 1; the paper writes E = q+ q-, up to the factor kappa).
-
-    Parameters
-    ----------
-    P : array_like of shape (..., 2) or (..., 3)
-        Points on the plane z = 0.
-    V : array_like of shape (3,)
-        Viewer (and light) position.
-    kappa : float
-        ``1 - tau^2``.
-
-    Returns
-    -------
-    ndarray of shape (...)
+    ``E(p) = kappa s^2 + 2 V_Z^2 (kappa - 2) s + kappa V_Z^4``, ``s = (x - V_X)^2 + (y - V_Y)^2``;
+    ``E = kappa q+ q-`` with ``q+- = s - r+-^2`` (Prop. 1, up to the factor kappa). Returns shape (...).
     """
     P = _points(P)
     V = np.asarray(V, dtype=np.float64).reshape(3)
@@ -187,56 +144,24 @@ def endoscopic_isocurve(P, V, kappa: float) -> np.ndarray:
 
 
 def isocurve_radii(kappa, V_Z):
-    """Radii (r+, r-) of the two concentric circles of E(p) = 0 (paper Prop. 1).
+    """Radii (r+, r-) of the two concentric circles of E(p) = 0 (paper Prop. 1), in the unit of V_Z.
 
-    ``r+- = |V_Z| sqrt(k +- sqrt(k^2 - 1))`` with ``k = (2 - kappa) / kappa``; for kappa in (0, 1),
-    ``r+ > |V_Z| > r- > 0`` and ``r+ r- = V_Z^2``.
-
-    Parameters
-    ----------
-    kappa : float or ndarray
-        In (0, 1].
-    V_Z : float
-        Distance from the viewer to the plane (mm).
-
-    Returns
-    -------
-    tuple of float or ndarray
-        (r_plus, r_minus), in the unit of V_Z.
-
-    Raises
-    ------
-    ValueError
-        If kappa is outside (0, 1].
+    ``r+- = |V_Z| sqrt(k +- sqrt(k^2 - 1))``, ``k = (2 - kappa) / kappa``; for kappa in (0, 1),
+    ``r+ > |V_Z| > r- > 0`` and ``r+ r- = V_Z^2``. Raises ValueError if kappa is outside (0, 1].
     """
     kappa = np.asarray(kappa, dtype=np.float64)
     if np.any(~((kappa > 0) & (kappa <= 1))):
         raise ValueError(f"kappa must be in (0, 1], got {kappa}")
     k = (2.0 - kappa) / kappa
     root = np.sqrt(k * k - 1.0)
-    r_plus = abs(V_Z) * np.sqrt(k + root)
     # k - root = 1 / (k + root): the stable form of the small root.
-    r_minus = abs(V_Z) / np.sqrt(k + root)
-    return r_plus, r_minus
+    return abs(V_Z) * np.sqrt(k + root), abs(V_Z) / np.sqrt(k + root)
 
 
 def isophote_radius(t, n: float, V_Z, c: float = 1.0):
     """Radius of the endoscopic specular isophote of isovalue t: r- of Prop. 1 (paper Prop. 2).
 
-    Parameters
-    ----------
-    t : float or ndarray
-        Isovalue in (0, c).
-    n : float
-        Phong roughness.
-    V_Z : float
-        Camera-to-plane distance, mm.
-    c : float
-        Scale (peak intensity).
-
-    Returns
-    -------
-    float or ndarray
-        Radius in mm of the isophote circle centred on the foot of the perpendicular from the camera.
+    ``t`` in (0, c), roughness ``n``, camera-to-plane distance ``V_Z`` (mm), peak ``c``; the circle
+    is centred on the foot of the perpendicular from the camera, radius in the unit of V_Z.
     """
     return isocurve_radii(kappa_from_isovalue(t, n, c), V_Z)[1]

@@ -1,33 +1,19 @@
 """The liver in its abdomen: the liver mesh and, behind it, a wall of neighbouring tissue.
 
-A laparoscope sees the liver against the diaphragm, the abdominal wall and the organs around it,
-never against a void. :func:`build_liver_in_abdomen` joins the liver of
-:func:`~simtest.scene.meshes.liver.build_liver` with the inside of a spherical cap (the
-"wall"): a sphere of radius ``wall_radius_mm`` whose centre lies on the line from the liver's
-centre toward the scope (``wall_axis``), as far toward the scope as keeps every point of the
-liver at least ``gap_mm`` inside the sphere. Every point of the liver is inside the sphere, so the two surfaces
-never meet, and from a scope inside the sphere every ray that misses the liver meets the wall.
+A laparoscope sees the liver against the wall of the abdomen, never a void.
+:func:`build_liver_in_abdomen` joins the liver of :func:`~simtest.scene.meshes.liver.build_liver`
+with the inside of a spherical cap (the "wall") of radius ``wall_radius_mm``, centred on the line
+from the liver's centre toward the scope (``wall_axis``) as far toward it as keeps the liver
+``gap_mm`` inside the sphere; from a scope inside, every ray that misses the liver meets the wall.
+The cap's normals point to the centre, ``k1 = k2 = -1 / wall_radius_mm`` exactly; the texture
+tells wall from liver by the distance from the centre (``material.wall_tissue``).
 
-The cap's normals point to the sphere's centre (toward the scope) and its principal curvatures
-are exact, ``k1 = k2 = -1 / wall_radius_mm`` (the surface bends toward its normal: negative in
-the convention of :mod:`simtest.scene.meshes.curvature`). The wall's points are exactly at
-``wall_radius_mm`` from the centre and the liver's are at most ``wall_radius_mm - gap_mm``: the
-tissue texture tells them apart by that distance (``material.wall_tissue``).
-
-A neighbouring organ may join them: the gallbladder, a closed ellipsoid (``gallbladder_centre_mm``,
-semi-axes ``gallbladder_axes_mm`` along the mesh axes; a gallbladder is 70 to 100 mm long and 30 to
-40 mm across, Standring, "Gray's Anatomy", 41st ed., ch. 68) lying against the liver's inferior
-surface, partly sunk into it as in its fossa. Its normals and principal curvatures are the
-ellipsoid's closed forms (:func:`ellipsoid_curvature`); the texture gives its points their own
-tissue (``material.organ_tissue``: the points inside that ellipsoid). Where it is sunk into the
-liver each surface hides the other's inside, so every visible point keeps its own surface's truth.
-
-A second lobe may join the liver with the thin inferior margin a laparoscope sees, where the
-liver's upper surface folds sharply onto its lower one: a wedge-shaped closed surface, an
-ellipsoid whose thickness shrinks toward one side (:func:`lobe_implicit`), also sunk into the
-liver, with normals and curvatures of its closed-form implicit function by the finite differences
-of :func:`~simtest.scene.meshes.curvature.implicit_curvature` (as the liver's). It is liver
-tissue (inside the wall's sphere, outside the gallbladder's ellipsoid).
+Optionally a gallbladder, a closed ellipsoid against the liver's inferior surface (70 to 100 mm by
+30 to 40 mm, Standring, "Gray's Anatomy", 41st ed., ch. 68), with closed-form normals and
+curvatures (:func:`ellipsoid_curvature`, ``material.organ_tissue``); and a second lobe with the
+thin inferior margin a laparoscope sees, a wedge-shaped ellipsoid (:func:`lobe_implicit`) whose
+curvatures come from :func:`~simtest.scene.meshes.curvature.implicit_curvature`. Both are sunk
+into the liver, so every visible point keeps its own surface's truth.
 """
 
 from __future__ import annotations
@@ -41,25 +27,20 @@ from scipy.spatial import ConvexHull
 
 from simtest.scene.meshes.curvature import FD_STEP_MM, implicit_curvature
 from simtest.scene.meshes.files import _assemble
-from simtest.scene.meshes.liver import _fibonacci_sphere, build_liver
+from simtest.scene.meshes.liver import _fibonacci_sphere, _hull_faces, _wound, build_liver
 from simtest.scene.meshes.params import MeshError
 
 __all__ = ["LAPAROSCOPE_WALL_AXIS", "LAPAROSCOPE_ABDOMEN", "wall_sphere", "ellipsoid_curvature", "lobe_implicit",
            "build_liver_in_abdomen"]
 
-#: The wall's axis of meshes/liver_abdomen.ply (``simtest meshes build`` builds it with this): the
-#: unit direction from the liver's centre (the middle of its bounding box) toward the scope of
-#: scenes/laparoscope_liver.toml, so that the cap lies behind the liver as that scope sees it.
+#: The wall's axis of meshes/liver_abdomen.ply: the unit direction from the liver's bounding-box
+#: centre toward the scope of scenes/laparoscope_liver.toml.
 LAPAROSCOPE_WALL_AXIS = (-0.5022907830486957, -0.5249903665151608, -0.6870873920620324)
 
-#: The organs of meshes/liver_abdomen.ply beside the liver (mm and unit vectors in the liver's
-#: frame), placed for the view of scenes/laparoscope_liver.toml: the gallbladder, 80 x 32 x 32 mm
-#: (Gray's Anatomy's 70 to 100 by 30 to 40 mm), against the liver's right inferior edge, filling
-#: the lower right of the view; a lobe (100 x 60 mm, 28 mm thick at its middle, 15 mm at its thin
-#: inferior margin, whose rim bends with a radius of about 2 mm) over the upper right, its margin
-#: across the view above the gallbladder, its upper surface toward the scope. The wall's 8 mm
-#: spacing (a sphere of radius 400 mm: its interpolated normals stay within 0.3 deg) keeps the
-#: file under 2 MB.
+#: The organs of meshes/liver_abdomen.ply beside the liver (mm, liver frame), placed for the view of
+#: scenes/laparoscope_liver.toml: the gallbladder (80 x 32 x 32 mm) at the lower right, a lobe
+#: (100 x 60 mm, 28 mm thick, 15 mm at its margin) over the upper right. The wall's 8 mm spacing
+#: keeps the file under 2 MB (interpolated normals within 0.3 deg on the 400 mm sphere).
 LAPAROSCOPE_ABDOMEN = {"gallbladder_centre_mm": (0.3, -27.4, -67.8), "gallbladder_axes_mm": (40.0, 16.0, 16.0),
                        "lobe_centre_mm": (20.1, -64.2, -39.6), "lobe_normal": (-0.23, -0.92, -0.317),
                        "lobe_edge": (-0.541, 0.391, -0.745), "lobe_axes_mm": (50.0, 30.0, 14.0), "lobe_wedge": 0.6,
@@ -67,13 +48,7 @@ LAPAROSCOPE_ABDOMEN = {"gallbladder_centre_mm": (0.3, -27.4, -67.8), "gallbladde
 
 
 def wall_sphere(liver_vertices: np.ndarray, wall_axis, wall_radius_mm: float, gap_mm: float) -> tuple[np.ndarray, float]:
-    """Centre (3,) and radius of the wall's sphere for a liver's vertices (module notes).
-
-    Raises
-    ------
-    MeshError
-        If the axis is zero or the radius does not exceed the liver's reach plus the gap.
-    """
+    """Centre (3,) and radius of the wall's sphere for a liver's vertices (module notes); MeshError if impossible."""
     u = np.asarray(wall_axis, dtype=np.float64)
     if not np.linalg.norm(u) > 0:
         raise MeshError("build_liver_in_abdomen: wall_axis must be a non-zero vector")
@@ -126,10 +101,7 @@ def _gallbladder(centre, axes, spacing_mm: float) -> tuple[np.ndarray, np.ndarra
     area = 4.0 * math.pi * (p / 3.0) ** (1 / 1.6)  # Knud Thomsen's approximation, within 1.1 %
     n = max(200, int(area / (0.5 * math.sqrt(3) * spacing_mm**2) / 2))
     d = _fibonacci_sphere(n)
-    faces = ConvexHull(d).simplices.astype(np.int64)
-    tri = d[faces]
-    outward = np.einsum("ij,ij->i", np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0]), tri.sum(1))
-    faces[outward < 0] = faces[outward < 0][:, ::-1]  # a positive scaling keeps the winding outward
+    faces = _hull_faces(d)  # a positive scaling keeps the winding outward
     v = np.asarray(centre, dtype=np.float64) + a * d
     nrm, k1, k2 = ellipsoid_curvature(v, centre, a)
     return v, faces, nrm, k1, k2
@@ -169,10 +141,7 @@ def _lobe(centre, normal, edge, axes, wedge: float, n: int):
     frame = _lobe_frame(normal, edge)
     a, b, c = (float(v) for v in axes)
     u = _fibonacci_sphere(n)
-    faces = ConvexHull(u).simplices.astype(np.int64)
-    tri = u[faces]
-    outward = np.einsum("ij,ij->i", np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0]), tri.sum(1))
-    faces[outward < 0] = faces[outward < 0][:, ::-1]  # the map's Jacobian is positive: winding kept
+    faces = _hull_faces(u)  # the map's Jacobian is positive: winding kept
     local = np.stack([a * u[:, 0], b * u[:, 1], c * np.exp(-wedge * u[:, 1]) * u[:, 2]], axis=1)
     v = np.asarray(centre, dtype=np.float64) + local @ frame.T
     nrm, k1, k2 = implicit_curvature(lambda x: lobe_implicit(x, centre, frame, axes, wedge), v, FD_STEP_MM)
@@ -192,22 +161,17 @@ def build_liver_in_abdomen(seed: int, *, wall_axis=(-0.5, -0.5, -0.7), wall_radi
         Root seed of the liver.
     wall_axis : (3,) array_like
         Direction from the liver toward the scope, mesh frame (need not be unit).
-    wall_radius_mm : float
-        Radius of the wall's sphere, mm.
-    gap_mm : float
-        Least distance between the liver and the wall's sphere, mm.
+    wall_radius_mm, gap_mm : float
+        Radius of the wall's sphere and least distance between it and the liver, mm.
     cap_deg : float
         Half-angle of the cap about ``-wall_axis`` seen from the sphere's centre, degrees.
-    wall_spacing_mm : float
-        Typical vertex spacing of the wall, mm.
+    wall_spacing_mm, gallbladder_spacing_mm : float
+        Typical vertex spacing of the wall and of the gallbladder, mm.
     gallbladder_centre_mm, gallbladder_axes_mm : (3,) array_like or None
-        The gallbladder's ellipsoid (module notes), mm in the liver's frame; None: no gallbladder.
-    gallbladder_spacing_mm : float
-        Typical vertex spacing of the gallbladder, mm.
+        The gallbladder's ellipsoid, mm in the liver's frame; None: no gallbladder.
     lobe_centre_mm, lobe_normal, lobe_edge, lobe_axes_mm : (3,) array_like or None
-        The lobe (module notes; :func:`lobe_implicit`): centre, mm; the normal of its upper surface
-        and the direction of its thin margin (unit vectors or not); semi-axes (along the margin,
-        toward it, half-thickness at the centre), mm. None: no lobe.
+        The lobe (:func:`lobe_implicit`): centre (mm), upper-surface normal, direction of its thin
+        margin, semi-axes (along the margin, toward it, half-thickness), mm. None: no lobe.
     lobe_wedge : float
         The lobe's thickness falls by ``exp(-2 lobe_wedge)`` from its back to its margin.
     lobe_vertices : int
@@ -216,9 +180,9 @@ def build_liver_in_abdomen(seed: int, *, wall_axis=(-0.5, -0.5, -0.7), wall_radi
     Returns
     -------
     trimesh.Trimesh
-        Liver faces first, then the lobe's and the gallbladder's (if any), then the wall's; ``vertex_normals`` unit (the liver's outward, the
-        wall's toward the sphere's centre), ``vertex_attributes["k1"]``, ``["k2"]`` (1/mm);
-        ``metadata["generator"]`` with the wall's ``wall_centre_mm`` and ``wall_radius_mm``.
+        Liver faces first, then the lobe's and the gallbladder's (if any), then the wall's; unit
+        ``vertex_normals``, ``vertex_attributes["k1"]``, ``["k2"]`` (1/mm); ``metadata["generator"]``
+        with ``wall_centre_mm`` and ``wall_radius_mm``.
 
     Raises
     ------
@@ -245,12 +209,8 @@ def build_liver_in_abdomen(seed: int, *, wall_axis=(-0.5, -0.5, -0.7), wall_radi
     faces = ConvexHull(d).simplices.astype(np.int64)
     inside = (d @ -u) >= math.cos(cap)
     used, faces = np.unique(faces[inside[faces].all(axis=1)], return_inverse=True)  # the cap's vertices only
-    faces = faces.reshape(-1, 3)
     d = d[used]
-    tri = d[faces]
-    # wound so that the face normal points to the centre (inward), as the vertex normals
-    outward = np.einsum("ij,ij->i", np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0]), tri.sum(1))
-    faces[outward > 0] = faces[outward > 0][:, ::-1]
+    faces = _wound(faces.reshape(-1, 3), d, inward=True)  # toward the centre, as the vertex normals
     wall_v = centre + R * d
     k = np.full(len(d), -1.0 / R)
     parts = [(liver.vertices, np.asarray(liver.faces), liver.vertex_normals, liver.vertex_attributes["k1"],

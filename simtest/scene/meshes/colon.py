@@ -25,9 +25,8 @@ class _Colon:
         self.p = p
         rng = _rng(seed, "colon")
         # Draw order is part of the format: do not reorder.
-        self.psi_x, self.psi_y, self.fold_phase, self.jitter_phase, self.taenia_phase = rng.uniform(
-            0.0, 2.0 * math.pi, size=5
-        )
+        self.psi_x, self.psi_y, self.fold_phase, self.jitter_phase, self.taenia_phase = rng.uniform(0.0, 2.0 * math.pi,
+                                                                                                     size=5)
         self.wx = 2.0 * math.pi / p.bend_wavelength_mm
         self.wy = 0.7 * self.wx
         self.ay = p.bend_mm * p.bend_3d
@@ -66,13 +65,8 @@ class _Colon:
         """Fold phase theta(s): crests where theta = 0 mod 2 pi; d theta/ds > 0 when jitter < 1."""
         p = self.p
         lam2 = 2.7 * p.fold_spacing_mm
-        return (
-            2.0 * math.pi * s / p.fold_spacing_mm
-            + self.fold_phase
-            + p.fold_jitter
-            * (lam2 / p.fold_spacing_mm)
-            * np.sin(2.0 * math.pi * s / lam2 + self.jitter_phase)
-        )
+        return (2.0 * math.pi * s / p.fold_spacing_mm + self.fold_phase
+                + p.fold_jitter * (lam2 / p.fold_spacing_mm) * np.sin(2.0 * math.pi * s / lam2 + self.jitter_phase))
 
     def radius(self, t: np.ndarray, phi: np.ndarray) -> np.ndarray:
         p = self.p
@@ -110,9 +104,8 @@ def _tube_faces(n_along: int, n_around: int) -> np.ndarray:
     b = (i + 1) * n_around + j
     c = i * n_around + (j + 1) % n_around
     d = (i + 1) * n_around + (j + 1) % n_around
-    return np.concatenate(
-        [np.stack([a, b, c], -1).reshape(-1, 3), np.stack([c, b, d], -1).reshape(-1, 3)]
-    ).astype(np.int64)
+    tris = [np.stack([a, b, c], -1).reshape(-1, 3), np.stack([c, b, d], -1).reshape(-1, 3)]
+    return np.concatenate(tris).astype(np.int64)
 
 
 def build_colon(seed: int, **params: Any) -> trimesh.Trimesh:
@@ -129,11 +122,9 @@ def build_colon(seed: int, **params: Any) -> trimesh.Trimesh:
     Returns
     -------
     trimesh.Trimesh
-        ``n_along * n_around`` vertices (ring-major) in mm, open at both ends, faces wound so face
-        normals point into the lumen, ``vertex_normals`` unit and facing the lumen,
-        ``vertex_attributes["k1"]``, ``["k2"]`` (float64, 1/mm, k1 >= k2, module sign convention:
-        the wall between folds has k2 about -1/radius), ``metadata["generator"]`` (name, seed,
-        params, method) and ``metadata["centerline"]`` (see the module notes).
+        ``n_along * n_around`` vertices (ring-major) in mm, open at both ends, faces and unit
+        ``vertex_normals`` facing the lumen, ``vertex_attributes["k1"]``, ``["k2"]`` (1/mm,
+        k1 >= k2), ``metadata["generator"]`` and ``metadata["centerline"]`` (:mod:`simtest.scene.meshes`).
 
     Raises
     ------
@@ -145,29 +136,22 @@ def build_colon(seed: int, **params: Any) -> trimesh.Trimesh:
     colon = _Colon(p, seed)
     t = colon.ring_parameters()
     phi = np.arange(p.n_around) * (2.0 * math.pi / p.n_around)
-    pos, nrm, k1, k2 = parametric_curvature(
-        colon.surface, t[:, None], phi[None, :], FD_STEP_MM, FD_STEP_MM / p.radius_mm
-    )
-    faces = _tube_faces(p.n_along, p.n_around)
-    mesh = _assemble(pos.reshape(-1, 3), faces, nrm.reshape(-1, 3), k1.ravel(), k2.ravel())
+    pos, nrm, k1, k2 = parametric_curvature(colon.surface, t[:, None], phi[None, :], FD_STEP_MM,
+                                            FD_STEP_MM / p.radius_mm)
+    mesh = _assemble(pos.reshape(-1, 3), _tube_faces(p.n_along, p.n_around), nrm.reshape(-1, 3), k1.ravel(), k2.ravel())
 
     centre, tangent, _, _ = colon.frame(t)
     dist = np.linalg.norm(pos - centre[:, None, :], axis=-1)
     mesh.metadata["generator"] = _generator_record("colon", seed, p)
-    mesh.metadata["centerline"] = {
-        "t": t.tolist(),
-        "arclength_mm": colon.arclength(t).tolist(),
-        "points": centre.tolist(),
-        "tangents": tangent.tolist(),
-        "radius_min_mm": dist.min(axis=1).tolist(),
-        "radius_max_mm": dist.max(axis=1).tolist(),
-    }
+    mesh.metadata["centerline"] = {"t": t.tolist(), "arclength_mm": colon.arclength(t).tolist(),
+                                   "points": centre.tolist(), "tangents": tangent.tolist(),
+                                   "radius_min_mm": dist.min(axis=1).tolist(),
+                                   "radius_max_mm": dist.max(axis=1).tolist()}
     return mesh
 
 
-def colon_centerline(
-    source: trimesh.Trimesh | Mapping[str, Any], arclength_mm: np.ndarray | float | None = None
-) -> dict[str, np.ndarray]:
+def colon_centerline(source: trimesh.Trimesh | Mapping[str, Any],
+                     arclength_mm: np.ndarray | float | None = None) -> dict[str, np.ndarray]:
     """Centre line of a colon built by :func:`build_colon`, at any arc length.
 
     Parameters
@@ -204,9 +188,7 @@ def colon_centerline(
         s = np.atleast_1d(np.asarray(arclength_mm, dtype=np.float64))
         bad = (s < 0.0) | (s > total) | ~np.isfinite(s)
         if bad.any():
-            raise MeshError(
-                f"colon_centerline: arclength_mm: {s[bad][0]!r} is outside [0, {total:.6g}] mm"
-            )
+            raise MeshError(f"colon_centerline: arclength_mm: {s[bad][0]!r} is outside [0, {total:.6g}] mm")
         # Newton on s(t) = target from a linear guess; ds/dt = |c'(t)| >= 1.
         t = s * (p.length_mm / total)
         for _ in range(50):

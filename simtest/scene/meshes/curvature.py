@@ -27,13 +27,8 @@ def _principal_from_h_k(h: np.ndarray, k: np.ndarray) -> tuple[np.ndarray, np.nd
     return h + disc, h - disc
 
 
-def parametric_curvature(
-    surface: Callable[[np.ndarray, np.ndarray], np.ndarray],
-    u: np.ndarray,
-    v: np.ndarray,
-    h_u: float,
-    h_v: float,
-) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+def parametric_curvature(surface: Callable[[np.ndarray, np.ndarray], np.ndarray], u: np.ndarray, v: np.ndarray,
+                         h_u: float, h_v: float) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """Position, unit normal and principal curvatures of a parametrised surface X(u, v).
 
     Parameters
@@ -51,15 +46,8 @@ def parametric_curvature(
     normal : ndarray of shape S + (3,)
         ``X_u x X_v / |X_u x X_v|`` (the orientation follows the parametrisation).
     k1, k2 : ndarray of shape S
-        Principal curvatures (k1 >= k2) in the module's sign convention (positive where the
-        surface bends away from ``normal``), in 1 / (unit of X).
-
-    Notes
-    -----
-    Derivatives by fourth-order central differences of ``surface``; then
-    ``E, F, G = X_u.X_u, X_u.X_v, X_v.X_v``; ``L, M, N = -X_uu.n, -X_uv.n, -X_vv.n``;
-    ``K = (LN - M^2) / (EG - F^2)``, ``H = (EN - 2FM + GL) / (2 (EG - F^2))`` (do Carmo,
-    Differential Geometry of Curves and Surfaces, 1976, sec. 3-3).
+        Principal curvatures (k1 >= k2), positive where the surface bends away from ``normal``,
+        1 / (unit of X): fourth-order central differences, then :func:`curvature_from_derivatives`.
     """
     u = np.asarray(u, dtype=np.float64)
     v = np.asarray(v, dtype=np.float64)
@@ -68,16 +56,13 @@ def parametric_curvature(
     xv = sum(w * surface(u, v + j * h_v) for j, w in _D1) / h_v
     xuu = sum(w * (x0 if i == 0 else surface(u + i * h_u, v)) for i, w in _D2) / h_u**2
     xvv = sum(w * (x0 if j == 0 else surface(u, v + j * h_v)) for j, w in _D2) / h_v**2
-    xuv = sum(wi * wj * surface(u + i * h_u, v + j * h_v) for i, wi in _D1 for j, wj in _D1) / (
-        h_u * h_v
-    )
+    xuv = sum(wi * wj * surface(u + i * h_u, v + j * h_v) for i, wi in _D1 for j, wj in _D1) / (h_u * h_v)
     n, k1, k2 = curvature_from_derivatives(xu, xv, xuu, xuv, xvv)
     return x0, n, k1, k2
 
 
-def curvature_from_derivatives(
-    xu: np.ndarray, xv: np.ndarray, xuu: np.ndarray, xuv: np.ndarray, xvv: np.ndarray
-) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def curvature_from_derivatives(xu: np.ndarray, xv: np.ndarray, xuu: np.ndarray, xuv: np.ndarray,
+                               xvv: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Unit normal and principal curvatures from a parametrisation's first and second derivatives.
 
     Parameters
@@ -110,9 +95,8 @@ def curvature_from_derivatives(
     return n, k1, k2
 
 
-def implicit_curvature(
-    func: Callable[[np.ndarray], np.ndarray], points: np.ndarray, h: float
-) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def implicit_curvature(func: Callable[[np.ndarray], np.ndarray], points: np.ndarray,
+                       h: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Unit normal and principal curvatures of the level set of ``func`` through each point.
 
     Parameters
@@ -132,11 +116,7 @@ def implicit_curvature(
         Principal curvatures (k1 >= k2), positive where the surface bends away from ``normal``:
         the eigenvalues of ``P Hess(F) P / |grad F|`` on the tangent plane, P = I - n n^T
         (Goldman, "Curvature formulas for implicit curves and surfaces", CAGD 22, 2005,
-        doi:10.1016/j.cagd.2005.06.005).
-
-    Notes
-    -----
-    Gradient and Hessian by fourth-order central differences of ``func``.
+        doi:10.1016/j.cagd.2005.06.005); gradient and Hessian by fourth-order central differences.
     """
     p = np.asarray(points, dtype=np.float64)
     if p.ndim != 2 or p.shape[1] != 3:
@@ -149,10 +129,8 @@ def implicit_curvature(
         grad[:, a] = sum(w * func(p + i * h * eye[a]) for i, w in _D1) / h
         hess[:, a, a] = sum(w * (f0 if i == 0 else func(p + i * h * eye[a])) for i, w in _D2) / h**2
         for b in range(a + 1, 3):
-            hab = sum(
-                wi * wj * func(p + (i * eye[a] + j * eye[b]) * h) for i, wi in _D1 for j, wj in _D1
-            ) / (h * h)
-            hess[:, a, b] = hess[:, b, a] = hab
+            hess[:, a, b] = hess[:, b, a] = sum(wi * wj * func(p + (i * eye[a] + j * eye[b]) * h)
+                                                for i, wi in _D1 for j, wj in _D1) / (h * h)
     gnorm = np.linalg.norm(grad, axis=1)
     n = grad / gnorm[:, None]
     # Orthonormal tangent basis (t1, t2) at each point.

@@ -16,45 +16,28 @@ from simtest._io import atomic_write_bytes, jsonable
 from simtest.scene.meshes.curvature import FD_STEP_MM
 from simtest.scene.meshes.params import MeshError
 
-
 _FORMAT_VERSION = 1
-
-
-_CURVATURE_METHOD = (
-    "closed form; derivatives by 4th-order central finite differences, step "
-    f"{FD_STEP_MM} mm; k positive where the surface bends away from its normal"
-)
+_CURVATURE_METHOD = ("closed form; derivatives by 4th-order central finite differences, step "
+                     f"{FD_STEP_MM} mm; k positive where the surface bends away from its normal")
 
 
 def _generator_record(name: str, seed: int, params: Any) -> dict[str, Any]:
-    return {
-        "name": name,
-        "function": f"simtest.scene.meshes.build_{name}",
-        "format": _FORMAT_VERSION,
-        "seed": seed,
-        "params": dataclasses.asdict(params),
-        "curvature": _CURVATURE_METHOD,
-    }
+    return {"name": name, "function": f"simtest.scene.meshes.build_{name}", "format": _FORMAT_VERSION,
+            "seed": seed, "params": dataclasses.asdict(params), "curvature": _CURVATURE_METHOD}
 
 
-def _assemble(
-    vertices: np.ndarray, faces: np.ndarray, normals: np.ndarray, k1: np.ndarray, k2: np.ndarray
-) -> trimesh.Trimesh:
+def _assemble(vertices: np.ndarray, faces: np.ndarray, normals: np.ndarray, k1: np.ndarray,
+              k2: np.ndarray) -> trimesh.Trimesh:
     """A Trimesh whose per-vertex data are float64 arrays holding float32-representable values.
 
     The files store float32 (what Mitsuba uses); rounding here makes a saved and reloaded mesh
     equal to the built one, bit for bit (the rounding is below 1e-5 mm and 1e-7 relative).
     """
-
     def f32(a: np.ndarray) -> np.ndarray:
         return np.ascontiguousarray(np.asarray(a, dtype=np.float64).astype(np.float32), np.float64)
 
-    mesh = trimesh.Trimesh(
-        vertices=f32(vertices),
-        faces=np.ascontiguousarray(faces, dtype=np.int64),
-        process=False,
-        validate=False,
-    )
+    mesh = trimesh.Trimesh(vertices=f32(vertices), faces=np.ascontiguousarray(faces, dtype=np.int64), process=False,
+                           validate=False)
     n = np.asarray(normals, dtype=np.float64)
     mesh.vertex_normals = f32(n / np.linalg.norm(n, axis=1, keepdims=True))
     mesh.vertex_attributes["k1"] = f32(k1)
@@ -79,7 +62,7 @@ def save_mesh(mesh: trimesh.Trimesh, path: str | os.PathLike[str]) -> Path:
     Returns
     -------
     Path
-        The PLY path. Both files are written to a temporary name, then renamed (os.replace).
+        The PLY path; both files are written atomically.
 
     Raises
     ------
@@ -93,12 +76,9 @@ def save_mesh(mesh: trimesh.Trimesh, path: str | os.PathLike[str]) -> Path:
         if key not in mesh.vertex_attributes:
             raise MeshError(f"save_mesh: {path}: mesh has no vertex attribute {key!r}")
     v = np.asarray(mesh.vertices, dtype=np.float64)
-    cols = [
-        v,
-        np.asarray(mesh.vertex_normals, dtype=np.float64),
-        np.asarray(mesh.vertex_attributes["k1"], dtype=np.float64)[:, None],
-        np.asarray(mesh.vertex_attributes["k2"], dtype=np.float64)[:, None],
-    ]
+    cols = [v, np.asarray(mesh.vertex_normals, dtype=np.float64),
+            np.asarray(mesh.vertex_attributes["k1"], dtype=np.float64)[:, None],
+            np.asarray(mesh.vertex_attributes["k2"], dtype=np.float64)[:, None]]
     data = np.ascontiguousarray(np.concatenate(cols, axis=1), dtype="<f4")
     faces = np.asarray(mesh.faces)
     face_rec = np.empty(len(faces), dtype=[("n", "u1"), ("idx", "<i4", (3,))])
@@ -113,9 +93,7 @@ def save_mesh(mesh: trimesh.Trimesh, path: str | os.PathLike[str]) -> Path:
         + f"element face {len(faces)}\nproperty list uchar int vertex_indices\nend_header\n"
     )
     atomic_write_bytes(path, header.encode("ascii") + data.tobytes() + face_rec.tobytes())
-    side = {
-        key: mesh.metadata[key] for key in ("generator", "centerline") if key in mesh.metadata
-    }
+    side = {key: mesh.metadata[key] for key in ("generator", "centerline") if key in mesh.metadata}
     side["n_vertices"] = int(len(v))
     side["n_faces"] = int(len(faces))
     side["ply_vertex_properties"] = list(_PLY_FIELDS)
@@ -173,12 +151,8 @@ def load_mesh(path: str | os.PathLike[str]) -> trimesh.Trimesh:
     if not all(f in names for f in ("nx", "ny", "nz")):
         raise MeshError(f"load_mesh: {path}: vertex normals (nx, ny, nz) missing")
     normals = np.stack([np.asarray(raw[f], dtype=np.float64).ravel() for f in ("nx", "ny", "nz")], 1)
-    mesh = trimesh.Trimesh(
-        vertices=np.asarray(loaded.vertices, dtype=np.float64),
-        faces=np.asarray(loaded.faces, dtype=np.int64),
-        process=False,
-        validate=False,
-    )
+    mesh = trimesh.Trimesh(vertices=np.asarray(loaded.vertices, dtype=np.float64),
+                           faces=np.asarray(loaded.faces, dtype=np.int64), process=False, validate=False)
     mesh.vertex_normals = normals
     mesh.vertex_attributes["k1"] = attrs["k1"]
     mesh.vertex_attributes["k2"] = attrs["k2"]

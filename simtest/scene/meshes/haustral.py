@@ -1,43 +1,26 @@
 """A colon with haustral folds, taeniae and haustra, and exact curvature (:func:`build_haustral_colon`).
 
-The surface
------------
 In its parameters ``v`` (along the colon, mm) and ``theta`` (around it, rad) the wall is
 
     X(v, theta) = c(u) + r(v, theta) (cos theta e1(u) + sin theta e2(u)),   u = v + delta(theta)
 
-- ``c(u)`` is a smooth space curve (the centre line, two seeded sinusoids across ``z = u``),
-  ``T`` its unit tangent and ``(e1, e2)`` a *rotation-minimising* frame across it (Bishop 1975,
-  "There is more than one way to frame a curve"; Wang et al. 2008, "Computation of rotation
-  minimizing frames", ACM TOG 27(1)): ``e1' = -(e1 . T') T``, integrated by fourth-order
-  Runge-Kutta from ``e1 = x`` made perpendicular to T, ``e2 = T x e1``. Unlike the Frenet frame
-  it does not spin where the curve straightens, so the taeniae run straight along the wall.
-- ``delta(theta)`` bows and staggers the folds: ``v`` is constant along a fold crest, so the
-  mesh's rings follow the crests.
+- ``c(u)``: the centre line (two seeded sinusoids across ``z = u``), ``T`` its unit tangent and
+  ``(e1, e2)`` a rotation-minimising frame (Bishop 1975; Wang et al. 2008, ACM TOG 27(1)),
+  ``e1' = -(e1 . T') T`` integrated by RK4, ``e2 = T x e1``: unlike Frenet's it does not spin, so
+  the taeniae run straight.
+- ``delta(theta)`` bows and staggers the folds; ``v`` is constant along a crest, so rings follow
+  the crests.
 - ``r = R(u) - indent b(theta) + bulge (1 - b(theta)) (1 - cos phi(v)) / 2
-  - h(v) (1 - relief b2(theta)) p(phi(v))``: the lumen radius ``R`` varies slowly; ``b`` is 1 on
-  each of the three taeniae (120 deg apart) and falls off over their width (``b2`` over twice
-  it), where the wall is pulled in and the folds nearly vanish; between folds and taeniae the
-  wall bulges out into haustra; ``p`` is the fold profile in the fold phase ``phi`` (crests at
-  ``phi = 0 mod 2 pi``): ``exp(-x^2 / (2 s^2) - x^4 q)`` with ``x = (S / pi) sin(phi / 2)`` (the
-  distance to the crest near it, periodic), ``s^2 = h0 rho`` so the crest's radius of curvature
-  is about ``rho`` (``fold_crest_radius_mm``), and the quartic ``q`` narrows the fold to its
-  thickness at half height, rescaled to [0, 1] over a period.
+  - h(v) (1 - relief b2(theta)) p(phi(v))``: ``R`` varies slowly; ``b`` is 1 on each of the three
+  taeniae (``b2`` twice as wide), where the wall is pulled in and folds nearly vanish; haustra
+  bulge between; ``p`` is the fold profile in the phase ``phi`` (crests at ``phi = 0 mod 2 pi``),
+  ``exp(-x^2 / (2 s^2) - x^4 q)``, ``x = (S / pi) sin(phi / 2)``, ``s^2 = h0 rho`` (crest radius
+  about ``rho``), ``q`` setting the thickness at half height, rescaled to [0, 1].
 
-Exact ground truth
-------------------
-The surface is written once with second-order jets (:mod:`~simtest.scene.meshes.jet`), which
-carry ``X, X_v, X_theta, X_vv, X_vtheta, X_thetatheta`` exactly (forward automatic
-differentiation: no step size); the centre line's derivatives are closed form and the frame's
-are ``e1' = -(e1 . T') T``, ``e1'' = -(e1 . T'') T - (e1 . T') T'``. The first and second
-fundamental forms give the unit normal ``X_v x X_theta / |.|`` (into the lumen) and the principal
-curvatures (:func:`~simtest.scene.meshes.curvature.curvature_from_derivatives`), in the sign
-convention of :mod:`simtest.scene.meshes` (fold crests positive, the wall between them negative).
-Their only approximation is the frame's integration (error below 1e-12 of a unit vector).
-Fourth-order finite differences of the same surface (:meth:`HaustralColon.surface`) agree to
-about 1e-7 /mm (tests/test_meshes_haustral.py).
-
-Morphometry: the defaults and their sources are in :class:`~simtest.scene.meshes.params.HaustralParams`.
+The surface is written once with second-order jets (:mod:`~simtest.scene.meshes.jet`): exact
+derivatives, no step size; the only approximation is the frame's integration (below 1e-12). Normal
+``X_v x X_theta / |.|`` into the lumen, curvatures in the sign convention of
+:mod:`simtest.scene.meshes`. Defaults and their sources: :class:`~simtest.scene.meshes.params.HaustralParams`.
 """
 
 from __future__ import annotations
@@ -58,21 +41,14 @@ from simtest.scene.meshes.params import HaustralParams, MeshError, _check_seed, 
 
 __all__ = ["HaustralColon", "build_haustral_colon", "haustral_pose"]
 
-#: Step of the stored rotation-minimising frame, mm; a query integrates one RK4 step of at most
-#: this from the node below it (local error ~ (kappa h)^5 with kappa <= 0.03 /mm: below 1e-12).
+#: Step of the stored rotation-minimising frame, mm (RK4 local error ~ (kappa h)^5: below 1e-12).
 _FRAME_STEP_MM = 0.5
 #: Margin of the frame's range beyond the parameters the surface reaches, mm.
 _FRAME_MARGIN_MM = 20.0
 
 
 class HaustralColon:
-    """Closed form of the haustral colon for one parameter set and seed (module notes).
-
-    Parameters
-    ----------
-    p : HaustralParams
-    seed : int
-    """
+    """Closed form of the haustral colon for one parameter set ``p`` and ``seed`` (module notes)."""
 
     def __init__(self, p: HaustralParams, seed: int) -> None:
         self.p = p
@@ -241,20 +217,18 @@ def build_haustral_colon(seed: int, **params: Any) -> trimesh.Trimesh:
     Parameters
     ----------
     seed : int
-        Root seed (>= 0): the centre line's phases, the taeniae's orientation, the phases of the
-        diameter, fold spacing and fold height variations (SeedSequence([seed, 1003])).
+        Root seed (>= 0; SeedSequence([seed, 1003])): the centre line's, taeniae's, diameter's,
+        fold spacing's and fold height's phases.
     **params
         Fields of :class:`~simtest.scene.meshes.params.HaustralParams` (lengths in mm).
 
     Returns
     -------
     trimesh.Trimesh
-        ``n_along * n_around`` vertices (ring-major: ring i is a fold-aligned curve ``v = v_i``),
-        open at both ends, faces wound so face normals point into the lumen, unit
-        ``vertex_normals`` into the lumen, ``vertex_attributes["k1"]``, ``["k2"]`` (1/mm,
-        k1 >= k2, exact: module notes), ``metadata["generator"]`` and ``metadata["centerline"]``
-        (per ring: ``v``, ``points`` c(v_i), ``tangents``, ``radius_min_mm`` / ``radius_max_mm``
-        the ring's least and largest distance from that point).
+        ``n_along * n_around`` vertices (ring i is the fold-aligned curve ``v = v_i``), open at both
+        ends, normals into the lumen, ``vertex_attributes["k1"]``, ``["k2"]`` (1/mm, exact),
+        ``metadata["generator"]`` and ``metadata["centerline"]`` (per ring: ``v``, ``points``,
+        ``tangents``, ``radius_min_mm``, ``radius_max_mm``).
 
     Raises
     ------
@@ -277,13 +251,10 @@ def build_haustral_colon(seed: int, **params: Any) -> trimesh.Trimesh:
     record["curvature"] = ("closed form; exact derivatives by second-order forward automatic "
                            "differentiation (jets); k positive where the surface bends away from its normal")
     mesh.metadata["generator"] = record
-    mesh.metadata["centerline"] = {
-        "v": v.tolist(),
-        "points": centre.tolist(),
-        "tangents": (c1 / np.linalg.norm(c1, axis=-1, keepdims=True)).tolist(),
-        "radius_min_mm": dist.min(axis=1).tolist(),
-        "radius_max_mm": dist.max(axis=1).tolist(),
-    }
+    mesh.metadata["centerline"] = {"v": v.tolist(), "points": centre.tolist(),
+                                   "tangents": (c1 / np.linalg.norm(c1, axis=-1, keepdims=True)).tolist(),
+                                   "radius_min_mm": dist.min(axis=1).tolist(),
+                                   "radius_max_mm": dist.max(axis=1).tolist()}
     return mesh
 
 
@@ -295,25 +266,22 @@ def haustral_pose(source: trimesh.Trimesh | Mapping[str, Any], v_mm: float, view
                   look_mm: float = 20.0) -> dict[str, list[float]]:
     """A colonoscope's pose in a haustral colon: on the centre line, looking down it or at the wall.
 
-    At ``u = v_mm`` the camera looks along ``cos(view) T + sin(view) r`` with
-    ``r = cos(az) e1 + sin(az) e2`` (the rotation-minimising frame), standing at ``c(u) -
-    radial_offset R r`` (R the mean lumen radius, so it leans away from where it looks); the
-    image's up is ``T x r`` turned perpendicular to the view (the centre line's side).
+    At ``u = v_mm`` the camera looks along ``cos(view) T + sin(view) r``, ``r = cos(az) e1 + sin(az) e2``,
+    from ``c(u) - radial_offset R r`` (R the mean lumen radius); the image's up is ``T x r`` made
+    perpendicular to the view.
 
     Parameters
     ----------
     source : trimesh.Trimesh or dict
-        A mesh from :func:`build_haustral_colon` (or :func:`~simtest.scene.meshes.load_mesh`)
-        or its ``metadata["generator"]`` record.
+        A mesh from :func:`build_haustral_colon` or its ``metadata["generator"]`` record.
     v_mm : float
-        Position along the centre line (its parameter, mm; within [0, length_mm]).
+        Position along the centre line, mm, within [0, length_mm].
     view_deg : float
-        Angle of the line of sight off the tangent: about 0 looks down the lumen, 50 to 70 at
-        the wall.
+        Angle of the line of sight off the tangent (about 0 down the lumen, 50 to 70 at the wall).
     azimuth_deg : float
         Direction of that tilt about the tangent, degrees from e1.
     radial_offset : float
-        Offset of the camera from the centre line, as a fraction of the mean radius.
+        Offset from the centre line, fraction of the mean radius.
     look_mm : float
         Distance of ``look_at_mm`` ahead of the camera.
 

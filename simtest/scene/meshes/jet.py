@@ -1,19 +1,13 @@
 """Second-order forward-mode automatic differentiation in two variables (numpy arrays).
 
 A :class:`Jet` carries a value and its exact first and second partial derivatives with respect
-to two parameters (a, b): ``(f, f_a, f_b, f_aa, f_ab, f_bb)``. Arithmetic and the elementary
-functions below propagate them by the chain and product rules (truncated Taylor arithmetic,
-Griewank & Walther, "Evaluating Derivatives", 2nd ed., SIAM 2008, ch. 13), so a surface
-``X(a, b)`` written with jets yields ``X_a, X_b, X_aa, X_ab, X_bb`` exact to rounding: no step
-size, no truncation error. The colon generator (:mod:`~simtest.scene.meshes.haustral`) takes
-its first and second fundamental forms from them.
+to two parameters (a, b): ``(f, f_a, f_b, f_aa, f_ab, f_bb)``, propagated by the chain and
+product rules (truncated Taylor arithmetic, Griewank & Walther, "Evaluating Derivatives", 2nd ed.,
+SIAM 2008, ch. 13): exact to rounding, no step size (:mod:`~simtest.scene.meshes.haustral`). Our
+own because no required dependency does automatic differentiation.
 
-Why our own: the project's dependencies hold no automatic differentiation (PyTorch is only an
-optional extra), and the surface needs nothing beyond these few operations on float64 arrays.
-
-Components are numpy arrays that broadcast against each other. A vector-valued jet keeps its
-components along the last axis (``shape (..., 3)``); :meth:`Jet.vec` lifts a scalar jet so that
-it broadcasts against one.
+Components are broadcasting numpy arrays; a vector-valued jet keeps its components along the last
+axis (``shape (..., 3)``); :meth:`Jet.vec` lifts a scalar jet so that it broadcasts against one.
 """
 
 from __future__ import annotations

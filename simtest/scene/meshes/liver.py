@@ -16,12 +16,7 @@ from simtest.scene.meshes.params import LiverParams, _check_seed, _make_params, 
 
 def _monomial_exponents(max_degree: int) -> np.ndarray:
     """Exponents (i, j, k) with 1 <= i + j + k <= max_degree, in a fixed order."""
-    out = [
-        (i, j, d - i - j)
-        for d in range(1, max_degree + 1)
-        for i in range(d, -1, -1)
-        for j in range(d - i, -1, -1)
-    ]
+    out = [(i, j, d - i - j) for d in range(1, max_degree + 1) for i in range(d, -1, -1) for j in range(d - i, -1, -1)]
     return np.array(out, dtype=np.int64).reshape(-1, 3)
 
 
@@ -32,6 +27,20 @@ def _fibonacci_sphere(n: int) -> np.ndarray:
     r = np.sqrt(1.0 - z * z)
     a = math.pi * (3.0 - math.sqrt(5.0)) * np.arange(n)
     return np.stack([r * np.cos(a), r * np.sin(a), z], axis=1)
+
+
+def _wound(faces: np.ndarray, d: np.ndarray, inward: bool = False) -> np.ndarray:
+    """``faces`` of points ``d`` about the origin, flipped in place to wind outward (or inward)."""
+    tri = d[faces]
+    outward = np.einsum("ij,ij->i", np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0]), tri.sum(1))
+    flip = outward > 0 if inward else outward < 0
+    faces[flip] = faces[flip][:, ::-1]
+    return faces
+
+
+def _hull_faces(d: np.ndarray) -> np.ndarray:
+    """Faces of the convex hull of unit vectors ``d``, wound outward."""
+    return _wound(ConvexHull(d).simplices.astype(np.int64), d)
 
 
 class _Liver:
@@ -56,9 +65,7 @@ class _Liver:
             for a in range(3):
                 for _ in range(self.p.lobe_degree):
                     powers[a].append(powers[a][-1] * w[..., a])
-            mono = np.stack(
-                [powers[0][i] * powers[1][j] * powers[2][k] for i, j, k in self.exps], axis=-1
-            )
+            mono = np.stack([powers[0][i] * powers[1][j] * powers[2][k] for i, j, k in self.exps], axis=-1)
             out = out + mono @ self.coef
         return out
 
@@ -84,10 +91,9 @@ def build_liver(seed: int, **params: Any) -> trimesh.Trimesh:
     Returns
     -------
     trimesh.Trimesh
-        Watertight, centred near the origin (the star centre of the surface is the origin), in mm,
-        with its largest bounding-box extent equal to ``extent_mm``; faces wound outward; unit
-        outward ``vertex_normals``; ``vertex_attributes["k1"]``, ``["k2"]`` (float64, 1/mm,
-        k1 >= k2, positive where convex); ``metadata["generator"]``.
+        Watertight, star centre at the origin, mm, largest bounding-box extent ``extent_mm``; faces
+        and unit ``vertex_normals`` outward; ``vertex_attributes["k1"]``, ``["k2"]`` (1/mm, k1 >= k2,
+        positive where convex); ``metadata["generator"]``.
 
     Raises
     ------
@@ -101,11 +107,7 @@ def build_liver(seed: int, **params: Any) -> trimesh.Trimesh:
     # Directions w = normalize(A^gamma q): gamma = 1 gives normals of the base ellipsoid uniform.
     w = q * liver.axes**p.density_exponent
     w /= np.linalg.norm(w, axis=1, keepdims=True)
-
-    faces = ConvexHull(w).simplices.astype(np.int64)
-    tri = w[faces]
-    outward = np.einsum("ij,ij->i", np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0]), tri.sum(1))
-    faces[outward < 0] = faces[outward < 0][:, ::-1]
+    faces = _hull_faces(w)
     # Canonical face order (independent of qhull's output order).
     first = np.argmin(faces, axis=1)[:, None]
     faces = np.take_along_axis(faces, (first + np.arange(3)) % 3, axis=1)  # keeps the winding

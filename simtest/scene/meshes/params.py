@@ -20,10 +20,7 @@ _SEED_KEYS = {"colon": 1001, "liver": 1002, "colon_haustral": 1003}
 
 
 class MeshError(ValueError):
-    """Bad mesh parameters or a bad mesh file; the message names the file or parameter.
-
-    A subclass of ValueError, so callers that catch ValueError also catch it.
-    """
+    """Bad mesh parameters or a bad mesh file (a ValueError); the message names the file or parameter."""
 
 
 def _python_scalar(v: Any) -> Any:
@@ -66,10 +63,8 @@ class ColonParams:
         Fraction of the fold depth removed on a taenia (folds are crescents between taeniae).
     taenia_indent : float
         Fractional inward pull of the wall on a taenia (a rounded-polygon cross-section).
-    n_around : int
-        Vertices per ring.
-    n_along : int
-        Number of rings.
+    n_around, n_along : int
+        Vertices per ring, number of rings.
     ring_curvature_weight_mm : float
         Ring placement: rings are equally spaced in w(t) = wall length + this * turning angle of
         the mean wall profile, so folds get denser rings (0: equal wall length).
@@ -92,30 +87,20 @@ class ColonParams:
     ring_curvature_weight_mm: Annotated[MeshNum, Field(ge=0.0)] = 40.0
 
     def validate(self) -> None:
-        """Check that the lumen neither closes nor folds (the fields' ranges are their types').
-
-        Raises
-        ------
-        MeshError
-            Naming the parameter at fault and its value.
-        """
+        """Check that the lumen neither closes nor folds; MeshError names the parameter at fault."""
         r_min = self.radius_mm * (1.0 - self.taenia_indent) - self.fold_depth_mm
         limit = self.radius_mm * (0.9 - self.taenia_indent)
         if r_min <= 0.1 * self.radius_mm:
-            raise MeshError(
-                f"ColonParams: fold_depth_mm: {self.fold_depth_mm!r} closes the lumen "
-                f"(smallest wall distance {r_min:.3g} mm with radius_mm={self.radius_mm!r}, "
-                f"taenia_indent={self.taenia_indent!r}); keep it below {limit:.3g}"
-            )
+            raise MeshError(f"ColonParams: fold_depth_mm: {self.fold_depth_mm!r} closes the lumen "
+                            f"(smallest wall distance {r_min:.3g} mm with radius_mm={self.radius_mm!r}, "
+                            f"taenia_indent={self.taenia_indent!r}); keep it below {limit:.3g}")
         # Largest centre-line curvature: |x''| + |y''| bound, parameter t ~ arc length.
         w = 2.0 * math.pi / self.bend_wavelength_mm
         kappa_max = self.bend_mm * w * w * (1.0 + self.bend_3d * 0.49)
         if kappa_max * self.radius_mm >= 0.8:
-            raise MeshError(
-                f"ColonParams: bend_mm: the centre line bends too sharply for the tube "
-                f"(curvature up to {kappa_max:.3g} /mm times radius {self.radius_mm!r} mm >= 0.8 "
-                f"would fold the wall); lower bend_mm or raise bend_wavelength_mm"
-            )
+            raise MeshError(f"ColonParams: bend_mm: the centre line bends too sharply for the tube "
+                            f"(curvature up to {kappa_max:.3g} /mm times radius {self.radius_mm!r} mm >= 0.8 "
+                            f"would fold the wall); lower bend_mm or raise bend_wavelength_mm")
 
 
 @pydantic_dataclass(frozen=True, config=CONFIG)
@@ -162,10 +147,8 @@ class LiverParams:
     density_exponent: Annotated[MeshNum, Field(ge=0.0, le=1.0)] = 0.0
 
 
-
 def _make_params(cls: type, params: Mapping[str, Any], where: str) -> Any:
-    """``cls`` from ``params``, each field's type and range checked (pydantic), then the shape's
-    own checks (``validate``); MeshError ``"<where>: <field>: <reason>"`` otherwise."""
+    """``cls`` from ``params``, checked by pydantic then ``validate``; else MeshError ``"<where>: <field>: ..."``."""
     obj = validated(cls, dict(params), MeshError, where)
     if hasattr(obj, "validate"):
         obj.validate()
@@ -186,23 +169,15 @@ def _rng(seed: int, name: str) -> np.random.Generator:
 class HaustralParams:
     """Parameters of :func:`~simtest.scene.meshes.haustral.build_haustral_colon` (lengths in mm).
 
-    Defaults are those of a distended transverse-to-descending colon as CT colonography measures
-    it (approximate values; the sources are named per attribute and in
-    :mod:`~simtest.scene.meshes.haustral`):
+    Defaults are a distended transverse-to-descending colon (approximate values):
 
-    - lumen diameter: the caecum usually under 9 cm, the transverse colon under 6 cm, the
-      descending and sigmoid colon slightly narrower (commonly quoted radiology values, e.g.
-      https://www.seekhealthz.com/health/normal-cross-sectional-imaging-appearance-of-the-colon/;
-      not checked against a primary study);
-    - haustral fold height: 14.6 +- 5.5 mm ascending, 9.5 +- 3.7 mm transverse, 6.5 +- 3.1 mm
-      descending, 2079 folds in 50 CT colonographies (A. C. Thompson et al., "Taller haustral
-      folds in the proximal colon", Journal of Colon and Rectal Cancer, 2016);
-    - taeniae coli: three bands about 1 cm wide, seen as slight longitudinal indentations,
-      semilunar folds crescent-shaped and "thin, delicate" between them, distended wall under
-      2 to 3 mm ("Normal anatomy of the colon and rectum", Thieme, doi:10.1055/b-0034-91855,
-      https://abdominalkey.com/normal-anatomy-of-the-colon-and-rectum/);
-    - fold spacing about 2 to 3 cm and fold thickness 3 to 5 mm: estimates from endoscopic and CT
-      images (two to three wall thicknesses for a fold), not measured statistics.
+    - lumen diameter: transverse colon under 6 cm (commonly quoted radiology values, e.g.
+      https://www.seekhealthz.com/health/normal-cross-sectional-imaging-appearance-of-the-colon/);
+    - fold height: 9.5 +- 3.7 mm transverse, 6.5 +- 3.1 mm descending (A. C. Thompson et al.,
+      "Taller haustral folds in the proximal colon", Journal of Colon and Rectal Cancer, 2016);
+    - taeniae coli: three bands about 1 cm wide, slight indentations, crescent folds between them
+      ("Normal anatomy of the colon and rectum", Thieme, doi:10.1055/b-0034-91855);
+    - fold spacing about 2 to 3 cm, thickness 3 to 5 mm: estimates from endoscopic and CT images.
 
     Attributes
     ----------
@@ -211,10 +186,8 @@ class HaustralParams:
     diameter_mm : float
         Lumen diameter between folds, away from the taeniae, before the haustral bulge
         (5 cm: the transverse colon's upper half of < 6 cm).
-    diameter_variation : float
-        Relative amplitude of the slow, seeded sinusoidal change of the diameter along the colon.
-    diameter_wavelength_mm : float
-        Wavelength of that change.
+    diameter_variation, diameter_wavelength_mm : float
+        Relative amplitude and wavelength of the slow, seeded sinusoidal change of the diameter.
     bend_mm, bend_wavelength_mm, bend_3d : float
         Centre line ``(A (sin(w u + px) - sin px), A bend_3d (sin(0.7 w u + py) - sin py), u)``
         with ``A = bend_mm``, ``w = 2 pi / bend_wavelength_mm``, seeded phases.
@@ -233,23 +206,17 @@ class HaustralParams:
     fold_crest_radius_mm : float
         Radius of curvature of a fold's profile at its crest, along the centre line, for a fold
         of the mean height: the sharpness (smaller is sharper).
-    fold_crescent_mm : float
-        How far a fold's crest bows along the centre line between two taeniae (the crescent).
-    fold_stagger_mm : float
-        Amplitude of the offset of the folds around the circumference, ``stagger sin(theta)``:
-        the three sectors' folds do not line up.
-    taenia_width_mm : float
-        Full width at half depth of each of the three taeniae (about 1 cm).
-    taenia_indent_mm : float
-        Inward pull of the wall on a taenia.
+    fold_crescent_mm, fold_stagger_mm : float
+        How far a crest bows along the centre line between two taeniae; amplitude of the folds'
+        offset around the circumference, ``stagger sin(theta)`` (the sectors' folds do not line up).
+    taenia_width_mm, taenia_indent_mm : float
+        Full width at half depth of each of the three taeniae (about 1 cm); inward pull of the wall there.
     taenia_fold_relief : float
         Fraction of the fold height lost on a taenia, in [0, 1] (folds are interrupted there).
     haustra_bulge_mm : float
         Outward bulge of the wall midway between folds and between taeniae (the haustra).
-    n_around : int
-        Vertices per ring.
-    n_along : int
-        Number of rings.
+    n_around, n_along : int
+        Vertices per ring, number of rings.
     ring_curvature_weight_mm : float
         Rings are equally spaced in wall length + this * turning angle of the wall profile, so
         fold crests get denser rings.
@@ -279,31 +246,22 @@ class HaustralParams:
     ring_curvature_weight_mm: Annotated[MeshNum, Field(ge=0.0)] = 6.0
 
     def validate(self) -> None:
-        """Check the lumen against closing or folding (the fields' ranges are their types').
-
-        Raises
-        ------
-        MeshError
-            Naming the parameter that is out of range and its value.
-        """
+        """Check that the lumen neither closes nor folds; MeshError names the parameter at fault."""
         r0 = 0.5 * self.diameter_mm
         r_min = (r0 * (1.0 - self.diameter_variation) - self.taenia_indent_mm
                  - self.fold_height_mm * (1.0 + self.fold_height_variation))
         if r_min <= 0.25 * r0:
-            raise MeshError(
-                f"HaustralParams: fold_height_mm: {self.fold_height_mm!r} closes the lumen (smallest "
-                f"wall distance {r_min:.3g} mm with diameter_mm={self.diameter_mm!r}); keep the wall "
-                f"at least a quarter of the radius from the centre line")
+            raise MeshError(f"HaustralParams: fold_height_mm: {self.fold_height_mm!r} closes the lumen (smallest "
+                            f"wall distance {r_min:.3g} mm with diameter_mm={self.diameter_mm!r}); keep the wall "
+                            f"at least a quarter of the radius from the centre line")
         if self.fold_crescent_mm + self.fold_stagger_mm >= 0.4 * self.fold_spacing_mm:
-            raise MeshError(
-                f"HaustralParams: fold_crescent_mm + fold_stagger_mm = "
-                f"{self.fold_crescent_mm + self.fold_stagger_mm!r} must stay below 0.4 fold_spacing_mm "
-                f"({0.4 * self.fold_spacing_mm:.3g}): neighbouring folds would overlap")
+            raise MeshError(f"HaustralParams: fold_crescent_mm + fold_stagger_mm = "
+                            f"{self.fold_crescent_mm + self.fold_stagger_mm!r} must stay below 0.4 fold_spacing_mm "
+                            f"({0.4 * self.fold_spacing_mm:.3g}): neighbouring folds would overlap")
         w = 2.0 * math.pi / self.bend_wavelength_mm
         kappa_max = self.bend_mm * w * w * (1.0 + self.bend_3d * 0.49)
         r_max = r0 * (1.0 + self.diameter_variation) + self.haustra_bulge_mm
         if kappa_max * r_max >= 0.8:
-            raise MeshError(
-                f"HaustralParams: bend_mm: the centre line bends too sharply for the tube (curvature "
-                f"up to {kappa_max:.3g} /mm times radius {r_max:.3g} mm >= 0.8 would fold the wall); "
-                f"lower bend_mm or raise bend_wavelength_mm")
+            raise MeshError(f"HaustralParams: bend_mm: the centre line bends too sharply for the tube (curvature "
+                            f"up to {kappa_max:.3g} /mm times radius {r_max:.3g} mm >= 0.8 would fold the wall); "
+                            f"lower bend_mm or raise bend_wavelength_mm")
