@@ -79,7 +79,7 @@ class Light:
             raise LightRigError(f"position_mm: must be [x, y, z] in mm, got {self.position_mm!r}")
         pos = tuple(_number(v, f"position_mm[{i}]") for i, v in enumerate(p))
         object.__setattr__(self, "position_mm", pos)
-        inten = _number(self.intensity, f"intensity")
+        inten = _number(self.intensity, "intensity")
         if inten <= 0:
             raise LightRigError(f"intensity: must be > 0, got {self.intensity!r}")
         if not MIN_INTENSITY <= inten <= MAX_INTENSITY:
@@ -88,7 +88,7 @@ class Light:
         object.__setattr__(self, "intensity", inten)
         if self.falloff not in FALLOFFS:
             raise LightRigError(f"falloff: must be one of {list(FALLOFFS)}, got {self.falloff!r}")
-        m = _number(self.profile_exponent, f"profile_exponent")
+        m = _number(self.profile_exponent, "profile_exponent")
         if m < 0:
             raise LightRigError(f"profile_exponent: must be >= 0, got {self.profile_exponent!r}")
         if m > MAX_PROFILE_EXPONENT:
