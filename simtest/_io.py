@@ -127,7 +127,7 @@ class OutputFolderError(ValueError):
 
 
 def _owned(rel: tuple[str, ...], is_dir: bool, owned) -> bool:
-    """Whether the entry at relative path ``rel`` matches a pattern of ``owned`` (a folder: one a pattern goes through)."""
+    """Whether the entry at relative path ``rel`` matches a pattern of ``owned`` (a folder: one a pattern crosses)."""
     for pat in owned:
         parts = tuple(pat.split("/"))
         n = len(rel)

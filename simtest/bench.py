@@ -31,7 +31,7 @@ CLONE_ROOT = Path(str(files("simtest"))).resolve().parent
 
 @dataclass(frozen=True)
 class BenchResult:
-    """One measured figure: median ``value`` in ``unit``, its ``target`` (or None), ``best`` (minimum) and a ``note``."""
+    """One measured figure: median ``value`` in ``unit``, ``target`` (or None), ``best`` (minimum), a ``note``."""
 
     section: str
     name: str

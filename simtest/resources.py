@@ -22,7 +22,7 @@ FOLDERS = ("scenes", "meshes", "reports")
 
 
 def data_root() -> Path:
-    """The folder holding the bundled ``scenes/``, ``meshes/`` and ``reports/``: ``simtest/_data`` or the clone's root."""
+    """The folder holding the bundled ``scenes/``, ``meshes/``, ``reports/``: ``simtest/_data`` or the clone's root."""
     package = Path(str(files("simtest")))
     shipped = package / "_data"
     if (shipped / "scenes").is_dir():
@@ -31,7 +31,7 @@ def data_root() -> Path:
 
 
 def bundled(*parts: str) -> Path:
-    """Path under :func:`data_root` of a bundled file or folder (it may be missing), e.g. ``bundled("scenes", "suites")``.
+    """Path under :func:`data_root` of a bundled file or folder (may be missing), e.g. ``bundled("scenes", "suites")``.
 
     Raises
     ------

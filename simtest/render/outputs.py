@@ -141,7 +141,7 @@ RENDER_FILES = ("image.png", "intrinsics.json", "ground_truth.npz", "highlights.
 
 
 def check_output_folder(out: str | Path, option: str = "--out") -> None:
-    """Raise :class:`~simtest._io.OutputFolderError` unless ``out`` is new, empty, or holds only :data:`RENDER_FILES`."""
+    """Raise :class:`~simtest._io.OutputFolderError` unless ``out`` is new, empty or holds only :data:`RENDER_FILES`."""
     _check_output_folder(out, RENDER_FILES, option)
 
 

@@ -32,7 +32,10 @@ _registered: set[str] = set()
 
 def _make_class():
     class PhongBSDF(mi.BSDF):
-        """Exact Phong lobe plus an optional Lambertian part; properties ``c``, ``n``, ``albedo``, ``cancel_falloff``, ``light_pos``."""
+        """Exact Phong lobe plus an optional Lambertian part.
+
+        Properties ``c``, ``n``, ``albedo``, ``cancel_falloff`` and ``light_pos`` (world frame, mm).
+        """
 
         def __init__(self, props):
             mi.BSDF.__init__(self, props)

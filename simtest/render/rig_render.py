@@ -185,7 +185,7 @@ def _shaded_pixels(spec: SceneSpec, W: int, H: int) -> tuple[np.ndarray, np.ndar
 
 
 def _pixel_rays(model) -> np.ndarray:
-    """Unit rays (W H, 3) of every pixel centre through ``model``, row-major, float64, read-only (last two models cached)."""
+    """Unit rays (W H, 3) of every pixel centre through ``model``, row-major, float64, read-only (cached)."""
     W, H = model.image_size
     key = (type(model).__name__, json.dumps(model.params(), sort_keys=True, default=repr), W, H)
     rays = _PIXEL_RAYS.get(key)

@@ -178,7 +178,7 @@ def tissue_texture(spec: SceneSpec):
 
 
 def _mesh_in_scene(spec: SceneSpec) -> dict[str, np.ndarray]:
-    """Mesh arrays in the scene frame, cached and read-only: ``vertices``, ``faces``, ``normals``, ``k1``, ``k2`` (1/mm)."""
+    """Mesh arrays in the scene frame, cached, read-only: ``vertices``, ``faces``, ``normals``, ``k1``, ``k2``."""
     geo = spec.geometry
     key: tuple = (geo, os.path.getmtime(geo.path) if geo.type == "mesh" else None)
     hit = _MESH_DATA_CACHE.get(key)

@@ -137,7 +137,7 @@ def grow_network(rng: np.random.Generator, layer: VesselLayer, tile_mm: float = 
 
 
 def murray_radii(net: Network, root_radius_mm: float) -> np.ndarray:
-    """Radius (N,) of every node, mm, by Murray's law: ``r^3`` proportional to the tips downstream, roots at ``root_radius_mm``."""
+    """Radius (N,) of every node, mm, by Murray's law: ``r^3`` as the tips downstream, roots at ``root_radius_mm``."""
     n = len(net.parent)
     has_child = np.zeros(n, dtype=bool)
     has_child[net.parent[net.parent >= 0]] = True
@@ -155,7 +155,7 @@ def murray_radii(net: Network, root_radius_mm: float) -> np.ndarray:
 
 def coverage_map(net: Network, radii: np.ndarray, tile_mm: float = TILE_MM, texel_mm: float = TEXEL_MM,
                  sigma_mm: float = 0.0) -> np.ndarray:
-    """Anti-aliased coverage (H, W) float32 in [0, 1] of the network's vessels on the tile's texels, blurred by ``sigma_mm``.
+    """Anti-aliased coverage (H, W) float32 in [0, 1] of the vessels on the tile's texels, blurred by ``sigma_mm``.
 
     Texel (i, j) is centred at ``(u, v) = ((j + 0.5) texel_mm, (i + 0.5) texel_mm)``.
     """

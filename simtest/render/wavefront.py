@@ -166,7 +166,7 @@ def shade(scene, d: np.ndarray, rig: LightRig, *, shadows: bool, spp: int = 1,
 
 
 def coverage(scene, d, *, spp: int = 1, defer: bool = False) -> np.ndarray | Pending:
-    """Fraction of each pixel's rays that hit the surface: ndarray of shape (N / spp,), float32 (or a :class:`Pending`)."""
+    """Fraction of each pixel's rays that hit the surface: ndarray (N / spp,), float32 (or a :class:`Pending`)."""
     dr = require("drjit")
     valid = scene.ray_intersect_preliminary(_rays(d), True).is_valid()
     out = Pending(_per_pixel(spp, dr.select(valid, 1.0, 0.0)), lambda cov: cov)
