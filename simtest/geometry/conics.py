@@ -25,9 +25,8 @@ from simtest.geometry.angles import cross3
 from simtest.geometry.camera import validate_intrinsics
 from simtest.tolerances import TOL
 
-__all__ = ["CirclePose", "ConeAxis", "Ellipse", "circle_pose", "conic_kind", "conic_to_ellipse",
-           "cone_axis", "normalised_conic", "plane_basis",
-           "project_circle"]
+__all__ = ["CirclePose", "ConeAxis", "Ellipse", "circle_pose", "conic_kind", "conic_to_ellipse", "cone_axis",
+           "normalised_conic", "plane_basis", "project_circle"]
 
 
 @fast_init
@@ -51,11 +50,8 @@ class Ellipse:
 
     def as_dict(self) -> dict:
         """JSON-ready form with the angle in degrees (interface unit)."""
-        return {
-            "center_px": [float(x) for x in self.center],
-            "semi_axes_px": [float(x) for x in self.semi_axes],
-            "angle_deg": float(np.degrees(self.angle_rad)),
-        }
+        return {"center_px": [float(x) for x in self.center], "semi_axes_px": [float(x) for x in self.semi_axes],
+                "angle_deg": float(np.degrees(self.angle_rad))}
 
 
 @dataclass(frozen=True)
@@ -122,15 +118,7 @@ def conic_kind(C) -> str:
     ValueError
         If C is not 3x3 or has non-finite entries.
     """
-    return _classify(_check_conic(C))[0]
-
-
-def _classify(C: np.ndarray):
-    """:func:`conic_kind` of a checked conic, with the unit-norm conic and its centre and ``f0`` (or None)."""
-    kinds, Cn, centre, f0 = _classify_many(C[None])
-    if np.isnan(f0[0]):
-        return kinds[0], Cn[0], None, None
-    return kinds[0], Cn[0], centre[0], float(f0[0])
+    return _classify_many(_check_conic(C)[None])[0][0]
 
 
 def conic_to_ellipse(C) -> Ellipse | None:
@@ -197,7 +185,9 @@ def cone_axis(Cn) -> ConeAxis:
     ValueError
         If C' is not a real elliptic cone.
     """
-    return _cone_axis_of(*_cone_eigen(Cn))
+    w, V = _cone_eigen(Cn)
+    axis, gap = _cone_axes_of(w[None], V[None])
+    return ConeAxis(axis=axis[0], eigenvalue_gap=float(gap[0]))
 
 
 def circle_pose(Cn) -> CirclePose:
@@ -222,7 +212,11 @@ def circle_pose(Cn) -> CirclePose:
     ValueError
         If C' is not a real elliptic cone.
     """
-    return _circle_pose_of(*_cone_eigen(Cn))
+    w, V = _cone_eigen(Cn)
+    normals, centres, ok = _circle_poses_of(w[None], V[None])
+    if not ok[0]:
+        raise np.linalg.LinAlgError("Singular matrix")
+    return CirclePose(normals=normals[0], centres=centres[0])
 
 
 def plane_basis(normal, axes: tuple[int, int] = (0, 1)) -> tuple[np.ndarray, np.ndarray]:
@@ -273,7 +267,7 @@ _KINDS = ("ellipse", "imaginary", "hyperbola", "degenerate")
 
 
 def _classify_many(C: np.ndarray):
-    """:func:`_classify` of a stack (k, 3, 3): ``(kinds, unit-norm C, centres (k, 2), f0 (k,))``, NaN without centre.
+    """:func:`conic_kind` of a stack (k, 3, 3): ``(kinds, unit-norm C, centres (k, 2), f0 (k,))``, NaN without centre.
 
     The test is made in the frame centred on the conic's centre, so it does not depend on where the curve lies.
     """
@@ -390,11 +384,6 @@ def _cone_axes_of(w: np.ndarray, V: np.ndarray) -> tuple[np.ndarray, np.ndarray]
     return _toward_camera_many(V[:, :, 2]), gap
 
 
-def _cone_axis_of(w: np.ndarray, V: np.ndarray) -> ConeAxis:
-    axis, gap = _cone_axes_of(w[None], V[None])
-    return ConeAxis(axis=axis[0], eigenvalue_gap=float(gap[0]))
-
-
 def _circle_poses_of(w: np.ndarray, V: np.ndarray):
     """Normals N+, N- (k, 2, 3), centre directions (k, 2, 3) and defined mask (k,) of eigen-decompositions."""
     l1, l2, l3 = w[:, 0], w[:, 1], w[:, 2]
@@ -411,13 +400,6 @@ def _circle_poses_of(w: np.ndarray, V: np.ndarray):
     # facing the camera: n . c < 0 (not n_z < 0: a steep plane far off-axis faces it with n_z > 0)
     facing = np.where(np.einsum("kij,kij->ki", n, c)[..., None] > 0, -n, n)
     return facing, c, ok.reshape(k, 2).all(axis=1)
-
-
-def _circle_pose_of(w: np.ndarray, V: np.ndarray) -> CirclePose:
-    normals, centres, ok = _circle_poses_of(w[None], V[None])
-    if not ok[0]:
-        raise np.linalg.LinAlgError("Singular matrix")
-    return CirclePose(normals=normals[0], centres=centres[0])
 
 
 def _section_centres(Q: np.ndarray, n: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
