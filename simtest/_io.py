@@ -195,8 +195,7 @@ def check_output_folder(out, owned, option: str = "--out") -> Path:
             if os.path.islink(os.path.join(root, name)) or not _owned((*base, name), True, owned):
                 other.append("/".join((*base, name)))
                 dirs.remove(name)  # not looked into: it is not ours as a whole
-        other += ["/".join((*base, name)) for name in sorted(files)
-                  if not _owned((*base, name), False, owned)]
+        other += ["/".join((*base, name)) for name in sorted(files) if not _owned((*base, name), False, owned)]
     if other:
         raise OutputFolderError(
             f"{option}: {out} holds files this command does not write ({', '.join(other[:3])}"

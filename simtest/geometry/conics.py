@@ -359,8 +359,7 @@ def _cone_eigen_many(Cn: np.ndarray):
 
 
 def _eigen_error(w: np.ndarray) -> str:
-    return (f"C' is not a real elliptic cone: eigenvalues {w.tolist()} "
-            "(need two of one sign and one of the other)")
+    return f"C' is not a real elliptic cone: eigenvalues {w.tolist()} (need two of one sign and one of the other)"
 
 
 def _cone_eigen(Cn) -> tuple[np.ndarray, np.ndarray]:
@@ -391,8 +390,7 @@ def _circle_poses_of(w: np.ndarray, V: np.ndarray):
     cos_phi = np.sqrt(np.maximum(l2 - l3, 0.0) / (l1 - l3))
     Q = np.einsum("kij,kj,klj->kil", V, w, V)  # sign-normalised, unit cone
     sgn = np.array([1.0, -1.0])
-    n = (sgn[None, :, None] * sin_phi[:, None, None] * V[:, None, :, 0]
-         + cos_phi[:, None, None] * V[:, None, :, 2])
+    n = sgn[None, :, None] * sin_phi[:, None, None] * V[:, None, :, 0] + cos_phi[:, None, None] * V[:, None, :, 2]
     n = n / np.linalg.norm(n, axis=-1, keepdims=True)
     k = len(w)
     c, ok = _section_centres(np.repeat(Q, 2, axis=0), n.reshape(2 * k, 3))

@@ -234,8 +234,7 @@ def simreal_command(
     fig = sim_to_real_figure(frame, frames, rows)
     figs = {"frames.png": frames_figure(frame, frames, ids, tuning, held, title=spec.name),
             "glints.png": glint_sheet(frame, frames, ids, tuning, held, title=spec.name)}
-    split = {"tuning": [ids[i] for i in tuning], "held_out": [ids[i] for i in held],
-             "rule": _split_rule(ids)}
+    split = {"tuning": [ids[i] for i in tuning], "held_out": [ids[i] for i in held], "rule": _split_rule(ids)}
     doc = {"scene": spec.name, "seed": result.seed, "real": [_shown(p) for p in paths], "rows": rows,
            "split": split, "tables": parts,
            "within_goal": {name: sum(r["within_goal"] for r in t) for name, t in tables.items()}}

@@ -44,8 +44,7 @@ def _make_class():
         def sample(self, scene, sampler, ray, medium=None, active=True):
             si = scene.ray_intersect(ray, active)
             valid = active & si.is_valid()
-            ds, em_weight = scene.sample_emitter_direction(
-                si, sampler.next_2d(valid), self.shadows, valid)
+            ds, em_weight = scene.sample_emitter_direction(si, sampler.next_2d(valid), self.shadows, valid)
             bsdf = si.bsdf(ray)
             ctx = mi.BSDFContext()
             lit = valid & (ds.pdf != 0.0)

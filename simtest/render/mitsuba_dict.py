@@ -105,8 +105,7 @@ def _bsdf_dict(spec: SceneSpec, light_pos: np.ndarray) -> dict[str, Any]:
     spec_rgb = {"type": "rgb", "value": [mat.c, mat.c, 0.0]}
     common = {"distribution": mat.distribution, "alpha": mat.microfacet_alpha}
     if mat.base == "conductor":
-        return {"type": "roughconductor", "material": "none", "specular_reflectance": spec_rgb,
-                **common}
+        return {"type": "roughconductor", "material": "none", "specular_reflectance": spec_rgb, **common}
     a = mat.diffuse_albedo
     return {"type": "roughplastic", "int_ior": mat.ior, "ext_ior": 1.0,
             "specular_reflectance": spec_rgb,
@@ -168,8 +167,7 @@ def mitsuba_scene_dict(spec: SceneSpec, *, light_pos_cam: np.ndarray | None = No
         surface = {"type": "rectangle", "to_world": m, "bsdf": bsdf}
     elif geo.type == "sphere":
         c = (w2c @ np.append(geo.center_mm, 1.0))[:3]
-        surface = {"type": "sphere", "center": [float(x) for x in c], "radius": geo.radius_mm,
-                   "bsdf": bsdf}
+        surface = {"type": "sphere", "center": [float(x) for x in c], "radius": geo.radius_mm, "bsdf": bsdf}
     elif geo.type == "cylinder":
         c = (w2c @ np.append(geo.center_mm, 1.0))[:3]
         axis = np.asarray(geo.axis if geo.axis is not None else (1.0, 0.0, 0.0), dtype=np.float64)
@@ -186,5 +184,4 @@ def mitsuba_scene_dict(spec: SceneSpec, *, light_pos_cam: np.ndarray | None = No
         surface = {"type": "simtest_arrays", "vertices": mesh_cam["vertices"],
                    "faces": mesh_cam["faces"], "normals": mesh_cam["normals"], "bsdf": bsdf}
 
-    return {"type": "scene", "integrator": integrator, "sensor": sensor, "light": light,
-            "surface": surface}
+    return {"type": "scene", "integrator": integrator, "sensor": sensor, "light": light, "surface": surface}

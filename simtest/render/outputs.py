@@ -136,8 +136,7 @@ class RenderResult:
 
 
 #: File names of one render's output set (``write_render``)
-RENDER_FILES = ("image.png", "intrinsics.json", "ground_truth.npz", "highlights.json", "camera.json",
-                "frame.png")
+RENDER_FILES = ("image.png", "intrinsics.json", "ground_truth.npz", "highlights.json", "camera.json", "frame.png")
 
 
 def check_output_folder(out: str | Path, option: str = "--out") -> None:

@@ -62,8 +62,7 @@ def _make_class():
             self.c = dr.opaque(mi.Float, c)
             self.n = dr.opaque(mi.Float, n)
             self.albedo_over_pi = dr.opaque(mi.Float, albedo / dr.pi)
-            self.light_pos = mi.Point3f(*(dr.opaque(mi.Float, float(light_pos[i]))
-                                          for i in range(3)))
+            self.light_pos = mi.Point3f(*(dr.opaque(mi.Float, float(light_pos[i])) for i in range(3)))
 
         def sample(self, ctx, si, sample1, sample2, active=True):
             # only direct lighting from a point light: BSDF sampling never reaches it
@@ -76,8 +75,7 @@ def _make_class():
             r = mi.Vector3f(-wi.x, -wi.y, wi.z)  # mirror of wi about the shading normal
             cos_beta = dr.maximum(dr.dot(r, wo), 0.0)
             # lobes below 2^LOBE_LOG2_MIN are 0, decided from n log2(cos beta) (never a denormal)
-            seen = (cos_beta >= FLT_MIN) & (self.n * dr.log2(dr.maximum(cos_beta, FLT_MIN))
-                                            > LOBE_LOG2_MIN)
+            seen = (cos_beta >= FLT_MIN) & (self.n * dr.log2(dr.maximum(cos_beta, FLT_MIN)) > LOBE_LOG2_MIN)
             spec = dr.select(seen, self.c * dr.power(cos_beta, self.n), 0.0)
             if self.cancel_falloff:
                 d = si.p - self.light_pos

@@ -218,8 +218,7 @@ def _mesh_in_scene(spec: SceneSpec) -> dict[str, np.ndarray]:
         k1, k2 = k1 / s, k2 / s
         if geo.flip_normals:
             n, k1, k2 = -n, -k2, -k1
-        data = {"vertices": v, "faces": np.asarray(mesh.faces, dtype=np.int64), "normals": n,
-                "k1": k1, "k2": k2}
+        data = {"vertices": v, "faces": np.asarray(mesh.faces, dtype=np.int64), "normals": n, "k1": k1, "k2": k2}
     for a in data.values():
         a.flags.writeable = False
     _cache_put(_MESH_DATA_CACHE, _MESH_DATA_CACHE_SIZE, key, data)
@@ -336,8 +335,7 @@ def _make_caster(scene, K: np.ndarray, pose: np.ndarray | None = None):
         d = d.astype(np.float32)
         n_rays = len(d)
         if identity:
-            o = mi.Point3f(np.zeros(n_rays, np.float32), np.zeros(n_rays, np.float32),
-                           np.zeros(n_rays, np.float32))
+            o = mi.Point3f(np.zeros(n_rays, np.float32), np.zeros(n_rays, np.float32), np.zeros(n_rays, np.float32))
         else:
             c = pose[:3, 3].astype(np.float32)
             o = mi.Point3f(np.full(n_rays, c[0]), np.full(n_rays, c[1]), np.full(n_rays, c[2]))

@@ -288,8 +288,7 @@ def banner_tiles(path: str | Path, tile_px: int = 280) -> list[tuple[str, np.nda
 
 
 def _banner_split(name: str, tuning_cols: tuple[int, ...], rows: int, cols: int) -> dict[str, str]:
-    return {f"{name}:r{r}c{c}": "tuning" if c in tuning_cols else "held_out" for r in range(rows)
-            for c in range(cols)}
+    return {f"{name}:r{r}c{c}": "tuning" if c in tuning_cols else "held_out" for r in range(rows) for c in range(cols)}
 
 
 #: The declared split of the bundled real frames: ``"tuning"`` (a fit may see it) or ``"held_out"``. Each
@@ -468,8 +467,7 @@ def frames_figure(rendered: np.ndarray, real: list[np.ndarray], ids: list[str], 
     shown = [(at_height(rendered, h), f"{title}\n({rendered.shape[1]} x {rendered.shape[0]} px, at {h} px high)")]
     shown += [(real[i], f"tuning frame\n{ids[i]}") for i in tuning[:per_part]]
     shown += [(real[i], f"held-out frame\n{ids[i]}") for i in held_out[:per_part]]
-    fig, axes = plt.subplots(1, len(shown), figsize=(2.9 * len(shown), 3.6), constrained_layout=True,
-                             squeeze=False)
+    fig, axes = plt.subplots(1, len(shown), figsize=(2.9 * len(shown), 3.6), constrained_layout=True, squeeze=False)
     for a, (f, t) in zip(axes[0], shown):
         a.imshow(f)
         a.set_title(t, fontsize=9)

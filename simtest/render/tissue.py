@@ -248,8 +248,7 @@ def _field(xp, p, k, phase):
     """sum_j sin(k_j . p + phase_j) / sqrt(N / 2) (unit RMS)."""
     s = 0.0
     for j in range(len(phase)):
-        s = s + xp.sin(p[0] * float(k[j, 0]) + p[1] * float(k[j, 1]) + p[2] * float(k[j, 2])
-                       + float(phase[j]))
+        s = s + xp.sin(p[0] * float(k[j, 0]) + p[1] * float(k[j, 1]) + p[2] * float(k[j, 2]) + float(phase[j]))
     return s * math.sqrt(2.0 / len(phase))
 
 
@@ -281,8 +280,7 @@ def surface_uv(xp, q, nq, t: TissueParams):
     w = [nq[i] * nq[i] * nq[i] * nq[i] for i in range(3)]
     inv = 1.0 / xp.maximum(w[0] + w[1] + w[2], 1e-30)  # a zero normal (a ray's miss): no vessels, not NaN
     (ax, ay), (bx, by), (cx, cy) = _TRIPLANAR_OFFSET_MM
-    return [(w[0] * inv, q[1] + ax, q[2] + ay), (w[1] * inv, q[2] + bx, q[0] + by),
-            (w[2] * inv, q[0] + cx, q[1] + cy)]
+    return [(w[0] * inv, q[1] + ax, q[2] + ay), (w[1] * inv, q[2] + bx, q[0] + by), (w[2] * inv, q[0] + cx, q[1] + cy)]
 
 
 def vessel_transmission(xp, q, nq, t: TissueParams):

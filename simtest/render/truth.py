@@ -162,8 +162,7 @@ def mesh_highlights(cast: Caster, normals: np.ndarray, position: np.ndarray, mas
         w = np.array([1.0 - w12.sum(), w12[0], w12[1]])
         k1 = float(np.dot(w, k1_v[f]))
         k2 = float(np.dot(w, k2_v[f]))
-        hl = HighlightTruth(uv[i].copy(), p.copy(), n, max(k1, k2), min(k1, k2),
-                            pixel_in_frame(uv[i], (W, H)))
+        hl = HighlightTruth(uv[i].copy(), p.copy(), n, max(k1, k2), min(k1, k2), pixel_in_frame(uv[i], (W, H)))
         if all(np.hypot(*(hl.bp_px - o.bp_px)) > 0.5 for o in out):
             out.append(hl)
     out.sort(key=lambda h: (h.bp_px[1], h.bp_px[0]))
@@ -396,13 +395,11 @@ def highlight_targets(highlights: list[HighlightTruth], specular: np.ndarray, va
         lab, _ = ndimage.label(sm >= rel * peak, structure=np.ones((3, 3), bool))
         region = ndimage.binary_fill_holes(lab == lab[r, c])
         rr, cc = np.nonzero(region)
-        inside = bool(valid[region].all()) and rr.min() > 0 and cc.min() > 0 \
-            and rr.max() < H - 1 and cc.max() < W - 1
+        inside = bool(valid[region].all()) and rr.min() > 0 and cc.min() > 0 and rr.max() < H - 1 and cc.max() < W - 1
         e = ellipticity(region)
         fair = inside and bool(ellipticity_min <= e <= 1.0 / ellipticity_min)
         pr, pc = _climb(sm, r, c)
-        groups.append({"region": region, "members": [h], "fair": fair,
-                       "peak": np.array([pc, pr], dtype=np.float64)})
+        groups.append({"region": region, "members": [h], "fair": fair, "peak": np.array([pc, pr], dtype=np.float64)})
     return [HighlightTarget(np.array([m.bp_px for m in g["members"]], dtype=np.float64),
                             tuple(int(m.light) for m in g["members"]), tuple(g["members"]),
                             g["peak"], int(g["region"].sum()))

@@ -96,8 +96,7 @@ def cast(scene, d: np.ndarray, *, later: bool = False):
     si = _intersect(scene, _rays(d))
     valid, t_j, n_j, prim_j = si.is_valid(), si.t, si.sh_frame.n, si.prim_index
     dr.eval(valid, t_j, n_j, prim_j)
-    hit, t32, n32, prim = (np.array(valid, dtype=bool), np.array(t_j), np.array(n_j),
-                           np.array(prim_j, dtype=np.int64))
+    hit, t32, n32, prim = (np.array(valid, dtype=bool), np.array(t_j), np.array(n_j), np.array(prim_j, dtype=np.int64))
 
     def finish() -> dict[str, np.ndarray]:
         t = np.where(hit, t32.astype(np.float64), np.nan)
