@@ -46,20 +46,13 @@ FACTOR_GOAL = 2.0
 
 
 #: The statistics of :func:`frame_stats`, in table order, with the unit each is given in.
-STATISTICS = {
-    "saturated_fraction": "fraction of the lit field",
-    "candidates_per_mp": "near-white blobs per megapixel of lit field",
-    "median_area_px": "px",
-    "p90_area_px": "px",
-    "tissue_r": "8-bit level",
-    "tissue_g": "8-bit level",
-    "tissue_b": "8-bit level",
-    "colour_spread": "8-bit levels (IQR of R - G)",
-    "luma_p10": "8-bit level",
-    "luma_p50": "8-bit level",
-    "luma_p90": "8-bit level",
-    "detector_per_mp": "detector candidates per megapixel of lit field",
-}
+STATISTICS = {"saturated_fraction": "fraction of the lit field",
+              "candidates_per_mp": "near-white blobs per megapixel of lit field",
+              "median_area_px": "px", "p90_area_px": "px",
+              "tissue_r": "8-bit level", "tissue_g": "8-bit level", "tissue_b": "8-bit level",
+              "colour_spread": "8-bit levels (IQR of R - G)",
+              "luma_p10": "8-bit level", "luma_p50": "8-bit level", "luma_p90": "8-bit level",
+              "detector_per_mp": "detector candidates per megapixel of lit field"}
 
 #: Issue 62's white (its glint-population definitions, made outside simtest): every channel at or above
 #: this 8-bit level (the film reflects white; the tissue leaves green and blue low even where red clips).
@@ -70,13 +63,10 @@ SHEEN_LUMA = (200, 250)
 
 #: The glint population of :func:`glint_population` (issue 62's definitions), reported beside
 #: :data:`STATISTICS` and not fitted (:mod:`simtest.render.simfit` fits :data:`STATISTICS`).
-GLINT_STATISTICS = {
-    "white_blobs_per_mp": "white blobs (every channel >= 250) per megapixel of lit field",
-    "white_median_area_px": "px",
-    "white_p90_area_px": "px",
-    "white_largest_share": "fraction of the white pixels in the largest white blob",
-    "sheen_fraction": "fraction of the lit field with luma 200 to 250",
-}
+GLINT_STATISTICS = {"white_blobs_per_mp": "white blobs (every channel >= 250) per megapixel of lit field",
+                    "white_median_area_px": "px", "white_p90_area_px": "px",
+                    "white_largest_share": "fraction of the white pixels in the largest white blob",
+                    "sheen_fraction": "fraction of the lit field with luma 200 to 250"}
 #: Every statistic of the table, in its order.
 ALL_STATISTICS = {**STATISTICS, **GLINT_STATISTICS}
 
@@ -211,17 +201,13 @@ def frame_stats(frame: np.ndarray, *, detector: bool = True) -> FrameStats:
         rgb, spread = np.full(3, np.nan), float("nan")
     p10, p50, p90 = (float(x) for x in np.percentile(lum[lit], [10, 50, 90]))
     glints, white_areas, _ = glint_population(f)
-    return FrameStats(
-        candidates_per_mp=len(areas) / mp,
-        median_area_px=float(np.median(areas)) if len(areas) else 0.0,
-        p90_area_px=float(np.percentile(areas, 90)) if len(areas) else 0.0,
-        saturated_fraction=float(sat.sum() / lit.sum()),
-        tissue_rgb=tuple(float(x) for x in rgb),
-        areas=areas,
-        colour_spread=spread, luma_p10=p10, luma_p50=p50, luma_p90=p90,
-        detector_per_mp=_detector_count(f) / mp if detector else float("nan"),
-        glints=glints, white_areas=white_areas, lit_px=int(lit.sum()),
-    )
+    return FrameStats(candidates_per_mp=len(areas) / mp,
+                      median_area_px=float(np.median(areas)) if len(areas) else 0.0,
+                      p90_area_px=float(np.percentile(areas, 90)) if len(areas) else 0.0,
+                      saturated_fraction=float(sat.sum() / lit.sum()), tissue_rgb=tuple(float(x) for x in rgb),
+                      areas=areas, colour_spread=spread, luma_p10=p10, luma_p50=p50, luma_p90=p90,
+                      detector_per_mp=_detector_count(f) / mp if detector else float("nan"),
+                      glints=glints, white_areas=white_areas, lit_px=int(lit.sum()))
 
 
 #: Statistics whose real value is pooled over the frames (blobs and lit pixels together): a median of
