@@ -291,13 +291,7 @@ def relief_normals(p: np.ndarray, n: np.ndarray, texture, *, defer: bool = False
     ndarray of shape (..., 3), float32
         Unit shading normals, on the side of ``n``; NaN where ``p`` or ``n`` is.
     """
-    dr, mi = require("drjit"), require("mitsuba")
-    p_dr, n_dr = ([mi.Float(np.ascontiguousarray(a[..., i].ravel(), dtype=np.float32)) for i in range(3)]
-                  for a in (p, n))
-    out = tuple(tissue.relief_normal(_dr_xp(), p_dr, n_dr, texture))
-    dr.eval(*out)
-    pending = Pending(out, lambda x, y, z: np.stack([x, y, z], axis=-1).reshape(p.shape))
-    return pending if defer else pending.fetch()
+    return _per_point(tissue.relief_normal(_dr_xp(), _dr_rows(p), _dr_rows(n), texture), p.shape, defer)
 
 
 def albedo_map(p: np.ndarray, texture, n: np.ndarray | None = None, *,
@@ -319,13 +313,21 @@ def albedo_map(p: np.ndarray, texture, n: np.ndarray | None = None, *,
     ndarray of shape (..., 3), float32
         Linear RGB albedo in [0, 1]; NaN where ``p`` is.
     """
-    dr, mi = require("drjit"), require("mitsuba")
-    p_dr = [mi.Float(np.ascontiguousarray(p[..., i].ravel(), dtype=np.float32)) for i in range(3)]
-    n_dr = None if n is None else [mi.Float(np.ascontiguousarray(n[..., i].ravel(), dtype=np.float32))
-                                   for i in range(3)]
-    out = tuple(tissue.albedo(_dr_xp(), p_dr, texture, n_dr))
-    dr.eval(*out)
-    pending = Pending(out, lambda r, g, b: np.stack([r, g, b], axis=-1).reshape(p.shape))
+    return _per_point(tissue.albedo(_dr_xp(), _dr_rows(p), texture, None if n is None else _dr_rows(n)), p.shape,
+                      defer)
+
+
+def _dr_rows(a: np.ndarray) -> list:
+    """The three coordinates of a (..., 3) array as flat float32 Dr.Jit arrays."""
+    mi = require("mitsuba")
+    return [mi.Float(np.ascontiguousarray(a[..., i].ravel(), dtype=np.float32)) for i in range(3)]
+
+
+def _per_point(values, shape: tuple, defer: bool):
+    """Three queued Dr.Jit arrays as a (..., 3) float32 array of ``shape``, or its :class:`Pending`."""
+    out = tuple(values)
+    require("drjit").eval(*out)
+    pending = Pending(out, lambda x, y, z: np.stack([x, y, z], axis=-1).reshape(shape))
     return pending if defer else pending.fetch()
 
 
