@@ -1,9 +1,7 @@
 """The validators' shared pieces: the one-line error of a bad key, and the finite-number check.
 
-Every validator of a file a person writes (suite files, scene specs, dataset configs, camera
-files, light rigs) reports bad input as one readable line naming the file, the key and the reason,
-``"<file>: <key>: <reason>"``, raised as its own ``ValueError`` subclass so that the CLI can print
-it and exit 2. The message is formed here once.
+Every validator of a file a person writes reports bad input as ``"<file>: <key>: <reason>"``, raised as
+its own ``ValueError`` subclass so that the CLI can print it and exit 2.
 """
 
 from __future__ import annotations
@@ -22,24 +20,12 @@ _UNSET: Any = object()
 
 
 def format_value(value: Any) -> str:
-    """``value`` as a person reads it in an error message: JSON, or ``nan`` / ``inf`` as such.
-
-    Parameters
-    ----------
-    value : object
-        A JSON-serialisable value (what a TOML or JSON file holds).
-
-    Returns
-    -------
-    str
-        ``json.dumps(value)``, except ``str(value)`` for a non-finite float (JSON has no spelling
-        for it).
-    """
+    """``value`` as a person reads it in an error message: ``json.dumps(value)``, or ``str`` of a non-finite float."""
     return json.dumps(value) if not isinstance(value, float) or math.isfinite(value) else str(value)
 
 
 def keyed_error(error: type[E], source: str, key: str, reason: str, value: Any = _UNSET) -> E:
-    """The error of one bad key: ``error("<source>: <key>: <reason>[ (got <value>)]")``.
+    """The error of one bad key: ``error("<source>: <key>: <reason>[ (got <value>)]")``, for the caller to raise.
 
     Parameters
     ----------
@@ -48,36 +34,18 @@ def keyed_error(error: type[E], source: str, key: str, reason: str, value: Any =
     source : str
         The file (or ``"<dict>"``) being validated.
     key : str
-        Dotted key of the bad entry (``"sweeps[0].values"``, ``"params.colon.station"``).
+        Dotted key of the bad entry (``"sweeps[0].values"``).
     reason : str
         What is wrong with it.
     value : object, optional
-        The offending value, appended as `` (got <value>)`` (:func:`format_value`) when given.
-
-    Returns
-    -------
-    Exception
-        An instance of ``error``, for the caller to raise.
+        The offending value (:func:`format_value`), appended when given.
     """
     tail = "" if value is _UNSET else f" (got {format_value(value)})"
     return error(f"{source}: {key}: {reason}{tail}")
 
 
 def finite_number(value: Any, where: str, error: type[Exception] = ValueError) -> float:
-    """``value`` as a finite float, or ``error`` naming ``where``.
-
-    Parameters
-    ----------
-    value : object
-        A Python or numpy integer or float (a boolean is refused).
-    where : str
-        What the value is, for the message (``"camera.json: key 'c'"``).
-    error : type
-        Exception class raised.
-
-    Returns
-    -------
-    float
+    """``value`` (a Python or numpy int or float, not a bool) as a finite float, or ``error`` naming ``where``.
 
     Raises
     ------

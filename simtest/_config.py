@@ -1,12 +1,8 @@
 """The pieces the config models share: strict field types and the one-line error of a bad key.
 
-Scene, suite and dataset files are validated by pydantic dataclasses (``CONFIG``: unknown keys
-refused, no NaN or infinity, frozen). A TOML value must already have the field's type: a float
-field takes an integer (``n = 80``), an integer field takes an integral float (``width_px = 400.0``),
-nothing else is coerced (no ``"80"``, no ``true`` for a number). :func:`validation_error` turns
-pydantic's report into the project's one line, ``"<file>: <key.path>: <reason>"``
-(:func:`simtest._checks.keyed_error`): the reason, the allowed range or choices, and the
-offending value as `` (got <value>)``.
+Scene, suite and dataset files are pydantic dataclasses (``CONFIG``: unknown keys refused, no NaN or
+infinity). A float field takes an integer, an integer field an integral float; nothing else is coerced.
+:func:`validation_error` turns pydantic's report into ``"<file>: <key.path>: <reason> (got <value>)"``.
 """
 
 from __future__ import annotations
@@ -160,19 +156,17 @@ def validation_error(error: type[E], source: str, exc: ValidationError, prefix: 
     source : str
         The file being validated (or ``"<dict>"``).
     exc : pydantic.ValidationError
-        What the model refused.
     prefix : str
-        Key path of the validated table inside the file (``"sweep.noise"``), "" for the root.
+        Key path of the validated table inside the file, "" for the root.
     known : callable, optional
-        ``loc -> "a, b, c"``: the keys allowed where an unknown key was found, for the message.
+        ``loc -> "a, b, c"``: the keys allowed where an unknown key was found.
     cls : type, optional
-        The model validated: a value out of a field's two-sided range names the whole interval.
+        The model validated: a value out of a two-sided range names the whole interval.
 
     Returns
     -------
     Exception
-        ``error("<source>: <key.path>: <reason>")``; the reason names the value and, for a value out
-        of range, the bound (``"-3.0 is out of range: must be > 0"``).
+        ``error("<source>: <key.path>: <reason>")``, the reason naming the value and any bound.
     """
     e = exc.errors(include_url=False)[0]
     kind, loc, value, ctx = e["type"], tuple(e["loc"]), e.get("input"), e.get("ctx") or {}
@@ -221,19 +215,7 @@ def validated(cls: Any, data: Any, error: type[Exception], source: str, prefix: 
               known: Callable[[tuple], str | None] | None = None) -> Any:
     """``data`` validated as ``cls`` (a pydantic dataclass or a type), or the one-line ``error``.
 
-    Parameters
-    ----------
-    cls : type
-        What ``data`` must be.
-    data : object
-        The table (or value) as read from the file.
-    error, source, prefix, known
-        As for :func:`validation_error`.
-
-    Returns
-    -------
-    object
-        The validated value.
+    ``error``, ``source``, ``prefix``, ``known`` as for :func:`validation_error`.
 
     Raises
     ------

@@ -1,10 +1,7 @@
 """The one way simtest reaches a Dask distributed cluster: ``--scheduler tcp://HOST:PORT``.
 
-``simtest dataset generate``, ``simtest validate`` and ``simtest nightly`` spread their work over
-an existing cluster through its scheduler's address. The address is checked before anything
-connects (a typo fails in one line, not after a time-out), and the connection waits at most
-:data:`CONNECT_TIMEOUT`. Dask is an optional back-end (``pip install "simtest[dask]"``), imported
-here only when a scheduler is given (:func:`simtest._lazy.require`).
+The address is checked before anything connects, the connection waits at most :data:`CONNECT_TIMEOUT`,
+and Dask (``pip install "simtest[dask]"``) is imported only when a scheduler is given.
 """
 
 from __future__ import annotations
@@ -28,20 +25,14 @@ class SchedulerError(ValueError):
 
 
 def check_scheduler_address(address: str) -> None:
-    """Refuse a scheduler address that cannot work, before trying to connect.
-
-    Parameters
-    ----------
-    address : str
-        ``PROTOCOL://HOST:PORT``, e.g. ``tcp://127.0.0.1:8786``.
+    """Refuse a scheduler address (``PROTOCOL://HOST:PORT``) that cannot work, before trying to connect.
 
     Raises
     ------
     SchedulerError
-        If the address has no known protocol or port, or its host name does not resolve; the
-        message names the address and why.
+        If the address has no known protocol or port, or its host does not resolve (one line).
     simtest._lazy.MissingBackend
-        If Dask's ``distributed`` is not installed (the message names the extra).
+        If Dask's ``distributed`` is not installed.
     """
     addressing = require("distributed.comm.addressing", purpose="--scheduler")
     where = f"--scheduler {address!r}"
@@ -63,19 +54,9 @@ def check_scheduler_address(address: str) -> None:
 
 
 def connect(address: str, timeout: str | None = None):
-    """A ``distributed.Client`` of the cluster at ``address`` (not made the default client).
+    """A ``distributed.Client`` of the cluster at ``address`` (not the default client; close it when done).
 
-    Parameters
-    ----------
-    address : str
-        The scheduler's address (:func:`check_scheduler_address`).
-    timeout : str, optional
-        How long to wait for the scheduler (Dask's time string); default :data:`CONNECT_TIMEOUT`.
-
-    Returns
-    -------
-    distributed.Client
-        Close it when done.
+    ``timeout`` is Dask's time string, default :data:`CONNECT_TIMEOUT`.
 
     Raises
     ------

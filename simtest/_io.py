@@ -1,9 +1,7 @@
-"""Atomic file writes (a reader never sees a half-written file) and the one JSON coercion.
+"""Atomic file writes (a reader never sees a half-written file), atomic folder sets, and the one JSON coercion.
 
-Every writer in simtest goes through :func:`atomic_write`: the content is written to a temporary
-file in the destination folder (same file system), flushed to disk, then renamed over the
-destination with ``os.replace``. If writing fails or the process is killed, the destination keeps
-its previous content and the temporary file (``.<name>.<random>.tmp``) is removed when possible.
+A file is written to a temporary ``.<name>.<random>.tmp`` in its folder, fsynced, then renamed over the
+destination; on failure the destination keeps its previous content.
 """
 
 from __future__ import annotations
@@ -23,33 +21,28 @@ from typing import Any
 import numpy as np
 
 __all__ = ["TMP_SUFFIX", "OutputFolderError", "atomic_write", "atomic_write_bytes", "atomic_write_json",
-           "atomic_write_text", "check_output_folder", "jsonable",
-           "recover_output_folder", "replace_output_folder"]
+           "atomic_write_text", "check_output_folder", "jsonable", "recover_output_folder", "replace_output_folder"]
 
 #: Suffix of every temporary file this module creates.
 TMP_SUFFIX = ".tmp"
 
 
 def jsonable(obj: Any, *, default: Callable[[Any], Any] | None = None) -> Any:
-    """A deep copy of ``obj`` made of the types ``json.dumps`` writes, for every room's JSON files.
+    """A deep copy of ``obj`` made of the types ``json.dumps`` writes.
 
-    Mappings become dicts with ``str`` keys, lists and tuples become lists, numpy arrays nested
-    lists (``tolist``), numpy scalars Python scalars (``item``); ``str``, ``int``, ``float``,
-    ``bool`` and None are kept as they are (so ``1.0`` stays a float and a case key written from it
-    does not change).
+    Mappings become dicts with ``str`` keys, lists and tuples lists, numpy arrays nested lists, numpy scalars
+    Python scalars; ``str``, ``int``, ``float``, ``bool`` and None are kept (``1.0`` stays a float).
 
     Parameters
     ----------
     obj : object
         Nested mappings, sequences, arrays and scalars.
     default : callable, optional
-        Applied to any other value (e.g. ``str`` for the dates TOML reads); without it such a value
-        is kept as it is (``json.dumps`` then refuses it).
+        Applied to any other value (e.g. ``str`` for TOML dates); without it such a value is kept.
 
     Returns
     -------
     object
-        The converted copy; ``json.loads(json.dumps(jsonable(obj)))`` equals it for string keys.
 
     Examples
     --------
@@ -75,14 +68,13 @@ def _default_mode() -> int:
 
 
 def atomic_write(path, write: Callable[[str], None], *, suffix: str = TMP_SUFFIX) -> Path:
-    """Call ``write(tmp_path)`` on a temporary file, then rename it to ``path``.
+    """Call ``write(tmp_path)`` on a temporary file, then rename it to ``path`` (its folder created if needed).
 
     Parameters
     ----------
     path : str or Path
-        Destination; its folder is created if needed.
     write : callable
-        Writes the whole content to the path it is given (e.g. ``fig.savefig``, ``np.savez``).
+        Writes the whole content to the path it is given (e.g. ``fig.savefig``).
     suffix : str
         Suffix of the temporary file, for writers that infer the format from it (e.g. ``".png"``).
 
@@ -99,8 +91,7 @@ def atomic_write(path, write: Callable[[str], None], *, suffix: str = TMP_SUFFIX
         write(tmp)
         with open(tmp, "rb+") as fh:
             os.fsync(fh.fileno())
-        # mkstemp creates the file 0600; give it the mode an ordinary write would, so datasets
-        # and reports are readable by the people they are shared with.
+        # mkstemp creates the file 0600: give it the mode an ordinary write would
         os.chmod(tmp, _default_mode())
         os.replace(tmp, path)
     except BaseException:
@@ -111,38 +102,22 @@ def atomic_write(path, write: Callable[[str], None], *, suffix: str = TMP_SUFFIX
 
 
 def atomic_write_bytes(path, data: bytes) -> Path:
-    """Write ``data`` to ``path`` atomically (see the module docstring)."""
+    """Write ``data`` to ``path`` atomically."""
     return atomic_write(path, lambda tmp: Path(tmp).write_bytes(data))
 
 
 def atomic_write_text(path, text: str) -> Path:
-    """Write ``text`` (UTF-8) to ``path`` atomically (see the module docstring)."""
+    """Write ``text`` (UTF-8) to ``path`` atomically."""
     return atomic_write(path, lambda tmp: Path(tmp).write_text(text, encoding="utf-8"))
 
 
 def atomic_write_json(path, obj, *, indent: int = 1, **dumps_kwargs) -> Path:
-    """Write ``obj`` as JSON, ``json.dumps(obj, indent=indent, **dumps_kwargs)`` and a newline.
-
-    Parameters
-    ----------
-    path : str or Path
-        Destination, written atomically (see the module docstring).
-    obj : object
-        JSON-serialisable value.
-    indent : int
-        Indentation of ``json.dumps``.
-    **dumps_kwargs
-        Further ``json.dumps`` options (``sort_keys``, ``allow_nan``, ...).
-
-    Returns
-    -------
-    Path
-        The destination.
+    """Write ``json.dumps(obj, indent=indent, **dumps_kwargs)`` and a newline to ``path`` atomically.
 
     Raises
     ------
     TypeError, ValueError
-        From ``json.dumps`` (not serialisable, or NaN with ``allow_nan=False``); nothing is written.
+        From ``json.dumps``; nothing is written.
     """
     return atomic_write_text(path, json.dumps(obj, indent=indent, **dumps_kwargs) + "\n")
 
@@ -152,8 +127,7 @@ class OutputFolderError(ValueError):
 
 
 def _owned(rel: tuple[str, ...], is_dir: bool, owned) -> bool:
-    """Whether the entry at the relative path ``rel`` is one a command with ``owned`` writes: a
-    file whose path matches a pattern part by part, a folder that a pattern's path goes through."""
+    """Whether the entry at relative path ``rel`` matches a pattern of ``owned`` (a folder: one a pattern crosses)."""
     for pat in owned:
         parts = tuple(pat.split("/"))
         n = len(rel)
@@ -167,18 +141,16 @@ def _owned(rel: tuple[str, ...], is_dir: bool, owned) -> bool:
 def check_output_folder(out, owned, option: str = "--out") -> Path:
     """Refuse an output folder that replacing it as a set would damage.
 
-    A command replaces its output folder as a whole (:func:`replace_output_folder`), so the
-    folder must be new, empty, or hold only what that command writes: a user's file inside would
-    be lost. "What it writes" is the list of names ``owned``, not a marker file: a marker would
-    vouch for a folder in which a user has since saved a file of their own.
+    The folder must be new, empty, or hold only what the command writes (the patterns ``owned``, not a
+    marker file: a user may since have saved a file of their own there).
 
     Parameters
     ----------
     out : str or Path
         The folder a command replaces as a whole.
     owned : sequence of str
-        ``fnmatch`` patterns of the files the command writes there, relative to ``out`` with
-        ``/`` between folders (``"figures/*.png"`` owns the folder ``figures`` and its PNGs).
+        ``fnmatch`` patterns of the files the command writes, relative to ``out`` with ``/`` between folders
+        (``"figures/*.png"`` owns the folder ``figures`` and its PNGs).
     option : str
         The option that named ``out``, for the messages.
 
@@ -190,9 +162,8 @@ def check_output_folder(out, owned, option: str = "--out") -> Path:
     Raises
     ------
     OutputFolderError
-        If ``out`` is a file, is the current folder or one of its ancestors (it cannot be swapped
-        from under the shell), or holds an entry no pattern of ``owned`` matches (it would be
-        lost): the message names the folder and up to three such entries.
+        If ``out`` is a file, is the current folder or an ancestor of it, or holds an entry no pattern
+        matches (the message names up to three).
 
     Examples
     --------
@@ -224,8 +195,7 @@ def check_output_folder(out, owned, option: str = "--out") -> Path:
             if os.path.islink(os.path.join(root, name)) or not _owned((*base, name), True, owned):
                 other.append("/".join((*base, name)))
                 dirs.remove(name)  # not looked into: it is not ours as a whole
-        other += ["/".join((*base, name)) for name in sorted(files)
-                  if not _owned((*base, name), False, owned)]
+        other += ["/".join((*base, name)) for name in sorted(files) if not _owned((*base, name), False, owned)]
     if other:
         raise OutputFolderError(
             f"{option}: {out} holds files this command does not write ({', '.join(other[:3])}"
@@ -236,16 +206,11 @@ def check_output_folder(out, owned, option: str = "--out") -> Path:
 
 #: The prefix of a previous set renamed aside by the fallback swap (``.<name>.old-*``).
 _OLD = ".old-"
-
-
 _libc = None
 
 
 def _exchange(a: Path, b: Path) -> bool:
-    """Swap two paths in one atomic step (Linux ``renameat2(RENAME_EXCHANGE)``).
-
-    Returns False where the system or the file system does not offer it (then nothing changed).
-    """
+    """Swap two paths atomically (Linux ``renameat2(RENAME_EXCHANGE)``); False, nothing changed, where unsupported."""
     global _libc
     if _libc is None:
         try:
@@ -274,14 +239,9 @@ def _fsync_dir(path: Path) -> None:
 
 
 def recover_output_folder(out) -> bool:
-    """Put back the previous set if a kill left ``out`` missing between the two renames of the
-    fallback swap (the previous set then sits beside it as ``.<name>.old-*``), and remove what
-    killed runs left beside ``out`` (their temporary folders). Call it holding the parent's lock.
+    """Undo a killed swap: put back the previous set (``.<name>.old-*``) if ``out`` is missing, remove stale folders.
 
-    Returns
-    -------
-    bool
-        True if a previous set was put back.
+    Call it holding the parent's lock. Returns True if a previous set was put back.
     """
     out = Path(out)
     if not out.parent.is_dir():
@@ -301,7 +261,7 @@ def recover_output_folder(out) -> bool:
 
 
 def _swap_by_two_renames(tmp: Path, out: Path) -> None:
-    """The fallback swap: ``out`` aside to ``.<name>.old-*``, then ``tmp`` in (module docs)."""
+    """The fallback swap: ``out`` aside to ``.<name>.old-*``, then ``tmp`` in."""
     old = Path(tempfile.mkdtemp(prefix=f".{out.name}{_OLD}", dir=out.parent))
     os.rmdir(old)
     try:
@@ -316,22 +276,12 @@ def _swap_by_two_renames(tmp: Path, out: Path) -> None:
 
 
 def replace_output_folder(out, fill: Callable[[Path], None], owned=None) -> Path:
-    """Write a folder as a set: ``fill(tmp)`` writes every file into a fresh folder beside ``out``,
-    which then takes the place of ``out`` in one atomic step.
+    """Write a folder as a set: ``fill(tmp)`` fills a fresh folder beside ``out``, which then replaces ``out``.
 
-    Whatever stops the process (an exception, SIGKILL, a full disk), ``out`` holds either its whole
-    previous set or the whole new one, never new files beside old ones:
-
-    - while ``fill`` runs, ``out`` is untouched; on an exception the temporary folder is removed;
-    - the swap is ``renameat2(RENAME_EXCHANGE)`` (Linux), one step; a new ``out`` is one rename;
-    - where the file system lacks the exchange, ``out`` is renamed aside to ``.<name>.old-*`` and
-      the new folder renamed in; a kill between the two leaves no ``out`` and the whole previous
-      set aside, which the next call (:func:`recover_output_folder`) puts back before anything.
-
-    Two processes writing the same folder are serialised by a lock on its parent folder (``flock``
-    on the folder itself, so no lock file is left behind). The caller checks ``out`` before any
-    work (:func:`check_output_folder`); with ``owned`` the check is made again under the lock
-    just before the swap, so that a file put there during a long run is not lost either.
+    Whatever stops the process, ``out`` holds its whole previous set or the whole new one: the swap is
+    ``renameat2(RENAME_EXCHANGE)``, or two renames that :func:`recover_output_folder` completes after a kill.
+    Writers of one folder are serialised by ``flock`` on its parent; with ``owned`` the
+    :func:`check_output_folder` check is repeated under the lock just before the swap.
 
     Parameters
     ----------
@@ -340,7 +290,7 @@ def replace_output_folder(out, fill: Callable[[Path], None], owned=None) -> Path
     fill : callable
         Writes the whole set into the folder it is given.
     owned : sequence of str, optional
-        The patterns of :func:`check_output_folder`: what ``out`` may hold to be replaced.
+        The patterns of :func:`check_output_folder`.
 
     Returns
     -------

@@ -1,13 +1,8 @@
 """The one lazy-import helper, for the optional heavy back-ends.
 
-simtest imports its dependencies at the top of each module, so that the dependency graph is
-visible. A few back-ends are the exception, because they are heavy to import (seconds) or not
-installed everywhere: Mitsuba 3 / Dr.Jit (rendering), Dask (a dataset on a cluster), PyTorch (the
-dataset reader as a ``torch.utils.data.Dataset``), PyVista (3D views), pyarrow (a video's
-``estimates.parquet``), and where ``simtest reconstruct`` may not need them, SciPy (the light-aware
-fits) and matplotlib (the overlay). Code that needs one calls
-:func:`require` where it is used; a missing back-end then gives one readable line naming what to
-install, instead of an ``ImportError`` traceback at ``import simtest``.
+simtest imports its dependencies at module top, except back-ends that are heavy to import or not
+installed everywhere (:data:`BACKENDS`): code that needs one calls :func:`require` where it is used, and a
+missing back-end gives one line naming what to install instead of an ``ImportError`` at ``import simtest``.
 
 Examples
 --------
@@ -24,22 +19,11 @@ from types import ModuleType
 
 __all__ = ["BACKENDS", "MissingBackend", "install_hint", "require"]
 
-#: Top-level package of each optional back-end -> the extra of simtest that installs it, or None
-#: for a back-end that plain ``pip install simtest`` already brings (missing only in a broken or
-#: hand-trimmed environment).
-BACKENDS: dict[str, str | None] = {
-    "mitsuba": None,
-    "drjit": None,
-    "dask": "dask",
-    "distributed": "dask",
-    "pyvista": "view",
-    "vtkmodules": "view",  # VTK, which pyvista brings: its logger is silenced for the 3D views
-    "torch": "torch",
-    "pyarrow": None,  # estimates.parquet only: about a second of imports one image does without
-    "scipy": None,  # the light-aware fits and the overlay's spacing: ~1 s a frame without a rig skips
-    "matplotlib": None,  # the report figures: ~1 s the command line's start skips
-    "tifffile": None,  # C3VD's TIFFs: 0.05 to 0.15 s of `simtest reconstruct IMAGE`'s start
-}
+#: Top-level package of each optional back-end -> the extra of simtest that installs it, or None for one
+#: that plain ``pip install simtest`` brings (lazy because it is slow to import and often not needed)
+BACKENDS: dict[str, str | None] = {"mitsuba": None, "drjit": None, "dask": "dask", "distributed": "dask",
+                                   "pyvista": "view", "vtkmodules": "view", "torch": "torch", "pyarrow": None,
+                                   "scipy": None, "matplotlib": None, "tifffile": None}
 
 
 def install_hint(package: str) -> str:
@@ -55,29 +39,16 @@ class MissingBackend(ImportError):
 
 
 def require(module: str, *, purpose: str | None = None) -> ModuleType:
-    """Import an optional heavy back-end (or one of its submodules) when it is first needed.
+    """Import an optional back-end (or one of its submodules, e.g. ``"torch.utils.data"``) when first needed.
 
-    Parameters
-    ----------
-    module : str
-        Dotted module name whose top-level package is in :data:`BACKENDS`, e.g. ``"mitsuba"``,
-        ``"distributed"`` or ``"torch.utils.data"``.
-    purpose : str, optional
-        What needs it, for the error message (e.g. ``"--scheduler"``).
-
-    Returns
-    -------
-    module
-        The imported module (``sys.modules`` caches it: a second call costs a dict lookup).
+    ``purpose`` names what needs it in the error message (e.g. ``"--scheduler"``).
 
     Raises
     ------
     MissingBackend
-        If the back-end is not installed: ``"<purpose> needs <package>, which is not installed:
-        <install command>"``.
+        If the back-end is not installed: ``"<purpose> needs <package>, which is not installed: <command>"``.
     ValueError
-        If ``module`` is not one of the optional back-ends (every other import belongs at module
-        top).
+        If ``module`` is not one of the optional back-ends.
     """
     top = module.split(".", 1)[0]
     if top not in BACKENDS:

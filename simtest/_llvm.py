@@ -1,8 +1,7 @@
 """Locate an LLVM shared library that Dr.Jit's llvm variants accept (LLVM 16 or newer).
 
-Dr.Jit reads ``DRJIT_LIBLLVM_PATH`` when it first loads. Debian's libllvm15 crashes at the first
-kernel and libllvm14 is refused, so simtest points Dr.Jit at ``libLLVM-19.so`` (Debian package
-``libllvm19``) unless the user has set the variable. This module imports nothing heavy.
+Dr.Jit reads ``DRJIT_LIBLLVM_PATH`` when it first loads; Debian's libllvm15 crashes at the first kernel
+and libllvm14 is refused, so simtest points it at the newest LLVM >= 16 found unless the user set it.
 """
 
 from __future__ import annotations
@@ -28,13 +27,7 @@ def _major(path: str) -> int | None:
 
 
 def find_libllvm() -> str | None:
-    """Return the path of the newest LLVM >= 16 shared library found, or None.
-
-    Returns
-    -------
-    str or None
-        An absolute path such as ``/usr/lib/x86_64-linux-gnu/libLLVM-19.so``.
-    """
+    """The path of the newest LLVM >= 16 shared library found (e.g. ``.../libLLVM-19.so``), or None."""
     found: list[tuple[int, str]] = []
     for pattern in _SEARCH:
         for path in glob.glob(pattern):

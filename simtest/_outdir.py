@@ -1,11 +1,8 @@
 """The command line's output folders: checked before any work, written as a set, one-line errors.
 
-A command that writes a folder replaces it as a whole (:func:`simtest._io.replace_output_folder`),
-so the folder must be new, empty, or hold only what that command writes
-(:func:`simtest._io.check_output_folder`): a user's file there is never lost. Every command that
-replaces a folder goes through these two functions, with the exit codes of :mod:`simtest._exit`
-(4: the folder cannot be written, 2: a bad input found while writing). Kept apart from
-:mod:`simtest._exit` so that ``simtest --help`` never imports numpy.
+A command's folder is replaced as a whole (:func:`simtest._io.replace_output_folder`), so it must be new,
+empty, or hold only what the command writes. Kept apart from :mod:`simtest._exit` so that ``simtest
+--help`` never imports numpy.
 """
 
 from __future__ import annotations
@@ -27,21 +24,19 @@ def check_out_folder(out: Path | str, owned, option: str = "--out") -> Path:
     out : path-like
         The folder as given.
     owned : sequence of str
-        The patterns of :func:`simtest._io.check_output_folder`: the files the command writes
-        there (nothing else may be there).
+        The patterns of :func:`simtest._io.check_output_folder`.
     option : str
         The option's name, for messages.
 
     Returns
     -------
     pathlib.Path
-        The folder's real path (symbolic links and ``..`` resolved): the one swapped.
+        The folder's real path (the one swapped).
 
     Raises
     ------
     typer.Exit
-        With :data:`CANNOT_WRITE` and one line saying why: a file in the way, a read-only or full
-        folder, files the command does not write inside, the current folder.
+        With :data:`CANNOT_WRITE` and one line saying why.
     """
     writable_dir(out, option)
     try:
@@ -56,32 +51,15 @@ def check_out_folder(out: Path | str, owned, option: str = "--out") -> Path:
 
 def write_out_folder(out: Path | str, target: Path | str, fill, owned=None,
                      option: str = "--out") -> Path:
-    """:func:`simtest._io.replace_output_folder` with one-line errors.
+    """:func:`simtest._io.replace_output_folder` of ``target`` (from :func:`check_out_folder`) with one-line errors.
 
-    Parameters
-    ----------
-    out : path-like
-        The folder as the user gave it, for messages.
-    target : path-like
-        The folder :func:`check_out_folder` returned.
-    fill : callable
-        Writes the whole set into the folder it is given.
-    owned : sequence of str, optional
-        Checked again under the folder's lock just before the swap.
-    option : str
-        The option's name, for messages.
-
-    Returns
-    -------
-    pathlib.Path
-        ``target``.
+    ``out`` is the folder as given, for messages; ``owned`` is checked again just before the swap.
 
     Raises
     ------
     typer.Exit
-        :data:`CANNOT_WRITE` for an OSError (disk full, permissions) or files that appeared in
-        the folder meanwhile, :data:`BAD_INPUT` for a bad input found while writing (ValueError,
-        a missing optional library); the folder keeps its previous set either way.
+        :data:`CANNOT_WRITE` for an OSError or files that appeared meanwhile, :data:`BAD_INPUT` for a bad input
+        found while writing (ValueError, a missing optional library); the folder keeps its previous set.
     """
     try:
         return replace_output_folder(target, fill, owned=owned)

@@ -1,13 +1,8 @@
 """A faster ``__init__`` for the frozen dataclasses a frame builds by the thousand.
 
-A frozen dataclass' generated ``__init__`` sets each field through ``object.__setattr__`` (its
-own ``__setattr__`` refuses), several times the cost of an unfrozen one's.
-:func:`fast_init` gives such a class an ``__init__``
-that writes the fields straight into the instance's ``__dict__``: the same signature, the same
-attributes in the same order, ``__post_init__`` called as before, and the class stays frozen
-(assignment after construction raises ``dataclasses.FrozenInstanceError``).
-``tests/test_shared_helpers.py`` checks every decorated class against its generated
-``__init__``.
+A frozen dataclass' generated ``__init__`` sets each field through ``object.__setattr__``; :func:`fast_init`
+writes them straight into ``__dict__``, with the same signature, ``__post_init__`` called, the class still
+frozen. ``tests/test_shared_helpers.py`` checks every decorated class against its generated ``__init__``.
 
 Examples
 --------
@@ -33,19 +28,10 @@ GENERATED_INIT: dict[type, object] = {}
 
 
 def fast_init(cls: type) -> type:
-    """Give a frozen dataclass an ``__init__`` that fills the instance's ``__dict__`` directly.
+    """Give a frozen dataclass an ``__init__`` that fills the instance's ``__dict__`` directly; return ``cls``.
 
-    Parameters
-    ----------
-    cls : type
-        A class decorated with ``@dataclass(frozen=True)`` (apply this decorator above it),
-        without ``slots``, whose fields are all set by ``__init__`` (no ``init=False``), given
-        positionally or by keyword (no ``kw_only``), with plain defaults (no ``default_factory``).
-
-    Returns
-    -------
-    type
-        ``cls``, its ``__init__`` replaced.
+    ``cls`` must be ``@dataclass(frozen=True)`` (apply this decorator above it) without ``slots``,
+    ``init=False``, ``kw_only`` or ``default_factory`` fields.
 
     Raises
     ------

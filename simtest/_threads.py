@@ -1,13 +1,8 @@
 """One thread per process for the numerical libraries, where processes are the parallelism.
 
-A process pool on every core already fills the machine; a BLAS library that starts its own
-threads in each worker then only adds threads that wait for work by spinning (OpenBLAS does so
-after each call), on the cores the other workers need.
-
-:func:`one_thread_each` covers both ways a worker starts: a forked worker inherits this process's
-BLAS settings (set at run time by threadpoolctl, as the environment is read only when the library
-loads), a spawned one reads the environment (``OPENBLAS_NUM_THREADS`` and the like) when it
-imports numpy.
+In a pool on every core, each worker's BLAS threads only spin on the cores other workers need.
+:func:`one_thread_each` covers forked workers (threadpoolctl's run-time limit, inherited) and spawned ones
+(the environment, read when they import numpy).
 """
 
 from __future__ import annotations
@@ -25,17 +20,10 @@ __all__ = ["one_thread_each"]
 
 @contextlib.contextmanager
 def one_thread_each() -> Iterator[None]:
-    """Within the block, this process and the worker processes it starts (forked or spawned) run
-    BLAS and OpenMP on one thread each; on leaving, the previous limits and environment return.
+    """Within the block, this process and the workers it starts run BLAS and OpenMP on one thread each.
 
-    Yields
-    ------
-    None
-
-    Notes
-    -----
-    The run-time limit is threadpoolctl's (https://github.com/joblib/threadpoolctl), the
-    environment :data:`simtest.constants.SINGLE_THREAD_ENV`.
+    Uses threadpoolctl's run-time limit and :data:`simtest.constants.SINGLE_THREAD_ENV`; on leaving, the
+    previous limits and environment return.
     """
     saved = {k: os.environ.get(k) for k in SINGLE_THREAD_ENV}
     os.environ.update(SINGLE_THREAD_ENV)

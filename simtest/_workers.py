@@ -1,20 +1,10 @@
 """Worker processes that end with the command that started them.
 
-Every process pool of simtest (a suite's realisations, a video's frames, a frame's light-aware
-fits) is a :func:`worker_pool`. Its workers
-
-- die with their parent, even one killed by SIGKILL, which no handler sees (Linux
-  ``prctl(PR_SET_PDEATHSIG)``; elsewhere the parent's handlers below still stop them);
-- ignore SIGINT: a Ctrl-C reaches the terminal's whole process group, and a worker that raised
-  KeyboardInterrupt would print its own traceback on the caller's standard error; the parent
-  stops them instead;
-- take SIGTERM's default action (a forked worker would otherwise inherit the parent's handler).
-
-When the block around the pool is left by an exception (an error, or the KeyboardInterrupt that
-SIGINT or SIGTERM raises in the command, :func:`simtest._exit.signals_interrupt`), the workers
-are terminated at once, not after the tasks they hold, and waited for; so is every child process
-left when the command line stops on a signal (:func:`stop_workers` with no pool). A pool's own
-``shutdown`` would instead run every task already queued before returning.
+The workers of a :func:`worker_pool` die with their parent, even one SIGKILLed (Linux
+``prctl(PR_SET_PDEATHSIG)``), ignore SIGINT (the parent stops them; no traceback of theirs on the
+caller's terminal) and take SIGTERM's default action. When the block is left by an exception (Ctrl-C and
+SIGTERM included, :func:`simtest._exit.signals_interrupt`) the workers are terminated at once, not after
+the queued tasks, and waited for.
 """
 
 from __future__ import annotations
@@ -30,10 +20,7 @@ from concurrent.futures import ProcessPoolExecutor
 
 __all__ = ["STOP_WAIT_S", "new_pool", "stop_workers", "worker_pool"]
 
-#: Seconds a terminated worker is given to exit before it is killed (SIGKILL). A worker in a
-#: compiled kernel still ends on SIGTERM at once (its default action needs no Python); the wait
-#: only covers the kernel's scheduling, and keeps the whole stop within the 5 s the command line
-#: promises (README, "Exit codes").
+#: Seconds a terminated worker is given to exit before it is killed (within the 5 s stop the README promises)
 STOP_WAIT_S = 2.0
 
 #: Linux prctl option: the signal the kernel sends this process when its parent dies.
@@ -41,10 +28,7 @@ _PR_SET_PDEATHSIG = 1
 
 
 def _die_with_parent(parent_pid: int) -> None:
-    """Ask the kernel to SIGKILL this process when its parent dies (Linux; elsewhere a no-op).
-
-    If the parent died before the request was made (the race the man page names), exit at once.
-    """
+    """Ask the kernel to SIGKILL this process when its parent dies (Linux); exit at once if it already did."""
     if not sys.platform.startswith("linux"):
         return
     try:
@@ -68,14 +52,7 @@ def _worker_start(parent_pid: int, initializer: Callable | None, initargs: tuple
 
 def new_pool(max_workers: int, *, mp_context=None, initializer: Callable | None = None,
              initargs: tuple = ()) -> ProcessPoolExecutor:
-    """The pool of :func:`worker_pool` (same parameters), for a caller that holds it beyond one block.
-
-    Returns
-    -------
-    ProcessPoolExecutor
-        Its workers set up as the module docstring says; the caller shuts it down, or stops it
-        with :func:`stop_workers`.
-    """
+    """The pool of :func:`worker_pool` (same parameters), for a caller that holds it beyond one block."""
     return ProcessPoolExecutor(max_workers=max_workers, mp_context=mp_context, initializer=_worker_start,
                                initargs=(os.getpid(), initializer, initargs))
 
@@ -88,20 +65,17 @@ def worker_pool(max_workers: int, *, mp_context=None, initializer: Callable | No
     Parameters
     ----------
     max_workers : int
-        Worker processes.
     mp_context : multiprocessing context, optional
         How workers start (``fork``, ``spawn``); the platform's default if None.
     initializer : callable, optional
         Run in each worker after the signal set-up, with ``initargs``.
     initargs : tuple
-        Arguments of ``initializer``.
 
     Yields
     ------
     ProcessPoolExecutor
-        Shut down normally (every submitted task run) when the block ends normally; on an
-        exception, its workers are stopped at once (:func:`stop_workers`) and the exception
-        goes on.
+        Shut down normally when the block ends normally; on an exception its workers are stopped at once
+        (:func:`stop_workers`) and the exception goes on.
     """
     pool = new_pool(max_workers, mp_context=mp_context, initializer=initializer, initargs=initargs)
     try:
@@ -113,23 +87,10 @@ def worker_pool(max_workers: int, *, mp_context=None, initializer: Callable | No
 
 
 def stop_workers(pool: ProcessPoolExecutor | None = None) -> int:
-    """Terminate a pool's workers (or, with no pool, every child process that multiprocessing
-    started here), wait for them, and shut the pool down without running its queued tasks.
+    """Terminate a pool's workers (None: every child multiprocessing started here), wait, and shut it down.
 
-    Parameters
-    ----------
-    pool : ProcessPoolExecutor, optional
-        The pool; None: :func:`multiprocessing.active_children`.
-
-    Returns
-    -------
-    int
-        The processes stopped.
-
-    Notes
-    -----
-    A pool keeps its processes in the private ``_processes`` and its result pipe in
-    ``_result_queue`` (CPython 3.9 to 3.13; 3.14 adds ``terminate_workers``). :mod:`simtest.dataset.generate` stops its own pool with it too.
+    Queued tasks are not run. Uses the pool's private ``_processes`` and ``_result_queue`` (CPython 3.9 to
+    3.13). Returns the number of processes stopped.
     """
     if pool is None:
         procs = multiprocessing.active_children()
@@ -145,11 +106,8 @@ def stop_workers(pool: ProcessPoolExecutor | None = None) -> int:
                 p.kill()
                 p.join(STOP_WAIT_S)
     if pool is not None:
-        # A worker stopped while it sent a result leaves the pool's manager thread reading the
-        # rest of that message, which never comes: this process holds the result pipe's other
-        # write end, so the read sees no end of file, and ``shutdown`` would wait for that
-        # thread forever. With every worker gone, closing it ends the read; the pool marks
-        # itself broken and shuts down.
+        # a worker stopped mid-result leaves the manager thread reading forever (this process holds
+        # the pipe's other write end): closing it ends the read, and the pool shuts down broken
         writer = getattr(getattr(pool, "_result_queue", None), "_writer", None)
         if writer is not None:
             with contextlib.suppress(OSError):

@@ -1,15 +1,8 @@
 """``simtest bench``: run the clone's speed benchmarks and print them as one table.
 
-The benchmarks live outside the package, in the ``benchmarks/`` folder at the top of a clone
-(``benchmarks.SECTIONS`` names each section's function); this module finds that folder beside the
-package (an editable install or a clone on ``sys.path``), runs the sections asked for and prints
-each figure's median and minimum beside its unit and target. A wheel ships no benchmarks: there
-the command says so in one line.
-
-A section is a function ``f(repeat: int) -> list[BenchResult]``. A function without a ``repeat``
-parameter is called with no argument; one with a ``variant`` parameter gets ``--variant``; a
-``dict`` it returns is shown flattened, one row per numeric leaf (``a/b/c``; the unit is read from
-a ``_s``, ``_ms``, ``_per_s``, ``_mib`` suffix).
+The benchmarks live in a clone's ``benchmarks/`` folder (``benchmarks.SECTIONS``); a wheel ships none.
+A section is ``f(repeat: int) -> list[BenchResult]`` (``repeat`` and ``variant`` passed when it takes
+them); a ``dict`` result is flattened, one row per numeric leaf, the unit read from its suffix.
 """
 
 from __future__ import annotations
@@ -38,9 +31,7 @@ CLONE_ROOT = Path(str(files("simtest"))).resolve().parent
 
 @dataclass(frozen=True)
 class BenchResult:
-    """One measured figure: ``section`` and ``name`` (where it comes from, what it measures), its
-    ``value`` (median over the repeats) in ``unit`` (e.g. ``"ms"``), the ``target`` it should
-    meet (same unit, or None), ``best`` (minimum over the repeats, or None) and a free ``note``."""
+    """One measured figure: median ``value`` in ``unit``, ``target`` (or None), ``best`` (minimum), a ``note``."""
 
     section: str
     name: str
@@ -60,13 +51,12 @@ SectionFn = Callable[..., "list[BenchResult] | dict"]
 
 
 def load_benchmarks() -> ModuleType:
-    """The clone's ``benchmarks`` package (``CLONE_ROOT/benchmarks``), its folder put on ``sys.path``.
+    """The clone's ``benchmarks`` package, its folder put on ``sys.path``.
 
     Raises
     ------
     LookupError
-        Where there is no such folder (an install from a wheel), or where ``import benchmarks``
-        finds another package of that name.
+        Where there is no such folder (a wheel), or ``import benchmarks`` finds another package.
     """
     folder = CLONE_ROOT / "benchmarks"
     if not (folder / "__init__.py").is_file():
@@ -120,8 +110,7 @@ def _shown(value: float) -> str:
 
 
 def run_section(name: str, fn: SectionFn, repeat: int, variant: str | None = None) -> list[BenchResult]:
-    """Call a section with ``repeat`` if it takes it (and ``variant``, a Mitsuba variant, if it
-    takes one and one is given), and turn a dict result into rows."""
+    """Call a section with ``repeat`` and ``variant`` where it takes them, and turn a dict result into rows."""
     try:
         params = inspect.signature(fn).parameters
     except (TypeError, ValueError):

@@ -1,10 +1,7 @@
 """The `simtest` command line: one command with subcommands.
 
-Each subcommand lives beside the code it drives (``simtest/<package>/cli.py``, ``simtest/bench.py``)
-and is listed in :data:`SUBCOMMANDS` with its one-line help. A subcommand's module, which imports
-the science at its top (numpy, scipy, trimesh, matplotlib, ...), is imported only when that
-subcommand runs or shows its own help, so that ``simtest --help`` and ``simtest version`` answer at
-once and never import Mitsuba.
+Each subcommand lives beside the code it drives and is listed in :data:`SUBCOMMANDS`; its module is
+imported only when it runs or shows its help, so ``simtest --help`` answers at once without Mitsuba.
 """
 
 from __future__ import annotations
@@ -55,10 +52,7 @@ SUBCOMMANDS: dict[str, tuple[str, str, str]] = {
 
 
 def load_subcommand(name: str) -> TyperCommand | TyperGroup:
-    """Import the module of subcommand ``name`` and return it as a command (Typer's Click).
-
-    simtest never imports Click itself: Typer 0.29 and later carry their own copy of it and no
-    longer install Click, so every command object here comes from Typer."""
+    """Import the module of subcommand ``name`` and return it as a command (Typer's own Click)."""
     module, attr, _ = SUBCOMMANDS[name]
     obj = getattr(importlib.import_module(module), attr)
     if isinstance(obj, typer.Typer):
@@ -71,12 +65,7 @@ def load_subcommand(name: str) -> TyperCommand | TyperGroup:
 
 
 def _plain_help(cmd):
-    """``cmd`` and its subcommands with Click's plain help, readable at 80 columns.
-
-    Typer's rich panels keep the docstring's line breaks (sentences break mid-line in a narrow
-    terminal), squeeze each option's help into a narrow column and cut defaults; Click's
-    formatter rewraps each paragraph to the terminal's width. Usage lines name arguments as
-    Click does (``IMAGE``, ``[SUITE]``), not Typer's ``{image}``."""
+    """``cmd`` and its subcommands with Click's plain help (paragraphs rewrapped to the terminal, ``IMAGE`` usage)."""
     cmd.rich_markup_mode = None
     if cmd.help and not cmd.short_help:  # a listing wraps its first paragraph, never cuts it
         cmd.short_help = " ".join(cmd.help.split("\n\n")[0].split())
@@ -113,8 +102,7 @@ class _LazyGroup(TyperGroup):
             try:
                 rv = super().invoke(ctx)
             except MissingBackend as exc:
-                # an optional back-end a subcommand needs and the machine lacks (Dask for
-                # --scheduler, PyTorch, ...): its one line, naming the extra to install
+                # an optional back-end the machine lacks: its one line, naming the extra to install
                 if sig.signame is None:
                     fail(exc, BAD_INPUT)
             except typer.Exit as exc:
@@ -132,11 +120,7 @@ class _LazyGroup(TyperGroup):
                  + "; outputs written before are intact", INTERRUPTED)
 
     def main(self, args=None, prog_name=None, complete_var=None, standalone_mode=True, **extra):
-        """Click's ``main`` with every usage error on one line: ``error: <command>: <what>``.
-
-        Click (and Typer's rich box) print a usage line, a hint and a boxed message, 5 to 6
-        lines; here a usage error (unknown flag or command, missing or bad value) prints one
-        line on standard error and exits 2, like every other failure (:mod:`simtest._exit`)."""
+        """Click's ``main`` with every usage error on one line, ``error: <command>: <what>``, exit 2."""
         if not standalone_mode:
             return super().main(args, prog_name, complete_var, standalone_mode, **extra)
         try:
@@ -164,15 +148,10 @@ class _LazyGroup(TyperGroup):
             self._listing = False
 
 
-app = typer.Typer(
-    name="simtest",
-    cls=_LazyGroup,
-    help="Testbed for normal reconstruction from specular isophotes in endoscopy.",
-    no_args_is_help=True,
-    add_completion=False,
-    pretty_exceptions_enable=False,
-    rich_markup_mode=None,  # Click's plain help: see _plain_help
-)
+app = typer.Typer(name="simtest", cls=_LazyGroup,
+                  help="Testbed for normal reconstruction from specular isophotes in endoscopy.",
+                  no_args_is_help=True, add_completion=False, pretty_exceptions_enable=False,
+                  rich_markup_mode=None)  # Click's plain help: see _plain_help
 
 
 def _print_version(value: bool) -> None:
@@ -197,12 +176,7 @@ def version_command() -> None:
 
 
 def quiet_warnings() -> None:
-    """Python warnings (NumPy's RuntimeWarnings, a library's DeprecationWarning) are not printed,
-    here and in worker processes, unless asked for with ``-W`` or ``PYTHONWARNINGS``.
-
-    Standard error carries progress and one ``error:`` line per failure; a condition that
-    matters is checked and reported by simtest itself (the pattern of the Python documentation,
-    "Overriding the default filter")."""
+    """Silence Python warnings here and in worker processes, unless asked for with ``-W`` or ``PYTHONWARNINGS``."""
     if not sys.warnoptions and "PYTHONWARNINGS" not in os.environ:
         warnings.simplefilter("ignore")
         os.environ["PYTHONWARNINGS"] = "ignore"  # worker processes (spawn) start with it
@@ -211,9 +185,8 @@ def quiet_warnings() -> None:
 def main() -> None:
     """Entry point of the ``simtest`` console script.
 
-    Around the command (while Python starts it, and while it shuts down after it), SIGINT and
-    SIGTERM end the process at once with exit status 130 and one line; during the command they
-    raise KeyboardInterrupt, so that its clean-up runs (:meth:`_LazyGroup.invoke`).
+    Around the command SIGINT and SIGTERM exit at once (130, one line); during it they raise
+    KeyboardInterrupt, so its clean-up runs (:meth:`_LazyGroup.invoke`).
     """
     quiet_warnings()
     for s in (signal.SIGINT, signal.SIGTERM):

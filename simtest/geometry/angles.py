@@ -6,30 +6,14 @@ import numpy as np
 
 
 def cross3(a, b) -> np.ndarray:
-    """Cross product of two 3-vectors, bit for bit ``np.cross(a, b)``, ten times cheaper.
-
-    The same products and differences in scalar arithmetic (``a1 b2 - a2 b1``, ...), without
-    ``np.cross``'s broadcasting machinery, which costs more than the arithmetic for one pair.
-
-    Parameters
-    ----------
-    a, b : array_like of shape (3,)
-        Vectors (any units).
-
-    Returns
-    -------
-    ndarray of shape (3,), float64
-    """
+    """Cross product (3,) of two 3-vectors, bit for bit ``np.cross(a, b)`` without its broadcasting overhead."""
     a0, a1, a2 = (float(v) for v in a)
     b0, b1, b2 = (float(v) for v in b)
     return np.array([a1 * b2 - a2 * b1, a2 * b0 - a0 * b2, a0 * b1 - a1 * b0])
 
 
 def angle_between_deg(a, b) -> np.ndarray | float:
-    """Angle between direction vectors, in degrees, accurate for tiny and near-180 angles.
-
-    Computed as ``atan2(|a x b|, a . b)``: unlike ``arccos`` of a normalised dot product, this keeps
-    full relative precision for angles near 0 (arccos(1 - 1e-16) cannot resolve 1e-6 deg).
+    """Angle between direction vectors, in degrees, as ``atan2(|a x b|, a . b)`` (accurate near 0 and 180).
 
     Parameters
     ----------
@@ -39,7 +23,7 @@ def angle_between_deg(a, b) -> np.ndarray | float:
     Returns
     -------
     float or ndarray of shape (...)
-        Angle in degrees, in [0, 180]. NaN where either vector is zero or non-finite.
+        Angle in [0, 180] degrees; NaN where either vector is zero or non-finite.
 
     Raises
     ------
@@ -66,22 +50,10 @@ def angle_between_deg(a, b) -> np.ndarray | float:
 
 
 def unit(v, axis: int | None = None) -> np.ndarray:
-    """``v`` scaled to unit length: ``v / |v|``; the one normalisation of directions in simtest.
+    """``v / |v|``, the one normalisation of directions in simtest (NaN, with a warning, where ``v`` is zero).
 
-    Parameters
-    ----------
-    v : array_like of shape (3,) or (..., 3)
-        Non-zero direction(s) (any length).
-    axis : int, optional
-        None (default): ``v`` is one vector, divided by its norm (``np.linalg.norm(v)``).
-        ``-1``: ``v`` is a stack of vectors along its last axis, each divided by its own norm.
-        The two differ in the last bit (a dot product against a sum of squares), so a caller keeps
-        the one it was written with.
-
-    Returns
-    -------
-    ndarray, float64, the shape of ``v``
-        The unit vector(s); NaN (with a numpy warning) where ``v`` is zero.
+    ``axis`` None: ``v`` is one vector (``np.linalg.norm(v)``); ``-1``: a stack along the last axis, each by
+    its own norm. The two differ in the last bit, so a caller keeps the one it was written with.
     """
     v = np.asarray(v, dtype=np.float64)
     return v / np.linalg.norm(v) if axis is None else v / np.linalg.norm(v, axis=axis, keepdims=True)

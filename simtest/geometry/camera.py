@@ -1,16 +1,8 @@
 """Pinhole intrinsics K: validation, rays and projection.
 
-Convention
-----------
-OpenCV camera frame (x right, y down, z forward) and pixel centres at integer coordinates:
-pixel (u, v) = (column, row) and ``x = K X / Z``. Worked number: with
-``K = [[100, 0, 50], [0, 100, 40], [0, 0, 1]]`` the direction (0.1, 0.2, 1) projects to
-pixel (60, 60), the centre of the pixel in row 60, column 60. A Mitsuba M x M film with focal f has
-``cx = cy = M / 2 - 0.5`` in this convention (Mitsuba puts pixel centres at i + 0.5).
-
-Camera models beyond a distortion-free pinhole (OpenCV distortion, fisheye, omnidirectional) are in
-:mod:`simtest.geometry.cameras`; camera files are read and written by
-:mod:`simtest.geometry.camera_file`.
+OpenCV camera frame (x right, y down, z forward), pixel centres at integer coordinates, (u, v) =
+(column, row), ``x = K X / Z``. A Mitsuba M x M film has ``cx = cy = M / 2 - 0.5`` here (Mitsuba puts
+pixel centres at i + 0.5). Other camera models: :mod:`simtest.geometry.cameras`.
 """
 
 from __future__ import annotations
@@ -52,7 +44,7 @@ def validate_intrinsics(K, where: str = "K") -> np.ndarray:
         raise IntrinsicsError(f"{where}: must be 3x3, got shape {K.shape}")
     if not np.all(np.isfinite(K)):
         raise IntrinsicsError(f"{where}: has non-finite entries {K.tolist()}")
-    # np.allclose(K[2], (0, 0, 1)) written out (its default rtol 1e-5, atol 1e-8): 10 times cheaper
+    # np.allclose(K[2], (0, 0, 1)) written out (cheaper)
     k20, k21, k22 = (float(v) for v in K[2])
     if not (abs(k20) <= 1e-8 and abs(k21) <= 1e-8 and abs(k22 - 1.0) <= 1e-8 + 1e-5) or K[1, 0] != 0:
         raise IntrinsicsError(f"{where}: must be upper triangular with last row (0, 0, 1), got {K.tolist()}")
@@ -111,43 +103,20 @@ def project_points(X_cam, K) -> np.ndarray:
 
 
 def bp_ray_normal(bp_uv, K) -> np.ndarray:
-    """The ``bp_ray`` estimator: minus the unit viewing ray through the brightest point.
+    """The ``bp_ray`` estimator: minus the unit viewing ray through the brightest point (u, v).
 
-    With an exactly co-located light the BP is where the surface normal is parallel to the viewing
-    ray, whatever the curvature (Notes of :func:`simtest.geometry.curvature.curvature_ratio`), so this is the normal at the BP. It is biased when
-    the BP is saturated or the light is offset.
-
-    Parameters
-    ----------
-    bp_uv : array_like of shape (2,)
-        Brightest point (u, v) in pixels.
-    K : array_like of shape (3, 3)
-        Intrinsics.
-
-    Returns
-    -------
-    ndarray of shape (3,)
-        Unit normal facing the camera, camera frame.
+    With an exactly co-located light the normal at the BP is parallel to the viewing ray, whatever the
+    curvature; biased when the BP is saturated or the light is offset. Returns a unit normal (3,) facing the
+    camera.
     """
     return -pixel_to_ray(np.asarray(bp_uv, dtype=np.float64).reshape(2), K)
 
 
 def look_at(eye, target, up=(0.0, -1.0, 0.0)) -> np.ndarray:
-    """Camera-to-world pose of an OpenCV camera at ``eye`` looking at ``target``.
+    """Camera-to-world pose (4, 4) of an OpenCV camera at ``eye`` looking at ``target`` (world, mm).
 
-    Parameters
-    ----------
-    eye, target : array_like of shape (3,)
-        World positions, mm.
-    up : array_like of shape (3,)
-        World direction that should appear as image "up" (-y in the OpenCV frame). The default
-        (0, -1, 0) matches Mitsuba's ``look_at(origin, target, up=(0, -1, 0))`` used by simtest.
-
-    Returns
-    -------
-    ndarray of shape (4, 4)
-        ``T`` with ``X_world = T[:3, :3] @ X_cam + T[:3, 3]``; columns are the camera x (right),
-        y (down) and z (forward) axes in world coordinates.
+    ``up`` is the world direction shown as image "up" (-y); the default matches Mitsuba's ``look_at`` as
+    simtest calls it. ``X_world = T[:3, :3] @ X_cam + T[:3, 3]``.
 
     Raises
     ------

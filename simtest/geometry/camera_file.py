@@ -1,7 +1,5 @@
-"""The camera file: a camera model, its image size and the scope's light rig, as JSON.
+"""The camera file: a camera model, its image size, the scope's light rig and the sensor's response, as JSON.
 
-Format
-------
 What ``simtest render`` writes and ``simtest reconstruct --intrinsics`` reads::
 
     {"model": "pinhole", "K": [[fx, s, cx], [0, fy, cy], [0, 0, 1]],
@@ -9,30 +7,17 @@ What ``simtest render`` writes and ``simtest reconstruct --intrinsics`` reads::
      "lights": [{"position_mm": [x, y, z], "intensity": 1, "falloff": "inverse_square",
                  "profile_exponent": 0}]}
 
-- ``"model"``: ``"pinhole"`` (the default when absent; ``"K"``, optional OpenCV ``"dist_coeffs"``),
-  ``"fisheye"`` (``"K"`` and ``"D"`` = [k1, k2, k3, k4], OpenCV's fisheye / Kannala-Brandt) or
-  ``"omnidirectional"`` (Scaramuzza's model as C3VD publishes it: ``"cx"``, ``"cy"``, ``"a0"`` ..
-  ``"a4"``, ``"c"``, ``"d"``, ``"e"``); see :mod:`simtest.geometry.cameras`.
+- ``"model"``: ``"pinhole"`` (default; ``"K"``, optional ``"dist_coeffs"``), ``"fisheye"`` (``"K"``, ``"D"``)
+  or ``"omnidirectional"`` (``"cx"``, ``"cy"``, ``"a0"`` .. ``"a4"``, ``"c"``, ``"d"``, ``"e"``);
+  :mod:`simtest.geometry.cameras`.
 - ``"image_size"``: [W, H] in pixels (optional; null allowed).
-- ``"lights"``: optional list of lights in the camera frame (:mod:`simtest.geometry.lights`); each has
-  ``"position_mm"`` and optionally ``"intensity"`` (1), ``"falloff"`` (``"inverse_square"``) and
-  ``"profile_exponent"`` (0). No ``"lights"`` key: one light at the camera centre; ``"lights":
-  null`` is an error (a rig meant but lost, not silently the co-located light). The lights must
-  make physical sense for a scope (:func:`~simtest.geometry.lights.check_scope_rig`: less than
-  20 mm ahead of the lens plane, within 200 mm of the lens; intensities within 1e-9 to 1e9).
-- ``"response"``: optional, the sensor's tone curve, white balance, exposure and clip level
-  (:mod:`simtest.geometry.response`: ``{"curve": "linear" | "srgb" | "gamma", "gamma": g,
-  "white_balance": [r, g, b], "exposure": e, "clip": level}``), so that the light-aware fits run
-  on linear intensities; no ``"response"`` means linear.
+- ``"lights"``: optional, camera frame (:mod:`simtest.geometry.lights`); absent: one light at the camera
+  centre; null is an error (a rig meant but lost). Checked by :func:`~simtest.geometry.lights.check_scope_rig`.
+- ``"response"``: optional (:mod:`simtest.geometry.response`); absent means linear.
 
-Keys a model does not know are errors (a misspelt ``"dist_coeff"`` would otherwise drop the
-distortion silently), and so are booleans where numbers belong (JSON ``true`` is not 1). Every
-error is one line naming the file and the key.
-
-OpenCV YAML/XML files written by ``cv2.FileStorage`` (``cv2.calibrateCamera`` scripts) are read as
-pinhole cameras from ``camera_matrix`` (or ``K``), ``dist_coeffs`` (or ``distortion_coefficients``),
-and ``image_width``/``image_height`` when present; their other keys are ignored (such files carry
-calibration metadata).
+Unknown keys and booleans where numbers belong are errors; every error is one line naming the file and the
+key. OpenCV YAML/XML files (``cv2.FileStorage``) are read as pinholes from ``camera_matrix`` (or ``K``),
+``dist_coeffs`` (or ``distortion_coefficients``) and ``image_width``/``image_height``; other keys are ignored.
 """
 
 from __future__ import annotations
@@ -50,17 +35,12 @@ from simtest.geometry.cameras import CameraModel, FisheyeCamera, Omnidirectional
 from simtest.geometry.lights import Light, LightRig, LightRigError, check_scope_rig
 from simtest.geometry.response import ResponseError, SensorResponse
 
-__all__ = ["CameraFile", "CameraFileError", "camera_from_dict", "load_camera", "save_camera",
-           "save_intrinsics"]
+__all__ = ["CameraFile", "CameraFileError", "camera_from_dict", "load_camera", "save_camera", "save_intrinsics"]
 
-_MODEL_KEYS = {
-    "pinhole": {"required": ("K",), "optional": ("dist_coeffs",)},
-    "fisheye": {"required": ("K", "D"), "optional": ()},
-    "omnidirectional": {
-        "required": ("cx", "cy", "a0", "a1", "a2", "a3", "a4", "c", "d", "e"),
-        "optional": (),
-    },
-}
+_MODEL_KEYS = {"pinhole": {"required": ("K",), "optional": ("dist_coeffs",)},
+               "fisheye": {"required": ("K", "D"), "optional": ()},
+               "omnidirectional": {"required": ("cx", "cy", "a0", "a1", "a2", "a3", "a4", "c", "d", "e"),
+                                   "optional": ()}}
 _COMMON_KEYS = ("model", "image_size", "lights", "response")
 _LIGHT_KEYS = ("position_mm", "intensity", "falloff", "profile_exponent")
 
@@ -71,16 +51,8 @@ class CameraFileError(IntrinsicsError):
 
 @dataclass(frozen=True)
 class CameraFile:
-    """What a camera file holds.
-
-    Attributes
-    ----------
-    model : CameraModel
-        The camera model (with its image size when the file gives one).
-    lights : LightRig
-        The light rig; :meth:`LightRig.colocated` when the file has no ``"lights"``.
-    response : SensorResponse or None
-        The sensor's response (``"response"``); None when the file has none (linear).
+    """What a camera file holds: ``model`` (CameraModel), ``lights`` (LightRig, co-located when absent) and
+    ``response`` (SensorResponse, None when absent).
     """
 
     model: CameraModel
@@ -135,18 +107,7 @@ def _model_from_dict(data: dict, where: str) -> CameraModel:
 
 
 def camera_from_dict(data: dict, where: str = "camera") -> CameraModel:
-    """A camera model from its camera-file JSON object (the ``"lights"`` key is ignored here).
-
-    Parameters
-    ----------
-    data : dict
-        As :meth:`CameraModel.to_json_dict` writes it.
-    where : str
-        What to name in error messages.
-
-    Returns
-    -------
-    CameraModel
+    """A camera model from its camera-file JSON object (``"lights"`` ignored); ``where`` names it in errors.
 
     Raises
     ------
@@ -244,24 +205,21 @@ def _first_line(exc: BaseException) -> str:
 
 
 def load_camera(path) -> CameraFile:
-    """Read a camera file (JSON, or an OpenCV YAML/XML pinhole calibration).
+    """Read a camera file (JSON, or an OpenCV ``.yml``/``.yaml``/``.xml`` pinhole calibration).
 
     Parameters
     ----------
     path : str or Path
-        ``.json`` in the format of the module docstring, or ``.yml``/``.yaml``/``.xml`` written by
-        ``cv2.FileStorage``.
 
     Returns
     -------
     CameraFile
-        The model and the light rig.
 
     Raises
     ------
     CameraFileError
-        Missing or unreadable file, malformed JSON or YAML, an unknown or missing key, a boolean
-        where a number belongs, or invalid parameters; one line naming the file and the key.
+        Missing or unreadable file, malformed JSON or YAML, an unknown or missing key, a boolean where a
+        number belongs, or invalid parameters; one line naming the file and the key.
     """
     path = Path(path)
     if not path.is_file():
@@ -287,18 +245,7 @@ def load_camera(path) -> CameraFile:
 
 def save_camera(path, model: CameraModel, lights: LightRig | None = None,
                 response: SensorResponse | None = None) -> Path:
-    """Write a camera file (module docstring format), atomically.
-
-    Parameters
-    ----------
-    path : str or Path
-        Destination ``.json``.
-    model : CameraModel
-        The camera.
-    lights : LightRig or None
-        Written as ``"lights"`` when given; None leaves the key out (one co-located light).
-    response : SensorResponse or None
-        Written as ``"response"`` when given; None leaves the key out (linear).
+    """Write a camera file atomically; ``lights`` and ``response`` are left out when None.
 
     Returns
     -------
@@ -316,22 +263,6 @@ def save_camera(path, model: CameraModel, lights: LightRig | None = None,
 
 
 def save_intrinsics(path, K, dist_coeffs=None, image_size=None) -> Path:
-    """Write a pinhole camera file (:func:`save_camera` of a :class:`PinholeCamera`).
-
-    Parameters
-    ----------
-    path : str or Path
-        Destination ``.json``.
-    K : array_like of shape (3, 3)
-        Intrinsics, validated.
-    dist_coeffs : array_like or None
-        OpenCV distortion coefficients.
-    image_size : (W, H) or None
-        Image size in pixels.
-
-    Returns
-    -------
-    Path
-    """
+    """Write a pinhole camera file (:func:`save_camera` of ``PinholeCamera(K, dist_coeffs, image_size)``)."""
     size = None if image_size is None else (int(image_size[0]), int(image_size[1]))
     return save_camera(path, PinholeCamera(K, dist_coeffs, size))

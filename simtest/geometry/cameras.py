@@ -1,34 +1,9 @@
 """Camera models: pixel <-> unit viewing ray in the camera frame, and their Jacobians.
 
-Convention
-----------
-OpenCV camera frame (x right, y down, z forward), pixel centres at integer coordinates, pixel
-(u, v) = (column, row). Every model maps pixels to *unit* rays and rays (any positive scale) to
-pixels, vectorised over N points:
-
-- :meth:`CameraModel.pixel_to_ray` ``(N, 2) -> (N, 3)`` unit rays;
-- :meth:`CameraModel.ray_to_pixel` ``(N, 3) -> (N, 2)``;
-- :meth:`CameraModel.pixel_to_ray_jacobian` ``(N, 3, 2)``, d(unit ray)/d(u, v);
-- :meth:`CameraModel.ray_to_pixel_jacobian` ``(N, 2, 3)``, d(u, v)/d(ray).
-
-Points outside a model's domain (a ray behind a pinhole, a pixel past where a polynomial model stops
-being invertible) give NaN rows, never an exception, so a caller can drop them by ``np.isfinite``.
-
-Models
-------
-- :class:`PinholeCamera`: intrinsics K and OpenCV's distortion (radial k1..k6 as a rational
-  function, tangential p1, p2, thin prism s1..s4). The forward map is closed form; the inverse is
-  Newton's method on the distortion, started from ``cv2.undistortPoints`` and converged to 1e-9 px.
-- :class:`FisheyeCamera`: OpenCV's fisheye model (Kannala-Brandt), theta_d = theta (1 + k1 theta^2 +
-  k2 theta^4 + k3 theta^6 + k4 theta^8) with theta the angle from +z, extended past 90 deg.
-- :class:`OmnidirectionalCamera`: Scaramuzza's polynomial model as C3VD publishes it: the ray of pixel
-  (u, v) is (x, y, a0 + a1 r + a2 r^2 + a3 r^3 + a4 r^4) with (x, y) = inv([[c, d], [e, 1]]) (u - cx,
-  v - cy) and r = |(x, y)|; a ray goes back to a pixel by solving that polynomial for r.
-
-The two Jacobians of a model are tied: at a unit ray d with ``J_P = d(pixel)/d(ray)`` and
-``J_R = d(ray)/d(pixel)``, ``J_P d = 0`` (scale invariance) and ``d^T J_R = 0`` (unit rays), hence
-``[J_P; d^T] [J_R | d] = I_3``. Each model implements the Jacobian of its closed-form direction and
-the base class derives the other from this identity.
+OpenCV camera frame (x right, y down, z forward), pixel centres at integers, (u, v) = (column, row).
+Each model maps pixels (N, 2) to unit rays (N, 3) and back, with Jacobians d(ray)/d(u, v) (N, 3, 2) and
+d(u, v)/d(ray) (N, 2, 3); points outside a model's domain give NaN rows, never an exception. The Jacobians
+are tied by ``[J_P; d^T] [J_R | d] = I_3`` at a unit ray d: each model implements one, the base class the other.
 
 References
 ----------
@@ -36,9 +11,8 @@ References
    cameras", IROS 2006, doi:10.1109/IROS.2006.282372.
 .. [2] J. Kannala, S. S. Brandt, "A generic camera model and calibration method for conventional,
    wide-angle, and fish-eye lenses", IEEE TPAMI 28(8), 2006, doi:10.1109/TPAMI.2006.153.
-.. [3] T. L. Bobrow, M. Golhar, R. Vijayan, V. S. Akshintala, J. R. Garcia, N. J. Durr, "Colonoscopy
-   3D video dataset with paired depth from 2D-3D registration", Medical Image Analysis 90, 2023,
-   doi:10.1016/j.media.2023.102956.
+.. [3] T. L. Bobrow et al., "Colonoscopy 3D video dataset with paired depth from 2D-3D registration",
+   Medical Image Analysis 90, 2023, doi:10.1016/j.media.2023.102956.
 """
 
 from __future__ import annotations
@@ -52,11 +26,9 @@ import numpy as np
 from simtest._checks import finite_number
 from simtest.geometry.camera import IntrinsicsError, validate_intrinsics
 
-__all__ = ["CameraModel", "FisheyeCamera", "OmnidirectionalCamera", "PinholeCamera",
-           "c3vd_camera"]
+__all__ = ["CameraModel", "FisheyeCamera", "OmnidirectionalCamera", "PinholeCamera", "c3vd_camera"]
 
-#: Newton iterations stop when the pixel residual is below this (px); the round trip is then exact
-#: to far better than the 1e-6 px the tests ask.
+#: Newton iterations stop when the pixel residual is below this (px)
 _NEWTON_PX = 1e-9
 _NEWTON_MAX_IT = 60
 
@@ -88,18 +60,14 @@ def _finite_scalar(value, where: str) -> float:
     return finite_number(value, where, IntrinsicsError)
 
 
-
 def _linear_rows(xy: np.ndarray, M: np.ndarray) -> np.ndarray:
-    """``xy @ M.T`` for points (N, 2) and a 2 x 2 M, element by element: each row from its own
-    numbers, whatever N (a matrix product picks another BLAS kernel for one row than for many,
-    which changes the last bit)."""
+    """``xy @ M.T`` for (N, 2) points, element by element, so each row's bits do not depend on N."""
     x, y = xy[:, 0], xy[:, 1]
     return np.stack([M[0, 0] * x + M[0, 1] * y, M[1, 0] * x + M[1, 1] * y], axis=1)
 
 
 def _affine_rows(uv: np.ndarray, Kinv: np.ndarray) -> np.ndarray:
-    """The first two coordinates of ``Kinv (u, v, 1)`` for pixels (N, 2), element by element
-    (as :func:`_linear_rows`)."""
+    """First two coordinates of ``Kinv (u, v, 1)`` for (N, 2) pixels, element by element."""
     u, v = uv[:, 0], uv[:, 1]
     return np.stack([Kinv[0, 0] * u + Kinv[0, 1] * v + Kinv[0, 2],
                      Kinv[1, 0] * u + Kinv[1, 1] * v + Kinv[1, 2]], axis=1)
@@ -115,9 +83,6 @@ def _inv(M: np.ndarray) -> np.ndarray:
 class CameraModel(ABC):
     """A central camera: pixels <-> unit viewing rays through the camera centre.
 
-    Subclasses implement :meth:`pixel_to_ray`, :meth:`ray_to_pixel` and one of the two Jacobians;
-    the base class derives the other (module Notes).
-
     Attributes
     ----------
     image_size : tuple of int (W, H) or None
@@ -131,33 +96,11 @@ class CameraModel(ABC):
 
     @abstractmethod
     def pixel_to_ray(self, uv) -> np.ndarray:
-        """Unit viewing rays of pixels.
-
-        Parameters
-        ----------
-        uv : array_like of shape (N, 2)
-            Pixel coordinates (u, v), pixel centres at integers.
-
-        Returns
-        -------
-        ndarray of shape (N, 3)
-            Unit rays in the camera frame; NaN rows outside the model's domain.
-        """
+        """Unit rays (N, 3), camera frame, of pixels (N, 2); NaN rows outside the model's domain."""
 
     @abstractmethod
     def ray_to_pixel(self, rays) -> np.ndarray:
-        """Pixels of viewing rays.
-
-        Parameters
-        ----------
-        rays : array_like of shape (N, 3)
-            Directions in the camera frame, any positive length.
-
-        Returns
-        -------
-        ndarray of shape (N, 2)
-            Pixel coordinates (u, v); NaN rows for rays the model cannot image.
-        """
+        """Pixels (N, 2) of rays (N, 3) of any positive length; NaN rows for rays the model cannot image."""
 
     @property
     @abstractmethod
@@ -169,36 +112,14 @@ class CameraModel(ABC):
         """The model's parameters as the camera file writes them (without ``model``/``image_size``)."""
 
     def pixel_to_ray_jacobian(self, uv) -> np.ndarray:
-        """d(unit ray)/d(u, v) at pixels.
-
-        Parameters
-        ----------
-        uv : array_like of shape (N, 2)
-            Pixels.
-
-        Returns
-        -------
-        ndarray of shape (N, 3, 2)
-            Jacobians, per pixel, of :meth:`pixel_to_ray`; each is orthogonal to its ray.
-        """
+        """d(unit ray)/d(u, v) at pixels (N, 2): ndarray of shape (N, 3, 2), each orthogonal to its ray."""
         uv = _as_uv(uv)
         d = self.pixel_to_ray(uv)
         JP = self._ray_to_pixel_jacobian_unit(d)
         return _inv(np.concatenate([JP, d[:, None, :]], axis=1))[:, :, :2]  # inverse of [J_P; d^T]
 
     def ray_to_pixel_jacobian(self, rays) -> np.ndarray:
-        """d(u, v)/d(ray) at rays.
-
-        Parameters
-        ----------
-        rays : array_like of shape (N, 3)
-            Directions, any positive length.
-
-        Returns
-        -------
-        ndarray of shape (N, 2, 3)
-            Jacobians of :meth:`ray_to_pixel`; each annihilates its ray (scale invariance).
-        """
+        """d(u, v)/d(ray) at rays (N, 3): ndarray of shape (N, 2, 3), each annihilating its ray."""
         rays = _as_rays(rays)
         n = np.linalg.norm(rays, axis=1)
         d = rays / n[:, None]
@@ -231,9 +152,6 @@ class CameraModel(ABC):
         return f"{type(self).__name__}({self.to_json_dict()!r})"
 
 
-# --------------------------------------------------------------------------------------- pinhole
-
-
 def _parse_dist(value, where: str) -> np.ndarray | None:
     if value is None:
         return None
@@ -253,31 +171,24 @@ def _parse_dist(value, where: str) -> np.ndarray | None:
 
 
 class PinholeCamera(CameraModel):
-    """Pinhole intrinsics K with OpenCV's lens distortion.
+    """Pinhole intrinsics K with OpenCV's lens distortion (``cv2.projectPoints`` with rvec = tvec = 0).
+
+    The inverse is Newton's method on the distortion, started from ``cv2.undistortPoints``, to 1e-9 px.
+    Rays with Z <= 0 have no pixel (NaN).
 
     Parameters
     ----------
     K : array_like of shape (3, 3)
         ``[[fx, s, cx], [0, fy, cy], [0, 0, 1]]``, pixels.
     dist_coeffs : array_like of shape (4,), (5,), (8,), (12,) or (14,), or None
-        OpenCV order (k1, k2, p1, p2[, k3[, k4, k5, k6[, s1, s2, s3, s4[, tauX, tauY]]]]); tilt
-        coefficients must be zero. None or all zeros: no distortion.
+        OpenCV order (k1, k2, p1, p2[, k3[, k4, k5, k6[, s1, s2, s3, s4[, tauX, tauY]]]]); tilt coefficients
+        must be zero. None or all zeros: no distortion.
     image_size : (W, H) or None
-        Image size in pixels.
 
     Raises
     ------
     IntrinsicsError
         Invalid K, coefficients or size.
-
-    Notes
-    -----
-    Forward map (OpenCV's ``projectPoints`` with rvec = tvec = 0): x = X / Z, y = Y / Z,
-    r^2 = x^2 + y^2, R = (1 + k1 r^2 + k2 r^4 + k3 r^6) / (1 + k4 r^2 + k5 r^4 + k6 r^6),
-    x' = x R + 2 p1 x y + p2 (r^2 + 2 x^2) + s1 r^2 + s2 r^4,
-    y' = y R + p1 (r^2 + 2 y^2) + 2 p2 x y + s3 r^2 + s4 r^4, (u, v, 1) = K (x', y', 1).
-    The inverse solves (x', y') = D(x, y) by Newton's method with the closed-form 2x2 Jacobian of D,
-    started from ``cv2.undistortPoints``. Rays with Z <= 0 have no pixel (NaN).
     """
 
     model = "pinhole"
@@ -372,9 +283,6 @@ class PinholeCamera(CameraModel):
         return rays / np.linalg.norm(rays, axis=1, keepdims=True)
 
 
-# --------------------------------------------------------------------------------------- fisheye
-
-
 def _check_monotone(theta: np.ndarray, radius: np.ndarray, what: str) -> None:
     if not np.all(np.diff(radius) > 0):
         i = int(np.argmax(np.diff(radius) <= 0))
@@ -383,31 +291,24 @@ def _check_monotone(theta: np.ndarray, radius: np.ndarray, what: str) -> None:
 
 
 class FisheyeCamera(CameraModel):
-    """OpenCV's fisheye model (Kannala-Brandt, four coefficients).
+    """OpenCV's fisheye model (Kannala-Brandt [2]_), extended past 90 deg by theta = atan2(|(X, Y)|, Z).
+
+    theta_d = theta (1 + k1 theta^2 + k2 theta^4 + k3 theta^6 + k4 theta^8); the inverse is Newton's method
+    on the branch where theta_d grows; pixels beyond it have no ray (NaN).
 
     Parameters
     ----------
     K : array_like of shape (3, 3)
-        ``[[fx, fx * alpha, cx], [0, fy, cy], [0, 0, 1]]``, pixels (alpha is OpenCV's skew).
+        ``[[fx, fx * alpha, cx], [0, fy, cy], [0, 0, 1]]``, pixels.
     D : array_like of shape (4,)
         k1, k2, k3, k4.
     image_size : (W, H) or None
-        Image size; when given, the model must be invertible over the whole frame.
+        When given, the model must be invertible over the whole frame.
 
     Raises
     ------
     IntrinsicsError
-        Invalid K, D or size, or a D whose image radius stops growing (or that does not reach the
-        corners by 180 deg off the axis) inside the frame.
-
-    Notes
-    -----
-    A ray at angle theta = atan2(|(X, Y)|, Z) from +z and azimuth phi images at
-    (x', y') = theta_d (cos phi, sin phi) with theta_d = theta (1 + k1 theta^2 + k2 theta^4 +
-    k3 theta^6 + k4 theta^8), (u, v, 1) = K (x', y', 1) [2]_ (as ``cv2.fisheye.projectPoints``
-    for Z > 0; written with atan2 the model extends past 90 deg). The inverse solves theta_d(theta)
-    by Newton's method on the branch where theta_d grows, started from a table of that branch;
-    pixels beyond it have no ray (NaN).
+        Invalid K, D or size, or a D not invertible over the frame.
     """
 
     model = "fisheye"
@@ -523,39 +424,28 @@ class FisheyeCamera(CameraModel):
         return np.stack([st * cphi, st * sphi, np.cos(theta)], axis=1)
 
 
-# --------------------------------------------------------------------------------- omnidirectional
-
-
 class OmnidirectionalCamera(CameraModel):
-    """Scaramuzza's omnidirectional model, as C3VD publishes its calibration.
+    """Scaramuzza's omnidirectional model [1]_, as C3VD publishes its calibration.
+
+    Pixel to ray: (x, y) = A^-1 (u - cx, v - cy), A = [[c, d], [e, 1]], ray along (x, y, z(|(x, y)|)). Ray to
+    pixel: Newton's method on r cos theta - z(r) sin theta, unique while atan2(r, z(r)) grows with r.
 
     Parameters
     ----------
     cx, cy : float
-        Distortion centre, pixels (pixel centres at integers).
+        Distortion centre, pixels.
     a : array_like of shape (5,)
-        a0 .. a4, the polynomial z(r) = a0 + a1 r + a2 r^2 + a3 r^3 + a4 r^4 (a0 > 0, pixels).
+        a0 .. a4 of z(r) = a0 + a1 r + a2 r^2 + a3 r^3 + a4 r^4 (a0 > 0, pixels).
     c, d, e : float
-        The affine stretch [[c, d], [e, 1]] from sensor-plane to pixel offsets.
+        The affine stretch A from sensor-plane to pixel offsets.
     image_size : (W, H) or None
-        Image size; when given, the model must be invertible over the whole frame.
+        When given, the model must be invertible over the whole frame.
 
     Raises
     ------
     IntrinsicsError
-        Non-finite or boolean parameters, a0 <= 0, a singular stretch, or a polynomial whose angle
-        from the axis stops growing inside the frame.
-
-    Notes
-    -----
-    Pixel to ray [1]_: (x, y) = A^-1 (u - cx, v - cy) with A = [[c, d], [e, 1]], r = |(x, y)|,
-    p = (x, y, z(r)), ray = p / |p| (+z forward). Its Jacobian is dp/d(u, v) = [A^-1; z'(r) (x, y)^T
-    A^-1 / r] followed by the unit normalisation (I - ray ray^T) / |p|.
-
-    Ray to pixel: a ray at angle theta from +z is the pixel at radius r where (r, z(r)) is parallel to
-    (sin theta, cos theta), the root of g(r) = r cos theta - z(r) sin theta. The angle
-    atan2(r, z(r)) grows with r over the frame (checked at construction), so the root is unique;
-    Newton's method starts from a table of that angle and converges to 1e-9 px.
+        Non-finite or boolean parameters, a0 <= 0, a singular stretch, or a polynomial not invertible
+        over the frame.
     """
 
     model = "omnidirectional"
@@ -609,13 +499,7 @@ class OmnidirectionalCamera(CameraModel):
                 "c": self.c, "d": self.d, "e": self.e}
 
     def pinhole_stand_in(self) -> PinholeCamera:
-        """The pinhole a user without this model would use: f = a0, same centre and size.
-
-        Returns
-        -------
-        PinholeCamera
-            ``K = [[a0, 0, cx], [0, a0, cy], [0, 0, 1]]``.
-        """
+        """The pinhole ``K = [[a0, 0, cx], [0, a0, cy], [0, 0, 1]]`` with the same size."""
         K = np.array([[self.a[0], 0.0, self.cx], [0.0, self.a[0], self.cy], [0.0, 0.0, 1.0]])
         return PinholeCamera(K, image_size=self.image_size)
 
@@ -660,8 +544,6 @@ class OmnidirectionalCamera(CameraModel):
             z, dz = self._z(r, deriv=True)
             g = r * ct - z * st
             dg = ct - dz * st
-            # |g| is the distance (px) from (r, z(r)) to the ray's line in the (r, z) plane; the
-            # pixel error it leaves is |g| / |dg| along r.
             with np.errstate(all="ignore"):
                 step = g / dg
             done = ~(np.abs(step) >= _NEWTON_PX)
@@ -677,22 +559,8 @@ class OmnidirectionalCamera(CameraModel):
         return out
 
 
-# -------------------------------------------------------------------------------------- presets
-
-
 def c3vd_camera() -> OmnidirectionalCamera:
-    """C3VD's omnidirectional calibration (Olympus CF-HQ190L colonoscope), 1350 x 1080.
-
-    Returns
-    -------
-    OmnidirectionalCamera
-        The published intrinsics [3]_ (from the dataset's example loader), with the centre in this
-        module's convention (pixel centres at integers).
-
-    References
-    ----------
-    .. [3] T. L. Bobrow et al., "Colonoscopy 3D video dataset with paired depth from 2D-3D
-       registration", Medical Image Analysis 90, 2023, doi:10.1016/j.media.2023.102956.
+    """C3VD's omnidirectional calibration [3]_ (Olympus CF-HQ190L colonoscope), 1350 x 1080.
 
     Examples
     --------

@@ -1,32 +1,17 @@
 """Conics in the image, the normalised conic C' = K^T C K, and circle pose from one conic.
 
-Conventions
------------
-A point conic is a symmetric 3x3 matrix ``C`` with ``x^T C x = 0`` for image points
-``x = (u, v, 1)`` in pixels (pixel centres at integer coordinates, u = column, v = row). The
-*normalised conic* ``C' = K^T C K`` is the same curve in normalised camera coordinates
-``X = K^{-1} x``; read as a quadric of 3D directions it is the cone from the camera centre through
-the curve. All 3D quantities are in the OpenCV camera frame (x right, y down, z forward) and
-normals are unit vectors facing the camera (``n . ray < 0``, so ``n_z < 0`` for a surface in front).
-
-For a circle seen by a camera whose point light is co-located with it, the cone is a *right*
-circular cone whose axis is the plane normal (derivation in the Notes of :func:`cone_axis`): C'
-then has a double eigenvalue, both circle-pose normals coincide with the cone axis, and there is no
-two-fold ambiguity. How badly the circle pose is conditioned near that case is in the Notes of
-:func:`circle_pose`.
+A point conic is a symmetric 3x3 ``C`` with ``x^T C x = 0`` for pixels ``x = (u, v, 1)`` (pixel centres
+at integer coordinates, u = column). ``C' = K^T C K`` is the cone from the camera centre through the
+curve, in the OpenCV camera frame (x right, y down, z forward); normals face the camera (``n . ray < 0``).
 
 References
 ----------
-.. [1] D. Forsyth, J. L. Mundy, A. Zisserman, C. Coelho, A. Heller, C. Rothwell, "Invariant
-       descriptors for 3-D object recognition and pose", IEEE TPAMI 13(10), 1991, appendix A.
-       https://doi.org/10.1109/34.99233
-.. [2] R. Safaee-Rad, I. Tchoukanov, K. C. Smith, B. Benhabib, "Three-dimensional location
-       estimation of circular features for machine vision", IEEE T-RA 8(5), 1992.
-       https://doi.org/10.1109/70.163777
+.. [1] D. Forsyth et al., "Invariant descriptors for 3-D object recognition and pose", IEEE TPAMI 13(10),
+       1991, appendix A. https://doi.org/10.1109/34.99233
+.. [2] R. Safaee-Rad et al., "Three-dimensional location estimation of circular features for machine
+       vision", IEEE T-RA 8(5), 1992. https://doi.org/10.1109/70.163777
 .. [3] R. Hartley, A. Zisserman, Multiple View Geometry, 2nd ed., 2003, ch. 2 and 8.
-       https://doi.org/10.1017/CBO9780511811685
-.. [4] K. Makki, A. Bartoli, "Normal Reconstruction from Specularity in the Endoscopic Setting",
-       section 2.3 (the reconstruction method).
+.. [4] K. Makki, A. Bartoli, "Normal Reconstruction from Specularity in the Endoscopic Setting", sec. 2.3.
 """
 
 from __future__ import annotations
@@ -40,9 +25,8 @@ from simtest.geometry.angles import cross3
 from simtest.geometry.camera import validate_intrinsics
 from simtest.tolerances import TOL
 
-__all__ = ["CirclePose", "ConeAxis", "Ellipse", "circle_pose", "conic_kind", "conic_to_ellipse",
-           "cone_axis", "normalised_conic", "plane_basis",
-           "project_circle"]
+__all__ = ["CirclePose", "ConeAxis", "Ellipse", "circle_pose", "conic_kind", "conic_to_ellipse", "cone_axis",
+           "normalised_conic", "plane_basis", "project_circle"]
 
 
 @fast_init
@@ -66,11 +50,8 @@ class Ellipse:
 
     def as_dict(self) -> dict:
         """JSON-ready form with the angle in degrees (interface unit)."""
-        return {
-            "center_px": [float(x) for x in self.center],
-            "semi_axes_px": [float(x) for x in self.semi_axes],
-            "angle_deg": float(np.degrees(self.angle_rad)),
-        }
+        return {"center_px": [float(x) for x in self.center], "semi_axes_px": [float(x) for x in self.semi_axes],
+                "angle_deg": float(np.degrees(self.angle_rad))}
 
 
 @dataclass(frozen=True)
@@ -80,13 +61,10 @@ class ConeAxis:
     Attributes
     ----------
     axis : ndarray of shape (3,)
-        Unit eigenvector of C' for the eigenvalue of unique sign, oriented to face the camera
-        (camera frame). For a co-located light on a plane it equals the plane normal.
+        Unit eigenvector of C' for the eigenvalue of unique sign, facing the camera (camera frame).
     eigenvalue_gap : float
-        ``(l1 - l2) / (l1 - l3)`` in [0, 1), where l1 >= l2 are the same-sign eigenvalues and l3 the
-        other, after normalising signs so that l1, l2 > 0 > l3. Zero for a right circular cone; it is
-        also ``sin^2`` of the angle between either circle-pose normal and the axis, so it measures
-        the model violation (curvature anisotropy, light offset) in the units of the estimate.
+        ``(l1 - l2) / (l1 - l3)`` in [0, 1) with signs normalised so that l1 >= l2 > 0 > l3: zero for a right
+        circular cone, and ``sin^2`` of the angle between either circle-pose normal and the axis.
     """
 
     axis: np.ndarray
@@ -107,8 +85,7 @@ class CirclePose:
     normals : ndarray of shape (2, 3)
         N+ and N-: unit plane normals in the camera frame, facing the camera.
     centres : ndarray of shape (2, 3)
-        Unit viewing directions (z > 0) of the 3D circle centre for each solution. The distance is
-        not recoverable without the circle radius.
+        Unit viewing directions (z > 0) of the 3D circle centre of each solution.
     """
 
     normals: np.ndarray
@@ -125,48 +102,27 @@ def _check_conic(C, name: str = "C") -> np.ndarray:
 
 
 def conic_kind(C) -> str:
-    """Classify a point conic.
+    """Classify a point conic (any scale).
 
     Parameters
     ----------
     C : array_like of shape (3, 3)
-        Point conic (any scale).
 
     Returns
     -------
     str
-        One of ``"ellipse"`` (real, non-degenerate), ``"imaginary"`` (no real point),
-        ``"hyperbola"``, ``"parabola"``, ``"degenerate"`` (lines or a point: det C ~ 0).
+        ``"ellipse"``, ``"imaginary"``, ``"hyperbola"``, ``"parabola"`` or ``"degenerate"`` (det C ~ 0).
 
     Raises
     ------
     ValueError
         If C is not 3x3 or has non-finite entries.
     """
-    return _classify(_check_conic(C))[0]
-
-
-def _classify(C: np.ndarray):
-    """:func:`conic_kind` of a checked conic, with what :func:`conic_to_ellipse` reuses: the
-    unit-norm conic, and its centre and ``f0`` when it has a centre (else None)."""
-    kinds, Cn, centre, f0 = _classify_many(C[None])
-    if np.isnan(f0[0]):
-        return kinds[0], Cn[0], None, None
-    return kinds[0], Cn[0], centre[0], float(f0[0])
+    return _classify_many(_check_conic(C)[None])[0][0]
 
 
 def conic_to_ellipse(C) -> Ellipse | None:
-    """Geometric parameters of a point conic, or None if it is not a real ellipse.
-
-    Parameters
-    ----------
-    C : array_like of shape (3, 3)
-        Point conic in pixel coordinates (any scale or sign).
-
-    Returns
-    -------
-    Ellipse or None
-        None for hyperbolas, parabolas, degenerate and imaginary conics (see :func:`conic_kind`).
+    """Geometric parameters of a point conic (pixels, any scale or sign), or None if it is not a real ellipse.
 
     Raises
     ------
@@ -185,19 +141,18 @@ def normalised_conic(C, K) -> np.ndarray:
     C : array_like of shape (3, 3)
         Point conic in pixel coordinates.
     K : array_like of shape (3, 3)
-        Intrinsics (pixel centres at integer coordinates), validated.
+        Intrinsics.
 
     Returns
     -------
     ndarray of shape (3, 3)
-        Symmetric C' in normalised camera coordinates, ``||C'||_F = 1``.
+        Symmetric C' in normalised camera coordinates.
 
     Raises
     ------
     ValueError
-        If C or K is malformed (see :func:`simtest.geometry.camera.validate_intrinsics`) or C is zero.
+        If C or K is malformed or C is zero.
     """
-
     C = _check_conic(C)
     K = validate_intrinsics(K)
     Cn = K.T @ C @ K
@@ -211,14 +166,15 @@ def normalised_conic(C, K) -> np.ndarray:
 def cone_axis(Cn) -> ConeAxis:
     """Axis of the cone C' (eigenvector of the unique-sign eigenvalue) and the eigenvalue gap.
 
-    This is the ``cone_axis`` estimator: for a co-located light and a plane the cone is right
-    circular and its axis is the plane normal (Notes). The public MATLAB code dam410/LightModel
-    takes the same eigenvector in its co-located branch (``vanishing_line_paper_co``).
+    For a point light at the camera centre and a plane, Phong's intensity depends only on the angle gamma
+    between the ray and the normal, so each isophote is a right circular cone of axis n:
+    ``C' ~ cos^2 gamma_0 I - n n^T`` (paper eq. 1, Props. 1-2). Its unique-sign eigenvector is the normal
+    and the gap is 0; a gap above 0 measures the model violation (noise, curvature, light offset).
 
     Parameters
     ----------
     Cn : array_like of shape (3, 3)
-        Normalised conic C' = K^T C K (any scale or sign).
+        Normalised conic C' (any scale or sign).
 
     Returns
     -------
@@ -227,50 +183,24 @@ def cone_axis(Cn) -> ConeAxis:
     Raises
     ------
     ValueError
-        If C' is not a real elliptic cone (hyperbola, degenerate or imaginary image conic).
-
-    Notes
-    -----
-    *The co-located right cone.* Let the plane be ``n . X = -h`` (``h > 0`` its distance to the
-    camera centre O, ``n`` the unit normal facing the camera) and the point light at O. Phong's
-    intensity (paper eq. 1) is ``I = c max(0, cos beta)^n_s`` with ``beta`` the angle between the
-    direction to the viewer and the mirror direction of the light. For the ray of unit direction
-    ``d`` hitting X, the light arrives along ``d``, leaves along ``r = d - 2 (d . n) n`` and the
-    viewer is in direction ``-d``, so ``cos beta = r . (-d) = 2 (d . n)^2 - 1 = cos 2 gamma`` with
-    ``gamma`` the angle between ``-d`` and ``n``. The intensity depends on ``gamma`` only: the
-    isophote ``I = t c`` is the set of rays at the fixed angle ``gamma_0`` from ``-n``, with
-    ``cos 2 gamma_0 = t^(1/n_s)``. Those rays form a right circular cone of axis ``n`` (it cuts the
-    plane in a circle centred on the foot of the perpendicular ``-h n``, paper Props. 1 and 2 with
-    the light at the camera). In normalised camera coordinates ``X = K^-1 x`` the cone is
-    ``(n . X)^2 = cos^2 gamma_0 |X|^2``, i.e. ``C' ~ cos^2 gamma_0 I - n n^T``: eigenvalues
-    ``cos^2 gamma_0`` (twice, any direction orthogonal to ``n``) and ``cos^2 gamma_0 - 1 < 0`` (the
-    unique sign, eigenvector ``n``). So the eigenvector of the unique-sign eigenvalue is the plane
-    normal and the eigenvalue gap ``(l1 - l2) / (l1 - l3)`` is 0; a gap above 0 measures how far
-    the fitted ellipse is from this model (noise, curvature, light offset).
-
-    References
-    ----------
-    .. [1] K. Makki, A. Bartoli, "Normal Reconstruction from Specularity in the Endoscopic
-           Setting", eq. 1 and Props. 1-2.
-    .. [2] B. T. Phong, "Illumination for computer generated pictures", Commun. ACM 18(6), 1975.
-           https://doi.org/10.1145/360825.360839
+        If C' is not a real elliptic cone.
     """
-    return _cone_axis_of(*_cone_eigen(Cn))
+    w, V = _cone_eigen(Cn)
+    axis, gap = _cone_axes_of(w[None], V[None])
+    return ConeAxis(axis=axis[0], eigenvalue_gap=float(gap[0]))
 
 
 def circle_pose(Cn) -> CirclePose:
     """Normals (and centre directions) of the two planes cutting the cone C' in a circle.
 
-    With C' = V diag(l1, l2, l3) V^T, l1 >= l2 > 0 > l3, a plane of normal
-    ``n = +-sin(phi) e1 + cos(phi) e3`` cuts the cone in a circle iff
-    ``cos^2 phi = (l2 - l3) / (l1 - l3)`` (the restriction of C' to the plane is then isotropic)
-    [1, appendix A], [2]. This is step four of the paper's method [4]. When l1 = l2 both solutions
-    equal the cone axis.
+    With C' = V diag(l1, l2, l3) V^T, l1 >= l2 > 0 > l3, the normals are ``+-sin(phi) e1 + cos(phi) e3``
+    with ``cos^2 phi = (l2 - l3) / (l1 - l3)`` [1, appendix A], [2]; step four of [4]. ``sin^2 phi`` is the
+    eigenvalue gap g of :func:`cone_axis`, so near a right cone (g -> 0) the pose is badly conditioned.
 
     Parameters
     ----------
     Cn : array_like of shape (3, 3)
-        Normalised conic C' = K^T C K (any scale or sign).
+        Normalised conic C' (any scale or sign).
 
     Returns
     -------
@@ -281,41 +211,29 @@ def circle_pose(Cn) -> CirclePose:
     ------
     ValueError
         If C' is not a real elliptic cone.
-
-    Notes
-    -----
-    *Conditioning near a right cone.* ``sin^2 phi = (l1 - l2) / (l1 - l3)`` is the eigenvalue gap
-    ``g`` of :func:`cone_axis`, so N+ and N- leave the cone axis ``e3`` by ``asin(sqrt(g))`` each
-    and make ``2 asin(sqrt(g))`` with each other. The square root makes the circle pose badly
-    conditioned near a right cone: ``d phi / d g = 1 / (2 sqrt(g (1 - g)))`` is unbounded as
-    ``g -> 0``. On a plane lit from the camera the true cone is right (``g = 0``, Notes of
-    :func:`cone_axis`), so a fitted gap of ``1e-4`` (a small fit error) already moves N+ and N-
-    by 0.57 deg and ``1e-3`` by 1.8 deg, while the cone axis, the eigenvector of the well
-    separated eigenvalue ``l3``, moves only in proportion to the error of C'. On a curved surface
-    the gap is not a fit error but ``1 - rho^2`` (:func:`simtest.geometry.curvature.curvature_ratio`):
-    then N+ and N- err by ``acos(rho)`` whatever the fit.
     """
-    return _circle_pose_of(*_cone_eigen(Cn))
+    w, V = _cone_eigen(Cn)
+    normals, centres, ok = _circle_poses_of(w[None], V[None])
+    if not ok[0]:
+        raise np.linalg.LinAlgError("Singular matrix")
+    return CirclePose(normals=normals[0], centres=centres[0])
 
 
 def plane_basis(normal, axes: tuple[int, int] = (0, 1)) -> tuple[np.ndarray, np.ndarray]:
-    """An orthonormal basis (u, w) of the plane perpendicular to ``normal``.
+    """An orthonormal basis (u, w) of the plane perpendicular to ``normal``, ``(u, w, normal)`` right-handed.
+
+    ``u`` is along ``normal x e[axes[0]]`` unless ``|normal[axes[0]]| >= 0.9``, then along
+    ``normal x e[axes[1]]``.
 
     Parameters
     ----------
     normal : array_like of shape (3,)
         Unit normal.
     axes : tuple of int
-        Indices of the two coordinate axes the basis may start from: ``u`` is along
-        ``normal x e[axes[0]]`` unless ``|normal[axes[0]]| >= 0.9`` (the normal within about 26 deg
-        of that axis), then along ``normal x e[axes[1]]``. The default (x, then y) is the one of the
-        conics here; the camera placements of ``simtest.dataset`` and ``simtest.harness`` use
-        (z, then x), so their cameras' "up" stays what it was.
 
     Returns
     -------
     u, w : ndarray of shape (3,)
-        Unit vectors with ``(u, w, normal)`` right-handed.
     """
     n = np.asarray(normal, dtype=np.float64)
     first, second = axes
@@ -329,11 +247,8 @@ def plane_basis(normal, axes: tuple[int, int] = (0, 1)) -> tuple[np.ndarray, np.
 _AXES = ((1.0, 0.0, 0.0), (0.0, 1.0, 0.0), (0.0, 0.0, 1.0))
 
 
-
-
 def _solve_each(A: np.ndarray, b: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """``solve(A[i], b[i])`` for a stack (k, m, m), (k, m): the solutions (k, m) and which
-    systems are regular (k,) bool (NaN rows where LAPACK finds a singular matrix)."""
+    """``solve(A[i], b[i])`` for stacks (k, m, m), (k, m): solutions (k, m) (NaN where singular) and ok (k,)."""
     try:
         return np.linalg.solve(A, b[..., None])[..., 0], np.ones(len(A), dtype=bool)
     except np.linalg.LinAlgError:  # one singular system: solve them one by one
@@ -352,13 +267,9 @@ _KINDS = ("ellipse", "imaginary", "hyperbola", "degenerate")
 
 
 def _classify_many(C: np.ndarray):
-    """:func:`conic_kind` of a stack of symmetric finite conics (k, 3, 3), with what
-    :func:`conic_to_ellipse` reuses: the unit-norm conics (k, 3, 3), their centres (k, 2) and
-    ``f0`` (k,) (NaN where a conic has no centre). Returns ``(kinds (list of str), C, centre, f0)``.
+    """:func:`conic_kind` of a stack (k, 3, 3): ``(kinds, unit-norm C, centres (k, 2), f0 (k,))``, NaN without centre.
 
-    The classification is made in the frame centred on the conic's centre, where it reads
-    diag-block (A2, f0): the test does not depend on where the curve lies in the image (a 1 px
-    ellipse at (1300, 1000) is as good as one at the origin).
+    The test is made in the frame centred on the conic's centre, so it does not depend on where the curve lies.
     """
     eps = TOL.conic_degenerate_rel
     norm = np.sqrt(np.einsum("kij,kij->k", C, C))
@@ -374,13 +285,11 @@ def _classify_many(C: np.ndarray):
     no_centre |= ~regular
     cross = np.einsum("ki,ki->k", C[:, 2, :2], centre)
     f0 = C[:, 2, 2] + cross
-    # f0 is a difference of terms of size |C22|; rounding leaves ~1e-16 of them, so compare with
-    # the larger of that and the quadratic part.
+    # f0 is a difference of terms of size |C22|: compare with the larger of that and the quadratic part
     point = np.abs(f0) <= eps * np.maximum(lam_max, np.abs(C[:, 2, 2]) + np.abs(cross))
     hyperbola = lam[:, 0] * lam[:, 1] < 0
     sign = np.where(lam[:, 0] > 0, 1.0, -1.0)
-    # 0 ellipse, 1 imaginary, 2 hyperbola, 3 degenerate: a point (ellipse type) or two crossing
-    # lines (hyperbola type)
+    # 0 ellipse, 1 imaginary, 2 hyperbola, 3 degenerate (a point or two crossing lines)
     code = np.where(point, 3, np.where(hyperbola, 2, np.where(sign * f0 < 0, 0, 1)))
     kinds = [_KINDS[c] for c in code.tolist()]
     if no_centre.any():
@@ -396,8 +305,7 @@ def _classify_many(C: np.ndarray):
 
 
 def _ellipses_of(C: np.ndarray):
-    """Ellipse parameters of a stack of symmetric finite conics (k, 3, 3): centres (k, 2),
-    semi-axes (k, 2), angles (k,) rad and which are real ellipses (k,) bool (NaN elsewhere)."""
+    """Centres (k, 2), semi-axes (k, 2), angles (k,) rad and real-ellipse mask (k,) of a stack of conics."""
     kinds, C, centre, f0 = _classify_many(C)
     ok = np.array([kd == "ellipse" for kd in kinds], dtype=bool)
     k = len(C)
@@ -426,30 +334,16 @@ def _ellipses_of(C: np.ndarray):
 
 
 def unit_symmetric_cones(Cn: np.ndarray) -> np.ndarray:
-    """The symmetric parts of a stack of cones, each scaled to unit Frobenius norm: what
-    :func:`circle_pose` and :func:`cone_axis` decompose (the compiled estimators start from the
-    same matrices).
+    """Symmetric parts of a stack of cones (k, 3, 3), each scaled to unit Frobenius norm.
 
-    Parameters
-    ----------
-    Cn : ndarray of shape (k, 3, 3)
-        Normalised conics C' = K^T C K, camera frame (any scale and sign).
-
-    Returns
-    -------
-    ndarray of shape (k, 3, 3)
-        ``S / ||S||_F`` with ``S = (C' + C'^T) / 2``; non-finite (with a numpy warning unless
-        suppressed) where a cone is zero or not finite. Each cone's result depends on its own
-        entries only (the norm is numpy's ``einsum`` per cone).
+    Non-finite where a cone is zero or not finite.
     """
     Cn = 0.5 * (Cn + np.swapaxes(Cn, 1, 2))
     return Cn / np.sqrt(np.einsum("kij,kij->k", Cn, Cn))[:, None, None]
 
 
 def _cone_eigen_many(Cn: np.ndarray):
-    """Eigen-decompositions of a stack of finite cones (k, 3, 3) with signs normalised so that
-    l1 >= l2 > 0 > l3: eigenvalues (k, 3), eigenvectors as columns (k, 3, 3) in that order, and
-    which cones are real and elliptic (signature (2, 1)) (k,) bool."""
+    """Sign-normalised (l1 >= l2 > 0 > l3) eigenvalues (k, 3), eigenvectors (k, 3, 3) and elliptic mask (k,)."""
     Cn = unit_symmetric_cones(Cn)
     finite = np.isfinite(Cn).all(axis=(1, 2))
     w, V = np.linalg.eigh(Cn if finite.all() else np.where(finite[:, None, None], Cn, np.eye(3)))
@@ -465,16 +359,11 @@ def _cone_eigen_many(Cn: np.ndarray):
 
 
 def _eigen_error(w: np.ndarray) -> str:
-    return (f"C' is not a real elliptic cone: eigenvalues {w.tolist()} "
-            "(need two of one sign and one of the other)")
+    return f"C' is not a real elliptic cone: eigenvalues {w.tolist()} (need two of one sign and one of the other)"
 
 
 def _cone_eigen(Cn) -> tuple[np.ndarray, np.ndarray]:
-    """Eigen-decomposition of a cone with signs normalised so that l1 >= l2 > 0 > l3.
-
-    Returns eigenvalues (3,) and eigenvectors as columns (3, 3) in that order.
-    Raises ValueError if the cone is not real and elliptic (signature (2, 1)).
-    """
+    """:func:`_cone_eigen_many` of one cone; ValueError if it is not real and elliptic."""
     Cn = _check_conic(Cn, "C'")
     w, V, ok = _cone_eigen_many(Cn[None])
     if not ok[0]:
@@ -483,60 +372,37 @@ def _cone_eigen(Cn) -> tuple[np.ndarray, np.ndarray]:
 
 
 def _toward_camera_many(n: np.ndarray) -> np.ndarray:
-    """Orient directions inside the cone (k, 3) (z != 0) as normals facing the camera: n_z < 0.
-
-    Right for the cone axis, which lies inside the cone, i.e. along a viewing ray with z > 0;
-    not for circle-pose normals, which are oriented against their circle's centre ray instead.
-    """
+    """Orient directions inside the cone (k, 3) as normals facing the camera (n_z < 0)."""
     n = n / np.linalg.norm(n, axis=-1, keepdims=True)
     return np.where(n[..., 2:] > 0, -n, n)
 
 
 def _cone_axes_of(w: np.ndarray, V: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Cone axes (k, 3) facing the camera and eigenvalue gaps (k,) of sign-normalised
-    eigen-decompositions (k, 3), (k, 3, 3) (:func:`_cone_eigen_many`)."""
+    """Cone axes (k, 3) facing the camera and eigenvalue gaps (k,) of :func:`_cone_eigen_many` output."""
     gap = (w[:, 0] - w[:, 1]) / (w[:, 0] - w[:, 2])
     return _toward_camera_many(V[:, :, 2]), gap
 
 
-def _cone_axis_of(w: np.ndarray, V: np.ndarray) -> ConeAxis:
-    axis, gap = _cone_axes_of(w[None], V[None])
-    return ConeAxis(axis=axis[0], eigenvalue_gap=float(gap[0]))
-
-
 def _circle_poses_of(w: np.ndarray, V: np.ndarray):
-    """Circle poses of sign-normalised eigen-decompositions (k, 3), (k, 3, 3): normals N+ and N-
-    (k, 2, 3) facing the camera, their circles' centre directions (k, 2, 3), and which poses are
-    defined (k,) bool (the section of the cone by the plane has a centre)."""
+    """Normals N+, N- (k, 2, 3), centre directions (k, 2, 3) and defined mask (k,) of eigen-decompositions."""
     l1, l2, l3 = w[:, 0], w[:, 1], w[:, 2]
     sin_phi = np.sqrt(np.maximum(l1 - l2, 0.0) / (l1 - l3))
     cos_phi = np.sqrt(np.maximum(l2 - l3, 0.0) / (l1 - l3))
     Q = np.einsum("kij,kj,klj->kil", V, w, V)  # sign-normalised, unit cone
     sgn = np.array([1.0, -1.0])
-    n = (sgn[None, :, None] * sin_phi[:, None, None] * V[:, None, :, 0]
-         + cos_phi[:, None, None] * V[:, None, :, 2])
+    n = sgn[None, :, None] * sin_phi[:, None, None] * V[:, None, :, 0] + cos_phi[:, None, None] * V[:, None, :, 2]
     n = n / np.linalg.norm(n, axis=-1, keepdims=True)
     k = len(w)
     c, ok = _section_centres(np.repeat(Q, 2, axis=0), n.reshape(2 * k, 3))
     c = c.reshape(k, 2, 3)
-    # Facing the camera means n . c < 0 along the ray to the circle's centre. n_z < 0 is not
-    # the same test: a steep plane seen far off-axis faces the camera with n_z > 0.
+    # facing the camera: n . c < 0 (not n_z < 0: a steep plane far off-axis faces it with n_z > 0)
     facing = np.where(np.einsum("kij,kij->ki", n, c)[..., None] > 0, -n, n)
     return facing, c, ok.reshape(k, 2).all(axis=1)
 
 
-def _circle_pose_of(w: np.ndarray, V: np.ndarray) -> CirclePose:
-    normals, centres, ok = _circle_poses_of(w[None], V[None])
-    if not ok[0]:
-        raise np.linalg.LinAlgError("Singular matrix")
-    return CirclePose(normals=normals[0], centres=centres[0])
-
-
 def _section_centres(Q: np.ndarray, n: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Unit directions (k, 3) (z > 0) of the centres of the sections of cones Q (k, 3, 3) by planes
-    of normals n (k, 3), and which sections have a centre (k,) bool."""
-    # Plane n.X = 1 parametrised as X = n + a u + b w with (u, w) an orthonormal basis of n-perp
-    # (that of plane_basis: u along n x e_x, or n x e_y when n is within 26 deg of e_x).
+    """Unit directions (k, 3) of the centres of the sections of cones Q by planes of normals n, and ok (k,)."""
+    # plane n.X = 1 as X = n + a u + b w, (u, w) the basis of plane_basis
     x, y, z = n[:, 0], n[:, 1], n[:, 2]
     near_x = np.abs(x) >= 0.9
     zero = np.zeros_like(x)
@@ -555,12 +421,12 @@ def _section_centres(Q: np.ndarray, n: np.ndarray) -> tuple[np.ndarray, np.ndarr
 
 
 def project_circle(centre_mm, normal, radius_mm: float, K) -> np.ndarray:
-    """Exact image point conic of a 3D circle, by the plane-to-image homography.
+    """Exact image point conic of a 3D circle, by the plane-to-image homography [3, sec. 2.3].
 
     Parameters
     ----------
     centre_mm : array_like of shape (3,)
-        Circle centre in the camera frame, mm, in front of the camera (z > 0).
+        Circle centre in the camera frame, mm, z > 0.
     normal : array_like of shape (3,)
         Normal of the circle's plane (camera frame; either orientation).
     radius_mm : float
@@ -571,16 +437,13 @@ def project_circle(centre_mm, normal, radius_mm: float, K) -> np.ndarray:
     Returns
     -------
     ndarray of shape (3, 3)
-        Point conic ``C = H^{-T} diag(1, 1, -r^2) H^{-1}`` with ``H = K [u w c]`` [3, sec. 2.3],
-        scaled to unit Frobenius norm.
+        ``C = H^{-T} diag(1, 1, -r^2) H^{-1}`` with ``H = K [u w c]``, unit Frobenius norm.
 
     Raises
     ------
     ValueError
-        If the radius is not positive, the normal is zero, or the plane passes through the camera
-        centre (the image is a degenerate line pair).
+        If the radius is not positive, the normal is zero, or the plane passes through the camera centre.
     """
-
     K = validate_intrinsics(K)
     c = np.asarray(centre_mm, dtype=np.float64)
     n = np.asarray(normal, dtype=np.float64)

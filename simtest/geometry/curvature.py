@@ -1,10 +1,7 @@
 """What the principal curvatures at a co-located BP predict for the isophote cone.
 
-Sign convention (the one of :mod:`simtest.simulate.truth` and :mod:`simtest.scene.meshes`): the
-principal curvatures ``k1 >= k2`` (1/mm) are signed, positive where the surface bends away from
-its camera-facing normal, i.e. a patch that bulges toward the camera like the outside of a sphere
-(sphere of radius R seen from outside: ``k1 = k2 = +1/R``; cylinder seen from outside:
-``k1 = +1/R, k2 = 0``), negative where it is hollow toward the camera (the inside of a tube, as
+Signs (as :mod:`simtest.simulate.truth`): ``k1 >= k2``, 1/mm, positive where the patch bulges toward the
+camera (a sphere seen from outside: ``k1 = k2 = +1/R``), negative where it is hollow (a tube's inside,
 the colon's lumen: ``k1 = 0, k2 = -1/R``).
 """
 
@@ -18,35 +15,20 @@ __all__ = ["curvature_ratio", "predicted_eigenvalue_gap", "predicted_pose_error_
 def curvature_ratio(k1, k2, distance_mm):
     """The ratio rho = |1 + k2 d| / |1 + k1 d| that governs the co-located isophote cone.
 
+    With a co-located light the isophote near the BP is an ellipse with semi-axes proportional to
+    ``1 / |1 + k_i d|``, so the cone's half-aperture tangents are in the ratio rho; its axis stays the normal.
+
     Parameters
     ----------
     k1, k2 : float or array_like
-        Signed principal curvatures at the BP, 1/mm, ``k1 >= k2`` (module sign convention).
+        Signed principal curvatures at the BP, 1/mm, ``k1 >= k2``.
     distance_mm : float or array_like
         Distance d from the camera centre to the BP along its viewing ray, mm (> 0).
 
     Returns
     -------
     float or ndarray
-        rho >= 0 (1 for an isotropic patch: sphere or plane); NaN where ``1 + k1 d = 0``
-        (the camera at a focal point of the patch) or an input is not finite.
-
-    Notes
-    -----
-    With a co-located light the BP is where the normal N is parallel to the viewing ray
-    (``X0 = -d N``). Near it the surface is ``X0 + x e1 + y e2 + (k1 x^2 + k2 y^2) / 2 (-N)`` to
-    second order, with e1, e2 the principal directions. The Phong intensity depends on the angle
-    between the mirror of the light direction and the view direction; to first order in (x, y)
-    that angle along e_i is ``|1 + k_i d| |x_i| / d`` (the surface normal turns by ``k_i x_i``
-    and the viewing direction by ``x_i / d``, in the same sense for a convex patch). An isophote
-    is therefore an ellipse with semi-axes proportional to ``1 / |1 + k_i d|``, and the cone from
-    the camera through it has half-apertures whose tangents are in the ratio
-    ``|1 + k2 d| / |1 + k1 d|`` = rho. For such a cone, normalised so that ``l1 >= l2 > 0 > l3``,
-    the eigenvalues are ``l_i = 1 / tan^2(a_i)`` up to scale for a narrow cone, so
-    ``(l1 - l2) / (l1 - l3) -> 1 - rho^2`` (:func:`predicted_eigenvalue_gap`). The axis of that
-    cone is still N (the patch is symmetric about N to second order), which is why the cone axis
-    stays unbiased while the circle-pose normals N+ and N- leave it (:func:`predicted_pose_error_deg`).
-    A plane (k1 = k2 = 0) and a sphere (k1 = k2) give rho = 1: a right circular cone.
+        rho >= 0 (1 for a sphere or plane); NaN where ``1 + k1 d = 0`` or an input is not finite.
     """
     k1 = np.asarray(k1, dtype=np.float64)
     k2 = np.asarray(k2, dtype=np.float64)
@@ -68,15 +50,7 @@ def predicted_eigenvalue_gap(rho):
     Returns
     -------
     float or ndarray
-        In [0, 1]; 0 for a right circular cone (rho = 1), 1 for rho = 0 (the camera at a focal
-        point of one principal direction); NaN where rho is NaN.
-
-    Notes
-    -----
-    For ``k1 >= k2`` and both ``1 + k_i d > 0`` (a patch in front of its focal points) rho <= 1
-    and the gap is ``1 - rho^2`` (see :func:`curvature_ratio`). Beyond a focal point of the
-    concave direction ``|1 + k2 d|`` can exceed ``|1 + k1 d|``: the wider half-aperture then
-    belongs to the other principal direction, and the gap is ``1 - 1/rho^2``.
+        In [0, 1]; 0 for a right circular cone (rho = 1); NaN where rho is NaN.
     """
     r = np.asarray(rho, dtype=np.float64)
     with np.errstate(divide="ignore", invalid="ignore"):
@@ -86,26 +60,10 @@ def predicted_eigenvalue_gap(rho):
 
 
 def predicted_pose_error_deg(rho):
-    """Angle between each circle-pose normal N+- and the cone axis predicted from rho, degrees.
+    """Angle, degrees, between each circle-pose normal N+- and the cone axis (the true normal) predicted from rho.
 
-    Parameters
-    ----------
-    rho : float or array_like
-        :func:`curvature_ratio`.
-
-    Returns
-    -------
-    float or ndarray
-        ``asin(sqrt(gap))`` with gap from :func:`predicted_eigenvalue_gap`, in [0, 90] deg.
-
-    Notes
-    -----
-    :func:`simtest.geometry.conics.circle_pose` builds ``N+- = +-sin(phi) e1 + cos(phi) e3`` with
-    ``sin^2 phi = (l1 - l2) / (l1 - l3)``, the eigenvalue gap; e3 is the cone axis. Since the axis
-    is the true normal (see :func:`curvature_ratio`), both N+ and N- err by ``phi =
-    asin(sqrt(gap))``: the paper's circle-pose normals, oracle or not, inherit this error on any
-    anisotropic patch however small the isophote (Forsyth et al. 1991 circle pose, applied to a
-    cone that is not a circle's: https://doi.org/10.1109/34.99233).
+    ``asin(sqrt(gap))`` with the gap of :func:`predicted_eigenvalue_gap`, in [0, 90]: the error of the circle
+    pose on any anisotropic patch, however small the isophote.
     """
     g = np.asarray(predicted_eigenvalue_gap(rho), dtype=np.float64)
     a = np.degrees(np.arcsin(np.sqrt(np.clip(g, 0.0, 1.0))))

@@ -1,29 +1,12 @@
-"""Light rigs: the point lights of an endoscope tip, in the camera frame.
+"""Light rigs: the point lights of an endoscope tip, in the camera frame (OpenCV axes, mm).
 
-Convention
-----------
-Positions are in millimetres in the camera frame (OpenCV axes: x right, y down, z forward), the
-camera centre at the origin. A light's radiant intensity toward a unit direction w is
-``intensity * max(w_z, 0) ** profile_exponent`` (a cos^m profile about +z; m = 0 is isotropic), and
-its irradiance at distance s falls as ``1 / s**2`` (``falloff="inverse_square"``) or not at all
-(``falloff="none"``). With no rig given, simtest uses :meth:`LightRig.colocated`: one isotropic
-light at the camera centre, the co-located case of the paper.
-
-Physical sense
---------------
-Every light's ``intensity`` lies in [:data:`MIN_INTENSITY`, :data:`MAX_INTENSITY`]: intensities are
-relative weights (the fits' gain absorbs their scale; simtest's scenes use 1 to 24000), a value
-beyond 1e9 is a unit slip or a damaged file, and a weight of 1e300 overflows the model's sums
-(its square is inf). A rig given as a scope's lights (a camera file's ``"lights"``, which
-``simtest reconstruct`` fits with) is also checked by :func:`check_scope_rig`: light guides sit at
-the scope's tip, within a few mm of the lens plane, and the tissue is seen from 5 to 50 mm, so
-a light :data:`MAX_AHEAD_MM` or more ahead of the lens (z >= 20 mm) would sit behind the tissue
-of most views (the image of a light behind the surface is no highlight at all, and a fit of one
-gives a confident wrong answer: depth +910 % for ``[3, 0, 40]``), and a light farther than
-:data:`MAX_DISTANCE_MM` from the lens is on no scope (most likely metres or micrometres taken for
-millimetres). The tissue is unknown when the file is read, so the bound ahead is the one that
-can be checked then; 20 mm keeps simtest's own renders, whose lights sit within half their
-offset of the lens plane, readable.
+A light's radiant intensity toward a unit direction w is ``intensity * max(w_z, 0) ** profile_exponent``,
+falling as ``1 / s**2`` (``"inverse_square"``) or not at all (``"none"``). Without a rig simtest uses
+:meth:`LightRig.colocated`, the paper's co-located case. Intensities are relative weights within
+[:data:`MIN_INTENSITY`, :data:`MAX_INTENSITY`] (beyond is a unit slip, and 1e300 overflows the sums). A
+scope's rig (a camera file's ``"lights"``) is also checked by :func:`check_scope_rig`: a light
+:data:`MAX_AHEAD_MM` or more ahead of the lens sits behind the tissue of most views (a fit of it gives a
+confident wrong answer), one beyond :data:`MAX_DISTANCE_MM` is on no scope (m or um taken for mm).
 """
 
 from __future__ import annotations
@@ -36,8 +19,7 @@ import numpy as np
 from simtest._checks import finite_number
 
 __all__ = ["FALLOFFS", "MAX_AHEAD_MM", "MAX_DISTANCE_MM", "MAX_INTENSITY", "MAX_LIGHTS", "MAX_PROFILE_EXPONENT",
-           "MIN_INTENSITY",
-           "Light", "LightRig", "LightRigError", "check_scope_rig"]
+           "MIN_INTENSITY", "Light", "LightRig", "LightRigError", "check_scope_rig"]
 
 #: The falloff laws a light may have.
 FALLOFFS = ("inverse_square", "none")
@@ -46,11 +28,8 @@ MAX_LIGHTS = 8
 #: Bounds of a light's intensity (a relative weight; module docstring, "Physical sense").
 MIN_INTENSITY = 1e-9
 MAX_INTENSITY = 1e9
-#: The largest emission-profile exponent m of a light (cos^m about +z), dimensionless. A light
-#: guide's fibres have a numerical aperture of 0.2 to 0.9 (half-power half-angles of 10 to 60
-#: deg, m = ln 0.5 / ln cos(theta) = 0.7 to 45); m = 1000 is a half-power half-angle of 2.1 deg,
-#: a laser pointer rather than a scope's light: beyond it a value is a slip, and m = 1e300 makes
-#: the profile 0 wherever it is not exactly on the axis.
+#: The largest emission-profile exponent m: a 2.1 deg half-power beam (a light guide's fibres, NA 0.2 to 0.9,
+#: give m = 0.7 to 45); beyond it a value is a slip.
 MAX_PROFILE_EXPONENT = 1000.0
 #: A scope's light lies less than this far ahead of the lens plane (z < 20 mm), mm.
 MAX_AHEAD_MM = 20.0
@@ -79,13 +58,12 @@ class Light:
     falloff : {"inverse_square", "none"}
         Distance law of the irradiance.
     profile_exponent : float
-        m >= 0 of the cos^m angular profile about +z.
+        m in [0, :data:`MAX_PROFILE_EXPONENT`] of the cos^m angular profile about +z.
 
     Raises
     ------
     LightRigError
-        A non-finite or boolean position, an intensity outside [:data:`MIN_INTENSITY`,
-        :data:`MAX_INTENSITY`], an unknown falloff, or m outside [0, :data:`MAX_PROFILE_EXPONENT`].
+        A non-finite or boolean number, or a value outside its range.
     """
 
     position_mm: tuple[float, float, float] = (0.0, 0.0, 0.0)
@@ -101,7 +79,7 @@ class Light:
             raise LightRigError(f"position_mm: must be [x, y, z] in mm, got {self.position_mm!r}")
         pos = tuple(_number(v, f"position_mm[{i}]") for i, v in enumerate(p))
         object.__setattr__(self, "position_mm", pos)
-        inten = _number(self.intensity, f"intensity")
+        inten = _number(self.intensity, "intensity")
         if inten <= 0:
             raise LightRigError(f"intensity: must be > 0, got {self.intensity!r}")
         if not MIN_INTENSITY <= inten <= MAX_INTENSITY:
@@ -110,7 +88,7 @@ class Light:
         object.__setattr__(self, "intensity", inten)
         if self.falloff not in FALLOFFS:
             raise LightRigError(f"falloff: must be one of {list(FALLOFFS)}, got {self.falloff!r}")
-        m = _number(self.profile_exponent, f"profile_exponent")
+        m = _number(self.profile_exponent, "profile_exponent")
         if m < 0:
             raise LightRigError(f"profile_exponent: must be >= 0, got {self.profile_exponent!r}")
         if m > MAX_PROFILE_EXPONENT:
@@ -125,22 +103,13 @@ class Light:
 
     def to_json_dict(self) -> dict:
         """The camera file's JSON object for this light."""
-        return {
-            "position_mm": list(self.position_mm),
-            "intensity": self.intensity,
-            "falloff": self.falloff,
-            "profile_exponent": self.profile_exponent,
-        }
+        return {"position_mm": list(self.position_mm), "intensity": self.intensity, "falloff": self.falloff,
+                "profile_exponent": self.profile_exponent}
 
 
 @dataclass(frozen=True)
 class LightRig:
-    """The lights of a scope tip, 1 to :data:`MAX_LIGHTS`.
-
-    Parameters
-    ----------
-    lights : tuple of Light
-        The lights.
+    """The lights of a scope tip, 1 to :data:`MAX_LIGHTS` of them.
 
     Raises
     ------
@@ -176,8 +145,7 @@ class LightRig:
 
     @property
     def has_separate_lights(self) -> bool:
-        """True when at least two lights sit at different places (their lobes can differ, and
-        two highlights can fix a curved patch's depth that one leaves free)."""
+        """True when at least two lights sit at different places."""
         return len({light.position_mm for light in self.lights}) >= 2
 
     @property
@@ -194,23 +162,13 @@ class LightRig:
 
 
 def check_scope_rig(rig: LightRig) -> LightRig:
-    """Check that a rig can be a scope's lights (module docstring, "Physical sense").
-
-    Parameters
-    ----------
-    rig : LightRig
-        Lights in the camera frame, mm.
-
-    Returns
-    -------
-    LightRig
-        ``rig``, unchanged.
+    """Return ``rig`` unchanged if it can be a scope's lights (module docstring).
 
     Raises
     ------
     LightRigError
-        Naming the first light that lies :data:`MAX_AHEAD_MM` or more ahead of the lens plane
-        (``lights[i].position_mm[2]``) or farther than :data:`MAX_DISTANCE_MM` from the lens.
+        Naming the first light :data:`MAX_AHEAD_MM` or more ahead of the lens plane or farther than
+        :data:`MAX_DISTANCE_MM` from the lens.
     """
     for i, light in enumerate(rig.lights):
         x, y, z = light.position_mm

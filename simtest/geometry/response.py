@@ -4,18 +4,10 @@ A camera file's optional ``"response"`` object (:mod:`simtest.geometry.camera_fi
 
     "response": {"curve": "srgb", "white_balance": [1, 1, 1], "exposure": 1.0, "clip": 255}
 
-- ``"curve"``: ``"linear"``, ``"srgb"`` (IEC 61966-2-1) or ``"gamma"`` (with ``"gamma"``: g, the
-  curve ``s^(1 / g)``);
-- ``"white_balance"``: per-channel multipliers [r, g, b] applied before the curve (default
-  [1, 1, 1]);
-- ``"exposure"``: a linear scale before the curve (default 1);
-- ``"clip"``: the clip level in the file's units (default: the image dtype's maximum; 1 for float
-  images).
-
-The forward model is ``pixel = clip(curve(exposure * white_balance * radiance))`` with the curve's
-output scaled to full scale (``clip``): the inverse (:meth:`SensorResponse.linearize`) gives the
-radiance up to the exposure, per channel, so that a photometric fit runs on linear intensities.
-No ``"response"`` means linear.
+``"curve"`` is ``"linear"``, ``"srgb"`` (IEC 61966-2-1) or ``"gamma"`` (``s^(1 / g)`` with ``"gamma"``: g);
+``"clip"`` defaults to the dtype's maximum (1 for floats). The forward model is
+``pixel = clip(curve(exposure * white_balance * radiance))``; :meth:`SensorResponse.linearize` inverts it,
+per channel, up to the exposure. No ``"response"`` means linear.
 """
 
 from __future__ import annotations
@@ -30,20 +22,14 @@ __all__ = ["CURVES", "MAX_ABOVE_CLIP_SHARE", "MIN_FLOAT_PEAK_OF_CLIP", "RANGES",
 #: The tone curves a response may name.
 CURVES = ("linear", "srgb", "gamma")
 _KEYS = ("curve", "gamma", "white_balance", "exposure", "clip")
-#: The largest share of a frame's pixel values above its response's clip level that
-#: :meth:`SensorResponse.check_frame` accepts. A sensor's clip is its largest value; values above it
-#: come from a decoder's overshoot near clipped areas, a few percent of a frame at most. A quarter
-#: is far above that and far below the share a clip in the wrong units leaves (nearly all).
+#: The largest share of a frame's values above its clip level that :meth:`SensorResponse.check_frame`
+#: accepts: far above a decoder's overshoot (a few percent), far below a clip in the wrong units (nearly all).
 MAX_ABOVE_CLIP_SHARE = 0.25
-#: A float frame's brightest pixel must be above this fraction of a ``"clip"`` the camera file
-#: gives: one step of an 8-bit code (1/255, the coarsest quantisation a scope's video has). A float
-#: frame whose every pixel lies within one 8-bit step of black at that clip level holds nothing a sensor at
-#: that clip would tell from black: its values are in other units (a frame scaled to [0, 1] read
-#: with ``"clip": 255``, which linearises it 255 times too dark and biased the depth by 6 %).
+#: A float frame's brightest pixel must be above this fraction of a given ``"clip"`` (one 8-bit step):
+#: below it the frame is in other units (a frame scaled to [0, 1] read with ``"clip": 255``).
 MIN_FLOAT_PEAK_OF_CLIP = 1.0 / 255.0
 
-#: The physical range of each number of a ``"response"`` object: key -> (least, most, unit,
-#: reason). A value outside is refused (one line naming the file, the key and the value).
+#: The physical range of each number of a ``"response"`` object: key -> (least, most, unit, reason).
 RANGES: dict[str, tuple[float, float, str, str]] = {
     "gamma": (0.1, 10.0, "exponent g of s^(1/g)",
               "cameras' and video standards' tone curves lie within 1 to 3 (sRGB 2.2, BT.709 1/0.45, "
@@ -88,14 +74,13 @@ class SensorResponse:
     curve : str
         One of :data:`CURVES`.
     gamma : float
-        The exponent g of the ``"gamma"`` curve ``s^(1 / g)`` (> 0; 1 otherwise).
+        The exponent g of the ``"gamma"`` curve (1 otherwise).
     white_balance : tuple of 3 float
         Per-channel multipliers before the curve (> 0).
     exposure : float
         Linear scale before the curve (> 0).
     clip : float or None
-        Full scale in the file's units (the value of a saturated pixel); None: the dtype's
-        maximum (1 for float images).
+        Full scale in the file's units; None: the dtype's maximum (1 for float images).
     """
 
     curve: str = "linear"
@@ -111,10 +96,8 @@ class SensorResponse:
         Raises
         ------
         ResponseError
-            Not an object, an unknown key, an unknown curve, a ``"gamma"`` curve without
-            ``"gamma"``, a ``"gamma"`` key with another curve, a boolean, a non-positive or
-            non-finite number, or a number outside its physical range (:data:`RANGES`); the
-            message is one line naming ``where``, the key and the value.
+            An unknown key or curve, ``"gamma"`` given without the gamma curve or missing with it, or a number
+            that is boolean, not finite, not positive or outside :data:`RANGES`; one line naming ``where`` and the key.
         """
         if not isinstance(value, dict):
             raise ResponseError(f"{where}: must be an object with a 'curve', got {value!r}")
@@ -158,18 +141,9 @@ class SensorResponse:
     def check_frame(self, image) -> None:
         """Refuse a frame that no sensor with this response could have written.
 
-        The forward model clips every pixel at ``clip`` (module docstring), so a frame cannot
-        hold values the clip level cannot reach, nor a large share above it:
-
-        - an integer frame whose dtype's maximum is below ``clip``: no pixel reaches the clip,
-          so clipped pixels would not be censored;
-        - a float frame whose largest value is at most :data:`MIN_FLOAT_PEAK_OF_CLIP` of a given
-          ``clip``: the frame and the clip level are in different units;
-        - more than :data:`MAX_ABOVE_CLIP_SHARE` of the pixel values (every channel) above
-          ``clip``: the level is not in the file's units (1 for an 8-bit frame, a fraction
-          where 255 was meant). A decoder's overshoot (a JPEG's ringing at the edge of a clipped
-          highlight, a video's values above its nominal white) puts some values above a clip
-          below the dtype's maximum, only near clipped areas.
+        Refused: an integer dtype whose maximum is below ``clip``; a float frame whose largest value is at most
+        :data:`MIN_FLOAT_PEAK_OF_CLIP` of a given ``clip``; more than :data:`MAX_ABOVE_CLIP_SHARE` of the values
+        above ``clip`` (a decoder's overshoot leaves only a few there).
 
         Parameters
         ----------
@@ -201,24 +175,21 @@ class SensorResponse:
                                 f"255 for an 8-bit frame")
 
     def decode(self, v) -> np.ndarray:
-        """The inverse tone curve alone of display values ``v`` (full scale 1, clipped to [0, 1]):
-        light in the frame's own channels (its white balance and exposure kept: the illuminant
-        stays white), linear, 1 at full scale; float64."""
+        """The inverse tone curve alone of display values ``v`` (full scale 1, clipped to [0, 1]), float64."""
         v = np.clip(np.asarray(v, dtype=np.float64), 0.0, 1.0)
         if self.curve == "srgb":
             return srgb_inverse(v)
         return v ** self.gamma if self.curve == "gamma" else v
 
     def as_srgb(self, values, full_scale: float = 1.0) -> np.ndarray:
-        """The values an sRGB sensor would have written for the light of ``values`` (``full_scale``
-        white): :meth:`decode`, then the sRGB curve; float64, same full scale."""
+        """The values an sRGB sensor would have written for the light of ``values``: :meth:`decode`, then sRGB."""
         return srgb_encode(self.decode(np.asarray(values, np.float64) / full_scale)) * full_scale
 
     def linear(self, values, channel: int | None = None, full_scale: float = 1.0) -> np.ndarray:
         """Linear radiance (up to the exposure's unit) of pixel values, float64.
 
-        ``values / full_scale`` through the inverse curve, over ``exposure`` and over the white
-        balance of ``channel`` (the mean of the three for a grey image, ``channel`` None).
+        ``values / full_scale`` through the inverse curve, over ``exposure`` and the white balance of ``channel``
+        (their mean for ``channel`` None).
         """
         v = self.decode(np.asarray(values, dtype=np.float64) / full_scale)
         wb = float(np.mean(self.white_balance)) if channel is None else self.white_balance[channel]
@@ -230,20 +201,17 @@ class SensorResponse:
         Parameters
         ----------
         image : ndarray of shape (H, W) or (H, W, 3)
-            Pixel values in the file's units. A grey image is taken as one channel with the white
-            balance's mean.
+            Pixel values in the file's units (a grey image takes the white balance's mean).
         channel : "darkest" or int
-            For an RGB image: the channel whose median linear value is least (where the tissue is
-            darkest, so that a white highlight stands highest above its diffuse shading), or the
-            channel index given.
+            For an RGB image: the channel whose median linear value is least (a white highlight stands highest
+            above the tissue there), or the index given.
 
         Returns
         -------
         linear : ndarray of shape (H, W), float64
-            The channel's linear radiance (module docstring).
+            The channel's linear radiance.
         clip_linear : float
-            The linear value of a clipped pixel of that channel: pixels at or above it are
-            censored (the radiance is at least this).
+            The linear value of a clipped pixel: pixels at or above it are censored.
         channel : int or None
             The channel used (None for a grey image).
 
@@ -266,26 +234,18 @@ class SensorResponse:
             c = int(np.argmin(med))
         else:
             c = int(channel)
-        # pixel values at full scale are censored: their radiance is at least the clip's
         return self.linear(img[..., c], c, fs), float(self.linear(fs, c, fs)), c
 
 
 def video_response(sensor) -> SensorResponse:
-    """The response of the 8-bit RGB video frame a scene's sensor makes
-    (:func:`simtest.render.sensor.video_frame`): what ``simtest render`` writes into its camera file.
+    """The response of the 8-bit RGB video frame a scene's sensor makes (:func:`simtest.render.sensor.video_frame`).
 
-    The tone curve (``tone`` "srgb", else ``gamma``: "linear" at 1, "gamma" otherwise), the white
-    balance and the clip level (255, the 8-bit full scale) are the sensor's. The frame clips at
-    ``saturation`` and scales that to full scale, so the response's linear values are the
-    radiance times the frame's exposure over the saturation: the exposure is left at 1, a scale
-    of the linear image that the fits' gains absorb (an automatic exposure changes from frame to
-    frame). The sensor's colour saturation (a mix of the channels) and vignetting (a smooth gain
-    over the frame) are not in the response's format.
+    The sensor's tone curve, white balance and a clip of 255; the exposure is 1 (the fits' gains absorb the
+    scale). Colour saturation and vignetting are not in the response's format.
 
     Parameters
     ----------
     sensor : simtest.scene.spec.SensorSpec
-        The scene's sensor (its ``tone``, ``gamma`` and ``white_balance``).
 
     Returns
     -------

@@ -1,7 +1,6 @@
 """The renderer: scene specs -> Mitsuba 3 renders with per-pixel and per-highlight ground truth.
 
-The only package of simtest that imports Mitsuba, and only when a render is asked for: importing
-``simtest.render`` is cheap.
+The only package that imports Mitsuba, and only when a render is asked for.
 
 Examples
 --------
@@ -19,11 +18,4 @@ from __future__ import annotations
 from simtest.render.render import RendererUnavailable, RenderResult, choose_variant, render_scene, write_render
 from simtest.simulate.truth import HighlightTruth
 
-__all__ = [
-    "HighlightTruth",
-    "RenderResult",
-    "RendererUnavailable",
-    "choose_variant",
-    "render_scene",
-    "write_render",
-]
+__all__ = ["HighlightTruth", "RenderResult", "RendererUnavailable", "choose_variant", "render_scene", "write_render"]

@@ -1,11 +1,7 @@
-"""``simtest render SCENE --out DIR [--seed S] [--variant V]``: render a scene file to DIR; and
-``simtest simreal``.
+"""``simtest render SCENE --out DIR`` and ``simtest simreal``.
 
-Mitsuba loads only when a render starts (:func:`simtest._lazy.require`). Errors are one line on stderr,
-``error: <file>: <key>: <reason>``, never a traceback: exit code 2 for bad input (scene file,
-option, or Mitsuba cannot run here: the line says why), 4 when the output folder cannot be
-written (a file in the way, read-only, files that are not a render's inside; checked before
-rendering).
+Mitsuba loads only when a render starts. Errors are one line on stderr, never a traceback: exit 2 for
+bad input (or Mitsuba cannot run here), 4 when the output folder cannot be written (checked first).
 """
 
 from __future__ import annotations
@@ -24,28 +20,11 @@ from simtest._exit import BAD_INPUT, CANNOT_WRITE
 from simtest._io import OutputFolderError
 from simtest._outdir import check_out_folder, write_out_folder
 from simtest.constants import MAX_SEED
-from simtest.render.render import (
-    RENDER_FILES,
-    RendererUnavailable,
-    RenderInputError,
-    render_scene,
-    write_render,
-)
+from simtest.render.render import RENDER_FILES, RendererUnavailable, RenderInputError, render_scene, write_render
 from simtest.render.simfit import fit_scene, split_frames
-from simtest.render.simreal import (
-    FACTOR_GOAL,
-    at_height,
-    REAL_SPLIT,
-    banner_tiles,
-    fit_figure,
-    frames_figure,
-    glint_population,
-    glint_sheet,
-    sim_to_real_figure,
-    sim_to_real_table,
-    split_indices,
-    split_tables,
-)
+from simtest.render.simreal import (FACTOR_GOAL, REAL_SPLIT, at_height, banner_tiles, fit_figure, frames_figure,
+                                    glint_population, glint_sheet, sim_to_real_figure, sim_to_real_table,
+                                    split_indices, split_tables)
 from simtest.reconstruct.images import quiet_stderr
 from simtest.simulate.truth import HighlightTruthError
 from simtest.resources import data_root, real_banner_path
@@ -53,8 +32,7 @@ from simtest.scene.spec import RENDER_VARIANTS, SceneError, load_scene, scene_to
 
 __all__ = ["render_command", "simreal_command", "SIMREAL_FILES"]
 
-#: What ``simtest simreal`` writes in its output folder (and all that may be there: it is replaced
-#: as a set, so that a kill never leaves a new simreal.json beside an old simreal.png).
+#: What ``simtest simreal`` writes in its output folder (and all that may be there: it is replaced as a set)
 SIMREAL_FILES = ("simreal.json", "simreal.md", "simreal.png", "frames.png", "glints.png", "fitted.toml")
 
 
@@ -77,14 +55,14 @@ def render_command(
 ) -> None:
     """Render SCENE with its ground truth.
 
-    Writes, in the folder OUT (new, empty, or a previous render's; replaced as a whole, so a
-    failure leaves the previous set): OUT/image.png (the sensor image, 8 or 16 bit grey),
-    OUT/frame.png (the 8-bit RGB video frame), OUT/intrinsics.json (K and the image size),
-    OUT/camera.json (the camera model, its light rig and, with a video sensor, its response),
-    OUT/ground_truth.npz (per-pixel normals, depth, distance, position, mask, the linear and
-    specular images) and
-    OUT/highlights.json (each highlight's brightest point, normal and curvatures). Exit status 2:
-    bad input, or Mitsuba cannot run here; 4: OUT cannot be written."""
+    Writes, in the folder OUT (new, empty, or a previous render's; replaced as a whole, so a failure leaves
+    the previous set): OUT/image.png (the sensor image, 8 or 16 bit grey), OUT/frame.png (the 8-bit RGB
+    video frame), OUT/intrinsics.json (K and the image size), OUT/camera.json (the camera model, its light
+    rig and, with a video sensor, its response), OUT/ground_truth.npz (per-pixel normals, depth, distance,
+    position, mask, the linear and specular images) and OUT/highlights.json (each highlight's brightest
+    point, normal and curvatures). Exit status 2: bad input, or Mitsuba cannot run here; 4: OUT cannot be
+    written.
+    """
     if variant is not None and variant not in RENDER_VARIANTS:
         raise _fail(f"--variant: {variant!r} is not one of {', '.join(RENDER_VARIANTS)}")
     check_out_folder(out, RENDER_FILES)
@@ -122,8 +100,7 @@ def render_command(
 
 
 def _shown(path: Path) -> str:
-    """``path`` relative to the data root when it lies inside it (so a committed table names no
-    machine's folders), else as given."""
+    """``path`` relative to the data root when inside it (a committed table names no machine's folders)."""
     try:
         return str(Path(path).resolve().relative_to(data_root().resolve()))
     except ValueError:
@@ -131,9 +108,7 @@ def _shown(path: Path) -> str:
 
 
 def _read_frames(paths: list[Path], option: str) -> tuple[list, list[str]]:
-    """RGB uint8 frames of image files (a banner of 280 px tiles, ``*banner*``, gives its tiles)
-    and their ids (:func:`~simtest.render.simreal.banner_tiles`'s, else the file name); raises the
-    one-line failure naming ``option`` and the file."""
+    """RGB uint8 frames of image files (a ``*banner*`` gives its 280 px tiles) and their ids; one-line failures."""
     frames, ids = [], []
     for p in paths:
         if not p.is_file():
@@ -146,7 +121,7 @@ def _read_frames(paths: list[Path], option: str) -> tuple[list, list[str]]:
             frames += [f for _, f in tiles]
             ids += [k for k, _ in tiles]
         else:
-            with quiet_stderr():  # libpng's own lines (an iCCP profile, ...): ours names the file
+            with quiet_stderr():  # libpng's own lines: ours names the file
                 img = cv2.imread(str(p), cv2.IMREAD_COLOR)
             if img is None:
                 raise _fail(f"{option}: {p}: not a readable image")
@@ -162,8 +137,7 @@ def _fmt(x: float) -> str:
 
 
 def _table_md(rows: list[dict], parts: dict[str, list[dict]] | None = None) -> list[str]:
-    """The table in Markdown; ``parts`` (name -> rows of the same statistics): a ratio and a
-    within-x2 column for each, after those of ``rows``."""
+    """The table in Markdown; ``parts`` (name -> rows): a ratio and a within-x2 column for each."""
     parts = parts or {}
     head = "| statistic | rendered | real | real IQR (per frame) | ratio | within x2 |"
     rule = "|---|---|---|---|---|---|"
@@ -213,24 +187,20 @@ def simreal_command(
     seed: Optional[int] = typer.Option(None, "--seed", min=0, max=MAX_SEED,
                                        help="Render seed (with --fit: the root seed of the fit)."),
 ) -> None:
-    """Render SCENE and compare its video frame with real frames: table (JSON, Markdown) and figure;
-    with --fit, first fit the scene to real frames.
+    """Render SCENE and compare its video frame with real frames; with --fit, first fit the scene to them.
 
     Writes, in the folder OUT (new, empty or a previous simreal's; replaced as a set): OUT/simreal.json
-    (the table's rows, the scene, the seed, the real frames and their split), OUT/simreal.md (the
-    table in Markdown: each statistic against all the real frames, the tuning ones and the
-    held-out ones), OUT/simreal.png (the figure), OUT/frames.png (the frame beside tuning and
-    held-out real frames) and OUT/glints.png (crops around the largest white blobs of each).
-    The real frames are split by frame into tuning and held-out ones (the bundled banner's split
-    is declared in simtest.render.simreal.REAL_SPLIT; other frames: a seeded half and half).
-    With --fit FRAMES: the scene's micro-relief
-    (height, spectrum), film roughness, albedo, exposure, noise and tone are fitted to the tuning
-    frames of FRAMES (scipy's Nelder-Mead on the log-ratios of the statistics; --renders renders
-    at half the film and 4 spp, then --polish at the scene's own film and spp: about 10 minutes
-    for the colonoscope on 2 cores), OUT/fitted.toml (the fitted scene) is written too,
-    OUT/frames.png shows the frame before and after beside real frames, and simreal.json and
-    simreal.md hold every statistic before and after on the tuning and the held-out frames.
-    Exit status 2: bad input, or Mitsuba cannot run here; 4: OUT cannot be written."""
+    (the table's rows, the scene, the seed, the real frames and their split), OUT/simreal.md (the table
+    against all, the tuning and the held-out real frames), OUT/simreal.png (the figure), OUT/frames.png (the
+    frame beside real frames) and OUT/glints.png (crops around the largest white blobs). The real frames
+    are split into tuning and held-out ones (the bundled banner's split is declared in
+    simtest.render.simreal.REAL_SPLIT; other frames: a seeded half and half). With --fit FRAMES: the
+    scene's micro-relief, film roughness, albedo, exposure, noise and tone are fitted to the tuning frames
+    (Nelder-Mead on the statistics' log-ratios: --renders at half the film and 4 spp, then --polish at the
+    scene's own; about 10 minutes for the colonoscope on 2 cores); OUT/fitted.toml holds the fitted scene
+    and the report every statistic before and after. Exit status 2: bad input, or Mitsuba cannot run
+    here; 4: OUT cannot be written.
+    """
     if scene_arg is not None and scene_opt is not None and scene_arg != scene_opt:
         raise _fail(f"--scene: {scene_opt!r} and SCENE {scene_arg!r} disagree (give one)")
     scene = scene_opt or scene_arg or "colonoscope"
@@ -264,8 +234,7 @@ def simreal_command(
     fig = sim_to_real_figure(frame, frames, rows)
     figs = {"frames.png": frames_figure(frame, frames, ids, tuning, held, title=spec.name),
             "glints.png": glint_sheet(frame, frames, ids, tuning, held, title=spec.name)}
-    split = {"tuning": [ids[i] for i in tuning], "held_out": [ids[i] for i in held],
-             "rule": _split_rule(ids)}
+    split = {"tuning": [ids[i] for i in tuning], "held_out": [ids[i] for i in held], "rule": _split_rule(ids)}
     doc = {"scene": spec.name, "seed": result.seed, "real": [_shown(p) for p in paths], "rows": rows,
            "split": split, "tables": parts,
            "within_goal": {name: sum(r["within_goal"] for r in t) for name, t in tables.items()}}
@@ -304,16 +273,13 @@ def _split_rule(ids: list[str]) -> str:
 def _simreal_fit(spec, frames: list, ids: list[str], paths: list[Path], out: Path, target: Path, renders: int,
                  polish: int, seed: int) -> None:
     """``simreal --fit``: fit, then write the fitted scene and the before/after report."""
-
     fit_frames, held = split_frames(frames, ids)
     tuning_idx, held_idx = split_indices(ids)
     console = Console(stderr=True, soft_wrap=True)
     try:
         res = fit_scene(spec, fit_frames, seed=seed, outer_evals=renders, polish_evals=polish,
                         progress=lambda s: console.print(s, markup=False, highlight=False))
-    except ValueError as exc:
-        raise _fail(str(exc)) from None
-    except RenderInputError as exc:
+    except (ValueError, RenderInputError) as exc:
         raise _fail(str(exc)) from None
     except RendererUnavailable as exc:
         raise _fail(str(exc), BAD_INPUT) from None  # Mitsuba cannot run here

@@ -1,35 +1,12 @@
 """Endoscope renders: light rigs, wide-angle camera models and exact per-pixel ground truth.
 
-The default renderer (:func:`simtest.render.render.render_scene` on a plain scene) draws a pinhole
-camera with one point light through Mitsuba's ``perspective`` sensor. A scene that asks for an
-endoscope (a light rig, a camera model other than the distortion-free pinhole) is drawn here
-instead:
-
-- **Rays from the camera model.** Every sample's ray is ``model.pixel_to_ray(uv)`` of the camera
-  model (:mod:`simtest.geometry.cameras`: pinhole with distortion, fisheye, omnidirectional),
-  computed in float64 and handed to Mitsuba's ``ray_intersect`` as a wavefront: no warped pinhole
-  render, so every ground-truth map is exact per pixel.
-- **Ground truth from the pixel centre.** Position, normal and depth of each pixel come from the ray
-  through its centre (not from an average over the pixel's samples), so that projecting a pixel's
-  ground-truth position with the camera model lands on that pixel (to float32 round-off of the
-  intersection, measured below 1e-3 px) and its normal is the surface normal there.
-- **Light rigs.** The lights of a :class:`simtest.geometry.lights.LightRig` (1 to 8 points in the
-  camera frame, moving with the camera) are summed in closed form for each sample: radiant
-  intensity ``I_i max(0, w_z)^m_i`` toward the unit direction ``w`` from light i to the surface
-  point (a cos^m profile about the scope axis +z), times ``1 / s^2`` for the inverse-square falloff
-  (s the light distance), times the BSDF. This is Mitsuba's point emitter with a profile, evaluated
-  for every light at every sample instead of sampling one light per sample: the image carries no
-  light-selection noise. Shadow rays are traced on meshes.
-- **Light guides as discs.** With a guide diameter (``light.guide_diameter_mm``, the "cf_h190"
-  preset's by default) each light is a disc in the lens plane centred on its position: the
-  ``spp`` samples of a pixel take their light points on a Vogel (golden-angle) spiral over the
-  disc, one per sample, each emitting the light's intensity with the same cos^m profile, so a
-  pixel's mean is the disc's radiance (the area emitter's integral by stratified quadrature) with
-  no added noise. The ground truth stays that of the disc's centre (its position).
-- **Presets.** :func:`colonoscope_rig`, :func:`cf_h190_rig` and :func:`laparoscope_rig` (geometry
-  and sources in their docstrings).
-
-Importing this module is cheap; Mitsuba loads when a render runs.
+A scene with a light rig, a camera model other than the distortion-free pinhole, or tissue is drawn here
+instead of through Mitsuba's ``perspective`` sensor. Each sample's ray comes from the camera model
+(:mod:`simtest.geometry.cameras`), so every ground-truth map is exact per pixel, taken from the ray
+through the pixel centre. The lights of a rig are summed in closed form at every sample (radiant
+intensity ``I_i max(0, w_z)^m_i``, ``1 / s^2`` for inverse-square falloff, times the BSDF): no
+light-selection noise. A light guide with a diameter is a disc in the lens plane, sampled by a Vogel
+spiral over a pixel's ``spp`` samples; its ground truth stays that of the disc's centre.
 """
 
 from __future__ import annotations
@@ -40,13 +17,7 @@ import numpy as np
 
 from simtest._lazy import require
 from simtest.geometry.camera_file import load_camera
-from simtest.geometry.cameras import (
-    CameraModel,
-    FisheyeCamera,
-    OmnidirectionalCamera,
-    PinholeCamera,
-    c3vd_camera,
-)
+from simtest.geometry.cameras import CameraModel, FisheyeCamera, OmnidirectionalCamera, PinholeCamera, c3vd_camera
 from simtest.geometry.lights import Light, LightRig
 from simtest.render.mitsuba_dict import intrinsics_matrix, light_position_cam
 from simtest.scene.spec import SceneSpec
@@ -56,32 +27,22 @@ __all__ = ["COLONOSCOPE_GUIDE_OFFSET_MM", "LAPAROSCOPE_RING_RADIUS_MM", "GUIDE_P
            "CF_H190_GUIDE_DIAMETER_MM", "CF_H190_GAMMA", "light_rig", "uses_endoscope", "laparoscope_rig",
            "scaled_omnidirectional", "sample_positions"]
 
-#: Distance from the lens centre to each of the colonoscope's two light guides, mm. An assumption:
-#: a colonoscope tip 13 mm across (Olympus CF-HQ190L: 13.2 mm distal end, the scope of C3VD) carries
-#: the objective lens and two light guides side by side; the guides' centres sit 3 to 5 mm from
-#: the lens's. 4 mm gives the offset/working-distance ratio epsilon/d of 0.08 to 0.8 over 5 to
-#: 50 mm of tissue distance.
+#: Distance from the lens centre to each of the colonoscope's two light guides, mm. An assumption: a tip
+#: 13 mm across (Olympus CF-HQ190L, C3VD's scope) puts the guides' centres 3 to 5 mm from the lens's.
 COLONOSCOPE_GUIDE_OFFSET_MM = 4.0
-#: Radius of the laparoscope's ring of fibre bundles around its rod lens, mm. An assumption: a
-#: 10 mm laparoscope has its illumination fibres in an annulus between the rod lens (about 6 mm
-#: across) and the sheath, centred near r = 4 mm.
+#: Radius of the laparoscope's ring of fibre bundles, mm. An assumption: a 10 mm laparoscope's fibres lie
+#: between the rod lens (about 6 mm across) and the sheath.
 LAPAROSCOPE_RING_RADIUS_MM = 4.0
-#: Exponent m of the cos^m emission profile of one light-guide output. A fibre bundle behind a
-#: diffusing lens spreads its light over the scope's 140 to 170 deg field; m = 1 (Lambertian) is an
-#: assumption, not a measurement.
+#: Exponent m of the cos^m emission profile of one light guide: Lambertian, an assumption.
 GUIDE_PROFILE_EXPONENT = 1.0
 
-#: Olympus CF-H190 colonoscope (the scope of the EndoMapper dataset): distance of each of its two
-#: light guides from the lens centre, mm. From EndoMapper's photometric calibration of this scope
-#: (Azagra et al., "EndoMapper dataset of complete calibrated endoscopy procedures", Scientific
-#: Data 10, 671, 2023, https://doi.org/10.1038/s41597-023-02564-7: lights about 3.3 mm from the
-#: lens, camera response gamma 2.2). The guides' layout along the image's x axis is assumed.
+#: Olympus CF-H190 (EndoMapper's scope): distance of each light guide from the lens centre, mm, from
+#: EndoMapper's photometric calibration (Azagra et al., Scientific Data 10, 671, 2023,
+#: https://doi.org/10.1038/s41597-023-02564-7). The guides' layout along the image's x axis is assumed.
 CF_H190_GUIDE_OFFSET_MM = 3.3
-#: Diameter of each CF-H190 light guide's output face, mm: an assumption (fibre-bundle guides of
-#: colonoscopes are about 1 mm across), not part of the calibration.
+#: Diameter of each CF-H190 light guide's output face, mm: an assumption, not part of the calibration.
 CF_H190_GUIDE_DIAMETER_MM = 1.0
-#: The camera response of the CF-H190 in the same calibration (a display gamma): a scene of this
-#: scope sets ``sensor.tone = "gamma"`` and ``sensor.gamma`` to it.
+#: The CF-H190's camera response gamma in the same calibration (``sensor.tone = "gamma"``).
 CF_H190_GAMMA = 2.2
 
 #: Stable key of the sub-pixel sample stream in ``SeedSequence([seed, RAY_SEED_KEY])``.
@@ -100,16 +61,12 @@ def colonoscope_rig(offset_mm: float = COLONOSCOPE_GUIDE_OFFSET_MM,
     profile_exponent : float
         m of each guide's cos^m profile about the scope axis (>= 0).
     intensity : float
-        Relative power of each guide (> 0); the rig's total is twice this.
+        Relative power of each guide (> 0).
 
     Returns
     -------
     LightRig
-        Two inverse-square lights, camera frame (OpenCV axes), in the plane of the lens (z = 0).
-
-    Notes
-    -----
-    The default offset is :data:`COLONOSCOPE_GUIDE_OFFSET_MM` (an assumption stated there).
+        Two inverse-square lights, camera frame, in the lens plane (z = 0).
 
     Examples
     --------
@@ -121,9 +78,7 @@ def colonoscope_rig(offset_mm: float = COLONOSCOPE_GUIDE_OFFSET_MM,
 
 
 def cf_h190_rig(profile_exponent: float = GUIDE_PROFILE_EXPONENT, intensity: float = 1.0) -> LightRig:
-    """The light guides of an Olympus CF-H190 colonoscope: :func:`colonoscope_rig` at
-    :data:`CF_H190_GUIDE_OFFSET_MM` (EndoMapper's calibration; source there). Each guide is a disc
-    of :data:`CF_H190_GUIDE_DIAMETER_MM` (:func:`guide_radius_mm`).
+    """An Olympus CF-H190's guides: :func:`colonoscope_rig` at :data:`CF_H190_GUIDE_OFFSET_MM`.
 
     Examples
     --------
@@ -134,8 +89,7 @@ def cf_h190_rig(profile_exponent: float = GUIDE_PROFILE_EXPONENT, intensity: flo
 
 
 def guide_radius_mm(spec: SceneSpec) -> float:
-    """Radius of each light guide's disc, mm (0: point lights): ``light.guide_diameter_mm / 2``,
-    by default 0, or :data:`CF_H190_GUIDE_DIAMETER_MM` / 2 for the "cf_h190" rig."""
+    """Radius of each light guide's disc, mm: ``light.guide_diameter_mm / 2``, else the "cf_h190" rig's, else 0."""
     lt = spec.light
     if lt.guide_diameter_mm is not None:
         return 0.5 * float(lt.guide_diameter_mm)
@@ -152,7 +106,7 @@ def laparoscope_rig(radius_mm: float = LAPAROSCOPE_RING_RADIUS_MM, count: int = 
     radius_mm : float
         Ring radius, mm (> 0).
     count : int
-        Number of lights, 6 to 8 (a ring of fibre bundles sampled at that many points).
+        Number of lights, 6 to 8.
     profile_exponent : float
         m of each light's cos^m profile about the scope axis.
     intensity : float
@@ -180,14 +134,7 @@ def laparoscope_rig(radius_mm: float = LAPAROSCOPE_RING_RADIUS_MM, count: int = 
 
 
 def scaled_omnidirectional(model: OmnidirectionalCamera, width_px: int) -> OmnidirectionalCamera:
-    """The same lens on a film scaled to ``width_px`` (for small test renders of C3VD's camera).
-
-    Notes
-    -----
-    Scaling pixel coordinates by ``s = width_px / W`` (centres at integers: ``u' + 0.5 = s (u +
-    0.5)``) maps the ray ``(x, y, a0 + a2 r^2 + a3 r^3 + a4 r^4)`` of a pixel to a parallel ray
-    ``(s x, s y, s (a0 + ...))``, so ``a_k' = a_k s^(1 - k)`` and the affine part is unchanged.
-    """
+    """The same lens on a film scaled to ``width_px``: ``a_k' = a_k s^(1 - k)``, ``s = width_px / W``."""
     W, H = model.image_size
     s = width_px / W
     a = [model.a[k] * s ** (1 - k) for k in range(5)]
@@ -200,12 +147,9 @@ def sample_positions(spp: int, width: int, first_pixel: int, n_pixels: int, seed
                      pixels: np.ndarray | None = None):
     """Sub-pixel sample positions of a run of pixels, drawn in Dr.Jit (float32), seeded.
 
-    Pixel ``q`` (row-major, ``u = q mod width``, ``v = q div width``) gets ``spp`` samples at
-    ``(u + du, v + dv)`` with ``(du, dv)`` in [-0.5, 0.5)^2: a jittered ``sqrt(spp)``-sided grid when
-    ``spp`` is a square, else ``spp`` strata in ``du`` paired with a per-pixel cyclic shift of the
-    strata in ``dv`` (a Latin hypercube). The jitter of sample ``j`` of pixel ``q`` is the PCG32
-    stream ``q spp + j`` of the state drawn from ``SeedSequence([seed, RAY_SEED_KEY])``, so a
-    pixel's samples do not depend on how the frame is cut into runs, nor on Dr.Jit's thread count.
+    Pixel ``q`` (row-major) gets ``spp`` samples in [-0.5, 0.5)^2 about its centre: a jittered grid when
+    ``spp`` is a square, else a Latin hypercube. Sample ``j`` of pixel ``q`` draws from PCG32 stream
+    ``q spp + j`` of ``SeedSequence([seed, RAY_SEED_KEY])``, independent of how the frame is cut into runs.
 
     Parameters
     ----------
@@ -218,22 +162,18 @@ def sample_positions(spp: int, width: int, first_pixel: int, n_pixels: int, seed
     seed : int
         Root seed.
     pixels : ndarray of shape (M,), int, optional
-        The run as a list of row-major pixel indices instead (``first_pixel`` and ``n_pixels``
-        are then not used): each pixel gets the very samples it gets in a contiguous run.
+        The run as row-major pixel indices instead (each gets the samples of a contiguous run).
 
     Returns
     -------
     (mitsuba.Float, mitsuba.Float)
-        ``u`` and ``v`` of the ``n_pixels * spp`` samples, pixel-major (the ``spp`` samples of a
-        pixel are consecutive), pixel centres at integers.
+        ``u`` and ``v`` of the samples, the ``spp`` samples of a pixel consecutive.
     """
     dr, mi = require("drjit"), require("mitsuba")
     state = int(np.random.SeedSequence([int(seed), RAY_SEED_KEY]).generate_state(1, np.uint64)[0])
     n = int(n_pixels) * int(spp)
     off = int(first_pixel) * int(spp)
-    # PCG32 of size n gives element i the state initstate + i and the stream initseq + i: with
-    # both offset by the run's first sample, sample g of the frame draws from (state + g, g).
-    # (opaque: the seed and the run's start are kernel inputs, not constants compiled into it)
+    # sample g of the frame draws from (state + g, g); opaque: kernel inputs, not compiled constants
     if pixels is None:
         rng = mi.PCG32(n, dr.opaque(mi.UInt64, (state + off) % 2**64), dr.opaque(mi.UInt64, off))
         j = dr.arange(mi.UInt32, n)
@@ -261,29 +201,22 @@ def sample_positions(spp: int, width: int, first_pixel: int, n_pixels: int, seed
 
 
 def uses_endoscope(spec: SceneSpec) -> bool:
-    """Whether ``spec`` needs the endoscope renderer (a light rig, a camera model or tissue).
-
-    Scenes with the default keys (``camera.model = "pinhole"`` without distortion, ``light.rig =
-    "single"``) keep Mitsuba's perspective sensor and the one-light integrator, bit for bit.
-    """
+    """Whether ``spec`` needs the endoscope renderer (a light rig, a camera model or tissue)."""
     cam = spec.camera
     return (cam.model != "pinhole" or cam.dist_coeffs is not None or spec.light.rig != "single"
             or spec.material.model == "tissue")
 
 
 def camera_model(spec: SceneSpec) -> CameraModel:
-    """The camera model of ``spec``'s film (see :class:`simtest.scene.spec.CameraSpec`).
+    """The camera model of ``spec``'s film (:class:`simtest.scene.spec.CameraSpec`).
 
-    ``"pinhole"`` and ``"fisheye"`` take K from the film size, focal length and principal offset
-    (:func:`simtest.render.mitsuba_dict.intrinsics_matrix`) with ``dist_coeffs`` / ``fisheye_d``;
-    ``"c3vd"`` is C3VD's published calibration scaled to ``width_px``
-    (:func:`scaled_omnidirectional`); ``"file"`` is the camera file's model.
+    ``"pinhole"`` and ``"fisheye"`` take K from :func:`simtest.render.mitsuba_dict.intrinsics_matrix`;
+    ``"c3vd"`` is C3VD's calibration scaled to ``width_px``; ``"file"`` the camera file's model.
 
     Raises
     ------
     ValueError
-        If the film size does not match the model's (``"c3vd"``, ``"file"``); the message names
-        the key and the size expected.
+        If the film size does not match the model's (``"c3vd"``, ``"file"``).
     """
     cam = spec.camera
     size = (cam.width_px, cam.height_px)
@@ -306,13 +239,10 @@ def camera_model(spec: SceneSpec) -> CameraModel:
 
 
 def light_rig(spec: SceneSpec, seed: int) -> LightRig:
-    """The lights of ``spec`` in the camera frame (see :class:`simtest.scene.spec.LightSpec`).
+    """The lights of ``spec`` in the camera frame (:class:`simtest.scene.spec.LightSpec`), scaled by its intensity.
 
-    ``"single"``: one isotropic light at :func:`simtest.render.mitsuba_dict.light_position_cam`
-    (falloff "none" when the scene cancels it, so that the image shows ``I c cos(beta)^n``);
-    ``"colonoscope"`` / ``"laparoscope"``: the presets with ``guide_offset_mm``, ``guide_count``
-    and ``profile_exponent``; ``"file"``: the camera file's lights. ``light.intensity`` scales
-    every light.
+    ``"single"``: one isotropic light at :func:`simtest.render.mitsuba_dict.light_position_cam` (falloff "none"
+    when the scene cancels it); the presets; ``"file"``: the camera file's lights.
     """
     lt = spec.light
     m = GUIDE_PROFILE_EXPONENT if lt.profile_exponent is None else lt.profile_exponent

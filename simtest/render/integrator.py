@@ -1,22 +1,10 @@
 """One-trace direct-lighting integrator with ground-truth AOVs, ``simtest_gt`` (Mitsuba 3 plugin).
 
-Mitsuba's ``aov`` integrator traces each camera ray once for its AOVs and once more inside the
-nested ``direct`` integrator, which then traces a shadow ray. For scenes lit by one point light this
-integrator traces the camera ray once, evaluates the BSDF for the light, and writes the shading
-normal and the position (world frame = the camera frame here) as AOVs, in that order after RGBA:
-``nn.X nn.Y nn.Z pp.X pp.Y pp.Z``.
-
-A scene may also be built in another frame than the camera's (meshes: their world frame, so that
-a new camera pose only moves the sensor instead of rebuilding the acceleration structure); then
-:meth:`set_camera_pose` gives the camera pose and the AOVs are written in the camera frame all the
-same (``n_cam = R^T n``, ``p_cam = R^T (p - c)`` per sample, before the pixel average).
-
-The shadow ray is optional (property ``shadows``): with a co-located light every point the camera
-sees is lit, and a single plane, sphere or cylinder seen from outside cannot shadow itself (points
-facing away from the light get zero from the BSDF), so the renderer asks for shadows only for
-meshes lit from an offset light.
-
-Importing this module imports Mitsuba; call :func:`register` after ``mi.set_variant``.
+Traces each camera ray once (Mitsuba's ``aov`` + ``direct`` trace it twice), evaluates the BSDF for the
+point light and writes the shading normal and position as AOVs after RGBA: ``nn.X nn.Y nn.Z pp.X pp.Y
+pp.Z``, in the camera frame (:meth:`set_camera_pose` for a scene built in another frame). The shadow ray
+is optional (``shadows``): the renderer asks for it only on meshes lit from an offset light. Importing
+this module imports Mitsuba; call :func:`register` after ``mi.set_variant``.
 """
 
 from __future__ import annotations
@@ -42,9 +30,7 @@ def _make_class():
             self.pose = None  # (x, y, z axes, centre) of the camera in the scene frame
 
         def set_camera_pose(self, cam_to_scene):
-            """Write AOVs in the camera frame of the pose ``cam_to_scene`` ((4, 4), columns: the
-            camera's x, y, z axes and its centre in the scene frame); None: the scene frame is the
-            camera frame. The values are opaque: a new pose reuses the compiled kernel."""
+            """Write AOVs in the camera frame of ``cam_to_scene`` (4, 4) (None: the scene frame), as opaque values."""
             if cam_to_scene is None:
                 self.pose = None
                 return
@@ -58,8 +44,7 @@ def _make_class():
         def sample(self, scene, sampler, ray, medium=None, active=True):
             si = scene.ray_intersect(ray, active)
             valid = active & si.is_valid()
-            ds, em_weight = scene.sample_emitter_direction(
-                si, sampler.next_2d(valid), self.shadows, valid)
+            ds, em_weight = scene.sample_emitter_direction(si, sampler.next_2d(valid), self.shadows, valid)
             bsdf = si.bsdf(ray)
             ctx = mi.BSDFContext()
             lit = valid & (ds.pdf != 0.0)

@@ -1,18 +1,9 @@
 """Scene spec -> Mitsuba scene dict: a pure function, testable without rendering.
 
-The Mitsuba scene is built in the OpenCV *camera* frame (x right, y down, z forward, mm): the
-camera sits at the origin looking along +z with up = (0, -1, 0), so Mitsuba's world frame, its AOVs
-(positions, normals) and the ground truth are all camera-frame quantities. Geometry given in the
-world frame of the scene file is moved there with ``inv(cam_to_world)``.
-
-The dict returned by :func:`mitsuba_scene_dict` holds only plain Python / numpy values: 4 x 4
-transforms are ``numpy`` arrays under ``to_world`` keys, and meshes are
-``{"type": "simtest_arrays", "vertices", "faces", "normals", "bsdf"}`` placeholders; the renderer
-turns these into Mitsuba objects (:func:`simtest.render.scene_load.materialize`).
-
-Mitsuba puts pixel centres at ``i + 0.5``; with the camera above, the intrinsics in the OpenCV
-convention (pixel centres at integers) are ``K = [[f, 0, W/2 - 0.5 + ox], [0, f, H/2 - 0.5 + oy],
-[0, 0, 1]]`` (:func:`intrinsics_matrix`).
+The scene is built in the OpenCV camera frame (x right, y down, z forward, mm), so Mitsuba's world frame,
+its AOVs and the ground truth are camera-frame; world-frame geometry is moved with ``inv(cam_to_world)``.
+The dict holds only plain values: (4, 4) numpy arrays under ``to_world`` and ``simtest_arrays`` mesh
+placeholders, which :func:`simtest.render.scene_load.materialize` turns into Mitsuba objects.
 """
 
 from __future__ import annotations
@@ -24,16 +15,8 @@ import numpy as np
 
 from simtest.scene.spec import CameraSpec, LightSpec, MeshGeometry, PlaneGeometry, SceneSpec
 
-__all__ = [
-    "LIGHT_SEED_KEY",
-    "intrinsics_matrix",
-    "cam_to_world_matrix",
-    "light_position_cam",
-    "plane_normal_cam",
-    "rotation_from_z",
-    "mesh_to_world_matrix",
-    "mitsuba_scene_dict",
-]
+__all__ = ["LIGHT_SEED_KEY", "intrinsics_matrix", "cam_to_world_matrix", "light_position_cam", "plane_normal_cam",
+           "rotation_from_z", "mesh_to_world_matrix", "mitsuba_scene_dict"]
 
 #: Stable key of the light-offset draw in ``SeedSequence([seed, LIGHT_SEED_KEY])``.
 LIGHT_SEED_KEY = 0x11647
@@ -44,27 +27,18 @@ _SENSOR_TO_WORLD = np.diag([-1.0, -1.0, 1.0, 1.0])
 
 
 def intrinsics_matrix(camera: CameraSpec) -> np.ndarray:
-    """Intrinsics K (3, 3) of the rendered image, OpenCV convention (pixel centres at integers).
+    """Intrinsics K (3, 3), pixel centres at integers: ``[[f, 0, W/2 - 0.5 + ox], [0, f, H/2 - 0.5 + oy], [0, 0, 1]]``.
 
-    ``K = [[f, 0, W/2 - 0.5 + ox], [0, f, H/2 - 0.5 + oy], [0, 0, 1]]`` with ``f`` from
-    ``camera.focal`` and ``(ox, oy) = camera.principal_offset_px``.
+    ``f`` is ``camera.focal``, ``(ox, oy)`` ``camera.principal_offset_px`` (Mitsuba puts pixel centres at i + 0.5).
     """
     f = camera.focal
     ox, oy = camera.principal_offset_px
-    return np.array(
-        [[f, 0.0, camera.width_px / 2.0 - 0.5 + ox],
-         [0.0, f, camera.height_px / 2.0 - 0.5 + oy],
-         [0.0, 0.0, 1.0]],
-        dtype=np.float64,
-    )
+    return np.array([[f, 0.0, camera.width_px / 2.0 - 0.5 + ox], [0.0, f, camera.height_px / 2.0 - 0.5 + oy],
+                     [0.0, 0.0, 1.0]], dtype=np.float64)
 
 
 def cam_to_world_matrix(camera: CameraSpec) -> np.ndarray:
-    """The (4, 4) pose of the OpenCV camera in the scene's world frame.
-
-    Columns: x (right), y (down), z (forward) axes and the centre. ``y`` is minus the component of
-    ``camera.up`` orthogonal to the viewing direction.
-    """
+    """The (4, 4) pose of the OpenCV camera in the scene's world frame (columns x, y, z axes and the centre)."""
     c = np.asarray(camera.position_mm, dtype=np.float64)
     z = np.asarray(camera.look_at_mm, dtype=np.float64) - c
     z /= np.linalg.norm(z)
@@ -125,20 +99,13 @@ def mesh_to_world_matrix(geometry: MeshGeometry) -> np.ndarray:
 def _bsdf_dict(spec: SceneSpec, light_pos: np.ndarray) -> dict[str, Any]:
     mat = spec.material
     if mat.model == "phong":
-        return {
-            "type": "simtest_phong",
-            "c": float(mat.c),
-            "n": float(mat.n),
-            "albedo": float(mat.diffuse_albedo),
-            "cancel_falloff": spec.light.falloff == "cancel",
-            "light_pos": [float(x) for x in light_pos],
-        }
+        return {"type": "simtest_phong", "c": float(mat.c), "n": float(mat.n), "albedo": float(mat.diffuse_albedo),
+                "cancel_falloff": spec.light.falloff == "cancel", "light_pos": [float(x) for x in light_pos]}
     # Channels: R = image, G = specular only, B = diffuse only (see simtest.render.phong).
     spec_rgb = {"type": "rgb", "value": [mat.c, mat.c, 0.0]}
     common = {"distribution": mat.distribution, "alpha": mat.microfacet_alpha}
     if mat.base == "conductor":
-        return {"type": "roughconductor", "material": "none", "specular_reflectance": spec_rgb,
-                **common}
+        return {"type": "roughconductor", "material": "none", "specular_reflectance": spec_rgb, **common}
     a = mat.diffuse_albedo
     return {"type": "roughplastic", "int_ior": mat.ior, "ext_ior": 1.0,
             "specular_reflectance": spec_rgb,
@@ -146,13 +113,8 @@ def _bsdf_dict(spec: SceneSpec, light_pos: np.ndarray) -> dict[str, Any]:
             "nonlinear": False, **common}
 
 
-def mitsuba_scene_dict(
-    spec: SceneSpec,
-    *,
-    light_pos_cam: np.ndarray | None = None,
-    mesh_cam: dict[str, np.ndarray] | None = None,
-    seed: int | None = None,
-) -> dict[str, Any]:
+def mitsuba_scene_dict(spec: SceneSpec, *, light_pos_cam: np.ndarray | None = None,
+                       mesh_cam: dict[str, np.ndarray] | None = None, seed: int | None = None) -> dict[str, Any]:
     """Translate a scene spec into a Mitsuba scene dict in the camera frame (pure function).
 
     Parameters
@@ -161,17 +123,14 @@ def mitsuba_scene_dict(
     light_pos_cam : ndarray of shape (3,), optional
         Light position in the camera frame, mm; default :func:`light_position_cam` with ``seed``.
     mesh_cam : dict, optional
-        For mesh and saddle geometry: ``vertices`` (V, 3) and ``normals`` (V, 3) in the camera frame
-        (the renderer passes a mesh file in its world frame and moves ``sensor.to_world`` instead),
-        ``faces`` (F, 3). Required for those types.
+        For mesh and saddle geometry (required there): ``vertices`` (V, 3), ``normals`` (V, 3), ``faces`` (F, 3).
     seed : int, optional
         Seed of the light draw when ``light_pos_cam`` is None (default ``spec.render.seed``).
 
     Returns
     -------
     dict
-        Keys ``type``, ``integrator``, ``sensor``, ``light``, ``surface``. Transforms are (4, 4)
-        numpy arrays; meshes are ``simtest_arrays`` placeholders.
+        Keys ``type``, ``integrator``, ``sensor``, ``light``, ``surface``.
 
     Raises
     ------
@@ -184,38 +143,18 @@ def mitsuba_scene_dict(
     light_pos_cam = np.asarray(light_pos_cam, dtype=np.float64)
     w2c = np.linalg.inv(cam_to_world_matrix(cam))
 
-    sensor = {
-        "type": "perspective",
-        "fov": cam.fov_x_deg,
-        "fov_axis": "x",
-        # Mitsuba's offsets are fractions of the film size and move the principal point the other
-        # way (measured: tests/test_render.py projects sphere centres with an offset K).
-        "principal_point_offset_x": -cam.principal_offset_px[0] / cam.width_px,
-        "principal_point_offset_y": -cam.principal_offset_px[1] / cam.height_px,
-        "near_clip": 1e-2,
-        "far_clip": 1e8,
-        "to_world": _SENSOR_TO_WORLD.copy(),
-        "film": {
-            "type": "hdrfilm",
-            "width": cam.width_px,
-            "height": cam.height_px,
-            "pixel_format": "rgba",
-            "rfilter": {"type": "box"},
-            "sample_border": False,
-        },
-        "sampler": {"type": spec.render.sampler, "sample_count": spec.render.spp},
-    }
-    integrator = {
-        "type": "simtest_gt",
-        # A co-located light sees every point the camera sees; offset lights can cast shadows
-        # only on meshes (see simtest.render.integrator).
-        "shadows": bool(spec.light.epsilon_mm > 0 and geo.triangulated),
-    }
-    light = {
-        "type": "point",
-        "position": [float(x) for x in light_pos_cam],
-        "intensity": {"type": "rgb", "value": [spec.light.intensity] * 3},
-    }
+    sensor = {"type": "perspective", "fov": cam.fov_x_deg, "fov_axis": "x",
+              # Mitsuba's offsets are fractions of the film size and move the principal point the other way
+              "principal_point_offset_x": -cam.principal_offset_px[0] / cam.width_px,
+              "principal_point_offset_y": -cam.principal_offset_px[1] / cam.height_px,
+              "near_clip": 1e-2, "far_clip": 1e8, "to_world": _SENSOR_TO_WORLD.copy(),
+              "film": {"type": "hdrfilm", "width": cam.width_px, "height": cam.height_px, "pixel_format": "rgba",
+                       "rfilter": {"type": "box"}, "sample_border": False},
+              "sampler": {"type": spec.render.sampler, "sample_count": spec.render.spp}}
+    # offset lights can cast shadows only on meshes (simtest.render.integrator)
+    integrator = {"type": "simtest_gt", "shadows": bool(spec.light.epsilon_mm > 0 and geo.triangulated)}
+    light = {"type": "point", "position": [float(x) for x in light_pos_cam],
+             "intensity": {"type": "rgb", "value": [spec.light.intensity] * 3}}
     bsdf = _bsdf_dict(spec, light_pos_cam)
 
     if geo.type == "plane":
@@ -228,8 +167,7 @@ def mitsuba_scene_dict(
         surface = {"type": "rectangle", "to_world": m, "bsdf": bsdf}
     elif geo.type == "sphere":
         c = (w2c @ np.append(geo.center_mm, 1.0))[:3]
-        surface = {"type": "sphere", "center": [float(x) for x in c], "radius": geo.radius_mm,
-                   "bsdf": bsdf}
+        surface = {"type": "sphere", "center": [float(x) for x in c], "radius": geo.radius_mm, "bsdf": bsdf}
     elif geo.type == "cylinder":
         c = (w2c @ np.append(geo.center_mm, 1.0))[:3]
         axis = np.asarray(geo.axis if geo.axis is not None else (1.0, 0.0, 0.0), dtype=np.float64)
@@ -246,5 +184,4 @@ def mitsuba_scene_dict(
         surface = {"type": "simtest_arrays", "vertices": mesh_cam["vertices"],
                    "faces": mesh_cam["faces"], "normals": mesh_cam["normals"], "bsdf": bsdf}
 
-    return {"type": "scene", "integrator": integrator, "sensor": sensor, "light": light,
-            "surface": surface}
+    return {"type": "scene", "integrator": integrator, "sensor": sensor, "light": light, "surface": surface}

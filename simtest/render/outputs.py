@@ -21,7 +21,6 @@ from simtest.render.sensor import video_frame
 from simtest.scene.spec import SceneSpec, scene_to_dict
 from simtest.simulate.truth import HighlightTruth
 
-
 #: Coverage from which a pixel counts as tissue for the "tissue" metering of the auto-exposure
 #: (``sensor.metering``): half the pixel or more on the surface.
 TISSUE_COVERAGE = 0.5
@@ -34,10 +33,9 @@ class RenderResult:
     Attributes
     ----------
     linear : ndarray of shape (H, W), float32
-        Linear radiance (specular + diffuse). An endoscope render with a video sensor's field stop
-        is 0 outside the stop (so are ``rgb`` and ``specular``): no light reaches there.
+        Linear radiance (specular + diffuse); 0 outside a video sensor's field stop (so are ``rgb``, ``specular``).
     sensor : ndarray of shape (H, W), uint8 or uint16
-        After exposure, noise, clipping, gamma and quantisation (:func:`apply_sensor`).
+        After exposure, noise, clipping, gamma and quantisation.
     specular : ndarray of shape (H, W), float32
         Specular-only linear radiance.
     normals : ndarray of shape (H, W, 3), float32
@@ -45,12 +43,11 @@ class RenderResult:
     depth : ndarray of shape (H, W), float32
         z-depth, mm; NaN outside ``mask``.
     distance : ndarray of shape (H, W), float32
-        Distance from the camera centre to the pixel's mean surface point, mm; NaN outside
-        ``mask``.
+        Distance from the camera centre to the pixel's mean surface point, mm; NaN outside ``mask``.
     position : ndarray of shape (H, W, 3), float32
         Surface point, camera frame, mm; NaN outside ``mask``.
     mask : ndarray of shape (H, W), bool
-        Pixels entirely covered by the surface (every sample hit it).
+        Pixels entirely covered by the surface.
     coverage : ndarray of shape (H, W), float32
         Fraction of each pixel covered by the surface.
     K : ndarray of shape (3, 3)
@@ -65,30 +62,21 @@ class RenderResult:
     seed : int
     spec : SceneSpec
     camera : CameraModel or None
-        The camera model of an endoscope render (rays traced from it); None for Mitsuba's
-        perspective sensor, whose model is the pinhole ``K``.
+        The camera model of an endoscope render; None for Mitsuba's perspective sensor (the pinhole ``K``).
     lights : LightRig or None
         The light rig of an endoscope render; None for the one light at ``light_pos``.
     rgb : ndarray of shape (H, W, 3), float32, or None
-        Linear RGB radiance of a tissue render (``material.model = "tissue"``); None when the
-        image is grey (``linear``).
+        Linear RGB radiance of a tissue render; None when the image is grey.
     shading_normals : ndarray of shape (H, W, 3), float32, or None
-        Unit shading normals with the tissue's micro-relief, facing the camera, NaN outside
-        ``mask`` (``normals`` is the macro normal of the surface); None without micro-relief.
+        Unit shading normals with the tissue's micro-relief (``normals`` is the macro normal); None without.
     video : ndarray of shape (H, W, 3), uint8, or None
-        The video frame when the sensor made one (``sensor.output = "video"``: ``sensor`` is its
-        luma); :attr:`frame` gives it, or develops it from the linear image otherwise.
+        The video frame when the sensor made one (``sensor`` is then its luma).
     field_stop : ndarray of shape (H, W), bool, or None
-        Pixels inside the scope's field stop (``sensor.field_stop`` with a video sensor); None when
-        the whole film sees the scene. Outside it there is no light and no truth: ``mask`` is
-        False and the per-pixel truth NaN there.
+        Pixels inside the scope's field stop (no light and no truth outside); None: the whole film.
     albedo : ndarray of shape (H, W, 3), float32, or None
-        Linear RGB diffuse albedo of the tissue at each pixel centre's surface point (the function
-        the renderer shades with), NaN outside ``mask``; None without tissue.
+        Linear RGB diffuse albedo at each pixel centre's surface point, NaN outside ``mask``; None without tissue.
     relief_highlights : list of ReliefHighlight
-        Specular points of the tissue's micro-relief (glints: the shading normal bisects camera
-        and light), in frame, lit and unoccluded, each with its light
-        (:func:`simtest.render.truth.relief_highlights`); ``highlights`` holds the macro surface's.
+        The micro-relief's glints, in frame, lit and unoccluded (:func:`simtest.render.truth.relief_highlights`).
     """
 
     linear: np.ndarray
@@ -118,7 +106,7 @@ class RenderResult:
 
     @property
     def frame(self) -> np.ndarray:
-        """The 8-bit RGB video frame (H, W, 3) of the scene's sensor (:func:`video_frame`)."""
+        """The 8-bit RGB video frame (H, W, 3) of the scene's sensor (developed from the linear image if not made)."""
         if self.video is not None:
             return self.video
         return video_frame(self.rgb if self.rgb is not None else self.linear, self.spec.sensor, self.seed,
@@ -147,17 +135,12 @@ class RenderResult:
         return self.linear
 
 
-#: File names of one render's output set (``write_render``); a folder holding anything else is not
-#: replaced.
-RENDER_FILES = ("image.png", "intrinsics.json", "ground_truth.npz", "highlights.json", "camera.json",
-                "frame.png")
+#: File names of one render's output set (``write_render``)
+RENDER_FILES = ("image.png", "intrinsics.json", "ground_truth.npz", "highlights.json", "camera.json", "frame.png")
 
 
 def check_output_folder(out: str | Path, option: str = "--out") -> None:
-    """Raise :class:`~simtest._io.OutputFolderError` unless ``out`` is new, empty, or a folder
-    holding only a render's files (:data:`RENDER_FILES`): ``simtest render`` replaces its output
-    folder as a whole, so anything else there would be lost.
-    """
+    """Raise :class:`~simtest._io.OutputFolderError` unless ``out`` is new, empty or holds only :data:`RENDER_FILES`."""
     _check_output_folder(out, RENDER_FILES, option)
 
 
@@ -171,28 +154,14 @@ def _light_dict(light: Light) -> dict:
 
 
 def write_render(result: RenderResult, out_dir: str | Path) -> dict[str, Path]:
-    """Write a render to ``out_dir`` as one set: a failed write leaves the previous set or none.
+    """Write a render to ``out_dir`` as one set (:func:`simtest._io.replace_output_folder`).
 
-    Files: ``image.png`` (the sensor image, 8 or 16 bit grey), ``intrinsics.json``
-    (:func:`simtest.geometry.camera.save_intrinsics`), ``ground_truth.npz`` (``normals`` (H, W, 3),
-    ``depth``, ``distance`` (H, W) mm, ``position`` (H, W, 3), ``mask``, ``linear``, ``specular``,
-    ``coverage``, ``K``, ``cam_to_world``, ``light_pos`` (the first light, camera frame, mm),
-    ``light_positions`` (L, 3) (every light of the rig), ``field_stop`` (H, W) bool (the pixels
-    inside the scope's field stop; all True without one; outside it ``mask`` is False and the
-    truth NaN)), ``highlights.json`` (``highlights``: list of :meth:`HighlightTruth.to_dict` with
-    ``kind`` "macro"; ``relief_highlights``: the micro-relief's glints,
-    :meth:`simtest.render.truth.ReliefHighlight.to_dict`, ``kind`` "micro_relief"; ``lights``:
-    every light of the rig (``position_mm``, ``intensity``, ``falloff``, ``profile_exponent``,
-    camera frame); with the scene, seed and variant), ``camera.json`` (the camera model and its
-    light rig, :func:`simtest.geometry.camera_file.save_camera`; with a video sensor, its
-    ``"response"``, :func:`simtest.geometry.response.video_response`), ``frame.png`` (the 8-bit RGB
-    video frame, :attr:`RenderResult.frame`); tissue renders add ``rgb`` (H, W, 3),
-    ``shading_normals`` (H, W, 3) and ``albedo`` (H, W, 3) to ``ground_truth.npz``.
-
-    The files are written into a temporary sibling folder that then replaces ``out_dir`` by
-    renames (:func:`simtest._io.replace_output_folder`, which first clears what a killed write
-    left beside it); ``out_dir`` may be new, empty or a previous render's folder
-    (:data:`RENDER_FILES`).
+    Files: ``image.png`` (the sensor image, 8 or 16 bit grey), ``intrinsics.json``, ``ground_truth.npz``
+    (``normals``, ``depth``, ``distance``, ``position``, ``mask``, ``linear``, ``specular``, ``coverage``, ``K``,
+    ``cam_to_world``, ``light_pos`` (the first light), ``light_positions`` (L, 3), ``field_stop`` (all True without
+    one); tissue renders add ``rgb``, ``shading_normals`` and ``albedo``), ``highlights.json`` (``highlights``
+    with ``kind`` "macro", ``relief_highlights``, every light, the scene, seed and variant), ``camera.json``
+    (model, rig and, with a video sensor, its ``"response"``) and ``frame.png`` (the 8-bit RGB video frame).
 
     Returns
     -------
@@ -206,7 +175,6 @@ def write_render(result: RenderResult, out_dir: str | Path) -> dict[str, Path]:
     OSError
         If writing fails (``out_dir`` then keeps its previous content, or does not exist).
     """
-
     out = Path(out_dir).absolute()
     check_output_folder(out)
     names = dict(zip(("image", "intrinsics", "ground_truth", "highlights", "camera", "frame"), RENDER_FILES))
@@ -217,18 +185,13 @@ def write_render(result: RenderResult, out_dir: str | Path) -> dict[str, Path]:
         pil = Image.fromarray(img.astype(np.uint16))
     H, W = result.linear.shape[:2]
     rig = result.light_rig
-    meta = {
-        "scene": result.spec.name,
-        "seed": result.seed,
-        "variant": result.variant,
-        "light_pos_mm": [float(x) for x in result.light_pos],
-        "lights": [{**_light_dict(light), "diameter_mm": 2.0 * guide_radius_mm(result.spec)}
-                   for light in rig.lights],
-        "image_size": [W, H],
-        "highlights": [{**h.to_dict(), "kind": "macro"} for h in result.highlights],
-        "relief_highlights": [h.to_dict() for h in result.relief_highlights],
-        "spec": scene_to_dict(result.spec),
-    }
+    meta = {"scene": result.spec.name, "seed": result.seed, "variant": result.variant,
+            "light_pos_mm": [float(x) for x in result.light_pos],
+            "lights": [{**_light_dict(light), "diameter_mm": 2.0 * guide_radius_mm(result.spec)}
+                       for light in rig.lights],
+            "image_size": [W, H], "highlights": [{**h.to_dict(), "kind": "macro"} for h in result.highlights],
+            "relief_highlights": [h.to_dict() for h in result.relief_highlights],
+            "spec": scene_to_dict(result.spec)}
     stop = result.field_stop if result.field_stop is not None else np.ones((H, W), dtype=bool)
     light_positions = np.array([light.position_mm for light in rig.lights], dtype=np.float64).reshape(-1, 3)
 
@@ -248,8 +211,7 @@ def write_render(result: RenderResult, out_dir: str | Path) -> dict[str, Path]:
             **({"shading_normals": result.shading_normals}
                if result.shading_normals is not None else {}))
         paths["highlights"].write_text(json.dumps(meta, indent=2), encoding="utf-8")
-        # a video frame's camera file carries its sensor's response, so that the light-aware fits
-        # of `simtest reconstruct` run on the frame's linear intensities
+        # a video frame's camera file carries its sensor's response (the fits run on linear intensities)
         save_camera(paths["camera"], result.camera_model, result.light_rig,
                     video_response(result.spec.sensor) if result.video is not None else None)
         frame = Image.fromarray(result.frame, mode="RGB")

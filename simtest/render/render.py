@@ -1,18 +1,10 @@
 """Render a scene spec with Mitsuba 3: image, sensor image, per-pixel and per-highlight truth.
 
-One render gives everything: the ``simtest_gt`` integrator (:mod:`simtest.render.integrator`)
-traces each camera ray once, lights it from the point light and adds shading normals and
-positions; the colour channels carry the full image (R), the specular-only image (G) and the
-diffuse-only image (B) (see :mod:`simtest.render.phong`); alpha is the pixel coverage. All outputs
-are camera-frame: analytic shapes and saddles are built in the OpenCV camera frame; mesh files are
-built once in their world frame and a render moves the sensor to the camera pose (the integrator
-writes its AOVs in the camera frame), so that a new view reuses the loaded scene and its
-acceleration structure (:func:`simtest.render.scene_load._mitsuba_scene`).
-
-The render call is here (scenes: :mod:`~simtest.render.scene_load`, truth: :mod:`~simtest.render.scene_truth`,
-endoscopes: :mod:`~simtest.render.rig_render`, files: :mod:`~simtest.render.outputs`). Mitsuba is imported
-through :func:`simtest._lazy.require` when a render is asked for; its plugins (:mod:`simtest.render.phong`,
-:mod:`simtest.render.integrator`) by :func:`~simtest.render.scene_load.choose_variant` once a variant is set.
+The ``simtest_gt`` integrator (:mod:`simtest.render.integrator`) traces each camera ray once; the colour
+channels carry the full (R), specular-only (G) and diffuse-only (B) images (:mod:`simtest.render.phong`),
+alpha the coverage, the AOVs shading normals and positions. All outputs are camera-frame; meshes are built
+once in their world frame and a new view moves the sensor (:func:`simtest.render.scene_load._mitsuba_scene`).
+Endoscope scenes go to :mod:`~simtest.render.rig_render`.
 """
 
 from __future__ import annotations
@@ -38,22 +30,15 @@ __all__ = ["MAX_SEED", "RenderResult", "RendererUnavailable", "RenderInputError"
            "visible_highlights", "choose_variant", "render_scene", "write_render", "RENDER_FILES",
            "OutputFolderError"]
 
-
-#: Bytes of memory one film pixel needs during a render, whatever the spp: Mitsuba's LLVM
-#: variant renders the samples of a pixel in a loop, so its peak grows with the film only
-#: (measured on a plane: 818 MB at 2048^2 against 312 MB at 1024^2, about 160 B/px, at 4 and 16
-#: spp alike), plus the float32 images and ground-truth maps the renderer keeps (about 90 B/px)
-#: and the compressed copy written to disk; 400 B/px leaves a margin for other shapes.
+#: Bytes of memory one film pixel needs during a render, whatever the spp: Mitsuba's peak (measured about
+#: 160 B/px on a plane) plus the kept float32 maps (about 90 B/px), with a margin for other shapes.
 BYTES_PER_PIXEL = 400
 #: Memory a render needs besides its film (the Mitsuba/LLVM runtime, measured ~300 MB).
 BASE_BYTES = 512 * 2**20
 
 
 def available_memory_bytes() -> int | None:
-    """Memory a new allocation can get: MemAvailable, capped by RLIMIT_AS / RLIMIT_DATA.
-
-    Returns None when neither is known (not Linux and no limit).
-    """
+    """Memory a new allocation can get: MemAvailable, capped by RLIMIT_AS / RLIMIT_DATA; None when unknown."""
     avail: int | None = None
     try:
         with open("/proc/meminfo", encoding="ascii") as fh:
@@ -79,12 +64,7 @@ def available_memory_bytes() -> int | None:
 
 
 def check_film_fits(spec: SceneSpec) -> None:
-    """Raise :class:`RenderInputError` if the film of ``spec`` would not fit in memory.
-
-    The need is estimated as ``BASE_BYTES + BYTES_PER_PIXEL * W * H`` (see
-    :data:`BYTES_PER_PIXEL`), so that a render too large is refused with a message instead of
-    being killed or crashing inside Mitsuba.
-    """
+    """Raise :class:`RenderInputError` if ``BASE_BYTES + BYTES_PER_PIXEL * W * H`` exceeds the available memory."""
     W, H = spec.camera.width_px, spec.camera.height_px
     need = BASE_BYTES + BYTES_PER_PIXEL * W * H
     avail = available_memory_bytes()
@@ -102,8 +82,8 @@ def render_scene(spec: SceneSpec, *, seed: int | None = None,
     ----------
     spec : SceneSpec
     seed : int, optional
-        Root seed of the sampler, the sensor noise and the light draw; None uses
-        ``spec.render.seed``. The same seed gives bit-identical outputs.
+        Root seed of the sampler, the sensor noise and the light draw (default ``spec.render.seed``); the
+        same seed gives bit-identical outputs.
     variant : str, optional
         Mitsuba variant; None uses ``spec.render.variant`` ("auto": CUDA if usable, else LLVM).
 
@@ -114,25 +94,21 @@ def render_scene(spec: SceneSpec, *, seed: int | None = None,
     Raises
     ------
     ValueError
-        If ``seed`` is outside [0, 2^31 - 1] (:data:`MAX_SEED`).
+        If ``seed`` is outside [0, :data:`MAX_SEED`].
     RendererUnavailable
         If Mitsuba cannot run the variant here.
     RenderInputError
-        If the mesh file is not a readable PLY with k1/k2, a face indexes a missing vertex, or the
-        film would not fit in memory (:func:`check_film_fits`).
+        If the mesh file is not a readable PLY with k1/k2, a face indexes a missing vertex, or the film would
+        not fit in memory.
     simtest.simulate.truth.HighlightTruthError
-        If the brightest point of an analytic sphere or cylinder cannot be solved for (camera or
-        light inside the surface).
+        If an analytic sphere's or cylinder's BP cannot be solved for (camera or light inside the surface).
 
     Notes
     -----
-    With ``light.falloff = "cancel"`` the Phong BSDF multiplies by the squared light distance per
-    sample (exact); the microfacet BSDFs are Mitsuba's own, so the image is multiplied per pixel by
-    the squared light distance of the pixel's mean surface point (exact on fully covered pixels of a
-    plane to second order in the pixel footprint).
+    With ``light.falloff = "cancel"`` the Phong BSDF multiplies by the squared light distance per sample;
+    for the microfacet BSDFs the image is multiplied per pixel by that of the pixel's mean surface point.
     """
     mi = require("mitsuba")
-
     seed = spec.render.seed if seed is None else int(seed)
     if not 0 <= seed <= MAX_SEED:
         raise ValueError(f"render seed {seed} is out of range: must be in [0, 2^31 - 1 = {MAX_SEED}] "
@@ -143,14 +119,11 @@ def render_scene(spec: SceneSpec, *, seed: int | None = None,
         with _RENDER_LOCK:
             return _render_endoscope(spec, seed, variant)
     light_pos = light_position_cam(spec.light, seed)
-    # Cached Mitsuba scenes are updated in place for each render (see _mitsuba_scene): one
-    # render at a time per process, from the update to the last highlight ray cast.
+    # cached scenes are updated in place: one render at a time, from the update to the last ray cast
     with _RENDER_LOCK:
         scene, pose = _mitsuba_scene(spec, light_pos, variant)
-
         image = mi.render(scene, spp=spec.render.spp, seed=seed)
-        # A view of Dr.Jit's (host) memory, no copy; the view keeps ``image`` alive. Only new arrays
-        # derived from it are returned.
+        # a view of Dr.Jit's host memory (only new arrays derived from it are returned)
         out = np.asarray(image)
         if out.dtype != np.float32:
             out = out.astype(np.float32)
@@ -166,9 +139,7 @@ def render_scene(spec: SceneSpec, *, seed: int | None = None,
             d2 = np.where(alpha > 0, d2, 0.0).astype(np.float32)
             linear *= d2
             specular *= d2
-
-        # Unit normals facing the camera (n . ray < 0; the position lies along the ray from the
-        # origin); NaN outside the mask.
+        # unit normals facing the camera (n . ray < 0), NaN outside the mask
         sign = np.where(np.einsum("ijk,ijk->ij", nn, pp) > 0, -1.0, 1.0).astype(np.float32)
         scale = np.where(mask, sign / np.where(mask, nlen, 1.0), np.float32(np.nan))
         normals = nn * scale[..., None]
@@ -184,9 +155,7 @@ def render_scene(spec: SceneSpec, *, seed: int | None = None,
             res = {}
         highlights = visible_highlights(_highlights(spec, res, light_pos, K, scene, pose), specular)
     sensor, video = _sensor_image(linear, None, spec, seed, tissue=alpha >= TISSUE_COVERAGE)
-    return RenderResult(
-        linear=linear, sensor=sensor, specular=specular, normals=normals, depth=depth,
-        distance=distance, position=position, mask=mask, coverage=alpha.astype(np.float32),
-        K=K, cam_to_world=cam_to_world_matrix(spec.camera), light_pos=light_pos,
-        highlights=highlights, variant=variant, seed=seed, spec=spec, video=video,
-    )
+    return RenderResult(linear=linear, sensor=sensor, specular=specular, normals=normals, depth=depth,
+                        distance=distance, position=position, mask=mask, coverage=alpha.astype(np.float32),
+                        K=K, cam_to_world=cam_to_world_matrix(spec.camera), light_pos=light_pos,
+                        highlights=highlights, variant=variant, seed=seed, spec=spec, video=video)

@@ -22,10 +22,7 @@ from simtest.render.scene_load import (_PIXEL_RAYS, _SCENE_CACHE, _SCENE_CACHE_S
                                        _mesh_in_camera, tissue_texture)
 from simtest.render.scene_truth import _highlights, _sensor_image, visible_highlights
 
-
-#: Pixels per wavefront of the endoscope renderer (times spp rays). The image does not depend on it:
-#: each sample draws its sub-pixel position from its own stream
-#: (:func:`simtest.render.endoscope.sample_positions`) and each pixel's samples are summed in order.
+#: Pixels per wavefront of the endoscope renderer (times spp rays); the image does not depend on it
 BLOCK_PIXELS = 1 << 16
 
 
@@ -54,11 +51,9 @@ def _render_endoscope(spec: SceneSpec, seed: int, variant: str) -> RenderResult:
     texture = tissue_texture(spec) if mat.model == "tissue" else None
 
     n_pix = W * H
-    # The pixel centres' ground truth first (its casts wait for every kernel queued before them).
+    # the pixel centres' truth first; then every block's kernels are queued (Dr.Jit runs them
+    # asynchronously) while this thread computes the truth maps and the highlight search's starts
     centre = wavefront.cast(scene, _pixel_rays(model), later=True)
-    # Then the image: every block's kernels are queued (Dr.Jit's LLVM back-end runs them
-    # asynchronously on its thread pool) while this thread computes the ground-truth maps and the
-    # highlight search's start pixels in numpy; the results are read after that.
     spp = spec.render.spp
     shaded, dark = _shaded_pixels(spec, W, H)
     pending, covered = [], []
@@ -70,8 +65,7 @@ def _render_endoscope(spec: SceneSpec, seed: int, variant: str) -> RenderResult:
                                            guide_radius_mm=guide_r))
         else:
             pending.append(wavefront.shade_tissue(scene, rays, rig, texture, mat, shadows=shadows, spp=spp,
-                                                  guide_radius_mm=guide_r,
-                                                  defer=True))
+                                                  guide_radius_mm=guide_r, defer=True))
     for b0 in range(0, len(dark), BLOCK_PIXELS):
         rays = wavefront.model_rays(model, sample_positions(spp, W, 0, 0, seed, pixels=dark[b0:b0 + BLOCK_PIXELS]))
         covered.append(wavefront.coverage(scene, rays, spp=spp, defer=True))
@@ -160,13 +154,12 @@ def _render_endoscope(spec: SceneSpec, seed: int, variant: str) -> RenderResult:
             glints = [h for h, s_ in zip(glints, seen) if s_]
     coverage = coverage.reshape(H, W)
     sensor, video = _sensor_image(linear, rgb, spec, seed, tissue=coverage >= TISSUE_COVERAGE)
-    return RenderResult(
-        linear=linear, sensor=sensor, specular=specular, normals=normals, depth=depth,
-        distance=distance, position=position, mask=mask, coverage=coverage,
-        K=K, cam_to_world=cam_to_world_matrix(spec.camera), light_pos=rig.lights[0].position,
-        highlights=highlights, variant=variant, seed=seed, spec=spec, camera=model, lights=rig,
-        rgb=rgb, shading_normals=shading, video=video, field_stop=stop, albedo=albedo,
-        relief_highlights=glints)
+    return RenderResult(linear=linear, sensor=sensor, specular=specular, normals=normals, depth=depth,
+                        distance=distance, position=position, mask=mask, coverage=coverage, K=K,
+                        cam_to_world=cam_to_world_matrix(spec.camera), light_pos=rig.lights[0].position,
+                        highlights=highlights, variant=variant, seed=seed, spec=spec, camera=model, lights=rig,
+                        rgb=rgb, shading_normals=shading, video=video, field_stop=stop, albedo=albedo,
+                        relief_highlights=glints)
 
 
 def _field_stop(spec: SceneSpec, W: int, H: int) -> np.ndarray | None:
@@ -179,14 +172,10 @@ def _field_stop(spec: SceneSpec, W: int, H: int) -> np.ndarray | None:
 
 
 def _shaded_pixels(spec: SceneSpec, W: int, H: int) -> tuple[np.ndarray, np.ndarray]:
-    """Row-major indices of the pixels the endoscope renderer shades, and of the others.
+    """Row-major indices of the pixels the endoscope renderer shades (inside the field stop), and of the others.
 
-    A scope's field stop (``sensor.field_stop``, with a video sensor) lets no light onto the
-    pixels outside it: the renderer traces no shading rays there, and their radiance (``linear``,
-    ``rgb``, ``specular``) is 0; their coverage is computed as everywhere, their ground truth is
-    NaN (``mask`` False).
-    Every shaded pixel gets the samples it gets in a full-frame render, so its value does not
-    depend on the field stop.
+    Outside the stop no shading rays are traced (radiance 0, truth NaN, coverage computed as everywhere);
+    a shaded pixel gets the samples of a full-frame render.
     """
     stop = _field_stop(spec, W, H)
     if stop is None:
@@ -196,11 +185,7 @@ def _shaded_pixels(spec: SceneSpec, W: int, H: int) -> tuple[np.ndarray, np.ndar
 
 
 def _pixel_rays(model) -> np.ndarray:
-    """Unit rays (W H, 3) of every pixel centre through ``model``, row-major, float64 (read-only).
-
-    The table is kept for the last two camera models (a sweep or a dataset renders one camera
-    model at many poses and seeds).
-    """
+    """Unit rays (W H, 3) of every pixel centre through ``model``, row-major, float64, read-only (cached)."""
     W, H = model.image_size
     key = (type(model).__name__, json.dumps(model.params(), sort_keys=True, default=repr), W, H)
     rays = _PIXEL_RAYS.get(key)

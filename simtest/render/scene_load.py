@@ -26,10 +26,7 @@ class RendererUnavailable(RuntimeError):
 
 
 class RenderInputError(ValueError):
-    """A scene cannot be rendered as given: a bad mesh file or a film too large for memory.
-
-    The message names the file or key and the value, for a one-line error.
-    """
+    """A scene cannot be rendered as given (a bad mesh file, a film too large); the message names the key and value."""
 
 
 def _loaded_llvm_major(dr) -> int | None:
@@ -46,16 +43,14 @@ def choose_variant(requested: str | None = None) -> str:
     Parameters
     ----------
     requested : str, optional
-        "auto"/None: ``cuda_ad_rgb`` when a CUDA device is usable, else ``llvm_ad_rgb``. Any other
-        value is used as given.
+        "auto"/None: ``cuda_ad_rgb`` when a CUDA device is usable, else ``llvm_ad_rgb``; else as given.
 
     Raises
     ------
     RendererUnavailable
-        If the variant cannot run here: no usable LLVM (the message names
-        :data:`simtest._llvm.LLVM_FIX`) or no CUDA device.
+        If the variant cannot run here: no usable LLVM (the message names :data:`simtest._llvm.LLVM_FIX`)
+        or no CUDA device.
     """
-
     libllvm = _llvm.configure_llvm_env()
     if libllvm:
         major = _llvm._major(libllvm)
@@ -63,9 +58,7 @@ def choose_variant(requested: str | None = None) -> str:
             raise RendererUnavailable(
                 f"Dr.Jit is pointed at LLVM {major} ({libllvm}), too old for the llvm variants "
                 f"(LLVM {_llvm.MIN_LLVM_MAJOR}+ needed): {_llvm.LLVM_FIX}")
-    dr = require("drjit")
-    mi = require("mitsuba")
-
+    dr, mi = require("drjit"), require("mitsuba")
     variant = requested or "auto"
     if variant == "auto":
         has_cuda = False
@@ -83,8 +76,7 @@ def choose_variant(requested: str | None = None) -> str:
             f"Mitsuba variant {variant!r} needs an LLVM shared library that Dr.Jit can load "
             f"(DRJIT_LIBLLVM_PATH={os.environ.get('DRJIT_LIBLLVM_PATH')!r}): {_llvm.LLVM_FIX}")
     if variant.startswith("llvm"):
-        # With no LLVM 16+ found, Dr.Jit loads whatever libLLVM the system offers; Debian 12's
-        # LLVM 15 aborts the process at the first kernel, so its version is checked here.
+        # Dr.Jit may load an older system libLLVM, which aborts the process at the first kernel
         loaded = _loaded_llvm_major(dr)
         if loaded is not None and loaded < _llvm.MIN_LLVM_MAJOR:
             raise RendererUnavailable(
@@ -103,13 +95,8 @@ def choose_variant(requested: str | None = None) -> str:
 
 
 def materialize(d: Any) -> Any:
-    """Turn the plain dict of :func:`mitsuba_scene_dict` into what ``mi.load_dict`` takes.
-
-    (4, 4) numpy arrays under ``to_world`` become ``mi.ScalarTransform4f``; ``simtest_arrays``
-    placeholders become ``mi.Mesh`` objects with vertex normals. Needs an active variant.
-    """
+    """Turn the plain dict of :func:`mitsuba_scene_dict` into what ``mi.load_dict`` takes (needs a variant)."""
     mi = require("mitsuba")
-
     if isinstance(d, dict):
         if d.get("type") == "simtest_arrays":
             return _make_mesh(d["vertices"], d["faces"], d["normals"], materialize(d["bsdf"]))
@@ -125,7 +112,6 @@ def materialize(d: Any) -> Any:
 
 def _make_mesh(vertices, faces, normals, bsdf_dict):
     mi = require("mitsuba")
-
     props = mi.Properties()
     props["bsdf"] = mi.load_dict(bsdf_dict)
     mesh = mi.Mesh("surface", len(vertices), len(faces), props=props, has_vertex_normals=True)
@@ -135,10 +121,6 @@ def _make_mesh(vertices, faces, normals, bsdf_dict):
     params["vertex_normals"] = mi.Float(np.ravel(np.asarray(normals, dtype=np.float32)))
     params.update()
     return mesh
-
-
-# ------------------------------------------------------------------------------------------------
-# Meshes
 
 
 _MESH_CACHE: dict[tuple, Any] = {}
@@ -155,24 +137,17 @@ def _load_mesh_file(path: str):
 
 
 def _scene_pose(spec: SceneSpec) -> np.ndarray:
-    """(4, 4) camera-to-scene-frame pose of a mesh or saddle scene.
-
-    Meshes are rendered in their world frame (a new camera pose then moves only the sensor);
-    a saddle is defined in the camera frame (identity).
-    """
+    """(4, 4) camera-to-scene-frame pose of a mesh (its world frame) or saddle (identity) scene."""
     if spec.geometry.frame == "camera":
         return np.eye(4)
     return cam_to_world_matrix(spec.camera)
 
 
 def cam_to_texture_matrix(spec: SceneSpec) -> np.ndarray:
-    """(4, 4) rigid map from the camera frame to the frame the tissue texture is attached to.
+    """(4, 4) rigid map from the camera frame to the tissue texture's frame.
 
-    Meshes: the mesh file's own axes moved by the mesh's rotation and translation (mm, without its
-    ``scale``: the texture keeps its wavelengths in mm), so that the tissue stays on the mesh
-    whatever the camera pose or the mesh placement; spheres and cylinders: the world frame (their
-    centres and axes are given in it); planes and saddles are defined in the camera frame, which
-    is then their texture frame (identity).
+    Meshes: the mesh file's axes moved by the mesh's rotation and translation (without its scale); spheres
+    and cylinders: the world frame; planes and saddles: the camera frame (identity).
     """
     geo = spec.geometry
     if geo.frame == "camera":
@@ -188,8 +163,7 @@ def cam_to_texture_matrix(spec: SceneSpec) -> np.ndarray:
 
 
 def tissue_texture(spec: SceneSpec):
-    """The tissue texture of ``spec`` (``material.model = "tissue"``) as a function of camera-frame
-    points (:func:`simtest.render.tissue.in_camera` of :func:`cam_to_texture_matrix`)."""
+    """The tissue texture of ``spec`` as a function of camera-frame points."""
     mat = spec.material
     t = tissue_params(mat.tissue, mat.texture_seed, mat.relief_mm, mat.relief_scale_mm,
                       relief_min_mm=mat.relief_min_mm, relief_hurst=mat.relief_hurst, base=mat.albedo,
@@ -204,12 +178,7 @@ def tissue_texture(spec: SceneSpec):
 
 
 def _mesh_in_scene(spec: SceneSpec) -> dict[str, np.ndarray]:
-    """Mesh arrays in the scene frame of :func:`_scene_pose` (cached per geometry and file).
-
-    Returns ``vertices`` (V, 3), ``faces`` (F, 3), ``normals`` (V, 3) unit, ``k1``, ``k2`` (V,)
-    (1/mm, sign convention of :mod:`simtest.scene.meshes`, flipped with the normals). Treat the
-    arrays as read-only: they are shared between renders.
-    """
+    """Mesh arrays in the scene frame, cached, read-only: ``vertices``, ``faces``, ``normals``, ``k1``, ``k2``."""
     geo = spec.geometry
     key: tuple = (geo, os.path.getmtime(geo.path) if geo.type == "mesh" else None)
     hit = _MESH_DATA_CACHE.get(key)
@@ -249,8 +218,7 @@ def _mesh_in_scene(spec: SceneSpec) -> dict[str, np.ndarray]:
         k1, k2 = k1 / s, k2 / s
         if geo.flip_normals:
             n, k1, k2 = -n, -k2, -k1
-        data = {"vertices": v, "faces": np.asarray(mesh.faces, dtype=np.int64), "normals": n,
-                "k1": k1, "k2": k2}
+        data = {"vertices": v, "faces": np.asarray(mesh.faces, dtype=np.int64), "normals": n, "k1": k1, "k2": k2}
     for a in data.values():
         a.flags.writeable = False
     _cache_put(_MESH_DATA_CACHE, _MESH_DATA_CACHE_SIZE, key, data)
@@ -266,9 +234,6 @@ def _mesh_in_camera(spec: SceneSpec) -> dict[str, np.ndarray]:
     R, c = pose[:3, :3], pose[:3, 3]
     return {**data, "vertices": (data["vertices"] - c) @ R, "normals": data["normals"] @ R}
 
-
-# ------------------------------------------------------------------------------------------------
-# Rendering
 
 _SCENE_CACHE: dict[tuple, Any] = {}
 _SCENE_CACHE_SIZE = 4
@@ -288,7 +253,6 @@ def clear_caches() -> None:
 
 def _load_dict(spec: SceneSpec, d: dict):
     mi = require("mitsuba")
-
     if spec.geometry.type == "cylinder":
         # Mitsuba flags float32 round-off in R diag(r, r, length) as "shearing": silence that.
         level = mi.logger().log_level()
@@ -308,16 +272,10 @@ def _cache_put(cache: dict, size: int, key: tuple, value) -> None:
 
 
 def _mitsuba_scene(spec: SceneSpec, light_pos: np.ndarray, variant: str):
-    """Load (or reuse) the Mitsuba scene; the seed and sensor do not change it.
+    """Load (or reuse) the Mitsuba scene: ``(scene, pose)``, pose None for analytic shapes (camera frame).
 
-    Returns ``(scene, pose)``: ``pose`` (4, 4) is the camera-to-scene-frame pose for mesh and
-    saddle scenes, None for analytic shapes (built in the camera frame).
-
-    Mesh and saddle scenes are cached by what their structure depends on (the geometry, the film,
-    the sampler, the material model and flags, whether shadows are traced) and every render sets
-    all the values that may change between specs sharing that structure (camera pose, light
-    position and intensity, Phong c, n, albedo) before rendering, on a fresh scene as on a reused
-    one: a render never depends on what the process rendered before.
+    Mesh and saddle scenes are cached by their structure, and every render sets all the values that may
+    differ between specs sharing it (pose, light, Phong c, n, albedo): a render never depends on the last.
     """
     geo = spec.geometry
     if not geo.triangulated:
@@ -331,7 +289,6 @@ def _mitsuba_scene(spec: SceneSpec, light_pos: np.ndarray, variant: str):
         return hit
 
     mi = require("mitsuba")
-
     mat = spec.material
     shadows = bool(spec.light.epsilon_mm > 0)
     cam = spec.camera
@@ -364,13 +321,11 @@ def _mitsuba_scene(spec: SceneSpec, light_pos: np.ndarray, variant: str):
 
 
 def _make_caster(scene, K: np.ndarray, pose: np.ndarray | None = None):
-    """Ray caster through pixels (see :data:`simtest.render.truth.Caster`), camera-frame results.
+    """Ray caster through pixels (:data:`simtest.render.truth.Caster`) with camera-frame results.
 
     ``pose`` is the camera-to-scene-frame pose of a scene not built in the camera frame.
     """
-    dr = require("drjit")
-    mi = require("mitsuba")
-
+    dr, mi = require("drjit"), require("mitsuba")
     identity = pose is None or np.array_equal(pose, np.eye(4))
 
     def cast(uv: np.ndarray) -> dict:
@@ -380,8 +335,7 @@ def _make_caster(scene, K: np.ndarray, pose: np.ndarray | None = None):
         d = d.astype(np.float32)
         n_rays = len(d)
         if identity:
-            o = mi.Point3f(np.zeros(n_rays, np.float32), np.zeros(n_rays, np.float32),
-                           np.zeros(n_rays, np.float32))
+            o = mi.Point3f(np.zeros(n_rays, np.float32), np.zeros(n_rays, np.float32), np.zeros(n_rays, np.float32))
         else:
             c = pose[:3, 3].astype(np.float32)
             o = mi.Point3f(np.full(n_rays, c[0]), np.full(n_rays, c[1]), np.full(n_rays, c[2]))

@@ -3,7 +3,6 @@
 
 from __future__ import annotations
 
-
 import numpy as np
 
 from simtest.render.mitsuba_dict import cam_to_world_matrix, plane_normal_cam
@@ -18,10 +17,8 @@ def _highlights(spec: SceneSpec, res: dict, light_pos, K, scene, pose, *, cast=N
                 candidates=None) -> list[HighlightTruth]:
     """Highlights of one light: closed forms for analytic shapes, a search on meshes.
 
-    ``cast`` (uv -> hits, see :data:`simtest.render.truth.Caster`) replaces the pinhole caster of
-    ``scene``/``pose`` (the endoscope renderer passes one that traces its camera model's rays);
-    ``candidates`` are the mesh search's start pixels when already found
-    (:func:`simtest.render.truth.mesh_highlight_candidates`).
+    ``cast`` (:data:`simtest.render.truth.Caster`) replaces the pinhole caster of ``scene``/``pose``;
+    ``candidates`` are the mesh search's start pixels when already found.
     """
     geo = spec.geometry
     size = (spec.camera.width_px, spec.camera.height_px)
@@ -55,9 +52,7 @@ def _highlights(spec: SceneSpec, res: dict, light_pos, K, scene, pose, *, cast=N
 
 def _sensor_image(linear: np.ndarray, rgb: np.ndarray | None, spec: SceneSpec,
                   seed: int, tissue: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray | None]:
-    """The sensor image: :func:`apply_sensor` ("grey") or the video frame's luma ("video"), and the
-    video frame when one was made (else None). ``tissue``: the pixels the surface covers (the
-    "tissue" metering's)."""
+    """The sensor image (:func:`apply_sensor`, or the video frame's luma) and the video frame (or None)."""
     if spec.sensor.output == "video":
         frame = video_frame(rgb if rgb is not None else linear, spec.sensor, seed, tissue=tissue)
         return frame_luma(frame), frame
@@ -65,23 +60,14 @@ def _sensor_image(linear: np.ndarray, rgb: np.ndarray | None, spec: SceneSpec,
 
 
 def visible_highlights(highlights: list[HighlightTruth], specular: np.ndarray) -> list[HighlightTruth]:
-    """The highlights a camera can see: finite, in front of the camera, lit where in frame.
-
-    A brightest point found on the analytic surface or the mesh is dropped when its position or
-    normal is not finite, when it lies behind the camera (``z <= 0``: e.g. the nearest point of a
-    sphere the camera looks away from), or when it is in frame but its pixel carries no specular
-    light (a shadowed BP, or a light the visible side does not face).
+    """The highlights a camera can see, in their order: finite, in front of the camera (z > 0), and, where in
+    frame, on a pixel with specular light (not shadowed, not facing away).
 
     Parameters
     ----------
     highlights : list of HighlightTruth
     specular : ndarray of shape (H, W)
         The render's specular-only linear image.
-
-    Returns
-    -------
-    list of HighlightTruth
-        The kept highlights, in their order.
     """
     H, W = specular.shape[:2]
     out = []

@@ -20,8 +20,7 @@ from simtest.geometry.response import srgb_encode
 from simtest.scene.spec import SensorSpec
 
 __all__ = ["LUMA_WEIGHTS", "SENSOR_SEED_KEY", "VIDEO_BANDS", "apply_sensor", "field_stop_mask", "frame_luma",
-           "peak_exposure",
-           "sensor_dtype", "video_frame"]
+           "peak_exposure", "sensor_dtype", "video_frame"]
 
 #: Stable key of the sensor-noise stream in ``SeedSequence([seed, SENSOR_SEED_KEY])``.
 SENSOR_SEED_KEY = 0x5E750
@@ -35,10 +34,9 @@ def sensor_dtype(bit_depth: int) -> type:
 def apply_sensor(linear: np.ndarray, sensor: SensorSpec, seed: int) -> np.ndarray:
     """Turn a linear radiance image into a quantised sensor image.
 
-    Steps, in order: ``s = exposure * linear`` (full scale is s = 1); shot noise
-    ``s = Poisson(s * full_well_e) / full_well_e`` if ``full_well_e > 0``; read noise
-    ``s += N(0, gaussian_sigma^2)``; clip to ``[0, saturation]``; gamma ``s^(1 / gamma)``;
-    quantise ``round(s * (2^bit_depth - 1))``.
+    In order: ``s = exposure * linear``; shot noise ``Poisson(s * full_well_e) / full_well_e`` if
+    ``full_well_e > 0``; read noise ``N(0, gaussian_sigma^2)``; clip to ``[0, saturation]``; ``s^(1 / gamma)``;
+    ``round(s * (2^bit_depth - 1))``.
 
     Parameters
     ----------
@@ -70,19 +68,10 @@ LUMA_WEIGHTS = LUMA_BT601
 
 
 def field_stop_mask(shape: tuple[int, int], kind: str, radius: float) -> np.ndarray:
-    """Pixels inside a scope's field stop, centred on the image (a read-only array, cached).
+    """Pixels (H, W) bool inside a scope's field stop centred on the image (read-only, cached).
 
-    Parameters
-    ----------
-    shape : (H, W)
-    kind : {"none", "circle", "octagon"}
-        "octagon": the regular octagon whose inscribed circle is the circle (Olympus frames).
-    radius : float
-        Radius as a fraction of half the image width.
-
-    Returns
-    -------
-    ndarray of shape (H, W), bool
+    ``kind`` "none", "circle" or "octagon" (the regular octagon around the circle, Olympus frames);
+    ``radius`` as a fraction of half the image width.
     """
     return _field_stop((int(shape[0]), int(shape[1])), str(kind), float(radius))
 
@@ -105,9 +94,7 @@ def _field_stop(shape: tuple[int, int], kind: str, radius: float) -> np.ndarray:
     return out
 
 
-#: Row bands of a video frame, each developed with its own noise stream
-#: (``SeedSequence([seed, SENSOR_SEED_KEY, 1, band])``): the bands are developed on parallel
-#: threads, and the frame does not depend on how many.
+#: Row bands of a video frame, each with its own noise stream (:func:`video_frame`)
 VIDEO_BANDS = 16
 
 
@@ -123,21 +110,10 @@ def _vignetting_gain(shape: tuple[int, int], vignetting: float) -> np.ndarray:
 
 
 def peak_exposure(rgb: np.ndarray, meter: np.ndarray, sensor: SensorSpec) -> float:
-    """The largest exposure at which at most ``sensor.auto_clip_percent`` % of the metered pixels
-    clip in their brightest white-balanced channel (before noise and vignetting).
+    """The largest exposure at which at most ``sensor.auto_clip_percent`` % of the metered pixels clip.
 
-    Parameters
-    ----------
-    rgb : ndarray of shape (H, W, 3) or (H, W, 1)
-        Linear radiance.
-    meter : ndarray of shape (H, W), bool
-        The metered pixels (at least one).
-    sensor : SensorSpec
-
-    Returns
-    -------
-    float
-        The exposure (``inf`` where the metered pixels' quantile is 0: nothing would clip).
+    Clipping is judged on the brightest white-balanced channel, before noise and vignetting; ``inf`` where
+    nothing would clip.
     """
     peak = (np.maximum(rgb[meter], 0.0) * np.asarray(sensor.white_balance)).max(axis=-1)
     q = float(np.quantile(peak, 1.0 - sensor.auto_clip_percent / 100.0))
@@ -146,37 +122,26 @@ def peak_exposure(rgb: np.ndarray, meter: np.ndarray, sensor: SensorSpec) -> flo
 
 def video_frame(rgb: np.ndarray, sensor: SensorSpec, seed: int, *, threads: int | None = None,
                 tissue: np.ndarray | None = None) -> np.ndarray:
-    """An 8-bit RGB video frame from a linear RGB image, as a scope's camera makes it.
+    """An 8-bit RGB video frame (H, W, 3) from a linear RGB image, as a scope's camera makes it.
 
-    Steps, in order: exposure (``exposure``, or "auto": the mean luma inside the field stop, or
-    of its pixels on tissue with ``metering = "tissue"``, made ``auto_mean``, but no more than
-    lets ``auto_clip_percent`` % of them clip: :func:`peak_exposure`); vignetting ``1 - v (r / r_max)^2``; white-balance gains; shot noise (Poisson,
-    ``full_well_e`` electrons at full scale) and read noise (``gaussian_sigma``), per channel;
-    clipping at ``saturation`` (then scaled to full scale); colour saturation about the BT.601
-    luma; the tone curve (``gamma`` or sRGB); 8-bit quantisation; the field stop (black outside);
-    JPEG at ``jpeg_quality`` (encoded and decoded with Pillow, 4:2:0 chroma) when > 0.
-
-    Every step but the auto-exposure (a mean over the frame) is per pixel; they run on
-    :data:`VIDEO_BANDS` row bands, on ``threads`` threads (numpy releases the GIL), each band with
-    its own noise stream, so the frame does not depend on ``threads``.
+    In order: exposure (``exposure``, or "auto": the mean luma of the field stop, or of its tissue pixels with
+    ``metering = "tissue"``, made ``auto_mean``, capped by :func:`peak_exposure`); vignetting; white balance;
+    shot and read noise; clipping at ``saturation``; colour saturation about the BT.601 luma; the tone curve
+    (``gamma`` or sRGB); 8-bit quantisation; black outside the field stop; JPEG at ``jpeg_quality`` when > 0.
+    The per-pixel steps run on :data:`VIDEO_BANDS` row bands, each with its own noise stream
+    ``SeedSequence([seed, SENSOR_SEED_KEY, 1, b])``, so the frame does not depend on ``threads``.
 
     Parameters
     ----------
     rgb : ndarray of shape (H, W, 3) or (H, W)
-        Linear radiance (a grey image is used for all three channels).
+        Linear radiance (a grey image for all three channels).
     sensor : SensorSpec
     seed : int
-        Root seed; band b's noise stream is ``SeedSequence([seed, SENSOR_SEED_KEY, 1, b])`` (the
-        grey sensor image's stream is ``[seed, SENSOR_SEED_KEY]``).
+        Root seed.
     threads : int, optional
         Threads that develop the bands (default: the CPU count, at most 4).
     tissue : ndarray of shape (H, W), bool, optional
-        Pixels on tissue: with ``sensor.metering = "tissue"`` the auto-exposure averages the
-        field stop's pixels among them only (all of the field stop without it).
-
-    Returns
-    -------
-    ndarray of shape (H, W, 3), uint8
+        Pixels on tissue, for ``sensor.metering = "tissue"``.
     """
     rgb = np.asarray(rgb)
     if rgb.ndim == 2:
@@ -216,7 +181,7 @@ def video_frame(rgb: np.ndarray, sensor: SensorSpec, seed: int, *, threads: int 
         if sensor.color_saturation != 1.0:
             y = (s @ luma_w)[..., None]
             s = np.clip(y + sensor.color_saturation * (s - y), 0.0, 1.0)
-        # sRGB in float32: its error (1e-7 relative) is far below the 8-bit step.
+        # sRGB in float32: its error is far below the 8-bit step
         s = srgb_encode(s.astype(np.float32)) if sensor.tone == "srgb" else s ** (1.0 / sensor.gamma)
         band = np.rint(s * 255.0).astype(np.uint8)
         band[~stop[r0:r1]] = 0

@@ -1,42 +1,16 @@
 """Sim-to-real calibration: fit a scene's appearance and sensor to real frames' statistics.
 
-``simtest simreal --fit REAL_FRAMES`` adjusts the parameters of a tissue scene so that the
-statistics of :mod:`simtest.render.simreal` on its video frame come near those of real frames:
+``simtest simreal --fit`` adjusts a tissue scene so that the statistics of :mod:`simtest.render.simreal`
+on its video frame come near the real frames'. Render parameters (each value needs a render): relief RMS
+height and Hurst exponent, film roughness and its variation. Develop parameters (applied to one render's
+linear images): base albedo (the diffuse part is linear in it), auto-exposure target, read noise, gamma.
 
-- **Render parameters** (each value needs a render): the micro-relief's RMS height
-  (``material.relief_mm``) and spectrum (its Hurst exponent ``material.relief_hurst``), the wet
-  film's roughness (``material.alpha``) and how much it varies with the film's thickness over
-  the surface (``material.film_variation``).
-- **Develop parameters** (applied to one render's linear images, no new render): the tissue's
-  base albedo (``material.albedo``, three channels: the render keeps the diffuse and specular
-  parts apart, and the diffuse part is linear in the albedo), the auto-exposure target
-  (``sensor.auto_mean``), the read noise (``sensor.gaussian_sigma``) and the tone curve
-  (``sensor.tone = "gamma"`` with ``sensor.gamma``).
-
-The loss is over the log-ratios ``r_k = log((s_k + f_k) / (t_k + f_k))`` of each statistic
-``s_k`` of the rendered frame against the real frames' value ``t_k``
-(:func:`simtest.render.simreal.real_reference`; ``f_k`` the floor
-:data:`simtest.render.simreal.RATIO_FLOOR`): ``sum_k max(0, |r_k| - log(MARGIN))^2 + W sum_k
-r_k^2`` (:data:`MARGIN`, :data:`SPREAD_WEIGHT`): every statistic inside a band narrower than the
-factor-2 goal first, then as near as the others allow. It is minimised by Nelder-Mead
-(scipy.optimize) in two levels: an outer search over the render parameters (in log space), each
-of whose points renders the scene once at a reduced film (``fit_scale``, ``fit_spp``) and runs an
-inner search over the develop parameters from the best point so far. The best point is then
-polished by a few steps of the outer search at the scene's own film and spp (the blob statistics
-at the real frames' scale depend on the film: clipping and the tone curve act before the
-resize), the develop parameters searched again on the best render, then the sensor's alone on the
-fitted scene's own render with its own frame's loss added (developing that render again is exact,
-so the frame the report shows is the one ``simtest render`` makes of the fitted scene). The statistics of each loss are pooled over
-a few sensor-noise draws (:func:`_pooled_stats`). The search's renders use the one root seed
-(common random numbers: the loss is a deterministic function of the parameters, and Nelder-Mead
-draws nothing); the last two develop searches add up the losses of renders at
-:data:`RENDER_SEEDS` render seeds (the root seed's and others drawn from it,
-:func:`render_seeds_of`), so that the fitted scene holds at render seeds it was not developed
-on, not only for the one frame whose Monte Carlo and sensor noise it was fitted to.
-
-Hold-out: :func:`split_frames` gives the tuning frames of the declared split
-(:data:`simtest.render.simreal.REAL_SPLIT`) to the fit and keeps the held-out ones for the check, so
-the fitted scene is also judged on frames it was not fitted to.
+The loss over the log-ratios ``r_k`` (:func:`simtest.render.simreal.log_ratio`) is
+``sum_k max(0, |r_k| - log(MARGIN))^2 + SPREAD_WEIGHT sum_k r_k^2``, minimised by Nelder-Mead in two levels:
+an outer search over the render parameters at a reduced film, each point running an inner search over the
+develop parameters; a polish at the scene's own film; the develop parameters again, then the sensor's
+alone, over :data:`RENDER_SEEDS` render seeds. Each loss pools a few sensor-noise draws. The fit sees only
+the tuning frames (:func:`split_frames`).
 """
 
 from __future__ import annotations
@@ -53,7 +27,6 @@ from simtest.constants import MAX_SEED
 from simtest.render.outputs import TISSUE_COVERAGE
 from simtest.render.render import render_scene
 from simtest.render.sensor import video_frame
-
 from simtest.render.simreal import STATISTICS, at_height, log_ratio, real_reference, split_indices
 from simtest.render.tissue import TISSUE_ALBEDO
 from simtest.scene.spec import SceneSpec, with_overrides
@@ -61,33 +34,26 @@ from simtest.scene.spec import SceneSpec, with_overrides
 __all__ = ["MARGIN", "SPREAD_WEIGHT", "RENDER_SEEDS", "FitResult", "develop", "fit_scene", "split_frames",
            "fit_loss", "render_seeds_of"]
 
-#: The loss pushes every statistic inside this factor first (below the goal's 2, so that the
-#: change from the fit's reduced film to the scene's own leaves it within 2).
+#: The loss pushes every statistic inside this factor first (below the goal's 2, a margin for the film change)
 MARGIN = 1.4
-#: Weight of the plain squared log-ratios in the loss (after the band): small, so it only chooses
-#: among points that are all inside the band.
+#: Weight of the plain squared log-ratios in the loss: small, so it only chooses among points inside the band
 SPREAD_WEIGHT = 0.05
 
-#: Bounds of the develop parameters: base albedo per channel (linear RGB), auto-exposure target
-#: (mean luma inside the field stop, fraction of full scale), read noise (fraction of full
-#: scale), display gamma.
+#: Bounds of the develop parameters: base albedo per channel (linear RGB), auto-exposure target and read
+#: noise (fractions of full scale), display gamma.
 DEVELOP_BOUNDS = {"albedo_r": (0.02, 1.0), "albedo_g": (0.005, 1.0), "albedo_b": (0.005, 1.0),
                   "auto_mean": (0.03, 0.6), "gaussian_sigma": (0.0005, 0.05), "gamma": (1.4, 3.2)}
 #: The develop parameters of the sensor alone (the last stage, on the fitted albedo's render).
 SENSOR_BOUNDS = {k: DEVELOP_BOUNDS[k] for k in ("auto_mean", "gaussian_sigma", "gamma")}
-#: Bounds of the render parameters: relief RMS height (mm), film roughness (GGX/Beckmann alpha),
-#: the relief's Hurst exponent, the standard deviation of the film's log-roughness.
+#: Bounds of the render parameters: relief RMS height (mm), film alpha, Hurst exponent, film log-roughness SD.
 RENDER_BOUNDS = {"relief_mm": (1e-5, 0.02), "alpha": (0.005, 0.5), "relief_hurst": (0.3, 1.0),
                  "film_variation": (0.05, 2.5)}
-#: Where the search starts the film's variation when the scene has none (a uniform film is not
-#: in the log-space box; 0.7: roughness varying by a factor 2 either way).
+#: Where the search starts the film's variation when the scene has none (0 is not in the log-space box)
 FILM_VARIATION_START = 0.7
 
 
 def split_frames(frames: list, ids: list[str] | None = None) -> tuple[list, list]:
-    """(tuning, held out) frames by :func:`simtest.render.simreal.split_indices`: the declared
-    :data:`~simtest.render.simreal.REAL_SPLIT` for the frames it lists (``ids``), a seeded half
-    and half for the others (``ids`` None: every frame unlisted)."""
+    """(tuning, held out) frames by :func:`simtest.render.simreal.split_indices` (``ids`` None: all unlisted)."""
     names = list(ids) if ids is not None else [f"#{i}" for i in range(len(frames))]
     tuning, held = split_indices(names)
     return [frames[i] for i in tuning], [frames[i] for i in held]
@@ -113,9 +79,9 @@ def develop(rgb: np.ndarray, specular: np.ndarray, base_albedo, params: dict, sp
     Parameters
     ----------
     rgb : ndarray of shape (H, W, 3), float32
-        Linear RGB radiance of a tissue render (``RenderResult.rgb``).
+        Linear RGB radiance of a tissue render.
     specular : ndarray of shape (H, W), float32
-        Its specular part (white: the same in each channel).
+        Its specular part (the same in each channel).
     base_albedo : (3,) array_like
         The base albedo the render was made with.
     params : dict
@@ -125,13 +91,13 @@ def develop(rgb: np.ndarray, specular: np.ndarray, base_albedo, params: dict, sp
     seed : int
         Render seed (the sensor noise stream).
     tissue : ndarray of shape (H, W), bool, optional
-        Pixels on tissue (the "tissue" metering's, :func:`simtest.render.sensor.video_frame`).
+        Pixels on tissue (:func:`simtest.render.sensor.video_frame`).
 
     Returns
     -------
     frame : ndarray of shape (H, W, 3), uint8
     spec : SceneSpec
-        ``spec`` with the parameters set (``material.albedo``, ``sensor.*``).
+        ``spec`` with the parameters set.
     """
     new = _with_develop(spec, params, base_albedo)
     gain = np.asarray(new.material.albedo, dtype=np.float32) / np.asarray(base_albedo, dtype=np.float32)
@@ -172,7 +138,7 @@ def _from_unit(x: np.ndarray, bounds: dict) -> dict:
 
 
 def _penalty(x: np.ndarray) -> float:
-    """Outside the unit box: a wall the simplex walks back from (the point is clipped onto it)."""
+    """Outside the unit box: a wall the simplex walks back from."""
     return float(np.sum(np.clip(x - 1.0, 0, None) ** 2 + np.clip(-x, 0, None) ** 2)) * 10.0
 
 
@@ -191,18 +157,17 @@ class FitResult:
     Attributes
     ----------
     spec : SceneSpec
-        The fitted scene (the input scene with the fitted parameters set).
+        The fitted scene.
     before, after : ndarray of shape (H, W, 3), uint8
-        The video frames of the input scene and of the fitted one (each at its own film and spp).
+        The video frames of the input and the fitted scene.
     params : dict
-        The fitted parameters by name (render and develop).
+        The fitted parameters by name.
     renders : int
-        Renders the fit made: the search's (reduced film, then the polish at the scene's film),
-        the fitted render parameters' and the fitted scene's at each render seed, the input scene's.
+        Renders the fit made.
     history : list of dict
         The outer search's points: the render parameters and the loss of each.
     seed : int
-        The render seed used (drawn from the root seed).
+        The render seed used.
     """
 
     spec: SceneSpec
@@ -219,39 +184,31 @@ NOISE_SEED_KEY = 0xF17
 
 
 def _noise_seeds(seed: int, k: int) -> list[int]:
-    """The sensor-noise seeds of the loss: the render's own seed, then ``k - 1`` drawn from
-    ``SeedSequence([seed, NOISE_SEED_KEY])``."""
-    extra = np.random.SeedSequence([int(seed), NOISE_SEED_KEY]).generate_state(max(k - 1, 0))
-    return [int(seed)] + [int(x % MAX_SEED) for x in extra]
+    """The loss's sensor-noise seeds: the render's own, then ``k - 1`` from ``SeedSequence([seed, NOISE_SEED_KEY])``."""
+    return render_seeds_of(seed, k, NOISE_SEED_KEY)
 
 
 def _pooled_stats(frames: list[np.ndarray], height: int) -> dict[str, float]:
-    """Statistics of a frame over several sensor-noise draws, pooled as the real frames' are
-    (:func:`simtest.render.simreal.real_reference`): the blob statistics of one draw swing with
-    the noise (the 90th percentile of the blob areas from 11 to 23 px between two draws of the
-    fitted colonoscope), so a fit to one draw fits its noise."""
+    """Statistics of a frame's noise draws, pooled as the real frames' are (one draw's blob statistics swing)."""
     small = [at_height(f, height) for f in frames]
     return real_reference(small)
 
 
-#: Renders of the fitted scene whose losses the last develop searches add up (``fit_scene``'s
-#: ``render_seeds``): at one render seed the fit fitted that render's Monte Carlo and sensor noise
-#: (2026-11-24: 12 of 12 within x2 at the root seed, 9 to 11 of 12 at render seeds 1 to 4).
+#: Renders of the fitted scene whose losses the last develop searches add up (at one seed the fit fits
+#: that render's noise)
 RENDER_SEEDS = 3
 #: Stable key of the extra render seeds in ``SeedSequence([seed, RENDER_SEED_KEY])``.
 RENDER_SEED_KEY = 0x5EED
 
 
-def render_seeds_of(seed: int, k: int) -> list[int]:
-    """The render seeds of the fit's last stages: the root seed, then ``k - 1`` drawn from
-    ``SeedSequence([seed, RENDER_SEED_KEY])`` (below :data:`simtest.constants.MAX_SEED`)."""
-    extra = np.random.SeedSequence([int(seed), RENDER_SEED_KEY]).generate_state(max(k - 1, 0))
+def render_seeds_of(seed: int, k: int, key: int = RENDER_SEED_KEY) -> list[int]:
+    """The root seed, then ``k - 1`` seeds from ``SeedSequence([seed, key])``, below ``MAX_SEED``."""
+    extra = np.random.SeedSequence([int(seed), key]).generate_state(max(k - 1, 0))
     return [int(seed)] + [int(x % MAX_SEED) for x in extra]
 
 
 def _seed_loss(develop_one: Callable, res, draws: int, height: int, ref: dict) -> float:
-    """The loss of one render's frames: developed at its own seed's ``draws`` noise seeds
-    (:func:`_noise_seeds`) and pooled (:func:`_pooled_stats`)."""
+    """The loss of one render's frames, developed at ``draws`` noise seeds and pooled."""
     frs = [develop_one(res, sd) for sd in _noise_seeds(res.seed, draws)]
     return fit_loss(_pooled_stats(frs, height), ref)
 
@@ -269,8 +226,7 @@ def _check_fit_inputs(spec: SceneSpec, frames: list, keep: tuple) -> None:
 
 
 def _starting_point(spec: SceneSpec, keep: tuple) -> tuple[tuple, dict, dict]:
-    """``(base, dev, rnd)`` of :func:`fit_scene`: the scene's albedo, and its develop and render
-    parameters within their bounds, where the searches start."""
+    """``(base albedo, develop params, render params)`` of ``spec`` within their bounds: where the searches start."""
     mat = spec.material
     base = tuple(mat.albedo) if mat.albedo is not None else TISSUE_ALBEDO[mat.tissue]
     dev = {"albedo_r": base[0], "albedo_g": base[1], "albedo_b": base[2],
@@ -288,9 +244,10 @@ def _starting_point(spec: SceneSpec, keep: tuple) -> tuple[tuple, dict, dict]:
 
 def _fit_sensor(fitted: SceneSpec, d: dict, rseed: int, rseeds: list, draws: int, height: int, ref: dict,
                 inner_evals: int) -> tuple[np.ndarray, SceneSpec, dict, float, int]:
-    """Stage 3 of :func:`fit_scene`: the sensor on the fitted scene's own render (the albedo now in
-    it: developing again is exact), the own frame's loss added to the pooled one (the frame the
-    scene makes is the one judged): ``(frame, scene, d with the sensor's, loss, renders made)``."""
+    """Stage 3 of :func:`fit_scene`: the sensor on the fitted scene's own renders, its own frame's loss added.
+
+    Returns ``(frame, scene, params, loss, renders made)``.
+    """
     owns = [render_scene(fitted, seed=sd) for sd in rseeds]
     own = owns[0]
     alb = fitted.material.albedo
@@ -327,8 +284,7 @@ def fit_scene(spec: SceneSpec, frames: list[np.ndarray], *, seed: int = 0, outer
     frames : list of ndarray of shape (h, w, 3), uint8
         The real frames to fit to (one height).
     seed : int
-        Root seed: every render of the fit uses it (the renderer draws its sample, light and noise
-        streams from ``SeedSequence([seed, key])``), and the fitted scene's ``render.seed`` is it.
+        Root seed of every render; the fitted scene's ``render.seed``.
     outer_evals : int
         Renders of the outer search (at ``fit_scale`` of the film, ``fit_spp`` samples).
     fit_scale : float
@@ -336,20 +292,15 @@ def fit_scene(spec: SceneSpec, frames: list[np.ndarray], *, seed: int = 0, outer
     fit_spp : int
         Samples per pixel of the outer search's renders.
     noise_draws : int
-        Sensor-noise draws the loss pools its statistics over (:func:`_pooled_stats`) at the
-        scene's film; one fewer in the outer search.
+        Sensor-noise draws each loss pools at the scene's film (one fewer in the outer search).
     inner_evals : int
-        Develop evaluations of the first inner search (half as many for the later ones, which
-        start from the best point so far; two thirds at the scene's film).
+        Develop evaluations of the first inner search (fewer for the later ones).
     polish_evals : int
         Renders at the scene's own film and spp that move the reduced film's optimum (0: none).
     render_seeds : int
-        Renders of the fitted scene (the root seed's, then ``render_seeds - 1`` drawn by
-        :func:`render_seeds_of`) whose losses the last two develop searches add up: the
-        statistics of the frame must hold at other render seeds too (1: the root seed's alone).
+        Renders of the fitted scene (:func:`render_seeds_of`) whose losses the last searches add up.
     keep : tuple of str
-        Render parameters (keys of :data:`RENDER_BOUNDS`) held at the scene's values: the search
-        runs over the others (all of them kept: the develop parameters alone are fitted).
+        Render parameters (keys of :data:`RENDER_BOUNDS`) held at the scene's values.
     progress : callable, optional
         Called with a line of text after each render.
 
@@ -360,7 +311,8 @@ def fit_scene(spec: SceneSpec, frames: list[np.ndarray], *, seed: int = 0, outer
     Raises
     ------
     ValueError
-        If the scene is not a tissue scene with a video sensor, or there is no frame.
+        If the scene is not a tissue scene with a video sensor, there is no frame, or ``keep`` names an
+        unknown parameter.
     """
     _check_fit_inputs(spec, frames, keep)
     say = progress or (lambda _s: None)
@@ -414,8 +366,7 @@ def fit_scene(spec: SceneSpec, frames: list[np.ndarray], *, seed: int = 0, outer
         return loss
 
     before_res = render_scene(spec, seed=rseed)
-    # 1. the search at the reduced film: the first inner search in full, the later ones from the
-    # best develop so far with half the evaluations
+    # 1. the search at the reduced film (later inner searches start from the best, with half the evaluations)
     first = [True]
 
     def coarse(x):
@@ -428,9 +379,7 @@ def fit_scene(spec: SceneSpec, frames: list[np.ndarray], *, seed: int = 0, outer
     else:  # nothing to search: the develop parameters of the scene's render parameters
         coarse(np.zeros(0))
     p, d = state["best"]["reduced film"][1]
-    # 2. the polish at the scene's film and spp: the blob statistics at the real frames' scale
-    # depend on the film the frame is developed at (clipping and the tone curve act before the
-    # resize), so the reduced film's optimum is moved with a few renders of the scene's own
+    # 2. the polish at the scene's film and spp (clipping and the tone curve act before the resize)
     if polish_evals > 0 and free:
         state["dev"] = d
         _nelder_mead(lambda x: outer(x, {}, max(10, inner_evals // 4), max(1, noise_draws - 1), "scene's film"),

@@ -1,52 +1,14 @@
 """Sim-to-real: statistics of a rendered endoscope frame beside real endoscopic frames.
 
-A rendered frame predicts real error only if it looks like a real frame where the reconstruction
-looks: how many highlights, how large, how much is clipped, what colour the tissue is. This
-module measures, on 8-bit RGB frames:
-
-- **highlight candidates per megapixel**: 8-connected components of near-white pixels (BT.601
-  luma >= :data:`WHITE_LEVEL`: the wet film reflects the light's colour, so a specular highlight
-  is white where the tissue is pink or red, whose luma stays lower; luma rather than every channel
-  because JPEG's 4:2:0 chroma subsampling tints a glint of a few pixels with the tissue around
-  it), per megapixel of the lit field (luma > :data:`DARK_LEVEL`, which leaves out the black
-  border of the field stop);
-- **their area distribution** (median and 90th percentile, pixels);
-- **saturated fraction**: pixels with luma >= :data:`SATURATED_LEVEL`, over the lit field;
-- **tissue colour**: the median R, G, B of the lit field outside the highlights, and its
-  **spread**: the interquartile range of R - G there (8-bit levels);
-- **intensity histogram**: the 10th, 50th and 90th percentiles of the lit field's luma;
-- **detector candidates per megapixel**: the bright components simtest's own detector finds with
-  its defaults for whole frames (what ``simtest reconstruct`` would examine);
-- **the glint population as an outside reviewer measures it** (:data:`GLINT_STATISTICS`, by the
-  definitions of issue 62, made outside simtest so that a render is judged as the field judges
-  it, :func:`glint_population`): white = every channel >= :data:`WHITE_CHANNEL_LEVEL`, inside the
-  lit field; white blobs (8-connected) per megapixel of lit field, their median and 90th-percentile
-  area, the largest blob's share of the white pixels, and the **sheen fraction**: lit pixels with
-  luma in :data:`SHEEN_LUMA` (bright but not clipped).
-
-The first twelve (:data:`STATISTICS`) are those :mod:`simtest.render.simfit` fits to; the glint
-population's (:data:`GLINT_STATISTICS`) are reported beside them and not fitted (the bundled
-calibrated scene predates them).
-
-The real frames' value of a glint-population statistic is pooled over the frames
-(:func:`real_reference`), of the others the median over the frames.
-
-Frames of different resolutions are compared at the real frames' scale: the rendered frame is
-resized (area averaging, OpenCV's INTER_AREA) to the real frames' height first. The real frames
-bundled with the project are the 24 frames of the Hyper-Kvasir banner (``tests/data/real``, CC BY
-4.0, Borgli et al., Scientific Data 7, 283, 2020, https://doi.org/10.1038/s41597-020-00622-y):
-280 x 280 px each, JPEG, some with burnt-in text or green boxes (which the near-white and colour
-statistics partly see).
-
-The goal is a factor 2 on each statistic between the rendered frame and the real frames
-(:func:`sim_to_real_table`); :func:`sim_to_real_figure` shows the frames and the area
-distributions, :func:`frames_figure` the rendered frame beside tuning and held-out real frames and
-:func:`glint_sheet` crops around the largest white blobs of both. :mod:`simtest.render.simfit`
-fits a scene to real frames on these statistics.
-
-Tuning and held-out frames: :data:`REAL_SPLIT` declares, frame by frame, which of the bundled real
-frames a fit may see (tuning) and which only judge it (held out); :func:`split_indices` applies it
-(frames it does not list: a permutation drawn with :data:`SPLIT_SEED`, half to each part).
+On 8-bit RGB frames, over the lit field (BT.601 luma > :data:`DARK_LEVEL`): near-white blobs (luma >=
+:data:`WHITE_LEVEL`: the wet film reflects the light's white; luma because JPEG's chroma subsampling tints
+small glints) per megapixel and their area median and 90th percentile, the saturated fraction, the tissue
+colour and its R - G spread outside the blobs, luma percentiles, and the detector's candidates per
+megapixel (:data:`STATISTICS`, which :mod:`simtest.render.simfit` fits), plus issue 62's glint
+population (:data:`GLINT_STATISTICS`, reported, not fitted). A rendered frame is resized (INTER_AREA) to
+the real frames' height first. The bundled real frames are the 24 tiles of the Hyper-Kvasir banner
+(``tests/data/real``, CC BY 4.0, Borgli et al., Scientific Data 7, 283, 2020,
+https://doi.org/10.1038/s41597-020-00622-y); :data:`REAL_SPLIT` declares which a fit may see.
 """
 
 from __future__ import annotations
@@ -75,8 +37,7 @@ __all__ = ["DARK_LEVEL", "SATURATED_LEVEL", "WHITE_LEVEL", "FACTOR_GOAL", "RATIO
 
 #: Luma at or below which a pixel is outside the lit field (black border, field stop), 8-bit.
 DARK_LEVEL = 20
-#: Luma at or above this: a near-white pixel, part of a highlight candidate (8-bit; below 255
-#: because JPEG rings around clipped blobs).
+#: Luma at or above this: a near-white pixel (8-bit; below 255 because JPEG rings around clipped blobs).
 WHITE_LEVEL = 230
 #: Luma at or above this: a saturated pixel (8-bit, JPEG margin as above).
 SATURATED_LEVEL = 250
@@ -85,48 +46,32 @@ FACTOR_GOAL = 2.0
 
 
 #: The statistics of :func:`frame_stats`, in table order, with the unit each is given in.
-STATISTICS = {
-    "saturated_fraction": "fraction of the lit field",
-    "candidates_per_mp": "near-white blobs per megapixel of lit field",
-    "median_area_px": "px",
-    "p90_area_px": "px",
-    "tissue_r": "8-bit level",
-    "tissue_g": "8-bit level",
-    "tissue_b": "8-bit level",
-    "colour_spread": "8-bit levels (IQR of R - G)",
-    "luma_p10": "8-bit level",
-    "luma_p50": "8-bit level",
-    "luma_p90": "8-bit level",
-    "detector_per_mp": "detector candidates per megapixel of lit field",
-}
+STATISTICS = {"saturated_fraction": "fraction of the lit field",
+              "candidates_per_mp": "near-white blobs per megapixel of lit field",
+              "median_area_px": "px", "p90_area_px": "px",
+              "tissue_r": "8-bit level", "tissue_g": "8-bit level", "tissue_b": "8-bit level",
+              "colour_spread": "8-bit levels (IQR of R - G)",
+              "luma_p10": "8-bit level", "luma_p50": "8-bit level", "luma_p90": "8-bit level",
+              "detector_per_mp": "detector candidates per megapixel of lit field"}
 
-#: Issue 62's white (provenance: the definitions of the glint population in issue 62, made outside
-#: simtest): a pixel whose every channel is at or above this 8-bit level (scaled to the full scale
-#: of deeper frames, :func:`glint_population`). Every channel clipped, or nearly (JPEG's margin):
-#: the wet film reflects the light's white, while the tissue's diffuse light, red or pink, leaves
-#: green and blue far below full scale even where red clips.
+#: Issue 62's white (its glint-population definitions, made outside simtest): every channel at or above
+#: this 8-bit level (the film reflects white; the tissue leaves green and blue low even where red clips).
 WHITE_CHANNEL_LEVEL = 250
-#: Issue 62's sheen (same provenance): lit pixels whose BT.601 luma lies in [lo, hi) (8-bit,
-#: scaled as above): bright but unclipped, the broad specular sheen around and between glints;
+#: Issue 62's sheen (same provenance): lit pixels with luma in [lo, hi), bright but unclipped;
 #: ``hi`` is :data:`WHITE_CHANNEL_LEVEL` so that sheen and white do not overlap.
 SHEEN_LUMA = (200, 250)
 
 #: The glint population of :func:`glint_population` (issue 62's definitions), reported beside
 #: :data:`STATISTICS` and not fitted (:mod:`simtest.render.simfit` fits :data:`STATISTICS`).
-GLINT_STATISTICS = {
-    "white_blobs_per_mp": "white blobs (every channel >= 250) per megapixel of lit field",
-    "white_median_area_px": "px",
-    "white_p90_area_px": "px",
-    "white_largest_share": "fraction of the white pixels in the largest white blob",
-    "sheen_fraction": "fraction of the lit field with luma 200 to 250",
-}
+GLINT_STATISTICS = {"white_blobs_per_mp": "white blobs (every channel >= 250) per megapixel of lit field",
+                    "white_median_area_px": "px", "white_p90_area_px": "px",
+                    "white_largest_share": "fraction of the white pixels in the largest white blob",
+                    "sheen_fraction": "fraction of the lit field with luma 200 to 250"}
 #: Every statistic of the table, in its order.
 ALL_STATISTICS = {**STATISTICS, **GLINT_STATISTICS}
 
-#: Floor added to both sides of a ratio in :func:`log_ratio` (the loss of the fit), per statistic:
-#: about the smallest difference that matters at a real frame's scale (one blob in a 280 px tile
-#: is 13 per megapixel, one pixel of area, one 8-bit level, a saturated fraction of 1e-5), so that
-#: a statistic near 0 on both sides is not an infinite disagreement.
+#: Floor added to both sides of a ratio in :func:`log_ratio`, per statistic: about the smallest difference
+#: that matters at a real frame's scale (one blob in a 280 px tile is 13 per megapixel, one px, one level).
 RATIO_FLOOR = {"saturated_fraction": 1e-5, "candidates_per_mp": 10.0, "median_area_px": 0.5,
                "p90_area_px": 0.5, "tissue_r": 1.0, "tissue_g": 1.0, "tissue_b": 1.0,
                "colour_spread": 1.0, "luma_p10": 1.0, "luma_p50": 1.0, "luma_p90": 1.0,
@@ -136,7 +81,7 @@ RATIO_FLOOR = {"saturated_fraction": 1e-5, "candidates_per_mp": 10.0, "median_ar
 
 @dataclass(frozen=True)
 class FrameStats:
-    """Statistics of one 8-bit RGB frame (see the module docstring and :data:`STATISTICS`)."""
+    """Statistics of one 8-bit RGB frame (:data:`ALL_STATISTICS`)."""
 
     candidates_per_mp: float
     median_area_px: float
@@ -154,8 +99,7 @@ class FrameStats:
     lit_px: int = 0  # pixels of the lit field
 
     def values(self) -> dict[str, float]:
-        """The scalar statistics by name, in the order of :data:`ALL_STATISTICS` (tissue colour as
-        three entries)."""
+        """The scalar statistics by name, in the order of :data:`ALL_STATISTICS`."""
         return {"saturated_fraction": self.saturated_fraction, "candidates_per_mp": self.candidates_per_mp,
                 "median_area_px": self.median_area_px, "p90_area_px": self.p90_area_px,
                 "tissue_r": self.tissue_rgb[0], "tissue_g": self.tissue_rgb[1],
@@ -168,9 +112,8 @@ class FrameStats:
 def glint_population(frame: np.ndarray) -> tuple[dict[str, float], np.ndarray, np.ndarray]:
     """Issue 62's glint population of an RGB frame (8 or 16 bit), inside the lit field.
 
-    White: every channel >= :data:`WHITE_CHANNEL_LEVEL`; sheen: luma (BT.601) in
-    :data:`SHEEN_LUMA`; lit field: luma > :data:`DARK_LEVEL` (all three 8-bit levels, scaled by
-    ``full / 255`` for a deeper frame, ``full`` its dtype's maximum).
+    White: every channel >= :data:`WHITE_CHANNEL_LEVEL`; sheen: luma in :data:`SHEEN_LUMA`; lit: luma >
+    :data:`DARK_LEVEL` (8-bit levels, scaled by ``full / 255`` for a deeper frame).
 
     Parameters
     ----------
@@ -179,10 +122,7 @@ def glint_population(frame: np.ndarray) -> tuple[dict[str, float], np.ndarray, n
     Returns
     -------
     stats : dict
-        :data:`GLINT_STATISTICS` by name: ``white_blobs_per_mp`` (8-connected white components,
-        OpenCV's ``connectedComponentsWithStats``, per megapixel of lit field), the median and
-        90th percentile of their areas (px; 0 without a blob), ``white_largest_share`` (the
-        largest blob's pixels over all white pixels; NaN without one) and ``sheen_fraction``.
+        :data:`GLINT_STATISTICS` by name (8-connected white blobs; areas 0 and largest share NaN without one).
     areas : ndarray of shape (m,)
         The white blobs' areas (px), in label order.
     centroids : ndarray of shape (m, 2)
@@ -215,9 +155,7 @@ def glint_population(frame: np.ndarray) -> tuple[dict[str, float], np.ndarray, n
 
 
 def _detector_count(frame: np.ndarray) -> int:
-    """Bright components simtest's detector finds with the defaults for whole frames
-    (:meth:`~simtest.reconstruct.settings.ReconSettings.for_frames`: local peaks, smoothing chosen
-    from the noise), every component counted (no ``max_candidates`` cap)."""
+    """Components simtest's detector finds with ``ReconSettings.for_frames()``, uncapped."""
     st = ReconSettings.for_frames()
     fs = default_full_scale(frame)
     det = detect_specularities(frame, brightness_rel=st.brightness_rel, full_scale=fs,
@@ -228,7 +166,7 @@ def _detector_count(frame: np.ndarray) -> int:
 
 
 def frame_stats(frame: np.ndarray, *, detector: bool = True) -> FrameStats:
-    """Statistics of an 8-bit RGB frame (H, W, 3), as in the module docstring.
+    """Statistics of an 8-bit RGB frame (module docstring).
 
     Parameters
     ----------
@@ -263,24 +201,17 @@ def frame_stats(frame: np.ndarray, *, detector: bool = True) -> FrameStats:
         rgb, spread = np.full(3, np.nan), float("nan")
     p10, p50, p90 = (float(x) for x in np.percentile(lum[lit], [10, 50, 90]))
     glints, white_areas, _ = glint_population(f)
-    return FrameStats(
-        candidates_per_mp=len(areas) / mp,
-        median_area_px=float(np.median(areas)) if len(areas) else 0.0,
-        p90_area_px=float(np.percentile(areas, 90)) if len(areas) else 0.0,
-        saturated_fraction=float(sat.sum() / lit.sum()),
-        tissue_rgb=tuple(float(x) for x in rgb),
-        areas=areas,
-        colour_spread=spread, luma_p10=p10, luma_p50=p50, luma_p90=p90,
-        detector_per_mp=_detector_count(f) / mp if detector else float("nan"),
-        glints=glints, white_areas=white_areas, lit_px=int(lit.sum()),
-    )
+    return FrameStats(candidates_per_mp=len(areas) / mp,
+                      median_area_px=float(np.median(areas)) if len(areas) else 0.0,
+                      p90_area_px=float(np.percentile(areas, 90)) if len(areas) else 0.0,
+                      saturated_fraction=float(sat.sum() / lit.sum()), tissue_rgb=tuple(float(x) for x in rgb),
+                      areas=areas, colour_spread=spread, luma_p10=p10, luma_p50=p50, luma_p90=p90,
+                      detector_per_mp=_detector_count(f) / mp if detector else float("nan"),
+                      glints=glints, white_areas=white_areas, lit_px=int(lit.sum()))
 
 
-#: Statistics of the glint population: the real frames' value is pooled over the frames (every
-#: frame's blobs and lit pixels together) rather than a median of per-frame values, which on real
-#: frames (many with no glint at all, a few with hundreds) swings by a factor of 30 between two
-#: halves of the Hyper-Kvasir banner. The others are medians over the frames; the largest white
-#: blob's share is a per-frame quantity (a median over the frames that have a white pixel).
+#: Statistics whose real value is pooled over the frames (blobs and lit pixels together): a median of
+#: per-frame values swings with the few frames that hold most glints. The others are per-frame medians.
 POOLED = ("saturated_fraction", "candidates_per_mp", "median_area_px", "p90_area_px", "detector_per_mp",
           "white_blobs_per_mp", "white_median_area_px", "white_p90_area_px", "sheen_fraction")
 
@@ -291,10 +222,7 @@ def _pooled_areas(areas: list[np.ndarray]) -> tuple[float, float]:
 
 
 def real_reference(frames: list[np.ndarray], stats: list[FrameStats] | None = None) -> dict[str, float]:
-    """The real frames' value of each statistic (:data:`ALL_STATISTICS`): pooled over the frames
-    for the glint population (:data:`POOLED`: saturated and sheen pixels over lit pixels, blobs
-    and detector candidates per megapixel of all the frames' lit field, the median and 90th
-    percentile of all the blobs' areas), the median over the frames for the others.
+    """The real frames' value of each statistic: pooled over the frames for :data:`POOLED`, else the median.
 
     Parameters
     ----------
@@ -327,16 +255,14 @@ def log_ratio(key: str, value: float, reference: float) -> float:
 
 
 def banner_tiles(path: str | Path, tile_px: int = 280) -> list[tuple[str, np.ndarray]]:
-    """The frames of a banner of ``tile_px`` x ``tile_px`` tiles (such as the Hyper-Kvasir one),
-    row by row, each with its id ``"<file name>:r<row>c<column>"`` (the keys of
-    :data:`REAL_SPLIT`), RGB uint8.
+    """The ``tile_px`` square tiles of a banner, row by row, as ``("<file>:r<row>c<col>", RGB uint8)``.
 
     Raises
     ------
     ValueError
         If the file cannot be read as an image.
     """
-    with quiet_stderr():  # the decoder's own lines (libpng, libjpeg): the error names the file
+    with quiet_stderr():  # the error names the file
         img = cv2.imread(str(path), cv2.IMREAD_COLOR)
     if img is None:
         raise ValueError(f"{path}: not a readable image")
@@ -348,17 +274,12 @@ def banner_tiles(path: str | Path, tile_px: int = 280) -> list[tuple[str, np.nda
 
 
 def _banner_split(name: str, tuning_cols: tuple[int, ...], rows: int, cols: int) -> dict[str, str]:
-    return {f"{name}:r{r}c{c}": "tuning" if c in tuning_cols else "held_out" for r in range(rows)
-            for c in range(cols)}
+    return {f"{name}:r{r}c{c}": "tuning" if c in tuning_cols else "held_out" for r in range(rows) for c in range(cols)}
 
 
-#: The declared split of the bundled real frames, frame by frame: ``"tuning"`` (a fit may see it)
-#: or ``"held_out"`` (it only judges). Each 280 px tile of the Hyper-Kvasir banner is one whole
-#: endoscopy frame (its own field stop, text and overlays: no frame spans two tiles; checked by eye
-#: on the 3 x 8 tiles), so a split by tile is a split by frame. The tuning part is the even
-#: columns (12 frames: 4 per row, stomach, colon with and without dye, polyps, oesophagus), the
-#: held-out part the odd ones (12): the split scenes/colonoscope_fitted.toml was fitted with, so
-#: that none of its held-out frames was seen by its fit. A new split would need that scene refitted.
+#: The declared split of the bundled real frames: ``"tuning"`` (a fit may see it) or ``"held_out"``. Each
+#: 280 px tile of the Hyper-Kvasir banner is one whole frame; tuning is the even columns, the split
+#: scenes/colonoscope_fitted.toml was fitted with (a new split would need that scene refitted).
 REAL_SPLIT: dict[str, str] = _banner_split("hyperkvasir_banner.jpg", (0, 2, 4, 6), 3, 8)
 #: Seed of the split of frames :data:`REAL_SPLIT` does not list (:func:`split_indices`).
 SPLIT_SEED = 62
@@ -367,19 +288,13 @@ SPLIT_SEED = 62
 def split_indices(ids: list[str]) -> tuple[list[int], list[int]]:
     """Indices of the tuning and the held-out frames among frames named ``ids``.
 
-    A frame :data:`REAL_SPLIT` lists goes where it says. The others (frames the project does not
-    bundle) are ordered by a permutation drawn from ``numpy.random.default_rng(SPLIT_SEED)`` and
-    split half and half (the odd one to tuning); a lone frame is tuning only.
-
-    Parameters
-    ----------
-    ids : list of str
-        One id a frame (:func:`banner_tiles`'s for a banner's tiles, else the file name).
+    Frames :data:`REAL_SPLIT` lists go where it says; the others are permuted with
+    ``default_rng(SPLIT_SEED)`` and split half and half (the odd one to tuning).
 
     Returns
     -------
     tuning, held_out : list of int
-        Indices into ``ids``, each in increasing order.
+        Indices into ``ids``, each increasing.
     """
     tuning = [i for i, k in enumerate(ids) if REAL_SPLIT.get(k) == "tuning"]
     held = [i for i, k in enumerate(ids) if REAL_SPLIT.get(k) == "held_out"]
@@ -403,22 +318,18 @@ def sim_to_real_table(rendered: np.ndarray, real: list[np.ndarray], *, rendered_
     Parameters
     ----------
     rendered : ndarray of shape (H, W, 3), uint8
-        The rendered video frame (resized to the real frames' height first).
+        The rendered frame (resized to the real frames' height first).
     real : list of ndarray of shape (h, w, 3), uint8
-        Real frames (one height).
+        Real frames of one height.
     rendered_stats, real_stats : optional
-        :func:`frame_stats` of the resized rendered frame and of the real frames, if already
-        computed.
+        :func:`frame_stats` of the resized rendered frame and of the real frames, if already computed.
 
     Returns
     -------
     list of dict
-        One row per statistic (:data:`ALL_STATISTICS`): ``statistic``, ``fitted`` (one of
-        :data:`STATISTICS`, which the fit matches), ``rendered``, ``real`` (the real frames'
-        value, :func:`real_reference`: pooled for the glint population, else the median),
-        ``real_pooled`` (whether it is pooled), ``real_q25``, ``real_q75`` (quartiles of the
-        per-frame values), ``ratio`` (rendered / real; NaN if real is 0 or either is NaN) and
-        ``within_goal`` (ratio in [1 / FACTOR_GOAL, FACTOR_GOAL]).
+        One row per statistic: ``statistic``, ``fitted``, ``rendered``, ``real`` (:func:`real_reference`),
+        ``real_pooled``, ``real_q25``, ``real_q75`` (per-frame quartiles), ``ratio`` (rendered / real; NaN if
+        real is 0 or NaN) and ``within_goal`` (ratio within :data:`FACTOR_GOAL`).
     """
     h = real[0].shape[0]
     sim = (rendered_stats or frame_stats(at_height(rendered, h))).values()
@@ -440,8 +351,7 @@ def sim_to_real_table(rendered: np.ndarray, real: list[np.ndarray], *, rendered_
 
 def split_tables(rendered: np.ndarray, real: list[np.ndarray], tuning: list[int],
                  held_out: list[int]) -> dict[str, list[dict]]:
-    """:func:`sim_to_real_table` against all the real frames, the tuning ones and the held-out
-    ones (indices of :func:`split_indices`), each statistic computed once.
+    """:func:`sim_to_real_table` against all, the tuning and the held-out frames, each statistic computed once.
 
     Returns
     -------
@@ -460,8 +370,7 @@ def split_tables(rendered: np.ndarray, real: list[np.ndarray], tuning: list[int]
 
 
 def sim_to_real_figure(rendered: np.ndarray, real: list[np.ndarray], rows: list[dict]):
-    """Figure: the rendered frame, six real frames, the candidates' area distributions and the
-    ratio of each statistic (the factor-2 band shaded). Returns a matplotlib Figure."""
+    """Figure: the rendered frame, six real frames, the area distributions and each statistic's ratio."""
     h = real[0].shape[0]
     sim_frame = at_height(rendered, h)
     fig = plt.figure(figsize=(12, 7.5), constrained_layout=True)
@@ -502,12 +411,9 @@ def sim_to_real_figure(rendered: np.ndarray, real: list[np.ndarray], rows: list[
 
 def fit_figure(before: np.ndarray, after: np.ndarray, fitted: list[np.ndarray], held: list[np.ndarray],
                tables: dict):
-    """Figure of a fit (``simtest simreal --fit``): the rendered frame before and after beside
-    real frames (two fitted, two held out), and each statistic's ratio (rendered / real) before
-    and after on the fitted and the held-out frames, the factor-2 band shaded.
+    """Figure of a fit: frames before and after beside real ones, and each ratio before and after.
 
-    ``tables``: ``{"fitted": {"before": rows, "after": rows}, "held_out": {...}}`` of
-    :func:`sim_to_real_table`. Returns a matplotlib Figure.
+    ``tables``: ``{"fitted": {"before": rows, "after": rows}, "held_out": {...}}`` of :func:`sim_to_real_table`.
     """
     h = fitted[0].shape[0]
     fig = plt.figure(figsize=(13, 8), constrained_layout=True)
@@ -542,15 +448,12 @@ def fit_figure(before: np.ndarray, after: np.ndarray, fitted: list[np.ndarray], 
 
 def frames_figure(rendered: np.ndarray, real: list[np.ndarray], ids: list[str], tuning: list[int],
                   held_out: list[int], title: str = "rendered", per_part: int = 2):
-    """Figure: the rendered frame (at the real frames' height) beside the first ``per_part``
-    tuning and held-out real frames, each labelled with its part and id. Returns a matplotlib
-    Figure."""
+    """Figure: the rendered frame beside the first ``per_part`` tuning and held-out real frames."""
     h = real[0].shape[0]
     shown = [(at_height(rendered, h), f"{title}\n({rendered.shape[1]} x {rendered.shape[0]} px, at {h} px high)")]
     shown += [(real[i], f"tuning frame\n{ids[i]}") for i in tuning[:per_part]]
     shown += [(real[i], f"held-out frame\n{ids[i]}") for i in held_out[:per_part]]
-    fig, axes = plt.subplots(1, len(shown), figsize=(2.9 * len(shown), 3.6), constrained_layout=True,
-                             squeeze=False)
+    fig, axes = plt.subplots(1, len(shown), figsize=(2.9 * len(shown), 3.6), constrained_layout=True, squeeze=False)
     for a, (f, t) in zip(axes[0], shown):
         a.imshow(f)
         a.set_title(t, fontsize=9)
@@ -559,8 +462,7 @@ def frames_figure(rendered: np.ndarray, real: list[np.ndarray], ids: list[str], 
 
 
 def _largest_blob_crops(frames: list[np.ndarray], names: list[str], n: int, crop_px: int) -> list[tuple]:
-    """``(crop, label)`` around the ``n`` largest white blobs of ``frames`` (each blob once,
-    largest first), ``crop_px`` square, centred on the blob's centroid (zero outside the frame)."""
+    """``(crop, label)`` around the ``n`` largest white blobs of ``frames``, ``crop_px`` square, zero-padded."""
     blobs = []
     for f, name in zip(frames, names):
         _, areas, cen = glint_population(f)
@@ -577,10 +479,7 @@ def _largest_blob_crops(frames: list[np.ndarray], names: list[str], n: int, crop
 
 def glint_sheet(rendered: np.ndarray, real: list[np.ndarray], ids: list[str], tuning: list[int],
                 held_out: list[int], title: str = "rendered", n: int = 16, crop_px: int = 24):
-    """Figure: crops around the ``n`` largest white blobs (:func:`glint_population`) of the
-    rendered frame (at the real frames' height, the scale the statistics are compared at), of the
-    tuning frames and of the held-out frames (each part's blobs pooled), ``crop_px`` square,
-    labelled with the frame and the blob's area. Returns a matplotlib Figure."""
+    """Figure: ``crop_px`` crops around the ``n`` largest white blobs of the rendered, tuning and held-out frames."""
     h = real[0].shape[0]
     short = [k.split(":")[-1] for k in ids]
     parts = [(title, _largest_blob_crops([at_height(rendered, h)], [title], n, crop_px)),

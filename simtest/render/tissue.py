@@ -1,58 +1,31 @@
 """Procedural tissue: seeded RGB albedo with branching vessels, micro-relief and a wet specular film.
 
-Everything here is a closed-form function of the surface point, written once for numpy and Dr.Jit
-alike (the ``xp`` argument: ``numpy`` or ``drjit``), so the renderer shades with it in Mitsuba's
-wavefront and the ground truth evaluates the very same function per pixel:
+Every field is a closed-form function of the point, written once for numpy and Dr.Jit (the ``xp``
+argument), so the renderer and the ground truth evaluate the same function. The fields live in the
+*texture frame* (the mesh's own frame; world for spheres and cylinders; camera for planes and saddles);
+:func:`in_camera` evaluates them on camera-frame points through ``q = A p + b``, so a surface point keeps
+its albedo and relief from any pose (``A``, ``b``, amplitudes and roughness are opaque Dr.Jit values:
+one compiled kernel serves every pose and sweep).
 
-- **Attached to the tissue.** The fields are solid textures of the point ``q`` in the *texture
-  frame*: the mesh's own frame (the mesh file's axes, in mm, moved with the mesh's rotation and
-  translation), the world frame for spheres and cylinders, the camera frame for planes and
-  saddles, which are defined in it. A render evaluates them on camera-frame points ``p`` and
-  normals ``n`` through the rigid map ``q = A p + b`` of :attr:`TissueParams.frame`
-  (:func:`in_camera`): the fields are evaluated at ``q`` with the normal ``A n`` and the shading
-  normal is turned back by ``A^T``, so a surface point keeps its albedo and relief from any pose.
-  Dr.Jit takes ``A`` and ``b`` as opaque values (``xp.const``), so a new pose reuses the compiled
-  kernels; so are the relief's amplitudes (its height and Hurst exponent) and the film's
-  roughness, so that a fit or a sweep over them compiles once.
-- **Albedo** (diffuse RGB): a base colour per tissue (:data:`TISSUE_ALBEDO`) times a smooth
-  colour variation, times the transmission of seeded vessel networks (:mod:`simtest.render.vessels`:
-  branching, tapering trees grown by space colonisation at two depths, blurred and greyer with
-  depth), a texture of the surface's own 2D coordinates ``(u, v)``, mm (:func:`surface_uv`): the
-  plane's own axes on a plane (:attr:`TissueParams.uv_axes`), elsewhere a triplanar projection of
-  the texture-frame point blended by its normal (Geiss 2007, "Generating complex procedural
-  terrains using the GPU", GPU Gems 3, ch. 1: weights ``|n_i|^4``).
-- **Micro-relief**: a height field ``h(q) = sum_j a_j sin(k_j . q + phi_j)``, a random-wave
-  (Longuet-Higgins) sum of :data:`N_RELIEF_WAVES` plane waves with isotropic seeded directions,
-  uniform phases and wavelengths drawn stratified log-uniformly between ``relief_min_mm`` and
-  ``relief_scale_mm``, with amplitudes of a self-affine (fractal) surface: power spectral density
-  ``C(q) ~ q^-(2 + 2H)`` (Persson et al. 2005, https://doi.org/10.1088/0953-8984/17/1/R01, eq. 5;
-  the Weierstrass-Mandelbrot construction of Berry & Lewis 1980,
-  https://doi.org/10.1098/rspa.1980.0044), so a wave standing for an equal share of log-wavenumber
-  carries ``a_j ~ lambda_j^H``. The Hurst exponent ``H`` (:data:`RELIEF_HURST` = 0.8 by default) is
-  the value common to natural rough surfaces (0.7 to 0.9 in Persson's survey), not a measurement
-  of mucosa: ``simtest simreal`` compares the result with real frames. The amplitudes are scaled so
-  the RMS height is ``relief_mm``. With ``H < 1`` the slopes grow toward the short wavelengths, so
-  the relief breaks a specular lobe into many small glints rather than a regular cross-hatch. The
-  height tilts the shading normal: ``n_s = unit(n - (grad h - (grad h . n) n))`` (the bump mapping
-  of Blinn 1978, https://doi.org/10.1145/965139.507101, on the tangent plane of the macro normal
-  ``n``).
-- **Film thickness**: a smooth seeded field ``f`` over the surface sets the film's roughness
-  (:func:`film_alpha`, ``material.film_variation``; thick and smooth, thin and rough) and, with
-  ``material.film_thickness_mm``, levels the relief: surface tension levels the wet film's free
-  surface. Linearised, the thin-film equation makes a wave of in-surface wavenumber ``k`` on a film
-  of thickness ``h`` decay as ``exp(-sigma h^3 k^4 t / (3 eta))`` (Orchard 1962, "On surface
-  levelling in viscous liquids and gels", Appl. Sci. Res. A 11, 451; Salez et al. 2012,
-  https://arxiv.org/abs/1210.5905), so the film keeps ``exp(-(k L)^4)`` of each relief wave, ``L^4 =
-  l_s h^3`` (:data:`LEVELLING_MM`), ``h = h_0 exp(-s f)`` (``s`` = ``film_thickness_spread``). Only
-  the specular normal is levelled. Ranges: ``h_0`` 0 to 1 mm (the human colon's adherent mucus 107
-  to 155 um on average, SD 48 to 68 um, Pullan et al. 1994, https://doi.org/10.1136/gut.35.3.353;
-  the rat colon's whole mucus about 0.83 mm, Atuma et al. 2001,
-  https://doi.org/10.1152/ajpgi.2001.280.5.G922), ``s`` 0 to 1.5 (Pullan's SD over mean 0.35 to
-  0.5).
-- **Specular film**: a dielectric interface (IOR 1.33 to 1.45, water to mucus) with Fresnel's
-  reflectance over a rough microfacet lobe, Beckmann or GGX (Walter et al. 2007,
-  https://doi.org/10.2312/EGWR/EGSR07/195-206), ``f_s = F(wi . m) D(m) G(wi, wo) / (4 cos_i
-  cos_o)`` about the half-vector m of the shading normal; or the paper's exact Phong lobe
+- **Albedo**: a base colour (:data:`TISSUE_ALBEDO`) times a smooth variation times the vessel networks'
+  transmission (:mod:`simtest.render.vessels`) on the surface's (u, v) (:func:`surface_uv`: a plane's
+  own axes, else triplanar weights ``|n_i|^4``, Geiss 2007, GPU Gems 3, ch. 1).
+- **Micro-relief**: ``h(q) = sum_j a_j sin(k_j . q + phi_j)``, :data:`N_RELIEF_WAVES` random waves with
+  log-uniform stratified wavelengths and self-affine amplitudes ``a_j ~ lambda_j^H`` (PSD
+  ``q^-(2 + 2H)``, Persson et al. 2005, https://doi.org/10.1088/0953-8984/17/1/R01; Berry & Lewis 1980,
+  https://doi.org/10.1098/rspa.1980.0044), scaled to RMS ``relief_mm``. :data:`RELIEF_HURST` is the
+  value common to natural rough surfaces (0.7 to 0.9), not a measurement of mucosa. The shading
+  normal is bump-mapped: ``n_s = unit(n - (grad h - (grad h . n) n))`` (Blinn 1978,
+  https://doi.org/10.1145/965139.507101).
+- **Film thickness**: a smooth field ``f`` sets the film's roughness (:func:`film_alpha`) and levels
+  the relief: by the linearised thin-film equation a wave of wavenumber k on a film of thickness h keeps
+  ``exp(-(k L)^4)``, ``L^4 = l_s h^3`` (:data:`LEVELLING_MM`; Orchard 1962, Appl. Sci. Res. A 11, 451;
+  Salez et al. 2012, https://arxiv.org/abs/1210.5905), ``h = h_0 exp(-s f)``. Only the specular normal
+  is levelled. Ranges: ``h_0`` 0 to 1 mm (human colon mucus 107-155 um, Pullan et al. 1994,
+  https://doi.org/10.1136/gut.35.3.353; rat colon 0.83 mm, Atuma et al. 2001,
+  https://doi.org/10.1152/ajpgi.2001.280.5.G922), ``s`` 0 to 1.5.
+- **Specular film**: a dielectric (IOR 1.33 to 1.45) with Fresnel over a Beckmann or GGX microfacet
+  lobe (Walter et al. 2007, https://doi.org/10.2312/EGWR/EGSR07/195-206), or the paper's Phong lobe
   ``c cos(beta)^n`` (eq. 1) scaled by Fresnel at normal incidence.
 """
 
@@ -68,30 +41,18 @@ from scipy.ndimage import map_coordinates
 from simtest.render.vessels import TILE_MM, transmission_map
 
 __all__ = ["TISSUE_ALBEDO", "TISSUE_SEED_KEY", "N_WAVES", "N_RELIEF_WAVES", "RELIEF_HURST", "RELIEF_MIN_MM",
-           "TissueParams", "tissue_params", "with_neighbours", "in_camera", "surface_uv", "vessel_transmission", "albedo",
-           "relief_height", "relief_normal", "LEVELLING_MM",
-           "film_alpha", "specular_lobe"]
+           "TissueParams", "tissue_params", "with_neighbours", "in_camera", "surface_uv", "vessel_transmission",
+           "albedo", "relief_height", "relief_normal", "LEVELLING_MM", "film_alpha", "specular_lobe"]
 
-#: Linear-RGB diffuse albedo of each tissue before variation. Mucosa: pink (sRGB about (225, 140,
-#: 125), the colour of a bowel wall under white light), assumed to match the colour of endoscopic
-#: frames. Liver: dark red-brown, (0.35, 0.12, 0.09), inside the range of published diffuse
-#: reflectance of liver averaged over the camera's bands (about 0.3 to 0.4 in red, 0.1 to 0.15 in
-#: green, 0.08 to 0.12 in blue): liver is rich in blood, whose haemoglobin absorbs green and blue
-#: strongly and red weakly, while its scattering is broadband (Jacques 2013, "Optical properties of
-#: biological tissues: a review", https://doi.org/10.1088/0031-9155/58/11/R37). Its median frame
-#: R/G in laparoscope_liver, 1.67, is near the real liver's.
+#: Linear-RGB diffuse albedo of each tissue before variation. Mucosa: pink, sRGB about (225, 140, 125),
+#: assumed. Liver: inside the published diffuse reflectance of liver over the camera's bands (Jacques
+#: 2013, https://doi.org/10.1088/0031-9155/58/11/R37). Peritoneum over fat: sRGB about (215, 170, 140);
+#: gallbladder (bile through its wall): about (140, 150, 105); both assumed.
 TISSUE_ALBEDO = {"mucosa": (0.75, 0.26, 0.20), "liver": (0.35, 0.12, 0.09),
-                 # peritoneum over fat (abdominal wall, omentum): pale yellow-pink, sRGB about
-                 # (215, 170, 140); assumed like the others
-                 "peritoneum": (0.68, 0.40, 0.26),
-                 # gallbladder: the green-grey of bile seen through its thin wall, sRGB about
-                 # (140, 150, 105); assumed like the others
-                 "gallbladder": (0.26, 0.30, 0.14)}
+                 "peritoneum": (0.68, 0.40, 0.26), "gallbladder": (0.26, 0.30, 0.14)}
 
-#: Relative margin of the organ's ellipsoid in :func:`albedo`: a point belongs to the organ where
-#: ``sum(((q - centre) / axes)^2) <= (1 + ORGAN_MARGIN)^2``. The organ's vertices lie on the
-#: ellipsoid to float32 round-off (1e-5 mm at 100 mm) and its flat faces inside it (chords of a
-#: convex surface); 1e-3 of a 16 mm semi-axis is 0.016 mm, far below a pixel's footprint.
+#: Relative margin of the organ's ellipsoid in :func:`albedo` (``sum(((q - c) / axes)^2) <= (1 + m)^2``):
+#: covers the mesh vertices' float32 round-off, far below a pixel's footprint.
 ORGAN_MARGIN = 1e-3
 
 #: Stable key of the tissue texture stream in ``SeedSequence([seed, TISSUE_SEED_KEY])``.
@@ -103,56 +64,43 @@ N_WAVES = 12
 N_RELIEF_WAVES = 40
 #: Default Hurst exponent of the micro-relief's self-affine spectrum (see the module notes).
 RELIEF_HURST = 0.8
-#: Default shortest wavelength of the micro-relief, mm: the scale of the colonic crypt openings
-#: (about 0.05 to 0.1 mm apart); shorter waves are below a pixel's footprint at working distances.
+#: Default shortest wavelength of the micro-relief, mm: the colonic crypt openings' spacing (0.05-0.1 mm)
 RELIEF_MIN_MM = 0.05
-#: Levelling length ``l_s = sigma t / (3 eta)``, mm: sigma 0.05 N/m (mucus or saline against gas,
-#: 0.03 to 0.07), eta 1 Pa s (loose mucus; human mucus spans 0.01 to 1000 Pa s over its shear
-#: rates, Lai et al. 2009, https://doi.org/10.1016/j.addr.2008.09.012), t 1 s (the film renewed
-#: by peristalsis, insufflation, the scope). Only ``l_s h^3`` is seen: an ``eta / t`` 100 times
-#: larger is the same film 4.6 times thinner.
+#: Levelling length ``l_s = sigma t / (3 eta)``, mm: sigma 0.05 N/m, eta 1 Pa s (loose mucus; Lai et al. 2009,
+#: https://doi.org/10.1016/j.addr.2008.09.012), t 1 s (the film's renewal). Only ``l_s h^3`` is seen.
 LEVELLING_MM = 16.7
 
 
 @dataclass(frozen=True)
 class TissueParams:
-    """Seeded parameters of one tissue texture: plane waves ``sin(k . p + phase)`` of the frame
-    the points are given in (the texture frame from :func:`tissue_params`, the camera frame after
-    :func:`in_camera`), wave vectors in rad/mm."""
+    """Seeded parameters of one tissue texture: plane waves ``sin(k . p + phase)``, wave vectors in rad/mm."""
 
     base: tuple[float, float, float]
     colour_k: np.ndarray  # (N, 3) wave vectors, rad/mm
     colour_phase: np.ndarray  # (N,)
-    #: (H, W, 3) per-channel vessel transmission over a tile TILE_MM wide, repeated mirrored
-    #: (:func:`simtest.render.vessels.transmission_map`); None: no vessels.
+    #: (H, W, 3) vessel transmission over a mirrored tile TILE_MM wide; None: no vessels
     vessel_map: np.ndarray | None
     relief_k: np.ndarray  # (M, 3)
     relief_phase: np.ndarray  # (M,)
     relief_amp: np.ndarray  # (M,) mm; the RMS of the sum is the relief's RMS height
-    #: (4, 4) rigid map from the frame of the points given to the functions below (the camera
-    #: frame) to the texture frame; None: they are given in the texture frame.
+    #: (4, 4) rigid map from the points' frame (camera) to the texture frame; None: same frame
     frame: np.ndarray | None = None
-    #: Base albedo of a second tissue (a wall around the first), used at texture-frame points at
-    #: least ``wall_radius`` from ``wall_centre`` (mm); None: one tissue everywhere.
+    #: Base albedo of a wall's tissue at least ``wall_radius`` from ``wall_centre`` (mm); None: none
     wall_base: tuple[float, float, float] | None = None
     wall_centre: tuple[float, float, float] | None = None
     wall_radius: float = 0.0
-    #: Base albedo of a third tissue (a neighbouring organ), used at texture-frame points inside
-    #: the ellipsoid of centre ``organ_centre`` and semi-axes ``organ_axes`` along the texture
-    #: frame's axes (mm, :data:`ORGAN_MARGIN`); None: no organ. It takes precedence over the wall.
+    #: Base albedo of an organ inside the axis-aligned ellipsoid ``organ_centre``, ``organ_axes`` (mm);
+    #: None: no organ. It takes precedence over the wall.
     organ_base: tuple[float, float, float] | None = None
     organ_centre: tuple[float, float, float] | None = None
     organ_axes: tuple[float, float, float] | None = None
-    #: Waves of the wet film's thickness field (unit RMS) and the standard deviation of the log of
-    #: the film's roughness over it (0: a uniform film).
+    #: Waves of the film's thickness field (unit RMS) and the log-SD of its roughness (0: uniform)
     film_k: np.ndarray | None = None
     film_phase: np.ndarray | None = None
     film_variation: float = 0.0
-    #: (2, 3) orthonormal in-surface axes (texture frame) of a plane: ``(u, v) = (e1 . q, e2 . q)``;
-    #: None: the triplanar projection (:func:`surface_uv`).
+    #: (2, 3) in-surface axes of a plane, ``(u, v) = (e1 . q, e2 . q)``; None: triplanar
     uv_axes: np.ndarray | None = None
-    #: (M,) weight of each relief wave's slope in the diffuse light's normal (:func:`tissue_params`'s
-    #: ``subsurface_mm``); None: the diffuse light takes the shading normal (every weight 1).
+    #: (M,) weight of each relief wave's slope in the diffuse normal; None: the shading normal
     relief_diffuse: np.ndarray | None = None
     #: The film's ``L^4 = l_s h_0^3``, mm^4 (0: no levelling) and the log-SD of its thickness.
     film_level4: float = 0.0
@@ -162,9 +110,9 @@ class TissueParams:
 def with_neighbours(t: TissueParams, wall=(None, None, None), organ=(None, None, None)) -> TissueParams:
     """``t`` with a wall's tissue and a neighbouring organ's (their default albedos).
 
-    ``wall``: (tissue name, centre mm, radius mm), the second tissue at the points at least that
-    far from the centre; ``organ``: (tissue name, centre mm, semi-axes mm), the third tissue inside
-    that ellipsoid (:attr:`TissueParams.organ_base`). A name None leaves that part out.
+    ``wall``: (tissue name, centre mm, radius mm), the second tissue at least that far from the centre;
+    ``organ``: (tissue name, centre mm, semi-axes mm), the third tissue inside that ellipsoid. A name None
+    leaves that part out.
     """
     if wall[0] is not None:
         t = dataclasses.replace(t, wall_base=TISSUE_ALBEDO[wall[0]], wall_centre=tuple(float(x) for x in wall[1]),
@@ -190,9 +138,8 @@ def relief_spectrum(rng: np.random.Generator, relief_mm: float, min_mm: float, m
                     hurst: float, n: int = N_RELIEF_WAVES):
     """Wave vectors (n, 3), phases (n,) and amplitudes (n,) of the micro-relief (module notes).
 
-    Wavelengths are stratified log-uniform over [min_mm, max_mm] (one per equal share of
-    log-wavenumber, jittered within it), amplitudes ``~ lambda^hurst`` scaled so that the RMS
-    height of the sum, ``sqrt(sum a^2 / 2)``, is ``relief_mm``.
+    Wavelengths stratified log-uniform over [min_mm, max_mm]; amplitudes ``~ lambda^hurst`` scaled so the RMS
+    height ``sqrt(sum a^2 / 2)`` is ``relief_mm``.
     """
     d = _directions(rng, n)
     u = (np.arange(n) + rng.uniform(0.0, 1.0, size=n)) / n
@@ -220,28 +167,23 @@ def tissue_params(kind: str, seed: int, relief_mm: float, relief_scale_mm: float
     relief_mm : float
         RMS height of the micro-relief, mm (0: smooth).
     relief_scale_mm : float
-        Longest wavelength of the micro-relief spectrum, mm.
+        Longest wavelength of the micro-relief, mm.
     vessel_scale_mm : float
-        A third of the colour variation's typical wavelength, mm. (The vessels are
-        :data:`simtest.render.vessels.VESSEL_LAYERS`, grown from ``seed``.)
+        A third of the colour variation's typical wavelength, mm.
     relief_min_mm : float, optional
-        Shortest wavelength of the micro-relief, mm; default ``min(RELIEF_MIN_MM, relief_scale_mm)``.
+        Shortest wavelength, mm; default ``min(RELIEF_MIN_MM, relief_scale_mm)``.
     relief_hurst : float
-        Hurst exponent H of the relief spectrum, amplitudes ``~ lambda^H``.
+        Hurst exponent H, amplitudes ``~ lambda^H``.
     base : (float, float, float), optional
-        Linear-RGB base albedo; default ``TISSUE_ALBEDO[kind]``. The seeded pattern does not
-        depend on it.
+        Linear-RGB base albedo; default ``TISSUE_ALBEDO[kind]`` (the seeded pattern does not depend on it).
     film_variation : float
-        Standard deviation of the log of the wet film's roughness over the surface (0: uniform;
-        :func:`film_alpha`).
+        Standard deviation of the log of the film's roughness (0: uniform; :func:`film_alpha`).
     film_scale_mm : float
         Typical wavelength of the film's thickness field, mm.
     subsurface_mm : float
-        Diffusion length ``l`` of the diffuse light, mm (0: it takes the shading normal). It leaves
-        the tissue after a lateral walk of about ``l``, which averages the irradiance a relief wave
-        of wavelength ``lambda`` modulates: the diffuse normal keeps ``1 / (1 + (2 pi l /
-        lambda)^2)`` of its slope (a Lorentzian point spread, the diffusion approximation's
-        low-pass; Cuccia et al. 2009, https://doi.org/10.1117/1.3088140).
+        Diffusion length ``l`` of the diffuse light, mm (0: it takes the shading normal): the diffuse
+        normal keeps ``1 / (1 + (2 pi l / lambda)^2)`` of each wave's slope (Cuccia et al. 2009,
+        https://doi.org/10.1117/1.3088140).
     film_thickness_mm, film_thickness_spread : float
         Median thickness ``h_0`` (mm, 0: none) and log-SD of the film that levels the relief.
 
@@ -272,18 +214,13 @@ def in_camera(t: TissueParams, cam_to_texture: np.ndarray) -> TissueParams:
     Parameters
     ----------
     t : TissueParams
-        Waves of the texture frame.
     cam_to_texture : ndarray of shape (4, 4)
-        Rigid map ``q = A p + b`` from camera-frame points ``p`` to texture-frame points ``q``, mm
-        (``A`` a rotation).
+        Rigid map ``q = A p + b`` from camera-frame to texture-frame points, mm.
 
     Returns
     -------
     TissueParams
-        ``t`` with :attr:`TissueParams.frame` set: :func:`albedo`, :func:`relief_height` and
-        :func:`relief_normal` then take camera-frame points (and normals, returned in the camera
-        frame) and evaluate the texture at ``q``: the albedo and relief of a surface point do not
-        depend on the camera pose. The identity returns ``t`` unchanged (no frame).
+        ``t`` with :attr:`TissueParams.frame` set (unchanged, no frame, for the identity).
     """
     m = np.asarray(cam_to_texture, dtype=np.float64)
     if np.array_equal(m, np.eye(4)):
@@ -292,8 +229,7 @@ def in_camera(t: TissueParams, cam_to_texture: np.ndarray) -> TissueParams:
 
 
 def _const(xp, x: float):
-    """``x`` as the kernel's value: a Python float for numpy, an opaque Dr.Jit value (not baked
-    into the compiled kernel) where ``xp`` offers ``const``."""
+    """``x`` as a Python float for numpy, an opaque Dr.Jit value where ``xp`` offers ``const``."""
     f = getattr(xp, "const", None)
     return float(x) if f is None else f(float(x))
 
@@ -312,15 +248,12 @@ def _field(xp, p, k, phase):
     """sum_j sin(k_j . p + phase_j) / sqrt(N / 2) (unit RMS)."""
     s = 0.0
     for j in range(len(phase)):
-        s = s + xp.sin(p[0] * float(k[j, 0]) + p[1] * float(k[j, 1]) + p[2] * float(k[j, 2])
-                       + float(phase[j]))
+        s = s + xp.sin(p[0] * float(k[j, 0]) + p[1] * float(k[j, 1]) + p[2] * float(k[j, 2]) + float(phase[j]))
     return s * math.sqrt(2.0 / len(phase))
 
 
 def _np_texture(tex: np.ndarray, s, r):
-    """Bilinear lookup of ``tex`` (H, W, C) at texture coordinates ``(s, r)`` (the tile is [0, 1]^2,
-    texel centres at ``(j + 0.5) / W``), repeated mirrored: Dr.Jit's ``Texture2f`` with linear
-    filtering and ``WrapMode.Mirror``, in float64."""
+    """Bilinear, mirrored lookup of ``tex`` (H, W, C) at ``(s, r)`` in float64, as Dr.Jit's ``Texture2f``."""
     h, w = tex.shape[:2]
     s, r = np.broadcast_arrays(np.asarray(s, dtype=np.float64), np.asarray(r, dtype=np.float64))
     coords = np.stack([r.ravel() * h - 0.5, s.ravel() * w - 0.5])
@@ -328,18 +261,15 @@ def _np_texture(tex: np.ndarray, s, r):
                  for c in range(tex.shape[2]))
 
 
-#: Offsets (mm) of the triplanar projections' (u, v) in the tile, so the three views of a point
-#: show different parts of the network.
+#: Offsets (mm) of the triplanar projections' (u, v), so the three views show different parts of the tile
 _TRIPLANAR_OFFSET_MM = ((0.0, 0.0), (TILE_MM / 3.0, 2.0 * TILE_MM / 3.0), (2.0 * TILE_MM / 3.0, TILE_MM / 3.0))
 
 
 def surface_uv(xp, q, nq, t: TissueParams):
-    """The surface's 2D coordinates (u, v), mm, at texture-frame points ``q``, and their weights.
+    """The surface's (u, v), mm, at texture-frame points ``q``, as a list of ``(weight, u, v)``.
 
-    Returns a list of ``(weight, u, v)``: one term with weight 1 on a plane
-    (:attr:`TissueParams.uv_axes`) or where no normal is given (the texture frame's (x, y)); else
-    three, the projections along the texture frame's axes weighted by ``|n_i|^4 / sum_j |n_j|^4``
-    of the texture-frame normal ``nq`` (triplanar mapping, module notes).
+    One term on a plane (:attr:`TissueParams.uv_axes`) or without normals; else the three triplanar
+    projections weighted by ``|n_i|^4 / sum_j |n_j|^4``.
     """
     if t.uv_axes is not None:
         e = t.uv_axes
@@ -350,13 +280,11 @@ def surface_uv(xp, q, nq, t: TissueParams):
     w = [nq[i] * nq[i] * nq[i] * nq[i] for i in range(3)]
     inv = 1.0 / xp.maximum(w[0] + w[1] + w[2], 1e-30)  # a zero normal (a ray's miss): no vessels, not NaN
     (ax, ay), (bx, by), (cx, cy) = _TRIPLANAR_OFFSET_MM
-    return [(w[0] * inv, q[1] + ax, q[2] + ay), (w[1] * inv, q[2] + bx, q[0] + by),
-            (w[2] * inv, q[0] + cx, q[1] + cy)]
+    return [(w[0] * inv, q[1] + ax, q[2] + ay), (w[1] * inv, q[2] + bx, q[0] + by), (w[2] * inv, q[0] + cx, q[1] + cy)]
 
 
 def vessel_transmission(xp, q, nq, t: TissueParams):
-    """Per-channel transmission (R, G, B) of the vessel networks at texture-frame points ``q``
-    (normals ``nq`` or None; :func:`surface_uv`); 1 where :attr:`TissueParams.vessel_map` is None."""
+    """Per-channel transmission (R, G, B) of the vessel networks at texture-frame points (1 without vessels)."""
     if t.vessel_map is None:
         return 1.0, 1.0, 1.0
     look = getattr(xp, "texture", None) or _np_texture
@@ -369,16 +297,10 @@ def vessel_transmission(xp, q, nq, t: TissueParams):
 
 
 def albedo(xp, p, t: TissueParams, n=None):
-    """Diffuse RGB albedo at surface points ``p`` = (x, y, z) arrays, mm (the camera frame with
-    :func:`in_camera`, else the texture frame); the wall's tissue (:attr:`TissueParams.wall_base`)
-    where the point is at least ``wall_radius`` from ``wall_centre``; the organ's
-    (:attr:`TissueParams.organ_base`) inside its ellipsoid.
+    """Diffuse RGB albedo, a tuple of three arrays in [0, 1], at surface points ``p`` = (x, y, z), mm.
 
-    ``n``: the surface normals at ``p`` (same frame), which the vessels' triplanar mapping weighs
-    (:func:`surface_uv`); None: the texture frame's (x, y) projection (a plane's own axes where
-    :attr:`TissueParams.uv_axes` is set, which need no normal).
-
-    Returns a tuple of three arrays (R, G, B) in [0, 1].
+    ``p`` (and the normals ``n`` the triplanar mapping weighs, or None) are in the camera frame after
+    :func:`in_camera`, else the texture frame. The wall's and the organ's tissues apply where set.
     """
     q, A = _to_texture(xp, p, t)
     nq = n
@@ -405,9 +327,7 @@ def albedo(xp, p, t: TissueParams, n=None):
 
 
 def relief_height(xp, p, t: TissueParams, n=None):
-    """Micro-relief height ``h(p) = sum_j a_j sin(k_j . p + phi_j)``, mm, at points ``p`` = (x, y, z)
-    (the camera frame with :func:`in_camera`); given the unit normals ``n``, the wet film's surface:
-    each wave levelled (:attr:`TissueParams.film_level4`, module notes)."""
+    """Micro-relief height ``sum_j a_j sin(k_j . p + phi_j)``, mm; given unit normals ``n``, the levelled film's."""
     p, A = _to_texture(xp, p, t)
     kept = _kept(xp, p, n, A, t)
     h = 0.0
@@ -429,8 +349,7 @@ def _bumped(xp, n, g, A):
 
 
 def _kept(xp, q, n, A, t: TissueParams):
-    """Each relief wave's share ``exp(-(k_t L)^4)`` in the film's surface at texture-frame points
-    ``q`` (module notes), ``k_t`` its wavenumber in the tangent plane of ``n``; None: no film."""
+    """Each relief wave's share ``exp(-(k_t L)^4)`` in the film's surface (tangential k_t); None: no film."""
     if t.film_level4 <= 0.0 or n is None:
         return None
     nq = n if A is None else [A[i][0] * n[0] + A[i][1] * n[1] + A[i][2] * n[2] for i in range(3)]
@@ -442,15 +361,11 @@ def _kept(xp, q, n, A, t: TissueParams):
 
 
 def relief_normal(xp, p, n, t: TissueParams, *, diffuse: bool = False):
-    """Shading normal with micro-relief: ``unit(n - (grad h - (grad h . n) n))``.
+    """Shading normal with micro-relief, ``unit(n - (grad h - (grad h . n) n))``, as an (x, y, z) tuple.
 
-    ``p`` and ``n`` are (x, y, z) tuples of arrays (the camera frame with :func:`in_camera`, else
-    the texture frame; ``n`` the unit macro normal); returns the unit shading normal in the same
-    frame as a tuple, facing the same side as ``n``: that of the wet film's surface
-    (:func:`relief_height` given ``n``). With ``diffuse``: the pair (shading
-    normal, the diffuse light's normal: the tissue's own relief, unlevelled, with each wave's
-    slope weighted by :attr:`TissueParams.relief_diffuse`; the shading normal itself where there
-    is neither a weight nor a film).
+    ``p`` and ``n`` (unit macro normal) are (x, y, z) tuples of arrays; the result is that of the film's
+    surface, on the side of ``n``. With ``diffuse``: the pair (shading normal, the diffuse light's normal:
+    the unlevelled relief with slopes weighted by :attr:`TissueParams.relief_diffuse`).
     """
     w = t.relief_diffuse if diffuse else None
     if not np.any(t.relief_amp):  # smooth: no waves to evaluate (the normal, normalised)
@@ -477,15 +392,10 @@ def relief_normal(xp, p, n, t: TissueParams, *, diffuse: bool = False):
 
 
 def film_alpha(xp, p, t: TissueParams, alpha: float):
-    """The wet film's roughness at surface points ``p`` (the camera frame with :func:`in_camera`):
-    ``alpha exp(v f(q))`` with ``f`` the film's thickness field (a unit-RMS sum of seeded plane
-    waves of the texture frame, wavelengths about ``film_scale_mm``) and ``v`` =
-    :attr:`TissueParams.film_variation`; ``alpha`` itself where ``v`` is 0.
+    """The wet film's roughness ``alpha exp(v f(q))`` at points ``p``, clipped to [0.002, 1].
 
-    A thick film smooths the tissue's relief into a smoother mirror (small ``alpha``: glints
-    small and bright), a thin one leaves it rough (broad, dim sheen): with ``v > 0`` a frame shows
-    highlights of every size between the two, as real mucosa does, instead of one broad sheen
-    beside point glints. Clipped to [0.002, 1].
+    ``f`` is the unit-RMS thickness field, ``v`` :attr:`TissueParams.film_variation` (``alpha`` itself when 0):
+    a thick film is smooth (small, bright glints), a thin one rough (broad sheen).
     """
     if t.film_variation == 0.0 or t.film_k is None:
         return alpha
@@ -505,11 +415,10 @@ def _fresnel_dielectric(xp, cos_i, eta):
 
 
 def specular_lobe(xp, n, wi, wo, lobe: str, alpha: float, phong_n: float, ior: float, c: float):
-    """Specular BRDF value of the wet film for unit vectors n (shading normal), wi (to the
-    camera), wo (to the light), as (x, y, z) tuples of arrays; zero below the surface.
+    """Specular BRDF of the wet film for unit (x, y, z) tuples n, wi (to the camera), wo (to the light).
 
-    ``lobe``: "beckmann", "ggx" (microfacet with Smith's G, Walter et al. 2007, eqs. 25-34) or
-    "phong" (paper eq. 1 times the normal-incidence Fresnel). Scaled by ``c``.
+    ``lobe``: "beckmann", "ggx" (Smith's G, Walter et al. 2007, eqs. 25-34) or "phong" (paper eq. 1 times
+    the normal-incidence Fresnel). Scaled by ``c``; zero below the surface.
     """
     cos_i = n[0] * wi[0] + n[1] * wi[1] + n[2] * wi[2]
     cos_o = n[0] * wo[0] + n[1] * wo[1] + n[2] * wo[2]

@@ -1,17 +1,8 @@
 """Ground truth per highlight of a render: the brightest points (BPs) found on its images and meshes.
 
-The BP is where the surface normal bisects the directions to the camera and to the light
-(:func:`simtest.simulate.truth.bisector`). The analytic surfaces' BPs are closed forms or checked
-root solves in :mod:`simtest.simulate.truth`; this module finds them where only a render knows the
-surface:
-
-- Meshes: candidate pixels where the rendered ground-truth normals nearly bisect, refined by ray
-  casting through sub-pixel grids (the normal is the barycentric interpolation of the vertex
-  normals, as Mitsuba shades it); k1 and k2 are the barycentric interpolation of the vertex values.
-- The highlights a person sees as isolated elliptical highlights in a render, each with the
-  ground-truth BPs it gathers (:func:`highlight_targets`).
-
-No Mitsuba here: the renderer passes its ray caster in.
+The BP is where the surface normal bisects the directions to the camera and to the light. Meshes: candidate
+pixels refined by ray casting (Mitsuba's interpolated vertex normals; k1, k2 interpolated barycentrically).
+:func:`highlight_targets` gives the highlights a person sees. No Mitsuba here: the renderer passes its caster.
 """
 
 from __future__ import annotations
@@ -30,42 +21,29 @@ from simtest.geometry.angles import unit
 from simtest.reconstruct.detect import ellipticity
 from simtest.simulate.truth import HighlightTruth, bisector, pixel_in_frame
 
-__all__ = [
-    "Caster",
-    "bisector_cos_image",
-    "mesh_highlight_candidates",
-    "mesh_highlights",
-    "ReliefHighlight",
-    "relief_highlights",
-    "HighlightTarget",
-    "highlight_targets",
-]
+__all__ = ["Caster", "bisector_cos_image", "mesh_highlight_candidates", "mesh_highlights", "ReliefHighlight",
+           "relief_highlights", "HighlightTarget", "highlight_targets"]
 
 
 def bisector_cos_image(normals: np.ndarray, position: np.ndarray, mask: np.ndarray,
                        light: np.ndarray) -> np.ndarray:
     """Cosine between each pixel's normal and its bisector, ``n . h(p)``, in float32.
 
-    The BP condition (the normal equals the bisector, :func:`bisector`) holds where this is 1; :func:`mesh_highlights` starts its
-    searches at its local maxima. Float32 like the render's AOVs, computed on the masked pixels
-    only, one coordinate at a time (no (H, W, 3) temporaries).
-
     Parameters
     ----------
     normals : ndarray of shape (H, W, 3)
-        Unit normals, camera frame, facing the camera (values outside ``mask`` are ignored).
+        Unit normals, camera frame, facing the camera (ignored outside ``mask``).
     position : ndarray of shape (H, W, 3)
-        Surface points, camera frame, mm (values outside ``mask`` are ignored).
+        Surface points, camera frame, mm (ignored outside ``mask``).
     mask : ndarray of shape (H, W), bool
         Pixels with a surface.
     light : array_like of shape (3,)
-        Point-light position, camera frame, mm; all zeros for a light at the camera centre.
+        Point-light position, camera frame, mm; zeros for a light at the camera centre.
 
     Returns
     -------
     ndarray of shape (H, W)
-        ``n . h`` in [-1, 1] (float32 round-off aside) inside ``mask``; -1 outside (NaN at a
-        masked pixel at the camera centre, whose directions are undefined).
+        ``n . h`` inside ``mask``; -1 outside (NaN at a masked pixel at the camera centre).
     """
     mask = np.asarray(mask, dtype=bool)
     light32 = np.asarray(light, dtype=np.float32).reshape(3)
@@ -85,9 +63,7 @@ def bisector_cos_image(normals: np.ndarray, position: np.ndarray, mask: np.ndarr
 
 
 def _masked_rows(a, flat: np.ndarray) -> np.ndarray:
-    """The (H, W, 3) array's values at the flat pixel indices ``flat``, float32, as (3, N) with
-    each coordinate's row contiguous (``take`` with indices: a boolean mask on (H, W, 3) is
-    several times slower)."""
+    """Values of an (H, W, 3) array at flat pixel indices, float32, as contiguous (3, N)."""
     rows = np.take(np.asarray(a).reshape(-1, 3), flat, axis=0).astype(np.float32, copy=False)
     return np.ascontiguousarray(rows.T)
 
@@ -127,43 +103,21 @@ def mesh_highlight_candidates(normals: np.ndarray, position: np.ndarray, mask: n
 Caster = Callable[[np.ndarray], dict]
 
 
-def mesh_highlights(
-    cast: Caster,
-    normals: np.ndarray,
-    position: np.ndarray,
-    mask: np.ndarray,
-    light: np.ndarray,
-    K: np.ndarray,
-    vertices: np.ndarray,
-    faces: np.ndarray,
-    k1_v: np.ndarray,
-    k2_v: np.ndarray,
-    *,
-    candidate_deg: float = 3.0,
-    accept_deg: float = 0.01,
-    max_highlights: int = 64,
-    candidates: np.ndarray | None = None,
-) -> list[HighlightTruth]:
+def mesh_highlights(cast: Caster, normals: np.ndarray, position: np.ndarray, mask: np.ndarray, light: np.ndarray,
+                    K: np.ndarray, vertices: np.ndarray, faces: np.ndarray, k1_v: np.ndarray, k2_v: np.ndarray, *,
+                    candidate_deg: float = 3.0, accept_deg: float = 0.01, max_highlights: int = 64,
+                    candidates: np.ndarray | None = None) -> list[HighlightTruth]:
     """BPs of a triangle mesh with interpolated vertex normals, from a render's ground truth.
 
-    A BP is where the shading normal bisects the directions to the camera and the light
-    (:func:`bisector`). Candidates are the local maxima of :func:`bisector_cos_image` above
-    ``cos(candidate_deg)``; each is refined by casting 7 x 7 sub-pixel grids of rays 16 times
-    (the step shrinks by 3 each time, to ~1e-7 px) and kept if its normal is within ``accept_deg``
-    of the bisector.
+    Candidates (:func:`mesh_highlight_candidates`) are refined by 16 rounds of 7 x 7 sub-pixel ray grids, the
+    step shrinking by 3 each round, and kept if the normal is within ``accept_deg`` of the bisector.
 
     Parameters
     ----------
     cast : callable
         Ray caster (see ``Caster``); the renderer passes Mitsuba's ``scene.ray_intersect``.
-    normals : ndarray of shape (H, W, 3)
-        Per-pixel unit normals, camera frame, facing the camera (zero outside ``mask``).
-    position : ndarray of shape (H, W, 3)
-        Per-pixel surface points, camera frame, mm (zero outside ``mask``).
-    mask : ndarray of shape (H, W), bool
-        Fully covered pixels.
-    light : ndarray of shape (3,)
-        Light position, camera frame, mm.
+    normals, position, mask, light
+        As :func:`bisector_cos_image` (``mask``: fully covered pixels).
     K : ndarray of shape (3, 3)
         Intrinsics (``cast`` uses the same).
     vertices : ndarray of shape (V, 3)
@@ -171,23 +125,19 @@ def mesh_highlights(
     faces : ndarray of shape (F, 3), int
         Triangles as vertex indices (``cast``'s ``prim`` indexes them).
     k1_v, k2_v : ndarray of shape (V,)
-        Vertex principal curvatures (1/mm, camera-facing sign convention).
-    candidate_deg : float
-        Pixels whose normal is within this angle of the bisector and locally best start a search.
+        Vertex principal curvatures, 1/mm, camera-facing sign convention.
+    candidate_deg, max_highlights
+        As :func:`mesh_highlight_candidates`.
     accept_deg : float
         A refined BP is kept if its normal is within this angle of the bisector.
-    max_highlights : int
-        At most this many candidates (the best first) are refined.
     candidates : ndarray of shape (N, 2), optional
-        The start pixels, when :func:`mesh_highlight_candidates` already gave them (with the same
-        arguments); ``normals`` and ``position`` are then not read.
+        Start pixels already found; ``normals`` and ``position`` are then not read.
 
     Returns
     -------
     list of HighlightTruth
         Sorted by v then u; duplicates (within 0.5 px) merged.
     """
-
     H, W = mask.shape
     if candidates is None:
         candidates = mesh_highlight_candidates(normals, position, mask, light, candidate_deg=candidate_deg,
@@ -212,8 +162,7 @@ def mesh_highlights(
         w = np.array([1.0 - w12.sum(), w12[0], w12[1]])
         k1 = float(np.dot(w, k1_v[f]))
         k2 = float(np.dot(w, k2_v[f]))
-        hl = HighlightTruth(uv[i].copy(), p.copy(), n, max(k1, k2), min(k1, k2),
-                            pixel_in_frame(uv[i], (W, H)))
+        hl = HighlightTruth(uv[i].copy(), p.copy(), n, max(k1, k2), min(k1, k2), pixel_in_frame(uv[i], (W, H)))
         if all(np.hypot(*(hl.bp_px - o.bp_px)) > 0.5 for o in out):
             out.append(hl)
     out.sort(key=lambda h: (h.bp_px[1], h.bp_px[0]))
@@ -224,10 +173,8 @@ def _refine(cast: Caster, candidates: np.ndarray, light: np.ndarray, step: float
             rounds: int = 16) -> tuple[np.ndarray, dict]:
     """Climb from each start pixel to where ``cast``'s normal best bisects camera and light.
 
-    Casts 7 x 7 sub-pixel grids of rays ``rounds`` times, keeping the ray whose normal is nearest
-    the bisector; the step starts at ``step`` px (1: the search reaches 3 px) and shrinks by 3
-    each time (1 px and 16 rounds end at ~1e-7 px). Returns the final pixel positions (N, 2) and
-    ``cast``'s result there.
+    ``rounds`` 7 x 7 sub-pixel grids, the step starting at ``step`` px and shrinking by 3 each round.
+    Returns the final pixels (N, 2) and ``cast``'s result there.
     """
     uv = np.asarray(candidates, dtype=np.float64)
     offs = np.arange(-3, 4, dtype=np.float64)
@@ -246,8 +193,7 @@ def _refine(cast: Caster, candidates: np.ndarray, light: np.ndarray, step: float
 
 
 def _peaks(img: np.ndarray, threshold: float, num: int) -> np.ndarray:
-    """(row, col) of the at most ``num`` highest local maxima (8-neighbourhood) of ``img`` at or
-    above ``threshold``, highest first; found on the bounding box of the pixels above it."""
+    """(row, col) of the at most ``num`` highest local maxima of ``img`` at or above ``threshold``, highest first."""
     rows, cols = np.nonzero(img >= threshold)
     if len(rows) == 0:
         return np.zeros((0, 2), dtype=np.int64)
@@ -260,19 +206,15 @@ def _peaks(img: np.ndarray, threshold: float, num: int) -> np.ndarray:
 
 @dataclass(frozen=True)
 class ReliefHighlight(HighlightTruth):
-    """A specular point of the tissue's micro-relief: its *shading* normal bisects the directions to
-    the camera and to the light (a glint), where a :class:`HighlightTruth` is the macro surface's.
+    """A glint: a point whose *shading* normal (micro-relief) bisects the directions to camera and light.
 
-    ``normal`` is the shading normal (camera frame, facing the camera), ``macro_normal`` the
-    surface's normal at the same point; ``k1``, ``k2`` are NaN (the relief's curvature is not
-    given). :meth:`to_dict` writes them as null and adds ``kind = "micro_relief"``.
+    ``normal`` is the shading normal, ``macro_normal`` the surface's; ``k1``, ``k2`` are NaN.
     """
 
     macro_normal: np.ndarray | None = None
 
     def to_dict(self) -> dict:
-        """:meth:`HighlightTruth.to_dict` with ``kind`` "micro_relief", ``macro_normal`` [x, y, z]
-        and ``k1``, ``k2`` null."""
+        """:meth:`HighlightTruth.to_dict` with ``kind`` "micro_relief", ``macro_normal`` and null ``k1``, ``k2``."""
         d = super().to_dict()
         d.update(kind="micro_relief", k1=None, k2=None,
                  macro_normal=[float(x) for x in self.macro_normal] if self.macro_normal is not None else None)
@@ -288,28 +230,16 @@ def relief_highlights(cast: Caster, shading_normals: np.ndarray, position: np.nd
     Parameters
     ----------
     cast : callable
-        Ray caster (see ``Caster``) whose ``n`` is the *shading* normal (the relief's, evaluated
-        with the function the renderer shades with) and ``n_macro`` the surface's normal.
-    shading_normals : ndarray of shape (H, W, 3)
-        Per-pixel shading normals, camera frame (values outside ``mask`` are ignored).
-    position : ndarray of shape (H, W, 3)
-        Per-pixel surface points, camera frame, mm (values outside ``mask`` are ignored).
-    mask : ndarray of shape (H, W), bool
-        Pixels with surface truth.
-    light : ndarray of shape (3,)
-        Light position, camera frame, mm.
+        Ray caster whose ``n`` is the shading normal and ``n_macro`` the surface's normal.
+    shading_normals, position, mask, light
+        As :func:`bisector_cos_image`.
     specular : ndarray of shape (H, W), optional
-        The render's specular image: its ``max_bright`` brightest local maxima start searches too
-        (a glint finer than a pixel can be bright where the pixel centre's normal misses the
-        bisector).
-    candidate_deg : float
-        Pixels whose shading normal is within this angle of the bisector and locally best (among
-        their 8 neighbours) start a search.
-    accept_deg : float
-        A refined point is kept if its shading normal is within this angle of the bisector.
+        The render's specular image: its ``max_bright`` brightest local maxima start searches too (a glint
+        finer than a pixel can be bright where the pixel centre's normal misses the bisector).
+    candidate_deg, accept_deg
+        As :func:`mesh_highlights`.
     max_highlights : int
-        At most this many candidates, those nearest the bisector first, are refined: on a
-        relief finer than a pixel the glints are many, and the labels are those found, not all.
+        At most this many candidates, nearest the bisector first, are refined.
 
     Returns
     -------
@@ -326,9 +256,7 @@ def relief_highlights(cast: Caster, shading_normals: np.ndarray, position: np.nd
             peaks = np.unique(np.vstack([peaks, _peaks(sp, 0.25 * top, max_bright)]), axis=0)
     if len(peaks) == 0:
         return []
-    # Glints lie closer together than a macro surface's BPs: the search stays within 0.5 px of
-    # its start pixel (a first step of 1/6 px), so each start finds the glint in its own pixel.
-    # 12 rounds from 1/6 px end at ~1e-6 px, well inside the acceptance angle.
+    # glints lie close together: a first step of 1/6 px keeps each search in its own pixel
     uv, res = _refine(cast, peaks[:, ::-1].astype(np.float64), light, step=1.0 / 6.0, rounds=12)
     hit = res["hit"]
     ns = unit(np.where(hit[:, None], res["n"], np.nan), axis=-1)
@@ -352,15 +280,12 @@ def relief_highlights(cast: Caster, shading_normals: np.ndarray, position: np.nd
     return out
 
 
-#: :func:`highlight_targets`: Gaussian sigma, px, of the specular image before its regions are
-#: taken; the largest smoothing the detector's noise rule chooses (2.5 px) is about it: speckle
-#: finer than this is not a set of separate highlights to a viewer or to the detector.
+#: :func:`highlight_targets`: Gaussian sigma, px, of the specular image before its regions are taken
+#: (about the largest smoothing the detector's noise rule chooses, 2.5 px)
 TARGET_SIGMA_PX = 2.0
-#: :func:`highlight_targets`: a highlight's region is where the smoothed specular image is at
-#: least this fraction of its value at the BP (the half-maximum region of the lobe).
+#: :func:`highlight_targets`: a region is where the smoothed image is at least this fraction of its BP value
 TARGET_REL = 0.5
-#: :func:`highlight_targets`: the detector's bound on ellipticity (``not_elliptical`` outside
-#: [0.75, 1 / 0.75]), applied to the region.
+#: :func:`highlight_targets`: the detector's bound on ellipticity, applied to the region
 TARGET_ELLIPTICITY_MIN = 0.75
 
 
@@ -371,16 +296,13 @@ class HighlightTarget:
     Attributes
     ----------
     bp_px : ndarray of shape (k, 2)
-        [u, v] of the ground-truth BPs it holds, px (k >= 1; several when the highlights of
-        several lights run together).
+        [u, v] of its ground-truth BPs, px (several when the highlights of several lights run together).
     lights : tuple of int
         Their lights' indices in the rig.
     highlights : tuple of HighlightTruth
-        The ground truth itself, brightest first.
+        The ground truth, brightest first.
     peak_px : ndarray of shape (2,)
-        [u, v] of the maximum of the smoothed specular image over its region, px: where the
-        image shows the highlight's peak (off the BPs on micro-relief, see
-        :func:`highlight_targets`).
+        [u, v] of the smoothed specular image's local maximum reached from the BP, px.
     area_px : int
         Pixels of its half-maximum region (holes filled).
     """
@@ -392,13 +314,7 @@ class HighlightTarget:
     area_px: int
 
     def distance_px(self, uv) -> float:
-        """Distance, px, from the point ``uv`` [u, v] to the convex hull of :attr:`bp_px` and
-        :attr:`peak_px`.
-
-        The peak of several lobes that run together lies between their BPs, and micro-relief
-        moves it off them to :attr:`peak_px`: for one point this is the distance to it, for two
-        the distance to the segment, for more to their hull.
-        """
+        """Distance, px, from ``uv`` [u, v] to the convex hull of :attr:`bp_px` and :attr:`peak_px`."""
         q = np.asarray(uv, dtype=np.float64)
         pts = np.unique(np.vstack([self.bp_px, self.peak_px[None]]).astype(np.float64), axis=0)
         if len(pts) >= 3:
@@ -434,14 +350,21 @@ def highlight_targets(highlights: list[HighlightTruth], specular: np.ndarray, va
                       ellipticity_min: float = TARGET_ELLIPTICITY_MIN) -> list[HighlightTarget]:
     """The ground-truth highlights a person sees as isolated elliptical highlights in a render.
 
+    The specular image is smoothed by ``sigma_px`` (about the micro-relief's speckle grain). Taking BPs brightest
+    first, a BP's region is the 8-connected component of ``smoothed >= rel * (value at the BP)`` holding it,
+    holes filled; a BP inside a brighter target's region joins that target (overlapping lights of a scope). A
+    target is kept when its region (1) lies within ``valid`` and off the image border, (2) has an ellipticity
+    (:func:`simtest.reconstruct.detect.ellipticity`) within [``ellipticity_min``, 1 / ``ellipticity_min``], and
+    (3) holds at most one BP of each light (several mean a sheen or sparkle, not a highlight).
+
     Parameters
     ----------
     highlights : list of HighlightTruth
-        A render's ground truth (every light's BPs, :attr:`RenderResult.highlights`).
+        A render's ground truth (every light's BPs).
     specular : ndarray of shape (H, W)
         The render's specular-only linear image (every light).
     valid : ndarray of shape (H, W), bool
-        Pixels that show the surface: the surface mask within the scope's field stop.
+        Pixels that show the surface within the scope's field stop.
     sigma_px, rel, ellipticity_min : float
         See :data:`TARGET_SIGMA_PX`, :data:`TARGET_REL`, :data:`TARGET_ELLIPTICITY_MIN`.
 
@@ -449,53 +372,6 @@ def highlight_targets(highlights: list[HighlightTruth], specular: np.ndarray, va
     -------
     list of HighlightTarget
         Brightest first.
-
-    Notes
-    -----
-    The ground-truth BP is where the *macro* normal (the smooth mesh or analytic surface, the
-    normal a reconstruction is scored against) bisects the directions to the camera and the
-    light; that stays the target's BP and normal. The tissue's micro-relief tilts the shading
-    normal by about a degree (0.003 mm at 1 mm on the colonoscope scenes) and the rendered lobe
-    is broken into speckle around the macro BP. The shading normal is no target: it changes from
-    pixel to pixel, every glint of the speckle is one of its BPs, and no isophote of the image
-    follows it. What a person sees is the speckle's envelope, the lobe of the macro surface
-    widened by the relief's slopes, so the specular image is smoothed by ``sigma_px`` (about the
-    speckle's grain) before its regions are taken. The relief's slopes at the scale of the
-    highlight also move the envelope's peak off the macro BP, far along a direction in which the
-    bisector condition changes slowly (the surface's curvature there is close to that of the
-    bisector field, about 1 / distance): 9 px along the streak of the full-size colonoscope's
-    pair. The target keeps
-    that peak too, :attr:`HighlightTarget.peak_px`, the local maximum of the smoothed image
-    reached from the BP by steepest ascent (not the region's maximum: the region of a lobe on a
-    bright wall can hold brighter light nearer the camera).
-
-    A BP is a fair target when the image shows an isolated elliptical highlight there. Its region
-    is the 8-connected component of ``smoothed specular >= rel * (its value at the BP)`` holding
-    the BP, holes filled. The BP is a target when that region (1) lies within ``valid`` and off
-    the image border (a highlight cut by the field stop or the frame has no closed isophote),
-    and (2) has an ellipticity (:func:`simtest.reconstruct.detect.ellipticity`, the detector's
-    measure) within [``ellipticity_min``, 1 / ``ellipticity_min``]: on a concave wall seen from
-    near its centre of curvature the bisector condition nearly holds over a large patch and the
-    specular image is a broad irregular sheen holding several BPs of one light, not a highlight
-    with elliptical isophotes. BPs out of frame, outside ``valid`` or without specular light are
-    dropped.
-
-    (3) Its region holds at most one BP of each light. Where one light has several specular
-    points within one visible highlight, the surface's normal turns back and forth on a scale
-    finer than the highlight: micro-relief breaks a lobe into sparkle (the endoscope suite's
-    relief of 5 um RMS and more gathers 4 BPs of two lights into a sheen of 4800 to 18500 px),
-    or a rough film spreads it into a broad sheen over a curved wall (GGX alpha 0.1 and 0.2 on
-    the colon wall: 4300 and 8300 px). No locally planar patch gives that image, and a person
-    sees a sheen, not a highlight. The highlights of different lights that run together (a
-    scope's guides, a laparoscope's ring of eight) stay a target.
-
-    The lights of a scope are a few millimetres apart: at working distances their highlights
-    overlap and a person (and the detector) sees one. BPs are taken brightest first; a BP that
-    lies inside the region of a brighter target joins it, and a target then holds several BPs
-    (a pair of colonoscope light guides, a laparoscope's ring). An estimate reconstructs a
-    target when its BP lies near the convex hull of the target's BPs and peak
-    (:meth:`HighlightTarget.distance_px`): the peak of lobes that run together lies between
-    their BPs, and the relief moves it to the peak.
     """
     H, W = specular.shape
     sm = cv2.GaussianBlur(np.asarray(specular, dtype=np.float32), (0, 0), float(sigma_px),
@@ -519,13 +395,11 @@ def highlight_targets(highlights: list[HighlightTruth], specular: np.ndarray, va
         lab, _ = ndimage.label(sm >= rel * peak, structure=np.ones((3, 3), bool))
         region = ndimage.binary_fill_holes(lab == lab[r, c])
         rr, cc = np.nonzero(region)
-        inside = bool(valid[region].all()) and rr.min() > 0 and cc.min() > 0 \
-            and rr.max() < H - 1 and cc.max() < W - 1
+        inside = bool(valid[region].all()) and rr.min() > 0 and cc.min() > 0 and rr.max() < H - 1 and cc.max() < W - 1
         e = ellipticity(region)
         fair = inside and bool(ellipticity_min <= e <= 1.0 / ellipticity_min)
         pr, pc = _climb(sm, r, c)
-        groups.append({"region": region, "members": [h], "fair": fair,
-                       "peak": np.array([pc, pr], dtype=np.float64)})
+        groups.append({"region": region, "members": [h], "fair": fair, "peak": np.array([pc, pr], dtype=np.float64)})
     return [HighlightTarget(np.array([m.bp_px for m in g["members"]], dtype=np.float64),
                             tuple(int(m.light) for m in g["members"]), tuple(g["members"]),
                             g["peak"], int(g["region"].sum()))

@@ -1,40 +1,15 @@
 """Branching, tapering vessel networks under the mucosa, as a texture of the surface's own 2D coordinates.
 
-Each layer of :data:`VESSEL_LAYERS` is a forest grown by **space colonisation** (Runions, Lane &
-Prusinkiewicz 2007, "Modeling trees with a space colonization algorithm", Eurographics Workshop on
-Natural Phenomena, https://doi.org/10.2312/NPH/NPH07/063-070): attraction points are scattered
-uniformly over a square tile of the surface's (u, v) plane (mm); roots (the perforating vessels
-that rise from the layer below) are scattered over it too; at every step each attraction point
-pulls on its nearest node within the radius of influence, each node that is pulled grows one new
-node a step ``D`` along the mean unit direction to its attraction points, and attraction points
-within the kill distance of a node are removed; growth stops when no node is pulled. Every node
-but a root has one parent that was grown before it: each layer is a forest of trees (no cycles).
-
-Radii follow **Murray's law** (Murray 1926, "The physiological principle of minimum work",
-PNAS 12:207, https://doi.org/10.1073/pnas.12.3.207): ``r_parent^3 = sum r_child^3`` at every
-node, with every tip of a tree at one radius, so ``r^3`` is proportional to the number of tips
-downstream; each tree is scaled so that its root has the layer's root radius. Vessels taper from
-the root to the tips by ``n_tips^(-1/3)``.
-
-A layer is drawn as a **coverage map** (the fraction of each texel within a vessel's radius of
-its centreline: segments drawn with round caps by :func:`cv2.line` on a raster
-:data:`SUPERSAMPLE` times finer, then averaged down), blurred by a Gaussian whose sigma grows with
-the layer's depth (:data:`BLUR_PER_DEPTH`: light scattered in the mucosa above a buried absorber
-spreads its shadow over a width of the order of its depth), and turned into a per-channel
-transmission ``1 - absorb_c * coverage``. Deeper layers absorb less and more evenly across the
-channels: haemoglobin's strong green and blue absorption only shows where those short wavelengths
-reach the vessel, so superficial vessels look dark red, deep ones faint and grey-blue (Kienle et
-al. 1996, "Why do veins appear blue? A new look at an old question", Applied Optics 35:1151,
-https://doi.org/10.1364/AO.35.001151). The layers multiply into one (H, W, 3) transmission
-texture of a tile :data:`TILE_MM` wide, repeated mirrored beyond it (continuous everywhere).
-
-The vessel calibres are of the order reported for the human colon's mucosal and submucosal
-plexuses (Skinner & O'Brien 1996, "The microvascular structure of the normal colon in rats and
-humans", J Surg Res 61:482, https://doi.org/10.1006/jsre.1996.0151: a capillary honeycomb
-around the crypts drained by venules of some 0.1 mm, fed from a submucosal plexus of vessels of
-some 0.2 to 1 mm); densities, growth steps and absorptions are assumed, chosen so a frame shows a
-network like white-light colonoscopy's, and ``simtest simreal`` compares the result with real
-frames.
+Each layer of :data:`VESSEL_LAYERS` is a forest grown by space colonisation (Runions, Lane &
+Prusinkiewicz 2007, https://doi.org/10.2312/NPH/NPH07/063-070) on a square tile of the (u, v) plane, mm,
+from roots (perforating vessels). Radii follow Murray's law, ``r_parent^3 = sum r_child^3`` with every tip
+at one radius (Murray 1926, https://doi.org/10.1073/pnas.12.3.207). A layer is drawn as an anti-aliased
+coverage map, blurred in proportion to its depth (light scattered above a buried absorber spreads its
+shadow), and turned into a transmission ``1 - absorb_c * coverage``; deeper layers absorb less and more
+evenly (Kienle et al. 1996, https://doi.org/10.1364/AO.35.001151). The layers multiply into one (H, W, 3)
+texture of a tile :data:`TILE_MM` wide, repeated mirrored. Calibres follow the human colon's plexuses
+(Skinner & O'Brien 1996, https://doi.org/10.1006/jsre.1996.0151); densities, steps and absorptions are
+assumed, and ``simtest simreal`` compares the result with real frames.
 """
 
 from __future__ import annotations
@@ -52,26 +27,19 @@ __all__ = ["VESSEL_LAYERS", "VESSEL_SEED_KEY", "TILE_MM", "TEXEL_MM", "SUPERSAMP
 #: Stable key of the vessel stream: layer i grows from ``SeedSequence([seed, VESSEL_SEED_KEY, i])``,
 #: ``seed`` the tissue's texture seed.
 VESSEL_SEED_KEY = 0x7E55E1
-#: Width of the square tile the networks are grown on, mm: wider than the field of view of the
-#: scenes' well-lit tissue (about 40 mm at 20 mm through 140 deg), so the mirrored repeat is rarely seen.
+#: Width of the square tile, mm: wider than the scenes' well-lit field (about 40 mm), so the repeat is rarely seen
 TILE_MM = 64.0
-#: Texel of the transmission texture, mm: finer than a pixel's footprint on the tissue at the
-#: scenes' working distances (about 0.1 to 0.3 mm), so the renderer's samples resolve it.
+#: Texel of the transmission texture, mm: finer than a pixel's footprint at working distances (0.1-0.3 mm)
 TEXEL_MM = 0.04
 #: Drawing raster per texel side (anti-aliasing: coverage is the mean of SUPERSAMPLE^2 sub-texels).
 SUPERSAMPLE = 4
-#: Gaussian sigma of a layer's blur per mm of depth (dimensionless; assumed: the shadow of a
-#: buried absorber spreads over a width of the order of its depth in a scattering medium).
+#: Gaussian sigma of a layer's blur per mm of depth (assumed: a buried absorber's shadow spreads about its depth)
 BLUR_PER_DEPTH = 0.5
 
 
 @dataclass(frozen=True)
 class VesselLayer:
-    """One plexus: its depth, calibre, space-colonisation parameters and absorption.
-
-    Lengths in mm, densities per mm^2; ``absorb`` is the (R, G, B) fraction of the albedo a
-    vessel removes where it covers a texel fully.
-    """
+    """One plexus: depth, calibre, space-colonisation parameters (mm, per mm^2) and (R, G, B) absorption."""
 
     name: str
     depth_mm: float
@@ -89,10 +57,8 @@ class VesselLayer:
         return BLUR_PER_DEPTH * self.depth_mm
 
 
-#: The plexuses drawn, shallow to deep (module notes for the sources): a mucosal layer of venules
-#: (0.15 mm across at the root, 0.15 mm deep) on perforators about 4 mm apart, dark red; a
-#: submucosal layer of larger vessels (0.5 mm across at the root, 0.6 mm deep) on roots about
-#: 16 mm apart, fainter and grey-blue.
+#: The plexuses drawn, shallow to deep (sources in the module notes): mucosal venules, dark red; submucosal
+#: vessels, fainter and grey-blue.
 VESSEL_LAYERS = (
     VesselLayer("mucosal", depth_mm=0.15, root_radius_mm=0.075, step_mm=0.25, influence_mm=1.5, kill_mm=0.35,
                 attractors_per_mm2=2.0, roots_per_mm2=1.0 / 16.0, absorb=(0.25, 0.55, 0.45)),
@@ -103,8 +69,7 @@ VESSEL_LAYERS = (
 
 @dataclass(frozen=True)
 class Network:
-    """A forest grown by space colonisation: node positions (N, 2) mm in the tile, and each node's
-    parent index (-1 for a root; otherwise smaller than the node's own index)."""
+    """A forest: node positions (N, 2) mm in the tile, and each node's parent index (-1 for a root, else smaller)."""
 
     nodes: np.ndarray
     parent: np.ndarray
@@ -112,17 +77,17 @@ class Network:
 
 def grow_network(rng: np.random.Generator, layer: VesselLayer, tile_mm: float = TILE_MM,
                  max_steps: int = 2000) -> Network:
-    """Grow one layer's forest by space colonisation (module notes) on ``[0, tile_mm]^2``.
+    """Grow one layer's forest by space colonisation on ``[0, tile_mm]^2``.
 
     Parameters
     ----------
     rng : numpy.random.Generator
-        The layer's stream: attraction points and roots are drawn from it, nothing else.
+        The layer's stream (attraction points and roots only).
     layer : VesselLayer
     tile_mm : float
         Side of the square tile, mm.
     max_steps : int
-        Cap on growth steps (growth normally stops well before: no attraction point left in reach).
+        Cap on growth steps.
 
     Returns
     -------
@@ -135,8 +100,7 @@ def grow_network(rng: np.random.Generator, layer: VesselLayer, tile_mm: float = 
     parent = [np.full(len(roots), -1, dtype=np.int64)]
     all_nodes = roots
     seen = set(map(tuple, np.round(roots / (0.1 * layer.step_mm)).astype(np.int64).tolist()))
-    # each attraction point's nearest node so far (the nearest over all nodes is the nearest of the
-    # nearest in each step's new nodes): one small tree per step instead of one of every node
+    # each attraction point's nearest node so far: one small tree of the new nodes per step
     best_d = np.full(len(attr), np.inf)
     best_k = np.zeros(len(attr), dtype=np.int64)
     new, first = roots, 0
@@ -173,14 +137,7 @@ def grow_network(rng: np.random.Generator, layer: VesselLayer, tile_mm: float = 
 
 
 def murray_radii(net: Network, root_radius_mm: float) -> np.ndarray:
-    """Radius of every node, mm, by Murray's law (module notes): ``r^3`` proportional to the
-    number of tips downstream, each tree's root at ``root_radius_mm``.
-
-    Returns
-    -------
-    ndarray of shape (N,)
-        ``r[p]^3 = sum of r[c]^3 over p's children c`` at every node with children.
-    """
+    """Radius (N,) of every node, mm, by Murray's law: ``r^3`` as the tips downstream, roots at ``root_radius_mm``."""
     n = len(net.parent)
     has_child = np.zeros(n, dtype=bool)
     has_child[net.parent[net.parent >= 0]] = True
@@ -198,17 +155,9 @@ def murray_radii(net: Network, root_radius_mm: float) -> np.ndarray:
 
 def coverage_map(net: Network, radii: np.ndarray, tile_mm: float = TILE_MM, texel_mm: float = TEXEL_MM,
                  sigma_mm: float = 0.0) -> np.ndarray:
-    """Anti-aliased coverage of the network's vessels on the tile's texels, blurred.
+    """Anti-aliased coverage (H, W) float32 in [0, 1] of the vessels on the tile's texels, blurred by ``sigma_mm``.
 
-    Each segment (node to parent) is drawn with the child's radius and round caps on a raster
-    :data:`SUPERSAMPLE` times finer than the texels, averaged down, then blurred by a Gaussian of
-    ``sigma_mm`` (mirrored at the tile's edges, as the texture repeats).
-
-    Returns
-    -------
-    ndarray of shape (H, W), float32
-        Coverage in [0, 1]; row ``i``, column ``j`` is the texel centred at
-        ``(u, v) = ((j + 0.5) texel_mm, (i + 0.5) texel_mm)``.
+    Texel (i, j) is centred at ``(u, v) = ((j + 0.5) texel_mm, (i + 0.5) texel_mm)``.
     """
     n_px = int(round(tile_mm / texel_mm))
     fine = np.zeros((n_px * SUPERSAMPLE, n_px * SUPERSAMPLE), np.uint8)
@@ -230,17 +179,8 @@ def coverage_map(net: Network, radii: np.ndarray, tile_mm: float = TILE_MM, texe
 def transmission_map(seed: int, layers: tuple[VesselLayer, ...] = VESSEL_LAYERS) -> np.ndarray:
     """The vessel texture of a texture seed: ``prod over layers of (1 - absorb_c * coverage)``.
 
-    Parameters
-    ----------
-    seed : int
-        The tissue's texture seed; layer ``i`` grows from
-        ``SeedSequence([seed, VESSEL_SEED_KEY, i])``.
-    layers : tuple of VesselLayer
-
-    Returns
-    -------
-    ndarray of shape (H, W, 3), float32, read-only
-        Per-channel transmission in [0, 1] over the tile (texels as :func:`coverage_map`).
+    Layer ``i`` grows from ``SeedSequence([seed, VESSEL_SEED_KEY, i])``. Returns a read-only (H, W, 3)
+    float32 per-channel transmission in [0, 1] over the tile.
     """
     out = None
     for i, layer in enumerate(layers):
@@ -252,4 +192,3 @@ def transmission_map(seed: int, layers: tuple[VesselLayer, ...] = VESSEL_LAYERS)
     out = np.ascontiguousarray(out, dtype=np.float32)
     out.flags.writeable = False
     return out
-

@@ -1,17 +1,8 @@
-"""Wavefront ray casting and light-rig shading on a loaded Mitsuba scene (camera-frame rays).
+"""Wavefront ray casting and light-rig shading on a loaded Mitsuba scene (camera-frame rays from the origin).
 
-The endoscope renderer (:func:`simtest.render.render.render_scene` on a scene with a light rig or a
-camera model) computes each ray from the camera model in numpy and hands batches of rays to the
-functions here:
-
-- :func:`cast` intersects rays and returns the hit point, the camera-facing shading normal and the
-  triangle index (the ground truth of the pixel centres, and the highlight search's caster).
-- :func:`shade` evaluates, for each ray, the scene's BSDF for every light of a rig in closed form
-  (see :mod:`simtest.render.endoscope`) with optional shadow rays.
-
-Rays start at the camera centre (the origin of the scene frame). Mitsuba and Dr.Jit load through
-:func:`simtest._lazy.require` when a function runs: call them after
-:func:`simtest.render.scene_load.choose_variant`.
+:func:`cast` gives hit points, camera-facing shading normals and triangle indices; :func:`shade` and
+:func:`shade_tissue` evaluate every light of a rig in closed form (:mod:`simtest.render.endoscope`). Call
+them after :func:`simtest.render.scene_load.choose_variant`.
 """
 
 from __future__ import annotations
@@ -26,11 +17,7 @@ from simtest.render import tissue
 __all__ = ["Pending", "albedo_map", "cast", "coverage", "model_rays", "relief_normals", "shade", "shade_tissue"]
 
 def _intersect(scene, ray):
-    """``scene.ray_intersect`` of camera rays, traced as coherent rays.
-
-    The rays of a wavefront leave the camera centre through neighbouring pixels: Embree's coherent
-    mode traces them faster, with the same hits to the bit (tested).
-    """
+    """``scene.ray_intersect`` of camera rays, traced as coherent rays (same hits, faster)."""
     mi = require("mitsuba")
     return scene.ray_intersect(ray, mi.RayFlags.All, True)
 
@@ -41,8 +28,7 @@ def _occluded(scene, ray, active):
 
 
 def _rays(d):
-    """Rays (``mitsuba.Ray3f``) from the origin along ``d``: an (N, 3) numpy array or a Dr.Jit
-    ``Vector3f``."""
+    """Rays (``mitsuba.Ray3f``) from the origin along ``d``, an (N, 3) numpy array or a Dr.Jit ``Vector3f``."""
     mi = require("mitsuba")
     if isinstance(d, np.ndarray):
         d = np.ascontiguousarray(d, dtype=np.float32)
@@ -51,20 +37,16 @@ def _rays(d):
 
 
 def model_rays(model, uv):
-    """Unit rays of pixel positions ``uv`` (N, 2) through ``model``, computed in Dr.Jit (float32).
+    """Unit rays (``mi.Vector3f``, float32) of pixel positions through ``model``.
 
-    ``uv`` is an (N, 2) numpy array or a pair ``(u, v)`` of Dr.Jit ``Float`` arrays.
+    The distortion-free pinhole and the omnidirectional model are evaluated in closed form in Dr.Jit; other
+    models go through ``model.pixel_to_ray`` in numpy.
 
-    The distortion-free pinhole and the omnidirectional model have closed-form rays, evaluated in
-    Dr.Jit (the sample rays of a 1350 x 1080 x 16 spp frame cost about 11 s of numpy float64
-    otherwise); other models (pinhole with distortion, fisheye: iterative inverses) go through
-    ``model.pixel_to_ray`` in numpy. Either way the result is a ``mi.Vector3f``.
-
-    Notes
-    -----
-    Omnidirectional (Scaramuzza, C3VD's convention): ``(x, y) = inv([[c, d], [e, 1]]) (u - cx,
-    v - cy)``, ``r = |(x, y)|``, ray ``(x, y, a0 + a1 r + a2 r^2 + a3 r^3 + a4 r^4)`` normalised.
-    Pinhole: ``((u - cx) / fx, (v - cy) / fy, 1)`` normalised.
+    Parameters
+    ----------
+    model : CameraModel
+    uv : ndarray of shape (N, 2) or tuple of Dr.Jit Float
+        Pixel positions (u, v).
     """
     dr, mi = require("drjit"), require("mitsuba")
     if isinstance(uv, tuple):  # (u, v) Dr.Jit arrays (simtest.render.endoscope.sample_positions)
@@ -101,29 +83,24 @@ def cast(scene, d: np.ndarray, *, later: bool = False):
     d : ndarray of shape (N, 3)
         Unit ray directions, camera frame (float64; cast as float32).
     later : bool
-        Read the hits from Dr.Jit now, but return a function that makes the dict below (its float64
-        arithmetic), to call while queued kernels run.
+        Read the hits now but return a function that makes the dict, to call while queued kernels run.
 
     Returns
     -------
     dict
-        ``hit`` (N,) bool; ``t`` (N,) float64 distance along the ray, mm (``p = t d`` with the
-        float64 direction keeps the point on the pixel's ray); ``p`` (N, 3) float64; ``n`` (N, 3)
-        unit shading normal facing the camera; ``prim`` (N,) int64 triangle index. Misses carry
-        NaN in ``t``, ``p`` and ``n``.
+        ``hit`` (N,) bool; ``t`` (N,) float64 distance, mm; ``p = t d`` (N, 3) float64; ``n`` (N, 3) unit
+        shading normal facing the camera; ``prim`` (N,) int64 triangle index. Misses carry NaN.
     """
     dr = require("drjit")
     d = np.asarray(d, dtype=np.float64)
     si = _intersect(scene, _rays(d))
     valid, t_j, n_j, prim_j = si.is_valid(), si.t, si.sh_frame.n, si.prim_index
     dr.eval(valid, t_j, n_j, prim_j)
-    hit, t32, n32, prim = (np.array(valid, dtype=bool), np.array(t_j), np.array(n_j),
-                           np.array(prim_j, dtype=np.int64))
+    hit, t32, n32, prim = (np.array(valid, dtype=bool), np.array(t_j), np.array(n_j), np.array(prim_j, dtype=np.int64))
 
     def finish() -> dict[str, np.ndarray]:
         t = np.where(hit, t32.astype(np.float64), np.nan)
-        # Per coordinate (contiguous rows), in the order of np.linalg.norm and np.sum over the last
-        # axis of an (N, 3) array: the same bits, without strided passes.
+        # per coordinate: the bits of np.linalg.norm over the last axis, without strided passes
         nx, ny, nz = n32.astype(np.float64)
         scale = np.maximum(np.sqrt(nx * nx + ny * ny + nz * nz), 1e-30)
         nx, ny, nz = nx / scale, ny / scale, nz / scale
@@ -154,24 +131,17 @@ def shade(scene, d: np.ndarray, rig: LightRig, *, shadows: bool, spp: int = 1,
     spp : int
         Consecutive rays per pixel: the results are their means (``N / spp`` pixels).
     defer : bool
-        Queue the kernels and return a :class:`Pending` whose ``fetch()`` gives the results.
+        Queue the kernels and return a :class:`Pending`.
     guide_radius_mm : float
         Each light a disc of this radius in the lens plane (:func:`disc_offsets`); 0: points.
 
     Returns
     -------
     value : ndarray of shape (N / spp, 3), float32
-        ``sum_i f(wi, wo_i) I_i max(0, w_z)^m_i / s_i^2`` (``1 / s^2`` only for inverse-square
-        lights) with ``f`` the BSDF (its three colour channels), ``wo_i`` the unit direction to
-        light i, ``w = -wo_i`` the emission direction and ``s_i`` the light distance.
+        ``sum_i f(wi, wo_i) I_i max(0, w_z)^m_i / s_i^2`` (``1 / s^2`` only for inverse-square lights), ``f``
+        the BSDF, ``wo_i`` the unit direction to light i, ``w = -wo_i`` and ``s_i`` the light distance.
     coverage : ndarray of shape (N / spp,), float32
         Fraction of the rays that hit the surface.
-
-    Notes
-    -----
-    A point emitter of intensity I gives the radiance ``f I / s^2`` toward the camera (Mitsuba's
-    ``point`` plugin with the ``direct`` integrator: one light, no sampling noise); the rig sums it
-    over its lights with the profile ``max(0, w_z)^m`` about the scope axis.
     """
     dr, mi = require("drjit"), require("mitsuba")
     ray = _rays(d)
@@ -195,24 +165,7 @@ def shade(scene, d: np.ndarray, rig: LightRig, *, shadows: bool, spp: int = 1,
 
 
 def coverage(scene, d, *, spp: int = 1, defer: bool = False) -> np.ndarray | Pending:
-    """Fraction of each pixel's rays that hit the surface (no shading).
-
-    Parameters
-    ----------
-    scene : mitsuba.Scene
-        Built in the camera frame.
-    d : ndarray of shape (N, 3) or mitsuba.Vector3f
-        Unit ray directions, camera frame (:func:`model_rays`).
-    spp : int
-        Consecutive rays per pixel.
-    defer : bool
-        Queue the kernels and return a :class:`Pending` whose ``fetch()`` gives the result.
-
-    Returns
-    -------
-    ndarray of shape (N / spp,), float32
-        The ``coverage`` that :func:`shade` and :func:`shade_tissue` return for the same rays.
-    """
+    """Fraction of each pixel's rays that hit the surface: ndarray (N / spp,), float32 (or a :class:`Pending`)."""
     dr = require("drjit")
     valid = scene.ray_intersect_preliminary(_rays(d), True).is_valid()
     out = Pending(_per_pixel(spp, dr.select(valid, 1.0, 0.0)), lambda cov: cov)
@@ -220,13 +173,7 @@ def coverage(scene, d, *, spp: int = 1, defer: bool = False) -> np.ndarray | Pen
 
 
 class Pending:
-    """Per-pixel results whose Dr.Jit kernels are queued but not yet read.
-
-    Dr.Jit's LLVM back-end launches kernels asynchronously: :func:`shade`, :func:`shade_tissue`,
-    :func:`coverage` and :func:`relief_normals` with ``defer=True`` queue them and return at once,
-    so numpy work on the calling thread (the ground truth, the highlight search) runs while the
-    thread pool shades. :meth:`fetch` waits for the kernels and returns the numpy float32 arrays.
-    """
+    """Per-pixel results whose Dr.Jit kernels are queued but not yet read; :meth:`fetch` waits and returns them."""
 
     def __init__(self, values: tuple, finish):
         self._values = values
@@ -240,12 +187,7 @@ class Pending:
 
 
 def _per_pixel(spp: int, *values):
-    """Means over each run of ``spp`` consecutive samples (a pixel's), in Dr.Jit, as queued Dr.Jit
-    arrays (read them with ``numpy.array``).
-
-    The samples of a pixel are summed in order by one Dr.Jit block reduction, so the result does
-    not depend on the thread count; only per-pixel values leave Dr.Jit.
-    """
+    """Means over each run of ``spp`` consecutive samples, as queued Dr.Jit arrays (thread-count independent)."""
     dr = require("drjit")
     dr.eval(*values)  # one kernel for every per-sample value (a reduction evaluates its input alone)
     if spp > 1:
@@ -259,12 +201,10 @@ GOLDEN_ANGLE = float(np.pi * (3.0 - np.sqrt(5.0)))
 
 
 def disc_offsets(n_rays: int, spp: int, radius_mm: float, light_index: int):
-    """Offsets (x, y) in the lens plane, mm, of each ray's point on a disc guide (Dr.Jit Floats).
+    """Offsets (x, y), mm, in the lens plane of each ray's point on a disc guide (Dr.Jit Floats).
 
-    Sample ``k`` of a pixel (rays are ``spp`` consecutive per pixel) takes point ``k`` of a Vogel
-    spiral over the disc of radius ``radius_mm``: radius ``R sqrt((k + 1/2) / spp)``, angle ``k
-    g + i pi / 2`` (``g`` the golden angle, ``i`` the light's index): equal areas per sample, so a
-    pixel's mean is the disc's integral.
+    Sample ``k`` of a pixel takes point ``k`` of a Vogel spiral: radius ``R sqrt((k + 1/2) / spp)``, angle
+    ``k g + i pi / 2`` (``g`` the golden angle, ``i`` the light's index).
     """
     dr, mi = require("drjit"), require("mitsuba")
     k = mi.Float(dr.arange(mi.UInt32, n_rays) % spp)
@@ -274,12 +214,10 @@ def disc_offsets(n_rays: int, spp: int, radius_mm: float, light_index: int):
 
 
 def _light_at(light, p, offset=None):
-    """One light of the rig seen from surface points ``p`` (Dr.Jit, camera frame, mm); ``offset``:
-    the (x, y) offsets in the lens plane of each ray's point on a disc guide (None: the point).
+    """A rig light seen from points ``p``: its position, the unit direction ``wo`` to it and its weight.
 
-    Returns the light's position, the unit direction ``wo`` from ``p`` to it and its weight
-    ``I max(0, w_z)^m / s^2`` (``w = -wo`` the emission direction, ``s`` the distance; the ``1 / s^2``
-    only for an inverse-square light), as the image and the tissue shading both sum them.
+    The weight is ``I max(0, w_z)^m / s^2`` (``1 / s^2`` only for an inverse-square light); ``offset``: the
+    (x, y) disc-guide offsets, or None for the point.
     """
     dr, mi = require("drjit"), require("mitsuba")
     lp = mi.Point3f(*(float(x) for x in light.position_mm))
@@ -296,8 +234,7 @@ def _light_at(light, p, offset=None):
     return lp, wo, weight
 
 
-#: Dr.Jit textures of the tissue's arrays, keyed by the array's id and the Mitsuba variant (the
-#: array is kept alive beside its texture).
+#: Dr.Jit textures of the tissue's arrays, keyed by the array's id and the Mitsuba variant
 _TEXTURES: dict[tuple[int, str], tuple[np.ndarray, object]] = {}
 
 
@@ -318,9 +255,7 @@ def _texture(tex: np.ndarray):
 
 def _dr_xp():
     """The numpy names :mod:`simtest.render.tissue` uses, on Dr.Jit arrays (a namespace)."""
-    dr = require("drjit")
-
-    mi = require("mitsuba")
+    dr, mi = require("drjit"), require("mitsuba")
 
     class _DrXp:
         sin, cos, exp, sqrt = staticmethod(dr.sin), staticmethod(dr.cos), staticmethod(dr.exp), staticmethod(dr.sqrt)
@@ -329,22 +264,19 @@ def _dr_xp():
 
         @staticmethod
         def texture(tex: np.ndarray, s, r):
-            """Bilinear, mirrored lookup of an (H, W, C) array at texture coordinates (s, r) in
-            [0, 1] over the tile (``mi.Texture2f``, uploaded once per array)."""
+            """Bilinear, mirrored lookup of an (H, W, C) array at texture coordinates (s, r) in [0, 1]."""
             return _texture(tex).eval(mi.Point2f(s, r))
 
         @staticmethod
         def const(x: float):
-            """A value the kernel reads at launch (the texture frame of a pose): one compiled
-            kernel serves every pose."""
+            """A value the kernel reads at launch, so one compiled kernel serves every pose."""
             return dr.opaque(mi.Float, x)
 
     return _DrXp
 
 
 def relief_normals(p: np.ndarray, n: np.ndarray, texture, *, defer: bool = False) -> np.ndarray | Pending:
-    """Shading normals with the tissue's micro-relief (:func:`simtest.render.tissue.relief_normal`),
-    evaluated in Dr.Jit (float32).
+    """Shading normals with the tissue's micro-relief (:func:`simtest.render.tissue.relief_normal`), in Dr.Jit.
 
     Parameters
     ----------
@@ -352,51 +284,50 @@ def relief_normals(p: np.ndarray, n: np.ndarray, texture, *, defer: bool = False
         Surface points (mm) and unit macro normals, camera frame.
     texture : simtest.render.tissue.TissueParams
     defer : bool
-        Queue the kernel and return a :class:`Pending` whose ``fetch()`` gives the result.
+        Return a :class:`Pending`.
 
     Returns
     -------
     ndarray of shape (..., 3), float32
         Unit shading normals, on the side of ``n``; NaN where ``p`` or ``n`` is.
     """
-    dr, mi = require("drjit"), require("mitsuba")
-    p_dr, n_dr = ([mi.Float(np.ascontiguousarray(a[..., i].ravel(), dtype=np.float32)) for i in range(3)]
-                  for a in (p, n))
-    out = tuple(tissue.relief_normal(_dr_xp(), p_dr, n_dr, texture))
-    dr.eval(*out)
-    pending = Pending(out, lambda x, y, z: np.stack([x, y, z], axis=-1).reshape(p.shape))
-    return pending if defer else pending.fetch()
+    return _per_point(tissue.relief_normal(_dr_xp(), _dr_rows(p), _dr_rows(n), texture), p.shape, defer)
 
 
 def albedo_map(p: np.ndarray, texture, n: np.ndarray | None = None, *,
                defer: bool = False) -> np.ndarray | Pending:
-    """Diffuse albedo of the tissue (:func:`simtest.render.tissue.albedo`) at surface points,
-    evaluated in Dr.Jit (float32) as the renderer shades with it.
+    """Diffuse albedo of the tissue (:func:`simtest.render.tissue.albedo`) at surface points, in Dr.Jit.
 
     Parameters
     ----------
     p : ndarray of shape (..., 3)
-        Surface points, camera frame, mm (``texture`` in the camera frame,
-        :func:`simtest.render.tissue.in_camera`).
+        Surface points, camera frame, mm (``texture`` in the camera frame).
     texture : simtest.render.tissue.TissueParams
     n : ndarray of shape (..., 3), optional
-        Surface normals at ``p``, camera frame: the vessels' triplanar mapping weighs them, as the
-        renderer does (:func:`simtest.render.tissue.albedo`).
+        Surface normals at ``p`` (the vessels' triplanar mapping weighs them).
     defer : bool
-        Queue the kernel and return a :class:`Pending` whose ``fetch()`` gives the result.
+        Return a :class:`Pending`.
 
     Returns
     -------
     ndarray of shape (..., 3), float32
         Linear RGB albedo in [0, 1]; NaN where ``p`` is.
     """
-    dr, mi = require("drjit"), require("mitsuba")
-    p_dr = [mi.Float(np.ascontiguousarray(p[..., i].ravel(), dtype=np.float32)) for i in range(3)]
-    n_dr = None if n is None else [mi.Float(np.ascontiguousarray(n[..., i].ravel(), dtype=np.float32))
-                                   for i in range(3)]
-    out = tuple(tissue.albedo(_dr_xp(), p_dr, texture, n_dr))
-    dr.eval(*out)
-    pending = Pending(out, lambda r, g, b: np.stack([r, g, b], axis=-1).reshape(p.shape))
+    return _per_point(tissue.albedo(_dr_xp(), _dr_rows(p), texture, None if n is None else _dr_rows(n)), p.shape,
+                      defer)
+
+
+def _dr_rows(a: np.ndarray) -> list:
+    """The three coordinates of a (..., 3) array as flat float32 Dr.Jit arrays."""
+    mi = require("mitsuba")
+    return [mi.Float(np.ascontiguousarray(a[..., i].ravel(), dtype=np.float32)) for i in range(3)]
+
+
+def _per_point(values, shape: tuple, defer: bool):
+    """Three queued Dr.Jit arrays as a (..., 3) float32 array of ``shape``, or its :class:`Pending`."""
+    out = tuple(values)
+    require("drjit").eval(*out)
+    pending = Pending(out, lambda x, y, z: np.stack([x, y, z], axis=-1).reshape(shape))
     return pending if defer else pending.fetch()
 
 
@@ -406,31 +337,20 @@ def shade_tissue(scene, d: np.ndarray, rig: LightRig, texture, material, *, shad
 
     Parameters
     ----------
-    scene : mitsuba.Scene
-        Built in the camera frame; its BSDF is not used (the tissue is shaded here).
-    d : ndarray of shape (N, 3) or mitsuba.Vector3f
-        Unit ray directions, camera frame (:func:`model_rays`).
-    rig : LightRig
+    scene, d, rig, shadows, spp, defer, guide_radius_mm
+        As :func:`shade` (the scene's BSDF is not used).
     texture : simtest.render.tissue.TissueParams
     material : simtest.scene.spec.MaterialSpec
         ``distribution`` (lobe), ``microfacet_alpha``, ``n``, ``film_ior``, ``c``.
-    shadows : bool
-    spp : int
-        Consecutive rays per pixel: the results are their means (``N / spp`` pixels).
-    defer : bool
-        Queue the kernels and return a :class:`Pending` whose ``fetch()`` gives the results.
-    guide_radius_mm : float
-        Each light a disc of this radius in the lens plane (:func:`disc_offsets`); 0: points.
 
     Returns
     -------
     rgb : ndarray of shape (N / spp, 3), float32
-        ``sum_i (albedo / pi cos_d + f_s cos_o) I_i max(0, w_z)^m_i / s_i^2``, ``cos_o`` of the
-        shading normal, ``cos_d`` of the diffuse one (:func:`simtest.render.tissue.relief_normal`).
+        ``sum_i (albedo / pi cos_d + f_s cos_o) I_i max(0, w_z)^m_i / s_i^2``, ``cos_o`` of the shading normal,
+        ``cos_d`` of the diffuse one.
     specular : ndarray of shape (N / spp,), float32
         The specular part alone.
     coverage : ndarray of shape (N / spp,), float32
-        Fraction of the rays that hit the surface.
     """
     dr, mi = require("drjit"), require("mitsuba")
     xp = _dr_xp()
