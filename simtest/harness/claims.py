@@ -1,16 +1,8 @@
 """Claims a report checks against its results: the paper's figure 3, and our own predictions.
 
-Two kinds, both computed from a ``results.json`` document, never typed by hand:
-
-- per sweep, the checks of its ``[sweep.paper]`` table (:data:`PAPER_CHECKS`, evaluated by
-  :func:`evaluate_paper_claim`): what the paper's figure 3 states (``source = "paper"``), or a
-  prediction of ours tied to one sweep (``source = "prediction"``);
-- suite-wide predictions (:data:`CLAIMS`, evaluated by :func:`evaluate_claims`) over every case
-  they apply to: the BP ray is exact on co-located renders, the cone axis is the normal on
-  co-located planes, rho predicts the eigenvalue gap and the circle-pose error on curved patches.
-
-A claim that no case of the suite can decide is left out (a quick suite has no curved scene).
-The measured reasons behind alarming cells are in :mod:`simtest.harness.explain`.
+Per sweep, the checks of its ``[sweep.paper]`` table (:data:`PAPER_CHECKS`,
+:func:`evaluate_paper_claim`); suite-wide, the predictions of :data:`CLAIMS`
+(:func:`evaluate_claims`). A claim no case of the suite can decide is left out.
 """
 
 from __future__ import annotations
@@ -31,41 +23,30 @@ ALARM_DEG = 10.0
 #: Families of the rendered protocol whose geometry is an analytic quadric (exact curvature).
 ANALYTIC = ("plane", "sphere", "cylinder", "saddle")
 
-
-#: Fewest successes a statistic's interval is drawn or judged from (the p5 to p95 bars of the
-#: figures, the standard error behind "best"). Below 10, numpy's interpolated 5th and 95th
-#: percentiles lie within the two most extreme values: they show two samples, not a spread.
+#: Fewest successes a statistic's interval is drawn or judged from: below 10, the 5th and 95th
+#: percentiles lie within the two most extreme values.
 MIN_N_INTERVAL = 10
 
 #: Confidence of the interval a "best" mark must clear.
 BEST_LEVEL = 0.95
 
-# ------------------------------------------------------------------------------------------------
-# which estimator is best (only where the difference exceeds its confidence interval)
-
 
 def median_se(m: dict | None) -> float | None:
     """Standard error of a median error from its summary statistics (degrees).
 
-    The results keep ``p5``, ``p95`` and ``n_ok`` per estimator, not the errors. The median's
-    large-sample standard error is 1 / (2 f sqrt(n)) with f the density at the median; f is
-    taken as the mean density between the 5th and 95th percentiles, 0.9 / (p95 - p5). For a
-    unimodal distribution that density is at most the one at the median when the median lies
-    near the mode, so the error is overstated rather than understated: by 1.46 for a normal
-    distribution, 1.34 for a half-normal one (angle errors), 1.6 for an exponential one. A
-    mark that clears it is not noise.
+    The large-sample standard error 1 / (2 f sqrt(n)), with the density f at the median taken as the
+    mean density between the 5th and 95th percentiles, 0.9 / (p95 - p5): for a unimodal distribution
+    this overstates the error (by 1.34 for a half-normal one), so a mark that clears it is not noise.
 
     Parameters
     ----------
     m : dict or None
-        Statistics of :func:`simtest.harness.metrics.summarise` (``median``, ``p5``, ``p95``,
-        ``n_ok``).
+        Statistics of :func:`simtest.harness.metrics.summarise` (``median``, ``p5``, ``p95``, ``n_ok``).
 
     Returns
     -------
     float or None
-        None without a median or with fewer than :data:`MIN_N_INTERVAL` successes (too few
-        to judge a spread).
+        None without a median or with fewer than :data:`MIN_N_INTERVAL` successes.
     """
     if not m or m.get("median") is None or m.get("p5") is None or m.get("p95") is None:
         return None
@@ -79,13 +60,10 @@ def median_se(m: dict | None) -> float | None:
 def best_marks(stats: dict[str, dict | None], level: float = BEST_LEVEL) -> dict[str, str]:
     """Which estimator's median error is lowest beyond its confidence interval.
 
-    The lowest median ``a`` is *best* when, for every other estimator ``b`` with a median, the
-    difference ``median_b - median_a`` exceeds the half-width of its ``level`` interval,
-    t(level, min(n_a, n_b) - 1) * sqrt(se_a^2 + se_b^2) (:func:`median_se`; the two taken as
-    independent, which widens the interval when they share realisations and their errors
-    correlate). Otherwise the estimators within that interval of ``a`` tie with it; an
-    estimator whose standard error cannot be judged (fewer than :data:`MIN_N_INTERVAL`
-    successes) ties with every one.
+    The lowest median ``a`` is *best* when for every other estimator ``b`` the difference
+    ``median_b - median_a`` exceeds t(level, min(n_a, n_b) - 1) * sqrt(se_a^2 + se_b^2)
+    (:func:`median_se`); otherwise those within it tie with ``a``. An estimator whose standard error
+    cannot be judged ties with every one.
 
     Parameters
     ----------
@@ -97,9 +75,8 @@ def best_marks(stats: dict[str, dict | None], level: float = BEST_LEVEL) -> dict
     Returns
     -------
     dict of str to str
-        ``{a: "best"}`` for a clear winner; ``{a: "tie", b: "tie", ...}`` for the estimators
-        that cannot be told apart from the lowest; ``{}`` when every estimator with a median
-        ties (no mark tells the reader anything) or fewer than two have one.
+        ``{a: "best"}``, or ``{a: "tie", b: "tie", ...}``; ``{}`` when all tie or fewer than two
+        have a median.
     """
     meds = {e: float(m["median"]) for e, m in stats.items() if m and m.get("median") is not None}
     if len(meds) < 2:
@@ -121,10 +98,6 @@ def best_marks(stats: dict[str, dict | None], level: float = BEST_LEVEL) -> dict
     if len(group) == len(meds):
         return {}
     return {a: "best"} if len(group) == 1 else {e: "tie" for e in group}
-
-
-# ------------------------------------------------------------------------------------------------
-# the paper's stated figures (and sweep-level predictions)
 
 
 def _series(sweep_cases: list[dict], estimator: str, stat: str = "mean"):
@@ -218,23 +191,22 @@ def evaluate_paper_claim(paper: dict, sweep_cases: list[dict]) -> list[dict]:
     Parameters
     ----------
     paper : dict
-        The sweep's ``paper`` table: ``check`` (a key of :data:`PAPER_CHECKS` or a list of them),
-        ``value`` (one per check; degrees for error bounds), optional ``estimator`` (default
-        ``"paper_oracle"``) and ``source`` (``"paper"``, the default, for the paper's figure 3;
-        ``"prediction"`` for one of ours).
+        ``check`` (a key of :data:`PAPER_CHECKS` or a list), ``value`` (one per check; degrees for
+        error bounds), optional ``estimator`` (default ``"paper_oracle"``) and ``source``
+        (``"paper"`` or ``"prediction"``).
     sweep_cases : list of dict
-        The sweep's case documents of ``results.json`` (with ``metrics``), in sweep order.
+        The sweep's case documents of ``results.json``, in sweep order.
 
     Returns
     -------
     list of dict
-        ``{"check", "value", "estimator", "source", "holds" (bool or None), "ours" (str)}`` per check;
-        empty if the table has no ``check``. ``holds`` is None when the metrics cannot decide.
+        ``{"check", "value", "estimator", "source", "holds", "ours"}`` per check (``holds`` None when
+        the metrics cannot decide); empty without ``check``.
 
     Raises
     ------
     KeyError
-        If a check name is not in :data:`PAPER_CHECKS` (suite validation refuses those first).
+        If a check name is not in :data:`PAPER_CHECKS`.
     """
     est = paper.get("estimator", "paper_oracle")
     out = []
@@ -249,10 +221,6 @@ def evaluate_paper_claim(paper: dict, sweep_cases: list[dict]) -> list[dict]:
         out.append({"check": chk, "value": val, "estimator": est,
                     "source": paper.get("source", "paper"), "holds": holds, "ours": ours})
     return out
-
-
-# ------------------------------------------------------------------------------------------------
-# suite-wide predictions
 
 
 def _stat(case: dict, est: str, key: str = "median"):
@@ -284,8 +252,7 @@ _RIG_QUALIFIER = " under a light rig"
 
 
 def _base_family(c: dict) -> str:
-    """The surface a case's family names: ``"plane"`` for ``"plane, light offset"`` and for
-    ``"plane under a light rig, light offset"`` alike."""
+    """The surface a case's family names (``"plane"`` for ``"plane under a light rig, light offset"``)."""
     return c.get("family", "").split(",")[0].removesuffix(_RIG_QUALIFIER)
 
 
@@ -353,11 +320,7 @@ def _rho_cases(results):
 
 
 def _rho_claim(results, measured, predicted, bound, unit, what):
-    """Largest |measured - predicted| per curved family; the verdict on the analytic quadrics.
-
-    ``measured(case)`` and ``predicted(case)`` give the two values of a case (None where absent);
-    ``unit`` is appended to each value ("" or " deg"), ``what`` names the measured quantity.
-    """
+    """Largest |measured - predicted| per curved family; the verdict on the analytic quadrics."""
     cs = [c for c in _rho_cases(results) if measured(c) is not None
           and predicted(c) is not None and _base_family(c) != "plane"]
     if not cs:
@@ -404,10 +367,9 @@ def _offset_curved_cases(results):
 
 
 def _why_curved(c) -> str:
-    """The measured reason a curved case misses the bound: the recommendation against the BP ray,
-    the depth's observability by the curved fits (relative 1-sigma at the noise floor), and under
-    several lights how much the curvature changes between their specular points (what a
-    third-order patch must span)."""
+    """The measured reason a curved case misses the bound (BP ray, depth observability, curvature
+    change between the lights' specular points).
+    """
     parts = [f"bp_ray {_stat(c, 'bp_ray'):.3g} deg" if _stat(c, "bp_ray") is not None else ""]
     share = _diag(c, "recommended_bp_ray_share")
     if share is not None:
@@ -452,8 +414,7 @@ def _claim_curved_offset(results):
         fc = sorted((c for c in cs if c["family"] == fam), key=lambda c: _diag(c, "eps_over_d"))
         per.append(f"{fam}: " + ", ".join(f"{_stat(c, 'recommended'):.3g} deg at epsilon/d "
                                            f"{_diag(c, 'eps_over_d'):.2g}" for c in fc))
-    # the bound's own count, so that a one-light suite's spheres (held to the BP ray only) are
-    # not read as within it
+    # the bound's own count: a one-light suite's spheres are held to the BP ray only
     n_rig = sum(1 for c in cs if rig_analytic(c))
     text = (f"recommended median no worse than the BP ray's, and within {bound:g} deg on spheres and "
             f"cylinders under a light rig ({n_rig} of these cases), in {len(cs) - len(bad)} of {len(cs)} "
@@ -466,15 +427,12 @@ def _claim_curved_offset(results):
             f"(+-{_EPS_SLACK:g}, case means of eps_over_d), case medians; bound {bound:g} deg")
 
 
-#: The light offsets of the flat-mucosa claim: the band where two guides fix a plane's depth
-#: (the colonoscope's guides 4 mm off the lens at 20 mm are epsilon/d 0.2), the curved claims'
-#: two offsets and what lies between (with their slack).
+#: The light offsets of the flat-mucosa claim (with :data:`_EPS_SLACK`).
 FLAT_RIG_EPS = (0.1, 0.3)
 
 
 def _flat_rig_cases(results):
-    """The rendered plane cases under a light rig at epsilon/d :data:`FLAT_RIG_EPS` (+-
-    :data:`_EPS_SLACK`) with a recommended median."""
+    """The rendered plane cases under a light rig at epsilon/d :data:`FLAT_RIG_EPS` with a recommended median."""
     lo, hi = FLAT_RIG_EPS
     out = []
     for c in _rendered(results, colocated=False):
@@ -486,12 +444,9 @@ def _flat_rig_cases(results):
 
 
 def _claim_flat_rig(results):
-    """Issue 39's flat-mucosa must-hold: on each rendered plane case under a light rig at
-    epsilon/d 0.1 to 0.3, the recommended normal's median error is at most
-    ``TOL.claim_flat_rig_median_deg`` and the recommended depth's median error at most
-    ``TOL.claim_flat_rig_depth_pct`` (no depth misses it). Each median is shown with its standard
-    error (:func:`median_se`), so that a reader tells a miss from the spread of a few highlights;
-    the verdict is on the medians themselves. None where no such case was run."""
+    """Issue 39's flat-mucosa must-hold: per plane case under a rig, recommended normal and depth
+    medians within ``TOL.claim_flat_rig_*`` (shown with their standard errors).
+    """
     cs = sorted(_flat_rig_cases(results), key=lambda c: c["id"])
     if not cs:
         return None
@@ -519,9 +474,9 @@ def _claim_flat_rig(results):
 
 
 def _claim_flat_rig_end_to_end(results):
-    """Issue 63's flat-mucosa must-hold end to end (``TOL.claim_flat_rig_*``): the pooled share
-    of true highlights with a light-aware recommended normal, each case's median over ok; None
-    where no plane case under a rig with micro-relief below the bound ran."""
+    """Issue 63's flat-mucosa must-hold end to end: the pooled share of true highlights with a
+    light-aware recommended normal, and each case's median over ok.
+    """
     aware, bound = set(names("light_aware")), TOL.claim_flat_rig_median_deg
     rows = []  # (case, light-aware count, true highlights, median over ok)
     for c in sorted(_rendered(results, colocated=False), key=lambda c: c["id"]):
@@ -545,9 +500,7 @@ def _claim_flat_rig_end_to_end(results):
 
 
 def _counted(cases: list[dict], key: str) -> list[tuple[dict, float, int]]:
-    """``(case, share, n)`` for each case whose share diagnostic ``key`` has highlights: its mean
-    and its count (``key`` + :data:`~simtest.harness.metrics.COUNT_SUFFIX`), which a suite-wide
-    verdict pools by the counts."""
+    """``(case, share, n)`` for each case whose share diagnostic ``key`` has a count."""
     out = []
     for c in cases:
         share, n = _diag(c, key), _diag(c, key + COUNT_SUFFIX)
@@ -557,9 +510,9 @@ def _counted(cases: list[dict], key: str) -> list[tuple[dict, float, int]]:
 
 
 def _claim_sigma_coverage(results):
-    """Issue 39's coverage must-hold, pooled over a suite's rendered cases: the share of the
-    highlights with a stated sigma whose recommended normal errs by at most twice it (each case's
-    ``recommended_within_2sigma`` weighted by its count); None where no case states a sigma."""
+    """Issue 39's coverage must-hold: the pooled share of highlights whose recommended normal errs by
+    at most twice its stated sigma.
+    """
     rendered = _unique([c for c in results["cases"] if c["protocol"] == "rendered"])
     cs = _counted(rendered, "recommended_within_2sigma")
     stated = sum(n for _, _, n in cs)
@@ -582,9 +535,9 @@ def _claim_sigma_coverage(results):
 
 
 def _claim_never_beyond_bp_ray(results):
-    """Issue 39's per-highlight must-hold on curved surfaces: no recommended normal with a stated
-    sigma errs by more than the BP ray's error plus that sigma (each case's
-    ``recommended_beyond_bp_ray`` times its count); None where no curved case states a sigma."""
+    """Issue 39's per-highlight must-hold on curved surfaces: no recommended normal errs by more
+    than the BP ray's error plus its sigma.
+    """
     cs = _counted([c for c in _unique(_rendered(results, colocated=False))
                    if _base_family(c) not in ("plane", "")], "recommended_beyond_bp_ray")
     stated = sum(n for _, _, n in cs)
@@ -598,10 +551,9 @@ def _claim_never_beyond_bp_ray(results):
 
 
 def _claim_halves_bp_ray(results):
-    """Issue 39's two-guide must-hold: on curved cases under a rig of several lights whose depth
-    the third-order patch observes (its relative depth 1-sigma at the noise floor, the
-    Cramer-Rao bound's, at most ``TOL.depth_rel_sigma_max``), the recommended median is at most
-    half the BP ray's; None where no such case was run."""
+    """Issue 39's two-guide must-hold: where the cubic patch observes depth, the recommended median
+    is at most half the BP ray's.
+    """
     cs = []
     for c in _offset_curved_cases(results):
         rel = _diag(c, "cubic_patch_fit_depth_rel_sigma")
@@ -678,18 +630,12 @@ CLAIMS = {
 def evaluate_claims(results: dict) -> list[dict]:
     """Verdicts of the paper's figure-3 claims and of our predictions on one results document.
 
-    Parameters
-    ----------
-    results : dict
-        A ``results.json`` document (``cases`` with ``family``, ``colocated`` and metrics;
-        ``sweeps`` with their ``comparison``).
-
     Returns
     -------
     list of dict
-        ``{"id", "source" ("paper" or "prediction"), "claim", "holds" (bool or None),
-        "measured", "scope"}``: first one per sweep check (in sweep order), then one per claim of
-        :data:`CLAIMS` that the suite's cases can decide.
+        ``{"id", "source" ("paper" or "prediction"), "claim", "holds" (bool or None), "measured",
+        "scope"}``: one per sweep check (in sweep order), then one per decidable claim of
+        :data:`CLAIMS`.
     """
     out = []
     for sw in results["sweeps"]:
