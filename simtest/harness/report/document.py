@@ -1,11 +1,9 @@
 """``report.md`` from a ``results.json`` document, and a self-contained ``report.html`` from it.
 
-The Markdown opens with the end-to-end figures per scene family (what a user of the command line
-gets), then a summary given the highlight (estimator x scene family table, the verdict of every claim,
-the measured reason behind each alarming cell), then the run's provenance and the details per
-sweep. Every number in it is formatted from the document (nothing typed by hand). The HTML is the
-same Markdown rendered by markdown-it-py (CommonMark plus tables), with every figure inlined as a
-base64 PNG, so the file can be mailed or archived alone.
+The Markdown opens with the end-to-end figures per family, then the summary given the highlight
+(family x estimator table, claim verdicts, alarming cells explained), provenance and per-sweep
+details; every number is formatted from the document. The HTML is that Markdown rendered by
+markdown-it-py with every figure inlined as a base64 PNG.
 """
 
 from __future__ import annotations
@@ -86,19 +84,8 @@ def _diag_text(key: str) -> str:
 
 
 def cell(m: dict | None, show_fail: bool = True) -> str:
-    """One table cell: ``median [p5, p95] (n)`` in degrees, plus the failure rate when not 0.
-
-    Parameters
-    ----------
-    m : dict or None
-        Statistics of :func:`simtest.harness.metrics.summarise`.
-    show_fail : bool
-        Append ``, fail x %`` when some realisations failed.
-
-    Returns
-    -------
-    str
-        ``-`` when the estimator never succeeded (with the failure rate).
+    """One table cell: ``median [p5, p95] (n)`` in degrees, plus ``, fail x %`` when some realisations
+    failed and ``show_fail``; ``-`` when the estimator never succeeded.
     """
     if not m:
         return "-"
@@ -147,18 +134,7 @@ def end_to_end_markdown(results: dict) -> list[str]:
 
 
 def summary_markdown(results: dict) -> list[str]:
-    """The summary section: family x estimator table, claim verdicts, alarming cells explained.
-
-    Parameters
-    ----------
-    results : dict
-        A ``results.json`` document (schema 2: ``families`` and ``claims``).
-
-    Returns
-    -------
-    list of str
-        Markdown lines.
-    """
+    """The summary section (Markdown lines): family x estimator table, claim verdicts, alarming cells explained."""
     ests = results["suite"]["estimators"]
     fams = results.get("families", {})
     L = ["## Summary given the highlight (not end to end)", ""]
@@ -242,13 +218,12 @@ def markdown_report(results: dict, figures: list[str], nightly: dict | None = No
     nightly : dict, optional
         The nightly gate's outcome: ``verdict``, ``baseline``, ``summary``, ``problems``.
     history : list of dict, optional
-        Nightly history lines (the takeaway under ``nightly_trend.png``).
+        Nightly history lines.
 
     Returns
     -------
     str
-        Markdown (CommonMark with tables). Every figure is followed by one ``Takeaway:``
-        sentence computed from the results (:func:`simtest.harness.report.figures.takeaways`).
+        Markdown (CommonMark with tables); each figure followed by one ``Takeaway:`` sentence.
     """
     notes = takeaways(results, history)
     s = results["suite"]
@@ -365,22 +340,10 @@ td:first-child{text-align:left}code{background:#f5f5f5;padding:0 3px}img{max-wid
 
 
 def html_report(markdown: str, images: dict[str, bytes], title: str = "simtest report") -> str:
-    """A self-contained HTML page from the report's Markdown (markdown-it-py, figures inlined).
+    """A self-contained HTML page from the report's Markdown (``figures/<name>`` links).
 
-    Parameters
-    ----------
-    markdown : str
-        The ``report.md`` text; images referenced as ``figures/<name>``.
-    images : dict of str to bytes
-        PNG bytes by file name.
-    title : str
-        Page title.
-
-    Returns
-    -------
-    str
-        HTML5 with every ``figures/<name>`` image replaced by a ``data:image/png;base64`` URI
-        (an image missing from ``images`` keeps its relative link).
+    Every image found in ``images`` (PNG bytes by file name) is inlined as a
+    ``data:image/png;base64`` URI; a missing one keeps its relative link.
     """
     md = MarkdownIt("commonmark").enable("table")
     tokens = md.parse(markdown)
