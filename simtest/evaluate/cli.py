@@ -254,8 +254,7 @@ def _detection_markdown(results: dict) -> str:
           + ", ".join(f"{k} {v}" for k, v in p["ok_on"].items()) + ".", "",
           "Status of every candidate: " + ", ".join(f"{k} {v}" for k, v in results["statuses"].items())
           + " (reasons in simtest.reconstruct.failures.REASONS).", "",
-          "![hits, false positives and misses](detection.png)", "",
-          "## Confidence", "",
+          "![hits, false positives and misses](detection.png)", "", "## Confidence", "",
           "Reliability of each candidate's confidence (simtest.reconstruct.verify.confidence): per bin, "
           "the fraction of candidates that are a target's first match.", "",
           "| candidates | bin | n | mean confidence | fraction targets |", "|---|---|---|---|---|"]

@@ -196,8 +196,7 @@ def score_frame(name: str, specularities: list[dict], structures: list[Structure
     """
     bps = [s["bp_px"] for s in specularities]
     hit = match_candidates(bps, structures)
-    sc = FrameScore(name, targets=sum(s.kind == TARGET_KIND for s in structures),
-                    candidates=len(specularities))
+    sc = FrameScore(name, targets=sum(s.kind == TARGET_KIND for s in structures), candidates=len(specularities))
     found: Counter = Counter()
     found_ok: Counter = Counter()
     found_pass: Counter = Counter()
@@ -409,8 +408,7 @@ def _rendered_frame(spec, seed: int | None, name: str) -> LabelledFrame:
     sensor = res.spec.sensor
     valid = res.mask & field_stop_mask(res.mask.shape, sensor.field_stop, sensor.field_stop_radius)
     targets = highlight_targets(res.highlights, res.specular, valid)
-    structs = [Structure(float(t.peak_px[0]), float(t.peak_px[1]), float(t.area_px), TARGET_KIND, t)
-               for t in targets]
+    structs = [Structure(float(t.peak_px[0]), float(t.peak_px[1]), float(t.area_px), TARGET_KIND, t) for t in targets]
     return LabelledFrame(name, res.frame, res.camera, structs, res.light_rig)
 
 
@@ -538,8 +536,7 @@ def reliability_figure(results: dict):
         y = [r["fraction_true"] for r in rows]
         ax.plot(x, y, marker=marker, color=colour, label=f"{key} (n = {sum(r['n'] for r in rows)})")
         for r, xi, yi in zip(rows, x, y):
-            ax.annotate(f"n={r['n']}", (xi, yi), textcoords="offset points", xytext=(4, -10), fontsize=7,
-                        color=colour)
+            ax.annotate(f"n={r['n']}", (xi, yi), textcoords="offset points", xytext=(4, -10), fontsize=7, color=colour)
     ax.set(xlim=(0, 1), ylim=(0, 1), xlabel="mean confidence in the bin",
            ylabel="fraction that are labelled targets", title="Reliability of the confidence")
     ax.legend(fontsize=8, loc="upper left")
@@ -579,8 +576,7 @@ def detection_figure(frames: list[LabelledFrame], results: dict, *, columns: int
         miss = np.array(res["missed_targets_ok"]).reshape(-1, 2)
         ax.scatter(tp[:, 0], tp[:, 1], s=40, facecolors="none", edgecolors="#2ca02c", lw=1.2)
         ax.scatter(fp[:, 0], fp[:, 1], s=30, marker="x", c="#d62728", lw=1.2)
-        ax.scatter(miss[:, 0], miss[:, 1], s=40, marker="s", facecolors="none",
-                   edgecolors="#ffcc00", lw=1.2)
+        ax.scatter(miss[:, 0], miss[:, 1], s=40, marker="s", facecolors="none", edgecolors="#ffcc00", lw=1.2)
         ax.set_title(f"{fr.name}: {res['ok_tp']} hit, {res['ok'] - res['ok_tp']} false, "
                      f"{len(miss)} missed (of {res['targets']})", fontsize=7)
     p = results["pooled"]

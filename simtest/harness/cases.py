@@ -59,11 +59,9 @@ class RenderedKeys(ReconKeys):
 #: Reconstruction settings, valid in both protocols, with their defaults.
 RECON_KEYS: dict[str, Any] = dataclasses.asdict(ReconKeys())
 #: Extra keys of the rendered protocol, with their defaults.
-RENDERED_KEYS: dict[str, Any] = {k: v for k, v in dataclasses.asdict(RenderedKeys()).items()
-                                 if k not in RECON_KEYS}
+RENDERED_KEYS: dict[str, Any] = {k: v for k, v in dataclasses.asdict(RenderedKeys()).items() if k not in RECON_KEYS}
 #: Keys of :class:`MeshPose` among :data:`RENDERED_KEYS`.
-MESH_POSE_KEYS = ("colon_station", "liver_azimuth_deg", "mesh_view_deg", "mesh_distance_mm",
-                   "liver_elevation_deg")
+MESH_POSE_KEYS = ("colon_station", "liver_azimuth_deg", "mesh_view_deg", "mesh_distance_mm", "liver_elevation_deg")
 
 
 def stable_hash(key: str) -> int:

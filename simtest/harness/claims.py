@@ -243,8 +243,7 @@ def _unique(cases: list[dict]) -> list[dict]:
 
 
 def _rendered(results: dict, colocated: bool = True) -> list[dict]:
-    return _unique([c for c in results["cases"]
-                    if c["protocol"] == "rendered" and c.get("colocated") is colocated])
+    return _unique([c for c in results["cases"] if c["protocol"] == "rendered" and c.get("colocated") is colocated])
 
 
 #: The qualifier a rig of lights adds to a family's surface (report.results._family).
@@ -292,8 +291,7 @@ def _claim_cone_axis_plane(results):
         return None
     med = [_stat(c, "cone_axis") for c in cs]
     oracle = [_stat(c, "paper_oracle") for c in cs if _stat(c, "paper_oracle") is not None]
-    return (max(med) <= TOL.claim_cone_axis_plane_deg,
-            f"cone_axis median {_range(med)} deg over {len(cs)} cases"
+    return (max(med) <= TOL.claim_cone_axis_plane_deg, f"cone_axis median {_range(med)} deg over {len(cs)} cases"
             + (f" (paper_oracle {_range(oracle)} deg on the same cases)" if oracle else ""),
             f"co-located rendered planes, {_CLEAN}; bound {TOL.claim_cone_axis_plane_deg:g} deg")
 
@@ -310,8 +308,7 @@ def _claim_bp_ray_beats_cone_axis(results):
         fw = sum(1 for c in fc if c in wins)
         per.append(f"{fam} {fw} of {len(fc)} (bp_ray {_range([_stat(c, 'bp_ray') for c in fc])}"
                    f" deg, cone_axis {_range([_stat(c, 'cone_axis') for c in fc])} deg)")
-    return (len(wins) == len(cs),
-            f"bp_ray lower in {len(wins)} of {len(cs)} cases: " + "; ".join(per),
+    return (len(wins) == len(cs), f"bp_ray lower in {len(wins)} of {len(cs)} cases: " + "; ".join(per),
             "co-located rendered curved cases, case medians")
 
 
@@ -385,8 +382,7 @@ def _why_curved(c) -> str:
     ok = _diag(c, "cubic_patch_fit_ok_share")
     if ok is not None:
         mis = _diag(c, "cubic_patch_fit_misfit_share") or 0.0
-        parts.append(f"cubic_patch_fit ok on {100 * ok:.3g} % of highlights, its patch misfit "
-                     f"on {100 * mis:.3g} %")
+        parts.append(f"cubic_patch_fit ok on {100 * ok:.3g} % of highlights, its patch misfit on {100 * mis:.3g} %")
     dk, sep = _diag(c, "curvature_change_rel"), _diag(c, "specular_separation_mm")
     if dk is not None and sep is not None:
         parts.append(f"the principal curvatures change by {100 * dk:.3g} % between the lights' "
@@ -530,8 +526,7 @@ def _claim_sigma_coverage(results):
         text += (f". Depths (not part of the verdict): share within twice their sigma "
                  f"{sum(share * n for _, share, n in ds) / with_depth:.3g} over {with_depth} "
                  "recommended depths with a stated sigma")
-    return (pooled >= bound, text,
-            f"rendered cases, pooled (each case's share weighted by its count); bound {bound:g}")
+    return (pooled >= bound, text, f"rendered cases, pooled (each case's share weighted by its count); bound {bound:g}")
 
 
 def _claim_never_beyond_bp_ray(results):
@@ -608,8 +603,7 @@ CLAIMS = {
         "On a rendered plane under a light rig (the endoscope's flat mucosa, every setting but a "
         "micro-relief the image does not resolve), end to end through simtest reconstruct, at "
         f"least {TOL.claim_flat_rig_light_aware_share:.0%} of the true highlights get a light-aware "
-        f"recommended normal, with a median error of at most {TOL.claim_flat_rig_median_deg:g} deg "
-        "(issue 63)",
+        f"recommended normal, with a median error of at most {TOL.claim_flat_rig_median_deg:g} deg (issue 63)",
         _claim_flat_rig_end_to_end),
     "sigma_coverage": (
         "The recommended normal's stated sigma covers its error: at least 90 % of the highlights "
@@ -621,8 +615,7 @@ CLAIMS = {
         _claim_never_beyond_bp_ray),
     "two_guides_halve_bp_ray": (
         "On rendered curved surfaces under two guides whose depth the third-order patch observes "
-        "(the Cramer-Rao bound at the noise floor), the recommended median is at most half the BP "
-        "ray's (issue 39)",
+        "(the Cramer-Rao bound at the noise floor), the recommended median is at most half the BP ray's (issue 39)",
         _claim_halves_bp_ray),
 }
 

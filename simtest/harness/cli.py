@@ -91,8 +91,7 @@ def _counts(s) -> str:
     """The one count of a suite used by the header, the progress bar and the report."""
     n, d = len(s.cases), len(s.distinct_cases)
     shared = "" if n == d else (f" ({n - d} shared by several sweeps run once)")
-    return (f"{len(s.sweeps)} sweeps, {n} cases = {d} distinct settings{shared}, "
-            f"{s.total_realisations} realisations")
+    return (f"{len(s.sweeps)} sweeps, {n} cases = {d} distinct settings{shared}, {s.total_realisations} realisations")
 
 
 def _write(results: dict, folder: Path, **kw) -> Path:
@@ -126,8 +125,7 @@ def _summary(results: dict, console) -> None:
             ms = [cases[k]["metrics"]["estimators"][e] for k in sw["cases"]]
             meds = [m["median"] for m in ms if m["median"] is not None]
             fr = max(m["failure_rate"] for m in ms)
-            cell = "-" if not meds else (f"{_fmt(min(meds))} to {_fmt(max(meds))}"
-                                         if len(meds) > 1 else _fmt(meds[0]))
+            cell = "-" if not meds else (f"{_fmt(min(meds))} to {_fmt(max(meds))}" if len(meds) > 1 else _fmt(meds[0]))
             cells[sw["name"], e] = cell + (f" [red]({fr:.0%})[/]" if fr > 0 else "")
     title = (f"{results['suite']['name']}: median error (deg) per setting, lowest to highest over "
              "the sweep's settings, as in the report; (worst failure rate)")
@@ -145,8 +143,7 @@ def _summary(results: dict, console) -> None:
         t.add_column("median error (deg)", justify="right", overflow="fold")
         for sw in results["sweeps"]:
             for k, e in enumerate(ests):
-                t.add_row(sw["name"] if k == 0 else "", e, cells[sw["name"], e],
-                          end_section=k == len(ests) - 1)
+                t.add_row(sw["name"] if k == 0 else "", e, cells[sw["name"], e], end_section=k == len(ests) - 1)
     console.print(t)
 
 
@@ -202,8 +199,7 @@ def validate_command(
     show = Console(soft_wrap=True)  # results on stdout (progress and errors on stderr)
     _summary(results, show)
     for k, v in results["provenance"]["realisations_per_s"].items():
-        show.print(f"{k}: {v['realisations']} realisations, {v['per_s']} realisations/s "
-                   f"with {run.workers} worker(s)")
+        show.print(f"{k}: {v['realisations']} realisations, {v['per_s']} realisations/s with {run.workers} worker(s)")
     show.print(f"wall time {run.wall_s:.1f} s; report: {folder / 'report.html'}")
 
 

@@ -90,8 +90,7 @@ def explanations(results: dict) -> list[dict]:
         for est, m in f["estimators"].items():
             if m.get("median") is None or m["median"] <= ALARM_DEG:
                 continue
-            text = (_explain_paper(results, est) if f["protocol"] == "paper"
-                    else _explain_rendered(results, fam, est))
+            text = (_explain_paper(results, est) if f["protocol"] == "paper" else _explain_rendered(results, fam, est))
             out.append({"family": fam, "estimator": est, "median": m["median"], "text": text})
     # the fronto-parallel breakdown stands out of its family even below ALARM_DEG
     fam = results.get("families", {}).get("paper protocol", {})

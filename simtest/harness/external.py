@@ -54,8 +54,7 @@ def load_external(spec: str) -> Callable:
     try:
         module = importlib.import_module(m["module"])
     except Exception as exc:  # noqa: BLE001 - any import failure of a user's module is one line
-        raise ExternalError(f"--estimator {spec!r}: cannot import {m['module']}: "
-                            f"{type(exc).__name__}: {exc}") from None
+        raise ExternalError(f"--estimator {spec!r}: cannot import {m['module']}: {type(exc).__name__}: {exc}") from None
     fn = getattr(module, m["func"], None)
     if not callable(fn):
         raise ExternalError(f"--estimator {spec!r}: {m['module']} has no function {m['func']!r}")
@@ -94,10 +93,8 @@ def _table(out, spec: str) -> tuple[np.ndarray, np.ndarray]:
     if not isinstance(out, Mapping) or "bp_px" not in out or "normal" not in out:
         raise ExternalError(f"{spec}: expected a mapping with 'bp_px' (N, 2) and 'normal' (N, 3), "
                             f"got {type(out).__name__}")
-    bp = np.asarray(out["bp_px"], dtype=np.float64).reshape(-1, 2) if np.size(out["bp_px"]) else \
-        np.zeros((0, 2))
-    n = np.asarray(out["normal"], dtype=np.float64).reshape(-1, 3) if np.size(out["normal"]) else \
-        np.zeros((0, 3))
+    bp = np.asarray(out["bp_px"], dtype=np.float64).reshape(-1, 2) if np.size(out["bp_px"]) else np.zeros((0, 2))
+    n = np.asarray(out["normal"], dtype=np.float64).reshape(-1, 3) if np.size(out["normal"]) else np.zeros((0, 3))
     if len(bp) != len(n):
         raise ExternalError(f"{spec}: 'bp_px' has {len(bp)} rows and 'normal' {len(n)}")
     return bp, n

@@ -69,8 +69,7 @@ def summarise(errors, causes) -> dict:
         if not good:
             fails[c if c else "nan_error"] += 1
     n, n_ok = int(e.size), int(ok.sum())
-    out = {"n": n, "n_ok": n_ok, "failure_rate": (n - n_ok) / n if n else 0.0,
-           "failures": dict(sorted(fails.items()))}
+    out = {"n": n, "n_ok": n_ok, "failure_rate": (n - n_ok) / n if n else 0.0, "failures": dict(sorted(fails.items()))}
     if n_ok:
         v = e[ok]
         out.update(mean=float(np.mean(v)), std=float(np.std(v)), median=float(np.median(v)),
@@ -106,8 +105,7 @@ def case_metrics(result) -> dict:
             extras[k + MEDIAN_SUFFIX] = float(np.median(f)) if f.size else None
         if k.endswith(COUNTED_DIAGNOSTICS):
             extras[k + COUNT_SUFFIX] = int(f.size)
-    return {"end_to_end": summarise_records(getattr(result, "e2e", [])), "estimators": est,
-            "diagnostics": extras}
+    return {"end_to_end": summarise_records(getattr(result, "e2e", [])), "estimators": est, "diagnostics": extras}
 
 
 def summarise_records(records) -> dict | None:

@@ -54,8 +54,7 @@ BASELINE_VERSION = 2
 #: doubling that must fail, leaves room for platform rounding; abs_floor for values near 0 (1e-6 deg,
 #: one failure more in 50 for rates). The caps per :func:`metric_class` also bound any baseline.
 CAPS = {"headline_deg": 0.4, "deg": 10.0, "rate": 0.1}
-POLICY = {"k_spread": 3.0, "rel_floor": 0.25, "abs_floor": {"deg": 1e-6, "rate": 0.02},
-          "cap": dict(CAPS)}
+POLICY = {"k_spread": 3.0, "rel_floor": 0.25, "abs_floor": {"deg": 1e-6, "rate": 0.02}, "cap": dict(CAPS)}
 
 #: Statistics gated: medians and failure rates (robust at a nightly's few realisations).
 _CASE_STATS = ("median", "failure_rate")
@@ -249,8 +248,7 @@ def check_section(section: dict, where: str) -> str | None:
         why = _bad(m["value"])
         if why is None and m["value"] is None:
             if not _never_succeeded(metrics, name):
-                why = ("null value (only the median of an estimator that never succeeded, failure "
-                       "rate 1, may be null)")
+                why = ("null value (only the median of an estimator that never succeeded, failure rate 1, may be null)")
         elif why is None:
             t = m.get("tolerance")
             cap = CAPS[metric_class(name)]

@@ -17,8 +17,7 @@ import numpy as np
 
 from simtest.constants import MAX_SEED
 from simtest.geometry.angles import angle_between_deg
-from simtest.geometry.curvature import (curvature_ratio, predicted_eigenvalue_gap,
-                                        predicted_pose_error_deg)
+from simtest.geometry.curvature import (curvature_ratio, predicted_eigenvalue_gap, predicted_pose_error_deg)
 from simtest.geometry.lights import Light, LightRig
 from simtest.geometry.response import SensorResponse, video_response
 from simtest.geometry.cameras import PinholeCamera
@@ -108,8 +107,7 @@ def _curvature_prediction(h) -> dict:
     (:func:`simtest.geometry.curvature.curvature_ratio`; NaN where the curvatures are unknown).
     """
     d = float(np.linalg.norm(np.asarray(h.bp_mm, dtype=np.float64)))
-    rho = curvature_ratio(float(getattr(h, "k1", float("nan"))),
-                          float(getattr(h, "k2", float("nan"))), d)
+    rho = curvature_ratio(float(getattr(h, "k1", float("nan"))), float(getattr(h, "k2", float("nan"))), d)
     return {"bp_distance_mm": d, "rho": rho, "predicted_gap": predicted_eigenvalue_gap(rho),
             "predicted_pose_deg": predicted_pose_error_deg(rho)}
 
@@ -138,8 +136,7 @@ class Row:
 
 
 def _row(errs: dict, extras: dict) -> Row:
-    return Row(errors={k: v[0] for k, v in errs.items()},
-               causes={k: v[1] for k, v in errs.items()}, extras=extras)
+    return Row(errors={k: v[0] for k, v in errs.items()}, causes={k: v[1] for k, v in errs.items()}, extras=extras)
 
 
 class PaperRunner:
@@ -342,8 +339,7 @@ class RenderedRunner:
                      if np.issubdtype(image.dtype, np.integer) else 0.0)
         # False positives: detections farther than match_px from every true BP (in frame or not).
         true_bps = [np.asarray(h.bp_px, float) for h in result.highlights]
-        false_pos = sum(1 for _, ebp in ok_bps
-                        if all(float(np.linalg.norm(ebp - t)) > self.match_px for t in true_bps))
+        false_pos = sum(1 for _, ebp in ok_bps if all(float(np.linalg.norm(ebp - t)) > self.match_px for t in true_bps))
         # each in-frame highlight's detection: the nearest BP within match_px (from the BPs alone)
         matched = []
         for h in result.highlights:
@@ -540,8 +536,7 @@ def _depth_errors(est, h, rig) -> dict:
         src = (getattr(est, "light_aware", None) or {}).get(rec.normal_from)
         dsig, d0 = getattr(src, "depth_sigma_mm", None), getattr(src, "depth_mm", None)
         if dsig is not None and d0:
-            out["recommended_depth_within_2sigma"] = float(
-                abs(depth - true) <= 2.0 * float(dsig) * abs(depth / d0))
+            out["recommended_depth_within_2sigma"] = float(abs(depth - true) <= 2.0 * float(dsig) * abs(depth / d0))
     return out
 
 

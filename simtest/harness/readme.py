@@ -87,8 +87,7 @@ def _rows(folder: Path, rel: str) -> list[str]:
         side = "held out" if data_side(r["suite"]["seed"]) == "held_out" else "tuning"
         out.append(f"| [{r['suite']['name']}]({rel}/report.md), seed {r['suite']['seed']} ({side}) | "
                    f"{esc(fam)} | {e2e} | "
-                   f"{cell('recommended') if 'recommended' in ests else '- ¹'}"
-                   f" | {cell('bp_ray')} | "
+                   f"{cell('recommended') if 'recommended' in ests else '- ¹'} | {cell('bp_ray')} | "
                    + ("-" if best is None else f"`{best[1]}` {cell(best[1])}") + " |")
     return out
 
@@ -118,8 +117,7 @@ def section_text(reports: str | Path | None = None, repo: str | Path | None = No
     L = [BEGIN, ""]
     runs = committed_runs(reports)
     if not runs:
-        return "\n".join(L + ["No committed report yet: run `python -m simtest.harness.regenerate`.",
-                              "", END]) + "\n"
+        return "\n".join(L + ["No committed report yet: run `python -m simtest.harness.regenerate`.", "", END]) + "\n"
     L += ["| report | family | end to end: within 1 / 5 deg | median ok | false ok per frame "
           "| given the highlight: recommended | bp_ray | other estimator with the lowest median |",
           "|---" * 8 + "|"]
@@ -177,8 +175,7 @@ def main(argv: list[str] | None = None) -> int:
     Returns 0 when written (or fresh with ``--check``), 1 when ``--check`` finds it stale, 2 on a
     README without the section (one line on stderr).
     """
-    ap = argparse.ArgumentParser(prog="python -m simtest.harness.readme",
-                                 description=__doc__.splitlines()[0])
+    ap = argparse.ArgumentParser(prog="python -m simtest.harness.readme", description=__doc__.splitlines()[0])
     ap.add_argument("--readme", type=Path, default=data_root() / "README.md")
     ap.add_argument("--reports", type=Path, default=None)
     ap.add_argument("--check", action="store_true", help="exit 1 if the section is stale")
@@ -197,8 +194,7 @@ def main(argv: list[str] | None = None) -> int:
         return 0
     if new != text:
         atomic_write_text(a.readme, new)
-    print(f"{a.readme}: section 'What the testbed shows so far' "
-          f"{'rewritten' if new != text else 'already fresh'}")
+    print(f"{a.readme}: section 'What the testbed shows so far' {'rewritten' if new != text else 'already fresh'}")
     return 0
 
 

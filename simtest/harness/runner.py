@@ -20,8 +20,7 @@ from datetime import datetime, timezone
 import cv2
 import numpy as np
 from rich.console import Console
-from rich.progress import (BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn,
-                           TimeRemainingColumn)
+from rich.progress import (BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn, TimeRemainingColumn)
 
 from simtest._dask import connect
 from simtest._lazy import require
@@ -232,8 +231,7 @@ def _assemble(case: Case, estimators: tuple, chunks: list[ChunkResult]) -> CaseR
     msgs = [m for ch in chunks for m in ch.messages][:MAX_EXCEPTIONS]
     variant = next((ch.variant for ch in chunks if ch.variant), None)
     return CaseResult(case=case, realisation=np.asarray(idx, dtype=np.int64),
-                      errors={k: np.asarray(v, dtype=np.float64) for k, v in errs.items()},
-                      causes=causes,
+                      errors={k: np.asarray(v, dtype=np.float64) for k, v in errs.items()}, causes=causes,
                       extras={k: np.asarray(v, dtype=np.float64) for k, v in extras.items()},
                       exceptions=msgs, cpu_s=sum(ch.seconds for ch in chunks), variant=variant,
                       e2e=[row.e2e for _, rows in items for row in rows if row.e2e is not None])

@@ -271,8 +271,7 @@ class Suite:
             d["suite"]["seed"] = seed
         if realisations is not None:
             d["suite"]["realisations"] = realisations
-            d["sweep"] = [{k: v for k, v in s.items() if k != "realisations"}
-                          for s in d.get("sweep", [])]
+            d["sweep"] = [{k: v for k, v in s.items() if k != "realisations"} for s in d.get("sweep", [])]
         new = suite_from_dict(d, source=self.source, sha256=self.sha256)
         if not self.external:
             return new
@@ -297,8 +296,7 @@ def load_suite(name_or_path: str | Path) -> Suite:
     return suite_from_dict(raw, source=str(path), sha256=hashlib.sha256(data).hexdigest())
 
 
-def _keyed(params: Mapping, cls: type, source: str, where: str, protocol: str,
-           others: set) -> tuple[Any, dict]:
+def _keyed(params: Mapping, cls: type, source: str, where: str, protocol: str, others: set) -> tuple[Any, dict]:
     """Split a case's ``params`` into ``cls``'s keys (validated) and the protocol's own
     (``others``, or dotted scene keys where ``others`` is empty); refuse any other key.
     """
@@ -369,8 +367,7 @@ def _typed(protocol: str, params: Mapping, source: str, where: str) -> dict:
     except ValueError as e:
         raise _err(source, f"{where}.joint_isovalues", str(e)) from None
     if protocol == "paper":
-        return {"recon": recon, "paper": PaperParams(**{k: v for k, v in params.items()
-                                                         if k not in RECON_KEYS})}
+        return {"recon": recon, "paper": PaperParams(**{k: v for k, v in params.items() if k not in RECON_KEYS})}
     mesh = MeshPose(**{k: params[k] for k in MESH_POSE_KEYS})
     setting = SceneSetting(overrides={k: v for k, v in params.items() if "." in k},
                            radius_over_distance=params["radius_over_distance"],
@@ -406,8 +403,7 @@ def suite_from_dict(raw: Mapping[str, Any], source: str = "<dict>", sha256: str 
     """
     doc = validated(_SuiteFile, raw, SuiteError, source)
     head = validated(_Head, doc.suite, SuiteError, source, "suite")
-    name = head.name if head.name is not None else (
-        Path(source).stem if source not in ("<dict>", "") else "suite")
+    name = head.name if head.name is not None else (Path(source).stem if source not in ("<dict>", "") else "suite")
     if not name or any(c in name for c in "/\\ "):
         raise _err(source, "suite.name", f"expected a name without spaces or slashes, got {name!r}")
     protocol, realisations, seed, estimators = head.protocol, head.realisations, head.seed, head.estimators
@@ -427,14 +423,12 @@ def suite_from_dict(raw: Mapping[str, Any], source: str = "<dict>", sha256: str 
         seen.add(sname)
         sproto = sw.protocol or protocol
         sreal = sw.realisations if sw.realisations is not None else realisations
-        _check_bound(sreal, source, f"{where}.realisations" if "realisations" in raw_sw
-                     else "suite.realisations")
+        _check_bound(sreal, source, f"{where}.realisations" if "realisations" in raw_sw else "suite.realisations")
         scene_path, scene_name = None, None
         if sproto == "rendered":
             scene_name = sw.scene if sw.scene is not None else head.scene
             if scene_name is None:
-                raise _err(source, f"{where}.scene", "a rendered sweep needs a scene "
-                                                     "(sweep.scene or suite.scene)")
+                raise _err(source, f"{where}.scene", "a rendered sweep needs a scene (sweep.scene or suite.scene)")
             scene_path = _resolve_scene(scene_name, source, f"{where}.scene")
         elif sw.scene is not None:
             raise _err(source, f"{where}.scene", "only rendered sweeps take a scene")
@@ -452,8 +446,7 @@ def suite_from_dict(raw: Mapping[str, Any], source: str = "<dict>", sha256: str 
                 raise _err(source, f"{where}.parameter", "expected a parameter name")
             if sw.values is None:
                 raise _err(source, f"{where}.values", "expected a non-empty list of values")
-            settings = [(float(v), {parameter: v}, f"{where}.values[{j}]")
-                        for j, v in enumerate(sw.values)]
+            settings = [(float(v), {parameter: v}, f"{where}.values[{j}]") for j, v in enumerate(sw.values)]
         label = sw.label if sw.label is not None else parameter
         paper = raw_sw.get("paper")
         if paper is not None:
@@ -496,8 +489,7 @@ def _check_paper(paper: Mapping, source: str, where: str) -> None:
     single = isinstance(chk, str) or chk is None
     chks, vals = ([chk], [paper.get("value")]) if single else (chk, paper.get("value"))
     if not isinstance(chks, list) or not isinstance(vals, list) or len(chks) != len(vals):
-        raise _err(source, f"{where}.value", "give one value per check (check and value both "
-                                             "lists, or both single)")
+        raise _err(source, f"{where}.value", "give one value per check (check and value both lists, or both single)")
     for c_, v_ in zip(chks, vals):
         if c_ is None:
             continue

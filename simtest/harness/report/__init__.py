@@ -64,8 +64,7 @@ def write_report_files(results: dict, folder: str | Path, plots: bool = True,
         (tmp / "figures").mkdir()
         for name, png in pngs.items():
             (tmp / "figures" / name).write_bytes(png)
-        (tmp / "results.json").write_text(json.dumps(results, indent=1, allow_nan=False) + "\n",
-                                          encoding="utf-8")
+        (tmp / "results.json").write_text(json.dumps(results, indent=1, allow_nan=False) + "\n", encoding="utf-8")
         (tmp / "results.csv").write_text(results_csv(results), encoding="utf-8")
         (tmp / "report.md").write_text(md, encoding="utf-8")
         (tmp / "report.html").write_text(html, encoding="utf-8")
@@ -85,5 +84,4 @@ def write_report(run, out_dir: str | Path = "reports", run_id: str | None = None
     """
     run_id = run_id or make_run_id()
     folder = Path(out_dir) / run.suite.name / run_id
-    return write_report_files(build_results(run, run_id), folder, plots=plots, nightly=nightly,
-                              history=history)
+    return write_report_files(build_results(run, run_id), folder, plots=plots, nightly=nightly, history=history)

@@ -22,8 +22,7 @@ from matplotlib.ticker import FixedLocator, NullFormatter  # noqa: E402
 from simtest.harness.claims import BEST_LEVEL, MIN_N_INTERVAL, best_marks  # noqa: E402
 from simtest.harness.report.numbers import fmt  # noqa: E402
 
-__all__ = ["make_figures", "figure_png", "style", "trend_figure", "takeaways",
-           "x_scale", "MIN_N_INTERVAL"]
+__all__ = ["make_figures", "figure_png", "style", "trend_figure", "takeaways", "x_scale", "MIN_N_INTERVAL"]
 
 _STYLE = {"paper_oracle": ("#1f77b4", "o"), "paper_selected": ("#9467bd", "s"),
           "cone_axis": ("#d62728", "^"), "joint_cone_axis": ("#ff7f0e", "v"),
@@ -143,8 +142,7 @@ def _curves(sw: dict, sc: list[dict], ests: list[str]):
     fails = {e: np.array([_val(c["metrics"]["estimators"].get(e, {}), "failure_rate") for c in sc]) for e in ests}
     any_fail = any(np.nansum(f) > 0 for f in fails.values())
     if any_fail:
-        fig, (ax, axf) = plt.subplots(2, 1, figsize=(7.0, 5.6), layout="constrained",
-                                      height_ratios=(3, 1), sharex=True)
+        fig, (ax, axf) = plt.subplots(2, 1, figsize=(7.0, 5.6), layout="constrained", height_ratios=(3, 1), sharex=True)
     else:
         fig, ax = plt.subplots(figsize=(7.0, 4.4), layout="constrained")
         axf = None
@@ -211,8 +209,7 @@ def _bars(sw: dict, sc: list[dict], ests: list[str]):
         col, _ = style(e, ests)
         ax.bar(pos[ok], mean[ok], width=0.6, color=col, alpha=0.8, gid=f"bars:{e}")
         if bar.any():
-            ax.errorbar(pos[bar], mean[bar],
-                        yerr=np.clip([mean[bar] - mn[bar], mx[bar] - mean[bar]], 0, None),
+            ax.errorbar(pos[bar], mean[bar], yerr=np.clip([mean[bar] - mn[bar], mx[bar] - mean[bar]], 0, None),
                         fmt="none", ecolor="c", elinewidth=4, alpha=0.6)
             ax.errorbar(pos[bar], mean[bar], yerr=std[bar], fmt="none", ecolor="k", elinewidth=1.2, capsize=3)
         ax.set_title(f"{e} ({_n_text(n_ok[ok])} per bar)", fontsize=9)
@@ -297,15 +294,13 @@ def _rho_figure(results: dict):
     a2.grid(True, alpha=0.3)
     if ests:
         # n of the drawn points only (a case whose estimator never succeeded has no mean)
-        n_ok = {e: [int(m.get("n_ok", 0) or 0) for c in cases
-                    for m in [c["metrics"]["estimators"].get(e, {})]
+        n_ok = {e: [int(m.get("n_ok", 0) or 0) for c in cases for m in [c["metrics"]["estimators"].get(e, {})]
                     if np.isfinite(_val(m, "mean"))] for e in ests}
         handles = [plt.Line2D([], [], ls="none", color="k", **RHO_ESTIMATOR_MARKERS[e]) for e in ests]
         # upper left: above the diagonal, where a mean error would exceed its prediction
         a2.legend(handles, [f"{e} ({_n_text(n_ok[e])} per case)" for e in ests],
                   loc="upper left", fontsize=8, title="estimator", title_fontsize=8)
-    fig.legend(*a1.get_legend_handles_labels(), loc="outside lower center",
-               ncols=2 if len(fams) > 1 else 1, fontsize=8,
+    fig.legend(*a1.get_legend_handles_labels(), loc="outside lower center", ncols=2 if len(fams) > 1 else 1, fontsize=8,
                title="rho = |1 + k2 d| / |1 + k1 d| (case means of k1 >= k2 at the BP): filled "
                      "convex (k2 >= 0), half saddle (k1 > 0 > k2), hollow concave (k1 <= 0)",
                title_fontsize=8)
@@ -346,8 +341,7 @@ def trend_figure(history: list[dict]):
                 ax.plot(runs, y, mk + "-", color=col, ms=4, lw=1, label=e)
         _log_y(ax)
         ns = [v for h in history for v in (h.get("n", {}).get(fam) or {}).values()]
-        ax.set_title(f"{fam} ({_n_text(ns) + ' per median' if ns else 'n not in the history'})",
-                     fontsize=9)
+        ax.set_title(f"{fam} ({_n_text(ns) + ' per median' if ns else 'n not in the history'})", fontsize=9)
         ax.set_ylabel("median error (deg)", fontsize=8)
         step = max(1, int(np.ceil(len(runs) / 4)))
         ax.set_xticks(runs[::step], labels[::step])
@@ -419,8 +413,7 @@ def _curves_takeaway(sw: dict, sc: list[dict], ests: list[str]) -> str:
             f" deg at {x[i_hi]:g})")
     if clear:
         top = max(clear, key=clear.get)
-        text += (f"; {top} is lowest beyond the {100 * BEST_LEVEL:g} % interval at {clear[top]}"
-                 f" of {len(sc)} settings")
+        text += (f"; {top} is lowest beyond the {100 * BEST_LEVEL:g} % interval at {clear[top]} of {len(sc)} settings")
     else:
         text += (f"; no estimator is lowest beyond the {100 * BEST_LEVEL:g} % interval at any "
                  f"setting (n below {MIN_N_INTERVAL} or differences within the noise)")

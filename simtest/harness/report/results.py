@@ -187,7 +187,6 @@ def results_csv(results: dict) -> str:
     for c in results["cases"]:
         for e, m in c["metrics"]["estimators"].items():
             w.writerow([c["id"], c["sweep"], c.get("family", ""),
-                        repr(c["x"] * scale.get(c["sweep"], 1.0)), e, m["n"], m["n_ok"],
-                        repr(m["failure_rate"]),
+                        repr(c["x"] * scale.get(c["sweep"], 1.0)), e, m["n"], m["n_ok"], repr(m["failure_rate"]),
                         *["" if m.get(k) is None else repr(m[k]) for k in STAT_KEYS]])
     return buf.getvalue()
