@@ -245,10 +245,6 @@ def pooled(scores: list[FrameScore]) -> FrameScore:
     return out
 
 
-# ---------------------------------------------------------------------------------------------
-# sources of labelled frames
-
-
 @dataclass(frozen=True)
 class LabelledFrame:
     """One frame with its labels.
@@ -589,9 +585,6 @@ def detection_figure(frames: list[LabelledFrame], results: dict, *, columns: int
                  + (f"; {left_out} frames without an error not drawn" if left_out else ""), fontsize=9)
     return fig
 
-
-# ---------------------------------------------------------------------------------------------
-# the confidence's calibration
 
 def confidence_rows(frames: list[LabelledFrame], settings=None, *,
                     verified: list | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:

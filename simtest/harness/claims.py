@@ -106,35 +106,39 @@ def _series(sweep_cases: list[dict], estimator: str, stat: str = "mean"):
     return xy[:, 0], xy[:, 1]
 
 
-def _chk_max_mean_below(cases, est, value):
-    x, y = _series(cases, est)
-    if not y.size:
-        return None, "no successful realisation"
+def _check(stat: str = "mean", least: int = 1):
+    """A sweep check ``f(x, y, value)`` on the series of ``stat``, undecided below ``least`` points."""
+    def wrap(f):
+        def run(cases, est, value):
+            x, y = _series(cases, est, stat)
+            if y.size < least:
+                return None, "no successful realisation" if least == 1 else f"fewer than {least} points"
+            return f(x, y, value)
+        return run
+    return wrap
+
+
+@_check()
+def _chk_max_mean_below(x, y, value):
     i = int(np.argmax(y))
     return bool(y[i] < value), f"largest mean {y[i]:.3g} deg (at x = {x[i]:g})"
 
 
-def _chk_max_max_below(cases, est, value):
-    x, y = _series(cases, est, "max")
-    if not y.size:
-        return None, "no successful realisation"
+@_check("max")
+def _chk_max_max_below(x, y, value):
     i = int(np.argmax(y))
     return bool(y[i] < value), f"largest single error {y[i]:.3g} deg (at x = {x[i]:g})"
 
 
-def _chk_slope_in_range(cases, est, value):
-    x, y = _series(cases, est)
-    if y.size < 2:
-        return None, "fewer than 2 points"
+@_check(least=2)
+def _chk_slope_in_range(x, y, value):
     slope = float(np.polyfit(x, y, 1)[0])
     lo, hi = value
     return bool(lo <= slope <= hi), f"least-squares slope of the mean {slope:.3g} deg per unit"
 
 
-def _chk_argmin_in_range(cases, est, value):
-    x, y = _series(cases, est)
-    if not y.size:
-        return None, "no successful realisation"
+@_check()
+def _chk_argmin_in_range(x, y, value):
     i = int(np.argmin(y))
     lo, hi = value
     interior = 0 < i < y.size - 1
@@ -142,10 +146,8 @@ def _chk_argmin_in_range(cases, est, value):
         f"smallest mean {y[i]:.3g} deg at x = {x[i]:g} ({'interior' if interior else 'at an end'})"
 
 
-def _chk_stable_up_to(cases, est, value):
-    x, y = _series(cases, est)
-    if not y.size:
-        return None, "no successful realisation"
+@_check()
+def _chk_stable_up_to(x, y, value):
     base = y[np.argmin(x)]
     sel = x <= value
     worst = float(np.max(y[sel]))
@@ -154,18 +156,14 @@ def _chk_stable_up_to(cases, est, value):
                                     f"deg for x <= {value:g} (stable: within max(0.25 deg, 50 %))")
 
 
-def _chk_increasing(cases, est, value):
-    x, y = _series(cases, est)
-    if y.size < 2:
-        return None, "fewer than 2 points"
+@_check(least=2)
+def _chk_increasing(x, y, value):
     rho = float(np.corrcoef(np.argsort(np.argsort(x)), np.argsort(np.argsort(y)))[0, 1])
     return bool(rho >= value), f"rank correlation of mean error with x {rho:.2f}"
 
 
-def _chk_spread_below(cases, est, value):
-    x, y = _series(cases, est)
-    if y.size < 2:
-        return None, "fewer than 2 points"
+@_check(least=2)
+def _chk_spread_below(x, y, value):
     lo, hi = int(np.argmin(y)), int(np.argmax(y))
     return bool(y[hi] - y[lo] < value), (f"mean from {y[lo]:.3g} deg (x = {x[lo]:g}) to "
                                          f"{y[hi]:.3g} deg (x = {x[hi]:g}): spread "
