@@ -5,37 +5,21 @@ Layout
 One folder per sequence, frames numbered ``NNNN`` (four or more digits):
 
 - ``NNNN_color.png``: the 8-bit RGB frame (required);
-- ``NNNN_normals.tiff``: 16-bit, 3 channels (x, y, z in file order as tifffile reads them), the
-  surface normal in the camera frame (OpenCV axes: +x right, +y down, +z forward) encoded
-  ``n = 2 v / 65535 - 1``; not exactly unit, so renormalised here (required);
+- ``NNNN_normals.tiff``: 16-bit, 3 channels, the surface normal in the camera frame (OpenCV
+  axes) encoded ``n = 2 v / 65535 - 1``, renormalised here (required);
 - ``NNNN_depth.tiff``: 16-bit z-depth, ``mm = v / 65535 * 100``, 0 and 65535 invalid (optional,
   but then for every frame);
 - ``NNNN_occlusion.png``: non-zero where the ground truth is occluded (optional, every frame);
-- other files (``pose.txt``, flow, meshes) are ignored.
+- other files are ignored.
 
-A sequence with a frame missing a required file, optional files for only some frames, a file whose
-size differs from its colour frame or from the camera's image size, or a file of the wrong kind is
-refused with one line naming the file. Normals are oriented to face the camera along each pixel's
-viewing ray (a zero or non-finite normal is invalid).
+A missing required file, optional files for only some frames, a size mismatch or a file of the
+wrong kind is refused with one line naming the file. Normals are oriented to face the camera.
 
-C3VD is CC BY-NC-SA 4.0; simtest ships none of its data (tests build small sequences in this layout).
-
-What the files hold, from the dataset's own ground-truth renderer (``render/Render.cu`` of the
-DurrLab/C3VD repository, the ``rendergt`` program that wrote them [1]_):
-
-- depth is the *z-depth* of the first hit (the camera-frame z of the hit point minus the camera
-  centre, not the distance along the ray), written ``65535 clamp(z / 100, 0, 1)``: 0 where the
-  ray misses the model, 65535 at 100 mm and beyond (a clamped value, so invalid here like 0);
-- normals are the *face* normals of the registered mesh's triangles (flat, not interpolated
-  between vertices), turned to face the camera and rotated into the camera frame, written
-  ``65535 clamp((n + 1) / 2, 0, 1)`` per axis; a miss is written as ``n = (-1, -1, -1)``, i.e.
-  zeros in the file, which is why a zero normal is invalid here. A highlight's normal is
-  therefore piecewise constant over the mesh's triangles; averaging over the isophote's
-  footprint (as ``simtest evaluate c3vd`` also reports) smooths that;
-- the occlusion mask is set where the ray, continued past the visible surface, meets the model
-  again within the renderer's 100 mm range (a fold behind the surface seen), not where the
-  surface seen is hidden; this reader treats those pixels as invalid ground truth, which is
-  conservative.
+From the dataset's renderer (``render/Render.cu`` of DurrLab/C3VD [1]_): normals are the flat
+*face* normals of the registered mesh, a miss written as zeros (so a zero normal is invalid);
+depth is the z-depth of the first hit; the occlusion mask marks a fold behind the surface seen,
+which this reader treats as invalid (conservative). C3VD is CC BY-NC-SA 4.0; simtest ships none
+of its data.
 
 References
 ----------
@@ -60,8 +44,7 @@ __all__ = ["C3VDError", "C3VDFrame", "GroundTruth", "load_frame", "scan_sequence
 
 _NAME = re.compile(r"^(\d{4,})_(color|normals|depth|occlusion)\.(png|tiff?)$")
 _EXT = {"color": ("png",), "occlusion": ("png",), "normals": ("tiff", "tif"), "depth": ("tiff", "tif")}
-#: Largest 16-bit value: C3VD's normals are ``2 v / 65535 - 1`` (its depth:
-#: :func:`~simtest.reconstruct.images.c3vd_depth_mm`).
+#: Largest 16-bit value: C3VD's normals are ``2 v / 65535 - 1``.
 U16 = 65535
 
 
@@ -71,16 +54,8 @@ class C3VDError(ValueError):
 
 @dataclass(frozen=True)
 class C3VDFrame:
-    """The files of one frame.
-
-    Attributes
-    ----------
-    index : str
-        The frame number as in the file names (``"0000"``).
-    color, normals : Path
-        Colour frame and ground-truth normals.
-    depth, occlusion : Path or None
-        Optional depth and occlusion mask.
+    """The files of one frame: ``index`` (``"0000"``), ``color`` and ``normals`` paths, optional
+    ``depth`` and ``occlusion`` paths.
     """
 
     index: str
@@ -107,17 +82,7 @@ class GroundTruth:
 
 
 def scan_sequence(seq_dir) -> list[C3VDFrame]:
-    """List and check the frames of a sequence folder (module docstring).
-
-    Parameters
-    ----------
-    seq_dir : str or Path
-        The sequence folder.
-
-    Returns
-    -------
-    list of C3VDFrame
-        Sorted by frame number.
+    """List and check the frames of a sequence folder, sorted by frame number (module docstring).
 
     Raises
     ------
@@ -170,7 +135,6 @@ def load_frame(frame: C3VDFrame, camera: CameraModel) -> tuple[np.ndarray, Groun
     Parameters
     ----------
     frame : C3VDFrame
-        From :func:`scan_sequence`.
     camera : CameraModel
         The sequence's camera (its image size, when known, must match; its rays orient the normals).
 
@@ -182,8 +146,8 @@ def load_frame(frame: C3VDFrame, camera: CameraModel) -> tuple[np.ndarray, Groun
     Raises
     ------
     C3VDError
-        A file that cannot be read, of the wrong kind (normals not 16-bit with 3 channels, depth not
-        16-bit single-channel) or of another size than the colour frame or the camera.
+        A file that cannot be read, of the wrong kind or of another size than the colour frame or
+        the camera.
     """
     img = read_color(frame.color)
     H, W = img.shape[:2]
@@ -197,8 +161,7 @@ def load_frame(frame: C3VDFrame, camera: CameraModel) -> tuple[np.ndarray, Groun
         raise C3VDError(f"{frame.normals}: {raw.shape[1]} x {raw.shape[0]} px, but {frame.color.name} is {W} x {H} px")
     n = 2.0 * raw.astype(np.float64) / U16 - 1.0
     norm = np.linalg.norm(n, axis=2, keepdims=True)
-    # C3VD's renderer writes a miss as n = (-1, -1, -1), all zeros in the file (module notes);
-    # a normal near zero (v ~ 32768) is no direction either
+    # a miss is all zeros in the file; a normal near zero is no direction either
     miss = (raw == 0).all(axis=2, keepdims=True)
     with np.errstate(invalid="ignore", divide="ignore"):
         n = np.where((norm > 0.5) & ~miss, n / norm, np.nan)  # renormalise

@@ -1,7 +1,7 @@
-"""The confidence's calibration, statistics only: an L2-penalised logistic fit of labelled
-features, its leave-one-frame-out confidences, their reliability per bin and ranking AUC, and the
-penalty chosen by cross-validation (:func:`simtest.evaluate.detection.confidence_rows` gives the
-features of labelled frames)."""
+"""The confidence's calibration: an L2-penalised logistic fit of labelled features, its
+leave-one-frame-out confidences, their reliability per bin, ranking AUC, and the penalty chosen
+by cross-validation.
+"""
 
 from __future__ import annotations
 
@@ -15,31 +15,22 @@ __all__ = ["CONFIDENCE_BINS", "L2_PENALTY", "PENALTY_GRID", "fit_logistic", "rel
 
 #: Confidence bins of the reliability diagram (the issue's: [0.5, 0.7), [0.7, 0.9), [0.9, 1]).
 CONFIDENCE_BINS = (0.0, 0.3, 0.5, 0.7, 0.9, 1.0)
-#: L2 penalty of the logistic fit on its weights (not the intercept): the grid value of
-#: :data:`PENALTY_GRID` with the smallest leave-one-frame-out log-loss on the labelled banner
-#: frames (:func:`select_penalty`; ``tests/test_verify.py`` checks it). A weaker penalty lets the
-#: weights follow frame-specific accidents, and new frames then get over-confident values.
+#: L2 penalty of the logistic fit on its weights: the value of :data:`PENALTY_GRID` with the smallest
+#: leave-one-frame-out log-loss on the labelled frames (:func:`select_penalty`; ``tests/test_verify.py``).
 L2_PENALTY = 1.0
 #: Penalties :func:`select_penalty` tries.
 PENALTY_GRID = (0.01, 0.1, 1.0, 10.0, 100.0, 1000.0)
 
 
 def fit_logistic(X: np.ndarray, y: np.ndarray, penalty: float = L2_PENALTY) -> np.ndarray:
-    """L2-penalised logistic regression by ``scipy.optimize.minimize`` (BFGS).
-
-    Returns
-    -------
-    ndarray of shape (1 + X.shape[1],)
-        Intercept, then weights.
-    """
+    """L2-penalised logistic regression (BFGS); returns the intercept, then the weights."""
     A = np.c_[np.ones(len(X)), X]
     t = y.astype(np.float64)
 
     def loss(c):
         z = A @ c
         nll = np.sum(np.logaddexp(0.0, z) - t * z)
-        return nll + 0.5 * penalty * np.sum(c[1:] ** 2), A.T @ (expit(z) - t) \
-            + penalty * np.r_[0.0, c[1:]]
+        return nll + 0.5 * penalty * np.sum(c[1:] ** 2), A.T @ (expit(z) - t) + penalty * np.r_[0.0, c[1:]]
 
     return minimize(loss, np.zeros(A.shape[1]), jac=True, method="BFGS").x
 
@@ -57,8 +48,7 @@ def reliability(conf: np.ndarray, y: np.ndarray, bins=CONFIDENCE_BINS) -> list[d
 
 def cross_validated_confidence(X: np.ndarray, y: np.ndarray, group: np.ndarray,
                                penalty: float = L2_PENALTY) -> np.ndarray:
-    """Each candidate's confidence from the logistic fitted on the other frames (leave one frame
-    out): the calibration a new frame can expect.
+    """Each candidate's confidence from the logistic fitted on the other frames (leave one frame out).
 
     Parameters
     ----------
@@ -84,9 +74,9 @@ def cross_validated_confidence(X: np.ndarray, y: np.ndarray, group: np.ndarray,
 
 
 def ranking_auc(conf: np.ndarray, y: np.ndarray) -> float | None:
-    """The probability that a true highlight gets a higher confidence than a false one (ties
-    count a half): the area under the ROC curve, by the Mann-Whitney U statistic; None without
-    both classes."""
+    """The area under the ROC curve by the Mann-Whitney U statistic (ties count a half); None without
+    both classes.
+    """
     y = np.asarray(y, bool)
     if y.all() or not y.any():
         return None
@@ -94,13 +84,8 @@ def ranking_auc(conf: np.ndarray, y: np.ndarray) -> float | None:
 
 
 def select_penalty(X: np.ndarray, y: np.ndarray, group: np.ndarray, grid=PENALTY_GRID) -> float:
-    """The L2 penalty of ``grid`` whose leave-one-frame-out confidences
-    (:func:`cross_validated_confidence`) have the smallest mean log-loss (ties: the larger
-    penalty).
-
-    Returns
-    -------
-    float
+    """The penalty of ``grid`` whose leave-one-frame-out confidences have the smallest mean log-loss
+    (ties: the larger).
     """
     best, best_loss = None, np.inf
     for pen in sorted(grid, reverse=True):

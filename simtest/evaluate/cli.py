@@ -1,13 +1,9 @@
-"""``simtest evaluate c3vd SEQ_DIR --intrinsics CAM --out OUT``: reconstruct a C3VD-format sequence
-and score every estimator against its ground-truth normals, and, where the camera file carries a
-light rig of offset lights, the light-aware fits' depths against its depth maps.
+"""``simtest evaluate c3vd`` and ``simtest evaluate detection``.
 
-Writes ``OUT/results.json``, ``OUT/report.html`` (:mod:`simtest.evaluate.report`) and with
-``--views N`` ``OUT/view_NNNN.png`` (:mod:`simtest.reconstruct.view3d`), replaced as one folder
-(:func:`~simtest._io.replace_output_folder`): a failure or a kill leaves the whole
-previous set or the whole new one. A bad sequence or camera file ends with exit status 2 and one
-line naming the file (no traceback); an ``OUT`` that cannot be written (a file in the way,
-read-only, files this command does not write inside) with exit status 4, before any work.
+``c3vd`` reconstructs a C3VD-format sequence and scores every estimator against its ground-truth
+normals (and the light-aware fits' depths against its depth maps); ``detection`` scores highlight
+detection against labelled structures. Each replaces its output folder as a whole; bad input
+exits 2 with one line, an unwritable ``OUT`` exits 4 before any work.
 """
 
 from __future__ import annotations
@@ -74,14 +70,13 @@ def c3vd_command(
                                 "per core; at most the CPU count)."),
 ) -> None:
     """Reconstruct every frame of SEQ_DIR and score every estimator against the ground truth:
-    the normals, and with a light rig in the camera file ("lights") the light-aware fits' depth of
-    the specular point against NNNN_depth.tiff (relative error).
+    the normals, and with a light rig in the camera file the light-aware fits' depth against
+    NNNN_depth.tiff (relative error).
 
-    Writes, in the folder OUT (new, empty, or a previous run's; replaced as a whole, so a failure
-    leaves the previous set): OUT/results.json (every highlight's errors and the summaries),
-    OUT/report.html (the report page) and with --views N OUT/view_NNNN.png (a 3D view of frame
-    NNNN). Exit status 2: bad input; 4: OUT cannot be written."""
-
+    Writes, in the folder OUT (replaced as a whole): OUT/results.json (every highlight's errors and
+    the summaries), OUT/report.html and with --views N OUT/view_NNNN.png (a 3D view of frame NNNN).
+    Exit status 2: bad input; 4: OUT cannot be written.
+    """
     workers = check_workers(workers) or os.cpu_count() or 1
     target = check_out_folder(out, OUTPUT_FILES)
     try:
@@ -166,13 +161,11 @@ def detection_command(
     estimates against labelled isolated highlights, per frame and pooled, with reconstruct's
     defaults.
 
-    Writes, in the folder OUT (new, empty, or a previous run's; replaced as a whole): OUT/results.json
-    (every frame's counts and scores, and where each candidate fell), OUT/report.md (the table)
-    OUT/detection.png (each frame with its hits, false positives and misses) and
-    OUT/reliability.png (the confidence's reliability diagram) and OUT/precision_recall.png
-    (precision against recall of the ok estimates over --min-confidence, the default marked). Exit
-    status 2:
-    bad input; 4: OUT cannot be written."""
+    Writes, in the folder OUT (replaced as a whole): OUT/results.json (counts, scores and where each
+    candidate fell), OUT/report.md, OUT/detection.png (hits, false positives and misses),
+    OUT/reliability.png (the confidence's reliability diagram) and OUT/precision_recall.png. Exit
+    status 2: bad input; 4: OUT cannot be written.
+    """
     target = check_out_folder(out, DETECTION_FILES)
     kept: list = []  # each frame's estimates, for the confidence's cross-validation
     try:
@@ -261,8 +254,7 @@ def _detection_markdown(results: dict) -> str:
           + ", ".join(f"{k} {v}" for k, v in p["ok_on"].items()) + ".", "",
           "Status of every candidate: " + ", ".join(f"{k} {v}" for k, v in results["statuses"].items())
           + " (reasons in simtest.reconstruct.failures.REASONS).", "",
-          "![hits, false positives and misses](detection.png)", "",
-          "## Confidence", "",
+          "![hits, false positives and misses](detection.png)", "", "## Confidence", "",
           "Reliability of each candidate's confidence (simtest.reconstruct.verify.confidence): per bin, "
           "the fraction of candidates that are a target's first match.", "",
           "| candidates | bin | n | mean confidence | fraction targets |", "|---|---|---|---|---|"]

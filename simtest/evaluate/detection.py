@@ -1,33 +1,21 @@
 """Scoring highlight detection against labelled bright structures: precision, recall and F1.
 
-A frame's ground truth is a list of labelled bright structures, each with a *kind*. The targets are
-the ``isolated`` ones: a single compact specular highlight with an elliptical outline, on tissue,
-with no other highlight close by, which is what the isophote method can use. Every other kind
-(``cluster``, ``streak``, ``instrument``, ``overlay``, ``border``, ``texture``) is a bright
-structure a detector may pick but should not call a highlight. Two sources give such labels:
+A frame's ground truth is a list of labelled bright structures, each of a kind (:data:`KINDS`).
+The targets are the ``isolated`` ones: a single compact elliptical specular highlight on tissue,
+what the isophote method can use. Labels come from hand-labelled real frames
+(``tests/data/real/structures_labelled.json``, protocol in ``tests/data/real/README.md``) or from
+renders (:func:`simtest.render.truth.highlight_targets`; other bright structures unlabelled).
 
-- real frames labelled by hand (``tests/data/real/structures_labelled.json``: the protocol, the
-  two independent passes and their agreement are in ``tests/data/real/README.md``);
-- renders, whose targets are the ground-truth highlights a person sees as isolated elliptical
-  highlights (:func:`simtest.render.truth.highlight_targets`); a render's other bright structures
-  are not labelled.
-
-Matching: a candidate (its BP) falls on the nearest structure whose reach holds it, the reach being
-the radius of a disc of the structure's area plus ``tolerance_px``, measured from the structure's
-centroid or, for a rendered target that holds several lights' BPs (the lobes of a scope's guides
-that run together), from the convex hull of those BPs and its peak
-(:meth:`simtest.render.truth.HighlightTarget.distance_px`): a candidate on either guide's lobe falls
-on it. Each target counts once, for
-the first (brightest) candidate that falls on it; a second candidate on the same target is a
-duplicate, a false positive. Precision is the fraction of candidates (or of ``ok`` estimates) that
-are a target's first match; recall the fraction of targets matched by a candidate (or an ``ok``
-estimate); F1 their harmonic mean.
+Matching: a candidate's BP falls on the nearest structure within its reach (radius of a disc of
+its area plus ``tolerance_px``, from the centroid or, for a rendered target of several lights'
+BPs, from their hull and peak). Each target counts once per lobe, for the first (brightest)
+candidates; more are duplicates, false positives. Precision: the fraction of candidates (or
+``ok`` estimates) that are a target's first match; recall: the fraction of targets matched.
 
 References
 ----------
-Anchors for the scores: classical specular-highlight detectors reach an F1 of about 0.72 on the
-CVC-ClinicSpec benchmark; SpecReFlow (J. Med. Imaging 2024) a Dice of about 0.83 at the pixel level.
-Those count pixels; these scores count highlights.
+Classical detectors reach an F1 of about 0.72 on CVC-ClinicSpec; SpecReFlow (J. Med. Imaging
+2024) a pixel Dice of about 0.83. Those count pixels; these scores count highlights.
 """
 
 from __future__ import annotations
@@ -73,13 +61,11 @@ __all__ = ["KINDS", "TARGET_KIND", "PASSING", "TOLERANCE_PX", "Structure", "Fram
 #: The kinds of labelled bright structure; ``isolated`` is the target.
 KINDS = ("isolated", "cluster", "streak", "instrument", "overlay", "border", "texture")
 TARGET_KIND = "isolated"
-#: The statuses of a fit that passes every specularity check: ``ok``, and ``low_confidence`` where
-#: its confidence ranks below the run's ``--min-confidence``.
+#: The statuses of a fit that passes every specularity check (``low_confidence``: below ``--min-confidence``).
 PASSING = ("ok", "low_confidence")
 
-#: Slack added to a structure's radius when matching a candidate's BP, px: a BP is a sub-pixel
-#: point inside a blob a labeller marked by its centroid; 2 px covers the centroid's offset from
-#: the brightest pixel on the small (3 to 30 px) glints of 280 px frames.
+#: Slack added to a structure's radius when matching a candidate's BP, px: the centroid's offset
+#: from the brightest pixel on the small glints of 280 px frames.
 TOLERANCE_PX = 2.0
 
 
@@ -92,7 +78,7 @@ class Structure:
     u, v : float
         Centroid, px (column, row; pixel centres at integer coordinates).
     area_px : float
-        Area of the structure at half its height above the local background, px.
+        Area at half its height above the local background, px.
     kind : str
         One of :data:`KINDS`.
     target : HighlightTarget or None
@@ -111,8 +97,7 @@ class Structure:
         return math.sqrt(max(self.area_px, 1.0) / math.pi) + TOLERANCE_PX
 
     def distance_px(self, uv) -> float:
-        """Distance, px, from ``uv`` [u, v] to the centroid, or to a rendered target's hull of BPs
-        and peak where that is nearer."""
+        """Distance, px, from ``uv`` [u, v] to the centroid, or to a rendered target's hull where nearer."""
         d = math.dist((float(uv[0]), float(uv[1])), (self.u, self.v))
         return d if self.target is None else min(d, self.target.distance_px(uv))
 
@@ -123,7 +108,7 @@ def match_candidates(bps_px, structures: list[Structure]) -> list[int | None]:
     Parameters
     ----------
     bps_px : array_like of shape (N, 2)
-        The candidates' BPs, [u, v] px, in the order they are ranked (brightest first).
+        The candidates' BPs, [u, v] px, brightest first.
     structures : list of Structure
         The frame's labels.
 
@@ -165,8 +150,7 @@ class FrameScore:
     targets_found, targets_found_ok : int
         Targets matched by a candidate, by an ``ok`` estimate.
     ok_on : Counter
-        The ``ok`` estimates by what they fall on: a kind, ``"duplicate"`` (a target already
-        matched) or ``"unlabelled"``.
+        The ``ok`` estimates by what they fall on: a kind, ``"duplicate"`` or ``"unlabelled"``.
     """
 
     name: str
@@ -189,8 +173,7 @@ class FrameScore:
 
     def as_dict(self) -> dict:
         """Counts and ratios (None where a ratio has no denominator), JSON-ready."""
-        pc, rc = self._ratio(self.candidates_tp, self.candidates), self._ratio(self.targets_found,
-                                                                               self.targets)
+        pc, rc = self._ratio(self.candidates_tp, self.candidates), self._ratio(self.targets_found, self.targets)
         po, ro = self._ratio(self.ok_tp, self.ok), self._ratio(self.targets_found_ok, self.targets)
         return {"name": self.name, "targets": self.targets, "candidates": self.candidates,
                 "candidates_tp": self.candidates_tp, "ok": self.ok, "ok_tp": self.ok_tp,
@@ -201,30 +184,19 @@ class FrameScore:
 
 
 def score_frame(name: str, specularities: list[dict], structures: list[Structure]) -> tuple[FrameScore, list[dict]]:
-    """Score one frame's estimates against its labels.
-
-    Parameters
-    ----------
-    name : str
-        The frame.
-    specularities : list of dict
-        Its estimates as in ``estimates.json`` (``bp_px``, ``status``), brightest first.
-    structures : list of Structure
-        Its labels.
+    """Score one frame's estimates (``estimates.json`` dicts, brightest first) against its labels.
 
     Returns
     -------
     (FrameScore, list of dict)
-        The scores, and per candidate ``{"bp_px", "status", "on": kind | "duplicate" |
-        "unlabelled", "tp": bool, "tp_ok": bool, "tp_pass": bool, "confidence", "target"}``
-        (``tp_pass``: a target's first match among the fits that pass the checks, ``ok`` or
-        ``low_confidence``: the set ``--min-confidence`` chooses from). A rendered target of k lights' highlights takes k matches as
-        true positives (one a guide's lobe); it is found (recall) once.
+        The scores, and per candidate ``{"bp_px", "status", "on": kind | "duplicate" | "unlabelled",
+        "tp", "tp_ok", "tp_pass", "confidence", "target"}`` (``tp_pass``: a target's first match among
+        the fits in :data:`PASSING`). A rendered target of k lights takes k true positives; it is
+        found (recall) once.
     """
     bps = [s["bp_px"] for s in specularities]
     hit = match_candidates(bps, structures)
-    sc = FrameScore(name, targets=sum(s.kind == TARGET_KIND for s in structures),
-                    candidates=len(specularities))
+    sc = FrameScore(name, targets=sum(s.kind == TARGET_KIND for s in structures), candidates=len(specularities))
     found: Counter = Counter()
     found_ok: Counter = Counter()
     found_pass: Counter = Counter()
@@ -260,19 +232,17 @@ def score_frame(name: str, specularities: list[dict], structures: list[Structure
     return sc, rows
 
 
+_COUNTS = ("targets", "candidates", "candidates_tp", "ok", "ok_tp", "targets_found", "targets_found_ok")
+
+
 def pooled(scores: list[FrameScore]) -> FrameScore:
     """The frames' counts summed (ratios of sums, not means of ratios)."""
     out = FrameScore("pooled")
     for s in scores:
-        for k in ("targets", "candidates", "candidates_tp", "ok", "ok_tp", "targets_found",
-                  "targets_found_ok"):
+        for k in _COUNTS:
             setattr(out, k, getattr(out, k) + getattr(s, k))
         out.ok_on.update(s.ok_on)
     return out
-
-
-# ---------------------------------------------------------------------------------------------
-# sources of labelled frames
 
 
 @dataclass(frozen=True)
@@ -282,15 +252,14 @@ class LabelledFrame:
     Attributes
     ----------
     name : str
-        The frame's name (a tile id ``r{r}c{c}``, or a scene name).
+        A tile id ``r{r}c{c}``, or a scene name.
     image : ndarray of shape (H, W, 3) or (H, W)
         The frame as a camera gives it (uint8).
     camera : CameraModel
         Its camera model (an assumed pinhole for the uncalibrated real frames).
     structures : list of Structure
-        Its labels.
     lights : LightRig or None
-        A render's light rig (``reconstruct`` pairs its guides' highlights); None: unknown.
+        A render's light rig; None: unknown.
     """
 
     name: str
@@ -314,13 +283,11 @@ def labelled_real_frames(path, *, focal_px: float = 140.0) -> list[LabelledFrame
     Parameters
     ----------
     path : str or Path
-        JSON ``{"header": {"image": the image file, beside the JSON, "tile_px": side of a tile
-        (default 280), ...}, "tiles": {"r{r}c{c}": [{"u", "v", "u_peak", "v_peak", "area_px",
-        "kind", ...}, ...]}}``; coordinates in tile pixels; a structure is placed at its peak
-        where it has one, else at its centroid.
+        JSON ``{"header": {"image": file beside the JSON, "tile_px": tile side (default 280)},
+        "tiles": {"r{r}c{c}": [{"u", "v", "u_peak", "v_peak", "area_px", "kind"}, ...]}}`` in tile
+        pixels; a structure is placed at its peak where it has one.
     focal_px : float
-        The assumed pinhole's focal length, px (the frames are uncalibrated; detection does not
-        depend on it, the normals do).
+        The assumed pinhole's focal length, px (the frames are uncalibrated).
 
     Returns
     -------
@@ -330,9 +297,8 @@ def labelled_real_frames(path, *, focal_px: float = 140.0) -> list[LabelledFrame
     Raises
     ------
     ValueError
-        A missing or unreadable file, key or image, a tile outside the image, or a label row
-        with a kind not in :data:`KINDS`, a coordinate outside its tile or an area outside 1 px
-        to the tile's, in one line naming the file, the row and the key.
+        A missing or unreadable file, key or image, a tile outside the image, or a label row with a
+        bad kind, coordinate or area, in one line naming the file, the row and the key.
     """
     path = Path(path)
     try:
@@ -373,9 +339,7 @@ def labelled_real_frames(path, *, focal_px: float = 140.0) -> list[LabelledFrame
 
 
 def _labelled_structure(path: Path, where: str, s, side: int) -> Structure:
-    """One label row as a :class:`Structure`, or a one-line ValueError naming the file, the row
-    and the key: a coordinate outside the tile (its pixel centres span -0.5 to side - 0.5), an
-    area outside 1 px to the tile's, a kind not in :data:`KINDS`, a missing or non-number value."""
+    """One label row as a :class:`Structure`, or a one-line ValueError naming file, row and key."""
     if not isinstance(s, dict):
         raise ValueError(f"{path}: {where}: must be an object with 'u', 'v', 'area_px' and 'kind', got {s!r}")
     kind = s.get("kind")
@@ -396,21 +360,14 @@ def _labelled_structure(path: Path, where: str, s, side: int) -> Structure:
 
 
 def labeller_agreement(path) -> dict | None:
-    """How far two people agree on the target kind in a hand-labelled set: a ceiling for any
-    detector scored against it.
-
-    Parameters
-    ----------
-    path : str or Path
-        A labelled set whose structures carry ``pass1`` and ``pass2`` (the two independent
-        passes) beside the resolved ``kind``.
+    """How far two labellers agree on the target kind: a ceiling for any detector scored against it.
 
     Returns
     -------
     dict or None
-        ``{"pass2_vs_pass1": {"precision", "recall"}, "pass1_vs_resolved": {...},
-        "pass2_vs_resolved": {...}}``: each pass's ``isolated`` labels scored as detections
-        against the other's (or the resolved ones); None when the passes are not recorded.
+        ``{"pass2_vs_pass1", "pass1_vs_resolved", "pass2_vs_resolved"}``, each ``{"precision",
+        "recall", "labelled", "truth"}`` of one pass's ``isolated`` labels against the other's; None
+        when the structures lack ``pass1`` and ``pass2``.
     """
     doc = json.loads(Path(path).read_text(encoding="utf-8"))
     items = [s for tile in doc.get("tiles", {}).values() for s in tile]
@@ -429,21 +386,13 @@ def labeller_agreement(path) -> dict | None:
 
 
 def rendered_frames(scene: str, *, seed: int | None = None) -> list[LabelledFrame]:
-    """A render's video frame, labelled with its targets (:func:`highlight_targets`).
-
-    Parameters
-    ----------
-    scene : str
-        A bundled scene name or a scene TOML file.
-    seed : int, optional
-        Render seed (default the scene's).
+    """A render's video frame of ``scene`` (bundled name or TOML file), labelled with its targets.
 
     Returns
     -------
     list of LabelledFrame
-        One frame; its structures are the targets (kind ``isolated``) at each target's peak,
-        with its half-maximum area. Other bright structures of a render are not labelled, so they
-        count as ``unlabelled`` false positives.
+        One frame; its structures are the targets (kind ``isolated``) at their peaks, with their
+        half-maximum areas. Other bright structures count as ``unlabelled`` false positives.
     """
     spec = load_scene(scene)
     return [_rendered_frame(spec, seed, spec.name)]
@@ -455,36 +404,32 @@ def _rendered_frame(spec, seed: int | None, name: str) -> LabelledFrame:
     sensor = res.spec.sensor
     valid = res.mask & field_stop_mask(res.mask.shape, sensor.field_stop, sensor.field_stop_radius)
     targets = highlight_targets(res.highlights, res.specular, valid)
-    structs = [Structure(float(t.peak_px[0]), float(t.peak_px[1]), float(t.area_px), TARGET_KIND, t)
-               for t in targets]
+    structs = [Structure(float(t.peak_px[0]), float(t.peak_px[1]), float(t.area_px), TARGET_KIND, t) for t in targets]
     return LabelledFrame(name, res.frame, res.camera, structs, res.light_rig)
 
 
 def suite_frames(suite: str, *, realisations: int | None = None, progress=None) -> list[LabelledFrame]:
-    """The video frames of a rendered suite's cases (``simtest validate``'s renders), labelled
-    with their targets (:func:`highlight_targets`).
+    """The video frames of a rendered suite's cases, labelled with their targets.
 
     Parameters
     ----------
     suite : str
-        A bundled suite name (``endoscope``) or a suite TOML file; every case must be rendered.
+        A bundled suite name or a suite TOML file; every case must be rendered.
     realisations : int, optional
-        Realisations per distinct setting (default the suite's). Realisation ``i`` of a case is
-        rendered at the seed ``validate`` gives it (:func:`simtest.harness.suite.realisation_seed`
-        from the suite's root seed), so the frames are the ones the suite's report scores.
+        Realisations per distinct setting (default the suite's), rendered at the seeds
+        ``simtest validate`` gives them.
     progress : callable, optional
         Called as ``progress(done, total)`` after each render.
 
     Returns
     -------
     list of LabelledFrame
-        Named ``<sweep>@<x>#<i>`` (the first sweep that holds a setting), sweep by sweep.
+        Named ``<sweep>@<x>#<i>``, sweep by sweep.
 
     Raises
     ------
     ValueError
-        The suite cannot be read (:class:`simtest.harness.suite.SuiteError`), or a case is not
-        rendered.
+        The suite cannot be read, or a case is not rendered.
     """
     s = load_suite(suite)
     if realisations is not None:
@@ -507,8 +452,7 @@ def suite_frames(suite: str, *, realisations: int | None = None, progress=None) 
 
 
 def is_suite(source: str) -> bool:
-    """Whether ``source`` names a suite (a bundled suite's name, or a TOML file with a
-    ``[suite]`` table) rather than a scene."""
+    """Whether ``source`` names a suite (a bundled suite, or a TOML file with ``[suite]``), not a scene."""
     p = Path(source)
     if p.suffix == ".toml" and p.is_file():
         try:
@@ -523,9 +467,7 @@ def groups(frames_out: list[dict]) -> list[dict]:
     by: dict[str, list[FrameScore]] = {}
     for f in frames_out:
         g = f["name"].split("@", 1)[0]
-        sc = FrameScore(g, **{k: f[k] for k in ("targets", "candidates", "candidates_tp", "ok", "ok_tp",
-                                                "targets_found", "targets_found_ok")},
-                        ok_on=Counter(f["ok_on"]))
+        sc = FrameScore(g, **{k: f[k] for k in _COUNTS}, ok_on=Counter(f["ok_on"]))
         by.setdefault(g, []).append(sc)
     return [pooled(v).as_dict() | {"name": g, "frames": len(v)} for g, v in by.items()]
 
@@ -539,23 +481,16 @@ def _default_floor(frames: list[LabelledFrame], settings) -> float | None:
 
 
 def evaluate_frames(frames: list[LabelledFrame], settings=None, *, keep: list | None = None) -> dict:
-    """Reconstruct every frame with ``settings`` (default: ``reconstruct``'s) and score it.
+    """Reconstruct every frame with ``settings`` (default :meth:`ReconSettings.for_frames`) and score it.
 
-    Parameters
-    ----------
-    frames : list of LabelledFrame
-        The frames and their labels.
-    settings : ReconSettings, optional
-        Default :meth:`ReconSettings.for_frames`.
-    keep : list, optional
-        Where given, each frame's estimates (``Estimates``) are appended to it, in frame order:
-        :func:`cross_validated_report` takes them instead of reconstructing the frames again.
+    ``keep``, where given, receives each frame's ``Estimates`` in order (for
+    :func:`cross_validated_report`).
 
     Returns
     -------
     dict
-        ``{"frames": [FrameScore.as_dict() + {"candidates_detail": [...]}], "pooled": {...},
-        "settings": {...}}``.
+        ``frames`` (:meth:`FrameScore.as_dict` plus ``candidates_detail``), ``pooled``, ``settings``,
+        ``statuses``, ``reliability``, ``precision_recall`` and ``default_min_confidence``.
     """
     settings = settings or ReconSettings.for_frames()
     scores, frames_out = [], []
@@ -586,9 +521,9 @@ def evaluate_frames(frames: list[LabelledFrame], settings=None, *, keep: list | 
 
 
 def reliability_figure(results: dict):
-    """The reliability diagram of the confidence: per bin, the fraction of candidates that are
-    targets against the bin's mean confidence (the diagonal is perfect calibration), for every
-    candidate with a confidence and for the ``ok`` ones, with each bin's count."""
+    """The reliability diagram of the confidence: fraction of targets against mean confidence per bin,
+    for every candidate and for the ``ok`` ones, with each bin's count.
+    """
     fig, ax = plt.subplots(figsize=(5.2, 4.4), layout="constrained")
     ax.plot([0, 1], [0, 1], color="0.6", lw=1, ls="--", label="perfect calibration")
     for key, marker, colour in (("candidates", "o", "#1f77b4"), ("ok", "s", "#d62728")):
@@ -597,8 +532,7 @@ def reliability_figure(results: dict):
         y = [r["fraction_true"] for r in rows]
         ax.plot(x, y, marker=marker, color=colour, label=f"{key} (n = {sum(r['n'] for r in rows)})")
         for r, xi, yi in zip(rows, x, y):
-            ax.annotate(f"n={r['n']}", (xi, yi), textcoords="offset points", xytext=(4, -10), fontsize=7,
-                        color=colour)
+            ax.annotate(f"n={r['n']}", (xi, yi), textcoords="offset points", xytext=(4, -10), fontsize=7, color=colour)
     ax.set(xlim=(0, 1), ylim=(0, 1), xlabel="mean confidence in the bin",
            ylabel="fraction that are labelled targets", title="Reliability of the confidence")
     ax.legend(fontsize=8, loc="upper left")
@@ -612,11 +546,9 @@ FIGURE_FRAMES_MAX = 24
 def detection_figure(frames: list[LabelledFrame], results: dict, *, columns: int = 6):
     """The frames with what detection got right and wrong, as a matplotlib figure.
 
-    Each frame shows its ``ok`` estimates on targets (green circles), its ``ok`` estimates on
-    anything else (red crosses, which are the false positives of "ok"), and the targets no ``ok``
-    estimate found (yellow squares: the misses). Titles give the frame's counts. Of more than
-    :data:`FIGURE_FRAMES_MAX` frames, only those with a false positive or a miss are drawn (at
-    most that many, in order; the title says how many were left out).
+    ``ok`` estimates on targets: green circles; on anything else: red crosses; targets no ``ok``
+    estimate found: yellow squares. Of more than :data:`FIGURE_FRAMES_MAX` frames only those with an
+    error are drawn.
     """
     pairs = list(zip(frames, results["frames"]))
     left_out = 0
@@ -640,8 +572,7 @@ def detection_figure(frames: list[LabelledFrame], results: dict, *, columns: int
         miss = np.array(res["missed_targets_ok"]).reshape(-1, 2)
         ax.scatter(tp[:, 0], tp[:, 1], s=40, facecolors="none", edgecolors="#2ca02c", lw=1.2)
         ax.scatter(fp[:, 0], fp[:, 1], s=30, marker="x", c="#d62728", lw=1.2)
-        ax.scatter(miss[:, 0], miss[:, 1], s=40, marker="s", facecolors="none",
-                   edgecolors="#ffcc00", lw=1.2)
+        ax.scatter(miss[:, 0], miss[:, 1], s=40, marker="s", facecolors="none", edgecolors="#ffcc00", lw=1.2)
         ax.set_title(f"{fr.name}: {res['ok_tp']} hit, {res['ok'] - res['ok_tp']} false, "
                      f"{len(miss)} missed (of {res['targets']})", fontsize=7)
     p = results["pooled"]
@@ -655,25 +586,19 @@ def detection_figure(frames: list[LabelledFrame], results: dict, *, columns: int
     return fig
 
 
-# ---------------------------------------------------------------------------------------------
-# the confidence's calibration
-
 def confidence_rows(frames: list[LabelledFrame], settings=None, *,
                     verified: list | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """The features of :func:`simtest.reconstruct.verify.confidence` for every fit of the frames
-    that passes the specularity checks (``ok`` or ``low_confidence``: what ``--min-confidence``
-    chooses from), with its label.
+    """The confidence features and labels of every fit of the frames in :data:`PASSING`.
 
-    ``verified``: each frame's estimates with the checks (``settings`` with ``verify=True``)
-    where the caller has them (:func:`evaluate_frames`' ``keep``), one per frame; else each
-    frame is reconstructed for them.
+    ``verified``: each frame's estimates with the checks where the caller has them
+    (:func:`evaluate_frames`' ``keep``); else each frame is reconstructed for them.
 
     Returns
     -------
     X : ndarray of shape (N, 5)
-        Features (:func:`~simtest.reconstruct.verify.confidence_features`), one row per such fit.
+        Features (:func:`~simtest.reconstruct.verify.confidence_features`).
     y : ndarray of bool, shape (N,)
-        True where the candidate is a target's first match (an isolated highlight).
+        True where the candidate is a target's first match.
     group : ndarray of int, shape (N,)
         Index of its frame (for cross-validation by frame).
     """
@@ -697,10 +622,7 @@ def confidence_rows(frames: list[LabelledFrame], settings=None, *,
 
 
 def cross_validated_report(frames: list[LabelledFrame], *, verified: list | None = None) -> dict:
-    """The confidence a new frame can expect: leave-one-frame-out confidences of the fits that
-    pass the checks (:func:`~simtest.evaluate.calibration.cross_validated_confidence`), their
-    ranking AUC and reliability per bin. ``verified``: as for
-    :func:`confidence_rows` (the frames' estimates with the default settings).
+    """Leave-one-frame-out confidences of the passing fits, their ranking AUC and reliability.
 
     Returns
     -------

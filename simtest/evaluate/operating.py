@@ -1,11 +1,8 @@
 """Precision against recall over the confidence: where a user sets ``--min-confidence``.
 
-``simtest reconstruct --min-confidence c`` keeps as ``ok`` only the fits that pass every check with a
-confidence of at least c. On a labelled set (real frames labelled by hand, or renders whose targets
-are exact) each c gives a precision (the share of kept ``ok`` estimates on a labelled isolated
-highlight) and a recall (the share of those highlights with a kept ``ok`` estimate). The curve is
-read off the default run's matches (:func:`simtest.evaluate.detection.score_frame`): a target whose
-first ``ok`` match falls below c counts as missed, even where a second ``ok`` on it stays.
+Each minimum confidence c gives, on a labelled set, a precision (share of kept ``ok`` estimates
+on a labelled isolated highlight) and a recall (share of those highlights with a kept ``ok``
+estimate), read off the default run's matches (:func:`simtest.evaluate.detection.score_frame`).
 """
 
 from __future__ import annotations
@@ -27,16 +24,16 @@ def precision_recall(confidence, tp_ok, targets: int, thresholds=THRESHOLDS, tar
     Parameters
     ----------
     confidence : array_like of shape (N,)
-        The confidence of each fit that passes the checks (``ok`` at a minimum confidence of 0).
+        The confidence of each fit that passes the checks.
     tp_ok : array_like of bool, shape (N,)
         Whether it is a target's first such match.
     targets : int
-        Labelled targets (isolated highlights) in the frames.
+        Labelled targets in the frames.
     thresholds : sequence of float
         The minimum confidences.
     target_ids : sequence, optional
-        The target each estimate is a true positive on (a rendered target of k lights takes k):
-        recall counts distinct targets; default one target an estimate.
+        The target each estimate is a true positive on: recall counts distinct targets; default one
+        target an estimate.
 
     Returns
     -------
@@ -66,19 +63,8 @@ def precision_recall(confidence, tp_ok, targets: int, thresholds=THRESHOLDS, tar
 
 def precision_recall_figure(rows: list[dict], title: str = "fits that pass the checks over --min-confidence",
                             default: float | None = DEFAULT_MIN_CONFIDENCE):
-    """Precision against recall, one point per minimum confidence, the default marked.
-
-    Parameters
-    ----------
-    rows : list of dict
-        :func:`precision_recall`'s rows.
-    title : str
-    default : float or None
-        The run's default minimum confidence, marked (None: not marked, frames of both kinds).
-
-    Returns
-    -------
-    matplotlib.figure.Figure
+    """Precision against recall of :func:`precision_recall`'s ``rows``, one point per minimum
+    confidence, the run's ``default`` marked (None: not marked); a matplotlib Figure.
     """
     fig, ax = plt.subplots(figsize=(5.2, 4.4), layout="constrained")
     pts = [r for r in rows if r["precision"] is not None and r["recall"] is not None]

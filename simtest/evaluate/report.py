@@ -57,17 +57,7 @@ def _style(name):
 
 
 def figures(results: dict) -> dict[str, bytes]:
-    """The report's figures as PNG bytes, by title.
-
-    Parameters
-    ----------
-    results : dict
-        The ``results.json`` document.
-
-    Returns
-    -------
-    dict of str to bytes
-    """
+    """The report's figures as PNG bytes, by title, from the ``results.json`` document."""
     rows = results["highlights"]
     names = list(results["estimators"])
     figs: dict[str, bytes] = {}
@@ -147,18 +137,7 @@ _DEPTH = ({"median_abs": "median |error| (%)", "median": "median error (%)", "p9
 
 
 def render_html(results: dict) -> str:
-    """The self-contained report page.
-
-    Parameters
-    ----------
-    results : dict
-        The ``results.json`` document.
-
-    Returns
-    -------
-    str
-        HTML.
-    """
+    """The self-contained report page (HTML) of a ``results.json`` document."""
     figs = figures(results)
     s = results
     parts = [

@@ -1,31 +1,12 @@
 """Scoring reconstructed highlights against per-pixel ground-truth normals (and depth).
 
-Per highlight with an ``ok`` estimate and valid ground truth at its brightest point (BP):
-
-- ``errors_bp_deg``: the angle of every estimator's normal to the ground-truth normal at the BP
-  pixel (nearest pixel);
-- ``errors_footprint_deg``: the angle to the mean ground-truth normal over the primary isophote's
-  footprint (the pixels inside its contour; the mean of unit normals, renormalised);
-- ``dist_pp_px``: distance of the BP from the principal point, px;
-- ``size_px``: the diameter of the disc with the footprint's area, px;
-- ``gt_curvature_per_mm``: with depth, the largest absolute principal curvature of the ground-truth
-  surface at the BP, from a least-squares quadric height field ``h = (k_xx x^2 + 2 k_xy x y + k_yy
-  y^2) / 2 + a x + b y + c`` fitted to the back-projected depth in the BP's tangent frame over a
-  window of the footprint's size (principal curvatures are the eigenvalues of [[k_xx, k_xy],
-  [k_xy, k_yy]]; the height field's slope at the BP is ~0 in that frame);
-- ``depth_gt_mm`` and ``depth_rel_error``: with depth, the distance from the camera centre to the
-  surface along the BP's ray (the z-depth over the ray's z component), and every estimator's
-  ``depth_mm`` (the light-aware fits', and the recommended one as ``normal``: the same quantity,
-  :mod:`simtest.reconstruct.io`) as a relative error ``(estimate - truth) / truth``. An estimator
-  without a depth (the co-located ones; a fit that judged it unobservable) has none. C3VD's depth
-  is registered to about 0.3 mm, while its normals at glints are tens of degrees off the viewing
-  ray (micro-relief the registered mesh lacks): depth is where real frames score the light-aware
-  fits.
-
-Estimators are every normal the estimate has (``paper_selected``, ``cone_axis``,
-``joint_cone_axis``, ``bp_ray`` and any the estimates file adds, e.g. the light-aware ones), and
-the recommended ``normal`` where the estimates carry one. Summaries: ``n``, median, mean and 95th
-percentile of the angle in degrees.
+Per ``ok`` estimate with valid ground truth at its BP: ``errors_bp_deg`` (angle to the true
+normal at the BP pixel), ``errors_footprint_deg`` (to the renormalised mean normal inside the
+primary isophote), ``dist_pp_px`` (BP to principal point), ``size_px`` (diameter of a disc of the
+footprint's area) and, with depth, ``gt_curvature_per_mm`` (largest absolute principal curvature
+of a quadric height field fitted in the BP's tangent frame), ``depth_gt_mm`` (distance along the
+BP's ray) and ``depth_rel_error`` (``(estimate - truth) / truth`` per estimator with a depth).
+Estimators are every normal the estimate has, and the recommended ``normal``.
 """
 
 from __future__ import annotations
@@ -44,17 +25,8 @@ _NOT_ESTIMATORS = {"paper", "paper_selected_index"}
 
 
 def estimator_normals(spec: dict) -> dict[str, np.ndarray | None]:
-    """Every estimator's normal of one specularity dict (``estimates.json`` form).
-
-    Parameters
-    ----------
-    spec : dict
-        One entry of ``specularities``.
-
-    Returns
-    -------
-    dict of str to ndarray of shape (3,) or None
-        Estimator name -> normal (camera frame), None where that estimator gave none.
+    """Every estimator's normal of one ``estimates.json`` specularity: name -> ndarray of shape
+    (3,) (camera frame), None where that estimator gave none.
     """
     out: dict[str, np.ndarray | None] = {}
     for name, v in spec.get("normals", {}).items():
@@ -69,19 +41,8 @@ def estimator_normals(spec: dict) -> dict[str, np.ndarray | None]:
 
 
 def estimator_depths(spec: dict) -> dict[str, float]:
-    """Every depth of one specularity dict (``estimates.json`` form): the recommended
-    ``depth_mm`` as ``normal`` and each light-aware estimator's, mm; estimators without one are
-    left out.
-
-    Parameters
-    ----------
-    spec : dict
-        One entry of ``specularities``.
-
-    Returns
-    -------
-    dict of str to float
-        Estimator name -> distance from the camera centre to the specular point along its ray, mm.
+    """Every depth of one ``estimates.json`` specularity, mm along its ray: the recommended
+    ``depth_mm`` as ``normal`` and each light-aware estimator's (those without one left out).
     """
     out: dict[str, float] = {}
     if spec.get("depth_mm") is not None:
@@ -93,9 +54,9 @@ def estimator_depths(spec: dict) -> dict[str, float]:
 
 
 def _ray_distance(depth_mm, camera: CameraModel, bp_uv) -> float | None:
-    """The distance along the BP's ray to the surface, mm, from the z-depth at the (sub-pixel)
-    BP: bilinear between the four pixel centres around it where all four are valid, else the
-    nearest pixel's."""
+    """The distance along the BP's ray to the surface, mm, from the z-depth at the sub-pixel BP
+    (bilinear where the four neighbours are valid, else the nearest pixel's).
+    """
     H, W = depth_mm.shape
     u, v = float(bp_uv[0]), float(bp_uv[1])
     ui, vi = int(round(u)), int(round(v))
@@ -167,19 +128,15 @@ def score_highlights(frame_id: str, estimates, truth, camera: CameraModel) -> li
     frame_id : str
         The frame's number.
     estimates : list of SpecularityEstimate
-        From :func:`simtest.reconstruct.reconstruct`.
     truth : simtest.evaluate.c3vd.GroundTruth
-        The frame's ground truth.
     camera : CameraModel
-        The camera (principal point, rays for the curvature).
 
     Returns
     -------
     list of dict
-        Rows: ``frame``, ``bp_px``, ``status``, ``scored`` (ok and valid ground truth at the BP),
-        ``dist_pp_px``, ``size_px``, ``gt_curvature_per_mm``, ``errors_bp_deg`` and
-        ``errors_footprint_deg`` ({estimator: degrees or None}), and with depth at the BP
-        ``depth_gt_mm`` and ``depth_rel_error`` ({estimator: relative error}).
+        ``frame``, ``bp_px``, ``status``, ``scored``, ``dist_pp_px``, ``size_px``,
+        ``gt_curvature_per_mm``, ``errors_bp_deg`` and ``errors_footprint_deg`` ({estimator:
+        degrees or None}), and with depth ``depth_gt_mm`` and ``depth_rel_error``.
     """
     gt = truth.normals
     H, W = gt.shape[:2]
@@ -224,20 +181,13 @@ def score_highlights(frame_id: str, estimates, truth, camera: CameraModel) -> li
 
 
 def summarise(rows: list[dict], key: str = "errors_bp_deg") -> dict[str, dict]:
-    """Per-estimator statistics over the scored rows.
-
-    Parameters
-    ----------
-    rows : list of dict
-        From :func:`score_highlights`.
-    key : {"errors_bp_deg", "errors_footprint_deg"}
-        Which ground truth.
+    """Per-estimator statistics over the scored rows, for ``key`` ``"errors_bp_deg"`` or ``"errors_footprint_deg"``.
 
     Returns
     -------
     dict
         ``{name: {"n", "median_deg", "mean_deg", "p95_deg"}}`` (None statistics when n = 0),
-        estimators in a fixed order (``normal`` first when present, ``bp_ray`` last).
+        ``normal`` first, ``bp_ray`` last.
     """
     names = sorted({name for r in rows for name in r[key]}, key=lambda s: (s != "normal", s == "bp_ray", s))
     out = {}
@@ -254,17 +204,10 @@ def summarise(rows: list[dict], key: str = "errors_bp_deg") -> dict[str, dict]:
 def summarise_depth(rows: list[dict]) -> dict[str, dict]:
     """Per-estimator statistics of the depth's relative error over the scored rows.
 
-    Parameters
-    ----------
-    rows : list of dict
-        From :func:`score_highlights`.
-
     Returns
     -------
     dict
-        ``{name: {"n", "median_abs", "median", "p95_abs"}}``: the median absolute relative error,
-        the median signed one (the bias) and the 95th percentile of the absolute one (fractions,
-        not percent); ``normal`` (the recommended depth) first.
+        ``{name: {"n", "median_abs", "median", "p95_abs"}}`` (fractions); ``normal`` first.
     """
     names = sorted({name for r in rows for name in r.get("depth_rel_error", {})}, key=lambda s: (s != "normal", s))
     out = {}

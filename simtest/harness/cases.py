@@ -1,10 +1,8 @@
 """A suite's cases: the keys a case may set, the records a suite expands to, and their seeds.
 
-:class:`ReconKeys` and :class:`RenderedKeys` validate the keys of one case (frozen pydantic
-dataclasses: unknown keys refused, each range once with its reason); :class:`Case` and
-:class:`Sweep` are what :func:`simtest.harness.suite.suite_from_dict` expands a suite file to, with
-the typed settings a runner reads (:class:`Scoring`, :class:`MeshPose`, :class:`SceneSetting`,
-:func:`harness_recon_settings`); :func:`realisation_seed` seeds each realisation of a case.
+:class:`ReconKeys` and :class:`RenderedKeys` validate one case's keys; :class:`Case` and
+:class:`Sweep` are what :func:`simtest.harness.suite.suite_from_dict` expands a suite file to;
+:func:`realisation_seed` seeds each realisation.
 """
 
 from __future__ import annotations
@@ -30,8 +28,7 @@ __all__ = ["ReconKeys", "RenderedKeys", "RECON_KEYS", "RENDERED_KEYS", "MESH_POS
 
 #: A case's keys: frozen pydantic dataclasses, unknown keys refused.
 _model = functools.partial(pydantic_dataclass, frozen=True, config=CONFIG)
-#: An isovalue t, relative to the highlight's peak: inside (0, 1), as the isophote must be a closed
-#: curve strictly inside the highlight.
+#: An isovalue t, relative to the highlight's peak, inside (0, 1): a closed curve inside the highlight.
 _Isovalue = Annotated[Num, Field(gt=0.0, lt=1.0)]
 
 
@@ -40,8 +37,7 @@ class ReconKeys:
     """Reconstruction settings of a case, valid in both protocols (:func:`harness_recon_settings`)."""
 
     isovalue: _Isovalue = 0.1
-    joint_isovalues: list[_Isovalue] = Field(default_factory=lambda: [0.1, 0.2, 0.3, 0.4, 0.5],
-                                             min_length=2)
+    joint_isovalues: list[_Isovalue] = Field(default_factory=lambda: [0.1, 0.2, 0.3, 0.4, 0.5], min_length=2)
 
 
 @_model
@@ -63,48 +59,26 @@ class RenderedKeys(ReconKeys):
 #: Reconstruction settings, valid in both protocols, with their defaults.
 RECON_KEYS: dict[str, Any] = dataclasses.asdict(ReconKeys())
 #: Extra keys of the rendered protocol, with their defaults.
-RENDERED_KEYS: dict[str, Any] = {k: v for k, v in dataclasses.asdict(RenderedKeys()).items()
-                                 if k not in RECON_KEYS}
+RENDERED_KEYS: dict[str, Any] = {k: v for k, v in dataclasses.asdict(RenderedKeys()).items() if k not in RECON_KEYS}
 #: Keys of :class:`MeshPose` among :data:`RENDERED_KEYS`.
-MESH_POSE_KEYS = ("colon_station", "liver_azimuth_deg", "mesh_view_deg", "mesh_distance_mm",
-                   "liver_elevation_deg")
+MESH_POSE_KEYS = ("colon_station", "liver_azimuth_deg", "mesh_view_deg", "mesh_distance_mm", "liver_elevation_deg")
 
 
 def stable_hash(key: str) -> int:
-    """A 64-bit integer from a string, stable across processes and machines (SHA-256).
-
-    Python's ``hash()`` is salted per process, so it cannot seed anything reproducible.
-
-    Parameters
-    ----------
-    key : str
-        Any string (UTF-8 encoded).
-
-    Returns
-    -------
-    int
-        The first 8 bytes of its SHA-256, little-endian, in [0, 2**64).
+    """A 64-bit integer from a string, stable across processes (the first 8 bytes of its SHA-256,
+    little-endian); Python's ``hash()`` is salted per process.
     """
     return int.from_bytes(hashlib.sha256(key.encode("utf-8")).digest()[:8], "little")
 
 
 def realisation_seed(root_seed: int, case_key: str, index: int) -> np.random.SeedSequence:
-    """The seed of realisation ``index`` of a case.
-
-    Parameters
-    ----------
-    root_seed : int
-        Suite root seed (0 is valid).
-    case_key : str
-        :attr:`Case.key`.
-    index : int
-        Realisation index.
+    """The seed of realisation ``index`` of the case ``case_key`` (:attr:`Case.key`).
 
     Returns
     -------
     numpy.random.SeedSequence
-        ``SeedSequence([root_seed, stable_hash(case_key), index])``: independent of worker count
-        and of the suite the case appears in.
+        ``SeedSequence([root_seed, stable_hash(case_key), index])``: independent of worker count and
+        of the suite the case appears in.
     """
     return np.random.SeedSequence([int(root_seed), stable_hash(case_key), int(index)])
 
@@ -127,10 +101,10 @@ class Scoring:
 
 @dataclass(frozen=True)
 class MeshPose:
-    """Where a ``rendered`` case places its camera on a bundled mesh (the case's mesh-pose keys).
+    """Where a ``rendered`` case places its camera on a bundled mesh.
 
-    The colon is used when ``colon_station`` is set, the liver when ``liver_azimuth_deg`` is;
-    neither: the scene's own camera (:func:`simtest.harness.protocols.mesh_pose_overrides`).
+    The colon when ``colon_station`` is set, the liver when ``liver_azimuth_deg`` is; neither: the
+    scene's own camera (:func:`simtest.harness.protocols.mesh_pose_overrides`).
 
     Attributes
     ----------
@@ -165,22 +139,16 @@ class SceneSetting:
     Attributes
     ----------
     overrides : dict
-        Dotted scene overrides as the suite gives them (``"material.n"``, ...), sorted by key.
+        Dotted scene overrides as the suite gives them, sorted by key.
     radius_over_distance : float or None
-        Sphere or cylinder: its radius as a fraction of ``distance_mm``; the surface is then placed
-        ``distance_mm`` in front of the camera (:meth:`scene_overrides`).
+        Sphere or cylinder: its radius as a fraction of ``distance_mm``.
     distance_mm : float or None
-        Camera to the nearest surface point along the optical axis, mm (with
-        ``radius_over_distance``).
+        Camera to the nearest surface point along the optical axis, mm.
     mesh : MeshPose
         The camera's place on a bundled mesh, if any.
     texture : {"scene", "per_realisation"}
-        The procedural tissue's texture (albedo, vessels, micro-relief, film): the scene's
-        ``material.texture_seed`` in every realisation (``"scene"``, the default), or one drawn for
-        each realisation from its seed (``"per_realisation"``,
-        :class:`~simtest.harness.protocols.RenderedRunner`), so that a case's realisations sample
-        the tissue as well as the sensor's noise, and its statistics are not those of one
-        texture's accidents.
+        The tissue's ``material.texture_seed``: the scene's, or one drawn per realisation from its
+        seed, so that a case's statistics are not those of one texture's accidents.
     """
 
     overrides: dict
@@ -192,18 +160,14 @@ class SceneSetting:
     def scene_overrides(self, mesh_pose: Callable[[MeshPose], dict] | None = None) -> dict:
         """Every dotted override of the base scene, in the order they apply.
 
-        Parameters
-        ----------
-        mesh_pose : callable, optional
-            ``MeshPose -> overrides`` placing the camera on the mesh
-            (:func:`simtest.harness.protocols.mesh_pose_overrides`); called only when the case
-            is on a mesh.
+        ``mesh_pose`` (``MeshPose -> overrides``, :func:`simtest.harness.protocols.mesh_pose_overrides`) is
+        called only when the case is on a mesh.
 
         Returns
         -------
         dict
-            :attr:`overrides`, then ``geometry.radius_mm = r`` and ``geometry.center_mm = [0, 0,
-            d + r]`` (``r = radius_over_distance x distance_mm``) when set, then the mesh pose's.
+            :attr:`overrides`, then ``geometry.radius_mm = r`` and ``geometry.center_mm = [0, 0, d + r]``
+            (``r = radius_over_distance x distance_mm``) when set, then the mesh pose's.
         """
         over = dict(self.overrides)
         if self.radius_over_distance is not None:
@@ -221,10 +185,8 @@ def harness_recon_settings(protocol: str, isovalue: float, joint_isovalues) -> R
     Parameters
     ----------
     protocol : {"paper", "rendered"}
-        ``paper``: the known highlight of an image normalised to 1 at the BP (``reconstruct_roi``),
-        t relative to a full scale of 1, no smoothing. ``rendered``: every highlight detected at
-        0.7 of the full scale (``reconstruct``; the runner sets the full scale to each image's
-        maximum), t relative to the BP, no smoothing.
+        ``paper``: the known highlight, t relative to a full scale of 1; ``rendered``: every highlight
+        detected at 0.7 of the full scale, t relative to the BP. No smoothing in either.
     isovalue : float
         The primary isovalue t.
     joint_isovalues : iterable of float
@@ -238,15 +200,13 @@ def harness_recon_settings(protocol: str, isovalue: float, joint_isovalues) -> R
     Raises
     ------
     ValueError
-        If the isovalues are invalid (:class:`~simtest.reconstruct.settings.ReconSettings`).
+        If the isovalues are invalid.
     """
     t = float(isovalue)
     isovalues = (t,) + tuple(float(v) for v in joint_isovalues if float(v) != t)
     if protocol == "paper":
-        return ReconSettings(isovalues=isovalues, normalise="full_scale", full_scale=1.0,
-                             smooth_sigma_px=0.0)
-    return ReconSettings(isovalues=isovalues, normalise="bp", smooth_sigma_px=0.0,
-                         detection="full_scale")
+        return ReconSettings(isovalues=isovalues, normalise="full_scale", full_scale=1.0, smooth_sigma_px=0.0)
+    return ReconSettings(isovalues=isovalues, normalise="bp", smooth_sigma_px=0.0, detection="full_scale")
 
 
 @dataclass(frozen=True)
@@ -259,35 +219,26 @@ class Case:
         Stable identity of the setting (protocol, scene and resolved parameters as canonical JSON);
         it seeds the realisations, so the same setting gets the same numbers in any suite.
     id : str
-        ``<sweep>@<x>``: unique in the suite (a setting shared by two sweeps has one key, two ids).
+        ``<sweep>@<x>``: unique in the suite.
     suite, sweep : str
         Names of the suite and sweep that hold it.
     protocol : {"paper", "rendered"}
-        How a realisation is produced (:mod:`simtest.harness.protocols`).
     scene : str or None
-        Rendered: the base scene file (absolute path) it is built from.
+        Rendered: the base scene file (absolute path).
     scene_name : str or None
-        Rendered: the scene's name as written in the suite (bundled name or file name).
+        Rendered: the scene's name as written in the suite.
     params : dict
-        Resolved parameters: for ``paper`` every PaperParams field plus the reconstruction keys;
-        for ``rendered`` the scene overrides (dotted keys) plus the rendered and reconstruction keys.
+        The case as written, flat: resolved protocol parameters or scene overrides, plus the
+        reconstruction (and rendered) keys.
     x : float
-        The swept value (for plots), before ``display_scale``.
+        The swept value, before ``display_scale``.
     realisations : int
-        Number of realisations (independent seeds) of the case.
     recon : ReconSettings
-        The reconstruction settings (:func:`harness_recon_settings`), made and validated once.
+        The reconstruction settings (:func:`harness_recon_settings`).
     paper : PaperParams or None
-        ``paper``: the protocol's parameters; None for ``rendered``.
-    scene_setting : SceneSetting or None
-        ``rendered``: the changes to the base scene; None for ``paper``.
-    scoring : Scoring or None
-        ``rendered``: how a realisation is scored; None for ``paper``.
-
-    Notes
-    -----
-    ``params`` is the case as written (one flat table, the source of ``key`` and of the reports'
-    ``params``); the runners read the typed fields.
+        ``paper`` cases only.
+    scene_setting, scoring : SceneSetting or None, Scoring or None
+        ``rendered`` cases only.
     """
 
     key: str
@@ -319,9 +270,8 @@ class Sweep:
     Attributes
     ----------
     name : str
-        Sweep name, unique in the suite.
+        Unique in the suite.
     protocol : {"paper", "rendered"}
-        Protocol of its cases.
     parameter : str
         The swept parameter (a PaperParams field, a dotted scene key or a reconstruction key).
     label : str
@@ -329,11 +279,10 @@ class Sweep:
     display_scale : float
         Factor applied to ``Case.x`` in plots and tables.
     cases : tuple of Case
-        The expanded settings, in file order.
+        In file order.
     paper : dict or None
         The paper claim this sweep checks (``claim``, ``check``, ``value``, ...), if any.
     description : str
-        Free text.
     """
 
     name: str

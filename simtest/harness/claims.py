@@ -1,16 +1,8 @@
 """Claims a report checks against its results: the paper's figure 3, and our own predictions.
 
-Two kinds, both computed from a ``results.json`` document, never typed by hand:
-
-- per sweep, the checks of its ``[sweep.paper]`` table (:data:`PAPER_CHECKS`, evaluated by
-  :func:`evaluate_paper_claim`): what the paper's figure 3 states (``source = "paper"``), or a
-  prediction of ours tied to one sweep (``source = "prediction"``);
-- suite-wide predictions (:data:`CLAIMS`, evaluated by :func:`evaluate_claims`) over every case
-  they apply to: the BP ray is exact on co-located renders, the cone axis is the normal on
-  co-located planes, rho predicts the eigenvalue gap and the circle-pose error on curved patches.
-
-A claim that no case of the suite can decide is left out (a quick suite has no curved scene).
-The measured reasons behind alarming cells are in :mod:`simtest.harness.explain`.
+Per sweep, the checks of its ``[sweep.paper]`` table (:data:`PAPER_CHECKS`,
+:func:`evaluate_paper_claim`); suite-wide, the predictions of :data:`CLAIMS`
+(:func:`evaluate_claims`). A claim no case of the suite can decide is left out.
 """
 
 from __future__ import annotations
@@ -31,41 +23,30 @@ ALARM_DEG = 10.0
 #: Families of the rendered protocol whose geometry is an analytic quadric (exact curvature).
 ANALYTIC = ("plane", "sphere", "cylinder", "saddle")
 
-
-#: Fewest successes a statistic's interval is drawn or judged from (the p5 to p95 bars of the
-#: figures, the standard error behind "best"). Below 10, numpy's interpolated 5th and 95th
-#: percentiles lie within the two most extreme values: they show two samples, not a spread.
+#: Fewest successes a statistic's interval is drawn or judged from: below 10, the 5th and 95th
+#: percentiles lie within the two most extreme values.
 MIN_N_INTERVAL = 10
 
 #: Confidence of the interval a "best" mark must clear.
 BEST_LEVEL = 0.95
 
-# ------------------------------------------------------------------------------------------------
-# which estimator is best (only where the difference exceeds its confidence interval)
-
 
 def median_se(m: dict | None) -> float | None:
     """Standard error of a median error from its summary statistics (degrees).
 
-    The results keep ``p5``, ``p95`` and ``n_ok`` per estimator, not the errors. The median's
-    large-sample standard error is 1 / (2 f sqrt(n)) with f the density at the median; f is
-    taken as the mean density between the 5th and 95th percentiles, 0.9 / (p95 - p5). For a
-    unimodal distribution that density is at most the one at the median when the median lies
-    near the mode, so the error is overstated rather than understated: by 1.46 for a normal
-    distribution, 1.34 for a half-normal one (angle errors), 1.6 for an exponential one. A
-    mark that clears it is not noise.
+    The large-sample standard error 1 / (2 f sqrt(n)), with the density f at the median taken as the
+    mean density between the 5th and 95th percentiles, 0.9 / (p95 - p5): for a unimodal distribution
+    this overstates the error (by 1.34 for a half-normal one), so a mark that clears it is not noise.
 
     Parameters
     ----------
     m : dict or None
-        Statistics of :func:`simtest.harness.metrics.summarise` (``median``, ``p5``, ``p95``,
-        ``n_ok``).
+        Statistics of :func:`simtest.harness.metrics.summarise` (``median``, ``p5``, ``p95``, ``n_ok``).
 
     Returns
     -------
     float or None
-        None without a median or with fewer than :data:`MIN_N_INTERVAL` successes (too few
-        to judge a spread).
+        None without a median or with fewer than :data:`MIN_N_INTERVAL` successes.
     """
     if not m or m.get("median") is None or m.get("p5") is None or m.get("p95") is None:
         return None
@@ -79,13 +60,10 @@ def median_se(m: dict | None) -> float | None:
 def best_marks(stats: dict[str, dict | None], level: float = BEST_LEVEL) -> dict[str, str]:
     """Which estimator's median error is lowest beyond its confidence interval.
 
-    The lowest median ``a`` is *best* when, for every other estimator ``b`` with a median, the
-    difference ``median_b - median_a`` exceeds the half-width of its ``level`` interval,
-    t(level, min(n_a, n_b) - 1) * sqrt(se_a^2 + se_b^2) (:func:`median_se`; the two taken as
-    independent, which widens the interval when they share realisations and their errors
-    correlate). Otherwise the estimators within that interval of ``a`` tie with it; an
-    estimator whose standard error cannot be judged (fewer than :data:`MIN_N_INTERVAL`
-    successes) ties with every one.
+    The lowest median ``a`` is *best* when for every other estimator ``b`` the difference
+    ``median_b - median_a`` exceeds t(level, min(n_a, n_b) - 1) * sqrt(se_a^2 + se_b^2)
+    (:func:`median_se`); otherwise those within it tie with ``a``. An estimator whose standard error
+    cannot be judged ties with every one.
 
     Parameters
     ----------
@@ -97,9 +75,8 @@ def best_marks(stats: dict[str, dict | None], level: float = BEST_LEVEL) -> dict
     Returns
     -------
     dict of str to str
-        ``{a: "best"}`` for a clear winner; ``{a: "tie", b: "tie", ...}`` for the estimators
-        that cannot be told apart from the lowest; ``{}`` when every estimator with a median
-        ties (no mark tells the reader anything) or fewer than two have one.
+        ``{a: "best"}``, or ``{a: "tie", b: "tie", ...}``; ``{}`` when all tie or fewer than two
+        have a median.
     """
     meds = {e: float(m["median"]) for e, m in stats.items() if m and m.get("median") is not None}
     if len(meds) < 2:
@@ -123,45 +100,45 @@ def best_marks(stats: dict[str, dict | None], level: float = BEST_LEVEL) -> dict
     return {a: "best"} if len(group) == 1 else {e: "tie" for e in group}
 
 
-# ------------------------------------------------------------------------------------------------
-# the paper's stated figures (and sweep-level predictions)
-
-
 def _series(sweep_cases: list[dict], estimator: str, stat: str = "mean"):
     xy = [(c["x"], c["metrics"]["estimators"].get(estimator, {}).get(stat)) for c in sweep_cases]
     xy = np.asarray([p for p in xy if p[1] is not None], float).reshape(-1, 2)
     return xy[:, 0], xy[:, 1]
 
 
-def _chk_max_mean_below(cases, est, value):
-    x, y = _series(cases, est)
-    if not y.size:
-        return None, "no successful realisation"
+def _check(stat: str = "mean", least: int = 1):
+    """A sweep check ``f(x, y, value)`` on the series of ``stat``, undecided below ``least`` points."""
+    def wrap(f):
+        def run(cases, est, value):
+            x, y = _series(cases, est, stat)
+            if y.size < least:
+                return None, "no successful realisation" if least == 1 else f"fewer than {least} points"
+            return f(x, y, value)
+        return run
+    return wrap
+
+
+@_check()
+def _chk_max_mean_below(x, y, value):
     i = int(np.argmax(y))
     return bool(y[i] < value), f"largest mean {y[i]:.3g} deg (at x = {x[i]:g})"
 
 
-def _chk_max_max_below(cases, est, value):
-    x, y = _series(cases, est, "max")
-    if not y.size:
-        return None, "no successful realisation"
+@_check("max")
+def _chk_max_max_below(x, y, value):
     i = int(np.argmax(y))
     return bool(y[i] < value), f"largest single error {y[i]:.3g} deg (at x = {x[i]:g})"
 
 
-def _chk_slope_in_range(cases, est, value):
-    x, y = _series(cases, est)
-    if y.size < 2:
-        return None, "fewer than 2 points"
+@_check(least=2)
+def _chk_slope_in_range(x, y, value):
     slope = float(np.polyfit(x, y, 1)[0])
     lo, hi = value
     return bool(lo <= slope <= hi), f"least-squares slope of the mean {slope:.3g} deg per unit"
 
 
-def _chk_argmin_in_range(cases, est, value):
-    x, y = _series(cases, est)
-    if not y.size:
-        return None, "no successful realisation"
+@_check()
+def _chk_argmin_in_range(x, y, value):
     i = int(np.argmin(y))
     lo, hi = value
     interior = 0 < i < y.size - 1
@@ -169,10 +146,8 @@ def _chk_argmin_in_range(cases, est, value):
         f"smallest mean {y[i]:.3g} deg at x = {x[i]:g} ({'interior' if interior else 'at an end'})"
 
 
-def _chk_stable_up_to(cases, est, value):
-    x, y = _series(cases, est)
-    if not y.size:
-        return None, "no successful realisation"
+@_check()
+def _chk_stable_up_to(x, y, value):
     base = y[np.argmin(x)]
     sel = x <= value
     worst = float(np.max(y[sel]))
@@ -181,18 +156,14 @@ def _chk_stable_up_to(cases, est, value):
                                     f"deg for x <= {value:g} (stable: within max(0.25 deg, 50 %))")
 
 
-def _chk_increasing(cases, est, value):
-    x, y = _series(cases, est)
-    if y.size < 2:
-        return None, "fewer than 2 points"
+@_check(least=2)
+def _chk_increasing(x, y, value):
     rho = float(np.corrcoef(np.argsort(np.argsort(x)), np.argsort(np.argsort(y)))[0, 1])
     return bool(rho >= value), f"rank correlation of mean error with x {rho:.2f}"
 
 
-def _chk_spread_below(cases, est, value):
-    x, y = _series(cases, est)
-    if y.size < 2:
-        return None, "fewer than 2 points"
+@_check(least=2)
+def _chk_spread_below(x, y, value):
     lo, hi = int(np.argmin(y)), int(np.argmax(y))
     return bool(y[hi] - y[lo] < value), (f"mean from {y[lo]:.3g} deg (x = {x[lo]:g}) to "
                                          f"{y[hi]:.3g} deg (x = {x[hi]:g}): spread "
@@ -218,23 +189,22 @@ def evaluate_paper_claim(paper: dict, sweep_cases: list[dict]) -> list[dict]:
     Parameters
     ----------
     paper : dict
-        The sweep's ``paper`` table: ``check`` (a key of :data:`PAPER_CHECKS` or a list of them),
-        ``value`` (one per check; degrees for error bounds), optional ``estimator`` (default
-        ``"paper_oracle"``) and ``source`` (``"paper"``, the default, for the paper's figure 3;
-        ``"prediction"`` for one of ours).
+        ``check`` (a key of :data:`PAPER_CHECKS` or a list), ``value`` (one per check; degrees for
+        error bounds), optional ``estimator`` (default ``"paper_oracle"``) and ``source``
+        (``"paper"`` or ``"prediction"``).
     sweep_cases : list of dict
-        The sweep's case documents of ``results.json`` (with ``metrics``), in sweep order.
+        The sweep's case documents of ``results.json``, in sweep order.
 
     Returns
     -------
     list of dict
-        ``{"check", "value", "estimator", "source", "holds" (bool or None), "ours" (str)}`` per check;
-        empty if the table has no ``check``. ``holds`` is None when the metrics cannot decide.
+        ``{"check", "value", "estimator", "source", "holds", "ours"}`` per check (``holds`` None when
+        the metrics cannot decide); empty without ``check``.
 
     Raises
     ------
     KeyError
-        If a check name is not in :data:`PAPER_CHECKS` (suite validation refuses those first).
+        If a check name is not in :data:`PAPER_CHECKS`.
     """
     est = paper.get("estimator", "paper_oracle")
     out = []
@@ -249,10 +219,6 @@ def evaluate_paper_claim(paper: dict, sweep_cases: list[dict]) -> list[dict]:
         out.append({"check": chk, "value": val, "estimator": est,
                     "source": paper.get("source", "paper"), "holds": holds, "ours": ours})
     return out
-
-
-# ------------------------------------------------------------------------------------------------
-# suite-wide predictions
 
 
 def _stat(case: dict, est: str, key: str = "median"):
@@ -275,8 +241,7 @@ def _unique(cases: list[dict]) -> list[dict]:
 
 
 def _rendered(results: dict, colocated: bool = True) -> list[dict]:
-    return _unique([c for c in results["cases"]
-                    if c["protocol"] == "rendered" and c.get("colocated") is colocated])
+    return _unique([c for c in results["cases"] if c["protocol"] == "rendered" and c.get("colocated") is colocated])
 
 
 #: The qualifier a rig of lights adds to a family's surface (report.results._family).
@@ -284,8 +249,7 @@ _RIG_QUALIFIER = " under a light rig"
 
 
 def _base_family(c: dict) -> str:
-    """The surface a case's family names: ``"plane"`` for ``"plane, light offset"`` and for
-    ``"plane under a light rig, light offset"`` alike."""
+    """The surface a case's family names (``"plane"`` for ``"plane under a light rig, light offset"``)."""
     return c.get("family", "").split(",")[0].removesuffix(_RIG_QUALIFIER)
 
 
@@ -325,8 +289,7 @@ def _claim_cone_axis_plane(results):
         return None
     med = [_stat(c, "cone_axis") for c in cs]
     oracle = [_stat(c, "paper_oracle") for c in cs if _stat(c, "paper_oracle") is not None]
-    return (max(med) <= TOL.claim_cone_axis_plane_deg,
-            f"cone_axis median {_range(med)} deg over {len(cs)} cases"
+    return (max(med) <= TOL.claim_cone_axis_plane_deg, f"cone_axis median {_range(med)} deg over {len(cs)} cases"
             + (f" (paper_oracle {_range(oracle)} deg on the same cases)" if oracle else ""),
             f"co-located rendered planes, {_CLEAN}; bound {TOL.claim_cone_axis_plane_deg:g} deg")
 
@@ -343,8 +306,7 @@ def _claim_bp_ray_beats_cone_axis(results):
         fw = sum(1 for c in fc if c in wins)
         per.append(f"{fam} {fw} of {len(fc)} (bp_ray {_range([_stat(c, 'bp_ray') for c in fc])}"
                    f" deg, cone_axis {_range([_stat(c, 'cone_axis') for c in fc])} deg)")
-    return (len(wins) == len(cs),
-            f"bp_ray lower in {len(wins)} of {len(cs)} cases: " + "; ".join(per),
+    return (len(wins) == len(cs), f"bp_ray lower in {len(wins)} of {len(cs)} cases: " + "; ".join(per),
             "co-located rendered curved cases, case medians")
 
 
@@ -353,11 +315,7 @@ def _rho_cases(results):
 
 
 def _rho_claim(results, measured, predicted, bound, unit, what):
-    """Largest |measured - predicted| per curved family; the verdict on the analytic quadrics.
-
-    ``measured(case)`` and ``predicted(case)`` give the two values of a case (None where absent);
-    ``unit`` is appended to each value ("" or " deg"), ``what`` names the measured quantity.
-    """
+    """Largest |measured - predicted| per curved family; the verdict on the analytic quadrics."""
     cs = [c for c in _rho_cases(results) if measured(c) is not None
           and predicted(c) is not None and _base_family(c) != "plane"]
     if not cs:
@@ -404,10 +362,9 @@ def _offset_curved_cases(results):
 
 
 def _why_curved(c) -> str:
-    """The measured reason a curved case misses the bound: the recommendation against the BP ray,
-    the depth's observability by the curved fits (relative 1-sigma at the noise floor), and under
-    several lights how much the curvature changes between their specular points (what a
-    third-order patch must span)."""
+    """The measured reason a curved case misses the bound (BP ray, depth observability, curvature
+    change between the lights' specular points).
+    """
     parts = [f"bp_ray {_stat(c, 'bp_ray'):.3g} deg" if _stat(c, "bp_ray") is not None else ""]
     share = _diag(c, "recommended_bp_ray_share")
     if share is not None:
@@ -423,8 +380,7 @@ def _why_curved(c) -> str:
     ok = _diag(c, "cubic_patch_fit_ok_share")
     if ok is not None:
         mis = _diag(c, "cubic_patch_fit_misfit_share") or 0.0
-        parts.append(f"cubic_patch_fit ok on {100 * ok:.3g} % of highlights, its patch misfit "
-                     f"on {100 * mis:.3g} %")
+        parts.append(f"cubic_patch_fit ok on {100 * ok:.3g} % of highlights, its patch misfit on {100 * mis:.3g} %")
     dk, sep = _diag(c, "curvature_change_rel"), _diag(c, "specular_separation_mm")
     if dk is not None and sep is not None:
         parts.append(f"the principal curvatures change by {100 * dk:.3g} % between the lights' "
@@ -452,8 +408,7 @@ def _claim_curved_offset(results):
         fc = sorted((c for c in cs if c["family"] == fam), key=lambda c: _diag(c, "eps_over_d"))
         per.append(f"{fam}: " + ", ".join(f"{_stat(c, 'recommended'):.3g} deg at epsilon/d "
                                            f"{_diag(c, 'eps_over_d'):.2g}" for c in fc))
-    # the bound's own count, so that a one-light suite's spheres (held to the BP ray only) are
-    # not read as within it
+    # the bound's own count: a one-light suite's spheres are held to the BP ray only
     n_rig = sum(1 for c in cs if rig_analytic(c))
     text = (f"recommended median no worse than the BP ray's, and within {bound:g} deg on spheres and "
             f"cylinders under a light rig ({n_rig} of these cases), in {len(cs) - len(bad)} of {len(cs)} "
@@ -466,15 +421,12 @@ def _claim_curved_offset(results):
             f"(+-{_EPS_SLACK:g}, case means of eps_over_d), case medians; bound {bound:g} deg")
 
 
-#: The light offsets of the flat-mucosa claim: the band where two guides fix a plane's depth
-#: (the colonoscope's guides 4 mm off the lens at 20 mm are epsilon/d 0.2), the curved claims'
-#: two offsets and what lies between (with their slack).
+#: The light offsets of the flat-mucosa claim (with :data:`_EPS_SLACK`).
 FLAT_RIG_EPS = (0.1, 0.3)
 
 
 def _flat_rig_cases(results):
-    """The rendered plane cases under a light rig at epsilon/d :data:`FLAT_RIG_EPS` (+-
-    :data:`_EPS_SLACK`) with a recommended median."""
+    """The rendered plane cases under a light rig at epsilon/d :data:`FLAT_RIG_EPS` with a recommended median."""
     lo, hi = FLAT_RIG_EPS
     out = []
     for c in _rendered(results, colocated=False):
@@ -486,12 +438,9 @@ def _flat_rig_cases(results):
 
 
 def _claim_flat_rig(results):
-    """Issue 39's flat-mucosa must-hold: on each rendered plane case under a light rig at
-    epsilon/d 0.1 to 0.3, the recommended normal's median error is at most
-    ``TOL.claim_flat_rig_median_deg`` and the recommended depth's median error at most
-    ``TOL.claim_flat_rig_depth_pct`` (no depth misses it). Each median is shown with its standard
-    error (:func:`median_se`), so that a reader tells a miss from the spread of a few highlights;
-    the verdict is on the medians themselves. None where no such case was run."""
+    """Issue 39's flat-mucosa must-hold: per plane case under a rig, recommended normal and depth
+    medians within ``TOL.claim_flat_rig_*`` (shown with their standard errors).
+    """
     cs = sorted(_flat_rig_cases(results), key=lambda c: c["id"])
     if not cs:
         return None
@@ -519,9 +468,9 @@ def _claim_flat_rig(results):
 
 
 def _claim_flat_rig_end_to_end(results):
-    """Issue 63's flat-mucosa must-hold end to end (``TOL.claim_flat_rig_*``): the pooled share
-    of true highlights with a light-aware recommended normal, each case's median over ok; None
-    where no plane case under a rig with micro-relief below the bound ran."""
+    """Issue 63's flat-mucosa must-hold end to end: the pooled share of true highlights with a
+    light-aware recommended normal, and each case's median over ok.
+    """
     aware, bound = set(names("light_aware")), TOL.claim_flat_rig_median_deg
     rows = []  # (case, light-aware count, true highlights, median over ok)
     for c in sorted(_rendered(results, colocated=False), key=lambda c: c["id"]):
@@ -545,9 +494,7 @@ def _claim_flat_rig_end_to_end(results):
 
 
 def _counted(cases: list[dict], key: str) -> list[tuple[dict, float, int]]:
-    """``(case, share, n)`` for each case whose share diagnostic ``key`` has highlights: its mean
-    and its count (``key`` + :data:`~simtest.harness.metrics.COUNT_SUFFIX`), which a suite-wide
-    verdict pools by the counts."""
+    """``(case, share, n)`` for each case whose share diagnostic ``key`` has a count."""
     out = []
     for c in cases:
         share, n = _diag(c, key), _diag(c, key + COUNT_SUFFIX)
@@ -557,9 +504,9 @@ def _counted(cases: list[dict], key: str) -> list[tuple[dict, float, int]]:
 
 
 def _claim_sigma_coverage(results):
-    """Issue 39's coverage must-hold, pooled over a suite's rendered cases: the share of the
-    highlights with a stated sigma whose recommended normal errs by at most twice it (each case's
-    ``recommended_within_2sigma`` weighted by its count); None where no case states a sigma."""
+    """Issue 39's coverage must-hold: the pooled share of highlights whose recommended normal errs by
+    at most twice its stated sigma.
+    """
     rendered = _unique([c for c in results["cases"] if c["protocol"] == "rendered"])
     cs = _counted(rendered, "recommended_within_2sigma")
     stated = sum(n for _, _, n in cs)
@@ -577,14 +524,13 @@ def _claim_sigma_coverage(results):
         text += (f". Depths (not part of the verdict): share within twice their sigma "
                  f"{sum(share * n for _, share, n in ds) / with_depth:.3g} over {with_depth} "
                  "recommended depths with a stated sigma")
-    return (pooled >= bound, text,
-            f"rendered cases, pooled (each case's share weighted by its count); bound {bound:g}")
+    return (pooled >= bound, text, f"rendered cases, pooled (each case's share weighted by its count); bound {bound:g}")
 
 
 def _claim_never_beyond_bp_ray(results):
-    """Issue 39's per-highlight must-hold on curved surfaces: no recommended normal with a stated
-    sigma errs by more than the BP ray's error plus that sigma (each case's
-    ``recommended_beyond_bp_ray`` times its count); None where no curved case states a sigma."""
+    """Issue 39's per-highlight must-hold on curved surfaces: no recommended normal errs by more
+    than the BP ray's error plus its sigma.
+    """
     cs = _counted([c for c in _unique(_rendered(results, colocated=False))
                    if _base_family(c) not in ("plane", "")], "recommended_beyond_bp_ray")
     stated = sum(n for _, _, n in cs)
@@ -598,10 +544,9 @@ def _claim_never_beyond_bp_ray(results):
 
 
 def _claim_halves_bp_ray(results):
-    """Issue 39's two-guide must-hold: on curved cases under a rig of several lights whose depth
-    the third-order patch observes (its relative depth 1-sigma at the noise floor, the
-    Cramer-Rao bound's, at most ``TOL.depth_rel_sigma_max``), the recommended median is at most
-    half the BP ray's; None where no such case was run."""
+    """Issue 39's two-guide must-hold: where the cubic patch observes depth, the recommended median
+    is at most half the BP ray's.
+    """
     cs = []
     for c in _offset_curved_cases(results):
         rel = _diag(c, "cubic_patch_fit_depth_rel_sigma")
@@ -656,8 +601,7 @@ CLAIMS = {
         "On a rendered plane under a light rig (the endoscope's flat mucosa, every setting but a "
         "micro-relief the image does not resolve), end to end through simtest reconstruct, at "
         f"least {TOL.claim_flat_rig_light_aware_share:.0%} of the true highlights get a light-aware "
-        f"recommended normal, with a median error of at most {TOL.claim_flat_rig_median_deg:g} deg "
-        "(issue 63)",
+        f"recommended normal, with a median error of at most {TOL.claim_flat_rig_median_deg:g} deg (issue 63)",
         _claim_flat_rig_end_to_end),
     "sigma_coverage": (
         "The recommended normal's stated sigma covers its error: at least 90 % of the highlights "
@@ -669,8 +613,7 @@ CLAIMS = {
         _claim_never_beyond_bp_ray),
     "two_guides_halve_bp_ray": (
         "On rendered curved surfaces under two guides whose depth the third-order patch observes "
-        "(the Cramer-Rao bound at the noise floor), the recommended median is at most half the BP "
-        "ray's (issue 39)",
+        "(the Cramer-Rao bound at the noise floor), the recommended median is at most half the BP ray's (issue 39)",
         _claim_halves_bp_ray),
 }
 
@@ -678,18 +621,12 @@ CLAIMS = {
 def evaluate_claims(results: dict) -> list[dict]:
     """Verdicts of the paper's figure-3 claims and of our predictions on one results document.
 
-    Parameters
-    ----------
-    results : dict
-        A ``results.json`` document (``cases`` with ``family``, ``colocated`` and metrics;
-        ``sweeps`` with their ``comparison``).
-
     Returns
     -------
     list of dict
-        ``{"id", "source" ("paper" or "prediction"), "claim", "holds" (bool or None),
-        "measured", "scope"}``: first one per sweep check (in sweep order), then one per claim of
-        :data:`CLAIMS` that the suite's cases can decide.
+        ``{"id", "source" ("paper" or "prediction"), "claim", "holds" (bool or None), "measured",
+        "scope"}``: one per sweep check (in sweep order), then one per decidable claim of
+        :data:`CLAIMS`.
     """
     out = []
     for sw in results["sweeps"]:

@@ -1,12 +1,8 @@
-"""``simtest validate`` and ``simtest nightly`` (registered in :mod:`simtest.cli`).
+"""``simtest validate`` and ``simtest nightly`` (imported by :mod:`simtest.cli` only when they run).
 
-Imported by :mod:`simtest.cli` only when one of these commands runs (``simtest --help`` stays fast).
-
-Everything that can be checked before the suite runs is checked first, so that minutes of work
-never end in a usage error: the suite file and its bounds (:data:`simtest.harness.suite.
-MAX_TOTAL_REALISATIONS`), ``-n``, ``-j`` (at most ``os.cpu_count()`` workers), ``--run-id`` (one
-plain folder name), the output folder (:func:`simtest._outdir.check_out_folder`) and, for ``nightly``,
-the baseline (present, sound, covering the suite). Exit codes are :mod:`simtest._exit`'s.
+Everything that can be checked before the suite runs is checked first (suite and bounds, ``-n``,
+``-j``, ``--run-id``, output folder, baseline), so that minutes of work never end in a usage
+error. Exit codes are :mod:`simtest._exit`'s.
 """
 
 from __future__ import annotations
@@ -21,8 +17,7 @@ from rich.console import Console
 from rich.table import Table
 
 from simtest._dask import SchedulerError
-from simtest._exit import BAD_BASELINE, BAD_INPUT, CANNOT_WRITE, CHECK_FAILED, fail, safe_name, \
-    writable_dir
+from simtest._exit import BAD_BASELINE, BAD_INPUT, CANNOT_WRITE, CHECK_FAILED, fail, safe_name, writable_dir
 from simtest._io import OutputFolderError
 from simtest._outdir import check_out_folder
 from simtest.harness.nightly import (CAPS, append_history, changes_table, check_section, compare,
@@ -43,51 +38,23 @@ def _fmt(deg: float) -> str:
 
 
 def check_workers(workers: int | None) -> int | None:
-    """``workers`` if it is at most the machine's CPUs (``os.cpu_count()``), else exit 2.
-
-    Parameters
-    ----------
-    workers : int or None
-        ``-j/--workers`` (0 or None, the default: one per core).
-
-    Returns
-    -------
-    int or None
-        ``workers`` unchanged.
-
-    Raises
-    ------
-    typer.Exit
-        With exit code 2 and one line when ``workers`` exceeds ``os.cpu_count()`` (more
-        processes than cores only slow a run down and multiply its memory).
+    """``workers`` (``-j``; 0 or None: one per core) unchanged, or exit 2 with one line when it
+    exceeds ``os.cpu_count()``.
     """
     cpus = os.cpu_count() or 1
     if workers is not None and workers > cpus:
-        fail(f"-j/--workers: {workers} workers on a machine with {cpus} CPUs; use at most {cpus}",
-             BAD_INPUT)
+        fail(f"-j/--workers: {workers} workers on a machine with {cpus} CPUs; use at most {cpus}", BAD_INPUT)
     return workers
 
 
 def load_checked_suite(name: str, seed: int | None = None, realisations: int | None = None):
     """Load a suite with ``--seed`` / ``-n`` applied, or exit 2 with one line.
 
-    Parameters
-    ----------
-    name : str
-        Bundled suite name or path.
-    seed, realisations : int or None
-        Overrides (None keeps the suite's).
-
-    Returns
-    -------
-    simtest.harness.suite.Suite
-
     Raises
     ------
     typer.Exit
-        With exit code 2 on a bad suite, or when ``-n`` times the suite's distinct settings
-        exceeds :data:`simtest.harness.suite.MAX_TOTAL_REALISATIONS` (checked before anything
-        is allocated).
+        With exit code 2 on a bad suite, or when ``-n`` times the suite's distinct settings exceeds
+        :data:`simtest.harness.suite.MAX_TOTAL_REALISATIONS`.
     """
     try:
         s = load_suite(name)
@@ -116,14 +83,15 @@ def _run(s, *, workers, progress, console, scheduler):
 #: ``--scheduler``, as ``dataset generate`` has it.
 SCHEDULER_HELP = ("Address of a Dask scheduler (tcp://HOST:8786) whose workers run the "
                   "realisations instead of local processes (needs the dask extra); same results.")
+WORKERS_HELP = "Worker processes (0, the default: one per core; 1: in process; at most the machine's CPUs)."
+OUT_HELP = "Reports root folder; the run goes to OUT/<suite>/<run id>/."
 
 
 def _counts(s) -> str:
     """The one count of a suite used by the header, the progress bar and the report."""
     n, d = len(s.cases), len(s.distinct_cases)
     shared = "" if n == d else (f" ({n - d} shared by several sweeps run once)")
-    return (f"{len(s.sweeps)} sweeps, {n} cases = {d} distinct settings{shared}, "
-            f"{s.total_realisations} realisations")
+    return (f"{len(s.sweeps)} sweeps, {n} cases = {d} distinct settings{shared}, {s.total_realisations} realisations")
 
 
 def _write(results: dict, folder: Path, **kw) -> Path:
@@ -137,8 +105,7 @@ def _write(results: dict, folder: Path, **kw) -> Path:
 
 
 def _json_safe(doc):
-    """``doc`` with every NaN or infinite float as None (JSON has no NaN): the nightly gate has
-    judged the original and named those metrics (INVALID), the report and history keep nulls."""
+    """``doc`` with every NaN or infinite float as None (the gate judged the original)."""
     if isinstance(doc, dict):
         return {k: _json_safe(v) for k, v in doc.items()}
     if isinstance(doc, list):
@@ -147,8 +114,9 @@ def _json_safe(doc):
 
 
 def _summary(results: dict, console) -> None:
-    """The console table: one column per estimator where that fits the console's width, else
-    one row per sweep and estimator (a log file or CI at 80 columns: no name broken mid-word)."""
+    """The console table: one column per estimator where that fits the console's width, else one row
+    per sweep and estimator.
+    """
     ests = results["suite"]["estimators"]
     cases = {c["id"]: c for c in results["cases"]}
     cells = {}
@@ -157,8 +125,7 @@ def _summary(results: dict, console) -> None:
             ms = [cases[k]["metrics"]["estimators"][e] for k in sw["cases"]]
             meds = [m["median"] for m in ms if m["median"] is not None]
             fr = max(m["failure_rate"] for m in ms)
-            cell = "-" if not meds else (f"{_fmt(min(meds))} to {_fmt(max(meds))}"
-                                         if len(meds) > 1 else _fmt(meds[0]))
+            cell = "-" if not meds else (f"{_fmt(min(meds))} to {_fmt(max(meds))}" if len(meds) > 1 else _fmt(meds[0]))
             cells[sw["name"], e] = cell + (f" [red]({fr:.0%})[/]" if fr > 0 else "")
     title = (f"{results['suite']['name']}: median error (deg) per setting, lowest to highest over "
              "the sweep's settings, as in the report; (worst failure rate)")
@@ -176,20 +143,16 @@ def _summary(results: dict, console) -> None:
         t.add_column("median error (deg)", justify="right", overflow="fold")
         for sw in results["sweeps"]:
             for k, e in enumerate(ests):
-                t.add_row(sw["name"] if k == 0 else "", e, cells[sw["name"], e],
-                          end_section=k == len(ests) - 1)
+                t.add_row(sw["name"] if k == 0 else "", e, cells[sw["name"], e], end_section=k == len(ests) - 1)
     console.print(t)
 
 
 def validate_command(
     suite: str = typer.Argument("default", help="Bundled suite name (scenes/suites/<name>.toml) "
                                                 "or a path to a suite TOML file."),
-    workers: Optional[int] = typer.Option(None, "--workers", "-j", min=0, show_default=False,
-                                          help="Worker processes (0, the default: one per core; "
-                                               "1: in process; at most the machine's CPUs)."),
+    workers: Optional[int] = typer.Option(None, "--workers", "-j", min=0, show_default=False, help=WORKERS_HELP),
     seed: Optional[int] = typer.Option(None, "--seed", min=0, help="Root seed (default: the suite's)."),
-    out: Path = typer.Option(Path("reports"), "--out", "-o",
-                             help="Reports root folder; the run goes to OUT/<suite>/<run id>/."),
+    out: Path = typer.Option(Path("reports"), "--out", "-o", help=OUT_HELP),
     realisations: Optional[int] = typer.Option(
         None, "--realisations", "-n", min=1,
         help=f"Realisations per case (default: the suite's; at most "
@@ -210,17 +173,14 @@ def validate_command(
     the paper's synthetic protocol).
 
     Writes OUT/<suite>/<run id>/: results.json (every statistic), results.csv (one row per case
-    and estimator), report.md, report.html (self-contained) and figures/*.png, replaced as a set
-    (a run id used before is replaced whole, never mixed).
+    and estimator), report.md, report.html (self-contained) and figures/*.png, replaced as a set.
 
-    Counts: a case is one setting of one sweep; a setting shared by two sweeps is two cases but
-    runs once (one distinct setting), and the realisations counted are those that run. The
-    console table shows the median error per setting, the statistic of the report.
+    A setting shared by two sweeps is two cases but runs once. The console table shows the median
+    error per setting.
 
-    Exit codes: 0 done; 2 bad usage or suite (checked before running); 4 OUT cannot be written
-    (checked before running); 130 interrupted.
+    Exit codes: 0 done; 2 bad usage or suite; 4 OUT cannot be written (both checked before
+    running); 130 interrupted.
     """
-
     console = Console(stderr=True)
     workers = check_workers(workers) or None  # 0 and None: one per core
     s = load_checked_suite(suite, seed, realisations)
@@ -239,8 +199,7 @@ def validate_command(
     show = Console(soft_wrap=True)  # results on stdout (progress and errors on stderr)
     _summary(results, show)
     for k, v in results["provenance"]["realisations_per_s"].items():
-        show.print(f"{k}: {v['realisations']} realisations, {v['per_s']} realisations/s "
-                   f"with {run.workers} worker(s)")
+        show.print(f"{k}: {v['realisations']} realisations, {v['per_s']} realisations/s with {run.workers} worker(s)")
     show.print(f"wall time {run.wall_s:.1f} s; report: {folder / 'report.html'}")
 
 
@@ -283,11 +242,8 @@ def nightly_command(
                                             "reports/baseline.json)."),
     history: Optional[Path] = typer.Option(None, "--history", help="History file, one JSON line per run "
                                            "(default: OUT/<suite>/history.jsonl)."),
-    workers: Optional[int] = typer.Option(None, "--workers", "-j", min=0, show_default=False,
-                                          help="Worker processes (0, the default: one per core; "
-                                               "1: in process; at most the machine's CPUs)."),
-    out: Path = typer.Option(Path("reports"), "--out", "-o",
-                             help="Reports root folder; the run goes to OUT/<suite>/<run id>/."),
+    workers: Optional[int] = typer.Option(None, "--workers", "-j", min=0, show_default=False, help=WORKERS_HELP),
+    out: Path = typer.Option(Path("reports"), "--out", "-o", help=OUT_HELP),
     run_id: Optional[str] = typer.Option(None, "--run-id", help="Run folder name, one plain name "
                                          "(default: <UTC time>-local)."),
     suite: Optional[str] = typer.Option(None, "--suite", help="Another suite (name or path)."),
@@ -298,22 +254,18 @@ def nightly_command(
     """Run the nightly (or --quick) suite and gate it against the committed baseline.
 
     Each metric may grow by its tolerance: its measured seed spread plus a relative floor, capped
-    at 0.4 deg on every family median (each estimator's headline metrics), 10 deg on the case
-    medians and 0.1 on rates (simtest.harness.nightly).
+    at 0.4 deg on family medians, 10 deg on case medians and 0.1 on rates.
 
     Writes OUT/<suite>/<run id>/ (results.json, results.csv, report.md, report.html with the
-    gate's verdict, figures/*.png, replaced as a set) and appends one line to
-    OUT/<suite>/history.jsonl (or --history). With --update-baseline: the same report of the
-    first repeat, and the suite's section of the baseline file (--baseline, replaced
-    atomically); no history line.
+    gate's verdict, figures/*.png) and appends one line to OUT/<suite>/history.jsonl (or
+    --history). With --update-baseline: the report of the first repeat and the suite's section of
+    the baseline file (--baseline); no history line.
 
     Exit codes: 0 no regression; 1 a regression: a metric grew beyond its tolerance, or is NaN,
-    infinite or missing in this run (each named); 2 bad usage (flag, suite, run id); 3 the
-    baseline is unusable: missing, malformed, or not covering this run's metrics (a metric
-    absent, null, non-finite, or with a tolerance above its cap), named in one line; 4 OUT, the
-    history or the baseline cannot be written (checked before running); 130 interrupted.
+    infinite or missing (each named); 2 bad usage (flag, suite, run id); 3 the baseline is
+    unusable: missing, malformed, or not covering this run's metrics; 4 OUT, the history or the
+    baseline cannot be written (checked before running); 130 interrupted.
     """
-
     console = Console(stderr=True)
     name = suite or ("quick" if quick else "nightly")
     path = baseline or default_baseline_path()

@@ -1,14 +1,11 @@
 """``simtest crb``: the photometric fit against its Cramer-Rao bound, versus epsilon/d and noise.
 
-Analytic planes (exact Phong images of :mod:`simtest.simulate.offset`, no renderer): a plane at
+Analytic planes (exact Phong images of :mod:`simtest.simulate.offset`): a plane at
 ``distance_mm`` tilted ``tilt_deg``, one inverse-square light ``epsilon/d x distance`` mm off the
-camera along x, Phong n = 60, f = 200 px, a 65 x 65 px ROI around the specular point, a constant
-background of 0.1, and white Gaussian noise of standard deviation sigma (fraction of the lobe's
-peak). For each (epsilon/d, sigma): the bound on the normal (RMS angle, deg) and on the depth
-(relative) from :func:`simtest.reconstruct.lightaware.photometric_crb`, and the RMS errors the
-photometric fit achieves over seeded realisations (``SeedSequence([seed, i, j, k])``). Writes
-``crb.json`` and ``crb.png`` (bound as lines, achieved as markers) into the output folder
-(default ``reports/crb`` under the current folder), replaced as a pair.
+camera along x, Phong n = 60, f = 200 px, a 65 x 65 px ROI, background 0.1 and white Gaussian
+noise sigma (fraction of the lobe's peak). Per (epsilon/d, sigma): the bounds of
+:func:`simtest.reconstruct.lightaware.photometric_crb` on the normal (RMS deg) and depth
+(relative), and the photometric fit's RMS errors over seeded realisations.
 """
 
 from __future__ import annotations
@@ -38,9 +35,7 @@ __all__ = ["crb_command", "crb_study", "plot_crb", "MAX_REALISATIONS"]
 ROUGHNESS = 60.0
 BACKGROUND = 0.1
 HALF_ROI = 32
-#: Most noisy images per setting: a fit takes about 45 ms on the 2-core VM (measured, warm), so
-#: 15 settings x 10 000 fits are about two hours on one core; the study keeps only RMS values,
-#: so time, not memory, is the limit.
+#: Most noisy images per setting (time, not memory, is the limit: about two hours on one core).
 MAX_REALISATIONS = 10_000
 #: What ``simtest crb`` writes in its output folder (and all that may be there: it is replaced).
 CRB_FILES = ("crb.json", "crb.png")
@@ -69,11 +64,10 @@ def crb_study(eps_over_d=(0.05, 0.1, 0.2, 0.3, 0.5), sigmas=(0.002, 0.005, 0.01)
     eps_over_d : sequence of float
         Light offsets over the plane distance.
     sigmas : sequence of float
-        Noise standard deviations, fraction of the lobe's peak (about 1).
+        Noise standard deviations, fraction of the lobe's peak.
     realisations : int
-        Noisy images per setting.
+        Noisy images per setting, seeded ``SeedSequence([seed, i, j, k])``.
     seed : int
-        Root seed.
     distance_mm, tilt_deg : float
         The plane.
 
@@ -81,8 +75,7 @@ def crb_study(eps_over_d=(0.05, 0.1, 0.2, 0.3, 0.5), sigmas=(0.002, 0.005, 0.01)
     -------
     list of dict
         One per (epsilon/d, sigma): ``eps_over_d``, ``sigma``, ``crb_normal_deg``,
-        ``crb_depth_pct``, ``rms_normal_deg``, ``rms_depth_pct``, ``n_depth`` (realisations
-        with a depth), ``n``.
+        ``crb_depth_pct``, ``rms_normal_deg``, ``rms_depth_pct``, ``n_depth``, ``n``.
     """
     rows = []
     for i, e in enumerate(eps_over_d):
@@ -111,18 +104,8 @@ def crb_study(eps_over_d=(0.05, 0.1, 0.2, 0.3, 0.5), sigmas=(0.002, 0.005, 0.01)
 
 
 def plot_crb(rows: list[dict], path) -> Path:
-    """Figure: bound (lines) and achieved RMS (markers) against epsilon/d, one colour per sigma.
-
-    Parameters
-    ----------
-    rows : list of dict
-        From :func:`crb_study`.
-    path : str or Path
-        PNG file (written to a temporary name, then renamed).
-
-    Returns
-    -------
-    Path
+    """Write the figure to ``path`` (atomically): bound (lines) and achieved RMS (markers) of
+    :func:`crb_study`'s ``rows`` against epsilon/d, one colour per sigma.
     """
     path = Path(path)
     fig, axes = plt.subplots(1, 2, figsize=(10, 4), constrained_layout=True)
@@ -132,8 +115,7 @@ def plot_crb(rows: list[dict], path) -> Path:
         colour = f"C{k}"
         for ax, bound, got in ((axes[0], "crb_normal_deg", "rms_normal_deg"),
                                (axes[1], "crb_depth_pct", "rms_depth_pct")):
-            ax.plot(x, [r[bound] for r in rs], "-", color=colour,
-                    label=f"bound, sigma {100 * sigma:g} %")
+            ax.plot(x, [r[bound] for r in rs], "-", color=colour, label=f"bound, sigma {100 * sigma:g} %")
             ax.plot(x, [np.nan if r[got] is None else r[got] for r in rs], "o", color=colour,
                     label=f"photometric_fit, sigma {100 * sigma:g} %")
     axes[0].set_ylabel("normal error, RMS (deg)")
@@ -152,11 +134,9 @@ def plot_crb(rows: list[dict], path) -> Path:
 
 def crb_command(
     out: Path = typer.Option(Path("reports/crb"), "--out", "-o",
-                             help="Output folder (default: reports/crb under the current "
-                                  "folder)."),
+                             help="Output folder (default: reports/crb under the current folder)."),
     realisations: int = typer.Option(20, "--realisations", "-n", min=2,
-                                      help=f"Noisy images per setting (at most "
-                                           f"{MAX_REALISATIONS:,})."),
+                                      help=f"Noisy images per setting (at most {MAX_REALISATIONS:,})."),
     seed: int = typer.Option(0, "--seed", min=0, help="Root seed."),
 ) -> None:
     """The photometric fit against its Cramer-Rao bound, on analytic planes.

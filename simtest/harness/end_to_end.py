@@ -1,14 +1,9 @@
 """End-to-end records: what ``simtest render`` then ``simtest reconstruct`` give a user.
 
-A rendered realisation's frame (``frame.png``'s array) and camera file (``camera.json``: the camera
-model, the light rig and the sensor's response, written and read back as the command line does)
-go through :func:`simtest.reconstruct.cli.reconstruct_single`, the call behind ``simtest
-reconstruct IMAGE`` with its defaults. Each in-frame ground-truth highlight gets a record: matched
-to the nearest detection (any status) within :data:`~simtest.harness.metrics.MATCH_PX`, that
-detection's status, what its recommended normal came from (``normal_from``: the fit, or
-``bp_ray`` where it fell back), the recommended normal's error (deg) and depth error (%). A frame
-also counts its false "ok": ok detections farther than ``MATCH_PX`` from every true highlight
-(macro and micro-relief). :func:`simtest.harness.metrics.summarise_records` makes the figures.
+A rendered frame and its camera file, written and read back as the command line does, go through
+:func:`simtest.reconstruct.cli.reconstruct_single` with its defaults; each in-frame true highlight
+is matched to the nearest detection (any status) within :data:`~simtest.harness.metrics.MATCH_PX`.
+:func:`simtest.harness.metrics.summarise_records` makes the figures.
 """
 
 from __future__ import annotations
@@ -27,9 +22,9 @@ from simtest.reconstruct.cli import reconstruct_single
 
 __all__ = ["user_camera_file", "frame_records"]
 
+
 def user_camera_file(result):
-    """The camera file ``simtest render`` writes for ``result``, read back as ``simtest reconstruct``
-    reads it (:func:`~simtest.geometry.camera_file.save_camera`, then ``load_camera``)."""
+    """The camera file ``simtest render`` writes for ``result``, read back as ``simtest reconstruct`` does."""
     response = video_response(result.spec.sensor) if result.video is not None else None
     with tempfile.TemporaryDirectory() as d:
         path = save_camera(Path(d) / "camera.json", result.camera_model, result.light_rig, response)
@@ -37,11 +32,13 @@ def user_camera_file(result):
 
 
 def frame_records(result, depth_errors) -> list[dict]:
-    """The end-to-end records of a render (``RenderResult``), one per in-frame highlight: ``detected``,
-    ``distance_px``, ``status`` (``not_detected`` where none matched), ``normal_from``,
-    ``error_deg``, ``depth_err_pct`` (``depth_errors(estimate, highlight, rig)``'s
-    ``recommended_depth_err_pct``; NaN where none); the first holds the frame's ``frame_false_ok``.
-    A frame without an in-frame highlight gives one record, ``truth`` False, with that count.
+    """The end-to-end records of a render, one per in-frame highlight.
+
+    Each holds ``truth``, ``detected``, ``distance_px``, ``status`` (``not_detected`` where none
+    matched), ``normal_from``, ``error_deg`` and ``depth_err_pct`` (``depth_errors(estimate,
+    highlight, rig)["recommended_depth_err_pct"]``); the first also ``frame_false_ok``, the ok
+    detections farther than ``MATCH_PX`` from every true highlight. A frame without an in-frame
+    highlight gives one record with ``truth`` False.
     """
     cam = user_camera_file(result)
     ests, _ = reconstruct_single(np.asarray(result.frame), cam)

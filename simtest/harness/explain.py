@@ -78,29 +78,21 @@ def _explain_rendered(results, family, est):
 def explanations(results: dict) -> list[dict]:
     """The measured reason behind each alarming family x estimator cell, where a rule applies.
 
-    Parameters
-    ----------
-    results : dict
-        A ``results.json`` document with ``families``.
-
     Returns
     -------
     list of dict
         ``{"family", "estimator", "median", "text"}`` for every cell whose pooled median exceeds
-        :data:`ALARM_DEG`, and for the paper protocol's oracle at theta = 0 when it exceeds
-        :data:`THETA0_FACTOR` times its family median; ``text`` is None where no rule explains
-        it (the report says so).
+        :data:`ALARM_DEG`, and for the paper oracle at theta = 0 when it exceeds
+        :data:`THETA0_FACTOR` times its family median; ``text`` None where no rule applies.
     """
     out = []
     for fam, f in results.get("families", {}).items():
         for est, m in f["estimators"].items():
             if m.get("median") is None or m["median"] <= ALARM_DEG:
                 continue
-            text = (_explain_paper(results, est) if f["protocol"] == "paper"
-                    else _explain_rendered(results, fam, est))
+            text = (_explain_paper(results, est) if f["protocol"] == "paper" else _explain_rendered(results, fam, est))
             out.append({"family": fam, "estimator": est, "median": m["median"], "text": text})
-    # The paper protocol's fronto-parallel breakdown: the oracle's error at theta = 0 stands out
-    # of its family (THETA0_FACTOR x the family median) even when it stays below ALARM_DEG.
+    # the fronto-parallel breakdown stands out of its family even below ALARM_DEG
     fam = results.get("families", {}).get("paper protocol", {})
     fmed = (fam.get("estimators", {}).get("paper_oracle") or {}).get("median")
     z = [c for c in _paper_theta_cases(results) if c["params"]["theta_deg"] == 0

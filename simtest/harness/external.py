@@ -1,33 +1,19 @@
 """A researcher's own method on the suites, beside the built-in estimators.
 
-An external estimator is one Python function, named ``package.module:function`` (importable where
-the suite runs: in every worker process, on every Dask worker), that sees what a user of
-``simtest reconstruct`` has and returns its highlights as a table:
+An external estimator is one function, ``package.module:function`` (importable in every worker),
+called as ``function(frame, camera, rig, response) -> mapping``:
 
-``function(frame, camera, rig, response) -> mapping``
+- ``frame``: ndarray of shape (H, W) or (H, W, 3), the image the built-in estimators reconstruct
+  (rendered: the sensor image or video frame; ``paper``: float32 normalised to 1 at the BP);
+- ``camera``: :class:`simtest.geometry.cameras.CameraModel` (OpenCV camera frame);
+- ``rig``: :class:`simtest.geometry.lights.LightRig` (mm, camera frame), None on a ``paper`` case;
+- ``response``: :class:`simtest.geometry.response.SensorResponse` of ``frame``, None if linear.
 
-- ``frame``: ndarray of shape (H, W) or (H, W, 3), the image of the realisation, the one the
-  built-in estimators reconstruct (a rendered case: its sensor image, uint8 or uint16, or the 8-bit
-  video frame where the case's light-aware fits run on it; a ``paper`` case: the synthetic image,
-  float32 normalised to 1 at the BP, 0 outside the region of interest);
-- ``camera``: :class:`simtest.geometry.cameras.CameraModel`, pixels to viewing rays (OpenCV
-  camera frame: x right, y down, z forward; pixel centres at integer (u, v));
-- ``rig``: :class:`simtest.geometry.lights.LightRig` (positions in mm, camera frame), or None on a
-  ``paper`` case (the light is at the camera centre);
-- ``response``: :class:`simtest.geometry.response.SensorResponse` of ``frame``, or None where the
-  frame is linear.
-
-It returns a mapping of per-highlight columns, N rows (N may be 0):
-
-- ``"bp_px"``: array of shape (N, 2), each highlight's brightest point (u, v), px;
-- ``"normal"``: array of shape (N, 3), the surface normal there, camera frame, facing the camera
-  (its length does not matter; a row of NaN is a highlight without an answer);
-- optional ``"depth_mm"`` (N,) and ``"sigma_deg"`` (N,), kept for the user's own analysis.
-
-Each ground-truth highlight is matched to the nearest returned BP within the case's ``match_px``
-(the built-in estimators' rule); unmatched, it fails with ``not_detected``. The error is the
-angle to the true normal, as for every estimator. An exception or a malformed table fails the
-realisation with ``exception:<type>`` and its message is kept in the report.
+It returns N rows (N may be 0): ``"bp_px"`` of shape (N, 2), each highlight's BP (u, v) px;
+``"normal"`` of shape (N, 3), camera frame, facing the camera (a row of NaN: no answer);
+optional ``"depth_mm"`` and ``"sigma_deg"`` (N,). Each true highlight is matched to the nearest
+returned BP within ``match_px``, else it fails with ``not_detected``; an exception or malformed
+table fails the realisation with ``exception:<type>``.
 """
 
 from __future__ import annotations
@@ -55,16 +41,6 @@ class ExternalError(ValueError):
 def load_external(spec: str) -> Callable:
     """Import the function of ``spec`` (``[name=]package.module:function``).
 
-    Parameters
-    ----------
-    spec : str
-        Where the function lives; an optional ``name=`` prefix names its column.
-
-    Returns
-    -------
-    callable
-        The function.
-
     Raises
     ------
     ExternalError
@@ -78,8 +54,7 @@ def load_external(spec: str) -> Callable:
     try:
         module = importlib.import_module(m["module"])
     except Exception as exc:  # noqa: BLE001 - any import failure of a user's module is one line
-        raise ExternalError(f"--estimator {spec!r}: cannot import {m['module']}: "
-                            f"{type(exc).__name__}: {exc}") from None
+        raise ExternalError(f"--estimator {spec!r}: cannot import {m['module']}: {type(exc).__name__}: {exc}") from None
     fn = getattr(module, m["func"], None)
     if not callable(fn):
         raise ExternalError(f"--estimator {spec!r}: {m['module']} has no function {m['func']!r}")
@@ -87,14 +62,7 @@ def load_external(spec: str) -> Callable:
 
 
 def external_estimators(specs: Sequence[str], taken: Sequence[str]) -> tuple[tuple[str, str], ...]:
-    """Each spec's column name and spec, checked (importable, named once, no built-in's name).
-
-    Parameters
-    ----------
-    specs : sequence of str
-        ``[name=]package.module:function`` each; the name defaults to the function's.
-    taken : sequence of str
-        The names already scored (the suite's estimators).
+    """Each spec's column name (default the function's) and spec, checked against the ``taken`` names.
 
     Returns
     -------
@@ -125,27 +93,24 @@ def _table(out, spec: str) -> tuple[np.ndarray, np.ndarray]:
     if not isinstance(out, Mapping) or "bp_px" not in out or "normal" not in out:
         raise ExternalError(f"{spec}: expected a mapping with 'bp_px' (N, 2) and 'normal' (N, 3), "
                             f"got {type(out).__name__}")
-    bp = np.asarray(out["bp_px"], dtype=np.float64).reshape(-1, 2) if np.size(out["bp_px"]) else \
-        np.zeros((0, 2))
-    n = np.asarray(out["normal"], dtype=np.float64).reshape(-1, 3) if np.size(out["normal"]) else \
-        np.zeros((0, 3))
+    bp = np.asarray(out["bp_px"], dtype=np.float64).reshape(-1, 2) if np.size(out["bp_px"]) else np.zeros((0, 2))
+    n = np.asarray(out["normal"], dtype=np.float64).reshape(-1, 3) if np.size(out["normal"]) else np.zeros((0, 3))
     if len(bp) != len(n):
         raise ExternalError(f"{spec}: 'bp_px' has {len(bp)} rows and 'normal' {len(n)}")
     return bp, n
 
 
-def score_external(spec: str, frame, camera, rig, response, truths: Sequence,
-                   match_px: float) -> list[tuple[float, str | None]]:
+def score_external(spec: str, frame, camera, rig, response, truths: Sequence, match_px: float) -> list[tuple[float, str | None]]:
     """Run one external estimator on a frame and score it on the true highlights.
 
     Parameters
     ----------
     spec : str
-        ``[name=]package.module:function`` (:func:`load_external`).
+        ``[name=]package.module:function``.
     frame, camera, rig, response
         The protocol's inputs (module docstring).
     truths : sequence of (bp_px, normal)
-        Each scored true highlight: its BP (u, v), px, and its unit normal, camera frame.
+        Each true highlight's BP (u, v), px, and unit normal, camera frame.
     match_px : float
         The largest BP distance of a match, px.
 
@@ -158,7 +123,7 @@ def score_external(spec: str, frame, camera, rig, response, truths: Sequence,
     Raises
     ------
     ExternalError
-        A malformed answer (counted by the runner as that realisation's exception).
+        A malformed answer.
     """
     bp, normals = _table(load_external(spec)(frame, camera, rig, response), spec)
     out: list[tuple[float, str | None]] = []
@@ -178,25 +143,8 @@ def score_external(spec: str, frame, camera, rig, response, truths: Sequence,
 
 
 def with_external(suite, specs):
-    """A copy of ``suite`` that also scores the external estimators ``specs``.
-
-    Parameters
-    ----------
-    suite : simtest.harness.suite.Suite
-        A loaded suite.
-    specs : sequence of str
-        ``[name=]package.module:function`` each.
-
-    Returns
-    -------
-    simtest.harness.suite.Suite
-        The same cases; ``estimators`` and ``external`` extended (``external`` survives
-        :meth:`~simtest.harness.suite.Suite.with_overrides`).
-
-    Raises
-    ------
-    ExternalError
-        A spec that does not import, or a name already scored.
+    """A copy of ``suite`` that also scores the external estimators ``specs`` (extending
+    ``estimators`` and ``external``); raises ExternalError as :func:`external_estimators`.
     """
     ext = external_estimators(list(specs), suite.estimators)
     return dataclasses.replace(suite, estimators=suite.estimators + tuple(n for n, _ in ext),

@@ -1,13 +1,9 @@
 """Statistics of angular errors per case and estimator.
 
-For each case and estimator: the number of scored specularities ``n``, of successes ``n_ok``, the
-failure rate and the failures by cause, and over the successes the mean, standard deviation
-(population, ddof = 0: the spread of the realisations drawn, as the paper's black bars), median,
-5th and 95th percentiles (linear interpolation, numpy's default), min and max, in degrees. Statistics of an
-estimator that never succeeded are None.
-
-Numbers are computed from arrays in realisation order, so the same realisations give bit-identical
-statistics whatever the number of workers that produced them.
+``n``, ``n_ok``, failure rate and failures by cause, and over the successes the mean, standard
+deviation (ddof = 0, as the paper's bars), median, 5th and 95th percentiles (linear
+interpolation), min and max, in degrees; None for an estimator that never succeeded. Computed in
+realisation order, so bit-identical whatever the number of workers.
 """
 
 from __future__ import annotations
@@ -22,28 +18,22 @@ __all__ = ["summarise", "case_metrics", "summarise_records", "MATCH_PX", "WITHIN
 #: The statistics reported for each case and estimator (degrees, except failure_rate and counts).
 STAT_KEYS = ("mean", "std", "median", "p5", "p95", "min", "max")
 
-#: Diagnostics (by suffix) whose median is reported beside their mean, as ``<key>_median``: a
-#: depth error's distribution is skewed (a few highlights far off lift the mean), and issue 39's
-#: must-hold on the flat mucosa bounds its median.
+#: Diagnostics (by suffix) whose median is reported beside their mean (skewed depth errors).
 MEDIAN_DIAGNOSTICS = ("_depth_err_pct",)
 
 #: The suffix of a diagnostic's median (``recommended_depth_err_pct_median``).
 MEDIAN_SUFFIX = "_median"
 
-#: Diagnostics (by suffix) whose number of finite values is reported beside their mean, as
-#: ``<key>_n``: a share over the highlights that have it (``recommended_within_2sigma``,
-#: ``recommended_beyond_bp_ray``: those with a stated sigma), which a suite pools over its cases
-#: weighted by these counts.
+#: Diagnostics (by suffix) whose count of finite values is reported beside their mean, as
+#: ``<key>_n``: shares a suite pools over its cases weighted by these counts.
 COUNTED_DIAGNOSTICS = ("_within_2sigma", "_beyond_bp_ray")
 
 #: The suffix of a diagnostic's count (``recommended_within_2sigma_n``).
 COUNT_SUFFIX = "_n"
 
-
-#: How far a detection's BP may lie from a true highlight's BP to be that highlight's, px (the
-#: nearest one within it), also the default of a case's ``match_px`` (:mod:`simtest.harness.cases`)
-#: so that both sections match the same highlights; the two guides' highlights of the endoscope plane lie
-#: about 18 px apart (``reports/detection/2026-11-24-colonoscope_plane``), each nearer its own.
+#: How far a detection's BP may lie from a true highlight's BP to be that highlight's, px; also
+#: the default ``match_px`` of a case. The two guides' highlights of the endoscope plane lie about
+#: 18 px apart (``reports/detection/2026-11-24-colonoscope_plane``).
 MATCH_PX = 15.0
 
 #: Errors (deg) that count as a usable normal (issue 63's headline shares).
@@ -58,7 +48,7 @@ def summarise(errors, causes) -> dict:
     errors : array_like of shape (S,)
         Errors in degrees, NaN where the estimator failed.
     causes : sequence of (str or None), length S
-        The failure cause of each NaN (None where it succeeded).
+        The failure cause of each NaN.
 
     Returns
     -------
@@ -68,7 +58,7 @@ def summarise(errors, causes) -> dict:
     Raises
     ------
     ValueError
-        If ``errors`` and ``causes`` differ in length, or a failure has no cause.
+        If ``errors`` and ``causes`` differ in length.
     """
     e = np.asarray(errors, dtype=np.float64).reshape(-1)
     if len(causes) != e.size:
@@ -79,8 +69,7 @@ def summarise(errors, causes) -> dict:
         if not good:
             fails[c if c else "nan_error"] += 1
     n, n_ok = int(e.size), int(ok.sum())
-    out = {"n": n, "n_ok": n_ok, "failure_rate": (n - n_ok) / n if n else 0.0,
-           "failures": dict(sorted(fails.items()))}
+    out = {"n": n, "n_ok": n_ok, "failure_rate": (n - n_ok) / n if n else 0.0, "failures": dict(sorted(fails.items()))}
     if n_ok:
         v = e[ok]
         out.update(mean=float(np.mean(v)), std=float(np.std(v)), median=float(np.median(v)),
@@ -92,27 +81,19 @@ def summarise(errors, causes) -> dict:
 
 
 def case_metrics(result) -> dict:
-    """Statistics of every estimator of one case, plus the means of its diagnostics.
-
-    Parameters
-    ----------
-    result : simtest.harness.runner.CaseResult
-        The scored rows of the case.
+    """Statistics of every estimator of one case (a ``CaseResult``), plus its diagnostics.
 
     Returns
     -------
     dict
-        ``{"estimators": {name: summarise(...)}, "diagnostics": {extra: mean or None}}``; a
-        diagnostic's mean is over its finite values (eigenvalue gap, fit residual in px, BP error
-        in px, curvatures in 1/mm), None if it has none. A diagnostic whose key ends with one of
-        :data:`MEDIAN_DIAGNOSTICS` (the depth errors, %) has its median over its finite values
-        beside it, as ``<key>_median``; one ending with one of :data:`COUNTED_DIAGNOSTICS` its
-        number of finite values, as ``<key>_n``.
+        ``{"end_to_end", "estimators": {name: summarise(...)}, "diagnostics": {extra: mean or
+        None}}``, means over finite values; keys ending with :data:`MEDIAN_DIAGNOSTICS` add
+        ``<key>_median``, those ending with :data:`COUNTED_DIAGNOSTICS` ``<key>_n``.
 
     Raises
     ------
     ValueError
-        If an estimator's errors and causes differ in length (see :func:`summarise`).
+        If an estimator's errors and causes differ in length.
     """
     est = {k: summarise(result.errors[k], result.causes[k]) for k in result.errors}
     extras = {}
@@ -124,8 +105,7 @@ def case_metrics(result) -> dict:
             extras[k + MEDIAN_SUFFIX] = float(np.median(f)) if f.size else None
         if k.endswith(COUNTED_DIAGNOSTICS):
             extras[k + COUNT_SUFFIX] = int(f.size)
-    return {"end_to_end": summarise_records(getattr(result, "e2e", [])), "estimators": est,
-            "diagnostics": extras}
+    return {"end_to_end": summarise_records(getattr(result, "e2e", [])), "estimators": est, "diagnostics": extras}
 
 
 def summarise_records(records) -> dict | None:
@@ -135,10 +115,9 @@ def summarise_records(records) -> dict | None:
     -------
     dict or None
         ``n`` (true highlights), ``detected`` and ``ok`` (shares), ``within_1deg`` and
-        ``within_5deg`` (shares of the true highlights whose recommended normal errs at most that
-        much, whatever its status: what a user gets), ``n_ok`` and ``median_ok_deg`` (over those
-        with status ok), ``median_ok_depth_err_pct``, ``false_ok_per_frame``, ``statuses`` and
-        ``normal_from`` (counts), ``match_px``.
+        ``within_5deg`` (shares whose recommended normal errs at most that much, whatever its
+        status), ``n_ok`` and ``median_ok_deg``, ``median_ok_depth_err_pct``,
+        ``false_ok_per_frame``, ``statuses`` and ``normal_from`` (counts), ``match_px``.
     """
     records = list(records)
     if not records:

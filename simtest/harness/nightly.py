@@ -1,49 +1,18 @@
 """Nightly accuracy gate: a fixed suite compared with ``reports/baseline.json``.
 
-What is compared. Every *metric* of a run, named ``<scope>:<name>:<estimator>:<statistic>``:
+Metrics are named ``<scope>:<name>:<estimator>:<statistic>``: ``family:<family>:<estimator>:median|failure_rate``
+and ``family:<family>:*:false_positives_per_image`` (the report's summary table; family medians are
+the *headline* metrics) and ``case:<case id>:<estimator>:median|failure_rate``. Errors are in degrees,
+rates are fractions; lower is better.
 
-- ``family:<family>:<estimator>:median|failure_rate`` and
-  ``family:<family>:*:false_positives_per_image``: the summary table of the report (its family
-  medians are every estimator's *headline* metrics: many realisations pooled, so seed noise is
-  small against them);
-- ``case:<case id>:<estimator>:median|failure_rate``: every setting of every sweep.
-
-Errors are in degrees, rates are fractions; all are "lower is better".
-
-Tolerances from measured spread, capped. The baseline is made from ``repeats`` runs of the suite
-with the root seeds ``seed, seed + 1, ...``: its value is the run with the suite's own seed (so
-that the same code on the same machine reproduces it exactly), its *spread* the sample standard
-deviation over the repeats, and its tolerance ``min(k_spread x spread + rel_floor x |value| +
-abs_floor, cap)`` (the policy is stored in the baseline). The caps (:data:`CAPS`) are:
-
-- ``headline_deg`` 0.4 deg on every headline metric, so that a bias of 0.5 deg on any
-  estimator's headline metric fails (with 0.1 deg to spare for seed noise). A headline metric
-  whose seed noise alone (``k_spread x spread``) exceeds the cap would fail the gate on a good
-  run at *another* seed: :func:`noisy_headlines` lists them, ``--update-baseline`` prints them,
-  and the remedy is more realisations for their sweeps, never a larger cap. The gate itself runs
-  at the baseline's seed (CI does), where a good run repeats the baseline's numbers up to
-  platform rounding, so seed noise does not enter its verdict (which suites have noisy headline
-  metrics, measured: ``docs/decisions/nightly-gate.md``);
-- ``deg`` 10 deg on the per-case medians (a few realisations each; doubling any error above
-  10 deg still fails);
-- ``rate`` 0.1 on failure rates and false positives per image (five failures more in 50).
-
-A metric *regresses* when it grows by more than its tolerance; it improves when it drops by as
-much (reported, not fatal). With the default policy (k_spread 3, rel_floor 0.25), a metric whose
-seed spread is below a quarter of its value fails at twice its value while another seed passes:
-:func:`undetectable_doublings` lists the metrics for which that does not hold (too noisy for the
-suite's realisations), and the tests check that every estimator family still has metrics that
-catch a doubling.
-
-A baseline must cover the run. :func:`check_section` refuses (exit 3 in ``simtest nightly``) a
-baseline entry whose value is NaN, infinite or non-numeric, a null median where the estimator did
-succeed (its failure rate below 1), a null rate, and a tolerance that is missing, negative,
-non-finite, below its unit's absolute floor (0 included) or above its class's cap; :func:`uncovered` names the run's metrics that the baseline
-lacks. A gate that cannot judge a metric is no pass.
-
-Bad numbers in the run are never silently compared: a NaN, infinite, non-numeric or missing
-metric fails the gate with one line naming them; a metric that had a value and has none now (the
-estimator never succeeds any more) regresses.
+The baseline is made from ``repeats`` runs with root seeds ``seed, seed + 1, ...``: its value is the
+run at the suite's own seed, its spread the sample standard deviation over the repeats, its tolerance
+``min(k_spread x spread + rel_floor x |value| + abs_floor, cap)``. The caps (:data:`CAPS`): 0.4 deg on
+headline metrics (a 0.5 deg bias fails), 10 deg on per-case medians, 0.1 on rates. A metric regresses
+when it grows by more than its tolerance. Baselines with unusable entries are refused
+(:func:`check_section`), and run metrics the baseline lacks are named (:func:`uncovered`): a gate
+that cannot judge a metric is no pass. Noisy headline metrics (:func:`noisy_headlines`) call for more
+realisations, never a larger cap (``docs/decisions/nightly-gate.md``).
 
 Baseline file::
 
@@ -53,8 +22,7 @@ Baseline file::
                             "abs_floor": {"deg", "rate"}},
                             "metrics": {name: {"value", "spread", "tolerance"}}}}}
 
-History: :func:`append_history` adds one JSON line per nightly run (verdict, counts and the
-family medians) to ``<reports>/<suite>/history.jsonl``; the report draws it as a trend figure.
+:func:`append_history` adds one JSON line per nightly run to ``<reports>/<suite>/history.jsonl``.
 """
 
 from __future__ import annotations
@@ -82,33 +50,19 @@ __all__ = ["POLICY", "CAPS", "Change", "metrics_of", "metric_class", "baseline_s
 BASELINE_SCHEMA = "simtest.baseline"
 BASELINE_VERSION = 2
 
-#: Default tolerance policy. k_spread: standard deviations of seed noise allowed (3: a new seed
-#: passes with ~99.7 % probability per metric when the noise is normal and the spread well
-#: measured); rel_floor: relative change always allowed (0.25: half of the doubling that must
-#: fail, so spread-free metrics such as exact zeros or the paper protocol's BP ray still leave
-#: room for platform rounding); abs_floor: for values at or near 0, 1e-6 deg (far below the 1e-3
-#: deg the reports print) and, for rates, one failure more in 50 (0.02).
-#: cap: the largest tolerance per metric class (:func:`metric_class`; the module docstring says why
-#: each is that size). The caps are also the ceilings :func:`check_section` enforces on any
-#: baseline, whatever policy it claims: a tolerance above them is refused.
+#: Default tolerance policy: k_spread standard deviations of seed noise; rel_floor 0.25, half the
+#: doubling that must fail, leaves room for platform rounding; abs_floor for values near 0 (1e-6 deg,
+#: one failure more in 50 for rates). The caps per :func:`metric_class` also bound any baseline.
 CAPS = {"headline_deg": 0.4, "deg": 10.0, "rate": 0.1}
-POLICY = {"k_spread": 3.0, "rel_floor": 0.25, "abs_floor": {"deg": 1e-6, "rate": 0.02},
-          "cap": dict(CAPS)}
+POLICY = {"k_spread": 3.0, "rel_floor": 0.25, "abs_floor": {"deg": 1e-6, "rate": 0.02}, "cap": dict(CAPS)}
 
-#: Statistics gated: the medians and failure rates (robust at the few realisations a nightly
-#: affords; the mean and p95 of 5 renders move with one outlier, and stay in the report).
+#: Statistics gated: medians and failure rates (robust at a nightly's few realisations).
 _CASE_STATS = ("median", "failure_rate")
 _FAMILY_STATS = ("median", "failure_rate")
 
 
 def default_baseline_path() -> Path:
-    """The committed baseline file, ``reports/baseline.json`` (:func:`simtest.resources.bundled`).
-
-    Returns
-    -------
-    Path
-        The path (the file may not exist yet).
-    """
+    """The committed baseline file, ``reports/baseline.json`` (it may not exist yet)."""
     return bundled("reports", "baseline.json")
 
 
@@ -119,11 +73,11 @@ class Change:
     Attributes
     ----------
     metric : str
-        ``<scope>:<name>:<estimator>:<statistic>`` (see the module docstring).
+        ``<scope>:<name>:<estimator>:<statistic>``.
     baseline, now : float or None
         Value in the baseline and in this run (None: absent or never succeeded).
     tolerance : float or None
-        Allowed growth, in the metric's unit (degrees or a fraction); None where not compared.
+        Allowed growth in the metric's unit; None where not compared.
     verdict : str
         ``"ok"``, ``"regression"``, ``"improved"``, ``"missing"``, ``"new"`` or ``"invalid"``.
     """
@@ -145,18 +99,13 @@ def _unit(metric: str) -> str:
 
 
 def metric_class(metric: str) -> str:
-    """The tolerance class of a metric: ``"headline_deg"``, ``"deg"`` or ``"rate"``.
-
-    Parameters
-    ----------
-    metric : str
-        ``<scope>:<name>:<estimator>:<statistic>``.
+    """The tolerance class of a metric ``<scope>:<name>:<estimator>:<statistic>``.
 
     Returns
     -------
     str
-        ``"rate"`` for failure rates and false positives per image; ``"headline_deg"`` for a
-        family median (an estimator's headline metric); ``"deg"`` for the other errors.
+        ``"rate"`` for failure rates and false positives per image; ``"headline_deg"`` for a family
+        median; ``"deg"`` for the other errors.
     """
     if _unit(metric) == "rate":
         return "rate"
@@ -164,18 +113,13 @@ def metric_class(metric: str) -> str:
 
 
 def metrics_of(results: dict) -> dict:
-    """The gate's metrics of a ``results.json`` document.
-
-    Parameters
-    ----------
-    results : dict
-        A results document (schema 2, with ``families``).
+    """The gate's metrics of a ``results.json`` document (schema 2, with ``families``).
 
     Returns
     -------
     dict of str to object
-        Metric name -> value as found (float, None where an estimator never succeeded, or
-        whatever the document holds: :func:`invalid_values` finds the bad ones).
+        Metric name -> value as found (float, None where an estimator never succeeded, or whatever
+        the document holds).
     """
     out = {}
     for fam, f in results.get("families", {}).items():
@@ -208,8 +152,8 @@ def baseline_section(runs: list[dict], policy: dict | None = None) -> dict:
     Parameters
     ----------
     runs : list of dict
-        ``results.json`` documents of the same suite; ``runs[0]`` gives the values (the suite's
-        own seed), all of them the spread. At least 2 for a spread (with 1, spread 0).
+        ``results.json`` documents of the same suite; ``runs[0]`` gives the values, all of them the
+        spread (with one run, spread 0).
     policy : dict, optional
         Default :data:`POLICY`.
 
@@ -217,14 +161,13 @@ def baseline_section(runs: list[dict], policy: dict | None = None) -> dict:
     -------
     dict
         ``created_utc``, ``git_commit``, ``machine``, ``suite_sha256``, ``seed``, ``seeds``,
-        ``realisations``, ``policy`` and ``metrics``: name -> ``{"value", "spread",
-        "tolerance"}`` (value None where the estimator never succeeded; then no tolerance).
+        ``realisations``, ``policy`` and ``metrics``: name -> ``{"value", "spread", "tolerance"}``.
 
     Raises
     ------
     ValueError
-        If ``runs`` is empty, a run holds a NaN, infinite or non-numeric metric (named), or the
-        policy's caps exceed :data:`CAPS`.
+        If ``runs`` is empty, a run holds a NaN, infinite or non-numeric metric, or the policy's caps
+        exceed :data:`CAPS`.
     """
     if not runs:
         raise ValueError("baseline_section: no runs")
@@ -277,6 +220,11 @@ def _never_succeeded(metrics: dict, name: str) -> bool:
 def check_section(section: dict, where: str) -> str | None:
     """One line naming every unusable entry of a baseline section, or None if it is sound.
 
+    Unusable: a missing or empty ``metrics`` table; an entry without a value; a NaN, infinite or
+    non-numeric value; a null value other than the median of an estimator with failure rate 1; a
+    tolerance that is missing, non-finite, negative, below its unit's floor (:data:`POLICY`) or above
+    its class's cap (:data:`CAPS`).
+
     Parameters
     ----------
     section : dict
@@ -287,13 +235,7 @@ def check_section(section: dict, where: str) -> str | None:
     Returns
     -------
     str or None
-        ``"<where>: N bad metric(s): name (NaN), ..."`` for: a missing or empty ``metrics``
-        table; an entry without a ``value``; a NaN, infinite or non-numeric value; a null value
-        other than the median of an estimator whose failure rate there is 1 (it never succeeded:
-        nothing to compare); a tolerance that is missing, non-numeric, NaN, infinite, negative,
-        below the absolute floor of its unit (:data:`POLICY`, the least the writer gives: a
-        tolerance of 0 fails on platform rounding), or above the cap of its class (:data:`CAPS`,
-        :func:`metric_class`): a tolerance no regression can exceed is no gate.
+        ``"<where>: N bad metric(s): name (why), ..."``.
     """
     metrics = section.get("metrics") if isinstance(section, dict) else None
     if not isinstance(metrics, dict) or not metrics:
@@ -306,8 +248,7 @@ def check_section(section: dict, where: str) -> str | None:
         why = _bad(m["value"])
         if why is None and m["value"] is None:
             if not _never_succeeded(metrics, name):
-                why = ("null value (only the median of an estimator that never succeeded, failure "
-                       "rate 1, may be null)")
+                why = ("null value (only the median of an estimator that never succeeded, failure rate 1, may be null)")
         elif why is None:
             t = m.get("tolerance")
             cap = CAPS[metric_class(name)]
@@ -328,20 +269,7 @@ def check_section(section: dict, where: str) -> str | None:
 
 
 def uncovered(section: dict, names) -> list[str]:
-    """The metrics among ``names`` that the baseline section has no entry for.
-
-    Parameters
-    ----------
-    section : dict
-        A baseline section (checked by :func:`check_section`).
-    names : iterable of str
-        The run's metrics (:func:`metrics_of`) or the suite's (:func:`expected_metrics`).
-
-    Returns
-    -------
-    list of str
-        Sorted; empty when the baseline covers them all.
-    """
+    """The metrics among ``names`` that the baseline section has no entry for, sorted."""
     have = section.get("metrics") or {}
     return sorted(n for n in set(names) if n not in have)
 
@@ -349,15 +277,8 @@ def uncovered(section: dict, names) -> list[str]:
 def expected_metrics(suite) -> set[str]:
     """The metrics a run of ``suite`` will have, known before it runs.
 
-    Every case's and every family's median and failure rate per estimator (the families'
-    false positives per image, present only where the protocol detects, are checked after the
-    run), so that ``simtest nightly`` refuses a baseline that does not cover the suite before
-    spending minutes on it.
-
-    Parameters
-    ----------
-    suite : simtest.harness.suite.Suite
-        The suite about to run.
+    Every case's and family's median and failure rate per estimator (false positives per image are
+    checked after the run), so that a baseline that does not cover the suite is refused up front.
 
     Returns
     -------
@@ -376,18 +297,9 @@ def expected_metrics(suite) -> set[str]:
 
 
 def noisy_headlines(section: dict) -> list[str]:
-    """Headline metrics whose seed noise alone reaches their cap: a good run may fail on them.
+    """Headline metrics whose seed noise alone reaches the cap (``k_spread x spread >= cap``).
 
-    Parameters
-    ----------
-    section : dict
-        A baseline section (with the measured ``spread`` of each metric).
-
-    Returns
-    -------
-    list of str
-        Names of the family medians with ``k_spread x spread >= cap``; the remedy is more
-        realisations for the sweeps of that family, never a larger cap.
+    A good run at another seed may fail on them; the remedy is more realisations, never a larger cap.
     """
     pol = section.get("policy", POLICY)
     k = pol.get("k_spread", POLICY["k_spread"])
@@ -399,21 +311,12 @@ def noisy_headlines(section: dict) -> list[str]:
 def compare(section: dict, results: dict) -> list[Change]:
     """Compare a run with one suite's baseline section (checked by :func:`check_section`).
 
-    Parameters
-    ----------
-    section : dict
-        ``baseline["suites"][suite]``.
-    results : dict
-        The run's ``results.json`` document.
-
     Returns
     -------
     list of Change
-        One per metric of either, sorted by name. A NaN, infinite or non-numeric value in the
-        run is ``"invalid"``; a metric of the baseline absent from the run ``"missing"``; a
-        value that became None (never succeeds now) a ``"regression"``; a metric of the run that
-        the baseline lacks ``"new"`` (:func:`gate_summary` refuses to pass it: see
-        :func:`uncovered`).
+        One per metric of either, sorted by name: ``"invalid"`` for a bad value in the run,
+        ``"missing"`` for a baseline metric absent from the run, ``"regression"`` for a value that
+        became None, ``"new"`` for a run metric the baseline lacks.
     """
     now = metrics_of(results)
     base = section["metrics"]
@@ -444,20 +347,13 @@ def compare(section: dict, results: dict) -> list[Change]:
 
 
 def gate_summary(changes: list[Change]) -> tuple[bool, list[str], dict]:
-    """Verdict, problem lines and counts of a comparison.
-
-    Parameters
-    ----------
-    changes : list of Change
-        From :func:`compare`.
+    """Verdict, problem lines and counts of a comparison (from :func:`compare`).
 
     Returns
     -------
     (bool, list of str, dict)
-        ``passed``; one line per problem (``REGRESSION: <metric>: <baseline> -> <now> (tolerance
-        <t>)``, one ``INVALID:`` line naming every NaN, infinite or non-numeric metric of the
-        run, one ``MISSING:`` line naming the metrics the run lacks, one ``UNCOVERED:`` line
-        naming the run's metrics the baseline lacks); counts per verdict.
+        ``passed``; one ``REGRESSION:`` line per regression and one ``INVALID:``, ``MISSING:`` or
+        ``UNCOVERED:`` line per kind of problem, naming the metrics; counts per verdict.
     """
     lines = [f"REGRESSION: {c.metric}: {_f(c.baseline)} -> {_f(c.now)} (tolerance "
              f"{_f(c.tolerance)})" for c in changes if c.verdict == "regression"]
@@ -475,41 +371,18 @@ def _f(v) -> str:
 
 
 def undetectable_doublings(section: dict) -> list[str]:
-    """Metrics whose tolerance is not below their value: doubling them would pass the gate.
-
-    Parameters
-    ----------
-    section : dict
-        A baseline section.
-
-    Returns
-    -------
-    list of str
-        Names of metrics with a positive value and ``tolerance >= value`` (too noisy for the
-        suite's realisations, or exactly 0).
-    """
+    """Metrics with a positive value and ``tolerance >= value``: doubling them would pass."""
     return sorted(k for k, m in section["metrics"].items()
                   if m["value"] is not None and m["value"] > 0 and m["tolerance"] >= m["value"])
 
 
 def load_baseline(path: str | Path) -> dict:
-    """Read a baseline file.
-
-    Parameters
-    ----------
-    path : str or Path
-        The baseline JSON.
-
-    Returns
-    -------
-    dict
-        ``{"schema", "schema_version", "suites": {name: section}}``.
+    """Read a baseline file: ``{"schema", "schema_version", "suites": {name: section}}``.
 
     Raises
     ------
     ValueError
-        If the file cannot be read, is not JSON, or has another schema or version; the message
-        names the file.
+        If the file cannot be read, is not JSON, or has another schema or version (names the file).
     """
     path = Path(path)
     try:
@@ -525,22 +398,10 @@ def load_baseline(path: str | Path) -> dict:
 
 
 def update_baseline(path: str | Path, runs: list[dict], policy: dict | None = None) -> Path:
-    """Write (or replace) the section of the runs' suite in the baseline file, atomically.
+    """Write (or replace) the runs' suite section in the baseline file, atomically.
 
-    Parameters
-    ----------
-    path : str or Path
-        The baseline file (created if missing; other suites' sections are kept; a file of an
-        older schema is replaced).
-    runs : list of dict
-        As for :func:`baseline_section`.
-    policy : dict, optional
-        Default :data:`POLICY`.
-
-    Returns
-    -------
-    Path
-        ``path``.
+    Other suites' sections are kept; a file of an older schema is replaced. ``runs`` and ``policy`` are
+    as for :func:`baseline_section`. Returns ``path``.
     """
     path = Path(path)
     try:
@@ -554,22 +415,12 @@ def update_baseline(path: str | Path, runs: list[dict], policy: dict | None = No
 def history_line(results: dict, passed: bool, counts: dict) -> dict:
     """One line of the nightly history.
 
-    Parameters
-    ----------
-    results : dict
-        The run's results document.
-    passed : bool
-        The gate's verdict.
-    counts : dict
-        Verdict counts of :func:`gate_summary`.
-
     Returns
     -------
     dict
-        ``run_id``, ``created_utc``, ``git_commit``, ``suite``, ``seed``, ``verdict``
-        (``"pass"`` or ``"fail"``), ``counts``, ``families``: {family: {estimator: median
-        error in degrees or None}} and ``n``: {family: {estimator: highlights it succeeded on}}
-        (the trend figure shows it).
+        ``run_id``, ``created_utc``, ``git_commit``, ``suite``, ``seed``, ``verdict`` (``"pass"`` or
+        ``"fail"``), ``counts`` (:func:`gate_summary`), ``families``: {family: {estimator: median
+        error in degrees or None}} and ``n``: {family: {estimator: highlights it succeeded on}}.
     """
     return {"run_id": results["run_id"], "created_utc": results["created_utc"],
             "git_commit": results["provenance"].get("git_commit"),
@@ -582,19 +433,7 @@ def history_line(results: dict, passed: bool, counts: dict) -> dict:
 
 
 def append_history(path: str | Path, line: dict) -> Path:
-    """Append one JSON line to a history file, under an exclusive lock.
-
-    Parameters
-    ----------
-    path : str or Path
-        ``history.jsonl`` (created with its folder if missing).
-    line : dict
-        From :func:`history_line`.
-
-    Returns
-    -------
-    Path
-    """
+    """Append one JSON line to ``history.jsonl`` under an exclusive lock (creating the folder)."""
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     with open(path, "a", encoding="utf-8") as fh:
@@ -607,19 +446,7 @@ def append_history(path: str | Path, line: dict) -> Path:
 
 
 def read_history(path: str | Path, limit: int = 60) -> list[dict]:
-    """The last ``limit`` lines of a history file (oldest first); unreadable lines are skipped.
-
-    Parameters
-    ----------
-    path : str or Path
-        ``history.jsonl``; a missing file gives an empty list.
-    limit : int
-        Lines kept.
-
-    Returns
-    -------
-    list of dict
-    """
+    """The last ``limit`` lines of a history file, oldest first; bad lines and a missing file are skipped."""
     path = Path(path)
     if not path.is_file():
         return []
@@ -637,19 +464,7 @@ def read_history(path: str | Path, limit: int = 60) -> list[dict]:
 def changes_table(changes: list[Change], title: str, show_all: bool = False):
     """A rich Table of the metrics that moved (all of them with ``show_all``).
 
-    Parameters
-    ----------
-    changes : list of Change
-        From :func:`compare`.
-    title : str
-        Table title.
-    show_all : bool
-        Also list ``"ok"`` rows.
-
-    Returns
-    -------
-    rich.table.Table
-        Verdict (coloured), metric, baseline, now, delta, tolerance (4 significant digits).
+    Columns: verdict (coloured), metric, baseline, now, delta, tolerance (4 significant digits).
     """
     t = Table(title=title, show_lines=False)
     for col in ("verdict", "metric", "baseline", "now", "delta", "tolerance"):

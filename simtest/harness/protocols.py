@@ -1,15 +1,10 @@
-"""Per-case runners of the two protocols: one realisation in, scored rows out.
+"""Per-case runners of the two protocols: one realisation's SeedSequence in, scored :class:`Row` s out.
 
-A runner is built once per case (and cached per worker process), holding what every realisation of
-the case shares (the noiseless warped image of the ``paper`` protocol, the validated scene spec of
-the ``rendered`` protocol). :meth:`run` takes the realisation's SeedSequence and returns a list of
-rows (:class:`Row`: errors, causes and extras), one per scored specularity.
-
-``paper``: one row per realisation (one specularity, reconstructed in a ROI around the known BP).
-``rendered``: one row per in-frame ground-truth highlight; the whole image goes through
-detection (``simtest.reconstruct``) and each true BP is matched to the nearest detected BP within
-``match_px``, else every estimator fails with ``not_detected`` (scored given the highlight); each
-row also carries the highlight's end-to-end record (:mod:`simtest.harness.end_to_end`).
+A runner is built once per case (cached per worker) and holds what its realisations share.
+``paper``: one row per realisation, reconstructed in a ROI around the known BP. ``rendered``: one
+row per in-frame ground-truth highlight; each true BP is matched to the nearest detected BP within
+``match_px``, else every estimator fails with ``not_detected``; each row carries the highlight's
+end-to-end record (:mod:`simtest.harness.end_to_end`).
 """
 
 from __future__ import annotations
@@ -22,8 +17,7 @@ import numpy as np
 
 from simtest.constants import MAX_SEED
 from simtest.geometry.angles import angle_between_deg
-from simtest.geometry.curvature import (curvature_ratio, predicted_eigenvalue_gap,
-                                        predicted_pose_error_deg)
+from simtest.geometry.curvature import (curvature_ratio, predicted_eigenvalue_gap, predicted_pose_error_deg)
 from simtest.geometry.lights import Light, LightRig
 from simtest.geometry.response import SensorResponse, video_response
 from simtest.geometry.cameras import PinholeCamera
@@ -42,12 +36,10 @@ from simtest.simulate.paper import PaperSimulator
 __all__ = ["make_runner", "PaperRunner", "RenderedRunner", "Row", "reconstruct_image", "render_rig",
            "mesh_pose_overrides", "curvature_between_lights", "fit_scored", "realisation_overrides"]
 
-#: Margin of the paper protocol's ROI around the noiseless highlight, px: 5 smoothing widths of
-#: the default 2 px, far beyond the contour noise (about 2 px RMS at sigma = 5 %).
+#: Margin of the paper protocol's ROI around the noiseless highlight, px (5 smoothing widths).
 ROI_MARGIN_PX = 10
 
-#: How far an external estimator's BP may lie from the true one on a ``paper`` case, px: the ROI
-#: margin, beyond which the answer is outside the region the paper's method is given.
+#: How far an external estimator's BP may lie from the true one on a ``paper`` case, px.
 PAPER_MATCH_PX = ROI_MARGIN_PX
 
 #: Extra per-row diagnostics carried into the results (means reported per case).
@@ -57,10 +49,10 @@ EXTRA_KEYS = ("eigenvalue_gap", "residual_px", "bp_error_px", "k1_per_mm", "k2_p
 
 
 def reconstruct_image(image, K, settings: ReconSettings):
-    """Detect and reconstruct every specularity of a whole image with a case's settings
-    (:attr:`simtest.harness.suite.Case.recon`: the paper's, not ``simtest reconstruct``'s defaults,
-    which :mod:`simtest.harness.end_to_end` runs), ``full_scale`` set to the image maximum (a
-    rendered highlight need not saturate). Returns the estimates (empty for an all-dark image).
+    """Detect and reconstruct every specularity of a whole image with a case's settings.
+
+    ``full_scale`` is set to the image maximum (a rendered highlight need not saturate). Returns the
+    estimates (empty for an all-dark image).
     """
     peak = float(np.max(image))
     if not peak > 0:
@@ -87,16 +79,11 @@ def _extras(est) -> dict:
 
 
 def _dimensionless_curvature(est, h, K) -> dict:
-    """Isophote radius and curvature x radius at a rendered BP.
+    """Isophote radius and curvature x radius at a rendered BP (diagnostics; rho governs the error).
 
-    What governs the circle-pose error is the curvature ratio rho, not these sizes
-    (:func:`simtest.geometry.curvature.curvature_ratio`); they are reported as diagnostics.
-
-    The isophote radius on the surface is estimated from the fitted ellipse:
-    ``r = sqrt(a b) d cos(phi)^1.5 / f`` with ``d`` the distance to the BP and ``phi`` its angle
-    off the optical axis (a small disc facing the camera at that distance is magnified by
-    ``f / (d cos^2 phi)`` radially and ``f / (d cos phi)`` tangentially). Returns
-    ``iso_radius_mm``, ``r_k1``, ``r_k2`` and ``anisotropy`` = ``r |k1 - k2|`` (NaN if unknown).
+    ``r = sqrt(a b) d cos(phi)^1.5 / f`` from the fitted ellipse, ``d`` the distance to the BP and
+    ``phi`` its angle off the optical axis. Returns ``iso_radius_mm``, ``r_k1``, ``r_k2`` and
+    ``anisotropy`` = ``r |k1 - k2|`` (NaN if unknown).
     """
     nan = float("nan")
     out = {"iso_radius_mm": nan, "r_k1": nan, "r_k2": nan, "anisotropy": nan}
@@ -116,23 +103,18 @@ def _dimensionless_curvature(est, h, K) -> dict:
 
 
 def _curvature_prediction(h) -> dict:
-    """Distance to the BP, rho and the gap and circle-pose error it predicts (co-located BP).
-
-    See :func:`simtest.geometry.curvature.curvature_ratio` (signed k1 >= k2, positive convex
-    toward the camera). Returns ``bp_distance_mm``, ``rho``, ``predicted_gap`` and
-    ``predicted_pose_deg`` (NaN where the curvatures are unknown).
+    """``bp_distance_mm``, ``rho`` and the ``predicted_gap`` and ``predicted_pose_deg`` it predicts
+    (:func:`simtest.geometry.curvature.curvature_ratio`; NaN where the curvatures are unknown).
     """
     d = float(np.linalg.norm(np.asarray(h.bp_mm, dtype=np.float64)))
-    rho = curvature_ratio(float(getattr(h, "k1", float("nan"))),
-                          float(getattr(h, "k2", float("nan"))), d)
+    rho = curvature_ratio(float(getattr(h, "k1", float("nan"))), float(getattr(h, "k2", float("nan"))), d)
     return {"bp_distance_mm": d, "rho": rho, "predicted_gap": predicted_eigenvalue_gap(rho),
             "predicted_pose_deg": predicted_pose_error_deg(rho)}
 
 
 @dataclass
 class Row:
-    """One scored highlight of a realisation (a paper realisation has one; a render one per
-    in-frame highlight).
+    """One scored highlight of a realisation.
 
     Attributes
     ----------
@@ -154,19 +136,16 @@ class Row:
 
 
 def _row(errs: dict, extras: dict) -> Row:
-    return Row(errors={k: v[0] for k, v in errs.items()},
-               causes={k: v[1] for k, v in errs.items()}, extras=extras)
+    return Row(errors={k: v[0] for k, v in errs.items()}, causes={k: v[1] for k, v in errs.items()}, extras=extras)
 
 
 class PaperRunner:
-    """Runs realisations of a ``paper`` case (see :mod:`simtest.simulate.paper`).
+    """Runs realisations of a ``paper`` case (:mod:`simtest.simulate.paper`).
 
     Parameters
     ----------
     case : simtest.harness.suite.Case
-        A ``paper`` case: its :attr:`~simtest.harness.suite.Case.paper` parameters and its
-        reconstruction settings :attr:`~simtest.harness.suite.Case.recon` (validated when the
-        suite was loaded).
+        A ``paper`` case (its ``paper`` parameters and ``recon`` settings).
     estimators : sequence of str
         Keys of :data:`simtest.harness.estimators.ESTIMATORS`.
     """
@@ -188,10 +167,8 @@ class PaperRunner:
     def roi(self, clean: np.ndarray, bp_px) -> tuple[int, int, int, int]:
         """The "given region of interest containing the specularity" (paper section 2.3).
 
-        The bounding box of the noiseless image above half the lowest isovalue, extended to
-        contain the BP, plus :data:`ROI_MARGIN_PX`, clipped to the image. Cropping only saves
-        time (marching squares scans the ROI); a contour that leaves it is reported as cut,
-        never silently clipped.
+        The bounding box of the noiseless image above half the lowest isovalue, extended to contain the
+        BP, plus :data:`ROI_MARGIN_PX`, clipped to the image. A contour that leaves it is reported as cut.
 
         Parameters
         ----------
@@ -203,8 +180,7 @@ class PaperRunner:
         Returns
         -------
         tuple of int
-            ``(row0, row1, col0, col1)``, half-open; the whole image if nothing is above the
-            threshold.
+            ``(row0, row1, col0, col1)``, half-open; the whole image if nothing is above the threshold.
         """
         h, w = clean.shape
         mask = clean > 0.5 * min(self.isovalues) * float(clean.max())
@@ -217,7 +193,7 @@ class PaperRunner:
                 max(0, min(cols[0], u) - m), min(w, max(cols[-1], u) + m + 1))
 
     def _roi_of(self, clean: np.ndarray, bp_px) -> tuple[int, int, int, int]:
-        """:meth:`roi`, computed once for a fixed light (the same noiseless image each time)."""
+        """:meth:`roi`, computed once for a fixed light."""
         if self._fixed is not None and clean is self._fixed[0]:
             return self._fixed[1]
         return self.roi(clean, bp_px)
@@ -228,36 +204,19 @@ class PaperRunner:
         Parameters
         ----------
         seedseq : numpy.random.SeedSequence
-            The realisation's seed (:func:`simtest.harness.suite.realisation_seed`); it drives a
-            PCG64 generator for the noise and the random draws of the simulator.
+            The realisation's seed; it drives a PCG64 generator for the noise and the simulator's draws.
 
         Returns
         -------
         list of Row
-            One row. A realisation whose BP is not in front of the camera fails every estimator
-            with ``"bp_nonpositive"``.
+            One row; a BP not in front of the camera fails every estimator with ``"bp_nonpositive"``.
         """
         return self.run_many([seedseq])[0]
 
     def run_many(self, seedseqs) -> list[list[dict]]:
-        """:meth:`run` of several realisations, their reconstructions batched
-        (:func:`simtest.reconstruct.reconstruct_rois`): the same rows, bit for bit.
+        """:meth:`run` of several realisations, reconstructions batched: the same rows, bit for bit.
 
-        Parameters
-        ----------
-        seedseqs : sequence of numpy.random.SeedSequence
-            The realisations' seeds.
-
-        Returns
-        -------
-        list of list of Row
-            Per realisation, its rows (as :meth:`run`).
-
-        Raises
-        ------
-        Exception
-            Whatever a realisation's simulation or reconstruction raises (the caller then runs
-            the realisations one by one, to tell which).
+        Raises whatever a realisation raises (the caller then runs them one by one, to tell which).
         """
         truth: list = []  # per realisation (normal, BP) or None; the images are not kept
 
@@ -307,20 +266,11 @@ class PaperRunner:
 def realisation_overrides(setting, seedseq: np.random.SeedSequence) -> dict:
     """The scene overrides of one realisation of a ``rendered`` case: its seeds.
 
-    Parameters
-    ----------
-    setting : simtest.harness.suite.SceneSetting
-        The case's scene setting (its ``texture``).
-    seedseq : numpy.random.SeedSequence
-        The realisation's seed (:func:`~simtest.harness.suite.realisation_seed`).
-
     Returns
     -------
     dict
-        ``{"render.seed": s0}``, and with ``texture = "per_realisation"`` also
-        ``"material.texture_seed": s1``: ``s0`` and ``s1`` the first two 31-bit words of the
-        SeedSequence (the first is that of ``generate_state(1)``, so a case that draws no texture
-        renders as before).
+        ``{"render.seed": s0}``, and with ``setting.texture = "per_realisation"`` also
+        ``"material.texture_seed": s1``: the first two 31-bit words of ``seedseq``.
     """
     words = seedseq.generate_state(2, np.uint32)
     over = {"render.seed": int(words[0]) & MAX_SEED}
@@ -332,18 +282,11 @@ def realisation_overrides(setting, seedseq: np.random.SeedSequence) -> dict:
 class RenderedRunner:
     """Runs realisations of a ``rendered`` case: Mitsuba render, detection, reconstruction.
 
-    The render seed of realisation ``i`` is the first 31-bit word of its SeedSequence; with the
-    case's ``texture = "per_realisation"`` (:class:`~simtest.harness.suite.SceneSetting`) the
-    tissue's ``material.texture_seed`` is the second.
-
     Parameters
     ----------
     case : simtest.harness.suite.Case
-        A ``rendered`` case: ``case.scene`` is the base scene file, changed as its
-        :attr:`~simtest.harness.suite.Case.scene_setting` says (dotted overrides, sphere or
-        cylinder placement, mesh pose: :func:`mesh_pose_overrides`); it is reconstructed with
-        :attr:`~simtest.harness.suite.Case.recon` and scored as
-        :attr:`~simtest.harness.suite.Case.scoring` says.
+        A ``rendered`` case: ``case.scene`` changed as its ``scene_setting`` says (overrides,
+        placement, :func:`mesh_pose_overrides`), reconstructed with ``recon``, scored per ``scoring``.
     estimators : sequence of str
         Keys of :data:`simtest.harness.estimators.ESTIMATORS`.
 
@@ -370,23 +313,13 @@ class RenderedRunner:
     def run(self, seedseq: np.random.SeedSequence) -> list[dict]:
         """Render, detect, reconstruct and score one realisation.
 
-        Each in-frame ground-truth highlight is matched to the nearest detected BP within
-        ``match_px`` (pixel distance in (u, v)); an unmatched highlight fails every estimator
-        with ``"not_detected"``.
-
-        Parameters
-        ----------
-        seedseq : numpy.random.SeedSequence
-            The realisation's seed; its first 31-bit word is the render seed.
-
         Returns
         -------
         list of Row
-            One row per in-frame highlight (see the module docstring), or one row failing with
-            ``"no_highlight_in_frame"`` if there is none. Extras hold the BP error (px), the
-            principal curvatures at the BP (1/mm) and the dimensionless curvature.
+            One row per in-frame highlight, or one failing with ``"no_highlight_in_frame"`` if there is
+            none. Extras hold the BP error (px), the principal curvatures at the BP (1/mm) and the
+            dimensionless curvature.
         """
-
         over = realisation_overrides(self.scene_setting, seedseq)
         seed = over["render.seed"]
         spec = with_overrides(self.spec, over)
@@ -406,8 +339,7 @@ class RenderedRunner:
                      if np.issubdtype(image.dtype, np.integer) else 0.0)
         # False positives: detections farther than match_px from every true BP (in frame or not).
         true_bps = [np.asarray(h.bp_px, float) for h in result.highlights]
-        false_pos = sum(1 for _, ebp in ok_bps
-                        if all(float(np.linalg.norm(ebp - t)) > self.match_px for t in true_bps))
+        false_pos = sum(1 for _, ebp in ok_bps if all(float(np.linalg.norm(ebp - t)) > self.match_px for t in true_bps))
         # each in-frame highlight's detection: the nearest BP within match_px (from the BPs alone)
         matched = []
         for h in result.highlights:
@@ -425,17 +357,12 @@ class RenderedRunner:
         light_aware = any(e in LIGHT_AWARE_NAMES for e in self.estimators)
         if light_aware:
             rig = render_rig(result)
-            # the fits run on what a user's camera file describes: the video frame with its
-            # sensor response (linear darkest channel, clipped pixels censored, diffuse shading)
+            # the fits run on what a user's camera file describes: the video frame and its response
             response = render_response(result)
             matched = fit_scored(image if response is None else result.video, matched, result.K, rig,
                                  response=response,
                                  quadric=True if "quadric_fit" in self.estimators else None,
-                                 # listed: run on every scored highlight, for its column and its
-                                 # depth's observability (one light included, where the
-                                 # recommendation does not use it); else where the
-                                 # recommendation needs it (two lights apart, the plane fit not
-                                 # ok: what `simtest reconstruct --cubic-patch` runs)
+                                 # listed: on every scored highlight; else where the recommendation needs it
                                  cubic=True if "cubic_patch_fit" in self.estimators else None)
             for name, attr in ORACLE_INPUTS.items():
                 if name in self.estimators:
@@ -451,8 +378,7 @@ class RenderedRunner:
             extras["k2_per_mm"] = float(getattr(h, "k2", float("nan")))
             extras.update(_dimensionless_curvature(best, h, result.K))
             extras.update(_curvature_prediction(h))
-            # per image, carried by its first row (NaN on the others): the case mean is the
-            # number of false positives per image
+            # per image, carried by its first row (NaN on the others)
             extras["false_positives"] = float(false_pos) if not rows else float("nan")
             extras["saturated_px"] = saturated if not rows else float("nan")
             if light_aware:
@@ -471,11 +397,10 @@ class RenderedRunner:
             row.e2e = rec
         return rows
 
-
     def _external(self, result, image, truths) -> dict:
-        """Each external estimator's (error, cause) per true highlight, on what a user of
-        ``simtest reconstruct`` has: the frame the built-in fits see, the render's camera model,
-        light rig and the frame's sensor response (None for a linear frame)."""
+        """Each external estimator's (error, cause) per true highlight, on what a ``simtest reconstruct``
+        user has: the frame the built-in fits see, camera model, light rig and sensor response.
+        """
         if not self.external or not truths:
             return {}
         response = render_response(result)
@@ -491,9 +416,7 @@ class RenderedRunner:
 
 def fit_scored(image, matched: list, camera, rig: LightRig, **kwargs) -> list:
     """The light-aware fits (:func:`~simtest.reconstruct.light_fits.with_light_aware`, ``kwargs``
-    passed on) of the detections matched to the scored highlights, rejected ones too (scored given
-    the highlight). Each detection's fits read its own ROI only, so fitting the matched ones gives
-    them what fitting every detection gives (``tests/test_harness_runner.py``).
+    passed on) of the detections matched to the scored highlights, rejected ones too.
 
     Parameters
     ----------
@@ -516,25 +439,18 @@ def fit_scored(image, matched: list, camera, rig: LightRig, **kwargs) -> list:
 
 
 def fit_on_oracle_image(name: str, image, matched: list, camera, rig: LightRig) -> list:
-    """``photometric_fit`` of each scored detection on an image no real frame gives.
+    """``photometric_fit`` of each scored detection on an oracle image no real frame gives.
 
-    The image a tissue render's sensor sees holds, besides the specular lobes, the diffuse
-    shading of a textured albedo, the sensor's tone curve, its noise and its clipping. Fitted
-    with the same ROI and start as on the sensor image
-    (:func:`~simtest.reconstruct.light_fits.light_aware_estimates`) on the render's specular
-    radiance alone (``photometric_fit_on_specular``), the fit shows what the model and the
-    geometry recover when nothing else is in the image; on its linear radiance
-    (``photometric_fit_on_radiance``: the diffuse shading in, the sensor's steps out), what the
-    diffuse shading costs; the gap from there to ``photometric_fit`` is the sensor's. Oracle
-    inputs, as ``paper_oracle`` is an oracle choice.
+    On the specular radiance alone (``photometric_fit_on_specular``) it shows what model and geometry
+    recover; on the linear radiance (``photometric_fit_on_radiance``, diffuse shading in) what the
+    shading costs; the gap to ``photometric_fit`` is the sensor's.
 
     Parameters
     ----------
     name : str
-        The estimator's name, a key of :data:`simtest.harness.estimators.ORACLE_INPUTS`.
+        A key of :data:`simtest.harness.estimators.ORACLE_INPUTS`.
     image : ndarray of shape (H, W) or None
-        The render's image for it (linear radiance, any unit); None where the renderer has none
-        (the fit is then not run and the estimator fails as not run).
+        The render's image for it (linear radiance); None: not run.
     matched : list of (highlight, SpecularityEstimate or None, float)
         As :func:`fit_scored` returns it.
     camera : array_like of shape (3, 3) or CameraModel
@@ -563,10 +479,8 @@ def fit_on_oracle_image(name: str, image, matched: list, camera, rig: LightRig) 
 
 
 def render_rig(result) -> LightRig:
-    """The light rig of a render: its own when the renderer gives one, else its point light.
-
-    A scene's ``light.falloff = "cancel"`` (the 1/d^2 undone, paper eq. 1) is a light without
-    falloff; ``"keep"`` an inverse-square one.
+    """The light rig of a render: its own when the renderer gives one, else its point light
+    (``light.falloff = "cancel"``: no falloff; ``"keep"``: inverse-square).
     """
     rig = getattr(result, "light_rig", None)
     if rig is not None:
@@ -576,26 +490,21 @@ def render_rig(result) -> LightRig:
 
 
 def render_response(result) -> SensorResponse | None:
-    """The sensor response of a render's video frame, what ``simtest render`` writes into its camera
-    file's ``"response"`` (:func:`~simtest.geometry.response.video_response`); None where the
-    sensor made no video frame."""
+    """The sensor response of a render's video frame (:func:`~simtest.geometry.response.video_response`);
+    None without a video frame.
+    """
     return None if getattr(result, "video", None) is None else video_response(result.spec.sensor)
 
 
 def _depth_errors(est, h, rig) -> dict:
-    """Absolute relative depth error (%) of each light-aware estimator and of the recommendation.
+    """Depth diagnostics of one scored highlight; NaN where not given.
 
-    The truth is the distance from the camera centre to the highlight's BP (the specular point of
-    the render's light); an estimate with a depth per light is scored with that light's. NaN
-    where no depth was given (not observable, failed, not run). Also ``eps_over_d``: the largest
-    light offset of the rig over that distance; ``<name>_depth_rel_sigma``: the relative 1-sigma
-    of the curved fits' depth at the noise floor (above ``TOL.depth_rel_sigma_max``: not
-    observable); ``cubic_patch_fit_ok_share`` (1 where its status is ``ok``),
-    ``cubic_patch_fit_misfit_share`` (1 where it is ``patch_misfit``) and
-    ``recommended_bp_ray_share`` (1 where the recommendation fell back to the BP ray), whose
-    case means are the shares; ``recommended_depth_within_2sigma``: 1 where the recommended
-    depth errs by at most twice the 1-sigma its source fit states (``depth_sigma_mm``, relative
-    to its depth where the depth is a light's), 0 where more, NaN without a depth or a sigma.
+    ``<name>_depth_err_pct``: absolute relative depth error (%) of each light-aware estimator and of
+    the recommendation (truth: distance to the BP; per-light depths scored with that light's);
+    ``eps_over_d``: largest light offset over that distance; ``<name>_depth_rel_sigma``; the shares
+    ``cubic_patch_fit_ok_share``, ``cubic_patch_fit_misfit_share``, ``recommended_bp_ray_share``;
+    ``recommended_depth_within_2sigma``: 1 where the recommended depth errs by at most twice its
+    source fit's ``depth_sigma_mm``.
     """
     nan = float("nan")
     true = float(np.linalg.norm(np.asarray(h.bp_mm, dtype=np.float64)))
@@ -623,23 +532,19 @@ def _depth_errors(est, h, rig) -> dict:
     out["recommended_depth_within_2sigma"] = nan
     if depth is not None:
         out["recommended_depth_err_pct"] = 100.0 * abs(depth / true - 1.0)
-        # the depth's stated sigma is its source fit's (relative, so that a per-light depth of
-        # the patch takes the patch's): the share within twice it says whether it is honest
+        # the source fit's sigma, relative, so that a per-light depth of the patch takes the patch's
         src = (getattr(est, "light_aware", None) or {}).get(rec.normal_from)
         dsig, d0 = getattr(src, "depth_sigma_mm", None), getattr(src, "depth_mm", None)
         if dsig is not None and d0:
-            out["recommended_depth_within_2sigma"] = float(
-                abs(depth - true) <= 2.0 * float(dsig) * abs(depth / d0))
+            out["recommended_depth_within_2sigma"] = float(abs(depth - true) <= 2.0 * float(dsig) * abs(depth / d0))
     return out
 
 
 def _sigma_coverage(est, errs: dict) -> dict:
-    """``recommended_within_2sigma``: 1 where the recommended normal's error is at most twice its
-    stated ``normal_sigma_deg``, 0 where it is more, NaN where it states none (the BP ray) or was
-    not scored; its case mean is the share of the highlights its sigma covers at 2 sigma (issue
-    39: at least 0.9). ``recommended_beyond_bp_ray``: 1 where that error exceeds the BP ray's by
-    more than the sigma (issue 39: never on curved meshes), 0 where not, NaN as above or where
-    the BP ray was not scored."""
+    """``recommended_within_2sigma`` (error at most twice ``normal_sigma_deg``) and
+    ``recommended_beyond_bp_ray`` (error above the BP ray's plus sigma): 1, 0, or NaN without a sigma
+    or a score (issue 39).
+    """
     rec = getattr(est, "recommended", None) if est is not None else None
     sigma = getattr(rec, "normal_sigma_deg", None) if rec is not None else None
     err = errs.get("recommended", (float("nan"), None))[0]
@@ -653,26 +558,20 @@ def _sigma_coverage(est, errs: dict) -> dict:
 def curvature_between_lights(h, highlights) -> dict:
     """How much the surface's curvature changes between the specular points of two lights.
 
-    Under a rig of several lights a curved patch fitted to one highlight must hold between the
-    specular points of its lights (:func:`~simtest.reconstruct.lightaware.cubic_patch_fit`): a
-    third-order patch lets the curvature change linearly over it, and no more. The partner of
-    ``h`` is the highlight of another light nearest to it in the image.
+    The partner of ``h`` is the highlight of another light nearest to it in the image.
 
     Parameters
     ----------
     h : simtest.simulate.truth.HighlightTruth
         The highlight scored.
     highlights : sequence of HighlightTruth
-        Every highlight of the render (each light's).
+        Every highlight of the render.
 
     Returns
     -------
     dict
-        Empty without a partner (one light, or the others' highlights missing); else
-        ``specular_separation_mm``, the distance between the two specular points (mm, camera
-        frame), and ``curvature_change_rel``, ``|(k1, k2) - (k1', k2')| / max(|(k1, k2)|,
-        |(k1', k2')|)`` (0: the same curvature at both, 1: a change as large as the curvature
-        itself), from the ground-truth principal curvatures at the two points.
+        Empty without a partner; else ``specular_separation_mm`` (camera frame) and
+        ``curvature_change_rel`` = ``|(k1, k2) - (k1', k2')| / max(|(k1, k2)|, |(k1', k2')|)``.
     """
     light = int(getattr(h, "light", 0))
     others = [o for o in highlights if int(getattr(o, "light", 0)) != light]
@@ -688,8 +587,7 @@ def curvature_between_lights(h, highlights) -> dict:
 
 
 def _light_depth(r, light: int) -> float | None:
-    """The depth an estimate gives for the highlight of light ``light``: its per-light depth where
-    it has one (``light_depths_mm``), else its one depth (None: not observable)."""
+    """An estimate's depth for light ``light``: per-light where it has one, else its one depth."""
     ld = getattr(r, "light_depths_mm", None)
     if ld is not None and 0 <= light < len(ld) and np.isfinite(ld[light]):
         return float(ld[light])
@@ -699,31 +597,20 @@ def _light_depth(r, light: int) -> float | None:
 def mesh_pose_overrides(p: MeshPose) -> dict:
     """Scene overrides placing the camera in or around a bundled mesh (``meshes/*.ply``).
 
-    colon (``colon_station`` s in [0, 1]): :func:`simtest.scene.poses.colon_pose`, on the centre
-    line at arc length s x length, moved off it by 0.3 x the smallest wall distance of that ring,
-    looking ``mesh_view_deg`` off the tangent toward the wall on the other side. liver
-    (``liver_azimuth_deg``): :func:`simtest.scene.poses.liver_orbit_pose`, on a sphere
-    ``mesh_distance_mm`` outside its bounding sphere at that azimuth and ``liver_elevation_deg``,
-    aimed at the centre of its bounding box.
-
-    Parameters
-    ----------
-    p : simtest.harness.suite.MeshPose
-        The case's mesh pose; the colon is used when ``colon_station`` is not None.
+    The colon when ``p.colon_station`` is not None (:func:`simtest.scene.poses.colon_pose`), else
+    the liver (:func:`simtest.scene.poses.liver_orbit_pose`).
 
     Returns
     -------
     dict
-        Dotted scene overrides: ``geometry.type = "mesh"`` (which drops the base scene's geometry,
-        :func:`simtest.scene.with_overrides`), ``geometry.path`` and the camera ``position_mm``, ``look_at_mm`` (world frame of the mesh,
-        mm) and ``up``.
+        ``geometry.type = "mesh"``, ``geometry.path`` and the camera ``position_mm``, ``look_at_mm``
+        (mesh world frame, mm) and ``up``.
 
     Raises
     ------
     FileNotFoundError, ValueError
-        If the bundled mesh is missing or unreadable (:func:`simtest.scene.poses.mesh_placement`).
+        If the bundled mesh is missing or unreadable.
     """
-
     if p.colon_station is not None:
         pose = colon_pose(p.colon_station, p.mesh_view_deg)
     else:
@@ -734,21 +621,9 @@ def mesh_pose_overrides(p: MeshPose) -> dict:
 
 
 def make_runner(case, estimators, external=()):
-    """The runner of ``case.protocol``.
+    """The runner of ``case.protocol``: a PaperRunner or a RenderedRunner.
 
-    Parameters
-    ----------
-    case : simtest.harness.suite.Case
-        The case.
-    estimators : sequence of str
-        Keys of :data:`simtest.harness.estimators.ESTIMATORS`, and the names of ``external``.
-    external : sequence of (str, str)
-        External estimators, ``(name, "package.module:function")``
-        (:mod:`simtest.harness.external`).
-
-    Returns
-    -------
-    PaperRunner or RenderedRunner
+    ``external`` holds ``(name, "package.module:function")`` pairs (:mod:`simtest.harness.external`).
 
     Raises
     ------

@@ -1,12 +1,8 @@
 """The README's "What the testbed shows so far" section, generated from the committed reports.
 
-Every number of that section is read from a committed ``results.json`` (the latest run folder of
-each suite under ``reports/`` whose name does not end in ``-local``), so the section cannot drift
-from the reports; ``tests/test_readme.py`` fails when the README's copy is stale.
-
-Run ``python -m simtest.harness.readme`` to rewrite the section in place (between its two marker
-lines), ``--check`` to exit 1 when it is stale. ``python -m simtest.harness.regenerate``
-re-runs the committed suites first, then calls this.
+Every number is read from the latest committed ``results.json`` of each suite under ``reports/``
+(run folders not ending in ``-local``); ``tests/test_readme.py`` fails when the README's copy is
+stale. ``python -m simtest.harness.readme`` rewrites it in place, ``--check`` exits 1 when stale.
 """
 
 from __future__ import annotations
@@ -32,18 +28,11 @@ END = "<!-- END what-the-testbed-shows -->"
 def committed_runs(reports: str | Path) -> list[Path]:
     """The latest committed run folder of each suite under ``reports``.
 
-    Parameters
-    ----------
-    reports : str or Path
-        The reports root (``reports/``).
-
     Returns
     -------
     list of Path
-        One ``<reports>/<suite>/<run id>`` per suite that has a run folder holding a
-        ``results.json`` and not ending in ``-local`` (local runs are git-ignored), the latest by
-        name (run ids are dates or UTC times), sorted by suite name; folders of other commands'
-        reports (results without a ``suite``) are passed over.
+        One ``<reports>/<suite>/<run id>`` per suite with a run folder holding a suite's
+        ``results.json`` and not ending in ``-local``, the latest by name, sorted by suite name.
     """
     out = []
     root = Path(reports)
@@ -56,8 +45,7 @@ def committed_runs(reports: str | Path) -> list[Path]:
 
 
 def _is_suite_run(folder: Path) -> bool:
-    """A validation suite's run (its results name their suite), not another command's report
-    (``evaluate detection``'s, say) kept under the same root."""
+    """A validation suite's run (its results name their suite), not another command's report."""
     try:
         return "suite" in json.loads((folder / "results.json").read_text(encoding="utf-8"))
     except (OSError, ValueError):
@@ -68,11 +56,8 @@ def _is_suite_run(folder: Path) -> bool:
 _NOT_OTHERS = frozenset(name for name in names() if get(name).reference)
 
 
-#: The least share of a family's scored highlights (the most any estimator of the row was scored
-#: on) that an estimator's median must rest on to stand as "the other estimator with the lowest
-#: median". Below half, its median is over the highlights it chose to answer (n 2 of 10 on a
-#: sphere), not over the family's, and does not compare with the baselines' (a presentation rule,
-#: not tuned on any result).
+#: The least share of a family's scored highlights an estimator's median must rest on to stand as
+#: "the other estimator with the lowest median" (a presentation rule, not tuned on any result).
 MIN_SHARE_OF_HIGHLIGHTS = 0.5
 
 
@@ -102,8 +87,7 @@ def _rows(folder: Path, rel: str) -> list[str]:
         side = "held out" if data_side(r["suite"]["seed"]) == "held_out" else "tuning"
         out.append(f"| [{r['suite']['name']}]({rel}/report.md), seed {r['suite']['seed']} ({side}) | "
                    f"{esc(fam)} | {e2e} | "
-                   f"{cell('recommended') if 'recommended' in ests else '- ¹'}"
-                   f" | {cell('bp_ray')} | "
+                   f"{cell('recommended') if 'recommended' in ests else '- ¹'} | {cell('bp_ray')} | "
                    + ("-" if best is None else f"`{best[1]}` {cell(best[1])}") + " |")
     return out
 
@@ -111,12 +95,10 @@ def _rows(folder: Path, rel: str) -> list[str]:
 def section_text(reports: str | Path | None = None, repo: str | Path | None = None) -> str:
     """The generated section (marker lines included): one table of the committed reports.
 
-    One row per family of scenes of each committed report: the median normal error (deg) of the
-    recommended normal (``-`` where the suite has none), of the ``bp_ray`` baseline and of the
-    other estimator with the lowest median among those scored on at least
-    :data:`MIN_SHARE_OF_HIGHLIGHTS` of the row's highlights, each with the number of highlights it was scored on (``n``), in bold where
-    :func:`simtest.harness.claims.best_marks` calls it best among all the row's estimators. The reports hold the rest (every estimator, every case,
-    the figures and the claims).
+    One row per family of each committed report: median normal errors (deg, with n) of the
+    recommended normal, of ``bp_ray`` and of the other estimator with the lowest median among those
+    scored on at least :data:`MIN_SHARE_OF_HIGHLIGHTS` of the row's highlights, in bold where
+    :func:`simtest.harness.claims.best_marks` calls it best.
 
     Parameters
     ----------
@@ -135,8 +117,7 @@ def section_text(reports: str | Path | None = None, repo: str | Path | None = No
     L = [BEGIN, ""]
     runs = committed_runs(reports)
     if not runs:
-        return "\n".join(L + ["No committed report yet: run `python -m simtest.harness.regenerate`.",
-                              "", END]) + "\n"
+        return "\n".join(L + ["No committed report yet: run `python -m simtest.harness.regenerate`.", "", END]) + "\n"
     L += ["| report | family | end to end: within 1 / 5 deg | median ok | false ok per frame "
           "| given the highlight: recommended | bp_ray | other estimator with the lowest median |",
           "|---" * 8 + "|"]
@@ -166,21 +147,9 @@ def section_text(reports: str | Path | None = None, repo: str | Path | None = No
 
 
 def replace_section(readme_text: str, section: str) -> str:
-    """``readme_text`` with the generated section replaced (or inserted).
-
-    Parameters
-    ----------
-    readme_text : str
-        The README.
-    section : str
-        From :func:`section_text`.
-
-    Returns
-    -------
-    str
-        The text between (and including) the markers replaced; without markers, the section is
-        put right after the ``## What the testbed shows so far`` heading, replacing the prose up
-        to the next ``## `` heading.
+    """``readme_text`` with the generated section replaced between its markers (or, without them,
+    put after the ``## What the testbed shows so far`` heading in place of the prose up to the next
+    ``## `` heading).
 
     Raises
     ------
@@ -203,19 +172,10 @@ def replace_section(readme_text: str, section: str) -> str:
 def main(argv: list[str] | None = None) -> int:
     """``python -m simtest.harness.readme [--check] [--readme PATH] [--reports DIR]``.
 
-    Parameters
-    ----------
-    argv : list of str, optional
-        Arguments (default ``sys.argv[1:]``).
-
-    Returns
-    -------
-    int
-        0 when written (or fresh with ``--check``), 1 when ``--check`` finds it stale, 2 on a
-        README without the section (one line on stderr).
+    Returns 0 when written (or fresh with ``--check``), 1 when ``--check`` finds it stale, 2 on a
+    README without the section (one line on stderr).
     """
-    ap = argparse.ArgumentParser(prog="python -m simtest.harness.readme",
-                                 description=__doc__.splitlines()[0])
+    ap = argparse.ArgumentParser(prog="python -m simtest.harness.readme", description=__doc__.splitlines()[0])
     ap.add_argument("--readme", type=Path, default=data_root() / "README.md")
     ap.add_argument("--reports", type=Path, default=None)
     ap.add_argument("--check", action="store_true", help="exit 1 if the section is stale")
@@ -234,8 +194,7 @@ def main(argv: list[str] | None = None) -> int:
         return 0
     if new != text:
         atomic_write_text(a.readme, new)
-    print(f"{a.readme}: section 'What the testbed shows so far' "
-          f"{'rewritten' if new != text else 'already fresh'}")
+    print(f"{a.readme}: section 'What the testbed shows so far' {'rewritten' if new != text else 'already fresh'}")
     return 0
 
 

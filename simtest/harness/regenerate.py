@@ -1,12 +1,9 @@
 """Regenerate every committed report, optionally the nightly baseline, then the README section.
 
-``python -m simtest.harness.regenerate`` re-runs each suite that has a committed run folder under
-``reports/`` (today: ``paper-figure3`` and ``rendered``), writes its report to
-``reports/<suite>/<run id>/`` (run id: today's UTC date), removes that suite's older committed
-run folders (``-local`` runs are left alone), and rewrites the README's "What the testbed shows
-so far" section from the new results. ``--baseline`` also rebuilds ``reports/baseline.json``
-(the ``nightly`` and ``quick`` suites, seed-varied repeats). ``--suite quick --out DIR --readme
-FILE`` tries the whole path in seconds without touching the repository.
+``python -m simtest.harness.regenerate`` re-runs each suite with a committed run folder under
+``reports/``, writes ``reports/<suite>/<UTC date>/``, removes that suite's older committed run
+folders (not ``-local`` ones) and rewrites the README section. ``--baseline`` also rebuilds
+``reports/baseline.json``.
 """
 
 from __future__ import annotations
@@ -28,8 +25,7 @@ from simtest.resources import data_root
 
 __all__ = ["main", "BASELINE_REPEATS"]
 
-#: Seed-varied runs per baseline suite: the nightly suite is minutes per run, the quick one
-#: seconds (its few renders need more repeats for a usable spread).
+#: Seed-varied runs per baseline suite (the quick suite's few renders need more for a usable spread).
 BASELINE_REPEATS = {"nightly": 3, "quick": 5}
 
 
@@ -39,30 +35,17 @@ def _baseline(name: str, repeats: int, path: Path, workers, console) -> None:
     for k in range(repeats):
         sk = s.with_overrides(seed=s.seed + k)
         console.print(f"baseline {name}: seed {sk.seed} ({k + 1} of {repeats})")
-        runs.append(build_results(run_suite(sk, workers=workers, console=console),
-                                  f"baseline-seed{sk.seed}"))
+        runs.append(build_results(run_suite(sk, workers=workers, console=console), f"baseline-seed{sk.seed}"))
     update_baseline(path, runs)
     console.print(f"baseline {name} written to {path}")
 
 
 def main(argv: list[str] | None = None) -> int:
-    """Command line (see the module docstring).
-
-    Parameters
-    ----------
-    argv : list of str, optional
-        Arguments (default ``sys.argv[1:]``).
-
-    Returns
-    -------
-    int
-        0 on success; 2 on a bad suite name or README (one line on stderr).
-    """
+    """Command line (module docstring); 0 on success, 2 on a bad suite name or README (one line on stderr)."""
     root = data_root()
-    ap = argparse.ArgumentParser(prog="python -m simtest.harness.regenerate",
-                                 description=__doc__.splitlines()[0])
-    ap.add_argument("--suite", action="append", help="suite to run (repeatable; default: every "
-                                                     "suite with a committed report)")
+    ap = argparse.ArgumentParser(prog="python -m simtest.harness.regenerate", description=__doc__.splitlines()[0])
+    ap.add_argument("--suite", action="append",
+                    help="suite to run (repeatable; default: every suite with a committed report)")
     ap.add_argument("--out", type=Path, default=root / "reports", help="reports root")
     ap.add_argument("--run-id", default=_dt.datetime.now(_dt.timezone.utc).strftime("%Y-%m-%d"))
     ap.add_argument("-j", "--workers", type=int, default=None)

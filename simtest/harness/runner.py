@@ -1,13 +1,9 @@
 """Run a suite: realisations in chunks over a process pool, with a rich progress bar.
 
-Results do not depend on the number of workers: realisation ``i`` of a case always draws from
-``SeedSequence([root_seed, stable_hash(case.key), i])`` and results are put back in realisation
-order before any statistic is taken. ``workers=1`` runs in this process (no pool), which is what
-tests that monkeypatch an estimator need.
-
-An exception inside a realisation is not fatal: every estimator of that realisation fails with
-the cause ``exception:<type>`` and the first messages are kept in the case result, so a sweep of
-thousands of images reports the problem instead of stopping (or hiding it).
+Results do not depend on the number of workers: each realisation draws from
+:func:`~simtest.harness.cases.realisation_seed` and rows are put back in realisation order.
+``workers=1`` runs in this process. An exception inside a realisation fails its estimators with
+the cause ``exception:<type>`` and its first messages are kept in the case result.
 """
 
 from __future__ import annotations
@@ -24,8 +20,7 @@ from datetime import datetime, timezone
 import cv2
 import numpy as np
 from rich.console import Console
-from rich.progress import (BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn,
-                           TimeRemainingColumn)
+from rich.progress import (BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn, TimeRemainingColumn)
 
 from simtest._dask import connect
 from simtest._lazy import require
@@ -48,14 +43,7 @@ _RUNNERS_MAX = 8
 
 
 def default_workers() -> int:
-    """Number of CPU cores available to this process (at least 1).
-
-    Returns
-    -------
-    int
-        ``len(os.sched_getaffinity(0))`` on Linux (honours CPU pinning and cgroup sets), else
-        ``os.cpu_count()``.
-    """
+    """Number of CPU cores available to this process (at least 1; honours CPU pinning on Linux)."""
     try:
         return max(1, len(os.sched_getaffinity(0)))
     except AttributeError:  # pragma: no cover - not Linux
@@ -69,7 +57,6 @@ class CaseResult:
     Attributes
     ----------
     case : Case
-        The case.
     realisation : ndarray of shape (S,), int
         Realisation index of each row (a rendered realisation may score several highlights).
     errors : dict of str to ndarray of shape (S,)
@@ -77,7 +64,7 @@ class CaseResult:
     causes : dict of str to list of (str or None)
         Failure cause per estimator and row (None where it succeeded).
     extras : dict of str to ndarray of shape (S,)
-        Diagnostics (eigenvalue gap, fit residual, BP error, curvatures at the BP).
+        Diagnostics per row.
     exceptions : list of str
         First messages of exceptions raised inside realisations.
     cpu_s : float
@@ -85,7 +72,7 @@ class CaseResult:
     variant : str or None
         Mitsuba variant used (rendered protocol).
     e2e : list of dict
-        The rows' end-to-end records, in row order (rendered protocol; empty otherwise).
+        The rows' end-to-end records (rendered protocol).
     """
 
     case: Case
@@ -106,7 +93,6 @@ class SuiteRun:
     Attributes
     ----------
     suite : Suite
-        The suite that ran.
     results : list of CaseResult
         One per case of ``suite.cases``, in that order.
     workers : int
@@ -118,7 +104,7 @@ class SuiteRun:
     cpu_s_by_protocol : dict of str to float
         Seconds spent in realisations, summed over workers, per protocol.
     realisations_by_protocol : dict of str to int
-        Realisations run per protocol (a setting shared by several sweeps counts once).
+        Realisations run per protocol (a shared setting counts once).
     """
 
     suite: Suite
@@ -150,8 +136,7 @@ def _get_runner(case: Case, estimators: tuple, external: tuple = ()):
 
 def _exception_rows(estimators, exc: BaseException) -> list[Row]:
     cause = f"exception:{type(exc).__name__}"
-    return [Row(errors={k: float("nan") for k in estimators},
-                causes={k: cause for k in estimators}, extras={})]
+    return [Row(errors={k: float("nan") for k in estimators}, causes={k: cause for k in estimators}, extras={})]
 
 
 @dataclass
@@ -165,9 +150,7 @@ class ChunkResult:
     items : list of (int, list of Row)
         Realisation index and its rows, in index order.
     seconds : float
-        Time spent, seconds.
     variant : str or None
-        Mitsuba variant used (rendered protocol).
     messages : list of str
         First messages of exceptions raised.
     """
@@ -179,25 +162,12 @@ class ChunkResult:
     messages: list[str]
 
 
-def run_case_chunk(case: Case, estimators: tuple, root_seed: int, start: int, stop: int,
-                   external: tuple = ()):
+def run_case_chunk(case: Case, estimators: tuple, root_seed: int, start: int, stop: int, external: tuple = ()):
     """Run realisations ``start`` to ``stop - 1`` of one case (in a worker or in process).
 
-    An exception in the set-up or in a realisation never propagates: those realisations fail
-    every estimator with the cause ``exception:<type>`` and the first messages are returned.
-
-    Parameters
-    ----------
-    case : Case
-        The case.
-    estimators : tuple of str
-        Keys of :data:`simtest.harness.estimators.ESTIMATORS`.
-    root_seed : int
-        Suite root seed (0 is valid).
-    start, stop : int
-        Half-open range of realisation indices.
-    external : tuple of (str, str)
-        The suite's external estimators (:attr:`simtest.harness.suite.Suite.external`).
+    An exception in the set-up or a realisation never propagates: those realisations fail every
+    estimator with the cause ``exception:<type>``. ``external`` is the suite's
+    :attr:`~simtest.harness.suite.Suite.external`.
 
     Returns
     -------
@@ -261,21 +231,17 @@ def _assemble(case: Case, estimators: tuple, chunks: list[ChunkResult]) -> CaseR
     msgs = [m for ch in chunks for m in ch.messages][:MAX_EXCEPTIONS]
     variant = next((ch.variant for ch in chunks if ch.variant), None)
     return CaseResult(case=case, realisation=np.asarray(idx, dtype=np.int64),
-                      errors={k: np.asarray(v, dtype=np.float64) for k, v in errs.items()},
-                      causes=causes,
+                      errors={k: np.asarray(v, dtype=np.float64) for k, v in errs.items()}, causes=causes,
                       extras={k: np.asarray(v, dtype=np.float64) for k, v in extras.items()},
                       exceptions=msgs, cpu_s=sum(ch.seconds for ch in chunks), variant=variant,
                       e2e=[row.e2e for _, rows in items for row in rows if row.e2e is not None])
 
 
-def _run_on_cluster(address: str, tasks, estimators: tuple, root_seed: int, external: tuple,
-                    record) -> int:
+def _run_on_cluster(address: str, tasks, estimators: tuple, root_seed: int, external: tuple, record) -> int:
     """Run the chunks ``tasks`` on the Dask cluster at ``address``; ``record`` takes each result.
 
-    Each chunk is :func:`run_case_chunk` with the arguments a local worker gets, so its rows are
-    the same bit for bit (results are put back in realisation order afterwards). Returns the
-    cluster's number of worker threads. Chunks left on the cluster by an error or an interrupt
-    are cancelled.
+    Each chunk is :func:`run_case_chunk` as locally, so its rows are the same bit for bit. Returns
+    the cluster's number of worker threads; chunks left by an error or interrupt are cancelled.
     """
     client = connect(address)
     futs = []
@@ -299,17 +265,14 @@ def run_suite(suite: Suite, *, workers: int | None = None, progress: bool = True
     Parameters
     ----------
     suite : Suite
-        A loaded suite.
     workers : int or None
-        Worker processes; None: the number of available cores; 1: in this process. Ignored
-        with ``scheduler``.
+        Worker processes; None: the available cores; 1: in this process. Ignored with ``scheduler``.
     progress : bool
-        Show a rich progress bar (on ``console`` or stderr).
+        Show a rich progress bar (on ``console``, default stderr).
     console : rich.console.Console or None
-        Where the progress bar is drawn (default: a stderr console).
     scheduler : str, optional
-        Address of a Dask distributed scheduler (``tcp://HOST:8786``) whose workers run the
-        chunks; its workers need simtest installed. Same seeding, same results.
+        Address of a Dask distributed scheduler (``tcp://HOST:8786``) whose workers (with simtest
+        installed) run the chunks.
 
     Returns
     -------
@@ -323,15 +286,13 @@ def run_suite(suite: Suite, *, workers: int | None = None, progress: bool = True
     simtest._dask.SchedulerError
         A bad scheduler address, or no answer from it.
     """
-
     workers = default_workers() if workers is None else int(workers)
     if workers < 1:
         raise ValueError(f"workers must be >= 1, got {workers}")
     console = console or Console(stderr=True)
     estimators = tuple(suite.estimators)
     cases = suite.cases
-    # Identical settings (same key, e.g. the default point of several sweeps) run once: the
-    # progress bar counts what runs, as the console header and the report do.
+    # identical settings (same key) run once
     unique = suite.distinct_cases
     steps = {c.key: CHUNK.get(c.protocol, 50) for c in unique}
     tasks = [(c, s, min(c.realisations, s + steps[c.key])) for c in unique

@@ -28,27 +28,12 @@ A suite file (``scenes/suites/<name>.toml``) reads::
     value = 1.25
     note = "why ours differs"
 
-Parameters. ``paper`` protocol: the fields of :class:`simtest.simulate.paper.PaperParams`.
-``rendered`` protocol: dotted scene keys (``"material.n"``, ``"geometry.tilt_deg"``, ...) applied
-with :func:`simtest.scene.with_overrides`, and the derived key ``"radius_over_distance"`` (sphere or
-cylinder of radius ``r d`` whose nearest point is at ``distance_mm`` d on the optical axis), and
-the mesh poses ``colon_station`` (camera on the bundled colon's centre line at that fraction of its
-length, looking ``mesh_view_deg`` off the tangent) and ``liver_azimuth_deg`` (camera
-``mesh_distance_mm`` outside the bundled liver's bounding sphere at that azimuth and
-``liver_elevation_deg``, aimed at its centre), which replace the scene's geometry. Both:
-the reconstruction settings ``isovalue`` (t in (0, 1)) and ``joint_isovalues`` (list, for the
-nested-isophote joint cone axis); rendered also ``image`` ("sensor" or "linear"),
-``match_px`` (max distance from a true BP to a detected one), ``distance_mm`` and ``texture``
-("scene", or "per_realisation": a procedural tissue's texture drawn for each realisation,
-:class:`SceneSetting`).
-
-Seeds: realisation ``i`` of a case draws from
-``SeedSequence([root_seed, stable_hash(case.key), i])`` (:func:`realisation_seed`), so results do
-not depend on how realisations are shared between workers; its first word is the render seed, its
-second the texture seed where one is drawn
-(:func:`simtest.harness.protocols.realisation_overrides`).
-
-Errors: :class:`SuiteError` (a ValueError) with the message ``"<file>: <key>: <reason>"``.
+Parameters: ``paper``: the fields of :class:`simtest.simulate.paper.PaperParams`; ``rendered``:
+dotted scene keys (``"material.n"``, ...) and the keys of
+:class:`~simtest.harness.cases.RenderedKeys`; both: those of
+:class:`~simtest.harness.cases.ReconKeys`. Realisation ``i`` of a case draws from
+:func:`realisation_seed`, independent of the workers. Errors: :class:`SuiteError` with the message
+``"<file>: <key>: <reason>"``.
 """
 
 from __future__ import annotations
@@ -88,18 +73,13 @@ PROTOCOLS = ("paper", "rendered")
 
 #: The estimators a suite that lists none scores side by side (:mod:`simtest.reconstruct.registry`).
 ESTIMATOR_NAMES = tuple(name for name in registry.names() if registry.get(name).default)
-#: Estimators that use the scope's light rig (:mod:`simtest.reconstruct.recommend`); a suite lists
-#: them explicitly (``recommended`` is the normal that ``estimates.json`` recommends).
+#: Estimators that use the scope's light rig (:mod:`simtest.reconstruct.recommend`); a suite lists them.
 LIGHT_AWARE_NAMES = registry.names("light_aware", "recommendation", "oracle_input")
 
-#: Most realisations one run may hold, over its distinct settings (a setting shared by several
-#: sweeps runs once). Why: every realisation keeps its scored rows (an error, a cause and the
-#: diagnostics per estimator: about 2 KB in Python objects, measured 1.4 KB for the rows alone with
-#: six estimators) until the report is written, so the cap bounds a run at about 2 GB of memory; it
-#: is 19 times the largest bundled suite (paper-figure3, 53 200 realisations), and at the paper
-#: protocol's few hundred realisations per second and core it is already hours of work. A suite
-#: file or ``-n`` beyond it is refused before anything is allocated.
+#: Most realisations one run may hold, over its distinct settings: each keeps about 2 KB of scored
+#: rows until the report is written, so the cap bounds a run at about 2 GB of memory.
 MAX_TOTAL_REALISATIONS = 1_000_000
+
 
 class SuiteError(ValueError):
     """A suite file is invalid. The message reads ``"<file>: <key>: <reason>"``."""
@@ -113,8 +93,7 @@ _Protocol = Literal["paper", "rendered"]
 
 
 def _known_estimator(name: str) -> str:
-    """An estimator name the registry knows when the suite is read (one registered after import
-    counts too)."""
+    """An estimator name the registry knows when the suite is read."""
     if name not in registry.names():
         raise ValueError("must be one of " + ", ".join(repr(n) for n in registry.names()))
     return name
@@ -193,39 +172,17 @@ class _SuiteFile:
 
 
 def suites_dir() -> Path:
-    """Folder of the bundled suites, ``scenes/suites``.
-
-    Returns
-    -------
-    Path
-        The folder (:func:`simtest.resources.bundled`: a clone's or an installed wheel's).
-    """
+    """Folder of the bundled suites, ``scenes/suites`` (:func:`simtest.resources.bundled`)."""
     return bundled("scenes", "suites")
 
 
 def bundled_suite_names() -> list[str]:
-    """Names (file stems) of the bundled suites, sorted.
-
-    Returns
-    -------
-    list of str
-        E.g. ``["default", "nightly", "quick", ...]``; empty if the folder is missing.
-    """
+    """Names (file stems) of the bundled suites, sorted; empty if the folder is missing."""
     return sorted(p.stem for p in suites_dir().glob("*.toml"))
 
 
 def resolve_suite_path(name_or_path: str | Path) -> Path:
-    """A bundled suite name (``"quick"``) or a path to a TOML file -> the file path.
-
-    Parameters
-    ----------
-    name_or_path : str or Path
-        An existing file, or the stem (with or without ``.toml``) of a suite in :func:`suites_dir`.
-
-    Returns
-    -------
-    Path
-        The suite file.
+    """A bundled suite name (``"quick"``, with or without ``.toml``) or a TOML file -> the file path.
 
     Raises
     ------
@@ -258,7 +215,7 @@ class Suite:
     realisations : int
         Default realisations per case.
     estimators : tuple of str
-        Keys of :data:`simtest.harness.estimators.ESTIMATORS` scored.
+        Estimator names scored; external ones last.
     sweeps : tuple of Sweep
         In file order.
     sha256 : str
@@ -266,8 +223,7 @@ class Suite:
     raw : dict
         The document as read, used by :meth:`with_overrides`.
     external : tuple of (str, str)
-        External estimators ``(name, "package.module:function")`` scored beside the built-in
-        ones (:mod:`simtest.harness.external`); their names end :attr:`estimators`.
+        External estimators ``(name, "package.module:function")`` (:mod:`simtest.harness.external`).
     """
 
     name: str
@@ -288,34 +244,21 @@ class Suite:
 
     @property
     def distinct_cases(self) -> list[Case]:
-        """The cases that run: one per distinct setting (``(key, realisations)``), first seen.
-
-        A setting shared by several sweeps (the default point of two sweeps, say) is one case of
-        each sweep in the reports but runs once; the runner, the progress bar, the console
-        header and the report count these.
+        """The cases that run: one per distinct ``(key, realisations)``, first seen (a setting shared by
+        several sweeps runs once).
         """
         return list({(c.key, c.realisations): c for c in self.cases}.values())
 
     @property
     def total_realisations(self) -> int:
-        """Realisations that run: over :attr:`distinct_cases` (a shared setting counts once)."""
+        """Realisations that run, over :attr:`distinct_cases`."""
         return sum(c.realisations for c in self.distinct_cases)
 
-    def with_overrides(self, *, seed: int | None = None,
-                       realisations: int | None = None) -> Suite:
+    def with_overrides(self, *, seed: int | None = None, realisations: int | None = None) -> Suite:
         """A copy with another root seed and/or number of realisations per case.
 
-        Parameters
-        ----------
-        seed : int, optional
-            New root seed (0 is valid); None keeps the suite's.
-        realisations : int, optional
-            Realisations of every case (per-sweep values are dropped); None keeps them.
-
-        Returns
-        -------
-        Suite
-            Re-validated from the raw document, with the same source and sha256.
+        ``realisations`` replaces per-sweep values; None keeps a value. The copy is re-validated from the
+        raw document, with the same source and sha256.
 
         Raises
         ------
@@ -328,8 +271,7 @@ class Suite:
             d["suite"]["seed"] = seed
         if realisations is not None:
             d["suite"]["realisations"] = realisations
-            d["sweep"] = [{k: v for k, v in s.items() if k != "realisations"}
-                          for s in d.get("sweep", [])]
+            d["sweep"] = [{k: v for k, v in s.items() if k != "realisations"} for s in d.get("sweep", [])]
         new = suite_from_dict(d, source=self.source, sha256=self.sha256)
         if not self.external:
             return new
@@ -338,17 +280,7 @@ class Suite:
 
 
 def load_suite(name_or_path: str | Path) -> Suite:
-    """Load and validate a suite file (bundled name or path).
-
-    Parameters
-    ----------
-    name_or_path : str or Path
-        Bundled suite name (``"quick"``) or a TOML file.
-
-    Returns
-    -------
-    Suite
-        Sweeps expanded to cases; ``sha256`` is that of the file's bytes.
+    """Load and validate a suite file (bundled name or path); ``sha256`` is that of the file's bytes.
 
     Raises
     ------
@@ -364,10 +296,10 @@ def load_suite(name_or_path: str | Path) -> Suite:
     return suite_from_dict(raw, source=str(path), sha256=hashlib.sha256(data).hexdigest())
 
 
-def _keyed(params: Mapping, cls: type, source: str, where: str, protocol: str,
-           others: set) -> tuple[Any, dict]:
+def _keyed(params: Mapping, cls: type, source: str, where: str, protocol: str, others: set) -> tuple[Any, dict]:
     """Split a case's ``params`` into ``cls``'s keys (validated) and the protocol's own
-    (``others``, or dotted scene keys where ``others`` is empty); refuse any other key."""
+    (``others``, or dotted scene keys where ``others`` is empty); refuse any other key.
+    """
     mine, rest = {}, {}
     for k, v in params.items():
         if k in cls.__dataclass_fields__:
@@ -407,8 +339,7 @@ def _resolve_rendered(scene_path: Path, params: Mapping, source: str, where: str
     resolved = {k: jsonable(v) for k, v in sorted(overrides.items())}
     resolved.update(dataclasses.asdict(keys))
     if resolved["texture"] == RENDERED_KEYS["texture"]:
-        # the default is left out of the case's key: the cases of suites that do not name it keep
-        # their keys, and so their realisations' seeds
+        # the default is left out of the case's key, so that older cases keep their seeds
         del resolved["texture"]
     return resolved
 
@@ -436,8 +367,7 @@ def _typed(protocol: str, params: Mapping, source: str, where: str) -> dict:
     except ValueError as e:
         raise _err(source, f"{where}.joint_isovalues", str(e)) from None
     if protocol == "paper":
-        return {"recon": recon, "paper": PaperParams(**{k: v for k, v in params.items()
-                                                         if k not in RECON_KEYS})}
+        return {"recon": recon, "paper": PaperParams(**{k: v for k, v in params.items() if k not in RECON_KEYS})}
     mesh = MeshPose(**{k: params[k] for k in MESH_POSE_KEYS})
     setting = SceneSetting(overrides={k: v for k, v in params.items() if "." in k},
                            radius_over_distance=params["radius_over_distance"],
@@ -473,8 +403,7 @@ def suite_from_dict(raw: Mapping[str, Any], source: str = "<dict>", sha256: str 
     """
     doc = validated(_SuiteFile, raw, SuiteError, source)
     head = validated(_Head, doc.suite, SuiteError, source, "suite")
-    name = head.name if head.name is not None else (
-        Path(source).stem if source not in ("<dict>", "") else "suite")
+    name = head.name if head.name is not None else (Path(source).stem if source not in ("<dict>", "") else "suite")
     if not name or any(c in name for c in "/\\ "):
         raise _err(source, "suite.name", f"expected a name without spaces or slashes, got {name!r}")
     protocol, realisations, seed, estimators = head.protocol, head.realisations, head.seed, head.estimators
@@ -494,14 +423,12 @@ def suite_from_dict(raw: Mapping[str, Any], source: str = "<dict>", sha256: str 
         seen.add(sname)
         sproto = sw.protocol or protocol
         sreal = sw.realisations if sw.realisations is not None else realisations
-        _check_bound(sreal, source, f"{where}.realisations" if "realisations" in raw_sw
-                     else "suite.realisations")
+        _check_bound(sreal, source, f"{where}.realisations" if "realisations" in raw_sw else "suite.realisations")
         scene_path, scene_name = None, None
         if sproto == "rendered":
             scene_name = sw.scene if sw.scene is not None else head.scene
             if scene_name is None:
-                raise _err(source, f"{where}.scene", "a rendered sweep needs a scene "
-                                                     "(sweep.scene or suite.scene)")
+                raise _err(source, f"{where}.scene", "a rendered sweep needs a scene (sweep.scene or suite.scene)")
             scene_path = _resolve_scene(scene_name, source, f"{where}.scene")
         elif sw.scene is not None:
             raise _err(source, f"{where}.scene", "only rendered sweeps take a scene")
@@ -519,8 +446,7 @@ def suite_from_dict(raw: Mapping[str, Any], source: str = "<dict>", sha256: str 
                 raise _err(source, f"{where}.parameter", "expected a parameter name")
             if sw.values is None:
                 raise _err(source, f"{where}.values", "expected a non-empty list of values")
-            settings = [(float(v), {parameter: v}, f"{where}.values[{j}]")
-                        for j, v in enumerate(sw.values)]
+            settings = [(float(v), {parameter: v}, f"{where}.values[{j}]") for j, v in enumerate(sw.values)]
         label = sw.label if sw.label is not None else parameter
         paper = raw_sw.get("paper")
         if paper is not None:
@@ -563,8 +489,7 @@ def _check_paper(paper: Mapping, source: str, where: str) -> None:
     single = isinstance(chk, str) or chk is None
     chks, vals = ([chk], [paper.get("value")]) if single else (chk, paper.get("value"))
     if not isinstance(chks, list) or not isinstance(vals, list) or len(chks) != len(vals):
-        raise _err(source, f"{where}.value", "give one value per check (check and value both "
-                                             "lists, or both single)")
+        raise _err(source, f"{where}.value", "give one value per check (check and value both lists, or both single)")
     for c_, v_ in zip(chks, vals):
         if c_ is None:
             continue

@@ -1,16 +1,7 @@
 """Reports of a suite run: ``results.json``, ``results.csv``, ``report.md``, ``report.html``.
 
-Layout: ``<out>/<suite>/<run id>/`` holds ``results.json`` (schema in
-:mod:`simtest.harness.report.results`), ``results.csv`` (every case x estimator statistic),
-``report.md``, a self-contained ``report.html`` (figures inlined as base64 PNG) and
-``figures/*.png``. The set is written to a temporary folder beside the run folder and renamed
-into place, so a reader never sees half a report.
-
-Modules, one job each: :mod:`~simtest.harness.claims` (the paper's and our claims, checked on
-results), :mod:`~simtest.harness.report.provenance` (commit, packages, machine, speed),
-:mod:`~simtest.harness.report.results` (the results document and CSV),
-:mod:`~simtest.harness.report.figures` (matplotlib figures and their layout check),
-:mod:`~simtest.harness.report.document` (Markdown and HTML).
+``<out>/<suite>/<run id>/`` holds them and ``figures/*.png``; the set is written to a temporary
+folder beside the run folder and renamed into place, so a reader never sees half a report.
 """
 
 from __future__ import annotations
@@ -40,15 +31,13 @@ def write_report_files(results: dict, folder: str | Path, plots: bool = True,
     Parameters
     ----------
     results : dict
-        A ``results.json`` document (as from :func:`build_results`, or read back from disk).
+        A ``results.json`` document.
     folder : path
-        The run folder; an existing one is replaced, if it holds only a report's files
-        (:data:`REPORT_FILES`).
+        The run folder; an existing one is replaced if it holds only :data:`REPORT_FILES`.
     plots : bool
-        Draw the figures (matplotlib, Agg).
+        Draw the figures.
     nightly : dict, optional
-        The nightly gate's outcome (a section of the report), see
-        :func:`simtest.harness.report.document.markdown_report`.
+        The nightly gate's outcome (:func:`simtest.harness.report.document.markdown_report`).
     history : list of dict, optional
         Nightly history lines, drawn as ``figures/nightly_trend.png``.
 
@@ -75,8 +64,7 @@ def write_report_files(results: dict, folder: str | Path, plots: bool = True,
         (tmp / "figures").mkdir()
         for name, png in pngs.items():
             (tmp / "figures" / name).write_bytes(png)
-        (tmp / "results.json").write_text(json.dumps(results, indent=1, allow_nan=False) + "\n",
-                                          encoding="utf-8")
+        (tmp / "results.json").write_text(json.dumps(results, indent=1, allow_nan=False) + "\n", encoding="utf-8")
         (tmp / "results.csv").write_text(results_csv(results), encoding="utf-8")
         (tmp / "report.md").write_text(md, encoding="utf-8")
         (tmp / "report.html").write_text(html, encoding="utf-8")
@@ -89,27 +77,11 @@ def write_report_files(results: dict, folder: str | Path, plots: bool = True,
 def write_report(run, out_dir: str | Path = "reports", run_id: str | None = None,
                  plots: bool = True, nightly: dict | None = None,
                  history: list[dict] | None = None) -> Path:
-    """Write ``results.json``, ``results.csv``, ``report.md``, ``report.html`` and figures.
+    """Write the report set of a run to ``<out_dir>/<suite name>/<run id>/`` and return that folder.
 
-    Parameters
-    ----------
-    run : simtest.harness.runner.SuiteRun
-        The finished run.
-    out_dir : path
-        Reports root; the files go to ``<out_dir>/<suite name>/<run id>/``.
-    run_id : str or None
-        Default :func:`make_run_id` (``<UTC time>-local``, ignored by git).
-    plots : bool
-        Draw the figures (matplotlib, Agg).
-    nightly, history : optional
-        See :func:`write_report_files`.
-
-    Returns
-    -------
-    Path
-        The run folder.
+    ``run_id`` defaults to :func:`make_run_id` (``<UTC time>-local``); ``plots``, ``nightly`` and
+    ``history`` as for :func:`write_report_files`.
     """
     run_id = run_id or make_run_id()
     folder = Path(out_dir) / run.suite.name / run_id
-    return write_report_files(build_results(run, run_id), folder, plots=plots, nightly=nightly,
-                              history=history)
+    return write_report_files(build_results(run, run_id), folder, plots=plots, nightly=nightly, history=history)

@@ -1,11 +1,9 @@
 """``report.md`` from a ``results.json`` document, and a self-contained ``report.html`` from it.
 
-The Markdown opens with the end-to-end figures per scene family (what a user of the command line
-gets), then a summary given the highlight (estimator x scene family table, the verdict of every claim,
-the measured reason behind each alarming cell), then the run's provenance and the details per
-sweep. Every number in it is formatted from the document (nothing typed by hand). The HTML is the
-same Markdown rendered by markdown-it-py (CommonMark plus tables), with every figure inlined as a
-base64 PNG, so the file can be mailed or archived alone.
+The Markdown opens with the end-to-end figures per family, then the summary given the highlight
+(family x estimator table, claim verdicts, alarming cells explained), provenance and per-sweep
+details; every number is formatted from the document. The HTML is that Markdown rendered by
+markdown-it-py with every figure inlined as a base64 PNG.
 """
 
 from __future__ import annotations
@@ -31,16 +29,14 @@ _DIAG_ORDER = ("false_positives", "saturated_px", "bp_error_px", "residual_px", 
                "k1_per_mm", "k2_per_mm", "iso_radius_mm")
 
 _DIAG_TEXT = {
-    "false_positives": "false positives per image (detections farther than match_px from every "
-                       "true BP)",
+    "false_positives": "false positives per image (detections farther than match_px from every true BP)",
     "saturated_px": "pixels at the sensor's full scale per image (clipped)",
     "bp_error_px": "distance from the detected to the true BP, px",
     "residual_px": "ellipse fit residual, px",
     "eigenvalue_gap": "measured eigenvalue gap (l1 - l2) / (l1 - l3) of C' (0: right circular cone)",
     "predicted_gap": "gap predicted from the curvatures, 1 - rho^2",
     "pose_split_deg": "angle between N+ and N-, deg",
-    "predicted_pose_deg": "circle-pose error predicted from the curvatures, asin(sqrt(1 - rho^2)), "
-                          "deg",
+    "predicted_pose_deg": "circle-pose error predicted from the curvatures, asin(sqrt(1 - rho^2)), deg",
     "rho": "rho = |1 + k2 d| / |1 + k1 d| (1: isotropic)",
     "bp_distance_mm": "distance d from the camera to the true BP, mm",
     "k1_per_mm": "principal curvature k1 at the true BP, 1/mm (positive: convex toward the camera)",
@@ -48,8 +44,7 @@ _DIAG_TEXT = {
     "iso_radius_mm": "isophote radius on the surface estimated from the fitted ellipse, mm",
     "eps_over_d": "light offset over distance: the rig's farthest light from the camera centre "
                   "over the distance to the true BP",
-    "recommended_bp_ray_share": "share of the highlights where the recommendation fell back to "
-                                "the BP ray",
+    "recommended_bp_ray_share": "share of the highlights where the recommendation fell back to the BP ray",
     "recommended_within_2sigma": "share of the highlights with a stated sigma whose recommended "
                                  "normal's error is at most twice it",
     "recommended_depth_within_2sigma": "share of the highlights with a recommended depth and a "
@@ -86,19 +81,8 @@ def _diag_text(key: str) -> str:
 
 
 def cell(m: dict | None, show_fail: bool = True) -> str:
-    """One table cell: ``median [p5, p95] (n)`` in degrees, plus the failure rate when not 0.
-
-    Parameters
-    ----------
-    m : dict or None
-        Statistics of :func:`simtest.harness.metrics.summarise`.
-    show_fail : bool
-        Append ``, fail x %`` when some realisations failed.
-
-    Returns
-    -------
-    str
-        ``-`` when the estimator never succeeded (with the failure rate).
+    """One table cell: ``median [p5, p95] (n)`` in degrees, plus ``, fail x %`` when some realisations
+    failed and ``show_fail``; ``-`` when the estimator never succeeded.
     """
     if not m:
         return "-"
@@ -106,8 +90,7 @@ def cell(m: dict | None, show_fail: bool = True) -> str:
     ftxt = f", fail {100 * fail:.3g} %" if show_fail and fail > 0 else ""
     if m.get("median") is None:
         return f"- (n {m.get('n', 0)}){ftxt}"
-    return (f"{fmt(m['median'])} [{fmt(m.get('p5'))}, {fmt(m.get('p95'))}] "
-            f"(n {m.get('n_ok', m.get('n', 0))}){ftxt}")
+    return (f"{fmt(m['median'])} [{fmt(m.get('p5'))}, {fmt(m.get('p95'))}] (n {m.get('n_ok', m.get('n', 0))}){ftxt}")
 
 
 _VERDICT = {True: "holds", False: "**does not hold**", None: "undecided"}
@@ -147,18 +130,7 @@ def end_to_end_markdown(results: dict) -> list[str]:
 
 
 def summary_markdown(results: dict) -> list[str]:
-    """The summary section: family x estimator table, claim verdicts, alarming cells explained.
-
-    Parameters
-    ----------
-    results : dict
-        A ``results.json`` document (schema 2: ``families`` and ``claims``).
-
-    Returns
-    -------
-    list of str
-        Markdown lines.
-    """
+    """The summary section (Markdown lines): family x estimator table, claim verdicts, alarming cells explained."""
     ests = results["suite"]["estimators"]
     fams = results.get("families", {})
     L = ["## Summary given the highlight (not end to end)", ""]
@@ -242,13 +214,12 @@ def markdown_report(results: dict, figures: list[str], nightly: dict | None = No
     nightly : dict, optional
         The nightly gate's outcome: ``verdict``, ``baseline``, ``summary``, ``problems``.
     history : list of dict, optional
-        Nightly history lines (the takeaway under ``nightly_trend.png``).
+        Nightly history lines.
 
     Returns
     -------
     str
-        Markdown (CommonMark with tables). Every figure is followed by one ``Takeaway:``
-        sentence computed from the results (:func:`simtest.harness.report.figures.takeaways`).
+        Markdown (CommonMark with tables); each figure followed by one ``Takeaway:`` sentence.
     """
     notes = takeaways(results, history)
     s = results["suite"]
@@ -275,8 +246,7 @@ def markdown_report(results: dict, figures: list[str], nightly: dict | None = No
           f"{', '.join(p['mitsuba_variants']) or 'none (no render)'}",
           f"- machine: {p['machine']['platform']}, {p['machine']['cpu_count']} CPUs; "
           f"{p['workers']} worker(s), wall time {p['wall_time_s']:.1f} s",
-          "- speed: " + "; ".join(f"{k}: {v['realisations']} realisations, "
-                                  f"{fmt(v['per_s'])} realisations/s"
+          "- speed: " + "; ".join(f"{k}: {v['realisations']} realisations, {fmt(v['per_s'])} realisations/s"
                                   for k, v in p["realisations_per_s"].items()),
           f"- root seed {s['seed']}: {data_side(s['seed']).replace('_', '-')} data (a seed the decisions "
           f"of simtest/decisions.py were chosen on is tuning data); {results['seeding']}",
@@ -290,8 +260,7 @@ def markdown_report(results: dict, figures: list[str], nightly: dict | None = No
               "| sweep | source | claim | ours | holds | note |", "|---|---|---|---|---|---|"]
         for sw in comp:
             ours = "; ".join(c["ours"] for c in sw["comparison"]) or "-"
-            holds = ", ".join({True: "yes", False: "no", None: "n/a"}[c["holds"]]
-                              for c in sw["comparison"]) or "-"
+            holds = ", ".join({True: "yes", False: "no", None: "n/a"}[c["holds"]] for c in sw["comparison"]) or "-"
             L.append(f"| {sw['name']} | {sw['paper'].get('source', 'paper')} | "
                      f"{esc(sw['paper'].get('claim', ''))} | {esc(ours)} | {holds} | "
                      f"{esc(sw['paper'].get('note', ''))} |")
@@ -335,8 +304,7 @@ def markdown_report(results: dict, figures: list[str], nightly: dict | None = No
         L.append("")
         diag = [cases[k]["metrics"].get("diagnostics", {}) for k in sw["cases"]]
         keys = [k for k in _DIAG_ORDER if any(d.get(k) is not None for d in diag)]
-        keys += sorted({k for d in diag for k, v in d.items()
-                        if v is not None and k not in keys and k not in
+        keys += sorted({k for d in diag for k, v in d.items() if v is not None and k not in keys and k not in
                         ("r_k1", "r_k2", "anisotropy")})
         if keys:
             L.append("Diagnostics (means over the scored highlights): "
@@ -365,22 +333,10 @@ td:first-child{text-align:left}code{background:#f5f5f5;padding:0 3px}img{max-wid
 
 
 def html_report(markdown: str, images: dict[str, bytes], title: str = "simtest report") -> str:
-    """A self-contained HTML page from the report's Markdown (markdown-it-py, figures inlined).
+    """A self-contained HTML page from the report's Markdown (``figures/<name>`` links).
 
-    Parameters
-    ----------
-    markdown : str
-        The ``report.md`` text; images referenced as ``figures/<name>``.
-    images : dict of str to bytes
-        PNG bytes by file name.
-    title : str
-        Page title.
-
-    Returns
-    -------
-    str
-        HTML5 with every ``figures/<name>`` image replaced by a ``data:image/png;base64`` URI
-        (an image missing from ``images`` keeps its relative link).
+    Every image found in ``images`` (PNG bytes by file name) is inlined as a
+    ``data:image/png;base64`` URI; a missing one keeps its relative link.
     """
     md = MarkdownIt("commonmark").enable("table")
     tokens = md.parse(markdown)

@@ -1,14 +1,8 @@
 """Report figures (matplotlib, Agg): per-sweep error curves, figure-3 bars, rho, nightly trend.
 
-Every figure uses constrained layout, labels each axis with its unit, draws each estimator with
-its own colour, marker, size and fill, and keeps its legend outside the axes (or in an empty
-corner). A numeric axis draws every point at its true value (never dodged sideways: points
-that coincide stay apart by marker, size, fill and transparency); the categorical axes of the
-figure-3 bars space the settings evenly (one bar each, as in the paper), with a tick at every bar's
-centre. Every drawn statistic names its n (legend or title), and no interval is drawn from
-fewer than :data:`MIN_N_INTERVAL` values. :func:`takeaways` gives one sentence per figure,
-computed from the results. The report tests check every drawn figure: no two text boxes overlap
-and none leaves the figure.
+Each axis is labelled with its unit, each estimator has its own colour, marker, size and fill,
+points sit at their true values, every statistic names its n, and no interval is drawn from fewer
+than :data:`MIN_N_INTERVAL` values. :func:`takeaways` gives one sentence per figure.
 """
 
 from __future__ import annotations
@@ -28,8 +22,7 @@ from matplotlib.ticker import FixedLocator, NullFormatter  # noqa: E402
 from simtest.harness.claims import BEST_LEVEL, MIN_N_INTERVAL, best_marks  # noqa: E402
 from simtest.harness.report.numbers import fmt  # noqa: E402
 
-__all__ = ["make_figures", "figure_png", "style", "trend_figure", "takeaways",
-           "x_scale", "MIN_N_INTERVAL"]
+__all__ = ["make_figures", "figure_png", "style", "trend_figure", "takeaways", "x_scale", "MIN_N_INTERVAL"]
 
 _STYLE = {"paper_oracle": ("#1f77b4", "o"), "paper_selected": ("#9467bd", "s"),
           "cone_axis": ("#d62728", "^"), "joint_cone_axis": ("#ff7f0e", "v"),
@@ -37,28 +30,14 @@ _STYLE = {"paper_oracle": ("#1f77b4", "o"), "paper_selected": ("#9467bd", "s"),
 _EXTRA_COLOURS = ("#2ca02c", "#17becf", "#8c564b", "#e377c2", "#bcbd22", "#7f7f7f")
 _EXTRA_MARKERS = ("P", "X", "h", "*", "<", ">")
 
-#: Errors below this (degrees) are drawn at it on log axes (the BP ray of the paper protocol at
-#: theta = 0 is exactly 0).
+#: Errors below this (degrees) are drawn at it on log axes.
 FLOOR_DEG = 1e-4
 
 _FAMILY_MARKERS = ("o", "s", "^", "v", "D", "P", "X", "h", "*", "<", ">")
 
 
 def style(estimator: str, order: list[str] | None = None) -> tuple[str, str]:
-    """Colour and marker of an estimator (fixed for the known ones, cycled for new ones).
-
-    Parameters
-    ----------
-    estimator : str
-        Estimator name.
-    order : list of str, optional
-        The suite's estimators, to give new names a stable place in the cycle.
-
-    Returns
-    -------
-    (str, str)
-        Matplotlib colour and marker.
-    """
+    """Colour and marker of an estimator (fixed for the known ones, cycled for others in ``order``)."""
     if estimator in _STYLE:
         return _STYLE[estimator]
     extra = [e for e in (order or [estimator]) if e not in _STYLE]
@@ -67,17 +46,7 @@ def style(estimator: str, order: list[str] | None = None) -> tuple[str, str]:
 
 
 def figure_png(fig) -> bytes:
-    """PNG bytes of a figure as laid out (no tight-bbox cropping: what is checked is saved); the
-    figure is closed (pyplot keeps every open figure).
-
-    Parameters
-    ----------
-    fig : matplotlib.figure.Figure
-
-    Returns
-    -------
-    bytes
-    """
+    """PNG bytes of a figure as laid out (no tight-bbox cropping); the figure is closed."""
     buf = io.BytesIO()
     fig.savefig(buf, format="png", dpi=100)
     plt.close(fig)
@@ -99,21 +68,15 @@ def _n_text(ns) -> str:
 
 
 def x_scale(xs) -> tuple[str, float | None]:
-    """The scale of a numeric sweep axis: linear, or logarithmic where its settings are geometric.
-
-    Parameters
-    ----------
-    xs : array_like
-        The settings in display units.
+    """The scale of a numeric sweep axis (settings ``xs`` in display units).
 
     Returns
     -------
     (str, float or None)
-        ``("log", None)`` for three or more positive settings spanning a factor of 8 or more
-        whose gaps are more even in log than in linear; ``("symlog", t)`` for such settings
-        spanning a factor of 20 or more, plus 0 (linear within ``t``, the smallest positive
-        setting: a narrower span reads better on a linear axis than with a linear stretch
-        around 0); ``("linear", None)`` otherwise.
+        ``("log", None)`` for three or more positive settings spanning a factor of 8 or more whose
+        gaps are more even in log than in linear; ``("symlog", t)`` for such settings spanning a
+        factor of 20 or more plus 0 (linear within ``t``, the smallest positive setting);
+        ``("linear", None)`` otherwise.
     """
     x = np.unique(np.asarray(xs, dtype=np.float64))
     x = x[np.isfinite(x)]
@@ -144,8 +107,7 @@ def _set_x_scale(ax, xs) -> None:
     if kind != "linear":
         ax.xaxis.set_minor_formatter(NullFormatter())
     ax.grid(True, which="major", alpha=0.3)
-    # 5 % of the axis beyond the extreme settings, in the scale's own units (a log or symlog
-    # axis does not always apply its margins, which cut the end markers in half)
+    # 5 % of the axis beyond the extreme settings, in the scale's own units
     v = np.asarray(xs, dtype=np.float64)
     v = v[np.isfinite(v)]
     if v.size:
@@ -162,12 +124,7 @@ def _log_y(ax) -> None:
 
 
 def _series_style(k: int, n_series: int) -> dict:
-    """Size, fill and transparency of the k-th series: coinciding points stay distinguishable.
-
-    Sizes fall from 9 to 4 points through the series (a later, smaller marker sits inside an
-    earlier, larger one), fills alternate (filled, hollow) and every marker is slightly
-    transparent.
-    """
+    """Size (9 down to 4 points), alternating fill and transparency of the k-th series."""
     ms = 9.0 - 5.0 * k / max(n_series - 1, 1)
     return {"ms": ms, "filled": k % 2 == 0, "alpha": 0.85}
 
@@ -182,12 +139,10 @@ def _curves(sw: dict, sc: list[dict], ests: list[str]):
     order = np.argsort(x, kind="stable")
     x = x[order]
     sc = [sc[i] for i in order]
-    fails = {e: np.array([_val(c["metrics"]["estimators"].get(e, {}), "failure_rate")
-                          for c in sc]) for e in ests}
+    fails = {e: np.array([_val(c["metrics"]["estimators"].get(e, {}), "failure_rate") for c in sc]) for e in ests}
     any_fail = any(np.nansum(f) > 0 for f in fails.values())
     if any_fail:
-        fig, (ax, axf) = plt.subplots(2, 1, figsize=(7.0, 5.6), layout="constrained",
-                                      height_ratios=(3, 1), sharex=True)
+        fig, (ax, axf) = plt.subplots(2, 1, figsize=(7.0, 5.6), layout="constrained", height_ratios=(3, 1), sharex=True)
     else:
         fig, ax = plt.subplots(figsize=(7.0, 4.4), layout="constrained")
         axf = None
@@ -208,11 +163,9 @@ def _curves(sw: dict, sc: list[dict], ests: list[str]):
         line.set_gid(f"series:{e}")
         bar = ok & (n_ok >= MIN_N_INTERVAL)
         if bar.any():
-            ax.errorbar(x[bar], med_f[bar],
-                        yerr=[np.clip(med_f[bar] - lo_f[bar], 0, None),
-                              np.clip(hi_f[bar] - med_f[bar], 0, None)],
-                        fmt="none", ecolor=col, elinewidth=1, capsize=2, alpha=0.5,
-                        zorder=2 + k)
+            ax.errorbar(x[bar], med_f[bar], yerr=[np.clip(med_f[bar] - lo_f[bar], 0, None),
+                                                  np.clip(hi_f[bar] - med_f[bar], 0, None)],
+                        fmt="none", ecolor=col, elinewidth=1, capsize=2, alpha=0.5, zorder=2 + k)
         if axf is not None:
             n_all = np.array([int(m.get("n", 0) or 0) if m else 0 for m in ms])
             has = n_all > 0
@@ -220,10 +173,8 @@ def _curves(sw: dict, sc: list[dict], ests: list[str]):
                              mfc=mfc, alpha=st["alpha"], ls="none", zorder=3 + k)
             fl.set_gid(f"failures:{e}")
     _log_y(ax)
-    ax.set_ylabel("normal error (deg)\nmedian, bar p5 to p95\n"
-                  f"(bar where n >= {MIN_N_INTERVAL})")
-    ax.set_title(f"{sw['name']} ({sw['protocol']} protocol); errors below {FLOOR_DEG:g} deg drawn "
-                 "at it", fontsize=9)
+    ax.set_ylabel(f"normal error (deg)\nmedian, bar p5 to p95\n(bar where n >= {MIN_N_INTERVAL})")
+    ax.set_title(f"{sw['name']} ({sw['protocol']} protocol); errors below {FLOOR_DEG:g} deg drawn at it", fontsize=9)
     bottom = axf if axf is not None else ax
     if axf is not None:
         n_all = [int(c["metrics"]["estimators"].get(e, {}).get("n", 0) or 0) for c in sc for e in ests]
@@ -232,25 +183,18 @@ def _curves(sw: dict, sc: list[dict], ests: list[str]):
         ax.tick_params(axis="x", labelbottom=False)
     bottom.set_xlabel(sw["label"])
     longest = max((len(t) for t in ax.get_legend_handles_labels()[1]), default=0)
-    fig.legend(loc="outside lower center", ncols=min(len(ests), 3 if longest <= 34 else 2),
-               fontsize=8, title="estimator (n successes per point); each point at its true "
-                                 "setting",
-               title_fontsize=8)
+    fig.legend(loc="outside lower center", ncols=min(len(ests), 3 if longest <= 34 else 2), fontsize=8,
+               title="estimator (n successes per point); each point at its true setting", title_fontsize=8)
     return fig
 
 
 def _bars(sw: dict, sc: list[dict], ests: list[str]):
-    """The paper's figure-3 style: mean bars, black std, cyan [min, max], one panel per estimator.
-
-    The settings are categories here (one bar each, evenly spaced as in the paper), each bar
-    with its own tick and label at its centre.
-    """
+    """The paper's figure-3 style: mean bars, black std, cyan [min, max], one panel per estimator."""
     scale = sw["display_scale"]
     labels = [f"{c['x'] * scale:g}" for c in sc]
     ncol = min(len(ests), 3)
     nrow = int(np.ceil(len(ests) / ncol))
-    fig, axes = plt.subplots(nrow, ncol, figsize=(3.4 * ncol, 2.9 * nrow + 0.6),
-                             layout="constrained", squeeze=False)
+    fig, axes = plt.subplots(nrow, ncol, figsize=(3.4 * ncol, 2.9 * nrow + 0.6), layout="constrained", squeeze=False)
     pos = np.arange(len(sc), dtype=float)
     rotate = len(labels) > 6 or max((len(t) for t in labels), default=0) > 4
     for ax, e in itertools.zip_longest(axes.ravel(), ests):
@@ -265,11 +209,9 @@ def _bars(sw: dict, sc: list[dict], ests: list[str]):
         col, _ = style(e, ests)
         ax.bar(pos[ok], mean[ok], width=0.6, color=col, alpha=0.8, gid=f"bars:{e}")
         if bar.any():
-            ax.errorbar(pos[bar], mean[bar],
-                        yerr=np.clip([mean[bar] - mn[bar], mx[bar] - mean[bar]], 0, None),
+            ax.errorbar(pos[bar], mean[bar], yerr=np.clip([mean[bar] - mn[bar], mx[bar] - mean[bar]], 0, None),
                         fmt="none", ecolor="c", elinewidth=4, alpha=0.6)
-            ax.errorbar(pos[bar], mean[bar], yerr=std[bar], fmt="none", ecolor="k",
-                        elinewidth=1.2, capsize=3)
+            ax.errorbar(pos[bar], mean[bar], yerr=std[bar], fmt="none", ecolor="k", elinewidth=1.2, capsize=3)
         ax.set_title(f"{e} ({_n_text(n_ok[ok])} per bar)", fontsize=9)
         ax.set_ylabel("normal error (deg)", fontsize=8)
         ax.tick_params(labelsize=7)
@@ -286,12 +228,7 @@ def _bars(sw: dict, sc: list[dict], ests: list[str]):
 
 
 def _rho_cases(results: dict) -> list[dict]:
-    """The curved rendered cases with a predicted gap, one per distinct setting.
-
-    Empty when none of them has anything to set against the prediction (no measured
-    eigenvalue gap and no circle-pose estimator's mean): the figure would hold only its
-    diagonals.
-    """
+    """The curved rendered cases with a predicted gap, one per setting; empty if none has a measurement."""
     cs = [c for c in results["cases"] if c["protocol"] == "rendered"
           and c["metrics"]["diagnostics"].get("predicted_gap") is not None
           and not c.get("family", "").startswith("plane")]
@@ -304,12 +241,9 @@ def _rho_cases(results: dict) -> list[dict]:
     return cases if measured else []
 
 
-#: How the right panel of curvature_rho tells the two circle-pose estimators apart: marker,
-#: size and fill all differ (a hollow circle around a cross where both means coincide).
-RHO_ESTIMATOR_MARKERS = {"paper_oracle": {"marker": "o", "ms": 10, "fillstyle": "none",
-                                          "mew": 1.5},
-                         "paper_selected": {"marker": "+", "ms": 7, "fillstyle": "full",
-                                            "mew": 1.5}}
+#: How the right panel of curvature_rho tells the two circle-pose estimators apart.
+RHO_ESTIMATOR_MARKERS = {"paper_oracle": {"marker": "o", "ms": 10, "fillstyle": "none", "mew": 1.5},
+                         "paper_selected": {"marker": "+", "ms": 7, "fillstyle": "full", "mew": 1.5}}
 
 
 def _rho_figure(results: dict):
@@ -331,8 +265,7 @@ def _rho_figure(results: dict):
         mg = np.array([_val(x, "eigenvalue_gap") for x in d])
         pp = np.array([_val(x, "predicted_pose_deg") for x in d])
         samples = [int(c.get("samples") or c.get("realisations") or 0) for c in fc]
-        for shape, fill, size in (("convex", "full", 7), ("saddle", "left", 8),
-                                  ("concave", "none", 9)):
+        for shape, fill, size in (("convex", "full", 7), ("saddle", "left", 8), ("concave", "none", 9)):
             sel = kind == shape
             if not sel.any():
                 continue
@@ -361,15 +294,13 @@ def _rho_figure(results: dict):
     a2.grid(True, alpha=0.3)
     if ests:
         # n of the drawn points only (a case whose estimator never succeeded has no mean)
-        n_ok = {e: [int(m.get("n_ok", 0) or 0) for c in cases
-                    for m in [c["metrics"]["estimators"].get(e, {})]
+        n_ok = {e: [int(m.get("n_ok", 0) or 0) for c in cases for m in [c["metrics"]["estimators"].get(e, {})]
                     if np.isfinite(_val(m, "mean"))] for e in ests}
         handles = [plt.Line2D([], [], ls="none", color="k", **RHO_ESTIMATOR_MARKERS[e]) for e in ests]
         # upper left: above the diagonal, where a mean error would exceed its prediction
         a2.legend(handles, [f"{e} ({_n_text(n_ok[e])} per case)" for e in ests],
                   loc="upper left", fontsize=8, title="estimator", title_fontsize=8)
-    fig.legend(*a1.get_legend_handles_labels(), loc="outside lower center",
-               ncols=2 if len(fams) > 1 else 1, fontsize=8,
+    fig.legend(*a1.get_legend_handles_labels(), loc="outside lower center", ncols=2 if len(fams) > 1 else 1, fontsize=8,
                title="rho = |1 + k2 d| / |1 + k1 d| (case means of k1 >= k2 at the BP): filled "
                      "convex (k2 >= 0), half saddle (k1 > 0 > k2), hollow concave (k1 <= 0)",
                title_fontsize=8)
@@ -382,10 +313,7 @@ def trend_figure(history: list[dict]):
     Parameters
     ----------
     history : list of dict
-        Lines of the nightly history file (:func:`simtest.harness.nightly.history_line`), oldest
-        first; each has ``run_id``, ``created_utc`` and ``families``: {family: {estimator:
-        median}}; an optional ``n``: {family: {estimator: n successes}} is shown in the panel
-        titles.
+        Lines of the nightly history (:func:`simtest.harness.nightly.history_line`), oldest first.
 
     Returns
     -------
@@ -398,8 +326,7 @@ def trend_figure(history: list[dict]):
     ests = sorted({e for h in history for f in h.get("families", {}).values() for e in f})
     ncol = min(len(fams), 3) or 1
     nrow = int(np.ceil(len(fams) / ncol)) or 1
-    fig, axes = plt.subplots(nrow, ncol, figsize=(3.8 * ncol, 2.9 * nrow + 1.0),
-                             layout="constrained", squeeze=False)
+    fig, axes = plt.subplots(nrow, ncol, figsize=(3.8 * ncol, 2.9 * nrow + 1.0), layout="constrained", squeeze=False)
     runs = np.arange(len(history))
     labels = [h.get("created_utc", "")[:10] for h in history]
     for ax, fam in itertools.zip_longest(axes.ravel(), fams):
@@ -414,8 +341,7 @@ def trend_figure(history: list[dict]):
                 ax.plot(runs, y, mk + "-", color=col, ms=4, lw=1, label=e)
         _log_y(ax)
         ns = [v for h in history for v in (h.get("n", {}).get(fam) or {}).values()]
-        ax.set_title(f"{fam} ({_n_text(ns) + ' per median' if ns else 'n not in the history'})",
-                     fontsize=9)
+        ax.set_title(f"{fam} ({_n_text(ns) + ' per median' if ns else 'n not in the history'})", fontsize=9)
         ax.set_ylabel("median error (deg)", fontsize=8)
         step = max(1, int(np.ceil(len(runs) / 4)))
         ax.set_xticks(runs[::step], labels[::step])
@@ -435,26 +361,18 @@ def trend_figure(history: list[dict]):
 def make_figures(results: dict, history: list[dict] | None = None) -> dict:
     """Every figure of a report -> ``{file name: Figure}`` (caller closes them).
 
-    Parameters
-    ----------
-    results : dict
-        A ``results.json`` document.
-    history : list of dict, optional
-        Nightly history lines; adds ``nightly_trend.png``.
-
     Returns
     -------
     dict of str to matplotlib.figure.Figure
-        ``<sweep>_curves.png`` for every sweep, ``<sweep>_bars.png`` for sweeps that check a
-        paper claim (the paper's figure-3 style), ``curvature_rho.png`` when the suite has
-        curved rendered cases, ``nightly_trend.png`` with a history.
+        ``<sweep>_curves.png`` for every sweep, ``<sweep>_bars.png`` for sweeps that check a paper
+        claim, ``curvature_rho.png`` with curved rendered cases, ``nightly_trend.png`` with a
+        ``history``.
     """
     return {name: draw(*args) for name, draw, _, args in _figure_plan(results, history)}
 
 
 def _figure_plan(results: dict, history: list[dict] | None) -> list[tuple]:
-    """Which figures a report has: ``(file name, draw, takeaway, arguments)`` each, so that
-    :func:`make_figures` and :func:`takeaways` agree on the names by construction."""
+    """``(file name, draw, takeaway, arguments)`` per figure of a report."""
     cases = {c["id"]: c for c in results["cases"]}
     ests = list(results["suite"]["estimators"])
     plan = []
@@ -472,9 +390,6 @@ def _figure_plan(results: dict, history: list[dict] | None) -> list[tuple]:
     return plan
 
 
-# ------------------------------------------------------------------------------------------------
-# one takeaway sentence per figure, computed from the results
-
 
 def _curves_takeaway(sw: dict, sc: list[dict], ests: list[str]) -> str:
     x = _sweep_x(sw, sc)
@@ -483,8 +398,7 @@ def _curves_takeaway(sw: dict, sc: list[dict], ests: list[str]) -> str:
     # settings at which each estimator is the lowest beyond the interval
     clear = Counter(e for c in sc for e, m in best_marks({e: c["metrics"]["estimators"].get(e) for e in ests}).items()
                     if m == "best")
-    meds = {e: np.array([_val(c["metrics"]["estimators"].get(e, {}), "median") for c in sc])
-            for e in ests}
+    meds = {e: np.array([_val(c["metrics"]["estimators"].get(e, {}), "median") for c in sc]) for e in ests}
     drawn = {e: v for e, v in meds.items() if np.isfinite(v).any()}
     span = (f"Across the {len(sc)} settings ({sw['label']}: {x[0]:g} to {x[-1]:g})"
             if x.size > 1 else f"At the one setting ({sw['label']}: {x[0]:g})")
@@ -499,13 +413,11 @@ def _curves_takeaway(sw: dict, sc: list[dict], ests: list[str]) -> str:
             f" deg at {x[i_hi]:g})")
     if clear:
         top = max(clear, key=clear.get)
-        text += (f"; {top} is lowest beyond the {100 * BEST_LEVEL:g} % interval at {clear[top]}"
-                 f" of {len(sc)} settings")
+        text += (f"; {top} is lowest beyond the {100 * BEST_LEVEL:g} % interval at {clear[top]} of {len(sc)} settings")
     else:
         text += (f"; no estimator is lowest beyond the {100 * BEST_LEVEL:g} % interval at any "
                  f"setting (n below {MIN_N_INTERVAL} or differences within the noise)")
-    fr = {e: np.array([_val(c["metrics"]["estimators"].get(e, {}), "failure_rate") for c in sc])
-          for e in ests}
+    fr = {e: np.array([_val(c["metrics"]["estimators"].get(e, {}), "failure_rate") for c in sc]) for e in ests}
     worst = max(ests, key=lambda e: np.nan_to_num(fr[e], nan=-1).max())
     if np.nanmax(np.nan_to_num(fr[worst], nan=0)) > 0:
         j = int(np.nanargmax(fr[worst]))
@@ -578,18 +490,5 @@ def _trend_takeaway(history: list[dict]) -> str:
 
 
 def takeaways(results: dict, history: list[dict] | None = None) -> dict[str, str]:
-    """One sentence per figure of :func:`make_figures`, every number read from the results.
-
-    Parameters
-    ----------
-    results : dict
-        A ``results.json`` document.
-    history : list of dict, optional
-        Nightly history lines (the ``nightly_trend.png`` sentence).
-
-    Returns
-    -------
-    dict of str to str
-        ``{figure file name: sentence}`` for the same names :func:`make_figures` draws.
-    """
+    """One sentence per figure of :func:`make_figures` (same names), every number read from the results."""
     return {name: say(*args) for name, _, say, args in _figure_plan(results, history)}
