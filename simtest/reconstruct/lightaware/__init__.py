@@ -40,10 +40,7 @@ sigma by the delta method. With the residual variance floored at the localisatio
 ``TOL.depth_rel_sigma_max`` (or a singular J^T J) gives status ``depth_not_observable``: no depth,
 the normal still given.
 
-Modules: ``estimate`` (the result), ``model`` (the image model), ``colour`` (the specular image of a
-colour ROI), ``solve`` (shared fitting machinery), the estimators ``bisector``, ``isocurve``,
-``plane`` (with ``plane_model``, ``plane_solve``, ``plane_sigma``), ``patch`` and ``cubic``, and
-``bound`` (the Cramer-Rao bound). The recommendation among them is :mod:`simtest.reconstruct.recommend`.
+The recommendation among the estimators is :mod:`simtest.reconstruct.recommend`.
 
 References
 ----------

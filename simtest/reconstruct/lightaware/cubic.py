@@ -20,25 +20,20 @@ from simtest.reconstruct.lightaware.solve import _covariance, _implausible, _pat
 #: Newton steps that take a pixel ray's intersection from the quadric's root to the cubic patch's.
 _CUBIC_NEWTON_STEPS = 4
 
-
 #: Parameters of the cubic patch: (a, b, log s, kappa_xx, kappa_xy, kappa_yy, log n) and the four
 #: dimensionless third-order coefficients (c_xxx, c_xxy, c_xyy, c_yyy).
 _CUBIC_PARAMS = 11
 
-
 #: Depths of the coarse profile, as multiples of ``nominal_depth_mm``: 0.25 to 8, a factor 2 apart.
 _PROFILE_FACTORS = 2.0 ** np.arange(-2, 4)
-
 
 #: Evaluation budget (in Jacobian evaluations) and tolerance of each fit of the coarse profile (a start).
 _PROFILE_NFEV = 30
 _PROFILE_TOL = 1e-5
 
-
 #: Largest ratio between neighbouring depths of :func:`patch_depth_profile`, whose fits start
 #: from their neighbour's solution.
 _PROFILE_STEP = 1.25
-
 
 #: :func:`patch_depth_profile` also starts each depth from a flat patch whose Phong n is this
 #: fraction of the start roughness: its wider lobes overlap image lobes that narrower ones miss.
@@ -105,8 +100,7 @@ def _patch_specular_points(b_ray, p, Lm, lights):
     depths = np.full(len(lights), np.nan)
     for j, Lj in enumerate(lights):
         def f(q, Lj=Lj):
-            X, ns, ok, _, _, _ = _cubic_patch_geometry(unit(b_ray + q[0] * e1 + q[1] * e2)[None],
-                                                       b_ray, p, Lm)
+            X, ns, ok, _, _, _ = _cubic_patch_geometry(unit(b_ray + q[0] * e1 + q[1] * e2)[None], b_ray, p, Lm)
             if not ok[0]:
                 return np.array([1.0, 1.0])
             c = ns[0] - unit(unit(-X[0]) + unit(Lj - X[0]))
@@ -114,8 +108,7 @@ def _patch_specular_points(b_ray, p, Lm, lights):
 
         with np.errstate(all="ignore"):
             r = opt.least_squares(f, ray0, method="lm", xtol=1e-14, ftol=1e-14, gtol=1e-14)
-        X, ns, ok, _, _, _ = _cubic_patch_geometry(unit(b_ray + r.x[0] * e1 + r.x[1] * e2)[None],
-                                                   b_ray, p, Lm)
+        X, ns, ok, _, _, _ = _cubic_patch_geometry(unit(b_ray + r.x[0] * e1 + r.x[1] * e2)[None], b_ray, p, Lm)
         if ok[0] and float(np.max(np.abs(r.fun))) < 1e-9:
             normals[j], depths[j] = ns[0], float(np.linalg.norm(X[0]))
     return normals, depths
@@ -141,8 +134,7 @@ def _cubic_setup(values, origin_uv, bp_uv, camera, rig, clip_level, max_pixels):
     unclipped pixels, else a dict of ``res(p)`` (11 parameters), ``b_ray``, ``Lm``, ``rig_arr``,
     ``x_scale``, ``sel``, ``step``, ``shape`` and ``m`` (pixels used).
     """
-    P, n_px = _patch_problem(values, origin_uv, bp_uv, camera, rig, clip_level, max_pixels,
-                             2 * _CUBIC_PARAMS)
+    P, n_px = _patch_problem(values, origin_uv, bp_uv, camera, rig, clip_level, max_pixels, 2 * _CUBIC_PARAMS)
     if P is None:
         return None
     d, b_ray, rig_arr, Lm = P.d, P.b_ray, P.rig_arr, P.Lm
@@ -242,8 +234,7 @@ def _coarse_profile(S, depths, start_roughness, max_nfev):
         prev = None
         for i in seq:
             starts = [flat] + ([prev] if prev is not None else [])
-            c, p, k = _fit_fixed_depth(S, np.log(depths[i]), quad, starts,
-                                       min(max_nfev, _PROFILE_NFEV), _PROFILE_TOL)
+            c, p, k = _fit_fixed_depth(S, np.log(depths[i]), quad, starts, min(max_nfev, _PROFILE_NFEV), _PROFILE_TOL)
             nfev += k
             if c < cost[i]:
                 cost[i], sol[i] = c, p
@@ -321,8 +312,7 @@ def cubic_patch_fit(values, origin_uv, bp_uv, camera, rig: LightRig, *,
     name = "cubic_patch_fit"
     S = _cubic_setup(values, origin_uv, bp_uv, camera, rig, clip_level, max_pixels)
     if S is None:
-        return LightAwareEstimate(name, "too_few_points",
-                                  f"fewer than {2 * _CUBIC_PARAMS} unclipped pixels")
+        return LightAwareEstimate(name, "too_few_points", f"fewer than {2 * _CUBIC_PARAMS} unclipped pixels")
     depths = float(nominal_depth_mm) * _PROFILE_FACTORS
     cost, sol, nfev = _coarse_profile(S, depths, start_roughness, max_nfev)
     if not np.isfinite(cost).any():

@@ -10,7 +10,6 @@ from simtest.decisions import ON_PLANE_MM
 
 OK = "ok"
 
-
 #: Status of a light-aware estimate, with its meaning.
 STATUSES: dict[str, str] = {
     OK: "normal and depth estimated",

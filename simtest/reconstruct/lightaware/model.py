@@ -265,8 +265,7 @@ def _log_depth_gradient(n, h, Lm, basis=None) -> np.ndarray:
         return np.full(3, np.nan)
     q = float(Lm @ Lm) + 4.0 * k * h
     ga = 2.0 * h / q - 1.0 / (k + h)
-    return np.array([float(e1 @ Lm) * ga, float(e2 @ Lm) * ga,
-                     1.0 + 2.0 * h * (h + k) / q - 2.0 * h / (k + h)])
+    return np.array([float(e1 @ Lm) * ga, float(e2 @ Lm) * ga, 1.0 + 2.0 * h * (h + k) / q - 2.0 * h / (k + h)])
 
 
 def _roi_samples(vals, o, uu, vv, keep, max_pixels):

@@ -19,18 +19,10 @@ from simtest.reconstruct.lightaware.solve import _covariance, _hac_covariance, _
 
 
 def _quadric_root(kxx, kxy, kyy, d, P0, t1, t2, N):
-    """Where the rays ``t d`` (d (k, 3)) first meet the quadric patch
-    ``z + (k_xx x^2 + 2 k_xy x y + k_yy y^2 + k_zz z^2) / 2 = 0`` in the frame (t1, t2, N) at P0,
-    ``k_zz = (k_xx + k_yy) / 2``. For K patches: curvatures (K, 1), frame vectors (K, 3), arrays (K, k).
-
-    Returns
-    -------
-    ax, ay, az, bx, by, bz : ndarray
-        The rays and -P0 in the patch frame.
-    t : ndarray
-        The ray parameter (inf where there is no root).
-    ok : ndarray of bool
-        A real, positive, finite root.
+    """Where rays ``t d`` (d (k, 3)) first meet the quadric patch at P0 in the frame (t1, t2, N):
+    ``(ax, ay, az, bx, by, bz, t, ok)``, the rays and -P0 in that frame, the ray parameter (inf
+    without a root) and where a real, positive, finite root exists. ``k_zz = (k_xx + k_yy) / 2``;
+    for K patches: curvatures (K, 1), frame vectors (K, 3), arrays (K, k).
     """
     kzz = 0.5 * (kxx + kyy)
     one = P0.ndim == 1  # else each patch's products as its own (the same bits)
@@ -285,16 +277,9 @@ def quadric_fit(values, origin_uv, bp_uv, camera, rig: LightRig, *,
 
 
 def _one_light_band(x, sigma_deg, d0, b_ray, rig_arr, Lm):
-    """The quadric's normal sigma under one light with the third-order shape's spread added, and the
-    depths (near, far) the data cannot exclude.
-
-    The apex normals at the fitted depth times and over :data:`ONE_LIGHT_DEPTH_FACTOR` are the band's
-    ends at 2 sigma: half the larger angle is added in quadrature to ``sigma_deg``.
-
-    Returns
-    -------
-    (float or None, (float, float))
-        The widened sigma (None where ``sigma_deg`` is), degrees; the near and far depths, mm.
+    """``(sigma, (near, far))``: the quadric's normal sigma (deg; None where ``sigma_deg`` is) with
+    half the apex normals' spread over the depths within :data:`ONE_LIGHT_DEPTH_FACTOR` added in
+    quadrature, and those depths, mm.
     """
     xe = np.repeat(x[None], 3, axis=0)
     xe[1:, 2] += np.array([1.0, -1.0]) * np.log(ONE_LIGHT_DEPTH_FACTOR)
@@ -312,8 +297,7 @@ def _patch_covariances(J, r, resid_var, sel, shape, step) -> list:
     the sandwich (:func:`~simtest.reconstruct.lightaware.solve._hac_covariance`), which counts the
     noise sitting on the lobes rather than spread over the dark surround.
     """
-    return [c for c in (_covariance(J, resid_var), _hac_covariance(J, r, sel, shape, step)[0])
-            if c is not None]
+    return [c for c in (_covariance(J, resid_var), _hac_covariance(J, r, sel, shape, step)[0]) if c is not None]
 
 
 def _sigma_deg(G, covs) -> float | None:
@@ -325,7 +309,6 @@ def _sigma_deg(G, covs) -> float | None:
 
 #: The step in log depth of :func:`_depth_valley`'s nearest profile points (5 % of the depth).
 _VALLEY_STEP = 0.05
-
 
 #: The steps in log depth at which :func:`_depth_valley` reads the profile's width (a flat-bottomed
 #: profile rises less far out than a parabola through its nearest points says).
@@ -359,19 +342,13 @@ def _patch_sigma(status, detail, misfit_sigma, S, x, cost0, resid_var, covs, max
 
 
 def _depth_valley(S, x, cost0, resid_var, covs, max_nfev):
-    """The patch's cost along its depth, beyond the local covariance.
+    """The patch's cost along its depth, beyond the local covariance: ``(v, excess, rises)``.
 
-    The patch is refitted with log depth fixed at ``x[2] +- step`` for each of :data:`_VALLEY_STEPS`;
-    the widest ``step^2 s^2 / Delta`` (``Delta`` the cost's rise; scaled by the sandwich's over the plain
-    variance where larger) is the depth's variance, and the nearest step's two solutions give the
-    direction ``v = (p_+ - p_-) / (2 step)`` in which the other parameters follow the depth. ``S``
-    holds ``res`` and ``x_scale``.
-
-    Returns
-    -------
-    (ndarray of shape (k,), float, tuple)
-        ``v`` (zeros where a refit failed), the variance of log depth in excess of the local
-        covariance's (inf where the cost does not rise), and the two rises over ``s^2``.
+    Refits with log depth fixed at ``x[2] +- step`` (:data:`_VALLEY_STEPS`): the widest
+    ``step^2 s^2 / Delta`` (``Delta`` the cost's rise) is the depth's variance; ``excess`` is what
+    exceeds the local covariance's (inf where the cost does not rise), ``v = (p_+ - p_-) / (2 step)``
+    the direction the other parameters follow (zeros where a refit failed), ``rises`` the nearest
+    step's rises over ``s^2``. ``S`` holds ``res`` and ``x_scale``.
     """
     k = len(x)
     free = [i for i in range(k) if i != 2]

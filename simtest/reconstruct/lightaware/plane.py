@@ -322,8 +322,7 @@ def _fit_plane(values, origin_uv, bp_uv, camera, rig, s: FitSettings) -> LightAw
                           replace(s, clip_level=clip_c, clip_margin=None, start_normal=est.normal, start_roughness=None,
                                   n_start_depths=0, projection="auto", two_channels=None))
         if chan.status == "plane_misfit":
-            est = est.without_depth("plane_misfit",
-                                    f"channel {c}'s fit misfits ({chan.detail}); {est.detail}")
+            est = est.without_depth("plane_misfit", f"channel {c}'s fit misfits ({chan.detail}); {est.detail}")
     return est
 
 
@@ -373,16 +372,10 @@ def _one_channel_clipped(rgb, clip_level) -> bool:
 
 
 def _two_channel_choice(both: LightAwareEstimate, plain: LightAwareEstimate) -> LightAwareEstimate:
-    """``both`` (one-channel-clipped pixels valued from two channels) or ``plain`` (without them).
-
-    ``both`` is kept where both are ``ok`` on a projection, its normal sigma is the smaller, and
-    they agree as a Hausman test [8]_ asks: angle and depth gap within ``TWO_CHANNEL_Z`` times
-    ``sqrt(sigma_plain^2 - sigma_both^2)``.
-
-    References
-    ----------
-    .. [8] J. A. Hausman, "Specification tests in econometrics", Econometrica 46(6), 1251-1271,
-           1978. https://doi.org/10.2307/1913827
+    """``both`` (one-channel-clipped pixels valued from two channels) or ``plain`` (without them):
+    ``both`` where both are ``ok`` on a projection, its normal sigma smaller, and they agree as a
+    Hausman test asks (J. A. Hausman, Econometrica 46(6), 1978, https://doi.org/10.2307/1913827):
+    angle and depth gaps within ``TWO_CHANNEL_Z`` times ``sqrt(sigma_plain^2 - sigma_both^2)``.
     """
     if not (plain.status == "ok" and both.status == "ok" and plain.has_normal and both.has_normal
             and both.projection in ("body_colours", "least_fluctuation")):

@@ -17,10 +17,8 @@ from simtest.reconstruct.lightaware.solve import _ROUGHNESS_RANGE
 #: The residual of every pixel where the model is not finite: far above any normalised residual, so LM rejects it.
 _NOT_FINITE_RESIDUAL = 1e6
 
-
 #: Gauss-Newton steps on log n alone that refine the photometric fit's start roughness.
 _ROUGHNESS_START_STEPS = 3
-
 
 #: Phong roughnesses (a factor of 4 apart) among which a start under several lights is chosen by its cost.
 _START_ROUGHNESS_GRID = (4.0, 16.0, 64.0, 256.0, 1024.0, 4096.0)
@@ -98,8 +96,7 @@ class PlaneModel:
         self.general = bool(self.diffuse or cens_.any() or self.ggx)
         self.dT, self.rl, self.yscale, self.yn = dT_, _ray_light(self.rig_arr[0], dT_), yscale_, y_ / yscale_
         self.background = background_
-        self.clipn = ((y_ / yscale_ if lower is not None else float(clip_level) / yscale_)
-                      if censor else np.inf)
+        self.clipn = ((y_ / yscale_ if lower is not None else float(clip_level) / yscale_) if censor else np.inf)
         self.design = design_
         self.state.clear()
         self.proj.clear()

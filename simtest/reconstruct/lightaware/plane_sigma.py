@@ -45,8 +45,7 @@ class PlaneVerdict:
         m = self.m
         m.resjac_at(self.x, self.n0, self.e1, self.e2, grad=False)
         if m.general:  # the diffuse column's derivative by differences about (nb, e1_, e2_)
-            return m.state["r"], m.jac_general(p_hat, nb, e1_, e2_,
-                                               _normal_derivs(p_hat, nb, e1_, e2_)[1], None)
+            return m.state["r"], m.jac_general(p_hat, nb, e1_, e2_, _normal_derivs(p_hat, nb, e1_, e2_)[1], None)
         return m.state["r"], m.jac_of(_normal_derivs(p_hat, nb, e1_, e2_)[1], None, True)
 
     def _jacobian(self):

@@ -42,13 +42,11 @@ def start_planes(m: PlaneModel, rig, d_bp, n0, h0, s) -> list:
     cands = [(n0, h0)]
     if s.start_normal is None and len(rig_arr[0]) > 1:
         # a highlight is one light's: the cheapest of each light's bisector, and the pairs' starts
-        cands = [_screened(m, cands + [_light_start(d_bp, L, nominal_depth_mm) for L in rig_arr[0]],
-                           s.start_roughness)]
+        cands = [_screened(m, cands + [_light_start(d_bp, L, nominal_depth_mm) for L in rig_arr[0]], s.start_roughness)]
         cands += [_light_start(d_bp, rig_arr[0][i], d) for i, _, d in s.pair_starts]
     if np.abs(rig_arr[0]).max() > 0:
         Lm = _mean_light(rig)
-        depths = (list(nominal_depth_mm * np.geomspace(1 / 8, 8, s.n_start_depths))
-                  if s.n_start_depths else [])
+        depths = (list(nominal_depth_mm * np.geomspace(1 / 8, 8, s.n_start_depths)) if s.n_start_depths else [])
         if s.start_normal is not None:
             depths.append(nominal_depth_mm)
         for sdep in depths:

@@ -66,7 +66,6 @@ def _covariance(jac: np.ndarray, resid_var: float) -> np.ndarray | None:
 #: cost change below 1e-8 leaves the solution within about ``1e-4 sqrt(m)`` standard deviations (m residuals).
 _LM_TOL = 1e-8
 
-
 #: The same for the first pass of a reweighted fit, which only sets the second's weights (a second-order effect).
 _LM_TOL_FIRST_PASS = 1e-4
 #: LM's tolerance before :func:`_newton`, the pass' evaluations after which it runs, its largest step (else LM)
@@ -159,8 +158,7 @@ def _solve(resjac, p0, args, loss: str, f_scale: float, max_nfev: int, free=None
                     q, ier = opt.leastsq(fun, q, args=(w,), Dfun=jac, xtol=tol, ftol=tol, gtol=tol,
                                          maxfev=max(budget - count[0], 1))
             ok = ier in (1, 2, 3, 4) and bool(np.isfinite(q).all())
-            msg = "" if ier in (1, 2, 3, 4) else (str(caught[-1].message) if caught
-                                                   else f"MINPACK info {ier}")
+            msg = "" if ier in (1, 2, 3, 4) else (str(caught[-1].message) if caught else f"MINPACK info {ier}")
     except _RanOff as off:  # (the residuals at its point are the cache's last)
         return full(off.args[0]), count[0], False, off.args[1], cache["r"]
     return full(q), count[0], ok, msg, rj(q, grad=False)[0]
@@ -235,8 +233,7 @@ def _finish(name, resjac_at, n_hat, h_hat, rig, extra_params, resid_floor, n_eva
     cov = None if unit_cov is None else resid_var * unit_cov
     floor_var = max(resid_var, resid_floor**2)
     Lm = _mean_light(rig)
-    sigma_deg = (None if cov is None
-                 else math.degrees(math.sqrt(max(float(cov[0, 0] + cov[1, 1]), 0.0))))
+    sigma_deg = (None if cov is None else math.degrees(math.sqrt(max(float(cov[0, 0] + cov[1, 1]), 0.0))))
     depth = specular_point_depth(n_hat, h_hat, Lm)
     g = _log_depth_gradient(n_hat, h_hat, Lm, (e1, e2))
     gcg = None if unit_cov is None else float(g @ unit_cov[:3, :3] @ g)  # g^T (J^T J)^-1 g
@@ -326,18 +323,16 @@ _CURVATURE_ALPHA = 1e-4
 def _curvature_score(cols, span, r, grid=None) -> str | None:
     """The score (Lagrange multiplier) test [2]_ of the plane fit against a curved patch.
 
-    With ``cols`` (M, 3) the image's derivatives in the three curvatures made orthogonal to ``span``
-    (M, k: the plane fit's Jacobian and linear columns) and orthonormal (Qc),
-    ``T = |Qc^T r|^2 / s^2`` is chi-square with 3 degrees of freedom on a plane with white noise.
-    ``grid = (sel, shape, step)``: for spatially correlated residuals T is divided by their
-    correlation area (:func:`_correlation_area`) outside the curvature's pattern.
-    Returns the misfit detail when T exceeds the tail :data:`_CURVATURE_ALPHA` and the curved
-    component's RMS exceeds ``TOL.plane_misfit_rel``, else None; False where no test can be made.
+    ``T = |Qc^T r|^2 / s^2`` (Qc: ``cols`` (M, 3), the image's derivatives in the curvatures, made
+    orthonormal and orthogonal to ``span``, the plane fit's Jacobian and linear columns) is chi-square
+    with 3 dof on a plane with white noise; with ``grid = (sel, shape, step)`` it is divided by the
+    correlation area (:func:`_correlation_area`) of the residual outside the pattern. Returns the
+    misfit detail beyond :data:`_CURVATURE_ALPHA` with a curved RMS above ``TOL.plane_misfit_rel``,
+    else None; False where no test can be made.
 
     References
     ----------
-    .. [2] C. R. Rao, "Large sample tests of statistical hypotheses concerning several parameters
-           with applications to problems of estimation", Proc. Cambridge Philos. Soc. 44(1), 1948.
+    .. [2] C. R. Rao, Proc. Cambridge Philos. Soc. 44(1), 1948 (the score test).
     """
     special = require("scipy.special")  # when first needed: scipy slows the start
     m, k = span.shape
@@ -395,25 +390,13 @@ _HAC_MAX_LAG = 24
 
 
 def _hac_covariance(J, r, sel, shape, step: int) -> tuple[np.ndarray | None, int]:
-    """The HAC (sandwich) covariance of a fit whose residuals correlate between nearby pixels.
+    """The HAC (sandwich) covariance (k, k) of a fit whose residuals correlate between nearby pixels,
+    and its bandwidth b; None (and 0) when J^T J is singular.
 
-    ``C = (J^T J)^-1 M (J^T J)^-1``, ``M = sum_ij w(i - j) g_i g_j^T``, ``g_i = J_i r_i``, with a
-    separable Bartlett window [1]_ of bandwidth ``b = ceil(-3 / log rho_1)`` sub-grid steps (at most
-    :data:`_HAC_MAX_LAG`; 0 for uncorrelated residuals, White's sandwich).
-
-    Parameters
-    ----------
-    J : ndarray of shape (M, k)
-        Jacobian of the residuals at the solution (the linear parameters projected out).
-    r : ndarray of shape (M,)
-        Residuals of the pixels ``sel``.
-    sel, shape, step
-        The pixels' flat indices into the ROI grid of ``shape``, on a sub-grid of spacing ``step``.
-
-    Returns
-    -------
-    (ndarray of shape (k, k) or None, int)
-        The covariance (None when J^T J is singular) and the bandwidth b.
+    ``C = (J^T J)^-1 M (J^T J)^-1``, ``M = sum_ij w(i - j) g_i g_j^T``, ``g_i = J_i r_i`` over the
+    residuals ``r`` (M,) of the pixels ``sel`` (flat indices into ``shape``, sub-grid ``step``), J (M, k),
+    with a separable Bartlett window [1]_ of ``b = ceil(-3 / log rho_1)`` sub-grid steps (at most
+    :data:`_HAC_MAX_LAG`; 0, White's sandwich, for uncorrelated residuals).
 
     References
     ----------
@@ -455,27 +438,12 @@ def cluster_blocks(shape, texture: bool = True) -> tuple[int, ...]:
 
 
 def _cluster_covariance(J, r, sel, shape, block: int = CLUSTER_PX[0]) -> np.ndarray | None:
-    """The cluster-robust covariance over square pixel blocks: the delete-one-block jackknife (CR3 [8]_).
+    """The cluster-robust covariance (k, k) over ``block`` x ``block`` px blocks: the delete-one-block
+    jackknife (CR3 [8]_); None when J^T J is singular or fewer than two blocks hold pixels.
 
-    With ``A = J^T J``, ``s_c = J_c^T r_c`` and ``M_c = J_c^T J_c`` per block c, ``d_c = (A - M_c)^-1 s_c``
-    and ``C = (G - 1) / G sum_c (d_c - mean d)(d_c - mean d)^T`` over the G blocks that hold pixels:
-    consistent whatever the correlation within a block.
-
-    Parameters
-    ----------
-    J : ndarray of shape (M, k)
-        Jacobian of the residuals at the solution (the linear parameters projected out).
-    r : ndarray of shape (M,)
-        Residuals of the pixels ``sel`` (flat indices into an ROI grid of ``shape``).
-    sel, shape
-        As :func:`_hac_covariance`'s.
-    block : int
-        Side of a cluster, px.
-
-    Returns
-    -------
-    ndarray of shape (k, k) or None
-        None when J^T J is singular or fewer than two blocks hold pixels.
+    Per block c, ``d_c = (J^T J - J_c^T J_c)^-1 J_c^T r_c`` and
+    ``C = (G - 1) / G sum_c (d_c - mean d)(d_c - mean d)^T`` over the G blocks that hold pixels;
+    ``J``, ``r``, ``sel``, ``shape`` as :func:`_hac_covariance`'s.
 
     References
     ----------
@@ -496,8 +464,7 @@ def _cluster_covariance(J, r, sel, shape, block: int = CLUSTER_PX[0]) -> np.ndar
     S = np.stack([np.bincount(cid, g[:, j], minlength=G) for j in range(k)], axis=1)
     A = J.T @ J
     JJ = (J[:, :, None] * J[:, None, :]).reshape(len(J), k * k)
-    Mc = np.stack([np.bincount(cid, JJ[:, j], minlength=G) for j in range(k * k)],
-                  axis=1).reshape(G, k, k)
+    Mc = np.stack([np.bincount(cid, JJ[:, j], minlength=G) for j in range(k * k)], axis=1).reshape(G, k, k)
     # a block whose removal leaves J^T J (near) singular is counted as the plain sandwich counts it
     rest = A[None] - Mc
     ev = np.linalg.eigvalsh(rest)
