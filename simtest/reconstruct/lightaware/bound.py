@@ -34,9 +34,8 @@ class CramerRaoBound:
     n_pixels: int
 
 
-def photometric_crb(camera, origin_uv, shape, normal, distance_mm: float, rig: LightRig,
-                    roughness: float, gain: float, sigma: float, *,
-                    background=(0.0, 0.0, 0.0), bp_uv=None,
+def photometric_crb(camera, origin_uv, shape, normal, distance_mm: float, rig: LightRig, roughness: float, gain: float,
+                    sigma: float, *, background=(0.0, 0.0, 0.0), bp_uv=None,
                     clip_level: float | None = None) -> CramerRaoBound:
     """Cramer-Rao bound of the photometric model under per-pixel Gaussian noise.
 
@@ -46,24 +45,14 @@ def photometric_crb(camera, origin_uv, shape, normal, distance_mm: float, rig: L
 
     Parameters
     ----------
-    camera : array_like of shape (3, 3) or CameraModel
-        Intrinsics K, or a camera model with ``pixel_to_ray``.
-    origin_uv : array_like of shape (2,)
-        Pixel (u, v) of the ROI's first element.
+    camera, origin_uv, rig
+        As in :func:`photometric_fit`.
     shape : (H, W)
         ROI size, px.
-    normal : array_like of shape (3,)
-        True unit normal facing the camera.
-    distance_mm : float
-        True plane distance h, mm.
-    rig : LightRig
-        The lights.
-    roughness : float
-        True Phong n.
-    gain : float
-        Image units per unit of the model.
-    sigma : float
-        Noise standard deviation, image units.
+    normal, distance_mm, roughness
+        The true unit normal (3,) facing the camera, plane distance h (mm) and Phong n.
+    gain, sigma : float
+        Image units per unit of the model, and the noise's standard deviation in image units.
     background : (b0, b1, b2)
         Linear background ``b0 + b1 du + b2 dv`` (du, dv the offsets from ``bp_uv`` over the ROI's
         larger side), image units.

@@ -1,6 +1,5 @@
 """The colour stage of the light-aware fits: the specular image of a linear RGB ROI, the tissue's
-body colours measured on the ROI's border and projected out (:func:`specular_image`).
-"""
+body colours measured on the ROI's border and projected out (:func:`specular_image`)."""
 
 from __future__ import annotations
 
@@ -21,8 +20,7 @@ _BODY_BAND_MAX = 8
 
 def _border_band(shape) -> np.ndarray:
     """The band along an (H, W) ROI's edges on which :func:`specular_image` measures the body colours:
-    its smaller side over :data:`_BODY_BAND_DIVISOR`, 1 to :data:`_BODY_BAND_MAX` px. (H, W) bool.
-    """
+    its smaller side over :data:`_BODY_BAND_DIVISOR`, 1 to :data:`_BODY_BAND_MAX` px. (H, W) bool."""
     h, w = int(shape[0]), int(shape[1])
     b = int(np.clip(min(h, w) // _BODY_BAND_DIVISOR, 1, _BODY_BAND_MAX))
     ring = np.zeros((h, w), bool)
@@ -137,8 +135,7 @@ def _from_two_channels(v, clipped, neg, anyc, values, colours) -> None:
     """In place: the specular value of each pixel with one clipped channel of negative weight, from its
     two other channels (weights ``u`` with ``u . (1, 1) = 1`` and ``u`` orthogonal to the leading body
     colour of ``colours`` (M, 3)). ``neg`` and ``anyc`` lose the pixels given a value; a channel pair
-    whose gain ``|u|`` exceeds :data:`BODY_PROJECTION_MAX_GAIN` is left as it was.
-    """
+    whose gain ``|u|`` exceeds :data:`BODY_PROJECTION_MAX_GAIN` is left as it was."""
     b1 = np.linalg.svd(colours, full_matrices=False)[2][0]
     one = neg & (np.count_nonzero(clipped, axis=2) == 1)
     for c in range(3):
@@ -168,14 +165,10 @@ _FLUCTUATION_MIN_PIXELS = 100
 
 
 def _least_fluctuation_weights(v, clipped) -> np.ndarray | None:
-    """The weights ``w`` (3,) that let through the least of the ROI's fluctuations about its smooth part,
-    with ``w . (1, 1, 1) = 1`` and ``w . a0 = 0`` (a0 the leading body colour): the linearly constrained
-    minimum-variance weights [7]_ ``w = R^-1 C (C^T R^-1 C)^-1 (0, 1)``, ``C = [a0, (1, 1, 1)]``.
-
-    R is the covariance of each pixel's colour minus its :data:`_FLUCTUATION_BOX` box mean (texture and
-    noise together), on pixels off the black field stop and away from clipped ones, lobes trimmed in
-    passes. None with fewer than :data:`_FLUCTUATION_MIN_PIXELS` pixels, a singular system, or a gain
-    ``|w|`` above :data:`BODY_PROJECTION_MAX_GAIN`.
+    """The weights ``w`` (3,) that let through the least of the ROI's fluctuations about its box mean
+    (:data:`_FLUCTUATION_BOX`), with ``w . (1, 1, 1) = 1`` and ``w . a0 = 0`` (a0 the leading body
+    colour): ``w = R^-1 C (C^T R^-1 C)^-1 (0, 1)``, ``C = [a0, (1, 1, 1)]`` [7]_. None with too few
+    pixels, a singular system or a gain above :data:`BODY_PROJECTION_MAX_GAIN`.
 
     References
     ----------
@@ -219,8 +212,7 @@ def _least_fluctuation_weights(v, clipped) -> np.ndarray | None:
 def _body_weights(colours) -> np.ndarray | None:
     """Weights ``w`` (3,) orthogonal to the two leading right singular vectors of body colours (M, 3),
     ``w . (1, 1, 1) = 1``; None without a second body colour or with a gain above
-    :data:`BODY_PROJECTION_MAX_GAIN`.
-    """
+    :data:`BODY_PROJECTION_MAX_GAIN`."""
     sv, Vt = np.linalg.svd(colours, full_matrices=False)[1:]
     one = np.ones(3)
     # a second body colour only where its singular value stands above the third's and round-off

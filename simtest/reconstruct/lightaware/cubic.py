@@ -9,12 +9,11 @@ from simtest._lazy import require
 from simtest.geometry.angles import unit
 from simtest.geometry.conics import plane_basis
 from simtest.geometry.lights import LightRig
-from simtest.tolerances import TOL
 from simtest.reconstruct.lightaware.estimate import LightAwareEstimate
 from simtest.reconstruct.lightaware.patch import (
-    _fit_fixed_depth, _patch_covariances, _patch_lobes, _patch_problem, _patch_sigma, _quadric_root, _valley_sigma_deg,
+    _fit_fixed_depth, _patch_lobes, _patch_problem, _patch_uncertainty, _quadric_root, _valley_sigma_deg,
 )
-from simtest.reconstruct.lightaware.solve import _covariance, _implausible, _patch_verdict
+from simtest.reconstruct.lightaware.solve import _implausible
 
 
 #: Newton steps that take a pixel ray's intersection from the quadric's root to the cubic patch's.
@@ -41,12 +40,9 @@ _PROFILE_WIDE_START = 0.2
 
 
 def _cubic_patch_geometry(d, b_ray, p, Lm):
-    """Intersections and surface normals of the cubic patch ``p`` along rays d.
-
-    Returns ``(X (N, 3), ns (N, 3), ok (N,), N (3,), s, frame)``: points and unit normals (camera
-    frame), which rays meet the patch in front of the camera, the apex normal, the apex depth s
-    and the apex frame ``(P0, t1, t2, N)``.
-    """
+    """Intersections and surface normals of the cubic patch ``p`` along rays d. Returns
+    ``(X (N, 3), ns (N, 3), ok (N,), N (3,), s, frame)``: points and unit normals (camera frame), which rays meet the
+    patch in front of the camera, the apex normal, the apex depth s and the apex frame ``(P0, t1, t2, N)``."""
     e1, e2 = plane_basis(b_ray)
     s = np.exp(np.float64(p[2]))  # numpy scalars: a fit that runs off overflows to inf, no raise
     P0 = s * unit(b_ray + p[0] * e1 + p[1] * e2)
@@ -88,11 +84,9 @@ def _cubic_patch_image(d, b_ray, p, rig_arr, Lm):
 
 
 def _patch_specular_points(b_ray, p, Lm, lights):
-    """Each light's specular point on the cubic patch ``p``: unit normals (J, 3) and depths (J,).
-
-    Searched along the rays ``unit(b + u e1 + v e2)`` by Levenberg-Marquardt from the apex's ray,
-    where the normal bisects the directions to the camera and the light; NaN rows where it fails.
-    """
+    """Each light's specular point on the cubic patch ``p``: unit normals (J, 3) and depths (J,). Searched along the
+    rays ``unit(b + u e1 + v e2)`` by Levenberg-Marquardt from the apex's ray, where the normal bisects the directions
+    to the camera and the light; NaN rows where it fails."""
     opt = require("scipy.optimize")  # when first needed: scipy slows the start
     e1, e2 = plane_basis(b_ray)
     ray0 = np.array([p[0], p[1]], dtype=np.float64)
@@ -116,8 +110,7 @@ def _patch_specular_points(b_ray, p, Lm, lights):
 
 def _light_normal_jacobian(b_ray, p, Lm, lights, x_scale) -> np.ndarray:
     """The derivative (J, 3, 11) of each light's specular-point normal in the patch's parameters, by
-    central differences (1e-4 of ``x_scale``; NaN where a specular point is not found).
-    """
+    central differences (1e-4 of ``x_scale``; NaN where a specular point is not found)."""
     k = len(p)
     G = np.zeros((len(lights), 3, k))
     for i in range(k):
@@ -132,8 +125,7 @@ def _light_normal_jacobian(b_ray, p, Lm, lights, x_scale) -> np.ndarray:
 def _cubic_setup(values, origin_uv, bp_uv, camera, rig, clip_level, max_pixels):
     """The ROI's samples and the variable-projection residual of the cubic patch: None with too few
     unclipped pixels, else a dict of ``res(p)`` (11 parameters), ``b_ray``, ``Lm``, ``rig_arr``,
-    ``x_scale``, ``sel``, ``step``, ``shape`` and ``m`` (pixels used).
-    """
+    ``x_scale``, ``sel``, ``step``, ``shape`` and ``m`` (pixels used)."""
     P, n_px = _patch_problem(values, origin_uv, bp_uv, camera, rig, clip_level, max_pixels, 2 * _CUBIC_PARAMS)
     if P is None:
         return None
@@ -158,17 +150,15 @@ def _flat_start(roughness):
     return p
 
 
-def patch_depth_profile(values, origin_uv, bp_uv, camera, rig: LightRig, depths_mm, *,
-                        clip_level: float | None = None, cubic: bool = True,
-                        start_roughness: float | None = None, max_pixels: int | None = 800,
+def patch_depth_profile(values, origin_uv, bp_uv, camera, rig: LightRig, depths_mm, *, clip_level: float | None = None,
+                        cubic: bool = True, start_roughness: float | None = None, max_pixels: int | None = 800,
                         max_nfev: int = 100) -> np.ndarray:
     """The least misfit of a curved patch to the ROI with its apex depth fixed, depth by depth.
 
-    At each depth the other parameters of :func:`cubic_patch_fit` are fitted from two flat patches
-    (Phong n ``start_roughness`` and :data:`_PROFILE_WIDE_START` of it) and from the neighbouring
-    depth's solution (swept up and down, intermediate depths at most :data:`_PROFILE_STEP` apart),
-    the least sum of squares kept. A profile that rises away from its minimum says the ROI fixes the
-    depth; a flat one says the shape stands in for it.
+    The other parameters of :func:`cubic_patch_fit` are fitted at each depth from two flat patches
+    (Phong n ``start_roughness`` and :data:`_PROFILE_WIDE_START` of it) and the neighbouring depth's
+    solution (swept up and down, at most :data:`_PROFILE_STEP` apart). A profile that rises away from
+    its minimum says the ROI fixes the depth.
 
     Parameters
     ----------
@@ -222,8 +212,7 @@ def patch_depth_profile(values, origin_uv, bp_uv, camera, rig: LightRig, depths_
 
 def _coarse_profile(S, depths, start_roughness, max_nfev):
     """:func:`cubic_patch_fit`'s coarse quadric profile over ``depths``, swept up and down from a flat
-    patch and the neighbour's solution. Returns ``(cost, sol, nfev)``.
-    """
+    patch and the neighbour's solution. Returns ``(cost, sol, nfev)``."""
     n0 = 50.0 if start_roughness is None else float(start_roughness)
     flat = _flat_start(n0)
     quad = [0, 1, 3, 4, 5, 6]
@@ -253,29 +242,17 @@ def _apex_normal_gradient(b_ray, x, x_scale, Lm) -> np.ndarray:
     return G
 
 
-def cubic_patch_fit(values, origin_uv, bp_uv, camera, rig: LightRig, *,
-                    clip_level: float | None = None, nominal_depth_mm: float = 20.0,
-                    start_roughness: float | None = None, max_pixels: int | None = 800,
+def cubic_patch_fit(values, origin_uv, bp_uv, camera, rig: LightRig, *, clip_level: float | None = None,
+                    nominal_depth_mm: float = 20.0, start_roughness: float | None = None, max_pixels: int | None = 800,
                     max_nfev: int = 100, misfit_sigma: bool = True) -> LightAwareEstimate:
     """Fit the ROI with the image of a third-order surface patch lit by the whole rig.
 
-    :func:`quadric_fit`'s patch with the third-order terms of the height function [2]_ added, in the
-    apex frame ``F = z + (k_xx x^2 + 2 k_xy x y + k_yy y^2 + H z^2) / 2
-    + (c_xxx x^3 + 3 c_xxy x^2 y + 3 c_xyy x y^2 + c_yyy y^3) / 6 = 0`` with ``k = kappa / s`` and
-    ``c = gamma / s^2`` (kappa, gamma dimensionless, s the apex depth); the apex is the mean light's
-    specular point. Each light's Phong lobe, gain and linear background (variable projection [3]_)
-    give the image; eleven parameters (a, b', log s, kappa, log n, gamma).
-
-    A coarse quadric depth profile (:data:`_PROFILE_FACTORS` times ``nominal_depth_mm``) starts the
-    free fit at its least cost. Then the depth's observability (relative sigma of s with the residual
-    variance floored at ``TOL.photometric_noise_rel``), the misfit tests of :func:`quadric_fit`, and,
-    with an observable depth, each light's specular point (``light_normals``, ``light_depths_mm``).
-    Sigmas as :func:`quadric_fit`'s (covariances and the depth valley), propagated to each light's
-    normal (``light_normal_sigmas_deg``).
-
-    Under one light the third-order terms stand in for the light's offset, and the depth is not
-    observable. Two lights on opposite sides of the lens shift their lobes apart while the shape acts
-    on both alike, which fixes the depth. At small epsilon/d the profile may bound it from below only.
+    :func:`quadric_fit`'s patch plus the height function's third-order terms [2]_
+    ``(c_xxx x^3 + 3 c_xxy x^2 y + 3 c_xyy x y^2 + c_yyy y^3) / 6``, ``c = gamma / s^2``: eleven
+    parameters (a, b', log s, kappa, log n, gamma), the linear part by variable projection [3]_. A
+    coarse quadric depth profile (:data:`_PROFILE_FACTORS`) starts the free fit. Two lights on
+    opposite sides of the lens shift their lobes apart while the shape acts on both alike, which
+    fixes the depth; under one light it is not observable.
 
     Parameters
     ----------
@@ -291,10 +268,11 @@ def cubic_patch_fit(values, origin_uv, bp_uv, camera, rig: LightRig, *,
     Returns
     -------
     LightAwareEstimate
-        ``estimator="cubic_patch_fit"``, status ``ok``, ``depth_not_observable``,
-        ``patch_misfit``, ``not_converged`` or ``too_few_points``; ``distance_mm`` and ``depth_mm``
-        the apex depth s; ``light_normals`` (J, 3) and ``light_depths_mm`` (J,) when the depth is
-        observable; ``depth_rel_sigma``.
+        ``estimator="cubic_patch_fit"``, status ``ok``, ``depth_not_observable``, ``patch_misfit``,
+        ``not_converged`` or ``too_few_points``; ``distance_mm`` and ``depth_mm`` the apex depth s (the
+        mean light's specular point); with an observable depth, each light's specular point
+        (``light_normals`` (J, 3), ``light_depths_mm`` (J,), ``light_normal_sigmas_deg``);
+        ``depth_rel_sigma``.
 
     Raises
     ------
@@ -305,8 +283,7 @@ def cubic_patch_fit(values, origin_uv, bp_uv, camera, rig: LightRig, *,
     ----------
     .. [2] M. P. do Carmo, "Differential Geometry of Curves and Surfaces", Prentice-Hall, 1976,
            section 3-3 (the local height function and its Taylor terms).
-    .. [3] G. H. Golub, V. Pereyra, "The differentiation of pseudo-inverses and nonlinear least
-           squares problems whose variables separate", SIAM J. Numer. Anal. 10(2), 1973.
+    .. [3] G. H. Golub, V. Pereyra, SIAM J. Numer. Anal. 10(2), 1973. https://doi.org/10.1137/0710036
     """
     opt = require("scipy.optimize")  # when first needed: scipy slows the start
     name = "cubic_patch_fit"
@@ -330,22 +307,12 @@ def cubic_patch_fit(values, origin_uv, bp_uv, camera, rig: LightRig, *,
         return LightAwareEstimate(name, "not_converged", bad or r.message, n_evaluations=nfev)
     b_ray, Lm = S["b_ray"], S["Lm"]
     n_hat = _cubic_patch_geometry(b_ray[None], b_ray, x, Lm)[3]
-    r0, J = r.fun, r.jac
-    m_, k_ = J.shape
-    resid_var = float(r0 @ r0) / max(m_ - k_ - 4, 1)
-    covs = _patch_covariances(J, r0, resid_var, S["sel"], S["shape"], S["step"])
-    cov_floor = _covariance(J, max(resid_var, TOL.photometric_noise_rel**2))
     G = _apex_normal_gradient(b_ray, x, S["x_scale"], Lm)
-    rel_floor = None if cov_floor is None else float(np.sqrt(max(cov_floor[2, 2], 0.0)))
-    status, detail, observable, rms = _patch_verdict(
-        rel_floor, r0, S["sel"], S["shape"], S["step"], "",
+    status, detail, observable, rms, sigma_deg, valley, excess, depth_sigma, rel_floor, covs = _patch_uncertainty(
+        r, S, S["sel"], S["shape"], S["step"], x, G, misfit_sigma, max_nfev,
         "the ROI is not one patch's lobes (streaks along folds, a lobe cut off)")
-    sigma_deg, valley, excess, detail = _patch_sigma(status, detail, misfit_sigma, S, x, float(r0 @ r0),
-                                                     resid_var, covs, max_nfev, G)
     if status == "ok":
         detail = f"profile minimum at {depths[i0]:.4g} mm; {detail}"
-    depth_sigma = (float(s_hat * np.sqrt(max(max(c[2, 2] for c in covs), 0.0) + excess))
-                   if observable and covs else None)
     ln = ld = lsig = None
     if observable:
         ln, ld = _patch_specular_points(b_ray, x, Lm, S["rig_arr"][0])

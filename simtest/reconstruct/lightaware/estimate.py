@@ -38,8 +38,7 @@ class LightAwareEstimate:
     Attributes
     ----------
     estimator : str
-        ``"bisector"``, ``"isocurve_fit"``, ``"photometric_fit"``, ``"quadric_fit"`` or
-        ``"cubic_patch_fit"``.
+        ``"bisector"``, ``"isocurve_fit"``, ``"photometric_fit"``, ``"quadric_fit"`` or ``"cubic_patch_fit"``.
     status : str
         A key of :data:`STATUSES`.
     detail : str
@@ -47,8 +46,7 @@ class LightAwareEstimate:
     normal : ndarray of shape (3,) or None
         Unit normal, OpenCV camera frame, facing the camera.
     depth_mm : float or None
-        Distance from the camera centre to the specular point (along its ray), mm; None when not
-        observable.
+        Distance from the camera centre to the specular point along its ray, mm; None when not observable.
     normal_sigma_deg : float or None
         1-sigma angular uncertainty of the normal (RMS angle), degrees.
     depth_sigma_mm : float or None
@@ -62,17 +60,14 @@ class LightAwareEstimate:
     n_evaluations : int
         Model evaluations of the fit (0 for the closed form).
     residual_rms : float or None
-        RMS residual at the solution (px for the isocurve fit; fraction of the ROI's maximum for the
-        photometric fits).
+        RMS residual at the solution (px for the isocurve fit; fraction of the ROI's maximum otherwise).
     light_normals : ndarray of shape (J, 3) or None
-        :func:`cubic_patch_fit`: the patch's unit normal at each light's specular point, camera frame;
-        None when the depth is not observable.
+        :func:`cubic_patch_fit`: the patch's unit normal at each light's specular point, camera frame.
     light_depths_mm : ndarray of shape (J,) or None
-        Depth of each light's specular point on the fitted surface, mm, under a rig of several lights
-        (``depth_mm`` is then the mean light's); None otherwise.
+        Depth of each light's specular point, mm, under several lights (``depth_mm`` is the mean light's).
     depth_rel_sigma : float or None
-        :func:`quadric_fit` and :func:`cubic_patch_fit`: the depth's relative 1-sigma with the residual
-        variance floored at ``TOL.photometric_noise_rel``; None when J^T J is singular.
+        Curved patches: the depth's relative 1-sigma with the residual variance floored at
+        ``TOL.photometric_noise_rel``; None when J^T J is singular.
     bp_ray_error_deg : float or None
         The BP ray's expected error next to this fit, degrees (half the angle the mean light subtends
         at the specular point); set by :func:`simtest.reconstruct.light_fits.light_aware_estimates`.
@@ -83,15 +78,13 @@ class LightAwareEstimate:
     light_normal_sigmas_deg : ndarray of shape (J,) or None
         :func:`cubic_patch_fit`: the 1-sigma of each of ``light_normals``, degrees.
     depth_range_mm : tuple of float or None
-        :func:`quadric_fit` under one light: the depths (near, far) of the specular point, mm, the data
-        cannot exclude (:data:`~simtest.reconstruct.lightaware.patch.ONE_LIGHT_DEPTH_FACTOR`); the depth
-        itself is then None.
+        :func:`quadric_fit` under one light: the depths (near, far), mm, the data cannot exclude
+        (:data:`~simtest.decisions.ONE_LIGHT_DEPTH_FACTOR`); the depth itself is then None.
     projection : str or None
-        :func:`photometric_fit` on three linear channels: the image fitted, ``"body_colours"``,
-        ``"least_fluctuation"`` or ``"darkest_channel"``; None for one channel.
+        :func:`photometric_fit` on RGB: ``"body_colours"``, ``"least_fluctuation"`` or ``"darkest_channel"``.
     curvature_shift_deg : float or None
-        :func:`photometric_fit`: the normal's shift by a curved pattern within its sigma (a
-        micro-relief), degrees, already added to ``normal_sigma_deg``.
+        :func:`photometric_fit`: the normal's shift by a curved pattern within its sigma, degrees,
+        already added to ``normal_sigma_deg``.
     """
 
     estimator: str

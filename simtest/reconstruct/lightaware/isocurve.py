@@ -15,8 +15,7 @@ from simtest.reconstruct.lightaware.model import _camera, _normal_derivs, _ray_l
 from simtest.reconstruct.lightaware.solve import _finish, _implausible, _solve, _start
 
 
-def refine_isophote_points(values, level: float, points_uv, origin_uv=(0.0, 0.0),
-                           iterations: int = 3) -> np.ndarray:
+def refine_isophote_points(values, level: float, points_uv, origin_uv=(0.0, 0.0), iterations: int = 3) -> np.ndarray:
     """Move contour points onto the level set of the cubic-spline interpolant of an image.
 
     Marching squares' linear interpolation leaves points a few hundredths of a pixel inside a convex
@@ -97,9 +96,8 @@ def _tau_start(cb0, kidx, n_members, log_t, n_tau, wts):
     return q, float(r @ r)
 
 
-def isocurve_fit(points_uv, isovalues, bp_uv, camera, rig: LightRig, *,
-                 nominal_depth_mm: float = 20.0, start_normal=None,
-                 loss: str = "soft_l1", f_scale_px: float = 0.5,
+def isocurve_fit(points_uv, isovalues, bp_uv, camera, rig: LightRig, *, nominal_depth_mm: float = 20.0,
+                 start_normal=None, loss: str = "soft_l1", f_scale_px: float = 0.5,
                  max_points_per_isophote: int | None = 64, n_start_depths: int = 0,
                  max_nfev: int = 200) -> LightAwareEstimate:
     """Fit the general specular isocurve (paper eq. 2) with a calibrated light to isophote points.

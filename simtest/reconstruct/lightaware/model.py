@@ -87,18 +87,11 @@ def _ray_light(L, dT):
 
 
 def _terms(dT, n, h, L, rl, P=None, dns=None, ds=None):
-    """cos beta of one light on the plane (n, h) along unit rays ``dT`` (3, N), and its derivatives.
-
-    ``rl = (Ld, K2)`` of :func:`_ray_light`. Returns ``(cb, delta, s, sl, ir, c, dcb)``: ``delta = -d . n``,
-    ``s = |X|``, ``sl = s - Ld``, ``ir = 1 / |L - X|``, ``c = n . L + h`` and, given the normal's
-    derivatives ``dns``, ``dcb`` (3, N) in (a, b, log h) (else None); ``P = dns @ dT`` and the plane's
-    ``ds = (delta, s)`` may be passed if at hand.
-
-    Notes
-    -----
-    With ``X = s d``, ``s = h / delta``: ``r^2 = (s - Ld)^2 + K2`` and
-    ``cos beta = (2 c delta + Ld - s) / r``.
-    """
+    """cos beta of one light on the plane (n, h) along unit rays ``dT`` (3, N), and its derivatives. ``rl = (Ld, K2)``
+    of :func:`_ray_light`. Returns ``(cb, delta, s, sl, ir, c, dcb)``: ``delta = -d . n``, ``s = |X| = h / delta``,
+    ``sl = s - Ld``, ``ir = 1 / |L - X|``, ``c = n . L + h``, ``cb = (2 c delta - sl) ir`` and, given the normal's
+    derivatives ``dns``, ``dcb`` (3, N) in (a, b, log h) (else None); ``P = dns @ dT`` and ``ds = (delta, s)`` may be
+    passed if at hand."""
     Ld, K2 = rl
     delta = np.maximum((-n) @ dT, 1e-9) if ds is None else ds[0]
     s = h / delta if ds is None else ds[1]
@@ -135,8 +128,7 @@ _CB_FLOOR = 1e-200
 
 def _rig_geometry(dT, rl, n, h, rig_arr) -> list:
     """Per light, the roughness-free pieces of :func:`_rig_value`:
-    ``(cb, cbp, lcb, pos, delta, s, sl, ir, c, cp, raw, f, p)`` (f falloff, p profile; None where absent).
-    """
+    ``(cb, cbp, lcb, pos, delta, s, sl, ir, c, cp, raw, f, p)`` (f falloff, p profile; None where absent)."""
     L, w, inv_sq, m = rig_arr
     geo = []
     for j in range(len(w)):
@@ -151,10 +143,8 @@ def _rig_geometry(dT, rl, n, h, rig_arr) -> list:
 
 
 def _rig_value(dT, rl, n, h, rig_arr, rough, geo=None):
-    """``S = sum_j w_j max(0, cb_j)^n f_j p_j`` (N,) and the per-light pieces :func:`_rig_grad` needs.
-
-    ``dT`` (3, N) unit rays transposed, ``rl`` the rig's :func:`_ray_light`; ``geo``: :func:`_rig_geometry` if at hand.
-    """
+    """``S = sum_j w_j max(0, cb_j)^n f_j p_j`` (N,) and the per-light pieces :func:`_rig_grad` needs. ``dT`` (3, N)
+    unit rays transposed, ``rl`` the rig's :func:`_ray_light`; ``geo``: :func:`_rig_geometry` if at hand."""
     w = rig_arr[1]
     S = np.zeros(dT.shape[1])
     parts = []
@@ -175,10 +165,8 @@ def _rig_value(dT, rl, n, h, rig_arr, rough, geo=None):
 
 
 def _rig_grad(dT, parts, n, dns, h, rig_arr, rough):
-    """``dS`` (4, N) of :func:`_rig_value` in (a, b, log h, log n).
-
-    Per light ``d log val = n d cb / cb + d log f + d log p``, with the derivatives of :func:`_terms`.
-    """
+    """``dS`` (4, N) of :func:`_rig_value` in (a, b, log h, log n). Per light
+    ``d log val = n d cb / cb + d log f + d log p``, with the derivatives of :func:`_terms`."""
     L, w, inv_sq, m = rig_arr
     P = np.array(dns) @ dT
     dS = np.zeros((4, dT.shape[1]))
@@ -209,8 +197,7 @@ def _rig_image(d, n, dns, h, rig_arr, rough, grad=True):
     return S, (_rig_grad(dT, parts, n, dns, h, rig_arr, rough).T if grad else None)
 
 
-def plane_rig_intensity(rays: np.ndarray, normal, distance_mm: float, rig: LightRig,
-                        roughness: float) -> np.ndarray:
+def plane_rig_intensity(rays: np.ndarray, normal, distance_mm: float, rig: LightRig, roughness: float) -> np.ndarray:
     """Specular image of a plane lit by a rig, along given rays (unit gain, no background).
 
     ``sum_j w_j max(0, cos beta_j)^n f_j p_j`` (package docstring).
@@ -240,11 +227,9 @@ def plane_rig_intensity(rays: np.ndarray, normal, distance_mm: float, rig: Light
 
 
 def _distance_for_bp(ray: np.ndarray, n: np.ndarray, L: np.ndarray) -> float | None:
-    """Plane distance h at which the plane of normal n has its specular point on the BP ray.
-
-    Least squares on the component of ``L' = L0 - 2 h n`` across the ray (``L0`` the mirror image of L
-    in the plane through the camera centre). None if not > 0.
-    """
+    """Plane distance h at which the plane of normal n has its specular point on the BP ray. Least squares on the
+    component of ``L' = L0 - 2 h n`` across the ray (``L0`` the mirror image of L in the plane through the camera
+    centre). None if not > 0."""
     L0 = L - 2.0 * (n @ L) * n
     pn = n - (ray @ n) * ray  # P n
     den = 2.0 * (pn @ pn)
@@ -255,10 +240,8 @@ def _distance_for_bp(ray: np.ndarray, n: np.ndarray, L: np.ndarray) -> float | N
 
 
 def _log_depth_gradient(n, h, Lm, basis=None) -> np.ndarray:
-    """d log(depth) / d(a, b, log h) about (n, h) in the tangent basis of :func:`plane_basis` (3,).
-
-    From ``D = h sqrt(|L|^2 + 4 k h) / (k + h)``, ``k = n . L + h``; NaN with the light behind the plane.
-    """
+    """d log(depth) / d(a, b, log h) about (n, h) in the tangent basis of :func:`plane_basis` (3,). From
+    ``D = h sqrt(|L|^2 + 4 k h) / (k + h)``, ``k = n . L + h``; NaN with the light behind the plane."""
     e1, e2 = plane_basis(n) if basis is None else basis
     k = float(n @ Lm) + h
     if not k > 0:
@@ -269,10 +252,8 @@ def _log_depth_gradient(n, h, Lm, basis=None) -> np.ndarray:
 
 
 def _roi_samples(vals, o, uu, vv, keep, max_pixels):
-    """The ROI pixels a photometric fit uses: every kept pixel, or a regular sub-grid of them.
-
-    Returns ``(sel, step, uv, y)``: flat indices, sub-grid step, (u, v) positions (N, 2), values (N,).
-    """
+    """The ROI pixels a photometric fit uses: every kept pixel, or a regular sub-grid of them. Returns
+    ``(sel, step, uv, y)``: flat indices, sub-grid step, (u, v) positions (N, 2), values (N,)."""
     sel = np.flatnonzero(keep)
     step = 1
     if max_pixels and len(sel) > max_pixels:  # a regular sub-grid of the ROI
@@ -321,12 +302,8 @@ def albedo_lines(luma_roi, step: float = 1.0, noise: float = 0.0) -> np.ndarray:
 
 
 def _roi_grid(values, camera, origin_uv, clip_level):
-    """The ROI of a photometric fit: ``(vals, camera, o, uu, vv, keep)``.
-
-    ``vals`` (H, W) float64, ``o`` (2,) the ROI's top-left pixel, ``uu, vv`` the column and row
-    indices, ``keep`` the unclipped mask (``vals < clip_level``). Raises ValueError for values that are
-    not a finite 2-D array.
-    """
+    """The ROI of a photometric fit: ``(vals, camera, o, uu, vv, keep)``, ``o`` the top-left pixel, ``keep``
+    ``vals < clip_level``. Raises ValueError for values that are not a finite 2-D array."""
     vals = np.asarray(values, dtype=np.float64)
     if vals.ndim != 2 or not np.isfinite(vals).all():
         raise ValueError(f"values: need a finite (H, W) array, got shape {vals.shape}")
@@ -339,11 +316,9 @@ def _roi_grid(values, camera, origin_uv, clip_level):
 
 
 def _rig_diffuse(dT, rl, n, h, rig_arr, terms=None, keep=None) -> np.ndarray:
-    """The rig's Lambertian shading ``sum_j w_j max(0, n . l_j) f_j p_j`` of the plane (n, h), (N,).
-
-    Unit albedo, the lobes' falloff and profile; ``terms``: each light's ``_terms[:6]`` if at hand;
-    ``keep``: a list that receives each light's ``(term, cos theta)``.
-    """
+    """The rig's Lambertian shading ``sum_j w_j max(0, n . l_j) f_j p_j`` of the plane (n, h), (N,). Unit albedo, the
+    lobes' falloff and profile; ``terms``: each light's ``_terms[:6]`` if at hand; ``keep``: a list that receives each
+    light's ``(term, cos theta)``."""
     L, w, inv_sq, m = rig_arr
     terms = [_terms(dT, n, h, L_, (rl[0][j], rl[1][j]))[:6] for j, L_ in enumerate(L)] if terms is None else terms
     D = np.zeros(dT.shape[1])
@@ -359,10 +334,8 @@ def _rig_diffuse(dT, rl, n, h, rig_arr, terms=None, keep=None) -> np.ndarray:
 
 
 def _rig_diffuse_grad(dT, rl, p, nb, e1, e2, rig_arr, at=None) -> np.ndarray:
-    """The derivatives (3, N) of :func:`_rig_diffuse` in (a, b, log h) about ``p``.
-
-    ``at``: ``(n, dns, terms)`` or ``(n, dns, terms, keep)`` if at hand.
-    """
+    """The derivatives (3, N) of :func:`_rig_diffuse` in (a, b, log h) about ``p``. ``at``: ``(n, dns, terms)`` or
+    ``(n, dns, terms, keep)`` if at hand."""
     L, w, inv_sq, m = rig_arr
     h = float(np.exp(p[2]))
     if at is None:
@@ -389,12 +362,9 @@ def _rig_diffuse_grad(dT, rl, p, nb, e1, e2, rig_arr, at=None) -> np.ndarray:
 
 
 def _curvature_columns(dT, rl, n, h, rig_arr, rough, apex) -> np.ndarray:
-    """The derivatives (3, N) of the rig's Phong image in the curvatures (k_xx, k_xy, k_yy) at zero.
-
-    The plane (n, h) bent about ``apex`` as :func:`~simtest.reconstruct.lightaware.patch.quadric_fit`'s
-    patch: to first order a surface point moves along its ray by ``q / (2 delta)`` and its normal tilts
-    by ``(k_xx x + k_xy y) t1 + (k_xy x + k_yy y) t2``. Each column up to a constant factor.
-    """
+    """The derivatives (3, N) of the rig's Phong image in the curvatures (k_xx, k_xy, k_yy) at zero, the
+    plane (n, h) bent about ``apex`` as :func:`~simtest.reconstruct.lightaware.patch.quadric_fit`'s
+    patch (each column up to a constant factor)."""
     L, w, inv_sq, m = rig_arr
     t1, t2 = plane_basis(n)
     A1, A2 = t1 @ dT, t2 @ dT
@@ -430,20 +400,30 @@ def _fresnel_dielectric(cos_i, eta):
 
 
 def _rig_value_ggx(dT, rl, n, h, rig_arr, alpha, ior: float = GGX_FILM_IOR, parts=None):
-    """The rig's GGX lobes under a dielectric film on the plane (n, h) along unit rays ``dT`` (3, N).
-
-    ``S = sum_j w_j F(v . m) D(m) G1(v) G1(l_j) / (4 n . v) f_j p_j``: the renderer's wet film
-    (:func:`simtest.render.tissue.specular_lobe`; Walter et al. 2007, eqs. 25-34). 0 where the light or
-    the camera is below the plane. ``parts``: a list that receives each light's pieces for
-    :func:`_rig_grad_ggx`.
-    """
-    return _ggx_sum(dT, rl, n, h, rig_arr, alpha, ior, _ggx_lobe, parts)
+    """The rig's GGX lobes under a dielectric film on the plane (n, h) along unit rays ``dT`` (3, N):
+    ``S = sum_j w_j F D G1(v) G1(l_j) / (4 n . v) f_j p_j``, the renderer's wet film
+    (:func:`simtest.render.tissue.specular_lobe`); ``parts`` receives each light's pieces."""
+    L, w, inv_sq, m = rig_arr
+    # a product, not ``** 2``: a run-off trial alpha overflows to inf (rejected) where ``** 2`` raises
+    a2 = float(alpha) * float(alpha)
+    S = np.zeros(dT.shape[1])
+    for j in range(len(w)):
+        _, delta, s, sl, ir, c, _ = _terms(dT, n, h, L[j], (rl[0][j], rl[1][j]))
+        F = _fresnel_of_vl(sl * ir, ior)
+        val = _ggx_lobe(delta, s, sl, ir, c, a2, ior, F)
+        scaled = val * ((h * ir) * (h * ir)) if inv_sq[j] else val  # falloff and profile
+        if m[j] > 0:
+            scaled = scaled * np.maximum((s * dT[2] - L[j, 2]) * ir, 1e-12) ** m[j]
+        scaled = w[j] * scaled
+        S += scaled
+        if parts is not None:
+            parts.append((delta, s, sl, ir, c, val, F, scaled))
+    return S
 
 
 def _ggx_lobe(delta, s, sl, ir, c, a2, ior, F=None):
     """One light's film lobe before falloff and profile: ``F D G1(v) G1(l) / (4 n . v)`` (Walter et al.
-    2007, doi:10.2312/EGWR/EGSR07/195-206), 0 below the plane; ``F`` the Fresnel factor if at hand.
-    """
+    2007, doi:10.2312/EGWR/EGSR07/195-206), 0 below the plane; ``F`` the Fresnel factor if at hand."""
     cos_o = c * ir
     vl = sl * ir
     hv = np.sqrt(np.maximum(2.0 + 2.0 * vl, 1e-300))
@@ -461,24 +441,6 @@ def _ggx_lobe(delta, s, sl, ir, c, a2, ior, F=None):
     return val
 
 
-def _ggx_sum(dT, rl, n, h, rig_arr, alpha, ior, lobe, parts=None):
-    """Sum over the rig's lights of ``lobe`` times each light's falloff and profile."""
-    L, w, inv_sq, m = rig_arr
-    # a product, not ``** 2``: a run-off trial alpha overflows to inf (rejected) where ``** 2`` raises
-    a2 = float(alpha) * float(alpha)
-    S = np.zeros(dT.shape[1])
-    for j in range(len(w)):
-        _, delta, s, sl, ir, c, _ = _terms(dT, n, h, L[j], (rl[0][j], rl[1][j]))
-        cp = np.maximum((s * dT[2] - L[j, 2]) * ir, 1e-12) if m[j] > 0 else None
-        F = _fresnel_of_vl(sl * ir, ior)
-        val = lobe(delta, s, sl, ir, c, a2, ior, F)
-        scaled = w[j] * _lobe_scale(val, h, ir, inv_sq[j], cp, m[j])
-        S += scaled
-        if parts is not None:
-            parts.append((delta, s, sl, ir, c, val, F, scaled))
-    return S
-
-
 def _fresnel_of_vl(vl, ior):
     """Fresnel's reflectance ``F(v . m)``, ``v . m = sqrt((1 + v . l) / 2)``, from ``vl = v . l``."""
     return _fresnel_dielectric(np.sqrt(np.clip(0.5 * (1.0 + vl), 0.0, 1.0)), ior)
@@ -490,11 +452,9 @@ _FRESNEL_STEP = 1e-6
 
 def _rig_grad_ggx(dT, rl, n, dns, h, rig_arr, alpha, ior: float = GGX_FILM_IOR, parts=None) -> np.ndarray:
     """``dS`` (4, N) of :func:`_rig_value_ggx` in (a, b, log h, log alpha); ``parts`` its pieces if at hand.
-
-    ``d val = val * sum of the logarithmic derivatives of F, D, G1(v), G1(l), 1 / (4 n . v), f and p``
-    (Walter et al. 2007, eqs. 33-34); Fresnel's by a central difference (:data:`_FRESNEL_STEP`).
-    Where a floor or clip holds, the derivative is 0.
-    """
+    ``d val = val * sum of the logarithmic derivatives of F, D, G1(v), G1(l), 1 / (4 n . v), f and p`` (Walter et al.
+    2007, eqs. 33-34); Fresnel's by a central difference (:data:`_FRESNEL_STEP`). Where a floor or clip holds, the
+    derivative is 0."""
     L, w, inv_sq, m = rig_arr
     a2 = float(alpha) * float(alpha)
     am1 = a2 - 1.0
@@ -503,7 +463,7 @@ def _rig_grad_ggx(dT, rl, n, dns, h, rig_arr, alpha, ior: float = GGX_FILM_IOR, 
     dS = np.zeros((4, dT.shape[1]))
     if parts is None:
         parts = []
-        _ggx_sum(dT, rl, n, h, rig_arr, alpha, ior, _ggx_lobe, parts)
+        _rig_value_ggx(dT, rl, n, h, rig_arr, alpha, ior, parts)
     for j in range(len(w)):
         delta, s, sl, ir, c, val, F, scaled = parts[j]  # (scaled: this light's term of S)
         cos_o = c * ir
@@ -555,21 +515,9 @@ def _rig_grad_ggx(dT, rl, n, dns, h, rig_arr, alpha, ior: float = GGX_FILM_IOR, 
     return dS
 
 
-def _lobe_scale(val, h, ir, inv_sq, cp, m) -> np.ndarray:
-    """One light's lobe ``val`` times its falloff ``(h / r)^2`` (``inv_sq``) and profile ``cp^m``."""
-    out = val
-    if inv_sq:
-        hir = h * ir
-        out = out * (hir * hir)
-    if cp is not None:
-        out = out * cp ** m
-    return out
-
-
 def ggx_alpha_of_phong(n: float) -> float:
     """The GGX alpha whose lobe's peak curvature matches Phong's exponent n: ``sqrt(2 / (n + 2))``
-    (Walter et al. 2007, section 5.2).
-    """
+    (Walter et al. 2007, section 5.2)."""
     return float(np.sqrt(2.0 / (max(float(n), 0.0) + 2.0)))
 
 

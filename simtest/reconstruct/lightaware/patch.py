@@ -22,8 +22,7 @@ def _quadric_root(kxx, kxy, kyy, d, P0, t1, t2, N):
     """Where rays ``t d`` (d (k, 3)) first meet the quadric patch at P0 in the frame (t1, t2, N):
     ``(ax, ay, az, bx, by, bz, t, ok)``, the rays and -P0 in that frame, the ray parameter (inf
     without a root) and where a real, positive, finite root exists. ``k_zz = (k_xx + k_yy) / 2``;
-    for K patches: curvatures (K, 1), frame vectors (K, 3), arrays (K, k).
-    """
+    for K patches: curvatures (K, 1), frame vectors (K, 3), arrays (K, k)."""
     kzz = 0.5 * (kxx + kyy)
     one = P0.ndim == 1  # else each patch's products as its own (the same bits)
     ax, ay, az = (d @ v if one else np.array([d @ u for u in v]) for v in (t1, t2, N))
@@ -42,8 +41,7 @@ def _quadric_root(kxx, kxy, kyy, d, P0, t1, t2, N):
 def _patch_lobes(d, X, ns, ok, s, rough, rig_arr):
     """The rig's Phong lobes (N,) along rays d (N, 3) on a curved patch: points X (N, 3), unit normals
     ns (N, 3), ``ok`` where the ray meets it, apex depth s (the falloff's reference), roughness n; 0
-    where the ray misses or the patch faces away. For K patches: X, ns (K, N, 3), s, n (K, 1).
-    """
+    where the ray misses or the patch faces away. For K patches: X, ns (K, N, 3), s, n (K, 1)."""
     L, w, inv_sq, m = rig_arr
     nv = -np.einsum("...ij,...ij->...i", ns, d)
     out = np.zeros(nv.shape)
@@ -70,13 +68,9 @@ def _quadric_frame(e1, e2, b_ray, p, Lm):
 
 
 def _quadric_image(d, b_ray, p, rig_arr, Lm):
-    """Specular image (N,) of the quadric patch ``p`` along rays d, and its apex normal (3,); for K
-    patches ``p`` (K, 7), images (K, N) (each bit for bit its own) and normals (K, 3).
-
-    ``p = (a, b, log s, kappa_xx, kappa_xy, kappa_yy, log n)``: the apex at depth s on the ray
-    ``unit(b_ray + a e1 + b e2)``, its normal the bisector there for Lm, the shape operator
-    ``kappa / s``. Rays that miss give 0.
-    """
+    """Specular image (N,) of the quadric patch ``p = (a, b, log s, kappa_xx, kappa_xy, kappa_yy, log n)``
+    along rays d and its apex normal (3,) (:func:`quadric_fit`); for K patches ``p`` (K, 7), images
+    (K, N), each bit for bit its own, and normals (K, 3). Rays that miss give 0."""
     basis = plane_basis(b_ray)  # each patch's apex and frame its own (the same bits)
     frames = [_quadric_frame(*basis, b_ray, pk, Lm) for pk in np.atleast_2d(p)]
     s, P0, N, t1, t2 = frames[0] if np.ndim(p) == 1 else (np.array(v) for v in zip(*frames))
@@ -96,11 +90,9 @@ def _quadric_image(d, b_ray, p, rig_arr, Lm):
 
 @dataclass
 class _PatchProblem:
-    """A ROI's samples for a curved patch's variable-projection fit: ``y`` (m,) normalised unclipped
-    intensities, ``d`` (m, 3) their rays, ``b_ray`` the BP's ray, the rig's arrays and mean light
-    ``Lm``, ``A`` (m, 4) the linear design (patch image, constant, plane in du, dv), the samples'
-    place in the ROI grid, ``px_per_rad`` the image's scale at the BP.
-    """
+    """A ROI's samples for a curved patch's variable-projection fit: normalised intensities ``y``, rays
+    ``d``, the BP's ray, the rig, the linear design ``A`` (patch image, constant, du, dv), the samples'
+    place in the ROI grid and ``px_per_rad`` the image's scale at the BP."""
 
     y: np.ndarray
     d: np.ndarray
@@ -115,8 +107,7 @@ class _PatchProblem:
 
     def residual(self, image) -> np.ndarray:
         """The residual (m,) of a patch image (or (K, m) of K images), the linear part fitted by its normal
-        equations (least squares where singular).
-        """
+        equations (least squares where singular)."""
         if np.ndim(image) == 2:
             return np.array([self.residual(im) for im in image])
         A, y = self.A, self.y
@@ -148,8 +139,7 @@ def _patch_problem(values, origin_uv, bp_uv, camera, rig, clip_level, max_pixels
 
 def _quadric_starts(res, x_scale, nominal_depth_mm, start_depths_mm, start_roughness, max_nfev):
     """:func:`quadric_fit`'s starts: a flat patch at each start depth in turn until one ends plausible.
-    Returns the least-squares result kept (None: none finite) and the evaluations spent.
-    """
+    Returns the least-squares result kept (None: none finite) and the evaluations spent."""
     opt = require("scipy.optimize")  # when first needed: scipy slows the start
     starts = (np.array([1.0, 3.0, 0.5]) * nominal_depth_mm if start_depths_mm is None
               else np.asarray(start_depths_mm, dtype=np.float64).reshape(-1))
@@ -178,36 +168,26 @@ def _apex_normal_gradient(d1, b_ray, x, x_scale, rig_arr, Lm) -> np.ndarray:
     return ((N[:7] - N[7:]) / (2 * np.diag(dp))[:, None]).T
 
 
-def quadric_fit(values, origin_uv, bp_uv, camera, rig: LightRig, *,
-                clip_level: float | None = None, nominal_depth_mm: float = 20.0,
-                start_depths_mm=None, start_roughness: float | None = None,
+def quadric_fit(values, origin_uv, bp_uv, camera, rig: LightRig, *, clip_level: float | None = None,
+                nominal_depth_mm: float = 20.0, start_depths_mm=None, start_roughness: float | None = None,
                 max_pixels: int | None = 800, max_nfev: int = 100,
                 misfit_sigma: bool | float = True) -> LightAwareEstimate:
     """Fit the ROI with the image of a curved (quadric) patch lit by the rig.
 
-    The apex X0 lies at depth s on a ray near the BP's (angles (a, b)); its normal N bisects the
-    directions to the camera and the mean light (X0 is that light's specular point); in the apex frame
-    the patch is ``F = z + (k_xx x^2 + 2 k_xy x y + k_yy y^2 + H z^2) / 2 = 0`` with ``k = kappa / s``
-    and ``H = (k_xx + k_yy) / 2`` (exact for a sphere; positive curvatures bend away from the camera).
-    The rig's lobes on it, a gain and a linear background (variable projection) give the image; the
-    seven parameters (a, b, log s, kappa, log n) are fitted by Levenberg-Marquardt on a sub-grid of
-    at most ``max_pixels`` pixels, from a flat patch at each start depth until one ends plausible.
-    Correlated neighbouring residuals or an RMS above ``TOL.patch_misfit_rms_rel`` give
-    ``patch_misfit``. Sigmas: the larger of ``s^2 (J^T J)^-1`` and the sandwich
-    (:func:`_patch_covariances`), widened by the depth's valley (:func:`_depth_valley`).
-
-    Under one light the depth trades with the surface's third-order shape (the light's offset
-    changes the lobe as the curvature's gradient does): the status is at best
-    ``depth_not_observable``, with ``depth_range_mm`` and a sigma widened by :func:`_one_light_band`.
-    Two separate lights make it observable (:func:`cubic_patch_fit`).
+    The apex lies at depth s on a ray near the BP's, its normal N bisecting the directions to the
+    camera and the mean light; in the apex frame the patch is
+    ``z + (k_xx x^2 + 2 k_xy x y + k_yy y^2 + H z^2) / 2 = 0``, ``k = kappa / s``, ``H = (k_xx + k_yy) / 2``
+    (exact for a sphere). Its lobes, gain and linear background give the image; (a, b, log s, kappa,
+    log n) are fitted by Levenberg-Marquardt from a flat patch at each start depth until one ends
+    plausible. Under one light the depth trades with the surface's third-order shape and is not
+    reported (``depth_range_mm`` instead; :func:`cubic_patch_fit` uses two lights).
 
     Parameters
     ----------
     values, origin_uv, bp_uv, camera, rig, clip_level, nominal_depth_mm
         As in :func:`photometric_fit`.
     start_depths_mm : sequence of float, optional
-        Start depths of the apex along the BP ray, tried in turn (default: 1, 3 and 0.5 times
-        ``nominal_depth_mm``).
+        Start depths of the apex along the BP ray (default: 1, 3 and 0.5 times ``nominal_depth_mm``).
     start_roughness : float, optional
         Start Phong n (default 50).
     max_pixels : int or None
@@ -222,8 +202,9 @@ def quadric_fit(values, origin_uv, bp_uv, camera, rig: LightRig, *,
     -------
     LightAwareEstimate
         ``estimator="quadric_fit"``, status ``ok`` (separate lights only), ``depth_not_observable``,
-        ``patch_misfit`` or ``not_converged``; ``distance_mm`` is the apex depth s; under one light
-        ``depth_range_mm`` (near, far), mm.
+        ``patch_misfit`` (correlated residuals, or RMS above ``TOL.patch_misfit_rms_rel``) or
+        ``not_converged``; ``distance_mm`` is the apex depth s; sigmas from the larger of the
+        covariances (:func:`_patch_covariances`) and the depth valley (:func:`_depth_valley`).
 
     Raises
     ------
@@ -249,19 +230,10 @@ def quadric_fit(values, origin_uv, bp_uv, camera, rig: LightRig, *,
     bad = _implausible(s_hat, float(nominal_depth_mm), rough)
     if best.status <= 0 or bad:
         return LightAwareEstimate(name, "not_converged", bad or best.message, n_evaluations=nfev)
-    r0, J = best.fun, best.jac
-    resid_var = float(r0 @ r0) / max(J.shape[0] - J.shape[1] - 4, 1)
-    covs = _patch_covariances(J, r0, resid_var, sel, P.shape, step)
-    cov_floor = _covariance(J, max(resid_var, TOL.photometric_noise_rel**2))
     G = _apex_normal_gradient(d[:1], b_ray, x, x_scale, rig_arr, Lm)
-    rel_floor = None if cov_floor is None else float(np.sqrt(max(cov_floor[2, 2], 0.0)))
-    status, detail, observable, rms = _patch_verdict(
-        rel_floor, r0, sel, P.shape, step, "", "the ROI is not one patch's lobe (streaks along folds, several lobes)")
-    sigma_deg, _, excess, detail = _patch_sigma(status, detail, misfit_sigma, {"res": res, "x_scale": x_scale,
-                                                                               "batched": True},
-                                                x, float(r0 @ r0), resid_var, covs, max_nfev, G)
-    depth_sigma = (float(s_hat * np.sqrt(max(max(c[2, 2] for c in covs), 0.0) + excess))
-                   if observable and covs else None)
+    status, detail, observable, rms, sigma_deg, _, excess, depth_sigma, rel_floor, _ = _patch_uncertainty(
+        best, {"res": res, "x_scale": x_scale, "batched": True}, sel, P.shape, step, x, G, misfit_sigma, max_nfev,
+        "the ROI is not one patch's lobe (streaks along folds, several lobes)")
     depth_range = None
     if not rig.has_separate_lights:
         # one light: the third-order shape the quadric leaves out trades with the depth
@@ -279,8 +251,7 @@ def quadric_fit(values, origin_uv, bp_uv, camera, rig: LightRig, *,
 def _one_light_band(x, sigma_deg, d0, b_ray, rig_arr, Lm):
     """``(sigma, (near, far))``: the quadric's normal sigma (deg; None where ``sigma_deg`` is) with
     half the apex normals' spread over the depths within :data:`ONE_LIGHT_DEPTH_FACTOR` added in
-    quadrature, and those depths, mm.
-    """
+    quadrature, and those depths, mm."""
     xe = np.repeat(x[None], 3, axis=0)
     xe[1:, 2] += np.array([1.0, -1.0]) * np.log(ONE_LIGHT_DEPTH_FACTOR)
     n0, *ne = _quadric_image(d0, b_ray, xe, rig_arr, Lm)[1]
@@ -292,11 +263,26 @@ def _one_light_band(x, sigma_deg, d0, b_ray, rig_arr, Lm):
     return float(np.hypot(sigma_deg, 0.5 * spread)), band
 
 
+def _patch_uncertainty(r, S, sel, shape, step, x, G, misfit_sigma, max_nfev, misfit_hint):
+    """The verdict and sigmas of a curved-patch fit from its least-squares result ``r`` (``fun``, ``jac``):
+    ``(status, detail, observable, rms, sigma_deg, valley, excess, depth_sigma, rel_floor, covs)``."""
+    r0, J = r.fun, r.jac
+    resid_var = float(r0 @ r0) / max(J.shape[0] - J.shape[1] - 4, 1)
+    covs = _patch_covariances(J, r0, resid_var, sel, shape, step)
+    cov_floor = _covariance(J, max(resid_var, TOL.photometric_noise_rel**2))
+    rel_floor = None if cov_floor is None else float(np.sqrt(max(cov_floor[2, 2], 0.0)))
+    status, detail, observable, rms = _patch_verdict(rel_floor, r0, sel, shape, step, "", misfit_hint)
+    sigma_deg, valley, excess, detail = _patch_sigma(status, detail, misfit_sigma, S, x, float(r0 @ r0), resid_var,
+                                                     covs, max_nfev, G)
+    s_hat = float(np.exp(x[2]))
+    depth_sigma = float(s_hat * np.sqrt(max(max(c[2, 2] for c in covs), 0.0) + excess)) if observable and covs else None
+    return status, detail, observable, rms, sigma_deg, valley, excess, depth_sigma, rel_floor, covs
+
+
 def _patch_covariances(J, r, resid_var, sel, shape, step) -> list:
     """The non-singular covariances a curved patch's sigmas are the larger of: ``s^2 (J^T J)^-1`` and
     the sandwich (:func:`~simtest.reconstruct.lightaware.solve._hac_covariance`), which counts the
-    noise sitting on the lobes rather than spread over the dark surround.
-    """
+    noise sitting on the lobes rather than spread over the dark surround."""
     return [c for c in (_covariance(J, resid_var), _hac_covariance(J, r, sel, shape, step)[0]) if c is not None]
 
 
@@ -320,11 +306,9 @@ MISFIT_SIGMA_NOTE = "no sigma stated (a misfit's depth valley not read)"
 
 
 def _patch_sigma(status, detail, misfit_sigma, S, x, cost0, resid_var, covs, max_nfev, G):
-    """A patch fit's normal sigma from its depth valley, or none for a misfit per ``misfit_sigma``.
-
-    Returns ``(sigma_deg, valley, excess, detail)``; an ``ok`` fit's detail states how its cost rises
-    at the valley's nearest steps.
-    """
+    """A patch fit's normal sigma from its depth valley, or none for a misfit per ``misfit_sigma``. Returns
+    ``(sigma_deg, valley, excess, detail)``; an ``ok`` fit's detail states how its cost rises at the valley's nearest
+    steps."""
     if status == "patch_misfit":
         if not misfit_sigma:
             return None, None, 0.0, f"{detail}; {MISFIT_SIGMA_NOTE}"
@@ -342,14 +326,11 @@ def _patch_sigma(status, detail, misfit_sigma, S, x, cost0, resid_var, covs, max
 
 
 def _depth_valley(S, x, cost0, resid_var, covs, max_nfev):
-    """The patch's cost along its depth, beyond the local covariance: ``(v, excess, rises)``.
-
-    Refits with log depth fixed at ``x[2] +- step`` (:data:`_VALLEY_STEPS`): the widest
-    ``step^2 s^2 / Delta`` (``Delta`` the cost's rise) is the depth's variance; ``excess`` is what
-    exceeds the local covariance's (inf where the cost does not rise), ``v = (p_+ - p_-) / (2 step)``
-    the direction the other parameters follow (zeros where a refit failed), ``rises`` the nearest
-    step's rises over ``s^2``. ``S`` holds ``res`` and ``x_scale``.
-    """
+    """The patch's cost along its depth, beyond the local covariance: ``(v, excess, rises)``. Refits with log depth
+    fixed at ``x[2] +- step`` (:data:`_VALLEY_STEPS`): the widest ``step^2 s^2 / Delta`` (``Delta`` the cost's rise) is
+    the depth's variance; ``excess`` is what exceeds the local covariance's (inf where the cost does not rise),
+    ``v = (p_+ - p_-) / (2 step)`` the direction the other parameters follow (zeros where a refit failed), ``rises`` the
+    nearest step's rises over ``s^2``. ``S`` holds ``res`` and ``x_scale``."""
     k = len(x)
     free = [i for i in range(k) if i != 2]
     ends, rises, var = [], [], 0.0
@@ -386,8 +367,7 @@ def _valley_sigma_deg(G, covs, Gv, excess) -> float | None:
 
 def _fit_fixed_depth(S, log_s, free, starts, max_nfev, tol=1e-8):
     """Least squares over ``free`` (indices) with log s fixed; the best of the starts.
-    Returns ``(sum of squares, p, nfev)``.
-    """
+    Returns ``(sum of squares, p, nfev)``."""
     opt = require("scipy.optimize")  # when first needed: scipy slows the start
     free = np.asarray(free)
     best, nfev = None, 0

@@ -217,8 +217,7 @@ def _note(est: LightAwareEstimate, why: str) -> LightAwareEstimate:
 
 def _fit_projections(values, origin_uv, bp_uv, camera, rig, s: FitSettings) -> LightAwareEstimate:
     """``photometric_fit`` with ``n_start_depths`` None: the two-channel choice, the retry from further
-    starts, and the projections' fallbacks.
-    """
+    starts, and the projections' fallbacks."""
     fit = (values, origin_uv, bp_uv, camera, rig)
     rgb = np.ndim(values) == 3
     if s.two_channels is None:
@@ -270,8 +269,7 @@ def _fit_lobes(values, origin_uv, bp_uv, camera, rig, s: FitSettings) -> LightAw
 
 def _project(values, s: FitSettings):
     """The single image a fit sees: ``(values, clip_level, lower, missing, detail, how, floor_level)``
-    (:func:`_colour_values` for a colour ROI).
-    """
+    (:func:`_colour_values` for a colour ROI)."""
     lower = missing = None
     detail, how = "", None
     clip_level, floor_level = s.clip_level, s.floor_level
@@ -285,8 +283,7 @@ def _project(values, s: FitSettings):
 
 def _fit_plane(values, origin_uv, bp_uv, camera, rig, s: FitSettings) -> LightAwareEstimate:
     """One fit of one lobe: projection, model, starts, solve, covariance; a projected fit that passes is
-    checked on the darkest channel.
-    """
+    checked on the darkest channel."""
     name = "photometric_fit"
     one, clip_level, lower, missing, colour_detail, how, floor_level = _project(values, s)
     m = PlaneModel(one, origin_uv, bp_uv, camera, rig, s, clip_level, lower, missing, s.lobe == "ggx")
@@ -328,8 +325,7 @@ def _fit_plane(values, origin_uv, bp_uv, camera, rig, s: FitSettings) -> LightAw
 
 def _darkest(rgb, clip_level, margin=None) -> tuple[int, float | None]:
     """The channel of an RGB ROI whose median is least, and its clip level less ``margin`` (None
-    without a clip level).
-    """
+    without a clip level)."""
     rgb = np.asarray(rgb, dtype=np.float64)
     c = int(np.argmin(np.median(rgb.reshape(-1, 3), axis=0)))
     clip = None if clip_level is None else float(per_channel(clip_level)[c])
@@ -339,11 +335,9 @@ def _darkest(rgb, clip_level, margin=None) -> tuple[int, float | None]:
 
 
 def _colour_values(rgb, clip_level, projection: str = "auto", two_channels: bool = False, margin=None):
-    """The single image a colour ROI is fitted on: ``(values, clip_level, lower, missing, detail, how)``.
-
-    The projection of :func:`~simtest.reconstruct.lightaware.colour.specular_image`, or the darkest
-    channel with its clip level; ``how`` is the estimate's ``projection``.
-    """
+    """The single image a colour ROI is fitted on: ``(values, clip_level, lower, missing, detail, how)``. The projection
+    of :func:`~simtest.reconstruct.lightaware.colour.specular_image`, or the darkest channel with its clip level;
+    ``how`` is the estimate's ``projection``."""
     rgb = np.asarray(rgb, dtype=np.float64)
     out, how = None, None
     if projection in ("auto", "border"):
@@ -375,8 +369,7 @@ def _two_channel_choice(both: LightAwareEstimate, plain: LightAwareEstimate) -> 
     """``both`` (one-channel-clipped pixels valued from two channels) or ``plain`` (without them):
     ``both`` where both are ``ok`` on a projection, its normal sigma smaller, and they agree as a
     Hausman test asks (J. A. Hausman, Econometrica 46(6), 1978, https://doi.org/10.2307/1913827):
-    angle and depth gaps within ``TWO_CHANNEL_Z`` times ``sqrt(sigma_plain^2 - sigma_both^2)``.
-    """
+    angle and depth gaps within ``TWO_CHANNEL_Z`` times ``sqrt(sigma_plain^2 - sigma_both^2)``."""
     if not (plain.status == "ok" and both.status == "ok" and plain.has_normal and both.has_normal
             and both.projection in ("body_colours", "least_fluctuation")):
         return plain  # (on one channel no pixel is valued from two)

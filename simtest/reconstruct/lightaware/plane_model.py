@@ -1,6 +1,5 @@
 """The lobe stage of the photometric plane fit: the ROI's pixels, the rig's image of a plane at
-(a, b, log h, log roughness), the variable projection's residual and Jacobian, the start roughness.
-"""
+(a, b, log h, log roughness), the variable projection's residual and Jacobian, the start roughness."""
 
 from __future__ import annotations
 
@@ -80,24 +79,20 @@ class PlaneModel:
         """Fit the pixels of ``keep_`` (default every kept one), on a sub-grid beyond ``mp``; caches dropped."""
         keep_ = self.keep if keep_ is None else keep_
         lower, censor, clip_level = self.lower, self.censor, self.clip_level
-        sel_, step_, uv_, y_ = _roi_samples(self.vals, self.o, self.uu, self.vv, keep_, mp)
-        if not censor:
-            cens_ = np.zeros(len(y_), bool)
-        else:
-            cens_ = lower.ravel()[sel_] if lower is not None else y_ >= clip_level
-        dT_ = np.ascontiguousarray(_rays(self.camera, (uv_[:, None, :] + self.sub[None]).reshape(-1, 2)).T)
+        sel_, self.step, uv_, y_ = _roi_samples(self.vals, self.o, self.uu, self.vv, keep_, mp)
+        self.sel, self.y = sel_, y_
+        self.cens = ((lower.ravel()[sel_] if lower is not None else y_ >= clip_level) if censor
+                     else np.zeros(len(y_), bool))
+        self.dT = dT_ = np.ascontiguousarray(_rays(self.camera, (uv_[:, None, :] + self.sub[None]).reshape(-1, 2)).T)
         du_ = (uv_[:, 0] - self.bp[0]) / max(self.W, self.H)
         dv_ = (uv_[:, 1] - self.bp[1]) / max(self.W, self.H)
-        yscale_ = max(float(np.abs(y_).max()), 1e-12)
-        background_ = np.column_stack([np.ones_like(du_), du_, dv_])
-        design_ = np.empty((5 if self.diffuse else 4, len(y_))).T  # (each column contiguous: _qr_rows)
-        design_[:, -3:] = background_
-        self.sel, self.step, self.y, self.cens = sel_, step_, y_, cens_
-        self.general = bool(self.diffuse or cens_.any() or self.ggx)
-        self.dT, self.rl, self.yscale, self.yn = dT_, _ray_light(self.rig_arr[0], dT_), yscale_, y_ / yscale_
-        self.background = background_
+        self.yscale = yscale_ = max(float(np.abs(y_).max()), 1e-12)
+        self.background = np.column_stack([np.ones_like(du_), du_, dv_])
+        self.design = np.empty((5 if self.diffuse else 4, len(y_))).T  # (each column contiguous: _qr_rows)
+        self.design[:, -3:] = self.background
+        self.general = bool(self.diffuse or self.cens.any() or self.ggx)
+        self.rl, self.yn = _ray_light(self.rig_arr[0], dT_), y_ / yscale_
         self.clipn = ((y_ / yscale_ if lower is not None else float(clip_level) / yscale_) if censor else np.inf)
-        self.design = design_
         self.state.clear()
         self.proj.clear()
         self.lin = {}  # the background's basis on the active rows (resjac_general)
@@ -127,8 +122,7 @@ class PlaneModel:
 
     def resjac_general(self, p, nb, e1, e2, grad=True, w=None, kaufman=False):
         """Residuals and Kaufman's Jacobian with the diffuse column and censored rows; a censored row where
-        the model is at or above the clip level has residual 0.
-        """
+        the model is at or above the clip level has residual 0."""
         state, design, yn, cens = self.state, self.design, self.yn, self.cens
         dT, rl, rig_arr, box = self.dT, self.rl, self.rig_arr, self.box
         key = (p.tobytes(), nb.tobytes(), None if w is None else w.tobytes(), "general")
@@ -167,8 +161,7 @@ class PlaneModel:
 
     def _background_basis(self, active, w):
         """``(QT, R, om)``: the row weights ``om`` (``w`` on active rows, 0 elsewhere; None: all 1) and the
-        QR of the weighted background, kept while the active rows stay.
-        """
+        QR of the weighted background, kept while the active rows stay."""
         c = self.lin
         if not (c and c["w"] is w and np.array_equal(c["active"], active)):
             om = None if w is None and active.all() else np.where(active, 1.0 if w is None else w, 0.0)
@@ -179,8 +172,7 @@ class PlaneModel:
     def _linear_part(self, active, target, w):
         """The linear parameters on the active rows, weighted by ``w``, and the columns' orthonormal basis
         (rows, the background's first); ``lstsq``'s minimum norm and no basis where a column is (nearly)
-        in the others' span.
-        """
+        in the others' span."""
         QT, R, om = self._background_basis(active, w)
         k = self.design.shape[1] - 3
         A, t = (self.design.T[:k], target) if om is None else (self.design.T[:k] * om, target * om)
@@ -210,11 +202,9 @@ class PlaneModel:
         return (Ja if w is None else Ja / w).T
 
     def resjac_plain(self, p, nb, e1, e2, grad=True, w=None, kaufman=False):
-        """Residuals of the variable projection and their Jacobian in (a, b, log h, log n).
-
-        ``w``: row weights (the linear part solved with them; unweighted residual and Jacobian returned).
-        ``kaufman``: the Jacobian without its second-order term (for the covariance).
-        """
+        """Residuals of the variable projection and their Jacobian in (a, b, log h, log n). ``w``: row weights (the
+        linear part solved with them; unweighted residual and Jacobian returned). ``kaufman``: the Jacobian without its
+        second-order term (for the covariance)."""
         state = self.state
         QT, yt = self.basis(w)
         key = (p.tobytes(), nb.tobytes(), None if w is None else w.tobytes())
@@ -255,8 +245,7 @@ class PlaneModel:
 
 def start_roughness(m: PlaneModel, n, h, given=None) -> float:
     """The start's roughness on the plane (``n``, ``h``): ``given``, else :func:`phong_start` (for GGX
-    its alpha), cached per plane until :meth:`PlaneModel.use`.
-    """
+    its alpha), cached per plane until :meth:`PlaneModel.use`."""
     key = (np.asarray(n).tobytes(), float(h), given)
     if key not in m.starts:
         rough = phong_start(m, n, h, given)
@@ -299,8 +288,7 @@ def _roughness_cost(m: PlaneModel, geo, ln, QT, yt) -> float:
 def phong_start(m: PlaneModel, n, h, given=None) -> float:
     """Start roughness: a log-log regression of the specular part on cos beta, then Gauss-Newton on
     log n with the plane held; under several lights, also from the best of
-    :data:`_START_ROUGHNESS_GRID`, kept where it lowers the cost by :data:`_START_ROUGHNESS_GAIN`.
-    """
+    :data:`_START_ROUGHNESS_GRID`, kept where it lowers the cost by :data:`_START_ROUGHNESS_GAIN`."""
     if given is not None:
         return float(given)
     # cos beta f p and f p (the lobe at n = 1 and n = 0): their ratio is cos beta (one light)

@@ -1,6 +1,5 @@
 """The covariance stage of the photometric plane fit: the misfit tests at the solution and the
-sigmas that count the residual's correlation.
-"""
+sigmas that count the residual's correlation."""
 
 from __future__ import annotations
 
@@ -23,8 +22,7 @@ from simtest.reconstruct.lightaware.solve import (
 
 def _with_depth_sigma(est: LightAwareEstimate, dsig: float, why) -> LightAwareEstimate:
     """``est`` with the depth's 1-sigma ``dsig`` (mm), or ``depth_not_observable`` (detail ``why(rel)``)
-    where ``dsig`` exceeds ``TOL.depth_rel_sigma_max`` of a nonzero depth.
-    """
+    where ``dsig`` exceeds ``TOL.depth_rel_sigma_max`` of a nonzero depth."""
     if est.depth_mm and dsig > TOL.depth_rel_sigma_max * abs(est.depth_mm):
         return est.without_depth("depth_not_observable", why(dsig / abs(est.depth_mm)))
     return replace(est, depth_sigma_mm=dsig)
@@ -32,8 +30,7 @@ def _with_depth_sigma(est: LightAwareEstimate, dsig: float, why) -> LightAwareEs
 
 class PlaneVerdict:
     """The verdict on a solved plane fit for :func:`~simtest.reconstruct.lightaware.solve._finish`:
-    :meth:`at_solution` (residuals and Jacobian) and :meth:`post` (misfit tests and sigmas).
-    """
+    :meth:`at_solution` (residuals and Jacobian) and :meth:`post` (misfit tests and sigmas)."""
 
     def __init__(self, m: PlaneModel, rig, x, n0, e1, e2, n_hat, h_hat, rough_hat, how, floor_level):
         self.m, self.rig, self.x, self.n0, self.e1, self.e2 = m, rig, x, n0, e1, e2
@@ -56,8 +53,7 @@ class PlaneVerdict:
     def curvature(self, r0, hac=False):
         """The score test for a curved patch about the mean light's specular point:
         ``(verdict, shift)``, the test's detail (None: passes, False: cannot be made) and, for a misfit,
-        :func:`~simtest.reconstruct.lightaware.solve._curvature_shift`.
-        """
+        :func:`~simtest.reconstruct.lightaware.solve._curvature_shift`."""
         m, n_hat, h_hat, floor_level = self.m, self.n_hat, self.h_hat, self.floor_level
         Lm = _mean_light(self.rig)
         c = float(n_hat @ Lm) + h_hat
@@ -81,8 +77,7 @@ class PlaneVerdict:
 
     def post(self, est, r0):
         """The misfit tests and sigmas: the neighbours' correlation and the curvature test on the plain
-        path (sandwich sigmas where the residuals correlate), :meth:`sensor_verdict` on the sensor path.
-        """
+        path (sandwich sigmas where the residuals correlate), :meth:`sensor_verdict` on the sensor path."""
         m = self.m
         if est.status not in ("ok", "depth_not_observable"):
             return est
@@ -110,8 +105,7 @@ class PlaneVerdict:
     def sensor_verdict(self, est, r0):
         """The misfit test and sigmas of the sensor path: the curvature's score test against the residual's
         own correlated noise (an albedo texture passes, a curved patch does not), sigmas by
-        :meth:`counted`; where the test cannot be made, the neighbours' correlation decides.
-        """
+        :meth:`counted`; where the test cannot be made, the neighbours' correlation decides."""
         m = self.m
         curved, shift = self.curvature(r0, hac=True)
         correlated = _correlated(r0, m.sel, m.keep.shape, m.step)
@@ -126,8 +120,7 @@ class PlaneVerdict:
 
     def immaterial(self, est, r0, curved, shift, correlated, jackknife):
         """A fit whose residual holds a curved pattern (``curved``) that moves the normal by at most its
-        sigma (:meth:`counted`, wide blocks), kept with its sigmas grown by the shift; else None.
-        """
+        sigma (:meth:`counted`, wide blocks), kept with its sigmas grown by the shift; else None."""
         if shift is None:
             return None
         kept = self.counted(est, r0, correlated, jackknife=jackknife, wide=True)
@@ -148,8 +141,7 @@ class PlaneVerdict:
         """``est`` with sigmas that count the residual's correlation: ``s^2 (J^T J)^-1`` times its correlation
         area, the normal's at least the sandwich's where the residuals correlate and, with ``jackknife``,
         the cluster jackknife's; the depth's grown by the same factor, withdrawn above
-        ``TOL.depth_rel_sigma_max``.
-        """
+        ``TOL.depth_rel_sigma_max``."""
         m = self.m
         scale = math.sqrt(_correlation_area(r0, m.sel, m.keep.shape, m.step))
         sig = None if est.normal_sigma_deg is None else est.normal_sigma_deg * scale

@@ -1,6 +1,5 @@
 """The start and solve stages of the photometric plane fit: the start planes, each refined by
-Levenberg-Marquardt, the best refined again on every pixel and above the floor.
-"""
+Levenberg-Marquardt, the best refined again on every pixel and above the floor."""
 
 from __future__ import annotations
 
@@ -36,8 +35,7 @@ def start_planes(m: PlaneModel, rig, d_bp, n0, h0, s) -> list:
     """The start planes (n, h) of a fit: the given start (or, under several lights, the cheapest of the
     mean light's and each light's bisector at the nominal depth, plus ``s.pair_starts``), the nominal
     bisector when a start was given, and ``s.n_start_depths`` bisectors along the BP's constraint
-    (nominal/8 to nominal*8).
-    """
+    (nominal/8 to nominal*8)."""
     nominal_depth_mm, rig_arr = s.nominal_depth_mm, m.rig_arr
     cands = [(n0, h0)]
     if s.start_normal is None and len(rig_arr[0]) > 1:

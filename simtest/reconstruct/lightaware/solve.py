@@ -1,6 +1,5 @@
 """The fitting machinery the light-aware fits share: start, Levenberg-Marquardt with a robust loss,
-covariance and depth observability, plausibility and the misfit tests on the residuals.
-"""
+covariance and depth observability, plausibility and the misfit tests on the residuals."""
 
 from __future__ import annotations
 
@@ -41,8 +40,7 @@ def _start(bp_uv, camera, rig, nominal_depth_mm, start_normal):
 
 def _light_start(d_bp, light_mm, nominal_depth_mm):
     """The start (n, h) making the point at ``nominal_depth_mm`` along the unit BP ray ``d_bp`` the
-    specular point of the light at ``light_mm``.
-    """
+    specular point of the light at ``light_mm``."""
     X = nominal_depth_mm * np.asarray(d_bp, dtype=np.float64)
     n = unit(unit(-X) + unit(np.asarray(light_mm, dtype=np.float64) - X))
     return n, max(float(-(n @ X)), 1e-3)
@@ -50,8 +48,7 @@ def _light_start(d_bp, light_mm, nominal_depth_mm):
 
 def _covariance(jac: np.ndarray, resid_var: float) -> np.ndarray | None:
     """``resid_var (J^T J)^-1``, or None when J^T J is singular (a column below 1e-10 of the largest, or
-    a condition number above 1e12 with unit-norm columns).
-    """
+    a condition number above 1e12 with unit-norm columns)."""
     jtj = jac.T @ jac
     scale = np.sqrt(np.diag(jtj))
     if not np.all(scale > 1e-10 * scale.max()):  # a column of rounding noise: a flat direction
@@ -79,15 +76,12 @@ class _RanOff(Exception):
 def _solve(resjac, p0, args, loss: str, f_scale: float, max_nfev: int, free=None,
            lazy_jac: bool = False, weighted: bool = False, newton: bool = False, stop=None):
     """Levenberg-Marquardt (MINPACK's lmder via :func:`scipy.optimize.leastsq`), robust loss by reweighting.
-
-    ``loss="linear"``: one solve; ``soft_l1``, ``huber``, ``cauchy``: the solution reweighted once by
-    ``sqrt(rho'(z))``, ``z = (r / f_scale)^2`` (scipy's robust losses), and solved again. ``resjac(p,
-    *args, grad=...)`` returns residuals and (with ``grad``) the Jacobian. ``free`` (bool mask) holds
-    the other parameters at ``p0``; ``lazy_jac``: trial points get the residuals alone; ``weighted``:
-    the weights are passed to ``resjac`` as ``w=``; ``newton``: :func:`_newton` takes LM's linear tail;
-    ``stop(p)`` returns a reason (non-empty string) to end the solve there, not converged.
-    Returns ``(x, n_evaluations, converged, message, residuals at x)``.
-    """
+    ``loss="linear"``: one solve; ``soft_l1``, ``huber``, ``cauchy``: the solution reweighted once by ``sqrt(rho'(z))``,
+    ``z = (r / f_scale)^2`` (scipy's robust losses), and solved again. ``resjac(p, *args, grad=...)`` returns residuals
+    and (with ``grad``) the Jacobian. ``free`` (bool mask) holds the other parameters at ``p0``; ``lazy_jac``: trial
+    points get the residuals alone; ``weighted``: the weights are passed to ``resjac`` as ``w=``; ``newton``:
+    :func:`_newton` takes LM's linear tail; ``stop(p)`` returns a reason (non-empty string) to end the solve there, not
+    converged. Returns ``(x, n_evaluations, converged, message, residuals at x)``."""
     opt = require("scipy.optimize")  # when first needed: scipy slows the start
     if loss not in ("linear", "soft_l1", "huber", "cauchy"):
         raise ValueError(f"loss: {loss!r} is not one of linear, soft_l1, huber, cauchy")
@@ -167,8 +161,7 @@ def _solve(resjac, p0, args, loss: str, f_scale: float, max_nfev: int, free=None
 def _newton(fun, jac, q, w, tol: float, steps: int = 6):
     """Newton's steps on ``|fun(q, w)|^2 / 2`` from ``q``, the Hessian once by forward differences of the
     gradient ``jac^T fun``. ``(q, converged)``: converged at a step below ``tol`` that did not raise the
-    cost; else the last point that lowered it.
-    """
+    cost; else the last point that lowered it."""
     f0 = fun(q, w)
     g = jac(q, w).T @ f0
     eps = 1e-6 * np.maximum(np.abs(q), 1.0)
@@ -203,8 +196,7 @@ _ROUGHNESS_RANGE_SHADED = (phong_of_ggx_alpha(ROUGHEST_FILM_ALPHA), _ROUGHNESS_R
 
 def _implausible(h_hat: float, h0: float, roughness: float | None, shaded: bool = False, widen: float = 1.0) -> str:
     """Why a fit's solution is implausible ("" when it is not); ``shaded``: the model holds the diffuse
-    column; ``widen``: each range that much wider (:data:`~simtest.decisions.RUN_OFF_FACTOR`).
-    """
+    column; ``widen``: each range that much wider (:data:`~simtest.decisions.RUN_OFF_FACTOR`)."""
     f = _H_FACTOR * widen
     if not (np.isfinite(h_hat) and h0 / f <= h_hat <= h0 * f):
         return f"fitted distance {h_hat:.4g} mm is not within a factor {f:g} of the start's {h0:.4g} mm"
@@ -218,11 +210,8 @@ def _implausible(h_hat: float, h0: float, roughness: float | None, shaded: bool 
 
 def _finish(name, resjac_at, n_hat, h_hat, rig, extra_params, resid_floor, n_eval, converged,
             roughness=None, taus=None, detail="", post=None, n_linear=0):
-    """Covariance about the solution, depth and its observability, and the estimate.
-
-    ``post(estimate, residuals)`` returns the estimate to report; ``n_linear``: parameters eliminated
-    by variable projection (counted in the degrees of freedom).
-    """
+    """Covariance about the solution, depth and its observability, and the estimate; ``post(estimate,
+    residuals)`` returns the estimate to report, ``n_linear`` counts the projected-out parameters."""
     e1, e2 = plane_basis(n_hat)
     p_hat = np.concatenate([[0.0, 0.0, np.log(h_hat)], extra_params])
     r0, J = resjac_at(p_hat, n_hat, e1, e2)
@@ -265,8 +254,7 @@ def _finish(name, resjac_at, n_hat, h_hat, rig, extra_params, resid_floor, n_eva
 
 def _residual_correlation(r, sel, shape, step: int) -> tuple[float, float]:
     """``(rho, c)`` of the residuals ``r`` of neighbouring pixels ``sel`` (flat indices into ``shape``,
-    sub-grid of spacing ``step``): ``rho = sum a b / sqrt(sum a^2 sum b^2)``, ``c = mean(a b)``.
-    """
+    sub-grid of spacing ``step``): ``rho = sum a b / sqrt(sum a^2 sum b^2)``, ``c = mean(a b)``."""
     R = np.full(int(np.prod(shape)), np.nan)
     R[sel] = r
     R = R.reshape(shape)
@@ -282,8 +270,7 @@ def _residual_correlation(r, sel, shape, step: int) -> tuple[float, float]:
 
 def _correlated(r, sel, shape, step: int) -> str | None:
     """The misfit detail when neighbouring residuals correlate (rho above ``TOL.plane_misfit_rho``,
-    covariance above ``TOL.plane_misfit_rel^2``), else None.
-    """
+    covariance above ``TOL.plane_misfit_rel^2``), else None."""
     rho, c = _residual_correlation(r, sel, shape, step)
     if rho > TOL.plane_misfit_rho and c > TOL.plane_misfit_rel**2:
         return (f"neighbouring residuals correlate (rho {rho:.3g} > {TOL.plane_misfit_rho}; "
@@ -293,13 +280,9 @@ def _correlated(r, sel, shape, step: int) -> str | None:
 
 def _patch_verdict(rel_floor: float | None, r, sel, shape, step: int, ok_detail: str,
                    misfit_hint: str) -> tuple[str, str, bool, float]:
-    """``(status, detail, observable, rms)`` of a curved-patch fit from its relative depth sigma at the
-    noise floor ``rel_floor`` (None: J^T J singular) and its residuals.
-
-    ``depth_not_observable`` above ``TOL.depth_rel_sigma_max``; ``patch_misfit`` (depth withdrawn)
-    when the residuals correlate or their RMS exceeds ``TOL.patch_misfit_rms_rel`` (detail ending in
-    ``misfit_hint``); else ``ok`` with ``ok_detail``.
-    """
+    """``(status, detail, observable, rms)`` of a curved-patch fit: ``depth_not_observable`` where
+    ``rel_floor`` is None or above ``TOL.depth_rel_sigma_max``; ``patch_misfit`` where the residuals
+    correlate or their RMS exceeds ``TOL.patch_misfit_rms_rel`` (detail ending in ``misfit_hint``)."""
     observable = rel_floor is not None and rel_floor <= TOL.depth_rel_sigma_max
     status, detail = OK, ok_detail
     if not observable:
@@ -362,8 +345,7 @@ def _curvature_score(cols, span, r, grid=None) -> str | None:
 def _curvature_shift(cols, span, r) -> tuple[float, float] | None:
     """How far the curvature pattern in a plane fit's residual would move the plane: ``(normal shift
     deg, relative distance shift)`` of the Gauss-Newton step ``[span, cols] beta = -r``; None where
-    degenerate.
-    """
+    degenerate."""
     A = np.column_stack([span, cols])
     if len(r) <= A.shape[1] or not np.isfinite(A).all():
         return None
@@ -375,8 +357,7 @@ def _curvature_shift(cols, span, r) -> tuple[float, float] | None:
 
 def _misfit(est: LightAwareEstimate, r, sel, shape, step: int) -> LightAwareEstimate:
     """``est`` with status ``plane_misfit`` (depth withdrawn) when neighbouring residuals correlate
-    (:func:`_correlated`).
-    """
+    (:func:`_correlated`)."""
     if est.status not in (OK, "depth_not_observable"):
         return est
     correlated = _correlated(r, sel, shape, step)
@@ -425,12 +406,8 @@ def _hac_covariance(J, r, sel, shape, step: int) -> tuple[np.ndarray | None, int
 
 
 def cluster_blocks(shape, texture: bool = True) -> tuple[int, ...]:
-    """The block sides of :data:`CLUSTER_PX` whose grid over an ROI of ``shape`` (H, W) holds at least
-    :data:`MIN_CLUSTERS` blocks (the smallest side always).
-
-    ``texture=False`` (body colours projected out): the first two sides only
-    (``docs/decisions/light-aware-recommendation.md``).
-    """
+    """The block sides of :data:`CLUSTER_PX` (the first two without ``texture``) whose grid over an ROI of
+    ``shape`` holds at least :data:`MIN_CLUSTERS` blocks; the smallest side always."""
     h, w = int(shape[0]), int(shape[1])
     sides = CLUSTER_PX if texture else CLUSTER_PX[:2]
     ok = tuple(b for b in sides if (-(-h // b)) * (-(-w // b)) >= MIN_CLUSTERS)
@@ -477,14 +454,8 @@ def _cluster_covariance(J, r, sel, shape, block: int = CLUSTER_PX[0]) -> np.ndar
 
 
 def _correlation_area(r, sel, shape, step: int) -> float:
-    """Fitted pixels per independent residual: the sum of the residuals' 2-D autocorrelation (by FFT
-    over the sub-grid) within its radial mean's first zero crossing [4]_, at least 1.
-
-    References
-    ----------
-    .. [4] A. D. Sokal, "Monte Carlo methods in statistical mechanics: foundations and new
-           algorithms", in Functional Integration, NATO ASI Series B 361, 1997.
-    """
+    """Fitted pixels per independent residual (>= 1): the residuals' 2-D autocorrelation summed within
+    its radial mean's first zero crossing (A. D. Sokal's window, NATO ASI Series B 361, 1997)."""
     Hs, Ws = -(-shape[0] // step), -(-shape[1] // step)
     rows, cols = np.divmod(np.asarray(sel), shape[1])
     R = np.zeros((Hs, Ws))
