@@ -87,11 +87,13 @@ def _ray_light(L, dT):
 
 
 def _terms(dT, n, h, L, rl, P=None, dns=None, ds=None):
-    """cos beta of one light on the plane (n, h) along unit rays ``dT`` (3, N), and its derivatives. ``rl = (Ld, K2)``
-    of :func:`_ray_light`. Returns ``(cb, delta, s, sl, ir, c, dcb)``: ``delta = -d . n``, ``s = |X| = h / delta``,
-    ``sl = s - Ld``, ``ir = 1 / |L - X|``, ``c = n . L + h``, ``cb = (2 c delta - sl) ir`` and, given the normal's
-    derivatives ``dns``, ``dcb`` (3, N) in (a, b, log h) (else None); ``P = dns @ dT`` and ``ds = (delta, s)`` may be
-    passed if at hand."""
+    """cos beta of one light on the plane (n, h) along unit rays ``dT`` (3, N), and its derivatives.
+
+    ``rl = (Ld, K2)`` of :func:`_ray_light`. Returns ``(cb, delta, s, sl, ir, c, dcb)``: ``delta = -d . n``,
+    ``s = |X| = h / delta``, ``sl = s - Ld``, ``ir = 1 / |L - X|``, ``c = n . L + h``,
+    ``cb = (2 c delta - sl) ir`` and, given the normal's derivatives ``dns``, ``dcb`` (3, N) in
+    (a, b, log h) (else None); ``P = dns @ dT`` and ``ds = (delta, s)`` may be passed if at hand.
+    """
     Ld, K2 = rl
     delta = np.maximum((-n) @ dT, 1e-9) if ds is None else ds[0]
     s = h / delta if ds is None else ds[1]

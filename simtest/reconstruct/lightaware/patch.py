@@ -326,11 +326,14 @@ def _patch_sigma(status, detail, misfit_sigma, S, x, cost0, resid_var, covs, max
 
 
 def _depth_valley(S, x, cost0, resid_var, covs, max_nfev):
-    """The patch's cost along its depth, beyond the local covariance: ``(v, excess, rises)``. Refits with log depth
-    fixed at ``x[2] +- step`` (:data:`_VALLEY_STEPS`): the widest ``step^2 s^2 / Delta`` (``Delta`` the cost's rise) is
-    the depth's variance; ``excess`` is what exceeds the local covariance's (inf where the cost does not rise),
-    ``v = (p_+ - p_-) / (2 step)`` the direction the other parameters follow (zeros where a refit failed), ``rises`` the
-    nearest step's rises over ``s^2``. ``S`` holds ``res`` and ``x_scale``."""
+    """The patch's cost along its depth, beyond the local covariance: ``(v, excess, rises)``.
+
+    Refits with log depth fixed at ``x[2] +- step`` (:data:`_VALLEY_STEPS`): the widest
+    ``step^2 s^2 / Delta`` (``Delta`` the cost's rise) is the depth's variance; ``excess`` is what
+    exceeds the local covariance's (inf where the cost does not rise), ``v = (p_+ - p_-) / (2 step)``
+    the direction the other parameters follow (zeros where a refit failed), ``rises`` the nearest
+    step's rises over ``s^2``. ``S`` holds ``res`` and ``x_scale``.
+    """
     k = len(x)
     free = [i for i in range(k) if i != 2]
     ends, rises, var = [], [], 0.0

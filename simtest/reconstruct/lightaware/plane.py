@@ -44,12 +44,11 @@ class FitSettings:
     Attributes
     ----------
     clip_level : float or sequence of 3 floats, optional
-        Pixels ``>= clip_level`` are left out (e.g. 255 for 8-bit); None keeps every pixel. For RGB,
-        one level or each channel's: a pixel with a clipped channel is censored where the projection's
-        weights of its clipped channels are all >= 0, else left out.
+        Pixels ``>= clip_level`` are left out (e.g. 255 for 8-bit); None keeps every pixel. For RGB, one
+        level or each channel's; a pixel is censored where the weights of its clipped channels are >= 0.
     clip_margin : float or sequence of 3 floats, optional
-        RGB values: a channel within this of its clip level counts as clipped too
-        (:func:`~simtest.reconstruct.lightaware.colour.specular_image`'s ``censor_margin``). None: 0.
+        RGB: a channel within this of its clip level counts as clipped too (``specular_image``'s
+        ``censor_margin``). None: 0.
     nominal_depth_mm : float
         Depth of the BP assumed for the start's bisector, mm.
     start_normal : array_like of shape (3,), optional
@@ -57,53 +56,47 @@ class FitSettings:
     start_roughness : float, optional
         Start Phong n.
     pair_starts : tuple of (int, int, float)
-        (i, j, d): light i's start at depth d (mm along the BP ray), refined beside the nominal start
-        without a start normal (:func:`~simtest.reconstruct.rig_pairs.pair_starts`).
+        (i, j, d): light i's start at depth d mm along the BP ray, refined too without a start normal
+        (:func:`~simtest.reconstruct.rig_pairs.pair_starts`).
     loss : str
         ``linear`` (Gaussian sensor noise), or ``soft_l1``, ``huber``, ``cauchy`` (reweighted).
     f_scale : float
         Soft margin of a robust loss, relative to the ROI's maximum.
     n_start_depths : int or None
-        Further starts along the BP's constraint (nominal/8 to nominal*8), each refined, the least
-        cost kept. None (default): 0, and for RGB values, where that fit ends without a depth, once
-        more with :data:`RETRY_START_DEPTHS` starts, the lower residual kept.
+        Further starts along the BP's constraint (nominal/8 to nominal*8), the least cost kept. None:
+        0, and for RGB, where that fit has no depth, once more with :data:`RETRY_START_DEPTHS` starts.
     supersample : int
         s x s point samples per pixel, averaged (1: the value at the pixel centre).
     max_pixels : int or None
-        Beyond this many unclipped pixels the starts are refined on a regular sub-grid, and the best,
-        with ``refine_all``, where the plane passes the misfit test and no pixel lies at
-        ``floor_level``, once more on every unclipped pixel. None: every pixel.
+        Beyond this many unclipped pixels the starts are refined on a regular sub-grid, the best once
+        more on every pixel (``refine_all``) where the plane fits and nothing lies at ``floor_level``.
     refine_all : bool
         Refine the sub-grid's solution on every unclipped pixel (above).
     diffuse : bool
-        Add the rig's Lambertian shading of the plane as a linear column. The lobe is then taken for
-        real only up to :data:`~simtest.decisions.ROUGHEST_FILM_ALPHA`; broader, ``not_converged``.
+        Add the rig's Lambertian shading of the plane as a linear column; a lobe broader than
+        :data:`~simtest.decisions.ROUGHEST_FILM_ALPHA` is then ``not_converged``.
     censor : bool
-        Keep the pixels at or above ``clip_level`` as censored data (a residual only where the model
-        falls below the clip level) instead of leaving them out.
+        Keep clipped pixels as censored data (a residual only where the model falls below the clip).
     max_nfev : int
         Evaluation budget.
     floor_level : float, optional
-        The image's floor (e.g. 0 for 8-bit); pixels within ``_FLOOR_MARGIN`` noise sigmas of it are
-        biased by the clipped noise, and the curvature test reads only the pixels above. None: no floor.
+        The image's floor (e.g. 0 for 8-bit): the curvature test reads only the pixels ``_FLOOR_MARGIN``
+        noise sigmas above it. None: no floor.
     floor_refit : bool
         With ``floor_level``, refine once more without the pixels within the margin.
     floor_step : float
         The image's quantisation step at the floor: the refit runs only where the noise sigma exceeds it.
     projection : {"auto", "border", "least_fluctuation", "darkest_channel"}
-        For RGB values, the projection that removes the tissue's body colours
-        (:func:`~simtest.reconstruct.lightaware.colour.specular_image`): ``"border"`` the border's two
-        body colours (else the darkest channel); ``"least_fluctuation"`` the least-fluctuation weights
-        (else the darkest channel); ``"darkest_channel"`` that channel alone; ``"auto"``: the border's,
-        replaced by the least-fluctuation fit where that is ``ok`` and the border's has no depth; the
-        least-fluctuation weights where the border tells one body colour, replaced by the darkest
-        channel's fit where not ``ok``.
+        RGB: the projection that removes the tissue's body colours
+        (:func:`~simtest.reconstruct.lightaware.colour.specular_image`): the border's two body colours,
+        the least-fluctuation weights (each else the darkest channel), or the darkest channel. ``"auto"``:
+        the border's, replaced by an ``ok`` least-fluctuation fit where it has no depth; where the border
+        tells one body colour, the least-fluctuation weights, replaced by the darkest channel where not ``ok``.
     exclude : ndarray of shape (H, W) of bool, optional
         ROI pixels left out of the fit (:func:`~simtest.reconstruct.lightaware.model.albedo_lines`).
     two_channels : bool or None
-        For RGB values, pixels clipped in one channel with a negative weight: True, valued from their
-        two other channels; False, left out; None (default): the fit without them, replaced by the fit
-        with them where both are ``ok`` and agree (:func:`_two_channel_choice`).
+        RGB pixels clipped in one channel of negative weight: True, valued from their two other
+        channels; False, left out; None: both fits, chosen by :func:`_two_channel_choice`.
     lobe : {"phong", "ggx", "auto"}
         Phong's ``max(0, cos beta)^n`` (eq. 1), a GGX lobe under a dielectric film
         (:func:`~simtest.reconstruct.lightaware.model._rig_value_ggx`), or both, chosen by

@@ -76,12 +76,15 @@ class _RanOff(Exception):
 def _solve(resjac, p0, args, loss: str, f_scale: float, max_nfev: int, free=None,
            lazy_jac: bool = False, weighted: bool = False, newton: bool = False, stop=None):
     """Levenberg-Marquardt (MINPACK's lmder via :func:`scipy.optimize.leastsq`), robust loss by reweighting.
-    ``loss="linear"``: one solve; ``soft_l1``, ``huber``, ``cauchy``: the solution reweighted once by ``sqrt(rho'(z))``,
-    ``z = (r / f_scale)^2`` (scipy's robust losses), and solved again. ``resjac(p, *args, grad=...)`` returns residuals
-    and (with ``grad``) the Jacobian. ``free`` (bool mask) holds the other parameters at ``p0``; ``lazy_jac``: trial
-    points get the residuals alone; ``weighted``: the weights are passed to ``resjac`` as ``w=``; ``newton``:
-    :func:`_newton` takes LM's linear tail; ``stop(p)`` returns a reason (non-empty string) to end the solve there, not
-    converged. Returns ``(x, n_evaluations, converged, message, residuals at x)``."""
+
+    ``loss="linear"``: one solve; ``soft_l1``, ``huber``, ``cauchy``: the solution reweighted once by
+    ``sqrt(rho'(z))``, ``z = (r / f_scale)^2`` (scipy's robust losses), and solved again.
+    ``resjac(p, *args, grad=...)`` returns residuals and (with ``grad``) the Jacobian. ``free`` (bool
+    mask) holds the other parameters at ``p0``; ``lazy_jac``: trial points get the residuals alone;
+    ``weighted``: the weights are passed to ``resjac`` as ``w=``; ``newton``: :func:`_newton` takes LM's
+    linear tail; ``stop(p)`` returns a reason (non-empty string) to end the solve there, not converged.
+    Returns ``(x, n_evaluations, converged, message, residuals at x)``.
+    """
     opt = require("scipy.optimize")  # when first needed: scipy slows the start
     if loss not in ("linear", "soft_l1", "huber", "cauchy"):
         raise ValueError(f"loss: {loss!r} is not one of linear, soft_l1, huber, cauchy")
