@@ -14,13 +14,8 @@ from simtest.reconstruct.lightaware.model import _mean_light, _rays
 def bisector(bp_uv, camera, rig: LightRig, depth_mm) -> LightAwareEstimate:
     """The BP ray corrected by the rig for a given depth: the normal that makes the BP specular.
 
-    At depth s along the BP's ray the surface point is ``X = s d``; the normal that reflects the
-    light L into the camera there bisects the directions to camera and light,
-    ``N = unit(unit(-X) + unit(L - X))``. For a plane, with the true depth of the BP, N is the
-    plane normal exactly (the specular point is the BP of a Phong plane without falloff); with a
-    co-located light it is the ``bp_ray`` normal whatever the depth. For a rig of several lights
-    the intensity-weighted mean light position is used (an approximation: the brightest point of a
-    merged pair is not one light's specular point).
+    At depth s along the BP's ray ``X = s d`` and ``N = unit(unit(-X) + unit(L - X))``, L the rig's
+    intensity-weighted mean light. Exact for a plane at the BP's true depth.
 
     Parameters
     ----------
@@ -31,8 +26,8 @@ def bisector(bp_uv, camera, rig: LightRig, depth_mm) -> LightAwareEstimate:
     rig : LightRig
         The lights, camera frame, mm.
     depth_mm : float or ndarray of shape (H, W)
-        Distance from the camera centre to the BP along its ray, mm; or a depth map (same
-        meaning per pixel), sampled at the nearest pixel of the BP.
+        Distance from the camera centre to the BP along its ray, mm; or a depth map, sampled at the
+        nearest pixel of the BP.
 
     Returns
     -------

@@ -34,48 +34,32 @@ class CramerRaoBound:
     n_pixels: int
 
 
-def photometric_crb(camera, origin_uv, shape, normal, distance_mm: float, rig: LightRig,
-                    roughness: float, gain: float, sigma: float, *,
-                    background=(0.0, 0.0, 0.0), bp_uv=None,
+def photometric_crb(camera, origin_uv, shape, normal, distance_mm: float, rig: LightRig, roughness: float, gain: float,
+                    sigma: float, *, background=(0.0, 0.0, 0.0), bp_uv=None,
                     clip_level: float | None = None) -> CramerRaoBound:
     """Cramer-Rao bound of the photometric model under per-pixel Gaussian noise.
 
-    The image model is the one :func:`photometric_fit` fits (package docstring): nonlinear
-    parameters (a, b, log h, log n) and linear ones (g, b0, b1, b2). With independent Gaussian
-    noise of standard deviation sigma on each pixel, the Fisher information is
-    ``F = J^T J / sigma^2``, J the Jacobian of the noise-free image (every unclipped pixel of the
-    ROI) at the true parameters; ``C = F^-1`` bounds the covariance of any unbiased estimator
-    (the nuisance parameters, roughness, gain and background, are accounted for, not assumed
-    known). The normal's bound is ``sqrt(C_aa + C_bb)``; the depth's follows by the delta method
-    through the specular point of the rig's mean light.
+    ``C = (J^T J / sigma^2)^-1``, J the Jacobian of the noise-free image of :func:`photometric_fit`'s
+    model in (a, b, log h, log n, g, b0, b1, b2) over the unclipped pixels (nuisance parameters
+    included). Normal ``sqrt(C_aa + C_bb)``; depth by the delta method through the mean light.
 
     Parameters
     ----------
-    camera : array_like of shape (3, 3) or CameraModel
-        Intrinsics K, or a camera model with ``pixel_to_ray``.
-    origin_uv : array_like of shape (2,)
-        Pixel (u, v) of the ROI's first element.
+    camera, origin_uv, rig
+        As in :func:`photometric_fit`.
     shape : (H, W)
         ROI size, px.
-    normal : array_like of shape (3,)
-        True unit normal facing the camera.
-    distance_mm : float
-        True plane distance h, mm.
-    rig : LightRig
-        The lights.
-    roughness : float
-        True Phong n.
-    gain : float
-        Image units per unit of the model (the peak of a Phong lobe without falloff).
-    sigma : float
-        Noise standard deviation, image units.
+    normal, distance_mm, roughness
+        The true unit normal (3,) facing the camera, plane distance h (mm) and Phong n.
+    gain, sigma : float
+        Image units per unit of the model, and the noise's standard deviation in image units.
     background : (b0, b1, b2)
-        Linear background (``b0 + b1 du + b2 dv`` with du, dv the offsets from ``bp_uv`` over the
-        ROI's larger side), image units.
+        Linear background ``b0 + b1 du + b2 dv`` (du, dv the offsets from ``bp_uv`` over the ROI's
+        larger side), image units.
     bp_uv : array_like of shape (2,), optional
         The reference pixel of the background (default the ROI centre).
     clip_level : float, optional
-        Pixels whose noise-free value reaches it carry no information and are left out.
+        Pixels whose noise-free value reaches it are left out.
 
     Returns
     -------

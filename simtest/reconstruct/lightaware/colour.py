@@ -1,6 +1,5 @@
 """The colour stage of the light-aware fits: the specular image of a linear RGB ROI, the tissue's
-body colours measured on the ROI's border and projected out (:func:`specular_image`), or the
-least-fluctuation weights where the border tells no second body colour."""
+body colours measured on the ROI's border and projected out (:func:`specular_image`)."""
 
 from __future__ import annotations
 
@@ -10,23 +9,18 @@ from simtest._lazy import require
 
 from simtest.decisions import BODY_PROJECTION_MAX_GAIN, BODY_SECOND_SNR as _BODY_SECOND_SNR
 
-#: Passes of :func:`specular_image`'s trimming of the border: a border pixel whose projected
-#: (specular) value is above ``_BODY_TRIM_SHARE`` of the ROI's peak is left out and the body
-#: colours measured again. White lies near mucosa's body plane (12 deg off it: the projection's
-#: gain of 2.8), so that a colour's distance from the plane does not tell a lobe's white from the
-#: body's variation; its projected value does, to the share it leaks.
+#: Passes of :func:`specular_image`'s trimming of the border, and the share of the ROI's peak
+#: above which a border pixel's projected value marks a lobe (left out).
 _BODY_TRIM_PASSES = 3
 _BODY_TRIM_SHARE = 0.02
-#: Width of :func:`specular_image`'s border band, px: the ROI's smaller side over this, between
-#: 1 and :data:`_BODY_BAND_MAX` (a 406 px ROI: 6 px, 9600 pixels; a 40 px one: 1 px).
+#: Width of :func:`specular_image`'s border band, px: the ROI's smaller side over this, 1 to the max.
 _BODY_BAND_DIVISOR = 64
 _BODY_BAND_MAX = 8
 
 
 def _border_band(shape) -> np.ndarray:
-    """The pixels of an (H, W) ROI that :func:`specular_image` measures the body colours on: the
-    band of :data:`_BODY_BAND_DIVISOR`-th of its smaller side (1 to :data:`_BODY_BAND_MAX` px) along
-    its edges, where the lobes' tails are faintest. (H, W) bool."""
+    """The band along an (H, W) ROI's edges on which :func:`specular_image` measures the body colours:
+    its smaller side over :data:`_BODY_BAND_DIVISOR`, 1 to :data:`_BODY_BAND_MAX` px. (H, W) bool."""
     h, w = int(shape[0]), int(shape[1])
     b = int(np.clip(min(h, w) // _BODY_BAND_DIVISOR, 1, _BODY_BAND_MAX))
     ring = np.zeros((h, w), bool)
@@ -44,72 +38,41 @@ def specular_image(rgb, clip_level=None, *, ring=None, fluctuation: bool = True,
                    two_channels: bool = True, censor_margin=None):
     """The specular reflection of a linear RGB ROI, the tissue's body colours projected out.
 
-    Dichromatic reflection [6]_: a pixel's linear radiance is ``I = S (1, 1, 1) + D a(x)``, the
-    wet film's specular reflection S white (Fresnel's reflectance of the film is flat over the
-    visible band; the white balance undone, each channel's radiance in the units in which white is
-    (1, 1, 1)) and the body reflection ``D a(x)`` coloured by the tissue's albedo ``a(x)``, whose
-    texture (colour variation, vessels) moves ``a`` within a plane of RGB spanned by a few
-    chromophores' colours. Where the albedo's colours span a plane B (two body colours), the
-    weights ``w`` orthogonal to B with ``w . (1, 1, 1) = 1`` give ``w . I = S`` exactly at every
-    pixel, whatever the texture: the photometric fit then sees the film's lobes (and what of the
-    shading the projection leaves, which its diffuse column still takes) instead of the lobes
-    under a textured shading, whose texture the plane model cannot hold (measured:
-    ``docs/decisions/light-aware-recommendation.md``).
-
-    B is measured on a band along the ROI's edges (:func:`_border_band`: the lobe's faint tails,
-    where the body reflection dominates): the two leading right singular vectors of its unclipped pixels' colours (about 0:
-    colours are proportional to the shading), the colours off their plane (where the border
-    crosses another lobe) left out in a few passes where their projected value is above a share
-    of the peak (:data:`_BODY_TRIM_SHARE`). A share e of white left in a body colour leaks
-    e times its shading into the values: the diffuse column takes the shading's smooth part, e
-    times its texture stays. A second body colour is used only where the border's second singular
-    value stands above its third (:data:`_BODY_SECOND_SNR`); where the border holds one body
-    colour, or the projection's noise gain ``|w|`` exceeds :data:`BODY_PROJECTION_MAX_GAIN`,
-    the least-fluctuation weights of the whole ROI stand in (``fluctuation``,
-    :func:`_least_fluctuation_weights`: the leading body colour removed, and of the rest, what
-    lets through the least of the ROI's texture and noise together), and where they too are
-    beyond the bound or not measurable, None is returned and the caller fits one channel. Not
-    the leading colour alone, orthogonally: that leaves the texture's second colour in the values
-    (the vessels; measured: ``docs/decisions/light-aware-recommendation.md``). Why the border's
-    colours are lost in read noise: the sensor's noise is added to the linear channels and
-    clipped at 0, and on the endoscope's mucosa the blue channel's body reflection is 1 to 3
-    noise sigmas at 0.5 to 2 % read noise, where the border's second singular value (1.5 % of
-    the first, noise-free) is within the noise's.
+    Dichromatic reflection [6]_: ``I = S (1, 1, 1) + D a(x)``, the film's reflection S white and the
+    body reflection coloured by the albedo ``a(x)``, whose texture moves within a plane B of RGB.
+    Weights ``w`` orthogonal to B with ``w . (1, 1, 1) = 1`` give ``w . I = S`` whatever the texture.
+    B is the two leading right singular vectors of the border band's unclipped colours, pixels whose
+    projected value exceeds :data:`_BODY_TRIM_SHARE` of the peak (another lobe) trimmed in passes; a
+    second body colour counts only above :data:`_BODY_SECOND_SNR` times the third singular value.
+    Otherwise (or with a noise gain ``|w|`` above :data:`BODY_PROJECTION_MAX_GAIN`) the
+    least-fluctuation weights stand in (:func:`_least_fluctuation_weights`), and failing those None.
 
     Parameters
     ----------
     rgb : ndarray of shape (H, W, 3)
         Linear radiance, white balance undone (white is equal in the three channels).
     clip_level : float or array_like of 3 floats, optional
-        Each channel's linear clip level: a channel at or above it is clipped (its radiance at
-        least that). None: nothing clipped.
+        Each channel's linear clip level (None: nothing clipped).
     ring : ndarray of shape (H, W), bool, optional
-        The pixels B is measured on (default: the band along the ROI's edges,
-        :func:`_border_band`).
+        The pixels B is measured on (default :func:`_border_band`).
     fluctuation : bool
-        Where the border tells no second body colour, the least-fluctuation weights
-        (:func:`_least_fluctuation_weights`; False: None there).
+        Fall back on the least-fluctuation weights (False: None there).
     border : bool
-        Measure the body colours on the border (default); False: the least-fluctuation weights
-        whatever the border tells (with ``fluctuation``).
+        Measure the body colours on the border (False: the least-fluctuation weights directly).
     two_channels : bool
-        Value a pixel clipped in one channel whose weight is negative from its two other channels
-        (:func:`_from_two_channels`; default); False: leave it out (``missing``).
+        Value a pixel clipped in one channel with a negative weight from its two other channels
+        (:func:`_from_two_channels`); False: leave it out (``missing``).
     censor_margin : float or array_like of 3 floats, optional
-        A channel within this of its clip level counts as clipped in the masks returned (the
-        noise clips it often: :data:`~simtest.decisions.CLIP_MARGIN`); the body colours are
-        measured on the pixels the clip itself left. None: 0.
+        A channel within this of its clip level counts as clipped in the masks returned
+        (:data:`~simtest.decisions.CLIP_MARGIN`). None: 0.
 
     Returns
     -------
     tuple or None
-        ``(values, lower, missing, w)``: ``values`` (H, W) ``w . I``, and where one channel is
-        clipped and its ``w_c < 0`` the value of the two others (:func:`_from_two_channels`);
-        ``lower`` (H, W) bool where a pixel's value is a lower bound (clipped channels, each with
-        ``w_c >= 0``: censored data); ``missing`` (H, W) bool where several channels are clipped
-        and one of them has ``w_c < 0`` (no bound: left out); ``w`` (3,). None where neither the
-        border's two body colours nor (with ``fluctuation``) the least-fluctuation weights give a
-        projection within the gain's bound, or the border has fewer than 3 unclipped pixels.
+        ``(values, lower, missing, w)``: ``values`` (H, W) ``w . I`` (two channels' value where one
+        clipped channel has ``w_c < 0``); ``lower`` (H, W) bool where a value is a lower bound
+        (censored); ``missing`` (H, W) bool where no bound exists (left out); ``w`` (3,). None where no
+        projection within the gain's bound exists, or the border has fewer than 3 unclipped pixels.
 
     Raises
     ------
@@ -143,9 +106,7 @@ def specular_image(rgb, clip_level=None, *, ring=None, fluctuation: bool = True,
         w = _body_weights(edge[keep])
         if w is None:
             break
-        # border pixels whose specular value is above a share of the ROI's peak hold a lobe's
-        # white (where the border crosses another light's lobe or a neighbouring highlight):
-        # they are left out and the body colours measured again
+        # border pixels above a share of the peak hold another lobe's white: measure again without them
         spec = edge @ w
         new = spec <= _BODY_TRIM_SHARE * max(float((free @ w).max()), 0.0)
         if np.array_equal(new, keep) or np.count_nonzero(new) < 3:
@@ -153,16 +114,13 @@ def specular_image(rgb, clip_level=None, *, ring=None, fluctuation: bool = True,
         keep = new
     w = None if w is None else _body_weights(edge[keep])
     if w is None and fluctuation:
-        # the border's second body colour is lost in the noise (on the endoscope's mucosa at
-        # 0.5 % read noise and above, where the darkest channel is at 1 to 3 noise sigmas): the
-        # projection that lets through the least of the ROI's fluctuations instead
+        # the border's second body colour is lost in the noise
         w = _least_fluctuation_weights(v, clipped.any(axis=2))
     if w is None:
         return None
     values = v @ w
     if censor_margin is not None:
-        # a channel censored at its level below the clip holds at least that level: the bound
-        # its projection gives is that of the level, not of its noisy value
+        # a channel censored below the clip holds at least its level: bound by the level, not the noisy value
         level = clip - per_channel(censor_margin)
         clipped = v >= level
         values = np.minimum(v, level) @ w
@@ -174,19 +132,10 @@ def specular_image(rgb, clip_level=None, *, ring=None, fluctuation: bool = True,
 
 
 def _from_two_channels(v, clipped, neg, anyc, values, colours) -> None:
-    """The specular value of each pixel with one clipped channel whose projection weight is
-    negative (no bound from ``w``), from its two unclipped channels, in place.
-
-    Dichromatic reflection in two channels (o0, o1): ``I_o = S + D a_o``; with the albedo ``a``
-    along the leading body colour b1 (the first right singular vector of the ROI's border
-    ``colours`` (M, 3)), the weights ``u`` on (o0, o1) with ``u . (1, 1) = 1`` and
-    ``u . (b1_o0, b1_o1) = 0`` give S, the second body colour's texture left in (the three
-    channels remove both). Why: a red tissue lit near the guides clips its red channel by its
-    body reflection alone, where the specular lobe's flanks lie; left out (``missing``), the fit
-    lost the flanks nearest the lobe's core (measured: ``docs/decisions/light-aware-recommendation.md``).
-    ``neg`` and ``anyc`` lose the pixels given a value. A channel pair whose weights' noise gain
-    ``|u|`` exceeds :data:`BODY_PROJECTION_MAX_GAIN` (white too near b1 in it) leaves its pixels
-    as they were."""
+    """In place: the specular value of each pixel with one clipped channel of negative weight, from its
+    two other channels (weights ``u`` with ``u . (1, 1) = 1`` and ``u`` orthogonal to the leading body
+    colour of ``colours`` (M, 3)). ``neg`` and ``anyc`` lose the pixels given a value; a channel pair
+    whose gain ``|u|`` exceeds :data:`BODY_PROJECTION_MAX_GAIN` is left as it was."""
     b1 = np.linalg.svd(colours, full_matrices=False)[2][0]
     one = neg & (np.count_nonzero(clipped, axis=2) == 1)
     for c in range(3):
@@ -201,16 +150,13 @@ def _from_two_channels(v, clipped, neg, anyc, values, colours) -> None:
         u[o0], u[o1] = -b1[o1] / den, b1[o0] / den
         if float(np.linalg.norm(u)) > BODY_PROJECTION_MAX_GAIN:
             continue
-        # at most w . I as measured: the clipped channel's true value is above its clip level
-        # and its weight negative, so the three channels' projection bounds S from above
+        # at most w . I as measured: with a negative weight on the clipped channel it bounds S from above
         values[rows] = np.minimum(v[rows] @ u, values[rows])
         neg[rows] = False
         anyc[rows] = False
 
 
-#: Side of the box (px) whose mean is the smooth part of the image that
-#: :func:`_least_fluctuation_weights` takes from each pixel: the shading and the lobes vary over
-#: tens of pixels, the albedo's texture (vessels) and the sensor's noise over one to a few.
+#: Side of the box (px) whose mean is the smooth part :func:`_least_fluctuation_weights` takes out.
 _FLUCTUATION_BOX = 9
 #: Passes of :func:`_least_fluctuation_weights`' trimming of the lobes (as ``_BODY_TRIM_PASSES``).
 _FLUCTUATION_PASSES = 4
@@ -219,25 +165,10 @@ _FLUCTUATION_MIN_PIXELS = 100
 
 
 def _least_fluctuation_weights(v, clipped) -> np.ndarray | None:
-    """The projection's weights ``w`` (3,) that let through the least of the ROI's fluctuations
-    about its smooth part, white kept (``w . (1, 1, 1) = 1``) and the tissue's leading body colour
-    removed (``w . a0 = 0``): the linearly constrained minimum-variance weights [7]_
-    ``w = R^-1 C (C^T R^-1 C)^-1 (0, 1)``, ``C = [a0, (1, 1, 1)]``.
-
-    R is the 3 x 3 covariance of each pixel's colour minus its :data:`_FLUCTUATION_BOX` box mean:
-    the albedo's texture (whose second colour the border's singular values no longer tell from
-    the noise) and the sensor's noise together, each as much as it is there. Where the texture
-    dominates, w is orthogonal to both body colours (the exact projection of
-    :func:`specular_image`); where the noise does (a dark channel at 1 to 3 noise sigmas: the
-    endoscope's mucosa at 0.5 % read noise and above), w trades the texture left in against the
-    noise gain, which no fixed projection does (measured: ``docs/decisions/light-aware-recommendation.md``).
-    ``a0``: the leading
-    right singular vector of the box means. Measured on the pixels off the field stop's black
-    (a channel above 0 in the whole box) and away from clipped pixels (none in the box), the
-    lobes trimmed in passes as :func:`specular_image` trims the border (box means whose
-    projected value is above ``_BODY_TRIM_SHARE`` of the peak). None where fewer than
-    :data:`_FLUCTUATION_MIN_PIXELS` pixels remain, R or the constraints are singular, or the
-    noise gain ``|w|`` is above :data:`BODY_PROJECTION_MAX_GAIN`.
+    """The weights ``w`` (3,) that let through the least of the ROI's fluctuations about its box mean
+    (:data:`_FLUCTUATION_BOX`), with ``w . (1, 1, 1) = 1`` and ``w . a0 = 0`` (a0 the leading body
+    colour): ``w = R^-1 C (C^T R^-1 C)^-1 (0, 1)``, ``C = [a0, (1, 1, 1)]`` [7]_. None with too few
+    pixels, a singular system or a gain above :data:`BODY_PROJECTION_MAX_GAIN`.
 
     References
     ----------
@@ -279,14 +210,12 @@ def _least_fluctuation_weights(v, clipped) -> np.ndarray | None:
 
 
 def _body_weights(colours) -> np.ndarray | None:
-    """The projection's weights ``w`` (3,) from body colours (M, 3) (:func:`specular_image`):
-    orthogonal to their two leading right singular vectors, ``w . (1, 1, 1) = 1``, the noise gain
-    ``|w|`` within :data:`BODY_PROJECTION_MAX_GAIN`; None where the colours hold no second one
-    or the gain is above it."""
+    """Weights ``w`` (3,) orthogonal to the two leading right singular vectors of body colours (M, 3),
+    ``w . (1, 1, 1) = 1``; None without a second body colour or with a gain above
+    :data:`BODY_PROJECTION_MAX_GAIN`."""
     sv, Vt = np.linalg.svd(colours, full_matrices=False)[1:]
     one = np.ones(3)
-    # a second body colour only where the colours hold one: its singular value well above the
-    # third's (the noise's and what white remains) and above round-off
+    # a second body colour only where its singular value stands above the third's and round-off
     if not (sv[1] > _BODY_SECOND_SNR * sv[2] and sv[1] > 1e-9 * sv[0]):
         return None
     B = Vt[:2].T

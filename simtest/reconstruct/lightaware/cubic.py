@@ -9,63 +9,40 @@ from simtest._lazy import require
 from simtest.geometry.angles import unit
 from simtest.geometry.conics import plane_basis
 from simtest.geometry.lights import LightRig
-from simtest.tolerances import TOL
 from simtest.reconstruct.lightaware.estimate import LightAwareEstimate
 from simtest.reconstruct.lightaware.patch import (
-    _fit_fixed_depth, _patch_covariances, _patch_lobes, _patch_problem, _patch_sigma, _quadric_root, _valley_sigma_deg,
+    _fit_fixed_depth, _patch_lobes, _patch_problem, _patch_uncertainty, _quadric_root, _valley_sigma_deg,
 )
-from simtest.reconstruct.lightaware.solve import _covariance, _implausible, _patch_verdict
+from simtest.reconstruct.lightaware.solve import _implausible
 
 
-#: Newton steps that take a pixel ray's intersection from the quadric's root to the cubic patch's:
-#: the third-order terms move it by a small fraction of the ROI, and Newton converges
-#: quadratically from there (on the liver renders a fifth step changes the image by < 1e-12).
+#: Newton steps that take a pixel ray's intersection from the quadric's root to the cubic patch's.
 _CUBIC_NEWTON_STEPS = 4
-
 
 #: Parameters of the cubic patch: (a, b, log s, kappa_xx, kappa_xy, kappa_yy, log n) and the four
 #: dimensionless third-order coefficients (c_xxx, c_xxy, c_xyy, c_yyy).
 _CUBIC_PARAMS = 11
 
-
-#: Depths of the profile's grid, as multiples of ``nominal_depth_mm``: 2^k for k = -2..3 (0.25 to
-#: 8 times), a factor 2 apart, so that the profile's least cost lies within a factor 1.42 of a
-#: minimum in that range, from where the free fit converges.
+#: Depths of the coarse profile, as multiples of ``nominal_depth_mm``: 0.25 to 8, a factor 2 apart.
 _PROFILE_FACTORS = 2.0 ** np.arange(-2, 4)
 
-
-#: Evaluation budget (in Jacobian evaluations) and tolerances of each fit of the profile: a
-#: start, not a result (the free fit that follows has the full budget and 1e-8).
+#: Evaluation budget (in Jacobian evaluations) and tolerance of each fit of the coarse profile (a start).
 _PROFILE_NFEV = 30
-
-
 _PROFILE_TOL = 1e-5
 
-
-#: Largest ratio between neighbouring depths of :func:`patch_depth_profile` (intermediate depths
-#: are fitted where the ones asked for are farther apart): each fit starts from its neighbour's
-#: solution, and on the two-light liver render at epsilon/d 0.3 a step of 2 from the true depth
-#: started a fit that ended 1300 times above the cost that steps of 1.25 reached.
+#: Largest ratio between neighbouring depths of :func:`patch_depth_profile`, whose fits start
+#: from their neighbour's solution.
 _PROFILE_STEP = 1.25
 
-
 #: :func:`patch_depth_profile` also starts each depth from a flat patch whose Phong n is this
-#: fraction of the start roughness (n 10 for the default 50): its wider lobes overlap the image's
-#: lobes where the narrower ones do not, and a fit whose model lobes miss the image's finds no
-#: gradient. On the two-light liver render at epsilon/d 0.3 the narrow start alone reached the
-#: profile's minimum (cost 0.0014) at the true depth only by way of a neighbouring depth's lucky
-#: fit: with that depth moved by 3e-8 (its value on the cuda_ad_rgb render of the same scene)
-#: every depth ended at costs of 1.8 to 8.3, a missed lobe; with the wide start too, 0.0014 again.
+#: fraction of the start roughness: its wider lobes overlap image lobes that narrower ones miss.
 _PROFILE_WIDE_START = 0.2
 
 
 def _cubic_patch_geometry(d, b_ray, p, Lm):
-    """Intersections and surface normals of the cubic patch ``p`` along rays d.
-
-    Returns ``(X (N, 3), ns (N, 3), ok (N,), N (3,), s, frame)``: points and unit normals (camera
-    frame), which rays meet the patch in front of the camera, the apex normal, the apex depth s
-    and the apex frame ``(P0, t1, t2, N)``. See :func:`cubic_patch_fit` for the parameters.
-    """
+    """Intersections and surface normals of the cubic patch ``p`` along rays d. Returns
+    ``(X (N, 3), ns (N, 3), ok (N,), N (3,), s, frame)``: points and unit normals (camera frame), which rays meet the
+    patch in front of the camera, the apex normal, the apex depth s and the apex frame ``(P0, t1, t2, N)``."""
     e1, e2 = plane_basis(b_ray)
     s = np.exp(np.float64(p[2]))  # numpy scalars: a fit that runs off overflows to inf, no raise
     P0 = s * unit(b_ray + p[0] * e1 + p[1] * e2)
@@ -107,13 +84,9 @@ def _cubic_patch_image(d, b_ray, p, rig_arr, Lm):
 
 
 def _patch_specular_points(b_ray, p, Lm, lights):
-    """Each light's specular point on the cubic patch ``p``: unit normals (J, 3) and depths (J,).
-
-    The point is searched along the rays ``unit(b + u e1 + v e2)`` ((e1, e2) the tangent basis of
-    the BP ray b): the tangential part of ``ns - unit(unit(-X) + unit(L_j - X))`` vanishes there
-    (two equations in (u, v), solved by Levenberg-Marquardt from the apex's ray). NaN rows where
-    the search fails (the ray misses the patch).
-    """
+    """Each light's specular point on the cubic patch ``p``: unit normals (J, 3) and depths (J,). Searched along the
+    rays ``unit(b + u e1 + v e2)`` by Levenberg-Marquardt from the apex's ray, where the normal bisects the directions
+    to the camera and the light; NaN rows where it fails."""
     opt = require("scipy.optimize")  # when first needed: scipy slows the start
     e1, e2 = plane_basis(b_ray)
     ray0 = np.array([p[0], p[1]], dtype=np.float64)
@@ -121,8 +94,7 @@ def _patch_specular_points(b_ray, p, Lm, lights):
     depths = np.full(len(lights), np.nan)
     for j, Lj in enumerate(lights):
         def f(q, Lj=Lj):
-            X, ns, ok, _, _, _ = _cubic_patch_geometry(unit(b_ray + q[0] * e1 + q[1] * e2)[None],
-                                                       b_ray, p, Lm)
+            X, ns, ok, _, _, _ = _cubic_patch_geometry(unit(b_ray + q[0] * e1 + q[1] * e2)[None], b_ray, p, Lm)
             if not ok[0]:
                 return np.array([1.0, 1.0])
             c = ns[0] - unit(unit(-X[0]) + unit(Lj - X[0]))
@@ -130,17 +102,15 @@ def _patch_specular_points(b_ray, p, Lm, lights):
 
         with np.errstate(all="ignore"):
             r = opt.least_squares(f, ray0, method="lm", xtol=1e-14, ftol=1e-14, gtol=1e-14)
-        X, ns, ok, _, _, _ = _cubic_patch_geometry(unit(b_ray + r.x[0] * e1 + r.x[1] * e2)[None],
-                                                   b_ray, p, Lm)
+        X, ns, ok, _, _, _ = _cubic_patch_geometry(unit(b_ray + r.x[0] * e1 + r.x[1] * e2)[None], b_ray, p, Lm)
         if ok[0] and float(np.max(np.abs(r.fun))) < 1e-9:
             normals[j], depths[j] = ns[0], float(np.linalg.norm(X[0]))
     return normals, depths
 
 
 def _light_normal_jacobian(b_ray, p, Lm, lights, x_scale) -> np.ndarray:
-    """The derivative (J, 3, 11) of each light's specular-point normal on the cubic patch ``p``
-    in its parameters, by central differences (steps of 1e-4 of ``x_scale``; NaN where a
-    specular point is not found)."""
+    """The derivative (J, 3, 11) of each light's specular-point normal in the patch's parameters, by
+    central differences (1e-4 of ``x_scale``; NaN where a specular point is not found)."""
     k = len(p)
     G = np.zeros((len(lights), 3, k))
     for i in range(k):
@@ -153,14 +123,10 @@ def _light_normal_jacobian(b_ray, p, Lm, lights, x_scale) -> np.ndarray:
 
 
 def _cubic_setup(values, origin_uv, bp_uv, camera, rig, clip_level, max_pixels):
-    """The ROI's samples and the variable-projection residual of the cubic patch.
-
-    Returns None with too few unclipped pixels, else a dict: ``res(p)`` (the residual of the
-    11 parameters; a quadric when the last four are 0), ``b_ray``, ``Lm``, ``rig_arr``,
-    ``x_scale`` (11,), ``sel``, ``step``, ``shape`` and ``m`` (pixels used).
-    """
-    P, n_px = _patch_problem(values, origin_uv, bp_uv, camera, rig, clip_level, max_pixels,
-                             2 * _CUBIC_PARAMS)
+    """The ROI's samples and the variable-projection residual of the cubic patch: None with too few
+    unclipped pixels, else a dict of ``res(p)`` (11 parameters), ``b_ray``, ``Lm``, ``rig_arr``,
+    ``x_scale``, ``sel``, ``step``, ``shape`` and ``m`` (pixels used)."""
+    P, n_px = _patch_problem(values, origin_uv, bp_uv, camera, rig, clip_level, max_pixels, 2 * _CUBIC_PARAMS)
     if P is None:
         return None
     d, b_ray, rig_arr, Lm = P.d, P.b_ray, P.rig_arr, P.Lm
@@ -184,20 +150,15 @@ def _flat_start(roughness):
     return p
 
 
-def patch_depth_profile(values, origin_uv, bp_uv, camera, rig: LightRig, depths_mm, *,
-                        clip_level: float | None = None, cubic: bool = True,
-                        start_roughness: float | None = None, max_pixels: int | None = 800,
+def patch_depth_profile(values, origin_uv, bp_uv, camera, rig: LightRig, depths_mm, *, clip_level: float | None = None,
+                        cubic: bool = True, start_roughness: float | None = None, max_pixels: int | None = 800,
                         max_nfev: int = 100) -> np.ndarray:
     """The least misfit of a curved patch to the ROI with its apex depth fixed, depth by depth.
 
-    At each depth the other parameters of :func:`cubic_patch_fit` (the apex ray, the curvatures,
-    the roughness, and with ``cubic`` the four third-order coefficients; gain and background
-    linearly) are fitted from two flat patches (Phong n ``start_roughness`` and a fifth of it,
-    whose wider lobes overlap image lobes that the narrower ones miss) and from the neighbouring
-    depth's solution (depths ascending, then descending, with intermediate depths fitted where
-    neighbours are more than a factor 1.25 apart), the least sum of squared residuals kept. A profile that rises
-    away from its minimum says the ROI fixes the depth; a flat one says the other parameters
-    stand in for it (the evidence behind :func:`cubic_patch_fit`'s Notes).
+    The other parameters of :func:`cubic_patch_fit` are fitted at each depth from two flat patches
+    (Phong n ``start_roughness`` and :data:`_PROFILE_WIDE_START` of it) and the neighbouring depth's
+    solution (swept up and down, at most :data:`_PROFILE_STEP` apart). A profile that rises away from
+    its minimum says the ROI fixes the depth.
 
     Parameters
     ----------
@@ -206,9 +167,9 @@ def patch_depth_profile(values, origin_uv, bp_uv, camera, rig: LightRig, depths_
     depths_mm : array_like of shape (P,)
         Apex depths along the apex ray, mm (> 0).
     cubic : bool
-        Fit the third-order terms too (else a quadric patch, that of :func:`quadric_fit`).
+        Fit the third-order terms too (else the quadric patch of :func:`quadric_fit`).
     start_roughness : float, optional
-        Phong n of the flat start (default 50); the wide start has a fifth of it.
+        Phong n of the flat start (default 50).
     max_nfev : int
         Evaluation budget per fit, in Jacobian evaluations.
 
@@ -250,9 +211,8 @@ def patch_depth_profile(values, origin_uv, bp_uv, camera, rig: LightRig, depths_
 
 
 def _coarse_profile(S, depths, start_roughness, max_nfev):
-    """:func:`cubic_patch_fit`'s coarse profile: the patch fitted with its depth fixed at each of
-    ``depths``, swept up and down (each from a flat patch and its neighbour's solution), the least
-    cost of each kept. Returns ``(cost, sol, nfev)``."""
+    """:func:`cubic_patch_fit`'s coarse quadric profile over ``depths``, swept up and down from a flat
+    patch and the neighbour's solution. Returns ``(cost, sol, nfev)``."""
     n0 = 50.0 if start_roughness is None else float(start_roughness)
     flat = _flat_start(n0)
     quad = [0, 1, 3, 4, 5, 6]
@@ -263,8 +223,7 @@ def _coarse_profile(S, depths, start_roughness, max_nfev):
         prev = None
         for i in seq:
             starts = [flat] + ([prev] if prev is not None else [])
-            c, p, k = _fit_fixed_depth(S, np.log(depths[i]), quad, starts,
-                                       min(max_nfev, _PROFILE_NFEV), _PROFILE_TOL)
+            c, p, k = _fit_fixed_depth(S, np.log(depths[i]), quad, starts, min(max_nfev, _PROFILE_NFEV), _PROFILE_TOL)
             nfev += k
             if c < cost[i]:
                 cost[i], sol[i] = c, p
@@ -273,8 +232,7 @@ def _coarse_profile(S, depths, start_roughness, max_nfev):
 
 
 def _apex_normal_gradient(b_ray, x, x_scale, Lm) -> np.ndarray:
-    """dN / dp (3, 11) of the cubic patch's apex normal, by central differences of
-    ``1e-6 x_scale``."""
+    """dN / dp (3, 11) of the cubic patch's apex normal, by central differences of ``1e-6 x_scale``."""
     G = np.empty((3, _CUBIC_PARAMS))
     for i in range(_CUBIC_PARAMS):
         dp = np.zeros(_CUBIC_PARAMS)
@@ -284,87 +242,36 @@ def _apex_normal_gradient(b_ray, x, x_scale, Lm) -> np.ndarray:
     return G
 
 
-def cubic_patch_fit(values, origin_uv, bp_uv, camera, rig: LightRig, *,
-                    clip_level: float | None = None, nominal_depth_mm: float = 20.0,
-                    start_roughness: float | None = None, max_pixels: int | None = 800,
+def cubic_patch_fit(values, origin_uv, bp_uv, camera, rig: LightRig, *, clip_level: float | None = None,
+                    nominal_depth_mm: float = 20.0, start_roughness: float | None = None, max_pixels: int | None = 800,
                     max_nfev: int = 100, misfit_sigma: bool = True) -> LightAwareEstimate:
     """Fit the ROI with the image of a third-order surface patch lit by the whole rig.
 
-    The patch is :func:`quadric_fit`'s with the four third-order terms of the height function
-    added: in the apex's frame (z along the apex normal N, toward the camera; (x, y) along the
-    tangent basis (t1, t2) of N)
-    ``F = z + (k_xx x^2 + 2 k_xy x y + k_yy y^2 + H z^2) / 2
-    + (c_xxx x^3 + 3 c_xxy x^2 y + 3 c_xyy x y^2 + c_yyy y^3) / 6 = 0``, with the curvatures
-    ``k = kappa / s`` (1/mm) and ``c = gamma / s^2`` (1/mm^2) for dimensionless kappa and gamma,
-    s the apex depth. The apex sits at depth s on the ray ``unit(b + a e1 + b' e2)`` near the BP
-    ray b, and N bisects the directions from it to the camera and to the rig's mean light (the
-    apex is that light's specular point). Each pixel ray meets the patch at the quadric's root
-    refined by Newton steps; the surface normal there, every light's Phong lobe (with falloff and
-    profile, as in :func:`photometric_fit`), gain and a linear background (solved linearly,
-    variable projection [3]_) give the image. Eleven nonlinear parameters (a, b', log s, kappa,
-    log n, gamma).
-
-    Fitting: a depth profile first (:func:`patch_depth_profile` with the quadric patch, on the
-    grid ``nominal_depth_mm`` times 2^(k/2), k = -4..6), whose least-cost depth starts the free
-    fit of all eleven parameters (Levenberg-Marquardt, finite-difference Jacobian, scaled):
-    a global search in depth, along which the local fits of :func:`quadric_fit` from a flat
-    patch ran off on two-light renders. Then the observability of the depth (the relative
-    1-sigma of s from ``(J^T J)^-1`` with the residual variance floored at
-    ``TOL.photometric_noise_rel``, against ``TOL.depth_rel_sigma_max``), the misfit tests of
-    :func:`quadric_fit`, and, when the depth is observable, each light's specular point on the
-    fitted patch (its normal and depth: ``light_normals``, ``light_depths_mm``).
-
-    Uncertainty: each sigma is the largest over the plain ``s^2 (J^T J)^-1`` and the sandwich
-    (:func:`_patch_covariances`), with the depth's variance along the parameters' curved valley
-    beyond the local one added (:func:`_depth_valley`: two refits at the depth +-5 %, the
-    other parameters free), propagated to the apex's normal, the depth
-    (``depth_sigma_mm``) and each light's normal (``light_normal_sigmas_deg``, by central
-    differences of the specular points). A light's normal is the bisector at its specular
-    point, which the curvature and the depth move: its sigma was 20 to 40 times the apex's on
-    the ``lightaware-curved`` two-light spheres and cylinders, where the apex's alone covered
-    none of the per-light errors at 2 sigma and these 24 of 24 (3 seeds per case).
-
-    Notes
-    -----
-    Why the third-order terms, and why the rig: with one light, to first order in epsilon/d the
-    light's offset changes the lobe as the curvature's gradient over the patch does
-    (:func:`quadric_fit`, Notes), so with those terms free the fit's cost hardly changes with the
-    depth (on the ``lightaware-curved`` liver render at epsilon/d 0.1, seed 0: by less than
-    1e-4 of itself between half and twice the true depth, measured with
-    :func:`patch_depth_profile`), the status is ``depth_not_observable`` and the normal, the
-    bisector at an undetermined depth, is not used. Two lights on opposite sides of the lens (a
-    colonoscope's guides) shift their lobes in opposite directions while the surface's shape
-    acts on both alike, so the pair's separation and shapes fix the depth with the shape free.
-    On the suite's ``liver_two_lights`` renders (seed 0), guides 19.1 mm either side
-    (epsilon/d 0.3 each): the profile's least cost is at the true depth and rises by 49 % at
-    0.9 times it, 35 % at 1.1 times, and 26 and 13 times at half and twice it. The reported
-    ``normal`` is the apex's (the mean light's specular point; for a rig symmetric about the
-    lens, the camera-facing point, whose normal is its viewing ray); ``light_normals`` are the
-    normals where each light's highlight is, the ones a single-light truth compares with.
-
-    Where it breaks: at 6.4 mm (epsilon/d 0.1) the same liver profile rises 6.4 times at half
-    the depth and 35 % at 0.8 times, but stays within 6 % from the truth to twice it (its least
-    cost at 1.25 times): the depth is bounded from below only; over the suite's six
-    realisations the fits' depth errs by 11 % on average and the normal by 0.3 deg (median). A ROI that is not one smooth patch's lobes (the colon's fold
-    streaks, a lobe cut off) misfits (``patch_misfit``) or does not converge.
+    :func:`quadric_fit`'s patch plus the height function's third-order terms [2]_
+    ``(c_xxx x^3 + 3 c_xxy x^2 y + 3 c_xyy x y^2 + c_yyy y^3) / 6``, ``c = gamma / s^2``: eleven
+    parameters (a, b', log s, kappa, log n, gamma), the linear part by variable projection [3]_. A
+    coarse quadric depth profile (:data:`_PROFILE_FACTORS`) starts the free fit. Two lights on
+    opposite sides of the lens shift their lobes apart while the shape acts on both alike, which
+    fixes the depth; under one light it is not observable.
 
     Parameters
     ----------
     values, origin_uv, bp_uv, camera, rig, clip_level, nominal_depth_mm, max_pixels
-        As in :func:`photometric_fit`; ``nominal_depth_mm`` centres the profile's grid (0.25 to
-        8 times it).
+        As in :func:`photometric_fit`; ``nominal_depth_mm`` centres the profile's grid.
     start_roughness : float, optional
         Phong n of the flat start (default 50).
     max_nfev : int
         Evaluation budget per fit, in Jacobian evaluations.
+    misfit_sigma : bool
+        As :func:`quadric_fit`'s.
 
     Returns
     -------
     LightAwareEstimate
-        ``estimator="cubic_patch_fit"``, status ``ok``, ``depth_not_observable``,
-        ``patch_misfit``, ``not_converged`` or ``too_few_points``; ``distance_mm`` is the apex
-        depth s, ``depth_mm`` the same (the apex is the mean light's specular point),
-        ``light_normals`` (J, 3) and ``light_depths_mm`` (J,) when the depth is observable, and
+        ``estimator="cubic_patch_fit"``, status ``ok``, ``depth_not_observable``, ``patch_misfit``,
+        ``not_converged`` or ``too_few_points``; ``distance_mm`` and ``depth_mm`` the apex depth s (the
+        mean light's specular point); with an observable depth, each light's specular point
+        (``light_normals`` (J, 3), ``light_depths_mm`` (J,), ``light_normal_sigmas_deg``);
         ``depth_rel_sigma``.
 
     Raises
@@ -374,19 +281,15 @@ def cubic_patch_fit(values, origin_uv, bp_uv, camera, rig: LightRig, *,
 
     References
     ----------
-    .. [1] K. Makki, A. Bartoli, "Normal Reconstruction from Specularity in the Endoscopic
-           Setting", eqs. (1) and (2).
     .. [2] M. P. do Carmo, "Differential Geometry of Curves and Surfaces", Prentice-Hall, 1976,
            section 3-3 (the local height function and its Taylor terms).
-    .. [3] G. H. Golub, V. Pereyra, "The differentiation of pseudo-inverses and nonlinear least
-           squares problems whose variables separate", SIAM J. Numer. Anal. 10(2), 1973.
+    .. [3] G. H. Golub, V. Pereyra, SIAM J. Numer. Anal. 10(2), 1973. https://doi.org/10.1137/0710036
     """
     opt = require("scipy.optimize")  # when first needed: scipy slows the start
     name = "cubic_patch_fit"
     S = _cubic_setup(values, origin_uv, bp_uv, camera, rig, clip_level, max_pixels)
     if S is None:
-        return LightAwareEstimate(name, "too_few_points",
-                                  f"fewer than {2 * _CUBIC_PARAMS} unclipped pixels")
+        return LightAwareEstimate(name, "too_few_points", f"fewer than {2 * _CUBIC_PARAMS} unclipped pixels")
     depths = float(nominal_depth_mm) * _PROFILE_FACTORS
     cost, sol, nfev = _coarse_profile(S, depths, start_roughness, max_nfev)
     if not np.isfinite(cost).any():
@@ -404,22 +307,12 @@ def cubic_patch_fit(values, origin_uv, bp_uv, camera, rig: LightRig, *,
         return LightAwareEstimate(name, "not_converged", bad or r.message, n_evaluations=nfev)
     b_ray, Lm = S["b_ray"], S["Lm"]
     n_hat = _cubic_patch_geometry(b_ray[None], b_ray, x, Lm)[3]
-    r0, J = r.fun, r.jac
-    m_, k_ = J.shape
-    resid_var = float(r0 @ r0) / max(m_ - k_ - 4, 1)
-    covs = _patch_covariances(J, r0, resid_var, S["sel"], S["shape"], S["step"])
-    cov_floor = _covariance(J, max(resid_var, TOL.photometric_noise_rel**2))
     G = _apex_normal_gradient(b_ray, x, S["x_scale"], Lm)
-    rel_floor = None if cov_floor is None else float(np.sqrt(max(cov_floor[2, 2], 0.0)))
-    status, detail, observable, rms = _patch_verdict(
-        rel_floor, r0, S["sel"], S["shape"], S["step"], "",
+    status, detail, observable, rms, sigma_deg, valley, excess, depth_sigma, rel_floor, covs = _patch_uncertainty(
+        r, S, S["sel"], S["shape"], S["step"], x, G, misfit_sigma, max_nfev,
         "the ROI is not one patch's lobes (streaks along folds, a lobe cut off)")
-    sigma_deg, valley, excess, detail = _patch_sigma(status, detail, misfit_sigma, S, x, float(r0 @ r0),
-                                                     resid_var, covs, max_nfev, G)
     if status == "ok":
         detail = f"profile minimum at {depths[i0]:.4g} mm; {detail}"
-    depth_sigma = (float(s_hat * np.sqrt(max(max(c[2, 2] for c in covs), 0.0) + excess))
-                   if observable and covs else None)
     ln = ld = lsig = None
     if observable:
         ln, ld = _patch_specular_points(b_ray, x, Lm, S["rig_arr"][0])

@@ -10,7 +10,6 @@ from simtest.decisions import ON_PLANE_MM
 
 OK = "ok"
 
-
 #: Status of a light-aware estimate, with its meaning.
 STATUSES: dict[str, str] = {
     OK: "normal and depth estimated",
@@ -39,8 +38,7 @@ class LightAwareEstimate:
     Attributes
     ----------
     estimator : str
-        ``"bisector"``, ``"isocurve_fit"``, ``"photometric_fit"``, ``"quadric_fit"`` or
-        ``"cubic_patch_fit"``.
+        ``"bisector"``, ``"isocurve_fit"``, ``"photometric_fit"``, ``"quadric_fit"`` or ``"cubic_patch_fit"``.
     status : str
         A key of :data:`STATUSES`.
     detail : str
@@ -48,8 +46,7 @@ class LightAwareEstimate:
     normal : ndarray of shape (3,) or None
         Unit normal, OpenCV camera frame, facing the camera.
     depth_mm : float or None
-        Distance from the camera centre to the specular point (along its ray), mm; None when not
-        observable.
+        Distance from the camera centre to the specular point along its ray, mm; None when not observable.
     normal_sigma_deg : float or None
         1-sigma angular uncertainty of the normal (RMS angle), degrees.
     depth_sigma_mm : float or None
@@ -57,60 +54,37 @@ class LightAwareEstimate:
     distance_mm : float or None
         Fitted camera-to-plane distance h, mm (None when not observable).
     roughness : float or None
-        Fitted Phong roughness n (None when not fitted); for a GGX lobe (``lobe``), the Phong n of
-        the same peak curvature, ``2 / alpha^2 - 2``.
+        Fitted Phong roughness n; for a GGX lobe the Phong n of the same peak curvature.
     taus : ndarray of shape (K,) or None
         Fitted cosine level tau per isovalue (isocurve_fit).
     n_evaluations : int
         Model evaluations of the fit (0 for the closed form).
     residual_rms : float or None
-        RMS residual at the solution, in the fit's units (px for the isocurve fit; fraction of the
-        ROI's maximum for the photometric fit); a plane model meeting a curved patch leaves a
-        residual well above the sensor's noise.
+        RMS residual at the solution (px for the isocurve fit; fraction of the ROI's maximum otherwise).
     light_normals : ndarray of shape (J, 3) or None
-        :func:`cubic_patch_fit` only: the fitted patch's unit normal at the specular point of
-        each of the rig's J lights (where it bisects the directions to the camera and to that
-        light), OpenCV camera frame, facing the camera; None when the depth is not observable.
+        :func:`cubic_patch_fit`: the patch's unit normal at each light's specular point, camera frame.
     light_depths_mm : ndarray of shape (J,) or None
-        The distance from the camera centre to each of the rig's J lights' specular points on the
-        fitted surface, mm (:func:`photometric_fit`'s plane and :func:`cubic_patch_fit`'s patch,
-        under a rig of several lights; ``depth_mm`` is then the mean light's); None under one light
-        and when the depth is not observable.
+        Depth of each light's specular point, mm, under several lights (``depth_mm`` is the mean light's).
     depth_rel_sigma : float or None
-        :func:`quadric_fit` and :func:`cubic_patch_fit`: the relative 1-sigma of the fitted depth
-        with the residual variance floored at ``TOL.photometric_noise_rel`` (the quantity the
-        observability test compares with ``TOL.depth_rel_sigma_max``); None when J^T J is
-        singular.
+        Curved patches: the depth's relative 1-sigma with the residual variance floored at
+        ``TOL.photometric_noise_rel``; None when J^T J is singular.
     bp_ray_error_deg : float or None
-        The BP ray's expected error next to this fit, degrees: half the angle the rig's mean light
-        subtends from the camera at the specular point (at this fit's depth, or at the nominal
-        depth where the depth is not observable); set by
-        :func:`simtest.reconstruct.light_fits.light_aware_estimates`, whose recommendation keeps a
-        normal whose ``normal_sigma_deg`` is below it. None when not set.
+        The BP ray's expected error next to this fit, degrees (half the angle the mean light subtends
+        at the specular point); set by :func:`simtest.reconstruct.light_fits.light_aware_estimates`.
     lobe : str or None
-        :func:`photometric_fit`: the specular lobe of the model kept, ``"phong"`` or ``"ggx"``
-        (its ``lobe="auto"`` chooses by the residual's information criterion); None elsewhere.
+        :func:`photometric_fit`: the lobe of the model kept, ``"phong"`` or ``"ggx"``.
     n_residuals : int
-        :func:`photometric_fit`: the number of pixels fitted (the m of the criterion); 0 elsewhere.
+        :func:`photometric_fit`: the number of pixels fitted; 0 elsewhere.
     light_normal_sigmas_deg : ndarray of shape (J,) or None
-        :func:`cubic_patch_fit` only: the 1-sigma angular uncertainty of each of
-        ``light_normals``, degrees; None where those are.
+        :func:`cubic_patch_fit`: the 1-sigma of each of ``light_normals``, degrees.
     depth_range_mm : tuple of float or None
-        :func:`quadric_fit` under one light: the depths (near, far) of the specular point, mm,
-        that the data cannot exclude (the fitted depth within
-        :data:`~simtest.reconstruct.lightaware.patch.ONE_LIGHT_DEPTH_FACTOR` either way: the
-        third-order shape the quadric leaves out trades with the depth); the depth itself is
-        then None. None elsewhere.
+        :func:`quadric_fit` under one light: the depths (near, far), mm, the data cannot exclude
+        (:data:`~simtest.decisions.ONE_LIGHT_DEPTH_FACTOR`); the depth itself is then None.
     projection : str or None
-        :func:`photometric_fit` on three linear channels: the single image fitted,
-        ``"body_colours"`` (the specular image orthogonal to the ROI border's two body colours),
-        ``"least_fluctuation"`` (white kept, the leading body colour removed, the least of the
-        ROI's texture and noise let through) or ``"darkest_channel"``; None for a one-channel
-        input and elsewhere.
+        :func:`photometric_fit` on RGB: ``"body_colours"``, ``"least_fluctuation"`` or ``"darkest_channel"``.
     curvature_shift_deg : float or None
-        :func:`photometric_fit`: where its residual holds a curved patch's pattern that moves the
-        normal by no more than its sigma (a micro-relief's curvatures), the fit is kept and this
-        is that shift, degrees (already added to ``normal_sigma_deg``); None elsewhere.
+        :func:`photometric_fit`: the normal's shift by a curved pattern within its sigma, degrees,
+        already added to ``normal_sigma_deg``.
     """
 
     estimator: str
@@ -142,14 +116,12 @@ class LightAwareEstimate:
         return self.status == OK
 
     def without_depth(self, status: str, detail: str) -> "LightAwareEstimate":
-        """This estimate with its depth withdrawn (``depth_mm``, ``depth_sigma_mm``,
-        ``distance_mm`` and ``light_depths_mm`` None), its normal kept for the record.
+        """This estimate with ``depth_mm``, ``depth_sigma_mm``, ``distance_mm`` and ``light_depths_mm`` None.
 
         Parameters
         ----------
         status : str
-            The new status, a key of :data:`STATUSES` (``"plane_misfit"``,
-            ``"depth_not_observable"``, ...).
+            The new status, a key of :data:`STATUSES`.
         detail : str
             Why the depth is withdrawn.
         """
@@ -163,16 +135,10 @@ class LightAwareEstimate:
 
 
 def light_behind_surface(est: LightAwareEstimate, ray, lights_mm) -> LightAwareEstimate:
-    """``est``, or ``est`` refused (status ``light_behind_plane``) where its fitted surface puts a
-    light of the rig behind it.
+    """``est``, or ``est`` with status ``light_behind_plane`` where its fitted surface hides a light.
 
-    The fitted point is ``P = depth_mm * ray`` and the tangent plane's normal is ``normal``; a light
-    L is behind the surface where ``(L - P) . n`` and ``(C - P) . n`` (C = 0, the camera centre)
-    have opposite signs, by more than :data:`ON_PLANE_MM`: that light lights the far side of the
-    surface, and no highlight the camera sees comes from it. A fit landing there (a rig given
-    behind the tissue, a fit run off to a wrong patch) explains the image with an impossible
-    scene, whatever its residual; the plane fits check their own plane already, this checks every
-    estimator alike, the curved patches' tangent plane at their specular point included.
+    A light L is behind the surface at ``P = depth_mm * ray`` where ``(L - P) . n`` and the camera's
+    ``(0 - P) . n`` have opposite signs by more than :data:`ON_PLANE_MM`: it lights the far side.
 
     Parameters
     ----------
@@ -186,8 +152,7 @@ def light_behind_surface(est: LightAwareEstimate, ray, lights_mm) -> LightAwareE
     Returns
     -------
     LightAwareEstimate
-        ``est`` unchanged, or with status ``light_behind_plane``, the depth withdrawn and the
-        light named in ``detail``.
+        ``est`` unchanged, or with the depth withdrawn and the light named in ``detail``.
     """
     if est.normal is None or est.depth_mm is None:
         return est

@@ -15,16 +15,13 @@ from simtest.reconstruct.lightaware.model import _camera, _normal_derivs, _ray_l
 from simtest.reconstruct.lightaware.solve import _finish, _implausible, _solve, _start
 
 
-def refine_isophote_points(values, level: float, points_uv, origin_uv=(0.0, 0.0),
-                           iterations: int = 3) -> np.ndarray:
+def refine_isophote_points(values, level: float, points_uv, origin_uv=(0.0, 0.0), iterations: int = 3) -> np.ndarray:
     """Move contour points onto the level set of the cubic-spline interpolant of an image.
 
-    Marching squares interpolates linearly between pixel centres: on a smooth highlight its points
-    sit off the true isophote by a few hundredths of a pixel, inward on the convex side, enough to
-    bias the distance a light-aware fit reads from the isophote's shape. Each point takes Newton
-    steps ``p <- p - (f(p) - level) grad f / |grad f|^2`` on the cubic B-spline interpolant f of the
-    values (gradient by central differences of f, 0.25 px). Points whose step would exceed 1 px are
-    left where they were.
+    Marching squares' linear interpolation leaves points a few hundredths of a pixel inside a convex
+    isophote, which biases the distance a light-aware fit reads from its shape. Newton steps on the
+    cubic B-spline interpolant (gradient by central differences, 0.25 px); points whose step would
+    exceed 1 px stay where they were.
 
     Parameters
     ----------
@@ -66,16 +63,14 @@ def refine_isophote_points(values, level: float, points_uv, origin_uv=(0.0, 0.0)
 
 
 def _taus_of(q, n_tau, log_t) -> np.ndarray:
-    """The isophotes' levels tau_k of the level parameters ``q``: tau itself (one isophote), or
-    ``q = (1/n, log s)`` with ``tau_k = exp((log t_k - log s) / n)``."""
+    """The levels tau_k of ``q``: tau (one isophote), or ``exp((log t_k - log s) / n)``, ``q = (1/n, log s)``."""
     if n_tau == 1:
         return np.array([q[0]])
     return np.exp((log_t - q[1]) * q[0])  # q = (1/n, log s)
 
 
 def _pixel_weights(dT_pm, rl_pm, L, n, h) -> np.ndarray:
-    """Pixel-unit weights: 1 / |grad_px cos beta| at a start (central differences, 0.5 px, of
-    the rays ``dT_pm`` 0.5 px either side in u and v)."""
+    """Pixel-unit weights 1 / |grad_px cos beta| at a start, from the rays ``dT_pm`` 0.5 px either side."""
     cu, cu2, cv, cv2 = _terms(dT_pm, n, h, L, rl_pm)[0].reshape(4, -1)
     grad = np.hypot(cu - cu2, cv - cv2)
     k = len(grad) // 2  # the median, by partition (np.median's own overhead is 5x that)
@@ -85,8 +80,7 @@ def _pixel_weights(dT_pm, rl_pm, L, n, h) -> np.ndarray:
 
 
 def _tau_start(cb0, kidx, n_members, log_t, n_tau, wts):
-    """Levels from the mean cos beta ``cb0`` of each point set at a start plane, and the start's
-    cost."""
+    """Levels from the mean cos beta ``cb0`` of each point set at a start plane, and the start's cost."""
     tau0 = np.clip(np.bincount(kidx, weights=cb0, minlength=len(log_t)) / n_members, 1e-3,
                    1 - 1e-9)  # the mean cos beta of each point set
     if n_tau == 1:
@@ -102,21 +96,16 @@ def _tau_start(cb0, kidx, n_members, log_t, n_tau, wts):
     return q, float(r @ r)
 
 
-def isocurve_fit(points_uv, isovalues, bp_uv, camera, rig: LightRig, *,
-                 nominal_depth_mm: float = 20.0, start_normal=None,
-                 loss: str = "soft_l1", f_scale_px: float = 0.5,
+def isocurve_fit(points_uv, isovalues, bp_uv, camera, rig: LightRig, *, nominal_depth_mm: float = 20.0,
+                 start_normal=None, loss: str = "soft_l1", f_scale_px: float = 0.5,
                  max_points_per_isophote: int | None = 64, n_start_depths: int = 0,
                  max_nfev: int = 200) -> LightAwareEstimate:
     """Fit the general specular isocurve (paper eq. 2) with a calibrated light to isophote points.
 
-    Each contour point is a ray; the plane (n, h) puts it at ``X = d h / (-n . d)`` where its
-    ``cos beta`` (package docstring) should equal its isovalue's level tau. Residuals are
-    ``(cos beta_i - tau_k) / |grad cos beta_i|``, the distance in pixels to the model isophote at
-    first order (gradient in px taken at the start). One isovalue: tau is free. Two or more
-    (nested isophotes): ``log tau_k = (log t_k - log s) / n``, tying the levels through the
-    roughness n and the peak-to-BP ratio s, both fitted. Levenberg-Marquardt (MINPACK through
-    :func:`scipy.optimize.leastsq`, analytic Jacobian, cos beta in a few operations per point:
-    ``_terms``) with a robust loss (``soft_l1``) by one reweighting (``_solve``).
+    Each contour point is a ray meeting the plane (n, h); its residual is
+    ``(cos beta_i - tau_k) / |grad cos beta_i|``, the distance in px to the model isophote at first
+    order. One isovalue: tau is free; several: ``log tau_k = (log t_k - log s) / n`` ties them through
+    the roughness n. Levenberg-Marquardt with a robust loss by one reweighting.
 
     Parameters
     ----------
@@ -129,22 +118,19 @@ def isocurve_fit(points_uv, isovalues, bp_uv, camera, rig: LightRig, *,
     camera : array_like of shape (3, 3) or CameraModel
         Intrinsics K, or a camera model with ``pixel_to_ray``.
     rig : LightRig
-        Exactly one light (eq. 2 is a one-light model; its falloff and profile are ignored: the
-        model is exact for a light without falloff).
+        Exactly one light (its falloff and profile are ignored).
     nominal_depth_mm : float
         Depth of the BP assumed for the start's bisector, mm.
     start_normal : array_like of shape (3,), optional
         Start normal (e.g. the cone axis) in place of the bisector.
     loss : str
-        ``soft_l1``, ``huber``, ``cauchy`` (the weights of the
-        :func:`scipy.optimize.least_squares` losses of those names) or ``linear``.
+        ``soft_l1``, ``huber``, ``cauchy`` or ``linear``.
     f_scale_px : float
         Soft margin of the robust loss, px.
     max_points_per_isophote : int or None
-        Keep every k-th point of a longer contour (speed; None keeps all).
+        Keep every k-th point of a longer contour (None keeps all).
     n_start_depths : int
-        Starts tried along the BP's constraint (depths nominal/8 to nominal*8), besides the given
-        start; the one of least cost is refined (0: only the given start).
+        Further starts along the BP's constraint (nominal/8 to nominal*8); the cheapest is refined.
     max_nfev : int
         Evaluation budget.
 
@@ -213,7 +199,7 @@ def isocurve_fit(points_uv, isovalues, bp_uv, camera, rig: LightRig, *,
         return r, JT.T
 
     def tau_start(n, h):
-        """Levels from the mean cos beta of each point set at (n, h), and the start's cost."""
+        """Levels and start cost at (n, h)."""
         return _tau_start(_terms(dT, n, h, L, rl)[0], kidx, n_members, log_t, n_tau, wts)
 
     # start: the given one and planes along the BP's constraint (as in photometric_fit)

@@ -1,9 +1,8 @@
-"""The image model of a highlight lit by a rig: rays, the rig's lobes on a plane, their derivatives.
+"""The forward model of a highlight lit by a rig (package docstring, "Model").
 
-Everything here is the forward model (the package docstring's "Model"): the viewing rays of a camera,
-the rig's arrays, cos beta of each light on a plane along each ray (:func:`_terms`), the rig's
-specular image and its gradient in (a, b, log h, log n) (:func:`_rig_value`, :func:`_rig_grad`),
-the specular point's depth and its gradient, and the ROI's pixel grid the fits sample.
+Viewing rays, the rig's arrays, cos beta of each light on a plane, the rig's Phong and GGX images
+and their gradients in (a, b, log h, log n), the diffuse shading, the specular point's depth and
+the ROI's pixel grid the fits sample.
 """
 
 from __future__ import annotations
@@ -81,34 +80,19 @@ def specular_point_depth(normal, distance_mm: float, light_mm) -> float:
 
 
 def _ray_light(L, dT):
-    """``(Ld, K2)``: ``L . d`` and ``|L|^2 - (L . d)^2`` (the light's squared distance from the
-    ray's line) per ray, for lights L (3,) or (J, 3) and unit rays ``dT`` (3, N): (N,) or (J, N)."""
+    """``(L . d, |L|^2 - (L . d)^2)`` per ray for lights L (3,) or (J, 3), unit rays ``dT`` (3, N)."""
     Ld = L @ dT
     LL = (L * L).sum(axis=-1)
     return Ld, np.maximum((LL if np.ndim(LL) == 0 else LL[:, None]) - Ld * Ld, 0.0)
 
 
 def _terms(dT, n, h, L, rl, P=None, dns=None, ds=None):
-    """cos beta of one light on the plane (n, h) along unit rays, and its derivatives.
+    """cos beta of one light on the plane (n, h) along unit rays ``dT`` (3, N), and its derivatives.
 
-    The rays are given transposed, ``dT`` (3, N) (each operation then runs along N), with
-    ``rl = (Ld, K2)`` of :func:`_ray_light` (they depend on the rays only). Returns
-    ``cb (N,)``, the pieces ``delta = -d . n``, ``s = |X|``, ``sl = s - Ld``, ``ir = 1 / r`` with
-    ``r = |L - X|`` (each (N,)), ``c = n . L + h``, and, when the normal's derivatives ``dns``
-    (two (3,) vectors) are given, ``dcb (3, N)`` with respect to (a, b, log h) (``P = [dn_a,
-    dn_b] @ dT`` (2, N) may be given too); else None. ``ds``: the plane's ``(delta, s)`` if at hand.
-
-    Notes
-    -----
-    The plane point is ``X = s d`` with ``s = h / delta``. Then
-    ``r^2 = |L|^2 - 2 s Ld + s^2 = (s - Ld)^2 + K2``, ``n . (L - X) = n . L + s delta = c`` and
-    ``(L - X) . d = Ld - s``, so ``cos beta = 2 (n . l)(n . v) - l . v = (2 c delta + Ld - s) / r``
-    (package docstring): a few operations per ray, no per-ray vectors. A change (dn, dh) gives
-    ``d delta = -d . dn``, ``ds = (dh - s d delta) / delta``, ``dr = ds (s - Ld) / r``,
-    ``dc = dn . L + dh`` and ``d cos beta = (2 (dc delta + c d delta) - ds - cb dr) / r``
-    ``= (2 (dc delta + c d delta) - q ds) / r`` with ``q = 1 + cb (s - Ld) / r``. For a and b
-    (dh = 0, d delta = -P): ``(2 delta dc - P (2 c + q s / delta)) / r``; for log h (dn = 0,
-    dh = h, ds = s): ``(2 h delta - q s) / r``.
+    ``rl = (Ld, K2)`` of :func:`_ray_light`. Returns ``(cb, delta, s, sl, ir, c, dcb)``: ``delta = -d . n``,
+    ``s = |X| = h / delta``, ``sl = s - Ld``, ``ir = 1 / |L - X|``, ``c = n . L + h``,
+    ``cb = (2 c delta - sl) ir`` and, given the normal's derivatives ``dns``, ``dcb`` (3, N) in
+    (a, b, log h) (else None); ``P = dns @ dT`` and ``ds = (delta, s)`` may be passed if at hand.
     """
     Ld, K2 = rl
     delta = np.maximum((-n) @ dT, 1e-9) if ds is None else ds[0]
@@ -133,23 +117,20 @@ def _terms(dT, n, h, L, rl, P=None, dns=None, ds=None):
 
 
 def _normal_derivs(p, n0, e1, e2):
-    """Normal ``unit(n0 + a e1 + b e2)`` and its derivatives with respect to a and b."""
+    """Normal ``unit(n0 + a e1 + b e2)`` and its derivatives in a and b."""
     m = n0 + p[0] * e1 + p[1] * e2
     nm = np.sqrt(m @ m)
     n = m / nm
     return n, ((e1 - n * (n @ e1)) / nm, (e2 - n * (n @ e2)) / nm)
 
 
-#: Below this cos beta a lobe is taken as 0 (``cb^n`` < 1e-200 for n >= 1): its derivative
-#: ``n cb^(n-1)`` is then formed without dividing by a denormal.
+#: Below this cos beta a lobe is taken as 0, so its derivative never divides by a denormal.
 _CB_FLOOR = 1e-200
 
 
 def _rig_geometry(dT, rl, n, h, rig_arr) -> list:
-    """Per light, the pieces of :func:`_rig_value` that do not depend on the roughness (one
-    plane at several roughnesses): ``(cb, cbp, lcb, pos, delta, s, sl, ir, c, cp, raw, f, p)``,
-    ``raw`` the profile's cos theta before its floor, ``f`` the falloff ``(h / r)^2`` and ``p`` the
-    profile ``cp^m`` (None where the light has none)."""
+    """Per light, the roughness-free pieces of :func:`_rig_value`:
+    ``(cb, cbp, lcb, pos, delta, s, sl, ir, c, cp, raw, f, p)`` (f falloff, p profile; None where absent)."""
     L, w, inv_sq, m = rig_arr
     geo = []
     for j in range(len(w)):
@@ -164,11 +145,8 @@ def _rig_geometry(dT, rl, n, h, rig_arr) -> list:
 
 
 def _rig_value(dT, rl, n, h, rig_arr, rough, geo=None):
-    """``S = sum_j w_j max(0, cb_j)^n f_j p_j`` (N,) and the per-light pieces its gradient needs.
-
-    ``dT`` (3, N) the unit rays transposed, ``rl`` the :func:`_ray_light` of the rig's lights
-    (each (J, N)); ``geo``: :func:`_rig_geometry` if at hand. See :func:`_rig_grad` for the derivatives.
-    """
+    """``S = sum_j w_j max(0, cb_j)^n f_j p_j`` (N,) and the per-light pieces :func:`_rig_grad` needs. ``dT`` (3, N)
+    unit rays transposed, ``rl`` the rig's :func:`_ray_light`; ``geo``: :func:`_rig_geometry` if at hand."""
     w = rig_arr[1]
     S = np.zeros(dT.shape[1])
     parts = []
@@ -189,17 +167,8 @@ def _rig_value(dT, rl, n, h, rig_arr, rough, geo=None):
 
 
 def _rig_grad(dT, parts, n, dns, h, rig_arr, rough):
-    """``dS`` (4, N) of :func:`_rig_value` with respect to (a, b, log h, log n).
-
-    Notes
-    -----
-    Per light, ``d log(val) = n d cb / cb + d log f + d log p`` with ``f = (h / r)^2``
-    (``d log f = 2 dh / h - 2 dr / r``) and ``p = cp^m``, ``cp = (s d_z - L_z) / r``
-    (``d log p = m (ds d_z / (r cp) - dr / r)``), and ``d val / d log n = val n log cb``. With
-    the derivatives of :func:`_terms` (``dr = ds (s - Ld) / r``, ``ds = s P / delta`` and
-    ``d delta = -P`` for a and b, ``ds = s`` for log h) each row is ``val`` times a sum of
-    per-ray factors.
-    """
+    """``dS`` (4, N) of :func:`_rig_value` in (a, b, log h, log n). Per light
+    ``d log val = n d cb / cb + d log f + d log p``, with the derivatives of :func:`_terms`."""
     L, w, inv_sq, m = rig_arr
     P = np.array(dns) @ dT
     dS = np.zeros((4, dT.shape[1]))
@@ -223,22 +192,17 @@ def _rig_grad(dT, parts, n, dns, h, rig_arr, rough):
 
 
 def _rig_image(d, n, dns, h, rig_arr, rough, grad=True):
-    """``S = sum_j w_j max(0, cb_j)^n f_j p_j`` (N,) and ``dS`` (N, 4) w.r.t. (a, b, log h, log n).
-
-    ``d`` (N, 3) unit rays.
-    """
+    """``S`` (N,) of the rig's Phong image along unit rays ``d`` (N, 3), and ``dS`` (N, 4) in (a, b, log h, log n)."""
     dT = np.ascontiguousarray(np.asarray(d, dtype=np.float64).T)
     rl = _ray_light(rig_arr[0], dT)
     S, parts = _rig_value(dT, rl, n, h, rig_arr, rough)
     return S, (_rig_grad(dT, parts, n, dns, h, rig_arr, rough).T if grad else None)
 
 
-def plane_rig_intensity(rays: np.ndarray, normal, distance_mm: float, rig: LightRig,
-                        roughness: float) -> np.ndarray:
+def plane_rig_intensity(rays: np.ndarray, normal, distance_mm: float, rig: LightRig, roughness: float) -> np.ndarray:
     """Specular image of a plane lit by a rig, along given rays (unit gain, no background).
 
-    ``sum_j w_j max(0, cos beta_j)^n f_j p_j`` (package docstring), with
-    ``f_j = (h / |L_j - X|)^2`` for inverse-square lights and ``p_j = max(0, cos theta_j)^m_j``.
+    ``sum_j w_j max(0, cos beta_j)^n f_j p_j`` (package docstring).
 
     Parameters
     ----------
@@ -265,13 +229,9 @@ def plane_rig_intensity(rays: np.ndarray, normal, distance_mm: float, rig: Light
 
 
 def _distance_for_bp(ray: np.ndarray, n: np.ndarray, L: np.ndarray) -> float | None:
-    """Plane distance h for which a plane of normal n has its specular point on the BP ray.
-
-    The specular point is ``X_s ∝ L' = L0 - 2 h n`` with ``L0 = L - 2 (n . L) n`` (the mirror image
-    of L in the plane through the camera centre), so it lies on the ray b when L' is parallel to b:
-    with ``P = I - b b^T``, ``h = (P L0) . (P n) / (2 |P n|^2)`` (least squares on the component
-    of L' across the ray). None if the result is not > 0 (then no such plane faces the light).
-    """
+    """Plane distance h at which the plane of normal n has its specular point on the BP ray. Least squares on the
+    component of ``L' = L0 - 2 h n`` across the ray (``L0`` the mirror image of L in the plane through the camera
+    centre). None if not > 0."""
     L0 = L - 2.0 * (n @ L) * n
     pn = n - (ray @ n) * ray  # P n
     den = 2.0 * (pn @ pn)
@@ -282,36 +242,20 @@ def _distance_for_bp(ray: np.ndarray, n: np.ndarray, L: np.ndarray) -> float | N
 
 
 def _log_depth_gradient(n, h, Lm, basis=None) -> np.ndarray:
-    """d log(depth) / d(a, b, log h) about (n, h), the tangent basis of :func:`plane_basis` (3,).
-
-    ``basis``: that basis (e1, e2) when already at hand.
-
-    Notes
-    -----
-    With ``k = n . L + h`` (> 0: the light in front of the plane), the mirror image is
-    ``L' = L - 2 k n``, so ``-n . L' = k + h`` and ``|L'|^2 = |L|^2 + 4 k h``, and the depth of
-    :func:`specular_point_depth` is ``D = h sqrt(|L|^2 + 4 k h) / (k + h)``. About n the normal
-    moves by ``dn = e1 da + e2 db`` (n unit, e1 and e2 orthogonal to it), so
-    ``d log D / da = (e1 . L) (2 h / (|L|^2 + 4 k h) - 1 / (k + h))`` (and e2 for b), and with
-    ``dh = dk = h d log h``: ``d log D / d log h = 1 + 2 h (h + k) / (|L|^2 + 4 k h) - 2 h / (k + h)``.
-    NaN with the light behind the plane.
-    """
+    """d log(depth) / d(a, b, log h) about (n, h) in the tangent basis of :func:`plane_basis` (3,). From
+    ``D = h sqrt(|L|^2 + 4 k h) / (k + h)``, ``k = n . L + h``; NaN with the light behind the plane."""
     e1, e2 = plane_basis(n) if basis is None else basis
     k = float(n @ Lm) + h
     if not k > 0:
         return np.full(3, np.nan)
     q = float(Lm @ Lm) + 4.0 * k * h
     ga = 2.0 * h / q - 1.0 / (k + h)
-    return np.array([float(e1 @ Lm) * ga, float(e2 @ Lm) * ga,
-                     1.0 + 2.0 * h * (h + k) / q - 2.0 * h / (k + h)])
+    return np.array([float(e1 @ Lm) * ga, float(e2 @ Lm) * ga, 1.0 + 2.0 * h * (h + k) / q - 2.0 * h / (k + h)])
 
 
 def _roi_samples(vals, o, uu, vv, keep, max_pixels):
-    """The ROI pixels a photometric fit uses: every kept pixel, or a regular sub-grid of them.
-
-    Returns ``(sel, step, uv, y)``: flat indices of the used pixels, the sub-grid step (1: every
-    pixel), their (u, v) image positions (N, 2) in pixels and their values (N,).
-    """
+    """The ROI pixels a photometric fit uses: every kept pixel, or a regular sub-grid of them. Returns
+    ``(sel, step, uv, y)``: flat indices, sub-grid step, (u, v) positions (N, 2), values (N,)."""
     sel = np.flatnonzero(keep)
     step = 1
     if max_pixels and len(sel) > max_pixels:  # a regular sub-grid of the ROI
@@ -327,17 +271,10 @@ def _roi_samples(vals, o, uu, vv, keep, max_pixels):
 def albedo_lines(luma_roi, step: float = 1.0, noise: float = 0.0) -> np.ndarray:
     """The pixels of the tissue albedo's thin dark lines (vessels) in an ROI of a frame's luma.
 
-    The wet film reflects the light above the tissue, so its lobe is smooth, its level sets
-    discs or ellipses, with no dark line of its own; the vessels darken the diffuse shading
-    beneath it in lines a few pixels wide. Where a fit cannot project the tissue's body colours
-    out (a JPEG frame's chroma, subsampled and quantised: the darkest channel's fit), those lines
-    are left out of it: the pixels whose black top-hat (the closing by a disc of
-    :data:`ALBEDO_LINE_PX` px, minus the image) is at least ``max(ALBEDO_LINE_STEPS * step, 3 *
-    noise)``, grown by one pixel (the line's blurred edge), none within the disc's radius of the
-    ROI's border (where the closing sees past the ROI). A lone lobe is its own closing (flat
-    morphology commutes with thresholds, and a convex level set is closed under a disc), so it
-    loses nothing (``test_a_lone_lobe_holds_no_albedo_line``: 8-bit elliptical Gaussians 2 to
-    40 px wide); the saddle between two lobes nearer than the disc's width is taken for a line.
+    The film's lobe is smooth with convex level sets, so it survives a closing; vessels are the
+    pixels whose black top-hat (closing by a disc of :data:`ALBEDO_LINE_PX` px) is at least
+    ``max(ALBEDO_LINE_STEPS * step, 3 * noise)``, grown by one pixel, none within the disc's radius
+    of the ROI's border. Two lobes closer than the disc leave their saddle marked as a line.
 
     Parameters
     ----------
@@ -367,17 +304,8 @@ def albedo_lines(luma_roi, step: float = 1.0, noise: float = 0.0) -> np.ndarray:
 
 
 def _roi_grid(values, camera, origin_uv, clip_level):
-    """The ROI of a photometric fit: checked values, camera model, origin, pixel grid, unclipped mask.
-
-    Returns ``vals`` (H, W) float64, the camera model, ``o`` (2,) the ROI's top-left pixel (u, v),
-    ``uu, vv`` (H, W) the column and row indices, and ``keep`` (H, W) bool (``vals < clip_level``,
-    all True without a clip level).
-
-    Raises
-    ------
-    ValueError
-        A values array that is not 2-D and finite.
-    """
+    """The ROI of a photometric fit: ``(vals, camera, o, uu, vv, keep)``, ``o`` the top-left pixel, ``keep``
+    ``vals < clip_level``. Raises ValueError for values that are not a finite 2-D array."""
     vals = np.asarray(values, dtype=np.float64)
     if vals.ndim != 2 or not np.isfinite(vals).all():
         raise ValueError(f"values: need a finite (H, W) array, got shape {vals.shape}")
@@ -390,16 +318,9 @@ def _roi_grid(values, camera, origin_uv, clip_level):
 
 
 def _rig_diffuse(dT, rl, n, h, rig_arr, terms=None, keep=None) -> np.ndarray:
-    """The rig's Lambertian shading of the plane (n, h) along unit rays ``dT`` (3, N): (N,).
-
-    ``D = sum_j w_j max(0, n . l_j) f_j p_j`` with ``l_j`` the unit direction from the plane point
-    to light j, ``f_j = (h / r_j)^2`` for an inverse-square light (1 otherwise) and ``p_j`` its
-    ``cos^m`` profile about +z, the same falloff and profile as the specular lobes of
-    :func:`_rig_value` (unit albedo; the fit's linear part scales it). From the pieces of
-    :func:`_terms`: ``n . (L - X) = c`` so ``n . l = c / r``; ``terms``: each light's ``_terms[:6]``
-    if at hand (and :func:`_rig_geometry`'s ``raw, f``); ``keep``: a list given each light's term
-    of D and ``cos theta`` (or None).
-    """
+    """The rig's Lambertian shading ``sum_j w_j max(0, n . l_j) f_j p_j`` of the plane (n, h), (N,). Unit albedo, the
+    lobes' falloff and profile; ``terms``: each light's ``_terms[:6]`` if at hand; ``keep``: a list that receives each
+    light's ``(term, cos theta)``."""
     L, w, inv_sq, m = rig_arr
     terms = [_terms(dT, n, h, L_, (rl[0][j], rl[1][j]))[:6] for j, L_ in enumerate(L)] if terms is None else terms
     D = np.zeros(dT.shape[1])
@@ -415,18 +336,8 @@ def _rig_diffuse(dT, rl, n, h, rig_arr, terms=None, keep=None) -> np.ndarray:
 
 
 def _rig_diffuse_grad(dT, rl, p, nb, e1, e2, rig_arr, at=None) -> np.ndarray:
-    """The derivatives of :func:`_rig_diffuse` in (a, b, log h) about ``p`` (the plane
-    ``unit(nb + a e1 + b e2)`` at ``h = exp(p[2])``): (3, N); ``at``: its ``(n, dns, terms)`` if at hand,
-    or ``(n, dns, terms, keep)`` with the shading's ``keep`` list.
-
-    Notes
-    -----
-    Per light, ``val = w c / r (h / r)^2 cp^m`` (the falloff's factor for an inverse-square light
-    only) with ``c = n . L + h`` one number per plane, so
-    ``d log val = dc / c - (1 + 2) dr / r + 2 dh / h + m (ds d_z / (r cp) - dr / r)``, and with the
-    pieces of :func:`_terms`: ``dr / r = ds (s - Ld) / r^2``, ``ds = s P / delta`` for a and b
-    (``P = dn . d``, ``dc = dn . L``) and ``ds = s`` for log h (``dc = dh = h``).
-    """
+    """The derivatives (3, N) of :func:`_rig_diffuse` in (a, b, log h) about ``p``. ``at``: ``(n, dns, terms)`` or
+    ``(n, dns, terms, keep)`` if at hand."""
     L, w, inv_sq, m = rig_arr
     h = float(np.exp(p[2]))
     if at is None:
@@ -453,23 +364,9 @@ def _rig_diffuse_grad(dT, rl, p, nb, e1, e2, rig_arr, at=None) -> np.ndarray:
 
 
 def _curvature_columns(dT, rl, n, h, rig_arr, rough, apex) -> np.ndarray:
-    """The derivatives (3, N) of the rig's Phong image of a curved patch in its three curvatures,
-    at zero curvature: the patch the plane (n, h), bent about ``apex`` (a point of the plane, the
-    tangent basis t1, t2 of :func:`plane_basis`) as the quadric patch of
-    :func:`~simtest.reconstruct.lightaware.patch.quadric_fit` is
-    (``z + (k_xx x^2 + 2 k_xy x y + k_yy y^2) / 2 = 0``), each up to a constant factor.
-
-    Notes
-    -----
-    To first order in the curvatures a pixel's surface point moves along its ray by
-    ``ds = q / (2 delta)`` (``q = k_xx x^2 + 2 k_xy x y + k_yy y^2``, (x, y) the plane point's
-    coordinates about the apex, ``delta = -n . d``) and its normal tilts by
-    ``dn = (k_xx x + k_xy y) t1 + (k_xy x + k_yy y) t2``. With the point held,
-    ``d cos beta = 2 delta (dn . l) - 2 (n . l) (dn . d)`` (``cos beta = 2 (n . l)(n . v) - l . v``,
-    v = -d); with the normal held, ``d cos beta / ds = (2 delta^2 - 1 - cos beta (s - Ld) / r) / r``
-    (:func:`_terms`' pieces, ``n . (L - X)`` growing by ``delta ds``), and the falloff and
-    profile change with ds as in :func:`_rig_grad`. Columns k_xx, k_xy, k_yy.
-    """
+    """The derivatives (3, N) of the rig's Phong image in the curvatures (k_xx, k_xy, k_yy) at zero, the
+    plane (n, h) bent about ``apex`` as :func:`~simtest.reconstruct.lightaware.patch.quadric_fit`'s
+    patch (each column up to a constant factor)."""
     L, w, inv_sq, m = rig_arr
     t1, t2 = plane_basis(n)
     A1, A2 = t1 @ dT, t2 @ dT
@@ -505,31 +402,30 @@ def _fresnel_dielectric(cos_i, eta):
 
 
 def _rig_value_ggx(dT, rl, n, h, rig_arr, alpha, ior: float = GGX_FILM_IOR, parts=None):
-    """The rig's GGX lobes under a dielectric film on the plane (n, h) along unit rays ``dT`` (3, N).
-
-    ``S = sum_j w_j F(v . m) D(m) G1(v) G1(l_j) / (4 n . v) f_j p_j``: the radiance of the
-    renderer's wet film (:func:`simtest.render.tissue.specular_lobe`, ``lobe = "ggx"``: Walter et
-    al. 2007, eqs. 25-34, with Smith's G) lit by each light, its BRDF times ``n . l`` times the
-    light's falloff ``f_j = (h / r_j)^2`` and profile ``p_j`` (as :func:`_rig_value`'s), for the
-    half-vector ``m = unit(v + l_j)``, v the direction to the camera. From the pieces of
-    :func:`_terms`: ``n . v = delta``, ``n . l = c / r``, ``v . l = (s - Ld) / r``, so
-    ``n . m = (delta + c / r) / sqrt(2 + 2 v . l)`` and ``v . m = sqrt((1 + v . l) / 2)``.
-    ``parts``: a list given each light's pieces, for :func:`_rig_grad_ggx`.
-
-    Returns
-    -------
-    ndarray of shape (N,)
-        0 where the light or the camera is below the plane.
-    """
-    return _ggx_sum(dT, rl, n, h, rig_arr, alpha, ior, _ggx_lobe, parts)
+    """The rig's GGX lobes under a dielectric film on the plane (n, h) along unit rays ``dT`` (3, N):
+    ``S = sum_j w_j F D G1(v) G1(l_j) / (4 n . v) f_j p_j``, the renderer's wet film
+    (:func:`simtest.render.tissue.specular_lobe`); ``parts`` receives each light's pieces."""
+    L, w, inv_sq, m = rig_arr
+    # a product, not ``** 2``: a run-off trial alpha overflows to inf (rejected) where ``** 2`` raises
+    a2 = float(alpha) * float(alpha)
+    S = np.zeros(dT.shape[1])
+    for j in range(len(w)):
+        _, delta, s, sl, ir, c, _ = _terms(dT, n, h, L[j], (rl[0][j], rl[1][j]))
+        F = _fresnel_of_vl(sl * ir, ior)
+        val = _ggx_lobe(delta, s, sl, ir, c, a2, ior, F)
+        scaled = val * ((h * ir) * (h * ir)) if inv_sq[j] else val  # falloff and profile
+        if m[j] > 0:
+            scaled = scaled * np.maximum((s * dT[2] - L[j, 2]) * ir, 1e-12) ** m[j]
+        scaled = w[j] * scaled
+        S += scaled
+        if parts is not None:
+            parts.append((delta, s, sl, ir, c, val, F, scaled))
+    return S
 
 
 def _ggx_lobe(delta, s, sl, ir, c, a2, ior, F=None):
-    """One light's film lobe along the rays, before falloff and profile (Walter et al. 2007,
-    eqs. 25-34, doi:10.2312/EGWR/EGSR07/195-206, with Smith's G1 and the exact dielectric Fresnel
-    factor): ``F(v . m) D(m) G1(v) G1(l) / (4 n . v)``, 0 where the light or the camera is below
-    the plane. ``delta, s, sl, ir`` (N,) and ``c`` are :func:`_terms`' pieces; ``F`` Fresnel's
-    factor (:func:`_fresnel_of_vl`) if at hand."""
+    """One light's film lobe before falloff and profile: ``F D G1(v) G1(l) / (4 n . v)`` (Walter et al.
+    2007, doi:10.2312/EGWR/EGSR07/195-206), 0 below the plane; ``F`` the Fresnel factor if at hand."""
     cos_o = c * ir
     vl = sl * ir
     hv = np.sqrt(np.maximum(2.0 + 2.0 * vl, 1e-300))
@@ -547,58 +443,20 @@ def _ggx_lobe(delta, s, sl, ir, c, a2, ior, F=None):
     return val
 
 
-def _ggx_sum(dT, rl, n, h, rig_arr, alpha, ior, lobe, parts=None):
-    """The sum over the rig's lights of ``lobe``'s values times each light's falloff and
-    profile (:func:`_rig_value_ggx`; ``parts`` its list of each light's pieces)."""
-    L, w, inv_sq, m = rig_arr
-    # a product, not ``** 2``: a fit's trial roughness that runs off (a lobe broader than the
-    # ROI) overflows to inf, which the fits reject as a non-finite model, where ``** 2`` raises
-    a2 = float(alpha) * float(alpha)
-    S = np.zeros(dT.shape[1])
-    for j in range(len(w)):
-        _, delta, s, sl, ir, c, _ = _terms(dT, n, h, L[j], (rl[0][j], rl[1][j]))
-        cp = np.maximum((s * dT[2] - L[j, 2]) * ir, 1e-12) if m[j] > 0 else None
-        F = _fresnel_of_vl(sl * ir, ior)
-        val = lobe(delta, s, sl, ir, c, a2, ior, F)
-        scaled = w[j] * _lobe_scale(val, h, ir, inv_sq[j], cp, m[j])
-        S += scaled
-        if parts is not None:
-            parts.append((delta, s, sl, ir, c, val, F, scaled))
-    return S
-
-
 def _fresnel_of_vl(vl, ior):
-    """Fresnel's reflectance at the half-vector, ``F(v . m)`` with ``v . m = sqrt((1 + v . l) / 2)``,
-    as :func:`_ggx_lobe` forms it from ``vl = v . l``."""
+    """Fresnel's reflectance ``F(v . m)``, ``v . m = sqrt((1 + v . l) / 2)``, from ``vl = v . l``."""
     return _fresnel_dielectric(np.sqrt(np.clip(0.5 * (1.0 + vl), 0.0, 1.0)), ior)
 
 
-#: Step in ``v . l`` of :func:`_rig_grad_ggx`'s central difference of Fresnel's factor (a smooth
-#: function of one variable: its error is near 1e-14, far below the fit's resolution).
+#: Step in ``v . l`` of :func:`_rig_grad_ggx`'s central difference of Fresnel's factor.
 _FRESNEL_STEP = 1e-6
 
 
 def _rig_grad_ggx(dT, rl, n, dns, h, rig_arr, alpha, ior: float = GGX_FILM_IOR, parts=None) -> np.ndarray:
-    """``dS`` (4, N) of :func:`_rig_value_ggx` in (a, b, log h, log alpha); ``parts``: its ``parts`` if at hand.
-
-    Notes
-    -----
-    Per light, ``log val = log F + log D + log G1(v) + log G1(l) - log(4 n . v) + log f + log p``
-    (the film lobe of :func:`_rig_value_ggx`, falloff ``f = (h / r)^2``, profile ``p = cp^m``), so
-    ``d val = val (sum of the terms' logarithmic derivatives)``. The pieces, from :func:`_terms`'
-    (``d delta = -P``, ``ds = s P / delta`` for a and b; ``ds = s``, ``dc = h`` for log h;
-    ``dc = dn . L`` for a and b): ``d r^-1 = -r^-3 (s - Ld) ds``, ``d cos_o = dc / r + c d r^-1``
-    (``cos_o = n . l``), ``d vl = ds / r + (s - Ld) d r^-1`` (``vl = v . l``), the half-vector's
-    ``cos_h = (delta + cos_o) / sqrt(2 + 2 vl)``; GGX's ``d log D / d cos_h = -4 (a2 - 1) cos_h / t``
-    with ``t = cos_h^2 (a2 - 1) + 1`` and ``d log D / d a2 = 1 / a2 - 2 cos_h^2 / t``; Smith's
-    ``G1(x) = 2 / (1 + u)``, ``u = sqrt(1 + a2 (1 / x^2 - 1))``: ``d log G1 / d x = a2 / ((1 + u)
-    u x^3)`` and ``d log G1 / d a2 = -(1 / x^2 - 1) / (2 u (1 + u))`` (Walter et al. 2007, eqs.
-    33-34, doi:10.2312/EGWR/EGSR07/195-206); ``d a2 / d log alpha = 2 a2``. Fresnel's factor, a
-    function of ``vl`` alone, is differentiated by a central difference
-    (:data:`_FRESNEL_STEP`). Where a floor or clip of the lobe's pieces holds (cos_h at 1e-6 or
-    1, ``n . v`` or ``n . l`` at 1e-6, ``cp`` at 1e-12) its derivative is 0, as the value's.
-    ``tests/test_lightaware_ggx.py`` holds it to central differences of the value.
-    """
+    """``dS`` (4, N) of :func:`_rig_value_ggx` in (a, b, log h, log alpha); ``parts`` its pieces if at hand.
+    ``d val = val * sum of the logarithmic derivatives of F, D, G1(v), G1(l), 1 / (4 n . v), f and p`` (Walter et al.
+    2007, eqs. 33-34); Fresnel's by a central difference (:data:`_FRESNEL_STEP`). Where a floor or clip holds, the
+    derivative is 0."""
     L, w, inv_sq, m = rig_arr
     a2 = float(alpha) * float(alpha)
     am1 = a2 - 1.0
@@ -607,7 +465,7 @@ def _rig_grad_ggx(dT, rl, n, dns, h, rig_arr, alpha, ior: float = GGX_FILM_IOR, 
     dS = np.zeros((4, dT.shape[1]))
     if parts is None:
         parts = []
-        _ggx_sum(dT, rl, n, h, rig_arr, alpha, ior, _ggx_lobe, parts)
+        _rig_value_ggx(dT, rl, n, h, rig_arr, alpha, ior, parts)
     for j in range(len(w)):
         delta, s, sl, ir, c, val, F, scaled = parts[j]  # (scaled: this light's term of S)
         cos_o = c * ir
@@ -627,7 +485,6 @@ def _rig_grad_ggx(dT, rl, n, dns, h, rig_arr, alpha, ior: float = GGX_FILM_IOR, 
             / (2.0 * _FRESNEL_STEP)
         with np.errstate(divide="ignore", invalid="ignore"):
             dlogF = np.where(F > 0.0, dF / F, 0.0)
-        # logarithmic derivatives in the pieces
         kD = np.where(free_h, -4.0 * am1 * cos_h / t, 0.0)  # d log D / d cos_h
         # d log G1(v) / d delta, and d log (1 / (4 n . v)) / d delta = -1 / delta
         kGi = np.where(delta > 1e-6, a2 / ((1.0 + ui) * ui * ci ** 3) - 1.0 / ci, 0.0)
@@ -653,34 +510,20 @@ def _rig_grad_ggx(dT, rl, n, dns, h, rig_arr, alpha, ior: float = GGX_FILM_IOR, 
                 dcp = ds * dT[2] * ir + sz * dir_
                 g = g + np.where(live, m[j] * dcp / cp, 0.0)
             dS[k] += scaled * g
-        # log alpha: through a2 in D and both G1, times d a2 / d log alpha = 2 a2 (written out,
-        # so that an alpha run off to 0 gives 0, not a division by it)
+        # log alpha: through a2 in D and both G1 (written out: an alpha run off to 0 gives 0)
         gi = -(1.0 / (ci * ci) - 1.0) / (2.0 * ui * (1.0 + ui))
         go = -(1.0 / (co * co) - 1.0) / (2.0 * uo * (1.0 + uo))
         dS[3] += scaled * (2.0 - 4.0 * a2 * cos_h * cos_h / t + 2.0 * a2 * (gi + go))
     return dS
 
 
-def _lobe_scale(val, h, ir, inv_sq, cp, m) -> np.ndarray:
-    """One light's lobe ``val`` times its falloff ``(h / r)^2`` (``inv_sq``) and profile ``cp^m``
-    (``cp`` None: none): the term :func:`_ggx_sum` adds, before the light's weight."""
-    out = val
-    if inv_sq:
-        hir = h * ir
-        out = out * (hir * hir)
-    if cp is not None:
-        out = out * cp ** m
-    return out
-
-
 def ggx_alpha_of_phong(n: float) -> float:
-    """The GGX roughness alpha whose lobe's peak curvature matches a Phong lobe of exponent n:
-    ``alpha = sqrt(2 / (n + 2))`` (Walter et al. 2007, section 5.2, Beckmann's)."""
+    """The GGX alpha whose lobe's peak curvature matches Phong's exponent n: ``sqrt(2 / (n + 2))``
+    (Walter et al. 2007, section 5.2)."""
     return float(np.sqrt(2.0 / (max(float(n), 0.0) + 2.0)))
 
 
 def phong_of_ggx_alpha(alpha: float) -> float:
-    """The Phong exponent of :func:`ggx_alpha_of_phong`'s correspondence, ``2 / alpha^2 - 2``
-    (-2 for an alpha whose square overflows: a fit's iterate run off)."""
+    """The inverse of :func:`ggx_alpha_of_phong`: ``2 / alpha^2 - 2`` (-2 where alpha^2 overflows)."""
     with np.errstate(over="ignore"):
         return float(2.0 / max(np.float64(alpha) ** 2, 1e-300) - 2.0)

@@ -19,21 +19,10 @@ from simtest.reconstruct.lightaware.solve import _covariance, _hac_covariance, _
 
 
 def _quadric_root(kxx, kxy, kyy, d, P0, t1, t2, N):
-    """Where the rays ``t d`` (d (k, 3), camera frame) first meet the quadric patch
-    ``z + (k_xx x^2 + 2 k_xy x y + k_yy y^2 + k_zz z^2) / 2 = 0`` in the frame (t1, t2, N) at P0,
-    with ``k_zz = (k_xx + k_yy) / 2`` (exact for a sphere): A t^2 + B t + C = 0, the root near
-    -C/B in the cancellation-free form. For K patches at once: the curvatures (K, 1), the frame's
-    vectors (K, 3), each array returned (K, k).
-
-    Returns
-    -------
-    ax, ay, az, bx, by, bz : ndarray
-        The rays and -P0 in the patch frame.
-    t : ndarray
-        The ray parameter (inf where there is no root).
-    ok : ndarray of bool
-        A real, positive, finite root.
-    """
+    """Where rays ``t d`` (d (k, 3)) first meet the quadric patch at P0 in the frame (t1, t2, N):
+    ``(ax, ay, az, bx, by, bz, t, ok)``, the rays and -P0 in that frame, the ray parameter (inf
+    without a root) and where a real, positive, finite root exists. ``k_zz = (k_xx + k_yy) / 2``;
+    for K patches: curvatures (K, 1), frame vectors (K, 3), arrays (K, k)."""
     kzz = 0.5 * (kxx + kyy)
     one = P0.ndim == 1  # else each patch's products as its own (the same bits)
     ax, ay, az = (d @ v if one else np.array([d @ u for u in v]) for v in (t1, t2, N))
@@ -50,11 +39,9 @@ def _quadric_root(kxx, kxy, kyy, d, P0, t1, t2, N):
     return ax, ay, az, bx, by, bz, t, ok
 
 def _patch_lobes(d, X, ns, ok, s, rough, rig_arr):
-    """The rig's Phong lobes (N,) seen along rays d (N, 3) on a curved patch: surface points X
-    (N, 3), unit normals ns (N, 3), ``ok`` (N,) where the ray meets it, apex depth s (mm, the
-    inverse-square falloff's reference) and roughness n; 0 where the ray misses or the patch faces
-    away (the image of :func:`_quadric_image` and :func:`_cubic_patch_image`). For K patches at
-    once: X and ns (K, N, 3), ``ok`` (K, N), s and n (K, 1), the images (K, N)."""
+    """The rig's Phong lobes (N,) along rays d (N, 3) on a curved patch: points X (N, 3), unit normals
+    ns (N, 3), ``ok`` where the ray meets it, apex depth s (the falloff's reference), roughness n; 0
+    where the ray misses or the patch faces away. For K patches: X, ns (K, N, 3), s, n (K, 1)."""
     L, w, inv_sq, m = rig_arr
     nv = -np.einsum("...ij,...ij->...i", ns, d)
     out = np.zeros(nv.shape)
@@ -81,14 +68,9 @@ def _quadric_frame(e1, e2, b_ray, p, Lm):
 
 
 def _quadric_image(d, b_ray, p, rig_arr, Lm):
-    """Specular image (N,) of the quadric patch ``p`` along rays d (see :func:`quadric_fit`), and
-    its apex normal (3,); for K patches ``p`` (K, 7) at once, the images (K, N) (each bit for bit
-    its patch's alone) and normals (K, 3).
-
-    ``p = (a, b, log s, kappa_xx, kappa_xy, kappa_yy, log n)``: the apex is at depth s on the ray
-    ``unit(b_ray + a e1 + b e2)``, its normal the bisector there for the light Lm, the shape
-    operator ``kappa / s`` in the apex's tangent basis. Rays that miss the patch give 0.
-    """
+    """Specular image (N,) of the quadric patch ``p = (a, b, log s, kappa_xx, kappa_xy, kappa_yy, log n)``
+    along rays d and its apex normal (3,) (:func:`quadric_fit`); for K patches ``p`` (K, 7), images
+    (K, N), each bit for bit its own, and normals (K, 3). Rays that miss give 0."""
     basis = plane_basis(b_ray)  # each patch's apex and frame its own (the same bits)
     frames = [_quadric_frame(*basis, b_ray, pk, Lm) for pk in np.atleast_2d(p)]
     s, P0, N, t1, t2 = frames[0] if np.ndim(p) == 1 else (np.array(v) for v in zip(*frames))
@@ -108,13 +90,9 @@ def _quadric_image(d, b_ray, p, rig_arr, Lm):
 
 @dataclass
 class _PatchProblem:
-    """A ROI's samples and what a curved patch's variable-projection fit of them needs
-    (:func:`quadric_fit`, :func:`cubic_patch_fit`): ``y`` (m,) the unclipped intensities over
-    their largest magnitude, ``d`` (m, 3) their pixel rays, ``b_ray`` (3,) the BP's ray,
-    ``rig_arr`` and ``Lm`` the rig's arrays and mean light, ``A`` (m, 4) the linear part's design
-    (column 0 the patch image, then a constant and a plane in the offsets from the BP over the ROI
-    size), ``sel``, ``step`` and ``shape`` the samples' place in the ROI grid, ``px_per_rad`` the
-    image's scale at the BP."""
+    """A ROI's samples for a curved patch's variable-projection fit: normalised intensities ``y``, rays
+    ``d``, the BP's ray, the rig, the linear design ``A`` (patch image, constant, du, dv), the samples'
+    place in the ROI grid and ``px_per_rad`` the image's scale at the BP."""
 
     y: np.ndarray
     d: np.ndarray
@@ -128,9 +106,8 @@ class _PatchProblem:
     px_per_rad: float
 
     def residual(self, image) -> np.ndarray:
-        """The residual (m,) of the patch image (m,) (or a scalar), or (K, m) of K images (K, m),
-        with the linear part fitted by its normal equations (least squares where they are
-        singular): variable projection."""
+        """The residual (m,) of a patch image (or (K, m) of K images), the linear part fitted by its normal
+        equations (least squares where singular)."""
         if np.ndim(image) == 2:
             return np.array([self.residual(im) for im in image])
         A, y = self.A, self.y
@@ -143,8 +120,7 @@ class _PatchProblem:
 
 
 def _patch_problem(values, origin_uv, bp_uv, camera, rig, clip_level, max_pixels, min_pixels):
-    """The :class:`_PatchProblem` of a ROI, or None with fewer than ``min_pixels`` unclipped
-    samples; and the number of samples: ``(problem or None, m)``."""
+    """``(problem or None, m)``: the :class:`_PatchProblem` of a ROI, None below ``min_pixels`` samples."""
     vals, camera, o, uu, vv, keep = _roi_grid(values, camera, origin_uv, clip_level)
     H, W = vals.shape
     sel, step, uv, y = _roi_samples(vals, o, uu, vv, keep, max_pixels)
@@ -162,9 +138,8 @@ def _patch_problem(values, origin_uv, bp_uv, camera, rig, clip_level, max_pixels
 
 
 def _quadric_starts(res, x_scale, nominal_depth_mm, start_depths_mm, start_roughness, max_nfev):
-    """:func:`quadric_fit`'s starts: a flat patch at each start depth (default 1, 3 and 0.5
-    times the nominal) in turn, fitted until one ends at a plausible solution. Returns the
-    least-squares result kept (None: none finite) and the evaluations spent."""
+    """:func:`quadric_fit`'s starts: a flat patch at each start depth in turn until one ends plausible.
+    Returns the least-squares result kept (None: none finite) and the evaluations spent."""
     opt = require("scipy.optimize")  # when first needed: scipy slows the start
     starts = (np.array([1.0, 3.0, 0.5]) * nominal_depth_mm if start_depths_mm is None
               else np.asarray(start_depths_mm, dtype=np.float64).reshape(-1))
@@ -173,8 +148,7 @@ def _quadric_starts(res, x_scale, nominal_depth_mm, start_depths_mm, start_rough
     for s0 in starts:
         p0 = np.array([0.0, 0.0, np.log(s0), 0.0, 0.0, 0.0, np.log(n0)])
         with np.errstate(all="ignore"):
-            # workers: the finite differences' points (each f's argument) imaged as one batch by
-            # res, each row bit for bit res of its point alone (_quadric_image)
+            # workers: the finite differences' points imaged as one batch (bit for bit each alone)
             r = opt.least_squares(res, p0, method="lm", max_nfev=max_nfev * 8, x_scale=x_scale, ftol=1e-6,
                                   xtol=1e-6, workers=lambda f, xs: list(res(np.array(list(xs)))))
         nfev += r.nfev
@@ -188,107 +162,49 @@ def _quadric_starts(res, x_scale, nominal_depth_mm, start_depths_mm, start_rough
 
 
 def _apex_normal_gradient(d1, b_ray, x, x_scale, rig_arr, Lm) -> np.ndarray:
-    """dN / dp (3, 7) of the quadric patch's apex normal, by central differences of
-    ``1e-6 x_scale``."""
+    """dN / dp (3, 7) of the quadric patch's apex normal, by central differences of ``1e-6 x_scale``."""
     dp = np.diag(1e-6 * x_scale)
     N = _quadric_image(d1, b_ray, np.vstack([x + dp, x - dp]), rig_arr, Lm)[1]
     return ((N[:7] - N[7:]) / (2 * np.diag(dp))[:, None]).T
 
 
-def quadric_fit(values, origin_uv, bp_uv, camera, rig: LightRig, *,
-                clip_level: float | None = None, nominal_depth_mm: float = 20.0,
-                start_depths_mm=None, start_roughness: float | None = None,
+def quadric_fit(values, origin_uv, bp_uv, camera, rig: LightRig, *, clip_level: float | None = None,
+                nominal_depth_mm: float = 20.0, start_depths_mm=None, start_roughness: float | None = None,
                 max_pixels: int | None = 800, max_nfev: int = 100,
                 misfit_sigma: bool | float = True) -> LightAwareEstimate:
     """Fit the ROI with the image of a curved (quadric) patch lit by the rig.
 
-    The patch is second-order about its apex: the apex X0 at depth s on a ray near the BP's
-    (two angles (a, b) about it), its normal N the bisector of the directions from X0 to the
-    camera and to the rig's mean light (so X0 is that light's specular point, the point whose depth
-    and normal are reported), and a symmetric shape operator ``kappa / s`` (kappa_xx, kappa_xy,
-    kappa_yy dimensionless) in the tangent basis (t1, t2) of N: in the apex's frame (z along N,
-    toward the camera) the patch is
-    ``F = z + (k_xx x^2 + 2 k_xy x y + k_yy y^2 + H z^2) / 2 = 0`` with ``H = (k_xx + k_yy) / 2``
-    the mean curvature (positive curvatures bend away from the camera, as the outside of a
-    sphere). Each pixel ray meets it at the root of a quadratic nearest the tangent plane; the
-    surface normal there (the gradient of F), the rig's lobes (as in :func:`photometric_fit`), gain
-    and linear background (solved linearly, variable projection) give the image. The seven
-    nonlinear parameters (a, b, log s, kappa, log n) are fitted by Levenberg-Marquardt
-    (:func:`scipy.optimize.least_squares`, finite-difference Jacobian, scaled) on a regular
-    sub-grid of at most ``max_pixels`` unclipped pixels, from a flat patch at each start depth in
-    turn until one ends at a plausible solution (distance and roughness in the ranges of
-    :func:`photometric_fit`), kept; without one, the least cost. A fit whose neighbouring
-    residuals correlate (the test of :func:`photometric_fit`), or whose residual RMS exceeds
-    ``TOL.patch_misfit_rms_rel`` of the ROI's maximum, is reported as ``patch_misfit``.
-
-    Notes
-    -----
-    Why tie N to the bisector: a surface point with its normal has five degrees of freedom, two of
-    which slide the point along the surface; fixing the point to the one where the normal bisects
-    camera and light removes that freedom without restricting the patch, and makes the normal a
-    function of the depth and the apex ray only. Why the ``H z^2`` term: without it (a
-    paraboloid) the patch departs from a sphere at fourth order in the distance from the apex,
-    and on rendered spheres at epsilon/d = 0.3 that departure moved the fitted depth by 40 % along
-    the valley where depth, curvature and roughness trade off (2 deg of normal); with it a
-    sphere is exact and a cylinder's fourth-order error is halved. The plane model
-    (:func:`photometric_fit`) meets a curved patch by trading the curvature's compression or
-    spreading of the lobe for roughness and distance, and the distance sets the normal through
-    the bisector; the quadric model fits the curvature instead. Uncertainty: the larger of
-    ``C = s^2 (J^T J)^-1`` and the sandwich (:func:`_patch_covariances`), with J the Jacobian of
-    the projected residual at the solution, and the depth's width along the parameters' valley
-    beyond it (:func:`_depth_valley`), propagated to N by finite differences.
-
-    Where it breaks: the depth, and through the bisector the normal, rests on the patch being a
-    quadric over the ROI. With the apex tied to the BP ray, the normal is the bisector at depth
-    s, off the true one by about ``(epsilon_perp / 2) |1/s - 1/d|`` (2.9 deg times ``|d/s - 1|``
-    at epsilon/d = 0.1): the depth must be right within a factor of about 1.4 for 1 deg there.
-    To first order in epsilon/d the light's offset changes the lobe as the curvature's gradient
-    over the patch does (the third-order terms of the height function
-    ``(c_xxx x^3 + 3 c_xxy x^2 y + 3 c_xyy x y^2 + c_yyy y^3) / 6``). Measured on the
-    ``lightaware-curved`` liver renders: with those four terms added to the patch, the fit's cost
-    changed by at most 1.3 % between half and twice the true depth, where the quadric's changed
-    by 20 % to 120 %: a single highlight does not tell the depth from the surface's third-order
-    shape, and the quadric's depth is the one at which the offset stands in for it (0.4 times
-    the truth on the liver mesh at epsilon/d 0.1, a lobe 12 mm long over which the curvature
-    varies). On spheres, cylinders and saddles the quadric holds and the depth follows. A
-    larger ROI brings in more of the surface's third-order shape: the recommendation fits an ROI
-    1.5 times the highlight's (:func:`~simtest.reconstruct.light_fits.light_aware_estimates`).
-    So under one light (every light of the rig at one place) the fit never gives a depth: its
-    status is at best ``depth_not_observable``, ``depth_range_mm`` states the depths within
-    :data:`ONE_LIGHT_DEPTH_FACTOR` of the fitted one, and ``normal_sigma_deg`` carries the
-    normals' spread over them (:func:`_one_light_band`): on the liver its stated 1.2 deg did not
-    cover its 3.8 deg error, the normal of a depth 57 % short.
-    A second light beside the lens makes the depth observable with the third-order terms free
-    (:func:`cubic_patch_fit`).
+    The apex lies at depth s on a ray near the BP's, its normal N bisecting the directions to the
+    camera and the mean light; in the apex frame the patch is
+    ``z + (k_xx x^2 + 2 k_xy x y + k_yy y^2 + H z^2) / 2 = 0``, ``k = kappa / s``, ``H = (k_xx + k_yy) / 2``
+    (exact for a sphere). Its lobes, gain and linear background give the image; (a, b, log s, kappa,
+    log n) are fitted by Levenberg-Marquardt from a flat patch at each start depth until one ends
+    plausible. Under one light the depth trades with the surface's third-order shape and is not
+    reported (``depth_range_mm`` instead; :func:`cubic_patch_fit` uses two lights).
 
     Parameters
     ----------
     values, origin_uv, bp_uv, camera, rig, clip_level, nominal_depth_mm
         As in :func:`photometric_fit`.
     start_depths_mm : sequence of float, optional
-        Start depths of the apex along the BP ray, tried in turn (default: 1, 3 and 0.5 times
-        ``nominal_depth_mm``).
+        Start depths of the apex along the BP ray (default: 1, 3 and 0.5 times ``nominal_depth_mm``).
     start_roughness : float, optional
         Start Phong n (default 50).
     max_pixels : int or None
         Beyond this many unclipped pixels, fit those of a regular sub-grid (None keeps all).
     max_nfev : int
-        Evaluation budget per start, in Jacobian evaluations (scipy's ``max_nfev`` for ``lm`` with
-        a finite-difference Jacobian counts each of its 8 residual evaluations).
+        Evaluation budget per start, in Jacobian evaluations.
     misfit_sigma : bool or float
-        State a sigma for a fit that misfits (``patch_misfit``): read its depth valley as for the
-        others. False: a misfit states none (``normal_sigma_deg`` None) and its valley, six
-        refits with the depth fixed and most of the fit's time, is not read
-        (:data:`MISFIT_SIGMA_NOTE`). A number, degrees: read only where the local sigma (the
-        covariances' alone) is below it; the valley only widens a sigma, so a misfit whose local
-        sigma already reaches the bound states none. The misfit verdict does not depend on it.
+        State a sigma for a ``patch_misfit`` fit (reading its depth valley). False: none
+        (:data:`MISFIT_SIGMA_NOTE`); a number, degrees: only where the local sigma is below it.
 
     Returns
     -------
     LightAwareEstimate
-        ``estimator="quadric_fit"``, status ``ok`` (two or more lights at different places
-        only), ``depth_not_observable``, ``patch_misfit`` or ``not_converged``; ``distance_mm``
-        is the apex depth s; under one light ``depth_range_mm`` (near, far), mm.
+        ``estimator="quadric_fit"``, status ``ok`` (separate lights only), ``depth_not_observable``,
+        ``patch_misfit`` (correlated residuals, or RMS above ``TOL.patch_misfit_rms_rel``) or
+        ``not_converged``; ``distance_mm`` is the apex depth s; sigmas from the larger of the
+        covariances (:func:`_patch_covariances`) and the depth valley (:func:`_depth_valley`).
 
     Raises
     ------
@@ -314,22 +230,13 @@ def quadric_fit(values, origin_uv, bp_uv, camera, rig: LightRig, *,
     bad = _implausible(s_hat, float(nominal_depth_mm), rough)
     if best.status <= 0 or bad:
         return LightAwareEstimate(name, "not_converged", bad or best.message, n_evaluations=nfev)
-    r0, J = best.fun, best.jac
-    resid_var = float(r0 @ r0) / max(J.shape[0] - J.shape[1] - 4, 1)
-    covs = _patch_covariances(J, r0, resid_var, sel, P.shape, step)
-    cov_floor = _covariance(J, max(resid_var, TOL.photometric_noise_rel**2))
     G = _apex_normal_gradient(d[:1], b_ray, x, x_scale, rig_arr, Lm)
-    rel_floor = None if cov_floor is None else float(np.sqrt(max(cov_floor[2, 2], 0.0)))
-    status, detail, observable, rms = _patch_verdict(
-        rel_floor, r0, sel, P.shape, step, "", "the ROI is not one patch's lobe (streaks along folds, several lobes)")
-    sigma_deg, _, excess, detail = _patch_sigma(status, detail, misfit_sigma, {"res": res, "x_scale": x_scale,
-                                                                               "batched": True},
-                                                x, float(r0 @ r0), resid_var, covs, max_nfev, G)
-    depth_sigma = (float(s_hat * np.sqrt(max(max(c[2, 2] for c in covs), 0.0) + excess))
-                   if observable and covs else None)
+    status, detail, observable, rms, sigma_deg, _, excess, depth_sigma, rel_floor, _ = _patch_uncertainty(
+        best, {"res": res, "x_scale": x_scale, "batched": True}, sel, P.shape, step, x, G, misfit_sigma, max_nfev,
+        "the ROI is not one patch's lobe (streaks along folds, several lobes)")
     depth_range = None
     if not rig.has_separate_lights:
-        # one light: the third-order shape the quadric leaves out trades with the depth (Notes)
+        # one light: the third-order shape the quadric leaves out trades with the depth
         sigma_deg, depth_range = _one_light_band(x, sigma_deg, d[:1], b_ray, rig_arr, Lm)
         if status == "ok":
             status = "depth_not_observable"
@@ -342,25 +249,9 @@ def quadric_fit(values, origin_uv, bp_uv, camera, rig: LightRig, *,
 
 
 def _one_light_band(x, sigma_deg, d0, b_ray, rig_arr, Lm):
-    """The quadric's normal sigma under one light with the third-order shape's spread added,
-    and the depths (near, far) the data cannot exclude.
-
-    Under one light a single highlight does not tell the depth from the surface's third-order
-    shape (:func:`quadric_fit`, Notes): to first order in epsilon/d the light's offset changes the
-    lobe as the curvature's gradient does, so the quadric's depth is the one at which the offset
-    stands in for the surface's third-order terms, and its normal (the bisector at that depth)
-    follows. Every depth within :data:`ONE_LIGHT_DEPTH_FACTOR` of the fitted one is kept
-    possible: the normals of the apex at those two depths (the apex ray and shape fixed) are
-    taken as the band's ends at 2 sigma, so half the larger angle from the fitted normal is
-    added in quadrature to ``sigma_deg``. A sphere has no third-order terms at its vertex and
-    its quadric is right (0.3 deg where the BP ray errs 2.9), but the data cannot tell it from
-    the liver, where the same fit erred 3.8 deg with a stated 1.2.
-
-    Returns
-    -------
-    (float or None, (float, float))
-        The widened sigma (None where ``sigma_deg`` is), degrees; the near and far depths, mm.
-    """
+    """``(sigma, (near, far))``: the quadric's normal sigma (deg; None where ``sigma_deg`` is) with
+    half the apex normals' spread over the depths within :data:`ONE_LIGHT_DEPTH_FACTOR` added in
+    quadrature, and those depths, mm."""
     xe = np.repeat(x[None], 3, axis=0)
     xe[1:, 2] += np.array([1.0, -1.0]) * np.log(ONE_LIGHT_DEPTH_FACTOR)
     n0, *ne = _quadric_image(d0, b_ray, xe, rig_arr, Lm)[1]
@@ -372,41 +263,41 @@ def _one_light_band(x, sigma_deg, d0, b_ray, rig_arr, Lm):
     return float(np.hypot(sigma_deg, 0.5 * spread)), band
 
 
-def _patch_covariances(J, r, resid_var, sel, shape, step) -> list:
-    """The covariances a curved patch's sigmas are the larger of: the plain ``s^2 (J^T J)^-1``
-    and the sandwich (:func:`~simtest.reconstruct.lightaware.solve._hac_covariance`), those that
-    are not singular.
+def _patch_uncertainty(r, S, sel, shape, step, x, G, misfit_sigma, max_nfev, misfit_hint):
+    """The verdict and sigmas of a curved-patch fit from its least-squares result ``r`` (``fun``, ``jac``):
+    ``(status, detail, observable, rms, sigma_deg, valley, excess, depth_sigma, rel_floor, covs)``."""
+    r0, J = r.fun, r.jac
+    resid_var = float(r0 @ r0) / max(J.shape[0] - J.shape[1] - 4, 1)
+    covs = _patch_covariances(J, r0, resid_var, sel, shape, step)
+    cov_floor = _covariance(J, max(resid_var, TOL.photometric_noise_rel**2))
+    rel_floor = None if cov_floor is None else float(np.sqrt(max(cov_floor[2, 2], 0.0)))
+    status, detail, observable, rms = _patch_verdict(rel_floor, r0, sel, shape, step, "", misfit_hint)
+    sigma_deg, valley, excess, detail = _patch_sigma(status, detail, misfit_sigma, S, x, float(r0 @ r0), resid_var,
+                                                     covs, max_nfev, G)
+    s_hat = float(np.exp(x[2]))
+    depth_sigma = float(s_hat * np.sqrt(max(max(c[2, 2] for c in covs), 0.0) + excess)) if observable and covs else None
+    return status, detail, observable, rms, sigma_deg, valley, excess, depth_sigma, rel_floor, covs
 
-    Why the sandwich: the plain estimate spreads the residual's variance evenly over the ROI,
-    while a render's Monte Carlo noise, and the misfit of what the model leaves out, grow with
-    the radiance: they sit on the lobes, where the Jacobian is, and the dark surround, where
-    the 8-bit image is 0 and its residual nearly so, dilutes ``s^2``. On the ``lightaware-curved``
-    two-light spheres and cylinders (3 seeds each at epsilon/d 0.1 and 0.3) the plain sigma of
-    the normal at each light's specular point covered 10 of 24 errors at 2 sigma, the sandwich's
-    (1.4 to 3 times larger, its bandwidth 0 or 1 there) 23 of 24.
-    """
-    return [c for c in (_covariance(J, resid_var), _hac_covariance(J, r, sel, shape, step)[0])
-            if c is not None]
+
+def _patch_covariances(J, r, resid_var, sel, shape, step) -> list:
+    """The non-singular covariances a curved patch's sigmas are the larger of: ``s^2 (J^T J)^-1`` and
+    the sandwich (:func:`~simtest.reconstruct.lightaware.solve._hac_covariance`), which counts the
+    noise sitting on the lobes rather than spread over the dark surround."""
+    return [c for c in (_covariance(J, resid_var), _hac_covariance(J, r, sel, shape, step)[0]) if c is not None]
 
 
 def _sigma_deg(G, covs) -> float | None:
-    """The largest RMS angle, degrees, of a unit vector whose derivative in the parameters is
-    G (3, k), over the covariances ``covs`` (None when there are none)."""
+    """The largest RMS angle, degrees, of a unit vector with derivative G (3, k) over ``covs`` (None: none)."""
     if not covs:
         return None
     return float(np.degrees(np.sqrt(max(max(float(np.trace(G @ c @ G.T)), 0.0) for c in covs))))
 
 
-#: The step in log depth of :func:`_depth_valley`'s nearest profile points (5 % of the depth):
-#: on the noisy two-light spheres the profile's half width at Delta chi^2 = 1 was 3 to 10 %,
-#: where the local covariance said 0.7 to 1.5 %.
+#: The step in log depth of :func:`_depth_valley`'s nearest profile points (5 % of the depth).
 _VALLEY_STEP = 0.05
 
-
-#: The steps in log depth at which :func:`_depth_valley` reads the profile's width: a profile
-#: that is flat-bottomed (the two-light liver at epsilon/d 0.1: within 6 % of its least cost
-#: from the true depth to twice it) rises less at 40 % than a parabola through its 5 % points
-#: says, and each step's width counts.
+#: The steps in log depth at which :func:`_depth_valley` reads the profile's width (a flat-bottomed
+#: profile rises less far out than a parabola through its nearest points says).
 _VALLEY_STEPS = (_VALLEY_STEP, 0.15, 0.4)
 
 #: The detail a patch fit's misfit ends with where it states no sigma (``misfit_sigma`` False:
@@ -415,13 +306,9 @@ MISFIT_SIGMA_NOTE = "no sigma stated (a misfit's depth valley not read)"
 
 
 def _patch_sigma(status, detail, misfit_sigma, S, x, cost0, resid_var, covs, max_nfev, G):
-    """A patch fit's normal sigma from its depth valley (:func:`_depth_valley`,
-    :func:`_valley_sigma_deg`; ``G`` (3, k) the normal's derivative), or none for a misfit when
-    ``misfit_sigma`` is False (its valley not read), or a number of degrees that the local sigma
-    (:func:`_sigma_deg` of ``covs``, which the valley only widens) is not below. Returns
-    ``(sigma_deg, valley, excess, detail)``: the valley's direction (None where not read) and
-    excess variance of log depth, and the detail, for an ``ok`` fit how its cost rises at the
-    valley's nearest steps."""
+    """A patch fit's normal sigma from its depth valley, or none for a misfit per ``misfit_sigma``. Returns
+    ``(sigma_deg, valley, excess, detail)``; an ``ok`` fit's detail states how its cost rises at the valley's nearest
+    steps."""
     if status == "patch_misfit":
         if not misfit_sigma:
             return None, None, 0.0, f"{detail}; {MISFIT_SIGMA_NOTE}"
@@ -439,34 +326,13 @@ def _patch_sigma(status, detail, misfit_sigma, S, x, cost0, resid_var, covs, max
 
 
 def _depth_valley(S, x, cost0, resid_var, covs, max_nfev):
-    """The cubic patch's cost along its depth, beyond the local covariance.
+    """The patch's cost along its depth, beyond the local covariance: ``(v, excess, rises)``.
 
-    The patch is refitted with its log depth fixed at ``x[2] +- step`` for each step of
-    :data:`_VALLEY_STEPS` (every other parameter free, from ``x``): the widest of the profile's
-    readings ``sigma_p^2 = max step^2 s^2 / Delta`` (``Delta`` the rise of the sum of squares at
-    that point, ``s^2 = resid_var``; scaled by the sandwich's over the plain variance of log
-    depth where the sandwich is the larger) is the depth's variance, and the two solutions at
-    the nearest step the direction ``v = (p_+ - p_-) / (2 step)`` (11,) in which the other
-    parameters follow the depth (``v[2] = 1``). Each side and each step, not a mean curvature:
-    a profile bounded on one side only, or flat-bottomed (the two-light liver at epsilon/d 0.1,
-    whose depths erred by +1 to +24 %, always long), has an interval wider than its curvature
-    at the minimum says.
-
-    Why: the patch's parameters trade along a curved valley (depth against curvature,
-    third-order terms and roughness) that the Gauss-Newton covariance ``s^2 (J^T J)^-1``, a
-    quadratic fitted at one point, sees as much narrower than it is (a noisy 8-bit two-light
-    sphere: the local depth sigma 0.7 %, the profile's 9 %, the depth 13 % off).
-
-    ``S`` holds the fit's residual ``res(p)`` and ``x_scale``; the same reading serves
-    :func:`quadric_fit` (7 parameters, log depth third as here).
-
-    Returns
-    -------
-    (ndarray of shape (k,), float, tuple)
-        ``v`` (zeros where a profile fit failed), the variance of log depth in excess of the
-        local covariance's largest (0 where the profile is narrower; inf where it does not
-        rise: the depth is then not bounded), and the two rises over ``s^2`` (NaN where a fit
-        failed).
+    Refits with log depth fixed at ``x[2] +- step`` (:data:`_VALLEY_STEPS`): the widest
+    ``step^2 s^2 / Delta`` (``Delta`` the cost's rise) is the depth's variance; ``excess`` is what
+    exceeds the local covariance's (inf where the cost does not rise), ``v = (p_+ - p_-) / (2 step)``
+    the direction the other parameters follow (zeros where a refit failed), ``rises`` the nearest
+    step's rises over ``s^2``. ``S`` holds ``res`` and ``x_scale``.
     """
     k = len(x)
     free = [i for i in range(k) if i != 2]
@@ -493,8 +359,7 @@ def _depth_valley(S, x, cost0, resid_var, covs, max_nfev):
 
 
 def _valley_sigma_deg(G, covs, Gv, excess) -> float | None:
-    """:func:`_sigma_deg` of a unit vector with derivative G (3, k), with the excess variance of
-    log depth along the valley (:func:`_depth_valley`) added through ``Gv = G v`` (3,)."""
+    """:func:`_sigma_deg` with the valley's excess variance of log depth added through ``Gv = G v``."""
     sig = _sigma_deg(G, covs)
     if sig is None:
         return None
@@ -504,8 +369,8 @@ def _valley_sigma_deg(G, covs, Gv, excess) -> float | None:
 
 
 def _fit_fixed_depth(S, log_s, free, starts, max_nfev, tol=1e-8):
-    """Least squares over the parameters ``free`` (indices) with log s fixed; the best of the
-    starts (full 11-vectors). Returns ``(sum of squares, p (11,), nfev)``."""
+    """Least squares over ``free`` (indices) with log s fixed; the best of the starts.
+    Returns ``(sum of squares, p, nfev)``."""
     opt = require("scipy.optimize")  # when first needed: scipy slows the start
     free = np.asarray(free)
     best, nfev = None, 0

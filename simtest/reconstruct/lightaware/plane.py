@@ -1,13 +1,8 @@
 """The photometric plane fit: the ROI's intensities fitted with the image of a plane lit by the rig.
 
-:func:`photometric_fit` runs in stages, each its own function or module: the choice among the
-colour projections, start depths and two-channel pixels (:func:`_fit_projections`), the choice
-of lobe (:func:`_fit_lobes`), and one fit (:func:`_fit_plane`): the projection of a colour ROI
-onto one image (:func:`_colour_values`), the lobe model on its pixels
-(:mod:`~simtest.reconstruct.lightaware.plane_model`), the starts and the solve
-(:mod:`~simtest.reconstruct.lightaware.plane_solve`), the covariance and the misfit tests
-(:mod:`~simtest.reconstruct.lightaware.plane_sigma`). Its options travel as one
-:class:`FitSettings`.
+Stages: the colour projections, start depths and two-channel pixels (:func:`_fit_projections`),
+the lobe (:func:`_fit_lobes`), one fit (:func:`_fit_plane`) with its model (``plane_model``),
+starts and solve (``plane_solve``), covariance and misfit tests (``plane_sigma``).
 """
 
 from __future__ import annotations
@@ -32,8 +27,7 @@ from simtest.reconstruct.lightaware.solve import _finish, _implausible, _start
 
 
 #: Starts along the BP's constraint of ``photometric_fit``'s second try on the sensor path
-#: (``n_start_depths`` None): depths nominal/8 to nominal*8 at factors of 4, the range of a
-#: colonoscope's working distances (5 to 50 mm about a nominal 20).
+#: (nominal/8 to nominal*8 at factors of 4: a colonoscope's 5 to 50 mm about a nominal 20).
 RETRY_START_DEPTHS = 4
 
 #: The values of ``photometric_fit``'s ``projection``.
@@ -50,14 +44,11 @@ class FitSettings:
     Attributes
     ----------
     clip_level : float or sequence of 3 floats, optional
-        Pixels ``>= clip_level`` are left out (e.g. 255 for 8-bit); None keeps every pixel. For
-        RGB values, one level or each channel's: a pixel with a clipped channel is censored where
-        the projection's weights of its clipped channels are all >= 0 (its projected value is
-        then a lower bound), else left out.
+        Pixels ``>= clip_level`` are left out (e.g. 255 for 8-bit); None keeps every pixel. For RGB, one
+        level or each channel's; a pixel is censored where the weights of its clipped channels are >= 0.
     clip_margin : float or sequence of 3 floats, optional
-        RGB values: a channel within this of its clip level counts as clipped too, as
-        ``clip_level``'s units (the body colours are measured on what the clip itself left;
-        :func:`~simtest.reconstruct.lightaware.colour.specular_image`'s ``censor_margin``). None: 0.
+        RGB: a channel within this of its clip level counts as clipped too (``specular_image``'s
+        ``censor_margin``). None: 0.
     nominal_depth_mm : float
         Depth of the BP assumed for the start's bisector, mm.
     start_normal : array_like of shape (3,), optional
@@ -65,102 +56,51 @@ class FitSettings:
     start_roughness : float, optional
         Start Phong n.
     pair_starts : tuple of (int, int, float)
-        (i, j, d): the BP as light i's specular point at depth d (mm along its ray) puts light j's
-        where another highlight lies (:func:`~simtest.reconstruct.rig_pairs.pair_starts`):
-        without a start normal, light i's start at d is refined beside the start at the nominal
-        depth, the solution of least cost kept.
+        (i, j, d): light i's start at depth d mm along the BP ray, refined too without a start normal
+        (:func:`~simtest.reconstruct.rig_pairs.pair_starts`).
     loss : str
         ``linear`` (Gaussian sensor noise), or ``soft_l1``, ``huber``, ``cauchy`` (reweighted).
     f_scale : float
         Soft margin of a robust loss, relative to the ROI's maximum.
     n_start_depths : int or None
-        Further starts along the BP's constraint (depths nominal/8 to nominal*8), each refined;
-        the solution of least cost is kept (0: the start, and the nominal bisector when a start is
-        given). None (default): 0, and for RGB values (the sensor path), where that fit ends
-        without a depth (``depth_not_observable``, ``not_converged``), once more with
-        :data:`RETRY_START_DEPTHS` starts, the one of the lower residual kept: a sensor frame's
-        clipped cores leave the lobes' flanks, on which a start at the nominal depth can end in a
-        local minimum (measured: ``docs/decisions/light-aware-recommendation.md``).
+        Further starts along the BP's constraint (nominal/8 to nominal*8), the least cost kept. None:
+        0, and for RGB, where that fit has no depth, once more with :data:`RETRY_START_DEPTHS` starts.
     supersample : int
-        s x s point samples per pixel, averaged (a renderer's or sensor's box filter; 1: the
-        value at the pixel centre, as the exact images of :mod:`simtest.simulate.offset`).
+        s x s point samples per pixel, averaged (1: the value at the pixel centre).
     max_pixels : int or None
-        Beyond this many unclipped pixels, the starts are refined on a regular sub-grid (every
-        k-th row and column; None: every pixel), and the best of them, with ``refine_all`` and
-        where the plane explains the sub-grid (its residuals pass the misfit test), once more on
-        every unclipped pixel. Where the plane misfits, the model's error, not the noise,
-        dominates and more pixels of it would not help: the sub-grid's fit is kept, and so is
-        it where pixels lie at ``floor_level`` (noise clipped there biases the fit, and more
-        pixels would shrink its sigma about that bias). Every pixel of the lobe's tails matters:
-        the tilt and the distance trade off along the BP's constraint, and what separates them
-        is the lobe's shape down to its faint tails (measured: ``docs/decisions``' light-aware file).
+        Beyond this many unclipped pixels the starts are refined on a regular sub-grid, the best once
+        more on every pixel (``refine_all``) where the plane fits and nothing lies at ``floor_level``.
     refine_all : bool
-        Refine the sub-grid's solution on every unclipped pixel (above); False keeps the
-        sub-grid's (about k^2 times cheaper, its standard deviations k times larger).
+        Refine the sub-grid's solution on every unclipped pixel (above).
     diffuse : bool
-        Add the rig's Lambertian shading of the plane as a column of the model beside the lobes
-        and the background (its albedo a linear parameter; :func:`photometric_fit`, Notes): the
-        image of tissue, whose diffuse shading under a near light is no linear background. The lobe is then taken for
-        real only up to :data:`~simtest.reconstruct.lightaware.solve.ROUGHEST_FILM_ALPHA`
-        (GGX alpha 0.5, Phong n 6): broader, it is as broad as the shading, the two columns
-        trade one for the other, and the fit is ``not_converged`` (its detail names the
-        roughness).
+        Add the rig's Lambertian shading of the plane as a linear column; a lobe broader than
+        :data:`~simtest.decisions.ROUGHEST_FILM_ALPHA` is then ``not_converged``.
     censor : bool
-        Keep the pixels at or above ``clip_level`` as censored data (the pixel's radiance is at
-        least the clip level: a residual only where the model falls below it) instead of leaving
-        them out.
+        Keep clipped pixels as censored data (a residual only where the model falls below the clip).
     max_nfev : int
         Evaluation budget.
     floor_level : float, optional
-        The image's floor (e.g. 0 for an 8-bit image): pixels at or below it are clipped from
-        below, their noise cut off, and where the model lies within ``_FLOOR_MARGIN`` (3) noise
-        sigmas of the floor (the noise sigma from the residuals' median absolute deviation) the
-        mean of the clipped data is above the model's, a bias proportional to the noise. The
-        curvature test (Returns) reads only the pixels above that margin. None: no floor.
+        The image's floor (e.g. 0 for 8-bit): the curvature test reads only the pixels ``_FLOOR_MARGIN``
+        noise sigmas above it. None: no floor.
     floor_refit : bool
-        With ``floor_level``, refine the fit once more without the pixels within the margin
-        (where every pixel was fitted): it halves the floor's bias, and is off by default as on
-        the ``lightaware`` suite's noisy renders it cost the tails' information (measured:
-        ``docs/decisions``' light-aware file); a censored likelihood would keep it.
+        With ``floor_level``, refine once more without the pixels within the margin.
     floor_step : float
-        The image's quantisation step at the floor (1 for an 8-bit image): the refinement runs
-        only where the noise sigma exceeds it (below, the floor's pixels are rounding's, not
-        clipped noise, whose levels near 0 carry the tails' information).
+        The image's quantisation step at the floor: the refit runs only where the noise sigma exceeds it.
     projection : {"auto", "border", "least_fluctuation", "darkest_channel"}
-        For RGB values, the projection that removes the tissue's body colours
-        (:func:`~simtest.reconstruct.lightaware.colour.specular_image`): ``"border"`` the one
-        orthogonal to the two body colours measured on the ROI's border, or where the border
-        tells no second one, the darkest channel; ``"least_fluctuation"`` the least-fluctuation
-        weights (``colour._least_fluctuation_weights``: the body colours lost in read noise), or
-        where they are beyond their bound, the darkest channel; ``"darkest_channel"`` that
-        channel alone. ``"auto"`` (default): the border's body colours, and where their fit
-        ends without a depth (``depth_not_observable``, ``not_converged``; a misfit stands), the
-        least-fluctuation weights' fit in its place where that one is ``ok``; where the border
-        tells no second body colour, the least-fluctuation weights, and where the fit on those
-        is not ``ok`` (a misfit, a depth not observable), the darkest channel's fit in its place.
-        The weights trade the texture they leave in against the noise, and the fit cannot see
-        what they leave: it is kept only where it passes with its depth. A JPEG frame whose
-        block grid is not seen (at quality 95): its subsampled chroma leaves a pattern in the
-        least-fluctuation projection's residual that the curvature test reads as a curved patch
-        (measured: ``docs/decisions/light-aware-recommendation.md``).
+        RGB: the projection that removes the tissue's body colours
+        (:func:`~simtest.reconstruct.lightaware.colour.specular_image`): the border's two body colours,
+        the least-fluctuation weights (each else the darkest channel), or the darkest channel. ``"auto"``:
+        the border's, replaced by an ``ok`` least-fluctuation fit where it has no depth; where the border
+        tells one body colour, the least-fluctuation weights, replaced by the darkest channel where not ``ok``.
     exclude : ndarray of shape (H, W) of bool, optional
-        ROI pixels left out of the fit, as clipped pixels are without ``censor`` (the albedo's
-        dark lines: :func:`~simtest.reconstruct.lightaware.model.albedo_lines`).
+        ROI pixels left out of the fit (:func:`~simtest.reconstruct.lightaware.model.albedo_lines`).
     two_channels : bool or None
-        For RGB values, the pixels clipped in one channel whose projection weight is negative
-        (a red tissue's own reflection beside the lobe): True, valued from their two other
-        channels (:func:`~simtest.reconstruct.lightaware.colour.specular_image`); False, left out.
-        None (default): the fit without them, and where it is ``ok`` on a projection of the
-        three channels and the ROI holds such pixels, the fit with them in its place where the
-        two agree (:func:`_two_channel_choice`).
+        RGB pixels clipped in one channel of negative weight: True, valued from their two other
+        channels; False, left out; None: both fits, chosen by :func:`_two_channel_choice`.
     lobe : {"phong", "ggx", "auto"}
-        The specular lobe of the model: Phong's ``max(0, cos beta)^n`` (the paper's eq. 1), a GGX
-        microfacet lobe under a dielectric film (the renderer's tissue,
-        :func:`~simtest.reconstruct.lightaware.model._rig_value_ggx`: roughness alpha, Fresnel
-        at :data:`~simtest.reconstruct.lightaware.model.GGX_FILM_IOR`, Smith's shadowing), or
-        both fitted and the one chosen by the Bayesian information criterion of the residual
-        (:func:`photometric_fit`, Notes). The estimate's ``lobe`` says which; its ``roughness``
-        is Phong's n, or for GGX the Phong n of the same peak curvature (``2 / alpha^2 - 2``).
+        Phong's ``max(0, cos beta)^n`` (eq. 1), a GGX lobe under a dielectric film
+        (:func:`~simtest.reconstruct.lightaware.model._rig_value_ggx`), or both, chosen by
+        :func:`_choose_lobe`. ``roughness`` is always a Phong n.
 
     Raises
     ------
@@ -203,26 +143,16 @@ def photometric_fit(values, origin_uv, bp_uv, camera, rig: LightRig, settings: F
     """Fit the intensities of an ROI with the image of a plane lit by the whole rig.
 
     Model (package docstring): ``I = g sum_j w_j max(0, cos beta_j)^n f_j p_j + b0 + b1 du + b2 dv``
-    per pixel centre; the linear parameters (g, b0, b1, b2) are solved for each value of the
-    nonlinear ones (a, b, log h, log n) by linear least squares (variable projection, Notes), and
-    those four are fitted by Levenberg-Marquardt (MINPACK through
-    :func:`scipy.optimize.leastsq`, analytic Jacobian). Pixels at or above ``clip_level`` are left
-    out (a saturated plateau carries no shape). A two-light rig's merged highlight is one model.
-    The roughness starts from a log-log regression of the ROI's specular part on the start's
-    cos beta (``log(I - b) - log(f p) = log g + n log cos beta``), refined by a few Gauss-Newton
-    steps on log n alone with the start plane held, unless given.
+    per pixel centre; the linear parameters are solved for each value of (a, b, log h, log n),
+    which Levenberg-Marquardt fits. Clipped pixels are left out (or censored). The roughness starts
+    from a log-log regression of the specular part on the start's cos beta, unless given.
 
     Parameters
     ----------
     values : ndarray of shape (H, W) or (H, W, 3)
-        ROI intensities (float, any unit); or the ROI's linear RGB with the white balance undone
-        (the specular reflection white), which is fitted on its specular image: the tissue's
-        body colours, measured on the ROI's border, projected out
-        (:func:`~simtest.reconstruct.lightaware.colour.specular_image`: the albedo's texture
-        leaves the fit), or where they are too near white, the channel where the tissue is
-        darkest. The estimate's detail says which. A projected fit that passes is checked on
-        the darkest channel too (started from its solution): where that fit misfits, so does
-        the estimate (a curved patch is curved in every channel).
+        ROI intensities (float, any unit); or linear RGB with the white balance undone, fitted on its
+        specular image (:func:`~simtest.reconstruct.lightaware.colour.specular_image`) or the darkest
+        channel; a projected fit that passes is checked on the darkest channel too.
     origin_uv : array_like of shape (2,)
         Pixel (u, v) of ``values[0, 0]`` in the image.
     bp_uv : array_like of shape (2,)
@@ -234,72 +164,33 @@ def photometric_fit(values, origin_uv, bp_uv, camera, rig: LightRig, settings: F
     settings : FitSettings, optional
         The fit's options (defaults: ``FitSettings()``).
     **options
-        Any of :class:`FitSettings`' attributes by name (``clip_level``, ``lobe``, ``diffuse``,
-        ...), over ``settings``'.
+        Any of :class:`FitSettings`' attributes by name, over ``settings``'.
 
     Returns
     -------
     LightAwareEstimate
-        ``estimator="photometric_fit"``, with ``roughness``. Status ``plane_misfit`` (normal kept,
-        depth withdrawn) when the plane model does not explain the ROI (a curved patch, whose
-        lobe the plane model reproduces by trading the curvature for roughness and distance, and
-        so misses the normal). Without the diffuse column, censored pixels and the GGX lobe: when
-        the residuals of neighbouring pixels correlate (``_misfit``), or the residual holds the
-        pattern a curvature of the patch would make (the score test of
-        :func:`~simtest.reconstruct.lightaware.solve._curvature_score`, which sees a sphere at
-        1 % noise where the neighbours' correlation does not). With them (the sensor path), by
-        that score test alone, scored against the residual's own spatially correlated noise: a
-        textured albedo under the rig's diffuse light correlates neighbouring residuals of an
-        exact plane, which that test tells from a curvature. On both paths the sigmas of a fit
-        that passes count the residual's correlation area (an integer image's rounding of a
-        smooth lobe correlates its residual too), on the sensor path also the cluster
-        jackknife's (``counted`` in the source). A curved patch's pattern that would move the
-        normal by no more than that sigma (a micro-relief's random curvatures over the lobe,
-        which the score test sees on thousands of pixels) does not make a misfit: the fit is
-        kept with its sigmas grown by the shift, which ``curvature_shift_deg`` gives
-        (:func:`~simtest.reconstruct.lightaware.solve._curvature_shift`); ``lobe="auto"`` then
-        tries the GGX lobe too, and prefers a lobe whose residual holds no such pattern.
+        ``estimator="photometric_fit"``, with ``roughness``. Status ``plane_misfit`` (depth
+        withdrawn) when the plane does not explain the ROI: neighbouring residuals correlate
+        (``_misfit``; not with the diffuse column, censoring or GGX) or the residual holds a curved
+        patch's pattern (:func:`~simtest.reconstruct.lightaware.solve._curvature_score`). A pattern
+        that moves the normal by no more than its sigma keeps the fit, its sigma grown by
+        ``curvature_shift_deg``.
 
     Raises
     ------
     ValueError
-        A values array that is not 2-D and finite, or an option out of its range
-        (:class:`FitSettings`).
+        A values array that is not 2-D and finite, or an option out of its range.
 
     Notes
     -----
-    Variable projection [3]_. The background columns ``B = [1, du, dv]`` (M, 3) do not depend on
-    the nonlinear parameters p: with Q an orthonormal basis of B and ``P = I - Q Q^T``, the values
-    and the lobe image S(p) (M,) are projected once each, ``y~ = P y`` and ``a = P S``; the gain
-    is then ``g = a . y~ / a . a`` and the residual ``r = g a - y~`` is exactly that of the full
-    linear least squares in (g, b0, b1, b2) at p (pixel by pixel, so the residual tests of
-    ``_misfit`` read it unchanged). Its exact Jacobian (Golub and Pereyra) with ``da = P dS``:
-    ``dr = g (da - a (a . da) / (a . a)) - a (r . da) / (a . a)``; the first term alone
-    (Kaufman's), which is ``P_[S, B] (g dS)``, gives the covariance, equal to the (a, b, log h,
-    log n) block of the full eight-parameter ``s^2 (J^T J)^-1`` (a Schur complement), the
-    residual variance counting all eight parameters. A robust loss reweights the rows: the
-    linear part is then solved with the weights. Four parameters instead of eight, and the
-    linear ones always at their optimum, take Levenberg-Marquardt fewer steps; with the start's
-    roughness refined first it converges in about five evaluations on an exact image.
+    Variable projection [3]_: with ``P`` the projector off the background columns ``[1, du, dv]``,
+    ``a = P S(p)`` and ``y~ = P y``, the gain is ``g = a . y~ / a . a`` and ``r = g a - y~``; Kaufman's
+    Jacobian ``P_[S, B] (g dS)`` gives the fit and the covariance. With ``diffuse`` or censored pixels
+    the linear part (with the shading column ``D(p)``) is solved on the active rows at each p.
 
-    With ``diffuse`` or censored pixels the linear part has a second column that depends on p
-    (the shading ``D(p)``, :func:`~simtest.reconstruct.lightaware.model._rig_diffuse`) and an
-    active set (a censored pixel enters, with the clip level as its value, where the model falls
-    below it): the linear parameters are solved by least squares on the active rows at each p,
-    and the Jacobian is Kaufman's, ``P_[S, D, B] (g dS + k dD)`` (k the albedo), for the fit and
-    for the covariance alike.
-
-    With ``lobe="auto"`` the Phong fit runs first; where its residuals say the model is wrong
-    (``plane_misfit``) or it does not converge, the GGX fit runs, started from its plane and
-    from the GGX roughness of the same peak curvature. The one kept (:func:`_choose_lobe`): a
-    fit that converged over one that did not; a fit whose residuals pass the misfit test over
-    one whose residuals do not; of two that pass, the lower Bayesian information criterion
-    ``BIC = m log(RSS / m) + k log m`` over the m fitted residuals (a Gaussian likelihood with
-    its variance profiled out [5]_: both models have the same k parameters, the plane, the
-    roughness and the same linear part, so it keeps the lower residual sum of squares); of two
-    that misfit, Phong. Why not the BIC there too: when the residuals of both correlate,
-    neither lobe is the image's model and their likelihoods do not rank them (measured:
-    ``docs/decisions/light-aware-recommendation.md``).
+    With ``lobe="auto"`` the GGX fit runs where Phong's misfits or does not converge; kept
+    (:func:`_choose_lobe`): converged over not, passing over misfitting, then the lower
+    ``BIC = m log(RSS / m) + k log m`` [5]_; of two that misfit, Phong.
 
     References
     ----------
@@ -318,21 +209,17 @@ def _note(est: LightAwareEstimate, why: str) -> LightAwareEstimate:
 
 
 def _fit_projections(values, origin_uv, bp_uv, camera, rig, s: FitSettings) -> LightAwareEstimate:
-    """``photometric_fit`` with ``n_start_depths`` None: the two-channel pixels' choice, the
-    retry from further starts, and the colour projections' fallbacks (``FitSettings``'
-    ``two_channels``, ``n_start_depths`` and ``projection``)."""
+    """``photometric_fit`` with ``n_start_depths`` None: the two-channel choice, the retry from further
+    starts, and the projections' fallbacks."""
     fit = (values, origin_uv, bp_uv, camera, rig)
     rgb = np.ndim(values) == 3
     if s.two_channels is None:
-        # without the pixels clipped in one channel, and where the ROI holds some, with them
-        # valued from two channels, kept where the two agree (_two_channel_choice)
         plain = _fit_projections(*fit, replace(s, two_channels=False))
         if (plain.status != "ok" or not rgb
                 or plain.projection not in ("body_colours", "least_fluctuation")
                 or not _one_channel_clipped(values, s.clip_level)):
             return plain  # (the other is kept only beside an ok fit without them, on a projection)
-        # refined from the plain fit, on its projection: the two are compared, and a fit
-        # from further starts that agrees no better costs their time
+        # refined from the plain fit, on its projection
         same = "border" if plain.projection == "body_colours" else plain.projection
         both = _fit_projections(*fit, replace(s, projection=same, two_channels=True,
                                               start_normal=plain.normal, start_roughness=plain.roughness))
@@ -347,8 +234,7 @@ def _fit_projections(values, origin_uv, bp_uv, camera, rig, s: FitSettings) -> L
             best = again
     if (rgb and s.projection == "auto" and best.projection == "body_colours"
             and best.status in ("depth_not_observable", "not_converged")):
-        # the body colours' fit found no depth (a misfit is the surface's shape, seen in every
-        # projection, and stands): the least-fluctuation weights' fit, kept where it is ok
+        # no depth on the body colours (a misfit stands): the least-fluctuation fit where it is ok
         lf = _fit_projections(*fit, replace(s, projection="least_fluctuation"))
         if lf.ok and lf.projection == "least_fluctuation":
             return _note(lf, f"the body colours' fit is not ok ({best.status}: {best.detail})")
@@ -360,8 +246,7 @@ def _fit_projections(values, origin_uv, bp_uv, camera, rig, s: FitSettings) -> L
 
 
 def _fit_lobes(values, origin_uv, bp_uv, camera, rig, s: FitSettings) -> LightAwareEstimate:
-    """One lobe's fit (:func:`_fit_plane`), or with ``lobe="auto"`` Phong's, and where it does
-    not fit, GGX's from its plane too, the one kept by :func:`_choose_lobe`."""
+    """One lobe's fit, or with ``lobe="auto"`` Phong's and where it misfits GGX's too (:func:`_choose_lobe`)."""
     fit = (values, origin_uv, bp_uv, camera, rig)
     if s.lobe != "auto":
         return _fit_plane(*fit, s)
@@ -376,10 +261,8 @@ def _fit_lobes(values, origin_uv, bp_uv, camera, rig, s: FitSettings) -> LightAw
 
 
 def _project(values, s: FitSettings):
-    """The projection stage: the single image of a colour ROI (:func:`_colour_values`), or
-    ``values`` itself. Returns ``(values, clip_level, lower, missing, detail, how, floor_level)``
-    (the colour path's per-pixel censoring and gaps, or None; no floor on a projection of three
-    channels)."""
+    """The single image a fit sees: ``(values, clip_level, lower, missing, detail, how, floor_level)``
+    (:func:`_colour_values` for a colour ROI)."""
     lower = missing = None
     detail, how = "", None
     clip_level, floor_level = s.clip_level, s.floor_level
@@ -392,9 +275,8 @@ def _project(values, s: FitSettings):
 
 
 def _fit_plane(values, origin_uv, bp_uv, camera, rig, s: FitSettings) -> LightAwareEstimate:
-    """One fit of one lobe (``s.lobe`` "phong" or "ggx") from ``s``'s starts: projection, lobe
-    model, starts, solve, covariance; a projected fit that passes, checked on the darkest
-    channel."""
+    """One fit of one lobe: projection, model, starts, solve, covariance; a projected fit that passes is
+    checked on the darkest channel."""
     name = "photometric_fit"
     one, clip_level, lower, missing, colour_detail, how, floor_level = _project(values, s)
     m = PlaneModel(one, origin_uv, bp_uv, camera, rig, s, clip_level, lower, missing, s.lobe == "ggx")
@@ -424,23 +306,19 @@ def _fit_plane(values, origin_uv, bp_uv, camera, rig, s: FitSettings) -> LightAw
     est = replace(est, lobe="ggx" if m.ggx else "phong", n_residuals=int(len(m.yn)), projection=how)
     if lower is not None and est.status in ("ok", "depth_not_observable"):
         # the shape check on the darkest channel: a curved patch is curved in every channel, and
-        # the projection's residual can hide it (a JPEG frame's chroma, subsampled and blocky,
-        # correlates the projected residual over blocks, against which the score test weighs
-        # the curvature's pattern: on the colon wall JPEG frames' projected fits passed 6-15 deg off)
+        # the projection's residual can hide it (a JPEG frame's blocky chroma)
         c, clip_c = _darkest(values, s.clip_level, s.clip_margin)
         chan = _fit_lobes(np.asarray(values, dtype=np.float64)[..., c], origin_uv, bp_uv, m.camera, rig,
                           replace(s, clip_level=clip_c, clip_margin=None, start_normal=est.normal, start_roughness=None,
                                   n_start_depths=0, projection="auto", two_channels=None))
         if chan.status == "plane_misfit":
-            est = est.without_depth("plane_misfit",
-                                    f"channel {c}'s fit misfits ({chan.detail}); {est.detail}")
+            est = est.without_depth("plane_misfit", f"channel {c}'s fit misfits ({chan.detail}); {est.detail}")
     return est
 
 
 def _darkest(rgb, clip_level, margin=None) -> tuple[int, float | None]:
-    """The channel of an RGB ROI whose median is least (where the tissue is darkest) and the
-    level it is censored at: its clip level (``clip_level`` one number or each channel's; None)
-    less its ``margin`` (``FitSettings.clip_margin``)."""
+    """The channel of an RGB ROI whose median is least, and its clip level less ``margin`` (None
+    without a clip level)."""
     rgb = np.asarray(rgb, dtype=np.float64)
     c = int(np.argmin(np.median(rgb.reshape(-1, 3), axis=0)))
     clip = None if clip_level is None else float(per_channel(clip_level)[c])
@@ -450,15 +328,9 @@ def _darkest(rgb, clip_level, margin=None) -> tuple[int, float | None]:
 
 
 def _colour_values(rgb, clip_level, projection: str = "auto", two_channels: bool = False, margin=None):
-    """The single image a colour ROI is fitted on (``photometric_fit``'s ``values`` (H, W, 3)).
-
-    Returns ``(values, clip_level, lower, missing, detail, how)``: the body-colour projection of
-    :func:`~simtest.reconstruct.lightaware.colour.specular_image` (no scalar clip level; its
-    censored and missing pixels), or, where it gives none (the border holds one body colour, or
-    white lies too near them), the channel whose median is least (where the tissue is darkest)
-    with that channel's clip level and no masks; ``how`` is the estimate's ``projection``
-    (``"body_colours"``, ``"least_fluctuation"`` or ``"darkest_channel"``).
-    """
+    """The single image a colour ROI is fitted on: ``(values, clip_level, lower, missing, detail, how)``. The projection
+    of :func:`~simtest.reconstruct.lightaware.colour.specular_image`, or the darkest channel with its clip level;
+    ``how`` is the estimate's ``projection``."""
     rgb = np.asarray(rgb, dtype=np.float64)
     out, how = None, None
     if projection in ("auto", "border"):
@@ -480,33 +352,17 @@ def _colour_values(rgb, clip_level, projection: str = "auto", two_channels: bool
 
 
 def _one_channel_clipped(rgb, clip_level) -> bool:
-    """Whether an RGB ROI holds a pixel clipped in exactly one channel (``clip_level`` one
-    number or each channel's; None: nothing is clipped)."""
+    """Whether an RGB ROI holds a pixel clipped in exactly one channel."""
     if clip_level is None:
         return False
     return bool(np.any(np.count_nonzero(np.asarray(rgb) >= per_channel(clip_level), axis=2) == 1))
 
 
 def _two_channel_choice(both: LightAwareEstimate, plain: LightAwareEstimate) -> LightAwareEstimate:
-    """The fit with the pixels clipped in one channel valued from the other two (``both``:
-    :func:`~simtest.reconstruct.lightaware.colour.specular_image`'s ``two_channels``), or the fit
-    without them (``plain``), returned unchanged.
-
-    ``both`` is kept where both fits are ``ok`` (``both`` on a projection of the three channels,
-    its normal's sigma below the plain one's) and they agree as a Hausman test asks of an
-    efficient and a consistent estimator [8]_: under the plane model both are consistent, the
-    one with more pixels has the smaller variance, and their difference has the variance of
-    the plain one's less the other's; the normals' angle and the depths' difference within
-    ``TWO_CHANNEL_Z`` of those sigmas. Why a test: those pixels hold the second body colour's
-    texture, which their two channels cannot remove; where a plane is not the surface, the
-    fit with them can pass the curvature test with a smaller sigma and a wrong plane
-    (measured: ``docs/decisions/light-aware-recommendation.md``).
-
-    References
-    ----------
-    .. [8] J. A. Hausman, "Specification tests in econometrics", Econometrica 46(6), 1251-1271,
-           1978. https://doi.org/10.2307/1913827
-    """
+    """``both`` (one-channel-clipped pixels valued from two channels) or ``plain`` (without them):
+    ``both`` where both are ``ok`` on a projection, its normal sigma smaller, and they agree as a
+    Hausman test asks (J. A. Hausman, Econometrica 46(6), 1978, https://doi.org/10.2307/1913827):
+    angle and depth gaps within ``TWO_CHANNEL_Z`` times ``sqrt(sigma_plain^2 - sigma_both^2)``."""
     if not (plain.status == "ok" and both.status == "ok" and plain.has_normal and both.has_normal
             and both.projection in ("body_colours", "least_fluctuation")):
         return plain  # (on one channel no pixel is valued from two)
@@ -520,39 +376,31 @@ def _two_channel_choice(both: LightAwareEstimate, plain: LightAwareEstimate) -> 
     droom = TWO_CHANNEL_Z * math.sqrt(max(dp * dp - db * db, 0.0))
     if not (gap <= room and dgap <= droom):
         return plain
-    why = (f"pixels clipped in one channel valued from the other two (the fit without them "
-           f"agrees: {gap:.2g} deg and {dgap:.2g} mm apart, within {room:.2g} deg and {droom:.2g} mm)")
-    return replace(both, detail=f"{both.detail}; {why}" if both.detail else why)
+    return _note(both, f"pixels clipped in one channel valued from the other two (the fit without them "
+                       f"agrees: {gap:.2g} deg and {dgap:.2g} mm apart, within {room:.2g} deg and {droom:.2g} mm)")
 
 
 def _bic(est: LightAwareEstimate) -> float:
-    """``m log(RSS / m)`` of a fit (its ``residual_rms`` over ``n_residuals``); the ``k log m``
-    term is the same for both lobes (``photometric_fit``, Notes). +inf without a normal."""
+    """``m log(RSS / m)`` of a fit (the ``k log m`` term is the same for both lobes); +inf without a normal."""
     if not est.has_normal or est.residual_rms is None or not est.n_residuals:
         return math.inf
     return est.n_residuals * math.log(max(est.residual_rms, 1e-300) ** 2)
 
 
 def _choose_lobe(pho: LightAwareEstimate, ggx: LightAwareEstimate) -> LightAwareEstimate:
-    """The Phong or the GGX fit (``photometric_fit``'s Notes, ``lobe="auto"``); its detail names
-    the other lobe's residual RMS."""
+    """The Phong or the GGX fit (``photometric_fit``'s Notes); its detail names the other's residual RMS."""
     def rank(e):
         failed = e.status == "not_converged" or not e.has_normal
         misfit = e.status == "plane_misfit"
-        # a fit whose residual holds a curved patch's pattern (a misfit, or a fit kept with it:
-        # curvature_shift_deg) after one whose residual holds none; of two such fits Phong
-        # (neither lobe is the image's model, and their likelihoods do not rank them: measured
-        # in docs/decisions); else the lower BIC
+        # a curved pattern in the residual (a misfit, or curvature_shift_deg) ranks last; of two such, Phong
         flawed = misfit or e.curvature_shift_deg is not None
         return (failed, flawed, 0.0 if flawed and e is pho else (1.0 if flawed else _bic(e)))
 
     best, other = (pho, ggx) if rank(pho) <= rank(ggx) else (ggx, pho)
     if best is ggx and pho.status == "plane_misfit" and _bic(ggx) > _bic(pho):
-        # the GGX fit, judged by the sensor path's test (which takes a correlated residual for a
-        # texture), passes with a larger residual than the Phong fit that misfits: no better
-        # model of the image, and Phong's misfit stands
+        # a GGX fit that passes with a larger residual than Phong's misfit is no better model
         best, other = pho, ggx
     why = (f"{best.lobe} lobe: residual RMS {best.residual_rms:.4g} against {other.lobe}'s "
            f"{other.residual_rms:.4g}" if other.residual_rms is not None and best.residual_rms is not None
            else f"{best.lobe} lobe")
-    return replace(best, detail=f"{best.detail}; {why}" if best.detail else why)
+    return _note(best, why)

@@ -1,6 +1,5 @@
-"""The lobe stage of the photometric plane fit: the ROI's pixels, the image of a plane lit by the
-rig at a point (a, b, log h, log roughness), the variable projection's residual and Jacobian
-(:func:`~simtest.reconstruct.lightaware.plane.photometric_fit`, Notes), and the start roughness."""
+"""The lobe stage of the photometric plane fit: the ROI's pixels, the rig's image of a plane at
+(a, b, log h, log roughness), the variable projection's residual and Jacobian, the start roughness."""
 
 from __future__ import annotations
 
@@ -14,31 +13,21 @@ from simtest.reconstruct.lightaware.model import (
 from simtest.reconstruct.lightaware.solve import _ROUGHNESS_RANGE
 
 
-#: The residual of every pixel at a trial point where the model is not finite: far above any
-#: residual of the normalised values (at most a few units), so that Levenberg-Marquardt rejects
-#: the step and shortens it.
+#: The residual of every pixel where the model is not finite: far above any normalised residual, so LM rejects it.
 _NOT_FINITE_RESIDUAL = 1e6
 
-
-#: Gauss-Newton steps on log n alone that refine the photometric fit's start roughness: on the
-#: bench's exact highlight (n = 150) three steps from n = 50, 86 or 258 (the regression's starts
-#: with cos beta with and without the falloff) end within 0.003 of log 150.
+#: Gauss-Newton steps on log n alone that refine the photometric fit's start roughness.
 _ROUGHNESS_START_STEPS = 3
 
-
-#: Phong roughnesses among which the start of a fit under several lights is chosen by its cost
-#: (``photometric_fit``'s start roughness): a factor of 4 apart, from a lobe as broad as a
-#: diffuse one to the smoothest film's range.
+#: Phong roughnesses (a factor of 4 apart) among which a start under several lights is chosen by its cost.
 _START_ROUGHNESS_GRID = (4.0, 16.0, 64.0, 256.0, 1024.0, 4096.0)
 
-#: The factor by which the grid's start roughness must lower the start plane's cost to replace
-#: the regression's (``photometric_fit``'s start under several lights).
+#: The factor by which the grid's start roughness must lower the start plane's cost to replace the regression's.
 _START_ROUGHNESS_GAIN = 0.5
 
 
 def _qr_rows(AT, scratch: bool):
-    """``(QT (k, M), R)``: the reduced QR of the matrix whose columns are ``AT``'s rows (k, M), by
-    LAPACK on their memory (``numpy.linalg.qr`` copies it); ``scratch``: ``AT`` may be overwritten."""
+    """``(QT (k, M), R)``: the reduced QR of ``AT.T`` by LAPACK in place (``scratch``: ``AT`` may be overwritten)."""
     lapack = require("scipy.linalg").lapack
     qr, tau = lapack.dgeqrf(AT.T, overwrite_a=scratch)[:2]
     R = np.triu(qr[:len(AT)])
@@ -48,13 +37,9 @@ def _qr_rows(AT, scratch: bool):
 class PlaneModel:
     """The pixels of one photometric plane fit and the model's residuals on them.
 
-    Built from the single image fitted (after the colour projection) and the fit's settings
-    (:class:`~simtest.reconstruct.lightaware.plane.FitSettings`); :meth:`use` picks the pixels
-    fitted (all kept ones or a sub-grid) and sets the arrays the residuals read: ``sel, step, y,
-    cens, general, dT, rl, yscale, yn, background, clipn, design``. ``general`` is the sensor
-    path (a diffuse column, censored rows or the GGX lobe: :meth:`resjac_general`), else the
-    plain variable projection (:meth:`resjac_plain`). The last evaluation is cached in
-    ``state`` (keyed by the point and the weights), the background's basis in ``proj``.
+    :meth:`use` picks the pixels fitted and sets the arrays the residuals read. ``general`` (a
+    diffuse column, censored rows or the GGX lobe) selects :meth:`resjac_general`, else
+    :meth:`resjac_plain`. The last evaluation is cached in ``state``, the background's basis in ``proj``.
 
     Raises
     ------
@@ -91,29 +76,23 @@ class PlaneModel:
         self.use(s.max_pixels)
 
     def use(self, mp, keep_=None):
-        """Fit the pixels of ``keep_`` (default: every kept one), or a sub-grid of them beyond
-        ``mp``; the cached evaluation and basis are dropped."""
+        """Fit the pixels of ``keep_`` (default every kept one), on a sub-grid beyond ``mp``; caches dropped."""
         keep_ = self.keep if keep_ is None else keep_
         lower, censor, clip_level = self.lower, self.censor, self.clip_level
-        sel_, step_, uv_, y_ = _roi_samples(self.vals, self.o, self.uu, self.vv, keep_, mp)
-        if not censor:
-            cens_ = np.zeros(len(y_), bool)
-        else:
-            cens_ = lower.ravel()[sel_] if lower is not None else y_ >= clip_level
-        dT_ = np.ascontiguousarray(_rays(self.camera, (uv_[:, None, :] + self.sub[None]).reshape(-1, 2)).T)
+        sel_, self.step, uv_, y_ = _roi_samples(self.vals, self.o, self.uu, self.vv, keep_, mp)
+        self.sel, self.y = sel_, y_
+        self.cens = ((lower.ravel()[sel_] if lower is not None else y_ >= clip_level) if censor
+                     else np.zeros(len(y_), bool))
+        self.dT = dT_ = np.ascontiguousarray(_rays(self.camera, (uv_[:, None, :] + self.sub[None]).reshape(-1, 2)).T)
         du_ = (uv_[:, 0] - self.bp[0]) / max(self.W, self.H)
         dv_ = (uv_[:, 1] - self.bp[1]) / max(self.W, self.H)
-        yscale_ = max(float(np.abs(y_).max()), 1e-12)
-        background_ = np.column_stack([np.ones_like(du_), du_, dv_])
-        design_ = np.empty((5 if self.diffuse else 4, len(y_))).T  # (each column contiguous: _qr_rows)
-        design_[:, -3:] = background_
-        self.sel, self.step, self.y, self.cens = sel_, step_, y_, cens_
-        self.general = bool(self.diffuse or cens_.any() or self.ggx)
-        self.dT, self.rl, self.yscale, self.yn = dT_, _ray_light(self.rig_arr[0], dT_), yscale_, y_ / yscale_
-        self.background = background_
-        self.clipn = ((y_ / yscale_ if lower is not None else float(clip_level) / yscale_)
-                      if censor else np.inf)
-        self.design = design_
+        self.yscale = yscale_ = max(float(np.abs(y_).max()), 1e-12)
+        self.background = np.column_stack([np.ones_like(du_), du_, dv_])
+        self.design = np.empty((5 if self.diffuse else 4, len(y_))).T  # (each column contiguous: _qr_rows)
+        self.design[:, -3:] = self.background
+        self.general = bool(self.diffuse or self.cens.any() or self.ggx)
+        self.rl, self.yn = _ray_light(self.rig_arr[0], dT_), y_ / yscale_
+        self.clipn = ((y_ / yscale_ if lower is not None else float(clip_level) / yscale_) if censor else np.inf)
         self.state.clear()
         self.proj.clear()
         self.lin = {}  # the background's basis on the active rows (resjac_general)
@@ -136,19 +115,14 @@ class PlaneModel:
         return v if ss == 1 else v.reshape(*v.shape[:-1], -1, ss * ss).mean(axis=-1)
 
     def resjac_at(self, p, nb, e1, e2, grad=True, w=None, kaufman=False):
-        """Residuals (M,) and Jacobian (M, 4) at ``p`` = (a, b, log h, log roughness) about the
-        normal ``nb`` and its basis (``e1``, ``e2``): :meth:`resjac_general` or
-        :meth:`resjac_plain`."""
+        """Residuals (M,) and Jacobian (M, 4) at ``p`` = (a, b, log h, log roughness) about ``nb``."""
         if self.general:
             return self.resjac_general(p, nb, e1, e2, grad, w, kaufman)
         return self.resjac_plain(p, nb, e1, e2, grad, w, kaufman)
 
     def resjac_general(self, p, nb, e1, e2, grad=True, w=None, kaufman=False):
-        """Residuals and Kaufman's Jacobian with the diffuse column and censored rows (Notes).
-
-        Censored rows where the model is at or above the clip level have residual 0 and a zero
-        Jacobian row; the others, the model minus the clip level.
-        """
+        """Residuals and Kaufman's Jacobian with the diffuse column and censored rows; a censored row where
+        the model is at or above the clip level has residual 0."""
         state, design, yn, cens = self.state, self.design, self.yn, self.cens
         dT, rl, rig_arr, box = self.dT, self.rl, self.rig_arr, self.box
         key = (p.tobytes(), nb.tobytes(), None if w is None else w.tobytes(), "general")
@@ -165,9 +139,7 @@ class PlaneModel:
             active = ~cens
             coef, Q = np.zeros(design.shape[1]), None
             if not np.isfinite(design).all():
-                # a trial point where the model overflows (a plane seen edge-on, a lobe run off):
-                # residuals that MINPACK rejects, instead of a least squares that LAPACK
-                # refuses with a line of its own on stderr
+                # the model overflows (a plane seen edge-on, a lobe run off): residuals MINPACK rejects
                 r = np.full(len(yn), _NOT_FINITE_RESIDUAL)
                 state.update(key=key, n=n, dns=dns, h=h, rough=rough, parts=parts, terms=terms, coef=coef,
                              active=active, r=r, Q=None)
@@ -188,8 +160,8 @@ class PlaneModel:
         return state["r"], self.jac_general(p, nb, e1, e2, state["dns"], w)
 
     def _background_basis(self, active, w):
-        """``(QT, R, om)``: the rows' weights ``om`` (``w`` on the active rows, 0 on the others; None: all 1)
-        and the QR of the background so weighted (``QT`` (3, M)), kept while the active rows stay."""
+        """``(QT, R, om)``: the row weights ``om`` (``w`` on active rows, 0 elsewhere; None: all 1) and the
+        QR of the weighted background, kept while the active rows stay."""
         c = self.lin
         if not (c and c["w"] is w and np.array_equal(c["active"], active)):
             om = None if w is None and active.all() else np.where(active, 1.0 if w is None else w, 0.0)
@@ -198,10 +170,9 @@ class PlaneModel:
         return c["QT"], c["R"], c["om"]
 
     def _linear_part(self, active, target, w):
-        """The linear parameters of the columns on the active rows, weighted by ``w``, and their
-        orthonormal basis (rows, the background's first): the columns that depend on p projected off
-        the kept background basis and factorised (``lstsq``'s minimum norm, no basis, where a column
-        is (nearly) in the others' span). Inactive rows weigh 0 (copied out, they cost as much again)."""
+        """The linear parameters on the active rows, weighted by ``w``, and the columns' orthonormal basis
+        (rows, the background's first); ``lstsq``'s minimum norm and no basis where a column is (nearly)
+        in the others' span."""
         QT, R, om = self._background_basis(active, w)
         k = self.design.shape[1] - 3
         A, t = (self.design.T[:k], target) if om is None else (self.design.T[:k] * om, target * om)
@@ -231,12 +202,9 @@ class PlaneModel:
         return (Ja if w is None else Ja / w).T
 
     def resjac_plain(self, p, nb, e1, e2, grad=True, w=None, kaufman=False):
-        """Residuals of the variable projection (Notes) and their Jacobian in (a, b, log h, log n).
-
-        ``w``: row weights (a robust loss' reweighting): the linear part is solved with them and
-        the residual and Jacobian returned are the unweighted ones of that solution. ``kaufman``:
-        the Jacobian without its second-order term, ``P (g dS)`` (for the covariance).
-        """
+        """Residuals of the variable projection and their Jacobian in (a, b, log h, log n). ``w``: row weights (the
+        linear part solved with them; unweighted residual and Jacobian returned). ``kaufman``: the Jacobian without its
+        second-order term (for the covariance)."""
         state = self.state
         QT, yt = self.basis(w)
         key = (p.tobytes(), nb.tobytes(), None if w is None else w.tobytes())
@@ -276,9 +244,8 @@ class PlaneModel:
 
 
 def start_roughness(m: PlaneModel, n, h, given=None) -> float:
-    """The start's roughness on the start plane (``n``, ``h``): ``given``, else Phong's n
-    (:func:`phong_start`), for GGX its alpha of the same peak curvature; kept per plane until
-    :meth:`PlaneModel.use` (the screened start is refined from the same)."""
+    """The start's roughness on the plane (``n``, ``h``): ``given``, else :func:`phong_start` (for GGX
+    its alpha), cached per plane until :meth:`PlaneModel.use`."""
     key = (np.asarray(n).tobytes(), float(h), given)
     if key not in m.starts:
         rough = phong_start(m, n, h, given)
@@ -319,12 +286,9 @@ def _roughness_cost(m: PlaneModel, geo, ln, QT, yt) -> float:
 
 
 def phong_start(m: PlaneModel, n, h, given=None) -> float:
-    """Start roughness: a log-log regression of the specular part on cos beta, then Gauss-Newton.
-
-    The regression's slope is sensitive to the start plane (log cos beta is small near the
-    peak); a few Gauss-Newton steps on log n alone (the plane held, the linear part projected
-    out as in the fit) bring it to the least-squares roughness of the start plane.
-    """
+    """Start roughness: a log-log regression of the specular part on cos beta, then Gauss-Newton on
+    log n with the plane held; under several lights, also from the best of
+    :data:`_START_ROUGHNESS_GRID`, kept where it lowers the cost by :data:`_START_ROUGHNESS_GAIN`."""
     if given is not None:
         return float(given)
     # cos beta f p and f p (the lobe at n = 1 and n = 0): their ratio is cos beta (one light)
@@ -346,13 +310,7 @@ def phong_start(m: PlaneModel, n, h, given=None) -> float:
     QT, yt = m.basis(None)
     log_n = _roughness_steps(m, geo, log_n, QT, yt)
     if len(m.rig_arr[0]) > 1:
-        # several lights: the ratio above is no lobe's cos beta, and where a second light's
-        # lobe enters the ROI the steps ran to a broad lobe over both (n -> 1), from where the
-        # fit of an exact plane ran off (h 20 -> 65 mm, guides +-5 mm): the steps again from
-        # the least cost of a grid over the range (one evaluation each). That start replaces
-        # the first only where it at least halves the start plane's cost (it found the lobe);
-        # a lower cost by a few per cent on a flat cost curve says nothing of the basin, and
-        # taking it sent a sensor-path fit of an exact plane into a local minimum
+        # several lights: the ratio above is no lobe's cos beta; the steps again from the grid's least cost
         other = _roughness_steps(m, geo, min(np.log(_START_ROUGHNESS_GRID),
                                              key=lambda ln: _roughness_cost(m, geo, ln, QT, yt)), QT, yt)
         if (_roughness_cost(m, geo, other, QT, yt)

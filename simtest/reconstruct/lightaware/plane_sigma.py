@@ -1,6 +1,5 @@
 """The covariance stage of the photometric plane fit: the misfit tests at the solution and the
-sigmas that count the residual's correlation (:func:`~simtest.reconstruct.lightaware.plane.photometric_fit`,
-Returns)."""
+sigmas that count the residual's correlation."""
 
 from __future__ import annotations
 
@@ -22,23 +21,16 @@ from simtest.reconstruct.lightaware.solve import (
 
 
 def _with_depth_sigma(est: LightAwareEstimate, dsig: float, why) -> LightAwareEstimate:
-    """``est`` with the depth's 1-sigma ``dsig`` (mm), or without its depth
-    (``depth_not_observable``, its detail ``why(rel)`` of the relative sigma) where ``dsig``
-    exceeds ``TOL.depth_rel_sigma_max`` of a nonzero depth."""
+    """``est`` with the depth's 1-sigma ``dsig`` (mm), or ``depth_not_observable`` (detail ``why(rel)``)
+    where ``dsig`` exceeds ``TOL.depth_rel_sigma_max`` of a nonzero depth."""
     if est.depth_mm and dsig > TOL.depth_rel_sigma_max * abs(est.depth_mm):
         return est.without_depth("depth_not_observable", why(dsig / abs(est.depth_mm)))
     return replace(est, depth_sigma_mm=dsig)
 
 
 class PlaneVerdict:
-    """The verdict on a solved plane fit: :meth:`at_solution` (the residuals and Jacobian the
-    covariance reads) and :meth:`post` (the misfit tests and the sigmas) for
-    :func:`~simtest.reconstruct.lightaware.solve._finish`.
-
-    ``x`` is the solution about the normal ``n0`` (basis ``e1, e2``); ``n_hat``, ``h_hat`` and
-    ``rough_hat`` its plane and Phong roughness; ``how`` the colour projection fitted (None on
-    one image); ``floor_level`` the image's floor (None: none).
-    """
+    """The verdict on a solved plane fit for :func:`~simtest.reconstruct.lightaware.solve._finish`:
+    :meth:`at_solution` (residuals and Jacobian) and :meth:`post` (misfit tests and sigmas)."""
 
     def __init__(self, m: PlaneModel, rig, x, n0, e1, e2, n_hat, h_hat, rough_hat, how, floor_level):
         self.m, self.rig, self.x, self.n0, self.e1, self.e2 = m, rig, x, n0, e1, e2
@@ -46,16 +38,11 @@ class PlaneVerdict:
         self.how, self.floor_level = how, floor_level
 
     def at_solution(self, p_hat, nb, e1_, e2_):
-        """Residuals and covariance Jacobian about (nb, e1_, e2_) at the solution x.
-
-        The plane and roughness are x's (``nb`` is x's normal): the model at x, most often the
-        solver's last evaluation, is reused and only the derivatives are taken about ``nb``.
-        """
+        """Residuals and covariance Jacobian at the solution x, derivatives about (nb, e1_, e2_)."""
         m = self.m
         m.resjac_at(self.x, self.n0, self.e1, self.e2, grad=False)
         if m.general:  # the diffuse column's derivative by differences about (nb, e1_, e2_)
-            return m.state["r"], m.jac_general(p_hat, nb, e1_, e2_,
-                                               _normal_derivs(p_hat, nb, e1_, e2_)[1], None)
+            return m.state["r"], m.jac_general(p_hat, nb, e1_, e2_, _normal_derivs(p_hat, nb, e1_, e2_)[1], None)
         return m.state["r"], m.jac_of(_normal_derivs(p_hat, nb, e1_, e2_)[1], None, True)
 
     def _jacobian(self):
@@ -64,15 +51,9 @@ class PlaneVerdict:
                                 *plane_basis(self.n_hat))[1]
 
     def curvature(self, r0, hac=False):
-        """The score test for a curved patch (:func:`~simtest.reconstruct.lightaware.solve._curvature_score`):
-        the quadric patch of :func:`~simtest.reconstruct.lightaware.patch.quadric_fit` at the
-        plane's specular point of the mean light with zero curvature is the plane; its image's
-        derivatives in the three curvatures
-        (:func:`~simtest.reconstruct.lightaware.model._curvature_columns`) are the columns the
-        residual is tested against. Returns ``(verdict, shift)``: the test's (a misfit's
-        detail, None where it passes, False where it cannot be made) and, for a misfit, how far
-        the pattern would move the plane
-        (:func:`~simtest.reconstruct.lightaware.solve._curvature_shift`)."""
+        """The score test for a curved patch about the mean light's specular point:
+        ``(verdict, shift)``, the test's detail (None: passes, False: cannot be made) and, for a misfit,
+        :func:`~simtest.reconstruct.lightaware.solve._curvature_shift`."""
         m, n_hat, h_hat, floor_level = self.m, self.n_hat, self.h_hat, self.floor_level
         Lm = _mean_light(self.rig)
         c = float(n_hat @ Lm) + h_hat
@@ -86,8 +67,7 @@ class PlaneVerdict:
         span = np.column_stack([J, m.design] if m.general else [J, m.state["St"], m.background])
         sel_ = m.sel
         if floor_level is not None and np.any(m.y <= floor_level):
-            # the pixels near the floor hold clipped noise, a pattern of its own: the test reads
-            # the rest (chosen by the model, as the floor's refinement chooses them)
+            # the pixels near the floor hold clipped noise: the test reads the rest (chosen by the model)
             above = m.y > floor_level
             s_n = 1.4826 * float(np.median(np.abs(r0[above]))) if np.any(above) else 0.0
             rows = m.yn + r0 > float(floor_level) / m.yscale + _FLOOR_MARGIN * s_n
@@ -96,14 +76,8 @@ class PlaneVerdict:
         return verdict, (_curvature_shift(cols, span, r0) if verdict else None)
 
     def post(self, est, r0):
-        """The misfit test, and where neighbouring residuals correlate, the sandwich sigmas.
-
-        Correlated residuals (a texture, a micro-relief, a lobe shape the model lacks, a curved
-        patch) make ``s^2 (J^T J)^-1`` too small: the normal's and the depth's sigmas are then
-        the larger of it and the sandwich's (:func:`~simtest.reconstruct.lightaware.solve._hac_covariance`).
-        The sensor path (the diffuse column, censored pixels or the GGX lobe) is judged by
-        :meth:`sensor_verdict`.
-        """
+        """The misfit tests and sigmas: the neighbours' correlation and the curvature test on the plain
+        path (sandwich sigmas where the residuals correlate), :meth:`sensor_verdict` on the sensor path."""
         m = self.m
         if est.status not in ("ok", "depth_not_observable"):
             return est
@@ -129,23 +103,9 @@ class PlaneVerdict:
         return est
 
     def sensor_verdict(self, est, r0):
-        """The misfit test and the sigmas of the sensor path.
-
-        On a sensor frame the tissue's albedo texture (vessels, mucosal pattern) under the rig's
-        diffuse light leaves residuals that correlate between neighbours on an exact plane, so
-        the neighbours' correlation says nothing of the surface's shape there. The test is the
-        curvature's score test with the residual's own correlated noise
-        (:func:`~simtest.reconstruct.lightaware.solve._curvature_score` with its grid): a
-        texture passes it, a curved patch does not (``plane_misfit``). One that passes has
-        sigmas that count the texture as the noise it is: ``s^2 (J^T J)^-1`` (``s^2`` the
-        residual's variance, the texture's included) times the residual's correlation area
-        (:func:`~simtest.reconstruct.lightaware.solve._correlation_area`: the fitted pixels per
-        independent one), the normal's at least the sandwich's where the residuals correlate;
-        a depth whose relative sigma is then above ``TOL.depth_rel_sigma_max`` is withdrawn
-        (``depth_not_observable``). Where the test cannot be made (no specular point of the mean
-        light on the plane, a degenerate pattern) the neighbours' correlation decides, as on the
-        plain path.
-        """
+        """The misfit test and sigmas of the sensor path: the curvature's score test against the residual's
+        own correlated noise (an albedo texture passes, a curved patch does not), sigmas by
+        :meth:`counted`; where the test cannot be made, the neighbours' correlation decides."""
         m = self.m
         curved, shift = self.curvature(r0, hac=True)
         correlated = _correlated(r0, m.sel, m.keep.shape, m.step)
@@ -159,23 +119,8 @@ class PlaneVerdict:
         return self.counted(est, r0, correlated)
 
     def immaterial(self, est, r0, curved, shift, correlated, jackknife):
-        """A fit whose residual holds a curved patch's pattern (``curved``, the score test's
-        detail) that moves the plane less than its noise does, or None.
-
-        The score test asks whether the patch is curved at all; under a micro-relief it is, its
-        curvatures random over the lobe, and with thousands of pixels the test sees them. What
-        the recommendation needs is whether that curvature moves the normal: ``shift`` (the
-        normal's shift in degrees and the distance's relative shift, the quadric patch's
-        linearised step from the plane,
-        :func:`~simtest.reconstruct.lightaware.solve._curvature_shift`). Where the normal's shift
-        is at most its sigma (the residual's correlation and, on the sensor path, the cluster
-        jackknife counted: :meth:`counted`, over the wider blocks too, as the relief's pattern
-        spans the lobe; measured: ``docs/decisions/light-aware-recommendation.md``), the fit is
-        kept with its sigmas grown by the shifts (the normal's sigma plus its shift; the depth's
-        plus its relative shift times the depth, withdrawn above ``TOL.depth_rel_sigma_max``) and
-        the detail saying so. On the noisy spheres and a local minimum's leftover pattern the
-        shift is 9 to 16 times the sigma, and the fit stays ``plane_misfit``.
-        """
+        """A fit whose residual holds a curved pattern (``curved``) that moves the normal by at most its
+        sigma (:meth:`counted`, wide blocks), kept with its sigmas grown by the shift; else None."""
         if shift is None:
             return None
         kept = self.counted(est, r0, correlated, jackknife=jackknife, wide=True)
@@ -193,20 +138,10 @@ class PlaneVerdict:
         return kept
 
     def counted(self, est, r0, correlated, jackknife=True, wide=False):
-        """``est`` with sigmas that count the residual's correlation: ``s^2 (J^T J)^-1`` times
-        the residual's correlation area (:func:`~simtest.reconstruct.lightaware.solve._correlation_area`:
-        the fitted pixels per independent one), the normal's at least the sandwich's where the
-        residuals correlate and, with ``jackknife``, at least the cluster jackknife's; the
-        depth's grown by the same factor; a depth whose relative sigma is then above
-        ``TOL.depth_rel_sigma_max`` is withdrawn (``depth_not_observable``).
-
-        On a sensor frame the residual holds the albedo's texture, weakly correlated over many
-        lags, which only the jackknife sees. On the plain path (no diffuse column, censoring or
-        GGX lobe) an integer image of a smooth lobe holds its rounding, which is not independent
-        from pixel to pixel where the lobe changes by less than a level a pixel. The jackknife
-        is left out there: it tripled sigmas that the Cramer-Rao bound already matched
-        (measured: ``docs/decisions/light-aware-recommendation.md``).
-        """
+        """``est`` with sigmas that count the residual's correlation: ``s^2 (J^T J)^-1`` times its correlation
+        area, the normal's at least the sandwich's where the residuals correlate and, with ``jackknife``,
+        the cluster jackknife's; the depth's grown by the same factor, withdrawn above
+        ``TOL.depth_rel_sigma_max``."""
         m = self.m
         scale = math.sqrt(_correlation_area(r0, m.sel, m.keep.shape, m.step))
         sig = None if est.normal_sigma_deg is None else est.normal_sigma_deg * scale
@@ -214,9 +149,7 @@ class PlaneVerdict:
         if correlated:
             est = self.with_sandwich(est, r0)
         if est.normal_sigma_deg and jackknife:
-            # at least the cluster jackknife's (the largest over the blocks the ROI holds enough
-            # of, wider where one channel keeps the texture): the depth's sigma grows with the
-            # normal's by the same factor
+            # at least the cluster jackknife's over the blocks; the depth's sigma grows by the same factor
             J = self._jacobian()
             for block in cluster_blocks(m.keep.shape, texture=wide or self.how in (None, "darkest_channel")):
                 cov = _cluster_covariance(J, r0, m.sel, m.keep.shape, block)

@@ -1,7 +1,5 @@
 """The start and solve stages of the photometric plane fit: the start planes, each refined by
-Levenberg-Marquardt on the pixels of a :class:`~simtest.reconstruct.lightaware.plane_model.PlaneModel`,
-the best refined again on every pixel and above the floor
-(:func:`~simtest.reconstruct.lightaware.plane.photometric_fit`)."""
+Levenberg-Marquardt, the best refined again on every pixel and above the floor."""
 
 from __future__ import annotations
 
@@ -18,10 +16,8 @@ from simtest.reconstruct.lightaware.solve import _correlated, _implausible, _lig
 
 _NAME = "photometric_fit"
 
-#: The most pixels the refinement "on every kept pixel" takes (beyond, a regular sub-grid): a
-#: bound on its cost, which grows with the ROI (a broad lobe's on a megapixel frame spans most of
-#: it, 10 s a fit). 512 x 512 px: above every ROI of a 360 px frame, where the bound changes no
-#: fit; a larger ROI's sub-grid of step k has k^2 times fewer pixels, its sigma k times the whole ROI's.
+#: The most pixels the refinement "on every kept pixel" takes (beyond, a regular sub-grid): 512 x 512,
+#: above every ROI of a 360 px frame.
 REFINE_MAX_PIXELS = 262_144
 
 
@@ -36,28 +32,19 @@ def _screened(m: PlaneModel, starts, given):
 
 
 def start_planes(m: PlaneModel, rig, d_bp, n0, h0, s) -> list:
-    """The start planes (n, h) of a fit: the given start (or the bisector at the nominal depth, and
-    the pair's, ``s.pair_starts``), the nominal bisector too when a start was given, and
-    ``s.n_start_depths`` planes along the BP's constraint (each the bisector at a depth from
-    nominal/8 to nominal*8, its distance such that the specular point is the BP). A near plane
-    with a rough lobe can mimic a far one with a smooth lobe (a local minimum), which one start
-    may fall into."""
+    """The start planes (n, h) of a fit: the given start (or, under several lights, the cheapest of the
+    mean light's and each light's bisector at the nominal depth, plus ``s.pair_starts``), the nominal
+    bisector when a start was given, and ``s.n_start_depths`` bisectors along the BP's constraint
+    (nominal/8 to nominal*8)."""
     nominal_depth_mm, rig_arr = s.nominal_depth_mm, m.rig_arr
     cands = [(n0, h0)]
     if s.start_normal is None and len(rig_arr[0]) > 1:
-        # a highlight is one light's: beside the mean light's bisector, each light's at the
-        # nominal depth (the BP that light's specular point), the start of least cost kept (under
-        # guides +-8 mm at 20 mm the mean light's is 11 deg off, and an exact plane's fit ran off);
-        # beside it, each refined too, the light's at the depth where the rig puts another light's
-        # on another highlight (a pair's separation fixes the depth, whose minimum a start at the
-        # nominal one can miss; a start's cost does not tell the basin: both refined, the least kept)
-        cands = [_screened(m, cands + [_light_start(d_bp, L, nominal_depth_mm) for L in rig_arr[0]],
-                           s.start_roughness)]
+        # a highlight is one light's: the cheapest of each light's bisector, and the pairs' starts
+        cands = [_screened(m, cands + [_light_start(d_bp, L, nominal_depth_mm) for L in rig_arr[0]], s.start_roughness)]
         cands += [_light_start(d_bp, rig_arr[0][i], d) for i, _, d in s.pair_starts]
     if np.abs(rig_arr[0]).max() > 0:
         Lm = _mean_light(rig)
-        depths = (list(nominal_depth_mm * np.geomspace(1 / 8, 8, s.n_start_depths))
-                  if s.n_start_depths else [])
+        depths = (list(nominal_depth_mm * np.geomspace(1 / 8, 8, s.n_start_depths)) if s.n_start_depths else [])
         if s.start_normal is not None:
             depths.append(nominal_depth_mm)
         for sdep in depths:
@@ -88,12 +75,11 @@ def _again(m: PlaneModel, x, n0, e1, e2, h0, s):
 
 
 def solve_plane(m: PlaneModel, cands, s, floor_level):
-    """Each start refined, the least cost kept and refined once more on every pixel and above
-    the floor (``photometric_fit``'s ``max_pixels``, ``refine_all``, ``floor_refit``).
+    """Each start refined, the least cost kept and refined once more on every pixel and above the floor.
 
-    Returns ``(x, n0, h0, e1, e2, conv, msg, nfev)`` (``x`` the point about the normal ``n0``,
-    its basis ``e1, e2``, ``h0`` its start distance), or a ``not_converged`` estimate where the
-    model is not finite about the solution.
+    Returns ``(x, n0, h0, e1, e2, conv, msg, nfev)`` (``x`` about the normal ``n0`` with basis
+    ``e1, e2``, ``h0`` its start distance), or a ``not_converged`` estimate where the model is not
+    finite about the solution.
     """
     best = None
     nfev_total = 0
@@ -111,14 +97,7 @@ def solve_plane(m: PlaneModel, cands, s, floor_level):
     _, x, n0, h0, e1, e2, conv, msg, r = best
     clipped_low = floor_level is not None and bool(np.any(m.y <= floor_level))
     if m.step > 1 and s.refine_all and not clipped_low and not _correlated(r, m.sel, m.keep.shape, m.step):
-        # the starts were refined on a sub-grid: where the plane explains it (its residuals do
-        # not correlate, the error is the noise's) the best is refined on every kept pixel (the
-        # sub-grid's covariance is step^2 times the whole ROI's; the two solutions lie apart
-        # along the valley where the tilt and the distance trade off, which takes the second
-        # fit about as many evaluations as the first); where it misfits, the model's error
-        # dominates and more pixels of it would not help; where the ROI's noise is clipped at
-        # the floor, that clipping biases the fit (an error its sigma does not hold) and more
-        # pixels would only shrink the sigma about it
+        # refined on a sub-grid: where the plane explains it, once more on every kept pixel
         m.use(REFINE_MAX_PIXELS)
         x2, nfev, conv2, msg2, r = _again(m, x, n0, e1, e2, h0, s)
         nfev_total += nfev
@@ -128,10 +107,8 @@ def solve_plane(m: PlaneModel, cands, s, floor_level):
             return LightAwareEstimate(_NAME, "not_converged", "the model is not finite about the "
                                       "solution on every pixel", n_evaluations=nfev_total)
     if s.floor_refit and floor_level is not None and m.step == 1 and np.any(m.y <= floor_level):
-        # pixels clipped from below (an 8-bit image's 0 under read noise): where the model is
-        # within a few noise sigmas of the floor the data's mean is the clipped Gaussian's, above
-        # the model; those pixels, chosen by the model (not by their values, which would select
-        # their noise), are left out and the fit refined on the rest
+        # pixels where the model is within a few noise sigmas of the floor (chosen by the model,
+        # not their values) are left out and the fit refined on the rest
         r_ = m.resjac_at(x, n0, e1, e2, grad=False)[0]
         model_n = m.yn + r_
         low = m.y <= floor_level

@@ -1,10 +1,5 @@
-"""The fitting machinery the light-aware fits share.
-
-The start (:func:`_start`), Levenberg-Marquardt with a robust loss by reweighting (:func:`_solve`),
-the covariance and the depth's observability (:func:`_covariance`, :func:`_finish`), the
-plausibility of a solution (:func:`_implausible`) and the misfit tests on the residuals
-(:func:`_misfit`, :func:`_patch_verdict`).
-"""
+"""The fitting machinery the light-aware fits share: start, Levenberg-Marquardt with a robust loss,
+covariance and depth observability, plausibility and the misfit tests on the residuals."""
 
 from __future__ import annotations
 
@@ -44,21 +39,16 @@ def _start(bp_uv, camera, rig, nominal_depth_mm, start_normal):
 
 
 def _light_start(d_bp, light_mm, nominal_depth_mm):
-    """The start (n, h) that makes the point at ``nominal_depth_mm`` along the BP ray ``d_bp``
-    (unit, camera frame) the specular point of the light at ``light_mm``: n bisects the directions
-    from that point to the camera and to the light, and the plane passes through it."""
+    """The start (n, h) making the point at ``nominal_depth_mm`` along the unit BP ray ``d_bp`` the
+    specular point of the light at ``light_mm``."""
     X = nominal_depth_mm * np.asarray(d_bp, dtype=np.float64)
     n = unit(unit(-X) + unit(np.asarray(light_mm, dtype=np.float64) - X))
     return n, max(float(-(n @ X)), 1e-3)
 
 
 def _covariance(jac: np.ndarray, resid_var: float) -> np.ndarray | None:
-    """``resid_var (J^T J)^-1``, or None when J^T J is singular.
-
-    Singular: a column of J below 1e-10 of the largest (a parameter the model does not depend on,
-    such as h with the light at the camera centre, whose column is rounding noise), or a condition
-    number above 1e12 after scaling the columns to unit norm.
-    """
+    """``resid_var (J^T J)^-1``, or None when J^T J is singular (a column below 1e-10 of the largest, or
+    a condition number above 1e12 with unit-norm columns)."""
     jtj = jac.T @ jac
     scale = np.sqrt(np.diag(jtj))
     if not np.all(scale > 1e-10 * scale.max()):  # a column of rounding noise: a flat direction
@@ -69,19 +59,11 @@ def _covariance(jac: np.ndarray, resid_var: float) -> np.ndarray | None:
     return resid_var * np.linalg.inv(jn) / np.outer(scale, scale)
 
 
-#: Levenberg-Marquardt's tolerances (MINPACK's ftol, xtol, gtol) in the light-aware plane fits.
-#: Near the minimum the cost is ``C* (1 + u^2 / (m - k))`` with u the distance to the minimum in
-#: standard deviations (m residuals, k parameters): a relative cost change below 1e-8 leaves u
-#: below about ``1e-4 sqrt(m)``, under 1 % of a standard deviation for the 4096 px of a 64 px
-#: ROI and about 0.1 % for the 128 points of two isophotes. Exact images (C* = 0) converge
-#: quadratically, to rounding, in one or two steps more. Tighter (1e-12, as before) took 25 to
-#: 75 % more evaluations on the bench's highlight and changed its results in the ninth digit.
+#: Levenberg-Marquardt's tolerances (MINPACK's ftol, xtol, gtol) in the light-aware fits: a relative
+#: cost change below 1e-8 leaves the solution within about ``1e-4 sqrt(m)`` standard deviations (m residuals).
 _LM_TOL = 1e-8
 
-
-#: The same for the first pass of a reweighted (robust) fit, which only sets the weights of the
-#: second: the weights move with the residuals, a change at 1e-4 of the cost moves the final
-#: solution by a second-order amount (1e-9 of the depth on the bench's highlight).
+#: The same for the first pass of a reweighted fit, which only sets the second's weights (a second-order effect).
 _LM_TOL_FIRST_PASS = 1e-4
 #: LM's tolerance before :func:`_newton`, the pass' evaluations after which it runs, its largest step (else LM)
 _LM_TOL_NEWTON, _NEWTON_AFTER, _NEWTON_STEP = 1e-5, 10, 0.1
@@ -93,24 +75,15 @@ class _RanOff(Exception):
 
 def _solve(resjac, p0, args, loss: str, f_scale: float, max_nfev: int, free=None,
            lazy_jac: bool = False, weighted: bool = False, newton: bool = False, stop=None):
-    """Levenberg-Marquardt (MINPACK, analytic Jacobian), robust loss by reweighting.
+    """Levenberg-Marquardt (MINPACK's lmder via :func:`scipy.optimize.leastsq`), robust loss by reweighting.
 
-    ``loss="linear"``: one LM solve. Otherwise (``soft_l1``, ``huber``, ``cauchy``): the LM solution
-    is reweighted once by iteratively reweighted least squares, each residual scaled by
-    ``sqrt(rho'(z))`` with ``z = (r / f_scale)^2`` (the weights of scipy's robust losses), and
-    re-solved from there. ``free`` (bool mask) holds the other parameters at ``p0``.
-    ``resjac(p, *args, grad=...)`` returns the residuals and, with ``grad``, their Jacobian (else
-    None). ``lazy_jac``: MINPACK's trial points get the residuals alone and the Jacobian is
-    computed only where it is asked (worth it for a large Jacobian, the photometric fit's; for a
-    few hundred contour points the second call costs more than the Jacobian). ``weighted``: the
-    reweighting's weights are passed to ``resjac`` too (``w=``), for a model that solves part of
-    itself with them (the photometric fit's linear parameters); it returns the unweighted
-    residuals and Jacobian of that solution. MINPACK's lmder is called through
-    :func:`scipy.optimize.leastsq`: ``least_squares(method="lm")`` is the same solver behind a
-    wrapper that cost as much as the model on a few hundred isophote points. ``stop(p)``, when
-    given, is asked at each new point (all parameters); where it returns a reason (a non-empty
-    string) the solve ends there, not converged, with that reason as its message. Returns (x,
-    n_evaluations (the model evaluated at a new point), converged, message, residuals at x).
+    ``loss="linear"``: one solve; ``soft_l1``, ``huber``, ``cauchy``: the solution reweighted once by
+    ``sqrt(rho'(z))``, ``z = (r / f_scale)^2`` (scipy's robust losses), and solved again.
+    ``resjac(p, *args, grad=...)`` returns residuals and (with ``grad``) the Jacobian. ``free`` (bool
+    mask) holds the other parameters at ``p0``; ``lazy_jac``: trial points get the residuals alone;
+    ``weighted``: the weights are passed to ``resjac`` as ``w=``; ``newton``: :func:`_newton` takes LM's
+    linear tail; ``stop(p)`` returns a reason (non-empty string) to end the solve there, not converged.
+    Returns ``(x, n_evaluations, converged, message, residuals at x)``.
     """
     opt = require("scipy.optimize")  # when first needed: scipy slows the start
     if loss not in ("linear", "soft_l1", "huber", "cauchy"):
@@ -125,9 +98,7 @@ def _solve(resjac, p0, args, loss: str, f_scale: float, max_nfev: int, free=None
         return p
 
     def rj(q, grad=True):
-        # MINPACK asks for f at each trial point and for J only at the accepted ones (at the
-        # point of its last f): with lazy_jac the residual alone first, r and J together when J
-        # is asked; else both at once
+        # MINPACK asks for J only at accepted points (those of its last f): lazy_jac computes it then
         grad = grad or not lazy_jac
         key = q.tobytes()
         if cache.get("key") != key or (grad and cache.get("J") is None):
@@ -169,9 +140,7 @@ def _solve(resjac, p0, args, loss: str, f_scale: float, max_nfev: int, free=None
                 if weighted:
                     model_w[0] = w
                     cache.clear()
-            # MINPACK's lmder through leastsq (least_squares' method="lm" is the same solver behind
-            # a heavier wrapper); without full_output it skips a covariance we do not use and warns
-            # with its message when it stops short
+            # without full_output leastsq skips a covariance and warns with its message when it stops short
             with np.errstate(all="ignore"), warnings.catch_warnings(record=True) as caught:
                 warnings.simplefilter("always")
                 # the first pass of a reweighted fit only sets the weights: looser tolerances
@@ -186,19 +155,16 @@ def _solve(resjac, p0, args, loss: str, f_scale: float, max_nfev: int, free=None
                     q, ier = opt.leastsq(fun, q, args=(w,), Dfun=jac, xtol=tol, ftol=tol, gtol=tol,
                                          maxfev=max(budget - count[0], 1))
             ok = ier in (1, 2, 3, 4) and bool(np.isfinite(q).all())
-            msg = "" if ier in (1, 2, 3, 4) else (str(caught[-1].message) if caught
-                                                   else f"MINPACK info {ier}")
+            msg = "" if ier in (1, 2, 3, 4) else (str(caught[-1].message) if caught else f"MINPACK info {ier}")
     except _RanOff as off:  # (the residuals at its point are the cache's last)
         return full(off.args[0]), count[0], False, off.args[1], cache["r"]
     return full(q), count[0], ok, msg, rj(q, grad=False)[0]
 
 
 def _newton(fun, jac, q, w, tol: float, steps: int = 6):
-    """Newton's steps on ``|fun(q, w)|^2 / 2`` from ``q`` (where LM converges linearly: a large
-    residual along a hardly observable depth's valley), the Hessian once by forward differences
-    of the gradient ``jac^T fun`` (exact with Kaufman's Jacobian, whose dropped term is orthogonal
-    to the residual). ``(q, converged)``: converged at a step below ``tol`` of each parameter (LM's
-    ``xtol``) that did not raise the cost; else the last point that lowered it."""
+    """Newton's steps on ``|fun(q, w)|^2 / 2`` from ``q``, the Hessian once by forward differences of the
+    gradient ``jac^T fun``. ``(q, converged)``: converged at a step below ``tol`` that did not raise the
+    cost; else the last point that lowered it."""
     f0 = fun(q, w)
     g = jac(q, w).T @ f0
     eps = 1e-6 * np.maximum(np.abs(q), 1.0)
@@ -225,17 +191,15 @@ def _newton(fun, jac, q, w, tol: float, steps: int = 6):
     return q, False
 
 
-#: Plausible fitted values: the distance within DISTANCE_FACTOR_MAX of the start's, the roughness
-#: in this range (simtest.decisions); outside, reported as not converged.
+#: Plausible roughness (simtest.decisions); outside, or a distance beyond DISTANCE_FACTOR_MAX, not converged.
 _ROUGHNESS_RANGE = (1.0, phong_of_ggx_alpha(SMOOTHEST_FILM_ALPHA))
 #: ... the range with the diffuse shading's column.
 _ROUGHNESS_RANGE_SHADED = (phong_of_ggx_alpha(ROUGHEST_FILM_ALPHA), _ROUGHNESS_RANGE[1])
 
 
 def _implausible(h_hat: float, h0: float, roughness: float | None, shaded: bool = False, widen: float = 1.0) -> str:
-    """Why a fit's solution is implausible ("" when it is not); ``shaded``: the model holds the
-    diffuse shading's column (:data:`ROUGHEST_FILM_ALPHA`); ``widen``: each range that much wider
-    (:data:`~simtest.decisions.RUN_OFF_FACTOR`: where an iterate is past saving)."""
+    """Why a fit's solution is implausible ("" when it is not); ``shaded``: the model holds the diffuse
+    column; ``widen``: each range that much wider (:data:`~simtest.decisions.RUN_OFF_FACTOR`)."""
     f = _H_FACTOR * widen
     if not (np.isfinite(h_hat) and h0 / f <= h_hat <= h0 * f):
         return f"fitted distance {h_hat:.4g} mm is not within a factor {f:g} of the start's {h0:.4g} mm"
@@ -249,12 +213,8 @@ def _implausible(h_hat: float, h0: float, roughness: float | None, shaded: bool 
 
 def _finish(name, resjac_at, n_hat, h_hat, rig, extra_params, resid_floor, n_eval, converged,
             roughness=None, taus=None, detail="", post=None, n_linear=0):
-    """Covariance about the solution, depth and its observability, and the estimate.
-
-    ``post(estimate, residuals)``, when given, returns the estimate to report (the residuals at the
-    solution are those the covariance used). ``n_linear``: parameters eliminated from the
-    Jacobian by variable projection (they count in the residual variance's degrees of freedom).
-    """
+    """Covariance about the solution, depth and its observability, and the estimate; ``post(estimate,
+    residuals)`` returns the estimate to report, ``n_linear`` counts the projected-out parameters."""
     e1, e2 = plane_basis(n_hat)
     p_hat = np.concatenate([[0.0, 0.0, np.log(h_hat)], extra_params])
     r0, J = resjac_at(p_hat, n_hat, e1, e2)
@@ -265,8 +225,7 @@ def _finish(name, resjac_at, n_hat, h_hat, rig, extra_params, resid_floor, n_eva
     cov = None if unit_cov is None else resid_var * unit_cov
     floor_var = max(resid_var, resid_floor**2)
     Lm = _mean_light(rig)
-    sigma_deg = (None if cov is None
-                 else math.degrees(math.sqrt(max(float(cov[0, 0] + cov[1, 1]), 0.0))))
+    sigma_deg = (None if cov is None else math.degrees(math.sqrt(max(float(cov[0, 0] + cov[1, 1]), 0.0))))
     depth = specular_point_depth(n_hat, h_hat, Lm)
     g = _log_depth_gradient(n_hat, h_hat, Lm, (e1, e2))
     gcg = None if unit_cov is None else float(g @ unit_cov[:3, :3] @ g)  # g^T (J^T J)^-1 g
@@ -297,13 +256,8 @@ def _finish(name, resjac_at, n_hat, h_hat, rig, extra_params, resid_floor, n_eva
 
 
 def _residual_correlation(r, sel, shape, step: int) -> tuple[float, float]:
-    """Correlation of the residuals of neighbouring fitted pixels, and their covariance.
-
-    ``r`` (M,) are the residuals of the pixels ``sel`` (flat indices into an (H, W) grid, on a
-    regular sub-grid of spacing ``step``); the pairs are the horizontal and vertical neighbours
-    on that sub-grid. Returns ``(rho, c)``: ``rho = sum a b / sqrt(sum a^2 sum b^2)`` and
-    ``c = mean(a b)`` (0, 0 without pairs).
-    """
+    """``(rho, c)`` of the residuals ``r`` of neighbouring pixels ``sel`` (flat indices into ``shape``,
+    sub-grid of spacing ``step``): ``rho = sum a b / sqrt(sum a^2 sum b^2)``, ``c = mean(a b)``."""
     R = np.full(int(np.prod(shape)), np.nan)
     R[sel] = r
     R = R.reshape(shape)
@@ -318,9 +272,8 @@ def _residual_correlation(r, sel, shape, step: int) -> tuple[float, float]:
 
 
 def _correlated(r, sel, shape, step: int) -> str | None:
-    """The misfit test of the plane and the curved patches: when neighbouring residuals
-    correlate (rho above ``TOL.plane_misfit_rho``, covariance above ``TOL.plane_misfit_rel^2``;
-    see :func:`_residual_correlation`), the detail saying so, else None."""
+    """The misfit detail when neighbouring residuals correlate (rho above ``TOL.plane_misfit_rho``,
+    covariance above ``TOL.plane_misfit_rel^2``), else None."""
     rho, c = _residual_correlation(r, sel, shape, step)
     if rho > TOL.plane_misfit_rho and c > TOL.plane_misfit_rel**2:
         return (f"neighbouring residuals correlate (rho {rho:.3g} > {TOL.plane_misfit_rho}; "
@@ -330,16 +283,9 @@ def _correlated(r, sel, shape, step: int) -> str | None:
 
 def _patch_verdict(rel_floor: float | None, r, sel, shape, step: int, ok_detail: str,
                    misfit_hint: str) -> tuple[str, str, bool, float]:
-    """The status of a curved-patch fit (``quadric_fit``, ``cubic_patch_fit``) from its relative
-    depth sigma at the noise floor ``rel_floor`` (None: J^T J singular) and its residuals ``r``
-    of the pixels ``sel`` (see :func:`_residual_correlation`).
-
-    Returns ``(status, detail, observable, rms)``: ``depth_not_observable`` when ``rel_floor``
-    is None or above ``TOL.depth_rel_sigma_max``; ``patch_misfit`` (the depth withdrawn) when
-    neighbouring residuals correlate as in :func:`_misfit`, or their RMS ``rms`` (relative to the
-    ROI's maximum) is above ``TOL.patch_misfit_rms_rel``, the detail then ending in
-    ``misfit_hint``; else ``ok`` with ``ok_detail``.
-    """
+    """``(status, detail, observable, rms)`` of a curved-patch fit: ``depth_not_observable`` where
+    ``rel_floor`` is None or above ``TOL.depth_rel_sigma_max``; ``patch_misfit`` where the residuals
+    correlate or their RMS exceeds ``TOL.patch_misfit_rms_rel`` (detail ending in ``misfit_hint``)."""
     observable = rel_floor is not None and rel_floor <= TOL.depth_rel_sigma_max
     status, detail = OK, ok_detail
     if not observable:
@@ -356,44 +302,23 @@ def _patch_verdict(rel_floor: float | None, r, sel, shape, step: int, ok_detail:
     return status, detail, observable, rms
 
 
-#: False-alarm probability of :func:`_curvature_score`'s test on a plane with white noise (the
-#: chi-square's upper tail with 3 degrees of freedom: 21.1).
+#: False-alarm probability of :func:`_curvature_score`'s test on a plane with white noise (chi-square 3 dof: 21.1).
 _CURVATURE_ALPHA = 1e-4
 
 
 def _curvature_score(cols, span, r, grid=None) -> str | None:
-    """The score (Lagrange multiplier) test of the plane fit against a curved patch.
+    """The score (Lagrange multiplier) test [2]_ of the plane fit against a curved patch.
 
-    Under the plane model with white noise the residual r (M,) has no component along the
-    directions a curvature would change the image in, beyond the noise's: with ``cols`` (M, 3)
-    the image's derivatives in the patch's three curvatures at zero curvature, made orthogonal to
-    ``span`` (M, k: the plane fit's Jacobian and its linear columns) and orthonormal (Qc), the
-    statistic ``T = |Qc^T r|^2 / s^2`` (``s^2 = |r|^2 / (M - k)``) is chi-square with 3 degrees of
-    freedom [2]_. A curved patch the plane fit has absorbed (the lobe compressed by the
-    curvature, traded for roughness and distance) leaves its residual there: at 1 % noise on an
-    exact sphere the residuals' neighbour correlation (:func:`_correlated`) no longer sees it,
-    this test does (it tests the one pattern a curvature makes, not any pattern). Returns the
-    detail of a misfit when T exceeds the tail of probability :data:`_CURVATURE_ALPHA` and the
-    curved component's RMS over the ROI exceeds ``TOL.plane_misfit_rel`` (below it the residual
-    is rounding), else None; False where no test can be made (too few pixels, non-finite or
-    degenerate columns, no residual variance).
-
-    ``grid``: ``(sel, shape, step)`` of the residuals' pixels (as :func:`_hac_covariance`), for
-    residuals that correlate between nearby pixels (a textured albedo under the rig's diffuse
-    light: a noise of its own, spatially correlated). Its ``M`` pixels then hold about
-    ``M / A`` independent ones, ``A`` the correlation area (:func:`_correlation_area`) of the
-    residual ``e = r - Qc z`` outside the curvature's pattern, and ``Qc^T r`` has about ``A``
-    times the white variance: the statistic is ``T / A``. A texture's residual spreads over every
-    pattern and is counted at its effective number of independent pixels; a curvature's lies in
-    ``Qc`` and is left out of the noise it is scored against (on noisy exact spheres ``A`` is 1.0
-    to 1.2, on the colonoscope's textured plane 48 to 78, where the Newey-West estimate of
-    ``Qc^T r``'s covariance, its Bartlett window cut at 24 steps, counted the texture at a
-    third of that and called the plane curved at 30 mm).
+    ``T = |Qc^T r|^2 / s^2`` (Qc: ``cols`` (M, 3), the image's derivatives in the curvatures, made
+    orthonormal and orthogonal to ``span``, the plane fit's Jacobian and linear columns) is chi-square
+    with 3 dof on a plane with white noise; with ``grid = (sel, shape, step)`` it is divided by the
+    correlation area (:func:`_correlation_area`) of the residual outside the pattern. Returns the
+    misfit detail beyond :data:`_CURVATURE_ALPHA` with a curved RMS above ``TOL.plane_misfit_rel``,
+    else None; False where no test can be made.
 
     References
     ----------
-    .. [2] C. R. Rao, "Large sample tests of statistical hypotheses concerning several parameters
-           with applications to problems of estimation", Proc. Cambridge Philos. Soc. 44(1), 1948.
+    .. [2] C. R. Rao, Proc. Cambridge Philos. Soc. 44(1), 1948 (the score test).
     """
     special = require("scipy.special")  # when first needed: scipy slows the start
     m, k = span.shape
@@ -421,21 +346,9 @@ def _curvature_score(cols, span, r, grid=None) -> str | None:
 
 
 def _curvature_shift(cols, span, r) -> tuple[float, float] | None:
-    """How far the curvature pattern in a plane fit's residual would move the plane: the normal's
-    shift, degrees, and the distance's relative shift.
-
-    The plane fit's residual r (M,) is orthogonal to ``span`` (M, k: its Jacobian in
-    (a, b, log h, log n) first, then its linear columns). Fitted beside the curvature columns
-    ``cols`` (M, 3; :func:`_curvature_score`'s), the linearised patch ``[span, cols] beta = -r``
-    moves the plane's parameters by ``beta[:k]`` (a Gauss-Newton step of the quadric patch from
-    the plane at zero curvature): ``hypot(beta_a, beta_b)`` radians of the normal (a and b tilt it
-    in its tangent plane) and ``beta_log_h`` of the distance. A curved patch that the plane fit
-    absorbed (a sphere: 20 to 43 deg on the noisy spheres of ``tests/test_lightaware_coverage.py``)
-    or a local minimum's leftover pattern (3.9 deg, 3.5 deg off) moves it far beyond the fit's
-    sigma; a micro-relief's random curvatures over the lobe (the endoscope suite's flat mucosa at
-    0.002 mm RMS: 0.04 to 0.14 deg against sigmas of 0.14 to 0.26) move it less than the
-    noise does. Returns None where the columns are not finite or the system is degenerate.
-    """
+    """How far the curvature pattern in a plane fit's residual would move the plane: ``(normal shift
+    deg, relative distance shift)`` of the Gauss-Newton step ``[span, cols] beta = -r``; None where
+    degenerate."""
     A = np.column_stack([span, cols])
     if len(r) <= A.shape[1] or not np.isfinite(A).all():
         return None
@@ -446,15 +359,8 @@ def _curvature_shift(cols, span, r) -> tuple[float, float] | None:
 
 
 def _misfit(est: LightAwareEstimate, r, sel, shape, step: int) -> LightAwareEstimate:
-    """``est`` with status ``plane_misfit`` when the residuals are spatially correlated.
-
-    Sensor and render noise are independent from pixel to pixel, so the residuals of a model that
-    fits leave neighbouring pixels uncorrelated; a plane meeting a curved patch leaves a smooth
-    residual pattern (rings, a ridge) whose neighbours agree. The test: the correlation rho of
-    neighbouring residuals above ``TOL.plane_misfit_rho`` and their covariance above
-    ``TOL.plane_misfit_rel^2`` (an exact image's residuals are rounding, correlated or not).
-    The normal is kept (for the record); the depth is withdrawn.
-    """
+    """``est`` with status ``plane_misfit`` (depth withdrawn) when neighbouring residuals correlate
+    (:func:`_correlated`)."""
     if est.status not in (OK, "depth_not_observable"):
         return est
     correlated = _correlated(r, sel, shape, step)
@@ -463,37 +369,18 @@ def _misfit(est: LightAwareEstimate, r, sel, shape, step: int) -> LightAwareEsti
     return est
 
 
-#: Longest correlation length, in sub-grid steps, that :func:`_hac_covariance` spans: beyond it
-#: the residual's pattern is as large as the ROI and the sandwich no longer has pairs to average.
+#: Longest correlation length, in sub-grid steps, that :func:`_hac_covariance` spans.
 _HAC_MAX_LAG = 24
 
 
 def _hac_covariance(J, r, sel, shape, step: int) -> tuple[np.ndarray | None, int]:
-    """The covariance of a least-squares fit whose residuals correlate between nearby pixels.
+    """The HAC (sandwich) covariance (k, k) of a fit whose residuals correlate between nearby pixels,
+    and its bandwidth b; None (and 0) when J^T J is singular.
 
-    The heteroscedasticity-and-autocorrelation-consistent (sandwich) estimate
-    ``C = (J^T J)^-1 M (J^T J)^-1`` with ``M = sum_i sum_j w(i - j) g_i g_j^T``, ``g_i = J_i r_i``,
-    over pixel pairs on the ROI's sub-grid weighted by a separable Bartlett window
-    ``w = (1 - |dx| / (b + 1)) (1 - |dy| / (b + 1))`` of bandwidth b sub-grid steps [1]_. The
-    bandwidth is three correlation lengths of the residuals, ``b = ceil(-3 / log rho_1)`` with
-    rho_1 their lag-1 correlation (:func:`_residual_correlation`), at most
-    :data:`_HAC_MAX_LAG`; uncorrelated residuals (rho_1 <= 0) give b = 0, White's sandwich.
-    A texture, a micro-relief or a lobe shape the model lacks leaves such residuals; the plain
-    ``s^2 (J^T J)^-1`` then counts each pixel as independent evidence and its sigma is too small.
-
-    Parameters
-    ----------
-    J : ndarray of shape (M, k)
-        Jacobian of the residuals at the solution (the linear parameters projected out).
-    r : ndarray of shape (M,)
-        Residuals of the pixels ``sel``.
-    sel, shape, step
-        The pixels' flat indices into the ROI grid of ``shape``, on a sub-grid of spacing ``step``.
-
-    Returns
-    -------
-    (ndarray of shape (k, k) or None, int)
-        The covariance (None when J^T J is singular) and the bandwidth b.
+    ``C = (J^T J)^-1 M (J^T J)^-1``, ``M = sum_ij w(i - j) g_i g_j^T``, ``g_i = J_i r_i`` over the
+    residuals ``r`` (M,) of the pixels ``sel`` (flat indices into ``shape``, sub-grid ``step``), J (M, k),
+    with a separable Bartlett window [1]_ of ``b = ceil(-3 / log rho_1)`` sub-grid steps (at most
+    :data:`_HAC_MAX_LAG`; 0, White's sandwich, for uncorrelated residuals).
 
     References
     ----------
@@ -522,15 +409,8 @@ def _hac_covariance(J, r, sel, shape, step: int) -> tuple[np.ndarray | None, int
 
 
 def cluster_blocks(shape, texture: bool = True) -> tuple[int, ...]:
-    """The block sides of :data:`CLUSTER_PX` whose grid over an ROI of ``shape`` (H, W) px holds
-    at least :data:`MIN_CLUSTERS` blocks (the smallest side always: a small ROI keeps one).
-
-    ``texture``: the fit's residual keeps the tissue's albedo texture (one channel of a sensor
-    frame). Where the body colours were projected out (``False``) the texture left is correlated
-    over a few pixels, and the sides are the JPEG block's and the macroblock's only: the wider
-    blocks there add their noise to the sigma and withdraw depths the projection measured
-    (measured: ``docs/decisions/light-aware-recommendation.md``).
-    """
+    """The block sides of :data:`CLUSTER_PX` (the first two without ``texture``) whose grid over an ROI of
+    ``shape`` holds at least :data:`MIN_CLUSTERS` blocks; the smallest side always."""
     h, w = int(shape[0]), int(shape[1])
     sides = CLUSTER_PX if texture else CLUSTER_PX[:2]
     ok = tuple(b for b in sides if (-(-h // b)) * (-(-w // b)) >= MIN_CLUSTERS)
@@ -538,48 +418,17 @@ def cluster_blocks(shape, texture: bool = True) -> tuple[int, ...]:
 
 
 def _cluster_covariance(J, r, sel, shape, block: int = CLUSTER_PX[0]) -> np.ndarray | None:
-    """The cluster-robust covariance of a least-squares fit over square pixel blocks: the
-    delete-one-block jackknife.
+    """The cluster-robust covariance (k, k) over ``block`` x ``block`` px blocks: the delete-one-block
+    jackknife (CR3 [8]_); None when J^T J is singular or fewer than two blocks hold pixels.
 
-    With ``A = J^T J``, ``s_c = J_c^T r_c`` and ``M_c = J_c^T J_c`` the sums over the fitted
-    pixels of block c (``block`` x ``block`` px of the ROI), the fit without block c moves by
-    ``d_c = (A - M_c)^-1 s_c`` to first order, and ``C = (G - 1) / G sum_c (d_c - mean d)(d_c -
-    mean d)^T`` over the G blocks that hold pixels (the CR3 estimator [8]_: the plain cluster
-    sandwich ``A^-1 (sum_c s_c s_c^T) A^-1`` with each block's leverage undone, which the plain
-    one lacks where a few blocks hold the lobe's evidence). Whatever the residuals' correlation
-    within a block (any shape, any sign: no window or bandwidth is chosen), and independent
-    blocks, it is consistent; :func:`_hac_covariance`'s window and :func:`_correlation_area`'s
-    first zero crossing both read the residual's autocorrelation and miss a weak correlation
-    spread over many lags under a strong white part. That is a sensor frame's residual: the
-    render's or the shot noise (white) over what the body-colour projection leaves of the
-    albedo's texture and the tone curve's and JPEG's quantisation (correlated over a few pixels,
-    a JPEG block). On the endoscope suite's clean flat mucosa the white estimate gave 0.006 to
-    0.009 deg where the errors were 0.01 to 0.03 deg (within twice it on 1 of 9 highlights); the
-    plain cluster sandwich 0.012 to 0.026 (film alpha 0.05, where the lobe lies in a few blocks:
-    0.008 to 0.011, errors 0.02 to 0.03); this one 0.012 to 0.017 there.
-
-    Parameters
-    ----------
-    J : ndarray of shape (M, k)
-        Jacobian of the residuals at the solution (the linear parameters projected out).
-    r : ndarray of shape (M,)
-        Residuals of the pixels ``sel`` (flat indices into an ROI grid of ``shape``).
-    sel, shape
-        As :func:`_hac_covariance`'s (a sub-grid's pixels keep their ROI positions).
-    block : int
-        Side of a cluster, px.
-
-    Returns
-    -------
-    ndarray of shape (k, k) or None
-        None when J^T J is singular or fewer than two blocks hold pixels.
+    Per block c, ``d_c = (J^T J - J_c^T J_c)^-1 J_c^T r_c`` and
+    ``C = (G - 1) / G sum_c (d_c - mean d)(d_c - mean d)^T`` over the G blocks that hold pixels;
+    ``J``, ``r``, ``sel``, ``shape`` as :func:`_hac_covariance`'s.
 
     References
     ----------
     .. [8] A. C. Cameron, D. L. Miller, "A practitioner's guide to cluster-robust inference",
            J. Human Resources 50(2), 317-372, 2015. https://doi.org/10.3368/jhr.50.2.317
-           (section VI.B, CR3; the jackknife of J. G. MacKinnon, H. White, J. Econometrics
-           29(3), 305-325, 1985)
     """
     unit_cov = _covariance(J, 1.0)
     if unit_cov is None:
@@ -595,10 +444,8 @@ def _cluster_covariance(J, r, sel, shape, block: int = CLUSTER_PX[0]) -> np.ndar
     S = np.stack([np.bincount(cid, g[:, j], minlength=G) for j in range(k)], axis=1)
     A = J.T @ J
     JJ = (J[:, :, None] * J[:, None, :]).reshape(len(J), k * k)
-    Mc = np.stack([np.bincount(cid, JJ[:, j], minlength=G) for j in range(k * k)],
-                  axis=1).reshape(G, k, k)
-    # the fit without block c, to first order: (J^T J - J_c^T J_c)^-1 J_c^T r_c; a block whose
-    # removal leaves J^T J (near) singular is counted as the plain sandwich counts it
+    Mc = np.stack([np.bincount(cid, JJ[:, j], minlength=G) for j in range(k * k)], axis=1).reshape(G, k, k)
+    # a block whose removal leaves J^T J (near) singular is counted as the plain sandwich counts it
     rest = A[None] - Mc
     ev = np.linalg.eigvalsh(rest)
     ok = ev[:, 0] > 1e-9 * np.maximum(ev[:, -1], 1e-300)
@@ -610,24 +457,8 @@ def _cluster_covariance(J, r, sel, shape, block: int = CLUSTER_PX[0]) -> np.ndar
 
 
 def _correlation_area(r, sel, shape, step: int) -> float:
-    """The number of fitted pixels one independent residual spans: the sum of the residuals'
-    empirical 2-D autocorrelation over the lags within its first zero crossing (>= 1).
-
-    ``r`` (M,) are the residuals of the pixels ``sel`` (flat indices into an (H, W) grid, on a
-    sub-grid of spacing ``step``, as :func:`_residual_correlation`). The autocorrelation is taken
-    by FFT over the ROI's sub-grid, each lag's sum over the pairs it has divided by their number;
-    its radial mean's first lag at or below zero bounds the window (the integrated correlation
-    time's automatic window [4]_: beyond it the estimate is noise, and the residual of a fit whose
-    linear columns took the mean and the gradients out sums to zero over every lag). White
-    residuals give about 1; a texture of correlation length l sub-grid steps about ``2 pi l^2``.
-    A least-squares fit's covariance from ``M`` such residuals is the white one's times this area
-    (``M / area`` independent pixels).
-
-    References
-    ----------
-    .. [4] A. D. Sokal, "Monte Carlo methods in statistical mechanics: foundations and new
-           algorithms", in Functional Integration, NATO ASI Series B 361, 1997.
-    """
+    """Fitted pixels per independent residual (>= 1): the residuals' 2-D autocorrelation summed within
+    its radial mean's first zero crossing (A. D. Sokal's window, NATO ASI Series B 361, 1997)."""
     Hs, Ws = -(-shape[0] // step), -(-shape[1] // step)
     rows, cols = np.divmod(np.asarray(sel), shape[1])
     R = np.zeros((Hs, Ws))
