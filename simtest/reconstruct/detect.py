@@ -169,23 +169,17 @@ def validate_image(image, where: str = "image") -> np.ndarray:
         raise ValueError(f"{where}: expected an image array, got {type(image).__name__}")
     arr = np.asarray(image)
     if arr.dtype.type not in _SUPPORTED:
-        raise ValueError(
-            f"{where}: dtype {arr.dtype} not supported (use uint8, uint16 or float16/32/64)"
-        )
+        raise ValueError(f"{where}: dtype {arr.dtype} not supported (use uint8, uint16 or float16/32/64)")
     if arr.ndim == 3 and arr.shape[2] in (1, 3, 4):
         arr = arr[:, :, 0] if arr.shape[2] == 1 else arr[:, :, :3]
     elif arr.ndim != 2:
-        raise ValueError(
-            f"{where}: expected shape (H, W), (H, W, 1), (H, W, 3) or (H, W, 4), got {arr.shape}"
-        )
+        raise ValueError(f"{where}: expected shape (H, W), (H, W, 1), (H, W, 3) or (H, W, 4), got {arr.shape}")
     if arr.shape[0] < 3 or arr.shape[1] < 3:
         raise ValueError(f"{where}: image of shape {arr.shape} is empty or smaller than 3 x 3")
     if arr.dtype.kind == "f" and not np.isfinite(arr).all():
         bad = ~np.isfinite(arr)
         r, c = np.argwhere(bad)[0][:2]
-        raise ValueError(
-            f"{where}: {int(bad.sum())} non-finite values (NaN or inf), first at row {r}, col {c}"
-        )
+        raise ValueError(f"{where}: {int(bad.sum())} non-finite values (NaN or inf), first at row {r}, col {c}")
     return arr
 
 
@@ -459,8 +453,7 @@ def _detect_half_resolution(img, native, fs, saturation_level, *, grey=False, mi
     clipped = clipped_mask(img, saturation_level, native, grey=grey)
     near = near_ceiling_mask(img, saturation_level, native, grey=grey)
     side = background_side_px((h, w), clipped)
-    half = cv2.resize(native[: 2 * h2, : 2 * w2].astype(np.float32, copy=False), (w2, h2),
-                      interpolation=cv2.INTER_AREA)
+    half = cv2.resize(native[: 2 * h2, : 2 * w2].astype(np.float32, copy=False), (w2, h2), interpolation=cv2.INTER_AREA)
     sigma2 = float(np.sqrt(max(smooth_sigma_px ** 2 - 0.25, 0.0)) / 2.0)
     gray2 = cv2.GaussianBlur(half, (0, 0), sigma2, borderType=cv2.BORDER_REFLECT)
     clipped2 = None

@@ -119,8 +119,7 @@ def open_frames(path) -> FrameSource:
     """
     path = Path(path)
     if path.is_dir():
-        files = tuple(sorted(p for p in path.iterdir()
-                             if p.is_file() and p.suffix.lower() in FRAME_SUFFIXES))
+        files = tuple(sorted(p for p in path.iterdir() if p.is_file() and p.suffix.lower() in FRAME_SUFFIXES))
         if not files:
             raise ValueError(f"{path}: the folder holds no frame ({', '.join(FRAME_SUFFIXES)})")
         return FrameSource(path, "folder", len(files), files)

@@ -85,8 +85,7 @@ def _rows(a):
     """(J, 3) unit vectors as lists, a row that is not finite as null; null for None."""
     if a is None:
         return None
-    return [_vec(r) if np.all(np.isfinite(r)) else None
-            for r in np.asarray(a, dtype=np.float64).reshape(-1, 3)]
+    return [_vec(r) if np.all(np.isfinite(r)) else None for r in np.asarray(a, dtype=np.float64).reshape(-1, 3)]
 
 
 def _nums(a):

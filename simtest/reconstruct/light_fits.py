@@ -264,8 +264,7 @@ def _lobe_roi(fit: LightAwareEstimate, bp_uv, camera, rig, shape, roi: Roi) -> R
     (h, w), grid = shape[:2], 129  # grid points a side: the lobe's edge found to one step, added below
     u, v = np.meshgrid(np.linspace(0.0, w - 1.0, grid), np.linspace(0.0, h - 1.0, grid))
     uv = np.column_stack([u.ravel(), v.ravel()])
-    s = _la.model.plane_rig_intensity(_la.model._rays(camera, uv), fit.normal, fit.distance_mm, rig,
-                                      fit.roughness)
+    s = _la.model.plane_rig_intensity(_la.model._rays(camera, uv), fit.normal, fit.distance_mm, rig, fit.roughness)
     if not np.isfinite(s).all() or not s.max() > 0:
         return None
     r = float(np.max(np.hypot(*(uv[s >= LOBE_EDGE_REL * s.max()] - np.asarray(bp_uv, float)).T)))

@@ -598,8 +598,7 @@ def confidence(ev: Evidence, residual_rel: np.ndarray, coefficients: np.ndarray 
     return 1.0 / (1.0 + np.exp(-z))
 
 
-def verdict(ev: Evidence, residual_rel: np.ndarray, bp_inside: np.ndarray,
-            only=None) -> list[tuple[str, str] | None]:
+def verdict(ev: Evidence, residual_rel: np.ndarray, bp_inside: np.ndarray, only=None) -> list[tuple[str, str] | None]:
     """The status each fitted candidate earns: ``("ok", "")`` or a rejection and its numbers.
 
     Parameters
