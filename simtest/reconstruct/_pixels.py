@@ -1,11 +1,9 @@
 """Pixel-coordinate conventions of the reconstruction package, in one place.
 
-Convention (the README's Conventions): an array index ``(row, col)`` is the pixel ``(u, v) = (col, row)``,
-with pixel centres at integer coordinates, as :func:`skimage.measure.find_contours` and OpenCV use.
-Worked number: the pixel ``image[10, 20]`` is centred at ``(u, v) = (20, 10)``.
-
-:func:`rc_to_uv` is the only function in :mod:`simtest.reconstruct` that turns (row, col) into
-(u, v); :func:`uv_to_rc` is its inverse. Every other module calls them.
+An array index ``(row, col)`` is the pixel ``(u, v) = (col, row)``, pixel centres at integer
+coordinates (as :func:`skimage.measure.find_contours` and OpenCV): ``image[10, 20]`` is centred
+at ``(u, v) = (20, 10)``. :func:`rc_to_uv` and its inverse :func:`uv_to_rc` are the only
+functions of :mod:`simtest.reconstruct` that swap them.
 """
 
 from __future__ import annotations
@@ -17,20 +15,8 @@ import numpy as np
 
 
 def rc_to_uv(rc, row0: float = 0.0, col0: float = 0.0) -> np.ndarray:
-    """Turn array coordinates (row, col) into pixel coordinates (u, v) = (col, row).
-
-    Parameters
-    ----------
-    rc : array_like of shape (..., 2)
-        Array coordinates (row, col), possibly sub-pixel, relative to a sub-array whose first
-        element is ``image[row0, col0]``.
-    row0, col0 : float, optional
-        Offset of the sub-array in the full image (the ROI origin).
-
-    Returns
-    -------
-    ndarray of shape (..., 2), float64
-        Pixel coordinates (u, v) in the full image.
+    """Turn array coordinates (row, col) (..., 2), possibly sub-pixel, of a sub-array at (``row0``,
+    ``col0``) into full-image pixel coordinates (u, v) = (col, row), float64.
 
     Examples
     --------
@@ -38,8 +24,7 @@ def rc_to_uv(rc, row0: float = 0.0, col0: float = 0.0) -> np.ndarray:
     [20.0, 10.0]
     """
     rc = np.asarray(rc, dtype=np.float64)
-    # (col + col0, row + row0): the columns swapped and shifted in one operation (np.stack of the
-    # two sums costs five times more on a contour; the same sums)
+    # (col + col0, row + row0): swapped and shifted in one operation
     return rc[..., ::-1] + np.array([col0, row0], dtype=np.float64)
 
 
@@ -55,17 +40,7 @@ def image_size_wh(shape) -> tuple[int, int]:
 
 
 def uv_to_rc(uv) -> np.ndarray:
-    """Inverse of :func:`rc_to_uv` (no offset): pixel (u, v) to array (row, col).
-
-    Parameters
-    ----------
-    uv : array_like of shape (..., 2)
-        Pixel coordinates (u, v) = (col, row), pixel centres at integer coordinates.
-
-    Returns
-    -------
-    ndarray of shape (..., 2), float64
-        Array coordinates (row, col).
+    """Inverse of :func:`rc_to_uv` (no offset): pixel (u, v) (..., 2) to array (row, col), float64.
 
     Examples
     --------
@@ -107,21 +82,8 @@ class Roi(NamedTuple):
 
     @classmethod
     def around(cls, centre_uv, half_size: float, image_shape: tuple[int, ...]) -> Roi:
-        """Square ROI of half-width ``half_size`` px around ``centre_uv``, clipped to the image.
-
-        Parameters
-        ----------
-        centre_uv : array_like of shape (2,)
-            Centre (u, v), px.
-        half_size : float
-            Half-width, px; the rows and columns within it (rounded outward) are included.
-        image_shape : tuple of int
-            ``(H, W, ...)`` of the image.
-
-        Returns
-        -------
-        Roi
-            Half-open, clipped to ``[0, H) x [0, W)``.
+        """Square ROI of half-width ``half_size`` px (rounded outward) around ``centre_uv`` (u, v), clipped
+        to ``[0, H) x [0, W)`` of ``image_shape``.
         """
         h, w = image_shape[:2]
         if len(centre_uv) == 2:  # (u, v): the values uv_to_rc gives, without its arrays
@@ -138,35 +100,20 @@ class Roi(NamedTuple):
 
     @classmethod
     def coerce(cls, roi, image_shape: tuple[int, ...], where: str = "roi") -> Roi:
-        """Validate ``(row0, row1, col0, col1)`` against an image shape.
-
-        Parameters
-        ----------
-        roi : sequence of 4 integers
-            ``(row0, row1, col0, col1)``, half-open array indices.
-        image_shape : tuple of int
-            ``(H, W, ...)`` of the image.
-        where : str
-            Name used in the error message (e.g. the CLI option or JSON key).
-
-        Returns
-        -------
-        Roi
+        """Validate ``(row0, row1, col0, col1)`` (half-open array indices) against an image shape.
 
         Raises
         ------
         ValueError
-            If ``roi`` is not 4 integers, or is empty or outside the image; the message names
-            ``where`` and the value.
+            If ``roi`` is not 4 integers, or is empty or outside the image; the message names ``where``
+            and the value.
         """
         try:
             vals = [int(x) for x in roi]
             if len(vals) != 4 or any(float(x) != int(x) for x in roi):
                 raise ValueError
         except (TypeError, ValueError):
-            raise ValueError(
-                f"{where}: expected 4 integers (row0, row1, col0, col1), got {roi!r}"
-            ) from None
+            raise ValueError(f"{where}: expected 4 integers (row0, row1, col0, col1), got {roi!r}") from None
         r0, r1, c0, c1 = vals
         h, w = image_shape[:2]
         if not (0 <= r0 < r1 <= h and 0 <= c0 < c1 <= w):

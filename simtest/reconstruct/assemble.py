@@ -34,14 +34,12 @@ class IsophoteEstimate:
     closed : bool
         False if the contour is cut (then fitted only with ``allow_open=True``).
     conic : ndarray of shape (3, 3) or None
-        Fitted point conic in undistorted pixel coordinates (unit Frobenius norm), for a pinhole
-        camera; None for a fisheye or omnidirectional camera, whose isophotes are no conics in
-        pixels (the fit is the cone ``normalised_conic``).
+        Fitted point conic in undistorted pixels (unit Frobenius norm) for a pinhole camera; None
+        for other models (the fit is ``normalised_conic``).
     ellipse : simtest.geometry.conics.Ellipse or None
         Its centre (u, v) px, semi-axes (a >= b) px and angle (rad); None as ``conic``.
     fit_residual_px : float or None
-        RMS Sampson distance of the points to the conic on the fit plane, px
-        (:mod:`~simtest.reconstruct.cone_fit`).
+        RMS Sampson distance of the points to the conic on the fit plane, px.
     normals_paper : ndarray of shape (2, 3) or None
         N+ and N-.
     paper_selected : ndarray of shape (3,) or None
@@ -53,8 +51,7 @@ class IsophoteEstimate:
     eigenvalue_gap : float or None
         0 for a right circular cone.
     normalised_conic : ndarray of shape (3, 3) or None
-        The isophote cone C' in the camera frame (``r^T C' r = 0`` on its unit rays; K^T C K for
-        a pinhole), unit Frobenius norm.
+        The isophote cone C' in the camera frame (K^T C K for a pinhole), unit Frobenius norm.
     """
 
     isovalue: float
@@ -94,25 +91,21 @@ class SpecularityEstimate:
     roi : Roi
         Final region of interest (array indices, half-open).
     status : str
-        ``"ok"`` or a reason: a detection rejection, the primary isophote's failure, or
-        ``merged`` (the primary isophote encloses another highlight's BP).
+        ``"ok"`` or a reason: a detection rejection, the primary isophote's failure, or ``merged``
+        (the primary isophote encloses another highlight's BP).
     detail : str
         Numbers behind the status.
     bp_ray : ndarray of shape (3,) or None
-        BP-ray normal (minus the unit viewing ray of the BP through the camera model); None only
-        when the BP has no ray in the model (status ``non_finite_points``).
+        BP-ray normal (minus the unit viewing ray of the BP); None when the BP has no ray.
     isophotes : tuple of IsophoteEstimate
         One per isovalue, in the order given.
     joint_cone_axis : ndarray of shape (3,) or None
         Common axis of the nested isophotes, when at least two succeeded.
     light_aware : dict or None
-        The light-aware estimates by name (:mod:`simtest.reconstruct.recommend`), when a light rig
-        off the camera centre is known; an empty dict where that rig is known but no fit ran (a
-        rejected candidate: its recommended normal is the BP ray's). None: no such rig.
+        The light-aware estimates by name, when a light rig off the camera centre is known (empty
+        where no fit ran); None: no such rig.
     confidence : float or None
-        In [0, 1]: how likely the candidate is an isolated specular highlight the isophote method
-        can use (:func:`simtest.reconstruct.verify.confidence`, calibrated on labelled real
-        frames); None where the frame was not verified (``ReconSettings.verify`` off).
+        In [0, 1] (:func:`simtest.reconstruct.verify.confidence`); None where not verified.
     """
 
     bp_px: np.ndarray
@@ -134,8 +127,7 @@ class SpecularityEstimate:
 
     @property
     def recommended(self):
-        """The recommended normal, its estimator, depth and uncertainty
-        (:func:`simtest.reconstruct.recommend.recommend`)."""
+        """The recommended normal (:func:`simtest.reconstruct.recommend.recommend`)."""
         return recommend(self)
 
     @property
@@ -209,8 +201,9 @@ class _Draft:
     other_bps: object = ()
     own_bp: int = -1  # this highlight's own row in other_bps (skipped), -1 if not there
 def _complete(drafts: list) -> list[SpecularityEstimate]:
-    """Fit the cones of every pending isophote of ``drafts`` in one batch, run the estimators in
-    one batch, and finish each highlight (``merged`` test, joint cone axis)."""
+    """Fit the cones and run the estimators of every pending isophote of ``drafts``, one batch each,
+    and finish each highlight (``merged`` test, joint cone axis).
+    """
     # the drafts among the estimates (a real frame's thousands of rejections are finished already)
     dr = [d for d in drafts if type(d) is _Draft]
     pend = [(d, i) for d in dr for i, r in enumerate(d.results) if type(r) is _Pending]
@@ -227,7 +220,7 @@ def _complete(drafts: list) -> list[SpecularityEstimate]:
             d.results[i] = IsophoteEstimate(t, fit.reason, fit.detail, iso.points_uv, iso.closed)
             continue
         est = est_of[k]
-        # (IsophoteEstimate's fields given in order: no keyword dicts, 1500 isophotes a real frame)
+        # (IsophoteEstimate's fields given in order)
         if not est:
             d.results[i] = IsophoteEstimate(t, est.reason, est.detail, iso.points_uv, iso.closed, fit.conic,
                                             fit.ellipse, fit.residual_px, None, None, None, None, None, fit.cone)
@@ -255,14 +248,13 @@ def _complete(drafts: list) -> list[SpecularityEstimate]:
                 group.append(g)
     axes = joint_cone_axes(np.array(cones).reshape(-1, 3, 3), np.array(group, dtype=int),
                            np.array([to_fit_frame(d.fitf, d.bp_ray) for d in multi]).reshape(-1, 3))
-    joint_of = {id(d): (to_camera(d.fitf, j) if not isinstance(j, Failure) else None)
-                for d, j in zip(multi, axes)}
+    joint_of = {id(d): (to_camera(d.fitf, j) if not isinstance(j, Failure) else None) for d, j in zip(multi, axes)}
     enclosed = _enclosed_counts(dr)
     return [_finish(d, joint_of.get(id(d)), enclosed.get(id(d))) if type(d) is _Draft else d for d in drafts]
 def _enclosed_counts(drafts: list) -> dict:
-    """``id(draft) -> n``: how many other BPs the closed ok primary isophote of each draft whose
-    other BPs are a frame's sorted array (``_SortedBps``) encloses, in one batch
-    (:func:`count_enclosed`). The drafts not counted here are counted by :func:`_finish` itself."""
+    """``id(draft) -> n``: how many other BPs each draft's closed ok primary isophote encloses, in one
+    batch; the drafts not counted here are counted by :func:`_finish`.
+    """
     todo = [d for d in drafts if isinstance(d.other_bps, _SortedBps) and d.results[0].status == OK
             and d.results[0].closed and len(d.other_bps) > (d.own_bp >= 0)]
     if not todo:
@@ -286,17 +278,13 @@ def count_enclosed(polys: list, points, skips, us: np.ndarray | None = None) -> 
     skips : sequence of int
         Per polygon, the row of ``points`` not counted (its own BP); -1 for none.
     us : ndarray of shape (k,), optional
-        The points' u, where the caller sorted them by it (else they are sorted here).
+        The points' u, where the caller sorted them by it.
 
     Returns
     -------
     ndarray of int64, shape (len(polys),)
-        Per polygon, the points but its skipped one within its bounding box (bounds included)
-        that lie inside by the even-odd rule, in the comparisons and arithmetic of
-        :func:`~simtest.reconstruct.isophote.polygon_contains` (the same answers, on the polygon's
-        edges and vertices too). The box's u range
-        is two binary searches of the sorted u, so a frame of thousands of BPs costs n log n, and
-        every (polygon, point in its box, edge) triple is tested in one vectorised pass.
+        Per polygon, the points but its skipped one inside by the even-odd rule, with the answers of
+        :func:`~simtest.reconstruct.isophote.polygon_contains` (on edges and vertices too).
     """
     uv = np.asarray(points, dtype=np.float64).reshape(-1, 2)
     skip = np.asarray(skips, dtype=np.int64).reshape(-1)
@@ -355,9 +343,9 @@ class _SortedBps:
 
 
 def _merge_guard(det, bps_arr: np.ndarray) -> tuple[_SortedBps, np.ndarray, np.ndarray]:
-    """``(others, keep, row_in_others)``: the BPs an isophote must not enclose (``merged``: every
-    candidate's but the too small ones), sorted by u (:func:`count_enclosed`); which candidates
-    are among them; and each one's row there, -1 if not there."""
+    """``(others, keep, row_in_others)``: the BPs an isophote must not enclose sorted by u, which
+    candidates are among them, and each one's row there (-1 if not there).
+    """
     keep = np.array([c.status != "too_small" for c in det.candidates], dtype=bool)
     kept = np.flatnonzero(keep)
     order = np.argsort(bps_arr[kept, 0], kind="stable")
@@ -368,9 +356,9 @@ def _merge_guard(det, bps_arr: np.ndarray) -> tuple[_SortedBps, np.ndarray, np.n
 
 
 def _finish(d: _Draft, joint, enclosed: int | None = None) -> SpecularityEstimate:
-    """The estimate of a completed draft: the primary isophote's status, ``merged`` when that
-    closed isophote encloses another candidate's BP (``enclosed``: how many, where
-    :func:`_enclosed_counts` counted them)."""
+    """The estimate of a completed draft: the primary isophote's status, ``merged`` when it encloses
+    another candidate's BP (``enclosed``: the count, where already made).
+    """
     primary = d.results[0]
     status, detail = primary.status, primary.detail
     if status == OK and primary.closed and len(d.other_bps) > (d.own_bp >= 0):
@@ -383,13 +371,10 @@ def _finish(d: _Draft, joint, enclosed: int | None = None) -> SpecularityEstimat
             n_in = int(count_enclosed([primary.points_uv], d.other_bps, [d.own_bp])[0])
         if n_in:
             status, detail = "merged", f"the isophote at t = {primary.isovalue} encloses {n_in} other BP(s)"
-    return SpecularityEstimate(d.bp_uv, d.i_bp, d.saturated, d.roi, status, detail, d.bp_ray,
-                               tuple(d.results), joint)
+    return SpecularityEstimate(d.bp_uv, d.i_bp, d.saturated, d.roi, status, detail, d.bp_ray, tuple(d.results), joint)
 
 def _replaced(est: SpecularityEstimate, **changes) -> SpecularityEstimate:
-    """``dataclasses.replace(est, **changes)`` for the fields of a :class:`SpecularityEstimate`
-    (which has no ``__post_init__``), by copying its ``__dict__``: a fifth of the time, for the
-    thousands of candidates of a real frame."""
+    """``dataclasses.replace(est, **changes)`` for a :class:`SpecularityEstimate`, by copying its ``__dict__``."""
     new = object.__new__(SpecularityEstimate)
     new.__dict__.update(est.__dict__)
     new.__dict__.update(changes)

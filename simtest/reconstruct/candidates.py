@@ -1,29 +1,17 @@
 """The examination of a frame's candidate highlights as one table (detection's second half).
 
-:func:`examine` takes the components of a candidate mask as a table (one row per component:
-label, box and area, OpenCV's ``connectedComponentsWithStats`` columns) and returns, column by
-column, what :func:`simtest.reconstruct.detect.detect_specularities` reports of each: brightest
-pixel and peak, the sub-pixel brightest point (BP), the status, the region of interest and the
-detection level. The work is done on the components' pixels at once (sorting by label, numpy
-reductions, gathers of neighbours): the per-candidate Python is left to the few candidates with
-clipped pixels (their plateaus need OpenCV's closings) and the large boxes whose minimum a
-parabola needs.
-
-The rules (the module docstring of :mod:`simtest.reconstruct.detect` names the statuses):
+:func:`examine` takes the components of a candidate mask as a table (label, box and area per
+component) and returns, column by column, each one's brightest pixel and peak, sub-pixel BP,
+status, ROI and detection level. The rules (statuses named in :mod:`simtest.reconstruct.detect`):
 
 - brightest pixel: the first maximum of the component in raster order;
-- BP: the centroid of the largest clipped plateau of a clipped candidate, else, where the peak
-  lies within :data:`~simtest.decisions.CLIP_LUMA_MARGIN_REL` of an integer frame's ceiling (a
-  top clipped in red and green only), the centroid of its pixels over that limit 8-connected to
-  the brightest pixel, else the centroid of
-  the 8-connected flat top through the brightest pixel where another pixel of its 3 x 3
-  neighbourhood in the component has the same value, else the separable parabola through the
-  3 x 3 neighbourhood (pixels of the box outside the component count at the box minimum; an axis
-  at the box's side or without a strict maximum keeps offset 0; offsets clipped to +-0.5 px);
-- status: ``too_small`` below ``min_area_px``, ``touches_border``, ``black_border`` (a box that
-  meets the scope's border), ``merged`` (two or more clipped plateaus of the plateau size), then
-  from :data:`ELLIPTICITY_MIN_AREA_PX` px ``not_elliptical`` (the ellipticity of the pixels'
-  second moments, each a unit square, outside [e_min, 1 / e_min]).
+- BP: the centroid of the largest clipped plateau of a clipped candidate; else, where the peak
+  lies within :data:`~simtest.decisions.CLIP_LUMA_MARGIN_REL` of an integer frame's ceiling, the
+  centroid of its pixels over that limit 8-connected to the brightest pixel; else the centroid of
+  a flat top through the brightest pixel; else the separable parabola through the 3 x 3
+  neighbourhood (offsets clipped to +-0.5 px, 0 at the box's side or without a strict maximum);
+- status: ``too_small``, ``touches_border``, ``black_border`` (the scope's border), ``merged``
+  (two or more clipped plateaus), then from :data:`ELLIPTICITY_MIN_AREA_PX` px ``not_elliptical``.
 """
 
 from __future__ import annotations
@@ -40,8 +28,7 @@ from simtest.reconstruct.detect_pixels import connected_components
 #: Status codes of :func:`examine` (column ``code``) and their names.
 OK, TOO_SMALL, TOUCHES_BORDER, BLACK_BORDER, NOT_ELLIPTICAL, MERGED = range(6)
 STATUS_NAMES = ("ok", "too_small", "touches_border", "black_border", "not_elliptical", "merged")
-#: Boxes up to this side have their minimum gathered at once; larger ones one by one (a few a
-#: frame: small components dominate a real frame's thousands).
+#: Boxes up to this side have their minimum gathered at once; larger ones one by one.
 _GATHER_SIDE = 8
 #: Up to this many components are read box by box (:func:`_pixels`).
 _FEW = 64
@@ -49,10 +36,8 @@ _FEW = 64
 
 @dataclass(frozen=True)
 class Rules:
-    """The decision numbers of :func:`examine` (``detect_specularities``' arguments, resolved).
-
-    ``k_close``: the side of the closing that joins pieces of one clipped top (px);
-    ``local_peak``: whether the method is ``"local_peak"`` (clipped pixels closed 3 x 3 first).
+    """The decision numbers of :func:`examine` (``detect_specularities``' arguments, resolved);
+    ``k_close``: side of the closing that joins pieces of one clipped top (px).
     """
 
     min_area_px: int
@@ -82,8 +67,7 @@ class Examined:
 
 
 def roi_columns(bp_uv: np.ndarray, half: np.ndarray, shape: tuple[int, int]) -> np.ndarray:
-    """:meth:`simtest.reconstruct._pixels.Roi.around` of many centres: (N, 4) row0, row1, col0,
-    col1, clipped to ``shape`` (H, W)."""
+    """:meth:`simtest.reconstruct._pixels.Roi.around` of many centres: (N, 4), clipped to ``shape`` (H, W)."""
     h, w = shape
     r, c = uv_to_rc(bp_uv).T
     out = np.empty((len(bp_uv), 4), np.int64)
@@ -117,9 +101,7 @@ def _box_minima(gray: np.ndarray, x, y, bw, bh) -> np.ndarray:
 
 
 def _pixels(labels: np.ndarray, table: np.ndarray):
-    """The examined components' pixels, each component's in raster order: (flat index, row of
-    ``table``). A few components are read in their boxes; many, in one scan of the rows that
-    hold them."""
+    """The examined components' pixels, each in raster order: (flat index, row of ``table``)."""
     w = labels.shape[1]
     if len(table) <= _FEW:
         parts, rows = [], []
@@ -144,11 +126,9 @@ def _pixels(labels: np.ndarray, table: np.ndarray):
 
 
 def _top_centroids(gray, rows, idx, k, level, pix, row, col):
-    """The centroid (row, col) of each candidate's top, for the candidates ``rows``: the
-    8-connected pixels of its component at or above its ``level`` (a flat top: its peak; a top
-    near the ceiling: the limit below which noise no longer places the maximum) through its
-    brightest pixel ``pix``; ``(row, col)`` as given where that top is the pixel alone. The tops
-    labelled by runs of rows (OpenCV, Grana's algorithm), their centroids by counting."""
+    """The centroid (row, col) of each candidate's top for the candidates ``rows``: its pixels at or
+    above ``level`` 8-connected to the brightest pixel ``pix``.
+    """
     is_top = np.zeros(len(level), bool)
     is_top[rows] = True
     sel = is_top[k]
@@ -172,12 +152,10 @@ def _top_centroids(gray, rows, idx, k, level, pix, row, col):
 
 def _plateaus(clipped: np.ndarray, labels: np.ndarray, cid: int, x: int, y: int, bw: int, bh: int,
               rules: Rules, near: np.ndarray | None = None) -> tuple[int, float, float]:
-    """The clipped plateaus of one candidate: ``(n, row, col)``, the count of plateaus of the
-    plateau size and the centroid of the largest (frame). ``"local_peak"``: the clipped pixels
-    closed 3 x 3 and cut by the component (plateaus from 3 px), or closed by ``k_close`` where
-    that makes one plateau of two or more, read on the pixels of ``near`` joined to them in the
-    component: a codec's broken top (in pieces, or one pixel left at the ceiling) is one plateau;
-    a whole one gains only its rim within the margins."""
+    """The clipped plateaus of one candidate: ``(n, row, col)``, the count of plateau-sized plateaus and
+    the largest one's centroid (frame). With ``"local_peak"`` a codec's broken top (pieces, or pixels
+    of ``near``) counts as one plateau.
+    """
     comp = (labels[y : y + bh, x : x + bw] == cid).view(np.uint8)
     top = clipped[y : y + bh, x : x + bw] & comp
     if near is not None:
@@ -187,8 +165,7 @@ def _plateaus(clipped: np.ndarray, labels: np.ndarray, cid: int, x: int, y: int,
 
 
 def _joined(seed: np.ndarray, mask: np.ndarray) -> np.ndarray:
-    """The pieces of ``mask`` (0/1, 8-connected) that hold a pixel of ``seed`` (0/1, within
-    ``mask``'s): a clipped top as a lossy codec leaves it, read from what stays at the ceiling."""
+    """The pieces of ``mask`` (0/1, 8-connected) that hold a pixel of ``seed``."""
     _, lab = cv2.connectedComponents(mask | seed, connectivity=8)
     keep = np.zeros(int(lab.max()) + 1, bool)
     keep[lab[seed != 0]] = True
@@ -217,8 +194,7 @@ def _plateau_count(raw: np.ndarray, comp: np.ndarray, rules: Rules) -> tuple[int
 
 
 def _parabola(a: np.ndarray, b: np.ndarray, d: np.ndarray, ok: np.ndarray) -> np.ndarray:
-    """Offset of the parabola through (a, b, d), clipped to +-0.5; 0 where not ``ok`` or the
-    curvature is not negative."""
+    """Offset of the parabola through (a, b, d), clipped to +-0.5; 0 where not ``ok`` or not concave."""
     den = a - 2 * b + d
     use = ok & (den < 0)
     off = np.zeros(len(a))
@@ -238,13 +214,12 @@ def examine(gray: np.ndarray, labels: np.ndarray, table: np.ndarray, rules: Rule
     labels : ndarray of shape (H, W), int32
         Component labels (0 background); read inside the table's boxes only.
     table : ndarray of shape (N, 6), int64
-        Label, x, y, width, height, area of each component (box in ``gray``'s coordinates).
+        Label, x, y, width, height, area of each component.
     rules : Rules
     clipped : ndarray of shape (H, W), uint8, optional
         Clipped pixels (0/1).
     near : ndarray of shape (H, W), uint8, optional
-        Pixels near the ceiling (0/1, :func:`~simtest.reconstruct.detect_pixels.near_ceiling_mask`):
-        a clipped top is read with those joined to its clipped pixels (:func:`_plateaus`).
+        Pixels near the ceiling (0/1, :func:`~simtest.reconstruct.detect_pixels.near_ceiling_mask`).
     scope : ndarray of shape (H, W), bool, optional
         The endoscope's black border.
     levels : ndarray of shape (H, W), float32, optional
@@ -303,8 +278,7 @@ def examine(gray: np.ndarray, labels: np.ndarray, table: np.ndarray, rules: Rule
         for i in np.flatnonzero(saturated).tolist():
             n_plateaus[i], row[i], col[i] = _plateaus(clipped, labels, int(cid[i]), int(x[i]), int(y[i]),
                                                       int(bw[i]), int(bh[i]), rules, near)
-    # unclipped tops: a flat one (pixels at its peak) and one near the ceiling, flat to blue's few
-    # levels where noise places its maximum anywhere, at the centroid of their pixels
+    # unclipped tops: a flat one, and one near the ceiling (centroid of their pixels)
     level = np.where((n_top > 1) & ~saturated, peak, np.inf)
     if rules.ceiling is not None:
         lim = rules.ceiling * (1.0 - CLIP_LUMA_MARGIN_REL)
@@ -321,8 +295,7 @@ def examine(gray: np.ndarray, labels: np.ndarray, table: np.ndarray, rules: Rule
     if e_rows.any():
         sel = e_rows[k]
         kk = k[sel]
-        # frame coordinates: the sums are exact integers in float64, the spreads lose about
-        # 1e-11 of their value to the subtraction of the squared mean
+        # frame coordinates: the sums are exact integers in float64
         rr, cc = (v.astype(np.float64) for v in np.divmod(idx[sel], w))
         cnt = area.astype(np.float64)
         sums = [np.bincount(kk, weights=v, minlength=n) for v in (rr, cc, rr * rr, cc * cc, rr * cc)]

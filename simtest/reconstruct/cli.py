@@ -1,29 +1,18 @@
 """``simtest reconstruct IMAGE --intrinsics K.json --out DIR [--isovalue T ...]`` and ``simtest view``.
 
-``reconstruct`` writes ``DIR/estimates.json`` (schema: ``docs/estimates-format.md``),
-``DIR/overlay.png`` (:mod:`simtest.reconstruct.overlay`, unless ``--no-overlay``) and with ``--view``
-``DIR/view.png`` (:mod:`simtest.reconstruct.view3d`); for a folder of frames or a video,
-``DIR/estimates.parquet`` (:mod:`simtest.reconstruct.table`; ``--format jsonl``:
-``DIR/estimates.jsonl``). ``DIR`` is replaced as one folder (:func:`~simtest._io.
-replace_output_folder`): a failure or a kill at any point leaves either the whole previous set or
-the whole new one, never a new ``estimates.json`` beside an old ``overlay.png``; so ``DIR`` must be
-new, empty, or hold only a previous run's outputs. Exit status: 2 and one line ``error: ...`` on
-stderr (no traceback, no library noise) for a missing or unreadable image or intrinsics file, an
-array that is not an image, frames of two sizes, a bad option value, or an image whose overlay
-would not fit in memory; 4 when ``DIR`` cannot be written (a file in the way, read-only, foreign
-files inside); both before anything is written.
+``reconstruct`` writes ``DIR/estimates.json`` (``docs/estimates-format.md``), ``DIR/overlay.png``
+(unless ``--no-overlay``) and with ``--view`` ``DIR/view.png``; for a folder of frames or a video,
+``DIR/estimates.parquet`` (``--format jsonl``: ``DIR/estimates.jsonl``). ``DIR`` is replaced as one
+folder (:func:`~simtest._io.replace_output_folder`): a failure leaves the whole previous set or the
+whole new one. Exit status 2 with one line ``error: ...`` on stderr for bad input (image, camera,
+frames of two sizes, option, an overlay too large for memory, a rig without physical sense:
+:func:`~simtest.geometry.lights.check_scope_rig`); 4 when ``DIR`` cannot be written; both before
+anything is written.
 
-Images: anything OpenCV decodes (PNG 8/16-bit, JPEG, TIFF, BMP, ...), read unchanged and turned to
-RGB; or a ``.npy`` array (float images from the simulator). Camera (``--intrinsics``): a camera
-file (pinhole with OpenCV distortion, fisheye or omnidirectional, :mod:`simtest.geometry.camera_file`)
-or an OpenCV YAML/XML calibration; contour points are mapped to rays through the model before the
-fit. A camera file's ``"lights"`` (the scope's light rig, camera frame, mm) switches on the
-light-aware estimators when a light is off the camera centre (:mod:`simtest.reconstruct.recommend`):
-``estimates.json`` then gives their normals, the depth of each specular point and the recommended
-``normal``; so does every frame of ``estimates.parquet`` for a folder or a video (each frame gets the
-fits a single image gets). A rig without physical sense (a light 20 mm or more ahead of the lens,
-more than 200 mm from it, ``"lights": null``, an intensity outside 1e-9 to 1e9:
-:func:`~simtest.geometry.lights.check_scope_rig`) is bad input: exit 2, one line.
+Images: anything OpenCV decodes, turned to RGB, or a ``.npy`` array. Camera (``--intrinsics``): a
+camera file (:mod:`simtest.geometry.camera_file`) or an OpenCV YAML/XML calibration; its
+``"lights"`` switch on the light-aware estimators when a light is off the camera centre
+(:mod:`simtest.reconstruct.recommend`), for every frame of a sequence too.
 """
 
 from __future__ import annotations
@@ -201,10 +190,9 @@ def reconstruct_command(
 
 def reconstruct_single(img, camera_file, settings: ReconSettings | None = None, *, cubic_patch: bool = False,
                        workers: int = 1, on_highlight=None):
-    """What ``simtest reconstruct IMAGE`` computes for a loaded image (``load_image``) and its
-    :class:`~simtest.geometry.camera_file.CameraFile` (model, rig, response); ``settings`` default
-    to the command's (:meth:`ReconSettings.for_frames`), ``workers`` (the fits' processes) changes
-    nothing but the time. The harness's end-to-end records call this too.
+    """What ``simtest reconstruct IMAGE`` computes for a loaded image and its
+    :class:`~simtest.geometry.camera_file.CameraFile`; ``settings`` default to
+    :meth:`ReconSettings.for_frames`, ``workers`` changes nothing but the time.
 
     Returns
     -------
@@ -223,17 +211,10 @@ def reconstruct_single(img, camera_file, settings: ReconSettings | None = None, 
 
 
 def check_workers(workers: int, option: str = "--workers") -> int:
-    """``workers`` if this machine has that many CPUs (``os.cpu_count()``), else exit 2.
-
-    Raises
-    ------
-    typer.Exit
-        With exit status 2 and one line naming the value and the CPU count.
-    """
+    """``workers`` if this machine has that many CPUs, else exit 2 with one line naming both."""
     cpus = os.cpu_count() or 1
     if workers > cpus:
-        fail(f"{option} {workers}: more than the {cpus} CPU(s) of this machine (0: one per CPU)",
-             BAD_INPUT)
+        fail(f"{option} {workers}: more than the {cpus} CPU(s) of this machine (0: one per CPU)", BAD_INPUT)
     return workers
 
 
@@ -244,9 +225,7 @@ SEQUENCE_FORMATS = {"parquet": ("estimates.parquet", partial(write_frames, fmt="
 
 def _reconstruct_sequence(path, intrinsics, out, target, settings, *, points, workers, cubic=False,
                           output_format="parquet") -> None:
-    """Folder or video: estimates.parquet (or .jsonl) in frame order, a progress bar, frames per
-    second; the camera file's light rig runs the light-aware fits on every frame, as on a single
-    image."""
+    """Folder or video: estimates.parquet (or .jsonl) in frame order, with a progress bar."""
     counts: dict[str, int] = {}
     left = {"components": 0, "not_examined": 0}
     try:
@@ -299,17 +278,8 @@ def _reconstruct_sequence(path, intrinsics, out, target, settings, *, points, wo
 
 
 def summary_line(estimates, paths, detection: dict | None = None) -> str:
-    """One summary of a reconstruction: counts per status, what detection left out, the outputs.
-
-    Parameters
-    ----------
-    estimates : list of SpecularityEstimate
-        The frame's estimates.
-    paths : list of Path
-        The files written.
-    detection : dict, optional
-        :meth:`~simtest.reconstruct.result.Reconstruction.detection_record`; its ``not_examined``
-        components are counted in the line whenever there are any (no silent cap).
+    """One summary line of a reconstruction: counts per status, the components detection left out
+    (``detection``'s ``not_examined``, whenever any), and the files written (``paths``).
     """
     counts: dict[str, int] = {}
     for e in estimates:
@@ -336,19 +306,9 @@ def _camera_of(doc: dict, intrinsics: Path | None):
 
 
 def load_truth_points(path: Path, camera) -> "np.ndarray":  # noqa: F821
-    """Ground-truth surface points (H, W, 3), mm, camera frame, from a file.
-
-    Parameters
-    ----------
-    path : Path
-        A render's ``ground_truth.npz`` (its ``position``, else its z-``depth``), or a C3VD
-        ``NNNN_depth.tiff`` (16-bit z-depth, ``mm = v / 65535 * 100``, 0 and 65535 invalid).
-    camera : CameraModel
-        Rays for back-projecting a depth map.
-
-    Returns
-    -------
-    ndarray of shape (H, W, 3)
+    """Ground-truth surface points (H, W, 3), mm, camera frame, from a render's ``ground_truth.npz``
+    (``position``, else z-``depth``) or a C3VD ``NNNN_depth.tiff`` (``mm = v / 65535 * 100``, 0 and
+    65535 invalid), depths back-projected through ``camera``.
 
     Raises
     ------
@@ -385,22 +345,8 @@ def _size_of_estimates(doc: dict) -> tuple[int, int] | None:
 
 def check_view_sizes(doc: dict, estimates: Path, camera=None, intrinsics: Path | None = None,
                      truth_points=None, truth: Path | None = None) -> None:
-    """Refuse a camera or a ground truth made for another image than the estimates'.
-
-    Parameters
-    ----------
-    doc : dict
-        The estimates document (its ``image_shape`` [H, W]).
-    estimates : Path
-        Its file, for messages.
-    camera : CameraModel, optional
-        From ``--intrinsics``: its ``image_size`` (W, H), when it has one, must be the image's.
-    intrinsics : Path, optional
-        The camera file, for messages.
-    truth_points : ndarray of shape (H, W, 3), optional
-        The ground truth: one point per pixel of the image.
-    truth : Path, optional
-        Its file, for messages.
+    """Refuse a camera (its ``image_size``) or a ground truth (one point per pixel) made for another
+    image than the estimates document ``doc``'s ``image_shape``.
 
     Raises
     ------
@@ -439,8 +385,7 @@ def view_command(
     4: --out cannot be written (a folder, a file that is not a PNG image, read-only)."""
     if out.is_dir():
         fail(f"--out: {out} is a folder; give the PNG file to write", CANNOT_WRITE)
-    # the view is a PNG: a name such as notes.txt is a slip, and a file there that is not a PNG
-    # image is a user's own, which the view would overwrite
+    # a name such as notes.txt is a slip, and a file there that is not a PNG is a user's own
     if out.suffix.lower() != ".png":
         fail(f"--out: {out}: the view is a PNG image; give a file name ending in .png", BAD_INPUT)
     if out.exists() and not _is_png(out):

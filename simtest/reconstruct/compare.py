@@ -1,24 +1,13 @@
 """The accuracy tolerance: how far a change of the reconstruction may move its results.
 
-Speed work may change the method (detection on a reduced frame, one smoothing per frame), so
-results are no longer held bit for bit; they are held within :data:`ACCURACY`:
+Within :data:`ACCURACY`, "ok" statuses change on at most 1 % of the candidates (appearing,
+disappearing, or turning ok/rejected; not between two rejection reasons), and the normals of the
+highlights ok before and after move by a median of at most 0.01 deg and a 95th percentile of at
+most 0.05 deg, for every estimator both give (0.01 deg is a tenth of the smallest error the
+committed reports resolve). Candidates are paired by their BPs (nearest within ``match_px``).
 
-- "ok" statuses change on at most 1 % of the candidates (a candidate that appears or disappears,
-  or turns from ok to rejected or back, is a change; a change between two rejection reasons is
-  not);
-- the normals of the highlights ok before and after move by a median of at most 0.01 deg and a
-  95th percentile of at most 0.05 deg, for every estimator both give.
-
-The sizes: 0.01 deg is a tenth of the smallest error the committed reports resolve on noisy
-renders (the co-located planes' cone axis, about 0.001 to 0.1 deg) and far below the 0.5 deg the
-nightly gate must catch; the 95th percentile allows the rare isophote whose contour gains or loses
-a point. Candidates are paired by their BPs (nearest within ``match_px``, one to one).
-
-:func:`compare_estimates` compares two runs of one frame (as ``estimates.json``'s
-``specularities`` or any rows with ``bp_px``, ``status`` and ``normals``); ``tests/golden.py
---compare DIR`` compares the current code with a snapshot of the golden set and the bench frames
-taken before a change (``--snapshot DIR``), and ``tests/test_golden.py`` holds the stored golden
-outputs to this tolerance.
+``tests/golden.py --snapshot DIR`` / ``--compare DIR`` and ``tests/test_golden.py`` hold the
+golden set to this tolerance.
 """
 
 from __future__ import annotations
@@ -130,19 +119,9 @@ def compare_estimates(before: list[dict], after: list[dict], *, name: str = "",
                       tol: AccuracyTolerance = ACCURACY) -> Comparison:
     """Compare one frame's estimates before and after a change.
 
-    Parameters
-    ----------
-    before, after : list of dict
-        Rows with ``"bp_px"`` ([u, v] px), ``"status"`` and ``"normals"`` ({estimator: [x, y, z]
-        or None}, unit vectors in the camera frame), as ``estimates.json``'s specularities.
-    name : str
-        The frame, for the lines of :attr:`Comparison.status_changes`.
-    tol : AccuracyTolerance
-        Its ``match_px`` pairs the candidates.
-
-    Returns
-    -------
-    Comparison
+    ``before``, ``after``: rows with ``"bp_px"`` ([u, v] px), ``"status"`` and ``"normals"``
+    ({estimator: [x, y, z] or None}), as ``estimates.json``'s specularities; ``name`` the frame, for
+    the status-change lines; ``tol``'s ``match_px`` pairs the candidates. Returns a :class:`Comparison`.
     """
     pairs, gone, new = _pairs(before, after, tol.match_px)
     cmp = Comparison(candidates=max(len(before), len(after)))

@@ -1,30 +1,19 @@
 """The isophote cone fitted on viewing rays, for any camera model.
 
-An isophote seen from the camera centre spans a cone of viewing rays; for a co-located light and a
-plane it is a right circular cone whose axis is the plane normal (the paper's step 3 writes it
-C' = K^T C K for a pinhole). With a wide-angle lens the isophote's *pixels* do not lie on a conic
-(the lens bends them), but its *rays* still lie on the cone ``r^T C' r = 0``. So the contour points
-are first mapped to unit rays by the camera model, and the cone is fitted to the rays.
+An isophote spans a cone of viewing rays ``r^T C' r = 0`` (C' = K^T C K for a pinhole, the
+paper's step 3). With a wide-angle lens its pixels lie on no conic but its rays still lie on the
+cone, so the contour points are mapped to unit rays by the camera model, projected centrally onto
+one plane per highlight and fitted there by :func:`~simtest.reconstruct.fit.fit_ellipse`: exact
+for exact rays, whatever the lens. The plane (:func:`fit_frame`) is:
 
-Fit frame
----------
-A cone through the camera centre meets every plane not through the centre in a conic, so the rays
-are projected centrally onto one plane and the ellipse fitted there (the direct least-squares fit of
-:func:`~simtest.reconstruct.fit.fit_ellipse`); the cone is then exact for exact rays, whatever the
-lens. The plane is chosen per highlight (:func:`fit_frame`):
-
-- a pinhole camera (with or without OpenCV distortion): its own image plane, in undistorted pixels,
-  so the fitted conic C is the undistorted image conic and C' = K^T C K as in the paper;
-- any other model (fisheye, omnidirectional): the plane perpendicular to the ray of the brightest
-  point, in "virtual pixels" of a pinhole ``K_v = diag(f_v, f_v, 1)`` looking along that ray, with
-  f_v the camera's local scale there (px per radian: ``det(J J^T)^(1/4)``, the geometric mean of
-  the singular values of the ray-to-pixel Jacobian J at the unit BP ray). Near the BP a virtual pixel is then about one image pixel, so fit residuals stay in
-  pixels. With R the rotation taking the BP ray to +z, the cone in the camera frame is
+- for a pinhole (with or without OpenCV distortion): its image plane in undistorted pixels,
+  C' = K^T C K as in the paper;
+- for any other model: the plane perpendicular to the BP ray, in virtual pixels of
+  ``K_v = diag(f_v, f_v, 1)`` with f_v = ``det(J J^T)^(1/4)`` of the ray-to-pixel Jacobian J at
+  the BP ray (residuals stay in about pixels); with R taking the BP ray to +z,
   ``C' = R^T K_v^T C K_v R``.
 
-The estimators (circle pose, cone axis, joint cone axis) run in the fit frame, where the cone's
-image is an ellipse around +z even for a highlight 90 deg off the optical axis, and their normals
-are rotated back to the camera frame (:func:`to_camera`).
+The estimators run in the fit frame and their normals are rotated back (:func:`to_camera`).
 """
 
 from __future__ import annotations
@@ -50,13 +39,11 @@ class FitFrame:
     camera : CameraModel
         The camera.
     R : ndarray of shape (3, 3)
-        Rotation from the camera frame to the fit frame (``x_fit = R x_cam``); the identity for a
-        pinhole.
+        Rotation from the camera frame to the fit frame (``x_fit = R x_cam``); identity for a pinhole.
     K : ndarray of shape (3, 3)
         Intrinsics of the fit plane: the camera's K for a pinhole, ``diag(f_v, f_v, 1)`` otherwise.
     on_image_plane : bool
-        True when the fit plane is the camera's (undistorted) image plane, so the fitted conic and
-        ellipse are in image pixels.
+        True when the fit plane is the camera's (undistorted) image plane.
     """
 
     camera: CameraModel
@@ -78,8 +65,7 @@ class ConeFit:
     cone_fit_frame : ndarray of shape (3, 3)
         The same cone in the fit frame, ``R C' R^T`` (what the estimators use).
     conic : ndarray of shape (3, 3) or None
-        The fitted point conic in image pixels (undistorted) when the fit plane is the image
-        plane (pinhole); None otherwise (a wide-angle isophote is no conic in its pixels).
+        The fitted point conic in undistorted image pixels on the image plane (pinhole); else None.
     ellipse : simtest.geometry.conics.Ellipse or None
         That conic's centre (u, v) px, semi-axes px and angle; None as ``conic``.
     residual_px : float
@@ -100,19 +86,8 @@ class ConeFit:
 
 
 def rotations_to_z(d: np.ndarray) -> np.ndarray:
-    """Rotations R with ``R d = |d| e_z``, one per direction.
-
-    Parameters
-    ----------
-    d : ndarray of shape (k, 3)
-        Non-zero directions, camera frame.
-
-    Returns
-    -------
-    ndarray of shape (k, 3, 3)
-        Proper rotations (det +1), each from its own direction only; rows are the fit frame's
-        axes in camera coordinates, the image x axis kept as close to the camera's x as possible
-        (so plane pixels read like image pixels).
+    """Rotations R (k, 3, 3) with ``R d = |d| e_z``, one per direction d (k, 3), det +1, the image x
+    axis kept as close to the camera's x as possible.
     """
     z = d / np.linalg.norm(d, axis=1, keepdims=True)
     ref = np.where(np.abs(z[:, :1]) < 0.9, np.array([1.0, 0.0, 0.0]), np.array([0.0, 1.0, 0.0]))
@@ -129,39 +104,14 @@ _IDENTITY.setflags(write=False)
 
 
 def fit_frame(camera: CameraModel, bp_ray) -> FitFrame:
-    """The fit plane of a highlight (module Notes).
-
-    Parameters
-    ----------
-    camera : CameraModel
-        The camera.
-    bp_ray : array_like of shape (3,)
-        Unit viewing ray of the brightest point, camera frame (z may be <= 0 for a wide lens).
-
-    Returns
-    -------
-    FitFrame
+    """The fit plane (:class:`FitFrame`) of a highlight of ``camera`` with unit BP ray ``bp_ray`` (3,),
+    camera frame (z may be <= 0 for a wide lens).
     """
     return fit_frames(camera, np.asarray(bp_ray, dtype=np.float64).reshape(1, 3))[0]
 
 
 def fit_frames(camera: CameraModel, bp_rays: np.ndarray) -> list[FitFrame]:
-    """:func:`fit_frame` of several highlights of one camera at once.
-
-    Parameters
-    ----------
-    camera : CameraModel
-        The camera.
-    bp_rays : ndarray of shape (k, 3)
-        Unit viewing rays of the brightest points, camera frame.
-
-    Returns
-    -------
-    list of FitFrame
-        One per ray: the image plane for a pinhole; otherwise the plane normal to the ray with
-        the focal length ``det(J J^T)^(1/4)`` of the model's ray-to-pixel Jacobian J there (1 where
-        the model has none), in one call of the model for all rays.
-    """
+    """:func:`fit_frame` of several highlights (unit BP rays (k, 3)) of one camera at once."""
     d = np.asarray(bp_rays, dtype=np.float64).reshape(-1, 3)
     if isinstance(camera, PinholeCamera):
         return [FitFrame(camera, _IDENTITY, camera.K, True)] * len(d)
@@ -178,6 +128,8 @@ def fit_frames(camera: CameraModel, bp_rays: np.ndarray) -> list[FitFrame]:
 def fit_cones(points_list, frames) -> list[ConeFit | Failure]:
     """Fit the isophote cone of each of several highlights' contours through their viewing rays.
 
+    With plane pixels x = K (R r) / (R r)_z and the fitted conic C, ``C' = R^T K^T C K R``.
+
     Parameters
     ----------
     points_list : sequence of array_like of shape (N_i, 2)
@@ -189,24 +141,13 @@ def fit_cones(points_list, frames) -> list[ConeFit | Failure]:
     -------
     list of ConeFit or Failure
         One per contour, in order. Failures of :func:`~simtest.reconstruct.fit.fit_ellipse`;
-        ``non_finite_points`` also when a point has no ray in the camera model or lies past the
-        fit plane's horizon (more than 90 deg from the BP ray); ``pose_failed`` if the cone is
-        zero or non-finite.
+        ``non_finite_points`` also when a point has no ray or lies more than 90 deg from the BP ray;
+        ``pose_failed`` if the cone is zero or non-finite.
 
     Raises
     ------
     ValueError
         If a point set is not of shape (N, 2), or the two sequences differ in length.
-
-    Notes
-    -----
-    With plane pixels x = K (R r) / (R r)_z and the fitted conic C (``x^T C x = 0``), a ray r lies
-    on the cone iff ``(K R r)^T C (K R r) = 0``, so ``C' = R^T K^T C K R`` (paper step 3 for R = I).
-    For a distortion-free pinhole the plane pixels are the contour points themselves.
-    The contours of one camera are mapped to rays in one call of its model and onto their fit
-    planes in one batched projection, the ellipses fitted in one batch
-    (:func:`~simtest.reconstruct.fit.fit_stacked`) and the cones formed in stacked matrix
-    products.
     """
     pts_list = point_sets(points_list)
     frames = list(frames)
@@ -216,8 +157,7 @@ def fit_cones(points_list, frames) -> list[ConeFit | Failure]:
         return []
     counts = np.array([len(p) for p in pts_list], dtype=np.int64)
     pts = np.concatenate(pts_list, axis=0)
-    # per distinct frame object (a pinhole's frames are one object): its camera when its points
-    # are mapped to rays, None when the contour points are the plane points already
+    # per distinct frame object: its camera where its points are mapped to rays, else None
     camera_of: dict = {}
     for f in frames:
         if id(f) not in camera_of:
@@ -261,8 +201,7 @@ def fit_cones(points_list, frames) -> list[ConeFit | Failure]:
         Rg = np.stack([f.R for f, img in zip(gframes, on_image.tolist()) if not img])
         rot = np.swapaxes(Rg, 1, 2) @ c[~on_image] @ Rg
         cone[~on_image] = 0.5 * (rot + np.swapaxes(rot, 1, 2))
-    # (ConeFit's fields in order: cone, cone_fit_frame, conic, ellipse, residual_px,
-    # n_points; no keyword dicts, a real frame's 1500 fits)
+    # (ConeFit's fields in order: cone, cone_fit_frame, conic, ellipse, residual_px, n_points)
     for j, i, is_formed, img in zip(range(len(good)), good.tolist(), formed.tolist(), on_image.tolist()):
         if not is_formed:
             out[i] = Failure("pose_failed", "C' = K^T C K is zero or not finite")
@@ -274,21 +213,8 @@ def fit_cones(points_list, frames) -> list[ConeFit | Failure]:
 
 
 def _to_planes(rays: np.ndarray, R: np.ndarray, K: np.ndarray, owner: np.ndarray) -> np.ndarray:
-    """Central projection of camera-frame rays onto their fit planes (:class:`FitFrame`).
-
-    Parameters
-    ----------
-    rays : ndarray of shape (N, 3)
-        Rays, camera frame (any length).
-    R, K : ndarray of shape (g, 3, 3)
-        Rotations camera -> fit frame and intrinsics of g fit planes.
-    owner : ndarray of shape (N,), int
-        Each ray's plane, 0 .. g-1.
-
-    Returns
-    -------
-    ndarray of shape (N, 2)
-        Plane px ``K (R r) / (R r)_z``; NaN rows at or behind a plane's horizon (``(R r)_z <= 0``).
+    """Central projection of camera-frame rays (N, 3) onto their fit planes: ``K (R r) / (R r)_z`` (N, 2)
+    with the g planes' R, K (g, 3, 3) and each ray's plane ``owner`` (N,); NaN at or behind a horizon.
     """
     Ro = R[owner]
     r = np.einsum("nij,nj->ni", Ro, rays)

@@ -1,22 +1,17 @@
 """Specularity detection on a whole image: candidate highlights, their BP, ROI, or a reason.
 
-A candidate is an 8-connected component of bright pixels (``gray >= brightness_rel * full_scale``;
-outer boundaries by OpenCV ``findContours``, each filled in its bounding box; a component inside
-another's hole counts with it). Its brightest point (BP) is the centroid of the saturated plateau
-when clipped (or of the top near the ceiling, :mod:`simtest.reconstruct.candidates`), else the
-brightest pixel refined by a separable parabola through its 3x3
-neighbourhood (or the centroid of a flat top that quantisation made). It gets a square region of
-interest around the BP, large enough for the low isophotes, and a status, ``"ok"`` or a reason:
-``too_small`` (fewer than ``min_area_px`` pixels), ``touches_border`` (its isophotes are cut),
-``merged`` (several separate saturated plateaus), ``not_elliptical`` (``area / (4 pi sqrt(det
-Sigma))`` of its second moments outside [``ellipticity_min``, 1 / ``ellipticity_min``]: 1 for a
-filled ellipse, 0.83 for an equilateral triangle, lower for rings, crescents and L shapes).
+A candidate is an 8-connected component of bright pixels. Its brightest point (BP) is the
+centroid of the saturated plateau when clipped, else the brightest pixel refined by a separable
+parabola through its 3x3 neighbourhood (or the centroid of a flat top). It gets a square ROI
+around the BP and a status, ``"ok"`` or a reason: ``too_small`` (fewer than ``min_area_px``
+pixels), ``touches_border``, ``merged`` (several saturated plateaus), ``not_elliptical``
+(``area / (4 pi sqrt(det Sigma))`` of its second moments outside [``ellipticity_min``,
+1 / ``ellipticity_min``]).
 
 Images: (H, W), (H, W, 1), (H, W, 3) RGB or (H, W, 4) RGBA (alpha ignored); uint8, uint16 or
-floating. Full scale is the dtype maximum for integers and ``max(1, max(image))`` for floats
-unless given. The intensity is the Rec. 601 luma ``0.299 R + 0.587 G + 0.114 B``; a pixel is
-saturated when every channel is at ``saturation_level`` (default: the integer dtype maximum; none
-for floats): the red channel of tissue alone clips over broad diffuse areas in endoscopy.
+floating. Full scale is the dtype maximum for integers, ``max(1, max(image))`` for floats. The
+intensity is the Rec. 601 luma; a pixel is saturated when every channel is at ``saturation_level``
+(the red channel of tissue alone clips over broad diffuse areas in endoscopy).
 """
 
 from __future__ import annotations
@@ -76,7 +71,7 @@ class Candidate:
     bp_uv : ndarray of shape (2,)
         Brightest point (u, v), px (sub-pixel).
     peak : float
-        Intensity at the BP (max of the luma in the component), image units.
+        Intensity at the BP, image units.
     saturated : bool
         True if the BP is the centroid of a clipped plateau.
     area_px : int
@@ -90,9 +85,8 @@ class Candidate:
     detail : str
         Numbers behind a rejection.
     level : float or None
-        Intensity level (image units) at which the component was cut out with
-        ``method="local_peak"`` (its local background plus ``peak_rel`` of its height); None with
-        ``method="full_scale"`` (the level is ``Detection.threshold``).
+        Intensity level (image units) at which ``method="local_peak"`` cut the component out; None
+        with ``method="full_scale"`` (the level is ``Detection.threshold``).
     """
 
     bp_uv: np.ndarray
@@ -119,29 +113,18 @@ class Detection:
     threshold : float
         Brightness level of the candidate masks, image units (``brightness_rel * full_scale``).
     n_unexamined : int
-        The smallest components left out beyond ``max_candidates`` (not examined, not in
-        ``candidates``).
+        The smallest components left out beyond ``max_candidates``.
     smoothed : ndarray of shape (H, W), float32, or None
-        The smoothed gray detection examined (read-only), when it smoothed (``smooth_sigma_px``
-        > 0) at full resolution: for a colour 8-bit or 16-bit RGB frame its unrounded float32
-        luma (``luma32``), for a gray frame (R = G = B), a single-channel or a float image the
-        luma itself; the pipeline contours every ROI of the frame in it (one smoothing per frame).
+        The smoothed gray detection examined (read-only), when it smoothed at full resolution.
     gray : ndarray of shape (H, W) or None
-        The gray detection examined before any smoothing (not to be written): OpenCV's gray of an RGB
-        frame (rounded to whole levels for 8-bit and 16-bit frames; the channel itself where
-        R = G = B), the image itself when single-channel.
+        The gray detection examined before any smoothing (not to be written).
     grey : bool or None
-        Whether the image's R, G and B are equal, where detection found out (an 8-bit RGB frame:
-        its gray is then the R channel, :func:`_gray_and_grey`); None where it did not ask.
+        Whether the image's R, G and B are equal, where detection found out.
     half : ndarray of shape (H // 2, W // 2), float32, or None
-        The means of ``gray``'s 2 x 2 blocks, where detection reduced the frame (at half
-        resolution, or in :func:`local_peak_mask` of the unsmoothed gray; read-only; the
-        verifier reduces its opening's blocks from them).
+        The means of ``gray``'s 2 x 2 blocks, where detection reduced the frame (read-only).
     luma32 : ndarray of shape (H, W), float32, or None
-        The unrounded luma of a colour 8-bit or 16-bit RGB frame
-        (:func:`luma_cv2` in float32, read-only), where detection smoothed it at full
-        resolution (``smoothed`` is its smoothing): the pipeline's own float32 luma, which it
-        then neither computes nor smooths again.
+        The unrounded luma of a colour 8- or 16-bit RGB frame, where detection smoothed it at full
+        resolution (read-only).
     """
 
     candidates: list[Candidate] = field(default_factory=list)
@@ -186,38 +169,23 @@ def validate_image(image, where: str = "image") -> np.ndarray:
         raise ValueError(f"{where}: expected an image array, got {type(image).__name__}")
     arr = np.asarray(image)
     if arr.dtype.type not in _SUPPORTED:
-        raise ValueError(
-            f"{where}: dtype {arr.dtype} not supported (use uint8, uint16 or float16/32/64)"
-        )
+        raise ValueError(f"{where}: dtype {arr.dtype} not supported (use uint8, uint16 or float16/32/64)")
     if arr.ndim == 3 and arr.shape[2] in (1, 3, 4):
         arr = arr[:, :, 0] if arr.shape[2] == 1 else arr[:, :, :3]
     elif arr.ndim != 2:
-        raise ValueError(
-            f"{where}: expected shape (H, W), (H, W, 1), (H, W, 3) or (H, W, 4), got {arr.shape}"
-        )
+        raise ValueError(f"{where}: expected shape (H, W), (H, W, 1), (H, W, 3) or (H, W, 4), got {arr.shape}")
     if arr.shape[0] < 3 or arr.shape[1] < 3:
         raise ValueError(f"{where}: image of shape {arr.shape} is empty or smaller than 3 x 3")
     if arr.dtype.kind == "f" and not np.isfinite(arr).all():
         bad = ~np.isfinite(arr)
         r, c = np.argwhere(bad)[0][:2]
-        raise ValueError(
-            f"{where}: {int(bad.sum())} non-finite values (NaN or inf), first at row {r}, col {c}"
-        )
+        raise ValueError(f"{where}: {int(bad.sum())} non-finite values (NaN or inf), first at row {r}, col {c}")
     return arr
 
 
 def default_full_scale(image: np.ndarray) -> float:
-    """Full scale of an image: the level relative thresholds refer to.
-
-    Parameters
-    ----------
-    image : ndarray
-        A validated image (:func:`validate_image`).
-
-    Returns
-    -------
-    float
-        Dtype maximum for unsigned integer images (255, 65535), ``max(1, image.max())`` for floats.
+    """Full scale of a validated image, the level relative thresholds refer to: the dtype maximum for
+    unsigned integers (255, 65535), ``max(1, image.max())`` for floats.
     """
     if image.dtype.kind == "u":
         return float(np.iinfo(image.dtype).max)
@@ -227,9 +195,8 @@ def default_full_scale(image: np.ndarray) -> float:
 def refine_peak_uv(values: np.ndarray, r: int, c: int) -> np.ndarray:
     """Sub-pixel peak from the separable parabola through the 3x3 neighbourhood of (r, c).
 
-    Along each axis a parabola through the three values gives the offset
-    ``0.5 (a - d) / (a - 2 b + d)``, clipped to +-0.5 px; an axis with no strict maximum
-    (non-negative curvature) or on the border keeps offset 0.
+    Per axis the offset is ``0.5 (a - d) / (a - 2 b + d)``, clipped to +-0.5 px; 0 without a strict
+    maximum or on the border.
 
     Parameters
     ----------
@@ -291,28 +258,15 @@ def peak_uv(values: np.ndarray, r: int, c: int, mask: np.ndarray | None = None) 
 
 
 def ellipticity(mask: np.ndarray) -> float:
-    """Ellipticity ``area / (4 pi sqrt(det Sigma))`` of a binary mask.
-
-    ``Sigma`` is the second-moment matrix of the pixels, each a unit square (its own 1/12 per
-    axis added to the spread of the centres).
-
-    Parameters
-    ----------
-    mask : ndarray of shape (H, W), bool
-        The component.
-
-    Returns
-    -------
-    float
-        1 for a filled ellipse, about 0.83 for an equilateral triangle, lower for rings and
-        crescents; NaN for fewer than 3 pixels or a singular ``Sigma``.
+    """Ellipticity ``area / (4 pi sqrt(det Sigma))`` of a bool mask (H, W), ``Sigma`` the second moments
+    of its pixels as unit squares: 1 for a filled ellipse, about 0.83 for an equilateral triangle,
+    lower for rings and crescents; NaN for fewer than 3 pixels or a singular ``Sigma``.
     """
     rr, cc = np.nonzero(mask)
     n = rr.size
     if n < 3:
         return float("nan")
-    # np.cov(np.stack([rr, cc]).astype(float), bias=True) step by step, without its argument
-    # handling (most of its time on a small component): the same operations, the same bits
+    # np.cov(np.stack([rr, cc]).astype(float), bias=True) step by step: the same bits
     x = np.array([rr, cc], dtype=np.float64)
     x -= x.mean(axis=1)[:, None]
     cov = np.dot(x, x.T.conj())
@@ -322,9 +276,7 @@ def ellipticity(mask: np.ndarray) -> float:
     return float(n / (4 * np.pi * np.sqrt(det))) if det > 0 else float("nan")
 
 
-#: Detection methods: ``"local_peak"`` (the default: relative to each highlight's own height
-#: above its local background) and ``"full_scale"`` (a fixed fraction of full scale, the former
-#: default).
+#: Detection methods: ``"local_peak"`` (the default) and ``"full_scale"``.
 DETECT_METHODS = ("local_peak", "full_scale")
 
 
@@ -365,24 +317,17 @@ def detect_specularities(
     min_plateau_px : int, optional
         Saturated plateaus smaller than this do not count toward ``merged``.
     roi_scale, roi_margin_px : float, int, optional
-        The ROI is a square of half-width ``roi_scale * max(bbox) / 2 + roi_margin_px`` around
-        the BP, clipped to the image (the t = 0.1 isophote of a Phong lobe is about 2.8 times
-        wider than its 0.7 level). The pipeline grows it when an isophote is cut.
+        The ROI is a square of half-width ``roi_scale * max(bbox) / 2 + roi_margin_px`` around the
+        BP, clipped to the image.
     max_candidates : int, optional
-        Only the largest ``max_candidates`` components are examined (a safety valve for noise;
-        default None, every one);
-        how many were left out is ``Detection.n_unexamined``.
+        Only the largest ``max_candidates`` components are examined (default None, every one).
     smooth_sigma_px : float or None, optional
         Gaussian smoothing of the luma before thresholding and BP search (0: none; None: chosen
-        from the image's noise by :func:`auto_smooth_sigma_px`). On a noisy image it keeps one
-        highlight from breaking into several components.
+        from the noise by :func:`auto_smooth_sigma_px`).
     method : {"full_scale", "local_peak"}
-        ``"full_scale"``: bright pixels are >= ``brightness_rel * full_scale``, components found
-        by their outer boundaries. ``"local_peak"``: bright pixels by :func:`local_peak_mask`
-        (``peak_rel``, ``contrast_min_rel``), components by :func:`mask_labels` (those
-        of one ``cv2.connectedComponentsWithStats`` pass); candidates on the endoscope's black border
-        (burnt-in text) get ``black_border``; saturated plateaus are counted after a 3 x 3
-        closing, from 3 px, so that noise does not split one clipped top into several.
+        ``"full_scale"``: bright pixels are >= ``brightness_rel * full_scale``. ``"local_peak"``:
+        bright pixels by :func:`local_peak_mask`; candidates on the endoscope's black border get
+        ``black_border``; saturated plateaus are counted after a 3 x 3 closing, from 3 px.
     peak_rel, contrast_min_rel : float
         See :func:`local_peak_mask` (``method="local_peak"`` only).
 
@@ -395,11 +340,6 @@ def detect_specularities(
     ------
     ValueError
         For a bad image (see :func:`validate_image`) or bad options.
-
-    Notes
-    -----
-    The components come as one table (OpenCV's ``connectedComponentsWithStats`` columns) and
-    are examined column by column (:func:`simtest.reconstruct.candidates.examine`).
     """
 
     img = validate_image(image)
@@ -428,8 +368,7 @@ def detect_specularities(
             return replace(det, grey=grey)
     luma32 = None
     if smooth_sigma_px > 0:
-        # a colour frame's unrounded luma, which the pipeline contours: smoothed once for both;
-        # a frame detection did not ask about is left to the pipeline
+        # a colour frame's unrounded luma, which the pipeline contours: smoothed once for both
         luma32 = colour_luma32(img, grey is not False)
         gray = cv2.GaussianBlur(gray.astype(np.float32) if luma32 is None else luma32, (0, 0),
                                 float(smooth_sigma_px), borderType=cv2.BORDER_REFLECT)
@@ -442,8 +381,7 @@ def detect_specularities(
         clipped = clipped_mask(img, saturation_level, native, grey=grey is True)
         near = near_ceiling_mask(img, saturation_level, native, grey=grey is True)
         side = background_side_px((h, w), clipped)
-        # the float32 intensities of the mask and of the scope border, converted once (an 8-bit
-        # gray frame not smoothed: the same values as each converting its own copy)
+        # the float32 intensities of the mask and of the scope border, converted once
         gray32 = gray.astype(np.float32, copy=False)
         halves: list = []
         mask, background = local_peak_mask(gray32, fs, peak_rel=peak_rel, contrast_min_rel=contrast_min_rel,
@@ -454,10 +392,8 @@ def detect_specularities(
     else:
         thr = brightness_rel * fs
         mask = _threshold_mask(gray, thr)
-    # Saturated plateaus are counted (``merged``) after a 3 x 3 closing; on an image smoothed
-    # with sigma (noise), pieces that a closing of 2 ceil(2 sigma) + 1 px joins into one are one
-    # plateau (noise and the speckle of micro-relief break one clipped top into pieces that far
-    # apart), its centroid the BP.
+    # Saturated plateaus are counted (``merged``) after a closing of 2 ceil(2 sigma) + 1 px on a
+    # smoothed image: noise breaks one clipped top into pieces that far apart.
     k_close = max(3, 2 * int(np.ceil(2.0 * smooth_sigma_px)) + 1) if smooth_sigma_px > 0 else 3
     frame = _DetectFrame(
         img=img, gray=gray, gray32=gray32, method=method, full_scale=fs, clipped=clipped, levels=levels,
@@ -477,38 +413,26 @@ def detect_specularities(
     return Detection(out, fs, thr, max(0, n_comps - len(out)), smoothed, native, grey, half=half, luma32=luma32)
 
 
-#: Half-resolution detection (MULTIRES_SIGMA_MIN_PX, MULTIRES_SIDE_MIN_PX: simtest.decisions)
-#: takes frames with at most this many candidates (each is examined in a window at full
-#: resolution, about 0.3 ms; a frame with more is detected at full resolution): a cost bound.
+#: Half-resolution detection takes frames with at most this many candidates (each examined in a
+#: full-resolution window; more are detected at full resolution).
 MULTIRES_CANDIDATES_MAX = 64
 
 
 def _detect_half_resolution(img, native, fs, saturation_level, *, grey=False, min_area_px, ellipticity_min, min_plateau_px,
                             roi_scale, roi_margin_px, max_candidates, smooth_sigma_px, peak_rel,
                             contrast_min_rel) -> Detection:
-    """:func:`detect_specularities` (``method="local_peak"``) of a smoothed frame, its candidates
-    found on the frame reduced twice and placed at full resolution.
+    """:func:`detect_specularities` (``"local_peak"``) of a smoothed frame on the frame reduced by 2 x 2
+    block means, its candidates placed at full resolution (BP refined on the full frame's smoothing).
 
-    The gray is reduced by the mean of each 2 x 2 block (float32) and smoothed there by the sigma
-    that, with the block's own variance (1/4 px^2), makes the full frame's ``smooth_sigma_px``;
-    the background, the mask, the components, their statuses and the scope's border are those of
-    the reduced frame (the background square and the areas scaled to it). Each candidate's box
-    and area are scaled back; its BP is the maximum of the full frame's smoothing within 2 px of
-    the reduced one's, refined by :func:`refine_peak_uv` as at full resolution (that smoothing
-    computed in a window around it only), a clipped plateau's centroid scaled back; its ROI is
-    proposed at full resolution (:mod:`simtest.reconstruct.compare` holds the results to its
-    tolerance). None (the caller detects at full resolution) where the reduced frame's block grid
-    is not the full one's, or with more than :data:`MULTIRES_CANDIDATES_MAX` candidates.
-    ``grey``: the frame's R, G and B are equal and ``native`` is their value (as
-    :func:`clipped_mask` takes it).
+    None (detect at full resolution) where the reduced block grid is not the full one's or with
+    more than :data:`MULTIRES_CANDIDATES_MAX` candidates. ``grey``: R = G = B, ``native`` their value.
     """
     h, w = native.shape
     h2, w2 = h // 2, w // 2
     clipped = clipped_mask(img, saturation_level, native, grey=grey)
     near = near_ceiling_mask(img, saturation_level, native, grey=grey)
     side = background_side_px((h, w), clipped)
-    half = cv2.resize(native[: 2 * h2, : 2 * w2].astype(np.float32, copy=False), (w2, h2),
-                      interpolation=cv2.INTER_AREA)
+    half = cv2.resize(native[: 2 * h2, : 2 * w2].astype(np.float32, copy=False), (w2, h2), interpolation=cv2.INTER_AREA)
     sigma2 = float(np.sqrt(max(smooth_sigma_px ** 2 - 0.25, 0.0)) / 2.0)
     gray2 = cv2.GaussianBlur(half, (0, 0), sigma2, borderType=cv2.BORDER_REFLECT)
     clipped2 = None
@@ -530,8 +454,7 @@ def _detect_half_resolution(img, native, fs, saturation_level, *, grey=False, mi
     if len(cands2) > MULTIRES_CANDIDATES_MAX:
         return None  # each costs a window at full resolution: the whole frame is cheaper
     k_close_full = max(3, 2 * int(np.ceil(2.0 * smooth_sigma_px)) + 1)
-    # the full frame's smoothing, background and labels, written in the candidates' windows
-    # only (np.empty: the rest is never read)
+    # the full frame's smoothing, background and labels, written in the candidates' windows only
     gray = np.empty((h, w), np.float32)
     levels = np.empty((h, w), np.float32)
     labels = np.zeros((h, w), np.int32)
@@ -589,10 +512,9 @@ class _Window:
     thr: np.float32
 
     def mask(self, r0: int, r1: int, c0: int, c1: int):
-        """The smoothing (float32), background and :func:`local_peak_mask`'s mask of the frame's
-        window ``[r0:r1, c0:c1]``: the window and the Gaussian's reach around it smoothed (the
-        frame's sides reflected as the frame's smoothing reflects them), the reduced background
-        and local peaks enlarged there (:func:`_linear_at`)."""
+        """The smoothing (float32), background and :func:`local_peak_mask`'s mask of the frame's window
+        ``[r0:r1, c0:c1]``, the reduced background and local peaks enlarged there.
+        """
         h, w = self.native.shape
         k = gaussian_radius_px(self.sigma)
         q0, q1, p0, p1 = max(0, r0 - k), min(h, r1 + k), max(0, c0 - k), min(w, c1 + k)
@@ -607,12 +529,11 @@ class _Window:
 
 
 def _component_at_full_resolution(window: _Window, c: Candidate):
-    """The full frame's component of a candidate found on the reduced frame: the window around
-    its box (grown until the component lies inside it), the mask of :func:`local_peak_mask`
-    there (:meth:`_Window.mask`), and the 8-connected component of the largest smoothed value of
-    the mask within 2 px of the reduced BP. ``((r0, r1, c0, c1), g, bg, comp, (x, y, width,
-    height, area))``: the window, its smoothing and background, the component's mask (bool, the
-    window's shape) and its box in the frame; None when the mask holds no pixel there."""
+    """The full frame's component of a candidate found on the reduced frame.
+
+    ``((r0, r1, c0, c1), g, bg, comp, (x, y, width, height, area))``: the window, its smoothing and
+    background, the component's mask and its box in the frame; None when the mask is empty there.
+    """
     h, w = window.native.shape
     b = c.bbox
     m = 4
@@ -638,12 +559,10 @@ def _component_at_full_resolution(window: _Window, c: Candidate):
 
 @dataclass(frozen=True)
 class _DetectFrame:
-    """What the examination of a frame's candidates needs (the arguments of
-    :func:`detect_specularities`, resolved, and the frame's arrays): ``img`` the validated image,
-    ``gray`` the intensities examined (H, W), ``clipped`` the whole-frame clipped mask where the
-    method computes it, ``levels`` the local background (``"local_peak"``), ``k_close`` the side
-    of the wide closing of clipped pieces, ``gray32`` the gray as float32 where the method made it
-    (the scope border's input; None: converted from ``gray``)."""
+    """What the examination of a frame's candidates needs: the resolved arguments of
+    :func:`detect_specularities` and the frame's arrays (``img``, ``gray``, ``clipped``, ``levels``,
+    ``k_close``, ``gray32``).
+    """
 
     img: np.ndarray
     gray: np.ndarray
@@ -676,11 +595,9 @@ class _DetectFrame:
 
 
 def _outer_components(mask: np.ndarray) -> list[tuple[int, int, int, int, int, np.ndarray]]:
-    """The components of ``method="full_scale"``: the outer boundaries of the 8-connected
-    components of a uint8 0/1 mask (OpenCV ``findContours``, a raster scan: much faster than
-    ``connectedComponentsWithStats`` on a sparse 1.5 Mpx mask), each filled in its bounding box
-    and cut by the mask, so that a component in the hole of another is counted with it; as
-    (area, x, y, width, height, comp) (``comp``: its uint8 0/1 mask in its box), in ``findContours``' order."""
+    """The components of ``method="full_scale"``: outer boundaries (``findContours``) each filled in its
+    box and cut by the mask, as (area, x, y, width, height, comp), in ``findContours``' order.
+    """
     contours, _ = cv2.findContours(mask, cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_SIMPLE)
     comps = []
     for cnt in contours:
@@ -699,10 +616,9 @@ def _rules(frame: _DetectFrame) -> Rules:
 
 
 def _candidates(frame: _DetectFrame, mask: np.ndarray, by_peak: bool = True) -> tuple[list[Candidate], int]:
-    """The candidates of a frame's mask and the number of its components: the components as a
-    table (label, box, area; the largest first, ties in label order, at most ``max_candidates``),
-    examined at once (:func:`simtest.reconstruct.candidates.examine`). With ``by_peak`` they come
-    by decreasing peak, ties largest first (``detect_specularities``' order)."""
+    """The candidates of a frame's mask (largest first, at most ``max_candidates``, examined at once)
+    and the number of its components. ``by_peak``: by decreasing peak, ties largest first.
+    """
     if frame.method == "local_peak":
         n_comps, labels, stats = mask_labels(mask)
         table = np.empty((n_comps, 6), np.int64)
@@ -757,8 +673,7 @@ def _built(frame: _DetectFrame, ex: Examined, table: np.ndarray) -> list[Candida
 
 
 def _rejection_detail(status: str, bbox: Roi) -> str:
-    """The numbers behind a ``touches_border`` or ``black_border`` rejection: the box; empty for
-    any other status (:func:`_built` writes the area's, plateaus' and ellipticity's)."""
+    """The numbers behind a ``touches_border`` or ``black_border`` rejection (the box); else empty."""
     if status == "touches_border":
         return f"bbox (row0, row1, col0, col1) = {tuple(bbox)}"
     if status == "black_border":

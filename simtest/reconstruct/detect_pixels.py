@@ -1,8 +1,5 @@
-"""The pixel work of specularity detection: luma, noise, clipped pixels, the scope's border, the
-local-peak mask and the components of a mask, by OpenCV and numpy calls on whole frames.
-
-:mod:`simtest.reconstruct.detect` builds its candidates from these; the examination of the
-candidates is :mod:`simtest.reconstruct.candidates`.
+"""The pixel work of specularity detection on whole frames (OpenCV and numpy): luma, noise, clipped
+pixels, the scope's border, the local-peak mask and the components of a mask.
 """
 
 from __future__ import annotations
@@ -22,19 +19,19 @@ _LUMA_ROW = np.array([LUMA_BT601], np.float64)
 
 
 def connected_components(mask: np.ndarray) -> tuple[int, np.ndarray]:
-    """8-connected components of a uint8 mask (count with the background, int32 labels), by
-    Grana's block-based algorithm (the same components as OpenCV's default, Spaghetti)."""
+    """8-connected components of a uint8 mask (count with the background, int32 labels), Grana's algorithm."""
     return cv2.connectedComponentsWithAlgorithm(mask, 8, cv2.CV_32S, cv2.CCL_GRANA)
 
 
 def connected_components_with_stats(mask: np.ndarray):
-    """As :func:`connected_components`, with the stats and centroids of
-    ``cv2.connectedComponentsWithStats``."""
+    """As :func:`connected_components`, with the stats and centroids of ``cv2.connectedComponentsWithStats``."""
     return cv2.connectedComponentsWithStatsWithAlgorithm(mask, 8, cv2.CV_32S, cv2.CCL_GRANA)
 
 
 def mask_labels(mask: np.ndarray) -> tuple[int, np.ndarray, np.ndarray]:
-    """The 8-connected components of a mask, labelled band by band.
+    """The 8-connected components of a mask, labelled band by band (runs of rows holding mask pixels).
+
+    Equal to :func:`connected_components_with_stats` over the whole mask, labels included.
 
     Parameters
     ----------
@@ -49,14 +46,6 @@ def mask_labels(mask: np.ndarray) -> tuple[int, np.ndarray, np.ndarray]:
         0 the background, 1 to n the components.
     stats : ndarray of shape (n, 5), int32
         Per component ``x, y, width, height, area`` (px).
-
-    Notes
-    -----
-    Equal to :func:`connected_components_with_stats` over the whole mask, labels included: each
-    band (a run of rows holding mask pixels, cropped to the columns that do, both from an even
-    index) is labelled by OpenCV alone, since no component crosses an empty row and Grana's
-    algorithm numbers components by their first 2 x 2 block, which an aligned band keeps. Where
-    the bands hold more than half the rows, one pass over the whole mask is taken.
     """
     h, w = mask.shape
     nz = np.flatnonzero(mask.max(axis=1))
@@ -90,8 +79,7 @@ def luma(image: np.ndarray, *, dtype=np.float64) -> np.ndarray:
     Returns
     -------
     ndarray of shape (H, W)
-        Intensity in image units (no rescaling); each pixel's value depends on that pixel only,
-        so an ROI's luma is the frame's luma sliced.
+        Intensity in image units; per pixel, so an ROI's luma is the frame's luma sliced.
     """
     if image.ndim == 2:
         return image.astype(dtype, copy=False)
@@ -101,10 +89,9 @@ def luma(image: np.ndarray, *, dtype=np.float64) -> np.ndarray:
 
 
 def colour_luma32(image: np.ndarray, grey: bool) -> np.ndarray | None:
-    """The unrounded luma of a colour 8- or 16-bit RGB frame in float32 (H, W), read-only
-    (:func:`luma_cv2`); None for any other frame (single-channel, gray (R = G = B), float,
-    RGBA). ``grey``: whether R = G = B (the caller's answer: detection's, or the pipeline's
-    test). Detection smooths it and the pipeline contours in it, so both take it from here."""
+    """The unrounded float32 luma (H, W), read-only, of a colour 8- or 16-bit RGB frame; None for any
+    other frame. ``grey``: whether R = G = B (the caller's answer).
+    """
     if grey or image.ndim != 3 or image.shape[2] != 3 or image.dtype.type not in (np.uint8, np.uint16):
         return None
     out = luma_cv2(image, np.float32)
@@ -113,8 +100,7 @@ def colour_luma32(image: np.ndarray, grey: bool) -> np.ndarray | None:
 
 
 def luma_cv2(image: np.ndarray, dtype) -> np.ndarray:
-    """The Rec. 601 luma (H, W) of an (H, W, 3) image in float64 or float32, by OpenCV's
-    ``cv2.transform`` (the weighted sum of the channels, in ``dtype``)."""
+    """The Rec. 601 luma (H, W) of an (H, W, 3) image in float64 or float32, by ``cv2.transform``."""
     dt = np.dtype(dtype)
     src = image if image.dtype == dt else image.astype(dt)
     return cv2.transform(np.ascontiguousarray(src), _LUMA_ROW)
@@ -130,9 +116,7 @@ def _gray_native(image: np.ndarray) -> np.ndarray:
 
 
 def _gray_and_grey(image: np.ndarray) -> tuple[np.ndarray, bool | None]:
-    """:func:`_gray_native` of an image and whether its R, G and B are equal (None: not asked).
-    An 8-bit RGB frame is tested: a few spread rows first (a colour frame differs there), then
-    the frame against its gray made RGB again (OpenCV's gray of R = G = B is R)."""
+    """:func:`_gray_native` of an image and whether its R, G and B are equal (None: not asked, not 8-bit RGB)."""
     if image.ndim == 3 and image.shape[2] == 3 and image.dtype == np.uint8:
         rows = image[:: max(1, image.shape[0] // 16)]
         if not (np.array_equal(rows[..., 0], rows[..., 1]) and np.array_equal(rows[..., 0], rows[..., 2])):
@@ -160,10 +144,8 @@ def _threshold_mask(gray: np.ndarray, thr: float) -> np.ndarray:
 def noise_sigma(gray: np.ndarray) -> float:
     """Robust standard deviation of the pixel noise of an image, image units.
 
-    The median absolute deviation of the difference between each pixel and the mean of its two
-    horizontal neighbours, ``d = x - (left + right) / 2`` (a smooth image has ``d ~ 0``; for white
-    noise of variance s^2, ``var d = 1.5 s^2``), scaled to a standard deviation:
-    ``s = 1.4826 MAD(d) / sqrt(1.5)``.
+    ``s = 1.4826 MAD(d) / sqrt(1.5)`` of ``d = x - (left + right) / 2`` (for white noise of variance
+    s^2, ``var d = 1.5 s^2``), on about 50 rows.
 
     Parameters
     ----------
@@ -179,8 +161,7 @@ def noise_sigma(gray: np.ndarray) -> float:
 
 
 def _noise_rows(image: np.ndarray) -> np.ndarray:
-    """The rows :func:`noise_sigma` reads: ~50 rows (tens of thousands of pixels) are plenty for
-    a median."""
+    """The rows :func:`noise_sigma` reads (about 50)."""
     return image[:: max(1, image.shape[0] // 48)]
 
 
@@ -193,8 +174,7 @@ def _noise_sigma_of_rows(rows: np.ndarray) -> float:
 
 
 def noise_sigma_of_differences(d: np.ndarray) -> float:
-    """:func:`noise_sigma` from its differences ``d = x - (left + right) / 2`` (1-D; any
-    selection of them, e.g. those of unclipped pixels): ``1.4826 MAD(d) / sqrt(1.5)``."""
+    """:func:`noise_sigma` from any selection of its differences ``d`` (1-D)."""
     return _sigma_of_mad(_median(np.abs(d - _median(d))))
 
 
@@ -204,11 +184,12 @@ def _sigma_of_mad(mad) -> float:
 
 
 def noise_level_table(gray: np.ndarray, full_scale: float, fallback: float) -> np.ndarray:
-    """The pixel noise's standard deviation per intensity bin (the noise level function; the
-    response curve reshapes a sensor's noise), image units: :func:`noise_sigma` over the pixels whose
-    three-pixel mean (uncorrelated with ``d``) is in the bin. A bin too sparse or without noise (a
-    panel's, a plateau's) takes its nearest measured bin's value (``fallback`` where none is or it is
-    0), then the largest of its and its neighbours' (:data:`~simtest.decisions.NOISE_LEVEL_BINS`)."""
+    """The noise's standard deviation per intensity bin (the noise level function), image units.
+
+    :func:`noise_sigma` over the pixels whose three-pixel mean is in the bin; a sparse or noise-free
+    bin takes its nearest measured bin's value (``fallback`` where none), then the largest of its and
+    its neighbours' (:data:`~simtest.decisions.NOISE_LEVEL_BINS` bins).
+    """
     g = gray[:: max(1, gray.shape[0] // 192)].astype(np.float32)  # ~200 rows: a few bins' share each
     d = (g[:, 1:-1] - 0.5 * (g[:, :-2] + g[:, 2:])).ravel()
     k = _level_bin((g[:, 1:-1] + g[:, :-2] + g[:, 2:]).ravel() / 3.0, full_scale).astype(np.uint8)
@@ -230,16 +211,12 @@ def _level_bin(levels, full_scale: float) -> np.ndarray:
 
 
 def _median(a: np.ndarray):
-    """``np.median`` of a 1-D float array, the same value, by one partition at the upper middle
-    index (the lower middle value is the largest below it): numpy's median partitions at both
-    middle indices at once, twice the time (``tests/test_detect.py`` compares them)."""
+    """``np.median`` of a 1-D float array (the same value), by one partition."""
     n = a.size
     if n == 0 or np.isnan(a).any():
         return np.median(a)
     k = n // 2
-    # middle order statistics at 0, where most values tie there (the differences of a JPEG or
-    # clean frame's flat rows): counted, not selected (a partition among that many ties is
-    # slow); 0 (a -0.0 among them reads as 0.0)
+    # most values tie at 0 (flat rows of JPEG or clean frames): counted, not selected
     below = np.count_nonzero(a < 0)
     if below <= k - 1 + n % 2 and k < below + np.count_nonzero(a == 0):
         return a.dtype.type(0)
@@ -250,8 +227,7 @@ def _median(a: np.ndarray):
 
 
 def _median_of_counts(hist: np.ndarray, n: int) -> float:
-    """The median (as ``np.median`` takes it: the mean of the two middle values for an even
-    count) of ``n`` integers given by their histogram over 0, 1, ..."""
+    """The median (as ``np.median``) of ``n`` integers given by their histogram over 0, 1, ..."""
     cum = np.cumsum(hist)
     hi = int(np.searchsorted(cum, n // 2 + 1))
     if n % 2:
@@ -261,10 +237,9 @@ def _median_of_counts(hist: np.ndarray, n: int) -> float:
 
 
 def _mad_of_uint8_rows(rows: np.ndarray) -> np.float32:
-    """``np.median(np.abs(d - np.median(d)))`` of :func:`_noise_sigma_of_rows` for uint8 rows,
-    by counting: for 8-bit intensities ``2 d = 2 x - (left + right)`` is an integer in
-    [-510, 510] and the medians are order statistics read off histograms (the same float32
-    value as numpy's partitions, exact in multiples of 1/4)."""
+    """The MAD of :func:`_noise_sigma_of_rows` for uint8 rows, by histograms of the integer ``2 d``
+    (the same float32 value as numpy's).
+    """
     x = rows.astype(np.int32)
     v = (2 * x[:, 1:-1] - x[:, :-2] - x[:, 2:]).ravel()  # 2 d
     n = v.size
@@ -276,10 +251,9 @@ def _mad_of_uint8_rows(rows: np.ndarray) -> np.float32:
 def auto_smooth_sigma_px(gray: np.ndarray, full_scale: float) -> float:
     """Gaussian smoothing for detection and contouring chosen from the image's noise.
 
-    0 (none) when the noise is below 0.5 % of full scale (renders, clean frames: 8-bit JPEG
-    ringing included), else ``min(2.5, 1 + noise / (1 % of full scale))`` px: 2 px for 1 %,
-    2.5 px from 1.5 % (a Gaussian of sigma s divides white noise by ``2 s sqrt(pi)``: 2 px cut it
-    sevenfold, enough to keep one highlight in one component; more blurs small highlights away).
+    0 when the noise is below 0.5 % of full scale, else ``min(2.5, 1 + noise / (1 % of full scale))``
+    px (2 px cut white noise sevenfold, enough to keep one highlight in one component; more blurs
+    small highlights away).
 
     Parameters
     ----------
@@ -295,38 +269,12 @@ def auto_smooth_sigma_px(gray: np.ndarray, full_scale: float) -> float:
 
 
 def image_smooth_sigma_px(image: np.ndarray, full_scale: float) -> float:
-    """:func:`auto_smooth_sigma_px` of a validated image's luma, computed on the rows the noise
-    estimate reads only (the luma is per pixel, so these are the same values as those rows of
-    the whole image's luma; a 1350 x 1080 RGB frame needs 49 rows of it, not 1080).
-
-    Parameters
-    ----------
-    image : ndarray of shape (H, W) or (H, W, 3)
-        A validated image (:func:`validate_image`).
-    full_scale : float
-
-    Returns
-    -------
-    float
-        Sigma in px, >= 0.
-    """
+    """:func:`auto_smooth_sigma_px` of a validated image's luma, read on the noise estimate's rows only."""
     return _sigma_for_noise(image_noise_sigma(image) / full_scale)
 
 
 def image_noise_sigma(image: np.ndarray) -> float:
-    """:func:`noise_sigma` of a validated image's luma (OpenCV's gray of an RGB image), read on
-    the rows the estimate reads only (what :func:`image_smooth_sigma_px` measures).
-
-    Parameters
-    ----------
-    image : ndarray of shape (H, W) or (H, W, 3)
-        A validated image (:func:`validate_image`).
-
-    Returns
-    -------
-    float
-        Image units, >= 0.
-    """
+    """:func:`noise_sigma` of a validated image's luma (OpenCV's gray), read on its rows only."""
     return _noise_sigma_of_rows(_gray_native(_noise_rows(image)))
 
 
@@ -340,10 +288,9 @@ def _sigma_for_noise(s: float) -> float:
 
 
 def _area_reduced(img: np.ndarray, f: int, halves: list | None = None) -> np.ndarray:
-    """The means of the ``f`` x ``f`` blocks of a float32 image whose sides are multiples of f:
-    ``cv2.resize(img, (W // f, H // f), interpolation=cv2.INTER_AREA)``, as a chain of 2 x 2
-    reductions (OpenCV's vectorised path) and one by the odd rest; the same means to float32
-    rounding. ``halves``: the first 2 x 2 reduction is appended to it (for f even)."""
+    """The means of the ``f`` x ``f`` blocks of a float32 image whose sides are multiples of f, as a
+    chain of 2 x 2 ``INTER_AREA`` reductions. ``halves``: receives the first 2 x 2 reduction.
+    """
     h, w = img.shape[:2]
     while f % 2 == 0 and f > 1:
         h, w, f = h // 2, w // 2, f // 2
@@ -357,18 +304,13 @@ def _area_reduced(img: np.ndarray, f: int, halves: list | None = None) -> np.nda
 
 def _scope_border(gray: np.ndarray, level: float, half: np.ndarray | None = None) -> np.ndarray | None:
     """The endoscope's black border: pixels below ``level`` joined to at least two image corners,
-    when they cover 1 % to 60 % of the image (a dark scene, such as a render on black, is not a
-    scope border); closed (the text drawn on it) and dilated by about 5 px (the edge of the field
-    of view). Found on the image reduced 4 times (the mean of each 4 x 4 block; the last rows and
-    columns that fill no block are left out of the reduction, and the border mask is brought back
-    over the whole image): the border is large and its edge needs no finer place. None if there
-    is none. ``half``: the means of ``gray``'s 2 x 2 blocks (float32, (H // 2, W // 2)) where the
-    caller has them (:func:`local_peak_mask`'s): the reduction's first step, not made again."""
+    covering 1 % to 60 % of the image, closed (text drawn on it) and dilated by about 5 px; found
+    on the image reduced 4 times. None if there is none. ``half``: ``gray``'s 2 x 2 block means.
+    """
     h, w = gray.shape
     f = 4 if min(h, w) >= 64 else 1
     if f > 1:
-        # the reduced image's corners (the corner blocks' means, as the reduction gives them):
-        # fewer than two dark, no border, without reducing the whole frame
+        # the reduced corners: fewer than two dark, no border
         hf, wf = h // f * f, w // f * f
         dark = 0
         for r, c in ((0, 0), (0, wf - f), (hf - f, 0), (hf - f, wf - f)):
@@ -376,8 +318,7 @@ def _scope_border(gray: np.ndarray, level: float, half: np.ndarray | None = None
             dark += bool(cv2.resize(block, (1, 1), interpolation=cv2.INTER_AREA)[0, 0] < level)
         if dark < 2:
             return None
-    # whole f x f blocks (the last h mod f rows and w mod f columns left out): OpenCV's integer
-    # area reduction, a third of the time of the fractional one over the whole image
+    # whole f x f blocks (the last h mod f rows and w mod f columns left out)
     if f == 4 and half is not None and half.shape == (h // 2, w // 2):
         small = _area_reduced(np.ascontiguousarray(half[: h // f * 2, : w // f * 2]), 2)
     else:
@@ -395,14 +336,8 @@ def _scope_border(gray: np.ndarray, level: float, half: np.ndarray | None = None
 
 
 def _dark_corner_components(dark: np.ndarray) -> np.ndarray | None:
-    """The dark 8-connected components that hold the corners of a uint8 0/1 mask (1 dark), as a
-    uint8 0/1 mask, when at least two corners are dark and those components cover 1 % to 60 % of
-    it; None otherwise. ``dark`` is written (the components become 2).
-
-    A scope's field of view is round or octagonal: its black border holds the image corners. The
-    components are flood-filled from the corners, each once: those of a labelling of the whole
-    mask and their areas, in about half its time (``tests/test_detect.py`` compares the two on
-    random masks).
+    """The dark components (flood-filled from the corners) of a uint8 0/1 mask, as a 0/1 mask, when at
+    least two corners are dark and they cover 1 % to 60 % of it; None otherwise. ``dark`` is written.
     """
     hs, ws = dark.shape
     corners = [(0, 0), (ws - 1, 0), (0, hs - 1), (ws - 1, hs - 1)]  # (x, y)
@@ -417,15 +352,12 @@ def _dark_corner_components(dark: np.ndarray) -> np.ndarray | None:
     return (dark == 2).view(np.uint8)
 
 
-
-
 def near_ceiling_mask(image: np.ndarray, saturation_level: float | None,
                       gray: np.ndarray | None = None, grey: bool = False) -> np.ndarray | None:
-    """Pixels of an integer frame near its ceiling, where a lossy codec leaves a clipped top:
-    every channel within :data:`~simtest.decisions.CLIP_MARGIN_REL` of full scale below
-    ``saturation_level`` and the luma within :data:`~simtest.decisions.CLIP_LUMA_MARGIN_REL` of
-    it (a clipped top is read with those joined to its clipped pixels,
-    :func:`~simtest.reconstruct.candidates.examine`).
+    """Pixels of an integer frame near its ceiling, where a lossy codec leaves a clipped top.
+
+    Every channel within :data:`~simtest.decisions.CLIP_MARGIN_REL` of full scale below
+    ``saturation_level`` and the luma within :data:`~simtest.decisions.CLIP_LUMA_MARGIN_REL` of it.
 
     Parameters
     ----------
@@ -435,7 +367,7 @@ def near_ceiling_mask(image: np.ndarray, saturation_level: float | None,
     Returns
     -------
     ndarray of shape (H, W), uint8 (0/1), or None
-        None for a float image (no codec's ceiling) or without a saturation level.
+        None for a float image or without a saturation level.
     """
     if saturation_level is None or image.dtype not in (np.uint8, np.uint16):
         return None
@@ -450,8 +382,7 @@ def near_ceiling_mask(image: np.ndarray, saturation_level: float | None,
 
 def clipped_mask(image: np.ndarray, saturation_level: float | None,
                  gray: np.ndarray | None = None, grey: bool = False) -> np.ndarray | None:
-    """Pixels clipped white (every channel >= ``saturation_level``), uint8 0/1; None without a
-    saturation level (float images).
+    """Pixels clipped white (every channel >= ``saturation_level``), uint8 0/1.
 
     Parameters
     ----------
@@ -460,26 +391,15 @@ def clipped_mask(image: np.ndarray, saturation_level: float | None,
     saturation_level : float or None
         Image units.
     gray : ndarray of shape (H, W), optional
-        The image's luma as :func:`_gray_native` gives it (OpenCV's integer Rec. 601 weights, of
-        the same dtype as ``image``). Only the rows where it reaches the level are examined:
-        OpenCV's luma is a rounded weighted mean with positive weights summing to one, so a pixel
-        whose channels are all >= an integer level has a luma >= that level (the same mask;
-        ``tests/test_detect.py`` checks it against the definition).
+        The image's luma as :func:`_gray_native` gives it: only the rows where it reaches the level
+        are examined (the same mask).
     grey : bool, optional
-        The caller knows that the image's R, G and B are equal and ``gray`` is their value (an
-        8-bit gray frame: :func:`_gray_and_grey`'s channel). The mask is then the gray's, every
-        channel reaching the level where it does: one ``cv2.threshold`` pass over the gray, the
-        channels not read. Ignored for other dtypes.
+        R, G and B are equal and ``gray`` is their value (8-bit): the mask is the gray's.
 
     Returns
     -------
     ndarray of shape (H, W), uint8, or None
-
-    Notes
-    -----
-    For uint8 and uint16 images this is one ``cv2.inRange`` pass (an integer pixel is >= the
-    level exactly when it is >= its ceiling): a twentieth of the time of numpy's comparison and
-    reduction over the channels on a 1350 x 1080 RGB frame; the mask is the same.
+        None without a saturation level (float images).
     """
     if saturation_level is None:
         return None
@@ -517,7 +437,8 @@ def background_side_px(shape: tuple[int, int], clipped: np.ndarray | None = None
     """Side of the background square of :func:`local_peak_mask`, px.
 
     ``max(31, min(H, W) // BACKGROUND_DIV)``, widened to ``BACKGROUND_PLATEAU_FACTOR`` times the
-    largest bounding-box side of the clipped plateaus (8-connected after a 3 x 3 closing) plus one.
+    largest bounding-box side of the clipped plateaus (8-connected after a 3 x 3 closing) plus one:
+    a highlight wider than the square would be taken for background.
 
     Parameters
     ----------
@@ -528,30 +449,12 @@ def background_side_px(shape: tuple[int, int], clipped: np.ndarray | None = None
     Returns
     -------
     int
-
-    Notes
-    -----
-    The grey opening by the square is the diffuse background only where the highlight is
-    narrower than the square: a highlight wider than it (a lobe close to the scope that the
-    auto-exposure clips together with the bright tissue around it, 70 px in a 406 px frame of
-    ``colonoscope_plane``, 90 px in ``laparoscope_liver``) is taken for background, its top-hat
-    is near 0 in its middle and the detector cuts its rim into pieces. A clipped plateau is part
-    of a highlight, so its extent bounds the highlight's size from below; twice it leaves room
-    for the unclipped flanks. The frames whose clipped plateaus are narrower than half the
-    default square (every real image of tests/data, the bench frames) keep the default.
     """
     h, w = shape
     side = max(31, min(h, w) // BACKGROUND_DIV)
     rows = np.flatnonzero(clipped.max(axis=1)) if clipped is not None else ()
     if len(rows):
-        # The outer boundaries of the 8-connected plateaus bound them: their bounding boxes are
-        # the components' (a plateau in the hole of another lies within the other's box, so the
-        # largest side is the same); a tenth of the time of labelling the frame. Only the rows
-        # that hold clipped pixels are contoured (the same boxes).
-        # pieces one pixel apart are one plateau, as detection counts them (a 3 x 3 closing, the
-        # frame's edge neutral; two rows either side of the band, so that its edges are the
-        # frame's where they are and empty rows elsewhere): noise breaks a broad clipped top
-        # into pieces each narrower than the top
+        # the plateaus' outer contours bound them; pieces one pixel apart are one plateau (3 x 3 closing)
         band = cv2.morphologyEx(clipped[max(rows[0] - 2, 0) : rows[-1] + 3], cv2.MORPH_CLOSE, _CLOSE_3)
         contours, _ = cv2.findContours(band, cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_SIMPLE)
         ext = max(max(cv2.boundingRect(c)[2:]) for c in contours)
@@ -564,13 +467,10 @@ def local_peak_mask(gray: np.ndarray, full_scale: float, *, peak_rel: float = 0.
                     censored: np.ndarray | None = None, _parts: list | None = None, _half: list | None = None):
     """Bright-candidate mask relative to local peaks (``method="local_peak"``).
 
-    The diffuse background is the grey opening of the luma by a square of side ``background_px``
-    (it removes every bright structure narrower than that), computed on the image reduced by area
-    averaging so that the square is about 16 px, then brought back by bilinear interpolation (the
-    background is smooth at that scale; the opening at full size costs ten times more); the
-    top-hat ``T = gray - background`` is the specular part. A pixel is a candidate when ``T >= peak_rel * max(T over the same
-    square around it)`` (relative to its own local peak, not to full scale) and ``T >=
-    contrast_min_rel * full_scale`` (it stands out of the background).
+    The background is the grey opening of the luma by a square of side ``background_px`` (on the
+    image area-reduced so that the square is about 16 px, enlarged bilinearly); the top-hat
+    ``T = gray - background`` is the specular part. A pixel is a candidate when
+    ``T >= peak_rel * max(T over the same square)`` and ``T >= contrast_min_rel * full_scale``.
 
     Parameters
     ----------
@@ -579,19 +479,14 @@ def local_peak_mask(gray: np.ndarray, full_scale: float, *, peak_rel: float = 0.
     full_scale : float
         Intensity of white, image units.
     peak_rel : float
-        Fraction of the local top-hat peak (0.5: the half-height core of each highlight).
+        Fraction of the local top-hat peak.
     contrast_min_rel : float
         Smallest top-hat, fraction of full scale.
     background_px : int, optional
-        Side of the square, px; default :func:`background_side_px` without clipped pixels
-        (``max(31, min(H, W) // BACKGROUND_DIV)``): wider than the highlights of endoscopic
-        frames (up to about 30 px in a 1350 x 1080 frame); a broader lobe keeps a smaller core
-        and its ROI grows in the pipeline.
+        Side of the square, px; default :func:`background_side_px` without clipped pixels.
     censored : ndarray of shape (H, W), uint8, optional
-        Pixels clipped white (:func:`clipped_mask`, 0/1): the ceiling cuts their top-hat, so
-        that a clipped top on a surround near the ceiling (a bright sheen around it) stands out
-        by less than ``contrast_min_rel`` however bright the highlight is. They are candidates
-        wherever they meet the local-peak rule and stand above the background at all.
+        Pixels clipped white: candidates wherever they meet the local-peak rule and stand above
+        the background at all (the ceiling cuts their top-hat).
 
     Returns
     -------
@@ -603,13 +498,10 @@ def local_peak_mask(gray: np.ndarray, full_scale: float, *, peak_rel: float = 0.
     g = gray.astype(np.float32, copy=False)
     h, w = g.shape
     side = int(background_px) if background_px else background_side_px((h, w))
-    # The background is smooth at the scale of the square: open (and take the local peaks) on the
-    # image reduced so that the square is ~16 px (area averaging), then back to full size.
+    # open (and take the local peaks) on the image reduced so that the square is ~16 px
     f = max(1, side // 16)
     whole = f > 1 and h % f == 0 and w % f == 0  # whole blocks: the reductions by 2 x 2 steps
     if whole:
-        # (``_half``: the means of g's 2 x 2 blocks, the chain's first step, for the scope border
-        # and the verifier)
         small = _area_reduced(g, f, _half)
     else:
         small = cv2.resize(g, (max(1, w // f), max(1, h // f)), interpolation=cv2.INTER_AREA) if f > 1 else g
@@ -626,14 +518,11 @@ def local_peak_mask(gray: np.ndarray, full_scale: float, *, peak_rel: float = 0.
     else:
         top_small = cv2.resize(top, small.shape[::-1], interpolation=cv2.INTER_AREA) if f > 1 else top
     peak_small = cv2.dilate(top_small, kernel, borderType=cv2.BORDER_REPLICATE)
-    # top >= peak_rel * max(local_peak, top) and top >= contrast_min_rel * full_scale: as top and
-    # the local peak are >= 0 and peak_rel < 1, the first is top >= peak_rel * local_peak (the
-    # scaling done on the reduced peaks: the enlargement is linear)
+    # top >= peak_rel * local peak (top and peak >= 0, peak_rel < 1), scaled on the reduced peaks
     scaled = peak_small * np.float32(peak_rel)
     near_level = cv2.resize(scaled, (w, h), interpolation=cv2.INTER_LINEAR) if f > 1 else scaled
     thr = np.float32(contrast_min_rel * full_scale)
-    # top >= near_level and top >= thr: one comparison with their maximum (exact; two frame-sized
-    # passes fewer)
+    # top >= near_level and top >= thr: one comparison with their maximum
     mask = cv2.compare(top, cv2.max(near_level, float(thr)), cv2.CMP_GE)
     if censored is not None:  # clipped tops: the local-peak rule and any height above the background
         core = cv2.bitwise_and(cv2.compare(top, near_level, cv2.CMP_GE), cv2.compare(top, 0.0, cv2.CMP_GT))
@@ -645,9 +534,9 @@ def local_peak_mask(gray: np.ndarray, full_scale: float, *, peak_rel: float = 0.
 
 
 def linear_taps(i, src: int, dst: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """OpenCV's ``INTER_LINEAR`` taps for output indices ``i`` of an axis enlarged from ``src`` to
-    ``dst`` samples: the two source indices and the float32 weight of the second (half-pixel
-    centres, clamped at the sides as ``cv2.resize`` clamps)."""
+    """OpenCV's ``INTER_LINEAR`` taps for output indices ``i`` of an axis enlarged from ``src`` to ``dst``
+    samples: the two source indices and the float32 weight of the second.
+    """
     x = (np.asarray(i, np.float64) + 0.5) * (src / dst) - 0.5
     i0 = np.floor(x).astype(np.int64)
     a = (x - i0).astype(np.float32)
@@ -659,14 +548,12 @@ def linear_taps(i, src: int, dst: int) -> tuple[np.ndarray, np.ndarray, np.ndarr
 
 
 def linear_at(small: np.ndarray, shape: tuple[int, int], r0: int, r1: int, c0: int, c1: int) -> np.ndarray:
-    """``cv2.resize(small, shape[::-1], interpolation=cv2.INTER_LINEAR)[r0:r1, c0:c1]`` computed in
-    that window only (OpenCV's sample positions and clamping at the sides; float32, to its
-    rounding)."""
+    """``cv2.resize(small, shape[::-1], interpolation=cv2.INTER_LINEAR)[r0:r1, c0:c1]``, computed in that window only.
+    """
     sh, sw = small.shape
     h, w = shape
     if h % sh == 0 and w % sw == 0 and h // sh == w // sw and h // sh > 1:
-        # an integer factor f: the enlargement of the blocks under the window and one more on
-        # each side is the frame's there (as the verifier enlarges its windows)
+        # an integer factor f: enlarge the blocks under the window and one more on each side
         f = h // sh
         q0, q1 = max(0, r0 // f - 1), min(sh, (r1 - 1) // f + 2)
         p0, p1 = max(0, c0 // f - 1), min(sw, (c1 - 1) // f + 2)

@@ -1,46 +1,26 @@
 """Normal estimators from one or several isophote conics.
 
-- ``paper``: the two circle-pose normals N+ and N- of one isophote ellipse (Makki and Bartoli,
-  step four; Forsyth et al. 1991 appendix A), and a *non-oracle* choice between them.
+- ``paper``: the two circle-pose normals N+ and N- of one isophote ellipse [1]_ [2]_, and a
+  *non-oracle* choice between them: the one closer to the BP-ray normal (both make the same
+  angle with the cone axis, so that cannot choose; with a co-located light the BP ray is parallel
+  to the normal at the BP, an unbiased reference independent of the conic). Ties return N+.
 - ``cone_axis``: the eigenvector of C' = K^T C K whose eigenvalue has the unique sign, with the
-  eigenvalue gap as a model-violation diagnostic (prior art: dam410/LightModel,
-  ``vanishing_line_paper_co``).
-- ``bp_ray``: minus the unit viewing ray through the brightest point (the baseline,
-  :func:`simtest.geometry.camera.bp_ray_normal`).
-- ``joint_cone_axis``: the axis shared by the cones of several nested isophotes.
+  eigenvalue gap as a model-violation diagnostic [3]_.
+- ``bp_ray``: minus the unit viewing ray through the brightest point (the baseline).
+- ``joint_cone_axis``: the axis shared by nested isophotes. A right cone of axis e has C'
+  proportional to ``e e^T - cos^2(alpha) I``; with each C'_i sign-normalised (l3' > 0 > l2' >= l1'),
+  ``D_i = C'_i - (l1' + l2') / 2 I`` is rank one for an exact right cone, and the joint axis is the
+  leading eigenvector of ``sum_i D_i / ||D_i||_F`` (it minimises ``sum_i ||D^_i - e e^T||_F^2``).
 
 All normals are unit vectors in the OpenCV camera frame, facing the camera (n . ray < 0).
-
-Selection rule for the paper's pair (non-oracle)
-------------------------------------------------
-N+ and N- are ``+-sin(phi) e1 + cos(phi) e3`` in the eigenbasis of C' (``simtest.geometry.conics.
-circle_pose``): both make the *same* angle phi with the cone axis e3, so "the one closer to the cone
-axis" is a tie by construction and cannot choose. The rule used here picks the one closer to the
-BP-ray normal: with a co-located light the BP ray is parallel to the normal at the BP
-(whatever the curvature: the Notes of :func:`simtest.geometry.curvature.curvature_ratio`), so the BP ray is an unbiased (if noisy) reference that is independent of the
-conic. Ties (N+ = N-, a right circular cone) return N+.
-
-Joint cone axis
----------------
-A right circular cone of axis e and half-angle alpha has C' proportional to
-``e e^T - cos^2(alpha) I``. Nested isophotes of one highlight share e but not alpha. For each
-normalised conic, sign-normalised so that the unique-sign eigenvalue is positive (eigenvalues
-l3' > 0 > l2' >= l1'), remove the isotropic part with the mean of the same-sign pair:
-``D_i = C'_i - (l1' + l2') / 2 I``; for an exact right cone ``D_i = s_i e e^T`` is rank one.
-The joint axis is the unit e maximising ``sum_i e^T D_i e / ||D_i||``, the leading eigenvector of
-``sum_i D_i / ||D_i||_F``. This is the least-squares common rank-one axis: since
-``||D^_i - e e^T||^2 = ||D^_i||^2 + 1 - 2 e^T D^_i e``, it minimises
-``sum_i ||D^_i - e e^T||_F^2`` over unit e. Each isophote has equal weight.
 
 References
 ----------
 .. [1] K. Makki, A. Bartoli, "Normal Reconstruction from Specularity in the Endoscopic Setting",
-       section 2.3, steps 3 and 4 (C' = K^T C K and circle pose).
-.. [2] D. Forsyth, J. L. Mundy, A. Zisserman, C. Coelho, A. Heller, C. Rothwell, "Invariant
-       descriptors for 3-D object recognition and pose", IEEE TPAMI 13(10), 1991, appendix A.
-       https://doi.org/10.1109/34.99233
-.. [3] dam410/LightModel, public MATLAB code, branch ``vanishing_line_paper_co`` (prior art of
-       the cone-axis estimator).
+       section 2.3, steps 3 and 4.
+.. [2] D. Forsyth et al., "Invariant descriptors for 3-D object recognition and pose", IEEE
+       TPAMI 13(10), 1991, appendix A. https://doi.org/10.1109/34.99233
+.. [3] dam410/LightModel, public MATLAB code, branch ``vanishing_line_paper_co``.
 """
 
 from __future__ import annotations
@@ -84,25 +64,13 @@ class ConeEstimate:
         return True
 
 
-#: A right circular cone (any real elliptic one): what stands in for a conic that is not one, so
-#: that the stack's arithmetic stays finite (its result is discarded).
+#: A right circular cone: stands in for a conic that is not one, keeping the stack finite (discarded).
 _RIGHT_CONE = np.diag([1.0, 1.0, -1.0])
 
 
 def face_reference(n: np.ndarray, ray: np.ndarray) -> np.ndarray:
-    """Flip ``n`` so that ``n . ray <= 0`` (faces the camera along that viewing ray).
-
-    Parameters
-    ----------
-    n : ndarray of shape (..., 3)
-        Normal(s), camera frame.
-    ray : ndarray of shape (..., 3)
-        Viewing direction(s) from the camera (z > 0), camera frame, broadcast against ``n``.
-
-    Returns
-    -------
-    ndarray of shape (..., 3)
-        Each ``n`` or ``-n`` (same length).
+    """Flip normals ``n`` (..., 3) so that ``n . ray <= 0`` (facing the camera along the viewing
+    directions ``ray`` (..., 3), z > 0, broadcast against ``n``); each ``n`` or ``-n``, camera frame.
     """
     n = np.asarray(n, dtype=np.float64)
     d = np.sum(n * np.asarray(ray, dtype=np.float64), axis=-1, keepdims=True)
@@ -110,17 +78,14 @@ def face_reference(n: np.ndarray, ray: np.ndarray) -> np.ndarray:
 
 
 def select_paper_normal(normals: np.ndarray, reference: np.ndarray):
-    """Index of the normal of the pair closer in angle to ``reference``.
-
-    The non-oracle rule of this module (see the module docstring): the reference is the BP-ray
-    normal. Ties go to index 0.
+    """Index of the normal of the pair closer in angle to ``reference`` (the BP-ray normal); ties 0.
 
     Parameters
     ----------
     normals : ndarray of shape (2, 3) or (k, 2, 3)
-        N+ and N-, unit, camera frame (a stack of pairs for several highlights).
+        N+ and N-, unit, camera frame.
     reference : ndarray of shape (3,) or (k, 3)
-        Unit reference normal(s) (the BP-ray normal), camera frame.
+        Unit reference normal(s), camera frame.
 
     Returns
     -------
@@ -135,13 +100,8 @@ def select_paper_normal(normals: np.ndarray, reference: np.ndarray):
 
 
 def _images_as_ellipse_many(cn: np.ndarray) -> np.ndarray:
-    """True where a cone C' (k, 3, 3) cuts the normalised image plane z = 1 in an ellipse-type
-    conic (k,) bool.
-
-    C' is also the image conic in normalised coordinates (O(1)-conditioned for any visible
-    highlight); its type is the sign of det C'[:2, :2] (> 0: ellipse type). A real cone whose
-    image is a hyperbola (axis nearly parallel to the image plane) has no normal facing the
-    camera. Real versus imaginary is left to the signature test of ``circle_pose``.
+    """True where a cone C' (k, 3, 3) cuts the image plane z = 1 in an ellipse-type conic (k,) bool
+    (det C'[:2, :2] > 0): a cone whose image is a hyperbola has no normal facing the camera.
     """
     finite = np.isfinite(cn).all(axis=(1, 2))
     scale = np.where(finite, np.abs(np.where(finite[:, None, None], cn, 0.0)).max(axis=(1, 2)), 0.0)
@@ -172,7 +132,7 @@ def estimate_from_conic(Cn: np.ndarray, bp_ray: np.ndarray) -> ConeEstimate | Fa
 
 
 def estimate_from_conics(Cns: np.ndarray, bp_rays: np.ndarray) -> list[ConeEstimate | Failure]:
-    """:func:`estimate_from_conic` of a stack of normalised conics, batched.
+    """:func:`estimate_from_conic` of a stack of normalised conics, batched in closed form.
 
     Parameters
     ----------
@@ -184,18 +144,8 @@ def estimate_from_conics(Cns: np.ndarray, bp_rays: np.ndarray) -> list[ConeEstim
     Returns
     -------
     list of ConeEstimate or Failure
-        One per conic, in order; ``Failure("pose_failed")`` where C' is not a real elliptic cone
-        whose image is an ellipse.
-
-    Notes
-    -----
-    All conics are decomposed at once, in closed form over the stack (a stacked LAPACK call
-    costs microseconds per 3 x 3 matrix): each cone scaled to unit Frobenius norm, its
-    eigenvalues from the characteristic cubic, the unique-sign eigenvalue's eigenvector (the
-    axis, well separated from the other two) as a null vector, then the same-sign pair from the
-    2 x 2 restriction to the plane orthogonal to the axis (exact for a near-right cone, whose
-    pair is nearly repeated), and the circle pose of :func:`simtest.geometry.conics.circle_pose`
-    from them. Each conic's result depends on its own numbers only.
+        One per conic, in order (each from its own numbers only); ``Failure("pose_failed")`` where
+        C' is not a real elliptic cone whose image is an ellipse.
     """
     Cns = np.asarray(Cns, dtype=np.float64).reshape(-1, 3, 3)
     refs = np.asarray(bp_rays, dtype=np.float64).reshape(-1, 3)
@@ -204,10 +154,9 @@ def estimate_from_conics(Cns: np.ndarray, bp_rays: np.ndarray) -> list[ConeEstim
 
 
 def _unique_sign_axes(s: np.ndarray):
-    """The sign-normalised decomposition of unit symmetric cones s (k, 3, 3) (``conics.
-    _cone_eigen_many``'s, l1 >= l2 > 0 > l3): the sign (k,) that makes the unique-sign eigenvalue
-    negative, l1, l2, l3 (k,) each, the eigenvectors e1 and e3 (k, 3), and which cones are real
-    and elliptic (signature (2, 1) beyond ``TOL.conic_degenerate_rel``) (k,) bool."""
+    """Sign-normalised decomposition of unit symmetric cones s (k, 3, 3): the sign (k,), l1, l2, l3
+    (k,), eigenvectors e1 and e3 (k, 3), and which cones are real and elliptic (k,) bool.
+    """
     eps = TOL.conic_degenerate_rel
     lam = _symmetric_roots(s)  # descending
     n_pos = (lam > eps).sum(axis=1)
@@ -227,10 +176,7 @@ def _unique_sign_axes(s: np.ndarray):
 
 
 def _symmetric_roots(s: np.ndarray) -> np.ndarray:
-    """The eigenvalues (k, 3), descending, of symmetric 3 x 3 matrices (k, 3, 3), from the
-    characteristic cubic (real: the cosine's argument clipped to [-1, 1] against rounding). A
-    nearly repeated pair comes out to about the square root of the rounding of the entries; the
-    third, set apart, to the rounding."""
+    """The eigenvalues (k, 3), descending, of symmetric 3 x 3 matrices (k, 3, 3), from the characteristic cubic."""
     sh = (s[:, 0, 0] + s[:, 1, 1] + s[:, 2, 2]) / 3.0
     b = s - sh[:, None, None] * np.eye(3)
     p = (b * b).sum(axis=2).sum(axis=1) / 6.0  # p / 3 of b's cubic mu^3 - p mu - q (b traceless, symmetric)
@@ -241,8 +187,7 @@ def _symmetric_roots(s: np.ndarray) -> np.ndarray:
 
 
 def _plane_basis(n: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """An orthonormal basis (u, w) (k, 3) each of the planes orthogonal to unit n (k, 3): that of
-    ``conics.plane_basis``, u along n x e_x, or n x e_y when n is within 26 deg of e_x."""
+    """An orthonormal basis (u, w) (k, 3) each of the planes orthogonal to unit n (k, 3), as ``conics.plane_basis``."""
     x, y, z = n[:, 0], n[:, 1], n[:, 2]
     near_x = np.abs(x) >= 0.9
     u = np.empty_like(n)
@@ -258,9 +203,9 @@ def _plane_basis(n: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 
 
 def _section_centres(q: np.ndarray, n: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """``conics._section_centres``: unit directions (k, 3) (z > 0) of the centres of the sections
-    of cones q (k, 3, 3) by the planes n . X = 1 (n (k, 3) unit), and which have one (k,) bool;
-    the plane's 2 x 2 system solved by Cramer's rule (singular: a zero determinant)."""
+    """Unit directions (k, 3) of the centres of the sections of cones q (k, 3, 3) by the planes
+    n . X = 1, and which have one (k,) bool (``conics._section_centres``).
+    """
     u, w = _plane_basis(n)
     qu, qw = (q @ u[:, :, None])[:, :, 0], (q @ w[:, :, None])[:, :, 0]
     m00, m01, m11 = (u * qu).sum(axis=1), (u * qw).sum(axis=1), (w * qw).sum(axis=1)
@@ -280,8 +225,7 @@ def _estimates(cns: np.ndarray, refs: np.ndarray) -> list[ConeEstimate | Failure
     unit_cones = sym / np.sqrt((sym * sym).sum(axis=2).sum(axis=1))[:, None, None]
     q, l1, l2, l3, e1, e3, real = _unique_sign_axes(np.where(elliptic[:, None, None], unit_cones, _RIGHT_CONE))
     # circle pose [2]: N+- = +-sin(phi) e1 + cos(phi) e3, each facing the camera against the ray to
-    # its circle's centre (n_z < 0 is not the same test: a steep plane seen far off-axis faces
-    # the camera with n_z > 0)
+    # its circle's centre (n_z < 0 is not the same test)
     sin_phi = np.sqrt(np.maximum(l1 - l2, 0.0) / (l1 - l3))
     cos_phi = np.sqrt(np.maximum(l2 - l3, 0.0) / (l1 - l3))
     n = (np.array([1.0, -1.0])[None, :, None] * (sin_phi[:, None] * e1)[:, None, :]
@@ -318,7 +262,7 @@ def _estimates(cns: np.ndarray, refs: np.ndarray) -> list[ConeEstimate | Failure
 
 
 def joint_cone_axis(cns, bp_ray: np.ndarray) -> np.ndarray | Failure:
-    """Least-squares common axis of several normalised conics (nested isophotes).
+    """Least-squares common axis of several normalised conics (nested isophotes; module docstring).
 
     Parameters
     ----------
@@ -330,8 +274,8 @@ def joint_cone_axis(cns, bp_ray: np.ndarray) -> np.ndarray | Failure:
     Returns
     -------
     ndarray of shape (3,) or Failure
-        Unit axis facing the camera; ``Failure("pose_failed")`` if a conic is not a real
-        elliptic cone or none is given. Method: module docstring ("Joint cone axis").
+        Unit axis facing the camera; ``Failure("pose_failed")`` if a conic is not a real elliptic
+        cone or none is given.
     """
     cns = [np.asarray(c, dtype=np.float64) for c in cns]
     if not cns:
@@ -343,7 +287,7 @@ def joint_cone_axis(cns, bp_ray: np.ndarray) -> np.ndarray | Failure:
 
 
 def joint_cone_axes(cns: np.ndarray, group: np.ndarray, bp_rays: np.ndarray) -> list[np.ndarray | Failure]:
-    """:func:`joint_cone_axis` of several groups of conics at once.
+    """:func:`joint_cone_axis` of several groups of conics at once (each group from its own conics only).
 
     Parameters
     ----------
@@ -357,14 +301,7 @@ def joint_cone_axes(cns: np.ndarray, group: np.ndarray, bp_rays: np.ndarray) -> 
     Returns
     -------
     list of ndarray of shape (3,) or Failure
-        Per group, its unit axis facing the camera, or ``Failure("pose_failed")`` (a conic is
-        not a real elliptic cone, or the group is empty).
-
-    Notes
-    -----
-    Every conic's eigenvalues, and every group's leading eigenvector, in closed form over the
-    stack (the characteristic cubic; the leading eigenvector a null vector); each group's axis
-    depends on its own conics only.
+        Per group, its unit axis facing the camera, or ``Failure("pose_failed")``.
     """
     cns = np.asarray(cns, dtype=np.float64).reshape(-1, 3, 3)
     group = np.asarray(group, dtype=int)

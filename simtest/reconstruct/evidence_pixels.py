@@ -1,10 +1,6 @@
-"""The pixel work of the verifier (:mod:`simtest.reconstruct.verify`), by OpenCV and numpy calls.
-
-The grey opening (the diffuse background) on a reduced frame and its bilinear enlargement at
-some pixels or windows, the top-hat and its 3 x 3 local maxima, the colour at points, the flat
-panels (5 x 5 variance, components, counts per region), the other specular peaks near each
-candidate and the lit share of its surround. The decision numbers are the verifier's; they come
-in as arguments.
+"""The pixel work of the verifier (:mod:`simtest.reconstruct.verify`) by OpenCV and numpy calls:
+openings, top-hat maxima, colour at points, flat panels, neighbouring peaks and the lit surround.
+The decision numbers come in as arguments.
 """
 
 from __future__ import annotations
@@ -25,10 +21,9 @@ _SQUARE3 = np.ones((3, 3), np.uint8)
 
 
 def block_means(img: np.ndarray, f: int) -> np.ndarray:
-    """Means of the f x f blocks of an image (H, W) or (H, W, C) whose sides are multiples of f,
-    float32 (H / f, W / f[, C]): ``cv2.resize``'s INTER_AREA reduction by f. An 8-bit image's f
-    rows are summed in uint16 by numpy first (exact for f <= 16), then reduced along the rows by
-    OpenCV: no float32 copy of the frame."""
+    """Means (H / f, W / f[, C]) float32 of the f x f blocks of an image whose sides are multiples of f,
+    as ``cv2.resize``'s INTER_AREA reduction.
+    """
     h, w = img.shape[:2]
     if img.dtype != np.uint8 or f > 16 or f == 1:
         x = img.astype(np.float32, copy=False)
@@ -61,12 +56,10 @@ def opening(img: np.ndarray, side: int) -> np.ndarray:
 
 
 def opening_small(img: np.ndarray, side: int, half: np.ndarray | None = None):
-    """:func:`opening` before its last step: ``(bg_small, f)``, the opening on the image reduced
-    by ``f`` (float32), when the frame's sides are multiples of ``f > 1`` (then
-    :func:`~simtest.reconstruct.detect_pixels.linear_at` gives any window of the full-size
-    opening); otherwise ``(the full-size
-    opening, 1)``. ``half``: the means of the image's 2 x 2 blocks where the caller has them
-    (detection's; used for an even f)."""
+    """:func:`opening` before its last step: ``(bg_small, f)``, the opening on the image reduced by
+    ``f > 1`` where the sides are multiples of f, else ``(the full-size opening, 1)``. ``half``: the
+    image's 2 x 2 block means where the caller has them.
+    """
     h, w = img.shape[:2]
     f = max(1, side // 16)
     if f == 1 or h % f or w % f:
@@ -80,8 +73,7 @@ def opening_small(img: np.ndarray, side: int, half: np.ndarray | None = None):
 
 
 def linear_at_points(small: np.ndarray, shape: tuple[int, int], rows: np.ndarray, cols: np.ndarray) -> np.ndarray:
-    """``cv2.resize(small, shape[::-1], interpolation=cv2.INTER_LINEAR)[rows, cols]`` at those
-    pixels only (OpenCV's sample positions and clamping at the sides; float32): (P,) or (P, C)."""
+    """``cv2.resize(small, shape[::-1], interpolation=cv2.INTER_LINEAR)[rows, cols]`` at those pixels only."""
     sh, sw = small.shape[:2]
     h, w = shape
 
@@ -97,9 +89,7 @@ def linear_at_points(small: np.ndarray, shape: tuple[int, int], rows: np.ndarray
 
 
 def top_hat_maxima(g: np.ndarray, bg: np.ndarray, floor: np.float32) -> tuple[np.ndarray, np.ndarray]:
-    """The top-hat ``max(g - bg, 0)`` (float32) and its 3 x 3 local maxima above ``floor``:
-    pixels at least each of their 8 neighbours inside the array (``cv2.dilate``, the sides
-    replicated) and ``> floor``; bool mask."""
+    """The top-hat ``max(g - bg, 0)`` (float32) and a bool mask of its 3 x 3 local maxima above ``floor``."""
     top = np.subtract(g, bg, dtype=np.float32)
     np.maximum(top, np.float32(0.0), out=top)
     peak = cv2.dilate(top, _SQUARE3, borderType=cv2.BORDER_REPLICATE)
@@ -108,11 +98,9 @@ def top_hat_maxima(g: np.ndarray, bg: np.ndarray, floor: np.float32) -> tuple[np
 
 def maxima_in_windows(g: np.ndarray, bg_small: np.ndarray, f: int, windows: np.ndarray,
                       floor: np.float32) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """:func:`top_hat_maxima` of the luma ``g`` over its opening (``bg_small`` enlarged by
-    ``f``), in the ``windows`` (row0, row1, col0, col1) only: a frame-sized top-hat exact inside
-    them (elsewhere unset) and the maxima inside them (rows, columns; row-major, each once).
-    Each window is measured with 1 px more (clipped to the frame), so its maxima are the whole
-    frame's."""
+    """:func:`top_hat_maxima` in the ``windows`` (row0, row1, col0, col1) only: a frame-sized top-hat
+    exact inside them and the maxima inside them (rows, columns), the whole frame's there.
+    """
     h, w = g.shape
     top = np.empty((h, w), np.float32)
     idx = []
@@ -131,8 +119,7 @@ def maxima_in_windows(g: np.ndarray, bg_small: np.ndarray, f: int, windows: np.n
 
 
 def in_windows(ys: np.ndarray, xs: np.ndarray, shape: tuple[int, int], windows: np.ndarray) -> np.ndarray:
-    """Whether each pixel (``ys``, ``xs``) lies in one of the ``windows`` (row0, row1, col0,
-    col1); bool."""
+    """Whether each pixel (``ys``, ``xs``) lies in one of the ``windows`` (row0, row1, col0, col1); bool."""
     marks = np.zeros(shape, np.uint8)
     for r0, r1, c0, c1 in np.asarray(windows, np.int64).reshape(-1, 4).tolist():
         marks[r0:r1, c0:c1] = 1
@@ -146,8 +133,7 @@ def rgb_at(src3: np.ndarray, rows: np.ndarray, cols: np.ndarray) -> np.ndarray:
 
 
 def rgb_max9(src3: np.ndarray, rows: np.ndarray, cols: np.ndarray) -> np.ndarray:
-    """The channel-wise maximum over the 3 x 3 px around each pixel (clipped to the frame),
-    (P, 3) float64."""
+    """The channel-wise maximum over the 3 x 3 px around each pixel, (P, 3) float64."""
     h, w = src3.shape[:2]
     out = None
     for dr in (-1, 0, 1):
@@ -166,9 +152,7 @@ def chroma(rgb: np.ndarray) -> np.ndarray:
 
 @functools.lru_cache(maxsize=64)
 def _variance_below(std_max: float) -> np.float32:
-    """The least float32 variance v >= 0 whose float32 square root is not below ``std_max``
-    (as float32): ``var < it`` is ``sqrt(max(var, 0)) < std_max`` for every float32, NaN
-    included (a binary search on the bits; the root is monotone and correctly rounded)."""
+    """The least float32 variance v >= 0 whose float32 square root is not below ``std_max``."""
     s = np.float32(std_max)
     lo, hi = 0, int(np.array(np.inf, np.float32).view(np.uint32))  # sqrt(+inf) = +inf >= s
     while lo < hi:
@@ -181,9 +165,9 @@ def _variance_below(std_max: float) -> np.float32:
 
 
 def flat_mask(gray: np.ndarray, std_max, full_scale: float | None = None) -> np.ndarray:
-    """Pixels whose 5 x 5 luma standard deviation (``cv2.blur`` of the luma and of its square,
-    float32) is below ``std_max``, uint8 0/1: a number, or with ``full_scale`` a table over the
-    bins of :func:`~simtest.reconstruct.detect_pixels.noise_level_table`, read at each pixel's mean."""
+    """Pixels whose 5 x 5 luma standard deviation is below ``std_max`` (a number, or with
+    ``full_scale`` a table over the noise level bins), uint8 0/1.
+    """
     g = gray.astype(np.float32, copy=False)
     m1 = cv2.blur(g, (5, 5))
     var = cv2.blur(g * g, (5, 5))
@@ -197,15 +181,14 @@ def flat_mask(gray: np.ndarray, std_max, full_scale: float | None = None) -> np.
     return np.less(var, bound if full_scale is not None else bound[0]).view(np.uint8)
 
 
-#: Clipped-and-flat pixels within this many px of each other share one window of
-#: :func:`drop_clipped` (px; speed only: the mask does not depend on it).
+#: Clipped-and-flat pixels within this many px share one window of :func:`drop_clipped` (speed only).
 _HIT_JOIN_PX = 8
 
 
 def drop_clipped(flat: np.ndarray, rgb: np.ndarray, std_max, ceiling: float, full_scale: float | None = None) -> np.ndarray:
-    """The flat pixels ``flat`` (uint8 0/1) less those whose 5 x 5 window holds a channel at the
-    sensor's ``ceiling`` unless every channel of ``rgb`` (H, W, C) is flat there (:func:`flat_mask`
-    of each): a clipped channel has no noise, the others still carry the sensor's."""
+    """The flat pixels ``flat`` less those whose 5 x 5 window holds a channel at ``ceiling`` unless every
+    channel of ``rgb`` is flat there (a clipped channel has no noise).
+    """
     chans = cv2.split(np.ascontiguousarray(rgb))
     top = chans[0]
     for c in chans[1:]:
@@ -217,9 +200,7 @@ def drop_clipped(flat: np.ndarray, rgb: np.ndarray, std_max, ceiling: float, ful
     hit = flat & near
     if not hit.any():
         return flat
-    # the channels' flatness only around the pixels it decides, cluster by cluster (boxes by
-    # mask_labels: the frame's, in order; 2 px of context for the 5 x 5 windows; at the frame's
-    # edges the window's border is the frame's, as for the whole frame)
+    # the channels' flatness only around the pixels it decides, cluster by cluster (2 px of context)
     h, w = flat.shape
     out = flat.copy()
     join = np.ones((2 * _HIT_JOIN_PX + 1,) * 2, np.uint8)
@@ -235,9 +216,9 @@ def drop_clipped(flat: np.ndarray, rgb: np.ndarray, std_max, ceiling: float, ful
 
 def panels(gray: np.ndarray, std_max, min_area: float, rgb: np.ndarray | None = None,
            ceiling: float | None = None, full_scale: float | None = None) -> np.ndarray:
-    """Flat panels: the 8-connected components of :func:`flat_mask` of at least ``min_area``
-    px; uint8 0/1. With the frame's ``rgb`` (H, W, C) and its sensor ``ceiling``, pixels next to
-    a clipped channel count only where every channel is flat (:func:`drop_clipped`)."""
+    """Flat panels: the 8-connected components of :func:`flat_mask` of at least ``min_area`` px, uint8
+    0/1 (next to a clipped channel, flat in every channel: :func:`drop_clipped`).
+    """
     flat = flat_mask(gray, std_max, full_scale)
     if np.count_nonzero(flat) < min_area:
         return np.zeros_like(flat)
@@ -256,8 +237,7 @@ def panels(gray: np.ndarray, std_max, min_area: float, rgb: np.ndarray | None = 
 
 def panel_pixels_in(gray: np.ndarray, std_max, min_area: float, rr: np.ndarray, rgb: np.ndarray | None = None,
                     ceiling: float | None = None, full_scale: float | None = None) -> np.ndarray:
-    """How many pixels of :func:`panels` (``rgb``, ``ceiling``, ``full_scale``: its) each region
-    ``rr`` (rows of row0, row1, col0, col1) holds, int64 (n,), by the panel map's integral image."""
+    """How many pixels of :func:`panels` each region ``rr`` (row0, row1, col0, col1) holds, int64 (n,)."""
     rr = np.asarray(rr, np.int64).reshape(-1, 4)
     p = panels(gray, std_max, min_area, rgb, ceiling, full_scale)
     if not p.any():
@@ -270,14 +250,11 @@ def panel_pixels_in(gray: np.ndarray, std_max, min_area: float, rr: np.ndarray, 
 
 def surely_no_panels(gray: np.ndarray, rr: np.ndarray, margin: int, thr2, slack: float,
                      min_area: float, full_scale: float | None = None) -> bool:
-    """Whether no pixel of any region ``rr`` (rows of row0, row1, col0, col1) can be a panel
-    pixel, decided without the frame: True only when proven. Around each region (with
-    ``margin`` px) the pixels that may be flat are those whose 5 x 5 variance (float64) is below
-    ``thr2 + slack * m2`` (m2 the mean square): a superset of the flat pixels (``thr2`` a number,
-    or with ``full_scale`` one per bin of :func:`flat_mask`'s table, a pixel taking the largest of
-    its mean's bin and the two beside it: the map's float32 mean may cross a bin's edge). If every
-    component of that superset that reaches into a region is smaller than ``min_area`` and is not
-    cut by the window's edge inside the frame, no panel reaches into a region. Non-finite: not proven."""
+    """Whether no pixel of any region ``rr`` can be a panel pixel, True only when proven without the
+    frame: every component of a superset of the flat pixels (5 x 5 float64 variance below
+    ``thr2 + slack * m2``) reaching into a region within ``margin`` px is under ``min_area`` and not
+    cut by the window's edge inside the frame.
+    """
     h, w = gray.shape
     t2 = ndimage.maximum_filter1d(np.atleast_1d(np.asarray(thr2, np.float64)), 3, mode="nearest")
     for row0, row1, col0, col1 in np.asarray(rr, np.int64).reshape(-1, 4).tolist():
@@ -306,8 +283,7 @@ def surely_no_panels(gray: np.ndarray, rr: np.ndarray, margin: int, thr2, slack:
 
 
 def ellipse_level(ell, u, v):
-    """``(x / a)^2 + (y / b)^2`` of points (u, v) px in the ellipse's own axes (centre,
-    semi-axes a >= b, angle): at most 1 inside it; arrays or scalars."""
+    """``(x / a)^2 + (y / b)^2`` of points (u, v) px in the ellipse's own axes: at most 1 inside it."""
     c, s = np.cos(ell.angle_rad), np.sin(ell.angle_rad)
     du, dv = u - ell.center[0], v - ell.center[1]
     a, b = ell.semi_axes
@@ -317,17 +293,13 @@ def ellipse_level(ell, u, v):
 def other_peaks(top: np.ndarray, xs: np.ndarray, ys: np.ndarray, bps: np.ndarray, ij: np.ndarray,
                 reach: np.ndarray, min_top: np.ndarray, level: np.ndarray, ellipses, area_rel: float,
                 expected=None, tol_px: float = 0.0) -> np.ndarray:
-    """Per candidate, the specular peaks (``xs``, ``ys``, row-major) within ``reach`` of its BP
-    (``bps`` (u, v), its pixel ``ij`` (column, row)) with a top-hat of at least ``min_top``,
-    outside its own isophote ``ellipses[k]`` (None: none), that are not on its lobe (not joined
-    to it by pixels of the top-hat at least ``level``) and whose own region above ``level`` is
-    at least ``area_rel`` of the candidate's. A peak is its region above ``level``: the maxima
-    of one region (a plateau the noise breaks into many) count once. ``expected`` (None, or per
-    candidate an (M, 2) array of (u, v) points: where another light guide's highlight can lie,
-    :func:`simtest.reconstruct.rig_pairs.other_guide_curves`) leaves out the regions that come
-    within ``tol_px`` of such a point. The peak-to-candidate pairs are found
-    and filtered at once (a search by rows in the sorted peaks); the valleys of the few
-    candidates left are labelled by OpenCV in their windows. int64 (n,)."""
+    """Per candidate, how many specular peaks (int64 (n,)) lie within ``reach`` of its BP.
+
+    A peak counts with a top-hat of at least ``min_top``, outside the candidate's isophote
+    ``ellipses[k]``, not joined to it above ``level``, with a region above ``level`` of at least
+    ``area_rel`` of the candidate's (the maxima of one region count once), and not within ``tol_px``
+    of another guide's ``expected`` points.
+    """
     h, w = top.shape
     n = len(bps)
     out = np.zeros(n, np.int64)
@@ -359,9 +331,7 @@ def other_peaks(top: np.ndarray, xs: np.ndarray, ys: np.ndarray, bps: np.ndarray
     ks = np.unique(cand)
     if not len(ks):
         return out
-    # every labelled window's valley mask in one mosaic (shelves of windows, a zero row and
-    # column between them, so no component joins two), labelled once: the same components as
-    # one labelling per window, looked up by each window's offset in the mosaic
+    # every labelled window's valley mask in one mosaic (a zero row and column between them), labelled once
     hh, ww = (r1 - r0)[ks], (c1 - c0)[ks]
     order = np.argsort(-hh, kind="stable")
     width = max(2048, int(ww.max()) + 1)
@@ -403,8 +373,7 @@ def other_peaks(top: np.ndarray, xs: np.ndarray, ys: np.ndarray, bps: np.ndarray
 
 
 def _labels_near(lab: np.ndarray, expected, ks: np.ndarray, r0, r1, c0, c1, oy, ox, tol: float) -> list[set]:
-    """Per labelled window ``i`` (candidate ``ks[i]``), the labels of ``lab`` (the mosaic)
-    within ``tol`` px of the candidate's expected points (u, v) that fall in its window."""
+    """Per labelled window ``i``, the labels of ``lab`` within ``tol`` px of candidate ``ks[i]``'s expected points."""
     R = int(np.floor(tol))
     dy, dx = np.mgrid[-R:R + 1, -R:R + 1]
     disk = np.column_stack([dx.ravel(), dy.ravel()])[(dx.ravel() ** 2 + dy.ravel() ** 2) <= tol * tol]
@@ -424,13 +393,11 @@ def _labels_near(lab: np.ndarray, expected, ks: np.ndarray, r0, r1, c0, c1, oy, 
 def white_share(excess: np.ndarray, tissue: np.ndarray) -> np.ndarray:
     """The share of light above the background that is the illuminant's, shape ``excess[..., 0]``.
 
-    The dichromatic model (Shafer 1985, doi:10.1002/col.5080100409): a pixel's excess over the
-    diffuse background, in linear light, is ``a t + s (1, 1, 1)``, the tissue's colour ``t``
-    (``tissue``, linear, (..., 3) or (3,)) brightened plus the illuminant's white. Solved on
-    ``t``'s brightest and darkest channels, the share is ``s`` over the excess in the brightest
-    (1 for white light, 0 for tissue brightening in its own colour, above 1 where the brightest
-    channel clipped). 1 where ``t`` is too pale for colour to tell (``1 - t_min / t_max`` below
-    :data:`~simtest.decisions.WHITE_CHROMA`: a grey frame). One colour (3,): ``excess``'s precision."""
+    Dichromatic model (Shafer 1985, doi:10.1002/col.5080100409): a linear excess is ``a t + s (1, 1, 1)``
+    with ``t`` the tissue's colour (``tissue``, (..., 3) or (3,)); solved on t's brightest and darkest
+    channels, the share is s over the excess in the brightest (1 white, 0 the tissue's own colour).
+    1 where t is too pale to tell (chroma below :data:`~simtest.decisions.WHITE_CHROMA`).
+    """
     if np.ndim(tissue) == 1:  # one tissue colour: its channels picked once, not per pixel
         ex, t = np.asarray(excess), np.asarray(tissue)
         hi, lo = int(np.argmax(t)), int(np.argmin(t))
@@ -456,11 +423,9 @@ _SRGB_8BIT = srgb_inverse(np.arange(256) / 255.0).astype(np.float32)
 
 def white_share_in(win_rgb: np.ndarray, se: np.ndarray, bp_rc: tuple[int, int], full_scale: float,
                    response=None) -> np.ndarray:
-    """:func:`white_share` of each pixel of a display-encoded window (rows, cols, 3) (``full_scale``
-    its white; linearised by ``response``'s inverse tone curve, a
-    :class:`~simtest.geometry.response.SensorResponse`, or None: sRGB's) over its channels' grey
-    openings by ``se``, the tissue's colour read at ``bp_rc`` (row, column). (rows, cols), float32
-    arithmetic."""
+    """:func:`white_share` of each pixel of a display-encoded window (rows, cols, 3) over its channels'
+    grey openings by ``se``, linearised by ``response`` (None: sRGB), the tissue read at ``bp_rc``.
+    """
     if response is not None and response.curve != "srgb":
         lin = response.decode(np.asarray(win_rgb, np.float64) / float(full_scale)).astype(np.float32)
     else:
@@ -473,20 +438,15 @@ def white_share_in(win_rgb: np.ndarray, se: np.ndarray, bp_rc: tuple[int, int], 
 def surround_fractions(gray: np.ndarray, ells, bps_ij: np.ndarray, reaches: np.ndarray, own_level,
                        rel: float, paired=None, rgb: np.ndarray | None = None,
                        full_scale: float = 255.0, response=None):
-    """Per candidate (``ells``, ``bps_ij`` (n, 2) (column, row), ``reaches`` (n,)): the share of the
-    surround's pixels (within the reach of the BP pixel, where :func:`ellipse_level` of the primary
-    isophote exceeds ``own_level``) whose local top-hat (the luma less its grey opening by a square
-    about as wide as the reach) is at least ``rel`` of the peak's (its maximum over the 3 x 3 px
-    around the BP), 0 without a surround or a peak (tests/_surround.py has it one candidate at a
-    time): the surrounds of the candidates of one whole reach in
-    px computed together on their unclipped squares (pixels outside the frame not counted), the
-    openings one window each; ``own_level`` a float or one per candidate. ``paired`` (None, or per candidate a list of (u, v)): the lobes of
-    another light guide there, each taken as the candidate's own lobe moved to that point (the
-    same patch and roughness), are left out of the surround too. float64 (n,); with ``rgb`` (the
-    frame's colour channels, display-encoded, ``full_scale`` its white) a pair of them, the second
-    counting a pixel only where its excess is mostly the illuminant's (:func:`white_share_in` at
-    least :data:`~simtest.decisions.WHITE_SHARE_MIN`, decoded by ``response``'s curve, None:
-    sRGB's): tissue texture brightens in its colour."""
+    """Per candidate, the share of its surround lit by other light, float64 (n,).
+
+    The surround is within ``reaches`` of the BP pixel ``bps_ij`` (column, row), outside the primary
+    isophote at ``own_level``; a pixel is lit when its local top-hat is at least ``rel`` of the
+    peak's; 0 without a surround or peak (``tests/_surround.py``). ``paired``: other guides' lobes
+    (the own lobe moved there) left out too. With ``rgb`` (display-encoded, ``full_scale`` white), a
+    pair of arrays, the second counting only white light (:func:`white_share_in` at least
+    :data:`~simtest.decisions.WHITE_SHARE_MIN`).
+    """
     h, w = gray.shape
     bps_ij = np.asarray(bps_ij, np.int64).reshape(-1, 2)
     reaches = np.asarray(reaches, np.float64).reshape(-1)
@@ -510,8 +470,7 @@ def surround_fractions(gray: np.ndarray, ells, bps_ij: np.ndarray, reaches: np.n
         reach = reaches[idx]
         c, s = col(cs[idx, 0]), col(cs[idx, 1])
         du, dv = xx - col(prm[idx, 0]), yy - col(prm[idx, 1])
-        # ellipse_level's terms in place (the same operations in the same order: the same bits),
-        # two (m, S, S) arrays where the expression made about ten
+        # ellipse_level's terms in place (the same operations in the same order: the same bits)
         lev = np.add(c * du, s * dv)
         lev /= col(prm[idx, 2])
         np.multiply(lev, lev, out=lev)

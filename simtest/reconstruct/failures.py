@@ -1,12 +1,8 @@
 """Typed failures of the reconstruction pipeline: falsy values that name their cause.
 
-In the scikit-image style (``EllipseModel.from_estimate`` returns a falsy ``FailedEstimation``), a
-step that cannot produce a result returns a :class:`Failure` instead of raising, so that a sweep
-over thousands of images counts failures by cause and carries on. Exceptions (``ValueError``) are
-kept for *caller* errors: a wrong dtype or rank, a singular K, an isovalue outside (0, 1).
-
-Every status string the pipeline can write (in :class:`SpecularityEstimate.status` and in
-``estimates.json``) is listed in :data:`REASONS`, with its meaning.
+As scikit-image's ``FailedEstimation``, a step that cannot produce a result returns a
+:class:`Failure`, so that a sweep counts failures by cause and carries on; ValueError is kept for
+caller errors. Every status string the pipeline can write is listed in :data:`REASONS`.
 """
 
 from __future__ import annotations

@@ -1,32 +1,24 @@
-"""Direct least-squares ellipse fit (Fitzgibbon et al. 1999, in the Halir-Flusser form).
+"""Direct least-squares ellipse fit (Fitzgibbon et al. 1999 [2]_, in the Halir-Flusser form [1]_).
 
-Step 2 of the method: the isophote points are fitted by the closed-form ellipse-specific
-least-squares conic [2], computed in the numerically stable block form of Halir and Flusser [1],
-on points first centred and scaled to unit RMS radius (without that, the scatter matrix of points
-~500 px from the origin is ill-conditioned by ~1e11). The result is the 3x3 point conic C in
+Step 2 of the method [4]_: the isophote points, centred and scaled to unit RMS radius, are fitted
+by the closed-form ellipse-specific least-squares conic. The result is the 3x3 point conic C in
 pixel coordinates (``x^T C x = 0`` for ``x = (u, v, 1)``), the ellipse parameters, and an RMS
-Sampson residual in pixels.
+Sampson residual [3]_ in pixels. A failed fit returns a falsy
+:class:`~simtest.reconstruct.failures.Failure` naming its cause; a wrong array shape raises ValueError.
 
-A failed fit returns a falsy :class:`~simtest.reconstruct.failures.Failure` naming its cause
-(``too_few_points``, ``non_finite_points``, ``degenerate_points``, ``not_an_ellipse``), as
-scikit-image's ``EllipseModel.from_estimate`` does; a wrong array shape raises ValueError.
-
-Why not OpenCV: ``cv2.fitEllipse`` (and in some versions ``fitEllipseDirect``) switch to a
-different algorithm or a circle fallback on near-circular point sets with many points; the
-isophotes of a fronto-parallel patch are exactly such sets. ``tests/test_fit.py`` records the
-installed OpenCV's behaviour on a 2000-point near-circle.
+Not ``cv2.fitEllipse``: it switches algorithm or falls back to a circle on near-circular point
+sets, which the isophotes of a fronto-parallel patch are (``tests/test_fit.py``).
 
 References
 ----------
 .. [1] R. Halir and J. Flusser, "Numerically stable direct least squares fitting of ellipses",
-       Proc. WSCG 1998, pp. 125-132. Equation numbers below follow the numbering used in
-       scikit-image's ``EllipseModel`` which implements the same paper.
+       Proc. WSCG 1998, pp. 125-132 (equation numbers as in scikit-image's ``EllipseModel``).
 .. [2] A. Fitzgibbon, M. Pilu and R. B. Fisher, "Direct least square fitting of ellipses",
        IEEE TPAMI 21(5):476-480, 1999. https://doi.org/10.1109/34.765658
 .. [3] R. Hartley, A. Zisserman, Multiple View Geometry, 2nd ed., 2003, sec. 4.2.6 (Sampson
        error). https://doi.org/10.1017/CBO9780511811685
 .. [4] K. Makki, A. Bartoli, "Normal Reconstruction from Specularity in the Endoscopic Setting",
-       section 2.3, step 2 (ellipse fit of the isophote).
+       section 2.3, step 2.
 """
 
 from __future__ import annotations
@@ -83,7 +75,7 @@ class EllipseFit:
 
 
 def fit_ellipse(points_uv) -> EllipseFit | Failure:
-    """Fit an ellipse to 2D points by direct least squares (Fitzgibbon; Halir-Flusser form).
+    """Fit an ellipse to 2D points by direct least squares (one call of :func:`fit_ellipses`).
 
     Parameters
     ----------
@@ -102,10 +94,6 @@ def fit_ellipse(points_uv) -> EllipseFit | Failure:
     ValueError
         If ``points_uv`` is not of shape (N, 2).
 
-    Notes
-    -----
-    One call of :func:`fit_ellipses`, which holds the method.
-
     Examples
     --------
     >>> t = np.linspace(0, 2 * np.pi, 50, endpoint=False)
@@ -117,16 +105,7 @@ def fit_ellipse(points_uv) -> EllipseFit | Failure:
 
 
 def point_sets(points_list) -> list[np.ndarray]:
-    """Point sets as float64 arrays (views where they already are).
-
-    Parameters
-    ----------
-    points_list : sequence of array_like of shape (N_i, 2)
-        Points (u, v), px.
-
-    Returns
-    -------
-    list of ndarray of shape (N_i, 2), float64
+    """Point sets (N_i, 2) as float64 arrays (views where they already are).
 
     Raises
     ------
@@ -143,7 +122,12 @@ def point_sets(points_list) -> list[np.ndarray]:
 
 
 def fit_ellipses(points_list) -> list[EllipseFit | Failure]:
-    """Fit one ellipse to each of several point sets, batched (Fitzgibbon; Halir-Flusser form).
+    """Fit one ellipse to each of several point sets, batched.
+
+    Each set is centred and scaled to unit RMS distance from its mean; the scatter matrix of the
+    design rows (x^2, xy, y^2, x, y, 1) [eqn. 17 of 1] comes from the sums of the 15 monomials of
+    each set, then the reduced 3 x 3 eigenproblem [eqn. 28-29 of 1]. A set's fit does not depend on
+    the other sets of the batch.
 
     Parameters
     ----------
@@ -153,25 +137,12 @@ def fit_ellipses(points_list) -> list[EllipseFit | Failure]:
     Returns
     -------
     list of EllipseFit or Failure
-        One per point set, in order. Failure reasons: ``too_few_points``, ``non_finite_points``,
-        ``degenerate_points``, ``not_an_ellipse`` (also when the points fit a non-ellipse clearly
-        better, or the fitted ellipse is more than :data:`MAX_AXIS_TO_SPREAD` times the points'
-        spread).
+        One per point set, in order; failure reasons as :func:`fit_ellipse`.
 
     Raises
     ------
     ValueError
         If a point set is not of shape (N, 2).
-
-    Notes
-    -----
-    Each set is centred and scaled to unit RMS distance from its mean (Hartley-style
-    conditioning). The scatter matrix S = D^T D of the design rows (x^2, xy, y^2, x, y, 1) [eqn.
-    17 of 1] is assembled from the sums of the 15 monomials x^i y^j (i + j <= 4) of each set;
-    then come the reduced 3 x 3 eigenproblem [eqn. 28-29 of 1] and the checks. All sets are
-    fitted in one stacked numpy pass (:func:`fit_stacked`). A set's fit does not depend on the
-    other sets of the batch: its sums run over its own rows in order (``np.add.reduceat``) and
-    every later step is elementwise over the stack.
     """
     pts_all = point_sets(points_list)
     if not pts_all:
@@ -180,7 +151,8 @@ def fit_ellipses(points_list) -> list[EllipseFit | Failure]:
 
 
 def fit_stacked(pts: np.ndarray, counts: np.ndarray) -> list[EllipseFit | Failure]:
-    """:func:`fit_ellipses` of point sets given concatenated.
+    """:func:`fit_ellipses` of point sets given concatenated (closed forms over the stack, LAPACK
+    where a closed form declines).
 
     Parameters
     ----------
@@ -193,15 +165,6 @@ def fit_stacked(pts: np.ndarray, counts: np.ndarray) -> list[EllipseFit | Failur
     -------
     list of EllipseFit or Failure
         One per set, as :func:`fit_ellipses`.
-
-    Notes
-    -----
-    All sets are fitted together in numpy: sums over each set's rows by ``np.add.reduceat``,
-    the 3 x 3 algebra of every set at once in closed form (the reduced problem's eigenvectors
-    from the roots of its characteristic cubic, the eigenvalue checks by a Cholesky
-    factorisation of the stack), LAPACK on the few sets where a closed form declines (complex
-    or repeated eigenvalues, a check the factorisation cannot decide). The cost is a fixed
-    ~150 numpy calls per batch plus a few microseconds per set.
     """
     counts = np.asarray(counts, dtype=np.int64)
     pts = np.asarray(pts, dtype=np.float64)
@@ -240,10 +203,9 @@ _ZERO = np.zeros(1, dtype=np.int64)
 
 
 def _null_vectors(a: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Unit null vectors of a stack of 3 x 3 matrices of rank 2 (..., 3, 3): the largest cross
-    product of two rows (orthogonal to every row), sign arbitrary; and which are defined (...,)
-    bool (a nonzero finite cross product). The eigenvector of an eigenvalue lambda of ``m`` is
-    the null vector of ``m - lambda I``."""
+    """Unit null vectors of rank-2 3 x 3 matrices (..., 3, 3) (the largest cross product of two rows,
+    sign arbitrary), and which are defined (...,) bool.
+    """
     ra, rb = a[..., _ROW_A, :], a[..., _ROW_B, :]
     cr = ra[..., _CYC1] * rb[..., _CYC2] - ra[..., _CYC2] * rb[..., _CYC1]  # (..., 3 pairs, 3)
     n2 = (cr * cr).sum(axis=-1)
@@ -256,9 +218,9 @@ def _null_vectors(a: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 
 
 def _cubic_roots(m: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """The eigenvalues (k, 3) of 3 x 3 matrices (k, 3, 3) with three real distinct ones, from the
-    characteristic cubic by the trigonometric formula (Cardano's three real roots), and where
-    that holds (k,) bool (False for complex, repeated or non-finite roots)."""
+    """The eigenvalues (k, 3) of 3 x 3 matrices (k, 3, 3) with three real distinct ones (trigonometric
+    formula), and where that holds (k,) bool.
+    """
     sh = (m[:, 0, 0] + m[:, 1, 1] + m[:, 2, 2]) / 3.0
     b = m - sh[:, None, None] * _EYE3
     # b's cubic mu^3 - p mu - q = 0 (mu = lambda - tr/3): p = tr(b^2) / 2 (b is traceless), q = det b
@@ -271,10 +233,9 @@ def _cubic_roots(m: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 
 
 def _eigh2(a, b, c):
-    """The eigenvalues (lo <= hi) of the symmetric 2 x 2 matrices [[a, b], [b, c]] (arrays) and
-    the unit eigenvector (x, y) of lo, in closed form (the smaller-magnitude eigenvalue as the
-    determinant over the larger: no cancellation; the vector's sign arbitrary; (1, 0) for a
-    multiple of the identity)."""
+    """The eigenvalues (lo <= hi) of symmetric 2 x 2 matrices [[a, b], [b, c]] and the unit eigenvector
+    (x, y) of lo, in closed form ((1, 0) for a multiple of the identity).
+    """
     mid = 0.5 * (a + c)
     half = np.hypot(0.5 * (a - c), b)
     big = mid + np.copysign(half, mid)
@@ -293,9 +254,8 @@ def _eigh2(a, b, c):
 
 def _positive_definite(s: np.ndarray, tau: np.ndarray, which: np.ndarray) -> np.ndarray:
     """Where ``which`` (k,) bool: whether the symmetric ``s - tau I`` (k, n, n) has a Cholesky
-    factorisation, i.e. its least eigenvalue (as LAPACK computes it) is certainly above ``tau``
-    less ~1e-14 of ``s``'s trace [Higham, thm. 10.3]. One LAPACK call for the stack; where one
-    fails, the factorisation written out over the stack says which (False elsewhere)."""
+    factorisation (least eigenvalue certainly above ``tau`` [Higham, thm. 10.3]); False elsewhere.
+    """
     n = s.shape[1]
     shifted = s - tau[:, None, None] * np.eye(n)
     if not which.all():
@@ -317,10 +277,9 @@ def _positive_definite(s: np.ndarray, tau: np.ndarray, which: np.ndarray) -> np.
 
 
 def _ellipse_params(c: np.ndarray):
-    """Centres (k, 2), semi-axes (a >= b) (k, 2), angles (k,) rad and which are real ellipses
-    (k,) bool of symmetric finite conics (k, 3, 3), as ``conics._ellipses_of`` classifies and
-    measures them (in the frame centred on the conic's centre it reads diag-block (A2, f0)), in
-    closed form (the 2 x 2 quadratic part's eigen-decomposition and centre)."""
+    """Centres (k, 2), semi-axes (a >= b) (k, 2), angles (k,) rad and which are real ellipses (k,) bool
+    of symmetric finite conics (k, 3, 3), as ``conics._ellipses_of`` measures them, in closed form.
+    """
     eps = TOL.conic_degenerate_rel
     norm = np.sqrt((c * c).sum(axis=2).sum(axis=1))
     # unit norm, the quadratic part made positive (trace >= 0)
@@ -342,8 +301,7 @@ def _ellipse_params(c: np.ndarray):
 
 
 def _fit_stack(pts: np.ndarray, n: np.ndarray) -> list[EllipseFit | Failure]:
-    """The fits of :func:`fit_stacked` of the point sets concatenated in ``pts`` (M, 2), set j
-    having ``n[j]`` >= 6 points (the method: :func:`fit_ellipses`' Notes)."""
+    """The fits of :func:`fit_stacked`, set j having ``n[j]`` >= 6 points."""
     k = len(n)
     if k == 1:
         starts = _ZERO
@@ -386,9 +344,8 @@ def _fit_stack(pts: np.ndarray, n: np.ndarray) -> list[EllipseFit | Failure]:
     # Scatter matrix S = D^T D [eqn. 17] from [1], from the sums of the monomials x^i y^j
     s_full = sums[:, _S_INDEX]  # (k, 6, 6)
     s1, s2, s3 = s_full[:, :3, :3], s_full[:, :3, 3:], s_full[:, 3:, 3:]
-    # Collinear points: the linear scatter's eigenvalues ev3[0] <= s3_rcond ev3[2]. S3 is a Gram
-    # matrix, so ev3[0] >= det / (tr / 2)^2 and ev3[2] <= tr: most sets pass by orders of
-    # magnitude on that bound (the margin covers the rounding of det); LAPACK decides the others.
+    # Collinear points: the linear scatter's eigenvalues ev3[0] <= s3_rcond ev3[2] (bounded by
+    # det / (tr / 2)^2 and tr first; LAPACK decides the others)
     cof = sums[:, _COF_A] * sums[:, _COF_B] - sums[:, _COF_C] * sums[:, _COF_D]  # S3's, symmetric
     det = (s3[:, 0] * cof[:, 0]).sum(axis=1)
     tr3 = s3[:, 0, 0] + s3[:, 1, 1] + s3[:, 2, 2]
@@ -437,10 +394,8 @@ def _fit_stack(pts: np.ndarray, n: np.ndarray) -> list[EllipseFit | Failure]:
     norm = np.sqrt((conic * conic).sum(axis=2).sum(axis=1))
     conic /= np.copysign(norm, conic[:, 0, 0] + conic[:, 1, 1])[:, None, None]
     refuse(~np.isfinite(conic).all(axis=(1, 2)), "degenerate_points", lambda j: "non-finite conic")
-    # Ellipse parameters from the conic of the *normalised* points, then back to pixels: a unit-norm
-    # pixel conic of a few-px ellipse ~10^3 px from the origin has singular values down to ~1e-13,
-    # where a degeneracy test in pixel coordinates would misclassify it; the normalised conic is
-    # O(1)-conditioned for any ellipse.
+    # Ellipse parameters from the conic of the *normalised* points (O(1)-conditioned), then back to
+    # pixels: a pixel conic far from the origin is too ill-conditioned for a degeneracy test
     centre, axes, angle, is_ellipse = _ellipse_params(a_norm)
     refuse(~is_ellipse, "not_an_ellipse", lambda j: "the fitted conic is not a real ellipse")
     # Points on a line or two parallel lines are fitted exactly by ever longer ellipses: an ellipse
@@ -456,8 +411,7 @@ def _fit_stack(pts: np.ndarray, n: np.ndarray) -> list[EllipseFit | Failure]:
     f = (gu + c[2]) * u + (gv + c[4]) * v + c[5]
     dist2 = f * f / np.maximum(4.0 * (gu * gu + gv * gv), np.finfo(float).tiny)
     residual = np.sqrt(np.add.reduceat(dist2, starts) / n).tolist()
-    # each ellipse's centre and semi-axes rows of two arrays (views, made at once: not two arrays
-    # a fit, a real frame's 1500)
+    # each ellipse's centre and semi-axes rows of two arrays (views)
     centres = list(mean + scale[:, None] * centre)
     semi = list(scale[:, None] * axes)
     if alive.all():
@@ -475,12 +429,9 @@ _SAMPSON_TERMS = np.array([0, 1, 2, 4, 5, 8])
 
 
 def _guard(s_full: np.ndarray, a_vec: np.ndarray, alive: np.ndarray, refuse) -> None:
-    """Ellipse-specific fitting always returns an ellipse, even for points on a hyperbola or a line
-    pair. Guard: the unconstrained algebraic fit (smallest eigenvector of S [eqn. 17] from [1]) is
-    the exact conic of noise-free data; if it is not an ellipse and explains the points clearly
-    better (algebraic residual 4x smaller), the data are not an ellipse. Most sets' S has its
-    least eigenvalue far above the ellipse's residual, which a Cholesky factorisation shows
-    without the eigenvalues."""
+    """Whether the points are not an ellipse: the unconstrained algebraic fit (smallest eigenvector of
+    S [eqn. 17 of 1]) is not an ellipse and explains them clearly better (residual 4x smaller).
+    """
     r_ellipse = (a_vec * (s_full @ a_vec[:, :, None])[:, :, 0]).sum(axis=1) / (a_vec * a_vec).sum(axis=1)
     check = alive & (r_ellipse > 1e-24)
     tr6 = (s_full[:, 0, 0] + s_full[:, 1, 1]) + (s_full[:, 2, 2] + s_full[:, 3, 3]) + (s_full[:, 4, 4] + s_full[:, 5, 5])

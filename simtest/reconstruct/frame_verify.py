@@ -18,10 +18,10 @@ from simtest.reconstruct.verify import assess, bp_checks, confidence, seed_openi
 
 def _early_checks(frame: _Frame, det, bps_arr: np.ndarray, fitted: np.ndarray,
                   whole: bool) -> tuple[tuple | None, dict, np.ndarray]:
-    """``(verifier, early, fitted)``: the verifier's inputs (:func:`_verifier_inputs`; None without
-    ``verify``), its checks that read only the BP (colour, height) of the ``fitted`` candidates as
-    ``k -> detail`` of those that fail, and ``fitted`` without them (cleared in place): those are
-    ``not_specular`` whatever their fit, neither contoured nor fitted."""
+    """``(verifier, early, fitted)``: the verifier's inputs (None without ``verify``), the BP checks'
+    ``k -> detail`` of the ``fitted`` candidates that fail (``not_specular``, neither contoured nor
+    fitted), and ``fitted`` without them (cleared in place).
+    """
     if not frame.settings.verify:
         return None, {}, fitted
     verifier = _verifier_inputs(frame, det.gray if whole else None, frame.noise if whole else None)
@@ -40,35 +40,24 @@ def _early_checks(frame: _Frame, det, bps_arr: np.ndarray, fitted: np.ndarray,
 
 def _verifier_inputs(frame: _Frame, native: np.ndarray | None = None,
                      noise: float | None = None) -> tuple[np.ndarray, bool, float]:
-    """``(gray, grey, noise)``: the luma the verifier measures in (:func:`_verifier_luma`), whether
-    it is the value of R, G and B alike, and its noise standard deviation.
-
-    ``native`` is detection's unsmoothed gray of the whole frame (``Detection.gray``) and
-    ``noise`` the noise measured on it (``_Frame.noise``), or None: measured again (also where
-    the verifier measures in another luma than ``native``)."""
-    # the frame's luma as the camera gave it (small glints beside a highlight survive no smoothing;
-    # the checks weigh heights against its noise): detection's gray where it is the luma itself
-    # (a single-channel frame, or R = G = B, where OpenCV's gray is the channel), else the float32
-    # luma (the checks measure in float32)
+    """``(gray, grey, noise)``: the luma the verifier measures in, whether R = G = B, and its noise
+    standard deviation (``native``: detection's gray; ``noise`` measured on it, or None).
+    """
+    # the frame's unsmoothed luma (glints beside a highlight survive no smoothing)
     gray, grey = _verifier_luma(frame, native)
     if gray is not native:
         # a colour frame: OpenCV's gray, rounded to whole levels, carries the rounding's noise
-        # (0.6 against 0.29 levels on a small colonoscope_plane render): measured on the luma
         noise = None
     return gray, grey, noise_sigma(gray) if noise is None else float(noise)
 
 
 def _verified(frame: _Frame, ests: list[SpecularityEstimate], native: np.ndarray | None = None,
               noise: float | None = None, *, verifier: tuple | None = None, lights=None) -> list[SpecularityEstimate]:
-    """The estimates with their confidence, and the fitted ones that fail a specularity check
-    of :mod:`simtest.reconstruct.verify` with its reason as status (the fit is kept).
-
-    ``native`` and ``noise`` as for :func:`_verifier_inputs`, or ``verifier``: its result,
-    where the caller has it; ``lights`` the scope's rig (:func:`~simtest.reconstruct.verify.assess`)."""
+    """The estimates with their confidence, and the fitted ones that fail a check of
+    :mod:`simtest.reconstruct.verify` with its reason as status (the fit kept).
+    """
     gray, grey, noise = _verifier_inputs(frame, native, noise) if verifier is None else verifier
-    # only the estimates with isophotes can have a fit (a confidence) or be ok (a verdict); the
-    # others (detection's rejections, the BP checks', most of a real frame's thousands) are
-    # returned as they are: each estimate's evidence is measured from its own BP and region only
+    # only the estimates with isophotes can have a confidence or a verdict; the others stay as they are
     fit = [e for e in ests if e.isophotes]
     if not fit:
         return list(ests)
@@ -89,11 +78,10 @@ def _verified(frame: _Frame, ests: list[SpecularityEstimate], native: np.ndarray
 
 
 def default_min_confidence(image: np.ndarray, lights=None, grey: bool | None = None) -> float:
-    """The ``--min-confidence`` a frame gets by default: :data:`~simtest.decisions.DEFAULT_MIN_CONFIDENCE`
-    on a colour frame (its white share measured) without a rig of separate lights, the frames the
-    confidence's model was fitted on; :data:`~simtest.decisions.MIN_CONFIDENCE_UNMODELLED` on any
-    other. ``image`` (H, W) or (H, W, C); ``lights`` a LightRig or None; ``grey``: whether R = G = B
-    (None: looked at)."""
+    """The default ``--min-confidence`` of a frame: :data:`~simtest.decisions.DEFAULT_MIN_CONFIDENCE` on a
+    colour frame without a rig of separate lights (the frames the model was fitted on), else
+    :data:`~simtest.decisions.MIN_CONFIDENCE_UNMODELLED`. ``grey``: whether R = G = B (None: looked at).
+    """
     img = np.asarray(image)
     colour = img.ndim == 3 and img.shape[2] >= 3 and not (_is_gray(img) if grey is None else grey)
     rig = lights is not None and lights.has_separate_lights
@@ -101,11 +89,9 @@ def default_min_confidence(image: np.ndarray, lights=None, grey: bool | None = N
 
 
 def _verifier_luma(frame: _Frame, native: np.ndarray | None) -> tuple[np.ndarray, bool]:
-    """The luma :func:`_verified` measures in (H, W), and whether it is the value of R, G and B
-    alike: ``native`` (detection's gray) where it is the luma's values (a single-channel image,
-    or an RGB one with R = G = B), the frame's luma where it was computed (float64, or a colour
-    frame's float32 ``luma32``), else OpenCV's float32 luma of the frame (the verifier's
-    arithmetic is float32: within a float32 rounding of the float64 luma)."""
+    """The luma :func:`_verified` measures in (H, W) and whether R = G = B: ``native`` where it is the
+    luma's values, the frame's luma where computed, else OpenCV's float32 luma.
+    """
     img = frame.img
     if native is not None and native.shape == img.shape[:2] and frame.luma32 is None:
         if img.ndim == 2:

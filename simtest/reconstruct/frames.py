@@ -1,15 +1,11 @@
 """Reconstruction of a sequence: a folder of frames or a video file, frames in order, across cores.
 
-:func:`open_frames` lists the frames of a folder (image files sorted by name) or of a video file
-(read in order by OpenCV's ``VideoCapture``); :func:`reconstruct_frames` runs
-:func:`~simtest.reconstruct.pipeline.reconstruct` on each, in worker processes, and yields one
-record per frame in frame order; :func:`write_frames` writes them to ``estimates.parquet``
-(one row per candidate) or ``estimates.jsonl`` (one JSON line per frame), each to a temporary
-file renamed when complete. Each frame is reconstructed on its own, so the records are those of frame-by-frame calls whatever the number of
-workers. Given the camera file's light rig (and its sensor response), each frame's highlights get
-the light-aware fits of :func:`~simtest.reconstruct.light_fits.with_light_aware` as a single image
-does (``simtest reconstruct`` on one image): a record's ``specularities`` are then that image's
-``estimates.json`` ``specularities``.
+:func:`open_frames` lists the frames of a folder (image files sorted by name) or a video file;
+:func:`reconstruct_frames` runs :func:`~simtest.reconstruct.pipeline.reconstruct` on each in worker
+processes and yields one record per frame in frame order (the same records whatever the number
+of workers); :func:`write_frames` writes them atomically to ``estimates.parquet`` (a row per
+candidate) or ``estimates.jsonl`` (a line per frame). With the camera file's light rig each
+frame gets the light-aware fits, as a single image does.
 
 A record: ``{"frame": index from 0, "source": file name or "video:<index>", "image_shape":
 [H, W], "counts": {status: n}, "detection": {components, examined, not_examined,
@@ -47,11 +43,9 @@ from simtest.reconstruct.settings import ReconSettings
 FRAME_SUFFIXES = (".png", ".jpg", ".jpeg", ".tif", ".tiff", ".bmp", ".npy")
 #: Suffixes read as video files.
 VIDEO_SUFFIXES = (".mp4", ".avi", ".mov", ".mkv", ".webm", ".m4v", ".mpg", ".mpeg")
-#: Containers that store no frame count (Matroska, WebM, MPEG program streams): OpenCV states
-#: their duration times their frame rate, rounded, which may be one frame more than they hold.
+#: Containers that store no frame count: OpenCV's count may be one frame more than they hold.
 ESTIMATED_COUNT_SUFFIXES = (".mkv", ".webm", ".mpg", ".mpeg")
-#: Frames a video of :data:`ESTIMATED_COUNT_SUFFIXES` may fall short of its stated count (the
-#: rounding above); every other container states its count, and a frame short is refused.
+#: Frames a video of :data:`ESTIMATED_COUNT_SUFFIXES` may fall short of its stated count.
 ESTIMATED_COUNT_SLACK = 1
 
 
@@ -83,9 +77,8 @@ class FrameSource:
         ------
         InputError
             A frame file :func:`~simtest.reconstruct.images.load_image` refuses, or a video whose
-            decoding stops before the frame count its container states (less
-            :data:`ESTIMATED_COUNT_SLACK` for :data:`ESTIMATED_COUNT_SUFFIXES`), naming the file
-            and the frame where it stopped.
+            decoding stops before its stated frame count (less :data:`ESTIMATED_COUNT_SLACK` for
+            :data:`ESTIMATED_COUNT_SUFFIXES`), naming the file and the frame.
         """
         if self.kind == "folder":
             for i, f in enumerate(self.files):
@@ -117,27 +110,16 @@ def is_sequence(path) -> bool:
 
 
 def open_frames(path) -> FrameSource:
-    """The frames of a folder or a video file.
-
-    Parameters
-    ----------
-    path : str or Path
-        A folder of image files (:data:`FRAME_SUFFIXES`, sorted by name) or a video file.
-
-    Returns
-    -------
-    FrameSource
+    """The frames of a folder (:data:`FRAME_SUFFIXES`, sorted by name) or a video file.
 
     Raises
     ------
     ValueError
-        Naming the path: it does not exist, a folder holds no frame, or OpenCV cannot open the
-        video.
+        Naming the path: it does not exist, a folder holds no frame, or OpenCV cannot open the video.
     """
     path = Path(path)
     if path.is_dir():
-        files = tuple(sorted(p for p in path.iterdir()
-                             if p.is_file() and p.suffix.lower() in FRAME_SUFFIXES))
+        files = tuple(sorted(p for p in path.iterdir() if p.is_file() and p.suffix.lower() in FRAME_SUFFIXES))
         if not files:
             raise ValueError(f"{path}: the folder holds no frame ({', '.join(FRAME_SUFFIXES)})")
         return FrameSource(path, "folder", len(files), files)
@@ -157,25 +139,13 @@ def open_frames(path) -> FrameSource:
 
 
 def same_size_frames(source: FrameSource, camera=None) -> Iterator[tuple[int, str, np.ndarray]]:
-    """The frames of ``source``, each checked to have the first frame's size (and the camera's).
-
-    Parameters
-    ----------
-    source : FrameSource
-        From :func:`open_frames`.
-    camera : CameraModel or ndarray, optional
-        Its ``image_size`` (W, H), when it has one, is every frame's required size.
-
-    Yields
-    ------
-    (int, str, ndarray)
-        As iterating ``source`` does.
+    """The frames of ``source`` (as iterating it yields them), each checked to have the first frame's
+    size and the ``image_size`` (W, H) of ``camera`` where it has one.
 
     Raises
     ------
     InputError
-        At the first frame of another size, naming its file (or ``video:<index>``), its size and
-        the first frame's (or the camera's): one camera cannot describe frames of two sizes.
+        At the first frame of another size, naming its file, its size and the expected one.
     """
     cam_wh = getattr(camera, "image_size", None)
     cam_wh = None if cam_wh is None else tuple(int(v) for v in cam_wh)
@@ -195,13 +165,9 @@ def same_size_frames(source: FrameSource, camera=None) -> Iterator[tuple[int, st
 
 
 class FrameRecord(dict):
-    """A frame's record encoded where it was made (:func:`reconstruct_frames` with ``encoded``):
-    the dict holds the record's small keys (``frame``, ``source``, ``image_shape``, ``counts``,
-    ``detection``; not ``specularities``); ``line`` the whole record's JSON line
-    (:func:`write_frames`, ``encoded="jsonl"``) or ``batch`` its rows
-    (:func:`~simtest.reconstruct.io.frame_batch`, ``encoded="parquet"``). A worker process sends
-    one buffer back instead of thousands of small objects to pickle, and the encoding runs on the
-    worker's core, beside the other frames'."""
+    """A frame's record encoded in the worker that made it: the dict holds the record's keys but
+    ``specularities``; ``line`` the record's JSON line or ``batch`` its parquet rows.
+    """
 
     line: bytes = b""
     batch = None
@@ -212,8 +178,7 @@ ENCODINGS = ("jsonl", "parquet")
 
 
 def _encoded_record(args, encoding: str) -> FrameRecord:
-    """:func:`_frame_record` as a :class:`FrameRecord` encoded as ``encoding`` (its rows made
-    from the estimates column by column, :func:`~simtest.reconstruct.table.estimates_batch`)."""
+    """:func:`_frame_record` as a :class:`FrameRecord` encoded as ``encoding``."""
     head, ests, include_points = _frame_head(args)
     out = FrameRecord(head)
     if encoding == "parquet":
@@ -241,10 +206,9 @@ class _InRing:
 
 
 class _FrameRing:
-    """Slots for the frames in flight, in memory that this process and the worker processes it
-    forks share (an anonymous shared mapping): a frame is copied into a slot here and read there,
-    not pickled through a pipe. Every slot holds a frame of the first frame's shape and dtype;
-    another frame travels in its job."""
+    """Slots for the frames in flight, in an anonymous shared mapping that forked workers inherit: a
+    frame of the first frame's shape and dtype is copied into a slot, not pickled; another travels in its job.
+    """
 
     #: The worker's ring, set by :meth:`attach` in each worker process.
     current: _FrameRing | None = None
@@ -265,8 +229,7 @@ class _FrameRing:
         return _InRing(slot)
 
     def frame(self, slot: int) -> np.ndarray:
-        """The frame in ``slot``, a view (the parent writes it only once this frame's record has
-        come back). Writeable, as a decoded frame is."""
+        """The frame in ``slot``, a writeable view."""
         return self.slots[slot]
 
     @staticmethod
@@ -315,32 +278,25 @@ def reconstruct_frames(source: FrameSource, K, settings: ReconSettings | None = 
     K : ndarray of shape (3, 3) or CameraModel
         Intrinsics, px, or a camera model (its ``image_size``, if any, is checked on every frame).
     settings : ReconSettings, optional
-        As in :func:`~simtest.reconstruct.pipeline.reconstruct` (default
-        :meth:`ReconSettings.for_frames`).
+        Default :meth:`ReconSettings.for_frames`.
     dist_coeffs : array_like, optional
         OpenCV distortion coefficients.
     workers : int
-        Worker processes (1: in this process). Frames are decoded here and passed on in order
-        (through slots of memory shared with the forked workers, :class:`_FrameRing`), and their
-        records come back in that order. Each worker runs BLAS on one thread
-        (:func:`simtest._threads.one_thread_each`): the workers are the parallelism.
+        Worker processes (1: in this process), each running BLAS on one thread.
     include_points : bool
         Also write each isophote's contour points.
     rig : LightRig, optional
-        The scope's lights (the camera file's ``"lights"``): each frame's highlights get
-        :func:`~simtest.reconstruct.light_fits.with_light_aware`'s fits and recommended normal, as
-        a single image's do. None, or every light at the camera centre: none are run.
+        The scope's lights: each frame's highlights get
+        :func:`~simtest.reconstruct.light_fits.with_light_aware`'s fits. None, or every light at the
+        camera centre: none are run.
     cubic : bool or None
-        Passed to :func:`~simtest.reconstruct.light_fits.with_light_aware` (``--cubic-patch``:
-        None; default False).
+        Passed to :func:`~simtest.reconstruct.light_fits.with_light_aware` (default False).
     encoded : bool or str
-        ``"jsonl"`` (or True) or ``"parquet"``: yield :class:`FrameRecord` s, each encoded where it
-        was made (a worker, in parallel) as its JSON line or its rows for :func:`write_frames`
-        (the same file as from the plain records); their dicts hold the record's keys but ``specularities``. False: plain records.
+        ``"jsonl"`` (or True) or ``"parquet"``: yield :class:`FrameRecord` s encoded in the workers.
+        False: plain records.
     response : SensorResponse, optional
-        The sensor's response (the camera file's ``"response"``), passed to
-        :func:`~simtest.reconstruct.light_fits.with_light_aware` as a single image's: the fits run
-        on each frame's linear intensities, clipped pixels censored. None: linear.
+        The sensor's response, passed to :func:`~simtest.reconstruct.light_fits.with_light_aware`.
+        None: linear.
 
     Yields
     ------
@@ -350,8 +306,7 @@ def reconstruct_frames(source: FrameSource, K, settings: ReconSettings | None = 
     Raises
     ------
     InputError
-        At a frame that cannot be read, or whose size differs from the first frame's or the
-        camera's ``image_size`` (:func:`same_size_frames`).
+        At a frame that cannot be read, or whose size differs (:func:`same_size_frames`).
     """
     settings = ReconSettings.for_frames() if settings is None else settings
     jobs = ((i, name, img, K, settings, dist_coeffs, include_points, rig, cubic, response)
@@ -367,18 +322,15 @@ def reconstruct_frames(source: FrameSource, K, settings: ReconSettings | None = 
     first = next(jobs, None)
     if first is None:
         return
-    # a bounded window of frames in flight, so that a long video is not decoded all at once;
-    # this process decodes the next frames while the workers reconstruct the earlier ones
+    # a bounded window of frames in flight, decoded here while the workers reconstruct earlier ones
     window = 4 * workers
     if encoded == "parquet":  # imported once here, before the fork, not once in every worker
         arrow()
-    # the frames reach forked workers through shared slots, one per frame in flight; where
-    # processes are not forked (no fork on the platform), in their jobs
+    # frames reach forked workers through shared slots (without fork, in their jobs)
     ring = _FrameRing(first[2], window) if "fork" in multiprocessing.get_all_start_methods() else None
     pool_args = {} if ring is None else {"mp_context": multiprocessing.get_context("fork"),
                                          "initializer": _FrameRing.attach, "initargs": (ring,)}
-    # one BLAS thread in each worker (and here): the pool is the parallelism (simtest._threads);
-    # an error, a signal or the generator closed early stops the workers at once (simtest._workers)
+    # one BLAS thread per worker; an error, signal or early close stops the workers at once
     with one_thread_each(), worker_pool(workers, **pool_args) as pool:
         pending = []
         for n, job in enumerate(chain([first], jobs)):
@@ -392,9 +344,9 @@ def reconstruct_frames(source: FrameSource, K, settings: ReconSettings | None = 
 
 
 def _write_records(path, records, on_frame, writer) -> tuple[Path, int, float]:
-    """Write ``records`` to ``path`` through ``writer`` (a context manager on the temporary file
-    ``path.tmp<pid>`` that gives a function taking each record), then rename it to ``path``: a
-    failure leaves any previous complete file in place."""
+    """Write ``records`` to ``path.tmp<pid>`` through ``writer`` (a context manager giving a function of
+    each record), then rename it to ``path``.
+    """
     path = Path(path)
     tmp = path.with_name(f"{path.name}.tmp{os.getpid()}")
     t0 = time.perf_counter()
@@ -418,8 +370,7 @@ def _write_records(path, records, on_frame, writer) -> tuple[Path, int, float]:
 
 @contextmanager
 def _jsonl_writer(tmp: Path):
-    # bytes: a frame's line is megabytes (thousands of candidates), which a text file would
-    # encode and scan for newlines again; each line ends in "\n" whatever the platform
+    # bytes: a frame's line is megabytes; each line ends in "\n" whatever the platform
     with open(tmp, "wb") as fh:
         def write(rec):
             if isinstance(rec, FrameRecord) and not rec.line:
@@ -453,22 +404,19 @@ def _parquet_writer(tmp: Path):
 
 
 def write_frames(path, records, *, fmt="parquet", on_frame=None) -> tuple[Path, int, float]:
-    """Write records as ``estimates.parquet`` (a row per candidate) or ``estimates.jsonl`` (a JSON
-    line per frame), atomically.
+    """Write records as ``estimates.parquet`` or ``estimates.jsonl``, atomically.
 
     Parameters
     ----------
     path : str or Path
-        Destination file; written as ``path.tmp<pid>`` then renamed, so that a failure leaves
-        any previous complete file in place.
+        Destination file; written as ``path.tmp<pid>`` then renamed, so that a failure leaves any
+        previous complete file in place.
     records : iterable of dict
-        From :func:`reconstruct_frames` (a :class:`FrameRecord` is written as its ``batch`` or
-        its ``line``).
+        From :func:`reconstruct_frames` (:class:`FrameRecord` s too).
     fmt : {"parquet", "jsonl"}
-        Parquet: the rows of :func:`~simtest.reconstruct.io.table_schema`, in frame order; each
-        frame's record but its specularities (a frame without candidates too) is in the file's
-        metadata (:func:`~simtest.reconstruct.io.table_metadata`, read by
-        :func:`~simtest.reconstruct.io.read_frames`). JSON Lines: each record's compact JSON.
+        Parquet: the rows of :func:`~simtest.reconstruct.io.table_schema`, in frame order, each
+        frame's other keys in the file's metadata (:func:`~simtest.reconstruct.io.table_metadata`).
+        JSON Lines: each record's compact JSON.
     on_frame : callable, optional
         Called with each record after it is written (progress).
 

@@ -1,21 +1,10 @@
 """Reading an image file for the reconstruction, with one-line errors (:class:`InputError`).
 
-OpenCV's decoders (libpng, libjpeg, libtiff, FFmpeg) write their own complaints straight to file
-descriptor 2, below Python; :func:`quiet_stderr` captures them around each decoding call, so that a
-corrupt file gives the user exactly one line, ``error: ...``, with the library's words folded in.
-
-What is refused, before any fit:
-
-- a file whose header claims more than :data:`MAX_IMAGE_PIXELS` pixels (read from the header by
-  Pillow, which opens lazily, before anything is decoded);
-- a file the decoder complained about while decoding it (libjpeg's "Corrupt JPEG data", libtiff's
-  errors): the decoder hands back an image, but with damaged pixels (a JPEG whose scan was
-  overwritten decodes with most of its pixels wrong). Only libpng's warnings about ancillary
-  chunks (colour profiles, text; a lower-case first letter in the chunk's name, PNG spec 5.4)
-  are let through: they say nothing of the pixels;
-- a negative pixel value (a count of light: no sensor writes one).
-
-A float16 array is read as float32 (every float16 value is exact in float32).
+OpenCV's decoders write their complaints to file descriptor 2; :func:`quiet_stderr` captures them
+so that a bad file gives one line, ``error: ...``, with the library's words folded in. Refused
+before any fit: a header claiming more than :data:`MAX_IMAGE_PIXELS`; a file the decoder
+complained about while decoding (damaged pixels; libpng's warnings about ancillary chunks, PNG
+spec 5.4, are let through); a negative pixel value. float16 is read as float32.
 """
 
 from __future__ import annotations
@@ -39,14 +28,11 @@ from simtest.reconstruct.detect import validate_image
 __all__ = ["C3VD_DEPTH_RANGE_MM", "InputError", "LibraryMessages", "MAX_IMAGE_PIXELS", "c3vd_depth_mm", "decoder_damage",
            "load_image", "quiet_stderr", "read_tiff"]
 
-#: The most pixels (W x H) of an image the reconstruction reads: 2^26 (67 Mpx). The largest
-#: endoscope sensors are 4K (3840 x 2160 = 8.3 Mpx), so this leaves eight times that; a header
-#: claiming more is damaged or a decompression bomb (a 250 KB PNG can claim 16000 x 16000, which
-#: decodes to 768 MB and grows to gigabytes in the float copies of the fits).
+#: The most pixels (W x H) of an image the reconstruction reads: 2^26, eight times a 4K sensor; a
+#: header claiming more is damaged or a decompression bomb.
 MAX_IMAGE_PIXELS = 1 << 26
 
-# FFmpeg asks for its log level from this variable (OpenCV's videoio reads it when it loads the
-# FFmpeg backend): 8 = AV_LOG_FATAL, so a fake video file stays quiet in worker processes too.
+# FFmpeg's log level (read when OpenCV loads the backend): 8 = AV_LOG_FATAL, quiet in workers too
 os.environ.setdefault("OPENCV_FFMPEG_LOGLEVEL", "8")
 os.environ.setdefault("OPENCV_LOG_LEVEL", "ERROR")
 
@@ -71,16 +57,8 @@ class LibraryMessages:
 
 @contextmanager
 def quiet_stderr() -> Iterator[LibraryMessages]:
-    """Capture what is written to file descriptor 2 (C libraries: libpng, FFmpeg, VTK) meanwhile.
-
-    The descriptor is pointed at a temporary file and restored on exit, whatever happens; Python's
-    ``sys.stderr`` is flushed first so that nothing of ours is captured. The whole process is
-    affected meanwhile, so keep the block to the library call.
-
-    Yields
-    ------
-    LibraryMessages
-        Its ``text`` holds the captured bytes (decoded, errors replaced) once the block ends.
+    """Capture what C libraries write to file descriptor 2 meanwhile (the whole process: keep the block
+    to the library call); yields :class:`LibraryMessages`, whose ``text`` is filled on exit.
     """
     messages = LibraryMessages()
     try:
@@ -111,8 +89,7 @@ _CV_LOG_PREFIX = re.compile(r"\[\s*[A-Z]+:\d+@[\d.]+\]\s*(global\s+)?\S+:\d+\s*"
 
 
 def decoder_damage(said: str) -> str:
-    """What a decoder wrote while decoding, less libpng's warnings about ancillary chunks; an
-    empty string when nothing else was said (module docstring)."""
+    """What a decoder wrote while decoding, less libpng's ancillary-chunk warnings; empty when nothing else."""
     said = _CV_LOG_PREFIX.sub("", _ANCILLARY_PNG_WARNING.sub("", _ANSI.sub("", said)))
     return " ".join(said.split())
 
@@ -125,10 +102,8 @@ def _check_pixel_limit(h: int, w: int, path: Path, what: str) -> None:
 
 
 def _header_size(path: Path) -> None:
-    """Refuse ``path`` when its header claims more than :data:`MAX_IMAGE_PIXELS`, before decoding.
-
-    Pillow reads the header only (its ``open`` is lazy); a format Pillow does not know is left to
-    the decoder (OpenCV's own limit, 2^30 pixels, then applies, and the decoded size is checked).
+    """Refuse ``path`` when its header (read lazily by Pillow) claims more than :data:`MAX_IMAGE_PIXELS`;
+    formats Pillow does not know are left to the decoder.
     """
     try:
         with warnings.catch_warnings():
@@ -160,13 +135,8 @@ def _check_layout(shape, dtype, path: Path) -> None:
 
 
 def _npy_header(path: Path):
-    """(shape, dtype) from a ``.npy`` header without loading it; None for a header version this
-    does not parse (numpy's loader then decides).
-
-    Raises
-    ------
-    InputError
-        If the file is not a ``.npy`` file (no magic string, a malformed header) or cannot be read.
+    """(shape, dtype) from a ``.npy`` header without loading it; None for a header version not parsed here.
+    InputError if the file is not a ``.npy`` file or cannot be read.
     """
     try:
         with open(path, "rb") as fh:
@@ -213,18 +183,14 @@ def load_image(path) -> "np.ndarray":  # noqa: F821
     Returns
     -------
     ndarray of shape (H, W), (H, W, 3) or as stored in the ``.npy``
-        Gray or RGB (OpenCV's BGR/BGRA converted to RGB, alpha dropped); uint8, uint16 or float
-        as stored (float16 as float32).
+        Gray or RGB (alpha dropped); uint8, uint16 or float as stored (float16 as float32).
 
     Raises
     ------
     InputError
         If the path is a folder, is missing, or cannot be read or decoded, the decoder reported
-        damage, the header claims more than :data:`MAX_IMAGE_PIXELS`, or it holds an array the
-        reconstruction does not take (rank other than 2 or 3, a string, object or complex dtype,
-        smaller than 3 x 3, NaN or negative pixels); the message names the file, its shape and
-        dtype, or the pixel. Nothing the decoding libraries print reaches standard error
-        (:func:`quiet_stderr`).
+        damage, the header claims too many pixels, or it holds an array the reconstruction does not
+        take; the message names the file, its shape and dtype, or the pixel.
     """
 
     path = Path(path)
@@ -275,15 +241,8 @@ C3VD_DEPTH_RANGE_MM = 100.0
 
 
 def read_tiff(path, what: str, error: type[Exception] = ValueError) -> np.ndarray:
-    """A TIFF file's array as tifffile reads it (any bit depth and channel count).
-
-    Parameters
-    ----------
-    path : str or Path
-    what : str
-        What the file holds ("depth", "normals"), for the message.
-    error : type of Exception
-        Raised, with one line naming the file, ``what`` and tifffile's reason, when it cannot be read.
+    """A TIFF file's array as tifffile reads it; ``error`` raised with one line naming the file,
+    ``what`` it holds and tifffile's reason when it cannot be read.
     """
     try:
         return require("tifffile").imread(path)

@@ -1,14 +1,9 @@
 """``estimates.json``: the versioned file format of reconstruction results.
 
-Written by ``simtest reconstruct`` and :func:`write_estimates` (the document built as dicts, its
-text by orjson, indented two spaces); read back by :func:`read_estimates` (schemas 1 and 2). The
-schema, field by field, is ``docs/estimates-format.md``: a contract for the tools that read the
-file. A change that removes or re-interprets a field bumps :data:`SCHEMA_VERSION`; adding a field
-does not (and adds it to that page: ``tests/test_estimates_io.py``).
-
-A folder of frames or a video gives ``estimates.parquet`` (one row per candidate, a ``frame``
-column: :mod:`simtest.reconstruct.table`) or, on request, ``estimates.jsonl`` (one line per frame,
-its ``specularities`` as in this file); :func:`~simtest.reconstruct.table.read_frames` reads either.
+Written by :func:`write_estimates` (orjson, indented two spaces), read back by
+:func:`read_estimates` (schemas 1 and 2). The schema is ``docs/estimates-format.md``; a change
+that removes or re-interprets a field bumps :data:`SCHEMA_VERSION`, adding one does not. Frames
+go to ``estimates.parquet`` or ``estimates.jsonl`` (:mod:`simtest.reconstruct.table`).
 """
 
 from __future__ import annotations
@@ -90,8 +85,7 @@ def _rows(a):
     """(J, 3) unit vectors as lists, a row that is not finite as null; null for None."""
     if a is None:
         return None
-    return [_vec(r) if np.all(np.isfinite(r)) else None
-            for r in np.asarray(a, dtype=np.float64).reshape(-1, 3)]
+    return [_vec(r) if np.all(np.isfinite(r)) else None for r in np.asarray(a, dtype=np.float64).reshape(-1, 3)]
 
 
 def _nums(a):
@@ -114,24 +108,8 @@ def _light_aware_dict(la: dict) -> dict:
 
 
 def estimate_to_dict(est, include_points: bool = False) -> dict:
-    """One :class:`~simtest.reconstruct.assemble.SpecularityEstimate` as a schema-2 dict.
-
-    Parameters
-    ----------
-    est : SpecularityEstimate
-        One estimate.
-    include_points : bool
-        Also write each isophote's contour points (``points_px``, (N, 2) lists).
-
-    Returns
-    -------
-    dict
-        JSON-ready (no NaN: missing values are None): ``bp_px`` [u, v], ``bp_intensity``,
-        ``saturated``, ``roi`` [row0, row1, col0, col1], ``status``, ``detail``, ``normals``
-        (``paper`` 2 x 3, ``paper_selected``, ``paper_selected_index``, ``cone_axis``,
-        ``joint_cone_axis``, ``bp_ray``: unit, OpenCV camera frame, facing the camera),
-        ``ellipse`` (px, degrees), ``conic`` (3 x 3), ``fit_residual_px``, ``eigenvalue_gap`` and
-        ``isophotes``.
+    """One :class:`~simtest.reconstruct.assemble.SpecularityEstimate` as a schema-2 dict, JSON-ready
+    (missing values None, never NaN); ``include_points`` adds each isophote's ``points_px``.
     """
     p = est.primary
     sel_idx = None if p is None else p.paper_selected_index
@@ -170,13 +148,11 @@ def estimate_to_dict(est, include_points: bool = False) -> dict:
 
 
 
-# ------------------------------------------------------------------------------------------------
 # JSON: the document as dicts and lists, its text written by orjson
 
 
 def _not_finite_at(obj, where: str):
-    """The path of the first number in ``obj`` that is not finite, or None (NaN and infinity
-    have no JSON text: orjson would write them as null, a missing value they are not)."""
+    """The path of the first number in ``obj`` that is not finite, or None."""
     t = type(obj)
     if t is dict:
         for k, v in obj.items():
@@ -208,28 +184,19 @@ _ORJSON_OPTIONS = _orjson.OPT_SERIALIZE_NUMPY
 
 
 def dumps(obj, *, indent: bool = False) -> bytes:
-    """``obj`` as JSON bytes (UTF-8), written by orjson; NaN and infinity refused.
+    """``obj`` as JSON bytes (UTF-8) by orjson, numbers written to round-trip; NaN and infinity refused.
 
     Parameters
     ----------
     obj : dict or list
-        Made of dicts with str keys, lists, tuples, str, int, float, bool, None and numpy arrays
-        or scalars.
+        Dicts with str keys, lists, tuples, str, int, float, bool, None and numpy arrays or scalars.
     indent : bool
-        Two spaces per level and a final newline (``estimates.json``); else one compact line
-        without a newline (a line of ``estimates.jsonl``).
-
-    Returns
-    -------
-    bytes
-        The JSON text. Numbers are written to round-trip (the shortest digits that read back as
-        the same float64).
+        Two spaces per level and a final newline; else one compact line without a newline.
 
     Raises
     ------
     ValueError
-        Naming the first value that is not finite (its key path): JSON has no NaN, and a missing
-        value is written as None by the caller, never left as NaN.
+        Naming the key path of the first value that is not finite.
     """
     bad = _not_finite_at(obj, "")
     if bad is not None:
@@ -242,7 +209,7 @@ def dumps(obj, *, indent: bool = False) -> bytes:
 def estimates_document(estimates, *, K, image=None, image_shape=None, dist_coeffs=None,
                        isovalues=(), normalise="bp", include_points=False, camera=None,
                        lights=None, detection=None) -> dict:
-    """The whole schema-2 document as a dict (see the module docstring).
+    """The whole schema-2 document as a dict (``docs/estimates-format.md``).
 
     Parameters
     ----------
@@ -263,20 +230,16 @@ def estimates_document(estimates, *, K, image=None, image_shape=None, dist_coeff
     include_points : bool
         Also write the contour points.
     camera : CameraModel, optional
-        The camera model used, recorded as ``camera`` (its camera-file object).
+        The camera model used (its camera-file object).
     lights : LightRig, optional
-        The light rig the light-aware estimators used (written as the camera file's list).
+        The light rig the light-aware estimators used.
     detection : dict, optional
-        What detection examined: ``{"components", "examined", "not_examined",
-        "max_candidates"}`` (:meth:`~simtest.reconstruct.result.Reconstruction.detection_record`);
-        default the record ``estimates`` carries, if it is an ``Estimates``, else null.
+        What detection examined (:meth:`~simtest.reconstruct.result.Reconstruction.detection_record`);
+        default the record ``estimates`` carries, if any, else null.
 
     Returns
     -------
     dict
-        ``schema``, ``simtest_version``, ``image``, ``image_shape``, ``K``, ``dist_coeffs``,
-        ``isovalues``, ``normalise``, ``conventions``, ``detection`` and ``specularities`` (one
-        :func:`estimate_to_dict` each).
     """
     if detection is None and hasattr(estimates, "detection_record"):
         detection = estimates.detection_record()
@@ -314,9 +277,9 @@ def write_estimates(path, estimates, *, K, image=None, image_shape=None, dist_co
     K : array_like of shape (3, 3)
         Intrinsics used.
     image, image_shape, dist_coeffs, isovalues, normalise, camera, lights : optional
-        Recorded as given.
+        Recorded as given (:func:`estimates_document`).
     include_points : bool
-        Also write each isophote's contour points (larger file).
+        Also write each isophote's contour points.
 
     Returns
     -------
@@ -326,7 +289,7 @@ def write_estimates(path, estimates, *, K, image=None, image_shape=None, dist_co
     Raises
     ------
     ValueError
-        Naming a value that is not finite (JSON has no NaN; :func:`dumps`); nothing is written.
+        Naming a value that is not finite (:func:`dumps`); nothing is written.
     OSError
         If the folder is not writable.
     """
@@ -337,17 +300,7 @@ def write_estimates(path, estimates, *, K, image=None, image_shape=None, dist_co
 
 
 def read_estimates(path) -> dict:
-    """Read and check an ``estimates.json`` file.
-
-    Parameters
-    ----------
-    path : str or Path
-        The file written by :func:`write_estimates`.
-
-    Returns
-    -------
-    dict
-        The document (schema 1 or 2, as written), with ``K`` as a (3, 3) ndarray.
+    """Read and check an ``estimates.json`` file (schema 1 or 2); ``K`` comes back as a (3, 3) ndarray.
 
     Raises
     ------

@@ -1,24 +1,17 @@
 """Isophote extraction: the sub-pixel iso-intensity contour around a brightest point.
 
-Step 1 of the method (Makki and Bartoli, section "Normal reconstruction"): the pixels of the
-isophote at isovalue t are found by marching squares (:func:`skimage.measure.find_contours`,
-linear interpolation between pixel centres, so sub-pixel). Of all contours at that level inside
-the region of interest, the one kept is the innermost *closed* contour that encloses the
-brightest point (BP). A contour cut by the ROI or image border is reported as such; it is returned
-(flagged) only when the caller allows open contours.
-
-Notes
------
-Coordinates follow :mod:`simtest.reconstruct._pixels`: points are returned as (u, v) = (col, row)
-with pixel centres at integer coordinates; the swap is made by :func:`~._pixels.rc_to_uv` alone.
+Step 1 of the method [1]_: the isophote at isovalue t is found by marching squares [2]_
+(:func:`skimage.measure.find_contours`, linear interpolation between pixel centres). The one kept
+is the innermost *closed* contour that encloses the brightest point (BP); a contour cut by the ROI
+or image border is returned (flagged) only when the caller allows open contours. Points are
+(u, v) = (col, row), pixel centres at integers (:mod:`simtest.reconstruct._pixels`).
 
 References
 ----------
 .. [1] K. Makki, A. Bartoli, "Normal Reconstruction from Specularity in the Endoscopic Setting",
-       section 2.3, step 1 (isophote extraction).
+       section 2.3, step 1.
 .. [2] W. E. Lorensen, H. E. Cline, "Marching cubes: a high resolution 3D surface construction
-       algorithm", SIGGRAPH 1987, Computer Graphics 21(4). https://doi.org/10.1145/37402.37422
-       (the 2D marching-squares case, as implemented by ``skimage.measure.find_contours``).
+       algorithm", SIGGRAPH 1987. https://doi.org/10.1145/37402.37422
 """
 
 from __future__ import annotations
@@ -44,14 +37,13 @@ class Isophote:
     Attributes
     ----------
     points_uv : ndarray of shape (N, 2)
-        Sub-pixel contour points (u, v) in full-image pixel coordinates; a closed contour is given
-        without its repeated end point.
+        Sub-pixel contour points (u, v) in full-image pixels; closed contours without a repeated end point.
     level : float
         The contour level in the units of the image passed in.
     closed : bool
         True if marching squares closed the contour inside the ROI.
     cut_by_roi : bool
-        True if the contour is open because it leaves the ROI at a side that is inside the image.
+        True if the contour is open because it leaves the ROI at a side inside the image.
     cut_by_image : bool
         True if the contour is open because it reaches the image border.
     """
@@ -64,19 +56,8 @@ class Isophote:
 
 
 def polygon_contains(polygon_uv: np.ndarray, points_uv) -> np.ndarray | bool:
-    """Even-odd test: which of ``points_uv`` lie inside the closed polygon ``polygon_uv`` (N, 2)?
-
-    Parameters
-    ----------
-    polygon_uv : ndarray of shape (N, 2)
-        Vertices, without a repeated end point.
-    points_uv : array_like of shape (2,) or (M, 2)
-        Query points.
-
-    Returns
-    -------
-    bool or ndarray of shape (M,)
-        One bool for a single point, else one per point.
+    """Even-odd test: which of ``points_uv`` ((2,) or (M, 2)) lie inside the closed polygon ``polygon_uv``
+    (N, 2, no repeated end point); one bool for a single point, else (M,).
     """
     pts = np.asarray(points_uv, dtype=np.float64)
     single = pts.ndim == 1
@@ -94,18 +75,7 @@ def polygon_contains(polygon_uv: np.ndarray, points_uv) -> np.ndarray | bool:
 
 
 def polygon_area(polygon_uv: np.ndarray) -> float:
-    """Unsigned shoelace area of a closed polygon.
-
-    Parameters
-    ----------
-    polygon_uv : ndarray of shape (N, 2)
-        Vertices (u, v) in px, without a repeated end point (the closing edge is implied).
-
-    Returns
-    -------
-    float
-        Area in px^2 (>= 0; 0 for fewer than 3 distinct vertices).
-    """
+    """Unsigned shoelace area, px^2, of a closed polygon (N, 2) (0 for fewer than 3 distinct vertices)."""
     x = polygon_uv[:, 0]
     y = polygon_uv[:, 1]
     return 0.5 * abs(float(np.dot(x[:-1], y[1:]) - np.dot(y[:-1], x[1:]) + x[-1] * y[0] - y[-1] * x[0]))
@@ -123,6 +93,11 @@ def extract_isophote(
 ) -> Isophote | Failure:
     """Extract the isophote at ``level`` that encloses the brightest point.
 
+    Marching squares joins the pixels above ``level`` 4-connectedly (``fully_connected="low"``), so
+    highlights touching at a corner stay apart. The smallest closed contour enclosing the BP is kept
+    (a bright ring would give an outer one); if none is closed, the open contours bordering the BP's
+    component are taken.
+
     Parameters
     ----------
     values : ndarray of shape (h, w), float
@@ -130,17 +105,15 @@ def extract_isophote(
     level : float
         Contour level in the units of ``values`` (the pipeline passes ``t * I_BP``).
     bp_uv : array_like of shape (2,)
-        Brightest point (u, v) in full-image pixel coordinates; must lie inside the region.
+        Brightest point (u, v) in full-image pixels; must lie inside the region.
     origin_rc : (int, int), optional
         Position (row, col) of ``values[0, 0]`` in the full image (the ROI origin).
     image_shape : tuple, optional
-        Shape of the full image, to tell a cut by the image border from a cut by the ROI
-        border; default ``values.shape`` (the region is the whole image; then ``origin_rc`` must
-        be (0, 0)).
+        Shape of the full image, to tell a cut by the image border from one by the ROI; default
+        ``values.shape`` (then ``origin_rc`` must be (0, 0)).
     allow_open : bool, optional
-        If False (default), a contour cut by the ROI or image border gives
-        ``Failure("contour_cut")``. If True it is returned with ``closed=False`` and the cut flags
-        (with no points at all if the region above the level covers the whole ROI).
+        If False (default), a cut contour gives ``Failure("contour_cut")``; if True it is returned
+        with ``closed=False`` and the cut flags.
     min_points : int, optional
         Fewer contour points give ``Failure("too_few_points")`` (default 6: an ellipse has 5
         degrees of freedom, one more gives a residual).
@@ -148,25 +121,12 @@ def extract_isophote(
     Returns
     -------
     Isophote or Failure
-        Failure reasons: ``bp_below_isovalue``, ``no_contour``, ``contour_cut``,
-        ``too_few_points``.
+        Failure reasons: ``bp_below_isovalue``, ``no_contour``, ``contour_cut``, ``too_few_points``.
 
     Raises
     ------
     ValueError
         If ``values`` is not 2D or the BP lies outside the region.
-
-    Notes
-    -----
-    Marching squares [2] joins the pixels above ``level`` 4-connectedly
-    (``fully_connected="low"``), so two highlights touching at a corner stay apart. Of the closed
-    contours enclosing the BP the smallest is kept (a bright ring would give an outer one): the
-    outer boundary of the 4-connected component above ``level`` that holds the BP, found by
-    contouring only that component's box plus one pixel, other components lowered below the level
-    (marching squares is local: the same points); its holes' contours are skipped. If none is
-    closed, the open contours bordering that component are taken, in marching-squares order. Where
-    the BP's pixel is not above the level, the whole region is contoured and its closed contours
-    enclosing the BP (even-odd, :func:`polygon_contains`) are the candidates.
     """
     return _extract(_region(values, bp_uv, origin_rc, image_shape), level, allow_open, min_points)
 
@@ -204,9 +164,7 @@ def _isophote_of(closed_hits: list, pieces: list, sides, region: _Region, level:
 
 
 class _Region(NamedTuple):
-    """The checked arguments of :func:`extract_isophote`: the region as float64, its ROI, the
-    image shape, the BP as float64, its pixel (row, col) in the region and the largest value of
-    the 3 x 3 pixels around it (clipped to the region)."""
+    """The checked arguments of :func:`extract_isophote`."""
 
     sub: np.ndarray
     roi: Roi
@@ -218,10 +176,7 @@ class _Region(NamedTuple):
 
 
 def _region(values, bp_uv, origin_rc, image_shape) -> _Region:
-    """The :class:`_Region` of :func:`extract_isophote`'s arguments (ValueError as documented
-    there). A float32 array is kept as it is (the pipeline's ROIs are views of the frame's
-    float32 smoothing: its values are compared and interpolated in float64, no copy);
-    anything else becomes float64."""
+    """The :class:`_Region` of :func:`extract_isophote`'s arguments (float32 kept, anything else float64)."""
     sub = values if isinstance(values, np.ndarray) and values.dtype == np.float32 else \
         np.asarray(values, dtype=np.float64)
     sub = sub.view()
@@ -246,10 +201,9 @@ def _region(values, bp_uv, origin_rc, image_shape) -> _Region:
 
 
 def _cut_and_contour(region: _Region, level: float) -> tuple[bool | None, tuple | None]:
-    """Whether :func:`_extract` (``allow_open``) gives an isophote cut by the ROI (``cut_by_roi``: the
-    pipeline grows that ROI), by one flood fill of the BP's component (:func:`_flood`): False where it
-    fails or the component stays off the ROI's sides inside the image, None where only the extraction
-    can tell (the BP's pixel not above the level); and the flood fill, or None where none was made."""
+    """Whether :func:`_extract` (``allow_open``) gives an isophote cut by the ROI, by one flood fill of
+    the BP's component (None where only the extraction can tell), and the flood fill or None.
+    """
     sub, roi, image_shape, _, ri, ci, near_bp = region
     if not near_bp > level:
         return False, None
@@ -260,13 +214,12 @@ def _cut_and_contour(region: _Region, level: float) -> tuple[bool | None, tuple 
 
 
 def _contours(sub, level, roi, ri, ci, bp_uv):
-    """The contours of :func:`extract_isophote` by numpy, OpenCV and scikit-image calls: the
-    closed ones enclosing the BP as (u, v), the open pieces as (row, col) in ``sub``, and the sides
-    of ``sub`` the BP's component reaches."""
+    """The contours of :func:`extract_isophote`: the closed ones enclosing the BP as (u, v), the open
+    pieces as (row, col) in ``sub``, and the sides of ``sub`` the BP's component reaches.
+    """
     comp = _component_box(sub, level, ri, ci)
     if comp is not None:
-        # Only the 4-connected component above the level that holds the BP is contoured, in its
-        # bounding box (see Notes): the contour found over the whole region, without the noise.
+        # only the BP's 4-connected component above the level is contoured, in its box
         box, (dr, dc), sides = comp
         return _box_answer(_box_contours(box, level, rc_to_uv((roi.row0 + dr, roi.col0 + dc)), bp_uv), dr, dc, sides)
     # the BP pixel itself is not above the level: every contour of the region
@@ -277,10 +230,8 @@ def _contours(sub, level, roi, ri, ci, bp_uv):
     return closed_hits, pieces, sides
 
 
-#: Where the BP lies farther than this from a closed contour, OpenCV's point-in-polygon test on
-#: the contour rounded to float32 decides whether it encloses the BP (px; the rounding moves a
-#: point by under 1e-3 px on an image under 16384 px); nearer, the even-odd test in float64
-#: (:func:`polygon_contains`) does.
+#: Where the BP lies farther than this (px) from a closed contour, OpenCV's point-in-polygon test
+#: on the float32 contour decides; nearer, the even-odd test in float64 does.
 ENCLOSE_FLOAT32_MARGIN_PX = 0.01
 
 
@@ -309,18 +260,17 @@ def _box_contours(box, level, origin_uv, bp_uv):
 
 
 def _box_answer(got, dr: int, dc: int, sides) -> tuple[list, list, tuple]:
-    """:func:`_contours`' three answers from a box's contours (:func:`_box_contours` or
-    :func:`_batch_contours`: open pieces in the box, or the closed outer boundary as (u, v))."""
+    """:func:`_contours`' three answers from a box's contours."""
     if isinstance(got, list):
         return [], [rc + (dr, dc) for rc in got], sides
     return [got] if len(got) else [], [], sides
 
 
 def _flood(sub, level, ri, ci):
-    """The 4-connected component of ``sub > level`` holding pixel (ri, ci) by one flood fill:
-    the mask (uint8: 2 on the component, 1 on other pixels above the level, 0 elsewhere), the
-    component's bounding box (x, y, w, h) and which sides (top, bottom, left, right) of ``sub`` it
-    reaches; None if that pixel is not above the level."""
+    """The 4-connected component of ``sub > level`` holding pixel (ri, ci): the mask (2 on it, 1 on
+    other pixels above the level), its box (x, y, w, h) and the sides of ``sub`` it reaches; None
+    if that pixel is not above the level.
+    """
     level = np.float64(level)  # a float32 region compares in float64, as find_contours reads it
     if not sub[ri, ci] > level:
         return None
@@ -333,11 +283,10 @@ def _flood(sub, level, ri, ci):
 
 
 def _component_box(sub, level, ri, ci, flood=None):
-    """The bounding box (plus one pixel inside ``sub``) of the 4-connected component of
-    ``sub > level`` holding pixel (ri, ci), with the other components' pixels lowered below the
-    level, its origin (row, col) in ``sub`` and which sides (top, bottom, left, right) of ``sub``
-    the component reaches; None if that pixel is not above the level. ``flood``:
-    :func:`_flood`'s result where the caller has it."""
+    """The box (plus one pixel) of the BP's 4-connected component of ``sub > level``, other components
+    lowered below the level, its origin (row, col) and the sides of ``sub`` it reaches; None if that
+    pixel is not above the level. ``flood``: :func:`_flood`'s result where the caller has it.
+    """
     if flood is None:
         flood = _flood(sub, level, ri, ci)
         if flood is None:
@@ -366,8 +315,7 @@ def _whole_region_contours(sub, level, roi, bp_uv):
 
 
 def _open_pieces_around_bp(sub, level, ri, ci, open_contours):
-    """Open contours bounding the 4-connected component of ``sub >= level`` holding (ri, ci), and
-    which sides (top, bottom, left, right) of ``sub`` that component reaches."""
+    """Open contours bounding the BP's 4-connected component of ``sub >= level``, and the sides it reaches."""
     mask = (sub >= np.float64(level)).view(np.uint8)
     _, labels = cv2.connectedComponents(mask, connectivity=4)
     target = labels[ri, ci]

@@ -26,26 +26,20 @@ from simtest.reconstruct.settings import AUTO_LOCAL_BACKGROUND_REL, Normalisatio
 
 _TINY, _ONE_TAP = float(np.finfo(float).tiny), np.ones(1)
 
-#: Isophotes ``reconstruct_rois`` contours in one batch (:func:`_resolve`): each holds its box and
-#: region (100 x 100 px: 160 kB) till then; the batch's fixed cost (~1 ms) is spread over many.
+#: Isophotes ``reconstruct_rois`` contours in one batch (:func:`_resolve`).
 RESOLVE_BATCH_ISOPHOTES = 256
-#: Fewer isophotes than this, in boxes of fewer px than the next, are contoured one by one
-#: (``find_contours``, the same points): the batch's fixed cost exceeds theirs (the 10-highlight
-#: frame's 20, 24,000 px); ``find_contours`` links in Python (the colonoscope's 30, 83,000 px).
+#: Fewer isophotes than this, in boxes of fewer px than the next, are contoured one by one.
 RESOLVE_BATCH_MIN = 32
 RESOLVE_BATCH_MIN_PX = 50_000
 
 
 def _roi_values(frame: _Frame, roi: Roi, smooth_sigma_px: float) -> np.ndarray:
-    """An ROI's intensities (h, w), float64 (read-only where they are a view): its luma, smoothed
-    with the ROI's borders reflected when ``smooth_sigma_px`` > 0 (float32 where the frame's
-    smoothing or luma32 is sliced)."""
+    """An ROI's intensities (h, w), float64 or float32 (read-only where a view): its luma,
+    smoothed with its borders reflected."""
     if frame.smoothed32 is not None and smooth_sigma_px > 0:
         return frame.smoothed32[roi.slices]  # float32, read-only: read as it is
     if frame.roi_luma is not None and smooth_sigma_px > 0:
-        # the ROI's luma smoothed alone in float32 (OpenCV's float32 blur, its borders reflected):
-        # the float64 luma and its float64 blur of the same ROI to float32 rounding (5e-8
-        # relative, as the frame's smoothing is)
+        # the ROI's luma smoothed alone in float32 (the float64 result to float32 rounding)
         return _smooth(frame.roi_luma[roi.slices].astype(np.float32), smooth_sigma_px)
     vals = frame.luma(roi)
     return vals if smooth_sigma_px <= 0 else _smooth(vals, smooth_sigma_px)
@@ -75,8 +69,7 @@ def _border_median(vals: np.ndarray) -> float:
 
 
 def _median(ring: np.ndarray) -> float:
-    """``np.median`` of a float64 vector (NaN if any is NaN) by one ``np.partition``, without
-    ``np.median``'s checks (a real frame asks it for each of its hundreds of ROIs)."""
+    """``np.median`` of a float64 vector (NaN if any is NaN) by one ``np.partition``."""
     n = len(ring)
     k = n // 2
     part = np.partition(ring, (k - 1, k, n - 1) if n % 2 == 0 else (k, n - 1))
@@ -87,27 +80,19 @@ def _median(ring: np.ndarray) -> float:
 
 @functools.lru_cache(maxsize=256)
 def _folded_taps(kern: tuple, n: int) -> np.ndarray:
-    """The taps ``kern`` (2 R + 1,) folded by ``BORDER_REFLECT`` (``fedcba|abcdef|fedcba``) onto
-    the first ``min(n, R + 1)`` pixels from a side of a line of ``n``: the line's smoothed value at
-    that side is their dot product with those pixels."""
+    """The taps ``kern`` (2 R + 1,) folded by ``BORDER_REFLECT`` onto the first ``min(n, R + 1)`` pixels
+    from a side of a line of ``n``.
+    """
     R = len(kern) // 2
     m = np.mod(np.arange(-R, R + 1), 2 * n)
     return np.bincount(np.where(m < n, m, 2 * n - 1 - m), weights=np.array(kern))
 
 
 def _smoothed_border_median(img: np.ndarray, kern: np.ndarray, roi: Roi, full: np.ndarray | None = None) -> float:
-    """:func:`_border_median` of the luma of ``img[roi]`` smoothed alone with the Gaussian taps
-    ``kern`` (2 R + 1,) (``_smooth``: its sides reflected), computed for its border pixels only
-    (the cost of the perimeter times the kernel's radius, not of the area: a grown ROI reaches a
-    megapixel).
-
-    A border pixel's smoothing across its side is a sum over the first R + 1 rows (columns) from
-    that side with the taps folded by the reflection; that line is then smoothed along itself
-    (``cv2.sepFilter2D``, its ends reflected). The pipeline contours an ROI in the frame's
-    smoothed luma and takes its local background level from here: the level of the ROI smoothed
-    alone (the paper pose is sensitive to it). Equal to
-    the median of the ring of ``_smooth(luma(img[roi]))`` to rounding (``tests/test_isophote.py``).
-    ``full``: the frame's luma where the caller has it (``luma(img)``, the same bits, or float32)."""
+    """:func:`_border_median` of the luma of ``img[roi]`` smoothed alone with the Gaussian taps ``kern``
+    (its sides reflected), computed for its border pixels only; equal to the ring's median of the
+    smoothed ROI to rounding. ``full``: the frame's luma where the caller has it.
+    """
     h, w = roi.shape
     taps = tuple(kern.tolist())
     kr, kc = _folded_taps(taps, h), _folded_taps(taps, w)
@@ -135,8 +120,7 @@ class _Levels:
     @classmethod
     def of(cls, frame: _Frame, vals: np.ndarray, i_bp: float, roi: Roi | None = None,
            ring: float | None = None) -> _Levels:
-        """``ring``: the ROI's smoothed border median where the caller computed it
-        (:func:`_first_rings`)."""
+        """``ring``: the ROI's smoothed border median where the caller computed it."""
         mode = frame.settings.normalise
         if ring is None and roi is not None and frame.smoothed32 is not None and \
                 mode in (Normalisation.AUTO, Normalisation.LOCAL):
@@ -160,11 +144,10 @@ class _Levels:
 
 
 def _one_isophote(frame: _Frame, region, levels: _Levels, t, flood=None, defer=None):
-    """Extract the isophote at ``t`` in an ROI's checked region (``isophote._region``):
-    ``(IsophoteEstimate of a failure, or _Pending, Isophote or None)``. ``flood``: the flood
-    fill the growth question made at that level (``isophote._cut_and_contour``), or None.
-    ``defer``: a list, where the BP's component's marching squares wait for a batch
-    (:func:`_resolve`): then ``(its index there, None)``."""
+    """Extract the isophote at ``t`` in an ROI's checked region: ``(IsophoteEstimate of a failure, or
+    _Pending, Isophote or None)``; with ``defer``, ``(its index there, None)`` until :func:`_resolve`.
+    ``flood``: the flood fill made at that level, or None.
+    """
     level = levels.level(t)
     if defer is not None and region.near_bp > level:
         comp = _component_box(region.sub, level, region.ri, region.ci, flood)
@@ -191,15 +174,14 @@ def _estimate_one(frame: _Frame, bp_uv, roi: Roi, *, saturated: bool, grow: bool
                   other_bps=(), own_bp: int = -1, bp_ray=None, fitf: FitFrame | None = None,
                   ring: float | None = None, sm: np.ndarray | None = None,
                   defer: list | None = None) -> _Draft | SpecularityEstimate | None:
-    """Extract one highlight's isophotes (growing the ROI): a draft for :func:`~simtest.reconstruct.assemble._complete`, or the
-    finished estimate of a BP without a viewing ray. ``other_bps`` (k, 2) are the BPs its isophote
-    must not enclose (``merged``), one frame's array shared by its highlights, whose own row
-    ``own_bp`` is skipped. ``bp_ray`` and ``fitf`` are the BP's ray and fit frame when the caller
-    computed them (for many highlights at once); ``ring`` the first ROI's smoothed border
-    median (:func:`_first_rings`), or None. ``sm``: the frame-wide array every ROI's values are
-    sliced from (:func:`_grown_drafts`), or None (:func:`_roi_values`); with it, None where only
-    the extraction can tell whether the lowest isophote is cut or the BP leaves its ROI (the
-    caller asks again without ``sm``). ``defer``: :func:`_one_isophote`'s (a result an index there)."""
+    """Extract one highlight's isophotes (growing the ROI): a draft for
+    :func:`~simtest.reconstruct.assemble._complete`, or the finished estimate of a BP without a ray.
+
+    ``other_bps`` (k, 2): the BPs its isophote must not enclose (own row ``own_bp`` skipped);
+    ``bp_ray``, ``fitf``, ``ring``: precomputed where the caller has them. ``sm``: the frame-wide array
+    the ROI values are sliced from; with it, None where only the extraction can tell (the caller
+    asks again without ``sm``). ``defer``: as :func:`_one_isophote`'s.
+    """
     isovalues = frame.settings.isovalues
     sigma = frame.smooth_sigma_px
     bp_uv = np.asarray(bp_uv, dtype=np.float64)
@@ -215,11 +197,8 @@ def _estimate_one(frame: _Frame, bp_uv, roi: Roi, *, saturated: bool, grow: bool
     order = sorted(range(len(isovalues)), key=lambda i: isovalues[i])
     results: list = [None] * len(isovalues)
     growths = 0
-    # With the frame smoothed once (smoothed32), an ROI's values are the frame's: within the
-    # kernel's reach of an ROI side inside the image they are not the ROI's own smoothing (its
-    # sides reflected) but the frame's true neighbours' (the contours that come that near a
-    # side move within the accuracy tolerance). Its background level stays that of the ROI
-    # smoothed alone (_Levels.of).
+    # With the frame smoothed once, an ROI's values near a side are the frame's neighbours', not
+    # its own reflected smoothing; its background level stays that of the ROI smoothed alone.
     fast = frame.smoothed32 is not None and sigma > 0
     while True:
         vals = sm[roi.slices] if sm is not None else _roi_values(frame, roi, sigma)
@@ -236,8 +215,7 @@ def _estimate_one(frame: _Frame, bp_uv, roi: Roi, *, saturated: bool, grow: bool
         cut = False
         if grow and growths < ROI_MAX_GROWTHS:
             new = Roi.around(bp_uv, ROI_GROWTH_FACTOR * max(roi.shape) / 2.0, frame.img.shape)
-            # an isophote cut by the ROI is discarded for the grown ROI's: ask only whether it
-            # is (the flood fill that answers is kept for the extraction when it is not)
+            # an isophote cut by the ROI is discarded for the grown ROI's: ask only whether it is
             if new != roi:
                 cut, flood = _cut_and_contour(region, levels.level(isovalues[i0]))
             if cut is None and sm is not None:
@@ -249,8 +227,7 @@ def _estimate_one(frame: _Frame, bp_uv, roi: Roi, *, saturated: bool, grow: bool
                 roi, growths = new, growths + 1
                 continue
         if not cut:
-            results[i0] = _one_isophote(frame, region, levels, isovalues[i0], flood, defer)[0] \
-                if res is None else res
+            results[i0] = _one_isophote(frame, region, levels, isovalues[i0], flood, defer)[0] if res is None else res
             for i in order[1:]:
                 results[i], _ = _one_isophote(frame, region, levels, isovalues[i], None, defer)
         break
@@ -259,13 +236,10 @@ def _estimate_one(frame: _Frame, bp_uv, roi: Roi, *, saturated: bool, grow: bool
 
 def _grown_drafts(frame: _Frame, ks: list, bps: list, rois_of: dict, rings_of: dict, rays: np.ndarray,
                   frames_of: dict, saturated: list, others, own_rows: list, defer: list) -> dict:
-    """``k -> _Draft``: :func:`_estimate_one` (``grow=True``) of the candidates ``ks`` (their BPs
-    ``bps[k]``, first ROIs, rings, rays and fit frames by ``k``; ``saturated`` and ``own_rows``
-    in the order of ``ks``) whose ROIs' values are slices of one frame-wide array: the frame's
-    smoothing (``smoothed32``) or, where the frame is not smoothed, its float64 luma
-    (``luma_frame``) or float32 luma (``luma_frame32``). On any other frame the result is empty,
-    as it is for a candidate :func:`_estimate_one` leaves with that array (a BP outside its ROI,
-    a cut that only the extraction can tell): the caller asks again without it. ``defer``: as :func:`_one_isophote`'s."""
+    """``k -> _Draft``: :func:`_estimate_one` (``grow=True``) of the candidates ``ks`` whose ROI values
+    are slices of one frame-wide array (``smoothed32``, ``luma_frame`` or ``luma_frame32``); a
+    candidate left out is asked again without it. ``defer``: as :func:`_one_isophote`'s.
+    """
     if not ks:
         return {}
     if frame.smoothed32 is not None and frame.smooth_sigma_px > 0:
@@ -279,8 +253,7 @@ def _grown_drafts(frame: _Frame, ks: list, bps: list, rois_of: dict, rings_of: d
         # a frame not smoothed: its luma; every ring the region's own border median
         sm = frame.luma_frame  # (every ring the region's own border median: _Levels.of)
     elif frame.luma_frame32 is not None and not frame.smooth_sigma_px > 0:
-        # a frame with few highlights, not smoothed: its float32 luma (the float64 luma of each ROI
-        # to float32 rounding, 6e-8 relative)
+        # a frame with few highlights, not smoothed: its float32 luma
         sm = frame.luma_frame32
     else:
         return {}
@@ -311,11 +284,10 @@ FIRST_BATCH_SIDE_PX = 32
 
 
 def _first_components(frame: _Frame, ks: list, bps: list, rois_of: dict, rings_of: dict, sm: np.ndarray) -> dict:
-    """``k -> (region, levels, comps)`` of :func:`_grown_drafts`' candidates (``auto``) whose small first ROI does not
-    grow, as :func:`_estimate_one` finds them (``_region``, ``_Levels.of``, ``_flood``, ``_component_box``) in
-    whole-table calls: the ROIs on one canvas, apart by -inf; BP pixels, 3 x 3 maxima and border medians gathered;
-    each isovalue's 4-connected components labelled at once. ``comps[i]``: ``_component_box``'s answer, None where
-    the BP's pixel is not above that level. Any other candidate is left to :func:`_estimate_one` (the same bits)."""
+    """``k -> (region, levels, comps)`` of the candidates whose small first ROI does not grow, as
+    :func:`_estimate_one` finds them, in whole-table calls (the ROIs on one canvas, apart by -inf).
+    Any other candidate is left to :func:`_estimate_one` (the same bits).
+    """
     if frame.settings.normalise != Normalisation.AUTO or not ks:
         return {}
     rr = np.array([rois_of[k] for k in ks], np.int64).reshape(-1, 4)
@@ -381,8 +353,9 @@ def _first_components(frame: _Frame, ks: list, bps: list, rois_of: dict, rings_o
 
 
 def _resolve(drafts, defer: list) -> None:
-    """Replace each result of ``drafts`` that is an index in ``defer`` (:func:`_one_isophote`) by its
-    isophote, all contoured in one batch (:func:`~simtest.reconstruct.marching.batch_contours`), and empty ``defer``."""
+    """Replace each index of ``defer`` in ``drafts`` by its isophote, all contoured in one batch
+    (:func:`~simtest.reconstruct.marching.batch_contours`), and empty ``defer``.
+    """
     if not defer:
         return
     origins = rc_to_uv([(g.roi.row0 + rc[0], g.roi.col0 + rc[1]) for (_, rc, _), _, g, *_ in defer])
@@ -403,9 +376,9 @@ def _resolve(drafts, defer: list) -> None:
 
 
 def _first_rings(frame: _Frame, rois: list[Roi]) -> tuple[list, np.ndarray | None]:
-    """Each ROI's smoothed border median (``_Levels.of``'s ring, :func:`_smoothed_border_median`)
-    where the frame's ROIs read them (smoothed once, normalised ``auto`` or ``local``), else None
-    for each; and the frame's luma they were read from (else None; a colour frame's ``luma32``)."""
+    """Each ROI's smoothed border median where the normalisation reads it (``auto``, ``local``), else
+    None each; and the frame's luma they were read from (or None).
+    """
     if not rois or frame.smoothed32 is None or not frame.smooth_sigma_px > 0 or \
             frame.settings.normalise not in (Normalisation.AUTO, Normalisation.LOCAL):
         return [None] * len(rois), None
@@ -415,15 +388,12 @@ def _first_rings(frame: _Frame, rois: list[Roi]) -> tuple[list, np.ndarray | Non
 
 
 def _initial_rois(cands: list, bps_uv: np.ndarray, threshold, frame: _Frame) -> list[Roi]:
-    """The ROIs expected to hold the lowest isophotes of candidates (BPs ``bps_uv`` (k, 2)), from
-    the size of each bright component, in one batch of numpy calls (elementwise: each candidate's
-    own ROI).
+    """The ROIs expected to hold the lowest isophotes of candidates (BPs ``bps_uv`` (k, 2)), batched.
 
-    Model: a Gaussian-like lobe I = P exp(-r^2 / (2 s^2)) has radius ``s sqrt(2 ln(P / L))`` at
-    level L, so the isophote at level ``t P`` is ``sqrt(ln(1/t) / ln(P / threshold))`` times the
-    component (clamped to [1, 8]; a clipped highlight makes this an over-estimate; ``threshold``
-    a component's own detection level where it has one, ``local_peak``). Too small an ROI is grown
-    by the pipeline; this only saves the retries."""
+    A Gaussian-like lobe has radius ``s sqrt(2 ln(P / L))`` at level L, so the isophote at ``t P`` is
+    ``sqrt(ln(1/t) / ln(P / threshold))`` times the component (clamped to [1, 8]); the pipeline grows
+    an ROI too small.
+    """
     if not cands:
         return []
     t_min = min(frame.settings.isovalues)
@@ -447,10 +417,9 @@ def _initial_rois(cands: list, bps_uv: np.ndarray, threshold, frame: _Frame) -> 
 
 def _candidate_drafts(frame: _Frame, det, r: Roi, bps_arr: np.ndarray, rays: np.ndarray, has_ray: np.ndarray,
                       fitted: np.ndarray, early: dict, others, keep: np.ndarray, row_in_others: np.ndarray) -> list:
-    """One draft per candidate of ``det`` (region ``r``), in order: a ``_Draft`` of each ``fitted``
-    one (its isophotes extracted), else the finished estimate (detection's reason, ``not_specular``
-    with the ``early`` checks' detail, or no ray); ``others``, ``keep``, ``row_in_others``: the
-    ``merged`` test's BPs (:func:`~simtest.reconstruct.assemble._merge_guard`)."""
+    """One draft per candidate of ``det`` (region ``r``), in order: a ``_Draft`` of each ``fitted`` one,
+    else the finished estimate (detection's reason, the ``early`` checks' detail, or no ray).
+    """
     bps = list(bps_arr)
     fk = np.flatnonzero(fitted)
     frames_of = dict(zip(fk.tolist(), fit_frames(frame.camera, -rays[fitted])))
@@ -467,8 +436,7 @@ def _candidate_drafts(frame: _Frame, det, r: Roi, bps_arr: np.ndarray, rays: np.
                            [det.candidates[k].saturated for k in fk.tolist()], others,
                            [int(row_in_others[k]) if keep[k] else -1 for k in fk.tolist()], defer)
     out = []
-    # each candidate's ray a row of the rays (views made at once, as rays[k]), and whether it
-    # has one, as Python objects: the loop below reads them for a real frame's thousands
+    # each candidate's ray a row of the rays, and whether it has one, as Python objects
     ray_rows, ray_ok = list(rays), has_ray.tolist()
     for k, cand in enumerate(det.candidates):
         bp = bps[k]

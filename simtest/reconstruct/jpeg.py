@@ -1,14 +1,10 @@
 """JPEG compression history of a decoded 8-bit frame: its block grid and its quantisation error.
 
-A JPEG encoder transforms the luma in 8 x 8 blocks by the orthonormal 2-D DCT-II and divides each
-coefficient by a per-frequency step ``q_k`` of its quantisation table before rounding. A decoded
-frame (or a lossless PNG of it, as datasets ship them) therefore keeps two fingerprints: a
-discontinuity on the block grid, and DCT coefficients that cluster at integer multiples of
-``q_k`` when the blocks are taken on that grid. Both are read here from the image alone, after
-Fan and de Queiroz [1]_ (blockiness across the grid, quantiser steps from the coefficients'
-histograms), to give the standard deviation of the error the quantisation added: flat blocks lose
-the sensor noise (the image's measured noise falls towards 0) while edges ring by several grey
-levels, so a verifier that judges peaks against the measured noise must add this error.
+A decoded JPEG (or a lossless copy of one) keeps two fingerprints: a discontinuity on the 8 x 8
+block grid, and DCT coefficients clustered at multiples of each frequency's step ``q_k`` on that
+grid. Both are read from the image alone, after Fan and de Queiroz [1]_, to give the standard
+deviation of the error the quantisation added: flat blocks lose the sensor noise while edges
+ring, so a verifier judging peaks against the measured noise must add this error.
 
 References
 ----------
@@ -41,9 +37,7 @@ __all__ = ["BLOCK", "GRID_BLOCKS", "BLOCKINESS_CLEAR", "MIN_COEFFICIENTS", "PERI
 
 #: Side of a JPEG block, px.
 BLOCK = 8
-#: Blocks read (a regular subsample beyond; a quarter of them per candidate where four are tried):
-#: 1000 blocks give each active frequency's histogram hundreds of coefficients outside the zero
-#: bin and keep a 1350 x 1080 frame (22 680 blocks) cheap.
+#: Blocks read (a regular subsample beyond).
 GRID_BLOCKS = 1024
 #: Largest step searched (the baseline JPEG's 8-bit tables).
 MAX_STEP = 255
@@ -66,10 +60,9 @@ _DD_T = np.ascontiguousarray(np.kron(_dct_matrix(), _dct_matrix()).T.astype(np.f
 
 
 def _step_tables(m: int, q_max: int):
-    """Index tables for :func:`_steps_of` over a histogram of |c| rounded to integers (bins
-    0..m-1, the last holding every larger value): the candidate steps ``Q`` (MIN_STEP..q_max),
-    their nonzero multiples below ``m - 1`` concatenated over Q, where each step's run starts,
-    and each step's first bin outside its zero bin."""
+    """Index tables for :func:`_steps_of` over a histogram of rounded |c|: the candidate steps, their
+    nonzero multiples concatenated, each step's run start, and each step's first bin outside its zero bin.
+    """
     qs = np.arange(MIN_STEP, q_max + 1)
     mult = [np.arange(q, m - 1, q) for q in qs]
     return (m, qs, np.concatenate(mult), np.cumsum([0] + [len(x) for x in mult[:-1]]),
@@ -94,15 +87,14 @@ def _check(image: np.ndarray) -> np.ndarray:
 
 
 def _blocks(image: np.ndarray, dy: int, dx: int, max_blocks: int) -> np.ndarray:
-    """The 8 x 8 blocks of an image on the grid starting at row ``dy``, column ``dx``, a regular
-    subsample of at most ``max_blocks``, without those holding a clipped value (0 or 255 in any
-    channel: clipping breaks the linear model); luma Y, float32, shape (N, 8, 8)."""
+    """Luma Y (N, 8, 8) float32 of up to ``max_blocks`` 8 x 8 blocks on the grid at (``dy``, ``dx``),
+    without blocks holding a clipped value (0 or 255 in any channel).
+    """
     h, w = image.shape[:2]
     nby, nbx = (h - dy) // BLOCK, (w - dx) // BLOCK
     if nby < 1 or nbx < 1:
         return np.zeros((0, BLOCK, BLOCK), np.float32)
-    # every s-th block row and column: s = 2 already quarters them, so up to twice the
-    # budget is read whole
+    # every s-th block row and column
     s = 1 if nby * nbx <= 2 * max_blocks else int(np.ceil(np.sqrt(nby * nbx / max_blocks)))
     c = 1 if image.ndim == 2 else 3
     view = image[dy:dy + nby * BLOCK, dx:dx + nbx * BLOCK].reshape(nby, BLOCK, nbx, BLOCK, c)
@@ -113,41 +105,25 @@ def _blocks(image: np.ndarray, dy: int, dx: int, max_blocks: int) -> np.ndarray:
 
 
 def dct_blocks(blocks: np.ndarray) -> np.ndarray:
-    """Orthonormal 2-D DCT-II of 8 x 8 blocks after JPEG's level shift (minus 128).
+    """Orthonormal 2-D DCT-II of 8 x 8 blocks (N, 8, 8) after JPEG's level shift (minus 128).
 
-    Parameters
-    ----------
-    blocks : ndarray of shape (N, 8, 8)
-        Grey levels.
-
-    Returns
-    -------
-    ndarray of shape (N, 64), float32
-        Coefficients, frequency ``k = 8 u + v`` (u vertical, v horizontal), equal to
-        OpenCV's ``dct`` of ``block - 128`` and to JPEG's FDCT output before quantisation.
+    Returns (N, 64) float32, frequency ``k = 8 u + v`` (u vertical): JPEG's FDCT output before quantisation.
     """
     b = np.asarray(blocks, np.float32).reshape(-1, BLOCK * BLOCK) - np.float32(128.0)
-    # D b D^T of each block as one product of the flattened blocks with D (x) D (row-major
-    # vec(D b D^T) = (D (x) D) vec(b)): one GEMM instead of numpy's batched 8 x 8 products
+    # D b D^T of each block as one product with D (x) D
     return b @ _DD_T
 
 
 def _steps_of(coef: np.ndarray, tables=_FULL, fewest: int = 0) -> np.ndarray:
-    """Per-frequency step from coefficients (N, 64): the largest ``q`` in 4..255 with at least
-    :data:`MIN_COEFFICIENTS` coefficients outside its zero bin (``|c| >= q / 2``), of which a
-    share of at least :data:`PERIODICITY_MIN`, and well above chance (:data:`CHANCE_SD`), lie
-    within 1 of a nonzero multiple of ``q``, and whose first multiple holds at least
-    :data:`UNIMODAL_SHARE` of any later one's count (a step's divisors may pass the rest; the
-    largest is taken),
-    refined to the least-squares slope ``sum(n |c|) / sum(n^2)`` of the magnitudes on their
-    multiples' indices n (the decoder moves the coefficients by up to ~1.5, so q + 1 passes
-    too); 1 if none passes but the frequency has that many coefficients of magnitude >= 2
-    (unquantised, or a step of 2 or 3); 0 if it has fewer (a dead frequency: its coefficients
-    all fell into the zero bin, the step is not identifiable). int64, shape (64,).
+    """Per-frequency step (int64, (64,)) from coefficients (N, 64).
 
-    ``fewest``: a caller that only counts the identified steps and needs at least this many gets
-    zeros where fewer frequencies have enough coefficients to show one (the count is below it
-    either way; the search is skipped)."""
+    The largest ``q`` in 4..255 with at least :data:`MIN_COEFFICIENTS` coefficients outside its zero
+    bin, of which at least :data:`PERIODICITY_MIN` (well above chance, :data:`CHANCE_SD`) lie within
+    1 of a nonzero multiple of q, its first multiple holding at least :data:`UNIMODAL_SHARE` of any
+    later one's count; refined to the least-squares slope on the multiples' indices. 1 if none passes
+    but enough magnitudes are >= 2 (unquantised, or a step of 2 or 3); 0 for a dead frequency.
+    ``fewest``: return zeros where fewer than this many frequencies could show a step.
+    """
     n = coef.shape[0]
     if n == 0:
         return np.zeros(BLOCK * BLOCK, np.int64)
@@ -169,34 +145,23 @@ def _steps_of(coef: np.ndarray, tables=_FULL, fewest: int = 0) -> np.ndarray:
     chance = np.minimum(3.0 / qs[:, None], 1.0)
     spread = np.sqrt(chance * (1 - chance) / np.maximum(count, 1.0))  # binomial sd of the share
     floor = np.maximum(PERIODICITY_MIN, chance + CHANCE_SD * spread)
-    # a quantised frequency's magnitudes fall off from its first multiple (a zero-mean law of
-    # the coefficients, Laplacian for the AC ones): a candidate whose first multiple holds
-    # fewer than UNIMODAL_SHARE of a later one's is a divisor of the step, passing the share
-    # test on the step's own multiples where the step itself has too few coefficients outside
-    # its zero bin
+    # a candidate whose first multiple holds fewer than UNIMODAL_SHARE of a later one's is a divisor
     ok = (count >= MIN_COEFFICIENTS) & (share >= floor) & (first >= UNIMODAL_SHARE * later)
     largest = qs[(ok.shape[0] - 1) - np.argmax(ok[::-1], axis=0)].astype(np.float64)
-    # the window of +-1 lets q + 1 pass for q: the step is the least-squares slope of the
-    # coefficients' magnitudes on their multiples' indices, sum(n |c|) / sum(n^2)
+    # the window of +-1 lets q + 1 pass for q: the step is the least-squares slope
     a = np.abs(coef).astype(np.float64)
     idx = np.floor(a / largest + 0.5) * (a >= largest / 2)
     slope = (idx * a).sum(axis=0) / np.maximum((idx * idx).sum(axis=0), 1.0)
     step = np.rint(slope)
-    # a slope below MIN_STEP is a step of 2 or 3 whose multiples passed for 4's (their +-1
-    # windows overlap): not identifiable, as the docstring says, not 4 (quality 90: 20 of 272
-    # seeds had a 3 read as 4)
+    # a slope below MIN_STEP is a step of 2 or 3 whose multiples passed for 4's: not identifiable
     out[active] = np.where(ok.any(axis=0) & (step >= MIN_STEP), step, 1)
     return out
 
 
 def _multiple_counts(hist: np.ndarray, mult_idx: np.ndarray, mult_start: np.ndarray):
-    """Per candidate step and frequency, of a histogram ``hist`` (bins, K) of rounded magnitudes
-    and the steps' nonzero multiples ``mult_idx`` (each step's run starting at ``mult_start``, none
-    empty; see :func:`_step_tables`): the coefficients within 1 of a multiple (summed over the
-    step's multiples), the first multiple's count, and the largest count at a later multiple (0
-    where the step has one multiple); each int64 (len(mult_start), K). One three-bin window sum
-    of the histogram, gathered at the multiples and reduced per step (``np.add.reduceat``,
-    ``np.maximum.reduceat``)."""
+    """Per candidate step and frequency of histogram ``hist`` (bins, K): the coefficients within 1 of a
+    multiple, the first multiple's count and the largest later multiple's count, int64 (steps, K).
+    """
     window = hist[:-2] + hist[1:-1] + hist[2:]  # row b - 1: bins b - 1, b and b + 1
     at_mult = window[mult_idx - 1]  # (multiples, K), a copy
     at = np.add.reduceat(at_mult, mult_start, axis=0)
@@ -206,9 +171,7 @@ def _multiple_counts(hist: np.ndarray, mult_idx: np.ndarray, mult_start: np.ndar
 
 
 def _magnitude_histogram(coef: np.ndarray, nbin: int) -> np.ndarray:
-    """Per frequency (column of ``coef``, (N, K)), the histogram of the coefficients' rounded
-    magnitudes ``min(rint(|c|), nbin - 1)`` (halves to even): int64 of shape (nbin, K), one
-    ``np.bincount`` of the bins offset by their frequency."""
+    """Per frequency (column of ``coef``), the histogram (nbin, K) int64 of ``min(rint(|c|), nbin - 1)``."""
     n, k = coef.shape
     m = np.rint(np.abs(coef))
     np.minimum(m, nbin - 1, out=m)
@@ -217,11 +180,9 @@ def _magnitude_histogram(coef: np.ndarray, nbin: int) -> np.ndarray:
 
 
 def _image_blockiness(image: np.ndarray, step: int, across_columns: bool) -> np.ndarray:
-    """The blockiness (:func:`_phase_blockiness` of the mean absolute differences across columns)
-    of the JFIF luma Y of ``image[::step]`` (``across_columns``: the column phases)
-    or of ``image[:, ::step]``, transposed (the row phases), from the sampled rows or columns
-    only: the float32 luma summed channel by channel, the absolute differences' means in
-    float64, each summed in order (a C-contiguous sum along the first axis)."""
+    """The blockiness of the JFIF luma of ``image[::step]`` across columns (``across_columns``), or of
+    ``image[:, ::step]`` across rows.
+    """
     img = image if image.ndim == 3 else image[:, :, None]
     sub = img[::step] if across_columns else img[:, ::step]
     y = sub[:, :, 0].astype(np.float32)
@@ -238,12 +199,9 @@ def _image_blockiness(image: np.ndarray, step: int, across_columns: bool) -> np.
 
 
 def _phase_blockiness(d: np.ndarray) -> np.ndarray:
-    """The blockiness from the mean absolute differences ``d`` (d[j] between columns j and
-    j + 1)."""
-    # the median over each phase's columns: one strong edge of the content does not make a phase.
-    # Phase k holds d[j] for (j + 1) % 8 == k, i.e. d[(k - 1) % 8 :: 8]; the phases of equal
-    # length are stacked and their medians taken in one call (np.median along an axis: the same
-    # values as one call per phase)
+    """The blockiness from the mean absolute differences ``d`` (d[j] between columns j and j + 1)."""
+    # the median over each phase's columns: one strong edge does not make a phase; phase k holds
+    # d[(k - 1) % 8 :: 8]
     per = np.empty(BLOCK, d.dtype)  # np.median's dtype: d's
     starts = [(k - 1) % BLOCK for k in range(BLOCK)]
     sizes = [len(range(s, len(d), BLOCK)) for s in starts]
@@ -273,15 +231,13 @@ def _grid(image: np.ndarray):
         coef = dct_blocks(_blocks(image, dy, dx, GRID_BLOCKS if len(cands) == 1 else GRID_BLOCKS // 4))
         if len(coef) < MIN_COEFFICIENTS:
             continue
-        # (a candidate of the weak path counts only if it shows MIN_QUANTISED steps; the clear
-        # one is read again below with fewer)
+        # (a candidate of the weak path counts only if it shows MIN_QUANTISED steps)
         steps = _steps_of(coef, _COARSE if len(cands) > 1 else _FULL, MIN_QUANTISED if len(cands) > 1 else 0)
         nq = int(np.count_nonzero(steps >= MIN_STEP))
         if best is None or nq > best[0]:
             best = (nq, dy, dx, coef, steps)
     if len(cands) == 1 and best is not None and best[0] < MIN_QUANTISED:
-        # clear blockiness, few steps seen (quality 15 and below: steps of 40 and more leave few
-        # coefficients outside their zero bins): read every block, accept a single step
+        # clear blockiness, few steps seen (coarse steps): read every block, accept a single step
         coef = dct_blocks(_blocks(image, cands[0][0], cands[0][1], h * w))
         steps = _steps_of(coef)
         nq = int(np.count_nonzero(steps >= MIN_STEP)) * MIN_QUANTISED  # one step suffices
@@ -298,16 +254,10 @@ def _grid(image: np.ndarray):
 def jpeg_grid(image: np.ndarray) -> tuple[int, int] | None:
     """The 8 x 8 JPEG block grid an 8-bit image carries, if any.
 
-    The blockiness of each of the 8 phases per axis (mean absolute luma difference across the
-    phase's boundaries over that across all phases, [1]_) proposes the grid: the blockiest phase
-    per axis where it is clear on both (:data:`BLOCKINESS_CLEAR`), else the four offsets of the
-    two blockiest phases per axis. Each candidate is confirmed by the quantisation it reveals
-    (the steps its DCT coefficients on :data:`GRID_BLOCKS` of its blocks cluster at): the grid is
-    the candidate with the most frequencies with an identified step (>= :data:`MIN_STEP`), if at
-    least :data:`MIN_QUANTISED` (or one, read on every block, where the blockiness is clear). An
-    image that was never JPEG (sensor noise, smooth synthetic content, a PNG render) has DCT
-    coefficients without periodicity on any grid, so None. At quality 95 and above the
-    blockiness is weak and the grid may be missed (None; at 98 the error is under 1 grey level).
+    The blockiness of the 8 phases per axis [1]_ proposes candidates (the blockiest phase where clear,
+    :data:`BLOCKINESS_CLEAR`, else the two blockiest per axis); the grid is the candidate whose DCT
+    coefficients reveal the most quantised frequencies, if at least :data:`MIN_QUANTISED`. An image
+    never JPEG-compressed has no periodicity on any grid. At quality 95 and above the grid may be missed.
 
     Parameters
     ----------
@@ -317,8 +267,7 @@ def jpeg_grid(image: np.ndarray) -> tuple[int, int] | None:
     Returns
     -------
     (int, int) or None
-        Row and column ``(dy, dx)`` in 0..7 where the grid's blocks start (the first full block
-        is ``image[dy:dy + 8, dx:dx + 8]``), or None if no grid is found (also for images
+        Row and column ``(dy, dx)`` in 0..7 where the grid's blocks start, or None (also for images
         smaller than 16 x 16 px).
 
     Raises
@@ -333,13 +282,12 @@ def jpeg_grid(image: np.ndarray) -> tuple[int, int] | None:
 
 
 def _gauss_error_var(q: np.ndarray, sd: np.ndarray) -> np.ndarray:
-    """Variance of the rounding error ``x - q round(x / q)`` for ``x ~ N(0, sd^2)``, per pair:
-    the density folded into one bin (sum over bins n of N(n q + u)), integrated against ``u^2``
-    over [-q/2, q/2] (64-point midpoint rule on the half bin, by symmetry)."""
+    """Variance of the rounding error ``x - q round(x / q)`` for ``x ~ N(0, sd^2)``, per pair (the
+    density folded into one bin, integrated against u^2).
+    """
     q = np.asarray(q, np.float64)
     sd = np.maximum(np.asarray(sd, np.float64), 1e-6)
-    # a density broader than the bin folds into a uniform one: q^2 / 12 (the folded density's
-    # ripple is exp(-2 pi^2 sd^2 / q^2), 3e-9 at sd = q)
+    # a density broader than the bin folds into a uniform one: q^2 / 12
     var = q * q / 12.0
     narrow = sd < q
     if narrow.any():
@@ -360,53 +308,28 @@ def _gauss_error_var_narrow(q: np.ndarray, sd: np.ndarray) -> np.ndarray:
 def quantisation_sigma(image: np.ndarray) -> float:
     """Standard deviation of the error JPEG's luma quantisation added, grey levels per pixel.
 
-    On the image's JPEG grid (:func:`jpeg_grid`), each frequency's step ``q_k`` is estimated
-    ([1]_) and its error variance taken from a zero-mean Gaussian model of
-    the original coefficients, of standard deviation ``s_k`` from the share of coefficients
-    outside the zero bin (``1 - P0 = 2 Phi(-q / 2 s)``) where most fell into it, or their own
-    spread otherwise: a frequency whose coefficients spread over many steps has the uniform
-    error's ``q^2 / 12``, one whose coefficients mostly fall into the zero bin loses them,
-    ``~s^2 < q^2 / 12`` (the model of [2]_ for AC coefficients is Laplacian; the Gaussian is
-    the sensor noise's, which is what the zero bin swallows). A dead frequency (every
-    coefficient in the zero bin, step not identifiable) lost its whole content, which the image
-    no longer shows; it is taken as the smallest ``s_k^2`` of the identified AC frequencies
-    measured on the quieter half of the blocks (white sensor noise is in every frequency and
-    every block, texture falls with frequency and sits in the busy blocks). The orthonormal DCT
-    preserves energy, so the pixel variance is the mean of the 64 frequencies' error variances.
-    A frequency with a step of 2 or 3 (not told from unquantised) counts 0.
-
-    Measured against the true RMS luma error (decoded minus original): 0.77-1.0 of it at
-    qualities 50-95 on the endoscope's render (Pillow, as simtest's sensor), 1.4 at 25, 1.6 at
-    15, 2.8 at 10; 0.95-1.03 at 75-95, 1.3 at 50, 2.0 at 25 and up to 7 at 15 on frames textured
-    everywhere (``tests/test_jpeg.py``). Below quality ~50 only the lowest frequencies are
-    identified and their ``s_k`` carries texture, so it is an upper estimate there. At 95 and
-    above the grid may be missed (0.0; the error is then under ~1.5 grey levels).
+    On the image's JPEG grid, each frequency's step ``q_k`` is estimated [1]_ and its error variance
+    taken from a zero-mean Gaussian model of the original coefficients (``q^2 / 12`` for a wide
+    spread, ``~s^2`` where most fell into the zero bin; [2]_ models AC coefficients as Laplacian, the
+    Gaussian is the sensor noise's). A dead frequency takes the smallest identified AC variance of the
+    quieter half of the blocks. The orthonormal DCT preserves energy: the pixel variance is the mean
+    of the 64 frequencies' error variances. An upper estimate below quality ~50
+    (``tests/test_jpeg.py``); the frame's root mean square, ignoring chroma and clipping.
 
     Parameters
     ----------
     image : ndarray of shape (H, W, 3) or (H, W), uint8
-        RGB (R, G, B) or grey; RGB is reduced to JFIF's ``Y = 0.299 R + 0.587 G + 0.114 B``,
-        the plane JPEG quantises.
+        RGB or grey; RGB is reduced to JFIF's ``Y = 0.299 R + 0.587 G + 0.114 B``.
 
     Returns
     -------
     float
-        Grey levels (0..255 scale); 0.0 if the image carries no JPEG grid, and for an image that
-        is not uint8 (baseline JPEG decodes to 8 bits; a frame scaled to float after decoding is
-        not read).
+        Grey levels (0..255 scale); 0.0 if the image carries no JPEG grid or is not uint8.
 
     Raises
     ------
     ValueError
         If a uint8 image's shape is not (H, W) or (H, W, 3).
-
-    Notes
-    -----
-    The estimate ignores the chroma planes' quantisation (it does not change Y), clipping at 0
-    and 255 (clipped blocks are left out), the decoder's rounding to 8 bits (another 1 / 12
-    LSB^2, which an integer image's noise floor already counts) and chroma subsampling. The error
-    is not uniform over the frame: flat blocks lose their noise (small error), blocks on edges
-    ring (large error); this is the frame's root mean square.
     """
     if np.asarray(image).dtype != np.uint8:
         return 0.0  # not a decoded baseline JPEG
@@ -415,13 +338,12 @@ def quantisation_sigma(image: np.ndarray) -> float:
 
 
 def _quiet_sd(c: np.ndarray, q: np.ndarray) -> np.ndarray:
-    """Per identified frequency (columns of ``c``, magnitudes (N, K), steps ``q`` (K,)), the
-    Gaussian standard deviation of the original coefficients from the share outside the zero
-    bin among the half of the blocks whose other identified frequencies' indices are smallest."""
+    """Per identified frequency, the Gaussian standard deviation of the original coefficients from the
+    share outside the zero bin, among the quieter half of the blocks.
+    """
     idx = np.floor(c / q + 0.5)  # quantisation indices
     total = idx.sum(axis=1)
-    # every frequency at once (columns): the other frequencies' indices per block, their median,
-    # the quiet blocks and the counts (whole numbers: the same values as one column at a time)
+    # every frequency at once: the other frequencies' indices per block, the quiet blocks, the counts
     busy = total[:, None] - idx
     quiet = busy <= np.median(busy, axis=0)
     m = np.maximum(np.count_nonzero(quiet, axis=0), 1)
@@ -445,12 +367,8 @@ def _sigma_of(coef: np.ndarray, steps: np.ndarray) -> float:
     z = -require("scipy.special").ndtri(np.minimum(out, 0.5) / 2)  # >= 0.67
     sd = np.where(out < 0.5, q / (2 * z), np.sqrt((c * c).mean(axis=0)))
     var[known] = _gauss_error_var(q, sd)
-    # dead frequencies lost their whole content, the sensor noise of every block and the texture
-    # below their step: taken as the smallest identified original variance in the quieter half
-    # of the blocks (those whose other identified AC frequencies hold the least, so that the
-    # texture of the busy blocks does not inflate it)
-    # (the DC is the blocks' mean, not texture or noise: it does not count; where no AC
-    # frequency is identified, the smallest step's uniform error q^2 / 12 stands in)
+    # dead frequencies: the smallest identified original variance in the quieter half of the
+    # blocks (the DC does not count; with no AC frequency identified, the smallest step's q^2 / 12)
     dead = steps == 0
     ac = np.flatnonzero(known)[:] != 0
     if dead.any():

@@ -31,10 +31,8 @@ from simtest.reconstruct.recommend import (_bp_ray_error_beside, bp_error_depth_
                                            depth_within_ceiling)
 from simtest.reconstruct.rig_pairs import pair_misfit_px, pair_starts
 
-#: The photometric fit's statuses after which the curved-patch fits run by default: those that say
-#: the plane is not the ROI's surface (after the others a patch cannot do better, and takes
-#: seconds); the quadric's only after ``plane_misfit`` (after a plane that ran off it ran off or
-#: misfit on every tuning render: docs/decisions/light-aware-recommendation.md).
+#: The photometric fit's statuses after which the curved-patch fits run by default (the plane is
+#: not the ROI's surface; docs/decisions/light-aware-recommendation.md).
 CURVED_FIT_AFTER, QUADRIC_AFTER = ("plane_misfit", "not_converged"), ("plane_misfit",)
 #: Candidate statuses never fitted, not even with ``fit_rejected``: too small to fit, or no
 #: specular highlight of the tissue (:mod:`simtest.reconstruct.verify`).
@@ -57,15 +55,14 @@ def light_aware_estimates(image, est, camera, rig: LightRig, *, nominal_depth_mm
     """Run the light-aware estimators on one detected highlight.
 
     ``isocurve_fit`` takes its own isophotes (module docstring); ``photometric_fit`` the ROI grown
-    ``roi_scale`` times about the BP (the lobe's tails carry the distance), clipped pixels left
-    out, refined from the bisector at the nominal depth and from the isocurve fit's normal, the
-    better kept; refitted on the ROI its lobe spans where the grown ROI cuts it (:func:`_lobe_roi`),
-    kept if ok.
+    ``roi_scale`` times about the BP, clipped pixels left out, started from the bisector at the
+    nominal depth and from the isocurve fit's normal, the better kept, and refitted on the ROI its
+    lobe spans where the grown ROI cuts it (:func:`_lobe_roi`).
 
     Parameters
     ----------
     image : ndarray of shape (H, W) or (H, W, 3)
-        The image the highlight (``est``, a SpecularityEstimate) was detected in.
+        The image the highlight was detected in.
     est : SpecularityEstimate
     camera : array_like of shape (3, 3) or CameraModel
     rig : LightRig
@@ -76,48 +73,39 @@ def light_aware_estimates(image, est, camera, rig: LightRig, *, nominal_depth_mm
     roi_scale, quadric_roi_scale : float
         Growth of the highlight's ROI for the photometric fit, and for the curved-patch fits.
     supersample : int
-        Sub-pixel samples per pixel side of the photometric model (its box filter).
+        Sub-pixel samples per pixel side of the photometric model.
     quadric : bool or None
-        Run :func:`~simtest.reconstruct.lightaware.quadric_fit` (on the ROI grown
-        ``quadric_roi_scale`` times): True always, False never (the harness' oracle inputs),
-        None (default) when the photometric fit's status is in :data:`QUADRIC_AFTER`.
+        Run :func:`~simtest.reconstruct.lightaware.quadric_fit`: True always, False never, None when
+        the photometric fit's status is in :data:`QUADRIC_AFTER`.
     cubic : bool or None
-        Run :func:`~simtest.reconstruct.lightaware.cubic_patch_fit` (1 to 5 s a highlight) on the
-        quadric's ROI: True always, False (default) never, None as the quadric where the rig has
-        two lights at different places (``simtest reconstruct --cubic-patch``).
+        Run :func:`~simtest.reconstruct.lightaware.cubic_patch_fit` on the quadric's ROI: True always,
+        False (default) never, None as the quadric where the rig has two lights at different places.
     response : SensorResponse, optional
-        The camera file's sensor response: the fits then run on the linear intensities of the
-        channel where the tissue is darkest, clipped pixels censored, the rig's diffuse shading
-        in the model; ``saturation_level`` is the response's.
+        The sensor response: the fits run on the linear intensities of the channel where the tissue
+        is darkest, clipped pixels censored, with the rig's diffuse shading.
     diffuse : bool or None
         The rig's Lambertian shading in the photometric model (None: with a ``response``).
     lobe : {"phong", "ggx", "auto"} or None
         The photometric fit's lobe (``"auto"``: GGX where Phong misfits and GGX does not); None:
-        "auto" on three channels (the film's own lobes), else Phong, and GGX beside it where its
-        lobe is broad (``BROAD_LOBE_PHONG_N``), the better kept (``docs/decisions``).
+        "auto" on three channels, else Phong, and GGX beside it where its lobe is broad.
     floor_refit : bool
-        Refit without the pixels whose model lies within a few noise sigmas of an integer
-        image's 0 (:func:`~simtest.reconstruct.lightaware.photometric_fit`'s ``floor_refit``).
+        Refit without the pixels whose model lies within a few noise sigmas of an integer image's 0.
     pair_starts : tuple of (int, int, float)
-        The guides and depth at which the rig puts another guide's highlight on another
-        highlight (:func:`~simtest.reconstruct.rig_pairs.pair_starts`): a photometric fit whose
-        normal the recommendation could take, and whose plane puts that highlight beyond
-        ``PAIR_TOL_PX`` of it (or has no depth), is refitted from there too
-        (:class:`~simtest.reconstruct.lightaware.plane.FitSettings`), the refit kept where it is
-        ok and puts it within.
+        Guides and depth at which the rig puts another guide's highlight on another highlight
+        (:func:`~simtest.reconstruct.rig_pairs.pair_starts`): a recommendable fit that misplaces it
+        is refitted from there too, the refit kept where it is ok and places it.
     colour : bool, optional
         Fit on the ROI's three linear channels, the body colours projected out (None:
         :func:`colour_fit_applies`).
     linear : tuple, optional
-        ``response.linearize(image)`` when at hand (:func:`with_light_aware`: once per frame).
+        ``response.linearize(image)`` when at hand.
 
     Returns
     -------
     dict
         ``"photometric_fit"``; ``"isocurve_fit"`` where an isophote closes in the grown ROI;
         ``"quadric_fit"``, ``"cubic_patch_fit"`` as ``quadric`` and ``cubic`` say; each with its
-        depth within the ceiling (:func:`depth_within_ceiling`) and ``bp_ray_error_deg`` set (at
-        its depth, or ``nominal_depth_mm``).
+        depth within the ceiling and ``bp_ray_error_deg`` set.
     """
     img = np.asarray(image)
     gray, saturation_level, censor, floor, floor_step = _fit_intensities(img, response, linear, saturation_level)
@@ -146,9 +134,7 @@ def light_aware_estimates(image, est, camera, rig: LightRig, *, nominal_depth_mm
             pf = _la.plane._note(refit, f"refitted on the lobe's ROI ({lobe_roi.shape[1]} x {lobe_roi.shape[0]} px)")
     if (pair_starts and _recommendable(pf, est, camera, rig, nominal_depth_mm)
             and not _fits_the_pair(pf, est.bp_px, camera, rig, pair_starts)):
-        # the other guide's highlight is data the ROI's fit did not see: a plane that misplaces it
-        # stopped at another depth (from a start at the nominal one); refitted from the depth the
-        # pair gives too, kept where it places the pair
+        # the other guide's highlight, which the ROI's fit did not see: refitted from the pair's depth too
         alt = _photometric(img, gray, big, est, camera, rig, response, colour, saturation_level,
                            dict(pkw, pair_starts=tuple(pair_starts)))
         if alt.ok and _fits_the_pair(alt, est.bp_px, camera, rig, pair_starts):
@@ -160,9 +146,9 @@ def light_aware_estimates(image, est, camera, rig: LightRig, *, nominal_depth_mm
 
 
 def _recommendable(fit: LightAwareEstimate, est, camera, rig, nominal_depth_mm: float) -> bool:
-    """Whether the recommendation could take the fit's normal: ok, or without its depth where
-    its stated sigma beats the BP ray's error (:func:`~simtest.reconstruct.recommend.recommend`'s
-    rule 3)."""
+    """Whether the recommendation could take the fit's normal: ok, or without its depth where its
+    stated sigma beats the BP ray's error (rule 3 of :func:`~simtest.reconstruct.recommend.recommend`).
+    """
     if fit.ok or fit.status != "depth_not_observable" or fit.normal_sigma_deg is None:
         return fit.ok
     ray = _la.model._rays(camera, np.asarray(est.bp_px, dtype=np.float64)[None])[0]
@@ -182,8 +168,7 @@ def _fit_intensities(img: np.ndarray, response, linear, saturation_level):
     """``(gray, saturation_level, censor, floor, floor_step)``: the values the fits read (a sensor
     frame's linear channel, else the luma), their clip level, censoring, an integer image's floor and step."""
     censor = False
-    # an unsigned integer image's 0 is a floor its read noise is clipped at (0 in the linear image
-    # too), its quantisation step 1 (in the linear image, the linear value of 1)
+    # an unsigned integer image's 0 is a floor its read noise is clipped at; its step is 1 (linear: its value)
     floor = 0.0 if img.dtype.kind == "u" else None
     floor_step = 1.0
     if response is not None:
@@ -241,8 +226,8 @@ def _photometric(img, gray, big: Roi, est, camera, rig, response, colour: bool, 
     if colour and ((not pf.ok and pf.projection == "least_fluctuation")
                    or (pf.projection == "body_colours" and pf.curvature_shift_deg is None
                        and pf.status in ("depth_not_observable", "not_converged"))):
-        # the darkest channel's fit stands in for a projection's fit without its depth (a misfit
-        # stands: docs/decisions/light-aware-recommendation.md, "The projections' fallbacks")
+        # the darkest channel's fit stands in for a projection's fit without its depth
+        # (docs/decisions/light-aware-recommendation.md)
         why = f"the {pf.projection.replace('_', ' ')} projection's fit: {pf.status}"
         chan = depth_within_ceiling(fitted("darkest_channel"))
         pf = dataclasses.replace(chan, detail=f"{chan.detail}; {why}" if chan.detail else why)
@@ -250,11 +235,9 @@ def _photometric(img, gray, big: Roi, est, camera, rig, response, colour: bool, 
 
 
 def _clip_margin(values: np.ndarray, clip):
-    """How far below ``clip`` (one level, or each channel's of ``values`` (H, W, 3); None: none)
-    the fits censor: ``CLIP_MARGIN`` times the noise of the ROI's unclipped pixels (the robust
-    spread of a pixel's difference from its two horizontal neighbours,
-    :func:`~simtest.reconstruct.detect_pixels.noise_sigma_of_differences`), each channel's; 0
-    without noise."""
+    """How far below ``clip`` (one level, or per channel of ``values`` (H, W, 3); None: none) the fits
+    censor: ``CLIP_MARGIN`` times the noise of the ROI's unclipped pixels; 0 without noise.
+    """
     if clip is None:
         return None
     chans = [values[..., c] for c in range(values.shape[-1])] if np.ndim(clip) else [values]
@@ -281,8 +264,7 @@ def _lobe_roi(fit: LightAwareEstimate, bp_uv, camera, rig, shape, roi: Roi) -> R
     (h, w), grid = shape[:2], 129  # grid points a side: the lobe's edge found to one step, added below
     u, v = np.meshgrid(np.linspace(0.0, w - 1.0, grid), np.linspace(0.0, h - 1.0, grid))
     uv = np.column_stack([u.ravel(), v.ravel()])
-    s = _la.model.plane_rig_intensity(_la.model._rays(camera, uv), fit.normal, fit.distance_mm, rig,
-                                      fit.roughness)
+    s = _la.model.plane_rig_intensity(_la.model._rays(camera, uv), fit.normal, fit.distance_mm, rig, fit.roughness)
     if not np.isfinite(s).all() or not s.max() > 0:
         return None
     r = float(np.max(np.hypot(*(uv[s >= LOBE_EDGE_REL * s.max()] - np.asarray(bp_uv, float)).T)))
@@ -322,9 +304,9 @@ def _curved_fits(out: dict, gray, shape, est, roi: Roi, camera, rig, *, saturati
 
 
 def colour_fit_applies(image, response) -> bool:
-    """Whether the photometric fit runs on a frame's three linear channels, the body colours
-    projected out: an RGB frame with a sensor response and no JPEG block grid (a JPEG's chroma
-    is subsampled and blocky; projected fits passed 6 to 17 deg off at quality 50 to 75)."""
+    """Whether the photometric fit runs on a frame's three linear channels: an RGB frame with a sensor
+    response and no JPEG block grid (a JPEG's chroma is subsampled and blocky).
+    """
     img = np.asarray(image)
     if response is None or img.ndim != 3:
         return False
@@ -338,9 +320,8 @@ def fit_arguments(image, kwargs: dict) -> dict:
 
 
 def _isocurve_isophotes(gray, big: Roi, bp_uv, refine: bool = True) -> tuple[list[np.ndarray], list[float]]:
-    """The isophotes :func:`isocurve_fit` is given (module docstring): at each of :data:`ISOCURVE_ISOVALUES` of the BP's height above the median of the
-    ROI's border, the closed contour about the BP, its points refined onto the image's cubic
-    spline (as ``refine`` says); levels whose contour is cut or too short are left out.
+    """The isophotes given to :func:`isocurve_fit`: at each of :data:`ISOCURVE_ISOVALUES`, the closed
+    contour about the BP (refined as ``refine`` says); cut or short levels are left out.
 
     Returns
     -------
@@ -379,11 +360,8 @@ def with_light_aware(image, estimates, camera, rig: LightRig | None, *, on_highl
                      fit_rejected: bool = False, workers: int = 1, plane_only=(), **kwargs) -> list:
     """The estimates with their light-aware results attached (``light_aware``).
 
-    Nothing runs without a rig or with every light at the camera centre. By default only the
-    accepted highlights (``ok``) are fitted: a rejected candidate keeps its status whatever its
-    fits give, and on a whole frame its fits are most of the time and end in misfits. With
-    ``fit_rejected`` the candidates rejected for a reason other than :data:`NOT_FITTED` are
-    fitted too (the fits need no ellipse).
+    Nothing runs without a rig or with every light at the camera centre. Only accepted highlights
+    are fitted, unless ``fit_rejected`` (not those rejected for :data:`NOT_FITTED`).
 
     Parameters
     ----------
@@ -396,15 +374,13 @@ def with_light_aware(image, estimates, camera, rig: LightRig | None, *, on_highl
     rig : LightRig or None
         The scope's lights.
     on_highlight : callable, optional
-        Called as ``on_highlight(done, total)`` after each highlight's fits (a progress bar).
+        Called as ``on_highlight(done, total)`` after each highlight's fits.
     fit_rejected : bool, optional
-        Fit the rejected candidates too (above).
+        Fit the rejected candidates too.
     workers : int
-        Worker processes the highlights' fits are shared among (1: in this process); the results
-        are the same bit for bit whatever the number (each fit reads its own ROI; BLAS on one
-        thread each, :func:`simtest._threads.one_thread_each`).
+        Worker processes (1: in this process); the same results bit for bit whatever the number.
     plane_only : collection of int
-        Indexes of rejected candidates fitted too, with :data:`PLANE_ONLY`, in the same workers
+        Indexes of rejected candidates fitted too, with :data:`PLANE_ONLY`
         (:func:`~simtest.reconstruct.rig_lobes.fused_lobe_candidates`).
     **kwargs
         Passed to :func:`light_aware_estimates`.
@@ -428,14 +404,12 @@ def with_light_aware(image, estimates, camera, rig: LightRig | None, *, on_highl
     todo = [i for i, est in enumerate(out) if est.ok or (fit_rejected and est.status not in NOT_FITTED)]
     jobs = {i: {} for i in todo} | {i: PLANE_ONLY for i in plane_only if i not in todo}
     todo = sorted(jobs)
-    # the guide and depth at which another fitted highlight lies where the rig puts another
-    # guide's: further starts
+    # further starts: where the rig puts another guide's highlight on another fitted highlight
     bps = np.array([out[i].bp_px for i in todo], np.float64).reshape(-1, 2)
     for i, starts in zip(todo, pair_starts(camera, rig.positions, bps, bps)):
         if starts:
             jobs[i] = dict(jobs[i], pair_starts=starts)
-    # the others are marked with no fits ({}): under a rig off the camera centre the co-located
-    # estimators' normals are not recommended (rule 1: the BP ray)
+    # the others get no fits ({}): under a rig off the camera centre rule 1 recommends the BP ray
     skipped = set(range(len(out))).difference(todo)
     for i in sorted(skipped):
         if out[i].light_aware is None:

@@ -23,31 +23,27 @@ _EDGE_ENDS = np.array([[0, 2, 0, 1], [1, 3, 2, 3]])
 
 
 def batch_contours(boxes: list, levels: np.ndarray, origins: np.ndarray, bps: np.ndarray) -> list:
-    """The contours of many isophote components at once, as ``find_contours`` gives them one by one.
+    """The contours of many isophote components at once, bit for bit as
+    ``find_contours(box, level, fully_connected="low")`` gives them one by one.
 
     Parameters
     ----------
     boxes : list of N ndarray of shape (h_i, w_i), float
-        Each component's bounding box of luma (:func:`~simtest.reconstruct.isophote._component_box`),
-        with a border of pixels below its level where the component is off the region's sides.
+        Each component's bounding box of luma, with a border below its level where the component
+        is off the region's sides.
     levels : ndarray of shape (N,)
         Each box's isovalue, in its luma's units.
     origins : ndarray of shape (N, 2)
-        Each box's first pixel, image (u, v) = (col, row), px.
+        Each box's first pixel, image (u, v), px.
     bps : ndarray of shape (N, 2)
         Each component's brightest point (BP), image (u, v), px.
 
     Returns
     -------
     list of N items
-        Of a component off its region's sides: its outer boundary, (P, 2) image (u, v), if it
-        encloses its BP (even-odd rule), else a (0, 2) array. Of one reaching a side: a list of its
-        open contours, (row, col) in the box. None where a crossing falls on a pixel.
-
-    Notes
-    -----
-    ``find_contours(box, level, fully_connected="low")``'s bits and order: its fractions, its
-    segments linked edge to edge in scan order, a closed contour from after its last scanned.
+        For a component off its region's sides: its outer boundary (P, 2) image (u, v) if it
+        encloses its BP, else a (0, 2) array. For one reaching a side: its open contours, (row, col)
+        in the box. None where a crossing falls on a pixel.
     """
     n, (h, w) = len(boxes), np.array([b.shape for b in boxes], np.int64).T
     # boxes of one width stacked in a column (border rows below the level keep them apart)

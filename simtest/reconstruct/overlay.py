@@ -1,21 +1,12 @@
 """Overlay PNG of a reconstruction: isophotes, BPs and every estimator's normal, with a legend.
 
-A normal n at the BP is drawn as a gauge-figure needle (the convention of shape-from-shading
-figures): from the BP along ``(n_x, n_y)`` of the camera-frame normal, so the needle shows where
-the normal points and how far it tilts from the optical axis (a normal perpendicular to the axis
-gets the full needle length). A perspective projection of the 3D normal would not do: at a
-co-located BP every normal lies along its viewing ray and would project onto the BP itself.
-
-One colour per estimator (:data:`ESTIMATOR_COLOURS`, shared with the 3D view and the evaluation
-figures), named in a legend with the count of highlights drawn. Made to stay readable on a real
-1350 x 1080 frame with hundreds of highlights: only ``ok`` estimates by default (``show_rejected``
-adds the others as small red crosses, labelled with their reason when there are few), the primary
-isophote as a thin outline (where it was found in the image, whatever the lens), and a needle
-length set from the spacing of the highlights (:func:`needle_length_px`).
-
-Drawn with OpenCV on an 8-bit copy of the image (no matplotlib: its import and Agg canvas cost
-the command line over a second). :func:`check_overlay_size` refuses, before anything is written,
-an image whose overlay would not fit in memory.
+A normal n at the BP is drawn as a gauge-figure needle from the BP along ``(n_x, n_y)`` of the
+camera-frame normal (a perspective projection would put every co-located normal onto the BP).
+One colour per estimator (:data:`ESTIMATOR_COLOURS`), named in a legend with its count. By
+default only ``ok`` estimates (``show_rejected`` adds red crosses), the primary isophote as a thin
+outline, and a needle length from the highlights' spacing (:func:`needle_length_px`). Drawn with
+OpenCV on an 8-bit copy; :func:`check_overlay_size` refuses, before anything is written, an image
+whose overlay would not fit in memory.
 """
 
 from __future__ import annotations
@@ -53,28 +44,15 @@ _EXTRA_COLOURS = ("#17becf", "#bcbd22", "#e377c2", "#9467bd", "#8c564b", "#7f7f7
 #: Estimators drawn by default, in legend order (those an estimate has).
 DEFAULT_ESTIMATORS = ("normal", "cone_axis", "joint_cone_axis", "paper_selected", "bp_ray")
 
-#: Memory an overlay costs per image pixel (bytes): the float32 copy of a 16-bit or float RGB image
-#: (12 B), its 8-bit and BGR canvases (3 B each) and OpenCV's PNG buffer (up to 3 B plus a copy);
-#: peaks measured with tracemalloc on a 1350 x 1080 frame: 5 B/px (8-bit), 18 (16-bit), 27 (float64).
+#: Memory an overlay costs per image pixel (bytes): the float32 copy, the 8-bit and BGR canvases and
+#: OpenCV's PNG buffer (tracemalloc peaks: 5 B/px at 8 bits, 18 at 16, 27 for float64).
 OVERLAY_BYTES_PER_PIXEL = 32
-#: Largest image (pixels) an overlay is drawn for: 64 Mpx (8000 x 8000) is ~2 GB at
-#: :data:`OVERLAY_BYTES_PER_PIXEL`, what a laptop can spare; endoscope frames are 1 to 4 Mpx.
+#: Largest image (pixels) an overlay is drawn for (~2 GB at :data:`OVERLAY_BYTES_PER_PIXEL`).
 MAX_OVERLAY_PIXELS = 64_000_000
 
 
 def estimator_colour(name: str) -> str:
-    """The colour of an estimator in every simtest picture (a stable pick for unlisted names).
-
-    Parameters
-    ----------
-    name : str
-        Estimator name as in ``estimates.json`` (``cone_axis``, ``bp_ray``, ...).
-
-    Returns
-    -------
-    str
-        A colour as ``#rrggbb`` (matplotlib reads it too).
-    """
+    """The ``#rrggbb`` colour of an estimator ``name`` in every simtest picture (a stable pick for unlisted names)."""
     if name in ESTIMATOR_COLOURS:
         return ESTIMATOR_COLOURS[name]
     return _EXTRA_COLOURS[zlib.crc32(name.encode()) % len(_EXTRA_COLOURS)]
@@ -89,18 +67,13 @@ def _available_memory_bytes() -> int | None:
 
 
 def check_overlay_size(shape) -> None:
-    """Refuse an image whose overlay would not fit in memory (before anything is written).
-
-    Parameters
-    ----------
-    shape : tuple of int
-        Image shape ``(H, W, ...)``.
+    """Refuse an image of shape ``(H, W, ...)`` whose overlay would not fit in memory.
 
     Raises
     ------
     ValueError
-        If ``H * W`` exceeds :data:`MAX_OVERLAY_PIXELS`, or the overlay's estimated memory
-        (:data:`OVERLAY_BYTES_PER_PIXEL` per pixel) exceeds the memory available now.
+        If ``H * W`` exceeds :data:`MAX_OVERLAY_PIXELS`, or :data:`OVERLAY_BYTES_PER_PIXEL` per pixel
+        exceeds the memory available now.
     """
     h, w = int(shape[0]), int(shape[1])
     need = h * w * OVERLAY_BYTES_PER_PIXEL
@@ -140,22 +113,8 @@ def _display_image(image: np.ndarray) -> np.ndarray:
 
 
 def needle_length_px(bps: np.ndarray, shape) -> float:
-    """Needle length (px, for a normal perpendicular to the axis) from the highlights' spacing.
-
-    1.5 times the median distance from a BP to its nearest neighbour, kept within 3 % and 12 % of
-    the larger image side (12 % alone: one highlight; hundreds on a real frame get short needles
-    that do not cross each other much).
-
-    Parameters
-    ----------
-    bps : ndarray of shape (N, 2)
-        The BPs drawn, px.
-    shape : tuple of int
-        Image shape (H, W, ...).
-
-    Returns
-    -------
-    float
+    """Needle length, px, from the BPs (N, 2) drawn: 1.5 times the median nearest-neighbour distance,
+    within 3 % and 12 % of the larger side of ``shape`` (H, W, ...).
     """
     side = float(max(shape[:2]))
     lo, hi = 0.03 * side, 0.12 * side
@@ -195,15 +154,13 @@ def draw_overlay(path, image, estimates, K=None, *, estimators=None, show_reject
     estimates : list of SpecularityEstimate
         From :func:`~simtest.reconstruct.pipeline.reconstruct`.
     K : CameraModel or array_like of shape (3, 3), optional
-        The camera; unused by the drawing (needles start at the BP as seen, contours are drawn
-        where they were found), kept so that callers can pass it.
+        The camera; unused by the drawing, accepted for callers.
     estimators : sequence of str, optional
         Estimators drawn, default :data:`DEFAULT_ESTIMATORS` (those the estimates have).
     show_rejected : bool
         Also mark highlights that were not reconstructed.
     needle_length : float, optional
-        Needle length as a fraction of the larger image side; default from the highlights'
-        spacing (:func:`needle_length_px`).
+        Needle length as a fraction of the larger image side; default :func:`needle_length_px`.
 
     Returns
     -------
@@ -243,15 +200,13 @@ def draw_overlay(path, image, estimates, K=None, *, estimators=None, show_reject
         p = est.primary
         if p is not None and p.points_uv is not None and len(p.points_uv):
             cv2.polylines(canvas, [at(p.points_uv)], bool(p.closed), _bgr("#ffff00"), 1, cv2.LINE_AA, _SHIFT)
-    # later estimators drawn thinner on top, 2 px apart: needles that coincide show as nested
-    # stripes, each a 1 px rim on either side of the next (at least 1 px: cv2's widths are whole)
+    # later estimators drawn thinner on top, 2 px apart: coinciding needles show as nested stripes
     for i, name in enumerate(present):
         colour, thick = _bgr(estimator_colour(name)), round((2 * (len(present) - 1 - i) + 1) * scale)
         for est, d in zip(ok, normals):
             if name in d:
                 base = np.asarray(est.bp_px, dtype=np.float64)
-                _needle(canvas, at(base), at(base + length_px * d[name][:2]), colour, thick,
-                        dashed=name == "bp_ray")
+                _needle(canvas, at(base), at(base + length_px * d[name][:2]), colour, thick, dashed=name == "bp_ray")
     r = max(2, round(2 * scale))
     for b in at(bps):
         cv2.circle(canvas, tuple(int(x) for x in b), r * _ONE, (255, 255, 255), -1, cv2.LINE_AA, _SHIFT)

@@ -1,60 +1,38 @@
-"""The light-aware estimators run on detected highlights, and the normal recommended to a user.
+"""The normal recommended to a user from the light-aware estimators run on detected highlights.
 
 :func:`~simtest.reconstruct.light_fits.with_light_aware` attaches the light-aware fits to each
-:class:`~simtest.reconstruct.assemble.SpecularityEstimate` (``light_aware``); :func:`recommend` then
-picks one normal per highlight, the ``normal`` of ``estimates.json``.
+estimate (``light_aware``); :func:`recommend` picks one normal per highlight, the ``normal`` of
+``estimates.json``.
 
 Recommendation rule
 -------------------
-Chosen on the harness' tuning renders (``simtest validate rendered``, the ``lightaware``,
-``lightaware-curved`` and ``endoscope`` suites), never from ground truth at run time; the
-measurements behind each rule are in ``docs/decisions/light-aware-recommendation.md``.
+Chosen on the harness' tuning renders, never from ground truth at run time; the measurements
+behind each rule are in ``docs/decisions/light-aware-recommendation.md``.
 
-0. A row of two guides' clipped tops fused into one highlight where their joint fit placed no
-   specular point at each top's centre (:mod:`~simtest.reconstruct.rig_lobes`): ``rig_pair``, the plane the two
-   tops fix as a stereo pair whose baseline is the guides' (:func:`~simtest.reconstruct.rig_pairs.pair_plane`).
-   Clipped tops hold their specular points to about a pixel where the lobe's shape, censored,
-   hardly tells the depth from the roughness.
-1. With a rig whose lights are not all at the camera centre, the first fit whose status is ``ok``
-   of ``photometric_fit``, ``cubic_patch_fit`` (two lights at different places), ``quadric_fit``,
+0. Two guides' clipped tops fused into one highlight (:mod:`~simtest.reconstruct.rig_lobes`):
+   ``rig_pair``, the plane the two tops fix as a stereo pair
+   (:func:`~simtest.reconstruct.rig_pairs.pair_plane`).
+1. With a rig whose lights are not all at the camera centre, the first ``ok`` fit of
+   ``photometric_fit``, ``cubic_patch_fit`` (two lights at different places), ``quadric_fit``,
    ``isocurve_fit`` (unless the plane misfits); else rules 3 to 5; else ``bp_ray`` (off the camera
-   the BP ray and the cone axes give the BP's direction, not the normal). On a curved patch the
-   plane reports ``plane_misfit`` (or runs off: the cubic patch's turn too)
-   (:data:`~simtest.reconstruct.light_fits.QUADRIC_AFTER`), and ``quadric_fit`` runs (on the ROI
-   grown 1.5 times, not 2.5: more third-order shape would trade with its depth); under one light
-   its sigma spans the bisectors over ``depth_range_mm``. With two lights at different places the
-   lobes shift apart as the offsets over the depth say while the shape acts on both alike, so
-   ``cubic_patch_fit`` fixes the depth, the shape free; its normal is the apex's, each light's
-   beside it (``light_normals``).
+   the BP ray and cone axes give the BP's direction, not the normal).
 2. Without a rig or with every light at the camera centre: ``joint_cone_axis`` (two isophotes),
-   else ``cone_axis``, else ``bp_ray`` (the co-located suite's ranking).
-3. The fit of least stated sigma (:func:`_stated_sigma`) whose depth is not observable (its misfit
-   tests passed, the exclusions of 1.; ``cubic_patch_fit`` only with a normal per light), where
-   :data:`SIGMA_MARGIN` times it is below the BP ray's expected error (:func:`bp_ray_error_deg` at
-   the nominal 20 mm or the farthest depth the fit cannot exclude, :func:`bp_error_depth_mm`; at
-   least half the angle between the BP ray and the fit's normal); ``depth_mm`` None. The fit's
-   sigma, the distance free, carries the tilt that trades with it; a ``plane_misfit`` fit's (a
-   wrong minimum's) does not cover its error. On a sensor frame the fit runs on the linear
-   channels, the body colours projected out (``colour.specular_image``).
-4. A ``plane_misfit`` photometric fit whose normal the quadric confirms: the plane's normal within
-   the quadric's stated sigma s_q (angle g <= s_q, s_q < 90 deg), and :data:`SIGMA_MARGIN` times
-   ``g + s_q`` below the BP ray's expected error (as in 3.); ``depth_mm`` None. Micro-relief on
-   flat mucosa leaves a residual the curvature test reads as curved while the plane's normal,
-   averaged over the lobe, stays near the macro normal; on a curved patch the quadric disagrees.
-5. A highlight that is one fused lobe of the rig's lights (their predicted specular points in its
-   bright region, at most :data:`~simtest.decisions.FUSED_SEPARATION_MAX` lobe sigmas apart, the
-   region centred on the BP): ``rig_centroid``, the bisector of the directions to the camera and
-   to the lights' centroid (:mod:`~simtest.reconstruct.rig_centroid`, which derives it and its
-   sigma: the depth range's spread plus the fusion bias), when :data:`SIGMA_MARGIN` times its
-   sigma is below the BP ray's expected error for a lobe that is not fused; ``depth_mm`` None.
-   No fit sees the depth there, but the brightest point is the centroid light's specular point.
+   else ``cone_axis``, else ``bp_ray``.
+3. The fit of least stated sigma (:func:`_stated_sigma`) whose depth is not observable (misfit
+   tests passed), where :data:`SIGMA_MARGIN` times it is below the BP ray's expected error
+   (:func:`_bp_ray_error_beside`); ``depth_mm`` None.
+4. A ``plane_misfit`` photometric fit whose normal the quadric confirms (angle g <= the quadric's
+   sigma s_q < 90 deg), :data:`SIGMA_MARGIN` times ``g + s_q`` below the BP ray's expected error;
+   ``depth_mm`` None (micro-relief reads as curvature while the plane's normal stays near the macro normal).
+5. A fused lobe of the rig's lights (:mod:`~simtest.reconstruct.rig_centroid`): ``rig_centroid``,
+   the bisector towards the lights' centroid, when :data:`SIGMA_MARGIN` times its sigma is below
+   the BP ray's expected error; ``depth_mm`` None.
 
 Depth ceiling
 -------------
-A depth is released (``depth_mm``, status ``ok``) only when its relative 1-sigma (and the patch
-fits' ``depth_rel_sigma``, the larger) is at most :data:`DEPTH_REL_SIGMA_CEILING`
-(:func:`depth_within_ceiling`), else withdrawn (``depth_not_observable``), the normal kept: the
-fits estimate log h, and at 0.2 exp(+-0.4) is already -33 % / +49 %.
+A depth is released (``depth_mm``, status ``ok``) only when its relative 1-sigma is at most
+:data:`DEPTH_REL_SIGMA_CEILING` (:func:`depth_within_ceiling`), else withdrawn
+(``depth_not_observable``), the normal kept.
 
 ``depth_mm``, ``normal_sigma_deg``, ``light_normals`` and ``light_depths_mm`` are those of the
 estimator recommended (None where it gives none).
@@ -110,10 +88,9 @@ class Recommendation:
     light_depths_mm: np.ndarray | None = None
 
 def bp_error_depth_mm(r: LightAwareEstimate, nominal_depth_mm: float) -> float:
-    """The depth at which :func:`bp_ray_error_deg` is read next to the fit ``r``, mm: its depth;
-    without one, the farthest depth it cannot exclude (``depth_range_mm``), where the BP ray's
-    error is least (under one light the quadric's own depth is 57 % short on the liver); else
-    ``nominal_depth_mm``."""
+    """The depth, mm, at which :func:`bp_ray_error_deg` is read next to the fit ``r``: its depth, else
+    the farthest depth it cannot exclude (``depth_range_mm``), else ``nominal_depth_mm``.
+    """
     if r.depth_mm is not None:
         return float(r.depth_mm)
     if r.depth_range_mm is not None:
@@ -121,15 +98,10 @@ def bp_error_depth_mm(r: LightAwareEstimate, nominal_depth_mm: float) -> float:
     return float(nominal_depth_mm)
 
 def depth_within_ceiling(r: LightAwareEstimate) -> LightAwareEstimate:
-    """``r`` (a fit's result) with its depth withdrawn when its relative 1-sigma exceeds the ceiling.
+    """``r`` with its depth withdrawn when its relative 1-sigma exceeds the ceiling.
 
-    Returns
-    -------
-    LightAwareEstimate
-        ``r`` where it gives no depth or the depth's relative 1-sigma (a depth without sigma:
-        unbounded) is within the ceiling; else a copy without depth, depth sigma, distance and
-        per-light depths, ``ok`` turned ``depth_not_observable`` (module docstring, "Depth
-        ceiling"), its normals and their sigmas kept.
+    Returns ``r`` where it gives no depth or the depth is within the ceiling; else a copy without
+    depth, depth sigma, distance and per-light depths, ``ok`` turned ``depth_not_observable``.
     """
     if r.depth_mm is None:
         return r
@@ -144,24 +116,9 @@ def depth_within_ceiling(r: LightAwareEstimate) -> LightAwareEstimate:
 
 
 def bp_ray_error_deg(ray, depth_mm: float, rig: LightRig) -> float:
-    """The BP ray's expected error, degrees: half the angle each light subtends from the camera at
-    the point ``depth_mm`` along ``ray``, averaged over the rig's lights by intensity.
-
-    The BP ray is off the normal by half the angle between camera and light (exact for a plane and
-    one light); for a rig, the half angles' mean, as each light's lobe has its own BP.
-
-    Parameters
-    ----------
-    ray : array_like of shape (3,)
-        Unit viewing ray of the BP, camera frame.
-    depth_mm : float
-        Distance of the specular point along the ray, mm, > 0.
-    rig : LightRig
-
-    Returns
-    -------
-    float
-        Degrees, in [0, 90].
+    """The BP ray's expected error, degrees in [0, 90]: half the angle each light subtends from the
+    camera at the point ``depth_mm`` (> 0) along the unit ``ray``, averaged over the rig's lights by
+    intensity (exact for a plane and one light).
     """
     X = float(depth_mm) * np.asarray(ray, dtype=np.float64)
     to_cam = -X / np.linalg.norm(X)
@@ -178,8 +135,7 @@ def bp_ray_error_deg(ray, depth_mm: float, rig: LightRig) -> float:
 
 
 def _stated_sigma(r: LightAwareEstimate) -> float | None:
-    """The ``normal_sigma_deg`` a recommendation drawn from ``r`` states: the fit's own, or with
-    a normal per light the largest of it and theirs (each covers every normal it gives)."""
+    """The ``normal_sigma_deg`` a recommendation from ``r`` states (with per-light normals, the largest)."""
     sig, ls = r.normal_sigma_deg, r.light_normal_sigmas_deg
     if sig is None or r.light_normals is None or ls is None:
         return sig
@@ -203,9 +159,9 @@ def _confirmed_plane(est, pho: LightAwareEstimate | None, quad: LightAwareEstima
 
 
 def _bp_ray_error_beside(est, r: LightAwareEstimate) -> float:
-    """The BP ray's error that rules 3 and 4 compare a fit's stated sigma with, degrees: its
-    expected error next to the fit (``r.bp_ray_error_deg``; 0 where not set), and at least half
-    the angle between the BP ray and the fit's normal (module docstring, rule 3)."""
+    """The BP ray's error, degrees, that rules 3 and 4 compare with: ``r.bp_ray_error_deg`` (0 where not
+    set), at least half the angle between the BP ray and the fit's normal.
+    """
     expected = r.bp_ray_error_deg if r.bp_ray_error_deg is not None else 0.0
     return max(expected, 0.5 * _angle_deg(est.bp_ray, r.normal))
 
@@ -219,17 +175,7 @@ def _angle_deg(a, b) -> float:
     return math.degrees(math.acos(min(1.0, max(-1.0, c))))
 
 def recommend(est) -> Recommendation:
-    """The normal recommended for one highlight (module docstring, "Recommendation rule").
-
-    Parameters
-    ----------
-    est : SpecularityEstimate
-        With ``light_aware`` attached (:func:`~simtest.reconstruct.light_fits.with_light_aware`).
-
-    Returns
-    -------
-    Recommendation
-    """
+    """The :class:`Recommendation` for one highlight with ``light_aware`` attached (module docstring)."""
     la = getattr(est, "light_aware", None)
     if la is not None:  # a rig off the camera centre is known ({}: no fit ran, the BP ray's)
         pair = la.get("rig_pair")  # rule 0

@@ -1,16 +1,10 @@
-"""The normal estimators, registered in one place: a name, the function that reads its normal
-out of a highlight's estimate, its kind, a line for the reports, and what it gives.
+"""The normal estimators, registered in one place: a name, the function that reads its normal out of
+a highlight's estimate, its kind, a line for the reports, and what it gives.
 
-A new estimator is one function and one :func:`register` call; the places that list estimators
-(the harness's scoring, its suites' names and report tables, the estimates' light-aware normals,
-the recommendation's order, the command line's choices) read them from here with :func:`names`
-and :func:`get`.
-
-Kinds (:data:`KINDS`): ``oracle`` (the circle pose's N+- closest to the truth, as the paper
-reports), ``isophote`` (a normal of the highlight's isophotes), ``baseline`` (the BP ray),
-``light_aware`` (with the calibrated rig: the highlight's ``light_aware`` entry of its name,
-:func:`simtest.reconstruct.light_fits.light_aware_estimates`), ``oracle_input`` (the photometric
-fit on an image a real frame does not give), ``recommendation`` (the normal recommended).
+A new estimator is one function and one :func:`register` call; every place that lists estimators
+reads them with :func:`names` and :func:`get`. Kinds (:data:`KINDS`): ``oracle`` (N+- closest to
+the truth, as the paper reports), ``isophote``, ``baseline`` (the BP ray), ``light_aware``,
+``oracle_input`` (a fit on an image a real frame does not give), ``recommendation``.
 
 Examples
 --------
@@ -28,8 +22,7 @@ from typing import Callable
 
 import numpy as np
 
-__all__ = ["KINDS", "NORMAL_READERS", "Estimator", "describe", "get", "names", "register", "unit_or_none",
-           "unregister"]
+__all__ = ["KINDS", "NORMAL_READERS", "Estimator", "describe", "get", "names", "register", "unit_or_none", "unregister"]
 
 #: The kinds of estimator (module docstring).
 KINDS = ("oracle", "isophote", "baseline", "light_aware", "oracle_input", "recommendation")
@@ -86,17 +79,8 @@ NORMAL_READERS: dict[str, Callable] = {}
 def register(name: str, normal: Callable, *, kind: str, description: str, outputs=("normal",),
              status_free: bool = False, default: bool = False, reference: bool = False,
              rank: int | None = None, oracle_input: str | None = None) -> Estimator:
-    """Register an estimator (attributes of :class:`Estimator`); a name registered again is
-    replaced in place (its order kept).
-
-    Returns
-    -------
-    Estimator
-
-    Raises
-    ------
-    ValueError
-        A kind not in :data:`KINDS` or an output not in :data:`OUTPUTS`.
+    """Register an estimator (attributes of :class:`Estimator`); a name registered again is replaced in
+    place. ValueError for a kind not in :data:`KINDS` or an output not in :data:`OUTPUTS`.
 
     Examples
     --------
@@ -126,19 +110,12 @@ def unregister(name: str) -> None:
 
 
 def get(name: str) -> Estimator:
-    """The registered estimator ``name``.
-
-    Raises
-    ------
-    KeyError
-        An unknown name.
-    """
+    """The registered estimator ``name`` (KeyError for an unknown name)."""
     return _REGISTRY[name]
 
 
 def describe(name: str) -> str:
-    """The report line of ``name``, or the name itself where it is not registered (an external
-    estimator's)."""
+    """The report line of ``name``, or the name itself where it is not registered."""
     est = _REGISTRY.get(name)
     return name if est is None else est.description
 
@@ -155,18 +132,7 @@ def names(*kinds: str, ranked: bool = False) -> tuple[str, ...]:
 
 
 def unit_or_none(v) -> np.ndarray | None:
-    """``v`` as a unit vector, or None if it cannot be one.
-
-    Parameters
-    ----------
-    v : array_like of 3 numbers, None or False
-        A direction (any length).
-
-    Returns
-    -------
-    ndarray of shape (3,) or None
-        float64 unit vector; None if ``v`` is None/False, not 3 numbers, non-finite or zero.
-    """
+    """``v`` as a float64 unit vector (3,), or None if it is None/False, not 3 numbers, non-finite or zero."""
     if v is None or v is False:
         return None
     try:

@@ -1,11 +1,6 @@
-"""What :func:`~simtest.reconstruct.pipeline.reconstruct` returns: one frame's estimates as a table.
-
-A :class:`Reconstruction` is a list of the frame's estimates (brightest first), so that a loop
-over it reads one object per highlight, and it gives the same frame as arrays and tables: the BPs
-``(N, 2)``, the statuses ``(N,)``, the normals of every estimator ``(N, E, 3)`` (NaN where an
-estimator gave none), an Arrow table of the rows ``simtest reconstruct`` writes to
-``estimates.parquet`` (:func:`~simtest.reconstruct.table.estimates_batch`) and the JSON document it
-writes to ``estimates.json`` (:func:`~simtest.reconstruct.io.estimates_document`).
+"""What :func:`~simtest.reconstruct.pipeline.reconstruct` returns: one frame's estimates as a list
+(brightest first) that also gives them as arrays and tables: BPs ``(N, 2)``, statuses ``(N,)``,
+normals ``(N, E, 3)``, the rows of ``estimates.parquet`` and the ``estimates.json`` document.
 """
 
 from __future__ import annotations
@@ -18,8 +13,7 @@ from simtest.reconstruct.table import arrow, estimates_batch
 
 __all__ = ["Reconstruction", "NORMAL_COLUMNS"]
 
-#: The normals of :meth:`Reconstruction.normals`, in order: the paper's selected normal, the cone
-#: axis, the joint cone axis of nested isophotes, the BP ray (the baseline) and the recommended one.
+#: The normals of :meth:`Reconstruction.normals`, in order.
 NORMAL_COLUMNS = ("paper_selected", "cone_axis", "joint_cone_axis", "bp_ray", "recommended")
 
 
@@ -72,18 +66,9 @@ class Reconstruction(list):
 
     @classmethod
     def of_frame(cls, estimates, detection, settings, camera, image_shape) -> Reconstruction:
-        """The frame's Reconstruction from what ``reconstruct`` holds at its end.
-
-        Parameters
-        ----------
-        estimates : list of SpecularityEstimate
-        detection : Detection
-            Its ``n_components`` and ``n_unexamined`` are recorded.
-        settings : ReconSettings
-            Its ``max_candidates``, ``isovalues`` and ``normalise`` are recorded.
-        camera : CameraModel
-            Its K is recorded where it is a pinhole camera.
-        image_shape : tuple of int
+        """The frame's Reconstruction from what ``reconstruct`` holds at its end: the estimates, the
+        detection's counts, the settings' ``max_candidates``, ``isovalues`` and ``normalise``, the
+        camera's K where it is a pinhole, and the image shape.
         """
         return cls(estimates, n_components=detection.n_components,
                    n_unexamined=detection.n_unexamined, max_candidates=settings.max_candidates,
@@ -112,24 +97,11 @@ class Reconstruction(list):
         return self.statuses == "ok"
 
     def normals(self, columns=NORMAL_COLUMNS) -> np.ndarray:
-        """The normals of every estimate and estimator, ``(N, E, 3)``.
+        """The normals of every estimate and estimator, ``(N, len(columns), 3)``: unit, OpenCV camera
+        frame, facing the camera; NaN where an estimator gave none.
 
-        Parameters
-        ----------
-        columns : sequence of str
-            Which normals, by name (default :data:`NORMAL_COLUMNS`); ``"recommended"`` is the
-            recommendation's, any other name an attribute of the estimate.
-
-        Returns
-        -------
-        ndarray of shape (N, len(columns), 3)
-            Unit normals in the OpenCV camera frame, facing the camera; NaN where an estimator
-            gave none (a rejected candidate has only its BP ray).
-
-        Raises
-        ------
-        ValueError
-            For a name that is no normal of an estimate.
+        ``columns``: names (default :data:`NORMAL_COLUMNS`); ``"recommended"`` is the recommendation's,
+        any other an attribute of the estimate (ValueError for a name that is no normal).
         """
         cols = tuple(columns)
         out = np.full((len(self), len(cols), 3), np.nan)
@@ -150,44 +122,14 @@ class Reconstruction(list):
         return [estimate_to_dict(e, include_points) for e in self]
 
     def to_arrow(self, *, frame: int = 0, source: str = "", include_points: bool = False):
-        """The rows ``simtest reconstruct`` writes to ``estimates.parquet``, as an Arrow table.
-
-        Parameters
-        ----------
-        frame : int
-            The ``frame`` column's value.
-        source : str
-            The ``source`` column's value (a file name).
-        include_points : bool
-            Also the isophotes' contour points.
-
-        Returns
-        -------
-        pyarrow.Table
-            One row per estimate, the schema of :func:`~simtest.reconstruct.table.table_schema`.
+        """The rows ``simtest reconstruct`` writes to ``estimates.parquet`` as a pyarrow.Table
+        (:func:`~simtest.reconstruct.table.table_schema`), with the ``frame`` and ``source`` columns given.
         """
         return arrow()[0].Table.from_batches([estimates_batch(frame, source, self, include_points)])
 
     def to_json(self, *, indent: bool = False, include_points: bool = False, image=None) -> bytes:
-        """The ``estimates.json`` document of this frame, UTF-8 bytes (orjson).
-
-        Parameters
-        ----------
-        indent : bool
-            Indent by two spaces.
-        include_points : bool
-            Also the isophotes' contour points.
-        image : str or Path, optional
-            The image file, recorded as text.
-
-        Returns
-        -------
-        bytes
-
-        Raises
-        ------
-        ValueError
-            A value that is not finite where the schema wants a number (its key path named).
+        """The ``estimates.json`` document of this frame, UTF-8 bytes (``image``: the file recorded).
+        ValueError naming the key path of a value that is not finite.
         """
         doc = estimates_document(self, K=self.K, image=image, image_shape=self.image_shape,
                                  isovalues=self.isovalues, normalise=self.normalise,

@@ -1,28 +1,20 @@
 """A rig's lobes fused into one highlight: the normal bisecting the camera and the centroid light.
 
-Lobes closer than their width make one lobe with one maximum. Lobes of one shape at the lights'
-specular points p_j (px), amplitudes a_j (each light's irradiance there), A = sum a_j, peak at
-m = sum a_j p_j / A plus ``y = -sum_j a_j |e_j|^2 e_j / (2 A s^2)`` (e_j = p_j - m; Gaussian lobes
-of sigma s): the first and second orders vanish (sum a_j e_j = 0; a symmetric lobe). m is the
-specular point of the centroid light C = sum a_j L_j / A to second order in the lights' offsets over
-the depth, so the normal at the BP bisects the directions to the camera and to C: the BP ray where
-C is the camera centre (guides either side of the lens), else a normal that depends on the depth.
+Lobes of one shape at the lights' specular points p_j with amplitudes a_j (A = sum a_j) fuse
+into one lobe peaking at m = sum a_j p_j / A plus ``y = -sum_j a_j |e_j|^2 e_j / (2 A s^2)``
+(e_j = p_j - m; Gaussian lobes of sigma s). m is the specular point of the centroid light
+C = sum a_j L_j / A to second order, so the normal at the BP bisects the directions to the camera
+and to C.
 
-Its sigma: the largest angle between the normal at the depth used and at the ends of its range (a
-fit's released depth +- its 1-sigma; a fit's ``depth_range_mm``; else the nominal depth over
-:data:`~simtest.decisions.PAIR_DEPTH_MIN_MM` to ``PAIR_DEPTH_MAX_MM``); plus the angle the BP's ray
-turns through when moved by the fusion bias ``m - c + y`` (c, the centroid's specular point, is the
-BP), which the normal turns through too (exactly when co-located), and by the BP's own error
-(:data:`~simtest.decisions.BP_PLACE_SIGMA_PX` per axis).
+Its sigma: the largest angle between the normal at the depth used and at the ends of its range
+(a fit's depth +- its 1-sigma, its ``depth_range_mm``, else :data:`~simtest.decisions.PAIR_DEPTH_MIN_MM`
+to ``PAIR_DEPTH_MAX_MM``), plus the angle the BP's ray turns through when moved by the fusion bias
+``m - c + y`` and the BP's own error (:data:`~simtest.decisions.BP_PLACE_SIGMA_PX` per axis).
 
-One fused lobe: the lights' specular points predicted for the plane of this normal and depth
-(:func:`~simtest.reconstruct.rig_lobes.guide_specular_points`) lie in the highlight's bright region
+One fused lobe: the predicted specular points lie in the highlight's bright region
 (:data:`~simtest.decisions.FUSED_LOBE_LEVEL`), at most :data:`~simtest.decisions.FUSED_SEPARATION_MAX`
-lobe sigmas apart (s from the region's width across: a Gaussian's region above the level q of its
-peak is a disc of radius ``s sqrt(-2 ln q)``, of coordinate variance a quarter of its square), and
-the centroid of the light above the region's edge lies within a quarter of their separation of the
-BP along it (half of it for a BP at one light's lobe: clipping widens the region, and the width
-alone would take two clipped lobes for one).
+lobe sigmas apart (s from the region's width), and the centroid of the light above the region's
+edge lies within a quarter of their separation of the BP (half for a BP at one light's lobe).
 """
 
 from __future__ import annotations
@@ -49,22 +41,9 @@ __all__ = ["centroid_normal", "light_aware_with_rig", "rig_centroid"]
 
 
 def centroid_normal(bp_uv, camera, rig: LightRig, depth_mm: float) -> np.ndarray:
-    """The normal bisecting the directions to the camera and to the rig's centroid light (the
-    lights weighted by the irradiance each gives there) at ``depth_mm`` along the BP's ray.
-
-    Parameters
-    ----------
-    bp_uv : array_like of shape (2,)
-        The BP (u, v), px.
-    camera : array_like of shape (3, 3) or CameraModel
-    rig : LightRig
-    depth_mm : float
-        Depth of the specular point along the BP's ray, mm (> 0).
-
-    Returns
-    -------
-    ndarray of shape (3,)
-        Unit normal facing the camera, camera frame.
+    """The normal bisecting the directions to the camera and to the rig's centroid light (weighted by
+    the irradiance each light gives there) at ``depth_mm`` (> 0) along the ray of ``bp_uv`` (u, v) px:
+    unit (3,), facing the camera, camera frame.
     """
     X = depth_mm * _rays(camera, np.asarray(bp_uv, np.float64)[None])[0]
     a = _amplitudes(rig, X)
@@ -92,29 +71,27 @@ def _depth_span(fits: dict, nominal_depth_mm: float) -> tuple[float, float, floa
     return nominal_depth_mm, PAIR_DEPTH_MIN_MM, PAIR_DEPTH_MAX_MM, nominal_depth_mm
 
 
-def rig_centroid(image, estimates, camera, rig: LightRig | None, nominal_depth_mm: float = 20.0, *,
-                 gray=None) -> list:
-    """The estimates with ``"rig_centroid"`` among the light-aware results of each fitted highlight
-    that is one fused lobe of the rig's lights (module docstring).
+def rig_centroid(image, estimates, camera, rig: LightRig | None, nominal_depth_mm: float = 20.0, *, gray=None) -> list:
+    """The estimates with ``"rig_centroid"`` among the light-aware results of each fitted highlight that
+    is one fused lobe of the rig's lights (module docstring).
 
     Parameters
     ----------
     image : ndarray of shape (H, W) or (H, W, 3)
     estimates : sequence of SpecularityEstimate
-        With their light-aware fits (:func:`~simtest.reconstruct.rig_lobes.split_fused_lobes`'s).
+        With their light-aware fits.
     camera : array_like of shape (3, 3) or CameraModel
     rig : LightRig or None
         The scope's lights (without two at different places: returned unchanged).
     nominal_depth_mm : float
     gray : ndarray of shape (H, W), optional
-        The frame's luma (:func:`~simtest.reconstruct.detect_pixels.luma`) when at hand.
+        The frame's luma when at hand.
 
     Returns
     -------
     list of SpecularityEstimate
-        ``"rig_centroid"``: status ``depth_not_observable`` (it estimates no depth), its normal
-        (:func:`centroid_normal`), ``normal_sigma_deg`` and ``bp_ray_error_deg`` (the BP ray's
-        error where the lobes do not fuse, :func:`~simtest.reconstruct.recommend.bp_ray_error_deg`).
+        ``"rig_centroid"``: status ``depth_not_observable``, its normal (:func:`centroid_normal`),
+        ``normal_sigma_deg`` and ``bp_ray_error_deg``.
     """
     if rig is None or not rig.has_separate_lights:
         return list(estimates)
@@ -166,17 +143,16 @@ def _fused_lobe(gray, est, camera, rig: LightRig, fits: dict, nominal_depth_mm: 
 
 def light_aware_with_rig(image, estimates, camera, rig: LightRig | None, *, workers: int = 1, on_highlight=None,
                          **kwargs) -> list:
-    """The light-aware step of one image or a folder's frame, as ``simtest reconstruct`` runs it:
-    :func:`~simtest.reconstruct.light_fits.with_light_aware` (its ``kwargs``, ``workers``,
-    ``on_highlight``), then the rig's fused lobes split (:func:`~simtest.reconstruct.rig_lobes.split_fused_lobes`)
-    or given their centroid light's normal (:func:`rig_centroid`); a list of SpecularityEstimate."""
+    """The light-aware step of one image or frame as ``simtest reconstruct`` runs it:
+    :func:`~simtest.reconstruct.light_fits.with_light_aware`, then the rig's fused lobes split or
+    given their centroid light's normal; a list of SpecularityEstimate.
+    """
     kwargs = fit_arguments(image, kwargs) if _offset_rig(rig) else kwargs  # made once for both steps
     # the frame's luma once for the three steps, where a highlight or a split may read it
     gray = luma(np.asarray(image)) if _offset_rig(rig) and any(e.status in SPLIT_STATUSES for e in estimates) else None
     split = fused_lobe_candidates(gray, estimates, camera, rig) if gray is not None else []  # fitted in the workers
     if split:  # two guides' lobes are the illuminant's light: a candidate of the tissue's colour is no pair
-        # (a top clipped in every channel is white whatever the colour at its BP, which the
-        # centroid of two joined tops puts in the valley between them)
+        # (a top clipped in every channel is white whatever the colour at its BP)
         white = specular_colour_at(np.asarray(image), gray, [estimates[i].bp_px for i in split],
                                    full_scale=default_full_scale(np.asarray(image)), response=kwargs.get("response"))
         split = [i for i, w in zip(split, white) if w or estimates[i].saturated]

@@ -1,31 +1,21 @@
 """Highlights of several light guides fused into one: one row per guide, from their joint fit.
 
-A scope's guides each make a highlight on a planar patch (:mod:`simtest.reconstruct.rig_pairs`).
-Where the patch is near and its film shiny, the guides' lobes touch and the detector sees one
-bright region: one plateau whose centroid lies between the guides' specular points (``ok`` at
-neither), a plateau broken into several by noise (``merged``), an oval with a waist or too
-long for one ellipse (``bad_fit``, ``not_elliptical``), or over a bright sheen an isophote that
-runs out of the frame (``contour_cut``). The light-aware photometric fit models every guide's
+Where the patch is near and shiny, the guides' lobes (:mod:`simtest.reconstruct.rig_pairs`)
+touch and the detector sees one bright region (``ok`` at neither specular point, ``merged``,
+``bad_fit``, ``not_elliptical`` or ``contour_cut``). The light-aware photometric fit models every
 lobe on one plane and needs no ellipse.
 
-Rule. A candidate's plane fit (``n . X = -h``) predicts each guide's specular point, the plane's
-point on the segment from the camera to the guide's mirror image ``L' = L - 2 (n . L + h) n``:
-``X_s = L' h / (-n . L')``, projected (a fit with the normal but not the distance: the h that
-centres them on the candidate's clipped tops, :func:`_on_the_tops`). Every guide whose specular
-point lies in the candidate's bright region (the connected pixels above :data:`FUSED_LOBE_LEVEL`
-of the BP's height above the ROI border's median, holding the BP) is a highlight of it. When two or more are, at least
-:data:`~simtest.decisions.PAIR_TOL_PX` apart and none is another candidate's BP, the candidate
-gives one row per guide: BP at its specular point, status ``ok``, the joint fit's normal; a
-clipped candidate's points must lie within ``PAIR_TOL_PX`` of its clipped tops. A
-rejected candidate is fitted for this only where the rig's curve runs in its region (``merged``
-and ``cluster``, whose other peak may be the other guide's top: stretched along it); one the rule
-does not split keeps its status and no fit.
+Rule. A candidate's plane fit (``n . X = -h``) predicts each guide's specular point
+``X_s = L' h / (-n . L')`` with ``L' = L - 2 (n . L + h) n`` (without a distance, the h that centres
+them on the clipped tops, :func:`_on_the_tops`). When two or more guides' points lie in the
+candidate's bright region (above :data:`FUSED_LOBE_LEVEL` of the BP's height, holding the BP),
+at least :data:`~simtest.decisions.PAIR_TOL_PX` apart and none another candidate's BP, the
+candidate gives one row per guide: BP at its specular point, status ``ok``, the joint fit's
+normal. A rejected candidate is fitted for this only where the rig's curve runs in its region.
 
-Pair. A clipped candidate whose joint fit gives no rows, or none within ``PAIR_TOL_PX`` of each
-of the region's two largest clipped tops' centroids where the rig pairs them, gives one row per
-top at its centroid with the plane the two fix as a stereo pair (``rig_pair``,
-:func:`~simtest.reconstruct.rig_pairs.pair_plane`): the tops hold their specular points where the
-censored lobe's shoulders hardly tell the depth from the roughness.
+Pair. A clipped candidate whose joint fit gives no rows at its two largest clipped tops where
+the rig pairs them gives one row per top at its centroid, with the plane the two fix as a stereo
+pair (``rig_pair``, :func:`~simtest.reconstruct.rig_pairs.pair_plane`).
 """
 
 from __future__ import annotations
@@ -51,10 +41,9 @@ SPLIT_STATUSES = ("ok", "merged", "bad_fit", "not_elliptical", "cluster", "conto
 
 
 def _bright_region(gray: np.ndarray, est) -> tuple[np.ndarray, int, int] | None:
-    """The connected pixels of the candidate's ROI above :data:`FUSED_LOBE_LEVEL` of its BP's
-    height above the ROI border's median (the diffuse shading) that hold the BP:
-    ``(mask, row0, col0)`` (the mask in ROI indices), or None when the BP's pixel is not above
-    the level (a BP off its own region: nothing to split)."""
+    """The connected pixels of the candidate's ROI above :data:`FUSED_LOBE_LEVEL` of its BP's height
+    that hold the BP: ``(mask, row0, col0)``, or None when the BP's pixel is not above the level.
+    """
     r0, r1, c0, c1 = (int(v) for v in (est.roi.row0, est.roi.row1, est.roi.col0, est.roi.col1))
     sub = gray[r0:r1, c0:c1]
     # the lobe's height above the diffuse shading: the ROI's border median (the isophotes' zero)
@@ -80,12 +69,10 @@ def _inside(mask_at, pts: np.ndarray) -> np.ndarray:
 
 
 def _along_the_rig(gray: np.ndarray, est, camera, rig, stretched: bool = True) -> bool:
-    """Whether a candidate's region reaches along the rig's curve from its BP beyond its own lobe
-    (worth the plane's fit): the curve runs in it beyond :data:`PAIR_TOL_PX`, and ``stretched``
-    (``merged``, ``cluster``), its tops (the region's pixels whose luma lies within
-    :data:`~simtest.decisions.CLIP_LUMA_MARGIN_REL` of its peak) are at least
-    :data:`~simtest.decisions.FUSED_TOPS_STRETCH` times as long along the curve as they are wide
-    across (broad lobes, ``bad_fit``, may not stretch: the rule's own test decides)."""
+    """Whether a candidate's region reaches along the rig's curve beyond :data:`PAIR_TOL_PX` from its
+    BP, and with ``stretched`` its tops are at least :data:`~simtest.decisions.FUSED_TOPS_STRETCH`
+    times as long along the curve as across.
+    """
     region = _bright_region(gray, est)
     if region is None:
         return False
@@ -100,21 +87,18 @@ def _along_the_rig(gray: np.ndarray, est, camera, rig, stretched: bool = True) -
     if not stretched or not along > PAIR_TOL_PX:
         return along > PAIR_TOL_PX
     t = far / along
-    # a merged candidate's stretch is its tops' (near its peak in luma): the region also takes in
-    # whatever tissue beside them is brighter than half the clipped height, and the BP of two
-    # joined tops lies in the valley between them
+    # a merged candidate's stretch is its tops' (near its peak in luma), not its region's
     d = d[_tops(gray, region)[rr, cc]]
     return float(np.ptp(d @ t)) >= FUSED_TOPS_STRETCH * float(np.ptp(d @ np.array([-t[1], t[0]])))
 
 
-#: The plane distances h (mm) :func:`_on_the_tops` tries: 1 to 500 mm, 1 % apart (a numerical grid:
-#: 1 % of h moves a specular point 25 px from the image centre by a quarter of a pixel).
+#: The plane distances h (mm) :func:`_on_the_tops` tries: 1 to 500 mm, 1 % apart.
 _TOPS_H_GRID = np.geomspace(1.0, 500.0, 625)
 
 
 def _tops(gray: np.ndarray, region) -> np.ndarray:
-    """The region's tops (bool, ROI indices as its mask): its pixels whose luma lies within
-    :data:`~simtest.decisions.CLIP_LUMA_MARGIN_REL` of its peak."""
+    """The region's tops (bool, ROI indices): pixels within :data:`~simtest.decisions.CLIP_LUMA_MARGIN_REL` of its peak.
+    """
     mask, r0, c0 = region
     sub = gray[r0:r0 + mask.shape[0], c0:c0 + mask.shape[1]]
     return mask & (sub >= (1.0 - CLIP_LUMA_MARGIN_REL) * float(sub[mask].max()))
@@ -126,17 +110,10 @@ def _tops_depth(gray: np.ndarray, region) -> np.ndarray:
 
 
 def _on_the_tops(depth: np.ndarray, region, camera, rig, normal) -> np.ndarray | None:
-    """The guides' specular points (J, 2) on the plane of ``normal`` at the distance that centres
-    them on the region's clipped tops (``depth``: :func:`_tops_depth`); None where the tops hold
-    no two.
-
-    Fused clipped tops, each guide's about its specular point (the lobe falls off alike on every
-    side of it). Along the plane's one free parameter h the specular points slide along the
-    rig's curve, apart as h shrinks; the h kept puts the points deepest in the tops (the largest
-    sum of their distances to the tops' edge; the middle of a run of equal sums), every point
-    inside the tops. The tops' edge lies closer to each specular point on the side of the other
-    guide's lobe, whose tail lifts it there: the points come out a little inward, by about a
-    pixel on sensor-like planes whose fits' h put them nearer."""
+    """The guides' specular points (J, 2) on the plane of ``normal`` at the distance h that puts them
+    deepest in the region's clipped tops (``depth``: :func:`_tops_depth`), all inside them; None
+    where the tops hold no two.
+    """
     _, r0, c0 = region
     pts = _specular_points(camera, rig, normal, _TOPS_H_GRID)  # (M, J, 2)
     rc = np.rint(uv_to_rc(np.nan_to_num(pts.reshape(-1, 2), nan=-1.0))).astype(np.int64) - (r0, c0)
@@ -152,16 +129,14 @@ def _on_the_tops(depth: np.ndarray, region, camera, rig, normal) -> np.ndarray |
 
 
 def _rows(est, camera, rig, gray, region, pair, others: np.ndarray) -> list | None:
-    """The rows of one fitted candidate's fused lobes (module docstring), or None; ``region`` its
-    bright region (:func:`_bright_region`), ``pair`` its tops' pair (:func:`_tops_pair`)."""
+    """The rows of one fitted candidate's fused lobes (module docstring), or None."""
     fit = (est.light_aware or {}).get("photometric_fit")
     if fit is None or not fit.has_normal or region is None:
         return None
     if fit.distance_mm is not None:
         pts = guide_specular_points(camera, rig, fit.normal, fit.distance_mm)
     elif fit.status == "depth_not_observable" and est.saturated and len(rig.positions) > 1:
-        # the fit holds the normal but not the distance: the h that centres the specular points on
-        # the clipped tops (where the fit's h is known, its points lie nearer: _on_the_tops)
+        # the fit holds the normal but not the distance: the h that centres the points on the tops
         pts = _on_the_tops(_tops_depth(gray, region), region, camera, rig, fit.normal)
         if pts is None:
             return None
@@ -177,8 +152,7 @@ def _rows(est, camera, rig, gray, region, pair, others: np.ndarray) -> list | No
     if len(others) and (np.linalg.norm(others[:, None] - p[None], axis=-1) < PAIR_TOL_PX).any():
         return None  # a guide's highlight that is an ok candidate of its own already has its row
     if est.saturated:
-        # clipped lobes clip about each guide's specular point: a plane that puts one farther than
-        # PAIR_TOL_PX from the region's tops fitted something else (the sheen, texture on it)
+        # a plane that puts a point farther than PAIR_TOL_PX from the region's tops fitted something else
         off = cv2.distanceTransform(np.pad((~_tops(gray, region)).astype(np.uint8), 1, constant_values=1),
                                     cv2.DIST_L2, 5)[1:-1, 1:-1]
         rc = np.rint(uv_to_rc(p)).astype(np.int64) - (region[1], region[2])
@@ -198,12 +172,11 @@ def _rows(est, camera, rig, gray, region, pair, others: np.ndarray) -> list | No
 
 
 def _tops_pair(gray: np.ndarray, region, camera, rig):
-    """The region's two largest clipped tops where the rig pairs them (neither cut by the ROI), their
-    centroids two guides' specular points (:func:`~simtest.reconstruct.rig_pairs.pair_plane`): ``(centroids (2, 2) u, v,
-    the tops' labels (ROI indices), the two tops' labels, pair_plane's result)``, or None."""
+    """The region's two largest clipped tops where the rig pairs them: ``(centroids (2, 2), labels, the
+    two labels, pair_plane's result)``, or None.
+    """
     mask, r0, c0 = region
-    n, labels, stats, centroids = cv2.connectedComponentsWithStats(_tops(gray, region).astype(np.uint8),
-                                                                   connectivity=8)
+    n, labels, stats, centroids = cv2.connectedComponentsWithStats(_tops(gray, region).astype(np.uint8), connectivity=8)
     if n < 3:
         return None
     two = 1 + np.argsort(-stats[1:, cv2.CC_STAT_AREA], kind="stable")[:2]
@@ -216,8 +189,7 @@ def _tops_pair(gray: np.ndarray, region, camera, rig):
 
 
 def _on_a_top(uv: np.ndarray, labels: np.ndarray, two, origin) -> bool:
-    """Whether any of the points (k, 2) lies on either of the two tops (labels ``two`` of
-    ``labels``, ROI indices from ``origin`` (row0, col0))."""
+    """Whether any of the points (k, 2) lies on either of the two tops ``two`` of ``labels``."""
     uv = np.asarray(uv, np.float64).reshape(-1, 2)
     uv = uv[np.isfinite(uv).all(axis=1)]
     rc = np.rint(uv_to_rc(uv)).astype(np.int64) - np.asarray(origin, np.int64) if len(uv) else np.zeros((0, 2), int)
@@ -227,19 +199,17 @@ def _on_a_top(uv: np.ndarray, labels: np.ndarray, two, origin) -> bool:
 
 def _at_each_centre(uv: np.ndarray, centres: np.ndarray) -> bool:
     """Whether each of the tops' centres (2, 2) has one of the points (k, 2) within
-    :data:`~simtest.decisions.PAIR_TOL_PX` (a clipped disc's centroid lies within about a pixel of
-    its specular point: a plane that puts a guide's point at the top's edge misplaces it)."""
+    :data:`~simtest.decisions.PAIR_TOL_PX`."""
     uv = np.asarray(uv, np.float64).reshape(-1, 2)
     gaps = np.linalg.norm(centres[:, None] - uv[None], axis=-1)
     return bool(len(uv) and (np.nan_to_num(gaps, nan=np.inf).min(axis=1) <= PAIR_TOL_PX).all())
 
 
 def _pair_estimates(camera, rig, pts: np.ndarray, plane) -> list:
-    """The ``rig_pair`` estimate of each of the two tops (their centroids ``pts``, ``plane`` as
-    :func:`~simtest.reconstruct.rig_pairs.pair_plane` gives it): the pair's normal, its sigma from
-    each centroid moved by :data:`~simtest.decisions.TOPS_PLACE_SIGMA_PX` per axis (root sum of
-    squares) plus half the misclosure, each top's depth where its relative sigma is within the
-    ceiling (:data:`~simtest.reconstruct.recommend.DEPTH_REL_SIGMA_CEILING`)."""
+    """The ``rig_pair`` estimate of each of the two tops: the pair's normal, its sigma from the
+    centroids moved by :data:`~simtest.decisions.TOPS_PLACE_SIGMA_PX` plus half the misclosure,
+    each top's depth where within the depth ceiling.
+    """
     normal, depths, guides, misclosure = plane
     turns, rel = [], []
     for k, axis in np.ndindex(2, 2):
@@ -266,10 +236,7 @@ def _pair_estimates(camera, rig, pts: np.ndarray, plane) -> list:
 
 
 def _pair_rows(est, camera, rig, region, pair, others: np.ndarray, split: list | None) -> list | None:
-    """The rows of a clipped candidate's two fused tops that the rig pairs (``pair``:
-    :func:`_tops_pair` of its bright ``region``), where its joint fit's ``split`` (:func:`_rows`)
-    puts no BP at each top's centre (:func:`_at_each_centre`): one per guide, BP at its top's
-    centroid, normal from the pair's geometry (``rig_pair``), or None."""
+    """The ``rig_pair`` rows of a clipped candidate's paired tops where ``split`` puts no BP at each centre, or None."""
     if pair is None:
         return None
     pts, labels, two, plane = pair
@@ -287,11 +254,10 @@ def _pair_rows(est, camera, rig, region, pair, others: np.ndarray, split: list |
 
 
 def fused_lobe_candidates(gray, estimates, camera, rig) -> list[int]:
-    """The indexes of the rejected candidates that may be fused guide lobes, to be fitted with
-    :data:`~simtest.reconstruct.light_fits.PLANE_ONLY` (``with_light_aware``'s ``plane_only``) and
-    split (:func:`split_fused_lobes`): those in :data:`SPLIT_STATUSES` whose region reaches along
-    the rig's curve beyond their own lobe (``gray`` (H, W) the frame's luma,
-    :func:`~simtest.reconstruct.detect_pixels.luma`); empty without a rig off the camera centre."""
+    """The indexes of the rejected candidates in :data:`SPLIT_STATUSES` whose region reaches along the
+    rig's curve (``gray``: the frame's luma), to be fitted with the plane only and split; empty
+    without a rig off the camera centre.
+    """
     if not _offset_rig(rig):
         return []
     return [i for i, e in enumerate(estimates) if e.status in SPLIT_STATUSES and not e.ok
@@ -299,9 +265,9 @@ def fused_lobe_candidates(gray, estimates, camera, rig) -> list[int]:
 
 
 def _one_split_per_pair(parts: list, splits: list) -> None:
-    """Two candidates split into rows for the same guides' lobes (each guide's points nearer than
-    half the pair's spacing): the split whose joint fit states the smaller normal sigma keeps its
-    rows, the other candidate its own unsplit row (``parts`` edited in place)."""
+    """Of two candidates split for the same guides' lobes, the split of smaller normal sigma keeps its
+    rows, the other its own row (``parts`` edited in place).
+    """
     for a in range(len(splits)):
         for b in range(a + 1, len(splits)):
             (ka, pa, sa, ea), (kb, pb, sb, eb) = splits[a], splits[b]
@@ -321,16 +287,15 @@ def split_fused_lobes(image, estimates, camera, rig, *, prefitted=(), gray=None)
     image : ndarray of shape (H, W) or (H, W, 3)
         The frame the estimates were made on.
     estimates : sequence of SpecularityEstimate
-        With their light-aware fits (:func:`~simtest.reconstruct.light_fits.with_light_aware`).
+        With their light-aware fits.
     camera : array_like of shape (3, 3) or CameraModel
         Intrinsics K or a camera model.
     rig : LightRig or None
         The scope's lights (None, or every light at the camera centre: returned unchanged).
     prefitted : collection of int
-        The rejected candidates to split, fitted with the plane only (:func:`fused_lobe_candidates`;
-        ``with_light_aware``'s ``plane_only``); those not split keep their row, without fits.
+        The rejected candidates fitted with the plane only (:func:`fused_lobe_candidates`).
     gray : ndarray of shape (H, W), optional
-        The frame's luma (:func:`~simtest.reconstruct.detect_pixels.luma`) when at hand.
+        The frame's luma when at hand.
 
     Returns
     -------

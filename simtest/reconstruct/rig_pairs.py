@@ -1,19 +1,15 @@
 """Where a scope's other light guides put their highlights, seen from one highlight's BP.
 
-A planar patch lit by several guides shows one highlight per guide; the isolation checks
-(:mod:`simtest.reconstruct.verify`, ``cluster``) must not take them for a cluster.
+A planar patch lit by several guides shows one highlight per guide; the ``cluster`` check
+(:mod:`simtest.reconstruct.verify`) must not take them for a cluster.
 
-Derivation (planar patch, camera frame, mm). Suppose the BP's unit ray ``r`` is guide ``i``'s
-specular point at depth ``d``, ``X = d r``: the normal is the bisector ``n = unit(unit(-X) +
-unit(L_i - X))``, the plane ``n . Y = -h``, ``h = -n . X``, and guide ``j``'s specular point is
-``X_j = L'_j h / (-n . L'_j)`` with the mirror image ``L'_j = L_j - 2 (n . L_j + h) n``, projected.
-Sweeping ``d`` over :data:`DEPTH_MIN_MM` to :data:`DEPTH_MAX_MM` (the patch facing the camera and
-beyond both guides) draws, per ordered pair of guides, a curve from far along the baseline's
-image direction (near tissue) to the BP (far tissue). A peak whose region comes within
-:data:`PAIR_TOL_PX` of a curve is another guide's highlight (a curved patch moves it off; beyond
-the tolerance it still counts). Its lobe also lights the surround: :func:`other_lobe_centres`
-finds it as the brightest light on the curve outside the own lobe, and the verifier leaves the own
-lobe's shape moved there out of the surround (one patch, one roughness: the lobes are alike).
+Derivation (planar patch, camera frame, mm): if the BP's unit ray ``r`` is guide ``i``'s specular
+point at depth ``d``, ``X = d r``, the normal is ``n = unit(unit(-X) + unit(L_i - X))``, the plane
+``n . Y = -h`` with ``h = -n . X``, and guide ``j``'s specular point is ``X_j = L'_j h / (-n . L'_j)``
+with the mirror image ``L'_j = L_j - 2 (n . L_j + h) n``. Sweeping ``d`` over :data:`DEPTH_MIN_MM`
+to :data:`DEPTH_MAX_MM` draws, per ordered pair of guides, a curve in the image; a peak within
+:data:`PAIR_TOL_PX` of it is another guide's highlight. :func:`other_lobe_centres` finds that lobe
+on the curve so the verifier can leave it out of the surround.
 """
 
 from __future__ import annotations
@@ -32,9 +28,7 @@ from simtest.reconstruct.evidence_pixels import ellipse_level
 __all__ = ["DEPTH_MIN_MM", "DEPTH_MAX_MM", "DEPTH_SAMPLES", "PAIR_TOL_PX", "other_guide_curves",
            "guide_specular_points", "other_lobe_centres", "pair_plane", "pair_starts"]
 
-#: Depths sampled, geometrically spaced (the curve's image step shrinks as 1 / d^2); the polyline
-#: is resampled every half pixel, so this sets only how closely it follows the curve (within
-#: 0.1 px on the bundled scopes' 140 deg fields).
+#: Depths sampled, geometrically spaced (the curve's image step shrinks as 1 / d^2).
 DEPTH_SAMPLES = 256
 
 
@@ -91,8 +85,7 @@ def other_guide_curves(camera, positions_mm, bps_uv, radius_px, step_px: float =
     radius_px : array_like of shape (N,)
         Keep the points within this distance of each BP, px (negative or NaN: none).
     step_px : float
-        Spacing of the points along each curve, px (half a pixel: a lookup dilated by
-        :data:`PAIR_TOL_PX` misses no pixel the curve crosses).
+        Spacing of the points along each curve, px.
 
     Returns
     -------
@@ -115,14 +108,8 @@ def other_guide_curves(camera, positions_mm, bps_uv, radius_px, step_px: float =
 def pair_starts(camera, positions_mm, bps_uv, partners_uv) -> list[tuple[tuple[int, int, float], ...]]:
     """The guides and depths at which the BP as one guide's specular point puts another's on a partner.
 
-    Per candidate, ordered pair of guides (i, j) and partner (another highlight's BP, beyond
-    :data:`PAIR_TOL_PX` of its own): where guide j's curve (the BP as guide i's specular point at
-    depth d, module docstring) passes within :data:`PAIR_TOL_PX` of the partner, the depth of its
-    nearest point (geometric between the curve's samples), with i and j; none where several
-    partners lie on the curves (a field of glints: which is the other guide's, the rig does not
-    tell). On a plane the pair's separation fixes the depth, as a stereo baseline would: a start
-    of the photometric fit (``FitSettings``' ``pair_starts``), whose start at the nominal depth
-    alone can stop at another minimum.
+    On a plane the pair's separation fixes the depth, as a stereo baseline would: a start of the
+    photometric fit (``FitSettings``' ``pair_starts``).
 
     Parameters
     ----------
@@ -138,9 +125,9 @@ def pair_starts(camera, positions_mm, bps_uv, partners_uv) -> list[tuple[tuple[i
     Returns
     -------
     list of tuple of (int, int, float)
-        Per candidate, (i, j, d): the BP as guide i's specular point at depth d (mm along its ray,
-        within :data:`DEPTH_MIN_MM` to :data:`DEPTH_MAX_MM`) puts guide j's on the partner;
-        sorted; empty where no partner, or more than one, lies on a curve.
+        Per candidate, sorted (i, j, d): the BP as guide i's specular point at depth d (mm, within
+        :data:`DEPTH_MIN_MM` to :data:`DEPTH_MAX_MM`) puts guide j's within :data:`PAIR_TOL_PX` of a
+        partner; empty where no partner, or more than one, lies on a curve.
     """
     camera = _model(camera)
     L = np.asarray(positions_mm, np.float64).reshape(-1, 3)
@@ -179,9 +166,7 @@ def pair_starts(camera, positions_mm, bps_uv, partners_uv) -> list[tuple[tuple[i
 
 
 def _pair_depth(camera, ray, Li, Lj, d0: float, partner) -> float:
-    """The depth (mm along the unit ``ray``) near ``d0`` at which the BP as guide i's specular point
-    images guide j's on ``partner``, refined from :func:`pair_starts`' sampled ``d0`` (bounded,
-    log depth within the samples' spacing either side)."""
+    """The depth (mm along ``ray``) near the sampled ``d0`` at which guide j's specular point images on ``partner``."""
     opt = require("scipy.optimize")
     half = np.log(DEPTH_MAX_MM / DEPTH_MIN_MM) / (DEPTH_SAMPLES - 1)
 
@@ -197,12 +182,8 @@ def _pair_depth(camera, ray, Li, Lj, d0: float, partner) -> float:
 
 
 def pair_plane(camera, positions_mm, a_uv, b_uv):
-    """The plane of two highlights that are two guides' specular points on it.
-
-    Each point's ray and guide fix the plane at the depth where the rig puts the other guide's
-    specular point on the other highlight (module docstring): a stereo pair whose baseline is the
-    guides'. Both ways are solved (a as guide i's, b as guide j's, and back) and their normals
-    averaged; their angle is the pair's misclosure (zero on an exact plane).
+    """The plane of two highlights that are two guides' specular points on it (a stereo pair whose
+    baseline is the guides'), solved both ways and the normals averaged.
 
     Parameters
     ----------
@@ -216,10 +197,9 @@ def pair_plane(camera, positions_mm, a_uv, b_uv):
     Returns
     -------
     tuple of (ndarray of shape (3,), ndarray of shape (2,), tuple of int, float) or None
-        The unit normal (OpenCV camera frame, facing the camera), each point's depth along its ray
-        (mm), the guides (i, j) of a and b, and the misclosure (deg); None where the curves from a
-        or from b hold the other point for no guide pair or for several, or the two ways name
-        different guides.
+        The unit normal (camera frame, facing the camera), each point's depth along its ray (mm),
+        the guides (i, j) of a and b, and the misclosure of the two ways (deg); None where no or
+        several guide pairs fit, or the two ways name different guides.
     """
     cam = _model(camera)
     L = np.asarray(positions_mm, np.float64).reshape(-1, 3)
@@ -239,11 +219,10 @@ def pair_plane(camera, positions_mm, a_uv, b_uv):
 
 
 def pair_misfit_px(camera, rig, bp_uv, starts, normal, distance_mm: float) -> float:
-    """How far a fitted plane puts the pair's other highlight from where it is: over ``starts``
-    (:func:`pair_starts`' (i, j, d) of one candidate), the least image distance (px) between guide
-    j's specular point on the plane (``normal``, ``distance_mm`` as in
-    :func:`guide_specular_points`) and the partner (guide j's on the curve at d); inf without
-    starts or where guide j lies behind the plane."""
+    """The least image distance (px), over ``starts`` (:func:`pair_starts`' (i, j, d)), between guide j's
+    specular point on the plane (``normal``, ``distance_mm``) and the partner; inf without starts or
+    where guide j lies behind the plane.
+    """
     cam = _model(camera)
     ray = unit(np.asarray(cam.pixel_to_ray(np.asarray(bp_uv, np.float64).reshape(1, 2)), np.float64)[0])
     L = np.asarray(rig.positions, np.float64).reshape(-1, 3)
@@ -257,7 +236,7 @@ def pair_misfit_px(camera, rig, bp_uv, starts, normal, distance_mm: float) -> fl
 
 
 def guide_specular_points(camera, rig, normal, distance_mm: float) -> np.ndarray:
-    """Image points of each guide's specular point on a plane.
+    """Image points of each guide's specular point on a plane (module docstring).
 
     Parameters
     ----------
@@ -274,11 +253,6 @@ def guide_specular_points(camera, rig, normal, distance_mm: float) -> np.ndarray
     -------
     ndarray of shape (J, 2)
         (u, v) px per light, in the rig's order; NaN for a light behind the plane.
-
-    Notes
-    -----
-    Mirror image ``L' = L - 2 (n . L + h) n``; the specular point ``X_s = L' h / (-n . L')``
-    (module docstring).
     """
     return _specular_points(camera, rig, normal, np.array([float(distance_mm)]))[0]
 
@@ -303,12 +277,11 @@ def _model(camera):
 
 
 def other_lobe_centres(gray: np.ndarray, expected, ellipses, own_level, lit_level) -> list[list[tuple[float, float]]]:
-    """Per candidate, the other guide's lobe centre on its curve: around the brightest pixel of
-    ``gray`` on ``expected[k]`` outside the own lobe (the primary isophote ``ellipses[k]`` scaled
-    to ``own_level[k]`` squared semi-axes), kept where at least ``lit_level[k]`` (image units: a
-    lobe, not tissue), the middle of the curve's pixels above half the way from that level to it
-    (a clipped or noisy top has no single maximum; a symmetric lobe is centred there); at most
-    one (u, v) per candidate, px."""
+    """Per candidate, the other guide's lobe centre (u, v) px on its curve ``expected[k]``, or none:
+    around the brightest pixel of ``gray`` there outside the own lobe (``ellipses[k]`` scaled by
+    ``own_level[k]``), kept where at least ``lit_level[k]``, the middle of the curve's pixels above
+    half the way from that level to it.
+    """
     h, w = gray.shape
     out: list = []
     for k, pts in enumerate(expected):

@@ -1,11 +1,5 @@
-"""Reconstruction settings: one frozen, validated value passed from the caller to marching squares.
-
-:class:`ReconSettings` holds every choice of the reconstruction that is not the image or the
-camera: the isovalues t, the intensity normalisation, the smoothing, whether open contours are
-fitted, and the detection limits. It is checked once, where it is made (``__post_init__``; also
-after :meth:`ReconSettings.replace`), so the pipeline, the harness, the dataset generator and
-``estimates.json`` take it as it is. The name ``isovalues`` is the same from the suite file's
-reconstruction keys to the contour levels.
+"""Reconstruction settings: one frozen value, validated once where it is made (``__post_init__``,
+also after :meth:`ReconSettings.replace`), passed from the caller to marching squares.
 """
 
 from __future__ import annotations
@@ -33,19 +27,15 @@ __all__ = ["MAX_CANDIDATES", "Normalisation", "ReconSettings", "validate_isovalu
 class Normalisation(enum.StrEnum):
     """What the isovalue t is relative to (paper section 3.1, step 4, and beyond).
 
-    Members compare equal to their string values (``Normalisation.BP == "bp"``), which are the
-    values written to ``estimates.json`` and accepted on the command line.
+    Members compare equal to their string values, which ``estimates.json`` and the command line use.
     """
 
     #: t relative to the BP intensity: the isophote at ``t I_bp`` (the paper's normalisation).
     BP = "bp"
-    #: t relative to the image's full scale (``ReconSettings.full_scale``, default the dtype
-    #: maximum): the harness's paper protocol, whose images are already 1 at the BP.
+    #: t relative to the image's full scale: the harness's paper protocol (images 1 at the BP).
     FULL_SCALE = "full_scale"
-    #: t relative to the BP's height above the local diffuse level b, the median of the ROI's
-    #: border pixels: the isophote at ``b + t (I_bp - b)``. For highlights on bright tissue, where
-    #: no isophote of the specular lobe exists at ``t I_bp``; exact when the diffuse term is
-    #: constant over the ROI (beyond the paper).
+    #: t relative to the BP's height above the ROI border's median b: the isophote at ``b + t (I_bp - b)``,
+    #: for highlights on bright tissue (beyond the paper).
     LOCAL = "local"
     #: LOCAL where the median of the ROI border is at least :data:`AUTO_LOCAL_BACKGROUND_REL` of
     #: the BP intensity (a highlight on bright tissue), else BP (the default for whole frames).
@@ -57,17 +47,9 @@ DETECTION_METHODS = ("local_peak", "full_scale")
 
 
 def validate_isovalues(isovalues) -> tuple[float, ...]:
-    """Check isovalues: one t or several, each finite and strictly inside (0, 1).
+    """Check isovalues: one t or several (the primary first), each finite and strictly inside (0, 1).
 
-    Parameters
-    ----------
-    isovalues : float or sequence of float
-        One isovalue or several, the primary first.
-
-    Returns
-    -------
-    tuple of float
-        The isovalues in the order given (at least one).
+    Returns the tuple in the order given.
 
     Raises
     ------
@@ -106,10 +88,7 @@ def _positive_or_none(name: str, value) -> float | None:
     return v
 
 
-#: Detection's default cap on the bright components examined (the largest first): None, every
-#: one (a real 1350 x 1080 colonoscopy frame can hold 5000 components, and every one is examined
-#: unless a cap is asked for). ``ReconSettings(max_candidates=N)`` (``simtest reconstruct
-#: --max-candidates N``) examines the N largest; those left out are counted and reported.
+#: Detection's default cap on the bright components examined: None, every one.
 MAX_CANDIDATES = None
 
 
@@ -117,59 +96,45 @@ MAX_CANDIDATES = None
 class ReconSettings:
     """Every setting of the reconstruction, validated once when made.
 
+    ``ReconSettings()`` holds the paper's settings (a known highlight); :meth:`for_frames` the
+    defaults for whole frames.
+
     Parameters
     ----------
     isovalues : float or sequence of float
-        Isovalue(s) t in (0, 1), stored as a tuple; the first is the *primary* isovalue (its
-        isophote gives the estimate's conic, normals and status), the others are nested isophotes
-        for the joint cone axis. What t is relative to is set by ``normalise``.
-    normalise : Normalisation or {"bp", "full_scale", "local"}
+        Isovalue(s) t in (0, 1), stored as a tuple; the first is the *primary* isovalue, the others
+        nested isophotes for the joint cone axis.
+    normalise : Normalisation or {"bp", "full_scale", "local", "auto"}
         Intensity normalisation, see :class:`Normalisation` (stored as the enum).
     smooth_sigma_px : float or None
-        Gaussian smoothing sigma, px, of the image before detection and contouring; 0 for none
-        (the paper smooths noisy images); None: chosen from the image's noise
-        (:func:`~simtest.reconstruct.detect.auto_smooth_sigma_px`). Finite, in [0, 100].
+        Gaussian smoothing sigma, px, before detection and contouring; 0 for none; None: chosen from
+        the noise (:func:`~simtest.reconstruct.detect.auto_smooth_sigma_px`). Finite, in [0, 100].
     allow_open : bool
         Fit an isophote cut by the ROI or image border (flagged ``closed=False``).
     full_scale : float, optional
-        Intensity of a white pixel, the level relative thresholds (``brightness_rel``, and t with
-        ``normalise="full_scale"``) refer to; default the dtype maximum (uint) or
-        ``max(1, image.max())`` (float). Finite and positive.
+        Intensity of a white pixel; default the dtype maximum (uint) or ``max(1, image.max())``
+        (float). Finite and positive.
     saturation_level : float, optional
-        A pixel is clipped when every channel is >= this; default the integer dtype maximum, and
-        no clipping for float images. Finite and positive.
+        A pixel is clipped when every channel is >= this; default the integer dtype maximum, none
+        for float images. Finite and positive.
     brightness_rel : float
         Detection: a pixel is bright when its luma is >= ``brightness_rel * full_scale``; in (0, 1).
     min_area_px : int
         Detection: bright components smaller than this are rejected as ``too_small``; >= 1.
     detection : {"full_scale", "local_peak"}
-        Detection method: bright pixels at ``brightness_rel * full_scale`` (the paper's), or
-        relative to each highlight's own height above its local background (``peak_rel`` of it).
+        Detection method (:func:`~simtest.reconstruct.detect.detect_specularities`).
     peak_rel : float
-        Detection with ``"local_peak"``: the fraction of each local peak's height above the
-        background that cuts out its component; in (0, 1).
+        Detection with ``"local_peak"``: the fraction of each local peak's height that cuts out its
+        component; in (0, 1).
     max_candidates : int or None
-        Detection examines at most this many bright components, the largest first; None examines
-        every one. The components left out are counted (``Estimates.n_unexamined``, the
-        ``detection`` record of ``estimates.json`` and the console line), never dropped silently.
-        An integer >= 1, or None.
+        Detection examines at most this many bright components, the largest first (those left out
+        are counted and reported); None: every one.
     verify : bool
-        Judge every fitted candidate by the specularity checks of
-        :mod:`simtest.reconstruct.verify` (colour, height, overlay, isolation, fit) and give each
-        estimate a ``confidence``; a fit that fails a check gets the check's reason as status.
-        On for whole frames, off for the paper's settings (a known highlight).
+        Judge every fitted candidate by the checks of :mod:`simtest.reconstruct.verify` and give it
+        a ``confidence``; a failed check's reason becomes the status.
     min_confidence : float or None
-        With ``verify``: a fit that passes every check but whose ``confidence`` is below this
-        gets the status ``low_confidence``, as a fit that fails a check (no light-aware fit); in
-        [0, 1]. None (default): the frame's, :func:`~simtest.reconstruct.frame_verify.default_min_confidence`
-        (the confidence's threshold where its model describes the frame, else every fit).
-
-    Notes
-    -----
-    ``ReconSettings()`` holds the paper's settings (the harness, a known highlight through
-    ``reconstruct_roi``); :meth:`for_frames` holds the defaults of
-    :func:`~simtest.reconstruct.pipeline.reconstruct` and ``simtest reconstruct`` for whole
-    frames, real ones included.
+        With ``verify``: a fit that passes every check with a ``confidence`` below this gets
+        ``low_confidence``; in [0, 1]. None: :func:`~simtest.reconstruct.frame_verify.default_min_confidence`.
 
     Raises
     ------
@@ -218,8 +183,7 @@ class ReconSettings:
                 sigma = float("nan")
             if isinstance(self.smooth_sigma_px, bool) or not (math.isfinite(sigma)
                                                               and 0.0 <= sigma <= 100.0):
-                raise ValueError(f"smooth_sigma_px must be finite and in [0, 100] px, got "
-                                 f"{self.smooth_sigma_px!r}")
+                raise ValueError(f"smooth_sigma_px must be finite and in [0, 100] px, got " f"{self.smooth_sigma_px!r}")
             set_(self, "smooth_sigma_px", sigma)
         if self.detection not in DETECTION_METHODS:
             raise ValueError(f"detection: {self.detection!r} is not one of {DETECTION_METHODS}")
@@ -267,21 +231,15 @@ class ReconSettings:
 
     @classmethod
     def for_frames(cls, **changes) -> ReconSettings:
-        """The defaults for whole frames, real ones included (``reconstruct``, ``simtest
-        reconstruct``): detection relative to local peaks, smoothing chosen from the noise,
-        ``normalise="auto"``, isovalues :data:`FRAME_ISOVALUES`; ``changes`` applied on top."""
+        """The defaults for whole frames: detection relative to local peaks, smoothing chosen from the
+        noise, ``normalise="auto"``, isovalues :data:`FRAME_ISOVALUES`; ``changes`` applied on top.
+        """
         base = cls(isovalues=FRAME_ISOVALUES, normalise=Normalisation.AUTO, smooth_sigma_px=None,
                    detection="local_peak", verify=True)
         return base.replace(**changes) if changes else base
 
     def replace(self, **changes) -> ReconSettings:
-        """A copy with some fields changed, validated again.
-
-        Raises
-        ------
-        ValueError
-            For an unknown field name or a bad value.
-        """
+        """A copy with some fields changed, validated again (ValueError for an unknown field or a bad value)."""
         names = {f.name for f in dataclasses.fields(self)}
         unknown = sorted(set(changes) - names)
         if unknown:
@@ -294,11 +252,8 @@ class ReconSettings:
     @classmethod
     def make(cls, settings: ReconSettings | None = None, isovalues: float | Sequence[float] | None = None,
              *, frames: bool = False, **options) -> ReconSettings:
-        """``settings`` (default :class:`ReconSettings()`, or :meth:`for_frames` with ``frames``)
-        with ``isovalues`` and ``options`` applied.
-
-        The keyword API of :func:`~simtest.reconstruct.pipeline.reconstruct` goes through this.
-        """
+        """``settings`` (default ``ReconSettings()``, or :meth:`for_frames` with ``frames``) with
+        ``isovalues`` and ``options`` applied."""
         base = _default_settings(cls, frames) if settings is None else settings
         if not isinstance(base, cls):
             raise ValueError(f"settings must be a ReconSettings, got {type(base).__name__}")
@@ -316,6 +271,5 @@ class ReconSettings:
 
 @functools.cache
 def _default_settings(cls: type, frames: bool) -> ReconSettings:
-    """``cls()`` or ``cls.for_frames()``, built and validated once: the settings are frozen, so
-    every call that takes the defaults can share them."""
+    """``cls()`` or ``cls.for_frames()``, built once (frozen: shared by every call)."""
     return cls.for_frames() if frames else cls()

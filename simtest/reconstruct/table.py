@@ -1,12 +1,9 @@
 """``estimates.parquet``: a folder's or a video's estimates, one row per candidate.
 
-:func:`table_schema` is the file's contract: a ``frame`` column and the fields of an
-``estimates.json`` specularity (:mod:`simtest.reconstruct.io`), each estimator's normal a column.
-:func:`estimates_batch` makes a frame's rows column by column from its estimates (no dict per
-candidate: a video's frame holds thousands); :func:`frame_batch` makes the same rows from a
-frame's record of dicts. :func:`read_table` reads the file as a pyarrow Table and
-:func:`read_frames` reads it, or ``estimates.jsonl``, back into the per-frame records of
-:mod:`simtest.reconstruct.frames`.
+:func:`table_schema` is the file's contract. :func:`estimates_batch` makes a frame's rows column
+by column from its estimates, :func:`frame_batch` from a frame's record of dicts;
+:func:`read_table` reads the file as a pyarrow Table and :func:`read_frames` reads it, or
+``estimates.jsonl``, back into the per-frame records of :mod:`simtest.reconstruct.frames`.
 """
 
 from __future__ import annotations
@@ -24,8 +21,7 @@ from simtest.reconstruct.io import (
 )
 
 def arrow():
-    """``(pyarrow, pyarrow.parquet)``, imported when a table is first made or read (about a second
-    of imports on the 2-core VM that one image's ``simtest reconstruct`` does without)."""
+    """``(pyarrow, pyarrow.parquet)``, imported when a table is first made or read."""
     return require("pyarrow", purpose="estimates.parquet"), require("pyarrow.parquet", purpose="estimates.parquet")
 
 
@@ -102,23 +98,13 @@ def _nested_normals(row: dict, names) -> dict:
 
 
 def frame_batch(record: dict):
-    """A frame's record (:mod:`simtest.reconstruct.frames`) as rows of :func:`table_schema`.
-
-    Parameters
-    ----------
-    record : dict
-        ``frame``, ``source`` and ``specularities`` (:func:`estimate_to_dict` dicts).
-
-    Returns
-    -------
-    pyarrow.RecordBatch
-        One row per specularity, in order.
+    """A frame's record (``frame``, ``source``, ``specularities``) as a pyarrow.RecordBatch of
+    :func:`table_schema`, one row per specularity.
 
     Raises
     ------
     ValueError
-        A value that is not finite (as in JSON: a missing value is null, never NaN), or a
-        light-aware estimator the schema has no column for.
+        A value that is not finite, or a light-aware estimator the schema has no column for.
     """
     pa = arrow()[0]
 
@@ -140,9 +126,7 @@ def frame_batch(record: dict):
 
 
 def _fixed(values: list, shape: tuple, where: str):
-    """A column of float64 arrays of ``shape`` (fixed-size lists, nested for a matrix) from
-    ``values`` (array-likes, or None: null), as :func:`_vec` / :func:`_mat` write each; a value
-    that is not finite refused (as :func:`dumps`)."""
+    """A column of float64 arrays of ``shape`` from ``values`` (None: null); not finite refused."""
     pa = arrow()[0]
 
     n, size = len(values), math.prod(shape)
@@ -189,9 +173,7 @@ def _ellipses(ells: list, where: str):
 
 
 def _fit_columns(objs: list, indices: list, where: str) -> list:
-    """The columns a specularity and an isophote share (:func:`table_schema`'s ``fit`` and
-    ``paper``), from the estimates or the isophotes ``objs`` (``indices``: each one's
-    ``paper_selected_index``)."""
+    """The columns a specularity and an isophote share, from the estimates or isophotes ``objs``."""
     pa = arrow()[0]
 
     return [_ellipses([o.ellipse for o in objs], f"{where}.ellipse"),
@@ -239,9 +221,9 @@ def _isophotes(ests: list, include_points: bool, schema, where: str):
 
 
 def _recommended(ests: list) -> list:
-    """Each estimate's recommended normal (:func:`~simtest.reconstruct.recommend.recommend`),
-    None for a rejected detection (no isophotes, no light-aware results, no joint axis), whose
-    recommendation is its BP ray (most of a video frame's thousands: computed once here)."""
+    """Each estimate's recommended normal, None for a rejected detection (whose recommendation is its
+    BP ray).
+    """
     return [None if not e.isophotes and not getattr(e, "light_aware", None) and e.joint_cone_axis is None
             and e.bp_ray is not None else e.recommended for e in ests]
 
@@ -263,14 +245,13 @@ def estimates_batch(frame: int, source: str, ests, include_points: bool = False)
     Returns
     -------
     pyarrow.RecordBatch
-        The rows :func:`frame_batch` makes of their :func:`~simtest.reconstruct.io.estimate_to_dict`
-        dicts, the same values (``tests/test_estimates_io.py``), without a dict per candidate.
+        The rows :func:`frame_batch` makes of their :func:`~simtest.reconstruct.io.estimate_to_dict` dicts.
 
     Raises
     ------
     ValueError
-        Naming the column and the row of a value that is not finite, or a light-aware estimator
-        the schema has no column for.
+        Naming the column and row of a value that is not finite, or a light-aware estimator the
+        schema has no column for.
     """
     pa = arrow()[0]
 
@@ -323,27 +304,16 @@ def estimates_batch(frame: int, source: str, ests, include_points: bool = False)
 
 
 def table_metadata(heads: list) -> dict:
-    """The Parquet file's key-value metadata: ``{"simtest": JSON text}`` holding
-    ``table_schema``, ``schema`` (of the estimates, :data:`SCHEMA_VERSION`),
-    ``simtest_version`` and ``frames``: each frame's record but its specularities (``frame``,
-    ``source``, ``image_shape``, ``counts``, ``detection``), a frame without candidates too."""
+    """The Parquet file's key-value metadata ``{"simtest": JSON text}``: ``table_schema``, ``schema``,
+    ``simtest_version`` and ``frames`` (each frame's record but its specularities).
+    """
     return {"simtest": dumps({"table_schema": TABLE_SCHEMA_VERSION, "schema": SCHEMA_VERSION,
                               "simtest_version": __version__, "frames": heads}).decode()}
 
 
 def read_table(path):
-    """Read ``estimates.parquet``.
-
-    Parameters
-    ----------
-    path : str or Path
-        The file (``simtest reconstruct`` on a folder or a video).
-
-    Returns
-    -------
-    pyarrow.Table
-        Rows of :func:`table_schema`; its ``schema.metadata[b"simtest"]`` is the file's metadata
-        (:func:`table_metadata`; :func:`read_frames` reads it).
+    """Read ``estimates.parquet`` as a pyarrow.Table of :func:`table_schema` rows (its metadata:
+    :func:`table_metadata`).
 
     Raises
     ------
@@ -368,19 +338,12 @@ def read_table(path):
 
 
 def read_frames(path) -> list[dict]:
-    """The per-frame records of ``estimates.parquet`` or ``estimates.jsonl``, alike.
-
-    Parameters
-    ----------
-    path : str or Path
-        A ``.parquet`` file (:func:`read_table`) or a JSON Lines file (anything else).
+    """The per-frame records of ``estimates.parquet`` or ``estimates.jsonl`` (any other suffix), alike.
 
     Returns
     -------
     list of dict
-        One record per frame, in order: ``frame``, ``source``, ``image_shape``, ``counts``,
-        ``detection`` and ``specularities`` (dicts of :func:`estimate_to_dict`, as
-        ``estimates.json`` holds them), the same from either file.
+        One record per frame, in order, ``specularities`` as ``estimates.json`` holds them.
 
     Raises
     ------

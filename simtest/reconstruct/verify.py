@@ -1,39 +1,25 @@
 """Is a fitted candidate a specular highlight the isophote method can use? Checks and a confidence.
 
-Detection keeps every bright peak (diffuse texture, fold rims, glint clusters, burnt-in text), and
-the isophote fits succeed on most. A candidate earns ``ok`` from what makes a highlight specular
-and usable (the numbers, their units and reasons: :mod:`simtest.decisions`):
+A candidate earns ``ok`` when it passes, in order (numbers and their reasons: :mod:`simtest.decisions`):
 
-- **Specular colour** (``not_specular``). A dielectric reflects the illuminant's colour (the
-  dichromatic model, Shafer 1985, doi:10.1002/col.5080100409), the diffuse light the tissue's: the
-  peak's chroma ``1 - min(RGB) / max(RGB)`` is at most :data:`PALENESS_MAX` times the tissue's
-  (the background's, from each channel's grey opening), or below :data:`WHITE_CHROMA`; and in
-  linear light at least :data:`WHITE_SHARE_MIN` of its excess over the background is white
-  (:func:`~simtest.reconstruct.evidence_pixels.white_share`), where texture brightens in the
-  tissue's own colour.
-- **A peak well above the diffuse level** (``not_specular``). Its top-hat height is at least
-  :data:`SIGNIFICANCE_MIN` times the noise at the background's level (the sensor's, read off the
-  frame's noise level function, and JPEG's quantisation error) and :data:`CONTRAST_MIN` of the room
-  the sensor leaves (the background, or the headroom above it), unless its peak is clipped in
-  every channel (the height is then a lower bound).
-- **Not a burnt-in overlay** (``overlay``). A flat panel is a large region whose pixels vary over
-  5 x 5 px by less than :data:`PANEL_STD_REL` of the noise at their level; a candidate whose
-  region holds more than :data:`PANEL_FRACTION_MAX` of panel pixels is an overlay.
-- **Isolated** (``cluster``). Another specular peak in the region the method contours (a top-hat
-  maximum, specular by colour, at least :data:`NEIGHBOUR_REL` of this peak's height, beyond
-  :data:`OWN_RADIUS_PX` of its BP; not another guide's, :mod:`simtest.reconstruct.rig_pairs`)
-  breaks the one-lobe-on-a-plane assumption; so does a surround of which more than
-  :data:`SURROUND_FRACTION_MAX` is other light, mostly white by the same measure.
-- **Nested ellipses** (``bad_fit``). The primary isophote's RMS residual is at most
-  :data:`RESIDUAL_MAX_REL` of its semi-minor axis, the BP lies inside it, and its semi-minor axis
-  is at least :data:`MINOR_AXIS_MIN_PX`.
+- **not a burnt-in overlay** (``overlay``): at most :data:`PANEL_FRACTION_MAX` of its region is
+  flat panel (5 x 5 px luma std under :data:`PANEL_STD_REL` of the noise at its level);
+- **specular colour** (``not_specular``): a dielectric reflects the illuminant's colour (dichromatic
+  model, Shafer 1985, doi:10.1002/col.5080100409): the peak's chroma ``1 - min(RGB) / max(RGB)`` is
+  at most :data:`PALENESS_MAX` of the tissue's or below :data:`WHITE_CHROMA`, and at least
+  :data:`WHITE_SHARE_MIN` of its linear-light excess over the background is white;
+- **a peak above the diffuse level** (``not_specular``): top-hat height at least :data:`SIGNIFICANCE_MIN`
+  noise sigmas and :data:`CONTRAST_MIN` of the room the sensor leaves, unless clipped in every channel;
+- **isolated** (``cluster``): no other specular peak of at least :data:`NEIGHBOUR_REL` of its height
+  beyond :data:`OWN_RADIUS_PX` of the BP (another guide's excepted, :mod:`simtest.reconstruct.rig_pairs`),
+  and at most :data:`SURROUND_FRACTION_MAX` of its surround lit by other light;
+- **nested ellipses** (``bad_fit``): primary isophote RMS residual at most :data:`RESIDUAL_MAX_REL` of
+  its semi-minor axis, BP inside it, semi-minor axis at least :data:`MINOR_AXIS_MIN_PX`.
 
-The ``confidence`` is a logistic function of the same quantities (:func:`confidence`), fitted on
-the ``ok`` estimates of the hand-labelled real frames (``tests/data/real/structures_labelled.json``)
-with the L2 penalty that predicts held-out frames best: a ranking calibrated there, not a
-probability on other scopes. The colour and height checks read only the BP, so the pipeline runs
-them first (:func:`bp_checks`) and neither contours nor fits a candidate that fails them
-(``not_specular`` without isophotes or confidence); candidates without a fit have none.
+``confidence`` is a logistic function of the same quantities, fitted on the hand-labelled real
+frames (``tests/data/real/structures_labelled.json``): a ranking calibrated there, not a
+probability on other scopes. The colour and height checks read only the BP: the pipeline runs
+them first (:func:`bp_checks`) and neither contours nor fits a candidate that fails them.
 """
 
 from __future__ import annotations
@@ -49,26 +35,9 @@ import cv2
 import numpy as np
 
 from simtest.decisions import (
-    PALENESS_MAX,
-    WHITE_CHROMA,
-    WHITE_SHARE_MIN,
-    SIGNIFICANCE_MIN,
-    CONTRAST_MIN,
-    PANEL_STD_REL,
-    PANEL_MIN_AREA,
-    PANEL_FRACTION_MAX,
-    NEIGHBOUR_REL,
-    NEIGHBOUR_AREA_REL,
-    VALLEY_REL,
-    VALLEY_NOISE,
-    NEIGHBOUR_REACH,
-    OWN_RADIUS_PX,
-    SURROUND_REL,
-    OWN_REL,
-    SURROUND_FRACTION_MAX,
-    RESIDUAL_MAX_REL,
-    MINOR_AXIS_MIN_PX,
-    QUANTISATION_SIGMA_LSB,
+    PALENESS_MAX, WHITE_CHROMA, WHITE_SHARE_MIN, SIGNIFICANCE_MIN, CONTRAST_MIN, PANEL_STD_REL, PANEL_MIN_AREA,
+    PANEL_FRACTION_MAX, NEIGHBOUR_REL, NEIGHBOUR_AREA_REL, VALLEY_REL, VALLEY_NOISE, NEIGHBOUR_REACH, OWN_RADIUS_PX,
+    SURROUND_REL, OWN_REL, SURROUND_FRACTION_MAX, RESIDUAL_MAX_REL, MINOR_AXIS_MIN_PX, QUANTISATION_SIGMA_LSB,
     CONFIDENCE_COEFFICIENTS as COEFFICIENTS,
 )
 from simtest.geometry.response import srgb_inverse
@@ -85,9 +54,6 @@ __all__ = ["bp_checks", "shared_passes", "PALENESS_MAX", "WHITE_CHROMA", "SIGNIF
            "SURROUND_FRACTION_MAX", "RESIDUAL_MAX_REL", "MINOR_AXIS_MIN_PX",
            "COEFFICIENTS", "Evidence", "frame_evidence", "assess", "confidence", "confidence_features", "verdict"]
 
-
-
-
 @dataclass(frozen=True)
 class Evidence:
     """Per-candidate measurements of a frame (arrays of shape (N,), one row per candidate).
@@ -97,37 +63,33 @@ class Evidence:
     chroma_peak, chroma_tissue : ndarray
         Chroma ``1 - min/max`` of the RGB maximum over the 3 x 3 px around the BP, and of the
         background (grey opening per channel) there; 0 for a grey image.
-    height : ndarray
-        Luma top-hat at the BP, image units.
-    background : ndarray
-        Luma background at the BP, image units.
+    height, background : ndarray
+        Luma top-hat and luma background at the BP, image units.
     noise : float
-        Noise standard deviation the significance divides by, image units: the sensor's and,
-        where the frame carries a JPEG block grid, the quantisation error JPEG added
-        (:func:`simtest.reconstruct.jpeg.quantisation_sigma`), in quadrature; at least
-        :data:`QUANTISATION_SIGMA_LSB` for an integer image.
+        Noise standard deviation, image units: the sensor's and JPEG's quantisation error in
+        quadrature, at least :data:`QUANTISATION_SIGMA_LSB` for an integer image.
     panel_fraction : ndarray
         Share of flat-panel pixels in the candidate's region of interest.
-    clipped : ndarray of bool
+    neighbours : ndarray of int
+        Specular peaks in the region of interest other than the candidate's own.
+    clipped : ndarray of bool, optional
         The BP is on a clipped plateau (its height is only a lower bound).
     full_scale : float
         Intensity of white, image units.
-    neighbours : ndarray of int
-        Specular peaks in the region of interest other than the candidate's own.
     minor_px : ndarray, optional
-        Semi-minor axis of each candidate's primary isophote, px (NaN without a fit).
+        Semi-minor axis of each primary isophote, px (NaN without a fit).
     surround : ndarray, optional
-        Fraction of the candidate's surround lit by other light (:func:`~simtest.reconstruct.evidence_pixels.surround_fractions`),
-        measured by :func:`assess` for the candidates that pass the checks before it; 1 for the
-        other fitted ones, NaN for the rest.
+        Fraction of the surround lit by other light, for the candidates that pass the checks before
+        it; 1 for the other fitted ones, NaN for the rest.
     paired : list of list of (float, float), optional
-        Per candidate, the centres (u, v) px of the other light guides' lobes that
-        :func:`assess` leaves out of its surround
-        (:func:`simtest.reconstruct.rig_pairs.other_lobe_centres`); None without a rig.
+        Per candidate, the centres (u, v) px of the other light guides' lobes left out of the
+        surround; None without a rig.
+    noise_bg : ndarray, optional
+        Noise at the background's level, image units.
     white_share : ndarray, optional
         The peak's white share (:func:`~simtest.reconstruct.evidence_pixels.white_share`).
     surround_white : ndarray, optional
-        As ``surround``, white light only: the cluster check's (None on a grey frame).
+        As ``surround``, white light only (None on a grey frame).
     """
 
     chroma_peak: np.ndarray
@@ -163,26 +125,22 @@ class Evidence:
 
     @property
     def contrast(self) -> np.ndarray:
-        """Height over the room the sensor leaves: the background, or the headroom from the
-        background to full scale where that is smaller (bright tissue near the ceiling)."""
+        """Height over the background, or the headroom above it where smaller."""
         room = np.minimum(self.background, self.full_scale - self.background)
         return self.height / np.maximum(room, 1e-9)
 
 
-#: The frame-wide passes :func:`shared_passes` keeps: ``key -> (the array, the result)``, or None
-#: outside such a block.
+#: The frame-wide passes :func:`shared_passes` keeps: ``key -> (the array, the result)``, or None outside.
 _SHARED: ContextVar[dict | None] = ContextVar("simtest_verify_shared", default=None)
 
 
 @contextmanager
 def shared_passes() -> Iterator[None]:
-    """Inside the block, the frame-wide passes of :func:`frame_evidence` (the reduced openings of
-    the luma and the colour, the JPEG quantisation's noise) are computed once per array and
-    argument and reused by later calls (a context manager, and a decorator).
+    """Compute the frame-wide passes of :func:`frame_evidence` once per array and argument inside the block.
 
-    The pipeline measures a frame's candidates at their BPs before the fits (:func:`bp_checks`)
-    and all after; the arrays must not change inside the block (keyed by memory, shape, strides
-    and dtype). Per context (thread or task): a nested block starts empty and ends with its own."""
+    A context manager and decorator. The arrays must not change inside the block (keyed by memory,
+    shape, strides and dtype); per context, a nested block starts empty.
+    """
     token = _SHARED.set({})
     try:
         yield
@@ -213,11 +171,10 @@ def _opening_small(img: np.ndarray, side: int):
 
 
 def seed_opening(gray: np.ndarray, side: int, half: np.ndarray) -> bool:
-    """Inside :func:`shared_passes`, :func:`_opening_small` of ``gray`` (H, W) computed from the
-    means of its 2 x 2 blocks ``half`` (H // 2, W // 2, float32: detection's reduced frame)
-    where its block side f is even (the f x f means as the means of ``half``'s blocks, to
-    float32 rounding). Returns whether it was seeded (nothing is done outside the block, for an
-    odd f, or sides that f does not divide)."""
+    """Seed :func:`_opening_small` of ``gray`` (H, W) from the means of its 2 x 2 blocks ``half``.
+
+    Inside :func:`shared_passes` and for an even block side only; returns whether it was seeded.
+    """
     memo = _SHARED.get()
     h, w = gray.shape
     f = max(1, side // 16)
@@ -230,8 +187,7 @@ def seed_opening(gray: np.ndarray, side: int, half: np.ndarray) -> bool:
 
 
 def _opening_at(img: np.ndarray, side: int, rows: np.ndarray, cols: np.ndarray) -> np.ndarray:
-    """The grey opening (:func:`simtest.reconstruct.evidence_pixels.opening`) of ``img`` (H, W[,
-    C]) at the pixels (``rows``, ``cols``) only: the reduced opening (shared) enlarged there."""
+    """The grey opening of ``img`` (H, W[, C]) at the pixels (``rows``, ``cols``) only."""
     h, w = img.shape[:2]
     bg, f = _shared(_opening_small, img, side)
     if f == 1:
@@ -240,47 +196,44 @@ def _opening_at(img: np.ndarray, side: int, rows: np.ndarray, cols: np.ndarray) 
 
 
 def _white_share(peak_rgb: np.ndarray, tissue_rgb: np.ndarray, full_scale: float) -> np.ndarray:
-    """:func:`~simtest.reconstruct.evidence_pixels.white_share` of peaks (P, 3) over their
-    backgrounds (P, 3), display-encoded (``full_scale`` white), in linear light."""
+    """White share of peaks (P, 3) over their backgrounds (P, 3), display-encoded, in linear light."""
     fs = np.float32(full_scale)
     peak, tissue = (srgb_inverse(np.clip(v / fs, 0, 1)) for v in (peak_rgb, tissue_rgb))
     return px.white_share(peak - tissue, tissue)
 
 
 def _as_srgb(values: np.ndarray, full_scale: float, response) -> np.ndarray:
-    """RGB samples as an sRGB sensor would have written the same light (``response``, a
-    :class:`~simtest.geometry.response.SensorResponse`: the frame's tone curve), where the frame
-    has another curve: the colour checks' numbers are stated on display-encoded (sRGB) frames.
-    The samples as they are without a response or with an sRGB one (per channel and monotone, the
-    curve commutes with the openings and maxima the samples come from)."""
+    """RGB samples as an sRGB sensor would have written the same light (``response``: the frame's curve).
+
+    The colour checks' numbers are stated on sRGB frames; without a response or with an sRGB one the
+    samples are returned as they are.
+    """
     if response is None or response.curve == "srgb":
         return values
     return response.as_srgb(values, float(full_scale))
 
 
 def _bp_colour(src3, rows, cols, tissue_rgb, full_scale, response) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """``(chroma_peak, chroma_tissue, white_share)`` at BP pixels (``rows``, ``cols``) of channels
-    ``src3`` (H, W, C): the peak the RGB maximum of the 3 x 3 px, ``tissue_rgb`` (P, 3) as sRGB."""
+    """``(chroma_peak, chroma_tissue, white_share)`` at BP pixels of channels ``src3`` (H, W, C)."""
     peak = _as_srgb(px.rgb_max9(src3, rows, cols), full_scale, response)
     return px.chroma(peak), px.chroma(tissue_rgb), _white_share(peak, tissue_rgb, full_scale)
 
 
 def _specular_colour(chroma: np.ndarray, chroma_tissue: np.ndarray, share: np.ndarray | None = None) -> np.ndarray:
-    """The colour check: a chroma at most :data:`PALENESS_MAX` of the tissue's, or near-white
-    (at most :data:`WHITE_CHROMA`), and where ``share`` (the peak's excess's white share,
-    :func:`~simtest.reconstruct.evidence_pixels.white_share`) is given, at least
-    :data:`WHITE_SHARE_MIN`; arrays of any one shape."""
+    """The colour check: chroma at most :data:`PALENESS_MAX` of the tissue's or :data:`WHITE_CHROMA`,
+    and white share at least :data:`WHITE_SHARE_MIN` where ``share`` is given.
+    """
     pale = (chroma <= PALENESS_MAX * chroma_tissue) | (chroma <= WHITE_CHROMA)
     return pale if share is None else pale & (share >= WHITE_SHARE_MIN)
 
 
 def _panel_pixels_in(gray: np.ndarray, noise: np.ndarray, rr: np.ndarray, image: np.ndarray | None = None,
                      full_scale: float | None = None) -> np.ndarray:
-    """How many flat-panel pixels each region ``rr`` (row0, row1, col0, col1) holds: 5 x 5 luma
-    standard deviation below :data:`PANEL_STD_REL` of the noise at their level (``noise``: a
-    :func:`~simtest.reconstruct.detect_pixels.noise_level_table`), in 8-connected regions of at
-    least :data:`PANEL_MIN_AREA` of the frame; next to a channel at an integer ``image``'s ceiling,
-    flat in every channel (a clipped channel carries no noise; a drawn panel is flat in all)."""
+    """How many flat-panel pixels each region ``rr`` (row0, row1, col0, col1) holds.
+
+    ``noise`` is a :func:`~simtest.reconstruct.detect_pixels.noise_level_table`; next to a clipped
+    channel a pixel must be flat in every channel.
+    """
     if not np.max(noise) > 0:
         return np.zeros(len(rr), np.int64)
     rgb = image[..., :3] if image is not None and image.ndim == 3 and image.dtype.kind == "u" else None
@@ -288,29 +241,24 @@ def _panel_pixels_in(gray: np.ndarray, noise: np.ndarray, rr: np.ndarray, image:
     return px.panel_pixels_in(gray, PANEL_STD_REL * noise, PANEL_MIN_AREA * gray.size, rr, rgb, ceiling, full_scale)
 
 
-#: The windowed path of :func:`frame_evidence` (top-hat and maxima only around the candidates
-#: that count neighbours, the panel map only where a region of interest may hold one) is taken
-#: while its windows cover at most this fraction of the frame; denser frames are measured whole.
+#: :func:`frame_evidence` measures only around the candidates while its windows cover at most this
+#: fraction of the frame.
 WINDOWED_AREA_MAX = 0.25
-#: Margin around a region of interest in which :func:`_surely_no_panels` follows a possibly flat
-#: component, px: one that stays inside it is too small for a panel.
+#: Margin around a region of interest in which :func:`_surely_no_panels` follows a possibly flat component, px.
 _PANEL_MARGIN_PX = 16
-#: Relative slack of :func:`_surely_no_panels`' flatness test: the float32 means and variance of
-#: the panels' flat test (each rounded at most a few float32 ulps, 2^-24 relative) differ from
-#: the exact variance by at most about 6 x 2^-24 of the mean square; 1e-5 is 30 times that.
+#: Relative slack of :func:`_surely_no_panels`' flatness test: 30 times the float32 rounding of the
+#: panels' variance (about 6 x 2^-24 of the mean square).
 _FLAT_SLACK = 1e-5
 
 
 def _surely_no_panels(gray: np.ndarray, noise, rr: np.ndarray, full_scale: float | None = None) -> bool:
-    """Whether no pixel of any region of interest ``rr`` can be a panel pixel, proven without the frame
-    (:func:`~simtest.reconstruct.evidence_pixels.surely_no_panels`; ``noise`` with ``full_scale``: a level table)."""
+    """Whether no pixel of any region ``rr`` can be a panel pixel, proven without the frame."""
     thr2 = (PANEL_STD_REL * np.asarray(noise, np.float64)) ** 2 * (1.0 + _FLAT_SLACK)
     return px.surely_no_panels(gray, rr, _PANEL_MARGIN_PX, thr2, _FLAT_SLACK, PANEL_MIN_AREA * gray.size, full_scale)
 
 
 def _top_of(g_at: np.ndarray, bg_at: np.ndarray) -> np.ndarray:
-    """The top-hat ``max(g - bg, 0)`` (float32, NaN kept) of values read at some pixels (the
-    luma ``g_at`` and its opening ``bg_at``)."""
+    """The top-hat ``max(g - bg, 0)`` (float32, NaN kept) of values read at some pixels."""
     d = g_at - bg_at
     return np.where((d >= 0) | np.isnan(d), d, np.float32(0.0)).astype(np.float32, copy=False)
 
@@ -338,30 +286,21 @@ def frame_evidence(image: np.ndarray, gray: np.ndarray, bps_uv: np.ndarray, rois
     background_px : int
         Side of the background opening's square, px (detection's).
     reach_px : ndarray of shape (N,), optional
-        Radius around each BP in which other specular peaks are counted (``neighbours``), px;
-        NaN (or None for all): not counted. The pipeline gives :data:`NEIGHBOUR_REACH` times the
-        primary isophote's semi-major axis plus :data:`OWN_RADIUS_PX`, the extent of the lobe's
-        outer isophotes.
+        Radius around each BP in which other specular peaks are counted, px; NaN (or None): not counted.
     ellipses : sequence of Ellipse or None, optional
         Each candidate's primary isophote: peaks inside it are its own, not neighbours.
     windowed : bool, optional
-        Measure only where the checks read (True: in the reach windows and at the BPs and maxima,
-        no panel map where :func:`_surely_no_panels` proves none) or over the frame (False): the
-        same evidence to the bit (``tests/test_verify.py``); default: the windows while they cover
-        at most :data:`WINDOWED_AREA_MAX` of the frame.
+        Measure only where the checks read (True) or over the frame (False): the same evidence to
+        the bit; default: windows while they cover at most :data:`WINDOWED_AREA_MAX` of the frame.
     grey : bool
-        R, G and B are equal and ``gray`` is their value (the colour's opening is the gray's).
+        R, G and B are equal and ``gray`` is their value.
     panels : bool or ndarray of bool, shape (N,)
-        Measure the flat panels' share in the regions of interest (False: 0 for all), or in
-        those of the candidates marked (the others 0: the verdict judges only some).
+        Measure the flat panels' share for all, none or the candidates marked (the others 0).
     expected : list of ndarray of shape (M, 2), optional
         Per candidate, where another light guide's highlight can lie (u, v) px
-        (:func:`simtest.reconstruct.rig_pairs.other_guide_curves`): a peak whose region comes
-        within :data:`~simtest.reconstruct.rig_pairs.PAIR_TOL_PX` of them is that highlight, not a
-        neighbour. None: no rig.
+        (:func:`simtest.reconstruct.rig_pairs.other_guide_curves`). None: no rig.
     response : SensorResponse, optional
-        The frame's tone curve (a camera file's ``"response"``): the colour is read as an sRGB
-        frame would hold the same light (:func:`_as_srgb`); None: a display-encoded (sRGB) frame.
+        The frame's tone curve; None: a display-encoded (sRGB) frame.
 
     Returns
     -------
@@ -375,8 +314,7 @@ def frame_evidence(image: np.ndarray, gray: np.ndarray, bps_uv: np.ndarray, rois
     todo = np.flatnonzero(np.isfinite(reach))
     rr = (np.asarray(rois, np.int64) if isinstance(rois, np.ndarray)
           else np.array([[r.row0, r.row1, r.col0, r.col1] for r in rois], np.int64)).reshape(-1, 4)
-    # the windows the neighbour count reads (its rows r0:r1 and columns c0:c1 of the top-hat)
-    # (np.stack, not np.c_ and np.r_: their index machinery is slow)
+    # the windows the neighbour count reads (rows r0:r1, columns c0:c1 of the top-hat)
     win = np.stack([np.maximum(0, (rows[todo] - reach[todo]).astype(np.int64)),
                     np.minimum(h, (rows[todo] + reach[todo]).astype(np.int64) + 1),
                     np.maximum(0, (cols[todo] - reach[todo]).astype(np.int64)),
@@ -393,9 +331,7 @@ def frame_evidence(image: np.ndarray, gray: np.ndarray, bps_uv: np.ndarray, rois
     bg_bp = px.linear_at_points(bg_small, (h, w), rows, cols) if f > 1 else bg_small[rows, cols]
     g = _shared(_float32, gray) if not windowed else gray
     height = _top_of(g[rows, cols].astype(np.float32, copy=False), bg_bp)
-    # only the maxima that some candidate's neighbour count can select (a top-hat of at least
-    # NEIGHBOUR_REL of its height) are read: the maxima are taken above the larger of the floor
-    # and that (t > floor and t >= s, as t > the float32 below s; NaN or no count: none)
+    # only the maxima some neighbour count can select (top-hat >= NEIGHBOUR_REL of its height) are read
     if len(todo):
         s = np.float32(np.fmin.reduce(NEIGHBOUR_REL * height[todo]))  # NaN: none
         floor_max = np.float32(np.nan) if np.isnan(s) else max(floor, np.nextafter(s, np.float32(-np.inf)))
@@ -409,8 +345,7 @@ def frame_evidence(image: np.ndarray, gray: np.ndarray, bps_uv: np.ndarray, rois
         ys, xs = np.divmod(np.flatnonzero(is_max), w)
         keep = px.in_windows(ys, xs, (h, w), win)
         ys, xs = ys[keep], xs[keep]
-    # the colour: the frame's RGB and its opening at the BPs and the maxima only (the opening
-    # reduced over the whole frame, enlarged at those pixels)
+    # the colour: the RGB and its opening at the BPs and the maxima only
     src = image[..., :3] if image.ndim == 3 and not grey else gray
     at = _opening_at(src, background_px, np.concatenate([rows, ys]), np.concatenate([cols, xs]))
     if src.ndim != 3:  # a grey frame: its three channels alike
@@ -451,10 +386,10 @@ def frame_evidence(image: np.ndarray, gray: np.ndarray, bps_uv: np.ndarray, rois
 
 def specular_colour_at(image: np.ndarray, gray: np.ndarray, bps_uv: np.ndarray, *, full_scale: float,
                        response=None) -> np.ndarray:
-    """The colour check of ``not_specular`` alone (:func:`_specular_colour`, with the white share
-    through ``response``'s curve, as :func:`frame_evidence`) at the BPs ``bps_uv`` (N, 2) (u, v) px
-    of ``image`` (H, W, 3) (``gray`` its luma, for the background's square): bool (N,); all True
-    for a grey frame (no colour to tell)."""
+    """The colour check of ``not_specular`` alone at the BPs ``bps_uv`` (N, 2) (u, v) px of ``image``.
+
+    Returns bool (N,); all True for a grey frame.
+    """
     bps = np.asarray(bps_uv, np.float64).reshape(-1, 2)
     if image.ndim != 3 or not len(bps):
         return np.ones(len(bps), bool)
@@ -466,32 +401,27 @@ def specular_colour_at(image: np.ndarray, gray: np.ndarray, bps_uv: np.ndarray, 
 
 def bp_checks(image: np.ndarray, gray: np.ndarray, bps_uv: np.ndarray, clipped: np.ndarray, *,
               full_scale: float, noise: float, grey: bool = False, response=None) -> list[str | None]:
-    """The checks of :func:`verdict` that read only a candidate's BP, before any fit: the colour
-    and the height (``not_specular``). The pipeline runs them on detection's candidates and
-    extracts and fits the isophotes of those that pass only.
+    """The checks of :func:`verdict` that read only a candidate's BP (colour and height), before any fit.
 
     Parameters
     ----------
     image, gray, full_scale, noise, grey, response
-        As for :func:`frame_evidence` (``noise``: the luma's, as :func:`assess` takes it).
+        As for :func:`frame_evidence`.
     bps_uv : ndarray of shape (N, 2)
         The candidates' BPs (u, v), px.
     clipped : ndarray of bool, shape (N,)
-        The BP is on a clipped plateau (the height check is then skipped, as in :func:`verdict`).
+        The BP is on a clipped plateau (the height check is skipped).
 
     Returns
     -------
     list of str or None
-        Per candidate: None where it passes, else its ``not_specular`` detail as :func:`verdict`
-        gives it (the same measurements at the BP, which the fit and the ROI do not change).
+        Per candidate: None where it passes, else its ``not_specular`` detail as :func:`verdict` gives it.
     """
     n = len(bps_uv)
     if not n:
         return []
     bps = np.asarray(bps_uv, np.float64).reshape(-1, 2)
     ij = np.clip(np.rint(bps).astype(np.int64), 0, [gray.shape[1] - 1, gray.shape[0] - 1])
-    # each BP's pixel its region (row0, row1, col0, col1), as one array (not an object each: a
-    # real frame's thousand candidates)
     rc = uv_to_rc(ij).astype(np.int64)  # (u, v) to (row, col): the one place that swaps them
     rows, cols = rc[:, 0], rc[:, 1]
     rois = np.stack([rows, rows + 1, cols, cols + 1], axis=1)
@@ -503,23 +433,19 @@ def bp_checks(image: np.ndarray, gray: np.ndarray, bps_uv: np.ndarray, clipped: 
     return [detail if status == "not_specular" else None for status, detail in checks]
 
 
-#: The isovalue at which :data:`NEIGHBOUR_REACH` is stated (the default primary, t = 0.7):
-#: another primary isophote scales the reach to the same extent of the lobe
-#: (:func:`_reach_axes`). A reference of the constant, not a level any check reads.
+#: The isovalue at which :data:`NEIGHBOUR_REACH` is stated (the default primary); not a level any check reads.
 _REACH_T = 0.7
 
 
 def _own_level(t) -> np.ndarray:
-    """The own lobe's radius at :data:`OWN_REL` over its radius at the primary isovalue ``t``,
-    squared (a Gaussian lobe exp(-r^2 / 2 s^2) reaches level t at r = s sqrt(2 ln(1 / t))): the
-    user's isovalue, whatever it is, not the default's."""
+    """Squared ratio of the own lobe's radius at :data:`OWN_REL` to its radius at isovalue ``t``
+    (a Gaussian lobe reaches level t at r = s sqrt(2 ln(1 / t))).
+    """
     return np.log(1.0 / OWN_REL) / np.log(1.0 / np.asarray(t, np.float64))
 
 
 def _reach_axes(t) -> np.ndarray:
-    """:data:`NEIGHBOUR_REACH` for a primary isophote at ``t``, in its semi-major axes: the same
-    outer extent of a Gaussian lobe (radius proportional to sqrt(ln(1 / t))) as at
-    :data:`_REACH_T`."""
+    """:data:`NEIGHBOUR_REACH` for a primary isophote at ``t``, in its semi-major axes."""
     return NEIGHBOUR_REACH * np.sqrt(np.log(1.0 / _REACH_T) / np.log(1.0 / np.asarray(t, np.float64)))
 
 
@@ -537,34 +463,22 @@ def assess(image: np.ndarray, gray: np.ndarray, ests, *, full_scale: float, wind
         Its estimates (N), as the pipeline completed them.
     full_scale : float
         Intensity of white, image units.
-    windowed : bool, optional
-        As for :func:`frame_evidence` (the same evidence either way).
+    windowed, grey, response
+        As for :func:`frame_evidence`.
     noise : float, optional
-        The luma's noise standard deviation, image units, where the caller measured it (the
-        pipeline: on the rows detection read, :func:`~simtest.reconstruct.detect.noise_sigma` of
-        OpenCV's gray); default :func:`~simtest.reconstruct.detect.noise_sigma` of ``gray``.
-    grey : bool
-        As for :func:`frame_evidence` (R = G = B and ``gray`` is their value).
+        The luma's noise standard deviation, image units; default
+        :func:`~simtest.reconstruct.detect.noise_sigma` of ``gray``.
     camera : CameraModel, optional
         The camera, with ``lights``.
     lights : LightRig, optional
-        The scope's light rig (the camera file's ``"lights"``): with two or more lights apart, a
-        peak where another guide's highlight can lie (:mod:`simtest.reconstruct.rig_pairs`) is
-        neither a neighbour nor the surround's light (the other guide's lobe, found where the
-        rig puts it, is left out of the surround as the own lobe is:
-        :func:`~simtest.reconstruct.rig_pairs.other_lobe_centres`). None (or one light): no
-        pairing.
-    response : SensorResponse, optional
-        As for :func:`frame_evidence`.
+        The scope's light rig: a peak where another guide's highlight can lie is neither a
+        neighbour nor the surround's light. None (or one light): no pairing.
 
     Returns
     -------
     (Evidence, ndarray of shape (N,), ndarray of bool, shape (N,))
-        The evidence (neighbours counted for the fitted estimates within
-        :data:`NEIGHBOUR_REACH` semi-major axes plus :data:`OWN_RADIUS_PX`), the primary
-        isophote's RMS residual over its semi-minor axis (NaN without a fit; 0 for a camera model
-        without image conics, whose isophote's image points are fitted with an ellipse here for
-        the other checks), and whether the BP lies inside that ellipse.
+        The evidence, the primary isophote's RMS residual over its semi-minor axis (NaN without a
+        fit; 0 for a camera model without image conics), and whether the BP lies inside that ellipse.
     """
     n = len(ests)
     res = np.full(n, np.nan)
@@ -580,9 +494,8 @@ def assess(image: np.ndarray, gray: np.ndarray, ests, *, full_scale: float, wind
     major = np.full(n, np.nan)
     # each primary isophote's isovalue (the user's): the reach and the own lobe scale with it
     t = np.array([_REACH_T if p is None else p.isovalue for p in prims], np.float64)
-    # a camera model without image conics fits its isophote on the viewing rays, where it is a
-    # conic; the image outline the lens distorts still gives the checks its size, reach and own
-    # lobe (its residual is the lens's, not the fit's: taken as 0); all fitted in one batch
+    # a camera model without image conics: its image outline still gives the checks its size, reach and
+    # own lobe (its residual is the lens's, taken as 0)
     refit = [k for k in np.flatnonzero(ok) if ells[k] is None and ests[k].points_uv is not None]
     for k, fit in zip(refit, fit_ellipses([ests[k].points_uv for k in refit]) if refit else ()):
         if fit:
@@ -600,8 +513,7 @@ def assess(image: np.ndarray, gray: np.ndarray, ests, *, full_scale: float, wind
         reach[f] = np.where(ok[f], _reach_axes(t[f]) * a + OWN_RADIUS_PX, np.nan)
     expected = None
     if lights is not None and camera is not None and lights.has_separate_lights:
-        # out to the reach plus the own lobe's radius at OWN_REL: a lobe whose flank reaches the
-        # surround may have its centre beyond it
+        # out to the reach plus the own lobe's radius at OWN_REL
         expected = other_guide_curves(camera, lights.positions, bps,
                                       np.nan_to_num(reach + np.sqrt(_own_level(t)) * major, nan=-1.0))
     # no image outline at all: judged on the rest
@@ -611,8 +523,7 @@ def assess(image: np.ndarray, gray: np.ndarray, ests, *, full_scale: float, wind
                         reach_px=reach, ellipses=ells, windowed=windowed, grey=grey, expected=expected,
                         panels=ok, response=response)
     clipped = np.array([bool(e.saturated) for e in ests], dtype=bool)
-    # the surround, for the candidates that pass every check before it (verdict's order); the
-    # others' share counts as 1 (all lit) in their confidence
+    # the surround, for the candidates that pass every check before it; the others' share counts as 1
     surround = np.where(np.isfinite(reach), 1.0, np.nan)
     white = None
     passed = (np.isfinite(reach) & (ev.panel_fraction <= PANEL_FRACTION_MAX) & ev.specular_colour
@@ -644,20 +555,14 @@ def confidence_features(ev: Evidence, residual_rel: np.ndarray) -> np.ndarray:
     ev : Evidence
         The frame's evidence (N candidates).
     residual_rel : ndarray of shape (N,)
-        As for :func:`confidence` (finite here: the caller puts :data:`RESIDUAL_MAX_REL` for a
-        missing fit).
+        As for :func:`confidence`, finite.
 
     Returns
     -------
     ndarray of shape (N, 5)
-        Log of the peak's white share (clipped to 0.1 to 10; 1 where not measured: a grey frame)
-        and log significance (clipped), minus log of the surround's share of other specular light
-        (``ev.surround_white``, the cluster check's: light off a wet film keeps the illuminant's
-        colour, so a tissue-coloured shoulder of the candidate's own clipped lobe or bright tissue
-        is not another glint; the luma's ``ev.surround`` on a grey frame, where colour cannot
-        tell; 1 where not measured, a share under 1 % taken as 1 %: the ring's resolution), minus
-        log residual ratio (clipped), minus the panel share (0 where not measured: a candidate
-        already rejected, :func:`assess`).
+        Log white share (clipped to 0.1..10; 1 where not measured), log significance (clipped),
+        minus log of the surround's share of other light plus 1 % (white light only on a colour
+        frame), minus log residual ratio (clipped), minus the panel share.
     """
     sur = ev.surround if ev.surround_white is None else ev.surround_white
     surround = np.ones(len(ev.height)) if sur is None else np.nan_to_num(sur, nan=1.0)
@@ -672,16 +577,14 @@ def confidence_features(ev: Evidence, residual_rel: np.ndarray) -> np.ndarray:
 
 
 def confidence(ev: Evidence, residual_rel: np.ndarray, coefficients: np.ndarray | None = None) -> np.ndarray:
-    """The probability-like confidence in [0, 1] that each candidate is an isolated specular
-    highlight: a logistic function of the evidence's features.
+    """Confidence in [0, 1] that each candidate is an isolated specular highlight (logistic in the features).
 
     Parameters
     ----------
     ev : Evidence
         The frame's evidence (N candidates).
     residual_rel : ndarray of shape (N,)
-        Primary isophote's RMS residual over its semi-minor axis (NaN where there is no fit: the
-        feature is taken at :data:`RESIDUAL_MAX_REL`).
+        Primary isophote's RMS residual over its semi-minor axis (NaN: taken at :data:`RESIDUAL_MAX_REL`).
     coefficients : ndarray of shape (6,), optional
         Intercept and weights; default :data:`COEFFICIENTS`.
 
@@ -695,8 +598,7 @@ def confidence(ev: Evidence, residual_rel: np.ndarray, coefficients: np.ndarray 
     return 1.0 / (1.0 + np.exp(-z))
 
 
-def verdict(ev: Evidence, residual_rel: np.ndarray, bp_inside: np.ndarray,
-            only=None) -> list[tuple[str, str] | None]:
+def verdict(ev: Evidence, residual_rel: np.ndarray, bp_inside: np.ndarray, only=None) -> list[tuple[str, str] | None]:
     """The status each fitted candidate earns: ``("ok", "")`` or a rejection and its numbers.
 
     Parameters
@@ -707,8 +609,7 @@ def verdict(ev: Evidence, residual_rel: np.ndarray, bp_inside: np.ndarray,
     bp_inside : ndarray of bool, shape (N,)
         Whether the BP lies inside the primary isophote's ellipse.
     only : array_like of int, optional
-        Judge only these candidates (the others get None): a frame's fitted ones, a few hundred
-        of its thousands.
+        Judge only these candidates (the others get None).
 
     Returns
     -------

@@ -1,21 +1,14 @@
 """3D view of estimated normals, rendered off-screen with pyvista (no display needed).
 
-Each reconstructed highlight becomes a small disc perpendicular to its estimated normal, with an
-arrow along the normal, at its 3D point: along the BP's viewing ray at the distance a light-aware
-estimator gave (``depth_mm``, the distance along the ray) where the estimate has one, else on the
-unit sphere of viewing rays (1 unit from the camera centre; the scene is then only directional).
-With ground truth (a surface as points (H, W, 3) in the camera frame, mm: a render's ``position``,
-or a depth map back-projected through the camera) a second panel, beside the first, shows that
-surface with the same discs placed on it at each BP (the ground truth's point at the BP pixel), so
-that a disc lying flat on the surface is a correct normal. Colours: :func:`~simtest.reconstruct.
-overlay.estimator_colour`; the camera centre is a small black sphere.
+Each highlight is a small disc perpendicular to its normal with an arrow along it, at its 3D
+point: along the BP's ray at ``depth_mm`` where a light-aware estimator gave one, else on the unit
+sphere of viewing rays. With ground truth (surface points (H, W, 3), camera frame, mm) a second
+panel shows that surface with the discs placed on it at each BP: a disc lying flat is a correct
+normal. Colours: :func:`~simtest.reconstruct.overlay.estimator_colour`.
 
-Off-screen rendering needs no X server: VTK uses EGL (or OSMesa) when there is no display; on a
-bare Debian the packages ``libegl1``, ``libegl-mesa0``, ``libgl1-mesa-dri`` and ``libopengl0``
-provide it (the README's set-up command installs them). VTK says so on every run ("bad X server
-connection", before it falls back): its logger and warning display are switched off and the
-rendering runs inside :func:`~simtest.reconstruct.images.quiet_stderr`, so a view prints nothing
-on standard error.
+Off-screen rendering uses EGL (or OSMesa) without an X server (on Debian: ``libegl1``,
+``libegl-mesa0``, ``libgl1-mesa-dri``, ``libopengl0``); VTK's messages are silenced and the
+rendering runs inside :func:`~simtest.reconstruct.images.quiet_stderr`.
 """
 
 from __future__ import annotations
@@ -36,22 +29,8 @@ MAX_SURFACE_GRID = 240
 
 
 def estimate_points(specs, estimator: str) -> tuple[np.ndarray, np.ndarray, bool]:
-    """3D points and normals of the reconstructed highlights (module docstring).
-
-    Parameters
-    ----------
-    specs : list of dict
-        ``specularities`` of an estimates document.
-    estimator : str
-        Which normal (``normal``, ``cone_axis``, ...); highlights without it are left out.
-
-    Returns
-    -------
-    points : ndarray of shape (N, 3)
-        mm where every highlight has ``depth_mm``, else unit-sphere points.
-    normals : ndarray of shape (N, 3)
-    metric : bool
-        True when the points are in mm.
+    """3D points (N, 3) and normals (N, 3) of the ``specularities`` that have ``estimator``'s normal, and
+    whether the points are metric (mm, every highlight with ``depth_mm``) rather than unit-sphere points.
     """
     rays, normals, depths = [], [], []
     for s in specs:
@@ -70,21 +49,8 @@ def estimate_points(specs, estimator: str) -> tuple[np.ndarray, np.ndarray, bool
 
 
 def surface_from_depth(depth_mm, camera, *, z_depth: bool = True) -> np.ndarray:
-    """Camera-frame points (H, W, 3) mm of a depth map through a camera model.
-
-    Parameters
-    ----------
-    depth_mm : ndarray of shape (H, W)
-        Depth, mm; NaN where invalid.
-    camera : CameraModel
-        The camera.
-    z_depth : bool
-        True: the depth is the z coordinate (renders, C3VD); False: the distance along the ray.
-
-    Returns
-    -------
-    ndarray of shape (H, W, 3)
-        NaN where the depth or the ray is invalid.
+    """Camera-frame points (H, W, 3) mm of a depth map (H, W) through ``camera``: ``z_depth`` the z
+    coordinate, else the distance along the ray; NaN where the depth or ray is invalid.
     """
     d = np.asarray(depth_mm, dtype=np.float64)
     H, W = d.shape
@@ -123,16 +89,15 @@ def _glyphs(pv, points, normals, radius):
             cloud.glyph(orient="n", scale=False, factor=1.0, geom=arrow))
 
 
-def render_view(path, specs, *, estimator: str | None = None, truth_points=None,
-                window_size=(1400, 700)) -> Path:
-    """Render the 3D view to a PNG, off-screen.
+def render_view(path, specs, *, estimator: str | None = None, truth_points=None, window_size=(1400, 700)) -> Path:
+    """Render the 3D view to a PNG (written atomically), off-screen.
 
     Parameters
     ----------
     path : str or Path
-        Destination ``.png`` (written atomically).
+        Destination ``.png``.
     specs : list of dict
-        ``specularities`` of an estimates document (:func:`~simtest.reconstruct.io.estimate_to_dict`).
+        ``specularities`` of an estimates document.
     estimator : str, optional
         Normal drawn; default ``normal`` when the estimates have it, else ``cone_axis``.
     truth_points : ndarray of shape (H, W, 3), optional
