@@ -35,9 +35,8 @@ from typing import NoReturn
 
 import typer
 
-__all__ = ["OK", "CHECK_FAILED", "BAD_INPUT", "BAD_BASELINE", "CANNOT_WRITE", "INTERRUPTED", "fail",
-           "one_line", "writable_dir", "safe_name", "SignalInterrupt", "SignalState", "exit_on_signal",
-           "signals_interrupt"]
+__all__ = ["OK", "CHECK_FAILED", "BAD_INPUT", "BAD_BASELINE", "CANNOT_WRITE", "INTERRUPTED", "fail", "one_line",
+           "writable_dir", "safe_name", "SignalInterrupt", "SignalState", "exit_on_signal", "signals_interrupt"]
 
 OK = 0
 CHECK_FAILED = 1

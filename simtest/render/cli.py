@@ -328,7 +328,5 @@ def _side_by_side(before, after, fit_frames, held) -> np.ndarray:
     h = fit_frames[0].shape[0]
     row = [at_height(before, h), at_height(after, h)] + list(fit_frames[:2]) + list(held[:2])
     gap = np.full((h, 6, 3), 255, np.uint8)
-    parts = []
-    for f in row:
-        parts += [f, gap]
+    parts = [x for f in row for x in (f, gap)]
     return np.concatenate(parts[:-1], axis=1)

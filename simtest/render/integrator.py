@@ -57,9 +57,8 @@ def _make_class():
                 n = mi.Vector3f(dr.dot(n, ex), dr.dot(n, ey), dr.dot(n, ez))
                 p = mi.Point3f(dr.dot(d, ex), dr.dot(d, ey), dr.dot(d, ez))
             zero = mi.Float(0.0)
-            aovs = [dr.select(valid, n.x, zero), dr.select(valid, n.y, zero),
-                    dr.select(valid, n.z, zero), dr.select(valid, p.x, zero),
-                    dr.select(valid, p.y, zero), dr.select(valid, p.z, zero)]
+            aovs = [dr.select(valid, n.x, zero), dr.select(valid, n.y, zero), dr.select(valid, n.z, zero),
+                    dr.select(valid, p.x, zero), dr.select(valid, p.y, zero), dr.select(valid, p.z, zero)]
             return L, valid, aovs
 
         def to_string(self):

@@ -45,9 +45,8 @@ def _highlights(spec: SceneSpec, res: dict, light_pos, K, scene, pose, *, cast=N
     mesh = _mesh_in_camera(spec)
     if cast is None:
         cast = _make_caster(scene, K, pose)
-    return mesh_highlights(cast, res["normals_raw"], res["position_raw"],
-                           res["mask"], light_pos, K, mesh["vertices"], mesh["faces"],
-                           mesh["k1"], mesh["k2"], candidates=candidates)
+    return mesh_highlights(cast, res["normals_raw"], res["position_raw"], res["mask"], light_pos, K, mesh["vertices"],
+                           mesh["faces"], mesh["k1"], mesh["k2"], candidates=candidates)
 
 
 def _sensor_image(linear: np.ndarray, rgb: np.ndarray | None, spec: SceneSpec,
@@ -72,8 +71,7 @@ def visible_highlights(highlights: list[HighlightTruth], specular: np.ndarray) -
     H, W = specular.shape[:2]
     out = []
     for h in highlights:
-        if not (np.all(np.isfinite(h.bp_mm)) and np.all(np.isfinite(h.normal))
-                and np.all(np.isfinite(h.bp_px))):
+        if not (np.all(np.isfinite(h.bp_mm)) and np.all(np.isfinite(h.normal)) and np.all(np.isfinite(h.bp_px))):
             continue
         if h.bp_mm[2] <= 0.0:
             continue

@@ -190,8 +190,7 @@ def _noise_seeds(seed: int, k: int) -> list[int]:
 
 def _pooled_stats(frames: list[np.ndarray], height: int) -> dict[str, float]:
     """Statistics of a frame's noise draws, pooled as the real frames' are (one draw's blob statistics swing)."""
-    small = [at_height(f, height) for f in frames]
-    return real_reference(small)
+    return real_reference([at_height(f, height) for f in frames])
 
 
 #: Renders of the fitted scene whose losses the last develop searches add up (at one seed the fit fits

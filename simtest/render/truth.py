@@ -25,8 +25,7 @@ __all__ = ["Caster", "bisector_cos_image", "mesh_highlight_candidates", "mesh_hi
            "relief_highlights", "HighlightTarget", "highlight_targets"]
 
 
-def bisector_cos_image(normals: np.ndarray, position: np.ndarray, mask: np.ndarray,
-                       light: np.ndarray) -> np.ndarray:
+def bisector_cos_image(normals: np.ndarray, position: np.ndarray, mask: np.ndarray, light: np.ndarray) -> np.ndarray:
     """Cosine between each pixel's normal and its bisector, ``n . h(p)``, in float32.
 
     Parameters
@@ -73,9 +72,8 @@ def _dot_rows(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     return a[0] * b[0] + a[1] * b[1] + a[2] * b[2]
 
 
-def mesh_highlight_candidates(normals: np.ndarray, position: np.ndarray, mask: np.ndarray,
-                              light: np.ndarray, *, candidate_deg: float = 3.0,
-                              max_highlights: int = 64) -> np.ndarray:
+def mesh_highlight_candidates(normals: np.ndarray, position: np.ndarray, mask: np.ndarray, light: np.ndarray, *,
+                              candidate_deg: float = 3.0, max_highlights: int = 64) -> np.ndarray:
     """Pixels where a mesh BP search starts: local maxima of :func:`bisector_cos_image`.
 
     Parameters
@@ -319,8 +317,7 @@ class HighlightTarget:
         pts = np.unique(np.vstack([self.bp_px, self.peak_px[None]]).astype(np.float64), axis=0)
         if len(pts) >= 3:
             hull = cv2.convexHull(pts.astype(np.float32)).reshape(-1, 2).astype(np.float64)
-            if len(hull) >= 3 and cv2.pointPolygonTest(hull.astype(np.float32),
-                                                       (float(q[0]), float(q[1])), False) >= 0:
+            if len(hull) >= 3 and cv2.pointPolygonTest(hull.astype(np.float32), (float(q[0]), float(q[1])), False) >= 0:
                 return 0.0
             pts = hull
         if len(pts) == 1:
