@@ -190,10 +190,8 @@ def validation_error(error: type[E], source: str, exc: ValidationError, prefix: 
         reason = "must not be empty"
     elif kind in _EXPECTED:
         reason = f"expected {_EXPECTED[kind]}"
-    elif kind in ("value_error", "assertion_error"):
-        reason = str(ctx.get("error", e["msg"]))
     else:
-        reason = e["msg"]
+        reason = str(ctx.get("error", e["msg"])) if kind in ("value_error", "assertion_error") else e["msg"]
     return keyed_error(error, source, key_path(loc, prefix), reason, _plain(value))
 
 

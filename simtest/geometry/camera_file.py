@@ -61,9 +61,7 @@ class CameraFile:
 
 
 def _has_bool(value) -> bool:
-    if isinstance(value, bool):
-        return True
-    return isinstance(value, (list, tuple)) and any(_has_bool(v) for v in value)
+    return isinstance(value, bool) or (isinstance(value, (list, tuple)) and any(_has_bool(v) for v in value))
 
 
 def _model_from_dict(data: dict, where: str) -> CameraModel:

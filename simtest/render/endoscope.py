@@ -123,12 +123,9 @@ def laparoscope_rig(radius_mm: float = LAPAROSCOPE_RING_RADIUS_MM, count: int = 
     count = int(count)
     if not 6 <= count <= 8:
         raise ValueError(f"laparoscope_rig: count must be 6 to 8, got {count}")
-    lights = []
-    for k in range(count):
-        a = 2.0 * math.pi * k / count
-        lights.append(Light((float(radius_mm) * math.cos(a), float(radius_mm) * math.sin(a), 0.0),
-                            intensity, "inverse_square", profile_exponent))
-    return LightRig(tuple(lights))
+    angles = [2.0 * math.pi * k / count for k in range(count)]
+    return LightRig(tuple(Light((float(radius_mm) * math.cos(a), float(radius_mm) * math.sin(a), 0.0), intensity,
+                                "inverse_square", profile_exponent) for a in angles))
 
 
 def scaled_omnidirectional(model: OmnidirectionalCamera, width_px: int) -> OmnidirectionalCamera:

@@ -345,8 +345,7 @@ def fit_scene(spec: SceneSpec, frames: list[np.ndarray], *, seed: int = 0, outer
             return fit_loss(_pooled_stats(frs, height), ref) + _penalty(x)
 
         x = _nelder_mead(f, _to_unit(start, DEVELOP_BOUNDS), evals, 0.15)
-        p = _from_unit(x, DEVELOP_BOUNDS)
-        return f(x), p
+        return f(x), _from_unit(x, DEVELOP_BOUNDS)
 
     def outer(x, film: dict, evals: int, draws: int, stage: str):
         p = searched(x)

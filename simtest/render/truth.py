@@ -158,8 +158,7 @@ def mesh_highlights(cast: Caster, normals: np.ndarray, position: np.ndarray, mas
         T = np.column_stack([b - a, c - a])
         w12, *_ = np.linalg.lstsq(T, p - a, rcond=None)
         w = np.array([1.0 - w12.sum(), w12[0], w12[1]])
-        k1 = float(np.dot(w, k1_v[f]))
-        k2 = float(np.dot(w, k2_v[f]))
+        k1, k2 = (float(np.dot(w, k_v[f])) for k_v in (k1_v, k2_v))
         hl = HighlightTruth(uv[i].copy(), p.copy(), n, max(k1, k2), min(k1, k2), pixel_in_frame(uv[i], (W, H)))
         if all(np.hypot(*(hl.bp_px - o.bp_px)) > 0.5 for o in out):
             out.append(hl)
