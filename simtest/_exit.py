@@ -76,9 +76,7 @@ def writable_dir(path: Path | str, option: str = "--out") -> Path:
     """
     p = Path(path)
     probe = p
-    while not probe.exists():
-        if probe.parent == probe:
-            break
+    while not probe.exists() and probe.parent != probe:
         probe = probe.parent
     if probe.exists() and not probe.is_dir():
         where = f"{p}" if probe == p else f"{p}: {probe}"
