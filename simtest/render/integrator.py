@@ -31,12 +31,8 @@ def _make_class():
 
         def set_camera_pose(self, cam_to_scene):
             """Write AOVs in the camera frame of ``cam_to_scene`` (4, 4) (None: the scene frame), as opaque values."""
-            if cam_to_scene is None:
-                self.pose = None
-                return
-            self.pose = tuple(
-                mi.Vector3f(*(dr.opaque(mi.Float, float(cam_to_scene[i][j])) for i in range(3)))
-                for j in range(4))
+            self.pose = None if cam_to_scene is None else tuple(
+                mi.Vector3f(*(dr.opaque(mi.Float, float(cam_to_scene[i][j])) for i in range(3))) for j in range(4))
 
         def aov_names(self):
             return AOV_NAMES
