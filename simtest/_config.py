@@ -179,10 +179,8 @@ def validation_error(error: type[E], source: str, exc: ValidationError, prefix: 
         name, op = _BOUNDS[kind]
         interval = _interval(cls, loc)
         reason = "out of range: must be " + (f"in {interval}" if interval else f"{op} {_num(ctx[name])}")
-    elif kind == "literal_error" and not isinstance(value, str):  # every choice is a string
-        reason = "expected a string"
-    elif kind == "literal_error":
-        reason = f"must be one of {ctx['expected']}"
+    elif kind == "literal_error":  # every choice is a string
+        reason = f"must be one of {ctx['expected']}" if isinstance(value, str) else "expected a string"
     elif kind in ("too_short", "too_long"):
         n = ctx.get("min_length", ctx.get("max_length"))
         reason = f"expected at {'least' if kind == 'too_short' else 'most'} {n} entr{'y' if n == 1 else 'ies'}"
@@ -190,10 +188,8 @@ def validation_error(error: type[E], source: str, exc: ValidationError, prefix: 
         reason = "must not be empty"
     elif kind in _EXPECTED:
         reason = f"expected {_EXPECTED[kind]}"
-    elif kind in ("value_error", "assertion_error"):
-        reason = str(ctx.get("error", e["msg"]))
     else:
-        reason = e["msg"]
+        reason = str(ctx.get("error", e["msg"])) if kind in ("value_error", "assertion_error") else e["msg"]
     return keyed_error(error, source, key_path(loc, prefix), reason, _plain(value))
 
 

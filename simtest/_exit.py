@@ -35,9 +35,8 @@ from typing import NoReturn
 
 import typer
 
-__all__ = ["OK", "CHECK_FAILED", "BAD_INPUT", "BAD_BASELINE", "CANNOT_WRITE", "INTERRUPTED", "fail",
-           "one_line", "writable_dir", "safe_name", "SignalInterrupt", "SignalState", "exit_on_signal",
-           "signals_interrupt"]
+__all__ = ["OK", "CHECK_FAILED", "BAD_INPUT", "BAD_BASELINE", "CANNOT_WRITE", "INTERRUPTED", "fail", "one_line",
+           "writable_dir", "safe_name", "SignalInterrupt", "SignalState", "exit_on_signal", "signals_interrupt"]
 
 OK = 0
 CHECK_FAILED = 1
@@ -77,9 +76,7 @@ def writable_dir(path: Path | str, option: str = "--out") -> Path:
     """
     p = Path(path)
     probe = p
-    while not probe.exists():
-        if probe.parent == probe:
-            break
+    while not probe.exists() and probe.parent != probe:
         probe = probe.parent
     if probe.exists() and not probe.is_dir():
         where = f"{p}" if probe == p else f"{p}: {probe}"

@@ -60,11 +60,11 @@ def jsonable(obj: Any, *, default: Callable[[Any], Any] | None = None) -> Any:
     return obj if default is None or obj is None or isinstance(obj, str | int | float) else default(obj)
 
 
-def _default_mode() -> int:
-    """Permissions a plain ``open(path, "w")`` would give: 0o666 less the process umask."""
+def _default_mode(bits: int = 0o666) -> int:
+    """Permissions a plain ``open(path, "w")`` would give (``os.mkdir`` with 0o777): ``bits`` less the umask."""
     umask = os.umask(0)
     os.umask(umask)
-    return 0o666 & ~umask
+    return bits & ~umask
 
 
 def atomic_write(path, write: Callable[[str], None], *, suffix: str = TMP_SUFFIX) -> Path:
@@ -314,9 +314,7 @@ def replace_output_folder(out, fill: Callable[[Path], None], owned=None) -> Path
         tmp = Path(tempfile.mkdtemp(prefix=f".{out.name}.", suffix=".tmp", dir=parent))
         try:
             fill(tmp)
-            mask = os.umask(0)
-            os.umask(mask)
-            os.chmod(tmp, 0o777 & ~mask)
+            os.chmod(tmp, _default_mode(0o777))
             for f in tmp.iterdir():
                 if f.is_file():
                     with open(f, "rb+") as fh:

@@ -49,8 +49,7 @@ def check_out_folder(out: Path | str, owned, option: str = "--out") -> Path:
     return target
 
 
-def write_out_folder(out: Path | str, target: Path | str, fill, owned=None,
-                     option: str = "--out") -> Path:
+def write_out_folder(out: Path | str, target: Path | str, fill, owned=None, option: str = "--out") -> Path:
     """:func:`simtest._io.replace_output_folder` of ``target`` (from :func:`check_out_folder`) with one-line errors.
 
     ``out`` is the folder as given, for messages; ``owned`` is checked again just before the swap.

@@ -61,9 +61,7 @@ class CameraFile:
 
 
 def _has_bool(value) -> bool:
-    if isinstance(value, bool):
-        return True
-    return isinstance(value, (list, tuple)) and any(_has_bool(v) for v in value)
+    return isinstance(value, bool) or (isinstance(value, (list, tuple)) and any(_has_bool(v) for v in value))
 
 
 def _model_from_dict(data: dict, where: str) -> CameraModel:
@@ -88,14 +86,13 @@ def _model_from_dict(data: dict, where: str) -> CameraModel:
                                  and all(isinstance(s, int) and s > 0 for s in size)):
         raise CameraFileError(f"{where}: key 'image_size' must be [W, H] positive integers, got {size!r}")
     try:
+        if name == "omnidirectional":
+            return OmnidirectionalCamera(data["cx"], data["cy"], [data[f"a{i}"] for i in range(5)], data["c"],
+                                         data["d"], data["e"], size)
+        K = validate_intrinsics(data["K"], where=f"{where}: key 'K'")
         if name == "pinhole":
-            K = validate_intrinsics(data["K"], where=f"{where}: key 'K'")
             return PinholeCamera(K, data.get("dist_coeffs"), size)
-        if name == "fisheye":
-            K = validate_intrinsics(data["K"], where=f"{where}: key 'K'")
-            return FisheyeCamera(K, data["D"], size)
-        return OmnidirectionalCamera(data["cx"], data["cy"], [data[f"a{i}"] for i in range(5)], data["c"],
-                                     data["d"], data["e"], size)
+        return FisheyeCamera(K, data["D"], size)
     except CameraFileError:
         raise
     except IntrinsicsError as exc:

@@ -283,13 +283,6 @@ class PinholeCamera(CameraModel):
         return rays / np.linalg.norm(rays, axis=1, keepdims=True)
 
 
-def _check_monotone(theta: np.ndarray, radius: np.ndarray, what: str) -> None:
-    if not np.all(np.diff(radius) > 0):
-        i = int(np.argmax(np.diff(radius) <= 0))
-        raise IntrinsicsError(f"{what}: not invertible over the frame (image radius stops growing at "
-                              f"{np.degrees(theta[i]):.1f} deg off the axis)")
-
-
 class FisheyeCamera(CameraModel):
     """OpenCV's fisheye model (Kannala-Brandt [2]_), extended past 90 deg by theta = atan2(|(X, Y)|, Z).
 
@@ -477,7 +470,10 @@ class OmnidirectionalCamera(CameraModel):
         r = np.linspace(0.0, rmax, 8001)
         th = np.arctan2(r, self._z(r))
         if self.image_size is not None:
-            _check_monotone(r, th, "a0..a4")
+            if not np.all(np.diff(th) > 0):
+                i = int(np.argmax(np.diff(th) <= 0))
+                raise IntrinsicsError("a0..a4: not invertible over the frame (image radius stops growing at "
+                                      f"{np.degrees(r[i]):.1f} deg off the axis)")
         else:  # keep the invertible part
             bad = np.diff(th) <= 0
             if bad.any():

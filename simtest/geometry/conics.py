@@ -358,29 +358,22 @@ def _cone_eigen_many(Cn: np.ndarray):
     return w[:, ::-1], V[:, :, ::-1], ok
 
 
-def _eigen_error(w: np.ndarray) -> str:
-    return f"C' is not a real elliptic cone: eigenvalues {w.tolist()} (need two of one sign and one of the other)"
-
-
 def _cone_eigen(Cn) -> tuple[np.ndarray, np.ndarray]:
     """:func:`_cone_eigen_many` of one cone; ValueError if it is not real and elliptic."""
     Cn = _check_conic(Cn, "C'")
     w, V, ok = _cone_eigen_many(Cn[None])
     if not ok[0]:
-        raise ValueError(_eigen_error(np.linalg.eigvalsh(Cn / np.linalg.norm(Cn))))
+        w = np.linalg.eigvalsh(Cn / np.linalg.norm(Cn))
+        raise ValueError(f"C' is not a real elliptic cone: eigenvalues {w.tolist()} (need two of one sign and one of "
+                         "the other)")
     return w[0], V[0]
 
 
-def _toward_camera_many(n: np.ndarray) -> np.ndarray:
-    """Orient directions inside the cone (k, 3) as normals facing the camera (n_z < 0)."""
-    n = n / np.linalg.norm(n, axis=-1, keepdims=True)
-    return np.where(n[..., 2:] > 0, -n, n)
-
-
 def _cone_axes_of(w: np.ndarray, V: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Cone axes (k, 3) facing the camera and eigenvalue gaps (k,) of :func:`_cone_eigen_many` output."""
+    """Cone axes (k, 3) facing the camera (n_z < 0) and eigenvalue gaps (k,) of :func:`_cone_eigen_many` output."""
     gap = (w[:, 0] - w[:, 1]) / (w[:, 0] - w[:, 2])
-    return _toward_camera_many(V[:, :, 2]), gap
+    n = V[:, :, 2] / np.linalg.norm(V[:, :, 2], axis=-1, keepdims=True)
+    return np.where(n[..., 2:] > 0, -n, n), gap
 
 
 def _circle_poses_of(w: np.ndarray, V: np.ndarray):

@@ -283,10 +283,8 @@ def _simreal_fit(spec, frames: list, ids: list[str], paths: list[Path], out: Pat
         raise _fail(str(exc)) from None
     except RendererUnavailable as exc:
         raise _fail(str(exc), BAD_INPUT) from None  # Mitsuba cannot run here
-    tables = {}
-    for name, fr in (("fitted", fit_frames), ("held_out", held)):
-        if fr:
-            tables[name] = {"before": sim_to_real_table(res.before, fr), "after": sim_to_real_table(res.after, fr)}
+    tables = {name: {"before": sim_to_real_table(res.before, fr), "after": sim_to_real_table(res.after, fr)}
+              for name, fr in (("fitted", fit_frames), ("held_out", held)) if fr}
     counts = {name: {when: sum(r["within_goal"] for r in rows) for when, rows in t.items()} for name, t in tables.items()}
     n_stats = len(tables["fitted"]["after"])
     src = [_shown(p) for p in paths]
@@ -328,7 +326,5 @@ def _side_by_side(before, after, fit_frames, held) -> np.ndarray:
     h = fit_frames[0].shape[0]
     row = [at_height(before, h), at_height(after, h)] + list(fit_frames[:2]) + list(held[:2])
     gap = np.full((h, 6, 3), 255, np.uint8)
-    parts = []
-    for f in row:
-        parts += [f, gap]
+    parts = [x for f in row for x in (f, gap)]
     return np.concatenate(parts[:-1], axis=1)

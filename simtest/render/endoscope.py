@@ -49,8 +49,7 @@ CF_H190_GAMMA = 2.2
 RAY_SEED_KEY = 0xE4D05
 
 
-def colonoscope_rig(offset_mm: float = COLONOSCOPE_GUIDE_OFFSET_MM,
-                    profile_exponent: float = GUIDE_PROFILE_EXPONENT,
+def colonoscope_rig(offset_mm: float = COLONOSCOPE_GUIDE_OFFSET_MM, profile_exponent: float = GUIDE_PROFILE_EXPONENT,
                     intensity: float = 1.0) -> LightRig:
     """Two light guides on opposite sides of the lens, at ``(-offset, 0, 0)`` and ``(+offset, 0, 0)``.
 
@@ -97,8 +96,7 @@ def guide_radius_mm(spec: SceneSpec) -> float:
 
 
 def laparoscope_rig(radius_mm: float = LAPAROSCOPE_RING_RADIUS_MM, count: int = 8,
-                    profile_exponent: float = GUIDE_PROFILE_EXPONENT,
-                    intensity: float = 1.0) -> LightRig:
+                    profile_exponent: float = GUIDE_PROFILE_EXPONENT, intensity: float = 1.0) -> LightRig:
     """A ring of ``count`` equal lights around the lens, at ``radius_mm`` in the lens plane.
 
     Parameters
@@ -125,12 +123,9 @@ def laparoscope_rig(radius_mm: float = LAPAROSCOPE_RING_RADIUS_MM, count: int = 
     count = int(count)
     if not 6 <= count <= 8:
         raise ValueError(f"laparoscope_rig: count must be 6 to 8, got {count}")
-    lights = []
-    for k in range(count):
-        a = 2.0 * math.pi * k / count
-        lights.append(Light((float(radius_mm) * math.cos(a), float(radius_mm) * math.sin(a), 0.0),
-                            intensity, "inverse_square", profile_exponent))
-    return LightRig(tuple(lights))
+    angles = [2.0 * math.pi * k / count for k in range(count)]
+    return LightRig(tuple(Light((float(radius_mm) * math.cos(a), float(radius_mm) * math.sin(a), 0.0), intensity,
+                                "inverse_square", profile_exponent) for a in angles))
 
 
 def scaled_omnidirectional(model: OmnidirectionalCamera, width_px: int) -> OmnidirectionalCamera:
@@ -138,9 +133,8 @@ def scaled_omnidirectional(model: OmnidirectionalCamera, width_px: int) -> Omnid
     W, H = model.image_size
     s = width_px / W
     a = [model.a[k] * s ** (1 - k) for k in range(5)]
-    return OmnidirectionalCamera(cx=s * (model.cx + 0.5) - 0.5, cy=s * (model.cy + 0.5) - 0.5, a=a,
-                                 c=model.c, d=model.d, e=model.e,
-                                 image_size=(int(width_px), int(round(H * s))))
+    return OmnidirectionalCamera(cx=s * (model.cx + 0.5) - 0.5, cy=s * (model.cy + 0.5) - 0.5, a=a, c=model.c,
+                                 d=model.d, e=model.e, image_size=(int(width_px), int(round(H * s))))
 
 
 def sample_positions(spp: int, width: int, first_pixel: int, n_pixels: int, seed: int, *,

@@ -31,12 +31,8 @@ def _make_class():
 
         def set_camera_pose(self, cam_to_scene):
             """Write AOVs in the camera frame of ``cam_to_scene`` (4, 4) (None: the scene frame), as opaque values."""
-            if cam_to_scene is None:
-                self.pose = None
-                return
-            self.pose = tuple(
-                mi.Vector3f(*(dr.opaque(mi.Float, float(cam_to_scene[i][j])) for i in range(3)))
-                for j in range(4))
+            self.pose = None if cam_to_scene is None else tuple(
+                mi.Vector3f(*(dr.opaque(mi.Float, float(cam_to_scene[i][j])) for i in range(3))) for j in range(4))
 
         def aov_names(self):
             return AOV_NAMES
@@ -57,9 +53,8 @@ def _make_class():
                 n = mi.Vector3f(dr.dot(n, ex), dr.dot(n, ey), dr.dot(n, ez))
                 p = mi.Point3f(dr.dot(d, ex), dr.dot(d, ey), dr.dot(d, ez))
             zero = mi.Float(0.0)
-            aovs = [dr.select(valid, n.x, zero), dr.select(valid, n.y, zero),
-                    dr.select(valid, n.z, zero), dr.select(valid, p.x, zero),
-                    dr.select(valid, p.y, zero), dr.select(valid, p.z, zero)]
+            aovs = [dr.select(valid, n.x, zero), dr.select(valid, n.y, zero), dr.select(valid, n.z, zero),
+                    dr.select(valid, p.x, zero), dr.select(valid, p.y, zero), dr.select(valid, p.z, zero)]
             return L, valid, aovs
 
         def to_string(self):

@@ -126,8 +126,7 @@ class RenderResult:
         if self.lights is not None:
             return self.lights
         falloff = "none" if self.spec.light.falloff == "cancel" else "inverse_square"
-        return LightRig((Light(tuple(float(x) for x in self.light_pos), self.spec.light.intensity,
-                               falloff),))
+        return LightRig((Light(tuple(float(x) for x in self.light_pos), self.spec.light.intensity, falloff),))
 
     @property
     def gray(self) -> np.ndarray:
@@ -179,10 +178,7 @@ def write_render(result: RenderResult, out_dir: str | Path) -> dict[str, Path]:
     check_output_folder(out)
     names = dict(zip(("image", "intrinsics", "ground_truth", "highlights", "camera", "frame"), RENDER_FILES))
     img = result.sensor
-    if img.dtype == np.uint8:
-        pil = Image.fromarray(img, mode="L")
-    else:
-        pil = Image.fromarray(img.astype(np.uint16))
+    pil = Image.fromarray(img, mode="L") if img.dtype == np.uint8 else Image.fromarray(img.astype(np.uint16))
     H, W = result.linear.shape[:2]
     rig = result.light_rig
     meta = {"scene": result.spec.name, "seed": result.seed, "variant": result.variant,
@@ -202,20 +198,16 @@ def write_render(result: RenderResult, out_dir: str | Path) -> dict[str, Path]:
         save_intrinsics(paths["intrinsics"], result.K, dist_coeffs=None, image_size=(W, H))
         np.savez_compressed(
             paths["ground_truth"], normals=result.normals, depth=result.depth, distance=result.distance,
-            position=result.position, mask=result.mask, linear=result.linear,
-            specular=result.specular, coverage=result.coverage, K=result.K,
-            cam_to_world=result.cam_to_world, light_pos=result.light_pos,
-            light_positions=light_positions, field_stop=stop,
-            **({"rgb": result.rgb} if result.rgb is not None else {}),
+            position=result.position, mask=result.mask, linear=result.linear, specular=result.specular,
+            coverage=result.coverage, K=result.K, cam_to_world=result.cam_to_world, light_pos=result.light_pos,
+            light_positions=light_positions, field_stop=stop, **({"rgb": result.rgb} if result.rgb is not None else {}),
             **({"albedo": result.albedo} if result.albedo is not None else {}),
-            **({"shading_normals": result.shading_normals}
-               if result.shading_normals is not None else {}))
+            **({"shading_normals": result.shading_normals} if result.shading_normals is not None else {}))
         paths["highlights"].write_text(json.dumps(meta, indent=2), encoding="utf-8")
         # a video frame's camera file carries its sensor's response (the fits run on linear intensities)
         save_camera(paths["camera"], result.camera_model, result.light_rig,
                     video_response(result.spec.sensor) if result.video is not None else None)
-        frame = Image.fromarray(result.frame, mode="RGB")
-        frame.save(paths["frame"], format="PNG")
+        Image.fromarray(result.frame, mode="RGB").save(paths["frame"], format="PNG")
 
     replace_output_folder(out, fill, owned=RENDER_FILES)
     return {k: out / v for k, v in names.items()}

@@ -78,8 +78,7 @@ def _make_class():
             seen = (cos_beta >= FLT_MIN) & (self.n * dr.log2(dr.maximum(cos_beta, FLT_MIN)) > LOBE_LOG2_MIN)
             spec = dr.select(seen, self.c * dr.power(cos_beta, self.n), 0.0)
             if self.cancel_falloff:
-                d = si.p - self.light_pos
-                spec = spec * dr.squared_norm(d)
+                spec = spec * dr.squared_norm(si.p - self.light_pos)
             diff = self.albedo_over_pi * dr.maximum(cos_o, 0.0)
             ok = active & (cos_i > 0.0) & (cos_o > 0.0)
             value = mi.Color3f(spec + diff, spec, diff)

@@ -27,8 +27,7 @@ from simtest.render.scene_truth import _highlights, _sensor_image, visible_highl
 from simtest.scene.spec import SceneSpec
 
 __all__ = ["MAX_SEED", "RenderResult", "RendererUnavailable", "RenderInputError", "check_film_fits",
-           "visible_highlights", "choose_variant", "render_scene", "write_render", "RENDER_FILES",
-           "OutputFolderError"]
+           "visible_highlights", "choose_variant", "render_scene", "write_render", "RENDER_FILES", "OutputFolderError"]
 
 #: Bytes of memory one film pixel needs during a render, whatever the spp: Mitsuba's peak (measured about
 #: 160 B/px on a plane) plus the kept float32 maps (about 90 B/px), with a margin for other shapes.
@@ -74,8 +73,7 @@ def check_film_fits(spec: SceneSpec) -> None:
             f"{need / 2**30:.1f} GiB of memory, more than the {avail / 2**30:.1f} GiB available")
 
 
-def render_scene(spec: SceneSpec, *, seed: int | None = None,
-                 variant: str | None = None) -> RenderResult:
+def render_scene(spec: SceneSpec, *, seed: int | None = None, variant: str | None = None) -> RenderResult:
     """Render ``spec`` and return the images with their ground truth.
 
     Parameters

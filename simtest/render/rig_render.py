@@ -142,8 +142,7 @@ def _render_endoscope(spec: SceneSpec, seed: int, variant: str) -> RenderResult:
     glints: list[ReliefHighlight] = []
     if texture is not None and np.any(texture.relief_amp):
         for i, light in enumerate(rig.lights):
-            for h in relief_highlights(cast_relief, shading, position, mask, light.position,
-                                       specular=specular):
+            for h in relief_highlights(cast_relief, shading, position, mask, light.position, specular=specular):
                 if h.in_frame and h.bp_mm[2] > 0:
                     glints.append(dataclasses.replace(h, light=i))
         glints = visible_highlights(glints, specular)
@@ -157,9 +156,8 @@ def _render_endoscope(spec: SceneSpec, seed: int, variant: str) -> RenderResult:
     return RenderResult(linear=linear, sensor=sensor, specular=specular, normals=normals, depth=depth,
                         distance=distance, position=position, mask=mask, coverage=coverage, K=K,
                         cam_to_world=cam_to_world_matrix(spec.camera), light_pos=rig.lights[0].position,
-                        highlights=highlights, variant=variant, seed=seed, spec=spec, camera=model, lights=rig,
-                        rgb=rgb, shading_normals=shading, video=video, field_stop=stop, albedo=albedo,
-                        relief_highlights=glints)
+                        highlights=highlights, variant=variant, seed=seed, spec=spec, camera=model, lights=rig, rgb=rgb,
+                        shading_normals=shading, video=video, field_stop=stop, albedo=albedo, relief_highlights=glints)
 
 
 def _field_stop(spec: SceneSpec, W: int, H: int) -> np.ndarray | None:

@@ -100,13 +100,8 @@ def materialize(d: Any) -> Any:
     if isinstance(d, dict):
         if d.get("type") == "simtest_arrays":
             return _make_mesh(d["vertices"], d["faces"], d["normals"], materialize(d["bsdf"]))
-        out = {}
-        for k, v in d.items():
-            if k == "to_world" and isinstance(v, np.ndarray):
-                out[k] = mi.ScalarTransform4f(v.tolist())
-            else:
-                out[k] = materialize(v)
-        return out
+        return {k: mi.ScalarTransform4f(v.tolist()) if k == "to_world" and isinstance(v, np.ndarray)
+                else materialize(v) for k, v in d.items()}
     return d
 
 
@@ -165,11 +160,10 @@ def cam_to_texture_matrix(spec: SceneSpec) -> np.ndarray:
 def tissue_texture(spec: SceneSpec):
     """The tissue texture of ``spec`` as a function of camera-frame points."""
     mat = spec.material
-    t = tissue_params(mat.tissue, mat.texture_seed, mat.relief_mm, mat.relief_scale_mm,
-                      relief_min_mm=mat.relief_min_mm, relief_hurst=mat.relief_hurst, base=mat.albedo,
-                      film_variation=mat.film_variation, film_scale_mm=mat.film_scale_mm,
-                      subsurface_mm=mat.subsurface_mm or 0.0, film_thickness_mm=mat.film_thickness_mm,
-                      film_thickness_spread=mat.film_thickness_spread)
+    t = tissue_params(mat.tissue, mat.texture_seed, mat.relief_mm, mat.relief_scale_mm, relief_min_mm=mat.relief_min_mm,
+                      relief_hurst=mat.relief_hurst, base=mat.albedo, film_variation=mat.film_variation,
+                      film_scale_mm=mat.film_scale_mm, subsurface_mm=mat.subsurface_mm or 0.0,
+                      film_thickness_mm=mat.film_thickness_mm, film_thickness_spread=mat.film_thickness_spread)
     t = with_neighbours(t, (mat.wall_tissue, mat.wall_centre_mm, mat.wall_radius_mm),
                         (mat.organ_tissue, mat.organ_centre_mm, mat.organ_axes_mm))
     if spec.geometry.type == "plane":  # the vessels in the plane's own axes (its texture frame: the camera's)
@@ -212,10 +206,8 @@ def _mesh_in_scene(spec: SceneSpec) -> dict[str, np.ndarray]:
         v = np.asarray(mesh.vertices, dtype=np.float64) @ m[:3, :3].T + m[:3, 3]
         n = np.asarray(mesh.vertex_normals, dtype=np.float64) @ m[:3, :3].T
         n /= np.linalg.norm(n, axis=1, keepdims=True)
-        k1 = np.asarray(attrs["k1"], dtype=np.float64)
-        k2 = np.asarray(attrs["k2"], dtype=np.float64)
         s = geo.scale if geo.scale is not None else 1.0
-        k1, k2 = k1 / s, k2 / s
+        k1, k2 = (np.asarray(attrs[name], dtype=np.float64) / s for name in ("k1", "k2"))
         if geo.flip_normals:
             n, k1, k2 = -n, -k2, -k1
         data = {"vertices": v, "faces": np.asarray(mesh.faces, dtype=np.int64), "normals": n, "k1": k1, "k2": k2}
@@ -279,9 +271,8 @@ def _mitsuba_scene(spec: SceneSpec, light_pos: np.ndarray, variant: str):
     """
     geo = spec.geometry
     if not geo.triangulated:
-        key = (variant, spec.camera, spec.material, geo, spec.light.intensity,
-               spec.light.falloff, tuple(np.round(light_pos, 12)), spec.render.spp,
-               spec.render.sampler)
+        key = (variant, spec.camera, spec.material, geo, spec.light.intensity, spec.light.falloff,
+               tuple(np.round(light_pos, 12)), spec.render.spp, spec.render.sampler)
         hit = _SCENE_CACHE.get(key)
         if hit is None:
             hit = (_load_dict(spec, mitsuba_scene_dict(spec, light_pos_cam=light_pos)), None)

@@ -26,28 +26,24 @@ def _highlights(spec: SceneSpec, res: dict, light_pos, K, scene, pose, *, cast=N
     hl: HighlightTruth | None
     if geo.type == "plane":
         hl = plane_highlight(plane_normal_cam(geo), geo.distance_mm, light_pos, K, size)
-        if hl is not None:
-            half = geo.extent_mm if geo.extent_mm is not None else 100.0 * geo.distance_mm
-            foot = -geo.distance_mm * plane_normal_cam(geo)
-            if np.max(np.abs(hl.bp_mm - foot)) > half:
-                hl = None
-        return [hl] if hl is not None else []
-    if geo.type == "sphere":
-        c = (w2c @ np.append(geo.center_mm, 1.0))[:3]
-        hl = sphere_highlight(c, geo.radius_mm, light_pos, K, size)
-        return [hl] if hl is not None else []
-    if geo.type == "cylinder":
+        half = geo.extent_mm if geo.extent_mm is not None else 100.0 * geo.distance_mm
+        foot = -geo.distance_mm * plane_normal_cam(geo)
+        if hl is not None and np.max(np.abs(hl.bp_mm - foot)) > half:
+            hl = None
+    elif geo.type == "sphere":
+        hl = sphere_highlight((w2c @ np.append(geo.center_mm, 1.0))[:3], geo.radius_mm, light_pos, K, size)
+    elif geo.type == "cylinder":
         c = (w2c @ np.append(geo.center_mm, 1.0))[:3]
         axis = np.asarray(geo.axis if geo.axis is not None else (1.0, 0.0, 0.0), dtype=np.float64)
         length = geo.length_mm if geo.length_mm is not None else 20.0 * geo.radius_mm
         hl = cylinder_highlight(c, w2c[:3, :3] @ axis, geo.radius_mm, length, light_pos, K, size)
-        return [hl] if hl is not None else []
-    mesh = _mesh_in_camera(spec)
-    if cast is None:
-        cast = _make_caster(scene, K, pose)
-    return mesh_highlights(cast, res["normals_raw"], res["position_raw"],
-                           res["mask"], light_pos, K, mesh["vertices"], mesh["faces"],
-                           mesh["k1"], mesh["k2"], candidates=candidates)
+    else:
+        mesh = _mesh_in_camera(spec)
+        if cast is None:
+            cast = _make_caster(scene, K, pose)
+        return mesh_highlights(cast, res["normals_raw"], res["position_raw"], res["mask"], light_pos, K,
+                               mesh["vertices"], mesh["faces"], mesh["k1"], mesh["k2"], candidates=candidates)
+    return [hl] if hl is not None else []
 
 
 def _sensor_image(linear: np.ndarray, rgb: np.ndarray | None, spec: SceneSpec,
@@ -72,8 +68,7 @@ def visible_highlights(highlights: list[HighlightTruth], specular: np.ndarray) -
     H, W = specular.shape[:2]
     out = []
     for h in highlights:
-        if not (np.all(np.isfinite(h.bp_mm)) and np.all(np.isfinite(h.normal))
-                and np.all(np.isfinite(h.bp_px))):
+        if not (np.all(np.isfinite(h.bp_mm)) and np.all(np.isfinite(h.normal)) and np.all(np.isfinite(h.bp_px))):
             continue
         if h.bp_mm[2] <= 0.0:
             continue

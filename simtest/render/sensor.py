@@ -59,8 +59,7 @@ def apply_sensor(linear: np.ndarray, sensor: SensorSpec, seed: int) -> np.ndarra
     s = np.clip(s, 0.0, sensor.saturation)
     if sensor.gamma != 1.0:
         s = s ** (1.0 / sensor.gamma)
-    levels = (1 << sensor.bit_depth) - 1
-    return np.rint(s * levels).astype(sensor_dtype(sensor.bit_depth))
+    return np.rint(s * ((1 << sensor.bit_depth) - 1)).astype(sensor_dtype(sensor.bit_depth))
 
 
 #: Luma weights of ITU-R BT.601 (the video luma of an RGB frame): :data:`simtest.constants.LUMA_BT601`.

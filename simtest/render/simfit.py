@@ -190,8 +190,7 @@ def _noise_seeds(seed: int, k: int) -> list[int]:
 
 def _pooled_stats(frames: list[np.ndarray], height: int) -> dict[str, float]:
     """Statistics of a frame's noise draws, pooled as the real frames' are (one draw's blob statistics swing)."""
-    small = [at_height(f, height) for f in frames]
-    return real_reference(small)
+    return real_reference([at_height(f, height) for f in frames])
 
 
 #: Renders of the fitted scene whose losses the last develop searches add up (at one seed the fit fits
@@ -346,8 +345,7 @@ def fit_scene(spec: SceneSpec, frames: list[np.ndarray], *, seed: int = 0, outer
             return fit_loss(_pooled_stats(frs, height), ref) + _penalty(x)
 
         x = _nelder_mead(f, _to_unit(start, DEVELOP_BOUNDS), evals, 0.15)
-        p = _from_unit(x, DEVELOP_BOUNDS)
-        return f(x), p
+        return f(x), _from_unit(x, DEVELOP_BOUNDS)
 
     def outer(x, film: dict, evals: int, draws: int, stage: str):
         p = searched(x)

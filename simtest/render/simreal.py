@@ -201,13 +201,12 @@ def frame_stats(frame: np.ndarray, *, detector: bool = True) -> FrameStats:
         rgb, spread = np.full(3, np.nan), float("nan")
     p10, p50, p90 = (float(x) for x in np.percentile(lum[lit], [10, 50, 90]))
     glints, white_areas, _ = glint_population(f)
-    return FrameStats(candidates_per_mp=len(areas) / mp,
-                      median_area_px=float(np.median(areas)) if len(areas) else 0.0,
+    return FrameStats(candidates_per_mp=len(areas) / mp, median_area_px=float(np.median(areas)) if len(areas) else 0.0,
                       p90_area_px=float(np.percentile(areas, 90)) if len(areas) else 0.0,
                       saturated_fraction=float(sat.sum() / lit.sum()), tissue_rgb=tuple(float(x) for x in rgb),
                       areas=areas, colour_spread=spread, luma_p10=p10, luma_p50=p50, luma_p90=p90,
-                      detector_per_mp=_detector_count(f) / mp if detector else float("nan"),
-                      glints=glints, white_areas=white_areas, lit_px=int(lit.sum()))
+                      detector_per_mp=_detector_count(f) / mp if detector else float("nan"), glints=glints,
+                      white_areas=white_areas, lit_px=int(lit.sum()))
 
 
 #: Statistics whose real value is pooled over the frames (blobs and lit pixels together): a median of
@@ -273,14 +272,11 @@ def banner_tiles(path: str | Path, tile_px: int = 280) -> list[tuple[str, np.nda
             for r in range(0, H - tile_px + 1, tile_px) for c in range(0, W - tile_px + 1, tile_px)]
 
 
-def _banner_split(name: str, tuning_cols: tuple[int, ...], rows: int, cols: int) -> dict[str, str]:
-    return {f"{name}:r{r}c{c}": "tuning" if c in tuning_cols else "held_out" for r in range(rows) for c in range(cols)}
-
-
 #: The declared split of the bundled real frames: ``"tuning"`` (a fit may see it) or ``"held_out"``. Each
 #: 280 px tile of the Hyper-Kvasir banner is one whole frame; tuning is the even columns, the split
 #: scenes/colonoscope_fitted.toml was fitted with (a new split would need that scene refitted).
-REAL_SPLIT: dict[str, str] = _banner_split("hyperkvasir_banner.jpg", (0, 2, 4, 6), 3, 8)
+REAL_SPLIT: dict[str, str] = {f"hyperkvasir_banner.jpg:r{r}c{c}": "tuning" if c in (0, 2, 4, 6) else "held_out"
+                              for r in range(3) for c in range(8)}
 #: Seed of the split of frames :data:`REAL_SPLIT` does not list (:func:`split_indices`).
 SPLIT_SEED = 62
 
@@ -409,8 +405,7 @@ def sim_to_real_figure(rendered: np.ndarray, real: list[np.ndarray], rows: list[
     return fig
 
 
-def fit_figure(before: np.ndarray, after: np.ndarray, fitted: list[np.ndarray], held: list[np.ndarray],
-               tables: dict):
+def fit_figure(before: np.ndarray, after: np.ndarray, fitted: list[np.ndarray], held: list[np.ndarray], tables: dict):
     """Figure of a fit: frames before and after beside real ones, and each ratio before and after.
 
     ``tables``: ``{"fitted": {"before": rows, "after": rows}, "held_out": {...}}`` of :func:`sim_to_real_table`.
@@ -482,11 +477,9 @@ def glint_sheet(rendered: np.ndarray, real: list[np.ndarray], ids: list[str], tu
     """Figure: ``crop_px`` crops around the ``n`` largest white blobs of the rendered, tuning and held-out frames."""
     h = real[0].shape[0]
     short = [k.split(":")[-1] for k in ids]
-    parts = [(title, _largest_blob_crops([at_height(rendered, h)], [title], n, crop_px)),
-             ("tuning frames", _largest_blob_crops([real[i] for i in tuning], [short[i] for i in tuning],
-                                                   n, crop_px)),
-             ("held-out frames", _largest_blob_crops([real[i] for i in held_out], [short[i] for i in held_out],
-                                                     n, crop_px))]
+    parts = [(title, _largest_blob_crops([at_height(rendered, h)], [title], n, crop_px))]
+    parts += [(name, _largest_blob_crops([real[i] for i in idx], [short[i] for i in idx], n, crop_px))
+              for name, idx in (("tuning frames", tuning), ("held-out frames", held_out))]
     cols = 8
     per = max(1, -(-n // cols))
     fig, axes = plt.subplots(per * len(parts), cols, figsize=(1.25 * cols, 1.45 * per * len(parts)),

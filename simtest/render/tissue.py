@@ -150,13 +150,11 @@ def relief_spectrum(rng: np.random.Generator, relief_mm: float, min_mm: float, m
     return d * (2.0 * math.pi / lam)[:, None], phase, amp
 
 
-def tissue_params(kind: str, seed: int, relief_mm: float, relief_scale_mm: float,
-                  vessel_scale_mm: float = 4.0, *, relief_min_mm: float | None = None,
-                  relief_hurst: float = RELIEF_HURST,
-                  base: tuple[float, float, float] | None = None,
-                  film_variation: float = 0.0, film_scale_mm: float = 2.0,
-                  subsurface_mm: float = 0.0, film_thickness_mm: float = 0.0, film_thickness_spread: float = 0.0,
-                  ) -> TissueParams:
+def tissue_params(kind: str, seed: int, relief_mm: float, relief_scale_mm: float, vessel_scale_mm: float = 4.0, *,
+                  relief_min_mm: float | None = None, relief_hurst: float = RELIEF_HURST,
+                  base: tuple[float, float, float] | None = None, film_variation: float = 0.0,
+                  film_scale_mm: float = 2.0, subsurface_mm: float = 0.0, film_thickness_mm: float = 0.0,
+                  film_thickness_spread: float = 0.0) -> TissueParams:
     """Draw a tissue texture (texture frame) from ``SeedSequence([seed, TISSUE_SEED_KEY])``.
 
     Parameters

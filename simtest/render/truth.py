@@ -25,8 +25,7 @@ __all__ = ["Caster", "bisector_cos_image", "mesh_highlight_candidates", "mesh_hi
            "relief_highlights", "HighlightTarget", "highlight_targets"]
 
 
-def bisector_cos_image(normals: np.ndarray, position: np.ndarray, mask: np.ndarray,
-                       light: np.ndarray) -> np.ndarray:
+def bisector_cos_image(normals: np.ndarray, position: np.ndarray, mask: np.ndarray, light: np.ndarray) -> np.ndarray:
     """Cosine between each pixel's normal and its bisector, ``n . h(p)``, in float32.
 
     Parameters
@@ -73,9 +72,8 @@ def _dot_rows(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     return a[0] * b[0] + a[1] * b[1] + a[2] * b[2]
 
 
-def mesh_highlight_candidates(normals: np.ndarray, position: np.ndarray, mask: np.ndarray,
-                              light: np.ndarray, *, candidate_deg: float = 3.0,
-                              max_highlights: int = 64) -> np.ndarray:
+def mesh_highlight_candidates(normals: np.ndarray, position: np.ndarray, mask: np.ndarray, light: np.ndarray, *,
+                              candidate_deg: float = 3.0, max_highlights: int = 64) -> np.ndarray:
     """Pixels where a mesh BP search starts: local maxima of :func:`bisector_cos_image`.
 
     Parameters
@@ -160,8 +158,7 @@ def mesh_highlights(cast: Caster, normals: np.ndarray, position: np.ndarray, mas
         T = np.column_stack([b - a, c - a])
         w12, *_ = np.linalg.lstsq(T, p - a, rcond=None)
         w = np.array([1.0 - w12.sum(), w12[0], w12[1]])
-        k1 = float(np.dot(w, k1_v[f]))
-        k2 = float(np.dot(w, k2_v[f]))
+        k1, k2 = (float(np.dot(w, k_v[f])) for k_v in (k1_v, k2_v))
         hl = HighlightTruth(uv[i].copy(), p.copy(), n, max(k1, k2), min(k1, k2), pixel_in_frame(uv[i], (W, H)))
         if all(np.hypot(*(hl.bp_px - o.bp_px)) > 0.5 for o in out):
             out.append(hl)
@@ -319,8 +316,7 @@ class HighlightTarget:
         pts = np.unique(np.vstack([self.bp_px, self.peak_px[None]]).astype(np.float64), axis=0)
         if len(pts) >= 3:
             hull = cv2.convexHull(pts.astype(np.float32)).reshape(-1, 2).astype(np.float64)
-            if len(hull) >= 3 and cv2.pointPolygonTest(hull.astype(np.float32),
-                                                       (float(q[0]), float(q[1])), False) >= 0:
+            if len(hull) >= 3 and cv2.pointPolygonTest(hull.astype(np.float32), (float(q[0]), float(q[1])), False) >= 0:
                 return 0.0
             pts = hull
         if len(pts) == 1:

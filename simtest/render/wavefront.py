@@ -294,8 +294,7 @@ def relief_normals(p: np.ndarray, n: np.ndarray, texture, *, defer: bool = False
     return _per_point(tissue.relief_normal(_dr_xp(), _dr_rows(p), _dr_rows(n), texture), p.shape, defer)
 
 
-def albedo_map(p: np.ndarray, texture, n: np.ndarray | None = None, *,
-               defer: bool = False) -> np.ndarray | Pending:
+def albedo_map(p: np.ndarray, texture, n: np.ndarray | None = None, *, defer: bool = False) -> np.ndarray | Pending:
     """Diffuse albedo of the tissue (:func:`simtest.render.tissue.albedo`) at surface points, in Dr.Jit.
 
     Parameters
@@ -313,8 +312,7 @@ def albedo_map(p: np.ndarray, texture, n: np.ndarray | None = None, *,
     ndarray of shape (..., 3), float32
         Linear RGB albedo in [0, 1]; NaN where ``p`` is.
     """
-    return _per_point(tissue.albedo(_dr_xp(), _dr_rows(p), texture, None if n is None else _dr_rows(n)), p.shape,
-                      defer)
+    return _per_point(tissue.albedo(_dr_xp(), _dr_rows(p), texture, None if n is None else _dr_rows(n)), p.shape, defer)
 
 
 def _dr_rows(a: np.ndarray) -> list:
