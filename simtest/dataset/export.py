@@ -44,16 +44,12 @@ import numpy as np
 
 from simtest._io import atomic_write_json, replace_output_folder
 from simtest.dataset.reader import SimtestDataset
-from simtest.dataset.shards import DatasetError, DatasetWriteError, decode_png
+from simtest.dataset.shards import WRITE_ERRNOS, DatasetError, DatasetWriteError, decode_png
 
 __all__ = ["FORMATS", "READ_HDF5", "READ_WEBDATASET", "export"]
 
 #: Export formats: name -> default folder suffix.
 FORMATS = ("webdataset", "hdf5")
-
-#: errno values that mean the export cannot be written (reported as one line, exit 4).
-_WRITE_ERRNOS = frozenset({errno.ENOSPC, errno.EDQUOT, errno.EROFS, errno.EACCES, errno.EPERM,
-                           errno.EFBIG, errno.EIO})
 
 _FIELDS = ("normals", "depth", "linear", "specular", "mask", "highlight_mask")
 
@@ -184,7 +180,7 @@ def export(root, fmt: str, out=None) -> Path:
     try:
         replace_output_folder(out, fill)
     except OSError as exc:
-        if exc.errno in _WRITE_ERRNOS or tmp is None or str(exc.filename or "").startswith(str(tmp)):
+        if exc.errno in WRITE_ERRNOS or tmp is None or str(exc.filename or "").startswith(str(tmp)):
             raise _write_error(exc, out) from None
         raise DatasetError(f"{exc.filename or root}: cannot read: {exc.strerror or exc}") from None
     finally:

@@ -135,10 +135,8 @@ class SimtestDataset:
         z = self._shard(i)
         out: dict = {"index": int(row["index"])}
         for k in self.keys:
-            if k == "sensor":
-                out[k] = decode_png(z[entry_name(row["index"], "sensor_png")])
-            else:
-                out[k] = z[entry_name(row["index"], k)]
+            a = z[entry_name(row["index"], "sensor_png" if k == "sensor" else k)]
+            out[k] = decode_png(a) if k == "sensor" else a
         if self.with_record:
             out["record"] = row
         return out

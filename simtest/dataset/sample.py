@@ -235,8 +235,7 @@ def build_scene(config: DatasetConfig, params: dict):
     else:
         material = {"model": "phong", "c": params["phong_c"], "n": params["phong_n"],
                     "diffuse_albedo": params["diffuse_albedo"]}
-    render = {"spp": params["spp"], "seed": params["render_seed"], "variant": config.variant,
-              "sampler": "multijitter"}
+    render = {"spp": params["spp"], "seed": params["render_seed"], "variant": config.variant, "sampler": "multijitter"}
     view = math.radians(params.get("view_angle_deg", 0.0))
     az = math.radians(params.get("azimuth_deg", 0.0))
     if fam == "planes":

@@ -21,6 +21,7 @@ dataset folder.
 
 from __future__ import annotations
 
+import errno
 import hashlib
 import io
 import json
@@ -48,6 +49,8 @@ MANIFEST_NAME = "manifest.jsonl"
 SHARDS_DIR = "shards"
 TMP_SUFFIX = ".tmp"
 _ZIP_TIME = (1980, 1, 1, 0, 0, 0)
+#: errno values that mean an output cannot be written (reported as one line).
+WRITE_ERRNOS = frozenset({errno.ENOSPC, errno.EDQUOT, errno.EROFS, errno.EACCES, errno.EPERM, errno.EIO, errno.EFBIG})
 
 #: Arrays deflated with ``compress=True`` (sparse masks and specular image); the float32 arrays carry
 #: Monte Carlo noise in their low bits and are stored; the sensor image is already a PNG.

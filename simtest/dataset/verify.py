@@ -272,8 +272,7 @@ def _shard_fingerprint(add, root: Path, card: dict, fp: str, n_shards: int) -> s
     return fp
 
 
-def _verify_shard(add, rep: VerifyReport, npz: Path, doc: dict, manifest_rows: dict,
-                  check_arrays: bool) -> None:
+def _verify_shard(add, rep: VerifyReport, npz: Path, doc: dict, manifest_rows: dict, check_arrays: bool) -> None:
     """Check the entries of one shard file against the manifest rows (reads every array)."""
     with np.load(npz, allow_pickle=False) as z:
         expected_keys = set()

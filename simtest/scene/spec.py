@@ -524,8 +524,7 @@ def _resolve_file(name: str, base_dirs: tuple[Path, ...], source: str, key: str,
     return path.resolve()
 
 
-def scene_from_dict(d: Mapping[str, Any], source: str = "<dict>",
-                    base_dir: str | Path | None = None) -> SceneSpec:
+def scene_from_dict(d: Mapping[str, Any], source: str = "<dict>", base_dir: str | Path | None = None) -> SceneSpec:
     """Build and validate a :class:`SceneSpec` from a nested dict (the TOML layout).
 
     Parameters

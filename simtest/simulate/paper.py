@@ -106,8 +106,7 @@ class PaperParams:
     @property
     def distance(self) -> float:
         """D, camera to window-centre distance, texture px (``camera_distance_px`` or V_Z)."""
-        return float(self.viewer_height_px if self.camera_distance_px is None
-                     else self.camera_distance_px)
+        return float(self.viewer_height_px if self.camera_distance_px is None else self.camera_distance_px)
 
     @property
     def texture(self) -> int:
@@ -161,9 +160,7 @@ def _camera_pose(theta_rad: float, centre: np.ndarray, distance: float):
     z_cam = np.array([0.0, -s, -c])  # optical axis, from the camera toward the window centre
     x_cam = np.array([1.0, 0.0, 0.0])
     y_cam = np.cross(z_cam, x_cam)  # = (0, -cos, sin): image down
-    R = np.stack([x_cam, y_cam, z_cam])
-    C = centre - distance * z_cam
-    return R, C
+    return np.stack([x_cam, y_cam, z_cam]), centre - distance * z_cam
 
 
 def paper_homography(params: PaperParams, window_centre=(0.0, 0.0)):

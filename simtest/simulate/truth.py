@@ -476,7 +476,6 @@ def saddle_mesh(distance_mm: float, radius1_mm: float, radius2_mm: float, extent
     disc = np.sqrt(np.maximum(Hm * Hm - Kg, 0.0))
     idx = np.arange(resolution * resolution).reshape(resolution, resolution)
     a, b, c, d = idx[:-1, :-1], idx[:-1, 1:], idx[1:, :-1], idx[1:, 1:]
-    faces = np.concatenate([np.stack([a, b, d], -1).reshape(-1, 3),
-                            np.stack([a, d, c], -1).reshape(-1, 3)])
+    faces = np.concatenate([np.stack([a, b, d], -1).reshape(-1, 3), np.stack([a, d, c], -1).reshape(-1, 3)])
     return {"vertices": np.stack([x, y, z], -1).reshape(-1, 3), "faces": faces.astype(np.int64),
             "normals": n.reshape(-1, 3), "k1": (Hm + disc).ravel(), "k2": (Hm - disc).ravel()}

@@ -242,8 +242,7 @@ def build_haustral_colon(seed: int, **params: Any) -> trimesh.Trimesh:
     theta = np.arange(p.n_around) * (2.0 * math.pi / p.n_around)
     x = colon.surface_jet(v[:, None], theta[None, :])
     nrm, k1, k2 = curvature_from_derivatives(x.a, x.b, x.aa, x.ab, x.bb)
-    mesh = _assemble(x.v.reshape(-1, 3), _tube_faces(p.n_along, p.n_around), nrm.reshape(-1, 3),
-                     k1.ravel(), k2.ravel())
+    mesh = _assemble(x.v.reshape(-1, 3), _tube_faces(p.n_along, p.n_around), nrm.reshape(-1, 3), k1.ravel(), k2.ravel())
     centre, c1, _, _ = colon.curve(v)
     dist = np.linalg.norm(x.v - centre[:, None, :], axis=-1)
     record = _generator_record("colon_haustral", seed, p)
