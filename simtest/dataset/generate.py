@@ -127,17 +127,15 @@ def _prepare(config: DatasetConfig, out: Path) -> set[int]:
                 # a damaged fingerprint over this very config: rewrite the card
                 atomic_write_json(card_path, make_card(config, status="incomplete"))
             else:
-                raise DatasetError(
-                    f"{out}: holds a dataset made with a different config (its {CARD_NAME} names "
-                    f"fingerprint {str(card.get('config_fingerprint'))[:12]}, this config is "
-                    f"{config.fingerprint()[:12]}): pass the config it was made with to resume it, "
-                    "or use another --out")
+                raise DatasetError(f"{out}: holds a dataset made with a different config (its {CARD_NAME} names "
+                                   f"fingerprint {str(card.get('config_fingerprint'))[:12]}, this config is "
+                                   f"{config.fingerprint()[:12]}): pass the config it was made with to resume it, "
+                                   "or use another --out")
             card = read_card(out)
         now = make_card(config, status="incomplete")["meshes"]
         if card.get("meshes", {}) != now:
-            raise DatasetError(
-                f"{out}: the bundled mesh files changed since this dataset was started "
-                f"({card.get('meshes')} != {now}); finish it with the old meshes or use another --out")
+            raise DatasetError(f"{out}: the bundled mesh files changed since this dataset was started "
+                               f"({card.get('meshes')} != {now}); finish it with the old meshes or use another --out")
     elif out.is_dir() and any(p.name != LOCK_NAME for p in out.iterdir()):
         raise DatasetWriteError(f"{out}: is not empty and has no {CARD_NAME}: refusing to write into it")
     if not card_path.exists():  # first: a folder without a card holds nothing else of ours
@@ -184,8 +182,7 @@ def _finalise(config: DatasetConfig, out: Path) -> None:
         if doc is None:
             raise DatasetError(f"{shard_json_path(out, s)}: missing after generation")
         npz = shard_npz_path(out, s).name
-        for row in doc["samples"]:
-            rows.append({"npz": f"{SHARDS_DIR}/{npz}", **row})
+        rows += [{"npz": f"{SHARDS_DIR}/{npz}", **row} for row in doc["samples"]]
     by_family = Counter(r["family"] for r in rows)
     n_hl = sum(len(r.get("highlights", [])) for r in rows)
     n_in = sum(1 for r in rows for h in r.get("highlights", []) if h.get("in_frame"))
@@ -355,9 +352,8 @@ def _progress(enabled: bool, total: int, done: int):
             speed = task.finished_speed or task.speed
             return Text("   - samples/s" if speed is None else f"{speed:6.2f} samples/s")
 
-    prog = Progress(TextColumn("[bold]dataset"), BarColumn(), MofNCompleteColumn(), RateColumn(),
-                    TextColumn("left"), TimeRemainingColumn(), TimeElapsedColumn(),
-                    disable=not enabled, transient=False)
+    prog = Progress(TextColumn("[bold]dataset"), BarColumn(), MofNCompleteColumn(), RateColumn(), TextColumn("left"),
+                    TimeRemainingColumn(), TimeElapsedColumn(), disable=not enabled, transient=False)
     task = prog.add_task("samples", total=total, completed=done)
     return prog, task
 
@@ -452,8 +448,7 @@ def _locked(out: Path):
         except BlockingIOError:
             holder = os.pread(fd, 512, 0).decode("utf-8", errors="replace").strip()
             raise DatasetError(f"{out}: in use by another `simtest dataset generate` "
-                               f"({holder or 'holder unknown'}): wait for it to end or use another "
-                               "--out") from None
+                               f"({holder or 'holder unknown'}): wait for it to end or use another --out") from None
         locked = True
         now = datetime.now(timezone.utc).isoformat(timespec="seconds")
         os.ftruncate(fd, 0)
@@ -471,8 +466,7 @@ def _generate(config, out, dask_ex, workers, sample_fn, progress, window) -> Gen
     todo = [s for s in range(config.n_shards) if s not in complete]
     spooled = _spool_load(config, out, todo)
     indices = deque(i for s in todo for i in config.shard_range(s) if i not in spooled)
-    report = GenerateReport(out_dir=out, count=config.count,
-                            skipped=sum(len(config.shard_range(s)) for s in complete),
+    report = GenerateReport(out_dir=out, count=config.count, skipped=sum(len(config.shard_range(s)) for s in complete),
                             resumed=len(spooled))
     fp = config.fingerprint()
     meta = {"config_fingerprint": fp}
@@ -516,11 +510,10 @@ def _generate(config, out, dask_ex, workers, sample_fn, progress, window) -> Gen
                         try:
                             sample, who, rss_kib, cpu_s = f.result()
                         except BrokenProcessPool as exc:
-                            raise SampleError(
-                                f"sample {i}: a worker process died ({exc}); a script that calls "
-                                "generate() with workers > 1 needs the `if __name__ == "
-                                "\"__main__\":` guard (workers are spawned), and a worker killed "
-                                "for memory needs fewer workers") from None
+                            raise SampleError(f"sample {i}: a worker process died ({exc}); a script that calls "
+                                              "generate() with workers > 1 needs the `if __name__ == \"__main__\":` "
+                                              "guard (workers are spawned), and a worker killed for memory needs "
+                                              "fewer workers") from None
                         report.worker_cpu_s += cpu_s
                         if sample.index != i:
                             raise SampleError(f"sample {i}: sample_fn returned index {sample.index}")

@@ -37,10 +37,9 @@ from PIL import Image
 
 from simtest._io import atomic_write_json, atomic_write_text
 
-__all__ = ["CARD_NAME", "FORMAT", "FORMAT_VERSION", "MANIFEST_NAME", "DatasetError", "DatasetWriteError",
-           "ShardWriter", "array_sha256", "card_sha256", "file_sha256", "json_sha256", "labels_sha256",
-           "read_card", "read_manifest", "read_shard_rows", "shard_comment", "shard_json_path",
-           "shard_npz_path", "shard_path_from_row"]
+__all__ = ["CARD_NAME", "FORMAT", "FORMAT_VERSION", "MANIFEST_NAME", "DatasetError", "DatasetWriteError", "ShardWriter",
+           "array_sha256", "card_sha256", "file_sha256", "json_sha256", "labels_sha256", "read_card", "read_manifest",
+           "read_shard_rows", "shard_comment", "shard_json_path", "shard_npz_path", "shard_path_from_row"]
 
 FORMAT = "simtest-dataset"
 FORMAT_VERSION = 1
