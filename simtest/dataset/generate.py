@@ -403,10 +403,8 @@ def generate(config: DatasetConfig | str | os.PathLike, out_dir: str | os.PathLi
     Local workers are spawned, so a script calling this with ``workers > 1`` needs the
     ``if __name__ == "__main__":`` guard.
     """
-    if not isinstance(config, DatasetConfig):
-        config = load_config(config)
-    if sample_fn is None:
-        sample_fn = render_sample
+    config = config if isinstance(config, DatasetConfig) else load_config(config)
+    sample_fn = render_sample if sample_fn is None else sample_fn
     if workers is not None and workers < 1:
         raise ValueError(f"workers must be >= 1, got {workers}")
     out = Path(out_dir)

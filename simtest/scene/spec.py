@@ -280,9 +280,7 @@ class MaterialSpec:
         ``sqrt(2 / (m + 2))`` then gives this alpha (it matches ``n - 0.75`` to leading order once the
         BSDF's ``1 / cos^5 theta_h`` is included).
         """
-        if self.alpha is not None:
-            return float(self.alpha)
-        return math.sqrt(2.0 / (4.0 * self.n + 2.0))
+        return float(self.alpha) if self.alpha is not None else math.sqrt(2.0 / (4.0 * self.n + 2.0))
 
 
 @_frozen
