@@ -79,12 +79,6 @@ with h5py.File("OUT/3.hdf5", "r") as f:
     record = json.loads(f["record"][()])    # labels: K, pose, highlights, split"""
 
 
-def _npy(a: np.ndarray) -> bytes:
-    buf = io.BytesIO()
-    np.lib.format.write_array(buf, np.ascontiguousarray(a), allow_pickle=False)
-    return buf.getvalue()
-
-
 def _add(tar: tarfile.TarFile, name: str, data: bytes) -> None:
     info = tarfile.TarInfo(name)
     info.size, info.mtime, info.mode = len(data), 0, 0o644
@@ -104,7 +98,9 @@ def _webdataset(ds: SimtestDataset, tmp: Path) -> int:
                 key = f"{s['index']:08d}"
                 _add(tar, f"{key}.sensor.png", np.asarray(s["sensor_png"], np.uint8).tobytes())
                 for f in _FIELDS:
-                    _add(tar, f"{key}.{f}.npy", _npy(s[f]))
+                    buf = io.BytesIO()
+                    np.lib.format.write_array(buf, np.ascontiguousarray(s[f]), allow_pickle=False)
+                    _add(tar, f"{key}.{f}.npy", buf.getvalue())
                 if "camera" in s["record"]:
                     _add(tar, f"{key}.camera.json", json.dumps(s["record"]["camera"], indent=2).encode())
                 _add(tar, f"{key}.json", json.dumps(s["record"], sort_keys=True).encode())
