@@ -76,8 +76,7 @@ def _readme(config: DatasetConfig, count: int) -> str:
     return "\n".join(lines)
 
 
-def make_card(config: DatasetConfig, *, status: str, counts: dict | None = None,
-              variants: list | None = None) -> dict:
+def make_card(config: DatasetConfig, *, status: str, counts: dict | None = None, variants: list | None = None) -> dict:
     """The ``dataset.json`` card, JSON-ready and deterministic (no times, hosts or worker counts).
 
     ``status`` is ``"incomplete"`` while shards are written, ``"complete"`` once the manifest is;

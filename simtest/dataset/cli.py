@@ -73,8 +73,7 @@ def verify_command(
     Writes nothing; prints one line per problem, then a summary. Exit codes: 0 sound, 1 damage found, 2 DIR is not a folder.
     """
     if not root.is_dir():
-        fail(f"{root}: not a folder (give a dataset folder made by `simtest dataset generate`)",
-             BAD_INPUT)
+        fail(f"{root}: not a folder (give a dataset folder made by `simtest dataset generate`)", BAD_INPUT)
     rep = verify(root, check_arrays=not quick)
     for p in rep.problems:
         typer.echo(f"problem: {p}", err=True)
@@ -128,8 +127,7 @@ def show_command(
     except (DatasetError, ValueError) as exc:
         fail(exc, BAD_INPUT)
     except OSError as exc:  # the sheet is written atomically: an earlier one is kept
-        fail(f"--out: cannot write {out or root / 'contact_sheet.png'}: {exc.strerror or exc}",
-             CANNOT_WRITE)
+        fail(f"--out: cannot write {out or root / 'contact_sheet.png'}: {exc.strerror or exc}", CANNOT_WRITE)
     typer.echo(f"{path}: contact sheet written")
 
 

@@ -469,8 +469,7 @@ def _check_domain(p: ParamDef, dist: Dist, key: str, source: str) -> None:
         raise _err(source, key, "must be a number", show)
     if p.integer:
         if dist.kind == "loguniform":
-            raise _err(source, key, "an integer parameter takes constant, uniform, normal or choice",
-                       dist.as_dict())
+            raise _err(source, key, "an integer parameter takes constant, uniform, normal or choice", dist.as_dict())
         check = values if values is not None else list(dist.args[:2]) if dist.kind == "uniform" else []
         if any(float(v) != int(v) for v in check):
             raise _err(source, key, "must be an integer", show)

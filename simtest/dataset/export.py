@@ -44,16 +44,12 @@ import numpy as np
 
 from simtest._io import atomic_write_json, replace_output_folder
 from simtest.dataset.reader import SimtestDataset
-from simtest.dataset.shards import DatasetError, DatasetWriteError, decode_png
+from simtest.dataset.shards import WRITE_ERRNOS, DatasetError, DatasetWriteError, decode_png
 
 __all__ = ["FORMATS", "READ_HDF5", "READ_WEBDATASET", "export"]
 
 #: Export formats: name -> default folder suffix.
 FORMATS = ("webdataset", "hdf5")
-
-#: errno values that mean the export cannot be written (reported as one line, exit 4).
-_WRITE_ERRNOS = frozenset({errno.ENOSPC, errno.EDQUOT, errno.EROFS, errno.EACCES, errno.EPERM,
-                           errno.EFBIG, errno.EIO})
 
 _FIELDS = ("normals", "depth", "linear", "specular", "mask", "highlight_mask")
 
@@ -83,12 +79,6 @@ with h5py.File("OUT/3.hdf5", "r") as f:
     record = json.loads(f["record"][()])    # labels: K, pose, highlights, split"""
 
 
-def _npy(a: np.ndarray) -> bytes:
-    buf = io.BytesIO()
-    np.lib.format.write_array(buf, np.ascontiguousarray(a), allow_pickle=False)
-    return buf.getvalue()
-
-
 def _add(tar: tarfile.TarFile, name: str, data: bytes) -> None:
     info = tarfile.TarInfo(name)
     info.size, info.mtime, info.mode = len(data), 0, 0o644
@@ -108,7 +98,9 @@ def _webdataset(ds: SimtestDataset, tmp: Path) -> int:
                 key = f"{s['index']:08d}"
                 _add(tar, f"{key}.sensor.png", np.asarray(s["sensor_png"], np.uint8).tobytes())
                 for f in _FIELDS:
-                    _add(tar, f"{key}.{f}.npy", _npy(s[f]))
+                    buf = io.BytesIO()
+                    np.lib.format.write_array(buf, np.ascontiguousarray(s[f]), allow_pickle=False)
+                    _add(tar, f"{key}.{f}.npy", buf.getvalue())
                 if "camera" in s["record"]:
                     _add(tar, f"{key}.camera.json", json.dumps(s["record"]["camera"], indent=2).encode())
                 _add(tar, f"{key}.json", json.dumps(s["record"], sort_keys=True).encode())
@@ -184,7 +176,7 @@ def export(root, fmt: str, out=None) -> Path:
     try:
         replace_output_folder(out, fill)
     except OSError as exc:
-        if exc.errno in _WRITE_ERRNOS or tmp is None or str(exc.filename or "").startswith(str(tmp)):
+        if exc.errno in WRITE_ERRNOS or tmp is None or str(exc.filename or "").startswith(str(tmp)):
             raise _write_error(exc, out) from None
         raise DatasetError(f"{exc.filename or root}: cannot read: {exc.strerror or exc}") from None
     finally:

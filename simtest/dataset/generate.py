@@ -52,10 +52,10 @@ from simtest._workers import new_pool, stop_workers
 from simtest.dataset.card import _readme, make_card
 from simtest.dataset.config import DatasetConfig, load_config
 from simtest.dataset.sample import Sample, render_sample
-from simtest.dataset.shards import (CARD_NAME, MANIFEST_NAME, SHARDS_DIR, TMP_SUFFIX, DatasetError,
-                                    DatasetWriteError, ShardWriter, array_sha256, card_sha256,
-                                    check_shard, file_sha256, json_sha256, read_card, read_shard_rows,
-                                    shard_json_path, shard_npz_path, write_manifest)
+from simtest.dataset.shards import (CARD_NAME, MANIFEST_NAME, SHARDS_DIR, TMP_SUFFIX, WRITE_ERRNOS, DatasetError,
+                                    DatasetWriteError, ShardWriter, array_sha256, card_sha256, check_shard,
+                                    file_sha256, json_sha256, read_card, read_shard_rows, shard_json_path,
+                                    shard_npz_path, write_manifest)
 
 __all__ = ["GenerateReport", "Interrupted", "SampleError", "DatasetWriteError", "SPOOL_DIR", "generate"]
 
@@ -64,10 +64,6 @@ SPOOL_DIR = "spool"
 
 #: How long ``--scheduler`` waits for the Dask scheduler (:data:`simtest._dask.CONNECT_TIMEOUT`).
 CONNECT_TIMEOUT = _dask.CONNECT_TIMEOUT
-
-#: errno values that mean "the dataset folder cannot be written" (reported as one line).
-_WRITE_ERRNOS = frozenset({errno.ENOSPC, errno.EDQUOT, errno.EROFS, errno.EACCES, errno.EPERM,
-                           errno.EIO, errno.EFBIG})
 
 #: Lock file inside the dataset folder: ``generate`` holds an exclusive ``flock`` on it while it
 #: runs and writes its holder (pid, host, start time) into it; emptied when the run ends.
@@ -124,8 +120,6 @@ class GenerateReport:
 def _prepare(config: DatasetConfig, out: Path) -> set[int]:
     """Check ``out``, write the card, clean partial shards; return the complete shards."""
     card_path = out / CARD_NAME
-    if out.exists() and not out.is_dir():
-        raise DatasetWriteError(f"{out}: exists and is not a folder")
     if card_path.exists():
         card = read_card(out)
         if card.get("config_fingerprint") != config.fingerprint():
@@ -133,20 +127,17 @@ def _prepare(config: DatasetConfig, out: Path) -> set[int]:
                 # a damaged fingerprint over this very config: rewrite the card
                 atomic_write_json(card_path, make_card(config, status="incomplete"))
             else:
-                raise DatasetError(
-                    f"{out}: holds a dataset made with a different config (its {CARD_NAME} names "
-                    f"fingerprint {str(card.get('config_fingerprint'))[:12]}, this config is "
-                    f"{config.fingerprint()[:12]}): pass the config it was made with to resume it, "
-                    "or use another --out")
+                raise DatasetError(f"{out}: holds a dataset made with a different config (its {CARD_NAME} names "
+                                   f"fingerprint {str(card.get('config_fingerprint'))[:12]}, this config is "
+                                   f"{config.fingerprint()[:12]}): pass the config it was made with to resume it, "
+                                   "or use another --out")
             card = read_card(out)
         now = make_card(config, status="incomplete")["meshes"]
         if card.get("meshes", {}) != now:
-            raise DatasetError(
-                f"{out}: the bundled mesh files changed since this dataset was started "
-                f"({card.get('meshes')} != {now}); finish it with the old meshes or use another --out")
+            raise DatasetError(f"{out}: the bundled mesh files changed since this dataset was started "
+                               f"({card.get('meshes')} != {now}); finish it with the old meshes or use another --out")
     elif out.is_dir() and any(p.name != LOCK_NAME for p in out.iterdir()):
         raise DatasetWriteError(f"{out}: is not empty and has no {CARD_NAME}: refusing to write into it")
-    out.mkdir(parents=True, exist_ok=True)
     if not card_path.exists():  # first: a folder without a card holds nothing else of ours
         atomic_write_json(card_path, make_card(config, status="incomplete"))
     (out / SHARDS_DIR).mkdir(exist_ok=True)
@@ -154,12 +145,11 @@ def _prepare(config: DatasetConfig, out: Path) -> set[int]:
     complete: set[int] = set()
     fp = config.fingerprint()
     for s in range(config.n_shards):
-        npz = shard_npz_path(out, s)
         # content, not sizes: the shard file's sha256, its fingerprint and its labels' hashes
         if not check_shard(out, s, fp, config.shard_range(s)):
             complete.add(s)
         else:  # partial, corrupt or from another dataset: redo it
-            npz.unlink(missing_ok=True)
+            shard_npz_path(out, s).unlink(missing_ok=True)
             shard_json_path(out, s).unlink(missing_ok=True)
     # leftovers of killed runs, and shards beyond the count
     for p in (out / SHARDS_DIR).iterdir():
@@ -167,14 +157,8 @@ def _prepare(config: DatasetConfig, out: Path) -> set[int]:
         num = stem.removeprefix("shard-")
         if p.name.endswith(TMP_SUFFIX) or not num.isdigit() or int(num) >= config.n_shards:
             _remove(p)
-    for p in out.iterdir():
-        if p.name.endswith(TMP_SUFFIX):
-            p.unlink()
-    spool = out / SPOOL_DIR
-    if spool.is_dir():
-        for p in spool.iterdir():
-            if p.name.endswith(TMP_SUFFIX):
-                p.unlink()
+    for p in [*out.glob(f"*{TMP_SUFFIX}"), *(out / SPOOL_DIR).glob(f"*{TMP_SUFFIX}")]:
+        p.unlink()
     return complete
 
 
@@ -198,8 +182,7 @@ def _finalise(config: DatasetConfig, out: Path) -> None:
         if doc is None:
             raise DatasetError(f"{shard_json_path(out, s)}: missing after generation")
         npz = shard_npz_path(out, s).name
-        for row in doc["samples"]:
-            rows.append({"npz": f"{SHARDS_DIR}/{npz}", **row})
+        rows += [{"npz": f"{SHARDS_DIR}/{npz}", **row} for row in doc["samples"]]
     by_family = Counter(r["family"] for r in rows)
     n_hl = sum(len(r.get("highlights", [])) for r in rows)
     n_in = sum(1 for r in rows for h in r.get("highlights", []) if h.get("in_frame"))
@@ -369,9 +352,8 @@ def _progress(enabled: bool, total: int, done: int):
             speed = task.finished_speed or task.speed
             return Text("   - samples/s" if speed is None else f"{speed:6.2f} samples/s")
 
-    prog = Progress(TextColumn("[bold]dataset"), BarColumn(), MofNCompleteColumn(), RateColumn(),
-                    TextColumn("left"), TimeRemainingColumn(), TimeElapsedColumn(),
-                    disable=not enabled, transient=False)
+    prog = Progress(TextColumn("[bold]dataset"), BarColumn(), MofNCompleteColumn(), RateColumn(), TextColumn("left"),
+                    TimeRemainingColumn(), TimeElapsedColumn(), disable=not enabled, transient=False)
     task = prog.add_task("samples", total=total, completed=done)
     return prog, task
 
@@ -421,17 +403,14 @@ def generate(config: DatasetConfig | str | os.PathLike, out_dir: str | os.PathLi
     Local workers are spawned, so a script calling this with ``workers > 1`` needs the
     ``if __name__ == "__main__":`` guard.
     """
-    if not isinstance(config, DatasetConfig):
-        config = load_config(config)
-    if sample_fn is None:
-        sample_fn = render_sample
+    config = config if isinstance(config, DatasetConfig) else load_config(config)
+    sample_fn = render_sample if sample_fn is None else sample_fn
     if workers is not None and workers < 1:
         raise ValueError(f"workers must be >= 1, got {workers}")
     out = Path(out_dir)
     if out.exists() and not out.is_dir():
         raise DatasetWriteError(f"{out}: exists and is not a folder")
-    if (out.is_dir() and not (out / CARD_NAME).exists() and not (out / LOCK_NAME).exists()
-            and any(out.iterdir())):
+    if out.is_dir() and not (out / CARD_NAME).exists() and not (out / LOCK_NAME).exists() and any(out.iterdir()):
         raise DatasetWriteError(f"{out}: is not empty and has no {CARD_NAME}: refusing to write into it")
     # Connect to a cluster before writing anything: a wrong address leaves no folder behind.
     dask_ex = _Dask(sample_fn, config, scheduler) if scheduler is not None else None
@@ -442,7 +421,7 @@ def generate(config: DatasetConfig | str | os.PathLike, out_dir: str | os.PathLi
         raise Interrupted(f"{out}: interrupted; finished samples are kept (shards and spool): rerun "
                           "the same command to resume") from None
     except OSError as exc:  # full disk, read-only folder, ...: partial files are already removed
-        if exc.errno not in _WRITE_ERRNOS and exc.filename is None:
+        if exc.errno not in WRITE_ERRNOS and exc.filename is None:
             raise
         what = exc.strerror or str(exc)
         if exc.errno == errno.ENOSPC:
@@ -467,8 +446,7 @@ def _locked(out: Path):
         except BlockingIOError:
             holder = os.pread(fd, 512, 0).decode("utf-8", errors="replace").strip()
             raise DatasetError(f"{out}: in use by another `simtest dataset generate` "
-                               f"({holder or 'holder unknown'}): wait for it to end or use another "
-                               "--out") from None
+                               f"({holder or 'holder unknown'}): wait for it to end or use another --out") from None
         locked = True
         now = datetime.now(timezone.utc).isoformat(timespec="seconds")
         os.ftruncate(fd, 0)
@@ -486,13 +464,11 @@ def _generate(config, out, dask_ex, workers, sample_fn, progress, window) -> Gen
     todo = [s for s in range(config.n_shards) if s not in complete]
     spooled = _spool_load(config, out, todo)
     indices = deque(i for s in todo for i in config.shard_range(s) if i not in spooled)
-    report = GenerateReport(out_dir=out, count=config.count,
-                            skipped=sum(len(config.shard_range(s)) for s in complete),
+    report = GenerateReport(out_dir=out, count=config.count, skipped=sum(len(config.shard_range(s)) for s in complete),
                             resumed=len(spooled))
     fp = config.fingerprint()
     meta = {"config_fingerprint": fp}
-    writers = {s: ShardWriter(out, s, config.shard_range(s), meta=meta, compress=config.compress)
-               for s in todo}
+    writers = {s: ShardWriter(out, s, config.shard_range(s), meta=meta, compress=config.compress) for s in todo}
 
     def accept(sample, spool: bool) -> None:
         shard = sample.index // config.shard_size
@@ -532,17 +508,15 @@ def _generate(config, out, dask_ex, workers, sample_fn, progress, window) -> Gen
                         try:
                             sample, who, rss_kib, cpu_s = f.result()
                         except BrokenProcessPool as exc:
-                            raise SampleError(
-                                f"sample {i}: a worker process died ({exc}); a script that calls "
-                                "generate() with workers > 1 needs the `if __name__ == "
-                                "\"__main__\":` guard (workers are spawned), and a worker killed "
-                                "for memory needs fewer workers") from None
+                            raise SampleError(f"sample {i}: a worker process died ({exc}); a script that calls "
+                                              "generate() with workers > 1 needs the `if __name__ == \"__main__\":` "
+                                              "guard (workers are spawned), and a worker killed for memory needs "
+                                              "fewer workers") from None
                         report.worker_cpu_s += cpu_s
                         if sample.index != i:
                             raise SampleError(f"sample {i}: sample_fn returned index {sample.index}")
                         rss[who] = max(rss.get(who, 0.0), rss_kib / 1024.0)
-                        sample = dataclasses.replace(
-                            sample, record={**sample.record, "split": config.split_of(i)})
+                        sample = dataclasses.replace(sample, record={**sample.record, "split": config.split_of(i)})
                         accept(sample, spool=True)
                         report.written += 1
                         report.completed_at_s.append(time.perf_counter() - t0)

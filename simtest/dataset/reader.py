@@ -122,10 +122,9 @@ class SimtestDataset:
         row = self.rows[i]
         if i not in self._checked:
             if row.get("labels_sha256") != labels_sha256(row):
-                raise DatasetError(
-                    f"{self.root / MANIFEST_NAME}: shard {row.get('shard')}, sample {row.get('index')}: "
-                    "labels differ from their labels_sha256 (edited or damaged): refused; run "
-                    f"`simtest dataset verify {self.root}`")
+                raise DatasetError(f"{self.root / MANIFEST_NAME}: shard {row.get('shard')}, sample {row.get('index')}: "
+                                   "labels differ from their labels_sha256 (edited or damaged): refused; run "
+                                   f"`simtest dataset verify {self.root}`")
             self._checked.add(i)
         return row
 
@@ -135,17 +134,14 @@ class SimtestDataset:
         z = self._shard(i)
         out: dict = {"index": int(row["index"])}
         for k in self.keys:
-            if k == "sensor":
-                out[k] = decode_png(z[entry_name(row["index"], "sensor_png")])
-            else:
-                out[k] = z[entry_name(row["index"], k)]
+            a = z[entry_name(row["index"], "sensor_png" if k == "sensor" else k)]
+            out[k] = decode_png(a) if k == "sensor" else a
         if self.with_record:
             out["record"] = row
         return out
 
     def __iter__(self) -> Iterator[dict]:
-        for i in range(len(self)):
-            yield self[i]
+        return (self[i] for i in range(len(self)))
 
     def close(self) -> None:
         """Close the open shard files."""

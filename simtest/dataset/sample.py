@@ -143,10 +143,9 @@ def draw_parameters(config: DatasetConfig, index: int) -> dict[str, Any]:
     while why is not None:
         k += 1
         if k > MAX_REDRAWS:
-            raise ValueError(
-                f"sample {index}: {MAX_REDRAWS} draws in a row of family {family!r} have no defined "
-                f"brightest point (last: {why}); narrow params.{family} (e.g. view_angle_deg, "
-                "radius_mm) so that the camera stays outside the surface")
+            raise ValueError(f"sample {index}: {MAX_REDRAWS} draws in a row of family {family!r} have no defined "
+                             f"brightest point (last: {why}); narrow params.{family} (e.g. view_angle_deg, radius_mm) "
+                             "so that the camera stays outside the surface")
         child = np.random.SeedSequence([int(config.seed), int(index)], spawn_key=(k - 1,))
         out = _draw_family(config, family, np.random.default_rng(child))
         out["redraw"] = k
@@ -235,8 +234,7 @@ def build_scene(config: DatasetConfig, params: dict):
     else:
         material = {"model": "phong", "c": params["phong_c"], "n": params["phong_n"],
                     "diffuse_albedo": params["diffuse_albedo"]}
-    render = {"spp": params["spp"], "seed": params["render_seed"], "variant": config.variant,
-              "sampler": "multijitter"}
+    render = {"spp": params["spp"], "seed": params["render_seed"], "variant": config.variant, "sampler": "multijitter"}
     view = math.radians(params.get("view_angle_deg", 0.0))
     az = math.radians(params.get("azimuth_deg", 0.0))
     if fam == "planes":
@@ -349,8 +347,7 @@ def _portable_scene(spec) -> dict:
     geo = d.get("geometry", {})
     if geo.get("type") == "mesh" and geo.get("path"):
         path = Path(geo["path"])
-        root = bundled_mesh_path("colon").parent
-        if path.parent == root:
+        if path.parent == bundled_mesh_path("colon").parent:
             geo["path"] = f"meshes/{path.name}"
     return d
 

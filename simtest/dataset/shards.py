@@ -21,6 +21,7 @@ dataset folder.
 
 from __future__ import annotations
 
+import errno
 import hashlib
 import io
 import json
@@ -36,10 +37,9 @@ from PIL import Image
 
 from simtest._io import atomic_write_json, atomic_write_text
 
-__all__ = ["CARD_NAME", "FORMAT", "FORMAT_VERSION", "MANIFEST_NAME", "DatasetError", "DatasetWriteError",
-           "ShardWriter", "array_sha256", "card_sha256", "file_sha256", "json_sha256", "labels_sha256",
-           "read_card", "read_manifest", "read_shard_rows", "shard_comment", "shard_json_path",
-           "shard_npz_path", "shard_path_from_row"]
+__all__ = ["CARD_NAME", "FORMAT", "FORMAT_VERSION", "MANIFEST_NAME", "DatasetError", "DatasetWriteError", "ShardWriter",
+           "array_sha256", "card_sha256", "file_sha256", "json_sha256", "labels_sha256", "read_card", "read_manifest",
+           "read_shard_rows", "shard_comment", "shard_json_path", "shard_npz_path", "shard_path_from_row"]
 
 FORMAT = "simtest-dataset"
 FORMAT_VERSION = 1
@@ -48,6 +48,8 @@ MANIFEST_NAME = "manifest.jsonl"
 SHARDS_DIR = "shards"
 TMP_SUFFIX = ".tmp"
 _ZIP_TIME = (1980, 1, 1, 0, 0, 0)
+#: errno values that mean an output cannot be written (reported as one line).
+WRITE_ERRNOS = frozenset({errno.ENOSPC, errno.EDQUOT, errno.EROFS, errno.EACCES, errno.EPERM, errno.EIO, errno.EFBIG})
 
 #: Arrays deflated with ``compress=True`` (sparse masks and specular image); the float32 arrays carry
 #: Monte Carlo noise in their low bits and are stored; the sensor image is already a PNG.

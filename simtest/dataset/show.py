@@ -18,12 +18,6 @@ from simtest.dataset.reader import SimtestDataset
 __all__ = ["contact_sheet"]
 
 
-def _normals_rgb(n: np.ndarray, mask: np.ndarray) -> np.ndarray:
-    """Camera-frame normals as colours: (x, y, -z) mapped from [-1, 1] to [0, 1]; black off the mask."""
-    rgb = (np.stack([n[..., 0], n[..., 1], -n[..., 2]], -1) + 1.0) / 2.0
-    return np.where(mask[..., None], np.clip(rgb, 0, 1), 0.0)
-
-
 def contact_sheet(root, out=None, count: int = 8, start: int = 0) -> Path:
     """Write a contact sheet PNG of ``count`` samples from position ``start`` of the dataset ``root``.
 
@@ -60,7 +54,9 @@ def contact_sheet(root, out=None, count: int = 8, start: int = 0) -> Path:
         ax.set_ylim(h - 0.5, -0.5)
         ax.set_title(f"#{rec['index']} {rec['family']} ({rec.get('split', '-')}), "
                      f"exposure x{rec.get('exposure_applied', 1.0):.3g}", fontsize=8)
-        axes[r, 1].imshow(_normals_rgb(s["normals"], s["mask"]))
+        n = s["normals"]  # (x, y, -z) from [-1, 1] to [0, 1]; black off the mask
+        rgb = (np.stack([n[..., 0], n[..., 1], -n[..., 2]], -1) + 1.0) / 2.0
+        axes[r, 1].imshow(np.where(s["mask"][..., None], np.clip(rgb, 0, 1), 0.0))
         axes[r, 1].set_title("normals (camera frame; RGB = x, y, -z)", fontsize=8)
         overlay = np.zeros((*s["mask"].shape, 3))
         overlay[s["mask"]] = (0.35, 0.35, 0.35)

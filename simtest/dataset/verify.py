@@ -161,9 +161,8 @@ def _verify(rep: VerifyReport, root: Path, card: dict, rows: list, check_arrays:
         add(f"{card_path}: count, shard_size, n_shards or config_fingerprint missing or not valid")
         return
     if "card_sha256" not in card:
-        add(f"{card_path}: no card_sha256 (a card written by an older simtest, or the key was "
-            "removed): rerun `simtest dataset generate` with the same config and --out to rewrite "
-            "the card (nothing is rendered again)")
+        add(f"{card_path}: no card_sha256 (a card written by an older simtest, or the key was removed): rerun "
+            "`simtest dataset generate` with the same config and --out to rewrite the card (nothing is rendered again)")
     elif card.get("card_sha256") != card_sha256(card):
         add(f"{card_path}: a value differs from its card_sha256: the card was edited or damaged")
     if "manifest_sha256" in card:
@@ -272,8 +271,7 @@ def _shard_fingerprint(add, root: Path, card: dict, fp: str, n_shards: int) -> s
     return fp
 
 
-def _verify_shard(add, rep: VerifyReport, npz: Path, doc: dict, manifest_rows: dict,
-                  check_arrays: bool) -> None:
+def _verify_shard(add, rep: VerifyReport, npz: Path, doc: dict, manifest_rows: dict, check_arrays: bool) -> None:
     """Check the entries of one shard file against the manifest rows (reads every array)."""
     with np.load(npz, allow_pickle=False) as z:
         expected_keys = set()

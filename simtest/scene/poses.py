@@ -123,9 +123,8 @@ def camera_up(forward: np.ndarray, roll_deg: float | None = None) -> np.ndarray:
     return math.cos(r) * e1 + math.sin(r) * e2
 
 
-def colon_pose(station: float, view_deg: float, *, azimuth_deg: float | None = None,
-               radial_offset: float = 0.3, roll_deg: float | None = None,
-               mesh: str = "colon") -> CameraPose:
+def colon_pose(station: float, view_deg: float, *, azimuth_deg: float | None = None, radial_offset: float = 0.3,
+               roll_deg: float | None = None, mesh: str = "colon") -> CameraPose:
     """Camera inside the bundled colon, on its centre line, looking off the tangent.
 
     At arc length ``s = s0 + station (s1 - s0)``, with tangent ``t`` and basis ``(e1, e2)`` across it,

@@ -47,9 +47,8 @@ from pydantic.dataclasses import dataclass
 from simtest._checks import keyed_error
 from simtest._config import CONFIG, Floats, Int, Num, Str, Vec2, Vec3, validated
 from simtest.constants import MAX_SEED
-from simtest.scene.kinds import (GEOMETRY_KEY_ORDER, GEOMETRY_KEYS, GEOMETRY_TYPES, CylinderGeometry,
-                                 GeometrySpec, MeshGeometry, PlaneGeometry, SaddleGeometry,
-                                 SphereGeometry)
+from simtest.scene.kinds import (GEOMETRY_KEY_ORDER, GEOMETRY_KEYS, GEOMETRY_TYPES, CylinderGeometry, GeometrySpec,
+                                 MeshGeometry, PlaneGeometry, SaddleGeometry, SphereGeometry)
 from simtest.resources import bundled_scene_path, data_root
 
 __all__ = ["SceneError", "CameraSpec", "LightSpec", "MaterialSpec", "GeometrySpec", "PlaneGeometry",
@@ -281,9 +280,7 @@ class MaterialSpec:
         ``sqrt(2 / (m + 2))`` then gives this alpha (it matches ``n - 0.75`` to leading order once the
         BSDF's ``1 / cos^5 theta_h`` is included).
         """
-        if self.alpha is not None:
-            return float(self.alpha)
-        return math.sqrt(2.0 / (4.0 * self.n + 2.0))
+        return float(self.alpha) if self.alpha is not None else math.sqrt(2.0 / (4.0 * self.n + 2.0))
 
 
 @_frozen
@@ -477,7 +474,6 @@ def _validate(spec: SceneSpec, source: str, base_dirs: tuple[Path, ...]) -> Scen
     if cam.file is not None:
         spec = dataclasses.replace(spec, camera=dataclasses.replace(
             cam, file=str(_resolve_file(cam.file, base_dirs, source, "camera.file", "camera file"))))
-        cam = spec.camera
     if mat.distribution == "phong" and mat.model != "tissue":
         raise _err(source, "material.distribution", "\"phong\" is a lobe of model \"tissue\" "
                    "(model \"phong\" is the paper's exact lobe)")
@@ -501,11 +497,9 @@ def _validate(spec: SceneSpec, source: str, base_dirs: tuple[Path, ...]) -> Scen
             raise _err(source, f"geometry.{f.name}", f"missing (required for type {geo.type!r})")
     if geo.type == "cylinder" and geo.axis is not None and math.hypot(*geo.axis) == 0.0:
         raise _err(source, "geometry.axis", "is the zero vector")
-    if geo.type == "mesh":
-        assert geo.path is not None
+    if geo.type == "mesh":  # geo.path is set: a required key, checked above
         path = _resolve_file(geo.path, base_dirs, source, "geometry.path", "mesh file")
-        geo = dataclasses.replace(geo, path=str(path))
-        spec = dataclasses.replace(spec, geometry=geo)
+        spec = dataclasses.replace(spec, geometry=dataclasses.replace(geo, path=str(path)))
     return spec
 
 
@@ -524,8 +518,7 @@ def _resolve_file(name: str, base_dirs: tuple[Path, ...], source: str, key: str,
     return path.resolve()
 
 
-def scene_from_dict(d: Mapping[str, Any], source: str = "<dict>",
-                    base_dir: str | Path | None = None) -> SceneSpec:
+def scene_from_dict(d: Mapping[str, Any], source: str = "<dict>", base_dir: str | Path | None = None) -> SceneSpec:
     """Build and validate a :class:`SceneSpec` from a nested dict (the TOML layout).
 
     Parameters
@@ -600,9 +593,8 @@ def scene_to_dict(spec: SceneSpec) -> dict[str, Any]:
         d = {"type": sub.type} if section == "geometry" else {}
         for f in dataclasses.fields(sub):
             v = getattr(sub, f.name)
-            if v is None:
-                continue
-            d[f.name] = list(v) if isinstance(v, tuple) else v
+            if v is not None:
+                d[f.name] = list(v) if isinstance(v, tuple) else v
         out[section] = d
     return out
 

@@ -106,8 +106,7 @@ class PaperParams:
     @property
     def distance(self) -> float:
         """D, camera to window-centre distance, texture px (``camera_distance_px`` or V_Z)."""
-        return float(self.viewer_height_px if self.camera_distance_px is None
-                     else self.camera_distance_px)
+        return float(self.viewer_height_px if self.camera_distance_px is None else self.camera_distance_px)
 
     @property
     def texture(self) -> int:
@@ -155,17 +154,6 @@ class PaperSample:
     region: tuple[int, int, int, int] | None = None
 
 
-def _camera_pose(theta_rad: float, centre: np.ndarray, distance: float):
-    """Rotation (rows: camera axes in the plane frame) and centre of the slanted camera."""
-    s, c = math.sin(theta_rad), math.cos(theta_rad)
-    z_cam = np.array([0.0, -s, -c])  # optical axis, from the camera toward the window centre
-    x_cam = np.array([1.0, 0.0, 0.0])
-    y_cam = np.cross(z_cam, x_cam)  # = (0, -cos, sin): image down
-    R = np.stack([x_cam, y_cam, z_cam])
-    C = centre - distance * z_cam
-    return R, C
-
-
 def paper_homography(params: PaperParams, window_centre=(0.0, 0.0)):
     """Homography from texture pixels to image pixels, with the camera that defines it (module step 2).
 
@@ -190,7 +178,12 @@ def paper_homography(params: PaperParams, window_centre=(0.0, 0.0)):
     M, f, T = params.image_px, params.focal, params.texture
     x0, y0 = float(window_centre[0]), float(window_centre[1])
     K = np.array([[f, 0.0, M / 2.0], [0.0, f, M / 2.0], [0.0, 0.0, 1.0]])
-    R, C = _camera_pose(math.radians(params.theta_deg), np.array([x0, y0, 0.0]), params.distance)
+    # the slanted camera: R's rows are its axes in the plane frame, C its centre
+    theta = math.radians(params.theta_deg)
+    z_cam = np.array([0.0, -math.sin(theta), -math.cos(theta)])  # optical axis, toward the window centre
+    x_cam = np.array([1.0, 0.0, 0.0])
+    R = np.stack([x_cam, np.cross(z_cam, x_cam), z_cam])  # y = (0, -cos, sin): image down
+    C = np.array([x0, y0, 0.0]) - params.distance * z_cam
     t = -R @ C
     P_plane = K @ np.column_stack([R[:, 0], R[:, 1], t])  # plane (x, y, 1) -> image
     A = np.array([[1.0, 0.0, x0 - T / 2.0], [0.0, -1.0, y0 + T / 2.0], [0.0, 0.0, 1.0]])
@@ -252,8 +245,7 @@ class PaperSimulator:
         image = cv2.warpPerspective(texture, H, (M, M), flags=cv2.INTER_LINEAR,
                                     borderMode=cv2.BORDER_CONSTANT, borderValue=0.0)
         # BP in the image: project the plane BP with the camera (exactly M/2 when window_at_bp).
-        X = R @ (np.array([bp_plane[0], bp_plane[1], 0.0]) - C)
-        uvw = K @ X
+        uvw = K @ (R @ (np.array([bp_plane[0], bp_plane[1], 0.0]) - C))
         bp_px = uvw[:2] / uvw[2]
         normal = R @ np.array([0.0, 0.0, 1.0])  # camera above the plane: +z faces it
         return image, (K, bp_px, normal)
@@ -289,10 +281,7 @@ class PaperSimulator:
         """
         p = self.params
         L = self.light(rng)
-        if self._clean is not None:
-            clean, (K, bp_px, normal) = self._clean, self._geom
-        else:
-            clean, (K, bp_px, normal) = self._render_clean(L)
+        clean, (K, bp_px, normal) = (self._clean, self._geom) if self._clean is not None else self._render_clean(L)
         M = p.image_px
         asked = None if region is None else tuple(int(v) for v in region(clean, bp_px))
         box = (0, M, 0, M) if asked is None else _read_box(asked, bp_px, M)

@@ -31,9 +31,8 @@ from simtest.geometry.angles import unit
 from simtest.geometry.camera import project_points
 from simtest.simulate.analytic import plane_bp
 
-__all__ = ["HighlightTruth", "HighlightTruthError", "STATIONARY_RESIDUAL_TOL", "bisector",
-           "circle_reflection", "pixel_in_frame", "plane_highlight", "sphere_highlight",
-           "cylinder_highlight", "saddle_mesh"]
+__all__ = ["HighlightTruth", "HighlightTruthError", "STATIONARY_RESIDUAL_TOL", "bisector", "circle_reflection",
+           "pixel_in_frame", "plane_highlight", "sphere_highlight", "cylinder_highlight", "saddle_mesh"]
 
 
 class HighlightTruthError(RuntimeError):
@@ -156,10 +155,8 @@ def _solve_stationary(surface: Callable[[np.ndarray], tuple[np.ndarray, np.ndarr
     Accepted on the residual, not ``sol.success`` (hybrd often stops at round-off with status 3 or 5),
     and only if ``h . n > 0``; else :class:`HighlightTruthError`.
     """
-    f1 = np.array([1.0, 0.0, 0.0])
     _, n0 = surface(x0)
-    if abs(n0[0]) > 0.9:
-        f1 = np.array([0.0, 0.0, 1.0])
+    f1 = np.array([0.0, 0.0, 1.0] if abs(n0[0]) > 0.9 else [1.0, 0.0, 0.0])
     e1 = unit(f1 - np.dot(f1, n0) * n0, axis=-1)
     e2 = np.cross(n0, e1)
 
@@ -178,12 +175,11 @@ def _solve_stationary(surface: Callable[[np.ndarray], tuple[np.ndarray, np.ndarr
     else:
         cos, res = math.nan, math.inf
     if not (res <= STATIONARY_RESIDUAL_TOL and cos > 0.0):
-        raise HighlightTruthError(
-            f"{what}: no brightest point found for the light at "
-            f"{np.round(np.asarray(light, dtype=np.float64), 4).tolist()} mm: the normal does not "
-            f"bisect the directions to the camera and the light (residual {res:.3g} > "
-            f"{STATIONARY_RESIDUAL_TOL:g} or n . h = {cos:.4g} <= 0; scipy root status "
-            f"{sol.status}: {' '.join(str(sol.message).split())})")
+        raise HighlightTruthError(f"{what}: no brightest point found for the light at "
+                                  f"{np.round(np.asarray(light, dtype=np.float64), 4).tolist()} mm: the normal does "
+                                  f"not bisect the directions to the camera and the light (residual {res:.3g} > "
+                                  f"{STATIONARY_RESIDUAL_TOL:g} or n . h = {cos:.4g} <= 0; scipy root status "
+                                  f"{sol.status}: {' '.join(str(sol.message).split())})")
     return x
 
 
@@ -271,21 +267,18 @@ def _facing(p: np.ndarray, n: np.ndarray, light: np.ndarray) -> tuple[float, flo
 
 
 def _bp(what: str, minimiser, surface, light: np.ndarray):
-    """``(p, n)`` from the root solve at the co-located BP, else :func:`_robust_bp`; None if nothing faces both."""
-    try:
-        return surface(_solve_stationary(surface, np.zeros(2), light, what=what))
-    except HighlightTruthError as first:
-        return _robust_bp(what, minimiser, surface, light, first)
+    """``(p, n)`` from the root solve at the co-located BP; None if nothing faces both.
 
-
-def _robust_bp(what: str, solve, surface, light: np.ndarray, first: HighlightTruthError):
-    """``(p, n)`` from the path-length minimiser ``solve()`` after a failed root solve, or None.
-
-    The minimiser is polished by a root solve started there; the candidate with the smaller residual
-    is kept and checked, else :class:`HighlightTruthError` naming ``first``.
+    After a failed root solve, the path-length ``minimiser()`` polished by a root solve started
+    there: the candidate with the smaller residual is kept and checked, else
+    :class:`HighlightTruthError` naming the first failure.
     """
     try:
-        x = solve()
+        return surface(_solve_stationary(surface, np.zeros(2), light, what=what))
+    except HighlightTruthError as exc:
+        first = exc
+    try:
+        x = minimiser()
     except ValueError as exc:
         raise HighlightTruthError(f"{first}; the path-length minimiser failed too: {exc}") from None
     if x is None:
@@ -298,8 +291,7 @@ def _robust_bp(what: str, solve, surface, light: np.ndarray, first: HighlightTru
     scored = sorted(((*_facing(p, n, light), k) for k, (p, n) in enumerate(cands)))
     res, cos, k = scored[0]
     if not (res <= STATIONARY_RESIDUAL_TOL and cos > 0.0):
-        raise HighlightTruthError(f"{first}; the path-length minimiser gives residual {res:.3g}, "
-                                  f"n . h = {cos:.4g}")
+        raise HighlightTruthError(f"{first}; the path-length minimiser gives residual {res:.3g}, n . h = {cos:.4g}")
     return cands[k]
 
 
@@ -366,10 +358,7 @@ def sphere_highlight(center: np.ndarray, radius: float, light: np.ndarray, K: np
         return np.array([np.dot(n, e1), np.dot(n, e2)]) / om[0]
 
     got = _bp(what, minimiser, surface, L)
-    if got is None:
-        return None
-    p, n = got
-    return _highlight(p, n, k, k, K, size)
+    return None if got is None else _highlight(*got, k, k, K, size)
 
 
 def cylinder_highlight(center: np.ndarray, axis: np.ndarray, radius: float, length: float,
@@ -419,10 +408,9 @@ def cylinder_highlight(center: np.ndarray, axis: np.ndarray, radius: float, leng
     what = f"cylinder (axis through {np.round(c, 4).tolist()} mm, R {radius:g} mm)"
     q = c - np.dot(c, a) * a  # foot of the perpendicular from the camera centre to the axis
     if not np.linalg.norm(q) > radius:
-        raise HighlightTruthError(
-            f"{what}: the camera is inside the cylinder ({np.linalg.norm(q):.4g} mm from its axis "
-            f"<= R): it sees only the inside of the tube, which the one-sided surface leaves unlit; "
-            "no brightest point")
+        raise HighlightTruthError(f"{what}: the camera is inside the cylinder ({np.linalg.norm(q):.4g} mm from its "
+                                  "axis <= R): it sees only the inside of the tube, which the one-sided surface "
+                                  "leaves unlit; no brightest point")
     n0 = unit(-q, axis=-1)
     s0 = np.dot(q - c, a)
     if np.any(L):
@@ -476,7 +464,6 @@ def saddle_mesh(distance_mm: float, radius1_mm: float, radius2_mm: float, extent
     disc = np.sqrt(np.maximum(Hm * Hm - Kg, 0.0))
     idx = np.arange(resolution * resolution).reshape(resolution, resolution)
     a, b, c, d = idx[:-1, :-1], idx[:-1, 1:], idx[1:, :-1], idx[1:, 1:]
-    faces = np.concatenate([np.stack([a, b, d], -1).reshape(-1, 3),
-                            np.stack([a, d, c], -1).reshape(-1, 3)])
+    faces = np.concatenate([np.stack([a, b, d], -1).reshape(-1, 3), np.stack([a, d, c], -1).reshape(-1, 3)])
     return {"vertices": np.stack([x, y, z], -1).reshape(-1, 3), "faces": faces.astype(np.int64),
             "normals": n.reshape(-1, 3), "k1": (Hm + disc).ravel(), "k2": (Hm - disc).ravel()}

@@ -190,14 +190,12 @@ def build_liver_in_abdomen(seed: int, *, wall_axis=(-0.5, -0.5, -0.7), wall_radi
         Bad liver parameters, or a wall that would cut the liver.
     """
     liver = build_liver(seed, **liver_params)
-    organ = None
     if (gallbladder_centre_mm is None) != (gallbladder_axes_mm is None):
         raise MeshError("build_liver_in_abdomen: gallbladder_centre_mm and gallbladder_axes_mm go together")
-    if gallbladder_centre_mm is not None:
-        organ = _gallbladder(gallbladder_centre_mm, gallbladder_axes_mm, gallbladder_spacing_mm)
-    lobe = None
-    if lobe_centre_mm is not None:
-        lobe = _lobe(lobe_centre_mm, lobe_normal, lobe_edge, lobe_axes_mm, float(lobe_wedge), int(lobe_vertices))
+    organ = None if gallbladder_centre_mm is None else _gallbladder(gallbladder_centre_mm, gallbladder_axes_mm,
+                                                                     gallbladder_spacing_mm)
+    lobe = None if lobe_centre_mm is None else _lobe(lobe_centre_mm, lobe_normal, lobe_edge, lobe_axes_mm,
+                                                     float(lobe_wedge), int(lobe_vertices))
     inner = np.vstack([liver.vertices] + [pt[0] for pt in (lobe, organ) if pt is not None])
     centre, R = wall_sphere(inner, wall_axis, wall_radius_mm, gap_mm)
     u = np.asarray(wall_axis, dtype=np.float64)

@@ -40,8 +40,7 @@ def _assemble(vertices: np.ndarray, faces: np.ndarray, normals: np.ndarray, k1: 
                            validate=False)
     n = np.asarray(normals, dtype=np.float64)
     mesh.vertex_normals = f32(n / np.linalg.norm(n, axis=1, keepdims=True))
-    mesh.vertex_attributes["k1"] = f32(k1)
-    mesh.vertex_attributes["k2"] = f32(k2)
+    mesh.vertex_attributes.update(k1=f32(k1), k2=f32(k2))
     return mesh
 
 
@@ -94,14 +93,11 @@ def save_mesh(mesh: trimesh.Trimesh, path: str | os.PathLike[str]) -> Path:
     )
     atomic_write_bytes(path, header.encode("ascii") + data.tobytes() + face_rec.tobytes())
     side = {key: mesh.metadata[key] for key in ("generator", "centerline") if key in mesh.metadata}
-    side["n_vertices"] = int(len(v))
-    side["n_faces"] = int(len(faces))
-    side["ply_vertex_properties"] = list(_PLY_FIELDS)
-    side["units"] = "positions mm; k1, k2 1/mm (k1 >= k2, positive where bending away from N)"
+    side.update(n_vertices=int(len(v)), n_faces=int(len(faces)), ply_vertex_properties=list(_PLY_FIELDS),
+                units="positions mm; k1, k2 1/mm (k1 >= k2, positive where bending away from N)")
     text = json.dumps(jsonable(side), indent=1, sort_keys=True)
     # One line per innermost list of numbers (a point, a tangent, a list of arc lengths).
-    text = _NUMBER_LIST.sub(lambda m: "[" + ", ".join(x.strip() for x in m[1].split(",")) + "]", text)
-    text += "\n"
+    text = _NUMBER_LIST.sub(lambda m: "[" + ", ".join(x.strip() for x in m[1].split(",")) + "]", text) + "\n"
     atomic_write_bytes(path.with_suffix(".json"), text.encode("utf-8"))
     return path
 
@@ -154,8 +150,7 @@ def load_mesh(path: str | os.PathLike[str]) -> trimesh.Trimesh:
     mesh = trimesh.Trimesh(vertices=np.asarray(loaded.vertices, dtype=np.float64),
                            faces=np.asarray(loaded.faces, dtype=np.int64), process=False, validate=False)
     mesh.vertex_normals = normals
-    mesh.vertex_attributes["k1"] = attrs["k1"]
-    mesh.vertex_attributes["k2"] = attrs["k2"]
+    mesh.vertex_attributes.update(attrs)
     side = path.with_suffix(".json")
     if side.is_file():
         try:

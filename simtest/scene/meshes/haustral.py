@@ -242,15 +242,13 @@ def build_haustral_colon(seed: int, **params: Any) -> trimesh.Trimesh:
     theta = np.arange(p.n_around) * (2.0 * math.pi / p.n_around)
     x = colon.surface_jet(v[:, None], theta[None, :])
     nrm, k1, k2 = curvature_from_derivatives(x.a, x.b, x.aa, x.ab, x.bb)
-    mesh = _assemble(x.v.reshape(-1, 3), _tube_faces(p.n_along, p.n_around), nrm.reshape(-1, 3),
-                     k1.ravel(), k2.ravel())
+    mesh = _assemble(x.v.reshape(-1, 3), _tube_faces(p.n_along, p.n_around), nrm.reshape(-1, 3), k1.ravel(), k2.ravel())
     centre, c1, _, _ = colon.curve(v)
     dist = np.linalg.norm(x.v - centre[:, None, :], axis=-1)
-    record = _generator_record("colon_haustral", seed, p)
-    record["function"] = "simtest.scene.meshes.build_haustral_colon"
-    record["curvature"] = ("closed form; exact derivatives by second-order forward automatic "
-                           "differentiation (jets); k positive where the surface bends away from its normal")
-    mesh.metadata["generator"] = record
+    mesh.metadata["generator"] = {
+        **_generator_record("colon_haustral", seed, p), "function": "simtest.scene.meshes.build_haustral_colon",
+        "curvature": "closed form; exact derivatives by second-order forward automatic differentiation (jets); "
+                     "k positive where the surface bends away from its normal"}
     mesh.metadata["centerline"] = {"v": v.tolist(), "points": centre.tolist(),
                                    "tangents": (c1 / np.linalg.norm(c1, axis=-1, keepdims=True)).tolist(),
                                    "radius_min_mm": dist.min(axis=1).tolist(),
@@ -261,9 +259,8 @@ def build_haustral_colon(seed: int, **params: Any) -> trimesh.Trimesh:
 _colon = functools.lru_cache(maxsize=8)(HaustralColon)  # once per mesh: its poses share the frame (~0.4 s)
 
 
-def haustral_pose(source: trimesh.Trimesh | Mapping[str, Any], v_mm: float, view_deg: float,
-                  azimuth_deg: float = 0.0, radial_offset: float = 0.3,
-                  look_mm: float = 20.0) -> dict[str, list[float]]:
+def haustral_pose(source: trimesh.Trimesh | Mapping[str, Any], v_mm: float, view_deg: float, azimuth_deg: float = 0.0,
+                  radial_offset: float = 0.3, look_mm: float = 20.0) -> dict[str, list[float]]:
     """A colonoscope's pose in a haustral colon: on the centre line, looking down it or at the wall.
 
     At ``u = v_mm`` the camera looks along ``cos(view) T + sin(view) r``, ``r = cos(az) e1 + sin(az) e2``,
@@ -313,6 +310,5 @@ def haustral_pose(source: trimesh.Trimesh | Mapping[str, Any], v_mm: float, view
     side = np.cross(t, radial)
     up = side - (side @ forward) * forward
     up /= np.linalg.norm(up)
-    return {"position_mm": [float(x) for x in position],
-            "look_at_mm": [float(x) for x in position + look_mm * forward],
+    return {"position_mm": [float(x) for x in position], "look_at_mm": [float(x) for x in position + look_mm * forward],
             "up": [float(x) for x in up]}
