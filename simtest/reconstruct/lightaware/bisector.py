@@ -4,11 +4,11 @@ from __future__ import annotations
 
 import numpy as np
 
-from simtest.geometry.angles import unit
 from simtest.geometry.lights import LightRig
 from simtest.reconstruct._pixels import uv_to_rc
 from simtest.reconstruct.lightaware.estimate import LightAwareEstimate, OK
 from simtest.reconstruct.lightaware.model import _mean_light, _rays
+from simtest.reconstruct.lightaware.solve import _bisector_plane
 
 
 def bisector(bp_uv, camera, rig: LightRig, depth_mm) -> LightAwareEstimate:
@@ -54,7 +54,5 @@ def bisector(bp_uv, camera, rig: LightRig, depth_mm) -> LightAwareEstimate:
         raise ValueError(f"depth_mm: a number or an (H, W) map, got shape {dm.shape}")
     if not (np.isfinite(s) and s > 0):
         raise ValueError(f"depth_mm: must be finite and > 0 at the BP, got {s}")
-    d = _rays(camera, bp[None])[0]
-    X = s * d
-    n = unit(unit(-X) + unit(_mean_light(rig) - X))
+    n = _bisector_plane(_rays(camera, bp[None])[0], _mean_light(rig), s)[0]
     return LightAwareEstimate("bisector", OK, "", n, s)

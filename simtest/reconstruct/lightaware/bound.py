@@ -78,8 +78,7 @@ def photometric_crb(camera, origin_uv, shape, normal, distance_mm: float, rig: L
     vv, uu = np.mgrid[0:H, 0:W]
     uv = np.column_stack([uu.ravel() + o[0], vv.ravel() + o[1]]).astype(np.float64)
     ref = o + [(W - 1) / 2, (H - 1) / 2] if bp_uv is None else np.asarray(bp_uv, dtype=np.float64)
-    du = (uv[:, 0] - ref[0]) / max(W, H)
-    dv = (uv[:, 1] - ref[1]) / max(W, H)
+    du, dv = ((uv - ref) / max(W, H)).T
     d = _rays(camera, uv)
     n = unit(np.asarray(normal, dtype=np.float64))
     e1, e2 = plane_basis(n)
@@ -91,8 +90,7 @@ def photometric_crb(camera, origin_uv, shape, normal, distance_mm: float, rig: L
     J = np.column_stack([gain * dS, S, np.ones_like(S), du, dv])[keep]
     cov = _covariance(J, sigma**2)
     if cov is None:  # h not observable: bound the normal with h held (its column removed)
-        Jr = np.delete(J, 2, axis=1)
-        covr = _covariance(Jr, sigma**2)
+        covr = _covariance(np.delete(J, 2, axis=1), sigma**2)
         nd = float("inf") if covr is None else float(np.degrees(np.sqrt(covr[0, 0] + covr[1, 1])))
         return CramerRaoBound(nd, float("inf"), int(keep.sum()))
     g = _log_depth_gradient(n, float(distance_mm), _mean_light(rig))

@@ -87,19 +87,15 @@ def specular_image(rgb, clip_level=None, *, ring=None, fluctuation: bool = True,
     v = np.asarray(rgb, dtype=np.float64)
     if v.ndim != 3 or v.shape[2] != 3 or not np.isfinite(v).all():
         raise ValueError(f"rgb: need a finite (H, W, 3) array, got shape {v.shape}")
-    if clip_level is None:
-        clip = np.full(3, np.inf)
-    else:
-        clip = per_channel(clip_level).copy() if np.size(clip_level) in (1, 3) else None
-        if clip is None:
-            raise ValueError(f"clip_level: need 1 or 3 numbers, got {clip_level!r}")
+    if clip_level is not None and np.size(clip_level) not in (1, 3):
+        raise ValueError(f"clip_level: need 1 or 3 numbers, got {clip_level!r}")
+    clip = np.full(3, np.inf) if clip_level is None else per_channel(clip_level)
     clipped = v >= clip  # (H, W, 3)
-    if ring is None:
-        ring = _border_band(v.shape[:2])
-    edge = v[ring & ~clipped.any(axis=2)]
+    unclipped = ~clipped.any(axis=2)
+    edge = v[(_border_band(v.shape[:2]) if ring is None else ring) & unclipped]
     if len(edge) < 3:
         return None
-    free = v[~clipped.any(axis=2)]
+    free = v[unclipped]
     keep = np.ones(len(edge), bool)
     w = None
     for _ in range(_BODY_TRIM_PASSES if border else 0):
@@ -115,7 +111,7 @@ def specular_image(rgb, clip_level=None, *, ring=None, fluctuation: bool = True,
     w = None if w is None else _body_weights(edge[keep])
     if w is None and fluctuation:
         # the border's second body colour is lost in the noise
-        w = _least_fluctuation_weights(v, clipped.any(axis=2))
+        w = _least_fluctuation_weights(v, ~unclipped)
     if w is None:
         return None
     values = v @ w
@@ -152,8 +148,7 @@ def _from_two_channels(v, clipped, neg, anyc, values, colours) -> None:
             continue
         # at most w . I as measured: with a negative weight on the clipped channel it bounds S from above
         values[rows] = np.minimum(v[rows] @ u, values[rows])
-        neg[rows] = False
-        anyc[rows] = False
+        neg[rows] = anyc[rows] = False
 
 
 #: Side of the box (px) whose mean is the smooth part :func:`_least_fluctuation_weights` takes out.
@@ -183,7 +178,6 @@ def _least_fluctuation_weights(v, clipped) -> np.ndarray | None:
     smooth = np.stack([ndi.uniform_filter(v[..., c], k, mode="nearest") for c in range(3)], axis=-1)
     fluct = v - smooth
     use = inside
-    one = np.ones(3)
     w = None
     for _ in range(_FLUCTUATION_PASSES):
         if np.count_nonzero(use) < _FLUCTUATION_MIN_PIXELS:
@@ -192,7 +186,7 @@ def _least_fluctuation_weights(v, clipped) -> np.ndarray | None:
         X = fluct[use]
         R = X.T @ X / len(X)
         R = R + 1e-12 * float(np.trace(R)) * np.eye(3)  # a texture-free, noise-free ROI: R ~ 0
-        C = np.column_stack([a0, one])
+        C = np.column_stack([a0, np.ones(3)])
         try:
             RiC = np.linalg.solve(R, C)
             w = RiC @ np.linalg.solve(C.T @ RiC, np.array([0.0, 1.0]))

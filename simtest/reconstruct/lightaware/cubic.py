@@ -11,7 +11,8 @@ from simtest.geometry.conics import plane_basis
 from simtest.geometry.lights import LightRig
 from simtest.reconstruct.lightaware.estimate import LightAwareEstimate
 from simtest.reconstruct.lightaware.patch import (
-    _fit_fixed_depth, _patch_lobes, _patch_problem, _patch_uncertainty, _quadric_root, _valley_sigma_deg,
+    _fit_fixed_depth, _patch_lobes, _patch_problem, _patch_uncertainty, _quadric_frame, _quadric_root,
+    _valley_sigma_deg,
 )
 from simtest.reconstruct.lightaware.solve import _implausible
 
@@ -43,11 +44,7 @@ def _cubic_patch_geometry(d, b_ray, p, Lm):
     """Intersections and surface normals of the cubic patch ``p`` along rays d. Returns
     ``(X (N, 3), ns (N, 3), ok (N,), N (3,), s, frame)``: points and unit normals (camera frame), which rays meet the
     patch in front of the camera, the apex normal, the apex depth s and the apex frame ``(P0, t1, t2, N)``."""
-    e1, e2 = plane_basis(b_ray)
-    s = np.exp(np.float64(p[2]))  # numpy scalars: a fit that runs off overflows to inf, no raise
-    P0 = s * unit(b_ray + p[0] * e1 + p[1] * e2)
-    N = unit(unit(-P0) + unit(Lm - P0))
-    t1, t2 = plane_basis(N)
+    s, P0, N, t1, t2 = _quadric_frame(*plane_basis(b_ray), b_ray, p, Lm)  # (s a numpy scalar: overflows to inf)
     kxx, kxy, kyy = p[3] / s, p[4] / s, p[5] / s
     kzz = 0.5 * (kxx + kyy)
     cxxx, cxxy, cxyy, cyyy = np.asarray(p[7:11], dtype=np.float64) * np.exp(-2.0 * np.float64(p[2]))
@@ -79,8 +76,7 @@ def _cubic_patch_geometry(d, b_ray, p, Lm):
 def _cubic_patch_image(d, b_ray, p, rig_arr, Lm):
     """Specular image (N,) of the cubic patch ``p`` along rays d, and its apex normal (3,)."""
     X, ns, ok, N, s, _ = _cubic_patch_geometry(d, b_ray, p, Lm)
-    rough = np.exp(p[6])
-    return _patch_lobes(d, X, ns, ok, s, rough, rig_arr), N
+    return _patch_lobes(d, X, ns, ok, s, np.exp(p[6]), rig_arr), N
 
 
 def _patch_specular_points(b_ray, p, Lm, lights):
@@ -297,11 +293,10 @@ def cubic_patch_fit(values, origin_uv, bp_uv, camera, rig: LightRig, *, clip_lev
     i0 = int(np.argmin(cost))
     with np.errstate(all="ignore"):
         r = opt.least_squares(S["res"], sol[i0], method="lm", x_scale=S["x_scale"],
-                          max_nfev=max_nfev * (_CUBIC_PARAMS + 1), ftol=1e-8, xtol=1e-8)
+                              max_nfev=max_nfev * (_CUBIC_PARAMS + 1), ftol=1e-8, xtol=1e-8)
     nfev += r.nfev
     x = r.x
-    s_hat = float(np.exp(x[2]))
-    rough = float(np.exp(x[6]))
+    s_hat, rough = float(np.exp(x[2])), float(np.exp(x[6]))
     bad = _implausible(s_hat, float(nominal_depth_mm), rough)
     if not np.isfinite(r.cost) or r.status <= 0 or bad:
         return LightAwareEstimate(name, "not_converged", bad or r.message, n_evaluations=nfev)

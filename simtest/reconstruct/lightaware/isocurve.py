@@ -5,14 +5,13 @@ from __future__ import annotations
 import numpy as np
 
 from simtest._lazy import require
-from simtest.geometry.angles import unit
 from simtest.geometry.conics import plane_basis
 from simtest.geometry.lights import LightRig
 from simtest.reconstruct._pixels import uv_to_rc
 from simtest.tolerances import TOL
 from simtest.reconstruct.lightaware.estimate import LightAwareEstimate
 from simtest.reconstruct.lightaware.model import _camera, _normal_derivs, _ray_light, _rays, _terms
-from simtest.reconstruct.lightaware.solve import _finish, _implausible, _solve, _start
+from simtest.reconstruct.lightaware.solve import _bisector_plane, _finish, _implausible, _solve, _start
 
 
 def refine_isophote_points(values, level: float, points_uv, origin_uv=(0.0, 0.0), iterations: int = 3) -> np.ndarray:
@@ -173,9 +172,7 @@ def isocurve_fit(points_uv, isovalues, bp_uv, camera, rig: LightRig, *, nominal_
     d_bp, n0, h0 = _start(bp_uv, camera, rig, nominal_depth_mm, start_normal)
     log_t = np.log(ts)
     n_members = np.bincount(kidx, minlength=len(ts))
-
     wts = _pixel_weights(dT_pm, rl_pm, L, n0, h0)
-
     log_tk = log_t[kidx]  # per point
 
     def resjac_at(p, nb, e1, e2, grad=True):
@@ -205,10 +202,7 @@ def isocurve_fit(points_uv, isovalues, bp_uv, camera, rig: LightRig, *, nominal_
     # start: the given one and planes along the BP's constraint (as in photometric_fit)
     cands = [(n0, h0)]
     if n_start_depths and np.linalg.norm(L) > 0:
-        for sdep in nominal_depth_mm * np.geomspace(1 / 8, 8, n_start_depths):
-            X = sdep * d_bp
-            nc = unit(unit(-X) + unit(L - X))
-            cands.append((nc, float(-(nc @ X))))
+        cands += [_bisector_plane(d_bp, L, sdep) for sdep in nominal_depth_mm * np.geomspace(1 / 8, 8, n_start_depths)]
     q0, _, n0_c, h0_c = min((tau_start(n, h) + (n, h) for n, h in cands), key=lambda c: c[1])
     if n0_c is not n0:  # the weights and levels at the chosen start
         n0, h0 = n0_c, h0_c

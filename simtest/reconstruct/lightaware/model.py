@@ -264,8 +264,7 @@ def _roi_samples(vals, o, uu, vv, keep, max_pixels):
         grid[::step, ::step] = True
         sel = np.flatnonzero(keep & grid)
     uv = np.column_stack([uu.ravel()[sel] + o[0], vv.ravel()[sel] + o[1]]).astype(np.float64)
-    y = vals.ravel()[sel]
-    return sel, step, uv, y
+    return sel, step, uv, vals.ravel()[sel]
 
 
 def albedo_lines(luma_roi, step: float = 1.0, noise: float = 0.0) -> np.ndarray:

@@ -80,8 +80,7 @@ def _quadric_image(d, b_ray, p, rig_arr, Lm):
     kzz = 0.5 * (kxx + kyy)  # the z^2 term: exact for a sphere
     ax, ay, az, bx, by, bz, t, ok = _quadric_root(kxx, kxy, kyy, d, P0, t1, t2, N)
     t = np.where(ok, t, s)
-    x, y = ax * t + bx, ay * t + by
-    z = az * t + bz
+    x, y, z = ax * t + bx, ay * t + by, az * t + bz
     ns = ((1.0 + kzz * z)[..., None] * N[..., None, :] + (kxx * x + kxy * y)[..., None] * t1[..., None, :]
           + (kxy * x + kyy * y)[..., None] * t2[..., None, :])
     ns /= np.sqrt(np.einsum("...ij,...ij->...i", ns, ns))[..., None]
@@ -122,15 +121,13 @@ class _PatchProblem:
 def _patch_problem(values, origin_uv, bp_uv, camera, rig, clip_level, max_pixels, min_pixels):
     """``(problem or None, m)``: the :class:`_PatchProblem` of a ROI, None below ``min_pixels`` samples."""
     vals, camera, o, uu, vv, keep = _roi_grid(values, camera, origin_uv, clip_level)
-    H, W = vals.shape
     sel, step, uv, y = _roi_samples(vals, o, uu, vv, keep, max_pixels)
     if len(y) < min_pixels:
         return None, len(y)
     y = y / max(float(np.abs(y).max()), 1e-12)
     bp = np.asarray(bp_uv, dtype=np.float64).reshape(2)
     b_ray = _rays(camera, bp[None])[0]
-    du = (uv[:, 0] - bp[0]) / max(H, W)
-    dv = (uv[:, 1] - bp[1]) / max(H, W)
+    du, dv = ((uv - bp) / max(vals.shape)).T
     A = np.column_stack([np.zeros_like(du), np.ones_like(du), du, dv])
     px = 1.0 / float(np.linalg.norm(_rays(camera, bp[None] + [1.0, 0.0])[0] - b_ray))
     return _PatchProblem(y, _rays(camera, uv), b_ray, _rig_arrays(rig), _mean_light(rig), A, sel,
@@ -258,9 +255,7 @@ def _one_light_band(x, sigma_deg, d0, b_ray, rig_arr, Lm):
     spread = max([0.0] + [float(np.degrees(np.arccos(np.clip(n0 @ n, -1.0, 1.0)))) for n in ne])
     s_hat = float(np.exp(x[2]))
     band = (s_hat / ONE_LIGHT_DEPTH_FACTOR, s_hat * ONE_LIGHT_DEPTH_FACTOR)
-    if sigma_deg is None:
-        return None, band
-    return float(np.hypot(sigma_deg, 0.5 * spread)), band
+    return (None if sigma_deg is None else float(np.hypot(sigma_deg, 0.5 * spread))), band
 
 
 def _patch_uncertainty(r, S, sel, shape, step, x, G, misfit_sigma, max_nfev, misfit_hint):

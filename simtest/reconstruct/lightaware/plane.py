@@ -215,8 +215,7 @@ def _fit_projections(values, origin_uv, bp_uv, camera, rig, s: FitSettings) -> L
     rgb = np.ndim(values) == 3
     if s.two_channels is None:
         plain = _fit_projections(*fit, replace(s, two_channels=False))
-        if (plain.status != "ok" or not rgb
-                or plain.projection not in ("body_colours", "least_fluctuation")
+        if (plain.status != "ok" or not rgb or plain.projection not in ("body_colours", "least_fluctuation")
                 or not _one_channel_clipped(values, s.clip_level)):
             return plain  # (the other is kept only beside an ok fit without them, on a projection)
         # refined from the plain fit, on its projection
@@ -229,8 +228,7 @@ def _fit_projections(values, origin_uv, bp_uv, camera, rig, s: FitSettings) -> L
     if rgb and first.status in ("depth_not_observable", "not_converged"):
         again = _fit_lobes(*fit, replace(s, n_start_depths=RETRY_START_DEPTHS))
         if again.has_normal and (not first.has_normal or first.residual_rms is None
-                                 or (again.residual_rms is not None
-                                     and again.residual_rms < first.residual_rms)):
+                                 or (again.residual_rms is not None and again.residual_rms < first.residual_rms)):
             best = again
     if (rgb and s.projection == "auto" and best.projection == "body_colours"
             and best.status in ("depth_not_observable", "not_converged")):
@@ -238,8 +236,7 @@ def _fit_projections(values, origin_uv, bp_uv, camera, rig, s: FitSettings) -> L
         lf = _fit_projections(*fit, replace(s, projection="least_fluctuation"))
         if lf.ok and lf.projection == "least_fluctuation":
             return _note(lf, f"the body colours' fit is not ok ({best.status}: {best.detail})")
-    if (rgb and s.projection == "auto" and best.status != "ok"
-            and best.projection == "least_fluctuation"):
+    if rgb and s.projection == "auto" and best.status != "ok" and best.projection == "least_fluctuation":
         chan = _fit_projections(*fit, replace(s, projection="darkest_channel"))
         return _note(chan, f"the least-fluctuation projection's fit is not ok ({best.status}: {best.detail})")
     return best
@@ -251,34 +248,25 @@ def _fit_lobes(values, origin_uv, bp_uv, camera, rig, s: FitSettings) -> LightAw
     if s.lobe != "auto":
         return _fit_plane(*fit, s)
     pho = _fit_plane(*fit, replace(s, lobe="phong"))
-    if ((pho.ok or pho.status in ("depth_not_observable", "too_few_points"))
-            and pho.curvature_shift_deg is None):
+    if (pho.ok or pho.status in ("depth_not_observable", "too_few_points")) and pho.curvature_shift_deg is None:
         return _note(pho, "phong lobe fits")
-    ggx = _fit_plane(*fit, replace(s, start_normal=pho.normal if pho.has_normal else s.start_normal,
-                                   start_roughness=pho.roughness if pho.has_normal else s.start_roughness,
-                                   lobe="ggx"))
+    ggx = _fit_plane(*fit, replace(s, lobe="ggx", start_normal=pho.normal if pho.has_normal else s.start_normal,
+                                   start_roughness=pho.roughness if pho.has_normal else s.start_roughness))
     return _choose_lobe(pho, ggx)
-
-
-def _project(values, s: FitSettings):
-    """The single image a fit sees: ``(values, clip_level, lower, missing, detail, how, floor_level)``
-    (:func:`_colour_values` for a colour ROI)."""
-    lower = missing = None
-    detail, how = "", None
-    clip_level, floor_level = s.clip_level, s.floor_level
-    if np.ndim(values) == 3:
-        values, clip_level, lower, missing, detail, how = _colour_values(values, clip_level, s.projection,
-                                                                         bool(s.two_channels), s.clip_margin)
-        if lower is not None:
-            floor_level = None  # a projection of three channels has no floor of its own
-    return values, clip_level, lower, missing, detail, how, floor_level
 
 
 def _fit_plane(values, origin_uv, bp_uv, camera, rig, s: FitSettings) -> LightAwareEstimate:
     """One fit of one lobe: projection, model, starts, solve, covariance; a projected fit that passes is
     checked on the darkest channel."""
     name = "photometric_fit"
-    one, clip_level, lower, missing, colour_detail, how, floor_level = _project(values, s)
+    one, clip_level, floor_level = values, s.clip_level, s.floor_level
+    lower = missing = how = None
+    colour_detail = ""
+    if np.ndim(values) == 3:  # the single image a colour ROI is fitted on
+        one, clip_level, lower, missing, colour_detail, how = _colour_values(values, clip_level, s.projection,
+                                                                             bool(s.two_channels), s.clip_margin)
+        if lower is not None:
+            floor_level = None  # a projection of three channels has no floor of its own
     m = PlaneModel(one, origin_uv, bp_uv, camera, rig, s, clip_level, lower, missing, s.lobe == "ggx")
     if np.count_nonzero(~m.cens) < 8 + 1 + int(s.diffuse):
         return LightAwareEstimate(name, "too_few_points", f"{np.count_nonzero(~m.cens)} unclipped pixels")
@@ -297,9 +285,8 @@ def _fit_plane(values, origin_uv, bp_uv, camera, rig, s: FitSettings) -> LightAw
     if np.any(n_hat @ m.rig_arr[0].T + h_hat <= 0):
         return LightAwareEstimate(name, "light_behind_plane", f"h = {h_hat:.4g} mm", n_evaluations=nfev)
     verdict = PlaneVerdict(m, rig, x, n0, e1, e2, n_hat, h_hat, rough_hat, how, floor_level)
-    est = _finish(name, verdict.at_solution, n_hat, h_hat, rig, x[3:],
-                  TOL.photometric_noise_rel, nfev, conv, roughness=rough_hat,
-                  detail="" if conv else msg, n_linear=m.design.shape[1] if m.general else 4,
+    est = _finish(name, verdict.at_solution, n_hat, h_hat, rig, x[3:], TOL.photometric_noise_rel, nfev, conv,
+                  roughness=rough_hat, detail="" if conv else msg, n_linear=m.design.shape[1] if m.general else 4,
                   post=verdict.post)
     if colour_detail:
         est = _note(est, colour_detail)
@@ -341,8 +328,7 @@ def _colour_values(rgb, clip_level, projection: str = "auto", two_channels: bool
                                   censor_margin=margin), "least_fluctuation"
     if out is not None:
         values, lower, missing, w = out
-        text = ("body colours projected out" if how == "body_colours"
-                else "body colours projected out by the least-fluctuation weights")
+        text = "body colours projected out" + ("" if how == "body_colours" else " by the least-fluctuation weights")
         weights = ", ".join(f"{x:.3g}" for x in w)
         return values, None, lower, missing, f"{text} (w = {weights})", how
     c, clip = _darkest(rgb, clip_level, margin)

@@ -84,8 +84,7 @@ class PlaneModel:
         self.cens = ((lower.ravel()[sel_] if lower is not None else y_ >= clip_level) if censor
                      else np.zeros(len(y_), bool))
         self.dT = dT_ = np.ascontiguousarray(_rays(self.camera, (uv_[:, None, :] + self.sub[None]).reshape(-1, 2)).T)
-        du_ = (uv_[:, 0] - self.bp[0]) / max(self.W, self.H)
-        dv_ = (uv_[:, 1] - self.bp[1]) / max(self.W, self.H)
+        du_, dv_ = ((uv_ - self.bp) / max(self.W, self.H)).T
         self.yscale = yscale_ = max(float(np.abs(y_).max()), 1e-12)
         self.background = np.column_stack([np.ones_like(du_), du_, dv_])
         self.design = np.empty((5 if self.diffuse else 4, len(y_))).T  # (each column contiguous: _qr_rows)
@@ -111,8 +110,7 @@ class PlaneModel:
 
     def box(self, v):
         """The mean of each pixel's sub-pixel samples (the last axis)."""
-        ss = self.ss
-        return v if ss == 1 else v.reshape(*v.shape[:-1], -1, ss * ss).mean(axis=-1)
+        return v if self.ss == 1 else v.reshape(*v.shape[:-1], -1, self.ss * self.ss).mean(axis=-1)
 
     def resjac_at(self, p, nb, e1, e2, grad=True, w=None, kaufman=False):
         """Residuals (M,) and Jacobian (M, 4) at ``p`` = (a, b, log h, log roughness) about ``nb``."""
@@ -313,7 +311,6 @@ def phong_start(m: PlaneModel, n, h, given=None) -> float:
         # several lights: the ratio above is no lobe's cos beta; the steps again from the grid's least cost
         other = _roughness_steps(m, geo, min(np.log(_START_ROUGHNESS_GRID),
                                              key=lambda ln: _roughness_cost(m, geo, ln, QT, yt)), QT, yt)
-        if (_roughness_cost(m, geo, other, QT, yt)
-                < _START_ROUGHNESS_GAIN * _roughness_cost(m, geo, log_n, QT, yt)):
+        if _roughness_cost(m, geo, other, QT, yt) < _START_ROUGHNESS_GAIN * _roughness_cost(m, geo, log_n, QT, yt):
             log_n = other
     return float(np.exp(log_n))

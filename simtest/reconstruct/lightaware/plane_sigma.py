@@ -86,11 +86,8 @@ class PlaneVerdict:
         if not _correlated(r0, m.sel, m.keep.shape, m.step):
             curved, shift = self.curvature(r0)
             if curved:
-                kept = self.immaterial(est, r0, curved, shift, False, False)
-                return kept if kept is not None else est.without_depth("plane_misfit", curved)
-            est = _misfit(est, r0, m.sel, m.keep.shape, m.step)
-            return (self.counted(est, r0, False, jackknife=False)
-                    if est.status in ("ok", "depth_not_observable") else est)
+                return self.immaterial(est, r0, curved, shift, False, False)
+            return self.counted(est, r0, False, jackknife=False)
         return _misfit(self.with_sandwich(est, r0), r0, m.sel, m.keep.shape, m.step)
 
     def with_sandwich(self, est, r0):
@@ -110,23 +107,21 @@ class PlaneVerdict:
         curved, shift = self.curvature(r0, hac=True)
         correlated = _correlated(r0, m.sel, m.keep.shape, m.step)
         if curved:
-            kept = self.immaterial(est, r0, curved, shift, correlated, True)
-            return kept if kept is not None else est.without_depth("plane_misfit", curved)
+            return self.immaterial(est, r0, curved, shift, correlated, True)
         if curved is False:
-            if not correlated:
-                return est
-            return _misfit(self.with_sandwich(est, r0), r0, m.sel, m.keep.shape, m.step)
+            return _misfit(self.with_sandwich(est, r0), r0, m.sel, m.keep.shape, m.step) if correlated else est
         return self.counted(est, r0, correlated)
 
     def immaterial(self, est, r0, curved, shift, correlated, jackknife):
         """A fit whose residual holds a curved pattern (``curved``) that moves the normal by at most its
-        sigma (:meth:`counted`, wide blocks), kept with its sigmas grown by the shift; else None."""
+        sigma (:meth:`counted`, wide blocks), kept with its sigmas grown by the shift; else ``est`` as a
+        ``plane_misfit``."""
         if shift is None:
-            return None
+            return est.without_depth("plane_misfit", curved)
         kept = self.counted(est, r0, correlated, jackknife=jackknife, wide=True)
         sig = kept.normal_sigma_deg
         if kept.status not in ("ok", "depth_not_observable") or sig is None or not shift[0] <= sig:
-            return None
+            return est.without_depth("plane_misfit", curved)
         note = (f"{curved}, which moves the normal {shift[0]:.2g} deg, within its sigma: "
                 "kept, its sigmas grown by the shift")
         kept = replace(kept, normal_sigma_deg=sig + shift[0], curvature_shift_deg=shift[0],

@@ -6,12 +6,11 @@ from __future__ import annotations
 import numpy as np
 
 from simtest.decisions import FLOOR_MARGIN as _FLOOR_MARGIN, RUN_OFF_FACTOR
-from simtest.geometry.angles import unit
 from simtest.geometry.conics import plane_basis
 from simtest.reconstruct.lightaware.estimate import LightAwareEstimate
 from simtest.reconstruct.lightaware.model import _mean_light, phong_of_ggx_alpha
 from simtest.reconstruct.lightaware.plane_model import _NOT_FINITE_RESIDUAL, PlaneModel, start_roughness
-from simtest.reconstruct.lightaware.solve import _correlated, _implausible, _light_start, _solve
+from simtest.reconstruct.lightaware.solve import _bisector_plane, _correlated, _implausible, _light_start, _solve
 
 
 _NAME = "photometric_fit"
@@ -47,16 +46,19 @@ def start_planes(m: PlaneModel, rig, d_bp, n0, h0, s) -> list:
         depths = (list(nominal_depth_mm * np.geomspace(1 / 8, 8, s.n_start_depths)) if s.n_start_depths else [])
         if s.start_normal is not None:
             depths.append(nominal_depth_mm)
-        for sdep in depths:
-            X = sdep * d_bp
-            nc = unit(unit(-X) + unit(Lm - X))
-            cands.append((nc, float(-(nc @ X))))
+        cands += [_bisector_plane(d_bp, Lm, sdep) for sdep in depths]
     return cands
 
 
 def _finite(m: PlaneModel, r) -> bool:
     """Whether the residuals ``r`` are those of a finite model (below the not-finite residual)."""
     return bool(np.isfinite(r).all() and float(r @ r) < 0.25 * _NOT_FINITE_RESIDUAL**2 * len(m.yn))
+
+
+def _not_finite(where: str, nfev: int) -> LightAwareEstimate:
+    """The ``not_converged`` estimate of a model not finite about the solution (``where``: on which pixels)."""
+    return LightAwareEstimate(_NAME, "not_converged", f"the model is not finite about the solution{where}",
+                              n_evaluations=nfev)
 
 
 def _again(m: PlaneModel, x, n0, e1, e2, h0, s):
@@ -81,8 +83,7 @@ def solve_plane(m: PlaneModel, cands, s, floor_level):
     ``e1, e2``, ``h0`` its start distance), or a ``not_converged`` estimate where the model is not
     finite about the solution.
     """
-    best = None
-    nfev_total = 0
+    best, nfev_total = None, 0
     for nc, hc in cands:
         e1, e2 = plane_basis(nc)
         p0 = np.array([0.0, 0.0, np.log(hc), np.log(start_roughness(m, nc, hc, s.start_roughness))])
@@ -92,8 +93,7 @@ def solve_plane(m: PlaneModel, cands, s, floor_level):
         if best is None or cost < best[0]:
             best = (cost, x, nc, hc, e1, e2, conv, msg, r)
     if not best[0] < 0.25 * _NOT_FINITE_RESIDUAL**2 * len(m.yn):
-        return LightAwareEstimate(_NAME, "not_converged", "the model is not finite about the solution",
-                                  n_evaluations=nfev_total)
+        return _not_finite("", nfev_total)
     _, x, n0, h0, e1, e2, conv, msg, r = best
     clipped_low = floor_level is not None and bool(np.any(m.y <= floor_level))
     if m.step > 1 and s.refine_all and not clipped_low and not _correlated(r, m.sel, m.keep.shape, m.step):
@@ -101,11 +101,9 @@ def solve_plane(m: PlaneModel, cands, s, floor_level):
         m.use(REFINE_MAX_PIXELS)
         x2, nfev, conv2, msg2, r = _again(m, x, n0, e1, e2, h0, s)
         nfev_total += nfev
-        if _finite(m, r):
-            x, conv, msg = x2, conv2, msg2
-        else:
-            return LightAwareEstimate(_NAME, "not_converged", "the model is not finite about the "
-                                      "solution on every pixel", n_evaluations=nfev_total)
+        if not _finite(m, r):
+            return _not_finite(" on every pixel", nfev_total)
+        x, conv, msg = x2, conv2, msg2
     if s.floor_refit and floor_level is not None and m.step == 1 and np.any(m.y <= floor_level):
         # pixels where the model is within a few noise sigmas of the floor (chosen by the model,
         # not their values) are left out and the fit refined on the rest
@@ -114,15 +112,13 @@ def solve_plane(m: PlaneModel, cands, s, floor_level):
         low = m.y <= floor_level
         s_n = 1.4826 * float(np.median(np.abs(r_[~low]))) if np.any(~low) else 0.0
         drop = model_n <= float(floor_level) / m.yscale + _FLOOR_MARGIN * s_n
-        if (drop.any() and s_n * m.yscale > s.floor_step
-                and np.count_nonzero(~drop & ~m.cens) >= 8 + 1 + int(s.diffuse)):
+        if drop.any() and s_n * m.yscale > s.floor_step and np.count_nonzero(~drop & ~m.cens) >= 8 + 1 + int(s.diffuse):
             keep2 = m.keep.copy()
             keep2.flat[m.sel[drop]] = False
             m.use(None, keep2)
             x2, nfev, conv2, msg2, r = _again(m, x, n0, e1, e2, h0, s)
             nfev_total += nfev
             if not _finite(m, r):
-                return LightAwareEstimate(_NAME, "not_converged", "the model is not finite about the "
-                                          "solution above the floor", n_evaluations=nfev_total)
+                return _not_finite(" above the floor", nfev_total)
             x, conv, msg = x2, conv2, msg2
     return x, n0, h0, e1, e2, conv, msg, nfev_total

@@ -27,7 +27,7 @@ def _start(bp_uv, camera, rig, nominal_depth_mm, start_normal):
     d_bp = _rays(camera, np.asarray(bp_uv, dtype=np.float64)[None])[0]
     Lm = _mean_light(rig)
     if start_normal is None:
-        n0 = unit(unit(-d_bp * nominal_depth_mm) + unit(Lm - d_bp * nominal_depth_mm))
+        n0 = _bisector_plane(d_bp, Lm, nominal_depth_mm)[0]
     else:
         n0 = unit(np.asarray(start_normal, dtype=np.float64))
         if n0 @ d_bp > 0:
@@ -38,12 +38,18 @@ def _start(bp_uv, camera, rig, nominal_depth_mm, start_normal):
     return d_bp, n0, max(h0, 1e-3)
 
 
-def _light_start(d_bp, light_mm, nominal_depth_mm):
-    """The start (n, h) making the point at ``nominal_depth_mm`` along the unit BP ray ``d_bp`` the
-    specular point of the light at ``light_mm``."""
-    X = nominal_depth_mm * np.asarray(d_bp, dtype=np.float64)
+def _bisector_plane(d_bp, light_mm, depth_mm):
+    """The plane (n, h) making the point at ``depth_mm`` along the unit BP ray ``d_bp`` the specular point of
+    the light at ``light_mm``: n bisects the directions to the camera and the light."""
+    X = depth_mm * np.asarray(d_bp, dtype=np.float64)
     n = unit(unit(-X) + unit(np.asarray(light_mm, dtype=np.float64) - X))
-    return n, max(float(-(n @ X)), 1e-3)
+    return n, float(-(n @ X))
+
+
+def _light_start(d_bp, light_mm, nominal_depth_mm):
+    """:func:`_bisector_plane`, its distance at least 1e-3 mm."""
+    n, h = _bisector_plane(d_bp, light_mm, nominal_depth_mm)
+    return n, max(h, 1e-3)
 
 
 def _covariance(jac: np.ndarray, resid_var: float) -> np.ndarray | None:
@@ -235,23 +241,17 @@ def _finish(name, resjac_at, n_hat, h_hat, rig, extra_params, resid_floor, n_eva
         status = "not_converged"
     elif not observable:
         status = "depth_not_observable"
-        detail = detail or (
-            "J^T J singular in h" if rel_floor is None
-            else f"relative depth sigma {rel_floor:.3g} at the noise floor > {TOL.depth_rel_sigma_max}")
+        detail = detail or ("J^T J singular in h" if rel_floor is None
+                            else f"relative depth sigma {rel_floor:.3g} at the noise floor > {TOL.depth_rel_sigma_max}")
     else:
         status = OK
-    depth_sigma = None
-    if observable and cov is not None:
-        depth_sigma = depth * math.sqrt(max(resid_var * gcg, 0.0))
+    depth_sigma = depth * math.sqrt(max(resid_var * gcg, 0.0)) if observable and cov is not None else None
     lights = _rig_arrays(rig)[0]
     light_depths = (np.array([specular_point_depth(n_hat, h_hat, L) for L in lights])
                     if observable and len(lights) > 1 else None)
-    est = LightAwareEstimate(
-        name, status, detail, n_hat,
-        depth if observable else None, sigma_deg, depth_sigma,
-        h_hat if observable else None, roughness, taus, n_eval, math.sqrt(rr / m),
-        light_depths_mm=light_depths,
-    )
+    est = LightAwareEstimate(name, status, detail, n_hat, depth if observable else None, sigma_deg, depth_sigma,
+                             h_hat if observable else None, roughness, taus, n_eval, math.sqrt(rr / m),
+                             light_depths_mm=light_depths)
     return est if post is None else post(est, r0)
 
 
@@ -361,12 +361,8 @@ def _curvature_shift(cols, span, r) -> tuple[float, float] | None:
 def _misfit(est: LightAwareEstimate, r, sel, shape, step: int) -> LightAwareEstimate:
     """``est`` with status ``plane_misfit`` (depth withdrawn) when neighbouring residuals correlate
     (:func:`_correlated`)."""
-    if est.status not in (OK, "depth_not_observable"):
-        return est
-    correlated = _correlated(r, sel, shape, step)
-    if correlated:
-        return est.without_depth("plane_misfit", correlated)
-    return est
+    correlated = est.status in (OK, "depth_not_observable") and _correlated(r, sel, shape, step)
+    return est.without_depth("plane_misfit", correlated) if correlated else est
 
 
 #: Longest correlation length, in sub-grid steps, that :func:`_hac_covariance` spans.
