@@ -384,7 +384,7 @@ def _fit_fixed_depth(S, log_s, free, starts, max_nfev, tol=1e-8):
                                   workers=(lambda f, xs: list(fun(np.array(list(xs))))) if S.get("batched")
                                   else None)  # (as _quadric_starts': S's res takes a batch)
         nfev += r.nfev
-        if np.isfinite(r.cost) and (best is None or r.cost < best[0]):
+        if np.isfinite(r.cost) and (best is None or 2.0 * r.cost < best[0]):  # best[0]: a sum of squares
             pp = base.copy()
             pp[free] = r.x
             best = (2.0 * float(r.cost), pp)
