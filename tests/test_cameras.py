@@ -224,6 +224,9 @@ def test_jacobians_match_finite_differences(cam):
         (lambda: OmnidirectionalCamera(0, 0, (1, 0, 0, 0, 0), 0, 0, 0), "singular"),
         (lambda: OmnidirectionalCamera(True, 0, (1, 0, 0, 0, 0), 1, 0, 0), "cx: must be a number"),
         (lambda: OmnidirectionalCamera(0, 0, (1, 0, float("nan"), 0, 0), 1, 0, 0), "a2: must be finite"),
+        # z = 100 + 0.01 r^2: the angle atan(r / z) peaks at r = 100 px, atan(0.5) = 26.57 deg
+        (lambda: OmnidirectionalCamera(200, 200, (100, 0, 0.01, 0, 0), 1, 0, 0, (400, 400)),
+         r"angle off the axis stops growing at 26\.6 deg, 100 px"),
     ],
 )
 def test_bad_parameters_are_one_line_errors(build, msg):

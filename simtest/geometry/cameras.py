@@ -472,8 +472,8 @@ class OmnidirectionalCamera(CameraModel):
         if self.image_size is not None:
             if not np.all(np.diff(th) > 0):
                 i = int(np.argmax(np.diff(th) <= 0))
-                raise IntrinsicsError("a0..a4: not invertible over the frame (image radius stops growing at "
-                                      f"{np.degrees(r[i]):.1f} deg off the axis)")
+                raise IntrinsicsError("a0..a4: not invertible over the frame (the angle off the axis stops "
+                                      f"growing at {np.degrees(th[i]):.1f} deg, {r[i]:.4g} px from the centre)")
         else:  # keep the invertible part
             bad = np.diff(th) <= 0
             if bad.any():
