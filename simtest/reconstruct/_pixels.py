@@ -91,12 +91,8 @@ class Roi(NamedTuple):
         else:
             r, c = (float(x) for x in uv_to_rc(centre_uv))
         hs = float(half_size)
-        return cls(
-            max(0, math.floor(r - hs)),
-            min(h, math.ceil(r + hs) + 1),
-            max(0, math.floor(c - hs)),
-            min(w, math.ceil(c + hs) + 1),
-        )
+        return cls(max(0, math.floor(r - hs)), min(h, math.ceil(r + hs) + 1), max(0, math.floor(c - hs)),
+                   min(w, math.ceil(c + hs) + 1))
 
     @classmethod
     def coerce(cls, roi, image_shape: tuple[int, ...], where: str = "roi") -> Roi:

@@ -230,10 +230,9 @@ def _complete(drafts: list) -> list[SpecularityEstimate]:
             paper, selected, axis = est.paper, est.paper_selected, est.cone_axis
         else:
             paper, selected, axis = to_camera(f, est.paper), to_camera(f, est.paper_selected), to_camera(f, est.cone_axis)
-        d.results[i] = IsophoteEstimate(
-            t, OK, "" if iso.closed else "open contour fitted (allow_open=True)", iso.points_uv, iso.closed,
-            fit.conic, fit.ellipse, fit.residual_px, paper, selected, est.paper_selected_index, axis,
-            est.eigenvalue_gap, fit.cone)
+        d.results[i] = IsophoteEstimate(t, OK, "" if iso.closed else "open contour fitted (allow_open=True)",
+                                        iso.points_uv, iso.closed, fit.conic, fit.ellipse, fit.residual_px, paper,
+                                        selected, est.paper_selected_index, axis, est.eigenvalue_gap, fit.cone)
     # joint cone axes of the highlights with two or more good isophotes, in one batch
     multi = [d for d in dr if sum(r.status == OK for r in d.results) >= 2]
     if not multi:

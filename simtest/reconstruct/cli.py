@@ -36,12 +36,7 @@ from simtest.geometry.response import ResponseError
 from simtest.reconstruct._pixels import image_size_wh
 from simtest.reconstruct.frames import is_sequence, open_frames, reconstruct_frames, write_frames
 from simtest.reconstruct.images import InputError, c3vd_depth_mm, load_image, read_tiff
-from simtest.reconstruct.io import (
-    RECONSTRUCT_FILES,
-    dumps,
-    estimates_document,
-    read_estimates,
-)
+from simtest.reconstruct.io import RECONSTRUCT_FILES, dumps, estimates_document, read_estimates
 from simtest.reconstruct.overlay import check_overlay_size, draw_overlay
 from simtest.reconstruct.pipeline import reconstruct
 from simtest.reconstruct.rig_centroid import light_aware_with_rig
@@ -121,10 +116,9 @@ def reconstruct_command(
     --format jsonl OUT/estimates.jsonl (a line per frame) instead.
     Exit status 2: bad input or option; 4: OUT cannot be written."""
     try:
-        settings = ReconSettings.for_frames(
-            isovalues=isovalues, normalise=normalise, allow_open=allow_open,
-            smooth_sigma_px=smooth_sigma_px, detection=detection,
-            max_candidates=max_candidates or None, min_confidence=min_confidence)
+        settings = ReconSettings.for_frames(isovalues=isovalues, normalise=normalise, allow_open=allow_open,
+                                            smooth_sigma_px=smooth_sigma_px, detection=detection,
+                                            max_candidates=max_candidates or None, min_confidence=min_confidence)
     except ValueError as exc:
         fail(exc, BAD_INPUT)
     check_workers(workers)
@@ -165,12 +159,10 @@ def reconstruct_command(
                 img, camera_file, settings, cubic_patch=cubic_patch, workers=workers or os.cpu_count() or 1,
                 on_highlight=lambda done, total: bar.update(task, completed=done, total=total))
         pinhole = isinstance(camera, PinholeCamera)
-        doc = estimates_document(
-            estimates, K=camera.K if pinhole else None, image=image, image_shape=img.shape,
-            dist_coeffs=camera.dist_coeffs if pinhole else None, isovalues=settings.isovalues,
-            normalise=settings.normalise.value, include_points=points, camera=camera, lights=rig,
-            detection=detection_rec,
-        )
+        doc = estimates_document(estimates, K=camera.K if pinhole else None, image=image, image_shape=img.shape,
+                                 dist_coeffs=camera.dist_coeffs if pinhole else None, isovalues=settings.isovalues,
+                                 normalise=settings.normalise.value, include_points=points, camera=camera, lights=rig,
+                                 detection=detection_rec)
         text = dumps(doc, indent=True)
     except (ValueError, OSError, ImportError) as exc:  # IntrinsicsError, InputError: ValueErrors
         fail(exc, BAD_INPUT)
@@ -244,12 +236,10 @@ def _reconstruct_sequence(path, intrinsics, out, target, settings, *, points, wo
     name, write = SEQUENCE_FORMATS[output_format]
 
     def fill(folder: Path) -> None:
-        records = reconstruct_frames(source, camera, settings, workers=n_workers,
-                                     include_points=points, rig=rig, cubic=cubic, encoded=output_format,
-                                     response=camera_file.response)
+        records = reconstruct_frames(source, camera, settings, workers=n_workers, include_points=points, rig=rig,
+                                     cubic=cubic, encoded=output_format, response=camera_file.response)
         with Progress(TextColumn("reconstruct"), BarColumn(), MofNCompleteColumn(),
-                      TextColumn("{task.fields[fps]:.1f} frames/s"), TimeElapsedColumn(),
-                      transient=True) as bar:
+                      TextColumn("{task.fields[fps]:.1f} frames/s"), TimeElapsedColumn(), transient=True) as bar:
             task = bar.add_task("frames", total=source.n_frames, fps=0.0)
             t0 = time.perf_counter()
 

@@ -25,15 +25,7 @@ from simtest._records import fast_init
 from simtest.constants import gaussian_radius_px
 from simtest.decisions import MULTIRES_SIDE_MIN_PX, MULTIRES_SIGMA_MIN_PX, SCOPE_BORDER_LEVEL_REL, TOPHAT_MIN_REL
 from simtest.reconstruct._pixels import Roi, rc_to_uv
-from simtest.reconstruct.candidates import (
-    MERGED,
-    NOT_ELLIPTICAL,
-    STATUS_NAMES,
-    TOO_SMALL,
-    Examined,
-    Rules,
-    examine,
-)
+from simtest.reconstruct.candidates import MERGED, NOT_ELLIPTICAL, STATUS_NAMES, TOO_SMALL, Examined, Rules, examine
 from simtest.reconstruct.detect_pixels import (  # noqa: F401  (the detection's pixel work, re-exported)
     BACKGROUND_DIV,
     BACKGROUND_PLATEAU_FACTOR,
@@ -280,23 +272,12 @@ def ellipticity(mask: np.ndarray) -> float:
 DETECT_METHODS = ("local_peak", "full_scale")
 
 
-def detect_specularities(
-    image,
-    *,
-    brightness_rel: float = 0.7,
-    full_scale: float | None = None,
-    saturation_level: float | None = None,
-    min_area_px: int = 4,
-    ellipticity_min: float = 0.75,
-    min_plateau_px: int = 2,
-    roi_scale: float = 3.0,
-    roi_margin_px: int = 4,
-    max_candidates: int | None = None,
-    smooth_sigma_px: float | None = 0.0,
-    method: str = "full_scale",
-    peak_rel: float = 0.6,
-    contrast_min_rel: float = TOPHAT_MIN_REL,
-) -> Detection:
+def detect_specularities(image, *, brightness_rel: float = 0.7, full_scale: float | None = None,
+                         saturation_level: float | None = None, min_area_px: int = 4, ellipticity_min: float = 0.75,
+                         min_plateau_px: int = 2, roi_scale: float = 3.0, roi_margin_px: int = 4,
+                         max_candidates: int | None = None, smooth_sigma_px: float | None = 0.0,
+                         method: str = "full_scale", peak_rel: float = 0.6,
+                         contrast_min_rel: float = TOPHAT_MIN_REL) -> Detection:
     """Find candidate specular highlights in a whole image.
 
     Parameters
@@ -395,13 +376,11 @@ def detect_specularities(
     # Saturated plateaus are counted (``merged``) after a closing of 2 ceil(2 sigma) + 1 px on a
     # smoothed image: noise breaks one clipped top into pieces that far apart.
     k_close = max(3, 2 * int(np.ceil(2.0 * smooth_sigma_px)) + 1) if smooth_sigma_px > 0 else 3
-    frame = _DetectFrame(
-        img=img, gray=gray, gray32=gray32, method=method, full_scale=fs, clipped=clipped, levels=levels,
-        saturation_level=saturation_level, min_area_px=min_area_px,
-        ellipticity_min=ellipticity_min, min_plateau_px=min_plateau_px, roi_scale=roi_scale,
-        roi_margin_px=roi_margin_px, max_candidates=max_candidates, peak_rel=peak_rel,
-        k_close=k_close, half=half, near=near,
-    )
+    frame = _DetectFrame(img=img, gray=gray, gray32=gray32, method=method, full_scale=fs, clipped=clipped,
+                         levels=levels, saturation_level=saturation_level, min_area_px=min_area_px,
+                         ellipticity_min=ellipticity_min, min_plateau_px=min_plateau_px, roi_scale=roi_scale,
+                         roi_margin_px=roi_margin_px, max_candidates=max_candidates, peak_rel=peak_rel, k_close=k_close,
+                         half=half, near=near)
     out, n_comps = _candidates(frame, mask)  # by peak
     smoothed = None
     if smooth_sigma_px > 0:
@@ -610,9 +589,8 @@ def _outer_components(mask: np.ndarray) -> list[tuple[int, int, int, int, int, n
 
 
 def _rules(frame: _DetectFrame) -> Rules:
-    return Rules(frame.min_area_px, frame.ellipticity_min, frame.min_plateau_px, frame.roi_scale,
-                 frame.roi_margin_px, frame.peak_rel, frame.k_close, frame.method == "local_peak",
-                 frame.saturation_level)
+    return Rules(frame.min_area_px, frame.ellipticity_min, frame.min_plateau_px, frame.roi_scale, frame.roi_margin_px,
+                 frame.peak_rel, frame.k_close, frame.method == "local_peak", frame.saturation_level)
 
 
 def _candidates(frame: _DetectFrame, mask: np.ndarray, by_peak: bool = True) -> tuple[list[Candidate], int]:

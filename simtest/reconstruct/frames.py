@@ -264,11 +264,9 @@ def _frame_record(args) -> dict:
     return {**head, "specularities": [estimate_to_dict(e, include_points) for e in ests]}
 
 
-def reconstruct_frames(source: FrameSource, K, settings: ReconSettings | None = None, *,
-                       dist_coeffs=None, workers: int = 1,
-                       include_points: bool = False, rig=None,
-                       cubic: bool | None = False, encoded: bool | str = False,
-                       response=None) -> Iterator[dict]:
+def reconstruct_frames(source: FrameSource, K, settings: ReconSettings | None = None, *, dist_coeffs=None,
+                       workers: int = 1, include_points: bool = False, rig=None, cubic: bool | None = False,
+                       encoded: bool | str = False, response=None) -> Iterator[dict]:
     """Reconstruct every frame of ``source``; yield one record per frame, in frame order.
 
     Parameters

@@ -51,11 +51,7 @@ def _num(x):
 def _ellipse(e):
     if e is None:
         return None
-    return {
-        "center_px": _vec(e.center),
-        "semi_axes_px": _vec(e.semi_axes),
-        "angle_deg": float(np.degrees(e.angle_rad)),
-    }
+    return {"center_px": _vec(e.center), "semi_axes_px": _vec(e.semi_axes), "angle_deg": float(np.degrees(e.angle_rad))}
 
 
 def _isophote_dict(iso, include_points: bool) -> dict:
@@ -206,9 +202,8 @@ def dumps(obj, *, indent: bool = False) -> bytes:
     return _orjson.dumps(obj, option=_ORJSON_OPTIONS)
 
 
-def estimates_document(estimates, *, K, image=None, image_shape=None, dist_coeffs=None,
-                       isovalues=(), normalise="bp", include_points=False, camera=None,
-                       lights=None, detection=None) -> dict:
+def estimates_document(estimates, *, K, image=None, image_shape=None, dist_coeffs=None, isovalues=(), normalise="bp",
+                       include_points=False, camera=None, lights=None, detection=None) -> dict:
     """The whole schema-2 document as a dict (``docs/estimates-format.md``).
 
     Parameters
@@ -263,9 +258,8 @@ def estimates_document(estimates, *, K, image=None, image_shape=None, dist_coeff
     }
 
 
-def write_estimates(path, estimates, *, K, image=None, image_shape=None, dist_coeffs=None,
-                    isovalues=(), normalise="bp", include_points=False, camera=None,
-                    lights=None) -> Path:
+def write_estimates(path, estimates, *, K, image=None, image_shape=None, dist_coeffs=None, isovalues=(), normalise="bp",
+                    include_points=False, camera=None, lights=None) -> Path:
     """Write ``estimates.json`` atomically (temporary file in the same folder, then os.replace).
 
     Parameters

@@ -22,15 +22,8 @@ from simtest._lazy import require
 from simtest._io import atomic_write
 from simtest.reconstruct.io import estimate_to_dict
 
-__all__ = [
-    "ESTIMATOR_COLOURS",
-    "MAX_OVERLAY_PIXELS",
-    "OVERLAY_BYTES_PER_PIXEL",
-    "check_overlay_size",
-    "draw_overlay",
-    "estimator_colour",
-    "needle_length_px",
-]
+__all__ = ["ESTIMATOR_COLOURS", "MAX_OVERLAY_PIXELS", "OVERLAY_BYTES_PER_PIXEL", "check_overlay_size", "draw_overlay",
+           "estimator_colour", "needle_length_px"]
 
 #: One colour per estimator, shared by the overlay, the 3D view and the evaluation figures.
 ESTIMATOR_COLOURS = {

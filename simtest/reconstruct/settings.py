@@ -13,13 +13,7 @@ from collections.abc import Sequence
 from dataclasses import dataclass
 
 import numpy as np
-from simtest.decisions import (
-    AUTO_LOCAL_BACKGROUND_REL,
-    BRIGHTNESS_REL,
-    FRAME_ISOVALUES,
-    MIN_AREA_PX,
-    PEAK_REL,
-)
+from simtest.decisions import AUTO_LOCAL_BACKGROUND_REL, BRIGHTNESS_REL, FRAME_ISOVALUES, MIN_AREA_PX, PEAK_REL
 
 __all__ = ["MAX_CANDIDATES", "Normalisation", "ReconSettings", "validate_isovalues"]
 
@@ -181,8 +175,7 @@ class ReconSettings:
                 sigma = float(self.smooth_sigma_px)
             except (TypeError, ValueError):
                 sigma = float("nan")
-            if isinstance(self.smooth_sigma_px, bool) or not (math.isfinite(sigma)
-                                                              and 0.0 <= sigma <= 100.0):
+            if isinstance(self.smooth_sigma_px, bool) or not (math.isfinite(sigma) and 0.0 <= sigma <= 100.0):
                 raise ValueError(f"smooth_sigma_px must be finite and in [0, 100] px, got " f"{self.smooth_sigma_px!r}")
             set_(self, "smooth_sigma_px", sigma)
         if self.detection not in DETECTION_METHODS:

@@ -16,9 +16,8 @@ import orjson
 
 from simtest._lazy import require
 from simtest._version import __version__
-from simtest.reconstruct.io import (
-    LIGHT_AWARE_NORMALS, SCHEMA_VERSION, _light_aware_dict, _not_finite_at, _nums, _rows, dumps,
-)
+from simtest.reconstruct.io import (LIGHT_AWARE_NORMALS, SCHEMA_VERSION, _light_aware_dict, _not_finite_at, _nums,
+                                    _rows, dumps)
 
 def arrow():
     """``(pyarrow, pyarrow.parquet)``, imported when a table is first made or read."""
@@ -60,11 +59,10 @@ def table_schema():
              ("paper_selected_index", pa.int8()), ("normal_cone_axis", v3)]
     isophote = pa.struct([("isovalue", f64), ("status", text), ("detail", text), ("closed", pa.bool_()),
                           ("n_points", pa.int32()), *fit, *paper, ("points_px", pa.list_(v2))])
-    light_aware = pa.struct([
-        ("status", text), ("detail", text), ("depth_mm", f64), ("normal_sigma_deg", f64),
-        ("depth_sigma_mm", f64), ("distance_mm", f64), ("roughness", f64), ("lobe", text),
-        ("projection", text), ("light_normals", pa.list_(v3)), ("light_depths_mm", pa.list_(f64)),
-        ("light_normal_sigmas_deg", pa.list_(f64)), ("depth_range_mm", pa.list_(f64))])
+    light_aware = pa.struct([("status", text), ("detail", text), ("depth_mm", f64), ("normal_sigma_deg", f64),
+                             ("depth_sigma_mm", f64), ("distance_mm", f64), ("roughness", f64), ("lobe", text),
+                             ("projection", text), ("light_normals", pa.list_(v3)), ("light_depths_mm", pa.list_(f64)),
+                             ("light_normal_sigmas_deg", pa.list_(f64)), ("depth_range_mm", pa.list_(f64))])
     return pa.schema([
         ("frame", pa.int32()), ("source", text), ("candidate", pa.int32()),
         ("normal", v3), ("normal_from", text), ("depth_mm", f64), ("normal_sigma_deg", f64),

@@ -34,12 +34,11 @@ from types import SimpleNamespace
 import cv2
 import numpy as np
 
-from simtest.decisions import (
-    PALENESS_MAX, WHITE_CHROMA, WHITE_SHARE_MIN, SIGNIFICANCE_MIN, CONTRAST_MIN, PANEL_STD_REL, PANEL_MIN_AREA,
-    PANEL_FRACTION_MAX, NEIGHBOUR_REL, NEIGHBOUR_AREA_REL, VALLEY_REL, VALLEY_NOISE, NEIGHBOUR_REACH, OWN_RADIUS_PX,
-    SURROUND_REL, OWN_REL, SURROUND_FRACTION_MAX, RESIDUAL_MAX_REL, MINOR_AXIS_MIN_PX, QUANTISATION_SIGMA_LSB,
-    CONFIDENCE_COEFFICIENTS as COEFFICIENTS,
-)
+from simtest.decisions import (PALENESS_MAX, WHITE_CHROMA, WHITE_SHARE_MIN, SIGNIFICANCE_MIN, CONTRAST_MIN,
+                               PANEL_STD_REL, PANEL_MIN_AREA, PANEL_FRACTION_MAX, NEIGHBOUR_REL, NEIGHBOUR_AREA_REL,
+                               VALLEY_REL, VALLEY_NOISE, NEIGHBOUR_REACH, OWN_RADIUS_PX, SURROUND_REL, OWN_REL,
+                               SURROUND_FRACTION_MAX, RESIDUAL_MAX_REL, MINOR_AXIS_MIN_PX, QUANTISATION_SIGMA_LSB,
+                               CONFIDENCE_COEFFICIENTS as COEFFICIENTS)
 from simtest.geometry.response import srgb_inverse
 from simtest.reconstruct import evidence_pixels as px
 from simtest.reconstruct._pixels import uv_to_rc
@@ -263,9 +262,8 @@ def _top_of(g_at: np.ndarray, bg_at: np.ndarray) -> np.ndarray:
     return np.where((d >= 0) | np.isnan(d), d, np.float32(0.0)).astype(np.float32, copy=False)
 
 
-def frame_evidence(image: np.ndarray, gray: np.ndarray, bps_uv: np.ndarray, rois, *,
-                   full_scale: float, noise: float, background_px: int,
-                   reach_px: np.ndarray | None = None, ellipses=None, windowed: bool | None = None,
+def frame_evidence(image: np.ndarray, gray: np.ndarray, bps_uv: np.ndarray, rois, *, full_scale: float, noise: float,
+                   background_px: int, reach_px: np.ndarray | None = None, ellipses=None, windowed: bool | None = None,
                    grey: bool = False, panels: bool = True, expected=None, response=None) -> Evidence:
     """Measure every candidate of a frame.
 
