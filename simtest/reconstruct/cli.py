@@ -19,6 +19,7 @@ from __future__ import annotations
 
 import os
 import time
+from collections import Counter
 from functools import partial
 from pathlib import Path
 from typing import Optional
@@ -218,7 +219,7 @@ SEQUENCE_FORMATS = {"parquet": ("estimates.parquet", partial(write_frames, fmt="
 def _reconstruct_sequence(path, intrinsics, out, target, settings, *, points, workers, cubic=False,
                           output_format="parquet") -> None:
     """Folder or video: estimates.parquet (or .jsonl) in frame order, with a progress bar."""
-    counts: dict[str, int] = {}
+    counts: Counter = Counter()
     left = {"components": 0, "not_examined": 0}
     try:
         source = open_frames(path)
@@ -244,8 +245,7 @@ def _reconstruct_sequence(path, intrinsics, out, target, settings, *, points, wo
             t0 = time.perf_counter()
 
             def on_frame(rec):
-                for k, v in rec["counts"].items():
-                    counts[k] = counts.get(k, 0) + v
+                counts.update(rec["counts"])
                 left["components"] += rec["detection"]["components"]
                 left["not_examined"] += rec["detection"]["not_examined"]
                 n = rec["frame"] + 1
@@ -257,31 +257,30 @@ def _reconstruct_sequence(path, intrinsics, out, target, settings, *, points, wo
     n, wall, written = done["n"], done["wall"], out / name
     n_cand = sum(counts.values())
     n_ok = counts.pop("ok", 0)
-    rest = ", ".join(f"{k} {v}" for k, v in sorted(counts.items(), key=lambda kv: (-kv[1], kv[0])))
-    if left["not_examined"]:
-        rest += ("; " if rest else "") + (
-            f"{left['not_examined']} of {left['components']} bright components not examined "
-            f"(--max-candidates {settings.max_candidates}; 0 examines all)")
+    rest = _tail(counts, dict(left, max_candidates=settings.max_candidates))
     typer.echo(f"{n} frame(s) in {wall:.2f} s ({n / max(wall, 1e-9):.1f} frames/s, {n_workers} "
-               f"worker(s)): {n_cand} candidate(s), {n_ok} reconstructed"
-               + (f"; {rest}" if rest else "") + f" -> {written}")
+               f"worker(s)): {n_cand} candidate(s), {n_ok} reconstructed{rest} -> {written}")
 
 
 def summary_line(estimates, paths, detection: dict | None = None) -> str:
     """One summary line of a reconstruction: counts per status, the components detection left out
     (``detection``'s ``not_examined``, whenever any), and the files written (``paths``).
     """
-    counts: dict[str, int] = {}
-    for e in estimates:
-        counts[e.status] = counts.get(e.status, 0) + 1
+    counts = Counter(e.status for e in estimates)
     n_ok = counts.pop("ok", 0)
+    return (f"{len(estimates)} candidate(s), {n_ok} reconstructed{_tail(counts, detection)} -> "
+            + ", ".join(str(p) for p in paths))
+
+
+def _tail(counts: dict[str, int], left: dict | None) -> str:
+    """A summary line's tail after "N reconstructed": the other statuses' counts, most first, and the
+    bright components detection left out (``left``'s ``not_examined``, whenever any)."""
     rest = ", ".join(f"{k} {v}" for k, v in sorted(counts.items(), key=lambda kv: (-kv[1], kv[0])))
-    left = ""
-    if detection and detection.get("not_examined"):
-        left = (f"; {detection['not_examined']} of {detection['components']} bright components "
-                f"not examined (--max-candidates {detection['max_candidates']}; 0 examines all)")
-    return (f"{len(estimates)} candidate(s), {n_ok} reconstructed" + (f"; {rest}" if rest else "")
-            + left + " -> " + ", ".join(str(p) for p in paths))
+    tail = f"; {rest}" if rest else ""
+    if left and left.get("not_examined"):
+        tail += (f"; {left['not_examined']} of {left['components']} bright components not examined "
+                 f"(--max-candidates {left['max_candidates']}; 0 examines all)")
+    return tail
 
 
 def _camera_of(doc: dict, intrinsics: Path | None):
