@@ -143,26 +143,17 @@ def estimate_to_dict(est, include_points: bool = False) -> dict:
     }
 
 
-
 # JSON: the document as dicts and lists, its text written by orjson
 
 
 def _not_finite_at(obj, where: str):
     """The path of the first number in ``obj`` that is not finite, or None."""
     t = type(obj)
-    if t is dict:
-        for k, v in obj.items():
+    if t is dict or t is list or t is tuple:
+        for k, v in obj.items() if t is dict else enumerate(obj):
             if type(v) in _SCALARS_OK:
                 continue
-            bad = _not_finite_at(v, f"{where}.{k}" if where else str(k))
-            if bad is not None:
-                return bad
-        return None
-    if t is list or t is tuple:
-        for i, v in enumerate(obj):
-            if type(v) in _SCALARS_OK:
-                continue
-            bad = _not_finite_at(v, f"{where}[{i}]")
+            bad = _not_finite_at(v, (f"{where}.{k}" if where else str(k)) if t is dict else f"{where}[{k}]")
             if bad is not None:
                 return bad
         return None
