@@ -135,7 +135,6 @@ class Detection:
         return len(self.candidates) + self.n_unexamined
 
 
-
 def validate_image(image, where: str = "image") -> np.ndarray:
     """Check an image and return it as (H, W) or (H, W, 3) without copying when possible.
 

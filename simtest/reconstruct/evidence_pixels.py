@@ -87,7 +87,6 @@ def linear_at_points(small: np.ndarray, shape: tuple[int, int], rows: np.ndarray
     return top * (one - ay) + bot * ay
 
 
-
 def top_hat_maxima(g: np.ndarray, bg: np.ndarray, floor: np.float32) -> tuple[np.ndarray, np.ndarray]:
     """The top-hat ``max(g - bg, 0)`` (float32) and a bool mask of its 3 x 3 local maxima above ``floor``."""
     top = np.subtract(g, bg, dtype=np.float32)

@@ -93,7 +93,6 @@ def _keep_freed_memory() -> bool:
         mallopt(_M_TRIM_THRESHOLD, TRIM_THRESHOLD_BYTES))
 
 
-
 def reconstruct_roi(image, K, isovalues: float | Sequence[float] | None = None, *, bp_uv=None, roi=None,
                     dist_coeffs=None, settings: ReconSettings | None = None, **options) -> SpecularityEstimate:
     """Reconstruct the normal of one known highlight.

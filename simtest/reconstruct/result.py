@@ -17,10 +17,6 @@ __all__ = ["Reconstruction", "NORMAL_COLUMNS"]
 NORMAL_COLUMNS = ("paper_selected", "cone_axis", "joint_cone_axis", "bp_ray", "recommended")
 
 
-def _unit_or_nan(v) -> np.ndarray:
-    return np.full(3, np.nan) if v is None else np.asarray(v, dtype=np.float64).reshape(3)
-
-
 class Reconstruction(list):
     """The estimates of one frame (a list, brightest first), what detection left out, and tables.
 
@@ -111,7 +107,8 @@ class Reconstruction(list):
                 else:
                     raise ValueError(f"normals: {c!r} is not a normal of an estimate; known: "
                                      f"{', '.join(NORMAL_COLUMNS)}")
-                out[i, j] = _unit_or_nan(v)
+                if v is not None:  # (else NaN)
+                    out[i, j] = np.asarray(v, dtype=np.float64).reshape(3)
         return out
 
     def rows(self, include_points: bool = False) -> list[dict]:
