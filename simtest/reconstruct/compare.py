@@ -141,8 +141,7 @@ def compare_estimates(before: list[dict], after: list[dict], *, name: str = "",
             continue
         for k, nb in (b.get("normals") or {}).items():
             na = (a.get("normals") or {}).get(k)
-            if nb is None or na is None or np.asarray(nb, float).shape != (3,) \
-                    or np.asarray(na, float).shape != (3,):
+            if nb is None or na is None or np.asarray(nb, float).shape != (3,) or np.asarray(na, float).shape != (3,):
                 continue
             cmp.moves_deg.setdefault(k, []).append(angle_between_deg(nb, na))
     return cmp

@@ -48,10 +48,10 @@ from simtest.reconstruct.fit import fit_ellipses
 from simtest.reconstruct.jpeg import quantisation_sigma
 from simtest.reconstruct.rig_pairs import PAIR_TOL_PX, other_guide_curves, other_lobe_centres
 
-__all__ = ["bp_checks", "shared_passes", "PALENESS_MAX", "WHITE_CHROMA", "SIGNIFICANCE_MIN", "CONTRAST_MIN", "PANEL_STD_REL",
-           "PANEL_FRACTION_MAX", "NEIGHBOUR_REL", "OWN_RADIUS_PX", "SURROUND_REL", "OWN_REL",
-           "SURROUND_FRACTION_MAX", "RESIDUAL_MAX_REL", "MINOR_AXIS_MIN_PX",
-           "COEFFICIENTS", "Evidence", "frame_evidence", "assess", "confidence", "confidence_features", "verdict"]
+__all__ = ["bp_checks", "shared_passes", "PALENESS_MAX", "WHITE_CHROMA", "SIGNIFICANCE_MIN", "CONTRAST_MIN",
+           "PANEL_STD_REL", "PANEL_FRACTION_MAX", "NEIGHBOUR_REL", "OWN_RADIUS_PX", "SURROUND_REL", "OWN_REL",
+           "SURROUND_FRACTION_MAX", "RESIDUAL_MAX_REL", "MINOR_AXIS_MIN_PX", "COEFFICIENTS", "Evidence",
+           "frame_evidence", "assess", "confidence", "confidence_features", "verdict"]
 
 @dataclass(frozen=True)
 class Evidence:
