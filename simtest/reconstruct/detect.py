@@ -26,28 +26,12 @@ from simtest.constants import gaussian_radius_px
 from simtest.decisions import MULTIRES_SIDE_MIN_PX, MULTIRES_SIGMA_MIN_PX, SCOPE_BORDER_LEVEL_REL, TOPHAT_MIN_REL
 from simtest.reconstruct._pixels import Roi, rc_to_uv
 from simtest.reconstruct.candidates import MERGED, NOT_ELLIPTICAL, STATUS_NAMES, TOO_SMALL, Examined, Rules, examine
-from simtest.reconstruct.detect_pixels import (  # noqa: F401  (the detection's pixel work, re-exported)
-    BACKGROUND_DIV,
-    BACKGROUND_PLATEAU_FACTOR,
-    _gray_and_grey,
-    _scope_border,
-    _threshold_mask,
-    auto_smooth_sigma_px,
-    background_side_px,
-    clipped_mask,
-    colour_luma32,
-    luma_cv2,
-    connected_components,
-    connected_components_with_stats,
-    image_noise_sigma,
-    image_smooth_sigma_px,
-    linear_at,
-    local_peak_mask,
-    luma,
-    mask_labels,
-    near_ceiling_mask,
-    noise_sigma,
-    smooth_sigma_for_noise,
+# the detection's pixel work, re-exported
+from simtest.reconstruct.detect_pixels import (  # noqa: F401
+    BACKGROUND_DIV, BACKGROUND_PLATEAU_FACTOR, _gray_and_grey, _scope_border, _threshold_mask, auto_smooth_sigma_px,
+    background_side_px, clipped_mask, colour_luma32, luma_cv2, connected_components, connected_components_with_stats,
+    image_noise_sigma, image_smooth_sigma_px, linear_at, local_peak_mask, luma, mask_labels, near_ceiling_mask,
+    noise_sigma, smooth_sigma_for_noise
 )
 
 _SUPPORTED = (np.uint8, np.uint16, np.float16, np.float32, np.float64)
