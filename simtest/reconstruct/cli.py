@@ -51,25 +51,17 @@ _DRAWN = names("isophote", "baseline", "light_aware")
 
 def reconstruct_command(
     image: Path = typer.Argument(..., help="Image file (PNG, JPEG, TIFF, ... or .npy).", show_default=False),
-    intrinsics: Path = typer.Option(
-        ..., "--intrinsics", "-k",
-        help="Camera file (JSON: pinhole, fisheye or omnidirectional model) or OpenCV YAML/XML.",
-    ),
-    out: Path = typer.Option(
-        ..., "--out", "-o", show_default=False,
-        help="Output folder, new, empty or a previous run's (replaced as a whole): estimates.json, "
-        "overlay.png, view.png (--view); estimates.parquet (or .jsonl) for a folder or video.",
-    ),
-    output_format: str = typer.Option(
-        "parquet", "--format",
-        help="For a folder or video: parquet (estimates.parquet, a row per candidate with a frame "
-        "column) or jsonl (estimates.jsonl, a JSON line per frame).",
-    ),
-    isovalues: list[float] = typer.Option(
-        [0.7, 0.85], "--isovalue", "-t",
-        help="Isovalue in (0, 1), the first primary; repeat for nested isophotes. Relative to the "
-        "highlight's height above its local background (with --normalise auto or local).",
-    ),
+    intrinsics: Path = typer.Option(..., "--intrinsics", "-k", help="Camera file (JSON: pinhole, fisheye or "
+                                    "omnidirectional model) or OpenCV YAML/XML."),
+    out: Path = typer.Option(..., "--out", "-o", show_default=False, help="Output folder, new, empty or a previous "
+                             "run's (replaced as a whole): estimates.json, overlay.png, view.png (--view); "
+                             "estimates.parquet (or .jsonl) for a folder or video."),
+    output_format: str = typer.Option("parquet", "--format", help="For a folder or video: parquet (estimates.parquet, "
+                                      "a row per candidate with a frame column) or jsonl (estimates.jsonl, a JSON line "
+                                      "per frame)."),
+    isovalues: list[float] = typer.Option([0.7, 0.85], "--isovalue", "-t", help="Isovalue in (0, 1), the first "
+                                          "primary; repeat for nested isophotes. Relative to the highlight's height "
+                                          "above its local background (with --normalise auto or local)."),
     normalise: str = typer.Option("auto", help="Intensity normalisation: auto (local where the ROI border is bright, else bp), bp (the paper's: t relative to the BP), full_scale, or local (t relative to the BP's height above the median of the ROI border: for highlights on bright tissue)."),
     detection: str = typer.Option("local_peak", help="Candidate detection: local_peak (relative to each highlight's height above its local background) or full_scale (luma >= 0.7 of full scale, the paper's)."),
     allow_open: bool = typer.Option(False, "--allow-open", help="Fit isophotes cut by a border (flagged)."),
@@ -81,18 +73,13 @@ def reconstruct_command(
     overlay: bool = typer.Option(True, "--overlay/--no-overlay", help="Write overlay.png."),
     overlay_all: bool = typer.Option(False, "--overlay-all", help="Mark rejected highlights in overlay.png too."),
     view: bool = typer.Option(False, "--view", help="Also write view.png, a 3D view of the normals (pyvista, off-screen)."),
-    cubic_patch: bool = typer.Option(
-        False, "--cubic-patch",
-        help="With a light rig of two or more lights apart, also run cubic_patch_fit where the plane fit "
-        "fails (the curved patch fitted to every light's lobe: depth and normal on curved tissue; "
-        "about 1 to 5 s per highlight).",
-    ),
-    workers: int = typer.Option(
-        0, "--workers", "-j", min=0,
-        help="Worker processes for a folder or video, or for a single image's light-aware fits "
-        "(0: one per core; at most the CPU count).",
-        show_default=False,
-    ),
+    cubic_patch: bool = typer.Option(False, "--cubic-patch", help="With a light rig of two or more lights apart, also "
+                                     "run cubic_patch_fit where the plane fit fails (the curved patch fitted to every "
+                                     "light's lobe: depth and normal on curved tissue; about 1 to 5 s per "
+                                     "highlight)."),
+    workers: int = typer.Option(0, "--workers", "-j", min=0, help="Worker processes for a folder or video, or for a "
+                                "single image's light-aware fits (0: one per core; at most the CPU count).",
+                                show_default=False),
     min_confidence: Optional[float] = typer.Option(  # noqa: UP045 (typer reads Optional)
         None, "--min-confidence", min=0.0, max=1.0,
         help="Fits that pass every check but have a lower confidence get the status low_confidence "
@@ -101,11 +88,9 @@ def reconstruct_command(
         "`simtest evaluate detection` draws precision against recall over it.",
         show_default=False,
     ),
-    max_candidates: int = typer.Option(
-        MAX_CANDIDATES or 0, "--max-candidates", min=0,
-        help="Bright components examined per frame, the largest first (0, the default: every one); "
-        "those left out are counted in the console line and in estimates.json's 'detection'.",
-    ),
+    max_candidates: int = typer.Option(MAX_CANDIDATES or 0, "--max-candidates", min=0, help="Bright components "
+                                       "examined per frame, the largest first (0, the default: every one); those left "
+                                       "out are counted in the console line and in estimates.json's 'detection'."),
 ) -> None:
     """Estimate the normal at every specular highlight of IMAGE: an image file, a folder of frames
     or a video file.
