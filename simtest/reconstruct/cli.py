@@ -126,10 +126,8 @@ def reconstruct_command(
             raise InputError(f"cannot read intrinsics {intrinsics}: {exc}") from None
         if camera.image_size is not None and tuple(camera.image_size) != image_size_wh(img.shape):
             (W, H), (w, h) = camera.image_size, image_size_wh(img.shape)
-            raise InputError(
-                f"{intrinsics}: key 'image_size' is {W} x {H} px but {image} is "
-                f"{w} x {h} px: these intrinsics are for another image size"
-            )
+            raise InputError(f"{intrinsics}: key 'image_size' is {W} x {H} px but {image} is {w} x {h} px: these "
+                             "intrinsics are for another image size")
         if overlay:  # refused before anything is computed or written
             check_overlay_size(img.shape)
         if camera_file.response is not None:  # a frame its response could not have written

@@ -71,16 +71,13 @@ def check_overlay_size(shape) -> None:
     h, w = int(shape[0]), int(shape[1])
     need = h * w * OVERLAY_BYTES_PER_PIXEL
     if h * w > MAX_OVERLAY_PIXELS:
-        raise ValueError(
-            f"overlay: a {w} x {h} px image ({h * w / 1e6:.0f} Mpx) is over the {MAX_OVERLAY_PIXELS / 1e6:.0f} Mpx "
-            f"an overlay is drawn for (~{need / 2**30:.1f} GiB); use --no-overlay"
-        )
+        raise ValueError(f"overlay: a {w} x {h} px image ({h * w / 1e6:.0f} Mpx) is over the "
+                         f"{MAX_OVERLAY_PIXELS / 1e6:.0f} Mpx an overlay is drawn for (~{need / 2**30:.1f} GiB); "
+                         "use --no-overlay")
     avail = _available_memory_bytes()
     if avail is not None and need > avail:
-        raise ValueError(
-            f"overlay: a {w} x {h} px image needs ~{need / 2**30:.1f} GiB but {avail / 2**30:.1f} GiB are free; "
-            "use --no-overlay"
-        )
+        raise ValueError(f"overlay: a {w} x {h} px image needs ~{need / 2**30:.1f} GiB but {avail / 2**30:.1f} GiB "
+                         "are free; use --no-overlay")
 
 
 def _display_image(image: np.ndarray) -> np.ndarray:

@@ -185,8 +185,7 @@ register("paper_oracle", _paper_oracle, kind="oracle", default=True, reference=T
 register("paper_selected", _attr("paper_selected"), kind="isophote", default=True, reference=True,
          description="paper, N+ or N- chosen without the truth (the one closer to the BP ray)")
 register("cone_axis", _attr("cone_axis"), kind="isophote", default=True, rank=1,
-         description="cone axis of C' (unique-sign eigenvector; as dam410/LightModel "
-                     "vanishing_line_paper_co)")
+         description="cone axis of C' (unique-sign eigenvector; as dam410/LightModel vanishing_line_paper_co)")
 register("joint_cone_axis", _attr("joint_cone_axis"), kind="isophote", default=True, rank=0,
          description="joint cone axis of the nested isophotes")
 register("bp_ray", _attr("bp_ray"), kind="baseline", default=True, status_free=True, reference=True, rank=2,

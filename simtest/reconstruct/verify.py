@@ -640,9 +640,8 @@ def verdict(ev: Evidence, residual_rel: np.ndarray, bp_inside: np.ndarray, only=
             out[k] = ("not_specular", f"peak chroma {cpeak[k]:.2f} is {pal[k]:.2f} of the tissue's {ctissue[k]:.2f} "
                                       f"(> {PALENESS_MAX})")
         elif not clipped[k] and (sig[k] < SIGNIFICANCE_MIN or con[k] < CONTRAST_MIN):
-            out[k] = ("not_specular", f"height {height[k]:.3g} is {sig[k]:.1f} noise sigma and "
-                                      f"{con[k]:.2f} of the background (need {SIGNIFICANCE_MIN:g} "
-                                      f"and {CONTRAST_MIN:g})")
+            out[k] = ("not_specular", f"height {height[k]:.3g} is {sig[k]:.1f} noise sigma and {con[k]:.2f} of the "
+                                      f"background (need {SIGNIFICANCE_MIN:g} and {CONTRAST_MIN:g})")
         elif neighbours[k] > 0:
             out[k] = ("cluster", f"{neighbours[k]} other specular peak(s) in its region")
         elif surround[k] > SURROUND_FRACTION_MAX:
