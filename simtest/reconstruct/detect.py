@@ -415,16 +415,12 @@ def _detect_half_resolution(img, native, fs, saturation_level, *, grey=False, mi
     cands2, n_comps = _candidates(frame2, mask2, by_peak=False)
     if len(cands2) > MULTIRES_CANDIDATES_MAX:
         return None  # each costs a window at full resolution: the whole frame is cheaper
-    k_close_full = max(3, 2 * int(np.ceil(2.0 * smooth_sigma_px)) + 1)
     # the full frame's smoothing, background and labels, written in the candidates' windows only
     gray = np.empty((h, w), np.float32)
     levels = np.empty((h, w), np.float32)
     labels = np.zeros((h, w), np.int32)
-    full = _DetectFrame(
-        img=img, gray=gray, gray32=None, method="local_peak", full_scale=fs, clipped=clipped, levels=levels,
-        saturation_level=saturation_level, min_area_px=min_area_px, ellipticity_min=ellipticity_min,
-        min_plateau_px=min_plateau_px, roi_scale=roi_scale, roi_margin_px=roi_margin_px,
-        max_candidates=max_candidates, peak_rel=peak_rel, k_close=k_close_full)
+    full = replace(frame2, img=img, gray=gray, gray32=None, clipped=clipped, levels=levels, min_area_px=min_area_px,
+                   min_plateau_px=min_plateau_px, k_close=max(3, 2 * int(np.ceil(2.0 * smooth_sigma_px)) + 1))
     window = _Window(native, bg_small, peak_small, float(smooth_sigma_px), np.float32(peak_rel),
                      np.float32(contrast_min_rel * fs))
     out = []
