@@ -119,8 +119,7 @@ def _header_size(path: Path) -> None:
     _check_pixel_limit(int(h), int(w), path, "the header claims")
 
 
-_EXPECTED = ("expected an image: shape (H, W), (H, W, 1), (H, W, 3) or (H, W, 4), dtype uint8, "
-             "uint16 or float16/32/64")
+_EXPECTED = "expected an image: shape (H, W), (H, W, 1), (H, W, 3) or (H, W, 4), dtype uint8, uint16 or float16/32/64"
 
 
 def _check_layout(shape, dtype, path: Path) -> None:
