@@ -30,11 +30,9 @@ from simtest.reconstruct.pipeline import Estimates, reconstruct, reconstruct_roi
 from simtest.reconstruct.settings import Normalisation, ReconSettings
 from simtest.reconstruct.table import read_frames, read_table
 
-__all__ = [
-    "REASONS", "SCHEMA_VERSION", "Candidate", "ConeEstimate", "Detection", "EllipseFit", "Estimates", "Failure",
-    "Isophote", "IsophoteEstimate", "Normalisation", "ReconSettings", "Roi", "SpecularityEstimate",
-    "detect_specularities", "estimate_from_conic", "extract_isophote", "fit_ellipse", "fit_ellipses",
-    "joint_cone_axis", "rc_to_uv", "read_estimates", "read_frames", "read_table", "reconstruct",
-    "reconstruct_roi", "reconstruct_rois", "select_paper_normal", "uv_to_rc", "write_estimates"
-]
+__all__ = ["REASONS", "SCHEMA_VERSION", "Candidate", "ConeEstimate", "Detection", "EllipseFit", "Estimates", "Failure",
+           "Isophote", "IsophoteEstimate", "Normalisation", "ReconSettings", "Roi", "SpecularityEstimate",
+           "detect_specularities", "estimate_from_conic", "extract_isophote", "fit_ellipse", "fit_ellipses",
+           "joint_cone_axis", "rc_to_uv", "read_estimates", "read_frames", "read_table", "reconstruct",
+           "reconstruct_roi", "reconstruct_rois", "select_paper_normal", "uv_to_rc", "write_estimates"]
 

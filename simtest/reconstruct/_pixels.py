@@ -91,12 +91,8 @@ class Roi(NamedTuple):
         else:
             r, c = (float(x) for x in uv_to_rc(centre_uv))
         hs = float(half_size)
-        return cls(
-            max(0, math.floor(r - hs)),
-            min(h, math.ceil(r + hs) + 1),
-            max(0, math.floor(c - hs)),
-            min(w, math.ceil(c + hs) + 1),
-        )
+        return cls(max(0, math.floor(r - hs)), min(h, math.ceil(r + hs) + 1), max(0, math.floor(c - hs)),
+                   min(w, math.ceil(c + hs) + 1))
 
     @classmethod
     def coerce(cls, roi, image_shape: tuple[int, ...], where: str = "roi") -> Roi:
@@ -117,8 +113,6 @@ class Roi(NamedTuple):
         r0, r1, c0, c1 = vals
         h, w = image_shape[:2]
         if not (0 <= r0 < r1 <= h and 0 <= c0 < c1 <= w):
-            raise ValueError(
-                f"{where}: (row0, row1, col0, col1) = {tuple(vals)} is empty or outside the "
-                f"image of shape {(h, w)}"
-            )
+            raise ValueError(f"{where}: (row0, row1, col0, col1) = {tuple(vals)} is empty or outside the image of "
+                             f"shape {(h, w)}")
         return cls(r0, r1, c0, c1)

@@ -75,6 +75,14 @@ class IsophoteEstimate:
         return self.status == OK
 
 
+def _of_primary(name: str, doc: str) -> property:
+    """A property of :class:`SpecularityEstimate`: its primary isophote's ``name`` (None without one)."""
+    def get(self):
+        p = self.primary
+        return None if p is None else getattr(p, name)
+    return property(get, doc=doc)
+
+
 @fast_init
 @dataclass(frozen=True)
 class SpecularityEstimate:
@@ -135,49 +143,14 @@ class SpecularityEstimate:
         """The isophote at the first isovalue (None for a rejected detection)."""
         return self.isophotes[0] if self.isophotes else None
 
-    def _p(self, name):
-        p = self.primary
-        return None if p is None else getattr(p, name)
-
-    @property
-    def points_uv(self):
-        """Primary isophote points (N, 2) px, or None."""
-        return self._p("points_uv")
-
-    @property
-    def conic(self):
-        """Primary fitted conic (3, 3), or None."""
-        return self._p("conic")
-
-    @property
-    def ellipse(self):
-        """Primary ellipse parameters, or None."""
-        return self._p("ellipse")
-
-    @property
-    def normals_paper(self):
-        """Primary N+ and N- (2, 3), or None."""
-        return self._p("normals_paper")
-
-    @property
-    def paper_selected(self):
-        """Primary non-oracle paper normal (3,), or None."""
-        return self._p("paper_selected")
-
-    @property
-    def cone_axis(self):
-        """Primary cone-axis normal (3,), or None."""
-        return self._p("cone_axis")
-
-    @property
-    def eigenvalue_gap(self):
-        """Primary eigenvalue gap, or None."""
-        return self._p("eigenvalue_gap")
-
-    @property
-    def fit_residual_px(self):
-        """Primary RMS Sampson residual, px, or None."""
-        return self._p("fit_residual_px")
+    points_uv = _of_primary("points_uv", "Primary isophote points (N, 2) px, or None.")
+    conic = _of_primary("conic", "Primary fitted conic (3, 3), or None.")
+    ellipse = _of_primary("ellipse", "Primary ellipse parameters, or None.")
+    normals_paper = _of_primary("normals_paper", "Primary N+ and N- (2, 3), or None.")
+    paper_selected = _of_primary("paper_selected", "Primary non-oracle paper normal (3,), or None.")
+    cone_axis = _of_primary("cone_axis", "Primary cone-axis normal (3,), or None.")
+    eigenvalue_gap = _of_primary("eigenvalue_gap", "Primary eigenvalue gap, or None.")
+    fit_residual_px = _of_primary("fit_residual_px", "Primary RMS Sampson residual, px, or None.")
 
 @fast_init
 @dataclass(frozen=True)
@@ -230,10 +203,9 @@ def _complete(drafts: list) -> list[SpecularityEstimate]:
             paper, selected, axis = est.paper, est.paper_selected, est.cone_axis
         else:
             paper, selected, axis = to_camera(f, est.paper), to_camera(f, est.paper_selected), to_camera(f, est.cone_axis)
-        d.results[i] = IsophoteEstimate(
-            t, OK, "" if iso.closed else "open contour fitted (allow_open=True)", iso.points_uv, iso.closed,
-            fit.conic, fit.ellipse, fit.residual_px, paper, selected, est.paper_selected_index, axis,
-            est.eigenvalue_gap, fit.cone)
+        d.results[i] = IsophoteEstimate(t, OK, "" if iso.closed else "open contour fitted (allow_open=True)",
+                                        iso.points_uv, iso.closed, fit.conic, fit.ellipse, fit.residual_px, paper,
+                                        selected, est.paper_selected_index, axis, est.eigenvalue_gap, fit.cone)
     # joint cone axes of the highlights with two or more good isophotes, in one batch
     multi = [d for d in dr if sum(r.status == OK for r in d.results) >= 2]
     if not multi:

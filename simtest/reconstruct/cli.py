@@ -19,6 +19,7 @@ from __future__ import annotations
 
 import os
 import time
+from collections import Counter
 from functools import partial
 from pathlib import Path
 from typing import Optional
@@ -36,12 +37,7 @@ from simtest.geometry.response import ResponseError
 from simtest.reconstruct._pixels import image_size_wh
 from simtest.reconstruct.frames import is_sequence, open_frames, reconstruct_frames, write_frames
 from simtest.reconstruct.images import InputError, c3vd_depth_mm, load_image, read_tiff
-from simtest.reconstruct.io import (
-    RECONSTRUCT_FILES,
-    dumps,
-    estimates_document,
-    read_estimates,
-)
+from simtest.reconstruct.io import RECONSTRUCT_FILES, dumps, estimates_document, read_estimates
 from simtest.reconstruct.overlay import check_overlay_size, draw_overlay
 from simtest.reconstruct.pipeline import reconstruct
 from simtest.reconstruct.rig_centroid import light_aware_with_rig
@@ -55,25 +51,17 @@ _DRAWN = names("isophote", "baseline", "light_aware")
 
 def reconstruct_command(
     image: Path = typer.Argument(..., help="Image file (PNG, JPEG, TIFF, ... or .npy).", show_default=False),
-    intrinsics: Path = typer.Option(
-        ..., "--intrinsics", "-k",
-        help="Camera file (JSON: pinhole, fisheye or omnidirectional model) or OpenCV YAML/XML.",
-    ),
-    out: Path = typer.Option(
-        ..., "--out", "-o", show_default=False,
-        help="Output folder, new, empty or a previous run's (replaced as a whole): estimates.json, "
-        "overlay.png, view.png (--view); estimates.parquet (or .jsonl) for a folder or video.",
-    ),
-    output_format: str = typer.Option(
-        "parquet", "--format",
-        help="For a folder or video: parquet (estimates.parquet, a row per candidate with a frame "
-        "column) or jsonl (estimates.jsonl, a JSON line per frame).",
-    ),
-    isovalues: list[float] = typer.Option(
-        [0.7, 0.85], "--isovalue", "-t",
-        help="Isovalue in (0, 1), the first primary; repeat for nested isophotes. Relative to the "
-        "highlight's height above its local background (with --normalise auto or local).",
-    ),
+    intrinsics: Path = typer.Option(..., "--intrinsics", "-k", help="Camera file (JSON: pinhole, fisheye or "
+                                    "omnidirectional model) or OpenCV YAML/XML."),
+    out: Path = typer.Option(..., "--out", "-o", show_default=False, help="Output folder, new, empty or a previous "
+                             "run's (replaced as a whole): estimates.json, overlay.png, view.png (--view); "
+                             "estimates.parquet (or .jsonl) for a folder or video."),
+    output_format: str = typer.Option("parquet", "--format", help="For a folder or video: parquet (estimates.parquet, "
+                                      "a row per candidate with a frame column) or jsonl (estimates.jsonl, a JSON line "
+                                      "per frame)."),
+    isovalues: list[float] = typer.Option([0.7, 0.85], "--isovalue", "-t", help="Isovalue in (0, 1), the first "
+                                          "primary; repeat for nested isophotes. Relative to the highlight's height "
+                                          "above its local background (with --normalise auto or local)."),
     normalise: str = typer.Option("auto", help="Intensity normalisation: auto (local where the ROI border is bright, else bp), bp (the paper's: t relative to the BP), full_scale, or local (t relative to the BP's height above the median of the ROI border: for highlights on bright tissue)."),
     detection: str = typer.Option("local_peak", help="Candidate detection: local_peak (relative to each highlight's height above its local background) or full_scale (luma >= 0.7 of full scale, the paper's)."),
     allow_open: bool = typer.Option(False, "--allow-open", help="Fit isophotes cut by a border (flagged)."),
@@ -85,18 +73,13 @@ def reconstruct_command(
     overlay: bool = typer.Option(True, "--overlay/--no-overlay", help="Write overlay.png."),
     overlay_all: bool = typer.Option(False, "--overlay-all", help="Mark rejected highlights in overlay.png too."),
     view: bool = typer.Option(False, "--view", help="Also write view.png, a 3D view of the normals (pyvista, off-screen)."),
-    cubic_patch: bool = typer.Option(
-        False, "--cubic-patch",
-        help="With a light rig of two or more lights apart, also run cubic_patch_fit where the plane fit "
-        "fails (the curved patch fitted to every light's lobe: depth and normal on curved tissue; "
-        "about 1 to 5 s per highlight).",
-    ),
-    workers: int = typer.Option(
-        0, "--workers", "-j", min=0,
-        help="Worker processes for a folder or video, or for a single image's light-aware fits "
-        "(0: one per core; at most the CPU count).",
-        show_default=False,
-    ),
+    cubic_patch: bool = typer.Option(False, "--cubic-patch", help="With a light rig of two or more lights apart, also "
+                                     "run cubic_patch_fit where the plane fit fails (the curved patch fitted to every "
+                                     "light's lobe: depth and normal on curved tissue; about 1 to 5 s per "
+                                     "highlight)."),
+    workers: int = typer.Option(0, "--workers", "-j", min=0, help="Worker processes for a folder or video, or for a "
+                                "single image's light-aware fits (0: one per core; at most the CPU count).",
+                                show_default=False),
     min_confidence: Optional[float] = typer.Option(  # noqa: UP045 (typer reads Optional)
         None, "--min-confidence", min=0.0, max=1.0,
         help="Fits that pass every check but have a lower confidence get the status low_confidence "
@@ -105,11 +88,9 @@ def reconstruct_command(
         "`simtest evaluate detection` draws precision against recall over it.",
         show_default=False,
     ),
-    max_candidates: int = typer.Option(
-        MAX_CANDIDATES or 0, "--max-candidates", min=0,
-        help="Bright components examined per frame, the largest first (0, the default: every one); "
-        "those left out are counted in the console line and in estimates.json's 'detection'.",
-    ),
+    max_candidates: int = typer.Option(MAX_CANDIDATES or 0, "--max-candidates", min=0, help="Bright components "
+                                       "examined per frame, the largest first (0, the default: every one); those left "
+                                       "out are counted in the console line and in estimates.json's 'detection'."),
 ) -> None:
     """Estimate the normal at every specular highlight of IMAGE: an image file, a folder of frames
     or a video file.
@@ -121,10 +102,9 @@ def reconstruct_command(
     --format jsonl OUT/estimates.jsonl (a line per frame) instead.
     Exit status 2: bad input or option; 4: OUT cannot be written."""
     try:
-        settings = ReconSettings.for_frames(
-            isovalues=isovalues, normalise=normalise, allow_open=allow_open,
-            smooth_sigma_px=smooth_sigma_px, detection=detection,
-            max_candidates=max_candidates or None, min_confidence=min_confidence)
+        settings = ReconSettings.for_frames(isovalues=isovalues, normalise=normalise, allow_open=allow_open,
+                                            smooth_sigma_px=smooth_sigma_px, detection=detection,
+                                            max_candidates=max_candidates or None, min_confidence=min_confidence)
     except ValueError as exc:
         fail(exc, BAD_INPUT)
     check_workers(workers)
@@ -146,10 +126,8 @@ def reconstruct_command(
             raise InputError(f"cannot read intrinsics {intrinsics}: {exc}") from None
         if camera.image_size is not None and tuple(camera.image_size) != image_size_wh(img.shape):
             (W, H), (w, h) = camera.image_size, image_size_wh(img.shape)
-            raise InputError(
-                f"{intrinsics}: key 'image_size' is {W} x {H} px but {image} is "
-                f"{w} x {h} px: these intrinsics are for another image size"
-            )
+            raise InputError(f"{intrinsics}: key 'image_size' is {W} x {H} px but {image} is {w} x {h} px: these "
+                             "intrinsics are for another image size")
         if overlay:  # refused before anything is computed or written
             check_overlay_size(img.shape)
         if camera_file.response is not None:  # a frame its response could not have written
@@ -165,12 +143,10 @@ def reconstruct_command(
                 img, camera_file, settings, cubic_patch=cubic_patch, workers=workers or os.cpu_count() or 1,
                 on_highlight=lambda done, total: bar.update(task, completed=done, total=total))
         pinhole = isinstance(camera, PinholeCamera)
-        doc = estimates_document(
-            estimates, K=camera.K if pinhole else None, image=image, image_shape=img.shape,
-            dist_coeffs=camera.dist_coeffs if pinhole else None, isovalues=settings.isovalues,
-            normalise=settings.normalise.value, include_points=points, camera=camera, lights=rig,
-            detection=detection_rec,
-        )
+        doc = estimates_document(estimates, K=camera.K if pinhole else None, image=image, image_shape=img.shape,
+                                 dist_coeffs=camera.dist_coeffs if pinhole else None, isovalues=settings.isovalues,
+                                 normalise=settings.normalise.value, include_points=points, camera=camera, lights=rig,
+                                 detection=detection_rec)
         text = dumps(doc, indent=True)
     except (ValueError, OSError, ImportError) as exc:  # IntrinsicsError, InputError: ValueErrors
         fail(exc, BAD_INPUT)
@@ -226,7 +202,7 @@ SEQUENCE_FORMATS = {"parquet": ("estimates.parquet", partial(write_frames, fmt="
 def _reconstruct_sequence(path, intrinsics, out, target, settings, *, points, workers, cubic=False,
                           output_format="parquet") -> None:
     """Folder or video: estimates.parquet (or .jsonl) in frame order, with a progress bar."""
-    counts: dict[str, int] = {}
+    counts: Counter = Counter()
     left = {"components": 0, "not_examined": 0}
     try:
         source = open_frames(path)
@@ -244,18 +220,15 @@ def _reconstruct_sequence(path, intrinsics, out, target, settings, *, points, wo
     name, write = SEQUENCE_FORMATS[output_format]
 
     def fill(folder: Path) -> None:
-        records = reconstruct_frames(source, camera, settings, workers=n_workers,
-                                     include_points=points, rig=rig, cubic=cubic, encoded=output_format,
-                                     response=camera_file.response)
+        records = reconstruct_frames(source, camera, settings, workers=n_workers, include_points=points, rig=rig,
+                                     cubic=cubic, encoded=output_format, response=camera_file.response)
         with Progress(TextColumn("reconstruct"), BarColumn(), MofNCompleteColumn(),
-                      TextColumn("{task.fields[fps]:.1f} frames/s"), TimeElapsedColumn(),
-                      transient=True) as bar:
+                      TextColumn("{task.fields[fps]:.1f} frames/s"), TimeElapsedColumn(), transient=True) as bar:
             task = bar.add_task("frames", total=source.n_frames, fps=0.0)
             t0 = time.perf_counter()
 
             def on_frame(rec):
-                for k, v in rec["counts"].items():
-                    counts[k] = counts.get(k, 0) + v
+                counts.update(rec["counts"])
                 left["components"] += rec["detection"]["components"]
                 left["not_examined"] += rec["detection"]["not_examined"]
                 n = rec["frame"] + 1
@@ -267,31 +240,30 @@ def _reconstruct_sequence(path, intrinsics, out, target, settings, *, points, wo
     n, wall, written = done["n"], done["wall"], out / name
     n_cand = sum(counts.values())
     n_ok = counts.pop("ok", 0)
-    rest = ", ".join(f"{k} {v}" for k, v in sorted(counts.items(), key=lambda kv: (-kv[1], kv[0])))
-    if left["not_examined"]:
-        rest += ("; " if rest else "") + (
-            f"{left['not_examined']} of {left['components']} bright components not examined "
-            f"(--max-candidates {settings.max_candidates}; 0 examines all)")
+    rest = _tail(counts, dict(left, max_candidates=settings.max_candidates))
     typer.echo(f"{n} frame(s) in {wall:.2f} s ({n / max(wall, 1e-9):.1f} frames/s, {n_workers} "
-               f"worker(s)): {n_cand} candidate(s), {n_ok} reconstructed"
-               + (f"; {rest}" if rest else "") + f" -> {written}")
+               f"worker(s)): {n_cand} candidate(s), {n_ok} reconstructed{rest} -> {written}")
 
 
 def summary_line(estimates, paths, detection: dict | None = None) -> str:
     """One summary line of a reconstruction: counts per status, the components detection left out
     (``detection``'s ``not_examined``, whenever any), and the files written (``paths``).
     """
-    counts: dict[str, int] = {}
-    for e in estimates:
-        counts[e.status] = counts.get(e.status, 0) + 1
+    counts = Counter(e.status for e in estimates)
     n_ok = counts.pop("ok", 0)
+    return (f"{len(estimates)} candidate(s), {n_ok} reconstructed{_tail(counts, detection)} -> "
+            + ", ".join(str(p) for p in paths))
+
+
+def _tail(counts: dict[str, int], left: dict | None) -> str:
+    """A summary line's tail after "N reconstructed": the other statuses' counts, most first, and the
+    bright components detection left out (``left``'s ``not_examined``, whenever any)."""
     rest = ", ".join(f"{k} {v}" for k, v in sorted(counts.items(), key=lambda kv: (-kv[1], kv[0])))
-    left = ""
-    if detection and detection.get("not_examined"):
-        left = (f"; {detection['not_examined']} of {detection['components']} bright components "
-                f"not examined (--max-candidates {detection['max_candidates']}; 0 examines all)")
-    return (f"{len(estimates)} candidate(s), {n_ok} reconstructed" + (f"; {rest}" if rest else "")
-            + left + " -> " + ", ".join(str(p) for p in paths))
+    tail = f"; {rest}" if rest else ""
+    if left and left.get("not_examined"):
+        tail += (f"; {left['not_examined']} of {left['components']} bright components not examined "
+                 f"(--max-candidates {left['max_candidates']}; 0 examines all)")
+    return tail
 
 
 def _camera_of(doc: dict, intrinsics: Path | None):

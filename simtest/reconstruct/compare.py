@@ -79,9 +79,8 @@ class Comparison:
         out = []
         frac = len(self.status_changes) / self.candidates if self.candidates else 0.0
         if frac > tol.status_change_frac:
-            out.append(f"ok status changed on {len(self.status_changes)} of {self.candidates} "
-                       f"candidates ({frac:.2%} > {tol.status_change_frac:.0%}): "
-                       + "; ".join(self.status_changes[:5]))
+            out.append(f"ok status changed on {len(self.status_changes)} of {self.candidates} candidates "
+                       f"({frac:.2%} > {tol.status_change_frac:.0%}): " + "; ".join(self.status_changes[:5]))
         for k, s in self.stats().items():
             if s["median"] > tol.median_move_deg or s["p95"] > tol.p95_move_deg:
                 out.append(f"{k}: normals moved by a median of {s['median']:.3g} deg and a 95th "
@@ -141,8 +140,7 @@ def compare_estimates(before: list[dict], after: list[dict], *, name: str = "",
             continue
         for k, nb in (b.get("normals") or {}).items():
             na = (a.get("normals") or {}).get(k)
-            if nb is None or na is None or np.asarray(nb, float).shape != (3,) \
-                    or np.asarray(na, float).shape != (3,):
+            if nb is None or na is None or np.asarray(nb, float).shape != (3,) or np.asarray(na, float).shape != (3,):
                 continue
             cmp.moves_deg.setdefault(k, []).append(angle_between_deg(nb, na))
     return cmp

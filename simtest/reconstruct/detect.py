@@ -25,37 +25,13 @@ from simtest._records import fast_init
 from simtest.constants import gaussian_radius_px
 from simtest.decisions import MULTIRES_SIDE_MIN_PX, MULTIRES_SIGMA_MIN_PX, SCOPE_BORDER_LEVEL_REL, TOPHAT_MIN_REL
 from simtest.reconstruct._pixels import Roi, rc_to_uv
-from simtest.reconstruct.candidates import (
-    MERGED,
-    NOT_ELLIPTICAL,
-    STATUS_NAMES,
-    TOO_SMALL,
-    Examined,
-    Rules,
-    examine,
-)
-from simtest.reconstruct.detect_pixels import (  # noqa: F401  (the detection's pixel work, re-exported)
-    BACKGROUND_DIV,
-    BACKGROUND_PLATEAU_FACTOR,
-    _gray_and_grey,
-    _scope_border,
-    _threshold_mask,
-    auto_smooth_sigma_px,
-    background_side_px,
-    clipped_mask,
-    colour_luma32,
-    luma_cv2,
-    connected_components,
-    connected_components_with_stats,
-    image_noise_sigma,
-    image_smooth_sigma_px,
-    linear_at,
-    local_peak_mask,
-    luma,
-    mask_labels,
-    near_ceiling_mask,
-    noise_sigma,
-    smooth_sigma_for_noise,
+from simtest.reconstruct.candidates import MERGED, NOT_ELLIPTICAL, STATUS_NAMES, TOO_SMALL, Examined, Rules, examine
+# the detection's pixel work, re-exported
+from simtest.reconstruct.detect_pixels import (  # noqa: F401
+    BACKGROUND_DIV, BACKGROUND_PLATEAU_FACTOR, _gray_and_grey, _scope_border, _threshold_mask, auto_smooth_sigma_px,
+    background_side_px, clipped_mask, colour_luma32, luma_cv2, connected_components, connected_components_with_stats,
+    image_noise_sigma, image_smooth_sigma_px, linear_at, local_peak_mask, luma, mask_labels, near_ceiling_mask,
+    noise_sigma, smooth_sigma_for_noise
 )
 
 _SUPPORTED = (np.uint8, np.uint16, np.float16, np.float32, np.float64)
@@ -141,7 +117,6 @@ class Detection:
     def n_components(self) -> int:
         """Bright components found: the examined candidates and those left out."""
         return len(self.candidates) + self.n_unexamined
-
 
 
 def validate_image(image, where: str = "image") -> np.ndarray:
@@ -280,23 +255,12 @@ def ellipticity(mask: np.ndarray) -> float:
 DETECT_METHODS = ("local_peak", "full_scale")
 
 
-def detect_specularities(
-    image,
-    *,
-    brightness_rel: float = 0.7,
-    full_scale: float | None = None,
-    saturation_level: float | None = None,
-    min_area_px: int = 4,
-    ellipticity_min: float = 0.75,
-    min_plateau_px: int = 2,
-    roi_scale: float = 3.0,
-    roi_margin_px: int = 4,
-    max_candidates: int | None = None,
-    smooth_sigma_px: float | None = 0.0,
-    method: str = "full_scale",
-    peak_rel: float = 0.6,
-    contrast_min_rel: float = TOPHAT_MIN_REL,
-) -> Detection:
+def detect_specularities(image, *, brightness_rel: float = 0.7, full_scale: float | None = None,
+                         saturation_level: float | None = None, min_area_px: int = 4, ellipticity_min: float = 0.75,
+                         min_plateau_px: int = 2, roi_scale: float = 3.0, roi_margin_px: int = 4,
+                         max_candidates: int | None = None, smooth_sigma_px: float | None = 0.0,
+                         method: str = "full_scale", peak_rel: float = 0.6,
+                         contrast_min_rel: float = TOPHAT_MIN_REL) -> Detection:
     """Find candidate specular highlights in a whole image.
 
     Parameters
@@ -395,13 +359,11 @@ def detect_specularities(
     # Saturated plateaus are counted (``merged``) after a closing of 2 ceil(2 sigma) + 1 px on a
     # smoothed image: noise breaks one clipped top into pieces that far apart.
     k_close = max(3, 2 * int(np.ceil(2.0 * smooth_sigma_px)) + 1) if smooth_sigma_px > 0 else 3
-    frame = _DetectFrame(
-        img=img, gray=gray, gray32=gray32, method=method, full_scale=fs, clipped=clipped, levels=levels,
-        saturation_level=saturation_level, min_area_px=min_area_px,
-        ellipticity_min=ellipticity_min, min_plateau_px=min_plateau_px, roi_scale=roi_scale,
-        roi_margin_px=roi_margin_px, max_candidates=max_candidates, peak_rel=peak_rel,
-        k_close=k_close, half=half, near=near,
-    )
+    frame = _DetectFrame(img=img, gray=gray, gray32=gray32, method=method, full_scale=fs, clipped=clipped,
+                         levels=levels, saturation_level=saturation_level, min_area_px=min_area_px,
+                         ellipticity_min=ellipticity_min, min_plateau_px=min_plateau_px, roi_scale=roi_scale,
+                         roi_margin_px=roi_margin_px, max_candidates=max_candidates, peak_rel=peak_rel, k_close=k_close,
+                         half=half, near=near)
     out, n_comps = _candidates(frame, mask)  # by peak
     smoothed = None
     if smooth_sigma_px > 0:
@@ -453,16 +415,12 @@ def _detect_half_resolution(img, native, fs, saturation_level, *, grey=False, mi
     cands2, n_comps = _candidates(frame2, mask2, by_peak=False)
     if len(cands2) > MULTIRES_CANDIDATES_MAX:
         return None  # each costs a window at full resolution: the whole frame is cheaper
-    k_close_full = max(3, 2 * int(np.ceil(2.0 * smooth_sigma_px)) + 1)
     # the full frame's smoothing, background and labels, written in the candidates' windows only
     gray = np.empty((h, w), np.float32)
     levels = np.empty((h, w), np.float32)
     labels = np.zeros((h, w), np.int32)
-    full = _DetectFrame(
-        img=img, gray=gray, gray32=None, method="local_peak", full_scale=fs, clipped=clipped, levels=levels,
-        saturation_level=saturation_level, min_area_px=min_area_px, ellipticity_min=ellipticity_min,
-        min_plateau_px=min_plateau_px, roi_scale=roi_scale, roi_margin_px=roi_margin_px,
-        max_candidates=max_candidates, peak_rel=peak_rel, k_close=k_close_full)
+    full = replace(frame2, img=img, gray=gray, gray32=None, clipped=clipped, levels=levels, min_area_px=min_area_px,
+                   min_plateau_px=min_plateau_px, k_close=max(3, 2 * int(np.ceil(2.0 * smooth_sigma_px)) + 1))
     window = _Window(native, bg_small, peak_small, float(smooth_sigma_px), np.float32(peak_rel),
                      np.float32(contrast_min_rel * fs))
     out = []
@@ -610,9 +568,8 @@ def _outer_components(mask: np.ndarray) -> list[tuple[int, int, int, int, int, n
 
 
 def _rules(frame: _DetectFrame) -> Rules:
-    return Rules(frame.min_area_px, frame.ellipticity_min, frame.min_plateau_px, frame.roi_scale,
-                 frame.roi_margin_px, frame.peak_rel, frame.k_close, frame.method == "local_peak",
-                 frame.saturation_level)
+    return Rules(frame.min_area_px, frame.ellipticity_min, frame.min_plateau_px, frame.roi_scale, frame.roi_margin_px,
+                 frame.peak_rel, frame.k_close, frame.method == "local_peak", frame.saturation_level)
 
 
 def _candidates(frame: _DetectFrame, mask: np.ndarray, by_peak: bool = True) -> tuple[list[Candidate], int]:

@@ -8,10 +8,8 @@ import cv2
 import numpy as np
 
 from simtest.constants import LUMA_BT601
-from simtest.decisions import (
-    BACKGROUND_DIV, BACKGROUND_PLATEAU_FACTOR, CLIP_LUMA_MARGIN_REL, CLIP_MARGIN_REL, NOISE_LEVEL_BINS, NOISE_LEVEL_MIN_SAMPLES,
-    TOPHAT_MIN_REL,
-)
+from simtest.decisions import (BACKGROUND_DIV, BACKGROUND_PLATEAU_FACTOR, CLIP_LUMA_MARGIN_REL, CLIP_MARGIN_REL,
+                               NOISE_LEVEL_BINS, NOISE_LEVEL_MIN_SAMPLES, TOPHAT_MIN_REL)
 
 _LUMA = np.array(LUMA_BT601)
 #: The luma weights as OpenCV's ``cv2.transform`` matrix (one output channel from R, G, B).

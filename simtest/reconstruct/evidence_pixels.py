@@ -87,7 +87,6 @@ def linear_at_points(small: np.ndarray, shape: tuple[int, int], rows: np.ndarray
     return top * (one - ay) + bot * ay
 
 
-
 def top_hat_maxima(g: np.ndarray, bg: np.ndarray, floor: np.float32) -> tuple[np.ndarray, np.ndarray]:
     """The top-hat ``max(g - bg, 0)`` (float32) and a bool mask of its 3 x 3 local maxima above ``floor``."""
     top = np.subtract(g, bg, dtype=np.float32)
@@ -435,9 +434,8 @@ def white_share_in(win_rgb: np.ndarray, se: np.ndarray, bp_rc: tuple[int, int], 
     return white_share(lin - base, base[bp_rc])
 
 
-def surround_fractions(gray: np.ndarray, ells, bps_ij: np.ndarray, reaches: np.ndarray, own_level,
-                       rel: float, paired=None, rgb: np.ndarray | None = None,
-                       full_scale: float = 255.0, response=None):
+def surround_fractions(gray: np.ndarray, ells, bps_ij: np.ndarray, reaches: np.ndarray, own_level, rel: float,
+                       paired=None, rgb: np.ndarray | None = None, full_scale: float = 255.0, response=None):
     """Per candidate, the share of its surround lit by other light, float64 (n,).
 
     The surround is within ``reaches`` of the BP pixel ``bps_ij`` (column, row), outside the primary

@@ -13,9 +13,8 @@ import numpy as np
 from simtest.constants import gaussian_radius_px
 from simtest.geometry.cameras import CameraModel, PinholeCamera
 from simtest.reconstruct._pixels import Roi, image_size_wh
-from simtest.reconstruct.detect import (
-    colour_luma32, luma_cv2, default_full_scale, image_noise_sigma, luma, smooth_sigma_for_noise, validate_image,
-)
+from simtest.reconstruct.detect import (colour_luma32, luma_cv2, default_full_scale, image_noise_sigma, luma,
+                                        smooth_sigma_for_noise, validate_image)
 from simtest.reconstruct.failures import OK
 from simtest.reconstruct.settings import ReconSettings
 
@@ -202,8 +201,7 @@ def _colour_luma32(img: np.ndarray, grey: bool | None = None) -> np.ndarray | No
 
 
 def _frame_luma_smoothing(img: np.ndarray, detection_smoothed: np.ndarray, sigma: float,
-                          luma32: np.ndarray | None = None,
-                          detection_luma32: np.ndarray | None = None) -> np.ndarray:
+                          luma32: np.ndarray | None = None, detection_luma32: np.ndarray | None = None) -> np.ndarray:
     """The whole frame's luma smoothed once (float32, read-only): detection's smoothing where it smoothed
     the luma itself, else the unrounded luma (``luma32`` where at hand) smoothed as detection smooths.
     """

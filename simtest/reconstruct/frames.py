@@ -23,7 +23,9 @@ from collections.abc import Iterator
 from contextlib import contextmanager
 from itertools import chain
 from dataclasses import dataclass
+from functools import partial
 from pathlib import Path
+from typing import NamedTuple
 
 import cv2
 import numpy as np
@@ -188,21 +190,10 @@ def _encoded_record(args, encoding: str) -> FrameRecord:
     return out
 
 
-def _jsonl_record(args) -> FrameRecord:
-    return _encoded_record(args, "jsonl")
-
-
-def _parquet_record(args) -> FrameRecord:
-    return _encoded_record(args, "parquet")
-
-
-class _InRing:
+class _InRing(NamedTuple):
     """A job's frame left in the worker's :class:`_FrameRing` (its slot), not sent in the job."""
 
-    __slots__ = ("slot",)
-
-    def __init__(self, slot: int):
-        self.slot = slot
+    slot: int
 
 
 class _FrameRing:
@@ -228,10 +219,6 @@ class _FrameRing:
         np.copyto(self.slots[slot], image)
         return _InRing(slot)
 
-    def frame(self, slot: int) -> np.ndarray:
-        """The frame in ``slot``, a writeable view."""
-        return self.slots[slot]
-
     @staticmethod
     def attach(ring: _FrameRing) -> None:
         """A worker's initializer: the ring it was forked with (the mapping is inherited)."""
@@ -242,7 +229,7 @@ def _frame_head(args) -> tuple[dict, list, bool]:
     """A frame's record but ``specularities``, its estimates and ``include_points``."""
     index, name, image, K, settings, dist_coeffs, include_points, rig, cubic, *more = args
     if isinstance(image, _InRing):
-        image = _FrameRing.current.frame(image.slot)
+        image = _FrameRing.current.slots[image.slot]  # a writeable view
     response = more[0] if more else None  # the camera file's response (None: linear)
     if response is not None:  # a frame the response could not have written, lights or none (as
         # a single image is refused): named before its reconstruction
@@ -264,11 +251,9 @@ def _frame_record(args) -> dict:
     return {**head, "specularities": [estimate_to_dict(e, include_points) for e in ests]}
 
 
-def reconstruct_frames(source: FrameSource, K, settings: ReconSettings | None = None, *,
-                       dist_coeffs=None, workers: int = 1,
-                       include_points: bool = False, rig=None,
-                       cubic: bool | None = False, encoded: bool | str = False,
-                       response=None) -> Iterator[dict]:
+def reconstruct_frames(source: FrameSource, K, settings: ReconSettings | None = None, *, dist_coeffs=None,
+                       workers: int = 1, include_points: bool = False, rig=None, cubic: bool | None = False,
+                       encoded: bool | str = False, response=None) -> Iterator[dict]:
     """Reconstruct every frame of ``source``; yield one record per frame, in frame order.
 
     Parameters
@@ -314,7 +299,7 @@ def reconstruct_frames(source: FrameSource, K, settings: ReconSettings | None = 
     encoded = "jsonl" if encoded is True else encoded
     if encoded and encoded not in ENCODINGS:
         raise ValueError(f"encoded: {encoded!r} is not one of {', '.join(ENCODINGS)}")
-    one = {"jsonl": _jsonl_record, "parquet": _parquet_record}.get(encoded, _frame_record)
+    one = partial(_encoded_record, encoding=encoded) if encoded else _frame_record
     if workers <= 1:
         yield from map(one, jobs)
         return

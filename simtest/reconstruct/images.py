@@ -96,9 +96,8 @@ def decoder_damage(said: str) -> str:
 
 def _check_pixel_limit(h: int, w: int, path: Path, what: str) -> None:
     if h * w > MAX_IMAGE_PIXELS:
-        raise InputError(f"{path}: {what} {w} x {h} px ({h * w / 1e6:.0f} Mpx), over the "
-                         f"{MAX_IMAGE_PIXELS / 1e6:.0f} Mpx an image may have (an endoscope's 4K "
-                         f"frame is 8.3 Mpx)")
+        raise InputError(f"{path}: {what} {w} x {h} px ({h * w / 1e6:.0f} Mpx), over the {MAX_IMAGE_PIXELS / 1e6:.0f} "
+                         "Mpx an image may have (an endoscope's 4K frame is 8.3 Mpx)")
 
 
 def _header_size(path: Path) -> None:
@@ -120,8 +119,7 @@ def _header_size(path: Path) -> None:
     _check_pixel_limit(int(h), int(w), path, "the header claims")
 
 
-_EXPECTED = ("expected an image: shape (H, W), (H, W, 1), (H, W, 3) or (H, W, 4), dtype uint8, "
-             "uint16 or float16/32/64")
+_EXPECTED = "expected an image: shape (H, W), (H, W, 1), (H, W, 3) or (H, W, 4), dtype uint8, uint16 or float16/32/64"
 
 
 def _check_layout(shape, dtype, path: Path) -> None:

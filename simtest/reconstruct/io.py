@@ -51,11 +51,7 @@ def _num(x):
 def _ellipse(e):
     if e is None:
         return None
-    return {
-        "center_px": _vec(e.center),
-        "semi_axes_px": _vec(e.semi_axes),
-        "angle_deg": float(np.degrees(e.angle_rad)),
-    }
+    return {"center_px": _vec(e.center), "semi_axes_px": _vec(e.semi_axes), "angle_deg": float(np.degrees(e.angle_rad))}
 
 
 def _isophote_dict(iso, include_points: bool) -> dict:
@@ -147,26 +143,17 @@ def estimate_to_dict(est, include_points: bool = False) -> dict:
     }
 
 
-
 # JSON: the document as dicts and lists, its text written by orjson
 
 
 def _not_finite_at(obj, where: str):
     """The path of the first number in ``obj`` that is not finite, or None."""
     t = type(obj)
-    if t is dict:
-        for k, v in obj.items():
+    if t is dict or t is list or t is tuple:
+        for k, v in obj.items() if t is dict else enumerate(obj):
             if type(v) in _SCALARS_OK:
                 continue
-            bad = _not_finite_at(v, f"{where}.{k}" if where else str(k))
-            if bad is not None:
-                return bad
-        return None
-    if t is list or t is tuple:
-        for i, v in enumerate(obj):
-            if type(v) in _SCALARS_OK:
-                continue
-            bad = _not_finite_at(v, f"{where}[{i}]")
+            bad = _not_finite_at(v, (f"{where}.{k}" if where else str(k)) if t is dict else f"{where}[{k}]")
             if bad is not None:
                 return bad
         return None
@@ -206,9 +193,8 @@ def dumps(obj, *, indent: bool = False) -> bytes:
     return _orjson.dumps(obj, option=_ORJSON_OPTIONS)
 
 
-def estimates_document(estimates, *, K, image=None, image_shape=None, dist_coeffs=None,
-                       isovalues=(), normalise="bp", include_points=False, camera=None,
-                       lights=None, detection=None) -> dict:
+def estimates_document(estimates, *, K, image=None, image_shape=None, dist_coeffs=None, isovalues=(), normalise="bp",
+                       include_points=False, camera=None, lights=None, detection=None) -> dict:
     """The whole schema-2 document as a dict (``docs/estimates-format.md``).
 
     Parameters
@@ -263,9 +249,8 @@ def estimates_document(estimates, *, K, image=None, image_shape=None, dist_coeff
     }
 
 
-def write_estimates(path, estimates, *, K, image=None, image_shape=None, dist_coeffs=None,
-                    isovalues=(), normalise="bp", include_points=False, camera=None,
-                    lights=None) -> Path:
+def write_estimates(path, estimates, *, K, image=None, image_shape=None, dist_coeffs=None, isovalues=(), normalise="bp",
+                    include_points=False, camera=None, lights=None) -> Path:
     """Write ``estimates.json`` atomically (temporary file in the same folder, then os.replace).
 
     Parameters

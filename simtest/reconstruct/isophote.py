@@ -81,16 +81,9 @@ def polygon_area(polygon_uv: np.ndarray) -> float:
     return 0.5 * abs(float(np.dot(x[:-1], y[1:]) - np.dot(y[:-1], x[1:]) + x[-1] * y[0] - y[-1] * x[0]))
 
 
-def extract_isophote(
-    values: np.ndarray,
-    level: float,
-    bp_uv,
-    *,
-    origin_rc: tuple[int, int] = (0, 0),
-    image_shape: tuple[int, ...] | None = None,
-    allow_open: bool = False,
-    min_points: int = MIN_CONTOUR_POINTS,
-) -> Isophote | Failure:
+def extract_isophote(values: np.ndarray, level: float, bp_uv, *, origin_rc: tuple[int, int] = (0, 0),
+                     image_shape: tuple[int, ...] | None = None, allow_open: bool = False,
+                     min_points: int = MIN_CONTOUR_POINTS) -> Isophote | Failure:
     """Extract the isophote at ``level`` that encloses the brightest point.
 
     Marching squares joins the pixels above ``level`` 4-connectedly (``fully_connected="low"``), so
@@ -321,12 +314,8 @@ def _open_pieces_around_bp(sub, level, ri, ci, open_contours):
     target = labels[ri, ci]
     if target == 0:
         return [], (False, False, False, False)
-    sides = (
-        bool((labels[0] == target).any()),
-        bool((labels[-1] == target).any()),
-        bool((labels[:, 0] == target).any()),
-        bool((labels[:, -1] == target).any()),
-    )
+    sides = (bool((labels[0] == target).any()), bool((labels[-1] == target).any()),
+             bool((labels[:, 0] == target).any()), bool((labels[:, -1] == target).any()))
     h, w = sub.shape
     pieces = []
     for rc in open_contours:

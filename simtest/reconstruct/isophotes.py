@@ -170,9 +170,8 @@ def _isophote_result(frame: _Frame, t, iso):
     return _Pending(t, iso), iso
 
 
-def _estimate_one(frame: _Frame, bp_uv, roi: Roi, *, saturated: bool, grow: bool,
-                  other_bps=(), own_bp: int = -1, bp_ray=None, fitf: FitFrame | None = None,
-                  ring: float | None = None, sm: np.ndarray | None = None,
+def _estimate_one(frame: _Frame, bp_uv, roi: Roi, *, saturated: bool, grow: bool, other_bps=(), own_bp: int = -1,
+                  bp_ray=None, fitf: FitFrame | None = None, ring: float | None = None, sm: np.ndarray | None = None,
                   defer: list | None = None) -> _Draft | SpecularityEstimate | None:
     """Extract one highlight's isophotes (growing the ROI): a draft for
     :func:`~simtest.reconstruct.assemble._complete`, or the finished estimate of a BP without a ray.

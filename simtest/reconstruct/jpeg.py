@@ -21,19 +21,13 @@ import numpy as np
 
 from simtest._lazy import require
 from simtest.constants import LUMA_BT601
-from simtest.decisions import (
-    JPEG_MIN_COEFFICIENTS as MIN_COEFFICIENTS,
-    JPEG_PERIODICITY_MIN as PERIODICITY_MIN,
-    JPEG_CHANCE_SD as CHANCE_SD,
-    JPEG_MIN_STEP as MIN_STEP,
-    JPEG_UNIMODAL_SHARE as UNIMODAL_SHARE,
-    JPEG_MIN_QUANTISED as MIN_QUANTISED,
-    JPEG_BLOCKINESS_CLEAR as BLOCKINESS_CLEAR,
-)
+from simtest.decisions import (JPEG_MIN_COEFFICIENTS as MIN_COEFFICIENTS, JPEG_PERIODICITY_MIN as PERIODICITY_MIN,
+                               JPEG_CHANCE_SD as CHANCE_SD, JPEG_MIN_STEP as MIN_STEP,
+                               JPEG_UNIMODAL_SHARE as UNIMODAL_SHARE, JPEG_MIN_QUANTISED as MIN_QUANTISED,
+                               JPEG_BLOCKINESS_CLEAR as BLOCKINESS_CLEAR)
 
-__all__ = ["BLOCK", "GRID_BLOCKS", "BLOCKINESS_CLEAR", "MIN_COEFFICIENTS", "PERIODICITY_MIN",
-           "CHANCE_SD", "MIN_STEP", "MIN_QUANTISED", "UNIMODAL_SHARE", "dct_blocks", "jpeg_grid",
-           "quantisation_sigma"]
+__all__ = ["BLOCK", "GRID_BLOCKS", "BLOCKINESS_CLEAR", "MIN_COEFFICIENTS", "PERIODICITY_MIN", "CHANCE_SD", "MIN_STEP",
+           "MIN_QUANTISED", "UNIMODAL_SHARE", "dct_blocks", "jpeg_grid", "quantisation_sigma"]
 
 #: Side of a JPEG block, px.
 BLOCK = 8

@@ -22,15 +22,8 @@ from simtest._lazy import require
 from simtest._io import atomic_write
 from simtest.reconstruct.io import estimate_to_dict
 
-__all__ = [
-    "ESTIMATOR_COLOURS",
-    "MAX_OVERLAY_PIXELS",
-    "OVERLAY_BYTES_PER_PIXEL",
-    "check_overlay_size",
-    "draw_overlay",
-    "estimator_colour",
-    "needle_length_px",
-]
+__all__ = ["ESTIMATOR_COLOURS", "MAX_OVERLAY_PIXELS", "OVERLAY_BYTES_PER_PIXEL", "check_overlay_size", "draw_overlay",
+           "estimator_colour", "needle_length_px"]
 
 #: One colour per estimator, shared by the overlay, the 3D view and the evaluation figures.
 ESTIMATOR_COLOURS = {
@@ -78,16 +71,13 @@ def check_overlay_size(shape) -> None:
     h, w = int(shape[0]), int(shape[1])
     need = h * w * OVERLAY_BYTES_PER_PIXEL
     if h * w > MAX_OVERLAY_PIXELS:
-        raise ValueError(
-            f"overlay: a {w} x {h} px image ({h * w / 1e6:.0f} Mpx) is over the {MAX_OVERLAY_PIXELS / 1e6:.0f} Mpx "
-            f"an overlay is drawn for (~{need / 2**30:.1f} GiB); use --no-overlay"
-        )
+        raise ValueError(f"overlay: a {w} x {h} px image ({h * w / 1e6:.0f} Mpx) is over the "
+                         f"{MAX_OVERLAY_PIXELS / 1e6:.0f} Mpx an overlay is drawn for (~{need / 2**30:.1f} GiB); "
+                         "use --no-overlay")
     avail = _available_memory_bytes()
     if avail is not None and need > avail:
-        raise ValueError(
-            f"overlay: a {w} x {h} px image needs ~{need / 2**30:.1f} GiB but {avail / 2**30:.1f} GiB are free; "
-            "use --no-overlay"
-        )
+        raise ValueError(f"overlay: a {w} x {h} px image needs ~{need / 2**30:.1f} GiB but {avail / 2**30:.1f} GiB "
+                         "are free; use --no-overlay")
 
 
 def _display_image(image: np.ndarray) -> np.ndarray:

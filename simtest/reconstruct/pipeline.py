@@ -93,7 +93,6 @@ def _keep_freed_memory() -> bool:
         mallopt(_M_TRIM_THRESHOLD, TRIM_THRESHOLD_BYTES))
 
 
-
 def reconstruct_roi(image, K, isovalues: float | Sequence[float] | None = None, *, bp_uv=None, roi=None,
                     dist_coeffs=None, settings: ReconSettings | None = None, **options) -> SpecularityEstimate:
     """Reconstruct the normal of one known highlight.
@@ -250,11 +249,10 @@ def reconstruct(image, K, isovalues: float | Sequence[float] | None = None, *, d
     frame = _Frame.make(img, K, dist_coeffs, settings, noise_roi=r)
     frame = frame if response is None else dataclasses.replace(frame, response=response)
     sub = img[r.slices]
-    det = detect_specularities(
-        sub, brightness_rel=settings.brightness_rel, full_scale=frame.full_scale,
-        saturation_level=settings.saturation_level, min_area_px=settings.min_area_px,
-        smooth_sigma_px=frame.smooth_sigma_px, method=settings.detection,
-        peak_rel=settings.peak_rel, max_candidates=settings.max_candidates)
+    det = detect_specularities(sub, brightness_rel=settings.brightness_rel, full_scale=frame.full_scale,
+                               saturation_level=settings.saturation_level, min_area_px=settings.min_area_px,
+                               smooth_sigma_px=frame.smooth_sigma_px, method=settings.detection,
+                               peak_rel=settings.peak_rel, max_candidates=settings.max_candidates)
     whole = sub.shape == img.shape
     frame = _prepared(frame, det, whole)
     # every candidate's BP in the image, in one addition (each estimate's BP is a row of it)

@@ -185,19 +185,16 @@ register("paper_oracle", _paper_oracle, kind="oracle", default=True, reference=T
 register("paper_selected", _attr("paper_selected"), kind="isophote", default=True, reference=True,
          description="paper, N+ or N- chosen without the truth (the one closer to the BP ray)")
 register("cone_axis", _attr("cone_axis"), kind="isophote", default=True, rank=1,
-         description="cone axis of C' (unique-sign eigenvector; as dam410/LightModel "
-                     "vanishing_line_paper_co)")
+         description="cone axis of C' (unique-sign eigenvector; as dam410/LightModel vanishing_line_paper_co)")
 register("joint_cone_axis", _attr("joint_cone_axis"), kind="isophote", default=True, rank=0,
          description="joint cone axis of the nested isophotes")
 register("bp_ray", _attr("bp_ray"), kind="baseline", default=True, status_free=True, reference=True, rank=2,
          description="minus the viewing ray of the BP (baseline)")
 register("isocurve_fit", _light_aware("isocurve_fit"), kind="light_aware", outputs=_FIT, rank=3,
          description="general isocurve (eq. 2) fitted with the calibrated light (light-aware)")
-register("photometric_fit", _light_aware("photometric_fit"), kind="light_aware", outputs=_FIT,
-         status_free=True, rank=0,
+register("photometric_fit", _light_aware("photometric_fit"), kind="light_aware", outputs=_FIT, status_free=True, rank=0,
          description="ROI intensities fitted with a plane lit by the rig (light-aware)")
-register("quadric_fit", _light_aware("quadric_fit"), kind="light_aware", outputs=_FIT,
-         status_free=True, rank=2,
+register("quadric_fit", _light_aware("quadric_fit"), kind="light_aware", outputs=_FIT, status_free=True, rank=2,
          description="ROI intensities fitted with a quadric patch lit by the rig (experimental)")
 register("cubic_patch_fit", _light_aware("cubic_patch_fit"), kind="light_aware",
          outputs=_FIT + ("light_normals",), status_free=True, rank=1,
@@ -206,9 +203,8 @@ register("rig_centroid", _light_aware("rig_centroid"), kind="light_aware", outpu
          status_free=True, description="the bisector for the rig's centroid light, where its lobes fuse into one")
 register("rig_pair", _light_aware("rig_pair"), kind="light_aware", outputs=_FIT, status_free=True,
          description="the plane two guides' fused clipped tops fix as a stereo pair (rule 0)")
-register("recommended", _recommended, kind="recommendation", outputs=_FIT + ("light_normals",),
-         status_free=True, reference=True,
-         description="the normal estimates.json recommends (simtest.reconstruct.recommend)")
+register("recommended", _recommended, kind="recommendation", outputs=_FIT + ("light_normals",), status_free=True,
+         reference=True, description="the normal estimates.json recommends (simtest.reconstruct.recommend)")
 register("photometric_fit_on_specular", _light_aware("photometric_fit_on_specular"),
          kind="oracle_input", outputs=_FIT, status_free=True, reference=True, oracle_input="specular",
          description="photometric_fit on the renderer's specular image alone (oracle input: no "

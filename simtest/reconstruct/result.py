@@ -17,10 +17,6 @@ __all__ = ["Reconstruction", "NORMAL_COLUMNS"]
 NORMAL_COLUMNS = ("paper_selected", "cone_axis", "joint_cone_axis", "bp_ray", "recommended")
 
 
-def _unit_or_nan(v) -> np.ndarray:
-    return np.full(3, np.nan) if v is None else np.asarray(v, dtype=np.float64).reshape(3)
-
-
 class Reconstruction(list):
     """The estimates of one frame (a list, brightest first), what detection left out, and tables.
 
@@ -52,9 +48,8 @@ class Reconstruction(list):
     ((0, 5, 3), (0,))
     """
 
-    def __init__(self, estimates=(), *, n_components: int = 0, n_unexamined: int = 0,
-                 max_candidates: int | None = None, K=None, image_shape=None,
-                 isovalues: tuple = (), normalise: str = "auto"):
+    def __init__(self, estimates=(), *, n_components: int = 0, n_unexamined: int = 0, max_candidates: int | None = None,
+                 K=None, image_shape=None, isovalues: tuple = (), normalise: str = "auto"):
         super().__init__(estimates)
         self.n_components = int(n_components)
         self.n_unexamined = int(n_unexamined)
@@ -70,11 +65,9 @@ class Reconstruction(list):
         detection's counts, the settings' ``max_candidates``, ``isovalues`` and ``normalise``, the
         camera's K where it is a pinhole, and the image shape.
         """
-        return cls(estimates, n_components=detection.n_components,
-                   n_unexamined=detection.n_unexamined, max_candidates=settings.max_candidates,
-                   K=camera.K if isinstance(camera, PinholeCamera) else None,
-                   image_shape=image_shape, isovalues=settings.isovalues,
-                   normalise=settings.normalise.value)
+        return cls(estimates, n_components=detection.n_components, n_unexamined=detection.n_unexamined,
+                   max_candidates=settings.max_candidates, K=camera.K if isinstance(camera, PinholeCamera) else None,
+                   image_shape=image_shape, isovalues=settings.isovalues, normalise=settings.normalise.value)
 
     def detection_record(self) -> dict:
         """``{"components", "examined", "not_examined", "max_candidates"}`` for estimates.json."""
@@ -114,7 +107,8 @@ class Reconstruction(list):
                 else:
                     raise ValueError(f"normals: {c!r} is not a normal of an estimate; known: "
                                      f"{', '.join(NORMAL_COLUMNS)}")
-                out[i, j] = _unit_or_nan(v)
+                if v is not None:  # (else NaN)
+                    out[i, j] = np.asarray(v, dtype=np.float64).reshape(3)
         return out
 
     def rows(self, include_points: bool = False) -> list[dict]:
@@ -131,8 +125,7 @@ class Reconstruction(list):
         """The ``estimates.json`` document of this frame, UTF-8 bytes (``image``: the file recorded).
         ValueError naming the key path of a value that is not finite.
         """
-        doc = estimates_document(self, K=self.K, image=image, image_shape=self.image_shape,
-                                 isovalues=self.isovalues, normalise=self.normalise,
-                                 include_points=include_points,
+        doc = estimates_document(self, K=self.K, image=image, image_shape=self.image_shape, isovalues=self.isovalues,
+                                 normalise=self.normalise, include_points=include_points,
                                  detection=self.detection_record())
         return dumps(doc, indent=indent)

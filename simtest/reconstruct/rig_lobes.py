@@ -228,10 +228,9 @@ def _pair_estimates(camera, rig, pts: np.ndarray, plane) -> list:
         detail = (f"guides {guides[0] + 1} and {guides[1] + 1}'s clipped tops {np.linalg.norm(pts[0] - pts[1]):.3g} "
                   f"px apart: depths {depths[0]:.4g} and {depths[1]:.4g} mm (relative sigma {rel_sigma[k]:.2g}), "
                   f"misclosure {misclosure:.2g} deg")
-        out.append(LightAwareEstimate(
-            "rig_pair", "ok" if released else "depth_not_observable", detail, normal.copy(),
-            depth_mm=float(depths[k]) if released else None, normal_sigma_deg=sigma,
-            depth_sigma_mm=float(rel_sigma[k] * depths[k]) if released else None))
+        out.append(LightAwareEstimate("rig_pair", "ok" if released else "depth_not_observable", detail, normal.copy(),
+                                      depth_mm=float(depths[k]) if released else None, normal_sigma_deg=sigma,
+                                      depth_sigma_mm=float(rel_sigma[k] * depths[k]) if released else None))
     return out
 
 

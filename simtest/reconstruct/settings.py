@@ -13,13 +13,7 @@ from collections.abc import Sequence
 from dataclasses import dataclass
 
 import numpy as np
-from simtest.decisions import (
-    AUTO_LOCAL_BACKGROUND_REL,
-    BRIGHTNESS_REL,
-    FRAME_ISOVALUES,
-    MIN_AREA_PX,
-    PEAK_REL,
-)
+from simtest.decisions import AUTO_LOCAL_BACKGROUND_REL, BRIGHTNESS_REL, FRAME_ISOVALUES, MIN_AREA_PX, PEAK_REL
 
 __all__ = ["MAX_CANDIDATES", "Normalisation", "ReconSettings", "validate_isovalues"]
 
@@ -86,6 +80,16 @@ def _positive_or_none(name: str, value) -> float | None:
     if not (math.isfinite(v) and v > 0):
         raise ValueError(f"{name} must be finite and positive, got {value!r}")
     return v
+
+
+def _number(value) -> float:
+    """``float(value)``; NaN (refused by every range) for a bool or what is not a number."""
+    if isinstance(value, bool):
+        return float("nan")
+    try:
+        return float(value)
+    except (TypeError, ValueError):
+        return float("nan")
 
 
 #: Detection's default cap on the bright components examined: None, every one.
@@ -177,54 +181,38 @@ class ReconSettings:
             modes = tuple(m.value for m in Normalisation)
             raise ValueError(f"normalise: {self.normalise!r} is not one of {modes}") from None
         if self.smooth_sigma_px is not None:
-            try:
-                sigma = float(self.smooth_sigma_px)
-            except (TypeError, ValueError):
-                sigma = float("nan")
-            if isinstance(self.smooth_sigma_px, bool) or not (math.isfinite(sigma)
-                                                              and 0.0 <= sigma <= 100.0):
-                raise ValueError(f"smooth_sigma_px must be finite and in [0, 100] px, got " f"{self.smooth_sigma_px!r}")
+            sigma = _number(self.smooth_sigma_px)
+            if not (math.isfinite(sigma) and 0.0 <= sigma <= 100.0):
+                raise ValueError(f"smooth_sigma_px must be finite and in [0, 100] px, got {self.smooth_sigma_px!r}")
             set_(self, "smooth_sigma_px", sigma)
         if self.detection not in DETECTION_METHODS:
             raise ValueError(f"detection: {self.detection!r} is not one of {DETECTION_METHODS}")
-        try:
-            prel = float(self.peak_rel)
-        except (TypeError, ValueError):
-            prel = float("nan")
-        if isinstance(self.peak_rel, bool) or not 0.0 < prel < 1.0:
+        prel = _number(self.peak_rel)
+        if not 0.0 < prel < 1.0:
             raise ValueError(f"peak_rel must be in (0, 1), got {self.peak_rel!r}")
         set_(self, "peak_rel", prel)
-        if not isinstance(self.allow_open, (bool, np.bool_)):
-            raise ValueError(f"allow_open must be true or false, got {self.allow_open!r}")
-        set_(self, "allow_open", bool(self.allow_open))
-        if not isinstance(self.verify, (bool, np.bool_)):
-            raise ValueError(f"verify must be true or false, got {self.verify!r}")
-        set_(self, "verify", bool(self.verify))
+        for name in ("allow_open", "verify"):
+            if not isinstance(getattr(self, name), (bool, np.bool_)):
+                raise ValueError(f"{name} must be true or false, got {getattr(self, name)!r}")
+            set_(self, name, bool(getattr(self, name)))
         if self.min_confidence is not None:
-            try:
-                conf = float(self.min_confidence)
-            except (TypeError, ValueError):
-                conf = float("nan")
-            if isinstance(self.min_confidence, bool) or not 0.0 <= conf <= 1.0:
+            conf = _number(self.min_confidence)
+            if not 0.0 <= conf <= 1.0:
                 raise ValueError(f"min_confidence must be in [0, 1] or None, got {self.min_confidence!r}")
             set_(self, "min_confidence", conf)
         set_(self, "full_scale", _positive_or_none("full_scale", self.full_scale))
         set_(self, "saturation_level", _positive_or_none("saturation_level", self.saturation_level))
-        try:
-            rel = float(self.brightness_rel)
-        except (TypeError, ValueError):
-            rel = float("nan")
+        rel = _number(self.brightness_rel)
         if not 0.0 < rel < 1.0:
             raise ValueError(f"brightness_rel must be in (0, 1), got {self.brightness_rel!r}")
         set_(self, "brightness_rel", rel)
-        if isinstance(self.min_area_px, bool) or not float(self.min_area_px).is_integer() \
-                or self.min_area_px < 1:
+        if isinstance(self.min_area_px, bool) or not float(self.min_area_px).is_integer() or self.min_area_px < 1:
             raise ValueError(f"min_area_px must be an integer >= 1, got {self.min_area_px!r}")
         set_(self, "min_area_px", int(self.min_area_px))
         if self.max_candidates is not None:
-            if not isinstance(self.max_candidates, (int, float, np.integer, np.floating)) \
-                    or isinstance(self.max_candidates, bool) \
-                    or not float(self.max_candidates).is_integer() or self.max_candidates < 1:
+            if (not isinstance(self.max_candidates, (int, float, np.integer, np.floating))
+                    or isinstance(self.max_candidates, bool) or not float(self.max_candidates).is_integer()
+                    or self.max_candidates < 1):
                 raise ValueError(f"max_candidates must be an integer >= 1 or None (every "
                                  f"component), got {self.max_candidates!r}")
             set_(self, "max_candidates", int(self.max_candidates))

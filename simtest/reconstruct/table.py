@@ -16,9 +16,8 @@ import orjson
 
 from simtest._lazy import require
 from simtest._version import __version__
-from simtest.reconstruct.io import (
-    LIGHT_AWARE_NORMALS, SCHEMA_VERSION, _light_aware_dict, _not_finite_at, _nums, _rows, dumps,
-)
+from simtest.reconstruct.io import (LIGHT_AWARE_NORMALS, SCHEMA_VERSION, _light_aware_dict, _not_finite_at, _nums,
+                                    _rows, dumps)
 
 def arrow():
     """``(pyarrow, pyarrow.parquet)``, imported when a table is first made or read."""
@@ -51,7 +50,6 @@ def table_schema():
         run), ``isophotes`` a list of structs (``points_px`` null unless written with the points).
     """
     pa = arrow()[0]
-
     f64, text = pa.float64(), pa.string()
     v2, v3 = pa.list_(f64, 2), pa.list_(f64, 3)
     ellipse = pa.struct([("center_px", v2), ("semi_axes_px", v2), ("angle_deg", f64)])
@@ -60,11 +58,10 @@ def table_schema():
              ("paper_selected_index", pa.int8()), ("normal_cone_axis", v3)]
     isophote = pa.struct([("isovalue", f64), ("status", text), ("detail", text), ("closed", pa.bool_()),
                           ("n_points", pa.int32()), *fit, *paper, ("points_px", pa.list_(v2))])
-    light_aware = pa.struct([
-        ("status", text), ("detail", text), ("depth_mm", f64), ("normal_sigma_deg", f64),
-        ("depth_sigma_mm", f64), ("distance_mm", f64), ("roughness", f64), ("lobe", text),
-        ("projection", text), ("light_normals", pa.list_(v3)), ("light_depths_mm", pa.list_(f64)),
-        ("light_normal_sigmas_deg", pa.list_(f64)), ("depth_range_mm", pa.list_(f64))])
+    light_aware = pa.struct([("status", text), ("detail", text), ("depth_mm", f64), ("normal_sigma_deg", f64),
+                             ("depth_sigma_mm", f64), ("distance_mm", f64), ("roughness", f64), ("lobe", text),
+                             ("projection", text), ("light_normals", pa.list_(v3)), ("light_depths_mm", pa.list_(f64)),
+                             ("light_normal_sigmas_deg", pa.list_(f64)), ("depth_range_mm", pa.list_(f64))])
     return pa.schema([
         ("frame", pa.int32()), ("source", text), ("candidate", pa.int32()),
         ("normal", v3), ("normal_from", text), ("depth_mm", f64), ("normal_sigma_deg", f64),
@@ -107,7 +104,6 @@ def frame_batch(record: dict):
         A value that is not finite, or a light-aware estimator the schema has no column for.
     """
     pa = arrow()[0]
-
     specs = record["specularities"]
     bad = _not_finite_at(specs, f"frame {record['source']}: specularities")
     if bad is not None:
@@ -128,7 +124,6 @@ def frame_batch(record: dict):
 def _fixed(values: list, shape: tuple, where: str):
     """A column of float64 arrays of ``shape`` from ``values`` (None: null); not finite refused."""
     pa = arrow()[0]
-
     n, size = len(values), math.prod(shape)
     null = np.array([v is None for v in values], dtype=bool)
     present = [v for v in values if v is not None]
@@ -152,7 +147,6 @@ def _fixed(values: list, shape: tuple, where: str):
 def _floats(values: list, where: str):
     """A float64 column (None: null), as :func:`_num` writes each; not finite refused."""
     pa = arrow()[0]
-
     null = np.array([v is None for v in values], dtype=bool)
     data = np.array([np.nan if v is None else float(v) for v in values], dtype=np.float64)
     bad = ~np.isfinite(data) & ~null
@@ -163,7 +157,6 @@ def _floats(values: list, where: str):
 
 def _ellipses(ells: list, where: str):
     pa = arrow()[0]
-
     center = _fixed([None if e is None else e.center for e in ells], (2,), f"{where}.center_px")
     semi = _fixed([None if e is None else e.semi_axes for e in ells], (2,), f"{where}.semi_axes_px")
     angle = _floats([None if e is None else float(np.degrees(e.angle_rad)) for e in ells], f"{where}.angle_deg")
@@ -175,7 +168,6 @@ def _ellipses(ells: list, where: str):
 def _fit_columns(objs: list, indices: list, where: str) -> list:
     """The columns a specularity and an isophote share, from the estimates or isophotes ``objs``."""
     pa = arrow()[0]
-
     return [_ellipses([o.ellipse for o in objs], f"{where}.ellipse"),
             _fixed([o.conic for o in objs], (3, 3), f"{where}.conic"),
             _floats([o.fit_residual_px for o in objs], f"{where}.fit_residual_px"),
@@ -195,7 +187,6 @@ def _isophotes(ests: list, include_points: bool, schema, where: str):
     """The ``isophotes`` column (a list of isophote structs per estimate) and the fit columns of
     each estimate's primary isophote (null where it has none), by name."""
     pa = arrow()[0]
-
     isos = [iso for e in ests for iso in e.isophotes]
     counts = np.array([len(e.isophotes) for e in ests], dtype=np.int32)
     offsets = np.concatenate([[0], np.cumsum(counts)]).astype(np.int32)
@@ -254,7 +245,6 @@ def estimates_batch(frame: int, source: str, ests, include_points: bool = False)
         schema has no column for.
     """
     pa = arrow()[0]
-
     ests = list(ests)
     n, schema = len(ests), table_schema()
     where = f"frame {source}"
@@ -321,7 +311,6 @@ def read_table(path):
         Naming the file: not readable as Parquet, or not written by simtest.
     """
     pa, pq = arrow()
-
     path = Path(path)
     try:
         with pq.ParquetFile(path) as f:

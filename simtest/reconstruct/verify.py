@@ -34,12 +34,11 @@ from types import SimpleNamespace
 import cv2
 import numpy as np
 
-from simtest.decisions import (
-    PALENESS_MAX, WHITE_CHROMA, WHITE_SHARE_MIN, SIGNIFICANCE_MIN, CONTRAST_MIN, PANEL_STD_REL, PANEL_MIN_AREA,
-    PANEL_FRACTION_MAX, NEIGHBOUR_REL, NEIGHBOUR_AREA_REL, VALLEY_REL, VALLEY_NOISE, NEIGHBOUR_REACH, OWN_RADIUS_PX,
-    SURROUND_REL, OWN_REL, SURROUND_FRACTION_MAX, RESIDUAL_MAX_REL, MINOR_AXIS_MIN_PX, QUANTISATION_SIGMA_LSB,
-    CONFIDENCE_COEFFICIENTS as COEFFICIENTS,
-)
+from simtest.decisions import (PALENESS_MAX, WHITE_CHROMA, WHITE_SHARE_MIN, SIGNIFICANCE_MIN, CONTRAST_MIN,
+                               PANEL_STD_REL, PANEL_MIN_AREA, PANEL_FRACTION_MAX, NEIGHBOUR_REL, NEIGHBOUR_AREA_REL,
+                               VALLEY_REL, VALLEY_NOISE, NEIGHBOUR_REACH, OWN_RADIUS_PX, SURROUND_REL, OWN_REL,
+                               SURROUND_FRACTION_MAX, RESIDUAL_MAX_REL, MINOR_AXIS_MIN_PX, QUANTISATION_SIGMA_LSB,
+                               CONFIDENCE_COEFFICIENTS as COEFFICIENTS)
 from simtest.geometry.response import srgb_inverse
 from simtest.reconstruct import evidence_pixels as px
 from simtest.reconstruct._pixels import uv_to_rc
@@ -49,10 +48,10 @@ from simtest.reconstruct.fit import fit_ellipses
 from simtest.reconstruct.jpeg import quantisation_sigma
 from simtest.reconstruct.rig_pairs import PAIR_TOL_PX, other_guide_curves, other_lobe_centres
 
-__all__ = ["bp_checks", "shared_passes", "PALENESS_MAX", "WHITE_CHROMA", "SIGNIFICANCE_MIN", "CONTRAST_MIN", "PANEL_STD_REL",
-           "PANEL_FRACTION_MAX", "NEIGHBOUR_REL", "OWN_RADIUS_PX", "SURROUND_REL", "OWN_REL",
-           "SURROUND_FRACTION_MAX", "RESIDUAL_MAX_REL", "MINOR_AXIS_MIN_PX",
-           "COEFFICIENTS", "Evidence", "frame_evidence", "assess", "confidence", "confidence_features", "verdict"]
+__all__ = ["bp_checks", "shared_passes", "PALENESS_MAX", "WHITE_CHROMA", "SIGNIFICANCE_MIN", "CONTRAST_MIN",
+           "PANEL_STD_REL", "PANEL_FRACTION_MAX", "NEIGHBOUR_REL", "OWN_RADIUS_PX", "SURROUND_REL", "OWN_REL",
+           "SURROUND_FRACTION_MAX", "RESIDUAL_MAX_REL", "MINOR_AXIS_MIN_PX", "COEFFICIENTS", "Evidence",
+           "frame_evidence", "assess", "confidence", "confidence_features", "verdict"]
 
 @dataclass(frozen=True)
 class Evidence:
@@ -263,9 +262,8 @@ def _top_of(g_at: np.ndarray, bg_at: np.ndarray) -> np.ndarray:
     return np.where((d >= 0) | np.isnan(d), d, np.float32(0.0)).astype(np.float32, copy=False)
 
 
-def frame_evidence(image: np.ndarray, gray: np.ndarray, bps_uv: np.ndarray, rois, *,
-                   full_scale: float, noise: float, background_px: int,
-                   reach_px: np.ndarray | None = None, ellipses=None, windowed: bool | None = None,
+def frame_evidence(image: np.ndarray, gray: np.ndarray, bps_uv: np.ndarray, rois, *, full_scale: float, noise: float,
+                   background_px: int, reach_px: np.ndarray | None = None, ellipses=None, windowed: bool | None = None,
                    grey: bool = False, panels: bool = True, expected=None, response=None) -> Evidence:
     """Measure every candidate of a frame.
 
@@ -642,9 +640,8 @@ def verdict(ev: Evidence, residual_rel: np.ndarray, bp_inside: np.ndarray, only=
             out[k] = ("not_specular", f"peak chroma {cpeak[k]:.2f} is {pal[k]:.2f} of the tissue's {ctissue[k]:.2f} "
                                       f"(> {PALENESS_MAX})")
         elif not clipped[k] and (sig[k] < SIGNIFICANCE_MIN or con[k] < CONTRAST_MIN):
-            out[k] = ("not_specular", f"height {height[k]:.3g} is {sig[k]:.1f} noise sigma and "
-                                      f"{con[k]:.2f} of the background (need {SIGNIFICANCE_MIN:g} "
-                                      f"and {CONTRAST_MIN:g})")
+            out[k] = ("not_specular", f"height {height[k]:.3g} is {sig[k]:.1f} noise sigma and {con[k]:.2f} of the "
+                                      f"background (need {SIGNIFICANCE_MIN:g} and {CONTRAST_MIN:g})")
         elif neighbours[k] > 0:
             out[k] = ("cluster", f"{neighbours[k]} other specular peak(s) in its region")
         elif surround[k] > SURROUND_FRACTION_MAX:
