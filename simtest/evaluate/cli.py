@@ -151,8 +151,7 @@ def detection_command(
                                  "every case's renders.", show_default=False),
     out: Path = typer.Option(..., "--out", "-o", show_default=False,
                              help="Output folder, new, empty or a previous run's (replaced as a whole): "
-                             "results.json, report.md, detection.png, reliability.png, "
-                             "precision_recall.png."),
+                             "results.json, report.md, detection.png, reliability.png, precision_recall.png."),
     seed: Optional[int] = typer.Option(None, "--seed", min=0, help="Render seed (a scene; default the scene's)."),  # noqa: UP045
     realisations: Optional[int] = typer.Option(  # noqa: UP045
         None, "--realisations", "-n", min=1, help="Renders per setting (a suite; default the suite's)."),
@@ -175,8 +174,7 @@ def detection_command(
             elif is_suite(source):
                 task = progress.add_task(f"rendering {source}", total=None)
                 frames = suite_frames(source, realisations=realisations,
-                                      progress=lambda done, total: progress.update(task, completed=done,
-                                                                                   total=total))
+                                      progress=lambda done, total: progress.update(task, completed=done, total=total))
             else:
                 frames = rendered_frames(source, seed=seed)
             progress.add_task(f"reconstructing {len(frames)} frame(s)", total=None)

@@ -155,8 +155,7 @@ def validate_command(
     out: Path = typer.Option(Path("reports"), "--out", "-o", help=OUT_HELP),
     realisations: Optional[int] = typer.Option(
         None, "--realisations", "-n", min=1,
-        help=f"Realisations per case (default: the suite's; at most "
-             f"{MAX_TOTAL_REALISATIONS:,} in all per run)."),
+        help=f"Realisations per case (default: the suite's; at most {MAX_TOTAL_REALISATIONS:,} in all per run)."),
     run_id: Optional[str] = typer.Option(None, "--run-id", help="Run folder name, one plain name "
                                          "(default: <UTC time>-local, git-ignored)."),
     progress: bool = typer.Option(True, "--progress/--no-progress", help="Show progress."),
@@ -164,8 +163,7 @@ def validate_command(
     estimator: Optional[list[str]] = typer.Option(  # noqa: UP045
         None, "--estimator", metavar="[NAME=]MODULE:FUNCTION",
         help="Also score your own method, function(frame, camera, rig, response) -> {'bp_px': "
-             "(N, 2), 'normal': (N, 3)}, beside the built-in estimators (repeatable; "
-             "importable in the workers)."),
+             "(N, 2), 'normal': (N, 3)}, beside the built-in estimators (repeatable; importable in the workers)."),
 ) -> None:
     """Run a validation suite and write its report.
 
@@ -236,10 +234,8 @@ def nightly_command(
                                               "... and store values, spreads and tolerances."),
     repeats: int = typer.Option(4, "--repeats", min=1, help="Seed-varied runs that measure the spread "
                                 "(with --update-baseline)."),
-    seed: Optional[int] = typer.Option(None, "--seed", min=0, help="Root seed of this run (default: the "
-                                       "suite's)."),
-    baseline: Optional[Path] = typer.Option(None, "--baseline", help="Baseline file (default: "
-                                            "reports/baseline.json)."),
+    seed: Optional[int] = typer.Option(None, "--seed", min=0, help="Root seed of this run (default: the suite's)."),
+    baseline: Optional[Path] = typer.Option(None, "--baseline", help="Baseline file (default: reports/baseline.json)."),
     history: Optional[Path] = typer.Option(None, "--history", help="History file, one JSON line per run "
                                            "(default: OUT/<suite>/history.jsonl)."),
     workers: Optional[int] = typer.Option(None, "--workers", "-j", min=0, show_default=False, help=WORKERS_HELP),

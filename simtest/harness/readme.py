@@ -119,8 +119,7 @@ def section_text(reports: str | Path | None = None, repo: str | Path | None = No
     if not runs:
         return "\n".join(L + ["No committed report yet: run `python -m simtest.harness.regenerate`.", "", END]) + "\n"
     L += ["| report | family | end to end: within 1 / 5 deg | median ok | false ok per frame "
-          "| given the highlight: recommended | bp_ray | other estimator with the lowest median |",
-          "|---" * 8 + "|"]
+          "| given the highlight: recommended | bp_ray | other estimator with the lowest median |", "|---" * 8 + "|"]
     dates = []
     for folder in runs:
         try:

@@ -329,8 +329,7 @@ def _resolve_rendered(scene_path: Path, params: Mapping, source: str, where: str
     if keys.radius_over_distance is not None:
         if spec.geometry.type not in ("sphere", "cylinder"):
             raise _err(source, f"{where}.radius_over_distance",
-                       f"needs a sphere or cylinder scene, got geometry.type = "
-                       f"{spec.geometry.type!r}")
+                       f"needs a sphere or cylinder scene, got geometry.type = {spec.geometry.type!r}")
         if keys.distance_mm is None:
             raise _err(source, f"{where}.distance_mm", "radius_over_distance needs distance_mm")
     if keys.texture != "scene" and spec.material.model != "tissue":
@@ -510,5 +509,4 @@ def _check_bound(n: int, source: str, where: str) -> None:
     """Refuse one case's realisations above :data:`MAX_TOTAL_REALISATIONS` before expanding."""
     if n > MAX_TOTAL_REALISATIONS:
         raise _err(source, where, f"{n:,} realisations exceed the maximum of "
-                   f"{MAX_TOTAL_REALISATIONS:,} per run (about 2 KB of results each are held "
-                   "until the report)")
+                   f"{MAX_TOTAL_REALISATIONS:,} per run (about 2 KB of results each are held until the report)")

@@ -20,8 +20,7 @@ from simtest.harness.report.results import SCHEMA, SCHEMA_VERSION, build_results
 REPORT_FILES = ("results.json", "results.csv", "report.md", "report.html", "figures/*.png")
 
 __all__ = ["SCHEMA", "SCHEMA_VERSION", "PAPER_CHECKS", "CLAIMS", "REPORT_FILES", "build_results", "write_report",
-           "write_report_files", "provenance", "evaluate_paper_claim", "evaluate_claims",
-           "make_run_id", "results_csv"]
+           "write_report_files", "provenance", "evaluate_paper_claim", "evaluate_claims", "make_run_id", "results_csv"]
 
 
 def write_report_files(results: dict, folder: str | Path, plots: bool = True,

@@ -176,8 +176,7 @@ def summary_markdown(results: dict) -> list[str]:
               "case far above its family)", ""]
         for x in expl:
             L.append(f"- {x['family']}, `{x['estimator']}` (median {fmt(x['median'])} deg): "
-                     + (x["text"] if x["text"] else "no rule of the report explains it; see the "
-                        "sweep details below"))
+                     + (x["text"] if x["text"] else "no rule of the report explains it; see the sweep details below"))
         L.append("")
     return L
 
@@ -298,8 +297,7 @@ def markdown_report(results: dict, figures: list[str], nightly: dict | None = No
             n = c["metrics"]["estimators"][ests[0]]["n"]
             ftxt = ", ".join(f"{k}: {v}" for k, v in sorted(fails.items())) or "0"
             L.append(f"| {c['x'] * sw['display_scale']:g} | "
-                     + " | ".join(cell(c["metrics"]["estimators"][e], show_fail=False)
-                                  for e in ests)
+                     + " | ".join(cell(c["metrics"]["estimators"][e], show_fail=False) for e in ests)
                      + f" | {ftxt} of {n} |")
         L.append("")
         diag = [cases[k]["metrics"].get("diagnostics", {}) for k in sw["cases"]]
@@ -350,5 +348,4 @@ def html_report(markdown: str, images: dict[str, bytes], title: str = "simtest r
                     ch.attrSet("src", f"data:image/png;base64,{b64}")
     body = md.renderer.render(tokens, md.options, {})
     return ("<!DOCTYPE html>\n<html><head><meta charset='utf-8'><title>"
-            f"{html.escape(title)}</title><style>{_CSS}</style></head><body>\n{body}"
-            "</body></html>\n")
+            f"{html.escape(title)}</title><style>{_CSS}</style></head><body>\n{body}</body></html>\n")

@@ -236,8 +236,7 @@ def _rho_cases(results: dict) -> list[dict]:
     cases = [first.setdefault(c["key"], c) for c in cs if c["key"] not in first]
     measured = any(np.isfinite(_val(c["metrics"]["diagnostics"], "eigenvalue_gap"))
                    or any(np.isfinite(_val(c["metrics"]["estimators"].get(e, {}), "mean"))
-                          for e in RHO_ESTIMATOR_MARKERS)
-                   for c in cases)
+                          for e in RHO_ESTIMATOR_MARKERS) for c in cases)
     return cases if measured else []
 
 
@@ -302,8 +301,7 @@ def _rho_figure(results: dict):
                   loc="upper left", fontsize=8, title="estimator", title_fontsize=8)
     fig.legend(*a1.get_legend_handles_labels(), loc="outside lower center", ncols=2 if len(fams) > 1 else 1, fontsize=8,
                title="rho = |1 + k2 d| / |1 + k1 d| (case means of k1 >= k2 at the BP): filled "
-                     "convex (k2 >= 0), half saddle (k1 > 0 > k2), hollow concave (k1 <= 0)",
-               title_fontsize=8)
+                     "convex (k2 >= 0), half saddle (k1 > 0 > k2), hollow concave (k1 <= 0)", title_fontsize=8)
     return fig
 
 
@@ -409,8 +407,7 @@ def _curves_takeaway(sw: dict, sc: list[dict], ests: list[str]) -> str:
     i_hi = int(np.nanargmax(drawn[high]))
     text = (f"{span}, {low} has the lowest median errors (middle value "
             f"{fmt(np.nanmedian(drawn[low]))} deg, {fmt(np.nanmin(drawn[low]))} to "
-            f"{fmt(np.nanmax(drawn[low]))} deg) and {high} the highest ({fmt(drawn[high][i_hi])}"
-            f" deg at {x[i_hi]:g})")
+            f"{fmt(np.nanmax(drawn[low]))} deg) and {high} the highest ({fmt(drawn[high][i_hi])} deg at {x[i_hi]:g})")
     if clear:
         top = max(clear, key=clear.get)
         text += (f"; {top} is lowest beyond the {100 * BEST_LEVEL:g} % interval at {clear[top]} of {len(sc)} settings")
@@ -464,8 +461,7 @@ def _rho_takeaway(results: dict) -> str:
         dev = np.abs(dev[np.isfinite(dev)])
         if dev.size:
             text += (f"; {e}'s mean error differs from the predicted circle-pose error by "
-                     f"{fmt(np.median(dev))} deg in the median (at most {fmt(dev.max())} deg, "
-                     f"{dev.size} cases)")
+                     f"{fmt(np.median(dev))} deg in the median (at most {fmt(dev.max())} deg, {dev.size} cases)")
     return text + "."
 
 

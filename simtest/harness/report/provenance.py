@@ -109,8 +109,7 @@ def open_parameters(suite) -> dict:
         out["normalisation"] = {"value": "smoothed intensity at the true BP pixel",
                                 "why": "the paper says 'intensity at the BP is 1'"}
         out["roi"] = {"value": "bounding box of the noiseless image above t_min / 2, + 10 px",
-                      "why": "the paper uses 'a given region of interest containing the "
-                             "specularity' without its size"}
+                      "why": "the paper uses 'a given region of interest containing the specularity' without its size"}
         out["joint_isovalues"] = {"value": vals("joint_isovalues"),
                                   "why": "beyond the paper: nested isovalues of the joint axis"}
         out["statistics"] = {"value": "std with ddof = 0; p95 by linear interpolation",

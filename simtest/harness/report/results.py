@@ -99,8 +99,7 @@ def _families(run, cases: list[dict]) -> dict:
     seen: set[tuple] = set()
     for r, d in zip(run.results, cases):
         f = fam.setdefault(d["family"], {"protocol": d["protocol"], "colocated": d["colocated"],
-                                         "cases": [], "_err": {}, "_cause": {}, "_fp": [],
-                                         "images": 0, "_e2e": []})
+                                         "cases": [], "_err": {}, "_cause": {}, "_fp": [], "images": 0, "_e2e": []})
         f["cases"].append(d["id"])
         key = (r.case.key, r.case.realisations)
         if key in seen:  # a setting shared by two sweeps is pooled once
