@@ -205,14 +205,12 @@ def evaluate_paper_claim(paper: dict, sweep_cases: list[dict]) -> list[dict]:
     KeyError
         If a check name is not in :data:`PAPER_CHECKS`.
     """
-    est = paper.get("estimator", "paper_oracle")
-    out = []
-    checks = paper.get("check")
-    values = paper.get("value")
+    est, checks, values = paper.get("estimator", "paper_oracle"), paper.get("check"), paper.get("value")
     if checks is None:
-        return out
+        return []
     if isinstance(checks, str):
         checks, values = [checks], [values]
+    out = []
     for chk, val in zip(checks, values):
         holds, ours = PAPER_CHECKS[chk](sweep_cases, est, val)
         out.append({"check": chk, "value": val, "estimator": est,

@@ -20,7 +20,7 @@ from simtest._dask import SchedulerError
 from simtest._exit import BAD_BASELINE, BAD_INPUT, CANNOT_WRITE, CHECK_FAILED, fail, safe_name, writable_dir
 from simtest._io import OutputFolderError
 from simtest._outdir import check_out_folder
-from simtest.harness.nightly import (CAPS, append_history, changes_table, check_section, compare,
+from simtest.harness.nightly import (CAPS, _listed, append_history, changes_table, check_section, compare,
                                      default_baseline_path, expected_metrics, gate_summary, history_line,
                                      load_baseline, metrics_of, noisy_headlines, read_history, uncovered,
                                      undetectable_doublings, update_baseline as write_baseline)
@@ -138,9 +138,8 @@ def _summary(results: dict, console) -> None:
         t.add_row(sw["name"], *(cells[sw["name"], e] for e in ests))
     if console.measure(t, options=console.options.update(max_width=10**4)).maximum > console.width:
         t = Table(title=title)
-        t.add_column("sweep", overflow="fold")
-        t.add_column("estimator", overflow="fold")
-        t.add_column("median error (deg)", justify="right", overflow="fold")
+        for col in ("sweep", "estimator", "median error (deg)"):
+            t.add_column(col, justify="right" if col.startswith("median") else "left", overflow="fold")
         for sw in results["sweeps"]:
             for k, e in enumerate(ests):
                 t.add_row(sw["name"] if k == 0 else "", e, cells[sw["name"], e], end_section=k == len(ests) - 1)
@@ -221,9 +220,8 @@ def _baseline_section(path: Path, s, quick: bool):
 def _covers(section: dict, names, where: str) -> None:
     miss = uncovered(section, names)
     if miss:
-        more = f" and {len(miss) - 8} more" if len(miss) > 8 else ""
-        fail(f"{where}: does not cover {len(miss)} metric(s) of this run: "
-             f"{', '.join(miss[:8])}{more} (rewrite it with --update-baseline)", BAD_BASELINE)
+        fail(f"{where}: does not cover {len(miss)} metric(s) of this run: {_listed(miss)} (rewrite it with "
+             "--update-baseline)", BAD_BASELINE)
 
 
 def nightly_command(

@@ -346,11 +346,9 @@ class RenderedRunner:
             if not getattr(h, "in_frame", True):
                 continue
             bp = np.asarray(h.bp_px, float)
-            best, dist = None, math.inf
-            for e, ebp in ok_bps:
-                d = float(np.linalg.norm(ebp - bp))
-                if d < dist:
-                    best, dist = e, d
+            # the nearest, first of equals: min scans from (None, inf) keeping what is not strictly beaten
+            best, dist = min([(None, math.inf)] + [(e, float(np.linalg.norm(ebp - bp))) for e, ebp in ok_bps],
+                             key=lambda p: p[1])
             if best is not None and dist > self.match_px:
                 best = None
             matched.append((h, best, dist))

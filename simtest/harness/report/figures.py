@@ -278,19 +278,15 @@ def _rho_figure(results: dict):
             (ln,) = a2.plot(pp, me, ls="none", color=f"C{i}", alpha=0.9, **RHO_ESTIMATOR_MARKERS[e])
             ln.set_gid(f"pose:{fam}:{e}")
     a1.plot([0, 1], [0, 1], "k--", lw=1, label="measured = predicted")
-    a1.set_xlim(-0.03, 1.03)
-    a1.set_ylim(-0.03, 1.03)
-    a1.set_xlabel("predicted eigenvalue gap 1 - rho^2 (dimensionless)")
-    a1.set_ylabel("measured eigenvalue gap of C' (dimensionless)")
-    a1.set_title("eigenvalue gap, case means", fontsize=9)
-    a1.grid(True, alpha=0.3)
     a2.plot([0, 90], [0, 90], "k--", lw=1)
-    a2.set_xlim(-3, 93)
-    a2.set_ylim(-3, 93)
-    a2.set_xlabel("predicted circle-pose error asin(sqrt(1 - rho^2)) (deg)")
-    a2.set_ylabel("measured mean error (deg)")
-    a2.set_title("circle pose, case means (colour: family)", fontsize=9)
-    a2.grid(True, alpha=0.3)
+    for ax, lim, xlabel, ylabel, title in (
+            (a1, (-0.03, 1.03), "predicted eigenvalue gap 1 - rho^2 (dimensionless)",
+             "measured eigenvalue gap of C' (dimensionless)", "eigenvalue gap, case means"),
+            (a2, (-3, 93), "predicted circle-pose error asin(sqrt(1 - rho^2)) (deg)", "measured mean error (deg)",
+             "circle pose, case means (colour: family)")):
+        ax.set(xlim=lim, ylim=lim, xlabel=xlabel, ylabel=ylabel)
+        ax.set_title(title, fontsize=9)
+        ax.grid(True, alpha=0.3)
     if ests:
         # n of the drawn points only (a case whose estimator never succeeded has no mean)
         n_ok = {e: [int(m.get("n_ok", 0) or 0) for c in cases for m in [c["metrics"]["estimators"].get(e, {})]
@@ -345,13 +341,11 @@ def trend_figure(history: list[dict]):
         ax.set_xticks(runs[::step], labels[::step])
         ax.tick_params(labelsize=7, axis="x", labelrotation=30)
         ax.set_xlabel("nightly run (UTC date)", fontsize=8)
-    handles, labs = [], []
+    first = {}  # each label once, with its first handle
     for ax in axes.ravel():
         for h, lab in zip(*ax.get_legend_handles_labels()):
-            if lab not in labs:
-                handles.append(h)
-                labs.append(lab)
-    fig.legend(handles, labs, loc="outside lower center", ncols=min(len(labs), 5) or 1, fontsize=8)
+            first.setdefault(lab, h)
+    fig.legend(list(first.values()), list(first), loc="outside lower center", ncols=min(len(first), 5) or 1, fontsize=8)
     fig.suptitle("Nightly trend: median error per scene family", fontsize=10)
     return fig
 
@@ -386,7 +380,6 @@ def _figure_plan(results: dict, history: list[dict] | None) -> list[tuple]:
     if history:
         plan.append(("nightly_trend.png", trend_figure, _trend_takeaway, (history,)))
     return plan
-
 
 
 def _curves_takeaway(sw: dict, sc: list[dict], ests: list[str]) -> str:
