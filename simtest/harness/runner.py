@@ -308,9 +308,8 @@ def run_suite(suite: Suite, *, workers: int | None = None, progress: bool = True
 
     def record(result: ChunkResult, bar):
         by_key[result.case_id].append(result)
-        done = len(result.items)
         el = time.perf_counter() - t0
-        prog.update(bar, advance=done)
+        prog.update(bar, advance=len(result.items))
         n = prog.tasks[0].completed
         prog.update(bar, rate=f"{n / el:6.1f} real./s" if el > 0 else "")
 
