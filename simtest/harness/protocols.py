@@ -386,10 +386,8 @@ class RenderedRunner:
             rows.append(_row(errs, extras))
         if not rows:
             errs = {k: (float("nan"), "no_highlight_in_frame") for k in self.estimators}
-            extras = {k: float("nan") for k in EXTRA_KEYS}
-            extras["false_positives"] = float(false_pos)
-            extras["saturated_px"] = saturated
-            rows.append(_row(errs, extras))
+            nans = {k: float("nan") for k in EXTRA_KEYS}
+            rows.append(_row(errs, nans | {"false_positives": float(false_pos), "saturated_px": saturated}))
         # what a user of `simtest render` + `simtest reconstruct` gets, per highlight (same order)
         for row, rec in zip(rows, frame_records(result, _depth_errors)):
             row.e2e = rec

@@ -152,9 +152,7 @@ def _curves(sw: dict, sc: list[dict], ests: list[str]):
         st = _series_style(k, len(ests))
         mfc = col if st["filled"] else "white"
         ms = [c["metrics"]["estimators"].get(e, {}) for c in sc]
-        med = np.array([_val(m, "median") for m in ms])
-        lo = np.array([_val(m, "p5") for m in ms])
-        hi = np.array([_val(m, "p95") for m in ms])
+        med, lo, hi = (np.array([_val(m, k) for m in ms]) for k in ("median", "p5", "p95"))
         n_ok = np.array([int(m.get("n_ok", 0) or 0) if m else 0 for m in ms])
         med_f, lo_f, hi_f = (np.maximum(v, FLOOR_DEG) for v in (med, lo, hi))
         ok = np.isfinite(med)
@@ -257,12 +255,9 @@ def _rho_figure(results: dict):
         mk = _FAMILY_MARKERS[i % len(_FAMILY_MARKERS)]
         fc = [c for c in cases if c.get("family") == fam]
         d = [c["metrics"]["diagnostics"] for c in fc]
-        k1 = np.array([_val(x, "k1_per_mm") for x in d])
-        k2 = np.array([_val(x, "k2_per_mm") for x in d])
+        k1, k2, pg, mg, pp = (np.array([_val(x, k) for x in d]) for k in
+                              ("k1_per_mm", "k2_per_mm", "predicted_gap", "eigenvalue_gap", "predicted_pose_deg"))
         kind = np.where(k2 >= 0, "convex", np.where(k1 > 0, "saddle", "concave"))
-        pg = np.array([_val(x, "predicted_gap") for x in d])
-        mg = np.array([_val(x, "eigenvalue_gap") for x in d])
-        pp = np.array([_val(x, "predicted_pose_deg") for x in d])
         samples = [int(c.get("samples") or c.get("realisations") or 0) for c in fc]
         for shape, fill, size in (("convex", "full", 7), ("saddle", "left", 8), ("concave", "none", 9)):
             sel = kind == shape
