@@ -82,9 +82,7 @@ def c3vd_command(
     try:
         camera_file = load_camera(intrinsics)
         camera = camera_file.model
-        frames = scan_sequence(seq_dir)
-        if max_frames:
-            frames = frames[:max_frames]
+        frames = scan_sequence(seq_dir)[:max_frames or None]  # --max-frames 0: all
         settings = ReconSettings.for_frames(isovalues=isovalue, normalise=normalise,
                                             smooth_sigma_px=smooth_sigma_px, detection=detection)
         rows: list[dict] = []
