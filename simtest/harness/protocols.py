@@ -303,8 +303,7 @@ class RenderedRunner:
         self.image_kind = case.scoring.image
         self.match_px = case.scoring.match_px
         self.scene_setting = case.scene_setting
-        spec = load_scene(case.scene)
-        self.spec = with_overrides(spec, case.scene_setting.scene_overrides(mesh_pose_overrides))
+        self.spec = with_overrides(load_scene(case.scene), case.scene_setting.scene_overrides(mesh_pose_overrides))
         self.estimators = tuple(estimators)
         self.external = dict(external)
         self.builtin = tuple(e for e in self.estimators if e not in self.external)
@@ -321,9 +320,7 @@ class RenderedRunner:
             dimensionless curvature.
         """
         over = realisation_overrides(self.scene_setting, seedseq)
-        seed = over["render.seed"]
-        spec = with_overrides(self.spec, over)
-        result = render_scene(spec, seed=seed)
+        result = render_scene(with_overrides(self.spec, over), seed=over["render.seed"])
         self.variant = getattr(result, "variant", None)
         if self.image_kind == "linear":
             image = getattr(result, "gray", None)
