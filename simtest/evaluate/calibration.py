@@ -40,8 +40,7 @@ def reliability(conf: np.ndarray, y: np.ndarray, bins=CONFIDENCE_BINS) -> list[d
     out = []
     for lo, hi in zip(bins[:-1], bins[1:]):
         m = (conf >= lo) & ((conf < hi) if hi < 1.0 else (conf <= hi))
-        out.append({"bin": [lo, hi], "n": int(m.sum()),
-                    "mean_confidence": float(conf[m].mean()) if m.any() else None,
+        out.append({"bin": [lo, hi], "n": int(m.sum()), "mean_confidence": float(conf[m].mean()) if m.any() else None,
                     "fraction_true": float(y[m].mean()) if m.any() else None})
     return out
 

@@ -82,9 +82,7 @@ def c3vd_command(
     try:
         camera_file = load_camera(intrinsics)
         camera = camera_file.model
-        frames = scan_sequence(seq_dir)
-        if max_frames:
-            frames = frames[:max_frames]
+        frames = scan_sequence(seq_dir)[:max_frames or None]  # --max-frames 0: all
         settings = ReconSettings.for_frames(isovalues=isovalue, normalise=normalise,
                                             smooth_sigma_px=smooth_sigma_px, detection=detection)
         rows: list[dict] = []
@@ -151,8 +149,7 @@ def detection_command(
                                  "every case's renders.", show_default=False),
     out: Path = typer.Option(..., "--out", "-o", show_default=False,
                              help="Output folder, new, empty or a previous run's (replaced as a whole): "
-                             "results.json, report.md, detection.png, reliability.png, "
-                             "precision_recall.png."),
+                             "results.json, report.md, detection.png, reliability.png, precision_recall.png."),
     seed: Optional[int] = typer.Option(None, "--seed", min=0, help="Render seed (a scene; default the scene's)."),  # noqa: UP045
     realisations: Optional[int] = typer.Option(  # noqa: UP045
         None, "--realisations", "-n", min=1, help="Renders per setting (a suite; default the suite's)."),
@@ -175,8 +172,7 @@ def detection_command(
             elif is_suite(source):
                 task = progress.add_task(f"rendering {source}", total=None)
                 frames = suite_frames(source, realisations=realisations,
-                                      progress=lambda done, total: progress.update(task, completed=done,
-                                                                                   total=total))
+                                      progress=lambda done, total: progress.update(task, completed=done, total=total))
             else:
                 frames = rendered_frames(source, seed=seed)
             progress.add_task(f"reconstructing {len(frames)} frame(s)", total=None)
@@ -190,20 +186,18 @@ def detection_command(
             results["groups"] = groups(results["frames"])
         text = json.dumps(results, indent=1, allow_nan=False) + "\n"
         md = _detection_markdown(results)
-        fig = detection_figure(frames, results)
-        png = figure_png(fig)
-        png_rel = figure_png(reliability_figure(results))
-        png_pr = figure_png(precision_recall_figure(results["precision_recall"],
-                                                    default=results.get("default_min_confidence")))
+        pngs = {"detection.png": figure_png(detection_figure(frames, results)),
+                "reliability.png": figure_png(reliability_figure(results)),
+                "precision_recall.png": figure_png(precision_recall_figure(
+                    results["precision_recall"], default=results.get("default_min_confidence")))}
     except (ValueError, OSError, ImportError) as exc:
         fail(exc, BAD_INPUT)
 
     def fill(folder: Path) -> None:
         (folder / "results.json").write_text(text, encoding="ascii")
         (folder / "report.md").write_text(md, encoding="utf-8")
-        (folder / "detection.png").write_bytes(png)
-        (folder / "reliability.png").write_bytes(png_rel)
-        (folder / "precision_recall.png").write_bytes(png_pr)
+        for name, png in pngs.items():
+            (folder / name).write_bytes(png)
 
     write_out_folder(out, target, fill, DETECTION_FILES)
     p = results["pooled"]
@@ -226,21 +220,20 @@ def _detection_markdown(results: dict) -> str:
          ""]
     head = ["| {} | targets | candidates | precision | recall | ok | ok precision | ok recall | ok F1 | "
             "not examined |", "|---|---|---|---|---|---|---|---|---|---|"]
+
+    def row(f: dict) -> str:
+        return (f"| {f['name']} | {f['targets']} | {f['candidates']} | {_fmt(f['precision_candidates'])} | "
+                f"{_fmt(f['recall_candidates'])} | {f['ok']} | {_fmt(f['precision_ok'])} | "
+                f"{_fmt(f['recall_ok'])} | {_fmt(f['f1_ok'])} | {f['not_examined']} |")
     if results.get("groups"):
         L += ["Pooled per sweep (its frames are named sweep@value#realisation below):", "",
               head[0].format("sweep"), head[1]]
         for g in results["groups"]:
-            f = [x for x in results["frames"] if x["name"].split("@", 1)[0] == g["name"]]
-            L.append(f"| {g['name']} ({g['frames']} frames) | {g['targets']} | {g['candidates']} | "
-                     f"{_fmt(g['precision_candidates'])} | {_fmt(g['recall_candidates'])} | {g['ok']} | "
-                     f"{_fmt(g['precision_ok'])} | {_fmt(g['recall_ok'])} | {_fmt(g['f1_ok'])} | "
-                     f"{sum(x['not_examined'] for x in f)} |")
+            n = sum(x["not_examined"] for x in results["frames"] if x["name"].split("@", 1)[0] == g["name"])
+            L.append(row(g | {"name": f"{g['name']} ({g['frames']} frames)", "not_examined": n}))
         L.append("")
     L += [head[0].format("frame"), head[1]]
-    for f in results["frames"] + [p | {"not_examined": sum(x["not_examined"] for x in results["frames"])}]:
-        L.append(f"| {f['name']} | {f['targets']} | {f['candidates']} | {_fmt(f['precision_candidates'])} | "
-                 f"{_fmt(f['recall_candidates'])} | {f['ok']} | {_fmt(f['precision_ok'])} | "
-                 f"{_fmt(f['recall_ok'])} | {_fmt(f['f1_ok'])} | {f['not_examined']} |")
+    L += [row(f) for f in results["frames"] + [p | {"not_examined": sum(x["not_examined"] for x in results["frames"])}]]
     agree = results.get("labeller_agreement")
     if agree:
         a, b, c = agree["pass2_vs_pass1"], agree["pass2_vs_resolved"], agree["pass1_vs_resolved"]

@@ -226,8 +226,7 @@ def score_frame(name: str, specularities: list[dict], structures: list[Structure
             sc.ok_tp += tp_ok
             sc.ok_on["isolated" if tp_ok else ("duplicate" if on == TARGET_KIND else on)] += 1
         rows.append({"bp_px": [float(v) for v in s["bp_px"]], "status": s["status"], "on": on,
-                     "tp": tp, "tp_ok": tp_ok, "tp_pass": tp_pass, "confidence": s.get("confidence"),
-                     "target": j})
+                     "tp": tp, "tp_ok": tp_ok, "tp_pass": tp_pass, "confidence": s.get("confidence"), "target": j})
     sc.targets_found, sc.targets_found_ok = len(found), len(found_ok)
     return sc, rows
 

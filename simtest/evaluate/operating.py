@@ -55,8 +55,7 @@ def precision_recall(confidence, tp_ok, targets: int, thresholds=THRESHOLDS, tar
     for c in thresholds:
         keep = conf >= c
         kept, hits, found = int(keep.sum()), int(tp[keep].sum()), len({ids[i] for i in np.flatnonzero(keep & tp)})
-        rows.append({"min_confidence": float(c), "kept": kept,
-                     "precision": hits / kept if kept else None,
+        rows.append({"min_confidence": float(c), "kept": kept, "precision": hits / kept if kept else None,
                      "recall": found / targets if targets else None})
     return rows
 
@@ -77,8 +76,7 @@ def precision_recall_figure(rows: list[dict], title: str = "fits that pass the c
     if marked:
         d = marked[0]
         ax.plot([d["recall"]], [d["precision"]], "*", color="#d62728", ms=14,
-                label=f"default (--min-confidence {default:g}): "
-                      f"P {d['precision']:.2f}, R {d['recall']:.2f}")
+                label=f"default (--min-confidence {default:g}): P {d['precision']:.2f}, R {d['recall']:.2f}")
     ax.set(xlim=(0, 1), ylim=(0, 1.02), xlabel="recall (labelled isolated highlights found ok)",
            ylabel="precision (ok estimates on one)", title=title)
     ax.legend(fontsize=8, loc="lower left")

@@ -23,8 +23,7 @@ from simtest.reconstruct.settings import ReconSettings
 from simtest.simulate.paper import PaperParams
 
 __all__ = ["ReconKeys", "RenderedKeys", "RECON_KEYS", "RENDERED_KEYS", "MESH_POSE_KEYS", "stable_hash",
-           "realisation_seed", "Scoring", "MeshPose", "SceneSetting", "harness_recon_settings", "Case",
-           "Sweep"]
+           "realisation_seed", "Scoring", "MeshPose", "SceneSetting", "harness_recon_settings", "Case", "Sweep"]
 
 #: A case's keys: frozen pydantic dataclasses, unknown keys refused.
 _model = functools.partial(pydantic_dataclass, frozen=True, config=CONFIG)
@@ -259,8 +258,7 @@ class Case:
     def to_dict(self) -> dict:
         """JSON-able dict of the case (without the absolute scene path)."""
         return {"id": self.id, "key": self.key, "sweep": self.sweep, "protocol": self.protocol,
-                "scene": self.scene_name, "params": self.params, "x": self.x,
-                "realisations": self.realisations}
+                "scene": self.scene_name, "params": self.params, "x": self.x, "realisations": self.realisations}
 
 
 @dataclass(frozen=True)

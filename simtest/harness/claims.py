@@ -166,8 +166,7 @@ def _chk_increasing(x, y, value):
 def _chk_spread_below(x, y, value):
     lo, hi = int(np.argmin(y)), int(np.argmax(y))
     return bool(y[hi] - y[lo] < value), (f"mean from {y[lo]:.3g} deg (x = {x[lo]:g}) to "
-                                         f"{y[hi]:.3g} deg (x = {x[hi]:g}): spread "
-                                         f"{y[hi] - y[lo]:.3g} deg")
+                                         f"{y[hi]:.3g} deg (x = {x[hi]:g}): spread {y[hi] - y[lo]:.3g} deg")
 
 
 #: Checks of a sweep against the paper's statement: name -> f(cases, estimator, value) ->
@@ -206,14 +205,12 @@ def evaluate_paper_claim(paper: dict, sweep_cases: list[dict]) -> list[dict]:
     KeyError
         If a check name is not in :data:`PAPER_CHECKS`.
     """
-    est = paper.get("estimator", "paper_oracle")
-    out = []
-    checks = paper.get("check")
-    values = paper.get("value")
+    est, checks, values = paper.get("estimator", "paper_oracle"), paper.get("check"), paper.get("value")
     if checks is None:
-        return out
+        return []
     if isinstance(checks, str):
         checks, values = [checks], [values]
+    out = []
     for chk, val in zip(checks, values):
         holds, ours = PAPER_CHECKS[chk](sweep_cases, est, val)
         out.append({"check": chk, "value": val, "estimator": est,
@@ -330,8 +327,7 @@ def _rho_claim(results, measured, predicted, bound, unit, what):
                    f"({worst['id']}: {measured(worst):.3g} vs {predicted(worst):.3g}{unit})")
     holds = (max(dev[c["id"]] for c in ana) <= bound) if ana else None
     return (holds, "; ".join(per),
-            f"curved co-located cases, {what}; verdict on the analytic quadrics, bound "
-            f"{bound:g}{unit}")
+            f"curved co-located cases, {what}; verdict on the analytic quadrics, bound {bound:g}{unit}")
 
 
 def _claim_rho_gap(results):
@@ -416,8 +412,7 @@ def _claim_curved_offset(results):
     if bad:
         text += ". Breaks on " + "; ".join(f"{c['id']} ({_stat(c, 'recommended'):.3g} deg: "
                                            f"{_why_curved(c)})" for c in bad)
-    return (not bad, text,
-            f"rendered curved cases lit off the camera at epsilon/d {CURVED_OFFSET_EPS} "
+    return (not bad, text, f"rendered curved cases lit off the camera at epsilon/d {CURVED_OFFSET_EPS} "
             f"(+-{_EPS_SLACK:g}, case means of eps_over_d), case medians; bound {bound:g} deg")
 
 
@@ -458,8 +453,7 @@ def _claim_flat_rig(results):
 
     bad = [c for c in cs if misses(c)]
     text = (f"within {bound:g} deg and {depth_bound:g} % in {len(cs) - len(bad)} of {len(cs)} cases "
-            f"(median +- its standard error, median depth error): "
-            + "; ".join(f"{c['id']} {shown(c)}" for c in cs))
+            f"(median +- its standard error, median depth error): " + "; ".join(f"{c['id']} {shown(c)}" for c in cs))
     if bad:
         text += ". Misses: " + ", ".join(c["id"] for c in bad)
     return (not bad, text, f"rendered planes under a light rig at epsilon/d {FLAT_RIG_EPS[0]:g} to "
@@ -516,8 +510,7 @@ def _claim_sigma_coverage(results):
     pooled = sum(share * n for _, share, n in cs) / stated
     worst = sorted((share, c["id"], n) for c, share, n in cs)[:3]
     text = (f"share within twice the sigma {pooled:.3g} over {stated} highlights with a stated sigma "
-            f"in {len(cs)} cases; lowest cases: "
-            + ", ".join(f"{cid} {share:.2g} of {n}" for share, cid, n in worst))
+            f"in {len(cs)} cases; lowest cases: " + ", ".join(f"{cid} {share:.2g} of {n}" for share, cid, n in worst))
     ds = _counted(rendered, "recommended_depth_within_2sigma")
     with_depth = sum(n for _, _, n in ds)
     if with_depth:  # the depths' own coverage, beside (not part of the verdict)
@@ -558,8 +551,7 @@ def _claim_halves_bp_ray(results):
     bad = [c for c in cs if _stat(c, "recommended") > 0.5 * _stat(c, "bp_ray")]
     text = (f"recommended median at most half the BP ray's in {len(cs) - len(bad)} of {len(cs)} cases: "
             + ", ".join(f"{c['id']} {_stat(c, 'recommended'):.3g} against {_stat(c, 'bp_ray'):.3g} deg "
-                        f"(relative depth sigma {_diag(c, 'cubic_patch_fit_depth_rel_sigma'):.2g})"
-                        for c in cs))
+                        f"(relative depth sigma {_diag(c, 'cubic_patch_fit_depth_rel_sigma'):.2g})" for c in cs))
     if bad:
         text += ". Breaks on " + "; ".join(f"{c['id']} ({_why_curved(c)})" for c in bad)
     return (not bad, text, f"rendered curved cases under a light rig at epsilon/d {CURVED_OFFSET_EPS} "
@@ -632,10 +624,8 @@ def evaluate_claims(results: dict) -> list[dict]:
     for sw in results["sweeps"]:
         for i, chk in enumerate(sw.get("comparison") or []):
             out.append({"id": f"{sw['name']}.{chk['check']}" + (f".{i}" if i else ""),
-                        "source": chk.get("source", "paper"),
-                        "claim": (sw.get("paper") or {}).get("claim", ""),
-                        "holds": chk["holds"],
-                        "measured": f"{chk['estimator']}: {chk['ours']}",
+                        "source": chk.get("source", "paper"), "claim": (sw.get("paper") or {}).get("claim", ""),
+                        "holds": chk["holds"], "measured": f"{chk['estimator']}: {chk['ours']}",
                         "scope": f"sweep {sw['name']}, check {chk['check']} {chk['value']}"})
     for cid, (text, fn) in CLAIMS.items():
         r = fn(results)
@@ -643,6 +633,5 @@ def evaluate_claims(results: dict) -> list[dict]:
             continue
         holds, measured, scope = r
         out.append({"id": cid, "source": "prediction", "claim": text,
-                    "holds": None if holds is None else bool(holds), "measured": measured,
-                    "scope": scope})
+                    "holds": None if holds is None else bool(holds), "measured": measured, "scope": scope})
     return out

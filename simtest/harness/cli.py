@@ -20,7 +20,7 @@ from simtest._dask import SchedulerError
 from simtest._exit import BAD_BASELINE, BAD_INPUT, CANNOT_WRITE, CHECK_FAILED, fail, safe_name, writable_dir
 from simtest._io import OutputFolderError
 from simtest._outdir import check_out_folder
-from simtest.harness.nightly import (CAPS, append_history, changes_table, check_section, compare,
+from simtest.harness.nightly import (CAPS, _listed, append_history, changes_table, check_section, compare,
                                      default_baseline_path, expected_metrics, gate_summary, history_line,
                                      load_baseline, metrics_of, noisy_headlines, read_history, uncovered,
                                      undetectable_doublings, update_baseline as write_baseline)
@@ -138,9 +138,8 @@ def _summary(results: dict, console) -> None:
         t.add_row(sw["name"], *(cells[sw["name"], e] for e in ests))
     if console.measure(t, options=console.options.update(max_width=10**4)).maximum > console.width:
         t = Table(title=title)
-        t.add_column("sweep", overflow="fold")
-        t.add_column("estimator", overflow="fold")
-        t.add_column("median error (deg)", justify="right", overflow="fold")
+        for col in ("sweep", "estimator", "median error (deg)"):
+            t.add_column(col, justify="right" if col.startswith("median") else "left", overflow="fold")
         for sw in results["sweeps"]:
             for k, e in enumerate(ests):
                 t.add_row(sw["name"] if k == 0 else "", e, cells[sw["name"], e], end_section=k == len(ests) - 1)
@@ -155,8 +154,7 @@ def validate_command(
     out: Path = typer.Option(Path("reports"), "--out", "-o", help=OUT_HELP),
     realisations: Optional[int] = typer.Option(
         None, "--realisations", "-n", min=1,
-        help=f"Realisations per case (default: the suite's; at most "
-             f"{MAX_TOTAL_REALISATIONS:,} in all per run)."),
+        help=f"Realisations per case (default: the suite's; at most {MAX_TOTAL_REALISATIONS:,} in all per run)."),
     run_id: Optional[str] = typer.Option(None, "--run-id", help="Run folder name, one plain name "
                                          "(default: <UTC time>-local, git-ignored)."),
     progress: bool = typer.Option(True, "--progress/--no-progress", help="Show progress."),
@@ -164,8 +162,7 @@ def validate_command(
     estimator: Optional[list[str]] = typer.Option(  # noqa: UP045
         None, "--estimator", metavar="[NAME=]MODULE:FUNCTION",
         help="Also score your own method, function(frame, camera, rig, response) -> {'bp_px': "
-             "(N, 2), 'normal': (N, 3)}, beside the built-in estimators (repeatable; "
-             "importable in the workers)."),
+             "(N, 2), 'normal': (N, 3)}, beside the built-in estimators (repeatable; importable in the workers)."),
 ) -> None:
     """Run a validation suite and write its report.
 
@@ -223,9 +220,8 @@ def _baseline_section(path: Path, s, quick: bool):
 def _covers(section: dict, names, where: str) -> None:
     miss = uncovered(section, names)
     if miss:
-        more = f" and {len(miss) - 8} more" if len(miss) > 8 else ""
-        fail(f"{where}: does not cover {len(miss)} metric(s) of this run: "
-             f"{', '.join(miss[:8])}{more} (rewrite it with --update-baseline)", BAD_BASELINE)
+        fail(f"{where}: does not cover {len(miss)} metric(s) of this run: {_listed(miss)} (rewrite it with "
+             "--update-baseline)", BAD_BASELINE)
 
 
 def nightly_command(
@@ -236,10 +232,8 @@ def nightly_command(
                                               "... and store values, spreads and tolerances."),
     repeats: int = typer.Option(4, "--repeats", min=1, help="Seed-varied runs that measure the spread "
                                 "(with --update-baseline)."),
-    seed: Optional[int] = typer.Option(None, "--seed", min=0, help="Root seed of this run (default: the "
-                                       "suite's)."),
-    baseline: Optional[Path] = typer.Option(None, "--baseline", help="Baseline file (default: "
-                                            "reports/baseline.json)."),
+    seed: Optional[int] = typer.Option(None, "--seed", min=0, help="Root seed of this run (default: the suite's)."),
+    baseline: Optional[Path] = typer.Option(None, "--baseline", help="Baseline file (default: reports/baseline.json)."),
     history: Optional[Path] = typer.Option(None, "--history", help="History file, one JSON line per run "
                                            "(default: OUT/<suite>/history.jsonl)."),
     workers: Optional[int] = typer.Option(None, "--workers", "-j", min=0, show_default=False, help=WORKERS_HELP),

@@ -128,12 +128,9 @@ def score_external(spec: str, frame, camera, rig, response, truths: Sequence, ma
     bp, normals = _table(load_external(spec)(frame, camera, rig, response), spec)
     out: list[tuple[float, str | None]] = []
     for t_bp, t_n in truths:
-        if len(bp) == 0:
-            out.append((math.nan, "not_detected"))
-            continue
         d = np.hypot(*(bp - np.asarray(t_bp, dtype=np.float64)).T)
-        i = int(np.argmin(d))
-        if not d[i] <= match_px:
+        i = int(np.argmin(d)) if len(bp) else None
+        if i is None or not d[i] <= match_px:
             out.append((math.nan, "not_detected"))
         elif not np.all(np.isfinite(normals[i])) or not np.any(normals[i]):
             out.append((math.nan, "no_normal"))

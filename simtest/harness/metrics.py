@@ -64,10 +64,7 @@ def summarise(errors, causes) -> dict:
     if len(causes) != e.size:
         raise ValueError(f"{e.size} errors but {len(causes)} causes")
     ok = np.isfinite(e)
-    fails = Counter()
-    for good, c in zip(ok, causes):
-        if not good:
-            fails[c if c else "nan_error"] += 1
+    fails = Counter(c if c else "nan_error" for good, c in zip(ok, causes) if not good)
     n, n_ok = int(e.size), int(ok.sum())
     out = {"n": n, "n_ok": n_ok, "failure_rate": (n - n_ok) / n if n else 0.0, "failures": dict(sorted(fails.items()))}
     if n_ok:

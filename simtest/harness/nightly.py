@@ -56,9 +56,9 @@ BASELINE_VERSION = 2
 CAPS = {"headline_deg": 0.4, "deg": 10.0, "rate": 0.1}
 POLICY = {"k_spread": 3.0, "rel_floor": 0.25, "abs_floor": {"deg": 1e-6, "rate": 0.02}, "cap": dict(CAPS)}
 
-#: Statistics gated: medians and failure rates (robust at a nightly's few realisations).
-_CASE_STATS = ("median", "failure_rate")
-_FAMILY_STATS = ("median", "failure_rate")
+#: Statistics gated, per case and per family: medians and failure rates (robust at a nightly's few
+#: realisations).
+_STATS = ("median", "failure_rate")
 
 
 def default_baseline_path() -> Path:
@@ -124,13 +124,13 @@ def metrics_of(results: dict) -> dict:
     out = {}
     for fam, f in results.get("families", {}).items():
         for e, m in f["estimators"].items():
-            for s in _FAMILY_STATS:
+            for s in _STATS:
                 out[f"family:{fam}:{e}:{s}"] = m.get(s)
         if f.get("false_positives_per_image") is not None:
             out[f"family:{fam}:*:false_positives_per_image"] = f["false_positives_per_image"]
     for c in results["cases"]:
         for e, m in c["metrics"]["estimators"].items():
-            for s in _CASE_STATS:
+            for s in _STATS:
                 out[f"case:{c['id']}:{e}:{s}"] = m.get(s)
     return out
 
@@ -289,10 +289,8 @@ def expected_metrics(suite) -> set[str]:
     for c in suite.cases:
         fam = case_family(c)[0]
         for e in suite.estimators:
-            for st in _CASE_STATS:
-                out.add(f"case:{c.id}:{e}:{st}")
-            for st in _FAMILY_STATS:
-                out.add(f"family:{fam}:{e}:{st}")
+            for st in _STATS:
+                out.update((f"case:{c.id}:{e}:{st}", f"family:{fam}:{e}:{st}"))
     return out
 
 
@@ -437,11 +435,8 @@ def append_history(path: str | Path, line: dict) -> Path:
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     with open(path, "a", encoding="utf-8") as fh:
-        fcntl.flock(fh, fcntl.LOCK_EX)
-        try:
-            fh.write(json.dumps(line, sort_keys=True, allow_nan=False) + "\n")
-        finally:
-            fcntl.flock(fh, fcntl.LOCK_UN)
+        fcntl.flock(fh, fcntl.LOCK_EX)  # released when the file closes, after the line is flushed
+        fh.write(json.dumps(line, sort_keys=True, allow_nan=False) + "\n")
     return path
 
 

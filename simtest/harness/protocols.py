@@ -303,8 +303,7 @@ class RenderedRunner:
         self.image_kind = case.scoring.image
         self.match_px = case.scoring.match_px
         self.scene_setting = case.scene_setting
-        spec = load_scene(case.scene)
-        self.spec = with_overrides(spec, case.scene_setting.scene_overrides(mesh_pose_overrides))
+        self.spec = with_overrides(load_scene(case.scene), case.scene_setting.scene_overrides(mesh_pose_overrides))
         self.estimators = tuple(estimators)
         self.external = dict(external)
         self.builtin = tuple(e for e in self.estimators if e not in self.external)
@@ -321,9 +320,7 @@ class RenderedRunner:
             dimensionless curvature.
         """
         over = realisation_overrides(self.scene_setting, seedseq)
-        seed = over["render.seed"]
-        spec = with_overrides(self.spec, over)
-        result = render_scene(spec, seed=seed)
+        result = render_scene(with_overrides(self.spec, over), seed=over["render.seed"])
         self.variant = getattr(result, "variant", None)
         if self.image_kind == "linear":
             image = getattr(result, "gray", None)
@@ -346,11 +343,9 @@ class RenderedRunner:
             if not getattr(h, "in_frame", True):
                 continue
             bp = np.asarray(h.bp_px, float)
-            best, dist = None, math.inf
-            for e, ebp in ok_bps:
-                d = float(np.linalg.norm(ebp - bp))
-                if d < dist:
-                    best, dist = e, d
+            # the nearest, first of equals: min scans from (None, inf) keeping what is not strictly beaten
+            best, dist = min([(None, math.inf)] + [(e, float(np.linalg.norm(ebp - bp))) for e, ebp in ok_bps],
+                             key=lambda p: p[1])
             if best is not None and dist > self.match_px:
                 best = None
             matched.append((h, best, dist))
@@ -388,10 +383,8 @@ class RenderedRunner:
             rows.append(_row(errs, extras))
         if not rows:
             errs = {k: (float("nan"), "no_highlight_in_frame") for k in self.estimators}
-            extras = {k: float("nan") for k in EXTRA_KEYS}
-            extras["false_positives"] = float(false_pos)
-            extras["saturated_px"] = saturated
-            rows.append(_row(errs, extras))
+            nans = {k: float("nan") for k in EXTRA_KEYS}
+            rows.append(_row(errs, nans | {"false_positives": float(false_pos), "saturated_px": saturated}))
         # what a user of `simtest render` + `simtest reconstruct` gets, per highlight (same order)
         for row, rec in zip(rows, frame_records(result, _depth_errors)):
             row.e2e = rec

@@ -119,17 +119,14 @@ def section_text(reports: str | Path | None = None, repo: str | Path | None = No
     if not runs:
         return "\n".join(L + ["No committed report yet: run `python -m simtest.harness.regenerate`.", "", END]) + "\n"
     L += ["| report | family | end to end: within 1 / 5 deg | median ok | false ok per frame "
-          "| given the highlight: recommended | bp_ray | other estimator with the lowest median |",
-          "|---" * 8 + "|"]
-    dates = []
+          "| given the highlight: recommended | bp_ray | other estimator with the lowest median |", "|---" * 8 + "|"]
     for folder in runs:
         try:
             rel = folder.resolve().relative_to(repo.resolve()).as_posix()
         except ValueError:
             rel = folder.as_posix()
         L += _rows(folder, rel)
-        dates.append(f"`{rel}`")
-    L += ["", f"From the {len(dates)} committed runs linked in the rows (`reports/<suite>/<run>/`). Seeds: tuning "
+    L += ["", f"From the {len(runs)} committed runs linked in the rows (`reports/<suite>/<run>/`). Seeds: tuning "
           "or held out (`simtest/decisions.py`).",
           "End to end: `simtest render`, then `simtest reconstruct frame.png --intrinsics camera.json` "
           "with its defaults, per true highlight: the share whose recommended normal errs at most 1 / 5 "

@@ -176,13 +176,15 @@ def run_case_chunk(case: Case, estimators: tuple, root_seed: int, start: int, st
     t0 = time.perf_counter()
     messages: list[str] = []
     out = []
+
+    def chunk(items, variant) -> ChunkResult:
+        return ChunkResult((case.key, case.realisations), items, time.perf_counter() - t0, variant, messages)
     try:
         runner = _get_runner(case, estimators, external)
     except Exception as e:  # noqa: BLE001 - counted per realisation, never dropped
         messages.append(f"set-up: {type(e).__name__}: {e}")
         rows = _exception_rows(estimators, e)
-        return ChunkResult((case.key, case.realisations), [(i, rows) for i in range(start, stop)],
-                           time.perf_counter() - t0, None, messages)
+        return chunk([(i, rows) for i in range(start, stop)], None)
     many = getattr(runner, "run_many", None)
     if many is not None:  # the chunk's reconstructions batched: the same rows, bit for bit
         try:
@@ -190,8 +192,7 @@ def run_case_chunk(case: Case, estimators: tuple, root_seed: int, start: int, st
         except Exception:  # noqa: BLE001 - run one by one below, to tell which realisation
             batch = None
         if batch is not None:
-            return ChunkResult((case.key, case.realisations), list(zip(range(start, stop), batch)),
-                               time.perf_counter() - t0, getattr(runner, "variant", None), messages)
+            return chunk(list(zip(range(start, stop), batch)), getattr(runner, "variant", None))
     for i in range(start, stop):
         try:
             rows = runner.run(realisation_seed(root_seed, case.key, i))
@@ -202,8 +203,7 @@ def run_case_chunk(case: Case, estimators: tuple, root_seed: int, start: int, st
                                 f"({os.path.basename(tb.filename)}:{tb.lineno})")
             rows = _exception_rows(estimators, e)
         out.append((i, rows))
-    return ChunkResult((case.key, case.realisations), out, time.perf_counter() - t0,
-                       getattr(runner, "variant", None), messages)
+    return chunk(out, getattr(runner, "variant", None))
 
 
 def _worker_init() -> None:
@@ -308,9 +308,8 @@ def run_suite(suite: Suite, *, workers: int | None = None, progress: bool = True
 
     def record(result: ChunkResult, bar):
         by_key[result.case_id].append(result)
-        done = len(result.items)
         el = time.perf_counter() - t0
-        prog.update(bar, advance=done)
+        prog.update(bar, advance=len(result.items))
         n = prog.tasks[0].completed
         prog.update(bar, rate=f"{n / el:6.1f} real./s" if el > 0 else "")
 

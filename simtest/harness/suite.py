@@ -329,8 +329,7 @@ def _resolve_rendered(scene_path: Path, params: Mapping, source: str, where: str
     if keys.radius_over_distance is not None:
         if spec.geometry.type not in ("sphere", "cylinder"):
             raise _err(source, f"{where}.radius_over_distance",
-                       f"needs a sphere or cylinder scene, got geometry.type = "
-                       f"{spec.geometry.type!r}")
+                       f"needs a sphere or cylinder scene, got geometry.type = {spec.geometry.type!r}")
         if keys.distance_mm is None:
             raise _err(source, f"{where}.distance_mm", "radius_over_distance needs distance_mm")
     if keys.texture != "scene" and spec.material.model != "tissue":
@@ -406,8 +405,6 @@ def suite_from_dict(raw: Mapping[str, Any], source: str = "<dict>", sha256: str 
     name = head.name if head.name is not None else (Path(source).stem if source not in ("<dict>", "") else "suite")
     if not name or any(c in name for c in "/\\ "):
         raise _err(source, "suite.name", f"expected a name without spaces or slashes, got {name!r}")
-    protocol, realisations, seed, estimators = head.protocol, head.realisations, head.seed, head.estimators
-    base = doc.base
     if head.scene is not None:
         _resolve_scene(head.scene, source, "suite.scene")
 
@@ -421,8 +418,8 @@ def suite_from_dict(raw: Mapping[str, Any], source: str = "<dict>", sha256: str 
         if sname in seen:
             raise _err(source, f"{where}.name", "duplicate sweep name")
         seen.add(sname)
-        sproto = sw.protocol or protocol
-        sreal = sw.realisations if sw.realisations is not None else realisations
+        sproto = sw.protocol or head.protocol
+        sreal = sw.realisations if sw.realisations is not None else head.realisations
         _check_bound(sreal, source, f"{where}.realisations" if "realisations" in raw_sw else "suite.realisations")
         scene_path, scene_name = None, None
         if sproto == "rendered":
@@ -432,7 +429,6 @@ def suite_from_dict(raw: Mapping[str, Any], source: str = "<dict>", sha256: str 
             scene_path = _resolve_scene(scene_name, source, f"{where}.scene")
         elif sw.scene is not None:
             raise _err(source, f"{where}.scene", "only rendered sweeps take a scene")
-        fixed = sw.set
         # settings: (x, overrides, where)
         if sw.cases is not None:
             if sw.parameter is not None or sw.values is not None:
@@ -457,7 +453,7 @@ def suite_from_dict(raw: Mapping[str, Any], source: str = "<dict>", sha256: str 
             raise _err(source, f"{where}.values" if parameter != "case" else f"{where}.cases",
                        "duplicate values (each setting of a sweep needs its own x)")
         for x, over, cwhere in settings:
-            merged = {**base, **fixed, **over}
+            merged = {**doc.base, **sw.set, **over}
             if sproto == "paper":
                 params = _resolve_paper(merged, source, cwhere)
             else:
@@ -470,8 +466,8 @@ def suite_from_dict(raw: Mapping[str, Any], source: str = "<dict>", sha256: str 
         sweeps.append(Sweep(name=sname, protocol=sproto, parameter=parameter, label=label,
                             display_scale=float(sw.display_scale), cases=tuple(cases), paper=paper,
                             description=sw.description))
-    suite = Suite(name=name, description=head.description, source=source, seed=seed,
-                  realisations=realisations, estimators=tuple(estimators), sweeps=tuple(sweeps),
+    suite = Suite(name=name, description=head.description, source=source, seed=head.seed,
+                  realisations=head.realisations, estimators=tuple(head.estimators), sweeps=tuple(sweeps),
                   sha256=sha256, raw=copy.deepcopy(dict(raw)))
     total = suite.total_realisations
     if total > MAX_TOTAL_REALISATIONS:
@@ -510,5 +506,4 @@ def _check_bound(n: int, source: str, where: str) -> None:
     """Refuse one case's realisations above :data:`MAX_TOTAL_REALISATIONS` before expanding."""
     if n > MAX_TOTAL_REALISATIONS:
         raise _err(source, where, f"{n:,} realisations exceed the maximum of "
-                   f"{MAX_TOTAL_REALISATIONS:,} per run (about 2 KB of results each are held "
-                   "until the report)")
+                   f"{MAX_TOTAL_REALISATIONS:,} per run (about 2 KB of results each are held until the report)")

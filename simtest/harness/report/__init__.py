@@ -20,8 +20,7 @@ from simtest.harness.report.results import SCHEMA, SCHEMA_VERSION, build_results
 REPORT_FILES = ("results.json", "results.csv", "report.md", "report.html", "figures/*.png")
 
 __all__ = ["SCHEMA", "SCHEMA_VERSION", "PAPER_CHECKS", "CLAIMS", "REPORT_FILES", "build_results", "write_report",
-           "write_report_files", "provenance", "evaluate_paper_claim", "evaluate_claims",
-           "make_run_id", "results_csv"]
+           "write_report_files", "provenance", "evaluate_paper_claim", "evaluate_claims", "make_run_id", "results_csv"]
 
 
 def write_report_files(results: dict, folder: str | Path, plots: bool = True,
@@ -53,10 +52,7 @@ def write_report_files(results: dict, folder: str | Path, plots: bool = True,
     """
     folder = Path(folder)
     # the figures and the text first (nothing written yet if one of them fails)
-    pngs = {}
-    if plots:
-        for name, fig in make_figures(results, history).items():
-            pngs[name] = figure_png(fig)
+    pngs = {name: figure_png(fig) for name, fig in make_figures(results, history).items()} if plots else {}
     md = markdown_report(results, sorted(pngs), nightly=nightly, history=history)
     html = html_report(md, pngs, title=f"simtest report: {results['suite']['name']}")
 
@@ -74,9 +70,8 @@ def write_report_files(results: dict, folder: str | Path, plots: bool = True,
     return folder
 
 
-def write_report(run, out_dir: str | Path = "reports", run_id: str | None = None,
-                 plots: bool = True, nightly: dict | None = None,
-                 history: list[dict] | None = None) -> Path:
+def write_report(run, out_dir: str | Path = "reports", run_id: str | None = None, plots: bool = True,
+                 nightly: dict | None = None, history: list[dict] | None = None) -> Path:
     """Write the report set of a run to ``<out_dir>/<suite name>/<run id>/`` and return that folder.
 
     ``run_id`` defaults to :func:`make_run_id` (``<UTC time>-local``); ``plots``, ``nightly`` and

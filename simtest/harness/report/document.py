@@ -94,6 +94,8 @@ def cell(m: dict | None, show_fail: bool = True) -> str:
 
 
 _VERDICT = {True: "holds", False: "**does not hold**", None: "undecided"}
+#: A summary cell as :func:`simtest.harness.claims.best_marks` marks it.
+_MARKED = {"best": "**{}** (best)", "tie": "{} (tie)"}
 
 #: How the summary marks the lowest median (:func:`simtest.harness.claims.best_marks`).
 BEST_RULE = (f"A row's lowest median is in bold, marked (best), only where it is below every "
@@ -147,14 +149,7 @@ def summary_markdown(results: dict) -> list[str]:
               "|---" * (len(ests) + 3) + "|"]
         for name, f in fams.items():
             marks = best_marks({e: f["estimators"].get(e) for e in ests})
-            cells = []
-            for e in ests:
-                c = cell(f["estimators"].get(e))
-                if marks.get(e) == "best":
-                    c = f"**{c}** (best)"
-                elif marks.get(e) == "tie":
-                    c = f"{c} (tie)"
-                cells.append(c)
+            cells = [_MARKED.get(marks.get(e), "{}").format(cell(f["estimators"].get(e))) for e in ests]
             fp = ("n/a" if f.get("false_positives") is None else
                   f"{f['false_positives']} ({fmt(f['false_positives_per_image'])} per image)")
             col = "" if f.get("colocated") else " (light not at the camera)"
@@ -166,19 +161,15 @@ def summary_markdown(results: dict) -> list[str]:
               "Each claim is checked on this run's results (the paper's figure-3 statements, and "
               "predictions of ours from the geometry of a co-located light).", "",
               "| claim | source | verdict | measured | scope |", "|---|---|---|---|---|"]
-        for c in claims:
-            L.append(f"| {esc(c['claim'])} | {c['source']} | {_VERDICT[c['holds']]} | "
-                     f"{esc(c['measured'])} | {esc(c['scope'])} |")
-        L.append("")
+        L += [f"| {esc(c['claim'])} | {c['source']} | {_VERDICT[c['holds']]} | {esc(c['measured'])} | "
+              f"{esc(c['scope'])} |" for c in claims] + [""]
     expl = explanations(results)
     if expl:
         L += [f"### Why some rows are alarming (family median above {ALARM_DEG:g} deg, or a "
               "case far above its family)", ""]
-        for x in expl:
-            L.append(f"- {x['family']}, `{x['estimator']}` (median {fmt(x['median'])} deg): "
-                     + (x["text"] if x["text"] else "no rule of the report explains it; see the "
-                        "sweep details below"))
-        L.append("")
+        L += [f"- {x['family']}, `{x['estimator']}` (median {fmt(x['median'])} deg): "
+              + (x["text"] if x["text"] else "no rule of the report explains it; see the sweep details below")
+              for x in expl] + [""]
     return L
 
 
@@ -276,19 +267,15 @@ def markdown_report(results: dict, figures: list[str], nightly: dict | None = No
               "size. Points on the dashed line agree with the prediction.", ""]
         L += _figure("curvature_rho.png", notes)
     if results.get("open_parameters"):
-        L += ["## Parameters the paper leaves open (our choices)", ""]
-        for k, v in results["open_parameters"].items():
-            L.append(f"- `{k}` = {json.dumps(v['value'])}: {v['why']}")
-        L.append("")
+        L += ["## Parameters the paper leaves open (our choices)", ""] + [
+            f"- `{k}` = {json.dumps(v['value'])}: {v['why']}" for k, v in results["open_parameters"].items()] + [""]
     ests = s["estimators"]
     for sw in results["sweeps"]:
         L += [f"## Sweep `{sw['name']}` ({sw['protocol']}): {sw['label']}", ""]
         if sw.get("description"):
             L += [sw["description"], ""]
-        L.append("Median error (deg) [p5, p95] (n successes); failures by cause.")
-        L.append("")
-        L.append(f"| {esc(sw['label'])} | " + " | ".join(ests) + " | failures |")
-        L.append("|---" * (len(ests) + 2) + "|")
+        L += ["Median error (deg) [p5, p95] (n successes); failures by cause.", "",
+              f"| {esc(sw['label'])} | " + " | ".join(ests) + " | failures |", "|---" * (len(ests) + 2) + "|"]
         for key in sw["cases"]:
             c = cases[key]
             fails: dict[str, int] = {}
@@ -298,8 +285,7 @@ def markdown_report(results: dict, figures: list[str], nightly: dict | None = No
             n = c["metrics"]["estimators"][ests[0]]["n"]
             ftxt = ", ".join(f"{k}: {v}" for k, v in sorted(fails.items())) or "0"
             L.append(f"| {c['x'] * sw['display_scale']:g} | "
-                     + " | ".join(cell(c["metrics"]["estimators"][e], show_fail=False)
-                                  for e in ests)
+                     + " | ".join(cell(c["metrics"]["estimators"][e], show_fail=False) for e in ests)
                      + f" | {ftxt} of {n} |")
         L.append("")
         diag = [cases[k]["metrics"].get("diagnostics", {}) for k in sw["cases"]]
@@ -307,11 +293,9 @@ def markdown_report(results: dict, figures: list[str], nightly: dict | None = No
         keys += sorted({k for d in diag for k, v in d.items() if v is not None and k not in keys and k not in
                         ("r_k1", "r_k2", "anisotropy")})
         if keys:
-            L.append("Diagnostics (means over the scored highlights): "
-                     + "; ".join(f"`{k}`: {_diag_text(k)}" for k in keys) + ".")
-            L.append("")
-            L.append(f"| {esc(sw['label'])} | " + " | ".join(keys) + " |")
-            L.append("|---" * (len(keys) + 1) + "|")
+            L += ["Diagnostics (means over the scored highlights): "
+                  + "; ".join(f"`{k}`: {_diag_text(k)}" for k in keys) + ".", "",
+                  f"| {esc(sw['label'])} | " + " | ".join(keys) + " |", "|---" * (len(keys) + 1) + "|"]
             for key, d in zip(sw["cases"], diag):
                 L.append(f"| {cases[key]['x'] * sw['display_scale']:g} | "
                          + " | ".join(fmt(d.get(k)) for k in keys) + " |")
@@ -321,8 +305,7 @@ def markdown_report(results: dict, figures: list[str], nightly: dict | None = No
                 L += _figure(f, notes)
         exc = [(cases[k]["x"], e) for k in sw["cases"] for e in cases[k]["exceptions"]]
         if exc:
-            L += ["Exceptions (first of each case):", ""] + [f"- x = {x:g}: `{e}`" for x, e in exc]
-            L.append("")
+            L += ["Exceptions (first of each case):", ""] + [f"- x = {x:g}: `{e}`" for x, e in exc] + [""]
     return "\n".join(L) + "\n"
 
 
@@ -350,5 +333,4 @@ def html_report(markdown: str, images: dict[str, bytes], title: str = "simtest r
                     ch.attrSet("src", f"data:image/png;base64,{b64}")
     body = md.renderer.render(tokens, md.options, {})
     return ("<!DOCTYPE html>\n<html><head><meta charset='utf-8'><title>"
-            f"{html.escape(title)}</title><style>{_CSS}</style></head><body>\n{body}"
-            "</body></html>\n")
+            f"{html.escape(title)}</title><style>{_CSS}</style></head><body>\n{body}</body></html>\n")

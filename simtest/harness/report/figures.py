@@ -152,9 +152,7 @@ def _curves(sw: dict, sc: list[dict], ests: list[str]):
         st = _series_style(k, len(ests))
         mfc = col if st["filled"] else "white"
         ms = [c["metrics"]["estimators"].get(e, {}) for c in sc]
-        med = np.array([_val(m, "median") for m in ms])
-        lo = np.array([_val(m, "p5") for m in ms])
-        hi = np.array([_val(m, "p95") for m in ms])
+        med, lo, hi = (np.array([_val(m, k) for m in ms]) for k in ("median", "p5", "p95"))
         n_ok = np.array([int(m.get("n_ok", 0) or 0) if m else 0 for m in ms])
         med_f, lo_f, hi_f = (np.maximum(v, FLOOR_DEG) for v in (med, lo, hi))
         ok = np.isfinite(med)
@@ -236,8 +234,7 @@ def _rho_cases(results: dict) -> list[dict]:
     cases = [first.setdefault(c["key"], c) for c in cs if c["key"] not in first]
     measured = any(np.isfinite(_val(c["metrics"]["diagnostics"], "eigenvalue_gap"))
                    or any(np.isfinite(_val(c["metrics"]["estimators"].get(e, {}), "mean"))
-                          for e in RHO_ESTIMATOR_MARKERS)
-                   for c in cases)
+                          for e in RHO_ESTIMATOR_MARKERS) for c in cases)
     return cases if measured else []
 
 
@@ -258,12 +255,9 @@ def _rho_figure(results: dict):
         mk = _FAMILY_MARKERS[i % len(_FAMILY_MARKERS)]
         fc = [c for c in cases if c.get("family") == fam]
         d = [c["metrics"]["diagnostics"] for c in fc]
-        k1 = np.array([_val(x, "k1_per_mm") for x in d])
-        k2 = np.array([_val(x, "k2_per_mm") for x in d])
+        k1, k2, pg, mg, pp = (np.array([_val(x, k) for x in d]) for k in
+                              ("k1_per_mm", "k2_per_mm", "predicted_gap", "eigenvalue_gap", "predicted_pose_deg"))
         kind = np.where(k2 >= 0, "convex", np.where(k1 > 0, "saddle", "concave"))
-        pg = np.array([_val(x, "predicted_gap") for x in d])
-        mg = np.array([_val(x, "eigenvalue_gap") for x in d])
-        pp = np.array([_val(x, "predicted_pose_deg") for x in d])
         samples = [int(c.get("samples") or c.get("realisations") or 0) for c in fc]
         for shape, fill, size in (("convex", "full", 7), ("saddle", "left", 8), ("concave", "none", 9)):
             sel = kind == shape
@@ -279,19 +273,15 @@ def _rho_figure(results: dict):
             (ln,) = a2.plot(pp, me, ls="none", color=f"C{i}", alpha=0.9, **RHO_ESTIMATOR_MARKERS[e])
             ln.set_gid(f"pose:{fam}:{e}")
     a1.plot([0, 1], [0, 1], "k--", lw=1, label="measured = predicted")
-    a1.set_xlim(-0.03, 1.03)
-    a1.set_ylim(-0.03, 1.03)
-    a1.set_xlabel("predicted eigenvalue gap 1 - rho^2 (dimensionless)")
-    a1.set_ylabel("measured eigenvalue gap of C' (dimensionless)")
-    a1.set_title("eigenvalue gap, case means", fontsize=9)
-    a1.grid(True, alpha=0.3)
     a2.plot([0, 90], [0, 90], "k--", lw=1)
-    a2.set_xlim(-3, 93)
-    a2.set_ylim(-3, 93)
-    a2.set_xlabel("predicted circle-pose error asin(sqrt(1 - rho^2)) (deg)")
-    a2.set_ylabel("measured mean error (deg)")
-    a2.set_title("circle pose, case means (colour: family)", fontsize=9)
-    a2.grid(True, alpha=0.3)
+    for ax, lim, xlabel, ylabel, title in (
+            (a1, (-0.03, 1.03), "predicted eigenvalue gap 1 - rho^2 (dimensionless)",
+             "measured eigenvalue gap of C' (dimensionless)", "eigenvalue gap, case means"),
+            (a2, (-3, 93), "predicted circle-pose error asin(sqrt(1 - rho^2)) (deg)", "measured mean error (deg)",
+             "circle pose, case means (colour: family)")):
+        ax.set(xlim=lim, ylim=lim, xlabel=xlabel, ylabel=ylabel)
+        ax.set_title(title, fontsize=9)
+        ax.grid(True, alpha=0.3)
     if ests:
         # n of the drawn points only (a case whose estimator never succeeded has no mean)
         n_ok = {e: [int(m.get("n_ok", 0) or 0) for c in cases for m in [c["metrics"]["estimators"].get(e, {})]
@@ -302,8 +292,7 @@ def _rho_figure(results: dict):
                   loc="upper left", fontsize=8, title="estimator", title_fontsize=8)
     fig.legend(*a1.get_legend_handles_labels(), loc="outside lower center", ncols=2 if len(fams) > 1 else 1, fontsize=8,
                title="rho = |1 + k2 d| / |1 + k1 d| (case means of k1 >= k2 at the BP): filled "
-                     "convex (k2 >= 0), half saddle (k1 > 0 > k2), hollow concave (k1 <= 0)",
-               title_fontsize=8)
+                     "convex (k2 >= 0), half saddle (k1 > 0 > k2), hollow concave (k1 <= 0)", title_fontsize=8)
     return fig
 
 
@@ -347,13 +336,11 @@ def trend_figure(history: list[dict]):
         ax.set_xticks(runs[::step], labels[::step])
         ax.tick_params(labelsize=7, axis="x", labelrotation=30)
         ax.set_xlabel("nightly run (UTC date)", fontsize=8)
-    handles, labs = [], []
+    first = {}  # each label once, with its first handle
     for ax in axes.ravel():
         for h, lab in zip(*ax.get_legend_handles_labels()):
-            if lab not in labs:
-                handles.append(h)
-                labs.append(lab)
-    fig.legend(handles, labs, loc="outside lower center", ncols=min(len(labs), 5) or 1, fontsize=8)
+            first.setdefault(lab, h)
+    fig.legend(list(first.values()), list(first), loc="outside lower center", ncols=min(len(first), 5) or 1, fontsize=8)
     fig.suptitle("Nightly trend: median error per scene family", fontsize=10)
     return fig
 
@@ -390,7 +377,6 @@ def _figure_plan(results: dict, history: list[dict] | None) -> list[tuple]:
     return plan
 
 
-
 def _curves_takeaway(sw: dict, sc: list[dict], ests: list[str]) -> str:
     x = _sweep_x(sw, sc)
     order = np.argsort(x, kind="stable")
@@ -409,8 +395,7 @@ def _curves_takeaway(sw: dict, sc: list[dict], ests: list[str]) -> str:
     i_hi = int(np.nanargmax(drawn[high]))
     text = (f"{span}, {low} has the lowest median errors (middle value "
             f"{fmt(np.nanmedian(drawn[low]))} deg, {fmt(np.nanmin(drawn[low]))} to "
-            f"{fmt(np.nanmax(drawn[low]))} deg) and {high} the highest ({fmt(drawn[high][i_hi])}"
-            f" deg at {x[i_hi]:g})")
+            f"{fmt(np.nanmax(drawn[low]))} deg) and {high} the highest ({fmt(drawn[high][i_hi])} deg at {x[i_hi]:g})")
     if clear:
         top = max(clear, key=clear.get)
         text += (f"; {top} is lowest beyond the {100 * BEST_LEVEL:g} % interval at {clear[top]} of {len(sc)} settings")
@@ -464,8 +449,7 @@ def _rho_takeaway(results: dict) -> str:
         dev = np.abs(dev[np.isfinite(dev)])
         if dev.size:
             text += (f"; {e}'s mean error differs from the predicted circle-pose error by "
-                     f"{fmt(np.median(dev))} deg in the median (at most {fmt(dev.max())} deg, "
-                     f"{dev.size} cases)")
+                     f"{fmt(np.median(dev))} deg in the median (at most {fmt(dev.max())} deg, {dev.size} cases)")
     return text + "."
 
 

@@ -22,9 +22,8 @@ _ROOT = data_root()
 
 
 def _git(*args) -> str | None:
-    root = _ROOT
     try:
-        r = subprocess.run(["git", *args], cwd=root, capture_output=True, text=True, timeout=10)
+        r = subprocess.run(["git", *args], cwd=_ROOT, capture_output=True, text=True, timeout=10)
     except (OSError, subprocess.SubprocessError):
         return None
     return r.stdout.strip() if r.returncode == 0 else None
@@ -57,27 +56,19 @@ def provenance(run) -> dict:
     rates = {}
     for proto, n in run.realisations_by_protocol.items():
         cpu = run.cpu_s_by_protocol.get(proto, 0.0)
-        rates[proto] = {
-            "realisations": n,
-            "cpu_s": round(cpu, 3),
-            # per worker-second x workers: the rate this protocol runs at with this many workers
-            "per_s": round(n / cpu * run.workers, 3) if cpu > 0 else None,
-        }
+        # per_s: per worker-second x workers, the rate this protocol runs at with this many workers
+        rates[proto] = {"realisations": n, "cpu_s": round(cpu, 3),
+                        "per_s": round(n / cpu * run.workers, 3) if cpu > 0 else None}
     return {
         "git_commit": _git("rev-parse", "HEAD"),
         "git_dirty": None if dirty is None else bool(dirty),
         # tracked files modified against that commit (the code that ran is HEAD plus these)
         "git_dirty_files": None if dirty is None else sorted(
             ln.split(None, 1)[1] for ln in dirty.splitlines() if len(ln.split(None, 1)) == 2),
-        "packages": _versions(),
-        "mitsuba_variants": run.variants,
-        "python": platform.python_version(),
+        "packages": _versions(), "mitsuba_variants": run.variants, "python": platform.python_version(),
         "machine": {"node": platform.node(), "platform": platform.platform(),
-                    "processor": platform.processor() or platform.machine(),
-                    "cpu_count": os.cpu_count()},
-        "workers": run.workers,
-        "started_utc": run.started_utc,
-        "wall_time_s": round(run.wall_s, 3),
+                    "processor": platform.processor() or platform.machine(), "cpu_count": os.cpu_count()},
+        "workers": run.workers, "started_utc": run.started_utc, "wall_time_s": round(run.wall_s, 3),
         "realisations_per_s": rates,
     }
 
@@ -109,8 +100,7 @@ def open_parameters(suite) -> dict:
         out["normalisation"] = {"value": "smoothed intensity at the true BP pixel",
                                 "why": "the paper says 'intensity at the BP is 1'"}
         out["roi"] = {"value": "bounding box of the noiseless image above t_min / 2, + 10 px",
-                      "why": "the paper uses 'a given region of interest containing the "
-                             "specularity' without its size"}
+                      "why": "the paper uses 'a given region of interest containing the specularity' without its size"}
         out["joint_isovalues"] = {"value": vals("joint_isovalues"),
                                   "why": "beyond the paper: nested isovalues of the joint axis"}
         out["statistics"] = {"value": "std with ddof = 0; p95 by linear interpolation",

@@ -99,8 +99,7 @@ def _families(run, cases: list[dict]) -> dict:
     seen: set[tuple] = set()
     for r, d in zip(run.results, cases):
         f = fam.setdefault(d["family"], {"protocol": d["protocol"], "colocated": d["colocated"],
-                                         "cases": [], "_err": {}, "_cause": {}, "_fp": [],
-                                         "images": 0, "_e2e": []})
+                                         "cases": [], "_err": {}, "_cause": {}, "_fp": [], "images": 0, "_e2e": []})
         f["cases"].append(d["id"])
         key = (r.case.key, r.case.realisations)
         if key in seen:  # a setting shared by two sweeps is pooled once
@@ -122,8 +121,7 @@ def _families(run, cases: list[dict]) -> dict:
             # None where the protocol does not detect (the paper protocol knows its BP)
             "false_positives": int(fp.sum()) if fp.size else None,
             "false_positives_per_image": float(fp.mean()) if fp.size else None,
-            "estimators": {e: summarise(np.concatenate(v), f["_cause"][e])
-                           for e, v in f["_err"].items()},
+            "estimators": {e: summarise(np.concatenate(v), f["_cause"][e]) for e, v in f["_err"].items()},
         }
     return out
 
@@ -146,28 +144,20 @@ def build_results(run, run_id: str) -> dict:
     sweeps = []
     for sw in suite.sweeps:
         sc = [c for c in cases if c["sweep"] == sw.name]
-        entry = {"name": sw.name, "protocol": sw.protocol, "parameter": sw.parameter,
-                 "label": sw.label, "display_scale": sw.display_scale,
-                 "description": sw.description,
+        entry = {"name": sw.name, "protocol": sw.protocol, "parameter": sw.parameter, "label": sw.label,
+                 "display_scale": sw.display_scale, "description": sw.description,
                  "cases": [c["id"] for c in sc], "paper": sw.paper, "comparison": []}
         if sw.paper:
             entry["comparison"] = evaluate_paper_claim(sw.paper, sc)
         sweeps.append(entry)
     doc = {
-        "schema": SCHEMA,
-        "schema_version": SCHEMA_VERSION,
-        "run_id": run_id,
+        "schema": SCHEMA, "schema_version": SCHEMA_VERSION, "run_id": run_id,
         "created_utc": _dt.datetime.now(_dt.timezone.utc).strftime("%Y-%m-%dT%H:%M:%SZ"),
-        "suite": {"name": suite.name, "description": suite.description,
-                  "source": relative_to_repo(suite.source), "sha256": suite.sha256,
-                  "seed": suite.seed, "realisations": suite.realisations,
+        "suite": {"name": suite.name, "description": suite.description, "source": relative_to_repo(suite.source),
+                  "sha256": suite.sha256, "seed": suite.seed, "realisations": suite.realisations,
                   "estimators": list(suite.estimators)},
-        "seeding": SEEDING,
-        "estimators": {k: describe(k) for k in suite.estimators},
-        "provenance": provenance(run),
-        "open_parameters": open_parameters(suite),
-        "families": _families(run, cases),
-        "sweeps": sweeps,
+        "seeding": SEEDING, "estimators": {k: describe(k) for k in suite.estimators}, "provenance": provenance(run),
+        "open_parameters": open_parameters(suite), "families": _families(run, cases), "sweeps": sweeps,
         "cases": cases,
     }
     doc["claims"] = evaluate_claims(doc)
